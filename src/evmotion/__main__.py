@@ -1,0 +1,5 @@
+import sys
+
+from evmotion.cli import main
+
+sys.exit(main())

@@ -1,0 +1,377 @@
+"""The event container and windowing.
+
+An :class:`EventArray` holds events as named, contiguous columns:
+
+* ``x``, ``y`` -- pixel column and row (uint16 on the sensor grid, float32 after
+  undistortion), origin top-left;
+* ``t`` -- int64 microseconds, absolute (file offsets already applied);
+* ``p`` -- polarity stored as uint8 0/1; :attr:`EventArray.polarity` gives -1/+1.
+
+plus the sensor size ``(height, width)``. Timestamps are sorted (non-decreasing); the
+constructor checks this and the sensor bounds unless ``validate=False``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from evmotion.errors import EmptyWindowError, EventDataError
+
+__all__ = [
+    "EventArray",
+    "Window",
+    "concatenate",
+]
+
+TONIC_DTYPE = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
+
+
+@dataclass(frozen=True)
+class Window:
+    """A half-open time interval ``[t0, t1)`` in microseconds with its index range.
+
+    Attributes
+    ----------
+    index : int
+        Position of the window in its sequence.
+    t0, t1 : int
+        Start (inclusive) and end (exclusive) time in microseconds.
+    start, stop : int
+        Event index range ``[start, stop)`` in the parent array.
+    """
+
+    index: int
+    t0: int
+    t1: int
+    start: int
+    stop: int
+
+    @property
+    def duration_s(self) -> float:
+        return (self.t1 - self.t0) * 1e-6
+
+    @property
+    def count(self) -> int:
+        return self.stop - self.start
+
+
+@dataclass(eq=False)
+class EventArray:
+    """Events from one sensor, as named columns sorted by time.
+
+    Parameters
+    ----------
+    x, y : array_like
+        Pixel column and row. Integer input is stored as uint16; float input (e.g.
+        undistorted coordinates) as float32.
+    t : array_like
+        Timestamps in microseconds (int64, absolute, non-decreasing).
+    p : array_like
+        Polarity, 0/1 or -1/+1 (stored as 0/1 uint8).
+    sensor_size : (int, int)
+        ``(height, width)`` in pixels.
+    validate : bool
+        Check sortedness, lengths and bounds (default True).
+    meta : dict
+        Free-form metadata (source file, calibration...).
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[1, 2], y=[0, 3], t=[10, 20], p=[1, 0], sensor_size=(4, 4))
+    >>> len(ev), ev.duration_us
+    (2, 10)
+    >>> ev.polarity.tolist()
+    [1.0, -1.0]
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    t: np.ndarray
+    p: np.ndarray
+    sensor_size: tuple[int, int]
+    validate: bool = field(default=True, repr=False)
+    meta: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        self.x = _coord(self.x, "x")
+        self.y = _coord(self.y, "y")
+        self.t = np.ascontiguousarray(self.t, dtype=np.int64)
+        p = np.asarray(self.p)
+        if p.dtype != np.uint8:
+            p = (p > 0).astype(np.uint8)
+        self.p = np.ascontiguousarray(p)
+        h, w = (int(v) for v in self.sensor_size)
+        self.sensor_size = (h, w)
+        n = self.t.shape[0]
+        for name in ("x", "y", "p"):
+            if getattr(self, name).shape != (n,):
+                raise EventDataError(
+                    f"field '{name}' has shape {getattr(self, name).shape}, expected ({n},) like 't'"
+                )
+        if h <= 0 or w <= 0:
+            raise EventDataError(f"sensor_size must be positive (height, width), got {(h, w)}")
+        if self.validate:
+            self.check()
+
+    def check(self) -> None:
+        """Raise :class:`EventDataError` if timestamps are unsorted or coordinates off-sensor."""
+        if len(self) == 0:
+            return
+        dt = np.diff(self.t)
+        if dt.size and dt.min() < 0:
+            i = int(np.argmax(dt < 0))
+            raise EventDataError(
+                f"timestamps are not sorted: t[{i}]={self.t[i]} > t[{i + 1}]={self.t[i + 1]} us "
+                "(sort with EventArray.sorted() or fix the source)"
+            )
+        h, w = self.sensor_size
+        for name, lim in (("x", w), ("y", h)):
+            a = getattr(self, name)
+            lo, hi = a.min(), a.max()
+            if not (np.isfinite(lo) and np.isfinite(hi)):
+                raise EventDataError(f"field '{name}' contains NaN or inf")
+            if lo < 0 or hi > lim - 1:
+                bad = int(np.argmax((a < 0) | (a > lim - 1)))
+                raise EventDataError(
+                    f"event {bad} has {name}={a[bad]} outside the sensor "
+                    f"(sensor_size (height, width) = {self.sensor_size})"
+                )
+
+    # ------------------------------------------------------------------ basics
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def height(self) -> int:
+        return self.sensor_size[0]
+
+    @property
+    def width(self) -> int:
+        return self.sensor_size[1]
+
+    @property
+    def duration_us(self) -> int:
+        return int(self.t[-1] - self.t[0]) if len(self) else 0
+
+    @property
+    def t_start(self) -> int:
+        if not len(self):
+            raise EmptyWindowError("no events: the start time is undefined")
+        return int(self.t[0])
+
+    @property
+    def t_end(self) -> int:
+        """Last timestamp (inclusive), in microseconds."""
+        if not len(self):
+            raise EmptyWindowError("no events: the end time is undefined")
+        return int(self.t[-1])
+
+    @property
+    def polarity(self) -> np.ndarray:
+        """Polarity as float32 -1/+1."""
+        return self.p.astype(np.float32) * 2.0 - 1.0
+
+    @property
+    def xf(self) -> np.ndarray:
+        """x as contiguous float64 (for computation)."""
+        return self.x.astype(np.float64)
+
+    @property
+    def yf(self) -> np.ndarray:
+        """y as contiguous float64 (for computation)."""
+        return self.y.astype(np.float64)
+
+    def t_seconds(self, t_ref: int | None = None) -> np.ndarray:
+        """Time relative to ``t_ref`` (default: the first event) in seconds, float64."""
+        if t_ref is None:
+            t_ref = self.t_start
+        return (self.t - np.int64(t_ref)).astype(np.float64) * 1e-6
+
+    def t_normalized(self) -> np.ndarray:
+        """Time mapped linearly to [0, 1] over the window (as in thesis eq. 3.7)."""
+        if not len(self):
+            raise EmptyWindowError("cannot normalize the time of an empty window")
+        span = max(self.duration_us, 1)
+        return (self.t - self.t[0]).astype(np.float64) / span
+
+    def copy(self) -> EventArray:
+        return EventArray(
+            self.x.copy(), self.y.copy(), self.t.copy(), self.p.copy(),
+            self.sensor_size, validate=False, meta=dict(self.meta),
+        )
+
+    def _take(self, key) -> EventArray:
+        return EventArray(
+            self.x[key], self.y[key], self.t[key], self.p[key],
+            self.sensor_size, validate=False, meta=self.meta,
+        )
+
+    def __getitem__(self, key) -> EventArray:
+        """Index by slice, integer array or boolean mask; returns an EventArray."""
+        if isinstance(key, (int, np.integer)):
+            key = slice(int(key), int(key) + 1 if int(key) != -1 else None)
+        if isinstance(key, slice) and key.step not in (None, 1):
+            raise EventDataError("slices with a step would break nothing but are rarely meant; "
+                                 "use an index array")
+        if not isinstance(key, slice):
+            key = np.asarray(key)
+            if key.dtype != bool:
+                key = np.sort(key)
+        return self._take(key)
+
+    def sorted(self) -> EventArray:
+        """Return a copy sorted by time (stable)."""
+        order = np.argsort(self.t, kind="stable")
+        out = self._take(order)
+        out.check()
+        return out
+
+    # ----------------------------------------------------------------- slicing
+    def index_at(self, t_us: int | np.ndarray) -> int | np.ndarray:
+        """Index of the first event with ``t >= t_us`` (binary search)."""
+        return np.searchsorted(self.t, t_us, side="left")
+
+    def slice_time(self, t0: int | None = None, t1: int | None = None) -> EventArray:
+        """Events with ``t0 <= t < t1`` (microseconds; None means open)."""
+        i0 = 0 if t0 is None else int(self.index_at(t0))
+        i1 = len(self) if t1 is None else int(self.index_at(t1))
+        return self._take(slice(i0, max(i0, i1)))
+
+    def window(self, w: Window) -> EventArray:
+        return self._take(slice(w.start, w.stop))
+
+    # ----------------------------------------------------------------- windows
+    def windows_by_duration(self, duration_us: int, *, t0: int | None = None,
+                            t1: int | None = None, drop_empty: bool = False,
+                            ) -> list[Window]:
+        """Consecutive windows of ``duration_us`` microseconds covering ``[t0, t1)``."""
+        if duration_us <= 0:
+            raise EventDataError(f"window duration must be > 0 us, got {duration_us}")
+        if not len(self):
+            return []
+        t0 = self.t_start if t0 is None else int(t0)
+        t1 = self.t_end + 1 if t1 is None else int(t1)
+        edges = np.arange(t0, t1 + duration_us - 1, duration_us, dtype=np.int64)
+        if edges[-1] < t1:
+            edges = np.append(edges, edges[-1] + duration_us)
+        return self._windows_from_edges(edges[:-1], edges[1:], drop_empty)
+
+    def windows_by_count(self, n_events: int, *, drop_last_partial: bool = False,
+                         ) -> list[Window]:
+        """Consecutive windows of ``n_events`` events each (the last may be shorter)."""
+        if n_events <= 0:
+            raise EventDataError(f"events per window must be > 0, got {n_events}")
+        n = len(self)
+        out = []
+        for k, s in enumerate(range(0, n, n_events)):
+            e = min(s + n_events, n)
+            if drop_last_partial and e - s < n_events:
+                break
+            t1 = int(self.t[e]) if e < n else int(self.t[e - 1]) + 1
+            out.append(Window(k, int(self.t[s]), t1, s, e))
+        return out
+
+    def windows_at(self, timestamps_us: Sequence[int] | np.ndarray, *, dt: int = 1,
+                   drop_empty: bool = False) -> list[Window]:
+        """Windows between external timestamps, e.g. ground-truth frame times.
+
+        Window ``k`` spans ``[ts[k], ts[k + dt])``, as in the MVSEC protocol where
+        ``dt = 1`` or ``dt = 4`` frames; windows are spaced by ``dt`` frames.
+        """
+        ts = np.asarray(timestamps_us, dtype=np.int64)
+        if dt < 1:
+            raise EventDataError(f"dt must be >= 1 frame, got {dt}")
+        if ts.ndim != 1 or ts.size < dt + 1:
+            raise EventDataError(f"need at least {dt + 1} timestamps for dt={dt}, got {ts.size}")
+        if np.any(np.diff(ts) < 0):
+            raise EventDataError("external timestamps are not sorted")
+        starts = ts[:-dt:dt]
+        ends = ts[dt::dt]
+        return self._windows_from_edges(starts, ends[: starts.size], drop_empty)
+
+    def _windows_from_edges(self, starts: np.ndarray, ends: np.ndarray, drop_empty: bool,
+                            ) -> list[Window]:
+        i0 = np.searchsorted(self.t, starts, side="left")
+        i1 = np.searchsorted(self.t, ends, side="left")
+        out = []
+        for a, b, s, e in zip(starts, ends, i0, i1, strict=True):
+            if drop_empty and e <= s:
+                continue
+            out.append(Window(len(out), int(a), int(b), int(s), int(e)))
+        return out
+
+    def iter_windows(self, windows: Sequence[Window]) -> Iterator[tuple[Window, EventArray]]:
+        for w in windows:
+            yield w, self.window(w)
+
+    # ------------------------------------------------------------ conversions
+    def to_structured(self, dtype: np.dtype | None = None) -> np.ndarray:
+        """Tonic-style structured array with fields ``x, y, t, p`` (p as 0/1)."""
+        dtype = TONIC_DTYPE if dtype is None else np.dtype(dtype)
+        out = np.empty(len(self), dtype=dtype)
+        out["x"], out["y"], out["t"], out["p"] = self.x, self.y, self.t, self.p
+        return out
+
+    @classmethod
+    def from_structured(cls, arr: np.ndarray, sensor_size: tuple[int, int],
+                        *, time_unit_us: float = 1.0, validate: bool = True) -> EventArray:
+        """Build from a structured array with fields ``x, y, t, p`` (tonic, Prophesee).
+
+        ``time_unit_us`` converts the ``t`` field to microseconds (1 for µs, 1e6 for s).
+        """
+        names = arr.dtype.names or ()
+        missing = [f for f in "xytp" if f not in names]
+        if missing:
+            raise EventDataError(f"structured array lacks field(s) {missing}; has {names}")
+        t = arr["t"]
+        if time_unit_us != 1.0:
+            t = np.round(t.astype(np.float64) * time_unit_us)
+        return cls(arr["x"], arr["y"], t, arr["p"], sensor_size, validate=validate)
+
+    def as_dict(self) -> dict[str, np.ndarray]:
+        return {"x": self.x, "y": self.y, "t": self.t, "p": self.p}
+
+    def summary(self) -> dict:
+        """Counts, time range, rate and polarity balance as plain Python values."""
+        n = len(self)
+        d = {
+            "sensor_size": {"height": self.height, "width": self.width},
+            "events": n,
+        }
+        if n:
+            dur = self.duration_us
+            d.update(
+                t_start_us=self.t_start,
+                t_end_us=self.t_end,
+                duration_s=dur * 1e-6,
+                rate_ev_per_s=(n / (dur * 1e-6)) if dur > 0 else None,
+                positive_fraction=float(self.p.mean()),
+            )
+        return d
+
+
+def _coord(a, name: str) -> np.ndarray:
+    a = np.asarray(a)
+    if a.dtype.kind == "f":
+        return np.ascontiguousarray(a, dtype=np.float32)
+    if a.dtype.kind not in "iub":
+        raise EventDataError(f"field '{name}' must be numeric, got dtype {a.dtype}")
+    if a.size and a.dtype != np.uint16 and (a.min() < 0 or a.max() > 65535):
+        bad = int(np.argmax((a < 0) | (a > 65535)))
+        raise EventDataError(f"event {bad} has {name}={a[bad]}, outside 0..65535")
+    return np.ascontiguousarray(a, dtype=np.uint16)
+
+
+def concatenate(arrays: Sequence[EventArray], *, validate: bool = True) -> EventArray:
+    """Join event arrays of the same sensor, in the given (time) order."""
+    if not arrays:
+        raise EmptyWindowError("nothing to concatenate")
+    sizes = {a.sensor_size for a in arrays}
+    if len(sizes) != 1:
+        raise EventDataError(f"cannot concatenate events of different sensor sizes {sizes}")
+    cat = {k: np.concatenate([getattr(a, k) for a in arrays]) for k in "xytp"}
+    return EventArray(**cat, sensor_size=arrays[0].sensor_size, validate=validate,
+                      meta=dict(arrays[0].meta))

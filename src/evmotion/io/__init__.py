@@ -1,0 +1,1 @@
+"""Reading and writing events, frames, IMU and flow in every common format."""

@@ -1,0 +1,45 @@
+"""The interface every format module implements.
+
+Each module in :mod:`evmotion.io` that handles a file format defines a module-level
+``FORMAT = FormatSpec(...)``; :mod:`evmotion.io.registry` finds them by name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from evmotion.events import EventArray
+
+
+@dataclass(frozen=True)
+class FormatSpec:
+    """How to detect, read, stream and write one format.
+
+    Attributes
+    ----------
+    name : str
+        Short name used on the CLI (``--format``) and in ``info`` output, e.g. ``"evt3"``.
+    extensions : tuple of str
+        Lower-case file suffixes (with dot), or ``()`` for folder layouts.
+    sniff : callable(path, head) -> bool
+        True when the file (``head`` = its first 4096 bytes, ``b""`` for a folder)
+        is of this format. Detection is by content; extensions only break ties.
+    read : callable(path, **kw) -> EventArray
+        Whole file (``t0``/``t1`` in µs may restrict it).
+    iter_chunks : callable(path, chunk_events, **kw) -> Iterator[EventArray] or None
+        Streaming in bounded memory.
+    write : callable(path, events, **kw) -> None or None
+        Atomic writer, if the format is writable.
+    describe : callable(path) -> dict or None
+        What else the file holds (frames, IMU, ground truth, calibration...).
+    """
+
+    name: str
+    extensions: tuple[str, ...]
+    sniff: Callable[[Path, bytes], bool]
+    read: Callable[..., EventArray]
+    iter_chunks: Callable[..., Iterator[EventArray]] | None = None
+    write: Callable[..., None] | None = None
+    describe: Callable[[Path], dict] | None = None

@@ -1,0 +1,70 @@
+"""Format registry: detection by content, dispatch to readers and writers."""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+from evmotion.errors import FormatError
+from evmotion.io.base import FormatSpec
+
+# Modules that define ``FORMAT``; imported lazily so optional dependencies stay optional.
+FORMAT_MODULES: tuple[str, ...] = (
+    "evmotion.io.h5",         # evmotion's own HDF5
+    "evmotion.io.mvsec",
+    "evmotion.io.dsec",
+    "evmotion.io.ecd",        # folder layout and events.txt
+    "evmotion.io.npy",        # .npy / .npz
+    "evmotion.io.mat",        # MATLAB .mat excerpts
+    "evmotion.io.aedat4",
+    "evmotion.io.aedat2",
+    "evmotion.io.evt3",
+    "evmotion.io.evt2",
+    "evmotion.io.dat",
+    "evmotion.io.rosbag",
+)
+
+
+def all_formats() -> list[FormatSpec]:
+    """Every format whose module is present, in detection order."""
+    out = []
+    for name in FORMAT_MODULES:
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue
+            raise
+        out.append(mod.FORMAT)
+    return out
+
+
+def get_format(name: str) -> FormatSpec:
+    for f in all_formats():
+        if f.name == name:
+            return f
+    names = [f.name for f in all_formats()]
+    raise FormatError(None, f"unknown format '{name}'", f"known formats: {', '.join(names)}")
+
+
+def detect_format(path: str | Path) -> FormatSpec:
+    """The format of ``path`` (file or folder), detected by content."""
+    path = Path(path)
+    if not path.exists():
+        raise FormatError(path, "no such file or folder")
+    head = b""
+    if path.is_file():
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+        if not head:
+            raise FormatError(path, "the file is empty")
+    candidates = [f for f in all_formats() if f.sniff(path, head)]
+    if not candidates:
+        raise FormatError(path, "format not recognised",
+                          "give --format explicitly; see `evmotion convert --help` for the list")
+    if len(candidates) > 1:
+        suffix = path.suffix.lower()
+        by_ext = [f for f in candidates if suffix in f.extensions]
+        if by_ext:
+            return by_ext[0]
+    return candidates[0]

@@ -1,0 +1,73 @@
+"""Small shared helpers: atomic output files, progress bars, argument checks."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import TypeVar
+
+import numpy as np
+
+from evmotion.errors import ParameterError
+
+T = TypeVar("T")
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
+
+    An interrupted or failing writer leaves no file at ``path`` (nor a half-written one):
+    the temporary file is removed on error.
+
+    Examples
+    --------
+    >>> with atomic_path("out.npy") as tmp:  # doctest: +SKIP
+    ...     np.save(tmp, arr)
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix,
+                               dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def progress(iterable: Iterable[T], *, total: int | None = None, desc: str = "",
+             unit: str = "it", disable: bool | None = None, unit_scale: bool = False,
+             ) -> Iterable[T]:
+    """A tqdm progress bar on stderr (rate and ETA); silent when stderr is not a TTY
+    unless ``EVMOTION_PROGRESS=1``."""
+    from tqdm.auto import tqdm
+
+    if disable is None:
+        disable = not (sys.stderr.isatty() or os.environ.get("EVMOTION_PROGRESS") == "1")
+    return tqdm(iterable, total=total, desc=desc, unit=unit, disable=disable,
+                unit_scale=unit_scale, file=sys.stderr, dynamic_ncols=True)
+
+
+def check_finite(name: str, value) -> np.ndarray:
+    """Raise :class:`ParameterError` naming ``name`` if ``value`` has NaN or inf."""
+    arr = np.asarray(value, dtype=np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise ParameterError(f"parameter '{name}' must be finite, got {value!r}")
+    return arr

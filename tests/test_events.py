@@ -1,0 +1,66 @@
+import numpy as np
+import pytest
+
+from evmotion import EventArray, EventDataError, concatenate
+
+
+def make(n=1000, seed=0, size=(180, 240)):
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(0, 1_000_000, n))
+    return EventArray(rng.integers(0, size[1], n), rng.integers(0, size[0], n), t,
+                      rng.integers(0, 2, n), size)
+
+
+def test_fields_and_dtypes():
+    ev = make()
+    assert ev.x.dtype == np.uint16 and ev.t.dtype == np.int64 and ev.p.dtype == np.uint8
+    assert set(np.unique(ev.polarity)) <= {-1.0, 1.0}
+    ev2 = EventArray([0.5], [1.25], [3], [-1], (4, 4))
+    assert ev2.x.dtype == np.float32 and ev2.p[0] == 0
+
+
+def test_unsorted_and_out_of_sensor_rejected():
+    with pytest.raises(EventDataError, match="not sorted"):
+        EventArray([0, 1], [0, 0], [5, 3], [0, 1], (2, 2))
+    with pytest.raises(EventDataError, match="x=7 outside the sensor"):
+        EventArray([0, 7], [0, 0], [1, 3], [0, 1], (2, 2))
+    with pytest.raises(EventDataError, match="NaN"):
+        EventArray([0, np.nan], [0, 0], [1, 3], [0, 1], (2, 2))
+
+
+def test_slice_time_matches_mask():
+    ev = make()
+    s = ev.slice_time(200_000, 600_000)
+    m = (ev.t >= 200_000) & (ev.t < 600_000)
+    np.testing.assert_array_equal(s.t, ev.t[m])
+    np.testing.assert_array_equal(s.x, ev.x[m])
+
+
+def test_windows_cover_everything_once():
+    ev = make(5000)
+    for ws in (ev.windows_by_duration(70_000), ev.windows_by_count(700)):
+        idx = np.concatenate([np.arange(w.start, w.stop) for w in ws])
+        np.testing.assert_array_equal(idx, np.arange(len(ev)))
+        for w in ws:
+            sub = ev.window(w)
+            assert np.all((sub.t >= w.t0) & (sub.t < w.t1))
+    assert all(w.count == 700 for w in ev.windows_by_count(700)[:-1])
+
+
+def test_windows_at_gt_frames_dt4():
+    ev = make(5000)
+    frames = np.arange(0, 1_000_001, 50_000)
+    ws = ev.windows_at(frames, dt=4)
+    assert [w.t0 for w in ws] == list(frames[:-4:4])
+    assert all(w.t1 - w.t0 == 200_000 for w in ws)
+
+
+def test_structured_roundtrip_and_concatenate():
+    ev = make()
+    arr = ev.to_structured()
+    back = EventArray.from_structured(arr, ev.sensor_size)
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(back, k), getattr(ev, k))
+    half = len(ev) // 2
+    cat = concatenate([ev[:half], ev[half:]])
+    np.testing.assert_array_equal(cat.t, ev.t)
