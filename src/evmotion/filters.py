@@ -1,0 +1,78 @@
+"""Event filters: refractory period and hot pixels."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from evmotion.errors import ParameterError
+from evmotion.events import EventArray
+
+__all__ = ["hot_pixel_mask", "refractory_filter", "remove_hot_pixels"]
+
+
+@njit(cache=True)
+def _refractory_keep(x, y, t, p, width, height, refractory_us, per_polarity, keep):
+    n_pol = 2 if per_polarity else 1
+    last = np.full(n_pol * width * height, np.iinfo(np.int64).min // 2, dtype=np.int64)
+    for k in range(t.shape[0]):
+        idx = (int(y[k]) * width + int(x[k])) * n_pol + (int(p[k]) if per_polarity else 0)
+        if t[k] - last[idx] >= refractory_us:
+            keep[k] = True
+            last[idx] = t[k]
+        else:
+            keep[k] = False
+
+
+def refractory_filter(events: EventArray, refractory_us: int, *, per_polarity: bool = False,
+                      ) -> EventArray:
+    """Drop events that follow a kept event at the same pixel within ``refractory_us`` µs.
+
+    Parameters
+    ----------
+    events : EventArray
+        Events on the sensor grid (integer coordinates).
+    refractory_us : int
+        Refractory period in microseconds; 0 keeps everything.
+    per_polarity : bool
+        Count the period separately for each polarity.
+
+    Examples
+    --------
+    >>> ev = EventArray([0, 0, 0], [0, 0, 0], [0, 50, 200], [1, 1, 1], (1, 1))
+    >>> refractory_filter(ev, 100).t.tolist()
+    [0, 200]
+    """
+    if refractory_us < 0:
+        raise ParameterError(f"refractory_us must be >= 0, got {refractory_us}")
+    if events.x.dtype.kind == "f":
+        raise ParameterError("refractory_filter needs integer sensor coordinates (filter before "
+                             "undistortion)")
+    keep = np.empty(len(events), dtype=np.bool_)
+    _refractory_keep(events.x, events.y, events.t, events.p, events.width, events.height,
+                     np.int64(refractory_us), per_polarity, keep)
+    return events[keep]
+
+
+def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int = 10,
+                   ) -> np.ndarray:
+    """(H, W) bool mask of hot pixels: event count above ``median + n_sigma * 1.4826 * MAD``
+    of the active pixels and at least ``min_count`` events."""
+    counts = np.bincount(events.y.astype(np.intp) * events.width + events.x.astype(np.intp),
+                         minlength=events.width * events.height)
+    active = counts[counts > 0]
+    if active.size == 0:
+        return np.zeros(events.sensor_size, dtype=bool)
+    med = np.median(active)
+    mad = 1.4826 * np.median(np.abs(active - med))
+    thr = max(med + n_sigma * max(mad, 1.0), float(min_count))
+    return (counts > thr).reshape(events.sensor_size)
+
+
+def remove_hot_pixels(events: EventArray, mask: np.ndarray | None = None, **kw) -> EventArray:
+    """Drop events at hot pixels (``mask`` from :func:`hot_pixel_mask` when not given)."""
+    if mask is None:
+        mask = hot_pixel_mask(events, **kw)
+    if mask.shape != events.sensor_size:
+        raise ParameterError(f"hot-pixel mask has shape {mask.shape}, sensor is {events.sensor_size}")
+    return events[~mask[events.y.astype(np.intp), events.x.astype(np.intp)]]
