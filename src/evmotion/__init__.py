@@ -15,7 +15,33 @@ from evmotion.events import EventArray, Window, concatenate
 
 __version__ = "0.1.0"
 
+# The methods pull in numba kernels; import them on first use so `import evmotion` stays fast.
+_LAZY = {
+    "estimate_egomotion": "evmotion.methods.egomotion",
+    "estimate_flow": "evmotion.methods.multicm",
+    "TripletMatcher": "evmotion.methods.triplet",
+    "simulate": "evmotion.sim",
+    "read_events": "evmotion.io",
+    "write_events": "evmotion.io",
+    "Camera": "evmotion.camera",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'evmotion' has no attribute '{name}'")
+
 __all__ = [
+    "Camera",
+    "TripletMatcher",
+    "estimate_egomotion",
+    "estimate_flow",
+    "read_events",
+    "simulate",
+    "write_events",
     "CalibrationError",
     "EmptyWindowError",
     "EventArray",
