@@ -1,0 +1,884 @@
+"""Parametric event warps of chapter 3 and Appendix A, with their differential quantities.
+
+Every warp transports an event at pixel ``(x, y)`` and time ``t_ref + dt`` back to the
+reference time ``t_ref`` along the point trajectory through it, ``x' = W(x, dt; theta)``.
+
+Conventions (the same for every warp):
+
+* ``x, y`` are plain sensor pixels (column, row; origin top-left), float64 arrays (N,);
+  warps that the thesis writes in centred coordinates (zoom, SE(2), in-plane, similarity,
+  affine, homography) centre them internally on ``center`` (default: the image centre
+  ``((W - 1) / 2, (H - 1) / 2)``), the rotation warp normalizes them with the intrinsics
+  ``K``. Inputs and outputs are always sensor pixels.
+* ``dt`` is ``t_k - t_ref`` in **seconds** (t_ref may be the window's start, middle or end);
+  parameters are rates per second (``param_units`` names them). The thesis writes the zoom
+  (3.7) in time normalized to [0, 1]; :func:`zoom_normalized_to_rate` converts.
+* Each warp is a 3x3 matrix ``M(dt; theta)`` acting on homogeneous pixel coordinates,
+  ``x' ~ M(dt; theta) (x, y, 1)^T``: the inverse of the trajectory homography ``H`` of (A.1).
+  The differential quantities below follow from ``M`` and ``dM/dt`` in closed form:
+
+  - :meth:`Warp.flow` -- (3.8) ``f = dW/dt`` at the event, px/s. It is minus the image
+    velocity: at ``dt = 0`` the optical flow of the scene is ``-f``
+    (:meth:`Warp.optical_flow`).
+  - :meth:`Warp.divergence` -- ``div f = tr(df/dx)``, 1/s (3.9); negative = contraction.
+  - :meth:`Warp.jacobian_det` -- ``det(dW/dx)`` (3.13), (A.4): ``det M / (e3^T M x)^3``.
+  - :meth:`Warp.rcad` -- the rate of change of area deformation at the event,
+    ``d|J_{t,t+h}|/dh`` at ``h = 0`` (3.20), (3.27), 1/s. It is the divergence of the
+    image velocity along the trajectory, positive where the trajectories spread forward in
+    time, i.e. where warping back to ``t_ref`` contracts (collapse-enabling).
+  - :meth:`Warp.area_log_ratio` -- the RCAD integrated along the trajectory over a time
+    span, (3.21), (3.28), (A.44), (A.53). By Liouville's formula the integral of the
+    divergence along a trajectory is the log of the area ratio between its ends, so the
+    integral is exact: ``log|det dx(t1)/dx_ref| - log|det dx(t0)/dx_ref|``.
+
+Parameter derivatives: the hot path (:meth:`Warp.warp` / :meth:`Warp.warp_into` with the
+Jacobian ``d x'/d theta``) is a hand-derived numba kernel per warp. Derivatives of the
+divergence, determinant and area ratio with respect to ``theta`` are computed exactly by
+complex-step differentiation of the same closed forms (no step-size error).
+
+Sign conventions of the parameters (camera frame x right, y down, z forward):
+
+* ``translation``: ``theta = (vx, vy)`` is the image velocity in px/s: ``x' = x - dt v``
+  (3.5.1 writes ``x + dt theta``; this is the sign used by the rest of the package).
+* ``rotation``: ``theta = omega`` is the camera's angular velocity in rad/s:
+  ``x'_n ~ exp(dt omega^) x_n`` in normalized coordinates (3.22). Its flow at dt = 0 is minus
+  the rotational part of the feature sensitivity matrix (3.29), its divergence is (3.23).
+
+Examples
+--------
+>>> import numpy as np
+>>> w = make_warp("zoom", sensor_size=(260, 346))
+>>> x = np.array([10.0, 300.0]); y = np.array([20.0, 200.0]); dt = np.array([0.0, 0.05])
+>>> xw, yw = w.warp(x, y, dt, np.array([2.0]))
+>>> float(w.divergence(x, y, dt, np.array([2.0]))[0])
+-4.0
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from evmotion.errors import CalibrationError, ParameterError
+
+__all__ = [
+    "WARPS",
+    "Warp",
+    "make_warp",
+    "rodrigues",
+    "zoom_normalized_to_rate",
+    "zoom_rate_to_normalized",
+]
+
+_CSTEP = 1e-30  # complex-step size: exact derivatives to machine precision, any tiny value works
+
+
+def zoom_normalized_to_rate(b_z: float, window_s: float) -> float:
+    """Convert the thesis' zoom parameter of (3.7) (time normalized to [0, 1]) to a rate.
+
+    (3.7) warps ``x' = (1 - t~ b_z) x`` with ``t~ = (t - t_1) / T`` for a window of duration
+    ``T`` seconds; with ``dt = t - t_1`` that is ``x' = (1 - dt * rate) x``, so
+    ``rate = b_z / T`` in 1/s.
+
+    Examples
+    --------
+    >>> zoom_normalized_to_rate(0.2, 0.05)
+    4.0
+    """
+    if not window_s > 0:
+        raise ParameterError(f"window_s must be > 0 seconds, got {window_s!r}")
+    return float(b_z) / float(window_s)
+
+
+def zoom_rate_to_normalized(rate: float, window_s: float) -> float:
+    """Inverse of :func:`zoom_normalized_to_rate`: ``b_z = rate * T`` (dimensionless)."""
+    if not window_s > 0:
+        raise ParameterError(f"window_s must be > 0 seconds, got {window_s!r}")
+    return float(rate) * float(window_s)
+
+
+# ---------------------------------------------------------------------------------------
+# Rodrigues formula, safe for complex arguments (complex-step) and for omega -> 0.
+
+def _sinc_terms(z):
+    """``sin(a)/a``, ``(1-cos a)/a^2``, ``(a-sin a)/a^3`` as functions of ``z = a^2``."""
+    z = np.asarray(z)
+    small = np.abs(z) < 1.0
+    zs = np.where(small, z, 0.0)
+    a_ = np.zeros_like(zs)
+    b_ = np.zeros_like(zs)
+    c_ = np.zeros_like(zs)
+    term_a = np.ones_like(zs)
+    term_b = 0.5 * np.ones_like(zs)
+    term_c = np.ones_like(zs) / 6.0
+    for k in range(12):  # |z| < 1: 12 terms of the series reach 1e-20
+        a_ = a_ + term_a
+        b_ = b_ + term_b
+        c_ = c_ + term_c
+        term_a = -term_a * zs / ((2 * k + 2) * (2 * k + 3))
+        term_b = -term_b * zs / ((2 * k + 3) * (2 * k + 4))
+        term_c = -term_c * zs / ((2 * k + 4) * (2 * k + 5))
+    if np.all(small):
+        return a_, b_, c_
+    zl = np.where(small, 1.0, z)
+    a = np.sqrt(zl)
+    with np.errstate(all="ignore"):
+        al, bl, cl = np.sin(a) / a, (1 - np.cos(a)) / zl, (a - np.sin(a)) / (zl * a)
+    return np.where(small, a_, al), np.where(small, b_, bl), np.where(small, c_, cl)
+
+
+def _hat(w):
+    o = np.zeros_like(w[0])
+    return np.array([[o, -w[2], w[1]], [w[2], o, -w[0]], [-w[1], w[0], o]])
+
+
+def rodrigues(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrix ``exp(rotvec^)`` (exponential coordinates, radians).
+
+    Parameters
+    ----------
+    rotvec : array (3,) or (N, 3)
+        Rotation vectors in radians (axis times angle).
+
+    Returns
+    -------
+    R : array (3, 3) or (N, 3, 3)
+
+    Examples
+    --------
+    >>> np.round(rodrigues(np.array([0.0, 0.0, np.pi / 2])), 6)[0]
+    array([ 0., -1.,  0.])
+    """
+    r = np.asarray(rotvec)
+    single = r.ndim == 1
+    r = np.atleast_2d(r)
+    z = np.sum(r * r, axis=1)
+    a, b, _ = _sinc_terms(z)
+    W = np.moveaxis(_hat(r.T), -1, 0)
+    W2 = W @ W
+    R = np.eye(3) + a[:, None, None] * W + b[:, None, None] * W2
+    return R[0] if single else R
+
+
+# ---------------------------------------------------------------------------------------
+# numba hot paths: warp + d(x')/d(theta), one pass, into preallocated outputs.
+
+@njit(cache=True)
+def _k_zoom(x, y, dt, h, cx, cy, xw, yw, jx, jy, jac):
+    for k in range(x.shape[0]):
+        xc = x[k] - cx
+        yc = y[k] - cy
+        s = 1.0 - dt[k] * h
+        xw[k] = cx + s * xc
+        yw[k] = cy + s * yc
+        if jac:
+            jx[k, 0] = -dt[k] * xc
+            jy[k, 0] = -dt[k] * yc
+
+
+@njit(cache=True)
+def _k_translation(x, y, dt, vx, vy, xw, yw, jx, jy, jac):
+    for k in range(x.shape[0]):
+        xw[k] = x[k] - dt[k] * vx
+        yw[k] = y[k] - dt[k] * vy
+        if jac:
+            jx[k, 0] = -dt[k]
+            jx[k, 1] = 0.0
+            jy[k, 0] = 0.0
+            jy[k, 1] = -dt[k]
+
+
+@njit(cache=True)
+def _k_similarity(x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy, jac, scaled):
+    for k in range(x.shape[0]):
+        t = dt[k]
+        c = math.cos(t * w)
+        sn = -math.sin(t * w)
+        ib = 1.0 / (1.0 + t * s) if scaled else 1.0
+        u = x[k] - cx - t * vx
+        v = y[k] - cy - t * vy
+        ox = (c * u - sn * v) * ib
+        oy = (sn * u + c * v) * ib
+        xw[k] = cx + ox
+        yw[k] = cy + oy
+        if jac:
+            jx[k, 0] = -t * c * ib
+            jy[k, 0] = -t * sn * ib
+            jx[k, 1] = t * sn * ib
+            jy[k, 1] = -t * c * ib
+            jx[k, 2] = t * oy
+            jy[k, 2] = -t * ox
+            if scaled:
+                jx[k, 3] = -t * ib * ox
+                jy[k, 3] = -t * ib * oy
+
+
+@njit(cache=True)
+def _k_inplane(x, y, dt, vx, vy, phi, hz, cx, cy, xw, yw, jx, jy, jac):
+    c = math.cos(phi)
+    sn = math.sin(phi)
+    kk = hz + 1.0
+    for k in range(x.shape[0]):
+        t = dt[k]
+        xc = x[k] - cx
+        yc = y[k] - cy
+        r0 = c * xc - sn * yc
+        r1 = sn * xc + c * yc
+        xw[k] = x[k] - t * (vx + kk * r0 - xc)
+        yw[k] = y[k] - t * (vy + kk * r1 - yc)
+        if jac:
+            jx[k, 0] = -t
+            jy[k, 0] = 0.0
+            jx[k, 1] = 0.0
+            jy[k, 1] = -t
+            jx[k, 2] = t * kk * r1
+            jy[k, 2] = -t * kk * r0
+            jx[k, 3] = -t * r0
+            jy[k, 3] = -t * r1
+
+
+@njit(cache=True)
+def _k_affine(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
+    vx, vy, g11, g12, g21, g22 = th[0], th[1], th[2], th[3], th[4], th[5]
+    for k in range(x.shape[0]):
+        t = dt[k]
+        a00 = 1.0 + t * g22
+        a01 = -t * g12
+        a10 = -t * g21
+        a11 = 1.0 + t * g11
+        idet = 1.0 / (a00 * a11 - a01 * a10)
+        a00 *= idet
+        a01 *= idet
+        a10 *= idet
+        a11 *= idet
+        u = x[k] - cx - t * vx
+        v = y[k] - cy - t * vy
+        w0 = a00 * u + a01 * v
+        w1 = a10 * u + a11 * v
+        xw[k] = cx + w0
+        yw[k] = cy + w1
+        if jac:
+            jx[k, 0] = -t * a00
+            jy[k, 0] = -t * a10
+            jx[k, 1] = -t * a01
+            jy[k, 1] = -t * a11
+            jx[k, 2] = -t * a00 * w0
+            jy[k, 2] = -t * a10 * w0
+            jx[k, 3] = -t * a00 * w1
+            jy[k, 3] = -t * a10 * w1
+            jx[k, 4] = -t * a01 * w0
+            jy[k, 4] = -t * a11 * w0
+            jx[k, 5] = -t * a01 * w1
+            jy[k, 5] = -t * a11 * w1
+
+
+@njit(cache=True)
+def _k_homography(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
+    inv = np.empty((3, 3))
+    q = np.empty(3)
+    for k in range(x.shape[0]):
+        t = dt[k]
+        h00 = 1.0 + t * th[0]
+        h01 = t * th[1]
+        h02 = t * th[2]
+        h10 = t * th[3]
+        h11 = 1.0 + t * th[4]
+        h12 = t * th[5]
+        h20 = t * th[6]
+        h21 = t * th[7]
+        h22 = 1.0
+        c00 = h11 * h22 - h12 * h21
+        c01 = h02 * h21 - h01 * h22
+        c02 = h01 * h12 - h02 * h11
+        idet = 1.0 / (h00 * c00 + h10 * c01 + h20 * c02)
+        inv[0, 0] = c00 * idet
+        inv[0, 1] = c01 * idet
+        inv[0, 2] = c02 * idet
+        inv[1, 0] = (h12 * h20 - h10 * h22) * idet
+        inv[1, 1] = (h00 * h22 - h02 * h20) * idet
+        inv[1, 2] = (h02 * h10 - h00 * h12) * idet
+        inv[2, 0] = (h10 * h21 - h11 * h20) * idet
+        inv[2, 1] = (h01 * h20 - h00 * h21) * idet
+        inv[2, 2] = (h00 * h11 - h01 * h10) * idet
+        u = x[k] - cx
+        v = y[k] - cy
+        for i in range(3):
+            q[i] = inv[i, 0] * u + inv[i, 1] * v + inv[i, 2]
+        iz = 1.0 / q[2]
+        ox = q[0] * iz
+        oy = q[1] * iz
+        xw[k] = cx + ox
+        yw[k] = cy + oy
+        if jac:
+            # d(H^-1)/dg_ij = -t H^-1 E_ij H^-1, so dq = -t inv[:, i] q_j
+            for p in range(8):
+                i = p // 3
+                j = p % 3
+                s = -t * q[j]
+                d0 = s * inv[0, i]
+                d1 = s * inv[1, i]
+                d2 = s * inv[2, i]
+                jx[k, p] = (d0 - ox * d2) * iz
+                jy[k, p] = (d1 - oy * d2) * iz
+
+
+@njit(cache=True)
+def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
+    wx, wy, wz = w[0], w[1], w[2]
+    ww = wx * wx + wy * wy + wz * wz
+    # columns of omega^ and omega^2, for the left Jacobian of SO(3)
+    W1 = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
+    W2 = W1 @ W1
+    for k in range(x.shape[0]):
+        t = dt[k]
+        z = t * t * ww
+        if z < 1.0:
+            a = 1.0
+            b = 0.5
+            c = 1.0 / 6.0
+            ta = 1.0
+            tb = 0.5
+            tc = 1.0 / 6.0
+            for n in range(10):
+                ta = -ta * z / ((2 * n + 2) * (2 * n + 3))
+                tb = -tb * z / ((2 * n + 3) * (2 * n + 4))
+                tc = -tc * z / ((2 * n + 4) * (2 * n + 5))
+                a += ta
+                b += tb
+                c += tc
+        else:
+            ang = math.sqrt(z)
+            sa = math.sin(ang)
+            a = sa / ang
+            b = (1.0 - math.cos(ang)) / z
+            c = (ang - sa) / (z * ang)
+        xn = Kinv[0, 0] * x[k] + Kinv[0, 1] * y[k] + Kinv[0, 2]
+        yn = Kinv[1, 0] * x[k] + Kinv[1, 1] * y[k] + Kinv[1, 2]
+        zn = Kinv[2, 0] * x[k] + Kinv[2, 1] * y[k] + Kinv[2, 2]
+        c1x = wy * zn - wz * yn
+        c1y = wz * xn - wx * zn
+        c1z = wx * yn - wy * xn
+        c2x = wy * c1z - wz * c1y
+        c2y = wz * c1x - wx * c1z
+        c2z = wx * c1y - wy * c1x
+        at = a * t
+        bt = b * t * t
+        q0 = xn + at * c1x + bt * c2x
+        q1 = yn + at * c1y + bt * c2y
+        q2 = zn + at * c1z + bt * c2z
+        iz = 1.0 / q2
+        X = q0 * iz
+        Y = q1 * iz
+        xw[k] = Kmat[0, 0] * X + Kmat[0, 1] * Y + Kmat[0, 2]
+        yw[k] = Kmat[1, 0] * X + Kmat[1, 1] * Y + Kmat[1, 2]
+        if jac:
+            # d(R v)/d(omega) = -t [R v]^ J_l(t omega)
+            bt1 = b * t
+            ct2 = c * t * t
+            for j in range(3):
+                l0 = (1.0 if j == 0 else 0.0) + bt1 * W1[0, j] + ct2 * W2[0, j]
+                l1 = (1.0 if j == 1 else 0.0) + bt1 * W1[1, j] + ct2 * W2[1, j]
+                l2 = (1.0 if j == 2 else 0.0) + bt1 * W1[2, j] + ct2 * W2[2, j]
+                d0 = -t * (q1 * l2 - q2 * l1)
+                d1 = -t * (q2 * l0 - q0 * l2)
+                d2 = -t * (q0 * l1 - q1 * l0)
+                dX = (d0 - X * d2) * iz
+                dY = (d1 - Y * d2) * iz
+                jx[k, j] = Kmat[0, 0] * dX + Kmat[0, 1] * dY
+                jy[k, j] = Kmat[1, 0] * dX + Kmat[1, 1] * dY
+
+
+_EMPTY2 = np.zeros((0, 0))
+
+
+# ---------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class Warp:
+    """A parametric warp (see the module docstring for conventions).
+
+    Attributes
+    ----------
+    name : str
+    n_params : int
+    param_names : tuple of str
+    param_units : tuple of str
+    sensor_size : (int, int)
+        ``(height, width)`` in pixels.
+    center : (float, float)
+        ``(cx, cy)`` pixel position of the origin of the centred coordinates.
+    K : ndarray (3, 3) or None
+        Camera intrinsics (pixels); required by ``rotation``.
+    """
+
+    name: str
+    param_names: tuple[str, ...]
+    param_units: tuple[str, ...]
+    sensor_size: tuple[int, int]
+    center: tuple[float, float]
+    K: np.ndarray | None = None
+
+    def __post_init__(self):
+        kinv = None if self.K is None else np.linalg.inv(self.K)
+        object.__setattr__(self, "_kinv", kinv)
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names)
+
+    def identity(self) -> np.ndarray:
+        """Parameters of the identity warp, float64 (P,)."""
+        return np.zeros(self.n_params)
+
+    # -- argument checks -----------------------------------------------------------------
+    def _theta(self, theta, allow_complex: bool = False) -> np.ndarray:
+        th = np.asarray(theta)
+        if th.shape != (self.n_params,):
+            raise ParameterError(f"warp '{self.name}' takes theta of shape ({self.n_params},) "
+                                 f"{self.param_names}, got shape {th.shape}")
+        if np.iscomplexobj(th) and allow_complex:
+            return th.astype(np.complex128)
+        th = th.astype(np.float64)
+        if not np.all(np.isfinite(th)):
+            raise ParameterError(f"warp '{self.name}': theta must be finite, got {th!r}")
+        return th
+
+    @staticmethod
+    def _events(x, y, dt):
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        y = np.ascontiguousarray(y, dtype=np.float64)
+        dt = np.ascontiguousarray(dt, dtype=np.float64)
+        if x.ndim != 1 or x.shape != y.shape or x.shape != dt.shape:
+            raise ParameterError(f"x, y, dt must be 1-D arrays of equal length, got shapes "
+                                 f"{x.shape}, {y.shape}, {dt.shape}")
+        return x, y, dt
+
+    # -- hot path --------------------------------------------------------------------------
+    def warp(self, x, y, dt, theta, jacobian: bool = False):
+        """Warp events to ``t_ref``.
+
+        Parameters
+        ----------
+        x, y : array (N,)
+            Event pixels.
+        dt : array (N,)
+            ``t_k - t_ref`` in seconds.
+        theta : array (P,)
+            Parameters (rates per second, see ``param_units``).
+        jacobian : bool
+            Also return ``jx, jy`` (N, P): ``d x'/d theta`` and ``d y'/d theta``.
+
+        Returns
+        -------
+        xw, yw : array (N,) -- warped pixels; and ``jx, jy`` if ``jacobian``.
+
+        Examples
+        --------
+        >>> w = make_warp("translation", sensor_size=(10, 10))
+        >>> w.warp(np.array([5.0]), np.array([5.0]), np.array([0.1]), np.array([10.0, 0.0]))
+        (array([4.]), array([5.]))
+        """
+        x, y, dt = self._events(x, y, dt)
+        n = x.shape[0]
+        xw = np.empty(n)
+        yw = np.empty(n)
+        if jacobian:
+            jx = np.empty((n, self.n_params))
+            jy = np.empty((n, self.n_params))
+            self.warp_into(x, y, dt, theta, xw, yw, jx, jy)
+            return xw, yw, jx, jy
+        self.warp_into(x, y, dt, theta, xw, yw)
+        return xw, yw
+
+    def warp_into(self, x, y, dt, theta, xw, yw, jx=None, jy=None) -> None:
+        """Allocation-free :meth:`warp`: writes into ``xw, yw`` (N,) and, if given,
+        ``jx, jy`` (N, P); all float64 C-contiguous. Inputs must be float64 contiguous."""
+        th = self._theta(theta)
+        jac = jx is not None
+        if not jac:
+            jx = jy = _EMPTY2
+        self._kernel(x, y, dt, th, xw, yw, jx, jy, jac)
+
+    def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    # -- matrices in homogeneous pixel coordinates ------------------------------------------
+    def _mats_c(self, dt, th):  # pragma: no cover - abstract
+        """``M`` and ``dM/dt`` (N, 3, 3) in the warp's own (centred/normalized) coordinates."""
+        raise NotImplementedError
+
+    def _conj(self):
+        """(T, T^-1): pixel <- own coordinates."""
+        cx, cy = self.center
+        T = np.array([[1.0, 0, cx], [0, 1.0, cy], [0, 0, 1.0]])
+        Ti = np.array([[1.0, 0, -cx], [0, 1.0, -cy], [0, 0, 1.0]])
+        return T, Ti
+
+    def matrices(self, dt, theta):
+        """``M(dt)`` and ``dM/dt`` (N, 3, 3) acting on homogeneous sensor pixels.
+
+        ``x' ~ M (x, y, 1)^T``. Accepts complex ``theta`` (used for complex-step
+        derivatives)."""
+        th = self._theta(theta, allow_complex=True)
+        dt = np.atleast_1d(np.asarray(dt, dtype=np.float64))
+        M, Md = self._mats_c(dt, th)
+        T, Ti = self._conj()
+        return T @ M @ Ti, T @ Md @ Ti
+
+    def _geom(self, x, y, dt, theta):
+        M, Md = self.matrices(dt, theta)
+        xt = np.stack([x, y, np.ones_like(x)], axis=-1)[..., None]
+        q = (M @ xt)[..., 0]
+        p = (Md @ xt)[..., 0]
+        return M, Md, q, p
+
+    # -- differential quantities ----------------------------------------------------------
+    def flow(self, x, y, dt, theta):
+        """(3.8) ``f = dW/dt`` at each event, px/s: returns ``fx, fy`` (N,).
+
+        It is minus the image velocity of the scene (see :meth:`optical_flow`)."""
+        x, y, dt = self._events(x, y, dt)
+        _, _, q, p = self._geom(x, y, dt, self._theta(theta))
+        xw = q[:, 0] / q[:, 2]
+        yw = q[:, 1] / q[:, 2]
+        return (p[:, 0] - xw * p[:, 2]) / q[:, 2], (p[:, 1] - yw * p[:, 2]) / q[:, 2]
+
+    def optical_flow(self, x, y, theta):
+        """Image velocity (u, v) in px/s of the scene point at pixel ``(x, y)`` at ``t_ref``
+        (the motion field the warp models; u right, v down)."""
+        x, y, _ = self._events(x, y, np.zeros(np.shape(x)))
+        fx, fy = self.flow(x, y, np.zeros_like(x), theta)
+        return -fx, -fy
+
+    def jacobian(self, x, y, dt, theta) -> np.ndarray:
+        """(3.13) ``J = dW/dx`` at each event, (N, 2, 2), rows (x', y'), columns (x, y)."""
+        x, y, dt = self._events(x, y, dt)
+        M, _, q, _ = self._geom(x, y, dt, self._theta(theta))
+        w = q[:, :2] / q[:, 2:3]
+        J = (M[:, :2, :2] - w[:, :, None] * M[:, 2:3, :2]) / q[:, 2, None, None]
+        return J
+
+    def _det(self, x, y, dt, th):
+        M, _, q, _ = self._geom(x, y, dt, th)
+        return np.linalg.det(M) / q[:, 2] ** 3
+
+    def _div(self, x, y, dt, th):
+        M, Md, q, p = self._geom(x, y, dt, th)
+        q3 = q[:, 2]
+        out = 0.0
+        for i in range(2):
+            a = M[:, :, i]
+            b = Md[:, :, i]
+            out = (out + b[:, i] / q3
+                   - (p[:, i] * a[:, 2] + a[:, i] * p[:, 2] + q[:, i] * b[:, 2]) / q3 ** 2
+                   + 2.0 * q[:, i] * p[:, 2] * a[:, 2] / q3 ** 3)
+        return out
+
+    def _rcad(self, x, y, dt, th):
+        M, Md, _, _ = self._geom(x, y, dt, th)
+        L = -np.linalg.solve(M, Md)
+        lx = L[:, 2, 0] * x + L[:, 2, 1] * y + L[:, 2, 2]
+        return L[:, 0, 0] + L[:, 1, 1] + L[:, 2, 2] - 3.0 * lx
+
+    def _with_grad(self, fn, x, y, dt, theta, grad: bool):
+        th = self._theta(theta)
+        val = np.real(fn(x, y, dt, th))
+        if not grad:
+            return val
+        g = np.empty((x.shape[0], self.n_params))
+        for j in range(self.n_params):
+            tc = th.astype(np.complex128)
+            tc[j] += 1j * _CSTEP
+            g[:, j] = np.imag(fn(x, y, dt, tc)) / _CSTEP
+        return val, g
+
+    def divergence(self, x, y, dt, theta, grad: bool = False):
+        """Divergence of the flow (3.8) at each event, 1/s (3.9).
+
+        Returns ``div`` (N,), and ``d div / d theta`` (N, P) if ``grad``."""
+        x, y, dt = self._events(x, y, dt)
+        return self._with_grad(self._div, x, y, dt, theta, grad)
+
+    def jacobian_det(self, x, y, dt, theta, grad: bool = False):
+        """``det(dW/dx)`` at each event (3.13), (A.4): the area amplification factor
+        from ``t_k`` to ``t_ref``. Returns (N,), and (N, P) derivatives if ``grad``."""
+        x, y, dt = self._events(x, y, dt)
+        return self._with_grad(self._det, x, y, dt, theta, grad)
+
+    def rcad(self, x, y, dt, theta, grad: bool = False):
+        """Rate of change of area deformation at each event, 1/s ((3.20), (3.27), (A.6)).
+
+        ``d det(dx(t+h)/dx(t)) / dh`` at ``h = 0`` for the point trajectory through the
+        event: positive where the trajectories spread forward in time (warping back to
+        ``t_ref`` contracts them)."""
+        x, y, dt = self._events(x, y, dt)
+        return self._with_grad(self._rcad, x, y, dt, theta, grad)
+
+    def trajectory(self, x_ref, y_ref, dt, theta):
+        """Position at ``t_ref + dt`` (seconds) of the point at ``(x_ref, y_ref)`` at
+        ``t_ref``: the inverse of :meth:`warp`. Returns ``x, y`` (N,)."""
+        x, y, dt = self._events(x_ref, y_ref, dt)
+        M, _ = self.matrices(dt, self._theta(theta))
+        xt = np.stack([x, y, np.ones_like(x)], axis=-1)[..., None]
+        q = np.linalg.solve(M, xt)[..., 0]
+        return q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+
+    def _area_log(self, x, y, t, th):
+        Mi = np.linalg.inv(self.matrices(np.array([t]), th)[0][0])
+        q3 = Mi[2, 0] * x + Mi[2, 1] * y + Mi[2, 2]
+        return -3.0 * np.log(q3 * np.sign(np.real(q3))) + np.log(
+            np.linalg.det(Mi) * np.sign(np.real(np.linalg.det(Mi))))
+
+    def area_log_ratio(self, x_ref, y_ref, t0: float, t1: float, theta, grad: bool = False):
+        """RCAD integrated along the trajectory through ``(x_ref, y_ref)`` at ``t_ref`` over
+        ``[t0, t1]`` (seconds relative to ``t_ref``); dimensionless.
+
+        Equals ``log|det dx(t1)/dx_ref| - log|det dx(t0)/dx_ref|`` (Liouville), which is
+        (3.21) for the zoom, (3.28) for the rotation, (A.44)/(A.53) for similarity/affine.
+        Returns (N,), and (N, P) derivatives if ``grad``."""
+        x, y, _ = self._events(x_ref, y_ref, np.zeros(np.shape(x_ref)))
+
+        def fn(x, y, _dt, th):
+            return self._area_log(x, y, t1, th) - self._area_log(x, y, t0, th)
+
+        return self._with_grad(fn, x, y, x, theta, grad)
+
+
+# ---------------------------------------------------------------------------------------
+
+def _stack33(rows, n):
+    return np.moveaxis(np.array([[np.broadcast_to(v, (n,)) for v in r] for r in rows]), -1, 0)
+
+
+class ZoomWarp(Warp):
+    """1-DOF zoom (3.7): ``x' = c + (1 - dt h_z)(x - c)``, ``h_z`` in 1/s.
+
+    div f = -2 h_z, det J = (1 - dt h_z)^2."""
+
+    def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
+        _k_zoom(x, y, dt, th[0], self.center[0], self.center[1], xw, yw, jx, jy, jac)
+
+    def _mats_c(self, dt, th):
+        n = dt.shape[0]
+        s = 1 - dt * th[0]
+        o, i = 0 * s, 1 + 0 * s
+        M = _stack33([[s, o, o], [o, s, o], [o, o, i]], n)
+        h = -th[0] + 0 * dt
+        Md = _stack33([[h, o, o], [o, h, o], [o, o, o]], n)
+        return M, Md
+
+
+class TranslationWarp(Warp):
+    """2-DOF feature flow (3.5.1): ``x' = x - dt v``, ``v`` in px/s. div 0, det 1."""
+
+    def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
+        _k_translation(x, y, dt, th[0], th[1], xw, yw, jx, jy, jac)
+
+    def _mats_c(self, dt, th):
+        n = dt.shape[0]
+        z = 0 * dt * th[0]
+        o, i = z, 1 + z
+        M = _stack33([[i, o, -dt * th[0]], [o, i, -dt * th[1]], [o, o, i]], n)
+        Md = _stack33([[o, o, -th[0] + z], [o, o, -th[1] + z], [o, o, o]], n)
+        return M, Md
+
+
+def _rot2(a):
+    c, s = np.cos(a), np.sin(a)
+    return c, s
+
+
+class SimilarityWarp(Warp):
+    """4-DOF similarity Sim(2) (A.36): ``x' = c + beta^-1 R(-dt w_z)(x - c - dt v)``,
+    ``beta = 1 + dt s``; theta = (vx, vy [px/s], wz [rad/s], s [1/s]).
+
+    With ``scaled=False`` it is the 3-DOF planar SE(2) warp (A.11), theta = (vx, vy, wz)."""
+
+    scaled = True
+
+    def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
+        s = th[3] if self.scaled else 0.0
+        _k_similarity(x, y, dt, th[0], th[1], th[2], s, self.center[0], self.center[1],
+                      xw, yw, jx, jy, jac, self.scaled)
+
+    def _mats_c(self, dt, th):
+        n = dt.shape[0]
+        s = th[3] if self.scaled else 0.0
+        w = th[2]
+        c, sn = _rot2(-dt * w)
+        ib = 1.0 / (1.0 + dt * s)
+        # A = R(-dt w)/beta, b = -A dt v
+        a00, a01, a10, a11 = c * ib, -sn * ib, sn * ib, c * ib
+        b0 = -(a00 * th[0] + a01 * th[1]) * dt
+        b1 = -(a10 * th[0] + a11 * th[1]) * dt
+        # dA/dt = (dR/dt)/beta - R s/beta^2, dR/dt = -w R'(a)
+        dib = -s * ib * ib
+        d00 = w * sn * ib + c * dib
+        d01 = w * c * ib - sn * dib
+        d10 = -w * c * ib + sn * dib
+        d11 = w * sn * ib + c * dib
+        e0 = -(d00 * th[0] + d01 * th[1]) * dt - (a00 * th[0] + a01 * th[1])
+        e1 = -(d10 * th[0] + d11 * th[1]) * dt - (a10 * th[0] + a11 * th[1])
+        o = 0 * a00
+        i = 1 + o
+        M = _stack33([[a00, a01, b0], [a10, a11, b1], [o, o, i]], n)
+        Md = _stack33([[d00, d01, e0], [d10, d11, e1], [o, o, o]], n)
+        return M, Md
+
+
+class SE2Warp(SimilarityWarp):
+    """3-DOF planar motion SE(2) (A.11): ``x' = c + R(-dt w_z)(x - c - dt v)``;
+    theta = (vx, vy [px/s], wz [rad/s]). div f = -2 wz sin(dt wz) (A.13), det J = 1."""
+
+    scaled = False
+
+
+class InPlaneWarp(Warp):
+    """4-DOF in-plane approximation (A.22):
+    ``x' = x - dt (v + ((h_z + 1) R(phi) - Id)(x - c))``; theta = (vx, vy [px/s],
+    phi [rad/s, small-angle rate], hz [1/s]). div f = 2 - 2 (h_z + 1) cos(phi) (A.25)."""
+
+    def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
+        _k_inplane(x, y, dt, th[0], th[1], th[2], th[3], self.center[0], self.center[1],
+                   xw, yw, jx, jy, jac)
+
+    def _mats_c(self, dt, th):
+        n = dt.shape[0]
+        c, s = _rot2(th[2])
+        k = th[3] + 1
+        z = 0 * dt * th[0]
+        o, i = z, 1 + z
+        M = _stack33([[1 + dt - dt * k * c, dt * k * s, -dt * th[0]],
+                      [-dt * k * s, 1 + dt - dt * k * c, -dt * th[1]], [o, o, i]], n)
+        Md = _stack33([[1 - k * c + z, k * s + z, -th[0] + z],
+                       [-k * s + z, 1 - k * c + z, -th[1] + z], [o, o, o]], n)
+        return M, Md
+
+
+class AffineWarp(Warp):
+    """6-DOF affine (A.47): ``x' = c + A^-1(dt)(x - c - dt v)`` with ``A(dt) = Id + dt G``;
+    theta = (vx, vy [px/s], g11, g12, g21, g22 [1/s])."""
+
+    def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
+        _k_affine(x, y, dt, th, self.center[0], self.center[1], xw, yw, jx, jy, jac)
+
+    def _mats_c(self, dt, th):
+        n = dt.shape[0]
+        G = np.array([[th[2], th[3]], [th[4], th[5]]])
+        A = np.eye(2) + dt[:, None, None] * G
+        Ai = np.linalg.inv(A)
+        v = np.array([th[0], th[1]])
+        b = -(Ai @ v) * dt[:, None]
+        Aid = -Ai @ G @ Ai
+        bd = -(Aid @ v) * dt[:, None] - Ai @ v
+        M = np.zeros((n, 3, 3), dtype=Ai.dtype)
+        Md = np.zeros((n, 3, 3), dtype=Ai.dtype)
+        M[:, :2, :2] = Ai
+        M[:, :2, 2] = b
+        M[:, 2, 2] = 1
+        Md[:, :2, :2] = Aid
+        Md[:, :2, 2] = bd
+        return M, Md
+
+
+class HomographyWarp(Warp):
+    """8-DOF homography (A.1): ``x' ~ H(dt)^-1 x`` in centred pixels, trajectory
+    ``H(dt) = Id + dt G`` with ``G = [[g11, g12, g13], [g21, g22, g23], [g31, g32, 0]]``
+    (g13, g23 in px/s; g31, g32 in 1/(px s); the others in 1/s)."""
+
+    def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
+        _k_homography(x, y, dt, th, self.center[0], self.center[1], xw, yw, jx, jy, jac)
+
+    def _mats_c(self, dt, th):
+        G = np.array([[th[0], th[1], th[2]], [th[3], th[4], th[5]], [th[6], th[7], 0 * th[0]]])
+        H = np.eye(3) + dt[:, None, None] * G
+        M = np.linalg.inv(H)
+        return M, -M @ G @ M
+
+
+class RotationWarp(Warp):
+    """3-DOF camera rotation (3.22): ``x'_n ~ exp(dt omega^) x_n`` in normalized
+    coordinates ``x_n = K^-1 (x, y, 1)``; theta = omega (wx, wy, wz) in rad/s, camera frame
+    x right, y down, z forward. div f = 3 (x_n wy - y_n wx) at dt = 0 (3.23)."""
+
+    def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
+        _k_rotation(x, y, dt, th, self.K, self._kinv, xw, yw, jx, jy, jac)
+
+    def _conj(self):
+        return self.K, self._kinv
+
+    def _mats_c(self, dt, th):
+        r = dt[:, None] * th[None, :]
+        R = rodrigues(r)
+        return R, _hat(th).astype(R.dtype) @ R
+
+
+# ---------------------------------------------------------------------------------------
+
+_SPECS = {
+    "zoom": (ZoomWarp, ("hz",), ("1/s",)),
+    "translation": (TranslationWarp, ("vx", "vy"), ("px/s", "px/s")),
+    "rotation": (RotationWarp, ("wx", "wy", "wz"), ("rad/s",) * 3),
+    "se2": (SE2Warp, ("vx", "vy", "wz"), ("px/s", "px/s", "rad/s")),
+    "inplane": (InPlaneWarp, ("vx", "vy", "phi", "hz"), ("px/s", "px/s", "rad/s", "1/s")),
+    "similarity": (SimilarityWarp, ("vx", "vy", "wz", "s"), ("px/s", "px/s", "rad/s", "1/s")),
+    "affine": (AffineWarp, ("vx", "vy", "g11", "g12", "g21", "g22"),
+               ("px/s", "px/s") + ("1/s",) * 4),
+    "homography": (HomographyWarp, ("g11", "g12", "g13", "g21", "g22", "g23", "g31", "g32"),
+                   ("1/s", "1/s", "px/s", "1/s", "1/s", "px/s", "1/(px s)", "1/(px s)")),
+}
+
+#: Names of the warps :func:`make_warp` builds, with their number of parameters.
+WARPS: dict[str, int] = {k: len(v[1]) for k, v in _SPECS.items()}
+
+
+def make_warp(name: str, sensor_size: tuple[int, int], K: np.ndarray | None = None,
+              center: tuple[float, float] | None = None) -> Warp:
+    """Build a warp by name.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`WARPS`: zoom (1 DOF), translation (2), rotation (3), se2 (3),
+        inplane (4), similarity (4), affine (6), homography (8).
+    sensor_size : (int, int)
+        ``(height, width)`` in pixels.
+    K : array (3, 3), optional
+        Camera intrinsics in pixels; required for ``rotation``.
+    center : (float, float), optional
+        Pixel ``(cx, cy)`` of the centred coordinates; default the image centre
+        ``((W - 1) / 2, (H - 1) / 2)``.
+
+    Examples
+    --------
+    >>> K = np.array([[200.0, 0, 120], [0, 200.0, 90], [0, 0, 1]])
+    >>> w = make_warp("rotation", sensor_size=(180, 240), K=K)
+    >>> w.param_names, w.param_units[0]
+    (('wx', 'wy', 'wz'), 'rad/s')
+    """
+    if name not in _SPECS:
+        raise ParameterError(f"unknown warp '{name}'; choose one of {sorted(_SPECS)}")
+    try:
+        h, w = (int(v) for v in sensor_size)
+    except (TypeError, ValueError):
+        raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}") from None
+    if h <= 0 or w <= 0:
+        raise ParameterError(f"sensor_size must be positive, got {sensor_size!r}")
+    cls, names, units = _SPECS[name]
+    Kmat = None
+    if K is not None:
+        Kmat = np.ascontiguousarray(K, dtype=np.float64)
+        if Kmat.shape != (3, 3) or not np.all(np.isfinite(Kmat)) or \
+                abs(np.linalg.det(Kmat)) < 1e-12 or np.any(Kmat[2] != (0, 0, 1)):
+            raise CalibrationError(f"K must be a finite invertible 3x3 intrinsics matrix with "
+                                   f"last row (0, 0, 1), got {np.asarray(K).tolist()!r}")
+    elif name == "rotation":
+        raise CalibrationError("the rotation warp needs the camera intrinsics K (3x3, pixels)")
+    if center is None:
+        center = ((w - 1) / 2.0, (h - 1) / 2.0)
+    center = (float(center[0]), float(center[1]))
+    return cls(name=name, param_names=names, param_units=units, sensor_size=(h, w),
+               center=center, K=Kmat)
