@@ -169,7 +169,7 @@ def test_polarities_are_separate():
 def test_state_is_bounded_and_overflow_reported():
     m = TripletMatcher((20, 30), depth=4)
     n0 = m.state_nbytes
-    assert n0 == 2 * 20 * 30 * 4 * 4 + 2 * 20 * 30 + 8
+    assert n0 == 2 * 20 * 30 * 4 * 4 + 8
     hot = EventArray(np.full(50, 3), np.full(50, 3), np.arange(50) * 1000, np.ones(50),
                      (20, 30))
     m.process(hot)

@@ -150,7 +150,6 @@ class TripletMatcher:
         self.depth = int(depth)
         self.offsets = neighbour_offsets(self.dx)
         self._ts = np.empty((2, h, w, self.depth), dtype=np.int32)
-        self._head = np.empty((2, h, w), dtype=np.uint8)
         self._stats = np.zeros(1, dtype=np.int64)
         self._rebase_span = K.REBASE_SPAN_US
         self.reset()
@@ -158,7 +157,6 @@ class TripletMatcher:
     def reset(self) -> None:
         """Forget every past event (as if the stream started anew)."""
         self._ts.fill(K.EMPTY)
-        self._head.fill(0)
         self._stats[:] = 0
         self._base: int | None = None
         self._t_last: int | None = None
@@ -167,7 +165,7 @@ class TripletMatcher:
     @property
     def state_nbytes(self) -> int:
         """Bytes of state; constant for a given sensor size and depth."""
-        return int(self._ts.nbytes + self._head.nbytes + self._stats.nbytes)
+        return int(self._ts.nbytes + self._stats.nbytes)
 
     @property
     def overflow(self) -> int:
@@ -205,7 +203,7 @@ class TripletMatcher:
             stop = int(np.searchsorted(t, limit, side="left"))
             stop = max(stop, start + 1)
             K.triplet_kernel(x[start:stop], y[start:stop], t[start:stop], p[start:stop],
-                             np.int64(self._base), self._ts, self._head, self.offsets,
+                             np.int64(self._base), self._ts, self.offsets,
                              np.int64(self.dt_us), np.int64(self.tau_us), self.quadruple,
                              out.vx[start:stop], out.vy[start:stop], out.n_triplets[start:stop],
                              out.valid[start:stop], self._stats)
