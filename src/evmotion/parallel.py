@@ -1,0 +1,331 @@
+"""Map a per-window function over a recording, in parallel and resumably.
+
+:func:`map_windows` runs ``fn(events)`` for every window of a recording with a
+:mod:`concurrent.futures` executor (processes by default) or a Dask ``distributed``
+cluster, and returns one :class:`WindowResult` per window, in window order. A failing
+window is reported (with its time range) without losing the others; with ``resume_dir``
+each finished window is saved as soon as it arrives, so a rerun after an interruption only
+computes what is missing.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import os
+import pickle
+import time
+import traceback
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from evmotion.errors import MissingDependencyError, ParameterError
+from evmotion.events import EventArray, Window
+from evmotion.utils import atomic_path
+from evmotion.utils import progress as progress_bar
+
+__all__ = ["WindowResult", "map_windows"]
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """Outcome of one window.
+
+    Attributes
+    ----------
+    index : int
+        Position of the window in the input sequence.
+    t0, t1 : int
+        Time range ``[t0, t1)`` of the window in µs.
+    value : Any
+        What ``fn`` returned (None on error).
+    error : str or None
+        ``"ExceptionType: message"`` and the traceback when ``fn`` (or reading) failed.
+    elapsed_s : float
+        Wall time of ``fn`` (and reading the window) in the worker, in seconds.
+    cached : bool
+        True when the value was loaded from ``resume_dir`` instead of computed.
+    """
+
+    index: int
+    t0: int
+    t1: int
+    value: Any = None
+    error: str | None = None
+    elapsed_s: float = 0.0
+    cached: bool = False
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+@dataclass(frozen=True)
+class _Task:
+    index: int
+    t0: int
+    t1: int
+
+
+def _normalize_windows(windows: Iterable[Window | tuple[int, int]]) -> list[_Task]:
+    tasks = []
+    for k, w in enumerate(windows):
+        if isinstance(w, Window):
+            t0, t1 = w.t0, w.t1
+        else:
+            try:
+                t0, t1 = (int(v) for v in w)
+            except (TypeError, ValueError) as exc:
+                raise ParameterError(
+                    f"windows[{k}] must be a Window or a (t0, t1) pair in µs, got {w!r}"
+                ) from exc
+        if t1 < t0:
+            raise ParameterError(f"windows[{k}] ends before it starts: t0={t0} > t1={t1} µs")
+        tasks.append(_Task(k, int(t0), int(t1)))
+    return tasks
+
+
+def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
+                read_kwargs: dict) -> WindowResult:
+    """Run in the worker: read (or take) the window's events and call ``fn``."""
+    start = time.perf_counter()
+    try:
+        if isinstance(source, EventArray):
+            events = source
+        else:
+            from evmotion.io import read_events
+
+            events = read_events(source, t0=task.t0, t1=task.t1, **read_kwargs)
+        value = fn(events, task.t0, task.t1) if with_window else fn(events)
+        return WindowResult(task.index, task.t0, task.t1, value=value,
+                            elapsed_s=time.perf_counter() - start)
+    except Exception as exc:
+        text = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+        return WindowResult(task.index, task.t0, task.t1, error=text,
+                            elapsed_s=time.perf_counter() - start)
+
+
+class _Store:
+    """One pickle per finished window in ``resume_dir``, named by index and time range
+    so that a rerun with other windows never picks up a stale result."""
+
+    def __init__(self, folder: str | os.PathLike | None):
+        self.folder = None if folder is None else Path(folder)
+        if self.folder is not None:
+            self.folder.mkdir(parents=True, exist_ok=True)
+
+    def _path(self, task: _Task) -> Path:
+        return self.folder / f"window_{task.index:06d}_{task.t0}_{task.t1}.pkl"
+
+    def load(self, task: _Task) -> WindowResult | None:
+        if self.folder is None:
+            return None
+        path = self._path(task)
+        if not path.is_file():
+            return None
+        try:
+            with open(path, "rb") as fh:
+                value, elapsed = pickle.load(fh)
+        except (OSError, EOFError, pickle.UnpicklingError, ValueError, TypeError):
+            return None
+        return WindowResult(task.index, task.t0, task.t1, value=value, elapsed_s=elapsed,
+                            cached=True)
+
+    def save(self, res: WindowResult) -> None:
+        if self.folder is None or not res.ok:
+            return
+        with atomic_path(self._path(_Task(res.index, res.t0, res.t1))) as tmp:
+            with open(tmp, "wb") as fh:
+                pickle.dump((res.value, res.elapsed_s), fh, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _payload(source: Any, task: _Task) -> Any:
+    """What a worker receives: the window's slice for in-memory events, else the path."""
+    if isinstance(source, EventArray):
+        return source.slice_time(task.t0, task.t1)
+    return source
+
+
+def map_windows(
+    fn: Callable[..., Any],
+    source: str | os.PathLike | EventArray,
+    windows: Sequence[Window | tuple[int, int]],
+    *,
+    workers: int = 1,
+    executor: str | cf.Executor = "process",
+    scheduler: str | Any | None = None,
+    resume_dir: str | os.PathLike | None = None,
+    progress: bool = True,
+    desc: str = "",
+    with_window: bool = False,
+    read_kwargs: dict | None = None,
+) -> list[WindowResult]:
+    """Apply ``fn`` to the events of every window; results in window order.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(events) -> value`` (or ``fn(events, t0_us, t1_us)`` with ``with_window``).
+        For processes and Dask it must be picklable (a module-level function or a
+        :func:`functools.partial` of one) and so must its return value.
+    source : path or EventArray
+        A recording path: each worker reads its own window with
+        ``evmotion.io.read_events(path, t0=, t1=, **read_kwargs)``. An EventArray: each
+        worker is sent only its window's slice.
+    windows : sequence of Window or (t0, t1)
+        Half-open time ranges ``[t0, t1)`` in µs (e.g. from ``EventArray.windows_by_*``).
+    workers : int
+        Parallel workers for the local executor; 1 runs in this process (no pickling).
+    executor : {"process", "thread"} or concurrent.futures.Executor
+        Local executor kind, or an executor you manage (then ``workers`` only bounds the
+        number of windows in flight).
+    scheduler : str or distributed.Client, optional
+        Run on a Dask cluster instead: a scheduler address (``"tcp://host:8786"``) or a
+        connected ``distributed.Client``. Workers must be able to read ``source``.
+    resume_dir : path, optional
+        Save each finished window there (pickle, atomically) and skip windows already
+        saved. Failed windows are not saved, so a rerun retries them. Use one folder per
+        computation: the files are keyed by window, not by ``fn``.
+    progress : bool
+        Show a progress bar with rate and ETA on stderr.
+    desc : str
+        Label of the progress bar.
+    with_window : bool
+        Also pass the window's ``t0, t1`` (µs) to ``fn``.
+    read_kwargs : dict, optional
+        Extra arguments of ``read_events`` (e.g. ``{"format": "h5"}``).
+
+    Returns
+    -------
+    list of WindowResult
+        One per window, in the order of ``windows``; check ``.ok`` / ``.error``.
+
+    Examples
+    --------
+    >>> def count(ev):
+    ...     return len(ev)
+    >>> ev = EventArray(x=[0, 1, 2], y=[0, 0, 0], t=[0, 10, 20], p=[1, 1, 0],
+    ...                 sensor_size=(1, 3))
+    >>> [r.value for r in map_windows(count, ev, [(0, 15), (15, 30)], progress=False)]
+    [2, 1]
+    """
+    if workers < 1:
+        raise ParameterError(f"workers must be >= 1, got {workers}")
+    if not isinstance(source, EventArray):
+        source = os.fspath(source)
+    tasks = _normalize_windows(windows)
+    read_kwargs = dict(read_kwargs or {})
+    store = _Store(resume_dir)
+    results: dict[int, WindowResult] = {}
+    pending: list[_Task] = []
+    for task in tasks:
+        cached = store.load(task)
+        if cached is not None:
+            results[task.index] = cached
+        else:
+            pending.append(task)
+
+    if pending:
+        if scheduler is not None:
+            stream = _run_dask(fn, source, pending, scheduler, with_window, read_kwargs)
+        elif workers == 1 and isinstance(executor, str):
+            stream = (_run_window(fn, _payload(source, t), t, with_window, read_kwargs)
+                      for t in pending)
+        else:
+            stream = _run_local(fn, source, pending, workers, executor, with_window, read_kwargs)
+        bar = progress_bar(stream, total=len(pending), desc=desc or "windows", unit="win",
+                           disable=None if progress else True)
+        for res in bar:
+            store.save(res)
+            results[res.index] = res
+    return [results[t.index] for t in tasks]
+
+
+def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_window: bool,
+               read_kwargs: dict) -> Iterator[WindowResult]:
+    """Yield results as they complete, keeping at most ``2 * workers`` windows in flight so
+    that in-memory slices are not all pickled at once."""
+    if isinstance(executor, cf.Executor):
+        pool, owned = executor, False
+    elif executor == "process":
+        pool, owned = cf.ProcessPoolExecutor(max_workers=workers), True
+    elif executor == "thread":
+        pool, owned = cf.ThreadPoolExecutor(max_workers=workers), True
+    else:
+        raise ParameterError(f"executor must be 'process', 'thread' or an Executor, "
+                             f"got {executor!r}")
+    limit = 2 * workers
+    queue = iter(tasks)
+    running: dict[cf.Future, _Task] = {}
+    try:
+        while True:
+            while len(running) < limit:
+                task = next(queue, None)
+                if task is None:
+                    break
+                fut = pool.submit(_run_window, fn, _payload(source, task), task, with_window,
+                                  read_kwargs)
+                running[fut] = task
+            if not running:
+                return
+            done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
+            for fut in done:
+                task = running.pop(fut)
+                yield _future_result(fut, task)
+    finally:
+        for fut in running:
+            fut.cancel()
+        if owned:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _future_result(fut, task: _Task) -> WindowResult:
+    """The worker's result, or an error result when the worker itself broke (pickling,
+    a crashed process) rather than ``fn``."""
+    try:
+        return fut.result()
+    except Exception as exc:
+        hint = ""
+        if isinstance(exc, (pickle.PicklingError, AttributeError, TypeError)):
+            hint = (" (with processes or Dask, fn, its arguments and its result must be "
+                    "picklable: use a module-level function, or executor='thread')")
+        return WindowResult(task.index, task.t0, task.t1,
+                            error=f"{type(exc).__name__}: {exc}{hint}")
+
+
+def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
+              read_kwargs: dict) -> Iterator[WindowResult]:
+    try:
+        from distributed import Client, as_completed
+    except ImportError as exc:
+        raise MissingDependencyError("distributed", "running on a Dask cluster",
+                                     extra="dask") from exc
+    client, owned = (scheduler, False) if isinstance(scheduler, Client) else (
+        Client(scheduler), True)
+    limit = 2 * max(1, sum(client.nthreads().values()))
+    queue = iter(tasks)
+    futures: dict[str, _Task] = {}
+
+    def submit():
+        task = next(queue, None)
+        if task is None:
+            return None
+        # pure=False: the same window must run again on a rerun, never be deduplicated.
+        fut = client.submit(_run_window, fn, _payload(source, task), task, with_window,
+                            read_kwargs, pure=False)
+        futures[fut.key] = task
+        return fut
+
+    try:
+        initial = [f for f in (submit() for _ in range(limit)) if f is not None]
+        stream = as_completed(initial)
+        for fut in stream:
+            task = futures.pop(fut.key)
+            yield _future_result(fut, task)
+            nxt = submit()
+            if nxt is not None:
+                stream.add(nxt)
+    finally:
+        if owned:
+            client.close()

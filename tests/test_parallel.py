@@ -1,0 +1,177 @@
+"""map_windows: ordering, executors (serial, thread, process, Dask), failures, resume."""
+
+from __future__ import annotations
+
+import functools
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from evmotion.errors import ParameterError
+from evmotion.events import EventArray
+from evmotion.parallel import WindowResult, map_windows
+
+
+def _events(n: int = 1000, seed: int = 0) -> EventArray:
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(0, 100_000, n))
+    return EventArray(rng.integers(0, 32, n), rng.integers(0, 24, n), t,
+                      rng.integers(0, 2, n), sensor_size=(24, 32))
+
+
+def count_and_span(ev: EventArray) -> tuple[int, int, int]:
+    if not len(ev):
+        return (0, -1, -1)
+    return (len(ev), int(ev.t[0]), int(ev.t[-1]))
+
+
+def slow_reverse(ev: EventArray) -> int:
+    # Earlier windows finish later, so completion order differs from window order.
+    time.sleep(0.02 * max(0, 5 - int(ev.t[0]) // 20_000) if len(ev) else 0)
+    return len(ev)
+
+
+def fail_in_middle(ev: EventArray, t0: int, t1: int) -> int:
+    if t0 == 40_000:
+        raise RuntimeError("deliberate failure")
+    return len(ev)
+
+
+def counted(ev: EventArray, calls_dir: str, fail_from_us: int | None = None) -> int:
+    """Record each call as a file (works across processes), optionally fail late windows."""
+    t0 = int(ev.t[0]) // 20_000 * 20_000
+    Path(calls_dir, f"call_{t0}_{os.getpid()}_{time.perf_counter_ns()}").touch()
+    if fail_from_us is not None and t0 >= fail_from_us:
+        raise RuntimeError("simulated interruption")
+    return len(ev)
+
+
+WINDOWS = [(k * 20_000, (k + 1) * 20_000) for k in range(5)]
+
+
+def _expected(ev: EventArray) -> list[tuple[int, int, int]]:
+    return [count_and_span(ev.slice_time(a, b)) for a, b in WINDOWS]
+
+
+@pytest.mark.parametrize("executor,workers", [("process", 1), ("thread", 3), ("process", 2)])
+def test_results_in_window_order(executor, workers):
+    ev = _events()
+    res = map_windows(count_and_span, ev, WINDOWS, workers=workers, executor=executor,
+                      progress=False)
+    assert [r.index for r in res] == list(range(5))
+    assert [(r.t0, r.t1) for r in res] == WINDOWS
+    assert all(r.ok for r in res)
+    assert [r.value for r in res] == _expected(ev)
+
+
+def test_order_kept_when_completion_order_differs():
+    ev = _events()
+    res = map_windows(slow_reverse, ev, WINDOWS, workers=3, executor="thread", progress=False)
+    assert [r.value for r in res] == [len(ev.slice_time(a, b)) for a, b in WINDOWS]
+
+
+def test_accepts_window_objects():
+    ev = _events()
+    wins = ev.windows_by_count(300)
+    res = map_windows(len, ev, wins, progress=False)
+    assert [r.value for r in res] == [w.count for w in wins]
+
+
+@pytest.mark.parametrize("executor,workers", [("process", 1), ("process", 2)])
+def test_failing_window_reported_others_kept(executor, workers):
+    ev = _events()
+    res = map_windows(fail_in_middle, ev, WINDOWS, workers=workers, executor=executor,
+                      with_window=True, progress=False)
+    bad = [r for r in res if not r.ok]
+    assert len(bad) == 1
+    assert (bad[0].index, bad[0].t0, bad[0].t1) == (2, 40_000, 60_000)
+    assert "RuntimeError: deliberate failure" in bad[0].error
+    assert [r.value for r in res if r.ok] == [len(ev.slice_time(a, b))
+                                             for a, b in WINDOWS if a != 40_000]
+
+
+def test_unpicklable_function_is_reported_clearly():
+    ev = _events()
+    res = map_windows(lambda e: len(e), ev, WINDOWS[:2], workers=2, executor="process",
+                      progress=False)
+    assert not any(r.ok for r in res)
+    assert "picklable" in res[0].error
+
+
+def test_resume_skips_finished_windows(tmp_path):
+    ev = _events()
+    calls = tmp_path / "calls"
+    calls.mkdir()
+    resume = tmp_path / "resume"
+    first = map_windows(functools.partial(counted, calls_dir=str(calls), fail_from_us=60_000),
+                        ev, WINDOWS, workers=2, executor="process", resume_dir=resume,
+                        progress=False)
+    assert [r.ok for r in first] == [True, True, True, False, False]
+    assert len(list(calls.iterdir())) == 5
+    assert len(list(resume.glob("*.pkl"))) == 3
+    for f in calls.iterdir():
+        f.unlink()
+    second = map_windows(functools.partial(counted, calls_dir=str(calls)), ev, WINDOWS,
+                         workers=2, executor="process", resume_dir=resume, progress=False)
+    assert all(r.ok for r in second)
+    assert [r.cached for r in second] == [True, True, True, False, False]
+    assert [r.value for r in second] == [len(ev.slice_time(a, b)) for a, b in WINDOWS]
+    recomputed = sorted(int(f.name.split("_")[1]) for f in calls.iterdir())
+    assert recomputed == [60_000, 80_000]
+    # A third run computes nothing at all.
+    for f in calls.iterdir():
+        f.unlink()
+    third = map_windows(functools.partial(counted, calls_dir=str(calls)), ev, WINDOWS,
+                        resume_dir=resume, progress=False)
+    assert all(r.cached for r in third) and not list(calls.iterdir())
+
+
+def test_dask_local_cluster():
+    distributed = pytest.importorskip("distributed")
+    ev = _events()
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        res = map_windows(fail_in_middle, ev, WINDOWS, scheduler=client, with_window=True,
+                          progress=False)
+        res2 = map_windows(count_and_span, ev, WINDOWS, scheduler=cluster.scheduler_address,
+                           progress=False)
+    assert [r.index for r in res] == list(range(5))
+    assert [r.ok for r in res] == [True, True, False, True, True]
+    assert "deliberate failure" in res[2].error
+    assert [r.value for r in res2] == _expected(ev)
+
+
+def test_path_source_reads_each_window(tmp_path, monkeypatch):
+    import evmotion.io as evio
+
+    ev = _events()
+    seen = []
+
+    def fake_read_events(path, t0=None, t1=None, **kw):
+        seen.append((path, t0, t1, kw))
+        return ev.slice_time(t0, t1)
+
+    monkeypatch.setattr(evio, "read_events", fake_read_events, raising=False)
+    res = map_windows(count_and_span, tmp_path / "rec.h5", WINDOWS, progress=False,
+                      read_kwargs={"format": "h5"})
+    assert [r.value for r in res] == _expected(ev)
+    assert seen == [(str(tmp_path / "rec.h5"), a, b, {"format": "h5"}) for a, b in WINDOWS]
+
+
+def test_bad_arguments():
+    ev = _events()
+    with pytest.raises(ParameterError, match="workers"):
+        map_windows(len, ev, WINDOWS, workers=0)
+    with pytest.raises(ParameterError, match=r"windows\[1\]"):
+        map_windows(len, ev, [(0, 10), (20, 5)])
+    with pytest.raises(ParameterError, match="executor"):
+        map_windows(len, ev, WINDOWS, workers=2, executor="gpu")
+
+
+def test_window_result_ok():
+    assert WindowResult(0, 0, 1, value=3).ok
+    assert not WindowResult(0, 0, 1, error="x").ok
