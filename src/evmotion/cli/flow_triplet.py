@@ -1,0 +1,344 @@
+"""``evmotion flow FILE --method triplet``: event-by-event triplet-matching flow (ch. 5).
+
+Streams the recording in chunks through :class:`~evmotion.methods.triplet.TripletMatcher`,
+so memory does not grow with the file. Output by extension: ``.h5`` dense per-window
+fields (voxelized, 3x3 non-zero averaged, collapsed; px/s), ``.npz`` sparse per-event flow
+(``t, x, y, p, vx, vy, valid, n_triplets``).
+"""
+
+from __future__ import annotations
+
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import ParameterError
+
+DEFAULT_WINDOW_US = 50_000
+
+
+def add_arguments(group) -> None:
+    group.add_argument("--dx", type=float, default=float(np.sqrt(2.0)),
+                       help="neighbourhood radius d_x in px (default sqrt(2))")
+    group.add_argument("--dt-ms", type=float, default=100.0, help="delay window d_t (ms)")
+    group.add_argument("--tau-ms", type=float, default=3.0, help="refractory period tau (ms)")
+    group.add_argument("--quadruple", action="store_true",
+                       help="match 4 aligned events instead of 3 (§5.3.5)")
+    group.add_argument("--bins", type=int, default=1,
+                       help="time bins per window for the dense output (default 1)")
+    group.add_argument("--chunk-events", type=int, default=1_000_000,
+                       help="events read and processed at a time (default 1e6)")
+    group.add_argument("--depth", type=int, default=8,
+                       help="timestamps remembered per pixel and polarity (default 8)")
+
+
+def run(args) -> int:
+    from evmotion.cli import print_json
+    from evmotion.methods.triplet import TripletMatcher
+    from evmotion.utils import progress
+
+    out = Path(args.out)
+    kind = out.suffix.lower()
+    if kind not in (".h5", ".hdf5", ".npz"):
+        raise ParameterError(f"--out {out}: the triplet method writes .h5 (dense per window) "
+                             "or .npz (sparse per event)")
+    if args.chunk_events <= 0:
+        raise ParameterError(f"--chunk-events must be > 0, got {args.chunk_events}")
+    if getattr(args, "window_gt", None):
+        raise ParameterError("--window-gt is not supported by --method triplet yet; "
+                             "use --window-us or --window-events")
+    dense = kind != ".npz" or args.png_dir
+    chunks = _iter_chunks(args.file, getattr(args, "format", None), args.chunk_events)
+    first = next(chunks, None)
+    if first is None:
+        raise ParameterError(f"{args.file}: no events")
+    sensor = first.sensor_size
+    matcher = TripletMatcher(sensor, args.dx, int(round(args.dt_ms * 1000)),
+                             int(round(args.tau_ms * 1000)), quadruple=args.quadruple,
+                             depth=args.depth)
+    windows = _Windows(sensor, args.bins, args.window_us, args.window_events,
+                       int(first.t[0])) if dense else None
+    sink = _NpzSink(out) if kind == ".npz" else _H5Sink(out, sensor)
+    png_dir = Path(args.png_dir) if args.png_dir else None
+    bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True)
+    n_events = n_valid = n_trip = 0
+    t_first, t_last = int(first.t[0]), int(first.t[0])
+    n_windows = 0
+    wall0 = time.perf_counter()
+    try:
+        chunk = first
+        while chunk is not None:
+            flow = matcher.process(chunk)
+            n_events += len(chunk)
+            n_valid += int(flow.valid.sum())
+            n_trip += int(flow.n_triplets.sum(dtype=np.int64))
+            if len(chunk):
+                t_last = int(chunk.t[-1])
+            if kind == ".npz":
+                sink.add(chunk, flow)
+            if windows is not None:
+                for win in windows.add(chunk, flow):
+                    n_windows += _emit(win, sink, png_dir, kind)
+            bar.update(len(chunk))
+            chunk = next(chunks, None)
+        if windows is not None:
+            for win in windows.finish():
+                n_windows += _emit(win, sink, png_dir, kind)
+        sink.close()
+    except BaseException:
+        sink.abort()
+        raise
+    finally:
+        bar.close()
+    wall = time.perf_counter() - wall0
+    if args.json:
+        print_json({
+            "method": "triplet", "file": str(args.file), "out": str(out),
+            "sensor_size": {"height": sensor[0], "width": sensor[1]},
+            "events": n_events, "duration_s": (t_last - t_first) * 1e-6,
+            "valid_fraction": n_valid / max(n_events, 1),
+            "mean_triplets": n_trip / max(n_events, 1),
+            "windows": n_windows, "overflow": matcher.overflow,
+            "state_bytes": matcher.state_nbytes,
+            "wall_s": wall, "events_per_s": n_events / wall if wall > 0 else None,
+            "params": {"dx": args.dx, "dt_ms": args.dt_ms, "tau_ms": args.tau_ms,
+                       "quadruple": args.quadruple, "bins": args.bins, "depth": args.depth},
+        })
+    return 0
+
+
+def _iter_chunks(path, fmt, chunk_events):
+    import evmotion.io as eio
+
+    kw = {"format": fmt} if fmt else {}
+    if hasattr(eio, "iter_events"):
+        yield from eio.iter_events(path, chunk_events=chunk_events, **kw)
+        return
+    if not hasattr(eio, "read_events"):
+        raise ParameterError("no event reader is available in evmotion.io yet")
+    ev = eio.read_events(path, **kw)
+    for s in range(0, len(ev), chunk_events):
+        yield ev[s:s + chunk_events]
+
+
+class _Window:
+    """A finished dense window: collapsed flow (px/s), mask, IWE and its time span."""
+
+    def __init__(self, index, t0, t1, flow, mask, iwe, n_events):
+        self.index, self.t0, self.t1 = index, t0, t1
+        self.flow, self.mask, self.iwe, self.n_events = flow, mask, iwe, n_events
+
+
+class _Windows:
+    """Accumulates per-event flow into voxel sums window by window (time or count windows),
+    and the IWE of each window's events warped by their own flow to the window start."""
+
+    def __init__(self, sensor, bins, window_us, window_events, t_start):
+        if bins < 1:
+            raise ParameterError(f"--bins must be >= 1, got {bins}")
+        if window_us is not None and window_us <= 0:
+            raise ParameterError(f"--window-us must be > 0, got {window_us}")
+        if window_events is not None and window_events <= 0:
+            raise ParameterError(f"--window-events must be > 0, got {window_events}")
+        self.sensor, self.bins = sensor, bins
+        self.by_count = window_events
+        self.window_us = window_us or (None if window_events else DEFAULT_WINDOW_US)
+        self.index = 0
+        self.t0 = t_start
+        self._new()
+
+    def _new(self):
+        h, w = self.sensor
+        self.acc = np.zeros((self.bins, h, w, 2), np.float64)
+        self.cnt = np.zeros((self.bins, h, w), np.int64)
+        self.iwe = np.zeros((h, w), np.float64)
+        self.n = 0
+        self.pending = []  # count windows: (events, flow) until the end time is known
+
+    def add(self, chunk, flow):
+        if self.by_count:
+            yield from self._add_count(chunk, flow)
+            return
+        t = chunk.t
+        start = 0
+        while start < len(chunk):
+            t1 = self.t0 + self.window_us
+            stop = int(np.searchsorted(t, t1, side="left"))
+            self._accumulate(chunk[start:stop], _slice(flow, start, stop), self.t0, t1)
+            start = stop
+            if stop < len(chunk):
+                yield self._close(t1)
+                self.t0 = t1
+
+    def _add_count(self, chunk, flow):
+        start = 0
+        while start < len(chunk):
+            take = min(self.by_count - self.n, len(chunk) - start)
+            self.pending.append((chunk[start:start + take], _slice(flow, start, start + take)))
+            self.n += take
+            start += take
+            if self.n == self.by_count:
+                t1 = (int(chunk.t[start]) if start < len(chunk)
+                      else int(self.pending[-1][0].t[-1]) + 1)
+                yield self._close_count(t1)
+
+    def _close_count(self, t1):
+        n = self.n
+        for ev, fl in self.pending:
+            self._accumulate(ev, fl, self.t0, t1)
+        win = self._close(t1)
+        win.n_events = n
+        self.t0 = t1
+        return win
+
+    def _accumulate(self, ev, fl, t0, t1):
+        from evmotion.methods.triplet import add_voxels
+
+        if not len(ev):
+            return
+        add_voxels(ev, fl, t0, t1, self.acc, self.cnt)
+        self.n += 0 if self.by_count else len(ev)
+        dt = (ev.t - t0).astype(np.float64) * 1e-6
+        _splat(self.iwe, ev.x.astype(np.float64) - fl.vx * dt,
+               ev.y.astype(np.float64) - fl.vy * dt)
+
+    def _close(self, t1):
+        from evmotion.methods.triplet import _voxel_mean, collapse_voxels
+
+        vox, vm = _voxel_mean(self.acc, self.cnt)
+        flow, mask = collapse_voxels(vox, vm)
+        win = _Window(self.index, self.t0, t1, flow, mask, self.iwe, self.n)
+        self.index += 1
+        self._new()
+        return win
+
+    def finish(self):
+        if self.by_count:
+            if self.n:
+                last = self.pending[-1][0]
+                yield self._close_count(int(last.t[-1]) + 1)
+        elif self.n:
+            yield self._close(self.t0 + self.window_us)
+
+
+def _slice(flow, a, b):
+    from evmotion.methods.triplet import TripletFlow
+
+    return TripletFlow(flow.vx[a:b], flow.vy[a:b], flow.valid[a:b], flow.n_triplets[a:b])
+
+
+def _splat(img, x, y):
+    """Bilinear vote of each point into ``img`` (H, W); points off the image are dropped."""
+    h, w = img.shape
+    x0 = np.floor(x).astype(np.int64)
+    y0 = np.floor(y).astype(np.int64)
+    fx, fy = x - x0, y - y0
+    for dx, dy, wt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
+                       (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+        xx, yy = x0 + dx, y0 + dy
+        ok = (xx >= 0) & (xx < w) & (yy >= 0) & (yy < h)
+        img.ravel()[:] += np.bincount(yy[ok] * w + xx[ok], wt[ok], minlength=h * w)
+
+
+def _emit(win, sink, png_dir, kind) -> int:
+    if kind != ".npz":
+        sink.add_window(win)
+    if png_dir is not None:
+        from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_png
+
+        png_dir.mkdir(parents=True, exist_ok=True)
+        save_png(png_dir / f"flow_{win.index:05d}.png", flow_to_rgb(win.flow, mask=win.mask))
+        save_png(png_dir / f"iwe_{win.index:05d}.png", iwe_to_rgb(win.iwe))
+    return 1
+
+
+class _H5Sink:
+    """Dense windows appended to resizable HDF5 datasets, renamed into place at the end."""
+
+    def __init__(self, out: Path, sensor):
+        import h5py
+
+        from evmotion.utils import atomic_path
+
+        self._ctx = atomic_path(out)
+        tmp = self._ctx.__enter__()
+        h, w = sensor
+        self.f = h5py.File(tmp, "w")
+        self.f.attrs.update(method="triplet", units="px/s", layout="(N, H, W, 2) u right v down")
+        self.flow = self.f.create_dataset("flow", (0, h, w, 2), np.float32,
+                                          maxshape=(None, h, w, 2), chunks=(1, h, w, 2),
+                                          compression="gzip", compression_opts=1)
+        self.mask = self.f.create_dataset("mask", (0, h, w), bool, maxshape=(None, h, w),
+                                          chunks=(1, h, w), compression="gzip")
+        self.t0 = self.f.create_dataset("t0_us", (0,), np.int64, maxshape=(None,))
+        self.t1 = self.f.create_dataset("t1_us", (0,), np.int64, maxshape=(None,))
+
+    def add_window(self, win):
+        n = self.flow.shape[0]
+        for d in (self.flow, self.mask, self.t0, self.t1):
+            d.resize(n + 1, axis=0)
+        self.flow[n] = win.flow
+        self.mask[n] = win.mask
+        self.t0[n] = win.t0
+        self.t1[n] = win.t1
+
+    def close(self):
+        self.f.close()
+        self._ctx.__exit__(None, None, None)
+
+    def abort(self):
+        self.f.close()
+        self._ctx.__exit__(RuntimeError, RuntimeError("aborted"), None)
+
+
+class _NpzSink:
+    """Per-event arrays streamed to raw temporary files, then stored as ``.npy`` members of
+    a zip (an ``.npz``) without holding the stream in memory."""
+
+    FIELDS = (("t", np.int64), ("x", np.float32), ("y", np.float32), ("p", np.uint8),
+              ("vx", np.float32), ("vy", np.float32), ("valid", np.bool_),
+              ("n_triplets", np.int32))
+
+    def __init__(self, out: Path):
+        import tempfile
+
+        from evmotion.utils import atomic_path
+
+        self._ctx = atomic_path(out)
+        self.tmp = self._ctx.__enter__()
+        self.dir = tempfile.TemporaryDirectory(prefix=".triplet-", dir=out.parent)
+        self.files = {k: open(Path(self.dir.name) / k, "wb") for k, _ in self.FIELDS}
+        self.n = 0
+
+    def add(self, chunk, flow):
+        vals = {"t": chunk.t, "x": chunk.x, "y": chunk.y, "p": chunk.p, "vx": flow.vx,
+                "vy": flow.vy, "valid": flow.valid, "n_triplets": flow.n_triplets}
+        for k, dt in self.FIELDS:
+            self.files[k].write(np.ascontiguousarray(vals[k], dtype=dt).tobytes())
+        self.n += len(chunk)
+
+    def close(self):
+        for fh in self.files.values():
+            fh.close()
+        with zipfile.ZipFile(self.tmp, "w", allowZip64=True) as zf:
+            for k, dt in self.FIELDS:
+                with zf.open(f"{k}.npy", "w", force_zip64=True) as dst, \
+                        open(Path(self.dir.name) / k, "rb") as src:
+                    np.lib.format.write_array_header_1_0(
+                        dst, {"descr": np.lib.format.dtype_to_descr(np.dtype(dt)),
+                              "fortran_order": False, "shape": (self.n,)})
+                    while block := src.read(1 << 22):
+                        dst.write(block)
+        self.dir.cleanup()
+        self._ctx.__exit__(None, None, None)
+
+    def abort(self):
+        for fh in self.files.values():
+            fh.close()
+        self.dir.cleanup()
+        self._ctx.__exit__(RuntimeError, RuntimeError("aborted"), None)
+
+    def add_window(self, win):
+        raise AssertionError("sparse output has no windows")

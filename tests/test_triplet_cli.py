@@ -1,0 +1,93 @@
+"""``evmotion flow --method triplet``: streaming output (.npz sparse, .h5 dense), PNGs, JSON."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+import evmotion.io as eio
+from evmotion.cli import main
+from evmotion.events import EventArray
+from evmotion.methods.triplet import TripletMatcher, estimate_flow_triplet
+
+
+def edge_events(speed_px_s: float, size: int = 40) -> EventArray:
+    """A vertical edge sweeping right: each pixel fires once when the edge reaches it."""
+    yy, xx = np.mgrid[0:size, 0:size]
+    t = np.rint(xx.ravel() / speed_px_s * 1e6).astype(np.int64)
+    order = np.argsort(t, kind="stable")
+    return EventArray(xx.ravel()[order], yy.ravel()[order], t[order], np.ones(t.size),
+                      (size, size))
+
+
+@pytest.fixture
+def edge_file(monkeypatch, tmp_path):
+    """A fake recording: the I/O layer is replaced by an in-memory chunked reader."""
+    ev = edge_events(200.0, size=40)
+    seen = {}
+
+    def iter_events(path, chunk_events, **kw):
+        seen["chunk_events"] = chunk_events
+        for s in range(0, len(ev), chunk_events):
+            yield ev[s:s + chunk_events]
+
+    monkeypatch.setattr(eio, "iter_events", iter_events, raising=False)
+    return tmp_path / "rec.dat", ev, seen
+
+
+def test_sparse_npz_streams_and_matches_api(edge_file, tmp_path, capsys):
+    path, ev, seen = edge_file
+    out = tmp_path / "flow.npz"
+    rc = main(["flow", str(path), "--method", "triplet", "--out", str(out),
+               "--chunk-events", "333", "--json"])
+    assert rc == 0 and seen["chunk_events"] == 333
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["events"] == len(ev) and summary["overflow"] == 0
+    ref = TripletMatcher(ev.sensor_size).process(ev)
+    with np.load(out) as z:
+        np.testing.assert_array_equal(z["vx"], ref.vx)
+        np.testing.assert_array_equal(z["valid"], ref.valid)
+        np.testing.assert_array_equal(z["t"], ev.t)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_dense_h5_windows_and_pngs(edge_file, tmp_path):
+    path, ev, _ = edge_file
+    out = tmp_path / "flow.h5"
+    rc = main(["flow", str(path), "--method", "triplet", "--out", str(out),
+               "--window-us", "50000", "--chunk-events", "500",
+               "--png-dir", str(tmp_path / "png")])
+    assert rc == 0
+    ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000))
+    with h5py.File(out) as f:
+        flow, mask = f["flow"][:], f["mask"][:]
+        assert flow.shape == ref.flows.shape
+        np.testing.assert_array_equal(mask, ref.masks)
+        np.testing.assert_allclose(flow, ref.flows, rtol=1e-5, atol=1e-3)
+        np.testing.assert_array_equal(f["t0_us"][:], [w.t0 for w in ref.windows])
+    pngs = sorted(p.name for p in (tmp_path / "png").iterdir())
+    assert pngs[0] == "flow_00000.png" and f"iwe_{len(ref.windows) - 1:05d}.png" in pngs
+
+
+def test_count_windows(edge_file, tmp_path):
+    path, ev, _ = edge_file
+    out = tmp_path / "flow.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
+                 "--window-events", "400", "--chunk-events", "170", "--bins", "2"]) == 0
+    ref = estimate_flow_triplet(ev, ev.windows_by_count(400), n_bins=2)
+    with h5py.File(out) as f:
+        np.testing.assert_allclose(f["flow"][:], ref.flows, rtol=1e-5, atol=1e-3)
+
+
+def test_bad_options_are_reported(edge_file, tmp_path, capsys):
+    path, _, _ = edge_file
+    assert main(["flow", str(path), "--method", "triplet", "--out",
+                 str(tmp_path / "x.flo")]) == 2
+    assert "writes .h5" in capsys.readouterr().err
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
+                 "--dx", "0.3"]) == 2
+    assert "dx" in capsys.readouterr().err
+    assert not (tmp_path / "x.h5").exists()
