@@ -5,7 +5,9 @@ regularizer here is a *penalty*: larger means more collapse. The thesis' statist
 signed so that collapse gives small values (negative divergence, area amplification below
 one); the penalties negate them:
 
-* ``"divergence"`` -- per-event divergence of the warp flow (3.9), averaged per pixel into
+* ``"divergence"`` -- per-event divergence of the warp flow (3.9) measured per window
+  (``div f`` in 1/s times the window duration ``T = max dt - min dt``: the thesis'
+  normalized time, so that its margin and weights apply unchanged), averaged per pixel into
   the DIWE map (3.11) (bilinear votes of the warped events, empty pixels 0); the penalty is
   minus the trimmed mean (3.12) of the DIWE pixels below ``alpha = -0.2`` (0 when none).
 * ``"deformation"`` -- per-event area amplification ``|det J|`` (3.14), averaged per pixel
@@ -45,6 +47,7 @@ __all__ = [
     "DEFAULT_MARGINS",
     "DEFAULT_WEIGHTS",
     "REGULARIZERS",
+    "window_span",
     "regularizer_maps",
     "regularizer_value_grad",
     "whiten",
@@ -97,16 +100,28 @@ def _gather_bilinear(img, xw, yw, out):
 # ---------------------------------------------------------------------------------------
 # Per-event statistics and their parameter derivatives
 
+def window_span(dt) -> float:
+    """The window's duration ``T = max dt - min dt`` in seconds (1 if all times are equal):
+    the unit of the thesis' normalized time, in which the divergence is measured."""
+    t0, t1 = _time_span(dt)
+    return t1 - t0 if t1 > t0 else 1.0
+
+
 def _event_values(kind: str, warp: Warp, x, y, dt, theta):
-    """(d_k, dd_k/dtheta): divergence, or |det J| - 1."""
+    """(d_k, dd_k/dtheta): divergence per window (1/s times T), or |det J| - 1."""
     fast = _FAST.get(warp.name)
     if fast is not None:
-        return fast(kind, warp, dt, theta)
+        d, g = fast(kind, warp, dt, theta)
+    elif kind == "divergence":
+        d, g = warp.divergence(x, y, dt, theta, grad=True)
+    else:
+        det, g = warp.jacobian_det(x, y, dt, theta, grad=True)
+        sgn = np.sign(det)
+        return np.abs(det) - 1.0, g * sgn[:, None]
     if kind == "divergence":
-        return warp.divergence(x, y, dt, theta, grad=True)
-    det, g = warp.jacobian_det(x, y, dt, theta, grad=True)
-    sgn = np.sign(det)
-    return np.abs(det) - 1.0, g * sgn[:, None]
+        T = window_span(dt)
+        return d * T, g * T
+    return d, g
 
 
 def _fast_zoom(kind, warp, dt, th):
@@ -376,7 +391,7 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
                      ) -> dict[str, np.ndarray]:
     """Maps for plotting (H, W) float64.
 
-    * divergence: ``"diwe"`` (3.11, empty pixels 0), ``"count"`` (the IWE of vote mass),
+    * divergence: ``"diwe"`` (3.11, per window as in the thesis, empty pixels 0), ``"count"`` (the IWE of vote mass),
       ``"trimmed"`` (bool, the pixels below the margin);
     * deformation: ``"iwa"`` (3.16, empty pixels 1), ``"count"``, ``"trimmed"``;
     * rcad: ``"rcad"`` -- the integrated rate (area log-ratio) at every pixel's trajectory,
@@ -388,7 +403,7 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
     >>> w = make_warp("zoom", (4, 5))
     >>> m = regularizer_maps("divergence", w, np.array([2.0]), np.array([1.0]),
     ...                      np.array([0.01]), np.array([1.0]), (4, 5))
-    >>> float(m["diwe"][1, 2])
+    >>> float(m["diwe"][1, 2])  # -2 h_z per window; one event: T = 1
     -2.0
     """
     if name not in REGULARIZERS:

@@ -1,0 +1,225 @@
+"""Collapse regularizers (3.6): maps vs a plain-numpy reference, analytic gradients vs finite
+differences, the thesis' closed forms and qualitative behaviour, whitening."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evmotion.core.regularizers import (
+    DEFAULT_WEIGHTS,
+    REGULARIZERS,
+    regularizer_maps,
+    regularizer_value_grad,
+    whiten,
+    window_span,
+)
+from evmotion.core.warps import make_warp
+from evmotion.errors import EmptyWindowError, ParameterError
+
+H, W = 40, 50
+K = np.array([[45.0, 0, 25.0], [0, 45.0, 19.0], [0, 0, 1]])
+T = 0.05
+THETA = {
+    "zoom": [8.0],
+    "rotation": [1.0, -20.0, 3.0],
+    "inplane": [40.0, 10.0, 0.3, 5.0],
+    "similarity": [40.0, 10.0, 2.0, 9.0],
+    "affine": [40.0, 10.0, 5.0, 2.0, -1.0, 9.0],
+    "homography": [5.0, 2.0, 30.0, -1.0, 9.0, 20.0, 1e-2, -2e-2],
+}
+
+
+def _events(n=800, seed=0):
+    rng = np.random.default_rng(seed)
+    dt = np.sort(rng.uniform(0, T, n))
+    return rng.uniform(0, W - 1, n), rng.uniform(0, H - 1, n), dt
+
+
+def _bilinear_reference(xw, yw, values, shape):
+    """Plain numpy bilinear votes (np.add.at), written independently of core.iwe."""
+    h, w = shape
+    out = np.zeros(shape)
+    x0, y0 = np.floor(xw).astype(int), np.floor(yw).astype(int)
+    fx, fy = xw - x0, yw - y0
+    for dx, dy, wt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
+                       (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+        xi, yi = x0 + dx, y0 + dy
+        ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+        np.add.at(out, (yi[ok], xi[ok]), (values * wt)[ok])
+    return out
+
+
+@pytest.mark.parametrize("name", ["zoom", "rotation", "homography"])
+def test_maps_match_numpy_reference(name):
+    w = make_warp(name, (H, W), K=K)
+    th = np.array(THETA[name])
+    x, y, dt = _events()
+    xw, yw = w.warp(x, y, dt, th)
+    cnt = _bilinear_reference(xw, yw, np.ones_like(x), (H, W))
+    div = w.divergence(x, y, dt, th) * (dt.max() - dt.min())
+    det = np.abs(w.jacobian_det(x, y, dt, th))
+    sup = cnt > 1e-9
+    diwe = np.where(sup, _bilinear_reference(xw, yw, div, (H, W)) / np.where(sup, cnt, 1), 0)
+    iwa = 1 + np.where(sup, _bilinear_reference(xw, yw, det - 1, (H, W))
+                       / np.where(sup, cnt, 1), 0)
+    m = regularizer_maps("divergence", w, x, y, dt, th, (H, W))
+    np.testing.assert_allclose(m["diwe"], diwe, atol=1e-10)
+    np.testing.assert_allclose(m["count"], cnt, atol=1e-10)
+    v, _ = regularizer_value_grad("divergence", w, x, y, dt, th, (H, W))
+    sel = sup & (diwe < -0.2)
+    assert v == pytest.approx(-diwe[sel].mean() if sel.any() else 0.0)
+    m = regularizer_maps("deformation", w, x, y, dt, th, (H, W))
+    np.testing.assert_allclose(m["iwa"], iwa, atol=1e-10)
+    v, _ = regularizer_value_grad("deformation", w, x, y, dt, th, (H, W))
+    sel = sup & (iwa < 0.8)
+    assert v == pytest.approx((1 - iwa[sel]).mean() if sel.any() else 0.0)
+
+
+@pytest.mark.parametrize("reg", list(REGULARIZERS))
+@pytest.mark.parametrize("name", list(THETA))
+def test_gradients_vs_finite_differences(reg, name):
+    w = make_warp(name, (H, W), K=K)
+    th = np.array(THETA[name])
+    x, y, dt = _events(400, seed=1)
+    v, g = regularizer_value_grad(reg, w, x, y, dt, th, (H, W))
+    assert v > 0  # these parameters collapse: every penalty is active
+    for j in range(len(th)):
+        h = 1e-7 * max(1.0, abs(th[j]))
+        tp, tm = th.copy(), th.copy()
+        tp[j] += h
+        tm[j] -= h
+        fd = (regularizer_value_grad(reg, w, x, y, dt, tp, (H, W))[0]
+              - regularizer_value_grad(reg, w, x, y, dt, tm, (H, W))[0]) / (2 * h)
+        assert g[j] == pytest.approx(fd, rel=1e-5, abs=1e-7)
+    # precomputed warped events and Jacobians give the same result
+    xw, yw, jx, jy = w.warp(x, y, dt, th, jacobian=True)
+    v2, g2 = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw, jx=jx, jy=jy)
+    assert v2 == v
+    np.testing.assert_array_equal(g2, g)
+
+
+def test_zoom_closed_forms():
+    w = make_warp("zoom", (H, W))
+    x, y, dt = _events()
+    span = window_span(dt)
+    for bz in (0.05, 0.3, 0.9):  # thesis (3.7) parameter, per window
+        h = bz / span
+        th = np.array([h])
+        # divergence per window is -2 b_z everywhere: penalty 2 b_z once below -0.2
+        v, g = regularizer_value_grad("divergence", w, x, y, dt, th, (H, W))
+        assert v == pytest.approx(2 * bz if 2 * bz > 0.2 else 0.0)
+        # RCAD (3.21) over the window [0, T] with t_ref = t_1: -2 log|1 - b_z|
+        t0, t1 = dt.min(), dt.max()
+        v, g = regularizer_value_grad("rcad", w, x, y, dt, th, (H, W))
+        assert v == pytest.approx(2 * np.log(abs((1 - t0 * h) / (1 - t1 * h))))
+        assert g[0] == pytest.approx(2 * (t1 / (1 - t1 * h) - t0 / (1 - t0 * h)))
+    # expansion: negative RCAD, no divergence/deformation penalty
+    th = np.array([-0.5 / span])
+    assert regularizer_value_grad("rcad", w, x, y, dt, th, (H, W))[0] < 0
+    assert regularizer_value_grad("divergence", w, x, y, dt, th, (H, W))[0] == 0
+    assert regularizer_value_grad("deformation", w, x, y, dt, th, (H, W))[0] == 0
+    # barrier: RCAD grows without bound as b_z -> 1
+    vals = [regularizer_value_grad("rcad", w, x, y, dt, np.array([b / span]), (H, W))[0]
+            for b in (0.5, 0.9, 0.99, 0.999)]
+    assert np.all(np.diff(vals) > 0) and vals[-1] > 10
+
+
+def test_well_posed_warps_are_not_penalized():
+    x, y, dt = _events()
+    for name, th in (("translation", [300.0, -100.0]), ("se2", [100.0, 20.0, 3.0])):
+        w = make_warp(name, (H, W), K=K)
+        for reg in REGULARIZERS:
+            v, g = regularizer_value_grad(reg, w, x, y, dt, np.array(th), (H, W))
+            assert v == 0 and not np.any(g)
+    w = make_warp("rotation", (H, W), K=K)
+    # small rotation: the (3.28) map stays inside the margin; about z: no deformation
+    for om in ([0.5, -0.3, 0.2], [0.0, 0.0, 4.0]):
+        for reg in REGULARIZERS:
+            assert regularizer_value_grad(reg, w, x, y, dt, np.array(om), (H, W))[0] == 0
+    m = regularizer_maps("rcad", w, x, y, dt, np.array([0.0, 0.0, 40.0]), (H, W))
+    np.testing.assert_allclose(m["rcad"], 0, atol=1e-12)
+
+
+def test_rcad_map_rotation_and_general():
+    x, y, dt = _events()
+    w = make_warp("rotation", (H, W), K=K)
+    om = np.array([0.6, -0.4, 0.2])
+    m = regularizer_maps("rcad", w, x, y, dt, om, (H, W))["rcad"]
+    # dense, and ~ (3.28) with the trajectory frozen at t_ref: 3 T (wx y - wy x)
+    yy, xx = np.mgrid[0:H, 0:W]
+    xn, yn = (xx - K[0, 2]) / K[0, 0], (yy - K[1, 2]) / K[1, 1]
+    span = dt.max() - dt.min()
+    approx = 3 * span * (om[0] * yn - om[1] * xn)
+    np.testing.assert_allclose(m, approx, atol=0.1 * np.abs(approx).max())
+    # the homography with a zero projective row has the affine closed form
+    wa = make_warp("affine", (H, W))
+    wh = make_warp("homography", (H, W))
+    tha = np.array(THETA["affine"])
+    thh = np.array([tha[2], tha[3], tha[0], tha[4], tha[5], tha[1], 0, 0])
+    va, _ = regularizer_value_grad("rcad", wa, x, y, dt, tha, (H, W))
+    vh, _ = regularizer_value_grad("rcad", wh, x, y, dt, thh, (H, W))
+    assert vh == pytest.approx(va)
+
+
+def test_whitening():
+    rng = np.random.default_rng(3)
+    x, y, dt = _events(300)
+    w = make_warp("affine", (H, W))
+    th = np.array(THETA["affine"])
+    xw, yw, jx, jy = w.warp(x, y, dt, th, jacobian=True)
+    zx, zy, zjx, zjy = whiten(xw, yw, jx, jy, center=(25.0, 20.0), scale=7.0)
+    z = np.stack([zx - 25.0, zy - 20.0]) / 7.0
+    np.testing.assert_allclose(z.mean(axis=1), 0, atol=1e-12)
+    np.testing.assert_allclose(z @ z.T / len(x), np.eye(2), atol=1e-12)
+    for j in range(len(th)):
+        h = 1e-6 * max(1.0, abs(th[j]))
+        tp, tm = th.copy(), th.copy()
+        tp[j] += h
+        tm[j] -= h
+        a = whiten(*w.warp(x, y, dt, tp), center=(25.0, 20.0), scale=7.0)
+        b = whiten(*w.warp(x, y, dt, tm), center=(25.0, 20.0), scale=7.0)
+        np.testing.assert_allclose(zjx[:, j], (a[0] - b[0]) / (2 * h), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(zjy[:, j], (a[1] - b[1]) / (2 * h), rtol=1e-5, atol=1e-6)
+    with pytest.raises(EmptyWindowError, match="collinear"):
+        whiten(np.arange(5.0), 2 * np.arange(5.0))
+    del rng
+
+
+def test_errors_and_defaults():
+    w = make_warp("zoom", (H, W))
+    x, y, dt = _events(10)
+    with pytest.raises(ParameterError, match="unknown regularizer 'div'"):
+        regularizer_value_grad("div", w, x, y, dt, np.array([1.0]), (H, W))
+    with pytest.raises(EmptyWindowError):
+        regularizer_value_grad("divergence", w, x[:0], y[:0], dt[:0], np.array([1.0]), (H, W))
+    with pytest.raises(ParameterError, match="shape"):
+        regularizer_value_grad("rcad", w, x, y, dt, np.array([1.0]), (0, W))
+    assert DEFAULT_WEIGHTS["mvsec"] == {"divergence": 2.0, "deformation": 5.0, "rcad": 0.2}
+    assert DEFAULT_WEIGHTS["dsec"] == {"divergence": 50.0, "deformation": 100.0, "rcad": 1.0}
+    assert DEFAULT_WEIGHTS["ecd"]["divergence"] == 5.0
+    assert DEFAULT_WEIGHTS["ecd"]["deformation"] == 10.0
+
+
+def test_real_rotation_window_vs_collapse(shared_data):
+    """ECD boxes: at the IMU angular velocity the rotation warp's divergence/deformation stay
+    an order of magnitude below those of a collapsing zoom (Sec. 3.6.3)."""
+    d = shared_data / "ecd_rotation_windows" / "boxes_rotation"
+    if not d.is_dir():
+        pytest.skip(f"{d} not found")
+    c = np.loadtxt(d / "calib.txt")
+    Kc = np.array([[c[0], 0, c[2]], [0, c[1], c[3]], [0, 0, 1]])
+    ev = np.loadtxt(d / "events.txt")
+    t, x, y = ev[:, 0], ev[:, 1], ev[:, 2]
+    dt = t - t[len(t) // 2]
+    om = np.loadtxt(d / "motion.txt")
+    w = make_warp("rotation", (180, 240), K=Kc)
+    rot = regularizer_maps("divergence", w, x, y, dt, om, (180, 240))["diwe"]
+    z = make_warp("zoom", (180, 240))
+    col = regularizer_maps("divergence", z, x, y, dt, np.array([0.9 / window_span(dt)]),
+                           (180, 240))["diwe"]
+    assert np.abs(rot).max() < 0.1 * np.abs(col).max()
+    for reg in REGULARIZERS:
+        assert regularizer_value_grad(reg, w, x, y, dt, om, (180, 240))[0] == 0
+        assert regularizer_value_grad(reg, z, x, y, dt, np.array([0.9 / window_span(dt)]),
+                                      (180, 240))[0] > 0.2
