@@ -264,3 +264,21 @@ def test_batch_windows_use_prior_history():
     later = res.flows[2][res.masks[2]]
     assert np.median(later[:, 0]) == pytest.approx(200.0, rel=0.02)
     np.testing.assert_allclose(res.displacement(2), res.flows[2] * 0.05, rtol=1e-6)
+
+
+def test_event_fwl_matches_dense_fwl_for_uniform_flow():
+    from evmotion.eval.metrics import fwl
+    from evmotion.methods.triplet import event_fwl
+
+    full = edge_events(200.0)
+    est = TripletMatcher(full.sensor_size).process(full)
+    a, b = full.index_at(50_000), full.index_at(100_000)
+    ev = full[a:b]
+    n = len(ev)
+    f = TripletFlow(np.full(n, 200.0, np.float32), np.zeros(n, np.float32),
+                    np.ones(n, bool), np.ones(n, np.int32))
+    dense = np.zeros((40, 40, 2), np.float32)
+    dense[..., 0] = 200.0
+    assert event_fwl(ev, f) == pytest.approx(fwl(ev, dense), rel=1e-9)
+    sub = TripletFlow(est.vx[a:b], est.vy[a:b], est.valid[a:b], est.n_triplets[a:b])
+    assert event_fwl(ev, sub) > 1.5

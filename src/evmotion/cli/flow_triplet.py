@@ -200,9 +200,11 @@ class _Windows:
             return
         add_voxels(ev, fl, t0, t1, self.acc, self.cnt)
         self.n += 0 if self.by_count else len(ev)
+        from evmotion.core.iwe import accumulate
+
         dt = (ev.t - t0).astype(np.float64) * 1e-6
-        _splat(self.iwe, ev.x.astype(np.float64) - fl.vx * dt,
-               ev.y.astype(np.float64) - fl.vy * dt)
+        self.iwe += accumulate(ev.x.astype(np.float64) - fl.vx * dt,
+                               ev.y.astype(np.float64) - fl.vy * dt, self.sensor)
 
     def _close(self, t1):
         from evmotion.methods.triplet import _voxel_mean, collapse_voxels
@@ -227,19 +229,6 @@ def _slice(flow, a, b):
     from evmotion.methods.triplet import TripletFlow
 
     return TripletFlow(flow.vx[a:b], flow.vy[a:b], flow.valid[a:b], flow.n_triplets[a:b])
-
-
-def _splat(img, x, y):
-    """Bilinear vote of each point into ``img`` (H, W); points off the image are dropped."""
-    h, w = img.shape
-    x0 = np.floor(x).astype(np.int64)
-    y0 = np.floor(y).astype(np.int64)
-    fx, fy = x - x0, y - y0
-    for dx, dy, wt in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
-                       (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
-        xx, yy = x0 + dx, y0 + dy
-        ok = (xx >= 0) & (xx < w) & (yy >= 0) & (yy < h)
-        img.ravel()[:] += np.bincount(yy[ok] * w + xx[ok], wt[ok], minlength=h * w)
 
 
 def _emit(win, sink, png_dir, kind) -> int:
