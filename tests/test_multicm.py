@@ -1,0 +1,122 @@
+"""Multi-reference contrast maximization (ch. 4): gradients, accuracy on synthetic
+constant flow, time-aware warps, warm start, determinism and input errors."""
+
+import numpy as np
+import pytest
+
+from evmotion.core import tileflow as tf
+from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.events import EventArray
+from evmotion.methods.multicm import (
+    FlowResult,
+    MultiCMProblem,
+    estimate_flow,
+    estimate_flow_sequence,
+)
+
+
+def synth(flow_fn, n=30000, shape=(260, 346), duration_s=0.02, seed=0, t_start=0.0):
+    """Events of random edge segments moving with ``flow_fn(points) -> px/s`` (constant
+    along each point's trajectory), quantized to pixels like a real sensor."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    nseg = 60
+    a = rng.uniform([0, 0], [w, h], (nseg, 2))
+    ang = rng.uniform(0, np.pi, nseg)
+    length = rng.uniform(10, 40, nseg)
+    seg = rng.integers(0, nseg, n)
+    r = rng.uniform(-0.5, 0.5, n) * length[seg]
+    p = a[seg] + r[:, None] * np.stack([np.cos(ang[seg]), np.sin(ang[seg])], 1)
+    t = np.sort(rng.uniform(0, duration_s, n))
+    xy = p + (t - duration_s / 2)[:, None] * flow_fn(p)
+    keep = ((xy[:, 0] >= -0.5) & (xy[:, 0] < w - 0.5) & (xy[:, 1] >= -0.5)
+            & (xy[:, 1] < h - 0.5))
+    xy = np.round(xy[keep])
+    return EventArray(x=xy[:, 0].astype(np.uint16), y=xy[:, 1].astype(np.uint16),
+                      t=((t[keep] + t_start) * 1e6).astype(np.int64), p=np.ones(keep.sum()),
+                      sensor_size=shape)
+
+
+def constant(u, v):
+    return lambda p: np.tile([u, v], (len(p), 1))
+
+
+def aee_on_events(res, ev, gt_px_s):
+    cnt = np.zeros(ev.sensor_size)
+    np.add.at(cnt, (ev.y.astype(int), ev.x.astype(int)), 1)
+    d = (res.flow - np.asarray(gt_px_s)) * res.duration_s
+    return float(np.sqrt((d ** 2).sum(-1))[cnt > 0].mean())
+
+
+@pytest.fixture(scope="module")
+def translation():
+    return synth(constant(300.0, -150.0))
+
+
+@pytest.mark.parametrize("time_aware", [None, "upwind"])
+@pytest.mark.parametrize("level", [1, 3])
+def test_composite_gradient_matches_finite_differences(time_aware, level):
+    ev = synth(constant(300.0, -150.0), n=3000, shape=(60, 80), seed=1)
+    x, y = ev.x.astype(float), ev.y.astype(float)
+    s = (ev.t - ev.t[0]) / (ev.t[-1] - ev.t[0])
+    prob = MultiCMProblem(x, y, s, ev.sensor_size, tf.scale_grid(level, ev.sensor_size),
+                          time_aware=time_aware, n_bins=5, transport_cell=2)
+    rng = np.random.default_rng(0)
+    th = rng.normal(scale=2.0, size=prob.grid.ny * prob.grid.nx * 2)
+    _, g = prob.value_grad(th)
+    d = rng.normal(size=th.shape)
+    e = 1e-5
+    fd = (prob.value_grad(th + e * d)[0] - prob.value_grad(th - e * d)[0]) / (2 * e)
+    assert g @ d == pytest.approx(fd, rel=1e-4, abs=1e-9)
+
+
+def test_constant_flow_aee_below_0p2_px(translation):
+    res = estimate_flow(translation)
+    assert aee_on_events(res, translation, [300.0, -150.0]) <= 0.2
+    assert res.focus > 1.5  # much sharper than the zero-flow IWE
+    assert res.flow.dtype == np.float32 and res.flow.shape == (260, 346, 2)
+    assert [p.shape[:2] for p in res.params] == [(1, 1), (2, 2), (4, 4), (8, 8), (16, 16)]
+    assert set(res.iwes) == {"t1", "tmid", "tN", "identity"}
+    assert res.history[-1][1] < 1.0
+
+
+@pytest.mark.parametrize("scheme", ["upwind", "burgers"])
+def test_time_aware_constant_flow(translation, scheme):
+    res = estimate_flow(translation, time_aware=scheme, n_scales=3, finest_level=3)
+    assert res.time_aware == scheme and res.n_bins == 5
+    assert aee_on_events(res, translation, [300.0, -150.0]) <= 0.2
+
+
+def test_deterministic(translation):
+    a = estimate_flow(translation, n_scales=2, finest_level=2)
+    b = estimate_flow(translation, n_scales=2, finest_level=2)
+    np.testing.assert_array_equal(a.flow, b.flow)
+
+
+def test_warm_start_sequence():
+    ev1 = synth(constant(-200.0, 100.0), n=8000, shape=(90, 120), seed=2)
+    ev2 = synth(constant(-200.0, 100.0), n=8000, shape=(90, 120), seed=3, t_start=0.02)
+    from evmotion.events import concatenate
+
+    ev = concatenate([ev1, ev2])
+    wins = ev.windows_by_count(8000)
+    res = estimate_flow_sequence(ev, wins, n_scales=3, finest_level=3)
+    assert len(res) == 2 and all(isinstance(r, FlowResult) for r in res)
+    for r, e in zip(res, (ev1, ev2), strict=True):
+        assert aee_on_events(r, e, [-200.0, 100.0]) <= 0.3
+    # the warm start alone (no optimization) already carries the previous flow
+    init_only = estimate_flow(ev2, init=res[0], n_scales=1, finest_level=1, max_iter=1)
+    assert np.allclose(init_only.params[0][0, 0], res[0].flow.mean((0, 1)), atol=30)
+
+
+def test_input_errors(translation):
+    with pytest.raises(ParameterError, match="method"):
+        estimate_flow(translation, method="raft")
+    with pytest.raises(ParameterError, match="time_aware"):
+        estimate_flow(translation, time_aware="lax")
+    with pytest.raises(ParameterError, match="objective"):
+        estimate_flow(translation, objective="entropy")
+    with pytest.raises(ParameterError, match="init"):
+        estimate_flow(translation, init=np.zeros((3, 2)))
+    with pytest.raises(EmptyWindowError):
+        estimate_flow(translation[:3])
