@@ -46,7 +46,8 @@ def test_iwe_matches_numpy_reference(events):
 
 
 def test_iwe_conserves_votes_inside():
-    x = np.array([5.3, 10.0]); y = np.array([4.7, 8.0])
+    x = np.array([5.3, 10.0])
+    y = np.array([4.7, 8.0])
     img = tf.iwe_forward(x, y, np.zeros((2, 2)), np.zeros(2), (16, 16))
     assert img.sum() == pytest.approx(2.0)
 
@@ -66,10 +67,12 @@ def test_interpolation_matches_dense_matrices_and_is_subpixel():
     rng = np.random.default_rng(0)
     grid = tf.TileGrid(4, 5, (24, 40))
     params = rng.normal(size=(4, 5, 2))
-    x = rng.uniform(0, 39, 200); y = rng.uniform(0, 23, 200)
+    x = rng.uniform(0, 39, 200)
+    y = rng.uniform(0, 23, 200)
     idx, w = tf.event_weights(x, y, grid)
     got = tf.interpolate(params, idx, w)
-    ay = tf.axis_matrix(y, 4, 24); ax = tf.axis_matrix(x, 5, 40)
+    ay = tf.axis_matrix(y, 4, 24)
+    ax = tf.axis_matrix(x, 5, 40)
     ref = np.stack([np.einsum("ki,ij,kj->k", ay, params[..., c], ax) for c in range(2)], 1)
     np.testing.assert_allclose(got, ref, atol=1e-12)
     # sub-pixel: two positions in the same pixel get different flow
@@ -91,9 +94,11 @@ def test_affine_flow_is_exact_to_the_border():
 def test_interpolate_adjoint_is_transpose():
     rng = np.random.default_rng(1)
     grid = tf.TileGrid(3, 2, (20, 20))
-    x = rng.uniform(0, 19, 50); y = rng.uniform(0, 19, 50)
+    x = rng.uniform(0, 19, 50)
+    y = rng.uniform(0, 19, 50)
     idx, w = tf.event_weights(x, y, grid)
-    p = rng.normal(size=(3, 2, 2)); g = rng.normal(size=(50, 2))
+    p = rng.normal(size=(3, 2, 2))
+    g = rng.normal(size=(50, 2))
     lhs = (tf.interpolate(p, idx, w) * g).sum()
     rhs = (p * tf.interpolate_adjoint(g, idx, w, grid)).sum()
     assert lhs == pytest.approx(rhs)
@@ -103,7 +108,8 @@ def test_resample_coarse_to_fine_keeps_constant_and_linear():
     p = np.full((1, 1, 2), 3.0)
     up = tf.resample(p, tf.scale_grid(3, (40, 60)))
     assert up.shape == (4, 4, 2) and np.allclose(up, 3.0)
-    g2 = tf.scale_grid(2, (40, 60)); g3 = tf.scale_grid(3, (40, 60))
+    g2 = tf.scale_grid(2, (40, 60))
+    g3 = tf.scale_grid(3, (40, 60))
     cy, cx = np.meshgrid(g2.centers_y(), g2.centers_x(), indexing="ij")
     lin = np.stack([cx, cy], -1)
     cy3, cx3 = np.meshgrid(g3.centers_y(), g3.centers_x(), indexing="ij")
