@@ -20,6 +20,7 @@ from evmotion.viz import (
     iwe_to_rgb,
     read_png,
     save_flow_png,
+    save_flow_summary,
     save_panel,
     save_png,
 )
@@ -206,3 +207,24 @@ def test_html_report(tmp_path):
     assert '<img src="../iwe.png"' in text2
     with pytest.raises(ParameterError):
         rep.add_table([])
+
+
+def test_flow_summary_png(tmp_path):
+    pytest.importorskip("evmotion.core.iwe")
+    from evmotion.eval import event_mask, fwl
+
+    rng = np.random.default_rng(5)
+    n = 2000
+    t = np.sort(rng.integers(0, 20_000, n))
+    x = (5 + rng.integers(0, 4, n) * 5 + 500e-6 * t).astype(np.float32)
+    y = rng.uniform(2, 28, n).astype(np.float32)
+    ev = EventArray(x, y, t, rng.integers(0, 2, n), sensor_size=(30, 40))
+    flow = np.zeros((30, 40, 2), np.float32)
+    flow[..., 0] = 500.0
+    for polarity in (False, True):
+        path = tmp_path / f"s{int(polarity)}.png"
+        value = save_flow_summary(path, ev, flow, polarity=polarity, mask=event_mask(ev),
+                                  title="window 0")
+        assert value == pytest.approx(fwl(ev, flow)) and value > 1.5
+        img = read_png(path)
+        assert img.ndim == 3 and img.shape[1] > 2.5 * img.shape[0]

@@ -13,6 +13,7 @@ from evmotion.eval.metrics import (
     rms_error,
     sample_flow_bilinear,
     valid_gt_mask,
+    warp_by_flow,
 )
 
 __all__ = [
@@ -28,4 +29,5 @@ __all__ = [
     "rms_error",
     "sample_flow_bilinear",
     "valid_gt_mask",
+    "warp_by_flow",
 ]

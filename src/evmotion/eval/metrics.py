@@ -40,6 +40,7 @@ __all__ = [
     "rms_error",
     "sample_flow_bilinear",
     "valid_gt_mask",
+    "warp_by_flow",
 ]
 
 NPE_THRESHOLDS: tuple[int, ...] = (1, 2, 3, 5, 10, 20)
@@ -353,6 +354,48 @@ def sample_flow_bilinear(flow: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.n
     return top * (1 - ay) + bottom * ay
 
 
+def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | None = None,
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Move each event along the flow at its position to the reference time.
+
+    Event k goes to ``x_k + flow(x_k) * (t_ref - t_k)``: the flow (px/s) is looked up
+    bilinearly at the event's sub-pixel position, the time difference is in seconds.
+
+    Parameters
+    ----------
+    events : EventArray
+    flow_px_per_s : ndarray, shape (H, W, 2)
+        Flow on the sensor grid in px/s (u right, v down).
+    t_ref_us : int, optional
+        Reference time in µs (absolute); default the first event's timestamp.
+
+    Returns
+    -------
+    xw, yw : ndarray of float64, shape (N,)
+        Warped columns and rows in px (contiguous, ready for ``core.iwe.accumulate``).
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[2], y=[1], t=[1000], p=[1], sensor_size=(3, 4))
+    >>> flow = np.zeros((3, 4, 2)); flow[..., 0] = 1000.0
+    >>> [a.tolist() for a in warp_by_flow(ev, flow, t_ref_us=0)]
+    [[1.0], [1.0]]
+    """
+    if not len(events):
+        raise EmptyWindowError("no events to warp; the window is empty")
+    flow = _as_flow(flow_px_per_s, "flow_px_per_s")
+    if flow.shape[:2] != events.sensor_size:
+        raise ParameterError(
+            f"flow has shape {flow.shape[:2]}, expected the sensor size {events.sensor_size}"
+        )
+    t_ref = events.t_start if t_ref_us is None else int(t_ref_us)
+    x = events.x.astype(np.float64)
+    y = events.y.astype(np.float64)
+    dt = (np.int64(t_ref) - events.t).astype(np.float64) * 1e-6
+    uv = sample_flow_bilinear(flow, x, y)
+    return np.ascontiguousarray(x + uv[:, 0] * dt), np.ascontiguousarray(y + uv[:, 1] * dt)
+
+
 def fwl(
     events: EventArray,
     flow_px_per_s: np.ndarray,
@@ -403,25 +446,12 @@ def fwl(
     """
     from evmotion.core.iwe import accumulate
 
-    if not len(events):
-        raise EmptyWindowError("FWL needs events; the window is empty")
-    flow = _as_flow(flow_px_per_s, "flow_px_per_s")
-    if flow.shape[:2] != events.sensor_size:
-        raise ParameterError(
-            f"flow has shape {flow.shape[:2]}, expected the sensor size {events.sensor_size}"
-        )
-    t_ref = events.t_start if t_ref_us is None else int(t_ref_us)
+    xw, yw = warp_by_flow(events, flow_px_per_s, t_ref_us)
     x = events.x.astype(np.float64)
     y = events.y.astype(np.float64)
-    dt = (np.int64(t_ref) - events.t).astype(np.float64) * 1e-6
-    uv = sample_flow_bilinear(flow, x, y)
-    xw = np.ascontiguousarray(x + uv[:, 0] * dt)
-    yw = np.ascontiguousarray(y + uv[:, 1] * dt)
     shape = events.sensor_size
-    warped = np.asarray(accumulate(xw, yw, shape, weights=None, kernel=kernel,
-                                  sigma=sigma))
-    identity = np.asarray(accumulate(x, y, shape, weights=None, kernel=kernel,
-                                  sigma=sigma))
+    warped = np.asarray(accumulate(xw, yw, shape, weights=None, kernel=kernel, sigma=sigma))
+    identity = np.asarray(accumulate(x, y, shape, weights=None, kernel=kernel, sigma=sigma))
     if mask is not None:
         mask = np.asarray(mask, dtype=bool)
         warped, identity = warped[mask], identity[mask]

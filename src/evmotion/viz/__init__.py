@@ -7,6 +7,7 @@ from evmotion.viz.images import (
     iwe_to_rgb,
     read_png,
     save_flow_png,
+    save_flow_summary,
     save_panel,
     save_png,
 )
@@ -23,6 +24,7 @@ __all__ = [
     "iwe_to_rgb",
     "read_png",
     "save_flow_png",
+    "save_flow_summary",
     "save_panel",
     "save_png",
 ]
