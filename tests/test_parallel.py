@@ -175,3 +175,32 @@ def test_bad_arguments():
 def test_window_result_ok():
     assert WindowResult(0, 0, 1, value=3).ok
     assert not WindowResult(0, 0, 1, error="x").ok
+
+
+def interrupted(ev: EventArray, calls_dir: str, stop_at_us: int) -> int:
+    t0 = int(ev.t[0]) // 20_000 * 20_000
+    if t0 >= stop_at_us:
+        raise KeyboardInterrupt
+    Path(calls_dir, f"call_{t0}").touch()
+    return len(ev)
+
+
+def test_resume_after_keyboard_interrupt(tmp_path):
+    """Ctrl-C stops the run; what finished before is on disk and is not recomputed."""
+    ev = _events()
+    calls = tmp_path / "calls"
+    calls.mkdir()
+    resume = tmp_path / "resume"
+    with pytest.raises(KeyboardInterrupt):
+        map_windows(functools.partial(interrupted, calls_dir=str(calls), stop_at_us=40_000),
+                    ev, WINDOWS, resume_dir=resume, progress=False)
+    assert sorted(f.name for f in calls.iterdir()) == ["call_0", "call_20000"]
+    assert len(list(resume.glob("*.pkl"))) == 2
+    assert not [p for p in resume.iterdir() if p.suffix != ".pkl"]  # no partial files
+    for f in calls.iterdir():
+        f.unlink()
+    res = map_windows(functools.partial(interrupted, calls_dir=str(calls), stop_at_us=10**9),
+                      ev, WINDOWS, resume_dir=resume, progress=False)
+    assert [r.cached for r in res] == [True, True, False, False, False]
+    assert sorted(int(f.name.split("_")[1]) for f in calls.iterdir()) == [40_000, 60_000, 80_000]
+    assert [r.value for r in res] == [len(ev.slice_time(a, b)) for a, b in WINDOWS]
