@@ -3,7 +3,7 @@
 Flow accuracy (:func:`flow_metrics`) compares two displacement fields over the same time
 interval, in pixels: average endpoint error (AEE), the percentage of pixels whose endpoint
 error exceeds N px (NPE, thesis §3.6.1), the outlier percentage %Out (thesis §4.3.1 and
-§5.3: endpoint error > 3 px; §6.6 uses > 1 px, hence the ``out_px`` parameter) and the
+§5.3.1: endpoint error > 3 px; §6.6.1 uses > 1 px, hence the ``out_px`` parameter) and the
 angular error (AE) of the space-time vectors (u, v, 1).
 
 Sharpness (:func:`fwl`): the Flow Warp Loss of Stoffregen et al., the variance of the
@@ -214,10 +214,11 @@ def flow_metrics(
         MVSEC protocol.
     events : EventArray, optional
         If given, only pixels with at least one event are evaluated (:func:`event_mask`),
-        as in thesis ch. 4 ("valid ground truth and at least one event").
+        as in thesis ch. 4 ("valid ground truth and at least one event") and ch. 6;
+        ch. 5 evaluates all pixels with valid ground truth.
     out_px : float
         %Out threshold: a pixel is an outlier when its endpoint error is > ``out_px``
-        (thesis §4.3.1 and §5.3: 3 px; §6.6 uses 1 px).
+        (thesis §4.3.1 and §5.3.1: 3 px; §6.6.1 uses 1 px).
     out_rel : float, optional
         KITTI-style outliers: additionally require endpoint error > ``out_rel`` times the
         GT magnitude (KITTI uses 0.05). Default None: the thesis definition (absolute only).
