@@ -1,0 +1,179 @@
+"""Helpers shared by the binary camera-format readers: text headers, block streaming,
+re-chunking and time filtering."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.events import EventArray
+
+# Decoded blocks are 4-tuples of contiguous arrays (x uint16, y uint16, t int64, p uint8).
+Block = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+BLOCK_BYTES = 1 << 22
+
+
+def read_text_header(path: Path, marker: bytes, *, end_line: bytes | None = None,
+                     max_bytes: int = 1 << 20) -> tuple[list[str], int]:
+    """Lines starting with ``marker`` at the top of ``path`` and the offset of the first
+    byte after them.
+
+    Parsing stops at the first line that does not start with ``marker``, or right after a
+    line equal to ``end_line`` (Prophesee's ``% end``), so binary data that happens to
+    begin with the marker byte is not eaten when the terminator is present.
+    """
+    lines: list[str] = []
+    pos = 0
+    with open(path, "rb") as fh:
+        head = fh.read(max_bytes)
+    while pos < len(head) and head.startswith(marker, pos):
+        nl = head.find(b"\n", pos)
+        if nl < 0:
+            raise FormatError(path, f"header line at byte {pos} has no end of line",
+                              "the file is truncated or not a text-header format")
+        line = head[pos:nl].rstrip(b"\r")
+        lines.append(line.decode("latin-1"))
+        pos = nl + 1
+        if end_line is not None and line == end_line:
+            break
+    return lines, pos
+
+
+def check_chunk_events(chunk_events: int) -> int:
+    if int(chunk_events) <= 0:
+        raise ParameterError(f"chunk_events must be a positive event count, got {chunk_events}")
+    return int(chunk_events)
+
+
+def rechunk(blocks: Iterator[Block], chunk_events: int, sensor_size: tuple[int, int],
+            meta: dict, *, validate: bool = True) -> Iterator[EventArray]:
+    """Regroup decoded blocks of any size into EventArrays of exactly ``chunk_events``
+    events (the last one may be shorter)."""
+    pending: list[Block] = []
+    n_pending = 0
+    for blk in blocks:
+        if len(blk[2]) == 0:
+            continue
+        pending.append(blk)
+        n_pending += len(blk[2])
+        while n_pending >= chunk_events:
+            cols = [np.concatenate([b[k] for b in pending]) for k in range(4)]
+            yield _make(cols, 0, chunk_events, sensor_size, meta, validate)
+            rest = [c[chunk_events:] for c in cols]
+            n_pending = len(rest[2])
+            pending = [tuple(rest)] if n_pending else []
+    if n_pending:
+        cols = [np.concatenate([b[k] for b in pending]) for k in range(4)]
+        yield _make(cols, 0, n_pending, sensor_size, meta, validate)
+
+
+def _make(cols, a: int, b: int, sensor_size, meta, validate) -> EventArray:
+    return EventArray(x=cols[0][a:b], y=cols[1][a:b], t=cols[2][a:b], p=cols[3][a:b],
+                      sensor_size=sensor_size, meta=dict(meta), validate=validate)
+
+
+def collect(blocks: Iterator[Block], sensor_size: tuple[int, int], meta: dict,
+            t0: int | None = None, t1: int | None = None, *,
+            validate: bool = True) -> EventArray:
+    """Concatenate decoded blocks into one EventArray keeping ``t0 <= t < t1`` (µs).
+
+    Stops reading once a block starts at or after ``t1`` (timestamps are sorted).
+    """
+    keep: list[Block] = []
+    for blk in blocks:
+        t = blk[2]
+        if len(t) == 0:
+            continue
+        if t1 is not None and t[0] >= t1:
+            break
+        if t0 is not None or t1 is not None:
+            lo = 0 if t0 is None else int(np.searchsorted(t, t0, side="left"))
+            hi = len(t) if t1 is None else int(np.searchsorted(t, t1, side="left"))
+            if lo >= hi:
+                continue
+            blk = tuple(c[lo:hi] for c in blk)
+        keep.append(blk)
+    if keep:
+        cols = [np.concatenate([b[k] for b in keep]) for k in range(4)]
+    else:
+        cols = [np.empty(0, np.uint16), np.empty(0, np.uint16), np.empty(0, np.int64),
+                np.empty(0, np.uint8)]
+    return _make(cols, 0, len(cols[2]), sensor_size, meta, validate)
+
+
+def iter_blocks(path: Path, offset: int, block_bytes: int, word_bytes: int
+                ) -> Iterator[tuple[int, bytes]]:
+    """``(file offset, bytes)`` blocks from ``offset`` on, each a multiple of
+    ``word_bytes`` long; a trailing partial word raises FormatError (truncated file)."""
+    block_bytes -= block_bytes % word_bytes
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        pos = offset
+        while True:
+            buf = fh.read(block_bytes)
+            if not buf:
+                return
+            if len(buf) % word_bytes:
+                extra = fh.read(word_bytes - len(buf) % word_bytes)
+                buf += extra
+                if len(buf) % word_bytes:
+                    cut = len(buf) - len(buf) % word_bytes
+                    raise FormatError(
+                        path, f"truncated: {len(buf) % word_bytes} stray byte(s) at byte offset "
+                        f"{pos + cut}, where a {word_bytes}-byte word was expected",
+                        "the file was cut short; the events before that offset are readable "
+                        "with a copy trimmed to a whole number of words")
+            yield pos, buf
+            pos += len(buf)
+
+
+def geometry_from_header(lines: list[str], path: Path, default: tuple[int, int] | None
+                         ) -> tuple[int, int]:
+    """(height, width) from Prophesee header lines (``% geometry WxH``, ``% Width``,
+    ``% Height``, ``% format EVT3;height=..;width=..``)."""
+    width = height = None
+    for line in lines:
+        body = line.lstrip("%").strip()
+        key, _, val = body.partition(" ")
+        key = key.lower()
+        try:
+            if key == "geometry":
+                w, h = val.strip().lower().split("x")
+                width, height = int(w), int(h)
+            elif key == "width":
+                width = int(val)
+            elif key == "height":
+                height = int(val)
+            elif key == "format" and ";" in val:
+                for item in val.split(";")[1:]:
+                    k, _, v = item.partition("=")
+                    if k.strip() == "width":
+                        width = int(v)
+                    elif k.strip() == "height":
+                        height = int(v)
+        except ValueError as exc:
+            raise FormatError(path, f"bad header line '{line}': {exc}") from None
+    if width is None or height is None:
+        if default is None:
+            raise FormatError(path, "the header gives no sensor geometry",
+                              "pass sensor_size=(height, width)")
+        return default
+    return height, width
+
+
+def header_bytes(lines: list[str]) -> bytes:
+    return "".join(line + "\n" for line in lines).encode("latin-1")
+
+
+def trailing_partial(path: Path, offset: int, word_bytes: int) -> None:
+    """Raise FormatError if the payload after ``offset`` is not whole words."""
+    size = path.stat().st_size
+    if (size - offset) % word_bytes:
+        cut = size - (size - offset) % word_bytes
+        raise FormatError(path, f"truncated: {(size - offset) % word_bytes} stray byte(s) at "
+                          f"byte offset {cut}, where a {word_bytes}-byte word was expected",
+                          "the file was cut short")

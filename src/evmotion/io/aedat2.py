@@ -1,0 +1,274 @@
+"""jAER AEDAT 2.0 files from DAVIS cameras (``#!AER-DAT2.0``).
+
+After ``#`` header lines, every record is a big-endian u32 address and u32 timestamp
+(µs). DAVIS address layout: bit 31 = APS/IMU flag; for DVS events (bit 31 = 0) y is in
+bits 22-30, x in bits 12-21 and polarity in bit 11 (bit 10 marks external-input events,
+which are skipped). IMU samples are APS-type addresses with bits 10-11 = 3, the sample
+kind in bits 28-30 (0-2 accelerometer x/y/z, 3 temperature, 4-6 gyroscope x/y/z) and a
+signed 16-bit value in bits 12-27. Other APS addresses are frame samples, not events.
+
+jAER puts the origin at the bottom left and mirrors x; evmotion uses image coordinates
+(origin top left), so ``x = width - 1 - x_raw`` and ``y = height - 1 - y_raw``.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError
+from evmotion.events import EventArray
+from evmotion.io import _binary
+from evmotion.io.base import FormatSpec
+from evmotion.utils import atomic_path
+
+__all__ = ["read", "iter_chunks", "write", "read_imu", "describe", "ImuSamples", "FORMAT"]
+
+MAGIC = b"#!AER-DAT2.0"
+RECORD = 8
+G = 9.80665
+# (height, width) of the chips jAER names in the ``# AEChip:`` line
+_CHIPS = (("DAVIS240", (180, 240)), ("DAVIS346", (260, 346)), ("DAVIS640", (480, 640)),
+          ("DAVIS128", (128, 128)))
+_ACCEL_LSB_PER_G = {"2": 16384.0, "4": 8192.0, "8": 4096.0, "16": 2048.0}
+_GYRO_LSB_PER_DPS = {"250": 131.0, "500": 65.5, "1000": 32.8, "2000": 16.4}
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """IMU samples: ``t`` int64 µs, ``accel`` (N, 3) m/s², ``gyro`` (N, 3) rad/s,
+    ``temperature`` (N,) °C, in the IMU's own axes."""
+
+    t: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray
+    temperature: np.ndarray
+
+
+def _parse_header(path: Path, sensor_size):
+    with open(path, "rb") as fh:
+        head = fh.read(len(MAGIC))
+    if head != MAGIC:
+        raise FormatError(path, f"bad magic at byte offset 0: {head!r}, expected {MAGIC!r}",
+                          "not a jAER AEDAT 2.0 file")
+    lines, offset = _binary.read_text_header(path, b"#", max_bytes=1 << 24)
+    text = "\n".join(lines)
+    if sensor_size is None:
+        chip = re.search(r"AEChip:\s*(\S+)", text)
+        name = chip.group(1).upper() if chip else ""
+        if "DVS128" in name and "DAVIS" not in name:
+            raise FormatError(path, f"AEChip '{chip.group(1)}' uses the DVS128 address layout, "
+                              "which this reader does not decode")
+        for key, size in _CHIPS:
+            if key in name:
+                sensor_size = size
+                break
+        else:
+            raise FormatError(path, f"unknown AEChip '{name or '(none)'}' in the header",
+                              "pass sensor_size=(height, width)")
+    return lines, offset, sensor_size
+
+
+class _Unwrap:
+    """Unwraps u32 µs timestamps across blocks (jAER's counter wraps every 71.6 min)."""
+
+    def __init__(self) -> None:
+        self.last = None
+        self.offset = 0
+
+    def __call__(self, t32: np.ndarray) -> np.ndarray:
+        t = t32.astype(np.int64)
+        if t.size == 0:
+            return t
+        prev = t[0] if self.last is None else self.last
+        d = np.diff(t, prepend=prev)
+        wraps = np.cumsum(d < -(1 << 31)) << 32
+        out = t + wraps + self.offset
+        self.offset += int(wraps[-1])
+        self.last = int(t[-1])
+        return out
+
+
+def _decode(addr: np.ndarray, t: np.ndarray, size) -> _binary.Block:
+    h, w = size
+    dvs = (addr & 0x80000400) == 0
+    a = addr[dvs]
+    x = (w - 1 - ((a >> 12) & 0x3FF)).astype(np.uint16)
+    y = (h - 1 - ((a >> 22) & 0x1FF)).astype(np.uint16)
+    p = ((a >> 11) & 1).astype(np.uint8)
+    return x, y, np.ascontiguousarray(t[dvs]), p
+
+
+def _records(path: Path, offset: int, block_bytes: int):
+    unwrap = _Unwrap()
+    for _, buf in _binary.iter_blocks(path, offset, block_bytes, RECORD):
+        rec = np.frombuffer(buf, ">u4").reshape(-1, 2)
+        yield rec[:, 0].astype(np.uint32), unwrap(rec[:, 1])
+
+
+def _blocks(path, offset, size, block_bytes) -> Iterator[_binary.Block]:
+    for addr, t in _records(path, offset, block_bytes):
+        yield _decode(addr, t, size)
+
+
+def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
+         sensor_size: tuple[int, int] | None = None, validate: bool = True,
+         block_bytes: int = _binary.BLOCK_BYTES) -> EventArray:
+    """Read the DVS events of a jAER AEDAT 2.0 (DAVIS) file.
+
+    Parameters
+    ----------
+    path : path-like
+    t0, t1 : int, optional
+        Keep ``t0 <= t < t1`` (µs, as in the file).
+    sensor_size : (int, int), optional
+        ``(height, width)``; taken from the ``AEChip`` header line otherwise.
+    validate : bool
+        Check sortedness and bounds.
+    block_bytes : int
+        Read granularity.
+
+    Examples
+    --------
+    >>> ev = read("davis240.aedat")  # doctest: +SKIP
+    >>> imu = read_imu("davis240.aedat")  # doctest: +SKIP
+    """
+    path = Path(path)
+    lines, offset, size = _parse_header(path, sensor_size)
+    _binary.trailing_partial(path, offset, RECORD)
+    meta = {"source": str(path), "format": "aedat2"}
+    return _binary.collect(_blocks(path, offset, size, block_bytes), size, meta, t0, t1,
+                           validate=validate)
+
+
+def iter_chunks(path: str | Path, chunk_events: int, *,
+                sensor_size: tuple[int, int] | None = None, validate: bool = True,
+                block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
+    """Stream the DVS events of an AEDAT 2.0 file in chunks of ``chunk_events``."""
+    chunk_events = _binary.check_chunk_events(chunk_events)
+    path = Path(path)
+    lines, offset, size = _parse_header(path, sensor_size)
+    _binary.trailing_partial(path, offset, RECORD)
+    meta = {"source": str(path), "format": "aedat2"}
+    yield from _binary.rechunk(_blocks(path, offset, size, block_bytes), chunk_events, size,
+                               meta, validate=validate)
+
+
+def _imu_scales(lines: list[str]) -> tuple[float, float]:
+    text = "\n".join(lines)
+    acc = re.search(r'key="ImuAccelScale" value="ImuAccelScaleG(\d+)"', text)
+    gyr = re.search(r'key="ImuGyroScale" value="GyroFullScaleDegPerSec(\d+)"', text)
+    a = _ACCEL_LSB_PER_G.get(acc.group(1) if acc else "8", 4096.0)
+    g = _GYRO_LSB_PER_DPS.get(gyr.group(1) if gyr else "1000", 32.8)
+    return a, g
+
+
+def read_imu(path: str | Path) -> ImuSamples:
+    """IMU samples embedded in a DAVIS AEDAT 2.0 file.
+
+    Each sample is 7 consecutive IMU words (kinds 0-6); incomplete groups are dropped.
+    Full-scale ranges come from the ``ImuAccelScale``/``ImuGyroScale`` preferences in the
+    header (jAER defaults ±8 g, ±1000 °/s otherwise); temperature follows the MPU-6x50
+    datasheet (raw / 340 + 36.53 °C).
+
+    Returns
+    -------
+    ImuSamples
+        ``t`` µs (time of the accelerometer-x word), accel m/s², gyro rad/s, °C.
+
+    Examples
+    --------
+    >>> imu = read_imu("davis240.aedat")  # doctest: +SKIP
+    >>> np.linalg.norm(imu.accel, axis=1).mean()  # doctest: +SKIP
+    9.8...
+    """
+    path = Path(path)
+    lines, offset, _ = _parse_header(path, (1, 1))
+    _binary.trailing_partial(path, offset, RECORD)
+    acc_lsb, gyr_lsb = _imu_scales(lines)
+    codes, vals, ts = [], [], []
+    for addr, t in _records(path, offset, _binary.BLOCK_BYTES):
+        m = (addr & 0x80000C00) == 0x80000C00
+        codes.append(((addr[m] >> 28) & 7).astype(np.int8))
+        vals.append(((addr[m] >> 12) & 0xFFFF).astype(np.uint16).view(np.int16))
+        ts.append(t[m])
+    code = np.concatenate(codes) if codes else np.empty(0, np.int8)
+    val = np.concatenate(vals).astype(np.float64) if vals else np.empty(0)
+    t = np.concatenate(ts) if ts else np.empty(0, np.int64)
+    # a sample starts at kind 0 followed by kinds 1..6 in order
+    starts = np.nonzero(code == 0)[0]
+    starts = starts[starts + 6 < code.size]
+    ok = np.ones(starts.size, bool)
+    for k in range(1, 7):
+        ok &= code[np.minimum(starts + k, code.size - 1)] == k
+    s = starts[ok]
+    raw = np.stack([val[s + k] for k in range(7)], axis=1) if s.size else np.empty((0, 7))
+    return ImuSamples(t=t[s], accel=raw[:, 0:3] / acc_lsb * G,
+                      gyro=np.deg2rad(raw[:, 4:7] / gyr_lsb),
+                      temperature=raw[:, 3] / 340.0 + 36.53)
+
+
+def write(path: str | Path, events: EventArray, *, chip: str = "DAVIS240C") -> None:
+    """Write DVS events as a jAER AEDAT 2.0 file (atomically), DAVIS address layout.
+
+    Timestamps are stored modulo 2^32 µs, coordinates mirrored back to jAER's raw
+    addresses, so :func:`read` returns exactly ``events``.
+
+    Examples
+    --------
+    >>> write("out.aedat", events)  # doctest: +SKIP
+    """
+    h, w = events.sensor_size
+    if events.x.dtype.kind == "f":
+        raise FormatError(None, "events have float (undistorted) coordinates; AEDAT 2.0 "
+                          "stores integer pixels")
+    if w > 1024 or h > 512:
+        raise FormatError(None, f"sensor_size {events.sensor_size} exceeds the DAVIS address "
+                          "range (512 rows, 1024 columns)")
+    if len(events) and (events.t[0] < 0 or events.t[0] >= 1 << 32):
+        raise FormatError(None, f"first timestamp {events.t[0]} us is outside the u32 range",
+                          "subtract a time offset first")
+    header = (f"{MAGIC.decode()}\r\n# This is a raw AE data file written by evmotion\r\n"
+              "# Data format is int32 address, int32 timestamp (8 bytes total), repeated "
+              "for each event\r\n# Timestamps tick is 1 us\r\n"
+              f"# AEChip: {chip}\r\n# sensor_size (height, width) = ({h}, {w})\r\n")
+    rec = np.empty((len(events), 2), ">u4")
+    xr = (w - 1 - events.x.astype(np.int64)).astype(np.uint32)
+    yr = (h - 1 - events.y.astype(np.int64)).astype(np.uint32)
+    rec[:, 0] = (yr << 22) | (xr << 12) | (events.p.astype(np.uint32) << 11)
+    rec[:, 1] = (events.t & 0xFFFFFFFF).astype(np.uint32)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(header.encode("latin-1"))
+        fh.write(rec.tobytes())
+
+
+def describe(path: str | Path) -> dict:
+    """Chip, sensor size and counts of DVS events, APS samples and IMU samples."""
+    path = Path(path)
+    lines, offset, size = _parse_header(path, None)
+    n_dvs = n_imu_words = n_aps = 0
+    t_first = t_last = None
+    for addr, t in _records(path, offset, _binary.BLOCK_BYTES):
+        n_dvs += int(((addr & 0x80000400) == 0).sum())
+        imu = (addr & 0x80000C00) == 0x80000C00
+        n_imu_words += int(imu.sum())
+        n_aps += int(((addr >> 31) == 1).sum() - imu.sum())
+        if t.size:
+            t_first = int(t[0]) if t_first is None else t_first
+            t_last = int(t[-1])
+    chip = re.search(r"AEChip:\s*(\S+)", "\n".join(lines))
+    return {"format": "aedat2", "chip": chip.group(1) if chip else None,
+            "sensor_size": size, "n_events": n_dvs, "imu": n_imu_words // 7,
+            "aps_samples": n_aps, "frames": 0, "t_first_us": t_first, "t_last_us": t_last}
+
+
+def _sniff(path: Path, head: bytes) -> bool:
+    return head.startswith(MAGIC)
+
+
+FORMAT = FormatSpec(name="aedat2", extensions=(".aedat", ".dat"), sniff=_sniff, read=read,
+                    iter_chunks=iter_chunks, write=write, describe=describe)

@@ -1,0 +1,205 @@
+"""Prophesee EVT 2.0 RAW files (32-bit little-endian words after a ``%`` text header).
+
+Word types (bits 28-31): ``0x0`` CD_OFF and ``0x1`` CD_ON (bits 22-27: the 6 low time
+bits, bits 11-21: x, bits 0-10: y), ``0x8`` TIME_HIGH (bits 0-27: time bits 6-33),
+``0xA`` EXT_TRIGGER, ``0xE`` OTHERS, ``0xF`` CONTINUED. The 34-bit time wraps after
+4.8 h; the decoder unwraps it. Events before the first TIME_HIGH are dropped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from evmotion.events import EventArray
+from evmotion.io import _binary, _prophesee
+from evmotion.io.base import FormatSpec
+from evmotion.io.evt3 import _check_writable
+from evmotion.utils import atomic_path
+
+__all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "FORMAT"]
+
+WRAP_US = 1 << 34
+_HALF = 1 << 27
+
+
+@numba.njit(cache=True)
+def _decode(words, state, ox, oy, ot, op):
+    """Decode a block; ``state`` = [time high, wrap offset, seen] (updated in place)."""
+    th = state[0]
+    ovf = state[1]
+    seen = state[2]
+    n = 0
+    for i in range(words.shape[0]):
+        w = np.int64(words[i])
+        typ = w >> 28
+        if typ <= 1:
+            if seen:
+                ox[n] = (w >> 11) & 0x7FF
+                oy[n] = w & 0x7FF
+                ot[n] = ovf + (th << 6) + ((w >> 22) & 0x3F)
+                op[n] = typ
+                n += 1
+        elif typ == 0x8:
+            h = w & 0xFFFFFFF
+            if seen and h < th and th - h >= _HALF:
+                ovf += np.int64(1) << 34
+            th = h
+            seen = 1
+    state[0] = th
+    state[1] = ovf
+    state[2] = seen
+    return n
+
+
+def new_state() -> np.ndarray:
+    """A fresh decoder state (no time base seen yet)."""
+    return np.zeros(3, np.int64)
+
+
+def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> _binary.Block:
+    """Decode EVT2 words (uint32) into ``(x, y, t, p)``; ``state`` carries across blocks.
+
+    Examples
+    --------
+    >>> x, y, t, p = decode_words(np.array([0x80000001, 0x10000000 | (5 << 11) | 7],
+    ...                                    np.uint32))
+    >>> int(x[0]), int(y[0]), int(t[0]), int(p[0])
+    (5, 7, 64, 1)
+    """
+    words = np.ascontiguousarray(words, dtype=np.uint32)
+    if state is None:
+        state = new_state()
+    n = words.shape[0]
+    ox = np.empty(n, np.uint16)
+    oy = np.empty(n, np.uint16)
+    ot = np.empty(n, np.int64)
+    op = np.empty(n, np.uint8)
+    k = _decode(words, state, ox, oy, ot, op)
+    return ox[:k], oy[:k], ot[:k], op[:k]
+
+
+def _blocks(path: Path, offset: int, t_offset: int, block_bytes: int
+            ) -> Iterator[_binary.Block]:
+    state = new_state()
+    for _, buf in _binary.iter_blocks(path, offset, block_bytes, 4):
+        x, y, t, p = decode_words(np.frombuffer(buf, "<u4"), state)
+        if t_offset:
+            t += t_offset
+        yield x, y, t, p
+
+
+def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
+         sensor_size: tuple[int, int] | None = None, validate: bool = True,
+         block_bytes: int = _binary.BLOCK_BYTES) -> EventArray:
+    """Read an EVT 2.0 RAW file.
+
+    Parameters
+    ----------
+    path : path-like
+    t0, t1 : int, optional
+        Keep ``t0 <= t < t1`` (µs).
+    sensor_size : (int, int), optional
+        ``(height, width)``; required when the header has no geometry (older Gen3
+        files, e.g. 480x640).
+    validate : bool
+        Check sortedness and bounds.
+    block_bytes : int
+        Read granularity.
+
+    Examples
+    --------
+    >>> ev = read("gen3.raw", sensor_size=(480, 640))  # doctest: +SKIP
+    """
+    path = Path(path)
+    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size)
+    _binary.trailing_partial(path, offset, 4)
+    meta = {"source": str(path), "format": "evt2"}
+    return _binary.collect(_blocks(path, offset, t_offset, block_bytes), size, meta, t0, t1,
+                           validate=validate)
+
+
+def iter_chunks(path: str | Path, chunk_events: int, *,
+                sensor_size: tuple[int, int] | None = None, validate: bool = True,
+                block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
+    """Stream an EVT 2.0 file in EventArrays of ``chunk_events`` events."""
+    chunk_events = _binary.check_chunk_events(chunk_events)
+    path = Path(path)
+    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size)
+    _binary.trailing_partial(path, offset, 4)
+    meta = {"source": str(path), "format": "evt2"}
+    yield from _binary.rechunk(_blocks(path, offset, t_offset, block_bytes), chunk_events,
+                               size, meta, validate=validate)
+
+
+@numba.njit(cache=True)
+def _encode(x, y, t, p, out):
+    k = 0
+    cur = np.int64(-1)
+    for i in range(x.shape[0]):
+        hi = t[i] >> 6
+        if hi != cur:
+            if cur >= 0:
+                while hi - cur >= _HALF:
+                    cur += _HALF - 1
+                    out[k] = (np.int64(0x8) << 28) | (cur & 0xFFFFFFF)
+                    k += 1
+            cur = hi
+            out[k] = (np.int64(0x8) << 28) | (hi & 0xFFFFFFF)
+            k += 1
+        out[k] = ((np.int64(p[i]) << 28) | ((t[i] & 0x3F) << 22)
+                  | (np.int64(x[i]) << 11) | np.int64(y[i]))
+        k += 1
+    return k
+
+
+def encode(events: EventArray, t_base: int = 0) -> np.ndarray:
+    """EVT2 words (uint32) for ``events``, times relative to ``t_base`` µs."""
+    t = np.ascontiguousarray(events.t - t_base)
+    gaps = int(((t[-1] - t[0]) >> 6) // (_HALF - 1)) + 1 if len(t) else 0
+    out = np.empty(2 * len(t) + gaps, np.uint32)
+    k = _encode(np.ascontiguousarray(events.x, np.uint16),
+                np.ascontiguousarray(events.y, np.uint16), t, events.p, out)
+    return out[:k]
+
+
+def write(path: str | Path, events: EventArray) -> None:
+    """Write ``events`` as an EVT 2.0 RAW file (atomically); see :func:`evt3.write` for
+    how times past the counter range (here 2^34 µs) are kept exact.
+
+    Examples
+    --------
+    >>> write("out.raw", events)  # doctest: +SKIP
+    """
+    _check_writable(events, 2048)
+    h, w = events.sensor_size
+    t_base = int(events.t[0]) - int(events.t[0]) % WRAP_US if len(events) else 0
+    lines = ["% evt 2.0", f"% format EVT2;height={h};width={w}",
+             f"% geometry {w}x{h}", "% integrator_name evmotion"]
+    if t_base:
+        lines.append(f"% {_prophesee.OFFSET_KEY} {t_base}")
+    lines.append("% end")
+    words = encode(events, t_base)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(_binary.header_bytes(lines))
+        fh.write(words.astype("<u4").tobytes())
+
+
+def describe(path: str | Path) -> dict:
+    """Header fields, geometry and payload size of an EVT 2.0 file."""
+    path = Path(path)
+    lines, offset, size, _ = _prophesee.parse_raw_header(path, None)
+    return {"format": "evt2", "sensor_size": size, "header": _prophesee.header_dict(lines),
+            "data_offset": offset, "n_words": (path.stat().st_size - offset) // 4,
+            "frames": 0, "imu": 0}
+
+
+def _sniff(path: Path, head: bytes) -> bool:
+    return _prophesee.sniff_raw(head, "2.0")
+
+
+FORMAT = FormatSpec(name="evt2", extensions=(".raw",), sniff=_sniff, read=read,
+                    iter_chunks=iter_chunks, write=write, describe=describe)

@@ -1,0 +1,340 @@
+"""Prophesee EVT 3.0 RAW files (16-bit words after a ``%`` text header).
+
+Word types (upper 4 bits): ``0x0`` ADDR_Y (y, bits 0-10), ``0x2`` ADDR_X (x + polarity
+bit 11: one event), ``0x3`` VECT_BASE_X (base x + polarity), ``0x4`` VECT_12 and
+``0x5`` VECT_8 (bit masks of events at base_x + i; base_x then advances by 12 or 8),
+``0x6`` TIME_LOW and ``0x8`` TIME_HIGH (12 bits each). The 24-bit time wraps every
+16.78 s; the decoder unwraps it into absolute int64 µs. Events before the first
+TIME_HIGH have no time base and are dropped, as Prophesee's own decoder does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from evmotion.errors import FormatError
+from evmotion.events import EventArray
+from evmotion.io import _binary, _prophesee
+from evmotion.io.base import FormatSpec
+from evmotion.utils import atomic_path
+
+__all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
+
+WRAP_US = 1 << 24
+# state slots carried from one block to the next
+_Y, _TH, _TL, _OVF, _BX, _VP, _SEEN = range(7)
+
+
+@numba.njit(cache=True)
+def _decode(words, start, state, ox, oy, ot, op):
+    """Decode ``words[start:]`` into the output arrays until they might overflow.
+
+    Returns ``(n_events, next_word)``; ``state`` (int64[7]) is updated in place so the
+    next call, on the same block or the next one, continues seamlessly.
+    """
+    cap = ox.shape[0]
+    y = state[_Y]
+    th = state[_TH]
+    tl = state[_TL]
+    ovf = state[_OVF]
+    bx = state[_BX]
+    vp = state[_VP]
+    seen = state[_SEEN]
+    n = 0
+    i = start
+    nw = words.shape[0]
+    while i < nw and n + 12 <= cap:
+        w = np.int64(words[i])
+        typ = w >> 12
+        if typ == 0x2:
+            if seen:
+                ox[n] = w & 0x7FF
+                oy[n] = y
+                ot[n] = ovf + (th << 12) + tl
+                op[n] = (w >> 11) & 1
+                n += 1
+        elif typ == 0x0:
+            y = w & 0x7FF
+        elif typ == 0x6:
+            tl = w & 0xFFF
+        elif typ == 0x8:
+            h = w & 0xFFF
+            if seen and h < th and th - h >= 2048:
+                ovf += 1 << 24
+            th = h
+            seen = 1
+        elif typ == 0x3:
+            bx = w & 0x7FF
+            vp = (w >> 11) & 1
+        elif typ == 0x4 or typ == 0x5:
+            nb = 12 if typ == 0x4 else 8
+            if seen:
+                t = ovf + (th << 12) + tl
+                for k in range(nb):
+                    if (w >> k) & 1:
+                        ox[n] = bx + k
+                        oy[n] = y
+                        ot[n] = t
+                        op[n] = vp
+                        n += 1
+            bx += nb
+        i += 1
+    state[_Y] = y
+    state[_TH] = th
+    state[_TL] = tl
+    state[_OVF] = ovf
+    state[_BX] = bx
+    state[_VP] = vp
+    state[_SEEN] = seen
+    return n, i
+
+
+def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> _binary.Block:
+    """Decode a block of EVT3 words (uint16) into ``(x, y, t, p)`` arrays.
+
+    Parameters
+    ----------
+    words : ndarray of uint16
+        Consecutive EVT3 words.
+    state : ndarray of int64, shape (7,), optional
+        Decoder state from the previous block (updated in place); a fresh decoder
+        (no time base yet) when omitted.
+
+    Returns
+    -------
+    x, y : uint16 ndarrays, t : int64 ndarray (µs, unwrapped), p : uint8 ndarray
+    """
+    words = np.ascontiguousarray(words, dtype=np.uint16)
+    if state is None:
+        state = new_state()
+    parts = []
+    i = 0
+    while True:
+        cap = max(words.shape[0] - i, 0) + 4096
+        ox = np.empty(cap, np.uint16)
+        oy = np.empty(cap, np.uint16)
+        ot = np.empty(cap, np.int64)
+        op = np.empty(cap, np.uint8)
+        n, i = _decode(words, i, state, ox, oy, ot, op)
+        parts.append((ox[:n], oy[:n], ot[:n], op[:n]))
+        if i >= words.shape[0]:
+            break
+    if len(parts) == 1:
+        return parts[0]
+    return tuple(np.concatenate([p[k] for p in parts]) for k in range(4))
+
+
+def new_state() -> np.ndarray:
+    """A fresh decoder state (no time base seen yet)."""
+    return np.zeros(7, np.int64)
+
+
+def _blocks(path: Path, offset: int, t_offset: int, block_bytes: int
+            ) -> Iterator[_binary.Block]:
+    state = new_state()
+    for _, buf in _binary.iter_blocks(path, offset, block_bytes, 2):
+        x, y, t, p = decode_words(np.frombuffer(buf, "<u2"), state)
+        if t_offset:
+            t += t_offset
+        yield x, y, t, p
+
+
+def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
+         sensor_size: tuple[int, int] | None = None, validate: bool = True,
+         block_bytes: int = _binary.BLOCK_BYTES) -> EventArray:
+    """Read an EVT 3.0 RAW file.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.raw`` file.
+    t0, t1 : int, optional
+        Keep events with ``t0 <= t < t1`` (µs, absolute as in the file).
+    sensor_size : (int, int), optional
+        ``(height, width)`` if the header has no ``geometry`` line.
+    validate : bool
+        Check sortedness and bounds of the result.
+    block_bytes : int
+        Bytes read and decoded at a time (bounds memory besides the result).
+
+    Returns
+    -------
+    EventArray
+        Timestamps unwrapped to int64 µs.
+
+    Examples
+    --------
+    >>> ev = read("recording.raw", t0=0, t1=100_000)  # doctest: +SKIP
+    """
+    path = Path(path)
+    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size)
+    _binary.trailing_partial(path, offset, 2)
+    meta = {"source": str(path), "format": "evt3"}
+    return _binary.collect(_blocks(path, offset, t_offset, block_bytes), size, meta, t0, t1,
+                           validate=validate)
+
+
+def iter_chunks(path: str | Path, chunk_events: int, *,
+                sensor_size: tuple[int, int] | None = None, validate: bool = True,
+                block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
+    """Stream an EVT 3.0 file as EventArrays of ``chunk_events`` events (the last may be
+    shorter), reading ``block_bytes`` at a time; decoder state carries across blocks.
+
+    Examples
+    --------
+    >>> for chunk in iter_chunks("recording.raw", 100_000):  # doctest: +SKIP
+    ...     print(len(chunk))
+    """
+    chunk_events = _binary.check_chunk_events(chunk_events)
+    path = Path(path)
+    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size)
+    _binary.trailing_partial(path, offset, 2)
+    meta = {"source": str(path), "format": "evt3"}
+    yield from _binary.rechunk(_blocks(path, offset, t_offset, block_bytes), chunk_events,
+                               size, meta, validate=validate)
+
+
+@numba.njit(cache=True)
+def _encode(x, y, t, p, out):
+    """EVT3 words for sorted events (times relative to the file's time base, ≥ 0).
+
+    Runs of events sharing t, y and polarity with increasing x are packed into
+    VECT_BASE_X + VECT_12/VECT_8 words when that is shorter than one ADDR_X per event.
+    Returns the number of words written; ``out`` must hold ``4 * len(x) + 8 + gaps``.
+    """
+    n = x.shape[0]
+    k = 0
+    cur_hi = np.int64(-1)  # unwrapped (t >> 12) last announced
+    cur_tl = np.int64(-1)
+    cur_y = np.int64(-1)
+    i = 0
+    while i < n:
+        ti = t[i]
+        hi = ti >> 12
+        if cur_hi < 0:
+            cur_hi = hi
+            out[k] = 0x8000 | (hi & 0xFFF)
+            k += 1
+            cur_tl = -1
+        elif hi != cur_hi:
+            # announce every half wrap on long gaps so the reader can count wraps
+            while hi - cur_hi > 2047:
+                cur_hi += 2047
+                out[k] = 0x8000 | (cur_hi & 0xFFF)
+                k += 1
+            cur_hi = hi
+            out[k] = 0x8000 | (hi & 0xFFF)
+            k += 1
+            cur_tl = -1
+        tl = ti & 0xFFF
+        if tl != cur_tl:
+            out[k] = 0x6000 | tl
+            k += 1
+            cur_tl = tl
+        yi = np.int64(y[i])
+        if yi != cur_y:
+            out[k] = yi & 0x7FF
+            k += 1
+            cur_y = yi
+        # longest run from i with equal t, y, p and strictly increasing x
+        j = i + 1
+        while (j < n and t[j] == ti and y[j] == y[i] and p[j] == p[i]
+               and x[j] > x[j - 1]):
+            j += 1
+        span = np.int64(x[j - 1]) - np.int64(x[i]) + 1
+        n_vec = 1 + (span + 11) // 12
+        if j - i >= 3 and n_vec < j - i:
+            bx = np.int64(x[i])
+            out[k] = 0x3000 | (np.int64(p[i]) << 11) | bx
+            k += 1
+            m = i
+            while m < j:
+                width = 12 if np.int64(x[j - 1]) - bx >= 8 else 8
+                mask = np.int64(0)
+                while m < j and np.int64(x[m]) < bx + width:
+                    mask |= np.int64(1) << (np.int64(x[m]) - bx)
+                    m += 1
+                out[k] = (0x4000 if width == 12 else 0x5000) | mask
+                k += 1
+                bx += width
+            i = j
+        else:
+            out[k] = 0x2000 | (np.int64(p[i]) << 11) | np.int64(x[i])
+            k += 1
+            i += 1
+    return k
+
+
+def encode(events: EventArray, t_base: int = 0) -> np.ndarray:
+    """EVT3 words (uint16) for ``events``, times taken relative to ``t_base`` µs."""
+    t = events.t - t_base
+    n = len(events)
+    gaps = 0
+    if n:
+        if t[0] < 0:
+            raise FormatError(None, f"event time {events.t[0]} us is before the time base "
+                              f"{t_base} us")
+        gaps = int(((t[-1] >> 12) - (t[0] >> 12)) // 2047) + 1
+    out = np.empty(4 * n + 8 + gaps, np.uint16)
+    k = _encode(np.ascontiguousarray(events.x, np.uint16), np.ascontiguousarray(events.y, np.uint16),
+                np.ascontiguousarray(t), events.p, out)
+    return out[:k]
+
+
+def write(path: str | Path, events: EventArray, *, header: dict | None = None) -> None:
+    """Write ``events`` as an EVT 3.0 RAW file (atomically).
+
+    Integer coordinates below 2048 are required. When the first timestamp is at or past
+    the 24-bit counter range (16.78 s), a multiple of 2^24 µs is stored in the header key
+    ``evmotion_time_offset_us`` so :func:`read` restores the absolute times bit-exactly
+    (other tools see times modulo 2^24, as a camera would produce them).
+
+    Examples
+    --------
+    >>> write("out.raw", events)  # doctest: +SKIP
+    """
+    _check_writable(events, 2048)
+    h, w = events.sensor_size
+    t_base = int(events.t[0]) - int(events.t[0]) % WRAP_US if len(events) else 0
+    lines = ["% evt 3.0", f"% format EVT3;height={h};width={w}",
+             f"% geometry {w}x{h}", "% integrator_name evmotion"]
+    if t_base:
+        lines.append(f"% {_prophesee.OFFSET_KEY} {t_base}")
+    for key, val in (header or {}).items():
+        lines.append(f"% {key} {val}")
+    lines.append("% end")
+    words = encode(events, t_base)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(_binary.header_bytes(lines))
+        fh.write(words.astype("<u2").tobytes())
+
+
+def _check_writable(events: EventArray, limit: int) -> None:
+    if events.x.dtype.kind == "f":
+        raise FormatError(None, "events have float (undistorted) coordinates; this format "
+                          "stores integer pixels")
+    h, w = events.sensor_size
+    if w > limit or h > limit:
+        raise FormatError(None, f"sensor_size {events.sensor_size} exceeds this format's "
+                          f"{limit}-pixel address range")
+
+
+def describe(path: str | Path) -> dict:
+    """Header fields, geometry and payload size of an EVT 3.0 file."""
+    path = Path(path)
+    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, None)
+    return {"format": "evt3", "sensor_size": size, "header": _prophesee.header_dict(lines),
+            "data_offset": offset, "n_words": (path.stat().st_size - offset) // 2,
+            "frames": 0, "imu": 0}
+
+
+def _sniff(path: Path, head: bytes) -> bool:
+    return _prophesee.sniff_raw(head, "3.0")
+
+
+FORMAT = FormatSpec(name="evt3", extensions=(".raw",), sniff=_sniff, read=read,
+                    iter_chunks=iter_chunks, write=write, describe=describe)
