@@ -167,8 +167,9 @@ def map_windows(
     ----------
     fn : callable
         ``fn(events) -> value`` (or ``fn(events, t0_us, t1_us)`` with ``with_window``).
-        For processes and Dask it must be picklable (a module-level function or a
-        :func:`functools.partial` of one) and so must its return value.
+        For processes and Dask it must be picklable (a module-level function of an
+        importable module, or a :func:`functools.partial` of one) and so must its return
+        value: worker processes start fresh (forkserver/spawn) and import it.
     source : path or EventArray
         A recording path: each worker reads its own window with
         ``evmotion.io.read_events(path, t0=, t1=, **read_kwargs)``. An EventArray: each
@@ -249,7 +250,8 @@ def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_wind
     if isinstance(executor, cf.Executor):
         pool, owned = executor, False
     elif executor == "process":
-        pool, owned = cf.ProcessPoolExecutor(max_workers=workers), True
+        pool, owned = cf.ProcessPoolExecutor(max_workers=workers,
+                                             mp_context=_process_context()), True
     elif executor == "thread":
         pool, owned = cf.ThreadPoolExecutor(max_workers=workers), True
     else:
@@ -278,6 +280,15 @@ def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_wind
             fut.cancel()
         if owned:
             pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _process_context():
+    """Fresh worker processes, never a fork of this one: forking a process that runs
+    threads (a Dask client, BLAS, a progress bar) can deadlock the child on a held lock."""
+    import multiprocessing as mp
+
+    method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+    return mp.get_context(method)
 
 
 def _future_result(fut, task: _Task) -> WindowResult:
