@@ -1,0 +1,583 @@
+"""Optical-flow files: Middlebury ``.flo``, DSEC 16-bit PNG, and evmotion's flow HDF5.
+
+Conventions: a *flow* is an ``(H, W, 2)`` float32 array of ``(u, v)`` in **px/s** (u to the
+right, v down). A *displacement* is in **px** over an explicit interval; the functions that
+read or write displacements say so and take the interval ``dt_s`` (seconds) to convert.
+
+The flow HDF5 container (written by :class:`FlowWriter`, read by :func:`read_flow_h5`) holds
+dense per-window flow::
+
+    /flow   (N, H, W, 2) float32, px/s, chunked one window per chunk
+    /t0, /t1 (N,) int64 µs, the window each flow belongs to
+    /valid  (N, H, W) bool, optional
+    attrs: format="evmotion-flow", version, height, width, units="px/s", plus user attributes
+
+It is written window by window to ``<name>.part`` and renamed onto ``<name>`` by
+:meth:`FlowWriter.close`, so a crashed run never leaves a truncated file under the final
+name, and ``FlowWriter(path, ..., resume=True)`` continues where it stopped.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.utils import atomic_path
+
+__all__ = [
+    "FLO_MAGIC",
+    "FlowSequence",
+    "FlowWriter",
+    "read_flo",
+    "write_flo",
+    "read_dsec_flow_png",
+    "write_dsec_flow_png",
+    "read_flow_h5",
+    "flow_h5_done",
+    "write_flow_group",
+    "read_flow_group",
+    "read_gt_flow",
+    "read_mvsec_gt_flow",
+    "read_dsec_gt_flow",
+]
+
+FLO_MAGIC = 202021.25
+FLOW_FORMAT = "evmotion-flow"
+FLOW_VERSION = 1
+
+
+@dataclass(frozen=True)
+class FlowSequence:
+    """Dense flow for a sequence of windows.
+
+    Attributes
+    ----------
+    flow : ndarray, (N, H, W, 2) float32
+        ``(u, v)`` in px/s.
+    t0, t1 : ndarray, (N,) int64
+        Window start and end in microseconds.
+    valid : ndarray, (N, H, W) bool or None
+        Where the flow is defined (ground truth) or trusted.
+    attrs : dict
+        Metadata stored with the flow.
+    """
+
+    flow: np.ndarray
+    t0: np.ndarray
+    t1: np.ndarray
+    valid: np.ndarray | None = None
+    attrs: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.flow.shape[0])
+
+    def displacement(self, i: int) -> np.ndarray:
+        """Pixel displacement ``(H, W, 2)`` over window ``i`` (flow times its duration)."""
+        return self.flow[i] * np.float32((self.t1[i] - self.t0[i]) * 1e-6)
+
+
+def _check_flow(flow, name: str = "flow") -> np.ndarray:
+    arr = np.asarray(flow)
+    if arr.ndim != 3 or arr.shape[2] != 2:
+        raise ParameterError(f"{name} must have shape (H, W, 2), got {arr.shape}")
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------- .flo
+def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = None) -> None:
+    """Write a Middlebury ``.flo`` file (atomically).
+
+    ``.flo`` files hold pixel displacements. Give ``dt_s`` to convert a flow in px/s
+    (displacement = flow · dt_s); without it ``flow`` is written as-is (a displacement in px).
+
+    Parameters
+    ----------
+    path : path-like
+        Output file.
+    flow : ndarray, (H, W, 2)
+        Flow in px/s if ``dt_s`` is given, else displacement in px.
+    dt_s : float, optional
+        Time interval in seconds.
+
+    Examples
+    --------
+    >>> write_flo("f.flo", np.zeros((4, 5, 2), np.float32), dt_s=0.01)  # doctest: +SKIP
+    """
+    arr = _check_flow(flow)
+    if dt_s is not None:
+        arr = arr * np.float32(dt_s)
+    h, w = arr.shape[:2]
+    header = struct.pack("<fii", FLO_MAGIC, w, h)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(header)
+            fh.write(arr.astype("<f4").tobytes())
+
+
+def read_flo(path: str | os.PathLike, dt_s: float | None = None) -> np.ndarray:
+    """Read a Middlebury ``.flo`` file.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    dt_s : float, optional
+        Interval in seconds the displacement spans. When given the result is a flow in
+        px/s (displacement / dt_s); otherwise the stored displacement in px.
+
+    Returns
+    -------
+    ndarray, (H, W, 2) float32
+        Values above 1e9 (Middlebury's "unknown") are returned as NaN.
+
+    Examples
+    --------
+    >>> disp = read_flo("f.flo")  # doctest: +SKIP
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise FormatError(path, f"cannot read: {exc.strerror}") from None
+    if len(data) < 12:
+        raise FormatError(path, f"truncated .flo header ({len(data)} bytes, need 12)")
+    magic, w, h = struct.unpack("<fii", data[:12])
+    if magic != np.float32(FLO_MAGIC):
+        raise FormatError(path, f"not a .flo file: magic number {magic!r}, expected {FLO_MAGIC}")
+    if w <= 0 or h <= 0 or w * h > 1 << 28:
+        raise FormatError(path, f"implausible .flo size width={w} height={h}")
+    need = 12 + 8 * w * h
+    if len(data) < need:
+        raise FormatError(path, f"truncated .flo data: {len(data)} bytes, need {need} for "
+                          f"{w}x{h}")
+    arr = np.frombuffer(data, dtype="<f4", count=2 * w * h, offset=12).reshape(h, w, 2)
+    arr = arr.astype(np.float32)
+    arr[np.abs(arr) > 1e9] = np.nan
+    if dt_s is not None:
+        if not dt_s > 0:
+            raise ParameterError(f"dt_s must be > 0 seconds, got {dt_s}")
+        arr /= np.float32(dt_s)
+    return arr
+
+
+# ---------------------------------------------------------------------------- DSEC PNG
+def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
+                        valid: np.ndarray | None = None) -> None:
+    """Write a DSEC optical-flow PNG (16-bit RGB, atomically).
+
+    Channels: ``x`` and ``y`` displacement encoded as ``v · 128 + 2^15``, third channel the
+    valid flag (1 = valid). Displacement is in px over the file's interval (DSEC's
+    ``forward_timestamps.txt``); values are clipped to ±256 px and rounded to 1/128 px.
+
+    Examples
+    --------
+    >>> write_dsec_flow_png("000000.png", np.zeros((4, 5, 2)))  # doctest: +SKIP
+    """
+    import png
+
+    d = _check_flow(displacement, "displacement")
+    h, w = d.shape[:2]
+    if valid is None:
+        valid = np.isfinite(d).all(axis=2)
+    valid = np.asarray(valid, dtype=bool)
+    if valid.shape != (h, w):
+        raise ParameterError(f"valid must have shape {(h, w)}, got {valid.shape}")
+    enc = np.zeros((h, w, 3), dtype=np.uint16)
+    dd = np.nan_to_num(d, nan=0.0)
+    enc[..., :2] = np.clip(np.rint(dd * 128.0 + 2.0**15), 0, 65535).astype(np.uint16)
+    enc[..., 2] = valid
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            png.Writer(width=w, height=h, bitdepth=16, greyscale=False).write(
+                fh, enc.reshape(h, w * 3))
+
+
+def read_dsec_flow_png(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """Read a DSEC optical-flow PNG.
+
+    Returns
+    -------
+    displacement : ndarray, (H, W, 2) float32
+        ``(v − 2^15) / 128`` px over the file's interval, NaN where invalid.
+    valid : ndarray, (H, W) bool
+        The third channel.
+
+    Examples
+    --------
+    >>> disp, valid = read_dsec_flow_png("flow/forward/000002.png")  # doctest: +SKIP
+    """
+    import png
+
+    path = Path(path)
+    try:
+        w, h, rows, info = png.Reader(filename=str(path)).read()
+        img = np.vstack([np.asarray(r, dtype=np.uint16) for r in rows])
+    except (png.Error, OSError, ValueError) as exc:
+        raise FormatError(path, f"cannot decode DSEC flow PNG: {exc}") from None
+    planes = info.get("planes", 1)
+    if info.get("bitdepth") != 16 or planes < 3:
+        raise FormatError(path, f"DSEC flow PNG must be 16-bit RGB, got bitdepth "
+                          f"{info.get('bitdepth')} with {planes} channel(s)")
+    img = img.reshape(h, w, planes)
+    valid = img[..., 2] > 0
+    disp = (img[..., :2].astype(np.float32) - np.float32(2**15)) / np.float32(128.0)
+    disp[~valid] = np.nan
+    return disp, valid
+
+
+# ---------------------------------------------------------------------------- flow HDF5
+def _part_path(path: Path) -> Path:
+    return path.with_name(path.name + ".part")
+
+
+class FlowWriter:
+    """Append dense flow windows to an evmotion flow HDF5 file, in bounded memory.
+
+    Parameters
+    ----------
+    path : path-like
+        Final file name (``.h5``). Data go to ``<path>.part`` until :meth:`close`.
+    sensor_size : (int, int)
+        ``(height, width)`` of every flow field.
+    with_valid : bool
+        Store a per-window boolean mask (``append(..., valid=)``).
+    resume : bool
+        Reopen an unfinished ``.part`` file (or a finished file) and continue after its
+        last window; :attr:`n_done` and :attr:`done_t0` tell which windows are present.
+    attrs : dict, optional
+        Metadata stored as HDF5 attributes (strings, numbers, small arrays).
+    compression : str or None
+        HDF5 filter for the flow dataset (``"gzip"``, ``"lzf"`` or None).
+
+    Examples
+    --------
+    >>> with FlowWriter("flow.h5", (180, 240)) as fw:  # doctest: +SKIP
+    ...     fw.append(np.zeros((180, 240, 2), np.float32), t0=0, t1=10_000)
+    """
+
+    def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int], *,
+                 with_valid: bool = False, resume: bool = False, attrs: dict | None = None,
+                 compression: str | None = "gzip"):
+        import h5py
+
+        self.path = Path(path)
+        self.part = _part_path(self.path)
+        h, w = (int(v) for v in sensor_size)
+        if h <= 0 or w <= 0:
+            raise ParameterError(f"sensor_size must be positive (height, width), got {(h, w)}")
+        self.sensor_size = (h, w)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if resume and not self.part.exists() and self.path.exists():
+            os.replace(self.path, self.part)
+        if resume and self.part.exists():
+            try:
+                self.f = h5py.File(self.part, "a")
+            except OSError as exc:
+                raise FormatError(self.part, f"cannot reopen to resume: {exc}",
+                                  "delete it to start again") from None
+            got = (int(self.f.attrs.get("height", -1)), int(self.f.attrs.get("width", -1)))
+            fmt = self.f.attrs.get("format")
+            if fmt != FLOW_FORMAT or got != self.sensor_size:
+                self.f.close()
+                raise FormatError(self.part, f"cannot resume: holds format {fmt!r} of size "
+                                  f"{got}, expected {FLOW_FORMAT!r} of size {self.sensor_size}")
+            self.with_valid = "valid" in self.f
+            self._trim_partial()
+        else:
+            self.f = h5py.File(self.part, "w")
+            self.with_valid = with_valid
+            write_flow_group(self.f, None, None, None, sensor_size=self.sensor_size,
+                             with_valid=with_valid, compression=compression)
+        for k, v in (attrs or {}).items():
+            self.f.attrs[k] = v
+
+    def _trim_partial(self) -> None:
+        # A crash between resizing and writing t1 leaves a window that is not done.
+        n = int(self.f["t1"].shape[0])
+        for name in ("flow", "t0", "valid"):
+            if name in self.f and self.f[name].shape[0] != n:
+                self.f[name].resize(n, axis=0)
+
+    @property
+    def n_done(self) -> int:
+        """Number of windows written so far."""
+        return int(self.f["t1"].shape[0])
+
+    @property
+    def done_t0(self) -> np.ndarray:
+        """Start times (µs) of the windows written so far."""
+        return self.f["t0"][: self.n_done]
+
+    def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None
+               ) -> None:
+        """Add one window: ``flow`` (H, W, 2) px/s over ``[t0, t1)`` µs."""
+        arr = _check_flow(flow)
+        if arr.shape[:2] != self.sensor_size:
+            raise ParameterError(f"flow has size {arr.shape[:2]}, the file holds "
+                                 f"{self.sensor_size}")
+        if int(t1) < int(t0):
+            raise ParameterError(f"window end t1={t1} us is before t0={t0} us")
+        if self.with_valid and valid is None:
+            valid = np.isfinite(arr).all(axis=2)
+        elif not self.with_valid and valid is not None:
+            raise ParameterError("this flow file was created without valid masks "
+                                 "(FlowWriter(..., with_valid=True))")
+        n = self.n_done
+        f = self.f
+        f["flow"].resize(n + 1, axis=0)
+        f["flow"][n] = arr
+        if self.with_valid:
+            v = np.asarray(valid, dtype=bool)
+            if v.shape != self.sensor_size:
+                raise ParameterError(f"valid has shape {v.shape}, expected {self.sensor_size}")
+            f["valid"].resize(n + 1, axis=0)
+            f["valid"][n] = v
+        f["t0"].resize(n + 1, axis=0)
+        f["t0"][n] = int(t0)
+        # t1 is written last: its length is the number of complete windows.
+        f["t1"].resize(n + 1, axis=0)
+        f["t1"][n] = int(t1)
+        f.flush()
+
+    def close(self) -> None:
+        """Finish the file and rename it onto the final name."""
+        if self.f.id.valid:
+            self.f.close()
+            os.replace(self.part, self.path)
+
+    def abort(self) -> None:
+        """Close without renaming: the ``.part`` file stays for ``resume=True``."""
+        if self.f.id.valid:
+            self.f.close()
+
+    def __enter__(self) -> FlowWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def write_flow_group(group, flow: np.ndarray | None, t0, t1, valid=None, *,
+                     sensor_size: tuple[int, int] | None = None, with_valid: bool | None = None,
+                     compression: str | None = "gzip") -> None:
+    """Create the flow datasets in an open h5py group (e.g. ``ground_truth/flow`` in an
+    evmotion events file), optionally filled with ``flow`` (N, H, W, 2) px/s and ``t0``,
+    ``t1`` (N,) µs. The datasets stay resizable along the first axis for appending.
+
+    Examples
+    --------
+    >>> with h5py.File("sim.h5", "a") as f:  # doctest: +SKIP
+    ...     write_flow_group(f.require_group("ground_truth/flow"), flow, t0, t1)
+    """
+    if flow is not None:
+        flow = np.ascontiguousarray(flow, dtype=np.float32)
+        if flow.ndim != 4 or flow.shape[3] != 2:
+            raise ParameterError(f"flow must have shape (N, H, W, 2), got {flow.shape}")
+        sensor_size = flow.shape[1:3]
+    if sensor_size is None:
+        raise ParameterError("give flow or sensor_size")
+    h, w = (int(v) for v in sensor_size)
+    n = 0 if flow is None else flow.shape[0]
+    if with_valid is None:
+        with_valid = valid is not None
+    kw = {"compression": compression} if compression else {}
+    if compression == "gzip":
+        kw.update(compression_opts=1, shuffle=True)
+    group.attrs["format"] = FLOW_FORMAT
+    group.attrs["version"] = FLOW_VERSION
+    group.attrs["height"] = h
+    group.attrs["width"] = w
+    group.attrs["units"] = "px/s"
+    group.create_dataset("flow", shape=(n, h, w, 2), maxshape=(None, h, w, 2),
+                         dtype="<f4", chunks=(1, h, w, 2), data=flow, **kw)
+    for name, vals in (("t0", t0), ("t1", t1)):
+        data = None if flow is None else np.asarray(vals, dtype=np.int64).reshape(n)
+        group.create_dataset(name, shape=(n,), maxshape=(None,), dtype="<i8",
+                             chunks=(1024,), data=data)
+    if with_valid:
+        data = None if valid is None else np.asarray(valid, dtype=bool).reshape(n, h, w)
+        group.create_dataset("valid", shape=(n, h, w), maxshape=(None, h, w), dtype=bool,
+                             chunks=(1, h, w), data=data, **kw)
+
+
+def read_flow_group(group, path: str | os.PathLike | None = None,
+                    index: int | slice | None = None) -> FlowSequence:
+    """Read a flow group written by :func:`write_flow_group` / :class:`FlowWriter`."""
+    if group.attrs.get("format") != FLOW_FORMAT:
+        raise FormatError(path, f"group '{group.name}' is not an evmotion flow container "
+                          f"(attribute format={group.attrs.get('format')!r})")
+    for name in ("flow", "t0", "t1"):
+        if name not in group:
+            raise FormatError(path, f"flow container lacks dataset '{group.name}/{name}'")
+    n = int(group["t1"].shape[0])
+    sel = slice(0, n) if index is None else index
+    idx = np.arange(n)[sel]
+    if np.ndim(idx) == 0:
+        idx = np.array([int(idx)])
+        sel = slice(int(idx[0]), int(idx[0]) + 1)
+    flow = group["flow"][sel]
+    valid = group["valid"][sel] if "valid" in group else None
+    attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in group.attrs.items()}
+    return FlowSequence(flow=flow, t0=group["t0"][sel], t1=group["t1"][sel], valid=valid,
+                        attrs=attrs)
+
+
+def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> FlowSequence:
+    """Read dense flow windows from an evmotion flow HDF5 file.
+
+    Parameters
+    ----------
+    path : path-like
+        A file written by :class:`FlowWriter` (a ``.part`` file too), or an evmotion
+        events file with a ``ground_truth/flow`` group.
+    index : int or slice, optional
+        Which windows (default all complete windows).
+
+    Examples
+    --------
+    >>> seq = read_flow_h5("flow.h5", index=slice(0, 2))  # doctest: +SKIP
+    >>> seq.flow.shape  # doctest: +SKIP
+    (2, 180, 240, 2)
+    """
+    import h5py
+
+    path = Path(path)
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    with f:
+        if f.attrs.get("format") == FLOW_FORMAT:
+            return read_flow_group(f, path, index)
+        if "ground_truth/flow" in f:
+            return read_flow_group(f["ground_truth/flow"], path, index)
+        raise FormatError(path, "no flow: neither an evmotion flow file (attribute "
+                          "format='evmotion-flow') nor a 'ground_truth/flow' group")
+
+
+def flow_h5_done(path: str | os.PathLike) -> int:
+    """Number of complete windows in a flow file or its unfinished ``.part`` (0 if none)."""
+    import h5py
+
+    path = Path(path)
+    for p in (_part_path(path), path):
+        if p.exists():
+            with h5py.File(p, "r") as f:
+                return int(f["t1"].shape[0]) if "t1" in f else 0
+    return 0
+
+
+# ---------------------------------------------------------------------------- ground truth
+def read_mvsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
+    """Read MVSEC ground-truth flow (``*_gt_flow_dist.npz``).
+
+    The file holds ``timestamps`` (N,) in seconds and ``x_flow_dist``, ``y_flow_dist``
+    (N, H, W): pixel displacement from ``timestamps[i]`` to ``timestamps[i+1]``. They are
+    returned as px/s over those intervals (N−1 windows). Pixels with zero displacement in
+    both components (no depth) are marked invalid.
+
+    Examples
+    --------
+    >>> gt = read_mvsec_gt_flow("outdoor_day1_gt_flow_dist.npz")  # doctest: +SKIP
+    """
+    path = Path(path)
+    try:
+        z = np.load(path)
+    except (OSError, ValueError) as exc:
+        raise FormatError(path, f"cannot read as .npz: {exc}") from None
+    with z:
+        for k in ("timestamps", "x_flow_dist", "y_flow_dist"):
+            if k not in z.files:
+                raise FormatError(path, f"MVSEC ground truth lacks array '{k}'",
+                                  f"found {', '.join(z.files)}")
+        ts = np.asarray(z["timestamps"], dtype=np.float64)
+        xd = np.asarray(z["x_flow_dist"], dtype=np.float32)
+        yd = np.asarray(z["y_flow_dist"], dtype=np.float32)
+    if xd.shape != yd.shape or xd.ndim != 3 or xd.shape[0] != ts.shape[0]:
+        raise FormatError(path, f"inconsistent shapes: timestamps {ts.shape}, x_flow_dist "
+                          f"{xd.shape}, y_flow_dist {yd.shape}")
+    if ts.shape[0] < 2:
+        raise FormatError(path, "need at least two timestamps to know the flow interval")
+    t_us = np.rint(ts * 1e6).astype(np.int64)
+    dt = np.diff(ts).astype(np.float32)
+    if np.any(dt <= 0):
+        raise FormatError(path, "field 'timestamps' is not strictly increasing")
+    disp = np.stack([xd[:-1], yd[:-1]], axis=-1)
+    valid = np.isfinite(disp).all(axis=3) & ((disp[..., 0] != 0) | (disp[..., 1] != 0))
+    flow = disp / dt[:, None, None, None]
+    return FlowSequence(flow=flow, t0=t_us[:-1], t1=t_us[1:], valid=valid,
+                        attrs={"source": str(path), "format": "mvsec-gt"})
+
+
+def read_dsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
+    """Read DSEC ground-truth flow: a ``flow/forward`` folder of 16-bit PNGs with
+    ``forward_timestamps.txt`` (``from_us, to_us`` per line) beside or inside it.
+
+    Parameters
+    ----------
+    path : path-like
+        The folder of PNGs, its parent ``flow`` folder, or the timestamps file.
+
+    Returns
+    -------
+    FlowSequence
+        Flow in px/s (displacement / interval), NaN and invalid where the PNG says so.
+    """
+    path = Path(path)
+    if path.is_file():
+        ts_file = path
+        folder = path.parent / "forward" if (path.parent / "forward").is_dir() else path.parent
+    else:
+        folder = path / "forward" if (path / "forward").is_dir() else path
+        cands = [folder / "forward_timestamps.txt", folder.parent / "forward_timestamps.txt",
+                 path / "forward_timestamps.txt"]
+        ts_file = next((c for c in cands if c.exists()), None)
+        if ts_file is None:
+            raise FormatError(path, "no forward_timestamps.txt beside the flow PNGs")
+    try:
+        ts = np.loadtxt(ts_file, delimiter=",", comments="#", dtype=np.int64, ndmin=2)
+    except ValueError as exc:
+        raise FormatError(ts_file, f"cannot parse 'from_us, to_us' lines: {exc}") from None
+    pngs = sorted(folder.glob("*.png"))
+    if ts.shape[1] != 2:
+        raise FormatError(ts_file, f"expected 2 columns (from_us, to_us), got {ts.shape[1]}")
+    if len(pngs) != ts.shape[0]:
+        raise FormatError(folder, f"{len(pngs)} flow PNGs but {ts.shape[0]} lines in "
+                          f"{ts_file.name}")
+    flows, valids = [], []
+    for i, p in enumerate(pngs):
+        disp, valid = read_dsec_flow_png(p)
+        dt = (ts[i, 1] - ts[i, 0]) * 1e-6
+        if dt <= 0:
+            raise FormatError(ts_file, f"line {i + 1}: to_us {ts[i, 1]} <= from_us {ts[i, 0]}")
+        flows.append(disp / np.float32(dt))
+        valids.append(valid)
+    return FlowSequence(flow=np.stack(flows), t0=ts[:, 0].copy(), t1=ts[:, 1].copy(),
+                        valid=np.stack(valids),
+                        attrs={"source": str(path), "format": "dsec-gt"})
+
+
+def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
+    """Ground-truth flow from MVSEC ``.npz``, a DSEC flow folder / timestamps file, or an
+    evmotion HDF5 file (flow container or the simulator's ``ground_truth/flow``).
+
+    Examples
+    --------
+    >>> gt = read_gt_flow("sim.h5")  # doctest: +SKIP
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FormatError(path, "no such file or folder")
+    if path.is_dir() or path.suffix.lower() == ".txt":
+        return read_dsec_gt_flow(path)
+    if path.suffix.lower() == ".npz":
+        return read_mvsec_gt_flow(path)
+    return read_flow_h5(path)

@@ -1,0 +1,144 @@
+"""Flow files: .flo, DSEC PNG, flow HDF5 container (append, atomic, resume), GT readers."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.io import flowfiles as ff
+
+
+def _flow(h=6, w=7, seed=0):
+    return np.random.default_rng(seed).normal(0, 50, (h, w, 2)).astype(np.float32)
+
+
+def test_flo_round_trip_bit_equal(tmp_path):
+    d = _flow()
+    ff.write_flo(tmp_path / "a.flo", d)
+    np.testing.assert_array_equal(ff.read_flo(tmp_path / "a.flo"), d)
+    raw = (tmp_path / "a.flo").read_bytes()
+    assert np.frombuffer(raw[:4], "<f4")[0] == np.float32(202021.25)
+    assert np.frombuffer(raw[4:12], "<i4").tolist() == [7, 6]  # width, height
+
+
+def test_flo_units_with_interval(tmp_path):
+    flow = np.full((3, 4, 2), 100.0, np.float32)  # px/s
+    ff.write_flo(tmp_path / "a.flo", flow, dt_s=0.01)
+    np.testing.assert_allclose(ff.read_flo(tmp_path / "a.flo"), 1.0)  # px
+    np.testing.assert_allclose(ff.read_flo(tmp_path / "a.flo", dt_s=0.01), 100.0, rtol=1e-6)
+
+
+def test_flo_errors(tmp_path):
+    p = tmp_path / "bad.flo"
+    p.write_bytes(b"XXXX" + b"\0" * 8)
+    with pytest.raises(FormatError, match="bad.flo.*magic"):
+        ff.read_flo(p)
+    ff.write_flo(p, _flow())
+    p.write_bytes(p.read_bytes()[:-5])
+    with pytest.raises(FormatError, match="truncated"):
+        ff.read_flo(p)
+    with pytest.raises(ParameterError, match=r"\(H, W, 2\)"):
+        ff.write_flo(p, np.zeros((3, 3)))
+
+
+def test_dsec_png_round_trip(tmp_path):
+    d = np.round(_flow() * 128) / 128
+    valid = np.ones(d.shape[:2], bool)
+    valid[0, 0] = False
+    ff.write_dsec_flow_png(tmp_path / "f.png", d, valid)
+    got, gv = ff.read_dsec_flow_png(tmp_path / "f.png")
+    np.testing.assert_array_equal(gv, valid)
+    np.testing.assert_array_equal(got[valid], d[valid])
+    assert np.isnan(got[0, 0]).all()
+
+
+def test_dsec_png_decoding_formula(tmp_path):
+    import png
+
+    raw = np.zeros((1, 2, 3), np.uint16)
+    raw[0, 0] = (2**15 + 256, 2**15 - 64, 1)  # +2 px, -0.5 px
+    raw[0, 1] = (2**15, 2**15, 0)
+    with open(tmp_path / "x.png", "wb") as fh:
+        png.Writer(width=2, height=1, bitdepth=16, greyscale=False).write(fh, raw.reshape(1, 6))
+    disp, valid = ff.read_dsec_flow_png(tmp_path / "x.png")
+    assert disp[0, 0].tolist() == [2.0, -0.5]
+    assert valid.tolist() == [[True, False]]
+
+
+def test_flow_writer_append_atomic_resume(tmp_path):
+    path = tmp_path / "flow.h5"
+    flows = [_flow(seed=i) for i in range(4)]
+    fw = ff.FlowWriter(path, (6, 7), with_valid=True, attrs={"method": "test"})
+    for i in range(2):
+        fw.append(flows[i], t0=i * 1000, t1=(i + 1) * 1000)
+    assert not path.exists()  # nothing under the final name before close
+    fw.abort()  # simulated crash
+    assert ff.flow_h5_done(path) == 2
+    with ff.FlowWriter(path, (6, 7), resume=True) as fw:
+        assert fw.n_done == 2
+        assert fw.done_t0.tolist() == [0, 1000]
+        for i in range(2, 4):
+            fw.append(flows[i], t0=i * 1000, t1=(i + 1) * 1000)
+    assert path.exists() and not path.with_name("flow.h5.part").exists()
+    seq = ff.read_flow_h5(path)
+    np.testing.assert_array_equal(seq.flow, np.stack(flows))
+    assert seq.t0.tolist() == [0, 1000, 2000, 3000]
+    assert seq.valid.all() and seq.attrs["method"] == "test" and seq.attrs["units"] == "px/s"
+    one = ff.read_flow_h5(path, index=1)
+    np.testing.assert_array_equal(one.flow[0], flows[1])
+    np.testing.assert_allclose(seq.displacement(0), flows[0] * 1e-3, rtol=1e-6)
+
+
+def test_flow_writer_errors(tmp_path):
+    with ff.FlowWriter(tmp_path / "f.h5", (6, 7)) as fw:
+        with pytest.raises(ParameterError, match="size"):
+            fw.append(np.zeros((5, 7, 2)), 0, 1)
+        with pytest.raises(ParameterError, match="before"):
+            fw.append(np.zeros((6, 7, 2)), 10, 1)
+    with pytest.raises(FormatError, match="cannot resume"):
+        ff.FlowWriter(tmp_path / "f.h5", (8, 8), resume=True)
+    with h5py.File(tmp_path / "other.h5", "w") as f:
+        f["x"] = 1
+    with pytest.raises(FormatError, match="other.h5.*no flow"):
+        ff.read_flow_h5(tmp_path / "other.h5")
+
+
+def test_mvsec_gt_npz(tmp_path):
+    ts = np.array([10.0, 10.05, 10.1])
+    xd = np.zeros((3, 4, 5), np.float32)
+    yd = np.zeros((3, 4, 5), np.float32)
+    xd[:, 1, 2] = 1.0
+    yd[:, 1, 2] = -0.5
+    np.savez(tmp_path / "gt.npz", timestamps=ts, x_flow_dist=xd, y_flow_dist=yd)
+    gt = ff.read_gt_flow(tmp_path / "gt.npz")
+    assert len(gt) == 2 and gt.t0.tolist() == [10_000_000, 10_050_000]
+    np.testing.assert_allclose(gt.flow[0, 1, 2], [20.0, -10.0], rtol=1e-5)
+    assert gt.valid[0].sum() == 1
+    np.savez(tmp_path / "bad.npz", timestamps=ts)
+    with pytest.raises(FormatError, match="x_flow_dist"):
+        ff.read_gt_flow(tmp_path / "bad.npz")
+
+
+def test_dsec_gt_folder(tmp_path):
+    fwd = tmp_path / "flow" / "forward"
+    fwd.mkdir(parents=True)
+    d = np.zeros((4, 5, 2), np.float32)
+    d[..., 0] = 1.0
+    for i in range(2):
+        ff.write_dsec_flow_png(fwd / f"{2 * i:06d}.png", d)
+    (tmp_path / "flow" / "forward_timestamps.txt").write_text(
+        "# from_timestamp_us, to_timestamp_us\n1000, 101000\n101000, 201000\n")
+    gt = ff.read_gt_flow(tmp_path / "flow")
+    assert gt.t0.tolist() == [1000, 101000]
+    np.testing.assert_allclose(gt.flow[..., 0], 10.0)
+
+
+def test_gt_group_in_events_file(tmp_path):
+    flow = np.stack([_flow(seed=i) for i in range(3)])
+    with h5py.File(tmp_path / "sim.h5", "w") as f:
+        ff.write_flow_group(f.require_group("ground_truth/flow"), flow, [0, 1, 2], [1, 2, 3])
+    gt = ff.read_gt_flow(tmp_path / "sim.h5")
+    np.testing.assert_array_equal(gt.flow, flow)
+    assert gt.t1.tolist() == [1, 2, 3]
