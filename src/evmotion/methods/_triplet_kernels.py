@@ -22,31 +22,30 @@ REBASE_SPAN_US = 2**30
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
-_LOG2E = 1.0 / math.log(2.0)
-_LN2 = math.log(2.0)
-# 2^-n for the integer part of the exponent in _gauss_kernel.
-_POW2_NEG = np.ldexp(1.0, -np.arange(128)).astype(np.float64)
-# Taylor coefficients of exp(-u) for u in [0, ln 2): the truncation error is below 1e-9.
-_EXP_COEF = np.array([(-1.0) ** i / math.factorial(i) for i in range(11)][::-1])
+_SUB = 64
+_LOG2E_SUB = _SUB / math.log(2.0)
+_LN2_SUB = math.log(2.0) / _SUB
+# exp(-a) = 2^-(n / 64) * exp(-r) with r in [0, ln2 / 64): a table of 2^-(j / 64) for the
+# fraction, one of 2^-e for the integer part, and a 5-term Taylor series (error < 1e-11).
+_POW2_FRAC = np.exp2(-np.arange(_SUB) / _SUB)
+_POW2_INT = np.ldexp(1.0, -np.arange(128)).astype(np.float64)
 
 
 @njit(cache=True, inline="always")
 def _gauss_kernel(z: float) -> float:
-    """exp(-z^2 / 2) to ~1e-9 relative error without a libm call (the hot loop's cost).
+    """exp(-z^2 / 2) to ~1e-11 relative error without a libm call (the hot loop's cost).
 
-    Splits exp(-a) = 2^-n * exp(-f ln 2); far tails (a >= 80) take math.exp so that no
-    triplet's weight underflows to zero where the exact value does not.
+    Far tails (z^2 / 2 >= 80) take math.exp so that no triplet's weight underflows to zero
+    where the exact value does not.
     """
     a = 0.5 * z * z
     if a >= 80.0:
         return math.exp(-a)
-    y = a * _LOG2E
+    y = a * _LOG2E_SUB
     n = int(y)
-    u = (y - n) * _LN2
-    r = _EXP_COEF[0]
-    for i in range(1, 11):
-        r = r * u + _EXP_COEF[i]
-    return r * _POW2_NEG[n]
+    r = (y - n) * _LN2_SUB
+    poly = 1.0 - r * (1.0 - r * (0.5 - r * (1.0 / 6.0 - r * (1.0 / 24.0))))
+    return poly * _POW2_FRAC[n & (_SUB - 1)] * _POW2_INT[n >> 6]
 
 
 @njit(cache=True, fastmath=True)
@@ -73,6 +72,7 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
         tk = t[k] - base
         lo_i = tk - tau_us - dt_us
         hi_i = tk - tau_us
+        rk = ((plane + yk) * w + xk) * depth
         sw = 0.0
         swx = 0.0
         swy = 0.0
@@ -86,15 +86,15 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
             yj = yi + oy
             if xj < 0 or xj >= w or yj < 0 or yj >= h:
                 continue
-            ri = ((plane + yi) * w + xi) * depth
-            rj = ((plane + yj) * w + xj) * depth
-            rl = 0
+            step_o = (oy * w + ox) * depth
+            ri = rk + step_o
+            rj = ri + step_o
+            rl = rj + step_o
             if quadruple:
                 xl = xj + ox
                 yl = yj + oy
                 if xl < 0 or xl >= w or yl < 0 or yl >= h:
                     continue
-                rl = ((plane + yl) * w + xl) * depth
             for s in range(depth):
                 ti = np.int64(flat[ri + s])
                 if ti > hi_i:
@@ -152,7 +152,6 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
             out_vx[k] = 0.0
             out_vy[k] = 0.0
             out_valid[k] = False
-        rk = ((plane + yk) * w + xk) * depth
         old = np.int64(flat[rk + depth - 1])
         if old != EMPTY and old >= tk - horizon:
             stats[0] += 1
