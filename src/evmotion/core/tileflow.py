@@ -180,9 +180,12 @@ def interpolate_adjoint(g: np.ndarray, idx: np.ndarray, w: np.ndarray,
 def dense_flow(params: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Interpolate tile parameters ``(ny, nx, 2)`` to every pixel: ``(H, W, 2)`` float64."""
     ny, nx = params.shape[:2]
-    ay = axis_matrix(np.arange(shape[0]), ny, shape[0])
-    ax = axis_matrix(np.arange(shape[1]), nx, shape[1])
-    return np.einsum("hi,ijc,wj->hwc", ay, params, ax)
+    return _separable(params, axis_matrix(np.arange(shape[0]), ny, shape[0]),
+                      axis_matrix(np.arange(shape[1]), nx, shape[1]))
+
+
+def _separable(params, ay, ax):
+    return np.stack([ay @ params[..., c] @ ax.T for c in range(params.shape[2])], axis=-1)
 
 
 def resample(params: np.ndarray, grid: TileGrid) -> np.ndarray:
@@ -196,34 +199,18 @@ def resample(params: np.ndarray, grid: TileGrid) -> np.ndarray:
     (2, 2, 2)
     """
     ny, nx = params.shape[:2]
-    ay = axis_matrix(grid.centers_y(), ny, grid.shape[0])
-    ax = axis_matrix(grid.centers_x(), nx, grid.shape[1])
-    return np.einsum("hi,ijc,wj->hwc", ay, params, ax)
+    return _separable(params, axis_matrix(grid.centers_y(), ny, grid.shape[0]),
+                      axis_matrix(grid.centers_x(), nx, grid.shape[1]))
 
 
 # ------------------------------------------------------------------------- IWE kernels
-@njit(cache=True)
-def _bspline2(d, wts, dws):
-    # quadratic B-spline weights (and their derivatives) of pixels c-1, c, c+1 for an
-    # offset d = pos - c in [-0.5, 0.5]: C1 in the position, so the focus has no kinks
-    # at integer shifts (bilinear voting has one exactly at the zero-flow start point)
-    a = 0.5 - d
-    b = 0.5 + d
-    wts[0] = 0.5 * a * a
-    wts[1] = 0.75 - d * d
-    wts[2] = 0.5 * b * b
-    dws[0] = -a
-    dws[1] = -2.0 * d
-    dws[2] = b
-
-
-@njit(cache=True)
+# Quadratic B-spline weights of pixels c-1, c, c+1 for an offset d = pos - c in
+# [-0.5, 0.5]: 0.5 (0.5 - d)^2, 0.75 - d^2, 0.5 (0.5 + d)^2. C1 in the position, so the
+# focus has no kinks at integer shifts (bilinear voting has one exactly at the zero-flow
+# start). Written out with scalars and an interior fast path: this is the hot loop.
+@njit(cache=True, fastmath=True)
 def _iwe_fwd(x, y, flow, dtn, iwe):
     h, w = iwe.shape
-    wx = np.empty(3)
-    wy = np.empty(3)
-    dwx = np.empty(3)
-    dwy = np.empty(3)
     for k in range(x.shape[0]):
         xw = x[k] + dtn[k] * flow[k, 0]
         yw = y[k] + dtn[k] * flow[k, 1]
@@ -231,48 +218,101 @@ def _iwe_fwd(x, y, flow, dtn, iwe):
             continue
         cx = int(np.floor(xw + 0.5))
         cy = int(np.floor(yw + 0.5))
-        _bspline2(xw - cx, wx, dwx)
-        _bspline2(yw - cy, wy, dwy)
+        dx = xw - cx
+        dy = yw - cy
+        ax = 0.5 - dx
+        bx = 0.5 + dx
+        ay = 0.5 - dy
+        by = 0.5 + dy
+        wx0 = 0.5 * ax * ax
+        wx1 = 0.75 - dx * dx
+        wx2 = 0.5 * bx * bx
+        wy0 = 0.5 * ay * ay
+        wy1 = 0.75 - dy * dy
+        wy2 = 0.5 * by * by
+        if cx >= 1 and cx < w - 1 and cy >= 1 and cy < h - 1:
+            iwe[cy - 1, cx - 1] += wy0 * wx0
+            iwe[cy - 1, cx] += wy0 * wx1
+            iwe[cy - 1, cx + 1] += wy0 * wx2
+            iwe[cy, cx - 1] += wy1 * wx0
+            iwe[cy, cx] += wy1 * wx1
+            iwe[cy, cx + 1] += wy1 * wx2
+            iwe[cy + 1, cx - 1] += wy2 * wx0
+            iwe[cy + 1, cx] += wy2 * wx1
+            iwe[cy + 1, cx + 1] += wy2 * wx2
+            continue
         for a in range(3):
             yy = cy - 1 + a
             if yy < 0 or yy >= h:
                 continue
+            wy = wy0 if a == 0 else (wy1 if a == 1 else wy2)
             for b in range(3):
                 xx = cx - 1 + b
                 if xx >= 0 and xx < w:
-                    iwe[yy, xx] += wy[a] * wx[b]
+                    iwe[yy, xx] += wy * (wx0 if b == 0 else (wx1 if b == 1 else wx2))
+
+
+@njit(cache=True, fastmath=True)
+def _iwe_bwd(x, y, flow, dtn, giwe, gflow):
+    h, w = giwe.shape
+    for k in range(x.shape[0]):
+        xw = x[k] + dtn[k] * flow[k, 0]
+        yw = y[k] + dtn[k] * flow[k, 1]
+        if not (xw > -1.5 and xw < w + 0.5 and yw > -1.5 and yw < h + 0.5):
+            continue
+        cx = int(np.floor(xw + 0.5))
+        cy = int(np.floor(yw + 0.5))
+        dx = xw - cx
+        dy = yw - cy
+        ax = 0.5 - dx
+        bx = 0.5 + dx
+        ay = 0.5 - dy
+        by = 0.5 + dy
+        wx0 = 0.5 * ax * ax
+        wx1 = 0.75 - dx * dx
+        wx2 = 0.5 * bx * bx
+        wy0 = 0.5 * ay * ay
+        wy1 = 0.75 - dy * dy
+        wy2 = 0.5 * by * by
+        # derivatives of the weights: -a, -2d, b
+        if cx >= 1 and cx < w - 1 and cy >= 1 and cy < h - 1:
+            g00 = giwe[cy - 1, cx - 1]
+            g01 = giwe[cy - 1, cx]
+            g02 = giwe[cy - 1, cx + 1]
+            g10 = giwe[cy, cx - 1]
+            g11 = giwe[cy, cx]
+            g12 = giwe[cy, cx + 1]
+            g20 = giwe[cy + 1, cx - 1]
+            g21 = giwe[cy + 1, cx]
+            g22 = giwe[cy + 1, cx + 1]
+        else:
+            g00 = _at(giwe, cy - 1, cx - 1)
+            g01 = _at(giwe, cy - 1, cx)
+            g02 = _at(giwe, cy - 1, cx + 1)
+            g10 = _at(giwe, cy, cx - 1)
+            g11 = _at(giwe, cy, cx)
+            g12 = _at(giwe, cy, cx + 1)
+            g20 = _at(giwe, cy + 1, cx - 1)
+            g21 = _at(giwe, cy + 1, cx)
+            g22 = _at(giwe, cy + 1, cx + 1)
+        r0x = -ax * g00 - 2.0 * dx * g01 + bx * g02
+        r1x = -ax * g10 - 2.0 * dx * g11 + bx * g12
+        r2x = -ax * g20 - 2.0 * dx * g21 + bx * g22
+        gx = wy0 * r0x + wy1 * r1x + wy2 * r2x
+        r0 = wx0 * g00 + wx1 * g01 + wx2 * g02
+        r1 = wx0 * g10 + wx1 * g11 + wx2 * g12
+        r2 = wx0 * g20 + wx1 * g21 + wx2 * g22
+        gy = -ay * r0 - 2.0 * dy * r1 + by * r2
+        gflow[k, 0] += dtn[k] * gx
+        gflow[k, 1] += dtn[k] * gy
 
 
 @njit(cache=True)
-def _iwe_bwd(x, y, flow, dtn, giwe, gflow):
-    h, w = giwe.shape
-    wx = np.empty(3)
-    wy = np.empty(3)
-    dwx = np.empty(3)
-    dwy = np.empty(3)
-    for k in range(x.shape[0]):
-        xw = x[k] + dtn[k] * flow[k, 0]
-        yw = y[k] + dtn[k] * flow[k, 1]
-        if not (xw > -1.5 and xw < w + 0.5 and yw > -1.5 and yw < h + 0.5):
-            continue
-        cx = int(np.floor(xw + 0.5))
-        cy = int(np.floor(yw + 0.5))
-        _bspline2(xw - cx, wx, dwx)
-        _bspline2(yw - cy, wy, dwy)
-        gx = 0.0
-        gy = 0.0
-        for a in range(3):
-            yy = cy - 1 + a
-            if yy < 0 or yy >= h:
-                continue
-            for b in range(3):
-                xx = cx - 1 + b
-                if xx >= 0 and xx < w:
-                    g = giwe[yy, xx]
-                    gx += g * wy[a] * dwx[b]
-                    gy += g * dwy[a] * wx[b]
-        gflow[k, 0] += dtn[k] * gx
-        gflow[k, 1] += dtn[k] * gy
+def _at(img, i, j):
+    h, w = img.shape
+    if i < 0 or i >= h or j < 0 or j >= w:
+        return 0.0
+    return img[i, j]
 
 
 def iwe_forward(x: np.ndarray, y: np.ndarray, flow: np.ndarray, dtn: np.ndarray,

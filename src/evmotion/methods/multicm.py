@@ -117,7 +117,6 @@ class MultiCMProblem:
         if time_aware:
             self.n_bins = n_bins
             b = np.minimum((s * n_bins).astype(np.int64), n_bins - 1)
-            self.bins = [np.flatnonzero(b == i) for i in range(n_bins)]
             self.bin_times = (np.arange(n_bins) + 0.5) / n_bins - 0.5
             # the PDE runs on a grid of ~transport_cell px cells, in cells per window
             h, w = shape
@@ -126,8 +125,13 @@ class MultiCMProblem:
             self.cell = np.array(self.tgrid.spacing)[::-1]  # (sx, sy)
             self.ay = tf.axis_matrix(self.tgrid.centers_y(), grid.ny, h)
             self.ax = tf.axis_matrix(self.tgrid.centers_x(), grid.nx, w)
-            self.bin_stencils = [tf.event_weights(x[sel], y[sel], self.tgrid)
-                                 for sel in self.bins]
+            # one stencil into the stacked bin flows (n_bins * cells, 2): bin b's cells
+            # start at b * cells
+            idx, wts = tf.event_weights(x, y, self.tgrid)
+            self.n_cells = self.tgrid.ny * self.tgrid.nx
+            self.tidx = np.ascontiguousarray(idx + (b * self.n_cells)[:, None])
+            self.tw = wts
+            self.stack_grid = tf.TileGrid(n_bins * self.tgrid.ny, self.tgrid.nx, shape)
 
     # ----------------------------------------------------------------- event flow
     def event_flow(self, params):
@@ -137,27 +141,16 @@ class MultiCMProblem:
         dense = np.stack([self.ay @ params[..., c] @ self.ax.T / self.cell[c]
                           for c in range(2)])
         plan = tr.transport_to_times(dense, self.bin_times, self.time_aware)
-        flow = np.empty((self.x.size, 2))
-        for b, sel in enumerate(self.bins):
-            if sel.size:
-                f = np.ascontiguousarray(plan.flows[b].transpose(1, 2, 0)).reshape(-1, 2)
-                flow[sel] = tf.interpolate(f, *self.bin_stencils[b]) * self.cell
-        return flow, plan
+        stacked = np.stack(plan.flows, axis=-1)  # (2, hc, wc, n_bins)
+        stacked = np.ascontiguousarray(stacked.transpose(3, 1, 2, 0)).reshape(-1, 2)
+        return tf.interpolate(stacked, self.tidx, self.tw) * self.cell, plan
 
     def _flow_adjoint(self, gflow, plan):
         if not self.time_aware:
             return tf.interpolate_adjoint(gflow, self.idx, self.w, self.grid)
-        grads = []
-        for b, sel in enumerate(self.bins):
-            if sel.size:
-                g = tf.interpolate_adjoint(gflow[sel] * self.cell, *self.bin_stencils[b],
-                                           self.tgrid)
-                grads.append(np.ascontiguousarray(g.transpose(2, 0, 1)))
-            else:
-                grads.append(None)
-        if all(g is None for g in grads):
-            return np.zeros((self.grid.ny, self.grid.nx, 2))
-        gd = tr.transport_adjoint(plan, grads)
+        g = tf.interpolate_adjoint(gflow * self.cell, self.tidx, self.tw, self.stack_grid)
+        g = g.reshape(self.n_bins, self.tgrid.ny, self.tgrid.nx, 2).transpose(0, 3, 1, 2)
+        gd = tr.transport_adjoint(plan, [np.ascontiguousarray(gb) for gb in g])
         return np.stack([self.ay.T @ gd[c] @ self.ax / self.cell[c] for c in range(2)], axis=-1)
 
     # ---------------------------------------------------------------- objective
