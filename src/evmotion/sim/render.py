@@ -1,0 +1,296 @@
+"""Numba kernels of the simulator: rendering log intensity and emitting events.
+
+The simulator advances in global steps ``(t_a, t_b]`` (integer microseconds) short enough
+that no texture point moves by more than about a pixel; :func:`sim_step` then renders the
+log intensity at ``t_b`` and, at every pixel whose log intensity changed by more than
+``target`` (a fraction of the threshold), re-samples that pixel at ``n`` evenly spaced
+intermediate microseconds, so that between consecutive samples of a pixel the change is
+about ``target`` or less. Between samples log intensity is linear; a pixel fires an ON
+(OFF) event each time it rises (falls) by its threshold from its reference level, at the
+interpolated crossing time rounded up to the next microsecond, unless it is within the
+refractory period of its previous event (the reference still moves: the pixel is reset).
+
+Plain-numpy references: :func:`render_log_numpy`, :func:`sim_step_numpy`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["pad_periodic", "render_log", "render_log_numpy", "sample_wrap_numpy", "sim_step",
+           "sim_step_numpy"]
+
+MAX_SUBSAMPLES = 64
+
+
+@njit(cache=True, inline="always")
+def _bilinear_wrap(img, xr, yr):
+    # img carries one extra periodic row and column (see pad_periodic), so x0 + 1 is valid
+    h = img.shape[0] - 1
+    w = img.shape[1] - 1
+    xr -= w * math.floor(xr * (1.0 / w))
+    yr -= h * math.floor(yr * (1.0 / h))
+    x0 = int(xr)
+    y0 = int(yr)
+    if x0 >= w:
+        x0 = w - 1
+    if y0 >= h:
+        y0 = h - 1
+    ax = xr - x0
+    ay = yr - y0
+    return ((1 - ay) * ((1 - ax) * img[y0, x0] + ax * img[y0, x0 + 1])
+            + ay * ((1 - ax) * img[y0 + 1, x0] + ax * img[y0 + 1, x0 + 1]))
+
+
+def pad_periodic(img: np.ndarray) -> np.ndarray:
+    """Raster with its first row and column repeated at the end (float32, contiguous), the
+    layout the numba kernels expect."""
+    img = np.asarray(img, dtype=np.float32)
+    return np.ascontiguousarray(np.pad(img, ((0, 1), (0, 1)), mode="wrap"))
+
+
+@njit(cache=True, inline="always")
+def _pixel(Ms, texs, alphas, origins, x, y):
+    val = 0.0
+    for k in range(Ms.shape[0]):
+        m = Ms[k]
+        den = m[6] * x + m[7] * y + m[8]
+        xr = (m[0] * x + m[1] * y + m[2]) / den - origins[k, 0]
+        yr = (m[3] * x + m[4] * y + m[5]) / den - origins[k, 1]
+        s = _bilinear_wrap(texs[k], xr, yr)
+        if k == 0:
+            val = s
+        else:
+            a = _bilinear_wrap(alphas[k], xr, yr)
+            val = a * s + (1.0 - a) * val
+    return val
+
+
+@njit(cache=True)
+def _render(Ms, texs, alphas, origins, out):
+    h, w = out.shape
+    for y in range(h):
+        for x in range(w):
+            out[y, x] = _pixel(Ms, texs, alphas, origins, x, y)
+
+
+def render_log(Ms: np.ndarray, texs: np.ndarray, alphas: np.ndarray, origins: np.ndarray,
+               out: np.ndarray) -> None:
+    """Render log intensity into ``out`` (H, W) float32.
+
+    Parameters
+    ----------
+    Ms : ndarray (L, 9) float64
+        Row-major 3x3 matrices, current pixel -> reference pixel, one per layer
+        (bottom first).
+    texs, alphas : ndarray (L, Ht + 1, Wt + 1) float32
+        Log-intensity and opacity rasters, periodic, padded by :func:`pad_periodic`
+        (alpha of layer 0 is ignored).
+    origins : ndarray (L, 2) float64
+        Reference pixel ``(x, y)`` of raster pixel (0, 0) per layer.
+    out : ndarray (H, W) float32
+        Output, written in place.
+    """
+    _render(Ms, texs, alphas, origins, out)
+
+
+def sample_wrap_numpy(img: np.ndarray, xr: np.ndarray, yr: np.ndarray) -> np.ndarray:
+    """Bilinear sample of the (unpadded) raster ``img`` at raster coordinates ``(xr, yr)``
+    with periodic wrap-around (float64)."""
+    th, tw = img.shape
+    fx, fy = np.floor(xr), np.floor(yr)
+    ax, ay = xr - fx, yr - fy
+    x0, y0 = fx.astype(np.int64) % tw, fy.astype(np.int64) % th
+    x1, y1 = (x0 + 1) % tw, (y0 + 1) % th
+    img = img.astype(np.float64)
+    return ((1 - ay) * ((1 - ax) * img[y0, x0] + ax * img[y0, x1])
+            + ay * ((1 - ax) * img[y1, x0] + ax * img[y1, x1]))
+
+
+def render_log_numpy(Ms, texs, alphas, origins, xs, ys) -> np.ndarray:
+    """Plain-numpy reference of the renderer at pixels ``(xs, ys)`` (any shape), with
+    unpadded rasters. ``Ms`` is (L, 9) or, per pixel, (L, ...shape, 9)."""
+    xs = np.asarray(xs, dtype=np.float64)
+    ys = np.asarray(ys, dtype=np.float64)
+    val = None
+    for k in range(len(Ms)):
+        m = np.moveaxis(np.asarray(Ms[k], dtype=np.float64), -1, 0)
+        den = m[6] * xs + m[7] * ys + m[8]
+        xr = (m[0] * xs + m[1] * ys + m[2]) / den - origins[k, 0]
+        yr = (m[3] * xs + m[4] * ys + m[5]) / den - origins[k, 1]
+        s = sample_wrap_numpy(texs[k], xr, yr)
+        if k == 0:
+            val = s
+        else:
+            a = sample_wrap_numpy(alphas[k], xr, yr)
+            val = a * s + (1 - a) * val
+    return val
+
+
+@njit(cache=True, inline="always")
+def _cross(a, b, t0, t1, r, c, sign, last, refr, x, y, ex, ey, et, ep, n, cap):
+    """Crossings of one polarity between samples (t0, a) and (t1, b); returns r, last, n."""
+    span = t1 - t0
+    d = b - a
+    while sign * (b - r) >= c:
+        r += sign * c
+        ti = np.int64(math.ceil(t0 + (r - a) / d * span - 1e-9))
+        if ti <= t0:
+            ti = t0 + 1
+        if ti > t1:
+            ti = t1
+        if ti - last >= refr:
+            if n < cap:
+                ex[n] = x
+                ey[n] = y
+                et[n] = ti
+                ep[n] = 1 if sign > 0 else 0
+            n += 1
+            last = ti
+    return r, last, n
+
+
+@njit(cache=True)
+def _step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr, target,
+          ex, ey, et, ep):
+    h, w = la.shape
+    span = t_b - t_a
+    cap = ex.shape[0]
+    n = 0
+    nsub_total = 0
+    for y in range(h):
+        for x in range(w):
+            a = np.float64(la[y, x])
+            b = _pixel(Mseq[span], texs, alphas, origins, x, y)
+            lb[y, x] = b
+            ns = 1
+            if abs(b - a) > target:
+                ns = min(int(math.ceil(abs(b - a) / target)), MAX_SUBSAMPLES, span)
+            nsub_total += ns - 1
+            r = ref[y, x]
+            lt = last[y, x]
+            t0 = t_a
+            v0 = a
+            for j in range(1, ns + 1):
+                if j == ns:
+                    t1 = t_b
+                    v1 = np.float64(lb[y, x])
+                else:
+                    t1 = t_a + (j * span) // ns
+                    v1 = _pixel(Mseq[t1 - t_a], texs, alphas, origins, x, y)
+                if v1 - r >= cp[y, x]:
+                    r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr, x, y,
+                                      ex, ey, et, ep, n, cap)
+                elif r - v1 >= cn[y, x]:
+                    r, lt, n = _cross(v0, v1, t0, t1, r, cn[y, x], -1.0, lt, refr, x, y,
+                                      ex, ey, et, ep, n, cap)
+                t0 = t1
+                v0 = v1
+            ref[y, x] = r
+            last[y, x] = lt
+    return n, nsub_total
+
+
+def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t_b: int,
+             refractory_us: int, target: float, ex, ey, et, ep) -> tuple[int, int]:
+    """Advance the sensor from ``t_a`` to ``t_b`` (integer µs, ``t_b > t_a``).
+
+    Parameters
+    ----------
+    Mseq : ndarray (t_b - t_a + 1, L, 9) float64
+        Layer matrices (pixel -> reference pixel) at every microsecond of the step.
+    texs, alphas, origins
+        As :func:`render_log`.
+    la : ndarray (H, W) float32
+        Log intensity at ``t_a``; ``lb`` receives it at ``t_b``.
+    ref : ndarray (H, W) float64
+        Reference level per pixel (updated).
+    cp, cn : ndarray (H, W) float64
+        ON and OFF thresholds per pixel.
+    last : ndarray (H, W) int64
+        Time of each pixel's previous event, µs (updated).
+    refractory_us : int
+    target : float
+        Largest log-intensity change between samples of a pixel before it is re-sampled.
+    ex, ey, et, ep : ndarray
+        Output buffers (uint16, uint16, int64, uint8), events in pixel (row-major) order.
+
+    Returns
+    -------
+    n_events, n_subsamples : int
+        ``n_events`` may exceed the buffer length, in which case the buffers hold only the
+        first events and the caller must redo the step with larger buffers (restoring
+        ``ref`` and ``last``).
+    """
+    n, ns = _step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, np.int64(t_a),
+                  np.int64(t_b), np.int64(refractory_us), float(target), ex, ey, et, ep)
+    return int(n), int(ns)
+
+
+def _cross_numpy(a, b, t0, t1, ref, c, sign, last, refr, xs, ys, out):
+    """Vectorized crossings of one polarity over pixels (1-D arrays); updates ref, last."""
+    d = b - a
+    k = np.floor(np.maximum(sign * (b - ref), 0.0) / c + 1e-12).astype(np.int64)
+    k[~(sign * (b - ref) >= c)] = 0
+    for j in range(1, int(k.max(initial=0)) + 1):
+        sel = np.nonzero(k >= j)[0]
+        r = ref[sel] + sign * j * c[sel]
+        tc = t0[sel] + (r - a[sel]) / d[sel] * (t1[sel] - t0[sel])
+        ti = np.clip(np.ceil(tc - 1e-9).astype(np.int64), t0[sel] + 1, t1[sel])
+        ok = ti - last[sel] >= refr
+        last[sel[ok]] = ti[ok]
+        out.append((xs[sel[ok]], ys[sel[ok]], ti[ok],
+                    np.full(int(ok.sum()), 1 if sign > 0 else 0)))
+    ref += sign * k * c
+
+
+def sim_step_numpy(Mseq, texs, alphas, origins, la, ref, cp, cn, last, t_a: int, t_b: int,
+                   refractory_us: int, target: float):
+    """Plain-numpy reference of :func:`sim_step` (unpadded rasters).
+
+    Vectorized over pixels, looping over sub-sample and crossing indices. Updates ``ref``
+    and ``last`` (flattened views are written back); returns ``lb`` (H, W) float64 and the
+    events ``x, y, t, p`` sorted by pixel (row-major) then time."""
+    h, w = la.shape
+    span = t_b - t_a
+    ys, xs = np.mgrid[0:h, 0:w]
+    xs, ys = xs.ravel(), ys.ravel()
+    a0 = la.astype(np.float64).ravel()
+    lb = render_log_numpy(Mseq[span], texs, alphas, origins, xs, ys)
+    lb = lb.astype(np.float32).astype(np.float64)  # the kernel stores samples as float32
+    ns = np.ones(h * w, dtype=np.int64)
+    big = np.abs(lb - a0) > target
+    ns[big] = np.minimum(np.minimum(np.ceil(np.abs(lb - a0)[big] / target), MAX_SUBSAMPLES),
+                         span).astype(np.int64)
+    refv, lastv = ref.reshape(-1), last.reshape(-1)
+    cpv, cnv = cp.reshape(-1), cn.reshape(-1)
+    t0 = np.full(h * w, t_a, dtype=np.int64)
+    v0 = a0.copy()
+    out: list = []
+    for j in range(1, int(ns.max()) + 1):
+        sel = np.nonzero(ns >= j)[0]
+        t1 = np.where(j == ns[sel], t_b, t_a + (j * span) // ns[sel])
+        v1 = np.where(j == ns[sel], lb[sel],
+                      render_log_numpy(Mseq[t1 - t_a].transpose(1, 0, 2),
+                                       texs, alphas, origins, xs[sel], ys[sel]))
+        r, lt = refv[sel].copy(), lastv[sel].copy()
+        on = v1 - r >= cpv[sel]
+        off = ~on & (r - v1 >= cnv[sel])
+        for mask, c, sign in ((on, cpv[sel], 1.0), (off, cnv[sel], -1.0)):
+            idx = np.nonzero(mask)[0]
+            rr, ll = r[idx], lt[idx]
+            _cross_numpy(v0[sel][idx], v1[idx], t0[sel][idx], t1[idx], rr, c[idx], sign, ll,
+                         refractory_us, xs[sel][idx], ys[sel][idx], out)
+            r[idx], lt[idx] = rr, ll
+        refv[sel], lastv[sel] = r, lt
+        t0[sel] = t1
+        v0[sel] = v1
+    if out:
+        x, y, t, p = (np.concatenate(v) for v in zip(*out, strict=True))
+    else:
+        x = y = t = p = np.zeros(0, np.int64)
+    order = np.lexsort((t, x, y))
+    return lb.reshape(h, w), x[order], y[order], t[order], p[order]
