@@ -1,0 +1,150 @@
+"""``evmotion eval FLOW --gt GT``: accuracy of estimated flow against ground truth.
+
+FLOW is an evmotion flow file (``.h5`` from ``evmotion flow``; ``.npy``/``.flo`` need
+``--t0-us``/``--t1-us``). GT is MVSEC ``.npz``, a DSEC flow folder or timestamps file, or an
+evmotion/simulator ``.h5`` (:func:`evmotion.io.flowfiles.read_gt_flow`). For every estimated
+window ``[t0, t1)`` the ground-truth displacement is the GT flow integrated over the window
+(each GT frame weighted by its overlap), compared with the estimated flow times the window
+duration. ``--dt`` states the protocol (GT frames per window, MVSEC dt = 1 or 4); windows
+spanning a different number of GT frames are reported.
+
+Masks (thesis ch. 4): valid ground truth, and with ``--events`` at least one event in the
+window at the pixel; ``--events`` also enables the FWL (IWE variance with the flow over
+that of zero flow).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from evmotion.errors import ParameterError
+
+EXAMPLES = """examples:
+  evmotion eval flow.h5 --gt outdoor_day1_gt_flow_dist.npz --events rec.h5 --dt 4 --json
+  evmotion eval flow.h5 --gt sim.h5 --events sim.h5
+"""
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("eval", help="flow accuracy (AEE, %%Out, AE, FWL) against ground truth",
+                       description=__doc__, epilog=EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("flow", help="estimated flow (.h5, or .npy/.flo with --t0-us/--t1-us)")
+    p.add_argument("--gt", required=True, help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
+    p.add_argument("--events", default=None,
+                   help="recording of the events: event mask and FWL")
+    p.add_argument("--format", default=None, help="format of --events (default: detect)")
+    p.add_argument("--dt", type=int, default=1, help="GT frames per window (1 or 4)")
+    p.add_argument("--t0-us", type=int, default=None, help="window start for .npy/.flo")
+    p.add_argument("--t1-us", type=int, default=None, help="window end for .npy/.flo")
+    p.add_argument("--out-px", type=float, default=3.0, help="%%Out threshold in px (3)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    p.set_defaults(func=run)
+
+
+def _load_flow(args):
+    from pathlib import Path
+
+    from evmotion.io.flowfiles import read_flo, read_flow_h5
+
+    path = Path(args.flow)
+    suffix = path.suffix.lower()
+    if suffix in (".h5", ".hdf5"):
+        seq = read_flow_h5(path)
+        return seq.flow, np.asarray(seq.t0), np.asarray(seq.t1)
+    if args.t0_us is None or args.t1_us is None or args.t1_us <= args.t0_us:
+        raise ParameterError(f"{path}: .npy/.flo files carry no time interval; give "
+                             "--t0-us and --t1-us (t1 > t0)")
+    dt_s = (args.t1_us - args.t0_us) * 1e-6
+    if suffix == ".flo":
+        flow = read_flo(path, dt_s=dt_s)[None]
+    elif suffix == ".npy":
+        flow = np.load(path)
+        flow = flow[None] if flow.ndim == 3 else flow
+    else:
+        raise ParameterError(f"{path}: unknown flow file type (use .h5, .npy or .flo)")
+    n = flow.shape[0]
+    if n != 1:
+        raise ParameterError(f"{path}: {n} windows but one --t0-us/--t1-us interval")
+    return flow.astype(np.float32), np.array([args.t0_us]), np.array([args.t1_us])
+
+
+def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """GT displacement (px) over ``[t0, t1)`` µs, its validity mask, and the number of GT
+    frames it spans (fractional)."""
+    a = np.maximum(gt.t0, t0)
+    b = np.minimum(gt.t1, t1)
+    overlap = np.clip(b - a, 0, None).astype(np.float64)
+    sel = np.flatnonzero(overlap > 0)
+    h, w = gt.flow.shape[1:3]
+    disp = np.zeros((h, w, 2))
+    valid = np.ones((h, w), bool)
+    frames = 0.0
+    for j in sel:
+        disp += gt.flow[j].astype(np.float64) * overlap[j] * 1e-6
+        frames += overlap[j] / max(gt.t1[j] - gt.t0[j], 1)
+        if gt.valid is not None:
+            valid &= gt.valid[j]
+    valid &= np.isfinite(disp).all(-1)
+    if sel.size == 0:
+        valid[:] = False
+    return disp, valid, frames
+
+
+def run(args) -> int:
+    from evmotion.cli import print_json
+    from evmotion.eval.metrics import aggregate_flow_metrics, event_mask, flow_metrics, fwl
+    from evmotion.io.flowfiles import read_gt_flow
+
+    flow, t0s, t1s = _load_flow(args)
+    gt = read_gt_flow(args.gt)
+    if gt.flow.shape[1:3] != flow.shape[1:3]:
+        raise ParameterError(f"flow is {flow.shape[1:3]} px but ground truth {args.gt} is "
+                             f"{gt.flow.shape[1:3]} px (height, width)")
+    events = None
+    if args.events:
+        from evmotion.cli.flow_multicm import _read
+
+        events = _read(args.events, args.format)
+    rows, per_window, mismatched = [], [], 0
+    for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
+        disp_gt, valid, frames = gt_displacement(gt, int(t0), int(t1))
+        if abs(frames - args.dt) > 0.5:
+            mismatched += 1
+        est = flow[i].astype(np.float64) * (t1 - t0) * 1e-6
+        mask = valid
+        win = None
+        if events is not None:
+            win = events.slice_time(int(t0), int(t1))
+            mask = mask & event_mask(win, flow.shape[1:3])
+        m = flow_metrics(est, np.where(valid[..., None], disp_gt, np.nan), mask=mask,
+                         out_px=args.out_px)
+        row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), **m.as_dict(),
+               "gt_frames": round(frames, 2)}
+        if win is not None and len(win) > 1:
+            row["FWL"] = fwl(win, flow[i], t_ref_us=(int(t0) + int(t1)) // 2)
+            row["FWL_gt"] = fwl(win, (disp_gt / ((t1 - t0) * 1e-6)).astype(np.float32),
+                                t_ref_us=(int(t0) + int(t1)) // 2)
+        rows.append(m)
+        per_window.append(row)
+    total = aggregate_flow_metrics(rows).as_dict()
+    fwls = [r["FWL"] for r in per_window if "FWL" in r]
+    if fwls:
+        total["FWL"] = float(np.mean(fwls))
+        total["FWL_gt"] = float(np.mean([r["FWL_gt"] for r in per_window if "FWL_gt" in r]))
+    summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
+               "n_windows": len(per_window), "windows_with_other_dt": mismatched,
+               "mask": "valid GT" + (" & at least one event" if events is not None else ""),
+               "mean": total, "windows": per_window}
+    if args.json:
+        print_json(summary)
+    else:
+        keys = [k for k in ("AEE", "%Out", "AE_deg", "FWL", "FWL_gt", "n_pixels") if k in total]
+        print(f"{len(per_window)} windows ({summary['mask']}, dt={args.dt})")
+        print("  ".join(f"{k}={total[k]:.4g}" for k in keys))
+        if mismatched:
+            print(f"note: {mismatched} windows span a number of GT frames other than "
+                  f"--dt {args.dt}")
+    return 0
