@@ -7,6 +7,7 @@
 """
 
 from evmotion.sim.groundtruth import GroundTruth, Layer
+from evmotion.sim.gtio import gt_path_for, read_ground_truth, write_ground_truth
 from evmotion.sim.motions import Motion, make_motion
 from evmotion.sim.scenes import SCENES, default_K
 from evmotion.sim.simulator import SimResult, simulate
@@ -21,8 +22,11 @@ __all__ = [
     "SimResult",
     "Texture",
     "default_K",
+    "gt_path_for",
     "make_motion",
     "make_texture",
+    "read_ground_truth",
     "simulate",
     "texture_from_image",
+    "write_ground_truth",
 ]
