@@ -1,0 +1,73 @@
+"""jAER AEDAT 2.0 (DAVIS240C): address decoding, IMU samples, streaming, round-trips."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evmotion.errors import FormatError
+from evmotion.io import aedat2
+from evmotion.io.registry import detect_format
+
+
+@pytest.fixture(scope="module")
+def path(shared_data):
+    return shared_data / "formats" / "davis240_translboxes_aedat2.aedat"
+
+
+def reference_decode(path):
+    data = path.read_bytes()
+    end = data.index(b"#End of Preferences")
+    off = data.index(b"\n", end) + 1
+    rec = np.frombuffer(data[off:], ">u4").reshape(-1, 2).astype(np.int64)
+    addr, t = rec[:, 0], rec[:, 1]
+    keep = (addr >> 31 == 0) & ((addr >> 10) & 1 == 0)
+    a = addr[keep]
+    return 239 - ((a >> 12) & 1023), 179 - ((a >> 22) & 511), t[keep], (a >> 11) & 1
+
+
+def test_events_match_reference(path):
+    ev = aedat2.read(path)
+    assert len(ev) == 162_771 and ev.sensor_size == (180, 240)
+    for got, ref in zip((ev.x, ev.y, ev.t, ev.p), reference_decode(path), strict=True):
+        np.testing.assert_array_equal(got, ref)
+    assert 2.0e6 < ev.duration_us < 2.1e6
+    assert detect_format(path).name == "aedat2"
+
+
+def test_imu(path):
+    imu = aedat2.read_imu(path)
+    assert len(imu.t) == 4833
+    g = np.linalg.norm(imu.accel, axis=1)
+    assert abs(np.median(g) - 9.81) < 0.3  # camera moved by hand: gravity dominates
+    assert np.all(np.diff(imu.t) >= 0)
+    assert 20 < np.median(imu.temperature) < 45
+    assert np.abs(imu.gyro).max() < 10  # rad/s
+
+
+def test_chunks(path):
+    whole = aedat2.read(path)
+    chunks = list(aedat2.iter_chunks(path, 40_000, block_bytes=8 * 999))
+    assert [len(c) for c in chunks] == [40_000] * 4 + [2771]
+    np.testing.assert_array_equal(np.concatenate([c.x for c in chunks]), whole.x)
+
+
+def test_round_trip(path, tmp_path):
+    ev = aedat2.read(path)
+    aedat2.write(tmp_path / "a.aedat", ev)
+    back = aedat2.read(tmp_path / "a.aedat")
+    for f in "xytp":
+        np.testing.assert_array_equal(getattr(back, f), getattr(ev, f))
+    assert back.sensor_size == ev.sensor_size
+
+
+def test_errors(path, tmp_path):
+    data = path.read_bytes()
+    cut = tmp_path / "cut.aedat"
+    cut.write_bytes(data[:-3])
+    with pytest.raises(FormatError, match=r"cut\.aedat.*byte offset"):
+        aedat2.read(cut)
+    bad = tmp_path / "bad.aedat"
+    bad.write_bytes(b"#!AER-DAT3.1\r\n" + data[14:2000])
+    with pytest.raises(FormatError, match="magic"):
+        aedat2.read(bad)

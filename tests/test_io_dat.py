@@ -1,0 +1,80 @@
+"""Prophesee DAT: the shared Gen4 file, header checks, u32 unwrap, round-trips, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evmotion.errors import FormatError
+from evmotion.events import EventArray
+from evmotion.io import dat
+from evmotion.io.registry import detect_format
+
+
+@pytest.fixture(scope="module")
+def gen4(shared_data):
+    return shared_data / "formats" / "gen4.dat"
+
+
+def reference_decode(buf: bytes):
+    rec = np.frombuffer(buf, "<u4").reshape(-1, 2).astype(np.int64)
+    return rec[:, 1] & 0x3FFF, (rec[:, 1] >> 14) & 0x3FFF, rec[:, 0], (rec[:, 1] >> 28) & 1
+
+
+def _same(a, b):
+    assert len(a) == len(b) and a.sensor_size == b.sensor_size
+    for f in "xytp":
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+
+
+def test_shared_file_matches_reference(gen4):
+    ev = dat.read(gen4)
+    assert len(ev) == 1_218_618 and ev.sensor_size == (720, 1280)
+    data = gen4.read_bytes()
+    off = len(data) - 8 * len(ev)
+    assert data[off - 2:off] == bytes([0x0C, 8])
+    for got, ref in zip((ev.x, ev.y, ev.t, ev.p), reference_decode(data[off:]), strict=True):
+        np.testing.assert_array_equal(got, ref)
+    assert detect_format(gen4).name == "dat"
+    assert dat.describe(gen4)["n_events"] == len(ev)
+
+
+def test_chunks_equal_read(gen4):
+    whole = dat.read(gen4, t1=2_000_000)
+    got = []
+    for c in dat.iter_chunks(gen4, 50_000, block_bytes=12_345):
+        got.append(c.t)
+        if c.t[-1] >= 2_000_000:
+            break
+    t = np.concatenate(got)
+    np.testing.assert_array_equal(t[t < 2_000_000], whole.t)
+
+
+def test_round_trip_with_u32_wrap(tmp_path):
+    t = np.array([0, 10, (1 << 32) - 1, (1 << 32) + 5, 5 << 30, 7 << 30, (1 << 33) + 7], np.int64)
+    ev = EventArray(x=[0, 1279, 5, 6, 7, 8, 9], y=[0, 719, 1, 2, 3, 4, 5], t=t, p=[0, 1, 1, 0, 1, 1, 0],
+                    sensor_size=(720, 1280))
+    dat.write(tmp_path / "w.dat", ev)
+    _same(dat.read(tmp_path / "w.dat", block_bytes=16), ev)
+
+
+def test_round_trip_shared(gen4, tmp_path):
+    ev = dat.read(gen4, t1=1_000_000)
+    dat.write(tmp_path / "c.dat", ev)
+    _same(dat.read(tmp_path / "c.dat"), ev)
+
+
+def test_errors(gen4, tmp_path):
+    data = gen4.read_bytes()
+    cut = tmp_path / "cut.dat"
+    n = len(data) - 8 * 1_218_618
+    cut.write_bytes(data[:n + 80 + 5])
+    with pytest.raises(FormatError, match=rf"cut\.dat.*byte offset {n + 80}"):
+        dat.read(cut)
+    bad = tmp_path / "bad.dat"
+    bad.write_bytes(b"% Data file containing CD events.\n" + bytes([0x0C, 12]) + b"\0" * 24)
+    with pytest.raises(FormatError, match="event size"):
+        dat.read(bad)
+    with pytest.raises(FormatError, match="float"):
+        dat.write(tmp_path / "f.dat", EventArray(x=[0.5], y=[0.0], t=[0], p=[1],
+                                                 sensor_size=(4, 4)))

@@ -1,0 +1,160 @@
+"""EVT 3.0: numba decoder vs a plain-Python reference, agreement with the DAT export of
+the same recording, vectorized words, 24-bit wrap, streaming state and writer round-trips."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evmotion.errors import FormatError
+from evmotion.events import EventArray
+from evmotion.io import dat, evt3
+from evmotion.io._prophesee import parse_raw_header
+from evmotion.io.registry import detect_format
+
+
+def reference_decode(words):
+    """Literal EVT3 decoding, one word at a time (events before the first TIME_HIGH dropped)."""
+    out = []
+    y = th = tl = ovf = bx = vp = 0
+    seen = False
+    for w in (int(v) for v in words):
+        typ, val = w >> 12, w & 0xFFF
+        if typ == 0x0:
+            y = val & 0x7FF
+        elif typ == 0x2 and seen:
+            out.append((val & 0x7FF, y, ovf + th * 4096 + tl, val >> 11))
+        elif typ == 0x3:
+            bx, vp = val & 0x7FF, val >> 11
+        elif typ in (0x4, 0x5):
+            nb = 12 if typ == 0x4 else 8
+            if seen:
+                out += [(bx + k, y, ovf + th * 4096 + tl, vp) for k in range(nb) if val >> k & 1]
+            bx += nb
+        elif typ == 0x6:
+            tl = val
+        elif typ == 0x8:
+            if seen and val < th and th - val >= 2048:
+                ovf += 1 << 24
+            th, seen = val, True
+    return np.array(out, np.int64).reshape(-1, 4)
+
+
+def _words(path):
+    _, off, _, _ = parse_raw_header(path, None)
+    return np.fromfile(path, np.uint8)[off:].view("<u2")
+
+
+def _same(a: EventArray, b: EventArray):
+    assert len(a) == len(b)
+    for f in "xytp":
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+    assert a.sensor_size == b.sensor_size
+
+
+@pytest.fixture(scope="module")
+def raw(shared_data):
+    return shared_data / "formats" / "evt3.raw"
+
+
+def test_numba_matches_reference_on_a_slice_with_vectors(raw):
+    words = _words(raw)
+    typ = words >> 12
+    i = int(np.argmax((typ == 0x4) | (typ == 0x5)))
+    part = words[max(i - 20_000, 0):i + 20_000]
+    assert ((part >> 12) == 0x4).any() and ((part >> 12) == 0x5).any()
+    x, y, t, p = evt3.decode_words(part)
+    ref = reference_decode(part)
+    np.testing.assert_array_equal(np.stack([x, y, t, p], 1).astype(np.int64), ref)
+
+
+def test_synthetic_vectors_and_wrap():
+    w = [0x8000 | 4095, 0x6000 | 10, 0x0000 | 7, 0x3000 | (1 << 11) | 100,
+         0x4000 | 0b100000000101, 0x5000 | 0b10000001,
+         0x8000 | 3, 0x6000 | 1, 0x2000 | 5]
+    x, y, t, p = evt3.decode_words(np.array(w, np.uint16))
+    assert x.tolist() == [100, 102, 111, 112, 119, 5]
+    assert y.tolist() == [7] * 6
+    assert p.tolist() == [1, 1, 1, 1, 1, 0]
+    assert t[:5].tolist() == [4095 * 4096 + 10] * 5
+    assert t[5] == (1 << 24) + 3 * 4096 + 1  # 24-bit counter wrapped once
+
+
+def test_agrees_event_for_event_with_dat_export(shared_data, raw):
+    a = evt3.read(raw)
+    b = dat.read(shared_data / "formats" / "gen4.dat")
+    assert len(a) == len(b) == 1_218_618
+    assert a.sensor_size == b.sensor_size == (720, 1280)
+    for f in "xyp":
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    shift = np.unique(a.t - b.t)
+    # Metavision shifts DAT times by a whole number of TIME_HIGH periods
+    assert shift.size == 1 and shift[0] % 4096 == 0
+    assert 10.7e6 < a.duration_us < 10.9e6
+
+
+def test_streaming_across_tiny_blocks_equals_whole_read(raw):
+    whole = evt3.read(raw, t1=None)
+    chunks = list(evt3.iter_chunks(raw, 300_001, block_bytes=4097 * 2 + 1))
+    assert [len(c) for c in chunks[:-1]] == [300_001] * (len(chunks) - 1)
+    _same(whole, EventArray(*(np.concatenate([getattr(c, f) for c in chunks]) for f in "xytp"),
+                            sensor_size=whole.sensor_size))
+
+
+def test_time_filter(raw):
+    whole = evt3.read(raw)
+    t0, t1 = int(whole.t[1000]), int(whole.t[500_000])
+    part = evt3.read(raw, t0=t0, t1=t1, block_bytes=65536)
+    _same(part, whole.slice_time(t0, t1))
+
+
+def test_round_trip_shared_file_bit_exact(raw, tmp_path):
+    ev = evt3.read(raw)
+    out = tmp_path / "copy.raw"
+    evt3.write(out, ev)
+    _same(evt3.read(out), ev)
+    assert _words(out).size < _words(raw).size
+
+
+def test_round_trip_long_gaps_and_large_times(tmp_path):
+    rng = np.random.default_rng(0)
+    n = 5000
+    t = np.sort(rng.integers(0, 60_000_000, n)) + 1_600_000_000_000_000
+    t[2000:] += 40_000_000  # a gap of more than two 24-bit wraps
+    x = rng.integers(0, 640, n)
+    y = rng.integers(0, 480, n)
+    x[100:130], y[100:130], t[100:130] = np.arange(200, 230), 17, t[100]  # a vector run
+    p = rng.integers(0, 2, n)
+    p[100:130] = 1
+    order = np.argsort(t, kind="stable")
+    ev = EventArray(x=x[order], y=y[order], t=t[order], p=p[order], sensor_size=(480, 640))
+    out = tmp_path / "syn.raw"
+    evt3.write(out, ev)
+    _same(evt3.read(out), ev)
+    _same(evt3.read(out, block_bytes=64), ev)
+    typ = _words(out) >> 12
+    assert (typ == 0x3).sum() >= 1 and (typ == 0x4).sum() >= 2 and (typ == 0x5).sum() >= 1
+
+
+def test_detected_by_content(raw, tmp_path):
+    copy = tmp_path / "no_extension"
+    copy.write_bytes(raw.read_bytes()[:100_000])
+    assert detect_format(copy).name == "evt3"
+
+
+def test_truncated_file_names_offset(raw, tmp_path):
+    _, off, _, _ = parse_raw_header(raw, None)
+    cut = tmp_path / "cut.raw"
+    cut.write_bytes(raw.read_bytes()[:off + 100_001])
+    with pytest.raises(FormatError, match=rf"cut\.raw.*byte offset {off + 100_000}"):
+        evt3.read(cut)
+    with pytest.raises(FormatError, match="truncated"):
+        next(evt3.iter_chunks(cut, 10))
+
+
+def test_header_without_geometry(tmp_path):
+    bad = tmp_path / "bad.raw"
+    bad.write_bytes(b"% evt 3.0\n% end\n" + b"\x00\x80" * 4)
+    with pytest.raises(FormatError, match="geometry"):
+        evt3.read(bad)
+    assert len(evt3.read(bad, sensor_size=(10, 10))) == 0
