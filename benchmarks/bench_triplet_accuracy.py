@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import harness
-from bench_triplet import DATA, load_shapes_rotation
+from bench_triplet import DATA, load_shapes_rotation, pin_idlest_core
 from evmotion.events import EventArray
 from evmotion.methods.triplet import TripletFlow, estimate_flow_triplet, event_fwl
 
@@ -166,7 +166,7 @@ def _sim_summary(sim: list[dict]) -> list[dict]:
 
 
 def main(quick: bool = False) -> list[dict]:
-    harness.single_core()
+    pin_idlest_core()
     rows: list[dict] = []
     translation = {}
     fast = {"dt_us": 20_000, "tau_us": 500}
