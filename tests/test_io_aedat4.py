@@ -1,0 +1,109 @@
+"""AEDAT 4.0: events/frames/IMU of the shared DAVIS346 files, streaming, writer
+round-trips (uncompressed and LZ4), truncated and corrupt files."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.events import EventArray
+from evmotion.io import aedat4
+from evmotion.io.registry import detect_format
+
+
+@pytest.fixture(scope="module")
+def full(shared_data):
+    return shared_data / "formats" / "davis346.aedat4"
+
+
+@pytest.fixture(scope="module")
+def short(shared_data):
+    return shared_data / "formats" / "davis346_short.aedat4"
+
+
+def _same(a, b):
+    assert len(a) == len(b) and a.sensor_size == b.sensor_size
+    for f in "xytp":
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+
+
+def test_counts_and_content(full):
+    ev = aedat4.read(full)
+    assert len(ev) == 78_830 and ev.sensor_size == (260, 346)
+    assert 2.3e6 < ev.duration_us < 2.4e6
+    d = aedat4.describe(full)
+    assert (d["n_events"], d["frames"], d["imu"]) == (78_830, 59, 2_363)
+    assert d["compression"] == "lz4"
+    assert detect_format(full).name == "aedat4"
+
+
+def test_frames(full):
+    fr = aedat4.read_frames(full)
+    assert len(fr.images) == 59 == fr.t.size
+    assert fr.images[0].shape == (260, 346) and fr.images[0].dtype == np.uint8
+    assert np.all(np.diff(fr.t) > 0)
+    assert np.all(fr.exposure_end >= fr.exposure_start)
+    assert fr.images[10].std() > 1  # a real picture, not a constant
+
+
+def test_imu_units(full):
+    imu = aedat4.read_imu(full)
+    assert imu.t.size == 2_363
+    assert abs(np.median(np.linalg.norm(imu.accel, axis=1)) - 9.81) < 0.5  # m/s^2
+    assert abs(np.median(np.diff(imu.t)) - 1000) < 5  # 1 kHz
+    assert np.abs(imu.gyro).max() < 20  # rad/s, not deg/s
+
+
+def test_chunks_and_filter(full):
+    whole = aedat4.read(full)
+    chunks = list(aedat4.iter_chunks(full, 10_000))
+    assert [len(c) for c in chunks[:-1]] == [10_000] * 7 and len(chunks[-1]) == 8_830
+    np.testing.assert_array_equal(np.concatenate([c.t for c in chunks]), whole.t)
+    t0, t1 = int(whole.t[100]), int(whole.t[50_000])
+    _same(aedat4.read(full, t0=t0, t1=t1), whole.slice_time(t0, t1))
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4"])
+def test_round_trip(short, tmp_path, compression):
+    ev = aedat4.read(short)
+    out = tmp_path / f"{compression}.aedat4"
+    aedat4.write(out, ev, compression=compression, packet_events=1000)
+    _same(aedat4.read(out), ev)
+    d = aedat4.describe(out)
+    assert d["compression"] == compression and d["streams"][0]["packets"] == 7
+
+
+def test_written_flatbuffer_layout(tmp_path):
+    ev = EventArray(x=[1, 2], y=[3, 4], t=[10, 20], p=[1, 0], sensor_size=(5, 6))
+    out = tmp_path / "tiny.aedat4"
+    aedat4.write(out, ev, compression="none")
+    data = out.read_bytes()
+    hsize = struct.unpack_from("<i", data, 14)[0]
+    pos = 18 + hsize
+    sid, size = struct.unpack_from("<ii", data, pos)
+    payload = data[pos + 8:pos + 8 + size]
+    assert sid == 0 and payload[8:12] == b"EVTS"
+    # event structs start 8-byte aligned relative to the size-prefixed buffer
+    assert struct.unpack_from("<I", payload, 28)[0] == 2
+    assert struct.unpack_from("<qhh?", payload, 32) == (10, 1, 3, True)
+
+
+def test_errors(full, tmp_path):
+    data = full.read_bytes()
+    cut = tmp_path / "cut.aedat4"
+    cut.write_bytes(data[:200_000])
+    with pytest.raises(FormatError, match=r"cut\.aedat4.*packet size.*byte offset"):
+        aedat4.read(cut)
+    bad = tmp_path / "bad.aedat4"
+    bad.write_bytes(data[:14] + struct.pack("<i", 99_999_999) + data[18:5000])
+    with pytest.raises(FormatError, match="IOHeader size"):
+        aedat4.read(bad)
+    wrong = tmp_path / "wrong.aedat4"
+    wrong.write_bytes(b"#!AER-DAT3.1\r\n" + data[14:1000])
+    with pytest.raises(FormatError, match="magic"):
+        aedat4.read(wrong)
+    with pytest.raises(ParameterError):
+        aedat4.write(tmp_path / "z.aedat4", aedat4.read(full, t1=0), compression="zip")
