@@ -1,6 +1,9 @@
 """Multi-reference contrast maximization (ch. 4): gradients, accuracy on synthetic
 constant flow, time-aware warps, warm start, determinism and input errors."""
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -13,6 +16,8 @@ from evmotion.methods.multicm import (
     estimate_flow,
     estimate_flow_sequence,
 )
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def synth(flow_fn, n=30000, shape=(260, 346), duration_s=0.02, seed=0, t_start=0.0):
@@ -120,3 +125,25 @@ def test_input_errors(translation):
         estimate_flow(translation, init=np.zeros((3, 2)))
     with pytest.raises(EmptyWindowError):
         estimate_flow(translation[:3])
+
+
+def test_focus_matches_numpy_composition_with_core_objective():
+    """The fused path equals warp (numpy) -> B-spline IWE (numpy reference) ->
+    core.objectives.objective_value_grad, combined with the (1, 2, 1)/4 G(0) weights."""
+    from evmotion.core.objectives import objective_value_grad
+    from test_tileflow import _iwe_ref
+
+    ev = synth(constant(300.0, -150.0), n=1500, shape=(40, 50), seed=4)
+    x, y = ev.x.astype(float), ev.y.astype(float)
+    s = (ev.t - ev.t[0]) / (ev.t[-1] - ev.t[0])
+    grid = tf.scale_grid(2, ev.sensor_size)
+    params = np.random.default_rng(0).normal(scale=2.0, size=(2, 2, 2))
+    for objective in ("gradient_magnitude", "variance"):
+        prob = MultiCMProblem(x, y, s, ev.sensor_size, grid, objective=objective)
+        f, _, _ = prob.focus_grad(params)
+        idx, w = tf.event_weights(x, y, grid)
+        flow = tf.interpolate(params, idx, w)
+        g0 = objective_value_grad(objective, _iwe_ref(x, y, flow, 0 * s, ev.sensor_size))[0]
+        vals = [objective_value_grad(objective, _iwe_ref(x, y, flow, r - s, ev.sensor_size))[0]
+                for r in (0.0, 0.5, 1.0)]
+        assert f == pytest.approx((vals[0] + 2 * vals[1] + vals[2]) / (4 * g0), rel=1e-9)
