@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import json
 
-import h5py
 import numpy as np
 import pytest
 
 import evmotion.io as eio
 from evmotion.cli import main
 from evmotion.events import EventArray
+from evmotion.io.flowfiles import read_flow_h5
 from evmotion.methods.triplet import TripletMatcher, estimate_flow_triplet
 
 
@@ -62,12 +62,12 @@ def test_dense_h5_windows_and_pngs(edge_file, tmp_path):
                "--png-dir", str(tmp_path / "png")])
     assert rc == 0
     ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000))
-    with h5py.File(out) as f:
-        flow, mask = f["flow"][:], f["mask"][:]
-        assert flow.shape == ref.flows.shape
-        np.testing.assert_array_equal(mask, ref.masks)
-        np.testing.assert_allclose(flow, ref.flows, rtol=1e-5, atol=1e-3)
-        np.testing.assert_array_equal(f["t0_us"][:], [w.t0 for w in ref.windows])
+    seq = read_flow_h5(out)
+    assert seq.flow.shape == ref.flows.shape and seq.attrs["method"] == "triplet"
+    np.testing.assert_array_equal(seq.valid, ref.masks)
+    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    np.testing.assert_array_equal(seq.t0, [w.t0 for w in ref.windows])
+    np.testing.assert_array_equal(seq.t1, [w.t1 for w in ref.windows])
     pngs = sorted(p.name for p in (tmp_path / "png").iterdir())
     assert pngs[0] == "flow_00000.png" and f"iwe_{len(ref.windows) - 1:05d}.png" in pngs
 
@@ -78,8 +78,7 @@ def test_count_windows(edge_file, tmp_path):
     assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
                  "--window-events", "400", "--chunk-events", "170", "--bins", "2"]) == 0
     ref = estimate_flow_triplet(ev, ev.windows_by_count(400), n_bins=2)
-    with h5py.File(out) as f:
-        np.testing.assert_allclose(f["flow"][:], ref.flows, rtol=1e-5, atol=1e-3)
+    np.testing.assert_allclose(read_flow_h5(out).flow, ref.flows, rtol=1e-5, atol=1e-3)
 
 
 def test_bad_options_are_reported(edge_file, tmp_path, capsys):
@@ -91,3 +90,23 @@ def test_bad_options_are_reported(edge_file, tmp_path, capsys):
                  "--dx", "0.3"]) == 2
     assert "dx" in capsys.readouterr().err
     assert not (tmp_path / "x.h5").exists()
+
+
+@pytest.mark.parametrize("gt_dt", [1, 2])
+def test_gt_windows(edge_file, tmp_path, gt_dt):
+    from evmotion.io.flowfiles import FlowWriter
+
+    path, ev, _ = edge_file
+    frames = np.arange(30_000, 190_000, 22_222)
+    gt = tmp_path / "gt.h5"
+    with FlowWriter(gt, ev.sensor_size) as fw:
+        for a, b in zip(frames[:-1], frames[1:], strict=True):
+            fw.append(np.zeros((*ev.sensor_size, 2), np.float32), int(a), int(b))
+    out = tmp_path / "flow.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
+                 "--window-gt", str(gt), "--gt-dt", str(gt_dt), "--chunk-events", "250"]) == 0
+    ref = estimate_flow_triplet(ev, ev.windows_at(frames, dt=gt_dt))
+    seq = read_flow_h5(out)
+    np.testing.assert_array_equal(seq.t0, [w.t0 for w in ref.windows])
+    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    assert seq.valid.any()

@@ -2,7 +2,8 @@
 
 Streams the recording in chunks through :class:`~evmotion.methods.triplet.TripletMatcher`,
 so memory does not grow with the file. Output by extension: ``.h5`` dense per-window
-fields (voxelized, 3x3 non-zero averaged, collapsed; px/s), ``.npz`` sparse per-event flow
+fields (voxelized, 3x3 non-zero averaged, collapsed; px/s; the evmotion flow HDF5 of
+:class:`~evmotion.io.flowfiles.FlowWriter`, ``valid`` = pixels with a value), ``.npz`` sparse per-event flow
 (``t, x, y, p, vx, vy, valid, n_triplets``).
 """
 
@@ -46,9 +47,6 @@ def run(args) -> int:
                              "or .npz (sparse per event)")
     if args.chunk_events <= 0:
         raise ParameterError(f"--chunk-events must be > 0, got {args.chunk_events}")
-    if getattr(args, "window_gt", None):
-        raise ParameterError("--window-gt is not supported by --method triplet yet; "
-                             "use --window-us or --window-events")
     dense = kind != ".npz" or args.png_dir
     chunks = _iter_chunks(args.file, getattr(args, "format", None), args.chunk_events)
     first = next(chunks, None)
@@ -59,8 +57,12 @@ def run(args) -> int:
                              int(round(args.tau_ms * 1000)), quadruple=args.quadruple,
                              depth=args.depth)
     windows = _Windows(sensor, args.bins, args.window_us, args.window_events,
-                       int(first.t[0])) if dense else None
-    sink = _NpzSink(out) if kind == ".npz" else _H5Sink(out, sensor)
+                       int(first.t[0]), _gt_edges(args)) if dense else None
+    params = {"dx": args.dx, "dt_ms": args.dt_ms, "tau_ms": args.tau_ms,
+              "quadruple": args.quadruple, "bins": args.bins, "depth": args.depth}
+    sink = (_NpzSink(out) if kind == ".npz"
+            else _H5Sink(out, sensor, {"method": "triplet", "source": str(args.file),
+                                       **{f"triplet_{k}": v for k, v in params.items()}}))
     png_dir = Path(args.png_dir) if args.png_dir else None
     bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True)
     n_events = n_valid = n_trip = 0
@@ -103,8 +105,7 @@ def run(args) -> int:
             "windows": n_windows, "overflow": matcher.overflow,
             "state_bytes": matcher.state_nbytes,
             "wall_s": wall, "events_per_s": n_events / wall if wall > 0 else None,
-            "params": {"dx": args.dx, "dt_ms": args.dt_ms, "tau_ms": args.tau_ms,
-                       "quadruple": args.quadruple, "bins": args.bins, "depth": args.depth},
+            "params": params,
         })
     return 0
 
@@ -123,6 +124,21 @@ def _iter_chunks(path, fmt, chunk_events):
         yield ev[s:s + chunk_events]
 
 
+def _gt_edges(args):
+    """Window starts and ends (µs) from --window-gt: ``[ts[k], ts[k + dt])`` every dt frames."""
+    if not getattr(args, "window_gt", None):
+        return None
+    from evmotion.io.flowfiles import read_gt_flow
+
+    gt = read_gt_flow(args.window_gt)
+    dt = int(args.gt_dt)
+    ts = np.append(np.asarray(gt.t0, np.int64), np.asarray(gt.t1, np.int64)[-1:])
+    if dt < 1 or ts.size < dt + 1:
+        raise ParameterError(f"--gt-dt {dt}: need >= 1 and at most {ts.size - 1} frames")
+    starts = ts[:-dt:dt]
+    return starts, ts[dt::dt][: starts.size]
+
+
 class _Window:
     """A finished dense window: collapsed flow (px/s), mask, IWE and its time span."""
 
@@ -135,7 +151,7 @@ class _Windows:
     """Accumulates per-event flow into voxel sums window by window (time or count windows),
     and the IWE of each window's events warped by their own flow to the window start."""
 
-    def __init__(self, sensor, bins, window_us, window_events, t_start):
+    def __init__(self, sensor, bins, window_us, window_events, t_start, edges=None):
         if bins < 1:
             raise ParameterError(f"--bins must be >= 1, got {bins}")
         if window_us is not None and window_us <= 0:
@@ -145,9 +161,18 @@ class _Windows:
         self.sensor, self.bins = sensor, bins
         self.by_count = window_events
         self.window_us = window_us or (None if window_events else DEFAULT_WINDOW_US)
+        self.edges = edges
         self.index = 0
         self.t0 = t_start
         self._new()
+
+    def _bounds(self):
+        """(t0, t1) of the current time window, or None past the last GT window."""
+        if self.edges is None:
+            return self.t0, self.t0 + self.window_us
+        if self.index >= self.edges[0].size:
+            return None
+        return int(self.edges[0][self.index]), int(self.edges[1][self.index])
 
     def _new(self):
         h, w = self.sensor
@@ -163,13 +188,14 @@ class _Windows:
             return
         t = chunk.t
         start = 0
-        while start < len(chunk):
-            t1 = self.t0 + self.window_us
+        while start < len(chunk) and (b := self._bounds()) is not None:
+            t0, t1 = b
+            start = max(start, int(np.searchsorted(t, t0, side="left")))
             stop = int(np.searchsorted(t, t1, side="left"))
-            self._accumulate(chunk[start:stop], _slice(flow, start, stop), self.t0, t1)
+            self._accumulate(chunk[start:stop], _slice(flow, start, stop), t0, t1)
             start = stop
             if stop < len(chunk):
-                yield self._close(t1)
+                yield self._close(t0, t1)
                 self.t0 = t1
 
     def _add_count(self, chunk, flow):
@@ -188,7 +214,7 @@ class _Windows:
         n = self.n
         for ev, fl in self.pending:
             self._accumulate(ev, fl, self.t0, t1)
-        win = self._close(t1)
+        win = self._close(self.t0, t1)
         win.n_events = n
         self.t0 = t1
         return win
@@ -206,12 +232,12 @@ class _Windows:
         self.iwe += accumulate(ev.x.astype(np.float64) - fl.vx * dt,
                                ev.y.astype(np.float64) - fl.vy * dt, self.sensor)
 
-    def _close(self, t1):
+    def _close(self, t0, t1):
         from evmotion.methods.triplet import _voxel_mean, collapse_voxels
 
         vox, vm = _voxel_mean(self.acc, self.cnt)
         flow, mask = collapse_voxels(vox, vm)
-        win = _Window(self.index, self.t0, t1, flow, mask, self.iwe, self.n)
+        win = _Window(self.index, t0, t1, flow, mask, self.iwe, self.n)
         self.index += 1
         self._new()
         return win
@@ -221,8 +247,11 @@ class _Windows:
             if self.n:
                 last = self.pending[-1][0]
                 yield self._close_count(int(last.t[-1]) + 1)
-        elif self.n:
-            yield self._close(self.t0 + self.window_us)
+            return
+        while (b := self._bounds()) is not None:
+            if self.edges is None and not self.n:
+                return
+            yield self._close(*b)
 
 
 def _slice(flow, a, b):
@@ -244,42 +273,21 @@ def _emit(win, sink, png_dir, kind) -> int:
 
 
 class _H5Sink:
-    """Dense windows appended to resizable HDF5 datasets, renamed into place at the end."""
+    """Dense windows appended through :class:`evmotion.io.flowfiles.FlowWriter`."""
 
-    def __init__(self, out: Path, sensor):
-        import h5py
+    def __init__(self, out: Path, sensor, attrs: dict):
+        from evmotion.io.flowfiles import FlowWriter
 
-        from evmotion.utils import atomic_path
-
-        self._ctx = atomic_path(out)
-        tmp = self._ctx.__enter__()
-        h, w = sensor
-        self.f = h5py.File(tmp, "w")
-        self.f.attrs.update(method="triplet", units="px/s", layout="(N, H, W, 2) u right v down")
-        self.flow = self.f.create_dataset("flow", (0, h, w, 2), np.float32,
-                                          maxshape=(None, h, w, 2), chunks=(1, h, w, 2),
-                                          compression="gzip", compression_opts=1)
-        self.mask = self.f.create_dataset("mask", (0, h, w), bool, maxshape=(None, h, w),
-                                          chunks=(1, h, w), compression="gzip")
-        self.t0 = self.f.create_dataset("t0_us", (0,), np.int64, maxshape=(None,))
-        self.t1 = self.f.create_dataset("t1_us", (0,), np.int64, maxshape=(None,))
+        self.w = FlowWriter(out, sensor, with_valid=True, attrs=attrs)
 
     def add_window(self, win):
-        n = self.flow.shape[0]
-        for d in (self.flow, self.mask, self.t0, self.t1):
-            d.resize(n + 1, axis=0)
-        self.flow[n] = win.flow
-        self.mask[n] = win.mask
-        self.t0[n] = win.t0
-        self.t1[n] = win.t1
+        self.w.append(win.flow, win.t0, win.t1, valid=win.mask)
 
     def close(self):
-        self.f.close()
-        self._ctx.__exit__(None, None, None)
+        self.w.close()
 
     def abort(self):
-        self.f.close()
-        self._ctx.__exit__(RuntimeError, RuntimeError("aborted"), None)
+        self.w.abort()
 
 
 class _NpzSink:
