@@ -1,0 +1,265 @@
+"""DSEC event files (Gehrig et al. 2021): ``events.h5`` and ``rectify_map.h5``.
+
+Layout of ``events.h5``::
+
+    /events/x, /events/y   uint16
+    /events/t              uint32 µs, relative to t_offset
+    /events/p              uint8 0/1
+    /ms_to_idx             uint64: first event with t >= 1000·k µs (relative)
+    /t_offset              int64 µs: add to every t to get absolute time
+
+Datasets are Blosc/zstd-compressed: :mod:`hdf5plugin` must be importable (a missing
+filter gets a :class:`FormatError` that says so). ``t_offset`` is always added: the
+returned times are absolute µs (some readers forget this).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.events import EventArray
+from evmotion.io.base import FormatSpec
+
+__all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "FORMAT",
+           "DSEC_SENSOR_SIZE"]
+
+DSEC_SENSOR_SIZE = (480, 640)
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+FILTER_HINT = "pip install hdf5plugin (DSEC compresses events with Blosc/zstd)"
+
+
+def _register_filters() -> bool:
+    try:
+        import hdf5plugin  # noqa: F401  (importing registers the Blosc/zstd filters)
+    except ImportError:
+        return False
+    return True
+
+
+def _filter_error(path: Path, exc: Exception, field: str) -> FormatError:
+    text = str(exc)
+    if "filter" in text.lower() or "plugin" in text.lower():
+        return FormatError(path, f"cannot decompress '{field}': the HDF5 compression filter is "
+                           f"not available ({text.strip()})", FILTER_HINT)
+    return FormatError(path, f"cannot read '{field}': {text}")
+
+
+def _open(path: Path):
+    import h5py
+
+    _register_filters()
+    if path.is_dir():
+        path = path / "events.h5"
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    for name in ("events/x", "events/y", "events/t", "events/p"):
+        if name not in f:
+            f.close()
+            raise FormatError(path, f"missing dataset '{name}' (not a DSEC events.h5)")
+    return f, path
+
+
+def _read(path: Path, ds, lo: int, hi: int, field: str) -> np.ndarray:
+    try:
+        return ds[lo:hi]
+    except OSError as exc:
+        raise _filter_error(path, exc, field) from None
+
+
+def _t_offset(f) -> int:
+    return int(f["t_offset"][()]) if "t_offset" in f else 0
+
+
+def _range(path: Path, f, t0: int | None, t1: int | None) -> tuple[int, int]:
+    n = int(f["events/t"].shape[0])
+    ms = _read(path, f["ms_to_idx"], 0, None, "ms_to_idx") if "ms_to_idx" in f else None
+    off = _t_offset(f)
+    t_ds = f["events/t"]
+
+    def locate(tq: int) -> int:
+        rel = tq - off
+        if rel <= 0:
+            return 0
+        if ms is None or ms.size == 0:
+            return int(np.searchsorted(_read(path, t_ds, 0, n, "events/t"), rel))
+        k = rel // 1000
+        if k >= ms.size:
+            a, b = min(int(ms[-1]), n), n
+        else:
+            a = min(int(ms[k]), n)
+            b = min(int(ms[k + 1]), n) if k + 1 < ms.size else n
+        return a + int(np.searchsorted(_read(path, t_ds, a, b, "events/t"), rel))
+
+    lo = 0 if t0 is None else locate(int(t0))
+    hi = n if t1 is None else locate(int(t1))
+    return lo, max(lo, hi)
+
+
+def _make(path: Path, f, lo: int, hi: int, size, meta, validate: bool) -> EventArray:
+    g = f["events"]
+    x = _read(path, g["x"], lo, hi, "events/x")
+    y = _read(path, g["y"], lo, hi, "events/y")
+    t = _read(path, g["t"], lo, hi, "events/t").astype(np.int64)
+    t += _t_offset(f)
+    p = _read(path, g["p"], lo, hi, "events/p")
+    try:
+        return EventArray(x=x, y=y, t=t, p=p, sensor_size=size, validate=validate,
+                          meta=dict(meta))
+    except Exception as exc:
+        raise FormatError(path, str(exc)) from None
+
+
+def _meta(path: Path, f) -> dict:
+    return {"source": str(path), "format": "dsec", "t_offset_us": _t_offset(f)}
+
+
+def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
+         sensor_size: tuple[int, int] | None = None, validate: bool = True) -> EventArray:
+    """Read a DSEC ``events.h5`` (or a folder holding one).
+
+    Parameters
+    ----------
+    t0, t1 : int, optional
+        Keep ``t0 <= t < t1``, **absolute** µs (``t_offset`` included); ``ms_to_idx``
+        locates them without reading the whole file.
+    sensor_size : (int, int), optional
+        ``(height, width)``, default 480×640.
+
+    Returns
+    -------
+    EventArray
+        Absolute timestamps; ``meta["t_offset_us"]`` is the offset that was added.
+
+    Examples
+    --------
+    >>> ev = read("zurich_city_05_a/events/left/events.h5")  # doctest: +SKIP
+    """
+    path = Path(path)
+    f, path = _open(path)
+    with f:
+        lo, hi = _range(path, f, t0, t1)
+        return _make(path, f, lo, hi, tuple(sensor_size or DSEC_SENSOR_SIZE),
+                     _meta(path, f), validate)
+
+
+def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
+                sensor_size: tuple[int, int] | None = None, validate: bool = True,
+                t0: int | None = None, t1: int | None = None) -> Iterator[EventArray]:
+    """Stream a DSEC file in chunks of ``chunk_events`` (absolute µs timestamps)."""
+    if int(chunk_events) <= 0:
+        raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
+    f, path = _open(Path(path))
+    with f:
+        lo, hi = _range(path, f, t0, t1)
+        size = tuple(sensor_size or DSEC_SENSOR_SIZE)
+        meta = _meta(path, f)
+        for s in range(lo, hi, int(chunk_events)):
+            yield _make(path, f, s, min(hi, s + int(chunk_events)), size, meta, validate)
+
+
+def write(path: str | os.PathLike, events: EventArray, *, t_offset: int | None = None,
+          compression: str = "zstd") -> None:
+    """Write events in the DSEC layout (atomically), for tests and interchange.
+
+    ``t`` is stored as uint32 relative to ``t_offset`` (default: the first event's time,
+    rounded down to the ms); ``compression`` is ``"zstd"`` (Blosc, as DSEC) or ``"none"``.
+    """
+    import h5py
+
+    from evmotion.utils import atomic_path
+
+    t = events.t
+    if t_offset is None:
+        t_offset = int(t[0] // 1000 * 1000) if len(events) else 0
+    rel = t - int(t_offset)
+    if len(events) and (rel.min() < 0 or rel.max() >= 2**32):
+        raise ParameterError(f"times relative to t_offset={t_offset} us must fit in uint32 "
+                             f"(got {rel.min()}..{rel.max()})")
+    if events.x.dtype.kind == "f":
+        raise ParameterError("DSEC stores integer pixels; these events are undistorted")
+    kw: dict = {}
+    if compression == "zstd":
+        if not _register_filters():
+            raise FormatError(path, "cannot write Blosc/zstd", FILTER_HINT)
+        import hdf5plugin
+
+        kw = dict(hdf5plugin.Blosc(cname="zstd", clevel=1, shuffle=hdf5plugin.Blosc.SHUFFLE))
+    elif compression != "none":
+        raise ParameterError(f"compression must be 'zstd' or 'none', got {compression!r}")
+    n_ms = int(rel[-1] // 1000) + 2 if len(events) else 1
+    ms_to_idx = np.searchsorted(rel, 1000 * np.arange(n_ms, dtype=np.int64)).astype(np.uint64)
+    chunks = (min(max(len(events), 1), 1 << 18),)
+    with atomic_path(path) as tmp:
+        with h5py.File(tmp, "w") as f:
+            g = f.create_group("events")
+            g.create_dataset("x", data=events.x.astype(np.uint16), chunks=chunks, **kw)
+            g.create_dataset("y", data=events.y.astype(np.uint16), chunks=chunks, **kw)
+            g.create_dataset("t", data=rel.astype(np.uint32), chunks=chunks, **kw)
+            g.create_dataset("p", data=events.p.astype(np.uint8), chunks=chunks, **kw)
+            f.create_dataset("ms_to_idx", data=ms_to_idx)
+            f.create_dataset("t_offset", data=np.int64(t_offset))
+
+
+def read_rectify_map(path: str | os.PathLike) -> np.ndarray:
+    """DSEC ``rectify_map.h5``: (H, W, 2) float32, the rectified (x, y) of every raw pixel."""
+    import h5py
+
+    path = Path(path)
+    try:
+        with h5py.File(path, "r") as f:
+            if "rectify_map" not in f:
+                raise FormatError(path, "missing dataset 'rectify_map'")
+            m = f["rectify_map"][()]
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    if m.ndim != 3 or m.shape[2] != 2:
+        raise FormatError(path, f"'rectify_map' has shape {m.shape}, expected (H, W, 2)")
+    return m.astype(np.float32)
+
+
+def describe(path: str | os.PathLike) -> dict:
+    path = Path(path)
+    f, path = _open(path)
+    with f:
+        n = int(f["events/t"].shape[0])
+        off = _t_offset(f)
+        out: dict = {"format": "dsec", "sensor_size": DSEC_SENSOR_SIZE, "n_events": n,
+                     "t_offset_us": off}
+        if n:
+            out["t_first_us"] = int(_read(path, f["events/t"], 0, 1, "events/t")[0]) + off
+            out["t_last_us"] = int(_read(path, f["events/t"], n - 1, n, "events/t")[0]) + off
+    folder = path.parent
+    if (folder / "rectify_map.h5").exists():
+        out["rectify_map"] = str(folder / "rectify_map.h5")
+    out["frames"] = 0
+    out["imu"] = 0
+    return out
+
+
+def _sniff(path: Path, head: bytes) -> bool:
+    if path.is_dir():
+        path = path / "events.h5"
+        if not path.is_file():
+            return False
+        with open(path, "rb") as fh:
+            head = fh.read(8)
+    if not head.startswith(HDF5_MAGIC):
+        return False
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return "events" in f and ("t_offset" in f or "ms_to_idx" in f)
+    except OSError:
+        return False
+
+
+FORMAT = FormatSpec(name="dsec", extensions=(".h5",), sniff=_sniff, read=read,
+                    iter_chunks=iter_chunks, write=write, describe=describe)

@@ -1,0 +1,485 @@
+"""Event Camera Dataset (ECD, Mueggler et al. 2017): text events and the folder layout.
+
+A folder holds ``events.txt`` (one event per line: ``t[s] x y p``, p in {0, 1}), and
+optionally ``calib.txt`` (``fx fy cx cy k1 k2 p1 p2 k3``), ``imu.txt`` (``t ax ay az gx gy
+gz``), ``groundtruth.txt`` (``t px py pz qx qy qz qw``) and ``images.txt`` (``t
+images/frame_xxx.png``). A single ``events.txt`` file is read the same way.
+
+Text is parsed by a numba kernel over raw bytes (``np.loadtxt`` is ~50x slower); times are
+converted to integer microseconds exactly from the decimal digits (rounded to nearest),
+never through a float.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.events import EventArray
+from evmotion.io.base import FormatSpec
+from evmotion.utils import atomic_path
+
+__all__ = ["read", "iter_chunks", "write", "describe", "read_calibration", "parse_text",
+           "read_imu", "read_groundtruth", "read_image_list", "FORMAT"]
+
+ECD_SENSOR_SIZE = (180, 240)
+BLOCK_BYTES = 1 << 24
+
+_ERR_COLUMNS = 1
+_ERR_CHAR = 2
+
+
+@njit(cache=True)
+def _parse(buf, start, end, ox, oy, ot, op, out_start):
+    """Parse whole lines of ``t x y p`` in ``buf[start:end]`` into the outputs from index
+    ``out_start``. Returns (events written, byte offset of the bad line or -1, error code,
+    columns seen on the bad line)."""
+    i = start
+    k = out_start
+    nmax = ox.shape[0]
+    while i < end and k < nmax:
+        # one line
+        col = 0
+        ip = np.int64(0)
+        frac = np.int64(0)
+        nfrac = 0
+        in_frac = False
+        val = np.int64(0)
+        in_num = False
+        neg = False
+        line_start = i
+        while i < end:
+            c = buf[i]
+            if c == 10:  # '\n'
+                break
+            if c >= 48 and c <= 57:
+                d = c - 48
+                if not in_num:
+                    in_num = True
+                if col == 0:
+                    if in_frac:
+                        if nfrac < 9:
+                            frac = frac * 10 + d
+                            nfrac += 1
+                    else:
+                        ip = ip * 10 + d
+                else:
+                    val = val * 10 + d
+            elif c == 46 and col == 0 and in_num and not in_frac:  # '.'
+                in_frac = True
+            elif c == 45 and not in_num:  # '-'
+                neg = True
+                in_num = True
+            elif c == 32 or c == 9 or c == 44 or c == 13:  # space, tab, comma, CR
+                if in_num:
+                    if col == 1:
+                        ox[k] = -val if neg else val
+                    elif col == 2:
+                        oy[k] = -val if neg else val
+                    elif col == 3:
+                        op[k] = -val if neg else val
+                    elif col == 0 and neg:
+                        return k - out_start, line_start, _ERR_CHAR, col
+                    col += 1
+                    val = 0
+                    in_num = False
+                    neg = False
+            else:
+                return k - out_start, line_start, _ERR_CHAR, col
+            i += 1
+        if in_num:
+            if col == 1:
+                ox[k] = -val if neg else val
+            elif col == 2:
+                oy[k] = -val if neg else val
+            elif col == 3:
+                op[k] = -val if neg else val
+            col += 1
+        i += 1  # past '\n'
+        if col == 0:
+            continue  # blank line
+        if col != 4:
+            return k - out_start, line_start, _ERR_COLUMNS, col
+        if nfrac <= 6:
+            us = frac
+            for _ in range(6 - nfrac):
+                us *= 10
+        else:
+            scale = np.int64(1)
+            for _ in range(nfrac - 6):
+                scale *= 10
+            us = (frac + scale // 2) // scale
+        ot[k] = ip * 1_000_000 + us
+        k += 1
+    return k - out_start, -1, 0, 0
+
+
+def _line_error(path: Path, data: bytes, file_offset: int, bad: int, code: int, cols: int
+                ) -> FormatError:
+    line_end = data.find(b"\n", bad)
+    text = data[bad: line_end if line_end >= 0 else len(data)].decode("latin-1").strip()
+    with open(path, "rb") as fh:
+        lineno = 1
+        remaining = file_offset + bad
+        while remaining > 0:
+            blk = fh.read(min(remaining, 1 << 24))
+            if not blk:
+                break
+            lineno += blk.count(b"\n")
+            remaining -= len(blk)
+    if code == _ERR_COLUMNS:
+        msg = f"line {lineno} has {cols} column(s), expected 4 ('t x y p'): {text[:80]!r}"
+    else:
+        msg = f"line {lineno} is not 't[s] x y p' numbers: {text[:80]!r}"
+    return FormatError(path, msg)
+
+
+def parse_text(data: bytes, path: str | Path = "<bytes>", file_offset: int = 0
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Parse ECD text (whole lines) into ``x, y, t[µs], p`` arrays.
+
+    Examples
+    --------
+    >>> x, y, t, p = parse_text(b"0.000001 3 4 1\\n0.5 5 6 0\\n")
+    >>> t.tolist(), x.tolist()
+    ([1, 500000], [3, 5])
+    """
+    buf = np.frombuffer(data, dtype=np.uint8)
+    n_max = data.count(b"\n") + 1
+    ox = np.empty(n_max, np.int64)
+    oy = np.empty(n_max, np.int64)
+    ot = np.empty(n_max, np.int64)
+    op = np.empty(n_max, np.int64)
+    n, bad, code, cols = _parse(buf, 0, buf.shape[0], ox, oy, ot, op, 0)
+    if bad >= 0:
+        raise _line_error(Path(path), data, file_offset, bad, code, cols)
+    return ox[:n], oy[:n], ot[:n], op[:n]
+
+
+def _events_file(path: Path) -> Path:
+    if path.is_dir():
+        f = path / "events.txt"
+        if not f.exists():
+            raise FormatError(path, "ECD folder has no events.txt")
+        return f
+    return path
+
+
+def _image_size(folder: Path) -> tuple[int, int] | None:
+    """Size of the first APS frame listed in ``images.txt`` (ECD frames share the sensor)."""
+    lst = folder / "images.txt"
+    cands = []
+    if lst.exists():
+        with open(lst) as fh:
+            for line in fh:
+                parts = line.split()
+                if len(parts) >= 2:
+                    cands.append(folder / parts[1])
+                    break
+    for c in cands:
+        if c.exists():
+            with open(c, "rb") as fh:
+                head = fh.read(24)
+            if head[:8] == b"\x89PNG\r\n\x1a\n":
+                w = int.from_bytes(head[16:20], "big")
+                h = int.from_bytes(head[20:24], "big")
+                return h, w
+    return None
+
+
+def _sensor_size(path: Path, sensor_size) -> tuple[tuple[int, int], str]:
+    if sensor_size is not None:
+        return (int(sensor_size[0]), int(sensor_size[1])), "given"
+    folder = path if path.is_dir() else path.parent
+    size = _image_size(folder)
+    if size is not None:
+        return size, "images"
+    return ECD_SENSOR_SIZE, "ECD default (DAVIS240C)"
+
+
+def _blocks(path: Path, block_bytes: int) -> Iterator[tuple[np.ndarray, ...]]:
+    with open(path, "rb") as fh:
+        carry = b""
+        offset = 0
+        while True:
+            blk = fh.read(block_bytes)
+            data = carry + blk
+            if not blk:
+                if data.strip():
+                    yield parse_text(data, path, offset)
+                return
+            cut = data.rfind(b"\n") + 1
+            if cut == 0:
+                carry = data
+                continue
+            yield parse_text(data[:cut], path, offset)
+            offset += cut
+            carry = data[cut:]
+
+
+def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool) -> EventArray:
+    h, w = size
+    if x.size:
+        if x.min() < 0 or y.min() < 0:
+            raise FormatError(path, "negative pixel coordinate in field 'x' or 'y'")
+        if x.max() >= w or y.max() >= h:
+            bad = int(np.argmax((x >= w) | (y >= h)))
+            raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]} lies outside the "
+                              f"sensor {w}x{h} (W x H, {size_src})",
+                              "pass sensor_size=(height, width)")
+        if p.min() < -1 or p.max() > 1:
+            bad = int(np.argmax((p < -1) | (p > 1)))
+            raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1")
+    meta = {"source": str(path), "format": "ecd", "sensor_size_from": size_src}
+    try:
+        return EventArray(x=x.astype(np.uint16), y=y.astype(np.uint16), t=t,
+                          p=(p > 0).astype(np.uint8), sensor_size=size, validate=validate,
+                          meta=meta)
+    except Exception as exc:
+        raise FormatError(path, str(exc)) from None
+
+
+def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
+         sensor_size: tuple[int, int] | None = None, validate: bool = True,
+         block_bytes: int = BLOCK_BYTES) -> EventArray:
+    """Read ECD events (``events.txt`` or a folder holding one).
+
+    Parameters
+    ----------
+    path : path-like
+        ``events.txt`` or an ECD sequence folder.
+    t0, t1 : int, optional
+        Keep events with ``t0 <= t < t1`` (µs).
+    sensor_size : (int, int), optional
+        ``(height, width)``; default from the APS images, else 180x240 (DAVIS240C).
+    validate : bool
+        Check sortedness and bounds.
+
+    Returns
+    -------
+    EventArray
+        ``meta["sensor_size_from"]`` says where the sensor size came from.
+
+    Examples
+    --------
+    >>> ev = read("shapes_rotation/")  # doctest: +SKIP
+    """
+    path = Path(path)
+    ev_path = _events_file(path)
+    size, src = _sensor_size(path, sensor_size)
+    parts = []
+    for x, y, t, p in _blocks(ev_path, block_bytes):
+        if t0 is not None or t1 is not None:
+            m = np.ones(t.shape, bool)
+            if t0 is not None:
+                m &= t >= t0
+            if t1 is not None:
+                m &= t < t1
+            x, y, t, p = x[m], y[m], t[m], p[m]
+        parts.append((x, y, t, p))
+    if parts:
+        x, y, t, p = (np.concatenate([q[i] for q in parts]) for i in range(4))
+    else:
+        x = y = t = p = np.zeros(0, np.int64)
+    return _to_events(ev_path, x, y, t, p, size, src, validate)
+
+
+def iter_chunks(path: str | Path, chunk_events: int, *,
+                sensor_size: tuple[int, int] | None = None, validate: bool = True,
+                block_bytes: int = BLOCK_BYTES) -> Iterator[EventArray]:
+    """Stream ECD events in chunks of ``chunk_events`` (the last may be shorter).
+
+    Examples
+    --------
+    >>> for chunk in iter_chunks("events.txt", 100_000):  # doctest: +SKIP
+    ...     print(len(chunk))
+    """
+    if int(chunk_events) <= 0:
+        raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
+    path = Path(path)
+    ev_path = _events_file(path)
+    size, src = _sensor_size(path, sensor_size)
+    buf = [np.zeros(0, np.int64)] * 4
+    last_t = None
+    for block in _blocks(ev_path, block_bytes):
+        buf = [np.concatenate([a, b]) for a, b in zip(buf, block, strict=True)]
+        while buf[2].size >= chunk_events:
+            part = [a[:chunk_events] for a in buf]
+            buf = [a[chunk_events:] for a in buf]
+            ev = _to_events(ev_path, *part, size, src, validate)
+            if validate and last_t is not None and ev.t[0] < last_t:
+                raise FormatError(ev_path, f"timestamps are not sorted: {ev.t[0]} us after "
+                                  f"{last_t} us")
+            last_t = int(ev.t[-1])
+            yield ev
+    if buf[2].size:
+        ev = _to_events(ev_path, *buf, size, src, validate)
+        if validate and last_t is not None and ev.t[0] < last_t:
+            raise FormatError(ev_path, f"timestamps are not sorted: {ev.t[0]} us after "
+                              f"{last_t} us")
+        yield ev
+
+
+def format_text(events: EventArray) -> bytes:
+    """ECD text for ``events``: ``t`` with 6 decimals (exact µs), integer x, y, p."""
+    t = events.t
+    sec = t // 1_000_000
+    us = t - sec * 1_000_000
+    x = np.asarray(events.x)
+    if x.dtype.kind == "f":
+        raise ParameterError("ECD text holds integer pixel coordinates; these events are "
+                             "undistorted (float x, y): write them to .h5 or .npz instead")
+    cols = np.column_stack([sec, us, events.x.astype(np.int64), events.y.astype(np.int64),
+                            events.p.astype(np.int64)])
+    lines = [f"{a}.{b:06d} {c} {d} {e}\n" for a, b, c, d, e in cols.tolist()]
+    return "".join(lines).encode("ascii")
+
+
+def write(path: str | Path, events: EventArray | Iterator[EventArray]) -> None:
+    """Write ECD ``events.txt`` (atomically); accepts one EventArray or an iterable of
+    chunks (streamed). A folder path gets ``events.txt`` inside it.
+
+    Examples
+    --------
+    >>> write("out/events.txt", ev)  # doctest: +SKIP
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "events.txt"
+    chunks = [events] if isinstance(events, EventArray) else events
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:
+            for ev in chunks:
+                for s in range(0, len(ev), 200_000):
+                    fh.write(format_text(ev[s:s + 200_000]))
+
+
+def _load_table(path: Path, ncols: int, what: str) -> np.ndarray:
+    try:
+        arr = np.loadtxt(path, ndmin=2, comments="#")
+    except ValueError as exc:
+        raise FormatError(path, f"cannot parse {what}: {exc}") from None
+    if arr.size and arr.shape[1] != ncols:
+        raise FormatError(path, f"{what} has {arr.shape[1]} columns, expected {ncols}")
+    return arr
+
+
+def read_imu(path: str | Path) -> dict:
+    """ECD ``imu.txt``: returns ``t`` (µs int64), ``acc`` (N,3) m/s², ``gyro`` (N,3) rad/s."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "imu.txt"
+    a = _load_table(path, 7, "imu.txt (t ax ay az gx gy gz)")
+    return {"t": np.rint(a[:, 0] * 1e6).astype(np.int64), "acc": a[:, 1:4],
+            "gyro": a[:, 4:7]}
+
+
+def read_groundtruth(path: str | Path) -> dict:
+    """ECD ``groundtruth.txt``: ``t`` (µs), ``position`` (N,3) m, ``quaternion`` (N,4)
+    ``qx qy qz qw``."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "groundtruth.txt"
+    a = _load_table(path, 8, "groundtruth.txt (t px py pz qx qy qz qw)")
+    return {"t": np.rint(a[:, 0] * 1e6).astype(np.int64), "position": a[:, 1:4],
+            "quaternion": a[:, 4:8]}
+
+
+def read_image_list(path: str | Path) -> dict:
+    """ECD ``images.txt``: ``t`` (µs) and ``files`` (paths relative to the folder)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "images.txt"
+    t, files = [], []
+    with open(path) as fh:
+        for i, line in enumerate(fh, 1):
+            parts = line.split()
+            if not parts or parts[0].startswith("#"):
+                continue
+            if len(parts) != 2:
+                raise FormatError(path, f"line {i}: expected 't file', got {line.strip()!r}")
+            t.append(round(float(parts[0]) * 1e6))
+            files.append(parts[1])
+    return {"t": np.asarray(t, np.int64), "files": files}
+
+
+def read_calibration(path: str | Path) -> dict:
+    """ECD ``calib.txt`` (``fx fy cx cy k1 k2 p1 p2 k3``, or just the first four).
+
+    Returns
+    -------
+    dict
+        ``K`` (3x3 list), ``dist`` ``[k1, k2, p1, p2, k3]`` (radial-tangential),
+        ``fx, fy, cx, cy``, ``model``, ``source``.
+
+    Examples
+    --------
+    >>> read_calibration("boxes_rotation/calib.txt")["fx"]  # doctest: +SKIP
+    199.092366542
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "calib.txt"
+    if not path.exists():
+        raise FormatError(path, "calibration file not found")
+    try:
+        vals = np.array(path.read_text().split(), dtype=np.float64)
+    except ValueError as exc:
+        raise FormatError(path, f"calib.txt must hold numbers: {exc}") from None
+    if vals.size not in (4, 8, 9):
+        raise FormatError(path, f"calib.txt holds {vals.size} numbers, expected 9 "
+                          "(fx fy cx cy k1 k2 p1 p2 k3)")
+    fx, fy, cx, cy = vals[:4].tolist()
+    dist = (vals[4:].tolist() + [0.0] * 5)[:5]
+    out = {"fx": fx, "fy": fy, "cx": cx, "cy": cy,
+           "K": [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], "dist": dist,
+           "model": "radtan", "source": str(path)}
+    size = _image_size(path.parent)
+    if size is not None:
+        out["sensor_size"] = size
+    return out
+
+
+def describe(path: str | Path) -> dict:
+    """What an ECD folder holds besides events (calibration, IMU, ground truth, frames)."""
+    path = Path(path)
+    folder = path if path.is_dir() else path.parent
+    size, src = _sensor_size(path, None)
+    out: dict = {"format": "ecd", "sensor_size": size, "sensor_size_from": src}
+    if (folder / "calib.txt").exists():
+        out["calibration"] = read_calibration(folder / "calib.txt")
+    for name, key in (("imu.txt", "imu"), ("groundtruth.txt", "groundtruth"),
+                      ("images.txt", "frames")):
+        f = folder / name
+        if f.exists():
+            with open(f, "rb") as fh:
+                out[key] = sum(1 for line in fh if line.strip() and not line.startswith(b"#"))
+    if "frames" not in out:
+        # Loose PNGs are not ECD frames (no timestamps); count them but do not size from them.
+        out["frames"] = 0
+        n_png = len(list(folder.glob("*.png")))
+        if n_png:
+            out["images_without_timestamps"] = n_png
+    return out
+
+
+def _sniff(path: Path, head: bytes) -> bool:
+    if path.is_dir():
+        return (path / "events.txt").is_file()
+    line = head.split(b"\n", 1)[0].strip()
+    parts = line.replace(b",", b" ").split()
+    if len(parts) != 4:
+        return False
+    try:
+        [float(v) for v in parts]
+    except ValueError:
+        return False
+    return all(v.lstrip(b"-").isdigit() for v in parts[1:])
+
+
+FORMAT = FormatSpec(name="ecd", extensions=(".txt",), sniff=_sniff, read=read,
+                    iter_chunks=iter_chunks, write=write, describe=describe)

@@ -1,0 +1,414 @@
+"""evmotion's own HDF5 event format: chunked, compressed, time-indexed, appendable.
+
+Layout::
+
+    /events/x, /events/y   uint16 (float32 when undistorted)
+    /events/t              int64 µs, absolute
+    /events/p              uint8 0/1
+    /events/ms_to_idx      int64: ms_to_idx[k] = first event with t >= t_index0 + 1000·k
+    attrs: format="evmotion-events", version, height, width, t_index0 (µs),
+           provenance (JSON), calibration (JSON, optional), plus user attributes
+    /frames/images (N,H,W), /frames/t        optional APS frames
+    /imu/t, /imu/gyro, /imu/acc              optional
+    /ground_truth/...                        optional (e.g. ``flow`` from io.flowfiles,
+                                             ``motion/t``, ``motion/params``)
+
+Events are compressed with Blosc-LZ4 (byte shuffle) through hdf5plugin when available,
+otherwise gzip level 1. :class:`EventWriter` appends chunk by chunk in bounded memory and
+renames ``<name>.part`` onto ``<name>`` at close (atomic).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.events import EventArray
+from evmotion.io.base import FormatSpec
+
+__all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
+           "read_imu", "FORMAT", "FORMAT_NAME"]
+
+FORMAT_NAME = "evmotion-events"
+VERSION = 1
+CHUNK = 1 << 18
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+
+
+def _compression() -> dict:
+    try:
+        import hdf5plugin
+    except ImportError:
+        return {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+    return dict(hdf5plugin.Blosc(cname="lz4", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE))
+
+
+def _jsonable(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, (tuple, list)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+class EventWriter:
+    """Append events to an evmotion HDF5 file chunk by chunk (bounded memory, atomic).
+
+    Parameters
+    ----------
+    path : path-like
+        Output ``.h5`` file; written as ``<path>.part`` and renamed at :meth:`close`.
+    sensor_size : (int, int)
+        ``(height, width)``.
+    float_coords : bool
+        Store x, y as float32 (undistorted events) instead of uint16.
+    calibration : dict, optional
+        Stored as JSON in the ``calibration`` attribute.
+    provenance : dict, optional
+        Where the data came from (JSON attribute).
+    attrs : dict, optional
+        Further root attributes.
+
+    Examples
+    --------
+    >>> with EventWriter("out.h5", (180, 240)) as w:  # doctest: +SKIP
+    ...     for chunk in chunks:
+    ...         w.append(chunk)
+    """
+
+    def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int], *,
+                 float_coords: bool = False, calibration: dict | None = None,
+                 provenance: dict | None = None, attrs: dict | None = None):
+        import h5py
+
+        self.path = Path(path)
+        self.part = self.path.with_name(self.path.name + ".part")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        h, w = (int(v) for v in sensor_size)
+        if h <= 0 or w <= 0:
+            raise ParameterError(f"sensor_size must be positive (height, width), got {(h, w)}")
+        self.sensor_size = (h, w)
+        self.f = h5py.File(self.part, "w")
+        f = self.f
+        f.attrs["format"] = FORMAT_NAME
+        f.attrs["version"] = VERSION
+        f.attrs["height"] = h
+        f.attrs["width"] = w
+        f.attrs["provenance"] = json.dumps(_jsonable(provenance or {}))
+        if calibration is not None:
+            f.attrs["calibration"] = json.dumps(_jsonable(calibration))
+        for k, v in (attrs or {}).items():
+            f.attrs[k] = v if isinstance(v, (str, int, float, np.ndarray)) else json.dumps(
+                _jsonable(v))
+        g = f.create_group("events")
+        comp = _compression()
+        cdt = "<f4" if float_coords else "<u2"
+        for name, dt in (("x", cdt), ("y", cdt), ("t", "<i8"), ("p", "u1")):
+            g.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(CHUNK,),
+                             **comp)
+        g.create_dataset("ms_to_idx", shape=(0,), maxshape=(None,), dtype="<i8",
+                         chunks=(4096,))
+        self.n = 0
+        self.t_last: int | None = None
+        self.t_index0: int | None = None
+
+    def append(self, events: EventArray) -> None:
+        """Append a chunk; its timestamps must not precede the previous chunk's."""
+        n = len(events)
+        if n == 0:
+            return
+        if tuple(events.sensor_size) != self.sensor_size:
+            raise ParameterError(f"chunk sensor_size {events.sensor_size} differs from the "
+                                 f"file's {self.sensor_size}")
+        t = events.t
+        if self.t_last is not None and t[0] < self.t_last:
+            raise ParameterError(f"chunk starts at t={t[0]} us, before the previous chunk's "
+                                 f"last event at {self.t_last} us (append in time order)")
+        g = self.f["events"]
+        float_file = g["x"].dtype.kind == "f"
+        if events.x.dtype.kind == "f" and not float_file:
+            raise ParameterError("float (undistorted) coordinates in a uint16 file: create "
+                                 "the writer with float_coords=True")
+        for name in ("x", "y", "t", "p"):
+            ds = g[name]
+            ds.resize(self.n + n, axis=0)
+            ds[self.n:] = getattr(events, name)
+        if self.t_index0 is None:
+            self.t_index0 = int(t[0] // 1000 * 1000)
+            self.f.attrs["t_index0"] = self.t_index0
+        self._extend_index(t)
+        self.n += n
+        self.t_last = int(t[-1])
+
+    def _extend_index(self, t: np.ndarray) -> None:
+        ms = self.f["events/ms_to_idx"]
+        k0 = ms.shape[0]
+        # Entries for every ms boundary up to this chunk's last event; later boundaries are
+        # added once later events show where they fall.
+        k1 = int((t[-1] - self.t_index0) // 1000) + 1
+        if k1 <= k0:
+            return
+        bounds = self.t_index0 + 1000 * np.arange(k0, k1, dtype=np.int64)
+        idx = self.n + np.searchsorted(t, bounds, side="left")
+        ms.resize(k1, axis=0)
+        ms[k0:k1] = idx
+
+    def close(self) -> None:
+        """Finish (close the index with the end marker) and rename onto the final name."""
+        if not self.f.id.valid:
+            return
+        ms = self.f["events/ms_to_idx"]
+        ms.resize(ms.shape[0] + 1, axis=0)
+        ms[-1] = self.n
+        self.f.attrs["n_events"] = self.n
+        self.f.close()
+        os.replace(self.part, self.path)
+
+    def abort(self) -> None:
+        if self.f.id.valid:
+            self.f.close()
+        if self.part.exists():
+            self.part.unlink()
+
+    def __enter__(self) -> EventWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def write(path: str | os.PathLike, events: EventArray | Iterable[EventArray], *,
+          sensor_size: tuple[int, int] | None = None, calibration: dict | None = None,
+          provenance: dict | None = None, frames: dict | None = None, imu: dict | None = None,
+          attrs: dict | None = None) -> None:
+    """Write events (one EventArray or an iterable of chunks) to evmotion HDF5, atomically.
+
+    Parameters
+    ----------
+    frames : dict, optional
+        ``{"t": (N,) µs, "images": (N, H, W)}``.
+    imu : dict, optional
+        ``{"t": (N,) µs, "gyro": (N, 3) rad/s, "acc": (N, 3) m/s²}``.
+
+    Examples
+    --------
+    >>> write("out.h5", ev, provenance={"source": "sim"})  # doctest: +SKIP
+    """
+    it = iter([events] if isinstance(events, EventArray) else events)
+    first = next(it, None)
+    if first is None and sensor_size is None:
+        raise ParameterError("no events to write and no sensor_size given")
+    size = sensor_size or first.sensor_size
+    if calibration is None and first is not None:
+        calibration = first.meta.get("calibration")
+    floaty = first is not None and first.x.dtype.kind == "f"
+    w = EventWriter(path, size, float_coords=floaty, calibration=calibration,
+                    provenance=provenance, attrs=attrs)
+    try:
+        if first is not None:
+            w.append(first)
+        for chunk in it:
+            w.append(chunk)
+        if frames is not None:
+            g = w.f.create_group("frames")
+            g.create_dataset("t", data=np.asarray(frames["t"], np.int64))
+            g.create_dataset("images", data=np.asarray(frames["images"]),
+                             compression="gzip", compression_opts=1)
+        if imu is not None:
+            g = w.f.create_group("imu")
+            for k, v in imu.items():
+                g.create_dataset(k, data=np.asarray(v))
+    except BaseException:
+        w.abort()
+        raise
+    w.close()
+
+
+def _open(path: Path):
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    if "events" not in f:
+        f.close()
+        raise FormatError(path, "no 'events' group (not an evmotion event file)")
+    for name in ("x", "y", "t", "p"):
+        if f"events/{name}" not in f:
+            f.close()
+            raise FormatError(path, f"missing dataset 'events/{name}'")
+    return f
+
+
+def _meta(f, path: Path) -> tuple[tuple[int, int], dict]:
+    try:
+        size = (int(f.attrs["height"]), int(f.attrs["width"]))
+    except KeyError:
+        raise FormatError(path, "missing attribute 'height'/'width' (the sensor size)") from None
+    meta = {"source": str(path), "format": "h5"}
+    for key in ("calibration", "provenance"):
+        if key in f.attrs:
+            try:
+                meta[key] = json.loads(f.attrs[key])
+            except (TypeError, ValueError):
+                raise FormatError(path, f"attribute '{key}' is not valid JSON") from None
+    return size, meta
+
+
+def _index_range(f, t0: int | None, t1: int | None) -> tuple[int, int]:
+    g = f["events"]
+    n = g["t"].shape[0]
+    lo, hi = 0, n
+    ms = g["ms_to_idx"][:] if "ms_to_idx" in g else None
+    base = int(f.attrs.get("t_index0", 0))
+
+    def locate(tq: int) -> int:
+        if ms is None or ms.size == 0:
+            return int(np.searchsorted(g["t"][:], tq, side="left"))
+        k = (tq - base) // 1000
+        if k < 0:
+            return 0
+        # ms[k] <= answer <= ms[k+1]: search only the events of that millisecond.
+        a = int(ms[k]) if k < ms.size else int(ms[-1])
+        b = int(ms[k + 1]) if k + 1 < ms.size else n
+        return a + int(np.searchsorted(g["t"][a:b], tq, side="left"))
+
+    if t0 is not None:
+        lo = locate(int(t0))
+    if t1 is not None:
+        hi = locate(int(t1))
+    return lo, max(lo, hi)
+
+
+def _make(path: Path, size, meta, x, y, t, p, validate: bool) -> EventArray:
+    try:
+        return EventArray(x=x, y=y, t=t, p=p, sensor_size=size, validate=validate,
+                          meta=dict(meta))
+    except Exception as exc:
+        raise FormatError(path, str(exc)) from None
+
+
+def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
+         sensor_size: tuple[int, int] | None = None, validate: bool = True) -> EventArray:
+    """Read events from an evmotion HDF5 file, using the ms index for ``t0``/``t1`` (µs).
+
+    Examples
+    --------
+    >>> ev = read("sim.h5", t0=0, t1=50_000)  # doctest: +SKIP
+    """
+    path = Path(path)
+    with _open(path) as f:
+        size, meta = _meta(f, path)
+        size = tuple(sensor_size) if sensor_size is not None else size
+        lo, hi = _index_range(f, t0, t1)
+        g = f["events"]
+        cols = [g[k][lo:hi] for k in ("x", "y", "t", "p")]
+    return _make(path, size, meta, *cols, validate)
+
+
+def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
+                sensor_size: tuple[int, int] | None = None, validate: bool = True,
+                t0: int | None = None, t1: int | None = None) -> Iterator[EventArray]:
+    """Stream events in chunks of ``chunk_events`` (last may be shorter), bounded memory.
+
+    Examples
+    --------
+    >>> for c in iter_chunks("sim.h5", 1_000_000):  # doctest: +SKIP
+    ...     print(len(c))
+    """
+    if int(chunk_events) <= 0:
+        raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
+    path = Path(path)
+    with _open(path) as f:
+        size, meta = _meta(f, path)
+        size = tuple(sensor_size) if sensor_size is not None else size
+        lo, hi = _index_range(f, t0, t1)
+        g = f["events"]
+        for s in range(lo, hi, int(chunk_events)):
+            e = min(hi, s + int(chunk_events))
+            yield _make(path, size, meta, *(g[k][s:e] for k in ("x", "y", "t", "p")),
+                        validate)
+
+
+def read_frames(path: str | os.PathLike) -> dict:
+    """APS frames stored in the file: ``{"t": (N,) µs, "images": (N, H, W)}``."""
+    path = Path(path)
+    with _open(path) as f:
+        if "frames" not in f:
+            raise FormatError(path, "no 'frames' group")
+        return {"t": f["frames/t"][:], "images": f["frames/images"][:]}
+
+
+def read_imu(path: str | os.PathLike) -> dict:
+    """IMU samples stored in the file (``t`` µs, ``gyro`` rad/s, ``acc`` m/s²)."""
+    path = Path(path)
+    with _open(path) as f:
+        if "imu" not in f:
+            raise FormatError(path, "no 'imu' group")
+        return {k: v[:] for k, v in f["imu"].items()}
+
+
+def describe(path: str | os.PathLike) -> dict:
+    """Sensor size, count, time range and what else the file holds, without reading events."""
+    path = Path(path)
+    with _open(path) as f:
+        size, meta = _meta(f, path)
+        g = f["events"]
+        n = int(g["t"].shape[0])
+        out: dict = {"format": "h5", "sensor_size": size, "n_events": n}
+        if n:
+            out["t_first_us"] = int(g["t"][0])
+            out["t_last_us"] = int(g["t"][n - 1])
+        out["frames"] = int(f["frames/t"].shape[0]) if "frames/t" in f else 0
+        out["imu"] = int(f["imu/t"].shape[0]) if "imu/t" in f else 0
+        if "ground_truth" in f:
+            out["ground_truth"] = sorted(f["ground_truth"].keys())
+        for k in ("calibration", "provenance"):
+            if k in meta:
+                out[k] = meta[k]
+        out["compression"] = _filter_names(g["t"])
+    return out
+
+
+def _filter_names(ds) -> list[str]:
+    plist = ds.id.get_create_plist()
+    names = []
+    for i in range(plist.get_nfilters()):
+        name = plist.get_filter(i)[3]
+        names.append(name.decode(errors="replace") if isinstance(name, bytes) else str(name))
+    return names
+
+
+def _sniff(path: Path, head: bytes) -> bool:
+    if not head.startswith(HDF5_MAGIC):
+        return False
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format") == FORMAT_NAME:
+                return True
+            # Same field names as DSEC, which has a root t_offset / ms_to_idx instead.
+            return ("events/t" in f and "events/x" in f and "t_offset" not in f
+                    and "ms_to_idx" not in f)
+    except OSError:
+        return False
+
+
+FORMAT = FormatSpec(name="h5", extensions=(".h5", ".hdf5"), sniff=_sniff, read=read,
+                    iter_chunks=iter_chunks, write=write, describe=describe)

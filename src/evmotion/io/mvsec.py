@@ -1,0 +1,177 @@
+"""MVSEC ``*_data.hdf5`` files (Zhu et al. 2018).
+
+Layout (per camera ``left`` / ``right``)::
+
+    /davis/left/events         (N, 4) float64 rows [x, y, t(s), p(-1/+1)]
+    /davis/left/image_raw      (M, 260, 346) uint8 APS frames
+    /davis/left/image_raw_ts   (M,) s
+    /davis/left/imu, imu_ts    (K, 6) and (K,) s (optional)
+
+Times are converted to integer µs (rounded); the sensor is 346×260 (W×H). Events are read
+in slices of rows, so streaming is bounded in memory. Ground-truth flow (``*_gt_flow_dist.npz``)
+is read by :func:`evmotion.io.flowfiles.read_mvsec_gt_flow`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.events import EventArray
+from evmotion.io.base import FormatSpec
+from evmotion.io.npy import events_from_columns
+
+__all__ = ["read", "iter_chunks", "write", "describe", "read_frames", "FORMAT",
+           "MVSEC_SENSOR_SIZE"]
+
+MVSEC_SENSOR_SIZE = (260, 346)
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+
+
+def _open(path: Path, camera: str):
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    key = f"davis/{camera}/events"
+    if key not in f:
+        f.close()
+        raise FormatError(path, f"missing dataset '{key}' (not an MVSEC data file?)")
+    ds = f[key]
+    if ds.ndim != 2 or ds.shape[1] != 4:
+        f.close()
+        raise FormatError(path, f"'{key}' has shape {ds.shape}, expected (N, 4) [x, y, t, p]")
+    return f, ds
+
+
+def _make(path: Path, block: np.ndarray, size, meta, validate: bool) -> EventArray:
+    return events_from_columns(path, block[:, 0], block[:, 1], block[:, 2], block[:, 3],
+                               sensor_size=size, time_unit="s", meta=meta, validate=validate)
+
+
+def _locate(ds, tq_us: int, n: int) -> int:
+    # Bisection on rows read one at a time: O(log N) small reads, no full time column.
+    lo, hi = 0, n
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if round(float(ds[mid, 2]) * 1e6) < tq_us:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
+         sensor_size: tuple[int, int] | None = None, camera: str = "left",
+         validate: bool = True) -> EventArray:
+    """Read events of one MVSEC camera.
+
+    Parameters
+    ----------
+    t0, t1 : int, optional
+        Keep ``t0 <= t < t1`` (µs, the file's clock).
+    camera : {"left", "right"}
+        Which DAVIS.
+
+    Examples
+    --------
+    >>> ev = read("indoor_flying1_data.hdf5", t0=..., t1=...)  # doctest: +SKIP
+    """
+    path = Path(path)
+    f, ds = _open(path, camera)
+    with f:
+        n = ds.shape[0]
+        lo = 0 if t0 is None else _locate(ds, int(t0), n)
+        hi = n if t1 is None else _locate(ds, int(t1), n)
+        block = ds[lo:max(lo, hi)]
+    meta = {"source": str(path), "format": "mvsec", "camera": camera}
+    ev = _make(path, block, tuple(sensor_size or MVSEC_SENSOR_SIZE), meta, validate)
+    return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
+
+
+def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
+                sensor_size: tuple[int, int] | None = None, camera: str = "left",
+                validate: bool = True) -> Iterator[EventArray]:
+    """Stream one camera's events in chunks of ``chunk_events``."""
+    if int(chunk_events) <= 0:
+        raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
+    path = Path(path)
+    f, ds = _open(path, camera)
+    size = tuple(sensor_size or MVSEC_SENSOR_SIZE)
+    meta = {"source": str(path), "format": "mvsec", "camera": camera}
+    with f:
+        for s in range(0, ds.shape[0], int(chunk_events)):
+            yield _make(path, ds[s:s + int(chunk_events)], size, meta, validate)
+
+
+def read_frames(path: str | os.PathLike, camera: str = "left") -> dict:
+    """APS frames: ``{"t": (M,) µs, "images": (M, H, W) uint8}``."""
+    import h5py
+
+    path = Path(path)
+    with h5py.File(path, "r") as f:
+        g = f"davis/{camera}"
+        for k in ("image_raw", "image_raw_ts"):
+            if f"{g}/{k}" not in f:
+                raise FormatError(path, f"missing dataset '{g}/{k}'")
+        return {"t": np.rint(f[f"{g}/image_raw_ts"][:] * 1e6).astype(np.int64),
+                "images": f[f"{g}/image_raw"][:]}
+
+
+def write(path: str | os.PathLike, events: EventArray, *, camera: str = "left",
+          frames: dict | None = None) -> None:
+    """Write events (and optional frames ``{"t": µs, "images": (M,H,W)}``) in the MVSEC
+    layout, atomically. Times become float64 seconds (exact to < 1 µs for MVSEC ranges)."""
+    import h5py
+
+    from evmotion.utils import atomic_path
+
+    arr = np.column_stack([events.x.astype(np.float64), events.y.astype(np.float64),
+                           events.t.astype(np.float64) * 1e-6,
+                           np.where(events.p > 0, 1.0, -1.0)])
+    with atomic_path(path) as tmp:
+        with h5py.File(tmp, "w") as f:
+            g = f.create_group(f"davis/{camera}")
+            g.create_dataset("events", data=arr, chunks=(min(max(len(arr), 1), 1 << 16), 4))
+            if frames is not None:
+                g.create_dataset("image_raw", data=np.asarray(frames["images"]))
+                g.create_dataset("image_raw_ts",
+                                 data=np.asarray(frames["t"], np.float64) * 1e-6)
+
+
+def describe(path: str | os.PathLike, camera: str = "left") -> dict:
+    path = Path(path)
+    f, ds = _open(path, camera)
+    with f:
+        n = ds.shape[0]
+        g = f[f"davis/{camera}"]
+        out: dict = {"format": "mvsec", "camera": camera, "sensor_size": MVSEC_SENSOR_SIZE,
+                     "n_events": int(n), "cameras": sorted(f["davis"].keys())}
+        if n:
+            out["t_first_us"] = round(float(ds[0, 2]) * 1e6)
+            out["t_last_us"] = round(float(ds[n - 1, 2]) * 1e6)
+        out["frames"] = int(g["image_raw_ts"].shape[0]) if "image_raw_ts" in g else 0
+        out["imu"] = int(g["imu_ts"].shape[0]) if "imu_ts" in g else 0
+    return out
+
+
+def _sniff(path: Path, head: bytes) -> bool:
+    if not head.startswith(HDF5_MAGIC):
+        return False
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return "davis" in f
+    except OSError:
+        return False
+
+
+FORMAT = FormatSpec(name="mvsec", extensions=(".hdf5", ".h5"), sniff=_sniff, read=read,
+                    iter_chunks=iter_chunks, write=write, describe=describe)

@@ -1,0 +1,228 @@
+"""NumPy event files: structured ``.npy`` (fields x, y, t, p, as tonic writes), plain
+``N×4`` arrays, and ``.npz`` archives with arrays ``x, y, t, p`` (+ ``sensor_size``).
+
+Plain ``N×4`` arrays have no field names: give ``columns=`` (e.g. ``"txyp"``); otherwise
+the time column is taken as the first or third column, whichever is sorted, and
+``meta["columns_from"]`` says it was inferred. Float times are seconds, integer times µs,
+unless ``time_unit=`` says otherwise.
+"""
+
+from __future__ import annotations
+
+import os
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.events import EventArray
+from evmotion.io.base import FormatSpec
+from evmotion.utils import atomic_path
+
+__all__ = ["read", "iter_chunks", "write", "describe", "events_from_columns", "FORMAT"]
+
+NPY_MAGIC = b"\x93NUMPY"
+ZIP_MAGIC = b"PK\x03\x04"
+
+
+def _time_us(t: np.ndarray, unit: str | None) -> tuple[np.ndarray, str]:
+    if unit is None:
+        unit = "s" if t.dtype.kind == "f" else "us"
+        how = "inferred (float -> s, integer -> us)"
+    else:
+        how = "given"
+    scale = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}.get(unit)
+    if scale is None:
+        raise ParameterError(f"time_unit must be 's', 'ms', 'us' or 'ns', got {unit!r}")
+    if t.dtype.kind in "iu" and scale >= 1:
+        return t.astype(np.int64) * int(scale), f"{unit} ({how})"
+    return np.rint(t.astype(np.float64) * scale).astype(np.int64), f"{unit} ({how})"
+
+
+def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
+                        meta=None, validate=True, drop_outside=False) -> EventArray:
+    """Build an EventArray from loose columns, with clear errors naming ``path``.
+
+    Integer-valued coordinates become uint16; fractional ones (undistorted) float32.
+    ``drop_outside`` drops events off the sensor (undistorted coordinates) instead of
+    raising; ``meta["dropped_outside"]`` counts them.
+    """
+    path = Path(path) if path is not None else None
+    meta = dict(meta or {})
+    t_us, unit = _time_us(np.asarray(t), time_unit)
+    meta["time_unit"] = unit
+    x = np.asarray(x)
+    y = np.asarray(y)
+    p = np.asarray(p)
+    for name, a in (("x", x), ("y", y), ("t", t_us), ("p", p)):
+        if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+            raise FormatError(path, f"field '{name}' contains NaN or inf")
+    frac = x.dtype.kind == "f" and (np.any(x != np.round(x)) or np.any(y != np.round(y)))
+    if sensor_size is None:
+        if x.size == 0:
+            raise FormatError(path, "no events and no sensor size",
+                              "pass sensor_size=(height, width)")
+        sensor_size = (int(np.ceil(y.max())) + 1, int(np.ceil(x.max())) + 1)
+        meta["sensor_size_from"] = "max coordinate (no sensor size in the file)"
+    h, w = (int(v) for v in sensor_size)
+    if p.size and not np.all(np.isin(p, (-1, 0, 1))):
+        bad = int(np.argmax(~np.isin(p, (-1, 0, 1))))
+        raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1 or -1/+1")
+    inside = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
+    if not inside.all():
+        bad = int(np.argmax(~inside))
+        if not drop_outside:
+            raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]} lies outside the "
+                              f"sensor {w}x{h} (W x H)", "pass sensor_size=(height, width)")
+        meta["dropped_outside"] = int((~inside).sum())
+        x, y, t_us, p = x[inside], y[inside], t_us[inside], p[inside]
+    if frac:
+        x, y = x.astype(np.float32), y.astype(np.float32)
+    else:
+        x, y = x.astype(np.uint16), y.astype(np.uint16)
+    try:
+        return EventArray(x=x, y=y, t=t_us, p=(p > 0).astype(np.uint8), sensor_size=(h, w),
+                          validate=validate, meta=meta)
+    except Exception as exc:
+        raise FormatError(path, str(exc)) from None
+
+
+def _split_columns(path: Path, arr: np.ndarray, columns: str | None):
+    if arr.ndim != 2 or 4 not in arr.shape:
+        raise FormatError(path, f"expected a structured array (x, y, t, p) or an N×4 array, "
+                          f"got shape {arr.shape} dtype {arr.dtype}")
+    if arr.shape[1] != 4:
+        arr = arr.T
+    how = "given"
+    if columns is None:
+        sorted_ = [bool(np.all(np.diff(arr[:, i]) >= 0)) for i in range(4)]
+        if sorted_[0] and not sorted_[2]:
+            columns = "txyp"
+        elif sorted_[2] and not sorted_[0]:
+            columns = "xytp"
+        else:
+            raise FormatError(path, "cannot tell which column is time in this N×4 array",
+                              "pass columns='txyp' or columns='xytp'")
+        how = "inferred from the sorted column"
+    if sorted(columns) != sorted("txyp"):
+        raise ParameterError(f"columns must be a permutation of 'txyp', got {columns!r}")
+    cols = {c: arr[:, i] for i, c in enumerate(columns)}
+    return cols, f"{columns} ({how})"
+
+
+def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
+         sensor_size: tuple[int, int] | None = None, columns: str | None = None,
+         time_unit: str | None = None, validate: bool = True) -> EventArray:
+    """Read events from ``.npy`` / ``.npz``.
+
+    Parameters
+    ----------
+    t0, t1 : int, optional
+        Keep ``t0 <= t < t1`` (µs).
+    sensor_size : (int, int), optional
+        ``(height, width)``; default from the file, else the max coordinate (meta says so).
+    columns : str, optional
+        Column order of a plain N×4 array, e.g. ``"txyp"``.
+    time_unit : {"s", "ms", "us", "ns"}, optional
+        Unit of ``t`` in the file (default: float -> s, integer -> µs).
+
+    Examples
+    --------
+    >>> ev = read("events.npz")  # doctest: +SKIP
+    """
+    path = Path(path)
+    meta = {"source": str(path), "format": "npy"}
+    try:
+        obj = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise FormatError(path, f"cannot read as .npy/.npz: {exc}") from None
+    if isinstance(obj, np.lib.npyio.NpzFile):
+        with obj:
+            files = set(obj.files)
+            if {"x", "y", "t", "p"} <= files:
+                cols = {k: obj[k] for k in "xytp"}
+            elif "events" in files:
+                arr = obj["events"]
+                cols = None
+            else:
+                raise FormatError(path, f"npz lacks arrays x, y, t, p (has {sorted(files)})")
+            if sensor_size is None and "sensor_size" in files:
+                sensor_size = tuple(int(v) for v in obj["sensor_size"])
+            if time_unit is None and "time_unit" in files:
+                time_unit = str(obj["time_unit"])
+    else:
+        arr = obj
+        cols = None
+    if cols is None:
+        if arr.dtype.names:
+            missing = [k for k in "xytp" if k not in arr.dtype.names]
+            if missing:
+                raise FormatError(path, f"structured array lacks field(s) {missing} "
+                                  f"(has {list(arr.dtype.names)})")
+            cols = {k: arr[k] for k in "xytp"}
+        else:
+            cols, meta["columns"] = _split_columns(path, arr, columns)
+    lens = {k: np.shape(v) for k, v in cols.items()}
+    if len(set(lens.values())) != 1 or len(lens["t"]) != 1:
+        raise FormatError(path, f"fields x, y, t, p have different shapes: {lens}")
+    ev = events_from_columns(path, cols["x"], cols["y"], cols["t"], cols["p"],
+                             sensor_size=sensor_size, time_unit=time_unit, meta=meta,
+                             validate=validate)
+    return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
+
+
+def iter_chunks(path: str | os.PathLike, chunk_events: int, **kw) -> Iterator[EventArray]:
+    """Chunks of ``chunk_events`` (the file is memory-mapped-free, read once)."""
+    if int(chunk_events) <= 0:
+        raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
+    ev = read(path, **kw)
+    for s in range(0, len(ev), int(chunk_events)):
+        yield ev[s:s + int(chunk_events)]
+
+
+def write(path: str | os.PathLike, events: EventArray) -> None:
+    """Write ``.npz`` (arrays x, y, t[µs], p, sensor_size) or a structured ``.npy``
+    (fields x, y, t[µs], p; the sensor size is not stored), atomically.
+
+    Examples
+    --------
+    >>> write("out.npz", ev)  # doctest: +SKIP
+    """
+    if not isinstance(events, EventArray):
+        from evmotion.events import concatenate
+
+        events = concatenate(list(events))
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        if path.suffix.lower() == ".npy":
+            dt = np.dtype([("x", events.x.dtype), ("y", events.y.dtype), ("t", "<i8"),
+                           ("p", "u1")])
+            arr = np.empty(len(events), dt)
+            for k in "xytp":
+                arr[k] = getattr(events, k)
+            with open(tmp, "wb") as fh:
+                np.save(fh, arr)
+        else:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, x=events.x, y=events.y, t=events.t, p=events.p,
+                         sensor_size=np.asarray(events.sensor_size, np.int64),
+                         time_unit=np.asarray("us"))
+
+
+def describe(path: str | os.PathLike) -> dict:
+    path = Path(path)
+    ev = read(path, validate=False)
+    return {"format": "npy", "sensor_size": ev.sensor_size, "n_events": len(ev),
+            **{k: v for k, v in ev.meta.items() if k not in ("source", "format")}}
+
+
+def _sniff(path: Path, head: bytes) -> bool:
+    if head.startswith(NPY_MAGIC):
+        return True
+    return head.startswith(ZIP_MAGIC) and path.suffix.lower() == ".npz"
+
+
+FORMAT = FormatSpec(name="npy", extensions=(".npy", ".npz"), sniff=_sniff, read=read,
+                    iter_chunks=iter_chunks, write=write, describe=describe)
