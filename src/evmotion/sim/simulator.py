@@ -38,7 +38,9 @@ class SimResult:
     params : dict
         The resolved scene parameters (defaults updated by the caller's).
     stats : dict
-        Sample count, signal/noise event counts, thresholds.
+        Step and sub-sample counts, signal/noise event counts, thresholds.
+    thresholds : (ndarray, ndarray)
+        Per-pixel ON and OFF contrast thresholds (H, W) after mismatch.
     """
 
     events: EventArray
@@ -46,6 +48,7 @@ class SimResult:
     scene: str
     params: dict
     stats: dict = field(default_factory=dict)
+    thresholds: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
 
 def _margin_shape(sensor_size):
@@ -55,6 +58,8 @@ def _margin_shape(sensor_size):
 
 
 def _texture(texture, image, shape, origin, seed) -> Texture:
+    if isinstance(texture, Texture) and image is None:
+        return texture
     if image is not None:
         return texture_from_image(image, shape, origin)
     if isinstance(texture, (str, Path)) and str(texture) in TEXTURES:
@@ -119,7 +124,7 @@ def _check(name, value, lo=0.0, strict=False):
 
 def simulate(scene: str = "rotation", duration_s: float = 0.1,
              sensor_size: tuple[int, int] = (260, 346), seed: int = 0,
-             texture: str | np.ndarray = "dots", threshold: float = 0.2,
+             texture: str | np.ndarray | Texture = "dots", threshold: float = 0.2,
              params: dict | None = None, *, image=None, mismatch: float = 0.03,
              refractory_us: int = 0, noise_rate: float = 0.0, hot_pixels: int = 0,
              hot_rate: float = 1000.0, frame_rate: float = 100.0,
@@ -143,8 +148,9 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         ``(height, width)``; default DAVIS346 (260, 346).
     seed : int
         Seeds texture, threshold mismatch and noise: same seed, same events.
-    texture : str or ndarray
-        ``dots``, ``shapes``, ``noise``, ``checker``, an image path or an image array.
+    texture : str, ndarray or Texture
+        ``dots``, ``shapes``, ``noise``, ``checker``, an image path or array (mirrored to
+        a periodic raster), or a ready :class:`~evmotion.sim.textures.Texture` (used as is).
     threshold : float
         Nominal contrast threshold C (log intensity) for ON and OFF events.
     params : dict, optional
@@ -320,4 +326,4 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
              "n_steps": n_samples, "n_subsamples": n_sub, "threshold": C,
              "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean()),
              "texture": texs[0].name}
-    return SimResult(events, gt, scene, p, stats)
+    return SimResult(events, gt, scene, p, stats, (cp, cn))
