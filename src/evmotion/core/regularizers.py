@@ -47,6 +47,7 @@ __all__ = [
     "DEFAULT_MARGINS",
     "DEFAULT_WEIGHTS",
     "REGULARIZERS",
+    "chain_rule",
     "window_span",
     "regularizer_maps",
     "regularizer_value_grad",
@@ -95,6 +96,21 @@ def _gather_bilinear(img, xw, yw, out):
             if ix + 1 < wd:
                 s += img[iy + 1, ix + 1] * fx * fy
         out[k] = s
+
+
+@njit(cache=True)
+def chain_rule(jx, jy, dd, gx, gy, gd, out):
+    """``out = jx^T gx + jy^T gy + dd^T gd`` (P,) in one pass, without BLAS: numpy's
+    (N,) @ (N, P) product spins up threads that stall on a pinned core."""
+    P = out.shape[0]
+    for j in range(P):
+        out[j] = 0.0
+    for k in range(gx.shape[0]):
+        a = gx[k]
+        b = gy[k]
+        c = gd[k]
+        for j in range(P):
+            out[j] += a * jx[k, j] + b * jy[k, j] + c * dd[k, j]
 
 
 # ---------------------------------------------------------------------------------------
@@ -224,7 +240,9 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
     gx2, gy2 = accumulate_backward(xw, yw, shape, gN, kernel=kernel)
     gd = np.empty(x.shape[0])
     _gather_bilinear(gS, np.ascontiguousarray(xw), np.ascontiguousarray(yw), gd)
-    g = (gx1 + gx2) @ jx + (gy1 + gy2) @ jy + gd @ dd
+    g = np.empty(warp.n_params)
+    chain_rule(np.ascontiguousarray(jx), np.ascontiguousarray(jy), np.ascontiguousarray(dd),
+               gx1 + gx2, gy1 + gy2, gd, g)
     return value, g
 
 

@@ -1,0 +1,107 @@
+"""Warps (warp + parameter Jacobian) and collapse regularizers (value + gradient), ch. 3.
+
+Reference measured in the same run: one variance-objective evaluation with its gradient
+(warp + Jacobian, bilinear IWE, variance, IWE adjoint, chain rule), as the ego-motion code
+does it. Regularizer costs are quoted as a fraction of that reference ("+x %").
+Run: ``python benchmarks/run.py warps`` or ``python benchmarks/bench_warps.py [--quick]``.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+try:
+    from benchmarks import harness
+except ImportError:  # run as a script
+    import harness
+
+from evmotion.core.iwe import accumulate_backward_into, accumulate_into
+from evmotion.core.regularizers import chain_rule, regularizer_value_grad
+from evmotion.core.warps import WARPS, make_warp
+
+H, W = 260, 346
+K = np.array([[226.0, 0, 173.0], [0, 226.0, 130.0], [0, 0, 1]])
+THETA = {
+    "zoom": [4.0],
+    "translation": [50.0, -30.0],
+    "rotation": [1.0, -2.0, 3.0],
+    "se2": [40.0, 10.0, 2.0],
+    "inplane": [40.0, 10.0, 0.3, 0.5],
+    "similarity": [40.0, 10.0, 2.0, 3.0],
+    "affine": [40.0, 10.0, 1.0, 2.0, -1.0, 3.0],
+    "homography": [1.0, 2.0, 30.0, -1.0, 3.0, 20.0, 1e-3, -2e-3],
+}
+
+
+def _events(n, seed=0):
+    rng = np.random.default_rng(seed)
+    return (rng.uniform(0, W - 1, n), rng.uniform(0, H - 1, n),
+            np.sort(rng.uniform(0, 0.05, n)))
+
+
+def _objective(w, x, y, dt, th, bufs):
+    """Variance of the IWE and its gradient (the reference an objective evaluation costs)."""
+    xw, yw, jx, jy, iwe, gx, gy = bufs
+    w.warp_into(x, y, dt, th, xw, yw, jx, jy)
+    accumulate_into(xw, yw, iwe)
+    mu = iwe.mean()
+    g = (2.0 / iwe.size) * (iwe - mu)
+    accumulate_backward_into(xw, yw, g, gx, gy)
+    out = np.empty(jx.shape[1])
+    chain_rule(jx, jy, jx, gx, gy, np.zeros_like(gx), out)
+    return float(((iwe - mu) ** 2).mean()), out
+
+
+def main(quick: bool = False) -> list[dict]:
+    harness.single_core()
+    repeat = 5 if quick else 20
+    rows: list[dict] = []
+    for n in (30_000,) if quick else (30_000, 500_000):
+        rows += _bench_size(n, repeat)
+    harness.record("warps", rows, notes="single core; synthetic uniform events on 346x260, "
+                   "50 ms window; regularizers given the already-warped events and Jacobians")
+    return rows
+
+
+def _bench_size(n: int, repeat: int) -> list[dict]:
+    rows = []
+    x, y, dt = _events(n)
+    for name in WARPS:
+        w = make_warp(name, (H, W), K=K)
+        th = np.array(THETA[name])
+        P = w.n_params
+        xw, yw = np.empty(n), np.empty(n)
+        jx, jy = np.empty((n, P)), np.empty((n, P))
+        t_w = harness.timeit(lambda w=w, th=th, xw=xw, yw=yw: w.warp_into(x, y, dt, th, xw, yw),
+                             repeat=repeat)
+        t_wj = harness.timeit(lambda w=w, th=th, xw=xw, yw=yw, jx=jx, jy=jy:
+                              w.warp_into(x, y, dt, th, xw, yw, jx, jy), repeat=repeat)
+        rows.append({"what": f"warp {name}", "events": n, "dof": P,
+                     "warp_ms": t_w["median_s"] * 1e3,
+                     "warp+jac_ms": t_wj["median_s"] * 1e3,
+                     "ns/event": t_wj["median_s"] * 1e9 / n})
+    for name in ("zoom", "rotation", "similarity", "homography"):
+        w = make_warp(name, (H, W), K=K)
+        th = np.array(THETA[name])
+        P = w.n_params
+        bufs = (np.empty(n), np.empty(n), np.empty((n, P)), np.empty((n, P)),
+                np.empty((H, W)), np.empty(n), np.empty(n))
+        ref = harness.timeit(lambda w=w, th=th, bufs=bufs: _objective(w, x, y, dt, th, bufs),
+                             repeat=repeat)["median_s"]
+        rows.append({"what": f"objective var+grad ({name}, reference)", "events": n,
+                     "dof": P, "ms": ref * 1e3, "vs_objective_%": 100.0})
+        xw, yw, jx, jy = bufs[:4]
+        for reg in ("rcad", "divergence", "deformation"):
+            t = harness.timeit(
+                lambda w=w, th=th, reg=reg, xw=xw, yw=yw, jx=jx, jy=jy: regularizer_value_grad(
+                    reg, w, x, y, dt, th, (H, W), xw, yw, jx=jx, jy=jy),
+                repeat=repeat)["median_s"]
+            rows.append({"what": f"regularizer {reg} ({name}) value+grad", "events": n,
+                         "dof": P, "ms": t * 1e3, "vs_objective_%": 100.0 * t / ref})
+    return rows
+
+
+if __name__ == "__main__":
+    main(quick="--quick" in sys.argv)
