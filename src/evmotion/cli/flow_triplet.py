@@ -113,13 +113,18 @@ def run(args) -> int:
 def _iter_chunks(path, fmt, chunk_events):
     import evmotion.io as eio
 
-    kw = {"format": fmt} if fmt else {}
     if hasattr(eio, "iter_events"):
+        kw = {"format": fmt} if fmt else {}
         yield from eio.iter_events(path, chunk_events=chunk_events, **kw)
         return
-    if not hasattr(eio, "read_events"):
-        raise ParameterError("no event reader is available in evmotion.io yet")
-    ev = eio.read_events(path, **kw)
+    from evmotion.io.registry import detect_format, get_format
+
+    spec = get_format(fmt) if fmt else detect_format(path)
+    if spec.iter_chunks is not None:
+        yield from spec.iter_chunks(path, chunk_events)
+        return
+    # Formats without a streaming reader (e.g. MATLAB files) are read whole.
+    ev = spec.read(path)
     for s in range(0, len(ev), chunk_events):
         yield ev[s:s + chunk_events]
 
