@@ -47,10 +47,11 @@ def read_dat(path: Path) -> EventArray:
 
 def load_prophesee() -> tuple[EventArray, str]:
     try:
-        from evmotion.io import read_events
+        from evmotion.io.registry import get_format
 
-        return read_events(DATA / "formats" / "evt3.raw"), "evt3.raw"
-    except Exception:  # the EVT3 reader may not exist yet: the DAT twin holds the same events
+        return get_format("evt3").read(DATA / "formats" / "evt3.raw"), "evt3.raw"
+    except (ImportError, KeyError, ValueError):
+        # Without the EVT3 reader, its DAT twin holds the same events.
         return read_dat(DATA / "formats" / "gen4.dat"), "gen4.dat"
 
 
