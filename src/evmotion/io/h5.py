@@ -241,6 +241,9 @@ def write(path: str | os.PathLike, events: EventArray | Iterable[EventArray], *,
 def _open(path: Path):
     import h5py
 
+    from evmotion.io.dsec import _register_filters
+
+    _register_filters()
     try:
         f = h5py.File(path, "r")
     except OSError as exc:
