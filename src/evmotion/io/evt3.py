@@ -43,53 +43,76 @@ def _decode(words, start, state, ox, oy, ot, op):
     ovf = state[_OVF]
     bx = state[_BX]
     vp = state[_VP]
-    seen = state[_SEEN]
-    n = 0
-    i = start
     nw = words.shape[0]
-    while i < nw and n + 12 <= cap:
-        w = np.int64(words[i])
-        typ = w >> 12
-        if typ == 0x2:
-            if seen:
+    i = start
+    if not state[_SEEN]:
+        # no time base yet: follow the addresses, emit nothing
+        while i < nw:
+            w = np.int64(words[i])
+            typ = w >> 12
+            i += 1
+            if typ == 0x8:
+                th = w & 0xFFF
+                state[_SEEN] = 1
+                break
+            if typ == 0x0:
+                y = w & 0x7FF
+            elif typ == 0x6:
+                tl = w & 0xFFF
+            elif typ == 0x3:
+                bx = w & 0x7FF
+                vp = (w >> 11) & 1
+            elif typ == 0x4:
+                bx += 12
+            elif typ == 0x5:
+                bx += 8
+    n = 0
+    tcur = ovf + (th << 12) + tl
+    while i < nw:
+        # every word yields at most 12 events: no bounds check inside a span
+        stop = min(nw, i + (cap - n) // 12)
+        if stop <= i:
+            break
+        for j in range(i, stop):
+            w = np.int64(words[j])
+            typ = w >> 12
+            if typ == 0x2:
                 ox[n] = w & 0x7FF
                 oy[n] = y
-                ot[n] = ovf + (th << 12) + tl
+                ot[n] = tcur
                 op[n] = (w >> 11) & 1
                 n += 1
-        elif typ == 0x0:
-            y = w & 0x7FF
-        elif typ == 0x6:
-            tl = w & 0xFFF
-        elif typ == 0x8:
-            h = w & 0xFFF
-            if seen and h < th and th - h >= 2048:
-                ovf += 1 << 24
-            th = h
-            seen = 1
-        elif typ == 0x3:
-            bx = w & 0x7FF
-            vp = (w >> 11) & 1
-        elif typ == 0x4 or typ == 0x5:
-            nb = 12 if typ == 0x4 else 8
-            if seen:
-                t = ovf + (th << 12) + tl
+            elif typ == 0x0:
+                y = w & 0x7FF
+            elif typ == 0x6:
+                tl = w & 0xFFF
+                tcur = ovf + (th << 12) + tl
+            elif typ == 0x8:
+                h = w & 0xFFF
+                if h < th and th - h >= 2048:
+                    ovf += 1 << 24
+                th = h
+                tcur = ovf + (th << 12) + tl
+            elif typ == 0x3:
+                bx = w & 0x7FF
+                vp = (w >> 11) & 1
+            elif typ == 0x4 or typ == 0x5:
+                nb = 12 if typ == 0x4 else 8
                 for k in range(nb):
                     if (w >> k) & 1:
                         ox[n] = bx + k
                         oy[n] = y
-                        ot[n] = t
+                        ot[n] = tcur
                         op[n] = vp
                         n += 1
-            bx += nb
-        i += 1
+                bx += nb
+        i = stop
     state[_Y] = y
     state[_TH] = th
     state[_TL] = tl
     state[_OVF] = ovf
     state[_BX] = bx
     state[_VP] = vp
-    state[_SEEN] = seen
     return n, i
 
 
