@@ -282,3 +282,19 @@ def test_event_fwl_matches_dense_fwl_for_uniform_flow():
     assert event_fwl(ev, f) == pytest.approx(fwl(ev, dense), rel=1e-9)
     sub = TripletFlow(est.vx[a:b], est.vy[a:b], est.valid[a:b], est.n_triplets[a:b])
     assert event_fwl(ev, sub) > 1.5
+
+
+@pytest.mark.parametrize("smooth", [True, False])
+def test_fused_dense_matches_numpy_path(smooth):
+    from evmotion.methods.triplet import add_voxels, dense_from_sums
+
+    ev = moving_dots(8)
+    flow = TripletMatcher(ev.sensor_size).process(ev)
+    t0, t1, nb = 20_000, 280_000, 3
+    acc = np.zeros((nb, 24, 24, 2))
+    cnt = np.zeros((nb, 24, 24), np.int64)
+    add_voxels(ev, flow, t0, t1, acc, cnt)
+    got, gmask = dense_from_sums(acc, cnt, smooth=smooth)
+    ref, rmask = collapse_voxels(*voxelize_flow(ev, flow, t0, t1, nb), smooth=smooth)
+    np.testing.assert_array_equal(gmask, rmask)
+    np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-4)

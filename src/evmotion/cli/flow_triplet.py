@@ -238,10 +238,9 @@ class _Windows:
                                ev.y.astype(np.float64) - fl.vy * dt, self.sensor)
 
     def _close(self, t0, t1):
-        from evmotion.methods.triplet import _voxel_mean, collapse_voxels
+        from evmotion.methods.triplet import dense_from_sums
 
-        vox, vm = _voxel_mean(self.acc, self.cnt)
-        flow, mask = collapse_voxels(vox, vm)
+        flow, mask = dense_from_sums(self.acc, self.cnt)
         win = _Window(self.index, t0, t1, flow, mask, self.iwe, self.n)
         self.index += 1
         self._new()

@@ -191,3 +191,42 @@ def voxel_accumulate(x, y, t, vx, vy, valid, t0, t1, n_bins, acc, cnt):
         acc[b, y[k], x[k], 0] += vx[k]
         acc[b, y[k], x[k], 1] += vy[k]
         cnt[b, y[k], x[k]] += 1
+
+
+@njit(cache=True)
+def dense_from_sums(acc, cnt, smooth, out, out_mask):
+    """Voxel means, 3x3 non-zero average per bin (if ``smooth``), mean over the bins that
+    hold a value: ``acc`` (B, H, W, 2) sums, ``cnt`` (B, H, W) counts -> ``out`` (H, W, 2)
+    float32 and ``out_mask`` (H, W) bool. Fused version of the numpy functions in
+    :mod:`evmotion.methods.triplet`."""
+    nb, h, w = cnt.shape
+    r = 1 if smooth else 0
+    for yy in range(h):
+        for xx in range(w):
+            su = 0.0
+            sv = 0.0
+            nbins = 0
+            for b in range(nb):
+                bu = 0.0
+                bv = 0.0
+                nv = 0
+                for qy in range(max(yy - r, 0), min(yy + r + 1, h)):
+                    for qx in range(max(xx - r, 0), min(xx + r + 1, w)):
+                        c = cnt[b, qy, qx]
+                        if c > 0:
+                            # float32 voxel means, as the numpy path stores them
+                            bu += np.float32(acc[b, qy, qx, 0] / c)
+                            bv += np.float32(acc[b, qy, qx, 1] / c)
+                            nv += 1
+                if nv > 0:
+                    su += np.float32(bu / nv)
+                    sv += np.float32(bv / nv)
+                    nbins += 1
+            if nbins > 0:
+                out[yy, xx, 0] = su / nbins
+                out[yy, xx, 1] = sv / nbins
+                out_mask[yy, xx] = True
+            else:
+                out[yy, xx, 0] = 0.0
+                out[yy, xx, 1] = 0.0
+                out_mask[yy, xx] = False

@@ -34,7 +34,9 @@ __all__ = [
     "TripletBatchResult",
     "TripletFlow",
     "TripletMatcher",
+    "add_voxels",
     "collapse_voxels",
+    "dense_from_sums",
     "estimate_flow_triplet",
     "event_fwl",
     "neighbour_offsets",
@@ -311,6 +313,19 @@ def add_voxels(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: int,
                        np.int64(t1_us), acc.shape[0], acc, cnt)
 
 
+def dense_from_sums(acc: np.ndarray, cnt: np.ndarray, *, smooth: bool = True,
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Dense (H, W, 2) px/s flow and mask from voxel sums ``acc`` (n_bins, H, W, 2) and counts
+    ``cnt`` (n_bins, H, W) (see :func:`add_voxels`): the fused, compiled equivalent of
+    :func:`voxelize_flow` followed by :func:`collapse_voxels`."""
+    h, w = cnt.shape[1:]
+    out = np.empty((h, w, 2), np.float32)
+    mask = np.empty((h, w), np.bool_)
+    K.dense_from_sums(np.ascontiguousarray(acc, np.float64), np.ascontiguousarray(cnt),
+                      bool(smooth), out, mask)
+    return out, mask
+
+
 def _voxel_mean(acc, cnt):
     mask = cnt > 0
     vox = np.zeros(acc.shape, np.float32)
@@ -406,8 +421,8 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         sub = events[win.start:win.stop]
         fsub = TripletFlow(flow.vx[win.start:win.stop], flow.vy[win.start:win.stop],
                            flow.valid[win.start:win.stop], flow.n_triplets[win.start:win.stop])
-        vox, vm = voxelize_flow(sub, fsub, win.t0, win.t1, n_bins)
-        flows[i], masks[i] = collapse_voxels(vox, vm, smooth=smooth)
+        acc, cnt = _voxel_sums(sub, fsub, win.t0, win.t1, n_bins)
+        flows[i], masks[i] = dense_from_sums(acc, cnt, smooth=smooth)
     return TripletBatchResult(flows, masks, windows, flow, m.overflow)
 
 
