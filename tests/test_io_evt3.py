@@ -158,3 +158,17 @@ def test_header_without_geometry(tmp_path):
     with pytest.raises(FormatError, match="geometry"):
         evt3.read(bad)
     assert len(evt3.read(bad, sensor_size=(10, 10))) == 0
+
+
+def test_small_chunks_from_large_blocks(raw):
+    head = evt3.read(raw, t1=11_300_000)
+    it = evt3.iter_chunks(raw, 7)
+    got = [next(it) for _ in range(len(head) // 7)]
+    assert all(len(c) == 7 for c in got)
+    np.testing.assert_array_equal(np.concatenate([c.t for c in got]),
+                                  head.t[:7 * len(got)])
+
+
+def test_describe(raw):
+    d = evt3.describe(raw)
+    assert d["sensor_size"] == (720, 1280) and d["header"]["evt"] == "3.0"

@@ -3,6 +3,7 @@ re-chunking and time filtering."""
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -53,8 +54,9 @@ def check_chunk_events(chunk_events: int) -> int:
 def rechunk(blocks: Iterator[Block], chunk_events: int, sensor_size: tuple[int, int],
             meta: dict, *, validate: bool = True) -> Iterator[EventArray]:
     """Regroup decoded blocks of any size into EventArrays of exactly ``chunk_events``
-    events (the last one may be shorter)."""
-    pending: list[Block] = []
+    events (the last one may be shorter). Chunks inside one block are views of it, so
+    small chunks of large blocks cost no copying."""
+    pending: deque[Block] = deque()
     n_pending = 0
     for blk in blocks:
         if len(blk[2]) == 0:
@@ -62,14 +64,28 @@ def rechunk(blocks: Iterator[Block], chunk_events: int, sensor_size: tuple[int, 
         pending.append(blk)
         n_pending += len(blk[2])
         while n_pending >= chunk_events:
-            cols = [np.concatenate([b[k] for b in pending]) for k in range(4)]
-            yield _make(cols, 0, chunk_events, sensor_size, meta, validate)
-            rest = [c[chunk_events:] for c in cols]
-            n_pending = len(rest[2])
-            pending = [tuple(rest)] if n_pending else []
+            yield _take(pending, chunk_events, sensor_size, meta, validate)
+            n_pending -= chunk_events
     if n_pending:
-        cols = [np.concatenate([b[k] for b in pending]) for k in range(4)]
-        yield _make(cols, 0, n_pending, sensor_size, meta, validate)
+        yield _take(pending, n_pending, sensor_size, meta, validate)
+
+
+def _take(pending: deque, count: int, sensor_size, meta, validate) -> EventArray:
+    parts = []
+    need = count
+    while need:
+        blk = pending[0]
+        m = len(blk[2])
+        if m <= need:
+            parts.append(pending.popleft())
+            need -= m
+        else:
+            parts.append(tuple(c[:need] for c in blk))
+            pending[0] = tuple(c[need:] for c in blk)
+            need = 0
+    cols = parts[0] if len(parts) == 1 else [np.concatenate([b[k] for b in parts])
+                                             for k in range(4)]
+    return _make(cols, 0, count, sensor_size, meta, validate)
 
 
 def _make(cols, a: int, b: int, sensor_size, meta, validate) -> EventArray:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import _binary, _prophesee
 from evmotion.io.base import FormatSpec
@@ -191,7 +192,11 @@ def write(path: str | Path, events: EventArray) -> None:
 def describe(path: str | Path) -> dict:
     """Header fields, geometry and payload size of an EVT 2.0 file."""
     path = Path(path)
-    lines, offset, size, _ = _prophesee.parse_raw_header(path, None)
+    try:
+        lines, offset, size, _ = _prophesee.parse_raw_header(path, None)
+    except FormatError:
+        lines, offset = _binary.read_text_header(path, b"%", end_line=b"% end")
+        size = None
     return {"format": "evt2", "sensor_size": size, "header": _prophesee.header_dict(lines),
             "data_offset": offset, "n_words": (path.stat().st_size - offset) // 4,
             "frames": 0, "imu": 0}

@@ -349,7 +349,11 @@ def _check_writable(events: EventArray, limit: int) -> None:
 def describe(path: str | Path) -> dict:
     """Header fields, geometry and payload size of an EVT 3.0 file."""
     path = Path(path)
-    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, None)
+    try:
+        lines, offset, size, _ = _prophesee.parse_raw_header(path, None)
+    except FormatError:
+        lines, offset = _binary.read_text_header(path, b"%", end_line=b"% end")
+        size = None
     return {"format": "evt3", "sensor_size": size, "header": _prophesee.header_dict(lines),
             "data_offset": offset, "n_words": (path.stat().st_size - offset) // 2,
             "frames": 0, "imu": 0}
