@@ -14,7 +14,7 @@ from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
-from evmotion.sim.render import pad_periodic, render_log, sim_step
+from evmotion.sim.render import pad_periodic, render_log, sim_step, sim_step_numpy
 from evmotion.sim.scenes import SCENES, default_K, resolve_params
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
 from evmotion.utils import progress
@@ -114,6 +114,20 @@ def _noise_events(rng, sensor_size, duration_us, noise_rate, hot_pixels, hot_rat
             np.concatenate(ts).astype(np.int64), rng.integers(0, 2, x.size).astype(np.uint8))
 
 
+def _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr, target,
+                ex, ey, et, ep):
+    """:func:`sim_step_numpy` behind the interface of :func:`sim_step`."""
+    alphas = np.stack([t.alpha if t.alpha is not None else np.ones(t.shape, np.float32)
+                       for t in texs])
+    lbn, x, y, t, p = sim_step_numpy(Mseq, np.stack([t.log_i for t in texs]), alphas, origins,
+                                     la, ref, cp, cn, last, t_a, t_b, refr, target)
+    lb[:] = lbn
+    n = x.size
+    if n <= ex.size:
+        ex[:n], ey[:n], et[:n], ep[:n] = x, y, t, p
+    return n, 0
+
+
 def _check(name, value, lo=0.0, strict=False):
     v = float(value)
     if not math.isfinite(v) or v < lo or (strict and v <= lo):
@@ -129,7 +143,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
              refractory_us: int = 0, noise_rate: float = 0.0, hot_pixels: int = 0,
              hot_rate: float = 1000.0, frame_rate: float = 100.0,
              max_step_fraction: float = 0.5, K: np.ndarray | None = None,
-             show_progress: bool = True) -> SimResult:
+             show_progress: bool = True, backend: str = "numba") -> SimResult:
     """Simulate an event camera watching a textured scene under a known motion.
 
     The log intensity of the scene is rendered at adaptive time steps chosen so that no
@@ -174,6 +188,9 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         Intrinsics; default :func:`~evmotion.sim.scenes.default_K`.
     show_progress : bool
         Progress bar on stderr (only when it is a terminal).
+    backend : str
+        ``numba`` (default) or ``numpy``: the plain-numpy reference of the kernel, slow,
+        kept for testing and benchmarking; both give identical events.
 
     Returns
     -------
@@ -208,6 +225,8 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         raise ParameterError(f"hot_pixels ({hot_pixels}) exceeds the number of pixels ({h * w})")
     frame_rate = _check("frame_rate", frame_rate, strict=True)
     frac = _check("max_step_fraction", max_step_fraction, strict=True)
+    if backend not in ("numba", "numpy"):
+        raise ParameterError(f"backend must be 'numba' or 'numpy', got {backend!r}")
     K = default_K(sensor_size) if K is None else np.asarray(K, dtype=np.float64)
 
     p = resolve_params(scene, params, sensor_size)
@@ -267,8 +286,12 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         np.copyto(ref_bak, ref)
         np.copyto(last_bak, last)
         while True:
-            n, ns = sim_step(Mseq, tex_stack, alpha_stack, origins, la, lb, ref, cp, cn, last,
-                             t, tb, refractory_us, target, ex, ey, et, ep)
+            if backend == "numpy":
+                n, ns = _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t, tb,
+                                    refractory_us, target, ex, ey, et, ep)
+            else:
+                n, ns = sim_step(Mseq, tex_stack, alpha_stack, origins, la, lb, ref, cp, cn,
+                                 last, t, tb, refractory_us, target, ex, ey, et, ep)
             if n <= cap:
                 break
             np.copyto(ref, ref_bak)
