@@ -25,8 +25,8 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 
-__all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "FORMAT",
-           "DSEC_SENSOR_SIZE"]
+__all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "missing_filters",
+           "FORMAT", "DSEC_SENSOR_SIZE"]
 
 DSEC_SENSOR_SIZE = (480, 640)
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
@@ -41,12 +41,26 @@ def _register_filters() -> bool:
     return True
 
 
-def _filter_error(path: Path, exc: Exception, field: str) -> FormatError:
-    text = str(exc)
-    if "filter" in text.lower() or "plugin" in text.lower():
-        return FormatError(path, f"cannot decompress '{field}': the HDF5 compression filter is "
-                           f"not available ({text.strip()})", FILTER_HINT)
-    return FormatError(path, f"cannot read '{field}': {text}")
+def missing_filters(ds) -> list[str]:
+    """Names of the HDF5 filters a dataset needs that this process cannot load."""
+    import h5py
+
+    plist = ds.id.get_create_plist()
+    missing = []
+    for i in range(plist.get_nfilters()):
+        code, _, _, name = plist.get_filter(i)
+        if not h5py.h5z.filter_avail(code):
+            label = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
+            missing.append(f"{label or 'filter'} (id {code})")
+    return missing
+
+
+def _filter_error(path: Path, exc: Exception, ds, field: str) -> FormatError:
+    missing = missing_filters(ds)
+    if missing:
+        return FormatError(path, f"cannot decompress '{field}': HDF5 compression filter "
+                           f"{', '.join(missing)} is not available", FILTER_HINT)
+    return FormatError(path, f"cannot read '{field}' (corrupt or truncated file?): {exc}")
 
 
 def _open(path: Path):
@@ -70,7 +84,7 @@ def _read(path: Path, ds, lo: int, hi: int, field: str) -> np.ndarray:
     try:
         return ds[lo:hi]
     except OSError as exc:
-        raise _filter_error(path, exc, field) from None
+        raise _filter_error(path, exc, ds, field) from None
 
 
 def _t_offset(f) -> int:

@@ -298,6 +298,15 @@ def _index_range(f, t0: int | None, t1: int | None) -> tuple[int, int]:
     return lo, max(lo, hi)
 
 
+def _col(path: Path, g, name: str, lo: int, hi: int) -> np.ndarray:
+    from evmotion.io.dsec import _filter_error
+
+    try:
+        return g[name][lo:hi]
+    except OSError as exc:
+        raise _filter_error(path, exc, g[name], f"events/{name}") from None
+
+
 def _make(path: Path, size, meta, x, y, t, p, validate: bool) -> EventArray:
     try:
         return EventArray(x=x, y=y, t=t, p=p, sensor_size=size, validate=validate,
@@ -320,7 +329,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         size = tuple(sensor_size) if sensor_size is not None else size
         lo, hi = _index_range(f, t0, t1)
         g = f["events"]
-        cols = [g[k][lo:hi] for k in ("x", "y", "t", "p")]
+        cols = [_col(path, g, k, lo, hi) for k in ("x", "y", "t", "p")]
     return _make(path, size, meta, *cols, validate)
 
 
@@ -344,8 +353,7 @@ def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
         g = f["events"]
         for s in range(lo, hi, int(chunk_events)):
             e = min(hi, s + int(chunk_events))
-            yield _make(path, size, meta, *(g[k][s:e] for k in ("x", "y", "t", "p")),
-                        validate)
+            yield _make(path, size, meta, *(_col(path, g, k, s, e) for k in "xytp"), validate)
 
 
 def read_frames(path: str | os.PathLike) -> dict:

@@ -1,0 +1,152 @@
+"""DSEC and MVSEC layouts, written here with h5py exactly as published, read back."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import h5py
+import hdf5plugin
+import numpy as np
+import pytest
+
+import evmotion.io as eio
+from evmotion.errors import FormatError
+from evmotion.io import dsec, mvsec
+
+T_OFFSET = 47_000_000_123
+
+
+def _dsec_file(path, n=50_000, seed=0):
+    """A DSEC events.h5: uint32 t relative to t_offset, ms_to_idx, Blosc/zstd."""
+    rng = np.random.default_rng(seed)
+    t_rel = np.sort(rng.integers(0, 2_000_000, n)).astype(np.uint32)
+    x = rng.integers(0, 640, n).astype(np.uint16)
+    y = rng.integers(0, 480, n).astype(np.uint16)
+    p = rng.integers(0, 2, n).astype(np.uint8)
+    comp = hdf5plugin.Blosc(cname="zstd", clevel=1, shuffle=hdf5plugin.Blosc.SHUFFLE)
+    ms = np.searchsorted(t_rel, 1000 * np.arange(t_rel[-1] // 1000 + 2)).astype(np.uint64)
+    with h5py.File(path, "w") as f:
+        for k, v in (("x", x), ("y", y), ("t", t_rel), ("p", p)):
+            f.create_dataset(f"events/{k}", data=v, chunks=(min(n, 8192),), **comp)
+        f.create_dataset("ms_to_idx", data=ms)
+        f.create_dataset("t_offset", data=np.int64(T_OFFSET))
+    return x, y, t_rel.astype(np.int64) + T_OFFSET, p
+
+
+def test_dsec_t_offset_added_and_detected(tmp_path):
+    x, y, t, p = _dsec_file(tmp_path / "events.h5")
+    assert eio.detect_format(tmp_path / "events.h5") == "dsec"
+    assert eio.detect_format(tmp_path) == "dsec"
+    ev = eio.read_events(tmp_path / "events.h5")
+    assert ev.sensor_size == (480, 640)
+    np.testing.assert_array_equal(ev.t, t)  # absolute µs: t_offset applied
+    np.testing.assert_array_equal(ev.x, x)
+    np.testing.assert_array_equal(ev.p, p)
+    assert ev.meta["t_offset_us"] == T_OFFSET
+
+
+def test_dsec_ms_index_slices(tmp_path):
+    *_, t = _dsec_file(tmp_path / "events.h5")[:3]
+    full = dsec.read(tmp_path / "events.h5")
+    rng = np.random.default_rng(1)
+    for a, b in np.sort(rng.integers(T_OFFSET - 3000, T_OFFSET + 2_003_000, (30, 2)), axis=1):
+        got = dsec.read(tmp_path / "events.h5", t0=int(a), t1=int(b))
+        ref = full.slice_time(int(a), int(b))
+        np.testing.assert_array_equal(got.t, ref.t)
+    chunks = list(eio.iter_events(tmp_path / "events.h5", 20_000))
+    assert [len(c) for c in chunks] == [20_000, 20_000, 10_000]
+
+
+def test_dsec_writer_round_trip(tmp_path):
+    _dsec_file(tmp_path / "a.h5")
+    ev = dsec.read(tmp_path / "a.h5")
+    dsec.write(tmp_path / "b.h5", ev)
+    back = dsec.read(tmp_path / "b.h5")
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(back, k), getattr(ev, k))
+
+
+def test_dsec_missing_field(tmp_path):
+    with h5py.File(tmp_path / "events.h5", "w") as f:
+        f["events/y"] = np.zeros(2, np.uint16)
+        f["t_offset"] = np.int64(0)
+    with pytest.raises(FormatError, match=r"events.h5.*'events/x'"):
+        dsec.read(tmp_path / "events.h5")
+
+
+def test_dsec_missing_filter_message(tmp_path):
+    _dsec_file(tmp_path / "events.h5", n=1000)
+    empty = tmp_path / "no_plugins"
+    empty.mkdir()
+    code = textwrap.dedent(f"""
+        import sys
+        sys.modules["hdf5plugin"] = None  # as if it were not installed
+        from evmotion.io import dsec
+        from evmotion.errors import FormatError
+        try:
+            dsec.read({str(tmp_path / "events.h5")!r})
+        except FormatError as exc:
+            print(exc)
+    """)
+    env = {"HDF5_PLUGIN_PATH": str(empty), "PATH": "/usr/bin:/bin"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=120)
+    assert "compression filter" in out.stdout, out.stdout + out.stderr
+    assert "pip install hdf5plugin" in out.stdout
+    assert "events.h5" in out.stdout
+
+
+def test_rectify_map(tmp_path):
+    m = np.random.default_rng(0).uniform(0, 600, (480, 640, 2)).astype(np.float32)
+    with h5py.File(tmp_path / "rectify_map.h5", "w") as f:
+        f["rectify_map"] = m
+    np.testing.assert_array_equal(dsec.read_rectify_map(tmp_path / "rectify_map.h5"), m)
+
+
+def _mvsec_file(path, n=10_000, seed=0):
+    rng = np.random.default_rng(seed)
+    t_s = 1_504_000_000.0 + np.sort(rng.uniform(0, 5, n))
+    arr = np.column_stack([rng.integers(0, 346, n), rng.integers(0, 260, n), t_s,
+                           rng.choice([-1.0, 1.0], n)]).astype(np.float64)
+    with h5py.File(path, "w") as f:
+        f["davis/left/events"] = arr
+        f["davis/left/image_raw"] = np.zeros((3, 260, 346), np.uint8)
+        f["davis/left/image_raw_ts"] = t_s[[0, n // 2, -1]]
+        f["davis/right/events"] = arr[:10]
+    return arr
+
+
+def test_mvsec_layout(tmp_path):
+    arr = _mvsec_file(tmp_path / "indoor_flying1_data.hdf5")
+    path = tmp_path / "indoor_flying1_data.hdf5"
+    assert eio.detect_format(path) == "mvsec"
+    ev = eio.read_events(path)
+    assert ev.sensor_size == (260, 346) and len(ev) == len(arr)
+    np.testing.assert_array_equal(ev.t, np.rint(arr[:, 2] * 1e6).astype(np.int64))
+    np.testing.assert_array_equal(ev.x, arr[:, 0].astype(np.uint16))
+    np.testing.assert_array_equal(ev.p, (arr[:, 3] > 0).astype(np.uint8))
+    t0, t1 = int(ev.t[1234]), int(ev.t[5678])
+    np.testing.assert_array_equal(mvsec.read(path, t0=t0, t1=t1).t, ev.slice_time(t0, t1).t)
+    assert len(mvsec.read(path, camera="right")) == 10
+    fr = mvsec.read_frames(path)
+    assert fr["images"].shape == (3, 260, 346) and fr["t"][0] == ev.t[0]
+    d = eio.describe(path)
+    assert d["frames"] == 3 and d["n_events"] == len(arr)
+
+
+def test_mvsec_writer_round_trip(tmp_path):
+    _mvsec_file(tmp_path / "a.hdf5")
+    ev = mvsec.read(tmp_path / "a.hdf5")
+    mvsec.write(tmp_path / "b.hdf5", ev)
+    back = mvsec.read(tmp_path / "b.hdf5")
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(back, k), getattr(ev, k))
+
+
+def test_mvsec_bad_shape(tmp_path):
+    with h5py.File(tmp_path / "m.hdf5", "w") as f:
+        f["davis/left/events"] = np.zeros((5, 3))
+    with pytest.raises(FormatError, match=r"m.hdf5.*shape \(5, 3\)"):
+        mvsec.read(tmp_path / "m.hdf5")

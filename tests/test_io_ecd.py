@@ -1,0 +1,129 @@
+"""ECD text events: numba parser vs a plain reference, real windows, round trip, errors."""
+
+from __future__ import annotations
+
+from decimal import ROUND_HALF_EVEN, Decimal
+
+import numpy as np
+import pytest
+
+from evmotion.errors import FormatError
+from evmotion.events import EventArray
+from evmotion.io import ecd
+
+SCENES = ["boxes_rotation", "boxes_translation", "dynamic_rotation", "dynamic_translation",
+          "poster_rotation", "poster_translation", "shapes_rotation", "shapes_translation"]
+
+
+def reference_parse(text: str):
+    """Plain-Python reference: decimal seconds to µs, rounded half-even on exact decimals."""
+    x, y, t, p = [], [], [], []
+    for line in text.splitlines():
+        parts = line.split()
+        if not parts:
+            continue
+        us = (Decimal(parts[0]) * 1_000_000).quantize(Decimal(1), rounding=ROUND_HALF_EVEN)
+        t.append(int(us))
+        x.append(int(parts[1]))
+        y.append(int(parts[2]))
+        p.append(int(parts[3]))
+    return (np.array(v, np.int64) for v in (x, y, t, p))
+
+
+def test_parser_matches_reference_on_real_window(shared_data):
+    path = shared_data / "ecd_rotation_windows" / "boxes_rotation" / "events.txt"
+    got = ecd.parse_text(path.read_bytes())
+    for g, r in zip(got, reference_parse(path.read_text()), strict=True):
+        np.testing.assert_array_equal(g, r)
+
+
+def test_parser_formats_and_rounding():
+    text = b"1 2 3 1\n0.5 4 5 0\r\n  2.0000015\t6\t7\t1\n\n3.123456789,8,9,0"
+    x, y, t, p = ecd.parse_text(text)
+    assert t.tolist() == [1_000_000, 500_000, 2_000_002, 3_123_457]
+    assert x.tolist() == [2, 4, 6, 8] and y.tolist() == [3, 5, 7, 9] and p.tolist() == [1, 0, 1, 0]
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_real_30k_windows(shared_data, scene):
+    ev = ecd.read(shared_data / "ecd_30k_windows" / scene)
+    assert len(ev) == 30_000
+    assert ev.sensor_size == (180, 240)
+    assert ev.x.dtype == np.uint16 and ev.t.dtype == np.int64
+    assert np.all(np.diff(ev.t) >= 0)
+
+
+def test_streaming_across_blocks_matches_whole(shared_data):
+    folder = shared_data / "ecd_30k_windows" / "poster_rotation"
+    whole = ecd.read(folder)
+    small = ecd.read(folder, block_bytes=1000)  # lines cut across many block edges
+    chunks = list(ecd.iter_chunks(folder, 7000, block_bytes=4096))
+    assert [len(c) for c in chunks] == [7000] * 4 + [2000]
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(small, k), getattr(whole, k))
+        np.testing.assert_array_equal(np.concatenate([getattr(c, k) for c in chunks]),
+                                      getattr(whole, k))
+
+
+def test_time_range_and_sensor_override(shared_data):
+    folder = shared_data / "ecd_30k_windows" / "boxes_rotation"
+    whole = ecd.read(folder)
+    t0, t1 = int(whole.t[1000]), int(whole.t[20000])
+    part = ecd.read(folder, t0=t0, t1=t1)
+    assert len(part) == len(whole.slice_time(t0, t1))
+    big = ecd.read(folder, sensor_size=(200, 300))
+    assert big.sensor_size == (200, 300) and big.meta["sensor_size_from"] == "given"
+
+
+def test_round_trip_bit_equal(tmp_path):
+    rng = np.random.default_rng(1)
+    n = 5000
+    ev = EventArray(x=rng.integers(0, 240, n), y=rng.integers(0, 180, n),
+                    t=np.sort(rng.integers(0, 10**10, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(180, 240))
+    ecd.write(tmp_path / "events.txt", ev)
+    back = ecd.read(tmp_path / "events.txt")
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(back, k), getattr(ev, k))
+
+
+def test_calibration(shared_data):
+    cal = ecd.read_calibration(shared_data / "ecd_rotation_windows" / "boxes_rotation")
+    assert cal["fx"] == pytest.approx(199.092366542)
+    assert cal["dist"] == pytest.approx([-0.368436311798, 0.150947243557, -0.000296130534385,
+                                         -0.000759431726241, 0.0])
+    assert cal["K"][0][2] == pytest.approx(132.192071378)
+
+
+def test_folder_extras(tmp_path):
+    (tmp_path / "events.txt").write_text("0.1 1 2 1\n0.2 3 4 0\n")
+    (tmp_path / "imu.txt").write_text("0.1 0 0 9.8 0.1 0.2 0.3\n0.2 0 0 9.8 0.1 0.2 0.3\n")
+    (tmp_path / "groundtruth.txt").write_text("0.1 1 2 3 0 0 0 1\n")
+    imu = ecd.read_imu(tmp_path)
+    assert imu["t"].tolist() == [100_000, 200_000] and imu["gyro"][0].tolist() == [0.1, 0.2, 0.3]
+    assert ecd.read_groundtruth(tmp_path)["quaternion"].tolist() == [[0, 0, 0, 1]]
+    d = ecd.describe(tmp_path)
+    assert d["imu"] == 2 and d["groundtruth"] == 1
+
+
+@pytest.mark.parametrize("text, match", [
+    ("0.1 1 2 1\n0.2 3 4\n", r"line 2 has 3 column\(s\)"),
+    ("0.1 1 2 1\n0.2 3 4 1 5\n", r"line 2 has 5 column"),
+    ("0.1 1 2 1\n0.1 1 2 1\n0.2 a 4 1\n", "line 3 is not"),
+    ("0.1 1 2 1\n0.2 300 4 1\n", "x=300.*outside the sensor"),
+    ("0.2 1 2 1\n0.1 3 4 1\n", "not sorted"),
+    ("0.1 1 2 7\n", "polarity p=7"),
+])
+def test_bad_input_errors_name_file_and_line(tmp_path, text, match):
+    path = tmp_path / "events.txt"
+    path.write_text(text)
+    with pytest.raises(FormatError, match=match) as info:
+        ecd.read(path)
+    assert "events.txt" in str(info.value)
+
+
+def test_truncated_last_line(tmp_path):
+    path = tmp_path / "events.txt"
+    path.write_text("0.1 1 2 1\n0.2 3")
+    with pytest.raises(FormatError, match="line 2 has 2 column"):
+        ecd.read(path)

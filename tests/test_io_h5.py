@@ -1,0 +1,119 @@
+"""evmotion's HDF5: round trip, appending in chunks, time index, extras, errors."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.events import EventArray
+from evmotion.io import h5
+
+
+def _events(n=20_000, seed=0, floats=False, size=(180, 240)):
+    rng = np.random.default_rng(seed)
+    h, w = size
+    x = rng.uniform(0, w - 1, n).astype(np.float32) if floats else rng.integers(0, w, n)
+    y = rng.uniform(0, h - 1, n).astype(np.float32) if floats else rng.integers(0, h, n)
+    t = 5_000_123 + np.sort(rng.integers(0, 3_000_000, n))
+    return EventArray(x=x, y=y, t=t, p=rng.integers(0, 2, n), sensor_size=size)
+
+
+def _same(a, b):
+    assert a.sensor_size == b.sensor_size
+    for k in "xytp":
+        assert getattr(a, k).dtype == getattr(b, k).dtype
+        np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
+
+
+@pytest.mark.parametrize("floats", [False, True])
+def test_round_trip_bit_equal(tmp_path, floats):
+    ev = _events(floats=floats)
+    h5.write(tmp_path / "a.h5", ev, provenance={"by": "test"}, calibration={"fx": 200.0})
+    back = h5.read(tmp_path / "a.h5")
+    _same(back, ev)
+    assert back.meta["provenance"] == {"by": "test"}
+    assert back.meta["calibration"] == {"fx": 200.0}
+
+
+def test_appending_chunks_equals_one_write(tmp_path):
+    ev = _events()
+    with h5.EventWriter(tmp_path / "c.h5", ev.sensor_size) as w:
+        for s in range(0, len(ev), 3001):
+            w.append(ev[s:s + 3001])
+        assert not (tmp_path / "c.h5").exists()  # atomic: only the .part until close
+    _same(h5.read(tmp_path / "c.h5"), ev)
+    chunks = list(h5.iter_chunks(tmp_path / "c.h5", 6000))
+    assert [len(c) for c in chunks] == [6000, 6000, 6000, 2000]
+
+
+def test_time_index_slices_match_reference(tmp_path):
+    ev = _events()
+    with h5.EventWriter(tmp_path / "c.h5", ev.sensor_size) as w:
+        for s in range(0, len(ev), 777):
+            w.append(ev[s:s + 777])
+    with h5py.File(tmp_path / "c.h5") as f:
+        ms = f["events/ms_to_idx"][:]
+        base = f.attrs["t_index0"]
+    ref = np.searchsorted(ev.t, base + 1000 * np.arange(ms.size - 1))
+    np.testing.assert_array_equal(ms[:-1], ref)
+    rng = np.random.default_rng(3)
+    for a, b in np.sort(rng.integers(ev.t[0] - 5000, ev.t[-1] + 5000, (50, 2)), axis=1):
+        got = h5.read(tmp_path / "c.h5", t0=int(a), t1=int(b))
+        _same(got, ev.slice_time(int(a), int(b)))
+
+
+def test_frames_imu_describe(tmp_path):
+    ev = _events(1000)
+    frames = {"t": np.array([5_000_000, 5_050_000]), "images": np.zeros((2, 180, 240), np.uint8)}
+    imu = {"t": np.arange(10) * 1000, "gyro": np.ones((10, 3)), "acc": np.zeros((10, 3))}
+    h5.write(tmp_path / "x.h5", ev, frames=frames, imu=imu)
+    d = h5.describe(tmp_path / "x.h5")
+    assert d["n_events"] == 1000 and d["frames"] == 2 and d["imu"] == 10
+    assert d["t_first_us"] == ev.t[0] and d["sensor_size"] == (180, 240)
+    assert h5.read_frames(tmp_path / "x.h5")["t"].tolist() == [5_000_000, 5_050_000]
+    np.testing.assert_array_equal(h5.read_imu(tmp_path / "x.h5")["gyro"], imu["gyro"])
+
+
+def test_writer_rejects_out_of_order_chunks(tmp_path):
+    ev = _events(1000)
+    with pytest.raises(ParameterError, match="before the previous chunk"):
+        with h5.EventWriter(tmp_path / "o.h5", ev.sensor_size) as w:
+            w.append(ev[500:])
+            w.append(ev[:500])
+    assert not (tmp_path / "o.h5").exists()
+    assert not list(tmp_path.iterdir())  # the partial file is removed too
+
+
+def test_missing_field_error(tmp_path):
+    with h5py.File(tmp_path / "bad.h5", "w") as f:
+        f.attrs["format"] = h5.FORMAT_NAME
+        f.attrs["height"], f.attrs["width"] = 10, 10
+        for k in "ytp":
+            f[f"events/{k}"] = np.zeros(3, np.int64)
+    with pytest.raises(FormatError, match=r"bad.h5.*'events/x'"):
+        h5.read(tmp_path / "bad.h5")
+
+
+def test_unsorted_and_off_sensor_errors(tmp_path):
+    with h5py.File(tmp_path / "u.h5", "w") as f:
+        f.attrs["format"] = h5.FORMAT_NAME
+        f.attrs["height"], f.attrs["width"] = 10, 10
+        f["events/x"] = np.array([1, 2, 3], np.uint16)
+        f["events/y"] = np.array([1, 2, 3], np.uint16)
+        f["events/t"] = np.array([5, 3, 9], np.int64)
+        f["events/p"] = np.array([0, 1, 0], np.uint8)
+    with pytest.raises(FormatError, match=r"u.h5.*not sorted"):
+        h5.read(tmp_path / "u.h5")
+    with h5py.File(tmp_path / "u.h5", "a") as f:
+        f["events/t"][...] = [1, 2, 3]
+        f["events/x"][...] = [1, 2, 30]
+    with pytest.raises(FormatError, match=r"x=30 outside the sensor"):
+        h5.read(tmp_path / "u.h5")
+
+
+def test_not_hdf5(tmp_path):
+    (tmp_path / "z.h5").write_bytes(b"hello")
+    with pytest.raises(FormatError, match="z.h5.*not a readable HDF5"):
+        h5.read(tmp_path / "z.h5")
