@@ -204,3 +204,31 @@ def test_resume_after_keyboard_interrupt(tmp_path):
     assert [r.cached for r in res] == [True, True, False, False, False]
     assert sorted(int(f.name.split("_")[1]) for f in calls.iterdir()) == [40_000, 60_000, 80_000]
     assert [r.value for r in res] == [len(ev.slice_time(a, b)) for a, b in WINDOWS]
+
+
+def test_workers_are_not_forked_from_a_threaded_process():
+    import threading
+
+    from evmotion.parallel import _process_context
+
+    if threading.active_count() == 1:
+        assert _process_context().get_start_method() in ("fork", "spawn")
+    stop = threading.Event()
+    th = threading.Thread(target=stop.wait)
+    th.start()
+    try:
+        assert _process_context().get_start_method() in ("forkserver", "spawn")
+    finally:
+        stop.set()
+        th.join()
+
+
+def test_caller_managed_executor_is_left_running():
+    from concurrent.futures import ThreadPoolExecutor
+
+    ev = _events()
+    with ThreadPoolExecutor(2) as pool:
+        a = map_windows(count_and_span, ev, WINDOWS, workers=2, executor=pool, progress=False)
+        b = map_windows(count_and_span, ev, WINDOWS, workers=2, executor=pool, progress=False)
+        assert pool.submit(int, "7").result() == 7
+    assert [r.value for r in a] == [r.value for r in b] == _expected(ev)

@@ -169,7 +169,7 @@ def map_windows(
         ``fn(events) -> value`` (or ``fn(events, t0_us, t1_us)`` with ``with_window``).
         For processes and Dask it must be picklable (a module-level function of an
         importable module, or a :func:`functools.partial` of one) and so must its return
-        value: worker processes start fresh (forkserver/spawn) and import it.
+        value (workers forked from a multi-threaded caller start clean and import it).
     source : path or EventArray
         A recording path: each worker reads its own window with
         ``evmotion.io.read_events(path, t0=, t1=, **read_kwargs)``. An EventArray: each
@@ -235,9 +235,10 @@ def map_windows(
                       for t in pending)
         else:
             stream = _run_local(fn, source, pending, workers, executor, with_window, read_kwargs)
-        bar = progress_bar(stream, total=len(pending), desc=desc or "windows", unit="win",
-                           disable=None if progress else True)
-        for res in bar:
+        if progress:
+            stream = progress_bar(stream, total=len(pending), desc=desc or "windows",
+                                  unit="win")
+        for res in stream:
             store.save(res)
             results[res.index] = res
     return [results[t.index] for t in tasks]
@@ -246,7 +247,8 @@ def map_windows(
 def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_window: bool,
                read_kwargs: dict) -> Iterator[WindowResult]:
     """Yield results as they complete, keeping at most ``2 * workers`` windows in flight so
-    that in-memory slices are not all pickled at once."""
+    that in-memory slices are not all pickled at once. The pool is made before the
+    progress bar exists, so its start method sees only the caller's own threads."""
     if isinstance(executor, cf.Executor):
         pool, owned = executor, False
     elif executor == "process":
@@ -257,7 +259,11 @@ def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_wind
     else:
         raise ParameterError(f"executor must be 'process', 'thread' or an Executor, "
                              f"got {executor!r}")
-    limit = 2 * workers
+    return _drain(pool, owned, fn, source, tasks, 2 * workers, with_window, read_kwargs)
+
+
+def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit: int,
+           with_window: bool, read_kwargs: dict) -> Iterator[WindowResult]:
     queue = iter(tasks)
     running: dict[cf.Future, _Task] = {}
     try:
@@ -283,12 +289,19 @@ def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_wind
 
 
 def _process_context():
-    """Fresh worker processes, never a fork of this one: forking a process that runs
-    threads (a Dask client, BLAS, a progress bar) can deadlock the child on a held lock."""
+    """Fork while this process runs a single thread (fast: workers inherit the imports
+    and compiled kernels); otherwise start clean workers, since forking a process with
+    other threads (a Dask client, a GUI) can deadlock the child on a lock held at fork."""
     import multiprocessing as mp
+    import threading
 
-    method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-    return mp.get_context(method)
+    methods = mp.get_all_start_methods()
+    # tqdm's monitor only sleeps and, rarely, takes tqdm's own lock, which workers do not use.
+    others = [t for t in threading.enumerate()
+              if t is not threading.main_thread() and t.name != "tqdm_monitor"]
+    if "fork" in methods and not others:
+        return mp.get_context("fork")
+    return mp.get_context("forkserver" if "forkserver" in methods else "spawn")
 
 
 def _future_result(fut, task: _Task) -> WindowResult:
