@@ -152,6 +152,14 @@ def test_rcad_map_rotation_and_general():
     span = dt.max() - dt.min()
     approx = 3 * span * (om[0] * yn - om[1] * xn)
     np.testing.assert_allclose(m, approx, atol=0.1 * np.abs(approx).max())
+    # the closed-form rotation map used by the penalty equals the generic area log-ratio
+    from evmotion.core.regularizers import _rcad_map_values
+
+    xs, ys = xx.ravel()[::7].astype(float), yy.ravel()[::7].astype(float)
+    a, ga = _rcad_map_values(w, xs, ys, 30 * om, -0.01, 0.03, True)
+    b, gb = w.area_log_ratio(xs, ys, -0.01, 0.03, 30 * om, grad=True)
+    np.testing.assert_allclose(a, b, atol=1e-12)
+    np.testing.assert_allclose(ga, gb, atol=1e-12)
     # the homography with a zero projective row has the affine closed form
     wa = make_warp("affine", (H, W))
     wh = make_warp("homography", (H, W))

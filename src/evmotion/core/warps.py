@@ -456,66 +456,106 @@ def _k_homography(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
 
 
 @njit(cache=True, error_model="numpy")
-def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
-    wx, wy, wz = w[0], w[1], w[2]
-    ww = wx * wx + wy * wy + wz * wz
-    # columns of omega^ and omega^2, for the left Jacobian of SO(3)
-    W1 = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
-    W2 = W1 @ W1
-    tm = _max_abs(dt)
-    if tm * tm * ww < 1.0:
-        _k_rotation_loop(x, y, dt, w, Kmat, Kinv, W1, W2, xw, yw, jx, jy, jac, True)
+def _rod_block(dt, k0, k1, ww, small, abuf, bbuf, cbuf):
+    if small:  # branch-free: SIMD
+        for k in range(k0, k1):
+            t = dt[k]
+            abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = _rod_coeffs(t * t * ww)
     else:
-        _k_rotation_loop(x, y, dt, w, Kmat, Kinv, W1, W2, xw, yw, jx, jy, jac, False)
+        for k in range(k0, k1):
+            t = dt[k]
+            z = t * t * ww
+            if z < 1.0:
+                abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = _rod_coeffs(z)
+            else:
+                abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = _rod_coeffs_exact(z)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20, i21, i22):
+    """Rodrigues rotation of K^-1 (x, y, 1) by t omega, with its projection."""
+    xn = i00 * x + i01 * y + i02
+    yn = i10 * x + i11 * y + i12
+    zn = i20 * x + i21 * y + i22
+    c1x = wy * zn - wz * yn
+    c1y = wz * xn - wx * zn
+    c1z = wx * yn - wy * xn
+    c2x = wy * c1z - wz * c1y
+    c2y = wz * c1x - wx * c1z
+    c2z = wx * c1y - wy * c1x
+    at = a * t
+    bt = b * t * t
+    q0 = xn + at * c1x + bt * c2x
+    q1 = yn + at * c1y + bt * c2y
+    q2 = zn + at * c1z + bt * c2z
+    iz = 1.0 / q2
+    return q0 * iz, q1 * iz, q0, q1, q2, iz
 
 
 @njit(cache=True, error_model="numpy")
-def _k_rotation_loop(x, y, dt, w, Kmat, Kinv, W1, W2, xw, yw, jx, jy, jac, small):
+def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
     wx, wy, wz = w[0], w[1], w[2]
     ww = wx * wx + wy * wy + wz * wz
-    for k in range(x.shape[0]):
-        t = dt[k]
-        z = t * t * ww
-        if small:
-            a, b, c = _rod_coeffs(z)
-        elif z < 1.0:
-            a, b, c = _rod_coeffs(z)
-        else:
-            a, b, c = _rod_coeffs_exact(z)
-        xn = Kinv[0, 0] * x[k] + Kinv[0, 1] * y[k] + Kinv[0, 2]
-        yn = Kinv[1, 0] * x[k] + Kinv[1, 1] * y[k] + Kinv[1, 2]
-        zn = Kinv[2, 0] * x[k] + Kinv[2, 1] * y[k] + Kinv[2, 2]
-        c1x = wy * zn - wz * yn
-        c1y = wz * xn - wx * zn
-        c1z = wx * yn - wy * xn
-        c2x = wy * c1z - wz * c1y
-        c2y = wz * c1x - wx * c1z
-        c2z = wx * c1y - wy * c1x
-        at = a * t
-        bt = b * t * t
-        q0 = xn + at * c1x + bt * c2x
-        q1 = yn + at * c1y + bt * c2y
-        q2 = zn + at * c1z + bt * c2z
-        iz = 1.0 / q2
-        X = q0 * iz
-        Y = q1 * iz
-        xw[k] = Kmat[0, 0] * X + Kmat[0, 1] * Y + Kmat[0, 2]
-        yw[k] = Kmat[1, 0] * X + Kmat[1, 1] * Y + Kmat[1, 2]
-        if jac:
-            # d(R v)/d(omega) = -t [R v]^ J_l(t omega)
-            bt1 = b * t
-            ct2 = c * t * t
+    tm = _max_abs(dt)
+    small = tm * tm * ww < 1.0
+    # the matrices as scalars: the output arrays might alias them, which would force reloads
+    k00, k01, k02, k10, k11, k12 = Kmat[0, 0], Kmat[0, 1], Kmat[0, 2], Kmat[1, 0], Kmat[1, 1], \
+        Kmat[1, 2]
+    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
+        Kinv[1, 2]
+    i20, i21, i22 = Kinv[2, 0], Kinv[2, 1], Kinv[2, 2]
+    abuf = np.empty(_BLOCK)
+    bbuf = np.empty(_BLOCK)
+    cbuf = np.empty(_BLOCK)
+    n = x.shape[0]
+    for k0 in range(0, n, _BLOCK):
+        k1 = min(k0 + _BLOCK, n)
+        _rod_block(dt, k0, k1, ww, small, abuf, bbuf, cbuf)
+        if not jac:
+            for k in range(k0, k1):
+                X, Y, _, _, _, _ = _rot_point(x[k], y[k], dt[k], abuf[k - k0], bbuf[k - k0],
+                                              wx, wy, wz, i00, i01, i02, i10, i11, i12, i20,
+                                              i21, i22)
+                xw[k] = k00 * X + k01 * Y + k02
+                yw[k] = k10 * X + k11 * Y + k12
+            continue
+        for k in range(k0, k1):
+            t = dt[k]
+            X, Y, q0, q1, q2, iz = _rot_point(x[k], y[k], t, abuf[k - k0], bbuf[k - k0],
+                                              wx, wy, wz, i00, i01, i02, i10, i11, i12, i20,
+                                              i21, i22)
+            xw[k] = k00 * X + k01 * Y + k02
+            yw[k] = k10 * X + k11 * Y + k12
+            # d(R v)/d(omega) = -t [R v]^ J_l(t omega),
+            # J_l = Id + b t omega^ + c t^2 (omega omega^T - |omega|^2 Id)
+            bt1 = bbuf[k - k0] * t
+            ct2 = cbuf[k - k0] * t * t
+            dg = 1.0 - ct2 * ww
             for j in range(3):
-                l0 = (1.0 if j == 0 else 0.0) + bt1 * W1[0, j] + ct2 * W2[0, j]
-                l1 = (1.0 if j == 1 else 0.0) + bt1 * W1[1, j] + ct2 * W2[1, j]
-                l2 = (1.0 if j == 2 else 0.0) + bt1 * W1[2, j] + ct2 * W2[2, j]
+                wj = w[j]
+                # column j of J_l
+                l0 = ct2 * wx * wj
+                l1 = ct2 * wy * wj
+                l2 = ct2 * wz * wj
+                if j == 0:
+                    l0 += dg
+                    l1 += bt1 * wz
+                    l2 -= bt1 * wy
+                elif j == 1:
+                    l0 -= bt1 * wz
+                    l1 += dg
+                    l2 += bt1 * wx
+                else:
+                    l0 += bt1 * wy
+                    l1 -= bt1 * wx
+                    l2 += dg
                 d0 = -t * (q1 * l2 - q2 * l1)
                 d1 = -t * (q2 * l0 - q0 * l2)
                 d2 = -t * (q0 * l1 - q1 * l0)
                 dX = (d0 - X * d2) * iz
                 dY = (d1 - Y * d2) * iz
-                jx[k, j] = Kmat[0, 0] * dX + Kmat[0, 1] * dY
-                jy[k, j] = Kmat[1, 0] * dX + Kmat[1, 1] * dY
+                jx[k, j] = k00 * dX + k01 * dY
+                jy[k, j] = k10 * dX + k11 * dY
 
 
 _EMPTY2 = np.zeros((0, 0))
