@@ -202,6 +202,10 @@ def test_bad_input_raises_clear_errors():
     m.process(EventArray([1], [1], [5], [1], (10, 10)))
     with pytest.raises(ParameterError, match="before the previous"):
         m.process(EventArray([1], [1], [4], [1], (10, 10)))
+    with pytest.raises(ParameterError, match="not sorted"):
+        m.process(EventArray([1, 1], [1, 1], [9, 8], [1, 1], (10, 10), validate=False))
+    with pytest.raises(ParameterError, match="x=12"):
+        m.process(EventArray([12], [1], [20], [1], (10, 10), validate=False))
     with pytest.raises(EmptyWindowError):
         estimate_flow_triplet(EventArray([], [], [], [], (10, 10)))
 

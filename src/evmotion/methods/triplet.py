@@ -193,7 +193,18 @@ class TripletMatcher:
         if self._t_last is not None and t[0] < self._t_last:
             raise ParameterError(f"chunk starts at t={int(t[0])} us, before the previous "
                                  f"chunk's last event at t={self._t_last} us (stream unsorted)")
+        # The kernel trusts these (rings are newest-first, indices unchecked): an unvalidated
+        # EventArray must not reach it unsorted or off-sensor.
+        if n > 1 and np.any(t[1:] < t[:-1]):
+            i = int(np.argmax(t[1:] < t[:-1]))
+            raise ParameterError(f"chunk timestamps are not sorted at event {i + 1} "
+                                 f"(t={int(t[i])} then {int(t[i + 1])} us)")
         x, y = _pixels(chunk.x, self.sensor_size[1]), _pixels(chunk.y, self.sensor_size[0])
+        for name, a, lim in (("x", x, self.sensor_size[1]), ("y", y, self.sensor_size[0])):
+            if a.min() < 0 or a.max() >= lim:
+                bad = int(np.argmax((a < 0) | (a >= lim)))
+                raise ParameterError(f"event {bad} has {name}={int(a[bad])} outside the sensor "
+                                     f"(height, width) = {self.sensor_size}")
         p = np.ascontiguousarray(chunk.p, dtype=np.uint8)
         if self._base is None:
             self._base = int(t[0])
@@ -359,7 +370,7 @@ class TripletBatchResult:
     windows : list of Window
         The windows, in order.
     events : TripletFlow
-        Per-event flow of every input event.
+        Per-event flow of the input events up to the end of the last window.
     overflow : int
         See :attr:`TripletMatcher.overflow`.
     """
