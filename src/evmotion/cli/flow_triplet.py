@@ -23,12 +23,13 @@ DEFAULT_WINDOW_US = 50_000
 def add_arguments(group) -> None:
     group.add_argument("--dx", type=float, default=float(np.sqrt(2.0)),
                        help="neighbourhood radius d_x in px (default sqrt(2))")
-    group.add_argument("--dt-ms", type=float, default=100.0, help="delay window d_t (ms)")
-    group.add_argument("--tau-ms", type=float, default=3.0, help="refractory period tau (ms)")
+    group.add_argument("--dt-ms", type=float, default=100.0, help="delay window d_t in ms (default 100)")
+    group.add_argument("--tau-ms", type=float, default=3.0, help="refractory period tau in ms (default 3)")
     group.add_argument("--quadruple", action="store_true",
                        help="match 4 aligned events instead of 3 (§5.3.5)")
     group.add_argument("--bins", type=int, default=1,
-                       help="time bins per window for the dense output (default 1)")
+                       help="time bins per window of the dense .h5 output (default 1; windows "
+                            f"default to {DEFAULT_WINDOW_US // 1000} ms); .npz is per event")
     group.add_argument("--chunk-events", type=int, default=1_000_000,
                        help="events read and processed at a time (default 1e6)")
     group.add_argument("--depth", type=int, default=8,
