@@ -172,3 +172,14 @@ def test_small_chunks_from_large_blocks(raw):
 def test_describe(raw):
     d = evt3.describe(raw)
     assert d["sensor_size"] == (720, 1280) and d["header"]["evt"] == "3.0"
+
+
+def test_wrong_format_is_refused(shared_data, raw):
+    from evmotion.io import evt2
+
+    with pytest.raises(FormatError, match="evt 3.0"):
+        evt3.read(shared_data / "formats" / "gen4.dat")
+    with pytest.raises(FormatError, match="'evt' is '3.0'"):
+        evt2.read(raw)
+    with pytest.raises(FormatError, match="event size"):
+        dat.read(raw)

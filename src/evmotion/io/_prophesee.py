@@ -24,12 +24,19 @@ def sniff_raw(head: bytes, version: str) -> bool:
                for line in text.split(b"\n"))
 
 
-def parse_raw_header(path: Path, sensor_size: tuple[int, int] | None
+def parse_raw_header(path: Path, sensor_size: tuple[int, int] | None,
+                     version: str | None = None
                      ) -> tuple[list[str], int, tuple[int, int], int]:
-    """(header lines, data offset, (height, width), time offset µs) of a RAW file."""
+    """(header lines, data offset, (height, width), time offset µs) of a RAW file.
+
+    With ``version`` ("2.0"/"3.0"), a header declaring another encoding raises
+    FormatError; EVT 3.0 must be declared, EVT 2.0 may be implicit (early Gen3 files).
+    """
     lines, offset = read_text_header(path, b"%", end_line=b"% end")
     if not lines:
         raise FormatError(path, "no '%' header at byte 0", "not a Prophesee RAW file")
+    if version is not None:
+        _check_version(path, header_dict(lines), version)
     size = sensor_size if sensor_size is not None else geometry_from_header(
         lines, path, default=plugin_geometry(lines))
     t_offset = 0
@@ -41,6 +48,20 @@ def parse_raw_header(path: Path, sensor_size: tuple[int, int] | None
             except (IndexError, ValueError):
                 raise FormatError(path, f"bad header line '{line}'") from None
     return lines, offset, size, t_offset
+
+
+def _check_version(path: Path, head: dict[str, str], version: str) -> None:
+    evt = head.get("evt")
+    fmt = head.get("format", "").split(";")[0].strip().upper()
+    want = f"EVT{version[0]}"
+    if evt is not None and evt != version:
+        raise FormatError(path, f"header field 'evt' is '{evt}', expected '{version}'",
+                          "use the reader for that encoding or let evmotion detect it")
+    if fmt and fmt != want:
+        raise FormatError(path, f"header field 'format' is '{fmt}', expected '{want}'")
+    if evt is None and not fmt and version != "2.0":
+        raise FormatError(path, f"the '%' header does not declare 'evt {version}'",
+                          "not an EVT 3.0 RAW file (a DAT file?)")
 
 
 # Sensor of the camera plugins whose RAW headers predate the ``geometry`` key.

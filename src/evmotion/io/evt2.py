@@ -116,7 +116,7 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     >>> ev = read("gen3.raw", sensor_size=(480, 640))  # doctest: +SKIP
     """
     path = Path(path)
-    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size)
+    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size, "2.0")
     _binary.trailing_partial(path, offset, 4)
     meta = {"source": str(path), "format": "evt2"}
     return _binary.collect(_blocks(path, offset, t_offset, block_bytes), size, meta, t0, t1,
@@ -129,7 +129,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     """Stream an EVT 2.0 file in EventArrays of ``chunk_events`` events."""
     chunk_events = _binary.check_chunk_events(chunk_events)
     path = Path(path)
-    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size)
+    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size, "2.0")
     _binary.trailing_partial(path, offset, 4)
     meta = {"source": str(path), "format": "evt2"}
     yield from _binary.rechunk(_blocks(path, offset, t_offset, block_bytes), chunk_events,

@@ -194,7 +194,7 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     >>> ev = read("recording.raw", t0=0, t1=100_000)  # doctest: +SKIP
     """
     path = Path(path)
-    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size)
+    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size, "3.0")
     _binary.trailing_partial(path, offset, 2)
     meta = {"source": str(path), "format": "evt3"}
     return _binary.collect(_blocks(path, offset, t_offset, block_bytes), size, meta, t0, t1,
@@ -214,7 +214,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     """
     chunk_events = _binary.check_chunk_events(chunk_events)
     path = Path(path)
-    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size)
+    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size, "3.0")
     _binary.trailing_partial(path, offset, 2)
     meta = {"source": str(path), "format": "evt3"}
     yield from _binary.rechunk(_blocks(path, offset, t_offset, block_bytes), chunk_events,
