@@ -80,6 +80,15 @@ def test_accepts_window_objects():
     assert [r.value for r in res] == [w.count for w in wins]
 
 
+def test_count_windows_keep_their_events_when_timestamps_repeat():
+    ev = EventArray(np.zeros(6, int), np.zeros(6, int), [0, 10, 10, 10, 20, 30],
+                    np.ones(6, int), sensor_size=(1, 1))
+    wins = ev.windows_by_count(2)
+    res = map_windows(count_and_span, ev, wins, progress=False)
+    assert [r.value for r in res] == [(2, 0, 10), (2, 10, 10), (2, 20, 30)] == [
+        count_and_span(ev.window(w)) for w in wins]
+
+
 @pytest.mark.parametrize("executor,workers", [("process", 1), ("process", 2)])
 def test_failing_window_reported_others_kept(executor, workers):
     ev = _events()
@@ -170,6 +179,8 @@ def test_bad_arguments():
         map_windows(len, ev, [(0, 10), (20, 5)])
     with pytest.raises(ParameterError, match="executor"):
         map_windows(len, ev, WINDOWS, workers=2, executor="gpu")
+    with pytest.raises(ParameterError, match="executor"):
+        map_windows(len, ev, WINDOWS, executor="procs")
 
 
 def test_window_result_ok():

@@ -66,13 +66,16 @@ class _Task:
     index: int
     t0: int
     t1: int
+    start: int | None = None
+    stop: int | None = None
 
 
 def _normalize_windows(windows: Iterable[Window | tuple[int, int]]) -> list[_Task]:
     tasks = []
     for k, w in enumerate(windows):
+        start = stop = None
         if isinstance(w, Window):
-            t0, t1 = w.t0, w.t1
+            t0, t1, start, stop = w.t0, w.t1, w.start, w.stop
         else:
             try:
                 t0, t1 = (int(v) for v in w)
@@ -82,7 +85,7 @@ def _normalize_windows(windows: Iterable[Window | tuple[int, int]]) -> list[_Tas
                 ) from exc
         if t1 < t0:
             raise ParameterError(f"windows[{k}] ends before it starts: t0={t0} > t1={t1} µs")
-        tasks.append(_Task(k, int(t0), int(t1)))
+        tasks.append(_Task(k, int(t0), int(t1), start, stop))
     return tasks
 
 
@@ -141,10 +144,15 @@ class _Store:
 
 
 def _payload(source: Any, task: _Task) -> Any:
-    """What a worker receives: the window's slice for in-memory events, else the path."""
-    if isinstance(source, EventArray):
-        return source.slice_time(task.t0, task.t1)
-    return source
+    """What a worker receives: the window's slice for in-memory events, else the path.
+
+    A :class:`Window` is cut by its index range, so count windows keep exactly their
+    events even where timestamps repeat across the boundary."""
+    if not isinstance(source, EventArray):
+        return source
+    if task.start is not None and 0 <= task.start <= task.stop <= len(source):
+        return source[task.start:task.stop]
+    return source.slice_time(task.t0, task.t1)
 
 
 def map_windows(
@@ -176,6 +184,8 @@ def map_windows(
         worker is sent only its window's slice.
     windows : sequence of Window or (t0, t1)
         Half-open time ranges ``[t0, t1)`` in µs (e.g. from ``EventArray.windows_by_*``).
+        With an EventArray source, Window objects (made from that array) select their
+        events by index range.
     workers : int
         Parallel workers for the local executor; 1 runs in this process (no pickling).
     executor : {"process", "thread"} or concurrent.futures.Executor
@@ -213,6 +223,9 @@ def map_windows(
     """
     if workers < 1:
         raise ParameterError(f"workers must be >= 1, got {workers}")
+    if isinstance(executor, str) and executor not in ("process", "thread"):
+        raise ParameterError(f"executor must be 'process', 'thread' or an Executor, "
+                             f"got {executor!r}")
     if not isinstance(source, EventArray):
         source = os.fspath(source)
     tasks = _normalize_windows(windows)
