@@ -107,3 +107,26 @@ def test_errors(full, tmp_path):
         aedat4.read(wrong)
     with pytest.raises(ParameterError):
         aedat4.write(tmp_path / "z.aedat4", aedat4.read(full, t1=0), compression="zip")
+
+
+def test_first_packet_matches_struct_reference(short):
+    import lz4.frame
+
+    data = short.read_bytes()
+    pos = 18 + struct.unpack_from("<i", data, 14)[0]
+    while True:
+        sid, size = struct.unpack_from("<ii", data, pos)
+        if sid == 0:
+            break
+        pos += 8 + size
+    buf = lz4.frame.decompress(data[pos + 8:pos + 8 + size])[4:]
+    table = struct.unpack_from("<I", buf, 0)[0]
+    vtable = table - struct.unpack_from("<i", buf, table)[0]
+    field = table + struct.unpack_from("<H", buf, vtable + 4)[0]
+    vec = field + struct.unpack_from("<I", buf, field)[0]
+    n = struct.unpack_from("<I", buf, vec)[0]
+    ref = [struct.unpack_from("<qhh?", buf, vec + 4 + 16 * i) for i in range(n)]
+    ev = aedat4.read(short)
+    got = list(zip(ev.t[:n].tolist(), ev.x[:n].tolist(), ev.y[:n].tolist(),
+                   (ev.p[:n] == 1).tolist(), strict=True))
+    assert got == ref

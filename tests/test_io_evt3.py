@@ -183,3 +183,13 @@ def test_wrong_format_is_refused(shared_data, raw):
         evt2.read(raw)
     with pytest.raises(FormatError, match="event size"):
         dat.read(raw)
+
+
+def test_writer_refuses_float_and_oversized(tmp_path):
+    fl = EventArray(x=[0.5], y=[1.0], t=[0], p=[1], sensor_size=(4, 4))
+    with pytest.raises(FormatError, match="float"):
+        evt3.write(tmp_path / "f.raw", fl)
+    big = EventArray(x=[3000], y=[1], t=[0], p=[1], sensor_size=(4, 4000))
+    with pytest.raises(FormatError, match="2048"):
+        evt3.write(tmp_path / "b.raw", big)
+    assert not (tmp_path / "b.raw").exists()
