@@ -47,7 +47,8 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
 
     Integer-valued coordinates become uint16; fractional ones (undistorted) float32.
     ``drop_outside`` drops events off the sensor (undistorted coordinates) instead of
-    raising; ``meta["dropped_outside"]`` counts them.
+    raising; ``meta["dropped_outside"]`` counts them. With ``validate=False`` they are kept
+    unchecked.
     """
     path = Path(path) if path is not None else None
     meta = dict(meta or {})
@@ -73,11 +74,12 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     inside = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
     if not inside.all():
         bad = int(np.argmax(~inside))
-        if not drop_outside:
+        if drop_outside:
+            meta["dropped_outside"] = int((~inside).sum())
+            x, y, t_us, p = x[inside], y[inside], t_us[inside], p[inside]
+        elif validate:
             raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]} lies outside the "
                               f"sensor {w}x{h} (W x H)", "pass sensor_size=(height, width)")
-        meta["dropped_outside"] = int((~inside).sum())
-        x, y, t_us, p = x[inside], y[inside], t_us[inside], p[inside]
     if frac:
         x, y = x.astype(np.float32), y.astype(np.float32)
     else:

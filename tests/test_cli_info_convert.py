@@ -1,0 +1,72 @@
+"""`evmotion info` and `evmotion convert` through the registry, on real and written files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import evmotion.io as eio
+from evmotion.cli import main
+
+
+def _run(capsys, *argv):
+    rc = main(list(argv))
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_info_ecd_folder_json(capsys, shared_data):
+    rc, out, _ = _run(capsys, "info", str(shared_data / "ecd_rotation_windows" /
+                                          "boxes_rotation"), "--json")
+    assert rc == 0
+    d = json.loads(out)
+    assert d["format"] == "ecd" and d["n_events"] == 30_000
+    assert d["sensor_size"] == [180, 240] and "calibration" in d
+    assert d["duration_s"] == pytest.approx((d["t_last_us"] - d["t_first_us"]) * 1e-6)
+
+
+def test_info_text(capsys, shared_data):
+    rc, out, _ = _run(capsys, "info", str(shared_data / "ecd_shapes_rotation_first120k" /
+                                          "shapes_rotation.mat"))
+    assert rc == 0
+    assert "events:      120,000" in out and "240 x 180" in out
+
+
+def test_convert_round_trips(tmp_path, capsys, shared_data):
+    src = shared_data / "ecd_30k_windows" / "shapes_translation"
+    ev = eio.read_events(src)
+    rc, out, _ = _run(capsys, "convert", str(src), str(tmp_path / "a.h5"), "--json",
+                      "--chunk-events", "7000")
+    assert rc == 0 and json.loads(out)["n_events"] == 30_000
+    rc, *_ = _run(capsys, "convert", str(tmp_path / "a.h5"), str(tmp_path / "b.txt"))
+    assert rc == 0
+    back = eio.read_events(tmp_path / "b.txt")
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(back, k), getattr(ev, k))
+    assert eio.read_calibration(tmp_path / "a.h5")["fx"] == pytest.approx(
+        eio.read_calibration(src)["fx"])
+
+
+def test_convert_time_range(tmp_path, capsys, shared_data):
+    src = shared_data / "ecd_30k_windows" / "boxes_translation"
+    ev = eio.read_events(src)
+    t0, t1 = int(ev.t[100]), int(ev.t[9000])
+    rc, *_ = _run(capsys, "convert", str(src), str(tmp_path / "c.npz"), "--t0", str(t0),
+                  "--t1", str(t1))
+    assert rc == 0
+    np.testing.assert_array_equal(eio.read_events(tmp_path / "c.npz").t,
+                                  ev.slice_time(t0, t1).t)
+
+
+def test_clear_errors(tmp_path, capsys):
+    rc, _, err = _run(capsys, "info", str(tmp_path / "missing.h5"))
+    assert rc == 2 and "missing.h5: no such file" in err and "Traceback" not in err
+    bad = tmp_path / "events.txt"
+    bad.write_text("0.1 1 2 1\n0.2 1 2\n")
+    rc, _, err = _run(capsys, "convert", str(bad), str(tmp_path / "o.h5"))
+    assert rc == 2 and "line 2 has 3 column" in err
+    assert not (tmp_path / "o.h5").exists()
+    rc, _, err = _run(capsys, "convert", str(bad), str(tmp_path / "o.xyz"))
+    assert rc == 2 and ".xyz" in err

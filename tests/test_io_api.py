@@ -1,0 +1,111 @@
+"""The evmotion.io API: detection by content, windows, atomic writes, describe, calibration."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import evmotion.io as eio
+from evmotion.errors import FormatError
+from evmotion.events import EventArray
+
+
+def _events(n=20_000, seed=0):
+    rng = np.random.default_rng(seed)
+    return EventArray(x=rng.integers(0, 240, n), y=rng.integers(0, 180, n),
+                      t=1_000_000 + np.sort(rng.integers(0, 500_000, n)),
+                      p=rng.integers(0, 2, n), sensor_size=(180, 240))
+
+
+def test_detection_is_by_content_not_extension(tmp_path, shared_data):
+    ecd_folder = shared_data / "ecd_30k_windows" / "boxes_rotation"
+    assert eio.detect_format(ecd_folder) == "ecd"
+    assert eio.detect_format(ecd_folder / "events.txt") == "ecd"
+    ev = _events(100)
+    eio.write_events(tmp_path / "a.h5", ev)
+    (tmp_path / "misnamed.txt").write_bytes((tmp_path / "a.h5").read_bytes())
+    assert eio.detect_format(tmp_path / "misnamed.txt") == "h5"
+    eio.write_events(tmp_path / "b.npz", ev)
+    assert eio.detect_format(tmp_path / "b.npz") == "npy"
+    (tmp_path / "junk.txt").write_text("hello world\n")
+    with pytest.raises(FormatError, match="junk.txt.*not recognised"):
+        eio.read_events(tmp_path / "junk.txt")
+    (tmp_path / "empty.h5").write_bytes(b"")
+    with pytest.raises(FormatError, match="empty"):
+        eio.detect_format(tmp_path / "empty.h5")
+
+
+def test_iter_events_windows_match_in_memory_windows(tmp_path):
+    ev = _events()
+    eio.write_events(tmp_path / "a.h5", ev)
+    got = list(eio.iter_events(tmp_path / "a.h5", 3000, window_us=25_000))
+    ref = list(ev.windows_by_duration(25_000))
+    assert len(got) == len(ref)
+    for g, w in zip(got, ref, strict=True):
+        np.testing.assert_array_equal(g.t, ev.window(w).t)
+        assert g.meta["window"] == (w.t0, w.t1)
+
+
+def test_iter_events_windows_keep_empty_ones(tmp_path):
+    ev = _events(10)
+    t = np.array([0, 1, 2, 50, 51, 200, 201, 202, 203, 204]) + 1000
+    ev = EventArray(x=ev.x, y=ev.y, t=t, p=ev.p, sensor_size=ev.sensor_size)
+    eio.write_events(tmp_path / "g.npz", ev)
+    got = list(eio.iter_events(tmp_path / "g.npz", 2, window_us=40))
+    assert [len(g) for g in got] == [3, 2, 0, 0, 0, 5]
+    assert [len(g) for g in eio.iter_events(tmp_path / "g.npz", 2, window_us=40,
+                                            drop_empty=True)] == [3, 2, 5]
+
+
+def test_iter_events_time_range_generic(tmp_path, shared_data):
+    folder = shared_data / "ecd_30k_windows" / "dynamic_rotation"
+    whole = eio.read_events(folder)
+    t0, t1 = int(whole.t[5000]), int(whole.t[25000])
+    parts = list(eio.iter_events(folder, 4000, t0=t0, t1=t1))
+    np.testing.assert_array_equal(np.concatenate([p.t for p in parts]),
+                                  whole.slice_time(t0, t1).t)
+    assert len(eio.read_events(folder, t0=t0, t1=t1)) == len(whole.slice_time(t0, t1))
+
+
+@pytest.mark.parametrize("ext", [".h5", ".txt", ".npz"])
+def test_write_events_streams_chunks_atomically(tmp_path, ext):
+    ev = _events()
+    chunks = (ev[s:s + 4000] for s in range(0, len(ev), 4000))
+    eio.write_events(tmp_path / f"out{ext}", chunks)
+    back = eio.read_events(tmp_path / f"out{ext}", sensor_size=(180, 240))
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(back, k), getattr(ev, k))
+
+    def failing():
+        yield ev[:100]
+        raise RuntimeError("disk on fire")
+
+    with pytest.raises(RuntimeError):
+        eio.write_events(tmp_path / f"fail{ext}", failing())
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith((".fail", "fail"))]
+
+
+def test_write_events_unknown_extension(tmp_path):
+    with pytest.raises(FormatError, match="extension '.xyz'"):
+        eio.write_events(tmp_path / "a.xyz", _events(10))
+
+
+def test_describe_and_calibration(tmp_path, shared_data):
+    folder = shared_data / "ecd_rotation_windows" / "poster_rotation"
+    d = eio.describe(folder, chunk_events=7000)
+    assert d["format"] == "ecd" and d["n_events"] == 30_000
+    assert d["sensor_size"] == (180, 240)
+    assert 0 < d["positive_fraction"] < 1 and d["rate_ev_per_s"] > 0
+    assert d["calibration"]["fx"] == pytest.approx(eio.read_calibration(folder)["fx"])
+    ev = eio.read_events(folder)
+    eio.write_events(tmp_path / "p.h5", ev, calibration=eio.read_calibration(folder))
+    assert eio.read_calibration(tmp_path / "p.h5")["dist"][0] == pytest.approx(-0.368436311798)
+    with pytest.raises(FormatError, match="no calibration"):
+        eio.read_calibration(shared_data / "ecd_shapes_rotation_first120k" /
+                             "shapes_rotation.mat")
+
+
+def test_public_api_from_package_root():
+    import evmotion
+
+    assert evmotion.read_events is eio.read_events

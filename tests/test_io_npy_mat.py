@@ -1,0 +1,103 @@
+"""npy/npz and MATLAB excerpts: real .mat files, structured/plain arrays, round trips."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import evmotion.io as eio
+from evmotion.errors import FormatError
+from evmotion.events import EventArray
+from evmotion.io import mat, npy
+
+
+def _events(n=3000, seed=0):
+    rng = np.random.default_rng(seed)
+    return EventArray(x=rng.integers(0, 240, n), y=rng.integers(0, 180, n),
+                      t=np.sort(rng.integers(10**6, 10**8, n)), p=rng.integers(0, 2, n),
+                      sensor_size=(180, 240))
+
+
+def test_mat_ecd_struct(shared_data):
+    path = shared_data / "ecd_shapes_rotation_first120k" / "shapes_rotation.mat"
+    assert eio.detect_format(path) == "mat"
+    ev = eio.read_events(path)
+    assert len(ev) == 120_000 and ev.meta["variable"] == "events.e_data"
+    assert ev.t[0] == 0 and ev.t[1] == 11 and ev.t[-1] == 1_428_658  # seconds -> µs
+    assert ev.x.dtype == np.uint16 and ev.sensor_size == (180, 240)
+
+
+def test_mat_undistorted_seq(shared_data):
+    path = shared_data / "ecd_dynamic_undistorted_excerpt" / "event.mat"
+    kept = mat.read(path)
+    assert kept.x.dtype == np.float32  # undistorted coordinates stay fractional
+    assert len(kept) + kept.meta["dropped_outside"] == 18_978
+    raw = mat.read(path, drop_outside=False, validate=False)
+    assert len(raw) == 18_978
+    with pytest.raises(FormatError, match="outside the sensor"):
+        mat.read(path, drop_outside=False)
+    assert raw.t[-1] == 9997  # µs already
+
+
+def test_mat_missing_variable(tmp_path):
+    import scipy.io
+
+    scipy.io.savemat(tmp_path / "m.mat", {"foo": np.zeros((2, 2))})
+    with pytest.raises(FormatError, match=r"m.mat.*no 4×N event array"):
+        mat.read(tmp_path / "m.mat")
+
+
+@pytest.mark.parametrize("name", ["a.npz", "a.npy"])
+def test_npy_round_trip_bit_equal(tmp_path, name):
+    ev = _events()
+    eio.write_events(tmp_path / name, ev)
+    back = eio.read_events(tmp_path / name, sensor_size=(180, 240))
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(back, k), getattr(ev, k))
+    assert back.sensor_size == (180, 240)
+
+
+def test_npz_keeps_sensor_size(tmp_path):
+    ev = _events()
+    npy.write(tmp_path / "a.npz", ev)
+    assert npy.read(tmp_path / "a.npz").sensor_size == (180, 240)
+
+
+def test_tonic_structured_and_size_inference(tmp_path):
+    from evmotion.events import TONIC_DTYPE
+
+    ev = _events()
+    arr = np.empty(len(ev), TONIC_DTYPE)
+    arr["x"], arr["y"], arr["t"], arr["p"] = ev.x, ev.y, ev.t, ev.p
+    np.save(tmp_path / "tonic.npy", arr)
+    back = npy.read(tmp_path / "tonic.npy")
+    np.testing.assert_array_equal(back.t, ev.t)
+    assert "max coordinate" in back.meta["sensor_size_from"]
+
+
+def test_plain_n_by_4(tmp_path):
+    ev = _events()
+    txyp = np.column_stack([ev.t * 1e-6, ev.x, ev.y, ev.p])
+    np.save(tmp_path / "p.npy", txyp)
+    back = npy.read(tmp_path / "p.npy", sensor_size=(180, 240))
+    np.testing.assert_array_equal(back.t, ev.t)
+    assert "inferred" in back.meta["columns"]
+    xytp = np.column_stack([ev.x, ev.y, ev.t, ev.p]).astype(np.int64)
+    np.save(tmp_path / "q.npy", xytp)
+    np.testing.assert_array_equal(npy.read(tmp_path / "q.npy", sensor_size=(180, 240)).x, ev.x)
+
+
+def test_npy_errors(tmp_path):
+    np.savez(tmp_path / "bad.npz", a=np.zeros(3))
+    with pytest.raises(FormatError, match=r"bad.npz.*lacks arrays x, y, t, p"):
+        npy.read(tmp_path / "bad.npz")
+    np.save(tmp_path / "bad.npy", np.zeros((5, 3)))
+    with pytest.raises(FormatError, match=r"bad.npy.*N×4"):
+        npy.read(tmp_path / "bad.npy")
+    np.savez(tmp_path / "u.npz", x=[1, 2], y=[1, 2], t=[5, 1], p=[0, 1])
+    with pytest.raises(FormatError, match=r"u.npz.*not sorted"):
+        npy.read(tmp_path / "u.npz")
+    np.savez(tmp_path / "o.npz", x=[1, 500], y=[1, 2], t=[1, 5], p=[0, 1],
+             sensor_size=[180, 240])
+    with pytest.raises(FormatError, match=r"o.npz.*x=500.*outside"):
+        npy.read(tmp_path / "o.npz")
