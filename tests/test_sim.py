@@ -14,6 +14,7 @@ from evmotion.sim.render import (
     render_log_numpy,
     sim_step,
     sim_step_numpy,
+    step_grid,
 )
 
 SMALL = (48, 64)
@@ -27,8 +28,8 @@ def _tiny_case(seed=0, refr=3, target=0.05):
     alphas = rng.uniform(0, 1, (2, th, tw)).astype(np.float32)
     origins = np.array([[-2.0, -2.5], [-1.0, -3.0]])
     span = 40
-    ts = np.arange(span + 1)
-    Mseq = np.zeros((span + 1, 2, 9))
+    ts = (step_grid(100, 100 + span) - 100).astype(float)
+    Mseq = np.zeros((ts.size, 2, 9))
     for k, (vx, vy, sc) in enumerate(((0.09, -0.05, 1e-3), (-0.12, 0.07, -2e-3))):
         Mseq[:, k] = np.array([1, 0, 0, 0, 1, 0, 0, 0, 1.0])
         Mseq[:, k, 0] = Mseq[:, k, 4] = 1 + sc * ts
@@ -97,9 +98,10 @@ def test_crossing_times_are_interpolated():
     """One pixel rising linearly by 1.0 over 1000 us with C = 0.3: events at ceil(k C)."""
     h, w = 1, 1
     tex = np.array([[0.0, 1.0], [0.0, 1.0]], np.float32)  # raster x -> log intensity = x
-    Mseq = np.zeros((1001, 1, 9))
+    grid = step_grid(0, 1000)
+    Mseq = np.zeros((grid.size, 1, 9))
     Mseq[:, 0] = [1, 0, 0, 0, 1, 0, 0, 0, 1.0]
-    Mseq[:, 0, 2] = np.arange(1001) / 1000.0  # sample point moves from x=0 to x=1
+    Mseq[:, 0, 2] = grid / 1000.0  # sample point moves from x=0 to x=1
     la = np.zeros((h, w), np.float32)
     lb = np.empty((h, w), np.float32)
     ref = np.zeros((h, w))

@@ -3,8 +3,8 @@
 The simulator advances in global steps ``(t_a, t_b]`` (integer microseconds) short enough
 that no texture point moves by more than about a pixel; :func:`sim_step` then renders the
 log intensity at ``t_b`` and, at every pixel whose log intensity changed by more than
-``target`` (a fraction of the threshold), re-samples that pixel at ``n`` evenly spaced
-intermediate microseconds, so that between consecutive samples of a pixel the change is
+``target`` (a fraction of the threshold), re-samples that pixel at ``n`` (a power of two
+up to 64) evenly spaced intermediate times of a fixed sub-step grid, so that between consecutive samples of a pixel the change is
 about ``target`` or less. Between samples log intensity is linear; a pixel fires an ON
 (OFF) event each time it rises (falls) by its threshold from its reference level, at the
 interpolated crossing time rounded up to the next microsecond, unless it is within the
@@ -20,8 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["pad_periodic", "render_log", "render_log_numpy", "sample_wrap_numpy", "sim_step",
-           "sim_step_numpy"]
+__all__ = ["MAX_SUBSAMPLES", "pad_periodic", "render_log", "render_log_numpy", "sample_wrap_numpy", "sim_step",
+           "sim_step_numpy", "step_grid"]
 
 MAX_SUBSAMPLES = 64
 
@@ -164,11 +164,12 @@ def _step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr
     for y in range(h):
         for x in range(w):
             a = np.float64(la[y, x])
-            b = _pixel(Mseq[span], texs, alphas, origins, x, y)
+            b = _pixel(Mseq[MAX_SUBSAMPLES], texs, alphas, origins, x, y)
             lb[y, x] = b
             ns = 1
-            if abs(b - a) > target:
-                ns = min(int(math.ceil(abs(b - a) / target)), MAX_SUBSAMPLES, span)
+            while ns < MAX_SUBSAMPLES and abs(b - a) > target * ns:
+                ns *= 2
+            stride = MAX_SUBSAMPLES // ns
             nsub_total += ns - 1
             r = ref[y, x]
             lt = last[y, x]
@@ -179,8 +180,8 @@ def _step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr
                     t1 = t_b
                     v1 = np.float64(lb[y, x])
                 else:
-                    t1 = t_a + (j * span) // ns
-                    v1 = _pixel(Mseq[t1 - t_a], texs, alphas, origins, x, y)
+                    t1 = t_a + (j * stride * span) // MAX_SUBSAMPLES
+                    v1 = _pixel(Mseq[j * stride], texs, alphas, origins, x, y)
                 if v1 - r >= cp[y, x]:
                     r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr, x, y,
                                       ex, ey, et, ep, n, cap)
@@ -194,14 +195,23 @@ def _step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr
     return n, nsub_total
 
 
+def step_grid(t_a: int, t_b: int) -> np.ndarray:
+    """The ``MAX_SUBSAMPLES + 1`` integer-µs times at which a step may sample a pixel:
+    ``t_a + floor(g (t_b - t_a) / MAX_SUBSAMPLES)``. A pixel is re-sampled at ``ns`` (a
+    power of two) evenly spaced points of this grid."""
+    g = np.arange(MAX_SUBSAMPLES + 1, dtype=np.int64)
+    return t_a + (g * (t_b - t_a)) // MAX_SUBSAMPLES
+
+
 def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t_b: int,
              refractory_us: int, target: float, ex, ey, et, ep) -> tuple[int, int]:
     """Advance the sensor from ``t_a`` to ``t_b`` (integer µs, ``t_b > t_a``).
 
     Parameters
     ----------
-    Mseq : ndarray (t_b - t_a + 1, L, 9) float64
-        Layer matrices (pixel -> reference pixel) at every microsecond of the step.
+    Mseq : ndarray (MAX_SUBSAMPLES + 1, L, 9) float64
+        Layer matrices (pixel -> reference pixel) at the sub-sample grid
+        ``step_grid(t_a, t_b)``.
     texs, alphas, origins
         As :func:`render_log`.
     la : ndarray (H, W) float32
@@ -259,12 +269,12 @@ def sim_step_numpy(Mseq, texs, alphas, origins, la, ref, cp, cn, last, t_a: int,
     ys, xs = np.mgrid[0:h, 0:w]
     xs, ys = xs.ravel(), ys.ravel()
     a0 = la.astype(np.float64).ravel()
-    lb = render_log_numpy(Mseq[span], texs, alphas, origins, xs, ys)
+    lb = render_log_numpy(Mseq[MAX_SUBSAMPLES], texs, alphas, origins, xs, ys)
     lb = lb.astype(np.float32).astype(np.float64)  # the kernel stores samples as float32
     ns = np.ones(h * w, dtype=np.int64)
-    big = np.abs(lb - a0) > target
-    ns[big] = np.minimum(np.minimum(np.ceil(np.abs(lb - a0)[big] / target), MAX_SUBSAMPLES),
-                         span).astype(np.int64)
+    for _ in range(int(np.log2(MAX_SUBSAMPLES))):
+        ns[np.abs(lb - a0) > target * ns] *= 2
+    stride = MAX_SUBSAMPLES // ns
     refv, lastv = ref.reshape(-1), last.reshape(-1)
     cpv, cnv = cp.reshape(-1), cn.reshape(-1)
     t0 = np.full(h * w, t_a, dtype=np.int64)
@@ -272,9 +282,10 @@ def sim_step_numpy(Mseq, texs, alphas, origins, la, ref, cp, cn, last, t_a: int,
     out: list = []
     for j in range(1, int(ns.max()) + 1):
         sel = np.nonzero(ns >= j)[0]
-        t1 = np.where(j == ns[sel], t_b, t_a + (j * span) // ns[sel])
+        g = j * stride[sel]
+        t1 = np.where(j == ns[sel], t_b, t_a + (g * span) // MAX_SUBSAMPLES)
         v1 = np.where(j == ns[sel], lb[sel],
-                      render_log_numpy(Mseq[t1 - t_a].transpose(1, 0, 2),
+                      render_log_numpy(Mseq[g].transpose(1, 0, 2),
                                        texs, alphas, origins, xs[sel], ys[sel]))
         r, lt = refv[sel].copy(), lastv[sel].copy()
         on = v1 - r >= cpv[sel]

@@ -14,7 +14,13 @@ from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
-from evmotion.sim.render import pad_periodic, render_log, sim_step, sim_step_numpy
+from evmotion.sim.render import (
+    pad_periodic,
+    render_log,
+    sim_step,
+    sim_step_numpy,
+    step_grid,
+)
 from evmotion.sim.scenes import SCENES, default_K, resolve_params
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
 from evmotion.utils import progress
@@ -243,7 +249,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
                                          else np.ones(t.shape, np.float32)) for t in texs])
     origins = np.array([t.origin for t in texs], dtype=np.float64)
     def mats(t0_us, t1_us):
-        ts = np.arange(t0_us, t1_us + 1) * 1e-6
+        ts = step_grid(t0_us, t1_us) * 1e-6
         return np.ascontiguousarray(np.stack(
             [layer.motion.matrices(ts).reshape(-1, 9) for layer in layers], axis=1))
 
