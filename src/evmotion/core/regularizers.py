@@ -208,34 +208,57 @@ def _prepare(warp, x, y, dt, theta, shape, xw, yw, jx, jy, need_jac):
     return x, y, dt, th, xw, yw, jx, jy
 
 
-def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw, kernel):
+@njit(cache=True, error_model="numpy")
+def _trim_pass(cnt, num, margin, mean, gS, gN):
+    """Per-pixel mean num/cnt (0 where empty) and the adjoint images of
+    R = -(1/n) sum_{mean < margin} num/cnt. Returns (R, n)."""
+    h, w = cnt.shape
+    total = 0.0
+    n_sel = 0
+    for i in range(h):
+        for j in range(w):
+            c = cnt[i, j]
+            m = num[i, j] / c if c > _MIN_COUNT else 0.0
+            mean[i, j] = m
+            if c > _MIN_COUNT and m < margin:
+                total += m
+                n_sel += 1
+                gS[i, j] = 1.0 / c
+                gN[i, j] = -m / c
+            else:
+                gS[i, j] = 0.0
+                gN[i, j] = 0.0
+    if n_sel == 0:
+        return 0.0, 0
+    f = -1.0 / n_sel
+    for i in range(h):
+        for j in range(w):
+            gS[i, j] *= f
+            gN[i, j] *= f
+    return total * f, n_sel
+
+
+def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw, kernel, margin=-np.inf):
     d, dd = _event_values(kind, warp, x, y, dt, th)
     cnt = accumulate(xw, yw, shape, kernel=kernel)
     num = accumulate(xw, yw, shape, weights=d, kernel=kernel)
-    mean = np.zeros(cnt.shape)
-    support = cnt > _MIN_COUNT
-    mean[support] = num[support] / cnt[support]
-    return d, dd, cnt, mean, support
+    mean, gS, gN = np.empty(cnt.shape), np.empty(cnt.shape), np.empty(cnt.shape)
+    value, n_sel = _trim_pass(cnt, num, margin, mean, gS, gN)
+    return d, dd, cnt, mean, value, n_sel, gS, gN
 
 
 def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, margin, kernel,
                         grad=True):
     x, y, dt, th, xw, yw, jx, jy = _prepare(warp, x, y, dt, theta, shape, xw, yw, jx, jy, grad)
-    d, dd, cnt, mean, support = _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw, kernel)
     # deformation's map is 1 + mean: its margin on `mean` is margin - 1
     m = margin - 1.0 if kind == "deformation" else margin
-    sel = support & (mean < m)
-    n_sel = int(np.count_nonzero(sel))
+    # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
+    d, dd, cnt, mean, value, n_sel, gS, gN = _pixel_average(kind, warp, x, y, dt, th, shape,
+                                                            xw, yw, kernel, m)
     if n_sel == 0:
         return 0.0, np.zeros(warp.n_params)
-    value = -float(mean[sel].sum()) / n_sel
     if not grad:
         return value, None
-    # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
-    gS = np.zeros(cnt.shape)
-    gS[sel] = -1.0 / (n_sel * cnt[sel])
-    gN = np.zeros(cnt.shape)
-    gN[sel] = mean[sel] / (n_sel * cnt[sel])
     gx1, gy1 = accumulate_backward(xw, yw, shape, gS, weights=d, kernel=kernel)
     gx2, gy2 = accumulate_backward(xw, yw, shape, gN, kernel=kernel)
     gd = np.empty(x.shape[0])
@@ -464,7 +487,8 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
                                    th).reshape(shape)
         return {"rcad": vals, "trimmed": vals > m}
     xw, yw = warp.warp(x, y, dt, th)
-    _, _, cnt, mean, support = _pixel_average(name, warp, x, y, dt, th, shape, xw, yw, kernel)
+    _, _, cnt, mean, _, _, _, _ = _pixel_average(name, warp, x, y, dt, th, shape, xw, yw, kernel)
+    support = cnt > _MIN_COUNT
     if name == "divergence":
         return {"diwe": mean, "count": cnt, "trimmed": support & (mean < m)}
     iwa = 1.0 + mean

@@ -56,6 +56,7 @@ Examples
 
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import dataclass
 
@@ -558,6 +559,60 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
                 jy[k, j] = k10 * dX + k11 * dY
 
 
+@njit(cache=True, error_model="numpy")
+def _k_rot_divdet(x, y, dt, w, Kinv, div, det):
+    """Divergence (3.23 at any dt) and det J (3.24) of the rotation warp, in complex
+    arithmetic so that a complex omega gives exact complex-step parameter derivatives.
+    Both are invariant under the affine map K, so they are computed in normalized
+    coordinates: M = R(dt omega), dM/dt = omega^ R."""
+    wx, wy, wz = w[0], w[1], w[2]
+    ww = wx * wx + wy * wy + wz * wz
+    for k in range(x.shape[0]):
+        t = dt[k]
+        z = t * t * ww
+        if abs(z) < 1.0:
+            a, b, _ = _rod_coeffs(z)
+        else:
+            ang = cmath.sqrt(z)
+            a = cmath.sin(ang) / ang
+            b = (1.0 - cmath.cos(ang)) / z
+        at = a * t
+        bt = b * t * t
+        xn = Kinv[0, 0] * x[k] + Kinv[0, 1] * y[k] + Kinv[0, 2]
+        yn = Kinv[1, 0] * x[k] + Kinv[1, 1] * y[k] + Kinv[1, 2]
+        # R = Id + at omega^ + bt (omega omega^T - |omega|^2 Id)
+        r00 = 1.0 + bt * (wx * wx - ww)
+        r11 = 1.0 + bt * (wy * wy - ww)
+        r22 = 1.0 + bt * (wz * wz - ww)
+        r01 = -at * wz + bt * wx * wy
+        r10 = at * wz + bt * wx * wy
+        r02 = at * wy + bt * wx * wz
+        r20 = -at * wy + bt * wx * wz
+        r12 = -at * wx + bt * wy * wz
+        r21 = at * wx + bt * wy * wz
+        q0 = r00 * xn + r01 * yn + r02
+        q1 = r10 * xn + r11 * yn + r12
+        q2 = r20 * xn + r21 * yn + r22
+        # p = omega x q; b_i = omega x (column i of R)
+        p0 = wy * q2 - wz * q1
+        p1 = wz * q0 - wx * q2
+        p2 = wx * q1 - wy * q0
+        iq = 1.0 / q2
+        iq2 = iq * iq
+        # column 0
+        b00 = wy * r20 - wz * r10
+        b20 = wx * r10 - wy * r00
+        d = (b00 * iq - (p0 * r20 + r00 * p2 + q0 * b20) * iq2
+             + 2.0 * q0 * p2 * r20 * iq2 * iq)
+        # column 1
+        b11 = wz * r01 - wx * r21
+        b21 = wx * r11 - wy * r01
+        d += (b11 * iq - (p1 * r21 + r11 * p2 + q1 * b21) * iq2
+              + 2.0 * q1 * p2 * r21 * iq2 * iq)
+        div[k] = d
+        det[k] = iq2 * iq
+
+
 _EMPTY2 = np.zeros((0, 0))
 
 
@@ -976,6 +1031,19 @@ class RotationWarp(Warp):
 
     def _conj(self):
         return self.K, self._kinv
+
+    def _divdet(self, x, y, dt, th):
+        n = x.shape[0]
+        div = np.empty(n, dtype=np.complex128)
+        det = np.empty(n, dtype=np.complex128)
+        _k_rot_divdet(x, y, dt, th.astype(np.complex128), self._kinv, div, det)
+        return div, det
+
+    def _div(self, x, y, dt, th):
+        return self._divdet(x, y, dt, th)[0]
+
+    def _det(self, x, y, dt, th):
+        return self._divdet(x, y, dt, th)[1]
 
     def _mats_c(self, dt, th):
         r = dt[:, None] * th[None, :]
