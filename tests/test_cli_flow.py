@@ -86,3 +86,15 @@ def test_bad_output_extension_is_a_clear_error(recording, tmp_path, capsys):
     rc = main(["flow", str(path), "--method", "multicm", "--out", str(tmp_path / "f.txt")])
     assert rc == 2
     assert "multicm method writes" in capsys.readouterr().err
+
+
+def test_workers_split_windows_in_chunks(recording, tmp_path, capsys):
+    path, _ = recording
+    out = tmp_path / "f.npy"
+    rc, text = _run(["flow", str(path), "--method", "multicm", "--window-events", "4000",
+                     "--scales", "2", "--workers", "2", "--out", str(out), "--json"], capsys)
+    assert rc == 0
+    flow = np.load(out)
+    assert flow.shape == (4, 90, 120, 2)
+    assert json.loads(text)["n_windows"] == 4
+    assert np.median(flow[..., 0]) == pytest.approx(FLOW[0], rel=0.2)
