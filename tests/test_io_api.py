@@ -109,3 +109,13 @@ def test_public_api_from_package_root():
     import evmotion
 
     assert evmotion.read_events is eio.read_events
+
+
+def test_write_events_free_metadata(tmp_path):
+    ev = _events(100)
+    eio.write_events(tmp_path / "m.h5", ev, simulator_scene="rotation", simulator_seed=3)
+    assert eio.read_events(tmp_path / "m.h5").meta["provenance"] == {
+        "simulator_scene": "rotation", "simulator_seed": 3}
+    with pytest.warns(UserWarning, match="simulator_seed"):
+        eio.write_events(tmp_path / "m.npz", ev, simulator_seed=3)
+    assert len(eio.read_events(tmp_path / "m.npz")) == 100

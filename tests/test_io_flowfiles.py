@@ -142,3 +142,23 @@ def test_gt_group_in_events_file(tmp_path):
     gt = ff.read_gt_flow(tmp_path / "sim.h5")
     np.testing.assert_array_equal(gt.flow, flow)
     assert gt.t1.tolist() == [1, 2, 3]
+
+
+def test_simulator_ground_truth_layout(tmp_path):
+    flow = np.stack([_flow(seed=i) for i in range(3)])
+    masks = np.zeros((2, 6, 7), bool)
+    masks[1, 2, 3] = True
+    with h5py.File(tmp_path / "sim_gt.h5", "w") as f:
+        f.attrs["format"] = "evmotion-sim-gt"
+        f["frame_times_us"] = np.array([0, 10_000, 20_000])
+        f["flow"] = flow
+        f["event_masks"] = masks
+    gt = ff.read_gt_flow(tmp_path / "sim_gt.h5")
+    assert gt.t0.tolist() == [0, 10_000] and gt.t1.tolist() == [10_000, 20_000]
+    np.testing.assert_array_equal(gt.flow, flow[:2])
+    np.testing.assert_array_equal(gt.valid, masks)
+    # An events file without GT of its own: the simulator's <stem>_gt.h5 beside it.
+    with h5py.File(tmp_path / "ev.h5", "w") as f:
+        f["events/t"] = np.zeros(1)
+    (tmp_path / "ev_gt.h5").write_bytes((tmp_path / "sim_gt.h5").read_bytes())
+    np.testing.assert_array_equal(ff.read_gt_flow(tmp_path / "ev.h5").flow, flow[:2])

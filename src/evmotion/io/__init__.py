@@ -19,6 +19,7 @@ from __future__ import annotations
 import inspect
 import json
 import os
+import warnings
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -238,7 +239,9 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
     format : str, optional
         Format name, overriding the extension.
     **meta
-        Writer options, e.g. ``provenance={...}``, ``calibration={...}`` for ``h5``.
+        Writer options (e.g. ``calibration={...}`` for ``h5``); any other keyword is
+        metadata, stored in the ``h5`` provenance attribute (other formats cannot store
+        it and warn).
 
     Examples
     --------
@@ -251,7 +254,23 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
                           "write .h5, .txt, .npz or another writable format")
     if not isinstance(events, EventArray) and name not in _STREAMING_WRITERS:
         events = concatenate(list(events))
-    spec.write(Path(path), events, **meta)
+    opts, extra = {}, {}
+    for k, v in meta.items():
+        (opts if _accepts_named(spec.write, k) else extra)[k] = v
+    if extra:
+        if _accepts_named(spec.write, "provenance"):
+            opts["provenance"] = {**(opts.get("provenance") or {}), **extra}
+        else:
+            warnings.warn(f"format '{name}' cannot store metadata {sorted(extra)}; "
+                          "write .h5 to keep it", stacklevel=2)
+    spec.write(Path(path), events, **opts)
+
+
+def _accepts_named(fn, name: str) -> bool:
+    try:
+        return name in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
 
 
 def read_calibration(path: str | os.PathLike) -> dict:

@@ -49,6 +49,7 @@ __all__ = [
 FLO_MAGIC = 202021.25
 FLOW_FORMAT = "evmotion-flow"
 FLOW_VERSION = 1
+SIM_GT_FORMAT = "evmotion-sim-gt"
 
 
 @dataclass(frozen=True)
@@ -436,8 +437,9 @@ def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> F
     Parameters
     ----------
     path : path-like
-        A file written by :class:`FlowWriter` (a ``.part`` file too), or an evmotion
-        events file with a ``ground_truth/flow`` group.
+        A file written by :class:`FlowWriter` (a ``.part`` file too), simulator ground
+        truth (``*_gt.h5``, or an events file with a ``ground_truth`` group or such a
+        file beside it).
     index : int or slice, optional
         Which windows (default all complete windows).
 
@@ -457,10 +459,40 @@ def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> F
     with f:
         if f.attrs.get("format") == FLOW_FORMAT:
             return read_flow_group(f, path, index)
-        if "ground_truth/flow" in f:
-            return read_flow_group(f["ground_truth/flow"], path, index)
-        raise FormatError(path, "no flow: neither an evmotion flow file (attribute "
-                          "format='evmotion-flow') nor a 'ground_truth/flow' group")
+        if f.attrs.get("format") == SIM_GT_FORMAT:
+            return _read_sim_gt(f, path, index)
+        if "ground_truth" in f:
+            g = f["ground_truth"]
+            if g.attrs.get("format") == SIM_GT_FORMAT:
+                return _read_sim_gt(g, path, index)
+            if "flow" in g:
+                return read_flow_group(g["flow"], path, index)
+    beside = path.with_name(path.stem + "_gt.h5")
+    if beside.exists():
+        return read_flow_h5(beside, index)
+    raise FormatError(path, "no flow: neither an evmotion flow file (attribute "
+                      "format='evmotion-flow'), simulator ground truth, a 'ground_truth' "
+                      f"group, nor a {beside.name} beside it")
+
+
+def _read_sim_gt(g, path: Path, index) -> FlowSequence:
+    # The simulator stores instantaneous flow at frame times; window i is
+    # [frame_i, frame_i+1) with the flow at its start and the event mask as valid.
+    for name in ("flow", "frame_times_us"):
+        if name not in g:
+            raise FormatError(path, f"simulator ground truth lacks dataset '{g.name}/{name}'")
+    ft = g["frame_times_us"][:].astype(np.int64)
+    n = max(0, ft.size - 1)
+    idx = np.arange(n)[slice(None) if index is None else index]
+    idx = np.atleast_1d(idx)
+    flow = np.stack([g["flow"][int(i)] for i in idx]) if idx.size else \
+        np.zeros((0, *g["flow"].shape[1:]), np.float32)
+    valid = None
+    if "event_masks" in g and g["event_masks"].shape[0] == n:
+        valid = np.stack([g["event_masks"][int(i)] for i in idx]) if idx.size else None
+    attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in g.attrs.items()}
+    return FlowSequence(flow=flow.astype(np.float32), t0=ft[idx], t1=ft[idx + 1], valid=valid,
+                        attrs=attrs)
 
 
 def flow_h5_done(path: str | os.PathLike) -> int:
