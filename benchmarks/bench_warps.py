@@ -82,7 +82,7 @@ def _bench_size(n: int, repeat: int) -> list[dict]:
                      "warp_ms": t_w["median_s"] * 1e3,
                      "warp+jac_ms": t_wj["median_s"] * 1e3,
                      "ns/event": t_wj["median_s"] * 1e9 / n})
-    for name in ("zoom", "rotation", "similarity", "homography"):
+    for name in ("zoom", "rotation", "inplane", "similarity", "homography"):
         w = make_warp(name, (H, W), K=K)
         th = np.array(THETA[name])
         P = w.n_params
@@ -94,10 +94,13 @@ def _bench_size(n: int, repeat: int) -> list[dict]:
                      "dof": P, "ms": ref * 1e3, "vs_objective_%": 100.0})
         xw, yw, jx, jy = bufs[:4]
         for reg in ("rcad", "divergence", "deformation"):
+            generic = name == "homography" and reg != "rcad"  # numpy complex-step path
+            if generic and n > 30_000:
+                continue
             t = harness.timeit(
                 lambda w=w, th=th, reg=reg, xw=xw, yw=yw, jx=jx, jy=jy: regularizer_value_grad(
                     reg, w, x, y, dt, th, (H, W), xw, yw, jx=jx, jy=jy),
-                repeat=repeat)["median_s"]
+                repeat=3 if generic else repeat)["median_s"]
             rows.append({"what": f"regularizer {reg} ({name}) value+grad", "events": n,
                          "dof": P, "ms": t * 1e3, "vs_objective_%": 100.0 * t / ref})
     return rows

@@ -336,6 +336,11 @@ def test_bad_input_errors():
         w.warp(x, y, dt, np.array([0, 0, np.nan, 0]))
     with pytest.raises(ParameterError, match="equal length"):
         w.warp(x, y[:2], dt, np.zeros(4))
+    out = np.empty(4)
+    with pytest.raises(ParameterError, match="'x' must be a C-contiguous float64"):
+        w.warp_into(x.astype(np.float32), y, dt, np.zeros(4), out, out.copy())
+    with pytest.raises(ParameterError, match="'jy'"):
+        w.warp_into(x, y, dt, np.zeros(4), out, out.copy(), np.empty((4, 4)), np.empty((4, 3)))
 
 
 def test_rotation_sign_convention_on_real_data(shared_data):

@@ -720,7 +720,21 @@ class Warp:
         ``jx, jy`` (N, P); all float64 C-contiguous. Inputs must be float64 contiguous."""
         th = self._theta(theta)
         jac = jx is not None
-        if not jac:
+        n = np.shape(x)[0] if np.ndim(x) == 1 else -1
+        for nm, a in (("x", x), ("y", y), ("dt", dt), ("xw", xw), ("yw", yw)):
+            if not (isinstance(a, np.ndarray) and a.dtype == np.float64 and a.shape == (n,)
+                    and a.flags.c_contiguous):
+                raise ParameterError(f"warp_into: '{nm}' must be a C-contiguous float64 array "
+                                     f"of shape (N,) like x, got {getattr(a, 'dtype', type(a))} "
+                                     f"{np.shape(a)}")
+        if jac:
+            for nm, a in (("jx", jx), ("jy", jy)):
+                if not (isinstance(a, np.ndarray) and a.dtype == np.float64
+                        and a.shape == (n, self.n_params) and a.flags.c_contiguous):
+                    raise ParameterError(f"warp_into: '{nm}' must be a C-contiguous float64 "
+                                         f"array of shape ({n}, {self.n_params}), got "
+                                         f"{np.shape(a)}")
+        else:
             jx = jy = _EMPTY2
         self._kernel(x, y, dt, th, xw, yw, jx, jy, jac)
 
