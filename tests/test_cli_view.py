@@ -30,13 +30,14 @@ def fake_reader(monkeypatch):
         calls.append(("read", path, format, t0, t1))
         return ev.slice_time(t0, t1)
 
-    def iter_events(path, chunk_events, format=None):
-        calls.append(("iter", path, format, chunk_events))
-        for s in range(0, len(ev), chunk_events):
-            yield ev[s:s + chunk_events]
+    def iter_events(path, chunk_events, format=None, t0=None, t1=None):
+        calls.append(("iter", path, format, chunk_events, t0, t1))
+        sl = ev.slice_time(t0, t1)
+        for s in range(0, len(sl), chunk_events):
+            yield sl[s:s + chunk_events]
 
-    monkeypatch.setattr(eio, "read_events", read_events, raising=False)
-    monkeypatch.setattr(eio, "iter_events", iter_events, raising=False)
+    monkeypatch.setattr(eio, "read_events", read_events)
+    monkeypatch.setattr(eio, "iter_events", iter_events)
     return ev, calls
 
 
@@ -69,7 +70,7 @@ def test_count_window_streams_and_polarity(fake_reader, tmp_path, capsys):
     img = read_png(out)
     ref = iwe_to_rgb(event_histogram(sl, signed=True), polarity=True)
     np.testing.assert_array_equal(img[::2, ::2], ref)
-    assert calls[0][0] == "iter"
+    assert calls[0][0] == "iter" and calls[0][4:] == (1_010_000, None)
     # Red and blue both appear: positive and negative pixels.
     assert ((img[..., 0] > 200) & (img[..., 2] < 100)).any()
     assert ((img[..., 2] > 200) & (img[..., 0] < 100)).any()
@@ -89,12 +90,10 @@ def test_errors_are_reported_without_traceback(fake_reader, tmp_path, capsys):
 @pytest.mark.realdata
 @pytest.mark.parametrize("rel,size", [
     ("formats/davis346_short.aedat4", (260, 346)),
-    ("formats/evt2.raw", (720, 1280)),
+    ("formats/evt2.raw", (480, 640)),  # Gen3 sensor (header: hal_plugin_gen3)
     ("ecd_rotation_windows/poster_rotation/events.txt", (180, 240)),
 ])
 def test_real_recording(shared_data, tmp_path, capsys, rel, size):
-    if not hasattr(eio, "read_events"):
-        pytest.skip("evmotion.io.read_events is not available yet")
     from evmotion.errors import FormatError
     from evmotion.io.registry import detect_format
 
@@ -111,3 +110,9 @@ def test_real_recording(shared_data, tmp_path, capsys, rel, size):
     assert summary["sensor_size"] == {"height": size[0], "width": size[1]}
     assert read_png(out).shape == size + (3,)
     assert summary["pixels_with_events"] > 500
+
+
+def test_missing_file_is_a_clear_error(tmp_path, capsys):
+    assert main(["view", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "a.png")]) == 2
+    err = capsys.readouterr().err
+    assert "missing.h5" in err and "Traceback" not in err

@@ -46,36 +46,23 @@ def add_parser(sub) -> None:
 
 
 def _read_slice(path: str, fmt: str | None, t0: int | None, t1: int | None, n: int | None):
-    """Events of ``[t0, t1)``, cut to the first ``n``; streams when the reader can so that
-    a count window does not load the whole file."""
+    """Events of ``[t0, t1)``, cut to the first ``n``; a count window is streamed so that
+    it does not load the whole file."""
     import evmotion.io as eio
-    from evmotion.errors import ParameterError
     from evmotion.events import concatenate
 
-    kw = {"format": fmt} if fmt else {}
-    if n is not None and t1 is None and hasattr(eio, "iter_events"):
-        parts, have = [], 0
-        for chunk in eio.iter_events(path, chunk_events=max(min(n, 1_000_000), 1), **kw):
-            if t0 is not None:
-                chunk = chunk.slice_time(t0, None)
-            if len(chunk):
-                parts.append(chunk[: n - have])
-                have += len(parts[-1])
-            if have >= n:
-                break
-        if not parts:
-            return None
-        return concatenate(parts, validate=False)
-    if not hasattr(eio, "read_events"):
-        raise ParameterError("no event reader is available in evmotion.io")
-    if t0 is not None:
-        kw["t0"] = t0
-    if t1 is not None:
-        kw["t1"] = t1
-    ev = eio.read_events(path, **kw)
-    if t0 is not None or t1 is not None:
-        ev = ev.slice_time(t0, t1)
-    return ev[:n] if n is not None else ev
+    if n is None:
+        return eio.read_events(path, format=fmt, t0=t0, t1=t1).slice_time(t0, t1)
+    parts, have = [], 0
+    for chunk in eio.iter_events(path, chunk_events=max(min(n, 1_000_000), 1), format=fmt,
+                                 t0=t0, t1=t1):
+        chunk = chunk.slice_time(t0, t1)
+        if len(chunk):
+            parts.append(chunk[: n - have])
+            have += len(parts[-1])
+        if have >= n:
+            break
+    return concatenate(parts, validate=False) if parts else None
 
 
 def run(args) -> int:
