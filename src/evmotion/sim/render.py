@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["MAX_SUBSAMPLES", "pad_periodic", "render_log", "render_log_numpy", "sample_wrap_numpy", "sim_step",
+__all__ = ["MAX_SUBSAMPLES", "full_boxes", "pad_periodic", "render_log", "render_log_numpy", "sample_wrap_numpy", "sim_step",
            "sim_step_numpy", "step_grid"]
 
 MAX_SUBSAMPLES = 64
@@ -53,32 +53,41 @@ def pad_periodic(img: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, inline="always")
-def _pixel(Ms, texs, alphas, origins, x, y):
+def _pixel(Ms, texs, alphas, origins, boxes, x, y):
     val = 0.0
     for k in range(Ms.shape[0]):
+        if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
+                      or y > boxes[k, 3]):
+            continue  # outside the layer's opaque region during this step
         m = Ms[k]
         den = m[6] * x + m[7] * y + m[8]
         xr = (m[0] * x + m[1] * y + m[2]) / den - origins[k, 0]
         yr = (m[3] * x + m[4] * y + m[5]) / den - origins[k, 1]
-        s = _bilinear_wrap(texs[k], xr, yr)
         if k == 0:
-            val = s
+            val = _bilinear_wrap(texs[k], xr, yr)
         else:
             a = _bilinear_wrap(alphas[k], xr, yr)
-            val = a * s + (1.0 - a) * val
+            if a > 0.0:  # upper layers are mostly transparent: skip their texture there
+                val = a * _bilinear_wrap(texs[k], xr, yr) + (1.0 - a) * val
     return val
 
 
 @njit(cache=True)
-def _render(Ms, texs, alphas, origins, out):
+def _render(Ms, texs, alphas, origins, boxes, out):
     h, w = out.shape
     for y in range(h):
         for x in range(w):
-            out[y, x] = _pixel(Ms, texs, alphas, origins, x, y)
+            out[y, x] = _pixel(Ms, texs, alphas, origins, boxes, x, y)
+
+
+def full_boxes(n_layers: int, shape: tuple[int, int]) -> np.ndarray:
+    """Layer bounding boxes ``(x0, y0, x1, y1)`` covering the whole sensor."""
+    h, w = shape
+    return np.tile(np.array([0.0, 0.0, w - 1.0, h - 1.0]), (n_layers, 1))
 
 
 def render_log(Ms: np.ndarray, texs: np.ndarray, alphas: np.ndarray, origins: np.ndarray,
-               out: np.ndarray) -> None:
+               out: np.ndarray, boxes: np.ndarray | None = None) -> None:
     """Render log intensity into ``out`` (H, W) float32.
 
     Parameters
@@ -93,8 +102,13 @@ def render_log(Ms: np.ndarray, texs: np.ndarray, alphas: np.ndarray, origins: np
         Reference pixel ``(x, y)`` of raster pixel (0, 0) per layer.
     out : ndarray (H, W) float32
         Output, written in place.
+    boxes : ndarray (L, 4) float64, optional
+        Pixel box ``(x0, y0, x1, y1)`` outside which an upper layer is fully transparent
+        (default: the whole sensor); an optimization that must not change the result.
     """
-    _render(Ms, texs, alphas, origins, out)
+    if boxes is None:
+        boxes = full_boxes(Ms.shape[0], out.shape)
+    _render(Ms, texs, alphas, origins, boxes, out)
 
 
 def sample_wrap_numpy(img: np.ndarray, xr: np.ndarray, yr: np.ndarray) -> np.ndarray:
@@ -154,17 +168,18 @@ def _cross(a, b, t0, t1, r, c, sign, last, refr, x, y, ex, ey, et, ep, n, cap):
 
 
 @njit(cache=True)
-def _step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr, target,
-          ex, ey, et, ep):
+def _step(Mseq, texs, alphas, origins, boxes, la, lb, ref, cp, cn, last, t_a, t_b, refr,
+          target, ex, ey, et, ep):
     h, w = la.shape
     span = t_b - t_a
     cap = ex.shape[0]
     n = 0
     nsub_total = 0
+    m_end = Mseq[MAX_SUBSAMPLES]
     for y in range(h):
         for x in range(w):
             a = np.float64(la[y, x])
-            b = _pixel(Mseq[MAX_SUBSAMPLES], texs, alphas, origins, x, y)
+            b = _pixel(m_end, texs, alphas, origins, boxes, x, y)
             lb[y, x] = b
             ns = 1
             while ns < MAX_SUBSAMPLES and abs(b - a) > target * ns:
@@ -181,7 +196,7 @@ def _step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr
                     v1 = np.float64(lb[y, x])
                 else:
                     t1 = t_a + (j * stride * span) // MAX_SUBSAMPLES
-                    v1 = _pixel(Mseq[j * stride], texs, alphas, origins, x, y)
+                    v1 = _pixel(Mseq[j * stride], texs, alphas, origins, boxes, x, y)
                 if v1 - r >= cp[y, x]:
                     r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr, x, y,
                                       ex, ey, et, ep, n, cap)
@@ -204,7 +219,8 @@ def step_grid(t_a: int, t_b: int) -> np.ndarray:
 
 
 def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t_b: int,
-             refractory_us: int, target: float, ex, ey, et, ep) -> tuple[int, int]:
+             refractory_us: int, target: float, ex, ey, et, ep,
+             boxes: np.ndarray | None = None) -> tuple[int, int]:
     """Advance the sensor from ``t_a`` to ``t_b`` (integer µs, ``t_b > t_a``).
 
     Parameters
@@ -227,6 +243,8 @@ def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t
         Largest log-intensity change between samples of a pixel before it is re-sampled.
     ex, ey, et, ep : ndarray
         Output buffers (uint16, uint16, int64, uint8), events in pixel (row-major) order.
+    boxes : ndarray (L, 4), optional
+        As :func:`render_log`, valid for the whole step.
 
     Returns
     -------
@@ -235,7 +253,9 @@ def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t
         first events and the caller must redo the step with larger buffers (restoring
         ``ref`` and ``last``).
     """
-    n, ns = _step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, np.int64(t_a),
+    if boxes is None:
+        boxes = full_boxes(Mseq.shape[1], la.shape)
+    n, ns = _step(Mseq, texs, alphas, origins, boxes, la, lb, ref, cp, cn, last, np.int64(t_a),
                   np.int64(t_b), np.int64(refractory_us), float(target), ex, ey, et, ep)
     return int(n), int(ns)
 

@@ -15,6 +15,7 @@ from evmotion.events import EventArray
 from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
 from evmotion.sim.render import (
+    full_boxes,
     pad_periodic,
     render_log,
     sim_step,
@@ -253,24 +254,55 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         return np.ascontiguousarray(np.stack(
             [layer.motion.matrices(ts).reshape(-1, 9) for layer in layers], axis=1))
 
-    # texture points whose motion bounds the step: a grid over the sensor
+    # points whose texture motion bounds the step: a grid over the sensor for opaque
+    # layers, a sample of the opaque support (reference coordinates) for the others
     gy, gx = np.meshgrid(np.linspace(0, h - 1, 9), np.linspace(0, w - 1, 9), indexing="ij")
-    probe = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])
+    grid = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])
+    supports, corners = [], []
+    for tex in texs:
+        if tex.alpha is None:
+            supports.append(None)
+            corners.append(None)
+            continue
+        iy, ix = np.nonzero(tex.alpha > 0)
+        sub = slice(None, None, max(1, iy.size // 200))
+        supports.append(np.stack([ix[sub] + tex.origin[0], iy[sub] + tex.origin[1],
+                                  np.ones(iy[sub].size)]))
+        x0, x1 = ix.min(initial=0) + tex.origin[0] - 1, ix.max(initial=0) + tex.origin[0] + 1
+        y0, y1 = iy.min(initial=0) + tex.origin[1] - 1, iy.max(initial=0) + tex.origin[1] + 1
+        corners.append(np.array([[x0, x1, x1, x0], [y0, y0, y1, y1], [1.0, 1, 1, 1]]))
+    boxes = full_boxes(len(texs), sensor_size)
+
+    def update_boxes(m0, m1):
+        """Pixel boxes of the upper layers' opaque support over a step (the mapped corners
+        of its reference box at both ends, plus a margin for the motion in between)."""
+        for k in range(1, len(texs)):
+            if corners[k] is None:
+                continue
+            pts = np.concatenate([np.linalg.solve(m.reshape(3, 3), corners[k])
+                                  for m in (m0[k], m1[k])], axis=1)
+            px, py = pts[0] / pts[2], pts[1] / pts[2]
+            boxes[k] = (px.min() - 2, py.min() - 2, px.max() + 2, py.max() + 2)
 
     def shift(m0, m1):
         """Largest motion (px) of the texture point seen at a probe pixel between two
         times; the step keeps it below STEP_SHIFT_PX."""
         out = 0.0
         for k in range(m0.shape[0]):
-            q0 = m0[k].reshape(3, 3) @ probe
-            q1 = m1[k].reshape(3, 3) @ probe
+            a, b = m0[k].reshape(3, 3), m1[k].reshape(3, 3)
+            probe = grid if supports[k] is None else np.linalg.solve(a, supports[k])
+            if probe.shape[1] == 0:
+                continue
+            q0, q1 = a @ probe, b @ probe
             d = q1[:2] / q1[2] - q0[:2] / q0[2]
             out = max(out, float(np.sqrt((d ** 2).sum(axis=0)).max()))
         return out
 
     la = np.zeros((h, w), np.float32)
     lb = np.empty((h, w), np.float32)
-    render_log(mats(0, 0)[0], tex_stack, alpha_stack, origins, la)
+    m_start = mats(0, 0)[0]
+    update_boxes(m_start, m_start)
+    render_log(m_start, tex_stack, alpha_stack, origins, la, boxes)
     ref = la.astype(np.float64)
     last = np.full((h, w), np.iinfo(np.int64).min // 2, dtype=np.int64)
     ref_bak, last_bak = ref.copy(), last.copy()
@@ -289,6 +321,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         if d > STEP_SHIFT_PX and tb - t > 1:
             dt = max(1, int((tb - t) * 0.9 * STEP_SHIFT_PX / d))
             continue
+        update_boxes(Mseq[0], Mseq[-1])
         np.copyto(ref_bak, ref)
         np.copyto(last_bak, last)
         while True:
@@ -297,7 +330,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
                                     refractory_us, target, ex, ey, et, ep)
             else:
                 n, ns = sim_step(Mseq, tex_stack, alpha_stack, origins, la, lb, ref, cp, cn,
-                                 last, t, tb, refractory_us, target, ex, ey, et, ep)
+                                 last, t, tb, refractory_us, target, ex, ey, et, ep, boxes)
             if n <= cap:
                 break
             np.copyto(ref, ref_bak)

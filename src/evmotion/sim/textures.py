@@ -101,13 +101,16 @@ def shapes(shape, seed: int, n: int | None = None) -> np.ndarray:
     h, w = shape
     n = n if n is not None else max(4, h * w // 2500)
     img = np.full(shape, 0.5)
-    xs, ys = _grid(shape)
     for _ in range(n):
         cx, cy = rng.uniform(0, w), rng.uniform(0, h)
         size = rng.uniform(8, 40)
         level = rng.uniform(0.0, 1.0)
-        dx = (xs - cx + w / 2) % w - w / 2
-        dy = (ys - cy + h / 2) % h - h / 2
+        # draw within the bounding box only, wrapping around the periodic raster
+        ext = int(size * 1.2) + 2
+        xx = np.arange(int(cx) - ext, int(cx) + ext + 1)
+        yy = np.arange(int(cy) - ext, int(cy) + ext + 1)
+        dx = (xx - cx)[None, :]
+        dy = (yy - cy)[:, None]
         if rng.random() < 0.5:
             ang = rng.uniform(0, np.pi)
             u = dx * np.cos(ang) + dy * np.sin(ang)
@@ -116,7 +119,8 @@ def shapes(shape, seed: int, n: int | None = None) -> np.ndarray:
         else:
             inside = size - np.hypot(dx, dy)
         a = np.clip(inside + 0.5, 0.0, 1.0)
-        img = a * level + (1 - a) * img
+        ix = np.ix_(yy % h, xx % w)
+        img[ix] = a * level + (1 - a) * img[ix]
     return img
 
 
