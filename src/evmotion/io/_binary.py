@@ -141,7 +141,7 @@ def iter_blocks(path: Path, offset: int, block_bytes: int, word_bytes: int
                 ) -> Iterator[tuple[int, bytes]]:
     """``(file offset, bytes)`` blocks from ``offset`` on, each a multiple of
     ``word_bytes`` long; a trailing partial word raises FormatError (truncated file)."""
-    block_bytes -= block_bytes % word_bytes
+    block_bytes = max(int(block_bytes) - int(block_bytes) % word_bytes, word_bytes)
     with open(path, "rb") as fh:
         fh.seek(offset)
         pos = offset
