@@ -243,3 +243,18 @@ def test_caller_managed_executor_is_left_running():
         b = map_windows(count_and_span, ev, WINDOWS, workers=2, executor=pool, progress=False)
         assert pool.submit(int, "7").result() == 7
     assert [r.value for r in a] == [r.value for r in b] == _expected(ev)
+
+
+@pytest.mark.parametrize("executor,workers", [("process", 1), ("process", 2)])
+def test_path_source_with_real_reader(tmp_path, executor, workers):
+    """Each worker opens the recording itself and reads only its window."""
+    eio = pytest.importorskip("evmotion.io")
+    if not hasattr(eio, "write_events"):
+        pytest.skip("evmotion.io.write_events is not available")
+    ev = _events()
+    path = tmp_path / "rec.h5"
+    eio.write_events(path, ev)
+    res = map_windows(count_and_span, path, WINDOWS, workers=workers, executor=executor,
+                      progress=False)
+    assert all(r.ok for r in res), [r.error for r in res if not r.ok]
+    assert [r.value for r in res] == _expected(ev)
