@@ -129,7 +129,9 @@ def collect(blocks: Iterator[Block], sensor_size: tuple[int, int], meta: dict,
                 continue
             blk = tuple(c[lo:hi] for c in blk)
         keep.append(blk)
-    if keep:
+    if len(keep) == 1:
+        cols = list(keep[0])
+    elif keep:
         cols = [np.concatenate([b[k] for b in keep]) for k in range(4)]
     else:
         cols = [np.empty(0, np.uint16), np.empty(0, np.uint16), np.empty(0, np.int64),

@@ -25,6 +25,8 @@ from evmotion.utils import atomic_path
 __all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
 
 WRAP_US = 1 << 24
+# Payloads up to this size are decoded in one piece by read() (the result is larger anyway)
+WHOLE_FILE_BYTES = 1 << 28
 # state slots carried from one block to the next
 _Y, _TH, _TL, _OVF, _BX, _VP, _SEEN = range(7)
 
@@ -197,6 +199,13 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size, "3.0")
     _binary.trailing_partial(path, offset, 2)
     meta = {"source": str(path), "format": "evt3"}
+    if t0 is None and t1 is None and path.stat().st_size - offset <= WHOLE_FILE_BYTES:
+        # one pass over the whole payload: no per-block buffers to concatenate
+        words = np.fromfile(path, np.uint8, offset=offset).view("<u2")
+        x, y, t, p = decode_words(words)
+        if t_offset:
+            t += t_offset
+        return _binary.collect(iter([(x, y, t, p)]), size, meta, validate=validate)
     return _binary.collect(_blocks(path, offset, t_offset, block_bytes), size, meta, t0, t1,
                            validate=validate)
 
