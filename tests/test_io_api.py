@@ -119,3 +119,28 @@ def test_write_events_free_metadata(tmp_path):
     with pytest.warns(UserWarning, match="simulator_seed"):
         eio.write_events(tmp_path / "m.npz", ev, simulator_seed=3)
     assert len(eio.read_events(tmp_path / "m.npz")) == 100
+
+
+def test_frames_and_imu_from_any_format(tmp_path, shared_data):
+    import png
+
+    from evmotion.io import aux
+
+    (tmp_path / "events.txt").write_text("0.1 1 2 1\n0.2 3 4 0\n")
+    (tmp_path / "images").mkdir()
+    img = np.arange(20 * 30, dtype=np.uint8).reshape(20, 30)
+    with open(tmp_path / "images" / "frame_00000000.png", "wb") as fh:
+        png.Writer(width=30, height=20, greyscale=True).write(fh, img)
+    (tmp_path / "images.txt").write_text("0.05 images/frame_00000000.png\n")
+    (tmp_path / "imu.txt").write_text("0.1 0 0 9.8 0.1 0.2 0.3\n")
+    ev = eio.read_events(tmp_path)
+    assert ev.sensor_size == (20, 30) and ev.meta["sensor_size_from"] == "images"
+    fr = aux.read_frames(tmp_path)
+    assert fr.t.tolist() == [50_000]
+    np.testing.assert_array_equal(fr.images[0], img)
+    imu = aux.read_imu(tmp_path)
+    assert imu.gyro.tolist() == [[0.1, 0.2, 0.3]] and imu.accel[0, 2] == 9.8
+    a4 = shared_data / "formats" / "davis346.aedat4"
+    assert len(aux.read_imu(a4)) == 2363 and len(aux.read_frames(a4)) == 59
+    with pytest.raises(FormatError, match="holds no APS frames"):
+        aux.read_frames(shared_data / "formats" / "gen4.dat")

@@ -67,7 +67,7 @@ def test_time_index_slices_match_reference(tmp_path):
 def test_frames_imu_describe(tmp_path):
     ev = _events(1000)
     frames = {"t": np.array([5_000_000, 5_050_000]), "images": np.zeros((2, 180, 240), np.uint8)}
-    imu = {"t": np.arange(10) * 1000, "gyro": np.ones((10, 3)), "acc": np.zeros((10, 3))}
+    imu = {"t": np.arange(10) * 1000, "gyro": np.ones((10, 3)), "accel": np.zeros((10, 3))}
     h5.write(tmp_path / "x.h5", ev, frames=frames, imu=imu)
     d = h5.describe(tmp_path / "x.h5")
     assert d["n_events"] == 1000 and d["frames"] == 2 and d["imu"] == 10

@@ -24,7 +24,7 @@ from evmotion.io.base import FormatSpec
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_calibration", "parse_text",
-           "read_imu", "read_groundtruth", "read_image_list", "FORMAT"]
+           "read_imu", "read_groundtruth", "read_image_list", "read_frames", "FORMAT"]
 
 ECD_SENSOR_SIZE = (180, 240)
 BLOCK_BYTES = 1 << 24
@@ -369,12 +369,12 @@ def _load_table(path: Path, ncols: int, what: str) -> np.ndarray:
 
 
 def read_imu(path: str | Path) -> dict:
-    """ECD ``imu.txt``: returns ``t`` (µs int64), ``acc`` (N,3) m/s², ``gyro`` (N,3) rad/s."""
+    """ECD ``imu.txt``: returns ``t`` (µs int64), ``accel`` (N,3) m/s², ``gyro`` (N,3) rad/s."""
     path = Path(path)
     if path.is_dir():
         path = path / "imu.txt"
     a = _load_table(path, 7, "imu.txt (t ax ay az gx gy gz)")
-    return {"t": np.rint(a[:, 0] * 1e6).astype(np.int64), "acc": a[:, 1:4],
+    return {"t": np.rint(a[:, 0] * 1e6).astype(np.int64), "accel": a[:, 1:4],
             "gyro": a[:, 4:7]}
 
 
@@ -405,6 +405,31 @@ def read_image_list(path: str | Path) -> dict:
             t.append(round(float(parts[0]) * 1e6))
             files.append(parts[1])
     return {"t": np.asarray(t, np.int64), "files": files}
+
+
+def read_frames(path: str | Path) -> dict:
+    """APS frames of an ECD folder (``images.txt`` + PNGs): ``t`` (N,) µs and ``images``
+    (N, H, W) uint8 (colour PNGs are converted to grey by their mean)."""
+    import png
+
+    path = Path(path)
+    folder = path if path.is_dir() else path.parent
+    lst = read_image_list(folder)
+    images = []
+    for name in lst["files"]:
+        f = folder / name
+        try:
+            w, h, rows, info = png.Reader(filename=str(f)).asDirect()
+            img = np.vstack([np.asarray(r) for r in rows]).reshape(h, w, -1)
+        except (png.Error, OSError) as exc:
+            raise FormatError(f, f"cannot read frame listed in images.txt: {exc}") from None
+        if info.get("bitdepth", 8) > 8:
+            img = img >> (info["bitdepth"] - 8)
+        planes = img.shape[2]
+        grey = img[..., 0] if planes <= 2 else img[..., :3].mean(axis=2)
+        images.append(np.asarray(grey, dtype=np.uint8))
+    stack = np.stack(images) if images else np.zeros((0, *ECD_SENSOR_SIZE), np.uint8)
+    return {"t": lst["t"], "images": stack}
 
 
 def read_calibration(path: str | Path) -> dict:

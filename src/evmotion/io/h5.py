@@ -9,7 +9,7 @@ Layout::
     attrs: format="evmotion-events", version, height, width, t_index0 (µs),
            provenance (JSON), calibration (JSON, optional), plus user attributes
     /frames/images (N,H,W), /frames/t        optional APS frames
-    /imu/t, /imu/gyro, /imu/acc              optional
+    /imu/t, /imu/gyro, /imu/accel             optional
     /ground_truth/...                        optional (e.g. ``flow`` from io.flowfiles,
                                              ``motion/t``, ``motion/params``)
 
@@ -202,7 +202,7 @@ def write(path: str | os.PathLike, events: EventArray | Iterable[EventArray], *,
     frames : dict, optional
         ``{"t": (N,) µs, "images": (N, H, W)}``.
     imu : dict, optional
-        ``{"t": (N,) µs, "gyro": (N, 3) rad/s, "acc": (N, 3) m/s²}``.
+        ``{"t": (N,) µs, "gyro": (N, 3) rad/s, "accel": (N, 3) m/s²}``.
 
     Examples
     --------
@@ -366,7 +366,7 @@ def read_frames(path: str | os.PathLike) -> dict:
 
 
 def read_imu(path: str | os.PathLike) -> dict:
-    """IMU samples stored in the file (``t`` µs, ``gyro`` rad/s, ``acc`` m/s²)."""
+    """IMU samples stored in the file (``t`` µs, ``gyro`` rad/s, ``accel`` m/s²)."""
     path = Path(path)
     with _open(path) as f:
         if "imu" not in f:

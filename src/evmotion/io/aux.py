@@ -1,0 +1,87 @@
+"""APS frames and IMU samples from any recording that holds them, in one shape.
+
+Each format module may define ``read_frames(path)`` and ``read_imu(path)``; these helpers
+find the module through the registry and return the same small dataclasses whatever the
+source (ECD folder, evmotion HDF5, MVSEC, AEDAT4, AEDAT2...).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError
+from evmotion.io.registry import detect_format, get_format
+
+__all__ = ["FrameSequence", "ImuSequence", "read_frames", "read_imu"]
+
+
+@dataclass(frozen=True)
+class FrameSequence:
+    """APS frames: ``t`` (N,) int64 µs and ``images``, a list of (H, W) or (H, W, C) uint8
+    arrays (an (N, H, W) array when the source stores a stack)."""
+
+    t: np.ndarray
+    images: list | np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+@dataclass(frozen=True)
+class ImuSequence:
+    """IMU samples: ``t`` (N,) int64 µs, ``gyro`` (N, 3) rad/s, ``accel`` (N, 3) m/s², in
+    the IMU's own axes as the source stores them."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+def _module(path: Path, format: str | None):
+    spec = get_format(format) if format else detect_format(path)
+    return spec.name, importlib.import_module(spec.read.__module__)
+
+
+def _get(obj, key: str):
+    return obj[key] if isinstance(obj, dict) else getattr(obj, key)
+
+
+def read_frames(path: str | os.PathLike, format: str | None = None) -> FrameSequence:
+    """APS frames of a recording.
+
+    Examples
+    --------
+    >>> fr = read_frames("davis346.aedat4")  # doctest: +SKIP
+    >>> fr.t[:2], fr.images[0].shape  # doctest: +SKIP
+    """
+    path = Path(path)
+    name, mod = _module(path, format)
+    if not hasattr(mod, "read_frames"):
+        raise FormatError(path, f"format '{name}' holds no APS frames")
+    fr = mod.read_frames(path)
+    return FrameSequence(t=np.asarray(_get(fr, "t"), np.int64), images=_get(fr, "images"))
+
+
+def read_imu(path: str | os.PathLike, format: str | None = None) -> ImuSequence:
+    """IMU samples of a recording (``imu.txt`` of an ECD folder, AEDAT IMU packets...).
+
+    Examples
+    --------
+    >>> imu = read_imu("boxes_rotation/")  # doctest: +SKIP
+    """
+    path = Path(path)
+    name, mod = _module(path, format)
+    if not hasattr(mod, "read_imu"):
+        raise FormatError(path, f"format '{name}' holds no IMU samples")
+    s = mod.read_imu(path)
+    return ImuSequence(t=np.asarray(_get(s, "t"), np.int64),
+                       gyro=np.asarray(_get(s, "gyro"), np.float64),
+                       accel=np.asarray(_get(s, "accel"), np.float64))
