@@ -25,16 +25,18 @@ def ref_bilinear(x, y, shape, w=None):
 
 
 def ref_gauss(x, y, shape, sigma, w=None):
+    from math import erf, sqrt
     h, wd = shape
     w = np.ones_like(x) if w is None else w
+    r = 3 * sigma
+    fl = np.exp(-r * r / (2 * sigma**2))
+    z = sigma * sqrt(2 * np.pi) * erf(r / (sigma * sqrt(2))) - 2 * r * fl
     yy, xx = np.mgrid[0:h, 0:wd]
-    r = int(np.ceil(3 * sigma))
     img = np.zeros(shape)
     for k in range(x.size):
-        cx, cy = np.floor(x[k]), np.floor(y[k])
-        box = (xx >= cx - r) & (xx <= cx + r + 1) & (yy >= cy - r) & (yy <= cy + r + 1)
-        g = np.exp(-((xx - x[k]) ** 2 + (yy - y[k]) ** 2) / (2 * sigma**2)) / (2 * np.pi * sigma**2)
-        img += w[k] * g * box
+        kx = np.clip(np.exp(-(xx - x[k]) ** 2 / (2 * sigma**2)) - fl, 0, None)
+        ky = np.clip(np.exp(-(yy - y[k]) ** 2 / (2 * sigma**2)) - fl, 0, None)
+        img += w[k] * kx * ky / z**2
     return img
 
 

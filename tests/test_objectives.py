@@ -21,8 +21,8 @@ def ref_gradmag(img):
 
 
 def ref_avg_ts(npos, nneg, spos, sneg, normalize):
-    tp = spos / (npos + 1e-6)
-    tn = sneg / (nneg + 1e-6)
+    tp = spos / (npos + 1e-3)
+    tn = sneg / (nneg + 1e-3)
     total = float((tp**2 + tn**2).sum())
     if normalize:
         total /= ((npos > 0) | (nneg > 0)).sum()

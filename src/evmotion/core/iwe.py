@@ -3,8 +3,11 @@
 The IWE sums one smooth "delta" per warped event ``(xw_k, yw_k)``:
 
 * ``kernel="bilinear"`` -- bilinear voting onto the four neighbouring pixels;
-* ``kernel="gaussian"`` -- a normalized isotropic Gaussian of standard deviation ``sigma``
-  pixels (the thesis' epsilon = 1 px), truncated at ``ceil(3 sigma)`` pixels.
+* ``kernel="gaussian"`` -- a Gaussian of standard deviation ``sigma`` pixels (the thesis'
+  epsilon = 1 px), separable, each axis truncated at ``3 sigma`` and lowered by its value
+  there so that the image stays continuous in the event positions (no jump when a pixel
+  enters the support; plain truncation breaks finite-difference and line-search
+  consistency), normalized to unit integral.
 
 Coordinates are sensor pixels (x = column, y = row, origin top-left); the image is
 ``(H, W)`` float64. A vote that lands on a pixel outside the image is dropped, so an event
@@ -103,54 +106,70 @@ def _bwd_bilinear(xw, yw, w, g, gx, gy):
 
 
 @njit(cache=True, nogil=True)
+def _gauss_consts(sigma):
+    r = 3.0 * sigma
+    inv2s2 = 1.0 / (2.0 * sigma * sigma)
+    floor_ = math.exp(-r * r * inv2s2)
+    # integral of (exp(-d^2 / 2 s^2) - floor_) over |d| < r: each axis sums to ~1
+    z = sigma * math.sqrt(2.0 * math.pi) * math.erf(r / (sigma * math.sqrt(2.0))) - 2.0 * r * floor_
+    return r, inv2s2, floor_, 1.0 / z
+
+
+@njit(cache=True, nogil=True)
 def _fwd_gauss(xw, yw, w, sigma, out):
     h, wd = out.shape
     use_w = w.shape[0] > 0
-    r = int(math.ceil(3.0 * sigma))
-    inv2s2 = 1.0 / (2.0 * sigma * sigma)
-    norm = 1.0 / (2.0 * math.pi * sigma * sigma)
+    r, inv2s2, fl, iz = _gauss_consts(sigma)
     for k in range(xw.shape[0]):
         x = xw[k]
         y = yw[k]
-        if not (x > -r - 1.0 and x < wd + r and y > -r - 1.0 and y < h + r):
+        if not (x > -r and x < wd - 1 + r and y > -r and y < h - 1 + r):
             continue
-        a = (w[k] if use_w else 1.0) * norm
-        cx = int(math.floor(x))
-        cy = int(math.floor(y))
-        for iy in range(max(cy - r, 0), min(cy + r + 1, h - 1) + 1):
+        a = (w[k] if use_w else 1.0) * iz * iz
+        for iy in range(max(int(math.ceil(y - r)), 0), min(int(math.floor(y + r)), h - 1) + 1):
             dy = iy - y
-            ey = dy * dy * inv2s2
-            for ix in range(max(cx - r, 0), min(cx + r + 1, wd - 1) + 1):
+            ky = math.exp(-dy * dy * inv2s2) - fl
+            if ky <= 0.0:
+                continue
+            for ix in range(max(int(math.ceil(x - r)), 0),
+                            min(int(math.floor(x + r)), wd - 1) + 1):
                 dx = ix - x
-                out[iy, ix] += a * math.exp(-(dx * dx * inv2s2 + ey))
+                kx = math.exp(-dx * dx * inv2s2) - fl
+                if kx > 0.0:
+                    out[iy, ix] += a * kx * ky
 
 
 @njit(cache=True, nogil=True)
 def _bwd_gauss(xw, yw, w, sigma, g, gx, gy):
     h, wd = g.shape
     use_w = w.shape[0] > 0
-    r = int(math.ceil(3.0 * sigma))
-    inv2s2 = 1.0 / (2.0 * sigma * sigma)
-    inv_s2 = 1.0 / (sigma * sigma)
-    norm = 1.0 / (2.0 * math.pi * sigma * sigma)
+    r, inv2s2, fl, iz = _gauss_consts(sigma)
+    inv_s2 = 2.0 * inv2s2
     for k in range(xw.shape[0]):
         x = xw[k]
         y = yw[k]
         sx = 0.0
         sy = 0.0
-        if x > -r - 1.0 and x < wd + r and y > -r - 1.0 and y < h + r:
-            cx = int(math.floor(x))
-            cy = int(math.floor(y))
-            for iy in range(max(cy - r, 0), min(cy + r + 1, h - 1) + 1):
+        if x > -r and x < wd - 1 + r and y > -r and y < h - 1 + r:
+            for iy in range(max(int(math.ceil(y - r)), 0),
+                            min(int(math.floor(y + r)), h - 1) + 1):
                 dy = iy - y
-                ey = dy * dy * inv2s2
-                for ix in range(max(cx - r, 0), min(cx + r + 1, wd - 1) + 1):
+                ey = math.exp(-dy * dy * inv2s2)
+                ky = ey - fl
+                if ky <= 0.0:
+                    continue
+                # d/dy of ky = ey * (iy - y) / s^2
+                dky = ey * dy * inv_s2
+                for ix in range(max(int(math.ceil(x - r)), 0),
+                                min(int(math.floor(x + r)), wd - 1) + 1):
                     dx = ix - x
-                    v = g[iy, ix] * math.exp(-(dx * dx * inv2s2 + ey))
-                    # d/dx exp(-(ix-x)^2/2s^2) = exp(.) (ix-x)/s^2
-                    sx += v * dx
-                    sy += v * dy
-        a = (w[k] if use_w else 1.0) * norm * inv_s2
+                    ex = math.exp(-dx * dx * inv2s2)
+                    kx = ex - fl
+                    if kx > 0.0:
+                        gv = g[iy, ix]
+                        sx += gv * ex * dx * inv_s2 * ky
+                        sy += gv * kx * dky
+        a = (w[k] if use_w else 1.0) * iz * iz
         gx[k] = a * sx
         gy[k] = a * sy
 
@@ -289,8 +308,8 @@ def accumulate_backward(xw: np.ndarray, yw: np.ndarray, shape: tuple[int, int],
     Examples
     --------
     >>> g = np.zeros((3, 3)); g[1, 2] = 1.0
-    >>> accumulate_backward(np.array([1.25]), np.array([1.0]), (3, 3), g)
-    (array([1.]), array([0.]))
+    >>> accumulate_backward(np.array([1.25]), np.array([1.5]), (3, 3), g)
+    (array([0.5]), array([-0.25]))
     """
     h, w = _shape(shape)
     if np.shape(grad_iwe) != (h, w):

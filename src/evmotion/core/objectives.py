@@ -46,7 +46,7 @@ __all__ = [
 
 _TS_KEYS = ("iwe_pos", "iwe_neg", "tiwe_pos", "tiwe_neg")
 #: Regularizes the average-timestamp ratio where almost no vote lands (events per pixel).
-TS_EPS = 1e-6
+TS_EPS = 1e-3
 
 
 @dataclass(frozen=True)

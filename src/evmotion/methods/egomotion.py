@@ -1,0 +1,493 @@
+"""Ego-motion by contrast maximization, with event-collapse regularizers (thesis ch. 3).
+
+:func:`estimate_egomotion` fits the parameters ``theta`` of a warp (zoom, translation,
+rotation, SE(2), in-plane, similarity, affine, homography; see
+:mod:`evmotion.core.warps`) to one window of events by minimizing (3.6)
+
+    ``J(theta) = -G(theta) / G(0) + lambda * R(theta)``
+
+with ``G`` a focus objective of the image of warped events (:mod:`evmotion.core.objectives`)
+and ``R`` a collapse penalty (:mod:`evmotion.core.regularizers`). Two choices make the
+weights ``lambda`` of Sec. 3.6.1 transferable between windows and sensors:
+
+* ``G`` is divided by its value at the identity warp, so the data term is dimensionless and
+  independent of the event count and image size;
+* the divergence penalty (1/s, since warps here take time in seconds) is multiplied by the
+  window duration, i.e. expressed in the normalized time of (3.7) where the thesis states it.
+
+The gradient is exact: chain rule through the warp Jacobian (numba), the IWE adjoint and the
+objective (:class:`CMaxCost`). ``regularizer="whitening"`` instead whitens the warped events
+before the objective (the baseline of Tables 3.1/3.2).
+
+Examples
+--------
+>>> import numpy as np
+>>> from evmotion.events import EventArray
+>>> rng = np.random.default_rng(0)
+>>> dots = rng.uniform(10, 60, (200, 2))           # a scene of 200 dots ...
+>>> k = rng.integers(0, 200, 6000)
+>>> t = np.sort(rng.integers(0, 50_000, 6000))     # ... moving right at 400 px/s
+>>> ev = EventArray(dots[k, 0] + 400.0 * t * 1e-6, dots[k, 1], t, np.ones(6000, int),
+...                 sensor_size=(80, 128), validate=False)
+>>> res = estimate_egomotion(ev, warp="translation")
+>>> np.round(res.params, -1).tolist()  # image velocity, px/s
+[400.0, 0.0]
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from evmotion.core.iwe import accumulate, accumulate_backward_into, accumulate_into
+from evmotion.core.objectives import OBJECTIVES, events_value_grad, objective_value_grad
+from evmotion.core.optim import OptimResult, landscape, minimize
+from evmotion.core.regularizers import (
+    DEFAULT_WEIGHTS,
+    REGULARIZERS,
+    regularizer_maps,
+    regularizer_value_grad,
+    whiten,
+)
+from evmotion.core.warps import WARPS, Warp, make_warp
+from evmotion.errors import CalibrationError, EmptyWindowError, ParameterError
+from evmotion.events import EventArray
+
+__all__ = [
+    "CMaxCost",
+    "EgomotionResult",
+    "cost_landscape",
+    "default_bounds",
+    "estimate_egomotion",
+    "make_cost",
+]
+
+#: Regularizer names accepted by :func:`estimate_egomotion` (None = plain CMax).
+REGULARIZER_CHOICES = (None, "divergence", "deformation", "rcad", "whitening")
+
+#: Typical magnitude per parameter unit: the optimizers' scaling and the TPE box half-width.
+_UNIT_SCALE = {"1/s": (1.0, 8.0), "rad/s": (1.0, 8.0), "px/s": (100.0, 1500.0),
+               "1/(px s)": (1e-3, 1e-2)}
+
+
+def default_bounds(warp: Warp) -> tuple[np.ndarray, np.ndarray]:
+    """Symmetric search box per parameter from its unit (TPE and landscapes).
+
+    ``1/s`` and ``rad/s``: +-8; ``px/s``: +-1500; ``1/(px s)``: +-0.01.
+
+    Examples
+    --------
+    >>> lo, hi = default_bounds(make_warp("translation", (10, 10)))
+    >>> hi.tolist()
+    [1500.0, 1500.0]
+    """
+    half = np.array([_UNIT_SCALE[u][1] for u in warp.param_units])
+    return -half, half
+
+
+def _scales(warp: Warp) -> np.ndarray:
+    return np.array([_UNIT_SCALE[u][0] for u in warp.param_units])
+
+
+class CMaxCost:
+    """The cost (3.6) of one window and its analytic gradient, with preallocated buffers.
+
+    Parameters
+    ----------
+    warp : Warp
+    x, y : array (N,)
+        Event pixels (undistorted for the rotation warp).
+    dt : array (N,)
+        ``t_k - t_ref`` in seconds.
+    shape : (int, int)
+        ``(H, W)`` of the IWE.
+    objective : str
+        One of :data:`evmotion.core.objectives.OBJECTIVES`.
+    regularizer : str or None
+        One of :data:`REGULARIZER_CHOICES`.
+    weight : float
+        ``lambda`` of (3.6) (ignored without a penalty regularizer).
+    polarity : array (N,), optional
+        0/1 polarity; needed by the timestamp objectives, and used as IWE weights +-1 with
+        ``use_polarity``.
+    tn : array (N,), optional
+        Times normalized to [0, 1] over the window (timestamp objectives).
+    kernel, sigma
+        IWE delta approximation.
+    use_polarity : bool
+        Accumulate signed polarity (+-1) instead of counts.
+
+    Notes
+    -----
+    ``value_grad(theta)`` returns ``(J, dJ/dtheta)``; ``value(theta)`` only ``J``;
+    ``parts(theta)`` returns the data and penalty terms separately.
+    """
+
+    def __init__(self, warp: Warp, x, y, dt, shape, objective: str = "variance",
+                 regularizer: str | None = None, weight: float = 0.0, polarity=None, tn=None,
+                 kernel: str = "bilinear", sigma: float = 1.0, use_polarity: bool = False):
+        if objective not in OBJECTIVES:
+            raise ParameterError(f"unknown objective '{objective}'; choose one of "
+                                 f"{sorted(OBJECTIVES)}")
+        if regularizer not in REGULARIZER_CHOICES:
+            raise ParameterError(f"unknown regularizer '{regularizer}'; choose one of "
+                                 f"{[r for r in REGULARIZER_CHOICES if r]} or None")
+        self.warp = warp
+        self.x, self.y, self.dt = Warp._events(x, y, dt)
+        n = self.x.shape[0]
+        if n < 3:
+            raise EmptyWindowError(f"contrast maximization needs events, got {n}")
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.objective = objective
+        self.regularizer = regularizer
+        self.weight = float(weight)
+        self.kernel, self.sigma = kernel, float(sigma)
+        self.needs_time = OBJECTIVES[objective].needs_time
+        self.polarity = None if polarity is None else np.asarray(polarity)
+        self.tn = None if tn is None else np.ascontiguousarray(tn, dtype=np.float64)
+        if self.needs_time and (self.polarity is None or self.tn is None):
+            raise ParameterError(f"objective '{objective}' needs polarity and times")
+        self.weights = None
+        if use_polarity:
+            if self.polarity is None:
+                raise ParameterError("use_polarity needs the event polarities")
+            self.weights = np.where(self.polarity > 0, 1.0, -1.0)
+        p = warp.n_params
+        self.xw, self.yw = np.empty(n), np.empty(n)
+        self.jx, self.jy = np.empty((n, p)), np.empty((n, p))
+        self.gx, self.gy = np.empty(n), np.empty(n)
+        self.iwe = np.empty(self.shape)
+        self.giwe = np.empty(self.shape)
+        self.span_s = float(self.dt.max() - self.dt.min())
+        # whitening maps the cloud back to the image centre at the spread of the raw events
+        self._wcenter = ((self.shape[1] - 1) / 2.0, (self.shape[0] - 1) / 2.0)
+        self._wscale = float(np.sqrt(0.5 * (self.x.var() + self.y.var())))
+        self.n_evals = 0
+        self.g0 = 1.0
+        g0 = self._data(warp.identity(), grad=False)[0]
+        self.g0 = abs(g0) if g0 != 0 else 1.0
+
+    # -- pieces --------------------------------------------------------------------------
+    def _positions(self, theta, jac: bool):
+        if jac:
+            self.warp.warp_into(self.x, self.y, self.dt, theta, self.xw, self.yw, self.jx,
+                                self.jy)
+        else:
+            self.warp.warp_into(self.x, self.y, self.dt, theta, self.xw, self.yw)
+        xw, yw, jx, jy = self.xw, self.yw, self.jx, self.jy
+        if self.regularizer == "whitening":
+            if jac:
+                xw, yw, jx, jy = whiten(xw, yw, jx, jy, center=self._wcenter, scale=self._wscale)
+            else:
+                xw, yw = whiten(xw, yw, center=self._wcenter, scale=self._wscale)
+        return xw, yw, jx, jy
+
+    def _data(self, theta, grad: bool = True):
+        """(G / G0, dG/dtheta / G0): the normalized focus and its gradient."""
+        self.n_evals += 1
+        xw, yw, jx, jy = self._positions(theta, grad)
+        if self.needs_time:
+            G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self.polarity,
+                                          self.tn, kernel=self.kernel, sigma=self.sigma)
+        else:
+            accumulate_into(xw, yw, self.iwe, self.weights, self.kernel, self.sigma)
+            G, gimg = objective_value_grad(self.objective, self.iwe, out=self.giwe)
+            if not grad:
+                return G / self.g0, None
+            gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, self.weights,
+                                              self.kernel, self.sigma)
+        if not grad:
+            return G / self.g0, None
+        return G / self.g0, (gx @ jx + gy @ jy) / self.g0
+
+    def _penalty(self, theta, grad: bool = True):
+        if self.regularizer not in REGULARIZERS or self.weight == 0.0:
+            return 0.0, np.zeros(self.warp.n_params)
+        r, g = regularizer_value_grad(self.regularizer, self.warp, self.x, self.y, self.dt,
+                                      theta, self.shape, self.xw, self.yw, jx=self.jx,
+                                      jy=self.jy, kernel=self.kernel, grad=grad)
+        s = self.weight * (self.span_s if self.regularizer == "divergence" else 1.0)
+        return s * r, (s * g if grad else None)
+
+    # -- public --------------------------------------------------------------------------
+    def value_grad(self, theta) -> tuple[float, np.ndarray]:
+        """``J(theta)`` and ``dJ/dtheta``."""
+        theta = np.asarray(theta, dtype=np.float64)
+        G, gG = self._data(theta, True)
+        R, gR = self._penalty(theta, True)
+        return -G + R, -gG + gR
+
+    def value(self, theta) -> float:
+        """``J(theta)`` only."""
+        theta = np.asarray(theta, dtype=np.float64)
+        G, _ = self._data(theta, False)
+        R, _ = self._penalty(theta, False)
+        return -G + R
+
+    def parts(self, theta) -> dict[str, float]:
+        """``{"focus": G/G0, "penalty": lambda R, "cost": J}`` at ``theta``."""
+        theta = np.asarray(theta, dtype=np.float64)
+        G, _ = self._data(theta, False)
+        R, _ = self._penalty(theta, False)
+        return {"focus": float(G), "penalty": float(R), "cost": float(-G + R)}
+
+    def iwe_at(self, theta) -> np.ndarray:
+        """The IWE (H, W) at ``theta`` (copy; counts, or signed with polarity)."""
+        xw, yw, _, _ = self._positions(np.asarray(theta, dtype=np.float64), False)
+        return accumulate(xw, yw, self.shape, self.weights, self.kernel, self.sigma)
+
+
+@dataclass(frozen=True)
+class EgomotionResult:
+    """Outcome of :func:`estimate_egomotion`.
+
+    Attributes
+    ----------
+    params : ndarray (P,)
+        Estimated warp parameters (rates per second, see ``param_units``).
+    param_names, param_units : tuple of str
+    warp : str
+    objective, optimizer : str
+    regularizer : str or None
+    weight : float
+        ``lambda`` used.
+    t_ref_us : int
+        Reference time of the warp (µs, absolute).
+    window_us : (int, int)
+        First and last event time (µs).
+    n_events : int
+    cost, focus, penalty : float
+        ``J``, ``G/G0`` and ``lambda R`` at ``params``.
+    iwe_before, iwe_after : ndarray (H, W)
+        IWE with the identity warp and with ``params``.
+    history : ndarray
+        Cost per optimizer iteration.
+    maps : dict of ndarray
+        Divergence (DIWE) and deformation (IWA) maps at ``params`` for plotting.
+    timings : dict
+        Seconds: ``setup``, ``optimize``, ``total``; ``n_evals``.
+    """
+
+    params: np.ndarray
+    param_names: tuple[str, ...]
+    param_units: tuple[str, ...]
+    warp: str
+    objective: str
+    regularizer: str | None
+    weight: float
+    optimizer: str
+    t_ref_us: int
+    window_us: tuple[int, int]
+    n_events: int
+    cost: float
+    focus: float
+    penalty: float
+    iwe_before: np.ndarray = field(repr=False)
+    iwe_after: np.ndarray = field(repr=False)
+    history: np.ndarray = field(repr=False)
+    maps: dict = field(repr=False, default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        """JSON-friendly summary: parameters with names and units, cost, timings."""
+        return {
+            "warp": self.warp,
+            "params": {n: float(v) for n, v in zip(self.param_names, self.params, strict=True)},
+            "units": dict(zip(self.param_names, self.param_units, strict=True)),
+            "objective": self.objective, "regularizer": self.regularizer,
+            "weight": self.weight, "optimizer": self.optimizer,
+            "t_ref_us": self.t_ref_us, "t0_us": self.window_us[0], "t1_us": self.window_us[1],
+            "n_events": self.n_events, "cost": self.cost, "focus": self.focus,
+            "penalty": self.penalty, "timings": dict(self.timings),
+        }
+
+
+def _resolve_t_ref(t_ref, t: np.ndarray) -> int:
+    if isinstance(t_ref, str):
+        choices = {"start": int(t[0]), "end": int(t[-1]), "mid": int((int(t[0]) + int(t[-1])) // 2)}
+        if t_ref not in choices:
+            raise ParameterError(f"t_ref must be 'start', 'mid', 'end' or microseconds, "
+                                 f"got '{t_ref}'")
+        return choices[t_ref]
+    return int(t_ref)
+
+
+def _default_weight(regularizer, dataset: str) -> float:
+    if regularizer not in REGULARIZERS:
+        return 0.0
+    if dataset not in DEFAULT_WEIGHTS:
+        raise ParameterError(f"unknown dataset '{dataset}' for default weights; choose one of "
+                             f"{sorted(DEFAULT_WEIGHTS)} or pass weight=")
+    return float(DEFAULT_WEIGHTS[dataset][regularizer])
+
+
+def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str = "variance",
+              regularizer: str | None = None, weight: float | None = None, K=None,
+              t_ref: str | int = "start", kernel: str = "bilinear", sigma: float = 1.0,
+              use_polarity: bool = False, dataset: str = "mvsec") -> tuple[CMaxCost, int]:
+    """Build the :class:`CMaxCost` of a window; returns ``(cost, t_ref_us)``.
+
+    Parameters are those of :func:`estimate_egomotion`.
+
+    Examples
+    --------
+    >>> ev = EventArray([1, 2, 3], [1, 1, 2], [0, 10, 20], [1, 0, 1], sensor_size=(4, 5))
+    >>> cost, t_ref = make_cost(ev, warp="translation")
+    >>> round(cost.value(np.zeros(2)), 6), t_ref
+    (-1.0, 0)
+    """
+    if not isinstance(events, EventArray):
+        raise ParameterError(f"events must be an EventArray, got {type(events).__name__}")
+    if len(events) < 3:
+        raise EmptyWindowError(f"window has {len(events)} events; contrast maximization "
+                               f"needs more")
+    if isinstance(warp, str):
+        if warp not in WARPS:
+            raise ParameterError(f"unknown warp '{warp}'; choose one of {sorted(WARPS)}")
+        if warp == "rotation" and K is None:
+            K = events.meta.get("K")
+            if K is None:
+                raise CalibrationError("the rotation warp needs the camera intrinsics: pass K= "
+                                       "(3x3) or a calibration file (--calib)")
+        warp = make_warp(warp, events.sensor_size, K=K)
+    t = events.t
+    t_ref_us = _resolve_t_ref(t_ref, t)
+    dt = (t - t_ref_us).astype(np.float64) * 1e-6
+    span = max(int(t[-1]) - int(t[0]), 1)
+    tn = (t - t[0]).astype(np.float64) / span
+    lam = _default_weight(regularizer, dataset) if weight is None else float(weight)
+    cost = CMaxCost(warp, events.x, events.y, dt, events.sensor_size, objective, regularizer,
+                    lam, polarity=events.p, tn=tn, kernel=kernel, sigma=sigma,
+                    use_polarity=use_polarity)
+    return cost, t_ref_us
+
+
+def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
+                       objective: str = "variance", regularizer: str | None = None,
+                       weight: float | None = None, optimizer: str = "bfgs", K=None,
+                       t_ref: str | int = "start", init=None, seed: int = 0, *,
+                       starts=None, bounds=None, n_samples: int | None = None,
+                       n_iter: int = 100, lr: float = 0.05, kernel: str = "bilinear",
+                       sigma: float = 1.0, use_polarity: bool = False,
+                       dataset: str = "mvsec", maps: bool = True) -> EgomotionResult:
+    """Estimate the warp parameters of one window by contrast maximization (ch. 3).
+
+    Parameters
+    ----------
+    events : EventArray
+        One window; undistorted coordinates for the rotation warp (see
+        :meth:`evmotion.camera.Camera.undistort_events`).
+    warp : str or Warp
+        Warp name (:data:`evmotion.core.warps.WARPS`) or a built warp.
+    objective : str
+        ``"variance"``, ``"gradient_magnitude"``, ``"avg_timestamp"`` or
+        ``"avg_timestamp_norm"``.
+    regularizer : {None, "divergence", "deformation", "rcad", "whitening"}
+    weight : float, optional
+        ``lambda``; default per thesis (Sec. 3.6.1) for ``dataset``.
+    optimizer : {"bfgs", "newton-cg", "adam", "tpe"}
+    K : array (3, 3), optional
+        Intrinsics (pixels), required by ``rotation`` unless ``events.meta["K"]`` holds it.
+    t_ref : {"start", "mid", "end"} or int
+        Reference time of the warp; an int is absolute µs.
+    init : array (P,), optional
+        Starting parameters (default: identity warp).
+    seed : int
+        Seed of the TPE sampler.
+    starts : list of arrays, optional
+        Extra starting points (multi-start) for gradient methods.
+    bounds : (lower, upper), optional
+        TPE search box; default :func:`default_bounds`.
+    n_samples : int, optional
+        TPE samples (300 for 1 DOF, 600 otherwise).
+    n_iter, lr : Adam iterations (100) and step (in units of the parameter scale).
+    kernel, sigma : IWE delta approximation (bilinear, or Gaussian of ``sigma`` px).
+    use_polarity : bool
+        Signed IWE.
+    dataset : {"mvsec", "dsec", "ecd"}
+        Which default weights to use.
+    maps : bool
+        Compute the divergence/deformation maps at the estimate.
+
+    Returns
+    -------
+    EgomotionResult
+
+    Examples
+    --------
+    See the module docstring.
+    """
+    t0 = time.perf_counter()
+    cost, t_ref_us = make_cost(events, warp, objective, regularizer, weight, K, t_ref, kernel,
+                               sigma, use_polarity, dataset)
+    w = cost.warp
+    x0 = w.identity() if init is None else np.asarray(init, dtype=np.float64)
+    if x0.shape != (w.n_params,):
+        raise ParameterError(f"init must have shape ({w.n_params},) {w.param_names}, "
+                             f"got {x0.shape}")
+    lo, hi = default_bounds(w) if bounds is None else (np.asarray(bounds[0], float),
+                                                       np.asarray(bounds[1], float))
+    t1 = time.perf_counter()
+    res: OptimResult = minimize(cost.value_grad, x0, optimizer, lower=lo, upper=hi,
+                                scale=_scales(w), starts=starts, n_samples=n_samples,
+                                n_iter=n_iter, lr=lr, seed=seed)
+    t2 = time.perf_counter()
+    theta = res.x
+    parts = cost.parts(theta)
+    out_maps = {}
+    if maps:
+        for name, key in (("divergence", "diwe"), ("deformation", "iwa")):
+            m = regularizer_maps(name, w, cost.x, cost.y, cost.dt, theta, cost.shape)
+            out_maps[key] = m[key]
+    timings = {"setup": t1 - t0, "optimize": t2 - t1, "total": time.perf_counter() - t0,
+               "n_evals": res.n_evals}
+    return EgomotionResult(
+        params=theta.copy(), param_names=tuple(w.param_names), param_units=tuple(w.param_units),
+        warp=w.name, objective=objective, regularizer=regularizer, weight=cost.weight,
+        optimizer=optimizer, t_ref_us=t_ref_us,
+        window_us=(int(events.t[0]), int(events.t[-1])), n_events=len(events),
+        cost=parts["cost"], focus=parts["focus"], penalty=parts["penalty"],
+        iwe_before=cost.iwe_at(w.identity()), iwe_after=cost.iwe_at(theta),
+        history=res.history, maps=out_maps, timings=timings)
+
+
+def cost_landscape(events: EventArray, warp: str | Warp, param: int, values,
+                   theta=None, objective: str = "variance", regularizer: str | None = None,
+                   weight: float | None = None, K=None, t_ref: str | int = "start",
+                   dataset: str = "mvsec") -> dict[str, np.ndarray]:
+    """Scan one parameter (Fig. 3.12): cost, focus and penalty along ``values``.
+
+    Parameters
+    ----------
+    events : EventArray
+    warp : str or Warp
+    param : int
+        Index of the scanned parameter.
+    values : array (S,)
+        Its values (units of that parameter).
+    theta : array (P,), optional
+        Values of the other parameters (default identity).
+    objective, regularizer, weight, K, t_ref, dataset
+        As in :func:`estimate_egomotion`.
+
+    Returns
+    -------
+    dict with ``values``, ``cost``, ``focus`` (G/G0) and ``penalty`` (lambda R), each (S,).
+
+    Examples
+    --------
+    >>> ev = EventArray([1, 2, 3], [1, 1, 2], [0, 10, 20], [1, 0, 1], sensor_size=(4, 5))
+    >>> cost_landscape(ev, "translation", 0, [0.0, 10.0])["cost"].shape
+    (2,)
+    """
+    cost, _ = make_cost(events, warp, objective, regularizer, weight, K, t_ref,
+                        dataset=dataset)
+    base = cost.warp.identity() if theta is None else np.asarray(theta, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    rows = [cost.parts(np.where(np.arange(base.size) == param, v, base)) for v in values]
+    focus = np.array([r["focus"] for r in rows])
+    pen = np.array([r["penalty"] for r in rows])
+    return {"values": values, "cost": landscape(cost.value, base, param, values),
+            "focus": focus, "penalty": pen}
