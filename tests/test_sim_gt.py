@@ -187,6 +187,8 @@ def test_ground_truth_round_trip(tmp_path, sims):
         assert f["flow"].shape == (5, *SIZE, 2)
         np.testing.assert_allclose(f["flow"][1], gt.flow(10000), atol=1e-4)
         assert f["layers/1/params"].shape == (5, 3)
+        np.testing.assert_allclose(f["displacement"][2], gt.displacement(20000, 30000),
+                                   atol=1e-4)
     rot = read_ground_truth(write_ground_truth(tmp_path / "rot_gt.h5", sims["rotation"].gt))
     np.testing.assert_allclose(rot.angular_velocity(), [0.5, -0.7, 1.2])
     np.testing.assert_allclose(rot.K, sims["rotation"].gt.K)
@@ -221,6 +223,23 @@ def fake_writer(monkeypatch):
 
     monkeypatch.setattr(evmotion.io, "write_events", write_events, raising=False)
     return calls
+
+
+def test_cli_simulate_real_writer(tmp_path, capsys):
+    """With the package's own writer: events readable back, flow readable by io."""
+    io = pytest.importorskip("evmotion.io")
+    if not hasattr(io, "read_events"):
+        pytest.skip("evmotion.io has no reader yet")
+    from evmotion.cli import main
+
+    out = tmp_path / "r.h5"
+    assert main(["simulate", "rotation", "--out", str(out), "--size", "40x50",
+                 "--duration", "0.01"]) == 0
+    ev = io.read_events(out)
+    api = simulate("rotation", duration_s=0.01, sensor_size=(40, 50), show_progress=False)
+    np.testing.assert_array_equal(ev.t, api.events.t)
+    np.testing.assert_array_equal(ev.x, api.events.x)
+    assert "ground truth" in capsys.readouterr().out
 
 
 def test_cli_simulate(tmp_path, fake_writer, capsys):

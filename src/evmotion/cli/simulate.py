@@ -98,17 +98,19 @@ def run(args) -> int:
     from evmotion.sim import gt_path_for, simulate, write_ground_truth
 
     try:
-        from evmotion.io import write_events
+        from evmotion.io import format_for_output, write_events
     except ImportError:
         raise EvmotionError("this build has no event writer (evmotion.io.write_events)") from None
+    fmt = args.format or format_for_output(args.out)
     res = simulate(args.scene, duration_s=args.duration, sensor_size=parse_size(args.size),
                    seed=args.seed, texture=args.texture, threshold=args.threshold,
                    params=parse_params(args.params), image=args.image, mismatch=args.mismatch,
                    refractory_us=args.refractory_us, noise_rate=args.noise_rate,
                    hot_pixels=args.hot_pixels, hot_rate=args.hot_rate,
                    frame_rate=args.frame_rate)
-    meta = {"simulator_scene": args.scene, "simulator_seed": args.seed}
-    write_events(args.out, res.events, format=args.format, **meta)
+    # only HDF5 keeps free metadata; other formats would warn about it
+    meta = {"simulator_scene": args.scene, "simulator_seed": args.seed} if fmt == "h5" else {}
+    write_events(args.out, res.events, format=fmt, **meta)
     gt_path = write_ground_truth(gt_path_for(args.out), res.gt)
     if args.json:
         print_json({

@@ -7,6 +7,8 @@ Layout (a file of its own, ``<events stem>_gt.h5``, or a ``/ground_truth`` group
 * ``K`` (3, 3) pinhole intrinsics, pixels;
 * ``frame_times_us`` (F,) int64 virtual GT frame times;
 * ``flow`` (F, H, W, 2) float32, px/s, u right, v down, at the frame times;
+* ``displacement`` (F-1, H, W, 2) float32 px: where each pixel's scene point at frame
+  ``i`` is at frame ``i + 1`` (integrated along the trajectory, as MVSEC's GT);
 * ``angular_velocity`` (F, 3) rad/s, camera frame (NaN where not a camera rotation);
 * ``event_masks`` (F-1, H, W) bool: events between consecutive frames;
 * ``layers/<i>`` (bottom first): attributes ``name``, ``warp``, ``center``, ``t_ref_s``,
@@ -55,6 +57,12 @@ def _write_group(g, gt: GroundTruth) -> None:
                             chunks=(1, h, w, 2), compression="gzip", compression_opts=4)
     for i, t in enumerate(ft):
         flow[i] = gt.flow(int(t))
+    nd = max(0, len(ft) - 1)
+    disp = g.create_dataset("displacement", shape=(nd, h, w, 2), dtype=np.float32,
+                            **({"chunks": (1, h, w, 2), "compression": "gzip",
+                                "compression_opts": 4} if nd else {}))
+    for i in range(len(ft) - 1):
+        disp[i] = gt.displacement(int(ft[i]), int(ft[i + 1]))
     g["angular_velocity"] = np.repeat(gt.angular_velocity()[None], len(ft), axis=0)
     masks = np.stack([gt.event_mask(int(a), int(b)) for a, b in zip(ft[:-1], ft[1:],
                                                                     strict=True)]) \
