@@ -144,3 +144,19 @@ def test_frames_and_imu_from_any_format(tmp_path, shared_data):
     assert len(aux.read_imu(a4)) == 2363 and len(aux.read_frames(a4)) == 59
     with pytest.raises(FormatError, match="holds no APS frames"):
         aux.read_frames(shared_data / "formats" / "gen4.dat")
+
+
+@pytest.mark.parametrize("ext", [".h5", ".npz"])
+def test_truncated_files_name_the_file(tmp_path, ext):
+    eio.write_events(tmp_path / f"t{ext}", _events(5000))
+    data = (tmp_path / f"t{ext}").read_bytes()
+    (tmp_path / f"cut{ext}").write_bytes(data[: len(data) // 2])
+    with pytest.raises(FormatError, match=f"cut\\{ext}"):
+        eio.read_events(tmp_path / f"cut{ext}", format=ext.lstrip(".").replace("npz", "npy"))
+
+
+def test_truncated_mat(tmp_path, shared_data):
+    data = (shared_data / "ecd_shapes_rotation_first120k" / "shapes_rotation.mat").read_bytes()
+    (tmp_path / "cut.mat").write_bytes(data[:5000])
+    with pytest.raises(FormatError, match="cut.mat"):
+        eio.read_events(tmp_path / "cut.mat")
