@@ -131,8 +131,9 @@ def make_motion(warp: str, theta, sensor_size: tuple[int, int], *, K: np.ndarray
     Examples
     --------
     >>> m = make_motion("translation", [100.0, -50.0], (20, 30))
-    >>> [round(float(a), 6) for a in m.flow(np.array([3.0]), np.array([4.0]), 0.01)]
-    [100.0, -50.0]
+    >>> u, v = m.flow(np.array([3.0]), np.array([4.0]), 0.01)
+    >>> float(u[0]), float(v[0])
+    (100.0, -50.0)
     """
     w = make_warp(warp, sensor_size, K=K, center=center)
     th = np.asarray(theta, dtype=np.float64)
