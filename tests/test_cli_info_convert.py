@@ -70,3 +70,17 @@ def test_clear_errors(tmp_path, capsys):
     assert not (tmp_path / "o.h5").exists()
     rc, _, err = _run(capsys, "convert", str(bad), str(tmp_path / "o.xyz"))
     assert rc == 2 and ".xyz" in err
+
+
+def test_other_formats_through_the_registry(tmp_path, capsys, shared_data):
+    src = shared_data / "formats" / "davis346_short.aedat4"
+    rc, out, _ = _run(capsys, "info", str(src), "--json")
+    assert rc == 0
+    d = json.loads(out)
+    assert d["format"] == "aedat4" and d["n_events"] == 6_676 and d["sensor_size"] == [260, 346]
+    rc, *_ = _run(capsys, "convert", str(src), str(tmp_path / "a.h5"), "--chunk-events", "1000")
+    assert rc == 0
+    ev, back = eio.read_events(src), eio.read_events(tmp_path / "a.h5")
+    assert back.sensor_size == ev.sensor_size
+    for k in "xytp":
+        np.testing.assert_array_equal(getattr(back, k), getattr(ev, k))
