@@ -71,3 +71,15 @@ def test_errors(path, tmp_path):
     bad.write_bytes(b"#!AER-DAT3.1\r\n" + data[14:2000])
     with pytest.raises(FormatError, match="magic"):
         aedat2.read(bad)
+
+
+def test_round_trip_other_sensor_size(tmp_path):
+    from evmotion.events import EventArray
+
+    ev = EventArray(x=[0, 345, 10], y=[0, 259, 5], t=[1, 2, 3], p=[1, 0, 1],
+                    sensor_size=(260, 346))
+    aedat2.write(tmp_path / "b.aedat", ev)
+    back = aedat2.read(tmp_path / "b.aedat")
+    assert back.sensor_size == (260, 346)
+    np.testing.assert_array_equal(back.x, ev.x)
+    np.testing.assert_array_equal(back.y, ev.y)

@@ -57,6 +57,9 @@ def _parse_header(path: Path, sensor_size):
                           "not a jAER AEDAT 2.0 file")
     lines, offset = _binary.read_text_header(path, b"#", max_bytes=1 << 24)
     text = "\n".join(lines)
+    own = re.search(r"# sensor_size \(height, width\) = \((\d+), (\d+)\)", text)
+    if sensor_size is None and own:
+        sensor_size = (int(own.group(1)), int(own.group(2)))
     if sensor_size is None:
         chip = re.search(r"AEChip:\s*(\S+)", text)
         name = chip.group(1).upper() if chip else ""
@@ -212,17 +215,21 @@ def read_imu(path: str | Path) -> ImuSamples:
                       temperature=raw[:, 3] / 340.0 + 36.53)
 
 
-def write(path: str | Path, events: EventArray, *, chip: str = "DAVIS240C") -> None:
+def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> None:
     """Write DVS events as a jAER AEDAT 2.0 file (atomically), DAVIS address layout.
 
     Timestamps are stored modulo 2^32 µs, coordinates mirrored back to jAER's raw
-    addresses, so :func:`read` returns exactly ``events``.
+    addresses, so :func:`read` returns exactly ``events``. ``chip`` (the ``AEChip``
+    header line) defaults to the DAVIS model of that sensor size; the size itself is
+    also written to the header.
 
     Examples
     --------
     >>> write("out.aedat", events)  # doctest: +SKIP
     """
     h, w = events.sensor_size
+    if chip is None:
+        chip = {(180, 240): "DAVIS240C", (260, 346): "DAVIS346B"}.get((h, w), "DAVIS")
     if events.x.dtype.kind == "f":
         raise FormatError(None, "events have float (undistorted) coordinates; AEDAT 2.0 "
                           "stores integer pixels")

@@ -132,6 +132,13 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> _binary.
     Returns
     -------
     x, y : uint16 ndarrays, t : int64 ndarray (µs, unwrapped), p : uint8 ndarray
+
+    Examples
+    --------
+    >>> words = np.array([0x8001, 0x6005, 0x0007, 0x2803], np.uint16)  # TH, TL, Y, X+pol
+    >>> x, y, t, p = decode_words(words)
+    >>> int(x[0]), int(y[0]), int(t[0]), int(p[0])
+    (3, 7, 4101, 1)
     """
     words = np.ascontiguousarray(words, dtype=np.uint16)
     if state is None:
