@@ -127,3 +127,10 @@ def test_truncated_last_line(tmp_path):
     path.write_text("0.1 1 2 1\n0.2 3")
     with pytest.raises(FormatError, match="line 2 has 2 column"):
         ecd.read(path)
+
+
+def test_folder_attaches_calibration(shared_data):
+    ev = ecd.read(shared_data / "ecd_30k_windows" / "poster_translation")
+    assert ev.meta["calibration"]["fx"] == pytest.approx(199.092366542)
+    chunk = next(ecd.iter_chunks(shared_data / "ecd_30k_windows" / "poster_translation", 10))
+    assert "calibration" in chunk.meta

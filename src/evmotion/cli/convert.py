@@ -72,10 +72,6 @@ def run(args) -> int:
     if fmt_out == "h5":
         opts["provenance"] = {"tool": "evmotion convert", "source": str(src),
                               "source_format": fmt_in, "t0": args.t0, "t1": args.t1}
-        if fmt_in == "ecd":
-            cal = src / "calib.txt" if src.is_dir() else src.parent / "calib.txt"
-            if cal.exists():
-                opts["calibration"] = eio.read_calibration(cal)
     start = time.perf_counter()
     it = chunks()
     first = next(it, None)

@@ -221,7 +221,20 @@ def _blocks(path: Path, block_bytes: int) -> Iterator[tuple[np.ndarray, ...]]:
             carry = data[cut:]
 
 
-def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool) -> EventArray:
+def _folder_meta(ev_path: Path) -> dict:
+    """Calibration and companion files of the sequence folder, attached to every chunk."""
+    folder = ev_path.parent
+    meta: dict = {}
+    if (folder / "calib.txt").is_file():
+        meta["calibration"] = read_calibration(folder / "calib.txt")
+    for name in ("imu.txt", "groundtruth.txt", "images.txt"):
+        if (folder / name).is_file():
+            meta[name.removesuffix(".txt")] = str(folder / name)
+    return meta
+
+
+def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
+               extra: dict | None = None) -> EventArray:
     h, w = size
     if x.size:
         if x.min() < 0 or y.min() < 0:
@@ -234,7 +247,7 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool) -> EventA
         if p.min() < -1 or p.max() > 1:
             bad = int(np.argmax((p < -1) | (p > 1)))
             raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1")
-    meta = {"source": str(path), "format": "ecd", "sensor_size_from": size_src}
+    meta = {"source": str(path), "format": "ecd", "sensor_size_from": size_src, **(extra or {})}
     try:
         return EventArray(x=x.astype(np.uint16), y=y.astype(np.uint16), t=t,
                           p=(p > 0).astype(np.uint8), sensor_size=size, validate=validate,
@@ -262,7 +275,9 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     Returns
     -------
     EventArray
-        ``meta["sensor_size_from"]`` says where the sensor size came from.
+        ``meta["sensor_size_from"]`` says where the sensor size came from;
+        ``meta["calibration"]`` holds ``calib.txt`` when the folder has one, and
+        ``meta["imu"]``, ``["groundtruth"]``, ``["images"]`` the companion files' paths.
 
     Examples
     --------
@@ -285,7 +300,7 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
         x, y, t, p = (np.concatenate([q[i] for q in parts]) for i in range(4))
     else:
         x = y = t = p = np.zeros(0, np.int64)
-    return _to_events(ev_path, x, y, t, p, size, src, validate)
+    return _to_events(ev_path, x, y, t, p, size, src, validate, _folder_meta(ev_path))
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
@@ -303,6 +318,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     path = Path(path)
     ev_path = _events_file(path)
     size, src = _sensor_size(path, sensor_size)
+    extra = _folder_meta(ev_path)
     buf = [np.zeros(0, np.int64)] * 4
     last_t = None
     for block in _blocks(ev_path, block_bytes):
@@ -310,14 +326,14 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
         while buf[2].size >= chunk_events:
             part = [a[:chunk_events] for a in buf]
             buf = [a[chunk_events:] for a in buf]
-            ev = _to_events(ev_path, *part, size, src, validate)
+            ev = _to_events(ev_path, *part, size, src, validate, extra)
             if validate and last_t is not None and ev.t[0] < last_t:
                 raise FormatError(ev_path, f"timestamps are not sorted: {ev.t[0]} us after "
                                   f"{last_t} us")
             last_t = int(ev.t[-1])
             yield ev
     if buf[2].size:
-        ev = _to_events(ev_path, *buf, size, src, validate)
+        ev = _to_events(ev_path, *buf, size, src, validate, extra)
         if validate and last_t is not None and ev.t[0] < last_t:
             raise FormatError(ev_path, f"timestamps are not sorted: {ev.t[0]} us after "
                               f"{last_t} us")
