@@ -27,20 +27,43 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray, concatenate
+from evmotion.io.aux import FrameSequence, ImuSequence, read_frames, read_imu
 from evmotion.io.base import FormatSpec
+from evmotion.io.flowfiles import (
+    FlowSequence,
+    FlowWriter,
+    read_dsec_flow_png,
+    read_flo,
+    read_flow_h5,
+    read_gt_flow,
+    write_dsec_flow_png,
+    write_flo,
+)
 from evmotion.io.registry import all_formats, get_format
 from evmotion.io.registry import detect_format as _detect
 
 __all__ = [
+    "FlowSequence",
+    "FlowWriter",
     "FormatSpec",
+    "FrameSequence",
+    "ImuSequence",
     "all_formats",
     "describe",
     "detect_format",
     "format_for_output",
     "iter_events",
     "read_calibration",
+    "read_dsec_flow_png",
     "read_events",
+    "read_flo",
+    "read_flow_h5",
+    "read_frames",
+    "read_gt_flow",
+    "read_imu",
+    "write_dsec_flow_png",
     "write_events",
+    "write_flo",
 ]
 
 
