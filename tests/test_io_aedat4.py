@@ -130,3 +130,26 @@ def test_first_packet_matches_struct_reference(short):
     got = list(zip(ev.t[:n].tolist(), ev.x[:n].tolist(), ev.y[:n].tolist(),
                    (ev.p[:n] == 1).tolist(), strict=True))
     assert got == ref
+
+
+def test_zstd_packets(short, tmp_path):
+    zstandard = pytest.importorskip("zstandard")
+    ev = aedat4.read(short)
+    plain = tmp_path / "plain.aedat4"
+    aedat4.write(plain, ev, compression="none", packet_events=2000)
+    data = plain.read_bytes()
+    hsize = struct.unpack_from("<i", data, 14)[0]
+    header = bytearray(data[:18 + hsize])
+    table = 18 + struct.unpack_from("<I", header, 18)[0]
+    struct.pack_into("<i", header, table + 4, 3)  # IOHeader.compression = ZSTD
+    out, pos = bytes(header), 18 + hsize
+    cctx = zstandard.ZstdCompressor()
+    while pos < len(data):
+        sid, size = struct.unpack_from("<ii", data, pos)
+        packed = cctx.compress(data[pos + 8:pos + 8 + size])
+        out += struct.pack("<ii", sid, len(packed)) + packed
+        pos += 8 + size
+    z = tmp_path / "z.aedat4"
+    z.write_bytes(out)
+    assert aedat4.describe(z)["compression"] == "zstd"
+    _same(aedat4.read(z), ev)

@@ -193,3 +193,19 @@ def test_writer_refuses_float_and_oversized(tmp_path):
     with pytest.raises(FormatError, match="2048"):
         evt3.write(tmp_path / "b.raw", big)
     assert not (tmp_path / "b.raw").exists()
+
+
+def test_streaming_memory_is_bounded(raw):
+    import tracemalloc
+
+    next(evt3.iter_chunks(raw, 10))  # load the compiled kernels outside the measurement
+    tracemalloc.start()
+    try:
+        n = 0
+        for chunk in evt3.iter_chunks(raw, 50_000, block_bytes=1 << 18):
+            n += len(chunk)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert n == 1_218_618
+    assert peak < 10 << 20  # the whole recording decoded takes 16 MB
