@@ -340,19 +340,61 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
         yield ev
 
 
+@njit(cache=True)
+def _put_uint(buf, pos, v):
+    if v == 0:
+        buf[pos] = 48
+        return pos + 1
+    n = 0
+    w = v
+    while w > 0:
+        w //= 10
+        n += 1
+    for i in range(n - 1, -1, -1):
+        buf[pos + i] = 48 + v % 10
+        v //= 10
+    return pos + n
+
+
+@njit(cache=True)
+def _format(x, y, t, p, buf):
+    pos = 0
+    for i in range(t.shape[0]):
+        sec = t[i] // 1_000_000
+        us = t[i] - sec * 1_000_000
+        pos = _put_uint(buf, pos, sec)
+        buf[pos] = 46  # '.'
+        for j in range(5, -1, -1):
+            buf[pos + 1 + j] = 48 + us % 10
+            us //= 10
+        buf[pos + 7] = 32
+        pos = _put_uint(buf, pos + 8, np.int64(x[i]))
+        buf[pos] = 32
+        pos = _put_uint(buf, pos + 1, np.int64(y[i]))
+        buf[pos] = 32
+        buf[pos + 1] = 48 + p[i]
+        buf[pos + 2] = 10
+        pos += 3
+    return pos
+
+
 def format_text(events: EventArray) -> bytes:
-    """ECD text for ``events``: ``t`` with 6 decimals (exact µs), integer x, y, p."""
-    t = events.t
-    sec = t // 1_000_000
-    us = t - sec * 1_000_000
-    x = np.asarray(events.x)
-    if x.dtype.kind == "f":
+    """ECD text for ``events``: ``t`` in seconds with 6 decimals (exact µs), integer x, y, p.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[3], y=[4], t=[1_500_000], p=[1], sensor_size=(10, 10))
+    >>> format_text(ev)
+    b'1.500000 3 4 1\\n'
+    """
+    if events.x.dtype.kind == "f":
         raise ParameterError("ECD text holds integer pixel coordinates; these events are "
                              "undistorted (float x, y): write them to .h5 or .npz instead")
-    cols = np.column_stack([sec, us, events.x.astype(np.int64), events.y.astype(np.int64),
-                            events.p.astype(np.int64)])
-    lines = [f"{a}.{b:06d} {c} {d} {e}\n" for a, b, c, d, e in cols.tolist()]
-    return "".join(lines).encode("ascii")
+    if len(events) and events.t[0] < 0:
+        raise ParameterError(f"ECD text needs non-negative times, got t={events.t[0]} us")
+    buf = np.empty(len(events) * 48, np.uint8)
+    n = _format(events.x, events.y, events.t, events.p, buf)
+    return buf[:n].tobytes()
 
 
 def write(path: str | Path, events: EventArray | Iterator[EventArray]) -> None:
