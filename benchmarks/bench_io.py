@@ -140,6 +140,18 @@ def main(quick: bool = False) -> list[dict]:
                      "ref_median_s": ref["median_s"], "ref_Mev_per_s": ref_rate / 1e6,
                      "speedup_vs_ref": rate / ref_rate})
 
+        r = timeit(lambda: ecd.write(tmp / "w.txt", evt), repeat=repeat, warmup=1)
+        arr = np.column_stack([evt.t[:sub_n] * 1e-6, evt.x[:sub_n], evt.y[:sub_n],
+                               evt.p[:sub_n]])
+        ref = timeit(lambda: np.savetxt(tmp / "ref.txt", arr, fmt="%.6f %d %d %d"),
+                     repeat=3, warmup=0)
+        rate, ref_rate = n_txt / r["median_s"], sub_n / ref["median_s"]
+        rows.append({"case": "ECD text write (numba formatter)", "events": n_txt,
+                     "median_s": r["median_s"], "Mev_per_s": rate / 1e6,
+                     "reference": f"np.savetxt on {sub_n:,} events",
+                     "ref_median_s": ref["median_s"], "ref_Mev_per_s": ref_rate / 1e6,
+                     "speedup_vs_ref": rate / ref_rate})
+
         for fmt, path in (("h5", tmp / "ev.h5"), ("dsec", tmp / "events.h5")):
             s = _stream(path, fmt, 10_000)
             rows.append({"case": f"stream {fmt} in 10 ms windows (subprocess)",
