@@ -71,3 +71,37 @@ def test_missing_dependency(monkeypatch, events, tmp_path):
     monkeypatch.setitem(sys.modules, "rosbags", None)
     with pytest.raises(MissingDependencyError, match="evmotion\\[ros\\]"):
         rosbag.write(tmp_path / "x.bag", events)
+
+
+def test_imu_messages(events, tmp_path):
+    from rosbags.rosbag1 import Writer
+
+    store = rosbag.typestore()
+    T = store.types
+    out = tmp_path / "imu.bag"
+    with Writer(out) as writer:
+        conn = writer.add_connection("/dvs/imu", rosbag.IMU_MSGTYPE, typestore=store)
+        for k in range(5):
+            stamp = T["builtin_interfaces/msg/Time"](sec=100 + k, nanosec=250_000)
+            msg = T["sensor_msgs/msg/Imu"](
+                header=T["std_msgs/msg/Header"](seq=k, stamp=stamp, frame_id="imu"),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0, y=0, z=0, w=1),
+                orientation_covariance=np.zeros(9),
+                angular_velocity=T["geometry_msgs/msg/Vector3"](x=0.1 * k, y=0, z=0),
+                angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=T["geometry_msgs/msg/Vector3"](x=0, y=-9.81, z=0),
+                linear_acceleration_covariance=np.zeros(9))
+            writer.write(conn, (100 + k) * 10**9, store.serialize_ros1(msg, rosbag.IMU_MSGTYPE))
+    imu = rosbag.read_imu(out)
+    assert imu.t.tolist() == [(100 + k) * 10**6 + 250 for k in range(5)]
+    np.testing.assert_allclose(imu.gyro[:, 0], 0.1 * np.arange(5))
+    np.testing.assert_allclose(imu.accel[:, 1], -9.81)
+    assert rosbag.describe(out)["imu"] == 5
+
+
+def test_no_imu_topic(events, tmp_path):
+    out = tmp_path / "ev.bag"
+    rosbag.write(out, events[:10])
+    assert rosbag.read_imu(out).t.size == 0
+    with pytest.raises(FormatError, match="/imu"):
+        rosbag.read_imu(out, topic="/imu")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,8 @@ from evmotion.io import _binary
 from evmotion.io.base import FormatSpec
 from evmotion.utils import atomic_path
 
-__all__ = ["read", "iter_chunks", "write", "describe", "typestore", "FORMAT"]
+__all__ = ["read", "iter_chunks", "write", "read_imu", "describe", "typestore", "ImuSamples",
+           "FORMAT"]
 
 MAGIC = b"#ROSBAG V2.0"
 MSGTYPE = "dvs_msgs/msg/EventArray"
@@ -29,6 +31,19 @@ EVENT_ARRAY_MSG = ("std_msgs/Header header\nuint32 height\nuint32 width\n"
                    "dvs_msgs/Event[] events\n")
 _EVENT = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"),
                    ("p", "u1")])
+
+
+IMU_MSGTYPE = "sensor_msgs/msg/Imu"
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """IMU samples from ``sensor_msgs/Imu``: ``t`` int64 µs (header stamp), ``accel``
+    (N, 3) m/s², ``gyro`` (N, 3) rad/s, in the message's frame (ROS units)."""
+
+    t: np.ndarray
+    accel: np.ndarray
+    gyro: np.ndarray
 
 
 def _rosbags():
@@ -203,6 +218,42 @@ def write(path: str | Path, events: EventArray, *, topic: str = "/dvs/events",
                 part = events[int(a):int(b)]
                 stamp_ns = int(part.t[-1]) * 1000
                 writer.write(conn, stamp_ns, _serialize(part, seq, frame_id.encode()))
+
+
+def read_imu(path: str | Path, *, topic: str | None = None) -> ImuSamples:
+    """The ``sensor_msgs/Imu`` messages of a bag (first IMU topic unless ``topic``).
+
+    Examples
+    --------
+    >>> imu = read_imu("boxes.bag", topic="/dvs/imu")  # doctest: +SKIP
+    """
+    rosbag1, _ = _rosbags()
+    path = Path(path)
+    store = typestore()
+    t, acc, gyr = [], [], []
+    try:
+        reader = rosbag1.Reader(path)
+        reader.open()
+    except Exception as exc:
+        raise FormatError(path, f"cannot open as a ROS1 bag: {exc}") from None
+    try:
+            conns = [c for c in reader.connections if c.msgtype == IMU_MSGTYPE
+                     and (topic is None or c.topic == topic)]
+            if conns:
+                conns = [c for c in conns if c.topic == conns[0].topic]
+            elif topic is not None:
+                raise FormatError(path, f"no {IMU_MSGTYPE} messages on topic '{topic}'")
+            # an empty connection list would mean "every connection" to rosbags
+            for conn, _, raw in reader.messages(connections=conns) if conns else ():
+                m = store.deserialize_ros1(raw, conn.msgtype)
+                t.append(m.header.stamp.sec * 1_000_000 + m.header.stamp.nanosec // 1000)
+                a, g = m.linear_acceleration, m.angular_velocity
+                acc.append((a.x, a.y, a.z))
+                gyr.append((g.x, g.y, g.z))
+    finally:
+        reader.close()
+    return ImuSamples(t=np.array(t, np.int64), accel=np.array(acc, float).reshape(-1, 3),
+                      gyro=np.array(gyr, float).reshape(-1, 3))
 
 
 def describe(path: str | Path) -> dict:
