@@ -191,12 +191,14 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     validate : bool
         Check sortedness and bounds of the result.
     block_bytes : int
-        Bytes read and decoded at a time (bounds memory besides the result).
+        Bytes read and decoded at a time when a time range is given or the payload
+        exceeds 256 MiB (otherwise the payload is decoded in one pass, which is faster).
 
     Returns
     -------
     EventArray
-        Timestamps unwrapped to int64 µs.
+        Timestamps unwrapped to int64 µs, as counted by the camera (Metavision's DAT
+        export of the same recording subtracts a multiple of 4096 µs).
 
     Examples
     --------
