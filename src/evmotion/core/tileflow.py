@@ -89,7 +89,7 @@ def axis_matrix(pos: np.ndarray, n: int, length: int) -> np.ndarray:
 
     Examples
     --------
-    >>> axis_matrix(np.array([0.0, 1.5, 3.0]), 2, 4).round(2).tolist()
+    >>> axis_matrix(np.array([0.5, 1.5, 2.5]), 2, 4).round(2).tolist()
     [[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]]
     """
     pos = np.asarray(pos, dtype=np.float64)
@@ -344,7 +344,7 @@ def iwe_forward(x: np.ndarray, y: np.ndarray, flow: np.ndarray, dtn: np.ndarray,
     >>> iwe = iwe_forward(np.array([1.0]), np.array([1.0]), np.array([[1.0, 0.0]]),
     ...                   np.array([0.5]), (3, 3))
     >>> iwe[1].round(3).tolist()
-    [0.0, 0.5, 0.5]
+    [0.0, 0.375, 0.375]
     """
     iwe = np.zeros(shape)
     _iwe_fwd(x, y, flow, dtn, iwe)

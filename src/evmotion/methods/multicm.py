@@ -6,9 +6,12 @@ Pipeline for one window of events (times ``t_1 .. t_N``, ``t_mid = (t_1 + t_N) /
   fine over ``n_scales`` grids of ``2^(l-1) x 2^(l-1)`` tiles, each scale initialized by
   bilinear upsampling of the previous one (and the coarsest from ``init``, e.g. the previous
   window: warm start of §4.2.4);
-* events are warped with ``x' = x + (t_k - t_ref) v(x_k)`` (4.4) or, time-aware,
-  ``x' = x + (t_k - t_ref) v(x_k, t_k)`` (4.8) with the flow transported over ``n_bins``
-  time bins by :mod:`evmotion.methods.transport`;
+* events are warped to ``t_ref`` along the flow, ``x' = x + (t_ref - t_k) v(x_k)`` (4.4)
+  or, time-aware, ``x' = x + (t_ref - t_k) v(x_k, t_k)`` (4.8), with the flow transported
+  over ``n_bins`` time bins by :mod:`evmotion.methods.transport`. (The thesis writes
+  ``t_k - t_ref``; with the flow pointing where the scene moves, as everywhere in
+  evmotion, transporting an event back to ``t_ref`` needs ``t_ref - t_k``.) The flow is
+  looked up at the event's sub-pixel position;
 * the multi-reference focus ``f = (G(t_1) + 2 G(t_mid) + G(t_N)) / (4 G(0))`` (4.6) with
   ``G`` the mean squared IWE gradient (or the variance) is maximized through the composite
   objective ``1/f + lam * TV`` (4.9).
@@ -98,8 +101,29 @@ class FlowResult:
 class MultiCMProblem:
     """The composite objective (4.9) of one window at one scale, with its gradient.
 
-    Parameters are tile flows ``(ny, nx, 2)`` in px per window. Build once per window
-    (``shared`` caches what does not depend on the scale) and call :meth:`value_grad`.
+    Parameters
+    ----------
+    x, y : ndarray (N,) float64
+        Event positions in px (sub-pixel allowed).
+    s : ndarray (N,) float64
+        Event times as the fraction of the window, ``(t - t_1) / (t_N - t_1)`` in [0, 1].
+    shape : (H, W)
+    grid : TileGrid
+        The scale's tiles; the unknowns are tile flows ``(ny, nx, 2)`` in px per window.
+    objective, lam, references, time_aware, n_bins, transport_cell
+        As in :func:`estimate_flow`.
+    g0 : float, optional
+        ``G(0)`` of the identity warp (computed if not given; it does not depend on the
+        scale, so :func:`estimate_flow` passes it on).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.array([10.0, 11.0, 12.0]); y = np.full(3, 5.0); s = np.array([0, .5, 1])
+    >>> prob = MultiCMProblem(x, y, s, (10, 20), tf.TileGrid(1, 1, (10, 20)))
+    >>> v0, _ = prob.value_grad(np.zeros(2)); v1, _ = prob.value_grad(np.array([2.0, 0]))
+    >>> bool(v1 < v0)   # 2 px per window to the right aligns the three events
+    True
     """
 
     def __init__(self, x, y, s, shape, grid, *, objective="gradient_magnitude", lam=0.0025,
@@ -318,7 +342,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     >>> x0 = rng.choice([20.0, 40.0], n); y0 = rng.uniform(5, 55, n)
     >>> ev = EventArray(x=np.round(x0 + 1000 * t * 1e-6), y=np.round(y0), t=t, p=np.ones(n),
     ...                 sensor_size=(64, 64))
-    >>> res = estimate_flow(ev, n_scales=2)
+    >>> res = estimate_flow(ev, n_scales=2, finest_level=2)
     >>> bool(abs(np.median(res.flow[..., 0]) - 1000) < 150)
     True
     """
