@@ -241,12 +241,19 @@ def test_user_image_texture(tmp_path):
     ({"params": {"vx": "fast"}}, "numeric"),
     ({"texture": "marble"}, "unknown texture"),
     ({"sensor_size": (0, 10)}, "sensor_size"),
+    ({"params": {"g11": -12.0}, "duration_s": 0.1}, "degenerates"),
 ])
 def test_bad_input_raises_clear_errors(kw, match):
     args = dict(duration_s=0.005, sensor_size=(10, 12), show_progress=False)
     args.update(kw)
+    scene = "affine" if "g11" in str(kw) else "translation"
     with pytest.raises(ParameterError, match=match):
-        simulate("translation", **args)
+        simulate(scene, **args)
+
+
+def test_zoom_into_the_scene_is_refused():
+    with pytest.raises(ParameterError, match="time to contact"):
+        simulate("zoom", duration_s=1.0, sensor_size=(10, 12), show_progress=False)
 
 
 def test_unknown_scene():

@@ -135,6 +135,23 @@ def _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr, 
     return n, 0
 
 
+def _check_motion(scene, p, layers, duration_s):
+    """Refuse motions that degenerate within the recording (clear error, not NaN events)."""
+    if scene == "zoom" and p["hz"] * duration_s >= 0.9:
+        raise ParameterError(f"zoom: hz={p['hz']} 1/s over {duration_s} s reaches the scene "
+                             f"(time to contact 1/hz = {1 / p['hz']:.3g} s); use "
+                             "hz * duration < 0.9")
+    ts = np.linspace(0.0, duration_s, 65)
+    for layer in layers:
+        det = np.linalg.det(layer.motion.matrices(ts))
+        if not np.all(np.isfinite(det)) or np.any(det * det[0] <= 0) or \
+                np.abs(np.log(np.abs(det))).max() > np.log(100.0):
+            raise ParameterError(f"{scene}: the motion {layer.motion.theta.tolist()} "
+                                 f"({layer.motion.warp.name}) degenerates within {duration_s} s "
+                                 "(area scale beyond 100x); use smaller rates or a shorter "
+                                 "duration")
+
+
 def _check(name, value, lo=0.0, strict=False):
     v = float(value)
     if not math.isfinite(v) or v < lo or (strict and v <= lo):
@@ -238,6 +255,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
 
     p = resolve_params(scene, params, sensor_size)
     layers, texs = build_layers(scene, p, sensor_size, K, texture, image, seed)
+    _check_motion(scene, p, layers, duration_us * 1e-6)
     ss = np.random.SeedSequence(seed).spawn(4)
     rng_thr = np.random.default_rng(ss[2])
     rng_noise = np.random.default_rng(ss[3])
