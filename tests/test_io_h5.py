@@ -117,3 +117,16 @@ def test_not_hdf5(tmp_path):
     (tmp_path / "z.h5").write_bytes(b"hello")
     with pytest.raises(FormatError, match="z.h5.*not a readable HDF5"):
         h5.read(tmp_path / "z.h5")
+
+
+def test_describe_mentions_ground_truth(tmp_path):
+    from evmotion.io import flowfiles
+
+    ev = _events(100)
+    h5.write(tmp_path / "s.h5", ev)
+    with h5py.File(tmp_path / "s.h5", "a") as f:
+        flowfiles.write_flow_group(f.require_group("ground_truth/flow"),
+                                   np.zeros((1, 180, 240, 2)), [0], [10])
+    (tmp_path / "s_gt.h5").write_bytes(b"")
+    d = h5.describe(tmp_path / "s.h5")
+    assert d["ground_truth"] == ["flow"] and d["ground_truth_file"].endswith("s_gt.h5")

@@ -389,6 +389,9 @@ def describe(path: str | os.PathLike) -> dict:
         out["imu"] = int(f["imu/t"].shape[0]) if "imu/t" in f else 0
         if "ground_truth" in f:
             out["ground_truth"] = sorted(f["ground_truth"].keys())
+        beside = path.with_name(path.stem + "_gt.h5")
+        if beside.exists():
+            out["ground_truth_file"] = str(beside)  # the simulator writes its GT beside
         for k in ("calibration", "provenance"):
             if k in meta:
                 out[k] = meta[k]
