@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import evmotion.io as eio
-from evmotion.errors import FormatError
+from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 
 
@@ -160,3 +160,18 @@ def test_truncated_mat(tmp_path, shared_data):
     (tmp_path / "cut.mat").write_bytes(data[:5000])
     with pytest.raises(FormatError, match="cut.mat"):
         eio.read_events(tmp_path / "cut.mat")
+
+
+def test_iter_events_explicit_overlapping_windows(tmp_path):
+    ev = _events()
+    eio.write_events(tmp_path / "a.npz", ev)
+    rng = np.random.default_rng(2)
+    starts = np.sort(rng.integers(ev.t[0] - 1000, ev.t[-1], 25))
+    edges = np.column_stack([starts, starts + rng.integers(0, 80_000, 25)])
+    got = list(eio.iter_events(tmp_path / "a.npz", 1500, windows=edges))
+    assert len(got) == len(edges)
+    for g, (a, b) in zip(got, edges, strict=True):
+        np.testing.assert_array_equal(g.t, ev.slice_time(int(a), int(b)).t)
+        assert g.meta["window"] == (a, b)
+    with pytest.raises(ParameterError, match="sorted by start"):
+        list(eio.iter_events(tmp_path / "a.npz", windows=[(10, 20), (5, 8)]))

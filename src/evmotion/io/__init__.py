@@ -140,7 +140,7 @@ def _chunks(spec: FormatSpec, path: Path, chunk_events: int, t0, t1, kw) -> Iter
 
 
 def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
-                window_us: int | None = None, format: str | None = None,
+                window_us: int | None = None, windows=None, format: str | None = None,
                 t0: int | None = None, t1: int | None = None, drop_empty: bool = False,
                 **kw) -> Iterator[EventArray]:
     """Stream a file in bounded memory: chunks of ``chunk_events`` events, or time windows.
@@ -155,6 +155,10 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
         Yield consecutive windows ``[t0 + k·window_us, t0 + (k+1)·window_us)`` (µs) instead
         of fixed-count chunks; ``t0`` defaults to the first event's time. Memory is bounded
         by one window plus one chunk.
+    windows : sequence of (int, int), optional
+        Explicit windows ``[a, b)`` in µs, sorted by start, possibly overlapping (e.g.
+        between ground-truth timestamps); one EventArray per window, in order. Memory is
+        bounded by the events spanned by the windows open at once plus one chunk.
     format : str, optional
         Format name; default detected by content.
     t0, t1 : int, optional
@@ -177,6 +181,19 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
         raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
     path = Path(path)
     spec = _spec(path, format)
+    if window_us is not None and windows is not None:
+        raise ParameterError("give window_us or windows, not both")
+    if windows is not None:
+        edges = np.asarray(windows, dtype=np.int64).reshape(-1, 2)
+        if edges.size and (np.any(np.diff(edges[:, 0]) < 0) or np.any(edges[:, 1] < edges[:, 0])):
+            raise ParameterError("windows must be (start, end) µs pairs sorted by start, "
+                                 "with end >= start")
+        if not edges.size:
+            return
+        lo = int(edges[0, 0]) if t0 is None else max(int(t0), int(edges[0, 0]))
+        hi = int(edges[:, 1].max()) if t1 is None else min(int(t1), int(edges[:, 1].max()))
+        yield from _explicit_windows(_chunks(spec, path, chunk_events, lo, hi, kw), edges)
+        return
     chunks = _chunks(spec, path, chunk_events, t0, t1, kw)
     if window_us is None:
         yield from chunks
@@ -219,6 +236,35 @@ def _windows(chunks: Iterable[EventArray], window_us: int, t0: int | None,
             start = end
     if pending:
         yield emit(pending, start)
+
+
+def _explicit_windows(chunks: Iterable[EventArray], edges: np.ndarray
+                      ) -> Iterator[EventArray]:
+    buf: EventArray | None = None
+    k = 0
+    template: EventArray | None = None
+
+    def emit(i: int) -> EventArray:
+        a, b = int(edges[i, 0]), int(edges[i, 1])
+        ev = buf.slice_time(a, b) if buf is not None else template[:0]
+        ev.meta = {**template.meta, "window": (a, b)}
+        return ev
+
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        template = chunk
+        buf = chunk if buf is None else concatenate([buf, chunk])
+        t_seen = int(chunk.t[-1])
+        # A window is complete once an event at or after its end has been read.
+        while k < len(edges) and edges[k, 1] <= t_seen:
+            yield emit(k)
+            k += 1
+        keep_from = int(edges[k, 0]) if k < len(edges) else t_seen + 1
+        buf = buf.slice_time(keep_from, None)
+    while template is not None and k < len(edges):
+        yield emit(k)
+        k += 1
 
 
 _EXT_WRITERS = {".h5": "h5", ".hdf5": "h5", ".txt": "ecd", ".npy": "npy", ".npz": "npy"}
