@@ -35,11 +35,11 @@ covariance (an SVD of the event covariance) before the objective is computed.
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import accumulate, accumulate_backward
 from evmotion.core.warps import Warp, _hat, _sinc_terms
 from evmotion.errors import EmptyWindowError, ParameterError
 
@@ -69,36 +69,6 @@ _MIN_COUNT = 1e-9  # pixels with less bilinear vote mass hold no warped event
 
 
 @njit(cache=True)
-def _gather_bilinear(img, xw, yw, out):
-    """Adjoint of the IWE w.r.t. the per-event weights: sum of img over the 4 votes."""
-    h, wd = img.shape
-    for k in range(xw.shape[0]):
-        x = xw[k]
-        y = yw[k]
-        if not (x > -1.0 and x < wd and y > -1.0 and y < h):
-            out[k] = 0.0
-            continue
-        x0 = math.floor(x)
-        y0 = math.floor(y)
-        fx = x - x0
-        fy = y - y0
-        ix = int(x0)
-        iy = int(y0)
-        s = 0.0
-        if iy >= 0:
-            if ix >= 0:
-                s += img[iy, ix] * (1.0 - fx) * (1.0 - fy)
-            if ix + 1 < wd:
-                s += img[iy, ix + 1] * fx * (1.0 - fy)
-        if iy + 1 < h:
-            if ix >= 0:
-                s += img[iy + 1, ix] * (1.0 - fx) * fy
-            if ix + 1 < wd:
-                s += img[iy + 1, ix + 1] * fx * fy
-        out[k] = s
-
-
-@njit(cache=True)
 def chain_rule(jx, jy, dd, gx, gy, gd, out):
     """``out = jx^T gx + jy^T gy + dd^T gd`` (P,) in one pass, without BLAS: numpy's
     (N,) @ (N, P) product spins up threads that stall on a pinned core."""
@@ -113,6 +83,91 @@ def chain_rule(jx, jy, dd, gx, gy, gd, out):
             out[j] += a * jx[k, j] + b * jy[k, j] + c * dd[k, j]
 
 
+@njit(cache=True, error_model="numpy")
+def _fused_forward(xw, yw, d, cnt, num):
+    """Bilinear IWE of ones and of ``d`` in one pass (the same votes as core.iwe's
+    bilinear accumulate, which the tests check)."""
+    h, wd = cnt.shape
+    cnt[:] = 0.0
+    num[:] = 0.0
+    for k in range(xw.shape[0]):
+        x = xw[k]
+        y = yw[k]
+        if not (x > -1.0 and x < wd and y > -1.0 and y < h):
+            continue
+        x0 = math.floor(x)
+        y0 = math.floor(y)
+        fx = x - x0
+        fy = y - y0
+        ix = int(x0)
+        iy = int(y0)
+        a = d[k]
+        w00 = (1.0 - fx) * (1.0 - fy)
+        w01 = fx * (1.0 - fy)
+        w10 = (1.0 - fx) * fy
+        w11 = fx * fy
+        if iy >= 0:
+            if ix >= 0:
+                cnt[iy, ix] += w00
+                num[iy, ix] += a * w00
+            if ix + 1 < wd:
+                cnt[iy, ix + 1] += w01
+                num[iy, ix + 1] += a * w01
+        if iy + 1 < h:
+            if ix >= 0:
+                cnt[iy + 1, ix] += w10
+                num[iy + 1, ix] += a * w10
+            if ix + 1 < wd:
+                cnt[iy + 1, ix + 1] += w11
+                num[iy + 1, ix + 1] += a * w11
+
+
+@njit(cache=True, error_model="numpy")
+def _fused_backward(xw, yw, d, gS, gN, gx, gy, gd):
+    """Adjoint of :func:`_fused_forward` for the loss sum(gS * num + gN * cnt):
+    d/dxw, d/dyw and d/dd per event, in one pass."""
+    h, wd = gS.shape
+    for k in range(xw.shape[0]):
+        x = xw[k]
+        y = yw[k]
+        if not (x > -1.0 and x < wd and y > -1.0 and y < h):
+            gx[k] = 0.0
+            gy[k] = 0.0
+            gd[k] = 0.0
+            continue
+        x0 = math.floor(x)
+        y0 = math.floor(y)
+        fx = x - x0
+        fy = y - y0
+        ix = int(x0)
+        iy = int(y0)
+        a = d[k]
+        s00 = s01 = s10 = s11 = 0.0
+        n00 = n01 = n10 = n11 = 0.0
+        if iy >= 0:
+            if ix >= 0:
+                s00 = gS[iy, ix]
+                n00 = gN[iy, ix]
+            if ix + 1 < wd:
+                s01 = gS[iy, ix + 1]
+                n01 = gN[iy, ix + 1]
+        if iy + 1 < h:
+            if ix >= 0:
+                s10 = gS[iy + 1, ix]
+                n10 = gN[iy + 1, ix]
+            if ix + 1 < wd:
+                s11 = gS[iy + 1, ix + 1]
+                n11 = gN[iy + 1, ix + 1]
+        g00 = a * s00 + n00
+        g01 = a * s01 + n01
+        g10 = a * s10 + n10
+        g11 = a * s11 + n11
+        gx[k] = (g01 - g00) * (1.0 - fy) + (g11 - g10) * fy
+        gy[k] = (g10 - g00) * (1.0 - fx) + (g11 - g01) * fx
+        gd[k] = (s00 * (1.0 - fx) * (1.0 - fy) + s01 * fx * (1.0 - fy)
+                 + s10 * (1.0 - fx) * fy + s11 * fx * fy)
+
+
 # ---------------------------------------------------------------------------------------
 # Per-event statistics and their parameter derivatives
 
@@ -125,71 +180,101 @@ def window_span(dt) -> float:
 
 def _event_values(kind: str, warp: Warp, x, y, dt, theta):
     """(d_k, dd_k/dtheta): divergence per window (1/s times T), or |det J| - 1."""
-    fast = _FAST.get(warp.name)
-    if fast is not None:
-        d, g = fast(kind, warp, dt, theta)
-    elif kind == "divergence":
+    code = _FAST.get(warp.name)
+    is_div = kind == "divergence"
+    T = window_span(dt) if is_div else 1.0
+    if code is not None:
+        n = dt.shape[0]
+        d, g = _scratch(((n,), (n, warp.n_params)), "ev")
+        _k_fast_values(code, is_div, dt, theta, T, d, g)
+        return d, g
+    if is_div:
         d, g = warp.divergence(x, y, dt, theta, grad=True)
-    else:
-        det, g = warp.jacobian_det(x, y, dt, theta, grad=True)
-        sgn = np.sign(det)
-        return np.abs(det) - 1.0, g * sgn[:, None]
-    if kind == "divergence":
-        T = window_span(dt)
         return d * T, g * T
-    return d, g
-
-
-def _fast_zoom(kind, warp, dt, th):
-    h = th[0]
-    if kind == "divergence":
-        return np.full(dt.shape, -2.0 * h), np.full((dt.shape[0], 1), -2.0)
-    s = 1.0 - dt * h
-    return s * s - 1.0, (-2.0 * dt * s)[:, None]
-
-
-def _fast_translation(kind, warp, dt, th):
-    return np.zeros(dt.shape), np.zeros((dt.shape[0], 2))
-
-
-def _fast_similarity(kind, warp, dt, th):
-    # (A.40) and (A.42); SE(2) is the case s = 0
-    scaled = warp.n_params == 4
-    w = th[2]
-    s = th[3] if scaled else 0.0
-    ib = 1.0 / (1.0 + dt * s)
-    g = np.zeros((dt.shape[0], warp.n_params))
-    if kind == "divergence":
-        c, sn = np.cos(dt * w), np.sin(dt * w)
-        val = -2.0 * s * ib * ib * c - 2.0 * w * ib * sn
-        g[:, 2] = 2.0 * s * ib * ib * dt * sn - 2.0 * ib * sn - 2.0 * w * ib * dt * c
-        if scaled:
-            g[:, 3] = -2.0 * c * ib * ib + 4.0 * s * dt * c * ib ** 3 + 2.0 * w * dt * sn * ib * ib
-        return val, g
-    det = ib * ib
-    if scaled:
-        g[:, 3] = -2.0 * dt * ib ** 3 * np.sign(det)
-    return det - 1.0, g
-
-
-def _fast_inplane(kind, warp, dt, th):
-    phi, k = th[2], th[3] + 1.0
-    c, sn = math.cos(phi), math.sin(phi)
-    g = np.zeros((dt.shape[0], 4))
-    if kind == "divergence":  # (A.25)
-        g[:, 2] = 2.0 * k * sn
-        g[:, 3] = -2.0 * c
-        return np.full(dt.shape, 2.0 - 2.0 * k * c), g
-    a = 1.0 + dt  # (A.27)
-    det = a * a - 2.0 * a * dt * k * c + dt * dt * k * k
+    det, g = warp.jacobian_det(x, y, dt, theta, grad=True)
     sgn = np.sign(det)
-    g[:, 2] = 2.0 * a * dt * k * sn * sgn
-    g[:, 3] = (-2.0 * a * dt * c + 2.0 * dt * dt * k) * sgn
-    return np.abs(det) - 1.0, g
+    return np.abs(det) - 1.0, g * sgn[:, None]
 
 
-_FAST = {"zoom": _fast_zoom, "translation": _fast_translation, "se2": _fast_similarity,
-         "similarity": _fast_similarity, "inplane": _fast_inplane}
+@njit(cache=True, error_model="numpy")
+def _k_fast_values(code, is_div, dt, th, T, d, g):
+    """Closed forms of the warps whose divergence and det J depend on dt only: zoom (3.7),
+    translation, SE(2) (A.13)/(A.14), similarity (A.40)/(A.42), in-plane (A.25)/(A.27).
+    Writes d_k (divergence times T, or |det J| - 1) and dd_k/dtheta."""
+    n = dt.shape[0]
+    P = g.shape[1]
+    for k in range(n):
+        for j in range(P):
+            g[k, j] = 0.0
+    if code == 0:  # zoom
+        h = th[0]
+        for k in range(n):
+            if is_div:
+                d[k] = -2.0 * h * T
+                g[k, 0] = -2.0 * T
+            else:
+                s = 1.0 - dt[k] * h
+                d[k] = s * s - 1.0
+                g[k, 0] = -2.0 * dt[k] * s
+    elif code == 1:  # translation
+        for k in range(n):
+            d[k] = 0.0
+    elif code == 2:  # SE(2) (P = 3, s = 0) and similarity
+        w = th[2]
+        s = th[3] if P == 4 else 0.0
+        for k in range(n):
+            t = dt[k]
+            ib = 1.0 / (1.0 + t * s)
+            if is_div:
+                c = math.cos(t * w)
+                sn = math.sin(t * w)
+                d[k] = T * (-2.0 * s * ib * ib * c - 2.0 * w * ib * sn)
+                g[k, 2] = T * (2.0 * s * ib * ib * t * sn - 2.0 * ib * sn - 2.0 * w * ib * t * c)
+                if P == 4:
+                    g[k, 3] = T * (-2.0 * c * ib * ib + 4.0 * s * t * c * ib ** 3
+                                   + 2.0 * w * t * sn * ib * ib)
+            else:
+                d[k] = ib * ib - 1.0
+                if P == 4:
+                    g[k, 3] = -2.0 * t * ib ** 3
+    else:  # in-plane
+        phi = th[2]
+        kk = th[3] + 1.0
+        c = math.cos(phi)
+        sn = math.sin(phi)
+        for k in range(n):
+            t = dt[k]
+            if is_div:
+                d[k] = T * (2.0 - 2.0 * kk * c)
+                g[k, 2] = T * 2.0 * kk * sn
+                g[k, 3] = -T * 2.0 * c
+            else:
+                a = 1.0 + t
+                det = a * a - 2.0 * a * t * kk * c + t * t * kk * kk
+                sgn = 1.0 if det >= 0 else -1.0
+                d[k] = abs(det) - 1.0
+                g[k, 2] = 2.0 * a * t * kk * sn * sgn
+                g[k, 3] = (-2.0 * a * t * c + 2.0 * t * t * kk) * sgn
+
+
+_FAST = {"zoom": 0, "translation": 1, "se2": 2, "similarity": 2, "inplane": 3}
+
+_TLS = threading.local()
+
+
+def _scratch(shapes, tag):
+    """Reusable float64 buffers per thread: fresh large arrays cost page faults on every
+    call (several times the arithmetic here); callers must not return them."""
+    cache = getattr(_TLS, "bufs", None)
+    if cache is None:
+        cache = _TLS.bufs = {}
+    key = (tag, tuple(shapes))
+    bufs = cache.get(key)
+    if bufs is None:
+        if len(cache) > 32:
+            cache.clear()
+        bufs = cache[key] = tuple(np.empty(sh) for sh in shapes)
+    return bufs
 
 
 # ---------------------------------------------------------------------------------------
@@ -240,9 +325,10 @@ def _trim_pass(cnt, num, margin, mean, gS, gN):
 
 def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw, kernel, margin=-np.inf):
     d, dd = _event_values(kind, warp, x, y, dt, th)
-    cnt = accumulate(xw, yw, shape, kernel=kernel)
-    num = accumulate(xw, yw, shape, weights=d, kernel=kernel)
-    mean, gS, gN = np.empty(cnt.shape), np.empty(cnt.shape), np.empty(cnt.shape)
+    cnt, num, mean, gS, gN = _scratch((shape,) * 5, "img")
+    xw = np.ascontiguousarray(xw, dtype=np.float64)
+    yw = np.ascontiguousarray(yw, dtype=np.float64)
+    _fused_forward(xw, yw, d, cnt, num)
     value, n_sel = _trim_pass(cnt, num, margin, mean, gS, gN)
     return d, dd, cnt, mean, value, n_sel, gS, gN
 
@@ -259,13 +345,14 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
         return 0.0, np.zeros(warp.n_params)
     if not grad:
         return value, None
-    gx1, gy1 = accumulate_backward(xw, yw, shape, gS, weights=d, kernel=kernel)
-    gx2, gy2 = accumulate_backward(xw, yw, shape, gN, kernel=kernel)
-    gd = np.empty(x.shape[0])
-    _gather_bilinear(gS, np.ascontiguousarray(xw), np.ascontiguousarray(yw), gd)
+    n = x.shape[0]
+    gx1, gy1, gd = _scratch(((n,),) * 3, "ev3")
+    xw = np.ascontiguousarray(xw, dtype=np.float64)
+    yw = np.ascontiguousarray(yw, dtype=np.float64)
+    _fused_backward(xw, yw, d, gS, gN, gx1, gy1, gd)
     g = np.empty(warp.n_params)
     chain_rule(np.ascontiguousarray(jx), np.ascontiguousarray(jy), np.ascontiguousarray(dd),
-               gx1 + gx2, gy1 + gy2, gd, g)
+               gx1, gy1, gd, g)
     return value, g
 
 
@@ -360,6 +447,12 @@ def _rcad_value_grad(warp, x, y, dt, theta, shape, margin, stride, grad=True):
 # ---------------------------------------------------------------------------------------
 # Public API
 
+def _check_kernel(kernel):
+    if kernel != "bilinear":
+        raise ParameterError(f"the DIWE/IWA maps use bilinear votes (kernel='bilinear'), "
+                             f"got kernel={kernel!r}")
+
+
 def _check_shape(shape):
     try:
         h, w = (int(v) for v in shape)
@@ -417,8 +510,9 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
         Already-warped events (saves a warp); ``jx, jy`` (N, P) their parameter Jacobians.
     margin : float, optional
         Trimming margin; defaults :data:`DEFAULT_MARGINS`.
-    kernel : {"bilinear", "gaussian"}
-        Vote kernel of the DIWE/IWA maps.
+    kernel : {"bilinear"}
+        Vote kernel of the DIWE/IWA maps (the bilinear votes of core.iwe, fused here into
+        one forward and one adjoint pass).
     stride : int
         Pixel stride of the RCAD map grid (rotation, homography).
     grad : bool
@@ -443,6 +537,7 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
     if name not in REGULARIZERS:
         raise ParameterError(f"unknown regularizer '{name}'; choose one of "
                              f"{sorted(REGULARIZERS)}")
+    _check_kernel(kernel)
     shape = _check_shape(shape)
     return REGULARIZERS[name](warp, x, y, dt, theta, shape, xw=xw, yw=yw, jx=jx, jy=jy,
                               margin=margin, kernel=kernel, grad=grad, **(
@@ -472,6 +567,7 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
     if name not in REGULARIZERS:
         raise ParameterError(f"unknown regularizer '{name}'; choose one of "
                              f"{sorted(REGULARIZERS)}")
+    _check_kernel(kernel)
     shape = _check_shape(shape)
     x, y, dt = Warp._events(x, y, dt)
     th = warp._theta(theta)
@@ -488,6 +584,7 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
         return {"rcad": vals, "trimmed": vals > m}
     xw, yw = warp.warp(x, y, dt, th)
     _, _, cnt, mean, _, _, _, _ = _pixel_average(name, warp, x, y, dt, th, shape, xw, yw, kernel)
+    cnt, mean = cnt.copy(), mean.copy()
     support = cnt > _MIN_COUNT
     if name == "divergence":
         return {"diwe": mean, "count": cnt, "trimmed": support & (mean < m)}
