@@ -149,3 +149,11 @@ def test_formatter_matches_plain_python_reference():
                   for a, b, c, d in zip(t.tolist(), x.tolist(), y.tolist(), p.tolist(),
                                         strict=True))
     assert ecd.format_text(ev) == ref.encode()
+
+
+def test_microsecond_text(tmp_path):
+    (tmp_path / "us.txt").write_text("1000 1 2 1\n2500 3 4 0\n")
+    ev = ecd.read(tmp_path / "us.txt", time_unit="us")
+    assert ev.t.tolist() == [1000, 2500]
+    assert [c.t.tolist() for c in ecd.iter_chunks(tmp_path / "us.txt", 1, time_unit="us")] == \
+        [[1000], [2500]]

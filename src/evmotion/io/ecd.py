@@ -201,7 +201,15 @@ def _sensor_size(path: Path, sensor_size) -> tuple[tuple[int, int], str]:
     return ECD_SENSOR_SIZE, "ECD default (DAVIS240C)"
 
 
-def _blocks(path: Path, block_bytes: int) -> Iterator[tuple[np.ndarray, ...]]:
+def _blocks(path: Path, block_bytes: int, time_unit: str = "s"
+            ) -> Iterator[tuple[np.ndarray, ...]]:
+    if time_unit == "us":
+        for x, y, t, p in _blocks(path, block_bytes):
+            # The parser reads the first column as seconds; undo its scaling exactly.
+            yield x, y, t // 1_000_000, p
+        return
+    if time_unit != "s":
+        raise ParameterError(f"time_unit must be 's' (ECD) or 'us', got {time_unit!r}")
     with open(path, "rb") as fh:
         carry = b""
         offset = 0
@@ -258,7 +266,7 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
-         block_bytes: int = BLOCK_BYTES) -> EventArray:
+         block_bytes: int = BLOCK_BYTES, time_unit: str = "s") -> EventArray:
     """Read ECD events (``events.txt`` or a folder holding one).
 
     Parameters
@@ -271,6 +279,8 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
         ``(height, width)``; default from the APS images, else 180x240 (DAVIS240C).
     validate : bool
         Check sortedness and bounds.
+    time_unit : {"s", "us"}
+        Unit of the first column: seconds (ECD) or integer microseconds (other tools).
 
     Returns
     -------
@@ -287,7 +297,7 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     ev_path = _events_file(path)
     size, src = _sensor_size(path, sensor_size)
     parts = []
-    for x, y, t, p in _blocks(ev_path, block_bytes):
+    for x, y, t, p in _blocks(ev_path, block_bytes, time_unit):
         if t0 is not None or t1 is not None:
             m = np.ones(t.shape, bool)
             if t0 is not None:
@@ -305,7 +315,8 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, validate: bool = True,
-                block_bytes: int = BLOCK_BYTES) -> Iterator[EventArray]:
+                block_bytes: int = BLOCK_BYTES, time_unit: str = "s"
+                ) -> Iterator[EventArray]:
     """Stream ECD events in chunks of ``chunk_events`` (the last may be shorter).
 
     Examples
@@ -321,7 +332,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     extra = _folder_meta(ev_path)
     buf = [np.zeros(0, np.int64)] * 4
     last_t = None
-    for block in _blocks(ev_path, block_bytes):
+    for block in _blocks(ev_path, block_bytes, time_unit):
         buf = [np.concatenate([a, b]) for a, b in zip(buf, block, strict=True)]
         while buf[2].size >= chunk_events:
             part = [a[:chunk_events] for a in buf]
