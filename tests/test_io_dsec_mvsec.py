@@ -150,3 +150,15 @@ def test_mvsec_bad_shape(tmp_path):
         f["davis/left/events"] = np.zeros((5, 3))
     with pytest.raises(FormatError, match=r"m.hdf5.*shape \(5, 3\)"):
         mvsec.read(tmp_path / "m.hdf5")
+
+
+def test_rectify_events(tmp_path):
+    _dsec_file(tmp_path / "events.h5", n=2000)
+    ev = dsec.read(tmp_path / "events.h5")
+    yy, xx = np.mgrid[0:480, 0:640].astype(np.float32)
+    shift = np.stack([xx + 0.5, yy - 0.25], axis=-1)  # a known sub-pixel shift
+    r = dsec.rectify_events(ev, shift)
+    keep = (ev.x.astype(float) + 0.5 <= 639) & (ev.y.astype(float) - 0.25 >= 0)
+    assert len(r) == keep.sum() and r.meta["dropped_outside"] == (~keep).sum()
+    np.testing.assert_array_equal(r.x, ev.x[keep] + np.float32(0.5))
+    np.testing.assert_array_equal(r.t, ev.t[keep])

@@ -25,7 +25,8 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 
-__all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "missing_filters",
+__all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "rectify_events",
+           "missing_filters",
            "FORMAT", "DSEC_SENSOR_SIZE"]
 
 DSEC_SENSOR_SIZE = (480, 640)
@@ -236,6 +237,35 @@ def read_rectify_map(path: str | os.PathLike) -> np.ndarray:
     if m.ndim != 3 or m.shape[2] != 2:
         raise FormatError(path, f"'rectify_map' has shape {m.shape}, expected (H, W, 2)")
     return m.astype(np.float32)
+
+
+def rectify_events(events: EventArray, rectify_map: np.ndarray, *,
+                   drop_outside: bool = True) -> EventArray:
+    """Map raw DSEC pixels through ``rectify_map`` (H, W, 2): float32 rectified x, y.
+
+    Events landing outside the sensor are dropped (``meta["dropped_outside"]`` counts
+    them) unless ``drop_outside=False``, which keeps them unvalidated.
+
+    Examples
+    --------
+    >>> ev_r = rectify_events(ev, read_rectify_map("rectify_map.h5"))  # doctest: +SKIP
+    """
+    m = np.asarray(rectify_map, dtype=np.float32)
+    if m.shape[:2] != events.sensor_size or m.ndim != 3 or m.shape[2] != 2:
+        raise ParameterError(f"rectify_map has shape {m.shape}, expected "
+                             f"{(*events.sensor_size, 2)} for these events")
+    xi = events.x.astype(np.intp)
+    yi = events.y.astype(np.intp)
+    xr, yr = m[yi, xi, 0], m[yi, xi, 1]
+    h, w = events.sensor_size
+    meta = dict(events.meta, rectified=True)
+    keep = (xr >= 0) & (yr >= 0) & (xr <= w - 1) & (yr <= h - 1)
+    if drop_outside:
+        meta["dropped_outside"] = int((~keep).sum())
+        return EventArray(x=xr[keep], y=yr[keep], t=events.t[keep], p=events.p[keep],
+                          sensor_size=events.sensor_size, validate=False, meta=meta)
+    return EventArray(x=xr, y=yr, t=events.t, p=events.p, sensor_size=events.sensor_size,
+                      validate=False, meta=meta)
 
 
 def describe(path: str | os.PathLike) -> dict:
