@@ -84,3 +84,15 @@ def test_other_formats_through_the_registry(tmp_path, capsys, shared_data):
     assert back.sensor_size == ev.sensor_size
     for k in "xytp":
         np.testing.assert_array_equal(getattr(back, k), getattr(ev, k))
+
+
+def test_info_on_flow_file(tmp_path, capsys):
+    from evmotion.io.flowfiles import FlowWriter
+
+    with FlowWriter(tmp_path / "flow.h5", (6, 7)) as fw:
+        fw.append(np.zeros((6, 7, 2)), 0, 10_000)
+        fw.append(np.zeros((6, 7, 2)), 10_000, 20_000)
+    rc, out, _ = _run(capsys, "info", str(tmp_path / "flow.h5"), "--json")
+    d = json.loads(out)
+    assert rc == 0 and d["format"] == "evmotion-flow" and d["windows"] == 2
+    assert d["sensor_size"] == [6, 7] and d["duration_s"] == pytest.approx(0.02)

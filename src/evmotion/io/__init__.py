@@ -402,7 +402,13 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     30000
     """
     path = Path(path)
-    spec = _spec(path, format)
+    try:
+        spec = _spec(path, format)
+    except FormatError:
+        flow = _describe_flow(path) if format is None else None
+        if flow is None:
+            raise
+        return flow
     out: dict = {"path": str(path), "format": spec.name}
     if spec.describe is not None:
         extra = spec.describe(path)
@@ -435,3 +441,36 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
                    rate_ev_per_s=(n / dur) if dur > 0 else None,
                    positive_fraction=n_pos / n, x_range=[xmin, xmax], y_range=[ymin, ymax])
     return out
+
+
+def _describe_flow(path: Path) -> dict | None:
+    """Summary of an optical-flow HDF5 file (not events), or None if it is not one."""
+    from evmotion.io.flowfiles import FLOW_FORMAT, SIM_GT_FORMAT
+
+    if not path.is_file():
+        return None
+    with open(path, "rb") as fh:
+        if not fh.read(8).startswith(b"\x89HDF\r\n\x1a\n"):
+            return None
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        return None
+    with f:
+        fmt = f.attrs.get("format")
+        if fmt == FLOW_FORMAT and "t1" in f:
+            t0, t1 = f["t0"][: f["t1"].shape[0]], f["t1"][:]
+        elif fmt == SIM_GT_FORMAT and "frame_times_us" in f:
+            ft = f["frame_times_us"][:]
+            t0, t1 = ft[:-1], ft[1:]
+        else:
+            return None
+        out = {"path": str(path), "format": str(fmt), "sensor_size": tuple(
+            int(v) for v in f["flow"].shape[1:3]), "windows": int(len(t1)),
+            "units": "px/s", "valid_masks": "valid" in f or "event_masks" in f}
+        if len(t1):
+            out.update(t_first_us=int(t0[0]), t_last_us=int(t1[-1]),
+                       duration_s=(int(t1[-1]) - int(t0[0])) * 1e-6)
+        return out
