@@ -207,7 +207,7 @@ class CMaxCost:
             return 0.0, np.zeros(self.warp.n_params)
         r, g = regularizer_value_grad(self.regularizer, self.warp, self.x, self.y, self.dt,
                                       theta, self.shape, self.xw, self.yw, jx=self.jx,
-                                      jy=self.jy, kernel=self.kernel, grad=grad)
+                                      jy=self.jy, grad=grad)
         s = self.weight * (self.span_s if self.regularizer == "divergence" else 1.0)
         return s * r, (s * g if grad else None)
 
@@ -325,7 +325,7 @@ def _default_weight(regularizer, dataset: str) -> float:
 
 def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str = "variance",
               regularizer: str | None = None, weight: float | None = None, K=None,
-              t_ref: str | int = "start", kernel: str = "bilinear", sigma: float = 1.0,
+              t_ref: str | int = "start", kernel: str = "auto", sigma: float = 1.0,
               use_polarity: bool = False, dataset: str = "mvsec") -> tuple[CMaxCost, int]:
     """Build the :class:`CMaxCost` of a window; returns ``(cost, t_ref_us)``.
 
@@ -358,6 +358,11 @@ def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str 
     span = max(int(t[-1]) - int(t[0]), 1)
     tn = (t - t[0]).astype(np.float64) / span
     lam = _default_weight(regularizer, dataset) if weight is None else float(weight)
+    if kernel == "auto":
+        # events on the integer pixel grid make the identity warp a kink-shaped local
+        # maximum of any bilinear-vote objective (every event sits exactly on a pixel), which
+        # traps gradient methods at theta = 0; the Gaussian delta is smooth there
+        kernel = "bilinear" if events.x.dtype.kind == "f" else "gaussian"
     cost = CMaxCost(warp, events.x, events.y, dt, events.sensor_size, objective, regularizer,
                     lam, polarity=events.p, tn=tn, kernel=kernel, sigma=sigma,
                     use_polarity=use_polarity)
@@ -369,7 +374,7 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                        weight: float | None = None, optimizer: str = "bfgs", K=None,
                        t_ref: str | int = "start", init=None, seed: int = 0, *,
                        starts=None, bounds=None, n_samples: int | None = None,
-                       n_iter: int = 100, lr: float = 0.05, kernel: str = "bilinear",
+                       n_iter: int = 100, lr: float = 0.05, kernel: str = "auto",
                        sigma: float = 1.0, use_polarity: bool = False,
                        dataset: str = "mvsec", maps: bool = True) -> EgomotionResult:
     """Estimate the warp parameters of one window by contrast maximization (ch. 3).
@@ -403,7 +408,11 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     n_samples : int, optional
         TPE samples (300 for 1 DOF, 600 otherwise).
     n_iter, lr : Adam iterations (100) and step (in units of the parameter scale).
-    kernel, sigma : IWE delta approximation (bilinear, or Gaussian of ``sigma`` px).
+    kernel : {"auto", "bilinear", "gaussian"}
+        IWE delta approximation; ``"auto"`` = bilinear for float (undistorted)
+        coordinates, Gaussian for integer sensor coordinates (see :func:`make_cost`).
+    sigma : float
+        Gaussian standard deviation in px (default 1).
     use_polarity : bool
         Signed IWE.
     dataset : {"mvsec", "dsec", "ecd"}

@@ -1,0 +1,78 @@
+"""Speed of contrast maximization (thesis Table 3.4): ms per cost+gradient evaluation for
+30k events at 346x260 and 500k at 640x480, variance and gradient magnitude, each
+regularizer, with the ratio to the unregularized run; a complete 4-DOF estimate with RCAD
+(BFGS) on a 30k window and a 600-sample TPE run.
+
+    python benchmarks/run.py cmax          # or: python benchmarks/bench_cmax.py [--quick]
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import harness
+from evmotion.core.warps import make_warp
+from evmotion.events import EventArray
+from evmotion.methods.egomotion import CMaxCost, estimate_egomotion
+
+WARP_THETA = {"zoom": [1.5], "rotation": [0.4, -0.6, 0.3], "similarity": [80.0, -40.0, 0.5, 1.0]}
+
+
+def _events(n: int, shape, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    dots = rng.uniform([0.1 * w, 0.1 * h], [0.9 * w, 0.9 * h], (max(n // 40, 10), 2))
+    k = rng.integers(0, dots.shape[0], n)
+    t = np.sort(rng.integers(0, 50_000, n))
+    x = np.clip(dots[k, 0] + 200.0 * t * 1e-6, 0, w - 1)
+    return x, dots[k, 1].copy(), t * 1e-6, rng.integers(0, 2, n), t
+
+
+def main(quick: bool = False) -> list[dict]:
+    harness.single_core()
+    rows: list[dict] = []
+    sizes = [(30_000, (260, 346))] + ([] if quick else [(500_000, (480, 640))])
+    repeat = 5 if quick else 20
+    for n, shape in sizes:
+        x, y, dt, p, _ = _events(n, shape)
+        K = np.array([[shape[1] * 0.8, 0, shape[1] / 2], [0, shape[1] * 0.8, shape[0] / 2],
+                      [0, 0, 1.0]])
+        for wname, theta in WARP_THETA.items():
+            warp = make_warp(wname, shape, K=K)
+            for obj in ("variance", "gradient_magnitude"):
+                base = None
+                for reg in (None, "divergence", "deformation", "rcad", "whitening"):
+                    if quick and reg in ("divergence", "deformation") and wname == "rotation":
+                        continue
+                    cost = CMaxCost(warp, x, y, dt, shape, obj, reg, weight=1.0, polarity=p)
+                    th = np.asarray(theta, dtype=float)
+                    r = harness.timeit(lambda c=cost, th=th: c.value_grad(th), repeat=repeat)
+                    ms = r["median_s"] * 1e3
+                    base = ms if reg is None else base
+                    rows.append({"case": "eval", "events": n, "size": f"{shape[1]}x{shape[0]}",
+                                 "warp": wname, "objective": obj, "regularizer": reg or "none",
+                                 "ms_per_eval": ms, "ratio_vs_none": ms / base})
+    # complete estimates on a 30k window
+    x, y, dt, p, t = _events(30_000, (260, 346), seed=1)
+    ev = EventArray(x.astype(np.float32), y.astype(np.float32), t, p, sensor_size=(260, 346),
+                    validate=False)
+    for wname, reg, opt in (("similarity", "rcad", "bfgs"), ("similarity", None, "bfgs"),
+                            ("similarity", "rcad", "tpe"), ("zoom", "rcad", "tpe")):
+        def run(wname=wname, reg=reg, opt=opt):
+            return estimate_egomotion(ev, wname, regularizer=reg, optimizer=opt, maps=False)
+        r = harness.timeit(run, repeat=3 if quick else 7, warmup=1)
+        res = run()
+        rows.append({"case": f"estimate {opt}", "events": 30_000, "size": "346x260",
+                     "warp": wname, "objective": "variance", "regularizer": reg or "none",
+                     "ms_total": r["median_s"] * 1e3, "n_evals": res.timings["n_evals"]})
+    harness.record("cmax", rows, notes="single core (harness.single_core); medians; "
+                   "ratio_vs_none = ms / ms of the unregularized run of the same row group")
+    return rows
+
+
+if __name__ == "__main__":
+    main(quick="--quick" in sys.argv)

@@ -1,0 +1,206 @@
+"""``evmotion egomotion FILE``: contrast-maximization ego-motion over every window (ch. 3).
+
+Writes into ``--out DIR``: ``params.csv`` and ``params.h5`` (one row per window: time range,
+reference time, event count, the warp parameters with their units, cost, focus, penalty,
+seconds), and PNG panels (IWE before / after, DIWE and IWA maps) for the first
+``--max-png`` windows. ``--json`` prints the per-window parameters with names and units.
+"""
+
+from __future__ import annotations
+
+import csv
+import functools
+import io
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import CalibrationError, ParameterError
+
+
+def add_common(p) -> None:
+    """Arguments shared by ``egomotion``, ``landscape`` and ``segment``."""
+    from evmotion.core.objectives import OBJECTIVES
+    from evmotion.core.warps import WARPS
+
+    p.add_argument("file", help="recording (any format evmotion reads, or an ECD folder)")
+    p.add_argument("--warp", default="rotation", choices=sorted(WARPS),
+                   help="motion model (default rotation)")
+    p.add_argument("--objective", default="variance", choices=sorted(OBJECTIVES),
+                   help="focus objective (default variance)")
+    p.add_argument("--reg", default=None,
+                   choices=["divergence", "deformation", "rcad", "whitening"],
+                   help="event-collapse regularizer (default none)")
+    p.add_argument("--weight", type=float, default=None,
+                   help="regularizer weight lambda (default per --dataset, Sec. 3.6.1)")
+    p.add_argument("--dataset", default="mvsec", choices=["mvsec", "dsec", "ecd"],
+                   help="which default weights to use (default mvsec)")
+    p.add_argument("--calib", default=None,
+                   help="calibration file (ECD calib.txt, MVSEC/DSEC YAML); default: the "
+                        "recording's own, if any")
+    p.add_argument("--t-ref", default="start", choices=["start", "mid", "end"],
+                   help="reference time of the warp within each window (default start)")
+    p.add_argument("--format", default=None, help="input format (default: detected)")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("egomotion", help="camera ego-motion by contrast maximization (ch. 3)",
+                       description=__doc__)
+    add_common(p)
+    p.add_argument("--optimizer", default="bfgs", choices=["bfgs", "newton-cg", "adam", "tpe"],
+                   help="optimizer (default bfgs)")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--window-events", type=int, help="events per window")
+    g.add_argument("--window-us", type=int, help="window duration in microseconds")
+    p.add_argument("--workers", type=int, default=1, help="parallel worker processes")
+    p.add_argument("--seed", type=int, default=0, help="seed of the TPE sampler")
+    p.add_argument("--warm-start", action="store_true",
+                   help="start each window from the previous estimate (runs sequentially)")
+    p.add_argument("--max-png", type=int, default=20,
+                   help="PNG panels for the first N windows (default 20; 0 = none)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--json", action="store_true", help="print per-window parameters as JSON")
+    p.set_defaults(func=run)
+
+
+def load_events_and_camera(args):
+    """Read the recording and its calibration; undistort when the camera is distorted."""
+    from evmotion.camera import Camera
+    from evmotion.io import read_calibration, read_events
+
+    kw = {"format": args.format} if args.format else {}
+    events = read_events(args.file, **kw)
+    cam = None
+    if args.calib:
+        cam = Camera.from_file(args.calib).with_sensor_size(events.sensor_size)
+    else:
+        try:
+            cal = read_calibration(args.file)
+        except Exception:
+            cal = None
+        if cal:
+            cam = Camera.from_K(np.asarray(cal["K"], dtype=float), cal.get("dist"),
+                                sensor_size=events.sensor_size)
+    if cam is None and args.warp == "rotation":
+        raise CalibrationError(f"{args.file}: the rotation warp needs camera intrinsics; "
+                               "none found with the recording, pass --calib calib.txt")
+    if cam is not None and cam.is_distorted and events.x.dtype.kind != "f":
+        events = cam.undistort_events(events)
+    return events, cam
+
+
+def _window_job(events, *, warp, objective, reg, weight, optimizer, K, t_ref, seed, dataset,
+                maps):
+    from evmotion.methods.egomotion import estimate_egomotion
+
+    return estimate_egomotion(events, warp, objective, reg, weight, optimizer, K=K,
+                              t_ref=t_ref, seed=seed, dataset=dataset, maps=maps)
+
+
+def run(args) -> int:
+    from evmotion.cli import print_json
+    from evmotion.parallel import map_windows
+    from evmotion.utils import progress
+
+    if args.workers < 1:
+        raise ParameterError(f"--workers must be >= 1, got {args.workers}")
+    events, cam = load_events_and_camera(args)
+    if args.window_events is not None:
+        if args.window_events < 10:
+            raise ParameterError(f"--window-events must be >= 10, got {args.window_events}")
+        windows = events.windows_by_count(args.window_events)
+    else:
+        if args.window_us <= 0:
+            raise ParameterError(f"--window-us must be > 0, got {args.window_us}")
+        windows = events.windows_by_duration(args.window_us)
+    windows = [w for w in windows if w.count >= 10]
+    if not windows:
+        raise ParameterError(f"{args.file}: no window holds 10 events or more")
+    K = None if cam is None else cam.K
+    job = functools.partial(_window_job, warp=args.warp, objective=args.objective,
+                            reg=args.reg, weight=args.weight, optimizer=args.optimizer, K=K,
+                            t_ref=args.t_ref, seed=args.seed, dataset=args.dataset,
+                            maps=args.max_png > 0)
+    if args.warm_start:
+        from evmotion.methods.egomotion import estimate_egomotion
+
+        results, init = [], None
+        for w in progress(windows, desc="egomotion", unit="win"):
+            r = estimate_egomotion(events.window(w), args.warp, args.objective, args.reg,
+                                   args.weight, args.optimizer, K=K, t_ref=args.t_ref,
+                                   init=init, seed=args.seed, dataset=args.dataset,
+                                   maps=args.max_png > 0)
+            init = r.params
+            results.append((w, r, None))
+    else:
+        out = map_windows(job, events, windows, workers=args.workers, desc="egomotion")
+        results = [(w, r.value, r.error) for w, r in zip(windows, out, strict=True)]
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = write_outputs(out_dir, results, args.max_png)
+    failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
+    if args.json:
+        print_json({"file": str(args.file), "warp": args.warp, "regularizer": args.reg,
+                    "objective": args.objective, "optimizer": args.optimizer,
+                    "windows": rows, "failed": failed})
+    else:
+        print(f"{len(rows)} windows -> {out_dir}/params.csv, params.h5"
+              + (f"; {len(failed)} failed" if failed else ""))
+    return 0 if rows else 2
+
+
+def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
+    """params.csv, params.h5 and PNG panels; returns the JSON rows."""
+    import h5py
+
+    from evmotion.utils import atomic_path, atomic_write_text
+    from evmotion.viz import images
+
+    ok = [(w, r) for w, r, err in results if err is None and r is not None]
+    rows = []
+    for w, r in ok:
+        d = r.as_dict()
+        rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "t_ref_us": r.t_ref_us,
+                     "n_events": r.n_events, "params": d["params"], "units": d["units"],
+                     "cost": r.cost, "focus": r.focus, "penalty": r.penalty,
+                     "seconds": r.timings["total"]})
+    if not ok:
+        return rows
+    names = ok[0][1].param_names
+    units = ok[0][1].param_units
+    buf = io.StringIO()
+    wr = csv.writer(buf)
+    wr.writerow(["window", "t0_us", "t1_us", "t_ref_us", "n_events",
+                 *[f"{n} [{u}]" for n, u in zip(names, units, strict=True)],
+                 "cost", "focus", "penalty", "seconds"])
+    for row in rows:
+        wr.writerow([row["window"], row["t0_us"], row["t1_us"], row["t_ref_us"], row["n_events"],
+                     *[repr(row["params"][n]) for n in names], repr(row["cost"]),
+                     repr(row["focus"]), repr(row["penalty"]), f"{row['seconds']:.4f}"])
+    atomic_write_text(out_dir / "params.csv", buf.getvalue())
+    with atomic_path(out_dir / "params.h5") as tmp, h5py.File(tmp, "w") as f:
+        f["params"] = np.array([r.params for _, r in ok])
+        for key in ("t0_us", "t1_us", "t_ref_us", "n_events", "window"):
+            f[key] = np.array([row[key] for row in rows], dtype=np.int64)
+        for key in ("cost", "focus", "penalty"):
+            f[key] = np.array([row[key] for row in rows])
+        f.attrs["param_names"] = list(names)
+        f.attrs["param_units"] = list(units)
+        f.attrs["warp"] = ok[0][1].warp
+        f.attrs["regularizer"] = str(ok[0][1].regularizer)
+        f.attrs["objective"] = ok[0][1].objective
+    for w, r in ok[:max(max_png, 0)]:
+        panels = [images.iwe_to_rgb(r.iwe_before), images.iwe_to_rgb(r.iwe_after)]
+        titles = ["IWE identity", "IWE " + ", ".join(
+            f"{n}={v:.3g}" for n, v in zip(names, r.params, strict=True))]
+        if "diwe" in r.maps:
+            panels += [_signed_rgb(r.maps["diwe"]), _signed_rgb(r.maps["iwa"] - 1.0)]
+            titles += ["DIWE (divergence)", "IWA - 1 (deformation)"]
+        images.save_panel(out_dir / f"window_{w.index:05d}.png", panels, titles, ncols=2)
+    return rows
+
+
+def _signed_rgb(img: np.ndarray) -> np.ndarray:
+    from evmotion.viz import images
+
+    return images.iwe_to_rgb(img, polarity=True)

@@ -1,0 +1,74 @@
+"""CLI: evmotion egomotion / landscape / segment on a small synthetic recording and on a
+real ECD window."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from egomotion_synth import synth
+from evmotion.cli import main
+from evmotion.events import concatenate
+from evmotion.io import write_events
+
+
+@pytest.fixture
+def rec(tmp_path):
+    a, _ = synth("translation", [300.0, -150.0], n_events=6000, seed=0)
+    b, _ = synth("translation", [300.0, -150.0], n_events=6000, seed=1)
+    b = type(b)(b.x, b.y, b.t + 50_000, b.p, b.sensor_size, validate=False)
+    ev = concatenate([a, b], validate=False)
+    # integer sensor coordinates, as a camera would give
+    ev = type(ev)(np.round(ev.x).astype(np.uint16), np.round(ev.y).astype(np.uint16), ev.t,
+                  ev.p, ev.sensor_size)
+    path = tmp_path / "rec.h5"
+    write_events(path, ev)
+    return path
+
+
+def test_egomotion_json_csv_h5_png(rec, tmp_path, capsys):
+    out = tmp_path / "ego"
+    rc = main(["egomotion", str(rec), "--warp", "translation", "--window-us", "50000",
+               "--out", str(out), "--json", "--max-png", "1"])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert len(doc["windows"]) == 2 and not doc["failed"]
+    for w in doc["windows"]:
+        assert w["units"] == {"vx": "px/s", "vy": "px/s"}
+        assert abs(w["params"]["vx"] - 300) < 10 and abs(w["params"]["vy"] + 150) < 10
+    lines = (out / "params.csv").read_text().splitlines()
+    assert lines[0].startswith("window,t0_us,t1_us,t_ref_us,n_events,vx [px/s],vy [px/s]")
+    assert len(lines) == 3
+    with h5py.File(out / "params.h5") as f:
+        assert f["params"].shape == (2, 2)
+        assert list(f.attrs["param_names"]) == ["vx", "vy"]
+    assert (out / "window_00000.png").stat().st_size > 0
+    assert not (out / "window_00001.png").exists()
+
+
+def test_egomotion_errors(rec, tmp_path, capsys):
+    rc = main(["egomotion", str(rec), "--warp", "rotation", "--window-us", "50000",
+               "--out", str(tmp_path / "o")])
+    assert rc == 2
+    assert "intrinsics" in capsys.readouterr().err
+    rc = main(["egomotion", str(rec), "--warp", "zoom", "--window-us", "-5",
+               "--out", str(tmp_path / "o")])
+    assert rc == 2
+
+
+@pytest.mark.realdata
+def test_egomotion_ecd_folder_picks_up_calibration(shared_data, tmp_path, capsys):
+    folder = shared_data / "ecd_rotation_windows" / "poster_rotation"
+    if not folder.is_dir():
+        pytest.skip(f"{folder} missing")
+    rc = main(["egomotion", str(folder), "--warp", "rotation", "--reg", "rcad",
+               "--window-events", "30000", "--t-ref", "mid", "--out", str(tmp_path / "e"),
+               "--json", "--max-png", "0"])
+    assert rc == 0
+    w = json.loads(capsys.readouterr().out)["windows"][0]
+    omega = np.array([w["params"][k] for k in ("wx", "wy", "wz")])
+    imu = np.loadtxt(folder / "motion.txt")
+    assert np.sqrt(np.mean((omega - imu) ** 2)) < 0.12
