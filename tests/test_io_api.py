@@ -175,3 +175,12 @@ def test_iter_events_explicit_overlapping_windows(tmp_path):
         assert g.meta["window"] == (a, b)
     with pytest.raises(ParameterError, match="sorted by start"):
         list(eio.iter_events(tmp_path / "a.npz", windows=[(10, 20), (5, 8)]))
+
+
+@pytest.mark.parametrize("ext, name", [(".h5", "h5"), (".txt", "ecd"), (".npz", "npy"),
+                                       (".dat", "dat"), (".raw", "evt3"),
+                                       (".aedat4", "aedat4"), (".aedat", "aedat2")])
+def test_output_format_from_extension(ext, name):
+    if name not in {f.name for f in eio.all_formats()}:
+        pytest.skip(f"format module {name} not present")
+    assert eio.format_for_output(f"out{ext}") == name

@@ -267,7 +267,9 @@ def _explicit_windows(chunks: Iterable[EventArray], edges: np.ndarray
         k += 1
 
 
-_EXT_WRITERS = {".h5": "h5", ".hdf5": "h5", ".txt": "ecd", ".npy": "npy", ".npz": "npy"}
+# Extensions shared by several formats (jAER also used .dat) get their usual meaning.
+_EXT_WRITERS = {".h5": "h5", ".hdf5": "h5", ".txt": "ecd", ".npy": "npy", ".npz": "npy",
+                ".dat": "dat", ".raw": "evt3", ".aedat4": "aedat4", ".aedat": "aedat2"}
 
 
 def format_for_output(path: str | os.PathLike) -> str:
@@ -280,9 +282,11 @@ def format_for_output(path: str | os.PathLike) -> str:
     """
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix in _EXT_WRITERS:
+    formats = all_formats()
+    known = {f.name for f in formats if f.write is not None}
+    if _EXT_WRITERS.get(suffix) in known:
         return _EXT_WRITERS[suffix]
-    for spec in all_formats():
+    for spec in formats:
         if spec.write is not None and suffix in spec.extensions:
             return spec.name
     writable = sorted({s for f in all_formats() if f.write for s in f.extensions})
