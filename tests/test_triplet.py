@@ -84,14 +84,27 @@ def test_matches_literal_algorithm1_other_parameters():
     ev = moving_dots(3, duration_us=200_000)
     m = TripletMatcher(ev.sensor_size, dx=2.0, dt_us=30_000, tau_us=1_000, depth=32)
     _compare(ev, m.process(ev), dx=2.0, dt_us=30_000, tau_us=1_000)
-    m = TripletMatcher(ev.sensor_size, dx=2.3, dt_us=50_000, tau_us=0, depth=32)
-    _compare(ev, m.process(ev), dx=2.3, dt_us=50_000, tau_us=0)
+    m = TripletMatcher(ev.sensor_size, dx=2.3, dt_us=50_000, tau_us=1, depth=32)
+    _compare(ev, m.process(ev), dx=2.3, dt_us=50_000, tau_us=1)
 
 
 def test_quadruple_matches_literal():
     ev = moving_dots(4, n_dots=20)
     m = TripletMatcher(ev.sensor_size, quadruple=True, depth=32)
     _compare(ev, m.process(ev), quadruple=True)
+
+
+@pytest.mark.parametrize("lag_us", [42_000, 60_000])
+def test_far_tail_weights_match_reference(lag_us):
+    # One triplet whose 3rd event is 38 (or 56) widths off its predicted time: the weight
+    # is a subnormal float64 (or 0) in the exact Gaussian, and must stay so.
+    t = np.array([0, 100_000 - lag_us + 2_000, 99_000, 100_000]) + 10**6
+    ev = EventArray([9, 2, 3, 4], [0, 5, 5, 5], t, [1, 1, 1, 1], (10, 10))
+    flow = TripletMatcher(ev.sensor_size, tau_us=1).process(ev)
+    vx, _, valid, n = triplet_reference(ev.x, ev.y, ev.t, ev.p, tau_us=1)
+    assert n[3] == flow.n_triplets[3] == 1
+    assert valid[3] == flow.valid[3]
+    np.testing.assert_allclose(flow.vx, vx, rtol=1e-6)
 
 
 def test_thesis_map_limit_is_equivalent_when_large_enough():
@@ -195,7 +208,7 @@ def test_bad_input_raises_clear_errors():
     with pytest.raises(ParameterError, match="dt_us"):
         TripletMatcher((10, 10), dt_us=0)
     with pytest.raises(ParameterError, match="tau_us"):
-        TripletMatcher((10, 10), tau_us=-1)
+        TripletMatcher((10, 10), tau_us=0)
     m = TripletMatcher((10, 10))
     with pytest.raises(ParameterError, match="sensor_size"):
         m.process(EventArray([1], [1], [5], [1], (10, 11)))

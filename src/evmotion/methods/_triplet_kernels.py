@@ -22,40 +22,49 @@ REBASE_SPAN_US = 2**30
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
-_SUB = 64
-_LOG2E_SUB = _SUB / math.log(2.0)
-_LN2_SUB = math.log(2.0) / _SUB
-# exp(-a) = 2^-(n / 64) * exp(-r) with r in [0, ln2 / 64): a table of 2^-(j / 64) for the
-# fraction, one of 2^-e for the integer part, and a 5-term Taylor series (error < 1e-11).
-_POW2_FRAC = np.exp2(-np.arange(_SUB) / _SUB)
-_POW2_INT = np.ldexp(1.0, -np.arange(128)).astype(np.float64)
-
-
-@njit(cache=True, inline="always")
-def _gauss_kernel(z: float) -> float:
-    """exp(-z^2 / 2) to ~1e-11 relative error without a libm call (the hot loop's cost).
-
-    Far tails (z^2 / 2 >= 80) take math.exp so that no triplet's weight underflows to zero
-    where the exact value does not.
-    """
-    a = 0.5 * z * z
-    if a >= 80.0:
-        return math.exp(-a)
-    y = a * _LOG2E_SUB
-    n = int(y)
-    r = (y - n) * _LN2_SUB
-    poly = 1.0 - r * (1.0 - r * (0.5 - r * (1.0 / 6.0 - r * (1.0 / 24.0))))
-    return poly * _POW2_FRAC[n & (_SUB - 1)] * _POW2_INT[n >> 6]
+_LOG2E = 1.0 / math.log(2.0)
+_LN2 = math.log(2.0)
+# Taylor coefficients of exp(-u), u in [0, ln 2), highest first: truncation error < 1e-9.
+_C = [(-1.0) ** i / math.factorial(i) for i in range(11)][::-1]
+C0, C1, C2, C3, C4, C5, C6, C7, C8, C9, C10 = _C
 
 
 @njit(cache=True, fastmath=True)
+def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale):
+    """Vote sums of ``m`` collected triplets, in branch-free loops the compiler vectorizes.
+
+    exp(-a) = 2^-n * exp(-u), u = (a log2 e - n) ln 2 in [0, ln 2): a polynomial for the
+    second factor and the exponent bits of a float64 for the first.
+    """
+    for q in range(m):
+        y = ab[q] * _LOG2E
+        n = np.int64(y)
+        u = (y - n) * _LN2
+        pb[q] = ((((((((((C0 * u + C1) * u + C2) * u + C3) * u + C4) * u + C5) * u + C6) * u
+                    + C7) * u + C8) * u + C9) * u + C10)
+        bits[q] = (1023 - n) << 52
+    sw = 0.0
+    swx = 0.0
+    swy = 0.0
+    for q in range(m):
+        e = pb[q] * scale[q] * nb[q]
+        sw += e
+        r = e / db[q]
+        swx += r * sxb[q]
+        swy += r * syb[q]
+    return sw, swx, swy
+
+
+# Not fastmath here: its reciprocal shortcut overflows when every weight is subnormal.
+@njit(cache=True)
 def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
                    out_vx, out_vy, out_n, out_valid, stats):
     """Process events in order, writing one flow per event and updating the ring state.
 
     ``x, y`` int32 pixels, ``t`` int64 µs absolute, ``p`` uint8; ``base`` the µs subtracted
     from ``t`` before it is stored. Each ring ``ts[c, y, x, :]`` is kept newest first, so a
-    scan skips the too-recent slots and stops at the first too-old (or empty) one.
+    scan skips the too-recent slots and stops at the first too-old (or empty) one. The
+    matches of one event are collected first and weighed in one vectorized pass.
     ``stats[0]`` counts evictions of events that could still take part in a future triplet
     (answers then may differ from unbounded Algorithm 1).
     """
@@ -65,6 +74,15 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
     flat = ts.reshape(-1)
     n_off = offsets.shape[0]
     horizon = (3 if quadruple else 2) * (dt_us + tau_us)
+    cap = n_off * depth * depth * (depth if quadruple else 1)
+    ab = np.empty(cap)   # exponent a of the Gaussian weight exp(-a)
+    nb = np.empty(cap)   # its normalization (1/delta per Gaussian, per second)
+    db = np.empty(cap)   # t_k - t_j (or t_k - t_l), µs
+    sxb = np.empty(cap)  # -(x_j - x_k) * 1e6, so that v = sx / (t_k - t_j)
+    syb = np.empty(cap)
+    pb = np.empty(cap)
+    bits = np.empty(cap, np.int64)
+    scale = bits.view(np.float64)
     for k in range(t.shape[0]):
         xk = x[k]
         yk = y[k]
@@ -73,28 +91,30 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
         lo_i = tk - tau_us - dt_us
         hi_i = tk - tau_us
         rk = ((plane + yk) * w + xk) * depth
-        sw = 0.0
-        swx = 0.0
-        swy = 0.0
-        n = 0
+        m = 0
+        tail_w = 0.0
+        tail_x = 0.0
+        tail_y = 0.0
+        tail_n = 0
         for o in range(n_off):
             ox = offsets[o, 0]
             oy = offsets[o, 1]
-            xi = xk + ox
-            yi = yk + oy
-            xj = xi + ox
-            yj = yi + oy
+            xj = xk + 2 * ox
+            yj = yk + 2 * oy
             if xj < 0 or xj >= w or yj < 0 or yj >= h:
                 continue
-            step_o = (oy * w + ox) * depth
-            ri = rk + step_o
-            rj = ri + step_o
-            rl = rj + step_o
             if quadruple:
                 xl = xj + ox
                 yl = yj + oy
                 if xl < 0 or xl >= w or yl < 0 or yl >= h:
                     continue
+            step_o = (oy * w + ox) * depth
+            ri = rk + step_o
+            rj = ri + step_o
+            rl = rj + step_o
+            stp = 3.0 if quadruple else 2.0
+            sx = -stp * ox * 1e6
+            sy = -stp * oy * 1e6
             for s in range(depth):
                 ti = np.int64(flat[ri + s])
                 if ti > hi_i:
@@ -103,14 +123,11 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
                     break
                 delta = float(tk - ti)
                 inv_delta = 1.0 / delta
-                # Gaussian density N(t_j; t_i - delta, delta^2) per second: its 1/delta factor
-                # is constant over the j loop, so it multiplies the sums afterwards.
+                # Gaussian density N(t_j; t_i - delta, delta^2) per second.
                 norm = _INV_SQRT_2PI * 1e6 * inv_delta
                 t_hat = float(ti) - delta
                 lo_j = ti - tau_us - dt_us
                 hi_j = ti - tau_us
-                e_sum = 0.0
-                e_inv = 0.0
                 for s2 in range(depth):
                     tj = np.int64(flat[rj + s2])
                     if tj > hi_j:
@@ -118,11 +135,22 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
                     if tj < lo_j:
                         break
                     z = (float(tj) - t_hat) * inv_delta
-                    ej = _gauss_kernel(z)
                     if not quadruple:
-                        e_sum += ej
-                        e_inv += ej / float(tk - tj)
-                        n += 1
+                        a = 0.5 * z * z
+                        if a < 700.0:
+                            ab[m] = a
+                            nb[m] = norm
+                            db[m] = float(tk - tj)
+                            sxb[m] = sx
+                            syb[m] = sy
+                            m += 1
+                        else:
+                            # Far tail (2^-n below the float64 exponent range): exact exp.
+                            e = math.exp(-a) * norm
+                            tail_w += e
+                            tail_x += e * sx / float(tk - tj)
+                            tail_y += e * sy / float(tk - tj)
+                            tail_n += 1
                         continue
                     lo_l = tj - tau_us - dt_us
                     hi_l = tj - tau_us
@@ -134,15 +162,25 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
                         if tl < lo_l:
                             break
                         zl = (float(tl) - t_hat_l) * inv_delta
-                        eq = ej * _gauss_kernel(zl) * norm
-                        e_sum += eq
-                        e_inv += eq / float(tk - tl)
-                        n += 1
-                # v_T = (x_j - x_k) / (t_j - t_k) = -step * 1e6 / (t_k - t_j) px/s.
-                step = 3 if quadruple else 2
-                sw += norm * e_sum
-                swx -= norm * e_inv * (step * ox * 1e6)
-                swy -= norm * e_inv * (step * oy * 1e6)
+                        a = 0.5 * (z * z + zl * zl)
+                        if a < 700.0:
+                            ab[m] = a
+                            nb[m] = norm * norm
+                            db[m] = float(tk - tl)
+                            sxb[m] = sx
+                            syb[m] = sy
+                            m += 1
+                        else:
+                            e = math.exp(-a) * norm * norm
+                            tail_w += e
+                            tail_x += e * sx / float(tk - tl)
+                            tail_y += e * sy / float(tk - tl)
+                            tail_n += 1
+        sw, swx, swy = _weights(m, ab, nb, db, sxb, syb, pb, bits, scale)
+        sw += tail_w
+        swx += tail_x
+        swy += tail_y
+        n = m + tail_n
         out_n[k] = n
         if n > 0 and sw > 0.0:
             out_vx[k] = swx / sw

@@ -113,7 +113,7 @@ class TripletMatcher:
     dt_us : int
         Delay window d_t in microseconds (default 100 ms).
     tau_us : int
-        Refractory period tau in microseconds (default 3 ms).
+        Refractory period tau in microseconds (default 3 ms; at least 1).
     quadruple : bool
         Require a 4th event continuing the step (§5.3.5 extension); the weight is the
         product of the Gaussians of the 3rd and 4th events' timestamps.
@@ -140,8 +140,9 @@ class TripletMatcher:
             raise ParameterError(f"depth must be in 1..255, got {depth}")
         if int(dt_us) <= 0:
             raise ParameterError(f"dt_us must be > 0 microseconds, got {dt_us}")
-        if int(tau_us) < 0:
-            raise ParameterError(f"tau_us must be >= 0 microseconds, got {tau_us}")
+        if int(tau_us) < 1:
+            # tau = 0 would admit t_i = t_k: delta = 0, a Gaussian of zero width in (5.3).
+            raise ParameterError(f"tau_us must be >= 1 microsecond, got {tau_us}")
         if 3 * (int(dt_us) + int(tau_us)) >= K.REBASE_SPAN_US // 2:
             raise ParameterError(f"dt_us + tau_us = {int(dt_us) + int(tau_us)} us is too long "
                                  f"(limit {K.REBASE_SPAN_US // 6} us)")
