@@ -94,7 +94,13 @@ def _t_offset(f) -> int:
 
 def _range(path: Path, f, t0: int | None, t1: int | None) -> tuple[int, int]:
     n = int(f["events/t"].shape[0])
-    ms = _read(path, f["ms_to_idx"], 0, None, "ms_to_idx") if "ms_to_idx" in f else None
+    # Only the two index entries around each query are read: the index of a long
+    # recording is large.
+    ms = f["ms_to_idx"] if "ms_to_idx" in f else None
+
+    def entry(k: int) -> int:
+        return int(_read(path, ms, k, k + 1, "ms_to_idx")[0])
+
     off = _t_offset(f)
     t_ds = f["events/t"]
 
@@ -106,10 +112,10 @@ def _range(path: Path, f, t0: int | None, t1: int | None) -> tuple[int, int]:
             return int(np.searchsorted(_read(path, t_ds, 0, n, "events/t"), rel))
         k = rel // 1000
         if k >= ms.size:
-            a, b = min(int(ms[-1]), n), n
+            a, b = min(entry(ms.size - 1), n), n
         else:
-            a = min(int(ms[k]), n)
-            b = min(int(ms[k + 1]), n) if k + 1 < ms.size else n
+            a = min(entry(k), n)
+            b = min(entry(k + 1), n) if k + 1 < ms.size else n
         return a + int(np.searchsorted(_read(path, t_ds, a, b, "events/t"), rel))
 
     lo = 0 if t0 is None else locate(int(t0))

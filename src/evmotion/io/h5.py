@@ -277,7 +277,9 @@ def _index_range(f, t0: int | None, t1: int | None) -> tuple[int, int]:
     g = f["events"]
     n = g["t"].shape[0]
     lo, hi = 0, n
-    ms = g["ms_to_idx"][:] if "ms_to_idx" in g else None
+    # Only the two index entries around each query are read: the index of a long
+    # recording is large.
+    ms = g["ms_to_idx"] if "ms_to_idx" in g else None
     base = int(f.attrs.get("t_index0", 0))
 
     def locate(tq: int) -> int:
@@ -287,7 +289,7 @@ def _index_range(f, t0: int | None, t1: int | None) -> tuple[int, int]:
         if k < 0:
             return 0
         # ms[k] <= answer <= ms[k+1]: search only the events of that millisecond.
-        a = int(ms[k]) if k < ms.size else int(ms[-1])
+        a = int(ms[k]) if k < ms.size else int(ms[ms.size - 1])
         b = int(ms[k + 1]) if k + 1 < ms.size else n
         return a + int(np.searchsorted(g["t"][a:b], tq, side="left"))
 
