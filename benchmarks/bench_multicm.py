@@ -10,6 +10,10 @@ Dirac approximation), measured in the same run.
 
 from __future__ import annotations
 
+import functools
+import statistics
+import time
+
 import numpy as np
 
 import harness
@@ -27,6 +31,19 @@ def _window(shape, n, scene="translation", duration_s=0.2):
     return ev[mid - n // 2: mid + n // 2]
 
 
+def _interleaved(fns: dict, repeat: int) -> dict:
+    for fn in fns.values():
+        fn()
+    runs: dict = {k: [] for k in fns}
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            runs[k].append(time.perf_counter() - t0)
+    return {k: {"median_s": statistics.median(v), "min_s": min(v), "max_s": max(v),
+                "repeat": repeat} for k, v in runs.items()}
+
+
 def main(quick: bool = False) -> list[dict]:
     harness.single_core()
     from evmotion.core import iwe as ciwe
@@ -36,16 +53,21 @@ def main(quick: bool = False) -> list[dict]:
     rep = 3 if quick else 9
     rows = []
     ev = _window((260, 346), 30_000)
-    base = harness.timeit(lambda: estimate_flow(ev), repeat=rep, warmup=1)
-    rows.append({"case": "30k ev, 346x260, 5 scales", **base, "ratio_to_plain": 1.0,
-                 "target_s": 0.5})
-    for scheme, bins, kw in (("burgers", 10, {}), ("upwind", 10, {}),
-                             ("burgers", 10, {"time_aware_scales": 2})):
-        r = harness.timeit(lambda s=scheme, b=bins, k=kw: estimate_flow(
-            ev, time_aware=s, n_bins=b, **k), repeat=rep, warmup=1)
-        label = f"30k ev, {scheme} {bins} bins" + (", finest 2 scales" if kw else "")
-        rows.append({"case": label, **r, "ratio_to_plain": r["median_s"] / base["median_s"],
-                     "target_s": 1.5 * base["median_s"]})
+    # plain and time-aware runs interleaved, so that load from other jobs on this shared
+    # machine hits all variants alike and the ratios stay meaningful
+    variants = {
+        "30k ev, 346x260, 5 scales": {},
+        "30k ev, burgers 10 bins": {"time_aware": "burgers", "n_bins": 10},
+        "30k ev, upwind 10 bins": {"time_aware": "upwind", "n_bins": 10},
+        "30k ev, burgers 5 bins": {"time_aware": "burgers", "n_bins": 5},
+    }
+    times = _interleaved({k: functools.partial(estimate_flow, ev, **kw)
+                          for k, kw in variants.items()}, repeat=rep)
+    base = times["30k ev, 346x260, 5 scales"]["median_s"]
+    for k, r in times.items():
+        row = {"case": k, **r, "ratio_to_plain": r["median_s"] / base}
+        row["target_s"] = 0.5 if not variants[k] else 1.5 * base
+        rows.append(row)
 
     # one evaluation of (4.9) and its gradient at the finest scale
     x = ev.x.astype(np.float64)
