@@ -271,3 +271,22 @@ def test_numpy_backend_gives_identical_events(scene):
     assert len(a.events) > 50
     for f in ("x", "y", "t", "p"):
         np.testing.assert_array_equal(getattr(a.events, f), getattr(b.events, f))
+
+
+def test_skipping_constant_tiles_changes_nothing(monkeypatch):
+    """Dots leave most of the texture constant: tiles there are copied, not rendered.
+    The events equal those of the numpy reference, which renders every pixel."""
+    import evmotion.sim.simulator as simulator
+
+    kw = dict(duration_s=0.01, sensor_size=(40, 56), seed=2, texture="dots",
+              show_progress=False)
+    sat = simulator.textured_cells_sat(
+        simulator.build_layers("translation", simulator.resolve_params("translation", None,
+                                                                       (40, 56)),
+                               (40, 56), None, "dots", None, 2)[1][0].log_i)
+    assert (np.diff(sat[-1]) == 0).sum() > 5  # constant columns exist: tiles get skipped
+    a = simulate("translation", **kw)
+    b = simulate("translation", backend="numpy", **kw)
+    assert len(a.events) > 100
+    for f in ("x", "y", "t", "p"):
+        np.testing.assert_array_equal(getattr(a.events, f), getattr(b.events, f))

@@ -21,9 +21,10 @@ import numpy as np
 from numba import njit
 
 __all__ = ["MAX_SUBSAMPLES", "full_boxes", "pad_periodic", "render_log", "render_log_numpy", "sample_wrap_numpy", "sim_step",
-           "sim_step_numpy", "step_grid"]
+           "sim_step_numpy", "step_grid", "textured_cells_sat"]
 
 MAX_SUBSAMPLES = 64
+TILE = 16  # pixels per side of the tiles skipped where the texture is locally constant
 
 
 @njit(cache=True, inline="always")
@@ -167,8 +168,76 @@ def _cross(a, b, t0, t1, r, c, sign, last, refr, x, y, ex, ey, et, ep, n, cap):
     return r, last, n
 
 
+@njit(cache=True, inline="always")
+def _sat_sum(sat, y0, y1, x0, x1):
+    """Sum of the cells ``[y0, y1) x [x0, x1)`` from a summed-area table."""
+    return sat[y1, x1] - sat[y0, x1] - sat[y1, x0] + sat[y0, x0]
+
+
 @njit(cache=True)
-def _step(Mseq, texs, alphas, origins, boxes, la, lb, ref, cp, cn, last, t_a, t_b, refr,
+def _wrapped_sum(sat, y0, y1, x0, x1):
+    """Sum over the inclusive cell range ``[y0, y1] x [x0, x1]`` of a periodic raster."""
+    th = sat.shape[0] - 1
+    tw = sat.shape[1] - 1
+    ny = y1 - y0 + 1
+    nx = x1 - x0 + 1
+    if ny >= th or nx >= tw:
+        return 1  # the footprint wraps onto itself: treat as textured
+    ya = y0 % th
+    xa = x0 % tw
+    total = 0
+    for yy0, yy1 in ((ya, min(ya + ny, th)), (0, max(0, ya + ny - th))):
+        if yy1 <= yy0:
+            continue
+        for xx0, xx1 in ((xa, min(xa + nx, tw)), (0, max(0, xa + nx - tw))):
+            if xx1 > xx0:
+                total += _sat_sum(sat, yy0, yy1, xx0, xx1)
+    return total
+
+
+@njit(cache=True)
+def _tile_static(m0, m1, sat, origins, boxes, tx0, ty0, tx1, ty1):
+    """``m0, m1``: bottom layer's matrices (9,) at the step's ends. True if the bottom layer's texture is constant under the tile during the step and
+    no upper layer reaches it: its pixels keep their log intensity exactly."""
+    for k in range(1, boxes.shape[0]):
+        if not (tx1 < boxes[k, 0] or ty1 < boxes[k, 1] or tx0 > boxes[k, 2]
+                or ty0 > boxes[k, 3]):
+            return False
+    xmin = 1e300
+    xmax = -1e300
+    ymin = 1e300
+    ymax = -1e300
+    for m in (m0, m1):
+        for cx, cy in ((tx0, ty0), (tx1, ty0), (tx0, ty1), (tx1, ty1)):
+            den = m[6] * cx + m[7] * cy + m[8]
+            if den <= 0.0:
+                return False
+            xr = (m[0] * cx + m[1] * cy + m[2]) / den - origins[0, 0]
+            yr = (m[3] * cx + m[4] * cy + m[5]) / den - origins[0, 1]
+            xmin = min(xmin, xr)
+            xmax = max(xmax, xr)
+            ymin = min(ymin, yr)
+            ymax = max(ymax, yr)
+    # two cells of margin: bilinear support and the trajectory's bend within the step
+    return _wrapped_sum(sat, int(math.floor(ymin)) - 2, int(math.floor(ymax)) + 2,
+                        int(math.floor(xmin)) - 2, int(math.floor(xmax)) + 2) == 0
+
+
+def textured_cells_sat(log_i: np.ndarray) -> np.ndarray:
+    """Summed-area table (int64, ``(Ht + 1, Wt + 1)``) of the raster cells whose four
+    corners (periodic) are not all equal: where bilinear samples are not constant."""
+    t = np.asarray(log_i)
+    right = np.roll(t, -1, axis=1)
+    down = np.roll(t, -1, axis=0)
+    diag = np.roll(down, -1, axis=1)
+    textured = (t != right) | (t != down) | (t != diag)
+    sat = np.zeros((t.shape[0] + 1, t.shape[1] + 1), dtype=np.int64)
+    sat[1:, 1:] = textured.cumsum(axis=0).cumsum(axis=1)
+    return sat
+
+
+@njit(cache=True)
+def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_a, t_b, refr,
           target, ex, ey, et, ep):
     h, w = la.shape
     span = t_b - t_a
@@ -176,37 +245,47 @@ def _step(Mseq, texs, alphas, origins, boxes, la, lb, ref, cp, cn, last, t_a, t_
     n = 0
     nsub_total = 0
     m_end = Mseq[MAX_SUBSAMPLES]
-    for y in range(h):
-        for x in range(w):
-            a = np.float64(la[y, x])
-            b = _pixel(m_end, texs, alphas, origins, boxes, x, y)
-            lb[y, x] = b
-            ns = 1
-            while ns < MAX_SUBSAMPLES and abs(b - a) > target * ns:
-                ns *= 2
-            stride = MAX_SUBSAMPLES // ns
-            nsub_total += ns - 1
-            r = ref[y, x]
-            lt = last[y, x]
-            t0 = t_a
-            v0 = a
-            for j in range(1, ns + 1):
-                if j == ns:
-                    t1 = t_b
-                    v1 = np.float64(lb[y, x])
-                else:
-                    t1 = t_a + (j * stride * span) // MAX_SUBSAMPLES
-                    v1 = _pixel(Mseq[j * stride], texs, alphas, origins, boxes, x, y)
-                if v1 - r >= cp[y, x]:
-                    r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr, x, y,
-                                      ex, ey, et, ep, n, cap)
-                elif r - v1 >= cn[y, x]:
-                    r, lt, n = _cross(v0, v1, t0, t1, r, cn[y, x], -1.0, lt, refr, x, y,
-                                      ex, ey, et, ep, n, cap)
-                t0 = t1
-                v0 = v1
-            ref[y, x] = r
-            last[y, x] = lt
+    for ty0 in range(0, h, TILE):
+        ty1 = min(ty0 + TILE, h) - 1
+        for tx0 in range(0, w, TILE):
+            tx1 = min(tx0 + TILE, w) - 1
+            if sat.shape[0] > 1 and _tile_static(Mseq[0, 0], m_end[0], sat, origins, boxes,
+                                                 tx0, ty0, tx1, ty1):
+                for y in range(ty0, ty1 + 1):
+                    for x in range(tx0, tx1 + 1):
+                        lb[y, x] = la[y, x]
+                continue
+            for y in range(ty0, ty1 + 1):
+                for x in range(tx0, tx1 + 1):
+                    a = np.float64(la[y, x])
+                    b = _pixel(m_end, texs, alphas, origins, boxes, x, y)
+                    lb[y, x] = b
+                    ns = 1
+                    while ns < MAX_SUBSAMPLES and abs(b - a) > target * ns:
+                        ns *= 2
+                    stride = MAX_SUBSAMPLES // ns
+                    nsub_total += ns - 1
+                    r = ref[y, x]
+                    lt = last[y, x]
+                    t0 = t_a
+                    v0 = a
+                    for j in range(1, ns + 1):
+                        if j == ns:
+                            t1 = t_b
+                            v1 = np.float64(lb[y, x])
+                        else:
+                            t1 = t_a + (j * stride * span) // MAX_SUBSAMPLES
+                            v1 = _pixel(Mseq[j * stride], texs, alphas, origins, boxes, x, y)
+                        if v1 - r >= cp[y, x]:
+                            r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr, x,
+                                              y, ex, ey, et, ep, n, cap)
+                        elif r - v1 >= cn[y, x]:
+                            r, lt, n = _cross(v0, v1, t0, t1, r, cn[y, x], -1.0, lt, refr, x,
+                                              y, ex, ey, et, ep, n, cap)
+                        t0 = t1
+                        v0 = v1
+                    ref[y, x] = r
+                    last[y, x] = lt
     return n, nsub_total
 
 
@@ -220,7 +299,8 @@ def step_grid(t_a: int, t_b: int) -> np.ndarray:
 
 def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t_b: int,
              refractory_us: int, target: float, ex, ey, et, ep,
-             boxes: np.ndarray | None = None) -> tuple[int, int]:
+             boxes: np.ndarray | None = None,
+             sat: np.ndarray | None = None) -> tuple[int, int]:
     """Advance the sensor from ``t_a`` to ``t_b`` (integer µs, ``t_b > t_a``).
 
     Parameters
@@ -245,6 +325,9 @@ def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t
         Output buffers (uint16, uint16, int64, uint8), events in pixel (row-major) order.
     boxes : ndarray (L, 4), optional
         As :func:`render_log`, valid for the whole step.
+    sat : ndarray, optional
+        :func:`textured_cells_sat` of the bottom layer's raster: 16x16 tiles whose texture
+        footprint is constant over the step are copied instead of rendered (same result).
 
     Returns
     -------
@@ -255,7 +338,10 @@ def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t
     """
     if boxes is None:
         boxes = full_boxes(Mseq.shape[1], la.shape)
-    n, ns = _step(Mseq, texs, alphas, origins, boxes, la, lb, ref, cp, cn, last, np.int64(t_a),
+    if sat is None:
+        sat = np.zeros((1, 1), dtype=np.int64)
+    n, ns = _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last,
+                  np.int64(t_a),
                   np.int64(t_b), np.int64(refractory_us), float(target), ex, ey, et, ep)
     return int(n), int(ns)
 

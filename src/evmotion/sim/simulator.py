@@ -21,6 +21,7 @@ from evmotion.sim.render import (
     sim_step,
     sim_step_numpy,
     step_grid,
+    textured_cells_sat,
 )
 from evmotion.sim.scenes import SCENES, default_K, resolve_params
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
@@ -290,6 +291,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         y0, y1 = iy.min(initial=0) + tex.origin[1] - 1, iy.max(initial=0) + tex.origin[1] + 1
         corners.append(np.array([[x0, x1, x1, x0], [y0, y0, y1, y1], [1.0, 1, 1, 1]]))
     boxes = full_boxes(len(texs), sensor_size)
+    sat = textured_cells_sat(texs[0].log_i)
 
     def update_boxes(m0, m1):
         """Pixel boxes of the upper layers' opaque support over a step (the mapped corners
@@ -348,7 +350,8 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
                                     refractory_us, target, ex, ey, et, ep)
             else:
                 n, ns = sim_step(Mseq, tex_stack, alpha_stack, origins, la, lb, ref, cp, cn,
-                                 last, t, tb, refractory_us, target, ex, ey, et, ep, boxes)
+                                 last, t, tb, refractory_us, target, ex, ey, et, ep, boxes,
+                                 sat)
             if n <= cap:
                 break
             np.copyto(ref, ref_bak)
@@ -357,7 +360,9 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
             ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
             et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
         if n:
-            order = np.argsort(et[:n], kind="stable")
+            # time, then pixel index: an order that does not depend on the traversal
+            key = et[:n] * (h * w) + ey[:n].astype(np.int64) * w + ex[:n]
+            order = np.argsort(key, kind="stable")
             chunks.append((ex[order], ey[order], et[order], ep[order]))
         n_samples += 1
         n_sub += ns
