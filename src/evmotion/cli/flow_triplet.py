@@ -50,7 +50,7 @@ def run(args) -> int:
         raise ParameterError(f"--chunk-events must be > 0, got {args.chunk_events}")
     dense = kind != ".npz" or args.png_dir
     chunks = _iter_chunks(args.file, getattr(args, "format", None), args.chunk_events)
-    first = next(chunks, None)
+    first = next((c for c in chunks if len(c)), None)
     if first is None:
         raise ParameterError(f"{args.file}: no events")
     sensor = first.sensor_size
@@ -341,6 +341,3 @@ class _NpzSink:
             fh.close()
         self.dir.cleanup()
         self._ctx.__exit__(RuntimeError, RuntimeError("aborted"), None)
-
-    def add_window(self, win):
-        raise AssertionError("sparse output has no windows")
