@@ -139,7 +139,7 @@ def _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr, 
 def _check_motion(scene, p, layers, duration_s):
     """Refuse motions that degenerate within the recording (clear error, not NaN events)."""
     if scene == "zoom" and p["hz"] * duration_s >= 0.9:
-        raise ParameterError(f"zoom: hz={p['hz']} 1/s over {duration_s} s reaches the scene "
+        raise ParameterError(f"zoom: hz={p['hz']} 1/s over {duration_s:.6g} s reaches the scene "
                              f"(time to contact 1/hz = {1 / p['hz']:.3g} s); use "
                              "hz * duration < 0.9")
     ts = np.linspace(0.0, duration_s, 65)
@@ -148,7 +148,7 @@ def _check_motion(scene, p, layers, duration_s):
         if not np.all(np.isfinite(det)) or np.any(det * det[0] <= 0) or \
                 np.abs(np.log(np.abs(det))).max() > np.log(100.0):
             raise ParameterError(f"{scene}: the motion {layer.motion.theta.tolist()} "
-                                 f"({layer.motion.warp.name}) degenerates within {duration_s} s "
+                                 f"({layer.motion.warp.name}) degenerates within {duration_s:.6g} s "
                                  "(area scale beyond 100x); use smaller rates or a shorter "
                                  "duration")
 
