@@ -187,7 +187,11 @@ def main(quick: bool = False) -> list[dict]:
     rows.append(bench_reference(shapes, 1_000 if quick else 3_000))
     for n in (1_000_000, 10_000_000):
         rows.append(bench_memory(n))
-    harness.record("triplet", rows, notes="Incremental triplet matching (numba, one core); "
+    import os
+
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    harness.record("triplet", rows, notes=f"Load average at the end: {load:.1f}. "
+                   "Incremental triplet matching (numba, one core); "
                    "Mev_per_s from wall-time medians, cpu_Mev_per_s from CPU-time medians "
                    "(the 2-core machine is shared; CPU time excludes the neighbours' work); "
                    "defaults d_x=sqrt(2), d_t=100 ms, tau=3 ms, ring depth 8 unless stated. "
