@@ -5,8 +5,8 @@
    translation, rotation, zoom and occluding-object scenes, without / with upwind / with
    Burgers time-aware flow.
 2. Ablations on the rotation and object scenes: multi vs single reference (Fig. 4.7),
-   5 / 3 / 1 scales (Fig. 4.9), gradient magnitude vs variance (Table 4.5), lambda
-   (Table 4.6), L-BFGS vs Newton-CG.
+   5 / 3 / 1 scales (Fig. 4.9), gradient magnitude vs variance vs the two average-timestamp
+   losses (Table 4.5), lambda (Table 4.6), L-BFGS vs Newton-CG.
 3. Real data: ECD rotation windows (AEE against the IMU flow on the undistorted grid) and
    the eight ECD 30k-event windows (FWL).
 
@@ -85,6 +85,8 @@ def simulated(quick: bool) -> list[dict]:
         ("3 scales", {"n_scales": 3}),
         ("1 scale", {"n_scales": 1}),
         ("variance", {"objective": "variance"}),
+        ("avg timestamp", {"objective": "avg_timestamp"}),
+        ("norm. avg timestamp", {"objective": "avg_timestamp_norm"}),
         ("lambda 0.025", {"lam": 0.025}),
         ("lambda 0.25", {"lam": 0.25}),
         ("lambda 0", {"lam": 0.0}),

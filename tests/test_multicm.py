@@ -147,3 +147,20 @@ def test_focus_matches_numpy_composition_with_core_objective():
         vals = [objective_value_grad(objective, _iwe_ref(x, y, flow, r - s, ev.sensor_size))[0]
                 for r in (0.0, 0.5, 1.0)]
         assert f == pytest.approx((vals[0] + 2 * vals[1] + vals[2]) / (4 * g0), rel=1e-9)
+
+
+@pytest.mark.parametrize("objective", ["avg_timestamp", "avg_timestamp_norm"])
+def test_timestamp_objectives_gradient(objective):
+    ev = synth(constant(300.0, -150.0), n=3000, shape=(60, 80), seed=1)
+    x, y = ev.x.astype(float), ev.y.astype(float)
+    s = (ev.t - ev.t[0]) / (ev.t[-1] - ev.t[0])
+    prob = MultiCMProblem(x, y, s, ev.sensor_size, tf.scale_grid(2, ev.sensor_size),
+                          objective=objective, p=ev.p)
+    assert prob.value_grad(np.zeros(8))[0] == pytest.approx(1.0, abs=1e-3)  # L(0)/L(0)
+    rng = np.random.default_rng(0)
+    th = rng.normal(scale=2.0, size=8)
+    _, g = prob.value_grad(th)
+    d = rng.normal(size=8)
+    e = 1e-6
+    fd = (prob.value_grad(th + e * d)[0] - prob.value_grad(th - e * d)[0]) / (2 * e)
+    assert g @ d == pytest.approx(fd, rel=1e-4)

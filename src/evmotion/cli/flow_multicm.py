@@ -33,9 +33,10 @@ def add_arguments(group) -> None:
                        help="coarse-to-fine scales ending at 16x16 tiles (default 5)")
     group.add_argument("--lambda", dest="lam", type=float, default=0.0025,
                        help="TV weight of (4.9) (default 0.0025)")
-    group.add_argument("--objective", choices=("gradient_magnitude", "variance"),
-                       default="gradient_magnitude", help="focus function (default gradient "
-                       "magnitude)")
+    group.add_argument("--objective", default="gradient_magnitude",
+                       choices=("gradient_magnitude", "variance", "avg_timestamp",
+                                "avg_timestamp_norm"),
+                       help="focus function (default gradient magnitude)")
     group.add_argument("--max-iter", type=int, default=20,
                        help="optimizer iterations per scale (default 20)")
 

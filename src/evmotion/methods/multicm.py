@@ -36,7 +36,7 @@ from numba import njit
 from scipy.optimize import minimize
 
 from evmotion.core import tileflow as tf
-from evmotion.core.objectives import objective_value_grad
+from evmotion.core.objectives import events_value_grad, objective_value_grad
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, Window
 from evmotion.methods import transport as tr
@@ -44,6 +44,8 @@ from evmotion.methods import transport as tr
 __all__ = ["FlowResult", "MultiCMProblem", "estimate_flow", "estimate_flow_sequence"]
 
 TV_EPS = 1e-3  # px; Charbonnier smoothing of |grad v| so TV is differentiable at 0
+TIMESTAMP_OBJECTIVES = ("avg_timestamp", "avg_timestamp_norm")
+OBJECTIVE_NAMES = ("gradient_magnitude", "variance", *TIMESTAMP_OBJECTIVES)
 REFERENCES = {
     "multi": ((0.0, 1.0), (0.5, 2.0), (1.0, 1.0)),
     "single": ((0.0, 1.0),),
@@ -112,6 +114,8 @@ class MultiCMProblem:
         The scale's tiles; the unknowns are tile flows ``(ny, nx, 2)`` in px per window.
     objective, lam, references, time_aware, n_bins, transport_cell
         As in :func:`estimate_flow`.
+    p : ndarray (N,), optional
+        Polarities (0/1), needed by the average-timestamp objectives.
     g0 : float, optional
         ``G(0)`` of the identity warp (computed if not given; it does not depend on the
         scale, so :func:`estimate_flow` passes it on).
@@ -127,18 +131,27 @@ class MultiCMProblem:
     """
 
     def __init__(self, x, y, s, shape, grid, *, objective="gradient_magnitude", lam=0.0025,
-                 references="multi", time_aware=None, n_bins=5, transport_cell=4, g0=None):
+                 references="multi", time_aware=None, n_bins=5, transport_cell=4, g0=None,
+                 p=None):
         self.x, self.y, self.s, self.shape, self.grid = x, y, s, shape, grid
         self.objective, self.lam = objective, lam
         self.refs = REFERENCES[references]
         self.wsum = sum(w for _, w in self.refs)
         self.time_aware = time_aware
         self.idx, self.w = tf.event_weights(x, y, grid)
-        self.g0 = g0 if g0 is not None else objective_value_grad(
-            objective, tf.iwe_forward(x, y, np.zeros((x.size, 2)), np.zeros(x.size), shape))[0]
+        self.p = p
+        self.dtn = [np.ascontiguousarray(tr_ - s) for tr_, _ in self.refs]
+        if g0 is not None:
+            self.g0 = g0
+        elif objective in TIMESTAMP_OBJECTIVES:
+            if p is None:
+                raise ParameterError(f"objective {objective!r} needs the polarities p")
+            self.g0 = self._ts_loss(np.zeros((x.size, 2)))[0]
+        else:
+            self.g0 = objective_value_grad(objective, tf.iwe_forward(
+                x, y, np.zeros((x.size, 2)), np.zeros(x.size), shape))[0]
         if self.g0 <= 0:
             raise EmptyWindowError("the identity-warp IWE has no contrast (too few events)")
-        self.dtn = [np.ascontiguousarray(tr_ - s) for tr_, _ in self.refs]
         if time_aware:
             self.n_bins = n_bins
             b = np.minimum((s * n_bins).astype(np.int64), n_bins - 1)
@@ -174,9 +187,35 @@ class MultiCMProblem:
         return np.stack([self.ay.T @ gd[c] @ self.ax / self.cell[c] for c in range(2)], axis=-1)
 
     # ---------------------------------------------------------------- objective
+    def _ts_loss(self, flow, with_grad=True):
+        # average-timestamp losses L = -G of core.objectives, timestamps measured from
+        # each reference time (|t_k - t_ref| / window), multi-reference weighted
+        loss = 0.0
+        gflow = np.zeros_like(flow)
+        for (r, wt), dtn in zip(self.refs, self.dtn, strict=True):
+            xw = self.x + dtn * flow[:, 0]
+            yw = self.y + dtn * flow[:, 1]
+            g, gx, gy = events_value_grad(self.objective, xw, yw, self.shape,
+                                          polarity=self.p, tn=np.abs(self.s - r))
+            loss -= wt / self.wsum * g
+            gflow[:, 0] -= wt / self.wsum * dtn * gx
+            gflow[:, 1] -= wt / self.wsum * dtn * gy
+        return loss, gflow
+
     def focus_grad(self, params):
-        """Multi-reference focus ``f`` (4.6), its gradient and the IWEs."""
+        """Multi-reference focus ``f`` (4.6), its gradient and the IWEs.
+
+        For the average-timestamp objectives ``f = L(0) / L(theta)`` with ``L`` the
+        multi-reference loss, so that ``1/f`` in (4.9) is the loss normalized by the zero
+        flow's (and ``f > 1`` still means better than zero flow).
+        """
         flow, plan = self.event_flow(params)
+        if self.objective in TIMESTAMP_OBJECTIVES:
+            loss, gl = self._ts_loss(flow)
+            loss = max(loss, 1e-300)
+            f = self.g0 / loss
+            iwes = [tf.iwe_forward(self.x, self.y, flow, dtn, self.shape) for dtn in self.dtn]
+            return f, self._flow_adjoint(gl * (-self.g0 / loss ** 2), plan), iwes
         f = 0.0
         gflow = np.zeros_like(flow)
         iwes = []
@@ -305,7 +344,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     n_scales : int
         Coarse-to-fine scales ending at ``finest_level``; scale ``l`` has
         ``2^(l-1) x 2^(l-1)`` tiles (default 5: 1x1 ... 16x16; 1: the finest only).
-    objective : {"gradient_magnitude", "variance"}
+    objective : {"gradient_magnitude", "variance", "avg_timestamp", "avg_timestamp_norm"}
+        Focus of the IWEs (4.5 or 4.3), or the average-timestamp losses of Zhu et al. and
+        Hagenaars et al. (Table 4.5 ablation; bilinear votes from :mod:`evmotion.core`).
     lam : float
         TV weight in (4.9) (default 0.0025).
     n_bins : int, optional
@@ -351,9 +392,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     if time_aware not in (None, "none", "upwind", "burgers"):
         raise ParameterError(f"time_aware must be None, 'upwind' or 'burgers', got {time_aware!r}")
     time_aware = None if time_aware == "none" else time_aware
-    if objective not in ("gradient_magnitude", "variance"):
-        raise ParameterError(f"objective must be 'gradient_magnitude' or 'variance', "
-                             f"got {objective!r}")
+    if objective not in OBJECTIVE_NAMES:
+        raise ParameterError(f"objective must be one of {OBJECTIVE_NAMES}, got {objective!r}")
     if references not in REFERENCES:
         raise ParameterError(f"references must be 'multi' or 'single', got {references!r}")
     if optimizer not in ("lbfgs", "newton-cg"):
@@ -396,7 +436,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         prob = MultiCMProblem(x, y, s, shape, grid, objective=objective, lam=lam,
                               references=references,
                               time_aware=time_aware if level >= max(ta_from, 2) else None,
-                              n_bins=n_bins, transport_cell=transport_cell, g0=g0)
+                              n_bins=n_bins, transport_cell=transport_cell, g0=g0,
+                              p=events.p)
         g0 = prob.g0
         theta = _optimize(prob, params.ravel(), optimizer, max_iter)
         params = theta.reshape(grid.ny, grid.nx, 2)
