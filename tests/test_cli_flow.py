@@ -98,3 +98,17 @@ def test_workers_split_windows_in_chunks(recording, tmp_path, capsys):
     assert flow.shape == (4, 90, 120, 2)
     assert json.loads(text)["n_windows"] == 4
     assert np.median(flow[..., 0]) == pytest.approx(FLOW[0], rel=0.2)
+
+
+def test_eval_npy_needs_interval_and_checks_shape(recording, tmp_path, capsys):
+    _, gt = recording
+    f = tmp_path / "f.npy"
+    np.save(f, np.broadcast_to(np.float32(FLOW), (90, 120, 2)))
+    assert main(["eval", str(f), "--gt", str(gt)]) == 2
+    assert "--t0-us" in capsys.readouterr().err
+    rc, text = _run(["eval", str(f), "--gt", str(gt), "--t0-us", "0", "--t1-us", "20000",
+                     "--json"], capsys)
+    assert rc == 0 and json.loads(text)["mean"]["AEE"] == pytest.approx(0.0, abs=1e-4)
+    np.save(f, np.zeros((10, 10, 2), np.float32))
+    assert main(["eval", str(f), "--gt", str(gt), "--t0-us", "0", "--t1-us", "20000"]) == 2
+    assert "ground truth" in capsys.readouterr().err
