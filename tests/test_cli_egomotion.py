@@ -72,3 +72,29 @@ def test_egomotion_ecd_folder_picks_up_calibration(shared_data, tmp_path, capsys
     omega = np.array([w["params"][k] for k in ("wx", "wy", "wz")])
     imu = np.loadtxt(folder / "motion.txt")
     assert np.sqrt(np.mean((omega - imu) ** 2)) < 0.12
+
+
+def test_landscape_png_and_csv(rec, tmp_path, capsys):
+    png, csv_path = tmp_path / "land.png", tmp_path / "land.csv"
+    rc = main(["landscape", str(rec), "--warp", "translation", "--param", "vx", "--range",
+               "0", "600", "--steps", "31", "--reg", "rcad", "--window-events", "5000",
+               "--out", str(png), "--csv", str(csv_path)])
+    assert rc == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    data = np.loadtxt(csv_path, delimiter=",", skiprows=1)
+    assert data.shape == (31, 4)
+    assert abs(data[np.argmin(data[:, 1]), 0] - 300) <= 20
+    assert main(["landscape", str(rec), "--warp", "translation", "--param", "hz", "--range",
+                 "0", "1", "--out", str(png)]) == 2
+
+
+def test_segment_cli(rec, tmp_path, capsys):
+    out = tmp_path / "seg"
+    rc = main(["segment", str(rec), "--warp", "translation", "--warps", "2", "--window-us",
+               "50000", "--max-windows", "1", "--iterations", "3", "--out", str(out), "--json"])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert len(doc["clusters"]) == 2
+    assert (out / "clusters.csv").exists() and (out / "window_00000.png").exists()
+    with np.load(out / "labels.npz") as z:
+        assert z["window_00000"].max() <= 1
