@@ -114,3 +114,18 @@ def test_errors():
     tiny = EventArray([1], [1], [0], [1], sensor_size=(4, 4))
     with pytest.raises(EmptyWindowError):
         estimate_egomotion(tiny, "zoom")
+
+
+@pytest.mark.parametrize("name", ["rotation", "similarity"])
+def test_fused_variance_path_matches_generic_chain(name):
+    from evmotion.core.objectives import events_value_grad
+
+    theta, _ = TRUTH[name]
+    ev, _ = synth(name, theta, n_events=3000, seed=5)
+    cost, _ = make_cost(ev, name, K=K240, kernel="bilinear")
+    th = np.asarray(theta) * 0.7
+    val, g = cost.value_grad(th)
+    xw, yw, jx, jy = cost.warp.warp(cost.x, cost.y, cost.dt, th, jacobian=True)
+    G, gx, gy = events_value_grad("variance", xw, yw, cost.shape)
+    assert val == pytest.approx(-G / cost.g0, rel=1e-10)
+    np.testing.assert_allclose(g, -(gx @ jx + gy @ jy) / cost.g0, rtol=1e-9, atol=1e-12)

@@ -115,3 +115,15 @@ def test_into_reuses_buffer_and_validates():
         accumulate(np.zeros(2), np.zeros(2), (3, 3), weights=np.ones(3))
     with pytest.raises(ParameterError, match="shape"):
         accumulate(np.zeros(2), np.zeros(2), (3,))
+
+
+def test_fused_backward_reduce_matches_unfused(events):
+    from evmotion.core.iwe import accumulate_backward_reduce
+
+    x, y, w = events
+    rng = np.random.default_rng(3)
+    g = rng.normal(size=(15, 20))
+    jx, jy = rng.normal(size=(x.size, 4)), rng.normal(size=(x.size, 4))
+    gx, gy = accumulate_backward(x, y, (15, 20), 0.5 * (g - 0.3), w)
+    out = accumulate_backward_reduce(x, y, g, jx, jy, np.empty(4), w, shift=0.3, scale=0.5)
+    np.testing.assert_allclose(out, gx @ jx + gy @ jy, rtol=1e-12, atol=1e-12)

@@ -127,3 +127,10 @@ def test_errors():
         objective_value_grad("avg_timestamp", iwe_pos=np.zeros((3, 3)), iwe_neg=np.zeros((3, 3)))
     with pytest.raises(ParameterError, match="polarity"):
         events_value_grad("avg_timestamp", np.zeros(2), np.zeros(2), (3, 3))
+
+
+def test_variance_stats(img):
+    from evmotion.core.objectives import variance_stats
+
+    mu, var = variance_stats(img)
+    assert mu == pytest.approx(img.mean()) and var == pytest.approx(img.var())

@@ -42,6 +42,7 @@ __all__ = [
     "ObjectiveSpec",
     "events_value_grad",
     "objective_value_grad",
+    "variance_stats",
 ]
 
 _TS_KEYS = ("iwe_pos", "iwe_neg", "tiwe_pos", "tiwe_neg")
@@ -159,6 +160,33 @@ def _avg_ts(np_, nn, sp, sn, normalize, gnp, gnn, gsp, gsn):
             gnp[i, j] *= -scale
             gnn[i, j] *= -scale
     return -scale * total
+
+
+@njit(cache=True, nogil=True)
+def _mean_var(img):
+    h, w = img.shape
+    s = 0.0
+    s2 = 0.0
+    for i in range(h):
+        for j in range(w):
+            v = img[i, j]
+            s += v
+            s2 += v * v
+    n = h * w
+    mu = s / n
+    return mu, max(s2 / n - mu * mu, 0.0)
+
+
+def variance_stats(iwe: np.ndarray) -> tuple[float, float]:
+    """Mean and variance (3.4) of an image in one pass; ``dVar/dIWE = 2 (IWE - mean) / n``.
+
+    Examples
+    --------
+    >>> variance_stats(np.array([[0.0, 2.0]]))
+    (1.0, 1.0)
+    """
+    mu, var = _mean_var(np.ascontiguousarray(iwe, dtype=np.float64))
+    return float(mu), float(var)
 
 
 def _img(name: str, a) -> np.ndarray:

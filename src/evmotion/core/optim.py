@@ -238,7 +238,8 @@ def adam_minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]],
 
 def gradient_minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]],
                       x0: np.ndarray, method: str = "bfgs", scale: np.ndarray | float = 1.0,
-                      max_iter: int = 100, gtol: float = 1e-6) -> OptimResult:
+                      max_iter: int = 100, gtol: float = 1e-6,
+                      xrtol: float = 1e-4) -> OptimResult:
     """Minimize with scipy's BFGS or Newton-CG using the analytic gradient.
 
     Parameters
@@ -252,6 +253,10 @@ def gradient_minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]]
     max_iter : int
     gtol : float
         Gradient tolerance on the scaled problem (BFGS); Newton-CG uses it as ``xtol``.
+    xrtol : float
+        BFGS stops when a step changes the scaled parameters by less than this, relative:
+        IWE objectives are piecewise smooth at the pixel scale, so near the optimum the
+        line search otherwise spends dozens of evaluations on sub-pixel noise.
 
     Returns
     -------
@@ -284,7 +289,7 @@ def gradient_minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]]
     z0 = np.asarray(x0, dtype=np.float64) / s
     if method == "bfgs":
         res = optimize.minimize(fg, z0, jac=True, method="BFGS", callback=cb,
-                                options={"maxiter": max_iter, "gtol": gtol})
+                                options={"maxiter": max_iter, "gtol": gtol, "xrtol": xrtol})
     else:
         res = optimize.minimize(fg, z0, jac=True, method="Newton-CG", callback=cb,
                                 options={"maxiter": max_iter, "xtol": gtol})

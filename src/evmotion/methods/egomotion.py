@@ -41,8 +41,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evmotion.core.iwe import accumulate, accumulate_backward_into, accumulate_into
-from evmotion.core.objectives import OBJECTIVES, events_value_grad, objective_value_grad
+from evmotion.core.iwe import (
+    accumulate,
+    accumulate_backward_into,
+    accumulate_backward_reduce,
+    accumulate_into,
+)
+from evmotion.core.objectives import (
+    OBJECTIVES,
+    events_value_grad,
+    objective_value_grad,
+    variance_stats,
+)
 from evmotion.core.optim import OptimResult, landscape, minimize
 from evmotion.core.regularizers import (
     DEFAULT_WEIGHTS,
@@ -160,6 +170,7 @@ class CMaxCost:
         self.gx, self.gy = np.empty(n), np.empty(n)
         self.iwe = np.empty(self.shape)
         self.giwe = np.empty(self.shape)
+        self.gtheta = np.empty(p)
         self.span_s = float(self.dt.max() - self.dt.min())
         # whitening maps the cloud back to the image centre at the spread of the raw events
         self._wcenter = ((self.shape[1] - 1) / 2.0, (self.shape[0] - 1) / 2.0)
@@ -188,6 +199,14 @@ class CMaxCost:
         """(G / G0, dG/dtheta / G0): the normalized focus and its gradient."""
         self.n_evals += 1
         xw, yw, jx, jy = self._positions(theta, grad)
+        if (grad and self.objective == "variance" and self.kernel == "bilinear"
+                and self.regularizer != "whitening"):
+            # fused hot path: no gradient image, no per-event gradient buffers
+            accumulate_into(xw, yw, self.iwe, self.weights, "bilinear")
+            mu, G = variance_stats(self.iwe)
+            accumulate_backward_reduce(xw, yw, self.iwe, jx, jy, self.gtheta, self.weights,
+                                       shift=mu, scale=2.0 / self.iwe.size)
+            return G / self.g0, self.gtheta / self.g0
         if self.needs_time:
             G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self.polarity,
                                           self.tn, kernel=self.kernel, sigma=self.sigma)
