@@ -132,15 +132,17 @@ def simulated_rows(quick: bool) -> list[dict]:
             tri = estimate_flow_triplet(ev, wins)
             # Larger radius (an extension): 16 step directions instead of 8.
             tri5 = estimate_flow_triplet(ev, wins, dx=float(np.sqrt(5.0)))
+            quad = estimate_flow_triplet(ev, wins, quadruple=True)  # §5.3.5 extension
             for k, w in enumerate(wins):
                 sub = ev.window(w)
                 gt = res.gt.displacement(w.t0, w.t1)
                 m = flow_metrics(tri.displacement(k), gt, events=sub)
                 m5 = flow_metrics(tri5.displacement(k), gt, events=sub)
+                mq = flow_metrics(quad.displacement(k), gt, events=sub)
                 row = {"case": f"sim {scene} dt={dt}", "window": w.index, "events": w.count,
                        "gt_mean_disp_px": float(np.mean(np.hypot(gt[..., 0], gt[..., 1]))),
                        "triplet_AEE": m.aee, "triplet_pct_out": m.pct_out,
-                       "triplet_dx_sqrt5_AEE": m5.aee}
+                       "triplet_dx_sqrt5_AEE": m5.aee, "quadruple_AEE": mq.aee}
                 if estimate_flow is not None:
                     cm = estimate_flow(sub, seed=0)
                     mc = flow_metrics(cm.displacement(), gt, events=sub)
@@ -156,7 +158,7 @@ def _sim_summary(sim: list[dict]) -> list[dict]:
         rs = [r for r in sim if r["case"] == case]
         row = {"case": f"{case}: mean of {len(rs)} windows"}
         for k in ("gt_mean_disp_px", "triplet_AEE", "triplet_pct_out", "triplet_dx_sqrt5_AEE",
-                  "multicm_AEE", "multicm_pct_out"):
+                  "quadruple_AEE", "multicm_AEE", "multicm_pct_out"):
             if k in rs[0]:
                 row[k] = float(np.mean([r[k] for r in rs]))
         if "multicm_AEE" in row:
