@@ -129,3 +129,15 @@ def test_fused_variance_path_matches_generic_chain(name):
     G, gx, gy = events_value_grad("variance", xw, yw, cost.shape)
     assert val == pytest.approx(-G / cost.g0, rel=1e-10)
     np.testing.assert_allclose(g, -(gx @ jx + gy @ jy) / cost.g0, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.slow  # divergence/deformation of the rotation warp cost ~10 ms per evaluation
+def test_regularizers_do_not_harm_well_posed_rotation():
+    theta = np.array(TRUTH["rotation"][0])
+    ev, _ = synth("rotation", theta, n_events=12000, seed=7)
+    rms = {}
+    for reg in (None, "divergence", "deformation", "rcad"):
+        res = estimate_egomotion(ev, "rotation", K=K240, regularizer=reg, maps=False)
+        rms[reg] = float(np.sqrt(np.mean((res.params - theta) ** 2)))
+    for reg in ("divergence", "deformation", "rcad"):
+        assert rms[reg] <= 1.05 * rms[None] + 1e-3, rms

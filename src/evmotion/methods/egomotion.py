@@ -13,7 +13,9 @@ weights ``lambda`` of Sec. 3.6.1 transferable between windows and sensors:
 * ``G`` is divided by its value at the identity warp, so the data term is dimensionless and
   independent of the event count and image size;
 * the divergence penalty (1/s, since warps here take time in seconds) is multiplied by the
-  window duration, i.e. expressed in the normalized time of (3.7) where the thesis states it.
+  window duration, i.e. expressed in the normalized time of (3.7) where the thesis states it;
+* the RCAD penalty enters one-sided, ``max(R, 0)``: (3.21) is negative for expanding warps
+  and would otherwise reward them (the RCAD map variant is thresholded for the same reason).
 
 The gradient is exact: chain rule through the warp Jacobian (numba), the IWE adjoint and the
 objective (:class:`CMaxCost`). ``regularizer="whitening"`` instead whitens the warped events
@@ -227,6 +229,10 @@ class CMaxCost:
         r, g = regularizer_value_grad(self.regularizer, self.warp, self.x, self.y, self.dt,
                                       theta, self.shape, self.xw, self.yw, jx=self.jx,
                                       jy=self.jy, grad=grad)
+        if self.regularizer == "rcad" and r < 0.0:
+            # one-sided, like the thresholded RCAD map: the closed forms (3.21)/(A.44) are
+            # negative for expansion, and a signed term would reward expanding warps
+            return 0.0, (np.zeros(self.warp.n_params) if grad else None)
         s = self.weight * (self.span_s if self.regularizer == "divergence" else 1.0)
         return s * r, (s * g if grad else None)
 
