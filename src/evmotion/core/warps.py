@@ -613,6 +613,71 @@ def _k_rot_divdet(x, y, dt, w, Kinv, div, det):
         det[k] = iq2 * iq
 
 
+@njit(cache=True, error_model="numpy")
+def _k_hom_divdet(x, y, dt, G, cx, cy, div, det):
+    """Divergence and det J of x' ~ (Id + dt G)^-1 x in centred pixels (both invariant under
+    the centring), complex so that a complex G gives complex-step derivatives:
+    M = H^-1, dM/dt = -M G M."""
+    M = np.empty((3, 3), dtype=np.complex128)
+    for k in range(x.shape[0]):
+        t = dt[k]
+        h00 = 1.0 + t * G[0, 0]
+        h01 = t * G[0, 1]
+        h02 = t * G[0, 2]
+        h10 = t * G[1, 0]
+        h11 = 1.0 + t * G[1, 1]
+        h12 = t * G[1, 2]
+        h20 = t * G[2, 0]
+        h21 = t * G[2, 1]
+        h22 = 1.0 + t * G[2, 2]
+        c00 = h11 * h22 - h12 * h21
+        c01 = h02 * h21 - h01 * h22
+        c02 = h01 * h12 - h02 * h11
+        dh = h00 * c00 + h10 * c01 + h20 * c02
+        idet = 1.0 / dh
+        M[0, 0] = c00 * idet
+        M[0, 1] = c01 * idet
+        M[0, 2] = c02 * idet
+        M[1, 0] = (h12 * h20 - h10 * h22) * idet
+        M[1, 1] = (h00 * h22 - h02 * h20) * idet
+        M[1, 2] = (h02 * h10 - h00 * h12) * idet
+        M[2, 0] = (h10 * h21 - h11 * h20) * idet
+        M[2, 1] = (h01 * h20 - h00 * h21) * idet
+        M[2, 2] = (h00 * h11 - h01 * h10) * idet
+        u = x[k] - cx
+        v = y[k] - cy
+        q0 = M[0, 0] * u + M[0, 1] * v + M[0, 2]
+        q1 = M[1, 0] * u + M[1, 1] * v + M[1, 2]
+        q2 = M[2, 0] * u + M[2, 1] * v + M[2, 2]
+        # p = dM/dt x = -M G q
+        g0 = G[0, 0] * q0 + G[0, 1] * q1 + G[0, 2] * q2
+        g1 = G[1, 0] * q0 + G[1, 1] * q1 + G[1, 2] * q2
+        g2 = G[2, 0] * q0 + G[2, 1] * q1 + G[2, 2] * q2
+        p0 = -(M[0, 0] * g0 + M[0, 1] * g1 + M[0, 2] * g2)
+        p2 = -(M[2, 0] * g0 + M[2, 1] * g1 + M[2, 2] * g2)
+        p1 = -(M[1, 0] * g0 + M[1, 1] * g1 + M[1, 2] * g2)
+        iq = 1.0 / q2
+        iq2 = iq * iq
+        d = 0.0j
+        for i in range(2):
+            a0 = M[0, i]
+            a1 = M[1, i]
+            a2 = M[2, i]
+            # b = dM/dt e_i = -M G a
+            e0 = G[0, 0] * a0 + G[0, 1] * a1 + G[0, 2] * a2
+            e1 = G[1, 0] * a0 + G[1, 1] * a1 + G[1, 2] * a2
+            e2 = G[2, 0] * a0 + G[2, 1] * a1 + G[2, 2] * a2
+            bi = -(M[i, 0] * e0 + M[i, 1] * e1 + M[i, 2] * e2)
+            b2 = -(M[2, 0] * e0 + M[2, 1] * e1 + M[2, 2] * e2)
+            qi = q0 if i == 0 else q1
+            pi = p0 if i == 0 else p1
+            ai = a0 if i == 0 else a1
+            d += (bi * iq - (pi * a2 + ai * p2 + qi * b2) * iq2
+                  + 2.0 * qi * p2 * a2 * iq2 * iq)
+        div[k] = d
+        det[k] = idet * iq2 * iq
+
+
 _EMPTY2 = np.zeros((0, 0))
 
 
@@ -994,12 +1059,31 @@ class InPlaneWarp(Warp):
         return M, Md
 
 
+def _hom_divdet(warp, x, y, dt, G):
+    n = x.shape[0]
+    div = np.empty(n, dtype=np.complex128)
+    det = np.empty(n, dtype=np.complex128)
+    _k_hom_divdet(x, y, dt, G.astype(np.complex128), warp.center[0], warp.center[1], div, det)
+    return div, det
+
+
+
 class AffineWarp(Warp):
     """6-DOF affine (A.47): ``x' = c + A^-1(dt)(x - c - dt v)`` with ``A(dt) = Id + dt G``;
     theta = (vx, vy [px/s], g11, g12, g21, g22 [1/s])."""
 
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_affine(x, y, dt, th, self.center[0], self.center[1], xw, yw, jx, jy, jac)
+
+    def _G(self, th):
+        z = 0 * th[0]
+        return np.array([[th[2], th[3], th[0]], [th[4], th[5], th[1]], [z, z, z]])
+
+    def _div(self, x, y, dt, th):
+        return _hom_divdet(self, x, y, dt, self._G(th))[0]
+
+    def _det(self, x, y, dt, th):
+        return _hom_divdet(self, x, y, dt, self._G(th))[1]
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1027,6 +1111,15 @@ class HomographyWarp(Warp):
 
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_homography(x, y, dt, th, self.center[0], self.center[1], xw, yw, jx, jy, jac)
+
+    def _G(self, th):
+        return np.array([[th[0], th[1], th[2]], [th[3], th[4], th[5]], [th[6], th[7], 0 * th[0]]])
+
+    def _div(self, x, y, dt, th):
+        return _hom_divdet(self, x, y, dt, self._G(th))[0]
+
+    def _det(self, x, y, dt, th):
+        return _hom_divdet(self, x, y, dt, self._G(th))[1]
 
     def _mats_c(self, dt, th):
         G = np.array([[th[0], th[1], th[2]], [th[3], th[4], th[5]], [th[6], th[7], 0 * th[0]]])
