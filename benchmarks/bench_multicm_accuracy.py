@@ -97,6 +97,10 @@ def simulated(quick: bool) -> list[dict]:
         todo = list(variants)
         if scene in ("rotation", "object") or not quick:
             todo += ablations
+        if scene == "object":
+            # the PDE on 4 px cells (default) vs on every pixel, and more bins
+            todo += [("burgers, 1 px cells", {"time_aware": "burgers", "transport_cell": 1}),
+                     ("burgers, 10 bins", {"time_aware": "burgers", "n_bins": 10})]
         if scene in ("translation", "rotation") and not quick:
             todo.append(("Newton-CG", {"optimizer": "newton-cg"}))
         for name, kw in todo:
