@@ -27,11 +27,12 @@ MAX_SUBSAMPLES = 64
 TILE = 16  # pixels per side of the tiles skipped where the texture is locally constant
 
 
-@njit(cache=True, inline="always")
-def _bilinear_wrap(img, xr, yr):
-    # img carries one extra periodic row and column (see pad_periodic), so x0 + 1 is valid
-    h = img.shape[0] - 1
-    w = img.shape[1] - 1
+@njit(cache=True)
+def _bilinear_wrap(img, k, xr, yr):
+    # img (L, Ht + 1, Wt + 1) carries one extra periodic row and column (pad_periodic), so
+    # x0 + 1 is valid; indexing the 3-D array directly avoids building a view per sample
+    h = img.shape[1] - 1
+    w = img.shape[2] - 1
     xr -= w * math.floor(xr * (1.0 / w))
     yr -= h * math.floor(yr * (1.0 / h))
     x0 = int(xr)
@@ -42,8 +43,8 @@ def _bilinear_wrap(img, xr, yr):
         y0 = h - 1
     ax = xr - x0
     ay = yr - y0
-    return ((1 - ay) * ((1 - ax) * img[y0, x0] + ax * img[y0, x0 + 1])
-            + ay * ((1 - ax) * img[y0 + 1, x0] + ax * img[y0 + 1, x0 + 1]))
+    return ((1 - ay) * ((1 - ax) * img[k, y0, x0] + ax * img[k, y0, x0 + 1])
+            + ay * ((1 - ax) * img[k, y0 + 1, x0] + ax * img[k, y0 + 1, x0 + 1]))
 
 
 def pad_periodic(img: np.ndarray) -> np.ndarray:
@@ -53,32 +54,28 @@ def pad_periodic(img: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.pad(img, ((0, 1), (0, 1)), mode="wrap"))
 
 
-@njit(cache=True, inline="always")
-def _pixel(Ms, texs, alphas, origins, boxes, x, y):
-    val = 0.0
-    for k in range(Ms.shape[0]):
-        if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
-                      or y > boxes[k, 3]):
-            continue  # outside the layer's opaque region during this step
-        m = Ms[k]
-        den = m[6] * x + m[7] * y + m[8]
-        xr = (m[0] * x + m[1] * y + m[2]) / den - origins[k, 0]
-        yr = (m[3] * x + m[4] * y + m[5]) / den - origins[k, 1]
-        if k == 0:
-            val = _bilinear_wrap(texs[k], xr, yr)
-        else:
-            a = _bilinear_wrap(alphas[k], xr, yr)
-            if a > 0.0:  # upper layers are mostly transparent: skip their texture there
-                val = a * _bilinear_wrap(texs[k], xr, yr) + (1.0 - a) * val
-    return val
-
-
 @njit(cache=True)
 def _render(Ms, texs, alphas, origins, boxes, out):
     h, w = out.shape
     for y in range(h):
         for x in range(w):
-            out[y, x] = _pixel(Ms, texs, alphas, origins, boxes, x, y)
+            # the layer sampling is written out here and in _step rather than called: a
+            # call with this many array arguments is not inlined and costs ~5x the work
+            val = 0.0
+            for k in range(Ms.shape[1]):
+                if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
+                              or y > boxes[k, 3]):
+                    continue
+                den = Ms[0, k, 6] * x + Ms[0, k, 7] * y + Ms[0, k, 8]
+                xr = (Ms[0, k, 0] * x + Ms[0, k, 1] * y + Ms[0, k, 2]) / den - origins[k, 0]
+                yr = (Ms[0, k, 3] * x + Ms[0, k, 4] * y + Ms[0, k, 5]) / den - origins[k, 1]
+                if k == 0:
+                    val = _bilinear_wrap(texs, k, xr, yr)
+                else:
+                    al = _bilinear_wrap(alphas, k, xr, yr)
+                    if al > 0.0:  # upper layers are mostly transparent: skip them there
+                        val = al * _bilinear_wrap(texs, k, xr, yr) + (1.0 - al) * val
+            out[y, x] = val
 
 
 def full_boxes(n_layers: int, shape: tuple[int, int]) -> np.ndarray:
@@ -109,7 +106,8 @@ def render_log(Ms: np.ndarray, texs: np.ndarray, alphas: np.ndarray, origins: np
     """
     if boxes is None:
         boxes = full_boxes(Ms.shape[0], out.shape)
-    _render(Ms, texs, alphas, origins, boxes, out)
+    _render(np.ascontiguousarray(Ms, dtype=np.float64)[None], texs, alphas, origins, boxes,
+            out)
 
 
 def sample_wrap_numpy(img: np.ndarray, xr: np.ndarray, yr: np.ndarray) -> np.ndarray:
@@ -145,7 +143,7 @@ def render_log_numpy(Ms, texs, alphas, origins, xs, ys) -> np.ndarray:
     return val
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _cross(a, b, t0, t1, r, c, sign, last, refr, x, y, ex, ey, et, ep, n, cap):
     """Crossings of one polarity between samples (t0, a) and (t1, b); returns r, last, n."""
     span = t1 - t0
@@ -168,7 +166,7 @@ def _cross(a, b, t0, t1, r, c, sign, last, refr, x, y, ex, ey, et, ep, n, cap):
     return r, last, n
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _sat_sum(sat, y0, y1, x0, x1):
     """Sum of the cells ``[y0, y1) x [x0, x1)`` from a summed-area table."""
     return sat[y1, x1] - sat[y0, x1] - sat[y1, x0] + sat[y0, x0]
@@ -258,24 +256,48 @@ def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_
             for y in range(ty0, ty1 + 1):
                 for x in range(tx0, tx1 + 1):
                     a = np.float64(la[y, x])
-                    b = _pixel(m_end, texs, alphas, origins, boxes, x, y)
-                    lb[y, x] = b
-                    ns = 1
-                    while ns < MAX_SUBSAMPLES and abs(b - a) > target * ns:
-                        ns *= 2
-                    stride = MAX_SUBSAMPLES // ns
-                    nsub_total += ns - 1
                     r = ref[y, x]
                     lt = last[y, x]
                     t0 = t_a
                     v0 = a
-                    for j in range(1, ns + 1):
+                    b = a
+                    ns = 1
+                    stride = MAX_SUBSAMPLES
+                    # j = 0 samples the end of the step (which sets the pixel's number of
+                    # sub-samples ns), j = 1..ns walk through the step
+                    j = 0
+                    while j <= ns:
                         if j == ns:
-                            t1 = t_b
-                            v1 = np.float64(lb[y, x])
+                            v1 = b
                         else:
-                            t1 = t_a + (j * stride * span) // MAX_SUBSAMPLES
-                            v1 = _pixel(Mseq[j * stride], texs, alphas, origins, boxes, x, y)
+                            g = MAX_SUBSAMPLES if j == 0 else j * stride
+                            v1 = 0.0
+                            for k in range(Mseq.shape[1]):
+                                if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1]
+                                              or x > boxes[k, 2] or y > boxes[k, 3]):
+                                    continue
+                                den = Mseq[g, k, 6] * x + Mseq[g, k, 7] * y + Mseq[g, k, 8]
+                                xr = ((Mseq[g, k, 0] * x + Mseq[g, k, 1] * y + Mseq[g, k, 2])
+                                      / den - origins[k, 0])
+                                yr = ((Mseq[g, k, 3] * x + Mseq[g, k, 4] * y + Mseq[g, k, 5])
+                                      / den - origins[k, 1])
+                                if k == 0:
+                                    v1 = _bilinear_wrap(texs, k, xr, yr)
+                                else:
+                                    al = _bilinear_wrap(alphas, k, xr, yr)
+                                    if al > 0.0:
+                                        v1 = (al * _bilinear_wrap(texs, k, xr, yr)
+                                              + (1.0 - al) * v1)
+                        if j == 0:
+                            lb[y, x] = v1
+                            b = np.float64(lb[y, x])
+                            while ns < MAX_SUBSAMPLES and abs(v1 - a) > target * ns:
+                                ns *= 2
+                            stride = MAX_SUBSAMPLES // ns
+                            nsub_total += ns - 1
+                            j = 1
+                            continue
+                        t1 = t_b if j == ns else t_a + (j * stride * span) // MAX_SUBSAMPLES
                         if v1 - r >= cp[y, x]:
                             r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr, x,
                                               y, ex, ey, et, ep, n, cap)
@@ -284,6 +306,7 @@ def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_
                                               y, ex, ey, et, ep, n, cap)
                         t0 = t1
                         v0 = v1
+                        j += 1
                     ref[y, x] = r
                     last[y, x] = lt
     return n, nsub_total
