@@ -19,8 +19,10 @@ Model
   interval (exact along trajectories), parameters at any time, angular velocity, event
   masks; saved beside the events as ``<stem>_gt.h5`` (:mod:`~evmotion.sim.gtio`).
 
-Speed: about 1 M events/s on one core at 346x260 for the single-layer scenes
-(``benchmarks/bench_sim.py``).
+Speed (one core, 346x260, ``benchmarks/bench_sim.py``): 1.2-1.8 M events/s on the
+single-layer scenes with the dots or checker textures (16x16 tiles where the texture is
+locally constant are skipped), 0.6-0.9 M events/s on the noise and shapes textures and on
+the two-layer ``object`` scene; 17-27x the plain-numpy reference of the kernel.
 
 >>> from evmotion.sim import simulate, SCENES
 >>> res = simulate("rotation", duration_s=0.01, sensor_size=(60, 80), seed=0)
