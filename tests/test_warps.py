@@ -300,10 +300,15 @@ def test_rodrigues_large_and_small_angles():
         np.testing.assert_allclose(R @ r, r, atol=1e-12)  # the axis is fixed
     x, y, _ = _events(8)
     w = _warp("rotation")
-    big = np.array([20.0, -10.0, 5.0])  # angles above 1 rad take the exact branch
-    dt = np.full_like(x, 0.05)
-    np.testing.assert_allclose(w.warp(x, y, dt, big), _reference_warp(w, x, y, dt, big),
-                               atol=1e-9)
+    dt = np.linspace(-0.05, 0.05, len(x))
+    # the three Rodrigues paths: short and long series, exact sin/cos above 1 rad
+    for om in ([1.0, -2.0, 3.0], [5.0, -4.0, 3.0], [20.0, -10.0, 5.0]):
+        om = np.array(om)
+        xw, yw, jx, jy = w.warp(x, y, dt, om, jacobian=True)
+        np.testing.assert_allclose((xw, yw), _reference_warp(w, x, y, dt, om), atol=1e-9)
+        rjx, rjy = _reference_param_jacobian(w, x, y, dt, om)
+        np.testing.assert_allclose(jx, rjx, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(jy, rjy, rtol=1e-9, atol=1e-9)
 
 
 def test_zoom_normalized_time():

@@ -247,6 +247,34 @@ def _rod_coeffs(z):
 
 
 @njit(cache=True, inline="always")
+def _rod_coeffs_short(z):
+    """:func:`_rod_coeffs` for z < 0.05 (|dt omega| < 0.22 rad, the usual case): seven
+    terms suffice (truncation below z^7/15! < 1e-21)."""
+    a = 1.6059043836821613e-10  # 1/13!
+    a = 2.505210838544172e-08 - z * a
+    a = 2.7557319223985893e-06 - z * a
+    a = 0.0001984126984126984 - z * a
+    a = 0.008333333333333333 - z * a
+    a = 0.16666666666666666 - z * a
+    a = 1.0 - z * a
+    b = 1.1470745597729725e-11  # 1/14!
+    b = 2.08767569878681e-09 - z * b
+    b = 2.755731922398589e-07 - z * b
+    b = 2.48015873015873e-05 - z * b
+    b = 0.001388888888888889 - z * b
+    b = 0.041666666666666664 - z * b
+    b = 0.5 - z * b
+    c = 7.647163731819816e-13  # 1/15!
+    c = 1.6059043836821613e-10 - z * c
+    c = 2.505210838544172e-08 - z * c
+    c = 2.7557319223985893e-06 - z * c
+    c = 0.0001984126984126984 - z * c
+    c = 0.008333333333333333 - z * c
+    c = 0.16666666666666666 - z * c
+    return a, b, c
+
+
+@njit(cache=True, inline="always")
 def _rod_coeffs_exact(z):
     ang = math.sqrt(z)
     sa = math.sin(ang)
@@ -457,8 +485,13 @@ def _k_homography(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
 
 
 @njit(cache=True, error_model="numpy")
-def _rod_block(dt, k0, k1, ww, small, abuf, bbuf, cbuf):
-    if small:  # branch-free: SIMD
+def _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf):
+    # modes 0 and 1 are branch-free (SIMD); 2 has angles above 1 rad
+    if mode == 0:
+        for k in range(k0, k1):
+            t = dt[k]
+            abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = _rod_coeffs_short(t * t * ww)
+    elif mode == 1:
         for k in range(k0, k1):
             t = dt[k]
             abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = _rod_coeffs(t * t * ww)
@@ -498,7 +531,8 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
     wx, wy, wz = w[0], w[1], w[2]
     ww = wx * wx + wy * wy + wz * wz
     tm = _max_abs(dt)
-    small = tm * tm * ww < 1.0
+    zmax = tm * tm * ww
+    mode = 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
     # the matrices as scalars: the output arrays might alias them, which would force reloads
     k00, k01, k02, k10, k11, k12 = Kmat[0, 0], Kmat[0, 1], Kmat[0, 2], Kmat[1, 0], Kmat[1, 1], \
         Kmat[1, 2]
@@ -511,12 +545,23 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
     n = x.shape[0]
     for k0 in range(0, n, _BLOCK):
         k1 = min(k0 + _BLOCK, n)
-        _rod_block(dt, k0, k1, ww, small, abuf, bbuf, cbuf)
+        _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
         if not jac:
+            # written out (no helper call): this loop vectorizes; K^-1 has last row (0, 0, 1)
             for k in range(k0, k1):
-                X, Y, _, _, _, _ = _rot_point(x[k], y[k], dt[k], abuf[k - k0], bbuf[k - k0],
-                                              wx, wy, wz, i00, i01, i02, i10, i11, i12, i20,
-                                              i21, i22)
+                t = dt[k]
+                xn = i00 * x[k] + i01 * y[k] + i02
+                yn = i10 * x[k] + i11 * y[k] + i12
+                c1x = wy - wz * yn
+                c1y = wz * xn - wx
+                c1z = wx * yn - wy * xn
+                at = abuf[k - k0] * t
+                bt = bbuf[k - k0] * t * t
+                q0 = xn + at * c1x + bt * (wy * c1z - wz * c1y)
+                q1 = yn + at * c1y + bt * (wz * c1x - wx * c1z)
+                iz = 1.0 / (1.0 + at * c1z + bt * (wx * c1y - wy * c1x))
+                X = q0 * iz
+                Y = q1 * iz
                 xw[k] = k00 * X + k01 * Y + k02
                 yw[k] = k10 * X + k11 * Y + k12
             continue
