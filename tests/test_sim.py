@@ -256,6 +256,23 @@ def test_zoom_into_the_scene_is_refused():
         simulate("zoom", duration_s=1.0, sensor_size=(10, 12), show_progress=False)
 
 
+def test_bad_intrinsics():
+    from evmotion.errors import CalibrationError
+
+    with pytest.raises(CalibrationError, match="K must be"):
+        simulate("rotation", duration_s=0.002, sensor_size=(10, 12), K=np.eye(2),
+                 show_progress=False)
+
+
+def test_custom_intrinsics_change_the_rotation_flow():
+    K = np.array([[50.0, 0, 5.5], [0, 50.0, 4.5], [0, 0, 1]])
+    res = simulate("rotation", duration_s=0.002, sensor_size=(10, 12), K=K,
+                   params={"omega": [0.0, 1.0, 0.0]}, show_progress=False)
+    np.testing.assert_allclose(res.gt.K, K)
+    # a rotation about y moves the principal point by about -f * wy px/s
+    assert res.gt.flow(0)[4, 5, 0] == pytest.approx(-50.0, rel=0.02)
+
+
 def test_unknown_scene():
     with pytest.raises(ParameterError, match="unknown scene"):
         simulate("spin", show_progress=False)

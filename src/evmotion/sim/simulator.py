@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import ParameterError
+from evmotion.errors import CalibrationError, ParameterError
 from evmotion.events import EventArray
 from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
@@ -253,6 +253,9 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
     if backend not in ("numba", "numpy"):
         raise ParameterError(f"backend must be 'numba' or 'numpy', got {backend!r}")
     K = default_K(sensor_size) if K is None else np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise CalibrationError(f"K must be a finite 3x3 pinhole matrix with positive focal "
+                               f"lengths (pixels), got {np.asarray(K).tolist()!r}")
 
     p = resolve_params(scene, params, sensor_size)
     layers, texs = build_layers(scene, p, sensor_size, K, texture, image, seed)
