@@ -64,3 +64,24 @@ def test_structured_roundtrip_and_concatenate():
     half = len(ev) // 2
     cat = concatenate([ev[:half], ev[half:]])
     np.testing.assert_array_equal(cat.t, ev.t)
+
+
+def test_atomic_path_leaves_nothing_on_error_and_respects_umask(tmp_path):
+    import os
+
+    from evmotion.utils import atomic_path
+
+    target = tmp_path / "out.bin"
+    try:
+        with atomic_path(target) as tmp:
+            tmp.write_bytes(b"half")
+            raise RuntimeError("interrupted")
+    except RuntimeError:
+        pass
+    assert list(tmp_path.iterdir()) == []
+    with atomic_path(target) as tmp:
+        tmp.write_bytes(b"whole")
+    assert target.read_bytes() == b"whole"
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (target.stat().st_mode & 0o777) == (0o666 & ~umask)
