@@ -4,7 +4,7 @@ re-chunking and time filtering."""
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numba
@@ -17,6 +17,11 @@ from evmotion.events import EventArray
 Block = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 BLOCK_BYTES = 1 << 22
+
+# ``open_blocks(path, sensor_size, block_bytes) -> (data offset, (height, width), blocks)``:
+# parses a file's header and returns its payload as a lazy iterator of decoded blocks.
+OpenBlocks = Callable[[Path, "tuple[int, int] | None", int],
+                      "tuple[int, tuple[int, int], Iterator[Block]]"]
 
 
 def read_text_header(path: Path, marker: bytes, *, end_line: bytes | None = None,
@@ -137,6 +142,38 @@ def collect(blocks: Iterator[Block], sensor_size: tuple[int, int], meta: dict,
         cols = [np.empty(0, np.uint16), np.empty(0, np.uint16), np.empty(0, np.int64),
                 np.empty(0, np.uint8)]
     return _make(cols, 0, len(cols[2]), sensor_size, meta, validate)
+
+
+def _open_payload(path: Path, fmt: str, word_bytes: int, open_blocks: OpenBlocks,
+                  sensor_size: tuple[int, int] | None, block_bytes: int
+                  ) -> tuple[tuple[int, int], dict, Iterator[Block]]:
+    offset, size, blocks = open_blocks(path, sensor_size, block_bytes)
+    trailing_partial(path, offset, word_bytes)
+    return size, {"source": str(path), "format": fmt}, blocks
+
+
+def read_file(path: str | Path, fmt: str, word_bytes: int, open_blocks: OpenBlocks,
+              t0: int | None = None, t1: int | None = None, *,
+              sensor_size: tuple[int, int] | None = None, validate: bool = True,
+              block_bytes: int = BLOCK_BYTES) -> EventArray:
+    """The ``read`` of a fixed-word binary format: header, truncation check, then the
+    blocks of ``open_blocks`` collected with ``t0 <= t < t1`` (µs); meta ``format=fmt``."""
+    path = Path(path)
+    size, meta, blocks = _open_payload(path, fmt, word_bytes, open_blocks, sensor_size,
+                                       block_bytes)
+    return collect(blocks, size, meta, t0, t1, validate=validate)
+
+
+def iter_file(path: str | Path, chunk_events: int, fmt: str, word_bytes: int,
+              open_blocks: OpenBlocks, *, sensor_size: tuple[int, int] | None = None,
+              validate: bool = True, block_bytes: int = BLOCK_BYTES) -> Iterator[EventArray]:
+    """The ``iter_chunks`` of a fixed-word binary format: as :func:`read_file`, streamed in
+    EventArrays of ``chunk_events`` events."""
+    chunk_events = check_chunk_events(chunk_events)
+    path = Path(path)
+    size, meta, blocks = _open_payload(path, fmt, word_bytes, open_blocks, sensor_size,
+                                       block_bytes)
+    yield from rechunk(blocks, chunk_events, size, meta, validate=validate)
 
 
 def iter_blocks(path: Path, offset: int, block_bytes: int, word_bytes: int

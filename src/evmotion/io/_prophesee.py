@@ -3,10 +3,16 @@ sniffing, the time offset evmotion stores when timestamps exceed the counter ran
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
+
 from evmotion.errors import FormatError
+from evmotion.events import EventArray
+from evmotion.io import _binary
 from evmotion.io._binary import geometry_from_header, read_text_header
+from evmotion.utils import atomic_path
 
 # Header key evmotion writes when the first timestamp does not fit the format's counter;
 # readers add it to every timestamp. Other tools ignore unknown header keys.
@@ -86,3 +92,78 @@ def header_dict(lines: list[str]) -> dict[str, str]:
             key, _, val = body.partition(" ")
             out[key] = val.strip()
     return out
+
+
+def open_raw(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int, *,
+             version: str, word: str, decode_words: Callable, new_state: Callable,
+             whole_bytes: int | None = None
+             ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
+    """:data:`_binary.OpenBlocks` of an EVT ``version`` file of ``word`` (numpy dtype)
+    words: data offset, sensor size and the lazily decoded blocks (see :func:`raw_blocks`),
+    times offset by the header's :data:`OFFSET_KEY`."""
+    _, offset, size, t_offset = parse_raw_header(path, sensor_size, version)
+    return offset, size, raw_blocks(path, offset, t_offset, block_bytes, word, decode_words,
+                                    new_state(), whole_bytes)
+
+
+def raw_blocks(path: Path, offset: int, t_offset: int, block_bytes: int, word: str,
+               decode_words: Callable, state: np.ndarray, whole_bytes: int | None = None
+               ) -> Iterator[_binary.Block]:
+    """Decoded ``(x, y, t, p)`` blocks of the payload from ``offset`` on; ``state`` is the
+    decoder state carried from block to block. A payload of at most ``whole_bytes`` is
+    decoded in one pass (no per-block buffers to concatenate)."""
+    if whole_bytes is not None and path.stat().st_size - offset <= whole_bytes:
+        payload = iter([np.fromfile(path, np.uint8, offset=offset).view(word)])
+    else:
+        payload = (np.frombuffer(buf, word) for _, buf in
+                   _binary.iter_blocks(path, offset, block_bytes, np.dtype(word).itemsize))
+    for words in payload:
+        x, y, t, p = decode_words(words, state)
+        if t_offset:
+            t += t_offset
+        yield x, y, t, p
+
+
+def check_writable(events: EventArray, limit: int) -> None:
+    if events.x.dtype.kind == "f":
+        raise FormatError(None, "events have float (undistorted) coordinates; this format "
+                          "stores integer pixels")
+    h, w = events.sensor_size
+    if w > limit or h > limit:
+        raise FormatError(None, f"sensor_size {events.sensor_size} exceeds this format's "
+                          f"{limit}-pixel address range")
+
+
+def write_raw(path: str | Path, events: EventArray, *, version: str, wrap_us: int,
+              encode: Callable, word: str, header: dict | None = None) -> None:
+    """Write an EVT ``version`` RAW file atomically: the ``%`` header (with ``header``'s
+    extra keys and, past the ``wrap_us`` counter range, :data:`OFFSET_KEY`), then
+    ``encode(events, t_base)`` as ``word`` words."""
+    check_writable(events, 2048)
+    h, w = events.sensor_size
+    t_base = int(events.t[0]) - int(events.t[0]) % wrap_us if len(events) else 0
+    lines = [f"% evt {version}", f"% format EVT{version[0]};height={h};width={w}",
+             f"% geometry {w}x{h}", "% integrator_name evmotion"]
+    if t_base:
+        lines.append(f"% {OFFSET_KEY} {t_base}")
+    for key, val in (header or {}).items():
+        lines.append(f"% {key} {val}")
+    lines.append("% end")
+    words = encode(events, t_base)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(_binary.header_bytes(lines))
+        fh.write(words.astype(word).tobytes())
+
+
+def describe_raw(path: str | Path, fmt: str, word_bytes: int) -> dict:
+    """Header fields, geometry and payload size of a RAW file (``sensor_size`` None when
+    the header does not parse as ``fmt``'s)."""
+    path = Path(path)
+    try:
+        lines, offset, size, _ = parse_raw_header(path, None)
+    except FormatError:
+        lines, offset = read_text_header(path, b"%", end_line=b"% end")
+        size = None
+    return {"format": fmt, "sensor_size": size, "header": header_dict(lines),
+            "data_offset": offset, "n_words": (path.stat().st_size - offset) // word_bytes,
+            "frames": 0, "imu": 0}

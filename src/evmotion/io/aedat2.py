@@ -118,6 +118,12 @@ def _blocks(path, offset, size, block_bytes) -> Iterator[_binary.Block]:
         yield _decode(addr, t, size)
 
 
+def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
+          ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
+    _, offset, size = _parse_header(path, sensor_size)
+    return offset, size, _blocks(path, offset, size, block_bytes)
+
+
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
          block_bytes: int = _binary.BLOCK_BYTES) -> EventArray:
@@ -140,25 +146,17 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     >>> ev = read("davis240.aedat")  # doctest: +SKIP
     >>> imu = read_imu("davis240.aedat")  # doctest: +SKIP
     """
-    path = Path(path)
-    lines, offset, size = _parse_header(path, sensor_size)
-    _binary.trailing_partial(path, offset, RECORD)
-    meta = {"source": str(path), "format": "aedat2"}
-    return _binary.collect(_blocks(path, offset, size, block_bytes), size, meta, t0, t1,
-                           validate=validate)
+    return _binary.read_file(path, "aedat2", RECORD, _open, t0, t1, sensor_size=sensor_size,
+                             validate=validate, block_bytes=block_bytes)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, validate: bool = True,
                 block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
     """Stream the DVS events of an AEDAT 2.0 file in chunks of ``chunk_events``."""
-    chunk_events = _binary.check_chunk_events(chunk_events)
-    path = Path(path)
-    lines, offset, size = _parse_header(path, sensor_size)
-    _binary.trailing_partial(path, offset, RECORD)
-    meta = {"source": str(path), "format": "aedat2"}
-    yield from _binary.rechunk(_blocks(path, offset, size, block_bytes), chunk_events, size,
-                               meta, validate=validate)
+    yield from _binary.iter_file(path, chunk_events, "aedat2", RECORD, _open,
+                                 sensor_size=sensor_size, validate=validate,
+                                 block_bytes=block_bytes)
 
 
 def _imu_scales(lines: list[str]) -> tuple[float, float]:

@@ -81,6 +81,12 @@ def _blocks(path: Path, offset: int, block_bytes: int) -> Iterator[_binary.Block
         yield x, y, t, p
 
 
+def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
+          ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
+    _, offset, size = _parse_header(path, sensor_size)
+    return offset, size, _blocks(path, offset, block_bytes)
+
+
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
          block_bytes: int = _binary.BLOCK_BYTES) -> EventArray:
@@ -103,25 +109,17 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     --------
     >>> ev = read("recording_td.dat")  # doctest: +SKIP
     """
-    path = Path(path)
-    lines, offset, size = _parse_header(path, sensor_size)
-    _binary.trailing_partial(path, offset, RECORD)
-    meta = {"source": str(path), "format": "dat"}
-    return _binary.collect(_blocks(path, offset, block_bytes), size, meta, t0, t1,
-                           validate=validate)
+    return _binary.read_file(path, "dat", RECORD, _open, t0, t1, sensor_size=sensor_size,
+                             validate=validate, block_bytes=block_bytes)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, validate: bool = True,
                 block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
     """Stream a DAT file in EventArrays of ``chunk_events`` events, in bounded memory."""
-    chunk_events = _binary.check_chunk_events(chunk_events)
-    path = Path(path)
-    lines, offset, size = _parse_header(path, sensor_size)
-    _binary.trailing_partial(path, offset, RECORD)
-    meta = {"source": str(path), "format": "dat"}
-    yield from _binary.rechunk(_blocks(path, offset, block_bytes), chunk_events, size, meta,
-                               validate=validate)
+    yield from _binary.iter_file(path, chunk_events, "dat", RECORD, _open,
+                                 sensor_size=sensor_size, validate=validate,
+                                 block_bytes=block_bytes)
 
 
 def write(path: str | Path, events: EventArray) -> None:

@@ -14,12 +14,9 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import _binary, _prophesee
 from evmotion.io.base import FormatSpec
-from evmotion.io.evt3 import _check_writable
-from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "FORMAT"]
 
@@ -83,14 +80,10 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> _binary.
     return ox[:k], oy[:k], ot[:k], op[:k]
 
 
-def _blocks(path: Path, offset: int, t_offset: int, block_bytes: int
-            ) -> Iterator[_binary.Block]:
-    state = new_state()
-    for _, buf in _binary.iter_blocks(path, offset, block_bytes, 4):
-        x, y, t, p = decode_words(np.frombuffer(buf, "<u4"), state)
-        if t_offset:
-            t += t_offset
-        yield x, y, t, p
+def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
+          ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
+    return _prophesee.open_raw(path, sensor_size, block_bytes, version="2.0", word="<u4",
+                               decode_words=decode_words, new_state=new_state)
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
@@ -115,25 +108,16 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     --------
     >>> ev = read("gen3.raw", sensor_size=(480, 640))  # doctest: +SKIP
     """
-    path = Path(path)
-    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size, "2.0")
-    _binary.trailing_partial(path, offset, 4)
-    meta = {"source": str(path), "format": "evt2"}
-    return _binary.collect(_blocks(path, offset, t_offset, block_bytes), size, meta, t0, t1,
-                           validate=validate)
+    return _binary.read_file(path, "evt2", 4, _open, t0, t1, sensor_size=sensor_size,
+                             validate=validate, block_bytes=block_bytes)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, validate: bool = True,
                 block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
     """Stream an EVT 2.0 file in EventArrays of ``chunk_events`` events."""
-    chunk_events = _binary.check_chunk_events(chunk_events)
-    path = Path(path)
-    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size, "2.0")
-    _binary.trailing_partial(path, offset, 4)
-    meta = {"source": str(path), "format": "evt2"}
-    yield from _binary.rechunk(_blocks(path, offset, t_offset, block_bytes), chunk_events,
-                               size, meta, validate=validate)
+    yield from _binary.iter_file(path, chunk_events, "evt2", 4, _open, sensor_size=sensor_size,
+                                 validate=validate, block_bytes=block_bytes)
 
 
 @numba.njit(cache=True)
@@ -175,31 +159,13 @@ def write(path: str | Path, events: EventArray) -> None:
     --------
     >>> write("out.raw", events)  # doctest: +SKIP
     """
-    _check_writable(events, 2048)
-    h, w = events.sensor_size
-    t_base = int(events.t[0]) - int(events.t[0]) % WRAP_US if len(events) else 0
-    lines = ["% evt 2.0", f"% format EVT2;height={h};width={w}",
-             f"% geometry {w}x{h}", "% integrator_name evmotion"]
-    if t_base:
-        lines.append(f"% {_prophesee.OFFSET_KEY} {t_base}")
-    lines.append("% end")
-    words = encode(events, t_base)
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        fh.write(_binary.header_bytes(lines))
-        fh.write(words.astype("<u4").tobytes())
+    _prophesee.write_raw(path, events, version="2.0", wrap_us=WRAP_US, encode=encode,
+                         word="<u4")
 
 
 def describe(path: str | Path) -> dict:
     """Header fields, geometry and payload size of an EVT 2.0 file."""
-    path = Path(path)
-    try:
-        lines, offset, size, _ = _prophesee.parse_raw_header(path, None)
-    except FormatError:
-        lines, offset = _binary.read_text_header(path, b"%", end_line=b"% end")
-        size = None
-    return {"format": "evt2", "sensor_size": size, "header": _prophesee.header_dict(lines),
-            "data_offset": offset, "n_words": (path.stat().st_size - offset) // 4,
-            "frames": 0, "imu": 0}
+    return _prophesee.describe_raw(path, "evt2", 4)
 
 
 def _sniff(path: Path, head: bytes) -> bool:

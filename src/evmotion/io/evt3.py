@@ -11,6 +11,7 @@ TIME_HIGH have no time base and are dropped, as Prophesee's own decoder does.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 
 import numba
@@ -20,7 +21,6 @@ from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import _binary, _prophesee
 from evmotion.io.base import FormatSpec
-from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
 
@@ -165,14 +165,12 @@ def new_state() -> np.ndarray:
     return np.zeros(7, np.int64)
 
 
-def _blocks(path: Path, offset: int, t_offset: int, block_bytes: int
-            ) -> Iterator[_binary.Block]:
-    state = new_state()
-    for _, buf in _binary.iter_blocks(path, offset, block_bytes, 2):
-        x, y, t, p = decode_words(np.frombuffer(buf, "<u2"), state)
-        if t_offset:
-            t += t_offset
-        yield x, y, t, p
+def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int,
+          whole_bytes: int | None = None
+          ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
+    return _prophesee.open_raw(path, sensor_size, block_bytes, version="3.0", word="<u2",
+                               decode_words=decode_words, new_state=new_state,
+                               whole_bytes=whole_bytes)
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
@@ -204,19 +202,10 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     --------
     >>> ev = read("recording.raw", t0=0, t1=100_000)  # doctest: +SKIP
     """
-    path = Path(path)
-    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size, "3.0")
-    _binary.trailing_partial(path, offset, 2)
-    meta = {"source": str(path), "format": "evt3"}
-    if t0 is None and t1 is None and path.stat().st_size - offset <= WHOLE_FILE_BYTES:
-        # one pass over the whole payload: no per-block buffers to concatenate
-        words = np.fromfile(path, np.uint8, offset=offset).view("<u2")
-        x, y, t, p = decode_words(words)
-        if t_offset:
-            t += t_offset
-        return _binary.collect(iter([(x, y, t, p)]), size, meta, validate=validate)
-    return _binary.collect(_blocks(path, offset, t_offset, block_bytes), size, meta, t0, t1,
-                           validate=validate)
+    # without a time range, a payload up to WHOLE_FILE_BYTES is decoded in one pass
+    opener = partial(_open, whole_bytes=WHOLE_FILE_BYTES) if t0 is None and t1 is None else _open
+    return _binary.read_file(path, "evt3", 2, opener, t0, t1, sensor_size=sensor_size,
+                             validate=validate, block_bytes=block_bytes)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
@@ -230,13 +219,8 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     >>> for chunk in iter_chunks("recording.raw", 100_000):  # doctest: +SKIP
     ...     print(len(chunk))
     """
-    chunk_events = _binary.check_chunk_events(chunk_events)
-    path = Path(path)
-    lines, offset, size, t_offset = _prophesee.parse_raw_header(path, sensor_size, "3.0")
-    _binary.trailing_partial(path, offset, 2)
-    meta = {"source": str(path), "format": "evt3"}
-    yield from _binary.rechunk(_blocks(path, offset, t_offset, block_bytes), chunk_events,
-                               size, meta, validate=validate)
+    yield from _binary.iter_file(path, chunk_events, "evt3", 2, _open, sensor_size=sensor_size,
+                                 validate=validate, block_bytes=block_bytes)
 
 
 @numba.njit(cache=True)
@@ -338,43 +322,13 @@ def write(path: str | Path, events: EventArray, *, header: dict | None = None) -
     --------
     >>> write("out.raw", events)  # doctest: +SKIP
     """
-    _check_writable(events, 2048)
-    h, w = events.sensor_size
-    t_base = int(events.t[0]) - int(events.t[0]) % WRAP_US if len(events) else 0
-    lines = ["% evt 3.0", f"% format EVT3;height={h};width={w}",
-             f"% geometry {w}x{h}", "% integrator_name evmotion"]
-    if t_base:
-        lines.append(f"% {_prophesee.OFFSET_KEY} {t_base}")
-    for key, val in (header or {}).items():
-        lines.append(f"% {key} {val}")
-    lines.append("% end")
-    words = encode(events, t_base)
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        fh.write(_binary.header_bytes(lines))
-        fh.write(words.astype("<u2").tobytes())
-
-
-def _check_writable(events: EventArray, limit: int) -> None:
-    if events.x.dtype.kind == "f":
-        raise FormatError(None, "events have float (undistorted) coordinates; this format "
-                          "stores integer pixels")
-    h, w = events.sensor_size
-    if w > limit or h > limit:
-        raise FormatError(None, f"sensor_size {events.sensor_size} exceeds this format's "
-                          f"{limit}-pixel address range")
+    _prophesee.write_raw(path, events, version="3.0", wrap_us=WRAP_US, encode=encode,
+                         word="<u2", header=header)
 
 
 def describe(path: str | Path) -> dict:
     """Header fields, geometry and payload size of an EVT 3.0 file."""
-    path = Path(path)
-    try:
-        lines, offset, size, _ = _prophesee.parse_raw_header(path, None)
-    except FormatError:
-        lines, offset = _binary.read_text_header(path, b"%", end_line=b"% end")
-        size = None
-    return {"format": "evt3", "sensor_size": size, "header": _prophesee.header_dict(lines),
-            "data_offset": offset, "n_words": (path.stat().st_size - offset) // 2,
-            "frames": 0, "imu": 0}
+    return _prophesee.describe_raw(path, "evt3", 2)
 
 
 def _sniff(path: Path, head: bytes) -> bool:
