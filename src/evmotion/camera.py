@@ -76,21 +76,13 @@ class Camera:
     @classmethod
     def from_ecd(cls, path: str | Path, sensor_size=(180, 240)) -> Camera:
         """From an ECD ``calib.txt``: one line ``fx fy cx cy k1 k2 p1 p2 k3``."""
-        path = Path(path)
-        if path.is_dir():
-            path = path / "calib.txt"
+        from evmotion.io.ecd import calib_file, parse_calib
+
+        path = calib_file(path)
         if not path.is_file():
             raise CalibrationError(f"{path}: calibration file not found (ECD folders hold calib.txt)")
-        try:
-            vals = np.array(path.read_text().split(), dtype=np.float64)
-        except ValueError as exc:
-            raise FormatError(path, f"calib.txt must hold 9 numbers: {exc}") from None
-        if vals.size not in (4, 8, 9):
-            raise FormatError(path, f"calib.txt holds {vals.size} numbers, expected 9 "
-                                    "(fx fy cx cy k1 k2 p1 p2 k3)")
-        d = np.zeros(5)
-        d[: vals.size - 4] = vals[4:]
-        return cls(*vals[:4], dist=(d[0], d[1], d[2], d[3], d[4]), sensor_size=sensor_size)
+        vals = parse_calib(path)  # FormatError naming the file and value when malformed
+        return cls(*vals[:4], dist=tuple(vals[4:]), sensor_size=sensor_size)
 
     @classmethod
     def from_mvsec_yaml(cls, path: str | Path, camera: str = "cam0") -> Camera:

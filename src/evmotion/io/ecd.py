@@ -416,9 +416,7 @@ def write(path: str | Path, events: EventArray | Iterator[EventArray]) -> None:
     --------
     >>> write("out/events.txt", ev)  # doctest: +SKIP
     """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "events.txt"
+    path = _in_folder(path, "events.txt")
     chunks = [events] if isinstance(events, EventArray) else events
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
@@ -427,42 +425,43 @@ def write(path: str | Path, events: EventArray | Iterator[EventArray]) -> None:
                     fh.write(format_text(ev[s:s + 200_000]))
 
 
-def _load_table(path: Path, ncols: int, what: str) -> np.ndarray:
+def _in_folder(path: str | Path, name: str) -> Path:
+    """``path``, or ``path / name`` when ``path`` is a folder."""
+    path = Path(path)
+    return path / name if path.is_dir() else path
+
+
+def _load_table(path: str | Path, name: str, columns: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(t µs, table)`` of the text table ``path`` (``path / name`` for a folder), one row
+    of the space-separated ``columns`` (time in s first) per line."""
+    path = _in_folder(path, name)
+    ncols = len(columns.split())
+    what = f"{name} ({columns})"
     try:
         arr = np.loadtxt(path, ndmin=2, comments="#")
     except ValueError as exc:
         raise FormatError(path, f"cannot parse {what}: {exc}") from None
     if arr.size and arr.shape[1] != ncols:
         raise FormatError(path, f"{what} has {arr.shape[1]} columns, expected {ncols}")
-    return arr
+    return np.rint(arr[:, 0] * 1e6).astype(np.int64), arr
 
 
 def read_imu(path: str | Path) -> dict:
     """ECD ``imu.txt``: returns ``t`` (µs int64), ``accel`` (N,3) m/s², ``gyro`` (N,3) rad/s."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "imu.txt"
-    a = _load_table(path, 7, "imu.txt (t ax ay az gx gy gz)")
-    return {"t": np.rint(a[:, 0] * 1e6).astype(np.int64), "accel": a[:, 1:4],
-            "gyro": a[:, 4:7]}
+    t, a = _load_table(path, "imu.txt", "t ax ay az gx gy gz")
+    return {"t": t, "accel": a[:, 1:4], "gyro": a[:, 4:7]}
 
 
 def read_groundtruth(path: str | Path) -> dict:
     """ECD ``groundtruth.txt``: ``t`` (µs), ``position`` (N,3) m, ``quaternion`` (N,4)
     ``qx qy qz qw``."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "groundtruth.txt"
-    a = _load_table(path, 8, "groundtruth.txt (t px py pz qx qy qz qw)")
-    return {"t": np.rint(a[:, 0] * 1e6).astype(np.int64), "position": a[:, 1:4],
-            "quaternion": a[:, 4:8]}
+    t, a = _load_table(path, "groundtruth.txt", "t px py pz qx qy qz qw")
+    return {"t": t, "position": a[:, 1:4], "quaternion": a[:, 4:8]}
 
 
 def read_image_list(path: str | Path) -> dict:
     """ECD ``images.txt``: ``t`` (µs) and ``files`` (paths relative to the folder)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "images.txt"
+    path = _in_folder(path, "images.txt")
     t, files = [], []
     with open(path) as fh:
         for i, line in enumerate(fh, 1):
@@ -501,6 +500,27 @@ def read_frames(path: str | Path) -> dict:
     return {"t": lst["t"], "images": stack}
 
 
+def calib_file(path: str | Path) -> Path:
+    """``path``, or the ``calib.txt`` in it when ``path`` is an ECD folder."""
+    return _in_folder(path, "calib.txt")
+
+
+def parse_calib(path: Path) -> np.ndarray:
+    """The 9 numbers ``fx fy cx cy k1 k2 p1 p2 k3`` of an ECD ``calib.txt`` (float64),
+    which may also hold just the first 4 or 8 (the missing coefficients are 0).
+
+    Raises FormatError naming the file and the offending value or count.
+    """
+    try:
+        vals = np.array(path.read_text().split(), dtype=np.float64)
+    except ValueError as exc:
+        raise FormatError(path, f"calib.txt must hold numbers: {exc}") from None
+    if vals.size not in (4, 8, 9):
+        raise FormatError(path, f"calib.txt holds {vals.size} numbers, expected 9 "
+                          "(fx fy cx cy k1 k2 p1 p2 k3)")
+    return np.concatenate([vals, np.zeros(9 - vals.size)])
+
+
 def read_calibration(path: str | Path) -> dict:
     """ECD ``calib.txt`` (``fx fy cx cy k1 k2 p1 p2 k3``, or just the first four).
 
@@ -515,20 +535,12 @@ def read_calibration(path: str | Path) -> dict:
     >>> read_calibration("boxes_rotation/calib.txt")["fx"]  # doctest: +SKIP
     199.092366542
     """
-    path = Path(path)
-    if path.is_dir():
-        path = path / "calib.txt"
+    path = calib_file(path)
     if not path.exists():
         raise FormatError(path, "calibration file not found")
-    try:
-        vals = np.array(path.read_text().split(), dtype=np.float64)
-    except ValueError as exc:
-        raise FormatError(path, f"calib.txt must hold numbers: {exc}") from None
-    if vals.size not in (4, 8, 9):
-        raise FormatError(path, f"calib.txt holds {vals.size} numbers, expected 9 "
-                          "(fx fy cx cy k1 k2 p1 p2 k3)")
+    vals = parse_calib(path)
     fx, fy, cx, cy = vals[:4].tolist()
-    dist = (vals[4:].tolist() + [0.0] * 5)[:5]
+    dist = vals[4:].tolist()
     out = {"fx": fx, "fy": fy, "cx": cx, "cy": cy,
            "K": [[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], "dist": dist,
            "model": "radtan", "source": str(path)}
