@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Self
 
 from evmotion.events import EventArray
 
@@ -43,3 +44,24 @@ class FormatSpec:
     iter_chunks: Callable[..., Iterator[EventArray]] | None = None
     write: Callable[..., None] | None = None
     describe: Callable[[Path], dict] | None = None
+
+
+class PartFileWriter:
+    """The context-manager protocol of the streaming writers, which write to a ``.part``
+    file: leaving the ``with`` block normally calls :meth:`close` (finish the file and
+    rename it onto the final name), leaving it by an exception calls :meth:`abort`."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def abort(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
+from evmotion.io.base import PartFileWriter
 from evmotion.utils import atomic_path
 
 __all__ = [
@@ -236,7 +237,7 @@ def _part_path(path: Path) -> Path:
     return path.with_name(path.name + ".part")
 
 
-class FlowWriter:
+class FlowWriter(PartFileWriter):
     """Append dense flow windows to an evmotion flow HDF5 file, in bounded memory.
 
     Parameters
@@ -355,15 +356,6 @@ class FlowWriter:
         """Close without renaming: the ``.part`` file stays for ``resume=True``."""
         if self.f.id.valid:
             self.f.close()
-
-    def __enter__(self) -> FlowWriter:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 def write_flow_group(group, flow: np.ndarray | None, t0, t1, valid=None, *,

@@ -23,13 +23,14 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io.base import FormatSpec
+from evmotion.io.base import FormatSpec, PartFileWriter
 
 __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
            "read_imu", "FORMAT", "FORMAT_NAME"]
@@ -62,7 +63,7 @@ def _jsonable(obj):
     return obj
 
 
-class EventWriter:
+class EventWriter(PartFileWriter):
     """Append events to an evmotion HDF5 file chunk by chunk (bounded memory, atomic).
 
     Parameters
@@ -180,15 +181,6 @@ class EventWriter:
             self.f.close()
         if self.part.exists():
             self.part.unlink()
-
-    def __enter__(self) -> EventWriter:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
 
 def write(path: str | os.PathLike, events: EventArray | Iterable[EventArray], *,
@@ -317,6 +309,18 @@ def _make(path: Path, size, meta, x, y, t, p, validate: bool) -> EventArray:
         raise FormatError(path, str(exc)) from None
 
 
+@contextmanager
+def _events_range(path: Path, sensor_size: tuple[int, int] | None, t0: int | None,
+                  t1: int | None) -> Iterator[tuple]:
+    """The open file's ``events`` group, sensor size (``sensor_size`` overrides the
+    file's), meta and the index range ``[lo, hi)`` of ``t0 <= t < t1`` (µs)."""
+    with _open(path) as f:
+        size, meta = _meta(f, path)
+        size = tuple(sensor_size) if sensor_size is not None else size
+        lo, hi = _index_range(f, t0, t1)
+        yield f["events"], size, meta, lo, hi
+
+
 def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True) -> EventArray:
     """Read events from an evmotion HDF5 file, using the ms index for ``t0``/``t1`` (µs).
@@ -326,11 +330,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     >>> ev = read("sim.h5", t0=0, t1=50_000)  # doctest: +SKIP
     """
     path = Path(path)
-    with _open(path) as f:
-        size, meta = _meta(f, path)
-        size = tuple(sensor_size) if sensor_size is not None else size
-        lo, hi = _index_range(f, t0, t1)
-        g = f["events"]
+    with _events_range(path, sensor_size, t0, t1) as (g, size, meta, lo, hi):
         cols = [_col(path, g, k, lo, hi) for k in ("x", "y", "t", "p")]
     return _make(path, size, meta, *cols, validate)
 
@@ -348,11 +348,7 @@ def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
     if int(chunk_events) <= 0:
         raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
     path = Path(path)
-    with _open(path) as f:
-        size, meta = _meta(f, path)
-        size = tuple(sensor_size) if sensor_size is not None else size
-        lo, hi = _index_range(f, t0, t1)
-        g = f["events"]
+    with _events_range(path, sensor_size, t0, t1) as (g, size, meta, lo, hi):
         for s in range(lo, hi, int(chunk_events)):
             e = min(hi, s + int(chunk_events))
             yield _make(path, size, meta, *(_col(path, g, k, s, e) for k in "xytp"), validate)

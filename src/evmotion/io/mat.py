@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.npy import events_from_columns
+from evmotion.io.npy import chunks_of_read, events_from_columns
 
 __all__ = ["read", "iter_chunks", "describe", "FORMAT"]
 
@@ -108,11 +108,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
 
 def iter_chunks(path: str | os.PathLike, chunk_events: int, **kw) -> Iterator[EventArray]:
     """Chunks of ``chunk_events`` (``.mat`` files are loaded whole)."""
-    if int(chunk_events) <= 0:
-        raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
-    ev = read(path, **kw)
-    for s in range(0, len(ev), int(chunk_events)):
-        yield ev[s:s + int(chunk_events)]
+    yield from chunks_of_read(read, path, chunk_events, **kw)
 
 
 def describe(path: str | os.PathLike) -> dict:

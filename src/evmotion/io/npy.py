@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -177,6 +177,12 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
 
 def iter_chunks(path: str | os.PathLike, chunk_events: int, **kw) -> Iterator[EventArray]:
     """Chunks of ``chunk_events`` (the file is memory-mapped-free, read once)."""
+    yield from chunks_of_read(read, path, chunk_events, **kw)
+
+
+def chunks_of_read(read: Callable[..., EventArray], path: str | os.PathLike,
+                   chunk_events: int, **kw) -> Iterator[EventArray]:
+    """``read(path, **kw)`` (a whole-file reader) cut into chunks of ``chunk_events``."""
     if int(chunk_events) <= 0:
         raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
     ev = read(path, **kw)

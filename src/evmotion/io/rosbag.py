@@ -80,25 +80,36 @@ def _decode(raw: bytes, path: Path) -> tuple[tuple[int, int], _binary.Block]:
     return (h, w), (ev["x"].copy(), ev["y"].copy(), t, (ev["p"] != 0).astype(np.uint8))
 
 
-def _messages(path: Path, topic: str | None):
+def _open_bag(path: Path):
+    """An opened rosbags ROS1 reader (the caller closes it)."""
     rosbag1, _ = _rosbags()
     try:
         reader = rosbag1.Reader(path)
         reader.open()
     except Exception as exc:
         raise FormatError(path, f"cannot open as a ROS1 bag: {exc}") from None
+    return reader
+
+
+def _topic_connections(reader, msgtype: str, topic: str | None) -> list:
+    """The connections of ``topic`` (default: the first topic of type ``msgtype``), empty
+    when there is none."""
+    conns = [c for c in reader.connections if c.msgtype == msgtype
+             and (topic is None or c.topic == topic)]
+    return [c for c in conns if c.topic == conns[0].topic]
+
+
+def _messages(path: Path, topic: str | None):
+    reader = _open_bag(path)
     try:
-        conns = [c for c in reader.connections if c.msgtype == MSGTYPE
-                 and (topic is None or c.topic == topic)]
+        conns = _topic_connections(reader, MSGTYPE, topic)
         if not conns:
             found = sorted({(c.topic, c.msgtype) for c in reader.connections})
             raise FormatError(path, f"no {MSGTYPE} messages"
                               + (f" on topic '{topic}'" if topic else ""),
                               f"topics in the bag: {found}")
-        first = conns[0].topic
-        conns = [c for c in conns if c.topic == first]
         for _, _, raw in reader.messages(connections=conns):
-            yield first, raw
+            yield conns[0].topic, raw
     finally:
         reader.close()
 
@@ -227,29 +238,21 @@ def read_imu(path: str | Path, *, topic: str | None = None) -> ImuSamples:
     --------
     >>> imu = read_imu("boxes.bag", topic="/dvs/imu")  # doctest: +SKIP
     """
-    rosbag1, _ = _rosbags()
     path = Path(path)
     store = typestore()
     t, acc, gyr = [], [], []
+    reader = _open_bag(path)
     try:
-        reader = rosbag1.Reader(path)
-        reader.open()
-    except Exception as exc:
-        raise FormatError(path, f"cannot open as a ROS1 bag: {exc}") from None
-    try:
-            conns = [c for c in reader.connections if c.msgtype == IMU_MSGTYPE
-                     and (topic is None or c.topic == topic)]
-            if conns:
-                conns = [c for c in conns if c.topic == conns[0].topic]
-            elif topic is not None:
-                raise FormatError(path, f"no {IMU_MSGTYPE} messages on topic '{topic}'")
-            # an empty connection list would mean "every connection" to rosbags
-            for conn, _, raw in reader.messages(connections=conns) if conns else ():
-                m = store.deserialize_ros1(raw, conn.msgtype)
-                t.append(m.header.stamp.sec * 1_000_000 + m.header.stamp.nanosec // 1000)
-                a, g = m.linear_acceleration, m.angular_velocity
-                acc.append((a.x, a.y, a.z))
-                gyr.append((g.x, g.y, g.z))
+        conns = _topic_connections(reader, IMU_MSGTYPE, topic)
+        if not conns and topic is not None:
+            raise FormatError(path, f"no {IMU_MSGTYPE} messages on topic '{topic}'")
+        # an empty connection list would mean "every connection" to rosbags
+        for conn, _, raw in reader.messages(connections=conns) if conns else ():
+            m = store.deserialize_ros1(raw, conn.msgtype)
+            t.append(m.header.stamp.sec * 1_000_000 + m.header.stamp.nanosec // 1000)
+            a, g = m.linear_acceleration, m.angular_velocity
+            acc.append((a.x, a.y, a.z))
+            gyr.append((g.x, g.y, g.z))
     finally:
         reader.close()
     return ImuSamples(t=np.array(t, np.int64), accel=np.array(acc, float).reshape(-1, 3),

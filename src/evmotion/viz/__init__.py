@@ -1,30 +1,10 @@
 """Pictures: colour-coded flow with legend, IWE and event images, panels, HTML reports."""
 
-from evmotion.viz.colorwheel import colorwheel, colorwheel_image, flow_max_magnitude, flow_to_rgb
-from evmotion.viz.images import (
-    event_histogram,
-    flow_figure,
-    iwe_to_rgb,
-    read_png,
-    save_flow_png,
-    save_flow_summary,
-    save_panel,
-    save_png,
-)
-from evmotion.viz.report import HtmlReport
+from evmotion.viz import colorwheel as _colorwheel
+from evmotion.viz import images as _images
+from evmotion.viz import report as _report
+from evmotion.viz.colorwheel import *  # noqa: F403
+from evmotion.viz.images import *  # noqa: F403
+from evmotion.viz.report import *  # noqa: F403
 
-__all__ = [
-    "HtmlReport",
-    "colorwheel",
-    "colorwheel_image",
-    "event_histogram",
-    "flow_figure",
-    "flow_max_magnitude",
-    "flow_to_rgb",
-    "iwe_to_rgb",
-    "read_png",
-    "save_flow_png",
-    "save_flow_summary",
-    "save_panel",
-    "save_png",
-]
+__all__ = sorted([*_colorwheel.__all__, *_images.__all__, *_report.__all__])
