@@ -8,6 +8,7 @@ import struct
 import numpy as np
 import pytest
 
+from _helpers import assert_same_events
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import aedat4
@@ -22,12 +23,6 @@ def full(shared_data):
 @pytest.fixture(scope="module")
 def short(shared_data):
     return shared_data / "formats" / "davis346_short.aedat4"
-
-
-def _same(a, b):
-    assert len(a) == len(b) and a.sensor_size == b.sensor_size
-    for f in "xytp":
-        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
 
 
 def test_counts_and_content(full):
@@ -63,7 +58,7 @@ def test_chunks_and_filter(full):
     assert [len(c) for c in chunks[:-1]] == [10_000] * 7 and len(chunks[-1]) == 8_830
     np.testing.assert_array_equal(np.concatenate([c.t for c in chunks]), whole.t)
     t0, t1 = int(whole.t[100]), int(whole.t[50_000])
-    _same(aedat4.read(full, t0=t0, t1=t1), whole.slice_time(t0, t1))
+    assert_same_events(aedat4.read(full, t0=t0, t1=t1), whole.slice_time(t0, t1))
 
 
 @pytest.mark.parametrize("compression", ["none", "lz4"])
@@ -71,7 +66,7 @@ def test_round_trip(short, tmp_path, compression):
     ev = aedat4.read(short)
     out = tmp_path / f"{compression}.aedat4"
     aedat4.write(out, ev, compression=compression, packet_events=1000)
-    _same(aedat4.read(out), ev)
+    assert_same_events(aedat4.read(out), ev)
     d = aedat4.describe(out)
     assert d["compression"] == compression and d["streams"][0]["packets"] == 7
 
@@ -152,4 +147,4 @@ def test_zstd_packets(short, tmp_path):
     z = tmp_path / "z.aedat4"
     z.write_bytes(out)
     assert aedat4.describe(z)["compression"] == "zstd"
-    _same(aedat4.read(z), ev)
+    assert_same_events(aedat4.read(z), ev)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _helpers import assert_same_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import dat
@@ -19,12 +20,6 @@ def gen4(shared_data):
 def reference_decode(buf: bytes):
     rec = np.frombuffer(buf, "<u4").reshape(-1, 2).astype(np.int64)
     return rec[:, 1] & 0x3FFF, (rec[:, 1] >> 14) & 0x3FFF, rec[:, 0], (rec[:, 1] >> 28) & 1
-
-
-def _same(a, b):
-    assert len(a) == len(b) and a.sensor_size == b.sensor_size
-    for f in "xytp":
-        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
 
 
 def test_shared_file_matches_reference(gen4):
@@ -55,13 +50,13 @@ def test_round_trip_with_u32_wrap(tmp_path):
     ev = EventArray(x=[0, 1279, 5, 6, 7, 8, 9], y=[0, 719, 1, 2, 3, 4, 5], t=t, p=[0, 1, 1, 0, 1, 1, 0],
                     sensor_size=(720, 1280))
     dat.write(tmp_path / "w.dat", ev)
-    _same(dat.read(tmp_path / "w.dat", block_bytes=16), ev)
+    assert_same_events(dat.read(tmp_path / "w.dat", block_bytes=16), ev)
 
 
 def test_round_trip_shared(gen4, tmp_path):
     ev = dat.read(gen4, t1=1_000_000)
     dat.write(tmp_path / "c.dat", ev)
-    _same(dat.read(tmp_path / "c.dat"), ev)
+    assert_same_events(dat.read(tmp_path / "c.dat"), ev)
 
 
 def test_errors(gen4, tmp_path):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _helpers import assert_same_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import evt2
@@ -32,12 +33,6 @@ def raw(shared_data):
     return shared_data / "formats" / "evt2.raw"
 
 
-def _same(a, b):
-    assert len(a) == len(b) and a.sensor_size == b.sensor_size
-    for f in "xytp":
-        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
-
-
 def test_shared_file(raw):
     ev = evt2.read(raw)
     assert len(ev) == 521_252
@@ -59,13 +54,13 @@ def test_chunks_and_filter(raw):
     assert sum(len(c) for c in chunks) == len(whole)
     np.testing.assert_array_equal(np.concatenate([c.t for c in chunks]), whole.t)
     t0, t1 = int(whole.t[10]), int(whole.t[-10])
-    _same(evt2.read(raw, t0=t0, t1=t1), whole.slice_time(t0, t1))
+    assert_same_events(evt2.read(raw, t0=t0, t1=t1), whole.slice_time(t0, t1))
 
 
 def test_round_trip(raw, tmp_path):
     ev = evt2.read(raw)
     evt2.write(tmp_path / "a.raw", ev)
-    _same(evt2.read(tmp_path / "a.raw"), ev)
+    assert_same_events(evt2.read(tmp_path / "a.raw"), ev)
     assert detect_format(tmp_path / "a.raw").name == "evt2"
 
 
@@ -74,7 +69,7 @@ def test_round_trip_wrap_and_offset(tmp_path):
     ev = EventArray(x=[1, 2, 3, 4, 5], y=[0, 1, 2, 3, 4], t=t, p=[1, 0, 1, 0, 1],
                     sensor_size=(8, 8))
     evt2.write(tmp_path / "w.raw", ev)
-    _same(evt2.read(tmp_path / "w.raw", block_bytes=8), ev)
+    assert_same_events(evt2.read(tmp_path / "w.raw", block_bytes=8), ev)
 
 
 def test_truncated(raw, tmp_path):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _helpers import assert_same_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import dat, evt3
@@ -43,13 +44,6 @@ def reference_decode(words):
 def _words(path):
     _, off, _, _ = parse_raw_header(path, None)
     return np.fromfile(path, np.uint8)[off:].view("<u2")
-
-
-def _same(a: EventArray, b: EventArray):
-    assert len(a) == len(b)
-    for f in "xytp":
-        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
-    assert a.sensor_size == b.sensor_size
 
 
 @pytest.fixture(scope="module")
@@ -97,22 +91,23 @@ def test_streaming_across_tiny_blocks_equals_whole_read(raw):
     whole = evt3.read(raw, t1=None)
     chunks = list(evt3.iter_chunks(raw, 300_001, block_bytes=4097 * 2 + 1))
     assert [len(c) for c in chunks[:-1]] == [300_001] * (len(chunks) - 1)
-    _same(whole, EventArray(*(np.concatenate([getattr(c, f) for c in chunks]) for f in "xytp"),
-                            sensor_size=whole.sensor_size))
+    assert_same_events(whole, EventArray(
+        *(np.concatenate([getattr(c, f) for c in chunks]) for f in "xytp"),
+        sensor_size=whole.sensor_size))
 
 
 def test_time_filter(raw):
     whole = evt3.read(raw)
     t0, t1 = int(whole.t[1000]), int(whole.t[500_000])
     part = evt3.read(raw, t0=t0, t1=t1, block_bytes=65536)
-    _same(part, whole.slice_time(t0, t1))
+    assert_same_events(part, whole.slice_time(t0, t1))
 
 
 def test_round_trip_shared_file_bit_exact(raw, tmp_path):
     ev = evt3.read(raw)
     out = tmp_path / "copy.raw"
     evt3.write(out, ev)
-    _same(evt3.read(out), ev)
+    assert_same_events(evt3.read(out), ev)
     assert _words(out).size < _words(raw).size
 
 
@@ -130,8 +125,8 @@ def test_round_trip_long_gaps_and_large_times(tmp_path):
     ev = EventArray(x=x[order], y=y[order], t=t[order], p=p[order], sensor_size=(480, 640))
     out = tmp_path / "syn.raw"
     evt3.write(out, ev)
-    _same(evt3.read(out), ev)
-    _same(evt3.read(out, block_bytes=64), ev)
+    assert_same_events(evt3.read(out), ev)
+    assert_same_events(evt3.read(out, block_bytes=64), ev)
     typ = _words(out) >> 12
     assert (typ == 0x3).sum() >= 1 and (typ == 0x4).sum() >= 2 and (typ == 0x5).sum() >= 1
 

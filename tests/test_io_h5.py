@@ -6,6 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
+from _helpers import assert_same_events
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import h5
@@ -20,19 +21,12 @@ def _events(n=20_000, seed=0, floats=False, size=(180, 240)):
     return EventArray(x=x, y=y, t=t, p=rng.integers(0, 2, n), sensor_size=size)
 
 
-def _same(a, b):
-    assert a.sensor_size == b.sensor_size
-    for k in "xytp":
-        assert getattr(a, k).dtype == getattr(b, k).dtype
-        np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
-
-
 @pytest.mark.parametrize("floats", [False, True])
 def test_round_trip_bit_equal(tmp_path, floats):
     ev = _events(floats=floats)
     h5.write(tmp_path / "a.h5", ev, provenance={"by": "test"}, calibration={"fx": 200.0})
     back = h5.read(tmp_path / "a.h5")
-    _same(back, ev)
+    assert_same_events(back, ev, dtypes=True)
     assert back.meta["provenance"] == {"by": "test"}
     assert back.meta["calibration"] == {"fx": 200.0}
 
@@ -43,7 +37,7 @@ def test_appending_chunks_equals_one_write(tmp_path):
         for s in range(0, len(ev), 3001):
             w.append(ev[s:s + 3001])
         assert not (tmp_path / "c.h5").exists()  # atomic: only the .part until close
-    _same(h5.read(tmp_path / "c.h5"), ev)
+    assert_same_events(h5.read(tmp_path / "c.h5"), ev, dtypes=True)
     chunks = list(h5.iter_chunks(tmp_path / "c.h5", 6000))
     assert [len(c) for c in chunks] == [6000, 6000, 6000, 2000]
 
@@ -61,7 +55,7 @@ def test_time_index_slices_match_reference(tmp_path):
     rng = np.random.default_rng(3)
     for a, b in np.sort(rng.integers(ev.t[0] - 5000, ev.t[-1] + 5000, (50, 2)), axis=1):
         got = h5.read(tmp_path / "c.h5", t0=int(a), t1=int(b))
-        _same(got, ev.slice_time(int(a), int(b)))
+        assert_same_events(got, ev.slice_time(int(a), int(b)), dtypes=True)
 
 
 def test_frames_imu_describe(tmp_path):

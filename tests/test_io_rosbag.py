@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from _helpers import assert_same_events
 from evmotion.errors import FormatError, MissingDependencyError
 from evmotion.events import EventArray
 from evmotion.io import rosbag
@@ -25,23 +26,17 @@ def events():
                       p=rng.integers(0, 2, n), sensor_size=(180, 240))
 
 
-def _same(a, b):
-    assert len(a) == len(b) and a.sensor_size == b.sensor_size
-    for f in "xytp":
-        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
-
-
 def test_round_trip(events, tmp_path):
     out = tmp_path / "ev.bag"
     rosbag.write(out, events, message_us=33_000)
     assert detect_format(out).name == "rosbag"
-    _same(rosbag.read(out), events)
+    assert_same_events(rosbag.read(out), events)
     chunks = list(rosbag.iter_chunks(out, 7_000))
     assert [len(c) for c in chunks] == [7_000, 7_000, 6_000]
     d = rosbag.describe(out)
     assert d["n_events"] == len(events) and d["topics"]["/dvs/events"]["messages"] == 16
     t0, t1 = int(events.t[5]), int(events.t[15_000])
-    _same(rosbag.read(out, t0=t0, t1=t1), events.slice_time(t0, t1))
+    assert_same_events(rosbag.read(out, t0=t0, t1=t1), events.slice_time(t0, t1))
 
 
 def test_matches_generic_deserializer(events, tmp_path):
