@@ -60,14 +60,6 @@ def test_dsec_ms_index_slices(tmp_path):
     assert [len(c) for c in chunks] == [20_000, 20_000, 10_000]
 
 
-def test_dsec_writer_round_trip(tmp_path):
-    _dsec_file(tmp_path / "a.h5")
-    ev = dsec.read(tmp_path / "a.h5")
-    dsec.write(tmp_path / "b.h5", ev)
-    back = dsec.read(tmp_path / "b.h5")
-    assert_same_events(back, ev)
-
-
 def test_dsec_missing_field(tmp_path):
     with h5py.File(tmp_path / "events.h5", "w") as f:
         f["events/y"] = np.zeros(2, np.uint16)
@@ -136,11 +128,14 @@ def test_mvsec_layout(tmp_path):
     assert d["frames"] == 3 and d["n_events"] == len(arr)
 
 
-def test_mvsec_writer_round_trip(tmp_path):
-    _mvsec_file(tmp_path / "a.hdf5")
-    ev = mvsec.read(tmp_path / "a.hdf5")
-    mvsec.write(tmp_path / "b.hdf5", ev)
-    back = mvsec.read(tmp_path / "b.hdf5")
+@pytest.mark.parametrize(("mod", "make", "suffix"), [(dsec, _dsec_file, ".h5"),
+                                                   (mvsec, _mvsec_file, ".hdf5")],
+                         ids=["dsec", "mvsec"])
+def test_writer_round_trip(tmp_path, mod, make, suffix):
+    make(tmp_path / f"a{suffix}")
+    ev = mod.read(tmp_path / f"a{suffix}")
+    mod.write(tmp_path / f"b{suffix}", ev)
+    back = mod.read(tmp_path / f"b{suffix}")
     assert_same_events(back, ev)
 
 
