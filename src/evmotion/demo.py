@@ -27,7 +27,7 @@ from evmotion.io import write_events
 from evmotion.methods.egomotion import estimate_egomotion
 from evmotion.methods.multicm import estimate_flow
 from evmotion.methods.triplet import TripletMatcher, estimate_flow_triplet
-from evmotion.sim import simulate, write_ground_truth
+from evmotion.sim import sim_calibration, simulate, write_ground_truth
 from evmotion.viz import (
     HtmlReport,
     event_histogram,
@@ -45,7 +45,8 @@ def _log(msg: str) -> None:
 def _rotation(out: Path, rep: HtmlReport, seed: int) -> dict:
     _log("[1/4] camera rotation: simulate, estimate angular velocity")
     sim = simulate("rotation", duration_s=0.1, seed=seed, show_progress=False)
-    write_events(out / "rotation.h5", sim.events)
+    write_events(out / "rotation.h5", sim.events,
+                 calibration=sim_calibration(sim.gt.K, sim.events.sensor_size))
     write_ground_truth(out / "rotation_gt.h5", sim.gt)
     win = sim.events[:30000]
     res = estimate_egomotion(win, warp="rotation", K=sim.gt.K, regularizer="rcad")

@@ -95,7 +95,7 @@ def run(args) -> int:
 
     from evmotion.cli import print_json
     from evmotion.errors import EvmotionError
-    from evmotion.sim import gt_path_for, simulate, write_ground_truth
+    from evmotion.sim import gt_path_for, sim_calibration, simulate, write_ground_truth
 
     try:
         from evmotion.io import format_for_output, write_events
@@ -109,7 +109,9 @@ def run(args) -> int:
                    hot_pixels=args.hot_pixels, hot_rate=args.hot_rate,
                    frame_rate=args.frame_rate)
     # only HDF5 keeps free metadata; other formats would warn about it
-    meta = {"simulator_scene": args.scene, "simulator_seed": args.seed} if fmt == "h5" else {}
+    meta = {"simulator_scene": args.scene, "simulator_seed": args.seed,
+            "calibration": sim_calibration(res.gt.K, res.events.sensor_size)} \
+        if fmt == "h5" else {}
     write_events(args.out, res.events, format=fmt, **meta)
     gt_path = write_ground_truth(gt_path_for(args.out), res.gt)
     if args.json:

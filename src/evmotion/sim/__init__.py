@@ -31,7 +31,7 @@ the two-layer ``object`` scene; 17-27x the plain-numpy reference of the kernel.
 """
 
 from evmotion.sim.groundtruth import GroundTruth, Layer
-from evmotion.sim.gtio import gt_path_for, read_ground_truth, write_ground_truth
+from evmotion.sim.gtio import gt_path_for, read_ground_truth, sim_calibration, write_ground_truth
 from evmotion.sim.motions import Motion, make_motion
 from evmotion.sim.scenes import SCENES, default_K
 from evmotion.sim.simulator import SimResult, simulate
@@ -50,6 +50,7 @@ __all__ = [
     "make_motion",
     "make_texture",
     "read_ground_truth",
+    "sim_calibration",
     "simulate",
     "texture_from_image",
     "write_ground_truth",

@@ -181,3 +181,12 @@ def read_ground_truth(path: str | Path) -> GroundTruth:
                                frame_masks=g["event_masks"][()])
         except KeyError as exc:
             raise FormatError(path, f"ground truth is missing {exc}") from None
+
+
+def sim_calibration(K, sensor_size) -> dict:
+    """The simulator's pinhole camera as the calibration dict that evmotion HDF5 stores
+    (read back by :func:`evmotion.io.read_calibration`): no distortion."""
+    K = np.asarray(K, dtype=np.float64)
+    return {"K": K.tolist(), "dist": [0.0] * 5, "fx": float(K[0, 0]), "fy": float(K[1, 1]),
+            "cx": float(K[0, 2]), "cy": float(K[1, 2]), "model": "pinhole-radtan",
+            "source": "evmotion simulator", "sensor_size": [int(v) for v in sensor_size]}
