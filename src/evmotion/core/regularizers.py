@@ -40,7 +40,16 @@ import threading
 import numpy as np
 from numba import njit
 
-from evmotion.core.warps import Warp, _hat, _sinc_terms
+from evmotion.core.warps import (
+    _EMPTY1,
+    _EMPTY2,
+    Warp,
+    _hat,
+    _k_rot_divdet,
+    _max_abs,
+    _sinc_terms,
+    _sincos,
+)
 from evmotion.errors import EmptyWindowError, ParameterError
 
 __all__ = [
@@ -123,16 +132,20 @@ def _fused_forward(xw, yw, d, cnt, num):
 
 
 @njit(cache=True, error_model="numpy")
-def _fused_backward(xw, yw, d, gS, gN, gx, gy, gd):
-    """Adjoint of :func:`_fused_forward` for the loss sum(gS * num + gN * cnt):
-    d/dxw, d/dyw and d/dd per event, in one pass."""
+def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
+    """Adjoint of :func:`_fused_forward` for the loss ``scale * sum(gS * num + gN * cnt)``,
+    reduced through the warp Jacobians in the same pass: ``out = jx^T gx + jy^T gy``
+    (+ ``dd^T gd`` if ``dd`` has rows) with ``gx, gy, gd`` the derivatives with respect to
+    ``xw_k, yw_k, d_k``; ``gd`` (N,) is also written (0 off the image)."""
     h, wd = gS.shape
+    P = out.shape[0]
+    use_dd = dd.shape[0] > 0
+    for j in range(P):
+        out[j] = 0.0
     for k in range(xw.shape[0]):
         x = xw[k]
         y = yw[k]
         if not (x > -1.0 and x < wd and y > -1.0 and y < h):
-            gx[k] = 0.0
-            gy[k] = 0.0
             gd[k] = 0.0
             continue
         x0 = math.floor(x)
@@ -162,10 +175,28 @@ def _fused_backward(xw, yw, d, gS, gN, gx, gy, gd):
         g01 = a * s01 + n01
         g10 = a * s10 + n10
         g11 = a * s11 + n11
-        gx[k] = (g01 - g00) * (1.0 - fy) + (g11 - g10) * fy
-        gy[k] = (g10 - g00) * (1.0 - fx) + (g11 - g01) * fx
-        gd[k] = (s00 * (1.0 - fx) * (1.0 - fy) + s01 * fx * (1.0 - fy)
-                 + s10 * (1.0 - fx) * fy + s11 * fx * fy)
+        gx = scale * ((g01 - g00) * (1.0 - fy) + (g11 - g10) * fy)
+        gy = scale * ((g10 - g00) * (1.0 - fx) + (g11 - g01) * fx)
+        c = scale * (s00 * (1.0 - fx) * (1.0 - fy) + s01 * fx * (1.0 - fy)
+                     + s10 * (1.0 - fx) * fy + s11 * fx * fy)
+        gd[k] = c
+        if use_dd:
+            for j in range(P):
+                out[j] += gx * jx[k, j] + gy * jy[k, j] + c * dd[k, j]
+        else:
+            for j in range(P):
+                out[j] += gx * jx[k, j] + gy * jy[k, j]
+
+
+@njit(cache=True, error_model="numpy")
+def _any_vote(xw, yw, h, wd):
+    """Whether any event votes into the image (the bilinear support test of the votes)."""
+    for k in range(xw.shape[0]):
+        x = xw[k]
+        y = yw[k]
+        if x > -1.0 and x < wd and y > -1.0 and y < h:
+            return True
+    return False
 
 
 # ---------------------------------------------------------------------------------------
@@ -179,21 +210,47 @@ def window_span(dt) -> float:
 
 
 def _event_values(kind: str, warp: Warp, x, y, dt, theta):
-    """(d_k, dd_k/dtheta): divergence per window (1/s times T), or |det J| - 1."""
+    """(d_k, dd_k/dtheta, fac): divergence per window (1/s times T), or |det J| - 1.
+
+    For the rotation ``dd`` is None: its derivatives are contracted later, only for the
+    events that reach a trimmed pixel (:func:`_rotation_grad`), with ``fac`` (N,) the
+    factor from the raw divergence / det J to ``d``."""
     code = _FAST.get(warp.name)
     is_div = kind == "divergence"
     T = window_span(dt) if is_div else 1.0
+    n = dt.shape[0]
     if code is not None:
-        n = dt.shape[0]
         d, g = _scratch(((n,), (n, warp.n_params)), "ev")
         _k_fast_values(code, is_div, dt, theta, T, d, g)
-        return d, g
+        return d, g, None
+    if warp.name == "rotation":
+        d, fac = _scratch(((n,), (n,)), "ev1")
+        _k_rot_divdet(x, y, dt, theta, warp._kinv, is_div, d, _EMPTY2, _EMPTY1, _EMPTY1)
+        _rot_values_finish(is_div, T, d, fac)
+        return d, None, fac
     if is_div:
         d, g = warp.divergence(x, y, dt, theta, grad=True)
-        return d * T, g * T
+        return d * T, g * T, None
     det, g = warp.jacobian_det(x, y, dt, theta, grad=True)
     sgn = np.sign(det)
-    return np.abs(det) - 1.0, g * sgn[:, None]
+    return np.abs(det) - 1.0, g * sgn[:, None], None
+
+
+def _rotation_grad(warp, kind, x, y, dt, th, gd, fac, out):
+    """``out += sum_k gd_k dd_k/d omega`` without an (N, 3) buffer."""
+    n = gd.shape[0]
+    (gw,) = _scratch(((n,),), "gw")
+    np.multiply(gd, fac, out=gw)
+    _k_rot_divdet(x, y, dt, th, warp._kinv, kind == "divergence", fac, _EMPTY2, gw, out)
+
+
+@njit(cache=True, error_model="numpy")
+def _rot_values_finish(is_div, T, d, fac):
+    """In place: divergence times T, or |det J| - 1; ``fac`` = d(new)/d(old) per event."""
+    for k in range(d.shape[0]):
+        f = T if is_div else (1.0 if d[k] >= 0.0 else -1.0)
+        fac[k] = f
+        d[k] = d[k] * T if is_div else abs(d[k]) - 1.0
 
 
 @njit(cache=True, error_model="numpy")
@@ -222,12 +279,16 @@ def _k_fast_values(code, is_div, dt, th, T, d, g):
     elif code == 2:  # SE(2) (P = 3, s = 0) and similarity
         w = th[2]
         s = th[3] if P == 4 else 0.0
+        small = _max_abs(dt) * abs(w) < 1.0
         for k in range(n):
             t = dt[k]
             ib = 1.0 / (1.0 + t * s)
             if is_div:
-                c = math.cos(t * w)
-                sn = math.sin(t * w)
+                if small:
+                    sn, c = _sincos(t * w)
+                else:
+                    c = math.cos(t * w)
+                    sn = math.sin(t * w)
                 d[k] = T * (-2.0 * s * ib * ib * c - 2.0 * w * ib * sn)
                 g[k, 2] = T * (2.0 * s * ib * ib * t * sn - 2.0 * ib * sn - 2.0 * w * ib * t * c)
                 if P == 4:
@@ -258,6 +319,8 @@ def _k_fast_values(code, is_div, dt, th, T, d, g):
 
 
 _FAST = {"zoom": 0, "translation": 1, "se2": 2, "similarity": 2, "inplane": 3}
+#: Warps whose divergence does not depend on the event, (3.10), (A.25).
+_CONST_DIV = ("zoom", "translation", "inplane")
 
 _TLS = threading.local()
 
@@ -293,67 +356,69 @@ def _prepare(warp, x, y, dt, theta, shape, xw, yw, jx, jy, need_jac):
     return x, y, dt, th, xw, yw, jx, jy
 
 
-@njit(cache=True, error_model="numpy")
-def _trim_pass(cnt, num, margin, mean, gS, gN):
-    """Per-pixel mean num/cnt (0 where empty) and the adjoint images of
-    R = -(1/n) sum_{mean < margin} num/cnt. Returns (R, n)."""
+@njit(cache=True, error_model="numpy", fastmath=True)
+def _trim_pass(cnt, num, margin, gS, gN):
+    """Adjoint images of ``sum_{num/cnt < margin} num/cnt`` (supported pixels only):
+    ``gS = 1/cnt``, ``gN = -mean/cnt`` there, 0 elsewhere. Returns (sum, n).
+
+    Branch-free (selects, no jumps) so that it vectorizes; fastmath only reorders the sum."""
     h, w = cnt.shape
     total = 0.0
     n_sel = 0
     for i in range(h):
         for j in range(w):
             c = cnt[i, j]
-            m = num[i, j] / c if c > _MIN_COUNT else 0.0
-            mean[i, j] = m
-            if c > _MIN_COUNT and m < margin:
-                total += m
-                n_sel += 1
-                gS[i, j] = 1.0 / c
-                gN[i, j] = -m / c
-            else:
-                gS[i, j] = 0.0
-                gN[i, j] = 0.0
-    if n_sel == 0:
-        return 0.0, 0
-    f = -1.0 / n_sel
-    for i in range(h):
-        for j in range(w):
-            gS[i, j] *= f
-            gN[i, j] *= f
-    return total * f, n_sel
+            ok = c > _MIN_COUNT
+            ic = 1.0 / (c if ok else 1.0)
+            m = num[i, j] * ic
+            sel = ok and m < margin
+            gs = ic if sel else 0.0
+            total += m if sel else 0.0
+            n_sel += 1 if sel else 0
+            gS[i, j] = gs
+            gN[i, j] = -m * gs
+    return total, n_sel
 
 
-def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw, kernel, margin=-np.inf):
-    d, dd = _event_values(kind, warp, x, y, dt, th)
-    cnt, num, mean, gS, gN = _scratch((shape,) * 5, "img")
-    xw = np.ascontiguousarray(xw, dtype=np.float64)
-    yw = np.ascontiguousarray(yw, dtype=np.float64)
+def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw):
+    """(d, dd, fac, cnt, num) of the DIWE/IWA: per-event values and their vote images."""
+    d, dd, fac = _event_values(kind, warp, x, y, dt, th)
+    cnt, num = _scratch((shape,) * 2, "img")
     _fused_forward(xw, yw, d, cnt, num)
-    value, n_sel = _trim_pass(cnt, num, margin, mean, gS, gN)
-    return d, dd, cnt, mean, value, n_sel, gS, gN
+    return d, dd, fac, cnt, num
 
 
 def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, margin, kernel,
                         grad=True):
     x, y, dt, th, xw, yw, jx, jy = _prepare(warp, x, y, dt, theta, shape, xw, yw, jx, jy, grad)
-    # deformation's map is 1 + mean: its margin on `mean` is margin - 1
-    m = margin - 1.0 if kind == "deformation" else margin
-    # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
-    d, dd, cnt, mean, value, n_sel, gS, gN = _pixel_average(kind, warp, x, y, dt, th, shape,
-                                                            xw, yw, kernel, m)
-    if n_sel == 0:
-        return 0.0, np.zeros(warp.n_params)
-    if not grad:
-        return value, None
-    n = x.shape[0]
-    gx1, gy1, gd = _scratch(((n,),) * 3, "ev3")
     xw = np.ascontiguousarray(xw, dtype=np.float64)
     yw = np.ascontiguousarray(yw, dtype=np.float64)
-    _fused_backward(xw, yw, d, gS, gN, gx1, gy1, gd)
+    # deformation's map is 1 + mean: its margin on `mean` is margin - 1
+    m = margin - 1.0 if kind == "deformation" else margin
+    if kind == "divergence" and warp.name in _CONST_DIV:
+        # the divergence is the same for every event: so is the DIWE on its support, and
+        # the trimmed mean is that constant (no vote moves it)
+        d, dd, _ = _event_values(kind, warp, x, y, dt, th)
+        if not (d[0] < m and _any_vote(xw, yw, shape[0], shape[1])):
+            return 0.0, np.zeros(warp.n_params)
+        return -float(d[0]), (-dd[0].copy() if grad else None)
+    # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
+    d, dd, fac, cnt, num = _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw)
+    gS, gN = _scratch((shape,) * 2, "adj")
+    total, n_sel = _trim_pass(cnt, num, m, gS, gN)
+    if n_sel == 0:
+        return 0.0, np.zeros(warp.n_params)
+    scale = -1.0 / n_sel
+    if not grad:
+        return total * scale, None
+    (gd,) = _scratch(((x.shape[0],),), "gd")
     g = np.empty(warp.n_params)
-    chain_rule(np.ascontiguousarray(jx), np.ascontiguousarray(jy), np.ascontiguousarray(dd),
-               gx1, gy1, gd, g)
-    return value, g
+    _fused_backward(xw, yw, d, gS, gN, scale, np.ascontiguousarray(jx),
+                    np.ascontiguousarray(jy), _EMPTY2 if dd is None else
+                    np.ascontiguousarray(dd), g, gd)
+    if dd is None:
+        _rotation_grad(warp, kind, x, y, dt, th, gd, fac, g)
+    return total * scale, g
 
 
 # ---------------------------------------------------------------------------------------
@@ -583,9 +648,11 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
                                    th).reshape(shape)
         return {"rcad": vals, "trimmed": vals > m}
     xw, yw = warp.warp(x, y, dt, th)
-    _, _, cnt, mean, _, _, _, _ = _pixel_average(name, warp, x, y, dt, th, shape, xw, yw, kernel)
-    cnt, mean = cnt.copy(), mean.copy()
+    _, _, _, cnt, num = _pixel_average(name, warp, x, y, dt, th, shape, xw, yw)
     support = cnt > _MIN_COUNT
+    mean = np.zeros(shape)
+    np.divide(num, cnt, out=mean, where=support)
+    cnt = cnt.copy()
     if name == "divergence":
         return {"diwe": mean, "count": cnt, "trimmed": support & (mean < m)}
     iwa = 1.0 + mean

@@ -56,7 +56,6 @@ Examples
 
 from __future__ import annotations
 
-import cmath
 import math
 from dataclasses import dataclass
 
@@ -605,57 +604,136 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
 
 
 @njit(cache=True, error_model="numpy")
-def _k_rot_divdet(x, y, dt, w, Kinv, div, det):
-    """Divergence (3.23 at any dt) and det J (3.24) of the rotation warp, in complex
-    arithmetic so that a complex omega gives exact complex-step parameter derivatives.
-    Both are invariant under the affine map K, so they are computed in normalized
-    coordinates: M = R(dt omega), dM/dt = omega^ R."""
+def _k_rot_divdet(x, y, dt, w, Kinv, want_div, val, grad, gw, out):
+    """Divergence (3.23 at any dt) or det J (3.24) of the rotation warp into ``val`` and,
+    if ``grad`` (N, 3) has rows, their analytic omega-derivatives; if ``gw`` (N,) has rows,
+    instead ``out[j] += sum_k gw[k] d val_k / d omega_j`` (events with ``gw[k] == 0`` skip
+    the derivative: a trimmed mean's adjoint is zero off its selected pixels). Both are invariant under the affine map K, so
+    they are computed in normalized coordinates, where the warp is ``X = pi(R v)`` with
+    ``R = exp(dt omega^)``: det J = 1 / q_z^3 (det R = 1), and since the flow is the
+    rotational field ``F(X) = pi'(q) (omega x q)`` evaluated at the warped point,
+    div f = tr(dF/dX dX/dx). Derivatives use dR/d omega_j = dt (J_l e_j)^ R."""
     wx, wy, wz = w[0], w[1], w[2]
     ww = wx * wx + wy * wy + wz * wz
-    for k in range(x.shape[0]):
+    i00, i01, i02 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2]
+    i10, i11, i12 = Kinv[1, 0], Kinv[1, 1], Kinv[1, 2]
+    mode_g = 1 if grad.shape[0] > 0 else (2 if gw.shape[0] > 0 else 0)
+    tm = _max_abs(dt)
+    zmax = tm * tm * ww
+    mode = 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
+    abuf = np.empty(_BLOCK)
+    bbuf = np.empty(_BLOCK)
+    cbuf = np.empty(_BLOCK)
+    n = x.shape[0]
+    for k0 in range(0, n, _BLOCK):
+        k1 = min(k0 + _BLOCK, n)
+        _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
+        _rot_divdet_block(x, y, dt, wx, wy, wz, ww, i00, i01, i02, i10, i11, i12, want_div,
+                          mode_g, k0, k1, abuf, bbuf, cbuf, val, grad, gw, out)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_divdet_block(x, y, dt, wx, wy, wz, ww, i00, i01, i02, i10, i11, i12, want_div,
+                      mode_g, k0, k1, abuf, bbuf, cbuf, val, grad, gw, out):
+    for k in range(k0, k1):
         t = dt[k]
-        z = t * t * ww
-        if abs(z) < 1.0:
-            a, b, _ = _rod_coeffs(z)
-        else:
-            ang = cmath.sqrt(z)
-            a = cmath.sin(ang) / ang
-            b = (1.0 - cmath.cos(ang)) / z
+        a = abuf[k - k0]
+        b = bbuf[k - k0]
+        c = cbuf[k - k0]
         at = a * t
         bt = b * t * t
-        xn = Kinv[0, 0] * x[k] + Kinv[0, 1] * y[k] + Kinv[0, 2]
-        yn = Kinv[1, 0] * x[k] + Kinv[1, 1] * y[k] + Kinv[1, 2]
-        # R = Id + at omega^ + bt (omega omega^T - |omega|^2 Id)
+        xn = i00 * x[k] + i01 * y[k] + i02
+        yn = i10 * x[k] + i11 * y[k] + i12
+        # R = Id + at omega^ + bt (omega omega^T - |omega|^2 Id); columns 0, 1 and row 2
         r00 = 1.0 + bt * (wx * wx - ww)
         r11 = 1.0 + bt * (wy * wy - ww)
-        r22 = 1.0 + bt * (wz * wz - ww)
         r01 = -at * wz + bt * wx * wy
         r10 = at * wz + bt * wx * wy
         r02 = at * wy + bt * wx * wz
         r20 = -at * wy + bt * wx * wz
         r12 = -at * wx + bt * wy * wz
         r21 = at * wx + bt * wy * wz
+        r22 = 1.0 + bt * (wz * wz - ww)
         q0 = r00 * xn + r01 * yn + r02
         q1 = r10 * xn + r11 * yn + r12
         q2 = r20 * xn + r21 * yn + r22
-        # p = omega x q; b_i = omega x (column i of R)
-        p0 = wy * q2 - wz * q1
-        p1 = wz * q0 - wx * q2
-        p2 = wx * q1 - wy * q0
-        iq = 1.0 / q2
-        iq2 = iq * iq
-        # column 0
-        b00 = wy * r20 - wz * r10
-        b20 = wx * r10 - wy * r00
-        d = (b00 * iq - (p0 * r20 + r00 * p2 + q0 * b20) * iq2
-             + 2.0 * q0 * p2 * r20 * iq2 * iq)
-        # column 1
-        b11 = wz * r01 - wx * r21
-        b21 = wx * r11 - wy * r01
-        d += (b11 * iq - (p1 * r21 + r11 * p2 + q1 * b21) * iq2
-              + 2.0 * q1 * p2 * r21 * iq2 * iq)
-        div[k] = d
-        det[k] = iq2 * iq
+        iz = 1.0 / q2
+        X = q0 * iz
+        Y = q1 * iz
+        if not want_div:
+            val[k] = iz * iz * iz
+        # J = dX/dx_n (2x2), A = dF/dX (2x2)
+        j00 = (r00 - X * r20) * iz
+        j01 = (r01 - X * r21) * iz
+        j10 = (r10 - Y * r20) * iz
+        j11 = (r11 - Y * r21) * iz
+        a00 = 2.0 * wy * X - wx * Y
+        a01 = -wz - wx * X
+        a10 = wz + wy * Y
+        a11 = wy * X - 2.0 * wx * Y
+        if want_div:
+            val[k] = a00 * j00 + a01 * j10 + a10 * j01 + a11 * j11
+        if mode_g == 0 or (mode_g == 2 and gw[k] == 0.0):
+            continue
+        # columns of t J_l(t omega); every d(.)/d omega_j = (t J_l e_j) x (.)
+        bt1 = b * t * t
+        ct2 = c * t * t * t
+        dg = t - ct2 * ww
+        cx_ = ct2 * wx
+        cy_ = ct2 * wy
+        cz_ = ct2 * wz
+        if not want_div:
+            s3 = -3.0 * iz * iz * iz * iz
+            g0 = s3 * ((cx_ * wx + dg) * q1 - (cy_ * wx + bt1 * wz) * q0)
+            g1 = s3 * ((cx_ * wy - bt1 * wz) * q1 - (cy_ * wy + dg) * q0)
+            g2 = s3 * ((cx_ * wz + bt1 * wy) * q1 - (cy_ * wz - bt1 * wx) * q0)
+        else:
+            g0 = _rot_div_dir(cx_ * wx + dg, cy_ * wx + bt1 * wz, cz_ * wx - bt1 * wy,
+                              1.0, 0.0, 0.0, wx, wy, q0, q1, q2, X, Y, iz, r00, r01, r10,
+                              r11, r20, r21, j00, j01, j10, j11, a00, a01, a10, a11)
+            g1 = _rot_div_dir(cx_ * wy - bt1 * wz, cy_ * wy + dg, cz_ * wy + bt1 * wx,
+                              0.0, 1.0, 0.0, wx, wy, q0, q1, q2, X, Y, iz, r00, r01, r10,
+                              r11, r20, r21, j00, j01, j10, j11, a00, a01, a10, a11)
+            g2 = _rot_div_dir(cx_ * wz + bt1 * wy, cy_ * wz - bt1 * wx, cz_ * wz + dg,
+                              0.0, 0.0, 1.0, wx, wy, q0, q1, q2, X, Y, iz, r00, r01, r10,
+                              r11, r20, r21, j00, j01, j10, j11, a00, a01, a10, a11)
+        if mode_g == 1:
+            grad[k, 0] = g0
+            grad[k, 1] = g1
+            grad[k, 2] = g2
+        else:
+            f = gw[k]
+            out[0] += f * g0
+            out[1] += f * g1
+            out[2] += f * g2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_div_dir(l0, l1, l2, e0, e1, e2, wx, wy, q0, q1, q2, X, Y, iz, r00, r01, r10, r11,
+                 r20, r21, j00, j01, j10, j11, a00, a01, a10, a11):
+    """Derivative of tr(A J) along omega_j, given l = t J_l(t omega) e_j and e = e_j."""
+    dq0 = l1 * q2 - l2 * q1
+    dq1 = l2 * q0 - l0 * q2
+    dq2 = l0 * q1 - l1 * q0
+    dX = (dq0 - X * dq2) * iz
+    dY = (dq1 - Y * dq2) * iz
+    dr00 = l1 * r20 - l2 * r10
+    dr10 = l2 * r00 - l0 * r20
+    dr20 = l0 * r10 - l1 * r00
+    dr01 = l1 * r21 - l2 * r11
+    dr11 = l2 * r01 - l0 * r21
+    dr21 = l0 * r11 - l1 * r01
+    dz = dq2 * iz
+    dj00 = (dr00 - dX * r20 - X * dr20) * iz - j00 * dz
+    dj01 = (dr01 - dX * r21 - X * dr21) * iz - j01 * dz
+    dj10 = (dr10 - dY * r20 - Y * dr20) * iz - j10 * dz
+    dj11 = (dr11 - dY * r21 - Y * dr21) * iz - j11 * dz
+    da00 = 2.0 * (e1 * X + wy * dX) - e0 * Y - wx * dY
+    da01 = -e2 - e0 * X - wx * dX
+    da10 = e2 + e1 * Y + wy * dY
+    da11 = e1 * X + wy * dX - 2.0 * (e0 * Y + wx * dY)
+    return (da00 * j00 + da01 * j10 + da10 * j01 + da11 * j11
+            + a00 * dj00 + a01 * dj10 + a10 * dj01 + a11 * dj11)
 
 
 @njit(cache=True, error_model="numpy")
@@ -724,6 +802,7 @@ def _k_hom_divdet(x, y, dt, G, cx, cy, div, det):
 
 
 _EMPTY2 = np.zeros((0, 0))
+_EMPTY1 = np.zeros(0)
 
 
 # ---------------------------------------------------------------------------------------
@@ -1184,18 +1263,22 @@ class RotationWarp(Warp):
     def _conj(self):
         return self.K, self._kinv
 
-    def _divdet(self, x, y, dt, th):
+    def _divdet(self, x, y, dt, theta, want_div, grad):
+        x, y, dt = self._events(x, y, dt)
+        th = self._theta(theta)
         n = x.shape[0]
-        div = np.empty(n, dtype=np.complex128)
-        det = np.empty(n, dtype=np.complex128)
-        _k_rot_divdet(x, y, dt, th.astype(np.complex128), self._kinv, div, det)
-        return div, det
+        val = np.empty(n)
+        g = np.empty((n, 3)) if grad else _EMPTY2
+        _k_rot_divdet(x, y, dt, th, self._kinv, want_div, val, g, _EMPTY1, _EMPTY1)
+        return (val, g) if grad else val
 
-    def _div(self, x, y, dt, th):
-        return self._divdet(x, y, dt, th)[0]
+    def divergence(self, x, y, dt, theta, grad: bool = False):
+        """:meth:`Warp.divergence` with analytic (not complex-step) omega-derivatives."""
+        return self._divdet(x, y, dt, theta, True, grad)
 
-    def _det(self, x, y, dt, th):
-        return self._divdet(x, y, dt, th)[1]
+    def jacobian_det(self, x, y, dt, theta, grad: bool = False):
+        """:meth:`Warp.jacobian_det` with analytic omega-derivatives."""
+        return self._divdet(x, y, dt, theta, False, grad)
 
     def _mats_c(self, dt, th):
         r = dt[:, None] * th[None, :]
