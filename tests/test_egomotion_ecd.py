@@ -25,7 +25,7 @@ def load(folder):
 
 
 @pytest.mark.parametrize("scene", ["boxes_rotation", "poster_rotation"])
-@pytest.mark.parametrize("reg", [None, "rcad"])
+@pytest.mark.parametrize("reg", [None, "divergence", "deformation", "rcad"])
 def test_rotation_matches_imu(shared_data, scene, reg):
     folder = shared_data / "ecd_rotation_windows" / scene
     if not folder.is_dir():
@@ -36,7 +36,7 @@ def test_rotation_matches_imu(shared_data, scene, reg):
     err = res.params - omega_imu
     rms = float(np.sqrt(np.mean(err**2)))
     # RMS over the three axes of this window; the largest single-axis error (wy on boxes,
-    # ~0.18 rad/s) is listed in benchmarks/results/collapse.md
+    # ~0.18 rad/s) is listed in benchmarks/results/collapse_ecd.md
     assert rms <= 0.12, (res.params, omega_imu)
     assert np.all(np.abs(err) <= 0.2)
     # the estimate's motion field is at least as sharp (FWL) as the IMU's

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.core.regularizers import DEFAULT_WEIGHTS
 from evmotion.errors import CalibrationError, ParameterError
 
 
@@ -33,8 +34,8 @@ def add_common(p) -> None:
                    help="event-collapse regularizer (default none)")
     p.add_argument("--weight", type=float, default=None,
                    help="regularizer weight lambda (default per --dataset, Sec. 3.6.1)")
-    p.add_argument("--dataset", default="mvsec", choices=["mvsec", "dsec", "ecd"],
-                   help="which default weights to use (default mvsec)")
+    p.add_argument("--dataset", default="mvsec", choices=sorted(DEFAULT_WEIGHTS),
+                   help="whose thesis weights (Sec. 3.6.1) are the default (default mvsec)")
     p.add_argument("--calib", default=None,
                    help="calibration file (ECD calib.txt, MVSEC/DSEC YAML); default: the "
                         "recording's own, if any")

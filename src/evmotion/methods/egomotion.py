@@ -11,9 +11,14 @@ and ``R`` a collapse penalty (:mod:`evmotion.core.regularizers`). Two choices ma
 weights ``lambda`` of Sec. 3.6.1 transferable between windows and sensors:
 
 * ``G`` is divided by its value at the identity warp, so the data term is dimensionless and
-  independent of the event count and image size;
-* the divergence penalty (1/s, since warps here take time in seconds) is multiplied by the
-  window duration, i.e. expressed in the normalized time of (3.7) where the thesis states it;
+  independent of the event count and image size (for the variance objective ``G/G(0)`` is
+  the FWL, the thesis' own sharpness measure). The thesis does not state the scale of ``G``
+  behind its weights; with this choice its Sec. 3.6.1 weights (``DEFAULT_WEIGHTS``) cure
+  collapse on simulated forward motion (``benchmarks/results/collapse.md``);
+* the penalties are used as :mod:`evmotion.core.regularizers` returns them: the divergence
+  is measured per window (1/s times the window duration, the normalized time of (3.7)), so
+  the thesis' margins and weights apply unchanged and the penalty does not depend on the
+  time unit;
 * the RCAD penalty enters one-sided, ``max(R, 0)``: (3.21) is negative for expanding warps
   and would otherwise reward them (the RCAD map variant is thresholded for the same reason).
 
@@ -173,7 +178,6 @@ class CMaxCost:
         self.iwe = np.empty(self.shape)
         self.giwe = np.empty(self.shape)
         self.gtheta = np.empty(p)
-        self.span_s = float(self.dt.max() - self.dt.min())
         # whitening maps the cloud back to the image centre at the spread of the raw events
         self._wcenter = ((self.shape[1] - 1) / 2.0, (self.shape[0] - 1) / 2.0)
         self._wscale = float(np.sqrt(0.5 * (self.x.var() + self.y.var())))
@@ -233,8 +237,9 @@ class CMaxCost:
             # one-sided, like the thresholded RCAD map: the closed forms (3.21)/(A.44) are
             # negative for expansion, and a signed term would reward expanding warps
             return 0.0, (np.zeros(self.warp.n_params) if grad else None)
-        s = self.weight * (self.span_s if self.regularizer == "divergence" else 1.0)
-        return s * r, (s * g if grad else None)
+        # the divergence is already measured per window (core.regularizers), so the margin
+        # and lambda apply as the thesis states them: no further time scaling here
+        return self.weight * r, (self.weight * g if grad else None)
 
     # -- public --------------------------------------------------------------------------
     def value_grad(self, theta) -> tuple[float, np.ndarray]:
