@@ -152,17 +152,23 @@ def test_rcad_map_rotation_and_general():
     span = dt.max() - dt.min()
     approx = 3 * span * (om[0] * yn - om[1] * xn)
     np.testing.assert_allclose(m, approx, atol=0.1 * np.abs(approx).max())
-    # the closed-form rotation map used by the penalty equals the generic area log-ratio
-    from evmotion.core.regularizers import _rcad_map_values
+    # the grid kernel of the penalty equals the generic area log-ratio (rotation, homography)
+    from evmotion.core.regularizers import _area_coeffs, _k_rcad_grid
 
-    xs, ys = xx.ravel()[::7].astype(float), yy.ravel()[::7].astype(float)
-    a, ga = _rcad_map_values(w, xs, ys, 30 * om, -0.01, 0.03, True)
-    b, gb = w.area_log_ratio(xs, ys, -0.01, 0.03, 30 * om, grad=True)
-    np.testing.assert_allclose(a, b, atol=1e-12)
-    np.testing.assert_allclose(ga, gb, atol=1e-12)
+    wh = make_warp("homography", (H, W))
+    for warp, th in ((w, 30 * om), (wh, np.array(THETA["homography"]))):
+        c0, c1 = _area_coeffs(warp, th, -0.01), _area_coeffs(warp, th, 0.03)
+        g = np.empty(warp.n_params)
+        val, n = _k_rcad_grid(H, W, 7, *c0[:3], *c1[:3], -np.inf, g)
+        g += c1[3] - c0[3]
+        gy, gx = np.mgrid[3:H:7, 3:W:7]
+        b, gb = warp.area_log_ratio(gx.ravel().astype(float), gy.ravel().astype(float), -0.01,
+                                    0.03, th, grad=True)
+        assert n == b.size
+        assert val == pytest.approx(b.mean(), abs=1e-12)
+        np.testing.assert_allclose(g, gb.mean(axis=0), rtol=1e-9, atol=1e-12)
     # the homography with a zero projective row has the affine closed form
     wa = make_warp("affine", (H, W))
-    wh = make_warp("homography", (H, W))
     tha = np.array(THETA["affine"])
     thh = np.array([tha[2], tha[3], tha[0], tha[4], tha[5], tha[1], 0, 0])
     va, _ = regularizer_value_grad("rcad", wa, x, y, dt, tha, (H, W))

@@ -44,10 +44,10 @@ from evmotion.core.warps import (
     _EMPTY1,
     _EMPTY2,
     Warp,
-    _hat,
     _k_rot_divdet,
     _max_abs,
-    _sinc_terms,
+    _rod_coeffs,
+    _rod_coeffs_exact,
     _sincos,
 )
 from evmotion.errors import EmptyWindowError, ParameterError
@@ -424,8 +424,21 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
 # ---------------------------------------------------------------------------------------
 # RCAD
 
+@njit(cache=True)
+def _minmax(a):
+    lo = hi = a[0]
+    for k in range(1, a.shape[0]):
+        v = a[k]
+        lo = min(lo, v)
+        hi = max(hi, v)
+    return lo, hi
+
+
 def _time_span(dt):
-    return float(np.min(dt)), float(np.max(dt))
+    if dt.shape[0] == 0:
+        return 0.0, 0.0
+    lo, hi = _minmax(np.ascontiguousarray(dt, dtype=np.float64))
+    return float(lo), float(hi)
 
 
 def _rcad_scalar(warp: Warp, th, t0, t1):
@@ -455,36 +468,80 @@ def _rcad_scalar(warp: Warp, th, t0, t1):
     return None
 
 
-def _grid(warp: Warp, shape, stride: int):
-    h, w = shape
-    ys, xs = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
-    return xs.ravel().astype(np.float64), ys.ravel().astype(np.float64)
+def _area_coeffs(warp: Warp, th, t):
+    """The log area ratio from t_ref to ``t`` of the rotation and homography trajectories
+    is ``c - 3 log|a . (x, y, 1)|`` in pixels: returns ``a`` (3,), ``da/dtheta`` (3, P),
+    ``c`` and ``dc/dtheta`` (P,)."""
+    if warp.name == "rotation":
+        a = np.empty(3)
+        da = np.empty((3, 3))
+        _rot_area_coeffs(th, t, warp._kinv, a, da)
+        return a, da, 0.0, _ZERO3
+    # homography: H = Id + t G (centred); a = e3^T H T^-1, c = log|det H|
+    G = np.array([[th[0], th[1], th[2]], [th[3], th[4], th[5]], [th[6], th[7], 0.0]])
+    H = np.eye(3) + t * G
+    Ti = np.array([[1.0, 0, -warp.center[0]], [0, 1.0, -warp.center[1]], [0, 0, 1.0]])
+    da = np.zeros((3, 8))
+    da[:, 6] = t * Ti[0]
+    da[:, 7] = t * Ti[1]
+    dc = (t * np.linalg.inv(H).T).ravel()[:8]
+    return H[2] @ Ti, da, math.log(abs(np.linalg.det(H))), dc
 
 
-def _rotation_area_log(v, om, t, grad):
-    """``-3 log|e3^T R(-t omega) v|`` (the trajectory's log area ratio from t_ref to t) and
-    its omega-gradient ``-3 t (e3 x R v)^T J_l(-t omega) / (e3^T R v)``."""
-    phi = -t * om
-    a, b, c = (float(u) for u in _sinc_terms(np.array(phi @ phi)))
-    Ph = _hat(phi)
-    R = np.eye(3) + a * Ph + b * (Ph @ Ph)
-    rv = v @ R.T
-    s = rv[:, 2]
-    val = -3.0 * np.log(np.abs(s))
-    if not grad:
-        return val, None
-    Jl = np.eye(3) + b * Ph + c * (Ph @ Ph)
-    e3x = np.stack([-rv[:, 1], rv[:, 0], np.zeros_like(s)], axis=1)
-    return val, (-3.0 * t) * (e3x @ Jl) / s[:, None]
+_ZERO3 = np.zeros(3)
 
 
-def _rcad_map_values(warp: Warp, xs, ys, th, t0, t1, grad: bool):
-    if warp.name == "rotation":  # closed form: cheaper than the generic complex step
-        v = np.stack([xs, ys, np.ones_like(xs)], axis=1) @ warp._kinv.T
-        v1, g1 = _rotation_area_log(v, th, t1, grad)
-        v0, g0 = _rotation_area_log(v, th, t0, grad)
-        return (v1 - v0, g1 - g0) if grad else v1 - v0
-    return warp.area_log_ratio(xs, ys, t0, t1, th, grad=grad)
+@njit(cache=True, error_model="numpy")
+def _rot_area_coeffs(om, t, kinv, a, da):
+    """``a = e3^T R(-t omega) K^-1`` and ``da/d omega`` (3, 3): with ``v = K^-1 x``,
+    d(e3^T R v)/d omega_j = t (R_0 . v) Jl_1j - t (R_1 . v) Jl_0j, ``Jl = J_l(-t omega)``."""
+    p0, p1, p2 = -t * om[0], -t * om[1], -t * om[2]
+    z = p0 * p0 + p1 * p1 + p2 * p2
+    ca, cb, cc = _rod_coeffs(z) if z < 1.0 else _rod_coeffs_exact(z)
+    P = np.array([[0.0, -p2, p1], [p2, 0.0, -p0], [-p1, p0, 0.0]])
+    P2 = P @ P
+    R = np.eye(3) + ca * P + cb * P2
+    Jl = np.eye(3) + cb * P + cc * P2
+    for j in range(3):
+        a[j] = R[2, 0] * kinv[0, j] + R[2, 1] * kinv[1, j] + R[2, 2] * kinv[2, j]
+    for i in range(3):
+        for j in range(3):
+            # (K^-T D)_ij with D = t (R_0^T Jl_1 - R_1^T Jl_0)
+            acc = 0.0
+            for m in range(3):
+                acc += kinv[m, i] * t * (R[0, m] * Jl[1, j] - R[1, m] * Jl[0, j])
+            da[i, j] = acc
+
+
+@njit(cache=True, error_model="numpy")
+def _k_rcad_grid(h, w, stride, a0, da0, c0, a1, da1, c1, margin, out):
+    """Mean over the grid points (stride px) where the log area ratio
+    ``c1 - c0 - 3 log|a1 . x| + 3 log|a0 . x|`` exceeds ``margin``, and its gradient
+    into ``out`` (P,). Returns (mean, count)."""
+    P = out.shape[0]
+    for j in range(P):
+        out[j] = 0.0
+    total = 0.0
+    n_sel = 0
+    for iy in range(stride // 2, h, stride):
+        for ix in range(stride // 2, w, stride):
+            s0 = a0[0] * ix + a0[1] * iy + a0[2]
+            s1 = a1[0] * ix + a1[1] * iy + a1[2]
+            v = c1 - c0 - 3.0 * math.log(abs(s1)) + 3.0 * math.log(abs(s0))
+            if not v > margin:
+                continue
+            total += v
+            n_sel += 1
+            f0 = 3.0 / s0
+            f1 = -3.0 / s1
+            for j in range(P):
+                out[j] += (f1 * (da1[0, j] * ix + da1[1, j] * iy + da1[2, j])
+                           + f0 * (da0[0, j] * ix + da0[1, j] * iy + da0[2, j]))
+    if n_sel == 0:
+        return 0.0, 0
+    for j in range(P):
+        out[j] /= n_sel
+    return total / n_sel, n_sel
 
 
 def _rcad_value_grad(warp, x, y, dt, theta, shape, margin, stride, grad=True):
@@ -496,17 +553,15 @@ def _rcad_value_grad(warp, x, y, dt, theta, shape, margin, stride, grad=True):
     closed = _rcad_scalar(warp, th, t0, t1)
     if closed is not None:
         return closed
-    xs, ys = _grid(warp, shape, stride)
-    if grad:
-        vals, g = _rcad_map_values(warp, xs, ys, th, t0, t1, True)
-    else:
-        vals, g = _rcad_map_values(warp, xs, ys, th, t0, t1, False), None
-    sel = vals > margin
-    n_sel = int(np.count_nonzero(sel))
+    a0, da0, c0, dc0 = _area_coeffs(warp, th, t0)
+    a1, da1, c1, dc1 = _area_coeffs(warp, th, t1)
+    g = np.empty(warp.n_params)
+    value, n_sel = _k_rcad_grid(shape[0], shape[1], stride, a0, np.ascontiguousarray(da0), c0,
+                                a1, np.ascontiguousarray(da1), c1, margin, g)
     if n_sel == 0:
         return 0.0, np.zeros(warp.n_params)
-    value = float(vals[sel].mean())
-    return value, (g[sel].mean(axis=0) if grad else None)
+    g += dc1 - dc0
+    return float(value), (g if grad else None)
 
 
 # ---------------------------------------------------------------------------------------
