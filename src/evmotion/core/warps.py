@@ -306,6 +306,10 @@ def _k_translation(x, y, dt, vx, vy, xw, yw, jx, jy, jac):
             jy[k, 1] = -dt[k]
 
 
+# fastmath without the no-NaN/no-inf assumptions: lets LLVM fuse and reorder arithmetic
+# (rounding-level differences) while non-finite events still propagate as NaN/inf
+_FAST_FINITE = {"contract", "arcp", "nsz", "reassoc"}
+
 _BLOCK = 512  # events per block of the vectorized trigonometric pass
 
 
@@ -316,7 +320,7 @@ def _sincos_block(dt, k0, k1, w, sbuf, cbuf):
         sbuf[k - k0], cbuf[k - k0] = _sincos(-dt[k] * w)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_similarity(x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy, jac, scaled):
     small = _max_abs(dt) * abs(w) < 1.0
     sbuf = np.empty(_BLOCK)
@@ -374,7 +378,7 @@ def _similarity_jac(x, y, dt, vx, vy, s, cx, cy, xw, yw, jx, jy, scaled, k0, k1,
             jy[k, 3] = -t * ib * oy
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_inplane(x, y, dt, vx, vy, phi, hz, cx, cy, xw, yw, jx, jy, jac):
     c = math.cos(phi)
     sn = math.sin(phi)
@@ -398,7 +402,7 @@ def _k_inplane(x, y, dt, vx, vy, phi, hz, cx, cy, xw, yw, jx, jy, jac):
             jy[k, 3] = -t * r1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_affine(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
     vx, vy, g11, g12, g21, g22 = th[0], th[1], th[2], th[3], th[4], th[5]
     for k in range(x.shape[0]):
@@ -433,7 +437,7 @@ def _k_affine(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
             jy[k, 5] = -t * a11 * w1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_homography(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
     inv = np.empty((3, 3))
     q = np.empty(3)
@@ -525,7 +529,7 @@ def _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20, i21
     return q0 * iz, q1 * iz, q0, q1, q2, iz
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
     wx, wy, wz = w[0], w[1], w[2]
     ww = wx * wx + wy * wy + wz * wz
@@ -576,34 +580,32 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
             bt1 = bbuf[k - k0] * t
             ct2 = cbuf[k - k0] * t * t
             dg = 1.0 - ct2 * ww
-            for j in range(3):
-                wj = w[j]
-                # column j of J_l
-                l0 = ct2 * wx * wj
-                l1 = ct2 * wy * wj
-                l2 = ct2 * wz * wj
-                if j == 0:
-                    l0 += dg
-                    l1 += bt1 * wz
-                    l2 -= bt1 * wy
-                elif j == 1:
-                    l0 -= bt1 * wz
-                    l1 += dg
-                    l2 += bt1 * wx
-                else:
-                    l0 += bt1 * wy
-                    l1 -= bt1 * wx
-                    l2 += dg
-                d0 = -t * (q1 * l2 - q2 * l1)
-                d1 = -t * (q2 * l0 - q0 * l2)
-                d2 = -t * (q0 * l1 - q1 * l0)
-                dX = (d0 - X * d2) * iz
-                dY = (d1 - Y * d2) * iz
-                jx[k, j] = k00 * dX + k01 * dY
-                jy[k, j] = k10 * dX + k11 * dY
+            cx_ = ct2 * wx
+            cy_ = ct2 * wy
+            cz_ = ct2 * wz
+            jx[k, 0], jy[k, 0] = _rot_jac_col(cx_ * wx + dg, cy_ * wx + bt1 * wz,
+                                              cz_ * wx - bt1 * wy, t, q0, q1, q2, X, Y, iz,
+                                              k00, k01, k10, k11)
+            jx[k, 1], jy[k, 1] = _rot_jac_col(cx_ * wy - bt1 * wz, cy_ * wy + dg,
+                                              cz_ * wy + bt1 * wx, t, q0, q1, q2, X, Y, iz,
+                                              k00, k01, k10, k11)
+            jx[k, 2], jy[k, 2] = _rot_jac_col(cx_ * wz + bt1 * wy, cy_ * wz - bt1 * wx,
+                                              cz_ * wz + dg, t, q0, q1, q2, X, Y, iz,
+                                              k00, k01, k10, k11)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_jac_col(l0, l1, l2, t, q0, q1, q2, X, Y, iz, k00, k01, k10, k11):
+    """Pixel Jacobian column ``d(x', y')/d omega_j`` given ``l = J_l e_j``."""
+    d0 = -t * (q1 * l2 - q2 * l1)
+    d1 = -t * (q2 * l0 - q0 * l2)
+    d2 = -t * (q0 * l1 - q1 * l0)
+    dX = (d0 - X * d2) * iz
+    dY = (d1 - Y * d2) * iz
+    return k00 * dX + k01 * dY, k10 * dX + k11 * dY
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_rot_divdet(x, y, dt, w, Kinv, want_div, val, grad, gw, out):
     """Divergence (3.23 at any dt) or det J (3.24) of the rotation warp into ``val`` and,
     if ``grad`` (N, 3) has rows, their analytic omega-derivatives; if ``gw`` (N,) has rows,
