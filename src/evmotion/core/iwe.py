@@ -51,23 +51,28 @@ KERNELS = ("bilinear", "gaussian")
 _NOWEIGHT = np.empty(0)
 
 
+@njit(cache=True, inline="always")
+def _cell(x, y, h, wd):
+    """Bilinear cell of the point (x, y) px: ``(votes, ix, iy, fx, fy)`` with ``votes``
+    False when no vote lands in the (h, wd) image (also for NaN), else the top-left pixel
+    and the fractional offsets."""
+    # comparisons with NaN are False
+    if not (x > -1.0 and x < wd and y > -1.0 and y < h):
+        return False, 0, 0, 0.0, 0.0
+    x0 = math.floor(x)
+    y0 = math.floor(y)
+    return True, int(x0), int(y0), x - x0, y - y0
+
+
 @njit(cache=True, nogil=True)
 def _fwd_bilinear(xw, yw, w, out):
     h, wd = out.shape
     use_w = w.shape[0] > 0
     for k in range(xw.shape[0]):
-        x = xw[k]
-        y = yw[k]
-        # also rejects NaN: comparisons with NaN are False
-        if not (x > -1.0 and x < wd and y > -1.0 and y < h):
+        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
+        if not inside:
             continue
-        x0 = math.floor(x)
-        y0 = math.floor(y)
-        fx = x - x0
-        fy = y - y0
         a = w[k] if use_w else 1.0
-        ix = int(x0)
-        iy = int(y0)
         if iy >= 0:
             if ix >= 0:
                 out[iy, ix] += a * (1.0 - fx) * (1.0 - fy)
@@ -85,18 +90,11 @@ def _bwd_bilinear(xw, yw, w, g, gx, gy):
     h, wd = g.shape
     use_w = w.shape[0] > 0
     for k in range(xw.shape[0]):
-        x = xw[k]
-        y = yw[k]
-        if not (x > -1.0 and x < wd and y > -1.0 and y < h):
+        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
+        if not inside:
             gx[k] = 0.0
             gy[k] = 0.0
             continue
-        x0 = math.floor(x)
-        y0 = math.floor(y)
-        fx = x - x0
-        fy = y - y0
-        ix = int(x0)
-        iy = int(y0)
         g00 = g[iy, ix] if (iy >= 0 and ix >= 0) else 0.0
         g01 = g[iy, ix + 1] if (iy >= 0 and ix + 1 < wd) else 0.0
         g10 = g[iy + 1, ix] if (iy + 1 < h and ix >= 0) else 0.0
@@ -198,13 +196,14 @@ def _check_kernel(kernel: str, sigma: float) -> None:
         raise ParameterError(f"Gaussian IWE needs sigma > 0 (pixels), got {sigma!r}")
 
 
-def _shape(shape) -> tuple[int, int]:
+def _shape(shape, name: str = "shape") -> tuple[int, int]:
+    """``(H, W)`` as positive ints, or a ParameterError naming the argument."""
     try:
         h, w = (int(v) for v in shape)
     except (TypeError, ValueError):
-        raise ParameterError(f"shape must be (height, width), got {shape!r}") from None
+        raise ParameterError(f"{name} must be (height, width), got {shape!r}") from None
     if h <= 0 or w <= 0:
-        raise ParameterError(f"shape must be positive, got {shape!r}")
+        raise ParameterError(f"{name} must be positive, got {shape!r}")
     return h, w
 
 
@@ -328,16 +327,9 @@ def _bwd_bilinear_reduce(xw, yw, w, g, shift, scale, jx, jy, out):
     for j in range(p):
         out[j] = 0.0
     for k in range(xw.shape[0]):
-        x = xw[k]
-        y = yw[k]
-        if not (x > -1.0 and x < wd and y > -1.0 and y < h):
+        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
+        if not inside:
             continue
-        x0 = math.floor(x)
-        y0 = math.floor(y)
-        fx = x - x0
-        fy = y - y0
-        ix = int(x0)
-        iy = int(y0)
         g00 = g[iy, ix] - shift if (iy >= 0 and ix >= 0) else 0.0
         g01 = g[iy, ix + 1] - shift if (iy >= 0 and ix + 1 < wd) else 0.0
         g10 = g[iy + 1, ix] - shift if (iy + 1 < h and ix >= 0) else 0.0

@@ -40,6 +40,7 @@ import threading
 import numpy as np
 from numba import njit
 
+from evmotion.core.iwe import _cell, _shape
 from evmotion.core.warps import (
     _EMPTY1,
     _EMPTY2,
@@ -100,16 +101,9 @@ def _fused_forward(xw, yw, d, cnt, num):
     cnt[:] = 0.0
     num[:] = 0.0
     for k in range(xw.shape[0]):
-        x = xw[k]
-        y = yw[k]
-        if not (x > -1.0 and x < wd and y > -1.0 and y < h):
+        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
+        if not inside:
             continue
-        x0 = math.floor(x)
-        y0 = math.floor(y)
-        fx = x - x0
-        fy = y - y0
-        ix = int(x0)
-        iy = int(y0)
         a = d[k]
         w00 = (1.0 - fx) * (1.0 - fy)
         w01 = fx * (1.0 - fy)
@@ -143,17 +137,10 @@ def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
     for j in range(P):
         out[j] = 0.0
     for k in range(xw.shape[0]):
-        x = xw[k]
-        y = yw[k]
-        if not (x > -1.0 and x < wd and y > -1.0 and y < h):
+        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
+        if not inside:
             gd[k] = 0.0
             continue
-        x0 = math.floor(x)
-        y0 = math.floor(y)
-        fx = x - x0
-        fy = y - y0
-        ix = int(x0)
-        iy = int(y0)
         a = d[k]
         s00 = s01 = s10 = s11 = 0.0
         n00 = n01 = n10 = n11 = 0.0
@@ -573,16 +560,6 @@ def _check_kernel(kernel):
                              f"got kernel={kernel!r}")
 
 
-def _check_shape(shape):
-    try:
-        h, w = (int(v) for v in shape)
-    except (TypeError, ValueError):
-        raise ParameterError(f"shape must be (height, width), got {shape!r}") from None
-    if h <= 0 or w <= 0:
-        raise ParameterError(f"shape must be positive, got {shape!r}")
-    return h, w
-
-
 def _divergence(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None,
                 margin=None, kernel="bilinear", grad=True):
     m = DEFAULT_MARGINS["divergence"] if margin is None else float(margin)
@@ -658,7 +635,7 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
         raise ParameterError(f"unknown regularizer '{name}'; choose one of "
                              f"{sorted(REGULARIZERS)}")
     _check_kernel(kernel)
-    shape = _check_shape(shape)
+    shape = _shape(shape)
     return REGULARIZERS[name](warp, x, y, dt, theta, shape, xw=xw, yw=yw, jx=jx, jy=jy,
                               margin=margin, kernel=kernel, grad=grad, **(
                                   {"stride": stride} if name == "rcad" else {}))
@@ -688,7 +665,7 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
         raise ParameterError(f"unknown regularizer '{name}'; choose one of "
                              f"{sorted(REGULARIZERS)}")
     _check_kernel(kernel)
-    shape = _check_shape(shape)
+    shape = _shape(shape)
     x, y, dt = Warp._events(x, y, dt)
     th = warp._theta(theta)
     m = DEFAULT_MARGINS[name] if margin is None else float(margin)

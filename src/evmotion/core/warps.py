@@ -62,6 +62,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from evmotion.core.iwe import _shape
 from evmotion.errors import CalibrationError, ParameterError
 
 __all__ = [
@@ -177,36 +178,6 @@ def _max_abs(a):
 
 
 @njit(cache=True, inline="always")
-def _sincos(a):
-    """sin, cos for |a| < 1: Horner in a^2 with literal coefficients 1/n!, truncated below
-    1/21! (< 2e-20), branch-free so that loops over events vectorize."""
-    z = a * a
-    s = 1.9572941063391263e-20  # 1/21!
-    s = 8.22063524662433e-18 - z * s
-    s = 2.8114572543455206e-15 - z * s
-    s = 7.647163731819816e-13 - z * s
-    s = 1.6059043836821613e-10 - z * s
-    s = 2.505210838544172e-08 - z * s
-    s = 2.7557319223985893e-06 - z * s
-    s = 0.0001984126984126984 - z * s
-    s = 0.008333333333333333 - z * s
-    s = 0.16666666666666666 - z * s
-    s = 1.0 - z * s
-    c = 8.896791392450574e-22  # 1/22!
-    c = 4.110317623312165e-19 - z * c
-    c = 1.5619206968586225e-16 - z * c
-    c = 4.779477332387385e-14 - z * c
-    c = 1.1470745597729725e-11 - z * c
-    c = 2.08767569878681e-09 - z * c
-    c = 2.755731922398589e-07 - z * c
-    c = 2.48015873015873e-05 - z * c
-    c = 0.001388888888888889 - z * c
-    c = 0.041666666666666664 - z * c
-    c = 0.5 - z * c
-    return a * s, 1.0 - z * c
-
-
-@njit(cache=True, inline="always")
 def _rod_coeffs(z):
     """sin(a)/a, (1-cos a)/a^2, (a-sin a)/a^3 for z = a^2 < 1 (branch-free Horner)."""
     a = 1.9572941063391263e-20  # 1/21!
@@ -243,6 +214,15 @@ def _rod_coeffs(z):
     c = 0.008333333333333333 - z * c
     c = 0.16666666666666666 - z * c
     return a, b, c
+
+
+@njit(cache=True, inline="always")
+def _sincos(a):
+    """sin, cos for |a| < 1 from the series of :func:`_rod_coeffs` (sin a = a A(a^2),
+    cos a = 1 - a^2 B(a^2)), branch-free so that loops over events vectorize."""
+    z = a * a
+    sa, cb, _ = _rod_coeffs(z)
+    return a * sa, 1.0 - z * cb
 
 
 @njit(cache=True, inline="always")
@@ -1333,12 +1313,7 @@ def make_warp(name: str, sensor_size: tuple[int, int], K: np.ndarray | None = No
     """
     if name not in _SPECS:
         raise ParameterError(f"unknown warp '{name}'; choose one of {sorted(_SPECS)}")
-    try:
-        h, w = (int(v) for v in sensor_size)
-    except (TypeError, ValueError):
-        raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}") from None
-    if h <= 0 or w <= 0:
-        raise ParameterError(f"sensor_size must be positive, got {sensor_size!r}")
+    h, w = _shape(sensor_size, "sensor_size")
     cls, names, units = _SPECS[name]
     Kmat = None
     if K is not None:
