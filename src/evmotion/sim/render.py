@@ -238,11 +238,18 @@ def textured_cells_sat(log_i: np.ndarray) -> np.ndarray:
 def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_a, t_b, refr,
           target, ex, ey, et, ep):
     h, w = la.shape
+    n_layers = Mseq.shape[1]
     span = t_b - t_a
     cap = ex.shape[0]
     n = 0
     nsub_total = 0
     m_end = Mseq[MAX_SUBSAMPLES]
+    # the bottom layer's end matrix in scalars: the per-pixel render of the step's end is
+    # the hot loop (every textured pixel, every step), kept free of array indexing
+    m0, m1, m2 = m_end[0, 0], m_end[0, 1], m_end[0, 2]
+    m3, m4, m5 = m_end[0, 3], m_end[0, 4], m_end[0, 5]
+    m6, m7, m8 = m_end[0, 6], m_end[0, 7], m_end[0, 8]
+    ox, oy = origins[0, 0], origins[0, 1]
     for ty0 in range(0, h, TILE):
         ty1 = min(ty0 + TILE, h) - 1
         for tx0 in range(0, w, TILE):
@@ -255,58 +262,84 @@ def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_
                 continue
             for y in range(ty0, ty1 + 1):
                 for x in range(tx0, tx1 + 1):
-                    a = np.float64(la[y, x])
-                    r = ref[y, x]
-                    lt = last[y, x]
-                    t0 = t_a
-                    v0 = a
-                    b = a
-                    ns = 1
-                    stride = MAX_SUBSAMPLES
-                    # j = 0 samples the end of the step (which sets the pixel's number of
-                    # sub-samples ns), j = 1..ns walk through the step
-                    j = 0
-                    while j <= ns:
-                        if j == ns:
-                            v1 = b
-                        else:
-                            g = MAX_SUBSAMPLES if j == 0 else j * stride
-                            v1 = 0.0
-                            for k in range(Mseq.shape[1]):
-                                if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1]
-                                              or x > boxes[k, 2] or y > boxes[k, 3]):
-                                    continue
-                                den = Mseq[g, k, 6] * x + Mseq[g, k, 7] * y + Mseq[g, k, 8]
-                                xr = ((Mseq[g, k, 0] * x + Mseq[g, k, 1] * y + Mseq[g, k, 2])
-                                      / den - origins[k, 0])
-                                yr = ((Mseq[g, k, 3] * x + Mseq[g, k, 4] * y + Mseq[g, k, 5])
-                                      / den - origins[k, 1])
-                                if k == 0:
-                                    v1 = _bilinear_wrap(texs, k, xr, yr)
-                                else:
-                                    al = _bilinear_wrap(alphas, k, xr, yr)
-                                    if al > 0.0:
-                                        v1 = (al * _bilinear_wrap(texs, k, xr, yr)
-                                              + (1.0 - al) * v1)
-                        if j == 0:
-                            lb[y, x] = v1
-                            b = np.float64(lb[y, x])
-                            while ns < MAX_SUBSAMPLES and abs(v1 - a) > target * ns:
-                                ns *= 2
-                            stride = MAX_SUBSAMPLES // ns
-                            nsub_total += ns - 1
-                            j = 1
+                    den = m6 * x + m7 * y + m8
+                    v1 = _bilinear_wrap(texs, 0, (m0 * x + m1 * y + m2) / den - ox,
+                                        (m3 * x + m4 * y + m5) / den - oy)
+                    for k in range(1, n_layers):
+                        if (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
+                                or y > boxes[k, 3]):
                             continue
-                        t1 = t_b if j == ns else t_a + (j * stride * span) // MAX_SUBSAMPLES
-                        if v1 - r >= cp[y, x]:
-                            r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr, x,
-                                              y, ex, ey, et, ep, n, cap)
-                        elif r - v1 >= cn[y, x]:
-                            r, lt, n = _cross(v0, v1, t0, t1, r, cn[y, x], -1.0, lt, refr, x,
-                                              y, ex, ey, et, ep, n, cap)
-                        t0 = t1
-                        v0 = v1
-                        j += 1
+                        den = m_end[k, 6] * x + m_end[k, 7] * y + m_end[k, 8]
+                        xr = (m_end[k, 0] * x + m_end[k, 1] * y + m_end[k, 2]) / den \
+                            - origins[k, 0]
+                        yr = (m_end[k, 3] * x + m_end[k, 4] * y + m_end[k, 5]) / den \
+                            - origins[k, 1]
+                        al = _bilinear_wrap(alphas, k, xr, yr)
+                        if al > 0.0:
+                            v1 = al * _bilinear_wrap(texs, k, xr, yr) + (1.0 - al) * v1
+                    a = np.float64(la[y, x])
+                    lb[y, x] = v1
+                    b = np.float64(lb[y, x])
+                    # sub-samples: the fewest (a power of two) that keep the change
+                    # between consecutive samples of the pixel within target
+                    ns = 1
+                    while ns < MAX_SUBSAMPLES and abs(v1 - a) > target * ns:
+                        ns *= 2
+                    if ns > 1:
+                        # the rare pixels that changed by more than target: walk through
+                        # ns sub-samples (written out here: a call per pixel costs more
+                        # than its work)
+                        nsub_total += ns - 1
+                        stride = MAX_SUBSAMPLES // ns
+                        r = ref[y, x]
+                        lt = last[y, x]
+                        t0 = t_a
+                        v0 = a
+                        for j in range(1, ns + 1):
+                            if j == ns:
+                                v1 = b
+                                t1 = t_b
+                            else:
+                                g = j * stride
+                                t1 = t_a + (g * span) // MAX_SUBSAMPLES
+                                v1 = 0.0
+                                for k in range(n_layers):
+                                    if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1]
+                                                  or x > boxes[k, 2] or y > boxes[k, 3]):
+                                        continue
+                                    den = (Mseq[g, k, 6] * x + Mseq[g, k, 7] * y
+                                           + Mseq[g, k, 8])
+                                    xr = ((Mseq[g, k, 0] * x + Mseq[g, k, 1] * y
+                                           + Mseq[g, k, 2]) / den - origins[k, 0])
+                                    yr = ((Mseq[g, k, 3] * x + Mseq[g, k, 4] * y
+                                           + Mseq[g, k, 5]) / den - origins[k, 1])
+                                    if k == 0:
+                                        v1 = _bilinear_wrap(texs, k, xr, yr)
+                                    else:
+                                        al = _bilinear_wrap(alphas, k, xr, yr)
+                                        if al > 0.0:
+                                            v1 = (al * _bilinear_wrap(texs, k, xr, yr)
+                                                  + (1.0 - al) * v1)
+                            if v1 - r >= cp[y, x]:
+                                r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr,
+                                                  x, y, ex, ey, et, ep, n, cap)
+                            elif r - v1 >= cn[y, x]:
+                                r, lt, n = _cross(v0, v1, t0, t1, r, cn[y, x], -1.0, lt,
+                                                  refr, x, y, ex, ey, et, ep, n, cap)
+                            t0 = t1
+                            v0 = v1
+                        ref[y, x] = r
+                        last[y, x] = lt
+                        continue
+                    r = ref[y, x]
+                    if b - r >= cp[y, x]:
+                        r, lt, n = _cross(a, b, t_a, t_b, r, cp[y, x], 1.0, last[y, x], refr,
+                                          x, y, ex, ey, et, ep, n, cap)
+                    elif r - b >= cn[y, x]:
+                        r, lt, n = _cross(a, b, t_a, t_b, r, cn[y, x], -1.0, last[y, x],
+                                          refr, x, y, ex, ey, et, ep, n, cap)
+                    else:
+                        continue
                     ref[y, x] = r
                     last[y, x] = lt
     return n, nsub_total
