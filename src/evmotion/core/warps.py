@@ -177,43 +177,25 @@ def _max_abs(a):
     return m
 
 
+#: 1/n! for n = 0..23, the coefficients of the Rodrigues series below.
+_INV_FACT = np.array([1.0 / math.factorial(n) for n in range(24)])
+
+
+@njit(cache=True, inline="always")
+def _series(z, first, nterms):
+    """``sum_k (-z)^k / (first + 2k)!`` over ``k < nterms`` (Horner; the constant trip count
+    unrolls, and the loops over events calling it stay branch-free)."""
+    s = _INV_FACT[first + 2 * (nterms - 1)]
+    for k in range(nterms - 2, -1, -1):
+        s = _INV_FACT[first + 2 * k] - z * s
+    return s
+
+
 @njit(cache=True, inline="always")
 def _rod_coeffs(z):
-    """sin(a)/a, (1-cos a)/a^2, (a-sin a)/a^3 for z = a^2 < 1 (branch-free Horner)."""
-    a = 1.9572941063391263e-20  # 1/21!
-    a = 8.22063524662433e-18 - z * a
-    a = 2.8114572543455206e-15 - z * a
-    a = 7.647163731819816e-13 - z * a
-    a = 1.6059043836821613e-10 - z * a
-    a = 2.505210838544172e-08 - z * a
-    a = 2.7557319223985893e-06 - z * a
-    a = 0.0001984126984126984 - z * a
-    a = 0.008333333333333333 - z * a
-    a = 0.16666666666666666 - z * a
-    a = 1.0 - z * a
-    b = 8.896791392450574e-22  # 1/22!
-    b = 4.110317623312165e-19 - z * b
-    b = 1.5619206968586225e-16 - z * b
-    b = 4.779477332387385e-14 - z * b
-    b = 1.1470745597729725e-11 - z * b
-    b = 2.08767569878681e-09 - z * b
-    b = 2.755731922398589e-07 - z * b
-    b = 2.48015873015873e-05 - z * b
-    b = 0.001388888888888889 - z * b
-    b = 0.041666666666666664 - z * b
-    b = 0.5 - z * b
-    c = 3.8681701706306835e-23  # 1/23!
-    c = 1.9572941063391263e-20 - z * c
-    c = 8.22063524662433e-18 - z * c
-    c = 2.8114572543455206e-15 - z * c
-    c = 7.647163731819816e-13 - z * c
-    c = 1.6059043836821613e-10 - z * c
-    c = 2.505210838544172e-08 - z * c
-    c = 2.7557319223985893e-06 - z * c
-    c = 0.0001984126984126984 - z * c
-    c = 0.008333333333333333 - z * c
-    c = 0.16666666666666666 - z * c
-    return a, b, c
+    """sin(a)/a, (1-cos a)/a^2, (a-sin a)/a^3 for z = a^2 < 1: eleven terms each, the
+    truncation below 1/21! < 2e-20."""
+    return _series(z, 1, 11), _series(z, 2, 11), _series(z, 3, 11)
 
 
 @njit(cache=True, inline="always")
@@ -229,28 +211,7 @@ def _sincos(a):
 def _rod_coeffs_short(z):
     """:func:`_rod_coeffs` for z < 0.05 (|dt omega| < 0.22 rad, the usual case): seven
     terms suffice (truncation below z^7/15! < 1e-21)."""
-    a = 1.6059043836821613e-10  # 1/13!
-    a = 2.505210838544172e-08 - z * a
-    a = 2.7557319223985893e-06 - z * a
-    a = 0.0001984126984126984 - z * a
-    a = 0.008333333333333333 - z * a
-    a = 0.16666666666666666 - z * a
-    a = 1.0 - z * a
-    b = 1.1470745597729725e-11  # 1/14!
-    b = 2.08767569878681e-09 - z * b
-    b = 2.755731922398589e-07 - z * b
-    b = 2.48015873015873e-05 - z * b
-    b = 0.001388888888888889 - z * b
-    b = 0.041666666666666664 - z * b
-    b = 0.5 - z * b
-    c = 7.647163731819816e-13  # 1/15!
-    c = 1.6059043836821613e-10 - z * c
-    c = 2.505210838544172e-08 - z * c
-    c = 2.7557319223985893e-06 - z * c
-    c = 0.0001984126984126984 - z * c
-    c = 0.008333333333333333 - z * c
-    c = 0.16666666666666666 - z * c
-    return a, b, c
+    return _series(z, 1, 7), _series(z, 2, 7), _series(z, 3, 7)
 
 
 @njit(cache=True, inline="always")
