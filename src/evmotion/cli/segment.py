@@ -56,7 +56,8 @@ def run(args) -> int:
     rows, labels = [], {}
     for w in progress(windows, desc="segment", unit="win"):
         seg = segment_motion(events.window(w), args.warps, args.warp, args.objective, K=K,
-                             t_ref=args.t_ref, n_iter=args.iterations, seed=args.seed)
+                             t_ref=args.t_ref, n_iter=args.iterations, seed=args.seed,
+                             regularizer=args.reg, weight=args.weight, dataset=args.dataset)
         labels[f"window_{w.index:05d}"] = seg.labels.astype(np.int16)
         for j in range(args.warps):
             rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "cluster": j,

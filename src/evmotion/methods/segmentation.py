@@ -108,7 +108,8 @@ def _kmeans(pts: np.ndarray, k: int, rng: np.random.Generator, n_iter: int = 15)
 def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translation",
                    objective: str = "variance", K=None, t_ref: str | int = "start",
                    n_iter: int = 10, init=None, seed: int = 0, sigma: float = 1.0,
-                   tol: float = 1e-3) -> SegmentationResult:
+                   tol: float = 1e-3, regularizer: str | None = None,
+                   weight: float | None = None, dataset: str = "mvsec") -> SegmentationResult:
     """Segment events into ``n_warps`` motions by expectation-maximization (Sec. 3.6.6).
 
     Parameters
@@ -135,6 +136,16 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
         Gaussian IWE width (px) used for the memberships.
     tol : float
         Stop when no membership changes by more than ``tol``.
+    regularizer : {None, "divergence", "deformation", "rcad"}
+        Collapse penalty added to every cluster's cost (3.6), as in Sec. 3.6.6. It is
+        evaluated on all events of the window, not membership-weighted. For the warps of
+        Sec. 3.6.6 this makes no difference to divergence and RCAD (the zoom's divergence is
+        the same for every event, the translation's is zero, RCAD has closed forms); for
+        the deformation map and the rotation/homography maps it is an approximation.
+    weight : float, optional
+        ``lambda``; default the thesis' weight for ``dataset`` (Sec. 3.6.1).
+    dataset : {"mvsec", "dsec", "ecd"}
+        Which default weights to use.
 
     Returns
     -------
@@ -150,7 +161,11 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
     if objective not in ("variance", "gradient_magnitude"):
         raise ParameterError(f"segmentation supports the variance and gradient_magnitude "
                              f"objectives, got '{objective}'")
-    cost, _ = make_cost(events, warp, objective, None, 0.0, K, t_ref)
+    if regularizer not in (None, "divergence", "deformation", "rcad"):
+        raise ParameterError(f"segmentation supports the divergence, deformation and rcad "
+                             f"regularizers (or None), got '{regularizer}'")
+    cost, _ = make_cost(events, warp, objective, regularizer, weight, K, t_ref,
+                        dataset=dataset)
     w = cost.warp
     n = cost.x.shape[0]
     if n < 10 * n_warps:
