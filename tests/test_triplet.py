@@ -230,14 +230,15 @@ def test_neighbour_offsets():
     assert not np.any(np.all(neighbour_offsets(3.0) == 0, axis=1))
 
 
-def _nonzero_average_reference(field, mask):
+def _nonzero_average_reference(field, mask, radius=1):
     h, w = mask.shape
     out = np.zeros_like(field, dtype=np.float64)
     sup = np.zeros(mask.shape, bool)
     for r in range(h):
         for c in range(w):
-            vals = [field[rr, cc] for rr in range(max(r - 1, 0), min(r + 2, h))
-                    for cc in range(max(c - 1, 0), min(c + 2, w)) if mask[rr, cc]]
+            vals = [field[rr, cc] for rr in range(max(r - radius, 0), min(r + radius + 1, h))
+                    for cc in range(max(c - radius, 0), min(c + radius + 1, w))
+                    if mask[rr, cc]]
             if vals:
                 out[r, c] = np.mean(vals, axis=0)
                 sup[r, c] = True
@@ -254,6 +255,25 @@ def test_nonzero_average_filter_matches_loop():
     np.testing.assert_allclose(got, ref, rtol=1e-6, atol=1e-6)
     stack, _ = nonzero_average_filter(np.stack([field, field]), np.stack([mask, mask]))
     np.testing.assert_allclose(stack[1], ref, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("size", [1, 5, 7])
+def test_wider_nonzero_average_filter_matches_loop(size):
+    rng = np.random.default_rng(size)
+    field = rng.normal(size=(9, 11, 2))
+    mask = rng.random((9, 11)) < 0.3
+    got, sup = nonzero_average_filter(field, mask, size)
+    ref, rsup = _nonzero_average_reference(field, mask, size // 2)
+    np.testing.assert_array_equal(sup, rsup)
+    np.testing.assert_allclose(got, ref, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("size", [0, 2, 4, -3, 2.5])
+def test_filter_size_must_be_odd_positive(size):
+    with pytest.raises(ParameterError, match="odd"):
+        nonzero_average_filter(np.zeros((3, 3, 2)), np.zeros((3, 3), bool), size)
+    with pytest.raises(ParameterError, match="odd"):
+        estimate_flow_triplet(edge_events(200.0), filter_size=size)
 
 
 def test_voxelize_matches_numpy():
@@ -301,8 +321,8 @@ def test_event_fwl_matches_dense_fwl_for_uniform_flow():
     assert event_fwl(ev, sub) > 1.5
 
 
-@pytest.mark.parametrize("smooth", [True, False])
-def test_fused_dense_matches_numpy_path(smooth):
+@pytest.mark.parametrize(("smooth", "size"), [(True, 3), (False, 3), (True, 5), (True, 9)])
+def test_fused_dense_matches_numpy_path(smooth, size):
     from evmotion.methods.triplet import add_voxels, dense_from_sums
 
     ev = moving_dots(8)
@@ -311,7 +331,8 @@ def test_fused_dense_matches_numpy_path(smooth):
     acc = np.zeros((nb, 24, 24, 2))
     cnt = np.zeros((nb, 24, 24), np.int64)
     add_voxels(ev, flow, t0, t1, acc, cnt)
-    got, gmask = dense_from_sums(acc, cnt, smooth=smooth)
-    ref, rmask = collapse_voxels(*voxelize_flow(ev, flow, t0, t1, nb), smooth=smooth)
+    got, gmask = dense_from_sums(acc, cnt, smooth=smooth, filter_size=size)
+    ref, rmask = collapse_voxels(*voxelize_flow(ev, flow, t0, t1, nb), smooth=smooth,
+                                 filter_size=size)
     np.testing.assert_array_equal(gmask, rmask)
     np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-4)

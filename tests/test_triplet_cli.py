@@ -81,6 +81,18 @@ def test_count_windows(edge_file, tmp_path):
     np.testing.assert_allclose(read_flow_h5(out).flow, ref.flows, rtol=1e-5, atol=1e-3)
 
 
+def test_wider_filter_option(edge_file, tmp_path):
+    path, ev, _ = edge_file
+    out = tmp_path / "flow.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
+                 "--window-us", "50000", "--filter-size", "5"]) == 0
+    ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000), filter_size=5)
+    seq = read_flow_h5(out)
+    np.testing.assert_array_equal(seq.valid, ref.masks)
+    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    assert seq.attrs["triplet_filter_size"] == 5
+
+
 def test_bad_options_are_reported(edge_file, tmp_path, capsys):
     path, _, _ = edge_file
     assert main(["flow", str(path), "--method", "triplet", "--out",
@@ -89,6 +101,10 @@ def test_bad_options_are_reported(edge_file, tmp_path, capsys):
     assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
                  "--dx", "0.3"]) == 2
     assert "dx" in capsys.readouterr().err
+    assert not (tmp_path / "x.h5").exists()
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
+                 "--filter-size", "4"]) == 2
+    assert "--filter-size" in capsys.readouterr().err
     assert not (tmp_path / "x.h5").exists()
 
 

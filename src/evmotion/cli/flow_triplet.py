@@ -30,6 +30,9 @@ def add_arguments(group) -> None:
     group.add_argument("--bins", type=int, default=1,
                        help="time bins per window of the dense .h5 output (default 1; windows "
                             f"default to {DEFAULT_WINDOW_US // 1000} ms); .npz is per event")
+    group.add_argument("--filter-size", type=int, default=3,
+                       help="width of the non-zero average filter of the dense output (default "
+                            "3, the thesis'; larger odd sizes are an extension)")
     group.add_argument("--chunk-events", type=int, default=1_000_000,
                        help="events read and processed at a time (default 1e6)")
     group.add_argument("--depth", type=int, default=8,
@@ -58,9 +61,11 @@ def run(args) -> int:
                              int(round(args.tau_ms * 1000)), quadruple=args.quadruple,
                              depth=args.depth)
     windows = _Windows(sensor, args.bins, args.window_us, args.window_events,
-                       int(first.t[0]), _gt_edges(args)) if dense else None
+                       int(first.t[0]), _gt_edges(args),
+                       filter_size=args.filter_size) if dense else None
     params = {"dx": args.dx, "dt_ms": args.dt_ms, "tau_ms": args.tau_ms,
-              "quadruple": args.quadruple, "bins": args.bins, "depth": args.depth}
+              "quadruple": args.quadruple, "bins": args.bins, "depth": args.depth,
+              "filter_size": args.filter_size}
     sink = (_NpzSink(out) if kind == ".npz"
             else _H5Sink(out, sensor, {"method": "triplet", "source": str(args.file),
                                        **{f"triplet_{k}": v for k, v in params.items()}}))
@@ -157,9 +162,13 @@ class _Windows:
     """Accumulates per-event flow into voxel sums window by window (time or count windows),
     and the IWE of each window's events warped by their own flow to the window start."""
 
-    def __init__(self, sensor, bins, window_us, window_events, t_start, edges=None):
+    def __init__(self, sensor, bins, window_us, window_events, t_start, edges=None, *,
+                 filter_size=3):
         if bins < 1:
             raise ParameterError(f"--bins must be >= 1, got {bins}")
+        if filter_size < 1 or filter_size % 2 == 0:
+            raise ParameterError(f"--filter-size must be an odd number >= 1, got {filter_size}")
+        self.filter_size = filter_size
         if window_us is not None and window_us <= 0:
             raise ParameterError(f"--window-us must be > 0, got {window_us}")
         if window_events is not None and window_events <= 0:
@@ -241,7 +250,7 @@ class _Windows:
     def _close(self, t0, t1):
         from evmotion.methods.triplet import dense_from_sums
 
-        flow, mask = dense_from_sums(self.acc, self.cnt)
+        flow, mask = dense_from_sums(self.acc, self.cnt, filter_size=self.filter_size)
         win = _Window(self.index, t0, t1, flow, mask, self.iwe, self.n)
         self.index += 1
         self._new()

@@ -232,13 +232,12 @@ def voxel_accumulate(x, y, t, vx, vy, valid, t0, t1, n_bins, acc, cnt):
 
 
 @njit(cache=True)
-def dense_from_sums(acc, cnt, smooth, out, out_mask):
-    """Voxel means, 3x3 non-zero average per bin (if ``smooth``), mean over the bins that
-    hold a value: ``acc`` (B, H, W, 2) sums, ``cnt`` (B, H, W) counts -> ``out`` (H, W, 2)
-    float32 and ``out_mask`` (H, W) bool. Fused version of the numpy functions in
-    :mod:`evmotion.methods.triplet`."""
+def dense_from_sums(acc, cnt, r, out, out_mask):
+    """Voxel means, (2r+1)x(2r+1) non-zero average per bin (r = 1: the thesis' 3x3; r = 0:
+    none), mean over the bins that hold a value: ``acc`` (B, H, W, 2) sums, ``cnt``
+    (B, H, W) counts -> ``out`` (H, W, 2) float32 and ``out_mask`` (H, W) bool. Fused
+    version of the numpy functions in :mod:`evmotion.methods.triplet`."""
     nb, h, w = cnt.shape
-    r = 1 if smooth else 0
     for yy in range(h):
         for xx in range(w):
             su = 0.0

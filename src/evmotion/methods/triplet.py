@@ -16,6 +16,14 @@ within ``2 (d_t + tau)``. :attr:`TripletMatcher.overflow` counts the events forg
 earlier than that (zero means the answers equal the unbounded Algorithm 1 exactly; the
 tests check this against a literal implementation).
 
+Accuracy (measured on simulated scenes, ``benchmarks/results/triplet_event_errors.md``):
+the per-event direction is unbiased once many events are averaged (the 8-direction votes
+mix), but the speed is under-estimated, increasingly with speed: the refractory window
+``t_i <= t_k - tau`` drops the fast votes, so with tau = 3 ms the speed along the true flow
+comes out ~0.95x at 50-100 px/s and ~0.6-0.8x at 300-600 px/s (one-pixel steps then take
+about tau). A smaller tau admits the bursts of several events per edge crossing and
+scatters the votes more. This is the thesis' estimator, kept as is.
+
 Units: pixels, microseconds for times, px/s for flow.
 """
 
@@ -241,7 +249,8 @@ def _pixels(a: np.ndarray, size: int) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ batch (Algorithm 2)
-def nonzero_average_filter(field: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def nonzero_average_filter(field: np.ndarray, mask: np.ndarray, size: int = 3,
+                           ) -> tuple[np.ndarray, np.ndarray]:
     """3x3 average of only the valid (non-zero) neighbours, as in the thesis' batch mode.
 
     Parameters
@@ -250,11 +259,14 @@ def nonzero_average_filter(field: np.ndarray, mask: np.ndarray) -> tuple[np.ndar
         Flow in px/s.
     mask : ndarray of bool, shape (..., H, W)
         Where ``field`` holds a value.
+    size : int
+        Odd filter width in pixels: 3 is the thesis' filter; larger sizes (an extension,
+        see :func:`estimate_flow_triplet`) average more per-event scatter away.
 
     Returns
     -------
     smoothed : ndarray of float32, shape (..., H, W, 2)
-        Mean of the valid values in each 3x3 neighbourhood; 0 where there is none.
+        Mean of the valid values in each size x size neighbourhood; 0 where there is none.
     support : ndarray of bool, shape (..., H, W)
         True where at least one valid value was in the neighbourhood.
 
@@ -266,24 +278,30 @@ def nonzero_average_filter(field: np.ndarray, mask: np.ndarray) -> tuple[np.ndar
     >>> float(s[0, 0, 0]), bool(sup.all())
     (2.0, True)
     """
+    r = _filter_radius(size)
     m = mask.astype(np.float64)
     v = np.where(mask[..., None], field, 0.0).astype(np.float64)
-    s = _box3(v, axes=(-3, -2))
-    c = _box3(m, axes=(-2, -1))
+    s = _box(v, (-3, -2), r)
+    c = _box(m, (-2, -1), r)
     support = c > 0
     out = np.zeros_like(s, dtype=np.float32)
     np.divide(s, c[..., None], out=out, where=support[..., None], casting="unsafe")
     return out, support
 
 
-def _box3(a: np.ndarray, axes: tuple[int, int]) -> np.ndarray:
+def _filter_radius(size: int) -> int:
+    if int(size) != size or size < 1 or size % 2 == 0:
+        raise ParameterError(f"filter size must be an odd number of pixels >= 1, got {size}")
+    return int(size) // 2
+
+
+def _box(a: np.ndarray, axes: tuple[int, int], r: int) -> np.ndarray:
     for ax in axes:
         pad = [(0, 0)] * a.ndim
-        pad[ax] = (1, 1)
+        pad[ax] = (r, r)
         b = np.pad(a, pad)
         n = a.shape[ax]
-        a = (np.take(b, range(0, n), axis=ax) + np.take(b, range(1, n + 1), axis=ax)
-             + np.take(b, range(2, n + 2), axis=ax))
+        a = sum(np.take(b, range(i, n + i), axis=ax) for i in range(2 * r + 1))
     return a
 
 
@@ -326,15 +344,17 @@ def add_voxels(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: int,
 
 
 def dense_from_sums(acc: np.ndarray, cnt: np.ndarray, *, smooth: bool = True,
-                    ) -> tuple[np.ndarray, np.ndarray]:
+                    filter_size: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Dense (H, W, 2) px/s flow and mask from voxel sums ``acc`` (n_bins, H, W, 2) and counts
     ``cnt`` (n_bins, H, W) (see :func:`add_voxels`): the fused, compiled equivalent of
-    :func:`voxelize_flow` followed by :func:`collapse_voxels`."""
+    :func:`voxelize_flow` followed by :func:`collapse_voxels` (same ``smooth`` and
+    ``filter_size``)."""
     h, w = cnt.shape[1:]
     out = np.empty((h, w, 2), np.float32)
     mask = np.empty((h, w), np.bool_)
+    r = _filter_radius(filter_size) if smooth else 0
     K.dense_from_sums(np.ascontiguousarray(acc, np.float64), np.ascontiguousarray(cnt),
-                      bool(smooth), out, mask)
+                      np.int64(r), out, mask)
     return out, mask
 
 
@@ -346,11 +366,12 @@ def _voxel_mean(acc, cnt):
 
 
 def collapse_voxels(voxels: np.ndarray, mask: np.ndarray, *, smooth: bool = True,
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Dense (H, W, 2) flow from time-bin voxels: 3x3 non-zero average per bin, then the mean
-    of the bins that hold a value (the thesis' "2D collapsed" flow). Returns (flow, mask)."""
+                    filter_size: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Dense (H, W, 2) flow from time-bin voxels: 3x3 (``filter_size``) non-zero average per
+    bin, then the mean of the bins that hold a value (the thesis' "2D collapsed" flow).
+    Returns (flow, mask)."""
     if smooth:
-        voxels, mask = nonzero_average_filter(voxels, mask)
+        voxels, mask = nonzero_average_filter(voxels, mask, filter_size)
     c = mask.sum(axis=0)
     s = np.where(mask[..., None], voxels, 0.0).sum(axis=0)
     out = np.zeros(s.shape, np.float32)
@@ -365,7 +386,7 @@ class TripletBatchResult:
     Attributes
     ----------
     flows : ndarray of float32, shape (n_windows, H, W, 2)
-        Voxelized, 3x3 non-zero-averaged and collapsed flow in px/s.
+        Voxelized, non-zero-averaged (3x3 by default) and collapsed flow in px/s.
     masks : ndarray of bool, shape (n_windows, H, W)
         Pixels with a flow value.
     windows : list of Window
@@ -390,7 +411,8 @@ class TripletBatchResult:
 def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None = None, *,
                           dx: float = float(np.sqrt(2.0)), dt_us: int = 100_000,
                           tau_us: int = 3_000, quadruple: bool = False, n_bins: int = 1,
-                          smooth: bool = True, depth: int = 8) -> TripletBatchResult:
+                          smooth: bool = True, filter_size: int = 3,
+                          depth: int = 8) -> TripletBatchResult:
     """Triplet-matching flow of a recording, dense per window (thesis Algorithm 2).
 
     Every event is processed in order (events before a window serve as its history), then
@@ -409,6 +431,12 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         Time bins per window for the voxelization.
     smooth : bool
         Apply the 3x3 non-zero average filter.
+    filter_size : int
+        Width of that filter; 3 (default) is the thesis' method. Larger odd sizes are an
+        extension: the per-event triplet flow scatters by about 30-70 % of the speed from
+        event to event, mostly independently between nearby pixels, so a wider average
+        lowers the dense error where the motion is smooth (it cannot remove the method's
+        speed bias; see ``benchmarks/results/triplet_event_errors.md``).
 
     Examples
     --------
@@ -420,6 +448,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     """
     if len(events) == 0:
         raise EmptyWindowError("no events to estimate the triplet flow of")
+    _filter_radius(filter_size)
     if windows is None:
         windows = [Window(0, events.t_start, events.t_end + 1, 0, len(events))]
     windows = list(windows)
@@ -434,7 +463,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         fsub = TripletFlow(flow.vx[win.start:win.stop], flow.vy[win.start:win.stop],
                            flow.valid[win.start:win.stop], flow.n_triplets[win.start:win.stop])
         acc, cnt = _voxel_sums(sub, fsub, win.t0, win.t1, n_bins)
-        flows[i], masks[i] = dense_from_sums(acc, cnt, smooth=smooth)
+        flows[i], masks[i] = dense_from_sums(acc, cnt, smooth=smooth, filter_size=filter_size)
     return TripletBatchResult(flows, masks, windows, flow, m.overflow)
 
 
