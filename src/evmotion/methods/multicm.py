@@ -44,6 +44,7 @@ from evmotion.methods import transport as tr
 __all__ = ["FlowResult", "MultiCMProblem", "estimate_flow", "estimate_flow_sequence"]
 
 TV_EPS = 1e-2  # 1/s; Charbonnier smoothing of |grad v| so TV is differentiable at 0
+RESTART_PX = 1.0  # px per window; see the restart in estimate_flow
 TIMESTAMP_OBJECTIVES = ("avg_timestamp", "avg_timestamp_norm")
 OBJECTIVE_NAMES = ("gradient_magnitude", "variance", *TIMESTAMP_OBJECTIVES)
 REFERENCES = {
@@ -379,9 +380,10 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         pixel). The tile flow is smooth at the scale of a tile (>= 16 px), so 4 px cells
         resolve it while cutting the cost ~64x (16x fewer cells, 4x fewer CFL sub-steps).
     restart : bool
-        At the first scale with more than one tile, also optimize from ``init`` (or zero
-        flow) besides the upsampled single-tile flow and keep the better optimum (default
-        True; needed for large non-translational displacements, e.g. zoom over 20 px).
+        At the first scale with more than one tile, if its optimum moved away from the
+        upsampled single-tile flow, also optimize from ``init`` (or zero flow) and keep
+        the better optimum (default True; needed for large displacements of flows that
+        are not translations, e.g. zoom over 20 px).
 
     Returns
     -------
@@ -454,12 +456,14 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                               p=events.p, duration_s=duration_s)
         g0 = prob.g0
         theta, val = _optimize(prob, params.ravel(), optimizer, max_iter)
-        if restart and len(all_params) == 1 and all_params[0].size == 2 and grid.nx > 1:
+        if (restart and len(all_params) == 1 and all_params[0].size == 2 and grid.nx > 1
+                and np.abs(theta - params.ravel()).max() > RESTART_PX):
             # The single tile fits one translation to the whole image; where the flow is
             # not a translation (zoom, rotation about the image centre, a moving object)
             # it locks onto the region with the most contrast, a start the finer scales
             # cannot leave once the displacement over the window exceeds the focus
-            # basin (a few px). So the first multi-tile scale also starts from the
+            # basin (a few px). So when the first multi-tile scale moves away from that
+            # translation (by more than RESTART_PX somewhere), it also starts from the
             # warm start (or zero flow) and keeps the better optimum.
             th2, val2 = _optimize(prob, _init_params(init, grid, duration_s, shape).ravel(),
                                   optimizer, max_iter)
