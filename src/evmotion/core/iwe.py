@@ -73,6 +73,15 @@ def _fwd_bilinear(xw, yw, w, out):
         if not inside:
             continue
         a = w[k] if use_w else 1.0
+        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+            # interior cell (the usual case): no per-vote bounds tests
+            ay = a * fy
+            a1y = a - ay
+            out[iy, ix] += a1y * (1.0 - fx)
+            out[iy, ix + 1] += a1y * fx
+            out[iy + 1, ix] += ay * (1.0 - fx)
+            out[iy + 1, ix + 1] += ay * fx
+            continue
         if iy >= 0:
             if ix >= 0:
                 out[iy, ix] += a * (1.0 - fx) * (1.0 - fy)
@@ -324,21 +333,34 @@ def _bwd_bilinear_reduce(xw, yw, w, g, shift, scale, jx, jy, out):
     h, wd = g.shape
     use_w = w.shape[0] > 0
     p = out.shape[0]
-    for j in range(p):
-        out[j] = 0.0
+    # a fresh accumulator: out might alias jx for all the compiler knows
+    acc = np.zeros(p)
     for k in range(xw.shape[0]):
         inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
         if not inside:
             continue
-        g00 = g[iy, ix] - shift if (iy >= 0 and ix >= 0) else 0.0
-        g01 = g[iy, ix + 1] - shift if (iy >= 0 and ix + 1 < wd) else 0.0
-        g10 = g[iy + 1, ix] - shift if (iy + 1 < h and ix >= 0) else 0.0
-        g11 = g[iy + 1, ix + 1] - shift if (iy + 1 < h and ix + 1 < wd) else 0.0
+        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+            # interior cell (the usual case): the shift cancels in the differences
+            d0 = g[iy, ix + 1] - g[iy, ix]
+            d1 = g[iy + 1, ix + 1] - g[iy + 1, ix]
+            e0 = g[iy + 1, ix] - g[iy, ix]
+            e1 = g[iy + 1, ix + 1] - g[iy, ix + 1]
+        else:
+            g00 = g[iy, ix] - shift if (iy >= 0 and ix >= 0) else 0.0
+            g01 = g[iy, ix + 1] - shift if (iy >= 0 and ix + 1 < wd) else 0.0
+            g10 = g[iy + 1, ix] - shift if (iy + 1 < h and ix >= 0) else 0.0
+            g11 = g[iy + 1, ix + 1] - shift if (iy + 1 < h and ix + 1 < wd) else 0.0
+            d0 = g01 - g00
+            d1 = g11 - g10
+            e0 = g10 - g00
+            e1 = g11 - g01
         a = (w[k] if use_w else 1.0) * scale
-        gx = a * ((g01 - g00) * (1.0 - fy) + (g11 - g10) * fy)
-        gy = a * ((g10 - g00) * (1.0 - fx) + (g11 - g01) * fx)
+        gx = a * (d0 * (1.0 - fy) + d1 * fy)
+        gy = a * (e0 * (1.0 - fx) + e1 * fx)
         for j in range(p):
-            out[j] += gx * jx[k, j] + gy * jy[k, j]
+            acc[j] += gx * jx[k, j] + gy * jy[k, j]
+    for j in range(p):
+        out[j] = acc[j]
 
 
 def accumulate_backward_reduce(xw: np.ndarray, yw: np.ndarray, grad_iwe: np.ndarray,

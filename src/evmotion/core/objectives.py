@@ -162,7 +162,7 @@ def _avg_ts(np_, nn, sp, sn, normalize, gnp, gnn, gsp, gsn):
     return -scale * total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "nsz"})
 def _mean_var(img):
     h, w = img.shape
     s = 0.0

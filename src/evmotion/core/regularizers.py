@@ -109,6 +109,17 @@ def _fused_forward(xw, yw, d, cnt, num):
         w01 = fx * (1.0 - fy)
         w10 = (1.0 - fx) * fy
         w11 = fx * fy
+        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+            # interior cell (the usual case): no per-vote bounds tests
+            cnt[iy, ix] += w00
+            num[iy, ix] += a * w00
+            cnt[iy, ix + 1] += w01
+            num[iy, ix + 1] += a * w01
+            cnt[iy + 1, ix] += w10
+            num[iy + 1, ix] += a * w10
+            cnt[iy + 1, ix + 1] += w11
+            num[iy + 1, ix + 1] += a * w11
+            continue
         if iy >= 0:
             if ix >= 0:
                 cnt[iy, ix] += w00
@@ -134,8 +145,8 @@ def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
     h, wd = gS.shape
     P = out.shape[0]
     use_dd = dd.shape[0] > 0
-    for j in range(P):
-        out[j] = 0.0
+    # a fresh accumulator: out might alias jx for all the compiler knows
+    acc = np.zeros(P)
     for k in range(xw.shape[0]):
         inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
         if not inside:
@@ -144,18 +155,26 @@ def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
         a = d[k]
         s00 = s01 = s10 = s11 = 0.0
         n00 = n01 = n10 = n11 = 0.0
-        if iy >= 0:
-            if ix >= 0:
+        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+            s00 = gS[iy, ix]
+            n00 = gN[iy, ix]
+            s01 = gS[iy, ix + 1]
+            n01 = gN[iy, ix + 1]
+            s10 = gS[iy + 1, ix]
+            n10 = gN[iy + 1, ix]
+            s11 = gS[iy + 1, ix + 1]
+            n11 = gN[iy + 1, ix + 1]
+        else:
+            if iy >= 0 and ix >= 0:
                 s00 = gS[iy, ix]
                 n00 = gN[iy, ix]
-            if ix + 1 < wd:
+            if iy >= 0 and ix + 1 < wd:
                 s01 = gS[iy, ix + 1]
                 n01 = gN[iy, ix + 1]
-        if iy + 1 < h:
-            if ix >= 0:
+            if iy + 1 < h and ix >= 0:
                 s10 = gS[iy + 1, ix]
                 n10 = gN[iy + 1, ix]
-            if ix + 1 < wd:
+            if iy + 1 < h and ix + 1 < wd:
                 s11 = gS[iy + 1, ix + 1]
                 n11 = gN[iy + 1, ix + 1]
         g00 = a * s00 + n00
@@ -169,10 +188,12 @@ def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
         gd[k] = c
         if use_dd:
             for j in range(P):
-                out[j] += gx * jx[k, j] + gy * jy[k, j] + c * dd[k, j]
+                acc[j] += gx * jx[k, j] + gy * jy[k, j] + c * dd[k, j]
         else:
             for j in range(P):
-                out[j] += gx * jx[k, j] + gy * jy[k, j]
+                acc[j] += gx * jx[k, j] + gy * jy[k, j]
+    for j in range(P):
+        out[j] = acc[j]
 
 
 @njit(cache=True, error_model="numpy")
