@@ -42,14 +42,16 @@ from numba import njit
 
 from evmotion.core.iwe import _cell, _shape
 from evmotion.core.warps import (
+    _BLOCK,
     _EMPTY1,
     _EMPTY2,
+    _FAST_FINITE,
     Warp,
     _k_rot_divdet,
     _max_abs,
     _rod_coeffs,
     _rod_coeffs_exact,
-    _sincos,
+    _sincos_block,
 )
 from evmotion.errors import EmptyWindowError, ParameterError
 
@@ -177,6 +179,10 @@ def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
             if iy + 1 < h and ix + 1 < wd:
                 s11 = gS[iy + 1, ix + 1]
                 n11 = gN[iy + 1, ix + 1]
+        if s00 == 0.0 and s01 == 0.0 and s10 == 0.0 and s11 == 0.0:
+            # no trimmed pixel among the votes (gN is 0 wherever gS is): often most events
+            gd[k] = 0.0
+            continue
         g00 = a * s00 + n00
         g01 = a * s01 + n01
         g10 = a * s10 + n10
@@ -261,7 +267,7 @@ def _rot_values_finish(is_div, T, d, fac):
         d[k] = d[k] * T if is_div else abs(d[k]) - 1.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_fast_values(code, is_div, dt, th, T, d, g):
     """Closed forms of the warps whose divergence and det J depend on dt only: zoom (3.7),
     translation, SE(2) (A.13)/(A.14), similarity (A.40)/(A.42), in-plane (A.25)/(A.27).
@@ -288,24 +294,35 @@ def _k_fast_values(code, is_div, dt, th, T, d, g):
         w = th[2]
         s = th[3] if P == 4 else 0.0
         small = _max_abs(dt) * abs(w) < 1.0
-        for k in range(n):
-            t = dt[k]
-            ib = 1.0 / (1.0 + t * s)
-            if is_div:
-                if small:
-                    sn, c = _sincos(t * w)
-                else:
-                    c = math.cos(t * w)
-                    sn = math.sin(t * w)
-                d[k] = T * (-2.0 * s * ib * ib * c - 2.0 * w * ib * sn)
-                g[k, 2] = T * (2.0 * s * ib * ib * t * sn - 2.0 * ib * sn - 2.0 * w * ib * t * c)
-                if P == 4:
-                    g[k, 3] = T * (-2.0 * c * ib * ib + 4.0 * s * t * c * ib ** 3
-                                   + 2.0 * w * t * sn * ib * ib)
+        sbuf = np.empty(_BLOCK)
+        cbuf = np.empty(_BLOCK)
+        for k0 in range(0, n, _BLOCK):
+            k1 = min(k0 + _BLOCK, n)
+            if not is_div:
+                for k in range(k0, k1):
+                    t = dt[k]
+                    ib = 1.0 / (1.0 + t * s)
+                    d[k] = ib * ib - 1.0
+                    if P == 4:
+                        g[k, 3] = -2.0 * t * ib * ib * ib
+                continue
+            if small:
+                _sincos_block(dt, k0, k1, w, sbuf, cbuf)  # of -dt w
             else:
-                d[k] = ib * ib - 1.0
+                for k in range(k0, k1):
+                    sbuf[k - k0] = math.sin(-dt[k] * w)
+                    cbuf[k - k0] = math.cos(-dt[k] * w)
+            for k in range(k0, k1):
+                t = dt[k]
+                ib = 1.0 / (1.0 + t * s)
+                sn = -sbuf[k - k0]
+                c = cbuf[k - k0]
+                ib2 = ib * ib
+                d[k] = T * (-2.0 * s * ib2 * c - 2.0 * w * ib * sn)
+                g[k, 2] = T * (2.0 * s * ib2 * t * sn - 2.0 * ib * sn - 2.0 * w * ib * t * c)
                 if P == 4:
-                    g[k, 3] = -2.0 * t * ib ** 3
+                    g[k, 3] = T * (-2.0 * c * ib2 + 4.0 * s * t * c * ib2 * ib
+                                   + 2.0 * w * t * sn * ib2)
     else:  # in-plane
         phi = th[2]
         kk = th[3] + 1.0
