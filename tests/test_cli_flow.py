@@ -112,3 +112,24 @@ def test_eval_npy_needs_interval_and_checks_shape(recording, tmp_path, capsys):
     np.save(f, np.zeros((10, 10, 2), np.float32))
     assert main(["eval", str(f), "--gt", str(gt), "--t0-us", "0", "--t1-us", "20000"]) == 2
     assert "ground truth" in capsys.readouterr().err
+
+
+def test_gt_displacement_chains_frames_along_trajectories():
+    # u = a x, constant in time, 4 GT frames of 20 ms: a point at x0 moves to
+    # x0 exp(4 a T); summing the frames at the fixed pixel would give x0 (1 + 4 a T)
+    from evmotion.cli.eval import gt_displacement
+    from evmotion.io.flowfiles import FlowSequence
+
+    h, w, a, T = 8, 200, 5.0, 20_000
+    flow = np.zeros((4, h, w, 2), np.float32)
+    flow[..., 0] = a * np.arange(w)
+    t0 = np.arange(4) * T
+    gt = FlowSequence(flow=flow, t0=t0, t1=t0 + T)
+    disp, valid, frames = gt_displacement(gt, 0, 4 * T)
+    assert frames == pytest.approx(4.0)
+    x0 = 20.0
+    exact = x0 * np.exp(4 * a * T * 1e-6) - x0          # 9.84 px
+    euler_chain = x0 * (1 + a * T * 1e-6) ** 4 - x0     # the discrete chain: 9.28 px (fixed pixel: 8.0)
+    assert disp[4, 20, 0] == pytest.approx(euler_chain, rel=1e-6)
+    assert abs(disp[4, 20, 0] - exact) < abs(x0 * 4 * a * T * 1e-6 - exact)
+    assert valid[4, 20] and not valid[4, 150]  # x = 150 leaves the 200 px image
