@@ -33,8 +33,12 @@ def _bilinear_wrap(img, k, xr, yr):
     # x0 + 1 is valid; indexing the 3-D array directly avoids building a view per sample
     h = img.shape[1] - 1
     w = img.shape[2] - 1
-    xr -= w * math.floor(xr * (1.0 / w))
-    yr -= h * math.floor(yr * (1.0 / h))
+    # inside the raster (with a cell of slack, where floor(xr / w) is surely 0) the wrap is
+    # the identity: skip its arithmetic in the common case
+    if not 0.0 <= xr < w - 1:
+        xr -= w * math.floor(xr * (1.0 / w))
+    if not 0.0 <= yr < h - 1:
+        yr -= h * math.floor(yr * (1.0 / h))
     x0 = int(xr)
     y0 = int(yr)
     if x0 >= w:
@@ -250,6 +254,13 @@ def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_
     m3, m4, m5 = m_end[0, 3], m_end[0, 4], m_end[0, 5]
     m6, m7, m8 = m_end[0, 6], m_end[0, 7], m_end[0, 8]
     ox, oy = origins[0, 0], origins[0, 1]
+    tex0 = texs[0]
+    th = texs.shape[1] - 1
+    tw = texs.shape[2] - 1
+    row_x0 = np.empty(TILE, np.int64)
+    row_y0 = np.empty(TILE, np.int64)
+    row_ax = np.empty(TILE, np.float64)
+    row_ay = np.empty(TILE, np.float64)
     for ty0 in range(0, h, TILE):
         ty1 = min(ty0 + TILE, h) - 1
         for tx0 in range(0, w, TILE):
@@ -261,10 +272,33 @@ def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_
                         lb[y, x] = la[y, x]
                 continue
             for y in range(ty0, ty1 + 1):
+                m1y = m1 * y
+                m4y = m4 * y
+                m7y = m7 * y
+                # the bottom layer's raster coordinates of a tile row first, in a
+                # branch-free loop the compiler vectorizes (same arithmetic as
+                # _bilinear_wrap), then the texture reads
+                for i in range(tx1 - tx0 + 1):
+                    x = tx0 + i
+                    den = m6 * x + m7y + m8
+                    xr = (m0 * x + m1y + m2) / den - ox
+                    yr = (m3 * x + m4y + m5) / den - oy
+                    xr -= tw * math.floor(xr * (1.0 / tw))
+                    yr -= th * math.floor(yr * (1.0 / th))
+                    x0 = min(int(xr), tw - 1)
+                    y0 = min(int(yr), th - 1)
+                    row_x0[i] = x0
+                    row_y0[i] = y0
+                    row_ax[i] = xr - x0
+                    row_ay[i] = yr - y0
                 for x in range(tx0, tx1 + 1):
-                    den = m6 * x + m7 * y + m8
-                    v1 = _bilinear_wrap(texs, 0, (m0 * x + m1 * y + m2) / den - ox,
-                                        (m3 * x + m4 * y + m5) / den - oy)
+                    i = x - tx0
+                    x0 = row_x0[i]
+                    y0 = row_y0[i]
+                    ax = row_ax[i]
+                    ay = row_ay[i]
+                    v1 = ((1 - ay) * ((1 - ax) * tex0[y0, x0] + ax * tex0[y0, x0 + 1])
+                          + ay * ((1 - ax) * tex0[y0 + 1, x0] + ax * tex0[y0 + 1, x0 + 1]))
                     for k in range(1, n_layers):
                         if (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
                                 or y > boxes[k, 3]):
