@@ -32,6 +32,7 @@ __all__ = ["SimResult", "simulate"]
 
 MAX_STEP_US = 2000  # sample at least every 2 ms so slow scenes stay well resolved
 STEP_SHIFT_PX = 1.0  # global steps move no texture point by more than ~1 px
+STEP_GROW = 0.95  # aim steps at this fraction of the bound (a step beyond it is redone)
 PREFETCH_STEPS = 8  # steps of equal length whose matrices are computed together
 
 
@@ -353,6 +354,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
     ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
     et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
     chunks = []
+    packed = (duration_us + 1) * 2 * h * w < 2 ** 62  # the sort key fits in an int64
     t, dt, n_samples, n_sub = 0, 200, 0, 0
     bar = progress(None, total=duration_us, desc=f"simulate {scene}", unit="us",
                    disable=None if show_progress else True)
@@ -361,7 +363,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         Mseq = mats(t, tb)
         d = shift(Mseq[0], Mseq[-1])
         if d > STEP_SHIFT_PX and tb - t > 1:
-            dt = max(1, int((tb - t) * 0.9 * STEP_SHIFT_PX / d))
+            dt = max(1, int((tb - t) * STEP_GROW * STEP_SHIFT_PX / d))
             continue
         update_boxes(Mseq[0], Mseq[-1])
         np.copyto(ref_bak, ref)
@@ -382,20 +384,37 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
             ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
             et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
         if n:
-            # time, then pixel index: an order that does not depend on the traversal
+            # time, then pixel index, then polarity: an order that does not depend on the
+            # traversal; packed into one int64 key, sorted, and unpacked at the end
             key = et[:n] * (h * w) + ey[:n].astype(np.int64) * w + ex[:n]
-            order = np.argsort(key, kind="stable")
-            chunks.append((ex[order], ey[order], et[order], ep[order]))
+            if packed:
+                key = key * 2 + ep[:n]
+                key.sort()
+                chunks.append(key)
+            else:
+                order = np.argsort(key, kind="stable")
+                chunks.append((ex[order], ey[order], et[order], ep[order]))
         n_samples += 1
         n_sub += ns
         bar.update(tb - t)
-        grow = 0.9 * STEP_SHIFT_PX / d if d > 0 else 2.0
-        dt = int(min(max(1, (tb - t) * min(grow, 2.0)), MAX_STEP_US))
+        grow = STEP_GROW * STEP_SHIFT_PX / d if d > 0 else 2.0
+        new_dt = int(min(max(1, (tb - t) * min(grow, 2.0)), MAX_STEP_US))
+        # a length that just passed the bound is kept unless the new one differs notably:
+        # equal-length steps reuse the prefetched matrices (each step is still checked)
+        if tb - t != dt or abs(new_dt - dt) > 0.05 * dt:
+            dt = new_dt
         t = tb
         la, lb = lb, la
     bar.close()
 
-    if chunks:
+    if chunks and packed:
+        key = np.concatenate(chunks)
+        pp = (key & 1).astype(np.uint8)
+        key >>= 1
+        tt, pix = np.divmod(key, h * w)
+        yy, xx = np.divmod(pix, w)
+        x, y = xx.astype(np.uint16), yy.astype(np.uint16)
+    elif chunks:
         x, y, tt, pp = (np.concatenate(c) for c in zip(*chunks, strict=True))
     else:
         x = y = np.zeros(0, np.uint16)
