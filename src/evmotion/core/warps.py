@@ -516,34 +516,30 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
                                               i21, i22)
             xw[k] = k00 * X + k01 * Y + k02
             yw[k] = k10 * X + k11 * Y + k12
-            # d(R v)/d(omega) = -t [R v]^ J_l(t omega),
-            # J_l = Id + b t omega^ + c t^2 (omega omega^T - |omega|^2 Id)
+            # d(X, Y)/d omega = -t L J_l(t omega) with L the rotational interaction matrix
+            # at the warped point, rows L0 = (XY, -(1 + X^2), Y), L1 = (1 + Y^2, -XY, -X),
+            # and J_l = g Id + b t omega^ + c t^2 omega omega^T, g = 1 - c t^2 |omega|^2:
+            # row u of L J_l is g u + b t (u x omega) + c t^2 (u . omega) omega
             bt1 = bbuf[k - k0] * t
             ct2 = cbuf[k - k0] * t * t
-            dg = 1.0 - ct2 * ww
-            cx_ = ct2 * wx
-            cy_ = ct2 * wy
-            cz_ = ct2 * wz
-            jx[k, 0], jy[k, 0] = _rot_jac_col(cx_ * wx + dg, cy_ * wx + bt1 * wz,
-                                              cz_ * wx - bt1 * wy, t, q0, q1, q2, X, Y, iz,
-                                              k00, k01, k10, k11)
-            jx[k, 1], jy[k, 1] = _rot_jac_col(cx_ * wy - bt1 * wz, cy_ * wy + dg,
-                                              cz_ * wy + bt1 * wx, t, q0, q1, q2, X, Y, iz,
-                                              k00, k01, k10, k11)
-            jx[k, 2], jy[k, 2] = _rot_jac_col(cx_ * wz + bt1 * wy, cy_ * wz - bt1 * wx,
-                                              cz_ * wz + dg, t, q0, q1, q2, X, Y, iz,
-                                              k00, k01, k10, k11)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _rot_jac_col(l0, l1, l2, t, q0, q1, q2, X, Y, iz, k00, k01, k10, k11):
-    """Pixel Jacobian column ``d(x', y')/d omega_j`` given ``l = J_l e_j``."""
-    d0 = -t * (q1 * l2 - q2 * l1)
-    d1 = -t * (q2 * l0 - q0 * l2)
-    d2 = -t * (q0 * l1 - q1 * l0)
-    dX = (d0 - X * d2) * iz
-    dY = (d1 - Y * d2) * iz
-    return k00 * dX + k01 * dY, k10 * dX + k11 * dY
+            g = 1.0 - ct2 * ww
+            xy = X * Y
+            u0, u1, u2 = xy, -1.0 - X * X, Y
+            v0, v1, v2 = 1.0 + Y * Y, -xy, -X
+            su = ct2 * (u0 * wx + u1 * wy + u2 * wz)
+            sv = ct2 * (v0 * wx + v1 * wy + v2 * wz)
+            dx0 = -t * (g * u0 + bt1 * (u1 * wz - u2 * wy) + su * wx)
+            dx1 = -t * (g * u1 + bt1 * (u2 * wx - u0 * wz) + su * wy)
+            dx2 = -t * (g * u2 + bt1 * (u0 * wy - u1 * wx) + su * wz)
+            dy0 = -t * (g * v0 + bt1 * (v1 * wz - v2 * wy) + sv * wx)
+            dy1 = -t * (g * v1 + bt1 * (v2 * wx - v0 * wz) + sv * wy)
+            dy2 = -t * (g * v2 + bt1 * (v0 * wy - v1 * wx) + sv * wz)
+            jx[k, 0] = k00 * dx0 + k01 * dy0
+            jx[k, 1] = k00 * dx1 + k01 * dy1
+            jx[k, 2] = k00 * dx2 + k01 * dy2
+            jy[k, 0] = k10 * dx0 + k11 * dy0
+            jy[k, 1] = k10 * dx1 + k11 * dy1
+            jy[k, 2] = k10 * dx2 + k11 * dy2
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
