@@ -19,7 +19,10 @@ from evmotion.core.warps import make_warp
 from evmotion.events import EventArray
 from evmotion.methods.egomotion import CMaxCost, estimate_egomotion
 
-WARP_THETA = {"zoom": [1.5], "rotation": [0.4, -0.6, 0.3], "similarity": [80.0, -40.0, 0.5, 1.0]}
+WARP_THETA = {"zoom": [1.5], "translation": [80.0, -40.0], "rotation": [0.4, -0.6, 0.3],
+              "se2": [80.0, -40.0, 0.5], "inplane": [80.0, -40.0, 0.05, 1.0],
+              "similarity": [80.0, -40.0, 0.5, 1.0]}
+REGS = (None, "divergence", "deformation", "rcad", "whitening")
 
 
 def _events(n: int, shape, seed: int = 0):
@@ -45,12 +48,12 @@ def main(quick: bool = False) -> list[dict]:
             warp = make_warp(wname, shape, K=K)
             for obj in ("variance", "gradient_magnitude"):
                 base = None
-                for reg in (None, "divergence", "deformation", "rcad", "whitening"):
-                    if quick and reg in ("divergence", "deformation") and wname == "rotation":
-                        continue
+                for reg in REGS:
                     cost = CMaxCost(warp, x, y, dt, shape, obj, reg, weight=1.0, polarity=p)
                     th = np.asarray(theta, dtype=float)
-                    r = harness.timeit(lambda c=cost, th=th: c.value_grad(th), repeat=repeat)
+                    # whitening (an eigen-decomposition and (N, P) products in numpy) is slow
+                    rep = max(3, repeat // 4) if reg == "whitening" else repeat
+                    r = harness.timeit(lambda c=cost, th=th: c.value_grad(th), repeat=rep)
                     ms = r["median_s"] * 1e3
                     base = ms if reg is None else base
                     rows.append({"case": "eval", "events": n, "size": f"{shape[1]}x{shape[0]}",
@@ -71,7 +74,29 @@ def main(quick: bool = False) -> list[dict]:
                      "ms_total": r["median_s"] * 1e3, "n_evals": res.timings["n_evals"]})
     harness.record("cmax", rows, notes="single core (harness.single_core); medians; "
                    "ratio_vs_none = ms / ms of the unregularized run of the same row group")
+    _table34(rows)
     return rows
+
+
+def _table34(rows: list[dict]) -> None:
+    """The eval rows pivoted like thesis Table 3.4: one line per (events, warp, objective),
+    ms per cost+gradient evaluation for each regularizer and its ratio to the
+    unregularized evaluation."""
+    ev = [r for r in rows if r["case"] == "eval"]
+    keys = list(dict.fromkeys((r["events"], r["size"], r["warp"], r["objective"]) for r in ev))
+    names = [reg or "none" for reg in REGS]
+    head = ["events", "size", "warp", "objective"] + [f"{n} ms (x)" for n in names]
+    lines = ["# cmax: Table 3.4 layout", "",
+             "ms per evaluation of J = -G + lambda R and its gradient (one core, medians), "
+             "with the ratio to the unregularized evaluation in brackets; from cmax.json.", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for k in keys:
+        cells = {r["regularizer"]: r for r in ev
+                 if (r["events"], r["size"], r["warp"], r["objective"]) == k}
+        vals = [f"{cells[n]['ms_per_eval']:.3g} ({cells[n]['ratio_vs_none']:.2f})"
+                if n in cells else "" for n in names]
+        lines.append("| " + " | ".join([str(v) for v in k] + vals) + " |")
+    (harness.RESULTS / "cmax_table34.md").write_text("\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

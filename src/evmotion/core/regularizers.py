@@ -449,21 +449,10 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
 # ---------------------------------------------------------------------------------------
 # RCAD
 
-@njit(cache=True)
-def _minmax(a):
-    lo = hi = a[0]
-    for k in range(1, a.shape[0]):
-        v = a[k]
-        lo = min(lo, v)
-        hi = max(hi, v)
-    return lo, hi
-
-
 def _time_span(dt):
     if dt.shape[0] == 0:
         return 0.0, 0.0
-    lo, hi = _minmax(np.ascontiguousarray(dt, dtype=np.float64))
-    return float(lo), float(hi)
+    return float(np.min(dt)), float(np.max(dt))
 
 
 def _rcad_scalar(warp: Warp, th, t0, t1):

@@ -32,9 +32,11 @@ Conventions (the same for every warp):
     integral is exact: ``log|det dx(t1)/dx_ref| - log|det dx(t0)/dx_ref|``.
 
 Parameter derivatives: the hot path (:meth:`Warp.warp` / :meth:`Warp.warp_into` with the
-Jacobian ``d x'/d theta``) is a hand-derived numba kernel per warp. Derivatives of the
-divergence, determinant and area ratio with respect to ``theta`` are computed exactly by
-complex-step differentiation of the same closed forms (no step-size error).
+Jacobian ``d x'/d theta``) is a hand-derived numba kernel per warp. The rotation's
+divergence and determinant have hand-derived omega-derivatives too (numba); the other
+derivatives of the divergence, determinant and area ratio with respect to ``theta`` are
+computed exactly by complex-step differentiation of the same closed forms (no step-size
+error), and the regularizers use closed forms where the thesis gives them.
 
 Sign conventions of the parameters (camera frame x right, y down, z forward):
 
