@@ -275,16 +275,17 @@ def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_
                 m1y = m1 * y
                 m4y = m4 * y
                 m7y = m7 * y
-                # the bottom layer's raster coordinates of a tile row first, in a
-                # branch-free loop the compiler vectorizes (same arithmetic as
-                # _bilinear_wrap), then the texture reads
+                # the bottom layer's raster coordinates of a tile row first (same
+                # arithmetic as _bilinear_wrap), then the texture reads
                 for i in range(tx1 - tx0 + 1):
                     x = tx0 + i
                     den = m6 * x + m7y + m8
                     xr = (m0 * x + m1y + m2) / den - ox
                     yr = (m3 * x + m4y + m5) / den - oy
-                    xr -= tw * math.floor(xr * (1.0 / tw))
-                    yr -= th * math.floor(yr * (1.0 / th))
+                    if not 0.0 <= xr < tw - 1:
+                        xr -= tw * math.floor(xr * (1.0 / tw))
+                    if not 0.0 <= yr < th - 1:
+                        yr -= th * math.floor(yr * (1.0 / th))
                     x0 = min(int(xr), tw - 1)
                     y0 = min(int(yr), th - 1)
                     row_x0[i] = x0
