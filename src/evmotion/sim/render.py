@@ -238,7 +238,7 @@ def textured_cells_sat(log_i: np.ndarray) -> np.ndarray:
     return sat
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_a, t_b, refr,
           target, ex, ey, et, ep):
     h, w = la.shape
