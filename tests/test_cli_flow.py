@@ -64,6 +64,10 @@ def test_flow_h5_then_eval(recording, tmp_path, capsys):
     assert res["mean"]["AEE"] < 0.3
     assert res["mean"]["FWL"] > 1.2
     assert res["windows_with_other_dt"] == 0
+    rc, text = _run(["eval", str(out), "--gt", str(gt), "--along-streamlines", "--json"],
+                    capsys)
+    assert rc == 0
+    assert json.loads(text)["mean"]["AEE"] < 0.3  # a translation: the same displacement
 
 
 def test_flo_one_file_per_window(recording, tmp_path, capsys):

@@ -40,6 +40,11 @@ def add_parser(sub) -> None:
     p.add_argument("--t0-us", type=int, default=None, help="window start for .npy/.flo")
     p.add_argument("--t1-us", type=int, default=None, help="window end for .npy/.flo")
     p.add_argument("--out-px", type=float, default=3.0, help="%%Out threshold in px (3)")
+    p.add_argument("--along-streamlines", action="store_true",
+                   help="compare the displacement of the point at each pixel at the window "
+                        "start: the window's flow (taken at its midpoint) transported to the "
+                        "start along its streamlines (eq. 4.7, Burgers) times the duration; "
+                        "default: flow times duration")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -140,6 +145,11 @@ def run(args) -> int:
         if abs(frames - args.dt) > 0.5:
             mismatched += 1
         est = flow[i].astype(np.float64) * (t1 - t0) * 1e-6
+        if args.along_streamlines:
+            from evmotion.methods.transport import transport_to_times
+
+            est = transport_to_times(np.ascontiguousarray(est.transpose(2, 0, 1)),
+                                     np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
         mask = valid
         win = None
         if events is not None:
