@@ -105,3 +105,17 @@ def test_rcad_penalizes_contraction_only():
     pen = [cost.parts(np.array([hT / T]))["penalty"] for hT in (0.1, 0.5, 0.9, 0.99)]
     np.testing.assert_allclose(pen, [-2 * np.log(1 - hT) for hT in (0.1, 0.5, 0.9, 0.99)],
                                rtol=1e-6)
+
+
+def test_inplane_4dof_collapse_is_the_optimum_only_without_regularizer(zoom_events):
+    # the 4-DOF warp of the thesis' tables: its collapse (h_z -> 1/T) beats the true motion
+    # without a regularizer and loses to it with each penalty (thesis DSEC weights)
+    ev, hz = zoom_events
+    t_ref = int(ev.t[0])
+    span = (int(ev.t[-1]) - t_ref) * 1e-6
+    truth, collapse = np.array([0.0, 0.0, 0.0, hz]), np.array([0.0, 0.0, 0.0, 0.99 / span])
+    plain, _ = make_cost(ev, "inplane", t_ref=t_ref)
+    assert plain.value(collapse) < plain.value(truth)
+    for reg in ("divergence", "deformation", "rcad"):
+        cost, _ = make_cost(ev, "inplane", regularizer=reg, t_ref=t_ref, dataset="dsec")
+        assert cost.value(truth) < cost.value(collapse), reg

@@ -13,14 +13,18 @@ weights ``lambda`` of Sec. 3.6.1 transferable between windows and sensors:
 * ``G`` is divided by its value at the identity warp, so the data term is dimensionless and
   independent of the event count and image size (for the variance objective ``G/G(0)`` is
   the FWL, the thesis' own sharpness measure). The thesis does not state the scale of ``G``
-  behind its weights; with this choice its Sec. 3.6.1 weights (``DEFAULT_WEIGHTS``) cure
-  collapse on simulated forward motion (``benchmarks/results/collapse.md``);
+  behind its weights. With this choice its Sec. 3.6.1 weights (``DEFAULT_WEIGHTS``, chosen
+  by ``dataset``) apply as they are: on simulated forward motion
+  (``benchmarks/results/collapse.md``) the DSEC set cures the collapse of the zoom and the
+  4-DOF in-plane warp with every regularizer, the MVSEC set with divergence and
+  deformation, while its RCAD weight (0.2) is too weak for the 4-DOF warp there;
 * the penalties are used as :mod:`evmotion.core.regularizers` returns them: the divergence
   is measured per window (1/s times the window duration, the normalized time of (3.7)), so
   the thesis' margins and weights apply unchanged and the penalty does not depend on the
   time unit;
 * the RCAD penalty enters one-sided, ``max(R, 0)``: (3.21) is negative for expanding warps
   and would otherwise reward them (the RCAD map variant is thresholded for the same reason).
+  The thesis' intent is a barrier against contraction (collapse); expansion is not collapse.
 
 The gradient is exact: chain rule through the warp Jacobian (numba), the IWE adjoint and the
 objective (:class:`CMaxCost`). ``regularizer="whitening"`` instead whitens the warped events
