@@ -32,7 +32,7 @@ __all__ = ["SimResult", "simulate"]
 
 MAX_STEP_US = 5000  # sample at least every 5 ms (the 1 px bound usually binds first)
 STEP_SHIFT_PX = 1.0  # global steps move no texture point by more than ~1 px
-STEP_GROW = 0.95  # aim steps at this fraction of the bound (a step beyond it is redone)
+STEP_GROW = 0.98  # aim steps at this fraction of the bound (a step beyond it is redone)
 PREFETCH_STEPS = 8  # steps of equal length whose matrices are computed together
 
 
