@@ -331,3 +331,25 @@ def test_event_buffer_overflow_redoes_the_step(monkeypatch):
     assert any(calls)  # the buffer did overflow
     for f in ("x", "y", "t", "p"):
         np.testing.assert_array_equal(getattr(a.events, f), getattr(b.events, f))
+
+
+def test_object_layer_box_is_tight(monkeypatch):
+    """The kernel skips the object layer outside a box around its opaque disc: the box
+    must hug the disc (a loose box only costs time, so this guards the speed)."""
+    import evmotion.sim.simulator as simulator
+
+    boxes = []
+    real = simulator.sim_step
+
+    def spy(*args, **kwargs):
+        boxes.append(np.array(args[18], copy=True))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(simulator, "sim_step", spy)
+    res = simulate("object", duration_s=0.005, sensor_size=(60, 80), seed=0,
+                   show_progress=False)
+    r = res.params["radius"]
+    for b in boxes:
+        x0, y0, x1, y1 = b[1]
+        assert x1 - x0 < 2 * r + 10 and y1 - y0 < 2 * r + 10
+        assert x0 <= res.params["fg_x"] - r and x1 >= res.params["fg_x"] + r
