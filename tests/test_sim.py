@@ -353,3 +353,16 @@ def test_object_layer_box_is_tight(monkeypatch):
         x0, y0, x1, y1 = b[1]
         assert x1 - x0 < 2 * r + 10 and y1 - y0 < 2 * r + 10
         assert x0 <= res.params["fg_x"] - r and x1 >= res.params["fg_x"] + r
+
+
+def test_periodic_copy_of_the_object_matches_numpy_reference():
+    """Textures are periodic: on a small sensor the object's next copy slides in within
+    0.4 s. The kernel's skip box must follow the copy the sensor sees (the numpy
+    reference renders every pixel of every layer)."""
+    kw = dict(duration_s=0.4, sensor_size=(20, 28), seed=3, texture="noise",
+              show_progress=False)
+    a = simulate("object", **kw)
+    b = simulate("object", backend="numpy", **kw)
+    assert len(a.events) > 1000
+    for f in ("x", "y", "t", "p"):
+        np.testing.assert_array_equal(getattr(a.events, f), getattr(b.events, f))

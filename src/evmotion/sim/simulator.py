@@ -320,13 +320,34 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
     boxes = full_boxes(len(texs), sensor_size)
     sat = textured_cells_sat(texs[0].log_i)
 
+    sensor_corners = np.array([[0.0, w - 1, w - 1, 0], [0, 0, h - 1, h - 1], [1, 1, 1, 1]])
+
     def update_boxes(m0, m1):
         """Pixel boxes of the upper layers' opaque support over a step (the mapped corners
-        of its reference box at both ends, plus a margin for the motion in between)."""
+        of its reference box at both ends, plus a margin for the motion in between). The
+        rasters are periodic: the box is that of the one copy of the support the sensor
+        sees, or the whole sensor where it may see several."""
         for k in range(1, len(texs)):
+            boxes[k] = (0.0, 0.0, w - 1.0, h - 1.0)
             if corners[k] is None:
                 continue
-            pts = np.concatenate([np.linalg.solve(m.reshape(3, 3), corners[k])
+            foot = np.concatenate([m.reshape(3, 3) @ sensor_corners for m in (m0[k], m1[k])],
+                                  axis=1)
+            if np.any(foot[2] <= 0):
+                continue
+            fx, fy = foot[0] / foot[2], foot[1] / foot[2]
+            th, tw = texs[k].shape
+            c = corners[k]
+            # copies n: the support shifted by n raster periods meets the footprint
+            nx = np.arange(math.ceil((fx.min() - 4 - c[0, 1]) / tw),
+                           math.floor((fx.max() + 4 - c[0, 0]) / tw) + 1)
+            ny = np.arange(math.ceil((fy.min() - 4 - c[1, 2]) / th),
+                           math.floor((fy.max() + 4 - c[1, 0]) / th) + 1)
+            if nx.size > 1 or ny.size > 1:
+                continue
+            shifted = c + np.array([[tw * (nx[0] if nx.size else 0)],
+                                    [th * (ny[0] if ny.size else 0)], [0.0]])
+            pts = np.concatenate([np.linalg.solve(m.reshape(3, 3), shifted)
                                   for m in (m0[k], m1[k])], axis=1)
             px, py = pts[0] / pts[2], pts[1] / pts[2]
             boxes[k] = (px.min() - 2, py.min() - 2, px.max() + 2, py.max() + 2)
