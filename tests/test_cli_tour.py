@@ -20,6 +20,7 @@ def test_simulate_then_egomotion_uses_stored_intrinsics(tmp_path, capsys):
     est = np.array([first["params"][k] for k in ("wx", "wy", "wz")])
     # the rotation scene's default angular velocity (see evmotion.sim.scenes)
     np.testing.assert_allclose(est, [0.5, -0.7, 1.2], atol=0.1)
+    assert first["omega"] == list(est) and first["omega_units"] == "rad/s"
     assert (out / "params.csv").is_file() and any(out.glob("*.png"))
 
 

@@ -165,6 +165,10 @@ def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
                      "n_events": r.n_events, "params": d["params"], "units": d["units"],
                      "cost": r.cost, "focus": r.focus, "penalty": r.penalty,
                      "seconds": r.timings["total"]})
+        if r.warp == "rotation":
+            # the camera's angular velocity, camera frame x right, y down, z forward
+            rows[-1]["omega"] = [float(v) for v in r.params]
+            rows[-1]["omega_units"] = "rad/s"
     if not ok:
         return rows
     names = ok[0][1].param_names
