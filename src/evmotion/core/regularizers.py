@@ -179,10 +179,6 @@ def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
             if iy + 1 < h and ix + 1 < wd:
                 s11 = gS[iy + 1, ix + 1]
                 n11 = gN[iy + 1, ix + 1]
-        if s00 == 0.0 and s01 == 0.0 and s10 == 0.0 and s11 == 0.0:
-            # no trimmed pixel among the votes (gN is 0 wherever gS is): often most events
-            gd[k] = 0.0
-            continue
         g00 = a * s00 + n00
         g01 = a * s01 + n01
         g10 = a * s10 + n10
