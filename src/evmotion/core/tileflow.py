@@ -208,6 +208,21 @@ def resample(params: np.ndarray, grid: TileGrid) -> np.ndarray:
 # [-0.5, 0.5]: 0.5 (0.5 - d)^2, 0.75 - d^2, 0.5 (0.5 + d)^2. C1 in the position, so the
 # focus has no kinks at integer shifts (bilinear voting has one exactly at the zero-flow
 # start). Written out with scalars and an interior fast path: this is the hot loop.
+@njit(cache=True, fastmath=True, inline="always")
+def _bspline_cell(xw, yw):
+    """Centre pixel (cx, cy), offsets (dx, dy) and the three B-spline weights per axis."""
+    cx = int(np.floor(xw + 0.5))
+    cy = int(np.floor(yw + 0.5))
+    dx = xw - cx
+    dy = yw - cy
+    ax = 0.5 - dx
+    bx = 0.5 + dx
+    ay = 0.5 - dy
+    by = 0.5 + dy
+    return (cx, cy, dx, dy, 0.5 * ax * ax, 0.75 - dx * dx, 0.5 * bx * bx,
+            0.5 * ay * ay, 0.75 - dy * dy, 0.5 * by * by)
+
+
 @njit(cache=True, fastmath=True)
 def _iwe_fwd(x, y, flow, dtn, iwe):
     h, w = iwe.shape
@@ -216,20 +231,7 @@ def _iwe_fwd(x, y, flow, dtn, iwe):
         yw = y[k] + dtn[k] * flow[k, 1]
         if not (xw > -1.5 and xw < w + 0.5 and yw > -1.5 and yw < h + 0.5):
             continue
-        cx = int(np.floor(xw + 0.5))
-        cy = int(np.floor(yw + 0.5))
-        dx = xw - cx
-        dy = yw - cy
-        ax = 0.5 - dx
-        bx = 0.5 + dx
-        ay = 0.5 - dy
-        by = 0.5 + dy
-        wx0 = 0.5 * ax * ax
-        wx1 = 0.75 - dx * dx
-        wx2 = 0.5 * bx * bx
-        wy0 = 0.5 * ay * ay
-        wy1 = 0.75 - dy * dy
-        wy2 = 0.5 * by * by
+        cx, cy, dx, dy, wx0, wx1, wx2, wy0, wy1, wy2 = _bspline_cell(xw, yw)
         if cx >= 1 and cx < w - 1 and cy >= 1 and cy < h - 1:
             iwe[cy - 1, cx - 1] += wy0 * wx0
             iwe[cy - 1, cx] += wy0 * wx1
@@ -260,21 +262,12 @@ def _iwe_bwd(x, y, flow, dtn, giwe, gflow):
         yw = y[k] + dtn[k] * flow[k, 1]
         if not (xw > -1.5 and xw < w + 0.5 and yw > -1.5 and yw < h + 0.5):
             continue
-        cx = int(np.floor(xw + 0.5))
-        cy = int(np.floor(yw + 0.5))
-        dx = xw - cx
-        dy = yw - cy
+        cx, cy, dx, dy, wx0, wx1, wx2, wy0, wy1, wy2 = _bspline_cell(xw, yw)
+        # derivatives of the weights: -a, -2d, b
         ax = 0.5 - dx
         bx = 0.5 + dx
         ay = 0.5 - dy
         by = 0.5 + dy
-        wx0 = 0.5 * ax * ax
-        wx1 = 0.75 - dx * dx
-        wx2 = 0.5 * bx * bx
-        wy0 = 0.5 * ay * ay
-        wy1 = 0.75 - dy * dy
-        wy2 = 0.5 * by * by
-        # derivatives of the weights: -a, -2d, b
         if cx >= 1 and cx < w - 1 and cy >= 1 and cy < h - 1:
             g00 = giwe[cy - 1, cx - 1]
             g01 = giwe[cy - 1, cx]

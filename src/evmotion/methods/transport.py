@@ -41,6 +41,25 @@ __all__ = ["TransportPlan", "transport", "transport_adjoint", "transport_to_time
 SCHEMES = ("upwind", "burgers")
 
 
+@njit(cache=True, inline="always")
+def _upwind(vx, vy, i, j, h, w):
+    """Upwind neighbours: column jn and row im, with signs a, b so that the one-sided
+    difference of a field q is a * (q_c - q[i, jn]) along x and b * (q_c - q[im, j]) along y."""
+    if vx > 0:
+        jn = max(j - 1, 0)
+        a = 1.0
+    else:
+        jn = min(j + 1, w - 1)
+        a = -1.0
+    if vy > 0:
+        im = max(i - 1, 0)
+        b = 1.0
+    else:
+        im = min(i + 1, h - 1)
+        b = -1.0
+    return jn, a, im, b
+
+
 @njit(cache=True)
 def _step(v, dt, burgers, out):
     _, h, w = v.shape
@@ -48,19 +67,7 @@ def _step(v, dt, burgers, out):
         for j in range(w):
             vx = v[0, i, j]
             vy = v[1, i, j]
-            # upwind neighbour n (x) / m (y): Dw = a (w_c - w_n)
-            if vx > 0:
-                jn = max(j - 1, 0)
-                a = 1.0
-            else:
-                jn = min(j + 1, w - 1)
-                a = -1.0
-            if vy > 0:
-                im = max(i - 1, 0)
-                b = 1.0
-            else:
-                im = min(i + 1, h - 1)
-                b = -1.0
+            jn, a, im, b = _upwind(vx, vy, i, j, h, w)
             dxvy = a * (vy - v[1, i, jn])
             dyvx = b * (vx - v[0, im, j])
             if burgers:
@@ -94,18 +101,7 @@ def _step_adj(v, dt, burgers, lam, out):
             ly = lam[1, i, j]
             vx = v[0, i, j]
             vy = v[1, i, j]
-            if vx > 0:
-                jn = max(j - 1, 0)
-                a = 1.0
-            else:
-                jn = min(j + 1, w - 1)
-                a = -1.0
-            if vy > 0:
-                im = max(i - 1, 0)
-                b = 1.0
-            else:
-                im = min(i + 1, h - 1)
-                b = -1.0
+            jn, a, im, b = _upwind(vx, vy, i, j, h, w)
             dxvy = a * (vy - v[1, i, jn])
             dyvx = b * (vx - v[0, im, j])
             # cross terms: new_x -= dt*vy*dyvx ; new_y -= dt*vx*dxvy
