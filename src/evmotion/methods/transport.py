@@ -60,6 +60,12 @@ def _upwind(vx, vy, i, j, h, w):
     return jn, a, im, b
 
 
+@njit(cache=True, inline="always")
+def _neighbours(i, j, h, w):
+    """Right, left, lower and upper neighbour indices, clamped at the border."""
+    return min(j + 1, w - 1), max(j - 1, 0), min(i + 1, h - 1), max(i - 1, 0)
+
+
 @njit(cache=True)
 def _step(v, dt, burgers, out):
     _, h, w = v.shape
@@ -71,10 +77,7 @@ def _step(v, dt, burgers, out):
             dxvy = a * (vy - v[1, i, jn])
             dyvx = b * (vx - v[0, im, j])
             if burgers:
-                jr = min(j + 1, w - 1)
-                jl = max(j - 1, 0)
-                ir = min(i + 1, h - 1)
-                il = max(i - 1, 0)
+                jr, jl, ir, il = _neighbours(i, j, h, w)
                 vr = v[0, i, jr]
                 vl = v[0, i, jl]
                 ux = 0.5 * ((vx * abs(vx)) + (vr * vr if vr < 0 else 0.0)
@@ -114,10 +117,7 @@ def _step_adj(v, dt, burgers, lam, out):
             out[1, i, j] -= dt * ly * vx * a
             out[1, i, jn] += dt * ly * vx * a
             if burgers:
-                jr = min(j + 1, w - 1)
-                jl = max(j - 1, 0)
-                ir = min(i + 1, h - 1)
-                il = max(i - 1, 0)
+                jr, jl, ir, il = _neighbours(i, j, h, w)
                 vr = v[0, i, jr]
                 vl = v[0, i, jl]
                 out[0, i, j] -= dt * lx * abs(vx)
