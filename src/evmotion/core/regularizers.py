@@ -59,7 +59,6 @@ __all__ = [
     "DEFAULT_MARGINS",
     "DEFAULT_WEIGHTS",
     "REGULARIZERS",
-    "chain_rule",
     "window_span",
     "regularizer_maps",
     "regularizer_value_grad",
@@ -78,21 +77,6 @@ DEFAULT_WEIGHTS: dict[str, dict[str, float]] = {
 DEFAULT_MARGINS: dict[str, float] = {"divergence": -0.2, "deformation": 0.8, "rcad": 0.2}
 
 _MIN_COUNT = 1e-9  # pixels with less bilinear vote mass hold no warped event
-
-
-@njit(cache=True)
-def chain_rule(jx, jy, dd, gx, gy, gd, out):
-    """``out = jx^T gx + jy^T gy + dd^T gd`` (P,) in one pass, without BLAS: numpy's
-    (N,) @ (N, P) product spins up threads that stall on a pinned core."""
-    P = out.shape[0]
-    for j in range(P):
-        out[j] = 0.0
-    for k in range(gx.shape[0]):
-        a = gx[k]
-        b = gy[k]
-        c = gd[k]
-        for j in range(P):
-            out[j] += a * jx[k, j] + b * jy[k, j] + c * dd[k, j]
 
 
 @njit(cache=True, error_model="numpy")

@@ -64,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _shape
+from evmotion.core.iwe import _cell, _shape
 from evmotion.errors import CalibrationError, ParameterError
 
 __all__ = [
@@ -542,6 +542,133 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
             jy[k, 0] = k10 * dx0 + k11 * dy0
             jy[k, 1] = k10 * dx1 + k11 * dy1
             jy[k, 2] = k10 * dx2 + k11 * dy2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX, gY):
+    """``gX dX/domega + gY dY/domega`` (3 terms) at the warped normalized point (X, Y);
+    the formula of the Jacobian in :func:`_k_rotation`, contracted instead of stored."""
+    bt1 = b * t
+    ct2 = c * t * t
+    g = 1.0 - ct2 * ww
+    xy = X * Y
+    # contract the rows first: gX L0 + gY L1, a single 3-vector u
+    u0 = gX * xy + gY * (1.0 + Y * Y)
+    u1 = -gX * (1.0 + X * X) - gY * xy
+    u2 = gX * Y - gY * X
+    su = ct2 * (u0 * wx + u1 * wy + u2 * wz)
+    return (-t * (g * u0 + bt1 * (u1 * wz - u2 * wy) + su * wx),
+            -t * (g * u1 + bt1 * (u2 * wx - u0 * wz) + su * wy),
+            -t * (g * u2 + bt1 * (u0 * wy - u1 * wx) + su * wz))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_vjp_block(xw, yw, dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
+                   i10, i11, i12, bbuf, cbuf, gxb, gyb, acc):
+    """Adds ``sum_k gx_k dxw_k/domega + gy_k dyw_k/domega`` over events k0..k1 to ``acc``.
+    The warped normalized point comes back from the warped pixel through K^-1 (affine), so
+    the loop has no division and no branch (it vectorizes)."""
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    for k in range(k0, k1):
+        t = dt[k]
+        X = i00 * xw[k] + i01 * yw[k] + i02
+        Y = i10 * xw[k] + i11 * yw[k] + i12
+        gx = gxb[k - k0]
+        gy = gyb[k - k0]
+        d0, d1, d2 = _rot_vjp_event(X, Y, t, bbuf[k - k0], cbuf[k - k0], wx, wy, wz, ww,
+                                    gx * k00 + gy * k10, gx * k01 + gy * k11)
+        a0 += d0
+        a1 += d1
+        a2 += d2
+    acc[0] += a0
+    acc[1] += a1
+    acc[2] += a2
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _k_rotation_vjp(xw, yw, dt, w, Kmat, Kinv, gx, gy, out):
+    """``out = jx^T gx + jy^T gy`` (3,) with the rotation Jacobian recomputed per event from
+    the warped pixels ``xw, yw`` (no (N, 3) buffers)."""
+    wx, wy, wz = w[0], w[1], w[2]
+    ww = wx * wx + wy * wy + wz * wz
+    tm = _max_abs(dt)
+    zmax = tm * tm * ww
+    mode = 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
+    k00, k01, k10, k11 = Kmat[0, 0], Kmat[0, 1], Kmat[1, 0], Kmat[1, 1]
+    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
+        Kinv[1, 2]
+    abuf = np.empty(_BLOCK)
+    bbuf = np.empty(_BLOCK)
+    cbuf = np.empty(_BLOCK)
+    acc = np.zeros(3)
+    n = xw.shape[0]
+    for k0 in range(0, n, _BLOCK):
+        k1 = min(k0 + _BLOCK, n)
+        _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
+        _rot_vjp_block(xw, yw, dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
+                       i10, i11, i12, bbuf, cbuf, gx[k0:k1], gy[k0:k1], acc)
+    out[0] = acc[0]
+    out[1] = acc[1]
+    out[2] = acc[2]
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _k_rotation_reduce_bilinear(xw, yw, dt, w, Kmat, Kinv, wts, g, shift, scale, out):
+    """The bilinear IWE adjoint of ``dL/dIWE = scale (g - shift)`` and the chain rule through
+    the rotation warp, block by block: the pixel gradients of a block of events (see
+    :func:`evmotion.core.iwe.accumulate_backward_reduce`) go to block-sized buffers and are
+    contracted with the Jacobian recomputed from the warped pixels ``xw, yw``."""
+    h, wd = g.shape
+    use_w = wts.shape[0] > 0
+    wx, wy, wz = w[0], w[1], w[2]
+    ww = wx * wx + wy * wy + wz * wz
+    tm = _max_abs(dt)
+    zmax = tm * tm * ww
+    mode = 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
+    k00, k01, k10, k11 = Kmat[0, 0], Kmat[0, 1], Kmat[1, 0], Kmat[1, 1]
+    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
+        Kinv[1, 2]
+    abuf = np.empty(_BLOCK)
+    bbuf = np.empty(_BLOCK)
+    cbuf = np.empty(_BLOCK)
+    gxb = np.empty(_BLOCK)
+    gyb = np.empty(_BLOCK)
+    acc = np.zeros(3)
+    n = xw.shape[0]
+    for k0 in range(0, n, _BLOCK):
+        k1 = min(k0 + _BLOCK, n)
+        _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
+        for k in range(k0, k1):
+            inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
+            if not inside:
+                gxb[k - k0] = 0.0
+                gyb[k - k0] = 0.0
+                continue
+            if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+                # interior cell (the usual case): the shift cancels in the differences
+                d0 = g[iy, ix + 1] - g[iy, ix]
+                d1 = g[iy + 1, ix + 1] - g[iy + 1, ix]
+                e0 = g[iy + 1, ix] - g[iy, ix]
+                e1 = g[iy + 1, ix + 1] - g[iy, ix + 1]
+            else:
+                g00 = g[iy, ix] - shift if (iy >= 0 and ix >= 0) else 0.0
+                g01 = g[iy, ix + 1] - shift if (iy >= 0 and ix + 1 < wd) else 0.0
+                g10 = g[iy + 1, ix] - shift if (iy + 1 < h and ix >= 0) else 0.0
+                g11 = g[iy + 1, ix + 1] - shift if (iy + 1 < h and ix + 1 < wd) else 0.0
+                d0 = g01 - g00
+                d1 = g11 - g10
+                e0 = g10 - g00
+                e1 = g11 - g01
+            a = (wts[k] if use_w else 1.0) * scale
+            gxb[k - k0] = a * (d0 * (1.0 - fy) + d1 * fy)
+            gyb[k - k0] = a * (e0 * (1.0 - fx) + e1 * fx)
+        _rot_vjp_block(xw, yw, dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
+                       i10, i11, i12, bbuf, cbuf, gxb, gyb, acc)
+    out[0] = acc[0]
+    out[1] = acc[1]
+    out[2] = acc[2]
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
@@ -1203,6 +1330,24 @@ class RotationWarp(Warp):
 
     def _conj(self):
         return self.K, self._kinv
+
+    def vjp(self, xw, yw, dt, theta, gx, gy, out) -> np.ndarray:
+        """``out = jx^T gx + jy^T gy`` (3,): the chain rule of per-event pixel gradients
+        ``gx, gy`` (N,) through the warp, without the (N, 3) Jacobians, which are
+        recomputed from ``xw, yw``, the events warped with ``theta`` (:meth:`warp_into`).
+        Inputs float64 contiguous; ``dt`` in seconds from ``t_ref``."""
+        _k_rotation_vjp(xw, yw, dt, self._theta(theta), self.K, self._kinv, gx, gy, out)
+        return out
+
+    def reduce_bilinear(self, xw, yw, dt, theta, grad_iwe, out, weights=None,
+                        shift: float = 0.0, scale: float = 1.0) -> np.ndarray:
+        """:func:`evmotion.core.iwe.accumulate_backward_reduce` fused with the warp: ``out``
+        (3,) = dL/domega for ``dL/dIWE = scale (grad_iwe - shift)`` and the bilinear IWE of
+        ``xw, yw``, the events warped with ``theta``; Jacobians recomputed, not stored."""
+        w = _EMPTY1 if weights is None else weights
+        _k_rotation_reduce_bilinear(xw, yw, dt, self._theta(theta), self.K, self._kinv, w,
+                                    grad_iwe, float(shift), float(scale), out)
+        return out
 
     def _divdet(self, x, y, dt, theta, want_div, grad):
         x, y, dt = self._events(x, y, dt)

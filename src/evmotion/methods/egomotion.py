@@ -176,8 +176,15 @@ class CMaxCost:
                 raise ParameterError("use_polarity needs the event polarities")
             self.weights = np.where(self.polarity > 0, 1.0, -1.0)
         p = warp.n_params
+        # warps with fused kernels re-derive their Jacobian inside the adjoint pass, so no
+        # (N, P) Jacobians are stored, unless the penalty or the whitening needs them
+        self.fused = (hasattr(warp, "vjp") and hasattr(warp, "reduce_bilinear")
+                      and regularizer not in ("divergence", "deformation", "whitening"))
         self.xw, self.yw = np.empty(n), np.empty(n)
-        self.jx, self.jy = np.empty((n, p)), np.empty((n, p))
+        if self.fused:
+            self.jx = self.jy = None
+        else:
+            self.jx, self.jy = np.empty((n, p)), np.empty((n, p))
         self.gx, self.gy = np.empty(n), np.empty(n)
         self.iwe = np.empty(self.shape)
         self.giwe = np.empty(self.shape)
@@ -208,6 +215,8 @@ class CMaxCost:
     def _data(self, theta, grad: bool = True):
         """(G / G0, dG/dtheta / G0): the normalized focus and its gradient."""
         self.n_evals += 1
+        if grad and self.fused:
+            return self._data_fused(theta)
         xw, yw, jx, jy = self._positions(theta, grad)
         if (grad and self.objective == "variance" and self.kernel == "bilinear"
                 and self.regularizer != "whitening"):
@@ -230,6 +239,28 @@ class CMaxCost:
         if not grad:
             return G / self.g0, None
         return G / self.g0, (gx @ jx + gy @ jy) / self.g0
+
+    def _data_fused(self, theta):
+        """:meth:`_data` for warps with fused kernels: warp and vote, then the adjoint with
+        the Jacobian recomputed per event (same values as the composed path)."""
+        w = self.warp
+        xw, yw = self.xw, self.yw
+        w.warp_into(self.x, self.y, self.dt, theta, xw, yw)
+        if self.needs_time:
+            G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self.polarity,
+                                          self.tn, kernel=self.kernel, sigma=self.sigma)
+        else:
+            accumulate_into(xw, yw, self.iwe, self.weights, self.kernel, self.sigma)
+            if self.objective == "variance" and self.kernel == "bilinear":
+                mu, G = variance_stats(self.iwe)
+                w.reduce_bilinear(xw, yw, self.dt, theta, self.iwe, self.gtheta,
+                                  self.weights, shift=mu, scale=2.0 / self.iwe.size)
+                return G / self.g0, self.gtheta / self.g0
+            G, gimg = objective_value_grad(self.objective, self.iwe, out=self.giwe)
+            gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, self.weights,
+                                              self.kernel, self.sigma)
+        w.vjp(xw, yw, self.dt, theta, gx, gy, self.gtheta)
+        return G / self.g0, self.gtheta / self.g0
 
     def _penalty(self, theta, grad: bool = True):
         if self.regularizer not in REGULARIZERS or self.weight == 0.0:
