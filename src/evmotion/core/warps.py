@@ -562,10 +562,44 @@ def _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX, gY):
             -t * (g * u2 + bt1 * (u0 * wy - u1 * wx) + su * wz))
 
 
+@njit(cache=True, inline="always")
+def _bilinear_grad_block(xb, yb, m, wts, g, shift, scale, gxb, gyb):
+    """Per-event pixel gradients of the bilinear IWE for ``dL/dIWE = scale (g - shift)``
+    into ``gxb, gyb`` (the adjoint of :func:`evmotion.core.iwe.accumulate_backward_reduce`)
+    for the m events of a block."""
+    h, wd = g.shape
+    use_w = wts.shape[0] > 0
+    for k in range(m):
+        inside, ix, iy, fx, fy = _cell(xb[k], yb[k], h, wd)
+        if not inside:
+            gxb[k] = 0.0
+            gyb[k] = 0.0
+            continue
+        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+            # interior cell (the usual case): the shift cancels in the differences
+            d0 = g[iy, ix + 1] - g[iy, ix]
+            d1 = g[iy + 1, ix + 1] - g[iy + 1, ix]
+            e0 = g[iy + 1, ix] - g[iy, ix]
+            e1 = g[iy + 1, ix + 1] - g[iy, ix + 1]
+        else:
+            g00 = g[iy, ix] - shift if (iy >= 0 and ix >= 0) else 0.0
+            g01 = g[iy, ix + 1] - shift if (iy >= 0 and ix + 1 < wd) else 0.0
+            g10 = g[iy + 1, ix] - shift if (iy + 1 < h and ix >= 0) else 0.0
+            g11 = g[iy + 1, ix + 1] - shift if (iy + 1 < h and ix + 1 < wd) else 0.0
+            d0 = g01 - g00
+            d1 = g11 - g10
+            e0 = g10 - g00
+            e1 = g11 - g01
+        a = (wts[k] if use_w else 1.0) * scale
+        gxb[k] = a * (d0 * (1.0 - fy) + d1 * fy)
+        gyb[k] = a * (e0 * (1.0 - fx) + e1 * fx)
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _rot_vjp_block(xw, yw, dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
                    i10, i11, i12, bbuf, cbuf, gxb, gyb, acc):
-    """Adds ``sum_k gx_k dxw_k/domega + gy_k dyw_k/domega`` over events k0..k1 to ``acc``.
+    """Adds ``sum_k gx_k dxw_k/domega + gy_k dyw_k/domega`` over events k0..k1 to ``acc``
+    (``xw, yw, gxb, gyb`` hold the block, indexed from k0).
     The warped normalized point comes back from the warped pixel through K^-1 (affine), so
     the loop has no division and no branch (it vectorizes)."""
     a0 = 0.0
@@ -573,8 +607,8 @@ def _rot_vjp_block(xw, yw, dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11, i00, 
     a2 = 0.0
     for k in range(k0, k1):
         t = dt[k]
-        X = i00 * xw[k] + i01 * yw[k] + i02
-        Y = i10 * xw[k] + i11 * yw[k] + i12
+        X = i00 * xw[k - k0] + i01 * yw[k - k0] + i02
+        Y = i10 * xw[k - k0] + i11 * yw[k - k0] + i12
         gx = gxb[k - k0]
         gy = gyb[k - k0]
         d0, d1, d2 = _rot_vjp_event(X, Y, t, bbuf[k - k0], cbuf[k - k0], wx, wy, wz, ww,
@@ -607,8 +641,8 @@ def _k_rotation_vjp(xw, yw, dt, w, Kmat, Kinv, gx, gy, out):
     for k0 in range(0, n, _BLOCK):
         k1 = min(k0 + _BLOCK, n)
         _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
-        _rot_vjp_block(xw, yw, dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
-                       i10, i11, i12, bbuf, cbuf, gx[k0:k1], gy[k0:k1], acc)
+        _rot_vjp_block(xw[k0:k1], yw[k0:k1], dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11,
+                       i00, i01, i02, i10, i11, i12, bbuf, cbuf, gx[k0:k1], gy[k0:k1], acc)
     out[0] = acc[0]
     out[1] = acc[1]
     out[2] = acc[2]
@@ -620,7 +654,6 @@ def _k_rotation_reduce_bilinear(xw, yw, dt, w, Kmat, Kinv, wts, g, shift, scale,
     the rotation warp, block by block: the pixel gradients of a block of events (see
     :func:`evmotion.core.iwe.accumulate_backward_reduce`) go to block-sized buffers and are
     contracted with the Jacobian recomputed from the warped pixels ``xw, yw``."""
-    h, wd = g.shape
     use_w = wts.shape[0] > 0
     wx, wy, wz = w[0], w[1], w[2]
     ww = wx * wx + wy * wy + wz * wz
@@ -640,32 +673,10 @@ def _k_rotation_reduce_bilinear(xw, yw, dt, w, Kmat, Kinv, wts, g, shift, scale,
     for k0 in range(0, n, _BLOCK):
         k1 = min(k0 + _BLOCK, n)
         _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
-        for k in range(k0, k1):
-            inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
-            if not inside:
-                gxb[k - k0] = 0.0
-                gyb[k - k0] = 0.0
-                continue
-            if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
-                # interior cell (the usual case): the shift cancels in the differences
-                d0 = g[iy, ix + 1] - g[iy, ix]
-                d1 = g[iy + 1, ix + 1] - g[iy + 1, ix]
-                e0 = g[iy + 1, ix] - g[iy, ix]
-                e1 = g[iy + 1, ix + 1] - g[iy, ix + 1]
-            else:
-                g00 = g[iy, ix] - shift if (iy >= 0 and ix >= 0) else 0.0
-                g01 = g[iy, ix + 1] - shift if (iy >= 0 and ix + 1 < wd) else 0.0
-                g10 = g[iy + 1, ix] - shift if (iy + 1 < h and ix >= 0) else 0.0
-                g11 = g[iy + 1, ix + 1] - shift if (iy + 1 < h and ix + 1 < wd) else 0.0
-                d0 = g01 - g00
-                d1 = g11 - g10
-                e0 = g10 - g00
-                e1 = g11 - g01
-            a = (wts[k] if use_w else 1.0) * scale
-            gxb[k - k0] = a * (d0 * (1.0 - fy) + d1 * fy)
-            gyb[k - k0] = a * (e0 * (1.0 - fx) + e1 * fx)
-        _rot_vjp_block(xw, yw, dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
-                       i10, i11, i12, bbuf, cbuf, gxb, gyb, acc)
+        _bilinear_grad_block(xw[k0:k1], yw[k0:k1], k1 - k0, wts[k0:k1] if use_w else wts,
+                             g, shift, scale, gxb, gyb)
+        _rot_vjp_block(xw[k0:k1], yw[k0:k1], dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11,
+                       i00, i01, i02, i10, i11, i12, bbuf, cbuf, gxb, gyb, acc)
     out[0] = acc[0]
     out[1] = acc[1]
     out[2] = acc[2]
