@@ -328,6 +328,28 @@ def accumulate_backward(xw: np.ndarray, yw: np.ndarray, shape: tuple[int, int],
                                     kernel, sigma)
 
 
+@njit(cache=True, inline="always")
+def _cell_grad(g, ix, iy, fx, fy, shift, h, wd):
+    """Derivatives along x and y of the bilinear interpolation of ``g - shift`` in the cell
+    with top-left pixel (ix, iy) at offsets (fx, fy); pixels outside the image count 0."""
+    if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+        # interior cell (the usual case): the shift cancels in the differences
+        d0 = g[iy, ix + 1] - g[iy, ix]
+        d1 = g[iy + 1, ix + 1] - g[iy + 1, ix]
+        e0 = g[iy + 1, ix] - g[iy, ix]
+        e1 = g[iy + 1, ix + 1] - g[iy, ix + 1]
+    else:
+        g00 = g[iy, ix] - shift if (iy >= 0 and ix >= 0) else 0.0
+        g01 = g[iy, ix + 1] - shift if (iy >= 0 and ix + 1 < wd) else 0.0
+        g10 = g[iy + 1, ix] - shift if (iy + 1 < h and ix >= 0) else 0.0
+        g11 = g[iy + 1, ix + 1] - shift if (iy + 1 < h and ix + 1 < wd) else 0.0
+        d0 = g01 - g00
+        d1 = g11 - g10
+        e0 = g10 - g00
+        e1 = g11 - g01
+    return d0 * (1.0 - fy) + d1 * fy, e0 * (1.0 - fx) + e1 * fx
+
+
 @njit(cache=True, nogil=True)
 def _bwd_bilinear_reduce(xw, yw, w, g, shift, scale, jx, jy, out):
     h, wd = g.shape
@@ -339,24 +361,10 @@ def _bwd_bilinear_reduce(xw, yw, w, g, shift, scale, jx, jy, out):
         inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
         if not inside:
             continue
-        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
-            # interior cell (the usual case): the shift cancels in the differences
-            d0 = g[iy, ix + 1] - g[iy, ix]
-            d1 = g[iy + 1, ix + 1] - g[iy + 1, ix]
-            e0 = g[iy + 1, ix] - g[iy, ix]
-            e1 = g[iy + 1, ix + 1] - g[iy, ix + 1]
-        else:
-            g00 = g[iy, ix] - shift if (iy >= 0 and ix >= 0) else 0.0
-            g01 = g[iy, ix + 1] - shift if (iy >= 0 and ix + 1 < wd) else 0.0
-            g10 = g[iy + 1, ix] - shift if (iy + 1 < h and ix >= 0) else 0.0
-            g11 = g[iy + 1, ix + 1] - shift if (iy + 1 < h and ix + 1 < wd) else 0.0
-            d0 = g01 - g00
-            d1 = g11 - g10
-            e0 = g10 - g00
-            e1 = g11 - g01
         a = (w[k] if use_w else 1.0) * scale
-        gx = a * (d0 * (1.0 - fy) + d1 * fy)
-        gy = a * (e0 * (1.0 - fx) + e1 * fx)
+        dx, dy = _cell_grad(g, ix, iy, fx, fy, shift, h, wd)
+        gx = a * dx
+        gy = a * dy
         for j in range(p):
             acc[j] += gx * jx[k, j] + gy * jy[k, j]
     for j in range(p):

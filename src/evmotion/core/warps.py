@@ -64,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _cell, _shape
+from evmotion.core.iwe import _cell, _cell_grad, _shape
 from evmotion.errors import CalibrationError, ParameterError
 
 __all__ = [
@@ -474,11 +474,7 @@ def _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20, i21
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
-    wx, wy, wz = w[0], w[1], w[2]
-    ww = wx * wx + wy * wy + wz * wz
-    tm = _max_abs(dt)
-    zmax = tm * tm * ww
-    mode = 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
+    wx, wy, wz, ww, mode = _rot_rates(dt, w)
     # the matrices as scalars: the output arrays might alias them, which would force reloads
     k00, k01, k02, k10, k11, k12 = Kmat[0, 0], Kmat[0, 1], Kmat[0, 2], Kmat[1, 0], Kmat[1, 1], \
         Kmat[1, 2]
@@ -575,24 +571,10 @@ def _bilinear_grad_block(xb, yb, m, wts, g, shift, scale, gxb, gyb):
             gxb[k] = 0.0
             gyb[k] = 0.0
             continue
-        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
-            # interior cell (the usual case): the shift cancels in the differences
-            d0 = g[iy, ix + 1] - g[iy, ix]
-            d1 = g[iy + 1, ix + 1] - g[iy + 1, ix]
-            e0 = g[iy + 1, ix] - g[iy, ix]
-            e1 = g[iy + 1, ix + 1] - g[iy, ix + 1]
-        else:
-            g00 = g[iy, ix] - shift if (iy >= 0 and ix >= 0) else 0.0
-            g01 = g[iy, ix + 1] - shift if (iy >= 0 and ix + 1 < wd) else 0.0
-            g10 = g[iy + 1, ix] - shift if (iy + 1 < h and ix >= 0) else 0.0
-            g11 = g[iy + 1, ix + 1] - shift if (iy + 1 < h and ix + 1 < wd) else 0.0
-            d0 = g01 - g00
-            d1 = g11 - g10
-            e0 = g10 - g00
-            e1 = g11 - g01
         a = (wts[k] if use_w else 1.0) * scale
-        gxb[k] = a * (d0 * (1.0 - fy) + d1 * fy)
-        gyb[k] = a * (e0 * (1.0 - fx) + e1 * fx)
+        dx, dy = _cell_grad(g, ix, iy, fx, fy, shift, h, wd)
+        gxb[k] = a * dx
+        gyb[k] = a * dy
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -621,15 +603,22 @@ def _rot_vjp_block(xw, yw, dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11, i00, 
     acc[2] += a2
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_rotation_vjp(xw, yw, dt, w, Kmat, Kinv, gx, gy, out):
-    """``out = jx^T gx + jy^T gy`` (3,) with the rotation Jacobian recomputed per event from
-    the warped pixels ``xw, yw`` (no (N, 3) buffers)."""
+@njit(cache=True, inline="always")
+def _rot_rates(dt, w):
+    """omega's components, |omega|^2 and the Rodrigues series mode for the window's largest
+    |dt| (0: short series, 1: long series, 2: closed form)."""
     wx, wy, wz = w[0], w[1], w[2]
     ww = wx * wx + wy * wy + wz * wz
     tm = _max_abs(dt)
     zmax = tm * tm * ww
-    mode = 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
+    return wx, wy, wz, ww, 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _k_rotation_vjp(xw, yw, dt, w, Kmat, Kinv, gx, gy, out):
+    """``out = jx^T gx + jy^T gy`` (3,) with the rotation Jacobian recomputed per event from
+    the warped pixels ``xw, yw`` (no (N, 3) buffers)."""
+    wx, wy, wz, ww, mode = _rot_rates(dt, w)
     k00, k01, k10, k11 = Kmat[0, 0], Kmat[0, 1], Kmat[1, 0], Kmat[1, 1]
     i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
         Kinv[1, 2]
@@ -655,11 +644,7 @@ def _k_rotation_reduce_bilinear(xw, yw, dt, w, Kmat, Kinv, wts, g, shift, scale,
     :func:`evmotion.core.iwe.accumulate_backward_reduce`) go to block-sized buffers and are
     contracted with the Jacobian recomputed from the warped pixels ``xw, yw``."""
     use_w = wts.shape[0] > 0
-    wx, wy, wz = w[0], w[1], w[2]
-    ww = wx * wx + wy * wy + wz * wz
-    tm = _max_abs(dt)
-    zmax = tm * tm * ww
-    mode = 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
+    wx, wy, wz, ww, mode = _rot_rates(dt, w)
     k00, k01, k10, k11 = Kmat[0, 0], Kmat[0, 1], Kmat[1, 0], Kmat[1, 1]
     i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
         Kinv[1, 2]
@@ -692,14 +677,10 @@ def _k_rot_divdet(x, y, dt, w, Kinv, want_div, val, grad, gw, out):
     ``R = exp(dt omega^)``: det J = 1 / q_z^3 (det R = 1), and since the flow is the
     rotational field ``F(X) = pi'(q) (omega x q)`` evaluated at the warped point,
     div f = tr(dF/dX dX/dx). Derivatives use dR/d omega_j = dt (J_l e_j)^ R."""
-    wx, wy, wz = w[0], w[1], w[2]
-    ww = wx * wx + wy * wy + wz * wz
+    wx, wy, wz, ww, mode = _rot_rates(dt, w)
     i00, i01, i02 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2]
     i10, i11, i12 = Kinv[1, 0], Kinv[1, 1], Kinv[1, 2]
     mode_g = 1 if grad.shape[0] > 0 else (2 if gw.shape[0] > 0 else 0)
-    tm = _max_abs(dt)
-    zmax = tm * tm * ww
-    mode = 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
     abuf = np.empty(_BLOCK)
     bbuf = np.empty(_BLOCK)
     cbuf = np.empty(_BLOCK)
