@@ -615,35 +615,14 @@ def _rot_rates(dt, w):
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_rotation_vjp(xw, yw, dt, w, Kmat, Kinv, gx, gy, out):
+def _k_rotation_vjp(xw, yw, dt, w, Kmat, Kinv, gx, gy, wts, g, shift, scale, out):
     """``out = jx^T gx + jy^T gy`` (3,) with the rotation Jacobian recomputed per event from
-    the warped pixels ``xw, yw`` (no (N, 3) buffers)."""
-    wx, wy, wz, ww, mode = _rot_rates(dt, w)
-    k00, k01, k10, k11 = Kmat[0, 0], Kmat[0, 1], Kmat[1, 0], Kmat[1, 1]
-    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
-        Kinv[1, 2]
-    abuf = np.empty(_BLOCK)
-    bbuf = np.empty(_BLOCK)
-    cbuf = np.empty(_BLOCK)
-    acc = np.zeros(3)
-    n = xw.shape[0]
-    for k0 in range(0, n, _BLOCK):
-        k1 = min(k0 + _BLOCK, n)
-        _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
-        _rot_vjp_block(xw[k0:k1], yw[k0:k1], dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11,
-                       i00, i01, i02, i10, i11, i12, bbuf, cbuf, gx[k0:k1], gy[k0:k1], acc)
-    out[0] = acc[0]
-    out[1] = acc[1]
-    out[2] = acc[2]
-
-
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_rotation_reduce_bilinear(xw, yw, dt, w, Kmat, Kinv, wts, g, shift, scale, out):
-    """The bilinear IWE adjoint of ``dL/dIWE = scale (g - shift)`` and the chain rule through
-    the rotation warp, block by block: the pixel gradients of a block of events (see
-    :func:`evmotion.core.iwe.accumulate_backward_reduce`) go to block-sized buffers and are
-    contracted with the Jacobian recomputed from the warped pixels ``xw, yw``."""
+    the warped pixels ``xw, yw`` (no (N, 3) buffers), block by block. If ``g`` (H, W) has
+    pixels, the per-event pixel gradients are not read from ``gx, gy`` but computed per block
+    as the bilinear IWE adjoint of ``dL/dIWE = scale (g - shift)`` (see
+    :func:`evmotion.core.iwe.accumulate_backward_reduce`), into block-sized buffers."""
     use_w = wts.shape[0] > 0
+    fuse_iwe = g.size > 0
     wx, wy, wz, ww, mode = _rot_rates(dt, w)
     k00, k01, k10, k11 = Kmat[0, 0], Kmat[0, 1], Kmat[1, 0], Kmat[1, 1]
     i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
@@ -658,10 +637,15 @@ def _k_rotation_reduce_bilinear(xw, yw, dt, w, Kmat, Kinv, wts, g, shift, scale,
     for k0 in range(0, n, _BLOCK):
         k1 = min(k0 + _BLOCK, n)
         _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
-        _bilinear_grad_block(xw[k0:k1], yw[k0:k1], k1 - k0, wts[k0:k1] if use_w else wts,
-                             g, shift, scale, gxb, gyb)
-        _rot_vjp_block(xw[k0:k1], yw[k0:k1], dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11,
-                       i00, i01, i02, i10, i11, i12, bbuf, cbuf, gxb, gyb, acc)
+        if fuse_iwe:
+            _bilinear_grad_block(xw[k0:k1], yw[k0:k1], k1 - k0, wts[k0:k1] if use_w else wts,
+                                 g, shift, scale, gxb, gyb)
+            _rot_vjp_block(xw[k0:k1], yw[k0:k1], dt, k0, k1, wx, wy, wz, ww, k00, k01, k10,
+                           k11, i00, i01, i02, i10, i11, i12, bbuf, cbuf, gxb, gyb, acc)
+        else:
+            _rot_vjp_block(xw[k0:k1], yw[k0:k1], dt, k0, k1, wx, wy, wz, ww, k00, k01, k10,
+                           k11, i00, i01, i02, i10, i11, i12, bbuf, cbuf, gx[k0:k1], gy[k0:k1],
+                           acc)
     out[0] = acc[0]
     out[1] = acc[1]
     out[2] = acc[2]
@@ -1328,7 +1312,8 @@ class RotationWarp(Warp):
         ``gx, gy`` (N,) through the warp, without the (N, 3) Jacobians, which are
         recomputed from ``xw, yw``, the events warped with ``theta`` (:meth:`warp_into`).
         Inputs float64 contiguous; ``dt`` in seconds from ``t_ref``."""
-        _k_rotation_vjp(xw, yw, dt, self._theta(theta), self.K, self._kinv, gx, gy, out)
+        _k_rotation_vjp(xw, yw, dt, self._theta(theta), self.K, self._kinv, gx, gy, _EMPTY1,
+                        _EMPTY2, 0.0, 1.0, out)
         return out
 
     def reduce_bilinear(self, xw, yw, dt, theta, grad_iwe, out, weights=None,
@@ -1337,8 +1322,8 @@ class RotationWarp(Warp):
         (3,) = dL/domega for ``dL/dIWE = scale (grad_iwe - shift)`` and the bilinear IWE of
         ``xw, yw``, the events warped with ``theta``; Jacobians recomputed, not stored."""
         w = _EMPTY1 if weights is None else weights
-        _k_rotation_reduce_bilinear(xw, yw, dt, self._theta(theta), self.K, self._kinv, w,
-                                    grad_iwe, float(shift), float(scale), out)
+        _k_rotation_vjp(xw, yw, dt, self._theta(theta), self.K, self._kinv, _EMPTY1, _EMPTY1,
+                        w, grad_iwe, float(shift), float(scale), out)
         return out
 
     def _divdet(self, x, y, dt, theta, want_div, grad):
