@@ -29,6 +29,7 @@ Examples
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,32 +101,57 @@ def _variance(img, grad):
     return v / n
 
 
-@njit(cache=True, nogil=True)
-def _gradmag(img, grad):
+@njit(cache=True, nogil=True, fastmath={"reassoc", "contract", "nsz"})
+def _gradmag(img, grad, work):
+    """Mean squared Sobel magnitude over the interior pixels and its adjoint image, in one
+    streaming pass over the rows: the (scaled) Sobel responses of rows r - 1, r, r + 1 live
+    in a ring of row buffers, and row r of the adjoint is gathered from them (the Sobel
+    transposes, separably), so every pixel of ``grad`` is written once, by a loop that
+    vectorizes. ``work`` is (8, W + 2) scratch."""
     h, w = img.shape
     n = (h - 2) * (w - 2)
-    grad[:, :] = 0.0
     if n <= 0:
+        grad[:, :] = 0.0
         return 0.0
     c = 2.0 / n
+    # rows of c Sx(I), c Sy(I) for image rows r - 1, r, r + 1 (index j + 1 for column j;
+    # zero off the interior), and the vertical parts of the transposed kernels
+    for a in range(8):
+        for j in range(w + 2):
+            work[a, j] = 0.0
+    xp, xc, xn = work[0], work[1], work[2]
+    yp, yc, yn = work[3], work[4], work[5]
+    vv = work[6]
+    uu = work[7]
     v = 0.0
-    for i in range(1, h - 1):
-        for j in range(1, w - 1):
-            gx = (img[i - 1, j + 1] + 2.0 * img[i, j + 1] + img[i + 1, j + 1]
-                  - img[i - 1, j - 1] - 2.0 * img[i, j - 1] - img[i + 1, j - 1])
-            gy = (img[i + 1, j - 1] + 2.0 * img[i + 1, j] + img[i + 1, j + 1]
-                  - img[i - 1, j - 1] - 2.0 * img[i - 1, j] - img[i - 1, j + 1])
-            v += gx * gx + gy * gy
-            ax = c * gx
-            ay = c * gy
-            grad[i - 1, j + 1] += ax - ay
-            grad[i, j + 1] += 2.0 * ax
-            grad[i + 1, j + 1] += ax + ay
-            grad[i - 1, j - 1] += -ax - ay
-            grad[i, j - 1] += -2.0 * ax
-            grad[i + 1, j - 1] += -ax + ay
-            grad[i + 1, j] += 2.0 * ay
-            grad[i - 1, j] += -2.0 * ay
+    for r in range(h):
+        i = r + 1
+        if i <= h - 2:
+            # Sobel responses of row i into the buffer of row r + 1
+            up = img[i - 1]
+            mid = img[i]
+            dn = img[i + 1]
+            for j in range(1, w - 1):
+                gx = (up[j + 1] - up[j - 1]) + 2.0 * (mid[j + 1] - mid[j - 1]) \
+                    + (dn[j + 1] - dn[j - 1])
+                gy = (dn[j - 1] + 2.0 * dn[j] + dn[j + 1]) - (up[j - 1] + 2.0 * up[j] + up[j + 1])
+                v += gx * gx + gy * gy
+                xn[j + 1] = c * gx
+                yn[j + 1] = c * gy
+        else:
+            for j in range(w + 2):
+                xn[j] = 0.0
+                yn[j] = 0.0
+        # grad = Sx^T (c gx) + Sy^T (c gy): vertical [1 2 1] / [1 0 -1], then horizontal
+        for j in range(w + 2):
+            vv[j] = xp[j] + 2.0 * xc[j] + xn[j]
+            uu[j] = yp[j] - yn[j]
+        g = grad[r]
+        for q in range(w):
+            g[q] = (vv[q] - vv[q + 2]) + (uu[q] + 2.0 * uu[q + 1] + uu[q + 2])
+        # shift the ring: row r becomes r - 1, r + 1 becomes r
+        xp, xc, xn = xc, xn, xp
+        yp, yc, yn = yc, yn, yp
     return v / n
 
 
@@ -189,6 +215,22 @@ def variance_stats(iwe: np.ndarray) -> tuple[float, float]:
     return float(mu), float(var)
 
 
+_TLS = threading.local()
+
+
+def _work(width: int) -> np.ndarray:
+    """The (8, width + 2) row scratch of :func:`_gradmag`, kept per thread and width."""
+    cache = getattr(_TLS, "work", None)
+    if cache is None:
+        cache = _TLS.work = {}
+    buf = cache.get(width)
+    if buf is None:
+        if len(cache) > 8:
+            cache.clear()
+        buf = cache[width] = np.empty((8, width + 2))
+    return buf
+
+
 def _img(name: str, a) -> np.ndarray:
     if a is None:
         raise ParameterError(f"objective needs the image '{name}'")
@@ -237,7 +279,7 @@ def objective_value_grad(name: str, iwe: np.ndarray | None = None, *,
         g = np.empty_like(img) if out is None else out
         if name == "variance":
             return float(_variance(img, g)), g
-        return float(_gradmag(img, g)), g
+        return float(_gradmag(img, g, _work(img.shape[1]))), g
     imgs = [_img(k, v) for k, v in zip(_TS_KEYS, (iwe_pos, iwe_neg, tiwe_pos, tiwe_neg),
                                        strict=True)]
     if len({a.shape for a in imgs}) != 1:
