@@ -92,11 +92,14 @@ def test_gradients_vs_finite_differences(reg, name):
         fd = (regularizer_value_grad(reg, w, x, y, dt, tp, (H, W))[0]
               - regularizer_value_grad(reg, w, x, y, dt, tm, (H, W))[0]) / (2 * h)
         assert g[j] == pytest.approx(fd, rel=1e-5, abs=1e-7)
-    # precomputed warped events and Jacobians give the same result
+    # precomputed warped events and Jacobians give the same result, and so do warped events
+    # alone (up to rounding: the warp kernels with and without Jacobians may round the
+    # warped events differently, and the rotation contracts its recomputed Jacobian)
     xw, yw, jx, jy = w.warp(x, y, dt, th, jacobian=True)
-    v2, g2 = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw, jx=jx, jy=jy)
-    assert v2 == v
-    np.testing.assert_array_equal(g2, g)
+    for kw in ({"jx": jx, "jy": jy}, {}):
+        v2, g2 = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw, **kw)
+        assert v2 == pytest.approx(v, rel=1e-12)
+        np.testing.assert_allclose(g2, g, rtol=1e-12, atol=1e-14 * np.abs(g).max())
 
 
 def test_zoom_closed_forms():
@@ -245,7 +248,11 @@ def test_real_rotation_window_vs_collapse(shared_data):
 def test_fused_votes_match_core_iwe():
     """The fused one-pass votes equal core.iwe's bilinear IWE and its adjoint."""
     from evmotion.core.iwe import accumulate, accumulate_backward
-    from evmotion.core.regularizers import _fused_backward, _fused_forward
+    from evmotion.core.regularizers import (
+        _fused_backward,
+        _fused_backward_events,
+        _fused_forward,
+    )
 
     rng = np.random.default_rng(5)
     n = 500
@@ -263,6 +270,12 @@ def test_fused_votes_match_core_iwe():
     ax, ay = accumulate_backward(xw, yw, (H, W), gS, weights=d)
     bx, by = accumulate_backward(xw, yw, (H, W), gN)
     np.testing.assert_allclose(out, (ax + bx) @ jx + (ay + by) @ jy, atol=1e-9)
+    # the variant that stops before the warp: per-event derivatives
+    ex, ey, ed = np.empty(n), np.empty(n), np.empty(n)
+    _fused_backward_events(xw, yw, d, gS, gN, 1.0, ex, ey, ed)
+    np.testing.assert_allclose(ex, ax + bx, atol=1e-12)
+    np.testing.assert_allclose(ey, ay + by, atol=1e-12)
+    np.testing.assert_array_equal(ed, gd)
     # d/dd_k of sum(gS * num) is the bilinear sample of gS at the event
     e = 1e-6
     for k in range(0, n, 50):
@@ -271,3 +284,26 @@ def test_fused_votes_match_core_iwe():
         fd = ((gS * accumulate(xw, yw, (H, W), weights=dp)).sum()
               - (gS * accumulate(xw, yw, (H, W), weights=d)).sum()) / e
         assert gd[k] == pytest.approx(fd, abs=1e-6)
+
+
+def test_no_map_when_every_value_is_above_the_margin():
+    """The shortcut that skips the DIWE/IWA maps when no per-event value is below the margin
+    (a vote-weighted pixel mean cannot be) agrees with the maps; values at the margin itself
+    take the full path."""
+    from evmotion.core.regularizers import _all_above
+
+    rng = np.random.default_rng(7)
+    d = rng.uniform(-0.1, 3.0, 1000)
+    assert _all_above(d, -0.2) and not _all_above(d, -0.05)
+    assert not _all_above(np.full(10, -0.2), -0.2)
+    assert not _all_above(np.array([1.0, -np.inf]), -0.2)
+    assert not _all_above(np.array([1.0, np.inf]), -0.2)
+    x, y, dt = _events(600, seed=3)
+    for name, th in (("rotation", [0.5, -0.3, 0.2]), ("similarity", [40.0, 10.0, 2.0, -3.0]),
+                     ("zoom", [-2.0])):
+        w = make_warp(name, (H, W), K=K)
+        for reg, key in (("divergence", "diwe"), ("deformation", "iwa")):
+            maps = regularizer_maps(reg, w, x, y, dt, np.array(th), (H, W))
+            v, g = regularizer_value_grad(reg, w, x, y, dt, np.array(th), (H, W))
+            assert not maps["trimmed"].any() and v == 0 and not np.any(g)
+            assert np.any(maps["count"] > 0) and np.isfinite(maps[key]).all()

@@ -122,6 +122,45 @@ def _fused_forward(xw, yw, d, cnt, num):
                 num[iy + 1, ix + 1] += a * w11
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _fused_adjoint_event(gS, gN, a, ix, iy, fx, fy, scale, h, wd):
+    """``(gx, gy, gd)``: derivatives of ``scale * sum(gS * num + gN * cnt)`` with respect to
+    one event's ``xw, yw`` and value ``a`` (its bilinear cell at (ix, iy) + (fx, fy))."""
+    s00 = s01 = s10 = s11 = 0.0
+    n00 = n01 = n10 = n11 = 0.0
+    if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+        s00 = gS[iy, ix]
+        n00 = gN[iy, ix]
+        s01 = gS[iy, ix + 1]
+        n01 = gN[iy, ix + 1]
+        s10 = gS[iy + 1, ix]
+        n10 = gN[iy + 1, ix]
+        s11 = gS[iy + 1, ix + 1]
+        n11 = gN[iy + 1, ix + 1]
+    else:
+        if iy >= 0 and ix >= 0:
+            s00 = gS[iy, ix]
+            n00 = gN[iy, ix]
+        if iy >= 0 and ix + 1 < wd:
+            s01 = gS[iy, ix + 1]
+            n01 = gN[iy, ix + 1]
+        if iy + 1 < h and ix >= 0:
+            s10 = gS[iy + 1, ix]
+            n10 = gN[iy + 1, ix]
+        if iy + 1 < h and ix + 1 < wd:
+            s11 = gS[iy + 1, ix + 1]
+            n11 = gN[iy + 1, ix + 1]
+    g00 = a * s00 + n00
+    g01 = a * s01 + n01
+    g10 = a * s10 + n10
+    g11 = a * s11 + n11
+    gx = scale * ((g01 - g00) * (1.0 - fy) + (g11 - g10) * fy)
+    gy = scale * ((g10 - g00) * (1.0 - fx) + (g11 - g01) * fx)
+    c = scale * (s00 * (1.0 - fx) * (1.0 - fy) + s01 * fx * (1.0 - fy)
+                 + s10 * (1.0 - fx) * fy + s11 * fx * fy)
+    return gx, gy, c
+
+
 @njit(cache=True, error_model="numpy")
 def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
     """Adjoint of :func:`_fused_forward` for the loss ``scale * sum(gS * num + gN * cnt)``,
@@ -138,39 +177,7 @@ def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
         if not inside:
             gd[k] = 0.0
             continue
-        a = d[k]
-        s00 = s01 = s10 = s11 = 0.0
-        n00 = n01 = n10 = n11 = 0.0
-        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
-            s00 = gS[iy, ix]
-            n00 = gN[iy, ix]
-            s01 = gS[iy, ix + 1]
-            n01 = gN[iy, ix + 1]
-            s10 = gS[iy + 1, ix]
-            n10 = gN[iy + 1, ix]
-            s11 = gS[iy + 1, ix + 1]
-            n11 = gN[iy + 1, ix + 1]
-        else:
-            if iy >= 0 and ix >= 0:
-                s00 = gS[iy, ix]
-                n00 = gN[iy, ix]
-            if iy >= 0 and ix + 1 < wd:
-                s01 = gS[iy, ix + 1]
-                n01 = gN[iy, ix + 1]
-            if iy + 1 < h and ix >= 0:
-                s10 = gS[iy + 1, ix]
-                n10 = gN[iy + 1, ix]
-            if iy + 1 < h and ix + 1 < wd:
-                s11 = gS[iy + 1, ix + 1]
-                n11 = gN[iy + 1, ix + 1]
-        g00 = a * s00 + n00
-        g01 = a * s01 + n01
-        g10 = a * s10 + n10
-        g11 = a * s11 + n11
-        gx = scale * ((g01 - g00) * (1.0 - fy) + (g11 - g10) * fy)
-        gy = scale * ((g10 - g00) * (1.0 - fx) + (g11 - g01) * fx)
-        c = scale * (s00 * (1.0 - fx) * (1.0 - fy) + s01 * fx * (1.0 - fy)
-                     + s10 * (1.0 - fx) * fy + s11 * fx * fy)
+        gx, gy, c = _fused_adjoint_event(gS, gN, d[k], ix, iy, fx, fy, scale, h, wd)
         gd[k] = c
         if use_dd:
             for j in range(P):
@@ -180,6 +187,38 @@ def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
                 acc[j] += gx * jx[k, j] + gy * jy[k, j]
     for j in range(P):
         out[j] = acc[j]
+
+
+@njit(cache=True, error_model="numpy")
+def _fused_backward_events(xw, yw, d, gS, gN, scale, gx, gy, gd):
+    """:func:`_fused_backward` stopped before the warp: the per-event derivatives ``gx,
+    gy, gd`` (N,) with respect to ``xw_k, yw_k, d_k`` (0 off the image), for warps that
+    contract them with their Jacobian recomputed (``Warp.vjp``) instead of stored."""
+    h, wd = gS.shape
+    for k in range(xw.shape[0]):
+        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
+        if not inside:
+            gx[k] = 0.0
+            gy[k] = 0.0
+            gd[k] = 0.0
+            continue
+        gx[k], gy[k], gd[k] = _fused_adjoint_event(gS, gN, d[k], ix, iy, fx, fy, scale, h, wd)
+
+
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "nsz"})
+def _all_above(d, margin):
+    """Whether every value exceeds ``margin`` by more than the rounding of a vote-weighted
+    pixel average could take away: then no DIWE/IWA pixel is below the margin (a weighted
+    mean is at least the smallest value), and the trimmed mean selects nothing."""
+    lo = np.inf
+    big = abs(margin)
+    for k in range(d.shape[0]):
+        v = d[k]
+        lo = min(lo, v)
+        big = max(big, abs(v))
+    # a pixel's sums carry at most ~N roundings of size eps * big
+    tol = big * max(1e-12, 4.0 * d.shape[0] * 2.3e-16)
+    return lo > margin + tol
 
 
 @njit(cache=True, error_model="numpy")
@@ -203,19 +242,23 @@ def window_span(dt) -> float:
     return t1 - t0 if t1 > t0 else 1.0
 
 
-def _event_values(kind: str, warp: Warp, x, y, dt, theta):
+def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True):
     """(d_k, dd_k/dtheta, fac): divergence per window (1/s times T), or |det J| - 1.
 
-    For the rotation ``dd`` is None: its derivatives are contracted later, only for the
-    events that reach a trimmed pixel (:func:`_rotation_grad`), with ``fac`` (N,) the
-    factor from the raw divergence / det J to ``d``."""
+    ``dd`` is None without ``want_grad``, and always for the rotation: its derivatives are
+    contracted later, only for the events that reach a trimmed pixel
+    (:func:`_rotation_grad`), with ``fac`` (N,) the factor from the raw divergence / det J
+    to ``d``."""
     code = _FAST.get(warp.name)
     is_div = kind == "divergence"
     T = window_span(dt) if is_div else 1.0
     n = dt.shape[0]
     if code is not None:
-        d, g = _scratch(((n,), (n, warp.n_params)), "ev")
-        _k_fast_values(code, is_div, dt, theta, T, d, g)
+        if want_grad:
+            d, g = _scratch(((n,), (n, warp.n_params)), "ev")
+        else:
+            (d,), g = _scratch(((n,),), "ev0"), None
+        _k_fast_values(code, is_div, dt, theta, T, d, _EMPTY2 if g is None else g, want_grad)
         return d, g, None
     if warp.name == "rotation":
         d, fac = _scratch(((n,), (n,)), "ev1")
@@ -223,8 +266,12 @@ def _event_values(kind: str, warp: Warp, x, y, dt, theta):
         _rot_values_finish(is_div, T, d, fac)
         return d, None, fac
     if is_div:
+        if not want_grad:
+            return warp.divergence(x, y, dt, theta) * T, None, None
         d, g = warp.divergence(x, y, dt, theta, grad=True)
         return d * T, g * T, None
+    if not want_grad:
+        return np.abs(warp.jacobian_det(x, y, dt, theta)) - 1.0, None, None
     det, g = warp.jacobian_det(x, y, dt, theta, grad=True)
     sgn = np.sign(det)
     return np.abs(det) - 1.0, g * sgn[:, None], None
@@ -248,25 +295,29 @@ def _rot_values_finish(is_div, T, d, fac):
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_fast_values(code, is_div, dt, th, T, d, g):
+def _k_fast_values(code, is_div, dt, th, T, d, g, want_g):
     """Closed forms of the warps whose divergence and det J depend on dt only: zoom (3.7),
     translation, SE(2) (A.13)/(A.14), similarity (A.40)/(A.42), in-plane (A.25)/(A.27).
-    Writes d_k (divergence times T, or |det J| - 1) and dd_k/dtheta."""
+    Writes d_k (divergence times T, or |det J| - 1) and, if ``want_g``, dd_k/dtheta into
+    ``g`` (N, P)."""
     n = dt.shape[0]
-    P = g.shape[1]
-    for k in range(n):
-        for j in range(P):
-            g[k, j] = 0.0
+    P = th.shape[0]
+    if want_g:
+        for k in range(n):
+            for j in range(P):
+                g[k, j] = 0.0
     if code == 0:  # zoom
         h = th[0]
         for k in range(n):
             if is_div:
                 d[k] = -2.0 * h * T
-                g[k, 0] = -2.0 * T
+                if want_g:
+                    g[k, 0] = -2.0 * T
             else:
                 s = 1.0 - dt[k] * h
                 d[k] = s * s - 1.0
-                g[k, 0] = -2.0 * dt[k] * s
+                if want_g:
+                    g[k, 0] = -2.0 * dt[k] * s
     elif code == 1:  # translation
         for k in range(n):
             d[k] = 0.0
@@ -283,7 +334,7 @@ def _k_fast_values(code, is_div, dt, th, T, d, g):
                     t = dt[k]
                     ib = 1.0 / (1.0 + t * s)
                     d[k] = ib * ib - 1.0
-                    if P == 4:
+                    if want_g and P == 4:
                         g[k, 3] = -2.0 * t * ib * ib * ib
                 continue
             if small:
@@ -299,6 +350,8 @@ def _k_fast_values(code, is_div, dt, th, T, d, g):
                 c = cbuf[k - k0]
                 ib2 = ib * ib
                 d[k] = T * (-2.0 * s * ib2 * c - 2.0 * w * ib * sn)
+                if not want_g:
+                    continue
                 g[k, 2] = T * (2.0 * s * ib2 * t * sn - 2.0 * ib * sn - 2.0 * w * ib * t * c)
                 if P == 4:
                     g[k, 3] = T * (-2.0 * c * ib2 + 4.0 * s * t * c * ib2 * ib
@@ -312,13 +365,16 @@ def _k_fast_values(code, is_div, dt, th, T, d, g):
             t = dt[k]
             if is_div:
                 d[k] = T * (2.0 - 2.0 * kk * c)
-                g[k, 2] = T * 2.0 * kk * sn
-                g[k, 3] = -T * 2.0 * c
+                if want_g:
+                    g[k, 2] = T * 2.0 * kk * sn
+                    g[k, 3] = -T * 2.0 * c
             else:
                 a = 1.0 + t
                 det = a * a - 2.0 * a * t * kk * c + t * t * kk * kk
                 sgn = 1.0 if det >= 0 else -1.0
                 d[k] = abs(det) - 1.0
+                if not want_g:
+                    continue
                 g[k, 2] = 2.0 * a * t * kk * sn * sgn
                 g[k, 3] = (-2.0 * a * t * c + 2.0 * t * t * kk) * sgn
 
@@ -348,17 +404,17 @@ def _scratch(shapes, tag):
 # ---------------------------------------------------------------------------------------
 # DIWE / IWA trimmed means
 
-def _prepare(warp, x, y, dt, theta, shape, xw, yw, jx, jy, need_jac):
+def _prepare(warp, x, y, dt, theta, xw, yw):
+    """Checked events and theta, and the warped events (computed unless given)."""
     x, y, dt = Warp._events(x, y, dt)
     if x.shape[0] == 0:
         raise EmptyWindowError("the regularizer needs at least one event, got none")
     th = warp._theta(theta)
-    if xw is None or yw is None or (need_jac and (jx is None or jy is None)):
-        if need_jac:
-            xw, yw, jx, jy = warp.warp(x, y, dt, th, jacobian=True)
-        else:
-            xw, yw = warp.warp(x, y, dt, th)
-    return x, y, dt, th, xw, yw, jx, jy
+    if xw is None or yw is None:
+        xw, yw = warp.warp(x, y, dt, th)
+    xw = np.ascontiguousarray(xw, dtype=np.float64)
+    yw = np.ascontiguousarray(yw, dtype=np.float64)
+    return x, y, dt, th, xw, yw
 
 
 @njit(cache=True, error_model="numpy", fastmath=True)
@@ -386,18 +442,17 @@ def _trim_pass(cnt, num, margin, gS, gN):
 
 
 def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw):
-    """(d, dd, fac, cnt, num) of the DIWE/IWA: per-event values and their vote images."""
-    d, dd, fac = _event_values(kind, warp, x, y, dt, th)
+    """(d, fac, cnt, num) of the DIWE/IWA: per-event values and their vote images."""
+    d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False)
     cnt, num = _scratch((shape,) * 2, "img")
     _fused_forward(xw, yw, d, cnt, num)
-    return d, dd, fac, cnt, num
+    return d, fac, cnt, num
 
 
 def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, margin, kernel,
                         grad=True):
-    x, y, dt, th, xw, yw, jx, jy = _prepare(warp, x, y, dt, theta, shape, xw, yw, jx, jy, grad)
-    xw = np.ascontiguousarray(xw, dtype=np.float64)
-    yw = np.ascontiguousarray(yw, dtype=np.float64)
+    x, y, dt, th, xw, yw = _prepare(warp, x, y, dt, theta, xw, yw)
+    zero = (0.0, np.zeros(warp.n_params))
     # deformation's map is 1 + mean: its margin on `mean` is margin - 1
     m = margin - 1.0 if kind == "deformation" else margin
     if kind == "divergence" and warp.name in _CONST_DIV:
@@ -405,23 +460,46 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
         # the trimmed mean is that constant (no vote moves it)
         d, dd, _ = _event_values(kind, warp, x, y, dt, th)
         if not (d[0] < m and _any_vote(xw, yw, shape[0], shape[1])):
-            return 0.0, np.zeros(warp.n_params)
+            return zero
         return -float(d[0]), (-dd[0].copy() if grad else None)
+    d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False)
+    if _all_above(d, m):
+        # no collapse anywhere (the usual case away from collapse): no maps to build
+        return zero
     # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
-    d, dd, fac, cnt, num = _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw)
+    cnt, num = _scratch((shape,) * 2, "img")
+    _fused_forward(xw, yw, d, cnt, num)
     gS, gN = _scratch((shape,) * 2, "adj")
     total, n_sel = _trim_pass(cnt, num, m, gS, gN)
     if n_sel == 0:
-        return 0.0, np.zeros(warp.n_params)
+        return zero
     scale = -1.0 / n_sel
     if not grad:
         return total * scale, None
-    (gd,) = _scratch(((x.shape[0],),), "gd")
+    n = x.shape[0]
     g = np.empty(warp.n_params)
-    _fused_backward(xw, yw, d, gS, gN, scale, np.ascontiguousarray(jx),
-                    np.ascontiguousarray(jy), _EMPTY2 if dd is None else
-                    np.ascontiguousarray(dd), g, gd)
-    if dd is None:
+    dd = None
+    if fac is None:
+        # the value derivatives (the values themselves are unchanged)
+        d, dd, _ = _event_values(kind, warp, x, y, dt, th)
+    no_jac = jx is None or jy is None
+    if no_jac and hasattr(warp, "vjp"):
+        # per-event adjoints, contracted by the warp's own vjp (Jacobians recomputed from
+        # the warped events, never stored)
+        gx, gy, gd = _scratch(((n,),) * 3, "gev")
+        _fused_backward_events(xw, yw, d, gS, gN, scale, gx, gy, gd)
+        warp.vjp(xw, yw, dt, th, gx, gy, g)
+        if dd is not None:
+            g += gd @ dd
+    else:
+        if no_jac:
+            # only now: the Jacobians matter only when some pixel is trimmed
+            _, _, jx, jy = warp.warp(x, y, dt, th, jacobian=True)
+        (gd,) = _scratch(((n,),), "gd")
+        _fused_backward(xw, yw, d, gS, gN, scale, np.ascontiguousarray(jx),
+                        np.ascontiguousarray(jy), _EMPTY2 if dd is None else
+                        np.ascontiguousarray(dd), g, gd)
+    if fac is not None:
         _rotation_grad(warp, kind, x, y, dt, th, gd, fac, g)
     return total * scale, g
 
@@ -687,7 +765,7 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
                                    th).reshape(shape)
         return {"rcad": vals, "trimmed": vals > m}
     xw, yw = warp.warp(x, y, dt, th)
-    _, _, _, cnt, num = _pixel_average(name, warp, x, y, dt, th, shape, xw, yw)
+    _, _, cnt, num = _pixel_average(name, warp, x, y, dt, th, shape, xw, yw)
     support = cnt > _MIN_COUNT
     mean = np.zeros(shape)
     np.divide(num, cnt, out=mean, where=support)
