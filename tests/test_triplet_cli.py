@@ -51,6 +51,7 @@ def test_sparse_npz_streams_and_matches_api(edge_file, tmp_path, capsys):
         np.testing.assert_array_equal(z["vx"], ref.vx)
         np.testing.assert_array_equal(z["valid"], ref.valid)
         np.testing.assert_array_equal(z["t"], ev.t)
+        np.testing.assert_array_equal(z["nx"], ref.nx)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
@@ -93,11 +94,54 @@ def test_wider_filter_option(edge_file, tmp_path):
     assert seq.attrs["triplet_filter_size"] == 5
 
 
+def test_npy_and_flo_outputs_match_the_api(edge_file, tmp_path):
+    from evmotion.io.flowfiles import read_flo
+
+    path, ev, _ = edge_file
+    wins = ev.windows_by_duration(50_000)
+    ref = estimate_flow_triplet(ev, wins)
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "f.npy"),
+                 "--window-us", "50000", "--chunk-events", "300"]) == 0
+    arr = np.load(tmp_path / "f.npy")
+    assert arr.dtype == np.float32 and arr.shape == ref.flows.shape
+    np.testing.assert_allclose(arr, ref.flows, rtol=1e-5, atol=1e-3)
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "f.flo"),
+                 "--window-us", "50000"]) == 0
+    for i in range(len(wins)):
+        disp = read_flo(tmp_path / f"f_{i:04d}.flo")
+        np.testing.assert_allclose(disp, ref.displacement(i), rtol=1e-5, atol=1e-4)
+    assert not (tmp_path / "f.flo").exists()
+    one = tmp_path / "one.flo"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(one),
+                 "--window-us", "1000000"]) == 0
+    assert one.exists() and not (tmp_path / "one_0000.flo").exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_dense_lsq_option_matches_the_api(edge_file, tmp_path):
+    path, ev, _ = edge_file
+    out = tmp_path / "flow.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
+                 "--window-us", "50000", "--chunk-events", "170", "--dense", "lsq",
+                 "--bins", "2"]) == 0
+    ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000), dense="lsq", n_bins=2)
+    seq = read_flow_h5(out)
+    np.testing.assert_array_equal(seq.valid, ref.masks)
+    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    assert seq.attrs["triplet_dense"] == "lsq" and seq.attrs["triplet_filter_size"] == 11
+    # a straight edge: only its normal flow (200 px/s along +x) is observable
+    inner = seq.flow[1:-1][seq.valid[1:-1]]
+    np.testing.assert_allclose(np.median(inner, axis=0), [200.0 / 1.005, 0.0], atol=2.0)
+
+
 def test_bad_options_are_reported(edge_file, tmp_path, capsys):
     path, _, _ = edge_file
     assert main(["flow", str(path), "--method", "triplet", "--out",
-                 str(tmp_path / "x.flo")]) == 2
+                 str(tmp_path / "x.png")]) == 2
     assert "writes .h5" in capsys.readouterr().err
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
+                 "--dense", "lsq", "--ridge", "nan"]) == 2
+    assert "--ridge" in capsys.readouterr().err
     assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
                  "--dx", "0.3"]) == 2
     assert "dx" in capsys.readouterr().err

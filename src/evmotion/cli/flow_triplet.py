@@ -3,8 +3,13 @@
 Streams the recording in chunks through :class:`~evmotion.methods.triplet.TripletMatcher`,
 so memory does not grow with the file. Output by extension: ``.h5`` dense per-window
 fields (voxelized, 3x3 non-zero averaged, collapsed; px/s; the evmotion flow HDF5 of
-:class:`~evmotion.io.flowfiles.FlowWriter`, ``valid`` = pixels with a value), ``.npz`` sparse per-event flow
-(``t, x, y, p, vx, vy, valid, n_triplets``).
+:class:`~evmotion.io.flowfiles.FlowWriter`, ``valid`` = pixels with a value), ``.npy`` the
+same fields as one ``(N, H, W, 2)`` float32 array in px/s, ``.flo`` Middlebury displacement
+over each window (``name_0000.flo``... when there are several windows), ``.npz`` sparse
+per-event flow (``t, x, y, p, vx, vy, nx, ny, valid, n_triplets``; ``nx, ny`` the normal
+flow of :attr:`~evmotion.methods.triplet.TripletFlow.nx`). ``--dense lsq`` replaces the
+thesis' voxel mean by the normal-flow least-squares fit of
+:func:`~evmotion.methods.triplet.estimate_flow_triplet`.
 """
 
 from __future__ import annotations
@@ -30,9 +35,17 @@ def add_arguments(group) -> None:
     group.add_argument("--bins", type=int, default=1,
                        help="time bins per window of the dense .h5 output (default 1; windows "
                             f"default to {DEFAULT_WINDOW_US // 1000} ms); .npz is per event")
-    group.add_argument("--filter-size", type=int, default=3,
+    group.add_argument("--dense", choices=("mean", "lsq"), default="mean",
+                       help="dense output: 'mean' of the per-event flow (thesis, default) or "
+                            "'lsq', the least-squares fit of the events' normal flows (an "
+                            "extension, more accurate where edges of several orientations meet)")
+    group.add_argument("--filter-size", type=int, default=None,
                        help="width of the non-zero average filter of the dense output (default "
-                            "3, the thesis'; larger odd sizes are an extension)")
+                            "3, the thesis'; larger odd sizes are an extension), or of the "
+                            "--dense lsq neighbourhood (default 11)")
+    group.add_argument("--ridge", type=float, default=1e-2,
+                       help="--dense lsq: Tikhonov weight relative to the mean eigenvalue "
+                            "(default 0.01)")
     group.add_argument("--chunk-events", type=int, default=1_000_000,
                        help="events read and processed at a time (default 1e6)")
     group.add_argument("--depth", type=int, default=8,
@@ -41,14 +54,18 @@ def add_arguments(group) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.methods.triplet import TripletMatcher
+    from evmotion.methods.triplet import TripletMatcher, max_normal_speed
     from evmotion.utils import progress
 
     out = Path(args.out)
     kind = out.suffix.lower()
-    if kind not in (".h5", ".hdf5", ".npz"):
-        raise ParameterError(f"--out {out}: the triplet method writes .h5 (dense per window) "
-                             "or .npz (sparse per event)")
+    if kind not in (".h5", ".hdf5", ".npy", ".flo", ".npz"):
+        raise ParameterError(f"--out {out}: the triplet method writes .h5, .npy or .flo (dense "
+                             "per window) or .npz (sparse per event)")
+    if args.filter_size is None:
+        args.filter_size = 3 if args.dense == "mean" else 11
+    if not (np.isfinite(args.ridge) and args.ridge >= 0):
+        raise ParameterError(f"--ridge must be a finite number >= 0, got {args.ridge}")
     if args.chunk_events <= 0:
         raise ParameterError(f"--chunk-events must be > 0, got {args.chunk_events}")
     dense = kind != ".npz" or args.png_dir
@@ -61,14 +78,21 @@ def run(args) -> int:
                              int(round(args.tau_ms * 1000)), quadruple=args.quadruple,
                              depth=args.depth)
     windows = _Windows(sensor, args.bins, args.window_us, args.window_events,
-                       int(first.t[0]), _gt_edges(args),
-                       filter_size=args.filter_size) if dense else None
+                       int(first.t[0]), _gt_edges(args), filter_size=args.filter_size,
+                       dense=args.dense, ridge=args.ridge,
+                       vmax=max_normal_speed(matcher.dx, matcher.tau_us)) if dense else None
     params = {"dx": args.dx, "dt_ms": args.dt_ms, "tau_ms": args.tau_ms,
               "quadruple": args.quadruple, "bins": args.bins, "depth": args.depth,
-              "filter_size": args.filter_size}
-    sink = (_NpzSink(out) if kind == ".npz"
-            else _H5Sink(out, sensor, {"method": "triplet", "source": str(args.file),
-                                       **{f"triplet_{k}": v for k, v in params.items()}}))
+              "dense": args.dense, "filter_size": args.filter_size, "ridge": args.ridge}
+    if kind == ".npz":
+        sink = _NpzSink(out)
+    elif kind == ".npy":
+        sink = _NpySink(out, sensor)
+    elif kind == ".flo":
+        sink = _FloSink(out)
+    else:
+        sink = _H5Sink(out, sensor, {"method": "triplet", "source": str(args.file),
+                                     **{f"triplet_{k}": v for k, v in params.items()}})
     png_dir = Path(args.png_dir) if args.png_dir else None
     bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True)
     n_events = n_valid = n_trip = 0
@@ -163,12 +187,13 @@ class _Windows:
     and the IWE of each window's events warped by their own flow to the window start."""
 
     def __init__(self, sensor, bins, window_us, window_events, t_start, edges=None, *,
-                 filter_size=3):
+                 filter_size=3, dense="mean", ridge=1e-2, vmax=np.inf):
         if bins < 1:
             raise ParameterError(f"--bins must be >= 1, got {bins}")
         if filter_size < 1 or filter_size % 2 == 0:
             raise ParameterError(f"--filter-size must be an odd number >= 1, got {filter_size}")
         self.filter_size = filter_size
+        self.dense, self.ridge, self.vmax = dense, ridge, vmax
         if window_us is not None and window_us <= 0:
             raise ParameterError(f"--window-us must be > 0, got {window_us}")
         if window_events is not None and window_events <= 0:
@@ -191,7 +216,7 @@ class _Windows:
 
     def _new(self):
         h, w = self.sensor
-        self.acc = np.zeros((self.bins, h, w, 2), np.float64)
+        self.acc = np.zeros((self.bins, h, w, 5 if self.dense == "lsq" else 2), np.float64)
         self.cnt = np.zeros((self.bins, h, w), np.int64)
         self.iwe = np.zeros((h, w), np.float64)
         self.n = 0
@@ -207,7 +232,7 @@ class _Windows:
             t0, t1 = b
             start = max(start, int(np.searchsorted(t, t0, side="left")))
             stop = int(np.searchsorted(t, t1, side="left"))
-            self._accumulate(chunk[start:stop], _slice(flow, start, stop), t0, t1)
+            self._accumulate(chunk[start:stop], flow[start:stop], t0, t1)
             start = stop
             if stop < len(chunk):
                 yield self._close(t0, t1)
@@ -217,7 +242,7 @@ class _Windows:
         start = 0
         while start < len(chunk):
             take = min(self.by_count - self.n, len(chunk) - start)
-            self.pending.append((chunk[start:start + take], _slice(flow, start, start + take)))
+            self.pending.append((chunk[start:start + take], flow[start:start + take]))
             self.n += take
             start += take
             if self.n == self.by_count:
@@ -235,11 +260,14 @@ class _Windows:
         return win
 
     def _accumulate(self, ev, fl, t0, t1):
-        from evmotion.methods.triplet import add_voxels
+        from evmotion.methods.triplet import add_normal_voxels, add_voxels
 
         if not len(ev):
             return
-        add_voxels(ev, fl, t0, t1, self.acc, self.cnt)
+        if self.dense == "lsq":
+            add_normal_voxels(ev, fl, t0, t1, self.acc, self.cnt, self.vmax)
+        else:
+            add_voxels(ev, fl, t0, t1, self.acc, self.cnt)
         self.n += 0 if self.by_count else len(ev)
         from evmotion.core.iwe import accumulate
 
@@ -248,9 +276,13 @@ class _Windows:
                                ev.y.astype(np.float64) - fl.vy * dt, self.sensor)
 
     def _close(self, t0, t1):
-        from evmotion.methods.triplet import dense_from_sums
+        from evmotion.methods.triplet import dense_from_sums, dense_lsq_from_sums
 
-        flow, mask = dense_from_sums(self.acc, self.cnt, filter_size=self.filter_size)
+        if self.dense == "lsq":
+            flow, mask = dense_lsq_from_sums(self.acc, self.cnt, filter_size=self.filter_size,
+                                             ridge=self.ridge)
+        else:
+            flow, mask = dense_from_sums(self.acc, self.cnt, filter_size=self.filter_size)
         win = _Window(self.index, t0, t1, flow, mask, self.iwe, self.n)
         self.index += 1
         self._new()
@@ -266,12 +298,6 @@ class _Windows:
             if self.edges is None and not self.n:
                 return
             yield self._close(*b)
-
-
-def _slice(flow, a, b):
-    from evmotion.methods.triplet import TripletFlow
-
-    return TripletFlow(flow.vx[a:b], flow.vy[a:b], flow.valid[a:b], flow.n_triplets[a:b])
 
 
 def _emit(win, sink, png_dir, kind) -> int:
@@ -309,8 +335,8 @@ class _NpzSink:
     a zip (an ``.npz``) without holding the stream in memory."""
 
     FIELDS = (("t", np.int64), ("x", np.float32), ("y", np.float32), ("p", np.uint8),
-              ("vx", np.float32), ("vy", np.float32), ("valid", np.bool_),
-              ("n_triplets", np.int32))
+              ("vx", np.float32), ("vy", np.float32), ("nx", np.float32), ("ny", np.float32),
+              ("valid", np.bool_), ("n_triplets", np.int32))
 
     def __init__(self, out: Path):
         import tempfile
@@ -325,7 +351,8 @@ class _NpzSink:
 
     def add(self, chunk, flow):
         vals = {"t": chunk.t, "x": chunk.x, "y": chunk.y, "p": chunk.p, "vx": flow.vx,
-                "vy": flow.vy, "valid": flow.valid, "n_triplets": flow.n_triplets}
+                "vy": flow.vy, "nx": flow.nx, "ny": flow.ny, "valid": flow.valid,
+                "n_triplets": flow.n_triplets}
         for k, dt in self.FIELDS:
             self.files[k].write(np.ascontiguousarray(vals[k], dtype=dt).tobytes())
         self.n += len(chunk)
@@ -350,3 +377,73 @@ class _NpzSink:
             fh.close()
         self.dir.cleanup()
         self._ctx.__exit__(RuntimeError, RuntimeError("aborted"), None)
+
+
+class _NpySink:
+    """Dense windows streamed to a raw temporary file, then written as one ``(N, H, W, 2)``
+    float32 ``.npy`` (px/s) once N is known, without holding the windows in memory."""
+
+    def __init__(self, out: Path, sensor):
+        import tempfile
+
+        from evmotion.utils import atomic_path
+
+        self.sensor = sensor
+        self._ctx = atomic_path(out)
+        self.tmp = self._ctx.__enter__()
+        self.raw = tempfile.TemporaryFile(prefix=".triplet-", dir=out.parent)
+        self.n = 0
+
+    def add_window(self, win):
+        self.raw.write(np.ascontiguousarray(win.flow, dtype="<f4").tobytes())
+        self.n += 1
+
+    def close(self):
+        self.raw.seek(0)
+        with open(self.tmp, "wb") as dst:
+            np.lib.format.write_array_header_1_0(
+                dst, {"descr": "<f4", "fortran_order": False,
+                      "shape": (self.n, *self.sensor, 2)})
+            while block := self.raw.read(1 << 22):
+                dst.write(block)
+        self.raw.close()
+        self._ctx.__exit__(None, None, None)
+
+    def abort(self):
+        self.raw.close()
+        self._ctx.__exit__(RuntimeError, RuntimeError("aborted"), None)
+
+
+class _FloSink:
+    """Middlebury ``.flo`` displacement per window: ``out`` itself for a single window,
+    ``out_0000.flo``... otherwise (each file written atomically as its window ends)."""
+
+    def __init__(self, out: Path):
+        self.out = out
+        self.first = None
+        self.n = 0
+
+    def _write(self, path, win):
+        from evmotion.io.flowfiles import write_flo
+
+        write_flo(path, win.flow, dt_s=(win.t1 - win.t0) * 1e-6)
+
+    def _numbered(self, i):
+        return self.out.with_name(f"{self.out.stem}_{i:04d}.flo")
+
+    def add_window(self, win):
+        if self.n == 0:
+            self.first = win
+        else:
+            if self.n == 1:
+                self._write(self._numbered(0), self.first)
+                self.first = None
+            self._write(self._numbered(self.n), win)
+        self.n += 1
+
+    def close(self):
+        if self.first is not None:
+            self._write(self.out, self.first)
+
+    def abort(self):
+        self.first = None

@@ -20,6 +20,7 @@ EMPTY = np.int32(-(2**31) + 1)
 # Relative timestamps must stay far from the int32 limits; rebase before this span.
 REBASE_SPAN_US = 2**30
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+NORMAL_RIDGE = 1e-3
 
 
 _LOG2E = 1.0 / math.log(2.0)
@@ -30,11 +31,15 @@ C0, C1, C2, C3, C4, C5, C6, C7, C8, C9, C10 = _C
 
 
 @njit(cache=True, fastmath=True)
-def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale):
+def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq):
     """Vote sums of ``m`` collected triplets, in branch-free loops the compiler vectorizes.
 
     exp(-a) = 2^-n * exp(-u), u = (a log2 e - n) ln 2 in [0, ln 2): a polynomial for the
-    second factor and the exponent bits of a float64 for the first.
+    second factor and the exponent bits of a float64 for the first. ``lsq[:5]`` receives the
+    normal equations of the time-surface gradient ``g`` (s/px) that every match constrains,
+    ``g . (x_k - x_j) = t_k - t_j``, weighted by the Gaussian's shape ``exp(-a)``:
+    ``[sum s_x^2, sum s_x s_y, sum s_y^2, sum s_x D, sum s_y D]`` (``s = x_k - x_j``,
+    ``D = t_k - t_j``; any common unit scale of the two cancels).
     """
     for q in range(m):
         y = ab[q] * _LOG2E
@@ -46,26 +51,77 @@ def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale):
     sw = 0.0
     swx = 0.0
     swy = 0.0
+    a11 = 0.0
+    a12 = 0.0
+    a22 = 0.0
+    b1 = 0.0
+    b2 = 0.0
     for q in range(m):
-        e = pb[q] * scale[q] * nb[q]
+        g = pb[q] * scale[q]
+        e = g * nb[q]
         sw += e
         r = e / db[q]
-        swx += r * sxb[q]
-        swy += r * syb[q]
+        sx = sxb[q]
+        sy = syb[q]
+        swx += r * sx
+        swy += r * sy
+        # s and D in units of 1e-6 px and µs: both sides scale by 1e12, g keeps s/px
+        gx = g * sx
+        gy = g * sy
+        a11 += gx * sx
+        a12 += gx * sy
+        a22 += gy * sy
+        b1 += gx * db[q]
+        b2 += gy * db[q]
+    lsq[0] = a11
+    lsq[1] = a12
+    lsq[2] = a22
+    lsq[3] = b1
+    lsq[4] = b2
     return sw, swx, swy
+
+
+@njit(cache=True, inline="always")
+def normal_flow(lsq):
+    """Normal flow ``g / |g|^2`` (px/s) of the least-squares time-surface gradient ``g``.
+
+    A ridge of ``NORMAL_RIDGE`` x their trace regularizes the normal equations: with matches
+    along one direction only (singular equations) it returns the minimum-norm solution,
+    speeds overestimated by that fraction, and a second direction carrying less than about
+    that share of the weight cannot swing the solution. (0, 0) when no match carries weight.
+    """
+    tr = lsq[0] + lsq[2]
+    if not tr > 0.0:
+        return 0.0, 0.0
+    # scaled by the trace: the weights may be as small as 1e-304
+    inv = 1.0 / tr
+    a11 = lsq[0] * inv + NORMAL_RIDGE
+    a12 = lsq[1] * inv
+    a22 = lsq[2] * inv + NORMAL_RIDGE
+    b1 = lsq[3] * inv
+    b2 = lsq[4] * inv
+    # g = h / det, so g / |g|^2 = h det / |h|^2
+    h1 = a22 * b1 - a12 * b2
+    h2 = a11 * b2 - a12 * b1
+    hh = h1 * h1 + h2 * h2
+    if not hh > 0.0:
+        return 0.0, 0.0
+    f = (a11 * a22 - a12 * a12) / hh
+    return h1 * f, h2 * f
 
 
 # Not fastmath here: its reciprocal shortcut overflows when every weight is subnormal.
 @njit(cache=True)
 def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
-                   out_vx, out_vy, out_n, out_valid, stats):
+                   out_vx, out_vy, out_n, out_valid, out_nx, out_ny, stats):
     """Process events in order, writing one flow per event and updating the ring state.
 
     ``x, y`` int32 pixels, ``t`` int64 µs absolute, ``p`` uint8; ``base`` the µs subtracted
     from ``t`` before it is stored. Each ring ``ts[c, y, x, :]`` is kept newest first, so a
     scan skips the too-recent slots and stops at the first too-old (or empty) one. The
     matches of one event are collected first and weighed in one vectorized pass.
-    ``stats[0]`` counts evictions of events that could still take part in a future triplet
+    ``out_nx, out_ny`` receive the normal flow of the matches' least-squares time-surface
+    gradient (see :func:`_weights`). ``stats[0]`` counts evictions of events that could still take part in a future triplet
     (answers then may differ from unbounded Algorithm 1).
     """
     h = ts.shape[1]
@@ -83,6 +139,7 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
     pb = np.empty(cap)
     bits = np.empty(cap, np.int64)
     scale = bits.view(np.float64)
+    lsq = np.empty(5)
     for k in range(t.shape[0]):
         xk = x[k]
         yk = y[k]
@@ -176,7 +233,11 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
                             tail_x += e * sx / float(tk - tl)
                             tail_y += e * sy / float(tk - tl)
                             tail_n += 1
-        sw, swx, swy = _weights(m, ab, nb, db, sxb, syb, pb, bits, scale)
+        sw, swx, swy = _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq)
+        # Far-tail matches (exp(-a) < 1e-304) add nothing to the normal equations.
+        nx, ny = normal_flow(lsq)
+        out_nx[k] = nx
+        out_ny[k] = ny
         sw += tail_w
         swx += tail_x
         swy += tail_y
@@ -262,6 +323,116 @@ def dense_from_sums(acc, cnt, r, out, out_mask):
             if nbins > 0:
                 out[yy, xx, 0] = su / nbins
                 out[yy, xx, 1] = sv / nbins
+                out_mask[yy, xx] = True
+            else:
+                out[yy, xx, 0] = 0.0
+                out[yy, xx, 1] = 0.0
+                out_mask[yy, xx] = False
+
+
+@njit(cache=True)
+def voxel_accumulate_normal(x, y, t, nx, ny, t0, t1, n_bins, vmax, acc, cnt):
+    """Add the normal-flow constraints of events with ``t0 <= t < t1`` to time-bin voxels.
+
+    Each event with a normal flow ``u`` (``0 < |u| <= vmax`` px/s) constrains the flow ``v``
+    of its neighbourhood by ``v . u/|u| = |u|``: ``acc`` (n_bins, H, W, 5) float64 sums its
+    normal equations ``[n_x^2, n_x n_y, n_y^2, u_x, u_y]`` (``n = u/|u|``), ``cnt``
+    (n_bins, H, W) counts the events.
+    """
+    span = float(t1 - t0)
+    for k in range(t.shape[0]):
+        tk = t[k]
+        if tk < t0 or tk >= t1:
+            continue
+        ux = float(nx[k])
+        uy = float(ny[k])
+        s2 = ux * ux + uy * uy
+        if not (s2 > 0.0 and s2 <= vmax * vmax):
+            continue
+        b = int((tk - t0) * n_bins / span)
+        if b >= n_bins:
+            b = n_bins - 1
+        yk = y[k]
+        xk = x[k]
+        acc[b, yk, xk, 0] += ux * ux / s2
+        acc[b, yk, xk, 1] += ux * uy / s2
+        acc[b, yk, xk, 2] += uy * uy / s2
+        acc[b, yk, xk, 3] += ux
+        acc[b, yk, xk, 4] += uy
+        cnt[b, yk, xk] += 1
+
+
+@njit(cache=True)
+def _box_sum(a, r, tmp, out):
+    """(2r+1)x(2r+1) sums of ``a`` (H, W, C) with zero padding, by running sums per axis."""
+    h, w, c = a.shape
+    for yy in range(h):
+        for ch in range(c):
+            s = 0.0
+            for xx in range(min(r, w)):
+                s += a[yy, xx, ch]
+            for xx in range(w):
+                if xx + r < w:
+                    s += a[yy, xx + r, ch]
+                tmp[yy, xx, ch] = s
+                if xx - r >= 0:
+                    s -= a[yy, xx - r, ch]
+    for xx in range(w):
+        for ch in range(c):
+            s = 0.0
+            for yy in range(min(r, h)):
+                s += tmp[yy, xx, ch]
+            for yy in range(h):
+                if yy + r < h:
+                    s += tmp[yy + r, xx, ch]
+                out[yy, xx, ch] = s
+                if yy - r >= 0:
+                    s -= tmp[yy - r, xx, ch]
+
+
+@njit(cache=True)
+def dense_lsq_from_sums(acc, cnt, r, ridge, out, out_mask):
+    """Per bin, the flow that best meets the normal-flow constraints of a (2r+1)^2
+    neighbourhood, ``(M + ridge tr(M)/2 I) v = sum u`` with ``M = sum n n^T``; then the mean
+    over the bins that hold a value. ``acc``/``cnt`` from :func:`voxel_accumulate_normal`;
+    ``out`` (H, W, 2) float32 px/s, ``out_mask`` (H, W) bool."""
+    nb, h, w = cnt.shape
+    c6 = np.empty((h, w, 6))
+    tmp = np.empty((h, w, 6))
+    box = np.empty((h, w, 6))
+    su = np.zeros((h, w))
+    sv = np.zeros((h, w))
+    nbins = np.zeros((h, w), np.int64)
+    for b in range(nb):
+        for yy in range(h):
+            for xx in range(w):
+                for ch in range(5):
+                    c6[yy, xx, ch] = acc[b, yy, xx, ch]
+                c6[yy, xx, 5] = cnt[b, yy, xx]
+        _box_sum(c6, r, tmp, box)
+        for yy in range(h):
+            for xx in range(w):
+                if box[yy, xx, 5] < 0.5:
+                    continue
+                m11 = box[yy, xx, 0]
+                m12 = box[yy, xx, 1]
+                m22 = box[yy, xx, 2]
+                eps = ridge * 0.5 * (m11 + m22)
+                m11 += eps
+                m22 += eps
+                det = m11 * m22 - m12 * m12
+                if not det > 0.0:
+                    continue
+                r1 = box[yy, xx, 3]
+                r2 = box[yy, xx, 4]
+                su[yy, xx] += (m22 * r1 - m12 * r2) / det
+                sv[yy, xx] += (m11 * r2 - m12 * r1) / det
+                nbins[yy, xx] += 1
+    for yy in range(h):
+        for xx in range(w):
+            if nbins[yy, xx] > 0:
+                out[yy, xx, 0] = su[yy, xx] / nbins[yy, xx]
+                out[yy, xx, 1] = sv[yy, xx] / nbins[yy, xx]
                 out_mask[yy, xx] = True
             else:
                 out[yy, xx, 0] = 0.0

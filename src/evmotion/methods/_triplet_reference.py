@@ -15,11 +15,16 @@ import numpy as np
 
 def triplet_reference(x, y, t, p, *, dx: float = math.sqrt(2.0), dt_us: int = 100_000,
                       tau_us: int = 3_000, quadruple: bool = False,
-                      max_maps: int | None = None):
+                      max_maps: int | None = None, with_normal: bool = False,
+                      ridge: float = 1e-3):
     """Per-event flow by Algorithm 1: build H_k (5.1), search J_{k,i} in H_i (5.2), average (5.3).
 
     ``max_maps`` keeps only the latest index maps per polarity (the thesis keeps 20,000);
-    None keeps all. Returns ``(vx, vy, valid, n)`` arrays (float64 px/s, bool, int).
+    None keeps all. Returns ``(vx, vy, valid, n)`` arrays (float64 px/s, bool, int), and with
+    ``with_normal`` also ``(nx, ny)``: the normal flow ``g / |g|^2`` of the weighted
+    least-squares ``g`` of ``g . (x_k - x_j) = t_k - t_j`` over the matches, each weighted by
+    its Gaussian's shape (the density without its normalization), with the ridge
+    ``ridge`` x the trace of the normal equations.
     """
     x = np.asarray(x, np.int64)
     y = np.asarray(y, np.int64)
@@ -30,6 +35,8 @@ def triplet_reference(x, y, t, p, *, dx: float = math.sqrt(2.0), dt_us: int = 10
     vy = np.zeros(n_ev)
     valid = np.zeros(n_ev, bool)
     count = np.zeros(n_ev, np.int64)
+    nx = np.zeros(n_ev)
+    ny = np.zeros(n_ev)
     maps: dict[int, OrderedDict[int, list[int]]] = {0: OrderedDict(), 1: OrderedDict()}
     for k in range(n_ev):
         c = int(p[k])
@@ -50,7 +57,8 @@ def triplet_reference(x, y, t, p, *, dx: float = math.sqrt(2.0), dt_us: int = 10
                     continue
                 w = _gauss(t[j], t[i] - delta, delta)
                 if not quadruple:
-                    votes.append((w, x[j] - x[k], y[j] - y[k], t[j] - t[k]))
+                    votes.append((w, x[j] - x[k], y[j] - y[k], t[j] - t[k],
+                                  w * _norm(delta)))
                     continue
                 for m in maps[c].get(j, []):
                     if not (t[j] - tau_us - dt_us <= t[m] <= t[j] - tau_us):
@@ -58,17 +66,39 @@ def triplet_reference(x, y, t, p, *, dx: float = math.sqrt(2.0), dt_us: int = 10
                     if (x[j] - x[m], y[j] - y[m]) != (x[i] - x[j], y[i] - y[j]):
                         continue
                     wq = w * _gauss(t[m], t[j] - delta, delta)
-                    votes.append((wq, x[m] - x[k], y[m] - y[k], t[m] - t[k]))
+                    votes.append((wq, x[m] - x[k], y[m] - y[k], t[m] - t[k],
+                                  wq * _norm(delta) ** 2))
         maps[c][k] = h_k
         if max_maps is not None and len(maps[c]) > max_maps:
             maps[c].popitem(last=False)
         count[k] = len(votes)
         sw = sum(v[0] for v in votes)
         if votes and sw > 0:
-            vx[k] = sum(w * ddx / (dt * 1e-6) for w, ddx, _, dt in votes) / sw
-            vy[k] = sum(w * ddy / (dt * 1e-6) for w, _, ddy, dt in votes) / sw
+            vx[k] = sum(w * ddx / (dt * 1e-6) for w, ddx, _, dt, _ in votes) / sw
+            vy[k] = sum(w * ddy / (dt * 1e-6) for w, _, ddy, dt, _ in votes) / sw
             valid[k] = True
+        if votes:
+            nx[k], ny[k] = _normal_flow(votes, ridge)
+    if with_normal:
+        return vx, vy, valid, count, nx, ny
     return vx, vy, valid, count
+
+
+def _normal_flow(votes, ridge: float) -> tuple[float, float]:
+    w = np.array([v[4] for v in votes])
+    s = np.array([(-v[1], -v[2]) for v in votes], float)
+    d = np.array([-v[3] * 1e-6 for v in votes])
+    a = (s * w[:, None]).T @ s
+    if not np.trace(a) > 0:
+        return 0.0, 0.0
+    g = np.linalg.solve(a + ridge * np.trace(a) * np.eye(2), (s * w[:, None]).T @ d)
+    gg = float(g @ g)
+    return (float(g[0] / gg), float(g[1] / gg)) if gg > 0 else (0.0, 0.0)
+
+
+def _norm(sigma_us) -> float:
+    """sqrt(2 pi) sigma: the Gaussian density times this is its shape exp(-z^2 / 2)."""
+    return math.sqrt(2.0 * math.pi) * sigma_us * 1e-6
 
 
 def _gauss(value, mean, sigma_us) -> float:

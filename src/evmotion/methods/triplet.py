@@ -42,11 +42,14 @@ __all__ = [
     "TripletBatchResult",
     "TripletFlow",
     "TripletMatcher",
+    "add_normal_voxels",
     "add_voxels",
     "collapse_voxels",
     "dense_from_sums",
+    "dense_lsq_from_sums",
     "estimate_flow_triplet",
     "event_fwl",
+    "max_normal_speed",
     "neighbour_offsets",
     "nonzero_average_filter",
     "voxelize_flow",
@@ -65,15 +68,31 @@ class TripletFlow:
         True where at least one triplet was found.
     n_triplets : ndarray of int32, shape (N,)
         Number of triplets (or quadruples) that voted.
+    nx, ny : ndarray of float32, shape (N,), optional
+        Normal flow in px/s of the event's matches: ``g / |g|^2`` with ``g`` the
+        least-squares time-surface gradient (s/px) of ``g . (x_k - x_j) = t_k - t_j`` over
+        its triplets (an extension, used by the ``dense="lsq"`` batch output); 0 where no
+        match carries weight. None when not computed.
     """
 
     vx: np.ndarray
     vy: np.ndarray
     valid: np.ndarray
     n_triplets: np.ndarray
+    nx: np.ndarray | None = None
+    ny: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.vx.shape[0])
+
+    def __getitem__(self, index: slice) -> TripletFlow:
+        """The flows of a slice of the events (views, no copy)."""
+        if not isinstance(index, slice):
+            raise TypeError("TripletFlow supports slices only, e.g. flow[a:b]")
+        return TripletFlow(*(None if a is None else a[index] for a in self._arrays()))
+
+    def _arrays(self) -> tuple:
+        return (self.vx, self.vy, self.valid, self.n_triplets, self.nx, self.ny)
 
     @property
     def flow(self) -> np.ndarray:
@@ -86,9 +105,10 @@ class TripletFlow:
 
     @staticmethod
     def concatenate(parts: Sequence[TripletFlow]) -> TripletFlow:
-        """Join per-chunk results in order."""
-        return TripletFlow(*(np.concatenate([getattr(f, a) for f in parts])
-                             for a in ("vx", "vy", "valid", "n_triplets")))
+        """Join per-chunk results in order (normal flow kept only if every part has it)."""
+        cols = list(zip(*(f._arrays() for f in parts), strict=True))
+        return TripletFlow(*(None if any(a is None for a in c) else np.concatenate(c)
+                             for c in cols))
 
 
 def neighbour_offsets(dx: float) -> np.ndarray:
@@ -195,7 +215,8 @@ class TripletMatcher:
                                  f"matcher's {self.sensor_size}")
         n = len(chunk)
         out = TripletFlow(np.empty(n, np.float32), np.empty(n, np.float32),
-                          np.empty(n, np.bool_), np.empty(n, np.int32))
+                          np.empty(n, np.bool_), np.empty(n, np.int32),
+                          np.empty(n, np.float32), np.empty(n, np.float32))
         if n == 0:
             return out
         t = chunk.t
@@ -229,7 +250,8 @@ class TripletMatcher:
                              np.int64(self._base), self._ts, self.offsets,
                              np.int64(self.dt_us), np.int64(self.tau_us), self.quadruple,
                              out.vx[start:stop], out.vy[start:stop], out.n_triplets[start:stop],
-                             out.valid[start:stop], self._stats)
+                             out.valid[start:stop], out.nx[start:stop], out.ny[start:stop],
+                             self._stats)
             start = stop
         self._t_last = int(t[-1])
         self.events_seen += n
@@ -320,11 +342,15 @@ def voxelize_flow(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: int,
     return _voxel_mean(acc, cnt)
 
 
-def _voxel_sums(events, flow, t0_us, t1_us, n_bins):
+def _check_interval(t0_us, t1_us, n_bins):
     if n_bins < 1:
         raise ParameterError(f"n_bins must be >= 1, got {n_bins}")
     if t1_us <= t0_us:
         raise ParameterError(f"empty interval [{t0_us}, {t1_us}) us")
+
+
+def _voxel_sums(events, flow, t0_us, t1_us, n_bins):
+    _check_interval(t0_us, t1_us, n_bins)
     h, w = events.sensor_size
     acc = np.zeros((n_bins, h, w, 2), np.float64)
     cnt = np.zeros((n_bins, h, w), np.int64)
@@ -355,6 +381,44 @@ def dense_from_sums(acc: np.ndarray, cnt: np.ndarray, *, smooth: bool = True,
     r = _filter_radius(filter_size) if smooth else 0
     K.dense_from_sums(np.ascontiguousarray(acc, np.float64), np.ascontiguousarray(cnt),
                       np.int64(r), out, mask)
+    return out, mask
+
+
+def max_normal_speed(dx: float, tau_us: int) -> float:
+    """Fastest normal flow (px/s) the ``dense="lsq"`` output admits: twice the fastest triplet
+    step ``d_x / tau``; faster normal flows come from ill-conditioned fits and are dropped."""
+    return 2.0 * float(dx) / (float(tau_us) * 1e-6)
+
+
+def add_normal_voxels(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: int,
+                      acc: np.ndarray, cnt: np.ndarray, vmax: float) -> None:
+    """Accumulate the per-event normal-flow constraints (``flow.nx``, ``flow.ny``) into voxel
+    normal equations ``acc`` (n_bins, H, W, 5) float64 and counts ``cnt`` (n_bins, H, W)
+    int64, in place; normal flows faster than ``vmax`` px/s are left out (see
+    :func:`max_normal_speed`). Counterpart of :func:`add_voxels` for ``dense="lsq"``."""
+    if flow.nx is None or flow.ny is None:
+        raise ParameterError("this TripletFlow carries no normal flow (nx, ny); use the "
+                             "output of TripletMatcher.process")
+    K.voxel_accumulate_normal(_pixels(events.x, events.width), _pixels(events.y, events.height),
+                              events.t, flow.nx, flow.ny, np.int64(t0_us), np.int64(t1_us),
+                              acc.shape[0], float(vmax), acc, cnt)
+
+
+def dense_lsq_from_sums(acc: np.ndarray, cnt: np.ndarray, *, filter_size: int = 11,
+                        ridge: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
+    """Dense (H, W, 2) px/s flow and mask from normal-flow voxel sums (see
+    :func:`add_normal_voxels`): per time bin and pixel, the flow ``v`` that best meets the
+    constraints ``v . n = |u|`` of the events in the ``filter_size`` x ``filter_size``
+    neighbourhood (least squares, ridge ``ridge`` x the mean eigenvalue, which keeps
+    single-orientation neighbourhoods at their normal flow), then the mean over the bins
+    that hold a value."""
+    if not (np.isfinite(ridge) and ridge >= 0.0):
+        raise ParameterError(f"ridge must be a finite number >= 0, got {ridge}")
+    h, w = cnt.shape[1:]
+    out = np.empty((h, w, 2), np.float32)
+    mask = np.empty((h, w), np.bool_)
+    K.dense_lsq_from_sums(np.ascontiguousarray(acc, np.float64), np.ascontiguousarray(cnt),
+                          np.int64(_filter_radius(filter_size)), float(ridge), out, mask)
     return out, mask
 
 
@@ -411,8 +475,9 @@ class TripletBatchResult:
 def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None = None, *,
                           dx: float = float(np.sqrt(2.0)), dt_us: int = 100_000,
                           tau_us: int = 3_000, quadruple: bool = False, n_bins: int = 1,
-                          smooth: bool = True, filter_size: int = 3,
-                          depth: int = 8) -> TripletBatchResult:
+                          smooth: bool = True, filter_size: int | None = None,
+                          depth: int = 8, dense: str = "mean",
+                          ridge: float = 1e-2) -> TripletBatchResult:
     """Triplet-matching flow of a recording, dense per window (thesis Algorithm 2).
 
     Every event is processed in order (events before a window serve as its history), then
@@ -430,13 +495,26 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     n_bins : int
         Time bins per window for the voxelization.
     smooth : bool
-        Apply the 3x3 non-zero average filter.
-    filter_size : int
+        Apply the 3x3 non-zero average filter (``dense="mean"``).
+    filter_size : int, optional
         Width of that filter; 3 (default) is the thesis' method. Larger odd sizes are an
         extension: the per-event triplet flow scatters by about 30-70 % of the speed from
         event to event, mostly independently between nearby pixels, so a wider average
         lowers the dense error where the motion is smooth (it cannot remove the method's
-        speed bias; see ``benchmarks/results/triplet_event_errors.md``).
+        speed bias; see ``benchmarks/results/triplet_event_errors.md``). With
+        ``dense="lsq"``: the neighbourhood width of the fit (default 11).
+    dense : {"mean", "lsq"}
+        ``"mean"``: the thesis' voxel mean of the per-event flow (5.3). ``"lsq"`` (an
+        extension): each event's triplets fix its time-surface gradient and so its normal
+        flow (:attr:`TripletFlow.nx`); per bin and pixel, the flow meeting the normal-flow
+        constraints of the neighbourhood best in least squares. Averaging (5.3) mixes step
+        directions that each carry only the normal component of the motion, which biases
+        the dense mean towards the edges' normals; the fit resolves the aperture wherever the
+        neighbourhood holds edges of several orientations
+        (``benchmarks/results/triplet_accuracy_summary.md``).
+    ridge : float
+        ``dense="lsq"`` only: Tikhonov weight relative to the mean eigenvalue of the normal
+        equations.
 
     Examples
     --------
@@ -448,6 +526,10 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     """
     if len(events) == 0:
         raise EmptyWindowError("no events to estimate the triplet flow of")
+    if dense not in ("mean", "lsq"):
+        raise ParameterError(f"dense must be 'mean' (thesis) or 'lsq', got {dense!r}")
+    if filter_size is None:
+        filter_size = 3 if dense == "mean" else 11
     _filter_radius(filter_size)
     if windows is None:
         windows = [Window(0, events.t_start, events.t_end + 1, 0, len(events))]
@@ -460,10 +542,19 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     masks = np.zeros((len(windows), h, w), bool)
     for i, win in enumerate(windows):
         sub = events[win.start:win.stop]
-        fsub = TripletFlow(flow.vx[win.start:win.stop], flow.vy[win.start:win.stop],
-                           flow.valid[win.start:win.stop], flow.n_triplets[win.start:win.stop])
-        acc, cnt = _voxel_sums(sub, fsub, win.t0, win.t1, n_bins)
-        flows[i], masks[i] = dense_from_sums(acc, cnt, smooth=smooth, filter_size=filter_size)
+        fsub = flow[win.start:win.stop]
+        if dense == "lsq":
+            acc = np.zeros((n_bins, h, w, 5))
+            cnt = np.zeros((n_bins, h, w), np.int64)
+            _check_interval(win.t0, win.t1, n_bins)
+            add_normal_voxels(sub, fsub, win.t0, win.t1, acc, cnt,
+                              max_normal_speed(dx, tau_us))
+            flows[i], masks[i] = dense_lsq_from_sums(acc, cnt, filter_size=filter_size,
+                                                     ridge=ridge)
+        else:
+            acc, cnt = _voxel_sums(sub, fsub, win.t0, win.t1, n_bins)
+            flows[i], masks[i] = dense_from_sums(acc, cnt, smooth=smooth,
+                                                 filter_size=filter_size)
     return TripletBatchResult(flows, masks, windows, flow, m.overflow)
 
 
