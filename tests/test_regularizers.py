@@ -307,3 +307,62 @@ def test_no_map_when_every_value_is_above_the_margin():
             v, g = regularizer_value_grad(reg, w, x, y, dt, np.array(th), (H, W))
             assert not maps["trimmed"].any() and v == 0 and not np.any(g)
             assert np.any(maps["count"] > 0) and np.isfinite(maps[key]).all()
+
+
+@pytest.mark.parametrize("om", [[0.5, -0.3, 0.2], [10.0, 5.0, -30.0], [30.0, -20.0, 40.0]])
+def test_rotation_values_from_warped_points_match_numpy(om):
+    """The rotation's per-event divergence and det J computed from the warped pixels
+    (:func:`_k_rot_values`, every Rodrigues series mode) against the generic plain-numpy
+    formulas of :class:`Warp` (matrices of the trajectory, no numba)."""
+    from evmotion.core.regularizers import _k_rot_values
+    from evmotion.core.warps import Warp
+
+    w = make_warp("rotation", (H, W), K=K)
+    x, y, dt = _events(300, seed=4)
+    dt = dt - 0.02
+    th = np.array(om)
+    xw, yw = w.warp(x, y, dt, th)
+    span = dt.max() - dt.min()
+    d, fac = np.empty(300), np.empty(300)
+    _k_rot_values(xw, yw, dt, th, w._kinv, True, span, d, fac)
+    np.testing.assert_allclose(d, Warp.divergence(w, x, y, dt, th) * span, rtol=1e-9,
+                               atol=1e-11)
+    assert np.all(fac == span)
+    _k_rot_values(xw, yw, dt, th, w._kinv, False, 1.0, d, fac)
+    det = Warp.jacobian_det(w, x, y, dt, th)
+    np.testing.assert_allclose(d, np.abs(det) - 1.0, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(fac, np.where(det >= 0, 1.0, -1.0))
+
+
+def test_rcad_grid_threshold_matches_numpy():
+    """The log-free pre-test of the RCAD grid selects exactly the points a plain-numpy
+    evaluation of the map selects, at margins cutting through the map's range."""
+    from evmotion.core.regularizers import _area_coeffs, _k_rcad_grid
+
+    w = make_warp("rotation", (H, W), K=K)
+    th = np.array([12.0, -8.0, 5.0])
+    c0, c1 = _area_coeffs(w, th, -0.02), _area_coeffs(w, th, 0.03)
+    gy, gx = np.mgrid[2:H:5, 2:W:5]
+    s0 = c0[0][0] * gx + c0[0][1] * gy + c0[0][2]
+    s1 = c1[0][0] * gx + c1[0][1] * gy + c1[0][2]
+    vals = c1[2] - c0[2] - 3 * np.log(np.abs(s1)) + 3 * np.log(np.abs(s0))
+    for margin in np.quantile(vals, [0.0, 0.1, 0.5, 0.93]).tolist() + [vals.max(), 1e3]:
+        g = np.empty(3)
+        v, n = _k_rcad_grid(H, W, 5, *c0[:3], *c1[:3], margin, g)
+        sel = vals > margin
+        assert n == sel.sum()
+        assert v == pytest.approx(vals[sel].mean() if n else 0.0, rel=1e-12)
+
+
+def test_span_argument():
+    """A given (min dt, max dt) gives the same penalties as the one computed from dt."""
+    x, y, dt = _events(500, seed=6)
+    span = (float(dt.min()), float(dt.max()))
+    for name in ("zoom", "rotation", "similarity"):
+        w = make_warp(name, (H, W), K=K)
+        th = np.array(THETA[name])
+        for reg in REGULARIZERS:
+            v, g = regularizer_value_grad(reg, w, x, y, dt, th, (H, W))
+            v2, g2 = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), span=span)
+            assert v2 == v and v > 0
+            np.testing.assert_array_equal(g2, g)

@@ -43,7 +43,6 @@ from numba import njit
 from evmotion.core.iwe import _cell, _shape
 from evmotion.core.warps import (
     _BLOCK,
-    _EMPTY1,
     _EMPTY2,
     _FAST_FINITE,
     Warp,
@@ -51,6 +50,8 @@ from evmotion.core.warps import (
     _max_abs,
     _rod_coeffs,
     _rod_coeffs_exact,
+    _rod_coeffs_short,
+    _rot_rates,
     _sincos_block,
 )
 from evmotion.errors import EmptyWindowError, ParameterError
@@ -242,8 +243,11 @@ def window_span(dt) -> float:
     return t1 - t0 if t1 > t0 else 1.0
 
 
-def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True):
-    """(d_k, dd_k/dtheta, fac): divergence per window (1/s times T), or |det J| - 1.
+def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True,
+                  T: float | None = None, xw=None, yw=None):
+    """(d_k, dd_k/dtheta, fac): divergence per window (1/s times T, the window's span,
+    computed from ``dt`` unless given), or |det J| - 1. ``xw, yw``: the events warped
+    with ``theta``, if at hand (the rotation's values are cheapest from them).
 
     ``dd`` is None without ``want_grad``, and always for the rotation: its derivatives are
     contracted later, only for the events that reach a trimmed pixel
@@ -251,7 +255,10 @@ def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True
     to ``d``."""
     code = _FAST.get(warp.name)
     is_div = kind == "divergence"
-    T = window_span(dt) if is_div else 1.0
+    if not is_div:
+        T = 1.0
+    elif T is None:
+        T = window_span(dt)
     n = dt.shape[0]
     if code is not None:
         if want_grad:
@@ -262,8 +269,9 @@ def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True
         return d, g, None
     if warp.name == "rotation":
         d, fac = _scratch(((n,), (n,)), "ev1")
-        _k_rot_divdet(x, y, dt, theta, warp._kinv, is_div, d, _EMPTY2, _EMPTY1, _EMPTY1)
-        _rot_values_finish(is_div, T, d, fac)
+        if xw is None or yw is None:
+            xw, yw = warp.warp(x, y, dt, theta)
+        _k_rot_values(xw, yw, dt, theta, warp._kinv, is_div, T, d, fac)
         return d, None, fac
     if is_div:
         if not want_grad:
@@ -285,13 +293,76 @@ def _rotation_grad(warp, kind, x, y, dt, th, gd, fac, out):
     _k_rot_divdet(x, y, dt, th, warp._kinv, kind == "divergence", fac, _EMPTY2, gw, out)
 
 
-@njit(cache=True, error_model="numpy")
-def _rot_values_finish(is_div, T, d, fac):
-    """In place: divergence times T, or |det J| - 1; ``fac`` = d(new)/d(old) per event."""
-    for k in range(d.shape[0]):
-        f = T if is_div else (1.0 if d[k] >= 0.0 else -1.0)
-        fac[k] = f
-        d[k] = d[k] * T if is_div else abs(d[k]) - 1.0
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_value_event(X, Y, t, a, b, wx, wy, wz, ww, want_div):
+    """Divergence (1/s) or det J of the rotation warp for the event whose warped normalized
+    point is (X, Y), ``dt = t``, Rodrigues coefficients ``a, b`` of ``|t omega|``.
+
+    With ``R = exp(t omega^)`` and ``q = R v``, ``v = K^-1 (x, y, 1)``: ``v = R^T q`` and
+    ``v_z = 1`` give ``1 / q_z = R_02 X + R_12 Y + R_22``, so neither the event nor a
+    division is needed: det J = (1 / q_z)^3, and div f = tr(A J) with ``J = dX/dv``
+    (rows ``(R_i. - X_i R_2.) / q_z``) and ``A`` the derivative of the rotational flow at
+    (X, Y) (the formulas of :func:`evmotion.core.warps._k_rot_divdet`)."""
+    at = a * t
+    bt = b * t * t
+    r02 = at * wy + bt * wx * wz
+    r12 = -at * wx + bt * wy * wz
+    r22 = 1.0 + bt * (wz * wz - ww)
+    iz = r02 * X + r12 * Y + r22
+    if not want_div:
+        return iz * iz * iz
+    r00 = 1.0 + bt * (wx * wx - ww)
+    r11 = 1.0 + bt * (wy * wy - ww)
+    r01 = -at * wz + bt * wx * wy
+    r10 = at * wz + bt * wx * wy
+    r20 = -at * wy + bt * wx * wz
+    r21 = at * wx + bt * wy * wz
+    j00 = (r00 - X * r20) * iz
+    j01 = (r01 - X * r21) * iz
+    j10 = (r10 - Y * r20) * iz
+    j11 = (r11 - Y * r21) * iz
+    a00 = 2.0 * wy * X - wx * Y
+    a01 = -wz - wx * X
+    a10 = wz + wy * Y
+    a11 = wy * X - 2.0 * wx * Y
+    return a00 * j00 + a01 * j10 + a10 * j01 + a11 * j11
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_finish(v, want_div, T, d, fac, k):
+    """d_k = divergence times T, or |det J| - 1, and fac_k = d(d_k)/d(v)."""
+    if want_div:
+        d[k] = v * T
+        fac[k] = T
+    else:
+        d[k] = abs(v) - 1.0
+        fac[k] = 1.0 if v >= 0.0 else -1.0
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _k_rot_values(xw, yw, dt, w, Kinv, want_div, T, d, fac):
+    """Per-event d_k (divergence times T, or |det J| - 1) and fac_k of the rotation warp
+    from the warped pixels ``xw, yw`` (one pass; the loops per series mode have no branch,
+    so they vectorize like the warp's)."""
+    wx, wy, wz, ww, mode = _rot_rates(dt, w)
+    i00, i01, i02 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2]
+    i10, i11, i12 = Kinv[1, 0], Kinv[1, 1], Kinv[1, 2]
+    n = xw.shape[0]
+    if mode == 0:
+        for k in range(n):
+            t = dt[k]
+            a, b, _ = _rod_coeffs_short(t * t * ww)
+            v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
+                                 + i12, t, a, b, wx, wy, wz, ww, want_div)
+            _rot_finish(v, want_div, T, d, fac, k)
+    else:
+        for k in range(n):
+            t = dt[k]
+            z = t * t * ww
+            a, b, _ = _rod_coeffs(z) if z < 1.0 else _rod_coeffs_exact(z)
+            v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
+                                 + i12, t, a, b, wx, wy, wz, ww, want_div)
+            _rot_finish(v, want_div, T, d, fac, k)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
@@ -404,12 +475,26 @@ def _scratch(shapes, tag):
 # ---------------------------------------------------------------------------------------
 # DIWE / IWA trimmed means
 
+def _checked_theta(warp: Warp, theta) -> np.ndarray:
+    """``warp._theta(theta)`` without its copies when theta already is a finite float64
+    (P,) array (the per-evaluation call of an optimizer)."""
+    if (isinstance(theta, np.ndarray) and theta.dtype == np.float64
+            and theta.shape == (warp.n_params,) and math.isfinite(theta.sum())):
+        return theta
+    return warp._theta(theta)
+
+
+def _span_T(span) -> float:
+    """The window's duration from its (min dt, max dt), as :func:`window_span`."""
+    return span[1] - span[0] if span[1] > span[0] else 1.0
+
+
 def _prepare(warp, x, y, dt, theta, xw, yw):
     """Checked events and theta, and the warped events (computed unless given)."""
     x, y, dt = Warp._events(x, y, dt)
     if x.shape[0] == 0:
         raise EmptyWindowError("the regularizer needs at least one event, got none")
-    th = warp._theta(theta)
+    th = _checked_theta(warp, theta)
     if xw is None or yw is None:
         xw, yw = warp.warp(x, y, dt, th)
     xw = np.ascontiguousarray(xw, dtype=np.float64)
@@ -443,26 +528,29 @@ def _trim_pass(cnt, num, margin, gS, gN):
 
 def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw):
     """(d, fac, cnt, num) of the DIWE/IWA: per-event values and their vote images."""
-    d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False)
+    d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False, xw=xw, yw=yw)
     cnt, num = _scratch((shape,) * 2, "img")
     _fused_forward(xw, yw, d, cnt, num)
     return d, fac, cnt, num
 
 
 def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, margin, kernel,
-                        grad=True):
+                        grad=True, span=None):
     x, y, dt, th, xw, yw = _prepare(warp, x, y, dt, theta, xw, yw)
     zero = (0.0, np.zeros(warp.n_params))
+    T = None
+    if kind == "divergence":
+        T = window_span(dt) if span is None else _span_T(span)
     # deformation's map is 1 + mean: its margin on `mean` is margin - 1
     m = margin - 1.0 if kind == "deformation" else margin
     if kind == "divergence" and warp.name in _CONST_DIV:
         # the divergence is the same for every event: so is the DIWE on its support, and
-        # the trimmed mean is that constant (no vote moves it)
-        d, dd, _ = _event_values(kind, warp, x, y, dt, th)
+        # the trimmed mean is that constant (no vote moves it); one event gives it
+        d, dd, _ = _event_values(kind, warp, x[:1], y[:1], dt[:1], th, T=T)
         if not (d[0] < m and _any_vote(xw, yw, shape[0], shape[1])):
             return zero
         return -float(d[0]), (-dd[0].copy() if grad else None)
-    d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False)
+    d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False, T=T, xw=xw, yw=yw)
     if _all_above(d, m):
         # no collapse anywhere (the usual case away from collapse): no maps to build
         return zero
@@ -481,14 +569,14 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
     dd = None
     if fac is None:
         # the value derivatives (the values themselves are unchanged)
-        d, dd, _ = _event_values(kind, warp, x, y, dt, th)
+        d, dd, _ = _event_values(kind, warp, x, y, dt, th, T=T)
     no_jac = jx is None or jy is None
     if no_jac and hasattr(warp, "vjp"):
         # per-event adjoints, contracted by the warp's own vjp (Jacobians recomputed from
         # the warped events, never stored)
         gx, gy, gd = _scratch(((n,),) * 3, "gev")
         _fused_backward_events(xw, yw, d, gS, gN, scale, gx, gy, gd)
-        warp.vjp(xw, yw, dt, th, gx, gy, g)
+        warp.vjp(x, y, dt, xw, yw, th, gx, gy, g)
         if dd is not None:
             g += gd @ dd
     else:
@@ -585,30 +673,56 @@ def _rot_area_coeffs(om, t, kinv, a, da):
             da[i, j] = acc
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _rcad_point(ix, iy, a0, da0, c0, a1, da1, c1, margin, out):
+    """The log area ratio at grid point (ix, iy) px, and if it exceeds ``margin`` its
+    gradient added to ``out``: returns (value, selected)."""
+    s0 = a0[0] * ix + a0[1] * iy + a0[2]
+    s1 = a1[0] * ix + a1[1] * iy + a1[2]
+    v = c1 - c0 - 3.0 * math.log(abs(s1)) + 3.0 * math.log(abs(s0))
+    if not v > margin:
+        return v, False
+    f0 = 3.0 / s0
+    f1 = -3.0 / s1
+    for j in range(out.shape[0]):
+        out[j] += (f1 * (da1[0, j] * ix + da1[1, j] * iy + da1[2, j])
+                   + f0 * (da0[0, j] * ix + da0[1, j] * iy + da0[2, j]))
+    return v, True
+
+
 @njit(cache=True, error_model="numpy")
 def _k_rcad_grid(h, w, stride, a0, da0, c0, a1, da1, c1, margin, out):
     """Mean over the grid points (stride px) where the log area ratio
     ``c1 - c0 - 3 log|a1 . x| + 3 log|a0 . x|`` exceeds ``margin``, and its gradient
-    into ``out`` (P,). Returns (mean, count)."""
+    into ``out`` (P,). Returns (mean, count).
+
+    The threshold is first tested without logarithms, as ``|a1 . x| < r |a0 . x|`` with
+    ``r = exp((c1 - c0 - margin) / 3)`` widened by 1e-9 (more than the rounding of the
+    logarithms), in a branch-free loop per grid row; only rows with a candidate are
+    evaluated exactly. Away from collapse no point passes, so the map costs a few
+    multiply-adds per grid point instead of two logarithms."""
     P = out.shape[0]
     for j in range(P):
         out[j] = 0.0
+    r = math.exp((c1 - c0 - margin) / 3.0) * (1.0 + 1e-9)
+    if not r > 0.0:
+        # underflow (or NaN): no cheap bound, evaluate every point
+        r = math.inf
     total = 0.0
     n_sel = 0
     for iy in range(stride // 2, h, stride):
+        b0 = a0[1] * iy + a0[2]
+        b1 = a1[1] * iy + a1[2]
+        n_cand = 0
         for ix in range(stride // 2, w, stride):
-            s0 = a0[0] * ix + a0[1] * iy + a0[2]
-            s1 = a1[0] * ix + a1[1] * iy + a1[2]
-            v = c1 - c0 - 3.0 * math.log(abs(s1)) + 3.0 * math.log(abs(s0))
-            if not v > margin:
-                continue
-            total += v
-            n_sel += 1
-            f0 = 3.0 / s0
-            f1 = -3.0 / s1
-            for j in range(P):
-                out[j] += (f1 * (da1[0, j] * ix + da1[1, j] * iy + da1[2, j])
-                           + f0 * (da0[0, j] * ix + da0[1, j] * iy + da0[2, j]))
+            n_cand += 1 if abs(a1[0] * ix + b1) < r * abs(a0[0] * ix + b0) else 0
+        if n_cand == 0:
+            continue
+        for ix in range(stride // 2, w, stride):
+            v, sel = _rcad_point(ix, iy, a0, da0, c0, a1, da1, c1, margin, out)
+            if sel:
+                total += v
+                n_sel += 1
     if n_sel == 0:
         return 0.0, 0
     for j in range(P):
@@ -616,12 +730,12 @@ def _k_rcad_grid(h, w, stride, a0, da0, c0, a1, da1, c1, margin, out):
     return total / n_sel, n_sel
 
 
-def _rcad_value_grad(warp, x, y, dt, theta, shape, margin, stride, grad=True):
+def _rcad_value_grad(warp, x, y, dt, theta, shape, margin, stride, grad=True, span=None):
     x, y, dt = Warp._events(x, y, dt)
     if x.shape[0] == 0:
         raise EmptyWindowError("the regularizer needs at least one event, got none")
-    th = warp._theta(theta)
-    t0, t1 = _time_span(dt)
+    th = _checked_theta(warp, theta)
+    t0, t1 = _time_span(dt) if span is None else (float(span[0]), float(span[1]))
     closed = _rcad_scalar(warp, th, t0, t1)
     if closed is not None:
         return closed
@@ -646,23 +760,23 @@ def _check_kernel(kernel):
 
 
 def _divergence(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None,
-                margin=None, kernel="bilinear", grad=True):
+                margin=None, kernel="bilinear", grad=True, span=None):
     m = DEFAULT_MARGINS["divergence"] if margin is None else float(margin)
     return _trimmed_value_grad("divergence", warp, x, y, dt, theta, shape, xw, yw, jx, jy, m,
-                               kernel, grad)
+                               kernel, grad, span)
 
 
 def _deformation(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None,
-                 margin=None, kernel="bilinear", grad=True):
+                 margin=None, kernel="bilinear", grad=True, span=None):
     m = DEFAULT_MARGINS["deformation"] if margin is None else float(margin)
     return _trimmed_value_grad("deformation", warp, x, y, dt, theta, shape, xw, yw, jx, jy, m,
-                               kernel, grad)
+                               kernel, grad, span)
 
 
 def _rcad(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None, margin=None,
-          kernel="bilinear", grad=True, stride=8):
+          kernel="bilinear", grad=True, stride=8, span=None):
     m = DEFAULT_MARGINS["rcad"] if margin is None else float(margin)
-    return _rcad_value_grad(warp, x, y, dt, theta, shape, m, int(stride), grad)
+    return _rcad_value_grad(warp, x, y, dt, theta, shape, m, int(stride), grad, span)
 
 
 #: Name -> function(warp, x, y, dt, theta, shape, **kw) -> (value, grad (P,)).
@@ -672,6 +786,7 @@ REGULARIZERS = {"divergence": _divergence, "deformation": _deformation, "rcad": 
 def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
                            xw=None, yw=None, *, jx=None, jy=None, margin: float | None = None,
                            kernel: str = "bilinear", stride: int = 8, grad: bool = True,
+                           span: tuple[float, float] | None = None,
                            ) -> tuple[float, np.ndarray | None]:
     """Value of a collapse penalty and its gradient with respect to ``theta``.
 
@@ -699,6 +814,9 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
         Pixel stride of the RCAD map grid (rotation, homography).
     grad : bool
         Compute the gradient (else ``None`` is returned in its place).
+    span : (float, float), optional
+        ``(min dt, max dt)`` in seconds, when the caller knows it (e.g. once per window for
+        many evaluations): saves a pass over ``dt`` per call. It must be that of ``dt``.
 
     Returns
     -------
@@ -722,7 +840,7 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
     _check_kernel(kernel)
     shape = _shape(shape)
     return REGULARIZERS[name](warp, x, y, dt, theta, shape, xw=xw, yw=yw, jx=jx, jy=jy,
-                              margin=margin, kernel=kernel, grad=grad, **(
+                              margin=margin, kernel=kernel, grad=grad, span=span, **(
                                   {"stride": stride} if name == "rcad" else {}))
 
 
