@@ -24,6 +24,14 @@ comes out ~0.95x at 50-100 px/s and ~0.6-0.8x at 300-600 px/s (one-pixel steps t
 about tau). A smaller tau admits the bursts of several events per edge crossing and
 scatters the votes more. This is the thesis' estimator, kept as is.
 
+Each triplet also fixes the time-surface gradient ``g`` along its step,
+``g . (x_k - x_j) = t_k - t_j``; the matcher returns, besides (5.3), the normal flow
+``g / |g|^2`` of the least-squares ``g`` of each event's triplets (:attr:`TripletFlow.nx`).
+The batch output ``dense="lsq"`` (an extension) fits each pixel's flow to the normal flows
+of its neighbourhood, which resolves the aperture where edges of several orientations meet:
+on the simulated scenes at MVSEC-like speeds (1.2-1.6 px per 22 ms frame) the dense AEE
+drops from 0.94-1.03 px (thesis mean) to 0.22-0.24 px (``triplet_accuracy_summary.md``).
+
 Units: pixels, microseconds for times, px/s for flow.
 """
 
