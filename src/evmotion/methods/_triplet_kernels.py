@@ -362,32 +362,30 @@ def voxel_accumulate_normal(x, y, t, nx, ny, t0, t1, n_bins, vmax, acc, cnt):
         cnt[b, yk, xk] += 1
 
 
+@njit(cache=True, inline="always")
+def _running_sum(src, r, dst):
+    """``dst[i] = sum(src[i - r : i + r + 1])`` with zero padding (1-D, any stride)."""
+    n = src.shape[0]
+    s = 0.0
+    for i in range(min(r, n)):
+        s += src[i]
+    for i in range(n):
+        if i + r < n:
+            s += src[i + r]
+        dst[i] = s
+        if i - r >= 0:
+            s -= src[i - r]
+
+
 @njit(cache=True)
 def _box_sum(a, r, tmp, out):
-    """(2r+1)x(2r+1) sums of ``a`` (H, W, C) with zero padding, by running sums per axis."""
+    """(2r+1)x(2r+1) sums of ``a`` (H, W, C) with zero padding: rows, then columns."""
     h, w, c = a.shape
-    for yy in range(h):
-        for ch in range(c):
-            s = 0.0
-            for xx in range(min(r, w)):
-                s += a[yy, xx, ch]
-            for xx in range(w):
-                if xx + r < w:
-                    s += a[yy, xx + r, ch]
-                tmp[yy, xx, ch] = s
-                if xx - r >= 0:
-                    s -= a[yy, xx - r, ch]
-    for xx in range(w):
-        for ch in range(c):
-            s = 0.0
-            for yy in range(min(r, h)):
-                s += tmp[yy, xx, ch]
-            for yy in range(h):
-                if yy + r < h:
-                    s += tmp[yy + r, xx, ch]
-                out[yy, xx, ch] = s
-                if yy - r >= 0:
-                    s -= tmp[yy - r, xx, ch]
+    for ch in range(c):
+        for yy in range(h):
+            _running_sum(a[yy, :, ch], r, tmp[yy, :, ch])
+        for xx in range(w):
+            _running_sum(tmp[:, xx, ch], r, out[:, xx, ch])
 
 
 @njit(cache=True)
