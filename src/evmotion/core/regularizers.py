@@ -43,6 +43,7 @@ from numba import njit
 from evmotion.core.iwe import _cell, _shape
 from evmotion.core.warps import (
     _BLOCK,
+    _EMPTY1,
     _EMPTY2,
     _FAST_FINITE,
     Warp,
@@ -124,33 +125,24 @@ def _fused_forward(xw, yw, d, cnt, num):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _corners(g, ix, iy, h, wd):
+    """The four pixels of the bilinear cell with top-left (ix, iy), 0 off the image."""
+    if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+        return g[iy, ix], g[iy, ix + 1], g[iy + 1, ix], g[iy + 1, ix + 1]
+    return (g[iy, ix] if (iy >= 0 and ix >= 0) else 0.0,
+            g[iy, ix + 1] if (iy >= 0 and ix + 1 < wd) else 0.0,
+            g[iy + 1, ix] if (iy + 1 < h and ix >= 0) else 0.0,
+            g[iy + 1, ix + 1] if (iy + 1 < h and ix + 1 < wd) else 0.0)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _fused_adjoint_event(gS, gN, a, ix, iy, fx, fy, scale, h, wd):
     """``(gx, gy, gd)``: derivatives of ``scale * sum(gS * num + gN * cnt)`` with respect to
-    one event's ``xw, yw`` and value ``a`` (its bilinear cell at (ix, iy) + (fx, fy))."""
-    s00 = s01 = s10 = s11 = 0.0
-    n00 = n01 = n10 = n11 = 0.0
-    if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
-        s00 = gS[iy, ix]
-        n00 = gN[iy, ix]
-        s01 = gS[iy, ix + 1]
-        n01 = gN[iy, ix + 1]
-        s10 = gS[iy + 1, ix]
-        n10 = gN[iy + 1, ix]
-        s11 = gS[iy + 1, ix + 1]
-        n11 = gN[iy + 1, ix + 1]
-    else:
-        if iy >= 0 and ix >= 0:
-            s00 = gS[iy, ix]
-            n00 = gN[iy, ix]
-        if iy >= 0 and ix + 1 < wd:
-            s01 = gS[iy, ix + 1]
-            n01 = gN[iy, ix + 1]
-        if iy + 1 < h and ix >= 0:
-            s10 = gS[iy + 1, ix]
-            n10 = gN[iy + 1, ix]
-        if iy + 1 < h and ix + 1 < wd:
-            s11 = gS[iy + 1, ix + 1]
-            n11 = gN[iy + 1, ix + 1]
+    one event's ``xw, yw`` and value ``a`` (its bilinear cell at (ix, iy) + (fx, fy)).
+    (The corner loads as one helper's return values: as scalars assigned in branches they
+    compiled to code four times slower.)"""
+    s00, s01, s10, s11 = _corners(gS, ix, iy, h, wd)
+    n00, n01, n10, n11 = _corners(gN, ix, iy, h, wd)
     g00 = a * s00 + n00
     g01 = a * s01 + n01
     g10 = a * s10 + n10
@@ -194,8 +186,10 @@ def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
 def _fused_backward_events(xw, yw, d, gS, gN, scale, gx, gy, gd):
     """:func:`_fused_backward` stopped before the warp: the per-event derivatives ``gx,
     gy, gd`` (N,) with respect to ``xw_k, yw_k, d_k`` (0 off the image), for warps that
-    contract them with their Jacobian recomputed (``Warp.vjp``) instead of stored."""
+    contract them with their Jacobian recomputed (``Warp.vjp``) instead of stored.
+    Returns the number of events with any nonzero derivative."""
     h, wd = gS.shape
+    n_act = 0
     for k in range(xw.shape[0]):
         inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
         if not inside:
@@ -203,7 +197,12 @@ def _fused_backward_events(xw, yw, d, gS, gN, scale, gx, gy, gd):
             gy[k] = 0.0
             gd[k] = 0.0
             continue
-        gx[k], gy[k], gd[k] = _fused_adjoint_event(gS, gN, d[k], ix, iy, fx, fy, scale, h, wd)
+        a, b, c = _fused_adjoint_event(gS, gN, d[k], ix, iy, fx, fy, scale, h, wd)
+        gx[k] = a
+        gy[k] = b
+        gd[k] = c
+        n_act += 1 if (a != 0.0 or b != 0.0 or c != 0.0) else 0
+    return n_act
 
 
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "nsz"})
@@ -244,10 +243,11 @@ def window_span(dt) -> float:
 
 
 def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True,
-                  T: float | None = None, xw=None, yw=None):
+                  T: float | None = None, xw=None, yw=None, scratch: bool = True):
     """(d_k, dd_k/dtheta, fac): divergence per window (1/s times T, the window's span,
     computed from ``dt`` unless given), or |det J| - 1. ``xw, yw``: the events warped
     with ``theta``, if at hand (the rotation's values are cheapest from them).
+    ``scratch=False`` allocates the outputs (for event subsets of changing size).
 
     ``dd`` is None without ``want_grad``, and always for the rotation: its derivatives are
     contracted later, only for the events that reach a trimmed pixel
@@ -260,15 +260,16 @@ def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True
     elif T is None:
         T = window_span(dt)
     n = dt.shape[0]
+    buffers = _scratch if scratch else (lambda shapes, tag: tuple(np.empty(s) for s in shapes))
     if code is not None:
         if want_grad:
-            d, g = _scratch(((n,), (n, warp.n_params)), "ev")
+            d, g = buffers(((n,), (n, warp.n_params)), "ev")
         else:
-            (d,), g = _scratch(((n,),), "ev0"), None
+            (d,), g = buffers(((n,),), "ev0"), None
         _k_fast_values(code, is_div, dt, theta, T, d, _EMPTY2 if g is None else g, want_grad)
         return d, g, None
     if warp.name == "rotation":
-        d, fac = _scratch(((n,), (n,)), "ev1")
+        d, fac = buffers(((n,), (n,)), "ev1")
         if xw is None or yw is None:
             xw, yw = warp.warp(x, y, dt, theta)
         _k_rot_values(xw, yw, dt, theta, warp._kinv, is_div, T, d, fac)
@@ -285,10 +286,11 @@ def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True
     return np.abs(det) - 1.0, g * sgn[:, None], None
 
 
-def _rotation_grad(warp, kind, x, y, dt, th, gd, fac, out):
-    """``out += sum_k gd_k dd_k/d omega`` without an (N, 3) buffer."""
+def _rotation_grad(warp, kind, x, y, dt, th, gd, fac, out, scratch=True):
+    """``out += sum_k gd_k dd_k/d omega`` without an (N, 3) buffer (``fac`` is
+    overwritten). ``scratch=False`` for event subsets of changing size."""
     n = gd.shape[0]
-    (gw,) = _scratch(((n,),), "gw")
+    (gw,) = _scratch(((n,),), "gw") if scratch else (np.empty(n),)
     np.multiply(gd, fac, out=gw)
     _k_rot_divdet(x, y, dt, th, warp._kinv, kind == "divergence", fac, _EMPTY2, gw, out)
 
@@ -352,6 +354,13 @@ def _k_rot_values(xw, yw, dt, w, Kinv, want_div, T, d, fac):
         for k in range(n):
             t = dt[k]
             a, b, _ = _rod_coeffs_short(t * t * ww)
+            v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
+                                 + i12, t, a, b, wx, wy, wz, ww, want_div)
+            _rot_finish(v, want_div, T, d, fac, k)
+    elif mode == 1:
+        for k in range(n):
+            t = dt[k]
+            a, b, _ = _rod_coeffs(t * t * ww)
             v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
                                  + i12, t, a, b, wx, wy, wz, ww, want_div)
             _rot_finish(v, want_div, T, d, fac, k)
@@ -566,30 +575,83 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
         return total * scale, None
     n = x.shape[0]
     g = np.empty(warp.n_params)
+    no_jac = jx is None or jy is None
+    if no_jac and hasattr(warp, "vjp"):
+        # per-event adjoints; only the events voting into a trimmed pixel have any, so the
+        # rest of the chain rule (the warp's vjp, with its Jacobian recomputed, never
+        # stored, and the value derivatives) runs over those events alone
+        gx, gy, gd, dbuf = _scratch(((n,),) * 4, "gev")
+        n_act = _fused_backward_events(xw, yw, d, gS, gN, scale, gx, gy, gd)
+        ev = (x, y, dt, xw, yw, gx, gy, gd, dbuf if fac is None else fac)
+        if n_act < n // 2:
+            (buf,) = _scratch(((9, n),), "sub")
+            _compact(*ev[:8], _EMPTY1 if fac is None else fac, buf)
+            ev = tuple(buf[i, :n_act] for i in range(9))
+        xs, ys, dts, xws, yws, gxs, gys, gds, facs = ev
+        warp.vjp(xs, ys, dts, xws, yws, th, gxs, gys, g)
+        code = _FAST.get(warp.name)
+        if fac is not None:
+            _rotation_grad(warp, kind, xs, ys, dts, th, gds, facs, g,
+                           scratch=xs.shape[0] == n)
+        elif code is not None:
+            # the closed-form value derivatives (values into the free row `facs`)
+            (dd,) = _scratch(((n, warp.n_params),), "dd")
+            dds = dd[:xs.shape[0]]
+            _k_fast_values(code, kind == "divergence", dts, th, 1.0 if T is None else T, facs,
+                           dds, True)
+            _add_contraction(gds, dds, g)
+        else:
+            _, dds, _ = _event_values(kind, warp, xs, ys, dts, th, T=T, scratch=False)
+            _add_contraction(gds, dds, g)
+        return total * scale, g
     dd = None
     if fac is None:
         # the value derivatives (the values themselves are unchanged)
         d, dd, _ = _event_values(kind, warp, x, y, dt, th, T=T)
-    no_jac = jx is None or jy is None
-    if no_jac and hasattr(warp, "vjp"):
-        # per-event adjoints, contracted by the warp's own vjp (Jacobians recomputed from
-        # the warped events, never stored)
-        gx, gy, gd = _scratch(((n,),) * 3, "gev")
-        _fused_backward_events(xw, yw, d, gS, gN, scale, gx, gy, gd)
-        warp.vjp(x, y, dt, xw, yw, th, gx, gy, g)
-        if dd is not None:
-            g += gd @ dd
-    else:
-        if no_jac:
-            # only now: the Jacobians matter only when some pixel is trimmed
-            _, _, jx, jy = warp.warp(x, y, dt, th, jacobian=True)
-        (gd,) = _scratch(((n,),), "gd")
-        _fused_backward(xw, yw, d, gS, gN, scale, np.ascontiguousarray(jx),
-                        np.ascontiguousarray(jy), _EMPTY2 if dd is None else
-                        np.ascontiguousarray(dd), g, gd)
+    if no_jac:
+        # only now: the Jacobians matter only when some pixel is trimmed
+        _, _, jx, jy = warp.warp(x, y, dt, th, jacobian=True)
+    (gd,) = _scratch(((n,),), "gd")
+    _fused_backward(xw, yw, d, gS, gN, scale, np.ascontiguousarray(jx),
+                    np.ascontiguousarray(jy), _EMPTY2 if dd is None else
+                    np.ascontiguousarray(dd), g, gd)
     if fac is not None:
         _rotation_grad(warp, kind, x, y, dt, th, gd, fac, g)
     return total * scale, g
+
+
+@njit(cache=True, error_model="numpy")
+def _add_contraction(gd, dd, out):
+    """``out += dd^T gd`` (a compiled loop: BLAS threads pinned to one core spin for
+    milliseconds on this small product)."""
+    for j in range(out.shape[0]):
+        acc = 0.0
+        for k in range(gd.shape[0]):
+            acc += gd[k] * dd[k, j]
+        out[j] += acc
+
+
+@njit(cache=True, error_model="numpy")
+def _compact(x, y, dt, xw, yw, gx, gy, gd, fac, out):
+    """Rows of ``out`` (9, N) <- x, y, dt, xw, yw, gx, gy, gd, fac (fac if given) of the
+    events with a nonzero adjoint, in order; returns their number (that of
+    :func:`_fused_backward_events`)."""
+    use_fac = fac.shape[0] > 0
+    m = 0
+    for k in range(x.shape[0]):
+        if gx[k] == 0.0 and gy[k] == 0.0 and gd[k] == 0.0:
+            continue
+        out[0, m] = x[k]
+        out[1, m] = y[k]
+        out[2, m] = dt[k]
+        out[3, m] = xw[k]
+        out[4, m] = yw[k]
+        out[5, m] = gx[k]
+        out[6, m] = gy[k]
+        out[7, m] = gd[k]
+        out[8, m] = fac[k] if use_fac else 0.0
+        m += 1
+    return m
 
 
 # ---------------------------------------------------------------------------------------
