@@ -401,3 +401,15 @@ def test_vjp_chain_rule_on_few_and_many_trimmed_pixels(name):
     m = _compact(*cols, out)
     assert m == keep.sum()
     np.testing.assert_array_equal(out[:, :m], np.stack(cols)[:, keep])
+
+
+def test_time_span_matches_numpy():
+    from evmotion.core.regularizers import _time_span
+
+    rng = np.random.default_rng(9)
+    for a in (rng.normal(size=1001), -rng.uniform(1, 2, 7), np.array([2.5]),
+              np.array([-np.inf, 0.0, np.inf]), np.array([-5e-324, 5e-324]),
+              rng.uniform(0, 0.05, 30_000)):
+        assert _time_span(a) == (a.min(), a.max())
+    assert _time_span(np.zeros(0)) == (0.0, 0.0)
+    assert window_span([0.01, 0.03, 0.02]) == pytest.approx(0.02)
