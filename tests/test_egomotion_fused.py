@@ -1,17 +1,27 @@
-"""The fused warp kernels of CMaxCost (no stored (N, P) Jacobian) give the value and gradient
-of the composed chain warp -> IWE -> objective -> adjoint -> Jacobian^T, on random windows."""
+"""The fused warp adjoints of CMaxCost (no stored (N, P) Jacobian) give the value and
+gradient of the composed chain warp -> IWE -> objective -> adjoint -> Jacobian^T, on random
+windows, for every warp up to 4 DOF, every objective, both IWE kernels, with and without
+polarity weights, with small and large rotation angles (every series mode), and for events
+on and beyond the image border."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from evmotion.core.iwe import accumulate_backward
 from evmotion.core.objectives import events_value_grad
 from evmotion.core.warps import make_warp
 from evmotion.methods.egomotion import CMaxCost
 
 SHAPE = (60, 80)
 K = np.array([[70.0, 0.0, 41.0], [0.0, 70.0, 29.5], [0.0, 0.0, 1.0]])
+FUSED = ("zoom", "translation", "rotation", "se2", "inplane", "similarity")
+#: typical parameter magnitudes; "fast" scales rates so that |dt w| reaches > 1 rad
+SCALE = {"zoom": [3.0], "translation": [150.0, 150.0], "rotation": [2.0, 2.0, 2.0],
+         "se2": [150.0, 150.0, 3.0], "inplane": [150.0, 150.0, 0.3, 2.0],
+         "similarity": [150.0, 150.0, 3.0, 2.0], "affine": [150.0, 150.0, 2.0, 2.0, 2.0, 2.0],
+         "homography": [2.0, 2.0, 150.0, 2.0, 2.0, 150.0, 0.01, 0.01]}
 
 
 def _window(seed, n=4000):
@@ -21,36 +31,96 @@ def _window(seed, n=4000):
     y = rng.uniform(-3.0, SHAPE[0] + 2.0, n)
     t = np.sort(rng.uniform(0.0, 0.05, n))
     p = rng.integers(0, 2, n)
-    theta = rng.normal(0.0, 2.0, 3)
-    return x, y, t - 0.02, p, t / t[-1], theta
+    return x, y, t - 0.02, p, t / t[-1]
+
+
+def _theta(name, seed, fast=1.0):
+    rng = np.random.default_rng(100 + seed)
+    s = np.array(SCALE[name])
+    return rng.normal(0.0, 0.5, s.size) * s * fast
 
 
 def _composed(warp, x, y, dt, theta, obj, kernel, p, tn, weights):
+    """Plain chain: stored Jacobians, per-event pixel gradients, one matrix product."""
     xw, yw, jx, jy = warp.warp(x, y, dt, theta, jacobian=True)
     G, gx, gy = events_value_grad(obj, xw, yw, SHAPE, p, tn, weights=weights, kernel=kernel,
                                   sigma=1.0)
     return G, gx @ jx + gy @ jy
 
 
-@pytest.mark.parametrize("kernel", ["bilinear", "gaussian"])
-@pytest.mark.parametrize("obj", ["variance", "gradient_magnitude", "avg_timestamp"])
-@pytest.mark.parametrize("seed", [0, 1])
-def test_fused_rotation_equals_composed_chain(kernel, obj, seed):
-    x, y, dt, p, tn, theta = _window(seed)
-    warp = make_warp("rotation", SHAPE, K=K)
-    use_pol = seed == 1 and obj != "avg_timestamp"
-    cost = CMaxCost(warp, x, y, dt, SHAPE, obj, polarity=p, tn=tn, kernel=kernel,
-                    use_polarity=use_pol)
-    assert cost.fused
+def _check(cost, warp, x, y, dt, theta, obj, kernel, p, tn):
     val, g = cost.value_grad(theta)
     G, gref = _composed(warp, x, y, dt, theta, obj, kernel, p, tn, cost.weights)
     assert val == pytest.approx(-G / cost.g0, rel=1e-9)
     np.testing.assert_allclose(g, -gref / cost.g0, rtol=1e-9, atol=1e-12 * np.abs(gref).max())
+    assert cost.value(theta) == pytest.approx(val, rel=1e-9)
 
 
-def test_fused_rotation_with_rcad_equals_unfused_penalty():
-    x, y, dt, p, tn, theta = _window(2)
-    warp = make_warp("rotation", SHAPE, K=K)
+@pytest.mark.parametrize("name", FUSED)
+@pytest.mark.parametrize("kernel", ["bilinear", "gaussian"])
+@pytest.mark.parametrize("obj", ["variance", "gradient_magnitude", "avg_timestamp"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_fused_equals_composed_chain(name, kernel, obj, seed):
+    x, y, dt, p, tn = _window(seed)
+    warp = make_warp(name, SHAPE, K=K)
+    theta = _theta(name, seed)
+    use_pol = seed == 1 and obj != "avg_timestamp"
+    cost = CMaxCost(warp, x, y, dt, SHAPE, obj, polarity=p, tn=tn, kernel=kernel,
+                    use_polarity=use_pol)
+    assert cost.fused
+    _check(cost, warp, x, y, dt, theta, obj, kernel, p, tn)
+
+
+@pytest.mark.parametrize("name", ["rotation", "se2", "similarity"])
+@pytest.mark.parametrize("fast", [8.0, 30.0])
+@pytest.mark.parametrize("obj", ["variance", "gradient_magnitude"])
+def test_fused_equals_composed_at_large_angles(name, fast, obj):
+    # |dt w| up to ~0.5 and ~2 rad: the long Rodrigues series and the closed form (rotation),
+    # libm's sin/cos (SE(2), similarity)
+    x, y, dt, p, tn = _window(4)
+    warp = make_warp(name, SHAPE, K=K)
+    theta = _theta(name, 4, fast)
+    cost = CMaxCost(warp, x, y, dt, SHAPE, obj, polarity=p, use_polarity=True)
+    _check(cost, warp, x, y, dt, theta, obj, "bilinear", p, tn)
+
+
+@pytest.mark.parametrize("name", ["affine", "homography"])
+@pytest.mark.parametrize("obj", ["variance", "gradient_magnitude"])
+def test_composed_path_equals_chain(name, obj):
+    x, y, dt, p, tn = _window(5)
+    warp = make_warp(name, SHAPE)
+    theta = _theta(name, 5)
+    cost = CMaxCost(warp, x, y, dt, SHAPE, obj, polarity=p, use_polarity=True)
+    assert not cost.fused
+    _check(cost, warp, x, y, dt, theta, obj, "bilinear", p, tn)
+
+
+@pytest.mark.parametrize("name", FUSED)
+def test_vjp_and_reduce_bilinear_match_numpy(name):
+    x, y, dt, p, _ = _window(6, n=600)
+    warp = make_warp(name, SHAPE, K=K)
+    theta = _theta(name, 6)
+    xw, yw, jx, jy = warp.warp(x, y, dt, theta, jacobian=True)
+    rng = np.random.default_rng(7)
+    gx, gy = rng.normal(size=x.size), rng.normal(size=x.size)
+    out = warp.vjp(x, y, dt, xw, yw, theta, gx, gy, np.empty(warp.n_params))
+    np.testing.assert_allclose(out, gx @ jx + gy @ jy, rtol=1e-10, atol=1e-12)
+    # reduce_bilinear: dL/dIWE = scale (g - shift), weighted events, with and without work
+    g = rng.normal(size=SHAPE)
+    wts = np.where(p > 0, 1.0, -0.5)
+    bx, by = accumulate_backward(xw, yw, SHAPE, 0.3 * (g - 1.7), weights=wts)
+    ref = bx @ jx + by @ jy
+    for work in (None, np.empty((SHAPE[0] + 2) * (SHAPE[1] + 2) + 5)):
+        out = warp.reduce_bilinear(x, y, dt, xw, yw, theta, g, np.empty(warp.n_params), wts,
+                                   shift=1.7, scale=0.3, work=work)
+        np.testing.assert_allclose(out, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("name", ["rotation", "similarity", "inplane"])
+def test_fused_with_rcad_equals_unfused_penalty(name):
+    x, y, dt, p, _ = _window(2)
+    warp = make_warp(name, SHAPE, K=K)
+    theta = _theta(name, 2)
     fused = CMaxCost(warp, x, y, dt, SHAPE, regularizer="rcad", weight=0.5, polarity=p)
     plain = CMaxCost(warp, x, y, dt, SHAPE, polarity=p)
     assert fused.fused
@@ -62,8 +132,33 @@ def test_fused_rotation_with_rcad_equals_unfused_penalty():
 
 
 def test_penalties_that_need_jacobians_keep_the_composed_path():
-    x, y, dt, p, tn, _ = _window(3, n=200)
-    warp = make_warp("rotation", SHAPE, K=K)
-    for reg in ("divergence", "deformation", "whitening"):
-        assert not CMaxCost(warp, x, y, dt, SHAPE, regularizer=reg, weight=1.0).fused
-    assert not CMaxCost(make_warp("se2", SHAPE), x, y, dt, SHAPE).fused
+    x, y, dt, p, tn = _window(3, n=200)
+    for name in FUSED:
+        warp = make_warp(name, SHAPE, K=K)
+        for reg in ("divergence", "deformation", "whitening"):
+            assert not CMaxCost(warp, x, y, dt, SHAPE, regularizer=reg, weight=1.0).fused
+        assert CMaxCost(warp, x, y, dt, SHAPE).fused
+    assert not CMaxCost(make_warp("affine", SHAPE), x, y, dt, SHAPE).fused
+
+
+@pytest.mark.parametrize("name", FUSED)
+def test_events_without_votes_are_dropped(name):
+    # like the composed adjoint, which skips them: a NaN event or one far outside the image
+    # contributes nothing, even where its Jacobian is not finite
+    x, y, dt, p, _ = _window(8, n=300)
+    warp = make_warp(name, SHAPE, K=K)
+    theta = _theta(name, 8)
+    g = np.random.default_rng(9).normal(size=SHAPE)
+    keep = np.ones(x.size, bool)
+    keep[[5, 6]] = False
+    x[5] = np.nan
+    y[6] = 1e300
+
+    def reduce(x, y, dt):
+        xw, yw = warp.warp(x, y, dt, theta)
+        return warp.reduce_bilinear(x, y, dt, xw, yw, theta, g, np.empty(warp.n_params),
+                                    shift=0.5, scale=2.0)
+
+    out = reduce(x, y, dt)
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(out, reduce(x[keep], y[keep], dt[keep]), rtol=1e-12)

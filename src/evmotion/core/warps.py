@@ -64,7 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _cell, _cell_grad, _shape
+from evmotion.core.iwe import _shape
 from evmotion.errors import CalibrationError, ParameterError
 
 __all__ = [
@@ -171,12 +171,22 @@ def rodrigues(rotvec: np.ndarray) -> np.ndarray:
 # Angles per event are small in practice (|dt * w| < 1 rad): a Horner polynomial there is
 # exact to rounding and several times cheaper than libm's sin/cos.
 
+_ABS_BITS = np.uint64(0x7FFFFFFFFFFFFFFF)
+
+
 @njit(cache=True, error_model="numpy")
 def _max_abs(a):
-    m = 0.0
-    for k in range(a.shape[0]):
-        m = max(m, abs(a[k]))
-    return m
+    """``max |a|`` of a contiguous float64 array (0 if empty; NaN if any is NaN)."""
+    # the magnitudes of floats order like their bit patterns without the sign, and an
+    # integer max vectorizes where a float max (NaN semantics) does not; a NaN's pattern
+    # exceeds inf's, so NaN still wins
+    bits = a.view(np.uint64)
+    m = np.uint64(0)
+    for k in range(bits.shape[0]):
+        m = max(m, bits[k] & _ABS_BITS)
+    out = np.empty(1, np.uint64)
+    out[0] = m
+    return out.view(np.float64)[0]
 
 
 #: 1/n! for n = 0..23, the coefficients of the Rodrigues series below.
@@ -224,31 +234,6 @@ def _rod_coeffs_exact(z):
 
 
 
-@njit(cache=True, error_model="numpy")
-def _k_zoom(x, y, dt, h, cx, cy, xw, yw, jx, jy, jac):
-    for k in range(x.shape[0]):
-        xc = x[k] - cx
-        yc = y[k] - cy
-        s = 1.0 - dt[k] * h
-        xw[k] = cx + s * xc
-        yw[k] = cy + s * yc
-        if jac:
-            jx[k, 0] = -dt[k] * xc
-            jy[k, 0] = -dt[k] * yc
-
-
-@njit(cache=True, error_model="numpy")
-def _k_translation(x, y, dt, vx, vy, xw, yw, jx, jy, jac):
-    for k in range(x.shape[0]):
-        xw[k] = x[k] - dt[k] * vx
-        yw[k] = y[k] - dt[k] * vy
-        if jac:
-            jx[k, 0] = -dt[k]
-            jx[k, 1] = 0.0
-            jy[k, 0] = 0.0
-            jy[k, 1] = -dt[k]
-
-
 # fastmath without the no-NaN/no-inf assumptions: lets LLVM fuse and reorder arithmetic
 # (rounding-level differences) while non-finite events still propagate as NaN/inf
 _FAST_FINITE = {"contract", "arcp", "nsz", "reassoc"}
@@ -258,67 +243,132 @@ _BLOCK = 512  # events per block of the vectorized trigonometric pass
 
 @njit(cache=True, error_model="numpy")
 def _sincos_block(dt, k0, k1, w, sbuf, cbuf):
-    # contiguous 1-D loop with no branch: SIMD; the 2-D Jacobian stores below are not
+    # contiguous 1-D loop with no branch: SIMD (the regularizers' per-block passes use it)
     for k in range(k0, k1):
         sbuf[k - k0], cbuf[k - k0] = _sincos(-dt[k] * w)
 
 
+# The hot kernels below run one loop per case (series or libm trigonometry, Jacobian or
+# not, fused image adjoint or not) rather than branching inside one loop: a loop-invariant
+# branch in the body is not hoisted by LLVM here, and it stops the loop's vectorization
+# (measured: 13x slower for the rotation warp).
+
+@njit(cache=True, inline="always")
+def _sincos_any(a, small):
+    if small:
+        return _sincos(a)
+    return math.sin(a), math.cos(a)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _similarity_event(x, y, t, sn, c, vx, vy, s, cx, cy):
+    """Centred warped point ``(ox, oy)`` and ``1 / beta`` of one event."""
+    ib = 1.0 / (1.0 + t * s)  # s is 0 for SE(2)
+    u = x - cx - t * vx
+    v = y - cy - t * vy
+    return (c * u - sn * v) * ib, (sn * u + c * v) * ib, ib
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_similarity(x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy, jac, scaled):
+    # angles below 1 rad take the series of _sincos (exact to rounding, vectorizes)
     small = _max_abs(dt) * abs(w) < 1.0
-    sbuf = np.empty(_BLOCK)
-    cbuf = np.empty(_BLOCK)
     n = x.shape[0]
-    for k0 in range(0, n, _BLOCK):
-        k1 = min(k0 + _BLOCK, n)
-        if small:
-            _sincos_block(dt, k0, k1, w, sbuf, cbuf)
-        else:
-            for k in range(k0, k1):
-                sbuf[k - k0] = math.sin(-dt[k] * w)
-                cbuf[k - k0] = math.cos(-dt[k] * w)
-        if jac:
-            _similarity_jac(x, y, dt, vx, vy, s, cx, cy, xw, yw, jx, jy, scaled, k0, k1,
-                            sbuf, cbuf)
-        else:
-            _similarity_nojac(x, y, dt, vx, vy, s, cx, cy, xw, yw, k0, k1, sbuf, cbuf)
+    if jac:
+        for k in range(n):
+            t = dt[k]
+            sn, c = _sincos_any(-t * w, small)
+            ox, oy, ib = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
+            xw[k] = cx + ox
+            yw[k] = cy + oy
+            jx[k, 0] = -t * c * ib
+            jy[k, 0] = -t * sn * ib
+            jx[k, 1] = t * sn * ib
+            jy[k, 1] = -t * c * ib
+            jx[k, 2] = t * oy
+            jy[k, 2] = -t * ox
+            if scaled:
+                jx[k, 3] = -t * ib * ox
+                jy[k, 3] = -t * ib * oy
+    elif small:
+        for k in range(n):
+            t = dt[k]
+            sn, c = _sincos(-t * w)
+            ox, oy, _ = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
+            xw[k] = cx + ox
+            yw[k] = cy + oy
+    else:
+        for k in range(n):
+            t = dt[k]
+            sn = math.sin(-t * w)
+            c = math.cos(-t * w)
+            ox, oy, _ = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
+            xw[k] = cx + ox
+            yw[k] = cy + oy
+
+
+@njit(cache=True, error_model="numpy")
+def _pad_image(g, shift, pad):
+    """``g`` (H, W) into the flat ``pad`` ((H + 2) (W + 2),) with a one-pixel ring of
+    ``shift`` around it, so the fused adjoints need no bounds tests."""
+    h, wd = g.shape
+    wp = wd + 2
+    for j in range(wp):
+        pad[j] = shift
+        pad[(h + 1) * wp + j] = shift
+    for i in range(h):
+        r = (i + 1) * wp
+        pad[r] = shift
+        for j in range(wd):
+            pad[r + 1 + j] = g[i, j]
+        pad[r + wd + 1] = shift
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _similarity_nojac(x, y, dt, vx, vy, s, cx, cy, xw, yw, k0, k1, sbuf, cbuf):
-    for k in range(k0, k1):
-        t = dt[k]
-        sn = sbuf[k - k0]
-        c = cbuf[k - k0]
-        ib = 1.0 / (1.0 + t * s)  # s is 0 for SE(2)
-        u = x[k] - cx - t * vx
-        v = y[k] - cy - t * vy
-        xw[k] = cx + (c * u - sn * v) * ib
-        yw[k] = cy + (sn * u + c * v) * ib
+def _similarity_vjp_event(ox, oy, t, sn, c, s, gX, gY):
+    """``gX dxw/dtheta + gY dyw/dtheta`` (4 terms) from the centred warped point: the
+    Jacobian of :func:`_k_similarity`, contracted instead of stored."""
+    ib = 1.0 / (1.0 + t * s)
+    tib = t * ib
+    return (-tib * (gX * c + gY * sn), tib * (gX * sn - gY * c), t * (gX * oy - gY * ox),
+            -tib * (gX * ox + gY * oy))
+
+
+@njit(cache=True, error_model="numpy")
+def _k_zoom(x, y, dt, h, cx, cy, xw, yw, jx, jy, jac):
+    for k in range(x.shape[0]):
+        xc = x[k] - cx
+        yc = y[k] - cy
+        s = 1.0 - dt[k] * h
+        xw[k] = cx + s * xc
+        yw[k] = cy + s * yc
+    if jac:
+        for k in range(x.shape[0]):
+            jx[k, 0] = -dt[k] * (x[k] - cx)
+            jy[k, 0] = -dt[k] * (y[k] - cy)
+
+
+@njit(cache=True, error_model="numpy")
+def _k_translation(x, y, dt, vx, vy, xw, yw, jx, jy, jac):
+    for k in range(x.shape[0]):
+        xw[k] = x[k] - dt[k] * vx
+        yw[k] = y[k] - dt[k] * vy
+    if jac:
+        for k in range(x.shape[0]):
+            jx[k, 0] = -dt[k]
+            jx[k, 1] = 0.0
+            jy[k, 0] = 0.0
+            jy[k, 1] = -dt[k]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _similarity_jac(x, y, dt, vx, vy, s, cx, cy, xw, yw, jx, jy, scaled, k0, k1, sbuf, cbuf):
-    for k in range(k0, k1):
-        t = dt[k]
-        sn = sbuf[k - k0]
-        c = cbuf[k - k0]
-        ib = 1.0 / (1.0 + t * s)
-        u = x[k] - cx - t * vx
-        v = y[k] - cy - t * vy
-        ox = (c * u - sn * v) * ib
-        oy = (sn * u + c * v) * ib
-        xw[k] = cx + ox
-        yw[k] = cy + oy
-        jx[k, 0] = -t * c * ib
-        jy[k, 0] = -t * sn * ib
-        jx[k, 1] = t * sn * ib
-        jy[k, 1] = -t * c * ib
-        jx[k, 2] = t * oy
-        jy[k, 2] = -t * ox
-        if scaled:
-            jx[k, 3] = -t * ib * ox
-            jy[k, 3] = -t * ib * oy
+def _inplane_event(x, y, t, vx, vy, c, sn, kk, cx, cy):
+    """Warped pixel and the rotated centred point ``R(phi) (x - c)`` of one event."""
+    xc = x - cx
+    yc = y - cy
+    r0 = c * xc - sn * yc
+    r1 = sn * xc + c * yc
+    return x - t * (vx + kk * r0 - xc), y - t * (vy + kk * r1 - yc), r0, r1
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
@@ -326,23 +376,21 @@ def _k_inplane(x, y, dt, vx, vy, phi, hz, cx, cy, xw, yw, jx, jy, jac):
     c = math.cos(phi)
     sn = math.sin(phi)
     kk = hz + 1.0
+    if not jac:
+        for k in range(x.shape[0]):
+            xw[k], yw[k], _, _ = _inplane_event(x[k], y[k], dt[k], vx, vy, c, sn, kk, cx, cy)
+        return
     for k in range(x.shape[0]):
         t = dt[k]
-        xc = x[k] - cx
-        yc = y[k] - cy
-        r0 = c * xc - sn * yc
-        r1 = sn * xc + c * yc
-        xw[k] = x[k] - t * (vx + kk * r0 - xc)
-        yw[k] = y[k] - t * (vy + kk * r1 - yc)
-        if jac:
-            jx[k, 0] = -t
-            jy[k, 0] = 0.0
-            jx[k, 1] = 0.0
-            jy[k, 1] = -t
-            jx[k, 2] = t * kk * r1
-            jy[k, 2] = -t * kk * r0
-            jx[k, 3] = -t * r0
-            jy[k, 3] = -t * r1
+        xw[k], yw[k], r0, r1 = _inplane_event(x[k], y[k], t, vx, vy, c, sn, kk, cx, cy)
+        jx[k, 0] = -t
+        jy[k, 0] = 0.0
+        jx[k, 1] = 0.0
+        jy[k, 1] = -t
+        jx[k, 2] = t * kk * r1
+        jy[k, 2] = -t * kk * r0
+        jx[k, 3] = -t * r0
+        jy[k, 3] = -t * r1
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
@@ -472,6 +520,37 @@ def _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20, i21
     return q0 * iz, q1 * iz, q0, q1, q2, iz
 
 
+@njit(cache=True, inline="always")
+def _rod_mode(z, mode):
+    """Rodrigues coefficients for the series mode of :func:`_rot_rates` (branchy: the loops
+    that should vectorize call the series of their mode directly)."""
+    if mode == 0:
+        return _rod_coeffs_short(z)
+    if z < 1.0:
+        return _rod_coeffs(z)
+    return _rod_coeffs_exact(z)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_warp_event(x, y, t, a, b, wx, wy, wz, k00, k01, k02, k10, k11, k12, i00, i01, i02,
+                    i10, i11, i12):
+    """Warped pixel of one event: :func:`_rot_point` with K^-1's last row (0, 0, 1)
+    written in, then K."""
+    xn = i00 * x + i01 * y + i02
+    yn = i10 * x + i11 * y + i12
+    c1x = wy - wz * yn
+    c1y = wz * xn - wx
+    c1z = wx * yn - wy * xn
+    at = a * t
+    bt = b * t * t
+    q0 = xn + at * c1x + bt * (wy * c1z - wz * c1y)
+    q1 = yn + at * c1y + bt * (wz * c1x - wx * c1z)
+    iz = 1.0 / (1.0 + at * c1z + bt * (wx * c1y - wy * c1x))
+    X = q0 * iz
+    Y = q1 * iz
+    return k00 * X + k01 * Y + k02, k10 * X + k11 * Y + k12
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
     wx, wy, wz, ww, mode = _rot_rates(dt, w)
@@ -481,63 +560,58 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
     i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
         Kinv[1, 2]
     i20, i21, i22 = Kinv[2, 0], Kinv[2, 1], Kinv[2, 2]
-    abuf = np.empty(_BLOCK)
-    bbuf = np.empty(_BLOCK)
-    cbuf = np.empty(_BLOCK)
     n = x.shape[0]
-    for k0 in range(0, n, _BLOCK):
-        k1 = min(k0 + _BLOCK, n)
-        _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
-        if not jac:
-            # written out (no helper call): this loop vectorizes; K^-1 has last row (0, 0, 1)
-            for k in range(k0, k1):
+    if not jac:
+        if mode == 0:
+            for k in range(n):
                 t = dt[k]
-                xn = i00 * x[k] + i01 * y[k] + i02
-                yn = i10 * x[k] + i11 * y[k] + i12
-                c1x = wy - wz * yn
-                c1y = wz * xn - wx
-                c1z = wx * yn - wy * xn
-                at = abuf[k - k0] * t
-                bt = bbuf[k - k0] * t * t
-                q0 = xn + at * c1x + bt * (wy * c1z - wz * c1y)
-                q1 = yn + at * c1y + bt * (wz * c1x - wx * c1z)
-                iz = 1.0 / (1.0 + at * c1z + bt * (wx * c1y - wy * c1x))
-                X = q0 * iz
-                Y = q1 * iz
-                xw[k] = k00 * X + k01 * Y + k02
-                yw[k] = k10 * X + k11 * Y + k12
-            continue
-        for k in range(k0, k1):
-            t = dt[k]
-            X, Y, q0, q1, q2, iz = _rot_point(x[k], y[k], t, abuf[k - k0], bbuf[k - k0],
-                                              wx, wy, wz, i00, i01, i02, i10, i11, i12, i20,
-                                              i21, i22)
-            xw[k] = k00 * X + k01 * Y + k02
-            yw[k] = k10 * X + k11 * Y + k12
-            # d(X, Y)/d omega = -t L J_l(t omega) with L the rotational interaction matrix
-            # at the warped point, rows L0 = (XY, -(1 + X^2), Y), L1 = (1 + Y^2, -XY, -X),
-            # and J_l = g Id + b t omega^ + c t^2 omega omega^T, g = 1 - c t^2 |omega|^2:
-            # row u of L J_l is g u + b t (u x omega) + c t^2 (u . omega) omega
-            bt1 = bbuf[k - k0] * t
-            ct2 = cbuf[k - k0] * t * t
-            g = 1.0 - ct2 * ww
-            xy = X * Y
-            u0, u1, u2 = xy, -1.0 - X * X, Y
-            v0, v1, v2 = 1.0 + Y * Y, -xy, -X
-            su = ct2 * (u0 * wx + u1 * wy + u2 * wz)
-            sv = ct2 * (v0 * wx + v1 * wy + v2 * wz)
-            dx0 = -t * (g * u0 + bt1 * (u1 * wz - u2 * wy) + su * wx)
-            dx1 = -t * (g * u1 + bt1 * (u2 * wx - u0 * wz) + su * wy)
-            dx2 = -t * (g * u2 + bt1 * (u0 * wy - u1 * wx) + su * wz)
-            dy0 = -t * (g * v0 + bt1 * (v1 * wz - v2 * wy) + sv * wx)
-            dy1 = -t * (g * v1 + bt1 * (v2 * wx - v0 * wz) + sv * wy)
-            dy2 = -t * (g * v2 + bt1 * (v0 * wy - v1 * wx) + sv * wz)
-            jx[k, 0] = k00 * dx0 + k01 * dy0
-            jx[k, 1] = k00 * dx1 + k01 * dy1
-            jx[k, 2] = k00 * dx2 + k01 * dy2
-            jy[k, 0] = k10 * dx0 + k11 * dy0
-            jy[k, 1] = k10 * dx1 + k11 * dy1
-            jy[k, 2] = k10 * dx2 + k11 * dy2
+                a, b, _ = _rod_coeffs_short(t * t * ww)
+                xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, k00, k01, k02,
+                                               k10, k11, k12, i00, i01, i02, i10, i11, i12)
+        elif mode == 1:
+            for k in range(n):
+                t = dt[k]
+                a, b, _ = _rod_coeffs(t * t * ww)
+                xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, k00, k01, k02,
+                                               k10, k11, k12, i00, i01, i02, i10, i11, i12)
+        else:
+            for k in range(n):
+                t = dt[k]
+                a, b, _ = _rod_mode(t * t * ww, mode)
+                xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, k00, k01, k02,
+                                               k10, k11, k12, i00, i01, i02, i10, i11, i12)
+        return
+    for k in range(n):
+        t = dt[k]
+        a, b, c = _rod_mode(t * t * ww, mode)
+        X, Y, q0, q1, q2, iz = _rot_point(x[k], y[k], t, a, b, wx, wy, wz, i00, i01, i02, i10,
+                                          i11, i12, i20, i21, i22)
+        xw[k] = k00 * X + k01 * Y + k02
+        yw[k] = k10 * X + k11 * Y + k12
+        # d(X, Y)/d omega = -t L J_l(t omega) with L the rotational interaction matrix
+        # at the warped point, rows L0 = (XY, -(1 + X^2), Y), L1 = (1 + Y^2, -XY, -X),
+        # and J_l = g Id + b t omega^ + c t^2 omega omega^T, g = 1 - c t^2 |omega|^2:
+        # row u of L J_l is g u + b t (u x omega) + c t^2 (u . omega) omega
+        bt1 = b * t
+        ct2 = c * t * t
+        g = 1.0 - ct2 * ww
+        xy = X * Y
+        u0, u1, u2 = xy, -1.0 - X * X, Y
+        v0, v1, v2 = 1.0 + Y * Y, -xy, -X
+        su = ct2 * (u0 * wx + u1 * wy + u2 * wz)
+        sv = ct2 * (v0 * wx + v1 * wy + v2 * wz)
+        dx0 = -t * (g * u0 + bt1 * (u1 * wz - u2 * wy) + su * wx)
+        dx1 = -t * (g * u1 + bt1 * (u2 * wx - u0 * wz) + su * wy)
+        dx2 = -t * (g * u2 + bt1 * (u0 * wy - u1 * wx) + su * wz)
+        dy0 = -t * (g * v0 + bt1 * (v1 * wz - v2 * wy) + sv * wx)
+        dy1 = -t * (g * v1 + bt1 * (v2 * wx - v0 * wz) + sv * wy)
+        dy2 = -t * (g * v2 + bt1 * (v0 * wy - v1 * wx) + sv * wz)
+        jx[k, 0] = k00 * dx0 + k01 * dy0
+        jx[k, 1] = k00 * dx1 + k01 * dy1
+        jx[k, 2] = k00 * dx2 + k01 * dy2
+        jy[k, 0] = k10 * dx0 + k11 * dy0
+        jy[k, 1] = k10 * dx1 + k11 * dy1
+        jy[k, 2] = k10 * dx2 + k11 * dy2
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -558,49 +632,15 @@ def _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX, gY):
             -t * (g * u2 + bt1 * (u0 * wy - u1 * wx) + su * wz))
 
 
-@njit(cache=True, inline="always")
-def _bilinear_grad_block(xb, yb, m, wts, g, shift, scale, gxb, gyb):
-    """Per-event pixel gradients of the bilinear IWE for ``dL/dIWE = scale (g - shift)``
-    into ``gxb, gyb`` (the adjoint of :func:`evmotion.core.iwe.accumulate_backward_reduce`)
-    for the m events of a block."""
-    h, wd = g.shape
-    use_w = wts.shape[0] > 0
-    for k in range(m):
-        inside, ix, iy, fx, fy = _cell(xb[k], yb[k], h, wd)
-        if not inside:
-            gxb[k] = 0.0
-            gyb[k] = 0.0
-            continue
-        a = (wts[k] if use_w else 1.0) * scale
-        dx, dy = _cell_grad(g, ix, iy, fx, fy, shift, h, wd)
-        gxb[k] = a * dx
-        gyb[k] = a * dy
-
-
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_vjp_block(xw, yw, dt, k0, k1, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
-                   i10, i11, i12, bbuf, cbuf, gxb, gyb, acc):
-    """Adds ``sum_k gx_k dxw_k/domega + gy_k dyw_k/domega`` over events k0..k1 to ``acc``
-    (``xw, yw, gxb, gyb`` hold the block, indexed from k0).
-    The warped normalized point comes back from the warped pixel through K^-1 (affine), so
-    the loop has no division and no branch (it vectorizes)."""
-    a0 = 0.0
-    a1 = 0.0
-    a2 = 0.0
-    for k in range(k0, k1):
-        t = dt[k]
-        X = i00 * xw[k - k0] + i01 * yw[k - k0] + i02
-        Y = i10 * xw[k - k0] + i11 * yw[k - k0] + i12
-        gx = gxb[k - k0]
-        gy = gyb[k - k0]
-        d0, d1, d2 = _rot_vjp_event(X, Y, t, bbuf[k - k0], cbuf[k - k0], wx, wy, wz, ww,
-                                    gx * k00 + gy * k10, gx * k01 + gy * k11)
-        a0 += d0
-        a1 += d1
-        a2 += d2
-    acc[0] += a0
-    acc[1] += a1
-    acc[2] += a2
+def _rot_adj_event(xv, yv, t, b, c, gx, gy, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
+                   i10, i11, i12):
+    """:func:`_rot_vjp_event` from the warped pixel and its pixel gradient: the normalized
+    point comes back through K^-1 (affine), the gradient through K^T, so no division."""
+    X = i00 * xv + i01 * yv + i02
+    Y = i10 * xv + i11 * yv + i12
+    return _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gx * k00 + gy * k10,
+                          gx * k01 + gy * k11)
 
 
 @njit(cache=True, inline="always")
@@ -614,41 +654,234 @@ def _rot_rates(dt, w):
     return wx, wy, wz, ww, 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
 
 
+# ---------------------------------------------------------------------------------------
+# Fused adjoints: dL/dtheta = sum_k gx_k dxw_k/dtheta + gy_k dyw_k/dtheta with the Jacobian
+# recomputed per event, never stored. With a padded image (the bilinear IWE adjoint of the
+# objective) the pixel gradients are gathered in the same loop, which is kept free of
+# branches so that it vectorizes (AVX-512 gathers): an event with no vote in the image (or
+# NaN) is replaced by a clamped one of weight 0, so that its contribution is exactly 0 (the
+# composed adjoint skips it). One loop per case (series mode, weights or not), the case
+# passed to the helpers as a constant that folds away. The helpers take scalars only: an
+# array argument costs reference counting in the loop, which stops its vectorization.
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _pad_index(xv, yv, t, wk, scale, h, wd):
+    """``(xc, yc, t, a, fx, fy, i)`` of an event at ``(xv, yv)`` px: its pixel, dt and
+    weight ``a = wk scale``, or a clamped pixel with ``t = a = 0`` where it has no vote in
+    the (h, wd) image (or is NaN); then its bilinear offsets and the flat index in the image
+    padded by :func:`_pad_image` of its cell's top-left pixel."""
+    inside = (xv > -1.0) & (xv < wd) & (yv > -1.0) & (yv < h)
+    xc = xv if inside else -1.0
+    yc = yv if inside else -1.0
+    x0 = math.floor(xc)
+    y0 = math.floor(yc)
+    i = (int(y0) + 1) * (wd + 2) + int(x0) + 1
+    return (xc, yc, t if inside else 0.0, wk * scale if inside else 0.0, xc - x0, yc - y0, i)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _cell_diff(a, fx, fy, g00, g01, g10, g11):
+    """``a`` times the x and y derivatives of the bilinear interpolation in a cell: the
+    values of :func:`evmotion.core.iwe._cell_grad`, whose pixels outside the image count 0
+    and here ``shift`` (the padding), so interior cells agree bit for bit."""
+    return (a * ((g01 - g00) * (1.0 - fy) + (g11 - g10) * fy),
+            a * ((g10 - g00) * (1.0 - fx) + (g11 - g01) * fx))
+
+
+@njit(cache=True, inline="always")
+def _rot_bc(z, mode):
+    """The Rodrigues coefficients (b, c) in series mode ``mode`` (:func:`_rot_rates`)."""
+    if mode == 0:
+        _, b, c = _rod_coeffs_short(z)
+    elif mode == 1:
+        _, b, c = _rod_coeffs(z)
+    else:
+        _, b, c = _rod_mode(z, mode)
+    return b, c
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_rotation_vjp(xw, yw, dt, w, Kmat, Kinv, gx, gy, wts, g, shift, scale, out):
-    """``out = jx^T gx + jy^T gy`` (3,) with the rotation Jacobian recomputed per event from
-    the warped pixels ``xw, yw`` (no (N, 3) buffers), block by block. If ``g`` (H, W) has
-    pixels, the per-event pixel gradients are not read from ``gx, gy`` but computed per block
-    as the bilinear IWE adjoint of ``dL/dIWE = scale (g - shift)`` (see
-    :func:`evmotion.core.iwe.accumulate_backward_reduce`), into block-sized buffers."""
+def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
+    """``out`` (3,) = ``jx^T gx + jy^T gy`` with the rotation Jacobian recomputed per event
+    from the warped pixels ``xw, yw`` (``prm``: omega, K's 2x2 block, the first two rows of
+    K^-1); with a padded image ``pad`` (:func:`_pad_image`) the pixel gradients come from it
+    (weights ``wts`` times ``scale``), not from ``gx, gy``."""
+    wx, wy, wz = prm[0], prm[1], prm[2]
+    ww = wx * wx + wy * wy + wz * wz
+    k00, k01, k10, k11 = prm[3], prm[4], prm[5], prm[6]
+    i00, i01, i02, i10, i11, i12 = prm[7], prm[8], prm[9], prm[10], prm[11], prm[12]
+    mode = _rot_rates(dt, prm)[4]
     use_w = wts.shape[0] > 0
-    fuse_iwe = g.size > 0
-    wx, wy, wz, ww, mode = _rot_rates(dt, w)
-    k00, k01, k10, k11 = Kmat[0, 0], Kmat[0, 1], Kmat[1, 0], Kmat[1, 1]
-    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
-        Kinv[1, 2]
-    abuf = np.empty(_BLOCK)
-    bbuf = np.empty(_BLOCK)
-    cbuf = np.empty(_BLOCK)
-    gxb = np.empty(_BLOCK)
-    gyb = np.empty(_BLOCK)
-    acc = np.zeros(3)
+    wp = wd + 2
+    a0 = a1 = a2 = 0.0
     n = xw.shape[0]
-    for k0 in range(0, n, _BLOCK):
-        k1 = min(k0 + _BLOCK, n)
-        _rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
-        if fuse_iwe:
-            _bilinear_grad_block(xw[k0:k1], yw[k0:k1], k1 - k0, wts[k0:k1] if use_w else wts,
-                                 g, shift, scale, gxb, gyb)
-            _rot_vjp_block(xw[k0:k1], yw[k0:k1], dt, k0, k1, wx, wy, wz, ww, k00, k01, k10,
-                           k11, i00, i01, i02, i10, i11, i12, bbuf, cbuf, gxb, gyb, acc)
-        else:
-            _rot_vjp_block(xw[k0:k1], yw[k0:k1], dt, k0, k1, wx, wy, wz, ww, k00, k01, k10,
-                           k11, i00, i01, i02, i10, i11, i12, bbuf, cbuf, gx[k0:k1], gy[k0:k1],
-                           acc)
-    out[0] = acc[0]
-    out[1] = acc[1]
-    out[2] = acc[2]
+    if pad.shape[0] == 0:
+        for k in range(n):
+            t = dt[k]
+            b, c = _rot_bc(t * t * ww, mode)
+            d0, d1, d2 = _rot_adj_event(xw[k], yw[k], t, b, c, gx[k], gy[k], wx, wy, wz, ww,
+                                        k00, k01, k10, k11, i00, i01, i02, i10, i11, i12)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+    elif mode == 0 and not use_w:
+        for k in range(n):
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], 1.0, scale, h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            b, c = _rot_bc(t * t * ww, 0)
+            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
+                                        k11, i00, i01, i02, i10, i11, i12)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+    elif mode == 0:
+        for k in range(n):
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k], scale, h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            b, c = _rot_bc(t * t * ww, 0)
+            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
+                                        k11, i00, i01, i02, i10, i11, i12)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+    elif mode == 1:
+        for k in range(n):
+            wk = wts[k] if use_w else 1.0
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wk, scale, h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            b, c = _rot_bc(t * t * ww, 1)
+            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
+                                        k11, i00, i01, i02, i10, i11, i12)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+    else:
+        for k in range(n):
+            wk = wts[k] if use_w else 1.0
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wk, scale, h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            b, c = _rot_bc(t * t * ww, 2)
+            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
+                                        k11, i00, i01, i02, i10, i11, i12)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+    out[0] = a0
+    out[1] = a1
+    out[2] = a2
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
+    """:func:`_k_rotation_adj` for SE(2) and the similarity (``prm``: wz, s, c; ``out``
+    (3,) or (4,))."""
+    w, s, cx, cy = prm[0], prm[1], prm[2], prm[3]
+    small = _max_abs(dt) * abs(w) < 1.0
+    use_w = wts.shape[0] > 0
+    wp = wd + 2
+    a0 = a1 = a2 = a3 = 0.0
+    n = xw.shape[0]
+    if pad.shape[0] == 0:
+        for k in range(n):
+            t = dt[k]
+            sn, c = _sincos_any(-t * w, small)
+            d0, d1, d2, d3 = _similarity_vjp_event(xw[k] - cx, yw[k] - cy, t, sn, c, s, gx[k],
+                                                   gy[k])
+            a0 += d0
+            a1 += d1
+            a2 += d2
+            a3 += d3
+    elif small and not use_w:
+        for k in range(n):
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], 1.0, scale, h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            sn, c = _sincos(-t * w)
+            d0, d1, d2, d3 = _similarity_vjp_event(xv - cx, yv - cy, t, sn, c, s, gX, gY)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+            a3 += d3
+    elif small:
+        for k in range(n):
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k], scale, h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            sn, c = _sincos(-t * w)
+            d0, d1, d2, d3 = _similarity_vjp_event(xv - cx, yv - cy, t, sn, c, s, gX, gY)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+            a3 += d3
+    else:
+        for k in range(n):
+            wk = wts[k] if use_w else 1.0
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wk, scale, h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            sn = math.sin(-t * w)
+            c = math.cos(-t * w)
+            d0, d1, d2, d3 = _similarity_vjp_event(xv - cx, yv - cy, t, sn, c, s, gX, gY)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+            a3 += d3
+    out[0] = a0
+    out[1] = a1
+    out[2] = a2
+    if out.shape[0] > 3:
+        out[3] = a3
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _simple_vjp_event(kind, xc, yc, t, gX, gY, c, sn, kk):
+    """Contribution (4,) of one event to the zoom (kind 0), translation (1) or in-plane (2)
+    adjoint; ``xc, yc`` is the event (not warped) in centred pixels, ``c, sn, kk`` are
+    cos phi, sin phi and h_z + 1 of the in-plane warp."""
+    if kind == 0:
+        return -t * (gX * xc + gY * yc), 0.0, 0.0, 0.0
+    if kind == 1:
+        return -t * gX, -t * gY, 0.0, 0.0
+    r0 = c * xc - sn * yc
+    r1 = sn * xc + c * yc
+    return -t * gX, -t * gY, t * kk * (gX * r1 - gY * r0), -t * (gX * r0 + gY * r1)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _k_simple_adj(kind, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
+    """:func:`_k_rotation_adj` for the zoom, translation and in-plane warps (``kind`` 0, 1,
+    2; ``prm``: c, then cos phi, sin phi, h_z + 1 for the in-plane warp), whose Jacobians
+    come from the events ``x, y``."""
+    cx, cy = prm[0], prm[1]
+    c = sn = kk = 0.0
+    if kind == 2:
+        c, sn, kk = prm[2], prm[3], prm[4]
+    use_w = wts.shape[0] > 0
+    wp = wd + 2
+    a0 = a1 = a2 = a3 = 0.0
+    n = xw.shape[0]
+    if pad.shape[0] == 0:
+        for k in range(n):
+            d0, d1, d2, d3 = _simple_vjp_event(kind, x[k] - cx, y[k] - cy, dt[k], gx[k], gy[k],
+                                               c, sn, kk)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+            a3 += d3
+    else:
+        for k in range(n):
+            wk = wts[k] if use_w else 1.0
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wk, scale, h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            # where the event has no vote its weight is 0: any finite point will do
+            ok = xv == xw[k]
+            xc = x[k] - cx if ok else 0.0
+            yc = y[k] - cy if ok else 0.0
+            d0, d1, d2, d3 = _simple_vjp_event(kind, xc, yc, t, gX, gY, c, sn, kk)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+            a3 += d3
+    acc = (a0, a1, a2, a3)
+    for j in range(out.shape[0]):
+        out[j] = acc[j]
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
@@ -1116,19 +1349,83 @@ class Warp:
         return self._with_grad(fn, x, y, x, theta, grad)
 
 
+class _FusedAdjoint:
+    """Warps whose adjoint kernel recomputes the parameter Jacobian per event, so the chain
+    rule needs no (N, P) Jacobian buffers (the hot path of gradient-based CMax). Each such
+    warp defines ``_adj(x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out)``."""
+
+    def vjp(self, x, y, dt, xw, yw, theta, gx, gy, out) -> np.ndarray:
+        """``out = jx^T gx + jy^T gy`` (P,): per-event pixel gradients ``gx, gy`` (N,)
+        chained through the warp without storing its Jacobians.
+
+        ``x, y`` are the events (px), ``xw, yw`` the same events warped with ``theta``
+        (:meth:`Warp.warp_into`), ``dt`` seconds from ``t_ref``; all float64 contiguous
+        (N,). Each warp reads what is cheapest: the warped pixels (rotation, SE(2),
+        similarity, translation) or the events, recomputing the warp (zoom, in-plane).
+
+        Examples
+        --------
+        >>> w = make_warp("translation", sensor_size=(10, 10))
+        >>> x = np.array([5.0]); dt = np.array([0.5]); th = np.array([2.0, 0.0])
+        >>> xw, yw = w.warp(x, x, dt, th)
+        >>> w.vjp(x, x, dt, xw, yw, th, np.array([1.0]), np.array([0.0]), np.empty(2))
+        array([-0.5,  0. ])
+        """
+        self._adj(x, y, dt, xw, yw, self._theta(theta), gx, gy, _EMPTY1, _EMPTY1, 0, 0, 1.0,
+                  out)
+        return out
+
+    def reduce_bilinear(self, x, y, dt, xw, yw, theta, grad_iwe, out, weights=None,
+                        shift: float = 0.0, scale: float = 1.0,
+                        work: np.ndarray | None = None) -> np.ndarray:
+        """:func:`evmotion.core.iwe.accumulate_backward_reduce` fused with the warp.
+
+        ``out`` (P,) = dL/dtheta for ``dL/dIWE = scale (grad_iwe - shift)`` and the
+        bilinear IWE of ``xw, yw`` (optional per-event ``weights``), in one pass over the
+        events, with the Jacobians recomputed, not stored. Arguments as in :meth:`vjp`;
+        ``grad_iwe`` is (H, W) float64 C-contiguous. ``work`` is an optional float64
+        buffer of at least ``(H + 2) (W + 2)`` values for the padded image (allocated when
+        absent).
+
+        Examples
+        --------
+        >>> w = make_warp("translation", sensor_size=(3, 3))
+        >>> x = np.array([1.25]); y = np.array([1.5]); dt = np.array([1.0])
+        >>> g = np.zeros((3, 3)); g[1, 2] = 1.0
+        >>> w.reduce_bilinear(x, y, dt, x, y, np.zeros(2), g, np.empty(2))
+        array([-0.5 ,  0.25])
+        """
+        g = grad_iwe
+        if not (isinstance(g, np.ndarray) and g.dtype == np.float64 and g.ndim == 2
+                and g.flags.c_contiguous):
+            raise ParameterError("grad_iwe must be a C-contiguous float64 (H, W) array")
+        h, wd = g.shape
+        size = (h + 2) * (wd + 2)
+        pad = np.empty(size) if work is None or work.shape[0] < size else work[:size]
+        _pad_image(g, float(shift), pad)
+        w = _EMPTY1 if weights is None else weights
+        self._adj(x, y, dt, xw, yw, self._theta(theta), _EMPTY1, _EMPTY1, w, pad, h, wd,
+                  float(scale), out)
+        return out
+
+
 # ---------------------------------------------------------------------------------------
 
 def _stack33(rows, n):
     return np.moveaxis(np.array([[np.broadcast_to(v, (n,)) for v in r] for r in rows]), -1, 0)
 
 
-class ZoomWarp(Warp):
+class ZoomWarp(_FusedAdjoint, Warp):
     """1-DOF zoom (3.7): ``x' = c + (1 - dt h_z)(x - c)``, ``h_z`` in 1/s.
 
     div f = -2 h_z, det J = (1 - dt h_z)^2."""
 
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_zoom(x, y, dt, th[0], self.center[0], self.center[1], xw, yw, jx, jy, jac)
+
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+        _k_simple_adj(0, x, y, xw, yw, dt, np.array(self.center), gx, gy, wts, pad, h, wd,
+                      scale, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1140,11 +1437,15 @@ class ZoomWarp(Warp):
         return M, Md
 
 
-class TranslationWarp(Warp):
+class TranslationWarp(_FusedAdjoint, Warp):
     """2-DOF feature flow (3.5.1): ``x' = x - dt v``, ``v`` in px/s. div 0, det 1."""
 
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_translation(x, y, dt, th[0], th[1], xw, yw, jx, jy, jac)
+
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+        _k_simple_adj(1, x, y, xw, yw, dt, np.array(self.center), gx, gy, wts, pad, h, wd,
+                      scale, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1160,7 +1461,7 @@ def _rot2(a):
     return c, s
 
 
-class SimilarityWarp(Warp):
+class SimilarityWarp(_FusedAdjoint, Warp):
     """4-DOF similarity Sim(2) (A.36): ``x' = c + beta^-1 R(-dt w_z)(x - c - dt v)``,
     ``beta = 1 + dt s``; theta = (vx, vy [px/s], wz [rad/s], s [1/s]).
 
@@ -1172,6 +1473,10 @@ class SimilarityWarp(Warp):
         s = th[3] if self.scaled else 0.0
         _k_similarity(x, y, dt, th[0], th[1], th[2], s, self.center[0], self.center[1],
                       xw, yw, jx, jy, jac, self.scaled)
+
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+        prm = np.array([th[2], th[3] if self.scaled else 0.0, self.center[0], self.center[1]])
+        _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1205,7 +1510,7 @@ class SE2Warp(SimilarityWarp):
     scaled = False
 
 
-class InPlaneWarp(Warp):
+class InPlaneWarp(_FusedAdjoint, Warp):
     """4-DOF in-plane approximation (A.22):
     ``x' = x - dt (v + ((h_z + 1) R(phi) - Id)(x - c))``; theta = (vx, vy [px/s],
     phi [rad/s, small-angle rate], hz [1/s]). div f = 2 - 2 (h_z + 1) cos(phi) (A.25)."""
@@ -1213,6 +1518,12 @@ class InPlaneWarp(Warp):
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_inplane(x, y, dt, th[0], th[1], th[2], th[3], self.center[0], self.center[1],
                    xw, yw, jx, jy, jac)
+
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+        # the rotation as _k_inplane computes it (libm through numba and math alike)
+        prm = np.array([self.center[0], self.center[1], math.cos(th[2]), math.sin(th[2]),
+                        th[3] + 1.0])
+        _k_simple_adj(2, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1296,7 +1607,7 @@ class HomographyWarp(Warp):
         return M, -M @ G @ M
 
 
-class RotationWarp(Warp):
+class RotationWarp(_FusedAdjoint, Warp):
     """3-DOF camera rotation (3.22): ``x'_n ~ exp(dt omega^) x_n`` in normalized
     coordinates ``x_n = K^-1 (x, y, 1)``; theta = omega (wx, wy, wz) in rad/s, camera frame
     x right, y down, z forward. div f = 3 (x_n wy - y_n wx) at dt = 0 (3.23)."""
@@ -1307,24 +1618,11 @@ class RotationWarp(Warp):
     def _conj(self):
         return self.K, self._kinv
 
-    def vjp(self, xw, yw, dt, theta, gx, gy, out) -> np.ndarray:
-        """``out = jx^T gx + jy^T gy`` (3,): the chain rule of per-event pixel gradients
-        ``gx, gy`` (N,) through the warp, without the (N, 3) Jacobians, which are
-        recomputed from ``xw, yw``, the events warped with ``theta`` (:meth:`warp_into`).
-        Inputs float64 contiguous; ``dt`` in seconds from ``t_ref``."""
-        _k_rotation_vjp(xw, yw, dt, self._theta(theta), self.K, self._kinv, gx, gy, _EMPTY1,
-                        _EMPTY2, 0.0, 1.0, out)
-        return out
-
-    def reduce_bilinear(self, xw, yw, dt, theta, grad_iwe, out, weights=None,
-                        shift: float = 0.0, scale: float = 1.0) -> np.ndarray:
-        """:func:`evmotion.core.iwe.accumulate_backward_reduce` fused with the warp: ``out``
-        (3,) = dL/domega for ``dL/dIWE = scale (grad_iwe - shift)`` and the bilinear IWE of
-        ``xw, yw``, the events warped with ``theta``; Jacobians recomputed, not stored."""
-        w = _EMPTY1 if weights is None else weights
-        _k_rotation_vjp(xw, yw, dt, self._theta(theta), self.K, self._kinv, _EMPTY1, _EMPTY1,
-                        w, grad_iwe, float(shift), float(scale), out)
-        return out
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+        K, Ki = self.K, self._kinv
+        prm = np.array([th[0], th[1], th[2], K[0, 0], K[0, 1], K[1, 0], K[1, 1], Ki[0, 0],
+                        Ki[0, 1], Ki[0, 2], Ki[1, 0], Ki[1, 1], Ki[1, 2]])
+        _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out)
 
     def _divdet(self, x, y, dt, theta, want_div, grad):
         x, y, dt = self._events(x, y, dt)

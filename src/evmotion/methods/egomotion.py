@@ -188,6 +188,8 @@ class CMaxCost:
         self.gx, self.gy = np.empty(n), np.empty(n)
         self.iwe = np.empty(self.shape)
         self.giwe = np.empty(self.shape)
+        # the padded image of the fused bilinear adjoint (Warp.reduce_bilinear)
+        self._pad = np.empty((self.shape[0] + 2) * (self.shape[1] + 2)) if self.fused else None
         self.gtheta = np.empty(p)
         # whitening maps the cloud back to the image centre at the spread of the raw events
         self._wcenter = ((self.shape[1] - 1) / 2.0, (self.shape[0] - 1) / 2.0)
@@ -218,48 +220,56 @@ class CMaxCost:
         if grad and self.fused:
             return self._data_fused(theta)
         xw, yw, jx, jy = self._positions(theta, grad)
-        if (grad and self.objective == "variance" and self.kernel == "bilinear"
-                and self.regularizer != "whitening"):
-            # fused hot path: no gradient image, no per-event gradient buffers
-            accumulate_into(xw, yw, self.iwe, self.weights, "bilinear")
-            mu, G = variance_stats(self.iwe)
-            accumulate_backward_reduce(xw, yw, self.iwe, jx, jy, self.gtheta, self.weights,
-                                       shift=mu, scale=2.0 / self.iwe.size)
-            return G / self.g0, self.gtheta / self.g0
         if self.needs_time:
             G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self.polarity,
                                           self.tn, kernel=self.kernel, sigma=self.sigma)
-        else:
-            accumulate_into(xw, yw, self.iwe, self.weights, self.kernel, self.sigma)
-            G, gimg = objective_value_grad(self.objective, self.iwe, out=self.giwe)
             if not grad:
                 return G / self.g0, None
-            gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, self.weights,
-                                              self.kernel, self.sigma)
+            return G / self.g0, (gx @ jx + gy @ jy) / self.g0
+        accumulate_into(xw, yw, self.iwe, self.weights, self.kernel, self.sigma)
         if not grad:
+            G = objective_value_grad(self.objective, self.iwe, out=self.giwe)[0]
             return G / self.g0, None
+        if self.kernel == "bilinear" and self.regularizer != "whitening":
+            # fused adjoint and chain rule: no per-event gradient buffers; the variance
+            # needs no gradient image either (dG/dIWE = 2 (IWE - mean) / n)
+            G, g, shift, scale = self._image_grad()
+            accumulate_backward_reduce(xw, yw, g, jx, jy, self.gtheta, self.weights,
+                                       shift=shift, scale=scale)
+            return G / self.g0, self.gtheta / self.g0
+        G, gimg = objective_value_grad(self.objective, self.iwe, out=self.giwe)
+        gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, self.weights,
+                                          self.kernel, self.sigma)
         return G / self.g0, (gx @ jx + gy @ jy) / self.g0
 
+    def _image_grad(self):
+        """``(G, g, shift, scale)`` of the IWE in ``self.iwe``: ``dG/dIWE = scale (g - shift)``."""
+        if self.objective == "variance":
+            mu, G = variance_stats(self.iwe)
+            return G, self.iwe, mu, 2.0 / self.iwe.size
+        G, gimg = objective_value_grad(self.objective, self.iwe, out=self.giwe)
+        return G, gimg, 0.0, 1.0
+
     def _data_fused(self, theta):
-        """:meth:`_data` for warps with fused kernels: warp and vote, then the adjoint with
-        the Jacobian recomputed per event (same values as the composed path)."""
+        """:meth:`_data` for warps with fused adjoints: warp and vote, then one pass over the
+        events with the Jacobian recomputed per event (same values as the composed path)."""
         w = self.warp
-        xw, yw = self.xw, self.yw
-        w.warp_into(self.x, self.y, self.dt, theta, xw, yw)
+        x, y, dt, xw, yw = self.x, self.y, self.dt, self.xw, self.yw
+        w.warp_into(x, y, dt, theta, xw, yw)
         if self.needs_time:
             G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self.polarity,
                                           self.tn, kernel=self.kernel, sigma=self.sigma)
         else:
             accumulate_into(xw, yw, self.iwe, self.weights, self.kernel, self.sigma)
-            if self.objective == "variance" and self.kernel == "bilinear":
-                mu, G = variance_stats(self.iwe)
-                w.reduce_bilinear(xw, yw, self.dt, theta, self.iwe, self.gtheta,
-                                  self.weights, shift=mu, scale=2.0 / self.iwe.size)
+            if self.kernel == "bilinear":
+                G, g, shift, scale = self._image_grad()
+                w.reduce_bilinear(x, y, dt, xw, yw, theta, g, self.gtheta, self.weights,
+                                  shift=shift, scale=scale, work=self._pad)
                 return G / self.g0, self.gtheta / self.g0
             G, gimg = objective_value_grad(self.objective, self.iwe, out=self.giwe)
             gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, self.weights,
                                               self.kernel, self.sigma)
-        w.vjp(xw, yw, self.dt, theta, gx, gy, self.gtheta)
+        w.vjp(x, y, dt, xw, yw, theta, gx, gy, self.gtheta)
         return G / self.g0, self.gtheta / self.g0
 
     def _penalty(self, theta, grad: bool = True):
