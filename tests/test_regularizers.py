@@ -413,3 +413,23 @@ def test_time_span_matches_numpy():
         assert _time_span(a) == (a.min(), a.max())
     assert _time_span(np.zeros(0)) == (0.0, 0.0)
     assert window_span([0.01, 0.03, 0.02]) == pytest.approx(0.02)
+
+
+@pytest.mark.parametrize("name", ["zoom", "translation", "se2", "similarity", "inplane"])
+def test_fast_grad_dot_matches_stored_derivatives(name):
+    """The closed-form value derivatives contracted in place equal the stored (N, P)
+    derivatives contracted by numpy."""
+    from evmotion.core.regularizers import _FAST, _k_fast_grad_dot, _k_fast_values
+
+    th = np.array({"zoom": [8.0], "translation": [3.0, 1.0], "se2": [40.0, 10.0, 30.0],
+                   "similarity": [40.0, 10.0, 30.0, 9.0],
+                   "inplane": [40.0, 10.0, 3.0, -5.0]}[name])
+    rng = np.random.default_rng(10)
+    dt = rng.uniform(-0.1, 0.05, 1500)
+    gd = rng.normal(size=1500)
+    for is_div in (True, False):
+        d, g = np.empty(1500), np.empty((1500, th.size))
+        _k_fast_values(_FAST[name], is_div, dt, th, 0.15, d, g, True)
+        out = np.full(th.size, 0.5)
+        _k_fast_grad_dot(_FAST[name], is_div, dt, th, 0.15, gd, out)
+        np.testing.assert_allclose(out, 0.5 + gd @ g, rtol=1e-12, atol=1e-12)

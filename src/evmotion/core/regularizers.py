@@ -468,6 +468,80 @@ def _k_fast_values(code, is_div, dt, th, T, d, g, want_g):
                 g[k, 3] = (-2.0 * a * t * c + 2.0 * t * t * kk) * sgn
 
 
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _k_fast_grad_dot(code, is_div, dt, th, T, gd, out):
+    """``out += sum_k gd_k dd_k/dtheta`` for the closed forms of :func:`_k_fast_values`,
+    without the (N, P) derivatives: one branch-free loop per case into scalar sums."""
+    n = dt.shape[0]
+    P = th.shape[0]
+    a2 = 0.0
+    a3 = 0.0
+    if code == 0:  # zoom
+        h = th[0]
+        if is_div:
+            for k in range(n):
+                a2 += gd[k]
+            out[0] += -2.0 * T * a2
+        else:
+            for k in range(n):
+                t = dt[k]
+                a2 += gd[k] * (-2.0 * t * (1.0 - t * h))
+            out[0] += a2
+    elif code == 2:  # SE(2) and similarity
+        w = th[2]
+        s = th[3] if P == 4 else 0.0
+        if not is_div:
+            if P == 4:
+                for k in range(n):
+                    t = dt[k]
+                    ib = 1.0 / (1.0 + t * s)
+                    a3 += gd[k] * (-2.0 * t * ib * ib * ib)
+                out[3] += a3
+            return
+        small = _max_abs(dt) * abs(w) < 1.0
+        sbuf = np.empty(_BLOCK)
+        cbuf = np.empty(_BLOCK)
+        for k0 in range(0, n, _BLOCK):
+            k1 = min(k0 + _BLOCK, n)
+            if small:
+                _sincos_block(dt, k0, k1, w, sbuf, cbuf)  # of -dt w
+            else:
+                for k in range(k0, k1):
+                    sbuf[k - k0] = math.sin(-dt[k] * w)
+                    cbuf[k - k0] = math.cos(-dt[k] * w)
+            for k in range(k0, k1):
+                t = dt[k]
+                ib = 1.0 / (1.0 + t * s)
+                sn = -sbuf[k - k0]
+                c = cbuf[k - k0]
+                ib2 = ib * ib
+                f = gd[k]
+                a2 += f * (2.0 * s * ib2 * t * sn - 2.0 * ib * sn - 2.0 * w * ib * t * c)
+                a3 += f * (-2.0 * c * ib2 + 4.0 * s * t * c * ib2 * ib + 2.0 * w * t * sn * ib2)
+        out[2] += T * a2
+        if P == 4:
+            out[3] += T * a3
+    elif code == 3:  # in-plane
+        kk = th[3] + 1.0
+        c = math.cos(th[2])
+        sn = math.sin(th[2])
+        if is_div:
+            for k in range(n):
+                a2 += gd[k]
+            out[2] += T * 2.0 * kk * sn * a2
+            out[3] += -T * 2.0 * c * a2
+        else:
+            for k in range(n):
+                t = dt[k]
+                a = 1.0 + t
+                det = a * a - 2.0 * a * t * kk * c + t * t * kk * kk
+                f = gd[k] if det >= 0 else -gd[k]
+                a2 += f * (2.0 * a * t * kk * sn)
+                a3 += f * (-2.0 * a * t * c + 2.0 * t * t * kk)
+            out[2] += a2
+            out[3] += a3
+
+
 _FAST = {"zoom": 0, "translation": 1, "se2": 2, "similarity": 2, "inplane": 3}
 #: Warps whose divergence does not depend on the event, (3.10), (A.25).
 _CONST_DIV = ("zoom", "translation", "inplane")
@@ -603,12 +677,8 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
             _rotation_grad(warp, kind, xs, ys, dts, th, gds, facs, g,
                            scratch=xs.shape[0] == n)
         elif code is not None:
-            # the closed-form value derivatives (values into the free row `facs`)
-            (dd,) = _scratch(((n, warp.n_params),), "dd")
-            dds = dd[:xs.shape[0]]
-            _k_fast_values(code, kind == "divergence", dts, th, 1.0 if T is None else T, facs,
-                           dds, True)
-            _add_contraction(gds, dds, g)
+            _k_fast_grad_dot(code, kind == "divergence", dts, th, 1.0 if T is None else T,
+                             gds, g)
         else:
             _, dds, _ = _event_values(kind, warp, xs, ys, dts, th, T=T, scratch=False)
             _add_contraction(gds, dds, g)
