@@ -40,7 +40,7 @@ import threading
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _cell, _shape
+from evmotion.core.iwe import _cell, _corners, _shape
 from evmotion.core.warps import (
     _BLOCK,
     _EMPTY1,
@@ -126,22 +126,11 @@ def _fused_forward(xw, yw, d, cnt, num):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _corners(g, ix, iy, h, wd):
-    """The four pixels of the bilinear cell with top-left (ix, iy), 0 off the image."""
-    if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
-        return g[iy, ix], g[iy, ix + 1], g[iy + 1, ix], g[iy + 1, ix + 1]
-    return (g[iy, ix] if (iy >= 0 and ix >= 0) else 0.0,
-            g[iy, ix + 1] if (iy >= 0 and ix + 1 < wd) else 0.0,
-            g[iy + 1, ix] if (iy + 1 < h and ix >= 0) else 0.0,
-            g[iy + 1, ix + 1] if (iy + 1 < h and ix + 1 < wd) else 0.0)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
 def _fused_adjoint_event(gS, gN, a, ix, iy, fx, fy, scale, h, wd):
     """``(gx, gy, gd)``: derivatives of ``scale * sum(gS * num + gN * cnt)`` with respect to
     one event's ``xw, yw`` and value ``a`` (its bilinear cell at (ix, iy) + (fx, fy)).
-    (The corner loads as one helper's return values: as scalars assigned in branches they
-    compiled to code four times slower.)"""
+    (The corner loads come from one helper's return values: as scalars assigned in
+    branches they compiled to code four times slower.)"""
     s00, s01, s10, s11 = _corners(gS, ix, iy, h, wd)
     n00, n01, n10, n11 = _corners(gN, ix, iy, h, wd)
     g00 = a * s00 + n00
