@@ -660,9 +660,10 @@ def _rot_rates(dt, w):
 # objective) the pixel gradients are gathered in the same loop, which is kept free of
 # branches so that it vectorizes (AVX-512 gathers): an event with no vote in the image (or
 # NaN) is replaced by a clamped one of weight 0, so that its contribution is exactly 0 (the
-# composed adjoint skips it). One loop per case (series mode, weights or not), the case
-# passed to the helpers as a constant that folds away. The helpers take scalars only: an
-# array argument costs reference counting in the loop, which stops its vectorization.
+# composed adjoint skips it). Each kernel runs one loop per case (series mode, weights or
+# not): the case reaches the inlined loop as a constant and its branches fold away. The
+# helpers called inside the loops take scalars only: an array argument costs reference
+# counting per call, which stops the vectorization.
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _pad_index(xv, yv, t, wk, scale, h, wd):
@@ -700,186 +701,172 @@ def _rot_bc(z, mode):
     return b, c
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_loop(mode, fuse, use_w, args):
+    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale = args
+    wx, wy, wz = prm[0], prm[1], prm[2]
+    ww = wx * wx + wy * wy + wz * wz
+    k00, k01, k10, k11 = prm[3], prm[4], prm[5], prm[6]
+    i00, i01, i02, i10, i11, i12 = prm[7], prm[8], prm[9], prm[10], prm[11], prm[12]
+    wp = wd + 2
+    a0 = a1 = a2 = 0.0
+    for k in range(xw.shape[0]):
+        if fuse:
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k],
+                                                 wts[k] if use_w else 1.0, scale, h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+        else:
+            xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
+        b, c = _rot_bc(t * t * ww, mode)
+        d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
+                                    k11, i00, i01, i02, i10, i11, i12)
+        a0 += d0
+        a1 += d1
+        a2 += d2
+    return a0, a1, a2, 0.0
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
     """``out`` (3,) = ``jx^T gx + jy^T gy`` with the rotation Jacobian recomputed per event
     from the warped pixels ``xw, yw`` (``prm``: omega, K's 2x2 block, the first two rows of
     K^-1); with a padded image ``pad`` (:func:`_pad_image`) the pixel gradients come from it
     (weights ``wts`` times ``scale``), not from ``gx, gy``."""
-    wx, wy, wz = prm[0], prm[1], prm[2]
-    ww = wx * wx + wy * wy + wz * wz
-    k00, k01, k10, k11 = prm[3], prm[4], prm[5], prm[6]
-    i00, i01, i02, i10, i11, i12 = prm[7], prm[8], prm[9], prm[10], prm[11], prm[12]
     mode = _rot_rates(dt, prm)[4]
     use_w = wts.shape[0] > 0
-    wp = wd + 2
-    a0 = a1 = a2 = 0.0
-    n = xw.shape[0]
-    if pad.shape[0] == 0:
-        for k in range(n):
-            t = dt[k]
-            b, c = _rot_bc(t * t * ww, mode)
-            d0, d1, d2 = _rot_adj_event(xw[k], yw[k], t, b, c, gx[k], gy[k], wx, wy, wz, ww,
-                                        k00, k01, k10, k11, i00, i01, i02, i10, i11, i12)
-            a0 += d0
-            a1 += d1
-            a2 += d2
-    elif mode == 0 and not use_w:
-        for k in range(n):
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], 1.0, scale, h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
-            b, c = _rot_bc(t * t * ww, 0)
-            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
-                                        k11, i00, i01, i02, i10, i11, i12)
-            a0 += d0
-            a1 += d1
-            a2 += d2
+    fuse = pad.shape[0] > 0
+    a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
+    if not fuse:
+        acc = _rot_loop(mode, False, False, a)
+    elif mode == 0 and use_w:
+        acc = _rot_loop(0, True, True, a)
     elif mode == 0:
-        for k in range(n):
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k], scale, h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
-            b, c = _rot_bc(t * t * ww, 0)
-            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
-                                        k11, i00, i01, i02, i10, i11, i12)
-            a0 += d0
-            a1 += d1
-            a2 += d2
+        acc = _rot_loop(0, True, False, a)
+    elif mode == 1 and use_w:
+        acc = _rot_loop(1, True, True, a)
     elif mode == 1:
-        for k in range(n):
-            wk = wts[k] if use_w else 1.0
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wk, scale, h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
-            b, c = _rot_bc(t * t * ww, 1)
-            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
-                                        k11, i00, i01, i02, i10, i11, i12)
-            a0 += d0
-            a1 += d1
-            a2 += d2
+        acc = _rot_loop(1, True, False, a)
     else:
-        for k in range(n):
-            wk = wts[k] if use_w else 1.0
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wk, scale, h, wd)
+        acc = _rot_loop(2, True, use_w, a)
+    for j in range(3):
+        out[j] = acc[j]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _similarity_loop(small, fuse, use_w, args):
+    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale = args
+    w, s, cx, cy = prm[0], prm[1], prm[2], prm[3]
+    wp = wd + 2
+    a0 = a1 = a2 = a3 = 0.0
+    for k in range(xw.shape[0]):
+        if fuse:
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k],
+                                                 wts[k] if use_w else 1.0, scale, h, wd)
             gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
-            b, c = _rot_bc(t * t * ww, 2)
-            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
-                                        k11, i00, i01, i02, i10, i11, i12)
-            a0 += d0
-            a1 += d1
-            a2 += d2
-    out[0] = a0
-    out[1] = a1
-    out[2] = a2
+        else:
+            xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
+        sn, c = _sincos_any(-t * w, small)
+        d0, d1, d2, d3 = _similarity_vjp_event(xv - cx, yv - cy, t, sn, c, s, gX, gY)
+        a0 += d0
+        a1 += d1
+        a2 += d2
+        a3 += d3
+    return a0, a1, a2, a3
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
     """:func:`_k_rotation_adj` for SE(2) and the similarity (``prm``: wz, s, c; ``out``
     (3,) or (4,))."""
-    w, s, cx, cy = prm[0], prm[1], prm[2], prm[3]
-    small = _max_abs(dt) * abs(w) < 1.0
+    small = _max_abs(dt) * abs(prm[0]) < 1.0
     use_w = wts.shape[0] > 0
-    wp = wd + 2
-    a0 = a1 = a2 = a3 = 0.0
-    n = xw.shape[0]
+    a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
     if pad.shape[0] == 0:
-        for k in range(n):
-            t = dt[k]
-            sn, c = _sincos_any(-t * w, small)
-            d0, d1, d2, d3 = _similarity_vjp_event(xw[k] - cx, yw[k] - cy, t, sn, c, s, gx[k],
-                                                   gy[k])
-            a0 += d0
-            a1 += d1
-            a2 += d2
-            a3 += d3
-    elif small and not use_w:
-        for k in range(n):
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], 1.0, scale, h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
-            sn, c = _sincos(-t * w)
-            d0, d1, d2, d3 = _similarity_vjp_event(xv - cx, yv - cy, t, sn, c, s, gX, gY)
-            a0 += d0
-            a1 += d1
-            a2 += d2
-            a3 += d3
+        acc = _similarity_loop(small, False, False, a)
+    elif small and use_w:
+        acc = _similarity_loop(True, True, True, a)
     elif small:
-        for k in range(n):
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k], scale, h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
-            sn, c = _sincos(-t * w)
-            d0, d1, d2, d3 = _similarity_vjp_event(xv - cx, yv - cy, t, sn, c, s, gX, gY)
-            a0 += d0
-            a1 += d1
-            a2 += d2
-            a3 += d3
+        acc = _similarity_loop(True, True, False, a)
     else:
-        for k in range(n):
-            wk = wts[k] if use_w else 1.0
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wk, scale, h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
-            sn = math.sin(-t * w)
-            c = math.cos(-t * w)
-            d0, d1, d2, d3 = _similarity_vjp_event(xv - cx, yv - cy, t, sn, c, s, gX, gY)
-            a0 += d0
-            a1 += d1
-            a2 += d2
-            a3 += d3
-    out[0] = a0
-    out[1] = a1
-    out[2] = a2
-    if out.shape[0] > 3:
-        out[3] = a3
+        acc = _similarity_loop(False, True, use_w, a)
+    for j in range(out.shape[0]):
+        out[j] = acc[j]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _simple_vjp_event(kind, xc, yc, t, gX, gY, c, sn, kk):
-    """Contribution (4,) of one event to the zoom (kind 0), translation (1) or in-plane (2)
-    adjoint; ``xc, yc`` is the event (not warped) in centred pixels, ``c, sn, kk`` are
-    cos phi, sin phi and h_z + 1 of the in-plane warp."""
+def _simple_loop(kind, fuse, use_w, args):
+    """Zoom (kind 0), translation (1), in-plane (2): the zoom and in-plane warps are
+    recomputed from the events (cheaper than reading their warped pixels as well)."""
+    x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale = args
+    cx, cy = prm[0], prm[1]
+    hz = c = sn = kk = vx = vy = 0.0
     if kind == 0:
-        return -t * (gX * xc + gY * yc), 0.0, 0.0, 0.0
-    if kind == 1:
-        return -t * gX, -t * gY, 0.0, 0.0
-    r0 = c * xc - sn * yc
-    r1 = sn * xc + c * yc
-    return -t * gX, -t * gY, t * kk * (gX * r1 - gY * r0), -t * (gX * r0 + gY * r1)
+        hz = prm[2]
+    elif kind == 2:
+        c, sn, kk, vx, vy = prm[2], prm[3], prm[4], prm[5], prm[6]
+    wp = wd + 2
+    a0 = a1 = a2 = a3 = 0.0
+    for k in range(xw.shape[0]):
+        t = dt[k]
+        xc = x[k] - cx
+        yc = y[k] - cy
+        if kind == 0:
+            s = 1.0 - t * hz
+            xv0 = cx + s * xc
+            yv0 = cy + s * yc
+        elif kind == 2:
+            xv0, yv0, _, _ = _inplane_event(x[k], y[k], t, vx, vy, c, sn, kk, cx, cy)
+        else:
+            xv0 = xw[k]
+            yv0 = yw[k]
+        if fuse:
+            xv, yv, t, a, fx, fy, i = _pad_index(xv0, yv0, t, wts[k] if use_w else 1.0, scale,
+                                                 h, wd)
+            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            # where the event has no vote its weight is 0: any finite point will do
+            ok = xv == xv0
+            xc = xc if ok else 0.0
+            yc = yc if ok else 0.0
+        else:
+            gX, gY = gx[k], gy[k]
+        if kind == 0:
+            a0 -= t * (gX * xc + gY * yc)
+        else:
+            a0 -= t * gX
+            a1 -= t * gY
+        if kind == 2:
+            r0 = c * xc - sn * yc
+            r1 = sn * xc + c * yc
+            a2 += t * kk * (gX * r1 - gY * r0)
+            a3 -= t * (gX * r0 + gY * r1)
+    return a0, a1, a2, a3
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_simple_adj(kind, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
     """:func:`_k_rotation_adj` for the zoom, translation and in-plane warps (``kind`` 0, 1,
-    2; ``prm``: c, then cos phi, sin phi, h_z + 1 for the in-plane warp), whose Jacobians
-    come from the events ``x, y``."""
-    cx, cy = prm[0], prm[1]
-    c = sn = kk = 0.0
-    if kind == 2:
-        c, sn, kk = prm[2], prm[3], prm[4]
+    2; ``prm``: c, then h_z (zoom) or cos phi, sin phi, h_z + 1, vx, vy (in-plane))."""
     use_w = wts.shape[0] > 0
-    wp = wd + 2
-    a0 = a1 = a2 = a3 = 0.0
-    n = xw.shape[0]
-    if pad.shape[0] == 0:
-        for k in range(n):
-            d0, d1, d2, d3 = _simple_vjp_event(kind, x[k] - cx, y[k] - cy, dt[k], gx[k], gy[k],
-                                               c, sn, kk)
-            a0 += d0
-            a1 += d1
-            a2 += d2
-            a3 += d3
+    fuse = pad.shape[0] > 0
+    a = (x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
+    if kind == 0 and not fuse:
+        acc = _simple_loop(0, False, False, a)
+    elif kind == 0 and use_w:
+        acc = _simple_loop(0, True, True, a)
+    elif kind == 0:
+        acc = _simple_loop(0, True, False, a)
+    elif kind == 1 and not fuse:
+        acc = _simple_loop(1, False, False, a)
+    elif kind == 1 and use_w:
+        acc = _simple_loop(1, True, True, a)
+    elif kind == 1:
+        acc = _simple_loop(1, True, False, a)
+    elif not fuse:
+        acc = _simple_loop(2, False, False, a)
+    elif use_w:
+        acc = _simple_loop(2, True, True, a)
     else:
-        for k in range(n):
-            wk = wts[k] if use_w else 1.0
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wk, scale, h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
-            # where the event has no vote its weight is 0: any finite point will do
-            ok = xv == xw[k]
-            xc = x[k] - cx if ok else 0.0
-            yc = y[k] - cy if ok else 0.0
-            d0, d1, d2, d3 = _simple_vjp_event(kind, xc, yc, t, gX, gY, c, sn, kk)
-            a0 += d0
-            a1 += d1
-            a2 += d2
-            a3 += d3
-    acc = (a0, a1, a2, a3)
+        acc = _simple_loop(2, True, False, a)
     for j in range(out.shape[0]):
         out[j] = acc[j]
 
@@ -1424,8 +1411,8 @@ class ZoomWarp(_FusedAdjoint, Warp):
         _k_zoom(x, y, dt, th[0], self.center[0], self.center[1], xw, yw, jx, jy, jac)
 
     def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
-        _k_simple_adj(0, x, y, xw, yw, dt, np.array(self.center), gx, gy, wts, pad, h, wd,
-                      scale, out)
+        prm = np.array([self.center[0], self.center[1], th[0]])
+        _k_simple_adj(0, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1522,7 +1509,7 @@ class InPlaneWarp(_FusedAdjoint, Warp):
     def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
         # the rotation as _k_inplane computes it (libm through numba and math alike)
         prm = np.array([self.center[0], self.center[1], math.cos(th[2]), math.sin(th[2]),
-                        th[3] + 1.0])
+                        th[3] + 1.0, th[0], th[1]])
         _k_simple_adj(2, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out)
 
     def _mats_c(self, dt, th):
