@@ -27,6 +27,18 @@ Each returns its value and analytic gradient with respect to theta
 trimmed means are piecewise smooth: the gradient is that of the current piece (the set of
 pixels below the margin held fixed).
 
+Cost (what CMax pays per evaluation on top of its data term; ``benchmarks/bench_regularizers``):
+
+* the per-event values come first (closed forms, or for the rotation one vectorized pass
+  from the warped pixels); when none is below the margin no pixel mean can be, and the
+  penalty is 0 without building any map -- the usual case away from collapse;
+* otherwise one fused forward pass builds the two vote images, one pass trims them into
+  their adjoint images, and one pass gives each event's derivatives; without stored
+  Jacobians (``jx=None``) the warp's ``vjp`` contracts them over the events that vote into
+  a trimmed pixel only, so a caller on a fused (Jacobian-free) path needs no (N, P) buffers;
+* RCAD maps test their threshold without logarithms first; ``span=(min dt, max dt)`` spares
+  the pass over the times when the caller knows them.
+
 Whitening (:func:`whiten`) is the baseline the thesis compares with (Nunes & Demiris): it is
 not a penalty but a normalization of the warped events to zero mean and identity
 covariance (an SVD of the event covariance) before the objective is computed.
