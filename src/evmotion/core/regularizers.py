@@ -137,6 +137,39 @@ def _fused_forward(xw, yw, d, cnt, num):
                 num[iy + 1, ix + 1] += a * w11
 
 
+@njit(cache=True, error_model="numpy")
+def _forward_num(xw, yw, d, num):
+    """The ``num`` image of :func:`_fused_forward` alone (same arithmetic), for callers that
+    already hold the vote-count image (CMax's bilinear IWE without weights)."""
+    h, wd = num.shape
+    num[:] = 0.0
+    for k in range(xw.shape[0]):
+        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
+        if not inside:
+            continue
+        a = d[k]
+        w00 = (1.0 - fx) * (1.0 - fy)
+        w01 = fx * (1.0 - fy)
+        w10 = (1.0 - fx) * fy
+        w11 = fx * fy
+        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
+            num[iy, ix] += a * w00
+            num[iy, ix + 1] += a * w01
+            num[iy + 1, ix] += a * w10
+            num[iy + 1, ix + 1] += a * w11
+            continue
+        if iy >= 0:
+            if ix >= 0:
+                num[iy, ix] += a * w00
+            if ix + 1 < wd:
+                num[iy, ix + 1] += a * w01
+        if iy + 1 < h:
+            if ix >= 0:
+                num[iy + 1, ix] += a * w10
+            if ix + 1 < wd:
+                num[iy + 1, ix + 1] += a * w11
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _fused_adjoint_event(gS, gN, a, ix, iy, fx, fy, scale, h, wd):
     """``(gx, gy, gd)``: derivatives of ``scale * sum(gS * num + gN * cnt)`` with respect to
@@ -582,6 +615,16 @@ def _span_T(span) -> float:
     return span[1] - span[0] if span[1] > span[0] else 1.0
 
 
+def _count_image(count, shape) -> np.ndarray:
+    """A caller's vote-count image, checked: (H, W) float64 C-contiguous, read only."""
+    if not (isinstance(count, np.ndarray) and count.dtype == np.float64
+            and count.shape == tuple(shape) and count.flags.c_contiguous):
+        raise ParameterError(f"count must be the (H, W) = {tuple(shape)} C-contiguous "
+                             f"float64 bilinear IWE of the warped events, got "
+                             f"{getattr(count, 'shape', type(count))}")
+    return count
+
+
 def _prepare(warp, x, y, dt, theta, xw, yw):
     """Checked events and theta, and the warped events (computed unless given)."""
     x, y, dt = Warp._events(x, y, dt)
@@ -628,8 +671,10 @@ def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw):
 
 
 def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, margin, kernel,
-                        grad=True, span=None):
+                        grad=True, span=None, count=None):
     x, y, dt, th, xw, yw = _prepare(warp, x, y, dt, theta, xw, yw)
+    if count is not None:
+        count = _count_image(count, shape)
     zero = (0.0, np.zeros(warp.n_params))
     T = None
     if kind == "divergence":
@@ -649,7 +694,11 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
         return zero
     # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
     cnt, num = _scratch((shape,) * 2, "img")
-    _fused_forward(xw, yw, d, cnt, num)
+    if count is None:
+        _fused_forward(xw, yw, d, cnt, num)
+    else:
+        cnt = count
+        _forward_num(xw, yw, d, num)
     gS, gN = _scratch((shape,) * 2, "adj")
     total, n_sel = _trim_pass(cnt, num, m, gS, gN)
     if n_sel == 0:
@@ -927,21 +976,21 @@ def _check_kernel(kernel):
 
 
 def _divergence(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None,
-                margin=None, kernel="bilinear", grad=True, span=None):
+                margin=None, kernel="bilinear", grad=True, span=None, count=None):
     m = DEFAULT_MARGINS["divergence"] if margin is None else float(margin)
     return _trimmed_value_grad("divergence", warp, x, y, dt, theta, shape, xw, yw, jx, jy, m,
-                               kernel, grad, span)
+                               kernel, grad, span, count)
 
 
 def _deformation(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None,
-                 margin=None, kernel="bilinear", grad=True, span=None):
+                 margin=None, kernel="bilinear", grad=True, span=None, count=None):
     m = DEFAULT_MARGINS["deformation"] if margin is None else float(margin)
     return _trimmed_value_grad("deformation", warp, x, y, dt, theta, shape, xw, yw, jx, jy, m,
-                               kernel, grad, span)
+                               kernel, grad, span, count)
 
 
 def _rcad(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None, margin=None,
-          kernel="bilinear", grad=True, stride=8, span=None):
+          kernel="bilinear", grad=True, stride=8, span=None, count=None):
     m = DEFAULT_MARGINS["rcad"] if margin is None else float(margin)
     return _rcad_value_grad(warp, x, y, dt, theta, shape, m, int(stride), grad, span)
 
@@ -954,6 +1003,7 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
                            xw=None, yw=None, *, jx=None, jy=None, margin: float | None = None,
                            kernel: str = "bilinear", stride: int = 8, grad: bool = True,
                            span: tuple[float, float] | None = None,
+                           count: np.ndarray | None = None,
                            ) -> tuple[float, np.ndarray | None]:
     """Value of a collapse penalty and its gradient with respect to ``theta``.
 
@@ -984,6 +1034,10 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
     span : (float, float), optional
         ``(min dt, max dt)`` in seconds, when the caller knows it (e.g. once per window for
         many evaluations): saves a pass over ``dt`` per call. It must be that of ``dt``.
+    count : array (H, W) float64, optional
+        The bilinear IWE of ``xw, yw`` without weights, when the caller has it (CMax's data
+        term): the DIWE/IWA vote-count map is then not accumulated again (divergence,
+        deformation; ignored by rcad). It must be that of ``xw, yw``; it is not modified.
 
     Returns
     -------
@@ -1007,8 +1061,8 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
     _check_kernel(kernel)
     shape = _shape(shape)
     return REGULARIZERS[name](warp, x, y, dt, theta, shape, xw=xw, yw=yw, jx=jx, jy=jy,
-                              margin=margin, kernel=kernel, grad=grad, span=span, **(
-                                  {"stride": stride} if name == "rcad" else {}))
+                              margin=margin, kernel=kernel, grad=grad, span=span,
+                              count=count, **({"stride": stride} if name == "rcad" else {}))
 
 
 def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
