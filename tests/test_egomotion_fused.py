@@ -12,6 +12,7 @@ import pytest
 from evmotion.core.iwe import accumulate_backward
 from evmotion.core.objectives import events_value_grad
 from evmotion.core.warps import make_warp
+from evmotion.errors import ParameterError
 from evmotion.methods.egomotion import CMaxCost
 
 SHAPE = (60, 80)
@@ -162,3 +163,15 @@ def test_events_without_votes_are_dropped(name):
     out = reduce(x, y, dt)
     assert np.all(np.isfinite(out))
     np.testing.assert_allclose(out, reduce(x[keep], y[keep], dt[keep]), rtol=1e-12)
+
+
+def test_assigned_weights_reach_the_fused_path():
+    # the EM of segmentation assigns soft labels to cost.weights between optimizations
+    x, y, dt, p, tn = _window(11)
+    warp = make_warp("se2", SHAPE)
+    theta = _theta("se2", 11)
+    cost = CMaxCost(warp, x, y, dt, SHAPE, polarity=p)
+    cost.weights = np.random.default_rng(12).uniform(0.0, 1.0, x.size)
+    _check(cost, warp, x, y, dt, theta, "variance", "bilinear", p, tn)
+    with pytest.raises(ParameterError, match="weights must have shape"):
+        cost.weights = np.ones(3)

@@ -1385,7 +1385,8 @@ class _FusedAdjoint:
         g = grad_iwe
         if not (isinstance(g, np.ndarray) and g.dtype == np.float64 and g.ndim == 2
                 and g.flags.c_contiguous):
-            raise ParameterError("grad_iwe must be a C-contiguous float64 (H, W) array")
+            raise ParameterError(f"grad_iwe must be a C-contiguous float64 (H, W) array, got "
+                                 f"{getattr(g, 'dtype', type(g))} {np.shape(g)}")
         h, wd = g.shape
         size = (h + 2) * (wd + 2)
         pad = np.empty(size) if work is None or work.shape[0] < size else work[:size]

@@ -108,6 +108,26 @@ def default_bounds(warp: Warp) -> tuple[np.ndarray, np.ndarray]:
     return -half, half
 
 
+#: Side (px) of the sensor tiles in which the fused path visits the events.
+_TILE = 16
+
+
+def _tile_order(x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Stable order of events by their ``_TILE``-pixel tile of the sensor (row-major), in
+    time order within a tile.
+
+    Events close in this order warp to pixels close in the image, so the IWE vote and the
+    adjoint's gathers stay in cache: about -20 % per evaluation at 500k events on 640x480,
+    whose float64 IWE exceeds the L2 cache. Sums over events change order only (rounding).
+    A radix sort (uint16 keys): ~6 ms for 500k events, once per window."""
+    h, w = shape
+    nx, ny = -(-w // _TILE), -(-h // _TILE)
+    tx = np.clip(np.nan_to_num(x // _TILE), 0, nx - 1)
+    ty = np.clip(np.nan_to_num(y // _TILE), 0, ny - 1)
+    key = (ty * nx + tx).astype(np.uint16 if nx * ny <= 65536 else np.uint32)
+    return np.argsort(key, kind="stable")
+
+
 def _scales(warp: Warp) -> np.ndarray:
     return np.array([_UNIT_SCALE[u][0] for u in warp.param_units])
 
@@ -170,6 +190,7 @@ class CMaxCost:
         self.tn = None if tn is None else np.ascontiguousarray(tn, dtype=np.float64)
         if self.needs_time and (self.polarity is None or self.tn is None):
             raise ParameterError(f"objective '{objective}' needs polarity and times")
+        self._order = None
         self.weights = None
         if use_polarity:
             if self.polarity is None:
@@ -183,6 +204,13 @@ class CMaxCost:
         self.xw, self.yw = np.empty(n), np.empty(n)
         if self.fused:
             self.jx = self.jy = None
+            # the fused path visits the events tile by tile (see _tile_order); its warped
+            # positions in xw, yw follow that order
+            o = self._order = _tile_order(self.x, self.y, self.shape)
+            self._fx, self._fy, self._fdt = self.x[o], self.y[o], self.dt[o]
+            self.weights = self.weights
+            self._fp = None if self.polarity is None else self.polarity[o]
+            self._ftn = None if self.tn is None else self.tn[o]
         else:
             self.jx, self.jy = np.empty((n, p)), np.empty((n, p))
         self.gx, self.gy = np.empty(n), np.empty(n)
@@ -198,6 +226,23 @@ class CMaxCost:
         self.g0 = 1.0
         g0 = self._data(warp.identity(), grad=False)[0]
         self.g0 = abs(g0) if g0 != 0 else 1.0
+
+    @property
+    def weights(self) -> np.ndarray | None:
+        """Per-event IWE weights (N,) in the events' order, or None; assignable (the EM of
+        :mod:`evmotion.methods.segmentation` sets its soft labels here)."""
+        return self._weights
+
+    @weights.setter
+    def weights(self, w) -> None:
+        if w is not None:
+            w = np.ascontiguousarray(w, dtype=np.float64)
+            if w.shape != self.x.shape:
+                raise ParameterError(f"weights must have shape {self.x.shape} like the "
+                                     f"events, got {w.shape}")
+        self._weights = w
+        if self._order is not None:
+            self._fw = None if w is None else self._weights[self._order]
 
     # -- pieces --------------------------------------------------------------------------
     def _positions(self, theta, jac: bool):
@@ -254,21 +299,21 @@ class CMaxCost:
         """:meth:`_data` for warps with fused adjoints: warp and vote, then one pass over the
         events with the Jacobian recomputed per event (same values as the composed path)."""
         w = self.warp
-        x, y, dt, xw, yw = self.x, self.y, self.dt, self.xw, self.yw
+        x, y, dt, wts, xw, yw = self._fx, self._fy, self._fdt, self._fw, self.xw, self.yw
         w.warp_into(x, y, dt, theta, xw, yw)
         if self.needs_time:
-            G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self.polarity,
-                                          self.tn, kernel=self.kernel, sigma=self.sigma)
+            G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self._fp,
+                                          self._ftn, kernel=self.kernel, sigma=self.sigma)
         else:
-            accumulate_into(xw, yw, self.iwe, self.weights, self.kernel, self.sigma)
+            accumulate_into(xw, yw, self.iwe, wts, self.kernel, self.sigma)
             if self.kernel == "bilinear":
                 G, g, shift, scale = self._image_grad()
-                w.reduce_bilinear(x, y, dt, xw, yw, theta, g, self.gtheta, self.weights,
-                                  shift=shift, scale=scale, work=self._pad)
+                w.reduce_bilinear(x, y, dt, xw, yw, theta, g, self.gtheta, wts, shift=shift,
+                                  scale=scale, work=self._pad)
                 return G / self.g0, self.gtheta / self.g0
             G, gimg = objective_value_grad(self.objective, self.iwe, out=self.giwe)
-            gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, self.weights,
-                                              self.kernel, self.sigma)
+            gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, wts, self.kernel,
+                                              self.sigma)
         w.vjp(x, y, dt, xw, yw, theta, gx, gy, self.gtheta)
         return G / self.g0, self.gtheta / self.g0
 
