@@ -605,7 +605,7 @@ def _checked_theta(warp: Warp, theta) -> np.ndarray:
     """``warp._theta(theta)`` without its copies when theta already is a finite float64
     (P,) array (the per-evaluation call of an optimizer)."""
     if (isinstance(theta, np.ndarray) and theta.dtype == np.float64
-            and theta.shape == (warp.n_params,) and math.isfinite(theta.sum())):
+            and theta.shape == (warp.n_params,) and all(map(math.isfinite, theta.tolist()))):
         return theta
     return warp._theta(theta)
 
@@ -946,6 +946,19 @@ def _k_rcad_grid(h, w, stride, a0, da0, c0, a1, da1, c1, margin, out):
     return total / n_sel, n_sel
 
 
+@njit(cache=True, error_model="numpy")
+def _k_rcad_rotation(h, w, stride, om, t0, t1, kinv, margin, out):
+    """:func:`_k_rcad_grid` of the rotation between ``t0`` and ``t1`` s, its coefficients
+    (:func:`_rot_area_coeffs`) computed in the same call."""
+    a0 = np.empty(3)
+    da0 = np.empty((3, 3))
+    a1 = np.empty(3)
+    da1 = np.empty((3, 3))
+    _rot_area_coeffs(om, t0, kinv, a0, da0)
+    _rot_area_coeffs(om, t1, kinv, a1, da1)
+    return _k_rcad_grid(h, w, stride, a0, da0, 0.0, a1, da1, 0.0, margin, out)
+
+
 def _rcad_value_grad(warp, x, y, dt, theta, shape, margin, stride, grad=True, span=None):
     x, y, dt = Warp._events(x, y, dt)
     if x.shape[0] == 0:
@@ -955,9 +968,16 @@ def _rcad_value_grad(warp, x, y, dt, theta, shape, margin, stride, grad=True, sp
     closed = _rcad_scalar(warp, th, t0, t1)
     if closed is not None:
         return closed
+    g = np.empty(warp.n_params)
+    if warp.name == "rotation":
+        # coefficients and grid in one compiled call (c = 0 for a rotation)
+        value, n_sel = _k_rcad_rotation(shape[0], shape[1], stride, th, t0, t1, warp._kinv,
+                                        margin, g)
+        if n_sel == 0:
+            return 0.0, np.zeros(warp.n_params)
+        return float(value), (g if grad else None)
     a0, da0, c0, dc0 = _area_coeffs(warp, th, t0)
     a1, da1, c1, dc1 = _area_coeffs(warp, th, t1)
-    g = np.empty(warp.n_params)
     value, n_sel = _k_rcad_grid(shape[0], shape[1], stride, a0, np.ascontiguousarray(da0), c0,
                                 a1, np.ascontiguousarray(da1), c1, margin, g)
     if n_sel == 0:
