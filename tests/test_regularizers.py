@@ -425,14 +425,19 @@ def test_fast_grad_dot_matches_stored_derivatives(name):
                    "similarity": [40.0, 10.0, 30.0, 9.0],
                    "inplane": [40.0, 10.0, 3.0, -5.0]}[name])
     rng = np.random.default_rng(10)
-    dt = rng.uniform(-0.1, 0.05, 1500)
     gd = rng.normal(size=1500)
-    for is_div in (True, False):
+    for is_div, span in ((True, 0.15), (False, 0.15), (True, 0.005)):
+        # 0.005 s: every angle below the short-series bound
+        dt = rng.uniform(-span * 2 / 3, span / 3, 1500)
         d, g = np.empty(1500), np.empty((1500, th.size))
         _k_fast_values(_FAST[name], is_div, dt, th, 0.15, d, g, True)
         out = np.full(th.size, 0.5)
         _k_fast_grad_dot(_FAST[name], is_div, dt, th, 0.15, gd, out)
         np.testing.assert_allclose(out, 0.5 + gd @ g, rtol=1e-12, atol=1e-12)
+        # the values-only loops (short series inline) agree with the general ones
+        d0 = np.empty(1500)
+        _k_fast_values(_FAST[name], is_div, dt, th, 0.15, d0, np.zeros((0, 0)), False)
+        np.testing.assert_allclose(d0, d, rtol=1e-13, atol=1e-15)
 
 
 def test_count_argument_gives_identical_results():

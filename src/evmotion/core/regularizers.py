@@ -429,7 +429,16 @@ def _k_fast_values(code, is_div, dt, th, T, d, g, want_g):
         for k in range(n):
             for j in range(P):
                 g[k, j] = 0.0
-    if code == 0:  # zoom
+    if code == 0 and not want_g:  # zoom values alone: branch-free loops that vectorize
+        h = th[0]
+        if is_div:
+            for k in range(n):
+                d[k] = -2.0 * h * T
+        else:
+            for k in range(n):
+                s = 1.0 - dt[k] * h
+                d[k] = s * s - 1.0
+    elif code == 0:  # zoom
         h = th[0]
         for k in range(n):
             if is_div:
@@ -447,7 +456,24 @@ def _k_fast_values(code, is_div, dt, th, T, d, g, want_g):
     elif code == 2:  # SE(2) (P = 3, s = 0) and similarity
         w = th[2]
         s = th[3] if P == 4 else 0.0
-        small = _max_abs(dt) * abs(w) < 1.0
+        amax = _max_abs(dt) * abs(w)
+        small = amax < 1.0
+        if not is_div and not want_g:
+            for k in range(n):
+                ib = 1.0 / (1.0 + dt[k] * s)
+                d[k] = ib * ib - 1.0
+            return
+        if is_div and not want_g and amax * amax < 0.05:
+            # the usual case: angles below 0.22 rad, the short series of sin and cos inline
+            # in one branch-free loop (it vectorizes)
+            for k in range(n):
+                t = dt[k]
+                a = -t * w
+                z = a * a
+                sa, cb, _ = _rod_coeffs_short(z)
+                ib = 1.0 / (1.0 + t * s)
+                d[k] = T * (-2.0 * s * ib * ib * (1.0 - z * cb) + 2.0 * w * ib * (a * sa))
+            return
         sbuf = np.empty(_BLOCK)
         cbuf = np.empty(_BLOCK)
         for k0 in range(0, n, _BLOCK):
@@ -484,6 +510,12 @@ def _k_fast_values(code, is_div, dt, th, T, d, g, want_g):
         kk = th[3] + 1.0
         c = math.cos(phi)
         sn = math.sin(phi)
+        if not is_div and not want_g:
+            for k in range(n):
+                t = dt[k]
+                a = 1.0 + t
+                d[k] = abs(a * a - 2.0 * a * t * kk * c + t * t * kk * kk) - 1.0
+            return
         for k in range(n):
             t = dt[k]
             if is_div:
