@@ -269,27 +269,44 @@ def _similarity_event(x, y, t, sn, c, vx, vy, s, cx, cy):
     return (c * u - sn * v) * ib, (sn * u + c * v) * ib, ib
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _similarity_jac_loop(small, scaled, args):
+    x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy = args
+    p = 4 if scaled else 3
+    # flat views: strided stores into 1-D arrays vectorize, 2-D item stores do not
+    jxf = jx.reshape(jx.size)
+    jyf = jy.reshape(jy.size)
+    for k in range(x.shape[0]):
+        t = dt[k]
+        sn, c = _sincos_any(-t * w, small)
+        ox, oy, ib = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
+        xw[k] = cx + ox
+        yw[k] = cy + oy
+        r = p * k
+        jxf[r] = -t * c * ib
+        jyf[r] = -t * sn * ib
+        jxf[r + 1] = t * sn * ib
+        jyf[r + 1] = -t * c * ib
+        jxf[r + 2] = t * oy
+        jyf[r + 2] = -t * ox
+        if scaled:
+            jxf[r + 3] = -t * ib * ox
+            jyf[r + 3] = -t * ib * oy
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_similarity(x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy, jac, scaled):
     # angles below 1 rad take the series of _sincos (exact to rounding, vectorizes)
     small = _max_abs(dt) * abs(w) < 1.0
     n = x.shape[0]
     if jac:
-        for k in range(n):
-            t = dt[k]
-            sn, c = _sincos_any(-t * w, small)
-            ox, oy, ib = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
-            xw[k] = cx + ox
-            yw[k] = cy + oy
-            jx[k, 0] = -t * c * ib
-            jy[k, 0] = -t * sn * ib
-            jx[k, 1] = t * sn * ib
-            jy[k, 1] = -t * c * ib
-            jx[k, 2] = t * oy
-            jy[k, 2] = -t * ox
-            if scaled:
-                jx[k, 3] = -t * ib * ox
-                jy[k, 3] = -t * ib * oy
+        a = (x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy)
+        if small and scaled:
+            _similarity_jac_loop(True, True, a)
+        elif small:
+            _similarity_jac_loop(True, False, a)
+        else:
+            _similarity_jac_loop(False, scaled, a)
     elif small:
         for k in range(n):
             t = dt[k]
@@ -336,16 +353,22 @@ def _similarity_vjp_event(ox, oy, t, sn, c, s, gX, gY):
 
 @njit(cache=True, error_model="numpy")
 def _k_zoom(x, y, dt, h, cx, cy, xw, yw, jx, jy, jac):
+    if not jac:
+        for k in range(x.shape[0]):
+            s = 1.0 - dt[k] * h
+            xw[k] = cx + s * (x[k] - cx)
+            yw[k] = cy + s * (y[k] - cy)
+        return
+    jxf = jx.reshape(jx.size)
+    jyf = jy.reshape(jy.size)
     for k in range(x.shape[0]):
         xc = x[k] - cx
         yc = y[k] - cy
         s = 1.0 - dt[k] * h
         xw[k] = cx + s * xc
         yw[k] = cy + s * yc
-    if jac:
-        for k in range(x.shape[0]):
-            jx[k, 0] = -dt[k] * (x[k] - cx)
-            jy[k, 0] = -dt[k] * (y[k] - cy)
+        jxf[k] = -dt[k] * xc
+        jyf[k] = -dt[k] * yc
 
 
 @njit(cache=True, error_model="numpy")
@@ -354,11 +377,13 @@ def _k_translation(x, y, dt, vx, vy, xw, yw, jx, jy, jac):
         xw[k] = x[k] - dt[k] * vx
         yw[k] = y[k] - dt[k] * vy
     if jac:
+        jxf = jx.reshape(jx.size)
+        jyf = jy.reshape(jy.size)
         for k in range(x.shape[0]):
-            jx[k, 0] = -dt[k]
-            jx[k, 1] = 0.0
-            jy[k, 0] = 0.0
-            jy[k, 1] = -dt[k]
+            jxf[2 * k] = -dt[k]
+            jxf[2 * k + 1] = 0.0
+            jyf[2 * k] = 0.0
+            jyf[2 * k + 1] = -dt[k]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -380,17 +405,19 @@ def _k_inplane(x, y, dt, vx, vy, phi, hz, cx, cy, xw, yw, jx, jy, jac):
         for k in range(x.shape[0]):
             xw[k], yw[k], _, _ = _inplane_event(x[k], y[k], dt[k], vx, vy, c, sn, kk, cx, cy)
         return
+    jxf = jx.reshape(jx.size)
+    jyf = jy.reshape(jy.size)
     for k in range(x.shape[0]):
         t = dt[k]
         xw[k], yw[k], r0, r1 = _inplane_event(x[k], y[k], t, vx, vy, c, sn, kk, cx, cy)
-        jx[k, 0] = -t
-        jy[k, 0] = 0.0
-        jx[k, 1] = 0.0
-        jy[k, 1] = -t
-        jx[k, 2] = t * kk * r1
-        jy[k, 2] = -t * kk * r0
-        jx[k, 3] = -t * r0
-        jy[k, 3] = -t * r1
+        jxf[4 * k] = -t
+        jyf[4 * k] = 0.0
+        jxf[4 * k + 1] = 0.0
+        jyf[4 * k + 1] = -t
+        jxf[4 * k + 2] = t * kk * r1
+        jyf[4 * k + 2] = -t * kk * r0
+        jxf[4 * k + 3] = -t * r0
+        jyf[4 * k + 3] = -t * r1
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
@@ -559,7 +586,6 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
         Kmat[1, 2]
     i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
         Kinv[1, 2]
-    i20, i21, i22 = Kinv[2, 0], Kinv[2, 1], Kinv[2, 2]
     n = x.shape[0]
     if not jac:
         if mode == 0:
@@ -581,37 +607,64 @@ def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
                 xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, k00, k01, k02,
                                                k10, k11, k12, i00, i01, i02, i10, i11, i12)
         return
-    for k in range(n):
+    a = (x, y, dt, xw, yw, jx, jy, w, Kmat, Kinv)
+    if mode == 0:
+        _rot_jac_loop(0, a)
+    elif mode == 1:
+        _rot_jac_loop(1, a)
+    else:
+        _rot_jac_loop(2, a)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_jac_event(x, y, t, a, b, c, wx, wy, wz, ww, k00, k01, k02, k10, k11, k12, i00, i01,
+                   i02, i10, i11, i12, i20, i21, i22):
+    """Warped pixel and its omega-derivatives ``(xw, yw, jx0, jx1, jx2, jy0, jy1, jy2)``."""
+    X, Y, _, _, _, _ = _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20,
+                                  i21, i22)
+    # d(X, Y)/d omega = -t L J_l(t omega) with L the rotational interaction matrix
+    # at the warped point, rows L0 = (XY, -(1 + X^2), Y), L1 = (1 + Y^2, -XY, -X),
+    # and J_l = g Id + b t omega^ + c t^2 omega omega^T, g = 1 - c t^2 |omega|^2:
+    # row u of L J_l is g u + b t (u x omega) + c t^2 (u . omega) omega
+    bt1 = b * t
+    ct2 = c * t * t
+    g = 1.0 - ct2 * ww
+    xy = X * Y
+    u0, u1, u2 = xy, -1.0 - X * X, Y
+    v0, v1, v2 = 1.0 + Y * Y, -xy, -X
+    su = ct2 * (u0 * wx + u1 * wy + u2 * wz)
+    sv = ct2 * (v0 * wx + v1 * wy + v2 * wz)
+    dx0 = -t * (g * u0 + bt1 * (u1 * wz - u2 * wy) + su * wx)
+    dx1 = -t * (g * u1 + bt1 * (u2 * wx - u0 * wz) + su * wy)
+    dx2 = -t * (g * u2 + bt1 * (u0 * wy - u1 * wx) + su * wz)
+    dy0 = -t * (g * v0 + bt1 * (v1 * wz - v2 * wy) + sv * wx)
+    dy1 = -t * (g * v1 + bt1 * (v2 * wx - v0 * wz) + sv * wy)
+    dy2 = -t * (g * v2 + bt1 * (v0 * wy - v1 * wx) + sv * wz)
+    return (k00 * X + k01 * Y + k02, k10 * X + k11 * Y + k12, k00 * dx0 + k01 * dy0,
+            k00 * dx1 + k01 * dy1, k00 * dx2 + k01 * dy2, k10 * dx0 + k11 * dy0,
+            k10 * dx1 + k11 * dy1, k10 * dx2 + k11 * dy2)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_jac_loop(mode, args):
+    x, y, dt, xw, yw, jx, jy, w, Kmat, Kinv = args
+    wx, wy, wz = w[0], w[1], w[2]
+    ww = wx * wx + wy * wy + wz * wz
+    k00, k01, k02, k10, k11, k12 = Kmat[0, 0], Kmat[0, 1], Kmat[0, 2], Kmat[1, 0], Kmat[1, 1], \
+        Kmat[1, 2]
+    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
+        Kinv[1, 2]
+    i20, i21, i22 = Kinv[2, 0], Kinv[2, 1], Kinv[2, 2]
+    # flat views: stride-3 stores into 1-D arrays vectorize, 2-D item stores do not
+    jxf = jx.reshape(jx.size)
+    jyf = jy.reshape(jy.size)
+    for k in range(x.shape[0]):
         t = dt[k]
         a, b, c = _rod_mode(t * t * ww, mode)
-        X, Y, q0, q1, q2, iz = _rot_point(x[k], y[k], t, a, b, wx, wy, wz, i00, i01, i02, i10,
-                                          i11, i12, i20, i21, i22)
-        xw[k] = k00 * X + k01 * Y + k02
-        yw[k] = k10 * X + k11 * Y + k12
-        # d(X, Y)/d omega = -t L J_l(t omega) with L the rotational interaction matrix
-        # at the warped point, rows L0 = (XY, -(1 + X^2), Y), L1 = (1 + Y^2, -XY, -X),
-        # and J_l = g Id + b t omega^ + c t^2 omega omega^T, g = 1 - c t^2 |omega|^2:
-        # row u of L J_l is g u + b t (u x omega) + c t^2 (u . omega) omega
-        bt1 = b * t
-        ct2 = c * t * t
-        g = 1.0 - ct2 * ww
-        xy = X * Y
-        u0, u1, u2 = xy, -1.0 - X * X, Y
-        v0, v1, v2 = 1.0 + Y * Y, -xy, -X
-        su = ct2 * (u0 * wx + u1 * wy + u2 * wz)
-        sv = ct2 * (v0 * wx + v1 * wy + v2 * wz)
-        dx0 = -t * (g * u0 + bt1 * (u1 * wz - u2 * wy) + su * wx)
-        dx1 = -t * (g * u1 + bt1 * (u2 * wx - u0 * wz) + su * wy)
-        dx2 = -t * (g * u2 + bt1 * (u0 * wy - u1 * wx) + su * wz)
-        dy0 = -t * (g * v0 + bt1 * (v1 * wz - v2 * wy) + sv * wx)
-        dy1 = -t * (g * v1 + bt1 * (v2 * wx - v0 * wz) + sv * wy)
-        dy2 = -t * (g * v2 + bt1 * (v0 * wy - v1 * wx) + sv * wz)
-        jx[k, 0] = k00 * dx0 + k01 * dy0
-        jx[k, 1] = k00 * dx1 + k01 * dy1
-        jx[k, 2] = k00 * dx2 + k01 * dy2
-        jy[k, 0] = k10 * dx0 + k11 * dy0
-        jy[k, 1] = k10 * dx1 + k11 * dy1
-        jy[k, 2] = k10 * dx2 + k11 * dy2
+        xw[k], yw[k], jxf[3 * k], jxf[3 * k + 1], jxf[3 * k + 2], jyf[3 * k], jyf[3 * k + 1], \
+            jyf[3 * k + 2] = _rot_jac_event(x[k], y[k], t, a, b, c, wx, wy, wz, ww, k00, k01,
+                                            k02, k10, k11, k12, i00, i01, i02, i10, i11, i12,
+                                            i20, i21, i22)
 
 
 @njit(cache=True, error_model="numpy", inline="always")

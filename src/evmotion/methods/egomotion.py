@@ -197,22 +197,28 @@ class CMaxCost:
                 raise ParameterError("use_polarity needs the event polarities")
             self.weights = np.where(self.polarity > 0, 1.0, -1.0)
         p = warp.n_params
-        # warps with fused kernels re-derive their Jacobian inside the adjoint pass, so no
-        # (N, P) Jacobians are stored, unless the penalty or the whitening needs them
+        # warps with fused kernels re-derive their Jacobian inside the adjoint pass of the
+        # data term (whitening transforms the warped events: it keeps the composed chain);
+        # (N, P) Jacobians are stored only where the penalty chains through them
         self.fused = (hasattr(warp, "vjp") and hasattr(warp, "reduce_bilinear")
-                      and regularizer not in ("divergence", "deformation", "whitening"))
+                      and regularizer != "whitening")
+        store_jac = not self.fused or regularizer in ("divergence", "deformation")
         self.xw, self.yw = np.empty(n), np.empty(n)
-        if self.fused:
+        if store_jac:
+            self.jx, self.jy = np.empty((n, p)), np.empty((n, p))
+        else:
             self.jx = self.jy = None
-            # the fused path visits the events tile by tile (see _tile_order); its warped
-            # positions in xw, yw follow that order
+        self._fx, self._fy, self._fdt, self._fp, self._ftn = (self.x, self.y, self.dt,
+                                                              self.polarity, self.tn)
+        if self.fused and not store_jac:
+            # the data term alone visits the events tile by tile (see _tile_order), and its
+            # warped positions in xw, yw follow that order; a penalty with Jacobians
+            # receives xw, yw, jx, jy in the events' order
             o = self._order = _tile_order(self.x, self.y, self.shape)
             self._fx, self._fy, self._fdt = self.x[o], self.y[o], self.dt[o]
-            self.weights = self.weights
             self._fp = None if self.polarity is None else self.polarity[o]
             self._ftn = None if self.tn is None else self.tn[o]
-        else:
-            self.jx, self.jy = np.empty((n, p)), np.empty((n, p))
+        self.weights = self._weights
         self.gx, self.gy = np.empty(n), np.empty(n)
         self.iwe = np.empty(self.shape)
         self.giwe = np.empty(self.shape)
@@ -241,8 +247,7 @@ class CMaxCost:
                 raise ParameterError(f"weights must have shape {self.x.shape} like the "
                                      f"events, got {w.shape}")
         self._weights = w
-        if self._order is not None:
-            self._fw = None if w is None else self._weights[self._order]
+        self._fw = w if w is None or self._order is None else w[self._order]
 
     # -- pieces --------------------------------------------------------------------------
     def _positions(self, theta, jac: bool):
@@ -300,7 +305,10 @@ class CMaxCost:
         events with the Jacobian recomputed per event (same values as the composed path)."""
         w = self.warp
         x, y, dt, wts, xw, yw = self._fx, self._fy, self._fdt, self._fw, self.xw, self.yw
-        w.warp_into(x, y, dt, theta, xw, yw)
+        if self.jx is None:
+            w.warp_into(x, y, dt, theta, xw, yw)
+        else:
+            w.warp_into(x, y, dt, theta, xw, yw, self.jx, self.jy)
         if self.needs_time:
             G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self._fp,
                                           self._ftn, kernel=self.kernel, sigma=self.sigma)
