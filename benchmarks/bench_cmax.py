@@ -1,7 +1,8 @@
 """Speed of contrast maximization (thesis Table 3.4): ms per cost+gradient evaluation for
 30k events at 346x260 and 500k at 640x480, variance and gradient magnitude, each
 regularizer, with the ratio to the unregularized run; a complete 4-DOF estimate with RCAD
-(BFGS) on a 30k window and a 600-sample TPE run.
+(BFGS) on a 30k window and a 600-sample TPE run; the one-off cost of building the cost of a
+window (buffers, the tile order of the fused path, the normalization G(0)) per warp.
 
     python benchmarks/run.py cmax          # or: python benchmarks/bench_cmax.py [--quick]
 """
@@ -46,6 +47,12 @@ def main(quick: bool = False) -> list[dict]:
                       [0, 0, 1.0]])
         for wname, theta in WARP_THETA.items():
             warp = make_warp(wname, shape, K=K)
+            ev = (x, y, dt, shape)
+            r = harness.timeit(lambda w=warp, ev=ev, p=p: CMaxCost(w, *ev, polarity=p),
+                               repeat=max(3, repeat // 4))
+            rows.append({"case": "setup", "events": n, "size": f"{shape[1]}x{shape[0]}",
+                         "warp": wname, "objective": "variance", "regularizer": "none",
+                         "ms_total": r["median_s"] * 1e3})
             for obj in ("variance", "gradient_magnitude"):
                 base = base_min = None
                 for reg in REGS:
