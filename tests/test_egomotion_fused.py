@@ -14,7 +14,7 @@ from evmotion.core.objectives import events_value_grad
 from evmotion.core.regularizers import regularizer_value_grad
 from evmotion.core.warps import make_warp
 from evmotion.errors import ParameterError
-from evmotion.methods.egomotion import CMaxCost
+from evmotion.methods.egomotion import _TILE, CMaxCost, _tile_order
 
 SHAPE = (60, 80)
 K = np.array([[70.0, 0.0, 41.0], [0.0, 70.0, 29.5], [0.0, 0.0, 1.0]])
@@ -196,3 +196,19 @@ def test_assigned_weights_reach_the_fused_path():
     _check(cost, warp, x, y, dt, theta, "variance", "bilinear", p, tn)
     with pytest.raises(ParameterError, match="weights must have shape"):
         cost.weights = np.ones(3)
+
+
+def test_tile_order_is_a_stable_sort_by_sensor_tile():
+    rng = np.random.default_rng(14)
+    x, y = rng.uniform(-20, 200, 5000), rng.uniform(-20, 150, 5000)
+    x[[0, 1, 2]] = [np.nan, np.inf, -np.inf]
+    y[[3, 4]] = [1e300, np.nan]
+    h, w = 130, 170
+    nx, ny = -(-w // _TILE), -(-h // _TILE)
+
+    def cell(v, n):  # numpy reference: clamped tile index, NaN in the first tile
+        c = np.floor(np.where(np.isnan(v), 0.0, np.clip(v, 0.0, 1e9)) / _TILE)
+        return np.minimum(c, n - 1).astype(int)
+
+    key = cell(y, ny) * nx + cell(x, nx)
+    np.testing.assert_array_equal(_tile_order(x, y, (h, w)), np.argsort(key, kind="stable"))

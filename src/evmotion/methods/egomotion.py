@@ -51,6 +51,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from evmotion.core.iwe import (
     accumulate,
@@ -108,10 +109,22 @@ def default_bounds(warp: Warp) -> tuple[np.ndarray, np.ndarray]:
     return -half, half
 
 
-#: Side (px) of the sensor tiles in which the fused path visits the events.
+#: Side (px, a power of 2) of the sensor tiles in which the fused path visits the events.
 _TILE = 16
 
 
+@njit(cache=True)
+def _tile_cell(v, n):
+    """Tile index of coordinate ``v`` px among ``n`` tiles (outside or NaN: clamped)."""
+    if not v >= _TILE:  # also NaN
+        return 0
+    if v >= (n - 1) * _TILE:  # also inf
+        return n - 1
+    # v / _TILE is exact (a power of 2) and positive: truncation is the floor
+    return int(v * (1.0 / _TILE))
+
+
+@njit(cache=True)
 def _tile_order(x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Stable order of events by their ``_TILE``-pixel tile of the sensor (row-major), in
     time order within a tile.
@@ -119,13 +132,22 @@ def _tile_order(x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndar
     Events close in this order warp to pixels close in the image, so the IWE vote and the
     adjoint's gathers stay in cache: about -20 % per evaluation at 500k events on 640x480,
     whose float64 IWE exceeds the L2 cache. Sums over events change order only (rounding).
-    A radix sort (uint16 keys): ~6 ms for 500k events, once per window."""
-    h, w = shape
-    nx, ny = -(-w // _TILE), -(-h // _TILE)
-    tx = np.clip(np.nan_to_num(x // _TILE), 0, nx - 1)
-    ty = np.clip(np.nan_to_num(y // _TILE), 0, ny - 1)
-    key = (ty * nx + tx).astype(np.uint16 if nx * ny <= 65536 else np.uint32)
-    return np.argsort(key, kind="stable")
+    A counting sort, once per window (~1 ms for 500k events)."""
+    nx = (shape[1] + _TILE - 1) // _TILE
+    ny = (shape[0] + _TILE - 1) // _TILE
+    n = x.shape[0]
+    key = np.empty(n, np.int64)
+    start = np.zeros(nx * ny + 1, np.int64)
+    for k in range(n):
+        key[k] = _tile_cell(y[k], ny) * nx + _tile_cell(x[k], nx)
+        start[key[k] + 1] += 1
+    for j in range(nx * ny):
+        start[j + 1] += start[j]
+    order = np.empty(n, np.int64)
+    for k in range(n):
+        order[start[key[k]]] = k
+        start[key[k]] += 1
+    return order
 
 
 def _scales(warp: Warp) -> np.ndarray:
@@ -227,7 +249,8 @@ class CMaxCost:
         self.gtheta = np.empty(p)
         # whitening maps the cloud back to the image centre at the spread of the raw events
         self._wcenter = ((self.shape[1] - 1) / 2.0, (self.shape[0] - 1) / 2.0)
-        self._wscale = float(np.sqrt(0.5 * (self.x.var() + self.y.var())))
+        self._wscale = (float(np.sqrt(0.5 * (self.x.var() + self.y.var())))
+                        if regularizer == "whitening" else 1.0)
         self.n_evals = 0
         self.g0 = 1.0
         g0 = self._data(warp.identity(), grad=False)[0]
