@@ -423,36 +423,52 @@ def _k_inplane(x, y, dt, vx, vy, phi, hz, cx, cy, xw, yw, jx, jy, jac):
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_affine(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
     vx, vy, g11, g12, g21, g22 = th[0], th[1], th[2], th[3], th[4], th[5]
+    if not jac:
+        for k in range(x.shape[0]):
+            w0, w1, _, _, _, _ = _affine_event(x[k], y[k], dt[k], vx, vy, g11, g12, g21, g22,
+                                               cx, cy)
+            xw[k] = cx + w0
+            yw[k] = cy + w1
+        return
+    # flat views: strided stores into 1-D arrays vectorize, 2-D item stores do not
+    jxf = jx.reshape(jx.size)
+    jyf = jy.reshape(jy.size)
     for k in range(x.shape[0]):
         t = dt[k]
-        a00 = 1.0 + t * g22
-        a01 = -t * g12
-        a10 = -t * g21
-        a11 = 1.0 + t * g11
-        idet = 1.0 / (a00 * a11 - a01 * a10)
-        a00 *= idet
-        a01 *= idet
-        a10 *= idet
-        a11 *= idet
-        u = x[k] - cx - t * vx
-        v = y[k] - cy - t * vy
-        w0 = a00 * u + a01 * v
-        w1 = a10 * u + a11 * v
+        w0, w1, a00, a01, a10, a11 = _affine_event(x[k], y[k], t, vx, vy, g11, g12, g21, g22,
+                                                   cx, cy)
         xw[k] = cx + w0
         yw[k] = cy + w1
-        if jac:
-            jx[k, 0] = -t * a00
-            jy[k, 0] = -t * a10
-            jx[k, 1] = -t * a01
-            jy[k, 1] = -t * a11
-            jx[k, 2] = -t * a00 * w0
-            jy[k, 2] = -t * a10 * w0
-            jx[k, 3] = -t * a00 * w1
-            jy[k, 3] = -t * a10 * w1
-            jx[k, 4] = -t * a01 * w0
-            jy[k, 4] = -t * a11 * w0
-            jx[k, 5] = -t * a01 * w1
-            jy[k, 5] = -t * a11 * w1
+        r = 6 * k
+        jxf[r] = -t * a00
+        jyf[r] = -t * a10
+        jxf[r + 1] = -t * a01
+        jyf[r + 1] = -t * a11
+        jxf[r + 2] = -t * a00 * w0
+        jyf[r + 2] = -t * a10 * w0
+        jxf[r + 3] = -t * a00 * w1
+        jyf[r + 3] = -t * a10 * w1
+        jxf[r + 4] = -t * a01 * w0
+        jyf[r + 4] = -t * a11 * w0
+        jxf[r + 5] = -t * a01 * w1
+        jyf[r + 5] = -t * a11 * w1
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _affine_event(x, y, t, vx, vy, g11, g12, g21, g22, cx, cy):
+    """Centred warped point ``(w0, w1)`` of one event and ``A(t)^-1`` (4 entries)."""
+    a00 = 1.0 + t * g22
+    a01 = -t * g12
+    a10 = -t * g21
+    a11 = 1.0 + t * g11
+    idet = 1.0 / (a00 * a11 - a01 * a10)
+    a00 *= idet
+    a01 *= idet
+    a10 *= idet
+    a11 *= idet
+    u = x - cx - t * vx
+    v = y - cy - t * vy
+    return a00 * u + a01 * v, a10 * u + a11 * v, a00, a01, a10, a11
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
