@@ -32,7 +32,10 @@ Conventions (the same for every warp):
     integral is exact: ``log|det dx(t1)/dx_ref| - log|det dx(t0)/dx_ref|``.
 
 Parameter derivatives: the hot path (:meth:`Warp.warp` / :meth:`Warp.warp_into` with the
-Jacobian ``d x'/d theta``) is a hand-derived numba kernel per warp. The rotation's
+Jacobian ``d x'/d theta``) is a hand-derived numba kernel per warp. The warps up to 4 DOF
+also chain per-event gradients through their Jacobian without storing it
+(``vjp``, ``reduce_bilinear``: the Jacobian recomputed inside the adjoint pass, fused with
+the bilinear IWE adjoint), the hot path of gradient-based contrast maximization. The rotation's
 divergence and determinant have hand-derived omega-derivatives too (numba); the other
 derivatives of the divergence, determinant and area ratio with respect to ``theta`` are
 computed exactly by complex-step differentiation of the same closed forms (no step-size
