@@ -1073,7 +1073,10 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
     shape : (int, int)
         ``(H, W)`` of the DIWE/IWA maps, pixels.
     xw, yw : array (N,), optional
-        Already-warped events (saves a warp); ``jx, jy`` (N, P) their parameter Jacobians.
+        The events warped with ``theta`` (saves a warp; the rotation's per-event values are
+        read from them), in the order of ``x, y, dt``; ``jx, jy`` (N, P) their parameter
+        Jacobians. Without Jacobians, warps with a ``vjp`` contract the adjoint themselves
+        (no (N, P) buffers); others compute the Jacobians when a pixel is trimmed.
     margin : float, optional
         Trimming margin; defaults :data:`DEFAULT_MARGINS`.
     kernel : {"bilinear"}
