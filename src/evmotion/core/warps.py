@@ -808,8 +808,12 @@ def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
     use_w = wts.shape[0] > 0
     fuse = pad.shape[0] > 0
     a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
-    if not fuse:
-        acc = _rot_loop(mode, False, False, a)
+    if not fuse and mode == 0:
+        acc = _rot_loop(0, False, False, a)
+    elif not fuse and mode == 1:
+        acc = _rot_loop(1, False, False, a)
+    elif not fuse:
+        acc = _rot_loop(2, False, False, a)
     elif mode == 0 and use_w:
         acc = _rot_loop(0, True, True, a)
     elif mode == 0:
@@ -853,8 +857,10 @@ def _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
     small = _max_abs(dt) * abs(prm[0]) < 1.0
     use_w = wts.shape[0] > 0
     a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
-    if pad.shape[0] == 0:
-        acc = _similarity_loop(small, False, False, a)
+    if pad.shape[0] == 0 and small:
+        acc = _similarity_loop(True, False, False, a)
+    elif pad.shape[0] == 0:
+        acc = _similarity_loop(False, False, False, a)
     elif small and use_w:
         acc = _similarity_loop(True, True, True, a)
     elif small:
