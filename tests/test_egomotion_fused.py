@@ -146,19 +146,27 @@ def test_penalties_that_need_jacobians_get_them():
     assert not CMaxCost(make_warp("affine", SHAPE), x, y, dt, SHAPE).fused
 
 
-@pytest.mark.parametrize("name", ["rotation", "similarity", "zoom"])
+#: contracting (collapse-enabling) motions, so that the penalties are active
+COLLAPSE = {"rotation": [8.0, -8.0, 1.0], "similarity": [30.0, -20.0, 0.5, 15.0],
+            "zoom": [15.0], "affine": [30.0, -20.0, 12.0, 1.0, -1.0, 12.0]}
+
+
+@pytest.mark.parametrize("name", list(COLLAPSE))
 @pytest.mark.parametrize("reg", ["divergence", "deformation"])
 def test_penalties_with_jacobians_equal_the_composed_chain(name, reg):
-    # the data term through the fused adjoint, the penalty through the stored Jacobians
+    # the data term through the fused adjoint, the penalty through the stored Jacobians,
+    # both over the events in the cost's tile order
     x, y, dt, p, tn = _window(13)
     warp = make_warp(name, SHAPE, K=K)
-    theta = _theta(name, 13)
+    theta = np.array(COLLAPSE[name])
     cost = CMaxCost(warp, x, y, dt, SHAPE, regularizer=reg, weight=0.7, polarity=p)
     v, g = cost.value_grad(theta)
     G, gref = _composed(warp, x, y, dt, theta, "variance", "bilinear", p, tn, None)
     xw, yw, jx, jy = warp.warp(x, y, dt, theta, jacobian=True)
     R, gR = regularizer_value_grad(reg, warp, x, y, dt, theta, SHAPE, xw, yw, jx=jx, jy=jy)
+    assert R > 0.1
     assert v == pytest.approx(-G / cost.g0 + 0.7 * R, rel=1e-9)
+    assert cost.value(theta) == pytest.approx(v, rel=1e-9)
     ref = -gref / cost.g0 + 0.7 * gR
     np.testing.assert_allclose(g, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
 

@@ -230,16 +230,12 @@ class CMaxCost:
             self.jx, self.jy = np.empty((n, p)), np.empty((n, p))
         else:
             self.jx = self.jy = None
-        self._fx, self._fy, self._fdt, self._fp, self._ftn = (self.x, self.y, self.dt,
-                                                              self.polarity, self.tn)
-        if self.fused and not store_jac:
-            # the data term alone visits the events tile by tile (see _tile_order), and its
-            # warped positions in xw, yw follow that order; a penalty with Jacobians
-            # receives xw, yw, jx, jy in the events' order
-            o = self._order = _tile_order(self.x, self.y, self.shape)
-            self._fx, self._fy, self._fdt = self.x[o], self.y[o], self.dt[o]
-            self._fp = None if self.polarity is None else self.polarity[o]
-            self._ftn = None if self.tn is None else self.tn[o]
+        # the cost visits the events tile by tile (see _tile_order): the private copies
+        # below, and the warped positions and Jacobians in xw, yw, jx, jy, follow that order
+        o = self._order = _tile_order(self.x, self.y, self.shape)
+        self._fx, self._fy, self._fdt = self.x[o], self.y[o], self.dt[o]
+        self._fp = None if self.polarity is None else self.polarity[o]
+        self._ftn = None if self.tn is None else self.tn[o]
         self.weights = self._weights
         self.gx, self.gy = np.empty(n), np.empty(n)
         self.iwe = np.empty(self.shape)
@@ -270,15 +266,16 @@ class CMaxCost:
                 raise ParameterError(f"weights must have shape {self.x.shape} like the "
                                      f"events, got {w.shape}")
         self._weights = w
-        self._fw = w if w is None or self._order is None else w[self._order]
+        if self._order is not None:
+            self._fw = None if w is None else w[self._order]
 
     # -- pieces --------------------------------------------------------------------------
     def _positions(self, theta, jac: bool):
         if jac:
-            self.warp.warp_into(self.x, self.y, self.dt, theta, self.xw, self.yw, self.jx,
-                                self.jy)
+            self.warp.warp_into(self._fx, self._fy, self._fdt, theta, self.xw, self.yw,
+                                self.jx, self.jy)
         else:
-            self.warp.warp_into(self.x, self.y, self.dt, theta, self.xw, self.yw)
+            self.warp.warp_into(self._fx, self._fy, self._fdt, theta, self.xw, self.yw)
         xw, yw, jx, jy = self.xw, self.yw, self.jx, self.jy
         if self.regularizer == "whitening":
             if jac:
@@ -294,12 +291,12 @@ class CMaxCost:
             return self._data_fused(theta)
         xw, yw, jx, jy = self._positions(theta, grad)
         if self.needs_time:
-            G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self.polarity,
-                                          self.tn, kernel=self.kernel, sigma=self.sigma)
+            G, gx, gy = events_value_grad(self.objective, xw, yw, self.shape, self._fp,
+                                          self._ftn, kernel=self.kernel, sigma=self.sigma)
             if not grad:
                 return G / self.g0, None
             return G / self.g0, (gx @ jx + gy @ jy) / self.g0
-        accumulate_into(xw, yw, self.iwe, self.weights, self.kernel, self.sigma)
+        accumulate_into(xw, yw, self.iwe, self._fw, self.kernel, self.sigma)
         if not grad:
             G = objective_value_grad(self.objective, self.iwe, out=self.giwe)[0]
             return G / self.g0, None
@@ -307,11 +304,11 @@ class CMaxCost:
             # fused adjoint and chain rule: no per-event gradient buffers; the variance
             # needs no gradient image either (dG/dIWE = 2 (IWE - mean) / n)
             G, g, shift, scale = self._image_grad()
-            accumulate_backward_reduce(xw, yw, g, jx, jy, self.gtheta, self.weights,
+            accumulate_backward_reduce(xw, yw, g, jx, jy, self.gtheta, self._fw,
                                        shift=shift, scale=scale)
             return G / self.g0, self.gtheta / self.g0
         G, gimg = objective_value_grad(self.objective, self.iwe, out=self.giwe)
-        gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, self.weights,
+        gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, self._fw,
                                           self.kernel, self.sigma)
         return G / self.g0, (gx @ jx + gy @ jy) / self.g0
 
@@ -351,9 +348,9 @@ class CMaxCost:
     def _penalty(self, theta, grad: bool = True):
         if self.regularizer not in REGULARIZERS or self.weight == 0.0:
             return 0.0, np.zeros(self.warp.n_params)
-        r, g = regularizer_value_grad(self.regularizer, self.warp, self.x, self.y, self.dt,
-                                      theta, self.shape, self.xw, self.yw, jx=self.jx,
-                                      jy=self.jy, grad=grad)
+        r, g = regularizer_value_grad(self.regularizer, self.warp, self._fx, self._fy,
+                                      self._fdt, theta, self.shape, self.xw, self.yw,
+                                      jx=self.jx, jy=self.jy, grad=grad)
         if self.regularizer == "rcad" and r < 0.0:
             # one-sided, like the thresholded RCAD map: the closed forms (3.21)/(A.44) are
             # negative for expansion, and a signed term would reward expanding warps
@@ -387,7 +384,7 @@ class CMaxCost:
     def iwe_at(self, theta) -> np.ndarray:
         """The IWE (H, W) at ``theta`` (copy; counts, or signed with polarity)."""
         xw, yw, _, _ = self._positions(np.asarray(theta, dtype=np.float64), False)
-        return accumulate(xw, yw, self.shape, self.weights, self.kernel, self.sigma)
+        return accumulate(xw, yw, self.shape, self._fw, self.kernel, self.sigma)
 
 
 @dataclass(frozen=True)
