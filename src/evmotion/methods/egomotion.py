@@ -186,6 +186,13 @@ class CMaxCost:
     -----
     ``value_grad(theta)`` returns ``(J, dJ/dtheta)``; ``value(theta)`` only ``J``;
     ``parts(theta)`` returns the data and penalty terms separately.
+
+    Warps up to 4 DOF chain the gradient through fused adjoint kernels that recompute the
+    warp Jacobian per event (:meth:`evmotion.core.warps.Warp.warp_into` and
+    ``reduce_bilinear``/``vjp``), so no (N, P) Jacobians are stored unless the divergence
+    or deformation penalty needs them. The cost visits the events in an order by sensor
+    tile (private copies; ``x``, ``y``, ``dt``, ``weights`` keep the caller's order, the
+    buffers ``xw``, ``yw`` do not), which keeps the IWE in cache; sums change order only.
     """
 
     def __init__(self, warp: Warp, x, y, dt, shape, objective: str = "variance",
