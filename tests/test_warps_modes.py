@@ -7,7 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evmotion.core.warps import _max_abs, make_warp
+from evmotion.core.warps import (
+    _max_abs,
+    _rod_coeffs,
+    _rod_coeffs_exact,
+    _rod_coeffs_short,
+    _sincos,
+    make_warp,
+)
 from evmotion.methods.egomotion import CMaxCost
 
 H, W = 120, 160
@@ -86,3 +93,18 @@ def test_fused_gradient_matches_finite_differences(name, theta, obj):
         tm[j] -= h
         fd = (cost.value(tp) - cost.value(tm)) / (2 * h)
         assert g[j] == pytest.approx(fd, rel=1e-4, abs=1e-6 * np.abs(g).max())
+
+
+def test_series_are_exact_to_rounding():
+    # the polynomial forms the kernels use instead of libm, on their whole ranges
+    for a in np.linspace(-1.0, 1.0, 2001):
+        sn, c = _sincos(a)
+        assert sn == pytest.approx(np.sin(a), rel=4e-16, abs=1e-300)
+        assert c == pytest.approx(np.cos(a), rel=4e-16)
+    # against the closed form where it has no cancellation, and the long series elsewhere
+    for z in np.linspace(0.2, 1.0, 401):
+        for u, v in zip(_rod_coeffs(z), _rod_coeffs_exact(z), strict=True):
+            assert u == pytest.approx(v, rel=1e-14)
+    for z in np.linspace(0.0, 0.05, 401):
+        for u, v in zip(_rod_coeffs_short(z), _rod_coeffs(z), strict=True):
+            assert u == pytest.approx(v, rel=4e-16)
