@@ -461,3 +461,41 @@ def test_count_argument_gives_identical_results():
     with pytest.raises(ParameterError, match="count"):
         regularizer_value_grad("deformation", w, x, y, dt, th, (H, W), xw, yw,
                                count=np.zeros((H, W + 1)))
+
+
+def _whiten_numpy(xw, yw, jx, jy, center, scale):
+    """Plain-numpy whitening (matrix form) and its Jacobian: the reference of the compiled
+    :func:`whiten`."""
+    p = np.stack([xw, yw], axis=1)
+    n = p.shape[0]
+    c = p - p.mean(axis=0)
+    lam, V = np.linalg.eigh(c.T @ c / n)
+    f = lam ** -0.5
+    Cm = (V * f) @ V.T
+    z = c @ Cm.T
+    dc = np.stack([jx - jx.mean(axis=0), jy - jy.mean(axis=0)], axis=1)
+    off = ((f[1] - f[0]) / (lam[1] - lam[0]) if abs(lam[1] - lam[0]) > 1e-12 * lam[1]
+           else -0.5 * lam[0] ** -1.5)
+    F = np.array([[-0.5 * lam[0] ** -1.5, off], [off, -0.5 * lam[1] ** -1.5]])
+    zj = np.empty((n, 2, jx.shape[1]))
+    for j in range(jx.shape[1]):
+        dCj = (c.T @ dc[:, :, j] + dc[:, :, j].T @ c) / n
+        dCm = V @ (F * (V.T @ dCj @ V)) @ V.T
+        zj[:, :, j] = c @ dCm.T + dc[:, :, j] @ Cm.T
+    return (center[0] + scale * z[:, 0], center[1] + scale * z[:, 1], scale * zj[:, 0],
+            scale * zj[:, 1])
+
+
+@pytest.mark.parametrize("name", ["similarity", "homography"])
+def test_whiten_matches_numpy_reference(name):
+    w = make_warp(name, (H, W), K=K)
+    th = np.array(THETA[name])
+    x, y, dt = _events(700, seed=12)
+    xw, yw, jx, jy = w.warp(x, y, dt, th, jacobian=True)
+    got = whiten(xw, yw, jx, jy, center=(25.0, 20.0), scale=7.0)
+    ref = _whiten_numpy(xw, yw, jx, jy, (25.0, 20.0), 7.0)
+    for a, b in zip(got, ref, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * np.abs(b).max())
+    zx, zy = whiten(xw, yw, center=(25.0, 20.0), scale=7.0)
+    np.testing.assert_array_equal(zx, got[0])
+    np.testing.assert_array_equal(zy, got[1])
