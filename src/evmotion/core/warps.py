@@ -1195,7 +1195,7 @@ class Warp:
         if np.iscomplexobj(th) and allow_complex:
             return th.astype(np.complex128)
         th = th.astype(np.float64)
-        if not np.all(np.isfinite(th)):
+        if not all(map(math.isfinite, th.tolist())):  # cheaper than numpy for P <= 8
             raise ParameterError(f"warp '{self.name}': theta must be finite, got {th!r}")
         return th
 
