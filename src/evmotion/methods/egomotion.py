@@ -109,6 +109,20 @@ def default_bounds(warp: Warp) -> tuple[np.ndarray, np.ndarray]:
     return -half, half
 
 
+@njit(cache=True)
+def _chain(gx, gy, jx, jy, out):
+    """``out = jx^T gx + jy^T gy`` (P,): the chain rule through stored Jacobians (N, P).
+
+    A loop rather than BLAS: a threaded matrix-vector product stalls for milliseconds on a
+    process pinned to one core (BLAS threads spinning), as in the benchmarks."""
+    for j in range(out.shape[0]):
+        out[j] = 0.0
+    for k in range(gx.shape[0]):
+        for j in range(out.shape[0]):
+            out[j] += gx[k] * jx[k, j] + gy[k] * jy[k, j]
+    return out
+
+
 #: Side (px, a power of 2) of the sensor tiles in which the fused path visits the events.
 _TILE = 16
 
@@ -302,7 +316,7 @@ class CMaxCost:
                                           self._ftn, kernel=self.kernel, sigma=self.sigma)
             if not grad:
                 return G / self.g0, None
-            return G / self.g0, (gx @ jx + gy @ jy) / self.g0
+            return G / self.g0, _chain(gx, gy, jx, jy, self.gtheta) / self.g0
         accumulate_into(xw, yw, self.iwe, self._fw, self.kernel, self.sigma)
         if not grad:
             G = objective_value_grad(self.objective, self.iwe, out=self.giwe)[0]
@@ -317,7 +331,7 @@ class CMaxCost:
         G, gimg = objective_value_grad(self.objective, self.iwe, out=self.giwe)
         gx, gy = accumulate_backward_into(xw, yw, gimg, self.gx, self.gy, self._fw,
                                           self.kernel, self.sigma)
-        return G / self.g0, (gx @ jx + gy @ jy) / self.g0
+        return G / self.g0, _chain(gx, gy, jx, jy, self.gtheta) / self.g0
 
     def _image_grad(self):
         """``(G, g, shift, scale)`` of the IWE in ``self.iwe``: ``dG/dIWE = scale (g - shift)``."""
