@@ -11,7 +11,7 @@ import pytest
 
 from evmotion.core.iwe import accumulate_backward
 from evmotion.core.objectives import events_value_grad
-from evmotion.core.regularizers import regularizer_value_grad
+from evmotion.core.regularizers import regularizer_value_grad, whiten
 from evmotion.core.warps import make_warp
 from evmotion.errors import ParameterError
 from evmotion.methods.egomotion import _TILE, CMaxCost, _tile_order
@@ -220,3 +220,19 @@ def test_tile_order_is_a_stable_sort_by_sensor_tile():
 
     key = cell(y, ny) * nx + cell(x, nx)
     np.testing.assert_array_equal(_tile_order(x, y, (h, w)), np.argsort(key, kind="stable"))
+
+
+@pytest.mark.parametrize("name", ["zoom", "similarity"])
+@pytest.mark.parametrize("obj", ["variance", "gradient_magnitude"])
+def test_whitening_equals_the_chain_through_whitened_jacobians(name, obj):
+    x, y, dt, p, tn = _window(15)
+    warp = make_warp(name, SHAPE, K=K)
+    theta = _theta(name, 15)
+    cost = CMaxCost(warp, x, y, dt, SHAPE, obj, regularizer="whitening", weight=1.0)
+    v, g = cost.value_grad(theta)
+    xw, yw, jx, jy = warp.warp(x, y, dt, theta, jacobian=True)
+    zx, zy, zjx, zjy = whiten(xw, yw, jx, jy, center=cost._wcenter, scale=cost._wscale)
+    G, gx, gy = events_value_grad(obj, zx, zy, SHAPE, p, tn, kernel="bilinear")
+    ref = -(gx @ zjx + gy @ zjy) / cost.g0
+    assert v == pytest.approx(-G / cost.g0, rel=1e-9)
+    np.testing.assert_allclose(g, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())

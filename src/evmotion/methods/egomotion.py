@@ -321,9 +321,10 @@ class CMaxCost:
         if not grad:
             G = objective_value_grad(self.objective, self.iwe, out=self.giwe)[0]
             return G / self.g0, None
-        if self.kernel == "bilinear" and self.regularizer != "whitening":
+        if self.kernel == "bilinear":
             # fused adjoint and chain rule: no per-event gradient buffers; the variance
-            # needs no gradient image either (dG/dIWE = 2 (IWE - mean) / n)
+            # needs no gradient image either (dG/dIWE = 2 (IWE - mean) / n); whitened
+            # events come with their total Jacobians (through the mean and covariance)
             G, g, shift, scale = self._image_grad()
             accumulate_backward_reduce(xw, yw, g, jx, jy, self.gtheta, self._fw,
                                        shift=shift, scale=scale)
