@@ -229,7 +229,7 @@ def _rod_coeffs_short(z):
     return _series(z, 1, 7), _series(z, 2, 7), _series(z, 3, 7)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _rod_coeffs_exact(z):
     ang = math.sqrt(z)
     sa = math.sin(ang)
@@ -256,14 +256,14 @@ def _sincos_block(dt, k0, k1, w, sbuf, cbuf):
 # branch in the body is not hoisted by LLVM here, and it stops the loop's vectorization
 # (measured: 13x slower for the rotation warp).
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _sincos_any(a, small):
     if small:
         return _sincos(a)
     return math.sin(a), math.cos(a)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _similarity_event(x, y, t, sn, c, vx, vy, s, cx, cy):
     """Centred warped point ``(ox, oy)`` and ``1 / beta`` of one event."""
     ib = 1.0 / (1.0 + t * s)  # s is 0 for SE(2)
@@ -344,7 +344,7 @@ def _pad_image(g, shift, pad):
         pad[r + wd + 1] = shift
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _similarity_vjp_event(ox, oy, t, sn, c, s, gX, gY):
     """``gX dxw/dtheta + gY dyw/dtheta`` (4 terms) from the centred warped point: the
     Jacobian of :func:`_k_similarity`, contracted instead of stored."""
@@ -389,7 +389,7 @@ def _k_translation(x, y, dt, vx, vy, xw, yw, jx, jy, jac):
             jyf[2 * k + 1] = -dt[k]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _inplane_event(x, y, t, vx, vy, c, sn, kk, cx, cy):
     """Warped pixel and the rotated centred point ``R(phi) (x - c)`` of one event."""
     xc = x - cx
@@ -457,7 +457,7 @@ def _k_affine(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
         jyf[r + 5] = -t * a11 * w1
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _affine_event(x, y, t, vx, vy, g11, g12, g21, g22, cx, cy):
     """Centred warped point ``(w0, w1)`` of one event and ``A(t)^-1`` (4 entries)."""
     a00 = 1.0 + t * g22
@@ -568,16 +568,16 @@ def _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20, i21
 
 @njit(cache=True, inline="always")
 def _rod_mode(z, mode):
-    """Rodrigues coefficients for the series mode of :func:`_rot_rates` (branchy: the loops
-    that should vectorize call the series of their mode directly)."""
+    """Rodrigues coefficients for the series mode of :func:`_rot_rates` (a constant mode
+    folds the branches away; mode 2 keeps a per-event branch)."""
     if mode == 0:
         return _rod_coeffs_short(z)
-    if z < 1.0:
+    if mode == 1 or z < 1.0:
         return _rod_coeffs(z)
     return _rod_coeffs_exact(z)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _rot_warp_event(x, y, t, a, b, wx, wy, wz, k00, k01, k02, k10, k11, k12, i00, i01, i02,
                     i10, i11, i12):
     """Warped pixel of one event: :func:`_rot_point` with K^-1's last row (0, 0, 1)
@@ -686,7 +686,7 @@ def _rot_jac_loop(mode, args):
                                             i20, i21, i22)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX, gY):
     """``gX dX/domega + gY dY/domega`` (3 terms) at the warped normalized point (X, Y);
     the formula of the Jacobian in :func:`_k_rotation`, contracted instead of stored."""
@@ -704,7 +704,7 @@ def _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX, gY):
             -t * (g * u2 + bt1 * (u0 * wy - u1 * wx) + su * wz))
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _rot_adj_event(xv, yv, t, b, c, gx, gy, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
                    i10, i11, i12):
     """:func:`_rot_vjp_event` from the warped pixel and its pixel gradient: the normalized
@@ -737,7 +737,7 @@ def _rot_rates(dt, w):
 # helpers called inside the loops take scalars only: an array argument costs reference
 # counting per call, which stops the vectorization.
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _pad_index(xv, yv, t, wk, scale, h, wd):
     """``(xc, yc, t, a, fx, fy, i)`` of an event at ``(xv, yv)`` px: its pixel, dt and
     weight ``a = wk scale``, or a clamped pixel with ``t = a = 0`` where it has no vote in
@@ -752,7 +752,7 @@ def _pad_index(xv, yv, t, wk, scale, h, wd):
     return (xc, yc, t if inside else 0.0, wk * scale if inside else 0.0, xc - x0, yc - y0, i)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _cell_diff(a, fx, fy, g00, g01, g10, g11):
     """``a`` times the x and y derivatives of the bilinear interpolation in a cell: the
     values of :func:`evmotion.core.iwe._cell_grad`, whose pixels outside the image count 0
@@ -764,12 +764,7 @@ def _cell_diff(a, fx, fy, g00, g01, g10, g11):
 @njit(cache=True, inline="always")
 def _rot_bc(z, mode):
     """The Rodrigues coefficients (b, c) in series mode ``mode`` (:func:`_rot_rates`)."""
-    if mode == 0:
-        _, b, c = _rod_coeffs_short(z)
-    elif mode == 1:
-        _, b, c = _rod_coeffs(z)
-    else:
-        _, b, c = _rod_mode(z, mode)
+    _, b, c = _rod_mode(z, mode)
     return b, c
 
 
