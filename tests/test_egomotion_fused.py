@@ -9,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evmotion.core.iwe import accumulate_backward
+from evmotion.core.iwe import accumulate, accumulate_backward
 from evmotion.core.objectives import events_value_grad
 from evmotion.core.regularizers import regularizer_value_grad, whiten
 from evmotion.core.warps import make_warp
 from evmotion.errors import ParameterError
-from evmotion.methods.egomotion import _TILE, CMaxCost, _tile_order
+from evmotion.methods.egomotion import _TILE, CMaxCost, _tile_order, _vote_bilinear
 
 SHAPE = (60, 80)
 K = np.array([[70.0, 0.0, 41.0], [0.0, 70.0, 29.5], [0.0, 0.0, 1.0]])
@@ -236,3 +236,19 @@ def test_whitening_equals_the_chain_through_whitened_jacobians(name, obj):
     ref = -(gx @ zjx + gy @ zjy) / cost.g0
     assert v == pytest.approx(-G / cost.g0, rel=1e-9)
     np.testing.assert_allclose(g, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("shape", [(60, 80), (7, 5), (1, 3)])
+def test_vote_equals_accumulate_bit_for_bit(shape):
+    h, w = shape
+    rng = np.random.default_rng(16)
+    n = 3000
+    x = rng.uniform(-2.0, w + 1.0, n)
+    y = rng.uniform(-2.0, h + 1.0, n)
+    # exact borders and integers, and events without votes
+    x[:8] = [0.0, w - 1.0, -1.0, w, -0.5, w - 0.5, np.nan, 2.0]
+    y[:8] = [0.0, h - 1.0, 0.5, 0.5, h - 1.0, -0.999, 1.0, np.inf]
+    for wts in (None, rng.normal(size=n)):
+        out = np.full(shape, 7.0)
+        _vote_bilinear(x, y, np.empty(0) if wts is None else wts, out)
+        np.testing.assert_array_equal(out, accumulate(x, y, shape, wts))
