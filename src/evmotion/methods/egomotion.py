@@ -283,8 +283,8 @@ class CMaxCost:
 
     Warps up to 4 DOF chain the gradient through fused adjoint kernels that recompute the
     warp Jacobian per event (:meth:`evmotion.core.warps.Warp.warp_into` and
-    ``reduce_bilinear``/``vjp``), so no (N, P) Jacobians are stored unless the divergence
-    or deformation penalty needs them. The cost visits the events in an order by sensor
+    ``reduce_bilinear``/``vjp``, the penalties through ``vjp`` too), so no (N, P)
+    Jacobians are stored (except with whitening). The cost visits the events in an order by sensor
     tile (private copies; ``x``, ``y``, ``dt``, ``weights`` keep the caller's order, the
     buffers ``xw``, ``yw`` do not), which keeps the IWE in cache; sums change order only.
     """
@@ -320,12 +320,13 @@ class CMaxCost:
                 raise ParameterError("use_polarity needs the event polarities")
             self.weights = np.where(self.polarity > 0, 1.0, -1.0)
         p = warp.n_params
-        # warps with fused kernels re-derive their Jacobian inside the adjoint pass of the
-        # data term (whitening transforms the warped events: it keeps the composed chain);
-        # (N, P) Jacobians are stored only where the penalty chains through them
+        # warps with fused kernels re-derive their Jacobian inside the adjoint passes of the
+        # data term and of the penalties (which take jx=None and call the warp's vjp), so
+        # no (N, P) Jacobians are stored; whitening transforms the warped events and their
+        # Jacobians, so it keeps the composed chain
         self.fused = (hasattr(warp, "vjp") and hasattr(warp, "reduce_bilinear")
                       and regularizer != "whitening")
-        store_jac = not self.fused or regularizer in ("divergence", "deformation")
+        store_jac = not self.fused
         self.xw, self.yw = np.empty(n), np.empty(n)
         if store_jac:
             self.jx, self.jy = np.empty((n, p)), np.empty((n, p))
