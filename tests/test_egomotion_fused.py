@@ -152,15 +152,18 @@ COLLAPSE = {"rotation": [8.0, -8.0, 1.0], "similarity": [30.0, -20.0, 0.5, 15.0]
 
 @pytest.mark.parametrize("name", list(COLLAPSE))
 @pytest.mark.parametrize("reg", ["divergence", "deformation"])
-def test_penalties_equal_the_composed_chain(name, reg):
+@pytest.mark.parametrize("obj", ["variance", "gradient_magnitude"])
+def test_penalties_equal_the_composed_chain(name, reg, obj):
     # the data term through the fused adjoint, the penalty through the warp's vjp (or the
-    # stored Jacobians of the affine warp), both over the events in the cost's tile order
+    # stored Jacobians of the affine warp), both over the events in the cost's tile order;
+    # the penalty reuses the data term's IWE as its count map and the cost's time span
     x, y, dt, p, tn = _window(13)
     warp = make_warp(name, SHAPE, K=K)
     theta = np.array(COLLAPSE[name])
-    cost = CMaxCost(warp, x, y, dt, SHAPE, regularizer=reg, weight=0.7, polarity=p)
+    cost = CMaxCost(warp, x, y, dt, SHAPE, objective=obj, regularizer=reg, weight=0.7,
+                    polarity=p)
     v, g = cost.value_grad(theta)
-    G, gref = _composed(warp, x, y, dt, theta, "variance", "bilinear", p, tn, None)
+    G, gref = _composed(warp, x, y, dt, theta, obj, "bilinear", p, tn, None)
     xw, yw, jx, jy = warp.warp(x, y, dt, theta, jacobian=True)
     R, gR = regularizer_value_grad(reg, warp, x, y, dt, theta, SHAPE, xw, yw, jx=jx, jy=jy)
     assert R > 0.1

@@ -336,6 +336,7 @@ class CMaxCost:
         # below, and the warped positions and Jacobians in xw, yw, jx, jy, follow that order
         o = self._order = _tile_order(self.x, self.y, self.shape)
         self._fx, self._fy, self._fdt = self.x[o], self.y[o], self.dt[o]
+        self._span = (float(self.dt.min()), float(self.dt.max()))
         self._fp = None if self.polarity is None else self.polarity[o]
         self._ftn = None if self.tn is None else self.tn[o]
         self.weights = self._weights
@@ -459,9 +460,14 @@ class CMaxCost:
     def _penalty(self, theta, grad: bool = True):
         if self.regularizer not in REGULARIZERS or self.weight == 0.0:
             return 0.0, np.zeros(self.warp.n_params)
+        # the data term has just voted the same warped events into self.iwe (unweighted,
+        # bilinear): the penalty's count map, not accumulated twice
+        count = (self.iwe if not self.needs_time and self._fw is None
+                 and self.kernel == "bilinear" else None)
         r, g = regularizer_value_grad(self.regularizer, self.warp, self._fx, self._fy,
                                       self._fdt, theta, self.shape, self.xw, self.yw,
-                                      jx=self.jx, jy=self.jy, grad=grad)
+                                      jx=self.jx, jy=self.jy, grad=grad, span=self._span,
+                                      count=count)
         if self.regularizer == "rcad" and r < 0.0:
             # one-sided, like the thresholded RCAD map: the closed forms (3.21)/(A.44) are
             # negative for expansion, and a signed term would reward expanding warps
