@@ -19,7 +19,11 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def single_core() -> None:
-    """Pin numba, BLAS and this process to one core, as the speed targets require."""
+    """Pin numba, BLAS and this process to one core, as the speed targets require.
+
+    BLAS takes its thread count when numpy loads: ``run.py`` sets it before importing any
+    suite; a suite run on its own should be started with ``OPENBLAS_NUM_THREADS=1``.
+    """
     for var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"
     if hasattr(os, "sched_setaffinity"):

@@ -7,8 +7,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from pathlib import Path
+
+# BLAS reads its thread count once, when numpy loads: on the one pinned core of a benchmark,
+# extra BLAS threads only spin (milliseconds per matrix product), so set it before any suite
+# imports numpy (harness.single_core() pins the process later).
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
