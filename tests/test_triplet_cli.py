@@ -128,7 +128,7 @@ def test_dense_lsq_option_matches_the_api(edge_file, tmp_path):
     seq = read_flow_h5(out)
     np.testing.assert_array_equal(seq.valid, ref.masks)
     np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
-    assert seq.attrs["triplet_dense"] == "lsq" and seq.attrs["triplet_filter_size"] == 11
+    assert seq.attrs["triplet_dense"] == "lsq" and seq.attrs["triplet_filter_size"] == 15
     # a straight edge: only its normal flow (200 px/s along +x) is observable
     inner = seq.flow[1:-1][seq.valid[1:-1]]
     np.testing.assert_allclose(np.median(inner, axis=0), [200.0 / 1.005, 0.0], atol=2.0)

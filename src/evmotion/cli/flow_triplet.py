@@ -26,10 +26,13 @@ DEFAULT_WINDOW_US = 50_000
 
 
 def add_arguments(group) -> None:
-    group.add_argument("--dx", type=float, default=float(np.sqrt(2.0)),
-                       help="neighbourhood radius d_x in px (default sqrt(2))")
+    group.add_argument("--dx", type=float, default=None,
+                       help="neighbourhood radius d_x in px (default sqrt(2), the thesis'; "
+                            "2.3 with --dense lsq)")
     group.add_argument("--dt-ms", type=float, default=100.0, help="delay window d_t in ms (default 100)")
-    group.add_argument("--tau-ms", type=float, default=3.0, help="refractory period tau in ms (default 3)")
+    group.add_argument("--tau-ms", type=float, default=None,
+                       help="refractory period tau in ms (default 3, the thesis'; 1 with "
+                            "--dense lsq)")
     group.add_argument("--quadruple", action="store_true",
                        help="match 4 aligned events instead of 3 (§5.3.5)")
     group.add_argument("--bins", type=int, default=1,
@@ -42,7 +45,7 @@ def add_arguments(group) -> None:
     group.add_argument("--filter-size", type=int, default=None,
                        help="width of the non-zero average filter of the dense output (default "
                             "3, the thesis'; larger odd sizes are an extension), or of the "
-                            "--dense lsq neighbourhood (default 11)")
+                            "--dense lsq neighbourhood (default 15)")
     group.add_argument("--ridge", type=float, default=1e-2,
                        help="--dense lsq: Tikhonov weight relative to the mean eigenvalue "
                             "(default 0.01)")
@@ -54,7 +57,13 @@ def add_arguments(group) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.methods.triplet import TripletMatcher, max_normal_speed
+    from evmotion.methods.triplet import (
+        LSQ_DX,
+        LSQ_FILTER_SIZE,
+        LSQ_TAU_US,
+        TripletMatcher,
+        max_normal_speed,
+    )
     from evmotion.utils import progress
 
     out = Path(args.out)
@@ -62,8 +71,13 @@ def run(args) -> int:
     if kind not in (".h5", ".hdf5", ".npy", ".flo", ".npz"):
         raise ParameterError(f"--out {out}: the triplet method writes .h5, .npy or .flo (dense "
                              "per window) or .npz (sparse per event)")
+    lsq = args.dense == "lsq"
     if args.filter_size is None:
-        args.filter_size = 3 if args.dense == "mean" else 11
+        args.filter_size = LSQ_FILTER_SIZE if lsq else 3
+    if args.dx is None:
+        args.dx = LSQ_DX if lsq else float(np.sqrt(2.0))
+    if args.tau_ms is None:
+        args.tau_ms = LSQ_TAU_US / 1000 if lsq else 3.0
     if not (np.isfinite(args.ridge) and args.ridge >= 0):
         raise ParameterError(f"--ridge must be a finite number >= 0, got {args.ridge}")
     if args.chunk_events <= 0:

@@ -31,7 +31,7 @@ C0, C1, C2, C3, C4, C5, C6, C7, C8, C9, C10 = _C
 
 
 @njit(cache=True, fastmath=True)
-def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq):
+def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq, n_sq):
     """Vote sums of ``m`` collected triplets, in branch-free loops the compiler vectorizes.
 
     exp(-a) = 2^-n * exp(-u), u = (a log2 e - n) ln 2 in [0, ln 2): a polynomial for the
@@ -39,7 +39,9 @@ def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq):
     normal equations of the time-surface gradient ``g`` (s/px) that every match constrains,
     ``g . (x_k - x_j) = t_k - t_j``, weighted by the Gaussian's shape ``exp(-a)``:
     ``[sum s_x^2, sum s_x s_y, sum s_y^2, sum s_x D, sum s_y D]`` (``s = x_k - x_j``,
-    ``D = t_k - t_j``; any common unit scale of the two cancels).
+    ``D = t_k - t_j``; any common unit scale of the two cancels). There each match weighs
+    ``exp(-a)^(2^n_sq)`` (``n_sq`` squarings): the Gaussian of (5.3) narrowed to
+    ``sigma = delta / 2^(n_sq/2)``, which keeps the matches whose two steps take equal times.
     """
     for q in range(m):
         y = ab[q] * _LOG2E
@@ -65,6 +67,8 @@ def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq):
         sy = syb[q]
         swx += r * sx
         swy += r * sy
+        for _ in range(n_sq):
+            g = g * g
         # s and D in units of 1e-6 px and µs: both sides scale by 1e12, g keeps s/px
         gx = g * sx
         gy = g * sy
@@ -112,7 +116,7 @@ def normal_flow(lsq):
 
 # Not fastmath here: its reciprocal shortcut overflows when every weight is subnormal.
 @njit(cache=True)
-def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
+def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple, n_sq,
                    out_vx, out_vy, out_n, out_valid, out_nx, out_ny, stats):
     """Process events in order, writing one flow per event and updating the ring state.
 
@@ -121,8 +125,9 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
     scan skips the too-recent slots and stops at the first too-old (or empty) one. The
     matches of one event are collected first and weighed in one vectorized pass.
     ``out_nx, out_ny`` receive the normal flow of the matches' least-squares time-surface
-    gradient (see :func:`_weights`). ``stats[0]`` counts evictions of events that could still take part in a future triplet
-    (answers then may differ from unbounded Algorithm 1).
+    gradient (see :func:`_weights`; ``n_sq`` narrows its weights). ``stats[0]`` counts
+    evictions of events that could still take part in a future triplet (answers then may
+    differ from unbounded Algorithm 1).
     """
     h = ts.shape[1]
     w = ts.shape[2]
@@ -233,7 +238,7 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple,
                             tail_x += e * sx / float(tk - tl)
                             tail_y += e * sy / float(tk - tl)
                             tail_n += 1
-        sw, swx, swy = _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq)
+        sw, swx, swy = _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq, n_sq)
         # Far-tail matches (exp(-a) < 1e-304) add nothing to the normal equations.
         nx, ny = normal_flow(lsq)
         out_nx[k] = nx

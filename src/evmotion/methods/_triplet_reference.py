@@ -16,15 +16,15 @@ import numpy as np
 def triplet_reference(x, y, t, p, *, dx: float = math.sqrt(2.0), dt_us: int = 100_000,
                       tau_us: int = 3_000, quadruple: bool = False,
                       max_maps: int | None = None, with_normal: bool = False,
-                      ridge: float = 1e-3):
+                      ridge: float = 1e-3, normal_kappa: int = 256):
     """Per-event flow by Algorithm 1: build H_k (5.1), search J_{k,i} in H_i (5.2), average (5.3).
 
     ``max_maps`` keeps only the latest index maps per polarity (the thesis keeps 20,000);
     None keeps all. Returns ``(vx, vy, valid, n)`` arrays (float64 px/s, bool, int), and with
     ``with_normal`` also ``(nx, ny)``: the normal flow ``g / |g|^2`` of the weighted
     least-squares ``g`` of ``g . (x_k - x_j) = t_k - t_j`` over the matches, each weighted by
-    its Gaussian's shape (the density without its normalization), with the ridge
-    ``ridge`` x the trace of the normal equations.
+    its Gaussian's shape (the density without its normalization) to the power
+    ``normal_kappa``, with the ridge ``ridge`` x the trace of the normal equations.
     """
     x = np.asarray(x, np.int64)
     y = np.asarray(y, np.int64)
@@ -78,14 +78,14 @@ def triplet_reference(x, y, t, p, *, dx: float = math.sqrt(2.0), dt_us: int = 10
             vy[k] = sum(w * ddy / (dt * 1e-6) for w, _, ddy, dt, _ in votes) / sw
             valid[k] = True
         if votes:
-            nx[k], ny[k] = _normal_flow(votes, ridge)
+            nx[k], ny[k] = _normal_flow(votes, ridge, normal_kappa)
     if with_normal:
         return vx, vy, valid, count, nx, ny
     return vx, vy, valid, count
 
 
-def _normal_flow(votes, ridge: float) -> tuple[float, float]:
-    w = np.array([v[4] for v in votes])
+def _normal_flow(votes, ridge: float, kappa: int) -> tuple[float, float]:
+    w = np.array([v[4] for v in votes]) ** kappa
     s = np.array([(-v[1], -v[2]) for v in votes], float)
     d = np.array([-v[3] * 1e-6 for v in votes])
     a = (s * w[:, None]).T @ s

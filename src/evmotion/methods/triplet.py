@@ -47,6 +47,10 @@ from evmotion.events import EventArray, Window
 from evmotion.methods import _triplet_kernels as K
 
 __all__ = [
+    "LSQ_DX",
+    "LSQ_FILTER_SIZE",
+    "LSQ_TAU_US",
+    "NORMAL_KAPPA",
     "TripletBatchResult",
     "TripletFlow",
     "TripletMatcher",
@@ -62,6 +66,16 @@ __all__ = [
     "nonzero_average_filter",
     "voxelize_flow",
 ]
+
+
+# Narrowing of the (5.3) Gaussian in the normal-flow fit of each event (sigma = delta / 16).
+NORMAL_KAPPA = 256
+# Defaults of the dense="lsq" batch output (measured on the simulated scenes, see
+# benchmarks/results/triplet_accuracy_summary.md): steps up to 2.3 px (16 directions, of one
+# and two pixels) and tau = 1 ms, a 15 x 15 fit.
+LSQ_DX = 2.3
+LSQ_TAU_US = 1_000
+LSQ_FILTER_SIZE = 15
 
 
 @dataclass(frozen=True)
@@ -155,6 +169,13 @@ class TripletMatcher:
         product of the Gaussians of the 3rd and 4th events' timestamps.
     depth : int
         Timestamps remembered per pixel and polarity (bounds memory; see module notes).
+    normal_kappa : int
+        Power of two ``kappa``: in the normal flow (:attr:`TripletFlow.nx`, an extension) each
+        match weighs ``exp(-z^2/2)^kappa``, the (5.3) Gaussian narrowed to
+        ``sigma = delta / sqrt(kappa)``; 1 is the (5.3) shape. Narrow weights keep the
+        matches whose two steps take equal times: an edge crossing fires a burst of events
+        (one per threshold level), and matches across levels of the bursts mis-time the
+        step. Does not affect the (5.3) flow.
 
     Examples
     --------
@@ -168,7 +189,7 @@ class TripletMatcher:
 
     def __init__(self, sensor_size: tuple[int, int], dx: float = float(np.sqrt(2.0)),
                  dt_us: int = 100_000, tau_us: int = 3_000, *, quadruple: bool = False,
-                 depth: int = 8) -> None:
+                 depth: int = 8, normal_kappa: int = NORMAL_KAPPA) -> None:
         h, w = (int(v) for v in sensor_size)
         if h <= 0 or w <= 0:
             raise ParameterError(f"sensor_size must be positive (height, width), got {(h, w)}")
@@ -182,6 +203,12 @@ class TripletMatcher:
         if 3 * (int(dt_us) + int(tau_us)) >= K.REBASE_SPAN_US // 2:
             raise ParameterError(f"dt_us + tau_us = {int(dt_us) + int(tau_us)} us is too long "
                                  f"(limit {K.REBASE_SPAN_US // 6} us)")
+        kappa = int(normal_kappa)
+        if kappa != normal_kappa or kappa < 1 or kappa > 2**16 or kappa & (kappa - 1):
+            raise ParameterError(f"normal_kappa must be a power of two in 1..65536, "
+                                 f"got {normal_kappa}")
+        self.normal_kappa = kappa
+        self._n_sq = kappa.bit_length() - 1
         self.sensor_size = (h, w)
         self.dx = float(dx)
         self.dt_us = int(dt_us)
@@ -257,9 +284,9 @@ class TripletMatcher:
             K.triplet_kernel(x[start:stop], y[start:stop], t[start:stop], p[start:stop],
                              np.int64(self._base), self._ts, self.offsets,
                              np.int64(self.dt_us), np.int64(self.tau_us), self.quadruple,
-                             out.vx[start:stop], out.vy[start:stop], out.n_triplets[start:stop],
-                             out.valid[start:stop], out.nx[start:stop], out.ny[start:stop],
-                             self._stats)
+                             np.int64(self._n_sq), out.vx[start:stop], out.vy[start:stop],
+                             out.n_triplets[start:stop], out.valid[start:stop],
+                             out.nx[start:stop], out.ny[start:stop], self._stats)
             start = stop
         self._t_last = int(t[-1])
         self.events_seen += n
@@ -412,7 +439,7 @@ def add_normal_voxels(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: 
                               acc.shape[0], float(vmax), acc, cnt)
 
 
-def dense_lsq_from_sums(acc: np.ndarray, cnt: np.ndarray, *, filter_size: int = 11,
+def dense_lsq_from_sums(acc: np.ndarray, cnt: np.ndarray, *, filter_size: int = LSQ_FILTER_SIZE,
                         ridge: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
     """Dense (H, W, 2) px/s flow and mask from normal-flow voxel sums (see
     :func:`add_normal_voxels`): per time bin and pixel, the flow ``v`` that best meets the
@@ -481,11 +508,11 @@ class TripletBatchResult:
 
 
 def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None = None, *,
-                          dx: float = float(np.sqrt(2.0)), dt_us: int = 100_000,
-                          tau_us: int = 3_000, quadruple: bool = False, n_bins: int = 1,
+                          dx: float | None = None, dt_us: int = 100_000,
+                          tau_us: int | None = None, quadruple: bool = False, n_bins: int = 1,
                           smooth: bool = True, filter_size: int | None = None,
-                          depth: int = 8, dense: str = "mean",
-                          ridge: float = 1e-2) -> TripletBatchResult:
+                          depth: int = 8, dense: str = "mean", ridge: float = 1e-2,
+                          normal_kappa: int = NORMAL_KAPPA) -> TripletBatchResult:
     """Triplet-matching flow of a recording, dense per window (thesis Algorithm 2).
 
     Every event is processed in order (events before a window serve as its history), then
@@ -498,8 +525,13 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         The recording, sorted by time.
     windows : sequence of Window, optional
         E.g. ``events.windows_at(gt_times, dt=1)``; default: one window over all events.
-    dx, dt_us, tau_us, quadruple, depth
-        As in :class:`TripletMatcher`.
+    dx, dt_us, tau_us, quadruple, depth, normal_kappa
+        As in :class:`TripletMatcher`. ``dx`` and ``tau_us`` default to the thesis' sqrt(2)
+        px and 3 ms with ``dense="mean"``, and to :data:`LSQ_DX` (2.3 px) and
+        :data:`LSQ_TAU_US` (1 ms) with ``dense="lsq"``: steps of up to two pixels time the
+        normal flow more precisely, and a shorter refractory period keeps the fast steps
+        that tau = 3 ms cuts (the per-event flow in :attr:`TripletBatchResult.events` is
+        then that of these parameters).
     n_bins : int
         Time bins per window for the voxelization.
     smooth : bool
@@ -510,7 +542,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         event to event, mostly independently between nearby pixels, so a wider average
         lowers the dense error where the motion is smooth (it cannot remove the method's
         speed bias; see ``benchmarks/results/triplet_event_errors.md``). With
-        ``dense="lsq"``: the neighbourhood width of the fit (default 11).
+        ``dense="lsq"``: the neighbourhood width of the fit (default 15).
     dense : {"mean", "lsq"}
         ``"mean"``: the thesis' voxel mean of the per-event flow (5.3). ``"lsq"`` (an
         extension): each event's triplets fix its time-surface gradient and so its normal
@@ -519,7 +551,8 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         directions that each carry only the normal component of the motion, which biases
         the dense mean towards the edges' normals; the fit resolves the aperture wherever the
         neighbourhood holds edges of several orientations
-        (``benchmarks/results/triplet_accuracy_summary.md``).
+        (``benchmarks/results/triplet_accuracy_summary.md``). Default width
+        :data:`LSQ_FILTER_SIZE` (15).
     ridge : float
         ``dense="lsq"`` only: Tikhonov weight relative to the mean eigenvalue of the normal
         equations.
@@ -536,13 +569,19 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         raise EmptyWindowError("no events to estimate the triplet flow of")
     if dense not in ("mean", "lsq"):
         raise ParameterError(f"dense must be 'mean' (thesis) or 'lsq', got {dense!r}")
+    lsq = dense == "lsq"
     if filter_size is None:
-        filter_size = 3 if dense == "mean" else 11
+        filter_size = LSQ_FILTER_SIZE if lsq else 3
+    if dx is None:
+        dx = LSQ_DX if lsq else float(np.sqrt(2.0))
+    if tau_us is None:
+        tau_us = LSQ_TAU_US if lsq else 3_000
     _filter_radius(filter_size)
     if windows is None:
         windows = [Window(0, events.t_start, events.t_end + 1, 0, len(events))]
     windows = list(windows)
-    m = TripletMatcher(events.sensor_size, dx, dt_us, tau_us, quadruple=quadruple, depth=depth)
+    m = TripletMatcher(events.sensor_size, dx, dt_us, tau_us, quadruple=quadruple, depth=depth,
+                       normal_kappa=normal_kappa)
     stop = max((w.stop for w in windows), default=len(events))
     flow = m.process(events[:stop])
     h, w = events.sensor_size
@@ -551,7 +590,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     for i, win in enumerate(windows):
         sub = events[win.start:win.stop]
         fsub = flow[win.start:win.stop]
-        if dense == "lsq":
+        if lsq:
             acc = np.zeros((n_bins, h, w, 5))
             cnt = np.zeros((n_bins, h, w), np.int64)
             _check_interval(win.t0, win.t1, n_bins)
