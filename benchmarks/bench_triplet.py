@@ -148,34 +148,8 @@ def bench_memory(n_events: int) -> dict:
             "state_MB": float(out[2])}
 
 
-def pin_idlest_core() -> int:
-    """After :func:`harness.single_core`, move to the least busy allowed core: on a shared
-    machine every benchmark pins to the first core, which would time the neighbours too."""
-    import os
-
-    harness.single_core()
-    if not (hasattr(os, "sched_setaffinity") and Path("/proc/stat").exists()):
-        return -1
-
-    def busy():
-        out = {}
-        for line in Path("/proc/stat").read_text().splitlines():
-            if line.startswith("cpu") and line[3].isdigit():
-                f = [int(v) for v in line.split()[1:]]
-                out[int(line[3:line.index(" ")])] = (sum(f) - f[3] - f[4], sum(f))
-        return out
-
-    a = busy()
-    time.sleep(0.5)
-    b = busy()
-    load = {c: (b[c][0] - a[c][0]) / max(b[c][1] - a[c][1], 1) for c in b if c in a}
-    cpu = min(load, key=load.get)
-    os.sched_setaffinity(0, {cpu})
-    return cpu
-
-
 def main(quick: bool = False) -> list[dict]:
-    pin_idlest_core()
+    harness.pin_idlest_core()
     repeat = 3 if quick else 7
     rows = []
     shapes = load_shapes_rotation()

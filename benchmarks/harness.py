@@ -30,6 +30,31 @@ def single_core() -> None:
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
 
 
+def pin_idlest_core() -> int:
+    """:func:`single_core`, then move to the least busy allowed core (CPU time over half a
+    second from /proc/stat): on a shared machine the first core may be a neighbour's, whose
+    load would be timed too. Returns the core, or -1 where affinity is not supported."""
+    single_core()
+    if not (hasattr(os, "sched_setaffinity") and Path("/proc/stat").exists()):
+        return -1
+
+    def busy():
+        out = {}
+        for line in Path("/proc/stat").read_text().splitlines():
+            if line.startswith("cpu") and line[3].isdigit():
+                f = [int(v) for v in line.split()[1:]]
+                out[int(line[3:line.index(" ")])] = (sum(f) - f[3] - f[4], sum(f))
+        return out
+
+    a = busy()
+    time.sleep(0.5)
+    b = busy()
+    load = {c: (b[c][0] - a[c][0]) / max(b[c][1] - a[c][1], 1) for c in b if c in a}
+    cpu = min(load, key=load.get)
+    os.sched_setaffinity(0, {cpu})
+    return cpu
+
+
 def timeit(fn: Callable[[], object], *, repeat: int = 20, warmup: int = 2) -> dict:
     """Median, min and max wall time of ``fn()`` in seconds over ``repeat`` runs."""
     for _ in range(warmup):
