@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 import harness
-from bench_triplet import DATA, load_shapes_rotation, pin_idlest_core
+from bench_triplet import DATA, load_shapes_rotation
 from evmotion.events import EventArray
 from evmotion.methods.triplet import (
     TripletFlow,
@@ -320,7 +320,7 @@ def _sim_summary(sim: list[dict]) -> list[dict]:
 
 
 def main(quick: bool = False) -> list[dict]:
-    pin_idlest_core()
+    harness.pin_idlest_core()
     rows: list[dict] = []
     translation = {}
     fast = {"dt_us": 20_000, "tau_us": 500}
