@@ -126,7 +126,7 @@ def test_any_chunking_is_bit_identical(seed):
                                                 strict=True)]
     parts.append(m.process(ev[len(ev):]))
     joined = TripletFlow.concatenate(parts)
-    for name in ("vx", "vy", "valid", "n_triplets"):
+    for name in ("vx", "vy", "valid", "n_triplets", "nx", "ny"):
         np.testing.assert_array_equal(getattr(joined, name), getattr(whole, name))
 
 

@@ -31,7 +31,7 @@ C0, C1, C2, C3, C4, C5, C6, C7, C8, C9, C10 = _C
 
 
 @njit(cache=True, fastmath=True)
-def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq, n_sq):
+def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq, n_sq, pw):
     """Vote sums of ``m`` collected triplets, in branch-free loops the compiler vectorizes.
 
     exp(-a) = 2^-n * exp(-u), u = (a log2 e - n) ln 2 in [0, ln 2): a polynomial for the
@@ -50,6 +50,14 @@ def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq, n_sq):
         pb[q] = ((((((((((C0 * u + C1) * u + C2) * u + C3) * u + C4) * u + C5) * u + C6) * u
                     + C7) * u + C8) * u + C9) * u + C10)
         bits[q] = (1023 - n) << 52
+    # exp(-a)^kappa, 0 below 1e-304: no subnormal (slow) products in the squarings
+    kappa_a = float(1 << n_sq)
+    for q in range(m):
+        pw[q] = pb[q] * scale[q] if ab[q] * kappa_a < 700.0 else 0.0
+    # one pass per squaring: loops the compiler vectorizes (a loop inside would stop it)
+    for _ in range(n_sq):
+        for q in range(m):
+            pw[q] = pw[q] * pw[q]
     sw = 0.0
     swx = 0.0
     swy = 0.0
@@ -67,8 +75,7 @@ def _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq, n_sq):
         sy = syb[q]
         swx += r * sx
         swy += r * sy
-        for _ in range(n_sq):
-            g = g * g
+        g = pw[q]
         # s and D in units of 1e-6 px and µs: both sides scale by 1e12, g keeps s/px
         gx = g * sx
         gy = g * sy
@@ -144,6 +151,7 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple, n_sq
     pb = np.empty(cap)
     bits = np.empty(cap, np.int64)
     scale = bits.view(np.float64)
+    pw = np.empty(cap)   # weights of the normal-flow fit
     lsq = np.empty(5)
     for k in range(t.shape[0]):
         xk = x[k]
@@ -238,7 +246,7 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple, n_sq
                             tail_x += e * sx / float(tk - tl)
                             tail_y += e * sy / float(tk - tl)
                             tail_n += 1
-        sw, swx, swy = _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq, n_sq)
+        sw, swx, swy = _weights(m, ab, nb, db, sxb, syb, pb, bits, scale, lsq, n_sq, pw)
         # Far-tail matches (exp(-a) < 1e-304) add nothing to the normal equations.
         nx, ny = normal_flow(lsq)
         out_nx[k] = nx
