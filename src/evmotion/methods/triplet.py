@@ -26,11 +26,18 @@ scatters the votes more. This is the thesis' estimator, kept as is.
 
 Each triplet also fixes the time-surface gradient ``g`` along its step,
 ``g . (x_k - x_j) = t_k - t_j``; the matcher returns, besides (5.3), the normal flow
-``g / |g|^2`` of the least-squares ``g`` of each event's triplets (:attr:`TripletFlow.nx`).
+``g / |g|^2`` of the least-squares ``g`` of each event's triplets (:attr:`TripletFlow.nx`),
+each triplet weighted by the (5.3) Gaussian narrowed to ``sigma = delta / 16``
+(``normal_kappa``): an edge crossing fires a burst of events, one per threshold level, and
+only matches whose two steps take equal times pair events of one level.
 The batch output ``dense="lsq"`` (an extension) fits each pixel's flow to the normal flows
-of its neighbourhood, which resolves the aperture where edges of several orientations meet:
-on the simulated scenes at MVSEC-like speeds (1.2-1.6 px per 22 ms frame) the dense AEE
-drops from 0.94-1.03 px (thesis mean) to 0.22-0.24 px (``triplet_accuracy_summary.md``).
+of its 15 x 15 neighbourhood, which resolves the aperture where edges of several
+orientations meet; it defaults to d_x = 2.3 (steps of one and two pixels) and tau = 1 ms
+(fast steps kept). Simulated translation / rotation / zoom, AEE over MultiCM's on the same
+windows (``triplet_accuracy_summary.md``): thesis mean 21 / 9.4 / 8.5 (dt = 1) and
+129 / 6.0 / 3.7 (dt = 4) at 250-300 px/s, 2.4 / 4.8 / 3.0 and 54 / 22 / 14 at a quarter of
+that speed; ``dense="lsq"`` 4.5 / 2.0 / 2.1 and 27 / 1.9 / 1.3, then 0.45 / 0.90 / 0.71 and
+4.9 / 2.9 / 1.9. Translation stays 4.5-27x: MultiCM is near exact there (0.05-0.08 px).
 
 Units: pixels, microseconds for times, px/s for flow.
 """
