@@ -9,6 +9,7 @@ window (buffers, the tile order of the fused path, the normalization G(0)) per w
 
 from __future__ import annotations
 
+import itertools
 import sys
 from pathlib import Path
 
@@ -23,6 +24,12 @@ from evmotion.methods.egomotion import CMaxCost, estimate_egomotion
 WARP_THETA = {"zoom": [1.5], "translation": [80.0, -40.0], "rotation": [0.4, -0.6, 0.3],
               "se2": [80.0, -40.0, 0.5], "inplane": [80.0, -40.0, 0.05, 1.0],
               "similarity": [80.0, -40.0, 0.5, 1.0]}
+#: Collapsing parameters per warp (strong contraction within the 50 ms window, so that the
+#: trimmed means and the RCAD map are active); None where the warp cannot collapse
+#: (translation, SE(2): every penalty is 0 by construction).
+COLLAPSE_THETA = {"zoom": [15.0], "translation": None, "rotation": [4.0, -6.0, 3.0],
+                  "se2": None, "inplane": [80.0, -40.0, 0.05, 15.0],
+                  "similarity": [80.0, -40.0, 0.5, 15.0]}
 REGS = (None, "divergence", "deformation", "rcad", "whitening")
 
 
@@ -37,7 +44,7 @@ def _events(n: int, shape, seed: int = 0):
 
 
 def main(quick: bool = False) -> list[dict]:
-    harness.single_core()
+    harness.pin_idlest_core()
     rows: list[dict] = []
     sizes = [(30_000, (260, 346))] + ([] if quick else [(500_000, (480, 640))])
     repeat = 5 if quick else 20
@@ -53,11 +60,15 @@ def main(quick: bool = False) -> list[dict]:
             rows.append({"case": "setup", "events": n, "size": f"{shape[1]}x{shape[0]}",
                          "warp": wname, "objective": "variance", "regularizer": "none",
                          "ms_total": r["median_s"] * 1e3})
-            for obj in ("variance", "gradient_magnitude"):
+            for obj, (motion, theta_m) in itertools.product(
+                    ("variance", "gradient_magnitude"),
+                    (("bench_cmax", theta), ("collapse", COLLAPSE_THETA[wname]))):
+                if theta_m is None:
+                    continue
                 base = base_min = None
                 for reg in REGS:
                     cost = CMaxCost(warp, x, y, dt, shape, obj, reg, weight=1.0, polarity=p)
-                    th = np.asarray(theta, dtype=float)
+                    th = np.asarray(theta_m, dtype=float)
                     # whitening (an eigen-decomposition and (N, P) products in numpy) is slow
                     rep = max(3, repeat // 4) if reg == "whitening" else repeat
                     r = harness.timeit(lambda c=cost, th=th: c.value_grad(th), repeat=rep)
@@ -66,7 +77,8 @@ def main(quick: bool = False) -> list[dict]:
                     if reg is None:
                         base, base_min = ms, ms_min
                     rows.append({"case": "eval", "events": n, "size": f"{shape[1]}x{shape[0]}",
-                                 "warp": wname, "objective": obj, "regularizer": reg or "none",
+                                 "warp": wname, "objective": obj, "motion": motion,
+                                 "regularizer": reg or "none",
                                  "ms_per_eval": ms, "ratio_vs_none": ms / base,
                                  "ms_min": ms_min, "ratio_min": ms_min / base_min})
     # complete estimates on a 30k window
@@ -82,7 +94,7 @@ def main(quick: bool = False) -> list[dict]:
         rows.append({"case": f"estimate {opt}", "events": 30_000, "size": "346x260",
                      "warp": wname, "objective": "variance", "regularizer": reg or "none",
                      "ms_total": r["median_s"] * 1e3, "n_evals": res.timings["n_evals"]})
-    harness.record("cmax", rows, notes="single core (harness.single_core); medians; "
+    harness.record("cmax", rows, notes="single core (harness.pin_idlest_core); medians; "
                    "ratio_vs_none = ms / ms of the unregularized run of the same row group; "
                    "ms_min / ratio_min: the same with the fastest run (less sensitive to other "
                    "processes on a shared machine)")
@@ -95,17 +107,20 @@ def _table34(rows: list[dict]) -> None:
     ms per cost+gradient evaluation for each regularizer and its ratio to the
     unregularized evaluation."""
     ev = [r for r in rows if r["case"] == "eval"]
-    keys = list(dict.fromkeys((r["events"], r["size"], r["warp"], r["objective"]) for r in ev))
+    group = ("events", "size", "warp", "objective", "motion")
+    keys = list(dict.fromkeys(tuple(r[g] for g in group) for r in ev))
     names = [reg or "none" for reg in REGS]
-    head = ["events", "size", "warp", "objective"] + [f"{n} ms (x)" for n in names]
+    head = list(group) + [f"{n} ms (x)" for n in names]
     lines = ["# cmax: Table 3.4 layout", "",
-             "ms per evaluation of J = -G + lambda R and its gradient (one core, medians), "
-             "with the ratio to the unregularized evaluation in brackets, then the same for the "
-             "fastest run; from cmax.json.", "",
+             "ms per evaluation of J = -G + lambda R (lambda = 1) and its gradient (one core, "
+             "medians), with the ratio to the unregularized evaluation at the same parameters "
+             "in brackets, then the same for the fastest run; from cmax.json. motion "
+             "'bench_cmax': WARP_THETA (no collapse: the trimmed means select nothing); "
+             "'collapse': COLLAPSE_THETA (strong contraction: the DIWE/IWA maps, their "
+             "adjoint and the RCAD map are built).", "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for k in keys:
-        cells = {r["regularizer"]: r for r in ev
-                 if (r["events"], r["size"], r["warp"], r["objective"]) == k}
+        cells = {r["regularizer"]: r for r in ev if tuple(r[g] for g in group) == k}
         vals = [f"{cells[n]['ms_per_eval']:.3g} ({cells[n]['ratio_vs_none']:.2f}); "
                 f"min {cells[n]['ms_min']:.3g} ({cells[n]['ratio_min']:.2f})"
                 if n in cells else "" for n in names]

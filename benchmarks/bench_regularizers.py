@@ -5,11 +5,14 @@ Per warp up to 4 DOF, 30k events at 346x260 and 500k at 640x480 (bench_cmax's ev
 
 * ``data ms``: one unregularized CMax evaluation (variance, value + gradient) -- the
   reference the overheads are measured against, in the same run;
-* per regularizer, one :func:`regularizer_value_grad` call as CMax makes it after its data
-  term on its fused path (events by 16 px sensor tile, warped events given, no stored
-  Jacobians, the window span given once), and the ratio ``(data + regularizer) / data``. Two motions: bench_cmax's parameters (no pixel
-  beyond the trimming margins: the usual case away from collapse), and a collapsing one
-  (contraction strong enough that the trimmed means and the RCAD map are active), where the
+* per regularizer, one evaluation of the CMax cost with it (weight 1), its ratio to ``data
+  ms`` and the difference (what the penalty costs CMax: divergence and deformation take
+  the data term's IWE as their count map and chain their adjoint through the data term's
+  pass over the events), and one standalone :func:`regularizer_value_grad` call given what
+  CMax has at hand (events by 16 px sensor tile, warped events, its IWE, the window span).
+  Two motions: bench_cmax's parameters (no pixel beyond the trimming margins: the usual
+  case away from collapse), and a collapsing one (``bench_cmax.COLLAPSE_THETA``:
+  contraction strong enough that the trimmed means and the RCAD map are active), where the
   DIWE/IWA maps and their adjoint are built;
 * ``gradmag``: the gradient-magnitude objective's value and adjoint image (numba, one
   streaming pass) against a plain-numpy reference (scipy correlate + slice adds).
@@ -28,17 +31,12 @@ from scipy.ndimage import correlate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import harness
-from bench_cmax import WARP_THETA, _events
+from bench_cmax import COLLAPSE_THETA, WARP_THETA, _events
 from evmotion.core.objectives import objective_value_grad
 from evmotion.core.regularizers import regularizer_value_grad
 from evmotion.core.warps import make_warp
 from evmotion.methods.egomotion import CMaxCost
 
-#: Collapsing parameters per warp (strong contraction within the 50 ms window); None where
-#: the warp cannot collapse (translation, SE(2): every penalty is 0 by construction).
-COLLAPSE_THETA = {"zoom": [15.0], "translation": None, "rotation": [4.0, -6.0, 3.0],
-                  "se2": None, "inplane": [80.0, -40.0, 0.05, 15.0],
-                  "similarity": [80.0, -40.0, 0.5, 15.0]}
 REGS = ("divergence", "deformation", "rcad")
 _SX = np.array([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]])
 
@@ -57,16 +55,12 @@ def _gradmag_numpy(img):
 
 
 def main(quick: bool = False) -> list[dict]:
-    harness.single_core()
+    harness.pin_idlest_core()
     rows: list[dict] = []
     sizes = [(30_000, (260, 346))] + ([] if quick else [(500_000, (480, 640))])
     for n, shape in sizes:
         repeat = (10 if quick else 30) if n < 100_000 else (4 if quick else 12)
         x, y, dt, p, _ = _events(n, shape)
-        span = (float(dt.min()), float(dt.max()))
-        # the regularizer sees the events in the order of CMax's fused path: by sensor tile
-        tile = np.lexsort((np.floor(x) // 16, np.floor(y) // 16))
-        xt, yt, dtt = x[tile], y[tile], dt[tile]
         K = np.array([[shape[1] * 0.8, 0, shape[1] / 2], [0, shape[1] * 0.8, shape[0] / 2],
                       [0, 0, 1.0]])
         size = f"{shape[1]}x{shape[0]}"
@@ -79,18 +73,25 @@ def main(quick: bool = False) -> list[dict]:
                 cost = CMaxCost(warp, x, y, dt, shape, "variance", None, polarity=p)
                 data = harness.timeit(partial(cost.value_grad, th), repeat=repeat)
                 data_ms = data["median_s"] * 1e3
-                xw, yw = warp.warp(xt, yt, dtt, th)
+                # what CMax hands a standalone call: its events in tile order, warped with
+                # th, its IWE as the count map, the window's span
+                cost.value_grad(th)
+                ev = (warp, cost._fx, cost._fy, cost._fdt, th, shape, cost.xw.copy(),
+                      cost.yw.copy())
+                kw = {"span": cost._span, "count": cost.iwe.copy()}
                 row = {"case": "regularizer", "events": n, "size": size, "warp": wname,
                        "motion": motion, "data_ms": data_ms}
                 for reg in REGS:
-                    val = regularizer_value_grad(reg, warp, xt, yt, dtt, th, shape, xw, yw,
-                                                 span=span)[0]
-                    r = harness.timeit(partial(regularizer_value_grad, reg, warp, xt, yt, dtt,
-                                               th, shape, xw, yw, span=span), repeat=repeat)
-                    ms = r["median_s"] * 1e3
-                    row[f"{reg}_value"] = val
-                    row[f"{reg}_ms"] = ms
-                    row[f"{reg}_ratio"] = (data_ms + ms) / data_ms
+                    rcost = CMaxCost(warp, x, y, dt, shape, "variance", reg, weight=1.0,
+                                     polarity=p)
+                    total = harness.timeit(partial(rcost.value_grad, th), repeat=repeat)
+                    alone = harness.timeit(partial(regularizer_value_grad, reg, *ev, **kw),
+                                           repeat=repeat)
+                    ms = total["median_s"] * 1e3
+                    row[f"{reg}_value"] = regularizer_value_grad(reg, *ev, **kw)[0]
+                    row[f"{reg}_ms"] = ms - data_ms
+                    row[f"{reg}_ratio"] = ms / data_ms
+                    row[f"{reg}_alone_ms"] = alone["median_s"] * 1e3
                 rows.append(row)
                 print(row, flush=True)
         img = np.random.default_rng(0).poisson(1.0, shape).astype(float)
@@ -103,11 +104,14 @@ def main(quick: bool = False) -> list[dict]:
                      "speedup": ref["median_s"] / fast["median_s"]})
         print(rows[-1], flush=True)
     harness.record("regularizers", rows, notes=(
-        "single core (harness.single_core); medians; data_ms: one unregularized CMax "
-        "evaluation (variance, value + gradient) in the same run; <reg>_ms: one "
-        "regularizer_value_grad call after it (events by 16 px tile, warped events given, no "
-        "Jacobians, span given); <reg>_ratio = (data + reg) / data; motion 'collapse' = strong contraction "
-        "(trimmed means active)"))
+        "single core (harness.pin_idlest_core); medians; data_ms: one unregularized CMax "
+        "evaluation (variance, value + gradient); <reg>_ratio: one evaluation of CMaxCost "
+        "with that regularizer (weight 1) over data_ms, in the same run, and <reg>_ms the "
+        "difference (the penalty's cost as CMax pays it: divergence and deformation share "
+        "the data term's IWE and its pass over the events); <reg>_alone_ms: one standalone "
+        "regularizer_value_grad call with what CMax has at hand (events in tile order, "
+        "warped events, its IWE as count=, span=); motion 'collapse' = strong contraction "
+        "(COLLAPSE_THETA: trimmed means active)"))
     return rows
 
 

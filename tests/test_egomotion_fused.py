@@ -9,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evmotion.core.iwe import accumulate, accumulate_backward
+from evmotion.core.iwe import _vote_bilinear, accumulate, accumulate_backward
 from evmotion.core.objectives import events_value_grad
 from evmotion.core.regularizers import regularizer_value_grad, whiten
 from evmotion.core.warps import make_warp
 from evmotion.errors import ParameterError
-from evmotion.methods.egomotion import _TILE, CMaxCost, _tile_order, _vote_bilinear
+from evmotion.methods.egomotion import _TILE, CMaxCost, _tile_order
 
 SHAPE = (60, 80)
 K = np.array([[70.0, 0.0, 41.0], [0.0, 70.0, 29.5], [0.0, 0.0, 1.0]])
@@ -116,6 +116,20 @@ def test_vjp_and_reduce_bilinear_match_numpy(name):
         out = warp.reduce_bilinear(x, y, dt, xw, yw, theta, g, np.empty(warp.n_params), wts,
                                    shift=1.7, scale=0.3, work=work)
         np.testing.assert_allclose(out, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+    # reduce_pair: dL/dIWE = A for the IWE of ones and B for that of per-event values d
+    A, B, d = rng.normal(size=SHAPE), rng.normal(size=SHAPE), rng.normal(size=x.size)
+    ax, ay = accumulate_backward(xw, yw, SHAPE, A)
+    bx, by = accumulate_backward(xw, yw, SHAPE, B, weights=d)
+    ref = 0.4 * ((ax + bx) @ jx + (ay + by) @ jy)
+    pads = np.zeros((2, SHAPE[0] + 2, SHAPE[1] + 2))
+    pads[0, 1:-1, 1:-1] = A
+    pads[1, 1:-1, 1:-1] = B
+    out = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, *SHAPE,
+                           np.empty(warp.n_params), 0.4)
+    np.testing.assert_allclose(out, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+    with pytest.raises(ParameterError, match="pads"):
+        warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel()[1:], d, *SHAPE,
+                         np.empty(warp.n_params))
 
 
 @pytest.mark.parametrize("name", ["rotation", "similarity", "inplane"])
@@ -147,7 +161,8 @@ def test_fused_warps_store_no_jacobians():
 
 #: contracting (collapse-enabling) motions, so that the penalties are active
 COLLAPSE = {"rotation": [8.0, -8.0, 1.0], "similarity": [30.0, -20.0, 0.5, 15.0],
-            "zoom": [15.0], "affine": [30.0, -20.0, 12.0, 1.0, -1.0, 12.0]}
+            "zoom": [15.0], "inplane": [30.0, -20.0, 0.05, 15.0],
+            "affine": [30.0, -20.0, 12.0, 1.0, -1.0, 12.0]}
 
 
 @pytest.mark.parametrize("name", list(COLLAPSE))
@@ -171,6 +186,18 @@ def test_penalties_equal_the_composed_chain(name, reg, obj):
     assert cost.value(theta) == pytest.approx(v, rel=1e-9)
     ref = -gref / cost.g0 + 0.7 * gR
     np.testing.assert_allclose(g, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    # the fused warps chain both terms in one pass (the penalty's adjoint images folded
+    # into the data term's): the gradient against central differences of the cost
+    assert cost._pair == (name != "affine")
+    if name == "affine":
+        return
+    for j in range(theta.size):
+        h = 1e-7 * max(1.0, abs(theta[j]))
+        tp, tm = theta.copy(), theta.copy()
+        tp[j] += h
+        tm[j] -= h
+        fd = (cost.value(tp) - cost.value(tm)) / (2 * h)
+        assert g[j] == pytest.approx(fd, rel=1e-5, abs=1e-6 * np.abs(g).max())
 
 
 @pytest.mark.parametrize("name", FUSED)

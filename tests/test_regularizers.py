@@ -94,12 +94,15 @@ def test_gradients_vs_finite_differences(reg, name):
         assert g[j] == pytest.approx(fd, rel=1e-5, abs=1e-7)
     # precomputed warped events and Jacobians give the same result, and so do warped events
     # alone (up to rounding: the warp kernels with and without Jacobians may round the
-    # warped events differently, and the rotation contracts its recomputed Jacobian)
+    # warped events differently (~1e-14 px), and the rotation contracts its recomputed
+    # Jacobian; a pixel's adjoint (d_k - mean) / count cancels to a few ulps of d_k where
+    # one event votes alone, so such rounding moves the gradient by up to ~1e-11 of its
+    # largest component)
     xw, yw, jx, jy = w.warp(x, y, dt, th, jacobian=True)
     for kw in ({"jx": jx, "jy": jy}, {}):
         v2, g2 = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw, **kw)
         assert v2 == pytest.approx(v, rel=1e-12)
-        np.testing.assert_allclose(g2, g, rtol=1e-12, atol=1e-14 * np.abs(g).max())
+        np.testing.assert_allclose(g2, g, rtol=1e-10, atol=1e-10 * np.abs(g).max())
 
 
 def test_zoom_closed_forms():
@@ -245,45 +248,99 @@ def test_real_rotation_window_vs_collapse(shared_data):
                                       (180, 240))[0] > 0.2
 
 
-def test_fused_votes_match_core_iwe():
-    """The fused one-pass votes equal core.iwe's bilinear IWE and its adjoint."""
-    from evmotion.core.iwe import accumulate, accumulate_backward
+def _bilinear_adjoint_numpy(xw, yw, g):
+    """Plain-numpy derivatives of ``sum(g * IWE)`` (bilinear votes, votes off the image
+    dropped) with respect to each event's position, and its bilinear sample of ``g``."""
+    h, w = g.shape
+    x0, y0 = np.floor(xw), np.floor(yw)
+    fx, fy = xw - x0, yw - y0
+    corners = {}
+    for dy in (0, 1):
+        for dx in (0, 1):
+            # NaN: a cell far off the image
+            cx = np.nan_to_num(x0, nan=-9.0).astype(int) + dx
+            cy = np.nan_to_num(y0, nan=-9.0).astype(int) + dy
+            ok = (cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)
+            corners[dy, dx] = np.where(ok, g[np.clip(cy, 0, h - 1), np.clip(cx, 0, w - 1)], 0.0)
+    c00, c01, c10, c11 = corners[0, 0], corners[0, 1], corners[1, 0], corners[1, 1]
+    gx = (c01 - c00) * (1 - fy) + (c11 - c10) * fy
+    gy = (c10 - c00) * (1 - fx) + (c11 - c01) * fx
+    s = c00 * (1 - fx) * (1 - fy) + c01 * fx * (1 - fy) + c10 * (1 - fx) * fy + c11 * fx * fy
+    return gx, gy, s
+
+
+def test_trim_and_backward_kernels_match_numpy():
+    """The trim pass (padded, interleaved adjoint images), the branch-free per-event
+    backward pass and the stored-Jacobian contraction against plain numpy, events inside,
+    across and outside the border included; d/dd_k against finite differences."""
+    from evmotion.core.iwe import accumulate
     from evmotion.core.regularizers import (
-        _fused_backward,
-        _fused_backward_events,
-        _fused_forward,
+        _backward_events,
+        _contract,
+        _sample_compact,
+        _trim_pass,
     )
 
     rng = np.random.default_rng(5)
     n = 500
     xw, yw = rng.uniform(-2, W + 1, n), rng.uniform(-2, H + 1, n)
+    xw[:3] = [np.nan, -1.0, W - 1.0]
     d = rng.normal(size=n)
-    cnt, num = np.empty((H, W)), np.empty((H, W))
-    _fused_forward(xw, yw, d, cnt, num)
-    np.testing.assert_allclose(cnt, accumulate(xw, yw, (H, W)), atol=1e-12)
-    np.testing.assert_allclose(num, accumulate(xw, yw, (H, W), weights=d), atol=1e-12)
+    cnt = accumulate(xw, yw, (H, W))
+    num = accumulate(xw, yw, (H, W), weights=d)
+    pads = np.full(2 * (H + 2) * (W + 2), np.nan)
+    size = (H + 2) * (W + 2)
+    total, n_sel = _trim_pass(cnt, num, -0.3, pads[:size], pads[size:])
+    sup = cnt > 1e-9
+    mean = np.divide(num, cnt, out=np.zeros((H, W)), where=sup)
+    sel = sup & (mean < -0.3)
+    assert n_sel == sel.sum() > 20 and total == pytest.approx(mean[sel].sum(), rel=1e-12)
+    img = pads.reshape(2, H + 2, W + 2)
+    gS = np.where(sel, 1.0 / np.where(sup, cnt, 1.0), 0.0)
+    np.testing.assert_allclose(img[0, 1:-1, 1:-1], -mean * gS, rtol=1e-15)
+    np.testing.assert_allclose(img[1, 1:-1, 1:-1], gS, rtol=1e-15)
+    ring = np.ones((H + 2, W + 2), bool)
+    ring[1:-1, 1:-1] = False
+    assert not img[:, ring].any()
+    # arbitrary adjoint images (not only those of a trim) through the same padded layout
     gS, gN = rng.normal(size=(H, W)), rng.normal(size=(H, W))
-    gd = np.empty(n)
-    jx, jy = rng.normal(size=(n, 2)), rng.normal(size=(n, 2))
-    out = np.empty(2)
-    _fused_backward(xw, yw, d, gS, gN, 1.0, jx, jy, np.zeros((0, 0)), out, gd)
-    ax, ay = accumulate_backward(xw, yw, (H, W), gS, weights=d)
-    bx, by = accumulate_backward(xw, yw, (H, W), gN)
-    np.testing.assert_allclose(out, (ax + bx) @ jx + (ay + by) @ jy, atol=1e-9)
-    # the variant that stops before the warp: per-event derivatives
-    ex, ey, ed = np.empty(n), np.empty(n), np.empty(n)
-    _fused_backward_events(xw, yw, d, gS, gN, 1.0, ex, ey, ed)
-    np.testing.assert_allclose(ex, ax + bx, atol=1e-12)
-    np.testing.assert_allclose(ey, ay + by, atol=1e-12)
-    np.testing.assert_array_equal(ed, gd)
-    # d/dd_k of sum(gS * num) is the bilinear sample of gS at the event
+    img[0, 1:-1, 1:-1] = gN
+    img[1, 1:-1, 1:-1] = gS
+    gx, gy, gd = np.empty(n), np.empty(n), np.empty(n)
+    _backward_events(xw, yw, d, pads, H, W, 0.5, gx, gy, gd)
+    ax, ay, sS = _bilinear_adjoint_numpy(xw, yw, gS)
+    bx, by, _ = _bilinear_adjoint_numpy(xw, yw, gN)
+    off = ~((xw > -1) & (xw < W) & (yw > -1) & (yw < H))
+    ref = [np.where(off, 0.0, 0.5 * v) for v in (d * ax + bx, d * ay + by, sS)]
+    for got, want in zip((gx, gy, gd), ref, strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    # the events with a nonzero value derivative, compacted (x, y, dt, gd * fac), where
+    # some of the cells hold no trimmed pixel
+    img[1, 1:-1, 1:-1] = np.where(rng.uniform(size=(H, W)) < 0.7, 0.0, gS)
+    _, _, gds = _bilinear_adjoint_numpy(xw, yw, img[1, 1:-1, 1:-1])
+    gds = np.where(off, 0.0, 0.5 * gds)
+    keep = gds != 0
+    assert 20 < keep.sum() < n - 20
+    cols = [rng.normal(size=n) for _ in range(4)]
+    out = np.full((5, n), np.nan)
+    m = _sample_compact(xw, yw, *cols, pads[size:], H, W, 0.5, out)
+    assert m == keep.sum()
+    np.testing.assert_array_equal(out[:3, :m], np.stack(cols[:3])[:, keep])
+    np.testing.assert_allclose(out[3, :m], (gds * cols[3])[keep], rtol=1e-12)
+    # d/dd_k of 0.5 sum(gS * num) is half the bilinear sample of gS at the event
     e = 1e-6
-    for k in range(0, n, 50):
+    for k in range(3, n, 50):
         dp = d.copy()
         dp[k] += e
-        fd = ((gS * accumulate(xw, yw, (H, W), weights=dp)).sum()
-              - (gS * accumulate(xw, yw, (H, W), weights=d)).sum()) / e
+        fd = 0.5 * ((gS * accumulate(xw, yw, (H, W), weights=dp)).sum()
+                    - (gS * accumulate(xw, yw, (H, W), weights=d)).sum()) / e
         assert gd[k] == pytest.approx(fd, abs=1e-6)
+    jx, jy, dd = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    out = np.empty(3)
+    _contract(gx, gy, gd, jx, jy, dd, out)
+    np.testing.assert_allclose(out, gx @ jx + gy @ jy + gd @ dd, rtol=1e-12)
+    _contract(gx, gy, gd, jx, jy, np.zeros((0, 0)), out)
+    np.testing.assert_allclose(out, gx @ jx + gy @ jy, rtol=1e-12)
 
 
 def test_no_map_when_every_value_is_above_the_margin():
@@ -370,11 +427,9 @@ def test_span_argument():
 
 @pytest.mark.parametrize("name", ["zoom", "rotation", "similarity", "inplane"])
 def test_vjp_chain_rule_on_few_and_many_trimmed_pixels(name):
-    """Without stored Jacobians the adjoint runs over the events voting into trimmed pixels
-    only (compacted when they are fewer than half): same gradient as the stored-Jacobian
-    chain rule whether few or all pixels are trimmed."""
-    from evmotion.core.regularizers import _compact
-
+    """Without stored Jacobians the adjoint runs through the warp's fused pass
+    (Warp.reduce_pair): same gradient as the stored-Jacobian chain rule whether few or all
+    pixels are trimmed."""
     w = make_warp(name, (H, W), K=K)
     th = np.array(THETA[name])
     x, y, dt = _events(900, seed=8)
@@ -391,16 +446,6 @@ def test_vjp_chain_rule_on_few_and_many_trimmed_pixels(name):
                 continue  # constant divergence: no per-pixel maps
             assert v2 == v and v != 0
             np.testing.assert_allclose(g2, g, rtol=1e-11, atol=1e-13 * np.abs(g).max())
-    # the compaction itself against numpy boolean indexing
-    rng = np.random.default_rng(2)
-    cols = [rng.normal(size=50) for _ in range(9)]
-    for c in cols[5:8]:
-        c[rng.uniform(size=50) < 0.6] = 0.0
-    keep = (cols[5] != 0) | (cols[6] != 0) | (cols[7] != 0)
-    out = np.empty((9, 50))
-    m = _compact(*cols, out)
-    assert m == keep.sum()
-    np.testing.assert_array_equal(out[:, :m], np.stack(cols)[:, keep])
 
 
 def test_time_span_matches_numpy():
@@ -417,23 +462,30 @@ def test_time_span_matches_numpy():
 
 @pytest.mark.parametrize("name", ["zoom", "translation", "se2", "similarity", "inplane"])
 def test_fast_grad_dot_matches_stored_derivatives(name):
-    """The closed-form value derivatives contracted in place equal the stored (N, P)
-    derivatives contracted by numpy."""
+    """The closed-form value derivatives contracted in place, with the per-event adjoint
+    sampled from a padded image inside the loop, equal the stored (N, P) derivatives
+    contracted by numpy with the plain-numpy bilinear samples."""
     from evmotion.core.regularizers import _FAST, _k_fast_grad_dot, _k_fast_values
 
     th = np.array({"zoom": [8.0], "translation": [3.0, 1.0], "se2": [40.0, 10.0, 30.0],
                    "similarity": [40.0, 10.0, 30.0, 9.0],
                    "inplane": [40.0, 10.0, 3.0, -5.0]}[name])
     rng = np.random.default_rng(10)
-    gd = rng.normal(size=1500)
+    xw, yw = rng.uniform(-2, W + 1, 1500), rng.uniform(-2, H + 1, 1500)
+    img = rng.normal(size=(H, W))
+    pad = np.zeros((H + 2, W + 2))
+    pad[1:-1, 1:-1] = img
+    _, _, gd = _bilinear_adjoint_numpy(xw, yw, img)
+    gd = np.where((xw > -1) & (xw < W) & (yw > -1) & (yw < H), 0.3 * gd, 0.0)
     for is_div, span in ((True, 0.15), (False, 0.15), (True, 0.005)):
         # 0.005 s: every angle below the short-series bound
         dt = rng.uniform(-span * 2 / 3, span / 3, 1500)
         d, g = np.empty(1500), np.empty((1500, th.size))
         _k_fast_values(_FAST[name], is_div, dt, th, 0.15, d, g, True)
         out = np.full(th.size, 0.5)
-        _k_fast_grad_dot(_FAST[name], is_div, dt, th, 0.15, gd, out)
-        np.testing.assert_allclose(out, 0.5 + gd @ g, rtol=1e-12, atol=1e-12)
+        _k_fast_grad_dot(_FAST[name], is_div, xw, yw, dt, th, 0.15, pad.ravel(), H, W, 0.3,
+                         out)
+        np.testing.assert_allclose(out, 0.5 + gd @ g, rtol=1e-11, atol=1e-11)
         # the values-only loops (short series inline) agree with the general ones
         d0 = np.empty(1500)
         _k_fast_values(_FAST[name], is_div, dt, th, 0.15, d0, np.zeros((0, 0)), False)

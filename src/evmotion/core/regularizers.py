@@ -52,15 +52,17 @@ import threading
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _cell, _corners, _shape
+from evmotion.core.iwe import _shape, _vote_bilinear
 from evmotion.core.warps import (
     _BLOCK,
     _EMPTY1,
     _EMPTY2,
     _FAST_FINITE,
     Warp,
+    _cell_diff,
     _k_rot_divdet,
     _max_abs,
+    _pad_index,
     _rod_coeffs,
     _rod_coeffs_exact,
     _rod_coeffs_short,
@@ -94,150 +96,94 @@ _MIN_COUNT = 1e-9  # pixels with less bilinear vote mass hold no warped event
 _LOW63 = np.int64(0x7FFFFFFFFFFFFFFF)  # all float64 bits but the sign
 
 
-@njit(cache=True, error_model="numpy")
-def _fused_forward(xw, yw, d, cnt, num):
-    """Bilinear IWE of ones and of ``d`` in one pass (the same votes as core.iwe's
-    bilinear accumulate, which the tests check)."""
-    h, wd = cnt.shape
-    cnt[:] = 0.0
-    num[:] = 0.0
-    for k in range(xw.shape[0]):
-        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
-        if not inside:
-            continue
-        a = d[k]
-        w00 = (1.0 - fx) * (1.0 - fy)
-        w01 = fx * (1.0 - fy)
-        w10 = (1.0 - fx) * fy
-        w11 = fx * fy
-        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
-            # interior cell (the usual case): no per-vote bounds tests
-            cnt[iy, ix] += w00
-            num[iy, ix] += a * w00
-            cnt[iy, ix + 1] += w01
-            num[iy, ix + 1] += a * w01
-            cnt[iy + 1, ix] += w10
-            num[iy + 1, ix] += a * w10
-            cnt[iy + 1, ix + 1] += w11
-            num[iy + 1, ix + 1] += a * w11
-            continue
-        if iy >= 0:
-            if ix >= 0:
-                cnt[iy, ix] += w00
-                num[iy, ix] += a * w00
-            if ix + 1 < wd:
-                cnt[iy, ix + 1] += w01
-                num[iy, ix + 1] += a * w01
-        if iy + 1 < h:
-            if ix >= 0:
-                cnt[iy + 1, ix] += w10
-                num[iy + 1, ix] += a * w10
-            if ix + 1 < wd:
-                cnt[iy + 1, ix + 1] += w11
-                num[iy + 1, ix + 1] += a * w11
+def _votes(xw, yw, d, shape, count=None):
+    """``(cnt, num)``: the bilinear IWE of ones (``count`` when the caller has it) and of
+    the per-event values ``d`` (the compiled votes of core.iwe, in scratch buffers)."""
+    cnt, num = _scratch((shape,) * 2, "img")
+    if count is None:
+        _vote_bilinear(xw, yw, _EMPTY1, cnt)
+    else:
+        cnt = count
+    _vote_bilinear(xw, yw, d, num)
+    return cnt, num
 
 
 @njit(cache=True, error_model="numpy")
-def _forward_num(xw, yw, d, num):
-    """The ``num`` image of :func:`_fused_forward` alone (same arithmetic), for callers that
-    already hold the vote-count image (CMax's bilinear IWE without weights)."""
-    h, wd = num.shape
-    num[:] = 0.0
+def _backward_events(xw, yw, d, pads, h, wd, scale, gx, gy, gd):
+    """Per-event derivatives ``gx, gy, gd`` (N,) of ``scale * sum(gS * num + gN * cnt)``
+    with respect to ``xw_k, yw_k, d_k`` (0 off the image), ``num``/``cnt`` the bilinear
+    IWEs of ``d`` and of ones, for the chain rule through stored Jacobians; ``pads`` holds
+    ``gN`` then ``gS``, padded (:func:`_trim_pass`), so no corner needs a bounds test."""
+    wp = wd + 2
+    b = (h + 2) * wp
     for k in range(xw.shape[0]):
-        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
-        if not inside:
-            continue
-        a = d[k]
-        w00 = (1.0 - fx) * (1.0 - fy)
-        w01 = fx * (1.0 - fy)
-        w10 = (1.0 - fx) * fy
-        w11 = fx * fy
-        if ix >= 0 and iy >= 0 and ix + 1 < wd and iy + 1 < h:
-            num[iy, ix] += a * w00
-            num[iy, ix + 1] += a * w01
-            num[iy + 1, ix] += a * w10
-            num[iy + 1, ix + 1] += a * w11
-            continue
-        if iy >= 0:
-            if ix >= 0:
-                num[iy, ix] += a * w00
-            if ix + 1 < wd:
-                num[iy, ix + 1] += a * w01
-        if iy + 1 < h:
-            if ix >= 0:
-                num[iy + 1, ix] += a * w10
-            if ix + 1 < wd:
-                num[iy + 1, ix + 1] += a * w11
+        _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
+        e = d[k]
+        s00 = pads[b + i]
+        s01 = pads[b + i + 1]
+        s10 = pads[b + i + wp]
+        s11 = pads[b + i + wp + 1]
+        gx[k], gy[k] = _cell_diff(a, fx, fy, e * s00 + pads[i], e * s01 + pads[i + 1],
+                                  e * s10 + pads[i + wp], e * s11 + pads[i + wp + 1])
+        gd[k] = a * _bilinear_sample(fx, fy, s00, s01, s10, s11)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _fused_adjoint_event(gS, gN, a, ix, iy, fx, fy, scale, h, wd):
-    """``(gx, gy, gd)``: derivatives of ``scale * sum(gS * num + gN * cnt)`` with respect to
-    one event's ``xw, yw`` and value ``a`` (its bilinear cell at (ix, iy) + (fx, fy)).
-    (The corner loads come from one helper's return values: as scalars assigned in
-    branches they compiled to code four times slower.)"""
-    s00, s01, s10, s11 = _corners(gS, ix, iy, h, wd)
-    n00, n01, n10, n11 = _corners(gN, ix, iy, h, wd)
-    g00 = a * s00 + n00
-    g01 = a * s01 + n01
-    g10 = a * s10 + n10
-    g11 = a * s11 + n11
-    gx = scale * ((g01 - g00) * (1.0 - fy) + (g11 - g10) * fy)
-    gy = scale * ((g10 - g00) * (1.0 - fx) + (g11 - g01) * fx)
-    c = scale * (s00 * (1.0 - fx) * (1.0 - fy) + s01 * fx * (1.0 - fy)
-                 + s10 * (1.0 - fx) * fy + s11 * fx * fy)
-    return gx, gy, c
+def _bilinear_sample(fx, fy, s00, s01, s10, s11):
+    """The bilinear interpolation of a cell's corner values at offsets (fx, fy): the
+    derivative of ``sum(g * IWE)`` with respect to the event's IWE weight."""
+    return (s00 * (1.0 - fx) * (1.0 - fy) + s01 * fx * (1.0 - fy)
+            + s10 * (1.0 - fx) * fy + s11 * fx * fy)
 
 
 @njit(cache=True, error_model="numpy")
-def _fused_backward(xw, yw, d, gS, gN, scale, jx, jy, dd, out, gd):
-    """Adjoint of :func:`_fused_forward` for the loss ``scale * sum(gS * num + gN * cnt)``,
-    reduced through the warp Jacobians in the same pass: ``out = jx^T gx + jy^T gy``
-    (+ ``dd^T gd`` if ``dd`` has rows) with ``gx, gy, gd`` the derivatives with respect to
-    ``xw_k, yw_k, d_k``; ``gd`` (N,) is also written (0 off the image)."""
-    h, wd = gS.shape
+def _sample_compact(xw, yw, x, y, dt, fac, gS, h, wd, scale, out):
+    """The events with a nonzero value derivative ``gd_k`` (``scale`` times the bilinear
+    sample of the padded ``gS`` at ``xw_k, yw_k``), in order: rows of ``out`` (>= 4, N) <-
+    ``x, y, dt, gd * fac``. Returns their number. (A branch skips the events off the image
+    or in a cell without trimmed pixel: the usual case for the rotation, where few events
+    reach one.)"""
+    wp = wd + 2
+    m = 0
+    for k in range(xw.shape[0]):
+        xv = xw[k]
+        yv = yw[k]
+        if not (xv > -1.0 and xv < wd and yv > -1.0 and yv < h):
+            continue
+        x0 = math.floor(xv)
+        y0 = math.floor(yv)
+        i = (int(y0) + 1) * wp + int(x0) + 1
+        s00 = gS[i]
+        s01 = gS[i + 1]
+        s10 = gS[i + wp]
+        s11 = gS[i + wp + 1]
+        if s00 == 0.0 and s01 == 0.0 and s10 == 0.0 and s11 == 0.0:
+            continue
+        v = scale * _bilinear_sample(xv - x0, yv - y0, s00, s01, s10, s11)
+        if v == 0.0:
+            continue
+        out[0, m] = x[k]
+        out[1, m] = y[k]
+        out[2, m] = dt[k]
+        out[3, m] = v * fac[k]
+        m += 1
+    return m
+
+
+@njit(cache=True, error_model="numpy")
+def _contract(gx, gy, gd, jx, jy, dd, out):
+    """``out = jx^T gx + jy^T gy`` (+ ``dd^T gd`` if ``dd`` has rows): the chain rule
+    through stored Jacobians (a compiled loop: BLAS threads pinned to one core spin for
+    milliseconds on these small products)."""
     P = out.shape[0]
     use_dd = dd.shape[0] > 0
-    # a fresh accumulator: out might alias jx for all the compiler knows
     acc = np.zeros(P)
-    for k in range(xw.shape[0]):
-        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
-        if not inside:
-            gd[k] = 0.0
-            continue
-        gx, gy, c = _fused_adjoint_event(gS, gN, d[k], ix, iy, fx, fy, scale, h, wd)
-        gd[k] = c
-        if use_dd:
-            for j in range(P):
-                acc[j] += gx * jx[k, j] + gy * jy[k, j] + c * dd[k, j]
-        else:
-            for j in range(P):
-                acc[j] += gx * jx[k, j] + gy * jy[k, j]
+    for k in range(gx.shape[0]):
+        for j in range(P):
+            acc[j] += gx[k] * jx[k, j] + gy[k] * jy[k, j] + (gd[k] * dd[k, j] if use_dd
+                                                               else 0.0)
     for j in range(P):
         out[j] = acc[j]
-
-
-@njit(cache=True, error_model="numpy")
-def _fused_backward_events(xw, yw, d, gS, gN, scale, gx, gy, gd):
-    """:func:`_fused_backward` stopped before the warp: the per-event derivatives ``gx,
-    gy, gd`` (N,) with respect to ``xw_k, yw_k, d_k`` (0 off the image), for warps that
-    contract them with their Jacobian recomputed (``Warp.vjp``) instead of stored.
-    Returns the number of events with any nonzero derivative."""
-    h, wd = gS.shape
-    n_act = 0
-    for k in range(xw.shape[0]):
-        inside, ix, iy, fx, fy = _cell(xw[k], yw[k], h, wd)
-        if not inside:
-            gx[k] = 0.0
-            gy[k] = 0.0
-            gd[k] = 0.0
-            continue
-        a, b, c = _fused_adjoint_event(gS, gN, d[k], ix, iy, fx, fy, scale, h, wd)
-        gx[k] = a
-        gy[k] = b
-        gd[k] = c
-        n_act += 1 if (a != 0.0 or b != 0.0 or c != 0.0) else 0
-    return n_act
 
 
 @njit(cache=True, error_model="numpy")
@@ -286,11 +232,10 @@ def window_span(dt) -> float:
 
 
 def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True,
-                  T: float | None = None, xw=None, yw=None, scratch: bool = True):
+                  T: float | None = None, xw=None, yw=None):
     """(d_k, dd_k/dtheta, fac): divergence per window (1/s times T, the window's span,
     computed from ``dt`` unless given), or |det J| - 1. ``xw, yw``: the events warped
     with ``theta``, if at hand (the rotation's values are cheapest from them).
-    ``scratch=False`` allocates the outputs (for event subsets of changing size).
 
     ``dd`` is None without ``want_grad``, and always for the rotation: its derivatives are
     contracted later, only for the events that reach a trimmed pixel
@@ -303,16 +248,15 @@ def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True
     elif T is None:
         T = window_span(dt)
     n = dt.shape[0]
-    buffers = _scratch if scratch else (lambda shapes, tag: tuple(np.empty(s) for s in shapes))
     if code is not None:
         if want_grad:
-            d, g = buffers(((n,), (n, warp.n_params)), "ev")
+            d, g = _scratch(((n,), (n, warp.n_params)), "ev")
         else:
-            (d,), g = buffers(((n,),), "ev0"), None
+            (d,), g = _scratch(((n,),), "ev0"), None
         _k_fast_values(code, is_div, dt, theta, T, d, _EMPTY2 if g is None else g, want_grad)
         return d, g, None
     if warp.name == "rotation":
-        d, fac = buffers(((n,), (n,)), "ev1")
+        d, fac = _scratch(((n,), (n,)), "ev1")
         if xw is None or yw is None:
             xw, yw = warp.warp(x, y, dt, theta)
         _k_rot_values(xw, yw, dt, theta, warp._kinv, is_div, T, d, fac)
@@ -329,11 +273,10 @@ def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True
     return np.abs(det) - 1.0, g * sgn[:, None], None
 
 
-def _rotation_grad(warp, kind, x, y, dt, th, gd, fac, out, scratch=True):
+def _rotation_grad(warp, kind, x, y, dt, th, gd, fac, out):
     """``out += sum_k gd_k dd_k/d omega`` without an (N, 3) buffer (``fac`` is
-    overwritten). ``scratch=False`` for event subsets of changing size."""
-    n = gd.shape[0]
-    (gw,) = _scratch(((n,),), "gw") if scratch else (np.empty(n),)
+    overwritten)."""
+    (gw,) = _scratch(((gd.shape[0],),), "gw")
     np.multiply(gd, fac, out=gw)
     _k_rot_divdet(x, y, dt, th, warp._kinv, kind == "divergence", fac, _EMPTY2, gw, out)
 
@@ -535,23 +478,32 @@ def _k_fast_values(code, is_div, dt, th, T, d, g, want_g):
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_fast_grad_dot(code, is_div, dt, th, T, gd, out):
+def _k_fast_grad_dot(code, is_div, xw, yw, dt, th, T, gS, h, wd, scale, out):
     """``out += sum_k gd_k dd_k/dtheta`` for the closed forms of :func:`_k_fast_values`,
-    without the (N, P) derivatives: one branch-free loop per case into scalar sums."""
+    with ``gd_k`` = ``scale`` times the bilinear sample of ``gS`` (the (h, wd) image padded
+    by a ring of zeros, flat) at the event ``xw_k, yw_k`` (0 off the image): the value
+    derivatives of a trimmed mean. No (N, P) derivatives, no per-event buffer: one
+    branch-free loop per case into scalar sums, which vectorizes (gathers); the sample is
+    written out in each loop (a helper taking the image would stop the vectorization)."""
     n = dt.shape[0]
     P = th.shape[0]
+    wp = wd + 2
     a2 = 0.0
     a3 = 0.0
     if code == 0:  # zoom
-        h = th[0]
+        hz = th[0]
         if is_div:
             for k in range(n):
-                a2 += gd[k]
+                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
+                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
+                a2 += g
             out[0] += -2.0 * T * a2
         else:
             for k in range(n):
+                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
+                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
                 t = dt[k]
-                a2 += gd[k] * (-2.0 * t * (1.0 - t * h))
+                a2 += g * (-2.0 * t * (1.0 - t * hz))
             out[0] += a2
     elif code == 2:  # SE(2) and similarity
         w = th[2]
@@ -559,9 +511,11 @@ def _k_fast_grad_dot(code, is_div, dt, th, T, gd, out):
         if not is_div:
             if P == 4:
                 for k in range(n):
+                    _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
+                    g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
                     t = dt[k]
                     ib = 1.0 / (1.0 + t * s)
-                    a3 += gd[k] * (-2.0 * t * ib * ib * ib)
+                    a3 += g * (-2.0 * t * ib * ib * ib)
                 out[3] += a3
             return
         small = _max_abs(dt) * abs(w) < 1.0
@@ -576,12 +530,14 @@ def _k_fast_grad_dot(code, is_div, dt, th, T, gd, out):
                     sbuf[k - k0] = math.sin(-dt[k] * w)
                     cbuf[k - k0] = math.cos(-dt[k] * w)
             for k in range(k0, k1):
+                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
+                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
                 t = dt[k]
                 ib = 1.0 / (1.0 + t * s)
                 sn = -sbuf[k - k0]
                 c = cbuf[k - k0]
                 ib2 = ib * ib
-                f = gd[k]
+                f = g
                 a2 += f * (2.0 * s * ib2 * t * sn - 2.0 * ib * sn - 2.0 * w * ib * t * c)
                 a3 += f * (-2.0 * c * ib2 + 4.0 * s * t * c * ib2 * ib + 2.0 * w * t * sn * ib2)
         out[2] += T * a2
@@ -593,17 +549,21 @@ def _k_fast_grad_dot(code, is_div, dt, th, T, gd, out):
         sn = math.sin(th[2])
         if is_div:
             for k in range(n):
-                a2 += gd[k]
+                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
+                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
+                a2 += g
             out[2] += T * 2.0 * kk * sn * a2
             out[3] += -T * 2.0 * c * a2
         else:
             for k in range(n):
+                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
+                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
                 t = dt[k]
-                a = 1.0 + t
-                det = a * a - 2.0 * a * t * kk * c + t * t * kk * kk
-                f = gd[k] if det >= 0 else -gd[k]
-                a2 += f * (2.0 * a * t * kk * sn)
-                a3 += f * (-2.0 * a * t * c + 2.0 * t * t * kk)
+                e = 1.0 + t
+                det = e * e - 2.0 * e * t * kk * c + t * t * kk * kk
+                f = g if det >= 0 else -g
+                a2 += f * (2.0 * e * t * kk * sn)
+                a3 += f * (-2.0 * e * t * c + 2.0 * t * t * kk)
             out[2] += a2
             out[3] += a3
 
@@ -671,15 +631,28 @@ def _prepare(warp, x, y, dt, theta, xw, yw):
 
 
 @njit(cache=True, error_model="numpy", fastmath=True)
-def _trim_pass(cnt, num, margin, gS, gN):
+def _trim_pass(cnt, num, margin, gN, gS):
     """Adjoint images of ``sum_{num/cnt < margin} num/cnt`` (supported pixels only):
-    ``gS = 1/cnt``, ``gN = -mean/cnt`` there, 0 elsewhere. Returns (sum, n).
+    ``gN = -mean/cnt`` (of ``cnt``) and ``gS = 1/cnt`` (of ``num``) there, 0 elsewhere,
+    each written flat into the image padded by a ring of zeros ((H + 2) (W + 2),; the
+    layout of :meth:`evmotion.core.warps.Warp.reduce_pair`). Returns (sum, n).
 
     Branch-free (selects, no jumps) so that it vectorizes; fastmath only reorders the sum."""
     h, w = cnt.shape
+    wp = w + 2
+    for j in range(wp):
+        gN[j] = 0.0
+        gS[j] = 0.0
+        gN[(h + 1) * wp + j] = 0.0
+        gS[(h + 1) * wp + j] = 0.0
     total = 0.0
     n_sel = 0
     for i in range(h):
+        r = (i + 1) * wp
+        gN[r] = 0.0
+        gS[r] = 0.0
+        gN[r + wp - 1] = 0.0
+        gS[r + wp - 1] = 0.0
         for j in range(w):
             c = cnt[i, j]
             ok = c > _MIN_COUNT
@@ -689,16 +662,15 @@ def _trim_pass(cnt, num, margin, gS, gN):
             gs = ic if sel else 0.0
             total += m if sel else 0.0
             n_sel += 1 if sel else 0
-            gS[i, j] = gs
-            gN[i, j] = -m * gs
+            gN[r + 1 + j] = -m * gs
+            gS[r + 1 + j] = gs
     return total, n_sel
 
 
 def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw):
     """(d, fac, cnt, num) of the DIWE/IWA: per-event values and their vote images."""
     d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False, xw=xw, yw=yw)
-    cnt, num = _scratch((shape,) * 2, "img")
-    _fused_forward(xw, yw, d, cnt, num)
+    cnt, num = _votes(xw, yw, d, shape)
     return d, fac, cnt, num
 
 
@@ -707,7 +679,57 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
     x, y, dt, th, xw, yw = _prepare(warp, x, y, dt, theta, xw, yw)
     if count is not None:
         count = _count_image(count, shape)
-    zero = (0.0, np.zeros(warp.n_params))
+    h, wd = shape
+    (pads,) = _scratch(((2 * (h + 2) * (wd + 2),),), "adj")
+    value, g, d, fac, scale = _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin,
+                                             pads, span, count, grad)
+    if d is None or not grad:
+        return value, g
+    T = window_span(dt) if span is None else _span_T(span)
+    if (jx is None or jy is None) and chains_pair(warp):
+        _value_derivs(kind, warp, x, y, dt, xw, yw, th, shape, T, fac, pads, scale, g)
+        g += warp.reduce_pair(x, y, dt, xw, yw, th, pads, d, h, wd, np.empty(g.shape[0]),
+                              scale)
+        return value, g
+    n = x.shape[0]
+    dd = None
+    if fac is None:
+        # the value derivatives (the values themselves are unchanged)
+        d, dd, _ = _event_values(kind, warp, x, y, dt, th, T=T)
+    if jx is None or jy is None:
+        # only now: the Jacobians matter only when some pixel is trimmed
+        _, _, jx, jy = warp.warp(x, y, dt, th, jacobian=True)
+    gx, gy, gd = _scratch(((n,),) * 3, "gjac")
+    _backward_events(xw, yw, d, pads, h, wd, scale, gx, gy, gd)
+    _contract(gx, gy, gd, np.ascontiguousarray(jx), np.ascontiguousarray(jy),
+              _EMPTY2 if dd is None else np.ascontiguousarray(dd), g)
+    if fac is not None:
+        _rotation_grad(warp, kind, x, y, dt, th, gd, fac, g)
+    return value, g
+
+
+def chains_pair(warp: Warp) -> bool:
+    """Whether the trimmed penalties of ``warp`` chain their gradient through
+    :meth:`~evmotion.core.warps.Warp.reduce_pair` and :func:`_value_derivs` (no stored
+    Jacobians): the warps with fused adjoints whose per-event values have compiled
+    derivatives (closed forms, rotation)."""
+    return hasattr(warp, "reduce_pair") and (warp.name in _FAST or warp.name == "rotation")
+
+
+def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=None,
+                   count=None, grad=True):
+    """The divergence or deformation penalty up to the chain rule through the warp, for
+    callers that fuse that step with their own (CMax's data term): ``(value, g, d, fac,
+    scale)`` for checked events and theta (:func:`_prepare`).
+
+    ``d`` None: ``value`` and ``g`` (P,) are complete (no pixel trimmed, or the constant
+    divergence; ``g`` None without ``grad``). Otherwise ``g`` (P,) is uninitialized and
+    ``pads`` (2 (H + 2) (W + 2),) holds the adjoint images ``gN``, ``gS`` of the penalty
+    divided by ``scale`` (with respect to the vote counts and the votes of the per-event
+    values ``d``; padded by a ring of zeros): the gradient is that of ``scale * sum(gN *
+    cnt + gS * num)`` through the votes (:meth:`~evmotion.core.warps.Warp.reduce_pair`,
+    ``d`` held fixed) plus the values' part (:func:`_value_derivs`, which needs ``fac``)."""
+    zero = (0.0, np.zeros(warp.n_params) if grad else None, None, None, 0.0)
     T = None
     if kind == "divergence":
         T = window_span(dt) if span is None else _span_T(span)
@@ -719,66 +741,41 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
         d, dd, _ = _event_values(kind, warp, x[:1], y[:1], dt[:1], th, T=T)
         if not (d[0] < m and _any_vote(xw, yw, shape[0], shape[1])):
             return zero
-        return -float(d[0]), (-dd[0].copy() if grad else None)
+        return -float(d[0]), (-dd[0].copy() if grad else None), None, None, 0.0
     d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False, T=T, xw=xw, yw=yw)
     if _all_above(d, m):
         # no collapse anywhere (the usual case away from collapse): no maps to build
         return zero
     # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
-    cnt, num = _scratch((shape,) * 2, "img")
-    if count is None:
-        _fused_forward(xw, yw, d, cnt, num)
-    else:
-        cnt = count
-        _forward_num(xw, yw, d, num)
-    gS, gN = _scratch((shape,) * 2, "adj")
-    total, n_sel = _trim_pass(cnt, num, m, gS, gN)
+    cnt, num = _votes(xw, yw, d, shape, count)
+    size = pads.shape[0] // 2
+    total, n_sel = _trim_pass(cnt, num, m, pads[:size], pads[size:])
     if n_sel == 0:
         return zero
     scale = -1.0 / n_sel
     if not grad:
-        return total * scale, None
-    n = x.shape[0]
-    g = np.empty(warp.n_params)
-    no_jac = jx is None or jy is None
-    if no_jac and hasattr(warp, "vjp"):
-        # per-event adjoints; only the events voting into a trimmed pixel have any, so the
-        # rest of the chain rule (the warp's vjp, with its Jacobian recomputed, never
-        # stored, and the value derivatives) runs over those events alone
-        gx, gy, gd, dbuf = _scratch(((n,),) * 4, "gev")
-        n_act = _fused_backward_events(xw, yw, d, gS, gN, scale, gx, gy, gd)
-        ev = (x, y, dt, xw, yw, gx, gy, gd, dbuf if fac is None else fac)
-        if n_act < n // 2:
-            (buf,) = _scratch(((9, n),), "sub")
-            _compact(*ev[:8], _EMPTY1 if fac is None else fac, buf)
-            ev = tuple(buf[i, :n_act] for i in range(9))
-        xs, ys, dts, xws, yws, gxs, gys, gds, facs = ev
-        warp.vjp(xs, ys, dts, xws, yws, th, gxs, gys, g)
-        code = _FAST.get(warp.name)
-        if fac is not None:
-            _rotation_grad(warp, kind, xs, ys, dts, th, gds, facs, g,
-                           scratch=xs.shape[0] == n)
-        elif code is not None:
-            _k_fast_grad_dot(code, kind == "divergence", dts, th, 1.0 if T is None else T,
-                             gds, g)
-        else:
-            _, dds, _ = _event_values(kind, warp, xs, ys, dts, th, T=T, scratch=False)
-            _add_contraction(gds, dds, g)
-        return total * scale, g
-    dd = None
+        return total * scale, None, None, None, 0.0
+    return total * scale, np.empty(warp.n_params), d, fac, scale
+
+
+def _value_derivs(kind, warp, x, y, dt, xw, yw, th, shape, T, fac, pads, scale, out):
+    """``out`` (P,) = the part of a trimmed penalty's gradient through its per-event values
+    (``gd_k dd_k/dtheta``, ``gd_k`` the bilinear sample of ``scale * gS`` at the event;
+    after :func:`_trimmed_parts`, for warps that :func:`chains_pair`)."""
+    h, wd = shape
+    out[:] = 0.0
+    gS = pads[pads.shape[0] // 2:]
     if fac is None:
-        # the value derivatives (the values themselves are unchanged)
-        d, dd, _ = _event_values(kind, warp, x, y, dt, th, T=T)
-    if no_jac:
-        # only now: the Jacobians matter only when some pixel is trimmed
-        _, _, jx, jy = warp.warp(x, y, dt, th, jacobian=True)
-    (gd,) = _scratch(((n,),), "gd")
-    _fused_backward(xw, yw, d, gS, gN, scale, np.ascontiguousarray(jx),
-                    np.ascontiguousarray(jy), _EMPTY2 if dd is None else
-                    np.ascontiguousarray(dd), g, gd)
-    if fac is not None:
-        _rotation_grad(warp, kind, x, y, dt, th, gd, fac, g)
-    return total * scale, g
+        _k_fast_grad_dot(_FAST[warp.name], kind == "divergence", xw, yw, dt, th,
+                         T if kind == "divergence" else 1.0, gS, h, wd, scale, out)
+        return
+    # the rotation's value derivatives cost more per event: over the events voting into a
+    # trimmed pixel only
+    n = x.shape[0]
+    (sub,) = _scratch(((5, n),), "sub")
+    m = _sample_compact(xw, yw, x, y, dt, fac, gS, h, wd, scale, sub)
+    _k_rot_divdet(sub[0, :m], sub[1, :m], sub[2, :m], th, warp._kinv, kind == "divergence",
+                  sub[4, :m], _EMPTY2, sub[3, :m], out)
 
 
 @njit(cache=True, error_model="numpy")
@@ -790,29 +787,6 @@ def _add_contraction(gd, dd, out):
         for k in range(gd.shape[0]):
             acc += gd[k] * dd[k, j]
         out[j] += acc
-
-
-@njit(cache=True, error_model="numpy")
-def _compact(x, y, dt, xw, yw, gx, gy, gd, fac, out):
-    """Rows of ``out`` (9, N) <- x, y, dt, xw, yw, gx, gy, gd, fac (fac if given) of the
-    events with a nonzero adjoint, in order; returns their number (that of
-    :func:`_fused_backward_events`)."""
-    use_fac = fac.shape[0] > 0
-    m = 0
-    for k in range(x.shape[0]):
-        if gx[k] == 0.0 and gy[k] == 0.0 and gd[k] == 0.0:
-            continue
-        out[0, m] = x[k]
-        out[1, m] = y[k]
-        out[2, m] = dt[k]
-        out[3, m] = xw[k]
-        out[4, m] = yw[k]
-        out[5, m] = gx[k]
-        out[6, m] = gy[k]
-        out[7, m] = gd[k]
-        out[8, m] = fac[k] if use_fac else 0.0
-        m += 1
-    return m
 
 
 # ---------------------------------------------------------------------------------------

@@ -761,6 +761,13 @@ def _cell_diff(a, fx, fy, g00, g01, g10, g11):
             a * ((g10 - g00) * (1.0 - fx) + (g11 - g01) * fx))
 
 
+@njit(cache=True, error_model="numpy")
+def _pair_diff(a, fx, fy, e, g00, g01, g10, g11, b00, b01, b10, b11):
+    """:func:`_cell_diff` of the cell values ``g + e b``: the pixel gradients of a loss on
+    two IWEs, of ones (adjoint ``g``) and of per-event values ``e`` (adjoint ``b``)."""
+    return _cell_diff(a, fx, fy, g00 + e * b00, g01 + e * b01, g10 + e * b10, g11 + e * b11)
+
+
 @njit(cache=True, inline="always")
 def _rot_bc(z, mode):
     """The Rodrigues coefficients (b, c) in series mode ``mode`` (:func:`_rot_rates`)."""
@@ -769,19 +776,27 @@ def _rot_bc(z, mode):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_loop(mode, fuse, use_w, args):
+def _rot_loop(mode, fuse, use_w, pair, args):
     xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale = args
     wx, wy, wz = prm[0], prm[1], prm[2]
     ww = wx * wx + wy * wy + wz * wz
     k00, k01, k10, k11 = prm[3], prm[4], prm[5], prm[6]
     i00, i01, i02, i10, i11, i12 = prm[7], prm[8], prm[9], prm[10], prm[11], prm[12]
     wp = wd + 2
+    p2 = (h + 2) * wp  # start of the second image in pair mode
     a0 = a1 = a2 = 0.0
     for k in range(xw.shape[0]):
         if fuse:
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k],
-                                                 wts[k] if use_w else 1.0, scale, h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k] if use_w and
+                                                 not pair else 1.0, scale, h, wd)
+            if pair:
+                j = i + p2
+                gX, gY = _pair_diff(a, fx, fy, wts[k], pad[i], pad[i + 1], pad[i + wp],
+                                    pad[i + wp + 1], pad[j], pad[j + 1], pad[j + wp],
+                                    pad[j + wp + 1])
+            else:
+                gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp],
+                                    pad[i + wp + 1])
         else:
             xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
         b, c = _rot_bc(t * t * ww, mode)
@@ -802,38 +817,53 @@ def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
     mode = _rot_rates(dt, prm)[4]
     use_w = wts.shape[0] > 0
     fuse = pad.shape[0] > 0
+    pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
     a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
     if not fuse and mode == 0:
-        acc = _rot_loop(0, False, False, a)
+        acc = _rot_loop(0, False, False, False, a)
     elif not fuse and mode == 1:
-        acc = _rot_loop(1, False, False, a)
+        acc = _rot_loop(1, False, False, False, a)
     elif not fuse:
-        acc = _rot_loop(2, False, False, a)
+        acc = _rot_loop(2, False, False, False, a)
+    elif pair and mode == 0:
+        acc = _rot_loop(0, True, True, True, a)
+    elif pair and mode == 1:
+        acc = _rot_loop(1, True, True, True, a)
+    elif pair:
+        acc = _rot_loop(2, True, True, True, a)
     elif mode == 0 and use_w:
-        acc = _rot_loop(0, True, True, a)
+        acc = _rot_loop(0, True, True, False, a)
     elif mode == 0:
-        acc = _rot_loop(0, True, False, a)
+        acc = _rot_loop(0, True, False, False, a)
     elif mode == 1 and use_w:
-        acc = _rot_loop(1, True, True, a)
+        acc = _rot_loop(1, True, True, False, a)
     elif mode == 1:
-        acc = _rot_loop(1, True, False, a)
+        acc = _rot_loop(1, True, False, False, a)
     else:
-        acc = _rot_loop(2, True, use_w, a)
+        acc = _rot_loop(2, True, use_w, False, a)
     for j in range(3):
         out[j] = acc[j]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _similarity_loop(small, fuse, use_w, args):
+def _similarity_loop(small, fuse, use_w, pair, args):
     xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale = args
     w, s, cx, cy = prm[0], prm[1], prm[2], prm[3]
     wp = wd + 2
+    p2 = (h + 2) * wp  # start of the second image in pair mode
     a0 = a1 = a2 = a3 = 0.0
     for k in range(xw.shape[0]):
         if fuse:
-            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k],
-                                                 wts[k] if use_w else 1.0, scale, h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k] if use_w and
+                                                 not pair else 1.0, scale, h, wd)
+            if pair:
+                j = i + p2
+                gX, gY = _pair_diff(a, fx, fy, wts[k], pad[i], pad[i + 1], pad[i + wp],
+                                    pad[i + wp + 1], pad[j], pad[j + 1], pad[j + wp],
+                                    pad[j + wp + 1])
+            else:
+                gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp],
+                                    pad[i + wp + 1])
         else:
             xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
         sn, c = _sincos_any(-t * w, small)
@@ -851,23 +881,28 @@ def _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
     (3,) or (4,))."""
     small = _max_abs(dt) * abs(prm[0]) < 1.0
     use_w = wts.shape[0] > 0
+    pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
     a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
     if pad.shape[0] == 0 and small:
-        acc = _similarity_loop(True, False, False, a)
+        acc = _similarity_loop(True, False, False, False, a)
     elif pad.shape[0] == 0:
-        acc = _similarity_loop(False, False, False, a)
+        acc = _similarity_loop(False, False, False, False, a)
+    elif pair and small:
+        acc = _similarity_loop(True, True, True, True, a)
+    elif pair:
+        acc = _similarity_loop(False, True, True, True, a)
     elif small and use_w:
-        acc = _similarity_loop(True, True, True, a)
+        acc = _similarity_loop(True, True, True, False, a)
     elif small:
-        acc = _similarity_loop(True, True, False, a)
+        acc = _similarity_loop(True, True, False, False, a)
     else:
-        acc = _similarity_loop(False, True, use_w, a)
+        acc = _similarity_loop(False, True, use_w, False, a)
     for j in range(out.shape[0]):
         out[j] = acc[j]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _simple_loop(kind, fuse, use_w, args):
+def _simple_loop(kind, fuse, use_w, pair, args):
     """Zoom (kind 0), translation (1), in-plane (2): the zoom and in-plane warps are
     recomputed from the events (cheaper than reading their warped pixels as well)."""
     x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale = args
@@ -878,6 +913,7 @@ def _simple_loop(kind, fuse, use_w, args):
     elif kind == 2:
         c, sn, kk, vx, vy = prm[2], prm[3], prm[4], prm[5], prm[6]
     wp = wd + 2
+    p2 = (h + 2) * wp  # start of the second image in pair mode
     a0 = a1 = a2 = a3 = 0.0
     for k in range(xw.shape[0]):
         t = dt[k]
@@ -893,9 +929,16 @@ def _simple_loop(kind, fuse, use_w, args):
             xv0 = xw[k]
             yv0 = yw[k]
         if fuse:
-            xv, yv, t, a, fx, fy, i = _pad_index(xv0, yv0, t, wts[k] if use_w else 1.0, scale,
-                                                 h, wd)
-            gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1])
+            xv, yv, t, a, fx, fy, i = _pad_index(xv0, yv0, t, wts[k] if use_w and not pair
+                                                 else 1.0, scale, h, wd)
+            if pair:
+                j = i + p2
+                gX, gY = _pair_diff(a, fx, fy, wts[k], pad[i], pad[i + 1], pad[i + wp],
+                                    pad[i + wp + 1], pad[j], pad[j + 1], pad[j + wp],
+                                    pad[j + wp + 1])
+            else:
+                gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp],
+                                    pad[i + wp + 1])
             # where the event has no vote its weight is 0: any finite point will do
             ok = xv == xv0
             xc = xc if ok else 0.0
@@ -921,25 +964,32 @@ def _k_simple_adj(kind, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, o
     2; ``prm``: c, then h_z (zoom) or cos phi, sin phi, h_z + 1, vx, vy (in-plane))."""
     use_w = wts.shape[0] > 0
     fuse = pad.shape[0] > 0
+    pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
     a = (x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
     if kind == 0 and not fuse:
-        acc = _simple_loop(0, False, False, a)
+        acc = _simple_loop(0, False, False, False, a)
+    elif kind == 0 and pair:
+        acc = _simple_loop(0, True, True, True, a)
     elif kind == 0 and use_w:
-        acc = _simple_loop(0, True, True, a)
+        acc = _simple_loop(0, True, True, False, a)
     elif kind == 0:
-        acc = _simple_loop(0, True, False, a)
+        acc = _simple_loop(0, True, False, False, a)
     elif kind == 1 and not fuse:
-        acc = _simple_loop(1, False, False, a)
+        acc = _simple_loop(1, False, False, False, a)
+    elif kind == 1 and pair:
+        acc = _simple_loop(1, True, True, True, a)
     elif kind == 1 and use_w:
-        acc = _simple_loop(1, True, True, a)
+        acc = _simple_loop(1, True, True, False, a)
     elif kind == 1:
-        acc = _simple_loop(1, True, False, a)
+        acc = _simple_loop(1, True, False, False, a)
     elif not fuse:
-        acc = _simple_loop(2, False, False, a)
+        acc = _simple_loop(2, False, False, False, a)
+    elif pair:
+        acc = _simple_loop(2, True, True, True, a)
     elif use_w:
-        acc = _simple_loop(2, True, True, a)
+        acc = _simple_loop(2, True, True, False, a)
     else:
-        acc = _simple_loop(2, True, False, a)
+        acc = _simple_loop(2, True, False, False, a)
     for j in range(out.shape[0]):
         out[j] = acc[j]
 
@@ -1466,6 +1516,32 @@ class _FusedAdjoint:
         _pad_image(g, float(shift), pad)
         w = _EMPTY1 if weights is None else weights
         self._adj(x, y, dt, xw, yw, self._theta(theta), _EMPTY1, _EMPTY1, w, pad, h, wd,
+                  float(scale), out)
+        return out
+
+    def reduce_pair(self, x, y, dt, xw, yw, theta, pads, values, h, wd, out,
+                    scale: float = 1.0) -> np.ndarray:
+        """:meth:`reduce_bilinear` for a loss on two bilinear IWEs of ``xw, yw``, of ones
+        and of per-event ``values`` (held fixed): ``out`` (P,) = dL/dtheta given
+        ``dL/dIWE_ones = A`` and ``dL/dIWE_values = B``, one pass over the events with the
+        Jacobians recomputed, not stored. ``pads`` (2 (h + 2) (wd + 2),) float64 holds
+        ``A`` then ``B``, each an (h, wd) image padded by a ring of zeros (row-major);
+        ``values`` (N,) float64 contiguous; the result is multiplied by ``scale``; other
+        arguments as in :meth:`vjp`.
+
+        Examples
+        --------
+        >>> w = make_warp("translation", sensor_size=(1, 2))
+        >>> x = np.array([0.25]); y = np.zeros(1); dt = np.array([1.0])
+        >>> pads = np.zeros((2, 3, 4)); pads[0, 1, 2] = 1.0; pads[1, 1, 2] = 2.0
+        >>> w.reduce_pair(x, y, dt, x, y, np.zeros(2), pads.ravel(), np.array([0.5]), 1,
+        ...               2, np.empty(2))
+        array([-2. ,  0.5])
+        """
+        if pads.shape[0] != 2 * (h + 2) * (wd + 2):
+            raise ParameterError(f"pads must hold two padded ({h}, {wd}) images, got "
+                                 f"{pads.shape[0]} values")
+        self._adj(x, y, dt, xw, yw, self._theta(theta), _EMPTY1, _EMPTY1, values, pads, h, wd,
                   float(scale), out)
         return out
 

@@ -47,7 +47,6 @@ Examples
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -55,7 +54,7 @@ import numpy as np
 from numba import njit
 
 from evmotion.core.iwe import (
-    _cell,
+    _vote_bilinear,
     accumulate,
     accumulate_backward_into,
     accumulate_backward_reduce,
@@ -69,8 +68,14 @@ from evmotion.core.objectives import (
 )
 from evmotion.core.optim import OptimResult, landscape, minimize
 from evmotion.core.regularizers import (
+    DEFAULT_MARGINS,
     DEFAULT_WEIGHTS,
     REGULARIZERS,
+    _checked_theta,
+    _span_T,
+    _trimmed_parts,
+    _value_derivs,
+    chains_pair,
     regularizer_maps,
     regularizer_value_grad,
     whiten,
@@ -126,81 +131,6 @@ def _chain(gx, gy, jx, jy, out):
 
 
 _NO_WEIGHTS = np.empty(0)
-_VOTE_BLOCK = 256  # events per block of _vote_bilinear: its buffers stay in L1
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _vote_cells(use_w, xs, ys, ws, wd, h, ib, w00, w01, w10, w11):
-    """Flat index of the top-left pixel and the four vote weights of each event of a block
-    whose cell lies inside the (h, wd) image (index -1 otherwise): branch-free, so the
-    loop vectorizes; the arithmetic of :func:`evmotion.core.iwe._fwd_bilinear`."""
-    for j in range(xs.shape[0]):
-        xv = xs[j]
-        yv = ys[j]
-        interior = (xv >= 0.0) & (xv < wd - 1) & (yv >= 0.0) & (yv < h - 1)
-        xc = xv if interior else 0.0
-        yc = yv if interior else 0.0
-        x0 = math.floor(xc)
-        y0 = math.floor(yc)
-        fx = xc - x0
-        fy = yc - y0
-        a = ws[j] if use_w else 1.0
-        ay = a * fy
-        a1y = a - ay
-        ib[j] = int(y0) * wd + int(x0) if interior else -1
-        w00[j] = a1y * (1.0 - fx)
-        w01[j] = a1y * fx
-        w10[j] = ay * (1.0 - fx)
-        w11[j] = ay * fx
-
-
-@njit(cache=True, error_model="numpy")
-def _vote_bilinear(xw, yw, wts, out):
-    """The bilinear IWE of :func:`evmotion.core.iwe.accumulate_into` into ``out`` (H, W),
-    equal bit for bit (same votes, same arithmetic, same order of summation), about 25 %
-    faster: the cells and vote weights of a block of events are computed first, in a loop
-    that vectorizes, then scattered; events whose cell crosses the border take the
-    bounds-tested path of the original."""
-    h, wd = out.shape
-    flat = out.reshape(out.size)
-    for i in range(flat.shape[0]):
-        flat[i] = 0.0
-    use_w = wts.shape[0] > 0
-    ib = np.empty(_VOTE_BLOCK, np.int64)
-    w00 = np.empty(_VOTE_BLOCK)
-    w01 = np.empty(_VOTE_BLOCK)
-    w10 = np.empty(_VOTE_BLOCK)
-    w11 = np.empty(_VOTE_BLOCK)
-    n = xw.shape[0]
-    for k0 in range(0, n, _VOTE_BLOCK):
-        k1 = min(k0 + _VOTE_BLOCK, n)
-        if use_w:
-            _vote_cells(True, xw[k0:k1], yw[k0:k1], wts[k0:k1], wd, h, ib, w00, w01, w10, w11)
-        else:
-            _vote_cells(False, xw[k0:k1], yw[k0:k1], wts, wd, h, ib, w00, w01, w10, w11)
-        for j in range(k1 - k0):
-            i = ib[j]
-            if i >= 0:
-                flat[i] += w00[j]
-                flat[i + 1] += w01[j]
-                flat[i + wd] += w10[j]
-                flat[i + wd + 1] += w11[j]
-                continue
-            inside, ix, iy, fx, fy = _cell(xw[k0 + j], yw[k0 + j], h, wd)
-            if not inside:
-                continue
-            a = wts[k0 + j] if use_w else 1.0
-            if iy >= 0:
-                if ix >= 0:
-                    out[iy, ix] += a * (1.0 - fx) * (1.0 - fy)
-                if ix + 1 < wd:
-                    out[iy, ix + 1] += a * fx * (1.0 - fy)
-            if iy + 1 < h:
-                if ix >= 0:
-                    out[iy + 1, ix] += a * (1.0 - fx) * fy
-                if ix + 1 < wd:
-                    out[iy + 1, ix + 1] += a * fx * fy
-    return out
 
 
 #: Side (px, a power of 2) of the sensor tiles in which the fused path visits the events.
@@ -242,6 +172,21 @@ def _tile_order(x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndar
         order[start[key[k]]] = k
         start[key[k]] += 1
     return order
+
+
+@njit(cache=True, error_model="numpy")
+def _fold_adjoints(g, shift, c, f, gN, gS):
+    """The adjoint images of ``J`` = data term + penalty for ``Warp.reduce_pair``, in place
+    on the padded penalty images: ``gN <- c (g - shift) + f gN`` (vote counts: the data
+    term's adjoint ``c (g - shift)`` of the IWE (H, W) plus the penalty's) and
+    ``gS <- f gS`` (the votes of the per-event values), the padding ring left 0."""
+    h, wd = g.shape
+    wp = wd + 2
+    for i in range(h):
+        r = (i + 1) * wp + 1
+        for j in range(wd):
+            gN[r + j] = c * (g[i, j] - shift) + f * gN[r + j]
+            gS[r + j] *= f
 
 
 def _scales(warp: Warp) -> np.ndarray:
@@ -345,6 +290,11 @@ class CMaxCost:
         self.giwe = np.empty(self.shape)
         # the padded image of the fused bilinear adjoint (Warp.reduce_bilinear)
         self._pad = np.empty((self.shape[0] + 2) * (self.shape[1] + 2)) if self.fused else None
+        # divergence and deformation chain their votes' adjoint through the data term's
+        # pass over the events (Warp.reduce_pair), their counts being the data term's IWE
+        self._pair = (self.fused and regularizer in ("divergence", "deformation")
+                      and chains_pair(warp) and not self.needs_time and kernel == "bilinear")
+        self._pads = np.empty(2 * self._pad.shape[0]) if self._pair else None
         self.gtheta = np.empty(p)
         # whitening maps the cloud back to the image centre at the spread of the raw events
         self._wcenter = ((self.shape[1] - 1) / 2.0, (self.shape[0] - 1) / 2.0)
@@ -476,10 +426,41 @@ class CMaxCost:
         # and lambda apply as the thesis states them: no further time scaling here
         return self.weight * r, (self.weight * g if grad else None)
 
+    def _value_grad_pair(self, theta):
+        """:meth:`value_grad` with a divergence or deformation penalty on the fused path:
+        the penalty's vote-count map is the data term's IWE, and its adjoint images are
+        folded into the data term's before the one pass over the events that chains both
+        through the warp (the same value and gradient as the separate terms, up to
+        rounding)."""
+        self.n_evals += 1
+        w = self.warp
+        th = _checked_theta(w, theta)
+        x, y, dt, xw, yw = self._fx, self._fy, self._fdt, self.xw, self.yw
+        w.warp_into(x, y, dt, th, xw, yw)
+        self._vote(xw, yw)
+        G, g, shift, scale = self._image_grad()
+        reg, pads = self.regularizer, self._pads
+        R, gR, d, fac, s = _trimmed_parts(reg, w, x, y, dt, th, self.shape, xw, yw,
+                                          DEFAULT_MARGINS[reg], pads, self._span, self.iwe)
+        lam = self.weight
+        if d is None:
+            w.reduce_bilinear(x, y, dt, xw, yw, th, g, self.gtheta, shift=shift, scale=scale,
+                              work=self._pad)
+            return -G / self.g0 + lam * R, -self.gtheta / self.g0 + lam * gR
+        _value_derivs(reg, w, x, y, dt, xw, yw, th, self.shape, _span_T(self._span), fac, pads,
+                      s, gR)
+        size = self._pad.shape[0]
+        _fold_adjoints(g, shift, -scale / self.g0, lam * s, pads[:size], pads[size:])
+        w.reduce_pair(x, y, dt, xw, yw, th, pads, d, self.shape[0], self.shape[1],
+                      self.gtheta)
+        return -G / self.g0 + lam * R, self.gtheta + lam * gR
+
     # -- public --------------------------------------------------------------------------
     def value_grad(self, theta) -> tuple[float, np.ndarray]:
         """``J(theta)`` and ``dJ/dtheta``."""
         theta = np.asarray(theta, dtype=np.float64)
+        if self._pair and self._fw is None and self.weight != 0.0:
+            return self._value_grad_pair(theta)
         G, gG = self._data(theta, True)
         R, gR = self._penalty(theta, True)
         return -G + R, -gG + gR
