@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _helpers import assert_grad_matches_central_differences
 from evmotion.core.iwe import _vote_bilinear, accumulate, accumulate_backward
 from evmotion.core.objectives import events_value_grad
 from evmotion.core.regularizers import regularizer_value_grad, whiten
@@ -191,13 +192,7 @@ def test_penalties_equal_the_composed_chain(name, reg, obj):
     assert cost._pair == (name != "affine")
     if name == "affine":
         return
-    for j in range(theta.size):
-        h = 1e-7 * max(1.0, abs(theta[j]))
-        tp, tm = theta.copy(), theta.copy()
-        tp[j] += h
-        tm[j] -= h
-        fd = (cost.value(tp) - cost.value(tm)) / (2 * h)
-        assert g[j] == pytest.approx(fd, rel=1e-5, abs=1e-6 * np.abs(g).max())
+    assert_grad_matches_central_differences(cost.value, theta, g, 1e-7, 1e-5, 1e-6)
 
 
 @pytest.mark.parametrize("name", FUSED)

@@ -158,11 +158,34 @@ def _vote_bilinear(xw, yw, wts, out):
     faster: the cells and vote weights of a block of events are computed first, in a loop
     that vectorizes, then scattered; events whose cell crosses the border take the
     bounds-tested path of the original."""
-    h, wd = out.shape
+    out[:] = 0.0
+    if wts.shape[0] > 0:
+        _vote_blocks(xw, yw, wts, True, out, wts, out, False, True)
+    else:
+        _vote_blocks(xw, yw, wts, False, out, wts, out, False, True)
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _vote_pair(xw, yw, vals, cnt, num, with_cnt):
+    """:func:`_vote_bilinear` of ones into ``cnt`` (if ``with_cnt``; bit for bit) and, in
+    the same pass, into ``num`` the IWE of the per-event ``vals`` (each unit vote weight
+    times the value: a pixel of one event holds its value to the rounding of a product)."""
+    num[:] = 0.0
+    if with_cnt:
+        cnt[:] = 0.0
+        _vote_blocks(xw, yw, vals, False, cnt, vals, num, True, True)
+    else:
+        _vote_blocks(xw, yw, vals, False, cnt, vals, num, True, False)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _vote_blocks(xw, yw, wts, use_w, out, vals, out2, pair, with_out):
+    """The votes of :func:`_vote_bilinear` added to ``out`` (if ``with_out``) and, in
+    ``pair`` mode, those times ``vals`` to ``out2``."""
+    h, wd = out2.shape
     flat = out.reshape(out.size)
-    for i in range(flat.shape[0]):
-        flat[i] = 0.0
-    use_w = wts.shape[0] > 0
+    flat2 = out2.reshape(out2.size)
     ib = np.empty(_VOTE_BLOCK, np.int64)
     w00 = np.empty(_VOTE_BLOCK)
     w01 = np.empty(_VOTE_BLOCK)
@@ -171,33 +194,35 @@ def _vote_bilinear(xw, yw, wts, out):
     n = xw.shape[0]
     for k0 in range(0, n, _VOTE_BLOCK):
         k1 = min(k0 + _VOTE_BLOCK, n)
-        if use_w:
-            _vote_cells(True, xw[k0:k1], yw[k0:k1], wts[k0:k1], wd, h, ib, w00, w01, w10, w11)
-        else:
-            _vote_cells(False, xw[k0:k1], yw[k0:k1], wts, wd, h, ib, w00, w01, w10, w11)
+        _vote_cells(use_w, xw[k0:k1], yw[k0:k1], wts[k0:k1] if use_w else wts, wd, h, ib, w00,
+                    w01, w10, w11)
         for j in range(k1 - k0):
             i = ib[j]
+            e = vals[k0 + j] if pair else 0.0
             if i >= 0:
-                flat[i] += w00[j]
-                flat[i + 1] += w01[j]
-                flat[i + wd] += w10[j]
-                flat[i + wd + 1] += w11[j]
+                if with_out:
+                    flat[i] += w00[j]
+                    flat[i + 1] += w01[j]
+                    flat[i + wd] += w10[j]
+                    flat[i + wd + 1] += w11[j]
+                if pair:
+                    flat2[i] += e * w00[j]
+                    flat2[i + 1] += e * w01[j]
+                    flat2[i + wd] += e * w10[j]
+                    flat2[i + wd + 1] += e * w11[j]
                 continue
             inside, ix, iy, fx, fy = _cell(xw[k0 + j], yw[k0 + j], h, wd)
             if not inside:
                 continue
             a = wts[k0 + j] if use_w else 1.0
-            if iy >= 0:
-                if ix >= 0:
-                    out[iy, ix] += a * (1.0 - fx) * (1.0 - fy)
-                if ix + 1 < wd:
-                    out[iy, ix + 1] += a * fx * (1.0 - fy)
-            if iy + 1 < h:
-                if ix >= 0:
-                    out[iy + 1, ix] += a * (1.0 - fx) * fy
-                if ix + 1 < wd:
-                    out[iy + 1, ix + 1] += a * fx * fy
-    return out
+            for dy in range(2):
+                for dx in range(2):
+                    if 0 <= iy + dy < h and 0 <= ix + dx < wd:
+                        v = a * (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
+                        if with_out:
+                            out[iy + dy, ix + dx] += v
+                        if pair:
+                            out2[iy + dy, ix + dx] += e * v
 
 
 @njit(cache=True, nogil=True)

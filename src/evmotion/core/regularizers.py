@@ -52,7 +52,7 @@ import threading
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _shape, _vote_bilinear
+from evmotion.core.iwe import _shape, _vote_bilinear, _vote_pair
 from evmotion.core.warps import (
     _BLOCK,
     _EMPTY1,
@@ -96,15 +96,18 @@ _MIN_COUNT = 1e-9  # pixels with less bilinear vote mass hold no warped event
 _LOW63 = np.int64(0x7FFFFFFFFFFFFFFF)  # all float64 bits but the sign
 
 
-def _votes(xw, yw, d, shape, count=None):
-    """``(cnt, num)``: the bilinear IWE of ones (``count`` when the caller has it) and of
-    the per-event values ``d`` (the compiled votes of core.iwe, in scratch buffers)."""
+def _votes(xw, yw, d, shape, count=None, count_out=None):
+    """``(cnt, num)``: the bilinear IWE of ones and of the per-event values ``d``, in one
+    pass (:func:`evmotion.core.iwe._vote_pair`); ``cnt`` is ``count`` when the caller has
+    it (not voted again), else written into ``count_out`` if given; scratch buffers
+    otherwise."""
     cnt, num = _scratch((shape,) * 2, "img")
-    if count is None:
-        _vote_bilinear(xw, yw, _EMPTY1, cnt)
-    else:
-        cnt = count
-    _vote_bilinear(xw, yw, d, num)
+    if count is not None:
+        _vote_pair(xw, yw, d, count, num, False)
+        return count, num
+    if count_out is not None:
+        cnt = count_out
+    _vote_pair(xw, yw, d, cnt, num, True)
     return cnt, num
 
 
@@ -717,7 +720,7 @@ def chains_pair(warp: Warp) -> bool:
 
 
 def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=None,
-                   count=None, grad=True):
+                   count=None, grad=True, count_out=None):
     """The divergence or deformation penalty up to the chain rule through the warp, for
     callers that fuse that step with their own (CMax's data term): ``(value, g, d, fac,
     scale)`` for checked events and theta (:func:`_prepare`).
@@ -728,8 +731,18 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
     divided by ``scale`` (with respect to the vote counts and the votes of the per-event
     values ``d``; padded by a ring of zeros): the gradient is that of ``scale * sum(gN *
     cnt + gS * num)`` through the votes (:meth:`~evmotion.core.warps.Warp.reduce_pair`,
-    ``d`` held fixed) plus the values' part (:func:`_value_derivs`, which needs ``fac``)."""
+    ``d`` held fixed) plus the values' part (:func:`_value_derivs`, which needs ``fac``).
+    ``count_out`` (H, W), if given (and ``count`` not), receives the bilinear IWE of
+    ``xw, yw`` in every case, voted with the values' IWE where the maps are built (the data
+    term's IWE of a caller that votes once)."""
     zero = (0.0, np.zeros(warp.n_params) if grad else None, None, None, 0.0)
+
+    def unvoted(result):
+        # returned before the maps: the caller's count image is still to be voted
+        if count_out is not None and count is None:
+            _vote_bilinear(xw, yw, _EMPTY1, count_out)
+        return result
+
     T = None
     if kind == "divergence":
         T = window_span(dt) if span is None else _span_T(span)
@@ -740,14 +753,14 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
         # the trimmed mean is that constant (no vote moves it); one event gives it
         d, dd, _ = _event_values(kind, warp, x[:1], y[:1], dt[:1], th, T=T)
         if not (d[0] < m and _any_vote(xw, yw, shape[0], shape[1])):
-            return zero
-        return -float(d[0]), (-dd[0].copy() if grad else None), None, None, 0.0
+            return unvoted(zero)
+        return unvoted((-float(d[0]), (-dd[0].copy() if grad else None), None, None, 0.0))
     d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False, T=T, xw=xw, yw=yw)
     if _all_above(d, m):
         # no collapse anywhere (the usual case away from collapse): no maps to build
-        return zero
+        return unvoted(zero)
     # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
-    cnt, num = _votes(xw, yw, d, shape, count)
+    cnt, num = _votes(xw, yw, d, shape, count, count_out)
     size = pads.shape[0] // 2
     total, n_sel = _trim_pass(cnt, num, m, pads[:size], pads[size:])
     if n_sel == 0:

@@ -761,11 +761,20 @@ def _cell_diff(a, fx, fy, g00, g01, g10, g11):
             a * ((g10 - g00) * (1.0 - fx) + (g11 - g01) * fx))
 
 
-@njit(cache=True, error_model="numpy")
-def _pair_diff(a, fx, fy, e, g00, g01, g10, g11, b00, b01, b10, b11):
-    """:func:`_cell_diff` of the cell values ``g + e b``: the pixel gradients of a loss on
-    two IWEs, of ones (adjoint ``g``) and of per-event values ``e`` (adjoint ``b``)."""
-    return _cell_diff(a, fx, fy, g00 + e * b00, g01 + e * b01, g10 + e * b10, g11 + e * b11)
+@njit(cache=True, error_model="numpy", inline="always")
+def _pad_diff(pair, a, fx, fy, e, pad, i, wp, p2):
+    """:func:`_cell_diff` of the cell at flat index ``i`` of the padded image ``pad`` (row
+    stride ``wp``); in ``pair`` mode of the values ``g + e b``, ``b`` the second padded
+    image (from ``p2``): the pixel gradients of a loss on two IWEs, of ones (adjoint
+    ``g``) and of per-event values ``e`` (adjoint ``b``)."""
+    g00, g01, g10, g11 = pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1]
+    if pair:
+        j = i + p2
+        g00 += e * pad[j]
+        g01 += e * pad[j + 1]
+        g10 += e * pad[j + wp]
+        g11 += e * pad[j + wp + 1]
+    return _cell_diff(a, fx, fy, g00, g01, g10, g11)
 
 
 @njit(cache=True, inline="always")
@@ -789,14 +798,7 @@ def _rot_loop(mode, fuse, use_w, pair, args):
         if fuse:
             xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k] if use_w and
                                                  not pair else 1.0, scale, h, wd)
-            if pair:
-                j = i + p2
-                gX, gY = _pair_diff(a, fx, fy, wts[k], pad[i], pad[i + 1], pad[i + wp],
-                                    pad[i + wp + 1], pad[j], pad[j + 1], pad[j + wp],
-                                    pad[j + wp + 1])
-            else:
-                gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp],
-                                    pad[i + wp + 1])
+            gX, gY = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
         else:
             xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
         b, c = _rot_bc(t * t * ww, mode)
@@ -856,14 +858,7 @@ def _similarity_loop(small, fuse, use_w, pair, args):
         if fuse:
             xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k] if use_w and
                                                  not pair else 1.0, scale, h, wd)
-            if pair:
-                j = i + p2
-                gX, gY = _pair_diff(a, fx, fy, wts[k], pad[i], pad[i + 1], pad[i + wp],
-                                    pad[i + wp + 1], pad[j], pad[j + 1], pad[j + wp],
-                                    pad[j + wp + 1])
-            else:
-                gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp],
-                                    pad[i + wp + 1])
+            gX, gY = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
         else:
             xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
         sn, c = _sincos_any(-t * w, small)
@@ -931,14 +926,7 @@ def _simple_loop(kind, fuse, use_w, pair, args):
         if fuse:
             xv, yv, t, a, fx, fy, i = _pad_index(xv0, yv0, t, wts[k] if use_w and not pair
                                                  else 1.0, scale, h, wd)
-            if pair:
-                j = i + p2
-                gX, gY = _pair_diff(a, fx, fy, wts[k], pad[i], pad[i + 1], pad[i + wp],
-                                    pad[i + wp + 1], pad[j], pad[j + 1], pad[j + wp],
-                                    pad[j + wp + 1])
-            else:
-                gX, gY = _cell_diff(a, fx, fy, pad[i], pad[i + 1], pad[i + wp],
-                                    pad[i + wp + 1])
+            gX, gY = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
             # where the event has no vote its weight is 0: any finite point will do
             ok = xv == xv0
             xc = xc if ok else 0.0

@@ -437,11 +437,12 @@ class CMaxCost:
         th = _checked_theta(w, theta)
         x, y, dt, xw, yw = self._fx, self._fy, self._fdt, self.xw, self.yw
         w.warp_into(x, y, dt, th, xw, yw)
-        self._vote(xw, yw)
-        G, g, shift, scale = self._image_grad()
         reg, pads = self.regularizer, self._pads
+        # the IWE is voted there, with the penalty's image of values when it builds its maps
         R, gR, d, fac, s = _trimmed_parts(reg, w, x, y, dt, th, self.shape, xw, yw,
-                                          DEFAULT_MARGINS[reg], pads, self._span, self.iwe)
+                                          DEFAULT_MARGINS[reg], pads, self._span,
+                                          count_out=self.iwe)
+        G, g, shift, scale = self._image_grad()
         lam = self.weight
         if d is None:
             w.reduce_bilinear(x, y, dt, xw, yw, th, g, self.gtheta, shift=shift, scale=scale,
