@@ -74,7 +74,11 @@ def summarize(name: str, rows: list[dict]) -> dict:
             "valid_fraction": float(np.mean([r["valid_fraction"] for r in rows])),
             "fwl_per_event": float(np.median(pe)), "fwl_dense": float(np.median(de)),
             "fwl_per_event_min": float(pe.min()), "fwl_dense_min": float(de.min()),
-            "share_windows_fwl_dense_gt_1": float((de > 1).mean())}
+            "share_windows_fwl_dense_gt_1": float((de > 1).mean()),
+            "share_windows_fwl_per_event_gt_1": float((pe > 1).mean()),
+            # nearly still windows (few events, ~1-3 px of motion) score FWL ~ 1 whatever the flow
+            "fwl_dense_min_windows_4k_events": float(min(
+                (r["fwl_dense"] for r in rows if r["events"] >= 4000), default=np.nan))}
 
 
 def direction_study(results: dict[str, tuple[EventArray, TripletFlow]], out: Path) -> list[dict]:
@@ -377,13 +381,14 @@ def main(quick: bool = False) -> list[dict]:
         r, flow = fwl_rows(f"ECD {d.name}", ev, whole)
         rows += r
         rows += fwl_rows(f"ECD {d.name}", ev, whole, **fast)[0]
+        rows += fwl_rows(f"ECD {d.name}", ev, whole, dense="lsq")[0]
         if d.name.endswith("_translation"):
             translation[d.name] = (ev, flow)
     shapes = load_shapes_rotation()
     wins = [w for w in shapes.windows_by_duration(50_000) if w.count >= 1000]
-    for params in ({}, fast):
+    tags = ("thesis defaults", "d_t=20 ms, tau=0.5 ms", "dense=lsq: d_x=2.3, tau=1 ms")
+    for params, tag in zip(({}, fast, {"dense": "lsq"}), tags, strict=True):
         r, _ = fwl_rows("shapes_rotation", shapes, wins, **params)
-        tag = "thesis defaults" if not params else "d_t=20 ms, tau=0.5 ms"
         rows.append(summarize(f"FWL ECD shapes_rotation 120k, 50 ms windows, median ({tag})",
                               r))
     rows += direction_study(translation, harness.RESULTS / "triplet_directions.png")
