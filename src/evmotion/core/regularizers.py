@@ -32,10 +32,17 @@ Cost (what CMax pays per evaluation on top of its data term; ``benchmarks/bench_
 * the per-event values come first (closed forms, or for the rotation one vectorized pass
   from the warped pixels); when none is below the margin no pixel mean can be, and the
   penalty is 0 without building any map -- the usual case away from collapse;
-* otherwise one fused forward pass builds the two vote images, one pass trims them into
-  their adjoint images, and one pass gives each event's derivatives; without stored
-  Jacobians (``jx=None``) the warp's ``vjp`` contracts them over the events that vote into
-  a trimmed pixel only, so a caller on a fused (Jacobian-free) path needs no (N, P) buffers;
+* otherwise one pass votes the two images (counts and values; ``count=`` reuses a
+  caller's count image), one pass trims them into their padded adjoint images, and the
+  gradient takes two passes over the events with no per-event output, so that both
+  vectorize: the votes' adjoint through the warp
+  (:meth:`~evmotion.core.warps.Warp.reduce_pair`, its Jacobian recomputed, never stored)
+  and the values' derivatives with each event's adjoint sampled inside the loop (closed
+  forms; the rotation's over the events that reach a trimmed pixel only). CMax
+  (:class:`evmotion.methods.egomotion.CMaxCost`) votes the count image as its IWE and folds
+  the penalty's adjoint into its data term's, so that one pass over the events chains both
+  (:func:`_trimmed_parts`, :func:`_value_derivs`). Warps without fused adjoints (or given
+  ``jx, jy``) chain per-event derivatives through the stored Jacobians;
 * RCAD maps test their threshold without logarithms first; ``span=(min dt, max dt)`` spares
   the pass over the times when the caller knows them.
 
