@@ -28,3 +28,24 @@ def assert_grad_matches_central_differences(fn, theta, g, step, rel, abs_frac) -
         tm[j] -= h
         fd = (fn(tp) - fn(tm)) / (2 * h)
         assert g[j] == pytest.approx(fd, rel=rel, abs=abs_frac * np.abs(g).max())
+
+
+def bilinear_adjoint_numpy(xw, yw, g):
+    """Plain-numpy derivatives of ``sum(g * IWE)`` (bilinear votes, votes off the image
+    dropped) with respect to each event's position, and its bilinear sample of ``g``."""
+    h, w = g.shape
+    x0, y0 = np.floor(xw), np.floor(yw)
+    fx, fy = xw - x0, yw - y0
+    corners = {}
+    for dy in (0, 1):
+        for dx in (0, 1):
+            # NaN: a cell far off the image
+            cx = np.nan_to_num(x0, nan=-9.0).astype(int) + dx
+            cy = np.nan_to_num(y0, nan=-9.0).astype(int) + dy
+            ok = (cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)
+            corners[dy, dx] = np.where(ok, g[np.clip(cy, 0, h - 1), np.clip(cx, 0, w - 1)], 0.0)
+    c00, c01, c10, c11 = corners[0, 0], corners[0, 1], corners[1, 0], corners[1, 1]
+    gx = (c01 - c00) * (1 - fy) + (c11 - c10) * fy
+    gy = (c10 - c00) * (1 - fx) + (c11 - c01) * fx
+    s = c00 * (1 - fx) * (1 - fy) + c01 * fx * (1 - fy) + c10 * (1 - fx) * fy + c11 * fx * fy
+    return gx, gy, s

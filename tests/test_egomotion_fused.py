@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _helpers import assert_grad_matches_central_differences
+from _helpers import assert_grad_matches_central_differences, bilinear_adjoint_numpy
 from evmotion.core.iwe import _vote_bilinear, accumulate, accumulate_backward
 from evmotion.core.objectives import events_value_grad
 from evmotion.core.regularizers import regularizer_value_grad, whiten
@@ -131,6 +131,38 @@ def test_vjp_and_reduce_bilinear_match_numpy(name):
     with pytest.raises(ParameterError, match="pads"):
         warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel()[1:], d, *SHAPE,
                          np.empty(warp.n_params))
+
+
+@pytest.mark.parametrize("fast", [1.0, 12.0])
+@pytest.mark.parametrize("name", FUSED)
+def test_reduce_pair_chains_the_values_derivatives(name, fast):
+    """reduce_pair with derivs: the values are the warp's divergence times T or |det J| - 1,
+    and their theta-derivatives (warp.divergence / jacobian_det with grad=True, stored)
+    times the bilinear sample of B at each event are added to the votes' chain rule (plain
+    numpy); fast=12: |dt omega| beyond 1 rad (every series mode of the rotation)."""
+    x, y, dt, _, _ = _window(8, n=800)
+    warp = make_warp(name, SHAPE, K=K)
+    theta = _theta(name, 8, fast)
+    xw, yw, jx, jy = warp.warp(x, y, dt, theta, jacobian=True)
+    rng = np.random.default_rng(9)
+    A, B, d = rng.normal(size=SHAPE), rng.normal(size=SHAPE), rng.normal(size=x.size)
+    ax, ay, _ = bilinear_adjoint_numpy(xw, yw, A)
+    bx, by, sB = bilinear_adjoint_numpy(xw, yw, B)
+    sB = np.where((xw > -1) & (xw < SHAPE[1]) & (yw > -1) & (yw < SHAPE[0]), sB, 0.0)
+    votes = (ax + d * bx) @ jx + (ay + d * by) @ jy
+    pads = np.zeros((2, SHAPE[0] + 2, SHAPE[1] + 2))
+    pads[0, 1:-1, 1:-1] = A
+    pads[1, 1:-1, 1:-1] = B
+    _, ddiv = warp.divergence(x, y, dt, theta, grad=True)
+    det, ddet = warp.jacobian_det(x, y, dt, theta, grad=True)
+    for derivs, dd in (("divergence", 0.07 * ddiv), ("deformation", np.sign(det)[:, None] * ddet)):
+        ref = 0.4 * (votes + sB @ dd)
+        out = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, *SHAPE,
+                               np.empty(warp.n_params), 0.4, derivs, 0.07)
+        np.testing.assert_allclose(out, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
+    with pytest.raises(ParameterError, match="derivs"):
+        warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, *SHAPE,
+                         np.empty(warp.n_params), 1.0, "rcad")
 
 
 @pytest.mark.parametrize("name", ["rotation", "similarity", "inplane"])

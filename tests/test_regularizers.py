@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _helpers import bilinear_adjoint_numpy
 from evmotion.core.regularizers import (
     DEFAULT_WEIGHTS,
     REGULARIZERS,
@@ -248,38 +249,12 @@ def test_real_rotation_window_vs_collapse(shared_data):
                                       (180, 240))[0] > 0.2
 
 
-def _bilinear_adjoint_numpy(xw, yw, g):
-    """Plain-numpy derivatives of ``sum(g * IWE)`` (bilinear votes, votes off the image
-    dropped) with respect to each event's position, and its bilinear sample of ``g``."""
-    h, w = g.shape
-    x0, y0 = np.floor(xw), np.floor(yw)
-    fx, fy = xw - x0, yw - y0
-    corners = {}
-    for dy in (0, 1):
-        for dx in (0, 1):
-            # NaN: a cell far off the image
-            cx = np.nan_to_num(x0, nan=-9.0).astype(int) + dx
-            cy = np.nan_to_num(y0, nan=-9.0).astype(int) + dy
-            ok = (cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)
-            corners[dy, dx] = np.where(ok, g[np.clip(cy, 0, h - 1), np.clip(cx, 0, w - 1)], 0.0)
-    c00, c01, c10, c11 = corners[0, 0], corners[0, 1], corners[1, 0], corners[1, 1]
-    gx = (c01 - c00) * (1 - fy) + (c11 - c10) * fy
-    gy = (c10 - c00) * (1 - fx) + (c11 - c01) * fx
-    s = c00 * (1 - fx) * (1 - fy) + c01 * fx * (1 - fy) + c10 * (1 - fx) * fy + c11 * fx * fy
-    return gx, gy, s
-
-
 def test_trim_and_backward_kernels_match_numpy():
     """The trim pass (padded, interleaved adjoint images), the branch-free per-event
     backward pass and the stored-Jacobian contraction against plain numpy, events inside,
     across and outside the border included; d/dd_k against finite differences."""
     from evmotion.core.iwe import accumulate
-    from evmotion.core.regularizers import (
-        _backward_events,
-        _contract,
-        _sample_compact,
-        _trim_pass,
-    )
+    from evmotion.core.regularizers import _backward_events, _contract, _trim_pass
 
     rng = np.random.default_rng(5)
     n = 500
@@ -308,25 +283,12 @@ def test_trim_and_backward_kernels_match_numpy():
     img[1, 1:-1, 1:-1] = gS
     gx, gy, gd = np.empty(n), np.empty(n), np.empty(n)
     _backward_events(xw, yw, d, pads, H, W, 0.5, gx, gy, gd)
-    ax, ay, sS = _bilinear_adjoint_numpy(xw, yw, gS)
-    bx, by, _ = _bilinear_adjoint_numpy(xw, yw, gN)
+    ax, ay, sS = bilinear_adjoint_numpy(xw, yw, gS)
+    bx, by, _ = bilinear_adjoint_numpy(xw, yw, gN)
     off = ~((xw > -1) & (xw < W) & (yw > -1) & (yw < H))
     ref = [np.where(off, 0.0, 0.5 * v) for v in (d * ax + bx, d * ay + by, sS)]
     for got, want in zip((gx, gy, gd), ref, strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
-    # the events with a nonzero value derivative, compacted (x, y, dt, gd * fac), where
-    # some of the cells hold no trimmed pixel
-    img[1, 1:-1, 1:-1] = np.where(rng.uniform(size=(H, W)) < 0.7, 0.0, gS)
-    _, _, gds = _bilinear_adjoint_numpy(xw, yw, img[1, 1:-1, 1:-1])
-    gds = np.where(off, 0.0, 0.5 * gds)
-    keep = gds != 0
-    assert 20 < keep.sum() < n - 20
-    cols = [rng.normal(size=n) for _ in range(4)]
-    out = np.full((5, n), np.nan)
-    m = _sample_compact(xw, yw, *cols, pads[size:], H, W, 0.5, out)
-    assert m == keep.sum()
-    np.testing.assert_array_equal(out[:3, :m], np.stack(cols[:3])[:, keep])
-    np.testing.assert_allclose(out[3, :m], (gds * cols[3])[keep], rtol=1e-12)
     # d/dd_k of 0.5 sum(gS * num) is half the bilinear sample of gS at the event
     e = 1e-6
     for k in range(3, n, 50):
@@ -461,32 +423,20 @@ def test_time_span_matches_numpy():
 
 
 @pytest.mark.parametrize("name", ["zoom", "translation", "se2", "similarity", "inplane"])
-def test_fast_grad_dot_matches_stored_derivatives(name):
-    """The closed-form value derivatives contracted in place, with the per-event adjoint
-    sampled from a padded image inside the loop, equal the stored (N, P) derivatives
-    contracted by numpy with the plain-numpy bilinear samples."""
-    from evmotion.core.regularizers import _FAST, _k_fast_grad_dot, _k_fast_values
+def test_fast_values_loops_agree(name):
+    """The closed-form values-only loops (short series inline) equal the general ones, whose
+    derivatives :meth:`Warp.reduce_pair` is tested against (test_egomotion_fused)."""
+    from evmotion.core.regularizers import _FAST, _k_fast_values
 
     th = np.array({"zoom": [8.0], "translation": [3.0, 1.0], "se2": [40.0, 10.0, 30.0],
                    "similarity": [40.0, 10.0, 30.0, 9.0],
                    "inplane": [40.0, 10.0, 3.0, -5.0]}[name])
     rng = np.random.default_rng(10)
-    xw, yw = rng.uniform(-2, W + 1, 1500), rng.uniform(-2, H + 1, 1500)
-    img = rng.normal(size=(H, W))
-    pad = np.zeros((H + 2, W + 2))
-    pad[1:-1, 1:-1] = img
-    _, _, gd = _bilinear_adjoint_numpy(xw, yw, img)
-    gd = np.where((xw > -1) & (xw < W) & (yw > -1) & (yw < H), 0.3 * gd, 0.0)
     for is_div, span in ((True, 0.15), (False, 0.15), (True, 0.005)):
         # 0.005 s: every angle below the short-series bound
         dt = rng.uniform(-span * 2 / 3, span / 3, 1500)
         d, g = np.empty(1500), np.empty((1500, th.size))
         _k_fast_values(_FAST[name], is_div, dt, th, 0.15, d, g, True)
-        out = np.full(th.size, 0.5)
-        _k_fast_grad_dot(_FAST[name], is_div, xw, yw, dt, th, 0.15, pad.ravel(), H, W, 0.3,
-                         out)
-        np.testing.assert_allclose(out, 0.5 + gd @ g, rtol=1e-11, atol=1e-11)
-        # the values-only loops (short series inline) agree with the general ones
         d0 = np.empty(1500)
         _k_fast_values(_FAST[name], is_div, dt, th, 0.15, d0, np.zeros((0, 0)), False)
         np.testing.assert_allclose(d0, d, rtol=1e-13, atol=1e-15)

@@ -34,15 +34,15 @@ Cost (what CMax pays per evaluation on top of its data term; ``benchmarks/bench_
   penalty is 0 without building any map -- the usual case away from collapse;
 * otherwise one pass votes the two images (counts and values; ``count=`` reuses a
   caller's count image), one pass trims them into their padded adjoint images, and the
-  gradient takes two passes over the events with no per-event output, so that both
-  vectorize: the votes' adjoint through the warp
-  (:meth:`~evmotion.core.warps.Warp.reduce_pair`, its Jacobian recomputed, never stored)
-  and the values' derivatives with each event's adjoint sampled inside the loop (closed
-  forms; the rotation's over the events that reach a trimmed pixel only). CMax
+  gradient takes one pass over the events with no per-event output, so that it
+  vectorizes: :meth:`~evmotion.core.warps.Warp.reduce_pair` chains the votes' adjoint
+  through the warp (its Jacobian recomputed, never stored) and the values' own derivatives
+  (closed forms; for the rotation from the warped point, the det J part folded into the
+  pixel gradient) with the same gathered pixels. CMax
   (:class:`evmotion.methods.egomotion.CMaxCost`) votes the count image as its IWE and folds
-  the penalty's adjoint into its data term's, so that one pass over the events chains both
-  (:func:`_trimmed_parts`, :func:`_value_derivs`). Warps without fused adjoints (or given
-  ``jx, jy``) chain per-event derivatives through the stored Jacobians;
+  the penalty's adjoint images into its data term's, so that that one pass chains both
+  (:func:`_trimmed_parts`). Warps without fused adjoints (or given ``jx, jy``) chain
+  per-event derivatives through the stored Jacobians;
 * RCAD maps test their threshold without logarithms first; ``span=(min dt, max dt)`` spares
   the pass over the times when the caller knows them.
 
@@ -66,6 +66,7 @@ from evmotion.core.warps import (
     _EMPTY2,
     _FAST_FINITE,
     Warp,
+    _bilinear_sample,
     _cell_diff,
     _k_rot_divdet,
     _max_abs,
@@ -73,6 +74,7 @@ from evmotion.core.warps import (
     _rod_coeffs,
     _rod_coeffs_exact,
     _rod_coeffs_short,
+    _rot_matrix,
     _rot_rates,
     _sincos_block,
 )
@@ -136,48 +138,6 @@ def _backward_events(xw, yw, d, pads, h, wd, scale, gx, gy, gd):
         gx[k], gy[k] = _cell_diff(a, fx, fy, e * s00 + pads[i], e * s01 + pads[i + 1],
                                   e * s10 + pads[i + wp], e * s11 + pads[i + wp + 1])
         gd[k] = a * _bilinear_sample(fx, fy, s00, s01, s10, s11)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _bilinear_sample(fx, fy, s00, s01, s10, s11):
-    """The bilinear interpolation of a cell's corner values at offsets (fx, fy): the
-    derivative of ``sum(g * IWE)`` with respect to the event's IWE weight."""
-    return (s00 * (1.0 - fx) * (1.0 - fy) + s01 * fx * (1.0 - fy)
-            + s10 * (1.0 - fx) * fy + s11 * fx * fy)
-
-
-@njit(cache=True, error_model="numpy")
-def _sample_compact(xw, yw, x, y, dt, fac, gS, h, wd, scale, out):
-    """The events with a nonzero value derivative ``gd_k`` (``scale`` times the bilinear
-    sample of the padded ``gS`` at ``xw_k, yw_k``), in order: rows of ``out`` (>= 4, N) <-
-    ``x, y, dt, gd * fac``. Returns their number. (A branch skips the events off the image
-    or in a cell without trimmed pixel: the usual case for the rotation, where few events
-    reach one.)"""
-    wp = wd + 2
-    m = 0
-    for k in range(xw.shape[0]):
-        xv = xw[k]
-        yv = yw[k]
-        if not (xv > -1.0 and xv < wd and yv > -1.0 and yv < h):
-            continue
-        x0 = math.floor(xv)
-        y0 = math.floor(yv)
-        i = (int(y0) + 1) * wp + int(x0) + 1
-        s00 = gS[i]
-        s01 = gS[i + 1]
-        s10 = gS[i + wp]
-        s11 = gS[i + wp + 1]
-        if s00 == 0.0 and s01 == 0.0 and s10 == 0.0 and s11 == 0.0:
-            continue
-        v = scale * _bilinear_sample(xv - x0, yv - y0, s00, s01, s10, s11)
-        if v == 0.0:
-            continue
-        out[0, m] = x[k]
-        out[1, m] = y[k]
-        out[2, m] = dt[k]
-        out[3, m] = v * fac[k]
-        m += 1
-    return m
 
 
 @njit(cache=True, error_model="numpy")
@@ -248,9 +208,9 @@ def _event_values(kind: str, warp: Warp, x, y, dt, theta, want_grad: bool = True
     with ``theta``, if at hand (the rotation's values are cheapest from them).
 
     ``dd`` is None without ``want_grad``, and always for the rotation: its derivatives are
-    contracted later, only for the events that reach a trimmed pixel
-    (:func:`_rotation_grad`), with ``fac`` (N,) the factor from the raw divergence / det J
-    to ``d``."""
+    contracted later (in :meth:`~evmotion.core.warps.Warp.reduce_pair`, or with stored
+    Jacobians by :func:`_rotation_grad`), with ``fac`` (N,) the factor from the raw
+    divergence / det J to ``d``."""
     code = _FAST.get(warp.name)
     is_div = kind == "divergence"
     if not is_div:
@@ -301,20 +261,10 @@ def _rot_value_event(X, Y, t, a, b, wx, wy, wz, ww, want_div):
     division is needed: det J = (1 / q_z)^3, and div f = tr(A J) with ``J = dX/dv``
     (rows ``(R_i. - X_i R_2.) / q_z``) and ``A`` the derivative of the rotational flow at
     (X, Y) (the formulas of :func:`evmotion.core.warps._k_rot_divdet`)."""
-    at = a * t
-    bt = b * t * t
-    r02 = at * wy + bt * wx * wz
-    r12 = -at * wx + bt * wy * wz
-    r22 = 1.0 + bt * (wz * wz - ww)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rot_matrix(a, b, t, wx, wy, wz, ww)
     iz = r02 * X + r12 * Y + r22
     if not want_div:
         return iz * iz * iz
-    r00 = 1.0 + bt * (wx * wx - ww)
-    r11 = 1.0 + bt * (wy * wy - ww)
-    r01 = -at * wz + bt * wx * wy
-    r10 = at * wz + bt * wx * wy
-    r20 = -at * wy + bt * wx * wz
-    r21 = at * wx + bt * wy * wz
     j00 = (r00 - X * r20) * iz
     j01 = (r01 - X * r21) * iz
     j10 = (r10 - Y * r20) * iz
@@ -487,97 +437,6 @@ def _k_fast_values(code, is_div, dt, th, T, d, g, want_g):
                 g[k, 3] = (-2.0 * a * t * c + 2.0 * t * t * kk) * sgn
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_fast_grad_dot(code, is_div, xw, yw, dt, th, T, gS, h, wd, scale, out):
-    """``out += sum_k gd_k dd_k/dtheta`` for the closed forms of :func:`_k_fast_values`,
-    with ``gd_k`` = ``scale`` times the bilinear sample of ``gS`` (the (h, wd) image padded
-    by a ring of zeros, flat) at the event ``xw_k, yw_k`` (0 off the image): the value
-    derivatives of a trimmed mean. No (N, P) derivatives, no per-event buffer: one
-    branch-free loop per case into scalar sums, which vectorizes (gathers); the sample is
-    written out in each loop (a helper taking the image would stop the vectorization)."""
-    n = dt.shape[0]
-    P = th.shape[0]
-    wp = wd + 2
-    a2 = 0.0
-    a3 = 0.0
-    if code == 0:  # zoom
-        hz = th[0]
-        if is_div:
-            for k in range(n):
-                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
-                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
-                a2 += g
-            out[0] += -2.0 * T * a2
-        else:
-            for k in range(n):
-                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
-                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
-                t = dt[k]
-                a2 += g * (-2.0 * t * (1.0 - t * hz))
-            out[0] += a2
-    elif code == 2:  # SE(2) and similarity
-        w = th[2]
-        s = th[3] if P == 4 else 0.0
-        if not is_div:
-            if P == 4:
-                for k in range(n):
-                    _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
-                    g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
-                    t = dt[k]
-                    ib = 1.0 / (1.0 + t * s)
-                    a3 += g * (-2.0 * t * ib * ib * ib)
-                out[3] += a3
-            return
-        small = _max_abs(dt) * abs(w) < 1.0
-        sbuf = np.empty(_BLOCK)
-        cbuf = np.empty(_BLOCK)
-        for k0 in range(0, n, _BLOCK):
-            k1 = min(k0 + _BLOCK, n)
-            if small:
-                _sincos_block(dt, k0, k1, w, sbuf, cbuf)  # of -dt w
-            else:
-                for k in range(k0, k1):
-                    sbuf[k - k0] = math.sin(-dt[k] * w)
-                    cbuf[k - k0] = math.cos(-dt[k] * w)
-            for k in range(k0, k1):
-                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
-                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
-                t = dt[k]
-                ib = 1.0 / (1.0 + t * s)
-                sn = -sbuf[k - k0]
-                c = cbuf[k - k0]
-                ib2 = ib * ib
-                f = g
-                a2 += f * (2.0 * s * ib2 * t * sn - 2.0 * ib * sn - 2.0 * w * ib * t * c)
-                a3 += f * (-2.0 * c * ib2 + 4.0 * s * t * c * ib2 * ib + 2.0 * w * t * sn * ib2)
-        out[2] += T * a2
-        if P == 4:
-            out[3] += T * a3
-    elif code == 3:  # in-plane
-        kk = th[3] + 1.0
-        c = math.cos(th[2])
-        sn = math.sin(th[2])
-        if is_div:
-            for k in range(n):
-                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
-                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
-                a2 += g
-            out[2] += T * 2.0 * kk * sn * a2
-            out[3] += -T * 2.0 * c * a2
-        else:
-            for k in range(n):
-                _, _, _, a, fx, fy, i = _pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
-                g = a * _bilinear_sample(fx, fy, gS[i], gS[i + 1], gS[i + wp], gS[i + wp + 1])
-                t = dt[k]
-                e = 1.0 + t
-                det = e * e - 2.0 * e * t * kk * c + t * t * kk * kk
-                f = g if det >= 0 else -g
-                a2 += f * (2.0 * e * t * kk * sn)
-                a3 += f * (-2.0 * e * t * c + 2.0 * t * t * kk)
-            out[2] += a2
-            out[3] += a3
-
-
 _FAST = {"zoom": 0, "translation": 1, "se2": 2, "similarity": 2, "inplane": 3}
 #: Warps whose divergence does not depend on the event, (3.10), (A.25).
 _CONST_DIV = ("zoom", "translation", "inplane")
@@ -697,9 +556,7 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
         return value, g
     T = window_span(dt) if span is None else _span_T(span)
     if (jx is None or jy is None) and chains_pair(warp):
-        _value_derivs(kind, warp, x, y, dt, xw, yw, th, shape, T, fac, pads, scale, g)
-        g += warp.reduce_pair(x, y, dt, xw, yw, th, pads, d, h, wd, np.empty(g.shape[0]),
-                              scale)
+        warp.reduce_pair(x, y, dt, xw, yw, th, pads, d, h, wd, g, scale, kind, T)
         return value, g
     n = x.shape[0]
     dd = None
@@ -719,8 +576,8 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
 
 
 def chains_pair(warp: Warp) -> bool:
-    """Whether the trimmed penalties of ``warp`` chain their gradient through
-    :meth:`~evmotion.core.warps.Warp.reduce_pair` and :func:`_value_derivs` (no stored
+    """Whether the trimmed penalties of ``warp`` chain their gradient, the values' own
+    derivatives included, through :meth:`~evmotion.core.warps.Warp.reduce_pair` (no stored
     Jacobians): the warps with fused adjoints whose per-event values have compiled
     derivatives (closed forms, rotation)."""
     return hasattr(warp, "reduce_pair") and (warp.name in _FAST or warp.name == "rotation")
@@ -737,8 +594,10 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
     ``pads`` (2 (H + 2) (W + 2),) holds the adjoint images ``gN``, ``gS`` of the penalty
     divided by ``scale`` (with respect to the vote counts and the votes of the per-event
     values ``d``; padded by a ring of zeros): the gradient is that of ``scale * sum(gN *
-    cnt + gS * num)`` through the votes (:meth:`~evmotion.core.warps.Warp.reduce_pair`,
-    ``d`` held fixed) plus the values' part (:func:`_value_derivs`, which needs ``fac``).
+    cnt + gS * num)`` through the votes and the values
+    (:meth:`~evmotion.core.warps.Warp.reduce_pair` with ``derivs=kind``; ``fac``: the
+    rotation's factor from its raw divergence / det J to ``d``, for the chain rule through
+    stored Jacobians).
     ``count_out`` (H, W), if given (and ``count`` not), receives the bilinear IWE of
     ``xw, yw`` in every case, voted with the values' IWE where the maps are built (the data
     term's IWE of a caller that votes once)."""
@@ -776,37 +635,6 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
     if not grad:
         return total * scale, None, None, None, 0.0
     return total * scale, np.empty(warp.n_params), d, fac, scale
-
-
-def _value_derivs(kind, warp, x, y, dt, xw, yw, th, shape, T, fac, pads, scale, out):
-    """``out`` (P,) = the part of a trimmed penalty's gradient through its per-event values
-    (``gd_k dd_k/dtheta``, ``gd_k`` the bilinear sample of ``scale * gS`` at the event;
-    after :func:`_trimmed_parts`, for warps that :func:`chains_pair`)."""
-    h, wd = shape
-    out[:] = 0.0
-    gS = pads[pads.shape[0] // 2:]
-    if fac is None:
-        _k_fast_grad_dot(_FAST[warp.name], kind == "divergence", xw, yw, dt, th,
-                         T if kind == "divergence" else 1.0, gS, h, wd, scale, out)
-        return
-    # the rotation's value derivatives cost more per event: over the events voting into a
-    # trimmed pixel only
-    n = x.shape[0]
-    (sub,) = _scratch(((5, n),), "sub")
-    m = _sample_compact(xw, yw, x, y, dt, fac, gS, h, wd, scale, sub)
-    _k_rot_divdet(sub[0, :m], sub[1, :m], sub[2, :m], th, warp._kinv, kind == "divergence",
-                  sub[4, :m], _EMPTY2, sub[3, :m], out)
-
-
-@njit(cache=True, error_model="numpy")
-def _add_contraction(gd, dd, out):
-    """``out += dd^T gd`` (a compiled loop: BLAS threads pinned to one core spin for
-    milliseconds on this small product)."""
-    for j in range(out.shape[0]):
-        acc = 0.0
-        for k in range(gd.shape[0]):
-            acc += gd[k] * dd[k, j]
-        out[j] += acc
 
 
 # ---------------------------------------------------------------------------------------

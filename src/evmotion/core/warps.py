@@ -690,14 +690,21 @@ def _rot_jac_loop(mode, args):
 def _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX, gY):
     """``gX dX/domega + gY dY/domega`` (3 terms) at the warped normalized point (X, Y);
     the formula of the Jacobian in :func:`_k_rotation`, contracted instead of stored."""
+    return _rot_vjp_u(X, Y, t, b, c, wx, wy, wz, ww, gX, gY, 0.0, 0.0, 0.0)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_vjp_u(X, Y, t, b, c, wx, wy, wz, ww, gX, gY, e0, e1, e2):
+    """:func:`_rot_vjp_event` with ``e`` added to its vector ``u`` (``-t J_l^T u`` is the
+    result)."""
     bt1 = b * t
     ct2 = c * t * t
     g = 1.0 - ct2 * ww
     xy = X * Y
     # contract the rows first: gX L0 + gY L1, a single 3-vector u
-    u0 = gX * xy + gY * (1.0 + Y * Y)
-    u1 = -gX * (1.0 + X * X) - gY * xy
-    u2 = gX * Y - gY * X
+    u0 = gX * xy + gY * (1.0 + Y * Y) + e0
+    u1 = -gX * (1.0 + X * X) - gY * xy + e1
+    u2 = gX * Y - gY * X + e2
     su = ct2 * (u0 * wx + u1 * wy + u2 * wz)
     return (-t * (g * u0 + bt1 * (u1 * wz - u2 * wy) + su * wx),
             -t * (g * u1 + bt1 * (u2 * wx - u0 * wz) + su * wy),
@@ -762,19 +769,33 @@ def _cell_diff(a, fx, fy, g00, g01, g10, g11):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _bilinear_sample(fx, fy, s00, s01, s10, s11):
+    """The bilinear interpolation of a cell's corner values at offsets (fx, fy): the
+    derivative of ``sum(g * IWE)`` with respect to the event's IWE weight."""
+    return (s00 * (1.0 - fx) * (1.0 - fy) + s01 * fx * (1.0 - fy)
+            + s10 * (1.0 - fx) * fy + s11 * fx * fy)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _pad_diff(pair, a, fx, fy, e, pad, i, wp, p2):
-    """:func:`_cell_diff` of the cell at flat index ``i`` of the padded image ``pad`` (row
-    stride ``wp``); in ``pair`` mode of the values ``g + e b``, ``b`` the second padded
-    image (from ``p2``): the pixel gradients of a loss on two IWEs, of ones (adjoint
-    ``g``) and of per-event values ``e`` (adjoint ``b``)."""
+    """``(gx, gy, gd)``: :func:`_cell_diff` of the cell at flat index ``i`` of the padded
+    image ``pad`` (row stride ``wp``); in ``pair`` mode of the values ``g + e b``, ``b`` the
+    second padded image (from ``p2``): the pixel gradients of a loss on two IWEs, of ones
+    (adjoint ``g``) and of per-event values ``e`` (adjoint ``b``), and ``gd`` the loss'
+    derivative with respect to ``e`` (``a`` times ``b`` sampled at the event; 0 outside
+    ``pair`` mode)."""
     g00, g01, g10, g11 = pad[i], pad[i + 1], pad[i + wp], pad[i + wp + 1]
+    gd = 0.0
     if pair:
         j = i + p2
-        g00 += e * pad[j]
-        g01 += e * pad[j + 1]
-        g10 += e * pad[j + wp]
-        g11 += e * pad[j + wp + 1]
-    return _cell_diff(a, fx, fy, g00, g01, g10, g11)
+        b00, b01, b10, b11 = pad[j], pad[j + 1], pad[j + wp], pad[j + wp + 1]
+        g00 += e * b00
+        g01 += e * b01
+        g10 += e * b10
+        g11 += e * b11
+        gd = a * _bilinear_sample(fx, fy, b00, b01, b10, b11)
+    gX, gY = _cell_diff(a, fx, fy, g00, g01, g10, g11)
+    return gX, gY, gd
 
 
 @njit(cache=True, inline="always")
@@ -785,8 +806,8 @@ def _rot_bc(z, mode):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_loop(mode, fuse, use_w, pair, args):
-    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale = args
+def _rot_loop(mode, fuse, use_w, pair, vk, args):
+    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T = args
     wx, wy, wz = prm[0], prm[1], prm[2]
     ww = wx * wx + wy * wy + wz * wz
     k00, k01, k10, k11 = prm[3], prm[4], prm[5], prm[6]
@@ -795,70 +816,162 @@ def _rot_loop(mode, fuse, use_w, pair, args):
     p2 = (h + 2) * wp  # start of the second image in pair mode
     a0 = a1 = a2 = 0.0
     for k in range(xw.shape[0]):
+        gd = 0.0
         if fuse:
             xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k] if use_w and
                                                  not pair else 1.0, scale, h, wd)
-            gX, gY = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
+            gX, gY, gd = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
         else:
             xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
-        b, c = _rot_bc(t * t * ww, mode)
-        d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01, k10,
-                                    k11, i00, i01, i02, i10, i11, i12)
+        if vk == 0:
+            b, c = _rot_bc(t * t * ww, mode)
+            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01,
+                                        k10, k11, i00, i01, i02, i10, i11, i12)
+        else:
+            ra, b, c = _rod_mode(t * t * ww, mode)
+            X = i00 * xv + i01 * yv + i02
+            Y = i10 * xv + i11 * yv + i12
+            d0, d1, d2 = _rot_value_adj(vk == 1, X, Y, t, ra, b, c, gX * k00 + gY * k10,
+                                        gX * k01 + gY * k11, gd, T, wx, wy, wz, ww)
         a0 += d0
         a1 += d1
         a2 += d2
     return a0, a1, a2, 0.0
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_matrix(a, b, t, wx, wy, wz, ww):
+    """The entries of ``R = exp(t omega^) = Id + a t omega^ + b t^2 (omega omega^T -
+    |omega|^2 Id)``, row by row, from the Rodrigues coefficients ``a, b``."""
+    at = a * t
+    bt = b * t * t
+    return (1.0 + bt * (wx * wx - ww), -at * wz + bt * wx * wy, at * wy + bt * wx * wz,
+            at * wz + bt * wx * wy, 1.0 + bt * (wy * wy - ww), -at * wx + bt * wy * wz,
+            -at * wy + bt * wx * wz, at * wx + bt * wy * wz, 1.0 + bt * (wz * wz - ww))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_value_adj(want_div, X, Y, t, a, b, c, gX, gY, gd, T, wx, wy, wz, ww):
+    """:func:`_rot_vjp_event` of the normalized pixel gradient ``gX, gY`` plus ``gd``
+    times the omega-derivative of the event's value (divergence times ``T``, or
+    ``|det J| - 1``), from the warped normalized point (X, Y) alone.
+
+    The value is a function ``D(X, Y, omega)`` (:func:`evmotion.core.regularizers.
+    _rot_value_event`), so ``dD/domega = D_X dX/domega + D_Y dY/domega + D_omega``: the
+    first two terms join the pixel gradient. Since ``|q| = |v|`` (q = R v), ``q_z^2 (1 +
+    X^2 + Y^2) = |v|^2``, and ``|det J| = |q_z|^-3`` depends on omega through X, Y only:
+    ``d|det J| = 3 |det J| (X dX + Y dY) / (1 + X^2 + Y^2)``. For the divergence ``tr(A
+    J)``, ``D_omega`` comes from ``A`` (linear in omega) and from ``R`` with ``dR/domega_j
+    = t (J_l e_j)^ R``: ``sum_mn (dD/dR)_mn (dR/domega_j)_mn = t (J_l e_j) . n``, ``n``
+    the axial vector of ``R M^T - M R^T``, ``M = dD/dR``; :func:`_rot_vjp_event` contracts
+    ``-t J_l^T u``, so ``n`` enters as ``u -= gd n``."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rot_matrix(a, b, t, wx, wy, wz, ww)
+    iz = r02 * X + r12 * Y + r22
+    if not want_div:
+        kap = gd * 3.0 * abs(iz * iz * iz) / (1.0 + X * X + Y * Y)
+        return _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX + kap * X, gY + kap * Y)
+    f = gd * T
+    p00 = r00 - X * r20
+    p01 = r01 - X * r21
+    p10 = r10 - Y * r20
+    p11 = r11 - Y * r21
+    a00 = 2.0 * wy * X - wx * Y
+    a01 = -wz - wx * X
+    a10 = wz + wy * Y
+    a11 = wy * X - 2.0 * wx * Y
+    S = a00 * p00 + a01 * p10 + a10 * p01 + a11 * p11  # D = S iz
+    # D_X, D_Y into the pixel gradient
+    sx = 2.0 * wy * p00 - a00 * r20 - wx * p10 - a10 * r21 + wy * p11
+    sy = -wx * p00 - a01 * r20 + wy * p01 - a11 * r21 - 2.0 * wx * p11
+    gXd = gX + f * (iz * sx + S * r02)
+    gYd = gY + f * (iz * sy + S * r12)
+    # M = dD/dR: rows (m0, m1, m2)
+    m00 = a00 * iz
+    m01 = a10 * iz
+    m10 = a01 * iz
+    m11 = a11 * iz
+    m20 = -(X * a00 + Y * a01) * iz
+    m21 = -(X * a10 + Y * a11) * iz
+    m02 = S * X
+    m12 = S * Y
+    # N = R M^T: N_mn = R_m . M_n; n = (N12 - N21, N20 - N02, N01 - N10)
+    n0 = (r10 * m20 + r11 * m21 + r12 * S) - (r20 * m10 + r21 * m11 + r22 * m12)
+    n1 = (r20 * m00 + r21 * m01 + r22 * m02) - (r00 * m20 + r01 * m21 + r02 * S)
+    n2 = (r00 * m10 + r01 * m11 + r02 * m12) - (r10 * m00 + r11 * m01 + r12 * m02)
+    # D_omega through A (a00..a11 linear in omega), J = p iz
+    ea0 = -Y * p00 - X * p10 - 2.0 * Y * p11
+    ea1 = 2.0 * X * p00 + Y * p01 + X * p11
+    ea2 = p01 - p10
+    d0, d1, d2 = _rot_vjp_u(X, Y, t, b, c, wx, wy, wz, ww, gXd, gYd, -f * n0, -f * n1, -f * n2)
+    fi = f * iz
+    return d0 + fi * ea0, d1 + fi * ea1, d2 + fi * ea2
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
+def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
     """``out`` (3,) = ``jx^T gx + jy^T gy`` with the rotation Jacobian recomputed per event
     from the warped pixels ``xw, yw`` (``prm``: omega, K's 2x2 block, the first two rows of
     K^-1); with a padded image ``pad`` (:func:`_pad_image`) the pixel gradients come from it
-    (weights ``wts`` times ``scale``), not from ``gx, gy``."""
+    (weights ``wts`` times ``scale``), not from ``gx, gy``. With two padded images (pair
+    mode, ``wts`` the per-event values), ``vk`` says whether the values are held fixed (0)
+    or are the warp's divergence times ``T`` (1) or ``|det J| - 1`` (2), whose derivatives
+    are then chained as well (:data:`_VALUE_KINDS`)."""
     mode = _rot_rates(dt, prm)[4]
     use_w = wts.shape[0] > 0
     fuse = pad.shape[0] > 0
     pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
-    a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
+    a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T)
     if not fuse and mode == 0:
-        acc = _rot_loop(0, False, False, False, a)
+        acc = _rot_loop(0, False, False, False, 0, a)
     elif not fuse and mode == 1:
-        acc = _rot_loop(1, False, False, False, a)
+        acc = _rot_loop(1, False, False, False, 0, a)
     elif not fuse:
-        acc = _rot_loop(2, False, False, False, a)
+        acc = _rot_loop(2, False, False, False, 0, a)
+    elif pair and mode == 0 and vk == 1:
+        acc = _rot_loop(0, True, True, True, 1, a)
+    elif pair and mode == 0 and vk == 2:
+        acc = _rot_loop(0, True, True, True, 2, a)
     elif pair and mode == 0:
-        acc = _rot_loop(0, True, True, True, a)
+        acc = _rot_loop(0, True, True, True, 0, a)
+    elif pair and mode == 1 and vk == 1:
+        acc = _rot_loop(1, True, True, True, 1, a)
+    elif pair and mode == 1 and vk == 2:
+        acc = _rot_loop(1, True, True, True, 2, a)
     elif pair and mode == 1:
-        acc = _rot_loop(1, True, True, True, a)
+        acc = _rot_loop(1, True, True, True, 0, a)
+    elif pair and vk == 1:
+        acc = _rot_loop(2, True, True, True, 1, a)
+    elif pair and vk == 2:
+        acc = _rot_loop(2, True, True, True, 2, a)
     elif pair:
-        acc = _rot_loop(2, True, True, True, a)
+        acc = _rot_loop(2, True, True, True, 0, a)
     elif mode == 0 and use_w:
-        acc = _rot_loop(0, True, True, False, a)
+        acc = _rot_loop(0, True, True, False, 0, a)
     elif mode == 0:
-        acc = _rot_loop(0, True, False, False, a)
+        acc = _rot_loop(0, True, False, False, 0, a)
     elif mode == 1 and use_w:
-        acc = _rot_loop(1, True, True, False, a)
+        acc = _rot_loop(1, True, True, False, 0, a)
     elif mode == 1:
-        acc = _rot_loop(1, True, False, False, a)
+        acc = _rot_loop(1, True, False, False, 0, a)
     else:
-        acc = _rot_loop(2, True, use_w, False, a)
+        acc = _rot_loop(2, True, use_w, False, 0, a)
     for j in range(3):
         out[j] = acc[j]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _similarity_loop(small, fuse, use_w, pair, args):
-    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale = args
+def _similarity_loop(small, fuse, use_w, pair, vk, args):
+    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T = args
     w, s, cx, cy = prm[0], prm[1], prm[2], prm[3]
     wp = wd + 2
     p2 = (h + 2) * wp  # start of the second image in pair mode
     a0 = a1 = a2 = a3 = 0.0
     for k in range(xw.shape[0]):
+        gd = 0.0
         if fuse:
             xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k] if use_w and
                                                  not pair else 1.0, scale, h, wd)
-            gX, gY = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
+            gX, gY, gd = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
         else:
             xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
         sn, c = _sincos_any(-t * w, small)
@@ -867,40 +980,57 @@ def _similarity_loop(small, fuse, use_w, pair, args):
         a1 += d1
         a2 += d2
         a3 += d3
+        # the values' derivatives (A.40)/(A.42) (sin(t w) = -sn)
+        ib = 1.0 / (1.0 + t * s)
+        ib2 = ib * ib
+        if vk == 1:
+            f = gd * T
+            a2 += f * (-2.0 * s * ib2 * t * sn + 2.0 * ib * sn - 2.0 * w * ib * t * c)
+            a3 += f * (-2.0 * c * ib2 + 4.0 * s * t * c * ib2 * ib - 2.0 * w * t * sn * ib2)
+        elif vk == 2:
+            a3 -= gd * 2.0 * t * ib2 * ib
     return a0, a1, a2, a3
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
+def _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
     """:func:`_k_rotation_adj` for SE(2) and the similarity (``prm``: wz, s, c; ``out``
     (3,) or (4,))."""
     small = _max_abs(dt) * abs(prm[0]) < 1.0
     use_w = wts.shape[0] > 0
     pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
-    a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
+    a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T)
     if pad.shape[0] == 0 and small:
-        acc = _similarity_loop(True, False, False, False, a)
+        acc = _similarity_loop(True, False, False, False, 0, a)
     elif pad.shape[0] == 0:
-        acc = _similarity_loop(False, False, False, False, a)
+        acc = _similarity_loop(False, False, False, False, 0, a)
+    elif pair and small and vk == 1:
+        acc = _similarity_loop(True, True, True, True, 1, a)
+    elif pair and small and vk == 2:
+        acc = _similarity_loop(True, True, True, True, 2, a)
     elif pair and small:
-        acc = _similarity_loop(True, True, True, True, a)
+        acc = _similarity_loop(True, True, True, True, 0, a)
+    elif pair and vk == 1:
+        acc = _similarity_loop(False, True, True, True, 1, a)
+    elif pair and vk == 2:
+        acc = _similarity_loop(False, True, True, True, 2, a)
     elif pair:
-        acc = _similarity_loop(False, True, True, True, a)
+        acc = _similarity_loop(False, True, True, True, 0, a)
     elif small and use_w:
-        acc = _similarity_loop(True, True, True, False, a)
+        acc = _similarity_loop(True, True, True, False, 0, a)
     elif small:
-        acc = _similarity_loop(True, True, False, False, a)
+        acc = _similarity_loop(True, True, False, False, 0, a)
     else:
-        acc = _similarity_loop(False, True, use_w, False, a)
+        acc = _similarity_loop(False, True, use_w, False, 0, a)
     for j in range(out.shape[0]):
         out[j] = acc[j]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _simple_loop(kind, fuse, use_w, pair, args):
+def _simple_loop(kind, fuse, use_w, pair, vk, args):
     """Zoom (kind 0), translation (1), in-plane (2): the zoom and in-plane warps are
     recomputed from the events (cheaper than reading their warped pixels as well)."""
-    x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale = args
+    x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T = args
     cx, cy = prm[0], prm[1]
     hz = c = sn = kk = vx = vy = 0.0
     if kind == 0:
@@ -923,10 +1053,11 @@ def _simple_loop(kind, fuse, use_w, pair, args):
         else:
             xv0 = xw[k]
             yv0 = yw[k]
+        gd = 0.0
         if fuse:
             xv, yv, t, a, fx, fy, i = _pad_index(xv0, yv0, t, wts[k] if use_w and not pair
                                                  else 1.0, scale, h, wd)
-            gX, gY = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
+            gX, gY, gd = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
             # where the event has no vote its weight is 0: any finite point will do
             ok = xv == xv0
             xc = xc if ok else 0.0
@@ -943,41 +1074,64 @@ def _simple_loop(kind, fuse, use_w, pair, args):
             r1 = sn * xc + c * yc
             a2 += t * kk * (gX * r1 - gY * r0)
             a3 -= t * (gX * r0 + gY * r1)
+        # the values' derivatives: (3.7) for the zoom, (A.25)/(A.27) in-plane
+        if kind == 0 and vk == 1:
+            a0 -= gd * 2.0 * T
+        elif kind == 0 and vk == 2:
+            a0 -= gd * 2.0 * t * (1.0 - t * hz)
+        elif kind == 2 and vk == 1:
+            a2 += gd * T * 2.0 * kk * sn
+            a3 -= gd * T * 2.0 * c
+        elif kind == 2 and vk == 2:
+            e = 1.0 + t
+            det = e * e - 2.0 * e * t * kk * c + t * t * kk * kk
+            f = gd if det >= 0 else -gd
+            a2 += f * (2.0 * e * t * kk * sn)
+            a3 += f * (-2.0 * e * t * c + 2.0 * t * t * kk)
     return a0, a1, a2, a3
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_simple_adj(kind, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out):
+def _k_simple_adj(kind, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
     """:func:`_k_rotation_adj` for the zoom, translation and in-plane warps (``kind`` 0, 1,
     2; ``prm``: c, then h_z (zoom) or cos phi, sin phi, h_z + 1, vx, vy (in-plane))."""
     use_w = wts.shape[0] > 0
     fuse = pad.shape[0] > 0
     pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
-    a = (x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale)
+    a = (x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T)
     if kind == 0 and not fuse:
-        acc = _simple_loop(0, False, False, False, a)
+        acc = _simple_loop(0, False, False, False, 0, a)
+    elif kind == 0 and pair and vk == 1:
+        acc = _simple_loop(0, True, True, True, 1, a)
+    elif kind == 0 and pair and vk == 2:
+        acc = _simple_loop(0, True, True, True, 2, a)
     elif kind == 0 and pair:
-        acc = _simple_loop(0, True, True, True, a)
+        acc = _simple_loop(0, True, True, True, 0, a)
     elif kind == 0 and use_w:
-        acc = _simple_loop(0, True, True, False, a)
+        acc = _simple_loop(0, True, True, False, 0, a)
     elif kind == 0:
-        acc = _simple_loop(0, True, False, False, a)
+        acc = _simple_loop(0, True, False, False, 0, a)
     elif kind == 1 and not fuse:
-        acc = _simple_loop(1, False, False, False, a)
+        acc = _simple_loop(1, False, False, False, 0, a)
     elif kind == 1 and pair:
-        acc = _simple_loop(1, True, True, True, a)
+        # translation: divergence 0 and det J = 1, whatever theta
+        acc = _simple_loop(1, True, True, True, 0, a)
     elif kind == 1 and use_w:
-        acc = _simple_loop(1, True, True, False, a)
+        acc = _simple_loop(1, True, True, False, 0, a)
     elif kind == 1:
-        acc = _simple_loop(1, True, False, False, a)
+        acc = _simple_loop(1, True, False, False, 0, a)
     elif not fuse:
-        acc = _simple_loop(2, False, False, False, a)
+        acc = _simple_loop(2, False, False, False, 0, a)
+    elif pair and vk == 1:
+        acc = _simple_loop(2, True, True, True, 1, a)
+    elif pair and vk == 2:
+        acc = _simple_loop(2, True, True, True, 2, a)
     elif pair:
-        acc = _simple_loop(2, True, True, True, a)
+        acc = _simple_loop(2, True, True, True, 0, a)
     elif use_w:
-        acc = _simple_loop(2, True, True, False, a)
+        acc = _simple_loop(2, True, True, False, 0, a)
     else:
-        acc = _simple_loop(2, True, False, False, a)
+        acc = _simple_loop(2, True, False, False, 0, a)
     for j in range(out.shape[0]):
         out[j] = acc[j]
 
@@ -1450,7 +1604,8 @@ class Warp:
 class _FusedAdjoint:
     """Warps whose adjoint kernel recomputes the parameter Jacobian per event, so the chain
     rule needs no (N, P) Jacobian buffers (the hot path of gradient-based CMax). Each such
-    warp defines ``_adj(x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out)``."""
+    warp defines ``_adj(x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0,
+    T=1.0)`` (``vk``, ``T``: :meth:`reduce_pair`'s ``derivs``, ``T``)."""
 
     def vjp(self, x, y, dt, xw, yw, theta, gx, gy, out) -> np.ndarray:
         """``out = jx^T gx + jy^T gy`` (P,): per-event pixel gradients ``gx, gy`` (N,)
@@ -1508,14 +1663,20 @@ class _FusedAdjoint:
         return out
 
     def reduce_pair(self, x, y, dt, xw, yw, theta, pads, values, h, wd, out,
-                    scale: float = 1.0) -> np.ndarray:
+                    scale: float = 1.0, derivs: str | None = None,
+                    T: float = 1.0) -> np.ndarray:
         """:meth:`reduce_bilinear` for a loss on two bilinear IWEs of ``xw, yw``, of ones
-        and of per-event ``values`` (held fixed): ``out`` (P,) = dL/dtheta given
-        ``dL/dIWE_ones = A`` and ``dL/dIWE_values = B``, one pass over the events with the
-        Jacobians recomputed, not stored. ``pads`` (2 (h + 2) (wd + 2),) float64 holds
-        ``A`` then ``B``, each an (h, wd) image padded by a ring of zeros (row-major);
-        ``values`` (N,) float64 contiguous; the result is multiplied by ``scale``; other
-        arguments as in :meth:`vjp`.
+        and of per-event ``values``: ``out`` (P,) = dL/dtheta given ``dL/dIWE_ones = A``
+        and ``dL/dIWE_values = B``, one pass over the events with the Jacobians recomputed,
+        not stored. ``pads`` (2 (h + 2) (wd + 2),) float64 holds ``A`` then ``B``, each an
+        (h, wd) image padded by a ring of zeros (row-major); ``values`` (N,) float64
+        contiguous; the result is multiplied by ``scale``; other arguments as in
+        :meth:`vjp`.
+
+        ``derivs``: None holds the values fixed; ``"divergence"`` (the values are this
+        warp's divergence times ``T``) or ``"deformation"`` (``|det J| - 1``) chains their
+        theta-derivatives too, in the same pass (the DIWE/IWA penalties of
+        :mod:`evmotion.core.regularizers`).
 
         Examples
         --------
@@ -1529,9 +1690,16 @@ class _FusedAdjoint:
         if pads.shape[0] != 2 * (h + 2) * (wd + 2):
             raise ParameterError(f"pads must hold two padded ({h}, {wd}) images, got "
                                  f"{pads.shape[0]} values")
+        if derivs not in _VALUE_KINDS:
+            raise ParameterError(f"derivs must be one of {sorted(_VALUE_KINDS, key=str)}, "
+                                 f"got {derivs!r}")
         self._adj(x, y, dt, xw, yw, self._theta(theta), _EMPTY1, _EMPTY1, values, pads, h, wd,
-                  float(scale), out)
+                  float(scale), out, _VALUE_KINDS[derivs], float(T))
         return out
+
+
+#: :meth:`_FusedAdjoint.reduce_pair`'s ``derivs`` -> the kernels' value kind ``vk``.
+_VALUE_KINDS = {None: 0, "divergence": 1, "deformation": 2}
 
 
 # ---------------------------------------------------------------------------------------
@@ -1548,9 +1716,9 @@ class ZoomWarp(_FusedAdjoint, Warp):
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_zoom(x, y, dt, th[0], self.center[0], self.center[1], xw, yw, jx, jy, jac)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
         prm = np.array([self.center[0], self.center[1], th[0]])
-        _k_simple_adj(0, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out)
+        _k_simple_adj(0, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1568,9 +1736,9 @@ class TranslationWarp(_FusedAdjoint, Warp):
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_translation(x, y, dt, th[0], th[1], xw, yw, jx, jy, jac)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
         _k_simple_adj(1, x, y, xw, yw, dt, np.array(self.center), gx, gy, wts, pad, h, wd,
-                      scale, out)
+                      scale, vk, T, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1599,9 +1767,9 @@ class SimilarityWarp(_FusedAdjoint, Warp):
         _k_similarity(x, y, dt, th[0], th[1], th[2], s, self.center[0], self.center[1],
                       xw, yw, jx, jy, jac, self.scaled)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
         prm = np.array([th[2], th[3] if self.scaled else 0.0, self.center[0], self.center[1]])
-        _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out)
+        _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1644,11 +1812,11 @@ class InPlaneWarp(_FusedAdjoint, Warp):
         _k_inplane(x, y, dt, th[0], th[1], th[2], th[3], self.center[0], self.center[1],
                    xw, yw, jx, jy, jac)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
         # the rotation as _k_inplane computes it (libm through numba and math alike)
         prm = np.array([self.center[0], self.center[1], math.cos(th[2]), math.sin(th[2]),
                         th[3] + 1.0, th[0], th[1]])
-        _k_simple_adj(2, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out)
+        _k_simple_adj(2, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1743,11 +1911,11 @@ class RotationWarp(_FusedAdjoint, Warp):
     def _conj(self):
         return self.K, self._kinv
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
         K, Ki = self.K, self._kinv
         prm = np.array([th[0], th[1], th[2], K[0, 0], K[0, 1], K[1, 0], K[1, 1], Ki[0, 0],
                         Ki[0, 1], Ki[0, 2], Ki[1, 0], Ki[1, 1], Ki[1, 2]])
-        _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, out)
+        _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
 
     def _divdet(self, x, y, dt, theta, want_div, grad):
         x, y, dt = self._events(x, y, dt)

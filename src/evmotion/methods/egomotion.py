@@ -74,7 +74,6 @@ from evmotion.core.regularizers import (
     _checked_theta,
     _span_T,
     _trimmed_parts,
-    _value_derivs,
     chains_pair,
     regularizer_maps,
     regularizer_value_grad,
@@ -439,22 +438,21 @@ class CMaxCost:
         w.warp_into(x, y, dt, th, xw, yw)
         reg, pads = self.regularizer, self._pads
         # the IWE is voted there, with the penalty's image of values when it builds its maps
-        R, gR, d, fac, s = _trimmed_parts(reg, w, x, y, dt, th, self.shape, xw, yw,
-                                          DEFAULT_MARGINS[reg], pads, self._span,
-                                          count_out=self.iwe)
+        R, gR, d, _, s = _trimmed_parts(reg, w, x, y, dt, th, self.shape, xw, yw,
+                                        DEFAULT_MARGINS[reg], pads, self._span,
+                                        count_out=self.iwe)
         G, g, shift, scale = self._image_grad()
         lam = self.weight
         if d is None:
             w.reduce_bilinear(x, y, dt, xw, yw, th, g, self.gtheta, shift=shift, scale=scale,
                               work=self._pad)
             return -G / self.g0 + lam * R, -self.gtheta / self.g0 + lam * gR
-        _value_derivs(reg, w, x, y, dt, xw, yw, th, self.shape, _span_T(self._span), fac, pads,
-                      s, gR)
         size = self._pad.shape[0]
         _fold_adjoints(g, shift, -scale / self.g0, lam * s, pads[:size], pads[size:])
+        # the values' derivatives come from the scaled gS image in the same pass
         w.reduce_pair(x, y, dt, xw, yw, th, pads, d, self.shape[0], self.shape[1],
-                      self.gtheta)
-        return -G / self.g0 + lam * R, self.gtheta + lam * gR
+                      self.gtheta, 1.0, reg, _span_T(self._span))
+        return -G / self.g0 + lam * R, self.gtheta.copy()
 
     # -- public --------------------------------------------------------------------------
     def value_grad(self, theta) -> tuple[float, np.ndarray]:
