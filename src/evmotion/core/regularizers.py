@@ -43,8 +43,10 @@ Cost (what CMax pays per evaluation on top of its data term; ``benchmarks/bench_
   the penalty's adjoint images into its data term's, so that that one pass chains both
   (:func:`_trimmed_parts`). Warps without fused adjoints (or given ``jx, jy``) chain
   per-event derivatives through the stored Jacobians;
-* RCAD maps test their threshold without logarithms first; ``span=(min dt, max dt)`` spares
-  the pass over the times when the caller knows them.
+* RCAD maps test their threshold on the area ratio, without logarithms, sum the selected
+  values as the logarithm of a product and their gradients as three sums contracted once
+  (:func:`_k_rcad_grid`); ``span=(min dt, max dt)`` spares the pass over the times when the
+  caller knows them.
 
 Whitening (:func:`whiten`) is the baseline the thesis compares with (Nunes & Demiris): it is
 not a penalty but a normalization of the warped events to zero mean and identity
@@ -743,61 +745,57 @@ def _rot_area_coeffs(om, t, kinv, a, da):
             da[i, j] = acc
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _rcad_point(ix, iy, a0, da0, c0, a1, da1, c1, margin, out):
-    """The log area ratio at grid point (ix, iy) px, and if it exceeds ``margin`` its
-    gradient added to ``out``: returns (value, selected)."""
-    s0 = a0[0] * ix + a0[1] * iy + a0[2]
-    s1 = a1[0] * ix + a1[1] * iy + a1[2]
-    v = c1 - c0 - 3.0 * math.log(abs(s1)) + 3.0 * math.log(abs(s0))
-    if not v > margin:
-        return v, False
-    f0 = 3.0 / s0
-    f1 = -3.0 / s1
-    for j in range(out.shape[0]):
-        out[j] += (f1 * (da1[0, j] * ix + da1[1, j] * iy + da1[2, j])
-                   + f0 * (da0[0, j] * ix + da0[1, j] * iy + da0[2, j]))
-    return v, True
-
-
 @njit(cache=True, error_model="numpy")
 def _k_rcad_grid(h, w, stride, a0, da0, c0, a1, da1, c1, margin, out):
     """Mean over the grid points (stride px) where the log area ratio
-    ``c1 - c0 - 3 log|a1 . x| + 3 log|a0 . x|`` exceeds ``margin``, and its gradient
-    into ``out`` (P,). Returns (mean, count).
+    ``c1 - c0 - 3 log q``, ``q = |(a1 . x) / (a0 . x)|``, exceeds ``margin``, and its
+    gradient into ``out`` (P,). Returns (mean, count).
 
-    The threshold is first tested without logarithms, as ``|a1 . x| < r |a0 . x|`` with
-    ``r = exp((c1 - c0 - margin) / 3)`` widened by 1e-9 (more than the rounding of the
-    logarithms), in a branch-free loop per grid row; only rows with a candidate are
-    evaluated exactly. Away from collapse no point passes, so the map costs a few
-    multiply-adds per grid point instead of two logarithms."""
+    No logarithm per point: the threshold is ``q < r = exp((c1 - c0 - margin) / 3)`` (the
+    same up to the rounding of ``exp``; where ``r`` over- or underflows, the logarithm is
+    taken per point), and the sum of the selected values is ``n (c1 - c0) - 3 log`` of the
+    product of their ``q``, taken whenever that product leaves [1e-150, 1e150] (so it
+    neither under- nor overflows). The gradient of a selected point, ``-3 da1^T x / (a1 .
+    x) + 3 da0^T x / (a0 . x)``, is linear in ``x / (a . x)``: those are summed, and
+    contracted with the (3, P) derivatives once at the end."""
     P = out.shape[0]
-    for j in range(P):
-        out[j] = 0.0
-    r = math.exp((c1 - c0 - margin) / 3.0) * (1.0 + 1e-9)
-    if not r > 0.0:
-        # underflow (or NaN): no cheap bound, evaluate every point
-        r = math.inf
-    total = 0.0
+    r = math.exp((c1 - c0 - margin) / 3.0)
+    by_ratio = 0.0 < r < math.inf
     n_sel = 0
+    prod = 1.0
+    logs = 0.0
+    # sums of (x, y, 1) / (a1 . x) and / (a0 . x) over the selected points
+    u0 = u1 = u2 = v0 = v1 = v2 = 0.0
     for iy in range(stride // 2, h, stride):
         b0 = a0[1] * iy + a0[2]
         b1 = a1[1] * iy + a1[2]
-        n_cand = 0
         for ix in range(stride // 2, w, stride):
-            n_cand += 1 if abs(a1[0] * ix + b1) < r * abs(a0[0] * ix + b0) else 0
-        if n_cand == 0:
-            continue
-        for ix in range(stride // 2, w, stride):
-            v, sel = _rcad_point(ix, iy, a0, da0, c0, a1, da1, c1, margin, out)
-            if sel:
-                total += v
-                n_sel += 1
+            s0 = a0[0] * ix + b0
+            s1 = a1[0] * ix + b1
+            i0 = 1.0 / s0
+            q = abs(s1 * i0)
+            if not (q < r if by_ratio else c1 - c0 - 3.0 * math.log(q) > margin):
+                continue
+            n_sel += 1
+            prod *= q
+            if not 1e-150 < prod < 1e150:
+                logs += math.log(prod)
+                prod = 1.0
+            i1 = 1.0 / s1
+            u0 += ix * i1
+            u1 += iy * i1
+            u2 += i1
+            v0 += ix * i0
+            v1 += iy * i0
+            v2 += i0
     if n_sel == 0:
+        for j in range(P):
+            out[j] = 0.0
         return 0.0, 0
     for j in range(P):
-        out[j] /= n_sel
-    return total / n_sel, n_sel
+        out[j] = (3.0 * (da0[0, j] * v0 + da0[1, j] * v1 + da0[2, j] * v2)
+                  - 3.0 * (da1[0, j] * u0 + da1[1, j] * u1 + da1[2, j] * u2)) / n_sel
+    return c1 - c0 - 3.0 * (logs + math.log(prod)) / n_sel, n_sel
 
 
 @njit(cache=True, error_model="numpy")
@@ -819,17 +817,16 @@ def _rcad_value_grad(warp, x, y, dt, theta, shape, margin, stride, grad=True, sp
         raise EmptyWindowError("the regularizer needs at least one event, got none")
     th = _checked_theta(warp, theta)
     t0, t1 = _time_span(dt) if span is None else (float(span[0]), float(span[1]))
+    g = np.empty(warp.n_params)
+    if warp.name == "rotation":
+        # coefficients and grid in one compiled call (c = 0 for a rotation); g is 0 when
+        # no point is selected
+        value, _ = _k_rcad_rotation(shape[0], shape[1], stride, th, t0, t1, warp._kinv,
+                                    margin, g)
+        return float(value), (g if grad else None)
     closed = _rcad_scalar(warp, th, t0, t1)
     if closed is not None:
         return closed
-    g = np.empty(warp.n_params)
-    if warp.name == "rotation":
-        # coefficients and grid in one compiled call (c = 0 for a rotation)
-        value, n_sel = _k_rcad_rotation(shape[0], shape[1], stride, th, t0, t1, warp._kinv,
-                                        margin, g)
-        if n_sel == 0:
-            return 0.0, np.zeros(warp.n_params)
-        return float(value), (g if grad else None)
     a0, da0, c0, dc0 = _area_coeffs(warp, th, t0)
     a1, da1, c1, dc1 = _area_coeffs(warp, th, t1)
     value, n_sel = _k_rcad_grid(shape[0], shape[1], stride, a0, np.ascontiguousarray(da0), c0,
