@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import sys
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -66,22 +67,21 @@ def main(quick: bool = False) -> list[dict]:
                     (("bench_cmax", theta), ("collapse", COLLAPSE_THETA[wname]))):
                 if theta_m is None:
                     continue
-                base = base_min = None
-                for reg in REGS:
-                    cost = CMaxCost(warp, x, y, dt, shape, obj, reg, weight=1.0, polarity=p)
-                    th = np.asarray(theta_m, dtype=float)
-                    # whitening (an eigen-decomposition and (N, P) products in numpy) is slow
-                    rep = max(3, repeat // 4) if reg == "whitening" else repeat
-                    r = harness.timeit(lambda c=cost, th=th: c.value_grad(th), repeat=rep)
-                    ms = r["median_s"] * 1e3
-                    ms_min = r["min_s"] * 1e3
-                    if reg is None:
-                        base, base_min = ms, ms_min
+                th = np.asarray(theta_m, dtype=float)
+                costs = {reg or "none": CMaxCost(warp, x, y, dt, shape, obj, reg, weight=1.0,
+                                                 polarity=p) for reg in REGS}
+                # whitening (an eigen-decomposition and (N, P) products in numpy) is slow
+                reps = {k: max(3, repeat // 4) if k == "whitening" else repeat for k in costs}
+                # the regularizers in turn, three rounds: same-load ratios
+                t = harness.timeit_rounds(
+                    {k: partial(c.value_grad, th) for k, c in costs.items()},
+                    repeat=reps, rounds=1 if quick else 3, ref="none")
+                for k, r in t.items():
                     rows.append({"case": "eval", "events": n, "size": f"{shape[1]}x{shape[0]}",
                                  "warp": wname, "objective": obj, "motion": motion,
-                                 "regularizer": reg or "none",
-                                 "ms_per_eval": ms, "ratio_vs_none": ms / base,
-                                 "ms_min": ms_min, "ratio_min": ms_min / base_min})
+                                 "regularizer": k, "ms_per_eval": r["median_s"] * 1e3,
+                                 "ratio_vs_none": r["ratio"], "ms_min": r["min_s"] * 1e3,
+                                 "ratio_min": r["ratio_min"]})
     # complete estimates on a 30k window
     x, y, dt, p, t = _events(30_000, (260, 346), seed=1)
     ev = EventArray(x.astype(np.float32), y.astype(np.float32), t, p, sensor_size=(260, 346),
@@ -96,7 +96,9 @@ def main(quick: bool = False) -> list[dict]:
                      "warp": wname, "objective": "variance", "regularizer": reg or "none",
                      "ms_total": r["median_s"] * 1e3, "n_evals": res.timings["n_evals"]})
     harness.record("cmax", rows, notes="single core (harness.pin_idlest_core); medians; "
-                   "ratio_vs_none = ms / ms of the unregularized run of the same row group; "
+                   "ratio_vs_none = ms / ms of the unregularized run of the same row group, "
+                   "timed in turn with it in three rounds (harness.timeit_rounds: the median "
+                   "of the per-round ratios); "
                    "ms_min / ratio_min: the same with the fastest run (less sensitive to other "
                    "processes on a shared machine)")
     _table34(rows)

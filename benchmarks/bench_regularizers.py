@@ -6,7 +6,8 @@ Per warp up to 4 DOF, 30k events at 346x260 and 500k at 640x480 (bench_cmax's ev
 * ``data ms``: one unregularized CMax evaluation (variance, value + gradient) -- the
   reference the overheads are measured against, in the same run;
 * per regularizer, one evaluation of the CMax cost with it (weight 1), its ratio to ``data
-  ms`` and the difference (what the penalty costs CMax: divergence and deformation take
+  ms`` (timed in turn with it over three rounds, the median of the per-round ratios: the
+  neighbours' load on a shared machine reaches both alike) and the difference (what the penalty costs CMax: divergence and deformation take
   the data term's IWE as their count map and chain their adjoint through the data term's
   pass over the events), and one standalone :func:`regularizer_value_grad` call given what
   CMax has at hand (events by 16 px sensor tile, warped events, its IWE, the window span).
@@ -71,8 +72,14 @@ def main(quick: bool = False) -> list[dict]:
                     continue
                 th = np.asarray(th, dtype=float)
                 cost = CMaxCost(warp, x, y, dt, shape, "variance", None, polarity=p)
-                data = harness.timeit(partial(cost.value_grad, th), repeat=repeat)
-                data_ms = data["median_s"] * 1e3
+                costs = {reg: CMaxCost(warp, x, y, dt, shape, "variance", reg, weight=1.0,
+                                       polarity=p) for reg in REGS}
+                # the costs in turn, three rounds: same-load ratios
+                t = harness.timeit_rounds(
+                    {"data": partial(cost.value_grad, th),
+                     **{reg: partial(c.value_grad, th) for reg, c in costs.items()}},
+                    repeat=repeat, rounds=1 if quick else 3, ref="data")
+                data_ms = t["data"]["median_s"] * 1e3
                 # what CMax hands a standalone call: its events in tile order, warped with
                 # th, its IWE as the count map, the window's span
                 cost.value_grad(th)
@@ -82,15 +89,12 @@ def main(quick: bool = False) -> list[dict]:
                 row = {"case": "regularizer", "events": n, "size": size, "warp": wname,
                        "motion": motion, "data_ms": data_ms}
                 for reg in REGS:
-                    rcost = CMaxCost(warp, x, y, dt, shape, "variance", reg, weight=1.0,
-                                     polarity=p)
-                    total = harness.timeit(partial(rcost.value_grad, th), repeat=repeat)
                     alone = harness.timeit(partial(regularizer_value_grad, reg, *ev, **kw),
                                            repeat=repeat)
-                    ms = total["median_s"] * 1e3
+                    ms = t[reg]["median_s"] * 1e3
                     row[f"{reg}_value"] = regularizer_value_grad(reg, *ev, **kw)[0]
                     row[f"{reg}_ms"] = ms - data_ms
-                    row[f"{reg}_ratio"] = ms / data_ms
+                    row[f"{reg}_ratio"] = t[reg]["ratio"]
                     row[f"{reg}_alone_ms"] = alone["median_s"] * 1e3
                 rows.append(row)
                 print(row, flush=True)
@@ -106,8 +110,9 @@ def main(quick: bool = False) -> list[dict]:
     harness.record("regularizers", rows, notes=(
         "single core (harness.pin_idlest_core); medians; data_ms: one unregularized CMax "
         "evaluation (variance, value + gradient); <reg>_ratio: one evaluation of CMaxCost "
-        "with that regularizer (weight 1) over data_ms, in the same run, and <reg>_ms the "
-        "difference (the penalty's cost as CMax pays it: divergence and deformation share "
+        "with that regularizer (weight 1) over data_ms, timed in turn with it in three "
+        "rounds (harness.timeit_rounds: the median of the per-round ratios), and <reg>_ms "
+        "the difference of the medians (the penalty's cost as CMax pays it: divergence and deformation share "
         "the data term's IWE and its pass over the events); <reg>_alone_ms: one standalone "
         "regularizer_value_grad call with what CMax has at hand (events in tile order, "
         "warped events, its IWE as count=, span=); motion 'collapse' = strong contraction "

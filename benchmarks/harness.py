@@ -68,6 +68,31 @@ def timeit(fn: Callable[[], object], *, repeat: int = 20, warmup: int = 2) -> di
             "repeat": repeat}
 
 
+def timeit_rounds(fns: dict[str, Callable[[], object]], *, repeat: int | dict[str, int] = 20,
+                  rounds: int = 3, ref: str | None = None) -> dict[str, dict]:
+    """:func:`timeit` of each of ``fns`` in turn, ``rounds`` times over (A B C A B C ...),
+    so that a change of load on a shared machine reaches every function alike (``repeat``
+    runs per round, or per name from a dict). Per name:
+    ``median_s`` (the median of its round medians), ``min_s``, and, given ``ref`` (a name),
+    ``ratio`` (the median over rounds of its round median over ``ref``'s in that round)
+    and ``ratio_min`` (the same with the fastest runs)."""
+    reps = repeat if isinstance(repeat, dict) else dict.fromkeys(fns, repeat)
+    per = {k: [] for k in fns}
+    for _ in range(rounds):
+        for k, fn in fns.items():
+            per[k].append(timeit(fn, repeat=reps[k]))
+    out = {}
+    for k, rs in per.items():
+        out[k] = {"median_s": statistics.median(r["median_s"] for r in rs),
+                  "min_s": min(r["min_s"] for r in rs), "repeat": reps[k] * rounds}
+        if ref is not None:
+            out[k]["ratio"] = statistics.median(r["median_s"] / q["median_s"]
+                                                for r, q in zip(rs, per[ref], strict=True))
+            out[k]["ratio_min"] = (out[k]["min_s"]
+                                   / min(q["min_s"] for q in per[ref]))
+    return out
+
+
 def record(suite: str, rows: list[dict], notes: str = "") -> Path:
     """Write ``rows`` (list of flat dicts) to results/<suite>.json and a markdown table."""
     RESULTS.mkdir(exist_ok=True)
