@@ -805,16 +805,25 @@ def _rot_bc(z, mode):
     return b, c
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _rot_loop(mode, fuse, use_w, pair, vk, args):
-    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T = args
+@njit(cache=True, inline="always")
+def _rot_prm(prm):
+    """The scalars of :func:`_k_rotation_adj`'s ``prm``: omega, |omega|^2, K's 2x2 block
+    and the first two rows of K^-1."""
     wx, wy, wz = prm[0], prm[1], prm[2]
-    ww = wx * wx + wy * wy + wz * wz
-    k00, k01, k10, k11 = prm[3], prm[4], prm[5], prm[6]
-    i00, i01, i02, i10, i11, i12 = prm[7], prm[8], prm[9], prm[10], prm[11], prm[12]
+    return (wx, wy, wz, wx * wx + wy * wy + wz * wz, prm[3], prm[4], prm[5], prm[6], prm[7],
+            prm[8], prm[9], prm[10], prm[11], prm[12])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_loop(mode, fuse, use_w, pair, deform, args):
+    """The rotation's adjoint loop: its three sums and, in pair mode, that of ``|gd|``
+    (:func:`_pad_diff`); ``deform`` (pair mode): the values are ``|det J| - 1``, their
+    derivatives chained too (:func:`_rot_det_weight`: they join the pixel gradient)."""
+    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, _ = args
+    wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02, i10, i11, i12 = _rot_prm(prm)
     wp = wd + 2
     p2 = (h + 2) * wp  # start of the second image in pair mode
-    a0 = a1 = a2 = 0.0
+    a0 = a1 = a2 = a3 = 0.0
     for k in range(xw.shape[0]):
         gd = 0.0
         if fuse:
@@ -823,20 +832,65 @@ def _rot_loop(mode, fuse, use_w, pair, vk, args):
             gX, gY, gd = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
         else:
             xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
-        if vk == 0:
-            b, c = _rot_bc(t * t * ww, mode)
-            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01,
-                                        k10, k11, i00, i01, i02, i10, i11, i12)
-        else:
+        if deform:
             ra, b, c = _rod_mode(t * t * ww, mode)
             X = i00 * xv + i01 * yv + i02
             Y = i10 * xv + i11 * yv + i12
-            d0, d1, d2 = _rot_value_adj(vk == 1, X, Y, t, ra, b, c, gX * k00 + gY * k10,
-                                        gX * k01 + gY * k11, gd, T, wx, wy, wz, ww)
+            kap = _rot_det_weight(X, Y, t, ra, b, wx, wy, wz, ww, gd)
+            d0, d1, d2 = _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww,
+                                        gX * k00 + gY * k10 + kap * X,
+                                        gX * k01 + gY * k11 + kap * Y)
+        else:
+            b, c = _rot_bc(t * t * ww, mode)
+            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01,
+                                        k10, k11, i00, i01, i02, i10, i11, i12)
         a0 += d0
         a1 += d1
         a2 += d2
+        a3 += abs(gd)
+    return a0, a1, a2, a3
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_div_loop(mode, args):
+    """:func:`_rot_loop` in pair mode with the divergence's derivatives (``vk`` 1), in
+    blocks of events: the votes' adjoint over every event, then the values' part (linear
+    in the pixel gradient, so it splits off exactly: :func:`_rot_value_adj`) only in the
+    blocks where some event has a nonzero ``gd``. Near collapse an eighth of the events
+    reach a trimmed pixel, clustered (the events are in sensor-tile order), so most blocks
+    skip it (in-line, it cost about as much as the rest of the loop). No per-event buffer:
+    each loop only sums, so both vectorize."""
+    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T = args
+    wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02, i10, i11, i12 = _rot_prm(prm)
+    wp = wd + 2
+    p2 = (h + 2) * wp  # start of the second image
+    a0 = a1 = a2 = 0.0
+    for k0 in range(0, xw.shape[0], _DIV_BLOCK):
+        # views per block, so that the loops index from 0: an index numba cannot prove
+        # non-negative gets a wraparound select, and its loads become gathers
+        k1 = k0 + _DIV_BLOCK
+        xs, ys, ts = xw[k0:k1], yw[k0:k1], dt[k0:k1]
+        d0, d1, d2, active = _rot_loop(mode, True, True, True, False,
+                                       (xs, ys, ts, prm, gx, gy, wts[k0:k1], pad, h, wd, scale,
+                                        T))
+        a0 += d0
+        a1 += d1
+        a2 += d2
+        if active == 0.0:
+            continue
+        for k in range(xs.shape[0]):
+            xv, yv, t, a, fx, fy, i = _pad_index(xs[k], ys[k], ts[k], 1.0, scale, h, wd)
+            _, _, gd = _pad_diff(True, a, fx, fy, 0.0, pad, i, wp, p2)
+            ra, b, c = _rod_mode(t * t * ww, mode)
+            d0, d1, d2 = _rot_value_adj(i00 * xv + i01 * yv + i02, i10 * xv + i11 * yv + i12,
+                                        t, ra, b, c, gd, T, wx, wy, wz, ww)
+            a0 += d0
+            a1 += d1
+            a2 += d2
     return a0, a1, a2, 0.0
+
+
+_DIV_BLOCK = 32  # events per block of _rot_div_loop
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -851,25 +905,32 @@ def _rot_matrix(a, b, t, wx, wy, wz, ww):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_value_adj(want_div, X, Y, t, a, b, c, gX, gY, gd, T, wx, wy, wz, ww):
-    """:func:`_rot_vjp_event` of the normalized pixel gradient ``gX, gY`` plus ``gd``
-    times the omega-derivative of the event's value (divergence times ``T``, or
-    ``|det J| - 1``), from the warped normalized point (X, Y) alone.
+def _rot_det_weight(X, Y, t, a, b, wx, wy, wz, ww, gd):
+    """``kap``: ``gd`` times the omega-derivative of the event's ``|det J| - 1`` is that of
+    ``kap (X, Y)`` as a normalized pixel gradient (:func:`_rot_value_adj`)."""
+    _, _, r02, _, _, r12, _, _, r22 = _rot_matrix(a, b, t, wx, wy, wz, ww)
+    iz = r02 * X + r12 * Y + r22
+    return gd * 3.0 * abs(iz * iz * iz) / (1.0 + X * X + Y * Y)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_value_adj(X, Y, t, a, b, c, gd, T, wx, wy, wz, ww):
+    """``gd`` times the omega-derivative of the event's divergence times ``T`` (its
+    ``|det J| - 1``: :func:`_rot_det_weight`), from the warped normalized point (X, Y)
+    alone.
 
     The value is a function ``D(X, Y, omega)`` (:func:`evmotion.core.regularizers.
     _rot_value_event`), so ``dD/domega = D_X dX/domega + D_Y dY/domega + D_omega``: the
-    first two terms join the pixel gradient. Since ``|q| = |v|`` (q = R v), ``q_z^2 (1 +
-    X^2 + Y^2) = |v|^2``, and ``|det J| = |q_z|^-3`` depends on omega through X, Y only:
+    first two terms are a pixel gradient for :func:`_rot_vjp_event`. Since ``|q| = |v|``
+    (q = R v), ``q_z^2 (1 + X^2 + Y^2) = |v|^2``, and ``|det J| = |q_z|^-3`` depends on
+    omega through X, Y only:
     ``d|det J| = 3 |det J| (X dX + Y dY) / (1 + X^2 + Y^2)``. For the divergence ``tr(A
     J)``, ``D_omega`` comes from ``A`` (linear in omega) and from ``R`` with ``dR/domega_j
     = t (J_l e_j)^ R``: ``sum_mn (dD/dR)_mn (dR/domega_j)_mn = t (J_l e_j) . n``, ``n``
-    the axial vector of ``R M^T - M R^T``, ``M = dD/dR``; :func:`_rot_vjp_event` contracts
+    the axial vector of ``R M^T - M R^T``, ``M = dD/dR``; :func:`_rot_vjp_u` contracts
     ``-t J_l^T u``, so ``n`` enters as ``u -= gd n``."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rot_matrix(a, b, t, wx, wy, wz, ww)
     iz = r02 * X + r12 * Y + r22
-    if not want_div:
-        kap = gd * 3.0 * abs(iz * iz * iz) / (1.0 + X * X + Y * Y)
-        return _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX + kap * X, gY + kap * Y)
     f = gd * T
     p00 = r00 - X * r20
     p01 = r01 - X * r21
@@ -883,8 +944,8 @@ def _rot_value_adj(want_div, X, Y, t, a, b, c, gX, gY, gd, T, wx, wy, wz, ww):
     # D_X, D_Y into the pixel gradient
     sx = 2.0 * wy * p00 - a00 * r20 - wx * p10 - a10 * r21 + wy * p11
     sy = -wx * p00 - a01 * r20 + wy * p01 - a11 * r21 - 2.0 * wx * p11
-    gXd = gX + f * (iz * sx + S * r02)
-    gYd = gY + f * (iz * sy + S * r12)
+    gXd = f * (iz * sx + S * r02)
+    gYd = f * (iz * sy + S * r12)
     # M = dD/dR: rows (m0, m1, m2)
     m00 = a00 * iz
     m01 = a10 * iz
@@ -922,39 +983,39 @@ def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
     pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
     a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T)
     if not fuse and mode == 0:
-        acc = _rot_loop(0, False, False, False, 0, a)
+        acc = _rot_loop(0, False, False, False, False, a)
     elif not fuse and mode == 1:
-        acc = _rot_loop(1, False, False, False, 0, a)
+        acc = _rot_loop(1, False, False, False, False, a)
     elif not fuse:
-        acc = _rot_loop(2, False, False, False, 0, a)
+        acc = _rot_loop(2, False, False, False, False, a)
     elif pair and mode == 0 and vk == 1:
-        acc = _rot_loop(0, True, True, True, 1, a)
+        acc = _rot_div_loop(0, a)
     elif pair and mode == 0 and vk == 2:
-        acc = _rot_loop(0, True, True, True, 2, a)
+        acc = _rot_loop(0, True, True, True, True, a)
     elif pair and mode == 0:
-        acc = _rot_loop(0, True, True, True, 0, a)
+        acc = _rot_loop(0, True, True, True, False, a)
     elif pair and mode == 1 and vk == 1:
-        acc = _rot_loop(1, True, True, True, 1, a)
+        acc = _rot_div_loop(1, a)
     elif pair and mode == 1 and vk == 2:
-        acc = _rot_loop(1, True, True, True, 2, a)
+        acc = _rot_loop(1, True, True, True, True, a)
     elif pair and mode == 1:
-        acc = _rot_loop(1, True, True, True, 0, a)
+        acc = _rot_loop(1, True, True, True, False, a)
     elif pair and vk == 1:
-        acc = _rot_loop(2, True, True, True, 1, a)
+        acc = _rot_div_loop(2, a)
     elif pair and vk == 2:
-        acc = _rot_loop(2, True, True, True, 2, a)
+        acc = _rot_loop(2, True, True, True, True, a)
     elif pair:
-        acc = _rot_loop(2, True, True, True, 0, a)
+        acc = _rot_loop(2, True, True, True, False, a)
     elif mode == 0 and use_w:
-        acc = _rot_loop(0, True, True, False, 0, a)
+        acc = _rot_loop(0, True, True, False, False, a)
     elif mode == 0:
-        acc = _rot_loop(0, True, False, False, 0, a)
+        acc = _rot_loop(0, True, False, False, False, a)
     elif mode == 1 and use_w:
-        acc = _rot_loop(1, True, True, False, 0, a)
+        acc = _rot_loop(1, True, True, False, False, a)
     elif mode == 1:
-        acc = _rot_loop(1, True, False, False, 0, a)
+        acc = _rot_loop(1, True, False, False, False, a)
     else:
-        acc = _rot_loop(2, True, use_w, False, 0, a)
+        acc = _rot_loop(2, True, use_w, False, False, a)
     for j in range(3):
         out[j] = acc[j]
 
