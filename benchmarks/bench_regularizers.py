@@ -6,7 +6,7 @@ Per warp up to 4 DOF, 30k events at 346x260 and 500k at 640x480 (bench_cmax's ev
 * ``data ms``: one unregularized CMax evaluation (variance, value + gradient) -- the
   reference the overheads are measured against, in the same run;
 * per regularizer, one evaluation of the CMax cost with it (weight 1), its ratio to ``data
-  ms`` (timed in turn with it over three rounds, the median of the per-round ratios: the
+  ms`` (timed in turn with it over five rounds, the median of the per-round ratios: the
   neighbours' load on a shared machine reaches both alike) and the difference (what the penalty costs CMax: divergence and deformation take
   the data term's IWE as their count map and chain their adjoint through the data term's
   pass over the events), and one standalone :func:`regularizer_value_grad` call given what
@@ -74,11 +74,11 @@ def main(quick: bool = False) -> list[dict]:
                 cost = CMaxCost(warp, x, y, dt, shape, "variance", None, polarity=p)
                 costs = {reg: CMaxCost(warp, x, y, dt, shape, "variance", reg, weight=1.0,
                                        polarity=p) for reg in REGS}
-                # the costs in turn, three rounds: same-load ratios
+                # the costs in turn, five rounds: same-load ratios
                 t = harness.timeit_rounds(
                     {"data": partial(cost.value_grad, th),
                      **{reg: partial(c.value_grad, th) for reg, c in costs.items()}},
-                    repeat=repeat, rounds=1 if quick else 3, ref="data")
+                    repeat=repeat, rounds=1 if quick else 5, ref="data")
                 data_ms = t["data"]["median_s"] * 1e3
                 # what CMax hands a standalone call: its events in tile order, warped with
                 # th, its IWE as the count map, the window's span
