@@ -140,3 +140,13 @@ def test_regularizers_do_not_harm_well_posed_rotation():
         rms[reg] = float(np.sqrt(np.mean((res.params - theta) ** 2)))
     for reg in ("divergence", "deformation", "rcad"):
         assert rms[reg] <= 1.05 * rms[None] + 1e-3, rms
+
+
+def test_divergence_plus_deformation_defaults_to_the_data_set_weights():
+    ev, _ = synth("zoom", TRUTH["zoom"][0], n_events=2000, seed=4)
+    for dataset, lam in (("mvsec", {"divergence": 2.0, "deformation": 5.0}),
+                         ("dsec", {"divergence": 50.0, "deformation": 100.0})):
+        res = estimate_egomotion(ev, "zoom", regularizer="divergence+deformation",
+                                 dataset=dataset, maps=False)
+        assert res.weight == lam
+        assert res.as_dict()["weight"] == lam

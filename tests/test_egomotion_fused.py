@@ -314,3 +314,45 @@ def test_vote_equals_accumulate_bit_for_bit(shape):
         out = np.full(shape, 7.0)
         _vote_bilinear(x, y, np.empty(0) if wts is None else wts, out)
         np.testing.assert_array_equal(out, accumulate(x, y, shape, wts))
+
+
+@pytest.mark.parametrize("name", ["rotation", "similarity", "affine"])
+def test_divergence_plus_deformation_is_the_weighted_sum(name):
+    # the thesis' "Div. + Def." (Tables 3.1/3.2): each penalty with its own weight, added
+    x, y, dt, p, _ = _window(17)
+    warp = make_warp(name, SHAPE, K=K)
+    theta = np.array(COLLAPSE[name])
+    lam = {"divergence": 0.7, "deformation": 1.9}
+    both = CMaxCost(warp, x, y, dt, SHAPE, regularizer="divergence+deformation", weight=lam,
+                    polarity=p)
+    assert not both._pair and both.weight == lam
+    v, g = both.value_grad(theta)
+    G, gG = CMaxCost(warp, x, y, dt, SHAPE, polarity=p).value_grad(theta)
+    ref_v, ref_g = G, gG.copy()
+    for reg, w in lam.items():
+        vr, gr = CMaxCost(warp, x, y, dt, SHAPE, regularizer=reg, weight=w,
+                          polarity=p).value_grad(theta)
+        ref_v += vr - G
+        ref_g += gr - gG
+    assert both.parts(theta)["penalty"] > 0.5
+    assert v == pytest.approx(ref_v, rel=1e-9)
+    np.testing.assert_allclose(g, ref_g, rtol=1e-8, atol=1e-10 * np.abs(ref_g).max())
+    if name != "affine":
+        # the trimmed means are piecewise smooth (the trimmed pixel set moves with theta);
+        # the affine warp's penalties change piece within any usable step here
+        assert_grad_matches_central_differences(both.value, theta, g, 1e-7, 1e-4, 1e-5)
+    # one float weighs both terms
+    same = CMaxCost(warp, x, y, dt, SHAPE, regularizer="divergence+deformation", weight=0.7,
+                    polarity=p)
+    assert same.weight == {"divergence": 0.7, "deformation": 0.7}
+
+
+def test_regularizer_weights_are_checked():
+    x, y, dt, p, _ = _window(3)
+    warp = make_warp("zoom", SHAPE)
+    for reg, weight in (("divergence+deformation", {"divergence": 1.0}),
+                        ("divergence+deformation", {"divergence": 1.0, "rcad": 1.0}),
+                        ("divergence", {"divergence": 1.0}), ("deformation", float("nan")),
+                        ("rcad", -1.0)):
+        with pytest.raises(ParameterError, match="weight"):
+            CMaxCost(warp, x, y, dt, SHAPE, regularizer=reg, weight=weight)

@@ -30,10 +30,13 @@ def add_common(p) -> None:
     p.add_argument("--objective", default="variance", choices=sorted(OBJECTIVES),
                    help="focus objective (default variance)")
     p.add_argument("--reg", default=None,
-                   choices=["divergence", "deformation", "rcad", "whitening"],
-                   help="event-collapse regularizer (default none)")
+                   choices=["divergence", "deformation", "rcad", "whitening",
+                            "divergence+deformation"],
+                   help="event-collapse regularizer (default none); divergence+deformation "
+                        "is the sum of both penalties (thesis 'Div. + Def.')")
     p.add_argument("--weight", type=float, default=None,
-                   help="regularizer weight lambda (default per --dataset, Sec. 3.6.1)")
+                   help="regularizer weight lambda (default per --dataset, Sec. 3.6.1; with "
+                        "divergence+deformation, one weight for both terms)")
     p.add_argument("--dataset", default="mvsec", choices=sorted(DEFAULT_WEIGHTS),
                    help="whose thesis weights (Sec. 3.6.1) are the default (default mvsec)")
     p.add_argument("--calib", default=None,

@@ -48,6 +48,7 @@ Examples
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -93,7 +94,12 @@ __all__ = [
 ]
 
 #: Regularizer names accepted by :func:`estimate_egomotion` (None = plain CMax).
-REGULARIZER_CHOICES = (None, "divergence", "deformation", "rcad", "whitening")
+REGULARIZER_CHOICES = (None, "divergence", "deformation", "rcad", "whitening",
+                       "divergence+deformation")
+
+#: Sums of penalties (the thesis' "Div. + Def.", Tables 3.1/3.2): each term keeps its own
+#: weight (Sec. 3.6.1: lambda_div and lambda_def of the data set).
+COMBINED_REGULARIZERS = {"divergence+deformation": ("divergence", "deformation")}
 
 #: Typical magnitude per parameter unit: the optimizers' scaling and the TPE box half-width.
 _UNIT_SCALE = {"1/s": (1.0, 8.0), "rad/s": (1.0, 8.0), "px/s": (100.0, 1500.0),
@@ -208,8 +214,10 @@ class CMaxCost:
         One of :data:`evmotion.core.objectives.OBJECTIVES`.
     regularizer : str or None
         One of :data:`REGULARIZER_CHOICES`.
-    weight : float
-        ``lambda`` of (3.6) (ignored without a penalty regularizer).
+    weight : float or mapping
+        ``lambda`` of (3.6) (ignored without a penalty regularizer); for
+        ``"divergence+deformation"`` one weight per term (``{"divergence": ...,
+        "deformation": ...}``) or one float for both.
     polarity : array (N,), optional
         0/1 polarity; needed by the timestamp objectives, and used as IWE weights +-1 with
         ``use_polarity``.
@@ -234,7 +242,8 @@ class CMaxCost:
     """
 
     def __init__(self, warp: Warp, x, y, dt, shape, objective: str = "variance",
-                 regularizer: str | None = None, weight: float = 0.0, polarity=None, tn=None,
+                 regularizer: str | None = None, weight: float | Mapping[str, float] = 0.0,
+                 polarity=None, tn=None,
                  kernel: str = "bilinear", sigma: float = 1.0, use_polarity: bool = False):
         if objective not in OBJECTIVES:
             raise ParameterError(f"unknown objective '{objective}'; choose one of "
@@ -250,7 +259,9 @@ class CMaxCost:
         self.shape = (int(shape[0]), int(shape[1]))
         self.objective = objective
         self.regularizer = regularizer
-        self.weight = float(weight)
+        self._terms = _penalty_terms(regularizer, weight)
+        self.weight = (dict(self._terms) if regularizer in COMBINED_REGULARIZERS
+                       else float(weight))
         self.kernel, self.sigma = kernel, float(sigma)
         self.needs_time = OBJECTIVES[objective].needs_time
         self.polarity = None if polarity is None else np.asarray(polarity)
@@ -407,23 +418,25 @@ class CMaxCost:
         return G / self.g0, self.gtheta / self.g0
 
     def _penalty(self, theta, grad: bool = True):
-        if self.regularizer not in REGULARIZERS or self.weight == 0.0:
-            return 0.0, np.zeros(self.warp.n_params)
+        total, gsum = 0.0, np.zeros(self.warp.n_params)
         # the data term has just voted the same warped events into self.iwe (unweighted,
         # bilinear): the penalty's count map, not accumulated twice
         count = (self.iwe if not self.needs_time and self._fw is None
                  and self.kernel == "bilinear" else None)
-        r, g = regularizer_value_grad(self.regularizer, self.warp, self._fx, self._fy,
-                                      self._fdt, theta, self.shape, self.xw, self.yw,
-                                      jx=self.jx, jy=self.jy, grad=grad, span=self._span,
-                                      count=count)
-        if self.regularizer == "rcad" and r < 0.0:
-            # one-sided, like the thresholded RCAD map: the closed forms (3.21)/(A.44) are
-            # negative for expansion, and a signed term would reward expanding warps
-            return 0.0, (np.zeros(self.warp.n_params) if grad else None)
-        # the divergence is already measured per window (core.regularizers), so the margin
-        # and lambda apply as the thesis states them: no further time scaling here
-        return self.weight * r, (self.weight * g if grad else None)
+        for name, lam in self._terms:
+            r, g = regularizer_value_grad(name, self.warp, self._fx, self._fy, self._fdt,
+                                          theta, self.shape, self.xw, self.yw, jx=self.jx,
+                                          jy=self.jy, grad=grad, span=self._span, count=count)
+            if name == "rcad" and r < 0.0:
+                # one-sided, like the thresholded RCAD map: the closed forms (3.21)/(A.44)
+                # are negative for expansion, and a signed term would reward expanding warps
+                continue
+            # the divergence is already measured per window (core.regularizers), so the
+            # margin and lambda apply as the thesis states them: no further time scaling
+            total += lam * r
+            if grad:
+                gsum += lam * g
+        return total, (gsum if grad else None)
 
     def _value_grad_pair(self, theta):
         """:meth:`value_grad` with a divergence or deformation penalty on the fused path:
@@ -496,8 +509,8 @@ class EgomotionResult:
     warp : str
     objective, optimizer : str
     regularizer : str or None
-    weight : float
-        ``lambda`` used.
+    weight : float or dict
+        ``lambda`` used (per term for ``"divergence+deformation"``).
     t_ref_us : int
         Reference time of the warp (µs, absolute).
     window_us : (int, int)
@@ -521,7 +534,7 @@ class EgomotionResult:
     warp: str
     objective: str
     regularizer: str | None
-    weight: float
+    weight: float | dict
     optimizer: str
     t_ref_us: int
     window_us: tuple[int, int]
@@ -559,13 +572,41 @@ def _resolve_t_ref(t_ref, t: np.ndarray) -> int:
     return int(t_ref)
 
 
-def _default_weight(regularizer, dataset: str) -> float:
-    if regularizer not in REGULARIZERS:
+def _default_weight(regularizer, dataset: str) -> float | dict[str, float]:
+    if regularizer not in REGULARIZERS and regularizer not in COMBINED_REGULARIZERS:
         return 0.0
     if dataset not in DEFAULT_WEIGHTS:
         raise ParameterError(f"unknown dataset '{dataset}' for default weights; choose one of "
                              f"{sorted(DEFAULT_WEIGHTS)} or pass weight=")
+    if regularizer in COMBINED_REGULARIZERS:
+        return {t: float(DEFAULT_WEIGHTS[dataset][t]) for t in COMBINED_REGULARIZERS[regularizer]}
     return float(DEFAULT_WEIGHTS[dataset][regularizer])
+
+
+def _penalty_terms(regularizer, weight) -> tuple[tuple[str, float], ...]:
+    """``(penalty name, lambda)`` of each term of ``regularizer`` with a non-zero weight."""
+    if regularizer in COMBINED_REGULARIZERS:
+        names = COMBINED_REGULARIZERS[regularizer]
+        if isinstance(weight, Mapping):
+            unknown = set(weight) - set(names)
+            if unknown or set(names) - set(weight):
+                raise ParameterError(f"regularizer '{regularizer}' takes one weight per term "
+                                     f"{list(names)}, got {sorted(weight)}")
+            lams = [float(weight[t]) for t in names]
+        else:
+            lams = [float(weight)] * len(names)
+    elif regularizer in REGULARIZERS:
+        if isinstance(weight, Mapping):
+            raise ParameterError(f"regularizer '{regularizer}' takes one float weight, got "
+                                 f"{dict(weight)}")
+        names, lams = (regularizer,), [float(weight)]
+    else:
+        return ()
+    for t, lam in zip(names, lams, strict=True):
+        if not np.isfinite(lam) or lam < 0.0:
+            raise ParameterError(f"regularizer weight for '{t}' must be finite and >= 0, "
+                                 f"got {lam}")
+    return tuple((t, lam) for t, lam in zip(names, lams, strict=True) if lam != 0.0)
 
 
 def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str = "variance",
@@ -602,7 +643,7 @@ def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str 
     dt = (t - t_ref_us).astype(np.float64) * 1e-6
     span = max(int(t[-1]) - int(t[0]), 1)
     tn = (t - t[0]).astype(np.float64) / span
-    lam = _default_weight(regularizer, dataset) if weight is None else float(weight)
+    lam = _default_weight(regularizer, dataset) if weight is None else weight
     if kernel == "auto":
         # events on the integer pixel grid make the identity warp a kink-shaped local
         # maximum of any bilinear-vote objective (every event sits exactly on a pixel), which
@@ -634,9 +675,13 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     objective : str
         ``"variance"``, ``"gradient_magnitude"``, ``"avg_timestamp"`` or
         ``"avg_timestamp_norm"``.
-    regularizer : {None, "divergence", "deformation", "rcad", "whitening"}
-    weight : float, optional
-        ``lambda``; default per thesis (Sec. 3.6.1) for ``dataset``.
+    regularizer : {None, "divergence", "deformation", "rcad", "whitening", \
+"divergence+deformation"}
+        ``"divergence+deformation"`` is the sum of both penalties (the thesis' "Div. + Def.").
+    weight : float or mapping, optional
+        ``lambda``; default per thesis (Sec. 3.6.1) for ``dataset``. For
+        ``"divergence+deformation"``: ``{"divergence": ..., "deformation": ...}`` (default the
+        data set's two weights) or one float for both.
     optimizer : {"bfgs", "newton-cg", "adam", "tpe"}
     K : array (3, 3), optional
         Intrinsics (pixels), required by ``rotation`` unless ``events.meta["K"]`` holds it.
