@@ -353,6 +353,35 @@ def test_rotation_values_from_warped_points_match_numpy(om):
     np.testing.assert_array_equal(fac, np.where(det >= 0, 1.0, -1.0))
 
 
+@pytest.mark.parametrize("om", [[0.5, -0.3, 0.2], [10.0, 5.0, -30.0], [30.0, -20.0, 40.0]])
+def test_rotation_values_fused_with_the_warp(om):
+    """:func:`_warp_values` (the warp and the per-event values in one pass, CMax's pair
+    path) gives the warp's pixels and :func:`_k_rot_values`' d and fac, every series mode."""
+    from evmotion.core.regularizers import _k_rot_values, _warp_values
+
+    w = make_warp("rotation", (H, W), K=K)
+    x, y, dt = _events(300, seed=4)
+    dt = dt - 0.02
+    th = np.array(om, dtype=float)
+    xw_ref, yw_ref = w.warp(x, y, dt, th)
+    span = dt.max() - dt.min()
+    for kind, T_k in (("divergence", span), ("deformation", 1.0)):
+        xw, yw = np.empty(300), np.empty(300)
+        d, fac = (a.copy() for a in _warp_values(kind, w, x, y, dt, th, xw, yw, None))
+        np.testing.assert_array_equal(xw, xw_ref)
+        np.testing.assert_array_equal(yw, yw_ref)
+        d_ref, fac_ref = np.empty(300), np.empty(300)
+        _k_rot_values(xw_ref, yw_ref, dt, th, w._kinv, kind == "divergence", T_k, d_ref,
+                      fac_ref)
+        np.testing.assert_allclose(d, d_ref, rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(fac, fac_ref)
+    # other warps are only warped
+    wz = make_warp("zoom", (H, W), K=K)
+    xw, yw = np.empty(300), np.empty(300)
+    assert _warp_values("divergence", wz, x, y, dt, np.array([8.0]), xw, yw, None) is None
+    np.testing.assert_array_equal(xw, wz.warp(x, y, dt, [8.0])[0])
+
+
 def test_rcad_grid_threshold_matches_numpy():
     """The log-free threshold and summed logarithms of the RCAD grid select the points a
     plain-numpy evaluation of the map selects and give their mean, at margins cutting

@@ -76,8 +76,10 @@ from evmotion.core.warps import (
     _rod_coeffs,
     _rod_coeffs_exact,
     _rod_coeffs_short,
+    _rod_mode,
     _rot_matrix,
     _rot_rates,
+    _rot_warp_norm,
     _sincos_block,
 )
 from evmotion.errors import EmptyWindowError, ParameterError
@@ -320,6 +322,57 @@ def _k_rot_values(xw, yw, dt, w, Kinv, want_div, T, d, fac):
             v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
                                  + i12, t, a, b, wx, wy, wz, ww, want_div)
             _rot_finish(v, want_div, T, d, fac, k)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _k_rot_warp_values(x, y, dt, w, Kmat, Kinv, want_div, T, xw, yw, d, fac):
+    """The rotation warp (``xw, yw``, as :meth:`~evmotion.core.warps.Warp.warp_into`) and
+    the per-event ``d``, ``fac`` of :func:`_k_rot_values` in one pass: each event's
+    Rodrigues coefficients and warped normalized point serve both (no reload of the warped
+    pixels, no second series)."""
+    a = (x, y, dt, w, Kmat, Kinv, want_div, T, xw, yw, d, fac)
+    mode = _rot_rates(dt, w)[4]
+    if mode == 0:
+        _rot_warp_values_loop(0, a)
+    elif mode == 1:
+        _rot_warp_values_loop(1, a)
+    else:
+        _rot_warp_values_loop(2, a)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_warp_values_loop(mode, args):
+    x, y, dt, w, Kmat, Kinv, want_div, T, xw, yw, d, fac = args
+    wx, wy, wz = w[0], w[1], w[2]
+    ww = wx * wx + wy * wy + wz * wz
+    k00, k01, k02, k10, k11, k12 = Kmat[0, 0], Kmat[0, 1], Kmat[0, 2], Kmat[1, 0], Kmat[1, 1], \
+        Kmat[1, 2]
+    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
+        Kinv[1, 2]
+    for k in range(x.shape[0]):
+        t = dt[k]
+        a, b, _ = _rod_mode(t * t * ww, mode)
+        X, Y = _rot_warp_norm(x[k], y[k], t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12)
+        xw[k] = k00 * X + k01 * Y + k02
+        yw[k] = k10 * X + k11 * Y + k12
+        v = _rot_value_event(X, Y, t, a, b, wx, wy, wz, ww, want_div)
+        _rot_finish(v, want_div, T, d, fac, k)
+
+
+def _warp_values(kind, warp, x, y, dt, th, xw, yw, span):
+    """Warp the events into ``xw, yw`` and return ``(d, fac)`` of :func:`_event_values`
+    from the same pass where the warp has a fused kernel for them (the rotation), else
+    ``None`` (only warped). Inputs as :meth:`~evmotion.core.warps.Warp.warp_into`'s, theta
+    checked."""
+    if warp.name != "rotation" or kind not in ("divergence", "deformation"):
+        warp.warp_into(x, y, dt, th, xw, yw)
+        return None
+    is_div = kind == "divergence"
+    T = (window_span(dt) if span is None else _span_T(span)) if is_div else 1.0
+    n = dt.shape[0]
+    d, fac = _scratch(((n,), (n,)), "ev1")
+    _k_rot_warp_values(x, y, dt, th, warp.K, warp._kinv, is_div, T, xw, yw, d, fac)
+    return d, fac
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
@@ -586,7 +639,7 @@ def chains_pair(warp: Warp) -> bool:
 
 
 def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=None,
-                   count=None, grad=True, count_out=None):
+                   count=None, grad=True, count_out=None, values=None):
     """The divergence or deformation penalty up to the chain rule through the warp, for
     callers that fuse that step with their own (CMax's data term): ``(value, g, d, fac,
     scale)`` for checked events and theta (:func:`_prepare`).
@@ -602,7 +655,8 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
     stored Jacobians).
     ``count_out`` (H, W), if given (and ``count`` not), receives the bilinear IWE of
     ``xw, yw`` in every case, voted with the values' IWE where the maps are built (the data
-    term's IWE of a caller that votes once)."""
+    term's IWE of a caller that votes once). ``values``: ``(d, fac)`` of
+    :func:`_event_values` for ``xw, yw``, if at hand (:func:`_warp_values`)."""
     zero = (0.0, np.zeros(warp.n_params) if grad else None, None, None, 0.0)
 
     def unvoted(result):
@@ -623,7 +677,11 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
         if not (d[0] < m and _any_vote(xw, yw, shape[0], shape[1])):
             return unvoted(zero)
         return unvoted((-float(d[0]), (-dd[0].copy() if grad else None), None, None, 0.0))
-    d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False, T=T, xw=xw, yw=yw)
+    if values is None:
+        d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False, T=T, xw=xw,
+                                  yw=yw)
+    else:
+        d, fac = values
     if _all_above(d, m):
         # no collapse anywhere (the usual case away from collapse): no maps to build
         return unvoted(zero)

@@ -580,8 +580,15 @@ def _rod_mode(z, mode):
 @njit(cache=True, error_model="numpy")
 def _rot_warp_event(x, y, t, a, b, wx, wy, wz, k00, k01, k02, k10, k11, k12, i00, i01, i02,
                     i10, i11, i12):
-    """Warped pixel of one event: :func:`_rot_point` with K^-1's last row (0, 0, 1)
-    written in, then K."""
+    """Warped pixel of one event: :func:`_rot_warp_norm`, then K."""
+    X, Y = _rot_warp_norm(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12)
+    return k00 * X + k01 * Y + k02, k10 * X + k11 * Y + k12
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_warp_norm(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12):
+    """Warped normalized point of one event: :func:`_rot_point` with K^-1's last row
+    (0, 0, 1) written in."""
     xn = i00 * x + i01 * y + i02
     yn = i10 * x + i11 * y + i12
     c1x = wy - wz * yn
@@ -592,9 +599,7 @@ def _rot_warp_event(x, y, t, a, b, wx, wy, wz, k00, k01, k02, k10, k11, k12, i00
     q0 = xn + at * c1x + bt * (wy * c1z - wz * c1y)
     q1 = yn + at * c1y + bt * (wz * c1x - wx * c1z)
     iz = 1.0 / (1.0 + at * c1z + bt * (wx * c1y - wy * c1x))
-    X = q0 * iz
-    Y = q1 * iz
-    return k00 * X + k01 * Y + k02, k10 * X + k11 * Y + k12
+    return q0 * iz, q1 * iz
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)

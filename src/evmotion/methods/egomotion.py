@@ -75,6 +75,7 @@ from evmotion.core.regularizers import (
     _checked_theta,
     _span_T,
     _trimmed_parts,
+    _warp_values,
     chains_pair,
     regularizer_maps,
     regularizer_value_grad,
@@ -448,12 +449,13 @@ class CMaxCost:
         w = self.warp
         th = _checked_theta(w, theta)
         x, y, dt, xw, yw = self._fx, self._fy, self._fdt, self.xw, self.yw
-        w.warp_into(x, y, dt, th, xw, yw)
         reg, pads = self.regularizer, self._pads
+        # the rotation's per-event values come from the warp's own pass
+        values = _warp_values(reg, w, x, y, dt, th, xw, yw, self._span)
         # the IWE is voted there, with the penalty's image of values when it builds its maps
         R, gR, d, _, s = _trimmed_parts(reg, w, x, y, dt, th, self.shape, xw, yw,
                                         DEFAULT_MARGINS[reg], pads, self._span,
-                                        count_out=self.iwe)
+                                        count_out=self.iwe, values=values)
         G, g, shift, scale = self._image_grad()
         lam = self.weight
         if d is None:
