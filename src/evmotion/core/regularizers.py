@@ -80,6 +80,7 @@ from evmotion.core.warps import (
     _rot_matrix,
     _rot_rates,
     _rot_warp_norm,
+    _rows01,
     _sincos_block,
 )
 from evmotion.errors import EmptyWindowError, ParameterError
@@ -297,8 +298,7 @@ def _k_rot_values(xw, yw, dt, w, Kinv, want_div, T, d, fac):
     from the warped pixels ``xw, yw`` (one pass; the loops per series mode have no branch,
     so they vectorize like the warp's)."""
     wx, wy, wz, ww, mode = _rot_rates(dt, w)
-    i00, i01, i02 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2]
-    i10, i11, i12 = Kinv[1, 0], Kinv[1, 1], Kinv[1, 2]
+    i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
     n = xw.shape[0]
     if mode == 0:
         for k in range(n):
@@ -345,10 +345,8 @@ def _rot_warp_values_loop(mode, args):
     x, y, dt, w, Kmat, Kinv, want_div, T, xw, yw, d, fac = args
     wx, wy, wz = w[0], w[1], w[2]
     ww = wx * wx + wy * wy + wz * wz
-    k00, k01, k02, k10, k11, k12 = Kmat[0, 0], Kmat[0, 1], Kmat[0, 2], Kmat[1, 0], Kmat[1, 1], \
-        Kmat[1, 2]
-    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
-        Kinv[1, 2]
+    k00, k01, k02, k10, k11, k12 = _rows01(Kmat)
+    i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
     for k in range(x.shape[0]):
         t = dt[k]
         a, b, _ = _rod_mode(t * t * ww, mode)

@@ -577,6 +577,14 @@ def _rod_mode(z, mode):
     return _rod_coeffs_exact(z)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _rows01(m):
+    """The first two rows of the 3x3 matrix ``m`` as six scalars: the kernels hold K and
+    K^-1 in registers (their output arrays might alias the matrices, which would force a
+    reload per event)."""
+    return m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2]
+
+
 @njit(cache=True, error_model="numpy")
 def _rot_warp_event(x, y, t, a, b, wx, wy, wz, k00, k01, k02, k10, k11, k12, i00, i01, i02,
                     i10, i11, i12):
@@ -605,11 +613,8 @@ def _rot_warp_norm(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12):
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
     wx, wy, wz, ww, mode = _rot_rates(dt, w)
-    # the matrices as scalars: the output arrays might alias them, which would force reloads
-    k00, k01, k02, k10, k11, k12 = Kmat[0, 0], Kmat[0, 1], Kmat[0, 2], Kmat[1, 0], Kmat[1, 1], \
-        Kmat[1, 2]
-    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
-        Kinv[1, 2]
+    k00, k01, k02, k10, k11, k12 = _rows01(Kmat)
+    i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
     n = x.shape[0]
     if not jac:
         if mode == 0:
@@ -674,10 +679,8 @@ def _rot_jac_loop(mode, args):
     x, y, dt, xw, yw, jx, jy, w, Kmat, Kinv = args
     wx, wy, wz = w[0], w[1], w[2]
     ww = wx * wx + wy * wy + wz * wz
-    k00, k01, k02, k10, k11, k12 = Kmat[0, 0], Kmat[0, 1], Kmat[0, 2], Kmat[1, 0], Kmat[1, 1], \
-        Kmat[1, 2]
-    i00, i01, i02, i10, i11, i12 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2], Kinv[1, 0], Kinv[1, 1], \
-        Kinv[1, 2]
+    k00, k01, k02, k10, k11, k12 = _rows01(Kmat)
+    i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
     i20, i21, i22 = Kinv[2, 0], Kinv[2, 1], Kinv[2, 2]
     # flat views: stride-3 stores into 1-D arrays vectorize, 2-D item stores do not
     jxf = jx.reshape(jx.size)
@@ -1213,8 +1216,7 @@ def _k_rot_divdet(x, y, dt, w, Kinv, want_div, val, grad, gw, out):
     rotational field ``F(X) = pi'(q) (omega x q)`` evaluated at the warped point,
     div f = tr(dF/dX dX/dx). Derivatives use dR/d omega_j = dt (J_l e_j)^ R."""
     wx, wy, wz, ww, mode = _rot_rates(dt, w)
-    i00, i01, i02 = Kinv[0, 0], Kinv[0, 1], Kinv[0, 2]
-    i10, i11, i12 = Kinv[1, 0], Kinv[1, 1], Kinv[1, 2]
+    i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
     mode_g = 1 if grad.shape[0] > 0 else (2 if gw.shape[0] > 0 else 0)
     abuf = np.empty(_BLOCK)
     bbuf = np.empty(_BLOCK)
