@@ -57,13 +57,7 @@ def add_arguments(group) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.methods.triplet import (
-        LSQ_DX,
-        LSQ_FILTER_SIZE,
-        LSQ_TAU_US,
-        TripletMatcher,
-        max_normal_speed,
-    )
+    from evmotion.methods.triplet import TripletMatcher, dense_defaults, max_normal_speed
     from evmotion.utils import progress
 
     out = Path(args.out)
@@ -71,13 +65,10 @@ def run(args) -> int:
     if kind not in (".h5", ".hdf5", ".npy", ".flo", ".npz"):
         raise ParameterError(f"--out {out}: the triplet method writes .h5, .npy or .flo (dense "
                              "per window) or .npz (sparse per event)")
-    lsq = args.dense == "lsq"
-    if args.filter_size is None:
-        args.filter_size = LSQ_FILTER_SIZE if lsq else 3
-    if args.dx is None:
-        args.dx = LSQ_DX if lsq else float(np.sqrt(2.0))
-    if args.tau_ms is None:
-        args.tau_ms = LSQ_TAU_US / 1000 if lsq else 3.0
+    tau_us = None if args.tau_ms is None else int(round(args.tau_ms * 1000))
+    args.dx, tau_us, args.filter_size = dense_defaults(args.dense, args.dx, tau_us,
+                                                       args.filter_size)
+    args.tau_ms = tau_us / 1000
     if not (np.isfinite(args.ridge) and args.ridge >= 0):
         raise ParameterError(f"--ridge must be a finite number >= 0, got {args.ridge}")
     if args.chunk_events <= 0:

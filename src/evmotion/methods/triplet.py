@@ -64,6 +64,7 @@ __all__ = [
     "add_normal_voxels",
     "add_voxels",
     "collapse_voxels",
+    "dense_defaults",
     "dense_from_sums",
     "dense_lsq_from_sums",
     "estimate_flow_triplet",
@@ -83,6 +84,27 @@ NORMAL_KAPPA = 256
 LSQ_DX = 2.3
 LSQ_TAU_US = 1_000
 LSQ_FILTER_SIZE = 15
+
+
+def dense_defaults(dense: str, dx: float | None = None, tau_us: int | None = None,
+                   filter_size: int | None = None) -> tuple[float, int, int]:
+    """``(dx, tau_us, filter_size)`` with the defaults of the ``dense`` output filled in:
+    the thesis' sqrt(2) px, 3 ms and 3x3 average for ``"mean"``; :data:`LSQ_DX`,
+    :data:`LSQ_TAU_US` and :data:`LSQ_FILTER_SIZE` for ``"lsq"``.
+
+    Examples
+    --------
+    >>> dense_defaults("lsq", tau_us=2_000)
+    (2.3, 2000, 15)
+    """
+    lsq = dense == "lsq"
+    if dx is None:
+        dx = LSQ_DX if lsq else float(np.sqrt(2.0))
+    if tau_us is None:
+        tau_us = LSQ_TAU_US if lsq else 3_000
+    if filter_size is None:
+        filter_size = LSQ_FILTER_SIZE if lsq else 3
+    return dx, tau_us, filter_size
 
 
 @dataclass(frozen=True)
@@ -577,12 +599,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     if dense not in ("mean", "lsq"):
         raise ParameterError(f"dense must be 'mean' (thesis) or 'lsq', got {dense!r}")
     lsq = dense == "lsq"
-    if filter_size is None:
-        filter_size = LSQ_FILTER_SIZE if lsq else 3
-    if dx is None:
-        dx = LSQ_DX if lsq else float(np.sqrt(2.0))
-    if tau_us is None:
-        tau_us = LSQ_TAU_US if lsq else 3_000
+    dx, tau_us, filter_size = dense_defaults(dense, dx, tau_us, filter_size)
     _filter_radius(filter_size)
     if windows is None:
         windows = [Window(0, events.t_start, events.t_end + 1, 0, len(events))]
