@@ -254,7 +254,8 @@ def test_trim_and_backward_kernels_match_numpy():
     backward pass and the stored-Jacobian contraction against plain numpy, events inside,
     across and outside the border included; d/dd_k against finite differences."""
     from evmotion.core.iwe import accumulate
-    from evmotion.core.regularizers import _backward_events, _contract, _trim_pass
+    from evmotion.core.regularizers import _backward_events, _contract
+    from evmotion.core.trim import tile_grid, trim_pass
 
     rng = np.random.default_rng(5)
     n = 500
@@ -265,7 +266,8 @@ def test_trim_and_backward_kernels_match_numpy():
     num = accumulate(xw, yw, (H, W), weights=d)
     pads = np.full(2 * (H + 2) * (W + 2), np.nan)
     size = (H + 2) * (W + 2)
-    total, n_sel = _trim_pass(cnt, num, -0.3, pads[:size], pads[size:])
+    near = np.ones(tile_grid((H, W)), np.uint8)
+    total, n_sel = trim_pass(cnt, num, -0.3, pads[:size], pads[size:], near)
     sup = cnt > 1e-9
     mean = np.divide(num, cnt, out=np.zeros((H, W)), where=sup)
     sel = sup & (mean < -0.3)
@@ -313,10 +315,10 @@ def test_no_map_when_every_value_is_above_the_margin():
 
     rng = np.random.default_rng(7)
     d = rng.uniform(-0.1, 3.0, 1000)
-    assert _all_above(d, -0.2) and not _all_above(d, -0.05)
-    assert not _all_above(np.full(10, -0.2), -0.2)
-    assert not _all_above(np.array([1.0, -np.inf]), -0.2)
-    assert not _all_above(np.array([1.0, np.inf]), -0.2)
+    assert _all_above(d, -0.2)[0] and not _all_above(d, -0.05)[0]
+    assert not _all_above(np.full(10, -0.2), -0.2)[0]
+    assert not _all_above(np.array([1.0, -np.inf]), -0.2)[0]
+    assert not _all_above(np.array([1.0, np.inf]), -0.2)[0]
     x, y, dt = _events(600, seed=3)
     for name, th in (("rotation", [0.5, -0.3, 0.2]), ("similarity", [40.0, 10.0, 2.0, -3.0]),
                      ("zoom", [-2.0])):

@@ -193,36 +193,46 @@ def _vote_blocks(xw, yw, wts, use_w, out, vals, out2, pair, with_out):
     w11 = np.empty(_VOTE_BLOCK)
     n = xw.shape[0]
     for k0 in range(0, n, _VOTE_BLOCK):
-        k1 = min(k0 + _VOTE_BLOCK, n)
-        _vote_cells(use_w, xw[k0:k1], yw[k0:k1], wts[k0:k1] if use_w else wts, wd, h, ib, w00,
-                    w01, w10, w11)
-        for j in range(k1 - k0):
-            i = ib[j]
-            e = vals[k0 + j] if pair else 0.0
-            if i >= 0:
-                if with_out:
-                    flat[i] += w00[j]
-                    flat[i + 1] += w01[j]
-                    flat[i + wd] += w10[j]
-                    flat[i + wd + 1] += w11[j]
-                if pair:
-                    flat2[i] += e * w00[j]
-                    flat2[i + 1] += e * w01[j]
-                    flat2[i + wd] += e * w10[j]
-                    flat2[i + wd + 1] += e * w11[j]
-                continue
-            inside, ix, iy, fx, fy = _cell(xw[k0 + j], yw[k0 + j], h, wd)
-            if not inside:
-                continue
-            a = wts[k0 + j] if use_w else 1.0
-            for dy in range(2):
-                for dx in range(2):
-                    if 0 <= iy + dy < h and 0 <= ix + dx < wd:
-                        v = a * (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
-                        if with_out:
-                            out[iy + dy, ix + dx] += v
-                        if pair:
-                            out2[iy + dy, ix + dx] += e * v
+        _vote_block(xw, yw, wts, use_w, out, flat, vals, out2, flat2, pair, with_out, k0,
+                    min(k0 + _VOTE_BLOCK, n), ib, w00, w01, w10, w11)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _vote_block(xw, yw, wts, use_w, out, flat, vals, out2, flat2, pair, with_out, k0, k1, ib,
+                w00, w01, w10, w11):
+    """:func:`_vote_blocks` for the events ``k0:k1`` (at most the length of the buffers
+    ``ib`` (index) and ``w00`` ... ``w11`` (weights); ``flat``, ``flat2``: flat views of
+    ``out``, ``out2``)."""
+    h, wd = out2.shape
+    _vote_cells(use_w, xw[k0:k1], yw[k0:k1], wts[k0:k1] if use_w else wts, wd, h, ib, w00,
+                w01, w10, w11)
+    for j in range(k1 - k0):
+        i = ib[j]
+        e = vals[k0 + j] if pair else 0.0
+        if i >= 0:
+            if with_out:
+                flat[i] += w00[j]
+                flat[i + 1] += w01[j]
+                flat[i + wd] += w10[j]
+                flat[i + wd + 1] += w11[j]
+            if pair:
+                flat2[i] += e * w00[j]
+                flat2[i + 1] += e * w01[j]
+                flat2[i + wd] += e * w10[j]
+                flat2[i + wd + 1] += e * w11[j]
+            continue
+        inside, ix, iy, fx, fy = _cell(xw[k0 + j], yw[k0 + j], h, wd)
+        if not inside:
+            continue
+        a = wts[k0 + j] if use_w else 1.0
+        for dy in range(2):
+            for dx in range(2):
+                if 0 <= iy + dy < h and 0 <= ix + dx < wd:
+                    v = a * (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
+                    if with_out:
+                        out[iy + dy, ix + dx] += v
+                    if pair:
+                        out2[iy + dy, ix + dx] += e * v
 
 
 @njit(cache=True, nogil=True)

@@ -32,13 +32,15 @@ Cost (what CMax pays per evaluation on top of its data term; ``benchmarks/bench_
 * the per-event values come first (closed forms, or for the rotation one vectorized pass
   from the warped pixels); when none is below the margin no pixel mean can be, and the
   penalty is 0 without building any map -- the usual case away from collapse;
-* otherwise one pass votes the two images (counts and values; ``count=`` reuses a
-  caller's count image), one pass trims them into their padded adjoint images, and the
-  gradient takes one pass over the events with no per-event output, so that it
-  vectorizes: :meth:`~evmotion.core.warps.Warp.reduce_pair` chains the votes' adjoint
+* otherwise one pass votes the count image (``count=`` reuses a caller's) and marks the
+  tiles of the events below the margin, the image of values is voted only around them
+  (the blocks of events that reach those tiles; both images in one pass where most
+  values are below: :mod:`evmotion.core.trim`), one pass trims them into their padded
+  adjoint images, and the gradient takes one pass over the events with no per-event
+  output, so that it vectorizes: :meth:`~evmotion.core.warps.Warp.reduce_pair` chains the votes' adjoint
   through the warp (its Jacobian recomputed, never stored) and the values' own derivatives
-  (closed forms; for the rotation from the warped point, the det J part folded into the
-  pixel gradient) with the same gathered pixels. CMax
+  (closed forms; for the rotation from the warped point) with the same gathered pixels,
+  the values' image gathered only in the flagged blocks (the rotation). CMax
   (:class:`evmotion.methods.egomotion.CMaxCost`) votes the count image as its IWE and folds
   the penalty's adjoint images into its data term's, so that that one pass chains both
   (:func:`_trimmed_parts`). Warps without fused adjoints (or given ``jx, jy``) chain
@@ -62,6 +64,15 @@ import numpy as np
 from numba import njit
 
 from evmotion.core.iwe import _shape, _vote_bilinear, _vote_pair
+from evmotion.core.trim import (
+    MIN_COUNT,
+    flag_blocks,
+    n_blocks,
+    tile_grid,
+    trim_pass,
+    vote_marked,
+    vote_values,
+)
 from evmotion.core.warps import (
     _BLOCK,
     _EMPTY1,
@@ -106,7 +117,6 @@ DEFAULT_WEIGHTS: dict[str, dict[str, float]] = {
 #: Margins of the trimmed means (Sec. 3.4): DIWE < -0.2, IWA < 0.8, RCAD map > 0.2.
 DEFAULT_MARGINS: dict[str, float] = {"divergence": -0.2, "deformation": 0.8, "rcad": 0.2}
 
-_MIN_COUNT = 1e-9  # pixels with less bilinear vote mass hold no warped event
 _LOW63 = np.int64(0x7FFFFFFFFFFFFFFF)  # all float64 bits but the sign
 
 
@@ -125,12 +135,54 @@ def _votes(xw, yw, d, shape, count=None, count_out=None):
     return cnt, num
 
 
+def _sparse_votes(xw, yw, d, margin, shape, count=None, count_out=None):
+    """``(cnt, num, near, blocks)`` of :mod:`evmotion.core.trim`: the count image as
+    :func:`_votes`'s, the image of values exact on the ``near`` tiles (those that can hold
+    a pixel mean below ``margin``), the flags of the blocks of events that vote there.
+    Where more than :data:`_SPARSE_MAX` of the values are below ``margin`` (the zoom's,
+    similarity's and in-plane warp's values depend on dt only: below it everywhere at
+    once), both images are voted in full, in one pass (``near`` empty: every pixel;
+    ``blocks`` None)."""
+    if _count_below(d, margin) > _SPARSE_MAX * d.shape[0]:
+        cnt, num = _votes(xw, yw, d, shape, count, count_out)
+        return cnt, num, _ALL_NEAR, None
+    grid = tile_grid(shape)
+    marks, near = _scratch((grid, grid), "tiles", np.uint8)
+    (num,) = _scratch((shape,), "num")
+    nb = n_blocks(xw.shape[0])
+    (boxes,) = _scratch(((nb, 4),), "boxes", np.int64)
+    (blocks,) = _scratch(((nb,),), "blocks", np.uint8)
+    if count is not None:
+        cnt = count
+    else:
+        (cnt,) = _scratch((shape,), "cnt") if count_out is None else (count_out,)
+    vote_marked(xw, yw, d, margin, cnt, count is None, marks, boxes)
+    flag_blocks(marks, boxes, near, blocks)
+    vote_values(xw, yw, d, blocks, num)
+    return cnt, num, near, blocks
+
+
+#: Largest fraction of values below the margin for which the values are voted sparsely.
+_SPARSE_MAX = 0.25
+_ALL_NEAR = np.zeros((0, 0), np.uint8)  # trim_pass's near: every pixel
+
+
+@njit(cache=True, error_model="numpy")
+def _count_below(d, margin):
+    """How many of ``d`` are below ``margin``."""
+    n = 0
+    for k in range(d.shape[0]):
+        n += 1 if d[k] < margin else 0
+    return n
+
+
 @njit(cache=True, error_model="numpy")
 def _backward_events(xw, yw, d, pads, h, wd, scale, gx, gy, gd):
     """Per-event derivatives ``gx, gy, gd`` (N,) of ``scale * sum(gS * num + gN * cnt)``
     with respect to ``xw_k, yw_k, d_k`` (0 off the image), ``num``/``cnt`` the bilinear
     IWEs of ``d`` and of ones, for the chain rule through stored Jacobians; ``pads`` holds
-    ``gN`` then ``gS``, padded (:func:`_trim_pass`), so no corner needs a bounds test."""
+    ``gN`` then ``gS``, padded (:func:`evmotion.core.trim.trim_pass`), so no corner needs a
+    bounds test."""
     wp = wd + 2
     b = (h + 2) * wp
     for k in range(xw.shape[0]):
@@ -167,7 +219,8 @@ def _all_above(d, margin):
     pixel average could take away: then no DIWE/IWA pixel is below the margin (a weighted
     mean is at least the smallest value), and the trimmed mean selects nothing. (Min and
     max magnitude on order-preserving integer keys of the float bits, as :func:`_k_span`,
-    so that the pass vectorizes; a NaN counts as below.)"""
+    so that the pass vectorizes; a NaN counts as below.) Also returns the margin raised by
+    that rounding: no pixel whose events' values all reach it can be below ``margin``."""
     bits = d.view(np.int64)
     lo = _LOW63
     big = np.int64(0)
@@ -182,7 +235,7 @@ def _all_above(d, margin):
     vmin, vbig = f[0], max(f[1], abs(margin))
     # a pixel's sums carry at most ~N roundings of size eps * big
     tol = vbig * max(1e-12, 4.0 * d.shape[0] * 2.3e-16)
-    return vmin > margin + tol
+    return vmin > margin + tol, margin + tol
 
 
 @njit(cache=True, error_model="numpy")
@@ -497,9 +550,10 @@ _CONST_DIV = ("zoom", "translation", "inplane")
 _TLS = threading.local()
 
 
-def _scratch(shapes, tag):
-    """Reusable float64 buffers per thread: fresh large arrays cost page faults on every
-    call (several times the arithmetic here); callers must not return them."""
+def _scratch(shapes, tag, dtype=np.float64):
+    """Reusable buffers per thread (float64 unless ``dtype``): fresh large arrays cost page
+    faults on every call (several times the arithmetic here); callers must not return
+    them."""
     cache = getattr(_TLS, "bufs", None)
     if cache is None:
         cache = _TLS.bufs = {}
@@ -508,7 +562,7 @@ def _scratch(shapes, tag):
     if bufs is None:
         if len(cache) > 32:
             cache.clear()
-        bufs = cache[key] = tuple(np.empty(sh) for sh in shapes)
+        bufs = cache[key] = tuple(np.empty(sh, dtype) for sh in shapes)
     return bufs
 
 
@@ -552,43 +606,6 @@ def _prepare(warp, x, y, dt, theta, xw, yw):
     return x, y, dt, th, xw, yw
 
 
-@njit(cache=True, error_model="numpy", fastmath=True)
-def _trim_pass(cnt, num, margin, gN, gS):
-    """Adjoint images of ``sum_{num/cnt < margin} num/cnt`` (supported pixels only):
-    ``gN = -mean/cnt`` (of ``cnt``) and ``gS = 1/cnt`` (of ``num``) there, 0 elsewhere,
-    each written flat into the image padded by a ring of zeros ((H + 2) (W + 2),; the
-    layout of :meth:`evmotion.core.warps.Warp.reduce_pair`). Returns (sum, n).
-
-    Branch-free (selects, no jumps) so that it vectorizes; fastmath only reorders the sum."""
-    h, w = cnt.shape
-    wp = w + 2
-    for j in range(wp):
-        gN[j] = 0.0
-        gS[j] = 0.0
-        gN[(h + 1) * wp + j] = 0.0
-        gS[(h + 1) * wp + j] = 0.0
-    total = 0.0
-    n_sel = 0
-    for i in range(h):
-        r = (i + 1) * wp
-        gN[r] = 0.0
-        gS[r] = 0.0
-        gN[r + wp - 1] = 0.0
-        gS[r + wp - 1] = 0.0
-        for j in range(w):
-            c = cnt[i, j]
-            ok = c > _MIN_COUNT
-            ic = 1.0 / (c if ok else 1.0)
-            m = num[i, j] * ic
-            sel = ok and m < margin
-            gs = ic if sel else 0.0
-            total += m if sel else 0.0
-            n_sel += 1 if sel else 0
-            gN[r + 1 + j] = -m * gs
-            gS[r + 1 + j] = gs
-    return total, n_sel
-
-
 def _pixel_average(kind, warp, x, y, dt, th, shape, xw, yw):
     """(d, fac, cnt, num) of the DIWE/IWA: per-event values and their vote images."""
     d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False, xw=xw, yw=yw)
@@ -603,13 +620,13 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
         count = _count_image(count, shape)
     h, wd = shape
     (pads,) = _scratch(((2 * (h + 2) * (wd + 2),),), "adj")
-    value, g, d, fac, scale = _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin,
-                                             pads, span, count, grad)
+    value, g, d, fac, scale, blocks = _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw,
+                                                     margin, pads, span, count, grad)
     if d is None or not grad:
         return value, g
     T = window_span(dt) if span is None else _span_T(span)
     if (jx is None or jy is None) and chains_pair(warp):
-        warp.reduce_pair(x, y, dt, xw, yw, th, pads, d, h, wd, g, scale, kind, T)
+        warp.reduce_pair(x, y, dt, xw, yw, th, pads, d, h, wd, g, scale, kind, T, blocks)
         return value, g
     n = x.shape[0]
     dd = None
@@ -640,7 +657,7 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
                    count=None, grad=True, count_out=None, values=None):
     """The divergence or deformation penalty up to the chain rule through the warp, for
     callers that fuse that step with their own (CMax's data term): ``(value, g, d, fac,
-    scale)`` for checked events and theta (:func:`_prepare`).
+    scale, blocks)`` for checked events and theta (:func:`_prepare`).
 
     ``d`` None: ``value`` and ``g`` (P,) are complete (no pixel trimmed, or the constant
     divergence; ``g`` None without ``grad``). Otherwise ``g`` (P,) is uninitialized and
@@ -650,12 +667,13 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
     cnt + gS * num)`` through the votes and the values
     (:meth:`~evmotion.core.warps.Warp.reduce_pair` with ``derivs=kind``; ``fac``: the
     rotation's factor from its raw divergence / det J to ``d``, for the chain rule through
-    stored Jacobians).
+    stored Jacobians; ``blocks``: the flags of the blocks of events that reach a nonzero
+    ``gS``, for ``reduce_pair``'s ``blocks``: :mod:`evmotion.core.trim`).
     ``count_out`` (H, W), if given (and ``count`` not), receives the bilinear IWE of
     ``xw, yw`` in every case, voted with the values' IWE where the maps are built (the data
     term's IWE of a caller that votes once). ``values``: ``(d, fac)`` of
     :func:`_event_values` for ``xw, yw``, if at hand (:func:`_warp_values`)."""
-    zero = (0.0, np.zeros(warp.n_params) if grad else None, None, None, 0.0)
+    zero = (0.0, np.zeros(warp.n_params) if grad else None, None, None, 0.0, None)
 
     def unvoted(result):
         # returned before the maps: the caller's count image is still to be voted
@@ -674,25 +692,28 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
         d, dd, _ = _event_values(kind, warp, x[:1], y[:1], dt[:1], th, T=T)
         if not (d[0] < m and _any_vote(xw, yw, shape[0], shape[1])):
             return unvoted(zero)
-        return unvoted((-float(d[0]), (-dd[0].copy() if grad else None), None, None, 0.0))
+        return unvoted((-float(d[0]), (-dd[0].copy() if grad else None), None, None, 0.0,
+                        None))
     if values is None:
         d, _, fac = _event_values(kind, warp, x, y, dt, th, want_grad=False, T=T, xw=xw,
                                   yw=yw)
     else:
         d, fac = values
-    if _all_above(d, m):
+    above, m_round = _all_above(d, m)
+    if above:
         # no collapse anywhere (the usual case away from collapse): no maps to build
         return unvoted(zero)
-    # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
-    cnt, num = _votes(xw, yw, d, shape, count, count_out)
+    # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes), the
+    # values voted only around the events below the margin (core.trim)
+    cnt, num, near, blocks = _sparse_votes(xw, yw, d, m_round, shape, count, count_out)
     size = pads.shape[0] // 2
-    total, n_sel = _trim_pass(cnt, num, m, pads[:size], pads[size:])
+    total, n_sel = trim_pass(cnt, num, m, pads[:size], pads[size:], near)
     if n_sel == 0:
         return zero
     scale = -1.0 / n_sel
     if not grad:
-        return total * scale, None, None, None, 0.0
-    return total * scale, np.empty(warp.n_params), d, fac, scale
+        return total * scale, None, None, None, 0.0, None
+    return total * scale, np.empty(warp.n_params), d, fac, scale, blocks
 
 
 # ---------------------------------------------------------------------------------------
@@ -1035,7 +1056,7 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
         return {"rcad": vals, "trimmed": vals > m}
     xw, yw = warp.warp(x, y, dt, th)
     _, _, cnt, num = _pixel_average(name, warp, x, y, dt, th, shape, xw, yw)
-    support = cnt > _MIN_COUNT
+    support = cnt > MIN_COUNT
     mean = np.zeros(shape)
     np.divide(num, cnt, out=mean, where=support)
     cnt = cnt.copy()

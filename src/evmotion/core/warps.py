@@ -823,10 +823,9 @@ def _rot_prm(prm):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_loop(mode, fuse, use_w, pair, deform, args):
+def _rot_loop(mode, fuse, use_w, pair, args):
     """The rotation's adjoint loop: its three sums and, in pair mode, that of ``|gd|``
-    (:func:`_pad_diff`); ``deform`` (pair mode): the values are ``|det J| - 1``, their
-    derivatives chained too (:func:`_rot_det_weight`: they join the pixel gradient)."""
+    (:func:`_pad_diff`)."""
     xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, _ = args
     wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02, i10, i11, i12 = _rot_prm(prm)
     wp = wd + 2
@@ -840,18 +839,9 @@ def _rot_loop(mode, fuse, use_w, pair, deform, args):
             gX, gY, gd = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
         else:
             xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
-        if deform:
-            ra, b, c = _rod_mode(t * t * ww, mode)
-            X = i00 * xv + i01 * yv + i02
-            Y = i10 * xv + i11 * yv + i12
-            kap = _rot_det_weight(X, Y, t, ra, b, wx, wy, wz, ww, gd)
-            d0, d1, d2 = _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww,
-                                        gX * k00 + gY * k10 + kap * X,
-                                        gX * k01 + gY * k11 + kap * Y)
-        else:
-            b, c = _rot_bc(t * t * ww, mode)
-            d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01,
-                                        k10, k11, i00, i01, i02, i10, i11, i12)
+        b, c = _rot_bc(t * t * ww, mode)
+        d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01,
+                                    k10, k11, i00, i01, i02, i10, i11, i12)
         a0 += d0
         a1 += d1
         a2 += d2
@@ -860,45 +850,60 @@ def _rot_loop(mode, fuse, use_w, pair, deform, args):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_div_loop(mode, args):
-    """:func:`_rot_loop` in pair mode with the divergence's derivatives (``vk`` 1), in
-    blocks of events: the votes' adjoint over every event, then the values' part (linear
-    in the pixel gradient, so it splits off exactly: :func:`_rot_value_adj`) only in the
-    blocks where some event has a nonzero ``gd``. Near collapse an eighth of the events
-    reach a trimmed pixel, clustered (the events are in sensor-tile order), so most blocks
-    skip it (in-line, it cost about as much as the rest of the loop). No per-event buffer:
-    each loop only sums, so both vectorize."""
+def _rot_block_loop(mode, pair, vk, args, blk):
+    """:func:`_rot_loop` (fused) over the blocks of :data:`_DIV_BLOCK` events listed in
+    ``blk`` (all if empty), in pair mode with the values' derivatives (``vk``: 1 divergence,
+    2 det J): the votes' adjoint over every event of a block, then the values' part (linear
+    in the pixel gradient, so it splits off exactly: :func:`_rot_value_adj`, or the det J
+    weight through :func:`_rot_vjp_event`) only where some event has a nonzero ``gd``: near
+    collapse a minority of the events reach a trimmed pixel, clustered (in-line, it cost
+    about as much as the rest of the loop). No per-event buffer: each loop only sums, so
+    both vectorize. (A list, not flags tested per block: a test in the outer loop slowed
+    the inner one by half.)"""
     xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T = args
     wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02, i10, i11, i12 = _rot_prm(prm)
     wp = wd + 2
     p2 = (h + 2) * wp  # start of the second image
+    listed = blk.shape[0] > 0
+    nb = blk.shape[0] if listed else -(-xw.shape[0] // _DIV_BLOCK)
     a0 = a1 = a2 = 0.0
-    for k0 in range(0, xw.shape[0], _DIV_BLOCK):
+    for bi in range(nb):
+        k0 = (blk[bi] if listed else bi) * _DIV_BLOCK
         # views per block, so that the loops index from 0: an index numba cannot prove
         # non-negative gets a wraparound select, and its loads become gathers
         k1 = k0 + _DIV_BLOCK
         xs, ys, ts = xw[k0:k1], yw[k0:k1], dt[k0:k1]
-        d0, d1, d2, active = _rot_loop(mode, True, True, True, False,
-                                       (xs, ys, ts, prm, gx, gy, wts[k0:k1], pad, h, wd, scale,
-                                        T))
+        sub = (xs, ys, ts, prm, gx, gy, wts[k0:k1] if pair else wts, pad, h, wd, scale, T)
+        if not pair:
+            d0, d1, d2, _ = _rot_loop(mode, True, False, False, sub)
+            a0 += d0
+            a1 += d1
+            a2 += d2
+            continue
+        d0, d1, d2, active = _rot_loop(mode, True, True, True, sub)
         a0 += d0
         a1 += d1
         a2 += d2
-        if active == 0.0:
+        if vk == 0 or active == 0.0:
             continue
         for k in range(xs.shape[0]):
             xv, yv, t, a, fx, fy, i = _pad_index(xs[k], ys[k], ts[k], 1.0, scale, h, wd)
             _, _, gd = _pad_diff(True, a, fx, fy, 0.0, pad, i, wp, p2)
             ra, b, c = _rod_mode(t * t * ww, mode)
-            d0, d1, d2 = _rot_value_adj(i00 * xv + i01 * yv + i02, i10 * xv + i11 * yv + i12,
-                                        t, ra, b, c, gd, T, wx, wy, wz, ww)
+            X = i00 * xv + i01 * yv + i02
+            Y = i10 * xv + i11 * yv + i12
+            if vk == 1:
+                d0, d1, d2 = _rot_value_adj(X, Y, t, ra, b, c, gd, T, wx, wy, wz, ww)
+            else:
+                kap = _rot_det_weight(X, Y, t, ra, b, wx, wy, wz, ww, gd)
+                d0, d1, d2 = _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, kap * X, kap * Y)
             a0 += d0
             a1 += d1
             a2 += d2
     return a0, a1, a2, 0.0
 
 
-_DIV_BLOCK = 32  # events per block of _rot_div_loop
+_DIV_BLOCK = 32  # events per block of _rot_block_loop
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -977,53 +982,61 @@ def _rot_value_adj(X, Y, t, a, b, c, gd, T, wx, wy, wz, ww):
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
+def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, blk, out):
     """``out`` (3,) = ``jx^T gx + jy^T gy`` with the rotation Jacobian recomputed per event
     from the warped pixels ``xw, yw`` (``prm``: omega, K's 2x2 block, the first two rows of
     K^-1); with a padded image ``pad`` (:func:`_pad_image`) the pixel gradients come from it
     (weights ``wts`` times ``scale``), not from ``gx, gy``. With two padded images (pair
     mode, ``wts`` the per-event values), ``vk`` says whether the values are held fixed (0)
     or are the warp's divergence times ``T`` (1) or ``|det J| - 1`` (2), whose derivatives
-    are then chained as well (:data:`_VALUE_KINDS`)."""
+    are then chained as well (:data:`_VALUE_KINDS`). ``blk`` (int64): the blocks of
+    events to visit (:func:`_rot_block_loop`; empty: all events), in pair mode or with one
+    image and unit weights."""
     mode = _rot_rates(dt, prm)[4]
     use_w = wts.shape[0] > 0
     fuse = pad.shape[0] > 0
     pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
     a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T)
     if not fuse and mode == 0:
-        acc = _rot_loop(0, False, False, False, False, a)
+        acc = _rot_loop(0, False, False, False, a)
     elif not fuse and mode == 1:
-        acc = _rot_loop(1, False, False, False, False, a)
+        acc = _rot_loop(1, False, False, False, a)
     elif not fuse:
-        acc = _rot_loop(2, False, False, False, False, a)
+        acc = _rot_loop(2, False, False, False, a)
     elif pair and mode == 0 and vk == 1:
-        acc = _rot_div_loop(0, a)
+        acc = _rot_block_loop(0, True, 1, a, blk)
     elif pair and mode == 0 and vk == 2:
-        acc = _rot_loop(0, True, True, True, True, a)
+        acc = _rot_block_loop(0, True, 2, a, blk)
     elif pair and mode == 0:
-        acc = _rot_loop(0, True, True, True, False, a)
+        acc = _rot_block_loop(0, True, 0, a, blk)
     elif pair and mode == 1 and vk == 1:
-        acc = _rot_div_loop(1, a)
+        acc = _rot_block_loop(1, True, 1, a, blk)
     elif pair and mode == 1 and vk == 2:
-        acc = _rot_loop(1, True, True, True, True, a)
+        acc = _rot_block_loop(1, True, 2, a, blk)
     elif pair and mode == 1:
-        acc = _rot_loop(1, True, True, True, False, a)
+        acc = _rot_block_loop(1, True, 0, a, blk)
     elif pair and vk == 1:
-        acc = _rot_div_loop(2, a)
+        acc = _rot_block_loop(2, True, 1, a, blk)
     elif pair and vk == 2:
-        acc = _rot_loop(2, True, True, True, True, a)
+        acc = _rot_block_loop(2, True, 2, a, blk)
     elif pair:
-        acc = _rot_loop(2, True, True, True, False, a)
+        acc = _rot_block_loop(2, True, 0, a, blk)
+    elif blk.shape[0] > 0 and mode == 0:
+        acc = _rot_block_loop(0, False, 0, a, blk)
+    elif blk.shape[0] > 0 and mode == 1:
+        acc = _rot_block_loop(1, False, 0, a, blk)
+    elif blk.shape[0] > 0:
+        acc = _rot_block_loop(2, False, 0, a, blk)
     elif mode == 0 and use_w:
-        acc = _rot_loop(0, True, True, False, False, a)
+        acc = _rot_loop(0, True, True, False, a)
     elif mode == 0:
-        acc = _rot_loop(0, True, False, False, False, a)
+        acc = _rot_loop(0, True, False, False, a)
     elif mode == 1 and use_w:
-        acc = _rot_loop(1, True, True, False, False, a)
+        acc = _rot_loop(1, True, True, False, a)
     elif mode == 1:
-        acc = _rot_loop(1, True, False, False, False, a)
+        acc = _rot_loop(1, True, False, False, a)
     else:
-        acc = _rot_loop(2, True, use_w, False, False, a)
+        acc = _rot_loop(2, True, use_w, False, a)
     for j in range(3):
         out[j] = acc[j]
 
@@ -1400,6 +1413,7 @@ def _k_hom_divdet(x, y, dt, G, cx, cy, div, det):
 
 _EMPTY2 = np.zeros((0, 0))
 _EMPTY1 = np.zeros(0)
+_NO_BLOCKS = np.zeros(0, np.int64)  # the kernels' block list: every event
 
 
 # ---------------------------------------------------------------------------------------
@@ -1673,7 +1687,12 @@ class _FusedAdjoint:
     """Warps whose adjoint kernel recomputes the parameter Jacobian per event, so the chain
     rule needs no (N, P) Jacobian buffers (the hot path of gradient-based CMax). Each such
     warp defines ``_adj(x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0,
-    T=1.0)`` (``vk``, ``T``: :meth:`reduce_pair`'s ``derivs``, ``T``)."""
+    T=1.0, blk=_NO_BLOCKS)`` (``vk``, ``T``: :meth:`reduce_pair`'s ``derivs``, ``T``;
+    ``blk``: the blocks of events to visit, where ``_blocked``)."""
+
+    #: Whether ``_adj`` visits listed blocks of events only (:meth:`reduce_pair`'s
+    #: ``blocks``); elsewhere ``blocks`` is ignored (same result, every event visited).
+    _blocked = False
 
     def vjp(self, x, y, dt, xw, yw, theta, gx, gy, out) -> np.ndarray:
         """``out = jx^T gx + jy^T gy`` (P,): per-event pixel gradients ``gx, gy`` (N,)
@@ -1732,7 +1751,7 @@ class _FusedAdjoint:
 
     def reduce_pair(self, x, y, dt, xw, yw, theta, pads, values, h, wd, out,
                     scale: float = 1.0, derivs: str | None = None,
-                    T: float = 1.0) -> np.ndarray:
+                    T: float = 1.0, blocks: np.ndarray | None = None) -> np.ndarray:
         """:meth:`reduce_bilinear` for a loss on two bilinear IWEs of ``xw, yw``, of ones
         and of per-event ``values``: ``out`` (P,) = dL/dtheta given ``dL/dIWE_ones = A``
         and ``dL/dIWE_values = B``, one pass over the events with the Jacobians recomputed,
@@ -1744,7 +1763,10 @@ class _FusedAdjoint:
         ``derivs``: None holds the values fixed; ``"divergence"`` (the values are this
         warp's divergence times ``T``) or ``"deformation"`` (``|det J| - 1``) chains their
         theta-derivatives too, in the same pass (the DIWE/IWA penalties of
-        :mod:`evmotion.core.regularizers`).
+        :mod:`evmotion.core.regularizers`). ``blocks`` (uint8, one per block of
+        :data:`evmotion.core.trim.BLOCK` events, optional): 0 for the blocks none of
+        whose events reaches a nonzero pixel of ``B``, which then skip it (the flags of
+        :func:`evmotion.core.trim.flag_blocks`); the result is the same.
 
         Examples
         --------
@@ -1761,8 +1783,30 @@ class _FusedAdjoint:
         if derivs not in _VALUE_KINDS:
             raise ParameterError(f"derivs must be one of {sorted(_VALUE_KINDS, key=str)}, "
                                  f"got {derivs!r}")
-        self._adj(x, y, dt, xw, yw, self._theta(theta), _EMPTY1, _EMPTY1, values, pads, h, wd,
-                  float(scale), out, _VALUE_KINDS[derivs], float(T))
+        th = self._theta(theta)
+        vk = _VALUE_KINDS[derivs]
+        if blocks is None or not self._blocked:
+            self._adj(x, y, dt, xw, yw, th, _EMPTY1, _EMPTY1, values, pads, h, wd,
+                      float(scale), out, vk, float(T))
+            return out
+        nb = -(-xw.shape[0] // _DIV_BLOCK)
+        if not (isinstance(blocks, np.ndarray) and blocks.dtype == np.uint8
+                and blocks.shape == (nb,)):
+            raise ParameterError(f"blocks must hold one uint8 flag per {_DIV_BLOCK} events "
+                                 f"({nb}), got {getattr(blocks, 'dtype', type(blocks))} "
+                                 f"{np.shape(blocks)}")
+        # the flagged blocks with both images, the others with the first only
+        pair, single = np.flatnonzero(blocks), np.flatnonzero(blocks == 0)
+        out[:] = 0.0
+        part = np.empty_like(out)
+        if pair.shape[0]:
+            self._adj(x, y, dt, xw, yw, th, _EMPTY1, _EMPTY1, values, pads, h, wd,
+                      float(scale), part, vk, float(T), pair)
+            out += part
+        if single.shape[0]:
+            self._adj(x, y, dt, xw, yw, th, _EMPTY1, _EMPTY1, _EMPTY1,
+                      pads[:pads.shape[0] // 2], h, wd, float(scale), part, 0, float(T), single)
+            out += part
         return out
 
 
@@ -1784,7 +1828,8 @@ class ZoomWarp(_FusedAdjoint, Warp):
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_zoom(x, y, dt, th[0], self.center[0], self.center[1], xw, yw, jx, jy, jac)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
+             blk=_NO_BLOCKS):
         prm = np.array([self.center[0], self.center[1], th[0]])
         _k_simple_adj(0, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
 
@@ -1804,7 +1849,8 @@ class TranslationWarp(_FusedAdjoint, Warp):
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_translation(x, y, dt, th[0], th[1], xw, yw, jx, jy, jac)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
+             blk=_NO_BLOCKS):
         _k_simple_adj(1, x, y, xw, yw, dt, np.array(self.center), gx, gy, wts, pad, h, wd,
                       scale, vk, T, out)
 
@@ -1835,7 +1881,8 @@ class SimilarityWarp(_FusedAdjoint, Warp):
         _k_similarity(x, y, dt, th[0], th[1], th[2], s, self.center[0], self.center[1],
                       xw, yw, jx, jy, jac, self.scaled)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
+             blk=_NO_BLOCKS):
         prm = np.array([th[2], th[3] if self.scaled else 0.0, self.center[0], self.center[1]])
         _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
 
@@ -1880,7 +1927,8 @@ class InPlaneWarp(_FusedAdjoint, Warp):
         _k_inplane(x, y, dt, th[0], th[1], th[2], th[3], self.center[0], self.center[1],
                    xw, yw, jx, jy, jac)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
+             blk=_NO_BLOCKS):
         # the rotation as _k_inplane computes it (libm through numba and math alike)
         prm = np.array([self.center[0], self.center[1], math.cos(th[2]), math.sin(th[2]),
                         th[3] + 1.0, th[0], th[1]])
@@ -1973,17 +2021,20 @@ class RotationWarp(_FusedAdjoint, Warp):
     coordinates ``x_n = K^-1 (x, y, 1)``; theta = omega (wx, wy, wz) in rad/s, camera frame
     x right, y down, z forward. div f = 3 (x_n wy - y_n wx) at dt = 0 (3.23)."""
 
+    _blocked = True
+
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_rotation(x, y, dt, th, self.K, self._kinv, xw, yw, jx, jy, jac)
 
     def _conj(self):
         return self.K, self._kinv
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0):
+    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
+             blk=_NO_BLOCKS):
         K, Ki = self.K, self._kinv
         prm = np.array([th[0], th[1], th[2], K[0, 0], K[0, 1], K[1, 0], K[1, 1], Ki[0, 0],
                         Ki[0, 1], Ki[0, 2], Ki[1, 0], Ki[1, 1], Ki[1, 2]])
-        _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
+        _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, blk, out)
 
     def _divdet(self, x, y, dt, theta, want_div, grad):
         x, y, dt = self._events(x, y, dt)

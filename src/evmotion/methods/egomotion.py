@@ -453,9 +453,9 @@ class CMaxCost:
         # the rotation's per-event values come from the warp's own pass
         values = _warp_values(reg, w, x, y, dt, th, xw, yw, self._span)
         # the IWE is voted there, with the penalty's image of values when it builds its maps
-        R, gR, d, _, s = _trimmed_parts(reg, w, x, y, dt, th, self.shape, xw, yw,
-                                        DEFAULT_MARGINS[reg], pads, self._span,
-                                        count_out=self.iwe, values=values)
+        R, gR, d, _, s, blocks = _trimmed_parts(reg, w, x, y, dt, th, self.shape, xw, yw,
+                                                DEFAULT_MARGINS[reg], pads, self._span,
+                                                count_out=self.iwe, values=values)
         G, g, shift, scale = self._image_grad()
         lam = self.weight
         if d is None:
@@ -466,7 +466,7 @@ class CMaxCost:
         _fold_adjoints(g, shift, -scale / self.g0, lam * s, pads[:size], pads[size:])
         # the values' derivatives come from the scaled gS image in the same pass
         w.reduce_pair(x, y, dt, xw, yw, th, pads, d, self.shape[0], self.shape[1],
-                      self.gtheta, 1.0, reg, _span_T(self._span))
+                      self.gtheta, 1.0, reg, _span_T(self._span), blocks)
         return -G / self.g0 + lam * R, self.gtheta.copy()
 
     # -- public --------------------------------------------------------------------------
