@@ -149,19 +149,21 @@ def test_reduce_pair_chains_the_values_derivatives(name, fast):
     theta = _theta(name, 8, fast)
     xw, yw, jx, jy = warp.warp(x, y, dt, theta, jacobian=True)
     rng = np.random.default_rng(9)
-    A, B0, d = rng.normal(size=SHAPE), rng.normal(size=SHAPE), rng.normal(size=x.size)
-    _, ddiv = warp.divergence(x, y, dt, theta, grad=True)
+    A, B0 = rng.normal(size=SHAPE), rng.normal(size=SHAPE)
+    div, ddiv = warp.divergence(x, y, dt, theta, grad=True)
     det, ddet = warp.jacobian_det(x, y, dt, theta, grad=True)
     for B in (B0, np.where(np.arange(SHAPE[1]) % 40 < 6, B0, 0.0)):
         ax, ay, _ = bilinear_adjoint_numpy(xw, yw, A)
         bx, by, sB = bilinear_adjoint_numpy(xw, yw, B)
         sB = np.where((xw > -1) & (xw < SHAPE[1]) & (yw > -1) & (yw < SHAPE[0]), sB, 0.0)
-        votes = (ax + d * bx) @ jx + (ay + d * by) @ jy
         pads = np.zeros((2, SHAPE[0] + 2, SHAPE[1] + 2))
         pads[0, 1:-1, 1:-1] = A
         pads[1, 1:-1, 1:-1] = B
-        for derivs, dd in (("divergence", 0.07 * ddiv),
-                           ("deformation", np.sign(det)[:, None] * ddet)):
+        # the values are the warp's own (the dt-only warps recompute them)
+        for derivs, d, dd in (("divergence", 0.07 * div, 0.07 * ddiv),
+                              ("deformation", np.abs(det) - 1.0,
+                               np.sign(det)[:, None] * ddet)):
+            votes = (ax + d * bx) @ jx + (ay + d * by) @ jy
             ref = 0.4 * (votes + sB @ dd)
             out = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, *SHAPE,
                                    np.empty(warp.n_params), 0.4, derivs, 0.07)

@@ -1053,18 +1053,24 @@ def _similarity_loop(small, fuse, use_w, pair, vk, args):
         if fuse:
             xv, yv, t, a, fx, fy, i = _pad_index(xw[k], yw[k], dt[k], wts[k] if use_w and
                                                  not pair else 1.0, scale, h, wd)
-            gX, gY, gd = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
         else:
-            xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
+            xv, yv, t = xw[k], yw[k], dt[k]
         sn, c = _sincos_any(-t * w, small)
+        ib = 1.0 / (1.0 + t * s)
+        ib2 = ib * ib
+        if fuse:
+            # the values (A.40)/(A.42) from t (cheaper than reading them; sin(t w) = -sn)
+            e = (T * (-2.0 * s * ib2 * c + 2.0 * w * ib * sn) if vk == 1 else
+                 ib2 - 1.0 if vk == 2 else wts[k] if pair else 0.0)
+            gX, gY, gd = _pad_diff(pair, a, fx, fy, e, pad, i, wp, p2)
+        else:
+            gX, gY = gx[k], gy[k]
         d0, d1, d2, d3 = _similarity_vjp_event(xv - cx, yv - cy, t, sn, c, s, gX, gY)
         a0 += d0
         a1 += d1
         a2 += d2
         a3 += d3
-        # the values' derivatives (A.40)/(A.42) (sin(t w) = -sn)
-        ib = 1.0 / (1.0 + t * s)
-        ib2 = ib * ib
+        # the values' derivatives
         if vk == 1:
             f = gd * T
             a2 += f * (-2.0 * s * ib2 * t * sn + 2.0 * ib * sn - 2.0 * w * ib * t * c)
@@ -1137,9 +1143,21 @@ def _simple_loop(kind, fuse, use_w, pair, vk, args):
             yv0 = yw[k]
         gd = 0.0
         if fuse:
+            # the values from t (cheaper than reading them): (3.7), (A.25)/(A.27)
+            if kind == 0 and vk == 1:
+                e = -2.0 * hz * T
+            elif kind == 0 and vk == 2:
+                e = (1.0 - t * hz) * (1.0 - t * hz) - 1.0
+            elif kind == 2 and vk == 1:
+                e = T * (2.0 - 2.0 * kk * c)
+            elif kind == 2 and vk == 2:
+                e = abs((1.0 + t) * (1.0 + t) - 2.0 * (1.0 + t) * t * kk * c
+                        + t * t * kk * kk) - 1.0
+            else:
+                e = wts[k] if pair else 0.0
             xv, yv, t, a, fx, fy, i = _pad_index(xv0, yv0, t, wts[k] if use_w and not pair
                                                  else 1.0, scale, h, wd)
-            gX, gY, gd = _pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
+            gX, gY, gd = _pad_diff(pair, a, fx, fy, e, pad, i, wp, p2)
             # where the event has no vote its weight is 0: any finite point will do
             ok = xv == xv0
             xc = xc if ok else 0.0
@@ -1763,7 +1781,8 @@ class _FusedAdjoint:
         ``derivs``: None holds the values fixed; ``"divergence"`` (the values are this
         warp's divergence times ``T``) or ``"deformation"`` (``|det J| - 1``) chains their
         theta-derivatives too, in the same pass (the DIWE/IWA penalties of
-        :mod:`evmotion.core.regularizers`). ``blocks`` (uint8, one per block of
+        :mod:`evmotion.core.regularizers`); the warps whose values depend on dt only
+        (closed forms) then recompute them instead of reading ``values``. ``blocks`` (uint8, one per block of
         :data:`evmotion.core.trim.BLOCK` events, optional): 0 for the blocks none of
         whose events reaches a nonzero pixel of ``B``, which then skip it (the flags of
         :func:`evmotion.core.trim.flag_blocks`); the result is the same.
