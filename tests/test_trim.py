@@ -99,6 +99,31 @@ def test_sparse_votes_match_numpy(seed):
     np.testing.assert_allclose(img[0, 1:-1, 1:-1], -mean * gS, rtol=1e-15)
 
 
+def test_interleaved_votes_and_trim_match_the_two_images():
+    """Where most values are below the margin, counts and values are voted into one
+    interleaved image (bit for bit the two images) and trimmed from it, the counts copied
+    out for the caller."""
+    from evmotion.core.iwe import _vote_pair, _vote_pairs
+    from evmotion.core.trim import trim_pairs
+
+    xw, yw, d = _cloud(4)
+    h, w = SHAPE
+    pairs = np.full(SHAPE + (2,), np.nan)
+    _vote_pairs(xw, yw, d, pairs)
+    cnt, num = np.empty(SHAPE), np.empty(SHAPE)
+    _vote_pair(xw, yw, d, cnt, num, True)
+    np.testing.assert_array_equal(pairs[..., 0], cnt)
+    np.testing.assert_array_equal(pairs[..., 1], num)
+    size = (h + 2) * (w + 2)
+    ref, got = np.full(2 * size, np.nan), np.full(2 * size, np.nan)
+    out = np.full(SHAPE, np.nan)
+    r = trim_pass(cnt, num, 0.3, ref[:size], ref[size:], np.zeros((0, 0), np.uint8))
+    g = trim_pairs(pairs, 0.3, got[:size], got[size:], out)
+    assert r[1] > 100 and g[1] == r[1] and g[0] == pytest.approx(r[0], rel=1e-13)
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(out, cnt)
+
+
 def test_no_value_below_flags_nothing():
     xw, yw, d = _cloud(3)
     d = np.abs(d) + 1.0

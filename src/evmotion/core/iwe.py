@@ -179,6 +179,48 @@ def _vote_pair(xw, yw, vals, cnt, num, with_cnt):
         _vote_blocks(xw, yw, vals, False, cnt, vals, num, True, False)
 
 
+@njit(cache=True, error_model="numpy")
+def _vote_pairs(xw, yw, vals, out):
+    """:func:`_vote_pair` into one (H, W, 2) image ``out``: each pixel's count next to its
+    sum of values (bit for bit those of :func:`_vote_pair`), so that a vote updates two
+    adjacent numbers (an eighth faster at 500k events)."""
+    h, wd = out.shape[0], out.shape[1]
+    out[:] = 0.0
+    flat = out.reshape(out.size)
+    ib = np.empty(_VOTE_BLOCK, np.int64)
+    w00 = np.empty(_VOTE_BLOCK)
+    w01 = np.empty(_VOTE_BLOCK)
+    w10 = np.empty(_VOTE_BLOCK)
+    w11 = np.empty(_VOTE_BLOCK)
+    r = 2 * wd
+    n = xw.shape[0]
+    for k0 in range(0, n, _VOTE_BLOCK):
+        k1 = min(k0 + _VOTE_BLOCK, n)
+        _vote_cells(False, xw[k0:k1], yw[k0:k1], _NOWEIGHT, wd, h, ib, w00, w01, w10, w11)
+        for j in range(k1 - k0):
+            i = 2 * ib[j]
+            e = vals[k0 + j]
+            if i >= 0:
+                flat[i] += w00[j]
+                flat[i + 1] += e * w00[j]
+                flat[i + 2] += w01[j]
+                flat[i + 3] += e * w01[j]
+                flat[i + r] += w10[j]
+                flat[i + r + 1] += e * w10[j]
+                flat[i + r + 2] += w11[j]
+                flat[i + r + 3] += e * w11[j]
+                continue
+            inside, ix, iy, fx, fy = _cell(xw[k0 + j], yw[k0 + j], h, wd)
+            if not inside:
+                continue
+            for dy in range(2):
+                for dx in range(2):
+                    if 0 <= iy + dy < h and 0 <= ix + dx < wd:
+                        v = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
+                        out[iy + dy, ix + dx, 0] += v
+                        out[iy + dy, ix + dx, 1] += e * v
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def _vote_blocks(xw, yw, wts, use_w, out, vals, out2, pair, with_out):
     """The votes of :func:`_vote_bilinear` added to ``out`` (if ``with_out``) and, in

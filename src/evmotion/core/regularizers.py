@@ -63,12 +63,13 @@ import threading
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _shape, _vote_bilinear, _vote_pair
+from evmotion.core.iwe import _shape, _vote_bilinear, _vote_pair, _vote_pairs
 from evmotion.core.trim import (
     MIN_COUNT,
     flag_blocks,
     n_blocks,
     tile_grid,
+    trim_pairs,
     trim_pass,
     vote_marked,
     vote_values,
@@ -138,14 +139,8 @@ def _votes(xw, yw, d, shape, count=None, count_out=None):
 def _sparse_votes(xw, yw, d, margin, shape, count=None, count_out=None):
     """``(cnt, num, near, blocks)`` of :mod:`evmotion.core.trim`: the count image as
     :func:`_votes`'s, the image of values exact on the ``near`` tiles (those that can hold
-    a pixel mean below ``margin``), the flags of the blocks of events that vote there.
-    Where more than :data:`_SPARSE_MAX` of the values are below ``margin`` (the zoom's,
-    similarity's and in-plane warp's values depend on dt only: below it everywhere at
-    once), both images are voted in full, in one pass (``near`` empty: every pixel;
-    ``blocks`` None)."""
-    if _count_below(d, margin) > _SPARSE_MAX * d.shape[0]:
-        cnt, num = _votes(xw, yw, d, shape, count, count_out)
-        return cnt, num, _ALL_NEAR, None
+    a pixel mean below ``margin``), the flags of the blocks of events that vote there
+    (for at most :data:`_SPARSE_MAX` of the values below ``margin``)."""
     grid = tile_grid(shape)
     marks, near = _scratch((grid, grid), "tiles", np.uint8)
     (num,) = _scratch((shape,), "num")
@@ -703,11 +698,26 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
     if above:
         # no collapse anywhere (the usual case away from collapse): no maps to build
         return unvoted(zero)
-    # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes), the
-    # values voted only around the events below the margin (core.trim)
-    cnt, num, near, blocks = _sparse_votes(xw, yw, d, m_round, shape, count, count_out)
+    # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
     size = pads.shape[0] // 2
-    total, n_sel = trim_pass(cnt, num, m, pads[:size], pads[size:], near)
+    gN, gS = pads[:size], pads[size:]
+    blocks = None
+    if _count_below(d, m_round) > _SPARSE_MAX * d.shape[0]:
+        # most values below (the zoom's, similarity's and in-plane warp's depend on dt
+        # only: below everywhere at once): both images in full, interleaved in one pass
+        # unless the counts are given
+        if count is None:
+            (pairs,) = _scratch((tuple(shape) + (2,),), "pairs")
+            _vote_pairs(xw, yw, d, pairs)
+            cnt = count_out if count_out is not None else _scratch((shape,), "cnt")[0]
+            total, n_sel = trim_pairs(pairs, m, gN, gS, cnt)
+        else:
+            cnt, num = _votes(xw, yw, d, shape, count)
+            total, n_sel = trim_pass(cnt, num, m, gN, gS, _ALL_NEAR)
+    else:
+        # the values voted only around the events below the margin (core.trim)
+        cnt, num, near, blocks = _sparse_votes(xw, yw, d, m_round, shape, count, count_out)
+        total, n_sel = trim_pass(cnt, num, m, gN, gS, near)
     if n_sel == 0:
         return zero
     scale = -1.0 / n_sel

@@ -165,20 +165,13 @@ def trim_pass(cnt, num, margin, gN, gS, near):
         gN[:] = 0.0
         gS[:] = 0.0
     else:
-        for j in range(wp):
-            gN[j] = 0.0
-            gS[j] = 0.0
-            gN[(h + 1) * wp + j] = 0.0
-            gS[(h + 1) * wp + j] = 0.0
+        _zero_ring(gN, h, w)
+        _zero_ring(gS, h, w)
     total = 0.0
     n_sel = 0
     for i in range(h):
         r = (i + 1) * wp
         if near.shape[0] == 0:
-            gN[r] = 0.0
-            gS[r] = 0.0
-            gN[r + wp - 1] = 0.0
-            gS[r + wp - 1] = 0.0
             t, k = _trim_span(cnt[i], num[i], margin, gN[r + 1:r + 1 + w], gS[r + 1:r + 1 + w])
             total += t
             n_sel += k
@@ -206,14 +199,57 @@ def _trim_span(cnt, num, margin, gN, gS):
     total = 0.0
     n_sel = 0
     for j in range(cnt.shape[0]):
-        c = cnt[j]
-        ok = c > MIN_COUNT
-        ic = 1.0 / (c if ok else 1.0)
-        m = num[j] * ic
-        sel = ok and m < margin
-        gs = ic if sel else 0.0
-        total += m if sel else 0.0
-        n_sel += 1 if sel else 0
-        gN[j] = -m * gs
-        gS[j] = gs
+        gN[j], gS[j], t, k = _trim_pixel(cnt[j], num[j], margin)
+        total += t
+        n_sel += k
     return total, n_sel
+
+
+@njit(cache=True, error_model="numpy", fastmath=True, inline="always")
+def _trim_pixel(c, s, margin):
+    """A pixel of count ``c`` and sum of values ``s``: ``(gN, gS, term, selected)`` of
+    :func:`trim_pass` (selects, no branches)."""
+    ok = c > MIN_COUNT
+    ic = 1.0 / (c if ok else 1.0)
+    m = s * ic
+    sel = ok and m < margin
+    gs = ic if sel else 0.0
+    return -m * gs, gs, m if sel else 0.0, 1 if sel else 0
+
+
+@njit(cache=True, error_model="numpy", fastmath=True)
+def trim_pairs(pairs, margin, gN, gS, cnt_out):
+    """:func:`trim_pass` over every pixel of the interleaved (H, W, 2) image of counts and
+    sums of values of :func:`evmotion.core.iwe._vote_pairs`, the counts copied into
+    ``cnt_out`` (H, W)."""
+    h, w = pairs.shape[0], pairs.shape[1]
+    wp = w + 2
+    _zero_ring(gN, h, w)
+    _zero_ring(gS, h, w)
+    total = 0.0
+    n_sel = 0
+    for i in range(h):
+        r = (i + 1) * wp
+        row = pairs[i].reshape(2 * w)
+        out = cnt_out[i]
+        gNr = gN[r + 1:r + 1 + w]
+        gSr = gS[r + 1:r + 1 + w]
+        for j in range(w):
+            c = row[2 * j]
+            out[j] = c
+            gNr[j], gSr[j], t, k = _trim_pixel(c, row[2 * j + 1], margin)
+            total += t
+            n_sel += k
+    return total, n_sel
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _zero_ring(g, h, w):
+    """Zeros on the ring of the (h + 2, w + 2) padded image ``g`` (flat)."""
+    wp = w + 2
+    for j in range(wp):
+        g[j] = 0.0
+        g[(h + 1) * wp + j] = 0.0
+    for i in range(1, h + 1):
+        g[i * wp] = 0.0
+        g[i * wp + wp - 1] = 0.0
