@@ -72,10 +72,11 @@ def main(quick: bool = False) -> list[dict]:
                                                  polarity=p) for reg in REGS}
                 # whitening (an eigen-decomposition and (N, P) products in numpy) is slow
                 reps = {k: max(3, repeat // 4) if k == "whitening" else repeat for k in costs}
-                # the regularizers in turn, five rounds: same-load ratios
+                # the regularizers in turn, in rounds (nine at 500k, where a neighbour's
+                # memory traffic moves single timings most): same-load ratios
                 t = harness.timeit_rounds(
                     {k: partial(c.value_grad, th) for k, c in costs.items()},
-                    repeat=reps, rounds=1 if quick else 5, ref="none")
+                    repeat=reps, rounds=1 if quick else (9 if n > 100_000 else 5), ref="none")
                 for k, r in t.items():
                     rows.append({"case": "eval", "events": n, "size": f"{shape[1]}x{shape[0]}",
                                  "warp": wname, "objective": obj, "motion": motion,
@@ -97,8 +98,8 @@ def main(quick: bool = False) -> list[dict]:
                      "ms_total": r["median_s"] * 1e3, "n_evals": res.timings["n_evals"]})
     harness.record("cmax", rows, notes="single core (harness.pin_idlest_core); medians; "
                    "ratio_vs_none = ms / ms of the unregularized run of the same row group, "
-                   "timed in turn with it in five rounds (harness.timeit_rounds: the median "
-                   "of the per-round ratios); "
+                   "timed in turn with it in five rounds (nine at 500k events; "
+                   "harness.timeit_rounds: the median of the per-round ratios); "
                    "ms_min / ratio_min: the same with the fastest run (less sensitive to other "
                    "processes on a shared machine)")
     _table34(rows)

@@ -163,15 +163,6 @@ _ALL_NEAR = np.zeros((0, 0), np.uint8)  # trim_pass's near: every pixel
 
 
 @njit(cache=True, error_model="numpy")
-def _count_below(d, margin):
-    """How many of ``d`` are below ``margin``."""
-    n = 0
-    for k in range(d.shape[0]):
-        n += 1 if d[k] < margin else 0
-    return n
-
-
-@njit(cache=True, error_model="numpy")
 def _backward_events(xw, yw, d, pads, h, wd, scale, gx, gy, gd):
     """Per-event derivatives ``gx, gy, gd`` (N,) of ``scale * sum(gS * num + gN * cnt)``
     with respect to ``xw_k, yw_k, d_k`` (0 off the image), ``num``/``cnt`` the bilinear
@@ -215,14 +206,17 @@ def _all_above(d, margin):
     mean is at least the smallest value), and the trimmed mean selects nothing. (Min and
     max magnitude on order-preserving integer keys of the float bits, as :func:`_k_span`,
     so that the pass vectorizes; a NaN counts as below.) Also returns the margin raised by
-    that rounding: no pixel whose events' values all reach it can be below ``margin``."""
+    that rounding (no pixel whose events' values all reach it can be below ``margin``)
+    and the number of values below ``margin``."""
     bits = d.view(np.int64)
     lo = _LOW63
     big = np.int64(0)
+    n_below = 0
     for k in range(bits.shape[0]):
         b = bits[k]
         lo = min(lo, b ^ ((b >> 63) & _LOW63))
         big = max(big, b & _LOW63)
+        n_below += 1 if d[k] < margin else 0
     out = np.empty(2, np.int64)
     out[0] = lo ^ ((lo >> 63) & _LOW63)
     out[1] = big
@@ -230,7 +224,7 @@ def _all_above(d, margin):
     vmin, vbig = f[0], max(f[1], abs(margin))
     # a pixel's sums carry at most ~N roundings of size eps * big
     tol = vbig * max(1e-12, 4.0 * d.shape[0] * 2.3e-16)
-    return vmin > margin + tol, margin + tol
+    return vmin > margin + tol, margin + tol, n_below
 
 
 @njit(cache=True, error_model="numpy")
@@ -694,7 +688,7 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
                                   yw=yw)
     else:
         d, fac = values
-    above, m_round = _all_above(d, m)
+    above, m_round, n_below = _all_above(d, m)
     if above:
         # no collapse anywhere (the usual case away from collapse): no maps to build
         return unvoted(zero)
@@ -702,7 +696,7 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
     size = pads.shape[0] // 2
     gN, gS = pads[:size], pads[size:]
     blocks = None
-    if _count_below(d, m_round) > _SPARSE_MAX * d.shape[0]:
+    if n_below > _SPARSE_MAX * d.shape[0]:
         # most values below (the zoom's, similarity's and in-plane warp's depend on dt
         # only: below everywhere at once): both images in full, interleaved in one pass
         # unless the counts are given

@@ -199,22 +199,17 @@ def _trim_span(cnt, num, margin, gN, gS):
     total = 0.0
     n_sel = 0
     for j in range(cnt.shape[0]):
-        gN[j], gS[j], t, k = _trim_pixel(cnt[j], num[j], margin)
-        total += t
-        n_sel += k
+        c = cnt[j]
+        ok = c > MIN_COUNT
+        ic = 1.0 / (c if ok else 1.0)
+        m = num[j] * ic
+        sel = ok and m < margin
+        gs = ic if sel else 0.0
+        total += m if sel else 0.0
+        n_sel += 1 if sel else 0
+        gN[j] = -m * gs
+        gS[j] = gs
     return total, n_sel
-
-
-@njit(cache=True, error_model="numpy", fastmath=True, inline="always")
-def _trim_pixel(c, s, margin):
-    """A pixel of count ``c`` and sum of values ``s``: ``(gN, gS, term, selected)`` of
-    :func:`trim_pass` (selects, no branches)."""
-    ok = c > MIN_COUNT
-    ic = 1.0 / (c if ok else 1.0)
-    m = s * ic
-    sel = ok and m < margin
-    gs = ic if sel else 0.0
-    return -m * gs, gs, m if sel else 0.0, 1 if sel else 0
 
 
 @njit(cache=True, error_model="numpy", fastmath=True)
@@ -228,18 +223,17 @@ def trim_pairs(pairs, margin, gN, gS, cnt_out):
     _zero_ring(gS, h, w)
     total = 0.0
     n_sel = 0
+    num = np.empty(w)
     for i in range(h):
         r = (i + 1) * wp
         row = pairs[i].reshape(2 * w)
-        out = cnt_out[i]
-        gNr = gN[r + 1:r + 1 + w]
-        gSr = gS[r + 1:r + 1 + w]
+        cnt = cnt_out[i]
         for j in range(w):
-            c = row[2 * j]
-            out[j] = c
-            gNr[j], gSr[j], t, k = _trim_pixel(c, row[2 * j + 1], margin)
-            total += t
-            n_sel += k
+            cnt[j] = row[2 * j]
+            num[j] = row[2 * j + 1]
+        t, k = _trim_span(cnt, num, margin, gN[r + 1:r + 1 + w], gS[r + 1:r + 1 + w])
+        total += t
+        n_sel += k
     return total, n_sel
 
 

@@ -181,18 +181,17 @@ def _tile_order(x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndar
 
 
 @njit(cache=True, error_model="numpy")
-def _fold_adjoints(g, shift, c, f, gN, gS):
-    """The adjoint images of ``J`` = data term + penalty for ``Warp.reduce_pair``, in place
-    on the padded penalty images: ``gN <- c (g - shift) + f gN`` (vote counts: the data
-    term's adjoint ``c (g - shift)`` of the IWE (H, W) plus the penalty's) and
-    ``gS <- f gS`` (the votes of the per-event values), the padding ring left 0."""
+def _fold_adjoints(g, shift, c, gN):
+    """The adjoint image of the vote counts of ``J`` = data term + penalty for
+    ``Warp.reduce_pair``, in place on the padded penalty image: ``gN <- c (g - shift) +
+    gN`` (the data term's adjoint ``c (g - shift)`` of the IWE (H, W), relative to the
+    penalty's scale, plus the penalty's), the padding ring left 0."""
     h, wd = g.shape
     wp = wd + 2
     for i in range(h):
         r = (i + 1) * wp + 1
         for j in range(wd):
-            gN[r + j] = c * (g[i, j] - shift) + f * gN[r + j]
-            gS[r + j] *= f
+            gN[r + j] += c * (g[i, j] - shift)
 
 
 def _scales(warp: Warp) -> np.ndarray:
@@ -463,10 +462,12 @@ class CMaxCost:
                               work=self._pad)
             return -G / self.g0 + lam * R, -self.gtheta / self.g0 + lam * gR
         size = self._pad.shape[0]
-        _fold_adjoints(g, shift, -scale / self.g0, lam * s, pads[:size], pads[size:])
-        # the values' derivatives come from the scaled gS image in the same pass
+        # the pass scales both images by the penalty's factor f (nonzero: lam != 0 and a
+        # pixel is trimmed), so the data term's adjoint enters divided by it
+        f = lam * s
+        _fold_adjoints(g, shift, -scale / self.g0 / f, pads[:size])
         w.reduce_pair(x, y, dt, xw, yw, th, pads, d, self.shape[0], self.shape[1],
-                      self.gtheta, 1.0, reg, _span_T(self._span), blocks)
+                      self.gtheta, f, reg, _span_T(self._span), blocks)
         return -G / self.g0 + lam * R, self.gtheta.copy()
 
     # -- public --------------------------------------------------------------------------
