@@ -6,10 +6,11 @@ Per warp up to 4 DOF, 30k events at 346x260 and 500k at 640x480 (bench_cmax's ev
 * ``data ms``: one unregularized CMax evaluation (variance, value + gradient) -- the
   reference the overheads are measured against, in the same run;
 * per regularizer, one evaluation of the CMax cost with it (weight 1), its ratio to ``data
-  ms`` (timed in turn with it over five rounds, the median of the per-round ratios: the
-  neighbours' load on a shared machine reaches both alike) and the difference (what the penalty costs CMax: divergence and deformation take
-  the data term's IWE as their count map and chain their adjoint through the data term's
-  pass over the events), and one standalone :func:`regularizer_value_grad` call given what
+  ms`` (timed in turn with it over five rounds, nine at 500k, the median of the per-round
+  ratios: the neighbours' load on a shared machine reaches both alike) and the difference
+  (what the penalty costs CMax: divergence and deformation take the data term's IWE as
+  their count map and chain their adjoint through the data term's pass over the events),
+  and one standalone :func:`regularizer_value_grad` call given what
   CMax has at hand (events by 16 px sensor tile, warped events, its IWE, the window span).
   Two motions: bench_cmax's parameters (no pixel beyond the trimming margins: the usual
   case away from collapse), and a collapsing one (``bench_cmax.COLLAPSE_THETA``:
@@ -74,11 +75,12 @@ def main(quick: bool = False) -> list[dict]:
                 cost = CMaxCost(warp, x, y, dt, shape, "variance", None, polarity=p)
                 costs = {reg: CMaxCost(warp, x, y, dt, shape, "variance", reg, weight=1.0,
                                        polarity=p) for reg in REGS}
-                # the costs in turn, five rounds: same-load ratios
+                # the costs in turn, in rounds (nine at 500k, as bench_cmax): same-load ratios
                 t = harness.timeit_rounds(
                     {"data": partial(cost.value_grad, th),
                      **{reg: partial(c.value_grad, th) for reg, c in costs.items()}},
-                    repeat=repeat, rounds=1 if quick else 5, ref="data")
+                    repeat=repeat, rounds=1 if quick else (9 if n > 100_000 else 5),
+                    ref="data")
                 data_ms = t["data"]["median_s"] * 1e3
                 # what CMax hands a standalone call: its events in tile order, warped with
                 # th, its IWE as the count map, the window's span
@@ -110,10 +112,11 @@ def main(quick: bool = False) -> list[dict]:
     harness.record("regularizers", rows, notes=(
         "single core (harness.pin_idlest_core); medians; data_ms: one unregularized CMax "
         "evaluation (variance, value + gradient); <reg>_ratio: one evaluation of CMaxCost "
-        "with that regularizer (weight 1) over data_ms, timed in turn with it in three "
-        "rounds (harness.timeit_rounds: the median of the per-round ratios), and <reg>_ms "
-        "the difference of the medians (the penalty's cost as CMax pays it: divergence and deformation share "
-        "the data term's IWE and its pass over the events); <reg>_alone_ms: one standalone "
+        "with that regularizer (weight 1) over data_ms, timed in turn with it in five "
+        "rounds (nine at 500k events; harness.timeit_rounds: the median of the per-round "
+        "ratios), and <reg>_ms the difference of the medians (the penalty's cost as CMax "
+        "pays it: divergence and deformation share the data term's IWE and its pass over "
+        "the events); <reg>_alone_ms: one standalone "
         "regularizer_value_grad call with what CMax has at hand (events in tile order, "
         "warped events, its IWE as count=, span=); motion 'collapse' = strong contraction "
         "(COLLAPSE_THETA: trimmed means active)"))

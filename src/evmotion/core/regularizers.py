@@ -100,6 +100,7 @@ from evmotion.errors import EmptyWindowError, ParameterError
 __all__ = [
     "DEFAULT_MARGINS",
     "DEFAULT_WEIGHTS",
+    "RCAD_STRIDE",
     "REGULARIZERS",
     "window_span",
     "regularizer_maps",
@@ -114,6 +115,9 @@ DEFAULT_WEIGHTS: dict[str, dict[str, float]] = {
     "dsec": {"divergence": 50.0, "deformation": 100.0, "rcad": 1.0},
     "ecd": {"divergence": 5.0, "deformation": 10.0, "rcad": 1.0},
 }
+
+#: Pixel stride of the RCAD map's grid (rotation, homography).
+RCAD_STRIDE = 8
 
 #: Margins of the trimmed means (Sec. 3.4): DIWE < -0.2, IWA < 0.8, RCAD map > 0.2.
 DEFAULT_MARGINS: dict[str, float] = {"divergence": -0.2, "deformation": 0.8, "rcad": 0.2}
@@ -898,6 +902,14 @@ def _rcad_value_grad(warp, x, y, dt, theta, shape, margin, stride, grad=True, sp
         raise EmptyWindowError("the regularizer needs at least one event, got none")
     th = _checked_theta(warp, theta)
     t0, t1 = _time_span(dt) if span is None else (float(span[0]), float(span[1]))
+    return _rcad_checked(warp, th, t0, t1, shape, margin, stride, grad)
+
+
+def _rcad_checked(warp, th, t0, t1, shape, margin, stride, grad=True):
+    """The RCAD penalty and its gradient for checked arguments: ``th`` a finite float64
+    (P,) array, the window's time span ``[t0, t1]`` (s), ``shape`` (H, W), ``margin`` and
+    ``stride`` (the map's; rotation and homography) -- what a caller that evaluates one
+    window many times (CMax) has checked once."""
     g = np.empty(warp.n_params)
     if warp.name == "rotation":
         # coefficients and grid in one compiled call (c = 0 for a rotation); g is 0 when
@@ -942,7 +954,7 @@ def _deformation(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=Non
 
 
 def _rcad(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None, margin=None,
-          kernel="bilinear", grad=True, stride=8, span=None, count=None):
+          kernel="bilinear", grad=True, stride=RCAD_STRIDE, span=None, count=None):
     m = DEFAULT_MARGINS["rcad"] if margin is None else float(margin)
     return _rcad_value_grad(warp, x, y, dt, theta, shape, m, int(stride), grad, span)
 
@@ -953,7 +965,8 @@ REGULARIZERS = {"divergence": _divergence, "deformation": _deformation, "rcad": 
 
 def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
                            xw=None, yw=None, *, jx=None, jy=None, margin: float | None = None,
-                           kernel: str = "bilinear", stride: int = 8, grad: bool = True,
+                           kernel: str = "bilinear", stride: int = RCAD_STRIDE,
+                           grad: bool = True,
                            span: tuple[float, float] | None = None,
                            count: np.ndarray | None = None,
                            ) -> tuple[float, np.ndarray | None]:

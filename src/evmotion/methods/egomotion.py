@@ -71,8 +71,10 @@ from evmotion.core.optim import OptimResult, landscape, minimize
 from evmotion.core.regularizers import (
     DEFAULT_MARGINS,
     DEFAULT_WEIGHTS,
+    RCAD_STRIDE,
     REGULARIZERS,
     _checked_theta,
+    _rcad_checked,
     _span_T,
     _trimmed_parts,
     _warp_values,
@@ -424,13 +426,22 @@ class CMaxCost:
         count = (self.iwe if not self.needs_time and self._fw is None
                  and self.kernel == "bilinear" else None)
         for name, lam in self._terms:
-            r, g = regularizer_value_grad(name, self.warp, self._fx, self._fy, self._fdt,
-                                          theta, self.shape, self.xw, self.yw, jx=self.jx,
-                                          jy=self.jy, grad=grad, span=self._span, count=count)
-            if name == "rcad" and r < 0.0:
-                # one-sided, like the thresholded RCAD map: the closed forms (3.21)/(A.44)
-                # are negative for expansion, and a signed term would reward expanding warps
-                continue
+            if name == "rcad":
+                # events and span checked once per window: the O(1) closed forms cost
+                # little more than the call
+                r, g = _rcad_checked(self.warp, _checked_theta(self.warp, theta),
+                                    *self._span, self.shape, DEFAULT_MARGINS["rcad"],
+                                    RCAD_STRIDE, grad)
+                if r < 0.0:
+                    # one-sided, like the thresholded RCAD map: the closed forms
+                    # (3.21)/(A.44) are negative for expansion, and a signed term would
+                    # reward expanding warps
+                    continue
+            else:
+                r, g = regularizer_value_grad(name, self.warp, self._fx, self._fy, self._fdt,
+                                              theta, self.shape, self.xw, self.yw, jx=self.jx,
+                                              jy=self.jy, grad=grad, span=self._span,
+                                              count=count)
             # the divergence is already measured per window (core.regularizers), so the
             # margin and lambda apply as the thesis states them: no further time scaling
             total += lam * r
