@@ -179,6 +179,14 @@ def _vote_pair(xw, yw, vals, cnt, num, with_cnt):
         _vote_blocks(xw, yw, vals, False, cnt, vals, num, True, False)
 
 
+@njit(cache=True, inline="always")
+def _block_bufs(size):
+    """The buffers of a block of ``size`` events for :func:`_vote_cells`: the cells' flat
+    index and the four vote weights."""
+    return (np.empty(size, np.int64), np.empty(size), np.empty(size), np.empty(size),
+            np.empty(size))
+
+
 @njit(cache=True, error_model="numpy")
 def _vote_pairs(xw, yw, vals, out):
     """:func:`_vote_pair` into one (H, W, 2) image ``out``: each pixel's count next to its
@@ -187,11 +195,7 @@ def _vote_pairs(xw, yw, vals, out):
     h, wd = out.shape[0], out.shape[1]
     out[:] = 0.0
     flat = out.reshape(out.size)
-    ib = np.empty(_VOTE_BLOCK, np.int64)
-    w00 = np.empty(_VOTE_BLOCK)
-    w01 = np.empty(_VOTE_BLOCK)
-    w10 = np.empty(_VOTE_BLOCK)
-    w11 = np.empty(_VOTE_BLOCK)
+    ib, w00, w01, w10, w11 = _block_bufs(_VOTE_BLOCK)
     r = 2 * wd
     n = xw.shape[0]
     for k0 in range(0, n, _VOTE_BLOCK):
@@ -228,11 +232,7 @@ def _vote_blocks(xw, yw, wts, use_w, out, vals, out2, pair, with_out):
     h, wd = out2.shape
     flat = out.reshape(out.size)
     flat2 = out2.reshape(out2.size)
-    ib = np.empty(_VOTE_BLOCK, np.int64)
-    w00 = np.empty(_VOTE_BLOCK)
-    w01 = np.empty(_VOTE_BLOCK)
-    w10 = np.empty(_VOTE_BLOCK)
-    w11 = np.empty(_VOTE_BLOCK)
+    ib, w00, w01, w10, w11 = _block_bufs(_VOTE_BLOCK)
     n = xw.shape[0]
     for k0 in range(0, n, _VOTE_BLOCK):
         _vote_block(xw, yw, wts, use_w, out, flat, vals, out2, flat2, pair, with_out, k0,

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _vote_block, _vote_blocks
+from evmotion.core.iwe import _block_bufs, _vote_block, _vote_blocks
 from evmotion.core.warps import _DIV_BLOCK
 
 __all__ = ["BLOCK", "MIN_COUNT", "TILE", "flag_blocks", "n_blocks", "tile_grid", "trim_pass",
@@ -142,8 +142,7 @@ def vote_values(xw, yw, d, flags, num):
     exact on every ``near`` tile of :func:`flag_blocks`."""
     num[:] = 0.0
     flat = num.reshape(num.size)
-    ib = np.empty(BLOCK, np.int64)
-    w00, w01, w10, w11 = np.empty(BLOCK), np.empty(BLOCK), np.empty(BLOCK), np.empty(BLOCK)
+    ib, w00, w01, w10, w11 = _block_bufs(BLOCK)
     n = xw.shape[0]
     for b in range(flags.shape[0]):
         if flags[b]:
