@@ -104,7 +104,7 @@ def test_interleaved_votes_and_trim_match_the_two_images():
     interleaved image (bit for bit the two images) and trimmed from it, the counts copied
     out for the caller."""
     from evmotion.core.iwe import _vote_pair, _vote_pairs
-    from evmotion.core.trim import trim_pairs
+    from evmotion.core.trim import pairs_size, pairs_view, trim_pairs
 
     xw, yw, d = _cloud(4)
     h, w = SHAPE
@@ -122,6 +122,23 @@ def test_interleaved_votes_and_trim_match_the_two_images():
     assert r[1] > 100 and g[1] == r[1] and g[0] == pytest.approx(r[0], rel=1e-13)
     np.testing.assert_array_equal(got, ref)
     np.testing.assert_array_equal(out, cnt)
+    # the votes inside the second adjoint image's memory (pairs_view), overwritten there
+    for shape in (SHAPE, (3, 4), (1, 2)):
+        hh, ww = shape
+        sz = (hh + 2) * (ww + 2)
+        x2, y2 = xw * ww / w, yw * hh / h
+        buf = np.full(pairs_size(shape), np.nan)
+        view = pairs_view(buf, shape)
+        _vote_pairs(x2, y2, d, view)
+        sep = np.empty(shape + (2,))
+        _vote_pairs(x2, y2, d, sep)
+        ref2 = np.full(2 * sz, np.nan)
+        r2 = trim_pairs(sep, 0.3, ref2[:sz], ref2[sz:], np.empty(shape))
+        out2 = np.full(shape, np.nan)
+        g2 = trim_pairs(view, 0.3, buf[:sz], buf[sz:2 * sz], out2)
+        assert g2 == r2
+        np.testing.assert_array_equal(buf[:2 * sz], ref2)
+        np.testing.assert_array_equal(out2, sep[..., 0])
 
 
 def test_no_value_below_flags_nothing():

@@ -68,6 +68,8 @@ from evmotion.core.trim import (
     MIN_COUNT,
     flag_blocks,
     n_blocks,
+    pairs_size,
+    pairs_view,
     tile_grid,
     trim_pairs,
     trim_pass,
@@ -612,11 +614,12 @@ def _trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, marg
     if count is not None:
         count = _count_image(count, shape)
     h, wd = shape
-    (pads,) = _scratch(((2 * (h + 2) * (wd + 2),),), "adj")
+    (buf,) = _scratch(((pairs_size(shape),),), "adj")
     value, g, d, fac, scale, blocks = _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw,
-                                                     margin, pads, span, count, grad)
+                                                     margin, buf, span, count, grad)
     if d is None or not grad:
         return value, g
+    pads = buf[:2 * (h + 2) * (wd + 2)]
     T = window_span(dt) if span is None else _span_T(span)
     if (jx is None or jy is None) and chains_pair(warp):
         warp.reduce_pair(x, y, dt, xw, yw, th, pads, d, h, wd, g, scale, kind, T, blocks)
@@ -654,7 +657,8 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
 
     ``d`` None: ``value`` and ``g`` (P,) are complete (no pixel trimmed, or the constant
     divergence; ``g`` None without ``grad``). Otherwise ``g`` (P,) is uninitialized and
-    ``pads`` (2 (H + 2) (W + 2),) holds the adjoint images ``gN``, ``gS`` of the penalty
+    ``pads`` (:func:`evmotion.core.trim.pairs_size`: the votes are made in it too) holds in
+    its first 2 (H + 2) (W + 2) values the adjoint images ``gN``, ``gS`` of the penalty
     divided by ``scale`` (with respect to the vote counts and the votes of the per-event
     values ``d``; padded by a ring of zeros): the gradient is that of ``scale * sum(gN *
     cnt + gS * num)`` through the votes and the values
@@ -697,15 +701,16 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
         # no collapse anywhere (the usual case away from collapse): no maps to build
         return unvoted(zero)
     # R = -(1/n) sum_sel S/N with S = sum d_k b_k, N = sum b_k (b_k: bilinear votes)
-    size = pads.shape[0] // 2
-    gN, gS = pads[:size], pads[size:]
+    size = (shape[0] + 2) * (shape[1] + 2)
+    gN, gS = pads[:size], pads[size:2 * size]
     blocks = None
     if n_below > _SPARSE_MAX * d.shape[0]:
         # most values below (the zoom's, similarity's and in-plane warp's depend on dt
         # only: below everywhere at once): both images in full, interleaved in one pass
         # unless the counts are given
         if count is None:
-            (pairs,) = _scratch((tuple(shape) + (2,),), "pairs")
+            # in the second adjoint image's memory: trim_pairs writes it over read rows
+            pairs = pairs_view(pads, shape)
             _vote_pairs(xw, yw, d, pairs)
             cnt = count_out if count_out is not None else _scratch((shape,), "cnt")[0]
             total, n_sel = trim_pairs(pairs, m, gN, gS, cnt)

@@ -33,8 +33,8 @@ from numba import njit
 from evmotion.core.iwe import _block_bufs, _vote_block, _vote_blocks
 from evmotion.core.warps import _DIV_BLOCK
 
-__all__ = ["BLOCK", "MIN_COUNT", "TILE", "flag_blocks", "n_blocks", "tile_grid", "trim_pass",
-           "vote_marked", "vote_values"]
+__all__ = ["BLOCK", "MIN_COUNT", "TILE", "flag_blocks", "n_blocks", "pairs_size", "pairs_view",
+           "tile_grid", "trim_pairs", "trim_pass", "vote_marked", "vote_values"]
 
 _SHIFT = 3
 #: Pixels per side of a tile.
@@ -211,15 +211,39 @@ def _trim_span(cnt, num, margin, gN, gS):
     return total, n_sel
 
 
+def pairs_size(shape: tuple[int, int]) -> int:
+    """Length of the buffer that holds the two padded adjoint images of
+    :func:`trim_pass` and, overlapping the second, the interleaved votes of
+    :func:`trim_pairs` (:func:`pairs_view`)."""
+    h, w = int(shape[0]), int(shape[1])
+    size = (h + 2) * (w + 2)
+    return max(2 * size, size + _PAIRS_AT + 2 * h * w)
+
+
+def pairs_view(buf: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The (H, W, 2) interleaved votes inside a :func:`pairs_size` buffer: from the
+    ``_PAIRS_AT``-th value of the second adjoint image on, so that :func:`trim_pairs` writes
+    that image over rows it has read (one image of memory less than apart: at 500k
+    events the cost's working set no longer fills the last-level cache)."""
+    h, w = int(shape[0]), int(shape[1])
+    at = (h + 2) * (w + 2) + _PAIRS_AT
+    return buf[at:at + 2 * h * w].reshape(h, w, 2)
+
+
+_PAIRS_AT = 4  # offset of the votes in the second image (an even one keeps them aligned)
+
+
 @njit(cache=True, error_model="numpy", fastmath=True)
 def trim_pairs(pairs, margin, gN, gS, cnt_out):
     """:func:`trim_pass` over every pixel of the interleaved (H, W, 2) image of counts and
     sums of values of :func:`evmotion.core.iwe._vote_pairs`, the counts copied into
-    ``cnt_out`` (H, W)."""
+    ``cnt_out`` (H, W). ``pairs`` may lie in ``gS`` as :func:`pairs_view` puts it: each of
+    its rows is read before the values of ``gS`` that overlap it are written (row i of
+    ``gS`` and its ring ends before row i + 1 of ``pairs`` starts, the top ring reaches row
+    0 only, the bottom ring is written last)."""
     h, w = pairs.shape[0], pairs.shape[1]
     wp = w + 2
     _zero_ring(gN, h, w)
-    _zero_ring(gS, h, w)
     total = 0.0
     n_sel = 0
     num = np.empty(w)
@@ -230,9 +254,14 @@ def trim_pairs(pairs, margin, gN, gS, cnt_out):
         for j in range(w):
             cnt[j] = row[2 * j]
             num[j] = row[2 * j + 1]
+        if i == 0:
+            gS[:wp] = 0.0
+        gS[r] = 0.0
+        gS[r + wp - 1] = 0.0
         t, k = _trim_span(cnt, num, margin, gN[r + 1:r + 1 + w], gS[r + 1:r + 1 + w])
         total += t
         n_sel += k
+    gS[(h + 1) * wp:(h + 2) * wp] = 0.0
     return total, n_sel
 
 

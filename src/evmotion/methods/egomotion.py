@@ -83,6 +83,7 @@ from evmotion.core.regularizers import (
     regularizer_value_grad,
     whiten,
 )
+from evmotion.core.trim import pairs_size
 from evmotion.core.warps import WARPS, Warp, make_warp
 from evmotion.errors import CalibrationError, EmptyWindowError, ParameterError
 from evmotion.events import EventArray
@@ -306,7 +307,7 @@ class CMaxCost:
         # pass over the events (Warp.reduce_pair), their counts being the data term's IWE
         self._pair = (self.fused and regularizer in ("divergence", "deformation")
                       and chains_pair(warp) and not self.needs_time and kernel == "bilinear")
-        self._pads = np.empty(2 * self._pad.shape[0]) if self._pair else None
+        self._pads = np.empty(pairs_size(self.shape)) if self._pair else None
         self.gtheta = np.empty(p)
         # whitening maps the cloud back to the image centre at the spread of the raw events
         self._wcenter = ((self.shape[1] - 1) / 2.0, (self.shape[0] - 1) / 2.0)
@@ -477,7 +478,7 @@ class CMaxCost:
         # pixel is trimmed), so the data term's adjoint enters divided by it
         f = lam * s
         _fold_adjoints(g, shift, -scale / self.g0 / f, pads[:size])
-        w.reduce_pair(x, y, dt, xw, yw, th, pads, d, self.shape[0], self.shape[1],
+        w.reduce_pair(x, y, dt, xw, yw, th, pads[:2 * size], d, self.shape[0], self.shape[1],
                       self.gtheta, f, reg, _span_T(self._span), blocks)
         return -G / self.g0 + lam * R, self.gtheta.copy()
 
