@@ -37,7 +37,12 @@ orientations meet; it defaults to d_x = 2.3 (steps of one and two pixels) and ta
 windows (``triplet_accuracy_summary.md``): thesis mean 21 / 9.4 / 8.5 (dt = 1) and
 129 / 6.0 / 3.7 (dt = 4) at 250-300 px/s, 2.4 / 4.8 / 3.0 and 54 / 22 / 14 at a quarter of
 that speed; ``dense="lsq"`` 4.5 / 2.0 / 2.1 and 27 / 1.9 / 1.3, then 0.45 / 0.90 / 0.71 and
-4.9 / 2.9 / 1.9. Translation stays 4.5-27x: MultiCM is near exact there (0.05-0.08 px).
+4.9 / 2.9 / 1.9. Translation stays 4.5-27x: MultiCM is near exact there (0.05-0.08 px),
+and the limit is the per-event normal speeds, not the fit: fed the ground-truth normal
+speeds along the matcher's own normal directions, the same fit gives 0.04 / 0.14 px
+(0.5x / 2.7x MultiCM; ``benchmarks/results/triplet_lsq_budget.md``). Offline, the speeds'
+error traces to matches that pair events of different threshold levels of an edge's burst
+(equal steps, so the narrowed weights keep them).
 
 Units: pixels, microseconds for times, px/s for flow.
 """
