@@ -1,8 +1,8 @@
 """Speed of contrast maximization (thesis Table 3.4): ms per cost+gradient evaluation for
 30k events at 346x260 and 500k at 640x480, variance and gradient magnitude, each
 regularizer, with the ratio to the unregularized run, at the parameters of WARP_THETA (no
-collapse) and of COLLAPSE_THETA (the trimmed means and the RCAD map active); a complete 4-DOF estimate with RCAD
-(BFGS) on a 30k window and a 600-sample TPE run; the one-off cost of building the cost of a
+collapse) and of COLLAPSE_THETA (the trimmed means and the RCAD map active); a complete
+4-DOF estimate with RCAD (BFGS) on a 30k window and a 600-sample TPE run; the one-off cost of building the cost of a
 window (buffers, the tile order of the fused path, the normalization G(0)) per warp.
 
     python benchmarks/run.py cmax          # or: python benchmarks/bench_cmax.py [--quick]

@@ -37,9 +37,10 @@ Cost (what CMax pays per evaluation on top of its data term; ``benchmarks/bench_
   (the blocks of events that reach those tiles; both images in one pass where most
   values are below: :mod:`evmotion.core.trim`), one pass trims them into their padded
   adjoint images, and the gradient takes one pass over the events with no per-event
-  output, so that it vectorizes: :meth:`~evmotion.core.warps.Warp.reduce_pair` chains the votes' adjoint
-  through the warp (its Jacobian recomputed, never stored) and the values' own derivatives
-  (closed forms; for the rotation from the warped point) with the same gathered pixels,
+  output, so that it vectorizes: :meth:`~evmotion.core.warps.Warp.reduce_pair` chains
+  the votes' adjoint through the warp (its Jacobian recomputed, never stored) and the
+  values' own derivatives (closed forms; for the rotation from the warped point) with the
+  same gathered pixels,
   the values' image gathered only in the flagged blocks (the rotation). CMax
   (:class:`evmotion.methods.egomotion.CMaxCost`) votes the count image as its IWE and folds
   the penalty's adjoint images into its data term's, so that that one pass chains both
@@ -127,18 +128,22 @@ DEFAULT_MARGINS: dict[str, float] = {"divergence": -0.2, "deformation": 0.8, "rc
 _LOW63 = np.int64(0x7FFFFFFFFFFFFFFF)  # all float64 bits but the sign
 
 
+def _count_image_for(shape, count=None, count_out=None):
+    """Where the vote counts are: the caller's ``count`` (already voted), else
+    ``count_out`` (to be voted), else a scratch buffer."""
+    if count is not None:
+        return count
+    return count_out if count_out is not None else _scratch((shape,), "cnt")[0]
+
+
 def _votes(xw, yw, d, shape, count=None, count_out=None):
     """``(cnt, num)``: the bilinear IWE of ones and of the per-event values ``d``, in one
     pass (:func:`evmotion.core.iwe._vote_pair`); ``cnt`` is ``count`` when the caller has
     it (not voted again), else written into ``count_out`` if given; scratch buffers
     otherwise."""
-    cnt, num = _scratch((shape,) * 2, "img")
-    if count is not None:
-        _vote_pair(xw, yw, d, count, num, False)
-        return count, num
-    if count_out is not None:
-        cnt = count_out
-    _vote_pair(xw, yw, d, cnt, num, True)
+    cnt = _count_image_for(shape, count, count_out)
+    (num,) = _scratch((shape,), "num")
+    _vote_pair(xw, yw, d, cnt, num, count is None)
     return cnt, num
 
 
@@ -153,10 +158,7 @@ def _sparse_votes(xw, yw, d, margin, shape, count=None, count_out=None):
     nb = n_blocks(xw.shape[0])
     (boxes,) = _scratch(((nb, 4),), "boxes", np.int64)
     (blocks,) = _scratch(((nb,),), "blocks", np.uint8)
-    if count is not None:
-        cnt = count
-    else:
-        (cnt,) = _scratch((shape,), "cnt") if count_out is None else (count_out,)
+    cnt = _count_image_for(shape, count, count_out)
     vote_marked(xw, yw, d, margin, cnt, count is None, marks, boxes)
     flag_blocks(marks, boxes, near, blocks)
     vote_values(xw, yw, d, blocks, num)
@@ -712,8 +714,7 @@ def _trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=N
             # in the second adjoint image's memory: trim_pairs writes it over read rows
             pairs = pairs_view(pads, shape)
             _vote_pairs(xw, yw, d, pairs)
-            cnt = count_out if count_out is not None else _scratch((shape,), "cnt")[0]
-            total, n_sel = trim_pairs(pairs, m, gN, gS, cnt)
+            total, n_sel = trim_pairs(pairs, m, gN, gS, _count_image_for(shape, None, count_out))
         else:
             cnt, num = _votes(xw, yw, d, shape, count)
             total, n_sel = trim_pass(cnt, num, m, gN, gS, _ALL_NEAR)
@@ -1043,8 +1044,9 @@ def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,
                      ) -> dict[str, np.ndarray]:
     """Maps for plotting (H, W) float64.
 
-    * divergence: ``"diwe"`` (3.11, per window as in the thesis, empty pixels 0), ``"count"`` (the IWE of vote mass),
-      ``"trimmed"`` (bool, the pixels below the margin);
+    * divergence: ``"diwe"`` (3.11, per window as in the thesis, empty pixels 0),
+      ``"count"`` (the IWE of vote mass), ``"trimmed"`` (bool, the pixels below the
+      margin);
     * deformation: ``"iwa"`` (3.16, empty pixels 1), ``"count"``, ``"trimmed"``;
     * rcad: ``"rcad"`` -- the integrated rate (area log-ratio) at every pixel's trajectory,
       dense (also where no event warps), and ``"trimmed"``.

@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _block_bufs, _vote_block, _vote_blocks
+from evmotion.core.iwe import _block_bufs, _vote_bilinear, _vote_block
 from evmotion.core.warps import _DIV_BLOCK
 
 __all__ = ["BLOCK", "MIN_COUNT", "TILE", "flag_blocks", "n_blocks", "pairs_size", "pairs_view",
@@ -72,8 +72,7 @@ def vote_marked(xw, yw, d, margin, cnt, with_cnt, marks, boxes):
     > last: no event of the block votes)."""
     h, wd = cnt.shape
     if with_cnt:
-        cnt[:] = 0.0
-        _vote_blocks(xw, yw, _NO_WEIGHTS, False, cnt, _NO_WEIGHTS, cnt, False, True)
+        _vote_bilinear(xw, yw, _NO_WEIGHTS, cnt)
     marks[:] = 0
     nc = marks.shape[1]
     flat = marks.reshape(marks.size)

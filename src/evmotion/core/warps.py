@@ -1241,10 +1241,10 @@ def _k_rot_divdet(x, y, dt, w, Kinv, want_div, val, grad, gw, out):
     """Divergence (3.23 at any dt) or det J (3.24) of the rotation warp into ``val`` and,
     if ``grad`` (N, 3) has rows, their analytic omega-derivatives; if ``gw`` (N,) has rows,
     instead ``out[j] += sum_k gw[k] d val_k / d omega_j`` (events with ``gw[k] == 0`` skip
-    the derivative: a trimmed mean's adjoint is zero off its selected pixels). Both are invariant under the affine map K, so
-    they are computed in normalized coordinates, where the warp is ``X = pi(R v)`` with
-    ``R = exp(dt omega^)``: det J = 1 / q_z^3 (det R = 1), and since the flow is the
-    rotational field ``F(X) = pi'(q) (omega x q)`` evaluated at the warped point,
+    the derivative: a trimmed mean's adjoint is zero off its selected pixels). Both are
+    invariant under the affine map K, so they are computed in normalized coordinates,
+    where the warp is ``X = pi(R v)`` with ``R = exp(dt omega^)``: det J = 1 / q_z^3
+    (det R = 1), and since the flow is the rotational field ``F(X) = pi'(q) (omega x q)`` evaluated at the warped point,
     div f = tr(dF/dX dX/dx). Derivatives use dR/d omega_j = dt (J_l e_j)^ R."""
     wx, wy, wz, ww, mode = _rot_rates(dt, w)
     i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
@@ -1782,10 +1782,10 @@ class _FusedAdjoint:
         warp's divergence times ``T``) or ``"deformation"`` (``|det J| - 1``) chains their
         theta-derivatives too, in the same pass (the DIWE/IWA penalties of
         :mod:`evmotion.core.regularizers`); the warps whose values depend on dt only
-        (closed forms) then recompute them instead of reading ``values``. ``blocks`` (uint8, one per block of
-        :data:`evmotion.core.trim.BLOCK` events, optional): 0 for the blocks none of
-        whose events reaches a nonzero pixel of ``B``, which then skip it (the flags of
-        :func:`evmotion.core.trim.flag_blocks`); the result is the same.
+        (closed forms) then recompute them instead of reading ``values``. ``blocks``
+        (uint8, one per block of :data:`evmotion.core.trim.BLOCK` events, optional): 0 for
+        the blocks none of whose events reaches a nonzero pixel of ``B``, which then skip
+        it (the flags of :func:`evmotion.core.trim.flag_blocks`); the result is the same.
 
         Examples
         --------
