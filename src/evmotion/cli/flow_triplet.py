@@ -7,9 +7,11 @@ fields (voxelized, 3x3 non-zero averaged, collapsed; px/s; the evmotion flow HDF
 same fields as one ``(N, H, W, 2)`` float32 array in px/s, ``.flo`` Middlebury displacement
 over each window (``name_0000.flo``... when there are several windows), ``.npz`` sparse
 per-event flow (``t, x, y, p, vx, vy, nx, ny, valid, n_triplets``; ``nx, ny`` the normal
-flow of :attr:`~evmotion.methods.triplet.TripletFlow.nx`). ``--dense lsq`` replaces the
-thesis' voxel mean by the normal-flow least-squares fit of
-:func:`~evmotion.methods.triplet.estimate_flow_triplet`.
+flow of :attr:`~evmotion.methods.triplet.TripletFlow.nx`). ``--dense lsq`` and ``--dense
+robust`` replace the thesis' voxel mean by the normal-flow fits of
+:func:`~evmotion.methods.triplet.estimate_flow_triplet`; with ``robust`` the dense windows
+(and their IWE pictures) are those of the stream of burst means
+(:class:`~evmotion.methods.bursts.BurstMeans`), which runs at least ``--gap-ms`` behind.
 """
 
 from __future__ import annotations
@@ -28,27 +30,31 @@ DEFAULT_WINDOW_US = 50_000
 def add_arguments(group) -> None:
     group.add_argument("--dx", type=float, default=None,
                        help="neighbourhood radius d_x in px (default sqrt(2), the thesis'; "
-                            "2.3 with --dense lsq)")
+                            "2.3 with --dense lsq/robust)")
     group.add_argument("--dt-ms", type=float, default=100.0, help="delay window d_t in ms (default 100)")
     group.add_argument("--tau-ms", type=float, default=None,
                        help="refractory period tau in ms (default 3, the thesis'; 1 with "
-                            "--dense lsq)")
+                            "--dense lsq/robust)")
     group.add_argument("--quadruple", action="store_true",
                        help="match 4 aligned events instead of 3 (§5.3.5)")
     group.add_argument("--bins", type=int, default=1,
                        help="time bins per window of the dense .h5 output (default 1; windows "
                             f"default to {DEFAULT_WINDOW_US // 1000} ms); .npz is per event")
-    group.add_argument("--dense", choices=("mean", "lsq"), default="mean",
-                       help="dense output: 'mean' of the per-event flow (thesis, default) or "
-                            "'lsq', the least-squares fit of the events' normal flows (an "
-                            "extension, more accurate where edges of several orientations meet)")
+    group.add_argument("--dense", choices=("mean", "lsq", "robust"), default="mean",
+                       help="dense output: 'mean' of the per-event flow (thesis, default), "
+                            "'lsq', the least-squares fit of the events' normal flows, or "
+                            "'robust', a re-weighted fit of the normal flows of burst means "
+                            "(extensions; 'robust' is the most accurate)")
     group.add_argument("--filter-size", type=int, default=None,
                        help="width of the non-zero average filter of the dense output (default "
                             "3, the thesis'; larger odd sizes are an extension), or of the "
-                            "--dense lsq neighbourhood (default 15)")
-    group.add_argument("--ridge", type=float, default=1e-2,
-                       help="--dense lsq: Tikhonov weight relative to the mean eigenvalue "
-                            "(default 0.01)")
+                            "--dense lsq/robust neighbourhood (default 15/41)")
+    group.add_argument("--ridge", type=float, default=None,
+                       help="--dense lsq/robust: Tikhonov weight relative to the mean "
+                            "eigenvalue (default 0.01/0.001)")
+    group.add_argument("--gap-ms", type=float, default=4.0,
+                       help="--dense robust: a pixel silent for longer than this ends its "
+                            "burst (default 4)")
     group.add_argument("--chunk-events", type=int, default=1_000_000,
                        help="events read and processed at a time (default 1e6)")
     group.add_argument("--depth", type=int, default=8,
@@ -57,7 +63,13 @@ def add_arguments(group) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.methods.triplet import TripletMatcher, dense_defaults, max_normal_speed
+    from evmotion.methods.bursts import BurstMeans
+    from evmotion.methods.triplet import (
+        TripletMatcher,
+        default_ridge,
+        dense_defaults,
+        max_normal_speed,
+    )
     from evmotion.utils import progress
 
     out = Path(args.out)
@@ -69,8 +81,12 @@ def run(args) -> int:
     args.dx, tau_us, args.filter_size = dense_defaults(args.dense, args.dx, tau_us,
                                                        args.filter_size)
     args.tau_ms = tau_us / 1000
-    if not (np.isfinite(args.ridge) and args.ridge >= 0):
+    if args.ridge is not None and not (np.isfinite(args.ridge) and args.ridge >= 0):
         raise ParameterError(f"--ridge must be a finite number >= 0, got {args.ridge}")
+    args.ridge = default_ridge(args.dense, args.ridge)
+    gap_us = int(round(args.gap_ms * 1000)) if np.isfinite(args.gap_ms) else 0
+    if gap_us < 1:
+        raise ParameterError(f"--gap-ms must be >= 0.001 ms, got {args.gap_ms}")
     if args.chunk_events <= 0:
         raise ParameterError(f"--chunk-events must be > 0, got {args.chunk_events}")
     dense = kind != ".npz" or args.png_dir
@@ -82,6 +98,11 @@ def run(args) -> int:
     matcher = TripletMatcher(sensor, args.dx, int(round(args.dt_ms * 1000)),
                              int(round(args.tau_ms * 1000)), quadruple=args.quadruple,
                              depth=args.depth)
+    robust = args.dense == "robust" and dense
+    if robust:
+        bursts = BurstMeans(sensor, gap_us)
+        burst_matcher = TripletMatcher(sensor, matcher.dx, matcher.dt_us, matcher.tau_us,
+                                       quadruple=args.quadruple, depth=args.depth)
     windows = _Windows(sensor, args.bins, args.window_us, args.window_events,
                        int(first.t[0]), _gt_edges(args), filter_size=args.filter_size,
                        dense=args.dense, ridge=args.ridge,
@@ -89,6 +110,8 @@ def run(args) -> int:
     params = {"dx": args.dx, "dt_ms": args.dt_ms, "tau_ms": args.tau_ms,
               "quadruple": args.quadruple, "bins": args.bins, "depth": args.depth,
               "dense": args.dense, "filter_size": args.filter_size, "ridge": args.ridge}
+    if args.dense == "robust":
+        params["gap_ms"] = gap_us / 1000
     if kind == ".npz":
         sink = _NpzSink(out)
     elif kind == ".npy":
@@ -115,11 +138,19 @@ def run(args) -> int:
                 t_last = int(chunk.t[-1])
             if kind == ".npz":
                 sink.add(chunk, flow)
-            if windows is not None:
+            if robust:
+                b = bursts.process(chunk)
+                for win in windows.add(b, burst_matcher.process(b)):
+                    n_windows += _emit(win, sink, png_dir, kind)
+            elif windows is not None:
                 for win in windows.add(chunk, flow):
                     n_windows += _emit(win, sink, png_dir, kind)
             bar.update(len(chunk))
             chunk = next(chunks, None)
+        if robust:
+            b = bursts.flush()
+            for win in windows.add(b, burst_matcher.process(b)):
+                n_windows += _emit(win, sink, png_dir, kind)
         if windows is not None:
             for win in windows.finish():
                 n_windows += _emit(win, sink, png_dir, kind)
@@ -221,8 +252,11 @@ class _Windows:
 
     def _new(self):
         h, w = self.sensor
-        self.acc = np.zeros((self.bins, h, w, 5 if self.dense == "lsq" else 2), np.float64)
-        self.cnt = np.zeros((self.bins, h, w), np.int64)
+        if self.dense == "robust":
+            self.kept = []  # the window's (events, flow): the robust fit re-weights events
+        else:
+            self.acc = np.zeros((self.bins, h, w, 5 if self.dense == "lsq" else 2), np.float64)
+            self.cnt = np.zeros((self.bins, h, w), np.int64)
         self.iwe = np.zeros((h, w), np.float64)
         self.n = 0
         self.pending = []  # count windows: (events, flow) until the end time is known
@@ -269,7 +303,9 @@ class _Windows:
 
         if not len(ev):
             return
-        if self.dense == "lsq":
+        if self.dense == "robust":
+            self.kept.append((ev, fl))
+        elif self.dense == "lsq":
             add_normal_voxels(ev, fl, t0, t1, self.acc, self.cnt, self.vmax)
         else:
             add_voxels(ev, fl, t0, t1, self.acc, self.cnt)
@@ -281,9 +317,22 @@ class _Windows:
                                ev.y.astype(np.float64) - fl.vy * dt, self.sensor)
 
     def _close(self, t0, t1):
-        from evmotion.methods.triplet import dense_from_sums, dense_lsq_from_sums
+        from evmotion.events import concatenate
+        from evmotion.methods.triplet import (
+            TripletFlow,
+            dense_from_sums,
+            dense_lsq_from_sums,
+            dense_robust_fit,
+        )
 
-        if self.dense == "lsq":
+        if self.dense == "robust":
+            ev = concatenate([e for e, _ in self.kept] or [_no_events(self.sensor)],
+                             validate=False)
+            fl = TripletFlow.concatenate([f for _, f in self.kept] or [_no_flow()])
+            flow, mask = dense_robust_fit(ev, fl, t0, t1, n_bins=self.bins,
+                                          filter_size=self.filter_size, ridge=self.ridge,
+                                          vmax=self.vmax)
+        elif self.dense == "lsq":
             flow, mask = dense_lsq_from_sums(self.acc, self.cnt, filter_size=self.filter_size,
                                              ridge=self.ridge)
         else:
@@ -303,6 +352,20 @@ class _Windows:
             if self.edges is None and not self.n:
                 return
             yield self._close(*b)
+
+
+def _no_events(sensor):
+    from evmotion.events import EventArray
+
+    return EventArray(np.zeros(0, np.uint16), np.zeros(0, np.uint16), np.zeros(0, np.int64),
+                      np.zeros(0, np.uint8), sensor)
+
+
+def _no_flow():
+    from evmotion.methods.triplet import TripletFlow
+
+    z = np.zeros(0, np.float32)
+    return TripletFlow(z, z, np.zeros(0, bool), np.zeros(0, np.int32), z, z)
 
 
 def _emit(win, sink, png_dir, kind) -> int:

@@ -401,6 +401,44 @@ def _box_sum(a, r, tmp, out):
             _running_sum(tmp[:, xx, ch], r, out[:, xx, ch])
 
 
+@njit(cache=True, inline="always")
+def _solve_normal(box, yy, xx, ridge, v):
+    """Flow ``v[yy, xx]`` from the box-summed normal equations ``[M11, M12, M22, r1, r2]``,
+    ``(M + ridge tr(M)/2 I) v = r``; False where the neighbourhood holds no event, where its
+    events' weights (the trace: unit normals) all but vanish, or where ``M`` is singular."""
+    if box[yy, xx, 5] < 0.5:
+        return False
+    m11 = box[yy, xx, 0]
+    m12 = box[yy, xx, 1]
+    m22 = box[yy, xx, 2]
+    # Sliding sums leave rounding residue where every weight is zero.
+    if not m11 + m22 > 1e-9 * box[yy, xx, 5]:
+        return False
+    eps = ridge * 0.5 * (m11 + m22)
+    m11 += eps
+    m22 += eps
+    det = m11 * m22 - m12 * m12
+    if not det > 0.0:
+        return False
+    r1 = box[yy, xx, 3]
+    r2 = box[yy, xx, 4]
+    v[yy, xx, 0] = (m22 * r1 - m12 * r2) / det
+    v[yy, xx, 1] = (m11 * r2 - m12 * r1) / det
+    return True
+
+
+@njit(cache=True, inline="always")
+def _mean_over_bins(su, nbins, out, out_mask):
+    """``out`` = per-pixel sum ``su`` (H, W, 2) over ``nbins`` bins, 0 and masked out where 0."""
+    h, w = nbins.shape
+    for yy in range(h):
+        for xx in range(w):
+            nb = nbins[yy, xx]
+            out_mask[yy, xx] = nb > 0
+            out[yy, xx, 0] = su[yy, xx, 0] / nb if nb > 0 else 0.0
+            out[yy, xx, 1] = su[yy, xx, 1] / nb if nb > 0 else 0.0
+
+
 @njit(cache=True)
 def dense_lsq_from_sums(acc, cnt, r, ridge, out, out_mask):
     """Per bin, the flow that best meets the normal-flow constraints of a (2r+1)^2
@@ -411,8 +449,8 @@ def dense_lsq_from_sums(acc, cnt, r, ridge, out, out_mask):
     c6 = np.empty((h, w, 6))
     tmp = np.empty((h, w, 6))
     box = np.empty((h, w, 6))
-    su = np.zeros((h, w))
-    sv = np.zeros((h, w))
+    v = np.empty((h, w, 2))
+    su = np.zeros((h, w, 2))
     nbins = np.zeros((h, w), np.int64)
     for b in range(nb):
         for yy in range(h):
@@ -423,29 +461,74 @@ def dense_lsq_from_sums(acc, cnt, r, ridge, out, out_mask):
         _box_sum(c6, r, tmp, box)
         for yy in range(h):
             for xx in range(w):
-                if box[yy, xx, 5] < 0.5:
+                if _solve_normal(box, yy, xx, ridge, v):
+                    su[yy, xx, 0] += v[yy, xx, 0]
+                    su[yy, xx, 1] += v[yy, xx, 1]
+                    nbins[yy, xx] += 1
+    _mean_over_bins(su, nbins, out, out_mask)
+
+
+@njit(cache=True)
+def dense_robust(x, y, t, nx, ny, t0, t1, n_bins, vmax, r, ridge, c, iters, out, out_mask):
+    """Robust counterpart of :func:`dense_lsq_from_sums` over the events themselves: per time
+    bin, ``iters`` re-weightings of the neighbourhood fit, each event's normal-flow
+    constraint weighted by Tukey's biweight of its relative residual
+    ``(v . n - |u|) / |u|`` (zero beyond ``c``) under the flow ``v`` of its own pixel.
+    Events outside ``[t0, t1)`` or with ``|u|`` = 0 or over ``vmax`` are left out."""
+    h, w = out_mask.shape
+    n = t.shape[0]
+    span = float(t1 - t0)
+    bin_of = np.empty(n, np.int64)
+    for k in range(n):
+        s2 = float(nx[k]) * nx[k] + float(ny[k]) * ny[k]
+        if t[k] < t0 or t[k] >= t1 or not (s2 > 0.0 and s2 <= vmax * vmax):
+            bin_of[k] = -1
+        else:
+            bin_of[k] = min(int((t[k] - t0) * n_bins / span), n_bins - 1)
+    wgt = np.ones(n)
+    c6 = np.empty((h, w, 6))
+    tmp = np.empty((h, w, 6))
+    box = np.empty((h, w, 6))
+    v = np.empty((h, w, 2))
+    ok = np.empty((h, w), np.bool_)
+    su = np.zeros((h, w, 2))
+    nbins = np.zeros((h, w), np.int64)
+    for b in range(n_bins):
+        for it in range(iters + 1):
+            c6[:] = 0.0
+            for k in range(n):
+                if bin_of[k] != b:
                     continue
-                m11 = box[yy, xx, 0]
-                m12 = box[yy, xx, 1]
-                m22 = box[yy, xx, 2]
-                eps = ridge * 0.5 * (m11 + m22)
-                m11 += eps
-                m22 += eps
-                det = m11 * m22 - m12 * m12
-                if not det > 0.0:
+                ux = float(nx[k])
+                uy = float(ny[k])
+                s2 = ux * ux + uy * uy
+                wk = wgt[k]
+                yk = y[k]
+                xk = x[k]
+                c6[yk, xk, 0] += wk * ux * ux / s2
+                c6[yk, xk, 1] += wk * ux * uy / s2
+                c6[yk, xk, 2] += wk * uy * uy / s2
+                c6[yk, xk, 3] += wk * ux
+                c6[yk, xk, 4] += wk * uy
+                c6[yk, xk, 5] += 1.0
+            _box_sum(c6, r, tmp, box)
+            for yy in range(h):
+                for xx in range(w):
+                    ok[yy, xx] = _solve_normal(box, yy, xx, ridge, v)
+            if it == iters:
+                break
+            for k in range(n):
+                if bin_of[k] != b or not ok[y[k], x[k]]:
                     continue
-                r1 = box[yy, xx, 3]
-                r2 = box[yy, xx, 4]
-                su[yy, xx] += (m22 * r1 - m12 * r2) / det
-                sv[yy, xx] += (m11 * r2 - m12 * r1) / det
-                nbins[yy, xx] += 1
-    for yy in range(h):
-        for xx in range(w):
-            if nbins[yy, xx] > 0:
-                out[yy, xx, 0] = su[yy, xx] / nbins[yy, xx]
-                out[yy, xx, 1] = sv[yy, xx] / nbins[yy, xx]
-                out_mask[yy, xx] = True
-            else:
-                out[yy, xx, 0] = 0.0
-                out[yy, xx, 1] = 0.0
-                out_mask[yy, xx] = False
+                ux = float(nx[k])
+                uy = float(ny[k])
+                z = ((v[y[k], x[k], 0] * ux + v[y[k], x[k], 1] * uy) / (ux * ux + uy * uy)
+                     - 1.0) / c
+                wgt[k] = (1.0 - z * z) ** 2 if z * z < 1.0 else 0.0
+        for yy in range(h):
+            for xx in range(w):
+                if ok[yy, xx]:
+                    su[yy, xx, 0] += v[yy, xx, 0]
+                    su[yy, xx, 1] += v[yy, xx, 1]
+                    nbins[yy, xx] += 1
+    _mean_over_bins(su, nbins, out, out_mask)

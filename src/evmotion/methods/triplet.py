@@ -57,12 +57,17 @@ import numpy as np
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, Window
 from evmotion.methods import _triplet_kernels as K
+from evmotion.methods.bursts import BURST_GAP_US, burst_means
 
 __all__ = [
     "LSQ_DX",
     "LSQ_FILTER_SIZE",
     "LSQ_TAU_US",
     "NORMAL_KAPPA",
+    "ROBUST_C",
+    "ROBUST_FILTER_SIZE",
+    "ROBUST_ITERS",
+    "ROBUST_RIDGE",
     "TripletBatchResult",
     "TripletFlow",
     "TripletMatcher",
@@ -71,7 +76,9 @@ __all__ = [
     "collapse_voxels",
     "dense_defaults",
     "dense_from_sums",
+    "default_ridge",
     "dense_lsq_from_sums",
+    "dense_robust_fit",
     "estimate_flow_triplet",
     "event_fwl",
     "max_normal_speed",
@@ -89,27 +96,48 @@ NORMAL_KAPPA = 256
 LSQ_DX = 2.3
 LSQ_TAU_US = 1_000
 LSQ_FILTER_SIZE = 15
+# Defaults of the dense="robust" output (same steps and tau): burst means, a 41 x 41 fit,
+# ridge 1e-3, Tukey's biweight at 30 % of the normal speed, 20 re-weightings (chosen on
+# seed 0 of benchmarks/bench_triplet_accuracy.py; seed 1 and the 'object' scene held out).
+ROBUST_FILTER_SIZE = 41
+ROBUST_RIDGE = 1e-3
+ROBUST_C = 0.3
+ROBUST_ITERS = 20
+DENSE_KINDS = ("mean", "lsq", "robust")
 
 
 def dense_defaults(dense: str, dx: float | None = None, tau_us: int | None = None,
                    filter_size: int | None = None) -> tuple[float, int, int]:
     """``(dx, tau_us, filter_size)`` with the defaults of the ``dense`` output filled in:
     the thesis' sqrt(2) px, 3 ms and 3x3 average for ``"mean"``; :data:`LSQ_DX`,
-    :data:`LSQ_TAU_US` and :data:`LSQ_FILTER_SIZE` for ``"lsq"``.
+    :data:`LSQ_TAU_US` and :data:`LSQ_FILTER_SIZE` for ``"lsq"``; the same steps and tau
+    with :data:`ROBUST_FILTER_SIZE` for ``"robust"``.
 
     Examples
     --------
     >>> dense_defaults("lsq", tau_us=2_000)
     (2.3, 2000, 15)
     """
-    lsq = dense == "lsq"
+    if dense not in DENSE_KINDS:
+        raise ParameterError(f"dense must be one of {DENSE_KINDS}, got {dense!r}")
+    thesis = dense == "mean"
     if dx is None:
-        dx = LSQ_DX if lsq else float(np.sqrt(2.0))
+        dx = float(np.sqrt(2.0)) if thesis else LSQ_DX
     if tau_us is None:
-        tau_us = LSQ_TAU_US if lsq else 3_000
+        tau_us = 3_000 if thesis else LSQ_TAU_US
     if filter_size is None:
-        filter_size = LSQ_FILTER_SIZE if lsq else 3
+        filter_size = {"mean": 3, "lsq": LSQ_FILTER_SIZE, "robust": ROBUST_FILTER_SIZE}[dense]
     return dx, tau_us, filter_size
+
+
+def default_ridge(dense: str, ridge: float | None = None) -> float:
+    """``ridge`` or the default of the ``dense`` output (1e-2 for ``"lsq"``,
+    :data:`ROBUST_RIDGE` for ``"robust"``), checked finite and >= 0."""
+    if ridge is None:
+        ridge = ROBUST_RIDGE if dense == "robust" else 1e-2
+    if not (np.isfinite(ridge) and ridge >= 0.0):
+        raise ParameterError(f"ridge must be a finite number >= 0, got {ridge}")
+    return float(ridge)
 
 
 @dataclass(frozen=True)
@@ -491,6 +519,67 @@ def dense_lsq_from_sums(acc: np.ndarray, cnt: np.ndarray, *, filter_size: int = 
     return out, mask
 
 
+def dense_robust_fit(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: int, *,
+                     n_bins: int = 1, filter_size: int = ROBUST_FILTER_SIZE,
+                     ridge: float = ROBUST_RIDGE, c: float = ROBUST_C,
+                     iters: int = ROBUST_ITERS,
+                     vmax: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """Dense (H, W, 2) px/s flow and mask from the normal flows of ``events`` in
+    ``[t0_us, t1_us)``: the neighbourhood fit of :func:`dense_lsq_from_sums`, re-weighted
+    ``iters`` times with Tukey's biweight of each event's relative residual
+    ``(v . n - |u|) / |u|`` (weight zero beyond ``c``), ``v`` the fitted flow at its pixel.
+
+    Parameters
+    ----------
+    events : EventArray
+        Events (in ``dense="robust"``: burst means, see :mod:`evmotion.methods.bursts`).
+    flow : TripletFlow
+        Their matcher output, with normal flows (``nx``, ``ny``).
+    t0_us, t1_us : int
+        The window, µs; split into ``n_bins`` time bins whose fits are averaged.
+    filter_size : int
+        Odd width of the neighbourhood, px.
+    ridge : float
+        Tikhonov weight relative to the mean eigenvalue of the normal equations.
+    c : float
+        Residual (relative to the event's normal speed) beyond which an event is ignored.
+    iters : int
+        Re-weightings (0: plain least squares over the events).
+    vmax : float
+        Normal flows faster than this (px/s) are left out (see :func:`max_normal_speed`).
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[5, 5], y=[4, 5], t=[0, 10], p=[1, 1], sensor_size=(10, 10))
+    >>> fl = TripletFlow(*(np.zeros(2, np.float32) for _ in range(2)), np.ones(2, bool),
+    ...                  np.ones(2, np.int32), np.float32([100, 0]), np.float32([0, 50]))
+    >>> v, m = dense_robust_fit(ev, fl, 0, 20, filter_size=3, ridge=0.0)
+    >>> v[5, 5].tolist(), bool(m[0, 0])
+    ([100.0, 50.0], False)
+    """
+    if flow.nx is None or flow.ny is None:
+        raise ParameterError("this TripletFlow carries no normal flow (nx, ny); use the "
+                             "output of TripletMatcher.process")
+    if len(flow) != len(events):
+        raise ParameterError(f"{len(flow)} flows for {len(events)} events")
+    if not (np.isfinite(ridge) and ridge >= 0.0):
+        raise ParameterError(f"ridge must be a finite number >= 0, got {ridge}")
+    if not (np.isfinite(c) and c > 0.0):
+        raise ParameterError(f"c must be a finite number > 0, got {c}")
+    if int(iters) != iters or iters < 0:
+        raise ParameterError(f"iters must be an integer >= 0, got {iters}")
+    _check_interval(t0_us, t1_us, n_bins)
+    h, w = events.sensor_size
+    out = np.empty((h, w, 2), np.float32)
+    mask = np.empty((h, w), np.bool_)
+    K.dense_robust(_pixels(events.x, w), _pixels(events.y, h), events.t,
+                   np.ascontiguousarray(flow.nx), np.ascontiguousarray(flow.ny),
+                   np.int64(t0_us), np.int64(t1_us), np.int64(n_bins), float(vmax),
+                   np.int64(_filter_radius(filter_size)), float(ridge), float(c),
+                   np.int64(iters), out, mask)
+    return out, mask
+
+
 def _voxel_mean(acc, cnt):
     mask = cnt > 0
     vox = np.zeros(acc.shape, np.float32)
@@ -528,6 +617,11 @@ class TripletBatchResult:
         Per-event flow of the input events up to the end of the last window.
     overflow : int
         See :attr:`TripletMatcher.overflow`.
+    bursts : EventArray or None
+        ``dense="robust"``: the burst means the dense flow was fitted to
+        (:func:`~evmotion.methods.bursts.burst_means`); None otherwise.
+    burst_flow : TripletFlow or None
+        ``dense="robust"``: the matcher's output on ``bursts``.
     """
 
     flows: np.ndarray
@@ -535,6 +629,8 @@ class TripletBatchResult:
     windows: list[Window]
     events: TripletFlow
     overflow: int
+    bursts: EventArray | None = None
+    burst_flow: TripletFlow | None = None
 
     def displacement(self, i: int) -> np.ndarray:
         """Flow of window ``i`` as pixel displacement over the window's duration."""
@@ -545,8 +641,9 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
                           dx: float | None = None, dt_us: int = 100_000,
                           tau_us: int | None = None, quadruple: bool = False, n_bins: int = 1,
                           smooth: bool = True, filter_size: int | None = None,
-                          depth: int = 8, dense: str = "mean", ridge: float = 1e-2,
-                          normal_kappa: int = NORMAL_KAPPA) -> TripletBatchResult:
+                          depth: int = 8, dense: str = "mean", ridge: float | None = None,
+                          normal_kappa: int = NORMAL_KAPPA,
+                          gap_us: int = BURST_GAP_US) -> TripletBatchResult:
     """Triplet-matching flow of a recording, dense per window (thesis Algorithm 2).
 
     Every event is processed in order (events before a window serve as its history), then
@@ -577,7 +674,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         lowers the dense error where the motion is smooth (it cannot remove the method's
         speed bias; see ``benchmarks/results/triplet_event_errors.md``). With
         ``dense="lsq"``: the neighbourhood width of the fit (default 15).
-    dense : {"mean", "lsq"}
+    dense : {"mean", "lsq", "robust"}
         ``"mean"``: the thesis' voxel mean of the per-event flow (5.3). ``"lsq"`` (an
         extension): each event's triplets fix its time-surface gradient and so its normal
         flow (:attr:`TripletFlow.nx`); per bin and pixel, the flow meeting the normal-flow
@@ -587,9 +684,19 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         neighbourhood holds edges of several orientations
         (``benchmarks/results/triplet_accuracy_summary.md``). Default width
         :data:`LSQ_FILTER_SIZE` (15).
-    ridge : float
-        ``dense="lsq"`` only: Tikhonov weight relative to the mean eigenvalue of the normal
-        equations.
+        ``"robust"`` (an extension, the most accurate): the same fit, over a 41 x 41
+        neighbourhood (:data:`ROBUST_FILTER_SIZE`), re-weighted with Tukey's biweight
+        (:func:`dense_robust_fit`), of the normal flows of triplets of *burst means* (one
+        event per edge crossing of a pixel, at the mean time of its burst;
+        :mod:`evmotion.methods.bursts`): matching single events pairs different threshold
+        levels of neighbouring pixels' bursts, which biases the normal speeds by a few percent;
+        burst means do not.
+    ridge : float, optional
+        ``dense="lsq"``/``"robust"``: Tikhonov weight relative to the mean eigenvalue of the
+        normal equations (default 1e-2 and :data:`ROBUST_RIDGE`).
+    gap_us : int
+        ``dense="robust"``: a silence longer than this (µs) ends a pixel's burst
+        (:data:`~evmotion.methods.bursts.BURST_GAP_US`).
 
     Examples
     --------
@@ -601,10 +708,8 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     """
     if len(events) == 0:
         raise EmptyWindowError("no events to estimate the triplet flow of")
-    if dense not in ("mean", "lsq"):
-        raise ParameterError(f"dense must be 'mean' (thesis) or 'lsq', got {dense!r}")
-    lsq = dense == "lsq"
     dx, tau_us, filter_size = dense_defaults(dense, dx, tau_us, filter_size)
+    ridge = default_ridge(dense, ridge)
     _filter_radius(filter_size)
     if windows is None:
         windows = [Window(0, events.t_start, events.t_end + 1, 0, len(events))]
@@ -613,13 +718,24 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
                        normal_kappa=normal_kappa)
     stop = max((w.stop for w in windows), default=len(events))
     flow = m.process(events[:stop])
+    bursts = bflow = None
+    if dense == "robust":
+        bursts = burst_means(events, gap_us)  # bursts running past the last window complete
+        bursts = bursts[:int(np.searchsorted(bursts.t, windows[-1].t1 if windows else 0))]
+        bflow = TripletMatcher(events.sensor_size, dx, dt_us, tau_us, quadruple=quadruple,
+                               depth=depth, normal_kappa=normal_kappa).process(bursts)
     h, w = events.sensor_size
     flows = np.zeros((len(windows), h, w, 2), np.float32)
     masks = np.zeros((len(windows), h, w), bool)
     for i, win in enumerate(windows):
         sub = events[win.start:win.stop]
         fsub = flow[win.start:win.stop]
-        if lsq:
+        if dense == "robust":
+            lo, hi = np.searchsorted(bursts.t, [win.t0, win.t1])
+            flows[i], masks[i] = dense_robust_fit(bursts[lo:hi], bflow[lo:hi], win.t0, win.t1,
+                                                  n_bins=n_bins, filter_size=filter_size,
+                                                  ridge=ridge, vmax=max_normal_speed(dx, tau_us))
+        elif dense == "lsq":
             acc = np.zeros((n_bins, h, w, 5))
             cnt = np.zeros((n_bins, h, w), np.int64)
             _check_interval(win.t0, win.t1, n_bins)
@@ -631,7 +747,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
             acc, cnt = _voxel_sums(sub, fsub, win.t0, win.t1, n_bins)
             flows[i], masks[i] = dense_from_sums(acc, cnt, smooth=smooth,
                                                  filter_size=filter_size)
-    return TripletBatchResult(flows, masks, windows, flow, m.overflow)
+    return TripletBatchResult(flows, masks, windows, flow, m.overflow, bursts, bflow)
 
 
 def event_fwl(events: EventArray, flow: TripletFlow, t_ref_us: int | None = None) -> float:
