@@ -148,6 +148,43 @@ def bench_memory(n_events: int) -> dict:
             "state_MB": float(out[2])}
 
 
+def bench_bursts(name: str, ev: EventArray, repeat: int) -> dict:
+    """The burst-means stage of dense="robust" (BurstMeans over the whole stream)."""
+    from evmotion.methods.bursts import burst_means
+
+    holder = {}
+
+    def once():
+        holder["b"] = burst_means(ev)
+
+    r = harness.timeit(once, repeat=repeat, warmup=1)
+    return {"case": f"burst means (dense='robust' stage) {name}", "events": len(ev),
+            "median_s": r["median_s"], "Mev_per_s": len(ev) / r["median_s"] / 1e6,
+            "cpu_Mev_per_s": len(ev) / cpu_median(once, repeat) / 1e6,
+            "bursts_per_event": len(holder["b"]) / len(ev)}
+
+
+def bench_dense_outputs(repeat: int) -> list[dict]:
+    """Whole batch (matching + dense windows) of the three dense outputs on the simulated
+    translation (0.3 s, 346x260, 13 windows of 22 ms), with the thesis' mean as reference."""
+    from evmotion.methods.triplet import estimate_flow_triplet
+    from evmotion.sim import simulate
+
+    res = simulate("translation", duration_s=0.3, seed=0, frame_rate=45.0, show_progress=False)
+    ev = res.events
+    wins = ev.windows_at(res.gt.frame_times_us, dt=1, drop_empty=True)
+    rows, ref = [], None
+    for dense in ("mean", "lsq", "robust"):
+        r = harness.timeit(lambda d=dense: estimate_flow_triplet(ev, wins, dense=d),
+                           repeat=repeat, warmup=1)
+        ref = ref or r["median_s"]
+        rows.append({"case": f"batch dense='{dense}', sim translation, {len(wins)} windows",
+                     "events": len(ev), "median_s": r["median_s"],
+                     "Mev_per_s": len(ev) / r["median_s"] / 1e6,
+                     "ratio_to_mean": r["median_s"] / ref})
+    return rows
+
+
 def main(quick: bool = False) -> list[dict]:
     harness.pin_idlest_core()
     repeat = 3 if quick else 7
@@ -158,6 +195,8 @@ def main(quick: bool = False) -> list[dict]:
     rows.append(bench_stream(f"Prophesee 1280x720 {src}", prop, repeat))
     rows.append(bench_stream(f"Prophesee 1280x720 {src}", prop, repeat, depth=16))
     rows.append(bench_chunked("ECD shapes_rotation 120k", shapes, 5_000, repeat))
+    rows.append(bench_bursts(f"Prophesee 1280x720 {src}", prop, repeat))
+    rows += bench_dense_outputs(3 if quick else 5)
     rows.append(bench_reference(shapes, 1_000 if quick else 3_000))
     for n in (1_000_000, 10_000_000):
         rows.append(bench_memory(n))
@@ -169,7 +208,10 @@ def main(quick: bool = False) -> list[dict]:
                    "Mev_per_s from wall-time medians, cpu_Mev_per_s from CPU-time medians "
                    "(the 2-core machine is shared; CPU time excludes the neighbours' work); "
                    "defaults d_x=sqrt(2), d_t=100 ms, tau=3 ms, ring depth 8 unless stated. "
-                   "overflow = events forgotten by a full ring while still matchable.")
+                   "overflow = events forgotten by a full ring while still matchable. "
+                   "batch rows: estimate_flow_triplet with each dense output (its defaults; "
+                   "'robust' also matches the burst means), ratio_to_mean against the "
+                   "thesis' dense mean in the same run.")
     return rows
 
 
