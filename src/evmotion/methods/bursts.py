@@ -7,8 +7,10 @@ of a step between them is off by up to a level's spacing, with a bias that depen
 event rate (on the simulated translation, +2 % of the time-surface slope at C = 0.2, -10 %
 at C = 0.1). The mean time of a burst's events is the time the middle of the edge's
 intensity range crossed the pixel, to within half a level, and that error is symmetric:
-triplets of burst means time the edge without that bias (an extension of thesis ch. 5, used
-by the ``dense="robust"`` output of :mod:`evmotion.methods.triplet`).
+on the same scene the triplets of burst means give the time-surface slope with a median of
+0.9994-0.9999 of the true one (gaps of 2.5-5 ms; interquartile range 0.97-1.04) against
+1.025 for single events (an extension of thesis ch. 5, used by the ``dense="robust"``
+output of :mod:`evmotion.methods.triplet`).
 
 A burst is a run of events of one pixel and polarity, each within ``gap_us`` of the
 previous one. It ends when the pixel stays silent for longer than ``gap_us``, so its mean is

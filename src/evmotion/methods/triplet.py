@@ -33,16 +33,17 @@ only matches whose two steps take equal times pair events of one level.
 The batch output ``dense="lsq"`` (an extension) fits each pixel's flow to the normal flows
 of its 15 x 15 neighbourhood, which resolves the aperture where edges of several
 orientations meet; it defaults to d_x = 2.3 (steps of one and two pixels) and tau = 1 ms
-(fast steps kept). Simulated translation / rotation / zoom, AEE over MultiCM's on the same
-windows (``triplet_accuracy_summary.md``): thesis mean 21 / 9.4 / 8.5 (dt = 1) and
-129 / 6.0 / 3.7 (dt = 4) at 250-300 px/s, 2.4 / 4.8 / 3.0 and 54 / 22 / 14 at a quarter of
-that speed; ``dense="lsq"`` 4.5 / 2.0 / 2.1 and 27 / 1.9 / 1.3, then 0.45 / 0.90 / 0.71 and
-4.9 / 2.9 / 1.9. Translation stays 4.5-27x: MultiCM is near exact there (0.05-0.08 px),
-and the limit is the per-event normal speeds, not the fit: fed the ground-truth normal
-speeds along the matcher's own normal directions, the same fit gives 0.04 / 0.14 px
-(0.5x / 2.7x MultiCM; ``benchmarks/results/triplet_lsq_budget.md``). Offline, the speeds'
-error traces to matches that pair events of different threshold levels of an edge's burst
-(equal steps, so the narrowed weights keep them).
+(fast steps kept). Its per-event normal speeds are off by a few percent, in a direction that
+depends on the event rate: matches pair different threshold levels of the bursts that an
+edge fires at neighbouring pixels (``benchmarks/results/triplet_lsq_budget.md``).
+``dense="robust"`` (an extension) avoids that: it matches *burst means* (one event per
+burst, at the mean time of its events, :mod:`evmotion.methods.bursts`), whose timing error is
+symmetric, and fits the flow over 41 x 41 px re-weighted with Tukey's biweight
+(:func:`dense_robust_fit`). Simulated translation / rotation / zoom, AEE over MultiCM's on
+the same windows (``benchmarks/results/triplet_accuracy_summary.md``), dt = 1 and dt = 4 at
+250-300 px/s: thesis mean 21 / 9.4 / 8.5 and 129 / 6.0 / 3.7; ``dense="lsq"`` 4.5 / 2.0 /
+2.1 and 27 / 1.9 / 1.3; ``dense="robust"`` 0.65 / 1.24 / 1.42 and 2.55 / 1.21 / 0.98; at a
+quarter of that speed ``dense="robust"`` 0.59 / 1.01 / 0.97 and 2.44 / 1.84 / 1.93.
 
 Units: pixels, microseconds for times, px/s for flow.
 """
