@@ -49,3 +49,16 @@ def bilinear_adjoint_numpy(xw, yw, g):
     gy = (c10 - c00) * (1 - fx) + (c11 - c01) * fx
     s = c00 * (1 - fx) * (1 - fy) + c01 * fx * (1 - fy) + c10 * (1 - fx) * fy + c11 * fx * fy
     return gx, gy, s
+
+
+def mean_window_aee(res, wins, **params) -> float:
+    """Mean AEE (px) of ``estimate_flow_triplet(res.events, wins, **params)`` against the
+    simulator's displacement over each window, at the pixels with events."""
+    from evmotion.eval.metrics import flow_metrics
+    from evmotion.methods.triplet import estimate_flow_triplet
+
+    ev = res.events
+    out = estimate_flow_triplet(ev, wins, **params)
+    return float(np.mean([flow_metrics(out.displacement(k), res.gt.displacement(w.t0, w.t1),
+                                       events=ev.window(w)).aee
+                          for k, w in enumerate(wins)]))

@@ -134,6 +134,23 @@ def test_dense_lsq_option_matches_the_api(edge_file, tmp_path):
     np.testing.assert_allclose(np.median(inner, axis=0), [200.0 / 1.005, 0.0], atol=2.0)
 
 
+@pytest.mark.parametrize("chunk", ["170", "1000000"])
+def test_dense_robust_option_matches_the_api(edge_file, tmp_path, chunk):
+    path, ev, _ = edge_file
+    out = tmp_path / "flow.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
+                 "--window-us", "50000", "--chunk-events", chunk, "--dense", "robust",
+                 "--filter-size", "9"]) == 0
+    ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000), dense="robust",
+                                filter_size=9)
+    seq = read_flow_h5(out)
+    np.testing.assert_array_equal(seq.valid, ref.masks)
+    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    assert seq.attrs["triplet_dense"] == "robust" and seq.attrs["triplet_gap_ms"] == 4.0
+    inner = seq.flow[1:-1][seq.valid[1:-1]]
+    np.testing.assert_allclose(np.median(inner, axis=0), [200.0, 0.0], atol=2.0)
+
+
 def test_bad_options_are_reported(edge_file, tmp_path, capsys):
     path, _, _ = edge_file
     assert main(["flow", str(path), "--method", "triplet", "--out",
@@ -142,6 +159,9 @@ def test_bad_options_are_reported(edge_file, tmp_path, capsys):
     assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
                  "--dense", "lsq", "--ridge", "nan"]) == 2
     assert "--ridge" in capsys.readouterr().err
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
+                 "--dense", "robust", "--gap-ms", "0"]) == 2
+    assert "--gap-ms" in capsys.readouterr().err
     assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
                  "--dx", "0.3"]) == 2
     assert "dx" in capsys.readouterr().err

@@ -365,6 +365,21 @@ def _coord(a, name: str) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.uint16)
 
 
+def check_stream_order(t: np.ndarray, t_last: int | None) -> None:
+    """Raise :class:`ParameterError` unless the chunk times ``t`` are sorted and start no
+    earlier than ``t_last``, the previous chunk's last time (None for the first chunk):
+    what streaming stages that keep per-pixel state must be fed."""
+    from evmotion.errors import ParameterError
+
+    if t_last is not None and t.size and t[0] < t_last:
+        raise ParameterError(f"chunk starts at t={int(t[0])} us, before the previous "
+                             f"chunk's last event at t={t_last} us (stream unsorted)")
+    if t.size > 1 and np.any(t[1:] < t[:-1]):
+        i = int(np.argmax(t[1:] < t[:-1]))
+        raise ParameterError(f"chunk timestamps are not sorted at event {i + 1} "
+                             f"(t={int(t[i])} then {int(t[i + 1])} us)")
+
+
 def concatenate(arrays: Sequence[EventArray], *, validate: bool = True) -> EventArray:
     """Join event arrays of the same sensor, in the given (time) order."""
     if not arrays:

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from evmotion.errors import ParameterError
-from evmotion.events import EventArray, concatenate
+from evmotion.events import EventArray, check_stream_order, concatenate
 
 __all__ = ["BURST_GAP_US", "BurstMeans", "burst_means"]
 
@@ -119,13 +119,7 @@ class BurstMeans:
         if n == 0:
             return self._emit(None)
         t = np.ascontiguousarray(chunk.t, np.int64)
-        if self._t_last is not None and t[0] < self._t_last:
-            raise ParameterError(f"chunk starts at t={int(t[0])} us, before the previous "
-                                 f"chunk's last event at t={self._t_last} us (stream unsorted)")
-        if n > 1 and np.any(t[1:] < t[:-1]):
-            i = int(np.argmax(t[1:] < t[:-1]))
-            raise ParameterError(f"chunk timestamps are not sorted at event {i + 1} "
-                                 f"(t={int(t[i])} then {int(t[i + 1])} us)")
+        check_stream_order(t, self._t_last)
         h, w = self.sensor_size
         x = _pixels(chunk.x, w, "x", self.sensor_size)
         y = _pixels(chunk.y, h, "y", self.sensor_size)

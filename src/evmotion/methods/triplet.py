@@ -56,7 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
-from evmotion.events import EventArray, Window
+from evmotion.events import EventArray, Window, check_stream_order
 from evmotion.methods import _triplet_kernels as K
 from evmotion.methods.bursts import BURST_GAP_US, burst_means
 
@@ -318,15 +318,9 @@ class TripletMatcher:
         if n == 0:
             return out
         t = chunk.t
-        if self._t_last is not None and t[0] < self._t_last:
-            raise ParameterError(f"chunk starts at t={int(t[0])} us, before the previous "
-                                 f"chunk's last event at t={self._t_last} us (stream unsorted)")
         # The kernel trusts these (rings are newest-first, indices unchecked): an unvalidated
         # EventArray must not reach it unsorted or off-sensor.
-        if n > 1 and np.any(t[1:] < t[:-1]):
-            i = int(np.argmax(t[1:] < t[:-1]))
-            raise ParameterError(f"chunk timestamps are not sorted at event {i + 1} "
-                                 f"(t={int(t[i])} then {int(t[i + 1])} us)")
+        check_stream_order(t, self._t_last)
         x, y = _pixels(chunk.x, self.sensor_size[1]), _pixels(chunk.y, self.sensor_size[0])
         for name, a, lim in (("x", x, self.sensor_size[1]), ("y", y, self.sensor_size[0])):
             if a.min() < 0 or a.max() >= lim:
