@@ -365,6 +365,30 @@ def _coord(a, name: str) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.uint16)
 
 
+def pixel_indices(a: np.ndarray, size: int) -> np.ndarray:
+    """Contiguous int32 pixel indices of coordinates ``a``; float (undistorted) coordinates
+    are rounded to the nearest pixel and clipped to ``[0, size - 1]``."""
+    if a.dtype.kind == "f":
+        a = np.clip(np.rint(a), 0, size - 1)
+    return np.ascontiguousarray(a, dtype=np.int32)
+
+
+def sensor_pixels(events: EventArray) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, y)`` as :func:`pixel_indices`, checked on the sensor: what compiled kernels
+    that index per-pixel state with them need (an unvalidated EventArray may hold anything).
+    """
+    from evmotion.errors import ParameterError
+
+    h, w = events.sensor_size
+    x, y = pixel_indices(events.x, w), pixel_indices(events.y, h)
+    for name, a, lim in (("x", x, w), ("y", y, h)):
+        if a.size and (a.min() < 0 or a.max() >= lim):
+            bad = int(np.argmax((a < 0) | (a >= lim)))
+            raise ParameterError(f"event {bad} has {name}={int(a[bad])} outside the sensor "
+                                 f"(height, width) = {events.sensor_size}")
+    return x, y
+
+
 def check_stream_order(t: np.ndarray, t_last: int | None) -> None:
     """Raise :class:`ParameterError` unless the chunk times ``t`` are sorted and start no
     earlier than ``t_last``, the previous chunk's last time (None for the first chunk):

@@ -127,6 +127,9 @@ def run(args) -> int:
     t_first, t_last = int(first.t[0]), int(first.t[0])
     n_windows = 0
     wall0 = time.perf_counter()
+    def emit_all(wins) -> int:
+        return sum(_emit(win, sink, png_dir, kind) for win in wins)
+
     try:
         chunk = first
         while chunk is not None:
@@ -140,20 +143,16 @@ def run(args) -> int:
                 sink.add(chunk, flow)
             if robust:
                 b = bursts.process(chunk)
-                for win in windows.add(b, burst_matcher.process(b)):
-                    n_windows += _emit(win, sink, png_dir, kind)
+                n_windows += emit_all(windows.add(b, burst_matcher.process(b)))
             elif windows is not None:
-                for win in windows.add(chunk, flow):
-                    n_windows += _emit(win, sink, png_dir, kind)
+                n_windows += emit_all(windows.add(chunk, flow))
             bar.update(len(chunk))
             chunk = next(chunks, None)
         if robust:
             b = bursts.flush()
-            for win in windows.add(b, burst_matcher.process(b)):
-                n_windows += _emit(win, sink, png_dir, kind)
+            n_windows += emit_all(windows.add(b, burst_matcher.process(b)))
         if windows is not None:
-            for win in windows.finish():
-                n_windows += _emit(win, sink, png_dir, kind)
+            n_windows += emit_all(windows.finish())
         sink.close()
     except BaseException:
         sink.abort()
@@ -325,10 +324,12 @@ class _Windows:
             dense_robust_fit,
         )
 
-        if self.dense == "robust":
-            ev = concatenate([e for e, _ in self.kept] or [_no_events(self.sensor)],
-                             validate=False)
-            fl = TripletFlow.concatenate([f for _, f in self.kept] or [_no_flow()])
+        if self.dense == "robust" and not self.kept:
+            flow = np.zeros((*self.sensor, 2), np.float32)  # no event: no flow anywhere
+            mask = np.zeros(self.sensor, bool)
+        elif self.dense == "robust":
+            ev = concatenate([e for e, _ in self.kept], validate=False)
+            fl = TripletFlow.concatenate([f for _, f in self.kept])
             flow, mask = dense_robust_fit(ev, fl, t0, t1, n_bins=self.bins,
                                           filter_size=self.filter_size, ridge=self.ridge,
                                           vmax=self.vmax)
@@ -352,20 +353,6 @@ class _Windows:
             if self.edges is None and not self.n:
                 return
             yield self._close(*b)
-
-
-def _no_events(sensor):
-    from evmotion.events import EventArray
-
-    return EventArray(np.zeros(0, np.uint16), np.zeros(0, np.uint16), np.zeros(0, np.int64),
-                      np.zeros(0, np.uint8), sensor)
-
-
-def _no_flow():
-    from evmotion.methods.triplet import TripletFlow
-
-    z = np.zeros(0, np.float32)
-    return TripletFlow(z, z, np.zeros(0, bool), np.zeros(0, np.int32), z, z)
 
 
 def _emit(win, sink, png_dir, kind) -> int:

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 
 from evmotion.errors import ParameterError
-from evmotion.events import EventArray, check_stream_order, concatenate
+from evmotion.events import EventArray, check_stream_order, concatenate, sensor_pixels
 
 __all__ = ["BURST_GAP_US", "BurstMeans", "burst_means"]
 
@@ -106,7 +106,7 @@ class BurstMeans:
         self._sum = np.zeros(shape, np.int64)
         self._cnt = np.zeros(shape, np.int64)
         self._seq = np.zeros(shape, np.int64)
-        self._pending = _Ended.empty()
+        self._pending = _Ended.alloc(0)
         self._seen = 0
         self._t_last: int | None = None
 
@@ -120,9 +120,7 @@ class BurstMeans:
             return self._emit(None)
         t = np.ascontiguousarray(chunk.t, np.int64)
         check_stream_order(t, self._t_last)
-        h, w = self.sensor_size
-        x = _pixels(chunk.x, w, "x", self.sensor_size)
-        y = _pixels(chunk.y, h, "y", self.sensor_size)
+        x, y = sensor_pixels(chunk)
         out = _Ended.alloc(n)
         m = _bursts(x, y, t, np.ascontiguousarray(chunk.p, np.uint8), np.int64(self._seen),
                     np.int64(self.gap_us), self._first, self._last, self._sum, self._cnt,
@@ -179,10 +177,6 @@ class _Ended:
         return cls(np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.uint8),
                    *(np.empty(n, np.int64) for _ in range(4)))
 
-    @classmethod
-    def empty(cls) -> _Ended:
-        return cls.alloc(0)
-
     def columns(self) -> tuple:
         return self.x, self.y, self.p, self.first, self.tsum, self.cnt, self.seq
 
@@ -202,17 +196,6 @@ class _Ended:
 
     def __len__(self) -> int:
         return int(self.x.shape[0])
-
-
-def _pixels(a: np.ndarray, size: int, name: str, sensor_size: tuple[int, int]) -> np.ndarray:
-    if a.dtype.kind == "f":
-        a = np.rint(a)
-    a = np.ascontiguousarray(a, np.int32)
-    if a.size and (a.min() < 0 or a.max() >= size):
-        bad = int(np.argmax((a < 0) | (a >= size)))
-        raise ParameterError(f"event {bad} has {name}={int(a[bad])} outside the sensor "
-                             f"(height, width) = {sensor_size}")
-    return a
 
 
 def burst_means(events: EventArray, gap_us: int = BURST_GAP_US) -> EventArray:

@@ -56,7 +56,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
-from evmotion.events import EventArray, Window, check_stream_order
+from evmotion.events import (
+    EventArray,
+    Window,
+    check_stream_order,
+    pixel_indices,
+    sensor_pixels,
+)
 from evmotion.methods import _triplet_kernels as K
 from evmotion.methods.bursts import BURST_GAP_US, burst_means
 
@@ -136,9 +142,13 @@ def default_ridge(dense: str, ridge: float | None = None) -> float:
     :data:`ROBUST_RIDGE` for ``"robust"``), checked finite and >= 0."""
     if ridge is None:
         ridge = ROBUST_RIDGE if dense == "robust" else 1e-2
+    _check_ridge(ridge)
+    return float(ridge)
+
+
+def _check_ridge(ridge: float) -> None:
     if not (np.isfinite(ridge) and ridge >= 0.0):
         raise ParameterError(f"ridge must be a finite number >= 0, got {ridge}")
-    return float(ridge)
 
 
 @dataclass(frozen=True)
@@ -321,12 +331,7 @@ class TripletMatcher:
         # The kernel trusts these (rings are newest-first, indices unchecked): an unvalidated
         # EventArray must not reach it unsorted or off-sensor.
         check_stream_order(t, self._t_last)
-        x, y = _pixels(chunk.x, self.sensor_size[1]), _pixels(chunk.y, self.sensor_size[0])
-        for name, a, lim in (("x", x, self.sensor_size[1]), ("y", y, self.sensor_size[0])):
-            if a.min() < 0 or a.max() >= lim:
-                bad = int(np.argmax((a < 0) | (a >= lim)))
-                raise ParameterError(f"event {bad} has {name}={int(a[bad])} outside the sensor "
-                                     f"(height, width) = {self.sensor_size}")
+        x, y = sensor_pixels(chunk)
         p = np.ascontiguousarray(chunk.p, dtype=np.uint8)
         if self._base is None:
             self._base = int(t[0])
@@ -354,12 +359,6 @@ class TripletMatcher:
         new_base = t_now - horizon
         K.rebase_kernel(self._ts, np.int64(new_base - self._base), np.int64(-horizon))
         self._base = new_base
-
-
-def _pixels(a: np.ndarray, size: int) -> np.ndarray:
-    if a.dtype.kind == "f":
-        a = np.clip(np.rint(a), 0, size - 1)
-    return np.ascontiguousarray(a, dtype=np.int32)
 
 
 # ------------------------------------------------------------------ batch (Algorithm 2)
@@ -456,7 +455,7 @@ def add_voxels(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: int,
 
     Used to build windows from a stream chunk by chunk; ``acc`` is (n_bins, H, W, 2) float64.
     """
-    K.voxel_accumulate(_pixels(events.x, events.width), _pixels(events.y, events.height),
+    K.voxel_accumulate(pixel_indices(events.x, events.width), pixel_indices(events.y, events.height),
                        events.t, flow.vx, flow.vy, flow.valid, np.int64(t0_us),
                        np.int64(t1_us), acc.shape[0], acc, cnt)
 
@@ -491,7 +490,7 @@ def add_normal_voxels(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: 
     if flow.nx is None or flow.ny is None:
         raise ParameterError("this TripletFlow carries no normal flow (nx, ny); use the "
                              "output of TripletMatcher.process")
-    K.voxel_accumulate_normal(_pixels(events.x, events.width), _pixels(events.y, events.height),
+    K.voxel_accumulate_normal(pixel_indices(events.x, events.width), pixel_indices(events.y, events.height),
                               events.t, flow.nx, flow.ny, np.int64(t0_us), np.int64(t1_us),
                               acc.shape[0], float(vmax), acc, cnt)
 
@@ -504,8 +503,7 @@ def dense_lsq_from_sums(acc: np.ndarray, cnt: np.ndarray, *, filter_size: int = 
     neighbourhood (least squares, ridge ``ridge`` x the mean eigenvalue, which keeps
     single-orientation neighbourhoods at their normal flow), then the mean over the bins
     that hold a value."""
-    if not (np.isfinite(ridge) and ridge >= 0.0):
-        raise ParameterError(f"ridge must be a finite number >= 0, got {ridge}")
+    _check_ridge(ridge)
     h, w = cnt.shape[1:]
     out = np.empty((h, w, 2), np.float32)
     mask = np.empty((h, w), np.bool_)
@@ -557,8 +555,7 @@ def dense_robust_fit(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: i
                              "output of TripletMatcher.process")
     if len(flow) != len(events):
         raise ParameterError(f"{len(flow)} flows for {len(events)} events")
-    if not (np.isfinite(ridge) and ridge >= 0.0):
-        raise ParameterError(f"ridge must be a finite number >= 0, got {ridge}")
+    _check_ridge(ridge)
     if not (np.isfinite(c) and c > 0.0):
         raise ParameterError(f"c must be a finite number > 0, got {c}")
     if int(iters) != iters or iters < 0:
@@ -567,7 +564,7 @@ def dense_robust_fit(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: i
     h, w = events.sensor_size
     out = np.empty((h, w, 2), np.float32)
     mask = np.empty((h, w), np.bool_)
-    K.dense_robust(_pixels(events.x, w), _pixels(events.y, h), events.t,
+    K.dense_robust(pixel_indices(events.x, w), pixel_indices(events.y, h), events.t,
                    np.ascontiguousarray(flow.nx), np.ascontiguousarray(flow.ny),
                    np.int64(t0_us), np.int64(t1_us), np.int64(n_bins), float(vmax),
                    np.int64(_filter_radius(filter_size)), float(ridge), float(c),
@@ -716,10 +713,12 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     bursts = bflow = None
     if dense == "robust":
         bursts = burst_means(events, gap_us)  # bursts running past the last window complete
-        bursts = bursts[:int(np.searchsorted(bursts.t, windows[-1].t1 if windows else 0))]
+        t_end = max((w.t1 for w in windows), default=events.t_start)
+        bursts = bursts[:int(np.searchsorted(bursts.t, t_end))]
         bflow = TripletMatcher(events.sensor_size, dx, dt_us, tau_us, quadruple=quadruple,
                                depth=depth, normal_kappa=normal_kappa).process(bursts)
     h, w = events.sensor_size
+    vmax = max_normal_speed(dx, tau_us)
     flows = np.zeros((len(windows), h, w, 2), np.float32)
     masks = np.zeros((len(windows), h, w), bool)
     for i, win in enumerate(windows):
@@ -729,13 +728,12 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
             lo, hi = np.searchsorted(bursts.t, [win.t0, win.t1])
             flows[i], masks[i] = dense_robust_fit(bursts[lo:hi], bflow[lo:hi], win.t0, win.t1,
                                                   n_bins=n_bins, filter_size=filter_size,
-                                                  ridge=ridge, vmax=max_normal_speed(dx, tau_us))
+                                                  ridge=ridge, vmax=vmax)
         elif dense == "lsq":
             acc = np.zeros((n_bins, h, w, 5))
             cnt = np.zeros((n_bins, h, w), np.int64)
             _check_interval(win.t0, win.t1, n_bins)
-            add_normal_voxels(sub, fsub, win.t0, win.t1, acc, cnt,
-                              max_normal_speed(dx, tau_us))
+            add_normal_voxels(sub, fsub, win.t0, win.t1, acc, cnt, vmax)
             flows[i], masks[i] = dense_lsq_from_sums(acc, cnt, filter_size=filter_size,
                                                      ridge=ridge)
         else:
