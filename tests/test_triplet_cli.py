@@ -155,7 +155,7 @@ def test_bad_options_are_reported(edge_file, tmp_path, capsys):
     path, _, _ = edge_file
     assert main(["flow", str(path), "--method", "triplet", "--out",
                  str(tmp_path / "x.png")]) == 2
-    assert "writes .h5" in capsys.readouterr().err
+    assert "must end in .h5" in capsys.readouterr().err
     assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
                  "--dense", "lsq", "--ridge", "nan"]) == 2
     assert "--ridge" in capsys.readouterr().err

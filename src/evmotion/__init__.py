@@ -11,12 +11,16 @@ from evmotion.errors import (
     FormatError,
     ParameterError,
 )
-from evmotion.events import EventArray, Window, concatenate
 
 __version__ = "0.1.0"
 
-# The methods pull in numba kernels; import them on first use so `import evmotion` stays fast.
+# The methods pull in numba kernels, and even the event container numpy: import them on
+# first use, so that `import evmotion` is fast and the command line has its Ctrl-C handling
+# in place before any heavy import starts.
 _LAZY = {
+    "EventArray": "evmotion.events",
+    "Window": "evmotion.events",
+    "concatenate": "evmotion.events",
     "estimate_egomotion": "evmotion.methods.egomotion",
     "estimate_flow": "evmotion.methods.multicm",
     "TripletMatcher": "evmotion.methods.triplet",

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
+import signal
 import sys
 
 from evmotion.errors import EvmotionError
@@ -36,7 +38,9 @@ EPILOG = """examples:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    from evmotion.cli.options import Parser
+
+    parser = Parser(
         prog="evmotion",
         description="Estimate motion from event cameras.",
         epilog=EPILOG,
@@ -72,20 +76,87 @@ def print_json(obj) -> None:
     sys.stdout.write("\n")
 
 
-def main(argv: list[str] | None = None) -> int:
+def _build_and_run(argv: list[str] | None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # a bad argument (its line is written), --help, --version
+        return exc.code if isinstance(exc.code, int) else 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     try:
         return int(args.func(args) or 0)
     except EvmotionError as exc:
-        print(f"evmotion {args.command}: error: {exc}", file=sys.stderr)
+        print(f"evmotion {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        # a file system refusal that the checks before the work could not foresee
+        # (the disk filled up, a folder removed meanwhile): one line, not a traceback
+        print(f"evmotion {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _interrupted(*_) -> None:
+    """Ctrl-C in the command-line process: one line, exit code 130, nothing else.
+
+    Exits with ``os._exit`` once the work has unwound (outputs removed or kept for
+    ``--resume`` by their ``finally`` blocks), so that no interpreter-shutdown hook
+    (thread joins, pool shutdown, ``__del__``) can print "Exception ignored ..."."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    try:
+        os.write(2, b"evmotion: interrupted\n")
+    finally:
+        os._exit(130)
+
+
+def _on_sigint(signum, frame) -> None:
+    """First Ctrl-C: stop the worker processes and unwind the work (KeyboardInterrupt);
+    a second one exits at once."""
+    if os.getpid() != _MAIN_PID[0]:
+        return  # a forked worker: its parent ends it
+    signal.signal(signal.SIGINT, _interrupted)
+    mp = sys.modules.get("multiprocessing")
+    if mp is not None:
+        for child in mp.active_children():
+            child.terminate()
+    raise KeyboardInterrupt
+
+
+_MAIN_PID = [0]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``evmotion`` command; returns its exit code.
+
+    With ``argv=None`` (the installed script, ``python -m evmotion``) this is the whole
+    process: Ctrl-C at any moment prints one line "evmotion: interrupted" and exits with
+    code 130. With a list (tests, scripts), Ctrl-C returns 130 after the same line.
+    """
+    if argv is not None:
+        try:
+            return _build_and_run(argv)
+        except KeyboardInterrupt:
+            print("evmotion: interrupted", file=sys.stderr)
+            return 130
+    _MAIN_PID[0] = os.getpid()
+    signal.signal(signal.SIGINT, _on_sigint)
+    try:
+        rc = _build_and_run(None)
     except KeyboardInterrupt:
-        print("evmotion: interrupted", file=sys.stderr)
-        return 130
+        _interrupted()
+    # the work is done; Ctrl-C during interpreter shutdown must not print a traceback
+    signal.signal(signal.SIGINT, _interrupted)
+    return rc
 
 
 if __name__ == "__main__":

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import argparse
 
+from evmotion.cli.options import int_range, positive_int, writable_output
+
 EXAMPLES = """examples:
   evmotion convert boxes_rotation/ boxes.h5                  # ECD folder -> evmotion HDF5
   evmotion convert rec.raw rec.h5 --t0 0 --t1 2000000         # first 2 s of an EVT3 file
@@ -24,15 +26,15 @@ def add_parser(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", help="recording (file or ECD folder)")
-    p.add_argument("output", help="output file; its extension picks the format")
+    p.add_argument("output", type=writable_output(), help="output file; its extension picks the format")
     p.add_argument("--format-in", default=None, help="input format (default: detect)")
     p.add_argument("--format-out", default=None, help="output format (default: extension)")
-    p.add_argument("--t0", type=int, default=None, metavar="US", help="start, absolute µs")
-    p.add_argument("--t1", type=int, default=None, metavar="US",
+    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US", help="start, absolute µs")
+    p.add_argument("--t1", type=int_range(0, unit="µs"), default=None, metavar="US",
                    help="end (exclusive), absolute µs")
-    p.add_argument("--sensor-size", type=int, nargs=2, default=None, metavar=("H", "W"),
+    p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None, metavar=("H", "W"),
                    help="override the input sensor size (height width)")
-    p.add_argument("--chunk-events", type=int, default=1_000_000,
+    p.add_argument("--chunk-events", type=positive_int(), default=1_000_000,
                    help="events read and written at a time (1,000,000)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
@@ -48,6 +50,8 @@ def run(args) -> int:
     from evmotion.utils import progress
 
     src, dst = Path(args.input), Path(args.output)
+    if args.t0 is not None and args.t1 is not None and args.t1 <= args.t0:
+        raise ParameterError(f"--t1 {args.t1} µs must be after --t0 {args.t0} µs")
     if src.resolve() == dst.resolve():
         raise ParameterError(f"input and output are the same file: {src}")
     fmt_in = args.format_in or eio.detect_format(src)

@@ -15,6 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.cli.options import (
+    existing_input,
+    int_range,
+    nonnegative_float,
+    positive_int,
+    reject_unused,
+    writable_folder,
+)
 from evmotion.core.regularizers import DEFAULT_WEIGHTS
 from evmotion.errors import CalibrationError, ParameterError
 
@@ -34,12 +42,13 @@ def add_common(p) -> None:
                             "divergence+deformation"],
                    help="event-collapse regularizer (default none); divergence+deformation "
                         "is the sum of both penalties (thesis 'Div. + Def.')")
-    p.add_argument("--weight", type=float, default=None,
-                   help="regularizer weight lambda (default per --dataset, Sec. 3.6.1; with "
-                        "divergence+deformation, one weight for both terms)")
-    p.add_argument("--dataset", default="mvsec", choices=sorted(DEFAULT_WEIGHTS),
-                   help="whose thesis weights (Sec. 3.6.1) are the default (default mvsec)")
-    p.add_argument("--calib", default=None,
+    p.add_argument("--weight", type=nonnegative_float(), default=None,
+                   help="regularizer weight lambda >= 0, with --reg (default per --dataset, "
+                        "Sec. 3.6.1; with divergence+deformation, one weight for both terms)")
+    p.add_argument("--dataset", default=None, choices=sorted(DEFAULT_WEIGHTS),
+                   help="with --reg: whose thesis weights (Sec. 3.6.1) are the default "
+                        "(default mvsec)")
+    p.add_argument("--calib", default=None, type=existing_input,
                    help="calibration file (ECD calib.txt, MVSEC/DSEC YAML); default: the "
                         "recording's own, if any")
     p.add_argument("--t-ref", default="start", choices=["start", "mid", "end"],
@@ -54,17 +63,29 @@ def add_parser(sub) -> None:
     p.add_argument("--optimizer", default="bfgs", choices=["bfgs", "newton-cg", "adam", "tpe"],
                    help="optimizer (default bfgs)")
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--window-events", type=int, help="events per window")
-    g.add_argument("--window-us", type=int, help="window duration in microseconds")
-    p.add_argument("--workers", type=int, default=1, help="parallel worker processes")
-    p.add_argument("--seed", type=int, default=0, help="seed of the TPE sampler")
+    g.add_argument("--window-events", type=int_range(10), help="events per window (>= 10)")
+    g.add_argument("--window-us", type=positive_int(unit="µs"),
+                   help="window duration in microseconds")
+    p.add_argument("--workers", type=positive_int(), default=1,
+                   help="parallel worker processes")
+    p.add_argument("--seed", type=int_range(0), default=None,
+                   help="seed of the TPE sampler (--optimizer tpe; default 0)")
     p.add_argument("--warm-start", action="store_true",
                    help="start each window from the previous estimate (runs sequentially)")
-    p.add_argument("--max-png", type=int, default=20,
+    p.add_argument("--max-png", type=int_range(0), default=20,
                    help="PNG panels for the first N windows (default 20; 0 = none)")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", required=True, type=writable_folder, help="output folder")
     p.add_argument("--json", action="store_true", help="print per-window parameters as JSON")
     p.set_defaults(func=run)
+
+
+def check_common(args) -> None:
+    """Cross-option checks of :func:`add_common`; fills the --dataset default."""
+    if args.reg is None:
+        reject_unused(args, {"--weight": "weight", "--dataset": "dataset"},
+                      "without --reg (no regularizer to weigh)")
+    if args.dataset is None:
+        args.dataset = "mvsec"
 
 
 def load_events_and_camera(args):
@@ -106,16 +127,18 @@ def run(args) -> int:
     from evmotion.parallel import map_windows
     from evmotion.utils import progress
 
-    if args.workers < 1:
-        raise ParameterError(f"--workers must be >= 1, got {args.workers}")
+    check_common(args)
+    if args.warm_start and args.workers > 1:
+        raise ParameterError(f"--warm-start runs the windows in sequence; it does not apply "
+                             f"with --workers {args.workers}")
+    if args.optimizer != "tpe":
+        reject_unused(args, {"--seed": "seed"}, f"with --optimizer {args.optimizer} "
+                      "(it seeds the TPE sampler)")
+    args.seed = 0 if args.seed is None else args.seed
     events, cam = load_events_and_camera(args)
     if args.window_events is not None:
-        if args.window_events < 10:
-            raise ParameterError(f"--window-events must be >= 10, got {args.window_events}")
         windows = events.windows_by_count(args.window_events)
     else:
-        if args.window_us <= 0:
-            raise ParameterError(f"--window-us must be > 0, got {args.window_us}")
         windows = events.windows_by_duration(args.window_us)
     windows = [w for w in windows if w.count >= 10]
     if not windows:
@@ -143,6 +166,11 @@ def run(args) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = write_outputs(out_dir, results, args.max_png)
     failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
+    if not rows:
+        from evmotion.errors import EvmotionError
+
+        raise EvmotionError(f"{args.file}: all {len(results)} windows failed; the first: "
+                            f"{failed[0] if failed else 'no result'}")
     if args.json:
         print_json({"file": str(args.file), "warp": args.warp, "regularizer": args.reg,
                     "objective": args.objective, "optimizer": args.optimizer,
@@ -150,7 +178,7 @@ def run(args) -> int:
     else:
         print(f"{len(rows)} windows -> {out_dir}/params.csv, params.h5"
               + (f"; {len(failed)} failed" if failed else ""))
-    return 0 if rows else 2
+    return 0
 
 
 def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:

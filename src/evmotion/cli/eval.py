@@ -19,7 +19,8 @@ import argparse
 
 import numpy as np
 
-from evmotion.errors import ParameterError
+from evmotion.cli.options import existing_input, int_range, positive_float, positive_int
+from evmotion.errors import FormatError, ParameterError
 
 EXAMPLES = """examples:
   evmotion eval flow.h5 --gt outdoor_day1_gt_flow_dist.npz --events rec.h5 --dt 4 --json
@@ -32,14 +33,14 @@ def add_parser(sub) -> None:
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("flow", help="estimated flow (.h5, or .npy/.flo with --t0-us/--t1-us)")
-    p.add_argument("--gt", required=True, help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
-    p.add_argument("--events", default=None,
+    p.add_argument("--gt", required=True, type=existing_input, help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
+    p.add_argument("--events", default=None, type=existing_input,
                    help="recording of the events: event mask and FWL")
     p.add_argument("--format", default=None, help="format of --events (default: detect)")
-    p.add_argument("--dt", type=int, default=1, help="GT frames per window (1 or 4)")
-    p.add_argument("--t0-us", type=int, default=None, help="window start for .npy/.flo")
-    p.add_argument("--t1-us", type=int, default=None, help="window end for .npy/.flo")
-    p.add_argument("--out-px", type=float, default=3.0, help="%%Out threshold in px (3)")
+    p.add_argument("--dt", type=positive_int(), default=1, help="GT frames per window (1 or 4)")
+    p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None, help="window start for .npy/.flo")
+    p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None, help="window end for .npy/.flo")
+    p.add_argument("--out-px", type=positive_float(unit="px"), default=3.0, help="%%Out threshold in px (3)")
     p.add_argument("--along-streamlines", action="store_true",
                    help="compare the displacement of the point at each pixel at the window "
                         "start: the window's flow (taken at its midpoint) transported to the "
@@ -56,7 +57,10 @@ def _load_flow(args):
 
     path = Path(args.flow)
     suffix = path.suffix.lower()
+    if Path(args.gt).resolve() == path.resolve():
+        raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
     if suffix in (".h5", ".hdf5"):
+        _check_estimate(path)
         seq = read_flow_h5(path)
         return seq.flow, np.asarray(seq.t0), np.asarray(seq.t1)
     if args.t0_us is None or args.t1_us is None or args.t1_us <= args.t0_us:
@@ -66,14 +70,42 @@ def _load_flow(args):
     if suffix == ".flo":
         flow = read_flo(path, dt_s=dt_s)[None]
     elif suffix == ".npy":
-        flow = np.load(path)
+        try:
+            flow = np.load(path, mmap_mode="r", allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise FormatError(path, f"not a .npy array: {exc}") from None
         flow = flow[None] if flow.ndim == 3 else flow
+        if flow.ndim != 4 or flow.shape[-1] != 2 or flow.dtype.kind != "f":
+            raise FormatError(path, f"not a flow array: shape {flow.shape} dtype {flow.dtype}, "
+                              "expected (H, W, 2) or (N, H, W, 2) floats in px/s")
     else:
         raise ParameterError(f"{path}: unknown flow file type (use .h5, .npy or .flo)")
     n = flow.shape[0]
     if n != 1:
         raise ParameterError(f"{path}: {n} windows but one --t0-us/--t1-us interval")
     return flow.astype(np.float32), np.array([args.t0_us]), np.array([args.t1_us])
+
+
+def _check_estimate(path) -> None:
+    """FLOW must be an estimate (an evmotion flow file), not events or ground truth: the
+    reader also accepts an events file by the ground truth beside it, which would compare
+    the ground truth with itself."""
+    import h5py
+
+    from evmotion.io.flowfiles import FLOW_FORMAT
+
+    try:
+        with h5py.File(path, "r") as f:
+            fmt = f.attrs.get("format")
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {' '.join(str(exc).split())}"
+                          ) from None
+    if isinstance(fmt, bytes):
+        fmt = fmt.decode(errors="replace")
+    if fmt != FLOW_FORMAT:
+        raise FormatError(path, f"not an evmotion flow file (format attribute {fmt!r}, "
+                          f"expected {FLOW_FORMAT!r}): FLOW must be an estimate written by "
+                          "'evmotion flow', not events or ground truth")
 
 
 def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float]:

@@ -1,13 +1,29 @@
 """``evmotion flow``: optical flow of a recording by one of several methods.
 
 Each method lives in its own CLI module (``FLOW_METHODS``) that defines
-``add_arguments(group)`` for its options and ``run(args) -> int``.
+``add_arguments(group)`` for its options, ``OPTIONS`` (``{"--flag": (attribute,
+default)}``: the options only it reads), ``check_args(args)`` (options that do not go
+together, seen before the defaults are filled in) and ``run(args) -> int``. An option of another
+method is an error, not silently ignored; the defaults are filled in here.
+
+An ``.h5`` output is written window by window to ``OUT.part`` and renamed when complete;
+an interrupted or failed run keeps the ``.part`` file, and ``--resume`` continues it (the
+same command with ``--resume`` gives the file an uninterrupted run would have written).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+
+from evmotion.cli.options import (
+    existing_input,
+    positive_int,
+    reject_unused,
+    writable_folder,
+    writable_output,
+)
+from evmotion.errors import ParameterError
 
 FLOW_METHODS: dict[str, str] = {
     "multicm": "evmotion.cli.flow_multicm",
@@ -18,7 +34,10 @@ EXAMPLES = """examples:
   evmotion flow sim.h5 --method multicm --window-events 30000 --out flow.h5
   evmotion flow sim.h5 --method multicm --time-aware burgers --out flow.flo
   evmotion flow rec.raw --method triplet --out flow.h5 --json
+  evmotion flow rec.raw --method triplet --dense robust --out flow.h5 --resume
 """
+
+OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz")
 
 
 def _method_modules():
@@ -39,16 +58,23 @@ def add_parser(sub) -> None:
     p.add_argument("file", help="recording (any readable format)")
     p.add_argument("--method", default="multicm", choices=sorted(FLOW_METHODS))
     p.add_argument("--out", required=True,
-                   help="output file: .h5 (all windows), .npy or .flo (per window)")
+                   type=writable_output(OUTPUT_SUFFIXES, "a flow file (.h5, .npy, .flo: dense "
+                                        "per window; .npz triplet: per event)"),
+                   help="output file: .h5 (all windows), .npy or .flo (per window), .npz "
+                        "(triplet: per event)")
     p.add_argument("--format", default=None, help="input format (default: detect)")
     win = p.add_mutually_exclusive_group()
-    win.add_argument("--window-events", type=int, default=None, metavar="N")
-    win.add_argument("--window-us", type=int, default=None, metavar="T")
-    win.add_argument("--window-gt", default=None, metavar="GT",
+    win.add_argument("--window-events", type=positive_int(), default=None, metavar="N")
+    win.add_argument("--window-us", type=positive_int(unit="µs"), default=None, metavar="T")
+    win.add_argument("--window-gt", type=existing_input, default=None, metavar="GT",
                      help="ground-truth file whose timestamps define the windows")
-    p.add_argument("--gt-dt", type=int, default=1, help="frames per window with --window-gt")
-    p.add_argument("--png-dir", default=None, help="folder for colour-wheel and IWE PNGs")
-    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--gt-dt", type=positive_int(), default=None,
+                   help="frames per window with --window-gt (default 1)")
+    p.add_argument("--png-dir", type=writable_folder, default=None,
+                   help="folder for colour-wheel and IWE PNGs")
+    p.add_argument("--resume", action="store_true",
+                   help=".h5 output: continue the OUT.part file an interrupted run kept "
+                        "(same options), computing only the windows it lacks")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     for name, mod in _method_modules():
         mod.add_arguments(p.add_argument_group(f"{name} options"))
@@ -56,5 +82,78 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    if args.window_gt is None:
+        reject_unused(args, {"--gt-dt": "gt_dt"}, "without --window-gt")
+    args.gt_dt = 1 if args.gt_dt is None else args.gt_dt
+    if args.resume and args.out.lower().endswith((".npy", ".flo", ".npz")):
+        raise ParameterError(f"--resume continues an .h5 output; --out {args.out} is written "
+                             "whole at the end (an interrupted run leaves nothing)")
+    for name, modname in FLOW_METHODS.items():
+        if name != args.method:
+            options = importlib.import_module(modname).OPTIONS
+            reject_unused(args, {flag: attr for flag, (attr, _) in options.items()},
+                          f"with --method {args.method} (a {name} option)")
     mod = importlib.import_module(FLOW_METHODS[args.method])
+    mod.check_args(args)  # sees which options were given, before the defaults fill in
+    for attr, default in mod.OPTIONS.values():
+        if getattr(args, attr, None) is None:
+            setattr(args, attr, default)
     return mod.run(args)
+
+
+def open_h5_output(out, sensor_size, attrs: dict, *, resume: bool, with_valid: bool = False):
+    """The :class:`~evmotion.io.flowfiles.FlowWriter` of an ``.h5`` output; with ``resume``
+    it continues ``OUT.part`` (or a finished OUT) after checking that it was made with the
+    same ``attrs`` (method, options, source).
+
+    Returns
+    -------
+    writer : FlowWriter
+    done : list of (int, int)
+        ``(t0, t1)`` µs of the windows already in the file (empty unless resuming).
+    """
+    import numpy as np
+
+    from evmotion.io.flowfiles import FlowWriter
+
+    if not resume:
+        return FlowWriter(out, sensor_size, with_valid=with_valid, attrs=attrs), []
+    fw = FlowWriter(out, sensor_size, with_valid=with_valid, resume=True)
+    old = dict(fw.f.attrs)
+    for key, value in attrs.items():
+        if fw.n_done and key in old and not _same(old[key], value):
+            fw.abort()
+            raise ParameterError(f"--resume: {fw.part} was made with {key}={old[key]!r}, this "
+                                 f"run has {value!r}; repeat the options of the first run, or "
+                                 "leave out --resume to start again")
+        fw.f.attrs[key] = value
+    if fw.with_valid != with_valid:
+        fw.abort()
+        raise ParameterError(f"--resume: {fw.part} was written by another method's output "
+                             "layout; leave out --resume to start again")
+    done = list(zip(np.asarray(fw.done_t0).tolist(),
+                    np.asarray(fw.f["t1"][: fw.n_done]).tolist(), strict=True))
+    return fw, done
+
+
+def check_resumed(fw, done, index: int, t0: int, t1: int) -> None:
+    """Raise ParameterError if window ``index`` of this run is not the ``index``-th window
+    of the resumed file (other windowing options, or another recording)."""
+    if (int(t0), int(t1)) != tuple(done[index]):
+        fw.abort()
+        a, b = done[index]
+        raise ParameterError(f"--resume: window {index} of {fw.part} is [{a}, {b}) µs but this "
+                             f"run makes [{t0}, {t1}) µs; repeat the windowing options of the "
+                             "first run, or leave out --resume to start again")
+
+
+def _same(a, b) -> bool:
+    import numpy as np
+
+    if isinstance(a, bytes):
+        a = a.decode(errors="replace")
+    try:
+        return bool(np.array_equal(np.asarray(a), np.asarray(b)))
+    except (TypeError, ValueError):
+        return str(a) == str(b)
+

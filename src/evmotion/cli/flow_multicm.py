@@ -19,26 +19,48 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.cli.options import (
+    check_free_space,
+    int_range,
+    nonnegative_float,
+    positive_int,
+    reject_unused,
+)
 from evmotion.errors import ParameterError
 
 DEFAULT_WINDOW_EVENTS = 30_000
 
+# the options only this method reads: attribute and default (see evmotion.cli.flow)
+OPTIONS: dict[str, tuple[str, object]] = {
+    "--time-aware": ("time_aware", "none"),
+    "--time-bins": ("time_bins", None),
+    "--scales": ("scales", 5),
+    "--lambda": ("lam", 0.0025),
+    "--objective": ("objective", "gradient_magnitude"),
+    "--max-iter": ("max_iter", 20),
+    "--workers": ("workers", 1),
+}
+
 
 def add_arguments(group) -> None:
-    group.add_argument("--time-aware", choices=("none", "upwind", "burgers"), default="none",
+    group.add_argument("--time-aware", choices=("none", "upwind", "burgers"), default=None,
                        help="time-aware flow transport (4.8) (default none)")
-    group.add_argument("--time-bins", type=int, default=None, metavar="B",
-                       help="time bins of the time-aware flow (default 5; 40 from 640 px wide)")
-    group.add_argument("--scales", type=int, default=5,
-                       help="coarse-to-fine scales ending at 16x16 tiles (default 5)")
-    group.add_argument("--lambda", dest="lam", type=float, default=0.0025,
-                       help="TV weight of (4.9) (default 0.0025)")
-    group.add_argument("--objective", default="gradient_magnitude",
+    group.add_argument("--time-bins", type=positive_int(), default=None, metavar="B",
+                       help="with --time-aware: time bins of the time-aware flow (default 5; "
+                            "40 from 640 px wide)")
+    group.add_argument("--scales", type=int_range(1, 5), default=None,
+                       help="coarse-to-fine scales ending at 16x16 tiles, 1 to 5 (default 5)")
+    group.add_argument("--lambda", dest="lam", type=nonnegative_float(), default=None,
+                       help="TV weight of (4.9), >= 0 (default 0.0025)")
+    group.add_argument("--objective", default=None,
                        choices=("gradient_magnitude", "variance", "avg_timestamp",
                                 "avg_timestamp_norm"),
                        help="focus function (default gradient magnitude)")
-    group.add_argument("--max-iter", type=int, default=20,
+    group.add_argument("--max-iter", type=positive_int(), default=None,
                        help="optimizer iterations per scale (default 20)")
+    group.add_argument("--workers", type=positive_int(), default=None,
+                       help="parallel worker processes (default 1); each takes a contiguous "
+                            "chunk of windows")
 
 
 def _read(path, fmt):
@@ -60,14 +82,9 @@ def _windows(args, events):
         # frame edges: every GT start plus the end of the last frame
         edges = np.append(np.asarray(gt.t0), np.asarray(gt.t1)[-1:])
         return events.windows_at(edges, dt=args.gt_dt)
-    if args.window_us:
-        if args.window_us <= 0:
-            raise ParameterError(f"--window-us must be > 0, got {args.window_us}")
+    if args.window_us is not None:
         return events.windows_by_duration(args.window_us)
-    n = args.window_events or DEFAULT_WINDOW_EVENTS
-    if n <= 0:
-        raise ParameterError(f"--window-events must be > 0, got {n}")
-    return events.windows_by_count(n)
+    return events.windows_by_count(args.window_events or DEFAULT_WINDOW_EVENTS)
 
 
 def _chunk_fn(events, t0, t1, *, spans, kwargs):
@@ -85,17 +102,7 @@ def _chunk_fn(events, t0, t1, *, spans, kwargs):
     return out
 
 
-def _estimate(events, windows, kwargs, workers):
-    from evmotion.methods.multicm import estimate_flow
-    from evmotion.utils import progress
-
-    if workers <= 1:
-        out, init = [], None
-        for w in progress(windows, total=len(windows), desc="multicm"):
-            res = estimate_flow(events.window(w), init=init, **kwargs)
-            out.append(res)
-            init = res
-        return out
+def _estimate_parallel(events, windows, kwargs, workers):
     from evmotion.parallel import map_windows
 
     spans = [(w.t0, w.t1) for w in windows]
@@ -113,73 +120,168 @@ def _estimate(events, windows, kwargs, workers):
     return out
 
 
-def _write(out: Path, results, windows, sensor_size, attrs):
-    from evmotion.io.flowfiles import FlowWriter, write_flo
-    from evmotion.utils import atomic_path
+class _Output:
+    """Where the flows go: ``.h5`` window by window (resumable), ``.npy`` / ``.flo`` once
+    all windows are done (kept in memory until then)."""
 
-    kind = out.suffix.lower()
-    written = []
-    if kind in (".h5", ".hdf5"):
-        with FlowWriter(out, sensor_size, attrs=attrs) as fw:
-            for r, w in zip(results, windows, strict=True):
-                fw.append(r.flow, t0=w.t0, t1=w.t1)
-        written.append(str(out))
-    elif kind == ".npy":
-        with atomic_path(out) as tmp, open(tmp, "wb") as fh:
-            np.save(fh, np.stack([r.flow for r in results]))
-        written.append(str(out))
-    else:
-        for i, (r, w) in enumerate(zip(results, windows, strict=True)):
-            path = out if len(results) == 1 else out.with_name(f"{out.stem}_{i:04d}.flo")
-            write_flo(path, r.flow, dt_s=(w.t1 - w.t0) * 1e-6)
+    def __init__(self, out: Path, sensor_size, attrs: dict, resume: bool):
+        from evmotion.cli.flow import open_h5_output
+
+        self.out, self.kind = out, out.suffix.lower()
+        self.fw, self.done = None, []
+        if self.kind in (".h5", ".hdf5"):
+            self.fw, self.done = open_h5_output(out, sensor_size, attrs, resume=resume)
+        self.flows, self.spans = [], []
+
+    def stored_flow(self, i: int) -> np.ndarray:
+        return np.asarray(self.fw.f["flow"][i])
+
+    def add(self, flow, w) -> None:
+        if self.fw is not None:
+            self.fw.append(flow, t0=w.t0, t1=w.t1)
+        else:
+            self.flows.append(flow)
+            self.spans.append((w.t0, w.t1))
+
+    def close(self) -> list[str]:
+        from evmotion.io.flowfiles import write_flo
+        from evmotion.utils import atomic_path
+
+        if self.fw is not None:
+            self.fw.close()
+            return [str(self.out)]
+        if self.kind == ".npy":
+            with atomic_path(self.out) as tmp, open(tmp, "wb") as fh:
+                np.save(fh, np.stack(self.flows))
+            return [str(self.out)]
+        written = []
+        for i, (flow, (t0, t1)) in enumerate(zip(self.flows, self.spans, strict=True)):
+            path = (self.out if len(self.flows) == 1
+                    else self.out.with_name(f"{self.out.stem}_{i:04d}.flo"))
+            write_flo(path, flow, dt_s=(t1 - t0) * 1e-6)
             written.append(str(path))
-    return written
+        return written
+
+    def abort(self) -> None:
+        if self.fw is not None:
+            self.fw.abort()
 
 
-def _pngs(png_dir: Path, results):
+def _png(png_dir: Path, i: int, r) -> None:
     from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_png
 
     png_dir.mkdir(parents=True, exist_ok=True)
-    for i, r in enumerate(results):
-        save_png(png_dir / f"flow_{i:04d}.png", flow_to_rgb(r.flow))
-        mask = r.iwes["identity"] > 0
-        save_png(png_dir / f"flow_masked_{i:04d}.png", flow_to_rgb(r.flow, mask=mask))
-        vmax = float(np.percentile(r.iwes["tmid"][mask], 99)) if mask.any() else None
-        for key in ("tmid", "identity"):
-            save_png(png_dir / f"iwe_{key}_{i:04d}.png", iwe_to_rgb(r.iwes[key], vmax=vmax))
+    save_png(png_dir / f"flow_{i:04d}.png", flow_to_rgb(r.flow))
+    mask = r.iwes["identity"] > 0
+    save_png(png_dir / f"flow_masked_{i:04d}.png", flow_to_rgb(r.flow, mask=mask))
+    vmax = float(np.percentile(r.iwes["tmid"][mask], 99)) if mask.any() else None
+    for key in ("tmid", "identity"):
+        save_png(png_dir / f"iwe_{key}_{i:04d}.png", iwe_to_rgb(r.iwes[key], vmax=vmax))
 
 
-def run(args) -> int:
-    from evmotion.cli import print_json
+def _row(r, w) -> dict:
+    return {"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events, "focus": r.focus,
+            "seconds": r.timings["total_s"],
+            "mean_speed_px_s": float(np.linalg.norm(r.flow, axis=-1).mean())}
 
+
+def check_args(args) -> None:
+    """Options that do not go together (before the defaults are filled in)."""
     out = Path(args.out)
     if out.suffix.lower() not in (".h5", ".hdf5", ".npy", ".flo"):
         raise ParameterError(f"--out {out}: the multicm method writes .h5 (all windows), "
                              ".npy or .flo")
-    if args.scales < 1 or args.scales > 5:
-        raise ParameterError(f"--scales must be between 1 and 5, got {args.scales}")
+    if args.time_aware in (None, "none"):
+        reject_unused(args, {"--time-bins": "time_bins"}, "without --time-aware")
+    if args.resume and (args.workers or 1) > 1:
+        raise ParameterError(f"--resume needs --workers 1 (got {args.workers}): with several "
+                             "workers each chunk of windows starts from zero flow")
+
+
+def _check_space(out: Path, windows, sensor_size) -> None:
+    h, w = sensor_size
+    kind = out.suffix.lower()
+    if kind == ".npy":
+        check_free_space(out, 128 + len(windows) * h * w * 8, "--out",
+                         f"{len(windows)} windows of {w} x {h} px flow")
+    elif kind == ".flo":
+        check_free_space(out, len(windows) * (12 + h * w * 8), "--out",
+                         f"{len(windows)} .flo files of {w} x {h} px")
+
+
+def run(args) -> int:
+    from evmotion.cli import print_json
+    from evmotion.methods.multicm import estimate_flow
+    from evmotion.utils import progress
+
+    out = Path(args.out)
     t_start = time.perf_counter()
     events = _read(args.file, getattr(args, "format", None))
     windows = [w for w in _windows(args, events) if w.count >= 10]
     if not windows:
         raise ParameterError(f"{args.file}: no window with at least 10 events")
+    _check_space(out, windows, events.sensor_size)
     kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
                   n_scales=args.scales, objective=args.objective, lam=args.lam,
                   n_bins=args.time_bins, max_iter=args.max_iter)
-    results = _estimate(events, windows, kwargs, args.workers)
     attrs = {"method": "multicm", "time_aware": args.time_aware, "objective": args.objective,
              "lambda": args.lam, "scales": args.scales, "source": str(args.file)}
-    written = _write(out, results, windows, events.sensor_size, attrs)
-    if args.png_dir:
-        _pngs(Path(args.png_dir), results)
+    if args.time_bins is not None:
+        attrs["time_bins"] = args.time_bins
+    png_dir = Path(args.png_dir) if args.png_dir else None
+    if args.workers > 1:
+        results = _estimate_parallel(events, windows, kwargs, args.workers)
+        sink = _Output(out, events.sensor_size, attrs, resume=False)
+        try:
+            for i, (r, w) in enumerate(zip(results, windows, strict=True)):
+                sink.add(r.flow, w)
+                if png_dir is not None:
+                    _png(png_dir, i, r)
+            written = sink.close()
+        except BaseException:
+            sink.abort()
+            raise
+        rows = [_row(r, w) for r, w in zip(results, windows, strict=True)]
+    else:
+        rows, written = _run_sequential(args, events, windows, kwargs, attrs, png_dir,
+                                        estimate_flow, progress)
     if args.json:
         print_json({
             "method": "multicm", "time_aware": args.time_aware, "outputs": written,
-            "n_windows": len(results), "sensor_size": list(events.sensor_size),
-            "windows": [{"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events,
-                         "focus": r.focus, "seconds": r.timings["total_s"],
-                         "mean_speed_px_s": float(np.linalg.norm(r.flow, axis=-1).mean())}
-                        for r, w in zip(results, windows, strict=True)],
-            "seconds": time.perf_counter() - t_start,
+            "n_windows": len(rows), "sensor_size": list(events.sensor_size),
+            "windows": rows, "seconds": time.perf_counter() - t_start,
         })
     return 0
+
+
+def _run_sequential(args, events, windows, kwargs, attrs, png_dir, estimate_flow, progress):
+    """Windows in order, each warm-started from the previous one; with ``--resume`` the
+    windows already in the ``.part`` file are taken from it (the last one as warm start,
+    as stored: float32, exactly the flow that was written)."""
+    from evmotion.cli.flow import check_resumed
+
+    sink = _Output(Path(args.out), events.sensor_size, attrs, resume=args.resume)
+    rows, init = [], None
+    try:
+        if len(sink.done) > len(windows):
+            raise ParameterError(f"--resume: {sink.fw.part} holds {len(sink.done)} windows, "
+                                 f"this run makes {len(windows)}; repeat the options of the "
+                                 "first run, or leave out --resume to start again")
+        for i, w in enumerate(progress(windows, total=len(windows), desc="multicm")):
+            if i < len(sink.done):
+                check_resumed(sink.fw, sink.done, i, w.t0, w.t1)
+                if i == len(sink.done) - 1:
+                    init = sink.stored_flow(i)
+                rows.append({"t0_us": w.t0, "t1_us": w.t1, "resumed": True})
+                continue
+            res = estimate_flow(events.window(w), init=init, **kwargs)
+            init = res
+            sink.add(res.flow, w)
+            if png_dir is not None:
+                _png(png_dir, i, res)
+            rows.append(_row(res, w))
+        written = sink.close()
+    except BaseException:
+        sink.abort()
+        raise
+    return rows, written

@@ -22,43 +22,94 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.cli.options import (
+    finite_float,
+    int_range,
+    nonnegative_float,
+    positive_float,
+    positive_int,
+    reject_unused,
+)
 from evmotion.errors import ParameterError
 
 DEFAULT_WINDOW_US = 50_000
 
 
+# the options only this method reads: attribute and default (see evmotion.cli.flow);
+# None defaults are resolved by dense_defaults / default_ridge for the chosen --dense
+OPTIONS: dict[str, tuple[str, object]] = {
+    "--dx": ("dx", None),
+    "--dt-ms": ("dt_ms", 100.0),
+    "--tau-ms": ("tau_ms", None),
+    "--quadruple": ("quadruple", False),
+    "--bins": ("bins", 1),
+    "--dense": ("dense", "mean"),
+    "--filter-size": ("filter_size", None),
+    "--ridge": ("ridge", None),
+    "--gap-ms": ("gap_ms", 4.0),
+    "--chunk-events": ("chunk_events", 1_000_000),
+    "--depth": ("depth", 8),
+}
+# options of the dense output, which a .npz output without --png-dir does not make
+DENSE_OPTIONS = ("--bins", "--dense", "--filter-size", "--ridge", "--gap-ms")
+
+
 def add_arguments(group) -> None:
-    group.add_argument("--dx", type=float, default=None,
+    group.add_argument("--dx", type=positive_float(unit="px"), default=None,
                        help="neighbourhood radius d_x in px (default sqrt(2), the thesis'; "
                             "2.3 with --dense lsq/robust)")
-    group.add_argument("--dt-ms", type=float, default=100.0, help="delay window d_t in ms (default 100)")
-    group.add_argument("--tau-ms", type=float, default=None,
+    group.add_argument("--dt-ms", type=positive_float(unit="ms"), default=None,
+                       help="delay window d_t in ms (default 100)")
+    group.add_argument("--tau-ms", type=nonnegative_float(unit="ms"), default=None,
                        help="refractory period tau in ms (default 3, the thesis'; 1 with "
                             "--dense lsq/robust)")
-    group.add_argument("--quadruple", action="store_true",
+    group.add_argument("--quadruple", action="store_true", default=None,
                        help="match 4 aligned events instead of 3 (§5.3.5)")
-    group.add_argument("--bins", type=int, default=1,
+    group.add_argument("--bins", type=int_range(1, 1000), default=None,
                        help="time bins per window of the dense .h5 output (default 1; windows "
                             f"default to {DEFAULT_WINDOW_US // 1000} ms); .npz is per event")
-    group.add_argument("--dense", choices=("mean", "lsq", "robust"), default="mean",
+    group.add_argument("--dense", choices=("mean", "lsq", "robust"), default=None,
                        help="dense output: 'mean' of the per-event flow (thesis, default), "
                             "'lsq', the least-squares fit of the events' normal flows, or "
                             "'robust', a re-weighted fit of the normal flows of burst means "
                             "(extensions; 'robust' is the most accurate)")
-    group.add_argument("--filter-size", type=int, default=None,
-                       help="width of the non-zero average filter of the dense output (default "
-                            "3, the thesis'; larger odd sizes are an extension), or of the "
-                            "--dense lsq/robust neighbourhood (default 15/41)")
-    group.add_argument("--ridge", type=float, default=None,
+    group.add_argument("--filter-size", type=int_range(1, 1001), default=None,
+                       help="odd width of the non-zero average filter of the dense output "
+                            "(default 3, the thesis'; larger odd sizes are an extension), or "
+                            "of the --dense lsq/robust neighbourhood (default 15/41)")
+    group.add_argument("--ridge", type=nonnegative_float(), default=None,
                        help="--dense lsq/robust: Tikhonov weight relative to the mean "
                             "eigenvalue (default 0.01/0.001)")
-    group.add_argument("--gap-ms", type=float, default=4.0,
+    group.add_argument("--gap-ms", type=finite_float(0.001, unit="ms"), default=None,
                        help="--dense robust: a pixel silent for longer than this ends its "
                             "burst (default 4)")
-    group.add_argument("--chunk-events", type=int, default=1_000_000,
+    group.add_argument("--chunk-events", type=positive_int(), default=None,
                        help="events read and processed at a time (default 1e6)")
-    group.add_argument("--depth", type=int, default=8,
-                       help="timestamps remembered per pixel and polarity (default 8)")
+    group.add_argument("--depth", type=int_range(1, 255), default=None,
+                       help="timestamps remembered per pixel and polarity, 1 to 255 "
+                            "(default 8)")
+
+
+def check_args(args) -> None:
+    """Options that the chosen output and --dense do not read are errors."""
+    kind = Path(args.out).suffix.lower()
+    given = {flag: attr for flag, (attr, _) in OPTIONS.items()}
+    if kind == ".npz" and not args.png_dir:
+        reject_unused(args, {f: given[f] for f in DENSE_OPTIONS},
+                      "to a .npz output (per event; dense windows only with --png-dir)")
+        reject_unused(args, {"--window-events": "window_events", "--window-us": "window_us",
+                             "--window-gt": "window_gt"},
+                      "to a .npz output (per event; windows only with --png-dir)")
+    dense = args.dense or "mean"
+    if dense != "robust":
+        reject_unused(args, {"--gap-ms": "gap_ms"}, f"with --dense {dense} (robust only)")
+    if dense == "mean":
+        reject_unused(args, {"--ridge": "ridge"}, "with --dense mean (lsq/robust only)")
+    if args.filter_size is not None and args.filter_size % 2 == 0:
+        raise ParameterError(f"--filter-size must be odd, got {args.filter_size}")
+    if args.resume and args.png_dir:
+        raise ParameterError("--resume does not redraw the --png-dir pictures of the windows "
+                             "already done; leave out --png-dir or --resume")
 
 
 def run(args) -> int:
@@ -74,21 +125,12 @@ def run(args) -> int:
 
     out = Path(args.out)
     kind = out.suffix.lower()
-    if kind not in (".h5", ".hdf5", ".npy", ".flo", ".npz"):
-        raise ParameterError(f"--out {out}: the triplet method writes .h5, .npy or .flo (dense "
-                             "per window) or .npz (sparse per event)")
     tau_us = None if args.tau_ms is None else int(round(args.tau_ms * 1000))
     args.dx, tau_us, args.filter_size = dense_defaults(args.dense, args.dx, tau_us,
                                                        args.filter_size)
     args.tau_ms = tau_us / 1000
-    if args.ridge is not None and not (np.isfinite(args.ridge) and args.ridge >= 0):
-        raise ParameterError(f"--ridge must be a finite number >= 0, got {args.ridge}")
     args.ridge = default_ridge(args.dense, args.ridge)
-    gap_us = int(round(args.gap_ms * 1000)) if np.isfinite(args.gap_ms) else 0
-    if gap_us < 1:
-        raise ParameterError(f"--gap-ms must be >= 0.001 ms, got {args.gap_ms}")
-    if args.chunk_events <= 0:
-        raise ParameterError(f"--chunk-events must be > 0, got {args.chunk_events}")
+    gap_us = int(round(args.gap_ms * 1000))
     dense = kind != ".npz" or args.png_dir
     chunks = _iter_chunks(args.file, getattr(args, "format", None), args.chunk_events)
     first = next((c for c in chunks if len(c)), None)
@@ -103,24 +145,31 @@ def run(args) -> int:
         bursts = BurstMeans(sensor, gap_us)
         burst_matcher = TripletMatcher(sensor, matcher.dx, matcher.dt_us, matcher.tau_us,
                                        quadruple=args.quadruple, depth=args.depth)
-    windows = _Windows(sensor, args.bins, args.window_us, args.window_events,
-                       int(first.t[0]), _gt_edges(args), filter_size=args.filter_size,
-                       dense=args.dense, ridge=args.ridge,
-                       vmax=max_normal_speed(matcher.dx, matcher.tau_us)) if dense else None
     params = {"dx": args.dx, "dt_ms": args.dt_ms, "tau_ms": args.tau_ms,
               "quadruple": args.quadruple, "bins": args.bins, "depth": args.depth,
               "dense": args.dense, "filter_size": args.filter_size, "ridge": args.ridge}
     if args.dense == "robust":
         params["gap_ms"] = gap_us / 1000
+    if args.window_us is not None:
+        params["window_us"] = args.window_us
+    if args.window_events is not None:
+        params["window_events"] = args.window_events
+    if kind in (".h5", ".hdf5"):
+        sink = _H5Sink(out, sensor, {"method": "triplet", "source": str(args.file),
+                                     **{f"triplet_{k}": v for k, v in params.items()}},
+                       resume=args.resume)
+    windows = _Windows(sensor, args.bins, args.window_us, args.window_events,
+                       int(first.t[0]), _gt_edges(args), filter_size=args.filter_size,
+                       dense=args.dense, ridge=args.ridge,
+                       vmax=max_normal_speed(matcher.dx, matcher.tau_us),
+                       skip=len(sink.done) if kind in (".h5", ".hdf5") else 0,
+                       ) if dense else None
     if kind == ".npz":
         sink = _NpzSink(out)
     elif kind == ".npy":
         sink = _NpySink(out, sensor)
     elif kind == ".flo":
         sink = _FloSink(out)
-    else:
-        sink = _H5Sink(out, sensor, {"method": "triplet", "source": str(args.file),
-                                     **{f"triplet_{k}": v for k, v in params.items()}})
     png_dir = Path(args.png_dir) if args.png_dir else None
     bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True)
     n_events = n_valid = n_trip = 0
@@ -153,6 +202,10 @@ def run(args) -> int:
             n_windows += emit_all(windows.add(b, burst_matcher.process(b)))
         if windows is not None:
             n_windows += emit_all(windows.finish())
+        if kind in (".h5", ".hdf5") and len(sink.done) > n_windows:
+            raise ParameterError(f"--resume: {sink.w.part} holds {len(sink.done)} windows, "
+                                 f"this run makes {n_windows}; repeat the options of the "
+                                 "first run, or leave out --resume to start again")
         sink.close()
     except BaseException:
         sink.abort()
@@ -222,13 +275,15 @@ class _Windows:
     and the IWE of each window's events warped by their own flow to the window start."""
 
     def __init__(self, sensor, bins, window_us, window_events, t_start, edges=None, *,
-                 filter_size=3, dense="mean", ridge=1e-2, vmax=np.inf):
+                 filter_size=3, dense="mean", ridge=1e-2, vmax=np.inf, skip=0):
         if bins < 1:
             raise ParameterError(f"--bins must be >= 1, got {bins}")
         if filter_size < 1 or filter_size % 2 == 0:
             raise ParameterError(f"--filter-size must be an odd number >= 1, got {filter_size}")
         self.filter_size = filter_size
         self.dense, self.ridge, self.vmax = dense, ridge, vmax
+        # the first `skip` windows are in the resumed file: delimited, not computed
+        self.skip = skip
         if window_us is not None and window_us <= 0:
             raise ParameterError(f"--window-us must be > 0, got {window_us}")
         if window_events is not None and window_events <= 0:
@@ -302,6 +357,9 @@ class _Windows:
 
         if not len(ev):
             return
+        if self.index < self.skip:
+            self.n += 0 if self.by_count else len(ev)
+            return
         if self.dense == "robust":
             self.kept.append((ev, fl))
         elif self.dense == "lsq":
@@ -324,7 +382,9 @@ class _Windows:
             dense_robust_fit,
         )
 
-        if self.dense == "robust" and not self.kept:
+        if self.index < self.skip:
+            flow = mask = None  # already in the resumed file
+        elif self.dense == "robust" and not self.kept:
             flow = np.zeros((*self.sensor, 2), np.float32)  # no event: no flow anywhere
             mask = np.zeros(self.sensor, bool)
         elif self.dense == "robust":
@@ -356,6 +416,9 @@ class _Windows:
 
 
 def _emit(win, sink, png_dir, kind) -> int:
+    if win.flow is None:
+        sink.check_done(win)
+        return 1
     if kind != ".npz":
         sink.add_window(win)
     if png_dir is not None:
@@ -370,10 +433,19 @@ def _emit(win, sink, png_dir, kind) -> int:
 class _H5Sink:
     """Dense windows appended through :class:`evmotion.io.flowfiles.FlowWriter`."""
 
-    def __init__(self, out: Path, sensor, attrs: dict):
-        from evmotion.io.flowfiles import FlowWriter
+    def __init__(self, out: Path, sensor, attrs: dict, resume: bool = False):
+        from evmotion.cli.flow import open_h5_output
 
-        self.w = FlowWriter(out, sensor, with_valid=True, attrs=attrs)
+        self.w, self.done = open_h5_output(out, sensor, attrs, resume=resume, with_valid=True)
+
+    def check_done(self, win):
+        """A window of the resumed file: it must be the one this run delimits."""
+        from evmotion.cli.flow import check_resumed
+
+        if win.index >= len(self.done):
+            raise ParameterError(f"--resume: this run skipped window {win.index}, which "
+                                 f"{self.w.part} does not hold")
+        check_resumed(self.w, self.done, win.index, win.t0, win.t1)
 
     def add_window(self, win):
         self.w.append(win.flow, win.t0, win.t1, valid=win.mask)
@@ -471,17 +543,20 @@ class _NpySink:
 
 class _FloSink:
     """Middlebury ``.flo`` displacement per window: ``out`` itself for a single window,
-    ``out_0000.flo``... otherwise (each file written atomically as its window ends)."""
+    ``out_0000.flo``... otherwise (each file written atomically as its window ends; an
+    interrupted or failed run removes the files it wrote, leaving no partial set)."""
 
     def __init__(self, out: Path):
         self.out = out
         self.first = None
         self.n = 0
+        self.written: list[Path] = []
 
     def _write(self, path, win):
         from evmotion.io.flowfiles import write_flo
 
         write_flo(path, win.flow, dt_s=(win.t1 - win.t0) * 1e-6)
+        self.written.append(Path(path))
 
     def _numbered(self, i):
         return self.out.with_name(f"{self.out.stem}_{i:04d}.flo")
@@ -502,3 +577,5 @@ class _FloSink:
 
     def abort(self):
         self.first = None
+        for path in self.written:
+            path.unlink(missing_ok=True)

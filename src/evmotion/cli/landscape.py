@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from evmotion.cli.options import finite_float, float_list, int_range, writable_output
 from evmotion.errors import ParameterError
 
 
@@ -16,16 +17,18 @@ def add_parser(sub) -> None:
     add_common(p)
     p.add_argument("--param", default="0",
                    help="parameter to scan: index or name (e.g. 0, hz, wz)")
-    p.add_argument("--range", nargs=2, type=float, required=True, metavar=("LO", "HI"),
+    p.add_argument("--range", nargs=2, type=finite_float(), required=True, metavar=("LO", "HI"),
                    help="scan range in the parameter's units")
-    p.add_argument("--steps", type=int, default=101, help="number of samples (default 101)")
-    p.add_argument("--theta", default=None,
+    p.add_argument("--steps", type=int_range(2, 100_000), default=101,
+                   help="number of samples (default 101)")
+    p.add_argument("--theta", default=None, type=float_list(),
                    help="comma-separated values of the other parameters (default identity)")
-    p.add_argument("--t0-us", type=int, default=None, help="window start (µs, default first event)")
-    p.add_argument("--window-events", type=int, default=30000,
+    p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None, help="window start (µs, default first event)")
+    p.add_argument("--window-events", type=int_range(10), default=30000,
                    help="events of the window from --t0-us (default 30000)")
-    p.add_argument("--out", required=True, help="output PNG")
-    p.add_argument("--csv", default=None, help="also write the curves as CSV")
+    p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
+                   help="output PNG")
+    p.add_argument("--csv", default=None, type=writable_output(), help="also write the curves as CSV")
     p.set_defaults(func=run)
 
 
@@ -35,13 +38,15 @@ def run(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from evmotion.cli.egomotion import load_events_and_camera
+    from evmotion.cli.egomotion import check_common, load_events_and_camera
     from evmotion.core.warps import make_warp
     from evmotion.methods.egomotion import cost_landscape
     from evmotion.utils import atomic_path, atomic_write_text
 
-    if args.steps < 2:
-        raise ParameterError(f"--steps must be >= 2, got {args.steps}")
+    check_common(args)
+    lo, hi = args.range
+    if not hi > lo:
+        raise ParameterError(f"--range {lo:g} {hi:g}: HI must be greater than LO")
     events, cam = load_events_and_camera(args)
     start = 0 if args.t0_us is None else int(events.index_at(args.t0_us))
     events = events[start:start + args.window_events]
@@ -60,10 +65,11 @@ def run(args) -> int:
         raise ParameterError(f"--param {j} out of range for {w.n_params} parameters")
     theta = w.identity()
     if args.theta:
-        vals = [float(v) for v in args.theta.split(",")]
-        if len(vals) != w.n_params:
-            raise ParameterError(f"--theta needs {w.n_params} values {w.param_names}")
-        theta = np.array(vals)
+        if len(args.theta) != w.n_params:
+            raise ParameterError(f"--theta {','.join(f'{v:g}' for v in args.theta)}: warp "
+                                 f"'{args.warp}' needs {w.n_params} values "
+                                 f"{list(w.param_names)}, got {len(args.theta)}")
+        theta = np.array(args.theta)
     values = np.linspace(args.range[0], args.range[1], args.steps)
     plain = cost_landscape(events, w, j, values, theta, args.objective, None, K=K,
                            t_ref=args.t_ref)

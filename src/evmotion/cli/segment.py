@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.cli.options import int_range, positive_int, writable_folder
 from evmotion.errors import ParameterError
 
 
@@ -19,27 +20,26 @@ def add_parser(sub) -> None:
     p = sub.add_parser("segment", help="motion segmentation with several warps (Sec. 3.6.6)",
                        description=__doc__)
     add_common(p)
-    p.add_argument("--warps", type=int, default=2, help="number of motion clusters (default 2)")
-    p.add_argument("--iterations", type=int, default=10, help="EM iterations (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the initialization")
+    p.add_argument("--warps", type=int_range(1, 64), default=2, help="number of motion clusters (default 2)")
+    p.add_argument("--iterations", type=positive_int(), default=10, help="EM iterations (default 10)")
+    p.add_argument("--seed", type=int_range(0), default=0, help="seed of the initialization")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--window-events", type=int, help="events per window (default: 30000)")
-    g.add_argument("--window-us", type=int, help="window duration in microseconds")
-    p.add_argument("--max-windows", type=int, default=None, help="process at most N windows")
-    p.add_argument("--out", required=True, help="output folder")
+    g.add_argument("--window-events", type=int_range(10), help="events per window (default: 30000)")
+    g.add_argument("--window-us", type=positive_int(unit="µs"), help="window duration in microseconds")
+    p.add_argument("--max-windows", type=positive_int(), default=None, help="process at most N windows")
+    p.add_argument("--out", required=True, type=writable_folder, help="output folder")
     p.add_argument("--json", action="store_true", help="print per-window results as JSON")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.cli.egomotion import load_events_and_camera
+    from evmotion.cli.egomotion import check_common, load_events_and_camera
     from evmotion.methods.segmentation import segment_motion
     from evmotion.utils import atomic_path, atomic_write_text, progress
     from evmotion.viz import images
 
-    if args.warps < 1:
-        raise ParameterError(f"--warps must be >= 1, got {args.warps}")
+    check_common(args)
     if args.objective not in ("variance", "gradient_magnitude"):
         raise ParameterError("segment supports --objective variance or gradient_magnitude")
     events, cam = load_events_and_camera(args)

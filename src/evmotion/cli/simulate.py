@@ -10,6 +10,17 @@ from __future__ import annotations
 import argparse
 import json
 
+from evmotion.cli.options import (
+    existing_input,
+    int_range,
+    nonnegative_float,
+    positive_float,
+    writable_output,
+)
+
+# sides of a simulated sensor: the simulator renders float64 frames of this size
+MAX_SIDE = 4096
+
 EXAMPLES = """examples:
   evmotion simulate rotation --out sim.h5
   evmotion simulate zoom --params hz=2.0 --params foe=150,120 --out zoom.h5 --json
@@ -28,22 +39,22 @@ def add_parser(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scene", choices=sorted(SCENES), help="named scene (motion)")
-    p.add_argument("--out", required=True, help="events file; ground truth goes to <stem>_gt.h5")
+    p.add_argument("--out", required=True, type=writable_output(), help="events file; ground truth goes to <stem>_gt.h5")
     p.add_argument("--format", default=None, help="events format (default: from the extension)")
-    p.add_argument("--duration", type=float, default=0.1, help="seconds (default 0.1)")
-    p.add_argument("--size", default="260x346", help="HxW pixels (default 260x346, DAVIS346)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=positive_float(unit="s"), default=0.1, help="seconds (default 0.1)")
+    p.add_argument("--size", default="260x346", type=parse_size, help="HxW pixels (default 260x346, DAVIS346)")
+    p.add_argument("--seed", type=int_range(0), default=0)
     p.add_argument("--texture", default="dots", choices=["dots", "shapes", "noise", "checker"])
-    p.add_argument("--image", default=None, metavar="PATH", help="image to use as texture")
-    p.add_argument("--threshold", type=float, default=0.2, help="contrast threshold C (log)")
-    p.add_argument("--mismatch", type=float, default=0.03,
+    p.add_argument("--image", default=None, metavar="PATH", type=existing_input, help="image to use as texture")
+    p.add_argument("--threshold", type=positive_float(), default=0.2, help="contrast threshold C (log)")
+    p.add_argument("--mismatch", type=nonnegative_float(), default=0.03,
                    help="relative std of per-pixel thresholds")
-    p.add_argument("--refractory-us", type=int, default=0)
-    p.add_argument("--noise-rate", type=float, default=0.0,
+    p.add_argument("--refractory-us", type=int_range(0, unit="µs"), default=0)
+    p.add_argument("--noise-rate", type=nonnegative_float(unit="events/s"), default=0.0,
                    help="background activity, events/s per pixel")
-    p.add_argument("--hot-pixels", type=int, default=0, help="number of hot pixels")
-    p.add_argument("--hot-rate", type=float, default=1000.0, help="events/s of a hot pixel")
-    p.add_argument("--frame-rate", type=float, default=100.0, help="GT frame rate, Hz")
+    p.add_argument("--hot-pixels", type=int_range(0), default=0, help="number of hot pixels")
+    p.add_argument("--hot-rate", type=nonnegative_float(unit="events/s"), default=1000.0, help="events/s of a hot pixel")
+    p.add_argument("--frame-rate", type=positive_float(unit="Hz"), default=100.0, help="GT frame rate, Hz")
     p.add_argument("--params", action="append", default=[], metavar="KEY=VALUE",
                    help="motion parameter, repeatable (vector: comma-separated), or a JSON "
                         "object; see 'evmotion simulate --help' scenes and the docs of "
@@ -54,6 +65,8 @@ def add_parser(sub) -> None:
 
 def parse_params(items: list[str]) -> dict:
     """``["vx=100", "omega=0.1,0.2,0.3"]`` or JSON objects -> dict of floats/lists."""
+    import numpy as np
+
     from evmotion.errors import ParameterError
 
     out: dict = {}
@@ -76,17 +89,20 @@ def parse_params(items: list[str]) -> dict:
         except ValueError:
             raise ParameterError(f"--params {key}: value {val!r} is not a number "
                                  "(or comma-separated numbers)") from None
+        if not all(np.isfinite(vals)):
+            raise ParameterError(f"--params {key}: value {val!r} must be finite")
         out[key.strip()] = vals[0] if len(vals) == 1 else vals
     return out
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    from evmotion.errors import ParameterError
-
+    """``"260x346"`` -> ``(260, 346)``; an ``argparse`` type (sides 1 to :data:`MAX_SIDE`)."""
     try:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise ParameterError(f"--size must be HxW (e.g. 260x346), got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"must be HxW (e.g. 260x346), got {text!r}") from None
+    if not (1 <= h <= MAX_SIDE and 1 <= w <= MAX_SIDE):
+        raise argparse.ArgumentTypeError(f"sides must be 1 to {MAX_SIDE} px, got {text!r}")
     return h, w
 
 
@@ -102,7 +118,7 @@ def run(args) -> int:
     except ImportError:
         raise EvmotionError("this build has no event writer (evmotion.io.write_events)") from None
     fmt = args.format or format_for_output(args.out)
-    res = simulate(args.scene, duration_s=args.duration, sensor_size=parse_size(args.size),
+    res = simulate(args.scene, duration_s=args.duration, sensor_size=args.size,
                    seed=args.seed, texture=args.texture, threshold=args.threshold,
                    params=parse_params(args.params), image=args.image, mismatch=args.mismatch,
                    refractory_us=args.refractory_us, noise_rate=args.noise_rate,

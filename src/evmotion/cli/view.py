@@ -10,6 +10,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from evmotion.cli.options import (
+    finite_float,
+    format_bytes,
+    int_range,
+    positive_int,
+    writable_output,
+)
+
 EXAMPLES = """examples:
   evmotion view rec.h5 --out events.png                       # first 30,000 events
   evmotion view rec.raw --t0 1000000 --t1 1020000 --out slice.png --polarity
@@ -17,6 +25,8 @@ EXAMPLES = """examples:
 """
 
 DEFAULT_EVENTS = 30_000
+# the enlarged RGB image is held in memory twice (repeat along rows, then columns)
+MAX_IMAGE_BYTES = 1 << 30
 
 
 def add_parser(sub) -> None:
@@ -26,21 +36,23 @@ def add_parser(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("file", help="recording (any readable format)")
-    p.add_argument("--out", required=True, help="output PNG")
+    p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
+                   help="output PNG")
     p.add_argument("--format", default=None, help="input format (default: detect)")
-    p.add_argument("--t0", type=int, default=None, metavar="US",
+    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US",
                    help="slice start, absolute µs (default: first event)")
-    p.add_argument("--t1", type=int, default=None, metavar="US",
+    p.add_argument("--t1", type=int_range(0, unit="µs"), default=None, metavar="US",
                    help="slice end (exclusive), absolute µs")
-    p.add_argument("--window-events", type=int, default=None, metavar="N",
+    p.add_argument("--window-events", type=positive_int(), default=None, metavar="N",
                    help=f"take N events from --t0 (default {DEFAULT_EVENTS:,} "
                         "when --t1 is not given)")
     p.add_argument("--polarity", action="store_true",
                    help="signed polarity sum, red (+) / blue (-), instead of counts")
-    p.add_argument("--percentile", type=float, default=99.0,
+    p.add_argument("--percentile", type=finite_float(0, 100, lo_open=True), default=99.0,
                    help="percentile of the nonzero pixels shown at full intensity (99)")
-    p.add_argument("--scale", type=int, default=1,
-                   help="enlarge each pixel to SCALE x SCALE (nearest neighbour)")
+    p.add_argument("--scale", type=positive_int(), default=1,
+                   help="enlarge each pixel to SCALE x SCALE (nearest neighbour; the image "
+                        f"may hold at most {format_bytes(MAX_IMAGE_BYTES)} as RGB)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -65,31 +77,48 @@ def _read_slice(path: str, fmt: str | None, t0: int | None, t1: int | None, n: i
     return concatenate(parts, validate=False) if parts else None
 
 
+def check_scale(scale: int, sensor_size: tuple[int, int]) -> None:
+    """Refuse a ``--scale`` whose RGB image would exceed :data:`MAX_IMAGE_BYTES`."""
+    from evmotion.errors import ParameterError
+
+    h, w = sensor_size
+    need = 3 * h * w * scale * scale
+    if need > MAX_IMAGE_BYTES:
+        largest = max(int((MAX_IMAGE_BYTES / (3 * h * w)) ** 0.5), 1)
+        raise ParameterError(f"--scale {scale}: the {w} x {h} px image would become "
+                             f"{w * scale:,} x {h * scale:,} px, {format_bytes(need)} as RGB, "
+                             f"over the {format_bytes(MAX_IMAGE_BYTES)} limit; use --scale "
+                             f"{largest} or less")
+
+
 def run(args) -> int:
     import numpy as np
 
     from evmotion.cli import print_json
-    from evmotion.errors import EmptyWindowError, ParameterError
+    from evmotion.errors import EmptyWindowError, EvmotionError, ParameterError
     from evmotion.viz import event_histogram, iwe_to_rgb, save_png
 
     if args.t0 is not None and args.t1 is not None and args.t1 <= args.t0:
         raise ParameterError(f"--t1 ({args.t1} µs) must be after --t0 ({args.t0} µs)")
-    if args.window_events is not None and args.window_events <= 0:
-        raise ParameterError(f"--window-events must be > 0, got {args.window_events}")
-    if args.scale < 1:
-        raise ParameterError(f"--scale must be >= 1, got {args.scale}")
-    if not 0 < args.percentile <= 100:
-        raise ParameterError(f"--percentile must be in (0, 100], got {args.percentile}")
     out = Path(args.out)
-    if out.suffix.lower() != ".png":
-        raise ParameterError(f"--out {out}: view writes PNG images (use a .png name)")
     n = args.window_events
     if n is None and args.t1 is None:
         n = DEFAULT_EVENTS
+    if args.scale > 1:
+        import evmotion.io as eio
+
+        # the header's sensor size, when it has one, refuses a huge --scale before reading
+        try:
+            size = eio.describe(args.file, format=args.format, stream=False).get("sensor_size")
+        except EvmotionError:
+            size = None  # reading the events below reports what is wrong with the file
+        if size is not None:
+            check_scale(args.scale, tuple(size))
     ev = _read_slice(args.file, args.format, args.t0, args.t1, n)
     if ev is None or not len(ev):
         raise EmptyWindowError(f"{args.file}: no events in the requested slice "
                                f"(t0={args.t0}, t1={args.t1} µs)")
+    check_scale(args.scale, ev.sensor_size)
     hist = event_histogram(ev, signed=args.polarity)
     rgb = iwe_to_rgb(hist, polarity=args.polarity, percentile=args.percentile)
     if args.scale > 1:

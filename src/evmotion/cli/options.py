@@ -1,0 +1,337 @@
+"""Argument checks shared by every ``evmotion`` command.
+
+Every bad command-line value must end in one line on stderr that names the option and the
+value, and exit code 2, before any work starts. This module holds the pieces for that:
+
+- :class:`Parser`, an :class:`argparse.ArgumentParser` whose errors are one line
+  (``evmotion flow: error: argument --dt-ms: must be > 0 ms, got 'nan'``) instead of the
+  usage block; sub-parsers made with ``add_subparsers`` inherit it.
+- ``type=`` factories that check a value as it is parsed: :func:`finite_float`,
+  :func:`positive_float`, :func:`nonnegative_float`, :func:`int_range`,
+  :func:`positive_int`, :func:`float_list`, :func:`existing_input`,
+  :func:`writable_output`, :func:`writable_folder`. argparse prefixes their message with
+  ``argument --name:``, so a message says what is wrong with the value only.
+- Checks made after parsing, when several options or the input decide (they raise
+  :class:`~evmotion.errors.ParameterError`, which the CLI prints as one line):
+  :func:`reject_unused` (options that do not apply to the chosen method),
+  :func:`check_free_space`, :func:`check_output` (the same checks as
+  :func:`writable_output`, for a path computed at run time).
+
+Examples
+--------
+>>> p = Parser(prog="demo")
+>>> _ = p.add_argument("--dt-ms", type=positive_float(unit="ms"), default=100.0)
+>>> _ = p.add_argument("--bins", type=int_range(1, 64), default=1)
+>>> p.parse_args(["--dt-ms", "2.5", "--bins", "3"])
+Namespace(dt_ms=2.5, bins=3)
+>>> positive_float(unit="ms")("nan")
+Traceback (most recent call last):
+...
+argparse.ArgumentTypeError: must be a finite number > 0 ms, got 'nan'
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import sys
+import tempfile
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from evmotion.errors import ParameterError
+
+__all__ = [
+    "Parser",
+    "check_free_space",
+    "check_output",
+    "existing_input",
+    "finite_float",
+    "float_list",
+    "format_bytes",
+    "int_range",
+    "nonnegative_float",
+    "positive_float",
+    "positive_int",
+    "reject_unused",
+    "writable_folder",
+    "writable_output",
+]
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line on stderr and exit code 2."""
+
+    def error(self, message: str):
+        text = " ".join(str(message).split())
+        sys.stderr.write(f"{self.prog}: error: {text} (see '{self.prog} --help')\n")
+        sys.exit(2)
+
+
+def _unit(unit: str) -> str:
+    return f" {unit}" if unit else ""
+
+
+def _bound_text(lo, hi, lo_open: bool, hi_open: bool, unit: str) -> str:
+    u = _unit(unit)
+    if lo is not None and hi is not None:
+        return (f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}{u}")
+    if lo is not None:
+        return f"{'>' if lo_open else '>='} {lo:g}{u}"
+    if hi is not None:
+        return f"{'<' if hi_open else '<='} {hi:g}{u}"
+    return f"finite{u}".strip()
+
+
+def finite_float(lo: float | None = None, hi: float | None = None, *, lo_open: bool = False,
+                 hi_open: bool = False, unit: str = "") -> Callable[[str], float]:
+    """``type=`` for a finite float in ``[lo, hi]`` (open ends with ``lo_open``/``hi_open``).
+
+    Parameters
+    ----------
+    lo, hi : float, optional
+        Bounds (None: unbounded on that side).
+    lo_open, hi_open : bool
+        Exclude the bound itself.
+    unit : str
+        Unit named in the message (``"ms"``, ``"px"``...).
+
+    Examples
+    --------
+    >>> finite_float(0, 100, lo_open=True, unit="%")("99.5")
+    99.5
+    """
+    want = _bound_text(lo, hi, lo_open, hi_open, unit)
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(
+                f"must be a number {want}, got {text!r}") from None
+        bad = not math.isfinite(v)
+        if lo is not None:
+            bad |= v <= lo if lo_open else v < lo
+        if hi is not None:
+            bad |= v >= hi if hi_open else v > hi
+        if bad:
+            raise argparse.ArgumentTypeError(f"must be a finite number {want}, got {text!r}")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
+def positive_float(*, unit: str = "") -> Callable[[str], float]:
+    """``type=`` for a finite float > 0 (``--dt-ms``, ``--duration``...)."""
+    return finite_float(0.0, lo_open=True, unit=unit)
+
+
+def nonnegative_float(*, unit: str = "") -> Callable[[str], float]:
+    """``type=`` for a finite float >= 0 (weights, rates)."""
+    return finite_float(0.0, unit=unit)
+
+
+def int_range(lo: int | None = None, hi: int | None = None, *, unit: str = ""
+              ) -> Callable[[str], int]:
+    """``type=`` for an integer in ``[lo, hi]`` (accepts ``1e6`` or ``1_000_000`` when the
+    value is a whole number).
+
+    Examples
+    --------
+    >>> int_range(1, 5)("3")
+    3
+    >>> int_range(1)("1e6")
+    1000000
+    """
+    want = _bound_text(lo, hi, False, False, unit)
+    want = "an integer" + ("" if want.startswith("finite") else f" {want}")
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except (TypeError, ValueError):
+            try:
+                f = float(text)
+            except (TypeError, ValueError):
+                f = math.nan
+            if not (math.isfinite(f) and f == int(f)):
+                raise argparse.ArgumentTypeError(f"must be {want}, got {text!r}") from None
+            v = int(f)
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"must be {want}, got {text!r}")
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def positive_int(*, unit: str = "") -> Callable[[str], int]:
+    """``type=`` for an integer >= 1 (counts, durations in µs, workers)."""
+    return int_range(1, unit=unit)
+
+
+def float_list(n: int | None = None, *, unit: str = "") -> Callable[[str], list[float]]:
+    """``type=`` for comma-separated finite numbers, ``n`` of them when given.
+
+    Examples
+    --------
+    >>> float_list(3)("0.1, 0, -2")
+    [0.1, 0.0, -2.0]
+    """
+    count = f"{n} " if n else ""
+
+    def parse(text: str) -> list[float]:
+        try:
+            vals = [float(v) for v in str(text).split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"must be {count}comma-separated numbers{_unit(unit)}, got {text!r}") from None
+        if not all(math.isfinite(v) for v in vals):
+            raise argparse.ArgumentTypeError(f"must be finite numbers, got {text!r}")
+        if n is not None and len(vals) != n:
+            raise argparse.ArgumentTypeError(
+                f"must be {n} comma-separated numbers, got {len(vals)} in {text!r}")
+        return vals
+
+    parse.__name__ = "list"
+    return parse
+
+
+def existing_input(text: str) -> str:
+    """``type=`` for an input file or folder that exists and can be read.
+
+    Use it for inputs read late (a calibration, ground truth): the main recording is
+    read first anyway, and its reader names a missing file in one line."""
+    p = Path(text)
+    if not p.exists():
+        raise argparse.ArgumentTypeError(f"{text}: no such file or folder")
+    if not os.access(p, os.R_OK):
+        raise argparse.ArgumentTypeError(f"{text}: cannot be read (permission denied)")
+    return text
+
+
+def _nearest_existing(path: Path) -> Path:
+    """The path itself or its closest ancestor that exists (what ``mkdir -p`` starts from)."""
+    p = path.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _folder_problem(folder: Path) -> str | None:
+    """Why files cannot be created in ``folder`` (created if missing), or None.
+
+    Probes by creating and removing a file: permission bits say nothing for root, nor
+    for read-only mounts, ACLs or pseudo file systems."""
+    base = _nearest_existing(folder)
+    if not base.is_dir():
+        return f"{base} is a file, not a folder"
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".evmotion-probe-", dir=base)
+    except OSError as exc:
+        return f"cannot write in {base} ({exc.strerror or exc})"
+    os.close(fd)
+    os.unlink(probe)
+    return None
+
+
+def _output_problem(path: Path, suffixes: Iterable[str] | None, what: str = ""
+                    ) -> str | None:
+    if suffixes is not None:
+        suffixes = tuple(suffixes)
+        if path.suffix.lower() not in suffixes:
+            return f"{what or 'the name'} must end in {', '.join(suffixes)}"
+    if path.is_dir():
+        return f"{path} is a folder, not a file"
+    if path.exists() and not os.access(path, os.W_OK):
+        return f"{path} exists and cannot be overwritten (permission denied)"
+    return _folder_problem(path.parent)
+
+
+def writable_output(suffixes: Iterable[str] | None = None, what: str = ""
+                    ) -> Callable[[str], str]:
+    """``type=`` for an output file: the name ends in one of ``suffixes`` (when given;
+    ``what`` names the kind of file in the message), it is not a folder, and its folder
+    exists or can be made, and can be written.
+
+    Examples
+    --------
+    >>> writable_output((".png",))("/tmp/evmotion-doc.png")
+    '/tmp/evmotion-doc.png'
+    """
+
+    def parse(text: str) -> str:
+        problem = _output_problem(Path(text), suffixes, what)
+        if problem:
+            raise argparse.ArgumentTypeError(f"cannot write {text!r}: {problem}")
+        return text
+
+    parse.__name__ = "output"
+    return parse
+
+
+def writable_folder(text: str) -> str:
+    """``type=`` for an output folder: an existing folder or one that can be made, in
+    which files can be created."""
+    p = Path(text)
+    if p.exists() and not p.is_dir():
+        raise argparse.ArgumentTypeError(f"cannot write into {text!r}: it is a file")
+    problem = _folder_problem(p)
+    if problem:
+        raise argparse.ArgumentTypeError(f"cannot write into {text!r}: {problem}")
+    return text
+
+
+def check_output(path: str | os.PathLike, option: str,
+                 suffixes: Iterable[str] | None = None) -> None:
+    """:func:`writable_output` for a path known only at run time; raises ParameterError."""
+    problem = _output_problem(Path(path), suffixes)
+    if problem:
+        raise ParameterError(f"{option} {os.fspath(path)}: cannot write: {problem}")
+
+
+def format_bytes(n: float) -> str:
+    """``1536`` -> ``'1.5 KiB'``."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(n) < 1024 or unit == "PiB":
+            return f"{n:.3g} {unit}" if unit != "B" else f"{int(n)} B"
+        n /= 1024
+    return f"{n:.3g} EiB"  # pragma: no cover - the loop returns at PiB
+
+
+def check_free_space(path: str | os.PathLike, nbytes: int, option: str, what: str = "") -> None:
+    """Raise ParameterError when the file system of ``path`` has less than ``nbytes`` free.
+
+    ``nbytes`` is a lower bound of what the output needs, so a refusal is certain to be
+    right; call it before the work starts."""
+    base = _nearest_existing(Path(path).parent)
+    free = shutil.disk_usage(base).free
+    if nbytes > free:
+        raise ParameterError(f"{option} {os.fspath(path)}: {what or 'the output'} needs at "
+                             f"least {format_bytes(nbytes)} but {base} has "
+                             f"{format_bytes(free)} free")
+
+
+def reject_unused(args: argparse.Namespace, options: dict[str, str], reason: str) -> None:
+    """Raise ParameterError if any of ``options`` (``{"--flag": "attribute"}``) was given.
+
+    Options whose default is None (or False for switches) count as given when set; use it
+    for options that do not apply to the chosen method, so that they are not silently
+    ignored.
+
+    Examples
+    --------
+    >>> ns = argparse.Namespace(time_aware="burgers")
+    >>> reject_unused(ns, {"--time-aware": "time_aware"}, "with --method triplet")
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.ParameterError: --time-aware 'burgers' does not apply with --method triplet
+    """
+    for flag, attr in options.items():
+        value = getattr(args, attr, None)
+        if value is not None and value is not False:
+            shown = "" if value is True else f" {value!r}"
+            raise ParameterError(f"{flag}{shown} does not apply {reason}")
