@@ -7,9 +7,9 @@ heavy dependencies inside ``run`` so that ``evmotion --help`` stays fast.
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import json
+# Only what main() needs to take over Ctrl-C is imported here: the rest (argparse, json,
+# the commands) after its handler is in place, so that an interrupt during those imports
+# too ends in one line.
 import os
 import signal
 import sys
@@ -37,7 +37,11 @@ EPILOG = """examples:
 """
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser():
+    """The ``evmotion`` parser (an :class:`argparse.ArgumentParser`) with every command."""
+    import argparse
+    import importlib
+
     from evmotion.cli.options import Parser
 
     parser = Parser(
@@ -63,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def print_json(obj) -> None:
     """Machine-readable summary on stdout (numpy scalars and arrays converted)."""
+    import json
+
     import numpy as np
 
     def default(o):
@@ -101,6 +107,14 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
+def _flush_std() -> None:
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe (``evmotion ... | head``)
+            pass
+
+
 def _interrupted(*_) -> None:
     """Ctrl-C in the command-line process: one line, exit code 130, nothing else.
 
@@ -108,11 +122,7 @@ def _interrupted(*_) -> None:
     ``--resume`` by their ``finally`` blocks), so that no interpreter-shutdown hook
     (thread joins, pool shutdown, ``__del__``) can print "Exception ignored ..."."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):
-            pass
+    _flush_std()
     try:
         os.write(2, b"evmotion: interrupted\n")
     finally:
@@ -125,6 +135,7 @@ def _on_sigint(signum, frame) -> None:
     if os.getpid() != _MAIN_PID[0]:
         return  # a forked worker: its parent ends it
     signal.signal(signal.SIGINT, _interrupted)
+    _INTERRUPTED[0] = True
     mp = sys.modules.get("multiprocessing")
     if mp is not None:
         for child in mp.active_children():
@@ -133,6 +144,7 @@ def _on_sigint(signum, frame) -> None:
 
 
 _MAIN_PID = [0]
+_INTERRUPTED = [False]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -152,11 +164,19 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _on_sigint)
     try:
         rc = _build_and_run(None)
-    except KeyboardInterrupt:
-        _interrupted()
-    # the work is done; Ctrl-C during interpreter shutdown must not print a traceback
+    except BaseException:
+        # C extensions may turn the KeyboardInterrupt into their own error (numpy's
+        # import into an ImportError): after a Ctrl-C, any exception is the interrupt
+        if _INTERRUPTED[0]:
+            _interrupted()
+        raise
+    # The work is done and every output closed and renamed. Leave now rather than through
+    # the interpreter's teardown: a Ctrl-C there (thread joins, pool and h5py shutdown,
+    # after the signal handlers are reset) prints "Exception ignored ..." or kills the
+    # process without a word.
     signal.signal(signal.SIGINT, _interrupted)
-    return rc
+    _flush_std()
+    os._exit(rc)
 
 
 if __name__ == "__main__":

@@ -101,50 +101,94 @@ def run(args) -> int:
     return mod.run(args)
 
 
-def open_h5_output(out, sensor_size, attrs: dict, *, resume: bool, with_valid: bool = False):
-    """The :class:`~evmotion.io.flowfiles.FlowWriter` of an ``.h5`` output; with ``resume``
-    it continues ``OUT.part`` (or a finished OUT) after checking that it was made with the
-    same ``attrs`` (method, options, source).
+class H5Output:
+    """An ``.h5`` flow output written window by window to ``OUT.part``
+    (:class:`~evmotion.io.flowfiles.FlowWriter`), resumable.
 
-    Returns
-    -------
-    writer : FlowWriter
-    done : list of (int, int)
-        ``(t0, t1)`` µs of the windows already in the file (empty unless resuming).
+    With ``resume`` it continues ``OUT.part`` (or a finished OUT) after checking that it
+    was made with the same ``attrs`` (method, options, source); :attr:`done` lists the
+    ``(t0, t1)`` µs of the windows it already holds, which the run must delimit again
+    (:meth:`check_done`) but not recompute. :meth:`abort` keeps the ``.part`` file for
+    a later ``--resume`` (and puts back a finished OUT it had reopened).
     """
-    import numpy as np
 
-    from evmotion.io.flowfiles import FlowWriter
+    def __init__(self, out, sensor_size, attrs: dict, *, resume: bool,
+                 with_valid: bool = False):
+        from pathlib import Path
 
-    if not resume:
-        return FlowWriter(out, sensor_size, with_valid=with_valid, attrs=attrs), []
-    fw = FlowWriter(out, sensor_size, with_valid=with_valid, resume=True)
-    old = dict(fw.f.attrs)
-    for key, value in attrs.items():
-        if fw.n_done and key in old and not _same(old[key], value):
-            fw.abort()
-            raise ParameterError(f"--resume: {fw.part} was made with {key}={old[key]!r}, this "
-                                 f"run has {value!r}; repeat the options of the first run, or "
-                                 "leave out --resume to start again")
-        fw.f.attrs[key] = value
-    if fw.with_valid != with_valid:
-        fw.abort()
-        raise ParameterError(f"--resume: {fw.part} was written by another method's output "
-                             "layout; leave out --resume to start again")
-    done = list(zip(np.asarray(fw.done_t0).tolist(),
-                    np.asarray(fw.f["t1"][: fw.n_done]).tolist(), strict=True))
-    return fw, done
+        import numpy as np
+
+        from evmotion.io.flowfiles import FlowWriter
+
+        self.out = Path(out)
+        self.part = self.out.with_name(self.out.name + ".part")  # FlowWriter's own name
+        self.reopened_final = resume and self.out.exists() and not self.part.exists()
+        self.done: list[tuple[int, int]] = []
+        if not resume:
+            self.w = FlowWriter(out, sensor_size, with_valid=with_valid, attrs=attrs)
+            return
+        self.w = FlowWriter(out, sensor_size, with_valid=with_valid, resume=True)
+        old = dict(self.w.f.attrs)
+        for key, value in attrs.items():
+            if self.w.n_done and key in old and not _same(old[key], value):
+                self.abort()
+                raise ParameterError(f"--resume: {self.part} was made with {key}="
+                                     f"{_shown(old[key])!r}, this run has {value!r}; repeat the "
+                                     "options of the first run, or leave out --resume to "
+                                     "start again")
+            self.w.f.attrs[key] = value
+        if self.w.with_valid != with_valid:
+            self.abort()
+            raise ParameterError(f"--resume: {self.part} has another layout (valid masks: "
+                                 f"{self.w.with_valid}); leave out --resume to start again")
+        t1 = np.asarray(self.w.f["t1"][: self.w.n_done])
+        self.done = list(zip(np.asarray(self.w.done_t0).tolist(), t1.tolist(), strict=True))
+
+    def stored_flow(self, index: int):
+        """Flow (H, W, 2) float32 px/s of a window already in the file, as written."""
+        import numpy as np
+
+        return np.asarray(self.w.f["flow"][index])
+
+    def check_done(self, index: int, t0: int, t1: int) -> None:
+        """Raise ParameterError if window ``index`` of this run is not the ``index``-th
+        window of the resumed file (other windowing options, or another recording)."""
+        if index >= len(self.done):
+            self.abort()
+            raise ParameterError(f"--resume: this run skipped window {index}, which "
+                                 f"{self.part} does not hold")
+        if (int(t0), int(t1)) != tuple(self.done[index]):
+            self.abort()
+            a, b = self.done[index]
+            raise ParameterError(f"--resume: window {index} of {self.part} is [{a}, {b}) µs but "
+                                 f"this run makes [{t0}, {t1}) µs; repeat the windowing options "
+                                 "of the first run, or leave out --resume to start again")
+
+    def check_count(self, n_windows: int) -> None:
+        """The run made ``n_windows``: the resumed file must not hold more."""
+        if len(self.done) > n_windows:
+            self.abort()
+            raise ParameterError(f"--resume: {self.part} holds {len(self.done)} windows, this "
+                                 f"run makes {n_windows}; repeat the options of the first run, "
+                                 "or leave out --resume to start again")
+
+    def append(self, flow, t0: int, t1: int, valid=None) -> None:
+        self.w.append(flow, t0, t1, valid=valid)
+
+    def close(self) -> None:
+        self.w.close()
+
+    def abort(self) -> None:
+        import os
+
+        self.w.abort()
+        if self.reopened_final and self.part.exists():
+            os.replace(self.part, self.out)
+            self.reopened_final = False
 
 
-def check_resumed(fw, done, index: int, t0: int, t1: int) -> None:
-    """Raise ParameterError if window ``index`` of this run is not the ``index``-th window
-    of the resumed file (other windowing options, or another recording)."""
-    if (int(t0), int(t1)) != tuple(done[index]):
-        fw.abort()
-        a, b = done[index]
-        raise ParameterError(f"--resume: window {index} of {fw.part} is [{a}, {b}) µs but this "
-                             f"run makes [{t0}, {t1}) µs; repeat the windowing options of the "
-                             "first run, or leave out --resume to start again")
+def _shown(value):
+    return value.item() if hasattr(value, "item") else value
 
 
 def _same(a, b) -> bool:
@@ -156,4 +200,3 @@ def _same(a, b) -> bool:
         return bool(np.array_equal(np.asarray(a), np.asarray(b)))
     except (TypeError, ValueError):
         return str(a) == str(b)
-

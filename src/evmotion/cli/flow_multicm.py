@@ -125,16 +125,14 @@ class _Output:
     all windows are done (kept in memory until then)."""
 
     def __init__(self, out: Path, sensor_size, attrs: dict, resume: bool):
-        from evmotion.cli.flow import open_h5_output
+        from evmotion.cli.flow import H5Output
 
         self.out, self.kind = out, out.suffix.lower()
-        self.fw, self.done = None, []
+        self.fw = None
         if self.kind in (".h5", ".hdf5"):
-            self.fw, self.done = open_h5_output(out, sensor_size, attrs, resume=resume)
+            self.fw = H5Output(out, sensor_size, attrs, resume=resume)
+        self.done = [] if self.fw is None else self.fw.done
         self.flows, self.spans = [], []
-
-    def stored_flow(self, i: int) -> np.ndarray:
-        return np.asarray(self.fw.f["flow"][i])
 
     def add(self, flow, w) -> None:
         if self.fw is not None:
@@ -258,20 +256,16 @@ def _run_sequential(args, events, windows, kwargs, attrs, png_dir, estimate_flow
     """Windows in order, each warm-started from the previous one; with ``--resume`` the
     windows already in the ``.part`` file are taken from it (the last one as warm start,
     as stored: float32, exactly the flow that was written)."""
-    from evmotion.cli.flow import check_resumed
-
     sink = _Output(Path(args.out), events.sensor_size, attrs, resume=args.resume)
     rows, init = [], None
     try:
-        if len(sink.done) > len(windows):
-            raise ParameterError(f"--resume: {sink.fw.part} holds {len(sink.done)} windows, "
-                                 f"this run makes {len(windows)}; repeat the options of the "
-                                 "first run, or leave out --resume to start again")
+        if sink.fw is not None:
+            sink.fw.check_count(len(windows))
         for i, w in enumerate(progress(windows, total=len(windows), desc="multicm")):
             if i < len(sink.done):
-                check_resumed(sink.fw, sink.done, i, w.t0, w.t1)
+                sink.fw.check_done(i, w.t0, w.t1)
                 if i == len(sink.done) - 1:
-                    init = sink.stored_flow(i)
+                    init = sink.fw.stored_flow(i)
                 rows.append({"t0_us": w.t0, "t1_us": w.t1, "resumed": True})
                 continue
             res = estimate_flow(events.window(w), init=init, **kwargs)

@@ -202,10 +202,8 @@ def run(args) -> int:
             n_windows += emit_all(windows.add(b, burst_matcher.process(b)))
         if windows is not None:
             n_windows += emit_all(windows.finish())
-        if kind in (".h5", ".hdf5") and len(sink.done) > n_windows:
-            raise ParameterError(f"--resume: {sink.w.part} holds {len(sink.done)} windows, "
-                                 f"this run makes {n_windows}; repeat the options of the "
-                                 "first run, or leave out --resume to start again")
+        if kind in (".h5", ".hdf5"):
+            sink.w.check_count(n_windows)
         sink.close()
     except BaseException:
         sink.abort()
@@ -434,18 +432,14 @@ class _H5Sink:
     """Dense windows appended through :class:`evmotion.io.flowfiles.FlowWriter`."""
 
     def __init__(self, out: Path, sensor, attrs: dict, resume: bool = False):
-        from evmotion.cli.flow import open_h5_output
+        from evmotion.cli.flow import H5Output
 
-        self.w, self.done = open_h5_output(out, sensor, attrs, resume=resume, with_valid=True)
+        self.w = H5Output(out, sensor, attrs, resume=resume, with_valid=True)
+        self.done = self.w.done
 
     def check_done(self, win):
         """A window of the resumed file: it must be the one this run delimits."""
-        from evmotion.cli.flow import check_resumed
-
-        if win.index >= len(self.done):
-            raise ParameterError(f"--resume: this run skipped window {win.index}, which "
-                                 f"{self.w.part} does not hold")
-        check_resumed(self.w, self.done, win.index, win.t0, win.t1)
+        self.w.check_done(win.index, win.t0, win.t1)
 
     def add_window(self, win):
         self.w.append(win.flow, win.t0, win.t1, valid=win.mask)
