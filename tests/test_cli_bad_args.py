@@ -1,0 +1,434 @@
+"""Every bad command-line argument ends in exit code 2 and one line on stderr that names the
+option and the value, before any work; outputs are checked before the work; Ctrl-C exits
+with 130 and one line; ``flow --resume`` continues a kept ``.part`` file to the output an
+uninterrupted run writes."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from evmotion.cli import build_parser, main
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory):
+    """A small simulated recording, its ground truth, and a folder for outputs."""
+    d = tmp_path_factory.mktemp("bad_args")
+    path = d / "sim.h5"
+    assert main(["simulate", "translation", "--size", "40x50", "--duration", "0.05",
+                 "--out", str(path)]) == 0
+    (d / "afile").write_text("not a folder")
+    (d / "adir.h5").mkdir()
+    return {"rec": str(path), "gt": str(d / "sim_gt.h5"), "dir": d}
+
+
+def _run(argv, capsys):
+    rc = main(argv)
+    err = capsys.readouterr().err
+    return rc, err
+
+
+def _assert_one_line(rc, err, *needles):
+    assert rc == 2, err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+
+
+# ------------------------------------------------------- every numeric option, every command
+def _base_argv(command: str, r) -> list[str]:
+    d = r["dir"]
+    return {
+        "info": ["info", r["rec"]],
+        "convert": ["convert", r["rec"], str(d / "c.h5")],
+        "simulate": ["simulate", "translation", "--out", str(d / "s.h5")],
+        "view": ["view", r["rec"], "--out", str(d / "v.png")],
+        "egomotion": ["egomotion", r["rec"], "--warp", "translation", "--window-us", "10000",
+                      "--out", str(d / "e")],
+        "landscape": ["landscape", r["rec"], "--warp", "translation", "--range", "-1", "1",
+                      "--out", str(d / "l.png")],
+        "segment": ["segment", r["rec"], "--warp", "translation", "--out", str(d / "sg")],
+        "flow": ["flow", r["rec"], "--out", str(d / "f.h5")],
+        "eval": ["eval", r["rec"], "--gt", r["gt"]],
+    }[command]
+
+
+def _numeric_options():
+    """(command, option, nargs) of every option whose value is a number or numbers."""
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    out = []
+    for command, p in sub.choices.items():
+        for a in p._actions:
+            name = getattr(a.type, "__name__", "")
+            if a.option_strings and name in ("number", "integer", "list", "parse_size"):
+                out.append((command, a.option_strings[0], a.nargs or 1))
+    return out
+
+
+def test_no_option_takes_a_bare_int_or_float():
+    """A bare ``type=int`` / ``type=float`` lets NaN, inf, 0 and negatives through."""
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    bare = [(c, a.option_strings or a.dest) for c, p in sub.choices.items()
+            for a in p._actions if a.type in (int, float)]
+    assert not bare
+    assert len(_numeric_options()) >= 60
+
+
+@pytest.mark.parametrize("command,option,nargs", _numeric_options())
+@pytest.mark.parametrize("bad", ["nan", "inf", "abc", "1e999"])
+def test_every_numeric_option_rejects(rec, capsys, command, option, nargs, bad):
+    rc, err = _run(_base_argv(command, rec) + [option, *[bad] * int(nargs)], capsys)
+    _assert_one_line(rc, err, option, repr(bad))
+
+
+# ---------------------------------------------------------------- the issue's table, and more
+CASES = [
+    # (id, argv after substitution, needles)
+    ("flow-triplet-dt-nan", ["flow", "{rec}", "--method", "triplet", "--dt-ms", "nan",
+                             "--out", "{dir}/f.h5"], ["--dt-ms", "'nan'", "ms"]),
+    ("flow-triplet-dt-zero", ["flow", "{rec}", "--method", "triplet", "--dt-ms", "0",
+                              "--out", "{dir}/f.h5"], ["--dt-ms", "'0'", "> 0 ms"]),
+    ("ego-weight-nan", ["egomotion", "{rec}", "--warp", "translation", "--reg", "divergence",
+                        "--weight", "nan", "--window-us", "10000", "--out", "{dir}/e"],
+     ["--weight", "'nan'"]),
+    ("ego-weight-neg", ["egomotion", "{rec}", "--warp", "translation", "--reg", "divergence",
+                        "--weight", "-1", "--window-us", "10000", "--out", "{dir}/e"],
+     ["--weight", "'-1'"]),
+    ("ego-weight-without-reg", ["egomotion", "{rec}", "--warp", "translation", "--weight",
+                                "0.5", "--window-us", "10000", "--out", "{dir}/e"],
+     ["--weight", "0.5", "--reg"]),
+    ("ego-window-us-zero", ["egomotion", "{rec}", "--warp", "translation", "--window-us", "0",
+                            "--out", "{dir}/e"], ["--window-us", "'0'", "µs"]),
+    ("ego-window-events-small", ["egomotion", "{rec}", "--warp", "translation",
+                                 "--window-events", "5", "--out", "{dir}/e"],
+     ["--window-events", "'5'"]),
+    ("ego-workers-zero", ["egomotion", "{rec}", "--warp", "translation", "--window-us",
+                          "10000", "--workers", "0", "--out", "{dir}/e"], ["--workers", "'0'"]),
+    ("ego-warm-start-workers", ["egomotion", "{rec}", "--warp", "translation", "--window-us",
+                                "10000", "--workers", "2", "--warm-start", "--out", "{dir}/e"],
+     ["--warm-start", "--workers 2"]),
+    ("ego-seed-bfgs", ["egomotion", "{rec}", "--warp", "translation", "--window-us", "10000",
+                       "--seed", "3", "--out", "{dir}/e"], ["--seed", "3", "bfgs"]),
+    ("flow-window-us-zero", ["flow", "{rec}", "--window-us", "0", "--out", "{dir}/f.h5"],
+     ["--window-us", "'0'"]),
+    ("flow-window-events-neg", ["flow", "{rec}", "--window-events", "-3", "--out",
+                                "{dir}/f.h5"], ["--window-events", "'-3'"]),
+    ("flow-lambda-nan", ["flow", "{rec}", "--lambda", "nan", "--out", "{dir}/f.h5"],
+     ["--lambda", "'nan'"]),
+    ("flow-workers-zero", ["flow", "{rec}", "--workers", "0", "--out", "{dir}/f.h5"],
+     ["--workers", "'0'"]),
+    ("flow-scales-6", ["flow", "{rec}", "--scales", "6", "--out", "{dir}/f.h5"],
+     ["--scales", "'6'", "[1, 5]"]),
+    ("flow-time-aware-triplet", ["flow", "{rec}", "--method", "triplet", "--time-aware",
+                                 "burgers", "--out", "{dir}/f.h5"],
+     ["--time-aware", "'burgers'", "triplet"]),
+    ("flow-workers-triplet", ["flow", "{rec}", "--method", "triplet", "--workers", "2",
+                              "--out", "{dir}/f.h5"], ["--workers", "2", "triplet"]),
+    ("flow-dense-multicm", ["flow", "{rec}", "--dense", "robust", "--out", "{dir}/f.h5"],
+     ["--dense", "'robust'", "multicm"]),
+    ("flow-dt-ms-multicm", ["flow", "{rec}", "--dt-ms", "50", "--out", "{dir}/f.h5"],
+     ["--dt-ms", "50", "multicm"]),
+    ("flow-gap-ms-mean", ["flow", "{rec}", "--method", "triplet", "--gap-ms", "2",
+                          "--out", "{dir}/f.h5"], ["--gap-ms", "2", "mean"]),
+    ("flow-ridge-mean", ["flow", "{rec}", "--method", "triplet", "--ridge", "0.1",
+                         "--out", "{dir}/f.h5"], ["--ridge", "0.1", "mean"]),
+    ("flow-filter-even", ["flow", "{rec}", "--method", "triplet", "--filter-size", "4",
+                          "--out", "{dir}/f.h5"], ["--filter-size", "4", "odd"]),
+    ("flow-depth-big", ["flow", "{rec}", "--method", "triplet", "--depth", "100000",
+                        "--out", "{dir}/f.h5"], ["--depth", "'100000'"]),
+    ("flow-bins-npz", ["flow", "{rec}", "--method", "triplet", "--bins", "2",
+                       "--out", "{dir}/f.npz"], ["--bins", "2", ".npz"]),
+    ("flow-time-bins-alone", ["flow", "{rec}", "--time-bins", "3", "--out", "{dir}/f.h5"],
+     ["--time-bins", "3", "--time-aware"]),
+    ("flow-gt-dt-alone", ["flow", "{rec}", "--gt-dt", "2", "--out", "{dir}/f.h5"],
+     ["--gt-dt", "2", "--window-gt"]),
+    ("flow-resume-npy", ["flow", "{rec}", "--resume", "--out", "{dir}/f.npy"],
+     ["--resume", "f.npy"]),
+    ("flow-resume-workers", ["flow", "{rec}", "--resume", "--workers", "2",
+                             "--out", "{dir}/f.h5"], ["--resume", "--workers 1"]),
+    ("flow-npz-multicm", ["flow", "{rec}", "--out", "{dir}/f.npz"], ["--out", "f.npz"]),
+    ("flow-out-txt", ["flow", "{rec}", "--out", "{dir}/f.txt"], ["--out", "f.txt", ".h5"]),
+    ("flow-out-is-folder", ["flow", "{rec}", "--out", "{dir}/adir.h5"],
+     ["--out", "adir.h5", "is a folder"]),
+    ("flow-window-gt-missing", ["flow", "{rec}", "--window-gt", "{dir}/nope.h5",
+                                "--out", "{dir}/f.h5"], ["--window-gt", "nope.h5"]),
+    ("segment-window-us-zero", ["segment", "{rec}", "--warp", "translation", "--window-us",
+                                "0", "--out", "{dir}/sg"], ["--window-us", "'0'"]),
+    ("segment-warps-zero", ["segment", "{rec}", "--warp", "translation", "--warps", "0",
+                            "--out", "{dir}/sg"], ["--warps", "'0'"]),
+    ("eval-dt-zero", ["eval", "{rec}", "--gt", "{gt}", "--dt", "0"], ["--dt", "'0'"]),
+    ("eval-out-px-nan", ["eval", "{rec}", "--gt", "{gt}", "--out-px", "nan"],
+     ["--out-px", "'nan'", "px"]),
+    ("eval-events-as-flow", ["eval", "{rec}", "--gt", "{gt}"],
+     ["sim.h5", "not an evmotion flow file"]),
+    ("eval-gt-as-flow", ["eval", "{gt}", "--gt", "{gt}"], ["sim_gt.h5", "ground truth"]),
+    ("eval-gt-missing", ["eval", "{rec}", "--gt", "{dir}/nope.npz"], ["--gt", "nope.npz"]),
+    ("view-scale-huge", ["view", "{rec}", "--scale", "100000", "--out", "{dir}/v.png"],
+     ["--scale 100000", "5,000,000 x 4,000,000 px", "TiB", "limit"]),
+    ("view-scale-zero", ["view", "{rec}", "--scale", "0", "--out", "{dir}/v.png"],
+     ["--scale", "'0'"]),
+    ("view-percentile-0", ["view", "{rec}", "--percentile", "0", "--out", "{dir}/v.png"],
+     ["--percentile", "'0'"]),
+    ("view-t1-before-t0", ["view", "{rec}", "--t0", "50", "--t1", "10", "--out",
+                           "{dir}/v.png"], ["--t1", "--t0"]),
+    ("view-out-jpg", ["view", "{rec}", "--out", "{dir}/v.jpg"], ["--out", "v.jpg", ".png"]),
+    ("landscape-theta-text", ["landscape", "{rec}", "--warp", "translation", "--range", "-1",
+                              "1", "--theta", "a,b", "--out", "{dir}/l.png"],
+     ["--theta", "'a,b'"]),
+    ("landscape-theta-length", ["landscape", "{rec}", "--warp", "translation", "--range",
+                                "-1", "1", "--theta", "1,2,3", "--out", "{dir}/l.png"],
+     ["--theta", "1,2,3", "needs 2 values"]),
+    ("landscape-range-reversed", ["landscape", "{rec}", "--warp", "translation", "--range",
+                                  "1", "-1", "--out", "{dir}/l.png"], ["--range", "1 -1"]),
+    ("landscape-steps-1", ["landscape", "{rec}", "--warp", "translation", "--range", "-1",
+                           "1", "--steps", "1", "--out", "{dir}/l.png"], ["--steps", "'1'"]),
+    ("simulate-duration-inf", ["simulate", "rotation", "--duration", "inf", "--out",
+                               "{dir}/s.h5"], ["--duration", "'inf'", "s"]),
+    ("simulate-size-huge", ["simulate", "rotation", "--size", "1x100000", "--out",
+                            "{dir}/s.h5"], ["--size", "'1x100000'"]),
+    ("simulate-size-text", ["simulate", "rotation", "--size", "big", "--out", "{dir}/s.h5"],
+     ["--size", "'big'"]),
+    ("simulate-params-nan", ["simulate", "translation", "--params", "vx=nan", "--out",
+                             "{dir}/s.h5"], ["--params", "vx", "'nan'"]),
+    ("simulate-frame-rate-zero", ["simulate", "rotation", "--frame-rate", "0", "--out",
+                                  "{dir}/s.h5"], ["--frame-rate", "'0'", "Hz"]),
+    ("convert-t1-before-t0", ["convert", "{rec}", "{dir}/c.h5", "--t0", "9", "--t1", "3"],
+     ["--t1 3", "--t0 9"]),
+    ("convert-chunk-zero", ["convert", "{rec}", "{dir}/c.h5", "--chunk-events", "0"],
+     ["--chunk-events", "'0'"]),
+    ("info-sensor-size-neg", ["info", "{rec}", "--sensor-size", "-1", "5"],
+     ["--sensor-size", "'-1'"]),
+    ("unknown-option", ["flow", "{rec}", "--out", "{dir}/f.h5", "--bogus", "1"],
+     ["--bogus"]),
+]
+
+
+@pytest.mark.parametrize("argv,needles", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_bad_invocation_is_one_line(rec, capsys, argv, needles):
+    subst = {"rec": rec["rec"], "gt": rec["gt"], "dir": str(rec["dir"])}
+    rc, err = _run([a.format(**subst) for a in argv], capsys)
+    _assert_one_line(rc, err, *needles)
+
+
+# ------------------------------------------------------------------------------- outputs
+def _output_argv(command: str, r, out: str) -> list[str]:
+    """Each command with its output (file or folder) at ``out``."""
+    return {
+        "convert": ["convert", r["rec"], out + ".h5"],
+        "simulate": ["simulate", "translation", "--out", out + ".h5"],
+        "view": ["view", r["rec"], "--out", out + ".png"],
+        "egomotion": ["egomotion", r["rec"], "--warp", "translation", "--window-us", "10000",
+                      "--out", out],
+        "landscape": ["landscape", r["rec"], "--warp", "translation", "--range", "-1", "1",
+                      "--out", out + ".png"],
+        "landscape-csv": ["landscape", r["rec"], "--warp", "translation", "--range", "-1", "1",
+                          "--out", str(r["dir"] / "l.png"), "--csv", out + ".csv"],
+        "segment": ["segment", r["rec"], "--warp", "translation", "--out", out],
+        "flow": ["flow", r["rec"], "--out", out + ".h5"],
+        "flow-png-dir": ["flow", r["rec"], "--out", str(r["dir"] / "f.h5"), "--png-dir", out],
+    }[command]
+
+
+OUTPUT_COMMANDS = ["convert", "simulate", "view", "egomotion", "landscape", "landscape-csv",
+                   "segment", "flow", "flow-png-dir"]
+
+
+@pytest.mark.parametrize("command", OUTPUT_COMMANDS)
+def test_output_under_a_file(rec, capsys, command):
+    out = str(rec["dir"] / "afile" / "sub" / "o")
+    rc, err = _run(_output_argv(command, rec, out), capsys)
+    _assert_one_line(rc, err, "afile", "is a file, not a folder")
+
+
+@pytest.mark.parametrize("command", OUTPUT_COMMANDS)
+def test_output_folder_not_writable(rec, capsys, monkeypatch, tmp_path, command):
+    """A folder where files cannot be created (simulated: the tests run as root, for whom
+    permission bits do not apply): refused before the work, naming the folder."""
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    real = tempfile.mkstemp
+
+    def mkstemp(*args, dir=None, **kw):
+        if dir is not None and Path(dir).resolve() == locked.resolve():
+            raise PermissionError(13, "Permission denied", str(dir))
+        return real(*args, dir=dir, **kw)
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+    rc, err = _run(_output_argv(command, rec, str(locked / "o")), capsys)
+    _assert_one_line(rc, err, "locked", "Permission denied")
+    assert not list(locked.iterdir())
+
+
+def test_output_on_a_read_only_file_system(rec, capsys):
+    """A real refusal from the kernel, even for root: /sys is read-only."""
+    probe = Path("/sys/evmotion-probe")
+    if not Path("/sys").is_dir() or os.access("/sys", os.W_OK) and _can_create(Path("/sys")):
+        pytest.skip("no read-only /sys on this machine")
+    assert not probe.exists()
+    rc, err = _run(["view", rec["rec"], "--out", str(probe / "v.png")], capsys)
+    _assert_one_line(rc, err, "--out", "cannot write in /sys")
+
+
+def _can_create(folder: Path) -> bool:
+    try:
+        fd, p = tempfile.mkstemp(dir=folder)
+    except OSError:
+        return False
+    os.close(fd)
+    os.unlink(p)
+    return True
+
+
+def test_free_space_is_checked_before_the_work(rec, capsys, monkeypatch):
+    import shutil
+
+    from evmotion.cli import flow_multicm
+
+    usage = shutil.disk_usage(rec["dir"])
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage._replace(free=1000))
+    called = []
+    monkeypatch.setattr(flow_multicm, "_run_sequential", lambda *a: called.append(1))
+    rc, err = _run(["flow", rec["rec"], "--window-events", "2000", "--out",
+                    str(rec["dir"] / "big.npy")], capsys)
+    _assert_one_line(rc, err, "--out", "big.npy", "needs at least", "1000 B free")
+    assert not called
+
+
+# ------------------------------------------------------------------------------- Ctrl-C
+def test_keyboard_interrupt_in_process_returns_130(rec, capsys, monkeypatch):
+    import evmotion.io as eio
+
+    def boom(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(eio, "describe", boom)
+    rc = main(["info", rec["rec"]])
+    assert rc == 130
+    assert capsys.readouterr().err == "evmotion: interrupted\n"
+
+
+def _popen(argv):
+    env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.Popen([sys.executable, "-m", "evmotion", *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_ctrl_c_at_any_moment_is_one_line(rec, workers):
+    """SIGINT to the whole process group (what a terminal does) during the imports, the
+    work and the end: exit 130 with one line, or (when the run had finished) 0 -- never a
+    traceback, an "Exception ignored" or a worker's traceback."""
+    argv = ["flow", rec["rec"], "--window-events", "1500", "--workers", workers,
+            "--out", str(rec["dir"] / f"ctrlc{workers}.npy")]
+    start = time.perf_counter()
+    p = _popen(argv)
+    out, err = p.communicate(timeout=300)
+    full = time.perf_counter() - start
+    assert p.returncode == 0, err
+    outcomes = []
+    for frac in (0.25, 0.6, 1.0):
+        p = _popen(argv)
+        time.sleep(full * frac)
+        try:
+            os.killpg(p.pid, signal.SIGINT)
+        except ProcessLookupError:
+            pass
+        out, err = p.communicate(timeout=300)
+        outcomes.append(p.returncode)
+        assert (p.returncode == 130 and err == "evmotion: interrupted\n") or \
+            (p.returncode == 0 and err == ""), (frac, p.returncode, err)
+    assert 130 in outcomes
+    left = [q.name for q in rec["dir"].iterdir() if ".part" in q.name or q.name.startswith(".")]
+    assert not left  # .npy is written whole or not at all
+
+
+# ------------------------------------------------------------------------------- --resume
+def _h5_equal(a: Path, b: Path) -> None:
+    with h5py.File(a) as fa, h5py.File(b) as fb:
+        assert set(fa) == set(fb)
+        for k in fa:
+            np.testing.assert_array_equal(fa[k][()], fb[k][()])
+
+
+@pytest.mark.parametrize("method,extra,target", [
+    ("triplet", ["--dense", "robust", "--window-us", "5000"],
+     "evmotion.methods.triplet.dense_robust_fit"),
+    ("triplet", ["--window-events", "800"], "evmotion.methods.triplet.dense_from_sums"),
+    ("multicm", ["--window-events", "600"], "evmotion.methods.multicm.estimate_flow"),
+])
+def test_interrupted_h5_resumes_to_the_uninterrupted_output(rec, tmp_path, capsys,
+                                                          monkeypatch, method, extra, target):
+    modname, fname = target.rsplit(".", 1)
+    mod = __import__(modname, fromlist=[fname])
+    real, calls, stop_at = getattr(mod, fname), [], [0]
+
+    def counted(*a, **k):
+        """The window's computation, counted; a Ctrl-C at call ``stop_at``."""
+        calls.append(1)
+        if len(calls) == stop_at[0]:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(mod, fname, counted)
+    base = ["flow", rec["rec"], "--method", method, *extra]
+    full = tmp_path / "full.h5"
+    assert main(base + ["--out", str(full)]) == 0
+    n_calls = len(calls)
+    assert n_calls >= 4
+    # Ctrl-C at the third window computed: the two finished stay in the .part file
+    calls.clear()
+    stop_at[0] = 3
+    out = tmp_path / "out.h5"
+    assert main(base + ["--out", str(out)]) == 130
+    assert capsys.readouterr().err == "evmotion: interrupted\n"
+    part = tmp_path / "out.h5.part"
+    assert part.exists() and not out.exists()
+    with h5py.File(part) as f:
+        assert 2 <= f["t1"].shape[0] < n_calls
+    # other windows: refused in one line, and the .part file is kept
+    i = next(k for k, a in enumerate(extra) if a.startswith("--window"))
+    other = extra[:i] + [extra[i], str(int(extra[i + 1]) + 100)] + extra[i + 2:]
+    rc, err = _run(["flow", rec["rec"], "--method", method, *other, "--out", str(out),
+                    "--resume"], capsys)
+    _assert_one_line(rc, err, "--resume")
+    assert part.exists()
+    # the same command with --resume computes only the missing windows, to the same file
+    calls.clear()
+    stop_at[0] = 0
+    assert main(base + ["--out", str(out), "--resume"]) == 0
+    assert not part.exists()
+    assert len(calls) == n_calls - 2
+    _h5_equal(full, out)
+
+
+def test_resume_a_finished_file_keeps_it(rec, tmp_path, capsys):
+    import shutil
+
+    out = tmp_path / "f.h5"
+    argv = ["flow", rec["rec"], "--method", "triplet", "--window-us", "5000"]
+    assert main(argv + ["--out", str(out)]) == 0
+    ref = tmp_path / "ref.h5"
+    shutil.copy(out, ref)
+    rc, err = _run(["flow", rec["rec"], "--method", "triplet", "--window-us", "4000",
+                    "--out", str(out), "--resume"], capsys)
+    _assert_one_line(rc, err, "--resume", "window_us=5000")
+    assert out.exists() and not (tmp_path / "f.h5.part").exists()
+    assert main(argv + ["--out", str(out), "--resume"]) == 0
+    _h5_equal(ref, out)
