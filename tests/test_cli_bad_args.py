@@ -178,6 +178,8 @@ CASES = [
     ("eval-events-as-flow", ["eval", "{rec}", "--gt", "{gt}"],
      ["sim.h5", "not an evmotion flow file"]),
     ("eval-gt-as-flow", ["eval", "{gt}", "--gt", "{gt}"], ["sim_gt.h5", "ground truth"]),
+    ("eval-t0-with-h5", ["eval", "{dir}/f.h5", "--gt", "{gt}", "--t0-us", "5"],
+     ["--t0-us", "5", "f.h5"]),
     ("eval-gt-missing", ["eval", "{rec}", "--gt", "{dir}/nope.npz"], ["--gt", "nope.npz"]),
     ("view-scale-huge", ["view", "{rec}", "--scale", "100000", "--out", "{dir}/v.png"],
      ["--scale 100000", "5,000,000 x 4,000,000 px", "TiB", "limit"]),

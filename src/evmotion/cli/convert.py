@@ -26,13 +26,16 @@ def add_parser(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", help="recording (file or ECD folder)")
-    p.add_argument("output", type=writable_output(), help="output file; its extension picks the format")
+    p.add_argument("output", type=writable_output(),
+                   help="output file; its extension picks the format")
     p.add_argument("--format-in", default=None, help="input format (default: detect)")
     p.add_argument("--format-out", default=None, help="output format (default: extension)")
-    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US", help="start, absolute µs")
+    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US",
+                   help="start, absolute µs")
     p.add_argument("--t1", type=int_range(0, unit="µs"), default=None, metavar="US",
                    help="end (exclusive), absolute µs")
-    p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None, metavar=("H", "W"),
+    p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,
+                   metavar=("H", "W"),
                    help="override the input sensor size (height width)")
     p.add_argument("--chunk-events", type=positive_int(), default=1_000_000,
                    help="events read and written at a time (1,000,000)")

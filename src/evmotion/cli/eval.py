@@ -19,7 +19,13 @@ import argparse
 
 import numpy as np
 
-from evmotion.cli.options import existing_input, int_range, positive_float, positive_int
+from evmotion.cli.options import (
+    existing_input,
+    int_range,
+    positive_float,
+    positive_int,
+    reject_unused,
+)
 from evmotion.errors import FormatError, ParameterError
 
 EXAMPLES = """examples:
@@ -33,14 +39,18 @@ def add_parser(sub) -> None:
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("flow", help="estimated flow (.h5, or .npy/.flo with --t0-us/--t1-us)")
-    p.add_argument("--gt", required=True, type=existing_input, help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
+    p.add_argument("--gt", required=True, type=existing_input,
+                   help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
     p.add_argument("--events", default=None, type=existing_input,
                    help="recording of the events: event mask and FWL")
     p.add_argument("--format", default=None, help="format of --events (default: detect)")
     p.add_argument("--dt", type=positive_int(), default=1, help="GT frames per window (1 or 4)")
-    p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None, help="window start for .npy/.flo")
-    p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None, help="window end for .npy/.flo")
-    p.add_argument("--out-px", type=positive_float(unit="px"), default=3.0, help="%%Out threshold in px (3)")
+    p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None,
+                   help="window start for .npy/.flo")
+    p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None,
+                   help="window end for .npy/.flo")
+    p.add_argument("--out-px", type=positive_float(unit="px"), default=3.0,
+                   help="%%Out threshold in px (3)")
     p.add_argument("--along-streamlines", action="store_true",
                    help="compare the displacement of the point at each pixel at the window "
                         "start: the window's flow (taken at its midpoint) transported to the "
@@ -60,6 +70,8 @@ def _load_flow(args):
     if Path(args.gt).resolve() == path.resolve():
         raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
     if suffix in (".h5", ".hdf5"):
+        reject_unused(args, {"--t0-us": "t0_us", "--t1-us": "t1_us"},
+                      f"to {path.name} (an .h5 flow file carries its windows' times)")
         _check_estimate(path)
         seq = read_flow_h5(path)
         return seq.flow, np.asarray(seq.t0), np.asarray(seq.t1)

@@ -28,7 +28,8 @@ def add_parser(sub) -> None:
     )
     p.add_argument("file", help="recording (file or ECD folder), any readable format")
     p.add_argument("--format", default=None, help="input format (default: detect by content)")
-    p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None, metavar=("H", "W"),
+    p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,
+                   metavar=("H", "W"),
                    help="override the sensor size (height width)")
     p.add_argument("--header-only", action="store_true",
                    help="report the header / layout only, without streaming the events")

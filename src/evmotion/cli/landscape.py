@@ -23,12 +23,14 @@ def add_parser(sub) -> None:
                    help="number of samples (default 101)")
     p.add_argument("--theta", default=None, type=float_list(),
                    help="comma-separated values of the other parameters (default identity)")
-    p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None, help="window start (µs, default first event)")
+    p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None,
+                   help="window start (µs, default first event)")
     p.add_argument("--window-events", type=int_range(10), default=30000,
                    help="events of the window from --t0-us (default 30000)")
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
                    help="output PNG")
-    p.add_argument("--csv", default=None, type=writable_output(), help="also write the curves as CSV")
+    p.add_argument("--csv", default=None, type=writable_output(),
+                   help="also write the curves as CSV")
     p.set_defaults(func=run)
 
 

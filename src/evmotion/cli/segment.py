@@ -20,13 +20,17 @@ def add_parser(sub) -> None:
     p = sub.add_parser("segment", help="motion segmentation with several warps (Sec. 3.6.6)",
                        description=__doc__)
     add_common(p)
-    p.add_argument("--warps", type=int_range(1, 64), default=2, help="number of motion clusters (default 2)")
-    p.add_argument("--iterations", type=positive_int(), default=10, help="EM iterations (default 10)")
+    p.add_argument("--warps", type=int_range(1, 64), default=2,
+                   help="number of motion clusters (default 2)")
+    p.add_argument("--iterations", type=positive_int(), default=10,
+                   help="EM iterations (default 10)")
     p.add_argument("--seed", type=int_range(0), default=0, help="seed of the initialization")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--window-events", type=int_range(10), help="events per window (default: 30000)")
-    g.add_argument("--window-us", type=positive_int(unit="µs"), help="window duration in microseconds")
-    p.add_argument("--max-windows", type=positive_int(), default=None, help="process at most N windows")
+    g.add_argument("--window-us", type=positive_int(unit="µs"),
+                   help="window duration in microseconds")
+    p.add_argument("--max-windows", type=positive_int(), default=None,
+                   help="process at most N windows")
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
     p.add_argument("--json", action="store_true", help="print per-window results as JSON")
     p.set_defaults(func=run)

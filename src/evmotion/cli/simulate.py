@@ -39,22 +39,29 @@ def add_parser(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scene", choices=sorted(SCENES), help="named scene (motion)")
-    p.add_argument("--out", required=True, type=writable_output(), help="events file; ground truth goes to <stem>_gt.h5")
+    p.add_argument("--out", required=True, type=writable_output(),
+                   help="events file; ground truth goes to <stem>_gt.h5")
     p.add_argument("--format", default=None, help="events format (default: from the extension)")
-    p.add_argument("--duration", type=positive_float(unit="s"), default=0.1, help="seconds (default 0.1)")
-    p.add_argument("--size", default="260x346", type=parse_size, help="HxW pixels (default 260x346, DAVIS346)")
+    p.add_argument("--duration", type=positive_float(unit="s"), default=0.1,
+                   help="seconds (default 0.1)")
+    p.add_argument("--size", default="260x346", type=parse_size,
+                   help="HxW pixels (default 260x346, DAVIS346)")
     p.add_argument("--seed", type=int_range(0), default=0)
     p.add_argument("--texture", default="dots", choices=["dots", "shapes", "noise", "checker"])
-    p.add_argument("--image", default=None, metavar="PATH", type=existing_input, help="image to use as texture")
-    p.add_argument("--threshold", type=positive_float(), default=0.2, help="contrast threshold C (log)")
+    p.add_argument("--image", default=None, metavar="PATH", type=existing_input,
+                   help="image to use as texture")
+    p.add_argument("--threshold", type=positive_float(), default=0.2,
+                   help="contrast threshold C (log)")
     p.add_argument("--mismatch", type=nonnegative_float(), default=0.03,
                    help="relative std of per-pixel thresholds")
     p.add_argument("--refractory-us", type=int_range(0, unit="µs"), default=0)
     p.add_argument("--noise-rate", type=nonnegative_float(unit="events/s"), default=0.0,
                    help="background activity, events/s per pixel")
     p.add_argument("--hot-pixels", type=int_range(0), default=0, help="number of hot pixels")
-    p.add_argument("--hot-rate", type=nonnegative_float(unit="events/s"), default=1000.0, help="events/s of a hot pixel")
-    p.add_argument("--frame-rate", type=positive_float(unit="Hz"), default=100.0, help="GT frame rate, Hz")
+    p.add_argument("--hot-rate", type=nonnegative_float(unit="events/s"), default=1000.0,
+                   help="events/s of a hot pixel")
+    p.add_argument("--frame-rate", type=positive_float(unit="Hz"), default=100.0,
+                   help="GT frame rate, Hz")
     p.add_argument("--params", action="append", default=[], metavar="KEY=VALUE",
                    help="motion parameter, repeatable (vector: comma-separated), or a JSON "
                         "object; see 'evmotion simulate --help' scenes and the docs of "
