@@ -134,7 +134,7 @@ def _on_sigint(signum, frame) -> None:
     a second one exits at once."""
     if os.getpid() != _MAIN_PID[0]:
         return  # a forked worker: its parent ends it
-    signal.signal(signal.SIGINT, _interrupted)
+    signal.signal(signal.SIGINT, _on_later_sigint)
     _INTERRUPTED[0] = True
     mp = sys.modules.get("multiprocessing")
     if mp is not None:
@@ -143,8 +143,37 @@ def _on_sigint(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
+def _on_later_sigint(signum, frame) -> None:
+    if _REDELIVER[0]:
+        _REDELIVER[0] = False
+        raise KeyboardInterrupt
+    _interrupted()
+
+
+def _unraisable(hook_args) -> None:
+    """A Ctrl-C whose KeyboardInterrupt was raised where Python ignores exceptions (a
+    weakref callback, ``__del__``): instead of "Exception ignored ..." and a run that
+    goes on, deliver it again, to land in the work and unwind it."""
+    if isinstance(hook_args.exc_value, KeyboardInterrupt) and os.getpid() == _MAIN_PID[0]:
+        import _thread  # the documented low-level API: starts without waiting here
+
+        _REDELIVER[0] = True
+        # from another thread, so that the handler runs once this callback has returned
+        _thread.start_new_thread(_signal_later, (os.getpid(),))
+        return
+    sys.__unraisablehook__(hook_args)
+
+
+def _signal_later(pid: int) -> None:
+    import time
+
+    time.sleep(0.001)
+    os.kill(pid, signal.SIGINT)
+
+
 _MAIN_PID = [0]
 _INTERRUPTED = [False]
+_REDELIVER = [False]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -162,6 +191,7 @@ def main(argv: list[str] | None = None) -> int:
             return 130
     _MAIN_PID[0] = os.getpid()
     signal.signal(signal.SIGINT, _on_sigint)
+    sys.unraisablehook = _unraisable
     try:
         rc = _build_and_run(None)
     except BaseException:
