@@ -166,6 +166,8 @@ CASES = [
     ("flow-out-txt", ["flow", "{rec}", "--out", "{dir}/f.txt"], ["--out", "f.txt", ".h5"]),
     ("flow-out-is-folder", ["flow", "{rec}", "--out", "{dir}/adir.h5"],
      ["--out", "adir.h5", "is a folder"]),
+    ("flow-triplet-gt-dt-big", ["flow", "{rec}", "--method", "triplet", "--window-gt", "{gt}",
+                                "--gt-dt", "1000", "--out", "{dir}/f.h5"], ["--gt-dt", "1000"]),
     ("flow-window-gt-missing", ["flow", "{rec}", "--window-gt", "{dir}/nope.h5",
                                 "--out", "{dir}/f.h5"], ["--window-gt", "nope.h5"]),
     ("segment-window-us-zero", ["segment", "{rec}", "--warp", "translation", "--window-us",
@@ -224,8 +226,10 @@ CASES = [
 @pytest.mark.parametrize("argv,needles", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
 def test_bad_invocation_is_one_line(rec, capsys, argv, needles):
     subst = {"rec": rec["rec"], "gt": rec["gt"], "dir": str(rec["dir"])}
+    before = sorted(rec["dir"].rglob("*"))
     rc, err = _run([a.format(**subst) for a in argv], capsys)
     _assert_one_line(rc, err, *needles)
+    assert sorted(rec["dir"].rglob("*")) == before  # nothing written, nothing left behind
 
 
 # ------------------------------------------------------------------------------- outputs

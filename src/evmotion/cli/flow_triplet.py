@@ -154,17 +154,17 @@ def run(args) -> int:
         params["window_us"] = args.window_us
     if args.window_events is not None:
         params["window_events"] = args.window_events
+    windows = _Windows(sensor, args.bins, args.window_us, args.window_events,
+                       int(first.t[0]), _gt_edges(args), filter_size=args.filter_size,
+                       dense=args.dense, ridge=args.ridge,
+                       vmax=max_normal_speed(matcher.dx, matcher.tau_us)) if dense else None
+    # the sinks come last: nothing that can refuse the options runs after one exists
     if kind in (".h5", ".hdf5"):
         sink = _H5Sink(out, sensor, {"method": "triplet", "source": str(args.file),
                                      **{f"triplet_{k}": v for k, v in params.items()}},
                        resume=args.resume)
-    windows = _Windows(sensor, args.bins, args.window_us, args.window_events,
-                       int(first.t[0]), _gt_edges(args), filter_size=args.filter_size,
-                       dense=args.dense, ridge=args.ridge,
-                       vmax=max_normal_speed(matcher.dx, matcher.tau_us),
-                       skip=len(sink.done) if kind in (".h5", ".hdf5") else 0,
-                       ) if dense else None
-    if kind == ".npz":
+        windows.skip = len(sink.done)
+    elif kind == ".npz":
         sink = _NpzSink(out)
     elif kind == ".npy":
         sink = _NpySink(out, sensor)
@@ -273,7 +273,7 @@ class _Windows:
     and the IWE of each window's events warped by their own flow to the window start."""
 
     def __init__(self, sensor, bins, window_us, window_events, t_start, edges=None, *,
-                 filter_size=3, dense="mean", ridge=1e-2, vmax=np.inf, skip=0):
+                 filter_size=3, dense="mean", ridge=1e-2, vmax=np.inf):
         if bins < 1:
             raise ParameterError(f"--bins must be >= 1, got {bins}")
         if filter_size < 1 or filter_size % 2 == 0:
@@ -281,7 +281,7 @@ class _Windows:
         self.filter_size = filter_size
         self.dense, self.ridge, self.vmax = dense, ridge, vmax
         # the first `skip` windows are in the resumed file: delimited, not computed
-        self.skip = skip
+        self.skip = 0
         if window_us is not None and window_us <= 0:
             raise ParameterError(f"--window-us must be > 0, got {window_us}")
         if window_events is not None and window_events <= 0:
