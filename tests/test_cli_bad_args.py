@@ -443,3 +443,22 @@ def test_resume_a_finished_file_keeps_it(rec, tmp_path, capsys):
     assert out.exists() and not (tmp_path / "f.h5.part").exists()
     assert main(argv + ["--out", str(out), "--resume"]) == 0
     _h5_equal(ref, out)
+
+
+def test_interrupted_segment_leaves_no_pictures(rec, tmp_path, capsys, monkeypatch):
+    import evmotion.methods.segmentation as segmentation
+
+    real, calls = segmentation.segment_motion, []
+
+    def interrupted(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(segmentation, "segment_motion", interrupted)
+    out = tmp_path / "seg"
+    assert main(["segment", rec["rec"], "--warp", "translation", "--window-events", "1000",
+                 "--iterations", "2", "--out", str(out)]) == 130
+    assert capsys.readouterr().err == "evmotion: interrupted\n"
+    assert len(calls) == 2 and not list(out.iterdir())

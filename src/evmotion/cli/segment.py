@@ -57,21 +57,29 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     K = None if cam is None else cam.K
-    rows, labels = [], {}
-    for w in progress(windows, desc="segment", unit="win"):
-        seg = segment_motion(events.window(w), args.warps, args.warp, args.objective, K=K,
-                             t_ref=args.t_ref, n_iter=args.iterations, seed=args.seed,
-                             regularizer=args.reg, weight=args.weight, dataset=args.dataset)
-        labels[f"window_{w.index:05d}"] = seg.labels.astype(np.int16)
-        for j in range(args.warps):
-            rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "cluster": j,
-                         "n_events": int(np.sum(seg.labels == j)),
-                         "params": dict(zip(seg.param_names, map(float, seg.params[j]),
-                                            strict=True)),
-                         "units": dict(zip(seg.param_names, seg.param_units, strict=True))})
-        images.save_panel(out / f"window_{w.index:05d}.png",
-                          [images.iwe_to_rgb(img) for img in seg.iwes],
-                          [f"cluster {j}" for j in range(args.warps)])
+    rows, labels, pngs = [], {}, []
+    try:
+        for w in progress(windows, desc="segment", unit="win"):
+            seg = segment_motion(events.window(w), args.warps, args.warp, args.objective, K=K,
+                                 t_ref=args.t_ref, n_iter=args.iterations, seed=args.seed,
+                                 regularizer=args.reg, weight=args.weight,
+                                 dataset=args.dataset)
+            labels[f"window_{w.index:05d}"] = seg.labels.astype(np.int16)
+            for j in range(args.warps):
+                rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "cluster": j,
+                             "n_events": int(np.sum(seg.labels == j)),
+                             "params": dict(zip(seg.param_names, map(float, seg.params[j]),
+                                                strict=True)),
+                             "units": dict(zip(seg.param_names, seg.param_units,
+                                               strict=True))})
+            pngs.append(out / f"window_{w.index:05d}.png")
+            images.save_panel(pngs[-1], [images.iwe_to_rgb(img) for img in seg.iwes],
+                              [f"cluster {j}" for j in range(args.warps)])
+    except BaseException:
+        # an interrupted or failed run leaves no partial set of pictures without its CSV
+        for path in pngs:
+            path.unlink(missing_ok=True)
+        raise
     buf = io.StringIO()
     wr = csv.writer(buf)
     names = list(rows[0]["params"])
