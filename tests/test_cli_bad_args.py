@@ -31,6 +31,7 @@ def rec(tmp_path_factory):
                  "--out", str(path)]) == 0
     (d / "afile").write_text("not a folder")
     (d / "adir.h5").mkdir()
+    np.save(d / "events.npy", np.zeros(5, dtype=[("t", "<i8"), ("x", "<u2")]))
     return {"rec": str(path), "gt": str(d / "sim_gt.h5"), "dir": d}
 
 
@@ -180,6 +181,10 @@ CASES = [
     ("eval-events-as-flow", ["eval", "{rec}", "--gt", "{gt}"],
      ["sim.h5", "not an evmotion flow file"]),
     ("eval-gt-as-flow", ["eval", "{gt}", "--gt", "{gt}"], ["sim_gt.h5", "ground truth"]),
+    ("eval-not-a-flow-file", ["eval", "{dir}/afile", "--gt", "{gt}"],
+     ["afile", "not a flow file"]),
+    ("eval-events-npy", ["eval", "{dir}/events.npy", "--gt", "{gt}", "--t0-us", "0",
+                         "--t1-us", "100"], ["events.npy", "not a flow array"]),
     ("eval-t0-with-h5", ["eval", "{dir}/f.h5", "--gt", "{gt}", "--t0-us", "5"],
      ["--t0-us", "5", "f.h5"]),
     ("eval-gt-missing", ["eval", "{rec}", "--gt", "{dir}/nope.npz"], ["--gt", "nope.npz"]),

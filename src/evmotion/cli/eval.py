@@ -75,6 +75,9 @@ def _load_flow(args):
         _check_estimate(path)
         seq = read_flow_h5(path)
         return seq.flow, np.asarray(seq.t0), np.asarray(seq.t1)
+    if suffix not in (".npy", ".flo"):
+        raise FormatError(path, f"not a flow file: FLOW must be an evmotion flow .h5 (from "
+                          f"'evmotion flow'), .npy or .flo, got {path.name!r})")
     if args.t0_us is None or args.t1_us is None or args.t1_us <= args.t0_us:
         raise ParameterError(f"{path}: .npy/.flo files carry no time interval; give "
                              "--t0-us and --t1-us (t1 > t0)")
@@ -90,8 +93,6 @@ def _load_flow(args):
         if flow.ndim != 4 or flow.shape[-1] != 2 or flow.dtype.kind != "f":
             raise FormatError(path, f"not a flow array: shape {flow.shape} dtype {flow.dtype}, "
                               "expected (H, W, 2) or (N, H, W, 2) floats in px/s")
-    else:
-        raise ParameterError(f"{path}: unknown flow file type (use .h5, .npy or .flo)")
     n = flow.shape[0]
     if n != 1:
         raise ParameterError(f"{path}: {n} windows but one --t0-us/--t1-us interval")
