@@ -279,6 +279,7 @@ def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit
            with_window: bool, read_kwargs: dict) -> Iterator[WindowResult]:
     queue = iter(tasks)
     running: dict[cf.Future, _Task] = {}
+    interrupted = False
     try:
         while True:
             while len(running) < limit:
@@ -294,11 +295,16 @@ def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit
             for fut in done:
                 task = running.pop(fut)
                 yield _future_result(fut, task)
+    except (KeyboardInterrupt, SystemExit):
+        interrupted = True
+        raise
     finally:
         for fut in running:
             fut.cancel()
         if owned:
-            pool.shutdown(wait=True, cancel_futures=True)
+            # After Ctrl-C do not wait for the workers: one stopped while sending its result
+            # leaves the pool's result pipe half-written, and joining then hangs for ever.
+            pool.shutdown(wait=not interrupted, cancel_futures=True)
 
 
 def _process_context():

@@ -121,7 +121,11 @@ def _interrupted(*_) -> None:
     Exits with ``os._exit`` once the work has unwound (outputs removed or kept for
     ``--resume`` by their ``finally`` blocks), so that no interpreter-shutdown hook
     (thread joins, pool shutdown, ``__del__``) can print "Exception ignored ..."."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # called by the watchdog thread
+        pass
+    _stop_children()
     _flush_std()
     try:
         os.write(2, b"evmotion: interrupted\n")
@@ -135,12 +139,22 @@ def _on_sigint(signum, frame) -> None:
     if os.getpid() != _MAIN_PID[0]:
         return  # a forked worker: its parent ends it
     signal.signal(signal.SIGINT, _on_later_sigint)
+    if not _INTERRUPTED[0]:
+        import _thread  # the documented low-level API
+
+        _thread.start_new_thread(_watchdog, (UNWIND_TIMEOUT_S,))
     _INTERRUPTED[0] = True
+    _stop_children()
+    raise KeyboardInterrupt
+
+
+def _stop_children() -> None:
+    """End the worker processes (which ignore Ctrl-C, see :func:`_on_sigint`): none may
+    outlive the command, nor keep its output pipes open."""
     mp = sys.modules.get("multiprocessing")
-    if mp is not None:
+    if mp is not None and os.getpid() == _MAIN_PID[0]:
         for child in mp.active_children():
             child.terminate()
-    raise KeyboardInterrupt
 
 
 def _on_later_sigint(signum, frame) -> None:
@@ -164,6 +178,15 @@ def _unraisable(hook_args) -> None:
     sys.__unraisablehook__(hook_args)
 
 
+def _watchdog(seconds: float) -> None:
+    """Exit after ``seconds`` if unwinding the interrupted work hangs (a library waiting
+    on a process that is gone): Ctrl-C must end the command in any case."""
+    import time
+
+    time.sleep(seconds)
+    _interrupted()
+
+
 def _signal_later(pid: int) -> None:
     import time
 
@@ -171,6 +194,8 @@ def _signal_later(pid: int) -> None:
     os.kill(pid, signal.SIGINT)
 
 
+# longest wait for the interrupted work to unwind (remove or keep its partial outputs)
+UNWIND_TIMEOUT_S = 10.0
 _MAIN_PID = [0]
 _INTERRUPTED = [False]
 _REDELIVER = [False]
