@@ -11,6 +11,7 @@ import argparse
 import importlib
 import json
 import sys
+import warnings
 
 from evmotion.errors import EvmotionError
 
@@ -72,12 +73,32 @@ def print_json(obj) -> None:
     sys.stdout.write("\n")
 
 
+def warn_line(message: str) -> None:
+    """One warning line on stderr, ``evmotion: warning: ...`` (a result that may not be a
+    measurement)."""
+    print(f"evmotion: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Project warnings as one line each; others as Python prints them."""
+    from evmotion.errors import EvmotionWarning
+
+    if issubclass(category, EvmotionWarning):
+        warn_line(str(message))
+    else:
+        _PY_SHOWWARNING(message, category, filename, lineno, file, line)
+
+
+_PY_SHOWWARNING = warnings.showwarning
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    warnings.showwarning = _show_warning
     try:
         return int(args.func(args) or 0)
     except EvmotionError as exc:
@@ -86,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("evmotion: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = _PY_SHOWWARNING
 
 
 if __name__ == "__main__":
