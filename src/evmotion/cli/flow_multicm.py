@@ -7,8 +7,11 @@ into one contiguous chunk per worker (:func:`evmotion.parallel.map_windows`) and
 start runs within each chunk only, so the first window of every chunk starts from zero flow.
 
 Output by ``--out`` extension: ``.h5`` all windows (flow in px/s with each window's
-``[t0, t1)``), ``.npy`` an ``(N, H, W, 2)`` float32 array in px/s, ``.flo`` Middlebury
-displacement over each window (``name_0000.flo``... when there are several windows).
+``[t0, t1)``, and ``valid``: the pixels whose flow events support), ``.npy`` an
+``(N, H, W, 2)`` float32 array in px/s, ``.flo`` Middlebury displacement over each window
+(``name_0000.flo``... when there are several windows); ``.npy`` and ``.flo`` carry no mask,
+so their flow is set to 0 where it is not valid. Each window is written as soon as it is
+estimated, so memory does not grow with the number of windows.
 """
 
 from __future__ import annotations
@@ -70,7 +73,15 @@ def _windows(args, events):
     return events.windows_by_count(n)
 
 
-def _chunk_fn(events, t0, t1, *, spans, kwargs):
+def _lean(res, keep_iwes: bool):
+    """The result without its four full-size IWEs unless PNGs need them (at 1280x720 they
+    are 15 MB a window)."""
+    import dataclasses
+
+    return res if keep_iwes else dataclasses.replace(res, iwes={})
+
+
+def _chunk_fn(events, t0, t1, *, spans, kwargs, keep_iwes=False):
     """Worker: the sub-windows of one chunk, warm-started in sequence."""
     from evmotion.methods.multicm import estimate_flow
 
@@ -80,73 +91,100 @@ def _chunk_fn(events, t0, t1, *, spans, kwargs):
             continue
         sub = events.slice_time(a, b)
         res = estimate_flow(sub, init=init, **kwargs)
-        out.append(res)
+        out.append(_lean(res, keep_iwes))
         init = res
     return out
 
 
-def _estimate(events, windows, kwargs, workers):
+def _estimate(events, windows, kwargs, workers, keep_iwes=False):
+    """Yield the result of every window in order (one at a time with one worker)."""
     from evmotion.methods.multicm import estimate_flow
     from evmotion.utils import progress
 
     if workers <= 1:
-        out, init = [], None
+        init = None
         for w in progress(windows, total=len(windows), desc="multicm"):
             res = estimate_flow(events.window(w), init=init, **kwargs)
-            out.append(res)
             init = res
-        return out
+            yield _lean(res, keep_iwes)
+        return
     from evmotion.parallel import map_windows
 
     spans = [(w.t0, w.t1) for w in windows]
     bounds = np.linspace(0, len(spans), min(workers, len(spans)) + 1).astype(int)
     chunks = [(spans[a][0], spans[b - 1][1]) for a, b in zip(bounds[:-1], bounds[1:],
                                                              strict=True) if b > a]
-    fn = functools.partial(_chunk_fn, spans=spans, kwargs=kwargs)
+    fn = functools.partial(_chunk_fn, spans=spans, kwargs=kwargs, keep_iwes=keep_iwes)
     results = map_windows(fn, events, chunks, workers=workers, with_window=True,
                           desc="multicm")
-    out = []
     for r in results:
         if not r.ok:
             raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
-        out.extend(r.value)
-    return out
+        yield from r.value
 
 
-def _write(out: Path, results, windows, sensor_size, attrs):
+def _write(out: Path, results, windows, sensor_size, attrs, png_dir=None) -> tuple[list, list]:
+    """Write every result as it comes (and its PNGs); returns the paths written and one
+    JSON summary per window."""
+    import contextlib
+
     from evmotion.io.flowfiles import FlowWriter, write_flo
     from evmotion.utils import atomic_path
 
     kind = out.suffix.lower()
-    written = []
-    if kind in (".h5", ".hdf5"):
-        with FlowWriter(out, sensor_size, attrs=attrs) as fw:
-            for r, w in zip(results, windows, strict=True):
-                fw.append(r.flow, t0=w.t0, t1=w.t1)
-        written.append(str(out))
-    elif kind == ".npy":
-        with atomic_path(out) as tmp, open(tmp, "wb") as fh:
-            np.save(fh, np.stack([r.flow for r in results]))
-        written.append(str(out))
-    else:
-        for i, (r, w) in enumerate(zip(results, windows, strict=True)):
-            path = out if len(results) == 1 else out.with_name(f"{out.stem}_{i:04d}.flo")
-            write_flo(path, r.flow, dt_s=(w.t1 - w.t0) * 1e-6)
-            written.append(str(path))
-    return written
+    n = len(windows)
+    summaries = []
+    with contextlib.ExitStack() as stack:
+        if kind in (".h5", ".hdf5"):
+            fw = stack.enter_context(FlowWriter(out, sensor_size, attrs=attrs,
+                                                with_valid=True))
+            written = [str(out)]
+        elif kind == ".npy":
+            tmp = stack.enter_context(atomic_path(out))
+            arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32,
+                                            shape=(n, *sensor_size, 2))
+            written = [str(out)]
+        else:
+            written = []
+        i = -1
+        for i, (r, w) in enumerate(zip(results, windows, strict=False)):
+            valid = r.valid if r.valid is not None else np.ones(sensor_size, bool)
+            if kind in (".h5", ".hdf5"):
+                fw.append(r.flow, t0=w.t0, t1=w.t1, valid=valid)
+            elif kind == ".npy":
+                arr[i] = np.where(valid[..., None], r.flow, np.float32(0))
+            else:
+                path = out if n == 1 else out.with_name(f"{out.stem}_{i:04d}.flo")
+                write_flo(path, np.where(valid[..., None], r.flow, np.float32(0)),
+                          dt_s=(w.t1 - w.t0) * 1e-6)
+                written.append(str(path))
+            if png_dir is not None:
+                _pngs(png_dir, i, r)
+            speed = np.linalg.norm(r.flow, axis=-1)
+            summaries.append({
+                "t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events, "focus": r.focus,
+                "seconds": r.timings["total_s"],
+                "mean_speed_px_s": float(speed[valid].mean()) if valid.any() else 0.0,
+                "valid_fraction": float(valid.mean())})
+        if i + 1 != n:
+            raise ParameterError(f"{out}: {i + 1} of {n} windows estimated")
+        if kind == ".npy":
+            arr.flush()
+            del arr
+    return written, summaries
 
 
-def _pngs(png_dir: Path, results):
+def _pngs(png_dir: Path, i: int, r) -> None:
     from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_png
 
     png_dir.mkdir(parents=True, exist_ok=True)
-    for i, r in enumerate(results):
-        save_png(png_dir / f"flow_{i:04d}.png", flow_to_rgb(r.flow))
-        mask = r.iwes["identity"] > 0
-        save_png(png_dir / f"flow_masked_{i:04d}.png", flow_to_rgb(r.flow, mask=mask))
-        vmax = float(np.percentile(r.iwes["tmid"][mask], 99)) if mask.any() else None
-        for key in ("tmid", "identity"):
-            save_png(png_dir / f"iwe_{key}_{i:04d}.png", iwe_to_rgb(r.iwes[key], vmax=vmax))
+    save_png(png_dir / f"flow_{i:04d}.png", flow_to_rgb(r.flow))
+    mask = r.valid if r.valid is not None else r.iwes["identity"] > 0
+    save_png(png_dir / f"flow_masked_{i:04d}.png", flow_to_rgb(r.flow, mask=mask))
+    has = r.iwes["identity"] > 0
+    vmax = float(np.percentile(r.iwes["tmid"][has], 99)) if has.any() else None
+    for key in ("tmid", "identity"):
+        save_png(png_dir / f"iwe_{key}_{i:04d}.png", iwe_to_rgb(r.iwes[key], vmax=vmax))
 
 
 def run(args) -> int:
@@ -166,20 +204,16 @@ def run(args) -> int:
     kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
                   n_scales=args.scales, objective=args.objective, lam=args.lam,
                   n_bins=args.time_bins, max_iter=args.max_iter)
-    results = _estimate(events, windows, kwargs, args.workers)
+    png_dir = Path(args.png_dir) if args.png_dir else None
+    results = _estimate(events, windows, kwargs, args.workers, keep_iwes=png_dir is not None)
     attrs = {"method": "multicm", "time_aware": args.time_aware, "objective": args.objective,
              "lambda": args.lam, "scales": args.scales, "source": str(args.file)}
-    written = _write(out, results, windows, events.sensor_size, attrs)
-    if args.png_dir:
-        _pngs(Path(args.png_dir), results)
+    written, summaries = _write(out, results, windows, events.sensor_size, attrs, png_dir)
     if args.json:
         print_json({
             "method": "multicm", "time_aware": args.time_aware, "outputs": written,
-            "n_windows": len(results), "sensor_size": list(events.sensor_size),
-            "windows": [{"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events,
-                         "focus": r.focus, "seconds": r.timings["total_s"],
-                         "mean_speed_px_s": float(np.linalg.norm(r.flow, axis=-1).mean())}
-                        for r, w in zip(results, windows, strict=True)],
+            "n_windows": len(summaries), "sensor_size": list(events.sensor_size),
+            "windows": summaries,
             "seconds": time.perf_counter() - t_start,
         })
     return 0
