@@ -213,20 +213,26 @@ def test_event_support_is_a_dilated_count():
     assert event_support(np.array([5]), np.array([5]), (16, 32), radius=0).sum() == 1
 
 
+def _left_half() -> EventArray:
+    """A translating noise texture (200, -100) px/s seen only in the left half."""
+    sim = simulate("translation", duration_s=0.03, sensor_size=(96, 128), seed=0,
+                   texture="noise", params={"vx": 200.0, "vy": -100.0}, show_progress=False)
+    ev = sim.events
+    keep = ev.x < 64
+    return EventArray(ev.x[keep], ev.y[keep], ev.t[keep], ev.p[keep], ev.sensor_size)
+
+
 def test_multicm_empty_half_is_invalid_and_bounded():
     from evmotion.methods.multicm import estimate_flow
 
-    sim = simulate("translation", duration_s=0.03, sensor_size=(96, 128), seed=0,
-                   params={"vx": 200.0, "vy": -100.0}, show_progress=False)
-    ev = sim.events
-    keep = ev.x < 64
-    half = EventArray(ev.x[keep], ev.y[keep], ev.t[keep], ev.p[keep], ev.sensor_size)
-    res = estimate_flow(half, n_scales=3, finest_level=4)
+    res = estimate_flow(_left_half(), n_scales=3, finest_level=4)
     assert res.valid is not None and res.valid.shape == (96, 128)
     assert not res.valid[:, 70:].any()  # no event there (2 px support radius)
     assert res.valid[:, 5:60].mean() > 0.9
     speed = np.linalg.norm(res.flow, axis=-1)
     assert speed.max() < 2 * np.hypot(200.0, 100.0)
+    # not extrapolated into the empty half (before: the left half's 224 px/s)
+    assert np.median(speed[:, 80:]) < 20.0
     err = np.linalg.norm(res.flow[res.valid] - np.float32([200.0, -100.0]), axis=-1)
     assert np.median(err) < 20.0
 
@@ -247,3 +253,54 @@ def test_multicm_does_not_extrapolate_into_empty_regions(shared_data):
     speed = np.linalg.norm(res.flow, axis=-1)
     assert np.median(speed[~res.valid]) < 200.0
     assert speed.max() < max(ev.sensor_size) / res.duration_s  # the window's bound
+
+
+# ------------------------------------------------------------------------------- the CLI
+
+def test_cli_egomotion_reports_checks_and_warns_once(tmp_path, capsys):
+    import h5py
+
+    from evmotion.cli import main
+    from evmotion.io import write_events
+
+    rec = tmp_path / "rec.h5"
+    write_events(rec, object_before_static_scene())
+    out = tmp_path / "ego"
+    rc = main(["egomotion", str(rec), "--warp", "translation", "--window-us", "60000",
+               "--out", str(out), "--json", "--max-png", "0"])
+    assert rc == 0
+    cap = capsys.readouterr()
+    doc = json.loads(cap.out)
+    (win,) = doc["windows"]
+    assert win["collapsed"] is False
+    assert win["diagnostics"]["fit"]["explained_share"] < 0.4
+    assert win["diagnostics"]["weight_source"] == "window"
+    lines = [ln for ln in cap.err.splitlines() if "warning" in ln]
+    assert len(lines) == 1 and lines[0].startswith("evmotion: warning: window 0: poor fit")
+    with h5py.File(out / "params.h5") as f:
+        assert f["explained_share"][0] < 0.4 and not f["collapsed"][0]
+    header = (out / "params.csv").read_text().splitlines()[0]
+    assert header.endswith("collapsed,explained_share,contrast_gain")
+
+
+def test_cli_multicm_writes_the_validity_mask(tmp_path, capsys):
+    from evmotion.cli import main
+    from evmotion.io import write_events
+    from evmotion.io.flowfiles import read_flow_h5
+
+    rec = tmp_path / "half.h5"
+    write_events(rec, _left_half())
+    out = tmp_path / "flow.h5"
+    rc = main(["flow", str(rec), "--method", "multicm", "--scales", "2", "--out", str(out),
+               "--json"])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    seq = read_flow_h5(out)
+    assert seq.valid is not None and seq.valid.shape == (len(seq), 96, 128)
+    assert not seq.valid[:, :, 70:].any() and seq.valid[:, :, 5:60].mean() > 0.9
+    assert all(0.3 < w["valid_fraction"] < 0.6 for w in doc["windows"])
+    npy = tmp_path / "flow.npy"
+    assert main(["flow", str(rec), "--method", "multicm", "--scales", "2", "--out",
+                 str(npy)]) == 0
+    arr = np.load(npy)
+    assert arr.shape == (len(seq), 96, 128, 2) and not arr[:, :, 70:].any()
