@@ -29,6 +29,7 @@ the real ECD rotation windows: omega error vs the IMU and FWL of estimate vs IMU
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -147,7 +148,8 @@ def ecd_rows() -> list[dict]:
     from evmotion.camera import Camera
     from evmotion.events import EventArray
 
-    base = Path(__file__).resolve().parents[2] / "shared" / "data" / "ecd_rotation_windows"
+    base = Path(os.environ.get("EVMOTION_SHARED_DATA", Path(__file__).resolve().parents[2]
+                               / "shared" / "data")) / "ecd_rotation_windows"
     rows = []
     for scene in ("boxes_rotation", "poster_rotation"):
         folder = base / scene

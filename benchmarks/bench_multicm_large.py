@@ -29,7 +29,8 @@ from pathlib import Path
 
 import harness
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "formats" / "evt3.raw"
+DATA = Path(os.environ.get("EVMOTION_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared"
+                           / "data")) / "formats" / "evt3.raw"
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 _WINDOW = r"""

@@ -225,20 +225,24 @@ def _sharpness(xl, yl, s, dxs, dys, cell, img, out):
     entry and on return; events outside are dropped), for every candidate ``(dx, dy)``."""
     hh, ww = img.shape
     n = xl.shape[0]
+    at = np.empty(n, np.int64)
+    inv = 1.0 / cell
     for c in range(dxs.shape[0]):
         tot = 0.0
         for k in range(n):
-            i = int(math.floor((yl[k] - dys[c] * s[k]) / cell))
-            j = int(math.floor((xl[k] - dxs[c] * s[k]) / cell))
+            i = int(math.floor((yl[k] - dys[c] * s[k]) * inv))
+            j = int(math.floor((xl[k] - dxs[c] * s[k]) * inv))
             if 0 <= i < hh and 0 <= j < ww:
                 v = img[i, j]
                 tot += 2.0 * v + 1.0
                 img[i, j] = v + 1.0
+                at[k] = i * ww + j
+            else:
+                at[k] = -1
+        flat = img.ravel()
         for k in range(n):
-            i = int(math.floor((yl[k] - dys[c] * s[k]) / cell))
-            j = int(math.floor((xl[k] - dxs[c] * s[k]) / cell))
-            if 0 <= i < hh and 0 <= j < ww:
-                img[i, j] = 0.0
+            if at[k] >= 0:
+                flat[at[k]] = 0.0
         out[c] = tot / max(n, 1)
 
 
@@ -249,23 +253,29 @@ def _scan(xl, yl, s, cands, cell, img):
     return out
 
 
+#: Events per tile at which the coarse levels of the search subsample (every k-th event):
+#: the argmax over cells of several px needs fewer; the 1-px level uses them all.
+_COARSE_EVENTS = 256
+
+
 def _best_translation(xl, yl, s, dmax, pad):
     """Coarse-to-fine search of the displacement over the window (px) that makes one
     tile's events sharpest; returns its sharpness at 1 px cells."""
     cell = 1
-    while cell * 5 < dmax:
+    while cell * 4 < dmax:
         cell *= 2
     best = np.zeros(2)
-    radius = 5
+    radius = 4
+    step = max(1, xl.shape[0] // _COARSE_EVENTS)
     while True:
         r = np.arange(-radius, radius + 1) * float(cell)
         cands = best + np.stack(np.meshgrid(r, r, indexing="ij"), -1).reshape(-1, 2)
-        img_side = int(math.ceil(pad / cell)) + 1
-        img = np.zeros((img_side, img_side))
-        vals = _scan(xl, yl, s, cands, cell, img)
-        best = cands[int(np.argmax(vals))]
+        img = np.zeros((int(math.ceil(pad / cell)) + 1,) * 2)
         if cell == 1:
+            vals = _scan(xl, yl, s, cands, cell, img)
             return float(vals.max())
+        vals = _scan(xl[::step], yl[::step], s[::step], cands, cell, img)
+        best = cands[int(np.argmax(vals))]
         cell //= 2
         radius = 2
 
