@@ -101,6 +101,16 @@ def main(quick: bool = False, src: Path = SRC, label: str = "after",
         r = _run(_CLI, [str(cut), str(Path(d) / "flow.h5")], src)
         rows.append({"code": label, "case": f"cli flow multicm, first {seconds:g} s", **r})
         print(rows[-1], flush=True)
+    # keep the rows of the other code version (before/after) from the previous record
+    prev = harness.RESULTS / "multicm_large.json"
+    keep = []
+    if prev.exists():
+        keep = [r for r in json.loads(prev.read_text())["rows"] if r.get("code") != label]
+    harness.record("multicm_large", keep + rows, notes="evt3.raw (Prophesee 1280x720, "
+                   "near-static), each case in a fresh process; 'before' = the code before "
+                   "issue #14's fix (--src of that checkout), 'after' = this one; speeds in "
+                   "px/s; 'unsupported' = pixels outside the validity mask (before: without "
+                   "events)")
     return rows
 
 
@@ -111,14 +121,4 @@ if __name__ == "__main__":
         kw["src"] = Path(argv[argv.index("--src") + 1]).resolve()
     if "--label" in argv:
         kw["label"] = argv[argv.index("--label") + 1]
-    rows = main(quick="--quick" in argv, **kw)
-    prev = harness.RESULTS / "multicm_large.json"
-    keep = []
-    if prev.exists() and rows:
-        keep = [r for r in json.loads(prev.read_text())["rows"] if r["code"] != rows[0]["code"]]
-    if rows:
-        harness.record("multicm_large", keep + rows, notes="evt3.raw (Prophesee 1280x720, "
-                       "near-static), each case in a fresh process; 'before' = the code before "
-                       "issue #14's fix (--src of that checkout), 'after' = this one; speeds in "
-                       "px/s; 'unsupported' = pixels outside the validity mask (before: "
-                       "without events)")
+    main(quick="--quick" in argv, **kw)
