@@ -345,8 +345,7 @@ def fit_diagnostics(x, y, dt, xw, yw, shape, tile: int | None = None) -> dict:
     span = float(dt.max() - dt.min()) if n else 0.0
     rows = []
     if n and span > 0:
-        # displacement coordinate s in [-1, 1] scaled so that d (px per window) moves the
-        # event by d * dt / span
+        # a displacement of d px over the window moves an event by d * s
         s_all = dt / span
         tx = np.clip(np.floor(x / side), 0, (w - 1) // side).astype(np.int64)
         ty = np.clip(np.floor(y / side), 0, (h - 1) // side).astype(np.int64)
