@@ -602,11 +602,11 @@ class EgomotionResult:
             "t_ref_us": self.t_ref_us, "t0_us": self.window_us[0], "t1_us": self.window_us[1],
             "n_events": self.n_events, "cost": self.cost, "focus": self.focus,
             "penalty": self.penalty, "timings": dict(self.timings),
-            "collapsed": self.collapsed, "diagnostics": summary_diagnostics(self.diagnostics),
+            "collapsed": self.collapsed, "diagnostics": _summary_diagnostics(self.diagnostics),
         }
 
 
-def summary_diagnostics(diag: dict) -> dict:
+def _summary_diagnostics(diag: dict) -> dict:
     """The diagnostics of a result without the per-tile rows (for JSON and tables)."""
     out = dict(diag)
     if "fit" in out:
