@@ -57,3 +57,18 @@ class MissingDependencyError(EvmotionError):
     def __init__(self, package: str, feature: str, extra: str | None = None):
         how = f"pip install 'evmotion[{extra}]'" if extra else f"pip install {package}"
         super().__init__(f"{feature} needs the package '{package}', which is not installed: {how}")
+
+
+class EvmotionWarning(UserWarning):
+    """Base class of the warnings evmotion issues about results that may not be
+    measurements. The CLI prints each as one line on stderr."""
+
+
+class CollapseWarning(EvmotionWarning):
+    """An estimate shows event collapse (events squeezed onto few pixels, area amplification
+    near zero, or speeds the window cannot hold); the message names the cure."""
+
+
+class PoorFitWarning(EvmotionWarning):
+    """The motion model explains the window poorly (e.g. independently moving objects over a
+    static scene): the estimate is not the camera's motion."""

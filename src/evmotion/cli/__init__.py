@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import warnings
 
 from evmotion.errors import EvmotionError
 
@@ -82,6 +83,25 @@ def print_json(obj) -> None:
     sys.stdout.write("\n")
 
 
+def warn_line(message: str) -> None:
+    """One warning line on stderr, ``evmotion: warning: ...`` (a result that may not be a
+    measurement)."""
+    print(f"evmotion: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Project warnings as one line each; others as Python prints them."""
+    from evmotion.errors import EvmotionWarning
+
+    if issubclass(category, EvmotionWarning):
+        warn_line(str(message))
+    else:
+        _PY_SHOWWARNING(message, category, filename, lineno, file, line)
+
+
+_PY_SHOWWARNING = warnings.showwarning
+
+
 def _build_and_run(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
@@ -91,6 +111,7 @@ def _build_and_run(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    warnings.showwarning = _show_warning
     try:
         return int(args.func(args) or 0)
     except EvmotionError as exc:
@@ -101,6 +122,8 @@ def _build_and_run(argv: list[str] | None) -> int:
         # (the disk filled up, a folder removed meanwhile): one line, not a traceback
         print(f"evmotion {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 1
+    finally:
+        warnings.showwarning = _PY_SHOWWARNING
 
 
 def _one_line(exc: BaseException) -> str:

@@ -3,7 +3,10 @@
 Writes into ``--out DIR``: ``params.csv`` and ``params.h5`` (one row per window: time range,
 reference time, event count, the warp parameters with their units, cost, focus, penalty,
 seconds), and PNG panels (IWE before / after, DIWE and IWA maps) for the first
-``--max-png`` windows. ``--json`` prints the per-window parameters with names and units.
+``--max-png`` windows. ``--json`` prints the per-window parameters with names and units,
+and each window's checks: ``collapsed`` and ``diagnostics`` (explained share of the image,
+contrast gain over the identity warp; see :mod:`evmotion.methods.diagnostics`). A window
+whose estimate is collapsed or explains the image poorly gets one warning line on stderr.
 """
 
 from __future__ import annotations
@@ -43,11 +46,12 @@ def add_common(p) -> None:
                    help="event-collapse regularizer (default none); divergence+deformation "
                         "is the sum of both penalties (thesis 'Div. + Def.')")
     p.add_argument("--weight", type=nonnegative_float(), default=None,
-                   help="regularizer weight lambda >= 0, with --reg (default per --dataset, "
-                        "Sec. 3.6.1; with divergence+deformation, one weight for both terms)")
+                   help="regularizer weight lambda >= 0, with --reg (default derived from each "
+                        "window: scaled by its effective pixel count; with "
+                        "divergence+deformation, one weight for both terms)")
     p.add_argument("--dataset", default=None, choices=sorted(DEFAULT_WEIGHTS),
-                   help="with --reg: whose thesis weights (Sec. 3.6.1) are the default "
-                        "(default mvsec)")
+                   help="with --reg: use this data set's thesis weights (Sec. 3.6.1) instead "
+                        "of the window's (default: the window's)")
     p.add_argument("--calib", default=None, type=existing_input,
                    help="calibration file (ECD calib.txt, MVSEC/DSEC YAML); default: the "
                         "recording's own, if any")
@@ -80,12 +84,10 @@ def add_parser(sub) -> None:
 
 
 def check_common(args) -> None:
-    """Cross-option checks of :func:`add_common`; fills the --dataset default."""
+    """Cross-option checks of :func:`add_common` (--dataset None: the window's weight)."""
     if args.reg is None:
         reject_unused(args, {"--weight": "weight", "--dataset": "dataset"},
                       "without --reg (no regularizer to weigh)")
-    if args.dataset is None:
-        args.dataset = "mvsec"
 
 
 def load_events_and_camera(args):
@@ -115,15 +117,23 @@ def load_events_and_camera(args):
 
 
 def _window_job(events, *, warp, objective, reg, weight, optimizer, K, t_ref, seed, dataset,
-                maps):
+                maps, init=None):
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
     from evmotion.methods.egomotion import estimate_egomotion
 
-    return estimate_egomotion(events, warp, objective, reg, weight, optimizer, K=K,
-                              t_ref=t_ref, seed=seed, dataset=dataset, maps=maps)
+    # the result carries its warnings (diagnostics["warnings"]); run() prints them once
+    # per window, also for results from worker processes
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", EvmotionWarning)
+        return estimate_egomotion(events, warp, objective, reg, weight, optimizer, K=K,
+                                  t_ref=t_ref, init=init, seed=seed, dataset=dataset,
+                                  maps=maps)
 
 
 def run(args) -> int:
-    from evmotion.cli import print_json
+    from evmotion.cli import print_json, warn_line
     from evmotion.parallel import map_windows
     from evmotion.utils import progress
 
@@ -149,14 +159,9 @@ def run(args) -> int:
                             t_ref=args.t_ref, seed=args.seed, dataset=args.dataset,
                             maps=args.max_png > 0)
     if args.warm_start:
-        from evmotion.methods.egomotion import estimate_egomotion
-
         results, init = [], None
         for w in progress(windows, desc="egomotion", unit="win"):
-            r = estimate_egomotion(events.window(w), args.warp, args.objective, args.reg,
-                                   args.weight, args.optimizer, K=K, t_ref=args.t_ref,
-                                   init=init, seed=args.seed, dataset=args.dataset,
-                                   maps=args.max_png > 0)
+            r = job(events.window(w), init=init)
             init = r.params
             results.append((w, r, None))
     else:
@@ -171,6 +176,9 @@ def run(args) -> int:
 
         raise EvmotionError(f"{args.file}: all {len(results)} windows failed; the first: "
                             f"{failed[0] if failed else 'no result'}")
+    for w, r, err in results:
+        for msg in ([] if err or r is None else r.diagnostics.get("warnings", [])):
+            warn_line(f"window {w.index}: {msg}")
     if args.json:
         print_json({"file": str(args.file), "warp": args.warp, "regularizer": args.reg,
                     "objective": args.objective, "optimizer": args.optimizer,
@@ -195,7 +203,8 @@ def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
         rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "t_ref_us": r.t_ref_us,
                      "n_events": r.n_events, "params": d["params"], "units": d["units"],
                      "cost": r.cost, "focus": r.focus, "penalty": r.penalty,
-                     "seconds": r.timings["total"]})
+                     "weight": d["weight"], "seconds": r.timings["total"],
+                     "collapsed": r.collapsed, "diagnostics": d["diagnostics"]})
         if r.warp == "rotation":
             # the camera's angular velocity, camera frame x right, y down, z forward
             rows[-1]["omega"] = [float(v) for v in r.params]
@@ -208,11 +217,14 @@ def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
     wr = csv.writer(buf)
     wr.writerow(["window", "t0_us", "t1_us", "t_ref_us", "n_events",
                  *[f"{n} [{u}]" for n, u in zip(names, units, strict=True)],
-                 "cost", "focus", "penalty", "seconds"])
+                 "cost", "focus", "penalty", "seconds", "collapsed", "explained_share",
+                 "contrast_gain"])
     for row in rows:
         wr.writerow([row["window"], row["t0_us"], row["t1_us"], row["t_ref_us"], row["n_events"],
                      *[repr(row["params"][n]) for n in names], repr(row["cost"]),
-                     repr(row["focus"]), repr(row["penalty"]), f"{row['seconds']:.4f}"])
+                     repr(row["focus"]), repr(row["penalty"]), f"{row['seconds']:.4f}",
+                     int(row["collapsed"]), repr(_share(row)),
+                     repr(row["diagnostics"].get("contrast_gain", float("nan")))])
     atomic_write_text(out_dir / "params.csv", buf.getvalue())
     with atomic_path(out_dir / "params.h5") as tmp, h5py.File(tmp, "w") as f:
         f["params"] = np.array([r.params for _, r in ok])
@@ -220,6 +232,11 @@ def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
             f[key] = np.array([row[key] for row in rows], dtype=np.int64)
         for key in ("cost", "focus", "penalty"):
             f[key] = np.array([row[key] for row in rows])
+        # the checks of every window: collapsed estimates are not measurements
+        f["collapsed"] = np.array([row["collapsed"] for row in rows], dtype=bool)
+        f["explained_share"] = np.array([_share(row) for row in rows])
+        f["contrast_gain"] = np.array([row["diagnostics"].get("contrast_gain", np.nan)
+                                       for row in rows])
         f.attrs["param_names"] = list(names)
         f.attrs["param_units"] = list(units)
         f.attrs["warp"] = ok[0][1].warp
@@ -234,6 +251,11 @@ def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
             titles += ["DIWE (divergence)", "IWA - 1 (deformation)"]
         images.save_panel(out_dir / f"window_{w.index:05d}.png", panels, titles, ncols=2)
     return rows
+
+
+def _share(row: dict) -> float:
+    """Explained share of a window's image (NaN when not checked or collapsed)."""
+    return float(row["diagnostics"].get("fit", {}).get("explained_share", np.nan))
 
 
 def _signed_rgb(img: np.ndarray) -> np.ndarray:

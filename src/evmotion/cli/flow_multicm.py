@@ -7,8 +7,11 @@ into one contiguous chunk per worker (:func:`evmotion.parallel.map_windows`) and
 start runs within each chunk only, so the first window of every chunk starts from zero flow.
 
 Output by ``--out`` extension: ``.h5`` all windows (flow in px/s with each window's
-``[t0, t1)``), ``.npy`` an ``(N, H, W, 2)`` float32 array in px/s, ``.flo`` Middlebury
-displacement over each window (``name_0000.flo``... when there are several windows).
+``[t0, t1)``, and ``valid``: the pixels whose flow events support), ``.npy`` an
+``(N, H, W, 2)`` float32 array in px/s, ``.flo`` Middlebury displacement over each window
+(``name_0000.flo``... when there are several windows); ``.npy`` and ``.flo`` carry no mask,
+so their flow is set to 0 where it is not valid. Each window is written as soon as it is
+estimated, so memory does not grow with the number of windows.
 """
 
 from __future__ import annotations
@@ -87,7 +90,15 @@ def _windows(args, events):
     return events.windows_by_count(args.window_events or DEFAULT_WINDOW_EVENTS)
 
 
-def _chunk_fn(events, t0, t1, *, spans, kwargs):
+def _lean(res, keep_iwes: bool):
+    """The result without its four full-size IWEs unless PNGs need them (at 1280x720 they
+    are 15 MB a window)."""
+    import dataclasses
+
+    return res if keep_iwes else dataclasses.replace(res, iwes={})
+
+
+def _chunk_fn(events, t0, t1, *, spans, kwargs, keep_iwes=False):
     """Worker: the sub-windows of one chunk, warm-started in sequence."""
     from evmotion.methods.multicm import estimate_flow
 
@@ -97,27 +108,25 @@ def _chunk_fn(events, t0, t1, *, spans, kwargs):
             continue
         sub = events.slice_time(a, b)
         res = estimate_flow(sub, init=init, **kwargs)
-        out.append(res)
+        out.append(_lean(res, keep_iwes))
         init = res
     return out
 
 
-def _estimate_parallel(events, windows, kwargs, workers):
+def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False):
     from evmotion.parallel import map_windows
 
     spans = [(w.t0, w.t1) for w in windows]
     bounds = np.linspace(0, len(spans), min(workers, len(spans)) + 1).astype(int)
     chunks = [(spans[a][0], spans[b - 1][1]) for a, b in zip(bounds[:-1], bounds[1:],
                                                              strict=True) if b > a]
-    fn = functools.partial(_chunk_fn, spans=spans, kwargs=kwargs)
+    fn = functools.partial(_chunk_fn, spans=spans, kwargs=kwargs, keep_iwes=keep_iwes)
     results = map_windows(fn, events, chunks, workers=workers, with_window=True,
                           desc="multicm")
-    out = []
     for r in results:
         if not r.ok:
             raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
-        out.extend(r.value)
-    return out
+        yield from r.value
 
 
 class _Output:
@@ -130,15 +139,17 @@ class _Output:
         self.out, self.kind = out, out.suffix.lower()
         self.fw = None
         if self.kind in (".h5", ".hdf5"):
-            self.fw = H5Output(out, sensor_size, attrs, resume=resume)
+            self.fw = H5Output(out, sensor_size, attrs, resume=resume, with_valid=True)
         self.done = [] if self.fw is None else self.fw.done
         self.flows, self.spans = [], []
 
-    def add(self, flow, w) -> None:
+    def add(self, flow, w, valid) -> None:
+        """Window ``w``'s flow; outside ``valid`` (no event support) it is stored as the
+        mask in ``.h5`` and as zero flow in ``.npy`` / ``.flo``, which have no mask."""
         if self.fw is not None:
-            self.fw.append(flow, t0=w.t0, t1=w.t1)
+            self.fw.append(flow, t0=w.t0, t1=w.t1, valid=valid)
         else:
-            self.flows.append(flow)
+            self.flows.append(np.where(valid[..., None], flow, np.float32(0)))
             self.spans.append((w.t0, w.t1))
 
     def close(self) -> list[str]:
@@ -170,17 +181,25 @@ def _png(png_dir: Path, i: int, r) -> None:
 
     png_dir.mkdir(parents=True, exist_ok=True)
     save_png(png_dir / f"flow_{i:04d}.png", flow_to_rgb(r.flow))
-    mask = r.iwes["identity"] > 0
+    mask = r.valid if r.valid is not None else r.iwes["identity"] > 0
     save_png(png_dir / f"flow_masked_{i:04d}.png", flow_to_rgb(r.flow, mask=mask))
-    vmax = float(np.percentile(r.iwes["tmid"][mask], 99)) if mask.any() else None
+    has = r.iwes["identity"] > 0
+    vmax = float(np.percentile(r.iwes["tmid"][has], 99)) if has.any() else None
     for key in ("tmid", "identity"):
         save_png(png_dir / f"iwe_{key}_{i:04d}.png", iwe_to_rgb(r.iwes[key], vmax=vmax))
 
 
+def _valid(r) -> np.ndarray:
+    return r.valid if r.valid is not None else np.ones(r.flow.shape[:2], bool)
+
+
 def _row(r, w) -> dict:
+    valid = _valid(r)
+    speed = np.linalg.norm(r.flow, axis=-1)
     return {"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events, "focus": r.focus,
             "seconds": r.timings["total_s"],
-            "mean_speed_px_s": float(np.linalg.norm(r.flow, axis=-1).mean())}
+            "mean_speed_px_s": float(speed[valid].mean()) if valid.any() else 0.0,
+            "valid_fraction": float(valid.mean())}
 
 
 def check_args(args) -> None:
@@ -228,18 +247,20 @@ def run(args) -> int:
         attrs["time_bins"] = args.time_bins
     png_dir = Path(args.png_dir) if args.png_dir else None
     if args.workers > 1:
-        results = _estimate_parallel(events, windows, kwargs, args.workers)
+        results = _estimate_parallel(events, windows, kwargs, args.workers,
+                                      keep_iwes=png_dir is not None)
         sink = _Output(out, events.sensor_size, attrs, resume=False)
+        rows = []
         try:
             for i, (r, w) in enumerate(zip(results, windows, strict=True)):
-                sink.add(r.flow, w)
+                sink.add(r.flow, w, _valid(r))
                 if png_dir is not None:
                     _png(png_dir, i, r)
+                rows.append(_row(r, w))
             written = sink.close()
         except BaseException:
             sink.abort()
             raise
-        rows = [_row(r, w) for r, w in zip(results, windows, strict=True)]
     else:
         rows, written = _run_sequential(args, events, windows, kwargs, attrs, png_dir,
                                         estimate_flow, progress)
@@ -270,7 +291,7 @@ def _run_sequential(args, events, windows, kwargs, attrs, png_dir, estimate_flow
                 continue
             res = estimate_flow(events.window(w), init=init, **kwargs)
             init = res
-            sink.add(res.flow, w)
+            sink.add(res.flow, w, _valid(res))
             if png_dir is not None:
                 _png(png_dir, i, res)
             rows.append(_row(res, w))

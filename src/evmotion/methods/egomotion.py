@@ -14,10 +14,12 @@ weights ``lambda`` of Sec. 3.6.1 transferable between windows and sensors:
   independent of the event count and image size (for the variance objective ``G/G(0)`` is
   the FWL, the thesis' own sharpness measure). The thesis does not state the scale of ``G``
   behind its weights. With this choice its Sec. 3.6.1 weights (``DEFAULT_WEIGHTS``, chosen
-  by ``dataset``) apply as they are: on simulated forward motion
+  by naming a ``dataset``) apply as they are: on simulated forward motion
   (``benchmarks/results/collapse.md``) the DSEC set cures the collapse of the zoom and the
   4-DOF in-plane warp with every regularizer, the MVSEC set with divergence and
-  deformation, while its RCAD weight (0.2) is too weak for the 4-DOF warp there;
+  deformation, while its RCAD weight (0.2) is too weak for the 4-DOF warp there. Without a
+  ``dataset`` the weight is derived from the window (:mod:`evmotion.methods.weights`: it
+  scales with the focus gain a collapse can reach), which cures those cases too;
 * the penalties are used as :mod:`evmotion.core.regularizers` returns them: the divergence
   is measured per window (1/s times the window duration, the normalized time of (3.7)), so
   the thesis' margins and weights apply unchanged and the penalty does not depend on the
@@ -25,6 +27,13 @@ weights ``lambda`` of Sec. 3.6.1 transferable between windows and sensors:
 * the RCAD penalty enters one-sided, ``max(R, 0)``: (3.21) is negative for expanding warps
   and would otherwise reward them (the RCAD map variant is thresholded for the same reason).
   The thesis' intent is a barrier against contraction (collapse); expansion is not collapse.
+
+Every result is checked (:mod:`evmotion.methods.diagnostics`): ``collapsed`` and
+``diagnostics`` report event collapse (area amplification of the warp, displacement beyond
+the sensor, IWE concentrated on few pixels) and how much of the image the warp explains
+(per-tile sharpness against each tile's own best translation), with a
+:class:`~evmotion.errors.CollapseWarning` or :class:`~evmotion.errors.PoorFitWarning`
+that names the cure.
 
 The gradient is exact: chain rule through the warp Jacobian (numba), the IWE adjoint and the
 objective (:class:`CMaxCost`). ``regularizer="whitening"`` instead whitens the warped events
@@ -87,6 +96,13 @@ from evmotion.core.trim import pairs_size
 from evmotion.core.warps import WARPS, Warp, make_warp
 from evmotion.errors import CalibrationError, EmptyWindowError, ParameterError
 from evmotion.events import EventArray
+from evmotion.methods.diagnostics import (
+    collapse_diagnostics,
+    fit_diagnostics,
+    warn_collapse,
+    warn_poor_fit,
+)
+from evmotion.methods.weights import window_weight
 
 __all__ = [
     "CMaxCost",
@@ -540,7 +556,17 @@ class EgomotionResult:
     maps : dict of ndarray
         Divergence (DIWE) and deformation (IWA) maps at ``params`` for plotting.
     timings : dict
-        Seconds: ``setup``, ``optimize``, ``total``; ``n_evals``.
+        Seconds: ``setup``, ``optimize``, ``diagnose``, ``total``; ``n_evals``.
+    collapsed : bool
+        The estimate shows event collapse (see ``diagnostics["collapse"]``); it is not a
+        measurement.
+    diagnostics : dict
+        ``"collapse"`` (:func:`evmotion.methods.diagnostics.collapse_diagnostics`),
+        ``"fit"`` (:func:`evmotion.methods.diagnostics.fit_diagnostics`: ``explained_share``
+        of the image, per tile), ``"contrast_gain"`` (variance of the IWE at the estimate
+        over that at the identity warp), ``"weight_source"`` (``"window"``, ``"given"`` or
+        the data set) and ``"warnings"`` (the messages issued); empty with
+        ``diagnose=False``.
     """
 
     params: np.ndarray
@@ -562,6 +588,8 @@ class EgomotionResult:
     history: np.ndarray = field(repr=False)
     maps: dict = field(repr=False, default_factory=dict)
     timings: dict = field(default_factory=dict)
+    collapsed: bool = False
+    diagnostics: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         """JSON-friendly summary: parameters with names and units, cost, timings."""
@@ -574,7 +602,16 @@ class EgomotionResult:
             "t_ref_us": self.t_ref_us, "t0_us": self.window_us[0], "t1_us": self.window_us[1],
             "n_events": self.n_events, "cost": self.cost, "focus": self.focus,
             "penalty": self.penalty, "timings": dict(self.timings),
+            "collapsed": self.collapsed, "diagnostics": _summary_diagnostics(self.diagnostics),
         }
+
+
+def _summary_diagnostics(diag: dict) -> dict:
+    """The diagnostics of a result without the per-tile rows (for JSON and tables)."""
+    out = dict(diag)
+    if "fit" in out:
+        out["fit"] = {k: v for k, v in out["fit"].items() if k != "tile_support"}
+    return out
 
 
 def _resolve_t_ref(t_ref, t: np.ndarray) -> int:
@@ -627,7 +664,8 @@ def _penalty_terms(regularizer, weight) -> tuple[tuple[str, float], ...]:
 def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str = "variance",
               regularizer: str | None = None, weight: float | None = None, K=None,
               t_ref: str | int = "start", kernel: str = "auto", sigma: float = 1.0,
-              use_polarity: bool = False, dataset: str = "mvsec") -> tuple[CMaxCost, int]:
+              use_polarity: bool = False, dataset: str | None = None
+              ) -> tuple[CMaxCost, int]:
     """Build the :class:`CMaxCost` of a window; returns ``(cost, t_ref_us)``.
 
     Parameters are those of :func:`estimate_egomotion`.
@@ -658,7 +696,14 @@ def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str 
     dt = (t - t_ref_us).astype(np.float64) * 1e-6
     span = max(int(t[-1]) - int(t[0]), 1)
     tn = (t - t[0]).astype(np.float64) / span
-    lam = _default_weight(regularizer, dataset) if weight is None else weight
+    if weight is not None:
+        lam = weight
+    elif dataset is not None:
+        lam = _default_weight(regularizer, dataset)
+    elif regularizer in REGULARIZERS or regularizer in COMBINED_REGULARIZERS:
+        lam = window_weight(regularizer, events.x, events.y, events.sensor_size)
+    else:
+        lam = 0.0
     if kernel == "auto":
         # events on the integer pixel grid make the identity warp a kink-shaped local
         # maximum of any bilinear-vote objective (every event sits exactly on a pixel), which
@@ -677,7 +722,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                        starts=None, bounds=None, n_samples: int | None = None,
                        n_iter: int = 100, lr: float = 0.05, kernel: str = "auto",
                        sigma: float = 1.0, use_polarity: bool = False,
-                       dataset: str = "mvsec", maps: bool = True) -> EgomotionResult:
+                       dataset: str | None = None, maps: bool = True,
+                       diagnose: bool = True) -> EgomotionResult:
     """Estimate the warp parameters of one window by contrast maximization (ch. 3).
 
     Parameters
@@ -694,9 +740,10 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
 "divergence+deformation"}
         ``"divergence+deformation"`` is the sum of both penalties (the thesis' "Div. + Def.").
     weight : float or mapping, optional
-        ``lambda``; default per thesis (Sec. 3.6.1) for ``dataset``. For
-        ``"divergence+deformation"``: ``{"divergence": ..., "deformation": ...}`` (default the
-        data set's two weights) or one float for both.
+        ``lambda``; default derived from the window
+        (:func:`evmotion.methods.weights.window_weight`), or the thesis' (Sec. 3.6.1) for a
+        named ``dataset``. For ``"divergence+deformation"``: ``{"divergence": ...,
+        "deformation": ...}`` or one float for both.
     optimizer : {"bfgs", "newton-cg", "adam", "tpe"}
     K : array (3, 3), optional
         Intrinsics (pixels), required by ``rotation`` unless ``events.meta["K"]`` holds it.
@@ -720,10 +767,14 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         Gaussian standard deviation in px (default 1).
     use_polarity : bool
         Signed IWE.
-    dataset : {"mvsec", "dsec", "ecd"}
-        Which default weights to use.
+    dataset : {None, "mvsec", "dsec", "ecd"}
+        Use the thesis' weights of this data set instead of the window's (default None).
     maps : bool
         Compute the divergence/deformation maps at the estimate.
+    diagnose : bool
+        Check the estimate for collapse and model fit (``collapsed``, ``diagnostics``;
+        warnings :class:`~evmotion.errors.CollapseWarning`,
+        :class:`~evmotion.errors.PoorFitWarning`); about 0.1 s per 30k-event window.
 
     Returns
     -------
@@ -755,22 +806,49 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         for name, key in (("divergence", "diwe"), ("deformation", "iwa")):
             m = regularizer_maps(name, w, cost.x, cost.y, cost.dt, theta, cost.shape)
             out_maps[key] = m[key]
-    timings = {"setup": t1 - t0, "optimize": t2 - t1, "total": time.perf_counter() - t0,
-               "n_evals": res.n_evals}
+    iwe_before, iwe_after = cost.iwe_at(w.identity()), cost.iwe_at(theta)
+    t3 = time.perf_counter()
+    source = "given" if weight is not None else (dataset or "window")
+    diagnostics = (_diagnose(cost, theta, iwe_before, iwe_after, regularizer, source)
+                   if diagnose else {})
+    timings = {"setup": t1 - t0, "optimize": t2 - t1, "diagnose": time.perf_counter() - t3,
+               "total": time.perf_counter() - t0, "n_evals": res.n_evals}
     return EgomotionResult(
         params=theta.copy(), param_names=tuple(w.param_names), param_units=tuple(w.param_units),
         warp=w.name, objective=objective, regularizer=regularizer, weight=cost.weight,
         optimizer=optimizer, t_ref_us=t_ref_us,
         window_us=(int(events.t[0]), int(events.t[-1])), n_events=len(events),
         cost=parts["cost"], focus=parts["focus"], penalty=parts["penalty"],
-        iwe_before=cost.iwe_at(w.identity()), iwe_after=cost.iwe_at(theta),
-        history=res.history, maps=out_maps, timings=timings)
+        iwe_before=iwe_before, iwe_after=iwe_after,
+        history=res.history, maps=out_maps, timings=timings,
+        collapsed=bool(diagnostics.get("collapse", {}).get("collapsed", False)),
+        diagnostics=diagnostics)
+
+
+def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_source) -> dict:
+    """Collapse and fit checks of an estimate (:mod:`evmotion.methods.diagnostics`); issues
+    their warnings (pointing at the caller of :func:`estimate_egomotion`)."""
+    w = cost.warp
+    coll = collapse_diagnostics(w, theta, cost._span, iwe_before, iwe_after)
+    msgs = [warn_collapse(coll, regularizer, cost.weight, stacklevel=4)]
+    if coll["collapsed"]:
+        # a collapsed estimate explains nothing; the tile test would only repeat it
+        fit = {}
+    else:
+        with np.errstate(all="ignore"):
+            xw, yw = w.warp(cost.x, cost.y, cost.dt, theta)
+        fit = fit_diagnostics(cost.x, cost.y, cost.dt, xw, yw, cost.shape)
+        msgs.append(warn_poor_fit(fit, w.name, stacklevel=4))
+    v0 = float(np.var(iwe_before))
+    return {"collapse": coll, "fit": fit,
+            "contrast_gain": float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan"),
+            "weight_source": weight_source, "warnings": [m for m in msgs if m]}
 
 
 def cost_landscape(events: EventArray, warp: str | Warp, param: int, values,
                    theta=None, objective: str = "variance", regularizer: str | None = None,
                    weight: float | None = None, K=None, t_ref: str | int = "start",
-                   dataset: str = "mvsec") -> dict[str, np.ndarray]:
+                   dataset: str | None = None) -> dict[str, np.ndarray]:
     """Scan one parameter (Fig. 3.12): cost, focus and penalty along ``values``.
 
     Parameters

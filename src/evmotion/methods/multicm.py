@@ -17,9 +17,21 @@ Pipeline for one window of events (times ``t_1 .. t_N``, ``t_mid = (t_1 + t_N) /
   objective ``1/f + lam * TV`` (4.9).
 
 Optimizer: L-BFGS-B (scipy) with the analytic gradient, at most ``max_iter`` iterations
-per scale (default 20). ``optimizer="newton-cg"`` runs scipy's Newton-CG with Hessian-vector
+per scale (default 20), each tile's displacement over the window bounded by the sensor's
+longer side. ``optimizer="newton-cg"`` runs scipy's Newton-CG with Hessian-vector
 products by central differences of the analytic gradient, for comparison (see
 ``benchmarks/bench_multicm_accuracy.py``).
+
+Flow where no event was seen is not a measurement. The result carries a validity mask
+``valid``: the pixels with event support (:func:`evmotion.methods.diagnostics.event_support`:
+at least ``SUPPORT_MIN_EVENTS`` events within ``SUPPORT_RADIUS`` px; an isolated noise event
+supports nothing), which the CLI writes next to the flow. The estimate is also kept from
+extrapolating into the empty tiles (a near-static 1280x720 recording gave up to 19,000 px/s
+in empty regions before): a tile whose neighbourhood has support on less than
+``EMPTY_TILE_SUPPORT`` of its pixels starts each scale towards zero flow instead of at the
+upsampled coarser flow, and an *anchor* term pulls it to zero (the thesis' prior for regions
+with few events, Sec. 6.4.4: "encourage zero flow therein"), in the units of the TV term;
+and L-BFGS-B bounds each tile's displacement over the window by the sensor's longer side.
 
 Internal units: flow in px per window, time as the fraction of the window; results are
 converted to px/s.
@@ -40,6 +52,7 @@ from evmotion.core.objectives import events_value_grad, objective_value_grad
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, Window
 from evmotion.methods import transport as tr
+from evmotion.methods.diagnostics import event_support
 
 __all__ = ["FlowResult", "MultiCMProblem", "estimate_flow", "estimate_flow_sequence"]
 
@@ -47,6 +60,17 @@ TV_EPS = 1e-2  # 1/s; Charbonnier smoothing of |grad v| so TV is differentiable 
 RESTART_PX = 1.0  # px per window; see the restart in estimate_flow
 TIMESTAMP_OBJECTIVES = ("avg_timestamp", "avg_timestamp_norm")
 OBJECTIVE_NAMES = ("gradient_magnitude", "variance", *TIMESTAMP_OBJECTIVES)
+#: A tile whose neighbourhood (3 x 3 tiles) has event support (``valid``) on less than
+#: this fraction of its pixels is (partly) empty: its emptiness ``e = 1 - fraction / EMPTY_TILE_SUPPORT`` scales its start
+#: (``(1 - e)`` times the coarser scale's flow) and its zero-flow anchor.
+EMPTY_TILE_SUPPORT = 0.02
+#: Weight of the zero-flow anchor relative to the TV term: an empty tile follows its
+#: neighbours' flow (TV pulls from up to four of them) only where events are near.
+ANCHOR_GAIN = 4.0
+#: Validity mask of the flow: pixels with at least SUPPORT_MIN_EVENTS events within a
+#: (2 SUPPORT_RADIUS + 1)-px square over the window (an isolated noise event supports none).
+SUPPORT_RADIUS = 2
+SUPPORT_MIN_EVENTS = 2
 REFERENCES = {
     "multi": ((0.0, 1.0), (0.5, 2.0), (1.0, 1.0)),
     "single": ((0.0, 1.0),),
@@ -76,6 +100,10 @@ class FlowResult:
     time_aware : str or None
     n_bins : int
     n_events : int
+    meta : dict
+    valid : ndarray (H, W) bool or None
+        Pixels where events support the flow (see the module docstring); elsewhere the
+        flow is not a measurement.
     """
 
     flow: np.ndarray
@@ -91,6 +119,7 @@ class FlowResult:
     n_bins: int
     n_events: int
     meta: dict = field(default_factory=dict)
+    valid: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def duration_s(self) -> float:
@@ -160,6 +189,9 @@ class MultiCMProblem:
     duration_s : float
         Window duration ``t_N - t_1`` in seconds (default 1): the TV term is measured on
         the flow in px/s, so that its weight does not grow with the window's displacement.
+    support : ndarray (H, W) bool, optional
+        Pixels with event support; tiles with little of it are anchored to zero flow
+        (:meth:`anchor_grad`). None: no anchor.
 
     Examples
     --------
@@ -173,7 +205,7 @@ class MultiCMProblem:
 
     def __init__(self, x, y, s, shape, grid, *, objective="gradient_magnitude", lam=0.0025,
                  references="multi", time_aware=None, n_bins=5, transport_cell=4, g0=None,
-                 p=None, duration_s=1.0):
+                 p=None, duration_s=1.0, support=None):
         self.x, self.y, self.s, self.shape, self.grid = x, y, s, shape, grid
         self.duration_s = float(duration_s)
         self.objective, self.lam = objective, lam
@@ -181,6 +213,13 @@ class MultiCMProblem:
         self.wsum = sum(w for _, w in self.refs)
         self.time_aware = time_aware
         self.idx, self.w = tf.event_weights(x, y, grid)
+        # tiles with little event support are anchored to zero flow (anchor_grad)
+        self.empty = np.zeros((grid.ny, grid.nx))
+        if support is not None and grid.ny * grid.nx > 1:
+            # support over the tile and its 8 neighbours: a tile between supported ones
+            # (a gap in a sparse texture) follows them; only empty regions are anchored
+            frac = _box3(_tile_means(np.asarray(support, dtype=np.float64), grid))
+            self.empty = np.clip(1.0 - frac / EMPTY_TILE_SUPPORT, 0.0, 1.0)
         self.p = p
         self.dtn = [np.ascontiguousarray(tr_ - s) for tr_, _ in self.refs]
         if g0 is not None:
@@ -305,15 +344,57 @@ class MultiCMProblem:
             gc[1:, :] += ay[:-1, :]
         return total, g
 
+    def anchor_grad(self, params):
+        """Charbonnier magnitude of the flow of the empty tiles and its gradient.
+
+        ``mean over tiles of e_i sqrt(|v_i|^2 / s^2 + eps^2)`` with ``v_i`` in px/s, ``s``
+        the mean tile spacing in px and ``e_i`` in [0, 1] the tile's emptiness
+        (:data:`EMPTY_TILE_FRACTION`): the cost of the flow falling to zero over one
+        tile, in the units of the TV term, so that one weight serves both.
+        """
+        if not self.empty.any():
+            return 0.0, np.zeros_like(params)
+        n = float(self.grid.ny * self.grid.nx)
+        sy, sx = self.grid.spacing
+        k = 2.0 / (self.duration_s * (sx + sy))
+        a = params * k
+        mag = np.sqrt(a[..., 0] ** 2 + a[..., 1] ** 2 + TV_EPS ** 2)
+        val = float((self.empty * mag).sum() / n)
+        g = (self.empty / mag / n)[..., None] * a * k
+        return val, g
+
     def value_grad(self, theta):
-        """Composite objective ``1/f + lam * TV`` (4.9) and its gradient (flat)."""
+        """Composite objective ``1/f + lam * (TV + ANCHOR_GAIN * anchor)`` ((4.9) with the
+        zero-flow anchor of the empty tiles) and its gradient (flat)."""
         params = theta.reshape(self.grid.ny, self.grid.nx, 2)
         f, gf, _ = self.focus_grad(params)
         f = max(f, 1e-12)
         tv, gtv = self.tv_grad(params)
-        val = 1.0 / f + self.lam * tv
-        grad = -gf / (f * f) + self.lam * gtv
+        an, gan = self.anchor_grad(params)
+        val = 1.0 / f + self.lam * (tv + ANCHOR_GAIN * an)
+        grad = -gf / (f * f) + self.lam * (gtv + ANCHOR_GAIN * gan)
         return val, grad.ravel()
+
+
+def _box3(a: np.ndarray) -> np.ndarray:
+    """Mean over each cell's 3 x 3 neighbourhood (within the array)."""
+    p = np.pad(a, 1)
+    n = np.pad(np.ones_like(a), 1)
+    s = sum(p[i:i + a.shape[0], j:j + a.shape[1]] for i in range(3) for j in range(3))
+    c = sum(n[i:i + a.shape[0], j:j + a.shape[1]] for i in range(3) for j in range(3))
+    return s / c
+
+
+def _tile_means(img: np.ndarray, grid) -> np.ndarray:
+    """Mean of ``img`` (H, W) over the pixels nearest each tile centre, (ny, nx)."""
+    h, w = img.shape
+    ty = np.minimum(np.arange(h) * grid.ny // h, grid.ny - 1)
+    tx = np.minimum(np.arange(w) * grid.nx // w, grid.nx - 1)
+    key = (ty[:, None] * grid.nx + tx[None, :]).ravel()
+    n = grid.ny * grid.nx
+    sums = np.bincount(key, weights=img.ravel(), minlength=n)
+    counts = np.bincount(key, minlength=n)
+    return (sums / np.maximum(counts, 1)).reshape(grid.ny, grid.nx)
 
 
 @njit(cache=True)
@@ -425,6 +506,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     Returns
     -------
     FlowResult
+        With ``valid``, the pixels whose flow events support.
 
     Examples
     --------
@@ -475,6 +557,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     # the plain warp whatever time_aware says, at identical result and lower cost)
     ta_from = 1 if time_aware_scales is None else finest_level - time_aware_scales + 1
 
+    valid = event_support(x, y, shape, SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
     g0 = None
     params = None
     all_params, history, timings = [], [], {}
@@ -490,8 +573,11 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                               references=references,
                               time_aware=time_aware if level >= max(ta_from, 2) else None,
                               n_bins=n_bins, transport_cell=transport_cell, g0=g0,
-                              p=events.p, duration_s=duration_s)
+                              p=events.p, duration_s=duration_s, support=valid)
         g0 = prob.g0
+        # few events constrain an empty tile: start it towards rest rather than at the
+        # coarser scale's flow extrapolated into it
+        params = params * (1.0 - prob.empty[..., None])
         theta, val = _optimize(prob, params.ravel(), optimizer, max_iter)
         if (restart and len(all_params) == 1 and all_params[0].size == 2 and grid.nx > 1
                 and np.abs(theta - params.ravel()).max() > RESTART_PX):
@@ -531,12 +617,18 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                       meta={"objective": objective, "lam": lam, "references": references,
                             "optimizer": optimizer, "n_scales": n_scales, "seed": seed,
                             "finest_level": finest_level, "transport_cell": transport_cell,
-                            "restart": restart})
+                            "restart": restart},
+                      valid=valid)
 
 
 def _optimize(prob: MultiCMProblem, theta0: np.ndarray, optimizer: str, max_iter: int):
     if optimizer == "lbfgs":
-        res = minimize(prob.value_grad, theta0, jac=True, method="L-BFGS-B",
+        # a tile cannot move further over the window than the sensor is long: the box keeps
+        # the line search from trying such flows (whose time-aware transport needs a CFL
+        # sub-step per pixel of displacement: minutes and gigabytes at 1280x720)
+        vmax = float(max(prob.shape))
+        res = minimize(prob.value_grad, np.clip(theta0, -vmax, vmax), jac=True,
+                       method="L-BFGS-B", bounds=[(-vmax, vmax)] * theta0.size,
                        options={"maxiter": max_iter, "maxfun": 2 * max_iter + 10})
         return res.x, float(prob.value_grad(res.x)[0])
 

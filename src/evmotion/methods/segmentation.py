@@ -109,7 +109,8 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
                    objective: str = "variance", K=None, t_ref: str | int = "start",
                    n_iter: int = 10, init=None, seed: int = 0, sigma: float = 1.0,
                    tol: float = 1e-3, regularizer: str | None = None,
-                   weight: float | None = None, dataset: str = "mvsec") -> SegmentationResult:
+                   weight: float | None = None, dataset: str | None = None
+                   ) -> SegmentationResult:
     """Segment events into ``n_warps`` motions by expectation-maximization (Sec. 3.6.6).
 
     Parameters
@@ -143,9 +144,11 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
         the same for every event, the translation's is zero, RCAD has closed forms); for
         the deformation map and the rotation/homography maps it is an approximation.
     weight : float, optional
-        ``lambda``; default the thesis' weight for ``dataset`` (Sec. 3.6.1).
-    dataset : {"mvsec", "dsec", "ecd"}
-        Which default weights to use.
+        ``lambda``; default derived from the window
+        (:func:`evmotion.methods.weights.window_weight`), or the thesis' (Sec. 3.6.1) for a
+        named ``dataset``.
+    dataset : {None, "mvsec", "dsec", "ecd"}
+        Use the thesis' weights of this data set (default None: the window's).
 
     Returns
     -------

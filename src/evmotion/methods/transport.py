@@ -193,13 +193,17 @@ def transport(v0: np.ndarray, duration: float, scheme: str = "burgers",
 class TransportPlan:
     """Forward states of a multi-time transport, kept for the adjoint.
 
-    ``flows[b]`` is the flow (2, H, W) at ``times[b]``.
+    ``flows[b]`` is the flow (2, H, W) at ``times[b]``. For the adjoint only the state at
+    the start of each segment between consecutive target times is kept (a checkpoint);
+    :func:`transport_adjoint` recomputes the sub-steps of one segment at a time. Memory is
+    then that of the target times plus one segment, not of every CFL sub-step (a 1280x720
+    window with 40 bins and fast flow held thousands of sub-step states, over 1 GB).
     """
 
     times: np.ndarray
     flows: list
     scheme: str
-    _chains: list  # per direction: (sign, states, dts, [(state index, bin)])
+    _chains: list  # per direction: (sign, [(start state, n sub-steps, dt, bin)])
 
 
 def transport_to_times(v0: np.ndarray, times: np.ndarray, scheme: str = "burgers",
@@ -229,23 +233,37 @@ def transport_to_times(v0: np.ndarray, times: np.ndarray, scheme: str = "burgers
         if sel.size == 0:
             continue
         cur = v0 * sign
-        states, dts, marks = [cur], [], []
+        segments = []
         t_prev = 0.0
         for b in sel:
             span = times[b] * sign - t_prev
             n = _n_substeps(cur, span, cfl)
             dt = span / n
-            for _ in range(n):
-                nxt = np.empty_like(cur)
-                _step(cur, dt, burgers, nxt)
-                states.append(nxt)
-                dts.append(dt)
-                cur = nxt
-            marks.append((len(states) - 1, int(b)))
+            segments.append((cur, n, dt, int(b)))
+            cur = _advance(cur, n, dt, burgers)
             flows[b] = cur * sign
             t_prev = times[b] * sign
-        chains.append((sign, states, dts, marks))
+        chains.append((sign, segments))
     return TransportPlan(times, flows, scheme, chains)
+
+
+def _advance(cur: np.ndarray, n: int, dt: float, burgers: bool, keep: list | None = None
+             ) -> np.ndarray:
+    """The state after ``n`` sub-steps of ``dt`` from ``cur`` (a new array; ``cur`` is not
+    modified). With ``keep``, the state before each sub-step is appended to it."""
+    if keep is None:
+        a, b = cur.copy(), np.empty_like(cur)
+        for _ in range(n):
+            _step(a, dt, burgers, b)
+            a, b = b, a
+        return a
+    a = cur
+    for _ in range(n):
+        keep.append(a)
+        b = np.empty_like(cur)
+        _step(a, dt, burgers, b)
+        a = b
+    return a
 
 
 def transport_adjoint(plan: TransportPlan, grads: list) -> np.ndarray:
@@ -268,15 +286,16 @@ def transport_adjoint(plan: TransportPlan, grads: list) -> np.ndarray:
     for b, t in enumerate(plan.times):
         if t == 0 and grads[b] is not None:
             total += grads[b]
-    for sign, states, dts, marks in plan._chains:
-        at = {i: b for i, b in marks}
+    for sign, segments in plan._chains:
         lam = np.zeros(shape)
         tmp = np.empty(shape)
-        for i in range(len(states) - 1, 0, -1):
-            b = at.get(i)
-            if b is not None and grads[b] is not None:
+        for start, n, dt, b in reversed(segments):
+            if grads[b] is not None:
                 lam += sign * grads[b]
-            _step_adj(states[i - 1], dts[i - 1], burgers, lam, tmp)
-            lam, tmp = tmp, lam
+            states: list = []
+            _advance(start, n, dt, burgers, states)  # the segment's sub-steps, recomputed
+            for i in range(n - 1, -1, -1):
+                _step_adj(states[i], dt, burgers, lam, tmp)
+                lam, tmp = tmp, lam
         total += sign * lam
     return total

@@ -1,0 +1,458 @@
+"""Is an estimate a measurement? Collapse and model-fit checks of ego-motion results, and the
+event support of dense flow.
+
+Contrast maximization always returns *some* parameters. Three ways in which they are not a
+measurement of the camera's motion, each checked here from the window itself:
+
+* **event collapse** (:func:`collapse_diagnostics`): the warp squeezes the events onto few
+  pixels. Seen in the geometry of the estimate -- the area amplification ``det J`` of the
+  warp over the window falls near zero (or the warp folds, ``det J <= 0``), or a pixel is
+  displaced over the window by more than the sensor's diagonal (a speed the window cannot
+  hold) -- or in the image of warped events, whose mass concentrates on a few pixels;
+* **a poor model fit** (:func:`fit_diagnostics`): the warp explains only part of the
+  window, e.g. independently moving objects before a static camera. Per sensor tile, the
+  sharpness of the events under the estimate is compared with the best the tile's events
+  allow under a local translation (a coarse-to-fine search) and under no motion; the
+  *explained share* is the share of the tiles with structure that the estimate sharpens
+  about as well as their own best translation;
+* **flow without events** (:func:`event_support`): dense flow where no event was seen is an
+  extrapolation, not a measurement; the support mask marks the pixels near events.
+
+The checks return plain dicts (stored on the results) and the warnings of
+:mod:`evmotion.errors` (:class:`~evmotion.errors.CollapseWarning`,
+:class:`~evmotion.errors.PoorFitWarning`) name the cure.
+
+Examples
+--------
+>>> import numpy as np
+>>> from evmotion.core.warps import make_warp
+>>> w = make_warp("zoom", (60, 80))
+>>> d = collapse_diagnostics(w, np.array([19.0]), (0.0, 0.05))  # h_z T = 0.95
+>>> d["collapsed"], round(d["min_det"], 4)
+(True, 0.0025)
+>>> collapse_diagnostics(w, np.array([1.0]), (0.0, 0.05))["collapsed"]
+False
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+from numba import njit
+
+from evmotion.core.warps import Warp
+from evmotion.errors import CollapseWarning, ParameterError, PoorFitWarning
+
+__all__ = [
+    "COLLAPSE_MAX_TOP_SHARE",
+    "COLLAPSE_MIN_DET",
+    "POOR_FIT_SHARE",
+    "collapse_diagnostics",
+    "effective_pixels",
+    "event_support",
+    "fit_diagnostics",
+    "warn_collapse",
+    "warn_poor_fit",
+]
+
+#: Smallest area amplification ``det J`` of the warp over the window (on a grid over the
+#: sensor) that is not collapse: the thesis' deformation margin is 0.8 per event; a window
+#: whose true motion compresses the image to a fifth of its area does not occur at the
+#: usual window lengths, a collapsing estimate reaches it.
+COLLAPSE_MIN_DET = 0.2
+
+#: Share of the IWE's mass in its top 1 % of pixels above which an estimate is collapsed,
+#: when the identity warp's share is below half of it (a sparse scene that is already
+#: concentrated is not). A sharp estimate of 200 dots puts 63 % there; a collapse onto a
+#: point or a line nearly all.
+COLLAPSE_MAX_TOP_SHARE = 0.9
+
+#: Explained share below which the fit is poor (:func:`fit_diagnostics`).
+POOR_FIT_SHARE = 0.55
+
+#: A tile supports the estimate when its sharpness under the estimate reaches this fraction
+#: of the best local translation's ...
+_AGREE = 0.8
+#: ... and the estimate sharpens it by this factor over no motion (or moves it by < 1 px).
+_SHARPEN = 1.05
+_MIN_TILE_EVENTS = 50
+#: A tile whose best sharpness stays below this mean count per event holds no structure
+#: (sensor noise: each event on its own pixel) and says nothing about the motion.
+_MIN_STRUCTURE = 1.5
+
+
+def effective_pixels(x, y, shape) -> float:
+    """Participation ratio ``N^2 / sum(n_i^2)`` of the events' count image: how many pixels
+    the events effectively cover (``N`` if all pixels differ, 1 if all share one).
+
+    It bounds the focus gain that collapse can reach: the variance of the count image
+    grows at most ``N^2 / sum(n_i^2)``-fold when every event lands on one pixel.
+
+    Parameters
+    ----------
+    x, y : array (N,)
+        Event pixels (rounded to the nearest pixel; outside the sensor ignored).
+    shape : (int, int)
+        ``(H, W)``.
+
+    Examples
+    --------
+    >>> effective_pixels(np.array([0, 1, 1, 1]), np.array([0, 0, 0, 0]), (2, 2))
+    1.6
+    """
+    h, w = int(shape[0]), int(shape[1])
+    xi = np.rint(np.asarray(x, dtype=np.float64)).astype(np.int64)
+    yi = np.rint(np.asarray(y, dtype=np.float64)).astype(np.int64)
+    ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+    counts = np.bincount(yi[ok] * w + xi[ok], minlength=h * w).astype(np.float64)
+    ss = float(np.dot(counts, counts))
+    n = float(counts.sum())
+    return n * n / ss if ss > 0 else 0.0
+
+
+def _top_share(iwe: np.ndarray, frac: float = 0.01) -> float:
+    """Share of the (non-negative part of the) image's mass in its top ``frac`` pixels."""
+    a = np.clip(np.asarray(iwe, dtype=np.float64).ravel(), 0.0, None)
+    total = a.sum()
+    if total <= 0:
+        return 0.0
+    k = max(1, int(math.ceil(frac * a.size)))
+    return float(np.partition(a, a.size - k)[a.size - k:].sum() / total)
+
+
+def collapse_diagnostics(warp: Warp, theta, span: tuple[float, float],
+                         iwe_before: np.ndarray | None = None,
+                         iwe_after: np.ndarray | None = None, n_grid: int = 9) -> dict:
+    """Signs of event collapse in an estimate.
+
+    Parameters
+    ----------
+    warp : Warp
+    theta : array (P,)
+        The estimate.
+    span : (float, float)
+        ``(min dt, max dt)`` of the window's events relative to ``t_ref``, seconds.
+    iwe_before, iwe_after : array (H, W), optional
+        Images of events at the identity warp and at ``theta`` (for the concentration test).
+    n_grid : int
+        The warp's geometry is evaluated on an ``n_grid x n_grid`` grid over the sensor at
+        both ends of the window.
+
+    Returns
+    -------
+    dict
+        ``min_det``, ``max_det`` (area amplification over the window), ``max_displacement_px``
+        and ``sensor_diagonal_px``, ``top_share_before``/``top_share_after`` (mass in the top
+        1 % of IWE pixels, when the IWEs are given), ``collapsed`` (bool) and ``reasons``
+        (list of str).
+    """
+    h, w = warp.sensor_size
+    ys, xs = np.meshgrid(np.linspace(0, h - 1, n_grid), np.linspace(0, w - 1, n_grid),
+                         indexing="ij")
+    gx, gy = xs.ravel(), ys.ravel()
+    dets, disp = [], []
+    theta = np.asarray(theta, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        for t in span:
+            dt = np.full(gx.shape, float(t))
+            xw, yw = warp.warp(gx, gy, dt, theta)
+            dets.append(warp.jacobian_det(gx, gy, dt, theta))
+            disp.append(np.hypot(xw - gx, yw - gy))
+    det = np.concatenate(dets)
+    d = np.concatenate(disp)
+    finite = bool(np.all(np.isfinite(det)) and np.all(np.isfinite(d)))
+    diag = float(math.hypot(h, w))
+    out = {"min_det": float(np.nanmin(det)) if finite else float("nan"),
+           "max_det": float(np.nanmax(det)) if finite else float("nan"),
+           "max_displacement_px": float(np.nanmax(d)) if finite else float("inf"),
+           "sensor_diagonal_px": diag}
+    reasons = []
+    if not finite:
+        reasons.append("the warp sends pixels to infinity within the window")
+    else:
+        if out["min_det"] < COLLAPSE_MIN_DET:
+            reasons.append(f"area amplification det J down to {out['min_det']:.3g} "
+                           f"(< {COLLAPSE_MIN_DET}) over the window")
+        if out["max_displacement_px"] > diag:
+            reasons.append(f"pixels move {out['max_displacement_px']:.3g} px over the window, "
+                           f"more than the sensor diagonal ({diag:.0f} px)")
+    if iwe_before is not None and iwe_after is not None:
+        before, after = _top_share(iwe_before), _top_share(iwe_after)
+        out["top_share_before"], out["top_share_after"] = before, after
+        if after > COLLAPSE_MAX_TOP_SHARE and after > 2.0 * before:
+            reasons.append(f"{100 * after:.0f} % of the warped events on 1 % of the pixels "
+                           f"(identity warp: {100 * before:.0f} %)")
+    out["collapsed"] = bool(reasons)
+    out["reasons"] = reasons
+    return out
+
+
+def warn_collapse(diag: dict, regularizer: str | None, weight,
+                  stacklevel: int = 3) -> str | None:
+    """Issue a :class:`~evmotion.errors.CollapseWarning` naming the cure, if ``diag`` (from
+    :func:`collapse_diagnostics`) says collapsed; returns its message (else None)."""
+    if not diag.get("collapsed"):
+        return None
+    if regularizer in (None, "whitening"):
+        cure = ("add a collapse regularizer: --reg divergence (API regularizer='divergence') "
+                "or deformation")
+    elif regularizer == "rcad":
+        cure = (f"use --reg divergence or deformation, or a larger --weight than {weight:g} "
+                f"(API weight=)")
+    else:
+        cure = f"raise --weight (now {_fmt_weight(weight)}; API weight=)"
+    msg = (f"event collapse: {'; '.join(diag['reasons'])}; the estimate is not the motion "
+           f"-- {cure}")
+    warnings.warn(msg, CollapseWarning, stacklevel=stacklevel)
+    return msg
+
+
+def _fmt_weight(weight) -> str:
+    if isinstance(weight, dict):
+        return "/".join(f"{v:g}" for v in weight.values())
+    return f"{float(weight):g}"
+
+
+# ---------------------------------------------------------------------------------------
+# Model fit: per-tile sharpness under the estimate vs the tile's best local translation
+
+@njit(cache=True)
+def _sharpness(xl, yl, s, dxs, dys, cell, img, out):
+    """Mean count at an event's cell, ``sum(n^2) / N``, of the events at ``(xl - dx s,
+    yl - dy s)`` voted to the nearest cell of side ``cell`` (px) of ``img`` (zeroed on
+    entry and on return; events outside are dropped), for every candidate ``(dx, dy)``."""
+    hh, ww = img.shape
+    n = xl.shape[0]
+    at = np.empty(n, np.int64)
+    inv = 1.0 / cell
+    for c in range(dxs.shape[0]):
+        tot = 0.0
+        for k in range(n):
+            i = int(math.floor((yl[k] - dys[c] * s[k]) * inv))
+            j = int(math.floor((xl[k] - dxs[c] * s[k]) * inv))
+            if 0 <= i < hh and 0 <= j < ww:
+                v = img[i, j]
+                tot += 2.0 * v + 1.0
+                img[i, j] = v + 1.0
+                at[k] = i * ww + j
+            else:
+                at[k] = -1
+        flat = img.ravel()
+        for k in range(n):
+            if at[k] >= 0:
+                flat[at[k]] = 0.0
+        out[c] = tot / max(n, 1)
+
+
+def _scan(xl, yl, s, cands, cell, img):
+    out = np.empty(cands.shape[0])
+    _sharpness(xl, yl, s, np.ascontiguousarray(cands[:, 0]), np.ascontiguousarray(cands[:, 1]),
+               float(cell), img, out)
+    return out
+
+
+#: Events per tile at which the coarse levels of the search subsample (every k-th event):
+#: the argmax over cells of several px needs fewer; the 1-px level uses them all.
+_COARSE_EVENTS = 256
+
+
+def _best_translation(xl, yl, s, dmax, pad):
+    """Coarse-to-fine search of the displacement over the window (px) that makes one
+    tile's events sharpest; returns its sharpness at 1 px cells."""
+    cell = 1
+    while cell * 4 < dmax:
+        cell *= 2
+    best = np.zeros(2)
+    radius = 4
+    step = max(1, xl.shape[0] // _COARSE_EVENTS)
+    while True:
+        r = np.arange(-radius, radius + 1) * float(cell)
+        cands = best + np.stack(np.meshgrid(r, r, indexing="ij"), -1).reshape(-1, 2)
+        img = np.zeros((int(math.ceil(pad / cell)) + 1,) * 2)
+        if cell == 1:
+            vals = _scan(xl, yl, s, cands, cell, img)
+            return float(vals.max())
+        vals = _scan(xl[::step], yl[::step], s[::step], cands, cell, img)
+        best = cands[int(np.argmax(vals))]
+        cell //= 2
+        radius = 2
+
+
+def fit_diagnostics(x, y, dt, xw, yw, shape, tile: int | None = None) -> dict:
+    """How well one warp explains a window: per-tile sharpness under the estimate vs the
+    tile's own best translation.
+
+    For each tile of ``tile`` px (default ``min(H, W) / 6``, at least 16) holding at least
+    50 events, the sharpness ``S = sum(n^2) / N`` (mean count at an event's pixel) of its
+    events is measured under the estimate (``xw, yw``), under no motion and under the best
+    translation of the tile (a coarse-to-fine search of the displacement over the window,
+    covering 1.5 times the estimate's). Tiles whose best ``S`` stays below 1.5 hold no
+    structure (sensor noise) and are left out. A tile *supports* the estimate when the
+    estimate reaches 80 % of the best sharpness and either sharpens the tile by 5 % over no
+    motion or moves its events by less than 1 px (a static estimate there). Static
+    structure (flicker, hot pixels) that the estimate smears, and objects that move
+    otherwise, do not. A camera motion moves the whole image, so the share is counted over
+    the tiles (the sensor area with structure), not the events, which the fastest object
+    dominates.
+
+    Parameters
+    ----------
+    x, y : array (N,)
+        Event pixels.
+    dt : array (N,)
+        ``t_k - t_ref``, seconds.
+    xw, yw : array (N,)
+        The events warped by the estimate.
+    shape : (int, int)
+        ``(H, W)``.
+    tile : int, optional
+        Tile side in px.
+
+    Returns
+    -------
+    dict
+        ``explained_share`` (share of the evaluated tiles that support the estimate; 1.0
+        when no tile has structure), ``explained_event_share`` (the same share counted in
+        events), ``n_tiles`` (evaluated), ``tile_px``,
+        ``tile_support`` (per evaluated tile: x0, y0, events, S_estimate, S_static, S_best,
+        supports) as a list of rows.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> n = 4000
+    >>> t = np.sort(rng.uniform(0, 0.05, n)); x0 = rng.integers(0, 60, n) * 1.0
+    >>> y0 = rng.integers(0, 60, n) % 7 * 8.0 + 4        # 7 horizontal lines ...
+    >>> y = y0 + 200 * t                                  # ... moving down at 200 px/s
+    >>> d = fit_diagnostics(x0, y, t, x0, y - 200 * t, (64, 64), tile=16)
+    >>> d["explained_share"]
+    1.0
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    dt = np.ascontiguousarray(dt, dtype=np.float64)
+    xw = np.ascontiguousarray(xw, dtype=np.float64)
+    yw = np.ascontiguousarray(yw, dtype=np.float64)
+    n = x.shape[0]
+    if not (y.shape == dt.shape == xw.shape == yw.shape == (n,)):
+        raise ParameterError("fit_diagnostics: x, y, dt, xw, yw must be (N,) arrays alike")
+    h, w = int(shape[0]), int(shape[1])
+    side = int(tile) if tile else max(16, min(h, w) // 6)
+    if side < 4:
+        raise ParameterError(f"fit_diagnostics: tile must be >= 4 px, got {side}")
+    span = float(dt.max() - dt.min()) if n else 0.0
+    rows = []
+    if n and span > 0:
+        # a displacement of d px over the window moves an event by d * s
+        s_all = dt / span
+        tx = np.clip(np.floor(x / side), 0, (w - 1) // side).astype(np.int64)
+        ty = np.clip(np.floor(y / side), 0, (h - 1) // side).astype(np.int64)
+        key = ty * ((w - 1) // side + 1) + tx
+        order = np.argsort(key, kind="stable")
+        bounds = np.flatnonzero(np.diff(key[order])) + 1
+        for idx in np.split(order, bounds):
+            if idx.size < _MIN_TILE_EVENTS:
+                continue
+            ox, oy = float(tx[idx[0]] * side), float(ty[idx[0]] * side)
+            ex, ey = xw[idx] - x[idx], yw[idx] - y[idx]
+            if not (np.all(np.isfinite(ex)) and np.all(np.isfinite(ey))):
+                moved = np.inf
+            else:
+                moved = float(np.max(np.hypot(ex, ey)))
+            dmax = float(min(max(side / 2.0, 1.5 * moved), 4.0 * side)) if np.isfinite(
+                moved) else 4.0 * side
+            pad = int(math.ceil(dmax * 1.5)) + 4
+            # local coordinates, the tile at the centre of an image of side + 2 pad px
+            xl = x[idx] - ox + pad
+            yl = y[idx] - oy + pad
+            s = s_all[idx]
+            zero = np.zeros(idx.size)
+            full = side + 2 * pad + 1
+            img = np.zeros((full, full))
+            s_static = float(_scan(xl, yl, zero, np.zeros((1, 2)), 1, img)[0])
+            s_best = max(_best_translation(xl, yl, s, dmax, full), s_static)
+            if np.isfinite(moved):
+                s_est = float(_scan(xw[idx] - ox + pad, yw[idx] - oy + pad, zero,
+                                    np.zeros((1, 2)), 1, img)[0])
+            else:
+                s_est = 0.0
+            s_best = max(s_best, s_est)
+            if s_best < _MIN_STRUCTURE:
+                continue
+            supports = bool(s_est >= _AGREE * s_best
+                            and (s_est >= _SHARPEN * s_static or moved < 1.0))
+            rows.append((ox, oy, int(idx.size), s_est, s_static, s_best, supports))
+    total = sum(r[2] for r in rows)
+    good = sum(r[2] for r in rows if r[6])
+    n_good = sum(1 for r in rows if r[6])
+    return {"explained_share": n_good / len(rows) if rows else 1.0,
+            "explained_event_share": good / total if total else 1.0, "n_tiles": len(rows),
+            "tile_px": side,
+            "tile_support": [{"x0": r[0], "y0": r[1], "n_events": r[2], "S_estimate": r[3],
+                              "S_static": r[4], "S_best": r[5], "supports": r[6]}
+                             for r in rows]}
+
+
+def warn_poor_fit(diag: dict, warp: str, stacklevel: int = 3) -> str | None:
+    """Issue a :class:`~evmotion.errors.PoorFitWarning` when the explained share of
+    ``diag`` (from :func:`fit_diagnostics`) is below :data:`POOR_FIT_SHARE`; returns its
+    message (else None)."""
+    share = diag.get("explained_share", 1.0)
+    if share >= POOR_FIT_SHARE:
+        return None
+    msg = (f"poor fit: the {warp} warp explains only {100 * share:.0f} % of the image "
+           f"(tiles it sharpens about as well as their own motion; threshold "
+           f"{100 * POOR_FIT_SHARE:.0f} %) -- independently moving objects or a static "
+           f"camera? the estimate is not the camera's motion; use shorter windows, a "
+           f"richer warp, or dense flow (evmotion flow)")
+    warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
+    return msg
+
+
+# ---------------------------------------------------------------------------------------
+# Event support of dense flow
+
+def event_support(x, y, shape, radius: int = 2, min_count: float = 1.0) -> np.ndarray:
+    """Pixels supported by events: the event-count image dilated by a square of
+    ``2 * radius + 1`` px, at least ``min_count``.
+
+    Parameters
+    ----------
+    x, y : array (N,)
+        Event pixels (rounded; outside the sensor ignored).
+    shape : (int, int)
+        ``(H, W)``.
+    radius : int
+        Dilation radius in px (a tile flow is smooth over a few px around its events).
+    min_count : float
+        Events needed within the square.
+
+    Returns
+    -------
+    ndarray (H, W) bool
+
+    Examples
+    --------
+    >>> m = event_support(np.array([5]), np.array([5]), (10, 10), radius=1)
+    >>> int(m.sum()), bool(m[4, 6]), bool(m[5, 7])
+    (9, True, False)
+    """
+    h, w = int(shape[0]), int(shape[1])
+    if radius < 0:
+        raise ParameterError(f"event_support: radius must be >= 0, got {radius}")
+    xi = np.rint(np.asarray(x, dtype=np.float64)).astype(np.int64)
+    yi = np.rint(np.asarray(y, dtype=np.float64)).astype(np.int64)
+    ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+    cnt = np.bincount(yi[ok] * w + xi[ok], minlength=h * w).reshape(h, w).astype(np.float32)
+    # box sum by integral image (float64: exact counts)
+    ii = np.zeros((h + 1, w + 1))
+    ii[1:, 1:] = cnt.cumsum(0).cumsum(1)
+    r = int(radius)
+    y0 = np.clip(np.arange(h) - r, 0, h)
+    y1 = np.clip(np.arange(h) + r + 1, 0, h)
+    x0 = np.clip(np.arange(w) - r, 0, w)
+    x1 = np.clip(np.arange(w) + r + 1, 0, w)
+    box = (ii[y1][:, x1] - ii[y0][:, x1] - ii[y1][:, x0] + ii[y0][:, x0])
+    return box >= min_count
