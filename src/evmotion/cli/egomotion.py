@@ -167,7 +167,8 @@ def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
         rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "t_ref_us": r.t_ref_us,
                      "n_events": r.n_events, "params": d["params"], "units": d["units"],
                      "cost": r.cost, "focus": r.focus, "penalty": r.penalty,
-                     "seconds": r.timings["total"]})
+                     "seconds": r.timings["total"], "compile_s": r.timings["compile"],
+                     "estimate_s": r.timings["estimate"]})
         if r.warp == "rotation":
             # the camera's angular velocity, camera frame x right, y down, z forward
             rows[-1]["omega"] = [float(v) for v in r.params]

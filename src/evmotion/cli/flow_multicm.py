@@ -178,6 +178,8 @@ def run(args) -> int:
             "n_windows": len(results), "sensor_size": list(events.sensor_size),
             "windows": [{"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events,
                          "focus": r.focus, "seconds": r.timings["total_s"],
+                         "compile_s": r.timings["compile_s"],
+                         "estimate_s": r.timings["estimate_s"],
                          "mean_speed_px_s": float(np.linalg.norm(r.flow, axis=-1).mean())}
                         for r, w in zip(results, windows, strict=True)],
             "seconds": time.perf_counter() - t_start,
