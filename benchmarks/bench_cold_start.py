@@ -13,6 +13,12 @@ times the package under ``DIR/evmotion`` (default this checkout's ``src``; e.g. 
 ``git worktree`` of an older commit for a before/after table) and writes
 ``results/cold_start_<tag>.json``; ``--table`` merges the tagged runs into
 ``results/cold_start.md``/``.json`` (``before`` and ``after`` side by side).
+
+``--warm BEFORE_SRC`` checks that warm speed is unchanged: bench_cmax's evaluation rows
+(cost + gradient, 30k events at 346x260, the warps whose kernels were split per case, each
+penalty, at bench_cmax's ordinary and collapsing parameters) and its 4-DOF estimate, timed
+in child processes with a warm cache, before and after in turn (five rounds, each child
+pinned to the idlest core), into ``results/cold_start_warm.md``/``.json``.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -132,7 +139,13 @@ def run_cold(src: Path, argv: list[str], work: Path) -> dict:
 
 
 def measure(src: Path, tag: str, only: list[str] | None = None) -> list[dict]:
-    rows = []
+    """Time the commands (those whose name contains one of ``only``, and the simulation
+    they read) into ``results/cold_start_<tag>.json``, saved after each command; rows of
+    other commands already there are kept."""
+    out = harness.RESULTS / f"cold_start_{tag}.json"
+    old = json.loads(out.read_text())["rows"] if out.exists() else []
+    rows = [r for r in old if only and not any(s in r["command"] for s in only)
+            and r["command"] != "simulate rotation"]
     with tempfile.TemporaryDirectory(prefix="evm-cold-") as tmp:
         work = Path(tmp)
         for name, argv in commands(work):
@@ -141,13 +154,12 @@ def measure(src: Path, tag: str, only: list[str] | None = None) -> list[dict]:
             r = run_cold(src, argv, work)
             rows.append({"command": name, **r})
             print(f"{tag:>7} {name:40s} " + (
-                f"wall {r['wall_s']:6.1f} s  cpu {r['cpu_s']:6.1f} s  compile "
-                f"{r['compile_wall_s']:6.1f} s" if "wall_s" in r else f"FAILED {r}"),
+                f"wall {r['wall_s']:6.1f} s  cpu {r['cpu_s']:6.1f} s  compile cpu "
+                f"{r['compile_cpu_s']:6.1f} s" if "wall_s" in r else f"FAILED {r}"),
                 flush=True)
-    out = harness.RESULTS / f"cold_start_{tag}.json"
-    out.write_text(json.dumps({"src": str(src), "tag": tag,
-                               "date": time.strftime("%Y-%m-%d %H:%M:%S"), "rows": rows},
-                              indent=2))
+            out.write_text(json.dumps({"src": str(src), "tag": tag,
+                                       "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+                                       "rows": rows}, indent=2))
     return rows
 
 
@@ -164,7 +176,7 @@ def table() -> list[dict]:
         row = {"command": n}
         for tag, rs in runs.items():
             r = rs.get(n, {})
-            for k in ("wall_s", "cpu_s", "compile_wall_s", "run_wall_s"):
+            for k in ("wall_s", "cpu_s", "compile_cpu_s", "run_cpu_s", "compile_wall_s"):
                 if k in r:
                     row[f"{tag} {k}"] = round(r[k], 2)
         rows.append(row)
@@ -172,9 +184,82 @@ def table() -> list[dict]:
         "Each command in a fresh process with an empty NUMBA_CACHE_DIR, one thread "
         "(python -m evmotion via a driver counting numba:compile events). wall/cpu: the "
         "whole process (cpu = user + sys, os.wait4); compile: inside numba compilation "
-        "(outermost events); run = wall - compile. before = commit 7c713d1 (a git worktree "
+        "(outermost events; compile_cpu: the compiling thread's CPU time); run = total - "
+        "compile. before = commit 7c713d1 (a git worktree "
         "on PYTHONPATH), after = this branch; same machine, shared with other jobs (cpu is "
         "the steadier figure)."))
+    return rows
+
+
+#: The child of :func:`warm_ab`: times bench_cmax's rows with the package on its path.
+WARM_CHILD = r'''
+import json, sys
+from functools import partial
+import numpy as np
+sys.path.insert(0, sys.argv[2])
+import harness
+from bench_cmax import COLLAPSE_THETA, WARP_THETA, _events
+from evmotion.core.warps import make_warp
+from evmotion.events import EventArray
+from evmotion.methods.egomotion import CMaxCost, estimate_egomotion
+
+harness.pin_idlest_core()
+shape = (260, 346)
+x, y, dt, p, _ = _events(30_000, shape)
+K = np.array([[shape[1] * 0.8, 0, shape[1] / 2], [0, shape[1] * 0.8, shape[0] / 2], [0, 0, 1.0]])
+out = {}
+for wname in ("rotation", "similarity", "se2", "inplane", "zoom", "translation"):
+    warp = make_warp(wname, shape, K=K)
+    for motion, th in (("ordinary", WARP_THETA[wname]), ("collapse", COLLAPSE_THETA[wname])):
+        if th is None:
+            continue
+        for reg in (None, "rcad", "divergence", "deformation"):
+            c = CMaxCost(warp, x, y, dt, shape, "variance", reg, weight=1.0, polarity=p)
+            r = harness.timeit(partial(c.value_grad, np.asarray(th, float)), repeat=30)
+            out[f"{wname} {motion} {reg or 'none'}"] = r["min_s"], r["median_s"]
+x, y, dt, p, t = _events(30_000, shape, seed=1)
+ev = EventArray(x.astype(np.float32), y.astype(np.float32), t, p, sensor_size=shape,
+                validate=False)
+r = harness.timeit(lambda: estimate_egomotion(ev, "similarity", regularizer="rcad",
+                                              kernel="bilinear", maps=False), repeat=7)
+out["estimate similarity rcad bfgs"] = r["min_s"], r["median_s"]
+with open(sys.argv[1], "w") as fh:
+    json.dump(out, fh)
+'''
+
+
+def warm_ab(before_src: Path, rounds: int = 5) -> list[dict]:
+    """Warm speed before and after, in child processes timed in turn (see the module
+    docstring)."""
+    runs = {"before": [], "after": []}
+    with tempfile.TemporaryDirectory(prefix="evm-warm-") as tmp:
+        out = Path(tmp, "out.json")
+        for _ in range(rounds):
+            for tag, src in (("before", before_src), ("after", SRC)):
+                env = dict(os.environ, PYTHONPATH=str(src), OMP_NUM_THREADS="1",
+                           OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+                env.pop("NUMBA_CACHE_DIR", None)  # each checkout's own warm cache
+                subprocess.run([sys.executable, "-c", WARM_CHILD, str(out), str(HERE)],
+                               env=env, check=True)
+                runs[tag].append(json.loads(out.read_text()))
+    rows = []
+    for name in runs["after"][0]:
+        b_min = min(r[name][0] for r in runs["before"])
+        a_min = min(r[name][0] for r in runs["after"])
+        b_med = statistics.median(r[name][1] for r in runs["before"])
+        a_med = statistics.median(r[name][1] for r in runs["after"])
+        rows.append({"row": name, "before ms (min)": b_min * 1e3, "after ms (min)": a_min * 1e3,
+                     "after/before (min)": a_min / b_min,
+                     "before ms (median)": b_med * 1e3, "after ms (median)": a_med * 1e3,
+                     "after/before (median)": a_med / b_med})
+    harness.record("cold_start_warm", rows, notes=(
+        f"Warm speed, before (commit 7c713d1) and after (this branch), {rounds} rounds of one "
+        "child process each in turn, each pinned to the idlest core (harness."
+        "pin_idlest_core), warm numba cache. Rows: bench_cmax's cost + gradient of 30k events "
+        "at 346x260 (variance, weight 1, ordinary and collapsing parameters), ms per "
+        "evaluation: min over rounds of the fastest of 30 runs, and median over rounds of the "
+        "medians; last row a whole similarity + RCAD BFGS estimate (bench_cmax's). The machine "
+        "is shared with other jobs: the min is the steadier figure."))
     return rows
 
 
@@ -190,7 +275,11 @@ if __name__ == "__main__":
     ap.add_argument("--tag", default="after", choices=["before", "after"])
     ap.add_argument("--only", nargs="*", help="commands whose name contains one of these")
     ap.add_argument("--table", action="store_true", help="only merge the recorded runs")
+    ap.add_argument("--warm", metavar="BEFORE_SRC", help="warm speed before/after instead")
     args = ap.parse_args()
+    if args.warm:
+        warm_ab(Path(args.warm))
+        sys.exit(0)
     if not args.table:
         measure(Path(args.src), args.tag, args.only)
     table()

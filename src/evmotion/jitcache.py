@@ -1,4 +1,5 @@
-"""Where numba keeps the compiled kernels, and how long a call spent compiling them.
+"""Where numba keeps the compiled kernels, how long a call spent compiling them, and
+kernels compiled per case.
 
 The kernels are compiled on first use and cached on disk (``@njit(cache=True)``). numba
 caches next to the sources (``__pycache__``) or, failing that, in the user's cache folder;
@@ -26,7 +27,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-__all__ = ["compile_seconds", "ensure_cache_dir"]
+__all__ = ["compile_seconds", "ensure_cache_dir", "kernel_case"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -93,6 +94,35 @@ def ensure_cache_dir(package_dir: str | os.PathLike | None = None, stream=None) 
           f"caching them in {folder} (set NUMBA_CACHE_DIR to choose)",
           file=sys.stderr if stream is None else stream)
     return folder
+
+
+_CASES: dict = {}
+
+
+def kernel_case(factory, *key):
+    """The kernel ``factory(*key)``, built once per process; numba compiles it on its first
+    call (or loads it from the cache).
+
+    A hot kernel whose cases (series mode, weights or not, ...) must each be a loop of its
+    own, with no branch inside, is written as a factory of one ``@njit`` closure per case,
+    the case frozen in as constants: a call then compiles the case it runs, where one kernel
+    branching to every case would compile them all on its first call.
+
+    Examples
+    --------
+    >>> from numba import njit
+    >>> def scaled(k):
+    ...     @njit
+    ...     def f(v):
+    ...         return k * v
+    ...     return f
+    >>> kernel_case(scaled, 3)(2.0), kernel_case(scaled, 3) is kernel_case(scaled, 3)
+    (6.0, True)
+    """
+    k = _CASES.get((factory, key))
+    if k is None:
+        k = _CASES[(factory, key)] = factory(*key)
+    return k
 
 
 # ---------------------------------------------------------------------------------------

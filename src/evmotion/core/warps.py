@@ -69,6 +69,7 @@ from numba import njit
 
 from evmotion.core.iwe import _shape
 from evmotion.errors import CalibrationError, ParameterError
+from evmotion.jitcache import kernel_case
 
 __all__ = [
     "WARPS",
@@ -245,21 +246,11 @@ _BLOCK = 512  # events per block of the vectorized trigonometric pass
 
 
 # Each case of a hot kernel (series mode, Jacobian or not, fused image or not, weights,
-# pair mode, value kind) is its own kernel, built on first use by :func:`_adj_case` and
-# compiled (or loaded from the cache) then: a call compiles the cases it runs, not all of
-# them. One kernel holding every case as a branch compiled them all on its first call,
-# whatever it needed: 98 s for the rotation adjoint's 20 cases on an empty numba cache,
-# 17 s for the zoom/translation/in-plane ones.
-
-_CASES: dict = {}
-
-
-def _adj_case(factory, *key):
-    """The kernel ``factory(*key)``, built once per process (numba compiles it lazily)."""
-    k = _CASES.get((factory, key))
-    if k is None:
-        k = _CASES[(factory, key)] = factory(*key)
-    return k
+# pair mode, value kind) is its own kernel, built on first use by
+# :func:`evmotion.jitcache.kernel_case` and compiled (or loaded from the cache) then: a call
+# compiles the cases it runs, not all of them. One kernel holding every case as a branch
+# compiled them all on its first call, whatever it needed: 98 s for the rotation adjoint's
+# 20 cases on an empty numba cache, 17 s for the zoom/translation/in-plane ones.
 
 
 
@@ -631,7 +622,7 @@ def _rot_warp_norm(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12):
 
 def _rot_warp_case(mode, jac):
     """The rotation warp kernel in series mode ``mode`` (:func:`_rot_rates`), with the
-    Jacobian (``jac``) or not: one case, compiled on first use (:func:`_adj_case`)."""
+    Jacobian (``jac``) or not: one case, compiled on first use (:func:`evmotion.jitcache.kernel_case`)."""
     if jac:
         @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
         def rot_warp_jac(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy):
@@ -1038,16 +1029,16 @@ def _rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, blk, o
     mode = _rot_series_mode(dt, prm)
     fuse = pad.shape[0] > 0
     if not fuse:
-        _adj_case(_rot_adj_plain, mode, False, False)(xw, yw, dt, prm, gx, gy, wts, pad, h,
-                                                       wd, scale, T, out)
+        kernel_case(_rot_adj_plain, mode, False, False)(xw, yw, dt, prm, gx, gy, wts, pad,
+                                                        h, wd, scale, T, out)
     elif pad.shape[0] == 2 * (h + 2) * (wd + 2):
-        _adj_case(_rot_adj_blocks, mode, True, vk if vk in (1, 2) else 0)(
+        kernel_case(_rot_adj_blocks, mode, True, vk if vk in (1, 2) else 0)(
             xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, blk, out)
     elif blk.shape[0] > 0:
-        _adj_case(_rot_adj_blocks, mode, False, 0)(xw, yw, dt, prm, gx, gy, wts, pad, h, wd,
-                                                   scale, T, blk, out)
+        kernel_case(_rot_adj_blocks, mode, False, 0)(xw, yw, dt, prm, gx, gy, wts, pad, h,
+                                                     wd, scale, T, blk, out)
     else:
-        _adj_case(_rot_adj_plain, mode, True, wts.shape[0] > 0)(
+        kernel_case(_rot_adj_plain, mode, True, wts.shape[0] > 0)(
             xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, out)
 
 
@@ -1114,8 +1105,8 @@ def _similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
         key = (small, True, True, True, vk if vk in (1, 2) else 0)
     else:
         key = (small, True, wts.shape[0] > 0, False, 0)
-    _adj_case(_similarity_adj_case, *key)(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T,
-                                          out)
+    kernel_case(_similarity_adj_case, *key)(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale,
+                                            T, out)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -1220,8 +1211,8 @@ def _simple_adj(kind, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk,
         key = (kind, True, True, True, 0 if kind == 1 or vk not in (1, 2) else vk)
     else:
         key = (kind, True, wts.shape[0] > 0, False, 0)
-    _adj_case(_simple_adj_case, *key)(x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale,
-                                      T, out)
+    kernel_case(_simple_adj_case, *key)(x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd,
+                                        scale, T, out)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
@@ -2031,7 +2022,7 @@ class RotationWarp(_FusedAdjoint, Warp):
     _blocked = True
 
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
-        _adj_case(_rot_warp_case, _rot_series_mode(dt, th), bool(jac))(
+        kernel_case(_rot_warp_case, _rot_series_mode(dt, th), bool(jac))(
             x, y, dt, th, self.K, self._kinv, xw, yw, jx, jy)
 
     def _conj(self):

@@ -55,11 +55,13 @@ import numpy as np
 from numba import njit
 
 from evmotion.core.iwe import (
+    KERNELS,
     _vote_bilinear,
     accumulate,
     accumulate_backward_into,
     accumulate_backward_reduce,
     accumulate_into,
+    dequantize,
 )
 from evmotion.core.objectives import (
     OBJECTIVES,
@@ -629,7 +631,7 @@ def _penalty_terms(regularizer, weight) -> tuple[tuple[str, float], ...]:
 
 def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str = "variance",
               regularizer: str | None = None, weight: float | None = None, K=None,
-              t_ref: str | int = "start", kernel: str = "auto", sigma: float = 1.0,
+              t_ref: str | int = "start", kernel: str = "bilinear", sigma: float = 1.0,
               use_polarity: bool = False, dataset: str = "mvsec") -> tuple[CMaxCost, int]:
     """Build the :class:`CMaxCost` of a window; returns ``(cost, t_ref_us)``.
 
@@ -662,12 +664,12 @@ def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str 
     span = max(int(t[-1]) - int(t[0]), 1)
     tn = (t - t[0]).astype(np.float64) / span
     lam = _default_weight(regularizer, dataset) if weight is None else weight
-    if kernel == "auto":
-        # events on the integer pixel grid make the identity warp a kink-shaped local
-        # maximum of any bilinear-vote objective (every event sits exactly on a pixel), which
-        # traps gradient methods at theta = 0; the Gaussian delta is smooth there
-        kernel = "bilinear" if events.x.dtype.kind == "f" else "gaussian"
-    cost = CMaxCost(warp, events.x, events.y, dt, events.sensor_size, objective, regularizer,
+    if kernel not in KERNELS:
+        raise ParameterError(f"kernel must be one of {KERNELS}, got {kernel!r}")
+    # the same events give the same answer whatever their dtype: the bilinear kernel votes
+    # events on the integer grid spread over their pixel (a kink at theta = 0 otherwise)
+    x, y = dequantize(events.x, events.y) if kernel == "bilinear" else (events.x, events.y)
+    cost = CMaxCost(warp, x, y, dt, events.sensor_size, objective, regularizer,
                     lam, polarity=events.p, tn=tn, kernel=kernel, sigma=sigma,
                     use_polarity=use_polarity)
     return cost, t_ref_us
@@ -678,7 +680,7 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                        weight: float | None = None, optimizer: str = "bfgs", K=None,
                        t_ref: str | int = "start", init=None, seed: int = 0, *,
                        starts=None, bounds=None, n_samples: int | None = None,
-                       n_iter: int = 100, lr: float = 0.05, kernel: str = "auto",
+                       n_iter: int = 100, lr: float = 0.05, kernel: str = "bilinear",
                        sigma: float = 1.0, use_polarity: bool = False,
                        dataset: str = "mvsec", maps: bool = True) -> EgomotionResult:
     """Estimate the warp parameters of one window by contrast maximization (ch. 3).
@@ -716,9 +718,11 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     n_samples : int, optional
         TPE samples (300 for 1 DOF, 600 otherwise).
     n_iter, lr : Adam iterations (100) and step (in units of the parameter scale).
-    kernel : {"auto", "bilinear", "gaussian"}
-        IWE delta approximation; ``"auto"`` = bilinear for float (undistorted)
-        coordinates, Gaussian for integer sensor coordinates (see :func:`make_cost`).
+    kernel : {"bilinear", "gaussian"}
+        IWE delta approximation, the same whatever the dtype of the events (default
+        bilinear, the fast fused path). Bilinear votes events that all lie on the integer
+        pixel grid spread over their pixel (:func:`evmotion.core.iwe.dequantize`;
+        deterministic); Gaussian (``sigma`` px) is smooth without it, about 10x slower.
     sigma : float
         Gaussian standard deviation in px (default 1).
     use_polarity : bool
