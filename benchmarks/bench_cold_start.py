@@ -17,7 +17,7 @@ times the package under ``DIR/evmotion`` (default this checkout's ``src``; e.g. 
 ``--warm BEFORE_SRC`` checks that warm speed is unchanged: bench_cmax's evaluation rows
 (cost + gradient, 30k events at 346x260, the warps whose kernels were split per case, each
 penalty, at bench_cmax's ordinary and collapsing parameters) and its 4-DOF estimate, timed
-in child processes with a warm cache, before and after in turn (five rounds, each child
+in child processes with a warm cache, before and after in turn (three rounds, each child
 pinned to the idlest core), into ``results/cold_start_warm.md``/``.json``.
 """
 
@@ -228,7 +228,7 @@ with open(sys.argv[1], "w") as fh:
 '''
 
 
-def warm_ab(before_src: Path, rounds: int = 5) -> list[dict]:
+def warm_ab(before_src: Path, rounds: int = 3) -> list[dict]:
     """Warm speed before and after, in child processes timed in turn (see the module
     docstring)."""
     runs = {"before": [], "after": []}
