@@ -11,6 +11,11 @@ from evmotion.errors import (
     FormatError,
     ParameterError,
 )
+from evmotion.jitcache import ensure_cache_dir
+
+# before any kernel is defined (the modules above define none): an installation numba
+# cannot cache next to gets a cache folder elsewhere (one line on stderr), not an error
+ensure_cache_dir()
 
 __version__ = "0.1.0"
 

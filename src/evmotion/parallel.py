@@ -46,6 +46,10 @@ class WindowResult:
         Wall time of ``fn`` (and reading the window) in the worker, in seconds.
     cached : bool
         True when the value was loaded from ``resume_dir`` instead of computed.
+    compile_s : float
+        Of ``elapsed_s``, the seconds spent compiling numba kernels on first use
+        (:func:`evmotion.jitcache.compile_seconds`): a worker process compiles a kernel
+        once (or loads it from the shared cache), so later windows on it report 0.
     """
 
     index: int
@@ -55,6 +59,7 @@ class WindowResult:
     error: str | None = None
     elapsed_s: float = 0.0
     cached: bool = False
+    compile_s: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -92,6 +97,9 @@ def _normalize_windows(windows: Iterable[Window | tuple[int, int]]) -> list[_Tas
 def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
                 read_kwargs: dict) -> WindowResult:
     """Run in the worker: read (or take) the window's events and call ``fn``."""
+    from evmotion.jitcache import compile_seconds
+
+    c0 = compile_seconds()
     start = time.perf_counter()
     try:
         if isinstance(source, EventArray):
@@ -102,11 +110,13 @@ def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
             events = read_events(source, t0=task.t0, t1=task.t1, **read_kwargs)
         value = fn(events, task.t0, task.t1) if with_window else fn(events)
         return WindowResult(task.index, task.t0, task.t1, value=value,
-                            elapsed_s=time.perf_counter() - start)
+                            elapsed_s=time.perf_counter() - start,
+                            compile_s=compile_seconds() - c0)
     except Exception as exc:
         text = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
         return WindowResult(task.index, task.t0, task.t1, error=text,
-                            elapsed_s=time.perf_counter() - start)
+                            elapsed_s=time.perf_counter() - start,
+                            compile_s=compile_seconds() - c0)
 
 
 class _Store:
@@ -193,7 +203,10 @@ def map_windows(
         number of windows in flight).
     scheduler : str or distributed.Client, optional
         Run on a Dask cluster instead: a scheduler address (``"tcp://host:8786"``) or a
-        connected ``distributed.Client``. Workers must be able to read ``source``.
+        connected ``distributed.Client``. Workers must be able to read ``source``. A
+        worker process compiles each numba kernel once, on its first window that needs it
+        (or loads it from numba's cache; workers sharing one ``NUMBA_CACHE_DIR`` share
+        it): :attr:`WindowResult.compile_s` says which windows paid.
     resume_dir : path, optional
         Save each finished window there (pickle, atomically) and skip windows already
         saved. Failed windows are not saved, so a rerun retries them. Use one folder per

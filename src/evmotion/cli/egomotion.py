@@ -204,6 +204,7 @@ def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
                      "n_events": r.n_events, "params": d["params"], "units": d["units"],
                      "cost": r.cost, "focus": r.focus, "penalty": r.penalty,
                      "weight": d["weight"], "seconds": r.timings["total"],
+                     "compile_s": r.timings["compile"], "estimate_s": r.timings["estimate"],
                      "collapsed": r.collapsed, "diagnostics": d["diagnostics"]})
         if r.warp == "rotation":
             # the camera's angular velocity, camera frame x right, y down, z forward

@@ -197,7 +197,8 @@ def _row(r, w) -> dict:
     valid = _valid(r)
     speed = np.linalg.norm(r.flow, axis=-1)
     return {"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events, "focus": r.focus,
-            "seconds": r.timings["total_s"],
+            "seconds": r.timings["total_s"], "compile_s": r.timings["compile_s"],
+            "estimate_s": r.timings["estimate_s"],
             "mean_speed_px_s": float(speed[valid].mean()) if valid.any() else 0.0,
             "valid_fraction": float(valid.mean())}
 

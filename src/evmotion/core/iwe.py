@@ -43,6 +43,7 @@ __all__ = [
     "accumulate_backward_into",
     "accumulate_backward_reduce",
     "accumulate_into",
+    "dequantize",
 ]
 
 #: Names of the delta approximations.
@@ -151,18 +152,32 @@ def _vote_cells(use_w, xs, ys, ws, wd, h, ib, w00, w01, w10, w11):
         w11[j] = ay * fx
 
 
-@njit(cache=True, error_model="numpy")
 def _vote_bilinear(xw, yw, wts, out):
     """The bilinear IWE of :func:`evmotion.core.iwe.accumulate_into` into ``out`` (H, W),
     equal bit for bit (same votes, same arithmetic, same order of summation), about 25 %
     faster: the cells and vote weights of a block of events are computed first, in a loop
     that vectorizes, then scattered; events whose cell crosses the border take the
-    bounds-tested path of the original."""
-    out[:] = 0.0
+    bounds-tested path of the original. Weighted (``wts`` (N,)) or not (``wts`` empty):
+    two kernels, each compiled on first use."""
     if wts.shape[0] > 0:
-        _vote_blocks(xw, yw, wts, True, out, wts, out, False, True)
-    else:
-        _vote_blocks(xw, yw, wts, False, out, wts, out, False, True)
+        return _vote_weighted(xw, yw, wts, out)
+    return _vote_counts(xw, yw, out)
+
+
+@njit(cache=True, error_model="numpy")
+def _vote_counts(xw, yw, out):
+    """:func:`_vote_bilinear` of unit votes."""
+    out[:] = 0.0
+    # xw stands in for the weights and values, unread without them
+    _vote_blocks(xw, yw, xw, False, out, xw, out, False, True)
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _vote_weighted(xw, yw, wts, out):
+    """:func:`_vote_bilinear` with per-event weights ``wts``."""
+    out[:] = 0.0
+    _vote_blocks(xw, yw, wts, True, out, wts, out, False, True)
     return out
 
 
@@ -360,6 +375,49 @@ def _prep(xw, yw, weights, name="xw"):
             raise ParameterError(f"weights must have shape {xw.shape} like the events, "
                                  f"got {w.shape}")
     return xw, yw, w
+
+
+#: The R2 low-discrepancy sequence (Roberts 2018; the inverses of the plastic number and its
+#: square): evenly spread 2-D offsets, deterministic, for :func:`dequantize`.
+_R2 = (0.7548776662466927, 0.5698402909980532)
+
+
+def dequantize(x, y) -> tuple[np.ndarray, np.ndarray]:
+    """Float64 copies of event pixels, spread over their pixel when all are whole numbers.
+
+    A sensor reports integer pixels. With every event exactly on a pixel, the identity warp
+    is a kink-shaped local maximum of any objective of the bilinear IWE (any motion moves
+    all events off their pixels at once), which traps gradient methods at zero motion.
+    When all coordinates are whole numbers (whatever their dtype: integers, or floats
+    holding integers), each event is moved by an offset in [-0.5, 0.5)^2 px within its
+    pixel, the k-th event by the k-th point of the R2 low-discrepancy sequence: no seed, the
+    same offsets for the same events, and an even spread. Coordinates with any fractional
+    part (undistorted events) are only converted to float64.
+
+    Parameters
+    ----------
+    x, y : array (N,)
+        Event pixels (x = column, y = row), any real dtype.
+
+    Returns
+    -------
+    x, y : ndarray (N,) float64
+
+    Examples
+    --------
+    >>> xd, yd = dequantize(np.array([3, 3, 3], np.uint16), np.array([1, 1, 1]))
+    >>> bool(np.all(np.abs(xd - 3) < 0.5)), len(set(xd.tolist())) == 3
+    (True, True)
+    >>> dequantize(np.array([1.25]), np.array([2.0]))[0].tolist()
+    [1.25]
+    """
+    xf = np.array(x, dtype=np.float64)
+    yf = np.array(y, dtype=np.float64)
+    if xf.size and np.all(xf == np.round(xf)) and np.all(yf == np.round(yf)):
+        k = np.arange(1, xf.size + 1, dtype=np.float64)
+        xf += np.mod(k * _R2[0], 1.0) - 0.5
+        yf += np.mod(k * _R2[1], 1.0) - 0.5
+    return xf, yf
 
 
 def _check_kernel(kernel: str, sigma: float) -> None:

@@ -93,12 +93,13 @@ from evmotion.core.warps import (
     _rod_coeffs_short,
     _rod_mode,
     _rot_matrix,
-    _rot_rates,
+    _rot_series_mode,
     _rot_warp_norm,
     _rows01,
     _sincos_block,
 )
 from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.jitcache import kernel_case
 
 __all__ = [
     "DEFAULT_MARGINS",
@@ -342,69 +343,63 @@ def _rot_finish(v, want_div, T, d, fac, k):
         fac[k] = 1.0 if v >= 0.0 else -1.0
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _rot_values_case(mode, want_div):
+    """:func:`_k_rot_values` in series mode ``mode`` for the divergence or det J: one case,
+    compiled on first use (:func:`evmotion.jitcache.kernel_case`)."""
+
+    @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+    def rot_values(xw, yw, dt, w, Kinv, T, d, fac):
+        wx, wy, wz = w[0], w[1], w[2]
+        ww = wx * wx + wy * wy + wz * wz
+        i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
+        for k in range(xw.shape[0]):
+            t = dt[k]
+            a, b, _ = _rod_mode(t * t * ww, mode)
+            v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
+                                 + i12, t, a, b, wx, wy, wz, ww, want_div)
+            _rot_finish(v, want_div, T, d, fac, k)
+
+    return rot_values
+
+
 def _k_rot_values(xw, yw, dt, w, Kinv, want_div, T, d, fac):
     """Per-event d_k (divergence times T, or |det J| - 1) and fac_k of the rotation warp
-    from the warped pixels ``xw, yw`` (one pass; the loops per series mode have no branch,
-    so they vectorize like the warp's)."""
-    wx, wy, wz, ww, mode = _rot_rates(dt, w)
-    i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
-    n = xw.shape[0]
-    if mode == 0:
-        for k in range(n):
-            t = dt[k]
-            a, b, _ = _rod_coeffs_short(t * t * ww)
-            v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
-                                 + i12, t, a, b, wx, wy, wz, ww, want_div)
-            _rot_finish(v, want_div, T, d, fac, k)
-    elif mode == 1:
-        for k in range(n):
-            t = dt[k]
-            a, b, _ = _rod_coeffs(t * t * ww)
-            v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
-                                 + i12, t, a, b, wx, wy, wz, ww, want_div)
-            _rot_finish(v, want_div, T, d, fac, k)
-    else:
-        for k in range(n):
-            t = dt[k]
-            z = t * t * ww
-            a, b, _ = _rod_coeffs(z) if z < 1.0 else _rod_coeffs_exact(z)
-            v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
-                                 + i12, t, a, b, wx, wy, wz, ww, want_div)
-            _rot_finish(v, want_div, T, d, fac, k)
+    from the warped pixels ``xw, yw`` (one pass; the loop of each series mode has no
+    branch, so it vectorizes like the warp's)."""
+    kernel_case(_rot_values_case, _rot_series_mode(dt, w), bool(want_div))(
+        xw, yw, dt, w, Kinv, T, d, fac)
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+def _rot_warp_values_case(mode, want_div):
+    """:func:`_k_rot_warp_values` in series mode ``mode`` for the divergence or det J: one
+    case, compiled on first use."""
+
+    @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+    def rot_warp_values(x, y, dt, w, Kmat, Kinv, T, xw, yw, d, fac):
+        wx, wy, wz = w[0], w[1], w[2]
+        ww = wx * wx + wy * wy + wz * wz
+        k00, k01, k02, k10, k11, k12 = _rows01(Kmat)
+        i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
+        for k in range(x.shape[0]):
+            t = dt[k]
+            a, b, _ = _rod_mode(t * t * ww, mode)
+            X, Y = _rot_warp_norm(x[k], y[k], t, a, b, wx, wy, wz, i00, i01, i02, i10, i11,
+                                  i12)
+            xw[k] = k00 * X + k01 * Y + k02
+            yw[k] = k10 * X + k11 * Y + k12
+            v = _rot_value_event(X, Y, t, a, b, wx, wy, wz, ww, want_div)
+            _rot_finish(v, want_div, T, d, fac, k)
+
+    return rot_warp_values
+
+
 def _k_rot_warp_values(x, y, dt, w, Kmat, Kinv, want_div, T, xw, yw, d, fac):
     """The rotation warp (``xw, yw``, as :meth:`~evmotion.core.warps.Warp.warp_into`) and
     the per-event ``d``, ``fac`` of :func:`_k_rot_values` in one pass: each event's
     Rodrigues coefficients and warped normalized point serve both (no reload of the warped
     pixels, no second series)."""
-    a = (x, y, dt, w, Kmat, Kinv, want_div, T, xw, yw, d, fac)
-    mode = _rot_rates(dt, w)[4]
-    if mode == 0:
-        _rot_warp_values_loop(0, a)
-    elif mode == 1:
-        _rot_warp_values_loop(1, a)
-    else:
-        _rot_warp_values_loop(2, a)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _rot_warp_values_loop(mode, args):
-    x, y, dt, w, Kmat, Kinv, want_div, T, xw, yw, d, fac = args
-    wx, wy, wz = w[0], w[1], w[2]
-    ww = wx * wx + wy * wy + wz * wz
-    k00, k01, k02, k10, k11, k12 = _rows01(Kmat)
-    i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
-    for k in range(x.shape[0]):
-        t = dt[k]
-        a, b, _ = _rod_mode(t * t * ww, mode)
-        X, Y = _rot_warp_norm(x[k], y[k], t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12)
-        xw[k] = k00 * X + k01 * Y + k02
-        yw[k] = k10 * X + k11 * Y + k12
-        v = _rot_value_event(X, Y, t, a, b, wx, wy, wz, ww, want_div)
-        _rot_finish(v, want_div, T, d, fac, k)
+    kernel_case(_rot_warp_values_case, _rot_series_mode(dt, w), bool(want_div))(
+        x, y, dt, w, Kmat, Kinv, T, xw, yw, d, fac)
 
 
 def _warp_values(kind, warp, x, y, dt, th, xw, yw, span):
@@ -423,12 +418,27 @@ def _warp_values(kind, warp, x, y, dt, th, xw, yw, span):
     return d, fac
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
 def _k_fast_values(code, is_div, dt, th, T, d, g, want_g):
     """Closed forms of the warps whose divergence and det J depend on dt only: zoom (3.7),
     translation, SE(2) (A.13)/(A.14), similarity (A.40)/(A.42), in-plane (A.25)/(A.27).
     Writes d_k (divergence times T, or |det J| - 1) and, if ``want_g``, dd_k/dtheta into
-    ``g`` (N, P)."""
+    ``g`` (N, P). One kernel per warp (``code``), compiled on first use."""
+    kernel_case(_fast_values_case, code)(is_div, dt, th, T, d, g, want_g)
+
+
+def _fast_values_case(code):
+    """:func:`_k_fast_values` for the warp ``code`` (:data:`_FAST`)."""
+
+    @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+    def fast_values(is_div, dt, th, T, d, g, want_g):
+        _fast_values_body(code, is_div, dt, th, T, d, g, want_g)
+
+    return fast_values
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _fast_values_body(code, is_div, dt, th, T, d, g, want_g):
+    """The loops of :func:`_k_fast_values`."""
     n = dt.shape[0]
     P = th.shape[0]
     if want_g:

@@ -7,7 +7,7 @@ are a minority, and clustered, so the image of values is voted, trimmed and chai
 only around them:
 
 * :func:`vote_marked` votes the count image (the data term's IWE, bit for bit
-  :func:`evmotion.core.iwe._vote_bilinear`), marks the ``TILE`` x ``TILE`` pixel tiles of
+  :func:`evmotion.core.iwe._vote_counts`), marks the ``TILE`` x ``TILE`` pixel tiles of
   the cells of the events below the margin, and keeps the box of the tiles of each block of
   ``BLOCK`` consecutive events;
 * :func:`flag_blocks`: the tiles whose pixels can fall below the margin (``near``: the marks
@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _block_bufs, _vote_bilinear, _vote_block
+from evmotion.core.iwe import _block_bufs, _vote_block, _vote_counts
 from evmotion.core.warps import _DIV_BLOCK
 
 __all__ = ["BLOCK", "MIN_COUNT", "TILE", "flag_blocks", "n_blocks", "pairs_size", "pairs_view",
@@ -72,7 +72,7 @@ def vote_marked(xw, yw, d, margin, cnt, with_cnt, marks, boxes):
     > last: no event of the block votes)."""
     h, wd = cnt.shape
     if with_cnt:
-        _vote_bilinear(xw, yw, _NO_WEIGHTS, cnt)
+        _vote_counts(xw, yw, cnt)
     marks[:] = 0
     nc = marks.shape[1]
     flat = marks.reshape(marks.size)

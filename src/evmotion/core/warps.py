@@ -69,6 +69,7 @@ from numba import njit
 
 from evmotion.core.iwe import _shape
 from evmotion.errors import CalibrationError, ParameterError
+from evmotion.jitcache import kernel_case
 
 __all__ = [
     "WARPS",
@@ -242,6 +243,15 @@ def _rod_coeffs_exact(z):
 _FAST_FINITE = {"contract", "arcp", "nsz", "reassoc"}
 
 _BLOCK = 512  # events per block of the vectorized trigonometric pass
+
+
+# Each case of a hot kernel (series mode, Jacobian or not, fused image or not, weights,
+# pair mode, value kind) is its own kernel, built on first use by
+# :func:`evmotion.jitcache.kernel_case` and compiled (or loaded from the cache) then: a call
+# compiles the cases it runs, not all of them. One kernel holding every case as a branch
+# compiled them all on its first call, whatever it needed: 98 s for the rotation adjoint's
+# 20 cases on an empty numba cache, 17 s for the zoom/translation/in-plane ones.
+
 
 
 @njit(cache=True, error_model="numpy")
@@ -610,39 +620,29 @@ def _rot_warp_norm(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12):
     return q0 * iz, q1 * iz
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_rotation(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy, jac):
-    wx, wy, wz, ww, mode = _rot_rates(dt, w)
-    k00, k01, k02, k10, k11, k12 = _rows01(Kmat)
-    i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
-    n = x.shape[0]
-    if not jac:
-        if mode == 0:
-            for k in range(n):
-                t = dt[k]
-                a, b, _ = _rod_coeffs_short(t * t * ww)
-                xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, k00, k01, k02,
-                                               k10, k11, k12, i00, i01, i02, i10, i11, i12)
-        elif mode == 1:
-            for k in range(n):
-                t = dt[k]
-                a, b, _ = _rod_coeffs(t * t * ww)
-                xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, k00, k01, k02,
-                                               k10, k11, k12, i00, i01, i02, i10, i11, i12)
-        else:
-            for k in range(n):
-                t = dt[k]
-                a, b, _ = _rod_mode(t * t * ww, mode)
-                xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, k00, k01, k02,
-                                               k10, k11, k12, i00, i01, i02, i10, i11, i12)
-        return
-    a = (x, y, dt, xw, yw, jx, jy, w, Kmat, Kinv)
-    if mode == 0:
-        _rot_jac_loop(0, a)
-    elif mode == 1:
-        _rot_jac_loop(1, a)
-    else:
-        _rot_jac_loop(2, a)
+def _rot_warp_case(mode, jac):
+    """The rotation warp kernel in series mode ``mode`` (:func:`_rot_rates`), with the
+    Jacobian (``jac``) or not: one case, compiled on first use (:func:`evmotion.jitcache.kernel_case`)."""
+    if jac:
+        @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+        def rot_warp_jac(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy):
+            _rot_jac_loop(mode, (x, y, dt, xw, yw, jx, jy, w, Kmat, Kinv))
+
+        return rot_warp_jac
+
+    @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+    def rot_warp(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy):
+        wx, wy, wz = w[0], w[1], w[2]
+        ww = wx * wx + wy * wy + wz * wz
+        k00, k01, k02, k10, k11, k12 = _rows01(Kmat)
+        i00, i01, i02, i10, i11, i12 = _rows01(Kinv)
+        for k in range(x.shape[0]):
+            t = dt[k]
+            a, b, _ = _rod_mode(t * t * ww, mode)
+            xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, k00, k01, k02,
+                                           k10, k11, k12, i00, i01, i02, i10, i11, i12)
+
+    return rot_warp
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -697,7 +697,7 @@ def _rot_jac_loop(mode, args):
 @njit(cache=True, error_model="numpy")
 def _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX, gY):
     """``gX dX/domega + gY dY/domega`` (3 terms) at the warped normalized point (X, Y);
-    the formula of the Jacobian in :func:`_k_rotation`, contracted instead of stored."""
+    the formula of the Jacobian in :func:`_rot_jac_event`, contracted instead of stored."""
     return _rot_vjp_u(X, Y, t, b, c, wx, wy, wz, ww, gX, gY, 0.0, 0.0, 0.0)
 
 
@@ -815,7 +815,7 @@ def _rot_bc(z, mode):
 
 @njit(cache=True, inline="always")
 def _rot_prm(prm):
-    """The scalars of :func:`_k_rotation_adj`'s ``prm``: omega, |omega|^2, K's 2x2 block
+    """The scalars of the rotation adjoint's ``prm``: omega, |omega|^2, K's 2x2 block
     and the first two rows of K^-1."""
     wx, wy, wz = prm[0], prm[1], prm[2]
     return (wx, wy, wz, wx * wx + wy * wy + wz * wz, prm[3], prm[4], prm[5], prm[6], prm[7],
@@ -981,64 +981,65 @@ def _rot_value_adj(X, Y, t, a, b, c, gd, T, wx, wy, wz, ww):
     return d0 + fi * ea0, d1 + fi * ea1, d2 + fi * ea2
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, blk, out):
-    """``out`` (3,) = ``jx^T gx + jy^T gy`` with the rotation Jacobian recomputed per event
-    from the warped pixels ``xw, yw`` (``prm``: omega, K's 2x2 block, the first two rows of
-    K^-1); with a padded image ``pad`` (:func:`_pad_image`) the pixel gradients come from it
-    (weights ``wts`` times ``scale``), not from ``gx, gy``. With two padded images (pair
-    mode, ``wts`` the per-event values), ``vk`` says whether the values are held fixed (0)
-    or are the warp's divergence times ``T`` (1) or ``|det J| - 1`` (2), whose derivatives
-    are then chained as well (:data:`_VALUE_KINDS`). ``blk`` (int64): the blocks of
-    events to visit (:func:`_rot_block_loop`; empty: all events), in pair mode or with one
-    image and unit weights."""
-    mode = _rot_rates(dt, prm)[4]
-    use_w = wts.shape[0] > 0
+def _rot_adj_plain(mode, fuse, use_w):
+    """The rotation adjoint (:func:`_rot_loop`) in one case, ``out`` (3,) = ``jx^T gx + jy^T
+    gy`` with the Jacobian recomputed per event from the warped pixels ``xw, yw`` (``prm``:
+    omega, K's 2x2 block, the first two rows of K^-1); with a padded image ``pad``
+    (:func:`_pad_image`, ``fuse``) the pixel gradients come from it (weights ``wts`` times
+    ``scale`` where ``use_w``), not from ``gx, gy``."""
+
+    @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+    def rot_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, out):
+        acc = _rot_loop(mode, fuse, use_w, False,
+                        (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T))
+        for j in range(3):
+            out[j] = acc[j]
+
+    return rot_adj
+
+
+def _rot_adj_blocks(mode, pair, vk):
+    """The rotation adjoint over listed blocks of events (:func:`_rot_block_loop`, ``blk``
+    int64, empty: all), with one padded image and unit weights, or two (``pair``, ``wts``
+    the per-event values) with ``vk`` saying whether the values are held fixed (0) or are
+    the warp's divergence times ``T`` (1) or ``|det J| - 1`` (2), whose derivatives are
+    then chained as well (:data:`_VALUE_KINDS`)."""
+
+    @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+    def rot_adj_blocks(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, blk, out):
+        acc = _rot_block_loop(mode, pair, vk,
+                              (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T), blk)
+        for j in range(3):
+            out[j] = acc[j]
+
+    return rot_adj_blocks
+
+
+def _rot_series_mode(dt, w) -> int:
+    """The Rodrigues series mode of :func:`_rot_rates` for the window's largest |dt|."""
+    tm = _max_abs(dt)
+    zmax = tm * tm * (w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    return 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
+
+
+def _rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, blk, out):
+    """The rotation adjoint: picks the case kernel (see :func:`_rot_adj_plain`,
+    :func:`_rot_adj_blocks`; blocks are visited in pair mode or with one image and unit
+    weights)."""
+    mode = _rot_series_mode(dt, prm)
     fuse = pad.shape[0] > 0
-    pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
-    a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T)
-    if not fuse and mode == 0:
-        acc = _rot_loop(0, False, False, False, a)
-    elif not fuse and mode == 1:
-        acc = _rot_loop(1, False, False, False, a)
-    elif not fuse:
-        acc = _rot_loop(2, False, False, False, a)
-    elif pair and mode == 0 and vk == 1:
-        acc = _rot_block_loop(0, True, 1, a, blk)
-    elif pair and mode == 0 and vk == 2:
-        acc = _rot_block_loop(0, True, 2, a, blk)
-    elif pair and mode == 0:
-        acc = _rot_block_loop(0, True, 0, a, blk)
-    elif pair and mode == 1 and vk == 1:
-        acc = _rot_block_loop(1, True, 1, a, blk)
-    elif pair and mode == 1 and vk == 2:
-        acc = _rot_block_loop(1, True, 2, a, blk)
-    elif pair and mode == 1:
-        acc = _rot_block_loop(1, True, 0, a, blk)
-    elif pair and vk == 1:
-        acc = _rot_block_loop(2, True, 1, a, blk)
-    elif pair and vk == 2:
-        acc = _rot_block_loop(2, True, 2, a, blk)
-    elif pair:
-        acc = _rot_block_loop(2, True, 0, a, blk)
-    elif blk.shape[0] > 0 and mode == 0:
-        acc = _rot_block_loop(0, False, 0, a, blk)
-    elif blk.shape[0] > 0 and mode == 1:
-        acc = _rot_block_loop(1, False, 0, a, blk)
+    if not fuse:
+        kernel_case(_rot_adj_plain, mode, False, False)(xw, yw, dt, prm, gx, gy, wts, pad,
+                                                        h, wd, scale, T, out)
+    elif pad.shape[0] == 2 * (h + 2) * (wd + 2):
+        kernel_case(_rot_adj_blocks, mode, True, vk if vk in (1, 2) else 0)(
+            xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, blk, out)
     elif blk.shape[0] > 0:
-        acc = _rot_block_loop(2, False, 0, a, blk)
-    elif mode == 0 and use_w:
-        acc = _rot_loop(0, True, True, False, a)
-    elif mode == 0:
-        acc = _rot_loop(0, True, False, False, a)
-    elif mode == 1 and use_w:
-        acc = _rot_loop(1, True, True, False, a)
-    elif mode == 1:
-        acc = _rot_loop(1, True, False, False, a)
+        kernel_case(_rot_adj_blocks, mode, False, 0)(xw, yw, dt, prm, gx, gy, wts, pad, h,
+                                                     wd, scale, T, blk, out)
     else:
-        acc = _rot_loop(2, True, use_w, False, a)
-    for j in range(3):
-        out[j] = acc[j]
+        kernel_case(_rot_adj_plain, mode, True, wts.shape[0] > 0)(
+            xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, out)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -1080,38 +1081,32 @@ def _similarity_loop(small, fuse, use_w, pair, vk, args):
     return a0, a1, a2, a3
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
-    """:func:`_k_rotation_adj` for SE(2) and the similarity (``prm``: wz, s, c; ``out``
-    (3,) or (4,))."""
-    small = _max_abs(dt) * abs(prm[0]) < 1.0
-    use_w = wts.shape[0] > 0
-    pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
-    a = (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T)
-    if pad.shape[0] == 0 and small:
-        acc = _similarity_loop(True, False, False, False, 0, a)
-    elif pad.shape[0] == 0:
-        acc = _similarity_loop(False, False, False, False, 0, a)
-    elif pair and small and vk == 1:
-        acc = _similarity_loop(True, True, True, True, 1, a)
-    elif pair and small and vk == 2:
-        acc = _similarity_loop(True, True, True, True, 2, a)
-    elif pair and small:
-        acc = _similarity_loop(True, True, True, True, 0, a)
-    elif pair and vk == 1:
-        acc = _similarity_loop(False, True, True, True, 1, a)
-    elif pair and vk == 2:
-        acc = _similarity_loop(False, True, True, True, 2, a)
-    elif pair:
-        acc = _similarity_loop(False, True, True, True, 0, a)
-    elif small and use_w:
-        acc = _similarity_loop(True, True, True, False, 0, a)
-    elif small:
-        acc = _similarity_loop(True, True, False, False, 0, a)
+def _similarity_adj_case(small, fuse, use_w, pair, vk):
+    """:func:`_rot_adj_plain` for SE(2) and the similarity (``prm``: wz, s, c; ``out``
+    (3,) or (4,)), one case of :func:`_similarity_loop`."""
+
+    @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+    def similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, out):
+        acc = _similarity_loop(small, fuse, use_w, pair, vk,
+                               (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T))
+        for j in range(out.shape[0]):
+            out[j] = acc[j]
+
+    return similarity_adj
+
+
+def _similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
+    """The SE(2)/similarity adjoint: picks the case kernel of :func:`_similarity_adj_case`
+    (angles below 1 rad take the series of :func:`_sincos`)."""
+    small = bool(_max_abs(dt) * abs(prm[0]) < 1.0)
+    if pad.shape[0] == 0:
+        key = (small, False, False, False, 0)
+    elif pad.shape[0] == 2 * (h + 2) * (wd + 2):
+        key = (small, True, True, True, vk if vk in (1, 2) else 0)
     else:
-        acc = _similarity_loop(False, True, use_w, False, 0, a)
-    for j in range(out.shape[0]):
-        out[j] = acc[j]
+        key = (small, True, wts.shape[0] > 0, False, 0)
+    kernel_case(_similarity_adj_case, *key)(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale,
+                                            T, out)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -1191,49 +1186,33 @@ def _simple_loop(kind, fuse, use_w, pair, vk, args):
     return a0, a1, a2, a3
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
-def _k_simple_adj(kind, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
-    """:func:`_k_rotation_adj` for the zoom, translation and in-plane warps (``kind`` 0, 1,
-    2; ``prm``: c, then h_z (zoom) or cos phi, sin phi, h_z + 1, vx, vy (in-plane))."""
-    use_w = wts.shape[0] > 0
-    fuse = pad.shape[0] > 0
-    pair = pad.shape[0] == 2 * (h + 2) * (wd + 2)
-    a = (x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T)
-    if kind == 0 and not fuse:
-        acc = _simple_loop(0, False, False, False, 0, a)
-    elif kind == 0 and pair and vk == 1:
-        acc = _simple_loop(0, True, True, True, 1, a)
-    elif kind == 0 and pair and vk == 2:
-        acc = _simple_loop(0, True, True, True, 2, a)
-    elif kind == 0 and pair:
-        acc = _simple_loop(0, True, True, True, 0, a)
-    elif kind == 0 and use_w:
-        acc = _simple_loop(0, True, True, False, 0, a)
-    elif kind == 0:
-        acc = _simple_loop(0, True, False, False, 0, a)
-    elif kind == 1 and not fuse:
-        acc = _simple_loop(1, False, False, False, 0, a)
-    elif kind == 1 and pair:
+def _simple_adj_case(kind, fuse, use_w, pair, vk):
+    """:func:`_rot_adj_plain` for the zoom, translation and in-plane warps (``kind`` 0, 1,
+    2; ``prm``: c, then h_z (zoom) or cos phi, sin phi, h_z + 1, vx, vy (in-plane)), one
+    case of :func:`_simple_loop`."""
+
+    @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
+    def simple_adj(x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, out):
+        acc = _simple_loop(kind, fuse, use_w, pair, vk,
+                           (x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T))
+        for j in range(out.shape[0]):
+            out[j] = acc[j]
+
+    return simple_adj
+
+
+def _simple_adj(kind, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
+    """The zoom/translation/in-plane adjoint: picks the case kernel of
+    :func:`_simple_adj_case`."""
+    if pad.shape[0] == 0:
+        key = (kind, False, False, False, 0)
+    elif pad.shape[0] == 2 * (h + 2) * (wd + 2):
         # translation: divergence 0 and det J = 1, whatever theta
-        acc = _simple_loop(1, True, True, True, 0, a)
-    elif kind == 1 and use_w:
-        acc = _simple_loop(1, True, True, False, 0, a)
-    elif kind == 1:
-        acc = _simple_loop(1, True, False, False, 0, a)
-    elif not fuse:
-        acc = _simple_loop(2, False, False, False, 0, a)
-    elif pair and vk == 1:
-        acc = _simple_loop(2, True, True, True, 1, a)
-    elif pair and vk == 2:
-        acc = _simple_loop(2, True, True, True, 2, a)
-    elif pair:
-        acc = _simple_loop(2, True, True, True, 0, a)
-    elif use_w:
-        acc = _simple_loop(2, True, True, False, 0, a)
+        key = (kind, True, True, True, 0 if kind == 1 or vk not in (1, 2) else vk)
     else:
-        acc = _simple_loop(2, True, False, False, 0, a)
-    for j in range(out.shape[0]):
-        out[j] = acc[j]
+        key = (kind, True, wts.shape[0] > 0, False, 0)
+    kernel_case(_simple_adj_case, *key)(x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd,
+                                        scale, T, out)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST_FINITE)
@@ -1850,7 +1829,7 @@ class ZoomWarp(_FusedAdjoint, Warp):
     def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
              blk=_NO_BLOCKS):
         prm = np.array([self.center[0], self.center[1], th[0]])
-        _k_simple_adj(0, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
+        _simple_adj(0, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1870,7 +1849,7 @@ class TranslationWarp(_FusedAdjoint, Warp):
 
     def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
              blk=_NO_BLOCKS):
-        _k_simple_adj(1, x, y, xw, yw, dt, np.array(self.center), gx, gy, wts, pad, h, wd,
+        _simple_adj(1, x, y, xw, yw, dt, np.array(self.center), gx, gy, wts, pad, h, wd,
                       scale, vk, T, out)
 
     def _mats_c(self, dt, th):
@@ -1903,7 +1882,7 @@ class SimilarityWarp(_FusedAdjoint, Warp):
     def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
              blk=_NO_BLOCKS):
         prm = np.array([th[2], th[3] if self.scaled else 0.0, self.center[0], self.center[1]])
-        _k_similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
+        _similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -1951,7 +1930,7 @@ class InPlaneWarp(_FusedAdjoint, Warp):
         # the rotation as _k_inplane computes it (libm through numba and math alike)
         prm = np.array([self.center[0], self.center[1], math.cos(th[2]), math.sin(th[2]),
                         th[3] + 1.0, th[0], th[1]])
-        _k_simple_adj(2, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
+        _simple_adj(2, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
@@ -2043,7 +2022,8 @@ class RotationWarp(_FusedAdjoint, Warp):
     _blocked = True
 
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
-        _k_rotation(x, y, dt, th, self.K, self._kinv, xw, yw, jx, jy, jac)
+        kernel_case(_rot_warp_case, _rot_series_mode(dt, th), bool(jac))(
+            x, y, dt, th, self.K, self._kinv, xw, yw, jx, jy)
 
     def _conj(self):
         return self.K, self._kinv
@@ -2053,7 +2033,7 @@ class RotationWarp(_FusedAdjoint, Warp):
         K, Ki = self.K, self._kinv
         prm = np.array([th[0], th[1], th[2], K[0, 0], K[0, 1], K[1, 0], K[1, 1], Ki[0, 0],
                         Ki[0, 1], Ki[0, 2], Ki[1, 0], Ki[1, 1], Ki[1, 2]])
-        _k_rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, blk, out)
+        _rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, blk, out)
 
     def _divdet(self, x, y, dt, theta, want_div, grad):
         x, y, dt = self._events(x, y, dt)

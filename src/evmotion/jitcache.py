@@ -1,0 +1,181 @@
+"""Where numba keeps the compiled kernels, how long a call spent compiling them, and
+kernels compiled per case.
+
+The kernels are compiled on first use and cached on disk (``@njit(cache=True)``). numba
+caches next to the sources (``__pycache__``) or, failing that, in the user's cache folder;
+an installation that can write to neither (a read-only site-packages and no writable HOME)
+would fail at import. :func:`ensure_cache_dir` (run when :mod:`evmotion` is imported) then
+points numba at a folder in the system's temporary directory and says so in one line.
+
+:func:`compile_seconds` reports the seconds this thread has spent in numba compilation, from
+numba's event API (``numba:compile`` events; a kernel loaded from the cache is not
+compiled): the timings that evmotion reports subtract it, so a first call's compile time is
+not reported as its estimate's.
+
+Examples
+--------
+>>> c0 = compile_seconds()
+>>> compile_seconds() - c0 >= 0.0
+True
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+__all__ = ["compile_seconds", "ensure_cache_dir", "kernel_case"]
+
+_PACKAGE = Path(__file__).resolve().parent
+
+
+def _writable_dir(path: Path) -> bool:
+    """Whether ``path`` can be created and written, as numba's cache locators test it."""
+    try:
+        os.makedirs(path, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()
+    except OSError:
+        return False
+    return True
+
+
+def _user_cache_dir() -> Path:
+    """numba's user-wide cache folder (``AppDirs("numba").user_cache_dir``)."""
+    from numba.misc.appdirs import AppDirs
+
+    return Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)
+
+
+def ensure_cache_dir(package_dir: str | os.PathLike | None = None, stream=None) -> str | None:
+    """Give numba a writable cache folder when neither of its defaults is.
+
+    Nothing changes when ``NUMBA_CACHE_DIR`` is set or when numba can cache next to the
+    package's sources or in the user's cache folder. Otherwise ``NUMBA_CACHE_DIR`` (and
+    numba's loaded configuration) is set to ``<tmp>/evmotion-numba-cache-<uid>`` and one
+    line saying so goes to ``stream`` (default stderr).
+
+    Parameters
+    ----------
+    package_dir : path, optional
+        The installed package (default: this one); every folder under it that holds
+        Python sources must take a ``__pycache__``.
+    stream : file, optional
+        Where the one line goes (default ``sys.stderr``).
+
+    Returns
+    -------
+    str or None
+        The folder chosen, or None when nothing was changed.
+
+    Examples
+    --------
+    >>> ensure_cache_dir() is None or "NUMBA_CACHE_DIR" in os.environ
+    True
+    """
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return None
+    root = _PACKAGE if package_dir is None else Path(package_dir)
+    dirs = sorted({p.parent for p in root.rglob("*.py")}) or [root]
+    if all(_writable_dir(d / "__pycache__") for d in dirs):
+        return None
+    if _writable_dir(_user_cache_dir()):
+        return None
+    uid = os.getuid() if hasattr(os, "getuid") else "user"
+    folder = os.path.join(tempfile.gettempdir(), f"evmotion-numba-cache-{uid}")
+    os.environ["NUMBA_CACHE_DIR"] = folder
+    if "numba" in sys.modules:  # numba read its configuration at import
+        from numba.core import config
+
+        config.CACHE_DIR = folder
+    print(f"evmotion: cannot cache compiled kernels next to {root} or in the user cache; "
+          f"caching them in {folder} (set NUMBA_CACHE_DIR to choose)",
+          file=sys.stderr if stream is None else stream)
+    return folder
+
+
+_CASES: dict = {}
+
+
+def kernel_case(factory, *key):
+    """The kernel ``factory(*key)``, built once per process; numba compiles it on its first
+    call (or loads it from the cache).
+
+    A hot kernel whose cases (series mode, weights or not, ...) must each be a loop of its
+    own, with no branch inside, is written as a factory of one ``@njit`` closure per case,
+    the case frozen in as constants: a call then compiles the case it runs, where one kernel
+    branching to every case would compile them all on its first call.
+
+    Examples
+    --------
+    >>> from numba import njit
+    >>> def scaled(k):
+    ...     @njit
+    ...     def f(v):
+    ...         return k * v
+    ...     return f
+    >>> kernel_case(scaled, 3)(2.0), kernel_case(scaled, 3) is kernel_case(scaled, 3)
+    (6.0, True)
+    """
+    k = _CASES.get((factory, key))
+    if k is None:
+        k = _CASES[(factory, key)] = factory(*key)
+    return k
+
+
+# ---------------------------------------------------------------------------------------
+# compile time per thread, from numba's "numba:compile" events (nested compilations of the
+# callees of a kernel lie inside their caller's event and count once)
+
+_LOCK = threading.Lock()
+_TOTALS: dict[int, float] = {}
+_listener = None
+
+
+def _install_listener() -> None:
+    global _listener
+    import time
+
+    from numba.core import event
+
+    class _CompileListener(event.Listener):
+        def __init__(self):
+            self._local = threading.local()
+
+        def on_start(self, ev):
+            loc = self._local
+            depth = getattr(loc, "depth", 0)
+            if depth == 0:
+                loc.t0 = time.perf_counter()
+            loc.depth = depth + 1
+
+        def on_end(self, ev):
+            loc = self._local
+            loc.depth -= 1
+            if loc.depth == 0:
+                tid = threading.get_ident()
+                with _LOCK:
+                    _TOTALS[tid] = _TOTALS.get(tid, 0.0) + time.perf_counter() - loc.t0
+
+    _listener = _CompileListener()
+    event.register("numba:compile", _listener)
+
+
+def compile_seconds() -> float:
+    """Seconds this thread has spent compiling numba kernels since the first call.
+
+    The difference of two calls is the compile time of what ran between them (0 when every
+    kernel was compiled already or loaded from the cache).
+
+    Examples
+    --------
+    >>> compile_seconds() >= 0.0
+    True
+    """
+    if _listener is None:
+        with _LOCK:
+            if _listener is None:
+                _install_listener()
+    return _TOTALS.get(threading.get_ident(), 0.0)
