@@ -21,7 +21,7 @@ from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.viz.colorwheel import GREY, colorwheel_image, flow_max_magnitude, flow_to_rgb
 
-__all__ = ["MIN_HEIGHT", "FlowPicture", "flow_panel", "flow_picture",
+__all__ = ["MIN_HEIGHT", "FlowPicture", "flow_panel", "flow_picture", "picture_row",
            "sequence_max_speed"]
 
 #: Pictures with fewer rows are upscaled by an integer factor to at least this height.
@@ -218,6 +218,58 @@ def _header(width: int, titles: list[tuple[float, str]], title: str | None, pt: 
     return _render(fig)
 
 
+def picture_row(images, titles=None, *, title: str | None = None,
+                font_pt: float | None = None) -> np.ndarray:
+    """Pictures side by side at their own resolution (no resampling, unlike
+    :func:`~evmotion.viz.images.save_panel`), each under its title, on white.
+
+    Parameters
+    ----------
+    images : sequence of ndarray of uint8, shape (H_k, W_k, 3)
+        Shorter images are padded white at the bottom.
+    titles : sequence of str, optional
+        One per image, centred above it.
+    title : str, optional
+        A line above everything.
+    font_pt : float, optional
+        Title size in points (default: from the tallest image, 7-11 pt).
+
+    Returns
+    -------
+    ndarray of uint8, shape (rows, cols, 3)
+
+    Examples
+    --------
+    >>> a = np.zeros((20, 30, 3), np.uint8); b = np.zeros((10, 10, 3), np.uint8)
+    >>> picture_row([a, b], ["a", "b"]).shape[1]
+    44
+    """
+    images = [np.asarray(im) for im in images]
+    if not images:
+        raise ParameterError("picture_row needs at least one image")
+    for k, im in enumerate(images):
+        if im.ndim != 3 or im.shape[2] != 3 or im.dtype != np.uint8:
+            raise ParameterError(f"images[{k}] must be uint8 (H, W, 3), got {im.dtype} "
+                                 f"{im.shape}")
+    if titles is not None and len(titles) != len(images):
+        raise ParameterError(f"{len(titles)} titles for {len(images)} images")
+    h = max(im.shape[0] for im in images)
+    parts, centres, x = [], [], 0
+    for k, im in enumerate(images):
+        if k:
+            parts.append(np.full((h, _GAP, 3), 255, np.uint8))
+            x += _GAP
+        parts.append(np.pad(im, ((0, h - im.shape[0]), (0, 0), (0, 0)), constant_values=255))
+        centres.append(x + im.shape[1] / 2)
+        x += im.shape[1]
+    body = np.concatenate(parts, axis=1)
+    if titles is None and not title:
+        return body
+    pt = float(np.clip(h / 30.0, 7.0, 11.0)) if font_pt is None else float(font_pt)
+    named = [] if titles is None else list(zip(centres, map(str, titles), strict=True))
+    return np.concatenate([_header(body.shape[1], named, title, pt), body], axis=0)
+
+
 def flow_panel(events: EventArray, flow_px_per_s: np.ndarray, *, t_ref_us: int | None = None,
                max_speed: float | None = None, valid: np.ndarray | None = None,
                polarity: bool = False, title: str | None = None,
@@ -272,16 +324,10 @@ def flow_panel(events: EventArray, flow_px_per_s: np.ndarray, *, t_ref_us: int |
     vmax = float(np.percentile(np.abs(iwe0[iwe0 != 0]), 99.0)) if np.any(iwe0) else 1.0
     value = float(fwl(events, flow, t_ref_us)) if len(events) else float("nan")
     k = pic.scale
-    h, w = shape[0] * k, shape[1] * k
-    gap = np.full((h, _GAP, 3), 255, np.uint8)
-    body = np.concatenate([_upscale(iwe_to_rgb(iwe0, polarity, vmax=vmax), k), gap,
-                           _upscale(iwe_to_rgb(iwe1, polarity, vmax=vmax), k), gap,
-                           pic.rgb], axis=1)
     titles = ["events (zero flow)", f"IWE warped by the flow (FWL {value:.3f})",
-              "flow (px/s)"]
-    centres = [w / 2, w + _GAP + w / 2, 2 * (w + _GAP) + w / 2]
-    pt = float(np.clip(h / 30.0, 7.0, 11.0))
-    head = _header(body.shape[1], list(zip(centres, titles, strict=True)), title, pt)
-    rgb = np.concatenate([head, body], axis=0)
+              f"flow ({pic.unit})"]
+    rgb = picture_row([_upscale(iwe_to_rgb(iwe0, polarity, vmax=vmax), k),
+                       _upscale(iwe_to_rgb(iwe1, polarity, vmax=vmax), k), pic.rgb],
+                      titles, title=title)
     return rgb, {"fwl": value, "max_speed": pic.max_speed, "fixed_scale": pic.fixed_scale,
                  "titles": titles if title is None else [title, *titles]}
