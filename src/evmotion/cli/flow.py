@@ -48,6 +48,12 @@ def add_parser(sub) -> None:
                      help="ground-truth file whose timestamps define the windows")
     p.add_argument("--gt-dt", type=int, default=1, help="frames per window with --window-gt")
     p.add_argument("--png-dir", default=None, help="folder for colour-wheel and IWE PNGs")
+    p.add_argument("--max-speed", type=float, default=None, metavar="PX_S",
+                   help="speed at the colour wheel's rim in px/s, one scale for every picture "
+                        "(default: each picture's own maximum, said so in its legend)")
+    p.add_argument("--video", default=None, metavar="MP4",
+                   help="video of the windows: events | warped IWE | flow (needs the 'video' "
+                        "extra; multicm only)")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     for name, mod in _method_modules():

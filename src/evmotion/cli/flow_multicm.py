@@ -136,14 +136,15 @@ def _write(out: Path, results, windows, sensor_size, attrs):
     return written
 
 
-def _pngs(png_dir: Path, results):
-    from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_png
+def _pngs(png_dir: Path, results, max_speed):
+    from evmotion.viz import iwe_to_rgb, save_flow_png, save_png
 
     png_dir.mkdir(parents=True, exist_ok=True)
     for i, r in enumerate(results):
-        save_png(png_dir / f"flow_{i:04d}.png", flow_to_rgb(r.flow))
+        save_flow_png(png_dir / f"flow_{i:04d}.png", r.flow, max_speed=max_speed)
         mask = r.iwes["identity"] > 0
-        save_png(png_dir / f"flow_masked_{i:04d}.png", flow_to_rgb(r.flow, mask=mask))
+        save_flow_png(png_dir / f"flow_masked_{i:04d}.png", r.flow, max_speed=max_speed,
+                      valid=mask)
         vmax = float(np.percentile(r.iwes["tmid"][mask], 99)) if mask.any() else None
         for key in ("tmid", "identity"):
             save_png(png_dir / f"iwe_{key}_{i:04d}.png", iwe_to_rgb(r.iwes[key], vmax=vmax))
@@ -171,7 +172,13 @@ def run(args) -> int:
              "lambda": args.lam, "scales": args.scales, "source": str(args.file)}
     written = _write(out, results, windows, events.sensor_size, attrs)
     if args.png_dir:
-        _pngs(Path(args.png_dir), results)
+        _pngs(Path(args.png_dir), results, args.max_speed)
+    if args.video:
+        from evmotion.viz import write_flow_video
+
+        write_flow_video(args.video, events, windows, [r.flow for r in results],
+                         valids=[r.iwes["identity"] > 0 for r in results],
+                         max_speed=args.max_speed)
     if args.json:
         print_json({
             "method": "multicm", "time_aware": args.time_aware, "outputs": written,

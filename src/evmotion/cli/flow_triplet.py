@@ -72,6 +72,8 @@ def run(args) -> int:
     )
     from evmotion.utils import progress
 
+    if args.video:
+        raise ParameterError(f"--video {args.video}: written by --method multicm only")
     out = Path(args.out)
     kind = out.suffix.lower()
     if kind not in (".h5", ".hdf5", ".npy", ".flo", ".npz"):
@@ -128,7 +130,7 @@ def run(args) -> int:
     n_windows = 0
     wall0 = time.perf_counter()
     def emit_all(wins) -> int:
-        return sum(_emit(win, sink, png_dir, kind) for win in wins)
+        return sum(_emit(win, sink, png_dir, kind, args.max_speed) for win in wins)
 
     try:
         chunk = first
@@ -355,14 +357,15 @@ class _Windows:
             yield self._close(*b)
 
 
-def _emit(win, sink, png_dir, kind) -> int:
+def _emit(win, sink, png_dir, kind, max_speed) -> int:
     if kind != ".npz":
         sink.add_window(win)
     if png_dir is not None:
-        from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_png
+        from evmotion.viz import iwe_to_rgb, save_flow_png, save_png
 
         png_dir.mkdir(parents=True, exist_ok=True)
-        save_png(png_dir / f"flow_{win.index:05d}.png", flow_to_rgb(win.flow, mask=win.mask))
+        save_flow_png(png_dir / f"flow_{win.index:05d}.png", win.flow, max_speed=max_speed,
+                      valid=win.mask)
         save_png(png_dir / f"iwe_{win.index:05d}.png", iwe_to_rgb(win.iwe))
     return 1
 
