@@ -61,15 +61,15 @@ def _aee(res, gt_disp, mask) -> float:
 
 
 def _panel(path, res, title):
-    from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_panel
+    from evmotion.viz import flow_picture, iwe_to_rgb, picture_row, save_png
 
     mask = res.iwes["identity"] > 0
     vmax = float(np.percentile(res.iwes["identity"][mask], 99)) if mask.any() else None
-    save_panel(path, [flow_to_rgb(res.flow, mask=mask),
-                      iwe_to_rgb(res.iwes["identity"], vmax=vmax),
-                      iwe_to_rgb(res.iwes["tmid"], vmax=vmax)],
-               ["flow (masked by events)", "IWE, zero flow", "IWE, estimated flow"],
-               suptitle=title)
+    save_png(path, picture_row([flow_picture(res.flow, valid=mask).rgb,
+                                iwe_to_rgb(res.iwes["identity"], vmax=vmax),
+                                iwe_to_rgb(res.iwes["tmid"], vmax=vmax)],
+                               ["flow (px/s; grey: no events)", "IWE, zero flow",
+                                "IWE, estimated flow"], title=title))
 
 
 def _sim_window(scene: str):

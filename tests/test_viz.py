@@ -153,7 +153,7 @@ def test_save_png_rejects_bad_images(tmp_path):
 
 def test_flow_png_with_and_without_legend(tmp_path):
     flow = np.random.default_rng(3).normal(0, 100, (40, 40, 2)).astype(np.float32)
-    save_flow_png(tmp_path / "bare.png", flow, max_magnitude=200.0, legend=False)
+    save_flow_png(tmp_path / "bare.png", flow, max_speed=200.0, legend=False)
     np.testing.assert_array_equal(read_png(tmp_path / "bare.png"), flow_to_rgb(flow, 200.0))
     save_flow_png(tmp_path / "legend.png", flow, unit="px/s", title="flow")
     img = read_png(tmp_path / "legend.png")
@@ -197,12 +197,14 @@ def test_html_report(tmp_path):
                    {"method": "zero", "AEE": 4.0, "n": np.int64(3)}], caption="Accuracy")
     out = rep.write(tmp_path / "report.html")
     text = out.read_text()
-    assert '<img src="figs/iwe.png"' in text
+    assert '<img src="data:image/png;base64,' in text
     assert "IWE, window 0" in text
     assert "Results &lt;sim&gt;" in text and "AEE in px &amp; FWL." in text
     assert "<p>Second paragraph.</p>" in text
     assert "<td>0.8123</td>" in text and "<th>n</th>" in text and "<td>3</td>" in text
-    # Written elsewhere, the figure path stays relative to the page.
+    # Linked instead of embedded, written elsewhere: the path stays relative to the page.
+    rep.embed = False
+    assert '<img src="figs/iwe.png"' in rep.write(tmp_path / "report.html").read_text()
     text2 = rep.write(fig_dir / "deep" / "r.html").read_text()
     assert '<img src="../iwe.png"' in text2
     with pytest.raises(ParameterError):
@@ -223,7 +225,7 @@ def test_flow_summary_png(tmp_path):
     flow[..., 0] = 500.0
     for polarity in (False, True):
         path = tmp_path / f"s{int(polarity)}.png"
-        value = save_flow_summary(path, ev, flow, polarity=polarity, mask=event_mask(ev),
+        value = save_flow_summary(path, ev, flow, polarity=polarity, valid=event_mask(ev),
                                   title="window 0")
         assert value == pytest.approx(fwl(ev, flow)) and value > 1.5
         img = read_png(path)

@@ -31,10 +31,14 @@ from evmotion.sim import sim_calibration, simulate, write_ground_truth
 from evmotion.viz import (
     HtmlReport,
     event_histogram,
-    flow_to_rgb,
+    flow_picture,
     iwe_to_rgb,
+    picture_row,
     save_flow_png,
+    save_flow_summary,
     save_panel,
+    save_png,
+    sequence_max_speed,
 )
 
 
@@ -66,8 +70,8 @@ def _rotation(out: Path, rep: HtmlReport, seed: int) -> dict:
                   caption=f"Angular velocity (rad/s) of a 30k-event window; RMS error "
                           f"{err.overall:.4f} rad/s, {1e3 * res.timings['estimate']:.0f} ms "
                           f"(+ {1e3 * res.timings['compile']:.0f} ms compiling kernels)")
-    rep.add_figure("rotation_iwe.png", "IWE before and after motion compensation")
-    rep.add_figure("rotation_gt_flow.png", "Ground-truth flow at the window's midpoint")
+    rep.add_figure(out / "rotation_iwe.png", "IWE before and after motion compensation")
+    rep.add_figure(out / "rotation_gt_flow.png", "Ground-truth flow at the window's midpoint")
     return {"omega_true": true_omega.tolist(), "omega_est": res.params.tolist(),
             "omega_rms_error": err.overall, "ms": 1e3 * res.timings["estimate"],
             "compile_ms": 1e3 * res.timings["compile"]}
@@ -101,7 +105,7 @@ def _zoom(out: Path, rep: HtmlReport, seed: int) -> dict:
     rep.add_table(rows, caption="Variance objective, 600-sample TPE, thesis (DSEC) weights. "
                                 "Without a regularizer the optimum collapses the events towards "
                                 "the centre; divergence, deformation and RCAD prevent it")
-    rep.add_figure("zoom_collapse.png", "IWE at each optimum")
+    rep.add_figure(out / "zoom_collapse.png", "IWE at each optimum")
     return {"zoom": rows}
 
 
@@ -123,8 +127,10 @@ def _dense_flow(out: Path, rep: HtmlReport, seed: int) -> tuple[dict, object]:
     disp_gt = sim.gt.displacement(win.t_start, win.t_end)
     mask = event_mask(win)
     rows = []
-    pictures = [flow_to_rgb(disp_gt, mask=mask)]
-    titles = ["ground truth"]
+    # one colour scale for the truth and every estimate, so their colours compare
+    scale = sequence_max_speed([disp_gt], [mask])
+    pictures = [flow_picture(disp_gt, valid=mask, max_speed=scale, unit="px").rgb]
+    titles = ["ground truth (grey: no events)"]
     for ta in (None, "burgers"):
         res = estimate_flow(win, time_aware=ta)
         m = flow_metrics(res.displacement(), disp_gt, mask=mask)
@@ -132,18 +138,18 @@ def _dense_flow(out: Path, rep: HtmlReport, seed: int) -> tuple[dict, object]:
                      "FWL": fwl(win, res.flow, res.t_ref_us),
                      "seconds": res.timings["estimate_s"],
                      "compile s": res.timings["compile_s"]})
-        pictures.append(flow_to_rgb(res.displacement(), mask=mask,
-                                    max_magnitude=float(np.abs(disp_gt[mask]).max())))
+        pictures.append(flow_picture(res.displacement(), valid=mask, max_speed=scale,
+                                     unit="px").rgb)
         titles.append(f"multicm{' + ' + ta if ta else ''}: AEE {m.aee:.2f} px")
         if ta is None:
-            save_panel(out / "object_iwe.png",
-                       [iwe_to_rgb(res.iwes["identity"]), iwe_to_rgb(res.iwes["tmid"])],
-                       ["identity warp", "warped with the estimated flow (t_mid)"])
-    save_panel(out / "object_flow.png", pictures, titles)
+            save_flow_summary(out / "object_iwe.png", win, res.flow, t_ref_us=res.t_ref_us,
+                              valid=mask, title="multicm: the estimated flow sharpens the events")
+    save_png(out / "object_flow.png", picture_row(pictures, titles))
     rep.add_heading("3. Dense optical flow (multi-reference contrast maximization)")
     rep.add_table(rows, caption="30k events; displacement over the window, pixels with events")
-    rep.add_figure("object_flow.png", "Flow (colour wheel) against ground truth")
-    rep.add_figure("object_iwe.png", "IWE before and after")
+    rep.add_figure(out / "object_flow.png",
+                   "Displacement over the window (colour wheel, one scale) against ground truth")
+    rep.add_figure(out / "object_iwe.png", "Events, IWE warped by the estimated flow, the flow")
     return {"multicm": rows}, (sim, win, disp_gt, mask)
 
 
@@ -155,7 +161,9 @@ def _triplet(out: Path, rep: HtmlReport, scene) -> dict:
     matcher.process(sim.events)
     rate = len(sim.events) / (time.perf_counter() - t0)
     window = Window(0, win.t_start, win.t_end + 1, 0, len(win))
-    rows, panels, titles = [], [flow_to_rgb(disp_gt, mask=mask)], ["ground truth"]
+    scale = sequence_max_speed([disp_gt], [mask])
+    rows, titles = [], ["ground truth"]
+    panels = [flow_picture(disp_gt, valid=mask, max_speed=scale, unit="px").rgb]
     for dense, label in (("mean", "thesis: voxel mean, 3x3 non-zero average"),
                          ("lsq", "extension: normal-flow least squares, 11x11")):
         res = estimate_flow_triplet(sim.events, [window], dense=dense)
@@ -164,14 +172,16 @@ def _triplet(out: Path, rep: HtmlReport, scene) -> dict:
         m = flow_metrics(disp, disp_gt, mask=valid)
         rows.append({"dense output": label, "AEE px": m.aee, "%Out": m.pct_out,
                      "pixels evaluated": m.n_pixels})
-        panels.append(flow_to_rgb(disp, mask=valid))
+        panels.append(flow_picture(disp, valid=valid, max_speed=scale, unit="px").rgb)
         titles.append(f"triplet {dense}: AEE {m.aee:.2f} px")
-    save_panel(out / "triplet_flow.png", [*panels, iwe_to_rgb(event_histogram(win))],
-               [*titles, "events"])
+    save_png(out / "triplet_flow.png",
+             picture_row([*panels, iwe_to_rgb(event_histogram(win))], [*titles, "events"]))
     rep.add_heading("4. Event-by-event flow (triplet matching)")
     rep.add_table(rows, caption=f"Per-event flow at {rate / 1e6:.2f} M events/s (one core), "
                                 "made dense over the window")
-    rep.add_figure("triplet_flow.png", "Triplet flow against ground truth")
+    rep.add_figure(out / "triplet_flow.png",
+                   "Triplet flow against ground truth (one colour scale; grey: no events or "
+                   "no estimate)")
     return {"triplet": {"events_per_s": rate, "aee": rows[0]["AEE px"],
                         "pct_out": rows[0]["%Out"], "aee_lsq": rows[1]["AEE px"],
                         "pct_out_lsq": rows[1]["%Out"]}}

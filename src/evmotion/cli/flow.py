@@ -18,6 +18,7 @@ import importlib
 
 from evmotion.cli.options import (
     existing_input,
+    positive_float,
     positive_int,
     reject_unused,
     writable_folder,
@@ -75,6 +76,13 @@ def add_parser(sub) -> None:
     p.add_argument("--resume", action="store_true",
                    help=".h5 output: continue the OUT.part file an interrupted run kept "
                         "(same options), computing only the windows it lacks")
+    p.add_argument("--max-speed", type=positive_float(unit="px/s"), default=None,
+                   metavar="PX_S",
+                   help="speed at the colour wheel's rim in px/s, one scale for every picture "
+                        "(default: each picture's own maximum, said so in its legend)")
+    p.add_argument("--video", default=None, metavar="MP4", type=writable_output((".mp4",)),
+                   help="video of the windows: events | warped IWE | flow (needs the 'video' "
+                        "extra; multicm only)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     for name, mod in _method_modules():
         mod.add_arguments(p.add_argument_group(f"{name} options"))

@@ -176,13 +176,13 @@ class _Output:
             self.fw.abort()
 
 
-def _png(png_dir: Path, i: int, r) -> None:
-    from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_png
+def _png(png_dir: Path, i: int, r, max_speed) -> None:
+    from evmotion.viz import iwe_to_rgb, save_flow_png, save_png
 
     png_dir.mkdir(parents=True, exist_ok=True)
-    save_png(png_dir / f"flow_{i:04d}.png", flow_to_rgb(r.flow))
-    mask = r.valid if r.valid is not None else r.iwes["identity"] > 0
-    save_png(png_dir / f"flow_masked_{i:04d}.png", flow_to_rgb(r.flow, mask=mask))
+    save_flow_png(png_dir / f"flow_{i:04d}.png", r.flow, max_speed=max_speed)
+    save_flow_png(png_dir / f"flow_masked_{i:04d}.png", r.flow, max_speed=max_speed,
+                  valid=_valid(r))
     has = r.iwes["identity"] > 0
     vmax = float(np.percentile(r.iwes["tmid"][has], 99)) if has.any() else None
     for key in ("tmid", "identity"):
@@ -211,6 +211,9 @@ def check_args(args) -> None:
                              ".npy or .flo")
     if args.time_aware in (None, "none"):
         reject_unused(args, {"--time-bins": "time_bins"}, "without --time-aware")
+    if args.resume and args.video:
+        raise ParameterError(f"--video {args.video} needs every window's flow: it cannot "
+                             "be made with --resume; run without --resume")
     if args.resume and (args.workers or 1) > 1:
         raise ParameterError(f"--resume needs --workers 1 (got {args.workers}): with several "
                              "workers each chunk of windows starts from zero flow")
@@ -247,6 +250,15 @@ def run(args) -> int:
     if args.time_bins is not None:
         attrs["time_bins"] = args.time_bins
     png_dir = Path(args.png_dir) if args.png_dir else None
+    video = [] if args.video else None
+
+    def after(i, r) -> None:
+        """Pictures of window ``i``, and its flow kept for the video."""
+        if png_dir is not None:
+            _png(png_dir, i, r, args.max_speed)
+        if video is not None:
+            video.append((r.flow, _valid(r)))
+
     if args.workers > 1:
         results = _estimate_parallel(events, windows, kwargs, args.workers,
                                       keep_iwes=png_dir is not None)
@@ -255,16 +267,20 @@ def run(args) -> int:
         try:
             for i, (r, w) in enumerate(zip(results, windows, strict=True)):
                 sink.add(r.flow, w, _valid(r))
-                if png_dir is not None:
-                    _png(png_dir, i, r)
+                after(i, r)
                 rows.append(_row(r, w))
             written = sink.close()
         except BaseException:
             sink.abort()
             raise
     else:
-        rows, written = _run_sequential(args, events, windows, kwargs, attrs, png_dir,
+        rows, written = _run_sequential(args, events, windows, kwargs, attrs, after,
                                         estimate_flow, progress)
+    if video is not None:
+        from evmotion.viz import write_flow_video
+
+        write_flow_video(args.video, events, windows, [f for f, _ in video],
+                         valids=[v for _, v in video], max_speed=args.max_speed)
     if args.json:
         print_json({
             "method": "multicm", "time_aware": args.time_aware, "outputs": written,
@@ -274,7 +290,7 @@ def run(args) -> int:
     return 0
 
 
-def _run_sequential(args, events, windows, kwargs, attrs, png_dir, estimate_flow, progress):
+def _run_sequential(args, events, windows, kwargs, attrs, after, estimate_flow, progress):
     """Windows in order, each warm-started from the previous one; with ``--resume`` the
     windows already in the ``.part`` file are taken from it (the last one as warm start,
     as stored: float32, exactly the flow that was written)."""
@@ -293,8 +309,7 @@ def _run_sequential(args, events, windows, kwargs, attrs, png_dir, estimate_flow
             res = estimate_flow(events.window(w), init=init, **kwargs)
             init = res
             sink.add(res.flow, w, _valid(res))
-            if png_dir is not None:
-                _png(png_dir, i, res)
+            after(i, res)
             rows.append(_row(res, w))
         written = sink.close()
     except BaseException:

@@ -124,6 +124,8 @@ def run(args) -> int:
     )
     from evmotion.utils import progress
 
+    if args.video:
+        raise ParameterError(f"--video {args.video}: written by --method multicm only")
     out = Path(args.out)
     kind = out.suffix.lower()
     tau_us = None if args.tau_ms is None else int(round(args.tau_ms * 1000))
@@ -180,7 +182,7 @@ def run(args) -> int:
     c0 = compile_seconds()
 
     def emit_all(wins) -> int:
-        return sum(_emit(win, sink, png_dir, kind) for win in wins)
+        return sum(_emit(win, sink, png_dir, kind, args.max_speed) for win in wins)
 
     try:
         chunk = first
@@ -420,17 +422,18 @@ class _Windows:
             yield self._close(*b)
 
 
-def _emit(win, sink, png_dir, kind) -> int:
+def _emit(win, sink, png_dir, kind, max_speed) -> int:
     if win.flow is None:
         sink.check_done(win)
         return 1
     if kind != ".npz":
         sink.add_window(win)
     if png_dir is not None:
-        from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_png
+        from evmotion.viz import iwe_to_rgb, save_flow_png, save_png
 
         png_dir.mkdir(parents=True, exist_ok=True)
-        save_png(png_dir / f"flow_{win.index:05d}.png", flow_to_rgb(win.flow, mask=win.mask))
+        save_flow_png(png_dir / f"flow_{win.index:05d}.png", win.flow, max_speed=max_speed,
+                      valid=win.mask)
         save_png(png_dir / f"iwe_{win.index:05d}.png", iwe_to_rgb(win.iwe))
     return 1
 

@@ -12,7 +12,11 @@ import numpy as np
 
 from evmotion.errors import ParameterError
 
-__all__ = ["colorwheel", "colorwheel_image", "flow_max_magnitude", "flow_to_rgb"]
+__all__ = ["GREY", "colorwheel", "colorwheel_image", "flow_max_magnitude", "flow_to_rgb"]
+
+#: RGB of flow pixels without event support (or NaN). No flow colour is grey: every wheel
+#: colour keeps one channel at 255 inside the rim and one at 0 beyond it.
+GREY = (128, 128, 128)
 
 # Segment lengths of the wheel (red-yellow, yellow-green, green-cyan, cyan-blue,
 # blue-magenta, magenta-red), chosen by Baker et al. for perceptual uniformity.
@@ -62,7 +66,7 @@ def flow_to_rgb(
     max_magnitude: float | None = None,
     mask: np.ndarray | None = None,
     *,
-    invalid_color: tuple[int, int, int] = (0, 0, 0),
+    invalid_color: tuple[int, int, int] = GREY,
 ) -> np.ndarray:
     """Colour-code a flow field with the Middlebury wheel.
 
@@ -74,9 +78,10 @@ def flow_to_rgb(
         Magnitude shown fully saturated, in the flow's unit. Default: the largest finite
         magnitude over ``mask``. Fix it to compare several images.
     mask : ndarray of bool, shape (H, W), optional
-        Pixels to draw; the others (and NaN flow) get ``invalid_color``.
+        Pixels to draw (those with event support); the others (and NaN flow) get
+        ``invalid_color``.
     invalid_color : (int, int, int)
-        RGB of masked-out pixels (default black).
+        RGB of masked-out pixels (default :data:`GREY`).
 
     Returns
     -------
@@ -109,12 +114,14 @@ def flow_to_rgb(
     rad = np.hypot(u, v)
     wheel = colorwheel()
     ncols = wheel.shape[0]
-    # The wheel starts at red for angle pi of (-u, -v), i.e. for flow pointing right.
+    # The wheel starts at red for angle pi of (-u, -v), i.e. for flow pointing right. It
+    # spans all ncols colours around the circle (Middlebury's flowToColor scales by ncols - 1,
+    # which leaves a seam between the last colour and red along the +u axis).
     a = np.arctan2(-v, -u) / np.pi
-    fk = (a + 1.0) / 2.0 * (ncols - 1)
-    k0 = np.floor(fk).astype(np.int64)
+    fk = (a + 1.0) / 2.0 * ncols
+    k0 = np.floor(fk).astype(np.int64) % ncols
     k1 = (k0 + 1) % ncols
-    frac = (fk - k0)[..., None]
+    frac = (fk - np.floor(fk))[..., None]
     col = (1 - frac) * wheel[k0] + frac * wheel[k1]
     inside = (rad <= 1.0)[..., None]
     col = np.where(inside, 1.0 - rad[..., None] * (1.0 - col), col * 0.75)

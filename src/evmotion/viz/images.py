@@ -15,11 +15,10 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.utils import atomic_path
-from evmotion.viz.colorwheel import colorwheel_image, flow_max_magnitude, flow_to_rgb
+from evmotion.viz.flowpic import FlowPicture, flow_panel, flow_picture
 
 __all__ = [
     "event_histogram",
-    "flow_figure",
     "iwe_to_rgb",
     "read_png",
     "save_flow_png",
@@ -179,51 +178,49 @@ def _save_figure(fig, path: str | os.PathLike, dpi: int) -> None:
         tmp.write_bytes(buf.getvalue())
 
 
-def flow_figure(flow: np.ndarray, *, max_magnitude: float | None = None,
-                mask: np.ndarray | None = None, unit: str = "px/s", title: str | None = None,
-                dpi: int = 100):
-    """A matplotlib Figure (Agg) of a colour-coded flow with its colour-wheel legend.
-
-    The legend's rim is labelled with ``max_magnitude`` in ``unit``.
-    """
-    if max_magnitude is None:
-        max_magnitude = flow_max_magnitude(np.asarray(flow), mask)
-    rgb = flow_to_rgb(flow, max_magnitude, mask)
-    h, w = rgb.shape[:2]
-    scale = 6.0 / max(h, w)
-    fig = _figure((w * scale + 2.0, h * scale + 0.6), dpi)
-    ax = fig.add_axes((0.02, 0.03, 0.74, 0.88))
-    ax.imshow(rgb, interpolation="nearest")
-    ax.set_axis_off()
-    if title:
-        ax.set_title(title)
-    leg = fig.add_axes((0.79, 0.35, 0.19, 0.4))
-    leg.imshow(colorwheel_image(129), extent=(-1, 1, 1, -1))
-    leg.set_xticks([-1, 0, 1])
-    leg.set_yticks([-1, 0, 1])
-    leg.set_xticklabels([f"{-max_magnitude:.3g}", "0", f"{max_magnitude:.3g}"], fontsize=7)
-    leg.set_yticklabels([f"{-max_magnitude:.3g}", "0", f"{max_magnitude:.3g}"], fontsize=7)
-    leg.set_xlabel(f"u [{unit}]", fontsize=8)
-    leg.set_ylabel(f"v [{unit}]", fontsize=8)
-    return fig
-
-
 def save_flow_png(path: str | os.PathLike, flow: np.ndarray, *,
-                  max_magnitude: float | None = None, mask: np.ndarray | None = None,
-                  unit: str = "px/s", legend: bool = True, title: str | None = None) -> None:
-    """Save a colour-coded flow as PNG, with a colour-wheel legend (scale in ``unit``).
+                  max_speed: float | None = None, valid: np.ndarray | None = None,
+                  unit: str = "px/s", legend: bool = True, title: str | None = None,
+                  ) -> FlowPicture:
+    """Save a colour-coded flow as PNG beside its legend (wheel, u/v arrows, rim speed).
 
-    With ``legend=False`` the PNG is the bare :func:`flow_to_rgb` image, pixel for pixel.
+    Parameters
+    ----------
+    flow : ndarray, shape (H, W, 2)
+        Flow in px/s (or ``unit``).
+    max_speed : float, optional
+        Speed at the wheel's rim, in ``unit``; fix it to compare the pictures of a sequence
+        (default: the largest valid speed of this flow, said so in the legend).
+    valid : ndarray of bool, shape (H, W), optional
+        Pixels with event support; the others are grey.
+    legend : bool
+        False: the bare :func:`flow_to_rgb` image (invalid pixels grey), pixel for pixel.
+    title : str, optional
+        A line of text above the picture.
+
+    Returns
+    -------
+    FlowPicture
+        What was drawn (scale, legend position, texts), without the title line.
 
     Examples
     --------
-    >>> save_flow_png("flow.png", np.zeros((8, 8, 2)), unit="px")  # doctest: +SKIP
+    >>> save_flow_png("flow.png", np.zeros((8, 8, 2)), max_speed=100.0)  # doctest: +SKIP
     """
-    if not legend:
-        save_png(path, flow_to_rgb(flow, max_magnitude, mask))
-        return
-    fig = flow_figure(flow, max_magnitude=max_magnitude, mask=mask, unit=unit, title=title)
-    _save_figure(fig, path, fig.dpi)
+    pic = flow_picture(flow, max_speed=max_speed, valid=valid, unit=unit, legend=legend)
+    rgb = pic.rgb
+    if title:
+        rgb = np.concatenate([_title_row(rgb.shape[1], title), rgb], axis=0)
+    save_png(path, rgb)
+    return pic
+
+
+def _title_row(width: int, title: str) -> np.ndarray:
+    fig = _figure((width / 100.0, 0.24), 100)
+    fig.set_facecolor("white")
+    fig.text(0.5, 0.5, title, fontsize=10, va="center", ha="center")
+    fig.canvas.draw()
+    return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
 
 def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
@@ -274,10 +271,10 @@ def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
 
 def save_flow_summary(path: str | os.PathLike, events: EventArray, flow_px_per_s: np.ndarray,
                       *, t_ref_us: int | None = None, polarity: bool = False,
-                      mask: np.ndarray | None = None, max_magnitude: float | None = None,
-                      title: str | None = None, dpi: int = 100) -> float:
-    """Three panels in one PNG: the events (zero flow), the IWE warped by the flow to
-    ``t_ref_us``, and the colour-coded flow with its colour-wheel legend (px/s).
+                      valid: np.ndarray | None = None, max_speed: float | None = None,
+                      title: str | None = None) -> float:
+    """Save :func:`flow_panel` as PNG: the events (zero flow), the IWE warped by the flow to
+    ``t_ref_us``, and the colour-coded flow with its legend (px/s).
 
     Parameters
     ----------
@@ -289,8 +286,13 @@ def save_flow_summary(path: str | os.PathLike, events: EventArray, flow_px_per_s
         Reference time of the warp in µs (default: first event).
     polarity : bool
         Signed (red/blue) images instead of counts.
-    mask : ndarray of bool, optional
-        Flow pixels to draw (e.g. ``evmotion.eval.event_mask(events)``).
+    valid : ndarray of bool, optional
+        Flow pixels with event support (e.g. ``evmotion.eval.event_mask(events)``); the
+        others are grey.
+    max_speed : float, optional
+        Speed at the legend wheel's rim (px/s); fix it across a sequence.
+    title : str, optional
+        A line above the panels.
 
     Returns
     -------
@@ -301,38 +303,7 @@ def save_flow_summary(path: str | os.PathLike, events: EventArray, flow_px_per_s
     --------
     >>> save_flow_summary("w000.png", events, flow)  # doctest: +SKIP
     """
-    from evmotion.core.iwe import accumulate
-    from evmotion.eval.metrics import fwl, warp_by_flow
-
-    xw, yw = warp_by_flow(events, flow_px_per_s, t_ref_us)
-    weights = events.polarity.astype(np.float64) if polarity else None
-    x = events.x.astype(np.float64)
-    y = events.y.astype(np.float64)
-    shape = events.sensor_size
-    iwe0 = accumulate(x, y, shape, weights=weights)
-    iwe1 = accumulate(xw, yw, shape, weights=weights)
-    vmax = float(np.percentile(np.abs(iwe0[iwe0 != 0]), 99.0)) if np.any(iwe0) else 1.0
-    value = fwl(events, flow_px_per_s, t_ref_us)
-    flow = np.asarray(flow_px_per_s)
-    if max_magnitude is None:
-        max_magnitude = flow_max_magnitude(flow, mask)
-    h, w = shape
-    panel = 3.2
-    fig = _figure((3 * panel + 1.2, panel * h / w + 0.8 + (0.3 if title else 0.0)), dpi)
-    axes = [fig.add_axes((0.01 + k * 0.305, 0.05, 0.29, 0.8)) for k in range(3)]
-    axes[0].imshow(iwe_to_rgb(iwe0, polarity, vmax=vmax), interpolation="nearest")
-    axes[0].set_title("events (zero flow)", fontsize=9)
-    axes[1].imshow(iwe_to_rgb(iwe1, polarity, vmax=vmax), interpolation="nearest")
-    axes[1].set_title(f"IWE with flow (FWL {value:.3f})", fontsize=9)
-    axes[2].imshow(flow_to_rgb(flow, max_magnitude, mask), interpolation="nearest")
-    axes[2].set_title("flow", fontsize=9)
-    for ax in axes:
-        ax.set_axis_off()
-    leg = fig.add_axes((0.925, 0.35, 0.07, 0.3))
-    leg.imshow(colorwheel_image(65))
-    leg.set_axis_off()
-    leg.set_title(f"{max_magnitude:.3g}\npx/s", fontsize=7)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    _save_figure(fig, path, dpi)
-    return value
+    rgb, info = flow_panel(events, flow_px_per_s, t_ref_us=t_ref_us, max_speed=max_speed,
+                           valid=valid, polarity=polarity, title=title)
+    save_png(path, rgb)
+    return info["fwl"]

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import base64
 import html
 import math
+import mimetypes
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from evmotion.errors import ParameterError
+from evmotion.errors import FormatError, ParameterError
 from evmotion.utils import atomic_write_text
 
 __all__ = ["HtmlReport"]
@@ -35,13 +37,18 @@ def _cell(v) -> str:
 class HtmlReport:
     """Collect figures, tables and text, then write one self-contained HTML page.
 
-    Figures are referenced by paths relative to the page, so keep the PNGs beside (or
-    below) the HTML file when moving it.
+    By default the figures are embedded in the page (base64 ``data:`` URIs), so the HTML
+    file alone shows everything wherever it is copied. With ``embed=False`` they are linked
+    by paths relative to the page's own folder: keep the pictures beside it when moving it.
+    Either way a figure file missing when the page is written is an error, not a broken
+    image.
 
     Parameters
     ----------
     title : str
         Page title and top heading.
+    embed : bool
+        Embed the figures (default) or link them relatively.
 
     Examples
     --------
@@ -52,8 +59,9 @@ class HtmlReport:
     >>> rep.write("out/report.html")  # doctest: +SKIP
     """
 
-    def __init__(self, title: str):
+    def __init__(self, title: str, *, embed: bool = True):
         self.title = str(title)
+        self.embed = bool(embed)
         self._items: list[tuple[str, object]] = []
 
     def add_heading(self, text: str, level: int = 2) -> None:
@@ -65,7 +73,8 @@ class HtmlReport:
         self._items.append(("text", str(text)))
 
     def add_figure(self, path: str | os.PathLike, caption: str = "") -> None:
-        """An image file (PNG...), linked relatively from the page when written."""
+        """An image file (PNG...); a relative ``path`` is taken from the current directory
+        now, as any file argument, not from the page's folder."""
         self._items.append(("figure", (Path(path).resolve(), str(caption))))
 
     def add_table(self, rows: Sequence[Mapping[str, object]], caption: str = "") -> None:
@@ -75,8 +84,17 @@ class HtmlReport:
             raise ParameterError("add_table needs at least one row")
         self._items.append(("table", (rows, str(caption))))
 
+    def _figure_src(self, path: Path, base: Path) -> str:
+        if not path.is_file():
+            raise FormatError(path, "report figure not found (write it before the report)")
+        if self.embed:
+            mime = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
+            return f"data:{mime};base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+        return Path(os.path.relpath(path, base)).as_posix()
+
     def render(self, base_dir: str | os.PathLike = ".") -> str:
-        """The HTML text, with figure paths relative to ``base_dir``."""
+        """The HTML text; linked figures (``embed=False``) get paths relative to
+        ``base_dir``, the folder of the page."""
         base = Path(base_dir).resolve()
         t = html.escape(self.title)
         out = ["<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
@@ -91,11 +109,13 @@ class HtmlReport:
                     out.append(f"<p>{html.escape(para)}</p>")
             elif kind == "figure":
                 path, caption = item
-                rel = Path(os.path.relpath(path, base)).as_posix()
-                src = html.escape(rel, quote=True)
+                src = html.escape(self._figure_src(path, base), quote=True)
                 cap = html.escape(caption)
-                out.append(f'<figure><a href="{src}"><img src="{src}" alt="{cap}"></a>'
-                           f"<figcaption>{cap}</figcaption></figure>")
+                img = f'<img src="{src}" alt="{cap}">'
+                # a data URI is not a useful link target (and doubles the page's size)
+                if not self.embed:
+                    img = f'<a href="{src}">{img}</a>'
+                out.append(f"<figure>{img}<figcaption>{cap}</figcaption></figure>")
             else:
                 rows, caption = item
                 cols: list[str] = []

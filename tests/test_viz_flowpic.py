@@ -1,0 +1,192 @@
+"""Flow pictures: the legend (wheel, arrows, rim speed) is drawn, max_speed fixes the colour
+scale, unsupported pixels are grey, and the events | IWE | flow panel."""
+
+import numpy as np
+import pytest
+
+from evmotion.errors import ParameterError
+from evmotion.events import EventArray
+from evmotion.viz import (
+    GREY,
+    MIN_HEIGHT,
+    colorwheel,
+    flow_panel,
+    flow_picture,
+    flow_to_rgb,
+    picture_row,
+    read_png,
+    save_flow_png,
+    sequence_max_speed,
+)
+
+
+def _radial(h=200, w=240, scale=1.0):
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    return np.stack([xx - w / 2, yy - h / 2], axis=-1) * scale
+
+
+def _box(rgb, box):
+    r0, r1, c0, c1 = box
+    return rgb[r0:r1, c0:c1]
+
+
+def test_flow_pixels_are_the_bare_picture_and_the_legend_is_drawn():
+    flow = _radial()
+    bare = flow_to_rgb(flow, 60.0)
+    pic = flow_picture(flow, max_speed=60.0)
+    assert pic.scale == 1 and pic.flow_box == (0, 200, 0, 240)
+    np.testing.assert_array_equal(_box(pic.rgb, pic.flow_box), bare)
+    legend = _box(pic.rgb, pic.legend_box)
+    assert legend.shape[0] == 200 and 90 <= legend.shape[1] <= 200
+    # the wheel is there: fully saturated red (rim, +u) and blue-ish (rim, -v) pixels
+    px = legend.reshape(-1, 3).astype(int)
+    assert np.any((px[:, 0] > 240) & (px[:, 1] < 40) & (px[:, 2] < 40))
+    assert np.any((px[:, 2] > 240) & (px[:, 0] < 120) & (px[:, 1] < 60))
+    # black ink: the arrows and the text
+    assert np.sum(px.max(axis=1) < 60) > 50
+    assert pic.texts == ("u", "v", "rim 60 px/s", "fixed scale")
+    assert pic.max_speed == 60.0 and pic.fixed_scale
+
+
+def test_the_scale_text_is_drawn_not_only_reported():
+    flow = _radial()
+    a = flow_picture(flow, max_speed=60.0)
+    b = flow_picture(flow, max_speed=61.0)
+    c = flow_picture(flow)
+    np.testing.assert_array_equal(a.rgb[:, :240], flow_to_rgb(flow, 60.0))
+    la, lb, lc = (_box(p.rgb, p.legend_box) for p in (a, b, c))
+    diff = np.any(la != lb, axis=-1)
+    rows = np.flatnonzero(diff.any(axis=1))
+    # only the line with the number changes, below the wheel
+    assert rows.size and rows.min() > la.shape[0] // 2
+    assert c.texts[3] == "max of image" and not c.fixed_scale
+    assert c.max_speed == pytest.approx(np.hypot(120, 100))
+    assert np.any(la != lc)
+
+
+def test_max_speed_fixes_the_colour_scale():
+    flow = np.zeros((4, 4, 2), np.float32)
+    flow[..., 0] = 40.0
+    saturation = {}
+    for m in (50.0, 200.0):
+        rgb = flow_picture(flow, max_speed=m, legend=False).rgb
+        saturation[m] = 1.0 - rgb[0, 0].min() / 255.0
+    assert saturation[50.0] == pytest.approx(0.8, abs=0.01)
+    assert saturation[200.0] == pytest.approx(0.2, abs=0.01)
+    # two different flows on one scale: the same vector gets the same colour
+    other = flow.copy()
+    other[0, 0] = (500.0, 0.0)
+    same = [flow_picture(f, max_speed=100.0, legend=False).rgb[2, 2] for f in (flow, other)]
+    np.testing.assert_array_equal(same[0], same[1])
+    auto = [flow_picture(f, legend=False).rgb[2, 2] for f in (flow, other)]
+    assert not np.array_equal(auto[0], auto[1])  # per-image scales disagree
+    with pytest.raises(ParameterError, match="max_speed"):
+        flow_picture(flow, max_speed=0.0)
+    with pytest.raises(ParameterError, match="max_speed"):
+        flow_picture(flow, max_speed=float("nan"))
+
+
+def test_pixels_without_support_are_grey_and_no_flow_colour_is():
+    rng = np.random.default_rng(0)
+    flow = rng.normal(0, 80, (60, 70, 2)).astype(np.float32)
+    flow[5, 5] = np.nan
+    valid = rng.random((60, 70)) > 0.3
+    rgb = flow_picture(flow, valid=valid, max_speed=100.0, legend=False).rgb
+    grey = np.all(rgb == np.array(GREY, np.uint8), axis=-1)
+    expected = ~valid
+    expected[5, 5] = True
+    np.testing.assert_array_equal(grey, expected)
+    # every colour of the wheel, inside and beyond the rim, differs from grey
+    ang = np.linspace(-np.pi, np.pi, 2000)
+    for r in (0.0, 0.3, 1.0, 3.0):
+        f = np.stack([r * np.cos(ang), r * np.sin(ang)], axis=-1)[None].astype(np.float32)
+        assert not np.any(np.all(flow_to_rgb(f, 1.0) == GREY, axis=-1))
+    with pytest.raises(ParameterError, match="valid mask"):
+        flow_picture(flow, valid=valid[:-1])
+
+
+def test_colours_are_continuous_across_the_u_axis():
+    eps = 1e-4
+    f = np.array([[[1.0, -eps], [1.0, eps]]], np.float32)
+    a, b = flow_to_rgb(f, 1.0)[0].astype(int)
+    assert np.abs(a - b).max() <= 2
+    assert len(colorwheel()) == 55
+
+
+def test_small_flows_are_upscaled_so_the_legend_reads():
+    flow = _radial(20, 30)
+    pic = flow_picture(flow, max_speed=20.0)
+    k = pic.scale
+    assert k == -(-MIN_HEIGHT // 20) and pic.rgb.shape[0] == 20 * k
+    np.testing.assert_array_equal(_box(pic.rgb, pic.flow_box)[::k, ::k],
+                                  flow_to_rgb(flow, 20.0))
+
+
+def test_save_flow_png_writes_the_picture(tmp_path):
+    flow = _radial(50, 60)
+    valid = np.zeros((50, 60), bool)
+    valid[10:40] = True
+    pic = save_flow_png(tmp_path / "f.png", flow, max_speed=30.0, valid=valid)
+    np.testing.assert_array_equal(read_png(tmp_path / "f.png")[..., :3], pic.rgb)
+    titled = save_flow_png(tmp_path / "t.png", flow, max_speed=30.0, title="window 3")
+    assert read_png(tmp_path / "t.png").shape[0] > titled.rgb.shape[0]
+
+
+def test_sequence_max_speed():
+    a = np.zeros((3, 3, 2))
+    b = np.ones((3, 3, 2))
+    b[0, 0] = (30.0, 40.0)
+    assert sequence_max_speed([a, b]) == 50.0
+    mask = np.ones((3, 3), bool)
+    mask[0, 0] = False
+    assert sequence_max_speed([a, b], [mask, mask]) == pytest.approx(np.sqrt(2))
+    assert sequence_max_speed([a]) == 1.0  # no motion: any positive scale
+    with pytest.raises(ParameterError):
+        sequence_max_speed([a, b], [mask])
+
+
+def test_picture_row_keeps_pixels():
+    a = np.full((20, 30, 3), 10, np.uint8)
+    b = np.full((12, 8, 3), 200, np.uint8)
+    row = picture_row([a, b])
+    assert row.shape == (20, 30 + 4 + 8, 3)
+    np.testing.assert_array_equal(row[:20, :30], a)
+    np.testing.assert_array_equal(row[:12, 34:], b)
+    assert np.all(row[12:, 34:] == 255)
+    titled = picture_row([a, b], ["a", "b"], title="t")
+    np.testing.assert_array_equal(titled[-20:], row)
+    with pytest.raises(ParameterError, match="titles"):
+        picture_row([a, b], ["a"])
+    with pytest.raises(ParameterError, match="uint8"):
+        picture_row([a[..., 0]])
+
+
+def test_flow_panel_shows_the_sharpening():
+    pytest.importorskip("evmotion.core.iwe")
+    from evmotion.eval.metrics import fwl
+
+    rng = np.random.default_rng(5)
+    n = 3000
+    t = np.sort(rng.integers(0, 20_000, n))
+    x = (20 + rng.integers(0, 6, n) * 25 + 1000e-6 * t).astype(np.float32)
+    y = rng.uniform(5, 115, n).astype(np.float32)
+    ev = EventArray(x, y, t, rng.integers(0, 2, n), sensor_size=(120, 200))
+    flow = np.zeros((120, 200, 2), np.float32)
+    flow[..., 0] = 1000.0
+    valid = np.zeros((120, 200), bool)
+    valid[:, :100] = True
+    rgb, info = flow_panel(ev, flow, max_speed=2000.0, valid=valid, title="window 0")
+    assert info["fwl"] == pytest.approx(fwl(ev, flow)) and info["fwl"] > 2
+    assert info["max_speed"] == 2000.0 and info["fixed_scale"]
+    pic = flow_picture(flow, max_speed=2000.0, valid=valid)
+    k = pic.scale
+    body = rgb[-pic.rgb.shape[0]:]
+    np.testing.assert_array_equal(body[:, -pic.rgb.shape[1]:], pic.rgb)
+    # the warped IWE (middle) concentrates the same events on fewer pixels than the raw one
+    w = 200 * k
+    raw, warped = body[:, :w], body[:, w + 4:2 * w + 4]
+    assert np.sum(warped.min(axis=-1) < 128) < 0.6 * np.sum(raw.min(axis=-1) < 128)
+    same, _ = flow_panel(ev, flow, max_speed=2000.0, valid=valid, title="window 1")
+    assert same.shape == rgb.shape  # frames of a sequence line up in a video
+    with pytest.raises(ParameterError, match="sensor size"):
+        flow_panel(ev, flow[:-1], max_speed=2000.0)
