@@ -39,6 +39,9 @@ def add_arguments(group) -> None:
                        help="focus function (default gradient magnitude)")
     group.add_argument("--max-iter", type=int, default=20,
                        help="optimizer iterations per scale (default 20)")
+    group.add_argument("--init", choices=("previous", "dnn"), default="previous",
+                       help="start each window from the previous one's flow (default) or "
+                            "from the network's (--checkpoint), skipping the coarse scales")
 
 
 def _read(path, fmt):
@@ -89,6 +92,9 @@ def _estimate(events, windows, kwargs, workers):
     from evmotion.methods.multicm import estimate_flow
     from evmotion.utils import progress
 
+    if kwargs.get("init") == "dnn":
+        return [estimate_flow(events.window(w), **kwargs)
+                for w in progress(windows, total=len(windows), desc="multicm")]
     if workers <= 1:
         out, init = [], None
         for w in progress(windows, total=len(windows), desc="multicm"):
@@ -152,9 +158,10 @@ def _pngs(png_dir: Path, results):
 def run(args) -> int:
     from evmotion.cli import print_json
 
+    method = getattr(args, "method", "multicm")
     out = Path(args.out)
     if out.suffix.lower() not in (".h5", ".hdf5", ".npy", ".flo"):
-        raise ParameterError(f"--out {out}: the multicm method writes .h5 (all windows), "
+        raise ParameterError(f"--out {out}: the {method} method writes .h5 (all windows), "
                              ".npy or .flo")
     if args.scales < 1 or args.scales > 5:
         raise ParameterError(f"--scales must be between 1 and 5, got {args.scales}")
@@ -163,18 +170,29 @@ def run(args) -> int:
     windows = [w for w in _windows(args, events) if w.count >= 10]
     if not windows:
         raise ParameterError(f"{args.file}: no window with at least 10 events")
-    kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
-                  n_scales=args.scales, objective=args.objective, lam=args.lam,
-                  n_bins=args.time_bins, max_iter=args.max_iter)
-    results = _estimate(events, windows, kwargs, args.workers)
-    attrs = {"method": "multicm", "time_aware": args.time_aware, "objective": args.objective,
-             "lambda": args.lam, "scales": args.scales, "source": str(args.file)}
+    if method == "dnn":
+        from evmotion.cli.flow_dnn import estimate as estimate_dnn
+
+        results = estimate_dnn(events, windows, args)
+        attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
+                 "source": str(args.file)}
+    else:
+        kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
+                      n_scales=args.scales, objective=args.objective, lam=args.lam,
+                      n_bins=args.time_bins, max_iter=args.max_iter)
+        if getattr(args, "init", "previous") == "dnn":
+            kwargs.update(init="dnn", checkpoint=getattr(args, "checkpoint", None))
+        results = _estimate(events, windows, kwargs, args.workers)
+        attrs = {"method": "multicm", "time_aware": args.time_aware,
+                 "objective": args.objective, "lambda": args.lam, "scales": args.scales,
+                 "init": getattr(args, "init", "previous"), "source": str(args.file)}
     written = _write(out, results, windows, events.sensor_size, attrs)
     if args.png_dir:
         _pngs(Path(args.png_dir), results)
     if args.json:
         print_json({
-            "method": "multicm", "time_aware": args.time_aware, "outputs": written,
+            "method": method, "time_aware": "none" if method == "dnn" else args.time_aware,
+            "outputs": written,
             "n_windows": len(results), "sensor_size": list(events.sensor_size),
             "windows": [{"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events,
                          "focus": r.focus, "seconds": r.timings["total_s"],

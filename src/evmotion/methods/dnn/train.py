@@ -111,7 +111,8 @@ def _materialize(cfg, item, rec, epoch, k) -> TrainWindow | None:
                          window_events=max(1000, round(cfg.window_events * area)))
     else:
         win = rec[val]
-    return crop_window(win, tuple(cfg.crop), rng)
+    return crop_window(win, tuple(cfg.crop), rng,
+                       min_events=min(1000, cfg.window_events // 10))
 
 
 def evaluate_windows(net: EVFlowNet, windows: Sequence[TrainWindow], *,
