@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import torch
@@ -42,7 +43,8 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
         blob = torch.load(path, map_location=device, weights_only=True)
         net = EVFlowNet(n_bins=int(blob["n_bins"]), width=float(blob["width"]))
         net.load_state_dict(blob["model"])
-    except (RuntimeError, KeyError, ValueError, TypeError, OSError) as exc:
+    except (RuntimeError, KeyError, ValueError, TypeError, OSError, EOFError,
+            AttributeError, pickle.UnpicklingError) as exc:
         raise ParameterError(f"checkpoint {path}: not an evmotion EV-FlowNet checkpoint "
                              f"({type(exc).__name__}: {str(exc).splitlines()[0][:120]})"
                              ) from None

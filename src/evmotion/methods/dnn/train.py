@@ -33,7 +33,13 @@ from evmotion.methods.dnn.data import TrainWindow, crop_window, recording_window
 from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
 from evmotion.methods.dnn.model import save_model
 from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
-from evmotion.methods.dnn.voxel import N_BINS, PAD_MULTIPLE, normalize_voxel, pad_to_multiple, voxel_grid
+from evmotion.methods.dnn.voxel import (
+    N_BINS,
+    PAD_MULTIPLE,
+    normalize_voxel,
+    pad_to_multiple,
+    voxel_grid,
+)
 from evmotion.utils import atomic_path, atomic_write_text
 
 __all__ = ["TrainConfig", "evaluate_windows", "train"]
