@@ -89,3 +89,21 @@ def test_crop_window_keeps_events_inside_and_shifts_them():
     c = crop_window(win, (32, 48), np.random.default_rng(0), min_events=10)
     assert c.events.sensor_size == (32, 48) and c.gt.shape == (32, 48, 2)
     assert c.events.x.max() < 48 and c.events.y.max() < 32 and len(c.events) >= 10
+
+
+def test_cli_train_end_to_end(tmp_path, capsys):
+    import json
+
+    from evmotion.cli import main
+
+    out = tmp_path / "run"
+    argv = ["train", "--sim-windows", "2", "--epochs", "1", "--batch-size", "2", "--width",
+            "0.0625", "--crop", "48x64", "--window-events", "4000", "--val-sim", "0",
+            "--out", str(out), "--json"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["epoch"] == 0 and summary["train_loss"] > 0
+    assert {p.name for p in out.iterdir()} >= {"last.pt", "model.pt", "steps.csv",
+                                                "epochs.csv", "loss.png"}
+    assert main(argv[:-3] + ["--crop", "50x64", "--out", str(out)]) == 2
+    assert "multiples of 16" in capsys.readouterr().err

@@ -15,6 +15,7 @@ continues from it and ends with the same weights as an uninterrupted run), ``mod
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 EXAMPLES = """examples:
@@ -80,7 +81,9 @@ def run(args) -> int:
                       crop=tuple(args.crop), objective=args.objective, lam=args.lam,
                       seed=args.seed, threads=args.threads, device=args.device,
                       max_steps_per_epoch=args.max_steps)
-    summary = train(cfg, args.out, resume=args.resume, show_progress=sys.stderr.isatty(),
+    # the progress bar follows evmotion.utils.progress: on a terminal, or EVMOTION_PROGRESS=1
+    bar = sys.stderr.isatty() or os.environ.get("EVMOTION_PROGRESS") == "1"
+    summary = train(cfg, args.out, resume=args.resume, show_progress=bar,
                     log=lambda line: print(line, file=sys.stderr, flush=True))
     if args.json:
         print_json(summary)
