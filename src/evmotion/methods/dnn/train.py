@@ -181,9 +181,9 @@ def _plot(path: Path, steps: list[dict], epochs: list[dict]) -> None:
                 label="training loss (epoch mean)")
         if "val_loss" in epochs[0]:
             ax.plot([r["step"] for r in epochs], [r["val_loss"] for r in epochs], "s-",
-                    label="validation loss")
+                    label="validation loss (finest scale only, whole frames)")
     ax.set_xlabel("step")
-    ax.set_ylabel("sum over 4 scales of 1/f + lam TV")
+    ax.set_ylabel("loss 1/f + lam TV (training: sum over 4 scales)")
     ax.legend()
     ax.grid(alpha=0.3)
     fig.tight_layout()
