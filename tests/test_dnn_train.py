@@ -107,3 +107,16 @@ def test_cli_train_end_to_end(tmp_path, capsys):
                                                 "epochs.csv", "loss.png"}
     assert main(argv[:-3] + ["--crop", "50x64", "--out", str(out)]) == 2
     assert "multiples of 16" in capsys.readouterr().err
+
+
+def test_init_weights_starts_from_a_checkpoint(tmp_path):
+    from evmotion.methods.dnn.model import save_model
+
+    torch.manual_seed(5)
+    start = EVFlowNet(width=0.0625)
+    save_model(tmp_path / "start.pt", start)
+    train(TrainConfig(epochs=1, lr=1e-12, val_sim=0, init_weights=str(tmp_path / "start.pt"),
+                      **{k: v for k, v in TINY.items() if k != "val_sim"}), tmp_path / "run")
+    got = _weights(tmp_path / "run" / "model.pt")
+    for k, v in start.state_dict().items():
+        torch.testing.assert_close(got[k], v, rtol=0, atol=1e-6)

@@ -66,6 +66,8 @@ def add_parser(sub) -> None:
                    help="torch threads (default 1: faster than 2 on a loaded 2-core machine)")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--init-weights", default=None, metavar="CKPT",
+                   help="start from these weights (fine-tuning; same --width)")
     p.add_argument("--json", action="store_true", help="print the last epoch as JSON")
     p.set_defaults(func=run)
 
@@ -80,7 +82,7 @@ def run(args) -> int:
                       val_recordings=list(args.val), window_events=args.window_events,
                       crop=tuple(args.crop), objective=args.objective, lam=args.lam,
                       seed=args.seed, threads=args.threads, device=args.device,
-                      max_steps_per_epoch=args.max_steps)
+                      max_steps_per_epoch=args.max_steps, init_weights=args.init_weights)
     # the progress bar follows evmotion.utils.progress: on a terminal, or EVMOTION_PROGRESS=1
     bar = sys.stderr.isatty() or os.environ.get("EVMOTION_PROGRESS") == "1"
     summary = train(cfg, args.out, resume=args.resume, show_progress=bar,

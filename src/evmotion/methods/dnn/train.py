@@ -31,7 +31,7 @@ import torch
 from evmotion.errors import ParameterError
 from evmotion.methods.dnn.data import TrainWindow, crop_window, recording_windows, sim_window
 from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
-from evmotion.methods.dnn.model import save_model
+from evmotion.methods.dnn.model import load_model, save_model
 from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
 from evmotion.methods.dnn.voxel import (
     N_BINS,
@@ -71,6 +71,7 @@ class TrainConfig:
     threads: int = 1
     device: str = "cpu"
     max_steps_per_epoch: int | None = None
+    init_weights: str | None = None
 
     def check(self) -> None:
         if self.epochs < 1 or self.batch_size < 1 or self.sim_windows < 0 or self.lr <= 0:
@@ -243,6 +244,9 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
         sched.load_state_dict(blob["scheduler"])
         steps_log, epochs_log = blob["steps"], blob["epochs"]
         start = int(blob["epoch"]) + 1
+    elif cfg.init_weights:
+        # fine-tuning: start from a checkpoint's weights (same width), fresh optimizer
+        net.load_state_dict(load_model(cfg.init_weights, str(device)).state_dict())
     rec = recording_windows(cfg.recordings, cfg.window_events) if cfg.recordings else []
     val = [sim_window(VAL_SEED_BASE + i, sensor_size=cfg.sim_sensor,
                       window_events=cfg.window_events) for i in range(cfg.val_sim)]
