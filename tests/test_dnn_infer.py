@@ -114,3 +114,15 @@ def test_cli_flow_dnn_end_to_end(tmp_path, window, capsys):
     assert main(["flow", str(rec), "--method", "dnn", "--checkpoint",
                  str(tmp_path / "none.pt"), "--out", str(out)]) == 2
     assert "none.pt" in capsys.readouterr().err
+
+
+@pytest.mark.realdata
+def test_shipped_checkpoint_sharpens_a_held_out_ecd_window(shared_data):
+    from evmotion.io import read_events
+
+    path = shared_data / "ecd_30k_windows" / "poster_translation"
+    if not path.is_dir():
+        pytest.skip(f"{path} not found")
+    res = estimate_flow_dnn(read_events(path))
+    # never trained on; benchmarks/results/dnn.md: FWL 1.18 (multicm 1.69)
+    assert np.var(res.iwes["tmid"]) / np.var(res.iwes["identity"]) > 1.1
