@@ -65,6 +65,7 @@ def _base_argv(command: str, r) -> list[str]:
         "segment": ["segment", r["rec"], "--warp", "translation", "--out", str(d / "sg")],
         "flow": ["flow", r["rec"], "--out", str(d / "f.h5")],
         "eval": ["eval", r["rec"], "--gt", r["gt"]],
+        "train": ["train", "--out", str(d / "tr")],
     }[command]
 
 

@@ -27,6 +27,7 @@ COMMANDS: tuple[str, ...] = (
     "segment",
     "flow",
     "eval",
+    "train",
 )
 
 EPILOG = """examples:

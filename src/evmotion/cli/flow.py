@@ -28,6 +28,7 @@ from evmotion.errors import ParameterError
 
 FLOW_METHODS: dict[str, str] = {
     "multicm": "evmotion.cli.flow_multicm",
+    "dnn": "evmotion.cli.flow_dnn",
     "triplet": "evmotion.cli.flow_triplet",
 }
 
@@ -36,6 +37,7 @@ EXAMPLES = """examples:
   evmotion flow sim.h5 --method multicm --time-aware burgers --out flow.flo
   evmotion flow rec.raw --method triplet --out flow.h5 --json
   evmotion flow rec.raw --method triplet --dense robust --out flow.h5 --resume
+  evmotion flow window.txt --method dnn --window-events 30000 --out x.flo
 """
 
 OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz")
@@ -52,7 +54,7 @@ def _method_modules():
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
-        "flow", help="optical flow (multi-reference CMax, triplet matching)",
+        "flow", help="optical flow (multi-reference CMax, triplet matching, network)",
         description=__doc__, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -42,6 +42,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--objective": ("objective", "gradient_magnitude"),
     "--max-iter": ("max_iter", 20),
     "--workers": ("workers", 1),
+    "--init": ("init", "previous"),
 }
 
 
@@ -64,6 +65,9 @@ def add_arguments(group) -> None:
     group.add_argument("--workers", type=positive_int(), default=None,
                        help="parallel worker processes (default 1); each takes a contiguous "
                             "chunk of windows")
+    group.add_argument("--init", choices=("previous", "dnn"), default=None,
+                       help="start each window from the previous one's flow (default) or "
+                            "from the network's (--checkpoint), skipping the coarse scales")
 
 
 def _read(path, fmt):
@@ -197,17 +201,23 @@ def _row(r, w) -> dict:
     valid = _valid(r)
     speed = np.linalg.norm(r.flow, axis=-1)
     return {"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events, "focus": r.focus,
-            "seconds": r.timings["total_s"], "compile_s": r.timings["compile_s"],
-            "estimate_s": r.timings["estimate_s"],
+            "seconds": r.timings["total_s"], "compile_s": r.timings.get("compile_s", 0.0),
+            "estimate_s": r.timings.get("estimate_s", r.timings["total_s"]),
             "mean_speed_px_s": float(speed[valid].mean()) if valid.any() else 0.0,
             "valid_fraction": float(valid.mean())}
 
 
 def check_args(args) -> None:
     """Options that do not go together (before the defaults are filled in)."""
+    method = "multicm"
+    if args.init != "dnn":
+        reject_unused(args, {"--checkpoint": "checkpoint"}, "without --init dnn")
+    if args.init == "dnn" and (args.workers or 1) > 1:
+        raise ParameterError(f"--init dnn starts every window from the network: --workers "
+                             f"{args.workers} would change nothing; leave it out")
     out = Path(args.out)
     if out.suffix.lower() not in (".h5", ".hdf5", ".npy", ".flo"):
-        raise ParameterError(f"--out {out}: the multicm method writes .h5 (all windows), "
+        raise ParameterError(f"--out {out}: the {method} method writes .h5 (all windows), "
                              ".npy or .flo")
     if args.time_aware in (None, "none"):
         reject_unused(args, {"--time-bins": "time_bins"}, "without --time-aware")
@@ -242,13 +252,29 @@ def run(args) -> int:
     if not windows:
         raise ParameterError(f"{args.file}: no window with at least 10 events")
     _check_space(out, windows, events.sensor_size)
-    kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
-                  n_scales=args.scales, objective=args.objective, lam=args.lam,
-                  n_bins=args.time_bins, max_iter=args.max_iter)
-    attrs = {"method": "multicm", "time_aware": args.time_aware, "objective": args.objective,
-             "lambda": args.lam, "scales": args.scales, "source": str(args.file)}
-    if args.time_bins is not None:
-        attrs["time_bins"] = args.time_bins
+    if args.method == "dnn":
+        from evmotion.cli.flow_dnn import estimator
+
+        estimate, attrs = estimator(args)
+        workers = 1
+    else:
+        kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
+                      n_scales=args.scales, objective=args.objective, lam=args.lam,
+                      n_bins=args.time_bins, max_iter=args.max_iter)
+        attrs = {"method": "multicm", "time_aware": args.time_aware,
+                 "objective": args.objective, "lambda": args.lam, "scales": args.scales,
+                 "init": args.init, "source": str(args.file)}
+        if args.time_bins is not None:
+            attrs["time_bins"] = args.time_bins
+        if args.init == "dnn":
+            kwargs.update(init="dnn", checkpoint=args.checkpoint)
+
+            def estimate(ev, init):
+                return estimate_flow(ev, **kwargs)
+        else:
+            def estimate(ev, init):
+                return estimate_flow(ev, init=init, **kwargs)
+        workers = args.workers
     png_dir = Path(args.png_dir) if args.png_dir else None
     video = [] if args.video else None
 
@@ -259,9 +285,9 @@ def run(args) -> int:
         if video is not None:
             video.append((r.flow, _valid(r)))
 
-    if args.workers > 1:
-        results = _estimate_parallel(events, windows, kwargs, args.workers,
-                                      keep_iwes=png_dir is not None)
+    if workers > 1:
+        results = _estimate_parallel(events, windows, kwargs, workers,
+                                     keep_iwes=png_dir is not None)
         sink = _Output(out, events.sensor_size, attrs, resume=False)
         rows = []
         try:
@@ -274,8 +300,8 @@ def run(args) -> int:
             sink.abort()
             raise
     else:
-        rows, written = _run_sequential(args, events, windows, kwargs, attrs, after,
-                                        estimate_flow, progress)
+        rows, written = _run_sequential(args, events, windows, estimate, attrs, after,
+                                        progress)
     if video is not None:
         from evmotion.viz import write_flow_video
 
@@ -283,14 +309,15 @@ def run(args) -> int:
                          valids=[v for _, v in video], max_speed=args.max_speed)
     if args.json:
         print_json({
-            "method": "multicm", "time_aware": args.time_aware, "outputs": written,
+            "method": args.method, "outputs": written,
+            "time_aware": "none" if args.method == "dnn" else args.time_aware,
             "n_windows": len(rows), "sensor_size": list(events.sensor_size),
             "windows": rows, "seconds": time.perf_counter() - t_start,
         })
     return 0
 
 
-def _run_sequential(args, events, windows, kwargs, attrs, after, estimate_flow, progress):
+def _run_sequential(args, events, windows, estimate, attrs, after, progress):
     """Windows in order, each warm-started from the previous one; with ``--resume`` the
     windows already in the ``.part`` file are taken from it (the last one as warm start,
     as stored: float32, exactly the flow that was written)."""
@@ -299,14 +326,14 @@ def _run_sequential(args, events, windows, kwargs, attrs, after, estimate_flow, 
     try:
         if sink.fw is not None:
             sink.fw.check_count(len(windows))
-        for i, w in enumerate(progress(windows, total=len(windows), desc="multicm")):
+        for i, w in enumerate(progress(windows, total=len(windows), desc=attrs["method"])):
             if i < len(sink.done):
                 sink.fw.check_done(i, w.t0, w.t1)
                 if i == len(sink.done) - 1:
                     init = sink.fw.stored_flow(i)
                 rows.append({"t0_us": w.t0, "t1_us": w.t1, "resumed": True})
                 continue
-            res = estimate_flow(events.window(w), init=init, **kwargs)
+            res = estimate(events.window(w), init)
             init = res
             sink.add(res.flow, w, _valid(res))
             after(i, res)

@@ -94,6 +94,7 @@ def check_args(args) -> None:
     """Options that the chosen output and --dense do not read are errors."""
     kind = Path(args.out).suffix.lower()
     given = {flag: attr for flag, (attr, _) in OPTIONS.items()}
+    reject_unused(args, {"--checkpoint": "checkpoint"}, "with --method triplet (a network's)")
     if kind == ".npz" and not args.png_dir:
         reject_unused(args, {f: given[f] for f in DENSE_OPTIONS},
                       "to a .npz output (per event; dense windows only with --png-dir)")

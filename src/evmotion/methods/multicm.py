@@ -59,6 +59,7 @@ __all__ = ["FlowResult", "MultiCMProblem", "estimate_flow", "estimate_flow_seque
 
 TV_EPS = 1e-2  # 1/s; Charbonnier smoothing of |grad v| so TV is differentiable at 0
 RESTART_PX = 1.0  # px per window; see the restart in estimate_flow
+DNN_INIT_SCALES = 2  # scales multicm still runs from the network's flow (init="dnn")
 TIMESTAMP_OBJECTIVES = ("avg_timestamp", "avg_timestamp_norm")
 OBJECTIVE_NAMES = ("gradient_magnitude", "variance", *TIMESTAMP_OBJECTIVES)
 #: A tile whose neighbourhood (3 x 3 tiles) has event support (``valid``) on less than
@@ -463,14 +464,17 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                   n_bins: int | None = None, init=None, seed: int = 0, max_iter: int = 20,
                   references: str = "multi", optimizer: str = "lbfgs",
                   time_aware_scales: int | None = None, finest_level: int = 5,
-                  transport_cell: int = 4, restart: bool = True) -> FlowResult:
+                  transport_cell: int = 4, restart: bool = True,
+                  checkpoint=None) -> FlowResult:
     """Dense optical flow of one event window by multi-reference contrast maximization.
 
     Parameters
     ----------
     events : EventArray
         One window (at least a few hundred events); undistort first if needed.
-    method : {"multicm"}
+    method : {"multicm", "dnn"}
+        ``"dnn"``: the unsupervised EV-FlowNet (:mod:`evmotion.methods.dnn`, needs torch)
+        from ``checkpoint``; the multicm options below are then ignored.
     time_aware : {None, "upwind", "burgers"}
         Warp with the flow transported over time bins (4.8) instead of (4.4).
     n_scales : int
@@ -483,8 +487,11 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         TV weight in (4.9) (default 0.0025).
     n_bins : int, optional
         Time bins of the time-aware flow (default 5, or 40 for sensors >= 640 px wide).
-    init : FlowResult or ndarray, optional
+    init : FlowResult, ndarray or "dnn", optional
         Warm start: previous result, dense flow (H, W, 2) or tile flow (ny, nx, 2), px/s.
+        ``"dnn"``: start from the network's flow (``checkpoint``) and run only the finest
+        ``min(n_scales, DNN_INIT_SCALES)`` scales: the coarse scales, which find the
+        large displacements, are what the network replaces.
     seed : int
         Accepted for API uniformity; the estimator is deterministic.
     max_iter : int
@@ -505,6 +512,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         upsampled single-tile flow, also optimize from ``init`` (or zero flow) and keep
         the better optimum (default True; needed for large displacements of flows that
         are not translations, e.g. zoom over 20 px).
+    checkpoint : path, optional
+        Network weights for ``method="dnn"`` or ``init="dnn"`` (default: shipped).
 
     Returns
     -------
@@ -525,8 +534,20 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     >>> bool(abs(np.median(res.flow[..., 0]) - 1000) < 150)
     True
     """
+    if method == "dnn":
+        from evmotion.methods.dnn import estimate_flow_dnn
+
+        return estimate_flow_dnn(events, checkpoint)
     if method != "multicm":
-        raise ParameterError(f"estimate_flow: unknown method {method!r} (available: 'multicm')")
+        raise ParameterError(f"estimate_flow: unknown method {method!r} "
+                             "(available: 'multicm', 'dnn')")
+    if isinstance(init, str):
+        if init != "dnn":
+            raise ParameterError(f"init must be a FlowResult, an array or 'dnn', got {init!r}")
+        from evmotion.methods.dnn import estimate_flow_dnn
+
+        init = estimate_flow_dnn(events, checkpoint, with_iwes=False)
+        n_scales = min(n_scales, DNN_INIT_SCALES)
     if time_aware not in (None, "none", "upwind", "burgers"):
         raise ParameterError(f"time_aware must be None, 'upwind' or 'burgers', got {time_aware!r}")
     time_aware = None if time_aware == "none" else time_aware

@@ -1,0 +1,64 @@
+"""``evmotion flow FILE --method dnn``: dense flow by the unsupervised EV-FlowNet (§4.3.7).
+
+Same windows, outputs (``.h5`` / ``.npy`` / ``.flo``), pictures, ``--resume`` and ``--json``
+as ``--method multicm`` (whose runner it uses); each window goes through the network once
+(no warm start needed). ``--checkpoint`` picks weights from ``evmotion train`` (default:
+the shipped checkpoint); multicm's ``--init dnn`` reads it too.
+"""
+
+from __future__ import annotations
+
+from evmotion.cli.options import existing_input, int_range
+
+# the options only this method reads: attribute and default (see evmotion.cli.flow);
+# --checkpoint is shared with multicm's --init dnn, so each method checks it itself
+OPTIONS: dict[str, tuple[str, object]] = {
+    "--device": ("device", "cpu"),
+    "--threads": ("threads", 1),
+}
+
+
+def add_arguments(group) -> None:
+    group.add_argument("--checkpoint", default=None, metavar="CKPT", type=existing_input,
+                       help="network weights (default: the shipped checkpoint); also used "
+                            "by multicm's --init dnn")
+    group.add_argument("--device", default=None, help="torch device (default cpu)")
+    group.add_argument("--threads", type=int_range(1, 256), default=None,
+                       help="torch threads (default 1: faster than 2 on a shared 2-core CPU)")
+
+
+def check_args(args) -> None:
+    """The network writes dense windows: .h5, .npy or .flo."""
+    from pathlib import Path
+
+    from evmotion.errors import ParameterError
+
+    out = Path(args.out)
+    if out.suffix.lower() not in (".h5", ".hdf5", ".npy", ".flo"):
+        raise ParameterError(f"--out {out}: the dnn method writes .h5 (all windows), "
+                             ".npy or .flo")
+    if args.resume and args.video:
+        raise ParameterError(f"--video {args.video} needs every window's flow: it cannot "
+                             "be made with --resume; run without --resume")
+
+
+def estimator(args):
+    """``(estimate(events, init) -> FlowResult, attrs)`` for the multicm runner."""
+    import torch
+
+    from evmotion.methods.dnn import estimate_flow_dnn
+
+    torch.set_num_threads(args.threads)
+    attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
+             "source": str(args.file)}
+
+    def estimate(events, init):
+        return estimate_flow_dnn(events, args.checkpoint, device=args.device)
+
+    return estimate, attrs
+
+
+def run(args) -> int:
+    from evmotion.cli import flow_multicm
+
+    return flow_multicm.run(args)

@@ -1,0 +1,25 @@
+"""The unsupervised EV-FlowNet of thesis §4.3.7, trained with multicm's objective.
+
+* :mod:`.voxel` -- voxel-grid input (numpy only);
+* :mod:`.network` -- EV-FlowNet with a width multiplier (torch);
+* :mod:`.loss` -- the training loss: multicm's (4.9) as a ``torch.autograd.Function``;
+* :mod:`.data`, :mod:`.train` -- simulated / recorded windows and the training loop
+  (``evmotion train``);
+* :mod:`.model` -- checkpoint files, the shipped default;
+* :mod:`.infer` -- :func:`estimate_flow_dnn` (``estimate_flow(..., method="dnn")``).
+
+torch is an optional dependency (``pip install evmotion[dnn]``); only the submodules
+that need it import it.
+"""
+
+from evmotion.methods.dnn.voxel import voxel_grid
+
+
+def estimate_flow_dnn(*args, **kwargs):
+    """See :func:`evmotion.methods.dnn.infer.estimate_flow_dnn` (imports torch lazily)."""
+    from evmotion.methods.dnn.infer import estimate_flow_dnn as fn
+
+    return fn(*args, **kwargs)
+
+
+__all__ = ["estimate_flow_dnn", "voxel_grid"]

@@ -1,0 +1,112 @@
+"""Inference: dense flow of a window from the network (``estimate_flow(..., method="dnn")``).
+
+The window's voxel grid (whole sensor, zero-padded to a multiple of 16) goes through the
+network once; its finest flow, cropped back to the sensor, is the displacement over the
+window in px, divided by the window's duration to give px/s at the window's midpoint
+(like multicm). The result is a :class:`~evmotion.methods.multicm.FlowResult` with the
+same IWEs and focus as multicm's, so every output, picture and evaluation of
+``evmotion flow`` works unchanged.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.events import EventArray
+from evmotion.methods.multicm import FlowResult
+
+__all__ = ["estimate_flow_dnn", "predict_displacement"]
+
+
+def predict_displacement(events: EventArray, checkpoint: str | Path | None = None, *,
+                         device: str = "cpu") -> np.ndarray:
+    """The network's displacement over the window, (H, W, 2) float32 px (u right, v down).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> ev = EventArray(x=rng.integers(0, 40, 900), y=rng.integers(0, 30, 900),
+    ...                 t=np.arange(900) * 10, p=rng.integers(0, 2, 900), sensor_size=(30, 40))
+    >>> predict_displacement(ev).shape
+    (30, 40, 2)
+    """
+    try:
+        import torch
+    except ModuleNotFoundError:
+        raise ParameterError("method 'dnn' needs PyTorch: pip install 'evmotion[dnn]'"
+                             ) from None
+
+    from evmotion.methods.dnn.model import load_model
+    from evmotion.methods.dnn.voxel import normalize_voxel, pad_to_multiple, voxel_grid
+
+    net = load_model(checkpoint, device)
+    h, w = events.sensor_size
+    vox = torch.from_numpy(pad_to_multiple(normalize_voxel(voxel_grid(events, net.n_bins))))
+    with torch.inference_mode():
+        out = net(vox[None].to(device))[-1][0, :, :h, :w]
+    return np.ascontiguousarray(out.permute(1, 2, 0).cpu().numpy(), dtype=np.float32)
+
+
+def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, *,
+                      device: str = "cpu", with_iwes: bool = True) -> FlowResult:
+    """Dense optical flow of one window by the unsupervised EV-FlowNet.
+
+    Parameters
+    ----------
+    events : EventArray
+        One window (the network was trained on 40k-event windows; 30k works as well).
+    checkpoint : path, optional
+        Weights from ``evmotion train`` (``model.pt`` or ``last.pt``); default the
+        shipped checkpoint (``evmotion/methods/dnn/weights``, see its model card).
+    device : str
+        torch device (default ``"cpu"``).
+    with_iwes : bool
+        Also compute the IWEs and the multi-reference focus of the flow, as multicm
+        reports them (a few ms; default True).
+
+    Returns
+    -------
+    FlowResult
+        ``flow`` in px/s at the window's midpoint; ``params`` empty; ``meta["method"]``
+        is ``"dnn"``.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> ev = EventArray(x=rng.integers(0, 40, 900), y=rng.integers(0, 30, 900),
+    ...                 t=np.arange(900) * 10, p=rng.integers(0, 2, 900), sensor_size=(30, 40))
+    >>> estimate_flow_dnn(ev).flow.shape
+    (30, 40, 2)
+    """
+    if len(events) < 10 or events.t[-1] <= events.t[0]:
+        raise EmptyWindowError(f"window has {len(events)} events spanning "
+                               f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
+                               "need at least 10 events and a positive duration")
+    t_start = time.perf_counter()
+    disp = predict_displacement(events, checkpoint, device=device)
+    t_net = time.perf_counter() - t_start
+    t0, t1 = int(events.t[0]), int(events.t[-1])
+    duration_s = (t1 - t0) * 1e-6
+    iwes, focus = {}, float("nan")
+    if with_iwes:
+        from evmotion.core.tileflow import iwe_forward
+        from evmotion.methods.dnn.loss import window_problem
+
+        prob = window_problem(events)
+        focus, _, imgs = prob.focus_grad(disp.astype(np.float64))
+        iwes = {k: v.astype(np.float32) for k, v in zip(("t1", "tmid", "tN"), imgs,
+                                                         strict=True)}
+        iwes["identity"] = iwe_forward(prob.x, prob.y, np.zeros((prob.x.size, 2)),
+                                       np.zeros(prob.x.size), events.sensor_size
+                                       ).astype(np.float32)
+    flow = (disp / duration_s).astype(np.float32)
+    total = time.perf_counter() - t_start
+    return FlowResult(flow=flow, t0_us=t0, t1_us=t1, t_ref_us=(t0 + t1) // 2, params=(),
+                      iwes=iwes, focus=float(focus), history=[],
+                      timings={"network_s": t_net, "total_s": total}, time_aware=None,
+                      n_bins=0, n_events=len(events),
+                      meta={"method": "dnn", "checkpoint": str(checkpoint or "shipped")})

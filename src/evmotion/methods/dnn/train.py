@@ -1,0 +1,329 @@
+"""Unsupervised training of EV-FlowNet with multicm's objective (thesis §4.3.7).
+
+Adam (lr 1e-3), learning rate times 0.8 after every epoch, loss :func:`multiscale_loss`
+at the four decoder scales. Each epoch draws ``sim_windows`` fresh simulated windows and
+uses every recording window once, each randomly cropped to ``crop`` (a multiple of 16;
+inference runs on the whole sensor), in an order drawn from ``(seed, epoch)``.
+
+Deterministic: the weights' initialization is seeded (``torch.manual_seed``), torch runs
+deterministic algorithms with a fixed thread count, and an epoch's data depends on
+``(seed, epoch)`` only. The state (weights, optimizer, scheduler, history) is written
+atomically after every epoch, so ``resume=True`` continues after the last finished
+epoch and ends with the same weights as an uninterrupted run.
+
+Outputs in ``out_dir``: ``last.pt`` (resumable), ``model.pt`` (weights only, for
+inference), ``steps.csv`` (loss per step), ``epochs.csv`` (training and validation
+scores per epoch) and ``loss.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from evmotion.errors import ParameterError
+from evmotion.methods.dnn.data import TrainWindow, crop_window, recording_windows, sim_window
+from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
+from evmotion.methods.dnn.model import load_model, save_model
+from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
+from evmotion.methods.dnn.voxel import (
+    N_BINS,
+    PAD_MULTIPLE,
+    normalize_voxel,
+    pad_to_multiple,
+    voxel_grid,
+)
+from evmotion.utils import atomic_path, atomic_write_text
+
+__all__ = ["TrainConfig", "evaluate_windows", "train"]
+
+#: Seeds of validation windows start here; training seeds are ``seed * 1e6 + epoch * 1e4 + i``
+#: with ``i < 1e4`` and must stay below.
+VAL_SEED_BASE = 2_000_000_000
+
+
+@dataclass
+class TrainConfig:
+    """Training settings (see ``evmotion train --help``)."""
+
+    width: float = 0.125
+    epochs: int = 10
+    batch_size: int = 8
+    lr: float = 1e-3
+    lr_decay: float = 0.8
+    sim_windows: int = 64
+    recordings: list[str] = field(default_factory=list)
+    val_sim: int = 4
+    val_recordings: list[str] = field(default_factory=list)
+    window_events: int = 40_000
+    crop: tuple[int, int] = (176, 240)
+    sim_sensor: tuple[int, int] = (260, 346)
+    objective: str = "gradient_magnitude"
+    lam: float = 0.0025
+    seed: int = 0
+    threads: int = 1
+    device: str = "cpu"
+    max_steps_per_epoch: int | None = None
+    init_weights: str | None = None
+
+    def check(self) -> None:
+        if self.epochs < 1 or self.batch_size < 1 or self.sim_windows < 0 or self.lr <= 0:
+            raise ParameterError(f"need epochs >= 1, batch_size >= 1, sim_windows >= 0, "
+                                 f"lr > 0; got {self.epochs}, {self.batch_size}, "
+                                 f"{self.sim_windows}, {self.lr}")
+        if self.sim_windows == 0 and not self.recordings:
+            raise ParameterError("no training data: give recordings or sim_windows > 0")
+        if any(c <= 0 or c % PAD_MULTIPLE for c in self.crop):
+            raise ParameterError(f"crop must be positive multiples of {PAD_MULTIPLE}, "
+                                 f"got {tuple(self.crop)}")
+        if not 0 < self.lr_decay <= 1 or self.width <= 0 or self.threads < 1:
+            raise ParameterError(f"need 0 < lr_decay <= 1, width > 0, threads >= 1; got "
+                                 f"{self.lr_decay}, {self.width}, {self.threads}")
+        if self.sim_windows >= 10_000:
+            raise ParameterError(f"sim_windows must be < 10000, got {self.sim_windows}")
+
+
+def _net_input(windows: Sequence[TrainWindow], shape: tuple[int, int]) -> torch.Tensor:
+    """Voxel grids of the windows zero-padded to the common ``shape`` (B, 5, H, W)."""
+    out = np.zeros((len(windows), N_BINS, *shape), np.float32)
+    for i, w in enumerate(windows):
+        v = normalize_voxel(voxel_grid(w.events))
+        out[i, :, :v.shape[1], :v.shape[2]] = v
+    return torch.from_numpy(out)
+
+
+def _epoch_items(cfg: TrainConfig, epoch: int, rec: list[TrainWindow]) -> list:
+    """The epoch's work list, ``("sim", seed)`` or ``("rec", index)``, shuffled."""
+    items = [("sim", cfg.seed * 1_000_000 + epoch * 10_000 + i) for i in range(cfg.sim_windows)]
+    items += [("rec", j) for j in range(len(rec))]
+    order = np.random.default_rng([cfg.seed, epoch, 1]).permutation(len(items))
+    return [items[k] for k in order]
+
+
+def _materialize(cfg, item, rec, epoch, k) -> TrainWindow | None:
+    kind, val = item
+    rng = np.random.default_rng([cfg.seed, epoch, k, 2])
+    if kind == "sim":
+        # simulated at the crop size directly (half the simulation time of a crop of a
+        # 346x260 scene), with the event density of a window_events window at sim_sensor
+        area = cfg.crop[0] * cfg.crop[1] / (cfg.sim_sensor[0] * cfg.sim_sensor[1])
+        win = sim_window(val, sensor_size=tuple(cfg.crop),
+                         window_events=max(1000, round(cfg.window_events * area)))
+    else:
+        win = rec[val]
+    return crop_window(win, tuple(cfg.crop), rng,
+                       min_events=min(1000, cfg.window_events // 10))
+
+
+def evaluate_windows(net: EVFlowNet, windows: Sequence[TrainWindow], *,
+                     objective: str = "gradient_magnitude", lam: float = 0.0025) -> list[dict]:
+    """Loss, FWL and (with ground truth) AEE of the network on whole windows.
+
+    FWL is ``var(IWE(t_mid)) / var(IWE(zero flow))``; AEE is the mean endpoint error of
+    the displacement over the window on the pixels that have events.
+    """
+    from evmotion.core.tileflow import iwe_forward
+
+    rows = []
+    net.eval()
+    for w in windows:
+        ev = w.events
+        h, wd = ev.sensor_size
+        prob = window_problem(ev, objective=objective, lam=lam)
+        vox = torch.from_numpy(pad_to_multiple(normalize_voxel(voxel_grid(ev)))[None])
+        with torch.no_grad():
+            flow = net(vox)[-1][0, :, :h, :wd].permute(1, 2, 0).double().numpy()
+        val, _ = prob.value_grad(flow.ravel())
+        _, _, iwes = prob.focus_grad(flow)
+        ident = iwe_forward(prob.x, prob.y, np.zeros((prob.x.size, 2)), np.zeros(prob.x.size),
+                            (h, wd))
+        row = {"window": w.name, "loss": float(val),
+               "FWL": float(np.var(iwes[1]) / max(np.var(ident), 1e-300))}
+        if w.gt is not None:
+            mask = ident > 0
+            e = np.linalg.norm(flow - w.gt, axis=-1)
+            ok = mask & np.isfinite(e)
+            row["AEE_px"] = float(e[ok].mean())
+            row["AEE_zero_px"] = float(np.linalg.norm(w.gt, axis=-1)[ok].mean())
+        rows.append(row)
+    return rows
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    if not rows:
+        return
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    buf = io.StringIO()
+    wr = csv.DictWriter(buf, fieldnames=keys)
+    wr.writeheader()
+    wr.writerows(rows)
+    atomic_write_text(path, buf.getvalue())
+
+
+def _plot(path: Path, steps: list[dict], epochs: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    if steps:
+        ax.plot([r["step"] for r in steps], [r["loss"] for r in steps], lw=0.6, alpha=0.6,
+                label="training loss (per step)")
+    if epochs:
+        ax.plot([r["step"] for r in epochs], [r["train_loss"] for r in epochs], "o-",
+                label="training loss (epoch mean)")
+        if "val_loss" in epochs[0]:
+            ax.plot([r["step"] for r in epochs], [r["val_loss"] for r in epochs], "s-",
+                    label="validation loss (finest scale only, whole frames)")
+    ax.set_xlabel("step")
+    ax.set_ylabel("loss 1/f + lam TV (training: sum over 4 scales)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+
+
+def _seed_all(cfg: TrainConfig) -> None:
+    torch.manual_seed(cfg.seed)
+    torch.use_deterministic_algorithms(True)
+    torch.set_num_threads(cfg.threads)
+
+
+def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
+          show_progress: bool = False, log: Callable[[str], None] | None = None) -> dict:
+    """Train (or resume training) and return the summary of the last epoch.
+
+    Parameters
+    ----------
+    cfg : TrainConfig
+    out_dir : path
+        Folder for checkpoints and logs (created).
+    resume : bool
+        Continue from ``out_dir/last.pt`` (its configuration must equal ``cfg`` except
+        ``epochs``).
+    show_progress : bool
+        A progress bar with the loss and ETA on stderr.
+    log : callable, optional
+        Receives one line per epoch.
+    """
+    cfg.check()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _seed_all(cfg)
+    device = torch.device(cfg.device)
+    net = EVFlowNet(width=cfg.width).to(device)
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma=cfg.lr_decay)
+    steps_log: list[dict] = []
+    epochs_log: list[dict] = []
+    start = 0
+    last = out / "last.pt"
+    if resume:
+        if not last.is_file():
+            raise ParameterError(f"--resume: no checkpoint {last}")
+        blob = torch.load(last, map_location=device, weights_only=False)
+        saved = dict(blob["config"])
+        mine = asdict(cfg)
+        diff = [k for k in mine if k != "epochs" and saved.get(k) != mine[k]
+                and not (isinstance(mine[k], tuple) and list(mine[k]) == list(saved.get(k)))]
+        if diff:
+            raise ParameterError(f"--resume: {last} was trained with other settings: "
+                                 + ", ".join(f"{k}={saved.get(k)!r}" for k in diff))
+        net.load_state_dict(blob["model"])
+        opt.load_state_dict(blob["optimizer"])
+        sched.load_state_dict(blob["scheduler"])
+        steps_log, epochs_log = blob["steps"], blob["epochs"]
+        start = int(blob["epoch"]) + 1
+    elif cfg.init_weights:
+        # fine-tuning: start from a checkpoint's weights (same width), fresh optimizer
+        net.load_state_dict(load_model(cfg.init_weights, str(device)).state_dict())
+    rec = recording_windows(cfg.recordings, cfg.window_events) if cfg.recordings else []
+    val = [sim_window(VAL_SEED_BASE + i, sensor_size=cfg.sim_sensor,
+                      window_events=cfg.window_events) for i in range(cfg.val_sim)]
+    if cfg.val_recordings:
+        val += recording_windows(cfg.val_recordings, cfg.window_events)
+    n_items = cfg.sim_windows + len(rec)
+    per_epoch = -(-n_items // cfg.batch_size)
+    if cfg.max_steps_per_epoch:
+        per_epoch = min(per_epoch, cfg.max_steps_per_epoch)
+    shape = tuple(int(c) for c in cfg.crop)
+    bar = None
+    if show_progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=cfg.epochs * per_epoch, initial=start * per_epoch, desc="train",
+                   unit="step", dynamic_ncols=True)
+    summary: dict = {}
+    for epoch in range(start, cfg.epochs):
+        t_epoch = time.perf_counter()
+        net.train()
+        items = _epoch_items(cfg, epoch, rec)
+        losses, t_loss = [], 0.0
+        k = 0
+        for step in range(per_epoch):
+            batch = []
+            while len(batch) < cfg.batch_size and k < len(items):
+                w = _materialize(cfg, items[k], rec, epoch, k)
+                k += 1
+                if w is not None:
+                    batch.append(w)
+            if not batch:
+                break
+            probs = [WindowLoss(window_problem(w.events, objective=cfg.objective,
+                                               lam=cfg.lam), w.events.sensor_size)
+                     for w in batch]
+            vox = _net_input(batch, shape).to(device)
+            opt.zero_grad()
+            flows = upsample_flows(net(vox), shape)
+            tl = time.perf_counter()
+            loss = multiscale_loss(flows, probs)
+            t_loss += time.perf_counter() - tl
+            loss.backward()
+            opt.step()
+            losses.append(float(loss.detach()))
+            steps_log.append({"epoch": epoch, "step": epoch * per_epoch + step,
+                              "loss": losses[-1], "lr": opt.param_groups[0]["lr"]})
+            if bar is not None:
+                bar.set_postfix(epoch=epoch, loss=f"{losses[-1]:.4f}")
+                bar.update(1)
+        sched.step()
+        row = {"epoch": epoch, "step": (epoch + 1) * per_epoch, "train_loss":
+               float(np.mean(losses)) if losses else float("nan"),
+               "lr": opt.param_groups[0]["lr"], "seconds": time.perf_counter() - t_epoch,
+               "loss_forward_seconds": t_loss}
+        if val:
+            scores = evaluate_windows(net, val, objective=cfg.objective, lam=cfg.lam)
+            row["val_loss"] = float(np.mean([s["loss"] for s in scores]))
+            row["val_FWL"] = float(np.mean([s["FWL"] for s in scores]))
+            aee = [s["AEE_px"] for s in scores if "AEE_px" in s]
+            if aee:
+                row["val_AEE_px"] = float(np.mean(aee))
+                row["val_AEE_zero_px"] = float(np.mean([s["AEE_zero_px"] for s in scores
+                                                        if "AEE_zero_px" in s]))
+        epochs_log.append(row)
+        state = {"model": net.state_dict(), "optimizer": opt.state_dict(),
+                 "scheduler": sched.state_dict(), "epoch": epoch, "config": asdict(cfg),
+                 "steps": steps_log, "epochs": epochs_log}
+        with atomic_path(last) as tmp:
+            torch.save(state, tmp)
+        save_model(out / "model.pt", net, epoch=epoch, config=asdict(cfg))
+        _write_csv(out / "steps.csv", steps_log)
+        _write_csv(out / "epochs.csv", epochs_log)
+        _plot(out / "loss.png", steps_log, epochs_log)
+        summary = row
+        if log is not None:
+            log(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                         for k, v in row.items()))
+    if bar is not None:
+        bar.close()
+    return summary

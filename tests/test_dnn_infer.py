@@ -1,0 +1,128 @@
+"""Inference: estimate_flow(method="dnn"), DNN-initialized multicm, the shipped checkpoint
+and ``evmotion flow --method dnn`` end to end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from evmotion.cli import main  # noqa: E402
+from evmotion.errors import ParameterError  # noqa: E402
+from evmotion.events import EventArray  # noqa: E402
+from evmotion.methods.dnn.data import sim_window  # noqa: E402
+from evmotion.methods.dnn.infer import estimate_flow_dnn, predict_displacement  # noqa: E402
+from evmotion.methods.dnn.model import DEFAULT_CHECKPOINT, load_model, save_model  # noqa: E402
+from evmotion.methods.dnn.network import EVFlowNet  # noqa: E402
+from evmotion.methods.multicm import estimate_flow  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def tiny_ckpt(tmp_path_factory):
+    torch.manual_seed(0)
+    net = EVFlowNet(width=0.0625)
+    for h in net.heads:  # a non-trivial flow, so units are tested on non-zero values
+        torch.nn.init.normal_(h.weight, std=0.05)
+        torch.nn.init.constant_(h.bias, 0.2)
+    path = tmp_path_factory.mktemp("ckpt") / "tiny.pt"
+    save_model(path, net)
+    return path
+
+
+@pytest.fixture(scope="module")
+def window():
+    return sim_window(11, scene="translation", texture="shapes", sensor_size=(50, 70),
+                      window_events=6000)
+
+
+def test_flow_units_and_shape(tiny_ckpt, window):
+    ev = window.events
+    disp = predict_displacement(ev, tiny_ckpt)
+    assert disp.shape == (50, 70, 2) and disp.dtype == np.float32
+    assert np.abs(disp).max() > 0.1
+    res = estimate_flow(ev, method="dnn", checkpoint=tiny_ckpt)
+    dur = (int(ev.t[-1]) - int(ev.t[0])) * 1e-6
+    np.testing.assert_allclose(res.flow * dur, disp, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(res.displacement(), disp, rtol=1e-4, atol=1e-4)
+    assert set(res.iwes) == {"t1", "tmid", "tN", "identity"} and np.isfinite(res.focus)
+    assert res.meta["method"] == "dnn"
+    # the padding is cropped off, whatever the sensor size
+    sub = EventArray(x=ev.x % 33, y=ev.y % 17, t=ev.t, p=ev.p, sensor_size=(17, 33))
+    assert predict_displacement(sub, tiny_ckpt).shape == (17, 33, 2)
+
+
+def test_dnn_init_runs_the_finest_scales_only(tiny_ckpt, window):
+    res = estimate_flow(window.events, init="dnn", checkpoint=tiny_ckpt)
+    assert len(res.params) == 2 and res.params[0].shape[:2] == (8, 8)
+    full = estimate_flow(window.events)
+    assert len(full.params) == 5
+    with pytest.raises(ParameterError, match="init"):
+        estimate_flow(window.events, init="zero")
+
+
+def test_bad_checkpoint_is_one_line_error(tmp_path):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(ParameterError, match="bad.pt") as exc:
+        load_model(bad)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(ParameterError, match="not found"):
+        load_model(tmp_path / "missing.pt")
+
+
+def test_shipped_checkpoint_is_small_and_sharpens_a_simulated_window():
+    assert DEFAULT_CHECKPOINT.is_file()
+    assert DEFAULT_CHECKPOINT.stat().st_size <= 10 * 2 ** 20
+    net = load_model()
+    assert net.width == 0.125
+    win = sim_window(123_456_789, scene="rotation", texture="dots", sensor_size=(180, 240),
+                     window_events=30_000)
+    res = estimate_flow_dnn(win.events)
+    fwl = np.var(res.iwes["tmid"]) / np.var(res.iwes["identity"])
+    assert fwl > 1.1
+    mask = res.iwes["identity"] > 0
+    aee = np.linalg.norm(res.displacement() - win.gt, axis=-1)[mask].mean()
+    zero = np.linalg.norm(win.gt, axis=-1)[mask].mean()
+    assert aee < 0.8 * zero
+
+
+def test_cli_flow_dnn_end_to_end(tmp_path, window, capsys):
+    from evmotion.io import write_events
+    from evmotion.io.flowfiles import read_flo
+
+    rec = tmp_path / "win.h5"
+    write_events(rec, window.events)
+    out = tmp_path / "x.flo"
+    assert main(["flow", str(rec), "--method", "dnn", "--window-events", "30000",
+                 "--out", str(out)]) == 0
+    capsys.readouterr()
+    disp = read_flo(out)
+    assert disp.shape == (50, 70, 2)
+    np.testing.assert_allclose(disp, predict_displacement(window.events), atol=1e-3)
+    assert main(["flow", str(rec), "--method", "dnn", "--window-events", "1000",
+                 "--out", str(tmp_path / "y.h5"), "--json",
+                 "--png-dir", str(tmp_path / "png")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["method"] == "dnn" and summary["n_windows"] >= 2
+    assert (tmp_path / "png" / "flow_0000.png").is_file()
+    assert main(["flow", str(rec), "--method", "multicm", "--init", "dnn",
+                 "--out", str(tmp_path / "z.npy"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["method"] == "multicm"
+    assert main(["flow", str(rec), "--method", "dnn", "--checkpoint",
+                 str(tmp_path / "none.pt"), "--out", str(out)]) == 2
+    assert "none.pt" in capsys.readouterr().err
+
+
+@pytest.mark.realdata
+def test_shipped_checkpoint_sharpens_a_held_out_ecd_window(shared_data):
+    from evmotion.io import read_events
+
+    path = shared_data / "ecd_30k_windows" / "poster_translation"
+    if not path.is_dir():
+        pytest.skip(f"{path} not found")
+    res = estimate_flow_dnn(read_events(path))
+    # never trained on; benchmarks/results/dnn.md: FWL 1.18 (multicm 1.69)
+    assert np.var(res.iwes["tmid"]) / np.var(res.iwes["identity"]) > 1.1

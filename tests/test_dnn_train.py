@@ -1,0 +1,122 @@
+"""Training: a tiny net learns on a simulated window; --resume reproduces the weights."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from evmotion.methods.dnn.data import crop_window, sim_window  # noqa: E402
+from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem  # noqa: E402
+from evmotion.methods.dnn.network import EVFlowNet, upsample_flows  # noqa: E402
+from evmotion.methods.dnn.train import TrainConfig, train  # noqa: E402
+from evmotion.methods.dnn.voxel import normalize_voxel, pad_to_multiple, voxel_grid  # noqa: E402
+
+TINY = dict(width=0.0625, batch_size=2, sim_windows=3, val_sim=1, window_events=4000,
+            crop=(48, 64), sim_sensor=(48, 64), threads=1)
+
+
+def test_network_shapes_and_width():
+    net = EVFlowNet(width=0.0625)
+    flows = net(torch.zeros(2, 5, 48, 64))
+    assert [tuple(f.shape) for f in flows] == [(2, 2, 6, 8), (2, 2, 12, 16), (2, 2, 24, 32),
+                                               (2, 2, 48, 64)]
+    full = sum(p.numel() for p in EVFlowNet(width=1.0).parameters())
+    small = sum(p.numel() for p in EVFlowNet(width=0.125).parameters())
+    assert 10e6 < full < 16e6 and small < full / 40
+
+
+def test_few_steps_reduce_the_loss_on_a_simulated_window():
+    torch.manual_seed(0)
+    torch.set_num_threads(1)
+    win = sim_window(0, scene="translation", texture="shapes", sensor_size=(48, 64),
+                     window_events=4000)
+    prob = [WindowLoss(window_problem(win.events), (48, 64))]
+    vox = torch.from_numpy(pad_to_multiple(normalize_voxel(voxel_grid(win.events)))[None])
+    net = EVFlowNet(width=0.0625)
+    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(25):
+        opt.zero_grad()
+        loss = multiscale_loss(upsample_flows(net(vox), (48, 64)), prob)
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+    # 4 scales of 1/f at zero flow = 4; the sharper warp lowers it clearly
+    assert losses[0] == pytest.approx(4.0, abs=0.01)
+    assert losses[-1] < losses[0] - 0.1
+
+
+def _weights(path):
+    return torch.load(path, weights_only=True)["model"]
+
+
+def test_resume_gives_the_weights_of_an_uninterrupted_run(tmp_path):
+    cfg2 = TrainConfig(epochs=2, **TINY)
+    summary = train(cfg2, tmp_path / "a")
+    cfg1 = TrainConfig(epochs=1, **TINY)
+    train(cfg1, tmp_path / "b")
+    train(cfg2, tmp_path / "b", resume=True)
+    wa, wb = _weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "b" / "model.pt")
+    assert wa.keys() == wb.keys()
+    for k in wa:
+        assert torch.equal(wa[k], wb[k]), k
+    # a different seed gives different weights (the comparison can fail)
+    train(TrainConfig(epochs=1, **{**TINY, "seed": 1}), tmp_path / "c")
+    wc = _weights(tmp_path / "c" / "model.pt")
+    assert any(not torch.equal(wa[k], wc[k]) for k in wa)
+    rows = list(csv.DictReader(open(tmp_path / "b" / "epochs.csv")))
+    assert [int(r["epoch"]) for r in rows] == [0, 1]
+    assert "val_AEE_px" in rows[0] and np.isfinite(summary["val_FWL"])
+    assert (tmp_path / "b" / "loss.png").stat().st_size > 1000
+    steps = list(csv.DictReader(open(tmp_path / "a" / "steps.csv")))
+    assert {int(r["epoch"]) for r in steps} == {0, 1} and len(steps) >= 3
+
+
+def test_resume_refuses_other_settings(tmp_path):
+    from evmotion.errors import ParameterError
+
+    train(TrainConfig(epochs=1, **TINY), tmp_path)
+    with pytest.raises(ParameterError, match="width"):
+        train(TrainConfig(epochs=2, **{**TINY, "width": 0.125}), tmp_path, resume=True)
+
+
+def test_crop_window_keeps_events_inside_and_shifts_them():
+    win = sim_window(1, scene="rotation", sensor_size=(60, 80), window_events=3000)
+    c = crop_window(win, (32, 48), np.random.default_rng(0), min_events=10)
+    assert c.events.sensor_size == (32, 48) and c.gt.shape == (32, 48, 2)
+    assert c.events.x.max() < 48 and c.events.y.max() < 32 and len(c.events) >= 10
+
+
+def test_cli_train_end_to_end(tmp_path, capsys):
+    import json
+
+    from evmotion.cli import main
+
+    out = tmp_path / "run"
+    argv = ["train", "--sim-windows", "2", "--epochs", "1", "--batch-size", "2", "--width",
+            "0.0625", "--crop", "48x64", "--window-events", "4000", "--val-sim", "0",
+            "--out", str(out), "--json"]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["epoch"] == 0 and summary["train_loss"] > 0
+    assert {p.name for p in out.iterdir()} >= {"last.pt", "model.pt", "steps.csv",
+                                                "epochs.csv", "loss.png"}
+    assert main(argv[:-3] + ["--crop", "50x64", "--out", str(out)]) == 2
+    assert "multiples of 16" in capsys.readouterr().err
+
+
+def test_init_weights_starts_from_a_checkpoint(tmp_path):
+    from evmotion.methods.dnn.model import save_model
+
+    torch.manual_seed(5)
+    start = EVFlowNet(width=0.0625)
+    save_model(tmp_path / "start.pt", start)
+    train(TrainConfig(epochs=1, lr=1e-12, val_sim=0, init_weights=str(tmp_path / "start.pt"),
+                      **{k: v for k, v in TINY.items() if k != "val_sim"}), tmp_path / "run")
+    got = _weights(tmp_path / "run" / "model.pt")
+    for k, v in start.state_dict().items():
+        torch.testing.assert_close(got[k], v, rtol=0, atol=1e-6)
