@@ -39,6 +39,7 @@ from evmotion.io.flowfiles import (
     write_dsec_flow_png,
     write_flo,
 )
+from evmotion.io.guard import guard_call
 from evmotion.io.registry import all_formats, get_format
 from evmotion.io.registry import detect_format as _detect
 
@@ -409,7 +410,7 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     try:
         spec = _spec(path, format)
     except FormatError:
-        flow = _describe_flow(path) if format is None else None
+        flow = guard_call(_describe_flow, "flow", "describe")(path) if format is None else None
         if flow is None:
             raise
         return flow
