@@ -269,15 +269,23 @@ def _alarm(signum, frame):
     raise _Timeout
 
 
+def type_name(exc: BaseException) -> str:
+    """``KeyError``, ``zlib.error``, ``zipfile.BadZipFile``: builtins bare, others with
+    their top-level module."""
+    cls = type(exc)
+    mod = cls.__module__.split(".")[0]
+    return cls.__name__ if mod in ("builtins", "evmotion") else f"{mod}.{cls.__name__}"
+
+
 def _classify(exc: BaseException, path: Path, step: str) -> Outcome:
     cause = exc.__cause__ if exc.__cause__ is not None else exc
-    name = type(cause).__name__
+    name = type_name(cause)
     msg = str(exc)
     if isinstance(exc, EvmotionError):
         if str(path) not in msg or "\n" in msg or "\r" in msg:
             return Outcome("unnamed", name, msg[:500], step)
         return Outcome("error", name, msg[:500], step)
-    return Outcome("leak", name, f"{type(exc).__name__}: {msg}"[:500], step)
+    return Outcome("leak", name, f"{type_name(exc)}: {msg}"[:500], step)
 
 
 def _check_events(ev: EventArray) -> str | None:

@@ -25,6 +25,8 @@ from evmotion.utils import atomic_path
 __all__ = ["read", "iter_chunks", "write", "describe", "events_from_columns", "FORMAT"]
 
 NPY_MAGIC = b"\x93NUMPY"
+# Largest |time| accepted, in µs (146,000 years): int64 arithmetic on it cannot overflow.
+MAX_ABS_TIME_US = 1 << 62
 # deflate cannot expand data more than 1032:1
 _DEFLATE_MAX_RATIO = 1032
 ZIP_MAGIC = b"PK\x03\x04"
@@ -40,8 +42,15 @@ def _time_us(t: np.ndarray, unit: str | None) -> tuple[np.ndarray, str]:
     if scale is None:
         raise ParameterError(f"time_unit must be 's', 'ms', 'us' or 'ns', got {unit!r}")
     if t.dtype.kind in "iu" and scale >= 1:
+        if t.size and max(abs(int(t.min())), abs(int(t.max()))) * scale > MAX_ABS_TIME_US:
+            raise ValueError(f"times reach {max(abs(int(t.min())), abs(int(t.max())))} {unit}")
         return t.astype(np.int64) * int(scale), f"{unit} ({how})"
-    return np.rint(t.astype(np.float64) * scale).astype(np.int64), f"{unit} ({how})"
+    with np.errstate(all="ignore"):
+        us = np.rint(t.astype(np.float64) * scale)
+    if us.size and not (np.abs(us).max() <= MAX_ABS_TIME_US):  # also catches NaN
+        bad = int(np.argmax(~(np.abs(us) <= MAX_ABS_TIME_US)))
+        raise ValueError(f"event {bad} has t={t[bad]} {unit}")
+    return us.astype(np.int64), f"{unit} ({how})"
 
 
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
@@ -55,7 +64,15 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     """
     path = Path(path) if path is not None else None
     meta = dict(meta or {})
-    t_us, unit = _time_us(np.asarray(t), time_unit)
+    t = np.asarray(t)
+    if t.dtype.kind not in "iuf":
+        raise FormatError(path, f"field 't' has dtype {t.dtype}, expected numbers")
+    try:
+        t_us, unit = _time_us(t, time_unit)
+    except ValueError as exc:
+        if isinstance(exc, ParameterError):
+            raise
+        raise FormatError(path, f"field 't': {exc}, not a time within +-2^62 us") from None
     meta["time_unit"] = unit
     x = np.asarray(x)
     y = np.asarray(y)
