@@ -257,3 +257,27 @@ def test_guarded_iterator_names_the_file_and_closes(tmp_path):
     next(early)
     early.close()
     assert len(closed) == 2
+
+
+def test_cli_info_on_a_corrupt_file_prints_one_line(tmp_path, capsys):
+    from evmotion.cli import main
+
+    path = tmp_path / "cut.h5"
+    h5.write(path, _events(3000))
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) // 2])
+    assert main(["info", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("evmotion info: error:") and str(path) in err and "\n" not in err
+
+
+def test_calibration_of_a_corrupt_hdf5_names_the_file(tmp_path):
+    path = tmp_path / "cal.h5"
+    h5.write(path, _events(), calibration={"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]})
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        f.attrs["calibration"] = "{not json"
+    with pytest.raises(FormatError) as e:
+        eio.read_calibration(path)
+    _one_line_naming(e.value, path)

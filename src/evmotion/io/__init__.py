@@ -374,18 +374,24 @@ def read_calibration(path: str | os.PathLike) -> dict:
     with open(path, "rb") as fh:
         head = fh.read(8)
     if head.startswith(b"\x89HDF\r\n\x1a\n"):
-        import h5py
-
-        with h5py.File(path, "r") as f:
-            if "calibration" in f.attrs:
-                cal = json.loads(f.attrs["calibration"])
-                cal.setdefault("sensor_size", [int(f.attrs["height"]), int(f.attrs["width"])]
-                               if "height" in f.attrs else None)
-                return cal
-        raise FormatError(path, "no 'calibration' attribute in this HDF5 file")
+        return guard_call(_h5_calibration, "HDF5", "read the calibration")(path)
     raise FormatError(path, "no calibration found",
                       "give an ECD calib.txt or an evmotion .h5 with calibration; YAML "
                       "calibrations are read by evmotion.camera.Camera.from_file")
+
+
+def _h5_calibration(path: Path) -> dict:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        if "calibration" in f.attrs:
+            cal = json.loads(f.attrs["calibration"])
+            if not isinstance(cal, dict):
+                raise FormatError(path, "attribute 'calibration' is not a JSON object")
+            cal.setdefault("sensor_size", [int(f.attrs["height"]), int(f.attrs["width"])]
+                           if "height" in f.attrs else None)
+            return cal
+    raise FormatError(path, "no 'calibration' attribute in this HDF5 file")
 
 
 def describe(path: str | os.PathLike, format: str | None = None, *,
