@@ -14,7 +14,8 @@ rise over the resident set before the case (``peak_mb``) and the largest peak it
 an address-space limit (``RLIMIT_AS``, start + 2 GiB): an allocation past it fails with
 MemoryError, which the readers report as a FormatError and the row counts as
 ``memory_limit_hits``. Time per case is wall time; ``hang`` is a case over 20 s (SIGALRM
-in the worker; a batch over its time is also reported as hangs).
+in the worker); ``crash`` is a case whose worker process died (a segfault in a C
+library): the pool is restarted after it and the case is named.
 
 Run: ``python benchmarks/bench_fuzz.py [--cases 100000] [--workers 2] [--budget-s 1080]``
 (``run.py fuzz`` runs the default, ``--quick`` 100 cases per seed).
@@ -69,7 +70,8 @@ def _reset_peak() -> bool:
 def _init(seeds, workdir: str) -> None:
     global _SEEDS, _DIR
     _SEEDS = seeds
-    _DIR = Path(tempfile.mkdtemp(dir=workdir))
+    _DIR = Path(workdir) / f"worker{os.getpid()}"
+    _DIR.mkdir()
     for seed in seeds:  # load the compiled decoders before timing anything
         fuzzing.run_case(seed.path, seed.fmt)
     vm = _status_kb("VmSize:") * 1024
@@ -83,7 +85,10 @@ def _batch(task: tuple[int, int, int]) -> dict:
     agg = {"seed": si, "cases": 0, "kinds": collections.Counter(),
            "errors": collections.Counter(), "peak_kb": 0, "peak_rss_kb": 0, "max_s": 0.0,
            "mem_hits": 0, "findings": [], "stream_only": 0, "clear_refs": True}
+    progress = _DIR / "progress"
     for k in range(first, first + count):
+        # the case under way, for the parent to name if this process dies (a segfault)
+        progress.write_text(f"{si} {k}")
         ops = fuzzing.random_ops(np.random.default_rng([si, k]))
         path = fuzzing.write_case(seed, ops, _DIR / seed.name)
         agg["clear_refs"] &= _reset_peak()
@@ -107,7 +112,84 @@ def _batch(task: tuple[int, int, int]) -> dict:
         agg["peak_kb"] = max(agg["peak_kb"], hwm - rss0)
         agg["peak_rss_kb"] = max(agg["peak_rss_kb"], hwm)
         agg["max_s"] = max(agg["max_s"], dt)
+    progress.unlink()
     return agg
+
+
+def _merge(tot: dict, agg: dict) -> None:
+    tot["cases"] += agg["cases"]
+    for key in ("kinds", "errors"):
+        tot[key].update(agg[key])
+    for key in ("peak_kb", "peak_rss_kb", "max_s"):
+        tot[key] = max(tot[key], agg[key])
+    tot["mem_hits"] += agg["mem_hits"]
+    tot["stream_only"] += agg["stream_only"]
+    tot["clear_refs"] &= agg["clear_refs"]
+    tot["findings"] += agg["findings"][:5 - len(tot["findings"])]
+
+
+def _run_pool(todo: collections.deque, seeds, workdir: Path, workers: int, t_start: float,
+              budget_s: float) -> tuple[list[dict], list[tuple[int, int]]]:
+    """Run tasks from ``todo`` (removing those done) on a fresh pool until it is empty,
+    the budget is spent or a worker dies. Returns the batch results and, after a death,
+    the ``(seed, case)`` each dead worker was running; the unfinished tasks go back on
+    ``todo``, a dead worker's resumed after its case."""
+    done: list[dict] = []
+    ctx = mp.get_context("fork")
+    pool = ctx.Pool(workers, initializer=_init, initargs=(seeds, str(workdir)))
+    started = {p.pid for p in pool._pool}
+    pending: dict = {}
+    dead: set[int] = set()
+    try:
+        while todo or pending:
+            while todo and len(pending) < 2 * workers and \
+                    time.perf_counter() - t_start < budget_s:
+                task = todo.popleft()
+                pending[task] = pool.apply_async(_batch, (task,))
+            if not pending or time.perf_counter() - t_start > budget_s + 300:
+                break  # (the second: a worker stuck outside Python; its cases are not run)
+            for task, res in list(pending.items()):
+                if res.ready():
+                    done.append(res.get())
+                    del pending[task]
+            # Pool replaces a dead worker silently and never finishes its task
+            dead = {p for p in started if not Path(f"/proc/{p}").exists()
+                    or _zombie(p)}
+            if dead:
+                break
+            started |= {p.pid for p in pool._pool}
+            time.sleep(0.05)
+    finally:
+        pool.terminate()
+        pool.join()
+    crashed = []
+    for prog in workdir.glob("worker*/progress"):
+        pid = int(prog.parent.name.removeprefix("worker"))
+        text = prog.read_text().split()
+        prog.unlink()
+        if len(text) != 2:  # killed by terminate() while writing it: its task is pending
+            continue
+        si, k = int(text[0]), int(text[1])
+        for task in [t for t in pending if t[0] == si and t[1] <= k < t[1] + t[2]]:
+            del pending[task]
+            if pid in dead:
+                crashed.append((si, k))
+                # the cases before it ran but their results died with the worker
+                for part in ((si, task[1], k - task[1]),
+                             (si, k + 1, task[1] + task[2] - k - 1)):
+                    if part[2] > 0:
+                        todo.appendleft(part)
+            else:
+                todo.appendleft(task)
+    todo.extendleft(pending)  # submitted, not finished: run again
+    return done, crashed
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] in "ZX"
+    except (OSError, IndexError):
+        return True
 
 
 def run(cases: int, workers: int, budget_s: float, only: list[str] | None = None,
@@ -126,49 +208,21 @@ def run(cases: int, workers: int, budget_s: float, only: list[str] | None = None
               for si in range(len(seeds))}
     t_start = time.perf_counter()
     stopped = False
-    ctx = mp.get_context("fork")
-    with ctx.Pool(workers, initializer=_init, initargs=(seeds, str(workdir))) as pool:
-        pending = collections.deque()
-        it = iter(tasks)
-        done = 0
-
-        def submit() -> bool:
-            task = next(it, None)
-            if task is None:
-                return False
-            pending.append((task, pool.apply_async(_batch, (task,)), time.perf_counter()))
-            return True
-
-        for _ in range(2 * workers):
-            submit()
-        while pending:
-            task, res, t_sub = pending.popleft()
-            try:
-                agg = res.get(timeout=BATCH * CASE_TIMEOUT_S)
-            except mp.TimeoutError:
-                tot = totals[task[0]]
-                tot["cases"] += task[2]
-                tot["kinds"]["hang"] += task[2]
-                tot["findings"].append({"case": task[1], "kind": "hang",
-                                        "message": f"batch of {task[2]} over its time"})
-                pool.terminate()
-                stopped = True
-                break
-            tot = totals[agg["seed"]]
-            tot["cases"] += agg["cases"]
-            for key in ("kinds", "errors"):
-                tot[key].update(agg[key])
-            for key in ("peak_kb", "peak_rss_kb", "max_s"):
-                tot[key] = max(tot[key], agg[key])
-            tot["mem_hits"] += agg["mem_hits"]
-            tot["stream_only"] += agg["stream_only"]
-            tot["clear_refs"] &= agg["clear_refs"]
-            tot["findings"] += agg["findings"][:5 - len(tot["findings"])]
-            done += agg["cases"]
-            if time.perf_counter() - t_start < budget_s:
-                submit()
-            else:
-                stopped = stopped or next(it, None) is not None
+    todo = collections.deque(tasks)
+    while todo:
+        done, crashed = _run_pool(todo, seeds, workdir, workers, t_start, budget_s)
+        for agg in done:
+            _merge(totals[agg["seed"]], agg)
+        for si, k in crashed:
+            tot = totals[si]
+            tot["cases"] += 1
+            tot["kinds"]["crash"] += 1
+            ops = fuzzing.random_ops(np.random.default_rng([si, k]))
+            tot["findings"].append({"case": k, "kind": "crash", "ops": ops,
+                                    "message": "the worker process died (segfault?)"})
+        if time.perf_counter() - t_start >= budget_s:
+            stopped = bool(todo)
+            break
     wall = time.perf_counter() - t_start
     rows = []
     for si, seed in enumerate(seeds):
@@ -179,7 +233,7 @@ def run(cases: int, workers: int, budget_s: float, only: list[str] | None = None
             "cases": tot["cases"], "ok": tot["kinds"]["ok"], "errors": tot["kinds"]["error"],
             "findings": findings,
             "leaks": tot["kinds"]["leak"], "unnamed": tot["kinds"]["unnamed"],
-            "hangs": tot["kinds"]["hang"],
+            "hangs": tot["kinds"]["hang"], "crashes": tot["kinds"]["crash"],
             "mismatch_or_invalid": tot["kinds"]["mismatch"] + tot["kinds"]["invalid"],
             "errors_by_type": ", ".join(f"{k} {v}" for k, v in tot["errors"].most_common()),
             "streams_though_read_fails": tot["stream_only"],
@@ -211,7 +265,7 @@ def main(quick: bool = False, argv: list[str] | None = None) -> list[dict]:
     table = [{k: v for k, v in r.items() if k != "example_findings"} for r in rows]
     total = {"seed": "ALL", "format": "", "cases": info["cases"],
              **{k: sum(r[k] for r in rows) for k in ("ok", "errors", "findings", "leaks",
-                                                     "unnamed", "hangs",
+                                                     "unnamed", "hangs", "crashes",
                                                      "mismatch_or_invalid",
                                                      "streams_though_read_fails",
                                                      "memory_limit_hits")},
@@ -223,7 +277,7 @@ def main(quick: bool = False, argv: list[str] | None = None) -> list[dict]:
              f"; peak memory by {info['peak_method']}; seeds without samples: "
              f"{info['missing_seeds'] or 'none'}. Command: python benchmarks/bench_fuzz.py "
              f"--cases {args.cases} --workers {args.workers}. findings = leaks + unnamed + "
-             "hangs + mismatch_or_invalid, expected 0.")
+             "hangs + crashes + mismatch_or_invalid, expected 0.")
     harness.record("fuzz", table + [total], notes)
     examples = {r["seed"]: r["example_findings"] for r in rows if r["example_findings"]}
     if examples:

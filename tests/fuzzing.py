@@ -12,7 +12,8 @@ file still reads, streaming equals reading whole, the events keep the container'
 invariants) or ``error`` (an EvmotionError on one line naming the file); anything else
 is a finding: ``leak`` (another exception), ``unnamed`` (an EvmotionError that does not
 name the file or spans several lines), ``mismatch`` or ``invalid`` (bad events read
-"fine"), ``hang`` (over the time limit).
+"fine"), ``hang`` (over the time limit), ``crash`` (the process died: only the
+benchmark, which runs cases in worker processes, can see it).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from evmotion.errors import EvmotionError
 from evmotion.events import EventArray
 from evmotion.io.guard import MAX_SENSOR_SIDE
 
-FINDINGS = ("leak", "unnamed", "mismatch", "invalid", "hang")
+FINDINGS = ("leak", "unnamed", "mismatch", "invalid", "hang", "crash")
 
 
 @dataclass(frozen=True)

@@ -112,6 +112,12 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
     -------
     EventArray
 
+    Raises
+    ------
+    FormatError
+        For a corrupt, truncated or unreadable file: one line naming the file (the
+        low-level exception, if any, is chained as ``__cause__``).
+
     Examples
     --------
     >>> ev = read_events("shapes_rotation.mat")  # doctest: +SKIP
