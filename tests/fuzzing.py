@@ -18,6 +18,7 @@ benchmark, which runs cases in worker processes, can see it).
 
 from __future__ import annotations
 
+import itertools
 import re
 import signal
 import struct
@@ -252,11 +253,17 @@ def random_ops(rng: np.random.Generator, max_ops: int = 3) -> list[tuple]:
              int(rng.integers(1 << 16)), int(rng.integers(1 << 16))) for _ in range(k)]
 
 
+_CASE_NUMBER = itertools.count()
+
+
 def write_case(seed: Seed, ops: list[tuple], dst_dir: Path) -> Path:
-    """The mutated copy of ``seed``, in ``dst_dir`` under the seed's file name (the ECD
-    text seed keeps its folder layout)."""
+    """The mutated copy of ``seed``, a new file in ``dst_dir`` (named after the seed's,
+    so suffixes stay) that replaces the previous case's: HDF5 recognises a file it still
+    holds open by its inode, so cases must not rewrite one file in place."""
     dst_dir.mkdir(parents=True, exist_ok=True)
-    dst = dst_dir / seed.path.name
+    for old in dst_dir.glob(f"case*_{seed.path.name}"):
+        old.unlink()
+    dst = dst_dir / f"case{next(_CASE_NUMBER)}_{seed.path.name}"
     dst.write_bytes(mutate(seed.path.read_bytes(), seed.header_len, ops))
     return dst
 

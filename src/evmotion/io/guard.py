@@ -38,8 +38,9 @@ MAX_SENSOR_SIDE = 16384
 
 # Errors of the code itself or of the installation, not of the file: let them through
 # unchanged so a bug is not reported as a corrupt file.
-# (AssertionError is not among them: libraries such as rosbags assert on file content.)
-_NOT_THE_FILE = (NameError, ImportError, SyntaxError, ParameterError, MissingDependencyError)
+# (AssertionError and SyntaxError are not among them: rosbags asserts on file content,
+# numpy parses .npy headers with ast.literal_eval.)
+_NOT_THE_FILE = (NameError, ImportError, ParameterError, MissingDependencyError)
 
 
 def check_sensor_size(path, size, field: str = "sensor size") -> tuple[int, int]:
