@@ -281,3 +281,56 @@ def test_calibration_of_a_corrupt_hdf5_names_the_file(tmp_path):
     with pytest.raises(FormatError) as e:
         eio.read_calibration(path)
     _one_line_naming(e.value, path)
+
+
+def test_npy_header_that_is_not_python_syntax(tmp_path):
+    # case 4348 of bench_fuzz's npy seed: one flipped header byte made numpy's header
+    # parser raise SyntaxError, which the guard let through as if it were a bug
+    found, _ = fuzzing.make_seeds(tmp_path / "seeds", None)
+    seed = next(s for s in found if s.name == "npy")
+    path = fuzzing.write_case(seed, [("flip", 11242098, 31178, 24745)], tmp_path / "case")
+    for call in (lambda: eio.read_events(path), lambda: eio.describe(path)):
+        with pytest.raises(FormatError, match="SyntaxError") as e:
+            call()
+        _one_line_naming(e.value, path)
+
+
+def test_mat_dimension_beyond_the_file_is_rejected_before_loading(tmp_path):
+    import scipy.io
+
+    path = tmp_path / "ev.mat"
+    ev = _events(100)
+    seq = np.stack([ev.t, ev.x, ev.y, ev.p], axis=1).astype(float)
+    scipy.io.savemat(path, {"seq": seq})
+    data = path.read_bytes()
+    dims = struct.pack("<iiii", 5, 8, 100, 4)  # miINT32 dims tag: 100 x 4
+    assert dims in data
+    path.write_bytes(data.replace(dims, struct.pack("<iiii", 5, 8, 1 << 30, 4)))
+    tracemalloc.start()
+    try:
+        with pytest.raises(FormatError, match=r"declares shape \(1073741824, 4\)") as e:
+            eio.read_events(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    _one_line_naming(e.value, path)
+    assert peak < 50e6, peak
+
+
+def test_blosc_chunk_header_checked_before_decompressing(tmp_path):
+    pytest.importorskip("hdf5plugin")
+    import h5py
+
+    path = tmp_path / "ev.h5"
+    h5.write(path, _events(3000))
+    with h5py.File(path, "r") as f:
+        pl = f["events/t"].id.get_create_plist()
+        if pl.get_filter(pl.get_nfilters() - 1)[0] != 32001:
+            pytest.skip("events not Blosc-compressed")
+        offset = f["events/t"].id.get_chunk_info(0).byte_offset
+    data = bytearray(path.read_bytes())
+    data[offset + 4:offset + 8] = struct.pack("<I", 0xFFFFFFF0)  # nbytes: ~4 GiB
+    path.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match=r"events/t.*Blosc chunk.*4294967280") as e:
+        eio.read_events(path)
+    _one_line_naming(e.value, path)
