@@ -6,7 +6,27 @@ about it. The CLI prints these without a traceback.
 
 from __future__ import annotations
 
+import re
 from os import PathLike
+
+# Longest message part kept from text that comes from a file (a header line, a library's
+# error): a corrupt file must not turn an error into a screenful.
+MAX_DETAIL = 300
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]+")
+
+
+def one_line(text: str, limit: int = MAX_DETAIL) -> str:
+    """``text`` on one line: runs of control characters (newlines included) become one
+    space, and what exceeds ``limit`` characters is cut, ending in "...".
+
+    Examples
+    --------
+    >>> one_line("bad\\nvalue\\x00 here")
+    'bad value here'
+    """
+    text = _CONTROL.sub(" ", str(text)).strip()
+    text = re.sub(" {2,}", " ", text)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 class EvmotionError(ValueError):
@@ -15,6 +35,9 @@ class EvmotionError(ValueError):
 
 class FormatError(EvmotionError):
     """A file is corrupt, truncated, of the wrong format, or lacks a field.
+
+    The text is always one line naming the path: control characters in ``message`` or
+    ``hint`` (e.g. from a corrupt header) become spaces and very long parts are cut.
 
     Parameters
     ----------
@@ -28,10 +51,12 @@ class FormatError(EvmotionError):
 
     def __init__(self, path: str | PathLike | None, message: str, hint: str | None = None):
         self.path = None if path is None else str(path)
-        self.hint = hint
-        text = message if self.path is None else f"{self.path}: {message}"
-        if hint:
-            text += f" ({hint})"
+        self.message = one_line(message)
+        self.hint = None if hint is None else one_line(hint)
+        where = None if self.path is None else one_line(self.path, 1000)
+        text = self.message if where is None else f"{where}: {self.message}"
+        if self.hint:
+            text += f" ({self.hint})"
         super().__init__(text)
 
 

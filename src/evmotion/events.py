@@ -70,7 +70,8 @@ class EventArray:
     t : array_like
         Timestamps in microseconds (int64, absolute, non-decreasing).
     p : array_like
-        Polarity, 0/1 or -1/+1 (stored as 0/1 uint8).
+        Polarity, 0/1 or -1/+1 (stored as 0/1 uint8); any other value raises
+        :class:`~evmotion.errors.EventDataError`, even with ``validate=False``.
     sensor_size : (int, int)
         ``(height, width)`` in pixels.
     validate : bool
@@ -99,10 +100,7 @@ class EventArray:
         self.x = _coord(self.x, "x")
         self.y = _coord(self.y, "y")
         self.t = np.ascontiguousarray(self.t, dtype=np.int64)
-        p = np.asarray(self.p)
-        if p.dtype != np.uint8:
-            p = (p > 0).astype(np.uint8)
-        self.p = np.ascontiguousarray(p)
+        self.p = _polarity(self.p)
         h, w = (int(v) for v in self.sensor_size)
         self.sensor_size = (h, w)
         n = self.t.shape[0]
@@ -351,6 +349,34 @@ class EventArray:
                 positive_fraction=float(self.p.mean()),
             )
         return d
+
+
+def _polarity(p) -> np.ndarray:
+    """``p`` as contiguous uint8 0/1, or EventDataError if a value is not 0/1 (uint8 or
+    unsigned input) or -1/0/+1 (signed or float input, -1 and 0 both meaning OFF).
+
+    One min/max pass: a corrupt file whose polarity bytes read 255 must not pass as ON.
+    """
+    p = np.asarray(p)
+    if p.dtype == np.bool_:
+        return np.ascontiguousarray(p.view(np.uint8))
+    if p.dtype.kind not in "iuf":
+        raise EventDataError(f"field 'p' must be numeric, got dtype {p.dtype}")
+    unsigned = p.dtype.kind == "u"
+    if p.size:
+        if unsigned:
+            bad = p.max() > 1
+        else:
+            bad = not (p.min() >= -1 and p.max() <= 1)  # False for NaN too
+            if not bad and p.dtype.kind == "f":
+                bad = not np.all((p == 0) | (p == 1) | (p == -1))
+        if bad:
+            i = int(np.argmax(~np.isin(p, (0, 1) if unsigned else (-1, 0, 1))))
+            want = "0/1" if unsigned else "0/1 or -1/+1"
+            raise EventDataError(f"event {i} has polarity p={p[i]}, expected {want}")
+    if p.dtype == np.uint8:
+        return np.ascontiguousarray(p)
+    return (p > 0).astype(np.uint8)
 
 
 def _coord(a, name: str) -> np.ndarray:

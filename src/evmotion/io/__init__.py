@@ -39,6 +39,7 @@ from evmotion.io.flowfiles import (
     write_dsec_flow_png,
     write_flo,
 )
+from evmotion.io.guard import guard_call
 from evmotion.io.registry import all_formats, get_format
 from evmotion.io.registry import detect_format as _detect
 
@@ -110,6 +111,12 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
     Returns
     -------
     EventArray
+
+    Raises
+    ------
+    FormatError
+        For a corrupt, truncated or unreadable file: one line naming the file (the
+        low-level exception, if any, is chained as ``__cause__``).
 
     Examples
     --------
@@ -373,18 +380,24 @@ def read_calibration(path: str | os.PathLike) -> dict:
     with open(path, "rb") as fh:
         head = fh.read(8)
     if head.startswith(b"\x89HDF\r\n\x1a\n"):
-        import h5py
-
-        with h5py.File(path, "r") as f:
-            if "calibration" in f.attrs:
-                cal = json.loads(f.attrs["calibration"])
-                cal.setdefault("sensor_size", [int(f.attrs["height"]), int(f.attrs["width"])]
-                               if "height" in f.attrs else None)
-                return cal
-        raise FormatError(path, "no 'calibration' attribute in this HDF5 file")
+        return guard_call(_h5_calibration, "HDF5", "read the calibration")(path)
     raise FormatError(path, "no calibration found",
                       "give an ECD calib.txt or an evmotion .h5 with calibration; YAML "
                       "calibrations are read by evmotion.camera.Camera.from_file")
+
+
+def _h5_calibration(path: Path) -> dict:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        if "calibration" in f.attrs:
+            cal = json.loads(f.attrs["calibration"])
+            if not isinstance(cal, dict):
+                raise FormatError(path, "attribute 'calibration' is not a JSON object")
+            cal.setdefault("sensor_size", [int(f.attrs["height"]), int(f.attrs["width"])]
+                           if "height" in f.attrs else None)
+            return cal
+    raise FormatError(path, "no 'calibration' attribute in this HDF5 file")
 
 
 def describe(path: str | os.PathLike, format: str | None = None, *,
@@ -409,7 +422,7 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     try:
         spec = _spec(path, format)
     except FormatError:
-        flow = _describe_flow(path) if format is None else None
+        flow = guard_call(_describe_flow, "flow", "describe")(path) if format is None else None
         if flow is None:
             raise
         return flow

@@ -12,6 +12,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
+from evmotion.io.guard import check_sensor_size
 
 # Decoded blocks are 4-tuples of contiguous arrays (x uint16, y uint16, t int64, p uint8).
 Block = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
@@ -233,7 +234,7 @@ def geometry_from_header(lines: list[str], path: Path, default: tuple[int, int] 
             raise FormatError(path, "the header gives no sensor geometry",
                               "pass sensor_size=(height, width)")
         return default
-    return height, width
+    return check_sensor_size(path, (height, width), "header geometry")
 
 
 def header_bytes(lines: list[str]) -> bytes:

@@ -24,6 +24,7 @@ from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import _binary
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import check_sensor_size
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "read_imu", "describe", "ImuSamples", "FORMAT"]
@@ -59,7 +60,8 @@ def _parse_header(path: Path, sensor_size):
     text = "\n".join(lines)
     own = re.search(r"# sensor_size \(height, width\) = \((\d+), (\d+)\)", text)
     if sensor_size is None and own:
-        sensor_size = (int(own.group(1)), int(own.group(2)))
+        sensor_size = check_sensor_size(path, (own.group(1), own.group(2)),
+                                        "header sensor_size")
     if sensor_size is None:
         chip = re.search(r"AEChip:\s*(\S+)", text)
         name = chip.group(1).upper() if chip else ""

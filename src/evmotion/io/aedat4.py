@@ -23,6 +23,7 @@ from evmotion.errors import FormatError, MissingDependencyError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import _binary
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import check_sensor_size
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "read_frames", "read_imu", "describe",
@@ -31,6 +32,8 @@ __all__ = ["read", "iter_chunks", "write", "read_frames", "read_imu", "describe"
 MAGIC = b"#!AER-DAT4.0\r\n"
 G = 9.80665
 COMPRESSION = {0: "none", 1: "lz4", 2: "lz4_high", 3: "zstd", 4: "zstd_high"}
+# Largest decompressed packet accepted (DV writes packets of at most a few MiB).
+MAX_PACKET_BYTES = 1 << 28
 EVENT_DTYPE = np.dtype({"names": ["t", "x", "y", "on"],
                         "formats": ["<i8", "<i2", "<i2", "u1"],
                         "offsets": [0, 8, 10, 12], "itemsize": 16})
@@ -174,26 +177,53 @@ def _parse_info(info: str, path: Path) -> dict[int, _Stream]:
             if sub.get("name") == "info":
                 info_attrs = {a.get("key"): a.text for a in sub.findall("attr")}
         size = None
-        if "sizeX" in info_attrs and "sizeY" in info_attrs:
-            size = (int(info_attrs["sizeY"]), int(info_attrs["sizeX"]))
         sid = int(node.get("name"))
+        if "sizeX" in info_attrs and "sizeY" in info_attrs:
+            size = check_sensor_size(path, (_int_attr(path, sid, "sizeY", info_attrs["sizeY"]),
+                                            _int_attr(path, sid, "sizeX", info_attrs["sizeX"])),
+                                     f"stream {sid} sizeY, sizeX")
         out[sid] = _Stream(sid, attrs["typeIdentifier"], attrs.get("originalOutputName", ""),
-                           size, int(info_attrs.get("tsOffset", 0) or 0))
+                           size, _int_attr(path, sid, "tsOffset", info_attrs.get("tsOffset")))
     return out
+
+
+def _int_attr(path: Path, sid: int, key: str, text: str | None) -> int:
+    """An integer attribute of the infoNode XML (absent or empty: 0)."""
+    if text is None or not text.strip():
+        return 0
+    try:
+        return int(text)
+    except ValueError:
+        raise FormatError(path, f"infoNode attribute '{key}' of stream {sid} is "
+                          f"{text.strip()[:40]!r}, expected an integer") from None
+
+
+def _packet_limit(n: int) -> int:
+    """Most bytes a compressed packet of ``n`` bytes may expand to: LZ4 cannot exceed
+    255:1; zstd can, but DV's packets stay far below this, and a corrupt frame header
+    (which declares the content size) must not make the reader allocate gigabytes."""
+    return min(255 * n + (1 << 16), MAX_PACKET_BYTES)
 
 
 def _decompressor(compression: int):
     if compression in (1, 2):
         import lz4.frame
 
-        return lz4.frame.decompress
+        def lz4_packet(b: bytes) -> bytes:
+            d = lz4.frame.LZ4FrameDecompressor()
+            out = d.decompress(b, max_length=_packet_limit(len(b)))
+            if not d.eof:
+                raise ValueError(f"expands past {_packet_limit(len(b))} bytes or is cut short")
+            return out
+
+        return lz4_packet
     if compression in (3, 4):
         try:
             import zstandard
         except ModuleNotFoundError:
             raise MissingDependencyError("zstandard", "reading ZSTD-compressed AEDAT4") from None
         dctx = zstandard.ZstdDecompressor()
-        return lambda b: dctx.decompress(b, max_output_size=1 << 30)
+        return lambda b: dctx.decompress(b, max_output_size=_packet_limit(len(b)))
     return bytes
 
 

@@ -35,6 +35,10 @@ class FormatSpec:
         Atomic writer, if the format is writable.
     describe : callable(path) -> dict or None
         What else the file holds (frames, IMU, ground truth, calibration...).
+
+    ``sniff``, ``read``, ``iter_chunks`` and ``describe`` are stored wrapped by
+    :mod:`evmotion.io.guard`: whatever a corrupt file makes them raise reaches the caller
+    as a one-line :class:`~evmotion.errors.FormatError` naming the file.
     """
 
     name: str
@@ -44,6 +48,17 @@ class FormatSpec:
     iter_chunks: Callable[..., Iterator[EventArray]] | None = None
     write: Callable[..., None] | None = None
     describe: Callable[[Path], dict] | None = None
+
+    def __post_init__(self) -> None:
+        from evmotion.io.guard import guard_call, guard_iter
+
+        wrap = {"sniff": (guard_call, "recognise"), "read": (guard_call, "read"),
+                "iter_chunks": (guard_iter, "read"), "describe": (guard_call, "describe")}
+        for name, (guard, action) in wrap.items():
+            fn = getattr(self, name)
+            if fn is not None and not getattr(fn, "__evmotion_guarded__", False):
+                # frozen dataclass: set once, at construction
+                object.__setattr__(self, name, guard(fn, self.name, action))
 
 
 class PartFileWriter:

@@ -24,6 +24,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import check_h5_dataset
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "rectify_events",
            "missing_filters",
@@ -31,6 +32,8 @@ __all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "rect
 
 DSEC_SENSOR_SIZE = (480, 640)
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+# Largest |t_offset| accepted: offset plus uint32 times stays far inside int64.
+MAX_T_OFFSET_US = 1 << 60
 FILTER_HINT = "pip install hdf5plugin (DSEC compresses events with Blosc/zstd)"
 
 
@@ -74,10 +77,20 @@ def _open(path: Path):
         f = h5py.File(path, "r")
     except OSError as exc:
         raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
-    for name in ("events/x", "events/y", "events/t", "events/p"):
-        if name not in f:
-            f.close()
-            raise FormatError(path, f"missing dataset '{name}' (not a DSEC events.h5)")
+    try:
+        for name in ("events/x", "events/y", "events/t", "events/p"):
+            if name not in f:
+                raise FormatError(path, f"missing dataset '{name}' (not a DSEC events.h5)")
+        n = check_h5_dataset(path, f, "events/t", ndim=1, kinds="iu").shape[0]
+        for name, kinds in (("events/x", "iu"), ("events/y", "iu"), ("events/p", "iub")):
+            check_h5_dataset(path, f, name, ndim=1, kinds=kinds, length=n)
+        if "ms_to_idx" in f:
+            check_h5_dataset(path, f, "ms_to_idx", ndim=1, kinds="iu")
+        if "t_offset" in f:
+            check_h5_dataset(path, f, "t_offset", ndim=0, kinds="iu")
+    except BaseException:
+        f.close()
+        raise
     return f, path
 
 
@@ -89,7 +102,11 @@ def _read(path: Path, ds, lo: int, hi: int, field: str) -> np.ndarray:
 
 
 def _t_offset(f) -> int:
-    return int(f["t_offset"][()]) if "t_offset" in f else 0
+    off = int(f["t_offset"][()]) if "t_offset" in f else 0
+    if not -MAX_T_OFFSET_US <= off <= MAX_T_OFFSET_US:
+        raise FormatError(f.filename, f"dataset 't_offset' is {off} us, outside "
+                          f"+-{MAX_T_OFFSET_US} (2^60 us)")
+    return off
 
 
 def _range(path: Path, f, t0: int | None, t1: int | None) -> tuple[int, int]:

@@ -21,6 +21,7 @@ from numba import njit
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import check_sensor_size
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_calibration", "parse_text",
@@ -187,7 +188,7 @@ def _image_size(folder: Path) -> tuple[int, int] | None:
             if head[:8] == b"\x89PNG\r\n\x1a\n":
                 w = int.from_bytes(head[16:20], "big")
                 h = int.from_bytes(head[20:24], "big")
-                return h, w
+                return check_sensor_size(c, (h, w), "PNG image size")
     return None
 
 

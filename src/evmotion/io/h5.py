@@ -31,6 +31,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, PartFileWriter
+from evmotion.io.guard import check_h5_dataset, check_sensor_size
 
 __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
            "read_imu", "FORMAT", "FORMAT_NAME"]
@@ -243,18 +244,26 @@ def _open(path: Path):
     if "events" not in f:
         f.close()
         raise FormatError(path, "no 'events' group (not an evmotion event file)")
-    for name in ("x", "y", "t", "p"):
-        if f"events/{name}" not in f:
-            f.close()
-            raise FormatError(path, f"missing dataset 'events/{name}'")
+    try:
+        for name in ("x", "y", "t", "p"):
+            if f"events/{name}" not in f:
+                raise FormatError(path, f"missing dataset 'events/{name}'")
+        n = check_h5_dataset(path, f, "events/t", ndim=1, kinds="iu").shape[0]
+        for name, kinds in (("x", "uif"), ("y", "uif"), ("p", "iub")):
+            check_h5_dataset(path, f, f"events/{name}", ndim=1, kinds=kinds, length=n)
+        if "events/ms_to_idx" in f:
+            check_h5_dataset(path, f, "events/ms_to_idx", ndim=1, kinds="iu")
+    except BaseException:
+        f.close()
+        raise
     return f
 
 
 def _meta(f, path: Path) -> tuple[tuple[int, int], dict]:
-    try:
-        size = (int(f.attrs["height"]), int(f.attrs["width"]))
-    except KeyError:
-        raise FormatError(path, "missing attribute 'height'/'width' (the sensor size)") from None
+    if "height" not in f.attrs or "width" not in f.attrs:
+        raise FormatError(path, "missing attribute 'height'/'width' (the sensor size)")
+    size = check_sensor_size(path, (f.attrs["height"], f.attrs["width"]),
+                             "attributes 'height', 'width'")
     meta = {"source": str(path), "format": "h5"}
     for key in ("calibration", "provenance"):
         if key in f.attrs:
@@ -283,6 +292,7 @@ def _index_range(f, t0: int | None, t1: int | None) -> tuple[int, int]:
         # ms[k] <= answer <= ms[k+1]: search only the events of that millisecond.
         a = int(ms[k]) if k < ms.size else int(ms[ms.size - 1])
         b = int(ms[k + 1]) if k + 1 < ms.size else n
+        a, b = min(max(a, 0), n), min(max(b, 0), n)  # a corrupt index stays in range
         return a + int(np.searchsorted(g["t"][a:b], tq, side="left"))
 
     if t0 is not None:

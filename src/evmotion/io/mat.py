@@ -33,11 +33,26 @@ def _load(path: Path) -> dict:
     import scipy.io
 
     try:
+        _check_sizes(path, scipy.io.whosmat(path))
         return scipy.io.loadmat(path)
     except (ValueError, TypeError, OSError, NotImplementedError) as exc:
         hint = "MATLAB v7.3 files are HDF5: read them with format='h5'" if \
             "v7.3" in str(exc) or "HDF" in str(exc) else None
         raise FormatError(path, f"cannot read as MATLAB .mat: {exc}", hint) from None
+
+
+def _check_sizes(path: Path, variables: list) -> None:
+    """FormatError if a variable's declared shape needs more memory than the file can
+    hold (16 bytes per element, deflate's 1032:1 at most): a corrupt dimension must fail
+    here, before ``loadmat`` allocates it."""
+    limit = max(1032 * path.stat().st_size, 1 << 24)
+    for name, shape, _ in variables:
+        count = 1
+        for s in shape:
+            count *= int(s)
+        if 16 * count > limit:
+            raise FormatError(path, f"variable '{name}' declares shape {tuple(shape)}, more "
+                              f"than this {path.stat().st_size}-byte file can hold")
 
 
 def _find(path: Path, m: dict, variable: str | None) -> tuple[str, np.ndarray]:

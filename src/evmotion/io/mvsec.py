@@ -23,6 +23,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import check_h5_dataset
 from evmotion.io.npy import events_from_columns
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_frames", "FORMAT",
@@ -43,10 +44,11 @@ def _open(path: Path, camera: str):
     if key not in f:
         f.close()
         raise FormatError(path, f"missing dataset '{key}' (not an MVSEC data file?)")
-    ds = f[key]
-    if ds.ndim != 2 or ds.shape[1] != 4:
+    try:
+        ds = check_h5_dataset(path, f, key, ndim=2, kinds="iuf", row=4)
+    except BaseException:
         f.close()
-        raise FormatError(path, f"'{key}' has shape {ds.shape}, expected (N, 4) [x, y, t, p]")
+        raise
     return f, ds
 
 

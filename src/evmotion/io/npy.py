@@ -19,11 +19,16 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import MAX_SENSOR_SIDE, check_sensor_size
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "events_from_columns", "FORMAT"]
 
 NPY_MAGIC = b"\x93NUMPY"
+# Largest |time| accepted, in µs (146,000 years): int64 arithmetic on it cannot overflow.
+MAX_ABS_TIME_US = 1 << 62
+# deflate cannot expand data more than 1032:1
+_DEFLATE_MAX_RATIO = 1032
 ZIP_MAGIC = b"PK\x03\x04"
 
 
@@ -37,8 +42,15 @@ def _time_us(t: np.ndarray, unit: str | None) -> tuple[np.ndarray, str]:
     if scale is None:
         raise ParameterError(f"time_unit must be 's', 'ms', 'us' or 'ns', got {unit!r}")
     if t.dtype.kind in "iu" and scale >= 1:
+        if t.size and max(abs(int(t.min())), abs(int(t.max()))) * scale > MAX_ABS_TIME_US:
+            raise ValueError(f"times reach {max(abs(int(t.min())), abs(int(t.max())))} {unit}")
         return t.astype(np.int64) * int(scale), f"{unit} ({how})"
-    return np.rint(t.astype(np.float64) * scale).astype(np.int64), f"{unit} ({how})"
+    with np.errstate(all="ignore"):
+        us = np.rint(t.astype(np.float64) * scale)
+    if us.size and not (np.abs(us).max() <= MAX_ABS_TIME_US):  # also catches NaN
+        bad = int(np.argmax(~(np.abs(us) <= MAX_ABS_TIME_US)))
+        raise ValueError(f"event {bad} has t={t[bad]} {unit}")
+    return us.astype(np.int64), f"{unit} ({how})"
 
 
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
@@ -52,7 +64,15 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     """
     path = Path(path) if path is not None else None
     meta = dict(meta or {})
-    t_us, unit = _time_us(np.asarray(t), time_unit)
+    t = np.asarray(t)
+    if t.dtype.kind not in "iuf":
+        raise FormatError(path, f"field 't' has dtype {t.dtype}, expected numbers")
+    try:
+        t_us, unit = _time_us(t, time_unit)
+    except ValueError as exc:
+        if isinstance(exc, ParameterError):
+            raise
+        raise FormatError(path, f"field 't': {exc}, not a time within +-2^62 us") from None
     meta["time_unit"] = unit
     x = np.asarray(x)
     y = np.asarray(y)
@@ -65,9 +85,13 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
         if x.size == 0:
             raise FormatError(path, "no events and no sensor size",
                               "pass sensor_size=(height, width)")
+        if min(x.min(), y.min()) < 0 or max(x.max(), y.max()) >= MAX_SENSOR_SIDE:
+            raise FormatError(path, f"coordinates span x {x.min()}..{x.max()}, y {y.min()}.."
+                              f"{y.max()}: no sensor of at most {MAX_SENSOR_SIDE} px per side",
+                              "pass sensor_size=(height, width)")
         sensor_size = (int(np.ceil(y.max())) + 1, int(np.ceil(x.max())) + 1)
         meta["sensor_size_from"] = "max coordinate (no sensor size in the file)"
-    h, w = (int(v) for v in sensor_size)
+    h, w = check_sensor_size(path, sensor_size)
     if p.size and not np.all(np.isin(p, (-1, 0, 1))):
         bad = int(np.argmax(~np.isin(p, (-1, 0, 1))))
         raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1 or -1/+1")
@@ -89,6 +113,25 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
                           validate=validate, meta=meta)
     except Exception as exc:
         raise FormatError(path, str(exc)) from None
+
+
+def _load(path: Path):
+    """``np.load`` with what a corrupt file declares checked first: a ``.npy`` is
+    memory-mapped (its header cannot claim more data than the file holds) and copied; the
+    members of an ``.npz`` must not expand past what deflate can produce."""
+    with open(path, "rb") as fh:
+        magic = fh.read(len(NPY_MAGIC))
+    if magic == NPY_MAGIC:
+        arr = np.load(path, mmap_mode="r", allow_pickle=False)
+        return np.array(arr)
+    with zipfile.ZipFile(path) as z:
+        for info in z.infolist():
+            limit = info.compress_size * _DEFLATE_MAX_RATIO + 4096
+            if info.file_size > limit:
+                raise FormatError(path, f"npz member '{info.filename}' declares "
+                                  f"{info.file_size} bytes from {info.compress_size} "
+                                  "compressed (corrupt archive)")
+    return np.load(path, allow_pickle=False)
 
 
 def _split_columns(path: Path, arr: np.ndarray, columns: str | None):
@@ -137,8 +180,10 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     path = Path(path)
     meta = {"source": str(path), "format": "npy"}
     try:
-        obj = np.load(path, allow_pickle=False)
+        obj = _load(path)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        if isinstance(exc, FormatError):
+            raise
         raise FormatError(path, f"cannot read as .npy/.npz: {exc}") from None
     if isinstance(obj, np.lib.npyio.NpzFile):
         with obj:
@@ -151,7 +196,8 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
             else:
                 raise FormatError(path, f"npz lacks arrays x, y, t, p (has {sorted(files)})")
             if sensor_size is None and "sensor_size" in files:
-                sensor_size = tuple(int(v) for v in obj["sensor_size"])
+                sensor_size = check_sensor_size(path, obj["sensor_size"].ravel(),
+                                                "array 'sensor_size'")
             if time_unit is None and "time_unit" in files:
                 time_unit = str(obj["time_unit"])
     else:

@@ -54,11 +54,25 @@ def detect_format(path: str | Path) -> FormatSpec:
         raise FormatError(path, "no such file or folder")
     head = b""
     if path.is_file():
-        with open(path, "rb") as fh:
-            head = fh.read(4096)
+        try:
+            with open(path, "rb") as fh:
+                head = fh.read(4096)
+        except OSError as exc:
+            raise FormatError(path, f"cannot open: {exc.strerror or exc}") from None
         if not head:
             raise FormatError(path, "the file is empty")
-    candidates = [f for f in all_formats() if f.sniff(path, head)]
+    candidates = []
+    failed: FormatError | None = None
+    for f in all_formats():
+        try:
+            if f.sniff(path, head):
+                candidates.append(f)
+        except FormatError as exc:
+            # a sniffer that cannot open the file (corrupt HDF5...) does not stop another
+            # format from recognising it; if none does, its error says the most
+            failed = failed or exc
+    if not candidates and failed is not None:
+        raise failed
     if not candidates:
         raise FormatError(path, "format not recognised",
                           "give --format explicitly; see `evmotion convert --help` for the list")

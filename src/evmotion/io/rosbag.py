@@ -19,6 +19,7 @@ from evmotion.errors import FormatError, MissingDependencyError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import _binary
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import check_sensor_size
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "read_imu", "describe", "typestore", "ImuSamples",
@@ -128,7 +129,7 @@ def _first_size(path: Path, topic: str | None, sensor_size):
     for _, raw in _messages(path, topic):
         size, _ = _decode(raw, path)
         if size[0] > 0 and size[1] > 0:
-            return size
+            return check_sensor_size(path, size, "EventArray message height, width")
     raise FormatError(path, "EventArray messages give height/width 0",
                       "pass sensor_size=(height, width)")
 

@@ -1,0 +1,250 @@
+"""One-line errors naming the file, whatever a reader trips over in a corrupt file.
+
+Every format's ``sniff``, ``read``, ``iter_chunks`` and ``describe`` are wrapped by
+:class:`~evmotion.io.base.FormatSpec` with :func:`guard_call` / :func:`guard_iter`, so an
+exception from a low-level library (h5py's ``KeyError``/``OSError``, ``zlib.error``,
+``zipfile.BadZipFile``, ``struct.error``, ``OverflowError``, a ``MemoryError``...) or an
+:class:`~evmotion.errors.EvmotionError` raised without the path reaches the caller as a
+:class:`~evmotion.errors.FormatError` that names the file, on one line, with the original
+exception chained (``__cause__``) for debugging.
+
+This is the net under the readers, not their validation: the readers check header fields
+against the file's size and :data:`MAX_SENSOR_SIDE` before allocating anything, so memory
+and time stay bounded on corrupt files (a net cannot give back memory already taken).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import struct
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from evmotion.errors import (
+    EvmotionError,
+    FormatError,
+    MissingDependencyError,
+    ParameterError,
+    one_line,
+)
+
+__all__ = ["MAX_SENSOR_SIDE", "check_sensor_size", "guard_call", "guard_iter", "as_format_error"]
+
+# Largest sensor side (pixels) a header may declare: today's largest event sensors are
+# 1280x720 (Prophesee IMX636) and 1920x1080 (Samsung); 16384 leaves room while keeping a
+# per-pixel float32 image of a corrupt header's sensor under 1 GiB.
+MAX_SENSOR_SIDE = 16384
+
+# Errors of the code itself or of the installation, not of the file: let them through
+# unchanged so a bug is not reported as a corrupt file.
+# (AssertionError and SyntaxError are not among them: rosbags asserts on file content,
+# numpy parses .npy headers with ast.literal_eval.)
+_NOT_THE_FILE = (NameError, ImportError, ParameterError, MissingDependencyError)
+
+
+def check_sensor_size(path, size, field: str = "sensor size") -> tuple[int, int]:
+    """``size`` as ``(height, width)`` ints, or FormatError unless both are in
+    ``1..MAX_SENSOR_SIDE``.
+
+    Examples
+    --------
+    >>> check_sensor_size("a.raw", ("720", 1280))
+    (720, 1280)
+    """
+    try:
+        h, w = (int(v) for v in size)
+    except (TypeError, ValueError, OverflowError):
+        raise FormatError(path, f"{field} {size!r} is not two whole numbers") from None
+    if not (0 < h <= MAX_SENSOR_SIDE and 0 < w <= MAX_SENSOR_SIDE):
+        raise FormatError(path, f"{field} (height, width) = ({h}, {w}) is outside "
+                          f"1..{MAX_SENSOR_SIDE} px per side", "corrupt header?")
+    return h, w
+
+
+def as_format_error(exc: BaseException, path, fmt: str, action: str) -> BaseException:
+    """The exception to raise for ``exc`` met while ``action``-ing ``path`` as ``fmt``:
+    ``exc`` itself when it already names the file or is not about the file, else a
+    FormatError naming the file."""
+    if isinstance(exc, _NOT_THE_FILE) or not isinstance(exc, Exception):
+        return exc
+    if isinstance(exc, FormatError):
+        if exc.path is not None:
+            return exc
+        return FormatError(path, exc.message, exc.hint)
+    if isinstance(exc, EvmotionError):
+        return FormatError(path, str(exc))
+    if isinstance(exc, MemoryError):
+        return FormatError(path, f"{action} as {fmt} needs more memory than is available "
+                           "(MemoryError)", "corrupt header or file?")
+    detail = one_line(str(exc)) or "no detail"
+    return FormatError(path, f"cannot {action} as {fmt}: {type(exc).__name__}: {detail}",
+                       "the file is corrupt, truncated or not in this format")
+
+
+def _path_of(args, kw):
+    p = args[0] if args else kw.get("path")
+    return Path(p) if isinstance(p, (str, os.PathLike)) else p
+
+
+def guard_call(fn: Callable, fmt: str, action: str) -> Callable:
+    """``fn(path, ...)`` whose exceptions go through :func:`as_format_error`."""
+
+    @functools.wraps(fn)
+    def guarded(*args, **kw):
+        try:
+            return fn(*args, **kw)
+        except Exception as exc:
+            new = as_format_error(exc, _path_of(args, kw), fmt, action)
+            if new is exc:
+                raise
+            raise new from exc
+
+    guarded.__evmotion_guarded__ = True
+    return guarded
+
+
+def guard_iter(fn: Callable, fmt: str, action: str = "read") -> Callable:
+    """As :func:`guard_call` for a function returning an iterator: errors raised while
+    iterating are converted too, and closing the result closes ``fn``'s iterator."""
+
+    @functools.wraps(fn)
+    def guarded(*args, **kw) -> Iterator:
+        path = _path_of(args, kw)
+        it = None
+        try:
+            try:
+                it = iter(fn(*args, **kw))
+                while True:
+                    try:
+                        item = next(it)
+                    except StopIteration:
+                        return
+                    yield item
+            except Exception as exc:
+                new = as_format_error(exc, path, fmt, action)
+                if new is exc:
+                    raise
+                raise new from exc
+        finally:
+            close = getattr(it, "close", None)
+            if close is not None:
+                close()
+
+    guarded.__evmotion_guarded__ = True
+    return guarded
+
+
+# --------------------------------------------------------------------- HDF5 datasets
+# Largest HDF5 chunk accepted: a chunk is decompressed whole to read any of it, so a
+# corrupt chunk shape must not cost gigabytes (writers use at most a few MiB).
+MAX_H5_CHUNK_BYTES = 1 << 26
+
+
+def check_h5_dataset(path, f, name: str, *, ndim: int, kinds: str,
+                     length: int | None = None, row: int | None = None):
+    """The dataset ``f[name]``, checked before anything is read from it: a dataset (not a
+    group) of ``ndim`` dimensions (``length`` rows and ``row`` columns when given), a
+    plain number dtype of kind in ``kinds`` (numpy ``dtype.kind`` letters), and storage
+    that covers its extent inside the file (a corrupt shape or chunk size would otherwise
+    make h5py return gigabytes of fill values or decompress a huge chunk).
+
+    Raises FormatError naming the file and the dataset otherwise.
+    """
+    import h5py
+
+    obj = f.get(name)
+    if not isinstance(obj, h5py.Dataset):
+        raise FormatError(path, f"'{name}' is {'missing' if obj is None else 'not a dataset'}")
+    shape, dt = obj.shape, obj.dtype
+    if shape is None or len(shape) != ndim:
+        raise FormatError(path, f"dataset '{name}' has shape {shape}, expected {ndim}-D")
+    if length is not None and shape[0] != length:
+        raise FormatError(path, f"dataset '{name}' has {shape[0]} rows, expected {length} "
+                          "like the other event fields")
+    if row is not None and shape[1] != row:
+        raise FormatError(path, f"dataset '{name}' has shape {shape}, expected (N, {row})")
+    if dt.names is not None or dt.kind not in kinds or dt.itemsize > 8:
+        raise FormatError(path, f"dataset '{name}' has dtype {dt}, expected a plain "
+                          f"number of kind {'/'.join(kinds)}")
+    count = 1
+    for s in shape:
+        count *= int(s)
+    if count == 0:
+        return obj
+    size = Path(path).stat().st_size
+    if obj.chunks is None:
+        offset = obj.id.get_offset()
+        stored = obj.id.get_storage_size()
+        if offset is None and stored < count * dt.itemsize:
+            raise FormatError(path, f"dataset '{name}' declares {count} values but only "
+                              f"{stored} bytes are stored")
+        if offset is not None and offset + count * dt.itemsize > size:
+            raise FormatError(path, f"dataset '{name}' ({count} values at byte offset "
+                              f"{offset}) runs past the end of the file ({size} bytes)")
+        return obj
+    chunk_bytes = dt.itemsize
+    need = 1
+    for s, c in zip(shape, obj.chunks, strict=True):
+        chunk_bytes *= int(c)
+        need *= -(-int(s) // int(c))
+    if chunk_bytes > MAX_H5_CHUNK_BYTES:
+        raise FormatError(path, f"dataset '{name}' has chunks {obj.chunks} of {chunk_bytes} "
+                          f"bytes, over the {MAX_H5_CHUNK_BYTES} accepted")
+    have = obj.id.get_num_chunks()
+    if have < need:
+        raise FormatError(path, f"dataset '{name}' of shape {shape} needs {need} chunks but "
+                          f"the file stores {have} (corrupt shape or truncated file)")
+    blosc = _blosc_stage(path, obj, name, chunk_bytes)
+    chunks = []
+    if hasattr(obj.id, "chunk_iter"):
+        obj.id.chunk_iter(chunks.append)
+    else:
+        chunks = [obj.id.get_chunk_info(i) for i in range(have)]
+    with open(path, "rb") as fh:
+        for info in chunks:
+            if info.byte_offset + info.size > size:
+                raise FormatError(path, f"dataset '{name}': chunk at byte offset "
+                                  f"{info.byte_offset} ({info.size} bytes) runs past the end "
+                                  f"of the file ({size} bytes)")
+            if blosc is not None and not info.filter_mask & (1 << blosc):
+                fh.seek(info.byte_offset)
+                _check_blosc_header(path, name, info, fh.read(16), chunk_bytes)
+    return obj
+
+
+BLOSC_FILTER_ID = 32001
+
+
+def _blosc_stage(path, obj, name: str, chunk_bytes: int) -> int | None:
+    """Index of the Blosc filter in the dataset's pipeline when it is the last one (so a
+    stored chunk starts with a Blosc header), after checking its parameters; else None.
+
+    The Blosc HDF5 filter trusts its parameters and the chunk header: a corrupt one makes
+    it allocate up to 4 GiB or dereference a null pointer (a segfault, seen by fuzzing).
+    """
+    plist = obj.id.get_create_plist()
+    n = plist.get_nfilters()
+    for i in range(n):
+        code, _, values, _ = plist.get_filter(i)
+        if code != BLOSC_FILTER_ID:
+            continue
+        if len(values) < 4 or values[3] != chunk_bytes:
+            raise FormatError(path, f"dataset '{name}': Blosc filter parameters {values} do "
+                              f"not match its {chunk_bytes}-byte chunks")
+        return i if i == n - 1 else None
+    return None
+
+
+def _check_blosc_header(path, name: str, info, head: bytes, chunk_bytes: int) -> None:
+    """The 16-byte Blosc header of a stored chunk agrees with the chunk it must hold."""
+    if len(head) < 16:
+        raise FormatError(path, f"dataset '{name}': chunk at byte offset {info.byte_offset} "
+                          "is cut short")
+    _, _, _, typesize, nbytes, blocksize, cbytes = struct.unpack("<BBBBIII", head)
+    if (nbytes != chunk_bytes or cbytes != info.size or typesize == 0
+            or not 0 < blocksize <= max(nbytes, 1)):
+        raise FormatError(path, f"dataset '{name}': Blosc chunk at byte offset "
+                          f"{info.byte_offset} declares {nbytes} bytes in {cbytes} (blocks of "
+                          f"{blocksize}), expected {chunk_bytes} in {info.size}",
+                          "corrupt compressed chunk")
