@@ -285,23 +285,12 @@ def run(args) -> int:
         if video is not None:
             video.append((r.flow, _valid(r)))
 
+    results = None
     if workers > 1:
         results = _estimate_parallel(events, windows, kwargs, workers,
                                      keep_iwes=png_dir is not None)
-        sink = _Output(out, events.sensor_size, attrs, resume=False)
-        rows = []
-        try:
-            for i, (r, w) in enumerate(zip(results, windows, strict=True)):
-                sink.add(r.flow, w, _valid(r))
-                after(i, r)
-                rows.append(_row(r, w))
-            written = sink.close()
-        except BaseException:
-            sink.abort()
-            raise
-    else:
-        rows, written = _run_sequential(args, events, windows, estimate, attrs, after,
-                                        progress)
+    rows, written = _run_windows(args, events, windows, attrs, after, progress,
+                                 estimate=estimate, results=results)
     if video is not None:
         from evmotion.viz import write_flow_video
 
@@ -317,23 +306,28 @@ def run(args) -> int:
     return 0
 
 
-def _run_sequential(args, events, windows, estimate, attrs, after, progress):
-    """Windows in order, each warm-started from the previous one; with ``--resume`` the
-    windows already in the ``.part`` file are taken from it (the last one as warm start,
-    as stored: float32, exactly the flow that was written)."""
+def _run_windows(args, events, windows, attrs, after, progress, *, estimate, results=None):
+    """Every window into the output, in order: its result taken from ``results`` (worker
+    processes, in window order) or made by ``estimate(events, init)`` warm-started from the
+    previous window's. With ``--resume`` (one process) the windows already in the ``.part``
+    file are taken from it (the last one as warm start, as stored: float32, exactly the flow
+    that was written)."""
     sink = _Output(Path(args.out), events.sensor_size, attrs, resume=args.resume)
     rows, init = [], None
+    todo = None if results is None else iter(results)
+    order = (progress(windows, total=len(windows), desc=attrs["method"]) if todo is None
+             else windows)
     try:
         if sink.fw is not None:
             sink.fw.check_count(len(windows))
-        for i, w in enumerate(progress(windows, total=len(windows), desc=attrs["method"])):
+        for i, w in enumerate(order):
             if i < len(sink.done):
                 sink.fw.check_done(i, w.t0, w.t1)
                 if i == len(sink.done) - 1:
                     init = sink.fw.stored_flow(i)
                 rows.append({"t0_us": w.t0, "t1_us": w.t1, "resumed": True})
                 continue
-            res = estimate(events.window(w), init)
+            res = estimate(events.window(w), init) if todo is None else next(todo)
             init = res
             sink.add(res.flow, w, _valid(res))
             after(i, res)
