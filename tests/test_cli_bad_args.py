@@ -315,7 +315,7 @@ def test_free_space_is_checked_before_the_work(rec, capsys, monkeypatch):
     usage = shutil.disk_usage(rec["dir"])
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage._replace(free=1000))
     called = []
-    monkeypatch.setattr(flow_multicm, "_run_sequential", lambda *a: called.append(1))
+    monkeypatch.setattr(flow_multicm, "_run_windows", lambda *a, **k: called.append(1))
     rc, err = _run(["flow", rec["rec"], "--window-events", "2000", "--out",
                     str(rec["dir"] / "big.npy")], capsys)
     _assert_one_line(rc, err, "--out", "big.npy", "needs at least", "1000 B free")
