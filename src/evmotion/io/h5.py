@@ -423,9 +423,10 @@ def _sniff(path: Path, head: bytes) -> bool:
 
     try:
         with h5py.File(path, "r") as f:
-            if f.attrs.get("format") == FORMAT_NAME:
-                return True
-            # Same field names as DSEC, which has a root t_offset / ms_to_idx instead.
+            # By structure only: reading the 'format' attribute (a variable-length string)
+            # of a corrupt file can crash libhdf5 (a segfault found by fuzzing), and
+            # detection must survive any file. Same field names as DSEC, which has a root
+            # t_offset / ms_to_idx instead.
             return ("events/t" in f and "events/x" in f and "t_offset" not in f
                     and "ms_to_idx" not in f)
     except OSError:
