@@ -24,6 +24,7 @@ COMMANDS: tuple[str, ...] = (
     "segment",
     "flow",
     "eval",
+    "bos",
 )
 
 EPILOG = """examples:
