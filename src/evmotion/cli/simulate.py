@@ -3,6 +3,12 @@
 Writes the events (any writable format, chosen by the extension or --format) and the
 ground truth beside them as ``<stem>_gt.h5`` (motion parameters per frame, dense flow in
 px/s at virtual frame times, intrinsics, angular velocity, event masks).
+
+``evmotion simulate schlieren --scene plume|jet|breath|ice --out DIR`` simulates
+background-oriented schlieren (thesis ch. 6): events and 8-bit frames of a random-dot
+background seen through moving air, written as an ECD-style folder (events.txt,
+images.txt, images/) with the exact flow between frames, q and the displacement in
+DIR/schlieren_gt.h5.
 """
 
 from __future__ import annotations
@@ -15,23 +21,33 @@ EXAMPLES = """examples:
   evmotion simulate zoom --params hz=2.0 --params foe=150,120 --out zoom.h5 --json
   evmotion simulate object --texture shapes --duration 0.2 --noise-rate 0.1 --out obj.h5
   evmotion simulate translation --image photo.png --params vx=300 --params vy=0 --out t.h5
+  evmotion simulate schlieren --scene plume --out plume/ --duration 0.1 --magnitude 2
+  evmotion simulate schlieren --scene breath --size 96x96 --photons 5 --out dark/ --json
 """
 
 
 def add_parser(sub) -> None:
     from evmotion.sim.scenes import SCENES
+    from evmotion.sim.schlieren import BOS_SCENES
 
     lines = "\n".join(f"  {n:<12} {s.description}" for n, s in SCENES.items())
+    lines += "\n  schlieren    background-oriented schlieren, --scene one of:\n" + "\n".join(
+        f"    {n:<10} {d}" for n, d in BOS_SCENES.items())
     p = sub.add_parser(
         "simulate", help="simulate events with ground truth (ESIM-like)",
         description=__doc__ + "\nscenes:\n" + lines, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("scene", choices=sorted(SCENES), help="named scene (motion)")
-    p.add_argument("--out", required=True, help="events file; ground truth goes to <stem>_gt.h5")
+    p.add_argument("scene", choices=[*sorted(SCENES), "schlieren"],
+                   help="named scene (motion), or schlieren")
+    p.add_argument("--out", required=True, help="events file; ground truth goes to "
+                   "<stem>_gt.h5 (schlieren: an output folder)")
     p.add_argument("--format", default=None, help="events format (default: from the extension)")
     p.add_argument("--duration", type=float, default=0.1, help="seconds (default 0.1)")
-    p.add_argument("--size", default="260x346", help="HxW pixels (default 260x346, DAVIS346)")
+    p.add_argument("--size", default=None,
+                   help="HxW pixels (default 260x346, DAVIS346; schlieren 720x640)")
+    p.add_argument("--height", type=int, default=None, help="pixels (overrides --size)")
+    p.add_argument("--width", type=int, default=None, help="pixels (overrides --size)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--texture", default="dots", choices=["dots", "shapes", "noise", "checker"])
     p.add_argument("--image", default=None, metavar="PATH", help="image to use as texture")
@@ -48,6 +64,22 @@ def add_parser(sub) -> None:
                    help="motion parameter, repeatable (vector: comma-separated), or a JSON "
                         "object; see 'evmotion simulate --help' scenes and the docs of "
                         "evmotion.sim.scenes for names and units")
+    g = p.add_argument_group("schlieren")
+    g.add_argument("--scene", dest="bos_scene", default=None, metavar="plume|jet|breath|ice",
+                   help="schlieren scene (default plume)")
+    g.add_argument("--fps", type=float, default=120.0, help="frame rate, Hz (default 120)")
+    g.add_argument("--magnitude", type=float, default=1.0,
+                   help="largest inter-frame displacement, px (default 1)")
+    g.add_argument("--speed", type=float, default=None,
+                   help="air speed, px/s (plume rise speed; default scaled to the size)")
+    g.add_argument("--photons", type=float, default=None,
+                   help="photons of a white pixel per frame: shot noise (low light: a few)")
+    g.add_argument("--gain", type=float, default=None,
+                   help="grey levels per photon (default 255/photons)")
+    g.add_argument("--exposure", type=float, default=None,
+                   help="exposure, s (default half the frame period)")
+    g.add_argument("--dot-density", type=float, default=0.08, help="dots per px² (0.08)")
+    g.add_argument("--dot-radius", type=float, default=1.0, help="dot radius, px (1.0)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -90,8 +122,50 @@ def parse_size(text: str) -> tuple[int, int]:
     return h, w
 
 
+def _size(args, default: str) -> tuple[int, int]:
+    h, w = parse_size(args.size or default)
+    return (args.height if args.height is not None else h,
+            args.width if args.width is not None else w)
+
+
+def run_schlieren(args) -> int:
+    from evmotion.cli import print_json
+    from evmotion.errors import ParameterError
+    from evmotion.sim.schlieren import BOS_SCENES, simulate_schlieren, write_schlieren
+
+    scene = args.bos_scene or "plume"
+    if scene not in BOS_SCENES:
+        raise ParameterError(f"--scene must be one of {sorted(BOS_SCENES)}, got {scene!r}")
+    sim = simulate_schlieren(scene, sensor_size=_size(args, "720x640"),
+                             duration_s=args.duration, fps=args.fps, seed=args.seed,
+                             magnitude_px=args.magnitude, dot_density=args.dot_density,
+                             dot_radius_px=args.dot_radius, speed_px_s=args.speed,
+                             photons=args.photons, gain=args.gain, exposure_s=args.exposure,
+                             contrast_threshold=args.threshold, mismatch=args.mismatch,
+                             refractory_us=args.refractory_us, noise_rate=args.noise_rate,
+                             show_progress=not args.json)
+    gt_path = write_schlieren(sim, args.out)
+    if args.json:
+        print_json({"scene": scene, "out": str(args.out), "gt_file": str(gt_path),
+                    "n_events": len(sim.events), "n_frames": len(sim.frames),
+                    "sensor_size": list(sim.events.sensor_size), "meta": sim.gt.meta,
+                    "stats": sim.stats})
+    else:
+        print(f"schlieren {scene}: {len(sim.events)} events, {len(sim.frames)} frames "
+              f"({sim.events.sensor_size[1]}x{sim.events.sensor_size[0]}, "
+              f"{args.duration} s) -> {args.out}; ground truth -> {gt_path}")
+    return 0
+
+
 def run(args) -> int:
     import numpy as np
+
+    from evmotion.errors import ParameterError
+
+    if args.scene == "schlieren":
+        return run_schlieren(args)
+    if args.bos_scene is not None:
+        raise ParameterError("--scene is for 'evmotion simulate schlieren'")
 
     from evmotion.cli import print_json
     from evmotion.errors import EvmotionError
@@ -102,7 +176,7 @@ def run(args) -> int:
     except ImportError:
         raise EvmotionError("this build has no event writer (evmotion.io.write_events)") from None
     fmt = args.format or format_for_output(args.out)
-    res = simulate(args.scene, duration_s=args.duration, sensor_size=parse_size(args.size),
+    res = simulate(args.scene, duration_s=args.duration, sensor_size=_size(args, "260x346"),
                    seed=args.seed, texture=args.texture, threshold=args.threshold,
                    params=parse_params(args.params), image=args.image, mismatch=args.mismatch,
                    refractory_us=args.refractory_us, noise_rate=args.noise_rate,

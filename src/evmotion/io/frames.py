@@ -455,28 +455,71 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
     return Frames(images, t, source=str(path), bit_depth=depth)
 
 
-def describe_frames(path: str | os.PathLike, **kw) -> dict | None:
-    """Summary of the frames at ``path`` (``count``, ``size`` [W, H], ``bit_depth``,
-    ``t_first_us``, ``t_last_us``, ``span_s``, ``fps``), or None when it holds none.
+def _header(path: Path) -> tuple[tuple[int, int], int]:
+    """``(height, width)`` and bit depth of an image from its header (PNG) or pixels."""
+    if path.suffix.lower() == ".png":
+        import png
+
+        try:
+            w, h, _, info = png.Reader(filename=str(path)).read()
+        except (png.Error, OSError, ValueError, EOFError) as exc:
+            raise FormatError(path, f"cannot read PNG: {exc}") from None
+        return (int(h), int(w)), 16 if info.get("bitdepth", 8) > 8 else 8
+    img, bits = read_image(path)
+    return img.shape[:2], bits
+
+
+def describe_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None = None,
+                    time_unit: str = "s", sensor_size: tuple[int, int] | None = None) -> dict | None:
+    """Summary of the frames at ``path`` without decoding them all: ``count``, ``size``
+    (``WxH``), ``bit_depth``, ``t_first_us``, ``t_last_us``, ``span_s``, ``fps``; None when
+    ``path`` holds no frames (AEDAT4 frames are decoded; other event files are not looked
+    into: None).
 
     Examples
     --------
     >>> describe_frames("plume_sim/")["fps"]  # doctest: +SKIP
     120.0
     """
-    if find_frames(path, kw.get("timestamps")) == "none":
+    path = Path(path)
+    kind = find_frames(path, timestamps)
+    if kind == "none":
         return None
-    try:
-        fr = read_frames(path, **kw)
-    except FormatError as exc:
-        if "holds no APS frames" in str(exc):
+    if kind == "recording":
+        if path.suffix.lower() != ".aedat4":
             return None
-        raise
-    if not len(fr):
-        return None
-    out = {"count": len(fr), "size": [fr.sensor_size[1], fr.sensor_size[0]],
-           "bit_depth": fr.bit_depth, "t_first_us": int(fr.t[0]), "t_last_us": int(fr.t[-1]),
-           "span_s": (int(fr.t[-1]) - int(fr.t[0])) * 1e-6}
-    if len(fr) > 1:
-        out["fps"] = round(fr.fps, 3)
+        fr = read_frames(path)
+        if not len(fr):
+            return None
+        t, size, depth = fr.t, fr.sensor_size, fr.bit_depth
+    elif kind == "ccs":
+        t = _ccs_triggers(path / "prophesee_0" / "trigger_events.txt")
+        files = _images_in(path / "basler_0" / "frames") \
+            if (path / "basler_0" / "frames").is_dir() else []
+        if not files:
+            fr = _read_ccs(path, sensor_size, True)
+            t, size, depth = fr.t, fr.sensor_size, fr.bit_depth
+        else:
+            if len(files) != t.size:
+                raise FormatError(path / "prophesee_0" / "trigger_events.txt",
+                                  f"{t.size} rising trigger edges but {len(files)} images")
+            size, depth = _header(files[0])
+            if (path / "homography.txt").is_file():
+                size = sensor_size if sensor_size is not None else CCS_SENSOR_SIZE
+    else:
+        if kind == "ecd":
+            t, files, src = _ecd_list(path if path.is_dir() else path.parent)
+        else:
+            ts = Path(timestamps) if timestamps is not None else next(
+                path / n for n in TIMESTAMP_FILES if (path / n).is_file())
+            t, files, src = _folder_list(path, ts, time_unit)
+        _check_times(t, src)
+        if not files:
+            return None
+        size, depth = _header(files[0])
+    out = {"count": int(len(t)), "size": f"{size[1]}x{size[0]}", "bit_depth": int(depth),
+           "t_first_us": int(t[0]), "t_last_us": int(t[-1]),
+           "span_s": (int(t[-1]) - int(t[0])) * 1e-6}
+    if len(t) > 1:
+        out["fps"] = round((len(t) - 1) * 1e6 / float(t[-1] - t[0]), 3)
     return out
