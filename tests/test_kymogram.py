@@ -11,8 +11,10 @@ from evmotion.events import EventArray
 from evmotion.methods.kymogram import (
     Kymogram,
     KymoLine,
+    fit_correlation,
     fit_ridge,
     kymogram_from_events,
+    kymogram_from_frame_differences,
     kymogram_from_images,
     px_per_s_to_m_per_s,
     ridge_points,
@@ -209,3 +211,152 @@ def test_moving_bar_events():
     # the same at the frame rate of a 120 fps camera has 8 bins: still a line, far coarser
     k120 = kymogram_from_events(res.events, KymoLine.column(12, (h, w), width=9), 120.0)
     assert k120.data.shape[0] == 7
+
+
+# ------------------------------------------------------------------ correlation fit
+def test_correlation_fit_many_streaks_vs_ridge():
+    # 50 parallel streaks at -1100 px/s with shot noise: the autocorrelation finds their
+    # common slope within 2 %, where a per-bin ridge jumps between streaks
+    rng = np.random.default_rng(3)
+    t = np.arange(360) / 2400.0
+    s = np.arange(140.0)
+    c = rng.uniform(0, 300, 50)[None, :] - 1100.0 * t[:, None]
+    data = np.exp(-0.5 * ((s[None, :, None] - c[:, None, :]) / 2.0) ** 2).sum(-1)
+    data = rng.poisson(1.5 * data).astype(np.float32)
+    k = Kymogram(data, t, s, KymoLine.column(0, (140, 1)), 2400.0, "events")
+    fit = fit_correlation(k)
+    assert fit.method == "correlation"
+    assert fit.velocity_px_s == pytest.approx(-1100.0, rel=0.02)
+    assert 0 < fit.velocity_std_px_s < 50
+    # the line is drawn on a streak: the kymogram along it is well above its mean
+    along = np.interp(fit.s_at(t), s, np.arange(s.size))
+    vals = data[np.arange(t.size), np.clip(np.rint(along).astype(int), 0, s.size - 1)]
+    assert vals.mean() > 2 * data.mean()
+    with pytest.raises(ParameterError, match="n_blocks"):
+        fit_correlation(k, n_blocks=1)
+    with pytest.raises(EmptyWindowError, match="max_lag_s"):
+        fit_correlation(k, min_shift_px=500.0)
+
+
+# ------------------------------------------------------------------ simulated plume
+@pytest.fixture(scope="module")
+def plume(tmp_path_factory):
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    sim = simulate_schlieren("plume", sensor_size=(96, 64), duration_s=0.15, seed=2)
+    folder = tmp_path_factory.mktemp("plume")
+    write_schlieren(sim, folder)
+    return sim, folder
+
+
+@pytest.mark.parametrize("rate", [1200.0, 2400.0])
+def test_plume_rise_speed(plume, rate):
+    # issue #12 accuracy point 5: the kymogram's fitted speed at >= 1200 Hz matches the
+    # simulated plume's rise speed within 10 % (it rises: negative along a column)
+    sim, _ = plume
+    h, w = sim.events.sensor_size
+    v = sim.gt.meta["rise_speed_px_s"]
+    k = kymogram_from_events(sim.events, KymoLine.column(w // 2, (h, w), width=w // 4 * 2 + 1),
+                             rate)
+    fit = fit_correlation(k)
+    assert fit.velocity_px_s == pytest.approx(-v, rel=0.10)
+
+
+def test_frame_difference_kymogram(plume):
+    sim, _ = plume
+    h, w = sim.events.sensor_size
+    ln = KymoLine.column(w // 2, (h, w), width=5)
+    k = kymogram_from_frame_differences(sim.frames.images, sim.frames.t, ln)
+    assert k.data.shape == (sim.frames.images.shape[0] - 1, h)
+    assert k.rate_hz == pytest.approx(120.0, rel=1e-3)
+    f = sim.frames.images.astype(float)
+    np.testing.assert_allclose(k.data[0], np.abs(f[1] - f[0])[:, w // 2 - 2:w // 2 + 3]
+                               .mean(axis=1), atol=1e-3)
+
+
+# ------------------------------------------------------------------ CLI and picture
+def _cli(capsys, *argv):
+    from evmotion.cli import main
+
+    rc = main(["kymogram", *map(str, argv)])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_cli_plume(plume, tmp_path, capsys):
+    import json
+
+    from evmotion.viz import read_png
+
+    sim, folder = plume
+    w = sim.events.sensor_size[1]
+    out = tmp_path / "kymo.png"
+    rc, text, err = _cli(capsys, folder, "--col", w // 2, "--width", 31, "--rate", 1200,
+                         "--compare-rate", 120, "--frames", folder, "--focal-mm", 25,
+                         "--distance-m", 1.7, "--pixel-um", 4.86, "--out", out, "--json")
+    assert rc == 0, err
+    summary = json.loads(text)
+    panels = summary["panels"]
+    assert [p["source"] for p in panels] == ["events", "events", "frame differences"]
+    v = sim.gt.meta["rise_speed_px_s"]
+    assert panels[0]["velocity_px_s"] == pytest.approx(-v, rel=0.10)
+    assert panels[0]["speed_m_s"] == pytest.approx(
+        px_per_s_to_m_per_s(-panels[0]["velocity_px_s"], 25, 1.7, 4.86))
+    img = read_png(out)
+    assert img.ndim == 3 and img.shape[1] > 3 * img.shape[0] // 2
+    rc, text, _ = _cli(capsys, folder, "--row", 40, "--method", "ridge", "--no-fit",
+                       "--out", tmp_path / "row.png")
+    assert rc == 0 and "no fit" in text
+
+
+def test_cli_from_q(tmp_path, capsys):
+    import json
+
+    from evmotion.io.bosfiles import BosWriter
+
+    h, w, v = 80, 40, -700.0
+    t_us = np.arange(61) * 1000  # 1000 Hz windows
+    path = tmp_path / "bos.h5"
+    rng = np.random.default_rng(0)
+    starts = rng.uniform(0, 200, 12)
+    yy = np.arange(h, dtype=float)[:, None]
+    with BosWriter(path, (h, w)) as bw:
+        for a, b in zip(t_us[:-1], t_us[1:], strict=True):
+            tm = 0.5 * (a + b) * 1e-6
+            q = np.exp(-0.5 * ((yy - starts[None, :] - v * tm) / 2.0) ** 2).sum(1)
+            q = np.repeat(q[:, None], w, axis=1)
+            bw.append(np.zeros((h, w, 2)), int(a), int(b), q=q, p=np.zeros((h, w, 2)))
+    rc, text, err = _cli(capsys, path, "--from", "q", "--col", 20, "--width", 3,
+                         "--out", tmp_path / "q.png", "--json")
+    assert rc == 0, err
+    p = json.loads(text)["panels"][0]
+    assert p["source"] == "q" and p["rate_hz"] == pytest.approx(1000.0)
+    # few bins and streaks crossing the ends of a short line: the correlation is 3 % fast
+    assert p["velocity_px_s"] == pytest.approx(v, rel=0.05)
+    rc, text, err = _cli(capsys, path, "--from", "q", "--col", 20, "--method", "ridge",
+                         "--out", tmp_path / "q.png", "--json")
+    assert rc == 0, err
+    assert json.loads(text)["panels"][0]["velocity_px_s"] == pytest.approx(v, rel=0.01)
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--col", "3", "--rate", "nan"], "--rate"),
+    (["--col", "3", "--width", "0"], "--width"),
+    (["--row", "-1"], "--row"),
+    (["--line", "0", "0", "inf", "3"], "--line"),
+    (["--col", "3", "--focal-mm", "25"], "--distance-m, --pixel-um"),
+    (["--col", "3", "--from", "q", "--rate", "2000"], "--rate"),
+    (["--col", "3", "--t0", "50", "--t1", "10"], "--t1"),
+    (["--col", "3", "--s-range", "9", "2"], "--s-range"),
+])
+def test_cli_bad_options(tmp_path, capsys, argv, match):
+    from evmotion.cli import main
+
+    try:
+        rc = main(["kymogram", str(tmp_path / "none.h5"), *argv, "--out", str(tmp_path / "k.png")])
+    except SystemExit as exc:
+        rc = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert match in err[-1]
+    assert not (tmp_path / "k.png").exists()

@@ -25,6 +25,7 @@ COMMANDS: tuple[str, ...] = (
     "flow",
     "eval",
     "bos",
+    "kymogram",
 )
 
 EPILOG = """examples:

@@ -28,8 +28,10 @@ __all__ = [
     "Kymogram",
     "KymoLine",
     "RidgeFit",
+    "fit_correlation",
     "fit_ridge",
     "kymogram_from_events",
+    "kymogram_from_frame_differences",
     "kymogram_from_images",
     "px_per_s_to_m_per_s",
     "ridge_points",
@@ -273,6 +275,47 @@ def kymogram_from_images(images: np.ndarray, t_s, line: KymoLine, *,
     return Kymogram(data=data, t_s=t, s_px=s, line=line, rate_hz=rate, source=source)
 
 
+def kymogram_from_frame_differences(frames: np.ndarray, t_us, line: KymoLine) -> Kymogram:
+    """Frame-rate kymogram: ``|F[k+1] - F[k]|`` along ``line`` at the mid-frame times.
+
+    A background seen through still air does not change; where the schlieren moves it
+    displaces the background, so the frame difference is the frame camera's counterpart of
+    an event histogram (at the frame rate, thesis Fig. 6.11a).
+
+    Parameters
+    ----------
+    frames : ndarray (N, H, W)
+        At least two frames (uint8, uint16 or float in [0, 1]; on the 8-bit scale after
+        :func:`evmotion.methods.farneback.frame_to_float`).
+    t_us : array_like (N,)
+        Frame timestamps in µs (increasing).
+    line : KymoLine
+
+    Examples
+    --------
+    >>> f = np.zeros((3, 4, 5), np.uint8); f[1, 2, 3] = 10
+    >>> k = kymogram_from_frame_differences(f, [0, 1000, 2000], KymoLine.row(2, (4, 5)))
+    >>> k.data.tolist(), k.t_s.tolist()
+    ([[0.0, 0.0, 0.0, 10.0, 0.0], [0.0, 0.0, 0.0, 10.0, 0.0]], [0.0005, 0.0015])
+    """
+    from evmotion.methods.farneback import frame_to_float
+
+    fr = np.asarray(frames)
+    if fr.ndim != 3 or fr.shape[0] < 2:
+        raise ParameterError(f"frames must be an array (N >= 2, H, W), got shape {fr.shape}")
+    t = check_finite("t_us", t_us).ravel()
+    if t.size != fr.shape[0]:
+        raise ParameterError(f"{t.size} timestamps for {fr.shape[0]} frames")
+    prev = frame_to_float(fr[0], "frame 0")
+    diffs = np.empty((fr.shape[0] - 1, *prev.shape), np.float32)
+    for k in range(1, fr.shape[0]):
+        cur = frame_to_float(fr[k], f"frame {k}")
+        diffs[k - 1] = np.abs(cur - prev)
+        prev = cur
+    return kymogram_from_images(diffs, 0.5 * (t[1:] + t[:-1]) * 1e-6, line,
+                                source="frame differences")
+
+
 @dataclass(frozen=True)
 class RidgeFit:
     """A line ``s = s0 + velocity * (t - t_ref)`` fitted to a kymogram's ridge.
@@ -293,6 +336,9 @@ class RidgeFit:
         Points within the robust residual bound.
     residual_px : float
         RMS residual of the inliers in px.
+    method : str
+        "ridge" (:func:`fit_ridge`) or "correlation" (:func:`fit_correlation`, whose points
+        are the lags and shifts of the autocorrelation, not kymogram positions).
     """
 
     velocity_px_s: float
@@ -303,6 +349,7 @@ class RidgeFit:
     s_px: np.ndarray
     inliers: np.ndarray
     residual_px: float
+    method: str = "ridge"
 
     @property
     def speed_px_s(self) -> float:
@@ -501,3 +548,164 @@ def px_per_s_to_m_per_s(v_px_s, focal_mm: float, distance_m: float, pixel_um: fl
     v = check_finite("v_px_s", v_px_s)
     out = v * (pixel_um * 1e-6) * distance_m / (focal_mm * 1e-3)
     return float(out) if out.ndim == 0 else out
+
+
+def _lag_spectra(d: np.ndarray, n_lags: int, edges: np.ndarray) -> np.ndarray:
+    # per time block b and lag: sum over t in b of conj(F[t]) F[t + lag], F the zero-padded
+    # spectra of the rows (no wrap-around); the inverse FFT of a sum is the autocorrelation
+    # sum_t,s d[t, s] d[t + lag, s + shift] over those t
+    n_t, n_s = d.shape
+    f = np.fft.rfft(d, n=2 * n_s, axis=1)
+    out = np.zeros((edges.size - 1, n_lags, f.shape[1]), dtype=complex)
+    for lag in range(n_lags):
+        prod = np.conj(f[:n_t - lag]) * f[lag:]
+        csum = np.concatenate([np.zeros((1, f.shape[1]), complex), np.cumsum(prod, axis=0)])
+        lo = np.minimum(edges[:-1], n_t - lag)
+        hi = np.minimum(edges[1:], n_t - lag)
+        out[:, lag] = csum[hi] - csum[lo]
+    return out
+
+
+def _correlation_image(spec: np.ndarray, n_s: int) -> np.ndarray:
+    a = np.fft.irfft(spec, n=2 * n_s, axis=-1)
+    # columns: shift from -(S - 1) to S - 1
+    return np.concatenate([a[:, n_s + 1:], a[:, :n_s]], axis=1)
+
+
+def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float | None = None,
+                    s_range: tuple[float, float] | None = None,
+                    t_range: tuple[float, float] | None = None, n_blocks: int = 8,
+                    min_shift_px: float = 3.0, min_snr: float = 3.0) -> RidgeFit:
+    """Velocimetry of many structures at once: the slope of the kymogram's autocorrelation.
+
+    Where many structures travel along the line at one speed (the puffs of a plume, the
+    eddies of a jet) the kymogram holds parallel streaks, and the ridge of a single time bin
+    jumps between them. Their common speed ``v`` is the slope of the ridge of the space-time
+    autocorrelation ``A(lag, shift) = sum_t,s d(t, s) d(t + lag, s + shift)``: a structure
+    at ``s`` at time ``t`` is at ``s + v lag`` at ``t + lag``. ``d`` is the kymogram with
+    its mean over time (the static envelope) and over position (the overall rate) removed,
+    smoothed by ``sigma_px`` along the line and not in time, so that the noise of different
+    bins stays uncorrelated at lags >= 1. The ridge of ``A`` is fitted as in
+    :func:`fit_ridge` over the lags up to ``max_lag_s`` whose shift is at least
+    ``min_shift_px`` (at shorter lags the ridge is pulled towards shift 0 by pixels that
+    fire over consecutive bins); the slope's standard error is the block jackknife over
+    ``n_blocks`` contiguous time blocks. Structures entering and leaving the line's ends
+    pull the short-lag peaks slightly towards shift 0 (the correlation of the visible part
+    is weighted by the overlap): a bias of a few % where the structures travel less than
+    the line's length over the lags (measured: 3 % for 12 streaks over 80 px, 60 bins).
+
+    Parameters
+    ----------
+    kymo : Kymogram
+    sigma_px : float
+        Smoothing along the line, px (default 1).
+    max_lag_s : float, optional
+        Longest lag (default a quarter of the kymogram's duration, at least 3 bins).
+    s_range, t_range : (float, float), optional
+        Part of the kymogram used (px along the line, s).
+    n_blocks : int
+        Time blocks of the jackknife (>= 2; default 8).
+    min_shift_px : float
+        Leave out the lags whose shift (by a first fit over all lags) is below this, px.
+    min_snr : float
+        As :func:`ridge_points`, on the autocorrelation.
+
+    Returns
+    -------
+    RidgeFit
+        Its points ``t_s``, ``s_px`` (and ``inliers``, ``residual_px``) are the lags and
+        shifts of the autocorrelation's ridge; its line (``s0_px`` at ``t_ref_s``, the
+        region's mid time) is placed on the kymogram's strongest streak of that slope.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> t = np.arange(400) / 2000.0; s = np.arange(120.0)
+    >>> starts = rng.uniform(-400, 120, 60)        # 60 streaks moving at -1500 px/s
+    >>> c = starts[None, :] - 1500.0 * t[:, None]
+    >>> data = np.exp(-0.5 * ((s[None, :, None] - c[:, None, :]) / 1.5) ** 2).sum(-1)
+    >>> data = rng.poisson(2 * data).astype(float)                 # shot noise
+    >>> k = Kymogram(data, t, s, KymoLine.column(0, (120, 1)), 2000.0, "events")
+    >>> bool(abs(fit_correlation(k).velocity_px_s / -1500 - 1) < 0.02)
+    True
+    """
+    for name, v in (("sigma_px", sigma_px), ("min_shift_px", min_shift_px)):
+        if not (np.isfinite(v) and v >= 0):
+            raise ParameterError(f"parameter '{name}' must be finite and >= 0, got {v!r}")
+    if int(n_blocks) != n_blocks or n_blocks < 2:
+        raise ParameterError(f"parameter 'n_blocks' must be an integer >= 2, got {n_blocks!r}")
+    if max_lag_s is not None and not (np.isfinite(max_lag_s) and max_lag_s > 0):
+        raise ParameterError(f"parameter 'max_lag_s' must be > 0, got {max_lag_s!r}")
+    s, t = kymo.s_px, kymo.t_s
+    smask = np.ones(s.size, bool) if s_range is None else (s >= s_range[0]) & (s <= s_range[1])
+    tmask = np.ones(t.size, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
+    d = np.asarray(kymo.data, dtype=np.float64)[np.ix_(tmask, smask)]
+    n_t, n_s = d.shape
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    if n_s < 5 or n_t < 2 * n_blocks or dt <= 0:
+        raise ParameterError(f"the region s_range={s_range} px, t_range={t_range} s holds "
+                             f"{n_s} positions and {n_t} time bins; the correlation needs "
+                             f">= 5 positions and >= {2 * n_blocks} bins ({n_blocks} blocks)")
+    n_lags = max(3, int(round((0.25 * n_t * dt if max_lag_s is None else max_lag_s) / dt)))
+    n_lags = min(n_lags, n_t - 1) + 1
+    d = d - d.mean(axis=0, keepdims=True)
+    d = d - d.mean(axis=1, keepdims=True)
+    if sigma_px > 0:
+        d = ndimage.gaussian_filter1d(d, sigma_px, axis=1, mode="constant")
+    edges = np.linspace(0, n_t, int(n_blocks) + 1).round().astype(int)
+    spectra = _lag_spectra(d, n_lags, edges)
+    total = spectra.sum(axis=0)
+    shifts = np.arange(-(n_s - 1), n_s, dtype=float)
+    lags = np.arange(n_lags) * dt
+
+    def fit(spec: np.ndarray, first: int) -> RidgeFit:
+        a = _correlation_image(spec[first:], n_s)
+        ka = Kymogram(a.astype(np.float32), lags[first:], shifts, kymo.line, 1.0 / dt,
+                      "autocorrelation")
+        return fit_ridge(ka, sigma_px=0.0, sigma_bins=0.0, polarity="positive",
+                         min_snr=min_snr)
+
+    rough = fit(total, 1)
+    speed = abs(rough.velocity_px_s)
+    first = int(np.ceil(min_shift_px / (speed * dt))) if speed > 0 else 1
+    if first > n_lags - 3:
+        raise EmptyWindowError(
+            f"the structures move {speed * (n_lags - 1) * dt:.3g} px over the longest lag "
+            f"({(n_lags - 1) * dt:.3g} s); need >= {min_shift_px:g} px over 3 lags: give a "
+            "longer max_lag_s or a lower min_shift_px")
+    first = max(first, 1)
+    whole = fit(total, first)
+    loo = []
+    for b in spectra:
+        try:
+            loo.append(fit(total - b, first).velocity_px_s)
+        except EmptyWindowError:
+            continue
+    n = len(loo)
+    std = (float(np.sqrt((n - 1) / n * np.sum((np.array(loo) - np.mean(loo)) ** 2)))
+           if n >= 2 else float("nan"))
+    v = whole.velocity_px_s
+    t_ref = float(t[tmask].mean())
+    return RidgeFit(velocity_px_s=v, velocity_std_px_s=std,
+                    s0_px=_strongest_streak(kymo, v, t_ref, tmask, smask, sigma_px),
+                    t_ref_s=t_ref, t_s=whole.t_s, s_px=whole.s_px, inliers=whole.inliers,
+                    residual_px=whole.residual_px, method="correlation")
+
+
+def _strongest_streak(kymo: Kymogram, v: float, t_ref: float, tmask: np.ndarray,
+                      smask: np.ndarray, sigma_px: float) -> float:
+    # position at t_ref of the line of slope v along which the (smoothed, |.|) kymogram sums
+    # highest within the region: where the fitted speed is drawn
+    d = np.abs(np.asarray(kymo.data, dtype=np.float64))
+    if sigma_px > 0:
+        d = ndimage.gaussian_filter1d(d, sigma_px, axis=1, mode="constant")
+    rows = np.flatnonzero(tmask)
+    s = kymo.s_px
+    c = s[smask]
+    pos = c[None, :] + v * (kymo.t_s[rows] - t_ref)[:, None]
+    idx = np.interp(pos, s, np.arange(s.size), left=-1.0, right=-1.0)
+    inside = idx >= 0
+    vals = ndimage.map_coordinates(d, [np.broadcast_to(rows[:, None], idx.shape),
+                                       np.where(inside, idx, 0.0)], order=1)
+    score = np.where(inside, vals, 0.0).sum(axis=0)
+    return float(c[int(np.argmax(score))])
