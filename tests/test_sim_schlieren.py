@@ -289,3 +289,31 @@ def test_bad_parameters(kw, match):
     args = dict(scene="plume", sensor_size=(32, 32), duration_s=2 / 120) | kw
     with pytest.raises(ParameterError, match=match):
         simulate_schlieren(**args)
+
+
+def test_cli_simulate_schlieren(tmp_path, capsys):
+    import json
+
+    from evmotion.cli import main
+    from evmotion.io.frames import read_frames
+
+    out = tmp_path / "jet"
+    rc = main(["simulate", "schlieren", "--scene", "jet", "--size", "40x48", "--duration",
+               str(2 / 120), "--magnitude", "2", "--photons", "30", "--seed", "4", "--json",
+               "--out", str(out)])
+    summary = json.loads(capsys.readouterr().out)
+    assert rc == 0 and summary["scene"] == "jet" and summary["n_frames"] == 3
+    gt = read_schlieren_gt(out)
+    assert gt.flow.shape == (2, 40, 48, 2) and gt.meta["photons"] == 30
+    assert gt.meta["seed"] == 4 and gt.meta["magnitude_px"] == 2
+    assert read_frames(out).images.shape == (3, 40, 48)
+    rc = main(["simulate", "schlieren", "--height", "32", "--width", "36", "--duration",
+               str(1 / 120), "--out", str(tmp_path / "p")])
+    line = capsys.readouterr().out
+    assert rc == 0 and line.startswith("schlieren plume:") and line.count("\n") == 1
+    assert read_schlieren_gt(tmp_path / "p").flow.shape == (1, 32, 36, 2)
+    rc = main(["simulate", "schlieren", "--scene", "smoke", "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--scene must be one of" in err and err.count("\n") == 1
+    rc = main(["simulate", "rotation", "--scene", "jet", "--out", str(tmp_path / "r.h5")])
+    assert rc == 2 and "--scene is for" in capsys.readouterr().err

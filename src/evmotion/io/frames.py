@@ -347,6 +347,15 @@ def _read_ccs(folder: Path, sensor_size, warp: bool) -> Frames:
 
 def _from_module(path: Path) -> Frames:
     """Frames of an event recording that holds them (AEDAT4, evmotion/MVSEC HDF5...)."""
+    if path.suffix.lower() == ".aedat4":
+        from evmotion.io import aedat4
+
+        fr = aedat4.read_frames(path)
+        if fr.images.ndim == 4:  # BGR(A) frames: grey by the mean of the colour channels
+            grey = np.rint(fr.images[..., :3].mean(axis=3)).astype(np.uint8)
+            return Frames(grey, fr.t, source=fr.source, exposure_start=fr.exposure_start,
+                          exposure_end=fr.exposure_end, position=fr.position)
+        return fr
     from evmotion.io.aux import read_frames as read_aux
 
     fr = read_aux(path)
