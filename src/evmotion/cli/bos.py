@@ -119,6 +119,32 @@ def _check_out(out: Path) -> None:
         raise FormatError(out, f"cannot write the output: {exc.strerror}") from None
 
 
+def _solve(data, args) -> list:
+    """One BosResult per selected frame interval: warm-started in order with one worker
+    (progress per interval), in ``--workers`` contiguous chunks otherwise."""
+    from evmotion.methods.bos import estimate_bos, estimate_bos_sequence
+    from evmotion.utils import progress
+
+    opts = {"param": args.param, "data_term": args.data_term,
+            "contrast_threshold": args.contrast_threshold, "seed": args.seed}
+    if args.iterations is not None:
+        opts["iterations"] = args.iterations
+    first, last = int(data.intervals[0, 0]), int(data.intervals[-1, 0]) + 1
+    frames = data.frames[first:last + 1]
+    times = data.frame_times[first:last + 1]
+    if args.workers > 1:
+        return estimate_bos_sequence(data.events, frames, times, roi=data.roi,
+                                     workers=args.workers, progress=True, **opts)
+    results, prev = [], None
+    for k in progress(range(len(times) - 1), total=len(times) - 1, desc="bos",
+                      unit="interval"):
+        prev = estimate_bos(data.events, frames[k], t0_us=int(times[k]),
+                            t1_us=int(times[k + 1]), frame_next=frames[k + 1], roi=data.roi,
+                            init=prev, **opts)
+        results.append(prev)
+    return results
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -126,7 +152,6 @@ def run(args) -> int:
     from evmotion.errors import ParameterError
     from evmotion.io.bosfiles import BosWriter
     from evmotion.io.bosinput import load_bos_input
-    from evmotion.methods.bos import estimate_bos_sequence
 
     out = Path(args.out)
     _check_out(out)
@@ -135,14 +160,7 @@ def run(args) -> int:
     t_start = time.perf_counter()
     data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi, t0=args.t0,
                           t1=args.t1, max_intervals=args.max_intervals)
-    kwargs = {"param": args.param, "data_term": args.data_term,
-              "contrast_threshold": args.contrast_threshold, "seed": args.seed,
-              "roi": data.roi}
-    if args.iterations is not None:
-        kwargs["iterations"] = args.iterations
-    results = estimate_bos_sequence(data.events, data.frames, data.frame_times,
-                                    intervals=data.intervals, workers=args.workers,
-                                    progress=True, **kwargs)
+    results = _solve(data, args)
     attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
              "seed": args.seed, "source": data.source,
              "contrast_threshold_option": -1.0 if args.contrast_threshold is None
@@ -151,12 +169,17 @@ def run(args) -> int:
     png_files: list[str] = []
     with BosWriter(out, data.events.sensor_size, roi=data.roi, attrs=attrs) as bw:
         for (i, t0, t1), res in zip(data.intervals, results, strict=True):
-            scalars = {"frame_index": int(i), "contrast_threshold": res.contrast_threshold,
-                       "loss": res.loss, "n_events": res.n_events, "seconds": res.seconds}
+            c = res.contrast_threshold
+            scalars = {"frame_index": int(i),
+                       "contrast_threshold": float("nan") if c is None else c,
+                       "calibrated": float(res.calibrated), "objective": res.objective,
+                       "n_events": len(data.events.slice_time(int(t0), int(t1))),
+                       "seconds": float(sum(res.timings_s))}
             bw.append(res.flow, int(t0), int(t1), q=res.q, p=res.p, scalars=scalars)
-            speed = np.hypot(res.flow[..., 0], res.flow[..., 1])
-            rows.append({"frame": int(i), "t0_us": int(t0), "t1_us": int(t1), **scalars,
-                         "median_speed_px_s": float(np.median(speed))})
+            speed = np.hypot(res.flow[..., 0], res.flow[..., 1])[res.valid]
+            rows.append({"t0_us": int(t0), "t1_us": int(t1), **scalars,
+                         "contrast_threshold": c,
+                         "median_speed_px_s": float(np.median(speed)) if speed.size else 0.0})
     if args.png_dir:
         from evmotion.io.bosfiles import read_bos_h5
         from evmotion.viz.bos import save_bos_pngs

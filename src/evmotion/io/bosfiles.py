@@ -46,7 +46,7 @@ def roi_mask(sensor_size: tuple[int, int], roi: tuple[int, int, int, int] | None
         return mask
     x, y, rw, rh = (int(v) for v in roi)
     if rw <= 0 or rh <= 0 or x < 0 or y < 0 or x + rw > w or y + rh > h:
-        raise ParameterError(f"roi (x={x}, y={y}, w={rw}, h={rh}) is not inside the "
+        raise ParameterError(f"roi (x={x}, y={y}, w={rw}, h={rh}) lies outside the "
                              f"{w}x{h} (W x H) sensor")
     mask[y:y + rh, x:x + rw] = True
     return mask

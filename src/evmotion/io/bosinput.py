@@ -4,8 +4,8 @@
 ``images.txt`` + ``images/``, or any event file with ``--frames``), the frames and their
 timestamps, and cuts the frame intervals ``[t_i, t_{i+1})`` that the events cover. It
 raises one clear error for each input the method cannot use: frames missing, frames and
-events of different sizes or not overlapping in time, an ROI outside the sensor, a frame
-without texture.
+events of different sizes or not overlapping in time, an ROI outside the sensor (the
+solver, :func:`evmotion.methods.bos.estimate_bos`, rejects a frame without texture).
 """
 
 from __future__ import annotations
@@ -20,13 +20,7 @@ from evmotion.errors import EmptyWindowError, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.bosfiles import roi_mask
 
-__all__ = ["BosInput", "check_texture", "frame_intervals", "load_bos_input",
-           "TEXTURE_MIN_CONTRAST"]
-
-# Relative contrast (std / mean of the lightly smoothed frame in the ROI) below which a
-# frame has no usable background texture. A BOS dot pattern has 0.2-0.5; a blank wall
-# under even light is < 0.01.
-TEXTURE_MIN_CONTRAST = 0.01
+__all__ = ["BosInput", "frame_intervals", "load_bos_input"]
 
 
 @dataclass(frozen=True)
@@ -57,54 +51,20 @@ class BosInput:
     source: str
 
 
-def check_texture(frame: np.ndarray, roi: tuple[int, int, int, int] | None = None, *,
-                  name: str = "frame", min_contrast: float = TEXTURE_MIN_CONTRAST) -> float:
-    """Raise :class:`ParameterError` when ``frame`` has no texture in ``roi``.
-
-    The method predicts events from the frame's gradient (6.9): a uniform frame predicts
-    none and any flow fits. The test is the relative contrast ``std / mean`` of the frame
-    smoothed with a 1 px Gaussian (which keeps dots of 1-3 px) over the ROI.
-
-    Returns
-    -------
-    float
-        The relative contrast.
-
-    Examples
-    --------
-    >>> rng = np.random.default_rng(0)
-    >>> check_texture(rng.integers(0, 255, (32, 32))) > 0.1
-    True
-    """
-    from scipy.ndimage import gaussian_filter
-
-    img = np.asarray(frame, dtype=np.float64)
-    if img.ndim == 3:
-        img = img.mean(axis=2)
-    mask = roi_mask(img.shape, roi)
-    sm = gaussian_filter(img, 1.0)[mask]
-    mean = float(np.abs(sm).mean())
-    contrast = float(sm.std() / mean) if mean > 0 else 0.0
-    if not contrast >= min_contrast:
-        raise ParameterError(f"{name} has no texture (relative contrast {contrast:.2g} < "
-                             f"{min_contrast:g} in the ROI): BOS needs a textured background")
-    return contrast
-
-
 def frame_intervals(frame_times: np.ndarray, t_first: int, t_last: int, *,
                     t0: int | None = None, t1: int | None = None,
                     max_intervals: int | None = None) -> np.ndarray:
-    """The frame intervals ``(i, t_i, t_{i+1})`` inside the events' time span
-    ``[t_first, t_last]`` µs and inside ``[t0, t1)`` when given, at most ``max_intervals``.
+    """The frame intervals ``(i, t_i, t_{i+1})`` that overlap the events' time span
+    ``[t_first, t_last]`` µs, inside ``[t0, t1)`` when given, at most ``max_intervals``.
 
     Examples
     --------
-    >>> frame_intervals(np.array([0, 10, 20, 30]), 5, 25).tolist()
-    [[1, 10, 20]]
+    >>> frame_intervals(np.array([0, 10, 20, 30]), 5, 19).tolist()
+    [[0, 0, 10], [1, 10, 20]]
     """
     ft = np.asarray(frame_times, dtype=np.int64)
     lo, hi = ft[:-1], ft[1:]
-    keep = (lo >= t_first) & (hi <= t_last + 1)
+    keep = (hi > t_first) & (lo <= t_last)
     if t0 is not None:
         keep &= lo >= t0
     if t1 is not None:
@@ -157,7 +117,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         No frames, unreadable or missing frame files.
     ParameterError
         Frames and events of different sizes or not overlapping in time, ROI outside the
-        sensor, a selected frame without texture.
+        sensor.
     EmptyWindowError
         No event at all.
 
@@ -204,9 +164,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
                                 max_intervals=max_intervals)
     if not len(intervals):
         span = f" within --t0 {t0} / --t1 {t1} us" if t0 is not None or t1 is not None else ""
-        raise ParameterError(f"no frame interval lies inside the events' time span "
+        raise ParameterError(f"no frame interval overlaps the events' time span "
                              f"[{t_first}, {t_last}] us{span}")
-    for i in intervals[:, 0]:
-        check_texture(images[int(i)], roi, name=f"frame {int(i)} of {src}")
     return BosInput(events=events, frames=images, frame_times=times, intervals=intervals,
                     roi=roi, source=str(rec))

@@ -66,8 +66,7 @@ def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = 
     FigureCanvasAgg(fig)
     ax = fig.add_axes((0.02, 0.04, 0.74, 0.86))
 
-    cmap = matplotlib.colormaps["RdBu_r"].copy()
-    cmap.set_bad((0.6, 0.6, 0.6))
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad=(0.6, 0.6, 0.6))
     im = ax.imshow(np.ma.masked_invalid(q), cmap=cmap, vmin=-limit, vmax=limit,
                    interpolation="nearest")
     ax.set_axis_off()
