@@ -5,7 +5,10 @@ pixels from four dense fields -- the displacement ``du, dv`` over the window and
 translation ``pu, pv``, all in original pixels -- that are bilinear upsamplings of patch-grid
 parameters (:func:`upsample`, adjoint :func:`upsample_adjoint`). :func:`objective_grad`
 returns the objective and its gradient with respect to the four dense fields, in three
-passes over the grid (prediction, residual, gradient). Plain-numpy references live in
+passes over the grid (prediction, residual, gradient) and one per TV field. The frame
+translated by p enters to first order, ``grad L(x + p) = grad L + H p`` (H the Hessian of the
+smoothed log frame): p is a small correction (the authors bound it to +-0.4 px), and the
+expansion keeps the objective smooth in p and the loops vectorizable. Plain-numpy references live in
 :mod:`evmotion.methods._bos_reference`.
 
 Smooth L1: every absolute value is the Charbonnier ``sqrt(r^2 + eps^2) - eps``, so that the
@@ -18,6 +21,9 @@ import numpy as np
 from numba import njit
 
 __all__ = ["interp_index", "objective_grad", "upsample", "upsample_adjoint"]
+
+# the numpy error model (no zero-division checks) and fastmath let the pixel loops vectorize
+_JIT = dict(cache=True, fastmath=True, error_model="numpy")
 
 
 def interp_index(n_out: int, step_out: float, n_in: int, step_in: float):
@@ -32,7 +38,7 @@ def interp_index(n_out: int, step_out: float, n_in: int, step_in: float):
     return np.ascontiguousarray(i0), np.ascontiguousarray(u - i0)
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def upsample(x, iy, fy, ix, fx, out):
     """``out[c] = A_y x[c] A_x^T`` for every channel: bilinear from (c, nh, nw) to (c, h, w)."""
     nc, nh, nw = x.shape
@@ -54,7 +60,7 @@ def upsample(x, iy, fy, ix, fx, out):
                 out[c, i, j] = (1.0 - g) * tmp[i0, j] + g * tmp[i1, j]
 
 
-@njit(cache=True)
+@njit(**_JIT)
 def upsample_adjoint(g, iy, fy, ix, fx, out):
     """Adjoint of :func:`upsample`: ``out[c] = A_y^T g[c] A_x`` (overwrites ``out``)."""
     nc, h, w = g.shape
@@ -82,69 +88,160 @@ def upsample_adjoint(g, iy, fy, ix, fx, out):
                 out[c, a, j1] += f * v
 
 
-@njit(cache=True, inline="always")
-def _sample(gx, gy, i, j, pu, pv, inv_k):
-    """Bilinear samples of ``gx, gy`` at (row i + pv/k, col j + pu/k), clamped to the grid, and
-    their derivatives with respect to pu and pv (zero where the point is clamped)."""
-    h, w = gx.shape
-    yy = i + pv * inv_k
-    xx = j + pu * inv_k
-    iny = 1.0
-    inx = 1.0
-    if yy < 0.0:
-        yy = 0.0
-        iny = 0.0
-    elif yy > h - 1.0:
-        yy = h - 1.0
-        iny = 0.0
-    if xx < 0.0:
-        xx = 0.0
-        inx = 0.0
-    elif xx > w - 1.0:
-        xx = w - 1.0
-        inx = 0.0
-    y0 = min(int(yy), h - 2)
-    x0 = min(int(xx), w - 2)
-    fy = yy - y0
-    fx = xx - x0
-    a00 = gx[y0, x0]
-    a01 = gx[y0, x0 + 1]
-    a10 = gx[y0 + 1, x0]
-    a11 = gx[y0 + 1, x0 + 1]
-    b00 = gy[y0, x0]
-    b01 = gy[y0, x0 + 1]
-    b10 = gy[y0 + 1, x0]
-    b11 = gy[y0 + 1, x0 + 1]
-    sx = (1.0 - fy) * ((1.0 - fx) * a00 + fx * a01) + fy * ((1.0 - fx) * a10 + fx * a11)
-    sy = (1.0 - fy) * ((1.0 - fx) * b00 + fx * b01) + fy * ((1.0 - fx) * b10 + fx * b11)
-    dxu = inx * inv_k * ((1.0 - fy) * (a01 - a00) + fy * (a11 - a10))
-    dxv = iny * inv_k * ((1.0 - fx) * (a10 - a00) + fx * (a11 - a01))
-    dyu = inx * inv_k * ((1.0 - fy) * (b01 - b00) + fy * (b11 - b10))
-    dyv = iny * inv_k * ((1.0 - fx) * (b10 - b00) + fx * (b11 - b01))
-    return sx, sy, dxu, dxv, dyu, dyv
+@njit(**_JIT)
+def _predict(fields, gimg, use_p, work):
+    """Pass 1: prediction ``-grad L(x + p) . d`` into ``work[0]``, with the frame gradient
+    translated by p to first order (``grad L + H p``, H the Hessian); the translated
+    gradient into ``work[1:3]`` and ``-d/dp pred`` into ``work[3:5]``. Returns sum(pred^2).
+    Arrays are flat (c, n)."""
+    du = fields[0]
+    dv = fields[1]
+    gx = gimg[0]
+    gy = gimg[1]
+    pred = work[0]
+    ss = 0.0
+    if use_p:
+        pu = fields[2]
+        pv = fields[3]
+        hxx = gimg[2]
+        hxy = gimg[3]
+        hyy = gimg[4]
+        wsx = work[1]
+        wsy = work[2]
+        whu = work[3]
+        whv = work[4]
+        for i in range(du.size):
+            a = du[i]
+            b = dv[i]
+            sx = gx[i] + hxx[i] * pu[i] + hxy[i] * pv[i]
+            sy = gy[i] + hxy[i] * pu[i] + hyy[i] * pv[i]
+            v = -(sx * a + sy * b)
+            pred[i] = v
+            wsx[i] = sx
+            wsy[i] = sy
+            whu[i] = a * hxx[i] + b * hxy[i]
+            whv[i] = a * hxy[i] + b * hyy[i]
+            ss += v * v
+    else:
+        for i in range(du.size):
+            v = -(gx[i] * du[i] + gy[i] * dv[i])
+            pred[i] = v
+            ss += v * v
+    return ss
 
 
-@njit(cache=True, inline="always")
-def _charb(r, eps):
-    s = np.sqrt(r * r + eps * eps)
-    return s - eps, r / s
+@njit(**_JIT)
+def _data_terms(meas, a_pred, a_meas, eps_d, work):
+    """Pass 2: Charbonnier of the residual ``a_pred pred - a_meas meas``; its derivative
+    into ``work[5]``. Returns (sum rho, sum rho' * pred)."""
+    pred = work[0]
+    der = work[5]
+    e = 0.0
+    gp = 0.0
+    e2 = eps_d * eps_d
+    for i in range(meas.size):
+        r = pred[i] * a_pred - meas[i] * a_meas
+        sq = np.sqrt(r * r + e2)
+        d = r / sq
+        e += sq - eps_d
+        gp += d * pred[i]
+        der[i] = d
+    return e, gp
 
 
-@njit(cache=True)
-def objective_grad(fields, gx, gy, meas, weight, s_meas, inv_k, lam_tv, lam_p, eps_d, eps_r,
-                   normalized, use_p, pred, grad):
+@njit(**_JIT)
+def _data_grad(fields, gimg, c_der, c_pred, lam_p_n, eps_r, use_p, work, grad):
+    """Pass 3: gradient of the data term (``dE/dpred = c_der rho' - c_pred pred``) and of
+    lambda_p |p| with respect to the fields. Returns sum |p| (Charbonnier)."""
+    pred = work[0]
+    der = work[5]
+    e2 = eps_r * eps_r
+    ep = 0.0
+    g0 = grad[0]
+    g1 = grad[1]
+    g2 = grad[2]
+    g3 = grad[3]
+    if use_p:
+        pu = fields[2]
+        pv = fields[3]
+        wsx = work[1]
+        wsy = work[2]
+        whu = work[3]
+        whv = work[4]
+        for i in range(pred.size):
+            dp = c_der * der[i] - c_pred * pred[i]
+            a = pu[i]
+            b = pv[i]
+            sa = np.sqrt(a * a + e2)
+            sb = np.sqrt(b * b + e2)
+            ep += sa + sb - (eps_r + eps_r)
+            g0[i] = -wsx[i] * dp
+            g1[i] = -wsy[i] * dp
+            g2[i] = -whu[i] * dp + lam_p_n * a / sa
+            g3[i] = -whv[i] * dp + lam_p_n * b / sb
+    else:
+        gx = gimg[0]
+        gy = gimg[1]
+        for i in range(pred.size):
+            dp = c_der * der[i] - c_pred * pred[i]
+            g0[i] = -gx[i] * dp
+            g1[i] = -gy[i] * dp
+            g2[i] = 0.0
+            g3[i] = 0.0
+    return ep
+
+
+@njit(**_JIT)
+def _tv(f, weight, inv_k, ct, eps_r, g, buf):
+    """Weighted TV of one dense (h, w) field (forward differences, Charbonnier); adds ``ct``
+    times its gradient to ``g``. Returns the (unscaled) sum."""
+    h, w = f.shape
+    e2 = eps_r * eps_r
+    e = 0.0
+    for i in range(h):
+        fr = f[i]
+        wr = weight[i]
+        gr = g[i]
+        for j in range(w - 1):
+            d = (fr[j + 1] - fr[j]) * inv_k
+            sq = np.sqrt(d * d + e2)
+            e += wr[j] * (sq - eps_r)
+            buf[j] = ct * wr[j] * d / sq
+        gr[0] -= buf[0]
+        for j in range(1, w - 1):
+            gr[j] += buf[j - 1] - buf[j]
+        gr[w - 1] += buf[w - 2]
+    for i in range(h - 1):
+        fr = f[i]
+        fn = f[i + 1]
+        wr = weight[i]
+        gr = g[i]
+        gn = g[i + 1]
+        for j in range(w):
+            d = (fn[j] - fr[j]) * inv_k
+            sq = np.sqrt(d * d + e2)
+            e += wr[j] * (sq - eps_r)
+            b = ct * wr[j] * d / sq
+            gr[j] -= b
+            gn[j] += b
+    return e
+
+
+def objective_grad(fields, gimg, meas, weight, s_meas, inv_k, lam_tv, lam_p, eps_d, eps_r,
+                   normalized, use_p, work, grad):
     """Objective (6.10) at one level and its gradient with respect to the dense fields.
 
     Parameters
     ----------
-    fields : (4, h, w) float
+    fields : (4, h, w) float32 or float64
         Dense ``du, dv`` (displacement over the window, px) and ``pu, pv`` (frame
         translation, px).
-    gx, gy : (h, w) float
-        Gradient of the log frame per original pixel.
-    meas : (h, w) float
+    gimg : (5, h, w), same dtype
+        Gradient of the log frame per original pixel ``gx, gy`` and its Hessian
+        ``hxx, hxy, hyy``: the frame translated by p has gradient ``grad L + H p``.
+    meas : (h, w), same dtype
         Measured increment (events, smoothed; in log units when calibrated).
-    weight : (h, w) float
+    weight : (h, w), same dtype
         TV weight ``w = 1 - alpha b``.
     s_meas : float
         RMS of ``meas`` (its normalization).
@@ -155,10 +252,10 @@ def objective_grad(fields, gx, gy, meas, weight, s_meas, inv_k, lam_tv, lam_p, e
     normalized : bool
         Data term of normalized increments (6.11) if True, else ``(pred - meas) / s_meas``.
     use_p : bool
-        Warp the frame gradient by ``p`` (else p is ignored and its gradient is zero).
-    pred : (h, w) float
-        Work buffer (the predicted increment on return).
-    grad : (4, h, w) float
+        Translate the frame by ``p`` (else p is ignored and its gradient is zero).
+    work : (6, h, w), same dtype
+        Work buffers; ``work[0]`` holds the predicted increment on return.
+    grad : (4, h, w), same dtype
         Output: gradient with respect to ``fields``.
 
     Returns
@@ -166,99 +263,35 @@ def objective_grad(fields, gx, gy, meas, weight, s_meas, inv_k, lam_tv, lam_p, e
     (total, data, tv, p) : floats
         The objective and its three terms (regularizers without their lambdas).
     """
-    h, w = gx.shape
+    nc, h, w = fields.shape
+    sc = fields.dtype.type  # scalars in the arrays' precision keep float32 loops in float32
     n = h * w
     inv_n = 1.0 / n
-    du = fields[0]
-    dv = fields[1]
-    pu = fields[2]
-    pv = fields[3]
-    # pass 1: prediction -grad L(x + p) . d
-    ss = 0.0
-    for i in range(h):
-        for j in range(w):
-            if use_p:
-                sx, sy, _a, _b, _c, _d = _sample(gx, gy, i, j, pu[i, j], pv[i, j], inv_k)
-            else:
-                sx = gx[i, j]
-                sy = gy[i, j]
-            v = -(sx * du[i, j] + sy * dv[i, j])
-            pred[i, j] = v
-            ss += v * v
-    s_pred = np.sqrt(ss * inv_n + 1e-30)
+    flat_f = fields.reshape(nc, n)
+    flat_g = gimg.reshape(gimg.shape[0], n)
+    flat_w = work.reshape(work.shape[0], n)
+    flat_grad = grad.reshape(nc, n)
+    ss = _predict(flat_f, flat_g, use_p, flat_w)
+    inv_sp = 1.0 / np.sqrt(ss * inv_n + 1e-30)
     inv_sm = 1.0 / s_meas
-    inv_sp = 1.0 / s_pred
-    # pass 2: residual, data term, and sum(G * pred) for the normalization's gradient
-    e_data = 0.0
-    gp = 0.0
-    for i in range(h):
-        for j in range(w):
-            if normalized:
-                r = pred[i, j] * inv_sp - meas[i, j] * inv_sm
-            else:
-                r = (pred[i, j] - meas[i, j]) * inv_sm
-            val, der = _charb(r, eps_d)
-            e_data += val
-            gp += der * pred[i, j]
-            grad[0, i, j] = der * inv_n
+    a_pred = inv_sp if normalized else inv_sm
+    e_data, gp = _data_terms(meas.reshape(n), sc(a_pred), sc(inv_sm), sc(eps_d), flat_w)
     e_data *= inv_n
-    kk = gp * inv_n * inv_n * inv_sp * inv_sp * inv_sp
-    # pass 3: gradient with respect to the dense fields, TV and |p|
-    e_tv = 0.0
-    e_p = 0.0
-    ct = lam_tv * inv_n * inv_k
-    for i in range(h):
-        for j in range(w):
-            if normalized:
-                dp = grad[0, i, j] * inv_sp - pred[i, j] * kk
-            else:
-                dp = grad[0, i, j] * inv_sm
-            if use_p:
-                sx, sy, dxu, dxv, dyu, dyv = _sample(gx, gy, i, j, pu[i, j], pv[i, j], inv_k)
-                g_pu = -(du[i, j] * dxu + dv[i, j] * dyu) * dp
-                g_pv = -(du[i, j] * dxv + dv[i, j] * dyv) * dp
-                a, b = _charb(pu[i, j], eps_r)
-                c, d = _charb(pv[i, j], eps_r)
-                e_p += a + c
-                g_pu += lam_p * inv_n * b
-                g_pv += lam_p * inv_n * d
-            else:
-                sx = gx[i, j]
-                sy = gy[i, j]
-                g_pu = 0.0
-                g_pv = 0.0
-            g_du = -sx * dp
-            g_dv = -sy * dp
-            wt = weight[i, j]
-            if j + 1 < w:
-                a, b = _charb((du[i, j + 1] - du[i, j]) * inv_k, eps_r)
-                c, d = _charb((dv[i, j + 1] - dv[i, j]) * inv_k, eps_r)
-                e_tv += wt * (a + c)
-                g_du -= ct * wt * b
-                g_dv -= ct * wt * d
-            if i + 1 < h:
-                a, b = _charb((du[i + 1, j] - du[i, j]) * inv_k, eps_r)
-                c, d = _charb((dv[i + 1, j] - dv[i, j]) * inv_k, eps_r)
-                e_tv += wt * (a + c)
-                g_du -= ct * wt * b
-                g_dv -= ct * wt * d
-            if j > 0:
-                wl = weight[i, j - 1]
-                _a, b = _charb((du[i, j] - du[i, j - 1]) * inv_k, eps_r)
-                _c, d = _charb((dv[i, j] - dv[i, j - 1]) * inv_k, eps_r)
-                g_du += ct * wl * b
-                g_dv += ct * wl * d
-            if i > 0:
-                wu = weight[i - 1, j]
-                _a, b = _charb((du[i, j] - du[i - 1, j]) * inv_k, eps_r)
-                _c, d = _charb((dv[i, j] - dv[i - 1, j]) * inv_k, eps_r)
-                g_du += ct * wu * b
-                g_dv += ct * wu * d
-            grad[0, i, j] = g_du
-            grad[1, i, j] = g_dv
-            grad[2, i, j] = g_pu
-            grad[3, i, j] = g_pv
+    if normalized:
+        c_der = inv_n * inv_sp
+        c_pred = gp * inv_n * inv_n * inv_sp * inv_sp * inv_sp
+    else:
+        c_der = inv_n * inv_sm
+        c_pred = 0.0
+    e_p = _data_grad(flat_f, flat_g, sc(c_der), sc(c_pred), sc(lam_p * inv_n), sc(eps_r),
+                     use_p, flat_w, flat_grad)
+    if not use_p:
+        e_p = 0.0
+    buf = np.empty(w, dtype=fields.dtype)
+    ct = sc(lam_tv * inv_n * inv_k)
+    e_tv = _tv(fields[0], weight, sc(inv_k), ct, sc(eps_r), grad[0], buf)
+    e_tv += _tv(fields[1], weight, sc(inv_k), ct, sc(eps_r), grad[1], buf)
     e_tv *= inv_n
     e_p *= inv_n
     total = e_data + lam_tv * e_tv + lam_p * e_p
-    return total, e_data, e_tv, e_p
+    return float(total), float(e_data), float(e_tv), float(e_p)

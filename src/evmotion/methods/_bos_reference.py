@@ -1,6 +1,6 @@
 """Plain-numpy references of the BOS kernels (:mod:`evmotion.methods._bos_kernels`), for tests.
 
-Written for clarity, not speed: dense interpolation matrices, vectorized sampling, the
+Written for clarity, not speed: dense interpolation matrices, whole-array expressions, the
 objective (6.10) with the same smooth L1 (Charbonnier) as the kernels.
 """
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["interp_matrix", "objective_numpy", "sample_bilinear", "upsample_numpy"]
+__all__ = ["interp_matrix", "objective_numpy", "upsample_numpy"]
 
 
 def interp_matrix(i0: np.ndarray, frac: np.ndarray, n_in: int) -> np.ndarray:
@@ -27,32 +27,19 @@ def upsample_numpy(x: np.ndarray, iy, fy, ix, fx) -> np.ndarray:
     return np.stack([ay @ xc @ ax.T for xc in x])
 
 
-def sample_bilinear(img: np.ndarray, yy: np.ndarray, xx: np.ndarray) -> np.ndarray:
-    """Bilinear samples of img at (yy, xx), coordinates clamped to the image."""
-    h, w = img.shape
-    yy = np.clip(yy, 0.0, h - 1.0)
-    xx = np.clip(xx, 0.0, w - 1.0)
-    y0 = np.minimum(np.floor(yy).astype(int), h - 2)
-    x0 = np.minimum(np.floor(xx).astype(int), w - 2)
-    fy = yy - y0
-    fx = xx - x0
-    return ((1 - fy) * ((1 - fx) * img[y0, x0] + fx * img[y0, x0 + 1])
-            + fy * ((1 - fx) * img[y0 + 1, x0] + fx * img[y0 + 1, x0 + 1]))
-
-
 def _charb(r, eps):
     return np.sqrt(r * r + eps * eps) - eps
 
 
-def objective_numpy(fields, gx, gy, meas, weight, s_meas, k, lam_tv, lam_p, eps_d, eps_r,
+def objective_numpy(fields, gimg, meas, weight, s_meas, k, lam_tv, lam_p, eps_d, eps_r,
                     normalized, use_p):
     """(total, data, tv, p) of :func:`evmotion.methods._bos_kernels.objective_grad`."""
     du, dv, pu, pv = (np.asarray(f, dtype=np.float64) for f in fields)
+    gx, gy, hxx, hxy, hyy = gimg
     h, w = gx.shape
     if use_p:
-        ii, jj = np.mgrid[0:h, 0:w].astype(np.float64)
-        sx = sample_bilinear(gx, ii + pv / k, jj + pu / k)
-        sy = sample_bilinear(gy, ii + pv / k, jj + pu / k)
+        sx = gx + hxx * pu + hxy * pv
+        sy = gy + hxy * pu + hyy * pv
     else:
         sx, sy = gx, gy
     pred = -(sx * du + sy * dv)

@@ -5,7 +5,7 @@ first frame of a textured background. The measured brightness increment is the p
 sum of the events' polarities (6.8), times the contrast threshold C where it is known,
 Gaussian-smoothed with sigma = 2 px. The linearized event generation model (6.9) predicts
 it from the log frame ``L`` as ``-grad L(x + p) . v dt``, with a per-pixel translation
-``p`` of the frame. The objective (6.10) is
+``p`` of the frame (to first order: ``grad L + H p``). The objective (6.10) is
 
     E = data + lambda_1 * mean(w * |grad v|) + lambda_2 * mean(|p|)
 
@@ -155,16 +155,8 @@ class BosOptions:
         if not scales or min(scales) < 1:
             raise ParameterError(f"scales must be positive patch sizes, got {self.scales!r}")
         object.__setattr__(self, "scales", scales)
-        its = self.iterations
-        its = (int(its),) * len(scales) if np.isscalar(its) else tuple(int(i) for i in its)
-        if len(its) != len(scales) or min(its) < 0:
-            raise ParameterError(f"iterations must be >= 0, one or one per scale "
-                                 f"({len(scales)}), got {self.iterations!r}")
-        object.__setattr__(self, "iterations", its)
-        pool = (1,) * len(scales) if self.pool is None else tuple(int(k) for k in self.pool)
-        if len(pool) != len(scales) or min(pool) < 1:
-            raise ParameterError(f"pool must hold one factor >= 1 per scale, got {self.pool!r}")
-        object.__setattr__(self, "pool", pool[:-1] + (1,))
+        self.iterations_per_scale()
+        self.pool_per_scale()
         for name in ("lr", "lambda_tv", "lambda_p", "alpha", "sigma_meas", "sigma_weight",
                      "tol", "eps_data", "eps_reg", "min_texture", "lr_decay"):
             v = float(getattr(self, name))
@@ -179,6 +171,24 @@ class BosOptions:
             raise ParameterError(f"contrast_threshold must be > 0, got {c}")
         if self.patience < 1:
             raise ParameterError(f"patience must be >= 1, got {self.patience}")
+
+    def iterations_per_scale(self) -> tuple[int, ...]:
+        """Adam iterations of each scale."""
+        its = self.iterations
+        its = (int(its),) * len(self.scales) if np.isscalar(its) else tuple(int(i) for i in its)
+        if len(its) != len(self.scales) or min(its) < 0:
+            raise ParameterError(f"iterations must be >= 0, one or one per scale "
+                                 f"({len(self.scales)}), got {self.iterations!r}")
+        return its
+
+    def pool_per_scale(self) -> tuple[int, ...]:
+        """Pooling factor of each scale (the last is always 1)."""
+        n = len(self.scales)
+        pool = (1,) * n if self.pool is None else tuple(int(k) for k in self.pool)
+        if len(pool) != n or min(pool) < 1:
+            raise ParameterError(f"pool must hold one factor >= 1 per scale ({n}), "
+                                 f"got {self.pool!r}")
+        return pool[:-1] + (1,)
 
 
 @dataclass
@@ -248,7 +258,7 @@ def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
     and 1e-3 for float frames.
 
     >>> log_frame(np.array([[255, 0]], np.uint8)).round(3).tolist()
-    [[0.002, -6.238]]
+    [[0.002, -6.234]]
     """
     f = np.asarray(frame)
     if f.ndim != 2:
@@ -419,9 +429,15 @@ class BosLevel:
         H, W = logf.shape
         self.nh, self.nw = -(-H // patch), -(-W // patch)
         lf = _pool(logf, k)
-        gy, gx = np.gradient(lf) if min(lf.shape) > 1 else (np.zeros_like(lf),) * 2
-        self.gx = np.ascontiguousarray(gx / k, dtype=dtype)
-        self.gy = np.ascontiguousarray(gy / k, dtype=dtype)
+        if min(lf.shape) < 2:
+            raise ParameterError(f"the ROI is too small for pooling by {k} (use pool=None)")
+        gy, gx = np.gradient(lf)
+        hxy, hxx = np.gradient(gx)
+        hyy, hyx = np.gradient(gy)
+        # per original pixel: gradient / k, Hessian / k^2 (symmetrized)
+        self.gimg = np.ascontiguousarray(
+            np.stack([gx / k, gy / k, hxx / k**2, 0.5 * (hxy + hyx) / k**2, hyy / k**2]),
+            dtype=dtype)
         self.meas = np.ascontiguousarray(_pool(meas, k), dtype=dtype)
         self.weight = np.ascontiguousarray(_pool(weight, k), dtype=dtype)
         self.s_meas = float(np.sqrt(np.mean(self.meas.astype(np.float64) ** 2))) or 1.0
@@ -432,7 +448,7 @@ class BosLevel:
         self.sm_x, self.d_x = _sobel_mats(self.nw)
         self.fields = np.zeros((4, h, w), dtype)
         self.grad = np.zeros((4, h, w), dtype)
-        self.pred = np.zeros((h, w), dtype)
+        self.work = np.zeros((6, h, w), dtype)
         self.gpatch = np.zeros((4, self.nh, self.nw))
         self.opts = opts
 
@@ -455,9 +471,9 @@ class BosLevel:
     def value_grad(self, theta: np.ndarray, normalized: bool) -> tuple[tuple, np.ndarray]:
         o = self.opts
         upsample(self.patch_fields(theta), self.iy, self.fy, self.ix, self.fx, self.fields)
-        terms = objective_grad(self.fields, self.gx, self.gy, self.meas, self.weight,
+        terms = objective_grad(self.fields, self.gimg, self.meas, self.weight,
                                self.s_meas, 1.0 / self.k, o.lambda_tv, o.lambda_p, o.eps_data,
-                               o.eps_reg, normalized, o.use_p, self.pred, self.grad)
+                               o.eps_reg, normalized, o.use_p, self.work, self.grad)
         upsample_adjoint(self.grad, self.iy, self.fy, self.ix, self.fx, self.gpatch)
         g = np.zeros_like(theta)
         if o.param == "poisson":
@@ -578,7 +594,8 @@ def estimate_bos(
         Warm start: a previous interval's result with the same scales (its parameters start
         each scale, averaged with the coarser scale's solution as in the authors' code).
     dtype : numpy dtype
-        Precision of the dense images (float32; float64 for gradient checks).
+        Precision of the dense images (float32: half the memory traffic of float64, which
+        bounds the kernels' speed).
 
     Returns
     -------
@@ -616,7 +633,8 @@ def estimate_bos(
     rng = np.random.default_rng(o.seed)
     losses, timings, iters, params = [], [], [], []
     prev_level = theta = None
-    for s, (patch, k, n_it) in enumerate(zip(o.scales, o.pool, o.iterations, strict=True)):
+    for s, (patch, k, n_it) in enumerate(zip(o.scales, o.pool_per_scale(), o.iterations_per_scale(),
+                                                 strict=True)):
         start = time.perf_counter()
         level = BosLevel(patch, k, logf, meas, weight, o, dtype)
         if prev_level is None:
@@ -643,10 +661,10 @@ def estimate_bos(
     scale = 1.0
     if normalized and o.rescale and c is not None:
         upsample(pf, final.iy, final.fy, final.ix, final.fx, final.fields)
-        objective_grad(final.fields, final.gx, final.gy, final.meas, final.weight,
+        objective_grad(final.fields, final.gimg, final.meas, final.weight,
                        final.s_meas, 1.0, 0.0, 0.0, o.eps_data, o.eps_reg, True, o.use_p,
-                       final.pred, final.grad)
-        pr = final.pred.astype(np.float64)
+                       final.work, final.grad)
+        pr = final.work[0].astype(np.float64)
         den = float(np.sum(pr * pr))
         if den > 0:
             scale = float(np.sum(pr * final.meas) / den)
@@ -662,7 +680,8 @@ def estimate_bos(
     q = np.zeros((H, W), np.float32)
     if o.param == "poisson":
         qd = np.zeros((1,) + logf.shape)
-        upsample(theta[:1], final.iy, final.fy, final.ix, final.fx, qd)
+        upsample(_min_norm_q(theta[0], final)[None], final.iy, final.fy, final.ix, final.fx,
+                 qd)
         q[y:y + rh, x:x + rw] = qd[0] * 8.0 * final.patch * scale / dt
     valid = np.zeros((H, W), bool)
     valid[y:y + rh, x:x + rw] = True
@@ -672,6 +691,19 @@ def estimate_bos(
                      calibrated=bool(calibrated), scale=scale, objective=float(objective),
                      losses=losses, timings_s=timings, iterations=iters, params=params,
                      options=o)
+
+
+def _min_norm_q(q: np.ndarray, level: BosLevel) -> np.ndarray:
+    """The least-norm q with the same Sobel flow: the Sobel over patches is blind to a
+    constant and to odd-even (checkerboard) patterns, which the random initialization puts
+    into q and no iteration removes; they would dominate any picture of q."""
+    from scipy.sparse import csr_matrix, kron, vstack
+    from scipy.sparse.linalg import lsqr
+
+    op = vstack([kron(csr_matrix(level.sm_y), csr_matrix(level.d_x)),
+                 kron(csr_matrix(level.d_y), csr_matrix(level.sm_x))]).tocsr()
+    sol = lsqr(op, op @ q.ravel(), atol=1e-10, btol=1e-10, iter_lim=2000)[0]
+    return sol.reshape(q.shape)
 
 
 def _same_shape(prev: np.ndarray, like: np.ndarray) -> np.ndarray:
