@@ -70,8 +70,9 @@ DOT_PEAK = 2.0  # darkness at a dot's centre: 1 - exp(-2) of full contrast
 
 
 @njit(cache=True)
-def _bg_kernel(sx, sy, dx, dy, inv2s2, amp, cell_start, cell_dots, gx0, gy0, cs, ncx, ncy,
-               r2max, contrast, out):
+def _bg_kernel(sx, sy, dx, dy, inv2s2, amp, r2max, cell_start, gx0, gy0, cs, ncx, ncy,
+               contrast, out):
+    # dots are stored in cell order: the cells around a point are contiguous runs
     for i in range(sx.shape[0]):
         px = sx[i]
         py = sy[i]
@@ -79,15 +80,14 @@ def _bg_kernel(sx, sy, dx, dy, inv2s2, amp, cell_start, cell_dots, gx0, gy0, cs,
         cy = int(math.floor((py - gy0) / cs))
         dark = 0.0
         for jy in range(max(cy - 1, 0), min(cy + 2, ncy)):
-            for jx in range(max(cx - 1, 0), min(cx + 2, ncx)):
-                c = jy * ncx + jx
-                for k in range(cell_start[c], cell_start[c + 1]):
-                    d = cell_dots[k]
-                    ex = px - dx[d]
-                    ey = py - dy[d]
-                    r2 = ex * ex + ey * ey
-                    if r2 < r2max[d]:
-                        dark += amp[d] * math.exp(-r2 * inv2s2[d])
+            row = jy * ncx
+            for k in range(cell_start[row + max(cx - 1, 0)],
+                           cell_start[row + min(cx + 2, ncx)]):
+                ex = px - dx[k]
+                ey = py - dy[k]
+                r2 = ex * ex + ey * ey
+                if r2 < r2max[k]:
+                    dark += amp[k] * math.exp(-r2 * inv2s2[k])
         out[i] = 1.0 - contrast * (1.0 - math.exp(-dark))
 
 
@@ -109,7 +109,10 @@ class Background:
     cell: float
     grid: tuple[int, int]
     cell_start: np.ndarray = field(repr=False)
-    cell_dots: np.ndarray = field(repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_inv2s2", 0.5 / self.sigma ** 2)
+        object.__setattr__(self, "_r2max", (DOT_CUTOFF * self.sigma) ** 2)
 
     def radiance(self, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
         """Radiance in (0, 1] at points ``(sx, sy)`` (px, any shape), float64."""
@@ -118,9 +121,9 @@ class Background:
         fx = np.ascontiguousarray(sx.ravel())
         fy = np.ascontiguousarray(np.asarray(sy, dtype=np.float64).ravel())
         out = np.empty(fx.size)
-        _bg_kernel(fx, fy, self.x, self.y, 0.5 / self.sigma ** 2, self.amp, self.cell_start,
-                   self.cell_dots, self.origin[0], self.origin[1], self.cell, self.grid[1],
-                   self.grid[0], (DOT_CUTOFF * self.sigma) ** 2, self.contrast, out)
+        _bg_kernel(fx, fy, self.x, self.y, self._inv2s2, self.amp, self._r2max,
+                   self.cell_start, self.origin[0], self.origin[1], self.cell, self.grid[1],
+                   self.grid[0], self.contrast, out)
         return out.reshape(shape)
 
     def radiance_reference(self, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
@@ -184,9 +187,9 @@ def make_background(sensor_size: tuple[int, int], *, density: float = 0.08,
            + np.floor((x - x0) / cell).astype(np.int64))
     order = np.argsort(cid, kind="stable")
     start = np.searchsorted(cid[order], np.arange(ncx * ncy + 1)).astype(np.int64)
-    return Background(x=x, y=y, sigma=sigma, amp=amp, contrast=float(contrast),
-                      origin=(x0, y0), cell=cell, grid=(ncy, ncx), cell_start=start,
-                      cell_dots=order.astype(np.int64))
+    return Background(x=x[order], y=y[order], sigma=sigma[order], amp=amp[order],
+                      contrast=float(contrast), origin=(x0, y0), cell=cell, grid=(ncy, ncx),
+                      cell_start=start)
 
 
 # ---------------------------------------------------------------------------------------
@@ -205,15 +208,24 @@ def _field_full(cx, cy, s, a, phi, gx, gy):
         x1 = min(w - 1, int(math.floor(cx[j] + r)))
         y0 = max(0, int(math.ceil(cy[j] - r)))
         y1 = min(h - 1, int(math.floor(cy[j] + r)))
+        if x1 < x0 or y1 < y0:
+            continue
         inv = 1.0 / (s[j] * s[j])
+        # the Gaussian is separable: one exp per column and per row, not per pixel
+        n = x1 - x0 + 1
+        ex = np.empty(n)
+        fx = np.empty(n)
+        for i in range(n):
+            ex[i] = x0 + i - cx[j]
+            fx[i] = math.exp(-0.5 * ex[i] * ex[i] * inv)
         for y in range(y0, y1 + 1):
             ey = y - cy[j]
-            for x in range(x0, x1 + 1):
-                ex = x - cx[j]
-                g = a[j] * math.exp(-0.5 * (ex * ex + ey * ey) * inv)
-                phi[y, x] += g
-                gx[y, x] -= g * ex * inv
-                gy[y, x] -= g * ey * inv
+            fy = a[j] * math.exp(-0.5 * ey * ey * inv)
+            for i in range(n):
+                g = fy * fx[i]
+                phi[y, x0 + i] += g
+                gx[y, x0 + i] -= g * ex[i] * inv
+                gy[y, x0 + i] -= g * ey * inv
 
 
 @njit(cache=True)
@@ -605,11 +617,19 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     xs_f, ys_f = xs.ravel(), ys.ravel()
 
+    still = bg.radiance(xs_f, ys_f)
+
     def radiance(t, pix=None):
+        # the puffs are cut off: where no puff reaches, d is exactly 0 and the pixel sees
+        # the still background (most of the sensor): only the others are rendered
         _, d = air.evaluate(t, pix)
-        if pix is None:
-            return bg.radiance(xs + d[..., 0], ys + d[..., 1])
-        return bg.radiance(xs_f[pix] + d[:, 0], ys_f[pix] + d[:, 1])
+        d = d.reshape(-1, 2)
+        idx = np.arange(h * w) if pix is None else np.asarray(pix)
+        out = still[idx]
+        moved = np.nonzero((d[:, 0] != 0) | (d[:, 1] != 0))[0]
+        out[moved] = bg.radiance(xs_f[idx[moved]] + d[moved, 0],
+                                 ys_f[idx[moved]] + d[moved, 1])
+        return out.reshape(h, w) if pix is None else out
 
     # frames: radiance averaged over the exposure, shot noise, gain, 8 bits
     n_exp = 1 if exposure_s == 0 else int(min(64, max(1, math.ceil(
