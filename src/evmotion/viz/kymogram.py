@@ -18,7 +18,8 @@ from evmotion.utils import atomic_path
 
 __all__ = ["kymogram_figure", "save_kymogram_png"]
 
-UNITS = {"events": "events / px / bin", "events signed": "polarity sum / px / bin"}
+UNITS = {"events": "events / px / bin", "events signed": "polarity sum / px / bin",
+         "frame differences": "|frame difference| [8-bit grey levels]"}
 
 
 def _axis_label(kymo: Kymogram) -> str:
