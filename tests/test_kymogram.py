@@ -325,7 +325,9 @@ def test_cli_from_q(tmp_path, capsys):
             tm = 0.5 * (a + b) * 1e-6
             q = np.exp(-0.5 * ((yy - starts[None, :] - v * tm) / 2.0) ** 2).sum(1)
             q = np.repeat(q[:, None], w, axis=1)
-            bw.append(np.zeros((h, w, 2)), int(a), int(b), q=q, p=np.zeros((h, w, 2)))
+            # flow (0, q): the |flow| kymogram is the q kymogram
+            flow = np.stack([np.zeros((h, w)), q], axis=-1)
+            bw.append(flow, int(a), int(b), q=q, p=np.zeros((h, w, 2)))
     rc, text, err = _cli(capsys, path, "--from", "q", "--col", 20, "--width", 3,
                          "--out", tmp_path / "q.png", "--json")
     assert rc == 0, err
@@ -337,6 +339,28 @@ def test_cli_from_q(tmp_path, capsys):
                          "--out", tmp_path / "q.png", "--json")
     assert rc == 0, err
     assert json.loads(text)["panels"][0]["velocity_px_s"] == pytest.approx(v, rel=0.01)
+    rc, text, err = _cli(capsys, path, "--from", "flow", "--col", 20, "--method", "ridge",
+                         "--out", tmp_path / "f.png", "--json")
+    assert rc == 0, err
+    pf = json.loads(text)["panels"][0]
+    assert pf["source"] == "|flow| px/s" and pf["velocity_px_s"] == pytest.approx(v, rel=0.01)
+
+
+def test_figure_checks_and_panels(tmp_path):
+    from evmotion.viz import read_png
+    from evmotion.viz.kymogram import kymogram_figure, save_kymogram_png
+
+    k, _ = _synthetic(-800.0, 0)
+    fit = fit_ridge(k)
+    with pytest.raises(ParameterError, match="as many fits"):
+        kymogram_figure([k, k], [fit])
+    with pytest.raises(ParameterError, match="at least one"):
+        kymogram_figure([])
+    save_kymogram_png(tmp_path / "one.png", k, fit,
+                      geometry={"focal_mm": 25.0, "distance_m": 1.7, "pixel_um": 4.86})
+    save_kymogram_png(tmp_path / "two.png", [k, k], [fit, None])
+    one, two = read_png(tmp_path / "one.png"), read_png(tmp_path / "two.png")
+    assert two.shape[1] > 1.8 * one.shape[1]
 
 
 @pytest.mark.parametrize("argv, match", [
