@@ -382,5 +382,5 @@ def test_cli_bad_options(tmp_path, capsys, argv, match):
         rc = exc.code
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2
-    assert match in err[-1]
+    assert len(err) == 1 and match in err[0]
     assert not (tmp_path / "k.png").exists()

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 
 EXAMPLES = """examples:
   evmotion kymogram scene/ --col 320 --width 9 --rate 1200 --out kymo.png
@@ -49,12 +50,19 @@ def _number(kind, lo=None, hi=None, lo_open: bool = False):
     return parse
 
 
+def _one_line_error(message: str) -> None:
+    # argparse prints the whole usage before its error: one line naming the option instead
+    print(f"evmotion kymogram: error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "kymogram", help="space-time plot along a line and velocimetry (ch. 6)",
         description=__doc__, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    p.error = _one_line_error
     p.add_argument("file", help="recording (events), or a BOS/flow HDF5 file with --from q|flow")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--line", nargs=4, type=_number(float), metavar=("X0", "Y0", "X1", "Y1"),
