@@ -248,3 +248,42 @@ def test_frames_container_checks():
     with pytest.raises(FormatError, match="duplicate"):
         Frames(np.zeros((2, 3, 3), np.uint8), [5, 5], source="x")
     assert np.isnan(Frames(np.zeros((1, 3, 3), np.uint8), [0]).fps)
+
+
+def test_published_bos_events(tmp_path):
+    """Events of the published layout (prophesee_0/events.hdf5, group raw_events) with
+    their frames: read, streamed, time-restricted, detected, described."""
+    import h5py
+
+    import evmotion.io as eio
+
+    seq = tmp_path / "hot_plate1"
+    imgs = _images(2, h=10, w=12)
+    _ccs(seq, imgs, "100 0 1\n8433 0 1\n")
+    rng = np.random.default_rng(1)
+    n = 1000
+    t = np.sort(rng.integers(0, 10_000, n))
+    x, y, p = rng.integers(0, 1280, n), rng.integers(0, 720, n), rng.integers(0, 2, n)
+    with h5py.File(seq / "prophesee_0" / "events.hdf5", "w") as f:
+        g = f.create_group("raw_events")
+        g["x"], g["y"] = x.astype(np.int16), y.astype(np.int16)
+        g["t"], g["p"] = t.astype(np.int64), p.astype(bool)
+    assert eio.detect_format(seq) == "ccs"
+    ev = eio.read_events(seq)
+    assert ev.sensor_size == (720, 1280) and len(ev) == n
+    np.testing.assert_array_equal(ev.x, x)
+    np.testing.assert_array_equal(ev.t, t)
+    np.testing.assert_array_equal(ev.p, p)
+    part = eio.read_events(seq, t0=2000, t1=5000)
+    np.testing.assert_array_equal(part.t, t[(t >= 2000) & (t < 5000)])
+    chunks = list(eio.iter_events(seq, 300))
+    assert [len(c) for c in chunks] == [300, 300, 300, 100]
+    fr = read_frames(seq)
+    assert fr.t.tolist() == [100, 8433]
+    assert len(eio.read_frames(seq / "prophesee_0" / "events.hdf5")) == 2
+    info = describe(seq)
+    assert info["format"] == "ccs" and info["n_events"] == n
+    assert info["frames_info"]["count"] == 2
+    with pytest.raises(FormatError, match="outside the 8x6 sensor") as e:
+        eio.read_events(seq, sensor_size=(6, 8))
+    _one_line(e, "events.hdf5")
