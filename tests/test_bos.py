@@ -166,11 +166,12 @@ def test_recovery_poisson_scale_term(case):
 
 def test_recovery_normalized_direction_and_rescale(case):
     ev, f0, f1, d, C = case
-    raw = estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, iterations=150)
+    kw = dict(t0_us=0, t1_us=DT_US, iterations=150, tol=0, dtype=np.float64)
+    raw = estimate_bos(ev, f0, **kw)
     assert not raw.calibrated and raw.scale == 1.0 and raw.contrast_threshold is None
     ae, _ = _errors(raw.flow, d)
     assert ae < 0.2
-    res = estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, contrast_threshold=C, iterations=150)
+    res = estimate_bos(ev, f0, contrast_threshold=C, **kw)
     assert res.calibrated
     _, ratio = _errors(res.flow, d)
     assert 0.8 < ratio < 1.15

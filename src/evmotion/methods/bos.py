@@ -33,8 +33,8 @@ Differences from the thesis, and why:
 * at the coarse scales the objective may be evaluated on block-pooled images
   (``BosOptions.pool``): pooling commutes with the gradient, so for a flow that is smooth
   over a block the pooled increment is the pooled frame's prediction; the finest scale
-  always runs on full-resolution pixels. With ``pool=(1, 1, 1, 1)`` and ``tol=0`` this is
-  the thesis' schedule exactly;
+  always runs on full-resolution pixels. With ``pool=None`` and ``tol=0`` this is the
+  thesis' schedule exactly;
 * crossing to a finer scale, q is doubled so that the flow (Sobel over the patch grid,
   whose spacing halves) is continuous.
 
@@ -76,7 +76,10 @@ _ADAM_B1, _ADAM_B2, _ADAM_EPS = 0.9, 0.999, 1e-8
 
 @dataclass(frozen=True)
 class BosOptions:
-    """Settings of :func:`estimate_bos` (defaults: the thesis' §6.4).
+    """Settings of :func:`estimate_bos` (defaults: the thesis' §6.4, plus pooled coarse
+    scales and a convergence stop, which reach the thesis' final objective to 0.1 % in
+    about a third of the time: ``benchmarks/results/bos.md``; ``pool=None, tol=0`` runs the
+    thesis' schedule exactly).
 
     Attributes
     ----------
@@ -103,12 +106,13 @@ class BosOptions:
         Gaussian sigmas (px) of the measured increment (2) and of the event histogram b (5).
     use_p : bool
         Estimate the translation field p (False: p = 0, the Table 6.5 ablation).
-    pool : tuple of int or None
-        Block pooling factor of the images at each scale (None: 1 everywhere). The last
-        scale is always solved at full resolution.
+    pool : tuple of int, "auto" or None
+        Block pooling factor of the images at each scale; "auto": each patch size over the
+        finest (64/32/16/8 -> 8, 4, 2, 1); None: 1 everywhere (the thesis). The last scale
+        is always solved at full resolution.
     tol : float
         Convergence stop: a scale ends when the objective fell by less than ``tol`` (relative)
-        over the last ``patience`` iterations. 0 runs every iteration.
+        over the last ``patience`` iterations. 0 runs every iteration (the thesis).
     patience : int
         Iterations of the convergence window.
     eps_data, eps_reg : float
@@ -136,8 +140,8 @@ class BosOptions:
     sigma_meas: float = 2.0
     sigma_weight: float = 5.0
     use_p: bool = True
-    pool: tuple[int, ...] | None = None
-    tol: float = 0.0
+    pool: tuple[int, ...] | str | None = "auto"
+    tol: float = 1e-3
     patience: int = 50
     eps_data: float = 1e-3
     eps_reg: float = 1e-4
@@ -184,7 +188,14 @@ class BosOptions:
     def pool_per_scale(self) -> tuple[int, ...]:
         """Pooling factor of each scale (the last is always 1)."""
         n = len(self.scales)
-        pool = (1,) * n if self.pool is None else tuple(int(k) for k in self.pool)
+        if self.pool is None:
+            pool = (1,) * n
+        elif isinstance(self.pool, str):
+            if self.pool != "auto":
+                raise ParameterError(f"pool must be 'auto', None or factors, got {self.pool!r}")
+            pool = tuple(max(1, s // self.scales[-1]) for s in self.scales)
+        else:
+            pool = tuple(int(k) for k in self.pool)
         if len(pool) != n or min(pool) < 1:
             raise ParameterError(f"pool must hold one factor >= 1 per scale ({n}), "
                                  f"got {self.pool!r}")
@@ -338,14 +349,27 @@ def event_sums(events: EventArray, roi=None, *, t0_us: int | None = None,
 
 def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_next: np.ndarray,
                                 *, t0_us: int, t1_us: int, roi=None, sigma: float = 1.0,
-                                log_eps: float | None = None) -> float:
+                                method: str = "rma", log_eps: float | None = None) -> float:
     """Contrast threshold C from two frames and the events between them.
 
-    Per pixel the log-frame difference ``D = L(t1) - L(t0)`` and the events' polarity sum
-    ``S`` obey ``C S = D + e``, where ``e`` (the pixel's leftover below threshold at both
-    ends) does not depend on D. So S is regressed on D (through the origin, Huber-reweighted,
-    both lightly smoothed with ``sigma``) over the pixels where |D| is in its top quarter:
-    selecting on the regressor does not bias the slope, and the slope is 1 / C.
+    Per pixel, the log-frame difference ``D = L(t1) - L(t0)`` and the events' polarity sum
+    ``S`` (both lightly smoothed with ``sigma``) obey ``C S ~ D`` over the pixels where |D|
+    is in its top quarter. Both are noisy measurements of the same change: D carries the
+    frames' noise, and S the leftover below threshold at both ends of the window, which
+    the sensor's hysteresis (a pixel must travel a full C back after an event) makes large
+    where the schlieren flickers by less than C. So the two one-sided regressions disagree:
+
+    * ``method="events"``: D regressed on S (the change per net event), close to the
+      sensor's nominal C where the changes are large against C (simulated plume, 3 px:
+      0.208-0.230 for C = 0.2), larger below;
+    * ``method="frames"``: S regressed on D (slope 1 / C; selecting on the regressor D does
+      not bias it), larger still where changes are small (0.37-0.57 for C = 0.2 at 1 px);
+    * ``method="rma"`` (default): their geometric mean, the reduced-major-axis slope that
+      treats both as noisy. It is the C that makes the scale-aware data term's magnitudes
+      right: on the simulated plume at 1 and 3 px, the median |v| ratio with it is
+      0.87-1.08 where the other two give 0.47-0.87 and 0.93-1.47.
+
+    Both regressions are Huber-reweighted (through the origin).
 
     Returns
     -------
@@ -356,7 +380,23 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
     ------
     EventDataError
         When the frames do not change where events fire (no slope to fit).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> f0 = rng.uniform(0.2, 1.0, (32, 32))
+    >>> d = rng.normal(0, 0.3, (32, 32))
+    >>> s = np.round(d / 0.15).astype(int)  # events of a sensor with C = 0.15
+    >>> ys, xs = np.nonzero(s)
+    >>> n = np.abs(s[ys, xs])
+    >>> ev = EventArray(x=np.repeat(xs, n), y=np.repeat(ys, n), t=np.zeros(n.sum(), int),
+    ...                 p=np.repeat(s[ys, xs] > 0, n), sensor_size=(32, 32))
+    >>> c = estimate_contrast_threshold(ev, f0, f0 * np.exp(d), t0_us=0, t1_us=1, sigma=0)
+    >>> round(c, 2)
+    0.15
     """
+    if method not in ("rma", "events", "frames"):
+        raise ParameterError(f"method must be 'rma', 'events' or 'frames', got {method!r}")
     sensor = events.sensor_size
     for name, f in (("frame", frame), ("frame_next", frame_next)):
         if np.shape(f) != tuple(sensor):
@@ -373,22 +413,32 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
         d = gaussian_filter(d, sigma, mode="nearest")
     sel = np.abs(d) >= np.quantile(np.abs(d), 0.75)
     dd, ss = d[sel], s[sel]
-    if dd.size < 16 or not np.any(dd):
+    if dd.size < 16 or not np.any(dd) or not np.any(ss):
         raise EventDataError("cannot estimate the contrast threshold: the two frames do not "
-                             "differ in the ROI (pass contrast_threshold)")
-    wts = np.ones_like(dd)
-    beta = 0.0
-    for _ in range(5):
-        beta = np.sum(wts * ss * dd) / np.sum(wts * dd * dd)
-        res = ss - beta * dd
-        scale = 1.4826 * np.median(np.abs(res)) + 1e-12
-        r = np.abs(res) / (1.345 * scale)
-        wts = np.where(r <= 1.0, 1.0, 1.0 / np.maximum(r, 1e-12))
-    if not beta > 0:
+                             "differ where events fire in the ROI (pass contrast_threshold)")
+    c_frames = 1.0 / _huber_slope(ss, dd)
+    c_events = _huber_slope(dd, ss)
+    if not (c_frames > 0 and c_events > 0):
         raise EventDataError(f"cannot estimate the contrast threshold: the events' polarity "
-                             f"sums do not follow the frames' log difference (slope {beta:g}; "
-                             "pass contrast_threshold)")
-    return float(1.0 / beta)
+                             f"sums do not follow the frames' log difference (slopes "
+                             f"{c_frames:.3g}, {c_events:.3g}; pass contrast_threshold)")
+    c = {"rma": np.sqrt(c_frames * c_events), "events": c_events, "frames": c_frames}[method]
+    return float(c)
+
+
+def _huber_slope(yv: np.ndarray, xv: np.ndarray, iters: int = 5) -> float:
+    """Slope of ``y ~ b x`` through the origin, Huber-reweighted (k = 1.345 MAD)."""
+    wts = np.ones_like(xv)
+    beta = 0.0
+    for _ in range(iters):
+        den = np.sum(wts * xv * xv)
+        if den <= 0:
+            return 0.0
+        beta = np.sum(wts * yv * xv) / den
+        res = yv - beta * xv
+        r = np.abs(res) / (1.345 * (1.4826 * np.median(np.abs(res)) + 1e-12))
+        wts = np.where(r <= 1.0, 1.0, 1.0 / np.maximum(r, 1e-12))
+    return float(beta)
 
 
 # --------------------------------------------------------------------------- model
