@@ -61,7 +61,7 @@ def main(quick: bool = False) -> list[dict]:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     harness.record("bos_sim", rows, notes=(
         f"one core; 720x640: {big} frame intervals at 120 fps, 96x96: 12 intervals; "
-        f"magnitude 2 px (largest inter-frame displacement), default dots (0.08 /px², "
+        f"magnitude 2 px (largest inter-frame displacement), default dots (0.06 /px², "
         f"radius 1 px), exposure half the frame period, C = 0.2; load average {load:.1f} "
         "at the end (shared machine: CPU seconds are the steadier figure)."))
     return rows

@@ -78,7 +78,7 @@ def add_parser(sub) -> None:
                    help="grey levels per photon (default 255/photons)")
     g.add_argument("--exposure", type=float, default=None,
                    help="exposure, s (default half the frame period)")
-    g.add_argument("--dot-density", type=float, default=0.08, help="dots per px² (0.08)")
+    g.add_argument("--dot-density", type=float, default=0.06, help="dots per px² (0.06)")
     g.add_argument("--dot-radius", type=float, default=1.0, help="dot radius, px (1.0)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)

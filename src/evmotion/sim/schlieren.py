@@ -56,7 +56,7 @@ __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim
 BOS_SCENES = {
     "plume": "rising thermal plume from a hot plate at the bottom (natural convection)",
     "jet": "turbulent hot-air jet from a hair dryer at the left (forced convection)",
-    "breath": "breath puffs from a mouth at the left, decelerating and spreading",
+    "breath": "pulsed breath from a mouth at the left: eddies decelerating and spreading",
     "ice": "cold air stream falling from crushed ice at the top (negative density)",
 }
 GT_FORMAT = "evmotion-schlieren-gt"
@@ -135,7 +135,7 @@ class Background:
         return 1.0 - self.contrast * (1.0 - np.exp(-dark))
 
 
-def make_background(sensor_size: tuple[int, int], *, density: float = 0.08,
+def make_background(sensor_size: tuple[int, int], *, density: float = 0.06,
                     radius_px: float = 1.0, contrast: float = 0.85, margin_px: float = 8.0,
                     seed: int = 0) -> Background:
     """Random dots over the sensor plus a margin (points displaced off the sensor still
@@ -146,7 +146,7 @@ def make_background(sensor_size: tuple[int, int], *, density: float = 0.08,
     sensor_size : (int, int)
         ``(height, width)``.
     density : float
-        Dots per px² (0.08 with radius 1 px darkens about a quarter of the area).
+        Dots per px² (0.06 with radius 1 px darkens about a third of the area).
     radius_px : float
         Mean dot radius (px) in the image; radii vary uniformly by ±25 %. The printed
         disc of radius r is modelled as a Gaussian of σ = r / 1.2, widened by the pixel box.
@@ -261,8 +261,9 @@ class PuffField:
     from ``p0`` (px) with initial velocity ``v0`` (px/s), drag time ``drag`` (s, 0 for
     none), acceleration ``acc`` (px/s²) and a sideways wobble; width ``s0`` growing by
     ``grow`` per px travelled; amplitude ``amp`` faded in/out over ``fade_in``/``fade_out``
-    (s) within the life ``life`` (s). ``gain`` scales ``φ`` (px², so that ``∇φ`` is the
-    displacement in px)."""
+    (s) within the life ``life`` (s), and by ``(s0 / s) ** dilute`` as it spreads (2: its
+    integral is kept). ``gain`` scales ``φ`` (px², so that ``∇φ`` is the displacement in
+    px)."""
 
     sensor_size: tuple[int, int]
     birth: np.ndarray
@@ -279,6 +280,7 @@ class PuffField:
     wobble_amp: np.ndarray
     wobble_freq: np.ndarray
     wobble_phase: np.ndarray
+    dilute: np.ndarray | None = None
     gain: float = 1.0
 
     def puffs_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -300,6 +302,8 @@ class PuffField:
         s = self.s0[live] + self.grow[live] * np.hypot(path[:, 0], path[:, 1])
         env = (_smooth(age / self.fade_in[live])
                * _smooth((self.life[live] - age) / self.fade_out[live]))
+        if self.dilute is not None:  # a spreading puff keeps its heat: peak ~ (s0 / s)^k
+            env = env * (self.s0[live] / s) ** self.dilute[live]
         a = self.gain * self.amp[live] * env
         keep = a != 0
         return (np.ascontiguousarray(pos[keep, 0]), np.ascontiguousarray(pos[keep, 1]),
@@ -364,25 +368,29 @@ def _scene_table(scene: str, sensor_size, duration_s: float, speed: float, rng) 
                    wobble_freq=rng.uniform(2.0, 6.0, n) * speed / w,
                    wobble_phase=rng.uniform(0, 2 * np.pi, n))
     elif scene == "breath":
-        s0 = 0.015 * u + 3.0
-        drag = 0.5 * w / speed
-        life = 3.0 * drag
-        period, exhale = 0.9, 0.3
-        starts = np.arange(-period * math.ceil(life / period) - 0.1, duration_s, period)
-        per = [births(t, t + exhale, 0.6 * s0 / speed) for t in starts]
+        # a pulsed, decelerating turbulent jet of warm air: eddies of both signs (mostly
+        # warm) that spread and thin out, so no warm lump piles up in front of the mouth
+        s0 = 0.01 * u + 2.5
+        drag = 0.8 * w / speed
+        life = 2.0 * drag
+        # exhaling 1 s of every 2.5 s; the first exhale began 0.5 s before the recording
+        period, exhale = 2.5, 1.0
+        starts = np.arange(-0.5 - period * math.ceil(life / period), duration_s, period)
+        per = [births(t, t + exhale, 0.8 * s0 / speed) for t in starts]
         b = np.concatenate(per)
         phase = np.concatenate([(bb - t) / exhale for t, bb in zip(starts, per, strict=True)])
         n = b.size
-        theta = np.deg2rad(20.0) + rng.normal(0, 0.08, n)
-        v = speed * (0.3 + 0.7 * np.sin(np.pi * np.clip(phase, 0, 1)))
-        tab.update(p0=np.stack([np.full(n, 0.08 * w), np.full(n, 0.4 * h)], 1),
+        theta = np.deg2rad(20.0) + rng.normal(0, 0.15, n)
+        v = speed * (0.5 + 0.5 * np.sin(np.pi * np.clip(phase, 0, 1))) * rng.uniform(0.8, 1.2, n)
+        tab.update(p0=np.stack([np.full(n, 0.08 * w), 0.4 * h + rng.normal(0, s0, n)], 1),
                    v0=np.stack([v * np.cos(theta), v * np.sin(theta)], 1),
                    acc=np.zeros((n, 2)), drag=np.full(n, drag),
-                   s0=s0 * rng.uniform(0.7, 1.3, n), grow=np.full(n, 0.25),
-                   amp=rng.uniform(0.5, 1.0, n), life=np.full(n, life),
-                   fade_in=np.full(n, 0.05 * life), fade_out=np.full(n, 0.5 * life),
-                   wobble_amp=np.full(n, 0.04 * h),
-                   wobble_freq=rng.uniform(1.0, 3.0, n) * speed / w,
+                   s0=s0 * rng.uniform(0.7, 1.3, n), grow=np.full(n, 0.12),
+                   dilute=np.full(n, 1.0),
+                   amp=rng.uniform(0.5, 1.0, n) * np.where(rng.random(n) < 0.7, 1.0, -1.0),
+                   life=np.full(n, life), fade_in=np.full(n, 0.12 * life),
+                   fade_out=np.full(n, 0.5 * life), wobble_amp=np.full(n, 0.06 * h),
+                   wobble_freq=rng.uniform(2.0, 5.0, n) * speed / w,
                    wobble_phase=rng.uniform(0, 2 * np.pi, n))
     elif scene == "ice":
         s0 = 0.012 * u + 2.5
@@ -504,7 +512,7 @@ def _num(name, value, lo, hi=math.inf, lo_open=False):
 
 def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720, 640),
                        duration_s: float = 0.1, fps: float = 120.0, seed: int = 0, *,
-                       magnitude_px: float = 1.0, dot_density: float = 0.08,
+                       magnitude_px: float = 1.0, dot_density: float = 0.06,
                        dot_radius_px: float = 1.0, dot_contrast: float = 0.85,
                        speed_px_s: float | None = None, photons: float | None = None,
                        gain: float | None = None, exposure_s: float | None = None,
