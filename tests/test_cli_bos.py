@@ -170,3 +170,21 @@ def _small_frames(tmp_path):
         lines.append(f"{i / 120:.6f} {name}\n")
     (d / "images.txt").write_text("".join(lines))
     return d
+
+
+def test_workers_give_the_cold_start_solutions(scene, tmp_path, capsys):
+    # two workers: two chunks of one interval each, both started cold, so each equals a
+    # one-worker run of that interval alone
+    out2 = tmp_path / "w2.h5"
+    rc, _, err = _run(["bos", scene, "--workers", 2, "--iterations", 20, "--out", out2], capsys)
+    assert rc == 0, err
+    two = read_bos_h5(out2)
+    assert len(two) == 2
+    for k, t0 in enumerate(two.flow.t0):
+        out1 = tmp_path / f"w1_{k}.h5"
+        rc, _, err = _run(["bos", scene, "--t0", t0, "--max-intervals", 1, "--iterations", 20,
+                           "--out", out1], capsys)
+        assert rc == 0, err
+        one = read_bos_h5(out1)
+        np.testing.assert_allclose(one.flow.flow[0], two.flow.flow[k], rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(one.q[0], two.q[k], rtol=1e-5, atol=1e-3)
