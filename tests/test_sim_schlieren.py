@@ -300,12 +300,13 @@ def test_cli_simulate_schlieren(tmp_path, capsys):
     out = tmp_path / "jet"
     rc = main(["simulate", "schlieren", "--scene", "jet", "--size", "40x48", "--duration",
                str(2 / 120), "--magnitude", "2", "--photons", "30", "--seed", "4", "--json",
-               "--out", str(out)])
+               "--event-photons", "500", "--out", str(out)])
     summary = json.loads(capsys.readouterr().out)
     assert rc == 0 and summary["scene"] == "jet" and summary["n_frames"] == 3
     gt = read_schlieren_gt(out)
     assert gt.flow.shape == (2, 40, 48, 2) and gt.meta["photons"] == 30
     assert gt.meta["seed"] == 4 and gt.meta["magnitude_px"] == 2
+    assert gt.meta["event_photons"] == 500
     assert read_frames(out).images.shape == (3, 40, 48)
     rc = main(["simulate", "schlieren", "--height", "32", "--width", "36", "--duration",
                str(1 / 120), "--out", str(tmp_path / "p")])
@@ -317,3 +318,25 @@ def test_cli_simulate_schlieren(tmp_path, capsys):
     assert rc == 2 and "--scene must be one of" in err and err.count("\n") == 1
     rc = main(["simulate", "rotation", "--scene", "jet", "--out", str(tmp_path / "r.h5")])
     assert rc == 2 and "--scene is for" in capsys.readouterr().err
+
+
+def test_event_shot_noise_grows_as_light_falls():
+    kw = dict(sensor_size=(48, 128), duration_s=3 / 120, seed=0, magnitude_px=1.0)
+    base = simulate_schlieren("plume", **kw)
+    still = np.linalg.norm(base.gt.displacement, axis=-1).max(axis=0) == 0
+    assert still.mean() > 0.1
+    counts = []
+    for ep in (1e6, 1e3, 100.0, 20.0):
+        ev = simulate_schlieren("plume", event_photons=ep, **kw).events
+        counts.append((len(ev), int(still[ev.y, ev.x].sum())))
+    assert still[base.events.y, base.events.x].sum() == 0  # no air, no light change
+    assert abs(counts[0][0] - len(base.events)) < 0.05 * len(base.events)
+    assert counts[0][1] == 0
+    n_still = [c[1] for c in counts]
+    assert n_still == sorted(n_still) and n_still[-1] > 5 * max(n_still[1], 1)
+    # the noise is a function of time: the same seed gives the same events
+    a = simulate_schlieren("plume", event_photons=100.0, **kw).events
+    b = simulate_schlieren("plume", event_photons=100.0, **kw).events
+    np.testing.assert_array_equal(a.t, b.t)
+    with pytest.raises(ParameterError, match="event_photons"):
+        simulate_schlieren("plume", event_photons=0.0, **kw)

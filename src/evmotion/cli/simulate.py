@@ -76,6 +76,11 @@ def add_parser(sub) -> None:
                    help="photons of a white pixel per frame: shot noise (low light: a few)")
     g.add_argument("--gain", type=float, default=None,
                    help="grey levels per photon (default 255/photons)")
+    g.add_argument("--event-photons", type=float, default=None,
+                   help="photons of a white event pixel per --event-tau-us: shot noise in "
+                        "the events (low light); default none")
+    g.add_argument("--event-tau-us", type=int, default=1000,
+                   help="time constant of the events' shot noise, us (1000)")
     g.add_argument("--exposure", type=float, default=None,
                    help="exposure, s (default half the frame period)")
     g.add_argument("--dot-density", type=float, default=0.06, help="dots per px² (0.06)")
@@ -143,7 +148,8 @@ def run_schlieren(args) -> int:
                              photons=args.photons, gain=args.gain, exposure_s=args.exposure,
                              contrast_threshold=args.threshold, mismatch=args.mismatch,
                              refractory_us=args.refractory_us, noise_rate=args.noise_rate,
-                             show_progress=not args.json)
+                             event_photons=args.event_photons,
+                             event_tau_us=args.event_tau_us, show_progress=not args.json)
     gt_path = write_schlieren(sim, args.out)
     if args.json:
         print_json({"scene": scene, "out": str(args.out), "gt_file": str(gt_path),

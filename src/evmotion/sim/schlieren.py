@@ -518,6 +518,7 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
                        gain: float | None = None, exposure_s: float | None = None,
                        contrast_threshold: float = 0.2, mismatch: float = 0.03,
                        refractory_us: int = 0, noise_rate: float = 0.0,
+                       event_photons: float | None = None, event_tau_us: int = 1000,
                        max_step_px: float = 0.25, max_step_fraction: float = 0.5,
                        show_progress: bool = False) -> SchlierenSim:
     """Simulate an event camera and a frame camera watching a BOS scene.
@@ -554,6 +555,17 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
         ``max_step_px`` between them).
     contrast_threshold, mismatch, refractory_us, noise_rate
         Event sensor (:func:`evmotion.sim.simulator.simulate_log_function`).
+    event_photons : float, optional
+        Low light for the events: expected photons of a white pixel of the event sensor
+        per ``event_tau_us``. The log intensity the sensor sees then carries shot noise,
+        a Gaussian of standard deviation ``1 / sqrt(event_photons * I)`` drawn
+        independently every ``event_tau_us`` (the photoreceptor's time constant) and
+        linear in between, so dark dots and dim scenes fire noise events. None: no
+        shot noise (bright light). Independent of the frames' ``photons`` (two sensors
+        behind a beam splitter); e.g. ``photons * event_tau_us * 1e-6 / exposure_s``
+        gives both the same illumination.
+    event_tau_us : int
+        Time constant of the event pixels' shot noise, µs.
     max_step_px : float
         Largest displacement change between full samples of the radiance for the events
         and within the exposure, px.
@@ -599,6 +611,9 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     elif gain is not None:
         raise ParameterError("gain needs photons (shot-noise mode)")
     max_step_px = _num("max_step_px", max_step_px, 0.0, 2.0, lo_open=True)
+    if event_photons is not None:
+        event_photons = _num("event_photons", event_photons, 0.0, 1e12, lo_open=True)
+    event_tau_us = int(_num("event_tau_us", event_tau_us, 1.0, 1e6))
 
     t_us = np.round(np.arange(n_frames) * 1e6 / fps).astype(np.int64)
     t_s = t_us * 1e-6
@@ -658,9 +673,29 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
 
     # events from the log of the same radiance, every frame time a sample time
     max_step_us = int(min(t_us[1] - t_us[0], max(1.0, 1e6 * max_step_px / max(vmax, 1e-9))))
+    if event_photons is not None:
+        max_step_us = min(max_step_us, event_tau_us)
+    knots: dict = {}
+
+    def shot(k: int) -> np.ndarray:
+        """Standard normals of every pixel at noise knot ``k`` (seeded by k, so any time
+        is reproducible whatever order the sampler asks in); the last few are kept."""
+        if k not in knots:
+            if len(knots) >= 4:
+                knots.pop(next(iter(knots)))
+            rng = np.random.default_rng(np.random.SeedSequence([seed, 0xE7E, k]))
+            knots[k] = rng.standard_normal(h * w)
+        return knots[k]
 
     def log_at(t, pix):
-        return np.log(radiance(t * 1e-6, pix))
+        rad = radiance(t * 1e-6, pix)
+        if event_photons is None:
+            return np.log(rad)
+        k, r = divmod(int(t), event_tau_us)
+        a = r / event_tau_us
+        sel = slice(None) if pix is None else pix
+        z = ((1 - a) * shot(k)[sel] + a * shot(k + 1)[sel]).reshape(rad.shape)
+        return np.log(rad) + z / np.sqrt(event_photons * rad)
 
     res = simulate_log_function(log_at, (h, w), int(t_us[-1]), breaks_us=t_us,
                                 max_step_us=max_step_us, threshold=contrast_threshold,
@@ -678,7 +713,8 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
             "dot_contrast": float(dot_contrast), "n_dots": int(bg.x.size),
             "field_gain_px2": air.gain, "n_puffs": int(air.birth.size),
             "max_flow_px_s": vmax, "mismatch": float(mismatch),
-            "refractory_us": int(refractory_us), "noise_rate": float(noise_rate)}
+            "refractory_us": int(refractory_us), "noise_rate": float(noise_rate),
+            "event_photons": event_photons, "event_tau_us": event_tau_us}
     if scene == "plume":
         meta["rise_speed_px_s"] = float(-air.v0[0, 1])
         meta["plume_axis_x_px"] = w / 2
