@@ -78,8 +78,9 @@ def add_parser(sub) -> None:
     p.add_argument("--contrast-threshold", type=_number(float, lo=0,
                                                         hi=10, lo_open=True),
                    default=None, metavar="C",
-                   help="event contrast threshold C in log intensity (default: estimated "
-                        "from the frames bracketing each interval)")
+                   help="event contrast threshold C in log intensity (default: the median "
+                        "of the estimates from the frames bracketing up to 15 intervals); "
+                        "give it for dark, noisy frames")
     p.add_argument("--iterations", type=_number(int, lo=1, hi=100_000),
                    default=None, metavar="N",
                    help="Adam iterations per scale (default: the solver's, thesis 600)")
@@ -119,32 +120,6 @@ def _check_out(out: Path) -> None:
         raise FormatError(out, f"cannot write the output: {exc.strerror}") from None
 
 
-def _solve(data, args) -> list:
-    """One BosResult per selected frame interval: warm-started in order with one worker
-    (progress per interval), in ``--workers`` contiguous chunks otherwise."""
-    from evmotion.methods.bos import estimate_bos, estimate_bos_sequence
-    from evmotion.utils import progress
-
-    opts = {"param": args.param, "data_term": args.data_term,
-            "contrast_threshold": args.contrast_threshold, "seed": args.seed}
-    if args.iterations is not None:
-        opts["iterations"] = args.iterations
-    first, last = int(data.intervals[0, 0]), int(data.intervals[-1, 0]) + 1
-    frames = data.frames[first:last + 1]
-    times = data.frame_times[first:last + 1]
-    if args.workers > 1:
-        return estimate_bos_sequence(data.events, frames, times, roi=data.roi,
-                                     workers=args.workers, progress=True, **opts)
-    results, prev = [], None
-    for k in progress(range(len(times) - 1), total=len(times) - 1, desc="bos",
-                      unit="interval"):
-        prev = estimate_bos(data.events, frames[k], t0_us=int(times[k]),
-                            t1_us=int(times[k + 1]), frame_next=frames[k + 1], roi=data.roi,
-                            init=prev, **opts)
-        results.append(prev)
-    return results
-
-
 def run(args) -> int:
     import numpy as np
 
@@ -152,6 +127,7 @@ def run(args) -> int:
     from evmotion.errors import ParameterError
     from evmotion.io.bosfiles import BosWriter
     from evmotion.io.bosinput import load_bos_input
+    from evmotion.methods.bos_run import solve_bos_input
 
     out = Path(args.out)
     _check_out(out)
@@ -160,11 +136,16 @@ def run(args) -> int:
     t_start = time.perf_counter()
     data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi, t0=args.t0,
                           t1=args.t1, max_intervals=args.max_intervals)
-    results = _solve(data, args)
+    opts = {"param": args.param, "data_term": args.data_term, "seed": args.seed}
+    if args.iterations is not None:
+        opts["iterations"] = args.iterations
+    run_ = solve_bos_input(data, workers=args.workers, progress=True,
+                           contrast_threshold=args.contrast_threshold, **opts)
+    results = run_.results
     attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
              "seed": args.seed, "source": data.source,
-             "contrast_threshold_option": -1.0 if args.contrast_threshold is None
-             else args.contrast_threshold}
+             "contrast_threshold": -1.0 if run_.contrast_threshold is None
+             else run_.contrast_threshold, "contrast_threshold_source": run_.c_source}
     rows = []
     png_files: list[str] = []
     with BosWriter(out, data.events.sensor_size, roi=data.roi, attrs=attrs) as bw:
@@ -193,6 +174,8 @@ def run(args) -> int:
     if args.json:
         print_json({"rec": str(args.rec), "out": str(out), "param": args.param,
                     "data_term": args.data_term, "roi": list(data.roi) if data.roi else None,
+                    "contrast_threshold": run_.contrast_threshold,
+                    "contrast_threshold_source": run_.c_source,
                     "sensor_size": list(data.events.sensor_size),
                     "n_intervals": len(rows), "windows": rows, "pngs": png_files,
                     "seconds": seconds})
