@@ -287,3 +287,25 @@ def test_published_bos_events(tmp_path):
     with pytest.raises(FormatError, match="outside the 8x6 sensor") as e:
         eio.read_events(seq, sensor_size=(6, 8))
     _one_line(e, "events.hdf5")
+
+
+def test_video_with_timestamps(tmp_path):
+    cv2 = pytest.importorskip("cv2")
+    path = tmp_path / "frames.avi"
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 120, (32, 24),
+                         isColor=False)
+    levels = [0, 40, 80, 120, 160]
+    for v in levels:
+        vw.write(np.full((24, 32), v, np.uint8))
+    vw.release()
+    with pytest.raises(FormatError, match="video frames need timestamps") as e:
+        read_frames(path)
+    _one_line(e, "frames.avi")
+    (tmp_path / "frames.txt").write_text("".join(f"{i * 8.333:.3f}\n" for i in range(5)))
+    fr = read_frames(path, time_unit="ms")
+    assert fr.images.shape == (5, 24, 32) and fr.t.tolist()[:2] == [0, 8333]
+    np.testing.assert_allclose(fr.images.mean(axis=(1, 2)), levels, atol=2)
+    assert describe_frames(path, time_unit="ms")["count"] == 5
+    (tmp_path / "frames.txt").write_text("0\n1\n")
+    with pytest.raises(FormatError, match="2 timestamps but 5 frames"):
+        read_frames(path)

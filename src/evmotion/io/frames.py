@@ -10,7 +10,7 @@ timestamps (int64 µs). :func:`read_frames` reads it from
   sequence folder with the frames as images in a sub-folder and their trigger times in
   a text file;
 * a folder of images plus a timestamps file (one time per line in the images' name
-  order, or ``t path`` lines).
+  order, or ``t path`` lines), or a video file with a timestamps file.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".pp
 TIMESTAMP_FILES = ("timestamps.txt", "times.txt", "frame_timestamps.txt",
                    "image_timestamps.txt", "timestamps.csv")
 TIME_UNITS = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov")
 CCS_SENSOR_SIZE = (720, 1280)  # Prophesee Gen4 of the published BOS recordings
 
 
@@ -285,6 +286,21 @@ def _ccs_triggers(path: Path) -> np.ndarray:
     return arr[arr[:, 2] == 1, 0]
 
 
+def _video_timestamps(video: Path, timestamps) -> Path:
+    """The timestamps file of a video: given, or ``<stem>.txt``, ``<stem>_timestamps.txt``
+    or ``timestamps.txt`` beside it."""
+    if timestamps is not None:
+        ts = Path(timestamps)
+        if not ts.is_file():
+            raise FormatError(ts, "timestamps file not found")
+        return ts
+    for name in (f"{video.stem}.txt", f"{video.stem}_timestamps.txt", "timestamps.txt"):
+        if (video.parent / name).is_file():
+            return video.parent / name
+    raise FormatError(video, f"video frames need timestamps: give a timestamps file or put "
+                      f"{video.stem}.txt (one time per frame) beside it")
+
+
 def _is_ccs(folder: Path) -> bool:
     return (folder / "basler_0").is_dir() and \
         (folder / "prophesee_0" / "trigger_events.txt").is_file()
@@ -376,7 +392,8 @@ def _from_module(path: Path) -> Frames:
 
 def find_frames(path: str | os.PathLike, timestamps: str | os.PathLike | None = None) -> str:
     """Which frame layout :func:`read_frames` sees at ``path``: ``ecd``, ``ccs`` (the
-    published BOS data), ``folder`` (images + timestamps file) or ``recording`` (an event
+    published BOS data), ``folder`` (images + timestamps file), ``video`` (a video
+    file + timestamps file) or ``recording`` (an event
     file that holds frames, e.g. AEDAT4). Raises :class:`FormatError` if none."""
     path = Path(path)
     if not path.exists():
@@ -384,6 +401,8 @@ def find_frames(path: str | os.PathLike, timestamps: str | os.PathLike | None = 
     if path.is_file():
         if path.name == "images.txt":
             return "ecd"
+        if path.suffix.lower() in VIDEO_SUFFIXES:
+            return "video"
         return "recording"
     if (path / "images.txt").is_file():
         return "ecd"
@@ -418,10 +437,13 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
           timestamps file (``timestamps``, or one of ``timestamps.txt``, ``times.txt``,
           ``frame_timestamps.txt``, ``image_timestamps.txt``, ``timestamps.csv``
           inside): one time per line in name order, or ``t path`` lines;
+        * a video file (.mp4, .avi, .mkv, .mov; decoded with OpenCV, grey) with a
+          timestamps file (``timestamps``, or ``<stem>.txt``, ``<stem>_timestamps.txt``,
+          ``timestamps.txt`` beside it), one time per frame;
         * an event recording holding frames (AEDAT4 DAVIS APS frames, evmotion or MVSEC
           HDF5...).
     timestamps : path-like, optional
-        Timestamps file of an image folder.
+        Timestamps file of an image folder or a video.
     time_unit : str
         Unit of the times in a timestamps file: ``s`` (default), ``ms``, ``us``, ``ns``.
     sensor_size : (int, int), optional
@@ -449,6 +471,15 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
         return _read_ccs(path, sensor_size, warp)
     elif kind == "none":
         raise FormatError(path, "holds no frames (no images.txt)")
+    elif kind == "video":
+        ts = _video_timestamps(path, timestamps)
+        t, _ = _parse_timestamps(ts, time_unit)
+        images = _read_video(path)
+        if images.shape[0] != t.size:
+            raise FormatError(ts, f"{t.size} timestamps but {images.shape[0]} frames in "
+                              f"{path.name}")
+        _check_times(t, ts)
+        return Frames(images, t, source=str(path), bit_depth=8)
     elif kind == "folder":
         ts = Path(timestamps) if timestamps is not None else next(
             path / n for n in TIMESTAMP_FILES if (path / n).is_file())
@@ -494,10 +525,10 @@ def describe_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | 
     kind = find_frames(path, timestamps)
     if kind == "none":
         return None
-    if kind == "recording":
-        if path.suffix.lower() != ".aedat4":
+    if kind in ("recording", "video"):
+        if kind == "recording" and path.suffix.lower() != ".aedat4":
             return None
-        fr = read_frames(path)
+        fr = read_frames(path, timestamps=timestamps, time_unit=time_unit)
         if not len(fr):
             return None
         t, size, depth = fr.t, fr.sensor_size, fr.bit_depth
