@@ -306,6 +306,7 @@ def test_video_with_timestamps(tmp_path):
     assert fr.images.shape == (5, 24, 32) and fr.t.tolist()[:2] == [0, 8333]
     np.testing.assert_allclose(fr.images.mean(axis=(1, 2)), levels, atol=2)
     assert describe_frames(path, time_unit="ms")["count"] == 5
+    assert describe(path)["format"] == "frames"  # evmotion info on a video
     (tmp_path / "frames.txt").write_text("0\n1\n")
     with pytest.raises(FormatError, match="2 timestamps but 5 frames"):
         read_frames(path)

@@ -408,7 +408,7 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     >>> describe("boxes_rotation/")["n_events"]  # doctest: +SKIP
     30000
     """
-    from evmotion.io.frames import describe_frames
+    from evmotion.io.frames import VIDEO_SUFFIXES, describe_frames
 
     path = Path(path)
     try:
@@ -416,7 +416,8 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     except FormatError:
         flow = _describe_flow(path) if format is None else None
         if flow is None:
-            frames = describe_frames(path) if format is None and path.is_dir() else None
+            frames = describe_frames(path) if format is None and (
+                path.is_dir() or path.suffix.lower() in VIDEO_SUFFIXES) else None
             if frames is None:
                 raise
             return {"path": str(path), "format": "frames", "frames_info": frames}
