@@ -79,10 +79,11 @@ def _bg_kernel(sx, sy, dx, dy, inv2s2, amp, r2max, cell_start, gx0, gy0, cs, ncx
         cx = int(math.floor((px - gx0) / cs))
         cy = int(math.floor((py - gy0) / cs))
         dark = 0.0
-        for jy in range(max(cy - 1, 0), min(cy + 2, ncy)):
+        # cells are half the cut-off radius: the 5x5 cells around the point cover it
+        for jy in range(max(cy - 2, 0), min(cy + 3, ncy)):
             row = jy * ncx
-            for k in range(cell_start[row + max(cx - 1, 0)],
-                           cell_start[row + min(cx + 2, ncx)]):
+            for k in range(cell_start[row + max(cx - 2, 0)],
+                           cell_start[row + min(cx + 3, ncx)]):
                 ex = px - dx[k]
                 ey = py - dy[k]
                 r2 = ex * ex + ey * ey
@@ -181,7 +182,7 @@ def make_background(sensor_size: tuple[int, int], *, density: float = 0.06,
     r = radius_px * (0.75 + 0.5 * rng.random(n))
     sigma = np.sqrt((r / 1.2) ** 2 + 1.0 / 12.0)
     amp = np.full(n, DOT_PEAK)
-    cell = float(max(1.0, DOT_CUTOFF * sigma.max(initial=1.0)))
+    cell = float(max(0.5, 0.5 * DOT_CUTOFF * sigma.max(initial=1.0)))
     ncx, ncy = int(math.ceil(ww / cell)) + 1, int(math.ceil(hh / cell)) + 1
     cid = (np.floor((y - y0) / cell).astype(np.int64) * ncx
            + np.floor((x - x0) / cell).astype(np.int64))
