@@ -260,3 +260,47 @@ def test_sequence_warm_start_and_chunks():
     np.testing.assert_array_equal(cold[1].flow, second.flow)
     with pytest.raises(ParameterError, match="timestamps"):
         estimate_bos_sequence(ev, frames, [0, 5, 5], **kw)
+
+
+@pytest.fixture(scope="module")
+def sim_ice():
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    return simulate_schlieren("ice", sensor_size=(240, 216), duration_s=2 / 120,
+                              magnitude_px=2.0, seed=0)
+
+
+def _sim_gt(sim, k):
+    """The simulator's flow over interval k in px, as the apparent motion of the pattern
+    (the LEGM's sign: the frame change follows -grad L . v dt)."""
+    from evmotion.methods.bos import log_frame
+
+    fr, t = sim.frames.images, sim.frames.t
+    gt = sim.gt.flow[k] * (t[k + 1] - t[k]) * 1e-6
+    gy, gx = np.gradient(log_frame(fr[k]))
+    sign = np.sign(np.sum(-(gx * gt[..., 0] + gy * gt[..., 1])
+                          * (log_frame(fr[k + 1]) - log_frame(fr[k]))))
+    return sign * gt
+
+
+def test_simulator_contrast_threshold_and_magnitude(sim_ice):
+    """On the schlieren simulator: C within 10 % of the sensor's ('events') and the
+    scale-aware term's median |v|/|v_gt| within [0.85, 1.15]."""
+    sim = sim_ice
+    fr, t = sim.frames.images, sim.frames.t
+    t0, t1 = int(t[1]), int(t[2])
+    c_ev = estimate_contrast_threshold(sim.events, fr[1], fr[2], t0_us=t0, t1_us=t1,
+                                       method="events")
+    assert c_ev == pytest.approx(sim.gt.contrast_threshold, rel=0.10)
+    res = estimate_bos(sim.events, fr[1], t0_us=t0, t1_us=t1, frame_next=fr[2],
+                       data_term="scale")
+    gt = _sim_gt(sim, 1)
+    win = sim.events.slice_time(t0, t1)
+    m = np.zeros(gt.shape[:2], bool)
+    m[win.y, win.x] = True
+    m &= np.hypot(gt[..., 0], gt[..., 1]) > 0.05
+    est = res.flow * (t1 - t0) * 1e-6
+    ratio = np.median(np.hypot(est[..., 0], est[..., 1])[m] / np.hypot(gt[..., 0], gt[..., 1])[m])
+    assert 0.85 < ratio < 1.15
+    cos = np.sum(est * gt, -1)[m] / (np.hypot(*est[m].T) * np.hypot(*gt[m].T) + 1e-12)
+    assert np.arccos(np.clip(cos, -1, 1)).mean() < 0.42

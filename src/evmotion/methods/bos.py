@@ -353,23 +353,23 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
     """Contrast threshold C from two frames and the events between them.
 
     Per pixel, the log-frame difference ``D = L(t1) - L(t0)`` and the events' polarity sum
-    ``S`` (both lightly smoothed with ``sigma``) obey ``C S ~ D`` over the pixels where |D|
-    is in its top quarter. Both are noisy measurements of the same change: D carries the
-    frames' noise, and S the leftover below threshold at both ends of the window, which
-    the sensor's hysteresis (a pixel must travel a full C back after an event) makes large
-    where the schlieren flickers by less than C. So the two one-sided regressions disagree:
+    ``S`` (both smoothed with ``sigma``) obey ``C S ~ D`` over the pixels with events near
+    them. Both are noisy measurements of the same change: D carries the frames' noise
+    (shot noise, quantization), and S the leftover below threshold at both ends of the
+    window, which the sensor's hysteresis (a pixel must travel a full C back after an event)
+    makes large where the schlieren flickers by less than C. So the one-sided regressions
+    disagree, and:
 
-    * ``method="events"``: D regressed on S (the change per net event), close to the
-      sensor's nominal C where the changes are large against C (simulated plume, 3 px:
-      0.208-0.230 for C = 0.2), larger below;
-    * ``method="frames"``: S regressed on D (slope 1 / C; selecting on the regressor D does
-      not bias it), larger still where changes are small (0.37-0.57 for C = 0.2 at 1 px);
+    * ``method="events"``: ``cov(D, S) / var(S)``, D regressed on S: the change per net
+      event. Unbiased by frame noise; close to the sensor's nominal C where the changes are
+      large against C, below it where they are not.
+    * ``method="frames"``: ``(var(D) - var(noise)) / cov(D, S)``, S regressed on D with the
+      frame noise's attenuation removed (its variance measured where no event fired within
+      ~10 px: still air). Above the nominal C where the changes are small.
     * ``method="rma"`` (default): their geometric mean, the reduced-major-axis slope that
-      treats both as noisy. It is the C that makes the scale-aware data term's magnitudes
-      right: on the simulated plume at 1 and 3 px, the median |v| ratio with it is
-      0.87-1.08 where the other two give 0.47-0.87 and 0.93-1.47.
-
-    Both regressions are Huber-reweighted (through the origin).
+      treats both sides as noisy; where the frame noise exceeds half of var(D) the "events"
+      slope alone. This is the C that makes the scale-aware data term's magnitudes right
+      (``benchmarks/results/bos_magnitude.md``).
 
     Returns
     -------
@@ -405,40 +405,36 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
                                  "in size")
     x, y, rw, rh = _check_roi(roi, sensor)
     ev = _window_events(events, t0_us, t1_us, (x, y, rw, rh))
-    s, _ = event_sums(ev, (x, y, rw, rh))
+    s, counts = event_sums(ev, (x, y, rw, rh))
     crop = (slice(y, y + rh), slice(x, x + rw))
     d = log_frame(frame_next, log_eps)[crop] - log_frame(frame, log_eps)[crop]
     if sigma > 0:
         s = gaussian_filter(s, sigma, mode="nearest")
         d = gaussian_filter(d, sigma, mode="nearest")
-    sel = np.abs(d) >= np.quantile(np.abs(d), 0.75)
-    dd, ss = d[sel], s[sel]
-    if dd.size < 16 or not np.any(dd) or not np.any(ss):
-        raise EventDataError("cannot estimate the contrast threshold: the two frames do not "
-                             "differ where events fire in the ROI (pass contrast_threshold)")
-    c_frames = 1.0 / _huber_slope(ss, dd)
-    c_events = _huber_slope(dd, ss)
-    if not (c_frames > 0 and c_events > 0):
+        near = gaussian_filter(counts, sigma, mode="nearest") > 0.05
+    else:
+        near = counts > 0
+    wide = gaussian_filter(counts, 5.0, mode="nearest")
+    quiet = wide <= 1e-3 * wide.max()
+    noise = float(np.mean(d[quiet] ** 2)) if quiet.sum() >= 100 else 0.0
+    dd, ss = d[near], s[near]
+    var_d, cov, var_s = (float(np.mean(v)) for v in (dd * dd, dd * ss, ss * ss))
+    if dd.size < 16 or cov <= 0 or var_s <= 0:
         raise EventDataError(f"cannot estimate the contrast threshold: the events' polarity "
-                             f"sums do not follow the frames' log difference (slopes "
-                             f"{c_frames:.3g}, {c_events:.3g}; pass contrast_threshold)")
-    c = {"rma": np.sqrt(c_frames * c_events), "events": c_events, "frames": c_frames}[method]
-    return float(c)
-
-
-def _huber_slope(yv: np.ndarray, xv: np.ndarray, iters: int = 5) -> float:
-    """Slope of ``y ~ b x`` through the origin, Huber-reweighted (k = 1.345 MAD)."""
-    wts = np.ones_like(xv)
-    beta = 0.0
-    for _ in range(iters):
-        den = np.sum(wts * xv * xv)
-        if den <= 0:
-            return 0.0
-        beta = np.sum(wts * yv * xv) / den
-        res = yv - beta * xv
-        r = np.abs(res) / (1.345 * (1.4826 * np.median(np.abs(res)) + 1e-12))
-        wts = np.where(r <= 1.0, 1.0, 1.0 / np.maximum(r, 1e-12))
-    return float(beta)
+                             f"sums do not follow the frames' log difference in the ROI "
+                             f"(covariance {cov:.3g}; pass contrast_threshold)")
+    c_events = cov / var_s
+    c_frames = (var_d - noise) / cov
+    if method == "events":
+        return float(c_events)
+    if method == "frames":
+        if c_frames <= 0:
+            raise EventDataError("cannot estimate the contrast threshold from the frames: "
+                                 "their noise exceeds their change (use method='events')")
+        return float(c_frames)
+    if noise > 0.5 * var_d or c_frames <= 0:
+        return float(c_events)
+    return float(np.sqrt(c_frames * c_events))
 
 
 # --------------------------------------------------------------------------- model
