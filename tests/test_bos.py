@@ -258,6 +258,10 @@ def test_sequence_warm_start_and_chunks():
     cold = estimate_bos_sequence(ev, frames, times, chunks=2, **kw)
     second = estimate_bos(ev, f1, t0_us=DT_US, t1_us=2 * DT_US, **kw)
     np.testing.assert_array_equal(cold[1].flow, second.flow)
+    # the chunks in two worker processes (evmotion.parallel.map_windows) give the same
+    par = estimate_bos_sequence(ev, frames, times, workers=2, **kw)
+    for a, b in zip(par, cold, strict=True):
+        np.testing.assert_array_equal(a.flow, b.flow)
     with pytest.raises(ParameterError, match="timestamps"):
         estimate_bos_sequence(ev, frames, [0, 5, 5], **kw)
 

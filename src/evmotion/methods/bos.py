@@ -507,6 +507,7 @@ class BosLevel:
         self.opts = opts
 
     def n_flow(self) -> int:
+        """Parameters of the flow per patch: 1 (q) or 2 (du, dv)."""
         return 1 if self.opts.param == "poisson" else 2
 
     def patch_fields(self, theta: np.ndarray) -> np.ndarray:
@@ -523,6 +524,8 @@ class BosLevel:
         return out
 
     def value_grad(self, theta: np.ndarray, normalized: bool) -> tuple[tuple, np.ndarray]:
+        """``((total, data, tv, p), d total / d theta)``: the fields upsampled to the pixels,
+        the kernel, and the adjoints of the upsampling and of the Sobel back to theta."""
         o = self.opts
         upsample(self.patch_fields(theta), self.iy, self.fy, self.ix, self.fx, self.fields)
         terms = objective_grad(self.fields, self.gimg, self.meas, self.weight,
@@ -539,6 +542,7 @@ class BosLevel:
         return terms, g
 
     def n_params(self) -> int:
+        """Parameters per patch (flow, then p when estimated)."""
         return self.n_flow() + (2 if self.opts.use_p else 0)
 
 
