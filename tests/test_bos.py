@@ -308,3 +308,22 @@ def test_simulator_contrast_threshold_and_magnitude(sim_ice):
     assert 0.85 < ratio < 1.15
     cos = np.sum(est * gt, -1)[m] / (np.hypot(*est[m].T) * np.hypot(*gt[m].T) + 1e-12)
     assert np.arccos(np.clip(cos, -1, 1)).mean() < 0.42
+
+
+@pytest.mark.parametrize("param", ["poisson", "flow"])
+def test_float32_level_matches_float64(case, param):
+    """The production precision (float32 images, float32 loops) against float64."""
+    ev, f0, f1, d, C = case
+    o = BosOptions(param=param)
+    rng = np.random.default_rng(4)
+    logf = np.log(f0)
+    meas = rng.normal(0, 0.1, logf.shape)
+    weight = rng.uniform(0.05, 1, logf.shape)
+    lev32 = BosLevel(8, 1, logf, meas, weight, o, np.float32)
+    lev64 = BosLevel(8, 1, logf, meas, weight, o, np.float64)
+    theta = rng.normal(0, 0.3, (lev32.n_params(), lev32.nh, lev32.nw))
+    for normalized in (True, False):
+        (t32, *_), g32 = lev32.value_grad(theta, normalized)
+        (t64, *_), g64 = lev64.value_grad(theta, normalized)
+        assert t32 == pytest.approx(t64, rel=1e-5)
+        np.testing.assert_allclose(g32, g64, rtol=1e-3, atol=1e-4 * np.abs(g64).max())
