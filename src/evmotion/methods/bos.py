@@ -113,6 +113,11 @@ class BosOptions:
         Gaussian sigmas (px) of the measured increment (2) and of the event histogram b (5).
     use_p : bool
         Estimate the translation field p (False: p = 0, the Table 6.5 ablation).
+    p_max : float
+        Bound on each component of p in px, smooth (``p_max tanh(theta / p_max)`` on the
+        patch grid): within it the first-order expansion of the smoothed frame's gradient
+        holds (the authors' configuration bounds p to +-0.4 px). Unbounded, the expansion
+        lets p fit residuals as a free linear term (up to 3 px on a simulated plume).
     pool : tuple of int, "auto" or None
         Block pooling factor of the images at each scale; "auto": each patch size over the
         finest (64/32/16/8 -> 8, 4, 2, 1); None: 1 everywhere (the thesis). The last scale
@@ -147,6 +152,7 @@ class BosOptions:
     sigma_meas: float = 2.0
     sigma_weight: float = 5.0
     use_p: bool = True
+    p_max: float = 0.5
     pool: tuple[int, ...] | str | None = "auto"
     tol: float = 1e-3
     patience: int = 50
@@ -168,13 +174,13 @@ class BosOptions:
         object.__setattr__(self, "scales", scales)
         self.iterations_per_scale()
         self.pool_per_scale()
-        for name in ("lr", "lambda_tv", "lambda_p", "alpha", "sigma_meas", "sigma_weight",
+        for name in ("lr", "lambda_tv", "lambda_p", "alpha", "sigma_meas", "sigma_weight", "p_max",
                      "tol", "eps_data", "eps_reg", "min_texture", "lr_decay"):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v < 0:
                 raise ParameterError(f"{name} must be finite and >= 0, got {v}")
-        if self.lr <= 0 or self.lr_decay <= 0 or self.eps_data <= 0 or self.eps_reg <= 0:
-            raise ParameterError("lr, lr_decay, eps_data and eps_reg must be > 0")
+        if min(self.lr, self.lr_decay, self.eps_data, self.eps_reg, self.p_max) <= 0:
+            raise ParameterError("lr, lr_decay, eps_data, eps_reg and p_max must be > 0")
         if self.alpha > 1:
             raise ParameterError(f"alpha must be in [0, 1], got {self.alpha}")
         c = self.contrast_threshold
@@ -527,7 +533,8 @@ class BosLevel:
         else:
             out[0:2] = theta[0:2]
         if self.opts.use_p:
-            out[2:4] = theta[self.n_flow():self.n_flow() + 2]
+            pm = self.opts.p_max
+            out[2:4] = pm * np.tanh(theta[self.n_flow():self.n_flow() + 2] / pm)
         return out
 
     def value_grad(self, theta: np.ndarray, normalized: bool) -> tuple[tuple, np.ndarray]:
@@ -545,7 +552,8 @@ class BosLevel:
         else:
             g[0:2] = self.gpatch[0:2]
         if o.use_p:
-            g[self.n_flow():self.n_flow() + 2] = self.gpatch[2:4]
+            th = np.tanh(theta[self.n_flow():self.n_flow() + 2] / o.p_max)
+            g[self.n_flow():self.n_flow() + 2] = self.gpatch[2:4] * (1.0 - th * th)
         return terms, g
 
     def n_params(self) -> int:
