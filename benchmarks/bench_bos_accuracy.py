@@ -42,11 +42,12 @@ SCENES = ("plume", "jet", "breath", "ice")
 MIN_DISP_PX = 0.05
 
 
-def _simulate(scene: str, size, seed: int = 0, photons: float | None = None):
+def _simulate(scene: str, size, seed: int = 0, photons: float | None = None,
+              noise_rate: float = 0.0):
     from evmotion.sim.schlieren import simulate_schlieren
 
     return simulate_schlieren(scene, sensor_size=tuple(size), duration_s=2 / 120, seed=seed,
-                              photons=photons)
+                              photons=photons, noise_rate=noise_rate)
 
 
 def exact_flow(sim, k: int) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -186,17 +187,18 @@ ABLATIONS = (
 )
 
 
-def table65(size, iterations, scenes=("plume", "ice")) -> list[dict]:
+def table65(size, iterations, scenes=("plume", "ice"), noise_rate: float = 0.0) -> list[dict]:
     rows = []
     for scene in scenes:
-        sim = _simulate(scene, size)
+        sim = _simulate(scene, size, noise_rate=noise_rate)
         k = 1
         t0, t1, _, mask = _interval(sim, k)
         dt = (t1 - t0) * 1e-6
         gt = exact_flow(sim, k)[0]
         for name, kw in ABLATIONS:
             res, sec = _ours(sim, k, iterations, param="poisson", data_term="scale", **kw)
-            rows.append({"scene": scene, "size": f"{size[1]}x{size[0]}", "variant": name,
+            rows.append({"scene": scene, "size": f"{size[1]}x{size[0]}",
+                         "noise_ev_per_px_s": noise_rate, "variant": name,
                          **_score(res.flow, gt, mask, dt),
                          "ratio_median": _ratio(res.flow, gt, mask, dt),
                          "iterations": iterations, "seconds": sec})
@@ -317,18 +319,34 @@ def summarize(suffix: str = "") -> str:
     return text
 
 
+def solver_version() -> str:
+    """The commit the solver ran at, and whether its files had uncommitted edits."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root,
+                              capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "src/evmotion/methods",
+                                "src/evmotion/sim"], cwd=root, capture_output=True,
+                               text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + (" with uncommitted edits in methods/ or sim/" if dirty else "")
+
+
 def main(quick: bool = False, parts=("table64", "table65", "lowlight"), size=None,
-         iterations=None) -> list[dict]:
+         iterations=None, noise_rate: float = 0.0) -> list[dict]:
     harness.single_core()
     size = tuple(size or ((180, 160) if quick else (720, 640)))
-    iterations = iterations or (30 if quick else 150)
+    iterations = iterations or (30 if quick else 600)
     out = []
     note = (f"{size[1]}x{size[0]} px (W x H), {iterations} Adam iterations per scale "
             "(thesis: 600), scales 64-32-16-8, interval [t1, t2) of a 120 fps simulation, "
             "pixels with >= 1 event; AEE px over the interval, %Out: EE > 1 px, AE radians "
             "of (u, v, 1); ratio_median: median |v_est|/|v| where |v| dt >= 0.05 px. "
-            "Seed 0, one shared 2-core machine. Exact flow: gt_sign * sim.gt.flow; "
-            "gt_sign = -1 means the simulator's gt.flow (and schlieren_gt.h5) has the "
+            f"Seed 0, one shared 2-core machine, code at {solver_version()}. Exact flow: "
+            "gt_sign * sim.gt.flow; gt_sign = -1 means the simulator's gt.flow (and schlieren_gt.h5) has the "
             "opposite sign of the image's optical flow (frames show the background at "
             "x + d, gt.flow = dd/dt); corr_farneback_gt is Farneback on the noise-free "
             "frames against gt.flow.")
@@ -338,9 +356,11 @@ def main(quick: bool = False, parts=("table64", "table65", "lowlight"), size=Non
         harness.record("bos_accuracy" + suffix, rows, "Table 6.4 analog. " + note)
         out += rows
     if "table65" in parts:
-        rows = table65(size, iterations)
-        harness.record("bos_ablation" + suffix, rows, "Table 6.5 analog (Ours (Poisson), "
-                       "scale-aware term). " + note)
+        rows = table65(size, iterations, noise_rate=noise_rate)
+        noisy = "_noise" if noise_rate > 0 else ""
+        harness.record("bos_ablation" + noisy + suffix, rows, "Table 6.5 analog (Ours "
+                       f"(Poisson), scale-aware term), event noise {noise_rate:g} events per "
+                       "pixel per second (background activity). " + note)
         out += rows
     if "lowlight" in parts:
         rows = lowlight(size, iterations)
@@ -361,6 +381,8 @@ if __name__ == "__main__":
     ap.add_argument("--parts", nargs="+", default=["table64", "table65", "lowlight"])
     ap.add_argument("--size", nargs=2, type=int, default=None, metavar=("H", "W"))
     ap.add_argument("--iterations", type=int, default=None)
+    ap.add_argument("--noise-rate", type=float, default=0.0,
+                    help="background-activity events per pixel per second (table65)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--summarize", action="store_true",
                     help="only check the goals against the recorded results")
@@ -369,4 +391,4 @@ if __name__ == "__main__":
         summarize("_quick" if a.quick else "")
         sys.exit(0)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    main(a.quick, a.parts, a.size, a.iterations)
+    main(a.quick, a.parts, a.size, a.iterations, a.noise_rate)

@@ -24,12 +24,11 @@ import harness
 from bench_bos_accuracy import exact_flow
 
 
-def main(quick: bool = False, size=(96, 80), iterations: int = 100) -> list[dict]:
+def _run(size, duration, iterations) -> list[dict]:
     from evmotion.eval.metrics import event_mask, flow_metrics
     from evmotion.methods.bos import estimate_bos_sequence
     from evmotion.sim.schlieren import simulate_schlieren
 
-    duration = 0.25 if quick else 1.0
     sim = simulate_schlieren("plume", sensor_size=size, duration_s=duration, seed=0)
     f, t = sim.frames.images, sim.frames.t
     n = len(t) - 1
@@ -56,6 +55,15 @@ def main(quick: bool = False, size=(96, 80), iterations: int = 100) -> list[dict
                      "speedup_vs_1_worker": base / wall, "load_before": load0,
                      "load_after": load1, "mean_AEE_px": float(np.mean(aee))})
         print(rows[-1], flush=True)
+    return rows
+
+
+def main(quick: bool = False, sizes=((128, 112), (256, 224)), iterations: int = 100
+         ) -> list[dict]:
+    duration = 0.25 if quick else 1.0
+    rows = []
+    for size in sizes[:1] if quick else sizes:
+        rows += _run(size, duration, iterations)
     harness.record("bos_parallel" + ("_quick" if quick else ""), rows,
                    "Plume, 120 fps, evmotion.methods.bos.estimate_bos_sequence over every "
                    "frame interval (process pool of evmotion.parallel.map_windows for 2 "
