@@ -239,6 +239,11 @@ def test_errors(case):
         estimate_bos(few, f0, roi=(64, 64, 32, 32), **kw)
     with pytest.raises(EventDataError, match="contrast threshold"):
         estimate_contrast_threshold(ev, f0, f0, t0_us=0, t1_us=DT_US)
+    with pytest.raises(EventDataError, match="contrast threshold"):
+        estimate_bos(ev, f0, frame_next=f0, data_term="scale", **kw)
+    # the normalized term goes on without C, flagged uncalibrated
+    res = estimate_bos(ev, f0, frame_next=f0, **kw)
+    assert not res.calibrated and res.contrast_threshold is None
 
 
 def test_sequence_warm_start_and_chunks():

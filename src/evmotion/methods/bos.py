@@ -618,8 +618,13 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions):
     sums, counts = event_sums(ev, r)
     c = o.contrast_threshold
     if c is None and frame_next is not None:
-        c = estimate_contrast_threshold(ev, frame, frame_next, t0_us=int(t0_us),
-                                        t1_us=int(t1_us), roi=r, log_eps=o.log_eps)
+        try:
+            c = estimate_contrast_threshold(ev, frame, frame_next, t0_us=int(t0_us),
+                                            t1_us=int(t1_us), roi=r, log_eps=o.log_eps)
+        except EventDataError:
+            # the normalized term needs no C: its result is then flagged uncalibrated
+            if o.data_term == "scale":
+                raise
     if o.data_term == "scale" and c is None:
         raise ParameterError("data_term='scale' needs contrast_threshold or frame_next "
                              "(to estimate it)")
