@@ -1,14 +1,20 @@
 """Numba kernels of the event-based BOS solver (:mod:`evmotion.methods.bos`).
 
 The objective at one pyramid level is evaluated over an ``(h, w)`` grid of (possibly pooled)
-pixels from four dense fields -- the displacement ``du, dv`` over the window and the frame
+pixels from four fields -- the displacement ``du, dv`` over the window and the frame
 translation ``pu, pv``, all in original pixels -- that are bilinear upsamplings of patch-grid
-parameters (:func:`upsample`, adjoint :func:`upsample_adjoint`). :func:`objective_grad`
-returns the objective and its gradient with respect to the four dense fields, in three
-passes over the grid (prediction, residual, gradient) and one per TV field. The frame
-translated by p enters to first order, ``grad L(x + p) = grad L + H p`` (H the Hessian of the
-smoothed log frame): p is a small correction (the authors bound it to +-0.4 px), and the
-expansion keeps the objective smooth in p and the loops vectorizable. Plain-numpy references live in
+values (:func:`upsample`). :func:`objective_grad` returns the objective and its gradient
+with respect to the patch-grid values without ever storing the dense fields or their
+gradients: the patch values are interpolated along x once (``(4, nh, w)``), each pixel row
+is interpolated along y on the fly, and each row's gradient goes straight into the adjoint
+of that y interpolation. Three passes over the grid (prediction, residual sums, gradient)
+read the frame's derivatives, the prediction and the measurement only: the memory traffic
+that bounds these loops.
+
+The frame translated by p enters to first order, ``grad L(x + p) = grad L + H p`` (H the
+Hessian of the smoothed log frame): p is a small correction (bounded, see
+:class:`evmotion.methods.bos.BosOptions`), and the expansion keeps the objective smooth in p
+and the loops vectorizable. Plain-numpy references live in
 :mod:`evmotion.methods._bos_reference`.
 
 Smooth L1: every absolute value is the Charbonnier ``sqrt(r^2 + eps^2) - eps``, so that the
@@ -20,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["interp_index", "objective_grad", "upsample", "upsample_adjoint"]
+__all__ = ["LevelBuffers", "interp_index", "objective_grad", "upsample"]
 
 # the numpy error model (no zero-division checks) and fastmath let the pixel loops vectorize
 _JIT = dict(cache=True, fastmath=True, error_model="numpy")
@@ -39,207 +45,248 @@ def interp_index(n_out: int, step_out: float, n_in: int, step_in: float):
 
 
 @njit(**_JIT)
-def upsample(x, iy, fy, ix, fx, out):
-    """``out[c] = A_y x[c] A_x^T`` for every channel: bilinear from (c, nh, nw) to (c, h, w)."""
+def _interp_x(x, ix, fx, out):
+    """``out[c, a] = x[c, a] A_x^T``: (c, nh, nw) to (c, nh, w)."""
     nc, nh, nw = x.shape
-    h = iy.shape[0]
     w = ix.shape[0]
-    tmp = np.empty((nh, w), dtype=np.float64)
     for c in range(nc):
         for a in range(nh):
             for j in range(w):
                 j0 = ix[j]
                 j1 = min(j0 + 1, nw - 1)
                 f = fx[j]
-                tmp[a, j] = (1.0 - f) * x[c, a, j0] + f * x[c, a, j1]
-        for i in range(h):
-            i0 = iy[i]
-            i1 = min(i0 + 1, nh - 1)
-            g = fy[i]
-            for j in range(w):
-                out[c, i, j] = (1.0 - g) * tmp[i0, j] + g * tmp[i1, j]
+                out[c, a, j] = (1.0 - f) * x[c, a, j0] + f * x[c, a, j1]
 
 
 @njit(**_JIT)
-def upsample_adjoint(g, iy, fy, ix, fx, out):
-    """Adjoint of :func:`upsample`: ``out[c] = A_y^T g[c] A_x`` (overwrites ``out``)."""
-    nc, h, w = g.shape
-    nh = out.shape[1]
+def _interp_x_adjoint(t, ix, fx, out):
+    """Adjoint of :func:`_interp_x`: (c, nh, w) to (c, nh, nw), overwriting ``out``."""
+    nc, nh, w = t.shape
     nw = out.shape[2]
-    tmp = np.empty((nh, w), dtype=np.float64)
+    out[:] = 0.0
     for c in range(nc):
-        tmp[:] = 0.0
-        for i in range(h):
-            i0 = iy[i]
-            i1 = min(i0 + 1, nh - 1)
-            f = fy[i]
-            gi = g[c, i]
-            t0 = tmp[i0]
-            t1 = tmp[i1]
-            for j in range(w):
-                t0[j] += (1.0 - f) * gi[j]
-            for j in range(w):
-                t1[j] += f * gi[j]
-        out[c] = 0.0
         for a in range(nh):
             for j in range(w):
                 j0 = ix[j]
                 j1 = min(j0 + 1, nw - 1)
                 f = fx[j]
-                v = tmp[a, j]
+                v = t[c, a, j]
                 out[c, a, j0] += (1.0 - f) * v
                 out[c, a, j1] += f * v
 
 
 @njit(**_JIT)
-def _predict(fields, gimg, use_p, work):
-    """Pass 1: prediction ``-grad L(x + p) . d`` into ``work[0]``, with the frame gradient
-    translated by p to first order (``grad L + H p``, H the Hessian); the translated
-    gradient into ``work[1:3]`` and ``-d/dp pred`` into ``work[3:5]``. Returns sum(pred^2).
-    Arrays are flat (c, n)."""
-    du = fields[0]
-    dv = fields[1]
-    gx = gimg[0]
-    gy = gimg[1]
-    pred = work[0]
+def upsample(x, iy, fy, ix, fx, out):
+    """``out[c] = A_y x[c] A_x^T`` for every channel: bilinear from (c, nh, nw) to (c, h, w)."""
+    nc, nh, nw = x.shape
+    h = iy.shape[0]
+    tmp = np.empty((nc, nh, ix.shape[0]), dtype=np.float64)
+    _interp_x(x, ix, fx, tmp)
+    for c in range(nc):
+        for i in range(h):
+            i0 = iy[i]
+            i1 = min(i0 + 1, nh - 1)
+            g = fy[i]
+            t0 = tmp[c, i0]
+            t1 = tmp[c, i1]
+            o = out[c, i]
+            for j in range(o.shape[0]):
+                o[j] = (1.0 - g) * t0[j] + g * t1[j]
+
+
+@njit(**_JIT)
+def _row(xr, iy, fy, c, i, out):
+    """Row i of channel c of the dense field from its x-interpolated patch rows."""
+    nh = xr.shape[1]
+    i0 = iy[i]
+    i1 = min(i0 + 1, nh - 1)
+    g = fy[i]
+    a = xr[c, i0]
+    b = xr[c, i1]
+    for j in range(out.shape[0]):
+        out[j] = (1 - g) * a[j] + g * b[j]
+
+
+@njit(**_JIT)
+def _predict(xr, iy, fy, gimg, use_p, pred, rows):
+    """Pass 1: prediction ``-(grad L + H p) . d`` into ``pred``; returns sum(pred^2)."""
+    h, w = pred.shape
     ss = 0.0
-    if use_p:
-        pu = fields[2]
-        pv = fields[3]
-        hxx = gimg[2]
-        hxy = gimg[3]
-        hyy = gimg[4]
-        wsx = work[1]
-        wsy = work[2]
-        whu = work[3]
-        whv = work[4]
-        for i in range(du.size):
-            a = du[i]
-            b = dv[i]
-            sx = gx[i] + hxx[i] * pu[i] + hxy[i] * pv[i]
-            sy = gy[i] + hxy[i] * pu[i] + hyy[i] * pv[i]
-            v = -(sx * a + sy * b)
-            pred[i] = v
-            wsx[i] = sx
-            wsy[i] = sy
-            whu[i] = a * hxx[i] + b * hxy[i]
-            whv[i] = a * hxy[i] + b * hyy[i]
-            ss += v * v
-    else:
-        for i in range(du.size):
-            v = -(gx[i] * du[i] + gy[i] * dv[i])
-            pred[i] = v
-            ss += v * v
+    du = rows[0]
+    dv = rows[1]
+    pu = rows[2]
+    pv = rows[3]
+    for i in range(h):
+        _row(xr, iy, fy, 0, i, du)
+        _row(xr, iy, fy, 1, i, dv)
+        gx = gimg[0, i]
+        gy = gimg[1, i]
+        pr = pred[i]
+        if use_p:
+            _row(xr, iy, fy, 2, i, pu)
+            _row(xr, iy, fy, 3, i, pv)
+            hxx = gimg[2, i]
+            hxy = gimg[3, i]
+            hyy = gimg[4, i]
+            for j in range(w):
+                sx = gx[j] + hxx[j] * pu[j] + hxy[j] * pv[j]
+                sy = gy[j] + hxy[j] * pu[j] + hyy[j] * pv[j]
+                v = -(sx * du[j] + sy * dv[j])
+                pr[j] = v
+                ss += v * v
+        else:
+            for j in range(w):
+                v = -(gx[j] * du[j] + gy[j] * dv[j])
+                pr[j] = v
+                ss += v * v
     return ss
 
 
 @njit(**_JIT)
-def _data_terms(meas, a_pred, a_meas, eps_d, work):
-    """Pass 2: Charbonnier of the residual ``a_pred pred - a_meas meas``; its derivative
-    into ``work[5]``. Returns (sum rho, sum rho' * pred)."""
-    pred = work[0]
-    der = work[5]
+def _data_sums(pred, meas, a_pred, a_meas, eps_d):
+    """Pass 2: sum of the Charbonnier of ``a_pred pred - a_meas meas`` and sum rho' pred."""
+    p = pred.ravel()
+    m = meas.ravel()
+    e2 = eps_d * eps_d
     e = 0.0
     gp = 0.0
-    e2 = eps_d * eps_d
-    for i in range(meas.size):
-        r = pred[i] * a_pred - meas[i] * a_meas
+    for i in range(p.size):
+        r = p[i] * a_pred - m[i] * a_meas
         sq = np.sqrt(r * r + e2)
-        d = r / sq
         e += sq - eps_d
-        gp += d * pred[i]
-        der[i] = d
+        gp += r / sq * p[i]
     return e, gp
 
 
 @njit(**_JIT)
-def _data_grad(fields, gimg, c_der, c_pred, lam_p_n, eps_r, use_p, work, grad):
-    """Pass 3: gradient of the data term (``dE/dpred = c_der rho' - c_pred pred``) and of
-    lambda_p |p| with respect to the fields. Returns sum |p| (Charbonnier)."""
-    pred = work[0]
-    der = work[5]
-    e2 = eps_r * eps_r
-    ep = 0.0
-    g0 = grad[0]
-    g1 = grad[1]
-    g2 = grad[2]
-    g3 = grad[3]
-    if use_p:
-        pu = fields[2]
-        pv = fields[3]
-        wsx = work[1]
-        wsy = work[2]
-        whu = work[3]
-        whv = work[4]
-        for i in range(pred.size):
-            dp = c_der * der[i] - c_pred * pred[i]
-            a = pu[i]
-            b = pv[i]
-            sa = np.sqrt(a * a + e2)
-            sb = np.sqrt(b * b + e2)
-            ep += sa + sb - (eps_r + eps_r)
-            g0[i] = -wsx[i] * dp
-            g1[i] = -wsy[i] * dp
-            g2[i] = -whu[i] * dp + lam_p_n * a / sa
-            g3[i] = -whv[i] * dp + lam_p_n * b / sb
-    else:
-        gx = gimg[0]
-        gy = gimg[1]
-        for i in range(pred.size):
-            dp = c_der * der[i] - c_pred * pred[i]
-            g0[i] = -gx[i] * dp
-            g1[i] = -gy[i] * dp
-            g2[i] = 0.0
-            g3[i] = 0.0
-    return ep
-
-
-@njit(**_JIT)
-def _tv(f, weight, inv_k, ct, eps_r, g, bx, by, byp):
-    """Weighted TV of one dense (h, w) field (forward differences, Charbonnier); adds ``ct``
-    times its gradient to ``g``. Returns the (unscaled) sum. Row by row: the derivatives of
-    the row's x and y differences go to buffers, then each gradient entry is written once
-    (so that every loop vectorizes)."""
-    h, w = f.shape
+def _tv_row(f, fn, wr, has_next, inv_k, ct, eps_r, g, bx, by, byp):
+    """TV of one field at one row (x difference, y difference to the next row): adds ``ct``
+    times the derivatives to the row's gradient ``g`` (the previous row's y terms come in
+    ``byp``, this row's are left there). Returns the row's (unscaled) TV."""
+    w = f.shape[0]
     e2 = eps_r * eps_r
     e = 0.0
-    byp[:] = 0
+    for j in range(w - 1):
+        d = (f[j + 1] - f[j]) * inv_k
+        sq = np.sqrt(d * d + e2)
+        e += wr[j] * (sq - eps_r)
+        bx[j] = ct * wr[j] * d / sq
     bx[w - 1] = 0
-    for i in range(h):
-        fr = f[i]
-        wr = weight[i]
-        for j in range(w - 1):
-            d = (fr[j + 1] - fr[j]) * inv_k
+    if has_next:
+        for j in range(w):
+            d = (fn[j] - f[j]) * inv_k
             sq = np.sqrt(d * d + e2)
             e += wr[j] * (sq - eps_r)
-            bx[j] = ct * wr[j] * d / sq
-        if i + 1 < h:
-            fn = f[i + 1]
-            for j in range(w):
-                d = (fn[j] - fr[j]) * inv_k
-                sq = np.sqrt(d * d + e2)
-                e += wr[j] * (sq - eps_r)
-                by[j] = ct * wr[j] * d / sq
-        else:
-            by[:] = 0
-        gr = g[i]
-        gr[0] += byp[0] - by[0] - bx[0]
-        for j in range(1, w):
-            gr[j] += bx[j - 1] - bx[j] + byp[j] - by[j]
-        byp[:] = by
+            by[j] = ct * wr[j] * d / sq
+    else:
+        by[:] = 0
+    g[0] += byp[0] - by[0] - bx[0]
+    for j in range(1, w):
+        g[j] += bx[j - 1] - bx[j] + byp[j] - by[j]
+    byp[:] = by
     return e
 
 
-def objective_grad(fields, gimg, meas, weight, s_meas, inv_k, lam_tv, lam_p, eps_d, eps_r,
-                   normalized, use_p, work, grad):
-    """Objective (6.10) at one level and its gradient with respect to the dense fields.
+@njit(**_JIT)
+def _grad(xr, iy, fy, gimg, pred, meas, weight, a_pred, a_meas, eps_d, c_der, c_pred, lam_p_n,
+          ct, inv_k, eps_r, use_p, t, rows, grows, tvb):
+    """Pass 3: gradient with respect to the x-interpolated patch rows ``t`` (the adjoint of
+    the y interpolation applied row by row). Returns (sum |p|, sum TV), unscaled."""
+    h, w = pred.shape
+    nh = xr.shape[1]
+    e2d = eps_d * eps_d
+    e2r = eps_r * eps_r
+    t[:] = 0
+    tvb[:] = 0
+    du = rows[0]
+    dv = rows[1]
+    pu = rows[2]
+    pv = rows[3]
+    dun = rows[4]
+    dvn = rows[5]
+    ep = 0.0
+    etv = 0.0
+    for i in range(h):
+        has_next = i + 1 < h
+        _row(xr, iy, fy, 0, i, du)
+        _row(xr, iy, fy, 1, i, dv)
+        if has_next:
+            _row(xr, iy, fy, 0, i + 1, dun)
+            _row(xr, iy, fy, 1, i + 1, dvn)
+        gx = gimg[0, i]
+        gy = gimg[1, i]
+        pr = pred[i]
+        mr = meas[i]
+        g0 = grows[0]
+        g1 = grows[1]
+        g2 = grows[2]
+        g3 = grows[3]
+        if use_p:
+            _row(xr, iy, fy, 2, i, pu)
+            _row(xr, iy, fy, 3, i, pv)
+            hxx = gimg[2, i]
+            hxy = gimg[3, i]
+            hyy = gimg[4, i]
+            for j in range(w):
+                r = pr[j] * a_pred - mr[j] * a_meas
+                dp = c_der * r / np.sqrt(r * r + e2d) - c_pred * pr[j]
+                a = pu[j]
+                b = pv[j]
+                sa = np.sqrt(a * a + e2r)
+                sb = np.sqrt(b * b + e2r)
+                ep += sa + sb - (eps_r + eps_r)
+                g0[j] = -(gx[j] + hxx[j] * a + hxy[j] * b) * dp
+                g1[j] = -(gy[j] + hxy[j] * a + hyy[j] * b) * dp
+                g2[j] = -(du[j] * hxx[j] + dv[j] * hxy[j]) * dp + lam_p_n * a / sa
+                g3[j] = -(du[j] * hxy[j] + dv[j] * hyy[j]) * dp + lam_p_n * b / sb
+        else:
+            for j in range(w):
+                r = pr[j] * a_pred - mr[j] * a_meas
+                dp = c_der * r / np.sqrt(r * r + e2d) - c_pred * pr[j]
+                g0[j] = -gx[j] * dp
+                g1[j] = -gy[j] * dp
+        wr = weight[i]
+        etv += _tv_row(du, dun, wr, has_next, inv_k, ct, eps_r, g0, tvb[0], tvb[1], tvb[2])
+        etv += _tv_row(dv, dvn, wr, has_next, inv_k, ct, eps_r, g1, tvb[3], tvb[4], tvb[5])
+        i0 = iy[i]
+        i1 = min(i0 + 1, nh - 1)
+        f = fy[i]
+        for c in range(4 if use_p else 2):
+            gc = grows[c]
+            a0 = t[c, i0]
+            for j in range(w):
+                a0[j] += (1 - f) * gc[j]
+            a1 = t[c, i1]
+            for j in range(w):
+                a1[j] += f * gc[j]
+    return ep, etv
+
+
+class LevelBuffers:
+    """Work arrays of :func:`objective_grad` for a (h, w) grid and (nh, nw) patches."""
+
+    def __init__(self, h: int, w: int, nh: int, dtype):
+        self.xr = np.zeros((4, nh, w), dtype)
+        self.t = np.zeros((4, nh, w), dtype)
+        self.pred = np.zeros((h, w), dtype)
+        self.rows = np.zeros((6, w), dtype)
+        self.grows = np.zeros((4, w), dtype)
+        self.tvb = np.zeros((6, w), dtype)
+
+
+def objective_grad(xpatch, iy, fy, ix, fx, gimg, meas, weight, s_meas, inv_k, lam_tv, lam_p,
+                   eps_d, eps_r, normalized, use_p, buf: LevelBuffers, grad):
+    """Objective (6.10) at one level and its gradient with respect to the patch values.
 
     Parameters
     ----------
-    fields : (4, h, w) float32 or float64
-        Dense ``du, dv`` (displacement over the window, px) and ``pu, pv`` (frame
+    xpatch : (4, nh, nw) float
+        Patch-grid ``du, dv`` (displacement over the window, px) and ``pu, pv`` (frame
         translation, px).
-    gimg : (5, h, w), same dtype
+    iy, fy, ix, fx : arrays
+        Bilinear interpolation from the patches to the grid's rows and columns
+        (:func:`interp_index`).
+    gimg : (5, h, w) float32 or float64
         Gradient of the log frame per original pixel ``gx, gy`` and its Hessian
         ``hxx, hxy, hyy``: the frame translated by p has gradient ``grad L + H p``.
     meas : (h, w), same dtype
@@ -256,29 +303,25 @@ def objective_grad(fields, gimg, meas, weight, s_meas, inv_k, lam_tv, lam_p, eps
         Data term of normalized increments (6.11) if True, else ``(pred - meas) / s_meas``.
     use_p : bool
         Translate the frame by ``p`` (else p is ignored and its gradient is zero).
-    work : (6, h, w), same dtype
-        Work buffers; ``work[0]`` holds the predicted increment on return.
-    grad : (4, h, w), same dtype
-        Output: gradient with respect to ``fields``.
+    buf : LevelBuffers
+        Work arrays (``buf.pred`` holds the predicted increment on return).
+    grad : (4, nh, nw) float64
+        Output: gradient with respect to ``xpatch``.
 
     Returns
     -------
     (total, data, tv, p) : floats
         The objective and its three terms (regularizers without their lambdas).
     """
-    nc, h, w = fields.shape
-    sc = fields.dtype.type  # scalars in the arrays' precision keep float32 loops in float32
-    n = h * w
-    inv_n = 1.0 / n
-    flat_f = fields.reshape(nc, n)
-    flat_g = gimg.reshape(gimg.shape[0], n)
-    flat_w = work.reshape(work.shape[0], n)
-    flat_grad = grad.reshape(nc, n)
-    ss = _predict(flat_f, flat_g, use_p, flat_w)
+    sc = gimg.dtype.type  # scalars in the arrays' precision keep float32 loops in float32
+    h, w = meas.shape
+    inv_n = 1.0 / (h * w)
+    _interp_x(xpatch, ix, fx, buf.xr)
+    ss = _predict(buf.xr, iy, fy, gimg, use_p, buf.pred, buf.rows)
     inv_sp = 1.0 / np.sqrt(ss * inv_n + 1e-30)
     inv_sm = 1.0 / s_meas
     a_pred = inv_sp if normalized else inv_sm
-    e_data, gp = _data_terms(meas.reshape(n), sc(a_pred), sc(inv_sm), sc(eps_d), flat_w)
+    e_data, gp = _data_sums(buf.pred, meas, sc(a_pred), sc(inv_sm), sc(eps_d))
     e_data *= inv_n
     if normalized:
         c_der = inv_n * inv_sp
@@ -286,17 +329,12 @@ def objective_grad(fields, gimg, meas, weight, s_meas, inv_k, lam_tv, lam_p, eps
     else:
         c_der = inv_n * inv_sm
         c_pred = 0.0
-    e_p = _data_grad(flat_f, flat_g, sc(c_der), sc(c_pred), sc(lam_p * inv_n), sc(eps_r),
-                     use_p, flat_w, flat_grad)
-    if not use_p:
-        e_p = 0.0
-    bufs = np.empty((3, w), dtype=fields.dtype)
-    ct = sc(lam_tv * inv_n * inv_k)
-    e_tv = 0.0
-    for c in range(2):
-        e_tv += _tv(fields[c], weight, sc(inv_k), ct, sc(eps_r), grad[c], bufs[0], bufs[1],
-                    bufs[2])
+    e_p, e_tv = _grad(buf.xr, iy, fy, gimg, buf.pred, meas, weight, sc(a_pred), sc(inv_sm),
+                      sc(eps_d), sc(c_der), sc(c_pred), sc(lam_p * inv_n),
+                      sc(lam_tv * inv_n * inv_k), sc(inv_k), sc(eps_r), use_p, buf.t, buf.rows,
+                      buf.grows, buf.tvb)
+    _interp_x_adjoint(buf.t, ix, fx, grad)
     e_tv *= inv_n
-    e_p *= inv_n
+    e_p = e_p * inv_n if use_p else 0.0
     total = e_data + lam_tv * e_tv + lam_p * e_p
     return float(total), float(e_data), float(e_tv), float(e_p)

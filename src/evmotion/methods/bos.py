@@ -61,10 +61,10 @@ from scipy.ndimage import gaussian_filter
 from evmotion.errors import EmptyWindowError, EventDataError, EvmotionError, ParameterError
 from evmotion.events import EventArray
 from evmotion.methods._bos_kernels import (
+    LevelBuffers,
     interp_index,
     objective_grad,
     upsample,
-    upsample_adjoint,
 )
 
 __all__ = [
@@ -511,11 +511,11 @@ class BosLevel:
         h, w = lf.shape
         self.iy, self.fy = interp_index(h, k, self.nh, patch)
         self.ix, self.fx = interp_index(w, k, self.nw, patch)
+        self.fy_d = self.fy.astype(dtype)  # the kernels' loops stay in the images' precision
+        self.fx_d = self.fx.astype(dtype)
         self.sm_y, self.d_y = _sobel_mats(self.nh)
         self.sm_x, self.d_x = _sobel_mats(self.nw)
-        self.fields = np.zeros((4, h, w), dtype)
-        self.grad = np.zeros((4, h, w), dtype)
-        self.work = np.zeros((6, h, w), dtype)
+        self.buf = LevelBuffers(h, w, self.nh, dtype)
         self.gpatch = np.zeros((4, self.nh, self.nw))
         self.opts = opts
 
@@ -541,11 +541,7 @@ class BosLevel:
         """``((total, data, tv, p), d total / d theta)``: the fields upsampled to the pixels,
         the kernel, and the adjoints of the upsampling and of the Sobel back to theta."""
         o = self.opts
-        upsample(self.patch_fields(theta), self.iy, self.fy, self.ix, self.fx, self.fields)
-        terms = objective_grad(self.fields, self.gimg, self.meas, self.weight,
-                               self.s_meas, 1.0 / self.k, o.lambda_tv, o.lambda_p, o.eps_data,
-                               o.eps_reg, normalized, o.use_p, self.work, self.grad)
-        upsample_adjoint(self.grad, self.iy, self.fy, self.ix, self.fx, self.gpatch)
+        terms = self.objective(self.patch_fields(theta), normalized)
         g = np.zeros_like(theta)
         if o.param == "poisson":
             g[0] = self.sm_y.T @ self.gpatch[0] @ self.d_x + self.d_y.T @ self.gpatch[1] @ self.sm_x
@@ -555,6 +551,16 @@ class BosLevel:
             th = np.tanh(theta[self.n_flow():self.n_flow() + 2] / o.p_max)
             g[self.n_flow():self.n_flow() + 2] = self.gpatch[2:4] * (1.0 - th * th)
         return terms, g
+
+    def objective(self, patch_fields: np.ndarray, normalized: bool, regularize: bool = True):
+        """(total, data, tv, p) of patch-grid fields (4, nh, nw); the gradient with respect
+        to them in ``self.gpatch`` and the predicted increment in ``self.buf.pred``."""
+        o = self.opts
+        lam_tv, lam_p = (o.lambda_tv, o.lambda_p) if regularize else (0.0, 0.0)
+        return objective_grad(np.ascontiguousarray(patch_fields), self.iy, self.fy_d, self.ix,
+                              self.fx_d, self.gimg, self.meas, self.weight, self.s_meas,
+                              1.0 / self.k, lam_tv, lam_p, o.eps_data, o.eps_reg, normalized,
+                              o.use_p, self.buf, self.gpatch)
 
     def n_params(self) -> int:
         """Parameters per patch (flow, then p when estimated)."""
@@ -738,11 +744,8 @@ def estimate_bos(
     upsample(pf, final.iy, final.fy, final.ix, final.fx, dense)
     scale = 1.0
     if normalized and o.rescale and c is not None:
-        upsample(pf, final.iy, final.fy, final.ix, final.fx, final.fields)
-        objective_grad(final.fields, final.gimg, final.meas, final.weight,
-                       final.s_meas, 1.0, 0.0, 0.0, o.eps_data, o.eps_reg, True, o.use_p,
-                       final.work, final.grad)
-        pr = final.work[0].astype(np.float64)
+        final.objective(pf, True, regularize=False)
+        pr = final.buf.pred.astype(np.float64)
         den = float(np.sum(pr * pr))
         if den > 0:
             scale = float(np.sum(pr * final.meas) / den)
