@@ -24,6 +24,15 @@ import harness
 from bench_bos_accuracy import exact_flow
 
 
+def _cpu_s() -> float:
+    """User + system CPU seconds of this process and its finished worker processes."""
+    import resource
+
+    a = resource.getrusage(resource.RUSAGE_SELF)
+    b = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
 def _run(size, duration, iterations) -> list[dict]:
     from evmotion.eval.metrics import event_mask, flow_metrics
     from evmotion.methods.bos import estimate_bos_sequence
@@ -36,10 +45,12 @@ def _run(size, duration, iterations) -> list[dict]:
     rows, base = [], None
     for workers in (1, 2):
         load0 = os.getloadavg()[0]
+        cpu0 = _cpu_s()
         start = time.perf_counter()
         res = estimate_bos_sequence(sim.events, f, t, workers=workers, iterations=iterations,
                                     data_term="scale")
         wall = time.perf_counter() - start
+        cpu = _cpu_s() - cpu0
         load1 = os.getloadavg()[0]
         aee = []
         for k, r in enumerate(res):
@@ -52,7 +63,8 @@ def _run(size, duration, iterations) -> list[dict]:
         rows.append({"frames": len(t), "intervals": n, "size": f"{size[1]}x{size[0]}",
                      "events": len(sim.events), "iterations_per_scale": iterations,
                      "workers": workers, "wall_s": wall, "s_per_interval": wall / n,
-                     "speedup_vs_1_worker": base / wall, "load_before": load0,
+                     "speedup_vs_1_worker": base / wall, "cpu_s": cpu,
+                     "cores_used": cpu / wall, "load_before": load0,
                      "load_after": load1, "mean_AEE_px": float(np.mean(aee))})
         print(rows[-1], flush=True)
     return rows
@@ -70,7 +82,10 @@ def main(quick: bool = False, sizes=((128, 112), (256, 224)), iterations: int = 
                    "workers: two contiguous chunks, each warm-started). The machine has 2 "
                    "cores shared with other jobs: load_before/after is the 1-min load "
                    "average; a load above 2 means the two workers did not have two free "
-                   "cores.")
+                   "cores. cpu_s: CPU seconds of the process and its workers; cores_used = "
+                   "cpu_s / wall_s (how much CPU the run got). Equal cpu_s for 1 and 2 "
+                   "workers means the parallel runner adds no work; the speed-up is bounded "
+                   "by the CPU the shared machine gives.")
     return rows
 
 
