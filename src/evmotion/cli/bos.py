@@ -4,11 +4,14 @@ REC is an ECD-style folder (``events.txt``, ``images.txt`` with ``t path`` lines
 ``images/``) or any event recording with ``--frames``. Every frame interval
 ``[t_i, t_{i+1})`` the events cover is one window: the events in it against frame ``i``
 give the flow ``v`` (px/s), the Poisson field ``q`` (``v = Sobel(q)``) and the frame's
-translation field ``p`` (px), warm-started from the previous interval.
+translation field ``p`` (px), warm-started from the previous interval. The contrast
+threshold C that sets the flow's magnitude (``--data-term scale``) is one per sequence:
+the median of its estimates from the frames bracketing up to 15 intervals, unless given.
 
 The output is an evmotion flow HDF5 file (``read_flow_h5``, ``evmotion eval`` read it)
-with ``/q``, ``/p`` and per-window numbers (contrast threshold, loss, events) beside the
-flow; ``--png-dir`` adds ``q_XXXX.png``, ``flow_XXXX.png`` and ``p_XXXX.png`` per interval.
+with ``/q``, ``/p`` and per-window numbers (contrast threshold, objective, events, seconds)
+beside the flow; ``--png-dir`` adds ``q_XXXX.png``, ``flow_XXXX.png`` and ``p_XXXX.png``
+per interval.
 """
 
 from __future__ import annotations
