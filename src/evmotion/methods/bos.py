@@ -36,14 +36,20 @@ Differences from the thesis, and why:
   always runs on full-resolution pixels. With ``pool=None`` and ``tol=0`` this is the
   thesis' schedule exactly;
 * crossing to a finer scale, q is doubled so that the flow (Sobel over the patch grid,
-  whose spacing halves) is continuous.
+  whose spacing halves) is continuous;
+* the model frame is smoothed with the measurement's Gaussian (sigma = 2 px) before its
+  gradient: the smoothed increment of a smooth flow is ``-(G * grad L) . v``, and without
+  it the scale-aware term returned about 0.2x the flow's magnitude on LEGM data;
+* p enters to first order and is bounded to +-``p_max`` (0.5 px) per component;
+* the returned q is the least-norm field with the same Sobel flow (the Sobel over patches
+  is blind to constants and checkerboards, which the random initialization leaves in q).
 
 Measured (``benchmarks/results/bos_magnitude.md``, ``bos.md``): on simulated plume, jet,
 breath and ice scenes (360x320, 2 px) Poisson beats Flow in AEE and AE in every window
-(AE 0.16-0.55 rad vs 0.24-0.63); the scale-aware term's median |v|/|v_gt| is 0.80-1.03
-(mean 0.93) with C estimated from the frames. One 640x720 interval on one core of a
-loaded 2-CPU machine: 26.5 s with the thesis' schedule, 6.7 s with
-:meth:`BosOptions.fast` at +0.27 % of its final objective.
+(AE 0.16-0.55 rad vs 0.24-0.64); the scale-aware term's median |v|/|v_gt| is 0.81-1.05
+(mean 0.935) with C estimated from the frames. One 640x720 interval on one core of a
+2-CPU machine at load ~10: 30.5 s with the thesis' schedule, 12.1 s with the defaults
+(-0.01 % of its final objective), 6.0 s with :meth:`BosOptions.fast` (+0.27 %).
 
 Units: flow in px/s (u right, v down), q in px^2/s (``v ~ grad q``), p in px.
 """
@@ -85,7 +91,7 @@ _ADAM_B1, _ADAM_B2, _ADAM_EPS = 0.9, 0.999, 1e-8
 class BosOptions:
     """Settings of :func:`estimate_bos` (defaults: the thesis' §6.4, plus pooled coarse
     scales and a convergence stop, which reach the thesis' final objective to 0.1 % in
-    about a third of the time: ``benchmarks/results/bos.md``; ``pool=None, tol=0`` runs the
+    about 40 % of the time: ``benchmarks/results/bos.md``; ``pool=None, tol=0`` runs the
     thesis' schedule exactly).
 
     Attributes
@@ -193,8 +199,8 @@ class BosOptions:
     def fast(cls, **kwargs) -> BosOptions:
         """The fast schedule: 150 iterations at each coarse scale and 300 at the finest (the
         learning rate decays over each), pooled coarse scales. On a 640x720 plume interval
-        its final objective is within 0.1 % of the thesis' 600 per scale at about a quarter
-        of the time (``benchmarks/results/bos.md``). Keyword arguments override fields."""
+        its final objective is within 0.3 % of the thesis' 600 per scale at a fifth of the
+        time (``benchmarks/results/bos.md``). Keyword arguments override fields."""
         return cls(**{"iterations": (150, 150, 150, 300), **kwargs})
 
     def iterations_per_scale(self) -> tuple[int, ...]:
