@@ -851,6 +851,16 @@ def estimate_bos_sequence(
     ------
     EvmotionError
         The first interval's error, re-raised with its window (see :func:`estimate_bos`).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> frames = (rng.random((3, 32, 32)) * 200 + 20).astype(np.uint8)
+    >>> ev = EventArray(x=rng.integers(0, 32, 900), y=rng.integers(0, 32, 900),
+    ...                 t=np.arange(900) * 10, p=rng.integers(0, 2, 900), sensor_size=(32, 32))
+    >>> res = estimate_bos_sequence(ev, frames, [0, 4500, 9000], scales=(16, 8), iterations=10)
+    >>> [(r.t0_us, r.t1_us) for r in res]
+    [(0, 4500), (4500, 9000)]
     """
     from evmotion.parallel import map_windows
 
