@@ -79,14 +79,14 @@ def test_frames_are_background_at_displaced_points(plume):
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     for i in range(len(plume.frames)):
         d = plume.gt.displacement[i].astype(np.float64)
-        rad = plume.background.radiance_reference(xs + d[..., 0], ys + d[..., 1])
+        rad = plume.background.radiance_reference(xs - d[..., 0], ys - d[..., 1])
         ref = np.clip(np.rint(255 * rad), 0, 255)
         diff = np.abs(plume.frames.images[i].astype(np.int64) - ref)
         assert diff.max() <= 1 and (diff > 0).mean() < 0.01
     # the displacement is not rounded to pixels: a nearest-pixel render is different
     d = plume.gt.displacement[2].astype(np.float64)
-    nearest = plume.background.radiance_reference(np.rint(xs + d[..., 0]),
-                                                  np.rint(ys + d[..., 1]))
+    nearest = plume.background.radiance_reference(np.rint(xs - d[..., 0]),
+                                                  np.rint(ys - d[..., 1]))
     moved = np.abs(d).max(-1) > 0.2
     assert moved.sum() > 20
     assert np.abs(plume.frames.images[2][moved] - np.rint(255 * nearest[moved])).mean() > 3
@@ -111,7 +111,7 @@ def test_events_sum_to_log_change_legm(plume):
 
     def log_rad(i):
         d = gt.displacement[i].astype(np.float64)
-        return np.log(plume.background.radiance(xs + d[..., 0], ys + d[..., 1]))
+        return np.log(plume.background.radiance(xs - d[..., 0], ys - d[..., 1]))
 
     for i in range(len(gt.t_us) - 1):
         m = (ev.t > gt.t_us[i]) & (ev.t <= gt.t_us[i + 1])
@@ -216,7 +216,7 @@ def test_low_light_shot_noise_statistics():
     z = []
     for i in range(2):
         d = sim.gt.displacement[i].astype(np.float64)
-        lam = photons * sim.background.radiance(xs + d[..., 0], ys + d[..., 1])
+        lam = photons * sim.background.radiance(xs - d[..., 0], ys - d[..., 1])
         z.append((sim.frames.images[i] - lam) / np.sqrt(lam))
     z = np.concatenate([v.ravel() for v in z])
     assert abs(z.mean()) < 0.05 and z.var() == pytest.approx(1.0, abs=0.08)
@@ -340,3 +340,19 @@ def test_event_shot_noise_grows_as_light_falls():
     np.testing.assert_array_equal(a.t, b.t)
     with pytest.raises(ParameterError, match="event_photons"):
         simulate_schlieren("plume", event_photons=0.0, **kw)
+
+
+def test_flow_is_the_image_motion_legm(plume):
+    """The ground-truth flow moves the frames' content: the log change between two frames
+    is -∇L · v Δt (brightness constancy, first order), with a positive slope near 1."""
+    gt = plume.gt
+    logs = np.log(plume.frames.images.astype(np.float64) + 1.0)
+    for i in range(len(gt.t_us) - 1):
+        dt = (gt.t_us[i + 1] - gt.t_us[i]) * 1e-6
+        gy, gx = np.gradient(0.5 * (logs[i] + logs[i + 1]))
+        pred = -(gx * gt.flow[i, ..., 0] + gy * gt.flow[i, ..., 1]) * dt
+        meas = logs[i + 1] - logs[i]
+        act = np.hypot(gt.flow[i, ..., 0], gt.flow[i, ..., 1]) * dt > 0.05
+        assert act.sum() > 50
+        slope = np.sum(pred[act] * meas[act]) / np.sum(pred[act] ** 2)
+        assert 0.6 < slope < 1.4, slope

@@ -12,7 +12,8 @@ Model
   advected by the scene's flow: a rising thermal plume, a turbulent jet, breath puffs,
   a falling cold stream). By (6.1)-(6.3) the background seen at pixel ``x`` is displaced
   by ``d(x, t) = ∇φ(x, t)`` (the gain is folded into φ): the frame shows
-  ``I(x + d(x, t))``. The optical flow between frames at ``t1 < t2`` is
+  ``I(x - d(x, t))``, so the pattern appears moved by ``+d`` (to first order in ∇d) and
+  ``d`` is the image motion that optical flow measures. The optical flow between frames at ``t1 < t2`` is
   ``v = (d(t2) - d(t1)) / (t2 - t1) = ∇q`` with ``q = (φ(t2) - φ(t1)) / (t2 - t1)`` (6.4)-(6.6):
   a curl-free field, the thesis' Poisson parameterization ``v = ∇q``. The field is
   scaled so that the largest inter-frame displacement ``|v| Δt`` is ``magnitude_px``.
@@ -476,7 +477,7 @@ class SchlierenGT:
         Poisson field of each frame interval, px²/s: ``flow = ∇q`` (analytic gradient).
     displacement : ndarray (N, H, W, 2) float32
         Apparent displacement of the background at each frame time, px (the frame at
-        pixel x shows the background at x + displacement).
+        pixel x shows the background at x - displacement).
     t_us : ndarray (N,) int64
         Frame times, µs.
     contrast_threshold : float
@@ -669,8 +670,8 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
         idx = np.arange(h * w) if pix is None else np.asarray(pix)
         out = still[idx]
         moved = np.nonzero((d[:, 0] != 0) | (d[:, 1] != 0))[0]
-        out[moved] = bg.radiance(xs_f[idx[moved]] + d[moved, 0],
-                                 ys_f[idx[moved]] + d[moved, 1])
+        out[moved] = bg.radiance(xs_f[idx[moved]] - d[moved, 0],
+                                 ys_f[idx[moved]] - d[moved, 1])
         return out.reshape(h, w) if pix is None else out
 
     # frames: radiance averaged over the exposure, shot noise, gain, 8 bits
