@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 import harness
-from bench_bos import accuracy, gt_sign
+from bench_bos import accuracy
 from evmotion.methods.bos import estimate_bos, estimate_contrast_threshold
 from evmotion.sim.schlieren import simulate_schlieren
 
@@ -42,8 +42,7 @@ def main(quick: bool = False) -> list[dict]:
         for k in (1, 2):
             t0, t1 = int(t[k]), int(t[k + 1])
             dt = (t1 - t0) * 1e-6
-            sign = gt_sign(sim, k)
-            gt_px = sign * sim.gt.flow[k] * dt
+            gt_px = sim.gt.flow[k] * dt
             win = sim.events.slice_time(t0, t1)
             mask = np.zeros(SIZE, bool)
             mask[win.y, win.x] = True
@@ -59,7 +58,7 @@ def main(quick: bool = False) -> list[dict]:
                            **accuracy(res.flow * dt, gt_px, mask), "scale": res.scale,
                            "C_rma": cs["rma"], "C_events": cs["events"],
                            "C_frames": cs["frames"], "C_sensor": sim.gt.contrast_threshold,
-                           "gt_sign": sign, "time_s": sum(res.timings_s)}
+                           "time_s": sum(res.timings_s)}
                     rows.append(row)
                     print({k2: (round(v, 4) if isinstance(v, float) else v)
                            for k2, v in row.items()}, flush=True)
@@ -72,9 +71,7 @@ def main(quick: bool = False) -> list[dict]:
                                for m in ("AEE_px", "AE_rad", "ratio")},
                             "ratio_min": float(min(r["ratio"] for r in sel)),
                             "ratio_max": float(max(r["ratio"] for r in sel))})
-    notes = ("Default options (pool 'auto', tol 1e-3). gt_sign: the simulator's flow is "
-             "multiplied by it so that it is the apparent motion of the pattern (the LEGM "
-             "and Farneback convention); -1 means the simulator stores the opposite.")
+    notes = "Default options (pool 'auto', tol 1e-3)."
     harness.record("bos_magnitude", rows + summary, notes)
     return rows
 
