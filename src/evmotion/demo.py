@@ -189,14 +189,6 @@ def _schlieren(out: Path, rep: HtmlReport, seed: int) -> dict:
     win = sim.events.slice_time(t0, t1)
     mask = event_mask(win)
     gt, gt_q = sim.gt.flow[k], sim.gt.q[k]
-    # The image's optical flow is -d(displacement)/dt when frames show the background at
-    # x + d; take the ground truth's sign from Farneback on the noise-free frames, so the
-    # comparison holds whichever sign convention the simulator's gt.flow uses.
-    from evmotion.methods.farneback import farneback_flow
-
-    fb = farneback_flow(f[k], f[k + 1], dt)
-    if float(np.sum(fb * gt)) < 0:
-        gt, gt_q = -gt, -gt_q
     rows = []
     for data_term in ("scale", "normalized"):
         start = time.perf_counter()
