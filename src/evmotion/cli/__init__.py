@@ -26,6 +26,8 @@ COMMANDS: tuple[str, ...] = (
     "segment",
     "flow",
     "eval",
+    "bos",
+    "kymogram",
 )
 
 EPILOG = """examples:
