@@ -89,10 +89,12 @@ _ADAM_B1, _ADAM_B2, _ADAM_EPS = 0.9, 0.999, 1e-8
 
 @dataclass(frozen=True)
 class BosOptions:
-    """Settings of :func:`estimate_bos` (defaults: the thesis' §6.4, plus pooled coarse
-    scales and a convergence stop, which reach the thesis' final objective to 0.1 % in
-    about 40 % of the time: ``benchmarks/results/bos.md``; ``pool=None, tol=0`` runs the
-    thesis' schedule exactly).
+    """Settings of :func:`estimate_bos` (defaults: the thesis' §6.4 with a shorter schedule,
+    150/150/150/300 Adam iterations with the learning rate decaying over each scale, pooled
+    coarse scales and a convergence stop; on a 640x720 plume interval its final objective
+    is within 0.3 % of the thesis' 600 per scale at a fifth of the time:
+    ``benchmarks/results/bos.md``. ``iterations=600, pool=None, tol=0`` runs the thesis'
+    schedule exactly).
 
     Attributes
     ----------
@@ -149,7 +151,7 @@ class BosOptions:
     contrast_threshold: float | None = None
     rescale: bool = True
     scales: tuple[int, ...] = (64, 32, 16, 8)
-    iterations: int | tuple[int, ...] = 600
+    iterations: int | tuple[int, ...] = (150, 150, 150, 300)
     lr: float = 0.05
     lr_decay: float = 0.1
     lambda_tv: float = 0.5
@@ -197,10 +199,11 @@ class BosOptions:
 
     @classmethod
     def fast(cls, **kwargs) -> BosOptions:
-        """The fast schedule: 150 iterations at each coarse scale and 300 at the finest (the
-        learning rate decays over each), pooled coarse scales. On a 640x720 plume interval
-        its final objective is within 0.3 % of the thesis' 600 per scale at a fifth of the
-        time (``benchmarks/results/bos.md``). Keyword arguments override fields."""
+        """The fast schedule (the default since it met the speed goal): 150 iterations at
+        each coarse scale and 300 at the finest (the learning rate decays over each),
+        pooled coarse scales. On a 640x720 plume interval its final objective is within
+        0.3 % of the thesis' 600 per scale at a fifth of the time
+        (``benchmarks/results/bos.md``). Keyword arguments override fields."""
         return cls(**{"iterations": (150, 150, 150, 300), **kwargs})
 
     def iterations_per_scale(self) -> tuple[int, ...]:
