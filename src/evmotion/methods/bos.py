@@ -47,9 +47,10 @@ Differences from the thesis, and why:
 Measured (``benchmarks/results/bos_magnitude.md``, ``bos.md``): on simulated plume, jet,
 breath and ice scenes (360x320, 2 px) Poisson beats Flow in AEE and AE in every window
 (AE 0.16-0.55 rad vs 0.24-0.64); the scale-aware term's median |v|/|v_gt| is 0.81-1.05
-(mean 0.935) with C estimated from the frames. One 640x720 interval on one core of a
-2-CPU machine at load ~10: 30.5 s with the thesis' schedule, 12.1 s with the defaults
-(-0.01 % of its final objective), 6.0 s with :meth:`BosOptions.fast` (+0.27 %).
+(mean 0.935) with C estimated from the frames. One 640x720 interval on one core
+(CPU time, 2-CPU machine at load ~7): 8.5 s with the thesis' schedule (26 s wall), 1.8 s
+with the defaults 150/150/150/300 on pooled coarse scales (5.5 s wall; +0.29 % of the
+thesis' final objective, same AEE), 3.6 s with ``iterations=600`` (+0.21 %).
 
 Units: flow in px/s (u right, v down), q in px^2/s (``v ~ grad q``), p in px.
 """
