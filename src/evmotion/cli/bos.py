@@ -86,8 +86,9 @@ def add_parser(sub) -> None:
                         "give it for dark, noisy frames")
     p.add_argument("--iterations", type=_number(int, lo=1, hi=100_000),
                    default=None, metavar="N",
-                   help="Adam iterations per scale (default 150/150/150/300, within 0.3 %% "
-                        "of the thesis' objective; 600: the thesis' schedule)")
+                   help="Adam iterations per scale (default 150/150/150/300 for the scale term, within 0.3 %% "
+                        "of the thesis' objective, 600 for the normalized one; 600: the thesis' "
+                        "schedule)")
     p.add_argument("--seed", type=_number(int, lo=0), default=0,
                    help="seed of the random initial q (default 0)")
     p.add_argument("--t0", type=_number(int), default=None, metavar="US",
