@@ -71,7 +71,11 @@ def main(quick: bool = False) -> list[dict]:
                                for m in ("AEE_px", "AE_rad", "ratio")},
                             "ratio_min": float(min(r["ratio"] for r in sel)),
                             "ratio_max": float(max(r["ratio"] for r in sel))})
-    notes = "Default options (pool 'auto', tol 1e-3)."
+    from bench_bos_accuracy import solver_version
+
+    notes = ("Default options (150/150/150/300 iterations, pool 'auto', tol 1e-3); the "
+             "simulator's flow is the image motion (sign fixed in 6e28bc7); code at "
+             f"{solver_version()}.")
     harness.record("bos_magnitude", rows + summary, notes)
     return rows
 
