@@ -6,6 +6,7 @@ uninterrupted run writes."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -32,7 +33,14 @@ def rec(tmp_path_factory):
     (d / "afile").write_text("not a folder")
     (d / "adir.h5").mkdir()
     np.save(d / "events.npy", np.zeros(5, dtype=[("t", "<i8"), ("x", "<u2")]))
-    return {"rec": str(path), "gt": str(d / "sim_gt.h5"), "dir": d}
+    # a schlieren scene (events + frames, 40x48 px, two frame intervals) for bos/kymogram,
+    # and the same events without their frames
+    bos = d / "bos"
+    assert main(["simulate", "schlieren", "--size", "40x48", "--duration", str(2 / 120),
+                 "--json", "--out", str(bos)]) == 0
+    (d / "noframes").mkdir()
+    shutil.copy(bos / "events.txt", d / "noframes" / "events.txt")
+    return {"rec": str(path), "gt": str(d / "sim_gt.h5"), "dir": d, "bos": str(bos)}
 
 
 def _run(argv, capsys):
@@ -66,6 +74,8 @@ def _base_argv(command: str, r) -> list[str]:
         "flow": ["flow", r["rec"], "--out", str(d / "f.h5")],
         "eval": ["eval", r["rec"], "--gt", r["gt"]],
         "train": ["train", "--out", str(d / "tr")],
+        "bos": ["bos", r["bos"], "--out", str(d / "b.h5")],
+        "kymogram": ["kymogram", r["rec"], "--col", "3", "--out", str(d / "k.png")],
     }[command]
 
 
@@ -218,6 +228,105 @@ CASES = [
                              "{dir}/s.h5"], ["--params", "vx", "'nan'"]),
     ("simulate-frame-rate-zero", ["simulate", "rotation", "--frame-rate", "0", "--out",
                                   "{dir}/s.h5"], ["--frame-rate", "'0'", "Hz"]),
+    ("simulate-schlieren-fps-nan", ["simulate", "schlieren", "--fps", "nan", "--out",
+                                    "{dir}/ss"], ["--fps", "'nan'", "Hz"]),
+    ("simulate-schlieren-magnitude-neg", ["simulate", "schlieren", "--magnitude", "-1",
+                                          "--out", "{dir}/ss"], ["--magnitude", "'-1'", "px"]),
+    ("simulate-schlieren-magnitude-big", ["simulate", "schlieren", "--magnitude", "100",
+                                          "--out", "{dir}/ss"], ["--magnitude", "'100'"]),
+    ("simulate-schlieren-photons-inf", ["simulate", "schlieren", "--photons", "inf", "--out",
+                                        "{dir}/ss"], ["--photons", "'inf'"]),
+    ("simulate-schlieren-dot-density-zero", ["simulate", "schlieren", "--dot-density", "0",
+                                             "--out", "{dir}/ss"], ["--dot-density", "'0'"]),
+    ("simulate-schlieren-dot-radius-text", ["simulate", "schlieren", "--dot-radius", "big",
+                                            "--out", "{dir}/ss"], ["--dot-radius", "'big'"]),
+    ("simulate-schlieren-tau-zero", ["simulate", "schlieren", "--event-tau-us", "0", "--out",
+                                     "{dir}/ss"], ["--event-tau-us", "'0'", "µs"]),
+    ("simulate-schlieren-speed-neg", ["simulate", "schlieren", "--speed", "-5", "--out",
+                                      "{dir}/ss"], ["--speed", "'-5'"]),
+    ("simulate-schlieren-height-zero", ["simulate", "schlieren", "--height", "0", "--out",
+                                        "{dir}/ss"], ["--height", "'0'"]),
+    ("simulate-schlieren-size-small", ["simulate", "schlieren", "--size", "4x4", "--out",
+                                       "{dir}/ss"], ["--size", "4x4", "8 px"]),
+    ("simulate-schlieren-scene", ["simulate", "schlieren", "--scene", "smoke", "--out",
+                                  "{dir}/ss"], ["--scene", "'smoke'"]),
+    ("simulate-schlieren-one-frame", ["simulate", "schlieren", "--duration", "0.001",
+                                      "--out", "{dir}/ss"], ["--duration 0.001", "two frames"]),
+    ("simulate-schlieren-exposure-long", ["simulate", "schlieren", "--exposure", "0.5",
+                                          "--out", "{dir}/ss"], ["--exposure 0.5", "period"]),
+    ("simulate-schlieren-gain-alone", ["simulate", "schlieren", "--gain", "2", "--out",
+                                       "{dir}/ss"], ["--gain 2", "--photons"]),
+    ("simulate-schlieren-texture", ["simulate", "schlieren", "--texture", "shapes", "--out",
+                                    "{dir}/ss"], ["--texture", "'shapes'", "schlieren"]),
+    ("simulate-schlieren-params", ["simulate", "schlieren", "--params", "vx=1", "--out",
+                                   "{dir}/ss"], ["--params", "schlieren"]),
+    ("simulate-schlieren-out-file", ["simulate", "schlieren", "--out", "{dir}/afile"],
+     ["--out", "afile", "it is a file"]),
+    ("simulate-fps-rotation", ["simulate", "rotation", "--fps", "60", "--out", "{dir}/s.h5"],
+     ["--fps 60.0", "rotation"]),
+    ("bos-contrast-nan", ["bos", "{bos}", "--contrast-threshold", "nan", "--out",
+                          "{dir}/b.h5"], ["--contrast-threshold", "'nan'"]),
+    ("bos-contrast-neg", ["bos", "{bos}", "--contrast-threshold", "-0.2", "--out",
+                          "{dir}/b.h5"], ["--contrast-threshold", "'-0.2'"]),
+    ("bos-iterations-text", ["bos", "{bos}", "--iterations", "many", "--out", "{dir}/b.h5"],
+     ["--iterations", "'many'", "integer"]),
+    ("bos-workers-neg", ["bos", "{bos}", "--workers", "-1", "--out", "{dir}/b.h5"],
+     ["--workers", "'-1'"]),
+    ("bos-seed-inf", ["bos", "{bos}", "--seed", "inf", "--out", "{dir}/b.h5"],
+     ["--seed", "'inf'"]),
+    ("bos-roi-negative", ["bos", "{bos}", "--roi", "-1", "0", "8", "8", "--out",
+                          "{dir}/b.h5"], ["--roi", "'-1'"]),
+    ("bos-roi-outside", ["bos", "{bos}", "--roi", "30", "0", "20", "20", "--out",
+                         "{dir}/b.h5"], ["roi", "x=30", "outside", "48x40"]),
+    ("bos-roi-empty", ["bos", "{bos}", "--roi", "0", "0", "0", "8", "--out", "{dir}/b.h5"],
+     ["roi", "w=0", "outside"]),
+    ("bos-t1-before-t0", ["bos", "{bos}", "--t0", "9000", "--t1", "100", "--out",
+                          "{dir}/b.h5"], ["--t1", "--t0"]),
+    ("bos-out-txt", ["bos", "{bos}", "--out", "{dir}/b.txt"], ["--out", "b.txt", ".h5"]),
+    ("bos-out-is-folder", ["bos", "{bos}", "--out", "{dir}/adir.h5"],
+     ["--out", "adir.h5", "is a folder"]),
+    ("bos-png-dir-is-file", ["bos", "{bos}", "--png-dir", "{dir}/afile", "--out",
+                             "{dir}/b.h5"], ["--png-dir", "afile", "it is a file"]),
+    ("bos-frames-missing", ["bos", "{bos}", "--frames", "{dir}/nope", "--out", "{dir}/b.h5"],
+     ["--frames", "nope", "no such"]),
+    ("bos-no-frames", ["bos", "{dir}/noframes", "--out", "{dir}/b.h5"],
+     ["noframes", "no frames", "--frames"]),
+    ("bos-rec-missing", ["bos", "{dir}/nope", "--out", "{dir}/b.h5"], ["nope", "no such"]),
+    ("kymogram-rate-nan", ["kymogram", "{bos}", "--col", "3", "--rate", "nan", "--out",
+                           "{dir}/k.png"], ["--rate", "'nan'", "Hz"]),
+    ("kymogram-rate-zero", ["kymogram", "{bos}", "--col", "3", "--rate", "0", "--out",
+                            "{dir}/k.png"], ["--rate", "'0'"]),
+    ("kymogram-compare-rate-inf", ["kymogram", "{bos}", "--col", "3", "--compare-rate", "inf",
+                                   "--out", "{dir}/k.png"], ["--compare-rate", "'inf'"]),
+    ("kymogram-width-neg", ["kymogram", "{bos}", "--col", "3", "--width", "-2", "--out",
+                            "{dir}/k.png"], ["--width", "'-2'"]),
+    ("kymogram-row-text", ["kymogram", "{bos}", "--row", "top", "--out", "{dir}/k.png"],
+     ["--row", "'top'"]),
+    ("kymogram-line-nan", ["kymogram", "{bos}", "--line", "0", "nan", "5", "5", "--out",
+                           "{dir}/k.png"], ["--line", "'nan'"]),
+    ("kymogram-focal-zero", ["kymogram", "{bos}", "--col", "3", "--focal-mm", "0", "--out",
+                             "{dir}/k.png"], ["--focal-mm", "'0'", "mm"]),
+    ("kymogram-geometry-partial", ["kymogram", "{bos}", "--col", "3", "--focal-mm", "25",
+                                   "--out", "{dir}/k.png"], ["--distance-m, --pixel-um"]),
+    ("kymogram-min-snr-neg", ["kymogram", "{bos}", "--col", "3", "--min-snr", "-1", "--out",
+                              "{dir}/k.png"], ["--min-snr", "'-1'"]),
+    ("kymogram-col-outside", ["kymogram", "{bos}", "--col", "48", "--out", "{dir}/k.png"],
+     ["48"]),
+    ("kymogram-rate-with-q", ["kymogram", "{dir}/b.h5", "--from", "q", "--col", "3",
+                              "--rate", "2000", "--out", "{dir}/k.png"],
+     ["--rate 2000.0", "--from q"]),
+    ("kymogram-polarity-correlation", ["kymogram", "{bos}", "--col", "3", "--polarity",
+                                       "positive", "--out", "{dir}/k.png"],
+     ["--polarity 'positive'", "correlation"]),
+    ("kymogram-max-lag-ridge", ["kymogram", "{bos}", "--col", "3", "--method", "ridge",
+                                "--max-lag-s", "0.1", "--out", "{dir}/k.png"],
+     ["--max-lag-s 0.1", "ridge"]),
+    ("kymogram-sigma-no-fit", ["kymogram", "{bos}", "--col", "3", "--no-fit", "--sigma-px",
+                               "2", "--out", "{dir}/k.png"], ["--sigma-px 2.0", "--no-fit"]),
+    ("kymogram-out-jpg", ["kymogram", "{bos}", "--col", "3", "--out", "{dir}/k.jpg"],
+     ["--out", "k.jpg", ".png"]),
+    ("kymogram-frames-without", ["kymogram", "{bos}", "--col", "3", "--frames",
+                                 "{dir}/noframes", "--out", "{dir}/k.png"], ["noframes"]),
     ("convert-t1-before-t0", ["convert", "{rec}", "{dir}/c.h5", "--t0", "9", "--t1", "3"],
      ["--t1 3", "--t0 9"]),
     ("convert-chunk-zero", ["convert", "{rec}", "{dir}/c.h5", "--chunk-events", "0"],
@@ -231,7 +340,7 @@ CASES = [
 
 @pytest.mark.parametrize("argv,needles", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
 def test_bad_invocation_is_one_line(rec, capsys, argv, needles):
-    subst = {"rec": rec["rec"], "gt": rec["gt"], "dir": str(rec["dir"])}
+    subst = {"rec": rec["rec"], "gt": rec["gt"], "dir": str(rec["dir"]), "bos": rec["bos"]}
     before = sorted(rec["dir"].rglob("*"))
     rc, err = _run([a.format(**subst) for a in argv], capsys)
     _assert_one_line(rc, err, *needles)
@@ -254,11 +363,17 @@ def _output_argv(command: str, r, out: str) -> list[str]:
         "segment": ["segment", r["rec"], "--warp", "translation", "--out", out],
         "flow": ["flow", r["rec"], "--out", out + ".h5"],
         "flow-png-dir": ["flow", r["rec"], "--out", str(r["dir"] / "f.h5"), "--png-dir", out],
+        "simulate-schlieren": ["simulate", "schlieren", "--size", "40x48", "--duration",
+                               "0.02", "--out", out],
+        "bos": ["bos", r["bos"], "--out", out + ".h5"],
+        "bos-png-dir": ["bos", r["bos"], "--out", str(r["dir"] / "b.h5"), "--png-dir", out],
+        "kymogram": ["kymogram", r["rec"], "--col", "3", "--out", out + ".png"],
     }[command]
 
 
 OUTPUT_COMMANDS = ["convert", "simulate", "view", "egomotion", "landscape", "landscape-csv",
-                   "segment", "flow", "flow-png-dir"]
+                   "segment", "flow", "flow-png-dir", "simulate-schlieren", "bos",
+                   "bos-png-dir", "kymogram"]
 
 
 @pytest.mark.parametrize("command", OUTPUT_COMMANDS)

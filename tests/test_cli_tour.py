@@ -31,6 +31,11 @@ def test_demo_writes_pictures_and_report(tmp_path, monkeypatch):
     assert demo.main(["--out", str(tmp_path)]) == 0
     assert (tmp_path / "report.html").is_file()
     pngs = {p.name for p in tmp_path.glob("*.png")}
-    assert {"rotation_iwe.png", "object_flow.png", "triplet_flow.png"} <= pngs
+    assert {"rotation_iwe.png", "object_flow.png", "triplet_flow.png", "bos_flow.png",
+            "bos_q.png"} <= pngs
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["rotation"]["omega_rms_error"] < 0.1
+    # BOS, scale-aware term: direction and magnitude of the simulated plume's flow
+    bos = summary["bos"][0]
+    assert bos["data term"] == "scale" and bos["AE rad"] < 0.3
+    assert 0.7 < bos["median |v|/|v_true|"] < 1.3

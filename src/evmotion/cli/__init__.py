@@ -28,6 +28,8 @@ COMMANDS: tuple[str, ...] = (
     "flow",
     "eval",
     "train",
+    "bos",
+    "kymogram",
 )
 
 EPILOG = """examples:

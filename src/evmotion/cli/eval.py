@@ -49,8 +49,8 @@ def add_parser(sub) -> None:
                    help="window start for .npy/.flo")
     p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None,
                    help="window end for .npy/.flo")
-    p.add_argument("--out-px", type=positive_float(unit="px"), default=3.0,
-                   help="%%Out threshold in px (3)")
+    p.add_argument("--out-px", type=positive_float(unit="px"), default=None,
+                   help="%%Out threshold in px (default 3; 1 for BOS files, thesis §6.6.1)")
     p.add_argument("--along-streamlines", action="store_true",
                    help="compare the displacement of the point at each pixel at the window "
                         "start: the window's flow (taken at its midpoint) transported to the "
@@ -63,6 +63,7 @@ def add_parser(sub) -> None:
 def _load_flow(args):
     from pathlib import Path
 
+    from evmotion.io.bosfiles import BOS_CONTENT
     from evmotion.io.flowfiles import read_flo, read_flow_h5
 
     path = Path(args.flow)
@@ -74,7 +75,9 @@ def _load_flow(args):
                       f"to {path.name} (an .h5 flow file carries its windows' times)")
         _check_estimate(path)
         seq = read_flow_h5(path)
-        return seq.flow, np.asarray(seq.t0), np.asarray(seq.t1)
+        # a BOS file is defined inside its ROI only (NaN outside, valid = ROI)
+        domain = seq.valid if seq.attrs.get("content") == BOS_CONTENT else None
+        return seq.flow, np.asarray(seq.t0), np.asarray(seq.t1), domain
     if suffix not in (".npy", ".flo"):
         raise FormatError(path, f"not a flow file: FLOW must be an evmotion flow .h5 (from "
                           f"'evmotion flow'), .npy or .flo, got {path.name!r})")
@@ -96,7 +99,7 @@ def _load_flow(args):
     n = flow.shape[0]
     if n != 1:
         raise ParameterError(f"{path}: {n} windows but one --t0-us/--t1-us interval")
-    return flow.astype(np.float32), np.array([args.t0_us]), np.array([args.t1_us])
+    return flow.astype(np.float32), np.array([args.t0_us]), np.array([args.t1_us]), None
 
 
 def _check_estimate(path) -> None:
@@ -174,7 +177,8 @@ def run(args) -> int:
     from evmotion.eval.metrics import aggregate_flow_metrics, event_mask, flow_metrics, fwl
     from evmotion.io.flowfiles import read_gt_flow
 
-    flow, t0s, t1s = _load_flow(args)
+    flow, t0s, t1s, domain = _load_flow(args)
+    out_px = args.out_px if args.out_px is not None else 3.0 if domain is None else 1.0
     gt = read_gt_flow(args.gt)
     if gt.flow.shape[1:3] != flow.shape[1:3]:
         raise ParameterError(f"flow is {flow.shape[1:3]} px but ground truth {args.gt} is "
@@ -195,15 +199,15 @@ def run(args) -> int:
 
             est = transport_to_times(np.ascontiguousarray(est.transpose(2, 0, 1)),
                                      np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
-        mask = valid
+        mask = valid if domain is None else valid & domain[i]
         win = None
         if events is not None:
             win = events.slice_time(int(t0), int(t1))
             mask = mask & event_mask(win, flow.shape[1:3])
         m = flow_metrics(est, np.where(valid[..., None], disp_gt, np.nan), mask=mask,
-                         out_px=args.out_px)
+                         out_px=out_px)
         row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), **m.as_dict(),
-               "gt_frames": round(frames, 2)}
+               "AE_rad": float(np.radians(m.ae_deg)), "gt_frames": round(frames, 2)}
         if win is not None and len(win) > 1:
             row["FWL"] = fwl(win, flow[i], t_ref_us=(int(t0) + int(t1)) // 2)
             row["FWL_gt"] = fwl(win, (disp_gt / ((t1 - t0) * 1e-6)).astype(np.float32),
@@ -211,13 +215,15 @@ def run(args) -> int:
         rows.append(m)
         per_window.append(row)
     total = aggregate_flow_metrics(rows).as_dict()
+    total["AE_rad"] = float(np.radians(total["AE_deg"]))
     fwls = [r["FWL"] for r in per_window if "FWL" in r]
     if fwls:
         total["FWL"] = float(np.mean(fwls))
         total["FWL_gt"] = float(np.mean([r["FWL_gt"] for r in per_window if "FWL_gt" in r]))
     summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
                "n_windows": len(per_window), "windows_with_other_dt": mismatched,
-               "mask": "valid GT" + (" & at least one event" if events is not None else ""),
+               "mask": "valid GT" + (" & ROI" if domain is not None else "")
+               + (" & at least one event" if events is not None else ""), "out_px": out_px,
                "mean": total, "windows": per_window}
     if args.json:
         print_json(summary)

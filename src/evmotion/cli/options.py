@@ -14,8 +14,9 @@ value, and exit code 2, before any work starts. This module holds the pieces for
 - Checks made after parsing, when several options or the input decide (they raise
   :class:`~evmotion.errors.ParameterError`, which the CLI prints as one line):
   :func:`reject_unused` (options that do not apply to the chosen method),
-  :func:`check_free_space`, :func:`check_output` (the same checks as
-  :func:`writable_output`, for a path computed at run time).
+  :func:`check_free_space`, :func:`check_output` and :func:`check_folder` (the same
+  checks as :func:`writable_output` and :func:`writable_folder`, for a path whose kind or
+  name is known only at run time).
 
 Examples
 --------
@@ -45,6 +46,7 @@ from evmotion.errors import ParameterError
 
 __all__ = [
     "Parser",
+    "check_folder",
     "check_free_space",
     "check_output",
     "existing_input",
@@ -273,13 +275,16 @@ def writable_output(suffixes: Iterable[str] | None = None, what: str = ""
     return parse
 
 
+def _folder_output_problem(path: Path) -> str | None:
+    if path.exists() and not path.is_dir():
+        return "it is a file"
+    return _folder_problem(path)
+
+
 def writable_folder(text: str) -> str:
     """``type=`` for an output folder: an existing folder or one that can be made, in
     which files can be created."""
-    p = Path(text)
-    if p.exists() and not p.is_dir():
-        raise argparse.ArgumentTypeError(f"cannot write into {text!r}: it is a file")
-    problem = _folder_problem(p)
+    problem = _folder_output_problem(Path(text))
     if problem:
         raise argparse.ArgumentTypeError(f"cannot write into {text!r}: {problem}")
     return text
@@ -291,6 +296,13 @@ def check_output(path: str | os.PathLike, option: str,
     problem = _output_problem(Path(path), suffixes)
     if problem:
         raise ParameterError(f"{option} {os.fspath(path)}: cannot write: {problem}")
+
+
+def check_folder(path: str | os.PathLike, option: str) -> None:
+    """:func:`writable_folder` for a path known only at run time; raises ParameterError."""
+    problem = _folder_output_problem(Path(path))
+    if problem:
+        raise ParameterError(f"{option} {os.fspath(path)}: cannot write into it: {problem}")
 
 
 def format_bytes(n: float) -> str:

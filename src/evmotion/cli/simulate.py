@@ -3,6 +3,12 @@
 Writes the events (any writable format, chosen by the extension or --format) and the
 ground truth beside them as ``<stem>_gt.h5`` (motion parameters per frame, dense flow in
 px/s at virtual frame times, intrinsics, angular velocity, event masks).
+
+``evmotion simulate schlieren --scene plume|jet|breath|ice --out DIR`` simulates
+background-oriented schlieren (thesis ch. 6): events and 8-bit frames of a random-dot
+background seen through moving air, written as an ECD-style folder (events.txt,
+images.txt, images/) with the exact flow between frames, q and the displacement in
+DIR/schlieren_gt.h5.
 """
 
 from __future__ import annotations
@@ -11,11 +17,14 @@ import argparse
 import json
 
 from evmotion.cli.options import (
+    check_folder,
+    check_output,
     existing_input,
+    finite_float,
     int_range,
     nonnegative_float,
     positive_float,
-    writable_output,
+    reject_unused,
 )
 
 # sides of a simulated sensor: the simulator renders float64 frames of this size
@@ -26,28 +35,39 @@ EXAMPLES = """examples:
   evmotion simulate zoom --params hz=2.0 --params foe=150,120 --out zoom.h5 --json
   evmotion simulate object --texture shapes --duration 0.2 --noise-rate 0.1 --out obj.h5
   evmotion simulate translation --image photo.png --params vx=300 --params vy=0 --out t.h5
+  evmotion simulate schlieren --scene plume --out plume/ --duration 0.1 --magnitude 2
+  evmotion simulate schlieren --scene breath --size 96x96 --photons 5 --out dark/ --json
 """
 
 
 def add_parser(sub) -> None:
     from evmotion.sim.scenes import SCENES
+    from evmotion.sim.schlieren import BOS_SCENES
 
     lines = "\n".join(f"  {n:<12} {s.description}" for n, s in SCENES.items())
+    lines += "\n  schlieren    background-oriented schlieren, --scene one of:\n" + "\n".join(
+        f"    {n:<10} {d}" for n, d in BOS_SCENES.items())
     p = sub.add_parser(
         "simulate", help="simulate events with ground truth (ESIM-like)",
         description=__doc__ + "\nscenes:\n" + lines, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("scene", choices=sorted(SCENES), help="named scene (motion)")
-    p.add_argument("--out", required=True, type=writable_output(),
-                   help="events file; ground truth goes to <stem>_gt.h5")
+    p.add_argument("scene", choices=[*sorted(SCENES), "schlieren"],
+                   help="named scene (motion), or schlieren")
+    p.add_argument("--out", required=True, help="events file; ground truth goes to "
+                   "<stem>_gt.h5 (schlieren: an output folder)")
     p.add_argument("--format", default=None, help="events format (default: from the extension)")
     p.add_argument("--duration", type=positive_float(unit="s"), default=0.1,
                    help="seconds (default 0.1)")
-    p.add_argument("--size", default="260x346", type=parse_size,
-                   help="HxW pixels (default 260x346, DAVIS346)")
+    p.add_argument("--size", default=None, type=parse_size,
+                   help="HxW pixels (default 260x346, DAVIS346; schlieren 720x640)")
+    p.add_argument("--height", type=int_range(1, MAX_SIDE, unit="px"), default=None,
+                   help="pixels (overrides --size)")
+    p.add_argument("--width", type=int_range(1, MAX_SIDE, unit="px"), default=None,
+                   help="pixels (overrides --size)")
     p.add_argument("--seed", type=int_range(0), default=0)
-    p.add_argument("--texture", default="dots", choices=["dots", "shapes", "noise", "checker"])
+    p.add_argument("--texture", default=None, choices=["dots", "shapes", "noise", "checker"],
+                   help="texture of a motion scene (default dots)")
     p.add_argument("--image", default=None, metavar="PATH", type=existing_input,
                    help="image to use as texture")
     p.add_argument("--threshold", type=positive_float(), default=0.2,
@@ -57,15 +77,40 @@ def add_parser(sub) -> None:
     p.add_argument("--refractory-us", type=int_range(0, unit="µs"), default=0)
     p.add_argument("--noise-rate", type=nonnegative_float(unit="events/s"), default=0.0,
                    help="background activity, events/s per pixel")
-    p.add_argument("--hot-pixels", type=int_range(0), default=0, help="number of hot pixels")
-    p.add_argument("--hot-rate", type=nonnegative_float(unit="events/s"), default=1000.0,
-                   help="events/s of a hot pixel")
-    p.add_argument("--frame-rate", type=positive_float(unit="Hz"), default=100.0,
-                   help="GT frame rate, Hz")
-    p.add_argument("--params", action="append", default=[], metavar="KEY=VALUE",
+    p.add_argument("--hot-pixels", type=int_range(0), default=None,
+                   help="number of hot pixels (default 0)")
+    p.add_argument("--hot-rate", type=nonnegative_float(unit="events/s"), default=None,
+                   help="events/s of a hot pixel (default 1000)")
+    p.add_argument("--frame-rate", type=positive_float(unit="Hz"), default=None,
+                   help="GT frame rate, Hz (default 100)")
+    p.add_argument("--params", action="append", default=None, metavar="KEY=VALUE",
                    help="motion parameter, repeatable (vector: comma-separated), or a JSON "
                         "object; see 'evmotion simulate --help' scenes and the docs of "
                         "evmotion.sim.scenes for names and units")
+    g = p.add_argument_group("schlieren")
+    g.add_argument("--scene", dest="bos_scene", default=None, choices=sorted(BOS_SCENES),
+                   help="schlieren scene (default plume)")
+    g.add_argument("--fps", type=finite_float(0, 1e5, lo_open=True, unit="Hz"), default=None,
+                   help="frame rate, Hz (default 120)")
+    g.add_argument("--magnitude", type=finite_float(0, 50, lo_open=True, unit="px"), default=None,
+                   help="largest inter-frame displacement, px (default 1)")
+    g.add_argument("--speed", type=positive_float(unit="px/s"), default=None,
+                   help="air speed, px/s (plume rise speed; default scaled to the size)")
+    g.add_argument("--photons", type=finite_float(0, 1e9, lo_open=True), default=None,
+                   help="photons of a white pixel per frame: shot noise (low light: a few)")
+    g.add_argument("--gain", type=positive_float(), default=None,
+                   help="grey levels per photon (default 255/photons)")
+    g.add_argument("--event-photons", type=finite_float(0, 1e12, lo_open=True), default=None,
+                   help="photons of a white event pixel per --event-tau-us: shot noise in "
+                        "the events (low light); default none")
+    g.add_argument("--event-tau-us", type=int_range(1, 1_000_000, unit="µs"), default=None,
+                   help="time constant of the events' shot noise, µs (1000)")
+    g.add_argument("--exposure", type=nonnegative_float(unit="s"), default=None,
+                   help="exposure, s (default half the frame period)")
+    g.add_argument("--dot-density", type=finite_float(0, 2, lo_open=True, unit="dots/px²"),
+                   default=None, help="dots per px² (0.06)")
+    g.add_argument("--dot-radius", type=finite_float(0.2, 10, unit="px"), default=None,
+                   help="dot radius, px (1.0)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -113,8 +158,78 @@ def parse_size(text: str) -> tuple[int, int]:
     return h, w
 
 
+def _size(args, default: tuple[int, int]) -> tuple[int, int]:
+    h, w = args.size or default
+    return (args.height if args.height is not None else h,
+            args.width if args.width is not None else w)
+
+
+# options of one kind of scene only: given with the other kind, they are errors
+MOTION_ONLY = {"--format": "format", "--texture": "texture", "--image": "image",
+               "--hot-pixels": "hot_pixels", "--hot-rate": "hot_rate",
+               "--frame-rate": "frame_rate", "--params": "params"}
+SCHLIEREN_ONLY = {"--scene": "bos_scene", "--fps": "fps", "--magnitude": "magnitude",
+                  "--speed": "speed", "--photons": "photons", "--gain": "gain",
+                  "--event-photons": "event_photons", "--event-tau-us": "event_tau_us",
+                  "--exposure": "exposure", "--dot-density": "dot_density",
+                  "--dot-radius": "dot_radius"}
+
+
+def _or(value, default):
+    return default if value is None else value
+
+
+def run_schlieren(args) -> int:
+    from evmotion.cli import print_json
+    from evmotion.errors import ParameterError
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    reject_unused(args, MOTION_ONLY, "to 'evmotion simulate schlieren'")
+    scene = _or(args.bos_scene, "plume")
+    size = _size(args, (720, 640))
+    if min(size) < 8:
+        raise ParameterError(f"--size/--height/--width: a schlieren sensor needs at least "
+                             f"8 px per side, got {size[0]}x{size[1]} (HxW)")
+    fps = _or(args.fps, 120.0)
+    if args.duration * fps < 1.0:
+        raise ParameterError(f"--duration {args.duration:g} s holds fewer than two frames "
+                             f"at --fps {fps:g}; give at least {1.0 / fps:.6g} s")
+    if args.exposure is not None and args.exposure > 1.0 / fps:
+        raise ParameterError(f"--exposure {args.exposure:g} s is longer than the frame "
+                             f"period at --fps {fps:g} ({1.0 / fps:.6g} s)")
+    if args.gain is not None and args.photons is None:
+        raise ParameterError(f"--gain {args.gain:g} needs --photons (shot-noise mode)")
+    check_folder(args.out, "--out")
+    sim = simulate_schlieren(scene, sensor_size=size, duration_s=args.duration, fps=fps,
+                             seed=args.seed, magnitude_px=_or(args.magnitude, 1.0),
+                             dot_density=_or(args.dot_density, 0.06),
+                             dot_radius_px=_or(args.dot_radius, 1.0), speed_px_s=args.speed,
+                             photons=args.photons, gain=args.gain, exposure_s=args.exposure,
+                             contrast_threshold=args.threshold, mismatch=args.mismatch,
+                             refractory_us=args.refractory_us, noise_rate=args.noise_rate,
+                             event_photons=args.event_photons,
+                             event_tau_us=_or(args.event_tau_us, 1000),
+                             show_progress=not args.json)
+    gt_path = write_schlieren(sim, args.out)
+    if args.json:
+        print_json({"scene": scene, "out": str(args.out), "gt_file": str(gt_path),
+                    "n_events": len(sim.events), "n_frames": len(sim.frames),
+                    "sensor_size": list(sim.events.sensor_size), "meta": sim.gt.meta,
+                    "stats": sim.stats})
+    else:
+        print(f"schlieren {scene}: {len(sim.events)} events, {len(sim.frames)} frames "
+              f"({sim.events.sensor_size[1]}x{sim.events.sensor_size[0]}, "
+              f"{args.duration} s) -> {args.out}; ground truth -> {gt_path}")
+    return 0
+
+
 def run(args) -> int:
     import numpy as np
+
+    if args.scene == "schlieren":
+        return run_schlieren(args)
+    reject_unused(args, SCHLIEREN_ONLY, f"to the motion scene {args.scene!r} (it is for "
+                  "'evmotion simulate schlieren')")
 
     from evmotion.cli import print_json
     from evmotion.errors import EvmotionError
@@ -124,13 +239,15 @@ def run(args) -> int:
         from evmotion.io import format_for_output, write_events
     except ImportError:
         raise EvmotionError("this build has no event writer (evmotion.io.write_events)") from None
+    check_output(args.out, "--out")
+    check_output(gt_path_for(args.out), "--out (its ground truth)")
     fmt = args.format or format_for_output(args.out)
-    res = simulate(args.scene, duration_s=args.duration, sensor_size=args.size,
-                   seed=args.seed, texture=args.texture, threshold=args.threshold,
-                   params=parse_params(args.params), image=args.image, mismatch=args.mismatch,
-                   refractory_us=args.refractory_us, noise_rate=args.noise_rate,
-                   hot_pixels=args.hot_pixels, hot_rate=args.hot_rate,
-                   frame_rate=args.frame_rate)
+    res = simulate(args.scene, duration_s=args.duration, sensor_size=_size(args, (260, 346)),
+                   seed=args.seed, texture=_or(args.texture, "dots"), threshold=args.threshold,
+                   params=parse_params(args.params or []), image=args.image,
+                   mismatch=args.mismatch, refractory_us=args.refractory_us,
+                   noise_rate=args.noise_rate, hot_pixels=_or(args.hot_pixels, 0),
+                   hot_rate=_or(args.hot_rate, 1000.0), frame_rate=_or(args.frame_rate, 100.0))
     # only HDF5 keeps free metadata; other formats would warn about it
     meta = {"simulator_scene": args.scene, "simulator_seed": args.seed,
             "calibration": sim_calibration(res.gt.K, res.events.sensor_size)} \

@@ -411,25 +411,40 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
         ``t_last_us``, ``duration_s``, ``rate_ev_per_s``, ``positive_fraction``
         (polarity balance), ``x_range``, ``y_range`` and what else the file holds
         (``frames``, ``imu``, ``ground_truth``, ``calibration``...) from the format's
-        own ``describe``. With ``stream=False`` only the format's header summary.
+        own ``describe``, and ``frames_info`` (count, size, bit depth, time span, fps) for
+        co-captured frames (:func:`evmotion.io.frames.describe_frames`); a folder of frames
+        without events gives format ``frames``. With ``stream=False`` only the format's
+        header summary.
 
     Examples
     --------
     >>> describe("boxes_rotation/")["n_events"]  # doctest: +SKIP
     30000
     """
+    from evmotion.io.frames import VIDEO_SUFFIXES, describe_frames
+
     path = Path(path)
     try:
         spec = _spec(path, format)
     except FormatError:
         flow = guard_call(_describe_flow, "flow", "describe")(path) if format is None else None
         if flow is None:
-            raise
+            frames = describe_frames(path) if format is None and (
+                path.is_dir() or path.suffix.lower() in VIDEO_SUFFIXES) else None
+            if frames is None:
+                raise
+            return {"path": str(path), "format": "frames", "frames_info": frames}
         return flow
     out: dict = {"path": str(path), "format": spec.name}
     if spec.describe is not None:
         extra = spec.describe(path)
         out.update({k: v for k, v in extra.items() if k != "format"})
+    try:
+        frames = describe_frames(path)
+    except FormatError as exc:
+        frames = {"error": str(exc)}
+    if frames is not None:
+        out["frames_info"] = frames
     if not stream:
         return out
     n = 0

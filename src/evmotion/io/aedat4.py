@@ -23,6 +23,7 @@ from evmotion.errors import FormatError, MissingDependencyError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import _binary
 from evmotion.io.base import FormatSpec
+from evmotion.io.frames import Frames
 from evmotion.io.guard import check_sensor_size
 from evmotion.utils import atomic_path
 
@@ -37,19 +38,6 @@ MAX_PACKET_BYTES = 1 << 28
 EVENT_DTYPE = np.dtype({"names": ["t", "x", "y", "on"],
                         "formats": ["<i8", "<i2", "<i2", "u1"],
                         "offsets": [0, 8, 10, 12], "itemsize": 16})
-
-
-@dataclass(frozen=True)
-class Frames:
-    """APS frames: ``t`` int64 µs (frame timestamp), ``exposure_start``/``exposure_end``
-    int64 µs, ``images`` list of uint8 arrays (H, W) or (H, W, C), ``position`` (N, 2)
-    x, y of each image's top-left corner on the sensor."""
-
-    t: np.ndarray
-    exposure_start: np.ndarray
-    exposure_end: np.ndarray
-    images: list
-    position: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -341,7 +329,8 @@ def read_frames(path: str | Path, *, stream: int | None = None) -> Frames:
     Returns
     -------
     Frames
-        Timestamps in µs; images uint8 (H, W) for grey, (H, W, 3/4) for BGR/BGRA.
+        Timestamps in µs, exposure windows, positions; images (N, H, W) uint8 for grey,
+        (N, H, W, 3/4) for BGR/BGRA.
 
     Examples
     --------
@@ -373,8 +362,13 @@ def read_frames(path: str | Path, *, stream: int | None = None) -> Frames:
             ee.append(f.scalar(4, "<q"))
             posn.append((f.scalar(8, "<h"), f.scalar(9, "<h")))
             imgs.append(img)
-    return Frames(t=np.array(ts, np.int64), exposure_start=np.array(es, np.int64),
-                  exposure_end=np.array(ee, np.int64), images=imgs,
+    shapes = {im.shape for im in imgs}
+    if len(shapes) > 1:
+        raise FormatError(path, f"FRME stream {s.id} holds frames of different sizes "
+                          f"{sorted(shapes)}")
+    stack = np.stack(imgs) if imgs else np.zeros((0, 0, 0), np.uint8)
+    return Frames(images=stack, t=np.array(ts, np.int64), source=str(path), bit_depth=8,
+                  exposure_start=np.array(es, np.int64), exposure_end=np.array(ee, np.int64),
                   position=np.array(posn, np.int64).reshape(-1, 2))
 
 

@@ -14,6 +14,7 @@ FORMAT_MODULES: tuple[str, ...] = (
     "evmotion.io.mvsec",
     "evmotion.io.dsec",
     "evmotion.io.ecd",        # folder layout and events.txt
+    "evmotion.io.ccs",        # published event-based BOS recordings (raw_events HDF5)
     "evmotion.io.npy",        # .npy / .npz
     "evmotion.io.mat",        # MATLAB .mat excerpts
     "evmotion.io.aedat4",

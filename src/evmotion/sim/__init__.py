@@ -19,6 +19,11 @@ Model
   interval (exact along trajectories), parameters at any time, angular velocity, event
   masks; saved beside the events as ``<stem>_gt.h5`` (:mod:`~evmotion.sim.gtio`).
 
+* Schlieren (:mod:`~evmotion.sim.schlieren`): events and frames of a random-dot
+  background seen through moving air (thesis ch. 6), with the exact flow between frames;
+  its events come from :func:`~evmotion.sim.simulator.simulate_log_function`, the same
+  event model for a log intensity given as a function of time.
+
 Speed (one core, 346x260, ``benchmarks/bench_sim.py``): 1.2-1.8 M events/s on the
 single-layer scenes with the dots or checker textures (16x16 tiles where the texture is
 locally constant are skipped), 0.6-0.9 M events/s on the noise and shapes textures and on
@@ -34,15 +39,27 @@ from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.gtio import gt_path_for, read_ground_truth, sim_calibration, write_ground_truth
 from evmotion.sim.motions import Motion, make_motion
 from evmotion.sim.scenes import SCENES, default_K
-from evmotion.sim.simulator import SimResult, simulate
+from evmotion.sim.schlieren import (
+    BOS_SCENES,
+    SchlierenGT,
+    SchlierenSim,
+    read_schlieren_gt,
+    simulate_schlieren,
+    write_schlieren,
+)
+from evmotion.sim.simulator import LogSimResult, SimResult, simulate, simulate_log_function
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
 
 __all__ = [
+    "BOS_SCENES",
     "SCENES",
     "TEXTURES",
     "GroundTruth",
     "Layer",
+    "LogSimResult",
     "Motion",
+    "SchlierenGT",
+    "SchlierenSim",
     "SimResult",
     "Texture",
     "default_K",
@@ -50,8 +67,12 @@ __all__ = [
     "make_motion",
     "make_texture",
     "read_ground_truth",
+    "read_schlieren_gt",
     "sim_calibration",
     "simulate",
+    "simulate_log_function",
+    "simulate_schlieren",
     "texture_from_image",
     "write_ground_truth",
+    "write_schlieren",
 ]

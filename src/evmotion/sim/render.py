@@ -20,8 +20,9 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["MAX_SUBSAMPLES", "full_boxes", "pad_periodic", "render_log", "render_log_numpy", "sample_wrap_numpy", "sim_step",
-           "sim_step_numpy", "step_grid", "textured_cells_sat"]
+__all__ = ["MAX_SUBSAMPLES", "emit_crossings", "full_boxes", "pad_periodic", "render_log",
+           "render_log_numpy", "sample_wrap_numpy", "sim_step", "sim_step_numpy", "step_grid",
+           "textured_cells_sat"]
 
 MAX_SUBSAMPLES = 64
 TILE = 16  # pixels per side of the tiles skipped where the texture is locally constant
@@ -168,6 +169,66 @@ def _cross(a, b, t0, t1, r, c, sign, last, refr, x, y, ex, ey, et, ep, n, cap):
             n += 1
             last = ti
     return r, last, n
+
+
+@njit(cache=True)
+def _cross_columns(vals, times, pix, width, ref, cp, cn, last, refr, ex, ey, et, ep, n):
+    s_count, p_count = vals.shape
+    cap = ex.shape[0]
+    for j in range(p_count):
+        k = pix[j]
+        y = k // width
+        x = k - y * width
+        r = ref[k]
+        lt = last[k]
+        for s in range(1, s_count):
+            a = vals[s - 1, j]
+            b = vals[s, j]
+            if b - r >= cp[k]:
+                r, lt, n = _cross(a, b, times[s - 1], times[s], r, cp[k], 1.0, lt, refr, x, y,
+                                  ex, ey, et, ep, n, cap)
+            elif r - b >= cn[k]:
+                r, lt, n = _cross(a, b, times[s - 1], times[s], r, cn[k], -1.0, lt, refr, x,
+                                  y, ex, ey, et, ep, n, cap)
+        ref[k] = r
+        last[k] = lt
+    return n
+
+
+def emit_crossings(vals: np.ndarray, times_us: np.ndarray, pix: np.ndarray, width: int,
+                   ref: np.ndarray, cp: np.ndarray, cn: np.ndarray, last: np.ndarray,
+                   refractory_us: int, ex, ey, et, ep, n: int = 0) -> int:
+    """Events of pixels whose log intensity is sampled at common times, linear in between.
+
+    The same crossing rule as :func:`sim_step` (interpolated crossing time rounded up to
+    the next microsecond, refractory period, reference moved by the threshold at each
+    crossing) for callers that render log intensity themselves (e.g. the schlieren
+    simulator).
+
+    Parameters
+    ----------
+    vals : ndarray (S, P) float64
+        Log intensity of ``P`` pixels at the ``S`` times ``times_us`` (int64, increasing).
+    pix : ndarray (P,) int64
+        Row-major pixel index ``y * width + x`` of each column.
+    ref, cp, cn, last : ndarray (H * W,)
+        Flat reference levels (float64, updated), ON/OFF thresholds (float64), times of the
+        previous events (int64 µs, updated).
+    refractory_us : int
+    ex, ey, et, ep : ndarray
+        Output buffers (uint16, uint16, int64, uint8); events go from index ``n`` on.
+
+    Returns
+    -------
+    int
+        The new event count; it may exceed the buffer length, in which case the events
+        past it were dropped and the caller must redo the call with larger buffers
+        (restoring ``ref`` and ``last``).
+    """
+    return int(_cross_columns(np.ascontiguousarray(vals, dtype=np.float64),
+                              np.ascontiguousarray(times_us, dtype=np.int64),
+                              np.ascontiguousarray(pix, dtype=np.int64), int(width), ref, cp, cn,
+                              last, np.int64(refractory_us), ex, ey, et, ep, np.int64(n)))
 
 
 @njit(cache=True)

@@ -16,6 +16,7 @@ from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
 from evmotion.sim.render import (
     MAX_SUBSAMPLES,
+    emit_crossings,
     full_boxes,
     pad_periodic,
     render_log,
@@ -28,7 +29,7 @@ from evmotion.sim.scenes import SCENES, default_K, resolve_params
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
 from evmotion.utils import progress
 
-__all__ = ["SimResult", "simulate"]
+__all__ = ["LogSimResult", "SimResult", "simulate", "simulate_log_function"]
 
 MAX_STEP_US = 5000  # sample at least every 5 ms (the 1 px bound usually binds first)
 STEP_SHIFT_PX = 1.0  # global steps move no texture point by more than ~1 px
@@ -478,3 +479,227 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
              "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean()),
              "texture": texs[0].name}
     return SimResult(events, gt, scene, p, stats, (cp, cn))
+
+
+@dataclass(eq=False)
+class LogSimResult:
+    """Output of :func:`simulate_log_function`.
+
+    Attributes
+    ----------
+    events : EventArray
+        Sorted events, t in µs from 0.
+    thresholds : (ndarray, ndarray)
+        Per-pixel ON and OFF contrast thresholds (H, W) after mismatch.
+    stats : dict
+        Step and sub-sample counts, signal/noise event counts, thresholds.
+    """
+
+    events: EventArray
+    thresholds: tuple[np.ndarray, np.ndarray]
+    stats: dict = field(default_factory=dict)
+
+
+def _base_steps(duration_us: int, breaks_us, max_step_us: int) -> list[tuple[int, int]]:
+    """Steps ``(t_a, t_b)`` covering ``[0, duration_us]``, ending at every break, none
+    longer than ``max_step_us``."""
+    cuts = {0, duration_us}
+    cuts.update(int(b) for b in np.asarray(breaks_us if breaks_us is not None else [],
+                                           dtype=np.int64) if 0 < b < duration_us)
+    cuts = sorted(cuts)
+    steps = []
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        k = max(1, -(-(b - a) // max_step_us))
+        edges = a + (np.arange(k + 1, dtype=np.int64) * (b - a)) // k
+        steps.extend((int(u), int(v)) for u, v in zip(edges[:-1], edges[1:], strict=True)
+                     if v > u)
+    return steps
+
+
+def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int, *,
+                          breaks_us=None, max_step_us: int = 1000, threshold: float = 0.2,
+                          mismatch: float = 0.03, refractory_us: int = 0,
+                          noise_rate: float = 0.0, hot_pixels: int = 0,
+                          hot_rate: float = 1000.0, seed: int = 0,
+                          max_step_fraction: float = 0.5, show_progress: bool = False,
+                          meta: dict | None = None) -> LogSimResult:
+    """Events of a sensor watching a log intensity given as a function of time.
+
+    The same event model as :func:`simulate` (per-pixel threshold mismatch, crossings at
+    linearly interpolated times rounded up to the next microsecond, refractory period,
+    background-activity noise and hot pixels) for scenes that are not textures moved by
+    a warp, e.g. the schlieren simulator. Time advances in steps that end at every time
+    of ``breaks_us`` and last at most ``max_step_us``; in each step every pixel whose log
+    intensity changed by more than ``max_step_fraction * threshold`` is re-sampled at
+    ``n`` (a power of two up to 64) evenly spaced times so that consecutive samples of a
+    pixel differ by about that much or less (a step that would need more is halved).
+
+    Parameters
+    ----------
+    log_at : callable
+        ``log_at(t_us, pix)``: log intensity at integer time ``t_us`` (µs) of the whole
+        sensor, (H, W), when ``pix`` is None, else of the pixels with row-major indices
+        ``pix`` (P,), returning (P,).
+    sensor_size : (int, int)
+        ``(height, width)``.
+    duration_us : int
+        Events are simulated over ``[0, duration_us]``; every pixel starts at its
+        reference level at 0.
+    breaks_us : array_like of int, optional
+        Times that must be sample times (e.g. frame times: the events between two of them
+        then account exactly for the change of log intensity between them, up to the
+        thresholds).
+    max_step_us : int
+        Longest step; bounds the motion between full-sensor samples (a pixel whose log
+        intensity leaves and comes back within one step is not re-sampled).
+    threshold, mismatch, refractory_us, noise_rate, hot_pixels, hot_rate
+        As :func:`simulate`.
+    seed : int
+        Seeds threshold mismatch and noise.
+    max_step_fraction : float
+        Bound on the per-sample log-intensity change, as a fraction of ``threshold``.
+    show_progress : bool
+        Progress bar on stderr (only when it is a terminal).
+    meta : dict, optional
+        Stored in the events' ``meta``.
+
+    Returns
+    -------
+    LogSimResult
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ramp = lambda t, pix: np.full((2, 2) if pix is None else len(pix), t * 1e-3)
+    >>> res = simulate_log_function(ramp, (2, 2), 1000, threshold=0.25, mismatch=0.0)
+    >>> len(res.events), res.events.t[:4].tolist()
+    (16, [250, 250, 250, 250])
+    """
+    try:
+        h, w = (int(v) for v in sensor_size)
+    except (TypeError, ValueError):
+        raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}") from None
+    if h < 1 or w < 1 or h > 65535 or w > 65535:
+        raise ParameterError(f"sensor_size must be between 1 and 65535 pixels per side, "
+                             f"got {(h, w)}")
+    duration_us = int(duration_us)
+    if duration_us < 1:
+        raise ParameterError(f"duration_us must be at least 1, got {duration_us!r}")
+    max_step_us = int(_check("max_step_us", max_step_us, lo=1))
+    C = _check("threshold", threshold, strict=True)
+    mismatch = _check("mismatch", mismatch)
+    refractory_us = int(_check("refractory_us", refractory_us))
+    noise_rate = _check("noise_rate", noise_rate)
+    hot_rate = _check("hot_rate", hot_rate)
+    hot_pixels = int(_check("hot_pixels", hot_pixels))
+    if hot_pixels > h * w:
+        raise ParameterError(f"hot_pixels ({hot_pixels}) exceeds the number of pixels ({h * w})")
+    target = _check("max_step_fraction", max_step_fraction, strict=True) * C
+    ss = np.random.SeedSequence(seed).spawn(2)
+    rng_thr = np.random.default_rng(ss[0])
+    cmin = 0.25 * C
+    cp = np.maximum(C * (1 + mismatch * rng_thr.standard_normal(h * w)), cmin)
+    cn = np.maximum(C * (1 + mismatch * rng_thr.standard_normal(h * w)), cmin)
+
+    def full(t):
+        v = np.asarray(log_at(int(t), None), dtype=np.float64)
+        if v.shape != (h, w) or not np.all(np.isfinite(v)):
+            raise ParameterError(f"log_at({t}, None) must return finite values of shape "
+                                 f"{(h, w)}, got shape {v.shape}")
+        return v.ravel()
+
+    la = full(0)
+    ref = la.copy()
+    last = np.full(h * w, np.iinfo(np.int64).min // 2, dtype=np.int64)
+    cap = max(1024, h * w)
+    ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
+    et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
+    packed = (duration_us + 1) * 2 * h * w < 2 ** 62
+    chunks = []
+    levels = [2 ** k for k in range(int(math.log2(MAX_SUBSAMPLES)) + 1)]
+    todo = _base_steps(duration_us, breaks_us, max_step_us)[::-1]
+    n_steps = n_sub = 0
+    bar = progress(None, total=duration_us, desc="simulate", unit="us",
+                   disable=None if show_progress else True)
+    while todo:
+        ta, tb = todo.pop()
+        lb = full(tb)
+        change = np.abs(lb - la)
+        if change.max(initial=0.0) > MAX_SUBSAMPLES * target and tb - ta > 1:
+            mid = (ta + tb) // 2
+            todo.extend([(mid, tb), (ta, mid)])
+            continue
+        ns = np.ones(h * w, dtype=np.int64)
+        for _ in range(len(levels) - 1):
+            ns[change > target * ns] *= 2
+        groups = [(lev, np.nonzero(ns == lev)[0]) for lev in levels]
+        groups = [(lev, pix) for lev, pix in groups if pix.size]
+        samples = []
+        for lev, pix in groups:
+            g = np.arange(lev + 1, dtype=np.int64)
+            times = ta + (g * (tb - ta)) // lev
+            vals = np.empty((lev + 1, pix.size))
+            vals[0], vals[-1] = la[pix], lb[pix]
+            for j in range(1, lev):
+                vals[j] = np.asarray(log_at(int(times[j]), pix), dtype=np.float64)
+            samples.append((times, pix, vals))
+            n_sub += (lev - 1) * pix.size
+        while True:
+            ref_bak, last_bak = ref.copy(), last.copy()
+            n = 0
+            for times, pix, vals in samples:
+                n = emit_crossings(vals, times, pix, w, ref, cp, cn, last, refractory_us,
+                                   ex, ey, et, ep, n)
+            if n <= cap:
+                break
+            ref, last = ref_bak, last_bak
+            cap = 2 * n
+            ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
+            et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
+        if n:
+            # time, then pixel, then polarity: an order independent of the grouping
+            key = et[:n] * (h * w) + ey[:n].astype(np.int64) * w + ex[:n]
+            if packed:
+                key = key * 2 + ep[:n]
+                key.sort()
+                chunks.append(key)
+            else:
+                order = np.argsort(key, kind="stable")
+                chunks.append((ex[order].copy(), ey[order].copy(), et[order].copy(),
+                               ep[order].copy()))
+        n_steps += 1
+        bar.update(tb - ta)
+        la = lb
+    bar.close()
+    if chunks and packed:
+        key = np.concatenate(chunks)
+        pp = (key & 1).astype(np.uint8)
+        key >>= 1
+        tt, pixel = np.divmod(key, h * w)
+        yy, xx = np.divmod(pixel, w)
+        x, y = xx.astype(np.uint16), yy.astype(np.uint16)
+    elif chunks:
+        x, y, tt, pp = (np.concatenate(c) for c in zip(*chunks, strict=True))
+    else:
+        x = y = np.zeros(0, np.uint16)
+        tt, pp = np.zeros(0, np.int64), np.zeros(0, np.uint8)
+    n_signal, n_noise = x.size, 0
+    if noise_rate > 0 or hot_pixels > 0:
+        nx, ny, nt, npol = _noise_events(np.random.default_rng(ss[1]), (h, w), duration_us,
+                                         noise_rate, hot_pixels, hot_rate)
+        n_noise = nx.size
+        x, y = np.concatenate([x, nx]), np.concatenate([y, ny])
+        tt, pp = np.concatenate([tt, nt]), np.concatenate([pp, npol])
+        order = np.argsort(tt, kind="stable")
+        x, y, tt, pp = x[order], y[order], tt[order], pp[order]
+    meta = dict(meta or {}, simulator="evmotion.sim")
+    events = EventArray(x, y, tt, pp, (h, w), meta=meta)
+    if refractory_us > 0 and n_noise:
+        from evmotion.filters import refractory_filter
+
+        events = refractory_filter(events, refractory_us)
+        events.meta.update(meta)
+    stats = {"n_events": len(events), "n_signal": int(n_signal), "n_noise": int(n_noise),
+             "n_steps": n_steps, "n_subsamples": int(n_sub), "threshold": C,
+             "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean())}
+    return LogSimResult(events, (cp.reshape(h, w), cn.reshape(h, w)), stats)

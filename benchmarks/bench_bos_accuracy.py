@@ -1,0 +1,412 @@
+"""Accuracy of event-based BOS (thesis ch. 6) against the simulator's exact flow.
+
+Every case simulates a schlieren scene (:func:`evmotion.sim.simulate_schlieren`, 120 fps,
+three frames) and scores the frame interval ``[t_1, t_2)`` on the pixels with at least one
+event in it (thesis §6.6.1): AEE (px over the interval), %Out (endpoint error > 1 px) and
+AE (angle of (u, v, 1), radians, as the authors' code).
+
+1. ``table64`` (Table 6.4 analog), per scene (plume, jet, breath, ice): Ours (Poisson) and
+   Ours (Flow) with the scale-aware data term, MultiCM on the interval's events (MCM row),
+   Farneback on the two frames (the thesis' "ground truth"), and the magnitude ratio
+   ``median |v̂| / |v|`` (pixels with ``|v| Δt >= 0.05`` px) of Ours (Poisson) with the
+   scale-aware term, the thesis' normalized term as is (the authors' code), and the
+   normalized term rescaled by the estimated contrast threshold. PNGs in results/bos/.
+2. ``table65`` (Table 6.5 analog) on two scenes: base, without regularizers, p = 0, and the
+   λ1 / λ2 sweeps.
+3. ``lowlight`` (Fig. 6.12 analog): the plume with shot-noise frames down to a few photons
+   per pixel; Ours vs Farneback on the same frames, AEE ratio.
+
+Sizes and iterations are recorded in each row; by default the solver's own schedule runs
+(150/150/150/300, within 0.3 % of the thesis' 600 per scale in objective), ``--iterations
+600`` the thesis'. Table 6.4 also has rows on frames with shot noise (``NOISY_PHOTONS``
+photons per white pixel), as real frames have: the noise-free 8-bit frames flatter
+Farneback.
+
+Run: ``python benchmarks/bench_bos_accuracy.py --parts table64 --size 720 640 --iterations 150``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import harness
+
+RESULTS = Path(__file__).resolve().parent / "results"
+PNG_DIR = RESULTS / "bos"
+SCENES = ("plume", "jet", "breath", "ice")
+MIN_DISP_PX = 0.05
+NOISY_PHOTONS = 1000.0
+
+
+def _simulate(scene: str, size, seed: int = 0, photons: float | None = None,
+              noise_rate: float = 0.0):
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    return simulate_schlieren(scene, sensor_size=tuple(size), duration_s=2 / 120, seed=seed,
+                              photons=photons, noise_rate=noise_rate)
+
+
+def exact_flow(sim, k: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The simulator's exact optical flow (px/s) and q of frame interval ``k``, with
+    Farneback's correlation with it on the noise-free frames as a check of the convention
+    (the image moves by ``gt.flow``: a negative correlation would be a simulator bug)."""
+    from evmotion.methods.farneback import farneback_flow
+
+    dt = (int(sim.frames.t[k + 1]) - int(sim.frames.t[k])) * 1e-6
+    fb = farneback_flow(sim.frames.images[k], sim.frames.images[k + 1], dt)
+    gt = sim.gt.flow[k]
+    sel = np.hypot(gt[..., 0], gt[..., 1]) * dt > 0.1
+    corr = float(np.corrcoef(fb[sel].ravel(), gt[sel].ravel())[0, 1])
+    if corr < 0.3:
+        raise RuntimeError(f"Farneback on noise-free frames correlates {corr:.2f} with "
+                           "gt.flow: the simulator's flow is not the image motion")
+    return gt, sim.gt.q[k], {"corr_farneback_gt": corr}
+
+
+def _interval(sim, k: int = 1):
+    t = sim.frames.t
+    t0, t1 = int(t[k]), int(t[k + 1])
+    win = sim.events.slice_time(t0, t1)
+    mask = np.zeros(sim.events.sensor_size, bool)
+    mask[win.y, win.x] = True
+    return t0, t1, win, mask
+
+
+def _score(flow, gt_flow, mask, dt) -> dict:
+    from evmotion.eval.metrics import flow_metrics
+
+    m = flow_metrics(flow * dt, gt_flow * dt, mask=mask, out_px=1.0)
+    return {"AEE": m.aee, "%Out": m.pct_out, "AE_rad": float(np.radians(m.ae_deg))}
+
+
+def _ratio(flow, gt_flow, mask, dt) -> float:
+    g = np.hypot(gt_flow[..., 0], gt_flow[..., 1])
+    e = np.hypot(flow[..., 0], flow[..., 1])
+    sel = mask & (g * dt >= MIN_DISP_PX)
+    return float(np.median(e[sel] / g[sel])) if sel.any() else float("nan")
+
+
+def _its(res) -> str:
+    """Adam iterations run at each scale (after the convergence stop)."""
+    return "/".join(str(i) for i in res.iterations)
+
+
+def _ours(sim, k, iterations, **kw):
+    from evmotion.methods.bos import estimate_bos
+
+    f, t = sim.frames.images, sim.frames.t
+    start = time.perf_counter()
+    res = estimate_bos(sim.events, f[k], t0_us=int(t[k]), t1_us=int(t[k + 1]),
+                       frame_next=f[k + 1], iterations=iterations, **kw)
+    return res, time.perf_counter() - start
+
+
+def _panel(path, scene, gt, flows: dict, mask, gt_q, q):
+    from evmotion.viz import flow_to_rgb, save_panel
+    from evmotion.viz.bos import symmetric_limit
+
+    vmax = float(np.percentile(np.hypot(gt[..., 0], gt[..., 1])[mask], 99)) if mask.any() \
+        else None
+    images = [flow_to_rgb(gt, vmax)] + [flow_to_rgb(np.nan_to_num(f), vmax)
+                                        for f in flows.values()]
+    titles = ["exact flow"] + list(flows)
+    import matplotlib
+
+    cmap = matplotlib.colormaps["RdBu_r"]
+    for name, field in (("exact q", gt_q), ("Ours (Poisson) q", q)):
+        c = symmetric_limit(field)
+        images.append((cmap(0.5 + 0.5 * np.clip(field / c, -1, 1))[..., :3] * 255)
+                      .astype(np.uint8))
+        titles.append(name)
+    save_panel(path, images, titles, ncols=4,
+               suptitle=f"{scene}: flow colour wheel rim = {vmax:.3g} px/s (99th pct of "
+                        "|v| on event pixels); q in diverging colours")
+
+
+def table64(size, iterations) -> list[dict]:
+    from evmotion.methods.baselines import multicm_interval
+    from evmotion.methods.farneback import farneback_flow
+
+    rows = []
+    PNG_DIR.mkdir(parents=True, exist_ok=True)
+    for scene in SCENES:
+        sim = _simulate(scene, size)
+        k = 1
+        t0, t1, win, mask = _interval(sim, k)
+        dt = (t1 - t0) * 1e-6
+        gt, gt_q, check = exact_flow(sim, k)
+        base = {"scene": scene, "size": f"{size[1]}x{size[0]}", "events": len(win),
+                "max_disp_px": float(np.hypot(gt[..., 0], gt[..., 1]).max() * dt), **check}
+        flows = {}
+        res_p, s_p = _ours(sim, k, iterations, param="poisson", data_term="scale")
+        res_f, s_f = _ours(sim, k, iterations, param="flow", data_term="scale")
+        res_n, s_n = _ours(sim, k, iterations, param="poisson", data_term="normalized")
+        for name, res, sec in (("Ours (Poisson)", res_p, s_p), ("Ours (Flow)", res_f, s_f)):
+            flows[name] = res.flow
+            rows.append({**base, "method": name, **_score(res.flow, gt, mask, dt),
+                         "ratio_median": _ratio(res.flow, gt, mask, dt),
+                         "C_est": res.contrast_threshold, "iterations": _its(res),
+                         "seconds": sec})
+        raw = res_n.flow / np.float32(res_n.scale)
+        for name, fl in (("Ours (Poisson), normalized term as is", raw),
+                         ("Ours (Poisson), normalized term rescaled by C", res_n.flow)):
+            rows.append({**base, "method": name, **_score(fl, gt, mask, dt),
+                         "ratio_median": _ratio(fl, gt, mask, dt),
+                         "C_est": res_n.contrast_threshold, "iterations": _its(res_n),
+                         "seconds": s_n})
+        start = time.perf_counter()
+        mcm = multicm_interval(sim.events, t0, t1)
+        flows["MultiCM (events)"] = mcm.flow
+        rows.append({**base, "method": "MultiCM (events)", **_score(mcm.flow, gt, mask, dt),
+                     "ratio_median": _ratio(mcm.flow, gt, mask, dt),
+                     "seconds": time.perf_counter() - start})
+        start = time.perf_counter()
+        fb = farneback_flow(sim.frames.images[k], sim.frames.images[k + 1], dt)
+        flows["Farneback (frames)"] = fb
+        rows.append({**base, "method": "Farneback (frames)", **_score(fb, gt, mask, dt),
+                     "ratio_median": _ratio(fb, gt, mask, dt),
+                     "seconds": time.perf_counter() - start})
+        # real frames carry shot noise: the same air and events, frames with
+        # NOISY_PHOTONS photons per white pixel (SNR ~32 at white, ~22 at mid grey)
+        noisy = _simulate(scene, size, photons=NOISY_PHOTONS)
+        fr_n = noisy.frames.images
+        res_pn, s_pn = _ours(noisy, k, iterations, param="poisson", data_term="scale")
+        rows.append({**base, "method": f"Ours (Poisson), frames {NOISY_PHOTONS:g} photons",
+                     **_score(res_pn.flow, gt, mask, dt),
+                     "ratio_median": _ratio(res_pn.flow, gt, mask, dt),
+                     "C_est": res_pn.contrast_threshold, "iterations": _its(res_pn),
+                     "seconds": s_pn})
+        start = time.perf_counter()
+        fbn = farneback_flow(fr_n[k], fr_n[k + 1], dt)
+        rows.append({**base, "method": f"Farneback (frames {NOISY_PHOTONS:g} photons)",
+                     **_score(fbn, gt, mask, dt), "ratio_median": _ratio(fbn, gt, mask, dt),
+                     "seconds": time.perf_counter() - start})
+        _panel(PNG_DIR / f"table64_{scene}.png", scene, gt, flows, mask, gt_q, res_p.q)
+        print(f"{scene}: done", flush=True)
+    return rows
+
+
+ABLATIONS = (
+    ("Ours (lambda1=0.5, lambda2=0.1)", {}),
+    ("w/o regularizers (lambda1=lambda2=0)", {"lambda_tv": 0.0, "lambda_p": 0.0}),
+    ("w/o translation model (p=0)", {"use_p": False}),
+    ("lambda1=0.05, lambda2=0.1", {"lambda_tv": 0.05}),
+    ("lambda1=1.0, lambda2=0.1", {"lambda_tv": 1.0}),
+    ("lambda1=0.5, lambda2=0.01", {"lambda_p": 0.01}),
+    ("lambda1=0.5, lambda2=1.0", {"lambda_p": 1.0}),
+)
+
+
+def table65(size, iterations, scenes=("plume", "ice"), noise_rate: float = 0.0) -> list[dict]:
+    rows = []
+    for scene in scenes:
+        sim = _simulate(scene, size, noise_rate=noise_rate)
+        k = 1
+        t0, t1, _, mask = _interval(sim, k)
+        dt = (t1 - t0) * 1e-6
+        gt = exact_flow(sim, k)[0]
+        for name, kw in ABLATIONS:
+            res, sec = _ours(sim, k, iterations, param="poisson", data_term="scale", **kw)
+            rows.append({"scene": scene, "size": f"{size[1]}x{size[0]}",
+                         "noise_ev_per_px_s": noise_rate, "variant": name,
+                         **_score(res.flow, gt, mask, dt),
+                         "ratio_median": _ratio(res.flow, gt, mask, dt),
+                         "iterations": _its(res), "seconds": sec})
+        print(f"{scene}: done", flush=True)
+    return rows
+
+
+PHOTONS = (None, 1000.0, 100.0, 30.0, 10.0, 3.0, 1.0)
+
+
+def lowlight(size, iterations, scene="plume") -> list[dict]:
+    from evmotion.methods.farneback import farneback_flow
+    from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_panel
+
+    rows, images, titles = [], [], []
+    for photons in PHOTONS:
+        sim = _simulate(scene, size, photons=photons)
+        k = 1
+        t0, t1, win, mask = _interval(sim, k)
+        dt = (t1 - t0) * 1e-6
+        if photons is None:  # first: the air (and its flow) is the same at every level
+            gt = exact_flow(sim, k)[0]
+        res, sec = _ours(sim, k, iterations, param="poisson", data_term="scale")
+        if photons is None:
+            c_bright = res.contrast_threshold
+            res_c = res
+        else:
+            res_c, _ = _ours(sim, k, iterations, param="poisson", data_term="scale",
+                             contrast_threshold=c_bright)
+        fb = farneback_flow(sim.frames.images[k], sim.frames.images[k + 1], dt)
+        ours, farn = _score(res.flow, gt, mask, dt), _score(fb, gt, mask, dt)
+        ours_c = _score(res_c.flow, gt, mask, dt)
+        # how well the events alone show the schlieren: correlation of the event count
+        # image (sigma 2 px) with the exact |flow|
+        from scipy.ndimage import gaussian_filter
+
+        counts = np.zeros(gt.shape[:2])
+        np.add.at(counts, (win.y, win.x), 1.0)
+        corr = float(np.corrcoef(gaussian_filter(counts, 2.0).ravel(),
+                                 np.hypot(gt[..., 0], gt[..., 1]).ravel())[0, 1])
+        label = "noise-free" if photons is None else f"{photons:g}"
+        rows.append({"scene": scene, "size": f"{size[1]}x{size[0]}", "photons": label,
+                     "events": len(win), "event_map_vs_|v|_corr": corr,
+                     "frame_mean_grey": float(sim.frames.images[k].mean()),
+                     "AEE_farneback": farn["AEE"], "AE_farneback_rad": farn["AE_rad"],
+                     "AEE_ours_C_bright": ours_c["AEE"], "AE_ours_C_bright_rad": ours_c["AE_rad"],
+                     "AEE_ratio_farneback_over_ours_C_bright": farn["AEE"] / ours_c["AEE"],
+                     "ratio_median_ours_C_bright": _ratio(res_c.flow, gt, mask, dt),
+                     "AEE_ours_C_est": ours["AEE"], "AE_ours_C_est_rad": ours["AE_rad"],
+                     "AEE_ratio_farneback_over_ours_C_est": farn["AEE"] / ours["AEE"],
+                     "C_est": res.contrast_threshold, "C_bright": c_bright,
+                     "iterations": _its(res), "seconds": sec})
+        if photons in (None, 10.0, 1.0):
+            vmax = float(np.percentile(np.hypot(gt[..., 0], gt[..., 1])[mask], 99))
+            images += [sim.frames.images[k], iwe_to_rgb(counts),
+                       flow_to_rgb(np.nan_to_num(fb), vmax), flow_to_rgb(res_c.flow, vmax)]
+            titles += ["frame (noise-free)" if photons is None else f"frame ({label} photons)", "events", f"Farneback AEE {farn['AEE']:.3f}",
+                       f"Ours AEE {ours_c['AEE']:.3f}"]
+        print(f"photons {label}: done", flush=True)
+    PNG_DIR.mkdir(parents=True, exist_ok=True)
+    save_panel(PNG_DIR / "lowlight.png", images, titles, ncols=4,
+               suptitle="Fig. 6.12 analog: frames with shot noise (white = N photons)")
+    return rows
+
+
+def summarize(suffix: str = "") -> str:
+    """Check the issue's accuracy goals against the recorded results; write
+    ``results/bos_goals<suffix>.md`` and return its text."""
+    import json
+
+    lines = ["# bos_goals" + suffix, "",
+             "Issue #12 accuracy goals checked against the recorded benchmark rows "
+             f"(bos_accuracy{suffix}.json, bos_lowlight{suffix}.json).", ""]
+    acc = RESULTS / f"bos_accuracy{suffix}.json"
+    if acc.exists():
+        data = json.loads(acc.read_text())
+        rows = data["rows"]
+        lines += [f"Setting: {data['meta']['notes'][:160]}...", "",
+                  "| scene | Poisson AE (rad) | lowest AE of all? | Poisson AEE < Flow AEE? "
+                  "| AE <= 0.42? | median ratio scale-aware | in [0.9, 1.1]? "
+                  "| ratio normalized as is | ratio normalized rescaled |", "|" + "---|" * 9]
+        for scene in SCENES:
+            r = {x["method"]: x for x in rows if x["scene"] == scene}
+            if not r:
+                continue
+            p, f = r["Ours (Poisson)"], r["Ours (Flow)"]
+            best = min((x for k, x in r.items() if "normalized" not in k),
+                       key=lambda x: x["AE_rad"])
+            ratio = p["ratio_median"]
+            lowest = "yes" if best is p else f"no: {best['method']} {best['AE_rad']:.3f}"
+            lines.append(
+                f"| {scene} | {p['AE_rad']:.3f} | {lowest}"
+                f" | {'yes' if p['AEE'] < f['AEE'] else 'no'} ({p['AEE']:.3f} vs "
+                f"{f['AEE']:.3f}) | {'yes' if p['AE_rad'] <= 0.42 else 'no'} | {ratio:.3f} | "
+                f"{'yes' if 0.9 <= ratio <= 1.1 else 'no'} | "
+                f"{r['Ours (Poisson), normalized term as is']['ratio_median']:.3f} | "
+                f"{r['Ours (Poisson), normalized term rescaled by C']['ratio_median']:.3f} |")
+        lines.append("")
+    low = RESULTS / f"bos_lowlight{suffix}.json"
+    if low.exists():
+        rows = json.loads(low.read_text())["rows"]
+        lines += ["Low light (Fig. 6.12 analog): Farneback AEE / Ours AEE on the same frames "
+                  "(goal >= 2 at the lowest illumination where events show the schlieren; "
+                  "the simulated events do not depend on the illumination, so that is the "
+                  "lowest level simulated):", "",
+                  "| photons | Farneback AEE | Ours AEE (C_bright) | ratio | Ours AEE (C_est) "
+                  "| ratio |", "|---|---|---|---|---|---|"]
+        for x in rows:
+            lines.append(f"| {x['photons']} | {x['AEE_farneback']:.3f} | "
+                         f"{x['AEE_ours_C_bright']:.3f} | "
+                         f"{x['AEE_ratio_farneback_over_ours_C_bright']:.2f} | "
+                         f"{x['AEE_ours_C_est']:.3f} | "
+                         f"{x['AEE_ratio_farneback_over_ours_C_est']:.2f} |")
+        lines.append("")
+    text = "\n".join(lines)
+    (RESULTS / f"bos_goals{suffix}.md").write_text(text)
+    print(text)
+    return text
+
+
+def solver_version() -> str:
+    """The commit the solver ran at, and whether its files had uncommitted edits."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root,
+                              capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "src/evmotion/methods",
+                                "src/evmotion/sim"], cwd=root, capture_output=True,
+                               text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + (" with uncommitted edits in methods/ or sim/" if dirty else "")
+
+
+def main(quick: bool = False, parts=("table64", "table65", "lowlight"), size=None,
+         iterations=None, noise_rate: float = 0.0) -> list[dict]:
+    harness.single_core()
+    size = tuple(size or ((180, 160) if quick else (720, 640)))
+    iterations = iterations or (30 if quick else None)
+    its = ("the solver's default (scale term 150/150/150/300, normalized term 600)"
+           if iterations is None else iterations)
+    out = []
+    note = (f"{size[1]}x{size[0]} px (W x H), {its} Adam iterations per scale "
+            "(thesis: 600; the default 150/150/150/300 of the scale term, with pooled "
+            "coarse scales and the tol stop, is within 0.3 % of its objective), scales 64-32-16-8, interval [t1, t2) of a 120 fps simulation, "
+            "pixels with >= 1 event; AEE px over the interval, %Out: EE > 1 px, AE radians "
+            "of (u, v, 1); ratio_median: median |v_est|/|v| where |v| dt >= 0.05 px. "
+            f"Seed 0, one shared 2-core machine, code at {solver_version()}. Exact flow: "
+            "sim.gt.flow; corr_farneback_gt is Farneback on the noise-free frames "
+            "against it.")
+    suffix = "_quick" if quick else ""
+    if "table64" in parts:
+        rows = table64(size, iterations)
+        harness.record("bos_accuracy" + suffix, rows, "Table 6.4 analog. " + note)
+        out += rows
+    if "table65" in parts:
+        rows = table65(size, iterations, noise_rate=noise_rate)
+        noisy = "_noise" if noise_rate > 0 else ""
+        harness.record("bos_ablation" + noisy + suffix, rows, "Table 6.5 analog (Ours "
+                       f"(Poisson), scale-aware term), event noise {noise_rate:g} events per "
+                       "pixel per second (background activity). " + note)
+        out += rows
+    if "lowlight" in parts:
+        rows = lowlight(size, iterations)
+        harness.record("bos_lowlight" + suffix, rows,
+                       "Fig. 6.12 analog: photons = expected photons of a white pixel per "
+                       "frame (grey levels normalized to 255); Ours with C_bright: the contrast threshold "
+                       "estimated on the noise-free frames (a sensor constant, calibrated "
+                       "once in good light), Ours with C_est: estimated from the noisy "
+                       "frames of the interval; the simulated events come "
+                       "from the noise-free radiance (event noise is not simulated). " + note)
+        out += rows
+    summarize(suffix)
+    return out
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--parts", nargs="+", default=["table64", "table65", "lowlight"])
+    ap.add_argument("--size", nargs=2, type=int, default=None, metavar=("H", "W"))
+    ap.add_argument("--iterations", type=int, default=None)
+    ap.add_argument("--noise-rate", type=float, default=0.0,
+                    help="background-activity events per pixel per second (table65)")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--summarize", action="store_true",
+                    help="only check the goals against the recorded results")
+    a = ap.parse_args()
+    if a.summarize:
+        summarize("_quick" if a.quick else "")
+        sys.exit(0)
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    main(a.quick, a.parts, a.size, a.iterations, a.noise_rate)

@@ -1,0 +1,300 @@
+"""``evmotion kymogram``: a space-time plot along a line and the speed of its ridge.
+
+The line is an image row (x–t), a column (y–t) or a segment ``--line x0 y0 x1 y1``,
+``--width`` px wide. The kymogram comes from the events binned at ``--rate`` Hz (1200 and
+above: "slow motion", thesis Fig. 6.11b), or from the q or flow of a BOS / flow HDF5 file
+at its window rate. ``--compare-rate`` adds the events binned at a camera's frame rate and
+``--frames`` the frames' differences at their own rate (Fig. 6.11a). A robust line fit to
+each panel (by default the slope of its space-time autocorrelation, which many parallel
+streaks share; ``--method ridge`` fits one streak) gives its speed in px/s along the line
+(start -> end), and in m/s with ``--focal-mm``, ``--distance-m`` and ``--pixel-um``
+(v = v_px * pitch * Z / f, §6.6.5).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from evmotion.cli.options import (
+    existing_input,
+    finite_float,
+    int_range,
+    reject_unused,
+    writable_output,
+)
+
+EXAMPLES = """examples:
+  evmotion kymogram scene/ --col 320 --width 9 --rate 1200 --out kymo.png
+  evmotion kymogram scene/ --col 320 --compare-rate 120 --frames scene/ --out kymo.png
+  evmotion kymogram bos.h5 --from q --line 300 700 300 100 --width 5 --out q_kymo.png
+  evmotion kymogram scene/ --row 200 --focal-mm 25 --distance-m 1.7 --pixel-um 4.86 \\
+      --out kymo.png --json
+"""
+
+SOURCES = ("events", "q", "flow")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "kymogram", help="space-time plot along a line and velocimetry (ch. 6)",
+        description=__doc__, epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("file", help="recording (events), or a BOS/flow HDF5 file with --from q|flow")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--line", nargs=4, type=finite_float(unit="px"), metavar=("X0", "Y0", "X1", "Y1"),
+                       help="segment from (X0, Y0) to (X1, Y1) px (x = column, y = row)")
+    where.add_argument("--row", type=int_range(0, unit="px"), metavar="R",
+                       help="image row R, left to right (x-t kymogram)")
+    where.add_argument("--col", type=int_range(0, unit="px"), metavar="C",
+                       help="image column C, top to bottom (y-t; rising motion is < 0)")
+    p.add_argument("--width", type=int_range(1, 4096, unit="px"), default=1, metavar="PX",
+                   help="px across the line averaged (default 1)")
+    p.add_argument("--from", dest="source", choices=SOURCES, default="events",
+                   help="events (default), q of a BOS file, or |flow| of a flow file")
+    p.add_argument("--rate", type=finite_float(0, 1e6, lo_open=True, unit="Hz"), default=None,
+                   metavar="HZ", help="time bins per second of the events (default 1200)")
+    p.add_argument("--compare-rate", type=finite_float(0, 1e6, lo_open=True, unit="Hz"),
+                   default=None, metavar="HZ",
+                   help="add a panel of the events binned at HZ (e.g. the frame rate, 120)")
+    p.add_argument("--frames", default=None, metavar="PATH", type=existing_input,
+                   help="add a panel of frame differences at the frame rate (folder with "
+                        "images.txt, or a frames file)")
+    p.add_argument("--format", default=None, help="event format (default: detect)")
+    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US",
+                   help="start, absolute µs (default: first event / window)")
+    p.add_argument("--t1", type=int_range(0, unit="µs"), default=None, metavar="US",
+                   help="end (exclusive), absolute µs")
+    p.add_argument("--signed", action="store_true",
+                   help="events: polarity sums instead of counts")
+    fit = p.add_argument_group("velocimetry")
+    fit.add_argument("--no-fit", action="store_true", help="draw the kymogram only")
+    fit.add_argument("--method", choices=("correlation", "ridge"), default="correlation",
+                     help="correlation (default): slope of the space-time autocorrelation, "
+                          "for many parallel streaks (a plume's puffs); ridge: line through "
+                          "each time bin's peak, for one dominant streak")
+    fit.add_argument("--max-lag-s", type=finite_float(0, 1e6, lo_open=True, unit="s"),
+                     default=None, metavar="S",
+                     help="correlation: longest lag (default a quarter of the duration)")
+    fit.add_argument("--sigma-px", type=finite_float(0, 1000, unit="px"), default=None,
+                     help="smoothing along the line, px (ridge 2, correlation 1)")
+    fit.add_argument("--sigma-bins", type=finite_float(0, 1000), default=None,
+                     help="ridge: smoothing in time, bins (1)")
+    fit.add_argument("--polarity", choices=("abs", "positive", "negative"), default=None,
+                     help="ridge: of |signal| (abs, default), of its maxima or of its minima")
+    fit.add_argument("--s-range", nargs=2, type=finite_float(unit="px"), default=None,
+                     metavar=("S0", "S1"), help="search the ridge between S0 and S1 px "
+                                                "along the line")
+    fit.add_argument("--fit-t0", type=finite_float(unit="s"), default=None, metavar="S",
+                     help="search the ridge from S seconds after the kymogram's start")
+    fit.add_argument("--fit-t1", type=finite_float(unit="s"), default=None, metavar="S",
+                     help="... up to S seconds after the kymogram's start")
+    fit.add_argument("--min-snr", type=finite_float(0, 1e6), default=None,
+                     help="ridge peaks must stand this many robust sigmas above the median (3)")
+    geo = p.add_argument_group("set-up geometry (all three for m/s)")
+    geo.add_argument("--focal-mm", type=finite_float(0, 1e5, lo_open=True, unit="mm"),
+                     default=None, help="focal length f, mm")
+    geo.add_argument("--distance-m", type=finite_float(0, 1e6, lo_open=True, unit="m"),
+                     default=None, help="distance Z to the flow, m")
+    geo.add_argument("--pixel-um", type=finite_float(0, 1e4, lo_open=True, unit="µm"),
+                     default=None, help="pixel pitch, µm")
+    p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
+                   help="output PNG")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    p.set_defaults(func=run)
+
+
+def _or(value, default):
+    return default if value is None else value
+
+
+def _check_args(args) -> dict | None:
+    from evmotion.errors import ParameterError
+
+    if args.t0 is not None and args.t1 is not None and args.t1 <= args.t0:
+        raise ParameterError(f"--t1 ({args.t1} µs) must be after --t0 ({args.t0} µs)")
+    if args.source != "events":
+        reject_unused(args, {"--rate": "rate", "--compare-rate": "compare_rate",
+                             "--signed": "signed", "--format": "format"},
+                      f"with --from {args.source} (the file's windows set the rate)")
+    fit_options = {"--max-lag-s": "max_lag_s", "--sigma-px": "sigma_px",
+                   "--sigma-bins": "sigma_bins", "--polarity": "polarity",
+                   "--s-range": "s_range", "--fit-t0": "fit_t0", "--fit-t1": "fit_t1",
+                   "--min-snr": "min_snr"}
+    if args.no_fit:
+        reject_unused(args, fit_options, "with --no-fit")
+    elif args.method == "ridge":
+        reject_unused(args, {"--max-lag-s": "max_lag_s"}, "with --method ridge")
+    else:
+        reject_unused(args, {"--sigma-bins": "sigma_bins", "--polarity": "polarity"},
+                      "with --method correlation (ridge only)")
+    if args.s_range is not None and args.s_range[1] <= args.s_range[0]:
+        raise ParameterError(f"--s-range {args.s_range[0]:g} {args.s_range[1]:g}: the end "
+                             "must be after the start")
+    if (args.fit_t0 is not None and args.fit_t1 is not None
+            and args.fit_t1 <= args.fit_t0):
+        raise ParameterError(f"--fit-t1 ({args.fit_t1:g} s) must be after --fit-t0 "
+                             f"({args.fit_t0:g} s)")
+    geo = {"focal_mm": args.focal_mm, "distance_m": args.distance_m, "pixel_um": args.pixel_um}
+    given = [k for k, v in geo.items() if v is not None]
+    if given and len(given) < 3:
+        missing = [f"--{k.replace('_', '-')}" for k in geo if geo[k] is None]
+        raise ParameterError(f"m/s needs --focal-mm, --distance-m and --pixel-um; missing "
+                             f"{', '.join(missing)}")
+    return geo if given else None
+
+
+def _line(args, shape):
+    from evmotion.methods.kymogram import KymoLine
+
+    if args.row is not None:
+        return KymoLine.row(args.row, shape, args.width)
+    if args.col is not None:
+        return KymoLine.column(args.col, shape, args.width)
+    return KymoLine(*args.line, width=args.width)
+
+
+def _field_kymogram(args):
+    """Kymogram of q (BOS file) or |flow| (any flow file), one sample per window."""
+    import numpy as np
+
+    from evmotion.errors import EmptyWindowError
+    from evmotion.io.flowfiles import read_flow_h5
+    from evmotion.methods.kymogram import kymogram_from_images
+
+    if args.source == "q":
+        from evmotion.io.bosfiles import read_bos_h5
+
+        bos = read_bos_h5(args.file)
+        seq, images, label = bos.flow, bos.q, "q"
+    else:
+        seq = read_flow_h5(args.file)
+        images, label = np.hypot(seq.flow[..., 0], seq.flow[..., 1]), "|flow| px/s"
+    t0 = np.asarray(seq.t0, dtype=np.int64)
+    t1 = np.asarray(seq.t1, dtype=np.int64)
+    sel = np.ones(t0.size, bool)
+    if args.t0 is not None:
+        sel &= t0 >= args.t0
+    if args.t1 is not None:
+        sel &= t1 <= args.t1
+    if not sel.any():
+        raise EmptyWindowError(f"{args.file}: no window inside --t0 {args.t0} / --t1 "
+                               f"{args.t1} us (windows span [{t0.min()}, {t1.max()}] us)")
+    # outside the ROI the fields are NaN: no signal there
+    imgs = np.nan_to_num(np.asarray(images)[sel], nan=0.0)
+    mid_s = 0.5 * (t0[sel] + t1[sel]) * 1e-6
+    line = _line(args, imgs.shape[1:])
+    return kymogram_from_images(imgs, mid_s, line, source=label)
+
+
+def _frames_kymogram(path, line, t0, t1):
+    import numpy as np
+
+    from evmotion.errors import ParameterError
+    from evmotion.io.frames import read_frames
+    from evmotion.methods.kymogram import kymogram_from_frame_differences
+
+    fr = read_frames(path)
+    t = np.asarray(fr.t, dtype=np.int64)
+    sel = np.ones(t.size, bool)
+    if t0 is not None:
+        sel &= t >= t0
+    if t1 is not None:
+        sel &= t < t1
+    if sel.sum() < 2:
+        raise ParameterError(f"{path}: {int(sel.sum())} frame(s) in [{t0}, {t1}) us; a frame "
+                             "kymogram needs two")
+    return kymogram_from_frame_differences(np.asarray(fr.images)[sel], t[sel], line)
+
+
+def run(args) -> int:
+    from evmotion.cli import print_json
+    from evmotion.errors import EmptyWindowError, ParameterError
+    from evmotion.methods.kymogram import (
+        fit_correlation,
+        fit_ridge,
+        kymogram_from_events,
+        px_per_s_to_m_per_s,
+    )
+    from evmotion.viz.kymogram import save_kymogram_png
+
+    geometry = _check_args(args)
+    if args.source == "events":
+        import evmotion.io as eio
+
+        events = eio.read_events(args.file, format=args.format, t0=args.t0, t1=args.t1)
+        if not len(events):
+            raise EmptyWindowError(f"{args.file}: no events in [{args.t0}, {args.t1}) us")
+        line = _line(args, events.sensor_size)
+        rate = 1200.0 if args.rate is None else args.rate
+        t0 = int(events.t[0]) if args.t0 is None else args.t0
+        t1 = int(events.t[-1]) + 1 if args.t1 is None else args.t1
+        kymos = [kymogram_from_events(events, line, rate, t0_us=t0, t1_us=t1,
+                                      signed=args.signed)]
+        if args.compare_rate is not None:
+            kymos.append(kymogram_from_events(events, line, args.compare_rate, t0_us=t0,
+                                              t1_us=t1, signed=args.signed))
+    else:
+        kymos = [_field_kymogram(args)]
+        line = kymos[0].line
+        t0, t1 = args.t0, args.t1
+    if args.frames is not None:
+        kymos.append(_frames_kymogram(args.frames, line, t0, t1))
+
+    fits, summaries = [], []
+    t_start = float(kymos[0].t_s[0]) - 0.5 / kymos[0].rate_hz
+    for k in kymos:
+        fit, error = None, None
+        if not args.no_fit:
+            t_range = None
+            if args.fit_t0 is not None or args.fit_t1 is not None:
+                t_range = (t_start + (args.fit_t0 if args.fit_t0 is not None else -1e9),
+                           t_start + (args.fit_t1 if args.fit_t1 is not None else 1e9))
+            try:
+                if args.method == "ridge":
+                    fit = fit_ridge(k, sigma_px=_or(args.sigma_px, 2.0),
+                                    sigma_bins=_or(args.sigma_bins, 1.0),
+                                    polarity=_or(args.polarity, "abs"),
+                                    s_range=args.s_range, t_range=t_range,
+                                    min_snr=_or(args.min_snr, 3.0))
+                else:
+                    fit = fit_correlation(k, sigma_px=_or(args.sigma_px, 1.0),
+                                          max_lag_s=args.max_lag_s,
+                                          s_range=args.s_range, t_range=t_range,
+                                          min_snr=_or(args.min_snr, 3.0))
+            except (EmptyWindowError, ParameterError) as exc:
+                # a coarse comparison panel may have too few bins for a fit: say so, draw it
+                error = str(exc)
+        fits.append(fit)
+        row = {"source": k.source, "rate_hz": k.rate_hz, "shape": list(k.data.shape),
+               "t0_s": float(k.t_s[0]), "t1_s": float(k.t_s[-1])}
+        if fit is not None:
+            row.update(method=fit.method, velocity_px_s=fit.velocity_px_s, velocity_std_px_s=fit.velocity_std_px_s,
+                       ridge_points=int(fit.t_s.size), inliers=int(fit.inliers.sum()),
+                       residual_px=fit.residual_px)
+            if geometry:
+                row["speed_m_s"] = px_per_s_to_m_per_s(fit.speed_px_s, **geometry)
+                row["speed_std_m_s"] = px_per_s_to_m_per_s(fit.velocity_std_px_s, **geometry)
+        elif error:
+            row["fit_error"] = error
+        summaries.append(row)
+    save_kymogram_png(args.out, kymos, fits, geometry=geometry)
+
+    ln = kymos[0].line
+    summary = {"file": str(args.file), "out": str(args.out),
+               "line": {"x0": ln.x0, "y0": ln.y0, "x1": ln.x1, "y1": ln.y1, "width": ln.width},
+               "geometry": geometry, "panels": summaries}
+    if args.json:
+        print_json(summary)
+    else:
+        for row in summaries:
+            text = f"{row['source']} at {row['rate_hz']:.4g} Hz {tuple(row['shape'])}: "
+            if "velocity_px_s" in row:
+                text += f"{row['velocity_px_s']:.4g} ± {row['velocity_std_px_s']:.2g} px/s"
+                if "speed_m_s" in row:
+                    text += f" (|v| = {row['speed_m_s']:.4g} m/s)"
+            else:
+                text += row.get("fit_error", "no fit")
+            print(text)
+        print(f"wrote {args.out}")
+    return 0

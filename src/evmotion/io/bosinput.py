@@ -1,0 +1,170 @@
+"""Inputs of event-based BOS: events plus frames on the event sensor's grid, checked.
+
+:func:`load_bos_input` reads a recording (an ECD-style folder ``events.txt`` +
+``images.txt`` + ``images/``, or any event file with ``--frames``), the frames and their
+timestamps, and cuts the frame intervals ``[t_i, t_{i+1})`` that the events cover. It
+raises one clear error for each input the method cannot use: frames missing, frames and
+events of different sizes or not overlapping in time, an ROI outside the sensor (the
+solver, :func:`evmotion.methods.bos.estimate_bos`, rejects a frame without texture).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import EmptyWindowError, FormatError, ParameterError
+from evmotion.events import EventArray
+from evmotion.io.bosfiles import roi_mask
+
+__all__ = ["BosInput", "frame_intervals", "load_bos_input"]
+
+
+@dataclass(frozen=True)
+class BosInput:
+    """Events and frames ready for the BOS solver.
+
+    Attributes
+    ----------
+    events : EventArray
+        All events of the recording (sensor size ``(H, W)``).
+    frames : ndarray, (N, H, W)
+        Frames on the event sensor's pixel grid.
+    frame_times : ndarray, (N,) int64
+        Frame timestamps in µs.
+    intervals : ndarray, (M, 3) int64
+        Selected frame intervals: ``(i, t_i, t_{i+1})``, each using frame ``i``.
+    roi : (int, int, int, int) or None
+        ``(x, y, w, h)`` px.
+    source : str
+        Where the data came from.
+    """
+
+    events: EventArray
+    frames: np.ndarray
+    frame_times: np.ndarray
+    intervals: np.ndarray
+    roi: tuple[int, int, int, int] | None
+    source: str
+
+
+def frame_intervals(frame_times: np.ndarray, t_first: int, t_last: int, *,
+                    t0: int | None = None, t1: int | None = None,
+                    max_intervals: int | None = None) -> np.ndarray:
+    """The frame intervals ``(i, t_i, t_{i+1})`` that overlap the events' time span
+    ``[t_first, t_last]`` µs, inside ``[t0, t1)`` when given, at most ``max_intervals``.
+
+    Examples
+    --------
+    >>> frame_intervals(np.array([0, 10, 20, 30]), 5, 19).tolist()
+    [[0, 0, 10], [1, 10, 20]]
+    """
+    ft = np.asarray(frame_times, dtype=np.int64)
+    lo, hi = ft[:-1], ft[1:]
+    keep = (hi > t_first) & (lo <= t_last)
+    if t0 is not None:
+        keep &= lo >= t0
+    if t1 is not None:
+        keep &= hi <= t1
+    idx = np.flatnonzero(keep)
+    if max_intervals is not None:
+        idx = idx[:max_intervals]
+    return np.stack([idx, lo[idx], hi[idx]], axis=1).astype(np.int64).reshape(-1, 3)
+
+
+def _frames_source(rec: Path, frames: str | os.PathLike | None) -> Path:
+    if frames is not None:
+        path = Path(frames)
+        if not path.exists():
+            raise FormatError(path, "frames not found (no such file or folder)")
+        return path
+    folder = rec if rec.is_dir() else rec.parent
+    if (folder / "images.txt").is_file():
+        return folder
+    raise FormatError(rec, "no frames: BOS needs frames of the background, and there is no "
+                      "images.txt beside the events", "give them with --frames")
+
+
+def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = None, *,
+                   fmt: str | None = None, roi: tuple[int, int, int, int] | None = None,
+                   t0: int | None = None, t1: int | None = None,
+                   max_intervals: int | None = None) -> BosInput:
+    """Read events and frames for BOS and select the frame intervals to estimate.
+
+    Parameters
+    ----------
+    rec : path-like
+        Events: an ECD-style folder (``events.txt``, ``images.txt``, ``images/``) or any
+        recording :func:`evmotion.io.read_events` reads.
+    frames : path-like, optional
+        Frames (:func:`evmotion.io.frames.read_frames`); default the ``images.txt`` of
+        ``rec``'s folder.
+    fmt : str, optional
+        Event format (default: detected).
+    roi : (x, y, w, h), optional
+        Region of interest in px; must lie inside the sensor.
+    t0, t1 : int, optional
+        Only frame intervals inside ``[t0, t1)`` µs.
+    max_intervals : int, optional
+        At most this many intervals (the first ones).
+
+    Raises
+    ------
+    FormatError
+        No frames, unreadable or missing frame files.
+    ParameterError
+        Frames and events of different sizes or not overlapping in time, ROI outside the
+        sensor.
+    EmptyWindowError
+        No event at all.
+
+    Examples
+    --------
+    >>> data = load_bos_input("scene/")  # doctest: +SKIP
+    >>> data.intervals[:2]  # doctest: +SKIP
+    array([[0, 0, 8333], [1, 8333, 16667]])
+    """
+    from evmotion.io import read_events
+    from evmotion.io.frames import read_frames
+
+    rec = Path(rec)
+    if not rec.exists():
+        raise FormatError(rec, "no such file or folder")
+    src = _frames_source(rec, frames)
+    fr = read_frames(src)
+    images = np.asarray(fr.images)
+    times = np.asarray(fr.t, dtype=np.int64)
+    if images.shape[0] < 2:
+        raise FormatError(src, f"{images.shape[0]} frame(s): BOS needs at least two "
+                          "(one frame interval)")
+    if np.any(np.diff(times) <= 0):
+        bad = int(np.argmax(np.diff(times) <= 0))
+        raise FormatError(src, f"frame times are not increasing: frame {bad + 1} at "
+                          f"{times[bad + 1]} us after {times[bad]} us")
+    events = read_events(rec, **({"format": fmt} if fmt else {}))
+    if not len(events):
+        raise EmptyWindowError(f"{rec}: no events")
+    fh, fw = images.shape[1:3]
+    if (fh, fw) != tuple(events.sensor_size):
+        eh, ew = events.sensor_size
+        raise ParameterError(f"frames {src} are {fw}x{fh} px but the events' sensor is "
+                             f"{ew}x{eh} px (W x H): the frames must be on the event sensor's "
+                             "pixel grid")
+    if roi is not None:
+        roi = tuple(int(v) for v in roi)
+        roi_mask(events.sensor_size, roi)
+    t_first, t_last = int(events.t[0]), int(events.t[-1])
+    if times[-1] <= t_first or times[0] >= t_last:
+        raise ParameterError(f"frames span [{times[0]}, {times[-1]}] us but the events "
+                             f"[{t_first}, {t_last}] us: they do not overlap in time")
+    intervals = frame_intervals(times, t_first, t_last, t0=t0, t1=t1,
+                                max_intervals=max_intervals)
+    if not len(intervals):
+        span = f" within --t0 {t0} / --t1 {t1} us" if t0 is not None or t1 is not None else ""
+        raise ParameterError(f"no frame interval overlaps the events' time span "
+                             f"[{t_first}, {t_last}] us{span}")
+    return BosInput(events=events, frames=images, frame_times=times, intervals=intervals,
+                    roi=roi, source=str(rec))

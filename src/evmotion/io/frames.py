@@ -1,0 +1,565 @@
+"""Frames co-captured with events: one container and one reader for every layout.
+
+:class:`Frames` holds a stack of grey images on the event sensor's pixel grid with their
+timestamps (int64 µs). :func:`read_frames` reads it from
+
+* an ECD-style folder: ``images.txt`` with ``t path`` lines (t in seconds), 8- or 16-bit
+  PNGs (the layout :func:`evmotion.sim.schlieren.write_schlieren` writes);
+* an AEDAT4 file (DAVIS APS frames, :func:`evmotion.io.aedat4.read_frames`);
+* the layout of the published event-based BOS data (``tub-rip/event_based_bos``): a
+  sequence folder with the frames as images in a sub-folder and their trigger times in
+  a text file;
+* a folder of images plus a timestamps file (one time per line in the images' name
+  order, or ``t path`` lines), or a video file with a timestamps file.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError, MissingDependencyError, ParameterError
+
+__all__ = ["Frames", "describe_frames", "find_frames", "read_frames", "read_image"]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".webp")
+TIMESTAMP_FILES = ("timestamps.txt", "times.txt", "frame_timestamps.txt",
+                   "image_timestamps.txt", "timestamps.csv")
+TIME_UNITS = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov")
+CCS_SENSOR_SIZE = (720, 1280)  # Prophesee Gen4 of the published BOS recordings
+
+
+@dataclass(frozen=True, eq=False)
+class Frames:
+    """Grey frames with timestamps.
+
+    Attributes
+    ----------
+    images : ndarray (N, H, W)
+        uint8 or uint16 (``bit_depth`` says how many bits are used), or (N, H, W, C) for
+        colour sources that keep their channels.
+    t : ndarray (N,) int64
+        Frame timestamps in µs, strictly increasing.
+    source : str or None
+        The file or folder read.
+    bit_depth : int
+        Significant bits per pixel (8 for uint8; 16, 12 or 10 for uint16 sources).
+    exposure_start, exposure_end : ndarray (N,) int64 or None
+        Exposure window per frame, µs, where the source records it.
+    position : ndarray (N, 2) int64 or None
+        ``x, y`` of each image's top-left corner on the sensor (DAVIS ROI frames).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> fr = Frames(np.zeros((2, 4, 5), np.uint8), np.array([0, 8333]))
+    >>> len(fr), fr.sensor_size, round(fr.fps, 1)
+    (2, (4, 5), 120.0)
+    """
+
+    images: np.ndarray
+    t: np.ndarray
+    source: str | None = None
+    bit_depth: int = 8
+    exposure_start: np.ndarray | None = field(default=None, repr=False)
+    exposure_end: np.ndarray | None = field(default=None, repr=False)
+    position: np.ndarray | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        src = self.source
+        images = np.asarray(self.images)
+        if images.ndim == 2:
+            images = images[None]
+        if images.ndim not in (3, 4) or (images.size == 0 and images.ndim != 3):
+            raise FormatError(src, f"frames must be a stack (N, H, W), got shape {images.shape}")
+        if images.dtype not in (np.uint8, np.uint16):
+            raise FormatError(src, f"frames must be uint8 or uint16, got {images.dtype}")
+        t = np.asarray(self.t, dtype=np.int64).reshape(-1)
+        if t.shape[0] != images.shape[0]:
+            raise FormatError(src, f"{images.shape[0]} images but {t.shape[0]} timestamps")
+        d = np.diff(t)
+        if d.size and d.min() <= 0:
+            i = int(np.argmax(d <= 0))
+            what = "duplicate" if d[i] == 0 else "unsorted"
+            raise FormatError(src, f"{what} frame timestamps: t[{i}]={t[i]} us, "
+                              f"t[{i + 1}]={t[i + 1]} us")
+        object.__setattr__(self, "images", images)
+        object.__setattr__(self, "t", t)
+        for name in ("exposure_start", "exposure_end"):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, np.asarray(v, dtype=np.int64).reshape(-1))
+        if self.position is not None:
+            object.__setattr__(self, "position",
+                               np.asarray(self.position, dtype=np.int64).reshape(-1, 2))
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def sensor_size(self) -> tuple[int, int]:
+        """``(height, width)`` of the images."""
+        return int(self.images.shape[1]), int(self.images.shape[2])
+
+    @property
+    def fps(self) -> float:
+        """Mean frame rate (Hz) from the timestamps; NaN for fewer than two frames."""
+        if len(self) < 2:
+            return float("nan")
+        return (len(self) - 1) * 1e6 / float(self.t[-1] - self.t[0])
+
+    def as_float(self) -> np.ndarray:
+        """Images scaled to [0, 1] by the bit depth (float32)."""
+        return self.images.astype(np.float32) / float(2 ** self.bit_depth - 1)
+
+
+# ---------------------------------------------------------------------------------------
+# single images
+
+
+def _read_png(path: Path) -> tuple[np.ndarray, int]:
+    import png
+
+    try:
+        w, h, rows, info = png.Reader(filename=str(path)).asDirect()
+        img = np.vstack([np.asarray(r) for r in rows]).reshape(h, w, -1)
+    except (png.Error, OSError, ValueError, EOFError) as exc:
+        raise FormatError(path, f"cannot read PNG: {exc}") from None
+    depth = int(info.get("bitdepth", 8))
+    planes = img.shape[2]
+    if info.get("alpha"):
+        planes -= 1
+    grey = img[..., 0] if planes == 1 else np.rint(img[..., :3].mean(axis=2))
+    return grey.astype(np.uint16 if depth > 8 else np.uint8), 16 if depth > 8 else 8
+
+
+def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
+    """A grey image (colour is averaged over its channels) and its bit depth (8 or 16):
+    PNG with pypng (8 or 16 bit), other formats with OpenCV.
+
+    Examples
+    --------
+    >>> img, bits = read_image("images/frame_00000000.png")  # doctest: +SKIP
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(path, "frame file not found")
+    if path.suffix.lower() == ".png":
+        return _read_png(path)
+    try:
+        import cv2
+    except ImportError:
+        raise MissingDependencyError("opencv-python-headless", f"reading {path.suffix} frames",
+                                     "bos") from None
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise FormatError(path, "cannot read image (corrupt or unsupported)")
+    if img.ndim == 3:
+        img = np.rint(img[..., :3].mean(axis=2)).astype(img.dtype)
+    if img.dtype not in (np.uint8, np.uint16):
+        raise FormatError(path, f"frames must be 8- or 16-bit, got {img.dtype}")
+    return img, 16 if img.dtype == np.uint16 else 8
+
+
+def _stack(files: list[Path]) -> tuple[np.ndarray, int]:
+    images, depth, first = [], None, None
+    for f in files:
+        img, bits = read_image(f)
+        if first is None:
+            first, depth = (f, img.shape), bits
+        elif img.shape != first[1]:
+            raise FormatError(f, f"image is {img.shape[1]}x{img.shape[0]} px (WxH) but "
+                              f"{first[0].name} is {first[1][1]}x{first[1][0]}")
+        elif bits != depth:
+            raise FormatError(f, f"image is {bits}-bit but {first[0].name} is {depth}-bit")
+        images.append(img)
+    if not images:
+        return np.zeros((0, 0, 0), np.uint8), 8
+    return np.stack(images), int(depth)
+
+
+def _check_times(t: np.ndarray, path: Path) -> None:
+    d = np.diff(t)
+    if d.size and d.min() <= 0:
+        i = int(np.argmax(d <= 0))
+        what = "duplicate" if d[i] == 0 else "unsorted"
+        raise FormatError(path, f"{what} frame timestamps at entries {i} and {i + 1}: "
+                          f"{t[i]} us, {t[i + 1]} us")
+
+
+# ---------------------------------------------------------------------------------------
+# layouts
+
+
+def _ecd_list(folder: Path) -> tuple[np.ndarray, list[Path], Path]:
+    from evmotion.io.ecd import read_image_list
+
+    lst_path = folder / "images.txt"
+    try:
+        lst = read_image_list(lst_path)
+    except ValueError as exc:
+        raise FormatError(lst_path, f"cannot parse 't path' lines: {exc}") from None
+    files = [folder / name for name in lst["files"]]
+    for f in files:
+        if not f.is_file():
+            raise FormatError(lst_path, f"lists a missing frame file {f.name!r} ({f})")
+    return lst["t"], files, lst_path
+
+
+def _parse_timestamps(path: Path, unit: str) -> tuple[np.ndarray, list[str] | None]:
+    """Times (µs) of a timestamps file, and the image names when its lines are ``t path``."""
+    if unit not in TIME_UNITS:
+        raise ParameterError(f"time_unit must be one of {sorted(TIME_UNITS)}, got {unit!r}")
+    times, names = [], []
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FormatError(path, f"cannot read timestamps: {exc}") from None
+    for i, line in enumerate(text.splitlines(), 1):
+        parts = line.replace(",", " ").split()
+        if not parts or parts[0].startswith("#"):
+            continue
+        if len(parts) > 2:
+            raise FormatError(path, f"line {i}: expected 't' or 't path', got {line.strip()!r}")
+        try:
+            times.append(float(parts[0]))
+        except ValueError:
+            raise FormatError(path, f"line {i}: {parts[0]!r} is not a time") from None
+        names.append(parts[1] if len(parts) == 2 else None)
+    if any(n is None for n in names) and not all(n is None for n in names):
+        raise FormatError(path, "mixes 't' and 't path' lines")
+    t = np.rint(np.asarray(times, dtype=np.float64) * TIME_UNITS[unit]).astype(np.int64)
+    return t, (names if names and names[0] is not None else None)
+
+
+def _images_in(folder: Path) -> list[Path]:
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+                   and p.is_file())
+    if not files and (folder / "images").is_dir():
+        files = _images_in(folder / "images")
+    return files
+
+
+def _folder_list(folder: Path, timestamps: Path, unit: str
+                 ) -> tuple[np.ndarray, list[Path], Path]:
+    t, names = _parse_timestamps(timestamps, unit)
+    if names is not None:
+        files = [(timestamps.parent / n) for n in names]
+        for f in files:
+            if not f.is_file():
+                raise FormatError(timestamps, f"lists a missing frame file {f.name!r} ({f})")
+        return t, files, timestamps
+    files = _images_in(folder)
+    if len(files) != t.size:
+        raise FormatError(timestamps, f"{t.size} timestamps but {len(files)} images in "
+                          f"{files[0].parent if files else folder}")
+    return t, files, timestamps
+
+
+def _ccs_triggers(path: Path) -> np.ndarray:
+    """Frame times (µs) from a Metavision trigger log: rising edges of ``t id p`` rows
+    (whitespace) or ``p,id,t`` rows (comma-separated, newer Metavision)."""
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FormatError(path, f"cannot read trigger events: {exc}") from None
+    comma = "," in text
+    rows = []
+    for i, line in enumerate(text.splitlines(), 1):
+        parts = line.split(",") if comma else line.split()
+        if not parts or not line.strip() or line.lstrip().startswith("#"):
+            continue
+        try:
+            vals = [int(float(v)) for v in parts]
+        except ValueError:
+            raise FormatError(path, f"line {i}: not integers: {line.strip()!r}") from None
+        if len(vals) != 3:
+            raise FormatError(path, f"line {i}: expected 3 columns, got {len(vals)}")
+        rows.append(vals)
+    arr = np.asarray(rows, dtype=np.int64).reshape(-1, 3)
+    if comma:
+        return arr[arr[:, 0] == 1, 2]
+    return arr[arr[:, 2] == 1, 0]
+
+
+def _video_timestamps(video: Path, timestamps) -> Path:
+    """The timestamps file of a video: given, or ``<stem>.txt``, ``<stem>_timestamps.txt``
+    or ``timestamps.txt`` beside it."""
+    if timestamps is not None:
+        ts = Path(timestamps)
+        if not ts.is_file():
+            raise FormatError(ts, "timestamps file not found")
+        return ts
+    for name in (f"{video.stem}.txt", f"{video.stem}_timestamps.txt", "timestamps.txt"):
+        if (video.parent / name).is_file():
+            return video.parent / name
+    raise FormatError(video, f"video frames need timestamps: give a timestamps file or put "
+                      f"{video.stem}.txt (one time per frame) beside it")
+
+
+def _is_ccs(folder: Path) -> bool:
+    return (folder / "basler_0").is_dir() and \
+        (folder / "prophesee_0" / "trigger_events.txt").is_file()
+
+
+def _read_video(path: Path) -> np.ndarray:
+    try:
+        import cv2
+    except ImportError:
+        raise MissingDependencyError("opencv-python-headless", "reading frames.mp4",
+                                     "bos") from None
+    cap = cv2.VideoCapture(str(path))
+    images = []
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        images.append(img if img.ndim == 2 else np.rint(img.mean(axis=2)).astype(np.uint8))
+    cap.release()
+    if not images:
+        raise FormatError(path, "no frames could be decoded from the video")
+    return np.stack(images)
+
+
+def _read_ccs(folder: Path, sensor_size, warp: bool) -> Frames:
+    trig = folder / "prophesee_0" / "trigger_events.txt"
+    t = _ccs_triggers(trig)
+    frame_dir = folder / "basler_0" / "frames"
+    video = folder / "basler_0" / "frames.mp4"
+    if frame_dir.is_dir() and _images_in(frame_dir):
+        files = _images_in(frame_dir)
+        if len(files) != t.size:
+            raise FormatError(trig, f"{t.size} rising trigger edges but {len(files)} images "
+                              f"in {frame_dir}")
+        images, depth = _stack(files)
+    elif video.is_file():
+        images, depth = _read_video(video), 8
+        if images.shape[0] != t.size:
+            raise FormatError(trig, f"{t.size} rising trigger edges but {images.shape[0]} "
+                              f"frames in {video}")
+    else:
+        raise FormatError(folder / "basler_0", "no frames: neither frames/ with images nor "
+                          "frames.mp4")
+    _check_times(t, trig)
+    hom = folder / "homography.txt"
+    if warp and hom.is_file():
+        try:
+            import cv2
+        except ImportError:
+            raise MissingDependencyError("opencv-python-headless",
+                                         "mapping frames onto the event sensor", "bos") from None
+        try:
+            H = np.loadtxt(hom, dtype=np.float64).reshape(3, 3)
+        except ValueError as exc:
+            raise FormatError(hom, f"expected a 3x3 matrix: {exc}") from None
+        h, w = sensor_size if sensor_size is not None else CCS_SENSOR_SIZE
+        images = np.stack([cv2.warpPerspective(im, H, (int(w), int(h))) for im in images])
+    return Frames(images, t, source=str(folder), bit_depth=depth)
+
+
+def _from_module(path: Path) -> Frames:
+    """Frames of an event recording that holds them (AEDAT4, evmotion/MVSEC HDF5...)."""
+    if path.suffix.lower() == ".aedat4":
+        from evmotion.io import aedat4
+
+        fr = aedat4.read_frames(path)
+        if fr.images.ndim == 4:  # BGR(A) frames: grey by the mean of the colour channels
+            grey = np.rint(fr.images[..., :3].mean(axis=3)).astype(np.uint8)
+            return Frames(grey, fr.t, source=fr.source, exposure_start=fr.exposure_start,
+                          exposure_end=fr.exposure_end, position=fr.position)
+        return fr
+    from evmotion.io.aux import read_frames as read_aux
+
+    fr = read_aux(path)
+    if isinstance(fr.images, np.ndarray):
+        images = fr.images
+    elif len(fr.images):
+        shapes = {im.shape for im in fr.images}
+        if len(shapes) > 1:
+            raise FormatError(path, f"frames of different sizes {sorted(shapes)}")
+        images = np.stack(fr.images)
+    else:
+        images = np.zeros((0, 0, 0), np.uint8)
+    if images.ndim == 4:
+        images = np.rint(images[..., :3].mean(axis=3)).astype(images.dtype)
+    depth = 16 if images.dtype == np.uint16 else 8
+    return Frames(images, fr.t, source=str(path), bit_depth=depth)
+
+
+def find_frames(path: str | os.PathLike, timestamps: str | os.PathLike | None = None) -> str:
+    """Which frame layout :func:`read_frames` sees at ``path``: ``ecd``, ``ccs`` (the
+    published BOS data), ``folder`` (images + timestamps file), ``video`` (a video
+    file + timestamps file) or ``recording`` (an event
+    file that holds frames, e.g. AEDAT4). Raises :class:`FormatError` if none."""
+    path = Path(path)
+    if not path.exists():
+        raise FormatError(path, "no such file or folder")
+    if path.is_file():
+        if path.name == "images.txt":
+            return "ecd"
+        if path.suffix.lower() in VIDEO_SUFFIXES:
+            return "video"
+        return "recording"
+    if (path / "images.txt").is_file():
+        return "ecd"
+    if (path / "events.txt").is_file():
+        return "none"  # an ECD folder without images.txt
+    if _is_ccs(path):
+        return "ccs"
+    if timestamps is not None or any((path / n).is_file() for n in TIMESTAMP_FILES):
+        return "folder"
+    if _images_in(path):
+        raise FormatError(path, "images without timestamps: add images.txt ('t path' lines) "
+                          f"or one of {', '.join(TIMESTAMP_FILES)}")
+    return "recording"
+
+
+def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None = None,
+                time_unit: str = "s", sensor_size: tuple[int, int] | None = None,
+                warp: bool = True) -> Frames:
+    """Frames co-captured with events, from any supported layout.
+
+    Parameters
+    ----------
+    path : path-like
+        * an ECD-style folder (or its ``images.txt``): ``t path`` lines, t in seconds,
+          8- or 16-bit PNGs (16-bit stay uint16);
+        * the published event-based BOS layout (``tub-rip/event_based_bos``): a sequence
+          folder with ``basler_0/frames/*`` images (or ``basler_0/frames.mp4``),
+          ``prophesee_0/trigger_events.txt`` (Metavision external-trigger log: a frame
+          per rising edge, times in µs of the event camera's clock) and optionally
+          ``homography.txt`` (3x3, frame pixels -> event pixels);
+        * a folder of images (sorted by name; or in its ``images/`` sub-folder) with a
+          timestamps file (``timestamps``, or one of ``timestamps.txt``, ``times.txt``,
+          ``frame_timestamps.txt``, ``image_timestamps.txt``, ``timestamps.csv``
+          inside): one time per line in name order, or ``t path`` lines;
+        * a video file (.mp4, .avi, .mkv, .mov; decoded with OpenCV, grey) with a
+          timestamps file (``timestamps``, or ``<stem>.txt``, ``<stem>_timestamps.txt``,
+          ``timestamps.txt`` beside it), one time per frame;
+        * an event recording holding frames (AEDAT4 DAVIS APS frames, evmotion or MVSEC
+          HDF5...).
+    timestamps : path-like, optional
+        Timestamps file of an image folder or a video.
+    time_unit : str
+        Unit of the times in a timestamps file: ``s`` (default), ``ms``, ``us``, ``ns``.
+    sensor_size : (int, int), optional
+        ``(height, width)`` of the event sensor the BOS frames are mapped onto
+        (default 720x1280).
+    warp : bool
+        Map BOS-layout frames onto the event sensor with ``homography.txt`` if present.
+
+    Returns
+    -------
+    Frames
+
+    Examples
+    --------
+    >>> fr = read_frames("plume_sim/")  # doctest: +SKIP
+    >>> fr.images.shape, fr.bit_depth, round(fr.fps)  # doctest: +SKIP
+    ((13, 720, 640), 8, 120)
+    """
+    path = Path(path)
+    kind = find_frames(path, timestamps)
+    if kind == "ecd":
+        folder = path if path.is_dir() else path.parent
+        t, files, src = _ecd_list(folder)
+    elif kind == "ccs":
+        return _read_ccs(path, sensor_size, warp)
+    elif kind == "none":
+        raise FormatError(path, "holds no frames (no images.txt)")
+    elif kind == "video":
+        ts = _video_timestamps(path, timestamps)
+        t, _ = _parse_timestamps(ts, time_unit)
+        images = _read_video(path)
+        if images.shape[0] != t.size:
+            raise FormatError(ts, f"{t.size} timestamps but {images.shape[0]} frames in "
+                              f"{path.name}")
+        _check_times(t, ts)
+        return Frames(images, t, source=str(path), bit_depth=8)
+    elif kind == "folder":
+        ts = Path(timestamps) if timestamps is not None else next(
+            path / n for n in TIMESTAMP_FILES if (path / n).is_file())
+        if not ts.is_file():
+            raise FormatError(ts, "timestamps file not found")
+        t, files, src = _folder_list(path, ts, time_unit)
+    else:
+        return _from_module(path)
+    _check_times(t, src)
+    images, depth = _stack(files)
+    if not files:
+        raise FormatError(src, "lists no frames")
+    return Frames(images, t, source=str(path), bit_depth=depth)
+
+
+def _header(path: Path) -> tuple[tuple[int, int], int]:
+    """``(height, width)`` and bit depth of an image from its header (PNG) or pixels."""
+    if path.suffix.lower() == ".png":
+        import png
+
+        try:
+            w, h, _, info = png.Reader(filename=str(path)).read()
+        except (png.Error, OSError, ValueError, EOFError) as exc:
+            raise FormatError(path, f"cannot read PNG: {exc}") from None
+        return (int(h), int(w)), 16 if info.get("bitdepth", 8) > 8 else 8
+    img, bits = read_image(path)
+    return img.shape[:2], bits
+
+
+def describe_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None = None,
+                    time_unit: str = "s", sensor_size: tuple[int, int] | None = None) -> dict | None:
+    """Summary of the frames at ``path`` without decoding them all: ``count``, ``size``
+    (``WxH``), ``bit_depth``, ``t_first_us``, ``t_last_us``, ``span_s``, ``fps``; None when
+    ``path`` holds no frames (AEDAT4 frames are decoded; other event files are not looked
+    into: None).
+
+    Examples
+    --------
+    >>> describe_frames("plume_sim/")["fps"]  # doctest: +SKIP
+    120.0
+    """
+    path = Path(path)
+    kind = find_frames(path, timestamps)
+    if kind == "none":
+        return None
+    if kind in ("recording", "video"):
+        if kind == "recording" and path.suffix.lower() != ".aedat4":
+            return None
+        fr = read_frames(path, timestamps=timestamps, time_unit=time_unit)
+        if not len(fr):
+            return None
+        t, size, depth = fr.t, fr.sensor_size, fr.bit_depth
+    elif kind == "ccs":
+        t = _ccs_triggers(path / "prophesee_0" / "trigger_events.txt")
+        files = _images_in(path / "basler_0" / "frames") \
+            if (path / "basler_0" / "frames").is_dir() else []
+        if not files:
+            fr = _read_ccs(path, sensor_size, True)
+            t, size, depth = fr.t, fr.sensor_size, fr.bit_depth
+        else:
+            if len(files) != t.size:
+                raise FormatError(path / "prophesee_0" / "trigger_events.txt",
+                                  f"{t.size} rising trigger edges but {len(files)} images")
+            size, depth = _header(files[0])
+            if (path / "homography.txt").is_file():
+                size = sensor_size if sensor_size is not None else CCS_SENSOR_SIZE
+    else:
+        if kind == "ecd":
+            t, files, src = _ecd_list(path if path.is_dir() else path.parent)
+        else:
+            ts = Path(timestamps) if timestamps is not None else next(
+                path / n for n in TIMESTAMP_FILES if (path / n).is_file())
+            t, files, src = _folder_list(path, ts, time_unit)
+        _check_times(t, src)
+        if not files:
+            return None
+        size, depth = _header(files[0])
+    out = {"count": int(len(t)), "size": f"{size[1]}x{size[0]}", "bit_depth": int(depth),
+           "t_first_us": int(t[0]), "t_last_us": int(t[-1]),
+           "span_s": (int(t[-1]) - int(t[0])) * 1e-6}
+    if len(t) > 1:
+        out["fps"] = round((len(t) - 1) * 1e6 / float(t[-1] - t[0]), 3)
+    return out

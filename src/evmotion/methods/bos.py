@@ -1,0 +1,906 @@
+"""Event-based background-oriented schlieren (thesis ch. 6, §6.4).
+
+The flow of a schlieren scene is estimated from the events between two frames and the
+first frame of a textured background. The measured brightness increment is the per-pixel
+sum of the events' polarities (6.8), times the contrast threshold C where it is known,
+Gaussian-smoothed with sigma = 2 px. The linearized event generation model (6.9) predicts
+it from the log frame ``L`` as ``-grad L(x + p) . v dt``, with a per-pixel translation
+``p`` of the frame (to first order: ``grad L + H p``). The objective (6.10) is
+
+    E = data + lambda_1 * mean(w * |grad v|) + lambda_2 * mean(|p|)
+
+with the weighted TV weight ``w = 1 - alpha b`` (``b`` the sigma = 5 px event histogram
+normalized to [0, 1]). Two data terms:
+
+* ``"normalized"`` (6.11): mean |pred / rms(pred) - meas / rms(meas)|, the thesis' term. It
+  cannot see the flow's scale; with a contrast threshold (given, or estimated from the next
+  frame) the solution is rescaled by the least-squares factor between the prediction and
+  C times the event sum (``BosResult.scale``).
+* ``"scale"``: mean |pred - C sum(p)| / rms(C sum(p)), compared unnormalized, so the flow
+  comes out in px directly; needs C.
+
+The flow is parameterized on a patch grid either directly (``param="flow"``) or as the Sobel
+gradient of a scalar field q (``param="poisson"``, §6.4.3), bilinearly interpolated to the
+pixels, and solved coarse to fine (patches 64 -> 32 -> 16 -> 8 px) with Adam (lr 0.05
+decaying exponentially to 0.1 x lr over each scale's iterations, §6.4.5). Gradients are
+analytic (numba kernels in :mod:`evmotion.methods._bos_kernels`; every absolute value is a
+Charbonnier ``sqrt(r^2 + eps^2) - eps`` with a small eps so that it is differentiable).
+
+Differences from the thesis, and why:
+
+* all terms are pixel means (the thesis writes sums; its data term of unit-norm images is
+  the mean times sqrt(N)): lambda then means the same at any ROI size;
+* at the coarse scales the objective may be evaluated on block-pooled images
+  (``BosOptions.pool``): pooling commutes with the gradient, so for a flow that is smooth
+  over a block the pooled increment is the pooled frame's prediction; the finest scale
+  always runs on full-resolution pixels. With ``pool=None`` and ``tol=0`` this is the
+  thesis' schedule exactly;
+* crossing to a finer scale, q is doubled so that the flow (Sobel over the patch grid,
+  whose spacing halves) is continuous;
+* the model frame is smoothed with the measurement's Gaussian (sigma = 2 px) before its
+  gradient: the smoothed increment of a smooth flow is ``-(G * grad L) . v``, and without
+  it the scale-aware term returned about 0.2x the flow's magnitude on LEGM data;
+* p enters to first order and is bounded to +-``p_max`` (0.5 px) per component;
+* the returned q is the least-norm field with the same Sobel flow (the Sobel over patches
+  is blind to constants and checkerboards, which the random initialization leaves in q).
+
+Measured (``benchmarks/results/bos_magnitude.md``, ``bos.md``): on simulated plume, jet,
+breath and ice scenes (360x320, 2 px) Poisson beats Flow in AEE and AE in every window
+(AE 0.16-0.55 rad vs 0.24-0.61); the scale-aware term's median |v|/|v_gt| is 0.77-1.02
+(mean 0.93) with C estimated from the frames, low on the jet and plume: there the events
+under-count the log change (C times the event sums against the LEGM prediction with the
+true flow: slope 0.36 on the 640x720 jet, 0.53 plume, 0.84-0.86 breath and ice, while the
+frames' difference has slope 1.00-1.07), which the estimated C only partly absorbs. One 640x720 interval on one core
+(CPU time, 2-CPU machine at load ~7): 8.5 s with the thesis' schedule (26 s wall), 1.8 s
+with the defaults 150/150/150/300 on pooled coarse scales (5.5 s wall; +0.29 % of the
+thesis' final objective, same AEE), 3.6 s with ``iterations=600`` (+0.21 %).
+
+Units: flow in px/s (u right, v down), q in px^2/s (``v ~ grad q``), p in px.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+from evmotion.errors import EmptyWindowError, EventDataError, EvmotionError, ParameterError
+from evmotion.events import EventArray
+from evmotion.methods._bos_kernels import (
+    LevelBuffers,
+    interp_index,
+    objective_grad,
+    upsample,
+)
+
+__all__ = [
+    "BosOptions",
+    "BosResult",
+    "BosLevel",
+    "estimate_bos",
+    "estimate_bos_sequence",
+    "estimate_contrast_threshold",
+    "event_sums",
+    "log_frame",
+]
+
+_ADAM_B1, _ADAM_B2, _ADAM_EPS = 0.9, 0.999, 1e-8
+
+
+@dataclass(frozen=True)
+class BosOptions:
+    """Settings of :func:`estimate_bos` (defaults: the thesis' §6.4 with pooled coarse
+    scales and a convergence stop, and for the scale-aware term a shorter schedule,
+    150/150/150/300 Adam iterations with the learning rate decaying over each scale; on a
+    640x720 plume interval its final objective is within 0.3 % of the thesis' 600 per
+    scale at a fifth of the time: ``benchmarks/results/bos.md``. The normalized term
+    keeps 600 per scale: its scale is free, and the flow of the random initial q shrinks
+    to a usable solution only over them (150/150/150/300: median |v|/|v_gt| 0.38 after
+    the rescale by C on that plume, 600: 0.89). ``iterations=600, pool=None, tol=0`` runs
+    the thesis' schedule exactly).
+
+    Attributes
+    ----------
+    param : {"poisson", "flow"}
+        Flow as the Sobel gradient of q on the patch grid (§6.4.3), or directly.
+    data_term : {"normalized", "scale"}
+        Thesis (6.11) of normalized increments, or the scale-aware term (needs C).
+    contrast_threshold : float or None
+        C in log-intensity units; None: estimated from ``frame_next`` if given.
+    rescale : bool
+        With ``data_term="normalized"`` and a known C, rescale the flow by the
+        least-squares factor between the prediction and the measured increment.
+    scales : tuple of int
+        Patch sizes in px, coarse to fine.
+    iterations : int, tuple of int or None
+        Adam iterations per scale (one for all, or one per scale); None: 150 at each
+        coarse scale and 300 at the finest with ``data_term="scale"``, 600 each with
+        ``"normalized"``.
+    lr, lr_decay : float
+        Adam learning rate, decaying exponentially to ``lr * lr_decay`` over a scale.
+    lambda_tv, lambda_p : float
+        Weights of the weighted TV of the flow and of |p| (6.12).
+    alpha : float
+        TV weight ``w = 1 - alpha b``.
+    sigma_meas, sigma_weight : float
+        Gaussian sigmas (px) of the measured increment (2) and of the event histogram b (5).
+    use_p : bool
+        Estimate the translation field p (False: p = 0, the Table 6.5 ablation).
+    p_max : float
+        Bound on each component of p in px, smooth (``p_max tanh(theta / p_max)`` on the
+        patch grid): within it the first-order expansion of the smoothed frame's gradient
+        holds (the authors' configuration bounds p to +-0.4 px). Unbounded, the expansion
+        lets p fit residuals as a free linear term (up to 3 px on a simulated plume).
+    pool : tuple of int, "auto" or None
+        Block pooling factor of the images at each scale; "auto": each patch size over the
+        finest (64/32/16/8 -> 8, 4, 2, 1); None: 1 everywhere (the thesis). The last scale
+        is always solved at full resolution.
+    tol : float
+        Convergence stop: a scale ends when the objective fell by less than ``tol`` (relative)
+        over the last ``patience`` iterations. 0 runs every iteration (the thesis).
+    patience : int
+        Iterations of the convergence window.
+    eps_data, eps_reg : float
+        Charbonnier eps of the data term (normalized units) and of the regularizers (px).
+    log_eps : float or None
+        Offset of the log frame, relative to full scale (None: half a quantization step for
+        integer frames, 1e-3 for float frames).
+    min_texture : float
+        Least 90th percentile of |grad log frame| (log units per px) in the ROI.
+    seed : int
+        Seed of the uniform [-1, 1] initialization of q.
+    """
+
+    param: str = "poisson"
+    data_term: str = "normalized"
+    contrast_threshold: float | None = None
+    rescale: bool = True
+    scales: tuple[int, ...] = (64, 32, 16, 8)
+    iterations: int | tuple[int, ...] | None = None
+    lr: float = 0.05
+    lr_decay: float = 0.1
+    lambda_tv: float = 0.5
+    lambda_p: float = 0.1
+    alpha: float = 0.95
+    sigma_meas: float = 2.0
+    sigma_weight: float = 5.0
+    use_p: bool = True
+    p_max: float = 0.5
+    pool: tuple[int, ...] | str | None = "auto"
+    tol: float = 1e-3
+    patience: int = 50
+    eps_data: float = 1e-3
+    eps_reg: float = 1e-4
+    log_eps: float | None = None
+    min_texture: float = 0.02
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.param not in ("poisson", "flow"):
+            raise ParameterError(f"param must be 'poisson' or 'flow', got {self.param!r}")
+        if self.data_term not in ("normalized", "scale"):
+            raise ParameterError(f"data_term must be 'normalized' or 'scale', "
+                                 f"got {self.data_term!r}")
+        scales = tuple(int(s) for s in self.scales)
+        if not scales or min(scales) < 1:
+            raise ParameterError(f"scales must be positive patch sizes, got {self.scales!r}")
+        object.__setattr__(self, "scales", scales)
+        self.iterations_per_scale()
+        self.pool_per_scale()
+        for name in ("lr", "lambda_tv", "lambda_p", "alpha", "sigma_meas", "sigma_weight", "p_max",
+                     "tol", "eps_data", "eps_reg", "min_texture", "lr_decay"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v < 0:
+                raise ParameterError(f"{name} must be finite and >= 0, got {v}")
+        if min(self.lr, self.lr_decay, self.eps_data, self.eps_reg, self.p_max) <= 0:
+            raise ParameterError("lr, lr_decay, eps_data, eps_reg and p_max must be > 0")
+        if self.alpha > 1:
+            raise ParameterError(f"alpha must be in [0, 1], got {self.alpha}")
+        c = self.contrast_threshold
+        if c is not None and not (np.isfinite(c) and c > 0):
+            raise ParameterError(f"contrast_threshold must be > 0, got {c}")
+        if self.patience < 1:
+            raise ParameterError(f"patience must be >= 1, got {self.patience}")
+
+    @classmethod
+    def fast(cls, **kwargs) -> BosOptions:
+        """The fast schedule (the scale-aware term's default): 150 iterations at
+        each coarse scale and 300 at the finest (the learning rate decays over each),
+        pooled coarse scales. On a 640x720 plume interval its final objective is within
+        0.3 % of the thesis' 600 per scale at a fifth of the time
+        (``benchmarks/results/bos.md``). Keyword arguments override fields."""
+        return cls(**{"iterations": (150, 150, 150, 300), **kwargs})
+
+    def iterations_per_scale(self) -> tuple[int, ...]:
+        """Adam iterations of each scale."""
+        its = self.iterations
+        if its is None:
+            n = len(self.scales)
+            its = (150,) * (n - 1) + (300,) if self.data_term == "scale" else 600
+        its = (int(its),) * len(self.scales) if np.isscalar(its) else tuple(int(i) for i in its)
+        if len(its) != len(self.scales) or min(its) < 0:
+            raise ParameterError(f"iterations must be >= 0, one or one per scale "
+                                 f"({len(self.scales)}), got {self.iterations!r}")
+        return its
+
+    def pool_per_scale(self) -> tuple[int, ...]:
+        """Pooling factor of each scale (the last is always 1)."""
+        n = len(self.scales)
+        if self.pool is None:
+            pool = (1,) * n
+        elif isinstance(self.pool, str):
+            if self.pool != "auto":
+                raise ParameterError(f"pool must be 'auto', None or factors, got {self.pool!r}")
+            pool = tuple(max(1, s // self.scales[-1]) for s in self.scales)
+        else:
+            pool = tuple(int(k) for k in self.pool)
+        if len(pool) != n or min(pool) < 1:
+            raise ParameterError(f"pool must hold one factor >= 1 per scale ({n}), "
+                                 f"got {self.pool!r}")
+        return pool[:-1] + (1,)
+
+
+@dataclass
+class BosResult:
+    """Outcome of :func:`estimate_bos` for one frame interval.
+
+    Attributes
+    ----------
+    flow : ndarray (H, W, 2) float32
+        Flow in px/s on the sensor grid (zero outside the ROI).
+    q : ndarray (H, W) float32
+        Poisson field in px^2/s with ``flow ~ grad q`` (``param="poisson"``; for
+        ``param="flow"`` all zero).
+    p : ndarray (H, W, 2) float32
+        Translation of the frame in px.
+    valid : ndarray (H, W) bool
+        Pixels where the flow was estimated (the ROI).
+    roi : (x, y, w, h)
+        The ROI in px.
+    t0_us, t1_us : int
+        The window.
+    contrast_threshold : float or None
+        C used (given or estimated); None when unknown.
+    calibrated : bool
+        True when the flow magnitude is physical (scale term, or normalized term rescaled
+        with a known C); False: only the direction is a measurement.
+    scale : float
+        Factor the normalized solution was multiplied by (1 when not rescaled).
+    objective : float
+        Final objective (6.10) at full resolution, before any rescaling.
+    losses : list of ndarray
+        Objective per iteration, per scale.
+    timings_s : list of float
+        Wall time per scale in seconds.
+    iterations : list of int
+        Iterations run per scale.
+    params : list of ndarray
+        Patch-grid parameters per scale (for warm starts).
+    options : BosOptions
+    """
+
+    flow: np.ndarray
+    q: np.ndarray
+    p: np.ndarray
+    valid: np.ndarray
+    roi: tuple[int, int, int, int]
+    t0_us: int
+    t1_us: int
+    contrast_threshold: float | None
+    calibrated: bool
+    scale: float
+    objective: float
+    losses: list = field(default_factory=list)
+    timings_s: list = field(default_factory=list)
+    iterations: list = field(default_factory=list)
+    params: list = field(default_factory=list)
+    options: BosOptions = field(default_factory=BosOptions)
+
+
+# --------------------------------------------------------------------------- inputs
+
+def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
+    """Log intensity ``log(I / full_scale + eps)`` of a grayscale frame (float64).
+
+    Integer frames are scaled by their dtype's maximum (uint8: 255); float frames are taken
+    as relative intensity. ``eps`` defaults to half a quantization step for integer frames
+    and 1e-3 for float frames.
+
+    >>> log_frame(np.array([[255, 0]], np.uint8)).round(3).tolist()
+    [[0.002, -6.234]]
+    """
+    f = np.asarray(frame)
+    if f.ndim != 2:
+        raise ParameterError(f"frame must be a 2-D grayscale image, got shape {f.shape}")
+    if np.issubdtype(f.dtype, np.integer):
+        full = float(np.iinfo(f.dtype).max)
+        e = 0.5 / full if eps is None else float(eps)
+    else:
+        full = 1.0
+        e = 1e-3 if eps is None else float(eps)
+    g = f.astype(np.float64) / full
+    if not np.isfinite(g).all():
+        raise ParameterError("frame has NaN or inf values")
+    if (g < 0).any():
+        raise ParameterError(f"frame has negative intensities (min {g.min():g})")
+    return np.log(g + e)
+
+
+def _check_roi(roi, sensor):
+    h, w = sensor
+    if roi is None:
+        return 0, 0, w, h
+    try:
+        x, y, rw, rh = (int(v) for v in roi)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"roi must be (x, y, w, h) in px, got {roi!r}") from exc
+    if rw < 16 or rh < 16 or x < 0 or y < 0 or x + rw > w or y + rh > h:
+        raise ParameterError(f"roi (x={x}, y={y}, w={rw}, h={rh}) must lie inside the "
+                             f"{w}x{h} sensor and be at least 16x16 px")
+    return x, y, rw, rh
+
+
+def _window_events(events: EventArray, t0_us: int, t1_us: int, roi) -> EventArray:
+    if t1_us <= t0_us:
+        raise ParameterError(f"the window must have t1_us > t0_us, got [{t0_us}, {t1_us}) us")
+    if len(events) == 0 or events.t[-1] < t0_us or events.t[0] >= t1_us:
+        span = "no events" if len(events) == 0 else \
+            f"events span [{int(events.t[0])}, {int(events.t[-1])}] us"
+        raise EventDataError(f"frames and events do not overlap in time: window "
+                             f"[{t0_us}, {t1_us}) us, {span}")
+    ev = events.slice_time(t0_us, t1_us)
+    x, y, rw, rh = roi
+    xs = ev.x.astype(np.int64)
+    ys = ev.y.astype(np.int64)
+    inside = (xs >= x) & (xs < x + rw) & (ys >= y) & (ys < y + rh)
+    if not inside.any():
+        raise EmptyWindowError(f"no events in the window [{t0_us}, {t1_us}) us inside the "
+                               f"ROI (x={x}, y={y}, w={rw}, h={rh})")
+    return ev
+
+
+def event_sums(events: EventArray, roi=None, *, t0_us: int | None = None,
+               t1_us: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel polarity sums (+1/-1) and event counts of the events in ``[t0, t1)``
+    inside ``roi = (x, y, w, h)``; two (h, w) float64 images.
+
+    >>> ev = EventArray(x=[0, 0, 1], y=[0, 0, 0], t=[0, 1, 2], p=[1, 1, 0],
+    ...                 sensor_size=(1, 2))
+    >>> [a.tolist() for a in event_sums(ev)]
+    [[[2.0, -1.0]], [[2.0, 1.0]]]
+    """
+    x0, y0, rw, rh = _check_roi(roi, events.sensor_size) if roi is not None else \
+        (0, 0, events.sensor_size[1], events.sensor_size[0])
+    ev = events
+    if t0_us is not None or t1_us is not None:
+        ev = events.slice_time(events.t[0] if t0_us is None else t0_us,
+                               events.t[-1] + 1 if t1_us is None else t1_us)
+    xs = ev.x.astype(np.int64) - x0
+    ys = ev.y.astype(np.int64) - y0
+    keep = (xs >= 0) & (xs < rw) & (ys >= 0) & (ys < rh)
+    idx = ys[keep] * rw + xs[keep]
+    pol = np.where(ev.p[keep] > 0, 1.0, -1.0)
+    sums = np.bincount(idx, weights=pol, minlength=rw * rh).reshape(rh, rw)
+    counts = np.bincount(idx, minlength=rw * rh).reshape(rh, rw).astype(np.float64)
+    return sums, counts
+
+
+def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_next: np.ndarray,
+                                *, t0_us: int, t1_us: int, roi=None, sigma: float = 1.0,
+                                method: str = "rma", log_eps: float | None = None) -> float:
+    """Contrast threshold C from two frames and the events between them.
+
+    Per pixel, the log-frame difference ``D = L(t1) - L(t0)`` and the events' polarity sum
+    ``S`` (both smoothed with ``sigma``) obey ``C S ~ D`` over the pixels with events near
+    them. Both are noisy measurements of the same change: D carries the frames' noise
+    (shot noise, quantization), and S the leftover below threshold at both ends of the
+    window, which the sensor's hysteresis (a pixel must travel a full C back after an event)
+    makes large where the schlieren flickers by less than C. So the one-sided regressions
+    disagree, and:
+
+    * ``method="events"``: ``cov(D, S) / var(S)``, D regressed on S: the change per net
+      event. Unbiased by frame noise; close to the sensor's nominal C where the changes are
+      large against C, below it where they are not.
+    * ``method="frames"``: ``(var(D) - var(noise)) / cov(D, S)``, S regressed on D with the
+      frame noise's attenuation removed (its variance measured where no event fired within
+      ~10 px: still air). Above the nominal C where the changes are small.
+    * ``method="rma"`` (default): their geometric mean, the reduced-major-axis slope that
+      treats both sides as noisy; where the frame noise exceeds half of var(D) the "events"
+      slope alone. This is the C that makes the scale-aware data term's magnitudes right
+      (``benchmarks/results/bos_magnitude.md``).
+
+    Returns
+    -------
+    float
+        C in log-intensity units.
+
+    Raises
+    ------
+    EventDataError
+        When the frames do not change where events fire (no slope to fit).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> f0 = rng.uniform(0.2, 1.0, (32, 32))
+    >>> d = rng.normal(0, 0.3, (32, 32))
+    >>> s = np.round(d / 0.15).astype(int)  # events of a sensor with C = 0.15
+    >>> ys, xs = np.nonzero(s)
+    >>> n = np.abs(s[ys, xs])
+    >>> ev = EventArray(x=np.repeat(xs, n), y=np.repeat(ys, n), t=np.zeros(n.sum(), int),
+    ...                 p=np.repeat(s[ys, xs] > 0, n), sensor_size=(32, 32))
+    >>> c = estimate_contrast_threshold(ev, f0, f0 * np.exp(d), t0_us=0, t1_us=1, sigma=0)
+    >>> round(c, 2)
+    0.15
+    """
+    if method not in ("rma", "events", "frames"):
+        raise ParameterError(f"method must be 'rma', 'events' or 'frames', got {method!r}")
+    sensor = events.sensor_size
+    for name, f in (("frame", frame), ("frame_next", frame_next)):
+        if np.shape(f) != tuple(sensor):
+            raise EventDataError(f"{name} has shape {np.shape(f)} but the events' sensor is "
+                                 f"{tuple(sensor)} (H, W): frames and events do not overlap "
+                                 "in size")
+    x, y, rw, rh = _check_roi(roi, sensor)
+    ev = _window_events(events, t0_us, t1_us, (x, y, rw, rh))
+    s, counts = event_sums(ev, (x, y, rw, rh))
+    crop = (slice(y, y + rh), slice(x, x + rw))
+    d = log_frame(frame_next, log_eps)[crop] - log_frame(frame, log_eps)[crop]
+    if sigma > 0:
+        s = gaussian_filter(s, sigma, mode="nearest")
+        d = gaussian_filter(d, sigma, mode="nearest")
+        near = gaussian_filter(counts, sigma, mode="nearest") > 0.05
+    else:
+        near = counts > 0
+    wide = gaussian_filter(counts, 5.0, mode="nearest")
+    quiet = wide <= 1e-3 * wide.max()
+    noise = float(np.mean(d[quiet] ** 2)) if quiet.sum() >= 100 else 0.0
+    dd, ss = d[near], s[near]
+    var_d, cov, var_s = (float(np.mean(v)) for v in (dd * dd, dd * ss, ss * ss))
+    if dd.size < 16 or cov <= 0 or var_s <= 0:
+        raise EventDataError(f"cannot estimate the contrast threshold: the events' polarity "
+                             f"sums do not follow the frames' log difference in the ROI "
+                             f"(covariance {cov:.3g}; pass contrast_threshold)")
+    c_events = cov / var_s
+    c_frames = (var_d - noise) / cov
+    if method == "events":
+        return float(c_events)
+    if method == "frames":
+        if c_frames <= 0:
+            raise EventDataError("cannot estimate the contrast threshold from the frames: "
+                                 "their noise exceeds their change (use method='events')")
+        return float(c_frames)
+    if noise > 0.5 * var_d or c_frames <= 0:
+        return float(c_events)
+    return float(np.sqrt(c_frames * c_events))
+
+
+# --------------------------------------------------------------------------- model
+
+def _sobel_mats(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Smoothing [1 2 1] and central difference [-1 0 1] along one axis of the patch grid,
+    border replicated."""
+    sm = np.zeros((n, n))
+    df = np.zeros((n, n))
+    for j in range(n):
+        lo, hi = max(j - 1, 0), min(j + 1, n - 1)
+        sm[j, lo] += 1.0
+        sm[j, j] += 2.0
+        sm[j, hi] += 1.0
+        df[j, hi] += 1.0
+        df[j, lo] -= 1.0
+    return sm, df
+
+
+def _pool(img: np.ndarray, k: int) -> np.ndarray:
+    if k == 1:
+        return img
+    h, w = img.shape[0] // k, img.shape[1] // k
+    return img[:h * k, :w * k].reshape(h, k, w, k).mean(axis=(1, 3))
+
+
+class BosLevel:
+    """The objective (6.10) at one scale: patch size ``patch``, images pooled by ``k``.
+
+    ``value_grad(theta, normalized)`` returns ``((total, data, tv, p), gradient)`` for the
+    patch-grid parameters ``theta`` (q or (du, dv), then (pu, pv) with ``use_p``), shape
+    ``(n_params(), nh, nw)``; :func:`estimate_bos` builds one per scale. Public for tests,
+    benchmarks and custom solvers.
+    """
+
+    def __init__(self, patch: int, k: int, logf, meas, weight, opts: BosOptions, dtype):
+        self.patch, self.k = patch, k
+        H, W = logf.shape
+        self.nh, self.nw = -(-H // patch), -(-W // patch)
+        lf = _pool(logf, k)
+        if min(lf.shape) < 2:
+            raise ParameterError(f"the ROI is too small for pooling by {k} (use pool=None)")
+        gy, gx = np.gradient(lf)
+        hxy, hxx = np.gradient(gx)
+        hyy, hyx = np.gradient(gy)
+        # per original pixel: gradient / k, Hessian / k^2 (symmetrized)
+        self.gimg = np.ascontiguousarray(
+            np.stack([gx / k, gy / k, hxx / k**2, 0.5 * (hxy + hyx) / k**2, hyy / k**2]),
+            dtype=dtype)
+        self.meas = np.ascontiguousarray(_pool(meas, k), dtype=dtype)
+        self.weight = np.ascontiguousarray(_pool(weight, k), dtype=dtype)
+        self.s_meas = float(np.sqrt(np.mean(self.meas.astype(np.float64) ** 2))) or 1.0
+        h, w = lf.shape
+        self.iy, self.fy = interp_index(h, k, self.nh, patch)
+        self.ix, self.fx = interp_index(w, k, self.nw, patch)
+        self.fy_d = self.fy.astype(dtype)  # the kernels' loops stay in the images' precision
+        self.fx_d = self.fx.astype(dtype)
+        self.sm_y, self.d_y = _sobel_mats(self.nh)
+        self.sm_x, self.d_x = _sobel_mats(self.nw)
+        self.buf = LevelBuffers(h, w, self.nh, dtype)
+        self.gpatch = np.zeros((4, self.nh, self.nw))
+        self.opts = opts
+
+    def n_flow(self) -> int:
+        """Parameters of the flow per patch: 1 (q) or 2 (du, dv)."""
+        return 1 if self.opts.param == "poisson" else 2
+
+    def patch_fields(self, theta: np.ndarray) -> np.ndarray:
+        """(4, nh, nw): du, dv, pu, pv on the patch grid from the parameters."""
+        out = np.zeros((4, self.nh, self.nw))
+        if self.opts.param == "poisson":
+            q = theta[0]
+            out[0] = self.sm_y @ q @ self.d_x.T
+            out[1] = self.d_y @ q @ self.sm_x.T
+        else:
+            out[0:2] = theta[0:2]
+        if self.opts.use_p:
+            pm = self.opts.p_max
+            out[2:4] = pm * np.tanh(theta[self.n_flow():self.n_flow() + 2] / pm)
+        return out
+
+    def value_grad(self, theta: np.ndarray, normalized: bool) -> tuple[tuple, np.ndarray]:
+        """``((total, data, tv, p), d total / d theta)``: the fields upsampled to the pixels,
+        the kernel, and the adjoints of the upsampling and of the Sobel back to theta."""
+        o = self.opts
+        terms = self.objective(self.patch_fields(theta), normalized)
+        g = np.zeros_like(theta)
+        if o.param == "poisson":
+            g[0] = self.sm_y.T @ self.gpatch[0] @ self.d_x + self.d_y.T @ self.gpatch[1] @ self.sm_x
+        else:
+            g[0:2] = self.gpatch[0:2]
+        if o.use_p:
+            th = np.tanh(theta[self.n_flow():self.n_flow() + 2] / o.p_max)
+            g[self.n_flow():self.n_flow() + 2] = self.gpatch[2:4] * (1.0 - th * th)
+        return terms, g
+
+    def objective(self, patch_fields: np.ndarray, normalized: bool, regularize: bool = True):
+        """(total, data, tv, p) of patch-grid fields (4, nh, nw); the gradient with respect
+        to them in ``self.gpatch`` and the predicted increment in ``self.buf.pred``."""
+        o = self.opts
+        lam_tv, lam_p = (o.lambda_tv, o.lambda_p) if regularize else (0.0, 0.0)
+        return objective_grad(np.ascontiguousarray(patch_fields), self.iy, self.fy_d, self.ix,
+                              self.fx_d, self.gimg, self.meas, self.weight, self.s_meas,
+                              1.0 / self.k, lam_tv, lam_p, o.eps_data, o.eps_reg, normalized,
+                              o.use_p, self.buf, self.gpatch)
+
+    def n_params(self) -> int:
+        """Parameters per patch (flow, then p when estimated)."""
+        return self.n_flow() + (2 if self.opts.use_p else 0)
+
+
+def _resample_params(theta: np.ndarray, src: BosLevel, dst: BosLevel) -> np.ndarray:
+    """Parameters of ``src``'s patch grid interpolated to ``dst``'s; q scaled by the ratio of
+    patch sizes so that the flow (a Sobel over patches) keeps its magnitude."""
+    iy, fy = interp_index(dst.nh, dst.patch, src.nh, src.patch)
+    ix, fx = interp_index(dst.nw, dst.patch, src.nw, src.patch)
+    out = np.zeros((theta.shape[0], dst.nh, dst.nw))
+    upsample(np.ascontiguousarray(theta), iy, fy, ix, fx, out)
+    if src.opts.param == "poisson":
+        out[0] *= src.patch / dst.patch
+    return out
+
+
+def _adam(level: BosLevel, theta: np.ndarray, iters: int, normalized: bool):
+    o = level.opts
+    m = np.zeros_like(theta)
+    v = np.zeros_like(theta)
+    losses = np.empty(iters)
+    n = 0
+    for t in range(1, iters + 1):
+        (total, *_), g = level.value_grad(theta, normalized)
+        losses[t - 1] = total
+        n = t
+        if o.tol > 0 and t > o.patience:
+            prev = losses[t - 1 - o.patience]
+            if prev - total < o.tol * abs(prev):
+                break
+        lr = o.lr * o.lr_decay ** ((t - 1) / iters)
+        m = _ADAM_B1 * m + (1 - _ADAM_B1) * g
+        v = _ADAM_B2 * v + (1 - _ADAM_B2) * g * g
+        mh = m / (1 - _ADAM_B1 ** t)
+        vh = v / (1 - _ADAM_B2 ** t)
+        theta = theta - lr * mh / (np.sqrt(vh) + _ADAM_EPS)
+    return theta, losses[:n]
+
+
+def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions):
+    """Crop, check and build the measured increment, TV weight and log frame."""
+    sensor = events.sensor_size
+    if np.shape(frame) != tuple(sensor):
+        raise EventDataError(f"frame has shape {np.shape(frame)} but the events' sensor is "
+                             f"{tuple(sensor)} (H, W): frames and events do not overlap in size")
+    if frame_next is not None and np.shape(frame_next) != tuple(sensor):
+        raise EventDataError(f"frame_next has shape {np.shape(frame_next)} but the events' "
+                             f"sensor is {tuple(sensor)} (H, W)")
+    r = _check_roi(roi, sensor)
+    ev = _window_events(events, int(t0_us), int(t1_us), r)
+    x, y, rw, rh = r
+    logf = log_frame(frame, o.log_eps)[y:y + rh, x:x + rw]
+    gy, gx = np.gradient(logf)
+    texture = float(np.quantile(np.hypot(gx, gy), 0.9))
+    if texture < o.min_texture:
+        raise ParameterError(f"the frame is textureless in the ROI (90th percentile of "
+                             f"|grad log I| = {texture:.3g} < min_texture = {o.min_texture}): "
+                             "BOS needs a textured background")
+    sums, counts = event_sums(ev, r)
+    c = o.contrast_threshold
+    if c is None and frame_next is not None:
+        try:
+            c = estimate_contrast_threshold(ev, frame, frame_next, t0_us=int(t0_us),
+                                            t1_us=int(t1_us), roi=r, log_eps=o.log_eps)
+        except EventDataError:
+            # the normalized term needs no C: its result is then flagged uncalibrated
+            if o.data_term == "scale":
+                raise
+    if o.data_term == "scale" and c is None:
+        raise ParameterError("data_term='scale' needs contrast_threshold or frame_next "
+                             "(to estimate it)")
+    meas = gaussian_filter(sums * (1.0 if c is None else c), o.sigma_meas, mode="nearest")
+    # the prediction must see the measurement's blur: G * (grad L . v) = (G * grad L) . v
+    # for a flow smooth over the kernel, so the model frame is smoothed alike
+    logf = gaussian_filter(logf, o.sigma_meas, mode="nearest")
+    b = gaussian_filter(counts, o.sigma_weight, mode="nearest")
+    b /= max(b.max(), 1e-12)
+    weight = 1.0 - o.alpha * b
+    return r, logf, meas, weight, c
+
+
+def estimate_bos(
+    events: EventArray,
+    frame: np.ndarray,
+    *,
+    t0_us: int,
+    t1_us: int,
+    frame_next: np.ndarray | None = None,
+    roi: Sequence[int] | None = None,
+    options: BosOptions | None = None,
+    init: BosResult | None = None,
+    dtype=np.float32,
+    **kwargs,
+) -> BosResult:
+    """Flow of a schlieren scene from the events of one frame interval and its first frame.
+
+    Parameters
+    ----------
+    events : EventArray
+        Events on the frame's pixel grid (at least those of ``[t0_us, t1_us)``).
+    frame : ndarray (H, W)
+        Grayscale frame at ``t0_us`` (uint8/uint16 or float relative intensity).
+    t0_us, t1_us : int
+        The window (the frame interval) in µs.
+    frame_next : ndarray (H, W), optional
+        The frame at ``t1_us``: used to estimate the contrast threshold when none is given.
+    roi : (x, y, w, h), optional
+        Region solved (default: the whole sensor).
+    options : BosOptions, optional
+        Settings; keyword arguments (e.g. ``param="flow"``, ``iterations=300``) override
+        its fields.
+    init : BosResult, optional
+        Warm start: a previous interval's result with the same scales (its parameters start
+        each scale, averaged with the coarser scale's solution as in the authors' code).
+    dtype : numpy dtype
+        Precision of the dense images (float32: half the memory traffic of float64, which
+        bounds the kernels' speed).
+
+    Returns
+    -------
+    BosResult
+
+    Raises
+    ------
+    EventDataError
+        Frames and events differ in size or do not overlap in time.
+    EmptyWindowError
+        No event in the window inside the ROI.
+    ParameterError
+        Bad option, ROI outside the sensor, textureless frame, scale term without C.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> frame = (rng.random((32, 32)) * 200 + 20).astype(np.uint8)
+    >>> ev = EventArray(x=rng.integers(0, 32, 500), y=rng.integers(0, 32, 500),
+    ...                 t=np.arange(500) * 10, p=rng.integers(0, 2, 500), sensor_size=(32, 32))
+    >>> res = estimate_bos(ev, frame, t0_us=0, t1_us=5000, scales=(16, 8), iterations=20)
+    >>> res.flow.shape, res.flow.dtype, res.calibrated
+    ((32, 32, 2), dtype('float32'), False)
+    """
+    o = options or BosOptions()
+    if kwargs:
+        unknown = set(kwargs) - set(BosOptions.__dataclass_fields__)
+        if unknown:
+            raise ParameterError(f"unknown option(s) {sorted(unknown)}")
+        o = replace(o, **kwargs)
+    r, logf, meas, weight, c = _prepare(events, frame, t0_us, t1_us, frame_next, roi, o)
+    normalized = o.data_term == "normalized"
+    if init is not None and len(init.params) != len(o.scales):
+        raise ParameterError(f"init has {len(init.params)} scales, expected {len(o.scales)}")
+    rng = np.random.default_rng(o.seed)
+    losses, timings, iters, params = [], [], [], []
+    prev_level = theta = None
+    for s, (patch, k, n_it) in enumerate(zip(o.scales, o.pool_per_scale(), o.iterations_per_scale(),
+                                                 strict=True)):
+        start = time.perf_counter()
+        level = BosLevel(patch, k, logf, meas, weight, o, dtype)
+        if prev_level is None:
+            theta = np.zeros((level.n_params(), level.nh, level.nw))
+            if o.param == "poisson":
+                theta[0] = rng.uniform(-1.0, 1.0, (level.nh, level.nw))
+            if init is not None:
+                theta = _same_shape(init.params[s], theta)
+        else:
+            theta = _resample_params(theta, prev_level, level)
+            if init is not None:
+                theta = 0.5 * (theta + _same_shape(init.params[s], theta))
+        theta, lh = _adam(level, theta, n_it, normalized)
+        losses.append(lh)
+        iters.append(len(lh))
+        params.append(theta.copy())
+        timings.append(time.perf_counter() - start)
+        prev_level = level
+    final = level if level.k == 1 else BosLevel(level.patch, 1, logf, meas, weight, o, dtype)
+    (objective, *_), _ = final.value_grad(theta, normalized)
+    pf = final.patch_fields(theta)
+    dense = np.zeros((4,) + logf.shape)
+    upsample(pf, final.iy, final.fy, final.ix, final.fx, dense)
+    scale = 1.0
+    if normalized and o.rescale and c is not None:
+        final.objective(pf, True, regularize=False)
+        pr = final.buf.pred.astype(np.float64)
+        den = float(np.sum(pr * pr))
+        if den > 0:
+            scale = float(np.sum(pr * final.meas) / den)
+    dt = (int(t1_us) - int(t0_us)) * 1e-6
+    H, W = events.sensor_size
+    x, y, rw, rh = r
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[y:y + rh, x:x + rw, 0] = dense[0] * scale / dt
+    flow[y:y + rh, x:x + rw, 1] = dense[1] * scale / dt
+    p = np.zeros((H, W, 2), np.float32)
+    p[y:y + rh, x:x + rw, 0] = dense[2]
+    p[y:y + rh, x:x + rw, 1] = dense[3]
+    q = np.zeros((H, W), np.float32)
+    if o.param == "poisson":
+        qd = np.zeros((1,) + logf.shape)
+        upsample(_min_norm_q(theta[0], final)[None], final.iy, final.fy, final.ix, final.fx,
+                 qd)
+        q[y:y + rh, x:x + rw] = qd[0] * 8.0 * final.patch * scale / dt
+    valid = np.zeros((H, W), bool)
+    valid[y:y + rh, x:x + rw] = True
+    calibrated = c is not None and (not normalized or o.rescale)
+    return BosResult(flow=flow, q=q, p=p, valid=valid, roi=r, t0_us=int(t0_us),
+                     t1_us=int(t1_us), contrast_threshold=None if c is None else float(c),
+                     calibrated=bool(calibrated), scale=scale, objective=float(objective),
+                     losses=losses, timings_s=timings, iterations=iters, params=params,
+                     options=o)
+
+
+def _min_norm_q(q: np.ndarray, level: BosLevel) -> np.ndarray:
+    """The (nearly) least-norm q with the same Sobel flow: the Sobel over patches is blind to
+    a constant and to odd-even (checkerboard) patterns, which the random initialization
+    puts into q and no iteration removes; they would dominate any picture of q. Solves
+    ``(S^T S + eps I) q' = S^T S q``, which keeps q's components that S sees (eigenvalues
+    >> eps) and drops those it does not."""
+    from scipy.sparse import csc_matrix, identity, kron, vstack
+    from scipy.sparse.linalg import spsolve
+
+    op = vstack([kron(csc_matrix(level.sm_y), csc_matrix(level.d_x)),
+                 kron(csc_matrix(level.d_y), csc_matrix(level.sm_x))]).tocsc()
+    normal = (op.T @ op).tocsc()
+    eps = 1e-8 * normal.diagonal().mean()
+    sol = spsolve(normal + eps * identity(q.size, format="csc"), normal @ q.ravel())
+    return sol.reshape(q.shape)
+
+
+def _same_shape(prev: np.ndarray, like: np.ndarray) -> np.ndarray:
+    if prev.shape != like.shape:
+        raise ParameterError(f"init parameters have shape {prev.shape}, expected {like.shape} "
+                             "(same ROI, scales and options)")
+    return prev.copy()
+
+
+# --------------------------------------------------------------------------- sequences
+
+def _solve_chunk(events: EventArray, t0_us: int, t1_us: int, *, frames, times, roi, options,
+                 warm_start) -> list[BosResult]:
+    """Solve the frame intervals inside ``[t0_us, t1_us]`` in order (a worker's chunk)."""
+    out = []
+    prev = None
+    idx = [i for i in range(len(times) - 1) if t0_us <= times[i] and times[i + 1] <= t1_us]
+    for i in idx:
+        res = estimate_bos(events, frames[i], t0_us=int(times[i]), t1_us=int(times[i + 1]),
+                           frame_next=frames[i + 1], roi=roi, options=options,
+                           init=prev if warm_start else None)
+        out.append(res)
+        prev = res
+    return out
+
+
+def estimate_bos_sequence(
+    events: EventArray,
+    frames: Sequence[np.ndarray] | np.ndarray,
+    times_us: Sequence[int],
+    *,
+    roi: Sequence[int] | None = None,
+    options: BosOptions | None = None,
+    warm_start: bool = True,
+    workers: int = 1,
+    chunks: int | None = None,
+    progress: bool = False,
+    **kwargs,
+) -> list[BosResult]:
+    """:func:`estimate_bos` over every frame interval ``[times[i], times[i+1])``.
+
+    Each interval uses ``frames[i]`` and ``frames[i+1]`` (the latter for C). With
+    ``warm_start`` an interval starts from the previous interval's solution, so the
+    intervals of one chunk run in order; ``chunks`` contiguous chunks (default ``workers``)
+    run in parallel with :func:`evmotion.parallel.map_windows` (each chunk's first interval
+    starts cold).
+
+    Returns
+    -------
+    list of BosResult
+        One per interval, in time order.
+
+    Raises
+    ------
+    EvmotionError
+        The first interval's error, re-raised with its window (see :func:`estimate_bos`).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> frames = (rng.random((3, 32, 32)) * 200 + 20).astype(np.uint8)
+    >>> ev = EventArray(x=rng.integers(0, 32, 900), y=rng.integers(0, 32, 900),
+    ...                 t=np.arange(900) * 10, p=rng.integers(0, 2, 900), sensor_size=(32, 32))
+    >>> res = estimate_bos_sequence(ev, frames, [0, 4500, 9000], scales=(16, 8), iterations=10)
+    >>> [(r.t0_us, r.t1_us) for r in res]
+    [(0, 4500), (4500, 9000)]
+    """
+    from evmotion.parallel import map_windows
+
+    o = options or BosOptions()
+    if kwargs:
+        o = replace(o, **kwargs)
+    times = np.asarray(times_us, dtype=np.int64)
+    if len(frames) != len(times):
+        raise ParameterError(f"{len(frames)} frames but {len(times)} timestamps")
+    if len(times) < 2:
+        raise ParameterError("a sequence needs at least two frames")
+    if np.any(np.diff(times) <= 0):
+        raise ParameterError("frame timestamps must increase")
+    n = len(times) - 1
+    n_chunks = max(1, min(n, workers if chunks is None else int(chunks)))
+    bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
+    windows = [(int(times[a]), int(times[b])) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    fn = functools.partial(_solve_chunk, frames=frames, times=times, roi=roi, options=o,
+                           warm_start=warm_start)
+    results = map_windows(fn, events, windows, workers=workers, progress=progress,
+                          desc="bos", with_window=True)
+    out: list[BosResult] = []
+    for res in results:
+        if not res.ok:
+            raise EvmotionError(f"window [{res.t0}, {res.t1}) us failed: "
+                                 f"{res.error.splitlines()[0]}")
+        out.extend(res.value)
+    return out

@@ -1,0 +1,855 @@
+"""Background-oriented schlieren (BOS) simulator with exact ground truth (thesis ch. 6).
+
+Model
+-----
+* **Background**: random dots (printed black dots on white paper, 1-3 px in the image),
+  seeded, each an isotropic Gaussian of darkness; the radiance is
+  ``I(x) = 1 - contrast * (1 - exp(-D(x)))`` with ``D`` the sum of the dots' darkness
+  (overlapping dots saturate smoothly). The dots are band-limited (their width includes
+  the pixel's own box, σ² + 1/12), so sampling ``I`` at a point is the pixel's value;
+  ``I`` is evaluated analytically at sub-pixel positions, never looked up on a grid.
+* **Air**: a scalar field ``φ(x, t)`` (the projected density, a sum of Gaussian puffs
+  advected by the scene's flow: a rising thermal plume, a turbulent jet, breath puffs,
+  a falling cold stream). By (6.1)-(6.3) the background seen at pixel ``x`` is displaced
+  by ``d(x, t) = ∇φ(x, t)`` (the gain is folded into φ): the frame shows
+  ``I(x - d(x, t))``, so the pattern appears moved by ``+d`` (to first order in ∇d) and
+  ``d`` is the image motion that optical flow measures. The optical flow between frames at ``t1 < t2`` is
+  ``v = (d(t2) - d(t1)) / (t2 - t1) = ∇q`` with ``q = (φ(t2) - φ(t1)) / (t2 - t1)`` (6.4)-(6.6):
+  a curl-free field, the thesis' Poisson parameterization ``v = ∇q``. The field is
+  scaled so that the largest inter-frame displacement ``|v| Δt`` is ``magnitude_px``.
+* **Frames** (default 120 fps): the radiance averaged over the exposure (centred on the
+  frame time), shot noise (Poisson photons, seeded) when ``photons`` (expected photons
+  of a white pixel) is given, a gain and 8-bit quantization.
+* **Events** from the same radiance (its log) through the project's event model
+  (:func:`evmotion.sim.simulator.simulate_log_function`: per-pixel threshold mismatch,
+  crossings at interpolated times, refractory period, noise), with every frame time a
+  sample time, so the events between two frames sum (times their thresholds) to the
+  log-intensity change within a threshold at each end (6.7)-(6.8). Low light for the
+  events: ``event_photons`` adds shot noise to the log intensity they see.
+
+Ground truth (:class:`SchlierenGT`): the exact flow between consecutive frames (px/s),
+``q`` per frame interval, the displacement ``d`` at every frame, the contrast
+thresholds, and the scene's metadata (e.g. the plume's rise speed in px/s, which a
+kymogram along the plume's axis measures).
+
+Speed (one core, ``benchmarks/bench_bos_sim.py``): 720x640 at a largest inter-frame
+displacement of 2 px, 0.4-0.7 CPU s per frame interval (frames and events); 96x96, about
+20 ms per interval.
+
+>>> sim = simulate_schlieren("plume", sensor_size=(48, 40), duration_s=1 / 60, seed=0)
+>>> sim.frames.images.shape, sim.gt.flow.shape, sim.gt.t_us.tolist()
+((3, 48, 40), (2, 48, 40, 2), [0, 8333, 16667])
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.events import EventArray
+from evmotion.io.frames import Frames
+from evmotion.sim.simulator import simulate_log_function
+
+__all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
+           "make_background", "make_field", "read_schlieren_gt", "simulate_schlieren",
+           "write_schlieren"]
+
+BOS_SCENES = {
+    "plume": "rising thermal plume from a hot plate at the bottom (natural convection)",
+    "jet": "turbulent hot-air jet from a hair dryer at the left (forced convection)",
+    "breath": "pulsed breath from a mouth at the left: eddies decelerating and spreading",
+    "ice": "cold air stream falling from crushed ice at the top (negative density)",
+}
+GT_FORMAT = "evmotion-schlieren-gt"
+BLOB_CUTOFF = 4.0  # puffs are evaluated within this many widths (exp(-8) beyond)
+DOT_CUTOFF = 5.0  # dots within this many widths (a darkness of 2 exp(-12.5) beyond)
+DOT_PEAK = 2.0  # darkness at a dot's centre: 1 - exp(-2) of full contrast
+
+
+# ---------------------------------------------------------------------------------------
+# background
+
+
+@njit(cache=True)
+def _bg_kernel(sx, sy, dx, dy, inv2s2, amp, r2max, cell_start, gx0, gy0, cs, ncx, ncy,
+               contrast, out):
+    # dots are stored in cell order: the cells around a point are contiguous runs
+    for i in range(sx.shape[0]):
+        px = sx[i]
+        py = sy[i]
+        cx = int(math.floor((px - gx0) / cs))
+        cy = int(math.floor((py - gy0) / cs))
+        dark = 0.0
+        # cells are half the cut-off radius: the 5x5 cells around the point cover it
+        for jy in range(max(cy - 2, 0), min(cy + 3, ncy)):
+            row = jy * ncx
+            for k in range(cell_start[row + max(cx - 2, 0)],
+                           cell_start[row + min(cx + 3, ncx)]):
+                ex = px - dx[k]
+                ey = py - dy[k]
+                r2 = ex * ex + ey * ey
+                if r2 < r2max[k]:
+                    dark += amp[k] * math.exp(-r2 * inv2s2[k])
+        out[i] = 1.0 - contrast * (1.0 - math.exp(-dark))
+
+
+@dataclass(frozen=True, eq=False)
+class Background:
+    """A random-dot BOS background: dot centres ``x``, ``y`` (px), widths ``sigma`` (px,
+    including the pixel box), peak darkness ``amp`` and the print ``contrast``.
+
+    Use :meth:`radiance` (numba, binned dots) or :meth:`radiance_reference` (plain numpy
+    over every dot, for tests) to evaluate it at sub-pixel points.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    sigma: np.ndarray
+    amp: np.ndarray
+    contrast: float
+    origin: tuple[float, float]
+    cell: float
+    grid: tuple[int, int]
+    cell_start: np.ndarray = field(repr=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_inv2s2", 0.5 / self.sigma ** 2)
+        object.__setattr__(self, "_r2max", (DOT_CUTOFF * self.sigma) ** 2)
+
+    def radiance(self, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
+        """Radiance in (0, 1] at points ``(sx, sy)`` (px, any shape), float64."""
+        sx = np.asarray(sx, dtype=np.float64)
+        shape = sx.shape
+        fx = np.ascontiguousarray(sx.ravel())
+        fy = np.ascontiguousarray(np.asarray(sy, dtype=np.float64).ravel())
+        out = np.empty(fx.size)
+        _bg_kernel(fx, fy, self.x, self.y, self._inv2s2, self.amp, self._r2max,
+                   self.cell_start, self.origin[0], self.origin[1], self.cell, self.grid[1],
+                   self.grid[0], self.contrast, out)
+        return out.reshape(shape)
+
+    def radiance_reference(self, sx: np.ndarray, sy: np.ndarray) -> np.ndarray:
+        """Plain-numpy reference of :meth:`radiance` summing every dot (no cut-off)."""
+        sx = np.asarray(sx, dtype=np.float64)[..., None]
+        sy = np.asarray(sy, dtype=np.float64)[..., None]
+        r2 = (sx - self.x) ** 2 + (sy - self.y) ** 2
+        dark = (self.amp * np.exp(-r2 / (2 * self.sigma ** 2))).sum(axis=-1)
+        return 1.0 - self.contrast * (1.0 - np.exp(-dark))
+
+
+def make_background(sensor_size: tuple[int, int], *, density: float = 0.06,
+                    radius_px: float = 1.0, contrast: float = 0.85, margin_px: float = 8.0,
+                    seed: int = 0) -> Background:
+    """Random dots over the sensor plus a margin (points displaced off the sensor still
+    see dots).
+
+    Parameters
+    ----------
+    sensor_size : (int, int)
+        ``(height, width)``.
+    density : float
+        Dots per px² (0.06 with radius 1 px darkens about a third of the area).
+    radius_px : float
+        Mean dot radius (px) in the image; radii vary uniformly by ±25 %. The printed
+        disc of radius r is modelled as a Gaussian of σ = r / 1.2, widened by the pixel box.
+    contrast : float
+        Darkest radiance is ``1 - contrast`` (white paper is 1).
+    margin_px : float
+        Extra border, px.
+    seed : int
+
+    Examples
+    --------
+    >>> bg = make_background((32, 32), seed=1)
+    >>> v = bg.radiance(np.array([3.25]), np.array([7.5]))
+    >>> bool(0 < v[0] <= 1)
+    True
+    """
+    h, w = sensor_size
+    density = float(density)
+    radius_px = float(radius_px)
+    if not (math.isfinite(density) and 0 < density <= 2):
+        raise ParameterError(f"dot_density must be in (0, 2] dots per px², got {density!r}")
+    if not (math.isfinite(radius_px) and 0.2 <= radius_px <= 10):
+        raise ParameterError(f"dot_radius_px must be in [0.2, 10] px, got {radius_px!r}")
+    if not (math.isfinite(contrast) and 0 < contrast < 1):
+        raise ParameterError(f"contrast must be in (0, 1), got {contrast!r}")
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x0B05]))
+    x0, y0 = -margin_px, -margin_px
+    ww, hh = w + 2 * margin_px, h + 2 * margin_px
+    n = int(rng.poisson(density * ww * hh))
+    x = x0 + ww * rng.random(n)
+    y = y0 + hh * rng.random(n)
+    r = radius_px * (0.75 + 0.5 * rng.random(n))
+    sigma = np.sqrt((r / 1.2) ** 2 + 1.0 / 12.0)
+    amp = np.full(n, DOT_PEAK)
+    cell = float(max(0.5, 0.5 * DOT_CUTOFF * sigma.max(initial=1.0)))
+    ncx, ncy = int(math.ceil(ww / cell)) + 1, int(math.ceil(hh / cell)) + 1
+    cid = (np.floor((y - y0) / cell).astype(np.int64) * ncx
+           + np.floor((x - x0) / cell).astype(np.int64))
+    order = np.argsort(cid, kind="stable")
+    start = np.searchsorted(cid[order], np.arange(ncx * ncy + 1)).astype(np.int64)
+    return Background(x=x[order], y=y[order], sigma=sigma[order], amp=amp[order],
+                      contrast=float(contrast), origin=(x0, y0), cell=cell, grid=(ncy, ncx),
+                      cell_start=start)
+
+
+# ---------------------------------------------------------------------------------------
+# air: a sum of advected Gaussian puffs
+
+
+@njit(cache=True)
+def _field_full(cx, cy, s, a, phi, gx, gy):
+    h, w = phi.shape
+    phi[:] = 0.0
+    gx[:] = 0.0
+    gy[:] = 0.0
+    for j in range(cx.shape[0]):
+        r = BLOB_CUTOFF * s[j]
+        x0 = max(0, int(math.ceil(cx[j] - r)))
+        x1 = min(w - 1, int(math.floor(cx[j] + r)))
+        y0 = max(0, int(math.ceil(cy[j] - r)))
+        y1 = min(h - 1, int(math.floor(cy[j] + r)))
+        if x1 < x0 or y1 < y0:
+            continue
+        inv = 1.0 / (s[j] * s[j])
+        # the Gaussian is separable: one exp per column and per row, not per pixel
+        n = x1 - x0 + 1
+        ex = np.empty(n)
+        fx = np.empty(n)
+        for i in range(n):
+            ex[i] = x0 + i - cx[j]
+            fx[i] = math.exp(-0.5 * ex[i] * ex[i] * inv)
+        for y in range(y0, y1 + 1):
+            ey = y - cy[j]
+            fy = a[j] * math.exp(-0.5 * ey * ey * inv)
+            for i in range(n):
+                g = fy * fx[i]
+                phi[y, x0 + i] += g
+                gx[y, x0 + i] -= g * ex[i] * inv
+                gy[y, x0 + i] -= g * ey * inv
+
+
+@njit(cache=True)
+def _field_pix(xs, ys, cx, cy, s, a, phi, gx, gy):
+    for i in range(xs.shape[0]):
+        p = 0.0
+        qx = 0.0
+        qy = 0.0
+        for j in range(cx.shape[0]):
+            ex = xs[i] - cx[j]
+            ey = ys[i] - cy[j]
+            r = BLOB_CUTOFF * s[j]
+            if abs(ex) > r or abs(ey) > r:
+                continue
+            inv = 1.0 / (s[j] * s[j])
+            g = a[j] * math.exp(-0.5 * (ex * ex + ey * ey) * inv)
+            p += g
+            qx -= g * ex * inv
+            qy -= g * ey * inv
+        phi[i] = p
+        gx[i] = qx
+        gy[i] = qy
+
+
+def _smooth(u):
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * (3 - 2 * u)
+
+
+@dataclass(eq=False)
+class PuffField:
+    """The projected density ``φ`` as Gaussian puffs born at times ``birth`` (s), moving
+    from ``p0`` (px) with initial velocity ``v0`` (px/s), drag time ``drag`` (s, 0 for
+    none), acceleration ``acc`` (px/s²) and a sideways wobble; width ``s0`` growing by
+    ``grow`` per px travelled; amplitude ``amp`` faded in/out over ``fade_in``/``fade_out``
+    (s) within the life ``life`` (s), and by ``(s0 / s) ** dilute`` as it spreads (2: its
+    integral is kept). ``gain`` scales ``φ`` (px², so that ``∇φ`` is the displacement in
+    px)."""
+
+    sensor_size: tuple[int, int]
+    birth: np.ndarray
+    p0: np.ndarray
+    v0: np.ndarray
+    acc: np.ndarray
+    drag: np.ndarray
+    s0: np.ndarray
+    grow: np.ndarray
+    amp: np.ndarray
+    life: np.ndarray
+    fade_in: np.ndarray
+    fade_out: np.ndarray
+    wobble_amp: np.ndarray
+    wobble_freq: np.ndarray
+    wobble_phase: np.ndarray
+    dilute: np.ndarray | None = None
+    gain: float = 1.0
+
+    def puffs_at(self, t_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Centres ``cx, cy`` (px), widths (px) and amplitudes of the live puffs at ``t_s``."""
+        age = t_s - self.birth
+        live = (age >= 0) & (age <= self.life)
+        age = age[live]
+        drag = self.drag[live]
+        travel = np.where(drag > 0, drag * (1 - np.exp(-age / np.where(drag > 0, drag, 1.0))),
+                          age)
+        v0 = self.v0[live]
+        path = v0 * travel[:, None] + 0.5 * self.acc[live] * (age ** 2)[:, None]
+        speed = np.hypot(v0[:, 0], v0[:, 1])
+        perp = np.stack([-v0[:, 1], v0[:, 0]], axis=1) / np.where(speed > 0, speed, 1.0)[:, None]
+        perp[speed == 0] = (1.0, 0.0)
+        wob = (self.wobble_amp[live] * (age / self.life[live])
+               * np.sin(2 * np.pi * self.wobble_freq[live] * age + self.wobble_phase[live]))
+        pos = self.p0[live] + path + wob[:, None] * perp
+        s = self.s0[live] + self.grow[live] * np.hypot(path[:, 0], path[:, 1])
+        env = (_smooth(age / self.fade_in[live])
+               * _smooth((self.life[live] - age) / self.fade_out[live]))
+        if self.dilute is not None:  # a spreading puff keeps its heat: peak ~ (s0 / s)^k
+            env = env * (self.s0[live] / s) ** self.dilute[live]
+        a = self.gain * self.amp[live] * env
+        keep = a != 0
+        return (np.ascontiguousarray(pos[keep, 0]), np.ascontiguousarray(pos[keep, 1]),
+                np.ascontiguousarray(s[keep]), np.ascontiguousarray(a[keep]))
+
+    def evaluate(self, t_s: float, pix: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """``φ`` (px²) and the displacement ``∇φ`` (px, last axis ``dx, dy``) at time
+        ``t_s``, on the whole sensor ((H, W) and (H, W, 2)) or at the row-major pixel
+        indices ``pix`` ((P,) and (P, 2))."""
+        h, w = self.sensor_size
+        cx, cy, s, a = self.puffs_at(t_s)
+        if pix is None:
+            phi, gx, gy = (np.empty((h, w)) for _ in range(3))
+            _field_full(cx, cy, s, a, phi, gx, gy)
+        else:
+            pix = np.asarray(pix, dtype=np.int64)
+            ys, xs = np.divmod(pix, w)
+            phi, gx, gy = (np.empty(pix.size) for _ in range(3))
+            _field_pix(xs.astype(np.float64), ys.astype(np.float64), cx, cy, s, a, phi, gx, gy)
+        return phi, np.stack([gx, gy], axis=-1)
+
+
+def _scene_table(scene: str, sensor_size, duration_s: float, speed: float, rng) -> dict:
+    """Puff parameters of a scene (see :data:`BOS_SCENES`), in px, s, px/s."""
+    h, w = sensor_size
+    u = float(min(h, w))
+    tab: dict = {}
+
+    def births(t0, t1, every):
+        n = max(1, int(math.ceil((t1 - t0) / every)))
+        return t0 + every * (np.arange(n) + rng.uniform(-0.3, 0.3, n))
+
+    if scene == "plume":
+        s0 = 0.012 * u + 2.5
+        life = 1.3 * h / speed
+        b = births(-life, duration_s, 1.1 * s0 / speed)
+        n = b.size
+        tab.update(p0=np.stack([w / 2 + rng.normal(0, 0.01 * w, n), np.full(n, h + 2 * s0)], 1),
+                   v0=np.stack([np.zeros(n), np.full(n, -speed)], 1),
+                   acc=np.zeros((n, 2)), drag=np.zeros(n), s0=s0 * rng.uniform(0.8, 1.2, n),
+                   grow=np.full(n, 1.2 * s0 / h), amp=rng.uniform(0.3, 1.0, n),
+                   life=np.full(n, life), fade_in=np.full(n, 0.1 * life),
+                   fade_out=np.full(n, 0.1 * life), wobble_amp=np.full(n, 0.06 * w),
+                   wobble_freq=rng.uniform(0.5, 1.5, n) * speed / h,
+                   wobble_phase=np.full(n, rng.uniform(0, 2 * np.pi)))
+    elif scene == "jet":
+        s0 = 0.008 * u + 2.0
+        drag = 1.3 * w / speed
+        life = 2.0 * drag
+        b = births(-life, duration_s, 1.0 * s0 / speed)
+        n = b.size
+        theta = rng.normal(0, 0.12, n)
+        v = speed * rng.uniform(0.8, 1.2, n)
+        tab.update(p0=np.stack([np.full(n, -2 * s0), h / 2 + rng.normal(0, s0, n)], 1),
+                   v0=np.stack([v * np.cos(theta), v * np.sin(theta)], 1),
+                   acc=np.zeros((n, 2)), drag=np.full(n, drag),
+                   s0=s0 * rng.uniform(0.6, 1.4, n), grow=np.full(n, 2.0 * s0 / w),
+                   amp=rng.uniform(0.3, 1.0, n) * np.where(rng.random(n) < 0.75, 1.0, -1.0),
+                   life=np.full(n, life), fade_in=np.full(n, 0.05 * life),
+                   fade_out=np.full(n, 0.3 * life), wobble_amp=np.full(n, 0.08 * h),
+                   wobble_freq=rng.uniform(2.0, 6.0, n) * speed / w,
+                   wobble_phase=rng.uniform(0, 2 * np.pi, n))
+    elif scene == "breath":
+        # a pulsed, decelerating turbulent jet of warm air: eddies of both signs (mostly
+        # warm) that spread and thin out, so no warm lump piles up in front of the mouth
+        s0 = 0.01 * u + 2.5
+        drag = 0.8 * w / speed
+        life = 2.0 * drag
+        # exhaling 1 s of every 2.5 s; the first exhale began 0.5 s before the recording
+        period, exhale = 2.5, 1.0
+        starts = np.arange(-0.5 - period * math.ceil(life / period), duration_s, period)
+        per = [births(t, t + exhale, 0.8 * s0 / speed) for t in starts]
+        b = np.concatenate(per)
+        phase = np.concatenate([(bb - t) / exhale for t, bb in zip(starts, per, strict=True)])
+        n = b.size
+        theta = np.deg2rad(20.0) + rng.normal(0, 0.15, n)
+        v = speed * (0.5 + 0.5 * np.sin(np.pi * np.clip(phase, 0, 1))) * rng.uniform(0.8, 1.2, n)
+        tab.update(p0=np.stack([np.full(n, 0.08 * w), 0.4 * h + rng.normal(0, s0, n)], 1),
+                   v0=np.stack([v * np.cos(theta), v * np.sin(theta)], 1),
+                   acc=np.zeros((n, 2)), drag=np.full(n, drag),
+                   s0=s0 * rng.uniform(0.7, 1.3, n), grow=np.full(n, 0.12),
+                   dilute=np.full(n, 1.0),
+                   amp=rng.uniform(0.5, 1.0, n) * np.where(rng.random(n) < 0.7, 1.0, -1.0),
+                   life=np.full(n, life), fade_in=np.full(n, 0.12 * life),
+                   fade_out=np.full(n, 0.5 * life), wobble_amp=np.full(n, 0.06 * h),
+                   wobble_freq=rng.uniform(2.0, 5.0, n) * speed / w,
+                   wobble_phase=rng.uniform(0, 2 * np.pi, n))
+    elif scene == "ice":
+        s0 = 0.012 * u + 2.5
+        g = speed ** 2 / (2 * 1.1 * h)  # reaches `speed` at the bottom
+        v0y = 0.1 * speed
+        life = (-v0y + math.sqrt(v0y ** 2 + 2 * g * 1.3 * h)) / g
+        b = births(-life, duration_s, 1.2 * s0 / (0.5 * speed))
+        n = b.size
+        tab.update(p0=np.stack([w / 2 + rng.normal(0, 0.02 * w, n), np.full(n, -2 * s0)], 1),
+                   v0=np.stack([np.zeros(n), np.full(n, v0y)], 1),
+                   acc=np.tile([0.0, g], (n, 1)), drag=np.zeros(n),
+                   s0=s0 * rng.uniform(0.8, 1.2, n), grow=np.full(n, 0.8 * s0 / h),
+                   amp=-rng.uniform(0.3, 1.0, n), life=np.full(n, life),
+                   fade_in=np.full(n, 0.1 * life), fade_out=np.full(n, 0.1 * life),
+                   wobble_amp=np.full(n, 0.03 * w),
+                   wobble_freq=rng.uniform(0.5, 1.5, n) * speed / h,
+                   wobble_phase=rng.uniform(0, 2 * np.pi, n))
+    else:
+        raise ParameterError(f"unknown schlieren scene {scene!r}; choose one of "
+                             f"{sorted(BOS_SCENES)}")
+    tab["birth"] = b
+    return tab
+
+
+DEFAULT_SPEED = {  # px/s at the thesis ROI (720 px high, 640 wide); scaled with the size
+    "plume": 2400.0,  # Sec. 6.6.5: 166 px in 68.8 ms
+    "jet": 3000.0,
+    "breath": 1500.0,
+    "ice": 1200.0,
+}
+
+
+def make_field(scene: str, sensor_size: tuple[int, int], duration_s: float, *,
+               speed_px_s: float | None = None, seed: int = 0) -> PuffField:
+    """The (unscaled, ``gain=1``) puff field of a scene; ``speed_px_s`` defaults to
+    :data:`DEFAULT_SPEED` scaled by the sensor size relative to 720x640 (rise speed of the
+    plume, exit speed of the jet and breath, speed of the cold stream at the bottom).
+
+    Examples
+    --------
+    >>> f = make_field("plume", (64, 48), 0.05, speed_px_s=300.0)
+    >>> phi, d = f.evaluate(0.0)
+    >>> phi.shape, d.shape
+    ((64, 48), (64, 48, 2))
+    """
+    if scene not in BOS_SCENES:
+        raise ParameterError(f"unknown schlieren scene {scene!r}; choose one of "
+                             f"{sorted(BOS_SCENES)}")
+    h, w = sensor_size
+    if speed_px_s is None:
+        ref = h / 720.0 if scene in ("plume", "ice") else w / 640.0
+        speed_px_s = DEFAULT_SPEED[scene] * ref
+    speed = float(speed_px_s)
+    if not (math.isfinite(speed) and speed > 0):
+        raise ParameterError(f"speed_px_s must be finite and > 0, got {speed_px_s!r}")
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0xA1E]))
+    tab = _scene_table(scene, sensor_size, duration_s, speed, rng)
+    return PuffField(sensor_size=(h, w), **{k: np.asarray(v, dtype=np.float64)
+                                            for k, v in tab.items()})
+
+
+# ---------------------------------------------------------------------------------------
+# results
+
+
+@dataclass(frozen=True, eq=False)
+class SchlierenGT:
+    """Exact ground truth of a simulated schlieren recording.
+
+    Attributes
+    ----------
+    flow : ndarray (N-1, H, W, 2) float32
+        Optical flow between consecutive frames, px/s (u right, v down):
+        ``(displacement[i+1] - displacement[i]) / (t[i+1] - t[i])``.
+    q : ndarray (N-1, H, W) float32
+        Poisson field of each frame interval, px²/s: ``flow = ∇q`` (analytic gradient).
+    displacement : ndarray (N, H, W, 2) float32
+        Apparent displacement of the background at each frame time, px (the frame at
+        pixel x shows the background at x - displacement).
+    t_us : ndarray (N,) int64
+        Frame times, µs.
+    contrast_threshold : float
+        Nominal contrast threshold C of the events.
+    thresholds : (ndarray, ndarray) or None
+        Per-pixel ON and OFF thresholds (H, W) after mismatch.
+    meta : dict
+        Scene parameters (scene, fps, exposure, magnitude, speeds, seed...).
+    """
+
+    flow: np.ndarray
+    q: np.ndarray
+    displacement: np.ndarray
+    t_us: np.ndarray
+    contrast_threshold: float
+    thresholds: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    meta: dict = field(default_factory=dict)
+
+
+@dataclass(eq=False)
+class SchlierenSim:
+    """Output of :func:`simulate_schlieren`: ``events``, ``frames``, ground truth ``gt``,
+    the ``background`` and ``air`` (puff field) models used, and ``stats``."""
+
+    events: EventArray
+    frames: Frames
+    gt: SchlierenGT
+    background: Background = field(repr=False)
+    air: PuffField = field(repr=False)
+    stats: dict = field(default_factory=dict)
+
+
+def _num(name, value, lo, hi=math.inf, lo_open=False):
+    v = float(value)
+    if not math.isfinite(v) or v < lo or (lo_open and v <= lo) or v > hi:
+        rng = f"{'(' if lo_open else '['}{lo}, {hi}]"
+        raise ParameterError(f"{name} must be a finite number in {rng}, got {value!r}")
+    return v
+
+
+def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720, 640),
+                       duration_s: float = 0.1, fps: float = 120.0, seed: int = 0, *,
+                       magnitude_px: float = 1.0, dot_density: float = 0.06,
+                       dot_radius_px: float = 1.0, dot_contrast: float = 0.85,
+                       speed_px_s: float | None = None, photons: float | None = None,
+                       gain: float | None = None, exposure_s: float | None = None,
+                       contrast_threshold: float = 0.2, mismatch: float = 0.03,
+                       refractory_us: int = 0, noise_rate: float = 0.0,
+                       event_photons: float | None = None, event_tau_us: int = 1000,
+                       max_step_px: float = 0.25, max_step_fraction: float = 0.5,
+                       show_progress: bool = False) -> SchlierenSim:
+    """Simulate an event camera and a frame camera watching a BOS scene.
+
+    Parameters
+    ----------
+    scene : str
+        One of :data:`BOS_SCENES`: ``plume``, ``jet``, ``breath``, ``ice``.
+    sensor_size : (int, int)
+        ``(height, width)``; default the thesis' ROI 720x640 (Table 6.3).
+    duration_s : float
+        Length in seconds; frames at ``0, 1/fps, ...`` up to it (at least two frames).
+    fps : float
+        Frame rate, Hz (120 in the thesis).
+    seed : int
+        Seeds the background, the air, threshold mismatch, event noise and shot noise.
+    magnitude_px : float
+        Largest inter-frame displacement ``|v| Δt`` over the pixels and frame intervals,
+        px (the thesis' scenes: about 0.05-3 px).
+    dot_density, dot_radius_px, dot_contrast
+        Background: dots per px², mean dot radius (px), print contrast
+        (:func:`make_background`).
+    speed_px_s : float, optional
+        The air's speed (plume rise speed; see :func:`make_field`).
+    photons : float, optional
+        Expected photons of a white pixel per frame: Poisson shot noise. None: noise-free
+        frames. A few photons is the low-light case of Fig. 6.12.
+    gain : float, optional
+        Grey levels per photon (default ``255 / photons``: the frames are normalized to
+        the full range, as the thesis did for its dark sequences).
+    exposure_s : float, optional
+        Exposure time centred on each frame time (default half the frame period); the
+        radiance is averaged over it (enough samples that the background moves at most
+        ``max_step_px`` between them).
+    contrast_threshold, mismatch, refractory_us, noise_rate
+        Event sensor (:func:`evmotion.sim.simulator.simulate_log_function`).
+    event_photons : float, optional
+        Low light for the events: expected photons of a white pixel of the event sensor
+        per ``event_tau_us``. The log intensity the sensor sees then carries shot noise,
+        a Gaussian of standard deviation ``1 / sqrt(event_photons * I)`` drawn
+        independently every ``event_tau_us`` (the photoreceptor's time constant) and
+        linear in between, so dark dots and dim scenes fire noise events. None: no
+        shot noise (bright light). Independent of the frames' ``photons`` (two sensors
+        behind a beam splitter); e.g. ``photons * event_tau_us * 1e-6 / exposure_s``
+        gives both the same illumination.
+    event_tau_us : int
+        Time constant of the event pixels' shot noise, µs.
+    max_step_px : float
+        Largest displacement change between full samples of the radiance for the events
+        and within the exposure, px.
+    max_step_fraction : float
+        Bound on the log-intensity change between samples of an event pixel, as a
+        fraction of the threshold.
+    show_progress : bool
+
+    Returns
+    -------
+    SchlierenSim
+
+    Examples
+    --------
+    >>> sim = simulate_schlieren("jet", sensor_size=(40, 48), duration_s=1 / 60,
+    ...                          magnitude_px=0.5)
+    >>> dt = np.diff(sim.gt.t_us) * 1e-6
+    >>> round(float((np.linalg.norm(sim.gt.flow, axis=-1).max(axis=(1, 2)) * dt).max()), 3)
+    0.5
+    """
+    if scene not in BOS_SCENES:
+        raise ParameterError(f"unknown schlieren scene {scene!r}; choose one of "
+                             f"{sorted(BOS_SCENES)}")
+    try:
+        h, w = (int(v) for v in sensor_size)
+    except (TypeError, ValueError):
+        raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}") from None
+    if h < 8 or w < 8 or h > 65535 or w > 65535:
+        raise ParameterError(f"sensor_size must be between 8 and 65535 pixels per side, "
+                             f"got {(h, w)}")
+    fps = _num("fps", fps, 0.0, 1e5, lo_open=True)
+    duration_s = _num("duration_s", duration_s, 0.0, 1e4, lo_open=True)
+    n_frames = int(math.floor(duration_s * fps + 1e-9)) + 1
+    if n_frames < 2:
+        raise ParameterError(f"duration_s={duration_s} holds fewer than two frames at "
+                             f"fps={fps}; use duration_s >= {1 / fps:.6g}")
+    magnitude_px = _num("magnitude_px", magnitude_px, 0.0, 50.0, lo_open=True)
+    exposure_s = 0.5 / fps if exposure_s is None else _num("exposure_s", exposure_s, 0.0,
+                                                           1.0 / fps)
+    if photons is not None:
+        photons = _num("photons", photons, 0.0, 1e9, lo_open=True)
+        gain = 255.0 / photons if gain is None else _num("gain", gain, 0.0, lo_open=True)
+    elif gain is not None:
+        raise ParameterError("gain needs photons (shot-noise mode)")
+    max_step_px = _num("max_step_px", max_step_px, 0.0, 2.0, lo_open=True)
+    if event_photons is not None:
+        event_photons = _num("event_photons", event_photons, 0.0, 1e12, lo_open=True)
+    event_tau_us = int(_num("event_tau_us", event_tau_us, 1.0, 1e6))
+
+    t_us = np.round(np.arange(n_frames) * 1e6 / fps).astype(np.int64)
+    t_s = t_us * 1e-6
+    air = make_field(scene, (h, w), duration_s, speed_px_s=speed_px_s, seed=seed)
+    # scale the air so that the largest inter-frame displacement is magnitude_px
+    # one pass over the frames at unit gain, float32 storage (a 1 s sequence at 720x640
+    # holds about 1 GB of ground truth); differences in float64 from consecutive frames
+    disp = np.empty((n_frames, h, w, 2), np.float32)
+    flow = np.empty((n_frames - 1, h, w, 2), np.float32)
+    q = np.empty((n_frames - 1, h, w), np.float32)
+    prev = None
+    steps, speeds = [], []  # per interval: largest displacement change (px) and |v| (px/s)
+    for i, t in enumerate(t_s):
+        phi_i, d_i = air.evaluate(float(t))
+        disp[i] = d_i
+        if prev is not None:
+            dt = t_s[i] - t_s[i - 1]
+            step = d_i - prev[1]
+            steps.append(float(np.sqrt((step ** 2).sum(axis=-1)).max()))
+            speeds.append(steps[-1] / dt)
+            flow[i - 1] = step / dt
+            q[i - 1] = (phi_i - prev[0]) / dt
+        prev = (phi_i, d_i)
+    peak = max(steps)
+    if peak <= 0:
+        raise ParameterError(f"scene {scene!r} has no air moving within {duration_s} s "
+                             f"on a {h}x{w} sensor; use a longer duration")
+    air.gain = magnitude_px / peak
+    for arr in (disp, flow, q):
+        arr *= np.float32(air.gain)
+    vmax = max(speeds) * air.gain
+
+    margin = float(np.abs(disp).max()) * 1.5 + 6.0
+    bg = make_background((h, w), density=dot_density, radius_px=dot_radius_px,
+                         contrast=dot_contrast, margin_px=margin, seed=seed)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    xs_f, ys_f = xs.ravel(), ys.ravel()
+
+    still = bg.radiance(xs_f, ys_f)
+
+    def radiance(t, pix=None):
+        # the puffs are cut off: where no puff reaches, d is exactly 0 and the pixel sees
+        # the still background (most of the sensor): only the others are rendered
+        _, d = air.evaluate(t, pix)
+        d = d.reshape(-1, 2)
+        idx = np.arange(h * w) if pix is None else np.asarray(pix)
+        out = still[idx]
+        moved = np.nonzero((d[:, 0] != 0) | (d[:, 1] != 0))[0]
+        out[moved] = bg.radiance(xs_f[idx[moved]] - d[moved, 0],
+                                 ys_f[idx[moved]] - d[moved, 1])
+        return out.reshape(h, w) if pix is None else out
+
+    # frames: radiance averaged over the exposure, shot noise, gain, 8 bits
+    n_exp = 1 if exposure_s == 0 else int(min(64, max(1, math.ceil(
+        vmax * exposure_s / max_step_px))))
+    offs = (np.arange(n_exp) + 0.5) / n_exp * exposure_s - 0.5 * exposure_s
+    rng_shot = np.random.default_rng(np.random.SeedSequence([seed, 0x5407]))
+    images = np.empty((n_frames, h, w), np.uint8)
+    for i, t in enumerate(t_s):
+        rad = np.mean([radiance(float(t + o)) for o in offs], axis=0)
+        if photons is None:
+            val = 255.0 * rad
+        else:
+            val = gain * rng_shot.poisson(photons * rad)
+        images[i] = np.clip(np.rint(val), 0, 255).astype(np.uint8)
+    frames = Frames(images, t_us, source=f"simulate_schlieren({scene!r})", bit_depth=8,
+                    exposure_start=t_us - round(exposure_s * 5e5),
+                    exposure_end=t_us + round(exposure_s * 5e5))
+
+    # events from the log of the same radiance, every frame time a sample time
+    max_step_us = int(min(t_us[1] - t_us[0], max(1.0, 1e6 * max_step_px / max(vmax, 1e-9))))
+    if event_photons is not None:
+        max_step_us = min(max_step_us, event_tau_us)
+    knots: dict = {}
+
+    def shot(k: int) -> np.ndarray:
+        """Standard normals of every pixel at noise knot ``k`` (seeded by k, so any time
+        is reproducible whatever order the sampler asks in); the last few are kept."""
+        if k not in knots:
+            if len(knots) >= 4:
+                knots.pop(next(iter(knots)))
+            rng = np.random.default_rng(np.random.SeedSequence([seed, 0xE7E, k]))
+            knots[k] = rng.standard_normal(h * w)
+        return knots[k]
+
+    def log_at(t, pix):
+        rad = radiance(t * 1e-6, pix)
+        if event_photons is None:
+            return np.log(rad)
+        k, r = divmod(int(t), event_tau_us)
+        a = r / event_tau_us
+        sel = slice(None) if pix is None else pix
+        z = ((1 - a) * shot(k)[sel] + a * shot(k + 1)[sel]).reshape(rad.shape)
+        return np.log(rad) + z / np.sqrt(event_photons * rad)
+
+    res = simulate_log_function(log_at, (h, w), int(t_us[-1]), breaks_us=t_us,
+                                max_step_us=max_step_us, threshold=contrast_threshold,
+                                mismatch=mismatch, refractory_us=refractory_us,
+                                noise_rate=noise_rate, seed=seed,
+                                max_step_fraction=max_step_fraction,
+                                show_progress=show_progress,
+                                meta={"scene": f"schlieren-{scene}"})
+    meta = {"scene": scene, "description": BOS_SCENES[scene], "sensor_size": [h, w],
+            "fps": fps, "duration_s": duration_s, "seed": int(seed),
+            "magnitude_px": magnitude_px, "exposure_s": exposure_s,
+            "exposure_samples": n_exp, "photons": photons, "gain": gain,
+            "dot_density": float(dot_density), "dot_radius_px": float(dot_radius_px),
+            "dot_contrast": float(dot_contrast), "n_dots": int(bg.x.size),
+            "field_gain_px2": air.gain, "n_puffs": int(air.birth.size),
+            "max_flow_px_s": vmax, "mismatch": float(mismatch),
+            "refractory_us": int(refractory_us), "noise_rate": float(noise_rate),
+            "event_photons": event_photons, "event_tau_us": event_tau_us}
+    if scene == "plume":
+        meta["rise_speed_px_s"] = float(-air.v0[0, 1])
+        meta["plume_axis_x_px"] = w / 2
+    elif scene == "ice":
+        meta["fall_acceleration_px_s2"] = float(air.acc[0, 1])
+        meta["fall_speed_bottom_px_s"] = float(math.sqrt(2 * air.acc[0, 1] * 1.1 * h))
+    else:
+        meta["exit_speed_px_s"] = float(np.median(np.hypot(air.v0[:, 0], air.v0[:, 1])))
+    gt = SchlierenGT(flow=flow, q=q, displacement=disp, t_us=t_us,
+                     contrast_threshold=float(contrast_threshold), thresholds=res.thresholds,
+                     meta=meta)
+    stats = dict(res.stats, max_step_us=max_step_us, n_frames=n_frames)
+    return SchlierenSim(events=res.events, frames=frames, gt=gt, background=bg, air=air,
+                        stats=stats)
+
+
+# ---------------------------------------------------------------------------------------
+# files
+
+
+def _write_png(path: Path, img: np.ndarray) -> None:
+    import png
+
+    from evmotion.utils import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        png.Writer(width=img.shape[1], height=img.shape[0], greyscale=True,
+                   bitdepth=16 if img.dtype == np.uint16 else 8).write(fh, img)
+
+
+def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
+    """Write a simulated recording as an ECD-style folder.
+
+    ``events.txt`` (``t[s] x y p``), ``images.txt`` (``t[s] images/frame_XXXXXXXX.png``),
+    ``images/`` (8-bit PNGs) and ``schlieren_gt.h5``: the flow in the project's flow
+    layout (:func:`evmotion.io.flowfiles.read_flow_h5` reads it; windows = frame
+    intervals) plus datasets ``q``, ``displacement``, ``frame_t``, ``thresholds_on``,
+    ``thresholds_off`` and the metadata as JSON (attribute ``schlieren_meta``).
+
+    Returns
+    -------
+    Path
+        The ground-truth file.
+
+    Examples
+    --------
+    >>> write_schlieren(sim, "plume_sim/")  # doctest: +SKIP
+    """
+    from evmotion.io import ecd
+    from evmotion.utils import atomic_write_text
+
+    out = Path(out_dir)
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    ecd.write(out / "events.txt", sim.events)
+    lines = []
+    for i, (t, img) in enumerate(zip(sim.frames.t, sim.frames.images, strict=True)):
+        name = f"images/frame_{i:08d}.png"
+        _write_png(out / name, img)
+        lines.append(f"{t * 1e-6:.6f} {name}\n")
+    atomic_write_text(out / "images.txt", "".join(lines))
+    return _write_gt(out / "schlieren_gt.h5", sim.gt)
+
+
+def _write_gt(path: Path, gt: SchlierenGT) -> Path:
+    import h5py
+
+    from evmotion.io.flowfiles import write_flow_group
+    from evmotion.utils import atomic_path
+
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        write_flow_group(f, gt.flow, gt.t_us[:-1], gt.t_us[1:])
+        kw = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+        f.create_dataset("q", data=gt.q, chunks=(1, *gt.q.shape[1:]), **kw)
+        f.create_dataset("displacement", data=gt.displacement,
+                         chunks=(1, *gt.displacement.shape[1:]), **kw)
+        f.create_dataset("frame_t", data=gt.t_us)
+        if gt.thresholds is not None:
+            f.create_dataset("thresholds_on", data=gt.thresholds[0].astype(np.float32), **kw)
+            f.create_dataset("thresholds_off", data=gt.thresholds[1].astype(np.float32), **kw)
+        f.attrs["schlieren_format"] = GT_FORMAT
+        f.attrs["contrast_threshold"] = gt.contrast_threshold
+        f.attrs["schlieren_meta"] = json.dumps(gt.meta)
+    return path
+
+
+def read_schlieren_gt(path: str | Path) -> SchlierenGT:
+    """Read ``schlieren_gt.h5`` written by :func:`write_schlieren` (a folder holding it too).
+
+    Examples
+    --------
+    >>> gt = read_schlieren_gt("plume_sim/")  # doctest: +SKIP
+    >>> gt.flow.shape  # doctest: +SKIP
+    (12, 720, 640, 2)
+    """
+    import h5py
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / "schlieren_gt.h5"
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    with f:
+        if f.attrs.get("schlieren_format") != GT_FORMAT:
+            raise FormatError(path, "not schlieren ground truth (attribute "
+                              f"schlieren_format={f.attrs.get('schlieren_format')!r})")
+        for name in ("flow", "q", "displacement", "frame_t"):
+            if name not in f:
+                raise FormatError(path, f"schlieren ground truth lacks dataset '{name}'")
+        thr = None
+        if "thresholds_on" in f and "thresholds_off" in f:
+            thr = (f["thresholds_on"][()].astype(np.float64),
+                   f["thresholds_off"][()].astype(np.float64))
+        return SchlierenGT(flow=f["flow"][()], q=f["q"][()],
+                           displacement=f["displacement"][()],
+                           t_us=f["frame_t"][()].astype(np.int64),
+                           contrast_threshold=float(f.attrs["contrast_threshold"]),
+                           thresholds=thr, meta=json.loads(f.attrs["schlieren_meta"]))

@@ -1,0 +1,125 @@
+"""Pictures of schlieren estimates: the Poisson field q (diverging colours with a colour
+bar), the flow (colour wheel with its scale) and the translation field p (colour wheel, px).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.utils import atomic_write_bytes
+from evmotion.viz.images import save_flow_png
+
+__all__ = ["save_bos_pngs", "save_q_png", "symmetric_limit"]
+
+
+def symmetric_limit(values: np.ndarray, percentile: float = 99.0) -> float:
+    """Colour limit ``c`` for a diverging map over ``[-c, c]``: the ``percentile`` of
+    ``|values|`` over the finite values (1.0 when all are zero or none is finite).
+
+    Examples
+    --------
+    >>> symmetric_limit(np.array([-2.0, 1.0, np.nan]), 100.0)
+    2.0
+    """
+    a = np.abs(np.asarray(values, dtype=np.float64))
+    a = a[np.isfinite(a)]
+    c = float(np.percentile(a, percentile)) if a.size else 0.0
+    return c if c > 0 else 1.0
+
+
+def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = None,
+               unit: str = "px^2/s", title: str | None = None, dpi: int = 100) -> float:
+    """Save a Poisson field q as a PNG: blue negative, white zero, red positive, with a
+    colour bar in ``unit``; NaN (outside the ROI) is grey.
+
+    Parameters
+    ----------
+    q : ndarray, (H, W)
+        The field.
+    limit : float, optional
+        The colour bar spans ``[-limit, limit]`` (default: 99th percentile of ``|q|``).
+
+    Returns
+    -------
+    float
+        The limit used.
+
+    Examples
+    --------
+    >>> save_q_png("q.png", np.zeros((8, 8)))  # doctest: +SKIP
+    """
+    q = np.asarray(q, dtype=np.float64)
+    if limit is None:
+        limit = symmetric_limit(q)
+    h, w = q.shape
+    scale = 6.0 / max(h, w)
+    import io
+
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(w * scale + 1.6, h * scale + 0.7), dpi=dpi)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((0.02, 0.04, 0.74, 0.86))
+
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad=(0.6, 0.6, 0.6))
+    im = ax.imshow(np.ma.masked_invalid(q), cmap=cmap, vmin=-limit, vmax=limit,
+                   interpolation="nearest")
+    ax.set_axis_off()
+    if title:
+        ax.set_title(title, fontsize=10)
+    cax = fig.add_axes((0.8, 0.1, 0.04, 0.76))
+    bar = fig.colorbar(im, cax=cax)
+    bar.set_label(f"q [{unit}]", fontsize=8)
+    bar.ax.tick_params(labelsize=7)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    atomic_write_bytes(path, buf.getvalue())
+    return float(limit)
+
+
+def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np.ndarray,
+                  p: np.ndarray, *, q_unit: str = "px^2/s", flow_max: float | None = None,
+                  label: str = "") -> list[str]:
+    """Write ``q_XXXX.png``, ``flow_XXXX.png`` and ``p_XXXX.png`` for window ``index``.
+
+    Parameters
+    ----------
+    flow : ndarray, (H, W, 2)
+        Flow in px/s (colour wheel with its scale in px/s).
+    q : ndarray, (H, W)
+        Poisson field (diverging colours, colour bar in ``q_unit``).
+    p : ndarray, (H, W, 2)
+        Translation field in px (colour wheel, scale in px).
+    flow_max : float, optional
+        Rim of the flow colour wheel in px/s (default: the largest finite magnitude).
+    label : str
+        Text added to each title (e.g. the window's time).
+
+    Returns
+    -------
+    list of str
+        The files written.
+
+    Examples
+    --------
+    >>> save_bos_pngs("png", 0, np.zeros((8, 8, 2)), np.zeros((8, 8)),
+    ...               np.zeros((8, 8, 2)))  # doctest: +SKIP
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    suffix = f" {label}" if label else ""
+    names = [folder / f"q_{index:04d}.png", folder / f"flow_{index:04d}.png",
+             folder / f"p_{index:04d}.png"]
+    save_q_png(names[0], q, unit=q_unit, title=f"Poisson field q{suffix}")
+    mask = np.isfinite(flow).all(axis=-1)
+    save_flow_png(names[1], np.nan_to_num(flow), max_speed=flow_max, valid=mask,
+                  unit="px/s", title=f"flow{suffix}")
+    pmask = np.isfinite(p).all(axis=-1)
+    save_flow_png(names[2], np.nan_to_num(p), valid=pmask, unit="px",
+                  title=f"translation p{suffix}")
+    return [str(n) for n in names]

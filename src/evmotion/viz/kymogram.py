@@ -1,0 +1,133 @@
+"""Kymogram pictures: space-time panels with axes in ms and px, a colour bar, and the fitted
+velocimetry line with its speed in the legend (thesis Fig. 6.11).
+
+Drawn on a :class:`matplotlib.figure.Figure` with the Agg canvas (never ``pyplot``).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from evmotion.errors import ParameterError
+from evmotion.methods.kymogram import Kymogram, RidgeFit, px_per_s_to_m_per_s
+from evmotion.utils import atomic_path
+
+__all__ = ["kymogram_figure", "save_kymogram_png"]
+
+UNITS = {"events": "events / px / bin", "events signed": "polarity sum / px / bin",
+         "frame differences": "|frame difference| [8-bit grey levels]"}
+
+
+def _axis_label(kymo: Kymogram) -> str:
+    ln = kymo.line
+    if ln.x0 == ln.x1:
+        return f"y [px] (column {ln.x0:g})"
+    if ln.y0 == ln.y1:
+        return f"x [px] (row {ln.y0:g})"
+    return (f"s [px] along ({ln.x0:g}, {ln.y0:g}) -> ({ln.x1:g}, {ln.y1:g})")
+
+
+def _speed_label(fit: RidgeFit, geometry: dict | None) -> str:
+    text = f"{fit.method} fit: {fit.velocity_px_s:.4g} ± {fit.velocity_std_px_s:.2g} px/s"
+    if geometry:
+        v = px_per_s_to_m_per_s(fit.speed_px_s, **geometry)
+        dv = px_per_s_to_m_per_s(fit.velocity_std_px_s, **geometry)
+        text += f"\n|v| = {v:.3g} ± {dv:.2g} m/s"
+    return text
+
+
+def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] | None = None,
+                    *, titles: Sequence[str] | None = None, geometry: dict | None = None,
+                    cmap: str = "gray_r", percentile: float = 99.5, dpi: int = 100):
+    """A Figure with one panel per kymogram: time (ms) across, position (px) down.
+
+    Parameters
+    ----------
+    kymos : sequence of Kymogram
+        Drawn side by side with a shared time axis origin (the first kymogram's start).
+    fits : sequence of RidgeFit or None, optional
+        A fit per panel: its line (over the inliers' time span with the ridge points for
+        :func:`~evmotion.methods.kymogram.fit_ridge`, over the panel for
+        :func:`~evmotion.methods.kymogram.fit_correlation`), the velocity in the legend.
+    titles : sequence of str, optional
+        Default: the source and rate of each kymogram.
+    geometry : dict, optional
+        ``focal_mm``, ``distance_m``, ``pixel_um``: the legend adds the speed in m/s.
+    cmap : str
+        Matplotlib colour map (signed data use a diverging "RdBu_r" automatically).
+    percentile : float
+        Colour range: this percentile of |data|.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    kymos = list(kymos)
+    if not kymos:
+        raise ParameterError("kymogram_figure needs at least one kymogram")
+    fits = [None] * len(kymos) if fits is None else list(fits)
+    if len(fits) != len(kymos) or (titles is not None and len(titles) != len(kymos)):
+        raise ParameterError(f"{len(kymos)} kymograms need as many fits and titles, got "
+                             f"{len(fits)} fits, {None if titles is None else len(titles)} titles")
+    n = len(kymos)
+    fig = Figure(figsize=(4.6 * n, 4.2), dpi=dpi)
+    FigureCanvasAgg(fig)
+    t_origin = min(float(k.t_s[0]) for k in kymos)
+    for i, (k, fit) in enumerate(zip(kymos, fits, strict=True)):
+        ax = fig.add_subplot(1, n, i + 1)
+        d = np.asarray(k.data, dtype=np.float64)
+        signed = bool(d.min() < 0)
+        vmax = float(np.percentile(np.abs(d), percentile)) or 1.0
+        dt = (1.0 / k.rate_hz) if np.isfinite(k.rate_hz) and k.rate_hz > 0 else 1e-3
+        ext = ((k.t_s[0] - dt / 2 - t_origin) * 1e3, (k.t_s[-1] + dt / 2 - t_origin) * 1e3,
+               k.s_px[-1] + 0.5, k.s_px[0] - 0.5)
+        im = ax.imshow(d.T, aspect="auto", extent=ext, interpolation="nearest",
+                       cmap="RdBu_r" if signed else cmap, vmin=-vmax if signed else 0.0,
+                       vmax=vmax)
+        cb = fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02)
+        cb.set_label(UNITS.get(k.source, k.source), fontsize=8)
+        cb.ax.tick_params(labelsize=7)
+        ax.set_xlabel("t [ms]")
+        ax.set_ylabel(_axis_label(k))
+        rate = f"{k.rate_hz:.4g} Hz" if np.isfinite(k.rate_hz) else "1 image"
+        ax.set_title(titles[i] if titles is not None else f"{k.source} at {rate}", fontsize=10)
+        if fit is not None:
+            if fit.method == "ridge":
+                ti = fit.t_s[fit.inliers]
+                ax.plot((fit.t_s - t_origin) * 1e3, fit.s_px, ".", ms=2.5,
+                        color="tab:orange", label="ridge")
+                tl = np.array([ti.min(), ti.max()])
+            else:
+                # a correlation fit's points are lags and shifts: draw its line over the
+                # panel, on the strongest streak of that slope
+                tl = np.array([k.t_s[0], k.t_s[-1]])
+            ax.plot((tl - t_origin) * 1e3, fit.s_at(tl), "--" if fit.method != "ridge" else "-",
+                    lw=1.8, color="tab:red", label=_speed_label(fit, geometry))
+            ax.legend(loc="upper right", fontsize=7, framealpha=0.85)
+            ax.set_xlim(ext[0], ext[1])
+            ax.set_ylim(ext[2], ext[3])
+    fig.tight_layout()
+    return fig
+
+
+def save_kymogram_png(path: str | os.PathLike, kymos: Kymogram | Sequence[Kymogram],
+                      fits: RidgeFit | Sequence[RidgeFit | None] | None = None, **kwargs,
+                      ) -> None:
+    """Save :func:`kymogram_figure` as a PNG, atomically.
+
+    Examples
+    --------
+    >>> save_kymogram_png("kymo.png", kymo, fit, geometry={"focal_mm": 25.0,
+    ...                   "distance_m": 1.7, "pixel_um": 4.86})  # doctest: +SKIP
+    """
+    if isinstance(kymos, Kymogram):
+        kymos = [kymos]
+        fits = None if fits is None else [fits]
+    fig = kymogram_figure(kymos, fits, **kwargs)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=fig.dpi)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.getvalue())

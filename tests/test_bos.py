@@ -1,0 +1,347 @@
+"""Event-based BOS solver (thesis ch. 6): kernels vs numpy, analytic gradients vs finite
+differences, recovery of a known flow from LEGM-synthesized data, magnitudes, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bos_synth import legm_case
+from evmotion.errors import EmptyWindowError, EventDataError, ParameterError
+from evmotion.events import EventArray
+from evmotion.methods._bos_kernels import (
+    LevelBuffers,
+    interp_index,
+    objective_grad,
+    upsample,
+)
+from evmotion.methods._bos_reference import objective_numpy, upsample_numpy
+from evmotion.methods.bos import (
+    BosLevel,
+    BosOptions,
+    estimate_bos,
+    estimate_bos_sequence,
+    estimate_contrast_threshold,
+    event_sums,
+)
+
+DT_US = 8333
+
+
+@pytest.fixture(scope="module")
+def case():
+    return legm_case((128, 128), seed=0)
+
+
+def _errors(flow_px_s, d_true, dt_s=DT_US * 1e-6, min_px=0.05):
+    est = flow_px_s * dt_s
+    m = np.hypot(d_true[..., 0], d_true[..., 1]) > min_px
+    ne = np.hypot(est[..., 0], est[..., 1])[m]
+    nt = np.hypot(d_true[..., 0], d_true[..., 1])[m]
+    cos = (est[..., 0] * d_true[..., 0] + est[..., 1] * d_true[..., 1])[m] / (ne * nt + 1e-12)
+    ae = float(np.arccos(np.clip(cos, -1, 1)).mean())
+    return ae, float(np.median(ne / nt))
+
+
+def test_interp_index_matches_centres():
+    i0, f = interp_index(8, 1, 2, 4)  # two 4-px patches, centres at 1.5 and 5.5
+    pos = i0 + f
+    np.testing.assert_allclose(pos, np.clip((np.arange(8) - 1.5) / 4, 0, 1))
+
+
+@pytest.mark.parametrize("k", [1, 2])
+def test_upsample_vs_numpy(k):
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(3, 5, 4))
+    iy, fy = interp_index(40 // k, k, 5, 8)
+    ix, fx = interp_index(30 // k, k, 4, 8)
+    out = np.zeros((3, 40 // k, 30 // k))
+    upsample(x, iy, fy, ix, fx, out)
+    np.testing.assert_allclose(out, upsample_numpy(x, iy, fy, ix, fx), atol=1e-12)
+
+
+def _level_inputs(rng, h=24, w=20, nh=4, nw=3):
+    gimg = rng.normal(size=(5, h, w))
+    meas = rng.normal(size=(h, w))
+    weight = rng.uniform(0.05, 1.0, (h, w))
+    xpatch = np.stack([rng.normal(0, 0.5, (nh, nw)), rng.normal(0, 0.5, (nh, nw)),
+                       rng.uniform(-0.6, 0.6, (nh, nw)), rng.uniform(-0.6, 0.6, (nh, nw))])
+    return xpatch, gimg, meas, weight
+
+
+@pytest.mark.parametrize("normalized", [True, False])
+@pytest.mark.parametrize("use_p", [True, False])
+@pytest.mark.parametrize("k", [1.0, 2.0])
+def test_objective_kernel_vs_numpy_and_fd(normalized, use_p, k):
+    """The fused kernel (patch values in, their gradient out) against the numpy objective of
+    the upsampled fields, and its gradient against central differences of that reference."""
+    rng = np.random.default_rng(2)
+    xpatch, gimg, meas, weight = _level_inputs(rng)
+    h, w = meas.shape
+    iy, fy = interp_index(h, 1, 4, 7)
+    ix, fx = interp_index(w, 1, 3, 7)
+    s_meas = float(np.sqrt(np.mean(meas ** 2)))
+    lam = (0.5, 0.1, 0.05, 0.05)
+
+    def ref(xp):
+        fields = upsample_numpy(xp, iy, fy, ix, fx)
+        return objective_numpy(fields, gimg, meas, weight, s_meas, k, *lam, normalized, use_p)
+
+    buf = LevelBuffers(h, w, 4, np.float64)
+    grad = np.zeros_like(xpatch)
+    got = objective_grad(xpatch, iy, fy, ix, fx, gimg, meas, weight, s_meas, 1.0 / k, *lam,
+                         normalized, use_p, buf, grad)
+    np.testing.assert_allclose(got, ref(xpatch), rtol=1e-10, atol=1e-12)
+    step = 1e-6
+    for idx in np.ndindex(*xpatch.shape):
+        xp, xm = xpatch.copy(), xpatch.copy()
+        xp[idx] += step
+        xm[idx] -= step
+        fd = (ref(xp)[0] - ref(xm)[0]) / (2 * step)
+        assert grad[idx] == pytest.approx(fd, rel=1e-4, abs=1e-9), idx
+
+
+@pytest.mark.parametrize("param", ["poisson", "flow"])
+@pytest.mark.parametrize("data_term", ["normalized", "scale"])
+@pytest.mark.parametrize("k", [1, 2])
+def test_parameter_gradient_fd(case, param, data_term, k):
+    """Gradient with respect to q (or the flow) and p on the patch grid, through the Sobel,
+    the upsampling and the warp."""
+    ev, f0, f1, d, C = case
+    o = BosOptions(param=param, data_term=data_term, eps_data=0.05, eps_reg=0.05)
+    rng = np.random.default_rng(3)
+    logf = np.log(f0[:64, :48])
+    meas = rng.normal(0, 0.1, logf.shape)
+    weight = rng.uniform(0.05, 1, logf.shape)
+    lev = BosLevel(16, k, logf, meas, weight, o, np.float64)
+    theta = rng.normal(0, 0.3, (lev.n_params(), lev.nh, lev.nw))
+    normalized = data_term == "normalized"
+    _, g = lev.value_grad(theta, normalized)
+    h = 1e-6
+    for idx in [(0, 1, 1), (0, 3, 2), (lev.n_params() - 1, 2, 0), (lev.n_params() - 2, 0, 2),
+                (1, 2, 1)]:
+        tp, tm = theta.copy(), theta.copy()
+        tp[idx] += h
+        tm[idx] -= h
+        fd = (lev.value_grad(tp, normalized)[0][0] - lev.value_grad(tm, normalized)[0][0]) / (2 * h)
+        assert g[idx] == pytest.approx(fd, rel=1e-4, abs=1e-9), idx
+
+
+def test_event_sums():
+    ev = EventArray(x=[1, 1, 2, 0], y=[0, 0, 1, 1], t=[0, 1, 2, 3], p=[1, 0, 1, 1],
+                    sensor_size=(2, 3))
+    s, c = event_sums(ev)
+    np.testing.assert_array_equal(s, [[0, 0, 0], [1, 0, 1]])
+    np.testing.assert_array_equal(c, [[0, 2, 0], [1, 0, 1]])
+    s, c = event_sums(ev, t0_us=2, t1_us=3)
+    np.testing.assert_array_equal(s, [[0, 0, 0], [0, 0, 1]])
+
+
+def test_contrast_threshold_recovered():
+    for C in (0.08, 0.2):
+        ev, f0, f1, d, _ = legm_case((128, 128), seed=1, C=C, amplitude=60.0)
+        est = estimate_contrast_threshold(ev, f0, f1, t0_us=0, t1_us=DT_US)
+        assert est == pytest.approx(C, rel=0.05)
+
+
+def test_recovery_poisson_scale_term(case):
+    """Direction and magnitude of a known curl-free flow from the LEGM."""
+    ev, f0, f1, d, C = case
+    res = estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, frame_next=f1, data_term="scale",
+                       iterations=150)
+    ae, ratio = _errors(res.flow, d)
+    assert res.calibrated and res.contrast_threshold == pytest.approx(C, rel=0.05)
+    assert ae < 0.2
+    assert 0.85 < ratio < 1.1
+    # q integrates the flow (px^2/s): its gradient follows the flow, in px/s
+    gy, gx = np.gradient(res.q.astype(np.float64))
+    for g, f in ((gx, res.flow[..., 0]), (gy, res.flow[..., 1])):
+        assert np.corrcoef(g.ravel(), f.ravel())[0, 1] > 0.7
+    ratio_q = np.median(np.hypot(gx, gy)) / np.median(np.hypot(*res.flow.transpose(2, 0, 1)))
+    assert 0.7 < ratio_q < 1.4
+
+
+def test_recovery_normalized_direction_and_rescale(case):
+    ev, f0, f1, d, C = case
+    kw = dict(t0_us=0, t1_us=DT_US, iterations=150, tol=0, dtype=np.float64)
+    raw = estimate_bos(ev, f0, **kw)
+    assert not raw.calibrated and raw.scale == 1.0 and raw.contrast_threshold is None
+    ae, _ = _errors(raw.flow, d)
+    assert ae < 0.2
+    res = estimate_bos(ev, f0, contrast_threshold=C, **kw)
+    assert res.calibrated
+    _, ratio = _errors(res.flow, d)
+    assert 0.8 < ratio < 1.15
+    # the same solution (up to rounding: C only scales the normalized measurement) rescaled
+    diff = np.abs(res.flow - raw.flow * res.scale)
+    assert np.median(diff) < 0.02 * np.median(np.abs(res.flow))
+
+
+def test_poisson_beats_flow_in_angle(case):
+    ev, f0, f1, d, C = case
+    ae = {p: _errors(estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, contrast_threshold=C,
+                                  data_term="scale", param=p, iterations=150).flow, d)[0]
+          for p in ("poisson", "flow")}
+    assert ae["poisson"] < ae["flow"]
+
+
+def test_deterministic_with_seed(case):
+    ev, f0, f1, d, C = case
+    kw = dict(t0_us=0, t1_us=DT_US, scales=(32, 16), iterations=30)
+    a = estimate_bos(ev, f0, seed=5, **kw)
+    b = estimate_bos(ev, f0, seed=5, **kw)
+    c = estimate_bos(ev, f0, seed=6, **kw)
+    np.testing.assert_array_equal(a.flow, b.flow)
+    assert not np.array_equal(a.flow, c.flow)
+
+
+def test_roi_and_result_layout(case):
+    ev, f0, f1, d, C = case
+    res = estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, roi=(16, 8, 96, 64), scales=(32, 16),
+                       iterations=20, contrast_threshold=C)
+    assert res.flow.shape == (128, 128, 2) and res.flow.dtype == np.float32
+    assert res.valid.sum() == 96 * 64 and res.valid[8, 16] and not res.valid[7, 16]
+    assert np.all(res.flow[~res.valid] == 0)
+    assert [len(x) for x in res.losses] == res.iterations == [20, 20]
+    assert len(res.timings_s) == 2 and np.isfinite(res.objective)
+
+
+def test_convergence_stop_and_pooling(case):
+    ev, f0, f1, d, C = case
+    res = estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, contrast_threshold=C, iterations=400,
+                       tol=1e-3, patience=20, pool=(4, 2, 1, 1))
+    assert min(res.iterations) < 400
+    assert _errors(res.flow, d)[0] < 0.25
+
+
+def test_errors(case):
+    ev, f0, f1, d, C = case
+    kw = dict(t0_us=0, t1_us=DT_US, iterations=2, scales=(16,))
+    with pytest.raises(ParameterError, match="textured background"):
+        estimate_bos(ev, np.full_like(f0, 0.5), **kw)
+    with pytest.raises(EventDataError, match="size"):
+        estimate_bos(ev, f0[:100], **kw)
+    with pytest.raises(EventDataError, match="overlap in time"):
+        estimate_bos(ev, f0, t0_us=10**7, t1_us=10**7 + 100, iterations=2)
+    with pytest.raises(ParameterError, match="inside"):
+        estimate_bos(ev, f0, roi=(100, 0, 64, 64), **kw)
+    with pytest.raises(ParameterError, match="contrast_threshold"):
+        estimate_bos(ev, f0, data_term="scale", **kw)
+    with pytest.raises(ParameterError, match="param"):
+        estimate_bos(ev, f0, param="sobel", **kw)
+    with pytest.raises(ParameterError, match="unknown option"):
+        estimate_bos(ev, f0, lamda_tv=1.0, **kw)
+    few = EventArray(x=[0], y=[0], t=[5], p=[1], sensor_size=(128, 128))
+    with pytest.raises(EmptyWindowError):
+        estimate_bos(few, f0, roi=(64, 64, 32, 32), **kw)
+    with pytest.raises(EventDataError, match="contrast threshold"):
+        estimate_contrast_threshold(ev, f0, f0, t0_us=0, t1_us=DT_US)
+    with pytest.raises(EventDataError, match="contrast threshold"):
+        estimate_bos(ev, f0, frame_next=f0, data_term="scale", **kw)
+    # the normalized term goes on without C, flagged uncalibrated
+    res = estimate_bos(ev, f0, frame_next=f0, **kw)
+    assert not res.calibrated and res.contrast_threshold is None
+
+
+def test_sequence_warm_start_and_chunks():
+    ev0, f0, f1, d, C = legm_case((64, 64), seed=2, t0=0, t1=DT_US)
+    ev1, g0, g1, _, _ = legm_case((64, 64), seed=2, t0=DT_US, t1=2 * DT_US)
+    from evmotion.events import concatenate
+    ev = concatenate([ev0, ev1])
+    frames = [f0, f1, f1 * (g1 / g0)]
+    times = [0, DT_US, 2 * DT_US]
+    kw = dict(scales=(32, 16), iterations=25, contrast_threshold=C)
+    seq = estimate_bos_sequence(ev, frames, times, **kw)
+    assert [(r.t0_us, r.t1_us) for r in seq] == [(0, DT_US), (DT_US, 2 * DT_US)]
+    first = estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, frame_next=f1, **kw)
+    np.testing.assert_array_equal(seq[0].flow, first.flow)
+    warm = estimate_bos(ev, f1, t0_us=DT_US, t1_us=2 * DT_US, init=first, **kw)
+    np.testing.assert_array_equal(seq[1].flow, warm.flow)
+    cold = estimate_bos_sequence(ev, frames, times, chunks=2, **kw)
+    second = estimate_bos(ev, f1, t0_us=DT_US, t1_us=2 * DT_US, **kw)
+    np.testing.assert_array_equal(cold[1].flow, second.flow)
+    # the chunks in two worker processes (evmotion.parallel.map_windows) give the same
+    par = estimate_bos_sequence(ev, frames, times, workers=2, **kw)
+    for a, b in zip(par, cold, strict=True):
+        np.testing.assert_array_equal(a.flow, b.flow)
+    with pytest.raises(ParameterError, match="timestamps"):
+        estimate_bos_sequence(ev, frames, [0, 5, 5], **kw)
+
+
+@pytest.fixture(scope="module")
+def sim_ice():
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    return simulate_schlieren("ice", sensor_size=(240, 216), duration_s=2 / 120,
+                              magnitude_px=2.0, seed=0)
+
+
+def _sim_gt(sim, k):
+    """The simulator's flow over interval k in px, as the apparent motion of the pattern
+    (the LEGM's sign: the frame change follows -grad L . v dt)."""
+    from evmotion.methods.bos import log_frame
+
+    fr, t = sim.frames.images, sim.frames.t
+    gt = sim.gt.flow[k] * (t[k + 1] - t[k]) * 1e-6
+    gy, gx = np.gradient(log_frame(fr[k]))
+    sign = np.sign(np.sum(-(gx * gt[..., 0] + gy * gt[..., 1])
+                          * (log_frame(fr[k + 1]) - log_frame(fr[k]))))
+    return sign * gt
+
+
+def _sim_ice_solve(sim):
+    fr, t = sim.frames.images, sim.frames.t
+    t0, t1 = int(t[1]), int(t[2])
+    res = estimate_bos(sim.events, fr[1], t0_us=t0, t1_us=t1, frame_next=fr[2],
+                       data_term="scale")
+    gt = _sim_gt(sim, 1)
+    win = sim.events.slice_time(t0, t1)
+    m = np.zeros(gt.shape[:2], bool)
+    m[win.y, win.x] = True
+    m &= np.hypot(gt[..., 0], gt[..., 1]) > 0.05
+    return res.flow * (t1 - t0) * 1e-6, gt, m
+
+
+def test_simulator_contrast_threshold_and_direction(sim_ice):
+    """On the schlieren simulator: C within 10 % of the sensor's ('events') and the
+    scale-aware term's mean angular error below the thesis' worst (0.42 rad)."""
+    sim = sim_ice
+    fr, t = sim.frames.images, sim.frames.t
+    c_ev = estimate_contrast_threshold(sim.events, fr[1], fr[2], t0_us=int(t[1]),
+                                       t1_us=int(t[2]), method="events")
+    assert c_ev == pytest.approx(sim.gt.contrast_threshold, rel=0.10)
+    est, gt, m = _sim_ice_solve(sim)
+    cos = np.sum(est * gt, -1)[m] / (np.hypot(*est[m].T) * np.hypot(*gt[m].T) + 1e-12)
+    assert np.arccos(np.clip(cos, -1, 1)).mean() < 0.42
+
+
+@pytest.mark.xfail(strict=True, reason="known defect (issue #12 magnitude goal): median "
+                   "|v|/|v_gt| is 0.76 on this 240x216 ice interval with any schedule "
+                   "(600/scale too); the events under-count the frames' log change "
+                   "(C * event sums against the LEGM prediction with the true flow: slope "
+                   "0.36-0.86 on the 640x720 scenes, frames' difference 1.00-1.07) and "
+                   "the 'rma' C only partly compensates")
+def test_simulator_magnitude(sim_ice):
+    """The scale-aware term's median |v|/|v_gt| within [0.85, 1.15] on the simulator."""
+    est, gt, m = _sim_ice_solve(sim_ice)
+    ratio = np.median(np.hypot(est[..., 0], est[..., 1])[m] / np.hypot(gt[..., 0], gt[..., 1])[m])
+    assert 0.85 < ratio < 1.15
+
+
+@pytest.mark.parametrize("param", ["poisson", "flow"])
+def test_float32_level_matches_float64(case, param):
+    """The production precision (float32 images, float32 loops) against float64."""
+    ev, f0, f1, d, C = case
+    o = BosOptions(param=param)
+    rng = np.random.default_rng(4)
+    logf = np.log(f0)
+    meas = rng.normal(0, 0.1, logf.shape)
+    weight = rng.uniform(0.05, 1, logf.shape)
+    lev32 = BosLevel(8, 1, logf, meas, weight, o, np.float32)
+    lev64 = BosLevel(8, 1, logf, meas, weight, o, np.float64)
+    theta = rng.normal(0, 0.3, (lev32.n_params(), lev32.nh, lev32.nw))
+    for normalized in (True, False):
+        (t32, *_), g32 = lev32.value_grad(theta, normalized)
+        (t64, *_), g64 = lev64.value_grad(theta, normalized)
+        assert t32 == pytest.approx(t64, rel=1e-5)
+        np.testing.assert_allclose(g32, g64, rtol=1e-3, atol=1e-4 * np.abs(g64).max())

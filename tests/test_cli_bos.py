@@ -1,0 +1,192 @@
+"""``evmotion bos`` end to end on a tiny simulated ECD-style schlieren folder, ``evmotion
+eval`` on its output, and a one-line error with exit code 2 for every bad input."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from evmotion.cli import main
+from evmotion.io.bosfiles import read_bos_h5
+from evmotion.io.flowfiles import read_flow_h5
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    d = tmp_path_factory.mktemp("bos") / "plume"
+    sim = simulate_schlieren("plume", sensor_size=(48, 40), duration_s=2 / 120, seed=0)
+    write_schlieren(sim, d)
+    return d
+
+
+def _run(argv, capsys):
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse rejects options at parse time
+        rc = exc.code
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def test_no_options_then_eval(scene, tmp_path, capsys):
+    out = tmp_path / "bos.h5"
+    rc, _, err = _run(["bos", scene, "--out", out], capsys)
+    assert rc == 0, err
+    seq = read_flow_h5(out)
+    assert seq.flow.shape == (2, 48, 40, 2)
+    np.testing.assert_array_equal(seq.t0, [0, 8333])
+    bos = read_bos_h5(out)
+    assert bos.q.shape == (2, 48, 40) and bos.p.shape == (2, 48, 40, 2)
+    assert np.isfinite(bos.q).all() and np.isfinite(bos.flow.flow).all()
+    # one C for the sequence (the median of the intervals' estimates), near the simulator's
+    c = bos.scalars["contrast_threshold"]
+    assert np.all(c == c[0]) and abs(c[0] - 0.2) < 0.15
+    assert bos.attrs["contrast_threshold"] == c[0]
+    assert bos.attrs["contrast_threshold_source"] == "median of 2 intervals"
+    rc, text, err = _run(["eval", out, "--gt", scene / "schlieren_gt.h5", "--events", scene,
+                          "--json"], capsys)
+    assert rc == 0, err
+    summary = json.loads(text)
+    assert summary["n_windows"] == 2 and summary["out_px"] == 1.0
+    # eval's numbers are the endpoint errors of the file's flow over each frame interval
+    # on the pixels with events (a numpy reference)
+    from evmotion.io import read_events
+
+    gt = read_flow_h5(scene / "schlieren_gt.h5")
+    events = read_events(scene)
+    for i, w in enumerate(summary["windows"]):
+        t0, t1 = int(bos.flow.t0[i]), int(bos.flow.t1[i])
+        win = events.slice_time(t0, t1)
+        mask = np.zeros((48, 40), bool)
+        mask[win.y, win.x] = True
+        err = (bos.flow.flow[i] - gt.flow[i]) * (t1 - t0) * 1e-6
+        ee = np.hypot(err[..., 0], err[..., 1])[mask]
+        assert w["AEE"] == pytest.approx(ee.mean(), rel=1e-5)
+        assert w["%Out"] == pytest.approx(100 * np.mean(ee > 1.0))
+        assert w["AE_rad"] == pytest.approx(np.radians(w["AE_deg"]))
+
+
+def test_options_roi_png_json(scene, tmp_path, capsys):
+    out = tmp_path / "roi.h5"
+    rc, text, err = _run(["bos", scene, "--roi", 4, 8, 32, 32, "--param", "flow",
+                          "--data-term", "normalized", "--iterations", 5, "--max-intervals", 1,
+                          "--png-dir", tmp_path / "png", "--json", "--out", out], capsys)
+    assert rc == 0, err
+    summary = json.loads(text)
+    assert summary["n_intervals"] == 1 and summary["roi"] == [4, 8, 32, 32]
+    bos = read_bos_h5(out)
+    assert bos.flow.valid[0, 8:40, 4:36].all() and bos.flow.valid[0].sum() == 32 * 32
+    assert np.isnan(bos.flow.flow[0, 0, 0]).all()
+    for name in ("q_0000.png", "flow_0000.png", "p_0000.png"):
+        assert (tmp_path / "png" / name).stat().st_size > 1000
+    rc, text, _ = _run(["eval", out, "--gt", scene / "schlieren_gt.h5", "--json"], capsys)
+    assert rc == 0 and json.loads(text)["mean"]["n_pixels"] == 32 * 32
+
+
+def _one_line_error(argv, capsys, *words):
+    rc, _, err = _run(argv, capsys)
+    assert rc == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("opt,value,word", [
+    ("--iterations", "0", "[1, 100000]"), ("--iterations", "x", "integer"),
+    ("--contrast-threshold", "nan", "finite"), ("--contrast-threshold", "-0.1", "(0, 10]"),
+    ("--workers", "0", "[1, 256]"), ("--max-intervals", "0", ">= 1"), ("--param", "q", "invalid"),
+    ("--data-term", "l2", "invalid"),
+])
+def test_bad_options_at_parse_time(scene, tmp_path, capsys, opt, value, word):
+    _one_line_error(["bos", scene, opt, value, "--out", tmp_path / "x.h5"], capsys, opt, value,
+                    word)
+
+
+def test_bad_inputs(scene, tmp_path, capsys):
+    out = tmp_path / "x.h5"
+    _one_line_error(["bos", scene, "--roi", 30, 0, 20, 20, "--out", out], capsys, "roi",
+                    "outside")
+    _one_line_error(["bos", scene, "--t0", 10, "--t1", 5, "--out", out], capsys, "--t1")
+    _one_line_error(["bos", tmp_path / "nothing", "--out", out], capsys, "no such")
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    _one_line_error(["bos", scene, "--out", blocker / "x.h5"], capsys, "cannot write")
+    _one_line_error(["bos", scene, "--out", tmp_path / "x.png"], capsys, ".h5")
+    assert not out.exists()
+
+
+def _copy(scene, tmp_path, name):
+    d = tmp_path / name
+    shutil.copytree(scene, d)
+    return d
+
+
+def test_bad_recordings(scene, tmp_path, capsys):
+    import png
+
+    out = tmp_path / "x.h5"
+    # missing frames: no images.txt, and a listed frame file that is gone
+    d = _copy(scene, tmp_path, "noframes")
+    (d / "images.txt").unlink()
+    _one_line_error(["bos", d, "--out", out], capsys, "no frames", "--frames")
+    d = _copy(scene, tmp_path, "gone")
+    (d / "images" / "frame_00000001.png").unlink()
+    _one_line_error(["bos", d, "--out", out], capsys, "frame_00000001.png")
+    # frames of another size than the events' sensor
+    d = _copy(scene, tmp_path, "size")
+    _one_line_error(["bos", d, "--frames", _small_frames(tmp_path), "--out", out], capsys,
+                    "sensor")
+    # frames and events not overlapping in time
+    d = _copy(scene, tmp_path, "late")
+    lines = (d / "images.txt").read_text().splitlines()
+    (d / "images.txt").write_text("".join(f"{float(t) + 100:.6f} {f}\n"
+                                          for t, f in (ln.split() for ln in lines)))
+    _one_line_error(["bos", d, "--out", out], capsys, "do not overlap")
+    # a textureless frame
+    d = _copy(scene, tmp_path, "flat")
+    for f in sorted((d / "images").glob("*.png")):
+        with open(f, "wb") as fh:
+            png.Writer(width=40, height=48, greyscale=True).write(
+                fh, np.full((48, 40), 128, np.uint8))
+    _one_line_error(["bos", d, "--out", out], capsys, "textureless")
+    assert not out.exists()
+
+
+def _small_frames(tmp_path):
+    import png
+
+    d = tmp_path / "small"
+    (d / "images").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    lines = []
+    for i in range(3):
+        name = f"images/f{i}.png"
+        with open(d / name, "wb") as fh:
+            png.Writer(width=20, height=20, greyscale=True).write(
+                fh, rng.integers(0, 255, (20, 20), dtype=np.uint8))
+        lines.append(f"{i / 120:.6f} {name}\n")
+    (d / "images.txt").write_text("".join(lines))
+    return d
+
+
+def test_workers_give_the_cold_start_solutions(scene, tmp_path, capsys):
+    # two workers: two chunks of one interval each, both started cold, so each equals a
+    # one-worker run of that interval alone
+    out2 = tmp_path / "w2.h5"
+    rc, _, err = _run(["bos", scene, "--workers", 2, "--iterations", 20,
+                       "--contrast-threshold", 0.2, "--out", out2], capsys)
+    assert rc == 0, err
+    two = read_bos_h5(out2)
+    assert len(two) == 2
+    for k, t0 in enumerate(two.flow.t0):
+        out1 = tmp_path / f"w1_{k}.h5"
+        rc, _, err = _run(["bos", scene, "--t0", t0, "--max-intervals", 1, "--iterations", 20,
+                           "--contrast-threshold", 0.2, "--out", out1], capsys)
+        assert rc == 0, err
+        one = read_bos_h5(out1)
+        np.testing.assert_allclose(one.flow.flow[0], two.flow.flow[k], rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(one.q[0], two.q[k], rtol=1e-5, atol=1e-3)

@@ -1,0 +1,312 @@
+"""Co-captured frames: readers against files of known content, AEDAT4 frames of the shared
+recording, the published BOS layout, image folders with timestamps, and bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import png
+import pytest
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.io import describe
+from evmotion.io.frames import Frames, describe_frames, find_frames, read_frames
+
+
+def _png(path, img):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as fh:
+        png.Writer(width=img.shape[1], height=img.shape[0], greyscale=True,
+                   bitdepth=16 if img.dtype == np.uint16 else 8).write(fh, img)
+
+
+def _images(n=3, h=6, w=7, dtype=np.uint8, seed=0):
+    hi = 65535 if dtype == np.uint16 else 255
+    return np.random.default_rng(seed).integers(0, hi + 1, (n, h, w)).astype(dtype)
+
+
+def _ecd(folder, imgs, times):
+    lines = []
+    for i, (t, img) in enumerate(zip(times, imgs, strict=True)):
+        name = f"images/frame_{i:08d}.png"
+        _png(folder / name, img)
+        lines.append(f"{t} {name}\n")
+    (folder / "images.txt").write_text("".join(lines))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_ecd_folder(tmp_path, dtype):
+    imgs = _images(dtype=dtype)
+    _ecd(tmp_path, imgs, ["0.5", "0.508333", "0.516667"])
+    fr = read_frames(tmp_path)
+    np.testing.assert_array_equal(fr.images, imgs)
+    assert fr.images.dtype == dtype and fr.bit_depth == (16 if dtype == np.uint16 else 8)
+    assert fr.t.tolist() == [500_000, 508_333, 516_667]
+    assert fr.sensor_size == (6, 7) and fr.fps == pytest.approx(120.0, rel=1e-4)
+    assert read_frames(tmp_path / "images.txt").t.tolist() == fr.t.tolist()
+    np.testing.assert_allclose(fr.as_float().max(), imgs.max() / (2 ** fr.bit_depth - 1))
+    d = describe_frames(tmp_path)
+    assert d == {"count": 3, "size": "7x6", "bit_depth": fr.bit_depth, "t_first_us": 500_000,
+                 "t_last_us": 516_667, "span_s": pytest.approx(0.016667),
+                 "fps": pytest.approx(120.0, rel=1e-3)}
+
+
+def test_colour_png_is_averaged(tmp_path):
+    rgb = np.zeros((4, 5, 3), np.uint8)
+    rgb[..., 0], rgb[..., 1], rgb[..., 2] = 30, 60, 91
+    path = tmp_path / "images" / "a.png"
+    path.parent.mkdir()
+    with open(path, "wb") as fh:
+        png.Writer(width=5, height=4, greyscale=False).write(fh, rgb.reshape(4, 15))
+    (tmp_path / "images.txt").write_text("0.0 images/a.png\n")
+    fr = read_frames(tmp_path)
+    assert fr.images.shape == (1, 4, 5) and np.all(fr.images == 60)
+
+
+def test_image_folder_with_timestamps(tmp_path):
+    imgs = _images(4)
+    for i, img in enumerate(imgs):
+        _png(tmp_path / f"img_{i:03d}.png", img)
+    (tmp_path / "timestamps.txt").write_text("# ms\n10\n20\n30.5\n40\n")
+    fr = read_frames(tmp_path, time_unit="ms")
+    np.testing.assert_array_equal(fr.images, imgs)
+    assert fr.t.tolist() == [10_000, 20_000, 30_500, 40_000]
+    assert find_frames(tmp_path) == "folder"
+    # default unit: seconds; explicit timestamps file elsewhere, 't path' lines
+    other = tmp_path / "meta" / "stamps.txt"
+    other.parent.mkdir()
+    other.write_text("".join(f"{t} ../img_{i:03d}.png\n" for i, t in
+                             enumerate([1.0, 1.5, 2.0, 2.5])))
+    fr2 = read_frames(tmp_path, timestamps=other)
+    assert fr2.t.tolist() == [1_000_000, 1_500_000, 2_000_000, 2_500_000]
+    np.testing.assert_array_equal(fr2.images, imgs)
+    d = describe_frames(tmp_path, time_unit="ms")
+    assert d["count"] == 4 and d["size"] == "7x6"
+    info = describe(tmp_path)
+    assert info["format"] == "frames" and info["frames_info"]["count"] == 4
+
+
+def test_images_subfolder_and_us(tmp_path):
+    imgs = _images(2)
+    for i, img in enumerate(imgs):
+        _png(tmp_path / "images" / f"{i}.png", img)
+    (tmp_path / "times.txt").write_text("100\n8433\n")
+    fr = read_frames(tmp_path, time_unit="us")
+    assert fr.t.tolist() == [100, 8433]
+
+
+def _ccs(root, imgs, trig_text, homography=None):
+    for i, img in enumerate(imgs):
+        _png(root / "basler_0" / "frames" / f"{i:06d}.png", img)
+    (root / "prophesee_0").mkdir(parents=True, exist_ok=True)
+    (root / "prophesee_0" / "trigger_events.txt").write_text(trig_text)
+    if homography is not None:
+        np.savetxt(root / "homography.txt", homography)
+
+
+def test_published_bos_layout(tmp_path):
+    imgs = _images(3, h=10, w=12)
+    # Metavision trigger log 't id p': a frame per rising edge (p = 1)
+    trig = "1000 0 1\n3000 0 0\n9333 0 1\n11000 0 0\n17667 0 1\n19000 0 0\n"
+    _ccs(tmp_path / "seq", imgs, trig)
+    assert find_frames(tmp_path / "seq") == "ccs"
+    fr = read_frames(tmp_path / "seq")
+    assert fr.t.tolist() == [1000, 9333, 17667]
+    np.testing.assert_array_equal(fr.images, imgs)
+    # newer Metavision: 'p,id,t'; homography shifts the frame 2 px right, 1 down onto a
+    # smaller event sensor
+    trig2 = "1,0,1000\n0,0,3000\n1,0,9333\n0,0,11000\n1,0,17667\n"
+    H = np.array([[1.0, 0, 2], [0, 1, 1], [0, 0, 1]])
+    _ccs(tmp_path / "seq2", imgs, trig2, H)
+    fr2 = read_frames(tmp_path / "seq2", sensor_size=(8, 9))
+    assert fr2.t.tolist() == [1000, 9333, 17667] and fr2.images.shape == (3, 8, 9)
+    np.testing.assert_array_equal(fr2.images[:, 1:, 2:], imgs[:, :7, :7])
+    assert describe_frames(tmp_path / "seq2", sensor_size=(8, 9))["size"] == "9x8"
+    fr3 = read_frames(tmp_path / "seq2", warp=False)
+    np.testing.assert_array_equal(fr3.images, imgs)
+
+
+def test_aedat4_frames(shared_data):
+    path = shared_data / "formats" / "davis346.aedat4"
+    fr = read_frames(path)
+    assert isinstance(fr, Frames) and len(fr) == 59
+    assert fr.images.shape == (59, 260, 346) and fr.images.dtype == np.uint8
+    assert np.all(np.diff(fr.t) > 0) and fr.images[10].std() > 1
+    assert fr.exposure_start.shape == (59,) and np.all(fr.exposure_end >= fr.exposure_start)
+    d = describe_frames(path)
+    assert d["count"] == 59 and d["size"] == "346x260" and d["bit_depth"] == 8
+    assert describe(path)["frames_info"]["count"] == 59
+    out = subprocess.run([sys.executable, "-m", "evmotion", "info", str(path), "--json"],
+                         capture_output=True, text=True, check=True)
+    assert json.loads(out.stdout)["frames_info"]["count"] == 59
+
+
+def test_recording_without_frames(shared_data):
+    with pytest.raises(FormatError, match="holds no APS frames"):
+        read_frames(shared_data / "formats" / "gen4.dat")
+    assert describe_frames(shared_data / "formats" / "gen4.dat") is None
+
+
+# ---------------------------------------------------------------------------------------
+# bad input: one line naming the file
+
+
+def _one_line(exc_info, name):
+    msg = str(exc_info.value)
+    assert "\n" not in msg and name in msg, msg
+
+
+def test_missing_frame_file(tmp_path):
+    _ecd(tmp_path, _images(2), ["0.0", "0.1"])
+    (tmp_path / "images" / "frame_00000001.png").unlink()
+    with pytest.raises(FormatError, match="missing frame file") as e:
+        read_frames(tmp_path)
+    _one_line(e, "images.txt")
+
+
+def test_images_of_different_sizes(tmp_path):
+    _ecd(tmp_path, _images(2), ["0.0", "0.1"])
+    _png(tmp_path / "images" / "frame_00000001.png", np.zeros((5, 5), np.uint8))
+    with pytest.raises(FormatError, match="7x6") as e:
+        read_frames(tmp_path)
+    _one_line(e, "frame_00000001.png")
+
+
+def test_mixed_bit_depths(tmp_path):
+    _ecd(tmp_path, _images(2), ["0.0", "0.1"])
+    _png(tmp_path / "images" / "frame_00000001.png", np.zeros((6, 7), np.uint16))
+    with pytest.raises(FormatError, match="16-bit") as e:
+        read_frames(tmp_path)
+    _one_line(e, "frame_00000001.png")
+
+
+@pytest.mark.parametrize("times, what", [(["0.2", "0.1"], "unsorted"),
+                                         (["0.1", "0.1"], "duplicate")])
+def test_bad_timestamps(tmp_path, times, what):
+    _ecd(tmp_path, _images(2), times)
+    with pytest.raises(FormatError, match=what) as e:
+        read_frames(tmp_path)
+    _one_line(e, "images.txt")
+
+
+def test_count_mismatch(tmp_path):
+    for i, img in enumerate(_images(3)):
+        _png(tmp_path / f"{i}.png", img)
+    (tmp_path / "timestamps.txt").write_text("0\n1\n")
+    with pytest.raises(FormatError, match="2 timestamps but 3 images") as e:
+        read_frames(tmp_path)
+    _one_line(e, "timestamps.txt")
+    _ccs(tmp_path / "seq", _images(2), "1000 0 1\n2000 0 1\n3000 0 1\n")
+    with pytest.raises(FormatError, match="3 rising trigger edges but 2 images") as e:
+        read_frames(tmp_path / "seq")
+    _one_line(e, "trigger_events.txt")
+
+
+def test_corrupt_png(tmp_path):
+    _ecd(tmp_path, _images(2), ["0.0", "0.1"])
+    f = tmp_path / "images" / "frame_00000001.png"
+    f.write_bytes(f.read_bytes()[:40])
+    with pytest.raises(FormatError, match="cannot read PNG") as e:
+        read_frames(tmp_path)
+    _one_line(e, "frame_00000001.png")
+    f.write_bytes(b"not a png at all")
+    with pytest.raises(FormatError, match="cannot read PNG"):
+        read_frames(tmp_path)
+
+
+def test_other_bad_input(tmp_path):
+    with pytest.raises(FormatError, match="no such file"):
+        read_frames(tmp_path / "nope")
+    _png(tmp_path / "a" / "x.png", np.zeros((3, 3), np.uint8))
+    with pytest.raises(FormatError, match="images without timestamps"):
+        read_frames(tmp_path / "a")
+    (tmp_path / "a" / "timestamps.txt").write_text("0.1\n")
+    with pytest.raises(ParameterError, match="time_unit"):
+        read_frames(tmp_path / "a", time_unit="h")
+    (tmp_path / "a" / "timestamps.txt").write_text("0.1 x.png\n0.2\n")
+    with pytest.raises(FormatError, match="mixes"):
+        read_frames(tmp_path / "a")
+    (tmp_path / "a" / "timestamps.txt").write_text("soon\n")
+    with pytest.raises(FormatError, match="not a time") as e:
+        read_frames(tmp_path / "a")
+    _one_line(e, "timestamps.txt")
+    (tmp_path / "e").mkdir()
+    (tmp_path / "e" / "events.txt").write_text("0.1 1 1 1\n")
+    with pytest.raises(FormatError, match="no frames"):
+        read_frames(tmp_path / "e")
+    assert describe_frames(tmp_path / "e") is None
+
+
+def test_frames_container_checks():
+    with pytest.raises(FormatError, match="2 images but 1 timestamps"):
+        Frames(np.zeros((2, 3, 3), np.uint8), [0])
+    with pytest.raises(FormatError, match="uint8 or uint16"):
+        Frames(np.zeros((1, 3, 3), np.float32), [0])
+    with pytest.raises(FormatError, match="duplicate"):
+        Frames(np.zeros((2, 3, 3), np.uint8), [5, 5], source="x")
+    assert np.isnan(Frames(np.zeros((1, 3, 3), np.uint8), [0]).fps)
+
+
+def test_published_bos_events(tmp_path):
+    """Events of the published layout (prophesee_0/events.hdf5, group raw_events) with
+    their frames: read, streamed, time-restricted, detected, described."""
+    import h5py
+
+    import evmotion.io as eio
+
+    seq = tmp_path / "hot_plate1"
+    imgs = _images(2, h=10, w=12)
+    _ccs(seq, imgs, "100 0 1\n8433 0 1\n")
+    rng = np.random.default_rng(1)
+    n = 1000
+    t = np.sort(rng.integers(0, 10_000, n))
+    x, y, p = rng.integers(0, 1280, n), rng.integers(0, 720, n), rng.integers(0, 2, n)
+    with h5py.File(seq / "prophesee_0" / "events.hdf5", "w") as f:
+        g = f.create_group("raw_events")
+        g["x"], g["y"] = x.astype(np.int16), y.astype(np.int16)
+        g["t"], g["p"] = t.astype(np.int64), p.astype(bool)
+    assert eio.detect_format(seq) == "ccs"
+    ev = eio.read_events(seq)
+    assert ev.sensor_size == (720, 1280) and len(ev) == n
+    np.testing.assert_array_equal(ev.x, x)
+    np.testing.assert_array_equal(ev.t, t)
+    np.testing.assert_array_equal(ev.p, p)
+    part = eio.read_events(seq, t0=2000, t1=5000)
+    np.testing.assert_array_equal(part.t, t[(t >= 2000) & (t < 5000)])
+    chunks = list(eio.iter_events(seq, 300))
+    assert [len(c) for c in chunks] == [300, 300, 300, 100]
+    fr = read_frames(seq)
+    assert fr.t.tolist() == [100, 8433]
+    assert len(eio.read_frames(seq / "prophesee_0" / "events.hdf5")) == 2
+    info = describe(seq)
+    assert info["format"] == "ccs" and info["n_events"] == n
+    assert info["frames_info"]["count"] == 2
+    with pytest.raises(FormatError, match="outside the 8x6 sensor") as e:
+        eio.read_events(seq, sensor_size=(6, 8))
+    _one_line(e, "events.hdf5")
+
+
+def test_video_with_timestamps(tmp_path):
+    cv2 = pytest.importorskip("cv2")
+    path = tmp_path / "frames.avi"
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 120, (32, 24),
+                         isColor=False)
+    levels = [0, 40, 80, 120, 160]
+    for v in levels:
+        vw.write(np.full((24, 32), v, np.uint8))
+    vw.release()
+    with pytest.raises(FormatError, match="video frames need timestamps") as e:
+        read_frames(path)
+    _one_line(e, "frames.avi")
+    (tmp_path / "frames.txt").write_text("".join(f"{i * 8.333:.3f}\n" for i in range(5)))
+    fr = read_frames(path, time_unit="ms")
+    assert fr.images.shape == (5, 24, 32) and fr.t.tolist()[:2] == [0, 8333]
+    np.testing.assert_allclose(fr.images.mean(axis=(1, 2)), levels, atol=2)
+    assert describe_frames(path, time_unit="ms")["count"] == 5
+    assert describe(path)["format"] == "frames"  # evmotion info on a video
+    (tmp_path / "frames.txt").write_text("0\n1\n")
+    with pytest.raises(FormatError, match="2 timestamps but 5 frames"):
+        read_frames(path)

@@ -1,0 +1,386 @@
+"""Kymograms and velocimetry (thesis §6.6.4-6.6.5): binning against a numpy reference,
+ridge fits recovering known slopes, events of a moving bar, the thesis' m/s example."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.events import EventArray
+from evmotion.methods.kymogram import (
+    Kymogram,
+    KymoLine,
+    fit_correlation,
+    fit_ridge,
+    kymogram_from_events,
+    kymogram_from_frame_differences,
+    kymogram_from_images,
+    px_per_s_to_m_per_s,
+    ridge_points,
+)
+
+
+# ------------------------------------------------------------------ units
+def test_thesis_velocimetry_example():
+    # §6.6.5: 166 px in 68.8 ms, f = 25 mm, Z = 1.7 m, 4.86 um pixels -> "0.805 m/s"
+    v = px_per_s_to_m_per_s(166 / 68.8e-3, focal_mm=25.0, distance_m=1.7, pixel_um=4.86)
+    assert v == pytest.approx(166 / 68.8e-3 * 4.86e-6 * 1.7 / 25e-3, rel=1e-12)
+    assert v == pytest.approx(0.7974, abs=5e-5)
+    # the thesis prints 0.805 m/s: its rounded 166 px / 68.8 ms give 1 % less
+    assert v == pytest.approx(0.805, rel=0.011)
+    np.testing.assert_allclose(px_per_s_to_m_per_s(np.array([0.0, 1000.0]), 25.0, 1.7, 4.86),
+                               [0.0, 1000 * 4.86e-6 * 1.7 / 0.025])
+
+
+@pytest.mark.parametrize("kw", [{"focal_mm": 0.0}, {"distance_m": -1.0},
+                                {"pixel_um": float("nan")}])
+def test_velocimetry_bad_geometry(kw):
+    args = {"focal_mm": 25.0, "distance_m": 1.7, "pixel_um": 4.86, **kw}
+    with pytest.raises(ParameterError, match=next(iter(kw))):
+        px_per_s_to_m_per_s(100.0, **args)
+
+
+# ------------------------------------------------------------------ lines
+def test_line_geometry_and_errors():
+    ln = KymoLine.column(3, (20, 10), width=3)
+    assert (ln.x0, ln.y0, ln.x1, ln.y1) == (3.0, 0.0, 3.0, 19.0)
+    assert ln.n_samples == 20 and ln.direction == (0.0, 1.0)
+    assert KymoLine(0, 0, 3, 4).n_samples == 6
+    with pytest.raises(ParameterError, match="row 20"):
+        KymoLine.row(20, (20, 10))
+    with pytest.raises(ParameterError, match="width"):
+        KymoLine(0, 0, 5, 0, width=0)
+    with pytest.raises(ParameterError, match="shorter than 1 px"):
+        KymoLine(1, 1, 1.5, 1)
+    with pytest.raises(ParameterError, match="x1"):
+        KymoLine(0, 0, float("inf"), 0)
+    with pytest.raises(ParameterError, match="leaves the 10x20 image"):
+        KymoLine.column(0, (20, 10), width=3).check_inside((20, 10))
+
+
+# ------------------------------------------------------------------ binning
+def _bin_reference(ev: EventArray, line: KymoLine, rate: float, t0: int, t1: int, signed: bool):
+    ux, uy = line.direction
+    dx = ev.x.astype(float) - line.x0
+    dy = ev.y.astype(float) - line.y0
+    n = uy * dx - ux * dy
+    s = np.floor(ux * dx + uy * dy + 0.5).astype(int)
+    j = np.floor((ev.t - t0) * rate * 1e-6).astype(int)
+    n_t = int(np.floor((t1 - t0) * rate * 1e-6 + 1e-9))
+    out = np.zeros((n_t, line.n_samples))
+    for k in range(len(ev)):
+        if -line.width / 2 <= n[k] < line.width / 2 and 0 <= s[k] < line.n_samples \
+                and 0 <= j[k] < n_t and t0 <= ev.t[k] < t1:
+            out[j[k], s[k]] += (1.0 if ev.p[k] else -1.0) if signed else 1.0
+    return out / line.width
+
+
+def _random_events(n=5000, shape=(40, 50), seed=0):
+    rng = np.random.default_rng(seed)
+    return EventArray(x=rng.integers(0, shape[1], n), y=rng.integers(0, shape[0], n),
+                      t=np.sort(rng.integers(1000, 60_000, n)), p=rng.integers(0, 2, n),
+                      sensor_size=shape)
+
+
+@pytest.mark.parametrize("line", [KymoLine(2, 3, 45, 30, width=3), KymoLine.row(7, (40, 50)),
+                                  KymoLine.column(20, (40, 50), width=5),
+                                  KymoLine(40.5, 35.2, 5.1, 4.0, width=2)])
+@pytest.mark.parametrize("signed", [False, True])
+def test_event_binning_matches_reference(line, signed):
+    ev = _random_events()
+    k = kymogram_from_events(ev, line, 1234.5, t0_us=3000, t1_us=55_000, signed=signed)
+    ref = _bin_reference(ev, line, 1234.5, 3000, 55_000, signed)
+    assert k.data.shape == ref.shape
+    np.testing.assert_allclose(k.data, ref, atol=1e-6)
+    assert ref.any()
+    np.testing.assert_allclose(k.t_s, 3000e-6 + (np.arange(ref.shape[0]) + 0.5) / 1234.5)
+
+
+def test_event_kymogram_defaults_and_errors():
+    ev = _random_events()
+    k = kymogram_from_events(ev, KymoLine.row(0, (40, 50)), 500.0)
+    assert k.meta["t0_us"] == ev.t[0] and k.source == "events"
+    assert k.data.shape[0] == int((ev.t[-1] + 1 - ev.t[0]) * 500e-6)
+    with pytest.raises(ParameterError, match="rate_hz"):
+        kymogram_from_events(ev, KymoLine.row(0, (40, 50)), 0.0)
+    with pytest.raises(EmptyWindowError, match="shorter than one bin"):
+        kymogram_from_events(ev, KymoLine.row(0, (40, 50)), 100.0, t0_us=0, t1_us=5000)
+    with pytest.raises(ParameterError, match="leaves"):
+        kymogram_from_events(ev, KymoLine.row(0, (60, 60)), 1200.0)
+
+
+def test_image_kymogram_samples_exactly():
+    rng = np.random.default_rng(1)
+    imgs = rng.random((4, 30, 40))
+    t = np.array([0.0, 0.01, 0.02, 0.03])
+    k = kymogram_from_images(imgs, t, KymoLine.row(12, (30, 40)), source="frames")
+    np.testing.assert_allclose(k.data, imgs[:, 12, :], rtol=1e-6)
+    assert k.rate_hz == pytest.approx(100.0)
+    k3 = kymogram_from_images(imgs, t, KymoLine.column(9, (30, 40), width=3))
+    np.testing.assert_allclose(k3.data, imgs[:, :, 8:11].mean(axis=2), rtol=1e-6)
+    # bilinear sampling of a linear ramp along a diagonal line is exact
+    yy, xx = np.mgrid[0:30, 0:40]
+    ramp = (2.0 * xx + 3.0 * yy)[None]
+    ln = KymoLine(1.0, 2.0, 31.0, 25.0, width=3)
+    kd = kymogram_from_images(ramp, [0.0], ln)
+    ux, uy = ln.direction
+    s = np.arange(ln.n_samples)
+    np.testing.assert_allclose(kd.data[0], 2 * (1 + ux * s) + 3 * (2 + uy * s), rtol=1e-5)
+    with pytest.raises(ParameterError, match="increasing"):
+        kymogram_from_images(imgs, t[::-1], KymoLine.row(0, (30, 40)))
+    with pytest.raises(ParameterError, match="3 times for 4 images"):
+        kymogram_from_images(imgs, t[:3], KymoLine.row(0, (30, 40)))
+
+
+# ------------------------------------------------------------------ ridge fit
+def _synthetic(slope, seed, *, n_t=240, n_s=160, rate=1200.0, noise=0.3, width=2.5,
+               outliers=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_t) / rate
+    s = np.arange(n_s, dtype=float)
+    start = 20.0 if slope > 0 else n_s - 20.0
+    centre = start + slope * t
+    data = np.exp(-0.5 * ((s[None, :] - centre[:, None]) / width) ** 2)
+    data += noise * rng.standard_normal(data.shape)
+    for _ in range(outliers):  # bright blobs off the ridge
+        i, j = rng.integers(0, n_t), rng.integers(5, n_s - 5)
+        data[max(i - 2, 0):i + 2, j - 2:j + 3] += 2.0
+    k = Kymogram(data.astype(np.float32), t, s, KymoLine.column(0, (n_s, 1)), rate, "test")
+    return k, centre
+
+
+@pytest.mark.parametrize("slope, seed", [(-800.0, 0), (550.0, 1), (-1234.0, 2), (300.0, 3)])
+def test_ridge_fit_recovers_known_slope(slope, seed):
+    k, _ = _synthetic(slope, seed)
+    fit = fit_ridge(k)
+    assert fit.velocity_px_s == pytest.approx(slope, rel=0.02)
+    assert abs(fit.velocity_px_s - slope) < 3 * fit.velocity_std_px_s
+    assert fit.inliers.sum() >= 0.5 * fit.t_s.size
+
+
+def test_ridge_fit_robust_to_outliers():
+    k, _ = _synthetic(-700.0, 5, outliers=25)
+    fit = fit_ridge(k)
+    assert fit.velocity_px_s == pytest.approx(-700.0, rel=0.02)
+    assert not fit.inliers.all()  # the blobs were found and left out
+
+
+def test_ridge_points_regions():
+    k, centre = _synthetic(-600.0, 6, noise=0.05)
+    t, s = ridge_points(k)
+    np.testing.assert_allclose(s, np.interp(t, k.t_s, centre), atol=0.3)
+    t2, _ = ridge_points(k, t_range=(0.05, 0.1))
+    assert t2.min() >= 0.05 and t2.max() <= 0.1
+    _, s3 = ridge_points(k, s_range=(50.0, 120.0))
+    assert s3.min() >= 50.0 + 3.5 and s3.max() <= 120.0 - 3.5
+    with pytest.raises(ParameterError, match="polarity"):
+        ridge_points(k, polarity="up")
+    with pytest.raises(ParameterError, match="fewer than 3"):
+        ridge_points(k, s_range=(5.0, 6.0))
+    flat = Kymogram(np.zeros((20, 30), np.float32), np.arange(20) / 1e3, np.arange(30.0),
+                    KymoLine.row(0, (1, 30)), 1e3, "test")
+    with pytest.raises(EmptyWindowError, match="ridge"):
+        fit_ridge(flat)
+
+
+def test_negative_polarity_ridge():
+    k, _ = _synthetic(-500.0, 7, noise=0.1)
+    neg = Kymogram(-k.data, k.t_s, k.s_px, k.line, k.rate_hz, "q")
+    assert fit_ridge(neg, polarity="negative").velocity_px_s == pytest.approx(-500.0, rel=0.02)
+    assert fit_ridge(neg, polarity="abs").velocity_px_s == pytest.approx(-500.0, rel=0.02)
+
+
+def test_moving_bar_events():
+    # a bright bar (Gaussian profile, 3 px) rising at 900 px/s through the event simulator
+    from evmotion.sim.simulator import simulate_log_function
+
+    h, w, v = 72, 24, -900.0
+    yy = np.arange(h, dtype=float)[:, None] * np.ones((1, w))
+
+    def log_at(t_us, pix):
+        yc = 64.0 + v * t_us * 1e-6
+        img = np.log(0.2 + np.exp(-0.5 * ((yy - yc) / 3.0) ** 2))
+        return img if pix is None else img.ravel()[pix]
+
+    res = simulate_log_function(log_at, (h, w), 60_000, threshold=0.15, seed=0,
+                                noise_rate=0.5)
+    k = kymogram_from_events(res.events, KymoLine.column(12, (h, w), width=9), 2400.0)
+    fit = fit_ridge(k, sigma_px=2.0, sigma_bins=1.0)
+    assert fit.velocity_px_s == pytest.approx(v, rel=0.02)
+    # the same at the frame rate of a 120 fps camera has 8 bins: still a line, far coarser
+    k120 = kymogram_from_events(res.events, KymoLine.column(12, (h, w), width=9), 120.0)
+    assert k120.data.shape[0] == 7
+
+
+# ------------------------------------------------------------------ correlation fit
+def test_correlation_fit_many_streaks_vs_ridge():
+    # 50 parallel streaks at -1100 px/s with shot noise: the autocorrelation finds their
+    # common slope within 2 %, where a per-bin ridge jumps between streaks
+    rng = np.random.default_rng(3)
+    t = np.arange(360) / 2400.0
+    s = np.arange(140.0)
+    c = rng.uniform(0, 300, 50)[None, :] - 1100.0 * t[:, None]
+    data = np.exp(-0.5 * ((s[None, :, None] - c[:, None, :]) / 2.0) ** 2).sum(-1)
+    data = rng.poisson(1.5 * data).astype(np.float32)
+    k = Kymogram(data, t, s, KymoLine.column(0, (140, 1)), 2400.0, "events")
+    fit = fit_correlation(k)
+    assert fit.method == "correlation"
+    assert fit.velocity_px_s == pytest.approx(-1100.0, rel=0.02)
+    assert 0 < fit.velocity_std_px_s < 50
+    # the line is drawn on a streak: the kymogram along it is well above its mean
+    along = np.interp(fit.s_at(t), s, np.arange(s.size))
+    vals = data[np.arange(t.size), np.clip(np.rint(along).astype(int), 0, s.size - 1)]
+    assert vals.mean() > 2 * data.mean()
+    with pytest.raises(ParameterError, match="n_blocks"):
+        fit_correlation(k, n_blocks=1)
+    with pytest.raises(EmptyWindowError, match="max_lag_s"):
+        fit_correlation(k, min_shift_px=500.0)
+
+
+# ------------------------------------------------------------------ simulated plume
+@pytest.fixture(scope="module")
+def plume(tmp_path_factory):
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    sim = simulate_schlieren("plume", sensor_size=(96, 64), duration_s=0.15, seed=2)
+    folder = tmp_path_factory.mktemp("plume")
+    write_schlieren(sim, folder)
+    return sim, folder
+
+
+@pytest.mark.parametrize("rate", [1200.0, 2400.0])
+def test_plume_rise_speed(plume, rate):
+    # issue #12 accuracy point 5: the kymogram's fitted speed at >= 1200 Hz matches the
+    # simulated plume's rise speed within 10 % (it rises: negative along a column)
+    sim, _ = plume
+    h, w = sim.events.sensor_size
+    v = sim.gt.meta["rise_speed_px_s"]
+    k = kymogram_from_events(sim.events, KymoLine.column(w // 2, (h, w), width=w // 4 * 2 + 1),
+                             rate)
+    fit = fit_correlation(k)
+    assert fit.velocity_px_s == pytest.approx(-v, rel=0.10)
+
+
+def test_frame_difference_kymogram(plume):
+    sim, _ = plume
+    h, w = sim.events.sensor_size
+    ln = KymoLine.column(w // 2, (h, w), width=5)
+    k = kymogram_from_frame_differences(sim.frames.images, sim.frames.t, ln)
+    assert k.data.shape == (sim.frames.images.shape[0] - 1, h)
+    assert k.rate_hz == pytest.approx(120.0, rel=1e-3)
+    f = sim.frames.images.astype(float)
+    np.testing.assert_allclose(k.data[0], np.abs(f[1] - f[0])[:, w // 2 - 2:w // 2 + 3]
+                               .mean(axis=1), atol=1e-3)
+
+
+# ------------------------------------------------------------------ CLI and picture
+def _cli(capsys, *argv):
+    from evmotion.cli import main
+
+    rc = main(["kymogram", *map(str, argv)])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_cli_plume(plume, tmp_path, capsys):
+    import json
+
+    from evmotion.viz import read_png
+
+    sim, folder = plume
+    w = sim.events.sensor_size[1]
+    out = tmp_path / "kymo.png"
+    rc, text, err = _cli(capsys, folder, "--col", w // 2, "--width", 31, "--rate", 1200,
+                         "--compare-rate", 120, "--frames", folder, "--focal-mm", 25,
+                         "--distance-m", 1.7, "--pixel-um", 4.86, "--out", out, "--json")
+    assert rc == 0, err
+    summary = json.loads(text)
+    panels = summary["panels"]
+    assert [p["source"] for p in panels] == ["events", "events", "frame differences"]
+    v = sim.gt.meta["rise_speed_px_s"]
+    assert panels[0]["velocity_px_s"] == pytest.approx(-v, rel=0.10)
+    assert panels[0]["speed_m_s"] == pytest.approx(
+        px_per_s_to_m_per_s(-panels[0]["velocity_px_s"], 25, 1.7, 4.86))
+    img = read_png(out)
+    assert img.ndim == 3 and img.shape[1] > 3 * img.shape[0] // 2
+    rc, text, _ = _cli(capsys, folder, "--row", 40, "--method", "ridge", "--no-fit",
+                       "--out", tmp_path / "row.png")
+    assert rc == 0 and "no fit" in text
+
+
+def test_cli_from_q(tmp_path, capsys):
+    import json
+
+    from evmotion.io.bosfiles import BosWriter
+
+    h, w, v = 80, 40, -700.0
+    t_us = np.arange(61) * 1000  # 1000 Hz windows
+    path = tmp_path / "bos.h5"
+    rng = np.random.default_rng(0)
+    starts = rng.uniform(0, 200, 12)
+    yy = np.arange(h, dtype=float)[:, None]
+    with BosWriter(path, (h, w)) as bw:
+        for a, b in zip(t_us[:-1], t_us[1:], strict=True):
+            tm = 0.5 * (a + b) * 1e-6
+            q = np.exp(-0.5 * ((yy - starts[None, :] - v * tm) / 2.0) ** 2).sum(1)
+            q = np.repeat(q[:, None], w, axis=1)
+            # flow (0, q): the |flow| kymogram is the q kymogram
+            flow = np.stack([np.zeros((h, w)), q], axis=-1)
+            bw.append(flow, int(a), int(b), q=q, p=np.zeros((h, w, 2)))
+    rc, text, err = _cli(capsys, path, "--from", "q", "--col", 20, "--width", 3,
+                         "--out", tmp_path / "q.png", "--json")
+    assert rc == 0, err
+    p = json.loads(text)["panels"][0]
+    assert p["source"] == "q" and p["rate_hz"] == pytest.approx(1000.0)
+    # few bins and streaks crossing the ends of a short line: the correlation is 3 % fast
+    assert p["velocity_px_s"] == pytest.approx(v, rel=0.05)
+    rc, text, err = _cli(capsys, path, "--from", "q", "--col", 20, "--method", "ridge",
+                         "--out", tmp_path / "q.png", "--json")
+    assert rc == 0, err
+    assert json.loads(text)["panels"][0]["velocity_px_s"] == pytest.approx(v, rel=0.01)
+    rc, text, err = _cli(capsys, path, "--from", "flow", "--col", 20, "--method", "ridge",
+                         "--out", tmp_path / "f.png", "--json")
+    assert rc == 0, err
+    pf = json.loads(text)["panels"][0]
+    assert pf["source"] == "|flow| px/s" and pf["velocity_px_s"] == pytest.approx(v, rel=0.01)
+
+
+def test_figure_checks_and_panels(tmp_path):
+    from evmotion.viz import read_png
+    from evmotion.viz.kymogram import kymogram_figure, save_kymogram_png
+
+    k, _ = _synthetic(-800.0, 0)
+    fit = fit_ridge(k)
+    with pytest.raises(ParameterError, match="as many fits"):
+        kymogram_figure([k, k], [fit])
+    with pytest.raises(ParameterError, match="at least one"):
+        kymogram_figure([])
+    save_kymogram_png(tmp_path / "one.png", k, fit,
+                      geometry={"focal_mm": 25.0, "distance_m": 1.7, "pixel_um": 4.86})
+    save_kymogram_png(tmp_path / "two.png", [k, k], [fit, None])
+    one, two = read_png(tmp_path / "one.png"), read_png(tmp_path / "two.png")
+    assert two.shape[1] > 1.8 * one.shape[1]
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--col", "3", "--rate", "nan"], "--rate"),
+    (["--col", "3", "--width", "0"], "--width"),
+    (["--row", "-1"], "--row"),
+    (["--line", "0", "0", "inf", "3"], "--line"),
+    (["--col", "3", "--focal-mm", "25"], "--distance-m, --pixel-um"),
+    (["--col", "3", "--from", "q", "--rate", "2000"], "--rate"),
+    (["--col", "3", "--t0", "50", "--t1", "10"], "--t1"),
+    (["--col", "3", "--s-range", "9", "2"], "--s-range"),
+])
+def test_cli_bad_options(tmp_path, capsys, argv, match):
+    from evmotion.cli import main
+
+    try:
+        rc = main(["kymogram", str(tmp_path / "none.h5"), *argv, "--out", str(tmp_path / "k.png")])
+    except SystemExit as exc:
+        rc = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert len(err) == 1 and match in err[0]
+    assert not (tmp_path / "k.png").exists()
