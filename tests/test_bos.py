@@ -317,10 +317,8 @@ def test_simulator_contrast_threshold_and_direction(sim_ice):
 
 @pytest.mark.xfail(strict=True, reason="known defect (issue #12 magnitude goal): median "
                    "|v|/|v_gt| is 0.76 on this 240x216 ice interval with any schedule "
-                   "(600/scale too); the events under-count the frames' log change "
-                   "(C * event sums against the LEGM prediction with the true flow: slope "
-                   "0.36-0.86 on the 640x720 scenes, frames' difference 1.00-1.07) and "
-                   "the 'rma' C only partly compensates")
+                   "(600/scale too) and with C from 'auto' (0.208) or 'rma' (0.208) alike, "
+                   "while the 640x720 scenes reach 0.93-0.99 with 'auto': not the C here")
 def test_simulator_magnitude(sim_ice):
     """The scale-aware term's median |v|/|v_gt| within [0.85, 1.15] on the simulator."""
     est, gt, m = _sim_ice_solve(sim_ice)
