@@ -165,6 +165,49 @@ def _check(name, value, lo=0.0, strict=False):
     return v
 
 
+def _sorted_chunk(ex, ey, et, ep, n, w, h, packed):
+    """The first ``n`` events of a step in time, then pixel index, then polarity order:
+    an order that does not depend on the traversal. Packed into one sorted int64 key when
+    ``packed`` (unpacked by :func:`_join_chunks`), else the four sorted arrays."""
+    key = et[:n] * (h * w) + ey[:n].astype(np.int64) * w + ex[:n]
+    if packed:
+        key = key * 2 + ep[:n]
+        key.sort()
+        return key
+    order = np.argsort(key, kind="stable")
+    return ex[order], ey[order], et[order], ep[order]
+
+
+def _join_chunks(chunks, w, h, packed):
+    """``(x, y, t, p)`` of the chunks of :func:`_sorted_chunk`, concatenated."""
+    if chunks and packed:
+        key = np.concatenate(chunks)
+        pp = (key & 1).astype(np.uint8)
+        key >>= 1
+        tt, pix = np.divmod(key, h * w)
+        yy, xx = np.divmod(pix, w)
+        return xx.astype(np.uint16), yy.astype(np.uint16), tt, pp
+    if chunks:
+        x, y, tt, pp = (np.concatenate(c) for c in zip(*chunks, strict=True))
+        return x, y, tt, pp
+    return (np.zeros(0, np.uint16), np.zeros(0, np.uint16), np.zeros(0, np.int64),
+            np.zeros(0, np.uint8))
+
+
+def _add_noise(x, y, tt, pp, rng, sensor_size, duration_us, noise_rate, hot_pixels,
+               hot_rate):
+    """Signal events merged with background-activity and hot-pixel noise, sorted by time
+    (stable: signal first at equal times); also returns the number of noise events."""
+    if noise_rate <= 0 and hot_pixels <= 0:
+        return x, y, tt, pp, 0
+    nx, ny, nt, npol = _noise_events(rng, sensor_size, duration_us, noise_rate, hot_pixels,
+                                     hot_rate)
+    x, y = np.concatenate([x, nx]), np.concatenate([y, ny])
+    tt, pp = np.concatenate([tt, nt]), np.concatenate([pp, npol])
+    order = np.argsort(tt, kind="stable")
+    return x[order], y[order], tt[order], pp[order], nx.size
+
+
 def simulate(scene: str = "rotation", duration_s: float = 0.1,
              sensor_size: tuple[int, int] = (260, 346), seed: int = 0,
              texture: str | np.ndarray | Texture = "dots", threshold: float = 0.2,
@@ -410,16 +453,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
             ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
             et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
         if n:
-            # time, then pixel index, then polarity: an order that does not depend on the
-            # traversal; packed into one int64 key, sorted, and unpacked at the end
-            key = et[:n] * (h * w) + ey[:n].astype(np.int64) * w + ex[:n]
-            if packed:
-                key = key * 2 + ep[:n]
-                key.sort()
-                chunks.append(key)
-            else:
-                order = np.argsort(key, kind="stable")
-                chunks.append((ex[order], ey[order], et[order], ep[order]))
+            chunks.append(_sorted_chunk(ex, ey, et, ep, n, w, h, packed))
         n_samples += 1
         n_sub += ns
         bar.update(tb - t)
@@ -433,28 +467,10 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         la, lb = lb, la
     bar.close()
 
-    if chunks and packed:
-        key = np.concatenate(chunks)
-        pp = (key & 1).astype(np.uint8)
-        key >>= 1
-        tt, pix = np.divmod(key, h * w)
-        yy, xx = np.divmod(pix, w)
-        x, y = xx.astype(np.uint16), yy.astype(np.uint16)
-    elif chunks:
-        x, y, tt, pp = (np.concatenate(c) for c in zip(*chunks, strict=True))
-    else:
-        x = y = np.zeros(0, np.uint16)
-        tt, pp = np.zeros(0, np.int64), np.zeros(0, np.uint8)
+    x, y, tt, pp = _join_chunks(chunks, w, h, packed)
     n_signal = x.size
-    n_noise = 0
-    if noise_rate > 0 or hot_pixels > 0:
-        nx, ny, nt, npol = _noise_events(rng_noise, sensor_size, duration_us, noise_rate,
-                                         hot_pixels, hot_rate)
-        n_noise = nx.size
-        x, y = np.concatenate([x, nx]), np.concatenate([y, ny])
-        tt, pp = np.concatenate([tt, nt]), np.concatenate([pp, npol])
-        order = np.argsort(tt, kind="stable")
-        x, y, tt, pp = x[order], y[order], tt[order], pp[order]
+    x, y, tt, pp, n_noise = _add_noise(x, y, tt, pp, rng_noise, sensor_size, duration_us,
+                                       noise_rate, hot_pixels, hot_rate)
     events = EventArray(x, y, tt, pp, sensor_size, meta={"simulator": "evmotion.sim",
                                                          "scene": scene})
     if refractory_us > 0 and n_noise:
@@ -657,41 +673,15 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
             ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
             et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
         if n:
-            # time, then pixel, then polarity: an order independent of the grouping
-            key = et[:n] * (h * w) + ey[:n].astype(np.int64) * w + ex[:n]
-            if packed:
-                key = key * 2 + ep[:n]
-                key.sort()
-                chunks.append(key)
-            else:
-                order = np.argsort(key, kind="stable")
-                chunks.append((ex[order].copy(), ey[order].copy(), et[order].copy(),
-                               ep[order].copy()))
+            chunks.append(_sorted_chunk(ex, ey, et, ep, n, w, h, packed))
         n_steps += 1
         bar.update(tb - ta)
         la = lb
     bar.close()
-    if chunks and packed:
-        key = np.concatenate(chunks)
-        pp = (key & 1).astype(np.uint8)
-        key >>= 1
-        tt, pixel = np.divmod(key, h * w)
-        yy, xx = np.divmod(pixel, w)
-        x, y = xx.astype(np.uint16), yy.astype(np.uint16)
-    elif chunks:
-        x, y, tt, pp = (np.concatenate(c) for c in zip(*chunks, strict=True))
-    else:
-        x = y = np.zeros(0, np.uint16)
-        tt, pp = np.zeros(0, np.int64), np.zeros(0, np.uint8)
-    n_signal, n_noise = x.size, 0
-    if noise_rate > 0 or hot_pixels > 0:
-        nx, ny, nt, npol = _noise_events(np.random.default_rng(ss[1]), (h, w), duration_us,
-                                         noise_rate, hot_pixels, hot_rate)
-        n_noise = nx.size
-        x, y = np.concatenate([x, nx]), np.concatenate([y, ny])
-        tt, pp = np.concatenate([tt, nt]), np.concatenate([pp, npol])
-        order = np.argsort(tt, kind="stable")
-        x, y, tt, pp = x[order], y[order], tt[order], pp[order]
+    x, y, tt, pp = _join_chunks(chunks, w, h, packed)
+    n_signal = x.size
+    x, y, tt, pp, n_noise = _add_noise(x, y, tt, pp, np.random.default_rng(ss[1]), (h, w),
+                                       duration_us, noise_rate, hot_pixels, hot_rate)
     meta = dict(meta or {}, simulator="evmotion.sim")
     events = EventArray(x, y, tt, pp, (h, w), meta=meta)
     if refractory_us > 0 and n_noise:
