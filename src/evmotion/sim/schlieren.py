@@ -54,7 +54,7 @@ from numba import njit
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.frames import Frames
-from evmotion.sim.simulator import simulate_log_function
+from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
            "make_background", "make_field", "read_schlieren_gt", "simulate_schlieren",
@@ -597,13 +597,7 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     if scene not in BOS_SCENES:
         raise ParameterError(f"unknown schlieren scene {scene!r}; choose one of "
                              f"{sorted(BOS_SCENES)}")
-    try:
-        h, w = (int(v) for v in sensor_size)
-    except (TypeError, ValueError):
-        raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}") from None
-    if h < 8 or w < 8 or h > 65535 or w > 65535:
-        raise ParameterError(f"sensor_size must be between 8 and 65535 pixels per side, "
-                             f"got {(h, w)}")
+    h, w = parse_sensor_size(sensor_size, 8)
     fps = _num("fps", fps, 0.0, 1e5, lo_open=True)
     duration_s = _num("duration_s", duration_s, 0.0, 1e4, lo_open=True)
     n_frames = int(math.floor(duration_s * fps + 1e-9)) + 1

@@ -29,7 +29,7 @@ from evmotion.sim.scenes import SCENES, default_K, resolve_params
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
 from evmotion.utils import progress
 
-__all__ = ["LogSimResult", "SimResult", "simulate", "simulate_log_function"]
+__all__ = ["LogSimResult", "SimResult", "parse_sensor_size", "simulate", "simulate_log_function"]
 
 MAX_STEP_US = 5000  # sample at least every 5 ms (the 1 px bound usually binds first)
 STEP_SHIFT_PX = 1.0  # global steps move no texture point by more than ~1 px
@@ -165,6 +165,30 @@ def _check(name, value, lo=0.0, strict=False):
     return v
 
 
+def parse_sensor_size(sensor_size, min_side: int = 1) -> tuple[int, int]:
+    """``(height, width)`` of ``sensor_size`` as ints, each between ``min_side`` and 65535
+    (the range of the events' uint16 coordinates).
+
+    Raises
+    ------
+    ParameterError
+        One line naming the value when it is not two integers in that range.
+
+    Examples
+    --------
+    >>> parse_sensor_size((260.0, 346))
+    (260, 346)
+    """
+    try:
+        h, w = (int(v) for v in sensor_size)
+    except (TypeError, ValueError):
+        raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}") from None
+    if h < min_side or w < min_side or h > 65535 or w > 65535:
+        raise ParameterError(f"sensor_size must be between {min_side} and 65535 pixels per "
+                             f"side, got {(h, w)}")
+    return h, w
+
+
 def _sorted_chunk(ex, ey, et, ep, n, w, h, packed):
     """The first ``n`` events of a step in time, then pixel index, then polarity order:
     an order that does not depend on the traversal. Packed into one sorted int64 key when
@@ -279,13 +303,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
     duration_us = int(round(_check("duration_s", duration_s, strict=True) * 1e6))
     if duration_us < 1:
         raise ParameterError(f"duration_s must be at least 1 µs, got {duration_s!r}")
-    try:
-        h, w = (int(v) for v in sensor_size)
-    except (TypeError, ValueError):
-        raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}") from None
-    if h < 2 or w < 2 or h > 65535 or w > 65535:
-        raise ParameterError(f"sensor_size must be between 2 and 65535 pixels per side, "
-                             f"got {(h, w)}")
+    h, w = parse_sensor_size(sensor_size, 2)
     sensor_size = (h, w)
     C = _check("threshold", threshold, strict=True)
     mismatch = _check("mismatch", mismatch)
@@ -591,13 +609,7 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     >>> len(res.events), res.events.t[:4].tolist()
     (16, [250, 250, 250, 250])
     """
-    try:
-        h, w = (int(v) for v in sensor_size)
-    except (TypeError, ValueError):
-        raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}") from None
-    if h < 1 or w < 1 or h > 65535 or w > 65535:
-        raise ParameterError(f"sensor_size must be between 1 and 65535 pixels per side, "
-                             f"got {(h, w)}")
+    h, w = parse_sensor_size(sensor_size, 1)
     duration_us = int(duration_us)
     if duration_us < 1:
         raise ParameterError(f"duration_us must be at least 1, got {duration_us!r}")
