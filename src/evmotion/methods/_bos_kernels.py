@@ -108,6 +108,17 @@ def _row(xr, iy, fy, c, i, out):
 
 
 @njit(**_JIT)
+def _fill_rows(xr, iy, fy, i, use_p, rows):
+    """Row ``i`` of the y-interpolated displacement (into ``rows[0:2]``) and, when
+    ``use_p``, of the shift field (into ``rows[2:4]``)."""
+    _row(xr, iy, fy, 0, i, rows[0])
+    _row(xr, iy, fy, 1, i, rows[1])
+    if use_p:
+        _row(xr, iy, fy, 2, i, rows[2])
+        _row(xr, iy, fy, 3, i, rows[3])
+
+
+@njit(**_JIT)
 def _predict(xr, iy, fy, gimg, use_p, pred, rows):
     """Pass 1: prediction ``-(grad L + H p) . d`` into ``pred``; returns sum(pred^2)."""
     h, w = pred.shape
@@ -117,14 +128,11 @@ def _predict(xr, iy, fy, gimg, use_p, pred, rows):
     pu = rows[2]
     pv = rows[3]
     for i in range(h):
-        _row(xr, iy, fy, 0, i, du)
-        _row(xr, iy, fy, 1, i, dv)
+        _fill_rows(xr, iy, fy, i, use_p, rows)
         gx = gimg[0, i]
         gy = gimg[1, i]
         pr = pred[i]
         if use_p:
-            _row(xr, iy, fy, 2, i, pu)
-            _row(xr, iy, fy, 3, i, pv)
             hxx = gimg[2, i]
             hxy = gimg[3, i]
             hyy = gimg[4, i]
@@ -208,8 +216,7 @@ def _grad(xr, iy, fy, gimg, pred, meas, weight, a_pred, a_meas, eps_d, c_der, c_
     etv = 0.0
     for i in range(h):
         has_next = i + 1 < h
-        _row(xr, iy, fy, 0, i, du)
-        _row(xr, iy, fy, 1, i, dv)
+        _fill_rows(xr, iy, fy, i, use_p, rows)
         if has_next:
             _row(xr, iy, fy, 0, i + 1, dun)
             _row(xr, iy, fy, 1, i + 1, dvn)
@@ -222,8 +229,6 @@ def _grad(xr, iy, fy, gimg, pred, meas, weight, a_pred, a_meas, eps_d, c_der, c_
         g2 = grows[2]
         g3 = grows[3]
         if use_p:
-            _row(xr, iy, fy, 2, i, pu)
-            _row(xr, iy, fy, 3, i, pv)
             hxx = gimg[2, i]
             hxy = gimg[3, i]
             hyy = gimg[4, i]
