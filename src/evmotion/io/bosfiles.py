@@ -24,6 +24,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.flowfiles import FlowSequence, FlowWriter, read_flow_group
+from evmotion.io.guard import open_h5
 
 __all__ = ["BOS_CONTENT", "BosSequence", "BosWriter", "read_bos_h5", "roi_mask"]
 
@@ -197,13 +198,9 @@ def read_bos_h5(path: str | os.PathLike, index: int | slice | None = None) -> Bo
     >>> bos.q.shape  # doctest: +SKIP
     (3, 720, 640)
     """
-    import h5py
 
     path = Path(path)
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    f = open_h5(path)
     with f:
         if f.attrs.get("content") != BOS_CONTENT:
             raise FormatError(path, f"not a BOS file (attribute content="

@@ -25,6 +25,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import open_h5
 
 __all__ = ["FORMAT", "describe", "iter_chunks", "read", "read_frames"]
 
@@ -38,13 +39,9 @@ def _events_file(path: Path) -> Path:
 
 @contextmanager
 def _group(path: Path):
-    import h5py
 
     f_path = _events_file(path)
-    try:
-        f = h5py.File(f_path, "r")
-    except OSError as exc:
-        raise FormatError(f_path, f"not a readable HDF5 file: {exc}") from None
+    f = open_h5(f_path)
     with f:
         for k in "xytp":
             if f"raw_events/{k}" not in f:

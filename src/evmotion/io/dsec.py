@@ -24,7 +24,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_h5_dataset
+from evmotion.io.guard import check_h5_dataset, open_h5
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "rectify_events",
            "missing_filters",
@@ -68,15 +68,11 @@ def _filter_error(path: Path, exc: Exception, ds, field: str) -> FormatError:
 
 
 def _open(path: Path):
-    import h5py
 
     _register_filters()
     if path.is_dir():
         path = path / "events.h5"
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    f = open_h5(path)
     try:
         for name in ("events/x", "events/y", "events/t", "events/p"):
             if name not in f:

@@ -28,6 +28,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
+from evmotion.io.guard import open_h5
 from evmotion.utils import atomic_path
 
 __all__ = [
@@ -441,13 +442,9 @@ def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> F
     >>> seq.flow.shape  # doctest: +SKIP
     (2, 180, 240, 2)
     """
-    import h5py
 
     path = Path(path)
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    f = open_h5(path)
     with f:
         if f.attrs.get("format") == FLOW_FORMAT:
             return read_flow_group(f, path, index)

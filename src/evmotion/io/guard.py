@@ -29,7 +29,8 @@ from evmotion.errors import (
     one_line,
 )
 
-__all__ = ["MAX_SENSOR_SIDE", "check_sensor_size", "guard_call", "guard_iter", "as_format_error"]
+__all__ = ["MAX_SENSOR_SIDE", "check_sensor_size", "guard_call", "guard_iter", "as_format_error",
+           "open_h5"]
 
 # Largest sensor side (pixels) a header may declare: today's largest event sensors are
 # 1280x720 (Prophesee IMX636) and 1920x1080 (Samsung); 16384 leaves room while keeping a
@@ -139,6 +140,28 @@ def guard_iter(fn: Callable, fmt: str, action: str = "read") -> Callable:
 # Largest HDF5 chunk accepted: a chunk is decompressed whole to read any of it, so a
 # corrupt chunk shape must not cost gigabytes (writers use at most a few MiB).
 MAX_H5_CHUNK_BYTES = 1 << 26
+
+
+def open_h5(path):
+    """The HDF5 file ``path`` opened read-only (an ``h5py.File``, to be closed by the
+    caller, e.g. in a ``with`` block).
+
+    Raises
+    ------
+    FormatError
+        One line naming the file when it is missing or not a readable HDF5 file.
+
+    Examples
+    --------
+    >>> with open_h5("flow.h5") as f:  # doctest: +SKIP
+    ...     names = list(f)
+    """
+    import h5py
+
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
 
 
 def check_h5_dataset(path, f, name: str, *, ndim: int, kinds: str,

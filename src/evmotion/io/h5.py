@@ -31,7 +31,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, PartFileWriter
-from evmotion.io.guard import check_h5_dataset, check_sensor_size
+from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
 
 __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
            "read_imu", "FORMAT", "FORMAT_NAME"]
@@ -232,15 +232,11 @@ def write(path: str | os.PathLike, events: EventArray | Iterable[EventArray], *,
 
 
 def _open(path: Path):
-    import h5py
 
     from evmotion.io.dsec import _register_filters
 
     _register_filters()
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    f = open_h5(path)
     if "events" not in f:
         f.close()
         raise FormatError(path, "no 'events' group (not an evmotion event file)")

@@ -23,7 +23,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_h5_dataset
+from evmotion.io.guard import check_h5_dataset, open_h5
 from evmotion.io.npy import events_from_columns
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_frames", "FORMAT",
@@ -34,12 +34,8 @@ HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
 def _open(path: Path, camera: str):
-    import h5py
 
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    f = open_h5(path)
     key = f"davis/{camera}/events"
     if key not in f:
         f.close()

@@ -54,6 +54,7 @@ from numba import njit
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.frames import Frames
+from evmotion.io.guard import open_h5
 from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
@@ -822,15 +823,11 @@ def read_schlieren_gt(path: str | Path) -> SchlierenGT:
     >>> gt.flow.shape  # doctest: +SKIP
     (12, 720, 640, 2)
     """
-    import h5py
 
     path = Path(path)
     if path.is_dir():
         path = path / "schlieren_gt.h5"
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    f = open_h5(path)
     with f:
         if f.attrs.get("schlieren_format") != GT_FORMAT:
             raise FormatError(path, "not schlieren ground truth (attribute "
