@@ -81,12 +81,7 @@ class Frames:
         t = np.asarray(self.t, dtype=np.int64).reshape(-1)
         if t.shape[0] != images.shape[0]:
             raise FormatError(src, f"{images.shape[0]} images but {t.shape[0]} timestamps")
-        d = np.diff(t)
-        if d.size and d.min() <= 0:
-            i = int(np.argmax(d <= 0))
-            what = "duplicate" if d[i] == 0 else "unsorted"
-            raise FormatError(src, f"{what} frame timestamps: t[{i}]={t[i]} us, "
-                              f"t[{i + 1}]={t[i + 1]} us")
+        _check_times(t, src)
         object.__setattr__(self, "images", images)
         object.__setattr__(self, "t", t)
         for name in ("exposure_start", "exposure_end"):
@@ -182,7 +177,7 @@ def _stack(files: list[Path]) -> tuple[np.ndarray, int]:
     return np.stack(images), int(depth)
 
 
-def _check_times(t: np.ndarray, path: Path) -> None:
+def _check_times(t: np.ndarray, path: Path | str | None) -> None:
     d = np.diff(t)
     if d.size and d.min() <= 0:
         i = int(np.argmax(d <= 0))
