@@ -100,6 +100,20 @@ def _one_line_naming(exc: BaseException, path) -> None:
     assert isinstance(exc, EvmotionError)
 
 
+def _read_fails_without_allocating(path, match: str) -> None:
+    """``read_events(path)`` raises a one-line FormatError naming the file and matching
+    ``match``, with a Python allocation peak under 50 MB on the way."""
+    tracemalloc.start()
+    try:
+        with pytest.raises(FormatError, match=match) as e:
+            eio.read_events(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    _one_line_naming(e.value, path)
+    assert peak < 50e6, peak
+
+
 def test_dat_huge_height_is_rejected_before_allocating(tmp_path):
     path = tmp_path / "tall.dat"
     dat.write(path, _events())
@@ -210,15 +224,7 @@ def test_hdf5_one_byte_in_the_shape_costs_no_memory(tmp_path):
             continue
     else:
         pytest.fail("no byte of the file holds the shape of events/t")
-    tracemalloc.start()
-    try:
-        with pytest.raises(FormatError, match="events/.*chunks") as e:
-            eio.read_events(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    _one_line_naming(e.value, path)
-    assert peak < 50e6, peak
+    _read_fails_without_allocating(path, "events/.*chunks")
 
 
 def test_errors_from_the_container_name_the_file(tmp_path):
@@ -306,15 +312,7 @@ def test_mat_dimension_beyond_the_file_is_rejected_before_loading(tmp_path):
     dims = struct.pack("<iiii", 5, 8, 100, 4)  # miINT32 dims tag: 100 x 4
     assert dims in data
     path.write_bytes(data.replace(dims, struct.pack("<iiii", 5, 8, 1 << 30, 4)))
-    tracemalloc.start()
-    try:
-        with pytest.raises(FormatError, match=r"declares shape \(1073741824, 4\)") as e:
-            eio.read_events(path)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    _one_line_naming(e.value, path)
-    assert peak < 50e6, peak
+    _read_fails_without_allocating(path, r"declares shape \(1073741824, 4\)")
 
 
 def test_blosc_chunk_header_checked_before_decompressing(tmp_path):
