@@ -30,6 +30,17 @@ from evmotion.sim.schlieren import simulate_schlieren
 SIZE = (720, 640)
 
 
+def interval(sim, k: int = 1):
+    """Frame interval ``k`` of a schlieren simulation: ``t0, t1`` (µs), its events and the
+    mask of the pixels with at least one of them."""
+    t = sim.frames.t
+    t0, t1 = int(t[k]), int(t[k + 1])
+    win = sim.events.slice_time(t0, t1)
+    mask = np.zeros(sim.events.sensor_size, bool)
+    mask[win.y, win.x] = True
+    return t0, t1, win, mask
+
+
 def accuracy(flow, gt_px, mask):
     """AEE (px over the interval), AE (rad, 2-D directions), median |v|/|v_gt|."""
     ee = np.hypot(flow[..., 0] - gt_px[..., 0], flow[..., 1] - gt_px[..., 1])
@@ -57,12 +68,9 @@ def main(quick: bool = False) -> list[dict]:
                              magnitude_px=2.0, seed=3)
     k = 1
     fr, t = sim.frames.images, sim.frames.t
-    t0, t1 = int(t[k]), int(t[k + 1])
+    t0, t1, ev_win, mask = interval(sim, k)
     dt = (t1 - t0) * 1e-6
     gt_px = sim.gt.flow[k] * dt
-    ev_win = sim.events.slice_time(t0, t1)
-    mask = np.zeros(SIZE, bool)
-    mask[ev_win.y, ev_win.x] = True
     kw = dict(t0_us=t0, t1_us=t1, frame_next=fr[k + 1], data_term="scale")
     estimate_bos(sim.events, fr[k], **kw, scales=(64, 32), iterations=3)  # compile
     rows, ref_obj = [], None

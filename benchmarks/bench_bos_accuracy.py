@@ -37,6 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import harness
+from bench_bos import interval
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PNG_DIR = RESULTS / "bos"
@@ -68,15 +69,6 @@ def exact_flow(sim, k: int) -> tuple[np.ndarray, np.ndarray, dict]:
         raise RuntimeError(f"Farneback on noise-free frames correlates {corr:.2f} with "
                            "gt.flow: the simulator's flow is not the image motion")
     return gt, sim.gt.q[k], {"corr_farneback_gt": corr}
-
-
-def _interval(sim, k: int = 1):
-    t = sim.frames.t
-    t0, t1 = int(t[k]), int(t[k + 1])
-    win = sim.events.slice_time(t0, t1)
-    mask = np.zeros(sim.events.sensor_size, bool)
-    mask[win.y, win.x] = True
-    return t0, t1, win, mask
 
 
 def _score(flow, gt_flow, mask, dt) -> dict:
@@ -139,7 +131,7 @@ def table64(size, iterations) -> list[dict]:
     for scene in SCENES:
         sim = _simulate(scene, size)
         k = 1
-        t0, t1, win, mask = _interval(sim, k)
+        t0, t1, win, mask = interval(sim, k)
         dt = (t1 - t0) * 1e-6
         gt, gt_q, check = exact_flow(sim, k)
         base = {"scene": scene, "size": f"{size[1]}x{size[0]}", "events": len(win),
@@ -209,7 +201,7 @@ def table65(size, iterations, scenes=("plume", "ice"), noise_rate: float = 0.0) 
     for scene in scenes:
         sim = _simulate(scene, size, noise_rate=noise_rate)
         k = 1
-        t0, t1, _, mask = _interval(sim, k)
+        t0, t1, _, mask = interval(sim, k)
         dt = (t1 - t0) * 1e-6
         gt = exact_flow(sim, k)[0]
         for name, kw in ABLATIONS:
@@ -234,7 +226,7 @@ def lowlight(size, iterations, scene="plume") -> list[dict]:
     for photons in PHOTONS:
         sim = _simulate(scene, size, photons=photons)
         k = 1
-        t0, t1, win, mask = _interval(sim, k)
+        t0, t1, win, mask = interval(sim, k)
         dt = (t1 - t0) * 1e-6
         if photons is None:  # first: the air (and its flow) is the same at every level
             gt = exact_flow(sim, k)[0]

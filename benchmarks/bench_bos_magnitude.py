@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 import harness
-from bench_bos import accuracy
+from bench_bos import accuracy, interval
 from evmotion.methods.bos import estimate_bos, estimate_contrast_threshold
 from evmotion.sim.schlieren import simulate_schlieren
 
@@ -39,14 +39,11 @@ def main(quick: bool = False) -> list[dict]:
     for scene in scenes:
         sim = simulate_schlieren(scene, sensor_size=SIZE, duration_s=3 / 120,
                                  magnitude_px=2.0, seed=0)
-        fr, t = sim.frames.images, sim.frames.t
+        fr = sim.frames.images
         for k in (1, 2):
-            t0, t1 = int(t[k]), int(t[k + 1])
+            t0, t1, win, mask = interval(sim, k)
             dt = (t1 - t0) * 1e-6
             gt_px = sim.gt.flow[k] * dt
-            win = sim.events.slice_time(t0, t1)
-            mask = np.zeros(SIZE, bool)
-            mask[win.y, win.x] = True
             cs = {m: estimate_contrast_threshold(sim.events, fr[k], fr[k + 1], t0_us=t0,
                                                  t1_us=t1, method=m)
                   for m in ("auto", "rma", "events", "frames")}
