@@ -319,19 +319,14 @@ def run_case(path: Path, fmt: str, *, chunk_events: int = 997, timeout_s: float 
     step = "detect"
     notes = []
     try:
-        try:
-            eio.detect_format(path)
-        except Exception as exc:
-            out = _classify(exc, path, step)
-            if out.kind != "error":
-                return out
-        step = "describe"
-        try:
-            eio.describe(path, format=fmt, stream=False)
-        except Exception as exc:
-            out = _classify(exc, path, step)
-            if out.kind != "error":
-                return out
+        for step, call in (("detect", lambda: eio.detect_format(path)),
+                           ("describe", lambda: eio.describe(path, format=fmt, stream=False))):
+            try:
+                call()
+            except Exception as exc:
+                out = _classify(exc, path, step)
+                if out.kind != "error":
+                    return out
         step = "read"
         try:
             whole = eio.read_events(path, format=fmt)
