@@ -167,18 +167,13 @@ def test_missing_frame_file(tmp_path):
     _one_line(e, "images.txt")
 
 
-def test_images_of_different_sizes(tmp_path):
+@pytest.mark.parametrize("second, match", [(np.zeros((5, 5), np.uint8), "7x6"),
+                                           (np.zeros((6, 7), np.uint16), "16-bit")],
+                         ids=["different_sizes", "mixed_bit_depths"])
+def test_second_image_unlike_the_first(tmp_path, second, match):
     _ecd(tmp_path, _images(2), ["0.0", "0.1"])
-    _png(tmp_path / "images" / "frame_00000001.png", np.zeros((5, 5), np.uint8))
-    with pytest.raises(FormatError, match="7x6") as e:
-        read_frames(tmp_path)
-    _one_line(e, "frame_00000001.png")
-
-
-def test_mixed_bit_depths(tmp_path):
-    _ecd(tmp_path, _images(2), ["0.0", "0.1"])
-    _png(tmp_path / "images" / "frame_00000001.png", np.zeros((6, 7), np.uint16))
-    with pytest.raises(FormatError, match="16-bit") as e:
+    _png(tmp_path / "images" / "frame_00000001.png", second)
+    with pytest.raises(FormatError, match=match) as e:
         read_frames(tmp_path)
     _one_line(e, "frame_00000001.png")
 
