@@ -189,6 +189,31 @@ def parse_sensor_size(sensor_size, min_side: int = 1) -> tuple[int, int]:
     return h, w
 
 
+def _check_event_model(threshold, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels,
+                       n_pixels):
+    """The checked event-model parameters shared by :func:`simulate` and
+    :func:`simulate_log_function`, in that order (``threshold`` as ``C``)."""
+    C = _check("threshold", threshold, strict=True)
+    mismatch = _check("mismatch", mismatch)
+    refractory_us = int(_check("refractory_us", refractory_us))
+    noise_rate = _check("noise_rate", noise_rate)
+    hot_rate = _check("hot_rate", hot_rate)
+    hot_pixels = int(_check("hot_pixels", hot_pixels))
+    if hot_pixels > n_pixels:
+        raise ParameterError(f"hot_pixels ({hot_pixels}) exceeds the number of pixels "
+                             f"({n_pixels})")
+    return C, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels
+
+
+def _thresholds(rng, C, mismatch, shape):
+    """Per-pixel ON and OFF thresholds: ``C`` with relative mismatch, at least 0.25 C
+    (mismatch never makes a pixel absurdly sensitive)."""
+    cmin = 0.25 * C
+    cp = np.maximum(C * (1 + mismatch * rng.standard_normal(shape)), cmin)
+    cn = np.maximum(C * (1 + mismatch * rng.standard_normal(shape)), cmin)
+    return cp, cn
+
+
 def _sorted_chunk(ex, ey, et, ep, n, w, h, packed):
     """The first ``n`` events of a step in time, then pixel index, then polarity order:
     an order that does not depend on the traversal. Packed into one sorted int64 key when
@@ -305,14 +330,8 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         raise ParameterError(f"duration_s must be at least 1 µs, got {duration_s!r}")
     h, w = parse_sensor_size(sensor_size, 2)
     sensor_size = (h, w)
-    C = _check("threshold", threshold, strict=True)
-    mismatch = _check("mismatch", mismatch)
-    refractory_us = int(_check("refractory_us", refractory_us))
-    noise_rate = _check("noise_rate", noise_rate)
-    hot_rate = _check("hot_rate", hot_rate)
-    hot_pixels = int(_check("hot_pixels", hot_pixels))
-    if hot_pixels > h * w:
-        raise ParameterError(f"hot_pixels ({hot_pixels}) exceeds the number of pixels ({h * w})")
+    C, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels = _check_event_model(
+        threshold, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels, h * w)
     frame_rate = _check("frame_rate", frame_rate, strict=True)
     frac = _check("max_step_fraction", max_step_fraction, strict=True)
     if backend not in ("numba", "numpy"):
@@ -328,9 +347,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
     ss = np.random.SeedSequence(seed).spawn(4)
     rng_thr = np.random.default_rng(ss[2])
     rng_noise = np.random.default_rng(ss[3])
-    cmin = 0.25 * C  # mismatch never makes a pixel absurdly sensitive
-    cp = np.maximum(C * (1 + mismatch * rng_thr.standard_normal((h, w))), cmin)
-    cn = np.maximum(C * (1 + mismatch * rng_thr.standard_normal((h, w))), cmin)
+    cp, cn = _thresholds(rng_thr, C, mismatch, (h, w))
 
     tex_stack = np.stack([pad_periodic(t.log_i) for t in texs])
     alpha_stack = np.stack([pad_periodic(t.alpha if t.alpha is not None
@@ -614,20 +631,12 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     if duration_us < 1:
         raise ParameterError(f"duration_us must be at least 1, got {duration_us!r}")
     max_step_us = int(_check("max_step_us", max_step_us, lo=1))
-    C = _check("threshold", threshold, strict=True)
-    mismatch = _check("mismatch", mismatch)
-    refractory_us = int(_check("refractory_us", refractory_us))
-    noise_rate = _check("noise_rate", noise_rate)
-    hot_rate = _check("hot_rate", hot_rate)
-    hot_pixels = int(_check("hot_pixels", hot_pixels))
-    if hot_pixels > h * w:
-        raise ParameterError(f"hot_pixels ({hot_pixels}) exceeds the number of pixels ({h * w})")
+    C, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels = _check_event_model(
+        threshold, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels, h * w)
     target = _check("max_step_fraction", max_step_fraction, strict=True) * C
     ss = np.random.SeedSequence(seed).spawn(2)
     rng_thr = np.random.default_rng(ss[0])
-    cmin = 0.25 * C
-    cp = np.maximum(C * (1 + mismatch * rng_thr.standard_normal(h * w)), cmin)
-    cn = np.maximum(C * (1 + mismatch * rng_thr.standard_normal(h * w)), cmin)
+    cp, cn = _thresholds(rng_thr, C, mismatch, h * w)
 
     def full(t):
         v = np.asarray(log_at(int(t), None), dtype=np.float64)
