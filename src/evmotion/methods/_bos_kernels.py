@@ -84,14 +84,7 @@ def upsample(x, iy, fy, ix, fx, out):
     _interp_x(x, ix, fx, tmp)
     for c in range(nc):
         for i in range(h):
-            i0 = iy[i]
-            i1 = min(i0 + 1, nh - 1)
-            g = fy[i]
-            t0 = tmp[c, i0]
-            t1 = tmp[c, i1]
-            o = out[c, i]
-            for j in range(o.shape[0]):
-                o[j] = (1.0 - g) * t0[j] + g * t1[j]
+            _row(tmp, iy, fy, c, i, out[c, i])
 
 
 @njit(**_JIT)
