@@ -214,6 +214,12 @@ def _thresholds(rng, C, mismatch, shape):
     return cp, cn
 
 
+def _event_buffers(cap):
+    """Empty x, y, t, p buffers for ``cap`` events (filled by the step kernels)."""
+    return (np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.int64),
+            np.empty(cap, np.uint8))
+
+
 def _sorted_chunk(ex, ey, et, ep, n, w, h, packed):
     """The first ``n`` events of a step in time, then pixel index, then polarity order:
     an order that does not depend on the traversal. Packed into one sorted int64 key when
@@ -455,8 +461,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
     ref_bak, last_bak = ref.copy(), last.copy()
     target = frac * C
     cap = h * w * 4
-    ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
-    et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
+    ex, ey, et, ep = _event_buffers(cap)
     chunks = []
     packed = (duration_us + 1) * 2 * h * w < 2 ** 62  # the sort key fits in an int64
     t, dt, n_samples, n_sub = 0, 200, 0, 0
@@ -485,8 +490,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
             np.copyto(ref, ref_bak)
             np.copyto(last, last_bak)
             cap = 2 * n
-            ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
-            et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
+            ex, ey, et, ep = _event_buffers(cap)
         if n:
             chunks.append(_sorted_chunk(ex, ey, et, ep, n, w, h, packed))
         n_samples += 1
@@ -649,8 +653,7 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     ref = la.copy()
     last = np.full(h * w, np.iinfo(np.int64).min // 2, dtype=np.int64)
     cap = max(1024, h * w)
-    ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
-    et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
+    ex, ey, et, ep = _event_buffers(cap)
     packed = (duration_us + 1) * 2 * h * w < 2 ** 62
     chunks = []
     levels = [2 ** k for k in range(int(math.log2(MAX_SUBSAMPLES)) + 1)]
@@ -691,8 +694,7 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
                 break
             ref, last = ref_bak, last_bak
             cap = 2 * n
-            ex, ey = np.empty(cap, np.uint16), np.empty(cap, np.uint16)
-            et, ep = np.empty(cap, np.int64), np.empty(cap, np.uint8)
+            ex, ey, et, ep = _event_buffers(cap)
         if n:
             chunks.append(_sorted_chunk(ex, ey, et, ep, n, w, h, packed))
         n_steps += 1
