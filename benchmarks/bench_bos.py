@@ -95,7 +95,7 @@ def main(quick: bool = False) -> list[dict]:
              "machine: compare rows; cpu_s is the process' CPU time, the least disturbed by "
              "the load; total_s and the per-scale times are wall-clock). plume 720x640 "
              f"magnitude 2 px, seed 3, interval 1 ({len(ev_win)} events), data_term='scale', "
-             f"C estimated (rma) = {res.contrast_threshold:.3f} (sensor 0.2). The warm-start "
+             f"C estimated (auto) = {res.contrast_threshold:.3f} (sensor 0.2). The warm-start "
              "row starts from the solution of interval 0 (as the sequence solve does).")
     harness.record("bos", rows, notes)
     return rows

@@ -44,13 +44,16 @@ Differences from the thesis, and why:
 * the returned q is the least-norm field with the same Sobel flow (the Sobel over patches
   is blind to constants and checkerboards, which the random initialization leaves in q).
 
-Measured (``benchmarks/results/bos_magnitude.md``, ``bos.md``): on simulated plume, jet,
-breath and ice scenes (360x320, 2 px) Poisson beats Flow in AEE and AE in every window
-(AE 0.16-0.55 rad vs 0.24-0.61); the scale-aware term's median |v|/|v_gt| is 0.77-1.02
-(mean 0.93) with C estimated from the frames, low on the jet and plume: there the events
-under-count the log change (C times the event sums against the LEGM prediction with the
-true flow: slope 0.36 on the 640x720 jet, 0.53 plume, 0.84-0.86 breath and ice, while the
-frames' difference has slope 1.00-1.07), which the estimated C only partly absorbs. One 640x720 interval on one core
+Measured (``benchmarks/results/bos_magnitude.md``, ``bos_accuracy.md``, ``bos.md``): on
+simulated plume, jet, breath and ice scenes (360x320, 2 px) Poisson beats Flow in AEE and
+AE in every window. The events under-count the log change (C times the event sums against
+the LEGM prediction with the true flow: slope 0.36 on the 640x720 jet, 0.53 plume,
+0.84-0.86 breath and ice, while the frames' difference has slope 1.00-1.07); C is
+therefore estimated by regressing the event sums on the frames' difference
+(:func:`estimate_contrast_threshold`, method "auto"), which folds the under-count into C:
+the scale-aware term's median |v|/|v_gt| on the 640x720 scenes is 0.93, 0.98, 0.99, 0.98
+(plume, jet, breath, ice; 0.89, 0.85, 0.97, 0.97 with the reduced-major-axis C), AEE
++1 %, +6 %, +1 %, +0.5 %. One 640x720 interval on one core
 (CPU time, 2-CPU machine at load ~7): 8.5 s with the thesis' schedule (26 s wall), 1.8 s
 with the defaults 150/150/150/300 on pooled coarse scales (5.5 s wall; +0.29 % of the
 thesis' final objective, same AEE), 3.6 s with ``iterations=600`` (+0.21 %).
@@ -390,16 +393,18 @@ def event_sums(events: EventArray, roi=None, *, t0_us: int | None = None,
 
 
 def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_next: np.ndarray,
-                                *, t0_us: int, t1_us: int, roi=None, sigma: float = 1.0,
-                                method: str = "rma", log_eps: float | None = None) -> float:
+                                *, t0_us: int, t1_us: int, roi=None,
+                                sigma: float | None = None, method: str = "auto",
+                                log_eps: float | None = None) -> float:
     """Contrast threshold C from two frames and the events between them.
 
     Per pixel, the log-frame difference ``D = L(t1) - L(t0)`` and the events' polarity sum
-    ``S`` (both smoothed with ``sigma``) obey ``C S ~ D`` over the pixels with events near
-    them. Both are noisy measurements of the same change: D carries the frames' noise
-    (shot noise, quantization), and S the leftover below threshold at both ends of the
-    window, which the sensor's hysteresis (a pixel must travel a full C back after an event)
-    makes large where the schlieren flickers by less than C. So the one-sided regressions
+    ``S`` (both smoothed with ``sigma``: None is 2 px for "auto", 1 px for the others)
+    obey ``C S ~ D`` over the pixels with events near them ("auto": with events). Both are
+    noisy measurements of the same change: D carries the frames' noise (shot noise,
+    quantization), and S the leftover below threshold at both ends of the window, which the
+    sensor's hysteresis (a pixel must travel a full C back after an event) makes large where
+    the schlieren flickers by less than C. So the one-sided regressions
     disagree, and:
 
     * ``method="events"``: ``cov(D, S) / var(S)``, D regressed on S: the change per net
@@ -407,11 +412,26 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
       large against C, below it where they are not.
     * ``method="frames"``: ``(var(D) - var(noise)) / cov(D, S)``, S regressed on D with the
       frame noise's attenuation removed (its variance measured where no event fired within
-      ~10 px: still air). Above the nominal C where the changes are small.
-    * ``method="rma"`` (default): their geometric mean, the reduced-major-axis slope that
-      treats both sides as noisy; where the frame noise exceeds half of var(D) the "events"
-      slope alone. This is the C that makes the scale-aware data term's magnitudes right
-      (``benchmarks/results/bos_magnitude.md``).
+      ~10 px, still air, at the same log levels). Above the nominal C where the changes are small.
+    * ``method="rma"``: their geometric mean, the reduced-major-axis slope that treats both
+      sides as noisy; where the frame noise exceeds half of var(D) the "events" slope alone.
+    * ``method="auto"`` (default): the "frames" slope, with ``sigma`` the data term's
+      (2 px) and over the pixels that fired; where the frame noise exceeds half of var(D),
+      the "events" slope. This is the C that calibrates the scale-aware data
+      term: the solver fits the (noise-free) prediction ``P`` to ``C S``, so the flow's
+      scale it returns is about ``C cov(P, S) / var(P)``, and ``P`` of the true flow
+      follows ``D`` (slope 1.00-1.07 on the simulated scenes): the flow comes out at its
+      true scale when ``C = var(D) / cov(D, S)``, S regressed on D. The events'
+      under-count (no event below threshold; sign reversals within the window cost up to
+      2C without an event) is then part of the calibration, not noise shared between the
+      sides as "rma" has it. On the 640x720 simulated scenes the median |v|/|v_gt| of the
+      scale-aware term is 0.93-0.99 with it, 0.85-0.97 with "rma"
+      (``benchmarks/results/bos_accuracy.md``); over the pixels within ~sigma of an event
+      (a ring of pixels below threshold with them) 1.02-1.12. Above that noise level the
+      noise-corrected "frames" slope is unreliable (on a 360x320 plume: 0.2 %, 2 % and
+      9 % above the noise-free one at 1000, 300 and 100 photons per white pixel, noise
+      0.10, 0.27 and 0.49 var(D); 35 % at 30 photons, 0.78), and the events' own slope
+      is the fallback.
 
     Returns
     -------
@@ -437,8 +457,9 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
     >>> round(c, 2)
     0.15
     """
-    if method not in ("rma", "events", "frames"):
-        raise ParameterError(f"method must be 'rma', 'events' or 'frames', got {method!r}")
+    if method not in ("auto", "rma", "events", "frames"):
+        raise ParameterError(f"method must be 'auto', 'rma', 'events' or 'frames', got "
+                             f"{method!r}")
     sensor = events.sensor_size
     for name, f in (("frame", frame), ("frame_next", frame_next)):
         if np.shape(f) != tuple(sensor):
@@ -449,16 +470,22 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
     ev = _window_events(events, t0_us, t1_us, (x, y, rw, rh))
     s, counts = event_sums(ev, (x, y, rw, rh))
     crop = (slice(y, y + rh), slice(x, x + rw))
-    d = log_frame(frame_next, log_eps)[crop] - log_frame(frame, log_eps)[crop]
+    l0, l1 = log_frame(frame, log_eps)[crop], log_frame(frame_next, log_eps)[crop]
+    d, level = l1 - l0, 0.5 * (l0 + l1)
+    if sigma is None:
+        sigma = 2.0 if method == "auto" else 1.0
     if sigma > 0:
         s = gaussian_filter(s, sigma, mode="nearest")
         d = gaussian_filter(d, sigma, mode="nearest")
+        level = gaussian_filter(level, sigma, mode="nearest")
+    # "auto" fits over the pixels that fired, as the solver's data term measures there;
+    # the others over the pixels with events within about sigma
+    near = counts > 0
+    if sigma > 0 and method != "auto":
         near = gaussian_filter(counts, sigma, mode="nearest") > 0.05
-    else:
-        near = counts > 0
     wide = gaussian_filter(counts, 5.0, mode="nearest")
     quiet = wide <= 1e-3 * wide.max()
-    noise = float(np.mean(d[quiet] ** 2)) if quiet.sum() >= 100 else 0.0
+    noise = _frame_noise(d, level, quiet, near)
     dd, ss = d[near], s[near]
     var_d, cov, var_s = (float(np.mean(v)) for v in (dd * dd, dd * ss, ss * ss))
     if dd.size < 16 or cov <= 0 or var_s <= 0:
@@ -476,7 +503,24 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
         return float(c_frames)
     if noise > 0.5 * var_d or c_frames <= 0:
         return float(c_events)
+    if method == "auto":
+        return float(c_frames)
     return float(np.sqrt(c_frames * c_events))
+
+
+def _frame_noise(d: np.ndarray, level: np.ndarray, quiet: np.ndarray, fit: np.ndarray) -> float:
+    """Mean frame-noise variance of the log difference ``d`` over the ``fit`` pixels,
+    measured on the ``quiet`` ones (still air) in up to 16 bins of the log level: shot noise
+    in log units grows as the intensity falls, and the pixels that fire (dot edges) are
+    darker than the average (on a 360x320 plume at 300 photons the plain mean
+    under-corrected C_frames by 7 %, the binned one by 2 %). 0 with < 100 quiet pixels."""
+    n_bins = min(16, int(quiet.sum()) // 100)
+    if n_bins < 1:
+        return 0.0
+    edges = np.quantile(level[quiet], np.linspace(0.0, 1.0, n_bins + 1)[1:-1])
+    bq = np.searchsorted(edges, level[quiet])
+    var = np.bincount(bq, d[quiet] ** 2, n_bins) / np.maximum(np.bincount(bq, None, n_bins), 1)
+    return float(np.mean(var[np.searchsorted(edges, level[fit])]))
 
 
 # --------------------------------------------------------------------------- model
@@ -647,7 +691,8 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions):
     if c is None and frame_next is not None:
         try:
             c = estimate_contrast_threshold(ev, frame, frame_next, t0_us=int(t0_us),
-                                            t1_us=int(t1_us), roi=r, log_eps=o.log_eps)
+                                            t1_us=int(t1_us), roi=r, sigma=o.sigma_meas,
+                                            log_eps=o.log_eps)
         except EventDataError:
             # the normalized term needs no C: its result is then flagged uncalibrated
             if o.data_term == "scale":
