@@ -107,6 +107,18 @@ def commands(d: Path) -> list[tuple[str, list[str]]]:
          ["flow", rec, "--method", "triplet", "--dense", "robust", "--window-events", "30000",
           "--out", str(d / "trr.npy")]),
         ("eval", ["eval", str(d / "mc.h5"), "--gt", gt]),
+        ("flow dnn", ["flow", rec, "--method", "dnn", "--window-events", "30000",
+                      "--out", str(d / "dnn.h5")]),
+        ("flow multicm --init dnn",
+         ["flow", rec, "--method", "multicm", "--init", "dnn", "--window-events", "30000",
+          "--out", str(d / "mcd.h5")]),
+        ("train (one step)", ["train", "--sim-windows", "2", "--batch-size", "2", "--epochs",
+                              "1", "--max-steps", "1", "--val-sim", "1",
+                              "--out", str(d / "train")]),
+        ("simulate schlieren", ["simulate", "schlieren", "--scene", "plume", "--size",
+                                "180x160", "--duration", "0.05", "--out", str(d / "bos")]),
+        ("bos", ["bos", str(d / "bos"), "--out", str(d / "bos.h5")]),
+        ("kymogram", ["kymogram", str(d / "bos"), "--col", "80", "--out", str(d / "k.png")]),
     ]
     return rows
 
