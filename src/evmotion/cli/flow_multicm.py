@@ -134,16 +134,23 @@ def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False):
 
 
 class _Output:
-    """Where the flows go: ``.h5`` window by window (resumable), ``.npy`` / ``.flo`` once
-    all windows are done (kept in memory until then)."""
+    """Where the flows go: ``.h5`` window by window (resumable), ``.npy`` window by window
+    into a memory-mapped file renamed when complete, ``.flo`` once all windows are done
+    (kept in memory until then, so that an interrupted run leaves no partial set)."""
 
-    def __init__(self, out: Path, sensor_size, attrs: dict, resume: bool):
+    def __init__(self, out: Path, sensor_size, attrs: dict, resume: bool, n_windows: int):
         from evmotion.cli.flow import H5Output
+        from evmotion.utils import atomic_path
 
         self.out, self.kind = out, out.suffix.lower()
-        self.fw = None
+        self.fw = self._tmp = self._npy = None
         if self.kind in (".h5", ".hdf5"):
             self.fw = H5Output(out, sensor_size, attrs, resume=resume, with_valid=True)
+        elif self.kind == ".npy":
+            self._tmp = atomic_path(out)
+            self._npy = np.lib.format.open_memmap(self._tmp.__enter__(), mode="w+",
+                                                  dtype=np.float32,
+                                                  shape=(n_windows, *sensor_size, 2))
         self.done = [] if self.fw is None else self.fw.done
         self.flows, self.spans = [], []
 
@@ -152,20 +159,24 @@ class _Output:
         mask in ``.h5`` and as zero flow in ``.npy`` / ``.flo``, which have no mask."""
         if self.fw is not None:
             self.fw.append(flow, t0=w.t0, t1=w.t1, valid=valid)
+            return
+        flow = np.where(valid[..., None], flow, np.float32(0))
+        if self._npy is not None:
+            self._npy[len(self.spans)] = flow
         else:
-            self.flows.append(np.where(valid[..., None], flow, np.float32(0)))
-            self.spans.append((w.t0, w.t1))
+            self.flows.append(flow)
+        self.spans.append((w.t0, w.t1))
 
     def close(self) -> list[str]:
         from evmotion.io.flowfiles import write_flo
-        from evmotion.utils import atomic_path
 
         if self.fw is not None:
             self.fw.close()
             return [str(self.out)]
-        if self.kind == ".npy":
-            with atomic_path(self.out) as tmp, open(tmp, "wb") as fh:
-                np.save(fh, np.stack(self.flows))
+        if self._npy is not None:
+            self._npy.flush()
+            self._npy = None
+            self._tmp.__exit__(None, None, None)  # renamed onto OUT
             return [str(self.out)]
         written = []
         for i, (flow, (t0, t1)) in enumerate(zip(self.flows, self.spans, strict=True)):
@@ -178,6 +189,10 @@ class _Output:
     def abort(self) -> None:
         if self.fw is not None:
             self.fw.abort()
+        elif self._npy is not None:
+            self._npy = None
+            err = RuntimeError("aborted")
+            self._tmp.__exit__(type(err), err, None)  # removes the temporary file
 
 
 def _png(png_dir: Path, i: int, r, max_speed) -> None:
@@ -312,7 +327,8 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
     previous window's. With ``--resume`` (one process) the windows already in the ``.part``
     file are taken from it (the last one as warm start, as stored: float32, exactly the flow
     that was written)."""
-    sink = _Output(Path(args.out), events.sensor_size, attrs, resume=args.resume)
+    sink = _Output(Path(args.out), events.sensor_size, attrs, resume=args.resume,
+                   n_windows=len(windows))
     rows, init = [], None
     todo = None if results is None else iter(results)
     order = (progress(windows, total=len(windows), desc=attrs["method"]) if todo is None
