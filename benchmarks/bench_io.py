@@ -74,9 +74,9 @@ def _synthetic(n: int, seed: int = 0) -> EventArray:
 def _raw_h5(path: Path, names) -> int:
     import h5py
 
-    from evmotion.io.dsec import _register_filters
+    from evmotion.io.h5filters import register_filters
 
-    _register_filters()
+    register_filters()
     with h5py.File(path, "r") as f:
         return sum(f[k][()].nbytes for k in names)
 

@@ -34,7 +34,7 @@ def _row(name, path, fn, n_events, repeat, note=""):
 def main(quick: bool = False) -> list[dict]:
     harness.single_core()
     from evmotion.io import aedat2, aedat4, dat, evt2, evt3, rosbag
-    from evmotion.io._prophesee import parse_raw_header
+    from evmotion.io.prophesee import parse_raw_header
 
     repeat = 3 if quick else 15
     rows = []

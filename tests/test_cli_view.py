@@ -95,11 +95,11 @@ def test_errors_are_reported_without_traceback(fake_reader, tmp_path, capsys):
 ])
 def test_real_recording(shared_data, tmp_path, capsys, rel, size):
     from evmotion.errors import FormatError
-    from evmotion.io.registry import detect_format
+    from evmotion.io.registry import detect_spec
 
     path = shared_data / rel
     try:
-        detect_format(path)
+        detect_spec(path)
     except FormatError as exc:
         pytest.skip(f"no reader for {rel} yet: {exc}")
     out = tmp_path / "real.png"

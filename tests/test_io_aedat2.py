@@ -7,7 +7,7 @@ import pytest
 
 from evmotion.errors import FormatError
 from evmotion.io import aedat2
-from evmotion.io.registry import detect_format
+from evmotion.io.registry import detect_spec
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +32,7 @@ def test_events_match_reference(path):
     for got, ref in zip((ev.x, ev.y, ev.t, ev.p), reference_decode(path), strict=True):
         np.testing.assert_array_equal(got, ref)
     assert 2.0e6 < ev.duration_us < 2.1e6
-    assert detect_format(path).name == "aedat2"
+    assert detect_spec(path).name == "aedat2"
 
 
 def test_imu(path):

@@ -12,7 +12,7 @@ from _helpers import assert_same_events
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import aedat4
-from evmotion.io.registry import detect_format
+from evmotion.io.registry import detect_spec
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +32,7 @@ def test_counts_and_content(full):
     d = aedat4.describe(full)
     assert (d["n_events"], d["frames"], d["imu"]) == (78_830, 59, 2_363)
     assert d["compression"] == "lz4"
-    assert detect_format(full).name == "aedat4"
+    assert detect_spec(full).name == "aedat4"
 
 
 def test_frames(full):

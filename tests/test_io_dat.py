@@ -9,7 +9,7 @@ from _helpers import assert_same_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import dat
-from evmotion.io.registry import detect_format
+from evmotion.io.registry import detect_spec
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def test_shared_file_matches_reference(gen4):
     assert data[off - 2:off] == bytes([0x0C, 8])
     for got, ref in zip((ev.x, ev.y, ev.t, ev.p), reference_decode(data[off:]), strict=True):
         np.testing.assert_array_equal(got, ref)
-    assert detect_format(gen4).name == "dat"
+    assert detect_spec(gen4).name == "dat"
     assert dat.describe(gen4)["n_events"] == len(ev)
 
 

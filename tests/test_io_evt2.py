@@ -10,8 +10,8 @@ from _helpers import assert_same_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import evt2
-from evmotion.io._prophesee import parse_raw_header
-from evmotion.io.registry import detect_format
+from evmotion.io.prophesee import parse_raw_header
+from evmotion.io.registry import detect_spec
 
 
 def reference_decode(words):
@@ -61,7 +61,7 @@ def test_round_trip(raw, tmp_path):
     ev = evt2.read(raw)
     evt2.write(tmp_path / "a.raw", ev)
     assert_same_events(evt2.read(tmp_path / "a.raw"), ev)
-    assert detect_format(tmp_path / "a.raw").name == "evt2"
+    assert detect_spec(tmp_path / "a.raw").name == "evt2"
 
 
 def test_round_trip_wrap_and_offset(tmp_path):

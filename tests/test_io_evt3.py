@@ -10,8 +10,8 @@ from _helpers import assert_same_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import dat, evt3
-from evmotion.io._prophesee import parse_raw_header
-from evmotion.io.registry import detect_format
+from evmotion.io.prophesee import parse_raw_header
+from evmotion.io.registry import detect_spec
 
 
 def reference_decode(words):
@@ -134,7 +134,7 @@ def test_round_trip_long_gaps_and_large_times(tmp_path):
 def test_detected_by_content(raw, tmp_path):
     copy = tmp_path / "no_extension"
     copy.write_bytes(raw.read_bytes()[:100_000])
-    assert detect_format(copy).name == "evt3"
+    assert detect_spec(copy).name == "evt3"
 
 
 def test_truncated_file_names_offset(raw, tmp_path):

@@ -12,7 +12,7 @@ from _helpers import assert_same_events
 from evmotion.errors import FormatError, MissingDependencyError
 from evmotion.events import EventArray
 from evmotion.io import rosbag
-from evmotion.io.registry import detect_format
+from evmotion.io.registry import detect_spec
 
 pytest.importorskip("rosbags")
 
@@ -29,7 +29,7 @@ def events():
 def test_round_trip(events, tmp_path):
     out = tmp_path / "ev.bag"
     rosbag.write(out, events, message_us=33_000)
-    assert detect_format(out).name == "rosbag"
+    assert detect_spec(out).name == "rosbag"
     assert_same_events(rosbag.read(out), events)
     chunks = list(rosbag.iter_chunks(out, 7_000))
     assert [len(c) for c in chunks] == [7_000, 7_000, 6_000]

@@ -197,9 +197,9 @@ def test_real_evt3_file_streams(shared_data, tmp_path, capsys):
     path = shared_data / "formats" / "evt3.raw"
     if not path.exists():
         pytest.skip(f"{path} not found")
-    from evmotion.io.registry import detect_format
+    from evmotion.io.registry import detect_spec
 
-    ev = detect_format(path).read(path)[:200_000]
+    ev = detect_spec(path).read(path)[:200_000]
     out = tmp_path / "flow.npz"
     rc = main(["flow", str(path), "--method", "triplet", "--out", str(out),
                "--chunk-events", "65536", "--json"])

@@ -75,9 +75,9 @@ def _read(path, fmt):
 
     if hasattr(eio, "read_events"):
         return eio.read_events(path, **({"format": fmt} if fmt else {}))
-    from evmotion.io.registry import detect_format, get_format
+    from evmotion.io.registry import resolve_format
 
-    spec = get_format(fmt) if fmt else detect_format(path)
+    spec = resolve_format(path, fmt or None)
     return spec.read(path)
 
 

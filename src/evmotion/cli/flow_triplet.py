@@ -243,9 +243,9 @@ def _iter_chunks(path, fmt, chunk_events):
         kw = {"format": fmt} if fmt else {}
         yield from eio.iter_events(path, chunk_events=chunk_events, **kw)
         return
-    from evmotion.io.registry import detect_format, get_format
+    from evmotion.io.registry import resolve_format
 
-    spec = get_format(fmt) if fmt else detect_format(path)
+    spec = resolve_format(path, fmt or None)
     if spec.iter_chunks is not None:
         yield from spec.iter_chunks(path, chunk_events)
         return

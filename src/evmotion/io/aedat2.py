@@ -22,7 +22,7 @@ import numpy as np
 
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
-from evmotion.io import _binary
+from evmotion.io import binary
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_sensor_size
 from evmotion.utils import atomic_path
@@ -56,7 +56,7 @@ def _parse_header(path: Path, sensor_size):
     if head != MAGIC:
         raise FormatError(path, f"bad magic at byte offset 0: {head!r}, expected {MAGIC!r}",
                           "not a jAER AEDAT 2.0 file")
-    lines, offset = _binary.read_text_header(path, b"#", max_bytes=1 << 24)
+    lines, offset = binary.read_text_header(path, b"#", max_bytes=1 << 24)
     text = "\n".join(lines)
     own = re.search(r"# sensor_size \(height, width\) = \((\d+), (\d+)\)", text)
     if sensor_size is None and own:
@@ -98,7 +98,7 @@ class _Unwrap:
         return out
 
 
-def _decode(addr: np.ndarray, t: np.ndarray, size) -> _binary.Block:
+def _decode(addr: np.ndarray, t: np.ndarray, size) -> binary.Block:
     h, w = size
     dvs = (addr & 0x80000400) == 0
     a = addr[dvs]
@@ -110,25 +110,25 @@ def _decode(addr: np.ndarray, t: np.ndarray, size) -> _binary.Block:
 
 def _records(path: Path, offset: int, block_bytes: int):
     unwrap = _Unwrap()
-    for _, buf in _binary.iter_blocks(path, offset, block_bytes, RECORD):
+    for _, buf in binary.iter_blocks(path, offset, block_bytes, RECORD):
         rec = np.frombuffer(buf, ">u4").reshape(-1, 2)
         yield rec[:, 0].astype(np.uint32), unwrap(rec[:, 1])
 
 
-def _blocks(path, offset, size, block_bytes) -> Iterator[_binary.Block]:
+def _blocks(path, offset, size, block_bytes) -> Iterator[binary.Block]:
     for addr, t in _records(path, offset, block_bytes):
         yield _decode(addr, t, size)
 
 
 def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
-          ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
+          ) -> tuple[int, tuple[int, int], Iterator[binary.Block]]:
     _, offset, size = _parse_header(path, sensor_size)
     return offset, size, _blocks(path, offset, size, block_bytes)
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
-         block_bytes: int = _binary.BLOCK_BYTES) -> EventArray:
+         block_bytes: int = binary.BLOCK_BYTES) -> EventArray:
     """Read the DVS events of a jAER AEDAT 2.0 (DAVIS) file.
 
     Parameters
@@ -148,15 +148,15 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     >>> ev = read("davis240.aedat")  # doctest: +SKIP
     >>> imu = read_imu("davis240.aedat")  # doctest: +SKIP
     """
-    return _binary.read_file(path, "aedat2", RECORD, _open, t0, t1, sensor_size=sensor_size,
+    return binary.read_file(path, "aedat2", RECORD, _open, t0, t1, sensor_size=sensor_size,
                              validate=validate, block_bytes=block_bytes)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, validate: bool = True,
-                block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
+                block_bytes: int = binary.BLOCK_BYTES) -> Iterator[EventArray]:
     """Stream the DVS events of an AEDAT 2.0 file in chunks of ``chunk_events``."""
-    yield from _binary.iter_file(path, chunk_events, "aedat2", RECORD, _open,
+    yield from binary.iter_file(path, chunk_events, "aedat2", RECORD, _open,
                                  sensor_size=sensor_size, validate=validate,
                                  block_bytes=block_bytes)
 
@@ -191,10 +191,10 @@ def read_imu(path: str | Path) -> ImuSamples:
     """
     path = Path(path)
     lines, offset, _ = _parse_header(path, (1, 1))
-    _binary.trailing_partial(path, offset, RECORD)
+    binary.trailing_partial(path, offset, RECORD)
     acc_lsb, gyr_lsb = _imu_scales(lines)
     codes, vals, ts = [], [], []
-    for addr, t in _records(path, offset, _binary.BLOCK_BYTES):
+    for addr, t in _records(path, offset, binary.BLOCK_BYTES):
         m = (addr & 0x80000C00) == 0x80000C00
         codes.append(((addr[m] >> 28) & 7).astype(np.int8))
         vals.append(((addr[m] >> 12) & 0xFFFF).astype(np.uint16).view(np.int16))
@@ -259,7 +259,7 @@ def describe(path: str | Path) -> dict:
     lines, offset, size = _parse_header(path, None)
     n_dvs = n_imu_words = n_aps = 0
     t_first = t_last = None
-    for addr, t in _records(path, offset, _binary.BLOCK_BYTES):
+    for addr, t in _records(path, offset, binary.BLOCK_BYTES):
         n_dvs += int(((addr & 0x80000400) == 0).sum())
         imu = (addr & 0x80000C00) == 0x80000C00
         n_imu_words += int(imu.sum())

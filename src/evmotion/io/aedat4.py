@@ -21,7 +21,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, MissingDependencyError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io import _binary
+from evmotion.io import binary
 from evmotion.io.base import FormatSpec
 from evmotion.io.frames import Frames
 from evmotion.io.guard import check_sensor_size
@@ -260,7 +260,7 @@ def _stream_of(path: Path, streams: dict[int, _Stream], type_id: str,
     return None
 
 
-def _event_blocks(path: Path, sid: int) -> Iterator[_binary.Block]:
+def _event_blocks(path: Path, sid: int) -> Iterator[binary.Block]:
     for _, buf, pos in _packets(path, {sid}):
         try:
             tab = _root(buf, b"EVTS", path, pos + 8)
@@ -309,17 +309,17 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     """
     path = Path(path)
     s, size, meta = _event_stream(path, stream, sensor_size)
-    return _binary.collect(_event_blocks(path, s.id), size, meta, t0, t1, validate=validate)
+    return binary.collect(_event_blocks(path, s.id), size, meta, t0, t1, validate=validate)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *, stream: int | None = None,
                 sensor_size: tuple[int, int] | None = None,
                 validate: bool = True) -> Iterator[EventArray]:
     """Stream the events of an AEDAT 4.0 file, one packet in memory at a time."""
-    chunk_events = _binary.check_chunk_events(chunk_events)
+    chunk_events = binary.check_chunk_events(chunk_events)
     path = Path(path)
     s, size, meta = _event_stream(path, stream, sensor_size)
-    yield from _binary.rechunk(_event_blocks(path, s.id), chunk_events, size, meta,
+    yield from binary.rechunk(_event_blocks(path, s.id), chunk_events, size, meta,
                                validate=validate)
 
 

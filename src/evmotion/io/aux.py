@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError
-from evmotion.io.registry import detect_format, get_format
+from evmotion.io.registry import resolve_format
 
 __all__ = ["FrameSequence", "ImuSequence", "read_frames", "read_imu"]
 
@@ -46,7 +46,7 @@ class ImuSequence:
 
 
 def _module(path: Path, format: str | None):
-    spec = get_format(format) if format else detect_format(path)
+    spec = resolve_format(path, format or None)
     return spec.name, importlib.import_module(spec.read.__module__)
 
 

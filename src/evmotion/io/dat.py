@@ -15,7 +15,7 @@ import numpy as np
 
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
-from evmotion.io import _binary, _prophesee
+from evmotion.io import binary, prophesee
 from evmotion.io.base import FormatSpec
 from evmotion.utils import atomic_path
 
@@ -47,7 +47,7 @@ def _decode(ts, data, state, ox, oy, ot, op):
 
 
 def _parse_header(path: Path, sensor_size):
-    lines, offset = _binary.read_text_header(path, b"%")
+    lines, offset = binary.read_text_header(path, b"%")
     if not lines:
         raise FormatError(path, "no '%' header at byte 0", "not a Prophesee DAT file")
     with open(path, "rb") as fh:
@@ -63,13 +63,13 @@ def _parse_header(path: Path, sensor_size):
     if ev_type != CD_TYPE:
         raise FormatError(path, f"field 'event type' at byte offset {offset} is {ev_type:#x}; "
                           f"only CD events ({CD_TYPE:#x}) are supported")
-    size = sensor_size or _binary.geometry_from_header(lines, path, DEFAULT_SIZE)
+    size = sensor_size or binary.geometry_from_header(lines, path, DEFAULT_SIZE)
     return lines, offset + 2, size
 
 
-def _blocks(path: Path, offset: int, block_bytes: int) -> Iterator[_binary.Block]:
+def _blocks(path: Path, offset: int, block_bytes: int) -> Iterator[binary.Block]:
     state = np.zeros(2, np.int64)
-    for _, buf in _binary.iter_blocks(path, offset, block_bytes, RECORD):
+    for _, buf in binary.iter_blocks(path, offset, block_bytes, RECORD):
         rec = np.frombuffer(buf, "<u4").reshape(-1, 2)
         n = rec.shape[0]
         x = np.empty(n, np.uint16)
@@ -82,14 +82,14 @@ def _blocks(path: Path, offset: int, block_bytes: int) -> Iterator[_binary.Block
 
 
 def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
-          ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
+          ) -> tuple[int, tuple[int, int], Iterator[binary.Block]]:
     _, offset, size = _parse_header(path, sensor_size)
     return offset, size, _blocks(path, offset, block_bytes)
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
-         block_bytes: int = _binary.BLOCK_BYTES) -> EventArray:
+         block_bytes: int = binary.BLOCK_BYTES) -> EventArray:
     """Read a Prophesee DAT (CD events) file.
 
     Parameters
@@ -109,15 +109,15 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     --------
     >>> ev = read("recording_td.dat")  # doctest: +SKIP
     """
-    return _binary.read_file(path, "dat", RECORD, _open, t0, t1, sensor_size=sensor_size,
+    return binary.read_file(path, "dat", RECORD, _open, t0, t1, sensor_size=sensor_size,
                              validate=validate, block_bytes=block_bytes)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, validate: bool = True,
-                block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
+                block_bytes: int = binary.BLOCK_BYTES) -> Iterator[EventArray]:
     """Stream a DAT file in EventArrays of ``chunk_events`` events, in bounded memory."""
-    yield from _binary.iter_file(path, chunk_events, "dat", RECORD, _open,
+    yield from binary.iter_file(path, chunk_events, "dat", RECORD, _open,
                                  sensor_size=sensor_size, validate=validate,
                                  block_bytes=block_bytes)
 
@@ -156,7 +156,7 @@ def describe(path: str | Path) -> dict:
     """Header fields, geometry and event count of a DAT file."""
     path = Path(path)
     lines, offset, size = _parse_header(path, None)
-    return {"format": "dat", "sensor_size": size, "header": _prophesee.header_dict(lines),
+    return {"format": "dat", "sensor_size": size, "header": prophesee.header_dict(lines),
             "n_events": (path.stat().st_size - offset) // RECORD, "frames": 0, "imu": 0}
 
 

@@ -25,6 +25,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_h5_dataset, open_h5
+from evmotion.io.h5filters import FILTER_HINT, filter_error, missing_filters, register_filters
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "rectify_events",
            "missing_filters",
@@ -34,42 +35,11 @@ DSEC_SENSOR_SIZE = (480, 640)
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 # Largest |t_offset| accepted: offset plus uint32 times stays far inside int64.
 MAX_T_OFFSET_US = 1 << 60
-FILTER_HINT = "pip install hdf5plugin (DSEC compresses events with Blosc/zstd)"
-
-
-def _register_filters() -> bool:
-    try:
-        import hdf5plugin  # noqa: F401  (importing registers the Blosc/zstd filters)
-    except ImportError:
-        return False
-    return True
-
-
-def missing_filters(ds) -> list[str]:
-    """Names of the HDF5 filters a dataset needs that this process cannot load."""
-    import h5py
-
-    plist = ds.id.get_create_plist()
-    missing = []
-    for i in range(plist.get_nfilters()):
-        code, _, _, name = plist.get_filter(i)
-        if not h5py.h5z.filter_avail(code):
-            label = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
-            missing.append(f"{label or 'filter'} (id {code})")
-    return missing
-
-
-def _filter_error(path: Path, exc: Exception, ds, field: str) -> FormatError:
-    missing = missing_filters(ds)
-    if missing:
-        return FormatError(path, f"cannot decompress '{field}': HDF5 compression filter "
-                           f"{', '.join(missing)} is not available", FILTER_HINT)
-    return FormatError(path, f"cannot read '{field}' (corrupt or truncated file?): {exc}")
 
 
 def _open(path: Path):
 
-    _register_filters()
+    register_filters()
     if path.is_dir():
         path = path / "events.h5"
     f = open_h5(path)
@@ -94,7 +64,7 @@ def _read(path: Path, ds, lo: int, hi: int, field: str) -> np.ndarray:
     try:
         return ds[lo:hi]
     except OSError as exc:
-        raise _filter_error(path, exc, ds, field) from None
+        raise filter_error(path, exc, ds, field) from None
 
 
 def _t_offset(f) -> int:
@@ -220,7 +190,7 @@ def write(path: str | os.PathLike, events: EventArray, *, t_offset: int | None =
         raise ParameterError("DSEC stores integer pixels; these events are undistorted")
     kw: dict = {}
     if compression == "zstd":
-        if not _register_filters():
+        if not register_filters():
             raise FormatError(path, "cannot write Blosc/zstd", FILTER_HINT)
         import hdf5plugin
 

@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 from evmotion.events import EventArray
-from evmotion.io import _binary, _prophesee
+from evmotion.io import binary, prophesee
 from evmotion.io.base import FormatSpec
 
 __all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "FORMAT"]
@@ -58,7 +58,7 @@ def new_state() -> np.ndarray:
     return np.zeros(3, np.int64)
 
 
-def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> _binary.Block:
+def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.Block:
     """Decode EVT2 words (uint32) into ``(x, y, t, p)``; ``state`` carries across blocks.
 
     Examples
@@ -81,14 +81,14 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> _binary.
 
 
 def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
-          ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
-    return _prophesee.open_raw(path, sensor_size, block_bytes, version="2.0", word="<u4",
+          ) -> tuple[int, tuple[int, int], Iterator[binary.Block]]:
+    return prophesee.open_raw(path, sensor_size, block_bytes, version="2.0", word="<u4",
                                decode_words=decode_words, new_state=new_state)
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
-         block_bytes: int = _binary.BLOCK_BYTES) -> EventArray:
+         block_bytes: int = binary.BLOCK_BYTES) -> EventArray:
     """Read an EVT 2.0 RAW file.
 
     Parameters
@@ -108,15 +108,15 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     --------
     >>> ev = read("gen3.raw", sensor_size=(480, 640))  # doctest: +SKIP
     """
-    return _binary.read_file(path, "evt2", 4, _open, t0, t1, sensor_size=sensor_size,
+    return binary.read_file(path, "evt2", 4, _open, t0, t1, sensor_size=sensor_size,
                              validate=validate, block_bytes=block_bytes)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, validate: bool = True,
-                block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
+                block_bytes: int = binary.BLOCK_BYTES) -> Iterator[EventArray]:
     """Stream an EVT 2.0 file in EventArrays of ``chunk_events`` events."""
-    yield from _binary.iter_file(path, chunk_events, "evt2", 4, _open, sensor_size=sensor_size,
+    yield from binary.iter_file(path, chunk_events, "evt2", 4, _open, sensor_size=sensor_size,
                                  validate=validate, block_bytes=block_bytes)
 
 
@@ -159,17 +159,17 @@ def write(path: str | Path, events: EventArray) -> None:
     --------
     >>> write("out.raw", events)  # doctest: +SKIP
     """
-    _prophesee.write_raw(path, events, version="2.0", wrap_us=WRAP_US, encode=encode,
+    prophesee.write_raw(path, events, version="2.0", wrap_us=WRAP_US, encode=encode,
                          word="<u4")
 
 
 def describe(path: str | Path) -> dict:
     """Header fields, geometry and payload size of an EVT 2.0 file."""
-    return _prophesee.describe_raw(path, "evt2", 4)
+    return prophesee.describe_raw(path, "evt2", 4)
 
 
 def _sniff(path: Path, head: bytes) -> bool:
-    return _prophesee.sniff_raw(head, "2.0")
+    return prophesee.sniff_raw(head, "2.0")
 
 
 FORMAT = FormatSpec(name="evt2", extensions=(".raw",), sniff=_sniff, read=read,

@@ -19,7 +19,7 @@ import numpy as np
 
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
-from evmotion.io import _binary, _prophesee
+from evmotion.io import binary, prophesee
 from evmotion.io.base import FormatSpec
 
 __all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
@@ -118,7 +118,7 @@ def _decode(words, start, state, ox, oy, ot, op):
     return n, i
 
 
-def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> _binary.Block:
+def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.Block:
     """Decode a block of EVT3 words (uint16) into ``(x, y, t, p)`` arrays.
 
     Parameters
@@ -167,15 +167,15 @@ def new_state() -> np.ndarray:
 
 def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int,
           whole_bytes: int | None = None
-          ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
-    return _prophesee.open_raw(path, sensor_size, block_bytes, version="3.0", word="<u2",
+          ) -> tuple[int, tuple[int, int], Iterator[binary.Block]]:
+    return prophesee.open_raw(path, sensor_size, block_bytes, version="3.0", word="<u2",
                                decode_words=decode_words, new_state=new_state,
                                whole_bytes=whole_bytes)
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
-         block_bytes: int = _binary.BLOCK_BYTES) -> EventArray:
+         block_bytes: int = binary.BLOCK_BYTES) -> EventArray:
     """Read an EVT 3.0 RAW file.
 
     Parameters
@@ -204,13 +204,13 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     """
     # without a time range, a payload up to WHOLE_FILE_BYTES is decoded in one pass
     opener = partial(_open, whole_bytes=WHOLE_FILE_BYTES) if t0 is None and t1 is None else _open
-    return _binary.read_file(path, "evt3", 2, opener, t0, t1, sensor_size=sensor_size,
+    return binary.read_file(path, "evt3", 2, opener, t0, t1, sensor_size=sensor_size,
                              validate=validate, block_bytes=block_bytes)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, validate: bool = True,
-                block_bytes: int = _binary.BLOCK_BYTES) -> Iterator[EventArray]:
+                block_bytes: int = binary.BLOCK_BYTES) -> Iterator[EventArray]:
     """Stream an EVT 3.0 file as EventArrays of ``chunk_events`` events (the last may be
     shorter), reading ``block_bytes`` at a time; decoder state carries across blocks.
 
@@ -219,7 +219,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     >>> for chunk in iter_chunks("recording.raw", 100_000):  # doctest: +SKIP
     ...     print(len(chunk))
     """
-    yield from _binary.iter_file(path, chunk_events, "evt3", 2, _open, sensor_size=sensor_size,
+    yield from binary.iter_file(path, chunk_events, "evt3", 2, _open, sensor_size=sensor_size,
                                  validate=validate, block_bytes=block_bytes)
 
 
@@ -322,17 +322,17 @@ def write(path: str | Path, events: EventArray, *, header: dict | None = None) -
     --------
     >>> write("out.raw", events)  # doctest: +SKIP
     """
-    _prophesee.write_raw(path, events, version="3.0", wrap_us=WRAP_US, encode=encode,
+    prophesee.write_raw(path, events, version="3.0", wrap_us=WRAP_US, encode=encode,
                          word="<u2", header=header)
 
 
 def describe(path: str | Path) -> dict:
     """Header fields, geometry and payload size of an EVT 3.0 file."""
-    return _prophesee.describe_raw(path, "evt3", 2)
+    return prophesee.describe_raw(path, "evt3", 2)
 
 
 def _sniff(path: Path, head: bytes) -> bool:
-    return _prophesee.sniff_raw(head, "3.0")
+    return prophesee.sniff_raw(head, "3.0")
 
 
 FORMAT = FormatSpec(name="evt3", extensions=(".raw",), sniff=_sniff, read=read,

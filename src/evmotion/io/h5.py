@@ -32,6 +32,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, PartFileWriter
 from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
+from evmotion.io.h5filters import filter_error, register_filters
 
 __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
            "read_imu", "FORMAT", "FORMAT_NAME"]
@@ -43,10 +44,10 @@ HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
 def _compression() -> dict:
-    try:
-        import hdf5plugin
-    except ImportError:
+    if not register_filters():
         return {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+    import hdf5plugin
+
     return dict(hdf5plugin.Blosc(cname="lz4", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE))
 
 
@@ -233,9 +234,7 @@ def write(path: str | os.PathLike, events: EventArray | Iterable[EventArray], *,
 
 def _open(path: Path):
 
-    from evmotion.io.dsec import _register_filters
-
-    _register_filters()
+    register_filters()
     f = open_h5(path)
     if "events" not in f:
         f.close()
@@ -299,12 +298,10 @@ def _index_range(f, t0: int | None, t1: int | None) -> tuple[int, int]:
 
 
 def _col(path: Path, g, name: str, lo: int, hi: int) -> np.ndarray:
-    from evmotion.io.dsec import _filter_error
-
     try:
         return g[name][lo:hi]
     except OSError as exc:
-        raise _filter_error(path, exc, g[name], f"events/{name}") from None
+        raise filter_error(path, exc, g[name], f"events/{name}") from None
 
 
 def _make(path: Path, size, meta, x, y, t, p, validate: bool) -> EventArray:

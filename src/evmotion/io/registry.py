@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import os
 from pathlib import Path
 
 from evmotion.errors import FormatError
@@ -48,8 +49,28 @@ def get_format(name: str) -> FormatSpec:
     raise FormatError(None, f"unknown format '{name}'", f"known formats: {', '.join(names)}")
 
 
-def detect_format(path: str | Path) -> FormatSpec:
-    """The format of ``path`` (file or folder), detected by content."""
+def detect_format(path: str | os.PathLike) -> str:
+    """Name of the format of ``path`` (file or folder), detected by content.
+
+    Examples
+    --------
+    >>> detect_format("boxes_rotation/")  # doctest: +SKIP
+    'ecd'
+    """
+    return detect_spec(path).name
+
+
+def resolve_format(path: str | os.PathLike, format: str | None = None) -> FormatSpec:
+    """The :class:`FormatSpec` named ``format``, or, without a name, the one of ``path``
+    detected by content (:func:`detect_spec`)."""
+    if format is not None:
+        return get_format(format)
+    return detect_spec(path)
+
+
+def detect_spec(path: str | os.PathLike) -> FormatSpec:
+    """The :class:`FormatSpec` of ``path`` (file or folder), detected by content;
+    :func:`detect_format` gives its name."""
     path = Path(path)
     if not path.exists():
         raise FormatError(path, "no such file or folder")

@@ -17,7 +17,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, MissingDependencyError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io import _binary
+from evmotion.io import binary
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_sensor_size
 from evmotion.utils import atomic_path
@@ -67,7 +67,7 @@ def typestore():
     return store
 
 
-def _decode(raw: bytes, path: Path) -> tuple[tuple[int, int], _binary.Block]:
+def _decode(raw: bytes, path: Path) -> tuple[tuple[int, int], binary.Block]:
     """(sensor size, block) of one serialized EventArray message."""
     try:
         n_id = struct.unpack_from("<I", raw, 12)[0]
@@ -115,7 +115,7 @@ def _messages(path: Path, topic: str | None):
         reader.close()
 
 
-def _blocks(path: Path, topic: str | None, info: dict) -> Iterator[_binary.Block]:
+def _blocks(path: Path, topic: str | None, info: dict) -> Iterator[binary.Block]:
     for name, raw in _messages(path, topic):
         size, blk = _decode(raw, path)
         info.setdefault("size", size)
@@ -158,18 +158,18 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     path = Path(path)
     size = _first_size(path, topic, sensor_size)
     meta = {"source": str(path), "format": "rosbag"}
-    return _binary.collect(_blocks(path, topic, {}), size, meta, t0, t1, validate=validate)
+    return binary.collect(_blocks(path, topic, {}), size, meta, t0, t1, validate=validate)
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *, topic: str | None = None,
                 sensor_size: tuple[int, int] | None = None,
                 validate: bool = True) -> Iterator[EventArray]:
     """Stream a bag's events in chunks of ``chunk_events``, one message at a time."""
-    chunk_events = _binary.check_chunk_events(chunk_events)
+    chunk_events = binary.check_chunk_events(chunk_events)
     path = Path(path)
     size = _first_size(path, topic, sensor_size)
     meta = {"source": str(path), "format": "rosbag"}
-    yield from _binary.rechunk(_blocks(path, topic, {}), chunk_events, size, meta,
+    yield from binary.rechunk(_blocks(path, topic, {}), chunk_events, size, meta,
                                validate=validate)
 
 

@@ -10,8 +10,8 @@ import numpy as np
 
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
-from evmotion.io import _binary
-from evmotion.io._binary import geometry_from_header, read_text_header
+from evmotion.io import binary
+from evmotion.io.binary import geometry_from_header, read_text_header
 from evmotion.utils import atomic_path
 
 # Header key evmotion writes when the first timestamp does not fit the format's counter;
@@ -102,8 +102,8 @@ def header_dict(lines: list[str]) -> dict[str, str]:
 def open_raw(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int, *,
              version: str, word: str, decode_words: Callable, new_state: Callable,
              whole_bytes: int | None = None
-             ) -> tuple[int, tuple[int, int], Iterator[_binary.Block]]:
-    """:data:`_binary.OpenBlocks` of an EVT ``version`` file of ``word`` (numpy dtype)
+             ) -> tuple[int, tuple[int, int], Iterator[binary.Block]]:
+    """:data:`binary.OpenBlocks` of an EVT ``version`` file of ``word`` (numpy dtype)
     words: data offset, sensor size and the lazily decoded blocks (see :func:`raw_blocks`),
     times offset by the header's :data:`OFFSET_KEY`."""
     _, offset, size, t_offset = parse_raw_header(path, sensor_size, version)
@@ -113,7 +113,7 @@ def open_raw(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int, 
 
 def raw_blocks(path: Path, offset: int, t_offset: int, block_bytes: int, word: str,
                decode_words: Callable, state: np.ndarray, whole_bytes: int | None = None
-               ) -> Iterator[_binary.Block]:
+               ) -> Iterator[binary.Block]:
     """Decoded ``(x, y, t, p)`` blocks of the payload from ``offset`` on; ``state`` is the
     decoder state carried from block to block. A payload of at most ``whole_bytes`` is
     decoded in one pass (no per-block buffers to concatenate)."""
@@ -121,7 +121,7 @@ def raw_blocks(path: Path, offset: int, t_offset: int, block_bytes: int, word: s
         payload = iter([np.fromfile(path, np.uint8, offset=offset).view(word)])
     else:
         payload = (np.frombuffer(buf, word) for _, buf in
-                   _binary.iter_blocks(path, offset, block_bytes, np.dtype(word).itemsize))
+                   binary.iter_blocks(path, offset, block_bytes, np.dtype(word).itemsize))
     for words in payload:
         x, y, t, p = decode_words(words, state)
         if t_offset:
@@ -156,7 +156,7 @@ def write_raw(path: str | Path, events: EventArray, *, version: str, wrap_us: in
     lines.append("% end")
     words = encode(events, t_base)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        fh.write(_binary.header_bytes(lines))
+        fh.write(binary.header_bytes(lines))
         fh.write(words.astype(word).tobytes())
 
 

@@ -1,0 +1,68 @@
+"""HDF5 compression filters (Blosc/zstd, Blosc/LZ4 through :mod:`hdf5plugin`) for the HDF5
+readers and writers: registering them, and the one-line error a dataset that needs a filter
+this process cannot load gets.
+
+Examples
+--------
+>>> from evmotion.io.h5filters import register_filters
+>>> register_filters()  # True when hdf5plugin is importable
+True
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from evmotion.errors import FormatError
+
+__all__ = ["FILTER_HINT", "filter_error", "missing_filters", "register_filters"]
+
+FILTER_HINT = "pip install hdf5plugin (DSEC compresses events with Blosc/zstd)"
+
+
+def register_filters() -> bool:
+    """Make the Blosc/zstd/LZ4 filters of :mod:`hdf5plugin` available to h5py.
+
+    hdf5plugin is a dependency, but an installation without it (or with a broken one)
+    must still read uncompressed files, and name the missing filter for the others.
+
+    Returns
+    -------
+    bool
+        False when hdf5plugin cannot be imported.
+    """
+    try:
+        import hdf5plugin  # noqa: F401  (importing registers the Blosc/zstd filters)
+    except ImportError:
+        return False
+    return True
+
+
+def missing_filters(ds) -> list[str]:
+    """Names of the HDF5 filters a dataset needs that this process cannot load.
+
+    Parameters
+    ----------
+    ds : h5py.Dataset
+    """
+    import h5py
+
+    plist = ds.id.get_create_plist()
+    missing = []
+    for i in range(plist.get_nfilters()):
+        code, _, _, name = plist.get_filter(i)
+        if not h5py.h5z.filter_avail(code):
+            label = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
+            missing.append(f"{label or 'filter'} (id {code})")
+    return missing
+
+
+def filter_error(path: Path, exc: Exception, ds, field: str) -> FormatError:
+    """The error for a dataset ``field`` of ``path`` that could not be read (``exc``):
+    names the missing compression filter when that is the cause, else calls the file
+    corrupt or truncated."""
+    missing = missing_filters(ds)
+    if missing:
+        return FormatError(path, f"cannot decompress '{field}': HDF5 compression filter "
+                           f"{', '.join(missing)} is not available", FILTER_HINT)
+    return FormatError(path, f"cannot read '{field}' (corrupt or truncated file?): {exc}")

@@ -1,0 +1,215 @@
+"""Reading events: a whole file or folder (:func:`read_events`), or streamed in bounded
+memory as fixed-size chunks or time windows (:func:`iter_events`).
+
+Examples
+--------
+>>> from evmotion.io.read import iter_events, read_events
+>>> ev = read_events("boxes_rotation/", t0=0, t1=50_000)  # doctest: +SKIP
+>>> for chunk in iter_events("big.h5", window_us=10_000):  # doctest: +SKIP
+...     print(chunk.t_start, len(chunk))
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import ParameterError
+from evmotion.events import EventArray, concatenate
+from evmotion.io.base import FormatSpec
+from evmotion.io.registry import resolve_format
+
+__all__ = ["iter_events", "read_events"]
+
+
+def _accepts(fn, name: str) -> bool:
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
+    return name in params or any(p.kind == p.VAR_KEYWORD for p in params.values())
+
+
+def read_events(path: str | os.PathLike, format: str | None = None, t0: int | None = None,
+                t1: int | None = None, **kw) -> EventArray:
+    """Read the events of a file or folder.
+
+    Parameters
+    ----------
+    path : path-like
+        File or folder (ECD layout).
+    format : str, optional
+        Format name (see :func:`all_formats`); default detected by content.
+    t0, t1 : int, optional
+        Keep events with ``t0 <= t < t1`` (absolute µs).
+    **kw
+        Reader options, e.g. ``sensor_size=(height, width)`` (every reader accepts it).
+
+    Returns
+    -------
+    EventArray
+
+    Raises
+    ------
+    FormatError
+        For a corrupt, truncated or unreadable file: one line naming the file (the
+        low-level exception, if any, is chained as ``__cause__``).
+
+    Examples
+    --------
+    >>> ev = read_events("shapes_rotation.mat")  # doctest: +SKIP
+    """
+    spec = resolve_format(path, format)
+    return spec.read(Path(path), t0=t0, t1=t1, **kw)
+
+
+def _chunks(spec: FormatSpec, path: Path, chunk_events: int, t0, t1, kw) -> Iterator[EventArray]:
+    if spec.iter_chunks is None:
+        ev = spec.read(path, t0=t0, t1=t1, **kw)
+        for s in range(0, len(ev), chunk_events):
+            yield ev[s:s + chunk_events]
+        return
+    if _accepts(spec.iter_chunks, "t0"):
+        yield from spec.iter_chunks(path, chunk_events, t0=t0, t1=t1, **kw)
+        return
+    for chunk in spec.iter_chunks(path, chunk_events, **kw):
+        if t1 is not None and len(chunk) and chunk.t[0] >= t1:
+            return
+        if t0 is not None or t1 is not None:
+            if len(chunk) and ((t0 is not None and chunk.t[0] < t0)
+                               or (t1 is not None and chunk.t[-1] >= t1)):
+                chunk = chunk.slice_time(t0, t1)
+        if len(chunk):
+            yield chunk
+
+
+def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
+                window_us: int | None = None, windows=None, format: str | None = None,
+                t0: int | None = None, t1: int | None = None, drop_empty: bool = False,
+                **kw) -> Iterator[EventArray]:
+    """Stream a file in bounded memory: chunks of ``chunk_events`` events, or time windows.
+
+    Parameters
+    ----------
+    path : path-like
+        File or folder.
+    chunk_events : int
+        Events per chunk (the last may be shorter); also the read granularity for windows.
+    window_us : int, optional
+        Yield consecutive windows ``[t0 + k·window_us, t0 + (k+1)·window_us)`` (µs) instead
+        of fixed-count chunks; ``t0`` defaults to the first event's time. Memory is bounded
+        by one window plus one chunk.
+    windows : sequence of (int, int), optional
+        Explicit windows ``[a, b)`` in µs, sorted by start, possibly overlapping (e.g.
+        between ground-truth timestamps); one EventArray per window, in order. Memory is
+        bounded by the events spanned by the windows open at once plus one chunk.
+    format : str, optional
+        Format name; default detected by content.
+    t0, t1 : int, optional
+        Restrict to ``t0 <= t < t1`` (µs).
+    drop_empty : bool
+        With ``window_us``, skip windows without events (default: yield them empty, so
+        window ``k`` is always the k-th item).
+
+    Yields
+    ------
+    EventArray
+        With ``meta["window"] = (t_start, t_end)`` in µs when ``window_us`` is given.
+
+    Examples
+    --------
+    >>> n = sum(len(c) for c in iter_events("rec.raw", 500_000))  # doctest: +SKIP
+    """
+    chunk_events = int(chunk_events)
+    if chunk_events <= 0:
+        raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
+    path = Path(path)
+    spec = resolve_format(path, format)
+    if window_us is not None and windows is not None:
+        raise ParameterError("give window_us or windows, not both")
+    if windows is not None:
+        edges = np.asarray(windows, dtype=np.int64).reshape(-1, 2)
+        if edges.size and (np.any(np.diff(edges[:, 0]) < 0) or np.any(edges[:, 1] < edges[:, 0])):
+            raise ParameterError("windows must be (start, end) µs pairs sorted by start, "
+                                 "with end >= start")
+        if not edges.size:
+            return
+        lo = int(edges[0, 0]) if t0 is None else max(int(t0), int(edges[0, 0]))
+        hi = int(edges[:, 1].max()) if t1 is None else min(int(t1), int(edges[:, 1].max()))
+        yield from _explicit_windows(_chunks(spec, path, chunk_events, lo, hi, kw), edges)
+        return
+    chunks = _chunks(spec, path, chunk_events, t0, t1, kw)
+    if window_us is None:
+        yield from chunks
+        return
+    window_us = int(window_us)
+    if window_us <= 0:
+        raise ParameterError(f"window_us must be positive, got {window_us}")
+    yield from _windows(chunks, window_us, t0, drop_empty)
+
+
+def _windows(chunks: Iterable[EventArray], window_us: int, t0: int | None,
+             drop_empty: bool) -> Iterator[EventArray]:
+    pending: list[EventArray] = []
+    start = t0
+    template: EventArray | None = None
+
+    def emit(parts: list[EventArray], a: int) -> EventArray:
+        ev = concatenate(parts) if len(parts) > 1 else (parts[0] if parts else template[:0])
+        ev.meta = {**template.meta, "window": (a, a + window_us)}
+        return ev
+
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        template = chunk
+        if start is None:
+            start = int(chunk.t[0])
+        while True:
+            end = start + window_us
+            if chunk.t[-1] < end:
+                pending.append(chunk)
+                break
+            cut = int(np.searchsorted(chunk.t, end, side="left"))
+            head, chunk = chunk[:cut], chunk[cut:]
+            if len(head):
+                pending.append(head)
+            if pending or not drop_empty:
+                yield emit(pending, start)
+            pending = []
+            start = end
+    if pending:
+        yield emit(pending, start)
+
+
+def _explicit_windows(chunks: Iterable[EventArray], edges: np.ndarray
+                      ) -> Iterator[EventArray]:
+    buf: EventArray | None = None
+    k = 0
+    template: EventArray | None = None
+
+    def emit(i: int) -> EventArray:
+        a, b = int(edges[i, 0]), int(edges[i, 1])
+        ev = buf.slice_time(a, b) if buf is not None else template[:0]
+        ev.meta = {**template.meta, "window": (a, b)}
+        return ev
+
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        template = chunk
+        buf = chunk if buf is None else concatenate([buf, chunk])
+        t_seen = int(chunk.t[-1])
+        # A window is complete once an event at or after its end has been read.
+        while k < len(edges) and edges[k, 1] <= t_seen:
+            yield emit(k)
+            k += 1
+        keep_from = int(edges[k, 0]) if k < len(edges) else t_seen + 1
+        buf = buf.slice_time(keep_from, None)
+    while template is not None and k < len(edges):
+        yield emit(k)
+        k += 1

@@ -1,0 +1,131 @@
+"""Summary of a recording (:func:`describe`): what ``evmotion info`` prints. Events are
+counted by streaming; flow files and folders of frames are summarised too.
+
+Examples
+--------
+>>> from evmotion.io.summary import describe
+>>> describe("boxes_rotation/")["n_events"]  # doctest: +SKIP
+30000
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError
+from evmotion.io.guard import guard_call
+from evmotion.io.read import iter_events
+from evmotion.io.registry import resolve_format
+
+__all__ = ["describe"]
+
+
+def describe(path: str | os.PathLike, format: str | None = None, *,
+             chunk_events: int = 1_000_000, stream: bool = True, **kw) -> dict:
+    """Summary of a recording, computed by streaming (bounded memory).
+
+    Returns
+    -------
+    dict
+        ``format``, ``sensor_size`` (height, width), ``n_events``, ``t_first_us``,
+        ``t_last_us``, ``duration_s``, ``rate_ev_per_s``, ``positive_fraction``
+        (polarity balance), ``x_range``, ``y_range`` and what else the file holds
+        (``frames``, ``imu``, ``ground_truth``, ``calibration``...) from the format's
+        own ``describe``, and ``frames_info`` (count, size, bit depth, time span, fps) for
+        co-captured frames (:func:`evmotion.io.frames.describe_frames`); a folder of frames
+        without events gives format ``frames``. With ``stream=False`` only the format's
+        header summary.
+
+    Examples
+    --------
+    >>> describe("boxes_rotation/")["n_events"]  # doctest: +SKIP
+    30000
+    """
+    from evmotion.io.frames import VIDEO_SUFFIXES, describe_frames
+
+    path = Path(path)
+    try:
+        spec = resolve_format(path, format)
+    except FormatError:
+        flow = guard_call(_describe_flow, "flow", "describe")(path) if format is None else None
+        if flow is None:
+            frames = describe_frames(path) if format is None and (
+                path.is_dir() or path.suffix.lower() in VIDEO_SUFFIXES) else None
+            if frames is None:
+                raise
+            return {"path": str(path), "format": "frames", "frames_info": frames}
+        return flow
+    out: dict = {"path": str(path), "format": spec.name}
+    if spec.describe is not None:
+        extra = spec.describe(path)
+        out.update({k: v for k, v in extra.items() if k != "format"})
+    try:
+        frames = describe_frames(path)
+    except FormatError as exc:
+        frames = {"error": str(exc)}
+    if frames is not None:
+        out["frames_info"] = frames
+    if not stream:
+        return out
+    n = 0
+    n_pos = 0
+    t_first = t_last = None
+    xmin = ymin = np.inf
+    xmax = ymax = -np.inf
+    size = None
+    for chunk in iter_events(path, chunk_events, format=spec.name, **kw):
+        if not len(chunk):
+            continue
+        size = chunk.sensor_size
+        n += len(chunk)
+        n_pos += int(np.count_nonzero(chunk.p))
+        if t_first is None:
+            t_first = int(chunk.t[0])
+        t_last = int(chunk.t[-1])
+        xmin, xmax = min(xmin, float(chunk.x.min())), max(xmax, float(chunk.x.max()))
+        ymin, ymax = min(ymin, float(chunk.y.min())), max(ymax, float(chunk.y.max()))
+    if size is not None:
+        out["sensor_size"] = tuple(size)
+    out["n_events"] = n
+    if n:
+        dur = (t_last - t_first) * 1e-6
+        out.update(t_first_us=t_first, t_last_us=t_last, duration_s=dur,
+                   rate_ev_per_s=(n / dur) if dur > 0 else None,
+                   positive_fraction=n_pos / n, x_range=[xmin, xmax], y_range=[ymin, ymax])
+    return out
+
+
+def _describe_flow(path: Path) -> dict | None:
+    """Summary of an optical-flow HDF5 file (not events), or None if it is not one."""
+    from evmotion.io.flowfiles import FLOW_FORMAT, SIM_GT_FORMAT
+
+    if not path.is_file():
+        return None
+    with open(path, "rb") as fh:
+        if not fh.read(8).startswith(b"\x89HDF\r\n\x1a\n"):
+            return None
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        return None
+    with f:
+        fmt = f.attrs.get("format")
+        if fmt == FLOW_FORMAT and "t1" in f:
+            t0, t1 = f["t0"][: f["t1"].shape[0]], f["t1"][:]
+        elif fmt == SIM_GT_FORMAT and "frame_times_us" in f:
+            ft = f["frame_times_us"][:]
+            t0, t1 = ft[:-1], ft[1:]
+        else:
+            return None
+        out = {"path": str(path), "format": str(fmt), "sensor_size": tuple(
+            int(v) for v in f["flow"].shape[1:3]), "windows": int(len(t1)),
+            "units": "px/s", "valid_masks": "valid" in f or "event_masks" in f}
+        if len(t1):
+            out.update(t_first_us=int(t0[0]), t_last_us=int(t1[-1]),
+                       duration_s=(int(t1[-1]) - int(t0[0])) * 1e-6)
+        return out

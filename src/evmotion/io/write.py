@@ -1,0 +1,102 @@
+"""Writing events: the output format from a file name (:func:`format_for_output`) and the
+atomic writer of any writable format (:func:`write_events`).
+
+Examples
+--------
+>>> from evmotion.io.write import format_for_output
+>>> format_for_output("out.aedat4")
+'aedat4'
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+import warnings
+from collections.abc import Iterable
+from pathlib import Path
+
+from evmotion.errors import FormatError
+from evmotion.events import EventArray, concatenate
+from evmotion.io.registry import all_formats, get_format
+
+__all__ = ["format_for_output", "write_events"]
+
+
+# Extensions shared by several formats (jAER also used .dat) get their usual meaning.
+_EXT_WRITERS = {".h5": "h5", ".hdf5": "h5", ".txt": "ecd", ".npy": "npy", ".npz": "npy",
+                ".dat": "dat", ".raw": "evt3", ".aedat4": "aedat4", ".aedat": "aedat2"}
+
+
+def format_for_output(path: str | os.PathLike) -> str:
+    """Format name chosen for writing ``path`` from its extension.
+
+    Examples
+    --------
+    >>> format_for_output("out.h5")
+    'h5'
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    formats = all_formats()
+    known = {f.name for f in formats if f.write is not None}
+    if _EXT_WRITERS.get(suffix) in known:
+        return _EXT_WRITERS[suffix]
+    for spec in formats:
+        if spec.write is not None and suffix in spec.extensions:
+            return spec.name
+    writable = sorted({s for f in all_formats() if f.write for s in f.extensions})
+    raise FormatError(path, f"cannot tell the output format from the extension '{suffix}'",
+                      f"use one of {', '.join(writable)} or give format=")
+
+
+_STREAMING_WRITERS = ("h5", "ecd")
+
+
+def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArray],
+                 format: str | None = None, **meta) -> None:
+    """Write events atomically (nothing appears at ``path`` until the file is complete).
+
+    Parameters
+    ----------
+    path : path-like
+        Output file; the format follows the extension (``.h5`` evmotion HDF5, ``.txt``
+        ECD text, ``.npz``/``.npy``, ``.raw``, ``.dat``, ``.aedat4``...).
+    events : EventArray or iterable of EventArray
+        Chunks in time order are streamed in bounded memory by the ``h5`` and ``ecd``
+        writers (others concatenate them first).
+    format : str, optional
+        Format name, overriding the extension.
+    **meta
+        Writer options (e.g. ``calibration={...}`` for ``h5``); any other keyword is
+        metadata, stored in the ``h5`` provenance attribute (other formats cannot store
+        it and warn).
+
+    Examples
+    --------
+    >>> write_events("out.h5", ev, provenance={"tool": "evmotion convert"})  # doctest: +SKIP
+    """
+    name = format or format_for_output(path)
+    spec = get_format(name)
+    if spec.write is None:
+        raise FormatError(path, f"format '{name}' is read-only",
+                          "write .h5, .txt, .npz or another writable format")
+    if not isinstance(events, EventArray) and name not in _STREAMING_WRITERS:
+        events = concatenate(list(events))
+    opts, extra = {}, {}
+    for k, v in meta.items():
+        (opts if _accepts_named(spec.write, k) else extra)[k] = v
+    if extra:
+        if _accepts_named(spec.write, "provenance"):
+            opts["provenance"] = {**(opts.get("provenance") or {}), **extra}
+        else:
+            warnings.warn(f"format '{name}' cannot store metadata {sorted(extra)}; "
+                          "write .h5 to keep it", stacklevel=2)
+    spec.write(Path(path), events, **opts)
+
+
+def _accepts_named(fn, name: str) -> bool:
+    try:
+        return name in inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
