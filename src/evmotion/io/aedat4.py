@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, MissingDependencyError, ParameterError
+from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
@@ -206,10 +206,8 @@ def _decompressor(compression: int):
 
         return lz4_packet
     if compression in (3, 4):
-        try:
-            import zstandard
-        except ModuleNotFoundError:
-            raise MissingDependencyError("zstandard", "reading ZSTD-compressed AEDAT4") from None
+        import zstandard
+
         dctx = zstandard.ZstdDecompressor()
         return lambda b: dctx.decompress(b, max_output_size=_packet_limit(len(b)))
     return bytes

@@ -22,6 +22,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_sensor_size
+from evmotion.io.pngfile import read_png
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_calibration", "parse_text",
@@ -479,19 +480,12 @@ def read_image_list(path: str | Path) -> dict:
 def read_frames(path: str | Path) -> dict:
     """APS frames of an ECD folder (``images.txt`` + PNGs): ``t`` (N,) µs and ``images``
     (N, H, W) uint8 (colour PNGs are converted to grey by their mean)."""
-    import png
-
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     lst = read_image_list(folder)
     images = []
     for name in lst["files"]:
-        f = folder / name
-        try:
-            w, h, rows, info = png.Reader(filename=str(f)).asDirect()
-            img = np.vstack([np.asarray(r) for r in rows]).reshape(h, w, -1)
-        except (png.Error, OSError) as exc:
-            raise FormatError(f, f"cannot read frame listed in images.txt: {exc}") from None
+        img, info = read_png(folder / name, what="cannot read frame listed in images.txt")
         if info.get("bitdepth", 8) > 8:
             img = img >> (info["bitdepth"] - 8)
         planes = img.shape[2]

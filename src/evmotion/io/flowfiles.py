@@ -29,6 +29,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.guard import open_h5
+from evmotion.io.pngfile import read_png, write_png
 from evmotion.utils import atomic_path
 
 __all__ = [
@@ -181,8 +182,6 @@ def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
     --------
     >>> write_dsec_flow_png("000000.png", np.zeros((4, 5, 2)))  # doctest: +SKIP
     """
-    import png
-
     d = _check_flow(displacement, "displacement")
     h, w = d.shape[:2]
     if valid is None:
@@ -194,10 +193,7 @@ def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
     dd = np.nan_to_num(d, nan=0.0)
     enc[..., :2] = np.clip(np.rint(dd * 128.0 + 2.0**15), 0, 65535).astype(np.uint16)
     enc[..., 2] = valid
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:
-            png.Writer(width=w, height=h, bitdepth=16, greyscale=False).write(
-                fh, enc.reshape(h, w * 3))
+    write_png(path, enc)
 
 
 def read_dsec_flow_png(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
@@ -214,19 +210,12 @@ def read_dsec_flow_png(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]
     --------
     >>> disp, valid = read_dsec_flow_png("flow/forward/000002.png")  # doctest: +SKIP
     """
-    import png
-
     path = Path(path)
-    try:
-        w, h, rows, info = png.Reader(filename=str(path)).read()
-        img = np.vstack([np.asarray(r, dtype=np.uint16) for r in rows])
-    except (png.Error, OSError, ValueError) as exc:
-        raise FormatError(path, f"cannot decode DSEC flow PNG: {exc}") from None
+    img, info = read_png(path, direct=False, what="cannot decode DSEC flow PNG")
     planes = info.get("planes", 1)
     if info.get("bitdepth") != 16 or planes < 3:
         raise FormatError(path, f"DSEC flow PNG must be 16-bit RGB, got bitdepth "
                           f"{info.get('bitdepth')} with {planes} channel(s)")
-    img = img.reshape(h, w, planes)
     valid = img[..., 2] > 0
     disp = (img[..., :2].astype(np.float32) - np.float32(2**15)) / np.float32(128.0)
     disp[~valid] = np.nan

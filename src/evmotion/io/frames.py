@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError, MissingDependencyError, ParameterError
+from evmotion.io.pngfile import png_header, read_png
 
 __all__ = ["Frames", "describe_frames", "find_frames", "read_frames", "read_image"]
 
@@ -117,13 +118,7 @@ class Frames:
 
 
 def _read_png(path: Path) -> tuple[np.ndarray, int]:
-    import png
-
-    try:
-        w, h, rows, info = png.Reader(filename=str(path)).asDirect()
-        img = np.vstack([np.asarray(r) for r in rows]).reshape(h, w, -1)
-    except (png.Error, OSError, ValueError, EOFError) as exc:
-        raise FormatError(path, f"cannot read PNG: {exc}") from None
+    img, info = read_png(path)
     depth = int(info.get("bitdepth", 8))
     planes = img.shape[2]
     if info.get("alpha"):
@@ -493,13 +488,8 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
 def _header(path: Path) -> tuple[tuple[int, int], int]:
     """``(height, width)`` and bit depth of an image from its header (PNG) or pixels."""
     if path.suffix.lower() == ".png":
-        import png
-
-        try:
-            w, h, _, info = png.Reader(filename=str(path)).read()
-        except (png.Error, OSError, ValueError, EOFError) as exc:
-            raise FormatError(path, f"cannot read PNG: {exc}") from None
-        return (int(h), int(w)), 16 if info.get("bitdepth", 8) > 8 else 8
+        size, depth = png_header(path)
+        return size, 16 if depth > 8 else 8
     img, bits = read_image(path)
     return img.shape[:2], bits
 

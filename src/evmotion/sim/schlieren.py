@@ -55,6 +55,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.frames import Frames
 from evmotion.io.guard import open_h5
+from evmotion.io.pngfile import write_png
 from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
@@ -749,16 +750,6 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
 # files
 
 
-def _write_png(path: Path, img: np.ndarray) -> None:
-    import png
-
-    from evmotion.utils import atomic_path
-
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        png.Writer(width=img.shape[1], height=img.shape[0], greyscale=True,
-                   bitdepth=16 if img.dtype == np.uint16 else 8).write(fh, img)
-
-
 def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
     """Write a simulated recording as an ECD-style folder.
 
@@ -786,7 +777,7 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
     lines = []
     for i, (t, img) in enumerate(zip(sim.frames.t, sim.frames.images, strict=True)):
         name = f"images/frame_{i:08d}.png"
-        _write_png(out / name, img)
+        write_png(out / name, img)
         lines.append(f"{t * 1e-6:.6f} {name}\n")
     atomic_write_text(out / "images.txt", "".join(lines))
     return _write_gt(out / "schlieren_gt.h5", sim.gt)

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, MissingDependencyError, ParameterError
+from evmotion.errors import FormatError, ParameterError
+from evmotion.io.pngfile import read_png
 
 __all__ = ["TEXTURES", "Texture", "make_texture", "texture_from_image"]
 
@@ -159,19 +160,8 @@ def _load_image(path: str | Path) -> np.ndarray:
     if suffix == ".npy":
         return np.load(path)
     if suffix == ".png":
-        try:
-            import png
-        except ImportError:
-            raise MissingDependencyError("pypng", "reading PNG textures") from None
-        try:
-            r = png.Reader(filename=str(path))
-            w, h, rows, info = r.asDirect()
-            arr = np.vstack([np.asarray(row, dtype=np.float64) for row in rows])
-        except Exception as exc:  # pypng raises many types for corrupt files
-            raise FormatError(path, f"cannot decode PNG: {exc}") from None
-        planes = info["planes"]
-        arr = arr.reshape(h, w, planes) / (2 ** info["bitdepth"] - 1)
-        return arr
+        arr, info = read_png(path, what="cannot decode PNG")
+        return arr.astype(np.float64) / (2 ** info["bitdepth"] - 1)
     try:
         import matplotlib.image as mpimg
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
+from evmotion.io import pngfile
 from evmotion.utils import atomic_path
 from evmotion.viz.flowpic import FlowPicture, flow_panel, flow_picture
 
@@ -138,28 +139,16 @@ def save_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
     --------
     >>> save_png("iwe.png", iwe_to_rgb(np.eye(4)))  # doctest: +SKIP
     """
-    import png
-
-    img = _as_image(rgb, "image")
-    h, w = img.shape[:2]
-    planes = 1 if img.ndim == 2 else img.shape[-1]
-    writer = png.Writer(width=w, height=h, greyscale=planes == 1, alpha=planes == 4,
-                        bitdepth=8, compression=6)
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        writer.write(fh, img.reshape(h, w * planes))
+    pngfile.write_png(path, _as_image(rgb, "image"), compression=6)
 
 
 def read_png(path: str | os.PathLike) -> np.ndarray:
     """Read an 8-bit PNG into uint8 (H, W) or (H, W, C) (used to check outputs)."""
-    import png
-
-    w, h, rows, info = png.Reader(filename=os.fspath(path)).asDirect()
-    planes = info["planes"]
-    arr = np.vstack([np.asarray(r, dtype=np.uint16) for r in rows])
+    arr, info = pngfile.read_png(path)
     if info["bitdepth"] > 8:
         arr = arr >> (info["bitdepth"] - 8)
-    arr = arr.astype(np.uint8).reshape(h, w, planes)
-    return arr[..., 0] if planes == 1 else arr
+    arr = arr.astype(np.uint8)
+    return arr[..., 0] if info["planes"] == 1 else arr
 
 
 def _figure(figsize: tuple[float, float], dpi: int):
