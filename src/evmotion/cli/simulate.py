@@ -41,8 +41,7 @@ EXAMPLES = """examples:
 
 
 def add_parser(sub) -> None:
-    from evmotion.sim.scenes import SCENES
-    from evmotion.sim.schlieren import BOS_SCENES
+    from evmotion.sim.scenes import BOS_SCENES, SCENES
 
     lines = "\n".join(f"  {n:<12} {s.description}" for n, s in SCENES.items())
     lines += "\n  schlieren    background-oriented schlieren, --scene one of:\n" + "\n".join(

@@ -35,20 +35,37 @@ the two-layer ``object`` scene; 17-27x the plain-numpy reference of the kernel.
 [0.5, -0.7, 1.2]
 """
 
-from evmotion.sim.groundtruth import GroundTruth, Layer
-from evmotion.sim.gtio import gt_path_for, read_ground_truth, sim_calibration, write_ground_truth
-from evmotion.sim.motions import Motion, make_motion
-from evmotion.sim.scenes import SCENES, default_K
-from evmotion.sim.schlieren import (
-    BOS_SCENES,
-    SchlierenGT,
-    SchlierenSim,
-    read_schlieren_gt,
-    simulate_schlieren,
-    write_schlieren,
-)
-from evmotion.sim.simulator import LogSimResult, SimResult, simulate, simulate_log_function
-from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
+import importlib
+
+# Names are imported from their module on first use (PEP 562), so that importing a light
+# module such as evmotion.sim.scenes (the CLI's parser does, for its choices) does not
+# import the simulator, the warps and numba.
+_HOME = {
+    "BOS_SCENES": "scenes",
+    "SCENES": "scenes",
+    "default_K": "scenes",
+    "TEXTURES": "textures",
+    "Texture": "textures",
+    "make_texture": "textures",
+    "texture_from_image": "textures",
+    "GroundTruth": "groundtruth",
+    "Layer": "groundtruth",
+    "Motion": "motions",
+    "make_motion": "motions",
+    "gt_path_for": "gtio",
+    "read_ground_truth": "gtio",
+    "sim_calibration": "gtio",
+    "write_ground_truth": "gtio",
+    "SchlierenGT": "schlieren",
+    "SchlierenSim": "schlieren",
+    "read_schlieren_gt": "schlieren",
+    "simulate_schlieren": "schlieren",
+    "write_schlieren": "schlieren",
+    "LogSimResult": "simulator",
+    "SimResult": "simulator",
+    "simulate": "simulator",
+    "simulate_log_function": "simulator",
+}
 
 __all__ = [
     "BOS_SCENES",
@@ -76,3 +93,15 @@ __all__ = [
     "write_ground_truth",
     "write_schlieren",
 ]
+
+
+def __getattr__(name: str):
+    if name in _HOME:
+        value = getattr(importlib.import_module(f"evmotion.sim.{_HOME[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'evmotion.sim' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

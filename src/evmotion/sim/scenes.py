@@ -33,7 +33,16 @@ import numpy as np
 
 from evmotion.errors import ParameterError
 
-__all__ = ["SCENES", "SceneSpec", "default_K"]
+__all__ = ["BOS_SCENES", "SCENES", "SceneSpec", "default_K"]
+
+# The background-oriented schlieren scenes of :func:`evmotion.sim.schlieren.simulate_schlieren`
+# and what each shows.
+BOS_SCENES = {
+    "plume": "rising thermal plume from a hot plate at the bottom (natural convection)",
+    "jet": "turbulent hot-air jet from a hair dryer at the left (forced convection)",
+    "breath": "pulsed breath from a mouth at the left: eddies decelerating and spreading",
+    "ice": "cold air stream falling from crushed ice at the top (negative density)",
+}
 
 
 @dataclass(frozen=True)

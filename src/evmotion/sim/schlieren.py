@@ -56,18 +56,13 @@ from evmotion.events import EventArray
 from evmotion.io.frames import Frames
 from evmotion.io.guard import open_h5
 from evmotion.io.pngfile import write_png
+from evmotion.sim.scenes import BOS_SCENES
 from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
            "make_background", "make_field", "read_schlieren_gt", "simulate_schlieren",
            "write_schlieren"]
 
-BOS_SCENES = {
-    "plume": "rising thermal plume from a hot plate at the bottom (natural convection)",
-    "jet": "turbulent hot-air jet from a hair dryer at the left (forced convection)",
-    "breath": "pulsed breath from a mouth at the left: eddies decelerating and spreading",
-    "ice": "cold air stream falling from crushed ice at the top (negative density)",
-}
 GT_FORMAT = "evmotion-schlieren-gt"
 BLOB_CUTOFF = 4.0  # puffs are evaluated within this many widths (exp(-8) beyond)
 DOT_CUTOFF = 5.0  # dots within this many widths (a darkness of 2 exp(-12.5) beyond)
