@@ -29,7 +29,8 @@ from evmotion.sim.scenes import SCENES, default_K, resolve_params
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
 from evmotion.utils import progress
 
-__all__ = ["LogSimResult", "SimResult", "parse_sensor_size", "simulate", "simulate_log_function"]
+__all__ = ["EventModel", "LogSimResult", "SimResult", "parse_sensor_size", "simulate",
+           "simulate_log_function"]
 
 MAX_STEP_US = 5000  # sample at least every 5 ms (the 1 px bound usually binds first)
 STEP_SHIFT_PX = 1.0  # global steps move no texture point by more than ~1 px
@@ -263,6 +264,80 @@ def _add_noise(x, y, tt, pp, rng, sensor_size, duration_us, noise_rate, hot_pixe
     return x[order], y[order], tt[order], pp[order], nx.size
 
 
+@dataclass(frozen=True)
+class EventModel:
+    """The sensor's event model (checked values): what :func:`simulate` and
+    :func:`simulate_log_function` share besides the scene.
+
+    Attributes
+    ----------
+    threshold : float
+        Nominal contrast threshold C (log intensity).
+    mismatch : float
+        Relative standard deviation of the per-pixel thresholds.
+    refractory_us : int
+        Refractory period, µs.
+    noise_rate : float
+        Background-activity noise, events per second per pixel.
+    hot_rate : float
+        Rate of each hot pixel, events/s.
+    hot_pixels : int
+        Number of hot pixels.
+    """
+
+    threshold: float
+    mismatch: float
+    refractory_us: int
+    noise_rate: float
+    hot_rate: float
+    hot_pixels: int
+
+    @classmethod
+    def checked(cls, n_pixels: int, threshold, mismatch, refractory_us, noise_rate, hot_rate,
+                hot_pixels) -> EventModel:
+        """The model of these values, each checked (one-line :class:`ParameterError`)."""
+        return cls(*_check_event_model(threshold, mismatch, refractory_us, noise_rate,
+                                       hot_rate, hot_pixels, n_pixels))
+
+
+@dataclass(frozen=True)
+class _Run:
+    """The checked options of one :func:`simulate` call."""
+
+    scene: str
+    duration_us: int
+    sensor_size: tuple[int, int]
+    model: EventModel
+    frame_rate: float
+    target: float  # largest log-intensity change between samples of a pixel
+    K: np.ndarray
+    backend: str
+    show_progress: bool
+
+
+def _checked_run(scene, duration_s, sensor_size, threshold, mismatch, refractory_us,
+                 noise_rate, hot_pixels, hot_rate, frame_rate, max_step_fraction, K,
+                 show_progress, backend) -> _Run:
+    if scene not in SCENES:
+        raise ParameterError(f"unknown scene '{scene}'; choose one of {sorted(SCENES)}")
+    duration_us = int(round(_check("duration_s", duration_s, strict=True) * 1e6))
+    if duration_us < 1:
+        raise ParameterError(f"duration_s must be at least 1 µs, got {duration_s!r}")
+    h, w = parse_sensor_size(sensor_size, 2)
+    model = EventModel.checked(h * w, threshold, mismatch, refractory_us, noise_rate,
+                               hot_rate, hot_pixels)
+    frame_rate = _check("frame_rate", frame_rate, strict=True)
+    frac = _check("max_step_fraction", max_step_fraction, strict=True)
+    if backend not in ("numba", "numpy"):
+        raise ParameterError(f"backend must be 'numba' or 'numpy', got {backend!r}")
+    K = default_K((h, w)) if K is None else np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise CalibrationError(f"K must be a finite 3x3 pinhole matrix with positive focal "
+                               f"lengths (pixels), got {np.asarray(K).tolist()!r}")
+    return _Run(scene, duration_us, (h, w), model, frame_rate, frac * model.threshold, K,
+                backend, bool(show_progress))
+
+
 def simulate(scene: str = "rotation", duration_s: float = 0.1,
              sensor_size: tuple[int, int] = (260, 346), seed: int = 0,
              texture: str | np.ndarray | Texture = "dots", threshold: float = 0.2,
@@ -329,100 +404,88 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
     >>> res.events.sensor_size, res.gt.params(0)["hz"]
     ((60, 80), 1.5)
     """
-    if scene not in SCENES:
-        raise ParameterError(f"unknown scene '{scene}'; choose one of {sorted(SCENES)}")
-    duration_us = int(round(_check("duration_s", duration_s, strict=True) * 1e6))
-    if duration_us < 1:
-        raise ParameterError(f"duration_s must be at least 1 µs, got {duration_s!r}")
-    h, w = parse_sensor_size(sensor_size, 2)
-    sensor_size = (h, w)
-    C, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels = _check_event_model(
-        threshold, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels, h * w)
-    frame_rate = _check("frame_rate", frame_rate, strict=True)
-    frac = _check("max_step_fraction", max_step_fraction, strict=True)
-    if backend not in ("numba", "numpy"):
-        raise ParameterError(f"backend must be 'numba' or 'numpy', got {backend!r}")
-    K = default_K(sensor_size) if K is None else np.asarray(K, dtype=np.float64)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise CalibrationError(f"K must be a finite 3x3 pinhole matrix with positive focal "
-                               f"lengths (pixels), got {np.asarray(K).tolist()!r}")
-
-    p = resolve_params(scene, params, sensor_size)
-    layers, texs = build_layers(scene, p, sensor_size, K, texture, image, seed)
-    _check_motion(scene, p, layers, duration_us * 1e-6)
+    run = _checked_run(scene, duration_s, sensor_size, threshold, mismatch, refractory_us,
+                       noise_rate, hot_pixels, hot_rate, frame_rate, max_step_fraction, K,
+                       show_progress, backend)
+    p = resolve_params(scene, params, run.sensor_size)
+    layers, texs = build_layers(scene, p, run.sensor_size, run.K, texture, image, seed)
+    _check_motion(scene, p, layers, run.duration_us * 1e-6)
     ss = np.random.SeedSequence(seed).spawn(4)
-    rng_thr = np.random.default_rng(ss[2])
-    rng_noise = np.random.default_rng(ss[3])
-    cp, cn = _thresholds(rng_thr, C, mismatch, (h, w))
+    cp, cn = _thresholds(np.random.default_rng(ss[2]), run.model.threshold, run.model.mismatch,
+                         run.sensor_size)
+    x, y, tt, pp, n_samples, n_sub = _signal_events(run, layers, texs, cp, cn)
+    events, n_signal, n_noise = _with_noise(x, y, tt, pp, np.random.default_rng(ss[3]),
+                                            run.sensor_size, run.duration_us, run.model,
+                                            {"simulator": "evmotion.sim", "scene": scene})
+    gt = _ground_truth(run, layers, events)
+    stats = {"n_events": len(events), "n_signal": int(n_signal), "n_noise": int(n_noise),
+             "n_steps": n_samples, "n_subsamples": n_sub, "threshold": run.model.threshold,
+             "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean()),
+             "texture": texs[0].name}
+    return SimResult(events, gt, scene, p, stats, (cp, cn))
 
-    tex_stack = np.stack([pad_periodic(t.log_i) for t in texs])
-    alpha_stack = np.stack([pad_periodic(t.alpha if t.alpha is not None
-                                         else np.ones(t.shape, np.float32)) for t in texs])
-    origins = np.array([t.origin for t in texs], dtype=np.float64)
-    mats_cache: dict = {}
 
-    def mats(t0_us, t1_us):
+class _Stepper:
+    """The geometry of the adaptive steps of :func:`simulate`: layer matrices on a step's
+    sub-sample grid, how far the texture moves over a step, and the pixel boxes of the
+    upper layers."""
+
+    def __init__(self, layers, texs, sensor_size, duration_us: int):
+        self.layers, self.texs, self.duration_us = layers, texs, duration_us
+        h, w = sensor_size
+        self.mats_cache: dict = {}
+        # points whose texture motion bounds the step: a grid over the sensor for opaque
+        # layers, a sample of the opaque support (reference coordinates) for the others
+        gy, gx = np.meshgrid(np.linspace(0, h - 1, 9), np.linspace(0, w - 1, 9), indexing="ij")
+        self.grid = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])
+        self.supports, self.corners = [], []
+        for tex in texs:
+            support, corners = _support(tex)
+            self.supports.append(support)
+            self.corners.append(corners)
+        self.boxes = full_boxes(len(texs), sensor_size)
+        self.sensor_corners = np.array([[0.0, w - 1, w - 1, 0], [0, 0, h - 1, h - 1],
+                                        [1, 1, 1, 1]])
+        self.w, self.h = w, h
+
+    def mats(self, t0_us: int, t1_us: int) -> np.ndarray:
         """Layer matrices at the step's sub-sample grid. Once the step length settles
         (constant speeds), the next steps repeat it: their grids are evaluated in the same
         call, as the warp's per-call cost exceeds its per-time cost."""
-        hit = mats_cache.pop((t0_us, t1_us), None)
+        hit = self.mats_cache.pop((t0_us, t1_us), None)
         if hit is not None:
             return hit
-        mats_cache.clear()
+        self.mats_cache.clear()
         span = t1_us - t0_us
         starts = [s for s in range(t0_us, t0_us + PREFETCH_STEPS * span, span)
-                  if s + span <= duration_us] if span > 0 else []
+                  if s + span <= self.duration_us] if span > 0 else []
         if not starts:
             starts = [t0_us]
         ts = np.concatenate([step_grid(s, s + span) for s in starts]) * 1e-6
-        m = np.stack([layer.motion.matrices(ts).reshape(-1, 9) for layer in layers], axis=1)
-        m = m.reshape(len(starts), MAX_SUBSAMPLES + 1, len(layers), 9)
+        m = np.stack([layer.motion.matrices(ts).reshape(-1, 9) for layer in self.layers],
+                     axis=1)
+        m = m.reshape(len(starts), MAX_SUBSAMPLES + 1, len(self.layers), 9)
         for i, s in enumerate(starts[1:], 1):
-            mats_cache[(s, s + span)] = np.ascontiguousarray(m[i])
+            self.mats_cache[(s, s + span)] = np.ascontiguousarray(m[i])
         return np.ascontiguousarray(m[0])
 
-    # points whose texture motion bounds the step: a grid over the sensor for opaque
-    # layers, a sample of the opaque support (reference coordinates) for the others
-    gy, gx = np.meshgrid(np.linspace(0, h - 1, 9), np.linspace(0, w - 1, 9), indexing="ij")
-    grid = np.stack([gx.ravel(), gy.ravel(), np.ones(gx.size)])
-    supports, corners = [], []
-    for tex in texs:
-        if tex.alpha is None:
-            supports.append(None)
-            corners.append(None)
-            continue
-        iy, ix = np.nonzero(tex.alpha > 0)
-        sub = slice(None, None, max(1, iy.size // 200))
-        supports.append(np.stack([ix[sub] + tex.origin[0], iy[sub] + tex.origin[1],
-                                  np.ones(iy[sub].size)]))
-        if iy.size == 0:  # never visible: no box needed, the kernel skips zero alpha
-            corners.append(None)
-            continue
-        # one cell of margin: a bilinear sample is nonzero next to a nonzero cell
-        x0, x1 = ix.min() + tex.origin[0] - 1, ix.max() + tex.origin[0] + 1
-        y0, y1 = iy.min() + tex.origin[1] - 1, iy.max() + tex.origin[1] + 1
-        corners.append(np.array([[x0, x1, x1, x0], [y0, y0, y1, y1], [1.0, 1, 1, 1]]))
-    boxes = full_boxes(len(texs), sensor_size)
-    sat = textured_cells_sat(texs[0].log_i)
-
-    sensor_corners = np.array([[0.0, w - 1, w - 1, 0], [0, 0, h - 1, h - 1], [1, 1, 1, 1]])
-
-    def update_boxes(m0, m1):
+    def update_boxes(self, m0: np.ndarray, m1: np.ndarray) -> None:
         """Pixel boxes of the upper layers' opaque support over a step (the mapped corners
         of its reference box at both ends, plus a margin for the motion in between). The
         rasters are periodic: the box is that of the one copy of the support the sensor
         sees, or the whole sensor where it may see several."""
-        for k in range(1, len(texs)):
+        w, h, boxes = self.w, self.h, self.boxes
+        for k in range(1, len(self.texs)):
             boxes[k] = (0.0, 0.0, w - 1.0, h - 1.0)
-            if corners[k] is None:
+            if self.corners[k] is None:
                 continue
-            foot = np.concatenate([m.reshape(3, 3) @ sensor_corners for m in (m0[k], m1[k])],
+            foot = np.concatenate([m.reshape(3, 3) @ self.sensor_corners for m in (m0[k], m1[k])],
                                   axis=1)
             if np.any(foot[2] <= 0):
                 continue
             fx, fy = foot[0] / foot[2], foot[1] / foot[2]
-            th, tw = texs[k].shape
-            c = corners[k]
+            th, tw = self.texs[k].shape
+            c = self.corners[k]
             # copies n: the support shifted by n raster periods meets the footprint
             nx = np.arange(math.ceil((fx.min() - 4 - c[0, 1]) / tw),
                            math.floor((fx.max() + 4 - c[0, 0]) / tw) + 1)
@@ -437,13 +500,14 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
             px, py = pts[0] / pts[2], pts[1] / pts[2]
             boxes[k] = (px.min() - 2, py.min() - 2, px.max() + 2, py.max() + 2)
 
-    def shift(m0, m1):
+    def shift(self, m0: np.ndarray, m1: np.ndarray) -> float:
         """Largest motion (px) of the texture point seen at a probe pixel between two
         times; the step keeps it below STEP_SHIFT_PX."""
         out = 0.0
         for k in range(m0.shape[0]):
             a, b = m0[k].reshape(3, 3), m1[k].reshape(3, 3)
-            probe = grid if supports[k] is None else np.linalg.solve(a, supports[k])
+            probe = self.grid if self.supports[k] is None else np.linalg.solve(a,
+                                                                               self.supports[k])
             if probe.shape[1] == 0:
                 continue
             q0, q1 = a @ probe, b @ probe
@@ -451,89 +515,128 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
             out = max(out, float(np.sqrt((d ** 2).sum(axis=0)).max()))
         return out
 
+
+def _support(tex: Texture):
+    """A sample of a layer's opaque support (reference coordinates, homogeneous) and the
+    corners of its bounding box with one cell of margin; ``(None, None)`` for an opaque
+    layer, ``(empty, None)`` for one never visible."""
+    if tex.alpha is None:
+        return None, None
+    iy, ix = np.nonzero(tex.alpha > 0)
+    sub = slice(None, None, max(1, iy.size // 200))
+    support = np.stack([ix[sub] + tex.origin[0], iy[sub] + tex.origin[1],
+                        np.ones(iy[sub].size)])
+    if iy.size == 0:  # never visible: no box needed, the kernel skips zero alpha
+        return support, None
+    # one cell of margin: a bilinear sample is nonzero next to a nonzero cell
+    x0, x1 = ix.min() + tex.origin[0] - 1, ix.max() + tex.origin[0] + 1
+    y0, y1 = iy.min() + tex.origin[1] - 1, iy.max() + tex.origin[1] + 1
+    return support, np.array([[x0, x1, x1, x0], [y0, y0, y1, y1], [1.0, 1, 1, 1]])
+
+
+def _signal_events(run: _Run, layers, texs, cp, cn):
+    """The events of the moving scene, in time order: ``x, y, t, p`` and the step and
+    sub-sample counts."""
+    h, w = run.sensor_size
+    duration_us = run.duration_us
+    tex_stack = np.stack([pad_periodic(t.log_i) for t in texs])
+    alpha_stack = np.stack([pad_periodic(t.alpha if t.alpha is not None
+                                         else np.ones(t.shape, np.float32)) for t in texs])
+    origins = np.array([t.origin for t in texs], dtype=np.float64)
+    stepper = _Stepper(layers, texs, run.sensor_size, duration_us)
+    sat = textured_cells_sat(texs[0].log_i)
+    refr = run.model.refractory_us
+
+    def step(Mseq, t, tb, la, lb, ref, last, bufs):
+        if run.backend == "numpy":
+            return _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t, tb, refr,
+                               run.target, *bufs)
+        return sim_step(Mseq, tex_stack, alpha_stack, origins, la, lb, ref, cp, cn, last, t,
+                        tb, refr, run.target, *bufs, stepper.boxes, sat)
+
     la = np.zeros((h, w), np.float32)
     lb = np.empty((h, w), np.float32)
-    m_start = mats(0, 0)[0]
-    update_boxes(m_start, m_start)
-    render_log(m_start, tex_stack, alpha_stack, origins, la, boxes)
+    m_start = stepper.mats(0, 0)[0]
+    stepper.update_boxes(m_start, m_start)
+    render_log(m_start, tex_stack, alpha_stack, origins, la, stepper.boxes)
     ref = la.astype(np.float64)
     last = np.full((h, w), np.iinfo(np.int64).min // 2, dtype=np.int64)
     ref_bak, last_bak = ref.copy(), last.copy()
-    target = frac * C
-    cap = h * w * 4
-    ex, ey, et, ep = _event_buffers(cap)
+    bufs = _event_buffers(h * w * 4)
     chunks = []
     packed = (duration_us + 1) * 2 * h * w < 2 ** 62  # the sort key fits in an int64
     t, dt, n_samples, n_sub = 0, 200, 0, 0
-    bar = progress(None, total=duration_us, desc=f"simulate {scene}", unit="us",
-                   disable=None if show_progress else True)
+    bar = progress(None, total=duration_us, desc=f"simulate {run.scene}", unit="us",
+                   disable=None if run.show_progress else True)
     while t < duration_us:
         tb = min(t + dt, duration_us)
-        Mseq = mats(t, tb)
-        d = shift(Mseq[0], Mseq[-1])
+        Mseq = stepper.mats(t, tb)
+        d = stepper.shift(Mseq[0], Mseq[-1])
         if d > STEP_SHIFT_PX and tb - t > 1:
             dt = max(1, int((tb - t) * STEP_GROW * STEP_SHIFT_PX / d))
             continue
-        update_boxes(Mseq[0], Mseq[-1])
+        stepper.update_boxes(Mseq[0], Mseq[-1])
         np.copyto(ref_bak, ref)
         np.copyto(last_bak, last)
         while True:
-            if backend == "numpy":
-                n, ns = _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t, tb,
-                                    refractory_us, target, ex, ey, et, ep)
-            else:
-                n, ns = sim_step(Mseq, tex_stack, alpha_stack, origins, la, lb, ref, cp, cn,
-                                 last, t, tb, refractory_us, target, ex, ey, et, ep, boxes,
-                                 sat)
-            if n <= cap:
+            n, ns = step(Mseq, t, tb, la, lb, ref, last, bufs)
+            if n <= bufs[0].size:
                 break
+            # the buffers overflowed: redo the step with room for every event
             np.copyto(ref, ref_bak)
             np.copyto(last, last_bak)
-            cap = 2 * n
-            ex, ey, et, ep = _event_buffers(cap)
+            bufs = _event_buffers(2 * n)
         if n:
-            chunks.append(_sorted_chunk(ex, ey, et, ep, n, w, h, packed))
+            chunks.append(_sorted_chunk(*bufs, n, w, h, packed))
         n_samples += 1
         n_sub += ns
         bar.update(tb - t)
-        grow = STEP_GROW * STEP_SHIFT_PX / d if d > 0 else 2.0
-        new_dt = int(min(max(1, (tb - t) * min(grow, 2.0)), MAX_STEP_US))
-        # a length that just passed the bound is kept unless the new one differs notably:
-        # equal-length steps reuse the prefetched matrices (each step is still checked)
-        if tb - t != dt or abs(new_dt - dt) > 0.05 * dt:
-            dt = new_dt
+        dt = _next_step(dt, tb - t, d)
         t = tb
         la, lb = lb, la
     bar.close()
+    return (*_join_chunks(chunks, w, h, packed), n_samples, n_sub)
 
-    x, y, tt, pp = _join_chunks(chunks, w, h, packed)
+
+def _next_step(dt: int, taken: int, d: float) -> int:
+    """The next step length (µs) after a step of ``taken`` µs (``dt`` requested) over which
+    the texture moved ``d`` px."""
+    grow = STEP_GROW * STEP_SHIFT_PX / d if d > 0 else 2.0
+    new_dt = int(min(max(1, taken * min(grow, 2.0)), MAX_STEP_US))
+    # a length that just passed the bound is kept unless the new one differs notably:
+    # equal-length steps reuse the prefetched matrices (each step is still checked)
+    if taken != dt or abs(new_dt - dt) > 0.05 * dt:
+        return new_dt
+    return dt
+
+
+def _with_noise(x, y, tt, pp, rng, sensor_size, duration_us, model: EventModel, meta: dict):
+    """The EventArray of the signal events plus the model's noise (the refractory period
+    applied to the merged stream); also the signal and noise counts."""
     n_signal = x.size
-    x, y, tt, pp, n_noise = _add_noise(x, y, tt, pp, rng_noise, sensor_size, duration_us,
-                                       noise_rate, hot_pixels, hot_rate)
-    events = EventArray(x, y, tt, pp, sensor_size, meta={"simulator": "evmotion.sim",
-                                                         "scene": scene})
-    if refractory_us > 0 and n_noise:
+    x, y, tt, pp, n_noise = _add_noise(x, y, tt, pp, rng, sensor_size, duration_us,
+                                       model.noise_rate, model.hot_pixels, model.hot_rate)
+    events = EventArray(x, y, tt, pp, sensor_size, meta=dict(meta))
+    if model.refractory_us > 0 and n_noise:
         from evmotion.filters import refractory_filter
 
-        events = refractory_filter(events, refractory_us)
-        events.meta.update(simulator="evmotion.sim", scene=scene)
+        events = refractory_filter(events, model.refractory_us)
+        events.meta.update(meta)
+    return events, n_signal, n_noise
 
-    period = 1e6 / frame_rate
-    frame_times = np.round(np.arange(0, duration_us + 0.5 * period, period)).astype(np.int64)
-    frame_times = frame_times[frame_times <= duration_us]
+
+def _ground_truth(run: _Run, layers, events: EventArray) -> GroundTruth:
+    period = 1e6 / run.frame_rate
+    frame_times = np.round(np.arange(0, run.duration_us + 0.5 * period, period)).astype(np.int64)
+    frame_times = frame_times[frame_times <= run.duration_us]
     omega = None
-    if scene == "rotation":
+    if run.scene == "rotation":
         omega = layers[0].motion.theta.copy()
-    elif scene in ("translation", "zoom"):
+    elif run.scene in ("translation", "zoom"):
         omega = np.zeros(3)
-    gt = GroundTruth(scene=scene, sensor_size=sensor_size, K=K, layers=layers,
-                     frame_times_us=frame_times, duration_us=duration_us,
-                     angular_velocity_rad_s=omega, events_xyt=(events.x, events.y, events.t))
-    stats = {"n_events": len(events), "n_signal": int(n_signal), "n_noise": int(n_noise),
-             "n_steps": n_samples, "n_subsamples": n_sub, "threshold": C,
-             "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean()),
-             "texture": texs[0].name}
-    return SimResult(events, gt, scene, p, stats, (cp, cn))
+    return GroundTruth(scene=run.scene, sensor_size=run.sensor_size, K=run.K, layers=layers,
+                       frame_times_us=frame_times, duration_us=run.duration_us,
+                       angular_velocity_rad_s=omega, events_xyt=(events.x, events.y, events.t))
 
 
 @dataclass(eq=False)
@@ -635,12 +738,11 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     if duration_us < 1:
         raise ParameterError(f"duration_us must be at least 1, got {duration_us!r}")
     max_step_us = int(_check("max_step_us", max_step_us, lo=1))
-    C, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels = _check_event_model(
-        threshold, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels, h * w)
-    target = _check("max_step_fraction", max_step_fraction, strict=True) * C
+    model = EventModel.checked(h * w, threshold, mismatch, refractory_us, noise_rate,
+                               hot_rate, hot_pixels)
+    target = _check("max_step_fraction", max_step_fraction, strict=True) * model.threshold
     ss = np.random.SeedSequence(seed).spawn(2)
-    rng_thr = np.random.default_rng(ss[0])
-    cp, cn = _thresholds(rng_thr, C, mismatch, h * w)
+    cp, cn = _thresholds(np.random.default_rng(ss[0]), model.threshold, model.mismatch, h * w)
 
     def full(t):
         v = np.asarray(log_at(int(t), None), dtype=np.float64)
@@ -688,8 +790,8 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
             ref_bak, last_bak = ref.copy(), last.copy()
             n = 0
             for times, pix, vals in samples:
-                n = emit_crossings(vals, times, pix, w, ref, cp, cn, last, refractory_us,
-                                   ex, ey, et, ep, n)
+                n = emit_crossings(vals, times, pix, w, ref, cp, cn, last,
+                                   model.refractory_us, ex, ey, et, ep, n)
             if n <= cap:
                 break
             ref, last = ref_bak, last_bak
@@ -701,18 +803,10 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
         bar.update(tb - ta)
         la = lb
     bar.close()
-    x, y, tt, pp = _join_chunks(chunks, w, h, packed)
-    n_signal = x.size
-    x, y, tt, pp, n_noise = _add_noise(x, y, tt, pp, np.random.default_rng(ss[1]), (h, w),
-                                       duration_us, noise_rate, hot_pixels, hot_rate)
-    meta = dict(meta or {}, simulator="evmotion.sim")
-    events = EventArray(x, y, tt, pp, (h, w), meta=meta)
-    if refractory_us > 0 and n_noise:
-        from evmotion.filters import refractory_filter
-
-        events = refractory_filter(events, refractory_us)
-        events.meta.update(meta)
+    events, n_signal, n_noise = _with_noise(
+        *_join_chunks(chunks, w, h, packed), np.random.default_rng(ss[1]), (h, w), duration_us,
+        model, dict(meta or {}, simulator="evmotion.sim"))
     stats = {"n_events": len(events), "n_signal": int(n_signal), "n_noise": int(n_noise),
-             "n_steps": n_steps, "n_subsamples": int(n_sub), "threshold": C,
+             "n_steps": n_steps, "n_subsamples": int(n_sub), "threshold": model.threshold,
              "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean())}
     return LogSimResult(events, (cp.reshape(h, w), cn.reshape(h, w)), stats)
