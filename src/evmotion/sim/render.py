@@ -300,13 +300,46 @@ def textured_cells_sat(log_i: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, error_model="numpy")
-def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_a, t_b, refr,
-          target, ex, ey, et, ep):
+def _step(layers, state, events, t_a, t_b, refr, target):
+    """:func:`sim_step` on ``layers = (Mseq, texs, alphas, origins, boxes, sat)``,
+    ``state = (la, lb, ref, cp, cn, last)`` and ``events = (ex, ey, et, ep)``: tile by
+    tile, copying the tiles where the texture is locally constant. Returns the event and
+    extra sub-sample counts."""
+    Mseq, texs, alphas, origins, boxes, sat = layers
+    la, lb = state[0], state[1]
     h, w = la.shape
+    rows = (np.empty(TILE, np.int64), np.empty(TILE, np.int64), np.empty(TILE, np.float64),
+            np.empty(TILE, np.float64))
+    n = 0
+    nsub_total = 0
+    for ty0 in range(0, h, TILE):
+        ty1 = min(ty0 + TILE, h) - 1
+        for tx0 in range(0, w, TILE):
+            tx1 = min(tx0 + TILE, w) - 1
+            if sat.shape[0] > 1 and _tile_static(Mseq[0, 0], Mseq[MAX_SUBSAMPLES, 0], sat,
+                                                 origins, boxes, tx0, ty0, tx1, ty1):
+                lb[ty0:ty1 + 1, tx0:tx1 + 1] = la[ty0:ty1 + 1, tx0:tx1 + 1]
+                continue
+            n, nsub = _tile_events(layers, state, events, rows, (tx0, ty0, tx1, ty1), t_a, t_b,
+                                   refr, target, n)
+            nsub_total += nsub
+    return n, nsub_total
+
+
+@njit(cache=True, error_model="numpy")
+def _tile_events(layers, state, events, rows, tile, t_a, t_b, refr, target, n):
+    """Render the tile ``(tx0, ty0, tx1, ty1)`` (inclusive pixels) at the step's end into
+    ``lb`` and emit its pixels' events from index ``n`` on; ``rows`` is scratch for one
+    tile row. Returns the event count and the extra sub-samples. The per-pixel work is
+    written out: a call per pixel costs more than its work."""
+    Mseq, texs, alphas, origins, boxes, _ = layers
+    la, lb, ref, cp, cn, last = state
+    ex, ey, et, ep = events
+    row_x0, row_y0, row_ax, row_ay = rows
+    tx0, ty0, tx1, ty1 = tile
     n_layers = Mseq.shape[1]
     span = t_b - t_a
     cap = ex.shape[0]
-    n = 0
     nsub_total = 0
     m_end = Mseq[MAX_SUBSAMPLES]
     # the bottom layer's end matrix in scalars: the per-pixel render of the step's end is
@@ -318,126 +351,112 @@ def _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last, t_
     tex0 = texs[0]
     th = texs.shape[1] - 1
     tw = texs.shape[2] - 1
-    row_x0 = np.empty(TILE, np.int64)
-    row_y0 = np.empty(TILE, np.int64)
-    row_ax = np.empty(TILE, np.float64)
-    row_ay = np.empty(TILE, np.float64)
-    for ty0 in range(0, h, TILE):
-        ty1 = min(ty0 + TILE, h) - 1
-        for tx0 in range(0, w, TILE):
-            tx1 = min(tx0 + TILE, w) - 1
-            if sat.shape[0] > 1 and _tile_static(Mseq[0, 0], m_end[0], sat, origins, boxes,
-                                                 tx0, ty0, tx1, ty1):
-                for y in range(ty0, ty1 + 1):
-                    for x in range(tx0, tx1 + 1):
-                        lb[y, x] = la[y, x]
-                continue
-            for y in range(ty0, ty1 + 1):
-                m1y = m1 * y
-                m4y = m4 * y
-                m7y = m7 * y
-                # the bottom layer's raster coordinates of a tile row first (same
-                # arithmetic as _bilinear_wrap), then the texture reads
-                for i in range(tx1 - tx0 + 1):
-                    x = tx0 + i
-                    den = m6 * x + m7y + m8
-                    xr = (m0 * x + m1y + m2) / den - ox
-                    yr = (m3 * x + m4y + m5) / den - oy
-                    if not 0.0 <= xr < tw - 1:
-                        xr -= tw * math.floor(xr * (1.0 / tw))
-                    if not 0.0 <= yr < th - 1:
-                        yr -= th * math.floor(yr * (1.0 / th))
-                    x0 = min(int(xr), tw - 1)
-                    y0 = min(int(yr), th - 1)
-                    row_x0[i] = x0
-                    row_y0[i] = y0
-                    row_ax[i] = xr - x0
-                    row_ay[i] = yr - y0
-                for x in range(tx0, tx1 + 1):
-                    i = x - tx0
-                    x0 = row_x0[i]
-                    y0 = row_y0[i]
-                    ax = row_ax[i]
-                    ay = row_ay[i]
-                    v1 = ((1 - ay) * ((1 - ax) * tex0[y0, x0] + ax * tex0[y0, x0 + 1])
-                          + ay * ((1 - ax) * tex0[y0 + 1, x0] + ax * tex0[y0 + 1, x0 + 1]))
-                    for k in range(1, n_layers):
-                        if (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
-                                or y > boxes[k, 3]):
-                            continue
-                        den = m_end[k, 6] * x + m_end[k, 7] * y + m_end[k, 8]
-                        xr = (m_end[k, 0] * x + m_end[k, 1] * y + m_end[k, 2]) / den \
-                            - origins[k, 0]
-                        yr = (m_end[k, 3] * x + m_end[k, 4] * y + m_end[k, 5]) / den \
-                            - origins[k, 1]
-                        al = _bilinear_wrap(alphas, k, xr, yr)
-                        if al > 0.0:
-                            v1 = al * _bilinear_wrap(texs, k, xr, yr) + (1.0 - al) * v1
-                    a = np.float64(la[y, x])
-                    lb[y, x] = v1
-                    b = np.float64(lb[y, x])
-                    # sub-samples: the fewest (a power of two) that keep the change
-                    # between consecutive samples of the pixel within target
-                    ns = 1
-                    while ns < MAX_SUBSAMPLES and abs(v1 - a) > target * ns:
-                        ns *= 2
-                    if ns > 1:
-                        # the rare pixels that changed by more than target: walk through
-                        # ns sub-samples (written out here: a call per pixel costs more
-                        # than its work)
-                        nsub_total += ns - 1
-                        stride = MAX_SUBSAMPLES // ns
-                        r = ref[y, x]
-                        lt = last[y, x]
-                        t0 = t_a
-                        v0 = a
-                        for j in range(1, ns + 1):
-                            if j == ns:
-                                v1 = b
-                                t1 = t_b
-                            else:
-                                g = j * stride
-                                t1 = t_a + (g * span) // MAX_SUBSAMPLES
-                                v1 = 0.0
-                                for k in range(n_layers):
-                                    if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1]
-                                                  or x > boxes[k, 2] or y > boxes[k, 3]):
-                                        continue
-                                    den = (Mseq[g, k, 6] * x + Mseq[g, k, 7] * y
-                                           + Mseq[g, k, 8])
-                                    xr = ((Mseq[g, k, 0] * x + Mseq[g, k, 1] * y
-                                           + Mseq[g, k, 2]) / den - origins[k, 0])
-                                    yr = ((Mseq[g, k, 3] * x + Mseq[g, k, 4] * y
-                                           + Mseq[g, k, 5]) / den - origins[k, 1])
-                                    if k == 0:
-                                        v1 = _bilinear_wrap(texs, k, xr, yr)
-                                    else:
-                                        al = _bilinear_wrap(alphas, k, xr, yr)
-                                        if al > 0.0:
-                                            v1 = (al * _bilinear_wrap(texs, k, xr, yr)
-                                                  + (1.0 - al) * v1)
-                            if v1 - r >= cp[y, x]:
-                                r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr,
-                                                  x, y, ex, ey, et, ep, n, cap)
-                            elif r - v1 >= cn[y, x]:
-                                r, lt, n = _cross(v0, v1, t0, t1, r, cn[y, x], -1.0, lt,
-                                                  refr, x, y, ex, ey, et, ep, n, cap)
-                            t0 = t1
-                            v0 = v1
-                        ref[y, x] = r
-                        last[y, x] = lt
-                        continue
-                    r = ref[y, x]
-                    if b - r >= cp[y, x]:
-                        r, lt, n = _cross(a, b, t_a, t_b, r, cp[y, x], 1.0, last[y, x], refr,
-                                          x, y, ex, ey, et, ep, n, cap)
-                    elif r - b >= cn[y, x]:
-                        r, lt, n = _cross(a, b, t_a, t_b, r, cn[y, x], -1.0, last[y, x],
-                                          refr, x, y, ex, ey, et, ep, n, cap)
+    for y in range(ty0, ty1 + 1):
+        m1y = m1 * y
+        m4y = m4 * y
+        m7y = m7 * y
+        # the bottom layer's raster coordinates of a tile row first (same
+        # arithmetic as _bilinear_wrap), then the texture reads
+        for i in range(tx1 - tx0 + 1):
+            x = tx0 + i
+            den = m6 * x + m7y + m8
+            xr = (m0 * x + m1y + m2) / den - ox
+            yr = (m3 * x + m4y + m5) / den - oy
+            if not 0.0 <= xr < tw - 1:
+                xr -= tw * math.floor(xr * (1.0 / tw))
+            if not 0.0 <= yr < th - 1:
+                yr -= th * math.floor(yr * (1.0 / th))
+            x0 = min(int(xr), tw - 1)
+            y0 = min(int(yr), th - 1)
+            row_x0[i] = x0
+            row_y0[i] = y0
+            row_ax[i] = xr - x0
+            row_ay[i] = yr - y0
+        for x in range(tx0, tx1 + 1):
+            i = x - tx0
+            x0 = row_x0[i]
+            y0 = row_y0[i]
+            ax = row_ax[i]
+            ay = row_ay[i]
+            v1 = ((1 - ay) * ((1 - ax) * tex0[y0, x0] + ax * tex0[y0, x0 + 1])
+                  + ay * ((1 - ax) * tex0[y0 + 1, x0] + ax * tex0[y0 + 1, x0 + 1]))
+            for k in range(1, n_layers):
+                if (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
+                        or y > boxes[k, 3]):
+                    continue
+                den = m_end[k, 6] * x + m_end[k, 7] * y + m_end[k, 8]
+                xr = (m_end[k, 0] * x + m_end[k, 1] * y + m_end[k, 2]) / den \
+                    - origins[k, 0]
+                yr = (m_end[k, 3] * x + m_end[k, 4] * y + m_end[k, 5]) / den \
+                    - origins[k, 1]
+                al = _bilinear_wrap(alphas, k, xr, yr)
+                if al > 0.0:
+                    v1 = al * _bilinear_wrap(texs, k, xr, yr) + (1.0 - al) * v1
+            a = np.float64(la[y, x])
+            lb[y, x] = v1
+            b = np.float64(lb[y, x])
+            # sub-samples: the fewest (a power of two) that keep the change
+            # between consecutive samples of the pixel within target
+            ns = 1
+            while ns < MAX_SUBSAMPLES and abs(v1 - a) > target * ns:
+                ns *= 2
+            if ns > 1:
+                # the rare pixels that changed by more than target: walk through
+                # ns sub-samples (written out here: a call per pixel costs more
+                # than its work)
+                nsub_total += ns - 1
+                stride = MAX_SUBSAMPLES // ns
+                r = ref[y, x]
+                lt = last[y, x]
+                t0 = t_a
+                v0 = a
+                for j in range(1, ns + 1):
+                    if j == ns:
+                        v1 = b
+                        t1 = t_b
                     else:
-                        continue
-                    ref[y, x] = r
-                    last[y, x] = lt
+                        g = j * stride
+                        t1 = t_a + (g * span) // MAX_SUBSAMPLES
+                        v1 = 0.0
+                        for k in range(n_layers):
+                            if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1]
+                                          or x > boxes[k, 2] or y > boxes[k, 3]):
+                                continue
+                            den = (Mseq[g, k, 6] * x + Mseq[g, k, 7] * y
+                                   + Mseq[g, k, 8])
+                            xr = ((Mseq[g, k, 0] * x + Mseq[g, k, 1] * y
+                                   + Mseq[g, k, 2]) / den - origins[k, 0])
+                            yr = ((Mseq[g, k, 3] * x + Mseq[g, k, 4] * y
+                                   + Mseq[g, k, 5]) / den - origins[k, 1])
+                            if k == 0:
+                                v1 = _bilinear_wrap(texs, k, xr, yr)
+                            else:
+                                al = _bilinear_wrap(alphas, k, xr, yr)
+                                if al > 0.0:
+                                    v1 = (al * _bilinear_wrap(texs, k, xr, yr)
+                                          + (1.0 - al) * v1)
+                    if v1 - r >= cp[y, x]:
+                        r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr,
+                                          x, y, ex, ey, et, ep, n, cap)
+                    elif r - v1 >= cn[y, x]:
+                        r, lt, n = _cross(v0, v1, t0, t1, r, cn[y, x], -1.0, lt,
+                                          refr, x, y, ex, ey, et, ep, n, cap)
+                    t0 = t1
+                    v0 = v1
+                ref[y, x] = r
+                last[y, x] = lt
+                continue
+            r = ref[y, x]
+            if b - r >= cp[y, x]:
+                r, lt, n = _cross(a, b, t_a, t_b, r, cp[y, x], 1.0, last[y, x], refr,
+                                  x, y, ex, ey, et, ep, n, cap)
+            elif r - b >= cn[y, x]:
+                r, lt, n = _cross(a, b, t_a, t_b, r, cn[y, x], -1.0, last[y, x],
+                                  refr, x, y, ex, ey, et, ep, n, cap)
+            else:
+                continue
+            ref[y, x] = r
+            last[y, x] = lt
     return n, nsub_total
 
 
@@ -492,9 +511,9 @@ def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t
         boxes = full_boxes(Mseq.shape[1], la.shape)
     if sat is None:
         sat = np.zeros((1, 1), dtype=np.int64)
-    n, ns = _step(Mseq, texs, alphas, origins, boxes, sat, la, lb, ref, cp, cn, last,
-                  np.int64(t_a),
-                  np.int64(t_b), np.int64(refractory_us), float(target), ex, ey, et, ep)
+    n, ns = _step((Mseq, texs, alphas, origins, boxes, sat), (la, lb, ref, cp, cn, last),
+                  (ex, ey, et, ep), np.int64(t_a), np.int64(t_b), np.int64(refractory_us),
+                  float(target))
     return int(n), int(ns)
 
 
