@@ -744,21 +744,13 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     ss = np.random.SeedSequence(seed).spawn(2)
     cp, cn = _thresholds(np.random.default_rng(ss[0]), model.threshold, model.mismatch, h * w)
 
-    def full(t):
-        v = np.asarray(log_at(int(t), None), dtype=np.float64)
-        if v.shape != (h, w) or not np.all(np.isfinite(v)):
-            raise ParameterError(f"log_at({t}, None) must return finite values of shape "
-                                 f"{(h, w)}, got shape {v.shape}")
-        return v.ravel()
-
+    full = _full_sampler(log_at, (h, w))
     la = full(0)
     ref = la.copy()
     last = np.full(h * w, np.iinfo(np.int64).min // 2, dtype=np.int64)
-    cap = max(1024, h * w)
-    ex, ey, et, ep = _event_buffers(cap)
+    bufs = _event_buffers(max(1024, h * w))
     packed = (duration_us + 1) * 2 * h * w < 2 ** 62
     chunks = []
-    levels = [2 ** k for k in range(int(math.log2(MAX_SUBSAMPLES)) + 1)]
     todo = _base_steps(duration_us, breaks_us, max_step_us)[::-1]
     n_steps = n_sub = 0
     bar = progress(None, total=duration_us, desc="simulate", unit="us",
@@ -771,34 +763,21 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
             mid = (ta + tb) // 2
             todo.extend([(mid, tb), (ta, mid)])
             continue
-        ns = np.ones(h * w, dtype=np.int64)
-        for _ in range(len(levels) - 1):
-            ns[change > target * ns] *= 2
-        groups = [(lev, np.nonzero(ns == lev)[0]) for lev in levels]
-        groups = [(lev, pix) for lev, pix in groups if pix.size]
-        samples = []
-        for lev, pix in groups:
-            g = np.arange(lev + 1, dtype=np.int64)
-            times = ta + (g * (tb - ta)) // lev
-            vals = np.empty((lev + 1, pix.size))
-            vals[0], vals[-1] = la[pix], lb[pix]
-            for j in range(1, lev):
-                vals[j] = np.asarray(log_at(int(times[j]), pix), dtype=np.float64)
-            samples.append((times, pix, vals))
-            n_sub += (lev - 1) * pix.size
+        samples = _pixel_samples(log_at, ta, tb, la, lb, change, target)
+        n_sub += sum((len(times) - 2) * pix.size for times, pix, _ in samples)
         while True:
             ref_bak, last_bak = ref.copy(), last.copy()
             n = 0
             for times, pix, vals in samples:
                 n = emit_crossings(vals, times, pix, w, ref, cp, cn, last,
-                                   model.refractory_us, ex, ey, et, ep, n)
-            if n <= cap:
+                                   model.refractory_us, *bufs, n)
+            if n <= bufs[0].size:
                 break
+            # the buffers overflowed: redo the step with room for every event
             ref, last = ref_bak, last_bak
-            cap = 2 * n
-            ex, ey, et, ep = _event_buffers(cap)
+            bufs = _event_buffers(2 * n)
         if n:
-            chunks.append(_sorted_chunk(ex, ey, et, ep, n, w, h, packed))
+            chunks.append(_sorted_chunk(*bufs, n, w, h, packed))
         n_steps += 1
         bar.update(tb - ta)
         la = lb
@@ -810,3 +789,38 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
              "n_steps": n_steps, "n_subsamples": int(n_sub), "threshold": model.threshold,
              "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean())}
     return LogSimResult(events, (cp.reshape(h, w), cn.reshape(h, w)), stats)
+
+
+def _full_sampler(log_at, shape):
+    """``log_at(t, None)`` checked (finite, ``shape``) and flattened (float64)."""
+    def full(t):
+        v = np.asarray(log_at(int(t), None), dtype=np.float64)
+        if v.shape != shape or not np.all(np.isfinite(v)):
+            raise ParameterError(f"log_at({t}, None) must return finite values of shape "
+                                 f"{shape}, got shape {v.shape}")
+        return v.ravel()
+    return full
+
+
+def _pixel_samples(log_at, ta, tb, la, lb, change, target):
+    """The samples of the step ``(ta, tb)`` of :func:`simulate_log_function`: pixels are
+    grouped by their number of sub-steps (the fewest power of two keeping the change
+    between samples within ``target``); per group ``(times, pix, vals)`` with ``vals``
+    (n_sub + 1, P) the log intensity of the pixels ``pix`` at ``times``."""
+    levels = [2 ** k for k in range(int(math.log2(MAX_SUBSAMPLES)) + 1)]
+    ns = np.ones(la.size, dtype=np.int64)
+    for _ in range(len(levels) - 1):
+        ns[change > target * ns] *= 2
+    samples = []
+    for lev in levels:
+        pix = np.nonzero(ns == lev)[0]
+        if not pix.size:
+            continue
+        g = np.arange(lev + 1, dtype=np.int64)
+        times = ta + (g * (tb - ta)) // lev
+        vals = np.empty((lev + 1, pix.size))
+        vals[0], vals[-1] = la[pix], lb[pix]
+        for j in range(1, lev):
+            vals[j] = np.asarray(log_at(int(times[j]), pix), dtype=np.float64)
+        samples.append((times, pix, vals))
+    return samples
