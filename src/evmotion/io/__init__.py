@@ -356,8 +356,10 @@ def _accepts_named(fn, name: str) -> bool:
 def read_calibration(path: str | os.PathLike) -> dict:
     """Camera calibration stored with a recording.
 
-    Accepts an ECD ``calib.txt`` or a folder holding one, or an evmotion HDF5 file with a
-    ``calibration`` attribute.
+    Accepts an ECD ``calib.txt`` or a folder holding one, an evmotion HDF5 file with a
+    ``calibration`` attribute, or any calibration file :func:`evmotion.io.calib.read_calibration`
+    reads (Kalibr / ROS / DSEC YAML, DV XML, JSON). For a
+    :class:`~evmotion.camera.Camera`, use :func:`evmotion.io.calib.read_calibration`.
 
     Returns
     -------
@@ -381,9 +383,13 @@ def read_calibration(path: str | os.PathLike) -> dict:
         head = fh.read(8)
     if head.startswith(b"\x89HDF\r\n\x1a\n"):
         return guard_call(_h5_calibration, "HDF5", "read the calibration")(path)
+    if path.suffix.lower() in (".yaml", ".yml", ".xml", ".json"):
+        from evmotion.io import calib
+
+        return calib.camera_to_dict(calib.read_calibration(path))
     raise FormatError(path, "no calibration found",
-                      "give an ECD calib.txt or an evmotion .h5 with calibration; YAML "
-                      "calibrations are read by evmotion.camera.Camera.from_file")
+                      "give an ECD calib.txt, an evmotion .h5 with calibration, or a "
+                      "calibration .yaml/.xml/.json")
 
 
 def _h5_calibration(path: Path) -> dict:
