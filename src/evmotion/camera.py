@@ -214,7 +214,7 @@ class Camera:
         ...                 np.array([1, 0]), (180, 240))
         >>> und = cam.undistort_events(ev, drop_outside=False)
         >>> [round(float(v), 2) for v in und.x]  # the corner moves outwards, the centre stays
-        [-26.28, 120.0]
+        [-26.58, 120.0]
         """
         cam = self.for_sensor(events.sensor_size)
         if events.x.dtype.kind == "f":

@@ -74,6 +74,7 @@ __all__ = [
     "camera_to_dict",
     "jaer_header_camera",
     "recording_camera",
+    "recording_intrinsics",
     "PIXEL_PITCH_UM",
 ]
 
@@ -367,6 +368,36 @@ def recording_camera(path: str | os.PathLike, events_meta: dict | None = None,
         if head == b"#!AER-DAT2.0" and sensor_size is not None:
             return jaer_header_camera(path, sensor_size)[0]
     return None
+
+
+def recording_intrinsics(path: str | os.PathLike, sensor_size: tuple[int, int]) -> dict:
+    """What :func:`recording_camera` finds, as a JSON-ready dict: ``source``, ``K``
+    ``[fx, fy, cx, cy]`` (px), ``dist`` ``[k1, k2, p1, p2, k3]``, ``resolution``
+    ``[H, W]`` (None when the calibration does not say), ``nominal`` (a header's lens focal
+    length, not a calibration); or ``{"source": None, "reason": ...}`` when there is none.
+    """
+    path = Path(path)
+    try:
+        cam = recording_camera(path, None, None)
+    except (FormatError, CalibrationError) as exc:
+        return {"source": None, "reason": str(exc)}
+    if cam is None and path.is_file():
+        with open(path, "rb") as fh:
+            if fh.read(12) == b"#!AER-DAT2.0":
+                cam, mm = jaer_header_camera(path, sensor_size)
+                if cam is None:
+                    return {"source": None, "reason": (
+                        "the jAER header's filters give different lens focal lengths "
+                        f"{', '.join(f'{v:g}' for v in mm)} mm" if len(mm) > 1 else
+                        "the jAER header gives no lens focal length" if not mm else
+                        f"no pixel pitch known for a {sensor_size[1]} x {sensor_size[0]} "
+                        "px chip")}
+    if cam is None:
+        return {"source": None, "reason": "the recording brings no calibration"}
+    return {"source": cam.source, "K": [cam.fx, cam.fy, cam.cx, cam.cy],
+            "dist": list(cam.dist),
+            "resolution": None if cam.sensor_size is None else list(cam.sensor_size),
+            "nominal": cam.source.endswith("(nominal)")}
 
 
 # ------------------------------------------------------------------------------ helpers
