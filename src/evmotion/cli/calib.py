@@ -49,7 +49,8 @@ def add_camera_arguments(p) -> None:
     g.add_argument("--K", default=None, type=_intrinsics, metavar="FX,FY,CX,CY",
                    help="camera intrinsics in px (instead of --calib)")
     p.add_argument("--dist", default=None, type=_distortion, metavar="K1,K2,P1,P2[,K3]",
-                   help="radial-tangential distortion, with --K (default none)")
+                   help="radial-tangential distortion, with --K (default none); write "
+                        "--dist=-0.37,0.15,0,0 when k1 is negative")
     p.add_argument("--no-undistort", action="store_true",
                    help="keep the events on the distorted sensor grid even when the "
                         "calibration has distortion (default: undistort)")

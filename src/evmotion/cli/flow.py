@@ -41,7 +41,7 @@ EXAMPLES = """examples:
   evmotion flow window.txt --method dnn --window-events 30000 --out x.flo
   evmotion flow boxes_rotation/ --out flow.h5       # ECD folder: undistorted with calib.txt
   evmotion flow rec.aedat4 --calib calib.xml --out flow.h5 --json
-  evmotion flow rec.raw --K 1050,1050,640,360 --dist -0.1,0.02,0,0 --out flow.h5
+  evmotion flow rec.raw --K 1050,1050,640,360 --dist=-0.1,0.02,0,0 --out flow.h5
 """
 
 OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz")

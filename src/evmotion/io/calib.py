@@ -361,7 +361,7 @@ def recording_camera(path: str | os.PathLike, events_meta: dict | None = None,
             from evmotion.io import read_calibration as stored
 
             try:
-                return camera_from_dict(stored(path), source=str(path),
+                return camera_from_dict(stored(path), source=f"{path} (calibration attribute)",
                                         sensor_size=sensor_size)
             except FormatError:
                 return None
