@@ -169,9 +169,10 @@ intrinsics:
     camera_matrix: [569.7, 569.7, 335.0, 221.9]
     resolution: [640, 480]
 """)
-    rect = calib.read_calibration(p)  # default: the rectified left event camera
+    rect = calib.read_calibration(p, camera="camRect0")  # the rectified left event camera
     assert rect.fx == 569.7 and rect.sensor_size == (480, 640) and not rect.is_distorted
-    _check(calib.read_calibration(p, camera="cam0"), p, dist=DIST[:4] + (0.0,))
+    # default: cam0, the raw left event camera (the grid of DSEC's events)
+    _check(calib.read_calibration(p), p, dist=DIST[:4] + (0.0,))
     with pytest.raises(FormatError) as e:
         calib.read_calibration(p, camera="cam9")
     assert "intrinsics.cam9" in _one_line(e)

@@ -17,8 +17,8 @@ DV / AEDAT4 XML             OpenCV FileStorage written by DV's calibration modul
                             ``image_height``; ``use_fisheye_model`` must be 0
 DSEC ``cam_to_cam.yaml``    ``intrinsics.<camera>.camera_matrix: [fx, fy, cx, cy]``,
                             ``distortion_coeffs``, ``resolution: [W, H]`` (default camera
-                            ``camRect0``, rectified: no distortion; ``cam0`` is the raw left
-                            event camera)
+                            ``cam0``, the raw left event camera whose grid DSEC's events are
+                            on, else ``camRect0``, rectified: no distortion)
 JSON (evmotion)             see below; also the ``calibration`` attribute of evmotion HDF5
 ==========================  ==================================================================
 
@@ -95,8 +95,9 @@ def read_calibration(path: str | os.PathLike, *, camera: str | None = None,
         ECD ``calib.txt`` (or its folder), Kalibr / MVSEC camchain YAML, ROS
         ``camera_info`` YAML, DSEC ``cam_to_cam.yaml``, DV calibration XML, evmotion JSON.
     camera : str, optional
-        Which camera of a multi-camera file (Kalibr ``cam0``, DSEC ``camRect0``, a DV
-        camera node name); default the format's first / reference camera.
+        Which camera of a multi-camera file (Kalibr ``cam0``, DSEC ``cam0`` or
+        ``camRect0``, a DV camera node name); default the format's first / reference
+        camera (DSEC: ``cam0`` when present, the grid of the raw events).
     sensor_size : (int, int), optional
         ``(height, width)`` of the sensor the calibration is for, when the file does not
         say (ECD text, JSON without ``sensor_size``); checked against the file when it does.
@@ -122,8 +123,11 @@ def read_calibration(path: str | os.PathLike, *, camera: str | None = None,
         return read_dv_xml(path, camera=camera, sensor_size=sensor_size)
     if suffix in (".yaml", ".yml"):
         data = _load_yaml(path)
-        if isinstance(data.get("intrinsics"), dict):
-            return read_dsec_yaml(path, camera=camera or "camRect0", sensor_size=sensor_size)
+        intr = data.get("intrinsics")
+        if isinstance(intr, dict):
+            # the raw left event camera, the grid of DSEC's events.h5, when the file has it
+            default = "cam0" if "cam0" in intr else "camRect0"
+            return read_dsec_yaml(path, camera=camera or default, sensor_size=sensor_size)
         if "camera_matrix" in data:
             return read_ros_yaml(path, sensor_size=sensor_size)
         return read_kalibr_yaml(path, camera=camera or "cam0", sensor_size=sensor_size)
