@@ -145,8 +145,8 @@ def rotation_rows(quick: bool) -> list[dict]:
 
 
 def ecd_rows() -> list[dict]:
-    from evmotion.camera import Camera
     from evmotion.events import EventArray
+    from evmotion.io.calib import read_ecd
 
     base = Path(os.environ.get("EVMOTION_SHARED_DATA", Path(__file__).resolve().parents[2]
                                / "shared" / "data")) / "ecd_rotation_windows"
@@ -156,7 +156,7 @@ def ecd_rows() -> list[dict]:
         if not folder.is_dir():
             continue
         d = np.loadtxt(folder / "events.txt")
-        cam = Camera.from_ecd(folder / "calib.txt")
+        cam = read_ecd(folder / "calib.txt")
         ev = cam.undistort_events(EventArray(
             d[:, 1].astype(np.int64), d[:, 2].astype(np.int64),
             np.round(d[:, 0] * 1e6).astype(np.int64), d[:, 3].astype(np.int64), (180, 240)))

@@ -210,7 +210,7 @@ def _read_ecd_txt(path: Path):
 
 
 def real(quick: bool) -> list[dict]:
-    from evmotion.camera import Camera
+    from evmotion.io.calib import read_ecd
     from evmotion.methods.multicm import estimate_flow
 
     rows = []
@@ -220,7 +220,7 @@ def real(quick: bool) -> list[dict]:
     out = RESULTS / "multicm"
     out.mkdir(parents=True, exist_ok=True)
     for d in sorted((DATA / "ecd_rotation_windows").iterdir()):
-        cam = Camera.from_ecd(d / "calib.txt")
+        cam = read_ecd(d / "calib.txt")
         ev = cam.undistort_events(_read_ecd_txt(d / "events.txt"))
         gt = np.load(d / "flow.npy")[0].transpose(1, 2, 0).astype(np.float64)
         mask = _event_mask(ev)
@@ -236,7 +236,7 @@ def real(quick: bool) -> list[dict]:
                 _panel(out / f"ecd_{d.name}_gtwindow.png", res, f"ECD {d.name}")
     windows = sorted((DATA / "ecd_30k_windows").iterdir())
     for d in windows[:2] if quick else windows:
-        cam = Camera.from_ecd(d / "calib.txt")
+        cam = read_ecd(d / "calib.txt")
         ev = cam.undistort_events(_read_ecd_txt(d / "events.txt"))
         for name, kw in (("none", {}), ("burgers", {"time_aware": "burgers"})):
             res = estimate_flow(ev, **kw)

@@ -4,6 +4,7 @@ import pytest
 from evmotion import EventArray
 from evmotion.camera import Camera
 from evmotion.errors import CalibrationError, FormatError
+from evmotion.io.calib import read_calibration, read_ecd
 
 DAVIS = Camera(199.092366, 198.82882, 132.192071, 110.712276,
                (-0.368436311798, 0.150947243557, -0.000296130534, -0.000759431726, 0.0),
@@ -51,7 +52,7 @@ def test_principal_point_is_fixed_and_normalize_roundtrip():
 
 
 def test_from_ecd_real_calib(shared_data):
-    cam = Camera.from_ecd(shared_data / "ecd_rotation_windows" / "boxes_rotation")
+    cam = read_ecd(shared_data / "ecd_rotation_windows" / "boxes_rotation")
     np.testing.assert_allclose(cam.K[0, 0], 199.092366)
     assert cam.is_distorted and cam.sensor_size == (180, 240)
 
@@ -60,12 +61,12 @@ def test_bad_calibration_errors(tmp_path):
     p = tmp_path / "calib.txt"
     p.write_text("1 2 3")
     with pytest.raises(FormatError, match="holds 3 numbers"):
-        Camera.from_ecd(p)
+        read_ecd(p)
     p.write_text("1 2 x 4")
     with pytest.raises(FormatError, match="calib.txt"):
-        Camera.from_ecd(p)
+        read_ecd(p)
     with pytest.raises(CalibrationError, match="not found"):
-        Camera.from_ecd(tmp_path / "nope.txt")
+        read_ecd(tmp_path / "nope.txt")
     with pytest.raises(CalibrationError, match="finite"):
         Camera(np.nan, 1, 1, 1)
 
@@ -75,10 +76,10 @@ def test_yaml_calibrations(tmp_path):
     mv.write_text("cam0:\n  intrinsics: [226.4, 226.2, 173.6, 133.7]\n"
                   "  distortion_coeffs: [-0.048, 0.0123, -0.00094, -0.00051]\n"
                   "  distortion_model: radtan\n  resolution: [346, 260]\n")
-    cam = Camera.from_file(mv)
+    cam = read_calibration(mv)
     assert cam.sensor_size == (260, 346) and cam.dist[4] == 0.0 and cam.fx == 226.4
     ds = tmp_path / "cam_to_cam.yaml"
     ds.write_text("intrinsics:\n  camRect0:\n    camera_matrix: [569.7, 569.7, 335.0, 221.9]\n"
                   "    resolution: [640, 480]\n")
-    cam = Camera.from_file(ds)
+    cam = read_calibration(ds)
     assert cam.sensor_size == (480, 640) and not cam.is_distorted

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evmotion.camera import Camera
 from evmotion.core.warps import make_warp
 from evmotion.eval.metrics import fwl
 from evmotion.events import EventArray
+from evmotion.io.calib import read_ecd
 from evmotion.methods.egomotion import estimate_egomotion
 
 pytestmark = pytest.mark.realdata
@@ -20,7 +20,7 @@ def load(folder):
     ev = EventArray(d[:, 1].astype(np.int64), d[:, 2].astype(np.int64),
                     np.round(d[:, 0] * 1e6).astype(np.int64), d[:, 3].astype(np.int64),
                     sensor_size=(180, 240))
-    cam = Camera.from_ecd(folder / "calib.txt")
+    cam = read_ecd(folder / "calib.txt")
     return cam.undistort_events(ev), cam, np.loadtxt(folder / "motion.txt")
 
 

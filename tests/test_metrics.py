@@ -252,14 +252,14 @@ def test_fwl_on_real_ecd_window_peaks_at_ground_truth(shared_data, scene):
     """ECD rotation windows: the IMU's rotational flow sharpens the IWE (FWL > 1.3) and
     beats its reverse, half and 1.5x, so FWL's warp direction and time sign are right."""
     pytest.importorskip("evmotion.core.iwe")
-    from evmotion.camera import Camera
+    from evmotion.io.calib import read_ecd
 
     folder = shared_data / "ecd_rotation_windows" / scene
     a = np.loadtxt(folder / "events.txt")
     ev = EventArray(a[:, 1].astype(np.uint16), a[:, 2].astype(np.uint16),
                     np.round(a[:, 0] * 1e6).astype(np.int64), a[:, 3].astype(np.uint8),
                     sensor_size=(180, 240))
-    undist = Camera.from_ecd(folder / "calib.txt").undistort_events(ev)
+    undist = read_ecd(folder / "calib.txt").undistort_events(ev)
     disp = np.load(folder / "flow.npy")[0].transpose(1, 2, 0)  # px over the window
     flow = disp / ((ev.t[-1] - ev.t[0]) * 1e-6)
     best = fwl(undist, flow)

@@ -34,12 +34,12 @@ def _read_ecd(path):
 
 @pytest.mark.realdata
 def test_ecd_rotation_window_against_imu_flow(shared_data):
-    from evmotion.camera import Camera
+    from evmotion.io.calib import read_ecd
 
     d = shared_data / "ecd_rotation_windows" / "poster_rotation"
     if not d.is_dir():
         pytest.skip(f"{d} missing")
-    ev = Camera.from_ecd(d / "calib.txt").undistort_events(_read_ecd(d / "events.txt"))
+    ev = read_ecd(d / "calib.txt").undistort_events(_read_ecd(d / "events.txt"))
     gt = np.load(d / "flow.npy")[0].transpose(1, 2, 0).astype(np.float64)
     res = estimate_flow(ev)
     assert _aee(res, gt, ev) < 1.0  # measured 0.58 px (benchmarks/results)
@@ -48,12 +48,12 @@ def test_ecd_rotation_window_against_imu_flow(shared_data):
 
 @pytest.mark.realdata
 def test_ecd_30k_window_sharpens(shared_data):
-    from evmotion.camera import Camera
+    from evmotion.io.calib import read_ecd
 
     d = shared_data / "ecd_30k_windows" / "boxes_translation"
     if not d.is_dir():
         pytest.skip(f"{d} missing")
-    ev = Camera.from_ecd(d / "calib.txt").undistort_events(_read_ecd(d / "events.txt"))
+    ev = read_ecd(d / "calib.txt").undistort_events(_read_ecd(d / "events.txt"))
     res = estimate_flow(ev, time_aware="burgers")
     fwl = np.var(res.iwes["tmid"]) / np.var(res.iwes["identity"])
     assert fwl > 1.2

@@ -13,11 +13,10 @@ and projected to pixels ``u = fx x_d + cx``, ``v = fy y_d + cy``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import CalibrationError, FormatError
+from evmotion.errors import CalibrationError
 from evmotion.events import EventArray
 
 __all__ = ["Camera"]
@@ -35,8 +34,11 @@ class Camera:
         Principal point in pixels (x = column, y = row).
     dist : tuple of float
         ``(k1, k2, p1, p2, k3)``; zeros for an undistorted camera.
-    sensor_size : (int, int)
-        ``(height, width)`` in pixels.
+    sensor_size : (int, int) or None
+        ``(height, width)`` in pixels; None when the calibration does not say (then
+        :meth:`undistort_events` takes the events' size).
+    source : str
+        Where the intrinsics came from (a file, ``--K``, a header), for messages and outputs.
 
     Examples
     --------
@@ -50,89 +52,57 @@ class Camera:
     cx: float
     cy: float
     dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
-    sensor_size: tuple[int, int] = (180, 240)
+    sensor_size: tuple[int, int] | None = (180, 240)
     _lut: dict = field(default_factory=dict, repr=False, compare=False, hash=False)
+    source: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
         vals = np.array([self.fx, self.fy, self.cx, self.cy, *self.dist], dtype=np.float64)
         if vals.size != 9 or not np.all(np.isfinite(vals)):
-            raise CalibrationError(f"camera parameters must be 4 intrinsics + 5 distortion "
-                                   f"coefficients, all finite; got {vals.tolist()}")
+            raise CalibrationError(f"{self._where()}camera parameters must be 4 intrinsics + 5 "
+                                   f"distortion coefficients, all finite; got {vals.tolist()}")
         if self.fx <= 0 or self.fy <= 0:
-            raise CalibrationError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+            raise CalibrationError(f"{self._where()}focal lengths must be positive, got "
+                                   f"fx={self.fx}, fy={self.fy}")
         object.__setattr__(self, "dist", tuple(float(d) for d in self.dist))
-        object.__setattr__(self, "sensor_size", tuple(int(s) for s in self.sensor_size))
+        if self.sensor_size is not None:
+            object.__setattr__(self, "sensor_size", tuple(int(s) for s in self.sensor_size))
+
+    def _where(self) -> str:
+        return f"{self.source}: " if self.source else ""
 
     # ----------------------------------------------------------- constructors
     @classmethod
-    def from_K(cls, K: np.ndarray, dist=None, sensor_size=(180, 240)) -> Camera:
+    def from_K(cls, K: np.ndarray, dist=None, sensor_size=(180, 240), source: str = ""
+               ) -> Camera:
         """From a 3x3 intrinsic matrix and optional distortion coefficients."""
         K = np.asarray(K, dtype=np.float64)
         if K.shape != (3, 3):
             raise CalibrationError(f"K must be 3x3, got shape {K.shape}")
         d = _dist5(dist)
-        return cls(K[0, 0], K[1, 1], K[0, 2], K[1, 2], d, sensor_size)
-
-    @classmethod
-    def from_ecd(cls, path: str | Path, sensor_size=(180, 240)) -> Camera:
-        """From an ECD ``calib.txt``: one line ``fx fy cx cy k1 k2 p1 p2 k3``."""
-        from evmotion.io.ecd import calib_file, parse_calib
-
-        path = calib_file(path)
-        if not path.is_file():
-            raise CalibrationError(f"{path}: calibration file not found (ECD folders hold calib.txt)")
-        vals = parse_calib(path)  # FormatError naming the file and value when malformed
-        return cls(*vals[:4], dist=tuple(vals[4:]), sensor_size=sensor_size)
-
-    @classmethod
-    def from_mvsec_yaml(cls, path: str | Path, camera: str = "cam0") -> Camera:
-        """From an MVSEC ``camchain-*.yaml`` (Kalibr: ``intrinsics``, ``distortion_coeffs``,
-        ``resolution`` of ``cam0``/``cam1``, radtan model)."""
-        data = _load_yaml(path)
-        if camera not in data:
-            raise FormatError(path, f"no camera '{camera}'; has {sorted(data)}")
-        c = data[camera]
-        for key in ("intrinsics", "resolution"):
-            if key not in c:
-                raise FormatError(path, f"field '{camera}.{key}' is missing")
-        model = c.get("distortion_model", "radtan")
-        if model not in ("radtan", "plumb_bob"):
-            raise CalibrationError(f"{path}: distortion model '{model}' is not supported "
-                                   "(radtan only)")
-        fx, fy, cx, cy = (float(v) for v in c["intrinsics"])
-        w, h = (int(v) for v in c["resolution"])
-        return cls(fx, fy, cx, cy, _dist5(c.get("distortion_coeffs")), (h, w))
-
-    @classmethod
-    def from_dsec_yaml(cls, path: str | Path, camera: str = "camRect0") -> Camera:
-        """From a DSEC ``cam_to_cam.yaml`` (``intrinsics.<camera>.camera_matrix`` = fx fy cx cy,
-        ``distortion_coeffs``, ``resolution``). Rectified cameras have no distortion."""
-        data = _load_yaml(path)
-        try:
-            c = data["intrinsics"][camera]
-            fx, fy, cx, cy = (float(v) for v in c["camera_matrix"])
-            w, h = (int(v) for v in c["resolution"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise FormatError(path, f"field 'intrinsics.{camera}' is missing or malformed ({exc})",
-                              ) from None
-        return cls(fx, fy, cx, cy, _dist5(c.get("distortion_coeffs")), (h, w))
-
-    @classmethod
-    def from_file(cls, path: str | Path, **kw) -> Camera:
-        """Detect the calibration format: ECD ``calib.txt`` (or a folder holding one), MVSEC or
-        DSEC YAML."""
-        path = Path(path)
-        if path.is_dir() or path.suffix == ".txt":
-            return cls.from_ecd(path, **kw)
-        if path.suffix in (".yaml", ".yml"):
-            data = _load_yaml(path)
-            if "intrinsics" in data and isinstance(data["intrinsics"], dict):
-                return cls.from_dsec_yaml(path, **kw)
-            return cls.from_mvsec_yaml(path, **kw)
-        raise CalibrationError(f"{path}: unknown calibration format (expected calib.txt or YAML)")
+        return cls(K[0, 0], K[1, 1], K[0, 2], K[1, 2], d, sensor_size, source=source)
 
     def with_sensor_size(self, sensor_size: tuple[int, int]) -> Camera:
         return replace(self, sensor_size=sensor_size, _lut={})
+
+    def for_sensor(self, sensor_size: tuple[int, int]) -> Camera:
+        """This camera on a sensor of ``sensor_size`` (height, width): itself when the sizes
+        agree or its own is unknown (None); CalibrationError when they differ."""
+        size = tuple(int(s) for s in sensor_size)
+        if self.sensor_size is None:
+            return self.with_sensor_size(size)
+        if self.sensor_size != size:
+            where = f"{self.source}: " if self.source else ""
+            raise CalibrationError(
+                f"{where}calibration is for a {self.sensor_size[1]} x {self.sensor_size[0]} px "
+                f"sensor (W x H) but the events are {size[1]} x {size[0]} px")
+        return self
+
+    def describe(self) -> str:
+        """One line: ``K=[fx, fy, cx, cy] dist=[k1, k2, p1, p2, k3]`` (px)."""
+        k = ", ".join(f"{v:.6g}" for v in (self.fx, self.fy, self.cx, self.cy))
+        d = ", ".join(f"{v:.6g}" for v in self.dist)
+        return f"K=[{k}] dist=[{d}]"
 
     # ------------------------------------------------------------- geometry
     @property
@@ -203,6 +173,9 @@ class Camera:
     def undistortion_lut(self) -> tuple[np.ndarray, np.ndarray]:
         """Per-pixel lookup table ``(ux, uy)``, each (H, W) float32: undistorted pixel position
         of every integer sensor pixel. Computed once per camera."""
+        if self.sensor_size is None:
+            raise CalibrationError(f"{self._where()}the sensor size is unknown; give it with "
+                                   "for_sensor((height, width))")
         if "undist" not in self._lut:
             h, w = self.sensor_size
             vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -211,30 +184,67 @@ class Camera:
                                    uy.reshape(h, w).astype(np.float32))
         return self._lut["undist"]
 
-    def undistort_events(self, events: EventArray, *, drop_outside: bool = True) -> EventArray:
-        """Events with undistorted float32 coordinates, through the per-pixel lookup table.
+    def undistort_events(self, events: EventArray, *, drop_outside: bool = True,
+                         integer: bool = False) -> EventArray:
+        """Events at their undistorted positions on the same pixel grid (same K), through the
+        per-pixel lookup table.
 
-        Events whose undistorted position falls outside the sensor are dropped unless
-        ``drop_outside=False`` (then they are kept and the result is not bounds-checked).
+        Parameters
+        ----------
+        events : EventArray
+            Events with integer sensor coordinates (``x`` column, ``y`` row).
+        drop_outside : bool
+            Drop events whose undistorted position falls outside the sensor (default); with
+            False they are kept and the result is not bounds-checked.
+        integer : bool
+            Round the undistorted positions to the nearest pixel and keep the input's integer
+            dtype, for methods that work on the pixel lattice (triplet matching); default
+            float32 coordinates.
+
+        Returns
+        -------
+        EventArray
+            ``meta["undistorted"]`` is True and ``meta["grid"]`` says which grid
+            (:meth:`grid_label`).
+
+        Examples
+        --------
+        >>> cam = Camera(200.0, 200.0, 120.0, 90.0, (-0.3, 0.1, 0.0, 0.0, 0.0), (180, 240))
+        >>> ev = EventArray(np.array([0, 120]), np.array([0, 90]), np.array([0, 1]),
+        ...                 np.array([1, 0]), (180, 240))
+        >>> und = cam.undistort_events(ev, drop_outside=False)
+        >>> [round(float(v), 2) for v in und.x]  # the corner moves outwards, the centre stays
+        [-26.58, 120.0]
         """
-        if events.sensor_size != self.sensor_size:
-            raise CalibrationError(
-                f"calibration is for sensor_size {self.sensor_size} (height, width) but the "
-                f"events are {events.sensor_size}")
+        cam = self.for_sensor(events.sensor_size)
         if events.x.dtype.kind == "f":
             raise CalibrationError("events already have float (undistorted?) coordinates")
-        ux, uy = self.undistortion_lut()
+        ux, uy = cam.undistortion_lut()
         xi = events.x.astype(np.intp)
         yi = events.y.astype(np.intp)
         x = ux[yi, xi]
         y = uy[yi, xi]
-        meta = dict(events.meta, undistorted=True)
+        if integer:
+            x = np.rint(x)
+            y = np.rint(y)
+        meta = dict(events.meta, undistorted=True, grid=cam.grid_label(undistorted=True))
+        h, w = cam.sensor_size
         if drop_outside:
-            h, w = self.sensor_size
             keep = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
-            return EventArray(x[keep], y[keep], events.t[keep], events.p[keep], self.sensor_size,
-                              validate=False, meta=meta)
-        return EventArray(x, y, events.t, events.p, self.sensor_size, validate=False, meta=meta)
+            x, y, t, p = x[keep], y[keep], events.t[keep], events.p[keep]
+        else:
+            t, p = events.t, events.p
+        if integer:
+            x, y = x.astype(events.x.dtype), y.astype(events.y.dtype)
+        return EventArray(x, y, t, p, cam.sensor_size, validate=False, meta=meta)
+
+    def grid_label(self, *, undistorted: bool) -> str:
+        """Which pixel grid coordinates live on: ``"distorted sensor"`` or
+        ``"undistorted (K=[fx, fy, cx, cy])"`` (the pinhole grid of this K)."""
+        if not undistorted:
+            return "distorted sensor"
+        k = ", ".join(f"{v:.6g}" for v in (self.fx, self.fy, self.cx, self.cy))
+        return f"undistorted (K=[{k}])"
 
 
 def _dist5(dist) -> tuple[float, float, float, float, float]:
@@ -246,18 +256,3 @@ def _dist5(dist) -> tuple[float, float, float, float, float]:
         raise CalibrationError(f"at most 5 distortion coefficients (k1 k2 p1 p2 k3), got {vals.size}")
     d[: vals.size] = vals
     return (d[0], d[1], d[2], d[3], d[4])
-
-
-def _load_yaml(path) -> dict:
-    import yaml
-
-    path = Path(path)
-    if not path.is_file():
-        raise CalibrationError(f"{path}: calibration file not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise FormatError(path, f"not valid YAML: {exc}") from None
-    if not isinstance(data, dict):
-        raise FormatError(path, "expected a YAML mapping at the top level")
-    return data

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.cli.calib import add_camera_arguments
 from evmotion.cli.options import (
-    existing_input,
     int_range,
     nonnegative_float,
     positive_int,
@@ -52,9 +52,7 @@ def add_common(p) -> None:
     p.add_argument("--dataset", default=None, choices=sorted(DEFAULT_WEIGHTS),
                    help="with --reg: use this data set's thesis weights (Sec. 3.6.1) instead "
                         "of the window's (default: the window's)")
-    p.add_argument("--calib", default=None, type=existing_input,
-                   help="calibration file (ECD calib.txt, MVSEC/DSEC YAML); default: the "
-                        "recording's own, if any")
+    add_camera_arguments(p)
     p.add_argument("--t-ref", default="start", choices=["start", "mid", "end"],
                    help="reference time of the warp within each window (default start)")
     p.add_argument("--format", default=None, help="input format (default: detected)")
@@ -91,28 +89,19 @@ def check_common(args) -> None:
 
 
 def load_events_and_camera(args):
-    """Read the recording and its calibration; undistort when the camera is distorted."""
-    from evmotion.camera import Camera
-    from evmotion.io import read_calibration, read_events
+    """Read the recording and its camera (:func:`evmotion.cli.calib.camera_for`); undistort
+    when the camera is distorted, unless ``--no-undistort``. Returns ``(events, camera)``
+    and sets ``args.grid`` (which pixel grid the events are on)."""
+    from evmotion.cli.calib import undistort_for
+    from evmotion.io import read_events
 
     kw = {"format": args.format} if args.format else {}
     events = read_events(args.file, **kw)
-    cam = None
-    if args.calib:
-        cam = Camera.from_file(args.calib).with_sensor_size(events.sensor_size)
-    else:
-        try:
-            cal = read_calibration(args.file)
-        except Exception:
-            cal = None
-        if cal:
-            cam = Camera.from_K(np.asarray(cal["K"], dtype=float), cal.get("dist"),
-                                sensor_size=events.sensor_size)
+    events, cam, args.grid = undistort_for(args, events)
     if cam is None and args.warp == "rotation":
         raise CalibrationError(f"{args.file}: the rotation warp needs camera intrinsics; "
-                               "none found with the recording, pass --calib calib.txt")
-    if cam is not None and cam.is_distorted and events.x.dtype.kind != "f":
-        events = cam.undistort_events(events)
+                               "none found with the recording, pass --calib FILE or --K "
+                               "fx,fy,cx,cy")
     return events, cam
 
 
@@ -169,7 +158,7 @@ def run(args) -> int:
         results = [(w, r.value, r.error) for w, r in zip(windows, out, strict=True)]
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows = write_outputs(out_dir, results, args.max_png)
+    rows = write_outputs(out_dir, results, args.max_png, grid=args.grid)
     failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
     if not rows:
         from evmotion.errors import EvmotionError
@@ -180,7 +169,8 @@ def run(args) -> int:
         for msg in ([] if err or r is None else r.diagnostics.get("warnings", [])):
             warn_line(f"window {w.index}: {msg}")
     if args.json:
-        print_json({"file": str(args.file), "warp": args.warp, "regularizer": args.reg,
+        print_json({"file": str(args.file), "grid": args.grid, "warp": args.warp,
+                    "regularizer": args.reg,
                     "objective": args.objective, "optimizer": args.optimizer,
                     "windows": rows, "failed": failed})
     else:
@@ -189,8 +179,10 @@ def run(args) -> int:
     return 0
 
 
-def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
-    """params.csv, params.h5 and PNG panels; returns the JSON rows."""
+def write_outputs(out_dir: Path, results, max_png: int, grid: str | None = None
+                  ) -> list[dict]:
+    """params.csv, params.h5 and PNG panels; returns the JSON rows. ``grid`` (which pixel
+    grid the events were on) goes into params.h5's attributes."""
     import h5py
 
     from evmotion.utils import atomic_path, atomic_write_text
@@ -243,6 +235,8 @@ def write_outputs(out_dir: Path, results, max_png: int) -> list[dict]:
         f.attrs["warp"] = ok[0][1].warp
         f.attrs["regularizer"] = str(ok[0][1].regularizer)
         f.attrs["objective"] = ok[0][1].objective
+        if grid is not None:
+            f.attrs["grid"] = grid
     for w, r in ok[:max(max_png, 0)]:
         panels = [images.iwe_to_rgb(r.iwe_before), images.iwe_to_rgb(r.iwe_after)]
         titles = ["IWE identity", "IWE " + ", ".join(

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from evmotion.cli.calib import add_camera_arguments, check_camera_args
 from evmotion.cli.options import (
     existing_input,
     positive_float,
@@ -38,6 +39,9 @@ EXAMPLES = """examples:
   evmotion flow rec.raw --method triplet --out flow.h5 --json
   evmotion flow rec.raw --method triplet --dense robust --out flow.h5 --resume
   evmotion flow window.txt --method dnn --window-events 30000 --out x.flo
+  evmotion flow boxes_rotation/ --out flow.h5       # ECD folder: undistorted with calib.txt
+  evmotion flow rec.aedat4 --calib calib.xml --out flow.h5 --json
+  evmotion flow rec.raw --K 1050,1050,640,360 --dist=-0.1,0.02,0,0 --out flow.h5
 """
 
 OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz")
@@ -86,12 +90,16 @@ def add_parser(sub) -> None:
                    help="video of the windows: events | warped IWE | flow (needs the 'video' "
                         "extra; multicm only)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    add_camera_arguments(p.add_argument_group(
+        "camera (the flow is estimated on the undistorted grid when the calibration has "
+        "distortion; the output's 'grid' attribute says which)"))
     for name, mod in _method_modules():
         mod.add_arguments(p.add_argument_group(f"{name} options"))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    check_camera_args(args)
     if args.window_gt is None:
         reject_unused(args, {"--gt-dt": "gt_dt"}, "without --window-gt")
     args.gt_dt = 1 if args.gt_dt is None else args.gt_dt

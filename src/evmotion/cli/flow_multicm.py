@@ -257,12 +257,14 @@ def _check_space(out: Path, windows, sensor_size) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
+    from evmotion.cli.calib import undistort_for
     from evmotion.methods.multicm import estimate_flow
     from evmotion.utils import progress
 
     out = Path(args.out)
     t_start = time.perf_counter()
     events = _read(args.file, getattr(args, "format", None))
+    events, _, grid = undistort_for(args, events)
     windows = [w for w in _windows(args, events) if w.count >= 10]
     if not windows:
         raise ParameterError(f"{args.file}: no window with at least 10 events")
@@ -290,6 +292,7 @@ def run(args) -> int:
             def estimate(ev, init):
                 return estimate_flow(ev, init=init, **kwargs)
         workers = args.workers
+    attrs["grid"] = grid
     png_dir = Path(args.png_dir) if args.png_dir else None
     video = [] if args.video else None
 
@@ -315,7 +318,7 @@ def run(args) -> int:
         print_json({
             "method": args.method, "outputs": written,
             "time_aware": "none" if args.method == "dnn" else args.time_aware,
-            "n_windows": len(rows), "sensor_size": list(events.sensor_size),
+            "n_windows": len(rows), "sensor_size": list(events.sensor_size), "grid": grid,
             "windows": rows, "seconds": time.perf_counter() - t_start,
         })
     return 0

@@ -115,6 +115,7 @@ def check_args(args) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
+    from evmotion.cli.calib import undistorted_chunks
     from evmotion.jitcache import compile_seconds
     from evmotion.methods.bursts import BurstMeans
     from evmotion.methods.triplet import (
@@ -136,7 +137,8 @@ def run(args) -> int:
     args.ridge = default_ridge(args.dense, args.ridge)
     gap_us = int(round(args.gap_ms * 1000))
     dense = kind != ".npz" or args.png_dir
-    chunks = _iter_chunks(args.file, getattr(args, "format", None), args.chunk_events)
+    chunks, grid = undistorted_chunks(
+        args, _iter_chunks(args.file, getattr(args, "format", None), args.chunk_events))
     first = next((c for c in chunks if len(c)), None)
     if first is None:
         raise ParameterError(f"{args.file}: no events")
@@ -164,7 +166,7 @@ def run(args) -> int:
                        vmax=max_normal_speed(matcher.dx, matcher.tau_us)) if dense else None
     # the sinks come last: nothing that can refuse the options runs after one exists
     if kind in (".h5", ".hdf5"):
-        sink = _H5Sink(out, sensor, {"method": "triplet", "source": str(args.file),
+        sink = _H5Sink(out, sensor, {"method": "triplet", "source": str(args.file), "grid": grid,
                                      **{f"triplet_{k}": v for k, v in params.items()}},
                        resume=args.resume)
         windows.skip = len(sink.done)
@@ -223,7 +225,7 @@ def run(args) -> int:
     if args.json:
         print_json({
             "method": "triplet", "file": str(args.file), "out": str(out),
-            "sensor_size": {"height": sensor[0], "width": sensor[1]},
+            "sensor_size": {"height": sensor[0], "width": sensor[1]}, "grid": grid,
             "events": n_events, "duration_s": (t_last - t_first) * 1e-6,
             "valid_fraction": n_valid / max(n_events, 1),
             "mean_triplets": n_trip / max(n_events, 1),

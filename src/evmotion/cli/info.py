@@ -1,7 +1,9 @@
 """``evmotion info``: what a recording holds.
 
-Sensor size, event count, time range, duration, event rate, polarity balance, and what else
-the file holds (APS frames, IMU, ground truth, calibration). Events are streamed chunk by
+Sensor size, event count, time range, duration, event rate, polarity balance, what else
+the file holds (APS frames, IMU, ground truth, calibration), and the camera intrinsics the
+recording brings (``intrinsics``: K = fx, fy, cx, cy in px, distortion k1 k2 p1 p2 k3,
+resolution and the file or header they come from). Events are streamed chunk by
 chunk, so memory stays bounded for any file size.
 """
 
@@ -66,6 +68,17 @@ def summarize(info: dict) -> list[str]:
         lines.append(f"polarity:    {100 * info['positive_fraction']:.1f}% positive")
     shown = {"path", "format", "sensor_size", "n_events", "t_first_us", "t_last_us",
              "duration_s", "rate_ev_per_s", "positive_fraction"}
+    intr = info.get("intrinsics")
+    if isinstance(intr, dict):
+        shown.add("intrinsics")
+        if intr.get("K"):
+            size = intr.get("resolution")
+            lines.append("intrinsics:  K=[" + ", ".join(f"{v:.6g}" for v in intr["K"])
+                         + "] dist=[" + ", ".join(f"{v:.6g}" for v in intr["dist"]) + "]"
+                         + (f" {size[1]} x {size[0]} px" if size else "")
+                         + f" from {intr['source']}")
+        else:
+            lines.append(f"intrinsics:  none ({intr.get('reason', 'not in the recording')})")
     for k, v in info.items():
         if k not in shown:
             lines.append(f"{k + ':':<12} {_fmt_value(v)}")
@@ -80,6 +93,10 @@ def run(args) -> int:
     if args.sensor_size is not None:
         kw["sensor_size"] = tuple(args.sensor_size)
     info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
+    if "sensor_size" in info:
+        from evmotion.io.calib import recording_intrinsics
+
+        info["intrinsics"] = recording_intrinsics(args.file, tuple(info["sensor_size"]))
     if args.json:
         print_json(info)
     else:

@@ -87,7 +87,7 @@ def run(args) -> int:
     name, unit = w.param_names[j], w.param_units[j]
     ax.set_xlabel(f"{name} [{unit}]")
     ax.set_ylabel("cost J = -G/G0 + lambda R")
-    ax.set_title(f"{args.warp} warp, {args.objective}, {len(events)} events")
+    ax.set_title(f"{args.warp} warp, {args.objective}, {len(events)} events\n{args.grid}")
     ax.legend()
     ax.grid(alpha=0.3)
     with atomic_path(args.out) as tmp:
@@ -99,5 +99,6 @@ def run(args) -> int:
                   for row in zip(values, *curves.values(), strict=True)]
         atomic_write_text(args.csv, "\n".join(lines) + "\n")
     best = values[int(np.argmin(plain["cost"]))]
-    print(f"{args.out}: minimum without regularizer at {name} = {best:.4g} {unit}")
+    print(f"{args.out}: minimum without regularizer at {name} = {best:.4g} {unit} "
+          f"(events on the {args.grid} grid)")
     return 0

@@ -92,7 +92,8 @@ def run(args) -> int:
     with atomic_path(out / "labels.npz") as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **labels)
     if args.json:
-        print_json({"file": str(args.file), "warp": args.warp, "clusters": rows})
+        print_json({"file": str(args.file), "grid": args.grid, "warp": args.warp,
+                    "clusters": rows})
     else:
         print(f"{len(windows)} windows x {args.warps} clusters -> {out}/clusters.csv")
     return 0

@@ -1,5 +1,7 @@
-"""The camera calibration stored with a recording: an ECD ``calib.txt`` or the
-``calibration`` attribute of an evmotion HDF5 file (:func:`read_calibration`).
+"""The camera calibration stored with a recording, as a plain dict: an ECD ``calib.txt``,
+the ``calibration`` attribute of an evmotion HDF5 file, or a calibration file
+(:func:`read_calibration`). The file-format readers returning a
+:class:`~evmotion.camera.Camera` live in :mod:`evmotion.io.calib`.
 
 Examples
 --------
@@ -23,8 +25,10 @@ __all__ = ["read_calibration"]
 def read_calibration(path: str | os.PathLike) -> dict:
     """Camera calibration stored with a recording.
 
-    Accepts an ECD ``calib.txt`` or a folder holding one, or an evmotion HDF5 file with a
-    ``calibration`` attribute.
+    Accepts an ECD ``calib.txt`` or a folder holding one, an evmotion HDF5 file with a
+    ``calibration`` attribute, or any calibration file :func:`evmotion.io.calib.read_calibration`
+    reads (Kalibr / ROS / DSEC YAML, DV XML, JSON). For a
+    :class:`~evmotion.camera.Camera`, use :func:`evmotion.io.calib.read_calibration`.
 
     Returns
     -------
@@ -48,9 +52,13 @@ def read_calibration(path: str | os.PathLike) -> dict:
         head = fh.read(8)
     if head.startswith(b"\x89HDF\r\n\x1a\n"):
         return guard_call(_h5_calibration, "HDF5", "read the calibration")(path)
+    if path.suffix.lower() in (".yaml", ".yml", ".xml", ".json"):
+        from evmotion.io import calib
+
+        return calib.camera_to_dict(calib.read_calibration(path))
     raise FormatError(path, "no calibration found",
-                      "give an ECD calib.txt or an evmotion .h5 with calibration; YAML "
-                      "calibrations are read by evmotion.camera.Camera.from_file")
+                      "give an ECD calib.txt, an evmotion .h5 with calibration, or a "
+                      "calibration .yaml/.xml/.json")
 
 
 def _h5_calibration(path: Path) -> dict:

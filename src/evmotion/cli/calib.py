@@ -1,0 +1,120 @@
+"""Camera options shared by every command that needs or can use intrinsics.
+
+:func:`add_camera_arguments` adds ``--calib FILE``, ``--K fx,fy,cx,cy``, ``--dist
+k1,k2,p1,p2[,k3]`` and ``--no-undistort`` (values checked as they are parsed: one line, exit
+code 2). :func:`camera_for` picks the camera (``--K``, else ``--calib``, else the
+recording's own: an ECD folder's ``calib.txt``, an evmotion HDF5 ``calibration``, a jAER
+header's lens focal length) and :func:`undistort_for` applies the one distortion rule of
+every command: events are undistorted (:meth:`evmotion.camera.Camera.undistort_events`)
+whenever the calibration has distortion, unless ``--no-undistort``; the returned ``grid``
+label says which pixel grid the results live on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+from collections.abc import Iterator
+
+from evmotion.cli.options import existing_input, float_list
+from evmotion.errors import ParameterError
+
+__all__ = ["add_camera_arguments", "camera_for", "undistort_for", "undistorted_chunks",
+           "check_camera_args"]
+
+
+def _intrinsics(text: str) -> list[float]:
+    vals = float_list(4, unit="px")(text)
+    if vals[0] <= 0 or vals[1] <= 0:
+        raise argparse.ArgumentTypeError(f"focal lengths fx, fy must be > 0 px, got {text!r}")
+    return vals
+
+
+def _distortion(text: str) -> list[float]:
+    vals = float_list()(text)
+    if len(vals) not in (4, 5):
+        raise argparse.ArgumentTypeError(
+            f"must be 4 or 5 comma-separated numbers (k1,k2,p1,p2[,k3]), got {len(vals)} in "
+            f"{text!r}")
+    return vals
+
+
+def add_camera_arguments(p) -> None:
+    """``--calib``, ``--K``, ``--dist`` and ``--no-undistort`` on parser (or group) ``p``."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--calib", default=None, type=existing_input, metavar="FILE",
+                   help="calibration file: ECD calib.txt, Kalibr/MVSEC camchain YAML, ROS "
+                        "camera_info YAML, DSEC cam_to_cam.yaml, DV calibration XML or "
+                        "evmotion JSON (default: the recording's own, if any)")
+    g.add_argument("--K", default=None, type=_intrinsics, metavar="FX,FY,CX,CY",
+                   help="camera intrinsics in px (instead of --calib)")
+    p.add_argument("--dist", default=None, type=_distortion, metavar="K1,K2,P1,P2[,K3]",
+                   help="radial-tangential distortion, with --K (default none); write "
+                        "--dist=-0.37,0.15,0,0 when k1 is negative")
+    p.add_argument("--no-undistort", action="store_true",
+                   help="keep the events on the distorted sensor grid even when the "
+                        "calibration has distortion (default: undistort)")
+
+
+def check_camera_args(args) -> None:
+    """``--dist`` goes with ``--K`` only."""
+    if getattr(args, "dist", None) is not None and getattr(args, "K", None) is None:
+        raise ParameterError(f"--dist {','.join(f'{v:g}' for v in args.dist)} needs --K "
+                             "(a --calib file or the recording brings its own distortion)")
+
+
+def camera_for(args, sensor_size, events_meta: dict | None = None):
+    """The camera of this run (``--K``, ``--calib`` or the recording's own), fitted to
+    ``sensor_size`` (height, width); None when no intrinsics are known."""
+    from evmotion.camera import Camera
+    from evmotion.io.calib import read_calibration, recording_camera
+
+    check_camera_args(args)
+    if getattr(args, "K", None) is not None:
+        dist = list(args.dist or [])
+        return Camera(*args.K, dist=tuple(dist + [0.0] * (5 - len(dist))),
+                      sensor_size=sensor_size, source="--K")
+    if getattr(args, "calib", None):
+        return read_calibration(args.calib, sensor_size=sensor_size).for_sensor(sensor_size)
+    cam = recording_camera(args.file, events_meta, sensor_size)
+    return None if cam is None else cam.for_sensor(sensor_size)
+
+
+def _grid(cam, events, undistort: bool) -> str:
+    if events.x.dtype.kind == "f" or events.meta.get("undistorted"):
+        return "undistorted (as recorded)"
+    if cam is None:
+        return "sensor (no calibration known)"
+    return cam.grid_label(undistorted=undistort or not cam.is_distorted)
+
+
+def undistort_for(args, events, *, integer: bool = False):
+    """``(events, camera, grid)``: the events undistorted when the camera has distortion and
+    ``--no-undistort`` is not given; ``integer`` rounds to the pixel lattice (methods that
+    need integer pixels)."""
+    cam = camera_for(args, events.sensor_size, events.meta)
+    undistort = (cam is not None and cam.is_distorted and events.x.dtype.kind != "f"
+                 and not getattr(args, "no_undistort", False))
+    grid = _grid(cam, events, undistort)
+    if undistort:
+        events = cam.undistort_events(events, integer=integer)
+    return events, cam, grid
+
+
+def undistorted_chunks(args, chunks: Iterator, *, integer: bool = True
+                       ) -> tuple[Iterator, str]:
+    """A chunk stream undistorted like :func:`undistort_for` (the camera resolved from the
+    first non-empty chunk), and its grid label."""
+    first = next((c for c in chunks if len(c)), None)
+    if first is None:
+        return iter(()), "sensor (no calibration known)"
+    cam = camera_for(args, first.sensor_size, first.meta)
+    undistort = (cam is not None and cam.is_distorted and first.x.dtype.kind != "f"
+                 and not getattr(args, "no_undistort", False))
+    grid = _grid(cam, first, undistort)
+
+    def stream():
+        for chunk in itertools.chain((first,), chunks):
+            yield cam.undistort_events(chunk, integer=integer) if undistort else chunk
+
+    return stream(), grid

@@ -1,0 +1,185 @@
+"""The camera options of the CLI: --calib / --K / --dist checked as they are parsed (one line,
+exit code 2), the one distortion rule (undistort when the calibration has distortion,
+--no-undistort to opt out) in flow as in egomotion, the 'grid' every output names, and the
+intrinsics `info` shows."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from evmotion.cli import main
+from evmotion.events import EventArray
+from evmotion.io import write_events
+from evmotion.io.calib import read_calibration
+
+CALIB = "199.092366542 198.82882 132.192071378 110.712660011 -0.368436311798 " \
+        "0.150947243557 -0.000296130534 -0.000759431726 0.0"
+K_ARG = "199.092366542,198.82882,132.192071378,110.712660011"
+DIST_ARG = "-0.368436311798,0.150947243557,-0.000296130534,-0.000759431726"
+MULTICM = ["--method", "multicm", "--scales", "1", "--max-iter", "3"]
+
+
+@pytest.fixture(scope="module")
+def ecd(tmp_path_factory):
+    """A small ECD folder (DAVIS240C, 180 x 240): a bright bar moving right, strong barrel
+    distortion in calib.txt."""
+    d = tmp_path_factory.mktemp("ecd")
+    rng = np.random.default_rng(3)
+    n = 4000
+    t = np.sort(rng.uniform(0, 0.02, n))
+    x = np.clip(40 + 4000 * t + rng.normal(0, 0.7, n), 0, 239).round().astype(int)
+    y = rng.integers(10, 170, n)
+    p = rng.integers(0, 2, n)
+    np.savetxt(d / "events.txt", np.column_stack([t, x, y, p]), fmt=["%.9f", "%d", "%d", "%d"])
+    (d / "calib.txt").write_text(CALIB + "\n")
+    return d
+
+
+def _events(folder) -> EventArray:
+    from evmotion.io import read_events
+
+    return read_events(folder)
+
+
+def _one_line_exit2(argv, capsys, *needles):
+    rc = main(argv)
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+
+
+@pytest.mark.parametrize("cmd", [
+    ["flow", "REC", "--out", "OUT.h5"],
+    ["egomotion", "REC", "--window-events", "1000", "--out", "OUTDIR"],
+    ["segment", "REC", "--out", "OUTDIR"],
+    ["landscape", "REC", "--range", "-1", "1", "--out", "OUT.png"],
+])
+@pytest.mark.parametrize("bad, needles", [
+    (["--K", "200,200,120"], ["--K", "4 comma-separated numbers", "'200,200,120'"]),
+    (["--K", "0,200,120,90"], ["--K", "fx, fy must be > 0", "'0,200,120,90'"]),
+    (["--K", "200,nan,120,90"], ["--K", "finite", "'200,nan,120,90'"]),
+    (["--K", "200,200,120,90", "--dist", "0.1,0.2,0"], ["--dist", "4 or 5", "'0.1,0.2,0'"]),
+    (["--K", "200,200,120,90", "--dist", "a,b,c,d"], ["--dist", "'a,b,c,d'"]),
+    (["--K", "200,200,120,90", "--calib", "CALIB"], ["--calib", "not allowed with"]),
+])
+def test_camera_options_are_checked_at_parse_time(ecd, tmp_path, capsys, cmd, bad, needles):
+    sub = {"REC": str(ecd), "OUT.h5": str(tmp_path / "f.h5"), "OUTDIR": str(tmp_path / "o"),
+           "OUT.png": str(tmp_path / "l.png"), "CALIB": str(ecd / "calib.txt")}
+    argv = [sub.get(a, a) for a in cmd + bad]
+    _one_line_exit2(argv, capsys, *needles)
+    assert not (tmp_path / "f.h5").exists() and not (tmp_path / "o").exists()
+
+
+def test_dist_without_k_is_refused(ecd, tmp_path, capsys):
+    _one_line_exit2(["flow", str(ecd), "--out", str(tmp_path / "f.h5"), "--dist", "0,0,0,0"],
+                    capsys, "--dist 0,0,0,0 needs --K")
+
+
+def test_flow_on_ecd_folder_undistorts_unless_told_not_to(ecd, tmp_path, capsys):
+    from evmotion.methods.multicm import estimate_flow
+
+    def run(*extra):
+        out = tmp_path / f"f{len(list(tmp_path.iterdir()))}.h5"
+        assert main(["flow", str(ecd), "--out", str(out), *MULTICM, "--json", *extra]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        with h5py.File(out) as f:
+            return np.asarray(f["flow"][0]), f.attrs["grid"], summary["grid"]
+
+    ev = _events(ecd)
+    cam = read_calibration(ecd / "calib.txt")
+    expect_und = estimate_flow(cam.undistort_events(ev), n_scales=1, max_iter=3).flow
+    expect_raw = estimate_flow(ev, n_scales=1, max_iter=3).flow
+
+    flow, attr, field = run()
+    label = "undistorted (K=[199.092, 198.829, 132.192, 110.713])"
+    assert attr == field == label
+    np.testing.assert_allclose(flow, expect_und, rtol=1e-5, atol=1e-4)
+
+    flow_raw, attr, field = run("--no-undistort")
+    assert attr == field == "distorted sensor"
+    np.testing.assert_allclose(flow_raw, expect_raw, rtol=1e-5, atol=1e-4)
+    assert np.abs(flow - flow_raw).max() > 1.0  # the two grids give different flows
+
+    # --K/--dist with the same numbers as calib.txt: the same flow
+    flow_k, attr, _ = run("--K", K_ARG, f"--dist={DIST_ARG}")
+    assert attr == label
+    np.testing.assert_allclose(flow_k, flow, rtol=1e-5, atol=1e-4)
+    # --K alone: no distortion, so the events stay where they are, on K's pinhole grid
+    flow_k0, attr, _ = run("--K", K_ARG)
+    assert attr == label
+    np.testing.assert_allclose(flow_k0, expect_raw, rtol=1e-5, atol=1e-4)
+
+
+def test_flow_triplet_undistorts_on_the_pixel_lattice(ecd, tmp_path, capsys):
+    out = tmp_path / "t.h5"
+    assert main(["flow", str(ecd), "--method", "triplet", "--out", str(out), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["grid"].startswith("undistorted (K=[199.092")
+    cam = read_calibration(ecd / "calib.txt")
+    assert s["events"] == len(cam.undistort_events(_events(ecd), integer=True))
+    with h5py.File(out) as f:
+        assert f.attrs["grid"] == s["grid"]
+    assert main(["flow", str(ecd), "--method", "triplet", "--out", str(out), "--json",
+                 "--no-undistort"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["grid"] == "distorted sensor" and s["events"] == len(_events(ecd))
+
+
+def test_egomotion_k_equals_recording_own_calibration(ecd, tmp_path, capsys):
+    rows = {}
+    for name, extra in (("own", []), ("K", ["--K", K_ARG, f"--dist={DIST_ARG}"]),
+                        ("raw", ["--no-undistort"])):
+        assert main(["egomotion", str(ecd), "--window-events", "4000", "--max-png", "0",
+                     "--out", str(tmp_path / name), "--json", *extra]) == 0
+        rows[name] = json.loads(capsys.readouterr().out)
+        with h5py.File(tmp_path / name / "params.h5") as f:
+            assert f.attrs["grid"] == rows[name]["grid"]
+    assert rows["own"]["grid"].startswith("undistorted (K=[199.092")
+    assert rows["raw"]["grid"] == "distorted sensor"
+    own = rows["own"]["windows"][0]["params"]
+    assert rows["K"]["windows"][0]["params"] == own
+    assert rows["raw"]["windows"][0]["params"] != own
+
+
+def test_info_shows_the_recording_intrinsics(ecd, tmp_path, capsys):
+    assert main(["info", str(ecd), "--json"]) == 0
+    intr = json.loads(capsys.readouterr().out)["intrinsics"]
+    assert intr["source"] == str(ecd / "calib.txt") and intr["nominal"] is False
+    assert intr["K"] == pytest.approx([199.092366542, 198.82882, 132.192071378, 110.712660011])
+    assert intr["dist"][0] == pytest.approx(-0.368436311798)
+    assert intr["resolution"] == [180, 240]
+    assert main(["info", str(ecd)]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("intrinsics:")]
+    assert line == [f"intrinsics:  K=[199.092, 198.829, 132.192, 110.713] dist=[-0.368436, "
+                    f"0.150947, -0.000296131, -0.000759432, 0] 240 x 180 px from "
+                    f"{ecd / 'calib.txt'}"]
+    # converted to .h5, the recording keeps its calibration
+    h5 = tmp_path / "rec.h5"
+    assert main(["convert", str(ecd / "events.txt"), str(h5)]) == 0
+    capsys.readouterr()
+    assert main(["info", str(h5), "--json"]) == 0
+    intr = json.loads(capsys.readouterr().out)["intrinsics"]
+    assert intr["source"] == f"{h5} (calibration attribute)"
+    assert intr["K"][0] == pytest.approx(199.092366542)
+    # a recording without calibration says so
+    plain = tmp_path / "plain.h5"
+    ev = _events(ecd)
+    write_events(plain, EventArray(ev.x, ev.y, ev.t, ev.p, ev.sensor_size))  # no meta
+    assert main(["info", str(plain), "--json"]) == 0
+    intr = json.loads(capsys.readouterr().out)["intrinsics"]
+    assert intr["source"] is None and "no calibration" in intr["reason"]
+
+
+@pytest.mark.realdata
+def test_real_jaer_info_says_why_no_intrinsics(shared_data, capsys):
+    f = shared_data / "formats" / "davis240_translboxes_aedat2.aedat"
+    assert main(["info", str(f), "--header-only", "--json"]) == 0
+    intr = json.loads(capsys.readouterr().out)["intrinsics"]
+    assert intr["source"] is None and "4.5, 8.5, 12 mm" in intr["reason"]
