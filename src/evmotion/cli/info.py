@@ -2,7 +2,9 @@
 
 Sensor size, event count, time range, duration, event rate, polarity balance, and what else
 the file holds (APS frames, IMU, ground truth, calibration). Events are streamed chunk by
-chunk, so memory stays bounded for any file size.
+chunk, so memory stays bounded for any file size. A flow output of ``evmotion flow`` (any
+container, or a per-window pattern) is described by its container, windows, time range,
+units, grid and valid fraction.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ EXAMPLES = """examples:
   evmotion info boxes_rotation/                # an ECD folder
   evmotion info rec.h5 --json                  # machine-readable
   evmotion info rec.raw --header-only          # no pass over the events
+  evmotion info flow.h5                        # a flow output: windows, times, units, valid
+  evmotion info 'flow_{:05d}.flo'              # per-window flow files, by their pattern
 """
 
 _HIDDEN = {"path", "format"}
@@ -26,7 +30,8 @@ def add_parser(sub) -> None:
         description=__doc__, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("file", help="recording (file or ECD folder), any readable format")
+    p.add_argument("file", help="recording (file or ECD folder), any readable format, or a "
+                                "flow output")
     p.add_argument("--format", default=None, help="input format (default: detect by content)")
     p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,
                    metavar=("H", "W"),
@@ -75,11 +80,14 @@ def summarize(info: dict) -> list[str]:
 def run(args) -> int:
     import evmotion.io as eio
     from evmotion.cli import print_json
+    from evmotion.io.flowout import describe_flow
 
     kw = {}
     if args.sensor_size is not None:
         kw["sensor_size"] = tuple(args.sensor_size)
-    info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
+    info = describe_flow(args.file) if args.format is None else None
+    if info is None:
+        info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
     if args.json:
         print_json(info)
     else:

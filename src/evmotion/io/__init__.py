@@ -39,6 +39,7 @@ from evmotion.io.flowfiles import (
     write_dsec_flow_png,
     write_flo,
 )
+from evmotion.io.flowout import open_flow_output, read_flow
 from evmotion.io.guard import guard_call
 from evmotion.io.registry import all_formats, get_format
 from evmotion.io.registry import detect_format as _detect
@@ -54,10 +55,12 @@ __all__ = [
     "detect_format",
     "format_for_output",
     "iter_events",
+    "open_flow_output",
     "read_calibration",
     "read_dsec_flow_png",
     "read_events",
     "read_flo",
+    "read_flow",
     "read_flow_h5",
     "read_frames",
     "read_gt_flow",

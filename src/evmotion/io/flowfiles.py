@@ -49,6 +49,8 @@ __all__ = [
 ]
 
 FLO_MAGIC = 202021.25
+#: Middlebury's value for "unknown flow" (readers treat anything above 1e9 as unknown)
+FLO_UNKNOWN = 1e10
 FLOW_FORMAT = "evmotion-flow"
 FLOW_VERSION = 1
 SIM_GT_FORMAT = "evmotion-sim-gt"
@@ -92,11 +94,14 @@ def _check_flow(flow, name: str = "flow") -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- .flo
-def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = None) -> None:
+def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = None, *,
+              valid: np.ndarray | None = None) -> None:
     """Write a Middlebury ``.flo`` file (atomically).
 
     ``.flo`` files hold pixel displacements. Give ``dt_s`` to convert a flow in px/s
     (displacement = flow · dt_s); without it ``flow`` is written as-is (a displacement in px).
+    Pixels outside ``valid`` (and non-finite values) are written as Middlebury's "unknown"
+    (1e10), which :func:`read_flo` returns as NaN.
 
     Parameters
     ----------
@@ -106,6 +111,8 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
         Flow in px/s if ``dt_s`` is given, else displacement in px.
     dt_s : float, optional
         Time interval in seconds.
+    valid : ndarray (H, W) bool, optional
+        Where the flow is known (default: where it is finite).
 
     Examples
     --------
@@ -114,6 +121,14 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
     arr = _check_flow(flow)
     if dt_s is not None:
         arr = arr * np.float32(dt_s)
+    known = np.isfinite(arr).all(axis=2)
+    if valid is not None:
+        v = np.asarray(valid, dtype=bool)
+        if v.shape != arr.shape[:2]:
+            raise ParameterError(f"valid must have shape {arr.shape[:2]}, got {v.shape}")
+        known &= v
+    if not known.all():
+        arr = np.where(known[..., None], arr, np.float32(FLO_UNKNOWN))
     h, w = arr.shape[:2]
     header = struct.pack("<fii", FLO_MAGIC, w, h)
     with atomic_path(path) as tmp:
