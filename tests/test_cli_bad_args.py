@@ -177,7 +177,7 @@ CASES = [
     ("flow-npy-multicm", ["flow", "{rec}", "--out", "{dir}/f.npy"], ["--out", "f.npy", ".npz"]),
     ("flow-flo-several", ["flow", "{rec}", "--window-events", "1000", "--out", "{dir}/f.flo"],
      ["--out", "f.flo", "windows", "f_{:05d}.flo"]),
-    ("flow-h5-pattern", ["flow", "{rec}", "--out", "{dir}/f_{:05d}.h5"],
+    ("flow-h5-pattern", ["flow", "{rec}", "--out", "{dir}/f_{{:05d}}.h5"],
      ["--out", "f_{:05d}.h5", "every window"]),
     ("flow-out-txt", ["flow", "{rec}", "--out", "{dir}/f.txt"], ["--out", "f.txt", ".h5"]),
     ("flow-out-is-folder", ["flow", "{rec}", "--out", "{dir}/adir.h5"],

@@ -140,3 +140,56 @@ def test_gt_displacement_chains_frames_along_trajectories():
     assert disp[4, 20, 0] == pytest.approx(euler_chain, rel=1e-6)
     assert abs(disp[4, 20, 0] - exact) < abs(x0 * 4 * a * T * 1e-6 - exact)
     assert valid[4, 20] and not valid[4, 150]  # x = 150 leaves the 200 px image
+
+
+@pytest.mark.parametrize("name", ["gt.h5", "gt.npz", "gt_{:05d}.flo", "gt_{:05d}.png"])
+def test_eval_and_info_read_every_container_with_its_times(recording, tmp_path, capsys, name):
+    from evmotion.io.flowout import open_flow_output
+
+    path, gt = recording
+    out = tmp_path / name
+    with open_flow_output(out, (90, 120), {"method": "copy"}) as sink:
+        for s in range(2):
+            valid = np.ones((90, 120), bool)
+            valid[:, :10] = False
+            sink.append(np.broadcast_to(np.float32(FLOW), (90, 120, 2)), 20_000 * s,
+                        20_000 * (s + 1), valid=valid)
+    rc, text = _run(["eval", str(out), "--gt", str(gt), "--json"], capsys)
+    assert rc == 0
+    res = json.loads(text)
+    assert [(w["t0_us"], w["t1_us"]) for w in res["windows"]] == [(0, 20_000), (20_000, 40_000)]
+    assert res["windows_with_other_dt"] == 0
+    assert res["mean"]["AEE"] < (5e-3 if name.endswith(".png") else 1e-5)
+    rc, text = _run(["info", str(out), "--json"], capsys)
+    d = json.loads(text)
+    assert rc == 0 and d["windows"] == 2 and d["sensor_size"] == [90, 120]
+    assert d["t_first_us"] == 0 and d["t_last_us"] == 40_000 and d["method"] == "copy"
+    assert d["valid_fraction"] == pytest.approx(110 / 120)
+    assert d["units"].startswith("px/s" if name.endswith(("h5", "npz")) else "px ")
+    rc, text = _run(["info", str(out)], capsys)
+    assert rc == 0 and "valid_fraction" in text
+
+
+def test_png_pattern_then_eval(recording, tmp_path, capsys):
+    path, gt = recording
+    pattern = tmp_path / "f_{:05d}.png"
+    rc, text = _run(["flow", str(path), "--method", "multicm", "--window-gt", str(gt),
+                     "--scales", "3", "--out", str(pattern), "--json"], capsys)
+    assert rc == 0
+    assert json.loads(text)["outputs"] == [str(tmp_path / f"f_{i:05d}.png") for i in range(2)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "f_00000.png", "f_00000.png.json", "f_00001.png", "f_00001.png.json"]
+    rc, text = _run(["eval", str(pattern), "--gt", str(gt), "--events", str(path), "--json"],
+                    capsys)
+    assert rc == 0
+    res = json.loads(text)
+    assert res["n_windows"] == 2 and res["mean"]["AEE"] < 0.3
+
+
+def test_npy_output_is_refused_for_npz(recording, tmp_path, capsys):
+    path, _ = recording
+    rc = main(["flow", str(path), "--method", "multicm", "--out", str(tmp_path / "f.npy")])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1
+    assert "--out" in err and "f.npy" in err and ".npz" in err
+    assert not list(tmp_path.iterdir())

@@ -201,7 +201,7 @@ def run(args) -> int:
         from evmotion.io import read_events
 
         events = read_events(args.events, **({"format": args.format} if args.format else {}))
-    rows, per_window, mismatched = [], [], 0
+    rows, per_window, mismatched, unknown = [], [], 0, False
     for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
         disp_gt, valid, frames = gt_displacement(gt, int(t0), int(t1))
         if abs(frames - args.dt) > 0.5:
@@ -213,6 +213,10 @@ def run(args) -> int:
             est = transport_to_times(np.ascontiguousarray(est.transpose(2, 0, 1)),
                                      np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
         mask = valid if domain is None else valid & domain[i]
+        known = np.isfinite(flow[i]).all(axis=-1)
+        if domain is None and not known.all():  # .flo / .png: "unknown" where not valid
+            mask = mask & known
+            unknown = True
         win = None
         if events is not None:
             win = events.slice_time(int(t0), int(t1))
@@ -236,7 +240,8 @@ def run(args) -> int:
     summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
                "n_windows": len(per_window), "windows_with_other_dt": mismatched,
                "mask": "valid GT" + (" & ROI" if domain is not None else "")
-               + (" & at least one event" if events is not None else ""), "out_px": out_px,
+               + (" & at least one event" if events is not None else "")
+               + (" & estimate known" if unknown else ""), "out_px": out_px,
                "mean": total, "windows": per_window}
     if args.json:
         print_json(summary)

@@ -57,6 +57,11 @@ EXAMPLES = """examples:
 """
 
 OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz", ".png")
+# the outputs of a method that does not write through evmotion.io.flowout yet (all others:
+# OUTPUT_SUFFIXES, their check_args refusing .npy)
+METHOD_OUTPUTS: dict[str, tuple[str, ...]] = {
+    "triplet": (".h5", ".hdf5", ".npy", ".flo", ".npz"),
+}
 
 
 def _method_modules():
@@ -117,6 +122,10 @@ def run(args) -> int:
     if args.resume and args.out.lower().endswith((".npy", ".flo", ".npz", ".png")):
         raise ParameterError(f"--resume continues an .h5 output; --out {args.out} is written "
                              "whole at the end (an interrupted run leaves nothing)")
+    suffixes = METHOD_OUTPUTS.get(args.method, OUTPUT_SUFFIXES)
+    if not args.out.lower().endswith(suffixes):
+        raise ParameterError(f"--out {args.out}: with --method {args.method} the name must end "
+                             f"in {', '.join(suffixes)}")
     for name, modname in FLOW_METHODS.items():
         if name != args.method:
             options = importlib.import_module(modname).OPTIONS
