@@ -193,3 +193,24 @@ def test_npy_output_is_refused_for_npz(recording, tmp_path, capsys):
     assert rc == 2 and len(err.strip().splitlines()) == 1
     assert "--out" in err and "f.npy" in err and ".npz" in err
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("name", ["f_{:05d}.flo", "f.npz"])
+def test_interrupted_run_leaves_no_file(recording, tmp_path, capsys, monkeypatch, name):
+    import evmotion.methods.multicm as multicm
+
+    real, calls = multicm.estimate_flow, []
+
+    def interrupted(*a, **k):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(multicm, "estimate_flow", interrupted)
+    path, _ = recording
+    out = tmp_path / "out"
+    assert main(["flow", str(path), "--method", "multicm", "--window-events", "4000",
+                 "--scales", "2", "--out", str(out / name)]) == 130
+    assert capsys.readouterr().err == "evmotion: interrupted\n"
+    assert len(calls) == 2 and not list(out.iterdir())
