@@ -38,9 +38,6 @@ from evmotion.cli.options import (
 )
 from evmotion.errors import ParameterError
 
-# the .h5 sink lives in the io layer; flow_triplet still takes it from here
-from evmotion.io.flowout import H5FlowOutput as H5Output  # noqa: F401
-
 FLOW_METHODS: dict[str, str] = {
     "multicm": "evmotion.cli.flow_multicm",
     "dnn": "evmotion.cli.flow_dnn",
@@ -137,3 +134,13 @@ def run(args) -> int:
         if getattr(args, attr, None) is None:
             setattr(args, attr, default)
     return mod.run(args)
+
+
+def __getattr__(name: str):
+    # the .h5 sink moved to evmotion.io.flowout; flow_triplet still takes it from here
+    # (imported on demand: `evmotion --help` does not load the io package)
+    if name == "H5Output":
+        from evmotion.io.flowout import H5FlowOutput
+
+        return H5FlowOutput
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
