@@ -11,6 +11,7 @@ import pytest
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io import flowout as fo
 from evmotion.io.flowfiles import read_flo
+from evmotion.io.flowread import describe_flow, read_flow
 
 H, W = 6, 7
 T0 = [1_000, 21_000, 41_000]
@@ -44,13 +45,13 @@ def _write(path, n=3, **kw):
     ("f_{:05d}.png", "px", 1e-6)])
 def test_round_trip_units_times_valid(tmp_path, name, units, rtol):
     flows, valids = _write(tmp_path / name)
-    seq = fo.read_flow(tmp_path / name)
+    seq = read_flow(tmp_path / name)
     assert seq.t0.tolist() == T0 and seq.t1.tolist() == T1
     np.testing.assert_array_equal(seq.valid, np.stack(valids))
     v = np.stack(valids)
     np.testing.assert_allclose(seq.flow[v], np.stack(flows)[v], rtol=rtol, atol=1e-3)
     assert seq.attrs["method"] == "test" and seq.attrs["grid"] == "sensor"
-    d = fo.describe_flow(tmp_path / name)
+    d = describe_flow(tmp_path / name)
     assert d["windows"] == 3 and d["sensor_size"] == [H, W]
     assert d["t_first_us"] == T0[0] and d["t_last_us"] == T1[-1]
     assert d["units"].startswith(units) and d["method"] == "test"
@@ -84,14 +85,14 @@ def test_png_is_dsec_displacement(tmp_path):
 def test_one_window_plain_name_and_explicit_interval(tmp_path):
     flows, valids = _write(tmp_path / "one.flo", n=1)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.flo", "one.flo.json"]
-    seq = fo.read_flow(tmp_path / "one.flo")
+    seq = read_flow(tmp_path / "one.flo")
     assert seq.t0.tolist() == [T0[0]] and len(seq) == 1
     with pytest.raises(ParameterError, match="carries"):
-        fo.read_flow(tmp_path / "one.flo", t0_us=0, t1_us=5)
+        read_flow(tmp_path / "one.flo", t0_us=0, t1_us=5)
     (tmp_path / "one.flo.json").unlink()
     with pytest.raises(ParameterError, match="one.flo.*no one.flo.json"):
-        fo.read_flow(tmp_path / "one.flo")
-    seq = fo.read_flow(tmp_path / "one.flo", t0_us=0, t1_us=10_000)
+        read_flow(tmp_path / "one.flo")
+    seq = read_flow(tmp_path / "one.flo", t0_us=0, t1_us=10_000)
     np.testing.assert_allclose(seq.flow[0][valids[0]], flows[0][valids[0]] * 2, rtol=1e-5)
 
 
@@ -119,7 +120,7 @@ def test_npy_is_refused_for_npz(tmp_path):
     with pytest.raises(ParameterError, match=r"f.npy: a bare .npy .* write .npz"):
         fo.open_flow_output(tmp_path / "f.npy", (H, W))
     with pytest.raises(FormatError, match="f.npy"):
-        fo.read_flow(tmp_path / "f.npy")
+        read_flow(tmp_path / "f.npy")
     with pytest.raises(ParameterError, match="f.txt: not a flow output"):
         fo.check_flow_output(tmp_path / "f.txt")
 
@@ -140,7 +141,7 @@ def test_an_exception_mid_run_leaves_no_complete_looking_file(tmp_path, name):
 def test_rerun_with_fewer_windows_replaces_the_pattern_set(tmp_path):
     _write(tmp_path / "f_{:05d}.flo", n=3)
     _write(tmp_path / "f_{:05d}.flo", n=2)
-    assert len(fo.read_flow(tmp_path / "f_{:05d}.flo")) == 2
+    assert len(read_flow(tmp_path / "f_{:05d}.flo")) == 2
     assert not (tmp_path / "f_00002.flo").exists()
     assert not (tmp_path / "f_00002.flo.json").exists()
 
@@ -162,7 +163,7 @@ def test_h5_resume_continues_and_checks(tmp_path):
     for i in (1, 2):
         out.append(flows[i], T0[i], T1[i], valid=valids[i])
     out.close()
-    seq = fo.read_flow(path)
+    seq = read_flow(path)
     np.testing.assert_array_equal(seq.flow, np.stack(flows))
     np.testing.assert_array_equal(seq.valid, np.stack(valids))
     out = fo.open_flow_output(path, (H, W), {"method": "m", "lam": 1.0}, resume=True)
@@ -200,16 +201,16 @@ def test_describe_flow_is_none_for_other_files(tmp_path):
                     sensor_size=(8, 8))
     write_events(tmp_path / "ev.h5", ev)
     write_events(tmp_path / "ev.npz", ev)
-    assert fo.describe_flow(tmp_path / "ev.h5") is None
-    assert fo.describe_flow(tmp_path / "ev.npz") is None
-    assert fo.describe_flow(tmp_path / "nothing_{:05d}.flo") is None
+    assert describe_flow(tmp_path / "ev.h5") is None
+    assert describe_flow(tmp_path / "ev.npz") is None
+    assert describe_flow(tmp_path / "nothing_{:05d}.flo") is None
 
 
 def test_per_event_npz_is_described_not_read_as_windows(tmp_path):
     n = 4
     np.savez(tmp_path / "ev.npz", t=np.arange(n, dtype=np.int64) * 100, x=np.zeros(n),
              y=np.zeros(n), vx=np.ones(n), vy=np.ones(n), valid=np.array([1, 1, 0, 0], bool))
-    d = fo.describe_flow(tmp_path / "ev.npz")
+    d = describe_flow(tmp_path / "ev.npz")
     assert d["format"] == "per-event-flow" and d["events"] == n and d["valid_fraction"] == 0.5
     with pytest.raises(FormatError, match="per-event"):
-        fo.read_flow(tmp_path / "ev.npz")
+        read_flow(tmp_path / "ev.npz")

@@ -1,6 +1,6 @@
 """``evmotion eval FLOW --gt GT``: accuracy of estimated flow against ground truth.
 
-FLOW is any flow output of ``evmotion flow`` (:func:`evmotion.io.flowout.read_flow`:
+FLOW is any flow output of ``evmotion flow`` (:func:`evmotion.io.flowread.read_flow`:
 ``.h5``, ``.npz``, ``.flo`` / DSEC ``.png`` with their JSON sidecar, or a pattern such as
 ``flow_{:05d}.flo``), read back with each window's times; a ``.flo``/``.png`` without
 sidecar or a bare ``.npy`` (px/s) needs ``--t0-us``/``--t1-us``. GT is MVSEC ``.npz``, a DSEC flow folder or timestamps file, or an
@@ -68,7 +68,8 @@ def _load_flow(args):
     from pathlib import Path
 
     from evmotion.io.bosfiles import BOS_CONTENT
-    from evmotion.io.flowout import CONTAINERS, read_flow
+    from evmotion.io.flowout import CONTAINERS
+    from evmotion.io.flowread import read_flow
 
     path = Path(args.flow)
     suffix = path.suffix.lower()

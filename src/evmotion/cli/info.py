@@ -80,7 +80,7 @@ def summarize(info: dict) -> list[str]:
 def run(args) -> int:
     import evmotion.io as eio
     from evmotion.cli import print_json
-    from evmotion.io.flowout import describe_flow
+    from evmotion.io.flowread import describe_flow
 
     kw = {}
     if args.sensor_size is not None:

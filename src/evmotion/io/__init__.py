@@ -39,7 +39,8 @@ from evmotion.io.flowfiles import (
     write_dsec_flow_png,
     write_flo,
 )
-from evmotion.io.flowout import open_flow_output, read_flow
+from evmotion.io.flowout import open_flow_output
+from evmotion.io.flowread import read_flow
 from evmotion.io.guard import guard_call
 from evmotion.io.registry import all_formats, get_format
 from evmotion.io.registry import detect_format as _detect
