@@ -174,7 +174,11 @@ CASES = [
      ["--resume", "f.npy"]),
     ("flow-resume-workers", ["flow", "{rec}", "--resume", "--workers", "2",
                              "--out", "{dir}/f.h5"], ["--resume", "--workers 1"]),
-    ("flow-npz-multicm", ["flow", "{rec}", "--out", "{dir}/f.npz"], ["--out", "f.npz"]),
+    ("flow-npy-multicm", ["flow", "{rec}", "--out", "{dir}/f.npy"], ["--out", "f.npy", ".npz"]),
+    ("flow-flo-several", ["flow", "{rec}", "--window-events", "1000", "--out", "{dir}/f.flo"],
+     ["--out", "f.flo", "windows", "f_{:05d}.flo"]),
+    ("flow-h5-pattern", ["flow", "{rec}", "--out", "{dir}/f_{{:05d}}.h5"],
+     ["--out", "f_{:05d}.h5", "every window"]),
     ("flow-out-txt", ["flow", "{rec}", "--out", "{dir}/f.txt"], ["--out", "f.txt", ".h5"]),
     ("flow-out-is-folder", ["flow", "{rec}", "--out", "{dir}/adir.h5"],
      ["--out", "adir.h5", "is a folder"]),
@@ -432,8 +436,8 @@ def test_free_space_is_checked_before_the_work(rec, capsys, monkeypatch):
     called = []
     monkeypatch.setattr(flow_multicm, "_run_windows", lambda *a, **k: called.append(1))
     rc, err = _run(["flow", rec["rec"], "--window-events", "2000", "--out",
-                    str(rec["dir"] / "big.npy")], capsys)
-    _assert_one_line(rc, err, "--out", "big.npy", "needs at least", "1000 B free")
+                    str(rec["dir"] / "big.npz")], capsys)
+    _assert_one_line(rc, err, "--out", "big.npz", "needs at least", "1000 B free")
     assert not called
 
 
@@ -480,7 +484,7 @@ def test_ctrl_c_at_any_moment_is_one_line(rec, command):
     callbacks), where a KeyboardInterrupt used to be printed and lost."""
     d = rec["dir"]
     argv = {"flow": ["flow", rec["rec"], "--window-events", "1500", "--workers", "2",
-                     "--out", str(d / "ctrlc.npy")],
+                     "--out", str(d / "ctrlc.npz")],
             "simulate": ["simulate", "rotation", "--size", "120x160", "--duration", "0.3",
                          "--out", str(d / "ctrlc.h5")]}[command]
     start = time.perf_counter()
@@ -504,7 +508,7 @@ def test_ctrl_c_at_any_moment_is_one_line(rec, command):
             (p.returncode == 0 and err == ""), (frac, p.returncode, err)
     assert 130 in outcomes
     left = [q.name for q in d.iterdir() if ".part" in q.name or q.name.startswith(".")]
-    assert not left  # .npy and events files are written whole or not at all
+    assert not left  # .npz and events files are written whole or not at all
 
 
 # ------------------------------------------------------------------------------- --resume

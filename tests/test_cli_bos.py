@@ -80,7 +80,7 @@ def test_options_roi_png_json(scene, tmp_path, capsys):
     bos = read_bos_h5(out)
     assert bos.flow.valid[0, 8:40, 4:36].all() and bos.flow.valid[0].sum() == 32 * 32
     assert np.isnan(bos.flow.flow[0, 0, 0]).all()
-    for name in ("q_0000.png", "flow_0000.png", "p_0000.png"):
+    for name in ("q_00000.png", "flow_00000.png", "p_00000.png"):
         assert (tmp_path / "png" / name).stat().st_size > 1000
     rc, text, _ = _run(["eval", out, "--gt", scene / "schlieren_gt.h5", "--json"], capsys)
     assert rc == 0 and json.loads(text)["mean"]["n_pixels"] == 32 * 32

@@ -299,8 +299,10 @@ def test_cli_multicm_writes_the_validity_mask(tmp_path, capsys):
     assert seq.valid is not None and seq.valid.shape == (len(seq), 96, 128)
     assert not seq.valid[:, :, 70:].any() and seq.valid[:, :, 5:60].mean() > 0.9
     assert all(0.3 < w["valid_fraction"] < 0.6 for w in doc["windows"])
-    npy = tmp_path / "flow.npy"
+    npz = tmp_path / "flow.npz"  # (a bare .npy, flow set to 0 where not valid, before #15)
     assert main(["flow", str(rec), "--method", "multicm", "--scales", "2", "--out",
-                 str(npy)]) == 0
-    arr = np.load(npy)
-    assert arr.shape == (len(seq), 96, 128, 2) and not arr[:, :, 70:].any()
+                 str(npz)]) == 0
+    with np.load(npz) as z:
+        arr, valid = z["flow"], z["valid"]
+    assert arr.shape == (len(seq), 96, 128, 2) and not valid[:, :, 70:].any()
+    np.testing.assert_array_equal(valid, seq.valid)

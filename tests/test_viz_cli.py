@@ -35,8 +35,8 @@ def test_multicm_pictures_and_video(recording, tmp_path):
                "--scales", "2", "--out", str(tmp_path / "f.h5"), "--png-dir", str(png),
                "--max-speed", "1000", "--video", str(video)])
     assert rc == 0
-    img = read_png(png / "flow_0000.png")[..., :3]
-    masked = read_png(png / "flow_masked_0000.png")[..., :3]
+    img = read_png(png / "flow_00000.png")[..., :3]
+    masked = read_png(png / "flow_masked_00000.png")[..., :3]
     ref = flow_picture(np.broadcast_to(np.float32(FLOW), (90, 120, 2)), max_speed=1000.0)
     assert img.shape == ref.rgb.shape  # flow upscaled to a legible size + legend strip
     # the legend says "rim 1000 px/s, fixed scale": the strip equals the reference's

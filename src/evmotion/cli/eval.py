@@ -1,7 +1,9 @@
 """``evmotion eval FLOW --gt GT``: accuracy of estimated flow against ground truth.
 
-FLOW is an evmotion flow file (``.h5`` from ``evmotion flow``; ``.npy``/``.flo`` need
-``--t0-us``/``--t1-us``). GT is MVSEC ``.npz``, a DSEC flow folder or timestamps file, or an
+FLOW is any flow output of ``evmotion flow`` (:func:`evmotion.io.flowread.read_flow`:
+``.h5``, ``.npz``, ``.flo`` / DSEC ``.png`` with their JSON sidecar, or a pattern such as
+``flow_{:05d}.flo``), read back with each window's times; a ``.flo``/``.png`` without
+sidecar or a bare ``.npy`` (px/s) needs ``--t0-us``/``--t1-us``. GT is MVSEC ``.npz``, a DSEC flow folder or timestamps file, or an
 evmotion/simulator ``.h5`` (:func:`evmotion.io.flowfiles.read_gt_flow`). For every estimated
 window ``[t0, t1)`` the ground-truth displacement is the GT flow integrated over the window
 along the trajectories (each GT frame weighted by its overlap, chained as in the MVSEC
@@ -31,6 +33,7 @@ from evmotion.errors import FormatError, ParameterError
 EXAMPLES = """examples:
   evmotion eval flow.h5 --gt outdoor_day1_gt_flow_dist.npz --events rec.h5 --dt 4 --json
   evmotion eval flow.h5 --gt sim.h5 --events sim.h5
+  evmotion eval 'flow_{:05d}.flo' --gt sim.h5
 """
 
 
@@ -38,7 +41,8 @@ def add_parser(sub) -> None:
     p = sub.add_parser("eval", help="flow accuracy (AEE, %%Out, AE, FWL) against ground truth",
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("flow", help="estimated flow (.h5, or .npy/.flo with --t0-us/--t1-us)")
+    p.add_argument("flow", help="estimated flow (.h5, .npz, .flo, .png, a pattern "
+                                "flow_{:05d}.flo; .npy with --t0-us/--t1-us)")
     p.add_argument("--gt", required=True, type=existing_input,
                    help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
     p.add_argument("--events", default=None, type=existing_input,
@@ -46,9 +50,9 @@ def add_parser(sub) -> None:
     p.add_argument("--format", default=None, help="format of --events (default: detect)")
     p.add_argument("--dt", type=positive_int(), default=1, help="GT frames per window (1 or 4)")
     p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None,
-                   help="window start for .npy/.flo")
+                   help="window start of a .npy, or a .flo/.png without sidecar")
     p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None,
-                   help="window end for .npy/.flo")
+                   help="window end of a .npy, or a .flo/.png without sidecar")
     p.add_argument("--out-px", type=positive_float(unit="px"), default=None,
                    help="%%Out threshold in px (default 3; 1 for BOS files, thesis §6.6.1)")
     p.add_argument("--along-streamlines", action="store_true",
@@ -64,38 +68,48 @@ def _load_flow(args):
     from pathlib import Path
 
     from evmotion.io.bosfiles import BOS_CONTENT
-    from evmotion.io.flowfiles import read_flo, read_flow_h5
+    from evmotion.io.flowout import CONTAINERS
+    from evmotion.io.flowread import read_flow
 
     path = Path(args.flow)
     suffix = path.suffix.lower()
-    if Path(args.gt).resolve() == path.resolve():
+    if "{" not in path.name and Path(args.gt).resolve() == path.resolve():
         raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
-    if suffix in (".h5", ".hdf5"):
+    if suffix == ".npy":
+        return _load_npy(args, path)
+    if suffix not in CONTAINERS:
+        raise FormatError(path, f"not a flow file: FLOW must be an evmotion flow output (.h5, "
+                          f".npz, .flo, .png or a pattern such as flow_{{:05d}}.flo from "
+                          f"'evmotion flow'), or .npy, got {path.name!r})")
+    if suffix in (".h5", ".hdf5", ".npz") or "{" in path.name or \
+            path.with_name(path.name + ".json").exists():
         reject_unused(args, {"--t0-us": "t0_us", "--t1-us": "t1_us"},
-                      f"to {path.name} (an .h5 flow file carries its windows' times)")
+                      f"to {path.name} (it carries its windows' times)")
+    elif args.t0_us is None or args.t1_us is None or args.t1_us <= args.t0_us:
+        raise ParameterError(f"{path}: no {path.name}.json beside it, so no time interval; "
+                             "give --t0-us and --t1-us (t1 > t0)")
+    if suffix in (".h5", ".hdf5"):
         _check_estimate(path)
-        seq = read_flow_h5(path)
-        # a BOS file is defined inside its ROI only (NaN outside, valid = ROI)
-        domain = seq.valid if seq.attrs.get("content") == BOS_CONTENT else None
-        return seq.flow, np.asarray(seq.t0), np.asarray(seq.t1), domain
-    if suffix not in (".npy", ".flo"):
-        raise FormatError(path, f"not a flow file: FLOW must be an evmotion flow .h5 (from "
-                          f"'evmotion flow'), .npy or .flo, got {path.name!r})")
+    seq = read_flow(path, t0_us=args.t0_us, t1_us=args.t1_us)
+    # a BOS file is defined inside its ROI only (NaN outside, valid = ROI)
+    domain = seq.valid if seq.attrs.get("content") == BOS_CONTENT else None
+    return seq.flow, np.asarray(seq.t0), np.asarray(seq.t1), domain
+
+
+def _load_npy(args, path):
+    """A bare (H, W, 2) / (1, H, W, 2) px/s array from elsewhere: no times, so
+    ``--t0-us``/``--t1-us`` give its window (evmotion itself writes .npz)."""
     if args.t0_us is None or args.t1_us is None or args.t1_us <= args.t0_us:
-        raise ParameterError(f"{path}: .npy/.flo files carry no time interval; give "
+        raise ParameterError(f"{path}: .npy files carry no time interval; give "
                              "--t0-us and --t1-us (t1 > t0)")
-    dt_s = (args.t1_us - args.t0_us) * 1e-6
-    if suffix == ".flo":
-        flow = read_flo(path, dt_s=dt_s)[None]
-    elif suffix == ".npy":
-        try:
-            flow = np.load(path, mmap_mode="r", allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise FormatError(path, f"not a .npy array: {exc}") from None
-        flow = flow[None] if flow.ndim == 3 else flow
-        if flow.ndim != 4 or flow.shape[-1] != 2 or flow.dtype.kind != "f":
-            raise FormatError(path, f"not a flow array: shape {flow.shape} dtype {flow.dtype}, "
-                              "expected (H, W, 2) or (N, H, W, 2) floats in px/s")
+    try:
+        flow = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise FormatError(path, f"not a .npy array: {exc}") from None
+    flow = flow[None] if flow.ndim == 3 else flow
+    if flow.ndim != 4 or flow.shape[-1] != 2 or flow.dtype.kind != "f":
+        raise FormatError(path, f"not a flow array: shape {flow.shape} dtype {flow.dtype}, "
+                          "expected (H, W, 2) or (N, H, W, 2) floats in px/s")
     n = flow.shape[0]
     if n != 1:
         raise ParameterError(f"{path}: {n} windows but one --t0-us/--t1-us interval")
@@ -185,10 +199,10 @@ def run(args) -> int:
                              f"{gt.flow.shape[1:3]} px (height, width)")
     events = None
     if args.events:
-        from evmotion.cli.flow_multicm import _read
+        from evmotion.io import read_events
 
-        events = _read(args.events, args.format)
-    rows, per_window, mismatched = [], [], 0
+        events = read_events(args.events, **({"format": args.format} if args.format else {}))
+    rows, per_window, mismatched, unknown = [], [], 0, False
     for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
         disp_gt, valid, frames = gt_displacement(gt, int(t0), int(t1))
         if abs(frames - args.dt) > 0.5:
@@ -200,6 +214,10 @@ def run(args) -> int:
             est = transport_to_times(np.ascontiguousarray(est.transpose(2, 0, 1)),
                                      np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
         mask = valid if domain is None else valid & domain[i]
+        known = np.isfinite(flow[i]).all(axis=-1)
+        if domain is None and not known.all():  # .flo / .png: "unknown" where not valid
+            mask = mask & known
+            unknown = True
         win = None
         if events is not None:
             win = events.slice_time(int(t0), int(t1))
@@ -223,7 +241,8 @@ def run(args) -> int:
     summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
                "n_windows": len(per_window), "windows_with_other_dt": mismatched,
                "mask": "valid GT" + (" & ROI" if domain is not None else "")
-               + (" & at least one event" if events is not None else ""), "out_px": out_px,
+               + (" & at least one event" if events is not None else "")
+               + (" & estimate known" if unknown else ""), "out_px": out_px,
                "mean": total, "windows": per_window}
     if args.json:
         print_json(summary)

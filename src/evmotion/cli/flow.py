@@ -6,9 +6,21 @@ default)}``: the options only it reads), ``check_args(args)`` (options that do n
 together, seen before the defaults are filled in) and ``run(args) -> int``. An option of another
 method is an error, not silently ignored; the defaults are filled in here.
 
+Every output (:mod:`evmotion.io.flowout`) says its units, each window's ``[t0, t1)`` in µs
+and its validity mask (the pixels whose flow events support), by ``--out`` extension:
+``.h5`` (the reference: flow in px/s, t0/t1, valid, attributes units/grid/method),
+``.npz`` (the same arrays and units; not a bare ``.npy``, which is refused), ``.flo``
+(Middlebury *displacement* in px over the window, by the format's convention, unknown where
+not valid; ``NAME.flo.json`` beside it keeps ``dt_s``, ``t0_us``, ``t1_us`` and units) and
+``.png`` (DSEC 16-bit *displacement*, the benchmark's format, with the same JSON sidecar).
+``.flo``/``.png`` hold one window per file: several windows need an explicit pattern,
+``--out flow_{:05d}.flo``. (``--method triplet`` writes ``.npz`` per event.) Pictures in
+``--png-dir`` are numbered with 5 digits (``flow_00000.png``).
+
 An ``.h5`` output is written window by window to ``OUT.part`` and renamed when complete;
 an interrupted or failed run keeps the ``.part`` file, and ``--resume`` continues it (the
 same command with ``--resume`` gives the file an uninterrupted run would have written).
+The other outputs appear only when complete.
 """
 
 from __future__ import annotations
@@ -35,7 +47,8 @@ FLOW_METHODS: dict[str, str] = {
 
 EXAMPLES = """examples:
   evmotion flow sim.h5 --method multicm --window-events 30000 --out flow.h5
-  evmotion flow sim.h5 --method multicm --time-aware burgers --out flow.flo
+  evmotion flow sim.h5 --method multicm --time-aware burgers --out flow_{:05d}.flo
+  evmotion flow sim.h5 --method multicm --out flow.npz
   evmotion flow rec.raw --method triplet --out flow.h5 --json
   evmotion flow rec.raw --method triplet --dense robust --out flow.h5 --resume
   evmotion flow window.txt --method dnn --window-events 30000 --out x.flo
@@ -44,7 +57,12 @@ EXAMPLES = """examples:
   evmotion flow rec.raw --K 1050,1050,640,360 --dist=-0.1,0.02,0,0 --out flow.h5
 """
 
-OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz")
+OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz", ".png")
+# the outputs of a method that does not write through evmotion.io.flowout yet (all others:
+# OUTPUT_SUFFIXES, their check_args refusing .npy)
+METHOD_OUTPUTS: dict[str, tuple[str, ...]] = {
+    "triplet": (".h5", ".hdf5", ".npy", ".flo", ".npz"),
+}
 
 
 def _method_modules():
@@ -65,10 +83,13 @@ def add_parser(sub) -> None:
     p.add_argument("file", help="recording (any readable format)")
     p.add_argument("--method", default="multicm", choices=sorted(FLOW_METHODS))
     p.add_argument("--out", required=True,
-                   type=writable_output(OUTPUT_SUFFIXES, "a flow file (.h5, .npy, .flo: dense "
-                                        "per window; .npz triplet: per event)"),
-                   help="output file: .h5 (all windows), .npy or .flo (per window), .npz "
-                        "(triplet: per event)")
+                   type=writable_output(OUTPUT_SUFFIXES, "a flow file (.h5, .npz: all "
+                                        "windows; .flo, .png: per window)"),
+                   help="output: .h5 (all windows, px/s, t0/t1, valid; resumable), .npz (the "
+                        "same arrays; triplet: per event), .flo (Middlebury displacement in "
+                        "px, dt/t0/t1 in NAME.flo.json) or .png (DSEC 16-bit displacement, "
+                        "same sidecar); several .flo/.png windows need a pattern: "
+                        "--out flow_{:05d}.flo")
     p.add_argument("--format", default=None, help="input format (default: detect)")
     win = p.add_mutually_exclusive_group()
     win.add_argument("--window-events", type=positive_int(), default=None, metavar="N")
@@ -103,9 +124,13 @@ def run(args) -> int:
     if args.window_gt is None:
         reject_unused(args, {"--gt-dt": "gt_dt"}, "without --window-gt")
     args.gt_dt = 1 if args.gt_dt is None else args.gt_dt
-    if args.resume and args.out.lower().endswith((".npy", ".flo", ".npz")):
+    if args.resume and args.out.lower().endswith((".npy", ".flo", ".npz", ".png")):
         raise ParameterError(f"--resume continues an .h5 output; --out {args.out} is written "
                              "whole at the end (an interrupted run leaves nothing)")
+    suffixes = METHOD_OUTPUTS.get(args.method, OUTPUT_SUFFIXES)
+    if not args.out.lower().endswith(suffixes):
+        raise ParameterError(f"--out {args.out}: with --method {args.method} the name must end "
+                             f"in {', '.join(suffixes)}")
     for name, modname in FLOW_METHODS.items():
         if name != args.method:
             options = importlib.import_module(modname).OPTIONS
@@ -119,102 +144,11 @@ def run(args) -> int:
     return mod.run(args)
 
 
-class H5Output:
-    """An ``.h5`` flow output written window by window to ``OUT.part``
-    (:class:`~evmotion.io.flowfiles.FlowWriter`), resumable.
+def __getattr__(name: str):
+    # the .h5 sink moved to evmotion.io.flowout; flow_triplet still takes it from here
+    # (imported on demand: `evmotion --help` does not load the io package)
+    if name == "H5Output":
+        from evmotion.io.flowout import H5FlowOutput
 
-    With ``resume`` it continues ``OUT.part`` (or a finished OUT) after checking that it
-    was made with the same ``attrs`` (method, options, source); :attr:`done` lists the
-    ``(t0, t1)`` µs of the windows it already holds, which the run must delimit again
-    (:meth:`check_done`) but not recompute. :meth:`abort` keeps the ``.part`` file for
-    a later ``--resume`` (and puts back a finished OUT it had reopened).
-    """
-
-    def __init__(self, out, sensor_size, attrs: dict, *, resume: bool,
-                 with_valid: bool = False):
-        from pathlib import Path
-
-        import numpy as np
-
-        from evmotion.io.flowfiles import FlowWriter
-
-        self.out = Path(out)
-        self.part = self.out.with_name(self.out.name + ".part")  # FlowWriter's own name
-        self.reopened_final = resume and self.out.exists() and not self.part.exists()
-        self.done: list[tuple[int, int]] = []
-        if not resume:
-            self.w = FlowWriter(out, sensor_size, with_valid=with_valid, attrs=attrs)
-            return
-        self.w = FlowWriter(out, sensor_size, with_valid=with_valid, resume=True)
-        old = dict(self.w.f.attrs)
-        for key, value in attrs.items():
-            if self.w.n_done and key in old and not _same(old[key], value):
-                self.abort()
-                raise ParameterError(f"--resume: {self.part} was made with {key}="
-                                     f"{_shown(old[key])!r}, this run has {value!r}; repeat the "
-                                     "options of the first run, or leave out --resume to "
-                                     "start again")
-            self.w.f.attrs[key] = value
-        if self.w.with_valid != with_valid:
-            self.abort()
-            raise ParameterError(f"--resume: {self.part} has another layout (valid masks: "
-                                 f"{self.w.with_valid}); leave out --resume to start again")
-        t1 = np.asarray(self.w.f["t1"][: self.w.n_done])
-        self.done = list(zip(np.asarray(self.w.done_t0).tolist(), t1.tolist(), strict=True))
-
-    def stored_flow(self, index: int):
-        """Flow (H, W, 2) float32 px/s of a window already in the file, as written."""
-        import numpy as np
-
-        return np.asarray(self.w.f["flow"][index])
-
-    def check_done(self, index: int, t0: int, t1: int) -> None:
-        """Raise ParameterError if window ``index`` of this run is not the ``index``-th
-        window of the resumed file (other windowing options, or another recording)."""
-        if index >= len(self.done):
-            self.abort()
-            raise ParameterError(f"--resume: this run skipped window {index}, which "
-                                 f"{self.part} does not hold")
-        if (int(t0), int(t1)) != tuple(self.done[index]):
-            self.abort()
-            a, b = self.done[index]
-            raise ParameterError(f"--resume: window {index} of {self.part} is [{a}, {b}) µs but "
-                                 f"this run makes [{t0}, {t1}) µs; repeat the windowing options "
-                                 "of the first run, or leave out --resume to start again")
-
-    def check_count(self, n_windows: int) -> None:
-        """The run made ``n_windows``: the resumed file must not hold more."""
-        if len(self.done) > n_windows:
-            self.abort()
-            raise ParameterError(f"--resume: {self.part} holds {len(self.done)} windows, this "
-                                 f"run makes {n_windows}; repeat the options of the first run, "
-                                 "or leave out --resume to start again")
-
-    def append(self, flow, t0: int, t1: int, valid=None) -> None:
-        self.w.append(flow, t0, t1, valid=valid)
-
-    def close(self) -> None:
-        self.w.close()
-
-    def abort(self) -> None:
-        import os
-
-        self.w.abort()
-        if self.reopened_final and self.part.exists():
-            os.replace(self.part, self.out)
-            self.reopened_final = False
-
-
-def _shown(value):
-    return value.item() if hasattr(value, "item") else value
-
-
-def _same(a, b) -> bool:
-    import numpy as np
-
-    if isinstance(a, bytes):
-        a = a.decode(errors="replace")
-    try:
-        return bool(np.array_equal(np.asarray(a), np.asarray(b)))
-    except (TypeError, ValueError):
-        return str(a) == str(b)
+        return H5FlowOutput
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,6 +1,6 @@
 """``evmotion flow FILE --method dnn``: dense flow by the unsupervised EV-FlowNet (§4.3.7).
 
-Same windows, outputs (``.h5`` / ``.npy`` / ``.flo``), pictures, ``--resume`` and ``--json``
+Same windows, outputs (``.h5`` / ``.npz`` / ``.flo`` / ``.png``), pictures, ``--resume`` and ``--json``
 as ``--method multicm`` (whose runner it uses); each window goes through the network once
 (no warm start needed). ``--checkpoint`` picks weights from ``evmotion train`` (default:
 the shipped checkpoint); multicm's ``--init dnn`` reads it too.
@@ -28,15 +28,11 @@ def add_arguments(group) -> None:
 
 
 def check_args(args) -> None:
-    """The network writes dense windows: .h5, .npy or .flo."""
-    from pathlib import Path
-
+    """The network writes dense windows: .h5, .npz, .flo or .png."""
+    from evmotion.cli.flow_multicm import check_output
     from evmotion.errors import ParameterError
 
-    out = Path(args.out)
-    if out.suffix.lower() not in (".h5", ".hdf5", ".npy", ".flo"):
-        raise ParameterError(f"--out {out}: the dnn method writes .h5 (all windows), "
-                             ".npy or .flo")
+    check_output(args.out)
     if args.resume and args.video:
         raise ParameterError(f"--video {args.video} needs every window's flow: it cannot "
                              "be made with --resume; run without --resume")

@@ -6,12 +6,12 @@ window is warm-started from the previous one. With ``--workers > 1`` the windows
 into one contiguous chunk per worker (:func:`evmotion.parallel.map_windows`) and the warm
 start runs within each chunk only, so the first window of every chunk starts from zero flow.
 
-Output by ``--out`` extension: ``.h5`` all windows (flow in px/s with each window's
-``[t0, t1)``, and ``valid``: the pixels whose flow events support), ``.npy`` an
-``(N, H, W, 2)`` float32 array in px/s, ``.flo`` Middlebury displacement over each window
-(``name_0000.flo``... when there are several windows); ``.npy`` and ``.flo`` carry no mask,
-so their flow is set to 0 where it is not valid. Each window is written as soon as it is
-estimated, so memory does not grow with the number of windows.
+Output through :func:`evmotion.io.flowout.open_flow_output`, by ``--out`` extension:
+``.h5`` or ``.npz`` all windows (flow in px/s, each window's ``[t0, t1)``, and ``valid``:
+the pixels whose flow events support), ``.flo`` or ``.png`` (DSEC) displacement over each
+window with a JSON sidecar of its times (a pattern such as ``flow_{:05d}.flo`` for several
+windows). Each window is written as soon as it is estimated, so memory does not grow with
+the number of windows.
 """
 
 from __future__ import annotations
@@ -70,17 +70,6 @@ def add_arguments(group) -> None:
                             "from the network's (--checkpoint), skipping the coarse scales")
 
 
-def _read(path, fmt):
-    import evmotion.io as eio
-
-    if hasattr(eio, "read_events"):
-        return eio.read_events(path, **({"format": fmt} if fmt else {}))
-    from evmotion.io.registry import resolve_format
-
-    spec = resolve_format(path, fmt or None)
-    return spec.read(path)
-
-
 def _windows(args, events):
     if args.window_gt:
         from evmotion.io.flowfiles import read_gt_flow
@@ -133,83 +122,32 @@ def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False):
         yield from r.value
 
 
-class _Output:
-    """Where the flows go: ``.h5`` window by window (resumable), ``.npy`` window by window
-    into a memory-mapped file renamed when complete, ``.flo`` once all windows are done
-    (kept in memory until then, so that an interrupted run leaves no partial set)."""
-
-    def __init__(self, out: Path, sensor_size, attrs: dict, resume: bool, n_windows: int):
-        from evmotion.cli.flow import H5Output
-        from evmotion.utils import atomic_path
-
-        self.out, self.kind = out, out.suffix.lower()
-        self.fw = self._tmp = self._npy = None
-        if self.kind in (".h5", ".hdf5"):
-            self.fw = H5Output(out, sensor_size, attrs, resume=resume, with_valid=True)
-        elif self.kind == ".npy":
-            self._tmp = atomic_path(out)
-            self._npy = np.lib.format.open_memmap(self._tmp.__enter__(), mode="w+",
-                                                  dtype=np.float32,
-                                                  shape=(n_windows, *sensor_size, 2))
-        self.done = [] if self.fw is None else self.fw.done
-        self.flows, self.spans = [], []
-
-    def add(self, flow, w, valid) -> None:
-        """Window ``w``'s flow; outside ``valid`` (no event support) it is stored as the
-        mask in ``.h5`` and as zero flow in ``.npy`` / ``.flo``, which have no mask."""
-        if self.fw is not None:
-            self.fw.append(flow, t0=w.t0, t1=w.t1, valid=valid)
-            return
-        flow = np.where(valid[..., None], flow, np.float32(0))
-        if self._npy is not None:
-            self._npy[len(self.spans)] = flow
-        else:
-            self.flows.append(flow)
-        self.spans.append((w.t0, w.t1))
-
-    def close(self) -> list[str]:
-        from evmotion.io.flowfiles import write_flo
-
-        if self.fw is not None:
-            self.fw.close()
-            return [str(self.out)]
-        if self._npy is not None:
-            self._npy.flush()
-            self._npy = None
-            self._tmp.__exit__(None, None, None)  # renamed onto OUT
-            return [str(self.out)]
-        written = []
-        for i, (flow, (t0, t1)) in enumerate(zip(self.flows, self.spans, strict=True)):
-            path = (self.out if len(self.flows) == 1
-                    else self.out.with_name(f"{self.out.stem}_{i:04d}.flo"))
-            write_flo(path, flow, dt_s=(t1 - t0) * 1e-6)
-            written.append(str(path))
-        return written
-
-    def abort(self) -> None:
-        if self.fw is not None:
-            self.fw.abort()
-        elif self._npy is not None:
-            self._npy = None
-            err = RuntimeError("aborted")
-            self._tmp.__exit__(type(err), err, None)  # removes the temporary file
-
-
 def _png(png_dir: Path, i: int, r, max_speed) -> None:
     from evmotion.viz import iwe_to_rgb, save_flow_png, save_png
 
     png_dir.mkdir(parents=True, exist_ok=True)
-    save_flow_png(png_dir / f"flow_{i:04d}.png", r.flow, max_speed=max_speed)
-    save_flow_png(png_dir / f"flow_masked_{i:04d}.png", r.flow, max_speed=max_speed,
+    save_flow_png(png_dir / f"flow_{i:05d}.png", r.flow, max_speed=max_speed)
+    save_flow_png(png_dir / f"flow_masked_{i:05d}.png", r.flow, max_speed=max_speed,
                   valid=_valid(r))
     has = r.iwes["identity"] > 0
     vmax = float(np.percentile(r.iwes["tmid"][has], 99)) if has.any() else None
     for key in ("tmid", "identity"):
-        save_png(png_dir / f"iwe_{key}_{i:04d}.png", iwe_to_rgb(r.iwes[key], vmax=vmax))
+        save_png(png_dir / f"iwe_{key}_{i:05d}.png", iwe_to_rgb(r.iwes[key], vmax=vmax))
 
 
 def _valid(r) -> np.ndarray:
     return r.valid if r.valid is not None else np.ones(r.flow.shape[:2], bool)
+
+
+def check_output(out, n_windows: int | None = None) -> None:
+    """``--out`` names a dense flow output (:func:`evmotion.io.flowout.check_flow_output`:
+    no bare ``.npy``, a pattern for several ``.flo``/``.png`` windows)."""
+    from evmotion.io.flowout import check_flow_output
+
+    try:
+        check_flow_output(out, n_windows)
+    except ParameterError as exc:
+        raise ParameterError(f"--out {exc}") from None
 
 
 def _row(r, w) -> dict:
@@ -224,16 +162,12 @@ def _row(r, w) -> dict:
 
 def check_args(args) -> None:
     """Options that do not go together (before the defaults are filled in)."""
-    method = "multicm"
     if args.init != "dnn":
         reject_unused(args, {"--checkpoint": "checkpoint"}, "without --init dnn")
     if args.init == "dnn" and (args.workers or 1) > 1:
         raise ParameterError(f"--init dnn starts every window from the network: --workers "
                              f"{args.workers} would change nothing; leave it out")
-    out = Path(args.out)
-    if out.suffix.lower() not in (".h5", ".hdf5", ".npy", ".flo"):
-        raise ParameterError(f"--out {out}: the {method} method writes .h5 (all windows), "
-                             ".npy or .flo")
+    check_output(args.out)
     if args.time_aware in (None, "none"):
         reject_unused(args, {"--time-bins": "time_bins"}, "without --time-aware")
     if args.resume and args.video:
@@ -247,9 +181,9 @@ def check_args(args) -> None:
 def _check_space(out: Path, windows, sensor_size) -> None:
     h, w = sensor_size
     kind = out.suffix.lower()
-    if kind == ".npy":
-        check_free_space(out, 128 + len(windows) * h * w * 8, "--out",
-                         f"{len(windows)} windows of {w} x {h} px flow")
+    if kind == ".npz":  # flow and masks spooled, then stored: twice at the end
+        check_free_space(out, 2 * len(windows) * h * w * 9, "--out",
+                         f"{len(windows)} windows of {w} x {h} px flow and masks")
     elif kind == ".flo":
         check_free_space(out, len(windows) * (12 + h * w * 8), "--out",
                          f"{len(windows)} .flo files of {w} x {h} px")
@@ -258,16 +192,19 @@ def _check_space(out: Path, windows, sensor_size) -> None:
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.calib import undistort_for
+    from evmotion.io import read_events
     from evmotion.methods.multicm import estimate_flow
     from evmotion.utils import progress
 
     out = Path(args.out)
     t_start = time.perf_counter()
-    events = _read(args.file, getattr(args, "format", None))
+    fmt = getattr(args, "format", None)
+    events = read_events(args.file, **({"format": fmt} if fmt else {}))
     events, _, grid = undistort_for(args, events)
     windows = [w for w in _windows(args, events) if w.count >= 10]
     if not windows:
         raise ParameterError(f"{args.file}: no window with at least 10 events")
+    check_output(out, len(windows))
     _check_space(out, windows, events.sensor_size)
     if args.method == "dnn":
         from evmotion.cli.flow_dnn import estimator
@@ -330,28 +267,29 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
     previous window's. With ``--resume`` (one process) the windows already in the ``.part``
     file are taken from it (the last one as warm start, as stored: float32, exactly the flow
     that was written)."""
-    sink = _Output(Path(args.out), events.sensor_size, attrs, resume=args.resume,
-                   n_windows=len(windows))
+    from evmotion.io.flowout import open_flow_output
+
+    sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
+                            n_windows=len(windows))
     rows, init = [], None
     todo = None if results is None else iter(results)
     order = (progress(windows, total=len(windows), desc=attrs["method"]) if todo is None
              else windows)
     try:
-        if sink.fw is not None:
-            sink.fw.check_count(len(windows))
+        sink.check_count(len(windows))
         for i, w in enumerate(order):
             if i < len(sink.done):
-                sink.fw.check_done(i, w.t0, w.t1)
+                sink.check_done(i, w.t0, w.t1)
                 if i == len(sink.done) - 1:
-                    init = sink.fw.stored_flow(i)
+                    init = sink.stored_flow(i)  # only an .h5 output resumes
                 rows.append({"t0_us": w.t0, "t1_us": w.t1, "resumed": True})
                 continue
             res = estimate(events.window(w), init) if todo is None else next(todo)
             init = res
-            sink.add(res.flow, w, _valid(res))
+            sink.append(res.flow, w.t0, w.t1, valid=_valid(res))
             after(i, res)
             rows.append(_row(res, w))
-        written = sink.close()
+        written = [str(p) for p in sink.close()]
     except BaseException:
         sink.abort()
         raise

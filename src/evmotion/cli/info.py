@@ -4,7 +4,9 @@ Sensor size, event count, time range, duration, event rate, polarity balance, wh
 the file holds (APS frames, IMU, ground truth, calibration), and the camera intrinsics the
 recording brings (``intrinsics``: K = fx, fy, cx, cy in px, distortion k1 k2 p1 p2 k3,
 resolution and the file or header they come from). Events are streamed chunk by
-chunk, so memory stays bounded for any file size.
+chunk, so memory stays bounded for any file size. A flow output of ``evmotion flow`` (any
+container, or a per-window pattern) is described by its container, windows, time range,
+units, grid and valid fraction.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ EXAMPLES = """examples:
   evmotion info boxes_rotation/                # an ECD folder
   evmotion info rec.h5 --json                  # machine-readable
   evmotion info rec.raw --header-only          # no pass over the events
+  evmotion info flow.h5                        # a flow output: windows, times, units, valid
+  evmotion info 'flow_{:05d}.flo'              # per-window flow files, by their pattern
 """
 
 _HIDDEN = {"path", "format"}
@@ -28,7 +32,8 @@ def add_parser(sub) -> None:
         description=__doc__, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("file", help="recording (file or ECD folder), any readable format")
+    p.add_argument("file", help="recording (file or ECD folder), any readable format, or a "
+                                "flow output")
     p.add_argument("--format", default=None, help="input format (default: detect by content)")
     p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,
                    metavar=("H", "W"),
@@ -88,15 +93,18 @@ def summarize(info: dict) -> list[str]:
 def run(args) -> int:
     import evmotion.io as eio
     from evmotion.cli import print_json
+    from evmotion.io.flowread import describe_flow
 
     kw = {}
     if args.sensor_size is not None:
         kw["sensor_size"] = tuple(args.sensor_size)
-    info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
-    if "sensor_size" in info:
-        from evmotion.io.calib import recording_intrinsics
+    info = describe_flow(args.file) if args.format is None else None
+    if info is None:
+        info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
+        if "sensor_size" in info:
+            from evmotion.io.calib import recording_intrinsics
 
-        info["intrinsics"] = recording_intrinsics(args.file, tuple(info["sensor_size"]))
+            info["intrinsics"] = recording_intrinsics(args.file, tuple(info["sensor_size"]))
     if args.json:
         print_json(info)
     else:

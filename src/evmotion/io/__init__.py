@@ -33,6 +33,8 @@ from evmotion.io.flowfiles import (
     write_dsec_flow_png,
     write_flo,
 )
+from evmotion.io.flowout import open_flow_output
+from evmotion.io.flowread import read_flow
 from evmotion.io.read import iter_events, read_events
 from evmotion.io.registry import all_formats, detect_format
 from evmotion.io.summary import describe
@@ -49,10 +51,12 @@ __all__ = [
     "detect_format",
     "format_for_output",
     "iter_events",
+    "open_flow_output",
     "read_calibration",
     "read_dsec_flow_png",
     "read_events",
     "read_flo",
+    "read_flow",
     "read_flow_h5",
     "read_frames",
     "read_gt_flow",

@@ -325,10 +325,10 @@ def jaer_header_camera(path: str | os.PathLike, sensor_size: tuple[int, int]
     (:data:`PIXEL_PITCH_UM`); None otherwise. The distinct focal lengths found (mm) come
     with it either way, so that callers can say why none was used.
     """
-    from evmotion.io import _binary
+    from evmotion.io import binary
 
     path = Path(path)
-    lines, _ = _binary.read_text_header(path, b"#", max_bytes=1 << 24)
+    lines, _ = binary.read_text_header(path, b"#", max_bytes=1 << 24)
     found = re.findall(r'key="[^"]*lensFocalLengthMm" value="([^"]+)"', "\n".join(lines))
     mm = sorted({float(v) for v in found if _finite_positive(v)})
     pitch = PIXEL_PITCH_UM.get(tuple(sensor_size))

@@ -50,6 +50,8 @@ __all__ = [
 ]
 
 FLO_MAGIC = 202021.25
+#: Middlebury's value for "unknown flow" (readers treat anything above 1e9 as unknown)
+FLO_UNKNOWN = 1e10
 FLOW_FORMAT = "evmotion-flow"
 FLOW_VERSION = 1
 SIM_GT_FORMAT = "evmotion-sim-gt"
@@ -93,11 +95,14 @@ def _check_flow(flow, name: str = "flow") -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- .flo
-def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = None) -> None:
+def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = None, *,
+              valid: np.ndarray | None = None) -> None:
     """Write a Middlebury ``.flo`` file (atomically).
 
     ``.flo`` files hold pixel displacements. Give ``dt_s`` to convert a flow in px/s
     (displacement = flow · dt_s); without it ``flow`` is written as-is (a displacement in px).
+    Pixels outside ``valid`` (and non-finite values) are written as Middlebury's "unknown"
+    (1e10), which :func:`read_flo` returns as NaN.
 
     Parameters
     ----------
@@ -107,6 +112,8 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
         Flow in px/s if ``dt_s`` is given, else displacement in px.
     dt_s : float, optional
         Time interval in seconds.
+    valid : ndarray (H, W) bool, optional
+        Where the flow is known (default: where it is finite).
 
     Examples
     --------
@@ -115,6 +122,14 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
     arr = _check_flow(flow)
     if dt_s is not None:
         arr = arr * np.float32(dt_s)
+    known = np.isfinite(arr).all(axis=2)
+    if valid is not None:
+        v = np.asarray(valid, dtype=bool)
+        if v.shape != arr.shape[:2]:
+            raise ParameterError(f"valid must have shape {arr.shape[:2]}, got {v.shape}")
+        known &= v
+    if not known.all():
+        arr = np.where(known[..., None], arr, np.float32(FLO_UNKNOWN))
     h, w = arr.shape[:2]
     header = struct.pack("<fii", FLO_MAGIC, w, h)
     with atomic_path(path) as tmp:
@@ -193,7 +208,8 @@ def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
     dd = np.nan_to_num(d, nan=0.0)
     enc[..., :2] = np.clip(np.rint(dd * 128.0 + 2.0**15), 0, 65535).astype(np.uint16)
     enc[..., 2] = valid
-    write_png(path, enc)
+    # zlib level 1: files ~1 % larger than level 6 in a third of the time
+    write_png(path, enc, compression=1)
 
 
 def read_dsec_flow_png(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:

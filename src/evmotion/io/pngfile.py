@@ -100,5 +100,8 @@ def write_png(path: str | os.PathLike, img: np.ndarray, *, compression: int | No
     planes = 1 if img.ndim == 2 else img.shape[2]
     writer = png.Writer(width=w, height=h, greyscale=planes <= 2, alpha=planes in (2, 4),
                         bitdepth=16 if img.dtype == np.uint16 else 8, compression=compression)
+    # rows handed over packed (big-endian bytes): ~3x faster than pypng packing them
+    rows = np.ascontiguousarray(img, dtype=">u2" if img.dtype == np.uint16 else np.uint8)
+    rows = rows.reshape(h, w * planes).view(np.uint8)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        writer.write(fh, img.reshape(h, w * planes))
+        writer.write_packed(fh, (row.tobytes() for row in rows))

@@ -113,8 +113,8 @@ def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     suffix = f" {label}" if label else ""
-    names = [folder / f"q_{index:04d}.png", folder / f"flow_{index:04d}.png",
-             folder / f"p_{index:04d}.png"]
+    names = [folder / f"q_{index:05d}.png", folder / f"flow_{index:05d}.png",
+             folder / f"p_{index:05d}.png"]
     save_q_png(names[0], q, unit=q_unit, title=f"Poisson field q{suffix}")
     mask = np.isfinite(flow).all(axis=-1)
     save_flow_png(names[1], np.nan_to_num(flow), max_speed=flow_max, valid=mask,

@@ -17,7 +17,8 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray
-from evmotion.methods.multicm import FlowResult
+from evmotion.methods.diagnostics import event_support
+from evmotion.methods.multicm import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, FlowResult
 
 __all__ = ["estimate_flow_dnn", "predict_displacement"]
 
@@ -71,8 +72,8 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     Returns
     -------
     FlowResult
-        ``flow`` in px/s at the window's midpoint; ``params`` empty; ``meta["method"]``
-        is ``"dnn"``.
+        ``flow`` in px/s at the window's midpoint; ``valid`` the pixels with event support,
+        as multicm's; ``params`` empty; ``meta["method"]`` is ``"dnn"``.
 
     Examples
     --------
@@ -104,9 +105,12 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                                        np.zeros(prob.x.size), events.sensor_size
                                        ).astype(np.float32)
     flow = (disp / duration_s).astype(np.float32)
+    # the network answers everywhere; only where events are is it a measurement
+    valid = event_support(events.x, events.y, events.sensor_size, SUPPORT_RADIUS,
+                          SUPPORT_MIN_EVENTS)
     total = time.perf_counter() - t_start
     return FlowResult(flow=flow, t0_us=t0, t1_us=t1, t_ref_us=(t0 + t1) // 2, params=(),
                       iwes=iwes, focus=float(focus), history=[],
                       timings={"network_s": t_net, "total_s": total}, time_aware=None,
-                      n_bins=0, n_events=len(events),
+                      n_bins=0, n_events=len(events), valid=valid,
                       meta={"method": "dnn", "checkpoint": str(checkpoint or "shipped")})

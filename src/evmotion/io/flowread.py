@@ -1,0 +1,319 @@
+"""Reading dense flow back from any container of :mod:`evmotion.io.flowout`, with its
+windows' times and validity masks (:func:`read_flow`), and describing it
+(:func:`describe_flow`, for ``evmotion info``).
+
+Examples
+--------
+>>> seq = read_flow("flow_{:05d}.flo")  # doctest: +SKIP
+>>> seq.flow.shape, seq.t0[:2]  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.io.flowfiles import (
+    FLOW_FORMAT,
+    FlowSequence,
+    read_dsec_flow_png,
+    read_flo,
+    read_flow_h5,
+    read_mvsec_gt_flow,
+)
+from evmotion.io.flowout import (
+    CONTAINERS,
+    PER_WINDOW,
+    SIDECAR_FORMAT,
+    is_pattern,
+    json_value,
+    sidecar_path,
+    window_path,
+)
+
+__all__ = ["describe_flow", "read_flow"]
+
+
+def _read_sidecar(path: Path) -> dict | None:
+    side = sidecar_path(path)
+    if not side.exists():
+        return None
+    try:
+        doc = json.loads(side.read_text())
+    except (OSError, ValueError) as exc:
+        raise FormatError(side, f"cannot read the flow sidecar: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("format") != SIDECAR_FORMAT:
+        raise FormatError(side, f"not an evmotion flow sidecar (format "
+                          f"{doc.get('format') if isinstance(doc, dict) else None!r})")
+    for key in ("t0_us", "t1_us"):
+        if not isinstance(doc.get(key), int):
+            raise FormatError(side, f"field '{key}' is {doc.get(key)!r}, expected an integer "
+                              "in µs")
+    if doc["t1_us"] <= doc["t0_us"]:
+        raise FormatError(side, f"t1_us {doc['t1_us']} is not after t0_us {doc['t0_us']}")
+    return doc
+
+
+def _read_one_window(path: Path, t0_us: int | None, t1_us: int | None) -> FlowSequence:
+    kind = CONTAINERS[path.suffix.lower()]
+    if not path.is_file():
+        raise FormatError(path, "no such file")
+    side = _read_sidecar(path)
+    if side is not None:
+        if t0_us is not None or t1_us is not None:
+            raise ParameterError(f"{path}: carries its window's times in "
+                                 f"{sidecar_path(path).name}; give no interval")
+        t0_us, t1_us = side["t0_us"], side["t1_us"]
+    elif t0_us is None or t1_us is None or t1_us <= t0_us:
+        raise ParameterError(f"{path}: no {sidecar_path(path).name} beside it, so no time "
+                             "interval; give t0/t1 in µs (t1 > t0)")
+    if kind == "flo":
+        disp = read_flo(path)
+        valid = np.isfinite(disp).all(axis=2)
+    else:
+        disp, valid = read_dsec_flow_png(path)
+    flow = disp / np.float32((t1_us - t0_us) * 1e-6)
+    attrs = dict(side.get("attrs", {})) if side else {}
+    attrs.update(container="middlebury-flo" if kind == "flo" else "dsec-png",
+                 units="px/s", stored_units="px")
+    return FlowSequence(flow=flow[None], t0=np.array([t0_us], np.int64),
+                        t1=np.array([t1_us], np.int64), valid=valid[None], attrs=attrs)
+
+
+def _pattern_files(path: Path) -> list[Path]:
+    files = []
+    while (p := window_path(path, len(files))).exists():
+        files.append(p)
+    if not files:
+        raise FormatError(path, f"no file of this pattern (looked for {window_path(path, 0)})")
+    return files
+
+
+def _read_npz(path: Path) -> FlowSequence:
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise FormatError(path, f"cannot read as .npz: {exc}") from None
+    with z:
+        names = set(z.files)
+        if "format" in names and str(z["format"]) == FLOW_FORMAT:
+            for key in ("flow", "t0", "t1", "valid", "units"):
+                if key not in names:
+                    raise FormatError(path, f"evmotion flow .npz lacks array '{key}'")
+            flow, t0, t1 = z["flow"], z["t0"].astype(np.int64), z["t1"].astype(np.int64)
+            valid = z["valid"].astype(bool)
+            n = t1.shape[0]
+            if flow.shape[0] != n or valid.shape != flow.shape[:3] or t0.shape != (n,):
+                raise FormatError(path, f"inconsistent shapes: flow {flow.shape}, valid "
+                                  f"{valid.shape}, t0 {t0.shape}, t1 {t1.shape}")
+            try:
+                attrs = json.loads(str(z["attrs"])) if "attrs" in names else {}
+            except ValueError as exc:
+                raise FormatError(path, f"array 'attrs' is not JSON: {exc}") from None
+            attrs.update(format=FLOW_FORMAT, units=str(z["units"]), container="npz")
+            return FlowSequence(flow=flow.astype(np.float32), t0=t0, t1=t1, valid=valid,
+                                attrs=attrs)
+        if {"timestamps", "x_flow_dist"} <= names:
+            return read_mvsec_gt_flow(path)
+        if {"t", "x", "y", "vx", "vy"} <= names:
+            raise FormatError(path, "per-event flow (t, x, y, vx, vy per event), not dense "
+                              "windows: read it with numpy.load")
+    raise FormatError(path, f"not an evmotion flow .npz (arrays: {', '.join(sorted(names))})")
+
+
+def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
+              t1_us: int | None = None) -> FlowSequence:
+    """Read dense flow back from any container, with its windows' times and masks.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.h5`` (evmotion flow, BOS or simulator ground truth), ``.npz`` (evmotion flow or
+        MVSEC ground truth), ``.flo``, DSEC ``.png``, or a per-window pattern
+        (``flow_{:05d}.flo``: the files numbered from 0, in order).
+    t0_us, t1_us : int, optional
+        The interval of a single ``.flo`` / ``.png`` that has no JSON sidecar.
+
+    Returns
+    -------
+    FlowSequence
+        ``flow`` (N, H, W, 2) float32 in **px/s** whatever the container stores
+        (``.flo``/``.png`` displacements are divided by their window's duration), ``t0``,
+        ``t1`` (N,) µs, ``valid`` (N, H, W) bool.
+
+    Examples
+    --------
+    >>> seq = read_flow("flow_{:05d}.flo")  # doctest: +SKIP
+    >>> seq.t0[:2], seq.valid.mean()  # doctest: +SKIP
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".npy":
+        raise FormatError(p, "a bare .npy holds no times, units or validity mask; evmotion "
+                          "writes .npz (flow, t0, t1, valid, units)")
+    kind = CONTAINERS.get(suffix)
+    if kind is None:
+        raise FormatError(p, "not a flow file: expected .h5, .npz, .flo or .png (DSEC)")
+    if is_pattern(p):
+        if kind not in PER_WINDOW:
+            raise ParameterError(f"{p}: a {suffix} file holds every window; no pattern")
+        seqs = [_read_one_window(f, None, None) for f in _pattern_files(p)]
+        return FlowSequence(flow=np.concatenate([s.flow for s in seqs]),
+                            t0=np.concatenate([s.t0 for s in seqs]),
+                            t1=np.concatenate([s.t1 for s in seqs]),
+                            valid=np.concatenate([s.valid for s in seqs]),
+                            attrs=seqs[0].attrs)
+    if kind in PER_WINDOW:
+        return _read_one_window(p, t0_us, t1_us)
+    if t0_us is not None or t1_us is not None:
+        raise ParameterError(f"{p}: a {suffix} flow file carries its windows' times; give no "
+                             "interval")
+    if kind == "npz":
+        if not p.is_file():
+            raise FormatError(p, "no such file")
+        return _read_npz(p)
+    seq = read_flow_h5(p)
+    if seq.valid is None:
+        seq = FlowSequence(flow=seq.flow, t0=seq.t0, t1=seq.t1,
+                           valid=np.isfinite(seq.flow).all(axis=3), attrs=seq.attrs)
+    return seq
+
+
+def describe_flow(path: str | os.PathLike) -> dict | None:
+    """What a flow output holds (``evmotion info``), or None if ``path`` is not one.
+
+    Returns
+    -------
+    dict or None
+        ``format``, ``container``, ``sensor_size`` (H, W), ``windows``, ``t_first_us``,
+        ``t_last_us``, ``duration_s``, ``units`` (as stored), ``grid``, ``method``,
+        ``valid_fraction`` (over all windows) and ``files`` for a pattern; per-event
+        ``.npz`` files give ``events`` instead of windows.
+
+    Examples
+    --------
+    >>> describe_flow("flow.h5")["windows"]  # doctest: +SKIP
+    2
+    """
+    p = Path(path)
+    kind = CONTAINERS.get(p.suffix.lower())
+    if kind is None:
+        return None
+    if is_pattern(p):
+        if kind not in PER_WINDOW or not window_path(p, 0).exists():
+            return None
+    elif not p.is_file():
+        return None
+    if kind == "h5":
+        return _describe_h5(p)
+    if kind == "npz":
+        return _describe_npz(p)
+    if not is_pattern(p) and _read_sidecar(p) is None:
+        if kind == "png" and not _is_dsec_png(p):
+            return None
+    seq = read_flow(p) if is_pattern(p) or _read_sidecar(p) else _read_undated(p)
+    out = {"path": str(p), "format": "middlebury-flo" if kind == "flo" else "dsec-flow-png",
+           "container": kind}
+    if is_pattern(p):
+        out["files"] = len(seq)
+    out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
+    out["units"] = "px (displacement over each window)"
+    return out
+
+
+def _read_undated(p: Path) -> FlowSequence:
+    """A .flo / .png without a sidecar: no times (shown as such)."""
+    if p.suffix.lower() == ".flo":
+        disp = read_flo(p)
+        valid = np.isfinite(disp).all(axis=2)
+    else:
+        disp, valid = read_dsec_flow_png(p)
+    return FlowSequence(flow=disp[None], t0=np.zeros(0, np.int64), t1=np.zeros(0, np.int64),
+                        valid=valid[None], attrs={})
+
+
+def _is_dsec_png(p: Path) -> bool:
+    import png
+
+    try:
+        _, _, _, info = png.Reader(filename=str(p)).read()
+    except (png.Error, OSError, ValueError):
+        return False
+    return info.get("bitdepth") == 16 and info.get("planes", 1) >= 3
+
+
+def _summary(size, t0, t1, valid_fraction_or_mask, attrs) -> dict:
+    out: dict = {"sensor_size": [int(size[0]), int(size[1])], "windows": int(len(t0))}
+    if len(t0):
+        out.update(t_first_us=int(t0[0]), t_last_us=int(t1[-1]),
+                   duration_s=(int(t1[-1]) - int(t0[0])) * 1e-6)
+    else:
+        out["times"] = "none stored (no JSON sidecar)"
+    vf = valid_fraction_or_mask
+    if isinstance(vf, np.ndarray):
+        vf = float(vf.mean()) if vf.size else None
+    out["valid_fraction"] = vf
+    for key in ("grid", "method", "source"):
+        if key in attrs:
+            out[key] = json_value(attrs[key])
+    return out
+
+
+def _describe_h5(p: Path) -> dict | None:
+    import h5py
+
+    with open(p, "rb") as fh:
+        if not fh.read(8).startswith(b"\x89HDF\r\n\x1a\n"):
+            return None
+    try:
+        f = h5py.File(p, "r")
+    except OSError:
+        return None
+    with f:
+        if json_value(f.attrs.get("format")) != FLOW_FORMAT or "t1" not in f:
+            return None
+        n = int(f["t1"].shape[0])
+        t0, t1 = f["t0"][:n], f["t1"][:n]
+        vf = None
+        if "valid" in f and n:
+            vf = float(sum(int(np.count_nonzero(f["valid"][i])) for i in range(n))
+                       / (n * f["valid"].shape[1] * f["valid"].shape[2]))
+        attrs = {k: json_value(v) for k, v in f.attrs.items()}
+        out = {"path": str(p), "format": FLOW_FORMAT, "container": "h5"}
+        out.update(_summary(f["flow"].shape[1:3], t0, t1, vf, attrs))
+        out["units"] = str(attrs.get("units", "px/s"))
+        out["valid_masks"] = "valid" in f
+        return out
+
+
+def _describe_npz(p: Path) -> dict | None:
+    try:
+        z = np.load(p, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile):
+        return None
+    with z:
+        names = set(z.files)
+        if {"t", "x", "y", "vx", "vy"} <= names:
+            t = z["t"]
+            out = {"path": str(p), "format": "per-event-flow", "container": "npz",
+                   "events": int(t.size), "units": "px/s",
+                   "fields": sorted(names)}
+            if t.size:
+                out.update(t_first_us=int(t[0]), t_last_us=int(t[-1]),
+                           duration_s=(int(t[-1]) - int(t[0])) * 1e-6)
+            if "valid" in names:
+                out["valid_fraction"] = float(z["valid"].mean()) if t.size else None
+            return out
+        if "format" not in names or str(z["format"]) != FLOW_FORMAT:
+            return None
+    seq = _read_npz(p)
+    out = {"path": str(p), "format": FLOW_FORMAT, "container": "npz"}
+    out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
+    out["units"] = seq.attrs["units"]
+    out["valid_masks"] = True
+    return out

@@ -1,0 +1,216 @@
+"""The flow output layer: every container round-trips flow (px/s), t0/t1 and the valid
+mask; per-window patterns; .npy refused; atomic writes; .h5 resume; describe_flow."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from evmotion.errors import FormatError, ParameterError
+from evmotion.io import flowout as fo
+from evmotion.io.flowfiles import read_flo
+from evmotion.io.flowread import describe_flow, read_flow
+
+H, W = 6, 7
+T0 = [1_000, 21_000, 41_000]
+T1 = [21_000, 41_000, 66_000]  # the last window is 25 ms: per-window dt is used
+
+
+def _windows(n=3, seed=0):
+    rng = np.random.default_rng(seed)
+    # multiples of 1/128 px over each window survive the DSEC PNG's quantisation
+    flows, valids = [], []
+    for i in range(n):
+        dt = (T1[i] - T0[i]) * 1e-6
+        disp = np.round(rng.normal(0, 3, (H, W, 2)) * 128) / 128
+        flows.append((disp / dt).astype(np.float32))
+        v = rng.random((H, W)) > 0.3
+        v[0, 0], v[0, 1] = False, True
+        valids.append(v)
+    return flows, valids
+
+
+def _write(path, n=3, **kw):
+    flows, valids = _windows(n)
+    with fo.open_flow_output(path, (H, W), {"method": "test", "lam": 0.5}, **kw) as out:
+        for i in range(n):
+            out.append(flows[i], T0[i], T1[i], valid=valids[i])
+    return flows, valids
+
+
+@pytest.mark.parametrize("name,units,rtol", [
+    ("f.h5", "px/s", 0), ("f.npz", "px/s", 0), ("f_{:05d}.flo", "px", 1e-6),
+    ("f_{:05d}.png", "px", 1e-6)])
+def test_round_trip_units_times_valid(tmp_path, name, units, rtol):
+    flows, valids = _write(tmp_path / name)
+    seq = read_flow(tmp_path / name)
+    assert seq.t0.tolist() == T0 and seq.t1.tolist() == T1
+    np.testing.assert_array_equal(seq.valid, np.stack(valids))
+    v = np.stack(valids)
+    np.testing.assert_allclose(seq.flow[v], np.stack(flows)[v], rtol=rtol, atol=1e-3)
+    assert seq.attrs["method"] == "test" and seq.attrs["grid"] == "sensor"
+    d = describe_flow(tmp_path / name)
+    assert d["windows"] == 3 and d["sensor_size"] == [H, W]
+    assert d["t_first_us"] == T0[0] and d["t_last_us"] == T1[-1]
+    assert d["units"].startswith(units) and d["method"] == "test"
+    assert d["valid_fraction"] == pytest.approx(v.mean())
+
+
+def test_flo_is_displacement_with_dt_in_its_sidecar(tmp_path):
+    flows, valids = _write(tmp_path / "f_{:05d}.flo")
+    for i in range(3):
+        path = tmp_path / f"f_{i:05d}.flo"
+        side = json.loads(path.with_name(path.name + ".json").read_text())
+        dt = (T1[i] - T0[i]) * 1e-6
+        assert side["t0_us"] == T0[i] and side["t1_us"] == T1[i]
+        assert side["dt_s"] == pytest.approx(dt) and side["units"] == "px"
+        disp = read_flo(path)  # Middlebury: displacement, NaN (unknown) where not valid
+        np.testing.assert_array_equal(np.isfinite(disp).all(2), valids[i])
+        np.testing.assert_allclose(disp[valids[i]], flows[i][valids[i]] * dt, rtol=1e-6)
+    raw = (tmp_path / "f_00000.flo").read_bytes()
+    assert np.frombuffer(raw[12:16], "<f4")[0] == np.float32(1e10)  # pixel (0, 0): unknown
+
+
+def test_png_is_dsec_displacement(tmp_path):
+    from evmotion.io.flowfiles import read_dsec_flow_png
+
+    flows, valids = _write(tmp_path / "g_{:05d}.png")
+    disp, valid = read_dsec_flow_png(tmp_path / "g_00002.png")
+    np.testing.assert_array_equal(valid, valids[2])
+    np.testing.assert_allclose(disp[valid], flows[2][valid] * 0.025, atol=1e-6)
+
+
+def test_one_window_plain_name_and_explicit_interval(tmp_path):
+    flows, valids = _write(tmp_path / "one.flo", n=1)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.flo", "one.flo.json"]
+    seq = read_flow(tmp_path / "one.flo")
+    assert seq.t0.tolist() == [T0[0]] and len(seq) == 1
+    with pytest.raises(ParameterError, match="carries"):
+        read_flow(tmp_path / "one.flo", t0_us=0, t1_us=5)
+    (tmp_path / "one.flo.json").unlink()
+    with pytest.raises(ParameterError, match="one.flo.*no one.flo.json"):
+        read_flow(tmp_path / "one.flo")
+    seq = read_flow(tmp_path / "one.flo", t0_us=0, t1_us=10_000)
+    np.testing.assert_allclose(seq.flow[0][valids[0]], flows[0][valids[0]] * 2, rtol=1e-5)
+
+
+def test_pattern_rules(tmp_path):
+    with pytest.raises(ParameterError, match=r"3 windows but one .flo file.*f_\{:05d\}.flo"):
+        fo.check_flow_output(tmp_path / "f.flo", n_windows=3)
+    assert fo.check_flow_output(tmp_path / "f.flo", n_windows=1) == "flo"
+    with pytest.raises(ParameterError, match="holds every window"):
+        fo.check_flow_output(tmp_path / "f_{:05d}.h5")
+    with pytest.raises(ParameterError, match="must number the windows"):
+        fo.check_flow_output(tmp_path / "f_{{x}}.png")
+    with pytest.raises(ParameterError, match="not a file-name pattern"):
+        fo.check_flow_output(tmp_path / "f_{name}.flo")
+    with pytest.raises(ParameterError, match="file name only"):
+        fo.check_flow_output(tmp_path / "d{:02d}" / "f.flo")
+    assert fo.window_path(tmp_path / "f_{:05d}.flo", 7).name == "f_00007.flo"
+    # a streaming writer that did not know the count: the second window is refused, and
+    # nothing is left behind
+    with pytest.raises(ParameterError, match="several windows but one .flo file"):
+        _write(tmp_path / "s.flo", n=2)
+    assert not list(tmp_path.iterdir())
+
+
+def test_npy_is_refused_for_npz(tmp_path):
+    with pytest.raises(ParameterError, match=r"f.npy: a bare .npy .* write .npz"):
+        fo.open_flow_output(tmp_path / "f.npy", (H, W))
+    with pytest.raises(FormatError, match="f.npy"):
+        read_flow(tmp_path / "f.npy")
+    with pytest.raises(ParameterError, match="f.txt: not a flow output"):
+        fo.check_flow_output(tmp_path / "f.txt")
+
+
+@pytest.mark.parametrize("name", ["f.h5", "f.npz", "f_{:05d}.flo", "f_{:05d}.png"])
+def test_an_exception_mid_run_leaves_no_complete_looking_file(tmp_path, name):
+    flows, valids = _windows()
+    with pytest.raises(RuntimeError, match="boom"):
+        with fo.open_flow_output(tmp_path / name, (H, W)) as out:
+            out.append(flows[0], T0[0], T1[0], valid=valids[0])
+            out.append(flows[1], T0[1], T1[1], valid=valids[1])
+            raise RuntimeError("boom")
+    left = sorted(p.name for p in tmp_path.iterdir())
+    # only the resumable .h5 keeps its .part file; nothing has a final name
+    assert left == (["f.h5.part"] if name == "f.h5" else [])
+
+
+def test_rerun_with_fewer_windows_replaces_the_pattern_set(tmp_path):
+    _write(tmp_path / "f_{:05d}.flo", n=3)
+    _write(tmp_path / "f_{:05d}.flo", n=2)
+    assert len(read_flow(tmp_path / "f_{:05d}.flo")) == 2
+    assert not (tmp_path / "f_00002.flo").exists()
+    assert not (tmp_path / "f_00002.flo.json").exists()
+
+
+def test_h5_resume_continues_and_checks(tmp_path):
+    path = tmp_path / "r.h5"
+    flows, valids = _windows()
+    out = fo.open_flow_output(path, (H, W), {"method": "m", "lam": 1.0})
+    out.append(flows[0], T0[0], T1[0], valid=valids[0])
+    out.abort()  # an interrupted run
+    assert not path.exists() and (tmp_path / "r.h5.part").exists()
+    with pytest.raises(ParameterError, match="lam=1.0.*2.0"):
+        fo.open_flow_output(path, (H, W), {"method": "m", "lam": 2.0}, resume=True)
+    out = fo.open_flow_output(path, (H, W), {"method": "m", "lam": 1.0}, resume=True)
+    assert out.done == [(T0[0], T1[0])]
+    out.check_count(3)
+    out.check_done(0, T0[0], T1[0])
+    np.testing.assert_array_equal(out.stored_flow(0), flows[0])
+    for i in (1, 2):
+        out.append(flows[i], T0[i], T1[i], valid=valids[i])
+    out.close()
+    seq = read_flow(path)
+    np.testing.assert_array_equal(seq.flow, np.stack(flows))
+    np.testing.assert_array_equal(seq.valid, np.stack(valids))
+    out = fo.open_flow_output(path, (H, W), {"method": "m", "lam": 1.0}, resume=True)
+    with pytest.raises(ParameterError, match=r"window 0 .* \[1000, 21000\)"):
+        out.check_done(0, 0, 21_000)
+    assert path.exists()  # the finished file reopened is put back
+    with pytest.raises(ParameterError, match="only an .h5 output can be resumed"):
+        fo.open_flow_output(tmp_path / "f.npz", (H, W), resume=True)
+
+
+def test_npz_holds_named_arrays(tmp_path):
+    flows, valids = _write(tmp_path / "f.npz")
+    with np.load(tmp_path / "f.npz", allow_pickle=False) as z:
+        assert set(z.files) == {"flow", "valid", "t0", "t1", "units", "format", "attrs"}
+        assert z["flow"].dtype == np.float32 and z["flow"].shape == (3, H, W, 2)
+        assert z["t0"].dtype == np.int64 and str(z["units"]) == "px/s"
+        assert json.loads(str(z["attrs"]))["lam"] == 0.5
+
+
+def test_bad_windows_are_refused(tmp_path):
+    with fo.open_flow_output(tmp_path / "f.npz", (H, W)) as out:
+        with pytest.raises(ParameterError, match="shape"):
+            out.append(np.zeros((H + 1, W, 2)), 0, 1)
+        with pytest.raises(ParameterError, match="not after"):
+            out.append(np.zeros((H, W, 2)), 5, 5)
+        with pytest.raises(ParameterError, match="valid has shape"):
+            out.append(np.zeros((H, W, 2)), 0, 5, valid=np.ones((2, 2), bool))
+
+
+def test_describe_flow_is_none_for_other_files(tmp_path):
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    ev = EventArray(np.arange(5), np.arange(5), np.arange(5) * 10, np.ones(5, np.uint8),
+                    sensor_size=(8, 8))
+    write_events(tmp_path / "ev.h5", ev)
+    write_events(tmp_path / "ev.npz", ev)
+    assert describe_flow(tmp_path / "ev.h5") is None
+    assert describe_flow(tmp_path / "ev.npz") is None
+    assert describe_flow(tmp_path / "nothing_{:05d}.flo") is None
+
+
+def test_per_event_npz_is_described_not_read_as_windows(tmp_path):
+    n = 4
+    np.savez(tmp_path / "ev.npz", t=np.arange(n, dtype=np.int64) * 100, x=np.zeros(n),
+             y=np.zeros(n), vx=np.ones(n), vy=np.ones(n), valid=np.array([1, 1, 0, 0], bool))
+    d = describe_flow(tmp_path / "ev.npz")
+    assert d["format"] == "per-event-flow" and d["events"] == n and d["valid_fraction"] == 0.5
+    with pytest.raises(FormatError, match="per-event"):
+        read_flow(tmp_path / "ev.npz")
