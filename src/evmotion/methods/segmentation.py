@@ -40,7 +40,7 @@ from evmotion.core.iwe import accumulate
 from evmotion.core.optim import gradient_minimize
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
-from evmotion.methods.egomotion import _scales, make_cost
+from evmotion.methods.cmax import make_cost, param_scales
 
 __all__ = ["SegmentationResult", "segment_motion"]
 
@@ -182,7 +182,7 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
         prob[np.arange(n), lab] = 0.9
     params = (np.zeros((n_warps, w.n_params)) if init is None
               else np.array(init, dtype=np.float64).reshape(n_warps, w.n_params))
-    scale = _scales(w)
+    scale = param_scales(w)
     history: list[float] = []
     for _ in range(n_iter):
         focus = 0.0
