@@ -215,7 +215,8 @@ class CMaxCost:
     Notes
     -----
     ``value_grad(theta)`` returns ``(J, dJ/dtheta)``; ``value(theta)`` only ``J``;
-    ``parts(theta)`` returns the data and penalty terms separately.
+    ``parts(theta)`` returns the data and penalty terms separately. ``span`` is the
+    window's ``(min dt, max dt)`` in seconds.
 
     Warps up to 4 DOF chain the gradient through fused adjoint kernels that recompute the
     warp Jacobian per event (:meth:`evmotion.core.warps.Warp.warp_into` and
@@ -295,9 +296,16 @@ class CMaxCost:
         self._wscale = (float(np.sqrt(0.5 * (self.x.var() + self.y.var())))
                         if regularizer == "whitening" else 1.0)
         self.n_evals = 0
+        self.normalize_focus()
+
+    def normalize_focus(self) -> float:
+        """Set ``g0``, the data term's scale, to ``|G(0)|`` (the focus of the identity warp;
+        1 where it is 0) with the current weights, and return it: once per window, and
+        again after the weights change (the EM of :mod:`evmotion.methods.segmentation`)."""
         self.g0 = 1.0
-        g0 = self._data(warp.identity(), grad=False)[0]
+        g0 = self._data(self.warp.identity(), grad=False)[0]
         self.g0 = abs(g0) if g0 != 0 else 1.0
+        return self.g0
 
     @property
     def weights(self) -> np.ndarray | None:

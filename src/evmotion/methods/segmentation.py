@@ -188,9 +188,7 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
         focus = 0.0
         for j in range(n_warps):
             cost.weights = np.ascontiguousarray(prob[:, j])
-            cost.g0 = 1.0
-            g0 = cost._data(w.identity(), grad=False)[0]
-            cost.g0 = abs(g0) if g0 != 0 else 1.0
+            cost.normalize_focus()
             res = gradient_minimize(cost.value_grad, params[j], "bfgs", scale=scale,
                                     max_iter=30)
             params[j] = res.x

@@ -49,9 +49,11 @@ def _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20, i21
 
 
 @njit(cache=True, error_model="numpy")
-def _rot_warp_event(x, y, t, a, b, wx, wy, wz, k00, k01, k02, k10, k11, k12, i00, i01, i02,
-                    i10, i11, i12):
-    """Warped pixel of one event: :func:`_rot_warp_norm`, then K."""
+def _rot_warp_event(x, y, t, a, b, wx, wy, wz, km, ki):
+    """Warped pixel of one event: :func:`_rot_warp_norm`, then K (``km``, ``ki``: the first
+    two rows of K and K^-1, :func:`~evmotion.core.warps.common.rows01`)."""
+    k00, k01, k02, k10, k11, k12 = km
+    i00, i01, i02, i10, i11, i12 = ki
     X, Y = _rot_warp_norm(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12)
     return k00 * X + k01 * Y + k02, k10 * X + k11 * Y + k12
 
@@ -87,21 +89,24 @@ def _rot_warp_case(mode, jac):
     def rot_warp(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy):
         wx, wy, wz = w[0], w[1], w[2]
         ww = wx * wx + wy * wy + wz * wz
-        k00, k01, k02, k10, k11, k12 = rows01(Kmat)
-        i00, i01, i02, i10, i11, i12 = rows01(Kinv)
+        km = rows01(Kmat)
+        ki = rows01(Kinv)
         for k in range(x.shape[0]):
             t = dt[k]
             a, b, _ = rod_mode(t * t * ww, mode)
-            xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, k00, k01, k02,
-                                           k10, k11, k12, i00, i01, i02, i10, i11, i12)
+            xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, km, ki)
 
     return rot_warp
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_jac_event(x, y, t, a, b, c, wx, wy, wz, ww, k00, k01, k02, k10, k11, k12, i00, i01,
-                   i02, i10, i11, i12, i20, i21, i22):
-    """Warped pixel and its omega-derivatives ``(xw, yw, jx0, jx1, jx2, jy0, jy1, jy2)``."""
+def _rot_jac_event(x, y, t, a, b, c, w, km, ki):
+    """Warped pixel and its omega-derivatives ``(xw, yw, jx0, jx1, jx2, jy0, jy1, jy2)``
+    (``w``: omega and |omega|^2; ``km``: the first two rows of K; ``ki``: K^-1, row by
+    row)."""
+    wx, wy, wz, ww = w
+    k00, k01, k02, k10, k11, k12 = km
+    i00, i01, i02, i10, i11, i12, i20, i21, i22 = ki
     X, Y, _, _, _, _ = _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20,
                                   i21, i22)
     # d(X, Y)/d omega = -t L J_l(t omega) with L the rotational interaction matrix
@@ -132,9 +137,10 @@ def _rot_jac_loop(mode, args):
     x, y, dt, xw, yw, jx, jy, w, Kmat, Kinv = args
     wx, wy, wz = w[0], w[1], w[2]
     ww = wx * wx + wy * wy + wz * wz
-    k00, k01, k02, k10, k11, k12 = rows01(Kmat)
+    km = rows01(Kmat)
     i00, i01, i02, i10, i11, i12 = rows01(Kinv)
-    i20, i21, i22 = Kinv[2, 0], Kinv[2, 1], Kinv[2, 2]
+    ki = (i00, i01, i02, i10, i11, i12, Kinv[2, 0], Kinv[2, 1], Kinv[2, 2])
+    w4 = (wx, wy, wz, ww)
     # flat views: stride-3 stores into 1-D arrays vectorize, 2-D item stores do not
     jxf = jx.reshape(jx.size)
     jyf = jy.reshape(jy.size)
@@ -142,9 +148,7 @@ def _rot_jac_loop(mode, args):
         t = dt[k]
         a, b, c = rod_mode(t * t * ww, mode)
         xw[k], yw[k], jxf[3 * k], jxf[3 * k + 1], jxf[3 * k + 2], jyf[3 * k], jyf[3 * k + 1], \
-            jyf[3 * k + 2] = _rot_jac_event(x[k], y[k], t, a, b, c, wx, wy, wz, ww, k00, k01,
-                                            k02, k10, k11, k12, i00, i01, i02, i10, i11, i12,
-                                            i20, i21, i22)
+            jyf[3 * k + 2] = _rot_jac_event(x[k], y[k], t, a, b, c, w4, km, ki)
 
 
 @njit(cache=True, error_model="numpy")
@@ -173,10 +177,14 @@ def _rot_vjp_u(X, Y, t, b, c, wx, wy, wz, ww, gX, gY, e0, e1, e2):
 
 
 @njit(cache=True, error_model="numpy")
-def _rot_adj_event(xv, yv, t, b, c, gx, gy, wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02,
-                   i10, i11, i12):
+def _rot_adj_event(xv, yv, t, b, c, gx, gy, w, k2, ki):
     """:func:`_rot_vjp_event` from the warped pixel and its pixel gradient: the normalized
-    point comes back through K^-1 (affine), the gradient through K^T, so no division."""
+    point comes back through K^-1 (affine), the gradient through K^T, so no division
+    (``w``: omega and |omega|^2; ``k2``: K's 2x2 block; ``ki``: the first two rows of
+    K^-1)."""
+    wx, wy, wz, ww = w
+    k00, k01, k10, k11 = k2
+    i00, i01, i02, i10, i11, i12 = ki
     X = i00 * xv + i01 * yv + i02
     Y = i10 * xv + i11 * yv + i12
     return _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gx * k00 + gy * k10,
@@ -216,6 +224,7 @@ def _rot_loop(mode, fuse, use_w, pair, args):
     (:func:`pad_diff`)."""
     xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, _ = args
     wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02, i10, i11, i12 = _rot_prm(prm)
+    w4, k2, ki = (wx, wy, wz, ww), (k00, k01, k10, k11), (i00, i01, i02, i10, i11, i12)
     wp = wd + 2
     p2 = (h + 2) * wp  # start of the second image in pair mode
     a0 = a1 = a2 = a3 = 0.0
@@ -228,8 +237,7 @@ def _rot_loop(mode, fuse, use_w, pair, args):
         else:
             xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
         b, c = _rot_bc(t * t * ww, mode)
-        d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, wx, wy, wz, ww, k00, k01,
-                                    k10, k11, i00, i01, i02, i10, i11, i12)
+        d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, w4, k2, ki)
         a0 += d0
         a1 += d1
         a2 += d2
@@ -436,32 +444,26 @@ def _k_rot_divdet(x, y, dt, w, Kinv, want_div, val, grad, gw, out):
     for k0 in range(0, n, BLOCK):
         k1 = min(k0 + BLOCK, n)
         rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf)
-        _rot_divdet_block(x, y, dt, wx, wy, wz, ww, i00, i01, i02, i10, i11, i12, want_div,
-                          mode_g, k0, k1, abuf, bbuf, cbuf, val, grad, gw, out)
+        _rot_divdet_block(x, y, dt, (wx, wy, wz, ww), (i00, i01, i02, i10, i11, i12),
+                          want_div, mode_g, (k0, k1, abuf, bbuf, cbuf), val, grad, gw, out)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_divdet_block(x, y, dt, wx, wy, wz, ww, i00, i01, i02, i10, i11, i12, want_div,
-                      mode_g, k0, k1, abuf, bbuf, cbuf, val, grad, gw, out):
+def _rot_divdet_block(x, y, dt, w, ki, want_div, mode_g, blk, val, grad, gw, out):
+    """:func:`_k_rot_divdet` over the events ``k0 <= k < k1`` of ``blk = (k0, k1, abuf,
+    bbuf, cbuf)`` (their Rodrigues coefficients in the buffers; ``w``: omega and
+    |omega|^2; ``ki``: the first two rows of K^-1)."""
+    wx, wy, wz, ww = w
+    i00, i01, i02, i10, i11, i12 = ki
+    k0, k1, abuf, bbuf, cbuf = blk
     for k in range(k0, k1):
         t = dt[k]
         a = abuf[k - k0]
         b = bbuf[k - k0]
         c = cbuf[k - k0]
-        at = a * t
-        bt = b * t * t
         xn = i00 * x[k] + i01 * y[k] + i02
         yn = i10 * x[k] + i11 * y[k] + i12
-        # R = Id + at omega^ + bt (omega omega^T - |omega|^2 Id); columns 0, 1 and row 2
-        r00 = 1.0 + bt * (wx * wx - ww)
-        r11 = 1.0 + bt * (wy * wy - ww)
-        r01 = -at * wz + bt * wx * wy
-        r10 = at * wz + bt * wx * wy
-        r02 = at * wy + bt * wx * wz
-        r20 = -at * wy + bt * wx * wz
-        r12 = -at * wx + bt * wy * wz
-        r21 = at * wx + bt * wy * wz
-        r22 = 1.0 + bt * (wz * wz - ww)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot_matrix(a, b, t, wx, wy, wz, ww)
         q0 = r00 * xn + r01 * yn + r02
         q1 = r10 * xn + r11 * yn + r12
         q2 = r20 * xn + r21 * yn + r22
@@ -470,17 +472,10 @@ def _rot_divdet_block(x, y, dt, wx, wy, wz, ww, i00, i01, i02, i10, i11, i12, wa
         Y = q1 * iz
         if not want_div:
             val[k] = iz * iz * iz
-        # J = dX/dx_n (2x2), A = dF/dX (2x2)
-        j00 = (r00 - X * r20) * iz
-        j01 = (r01 - X * r21) * iz
-        j10 = (r10 - Y * r20) * iz
-        j11 = (r11 - Y * r21) * iz
-        a00 = 2.0 * wy * X - wx * Y
-        a01 = -wz - wx * X
-        a10 = wz + wy * Y
-        a11 = wy * X - 2.0 * wx * Y
+        r = (r00, r01, r10, r11, r20, r21)
+        j, A = _rot_div_parts(X, Y, iz, r, wx, wy, wz)
         if want_div:
-            val[k] = a00 * j00 + a01 * j10 + a10 * j01 + a11 * j11
+            val[k] = _trace22(A, j)
         if mode_g == 0 or (mode_g == 2 and gw[k] == 0.0):
             continue
         # columns of t J_l(t omega); every d(.)/d omega_j = (t J_l e_j) x (.)
@@ -496,15 +491,13 @@ def _rot_divdet_block(x, y, dt, wx, wy, wz, ww, i00, i01, i02, i10, i11, i12, wa
             g1 = s3 * ((cx_ * wy - bt1 * wz) * q1 - (cy_ * wy + dg) * q0)
             g2 = s3 * ((cx_ * wz + bt1 * wy) * q1 - (cy_ * wz - bt1 * wx) * q0)
         else:
-            g0 = _rot_div_dir(cx_ * wx + dg, cy_ * wx + bt1 * wz, cz_ * wx - bt1 * wy,
-                              1.0, 0.0, 0.0, wx, wy, q0, q1, q2, X, Y, iz, r00, r01, r10,
-                              r11, r20, r21, j00, j01, j10, j11, a00, a01, a10, a11)
-            g1 = _rot_div_dir(cx_ * wy - bt1 * wz, cy_ * wy + dg, cz_ * wy + bt1 * wx,
-                              0.0, 1.0, 0.0, wx, wy, q0, q1, q2, X, Y, iz, r00, r01, r10,
-                              r11, r20, r21, j00, j01, j10, j11, a00, a01, a10, a11)
-            g2 = _rot_div_dir(cx_ * wz + bt1 * wy, cy_ * wz - bt1 * wx, cz_ * wz + dg,
-                              0.0, 0.0, 1.0, wx, wy, q0, q1, q2, X, Y, iz, r00, r01, r10,
-                              r11, r20, r21, j00, j01, j10, j11, a00, a01, a10, a11)
+            q = (q0, q1, q2)
+            g0 = _rot_div_dir((cx_ * wx + dg, cy_ * wx + bt1 * wz, cz_ * wx - bt1 * wy),
+                              (1.0, 0.0, 0.0), wx, wy, q, X, Y, iz, r, j, A)
+            g1 = _rot_div_dir((cx_ * wy - bt1 * wz, cy_ * wy + dg, cz_ * wy + bt1 * wx),
+                              (0.0, 1.0, 0.0), wx, wy, q, X, Y, iz, r, j, A)
+            g2 = _rot_div_dir((cx_ * wz + bt1 * wy, cy_ * wz - bt1 * wx, cz_ * wz + dg),
+                              (0.0, 0.0, 1.0), wx, wy, q, X, Y, iz, r, j, A)
         if mode_g == 1:
             grad[k, 0] = g0
             grad[k, 1] = g1
@@ -517,9 +510,34 @@ def _rot_divdet_block(x, y, dt, wx, wy, wz, ww, i00, i01, i02, i10, i11, i12, wa
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_div_dir(l0, l1, l2, e0, e1, e2, wx, wy, q0, q1, q2, X, Y, iz, r00, r01, r10, r11,
-                 r20, r21, j00, j01, j10, j11, a00, a01, a10, a11):
-    """Derivative of tr(A J) along omega_j, given l = t J_l(t omega) e_j and e = e_j."""
+def _rot_div_parts(X, Y, iz, r, wx, wy, wz):
+    """``J = dX/dx_n`` and ``A = dF/dX`` (2x2 each, row by row) at the warped normalized
+    point (X, Y) with ``iz = 1 / q_z`` and ``r`` = (R00, R01, R10, R11, R20, R21): the
+    divergence is ``tr(A J)`` (:func:`_trace22`)."""
+    r00, r01, r10, r11, r20, r21 = r
+    j = ((r00 - X * r20) * iz, (r01 - X * r21) * iz, (r10 - Y * r20) * iz,
+         (r11 - Y * r21) * iz)
+    A = (2.0 * wy * X - wx * Y, -wz - wx * X, wz + wy * Y, wy * X - 2.0 * wx * Y)
+    return j, A
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _trace22(A, j):
+    """``tr(A J)`` of two 2x2 matrices given row by row."""
+    return A[0] * j[0] + A[1] * j[2] + A[2] * j[1] + A[3] * j[3]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rot_div_dir(l, e, wx, wy, q, X, Y, iz, r, j, A):
+    """Derivative of tr(A J) along omega_j, given ``l = t J_l(t omega) e_j`` and ``e = e_j``
+    (3-tuples), the rotated point ``q``, its projection ``(X, Y)`` and ``iz = 1 / q_z``,
+    ``r`` = (R00, R01, R10, R11, R20, R21), and ``j``, ``A`` of :func:`_rot_div_parts`."""
+    l0, l1, l2 = l
+    e0, e1, e2 = e
+    q0, q1, q2 = q
+    r00, r01, r10, r11, r20, r21 = r
+    j00, j01, j10, j11 = j
+    a00, a01, a10, a11 = A
     dq0 = l1 * q2 - l2 * q1
     dq1 = l2 * q0 - l0 * q2
     dq2 = l0 * q1 - l1 * q0
@@ -553,20 +571,13 @@ def _rot_value_event(X, Y, t, a, b, wx, wy, wz, ww, want_div):
     ``v_z = 1`` give ``1 / q_z = R_02 X + R_12 Y + R_22``, so neither the event nor a
     division is needed: det J = (1 / q_z)^3, and div f = tr(A J) with ``J = dX/dv``
     (rows ``(R_i. - X_i R_2.) / q_z``) and ``A`` the derivative of the rotational flow at
-    (X, Y) (the formulas of :func:`evmotion.core.warps._k_rot_divdet`)."""
+    (X, Y) (the formulas of :func:`_k_rot_divdet`)."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot_matrix(a, b, t, wx, wy, wz, ww)
     iz = r02 * X + r12 * Y + r22
     if not want_div:
         return iz * iz * iz
-    j00 = (r00 - X * r20) * iz
-    j01 = (r01 - X * r21) * iz
-    j10 = (r10 - Y * r20) * iz
-    j11 = (r11 - Y * r21) * iz
-    a00 = 2.0 * wy * X - wx * Y
-    a01 = -wz - wx * X
-    a10 = wz + wy * Y
-    a11 = wy * X - 2.0 * wx * Y
-    return a00 * j00 + a01 * j10 + a10 * j01 + a11 * j11
+    j, A = _rot_div_parts(X, Y, iz, (r00, r01, r10, r11, r20, r21), wx, wy, wz)
+    return _trace22(A, j)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
