@@ -129,6 +129,7 @@ class FusedAdjoint:
 
         Examples
         --------
+        >>> from evmotion.core.warps import make_warp
         >>> w = make_warp("translation", sensor_size=(10, 10))
         >>> x = np.array([5.0]); dt = np.array([0.5]); th = np.array([2.0, 0.0])
         >>> xw, yw = w.warp(x, x, dt, th)
@@ -153,6 +154,7 @@ class FusedAdjoint:
 
         Examples
         --------
+        >>> from evmotion.core.warps import make_warp
         >>> w = make_warp("translation", sensor_size=(3, 3))
         >>> x = np.array([1.25]); y = np.array([1.5]); dt = np.array([1.0])
         >>> g = np.zeros((3, 3)); g[1, 2] = 1.0
@@ -195,6 +197,7 @@ class FusedAdjoint:
 
         Examples
         --------
+        >>> from evmotion.core.warps import make_warp
         >>> w = make_warp("translation", sensor_size=(1, 2))
         >>> x = np.array([0.25]); y = np.zeros(1); dt = np.array([1.0])
         >>> pads = np.zeros((2, 3, 4)); pads[0, 1, 2] = 1.0; pads[1, 1, 2] = 2.0

@@ -63,6 +63,7 @@ class Warp(MotionModel):
 
         Examples
         --------
+        >>> from evmotion.core.warps import make_warp
         >>> w = make_warp("translation", sensor_size=(10, 10))
         >>> w.warp(np.array([5.0]), np.array([5.0]), np.array([0.1]), np.array([10.0, 0.0]))
         (array([4.]), array([5.]))

@@ -12,7 +12,7 @@ from numba import njit
 from evmotion.core.warps.adjoint import FusedAdjoint, pad_diff, pad_index
 from evmotion.core.warps.base import Warp
 from evmotion.core.warps.common import BLOCK, FAST_FINITE, NO_BLOCKS, max_abs
-from evmotion.core.warps.so3 import rod_coeffs_short, sincos, sincos_any, sincos_block
+from evmotion.core.warps.so3 import rod_coeffs_short, sincos_any, sincos_block
 from evmotion.jitcache import kernel_case
 
 __all__ = ["SE2Warp", "SimilarityWarp", "similarity_values"]
@@ -55,7 +55,6 @@ def _similarity_jac_loop(small, scaled, args):
 def _k_similarity(x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy, jac, scaled):
     # angles below 1 rad take the series of sincos (exact to rounding, vectorizes)
     small = max_abs(dt) * abs(w) < 1.0
-    n = x.shape[0]
     if jac:
         a = (x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy)
         if small and scaled:
@@ -65,20 +64,22 @@ def _k_similarity(x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy, jac, scaled):
         else:
             _similarity_jac_loop(False, scaled, a)
     elif small:
-        for k in range(n):
-            t = dt[k]
-            sn, c = sincos(-t * w)
-            ox, oy, _ = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
-            xw[k] = cx + ox
-            yw[k] = cy + oy
+        _similarity_warp_loop(True, (x, y, dt, vx, vy, w, s, cx, cy, xw, yw))
     else:
-        for k in range(n):
-            t = dt[k]
-            sn = math.sin(-t * w)
-            c = math.cos(-t * w)
-            ox, oy, _ = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
-            xw[k] = cx + ox
-            yw[k] = cy + oy
+        _similarity_warp_loop(False, (x, y, dt, vx, vy, w, s, cx, cy, xw, yw))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _similarity_warp_loop(small, args):
+    """The warp of :func:`_k_similarity` without its Jacobian, ``small`` a constant
+    (:func:`~evmotion.core.warps.so3.sincos_any`)."""
+    x, y, dt, vx, vy, w, s, cx, cy, xw, yw = args
+    for k in range(x.shape[0]):
+        t = dt[k]
+        sn, c = sincos_any(-t * w, small)
+        ox, oy, _ = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
+        xw[k] = cx + ox
+        yw[k] = cy + oy
 
 
 @njit(cache=True, error_model="numpy")

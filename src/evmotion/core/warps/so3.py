@@ -76,23 +76,23 @@ def sincos_any(a, small):
 
 @njit(cache=True, error_model="numpy")
 def rod_block(dt, k0, k1, ww, mode, abuf, bbuf, cbuf):
-    # modes 0 and 1 are branch-free (SIMD); 2 has angles above 1 rad
+    """The Rodrigues coefficients of :func:`rod_mode` for the events ``k0 <= k < k1``
+    into the buffers (from index 0), ``z = dt^2 |omega|^2``, ``ww = |omega|^2``."""
+    # one loop, instantiated per mode with the mode a constant (branch-free, so SIMD, in
+    # modes 0 and 1; mode 2 has angles above 1 rad and a branch per event)
     if mode == 0:
-        for k in range(k0, k1):
-            t = dt[k]
-            abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = rod_coeffs_short(t * t * ww)
+        _rod_fill(dt, k0, k1, ww, 0, abuf, bbuf, cbuf)
     elif mode == 1:
-        for k in range(k0, k1):
-            t = dt[k]
-            abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = rod_coeffs(t * t * ww)
+        _rod_fill(dt, k0, k1, ww, 1, abuf, bbuf, cbuf)
     else:
-        for k in range(k0, k1):
-            t = dt[k]
-            z = t * t * ww
-            if z < 1.0:
-                abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = rod_coeffs(z)
-            else:
-                abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = rod_coeffs_exact(z)
+        _rod_fill(dt, k0, k1, ww, 2, abuf, bbuf, cbuf)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rod_fill(dt, k0, k1, ww, mode, abuf, bbuf, cbuf):
+    for k in range(k0, k1):
+        t = dt[k]
+        abuf[k - k0], bbuf[k - k0], cbuf[k - k0] = rod_mode(t * t * ww, mode)
 
 
 @njit(cache=True, inline="always")
