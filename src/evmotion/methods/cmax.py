@@ -432,7 +432,7 @@ class CMaxCost:
                                               theta, self.shape, self.xw, self.yw, jx=self.jx,
                                               jy=self.jy, grad=grad, span=self.span,
                                               count=count)
-            # the divergence is already measured per window (core.regularizers), so the
+            # the divergence is already measured per window (core.collapse), so the
             # margin and lambda apply as the thesis states them: no further time scaling
             total += lam * r
             if grad:

@@ -7,7 +7,7 @@ rotation, SE(2), in-plane, similarity, affine, homography; see
     ``J(theta) = -G(theta) / G(0) + lambda * R(theta)``
 
 with ``G`` a focus objective of the image of warped events (:mod:`evmotion.core.objectives`)
-and ``R`` a collapse penalty (:mod:`evmotion.core.regularizers`). Two choices make the
+and ``R`` a collapse penalty (:mod:`evmotion.core.collapse`). Two choices make the
 weights ``lambda`` of Sec. 3.6.1 transferable between windows and sensors:
 
 * ``G`` is divided by its value at the identity warp, so the data term is dimensionless and
@@ -20,7 +20,7 @@ weights ``lambda`` of Sec. 3.6.1 transferable between windows and sensors:
   deformation, while its RCAD weight (0.2) is too weak for the 4-DOF warp there. Without a
   ``dataset`` the weight is derived from the window (:mod:`evmotion.methods.weights`: it
   scales with the focus gain a collapse can reach), which cures those cases too;
-* the penalties are used as :mod:`evmotion.core.regularizers` returns them: the divergence
+* the penalties are used as :mod:`evmotion.core.collapse` returns them: the divergence
   is measured per window (1/s times the window duration, the normalized time of (3.7)), so
   the thesis' margins and weights apply unchanged and the penalty does not depend on the
   time unit;

@@ -42,14 +42,14 @@ Cost (what CMax pays per evaluation on top of its data term; ``benchmarks/bench_
   values' own derivatives (closed forms; for the rotation from the warped point) with the
   same gathered pixels,
   the values' image gathered only in the flagged blocks (the rotation). CMax
-  (:class:`evmotion.methods.egomotion.CMaxCost`) votes the count image as its IWE and folds
+  (:class:`evmotion.methods.cmax.CMaxCost`) votes the count image as its IWE and folds
   the penalty's adjoint images into its data term's, so that that one pass chains both
-  (:func:`_trimmed_parts`). Warps without fused adjoints (or given ``jx, jy``) chain
-  per-event derivatives through the stored Jacobians;
+  (:func:`~evmotion.core.collapse.trimmed.trimmed_parts`). Warps without fused adjoints
+  (or given ``jx, jy``) chain per-event derivatives through the stored Jacobians;
 * RCAD maps test their threshold on the area ratio, without logarithms, sum the selected
   values as the logarithm of a product and their gradients as three sums contracted once
-  (:func:`_k_rcad_grid`); ``span=(min dt, max dt)`` spares the pass over the times when the
-  caller knows them.
+  (:mod:`~evmotion.core.collapse.rcad`); ``span=(min dt, max dt)`` spares the pass over
+  the times when the caller knows them.
 
 Layout: :mod:`~evmotion.core.collapse.values` (per-event values),
 :mod:`~evmotion.core.collapse.trimmed` (DIWE/IWA trimmed means),

@@ -189,7 +189,7 @@ class FusedAdjoint:
         ``derivs``: None holds the values fixed; ``"divergence"`` (the values are this
         warp's divergence times ``T``) or ``"deformation"`` (``|det J| - 1``) chains their
         theta-derivatives too, in the same pass (the DIWE/IWA penalties of
-        :mod:`evmotion.core.regularizers`); the warps whose values depend on dt only
+        :mod:`evmotion.core.collapse`); the warps whose values depend on dt only
         (closed forms) then recompute them instead of reading ``values``. ``blocks``
         (uint8, one per block of :data:`evmotion.core.trim.BLOCK` events, optional): 0 for
         the blocks none of whose events reaches a nonzero pixel of ``B``, which then skip

@@ -77,7 +77,8 @@ def _rot_warp_norm(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12):
 
 def _rot_warp_case(mode, jac):
     """The rotation warp kernel in series mode ``mode`` (:func:`_rot_rates`), with the
-    Jacobian (``jac``) or not: one case, compiled on first use (:func:`evmotion.jitcache.kernel_case`)."""
+    Jacobian (``jac``) or not: one case, compiled on first use
+    (:func:`evmotion.jitcache.kernel_case`)."""
     if jac:
         @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
         def rot_warp_jac(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy):
@@ -314,8 +315,8 @@ def _rot_value_adj(X, Y, t, a, b, c, gd, T, wx, wy, wz, ww):
     ``|det J| - 1``: :func:`_rot_det_weight`), from the warped normalized point (X, Y)
     alone.
 
-    The value is a function ``D(X, Y, omega)`` (:func:`evmotion.core.regularizers.
-    _rot_value_event`), so ``dD/domega = D_X dX/domega + D_Y dY/domega + D_omega``: the
+    The value is a function ``D(X, Y, omega)`` (:func:`_rot_value_event`), so
+    ``dD/domega = D_X dX/domega + D_Y dY/domega + D_omega``: the
     first two terms are a pixel gradient for :func:`_rot_vjp_event`. Since ``|q| = |v|``
     (q = R v), ``q_z^2 (1 + X^2 + Y^2) = |v|^2``, and ``|det J| = |q_z|^-3`` depends on
     omega through X, Y only:
@@ -432,7 +433,8 @@ def _k_rot_divdet(x, y, dt, w, Kinv, want_div, val, grad, gw, out):
     the derivative: a trimmed mean's adjoint is zero off its selected pixels). Both are
     invariant under the affine map K, so they are computed in normalized coordinates,
     where the warp is ``X = pi(R v)`` with ``R = exp(dt omega^)``: det J = 1 / q_z^3
-    (det R = 1), and since the flow is the rotational field ``F(X) = pi'(q) (omega x q)`` evaluated at the warped point,
+    (det R = 1), and since the flow is the rotational field
+    ``F(X) = pi'(q) (omega x q)`` evaluated at the warped point,
     div f = tr(dF/dX dX/dx). Derivatives use dR/d omega_j = dt (J_l e_j)^ R."""
     wx, wy, wz, ww, mode = _rot_rates(dt, w)
     i00, i01, i02, i10, i11, i12 = rows01(Kinv)
