@@ -68,6 +68,8 @@ from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.jitcache import compile_seconds
 from evmotion.methods.cmax import (
+    COMBINED_REGULARIZERS,
+    REGULARIZER_CHOICES,
     CMaxCost,
     default_bounds,
     make_cost,
@@ -81,6 +83,8 @@ from evmotion.methods.diagnostics import (
 )
 
 __all__ = [
+    "COMBINED_REGULARIZERS",
+    "REGULARIZER_CHOICES",
     "CMaxCost",
     "EgomotionResult",
     "cost_landscape",
