@@ -87,7 +87,7 @@ def main(quick: bool = False) -> list[dict]:
                 cost.value_grad(th)
                 ev = (warp, cost._fx, cost._fy, cost._fdt, th, shape, cost.xw.copy(),
                       cost.yw.copy())
-                kw = {"span": cost._span, "count": cost.iwe.copy()}
+                kw = {"span": cost.span, "count": cost.iwe.copy()}
                 row = {"case": "regularizer", "events": n, "size": size, "warp": wname,
                        "motion": motion, "data_ms": data_ms}
                 for reg in REGS:

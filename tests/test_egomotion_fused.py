@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from _helpers import assert_grad_matches_central_differences, bilinear_adjoint_numpy
-from evmotion.core.iwe import _vote_bilinear, accumulate, accumulate_backward
+from evmotion.core.iwe import accumulate, accumulate_backward
+from evmotion.core.iwe import vote_bilinear as _vote_bilinear
 from evmotion.core.objectives import events_value_grad
 from evmotion.core.regularizers import regularizer_value_grad, whiten
 from evmotion.core.warps import make_warp
 from evmotion.errors import ParameterError
-from evmotion.methods.egomotion import _TILE, CMaxCost, _tile_order
+from evmotion.methods.cmax import _TILE, CMaxCost, _tile_order
 
 SHAPE = (60, 80)
 K = np.array([[70.0, 0.0, 41.0], [0.0, 70.0, 29.5], [0.0, 0.0, 1.0]])

@@ -160,7 +160,7 @@ def test_rcad_map_rotation_and_general():
     approx = 3 * span * (om[0] * yn - om[1] * xn)
     np.testing.assert_allclose(m, approx, atol=0.1 * np.abs(approx).max())
     # the grid kernel of the penalty equals the generic area log-ratio (rotation, homography)
-    from evmotion.core.regularizers import _area_coeffs, _k_rcad_grid
+    from evmotion.core.collapse.rcad import _area_coeffs, _k_rcad_grid
 
     wh = make_warp("homography", (H, W))
     for warp, th in ((w, 30 * om), (wh, np.array(THETA["homography"]))):
@@ -253,8 +253,8 @@ def test_trim_and_backward_kernels_match_numpy():
     """The trim pass (padded, interleaved adjoint images), the branch-free per-event
     backward pass and the stored-Jacobian contraction against plain numpy, events inside,
     across and outside the border included; d/dd_k against finite differences."""
+    from evmotion.core.collapse.trimmed import _backward_events, _contract
     from evmotion.core.iwe import accumulate
-    from evmotion.core.regularizers import _backward_events, _contract
     from evmotion.core.trim import tile_grid, trim_pass
 
     rng = np.random.default_rng(5)
@@ -311,7 +311,7 @@ def test_no_map_when_every_value_is_above_the_margin():
     """The shortcut that skips the DIWE/IWA maps when no per-event value is below the margin
     (a vote-weighted pixel mean cannot be) agrees with the maps; values at the margin itself
     take the full path."""
-    from evmotion.core.regularizers import _all_above
+    from evmotion.core.collapse.values import all_above as _all_above
 
     rng = np.random.default_rng(7)
     d = rng.uniform(-0.1, 3.0, 1000)
@@ -335,8 +335,8 @@ def test_rotation_values_from_warped_points_match_numpy(om):
     """The rotation's per-event divergence and det J computed from the warped pixels
     (:func:`_k_rot_values`, every Rodrigues series mode) against the generic plain-numpy
     formulas of :class:`Warp` (matrices of the trajectory, no numba)."""
-    from evmotion.core.regularizers import _k_rot_values
     from evmotion.core.warps import Warp
+    from evmotion.core.warps.rotation import rot_values as _k_rot_values
 
     w = make_warp("rotation", (H, W), K=K)
     x, y, dt = _events(300, seed=4)
@@ -359,7 +359,8 @@ def test_rotation_values_from_warped_points_match_numpy(om):
 def test_rotation_values_fused_with_the_warp(om):
     """:func:`_warp_values` (the warp and the per-event values in one pass, CMax's pair
     path) gives the warp's pixels and :func:`_k_rot_values`' d and fac, every series mode."""
-    from evmotion.core.regularizers import _k_rot_values, _warp_values
+    from evmotion.core.collapse.values import warp_values as _warp_values
+    from evmotion.core.warps.rotation import rot_values as _k_rot_values
 
     w = make_warp("rotation", (H, W), K=K)
     x, y, dt = _events(300, seed=4)
@@ -389,7 +390,7 @@ def test_rcad_grid_threshold_matches_numpy():
     plain-numpy evaluation of the map selects and give their mean, at margins cutting
     through the map's range (midway between map values: at a value itself the rounding
     decides), and where exp of the margin over- or underflows (a logarithm per point)."""
-    from evmotion.core.regularizers import _area_coeffs, _k_rcad_grid
+    from evmotion.core.collapse.rcad import _area_coeffs, _k_rcad_grid
 
     w = make_warp("rotation", (H, W), K=K)
     th = np.array([12.0, -8.0, 5.0])
@@ -446,7 +447,7 @@ def test_vjp_chain_rule_on_few_and_many_trimmed_pixels(name):
 
 
 def test_time_span_matches_numpy():
-    from evmotion.core.regularizers import _time_span
+    from evmotion.core.collapse.values import time_span as _time_span
 
     rng = np.random.default_rng(9)
     for a in (rng.normal(size=1001), -rng.uniform(1, 2, 7), np.array([2.5]),
@@ -461,7 +462,10 @@ def test_time_span_matches_numpy():
 def test_fast_values_loops_agree(name):
     """The closed-form values-only loops (short series inline) equal the general ones, whose
     derivatives :meth:`Warp.reduce_pair` is tested against (test_egomotion_fused)."""
-    from evmotion.core.regularizers import _FAST, _k_fast_values
+    from evmotion.core.warps import WARP_CLASSES as _FAST
+
+    def _k_fast_values(cls, *args):  # the closed forms are the warp classes' now
+        cls.event_values(None, *args)
 
     th = np.array({"zoom": [8.0], "translation": [3.0, 1.0], "se2": [40.0, 10.0, 30.0],
                    "similarity": [40.0, 10.0, 30.0, 9.0],

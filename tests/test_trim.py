@@ -103,7 +103,8 @@ def test_interleaved_votes_and_trim_match_the_two_images():
     """Where most values are below the margin, counts and values are voted into one
     interleaved image (bit for bit the two images) and trimmed from it, the counts copied
     out for the caller."""
-    from evmotion.core.iwe import _vote_pair, _vote_pairs
+    from evmotion.core.iwe import vote_pair as _vote_pair
+    from evmotion.core.iwe import vote_pairs as _vote_pairs
     from evmotion.core.trim import pairs_size, pairs_view, trim_pairs
 
     xw, yw, d = _cloud(4)

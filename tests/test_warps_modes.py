@@ -7,14 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evmotion.core.warps import (
-    _max_abs,
-    _rod_coeffs,
-    _rod_coeffs_exact,
-    _rod_coeffs_short,
-    _sincos,
-    make_warp,
-)
+from evmotion.core.warps import make_warp
+from evmotion.core.warps.common import max_abs as _max_abs
+from evmotion.core.warps.so3 import rod_coeffs as _rod_coeffs
+from evmotion.core.warps.so3 import rod_coeffs_exact as _rod_coeffs_exact
+from evmotion.core.warps.so3 import rod_coeffs_short as _rod_coeffs_short
+from evmotion.core.warps.so3 import sincos as _sincos
 from evmotion.methods.egomotion import CMaxCost
 
 H, W = 120, 160

@@ -35,6 +35,7 @@ import numpy as np
 from numba import njit
 
 from evmotion.errors import ParameterError
+from evmotion.geometry import sensor_shape
 
 __all__ = [
     "KERNELS",
@@ -124,7 +125,7 @@ def _bwd_bilinear(xw, yw, w, g, gx, gy):
         gy[k] = a * ((g10 - g00) * (1.0 - fx) + (g11 - g01) * fx)
 
 
-_VOTE_BLOCK = 256  # events per block of _vote_bilinear: its buffers stay in L1
+_VOTE_BLOCK = 256  # events per block of vote_bilinear: its buffers stay in L1
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -152,7 +153,7 @@ def _vote_cells(use_w, xs, ys, ws, wd, h, ib, w00, w01, w10, w11):
         w11[j] = ay * fx
 
 
-def _vote_bilinear(xw, yw, wts, out):
+def vote_bilinear(xw, yw, wts, out):
     """The bilinear IWE of :func:`evmotion.core.iwe.accumulate_into` into ``out`` (H, W),
     equal bit for bit (same votes, same arithmetic, same order of summation), about 25 %
     faster: the cells and vote weights of a block of events are computed first, in a loop
@@ -161,12 +162,12 @@ def _vote_bilinear(xw, yw, wts, out):
     two kernels, each compiled on first use."""
     if wts.shape[0] > 0:
         return _vote_weighted(xw, yw, wts, out)
-    return _vote_counts(xw, yw, out)
+    return vote_counts(xw, yw, out)
 
 
 @njit(cache=True, error_model="numpy")
-def _vote_counts(xw, yw, out):
-    """:func:`_vote_bilinear` of unit votes."""
+def vote_counts(xw, yw, out):
+    """:func:`vote_bilinear` of unit votes."""
     out[:] = 0.0
     # xw stands in for the weights and values, unread without them
     _vote_blocks(xw, yw, xw, False, out, xw, out, False, True)
@@ -175,15 +176,15 @@ def _vote_counts(xw, yw, out):
 
 @njit(cache=True, error_model="numpy")
 def _vote_weighted(xw, yw, wts, out):
-    """:func:`_vote_bilinear` with per-event weights ``wts``."""
+    """:func:`vote_bilinear` with per-event weights ``wts``."""
     out[:] = 0.0
     _vote_blocks(xw, yw, wts, True, out, wts, out, False, True)
     return out
 
 
 @njit(cache=True, error_model="numpy")
-def _vote_pair(xw, yw, vals, cnt, num, with_cnt):
-    """:func:`_vote_bilinear` of ones into ``cnt`` (if ``with_cnt``; bit for bit) and, in
+def vote_pair(xw, yw, vals, cnt, num, with_cnt):
+    """:func:`vote_bilinear` of ones into ``cnt`` (if ``with_cnt``; bit for bit) and, in
     the same pass, into ``num`` the IWE of the per-event ``vals`` (each unit vote weight
     times the value: a pixel of one event holds its value to the rounding of a product)."""
     num[:] = 0.0
@@ -195,7 +196,7 @@ def _vote_pair(xw, yw, vals, cnt, num, with_cnt):
 
 
 @njit(cache=True, inline="always")
-def _block_bufs(size):
+def block_bufs(size):
     """The buffers of a block of ``size`` events for :func:`_vote_cells`: the cells' flat
     index and the four vote weights."""
     return (np.empty(size, np.int64), np.empty(size), np.empty(size), np.empty(size),
@@ -203,14 +204,14 @@ def _block_bufs(size):
 
 
 @njit(cache=True, error_model="numpy")
-def _vote_pairs(xw, yw, vals, out):
-    """:func:`_vote_pair` into one (H, W, 2) image ``out``: each pixel's count next to its
-    sum of values (bit for bit those of :func:`_vote_pair`), so that a vote updates two
+def vote_pairs(xw, yw, vals, out):
+    """:func:`vote_pair` into one (H, W, 2) image ``out``: each pixel's count next to its
+    sum of values (bit for bit those of :func:`vote_pair`), so that a vote updates two
     adjacent numbers (an eighth faster at 500k events)."""
     h, wd = out.shape[0], out.shape[1]
     out[:] = 0.0
     flat = out.reshape(out.size)
-    ib, w00, w01, w10, w11 = _block_bufs(_VOTE_BLOCK)
+    ib, w00, w01, w10, w11 = block_bufs(_VOTE_BLOCK)
     r = 2 * wd
     n = xw.shape[0]
     for k0 in range(0, n, _VOTE_BLOCK):
@@ -242,20 +243,20 @@ def _vote_pairs(xw, yw, vals, out):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _vote_blocks(xw, yw, wts, use_w, out, vals, out2, pair, with_out):
-    """The votes of :func:`_vote_bilinear` added to ``out`` (if ``with_out``) and, in
+    """The votes of :func:`vote_bilinear` added to ``out`` (if ``with_out``) and, in
     ``pair`` mode, those times ``vals`` to ``out2``."""
     h, wd = out2.shape
     flat = out.reshape(out.size)
     flat2 = out2.reshape(out2.size)
-    ib, w00, w01, w10, w11 = _block_bufs(_VOTE_BLOCK)
+    ib, w00, w01, w10, w11 = block_bufs(_VOTE_BLOCK)
     n = xw.shape[0]
     for k0 in range(0, n, _VOTE_BLOCK):
-        _vote_block(xw, yw, wts, use_w, out, flat, vals, out2, flat2, pair, with_out, k0,
+        vote_block(xw, yw, wts, use_w, out, flat, vals, out2, flat2, pair, with_out, k0,
                     min(k0 + _VOTE_BLOCK, n), ib, w00, w01, w10, w11)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _vote_block(xw, yw, wts, use_w, out, flat, vals, out2, flat2, pair, with_out, k0, k1, ib,
+def vote_block(xw, yw, wts, use_w, out, flat, vals, out2, flat2, pair, with_out, k0, k1, ib,
                 w00, w01, w10, w11):
     """:func:`_vote_blocks` for the events ``k0:k1`` (at most the length of the buffers
     ``ib`` (index) and ``w00`` ... ``w11`` (weights); ``flat``, ``flat2``: flat views of
@@ -427,17 +428,6 @@ def _check_kernel(kernel: str, sigma: float) -> None:
         raise ParameterError(f"Gaussian IWE needs sigma > 0 (pixels), got {sigma!r}")
 
 
-def _shape(shape, name: str = "shape") -> tuple[int, int]:
-    """``(H, W)`` as positive ints, or a ParameterError naming the argument."""
-    try:
-        h, w = (int(v) for v in shape)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} must be (height, width), got {shape!r}") from None
-    if h <= 0 or w <= 0:
-        raise ParameterError(f"{name} must be positive, got {shape!r}")
-    return h, w
-
-
 def accumulate_into(xw: np.ndarray, yw: np.ndarray, out: np.ndarray,
                     weights: np.ndarray | None = None, kernel: str = "bilinear",
                     sigma: float = 1.0) -> np.ndarray:
@@ -491,7 +481,7 @@ def accumulate(xw: np.ndarray, yw: np.ndarray, shape: tuple[int, int],
     >>> iwe.tolist()
     [[2.0, 0.0], [0.0, 0.0]]
     """
-    return accumulate_into(xw, yw, np.empty(_shape(shape)), weights, kernel, sigma)
+    return accumulate_into(xw, yw, np.empty(sensor_shape(shape)), weights, kernel, sigma)
 
 
 def accumulate_backward_into(xw: np.ndarray, yw: np.ndarray, grad_iwe: np.ndarray,
@@ -542,7 +532,7 @@ def accumulate_backward(xw: np.ndarray, yw: np.ndarray, shape: tuple[int, int],
     >>> accumulate_backward(np.array([1.25]), np.array([1.5]), (3, 3), g)
     (array([0.5]), array([-0.25]))
     """
-    h, w = _shape(shape)
+    h, w = sensor_shape(shape)
     if np.shape(grad_iwe) != (h, w):
         raise ParameterError(f"grad_iwe has shape {np.shape(grad_iwe)}, expected {(h, w)}")
     n = np.shape(xw)[0] if np.ndim(xw) == 1 else 0

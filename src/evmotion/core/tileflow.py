@@ -255,7 +255,10 @@ def _iwe_fwd(x, y, flow, dtn, iwe):
 
 
 @njit(cache=True, fastmath=True)
-def _iwe_bwd(x, y, flow, dtn, giwe, gflow):
+def iwe_bwd(x, y, flow, dtn, giwe, gflow):
+    """Adjoint of the quadratic B-spline IWE of events ``x, y`` (N,) px moved by
+    ``dtn * flow`` (per-event flow (N, 2) px per unit of ``dtn``): adds ``dL/dflow`` to
+    ``gflow`` (N, 2) given ``dL/dIWE = giwe`` (H, W); events off the image add nothing."""
     h, w = giwe.shape
     for k in range(x.shape[0]):
         xw = x[k] + dtn[k] * flow[k, 0]
@@ -349,5 +352,5 @@ def iwe_backward(x: np.ndarray, y: np.ndarray, flow: np.ndarray, dtn: np.ndarray
     """Per-event flow gradient ``(N, 2)`` of ``sum(grad_iwe * I)`` (adjoint of
     :func:`iwe_forward` with respect to ``flow``)."""
     g = np.zeros((x.shape[0], 2))
-    _iwe_bwd(x, y, flow, dtn, np.ascontiguousarray(grad_iwe, dtype=np.float64), g)
+    iwe_bwd(x, y, flow, dtn, np.ascontiguousarray(grad_iwe, dtype=np.float64), g)
     return g

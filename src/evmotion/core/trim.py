@@ -7,7 +7,7 @@ are a minority, and clustered, so the image of values is voted, trimmed and chai
 only around them:
 
 * :func:`vote_marked` votes the count image (the data term's IWE, bit for bit
-  :func:`evmotion.core.iwe._vote_counts`), marks the ``TILE`` x ``TILE`` pixel tiles of
+  :func:`evmotion.core.iwe.vote_counts`), marks the ``TILE`` x ``TILE`` pixel tiles of
   the cells of the events below the margin, and keeps the box of the tiles of each block of
   ``BLOCK`` consecutive events;
 * :func:`flag_blocks`: the tiles whose pixels can fall below the margin (``near``: the marks
@@ -26,7 +26,7 @@ a fifth of the blocks are flagged).
 
 Where most values are below the margin (the warps whose values depend on dt only: below it
 everywhere at once) nothing is sparse: counts and values are voted together into one
-interleaved image (:func:`evmotion.core.iwe._vote_pairs`) placed inside the memory of the
+interleaved image (:func:`evmotion.core.iwe.vote_pairs`) placed inside the memory of the
 second adjoint image (:func:`pairs_view`), and :func:`trim_pairs` writes that image over
 the rows it has read -- one image less in the working set, which at 500k events keeps it
 within the last-level cache.
@@ -37,8 +37,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from evmotion.core.iwe import _block_bufs, _vote_block, _vote_counts
-from evmotion.core.warps import _DIV_BLOCK
+from evmotion.core.iwe import block_bufs, vote_block, vote_counts
+from evmotion.core.warps.adjoint import DIV_BLOCK
 
 __all__ = ["BLOCK", "MIN_COUNT", "TILE", "flag_blocks", "n_blocks", "pairs_size", "pairs_view",
            "tile_grid", "trim_pairs", "trim_pass", "vote_marked", "vote_values"]
@@ -47,7 +47,7 @@ _SHIFT = 3
 #: Pixels per side of a tile.
 TILE = 1 << _SHIFT
 #: Events per block (the blocks of the rotation's gradient pass).
-BLOCK = _DIV_BLOCK
+BLOCK = DIV_BLOCK
 _NO_WEIGHTS = np.empty(0)
 #: Pixels with less bilinear vote mass hold no warped event.
 MIN_COUNT = 1e-9
@@ -72,7 +72,7 @@ def vote_marked(xw, yw, d, margin, cnt, with_cnt, marks, boxes):
     > last: no event of the block votes)."""
     h, wd = cnt.shape
     if with_cnt:
-        _vote_counts(xw, yw, cnt)
+        vote_counts(xw, yw, cnt)
     marks[:] = 0
     nc = marks.shape[1]
     flat = marks.reshape(marks.size)
@@ -144,16 +144,16 @@ def flag_blocks(marks, boxes, near, flags):
 @njit(cache=True, error_model="numpy")
 def vote_values(xw, yw, d, flags, num):
     """Pass two: the bilinear IWE of the per-event values ``d`` of the flagged blocks into
-    ``num`` (H, W) (zeroed first): the arithmetic of :func:`evmotion.core.iwe._vote_pair`,
+    ``num`` (H, W) (zeroed first): the arithmetic of :func:`evmotion.core.iwe.vote_pair`,
     exact on every ``near`` tile of :func:`flag_blocks`."""
     num[:] = 0.0
     flat = num.reshape(num.size)
-    ib, w00, w01, w10, w11 = _block_bufs(BLOCK)
+    ib, w00, w01, w10, w11 = block_bufs(BLOCK)
     n = xw.shape[0]
     for b in range(flags.shape[0]):
         if flags[b]:
             k0 = b * BLOCK
-            _vote_block(xw, yw, _NO_WEIGHTS, False, num, flat, d, num, flat, True, False, k0,
+            vote_block(xw, yw, _NO_WEIGHTS, False, num, flat, d, num, flat, True, False, k0,
                         min(k0 + BLOCK, n), ib, w00, w01, w10, w11)
 
 
@@ -242,7 +242,7 @@ _PAIRS_AT = 4  # offset of the votes in the second image (an even one keeps them
 @njit(cache=True, error_model="numpy", fastmath=True)
 def trim_pairs(pairs, margin, gN, gS, cnt_out):
     """:func:`trim_pass` over every pixel of the interleaved (H, W, 2) image of counts and
-    sums of values of :func:`evmotion.core.iwe._vote_pairs`, the counts copied into
+    sums of values of :func:`evmotion.core.iwe.vote_pairs`, the counts copied into
     ``cnt_out`` (H, W). ``pairs`` may lie in ``gS`` as :func:`pairs_view` puts it: each of
     its rows is read before the values of ``gS`` that overlap it are written (row i of
     ``gS`` and its ring ends before row i + 1 of ``pairs`` starts, the top ring reaches row

@@ -309,7 +309,7 @@ class MultiCMProblem:
             val, giwe = objective_value_grad(self.objective, iwe)
             c = wt / (self.wsum * self.g0)
             f += c * val
-            tf._iwe_bwd(self.x, self.y, flow, dtn, giwe * c, gflow)
+            tf.iwe_bwd(self.x, self.y, flow, dtn, giwe * c, gflow)
             iwes.append(iwe)
         return f, self._flow_adjoint(gflow, plan), iwes
 

@@ -40,7 +40,7 @@ from evmotion.core.iwe import accumulate
 from evmotion.core.optim import gradient_minimize
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
-from evmotion.methods.egomotion import _scales, make_cost
+from evmotion.methods.cmax import make_cost, param_scales
 
 __all__ = ["SegmentationResult", "segment_motion"]
 
@@ -182,15 +182,13 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
         prob[np.arange(n), lab] = 0.9
     params = (np.zeros((n_warps, w.n_params)) if init is None
               else np.array(init, dtype=np.float64).reshape(n_warps, w.n_params))
-    scale = _scales(w)
+    scale = param_scales(w)
     history: list[float] = []
     for _ in range(n_iter):
         focus = 0.0
         for j in range(n_warps):
             cost.weights = np.ascontiguousarray(prob[:, j])
-            cost.g0 = 1.0
-            g0 = cost._data(w.identity(), grad=False)[0]
-            cost.g0 = abs(g0) if g0 != 0 else 1.0
+            cost.normalize_focus()
             res = gradient_minimize(cost.value_grad, params[j], "bfgs", scale=scale,
                                     max_iter=30)
             params[j] = res.x

@@ -1,8 +1,8 @@
 """Motions of simulated layers, expressed with the parametric warps of chapter 3.
 
-A :class:`Motion` is one warp of :mod:`evmotion.core.warps` with a parameter vector
-``theta`` and a reference time ``t_ref_s`` (seconds from the start of the recording). The
-scene seen at pixel ``x`` at time ``t`` is the reference texture at ``M(t - t_ref) x``
+A :class:`Motion` is one motion model of :mod:`evmotion.geometry` (those of the warps of
+:mod:`evmotion.core.warps`) with a parameter vector ``theta`` and a reference time
+``t_ref_s`` (seconds from the start of the recording). The scene seen at pixel ``x`` at time ``t`` is the reference texture at ``M(t - t_ref) x``
 (homogeneous pixels), where ``M`` is the warp's matrix: the simulator renders exactly the
 motion model that the warp fits, so the ground-truth ``theta`` is the answer an estimator
 using the same warp with ``t_ref`` should find.
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from evmotion.core.warps import Warp, make_warp
 from evmotion.errors import ParameterError
+from evmotion.geometry import MotionModel, make_model
 
 __all__ = ["Motion", "make_motion"]
 
@@ -32,7 +32,7 @@ class Motion:
 
     Attributes
     ----------
-    warp : Warp
+    warp : MotionModel
         The warp model (its ``param_names`` / ``param_units`` name ``theta``).
     theta : ndarray (P,)
         Parameters of the warp referenced at ``t_ref_s`` (rates per second).
@@ -40,7 +40,7 @@ class Motion:
         Reference time in seconds from the start of the recording.
     """
 
-    warp: Warp
+    warp: MotionModel
     theta: np.ndarray
     t_ref_s: float = 0.0
 
@@ -135,7 +135,7 @@ def make_motion(warp: str, theta, sensor_size: tuple[int, int], *, K: np.ndarray
     >>> float(u[0]), float(v[0])
     (100.0, -50.0)
     """
-    w = make_warp(warp, sensor_size, K=K, center=center)
+    w = make_model(warp, sensor_size, K=K, center=center)
     th = np.asarray(theta, dtype=np.float64)
     if th.shape != (w.n_params,):
         raise ParameterError(f"motion '{warp}' takes {w.n_params} parameters "
