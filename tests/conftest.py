@@ -18,3 +18,14 @@ def shared_data() -> Path:
         pytest.skip(f"real recordings not found at {SHARED_DATA} "
                     "(set EVMOTION_SHARED_DATA to the shared/data folder)")
     return SHARED_DATA
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark every test that reads the real recordings ``realdata``, whatever the route.
+
+    A test reaches ../shared/data only through the ``shared_data`` fixture (directly or via a
+    fixture built on it), so ``-m realdata`` / ``-m "not realdata"`` select exactly those.
+    """
+    for item in items:
+        if "shared_data" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.realdata)
