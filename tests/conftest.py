@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = Path(os.environ.get("EVMOTION_SHARED_DATA", REPO.parent / "shared" / "data"))
+from _helpers import SHARED_DATA
 
 
 @pytest.fixture(scope="session")

@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 import evmotion.io as eio
 import fuzzing
-from conftest import SHARED_DATA
+from _helpers import SHARED_DATA
 from evmotion.errors import EventDataError, EvmotionError, FormatError, one_line
 from evmotion.events import EventArray
 from evmotion.io import aedat4, dat, evt3, h5, npy
