@@ -66,3 +66,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if isinstance(item, pytest.DoctestItem) and (module := _missing_extra(item.path, item.name)):
             item.add_marker(pytest.mark.skip(reason=f"optional package {module!r} is not installed"))
+
+
+@pytest.fixture(autouse=True)
+def _examples_write_into_a_temporary_folder(request, tmp_path, monkeypatch):
+    """Docstring examples that write files (``save_png("iwe.png", ...)``) run in a fresh
+    temporary folder, so they can show the real call without touching the checkout."""
+    if isinstance(request.node, pytest.DoctestItem):
+        monkeypatch.chdir(tmp_path)

@@ -49,7 +49,8 @@ def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = 
 
     Examples
     --------
-    >>> save_q_png("q.png", np.zeros((8, 8)))  # doctest: +SKIP
+    >>> save_q_png("q.png", np.linspace(-1, 1, 64).reshape(8, 8))
+    1.0
     """
     q = np.asarray(q, dtype=np.float64)
     if limit is None:
