@@ -131,7 +131,6 @@ def test_fused_variance_path_matches_generic_chain(name):
     np.testing.assert_allclose(g, -(gx @ jx + gy @ jy) / cost.g0, rtol=1e-9, atol=1e-12)
 
 
-@pytest.mark.slow
 def test_regularizers_do_not_harm_well_posed_rotation():
     theta = np.array(TRUTH["rotation"][0])
     ev, _ = synth("rotation", theta, n_events=12000, seed=7)

@@ -107,7 +107,6 @@ def test_rcad_penalizes_contraction_only():
                                rtol=1e-6)
 
 
-@pytest.mark.slow
 def test_inplane_4dof_collapse_is_the_optimum_only_without_regularizer(zoom_events):
     # the 4-DOF warp of the thesis' tables: its collapse (h_z -> 1/T) beats the true motion
     # without a regularizer and loses to it with each penalty (thesis DSEC weights)

@@ -98,7 +98,6 @@ def test_composed_path_equals_chain(name, obj):
     _check(cost, warp, x, y, dt, theta, obj, "bilinear", p, tn)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", FUSED)
 def test_vjp_and_reduce_bilinear_match_numpy(name):
     x, y, dt, p, _ = _window(6, n=600)
@@ -134,7 +133,6 @@ def test_vjp_and_reduce_bilinear_match_numpy(name):
                          np.empty(warp.n_params))
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("fast", [1.0, 12.0])
 @pytest.mark.parametrize("name", FUSED)
 def test_reduce_pair_chains_the_values_derivatives(name, fast):

@@ -52,7 +52,6 @@ OPS = st.lists(st.tuples(st.sampled_from(fuzzing.OPS), st.integers(0, 1 << 24),
                min_size=1, max_size=3)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", SEED_NAMES)
 def test_corrupt_files_give_one_line_naming_the_file(name, seeds, tmp_path_factory):
     found, missing = seeds

@@ -153,7 +153,6 @@ def test_no_value_below_flags_nothing():
     assert not marks.any() and not near.any() and not flags.any()
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("fast", [1.0, 12.0])
 def test_reduce_pair_with_block_flags_equals_every_block(fast):
     """The flagged blocks with both images and the others with the first only give the
