@@ -243,7 +243,11 @@ def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
 
     Examples
     --------
-    >>> save_panel("panel.png", [iwe_to_rgb(a), flow_to_rgb(f)], ["IWE", "flow"])  # doctest: +SKIP
+    >>> from evmotion.viz import flow_to_rgb
+    >>> a, f = np.eye(16), np.ones((16, 16, 2))
+    >>> save_panel("panel.png", [iwe_to_rgb(a), flow_to_rgb(f)], ["IWE", "flow"])
+    >>> read_png("panel.png").ndim
+    3
     """
     images = list(images)
     if not images:
