@@ -3,8 +3,17 @@ this folder on sys.path)."""
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
+
+# the real recordings (tests reach them through conftest's ``shared_data`` fixture; a test
+# that only uses them when present imports this name: not ``from conftest``, which is
+# ambiguous next to src/conftest.py)
+SHARED_DATA = Path(os.environ.get("EVMOTION_SHARED_DATA",
+                                  Path(__file__).resolve().parents[2] / "shared" / "data"))
 
 
 def assert_same_events(a, b, *, dtypes: bool = False) -> None:

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = Path(os.environ.get("EVMOTION_SHARED_DATA", REPO.parent / "shared" / "data"))
+from _helpers import SHARED_DATA
 
 
 @pytest.fixture(scope="session")
@@ -18,3 +16,14 @@ def shared_data() -> Path:
         pytest.skip(f"real recordings not found at {SHARED_DATA} "
                     "(set EVMOTION_SHARED_DATA to the shared/data folder)")
     return SHARED_DATA
+
+
+def pytest_collection_modifyitems(config, items):
+    """Mark every test that reads the real recordings ``realdata``, whatever the route.
+
+    A test reaches ../shared/data only through the ``shared_data`` fixture (directly or via a
+    fixture built on it), so ``-m realdata`` / ``-m "not realdata"`` select exactly those.
+    """
+    for item in items:
+        if "shared_data" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.realdata)

@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from evmotion.cli import main
 
@@ -24,6 +25,7 @@ def test_simulate_then_egomotion_uses_stored_intrinsics(tmp_path, capsys):
     assert (out / "params.csv").is_file() and any(out.glob("*.png"))
 
 
+@pytest.mark.slow
 def test_demo_writes_pictures_and_report(tmp_path, monkeypatch):
     from evmotion import demo
 

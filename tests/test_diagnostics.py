@@ -237,6 +237,7 @@ def test_multicm_empty_half_is_invalid_and_bounded():
     assert np.median(err) < 20.0
 
 
+@pytest.mark.slow
 def test_multicm_does_not_extrapolate_into_empty_regions(shared_data):
     """A near-static 1280x720 EVT3 window: most pixels hold no event. Before, the flow
     there was a smooth extrapolation of 1,900 px/s median (up to 6,000)."""

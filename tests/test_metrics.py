@@ -196,7 +196,6 @@ def _moving_edge(seed=0, speed=(800.0, -300.0)):
 
 
 def test_fwl_true_flow_sharper_than_zero_and_wrong_flow():
-    pytest.importorskip("evmotion.core.iwe")
     ev, flow = _moving_edge()
     assert fwl(ev, np.zeros_like(flow)) == pytest.approx(1.0)
     good = fwl(ev, flow)
@@ -207,7 +206,6 @@ def test_fwl_true_flow_sharper_than_zero_and_wrong_flow():
 
 
 def test_fwl_matches_reference_iwe():
-    pytest.importorskip("evmotion.core.iwe")
     ev, flow = _moving_edge(1)
     rng = np.random.default_rng(4)
     flow = flow + rng.normal(0, 50, flow.shape).astype(np.float32)
@@ -222,7 +220,6 @@ def test_fwl_matches_reference_iwe():
 
 
 def test_fwl_errors():
-    pytest.importorskip("evmotion.core.iwe")
     ev, flow = _moving_edge()
     with pytest.raises(EmptyWindowError):
         fwl(ev[:0], flow)
@@ -251,7 +248,6 @@ def test_rms_error():
 def test_fwl_on_real_ecd_window_peaks_at_ground_truth(shared_data, scene):
     """ECD rotation windows: the IMU's rotational flow sharpens the IWE (FWL > 1.3) and
     beats its reverse, half and 1.5x, so FWL's warp direction and time sign are right."""
-    pytest.importorskip("evmotion.core.iwe")
     from evmotion.io.calib import read_ecd
 
     folder = shared_data / "ecd_rotation_windows" / scene

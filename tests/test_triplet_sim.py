@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import evmotion.sim as sim
 from evmotion.methods.triplet import estimate_flow_triplet
-
-sim = pytest.importorskip("evmotion.sim")
 
 
 @pytest.mark.parametrize(("vx", "vy"), [(200.0, 0.0), (0.0, -180.0), (-120.0, 0.0)])

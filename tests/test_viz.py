@@ -212,7 +212,6 @@ def test_html_report(tmp_path):
 
 
 def test_flow_summary_png(tmp_path):
-    pytest.importorskip("evmotion.core.iwe")
     from evmotion.eval import event_mask, fwl
 
     rng = np.random.default_rng(5)

@@ -162,7 +162,6 @@ def test_picture_row_keeps_pixels():
 
 
 def test_flow_panel_shows_the_sharpening():
-    pytest.importorskip("evmotion.core.iwe")
     from evmotion.eval.metrics import fwl
 
     rng = np.random.default_rng(5)

@@ -82,6 +82,7 @@ def test_a_missing_figure_is_an_error_not_a_broken_image(tmp_path):
     assert not (tmp_path / "r.html").exists()
 
 
+@pytest.mark.slow
 def test_demo_report_shows_every_picture(tmp_path, monkeypatch):
     """``make demo``'s report, written from another directory: its images resolve (they
     pointed to ``../x.png``, resolved against the working directory)."""

@@ -64,7 +64,6 @@ def test_missing_extra_is_one_clear_line(tmp_path, monkeypatch):
 
 def test_write_flow_video_one_frame_per_window(tmp_path):
     pytest.importorskip("imageio_ffmpeg", reason="the 'video' extra (imageio-ffmpeg) is absent")
-    pytest.importorskip("evmotion.core.iwe")
     rng = np.random.default_rng(1)
     n = 4000
     t = np.sort(rng.integers(0, 40_000, n))

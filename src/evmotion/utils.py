@@ -26,8 +26,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
     Examples
     --------
-    >>> with atomic_path("out.npy") as tmp:  # doctest: +SKIP
-    ...     np.save(tmp, arr)
+    >>> import numpy as np
+    >>> with atomic_path("out.npy") as tmp:
+    ...     np.save(tmp, np.arange(3))
+    >>> np.load("out.npy").tolist()
+    [0, 1, 2]
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -5,18 +5,18 @@ first frame of a textured background. The measured brightness increment is the p
 sum of the events' polarities (6.8), times the contrast threshold C where it is known,
 Gaussian-smoothed with sigma = 2 px. The linearized event generation model (6.9) predicts
 it from the log frame ``L`` as ``-grad L(x + p) . v dt``, with a per-pixel translation
-``p`` of the frame (to first order: ``grad L + H p``). The objective (6.10) is
+``p`` of the frame (to first order: ``grad L + H p``). The objective (6.10) is::
 
     E = data + lambda_1 * mean(w * |grad v|) + lambda_2 * mean(|p|)
 
 with the weighted TV weight ``w = 1 - alpha b`` (``b`` the sigma = 5 px event histogram
 normalized to [0, 1]). Two data terms:
 
-* ``"normalized"`` (6.11): mean |pred / rms(pred) - meas / rms(meas)|, the thesis' term. It
+* ``"normalized"`` (6.11): ``mean |pred / rms(pred) - meas / rms(meas)|``, the thesis' term. It
   cannot see the flow's scale; with a contrast threshold (given, or estimated from the next
   frame) the solution is rescaled by the least-squares factor between the prediction and
   C times the event sum (``BosResult.scale``).
-* ``"scale"``: mean |pred - C sum(p)| / rms(C sum(p)), compared unnormalized, so the flow
+* ``"scale"``: ``mean |pred - C sum(p)| / rms(C sum(p))``, compared unnormalized, so the flow
   comes out in px directly; needs C.
 
 The flow is parameterized on a patch grid either directly (``param="flow"``) or as the Sobel
@@ -51,7 +51,7 @@ the LEGM prediction with the true flow: slope 0.36 on the 640x720 jet, 0.53 plum
 0.84-0.86 breath and ice, while the frames' difference has slope 1.00-1.07); C is
 therefore estimated by regressing the event sums on the frames' difference
 (:func:`estimate_contrast_threshold`, method "auto"), which folds the under-count into C:
-the scale-aware term's median |v|/|v_gt| on the 640x720 scenes is 0.93, 0.98, 0.99, 0.98
+the scale-aware term's median ``|v|/|v_gt|`` on the 640x720 scenes is 0.93, 0.98, 0.99, 0.98
 (plume, jet, breath, ice; 0.89, 0.85, 0.97, 0.97 with the reduced-major-axis C), AEE
 +1 %, +6 %, +1 %, +0.5 %. One 640x720 interval on one core
 (CPU time, 2-CPU machine at load ~7): 8.5 s with the thesis' schedule (26 s wall), 1.8 s
@@ -102,7 +102,7 @@ class BosOptions:
     640x720 plume interval its final objective is within 0.3 % of the thesis' 600 per
     scale at a fifth of the time: ``benchmarks/results/bos.md``. The normalized term
     keeps 600 per scale: its scale is free, and the flow of the random initial q shrinks
-    to a usable solution only over them (150/150/150/300: median |v|/|v_gt| 0.38 after
+    to a usable solution only over them (150/150/150/300: median ``|v|/|v_gt|`` 0.38 after
     the rescale by C on that plume, 600: 0.89). ``iterations=600, pool=None, tol=0`` runs
     the thesis' schedule exactly).
 
@@ -126,7 +126,7 @@ class BosOptions:
     lr, lr_decay : float
         Adam learning rate, decaying exponentially to ``lr * lr_decay`` over a scale.
     lambda_tv, lambda_p : float
-        Weights of the weighted TV of the flow and of |p| (6.12).
+        Weights of the weighted TV of the flow and of ``|p|`` (6.12).
     alpha : float
         TV weight ``w = 1 - alpha b``.
     sigma_meas, sigma_weight : float
@@ -153,7 +153,7 @@ class BosOptions:
         Offset of the log frame, relative to full scale (None: half a quantization step for
         integer frames, 1e-3 for float frames).
     min_texture : float
-        Least 90th percentile of |grad log frame| (log units per px) in the ROI.
+        Least 90th percentile of ``|grad log frame|`` (log units per px) in the ROI.
     seed : int
         Seed of the uniform [-1, 1] initialization of q.
     """
@@ -424,7 +424,7 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
       true scale when ``C = var(D) / cov(D, S)``, S regressed on D. The events'
       under-count (no event below threshold; sign reversals within the window cost up to
       2C without an event) is then part of the calibration, not noise shared between the
-      sides as "rma" has it. On the 640x720 simulated scenes the median |v|/|v_gt| of the
+      sides as "rma" has it. On the 640x720 simulated scenes the median ``|v|/|v_gt|`` of the
       scale-aware term is 0.93-0.99 with it, 0.85-0.97 with "rma"
       (``benchmarks/results/bos_accuracy.md``); over the pixels within ~sigma of an event
       (a ring of pixels below threshold with them) 1.02-1.12. Above that noise level the

@@ -96,7 +96,8 @@ class FlowResult:
         identity-warp IWE ``"identity"``.
     focus : float
         Multi-reference focus ``f`` (4.6) of the final flow (> 1: sharper than zero flow).
-    history : list of (scale, objective value)
+    history : list of tuple
+        ``(scale, objective value)`` after each scale.
     timings : dict
         Seconds per scale and in total (``total_s``, wall), of it ``compile_s`` in numba's
         first-use compilation of kernels (:func:`evmotion.jitcache.compile_seconds`) and

@@ -104,7 +104,8 @@ def write_ground_truth(path: str | Path, gt: GroundTruth, *, group: str | None =
     --------
     >>> from evmotion.sim import simulate
     >>> res = simulate("translation", duration_s=0.01, sensor_size=(20, 30))
-    >>> write_ground_truth("sim_gt.h5", res.gt)  # doctest: +SKIP
+    >>> write_ground_truth("sim_gt.h5", res.gt).name
+    'sim_gt.h5'
     """
     import h5py
 
@@ -128,9 +129,11 @@ def read_ground_truth(path: str | Path) -> GroundTruth:
 
     Examples
     --------
-    >>> gt = read_ground_truth("sim_gt.h5")  # doctest: +SKIP
-    >>> gt.flow(gt.frame_times_us[1]).shape  # doctest: +SKIP
-    (260, 346, 2)
+    >>> from evmotion.sim import simulate
+    >>> res = simulate("translation", duration_s=0.01, sensor_size=(20, 30))
+    >>> gt = read_ground_truth(write_ground_truth("sim_gt.h5", res.gt))
+    >>> gt.flow(gt.frame_times_us[1]).shape
+    (20, 30, 2)
     """
     import h5py
 

@@ -761,7 +761,9 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
 
     Examples
     --------
-    >>> write_schlieren(sim, "plume_sim/")  # doctest: +SKIP
+    >>> sim = simulate_schlieren("plume", sensor_size=(40, 48), duration_s=2 / 120, seed=0)
+    >>> write_schlieren(sim, "plume_sim/").name
+    'schlieren_gt.h5'
     """
     from evmotion.io import ecd
     from evmotion.utils import atomic_write_text
@@ -805,9 +807,10 @@ def read_schlieren_gt(path: str | Path) -> SchlierenGT:
 
     Examples
     --------
-    >>> gt = read_schlieren_gt("plume_sim/")  # doctest: +SKIP
-    >>> gt.flow.shape  # doctest: +SKIP
-    (12, 720, 640, 2)
+    >>> sim = simulate_schlieren("plume", sensor_size=(40, 48), duration_s=2 / 120, seed=0)
+    >>> gt = read_schlieren_gt(write_schlieren(sim, "plume_sim/"))
+    >>> gt.flow.shape                   # one flow per frame interval
+    (2, 40, 48, 2)
     """
 
     path = Path(path)

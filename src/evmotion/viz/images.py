@@ -137,7 +137,9 @@ def save_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
 
     Examples
     --------
-    >>> save_png("iwe.png", iwe_to_rgb(np.eye(4)))  # doctest: +SKIP
+    >>> save_png("iwe.png", iwe_to_rgb(np.eye(4)))
+    >>> read_png("iwe.png").shape
+    (4, 4, 3)
     """
     pngfile.write_png(path, _as_image(rgb, "image"), compression=6)
 
@@ -194,7 +196,9 @@ def save_flow_png(path: str | os.PathLike, flow: np.ndarray, *,
 
     Examples
     --------
-    >>> save_flow_png("flow.png", np.zeros((8, 8, 2)), max_speed=100.0)  # doctest: +SKIP
+    >>> pic = save_flow_png("flow.png", np.zeros((8, 8, 2)), max_speed=100.0)
+    >>> read_png("flow.png").shape[2]
+    3
     """
     pic = flow_picture(flow, max_speed=max_speed, valid=valid, unit=unit, legend=legend)
     rgb = pic.rgb
@@ -228,7 +232,11 @@ def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
 
     Examples
     --------
-    >>> save_panel("panel.png", [iwe_to_rgb(a), flow_to_rgb(f)], ["IWE", "flow"])  # doctest: +SKIP
+    >>> from evmotion.viz import flow_to_rgb
+    >>> a, f = np.eye(16), np.ones((16, 16, 2))
+    >>> save_panel("panel.png", [iwe_to_rgb(a), flow_to_rgb(f)], ["IWE", "flow"])
+    >>> read_png("panel.png").ndim
+    3
     """
     images = list(images)
     if not images:

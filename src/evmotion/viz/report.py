@@ -55,8 +55,12 @@ class HtmlReport:
     >>> rep = HtmlReport("Flow on sim.h5")
     >>> rep.add_text("Window 0, multicm.")
     >>> rep.add_table([{"method": "multicm", "AEE": 0.81}], caption="Accuracy")
-    >>> rep.add_figure("out/flow_000.png", caption="Flow (px/s)")  # doctest: +SKIP
-    >>> rep.write("out/report.html")  # doctest: +SKIP
+    >>> import numpy as np
+    >>> from evmotion.viz import save_flow_png
+    >>> pic = save_flow_png("flow_000.png", np.zeros((8, 8, 2)), max_speed=100.0)
+    >>> rep.add_figure("flow_000.png", caption="Flow (px/s)")
+    >>> rep.write("out/report.html").name
+    'report.html'
     """
 
     def __init__(self, title: str, *, embed: bool = True):
