@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.cli.options import (
+    add_time_arguments,
+    check_time_order,
     existing_input,
     int_range,
     nonnegative_float,
@@ -70,6 +72,7 @@ def add_parser(sub) -> None:
     g.add_argument("--window-events", type=int_range(10), help="events per window (>= 10)")
     g.add_argument("--window-us", type=positive_int(unit="µs"),
                    help="window duration in microseconds")
+    add_time_arguments(p)
     p.add_argument("--workers", type=positive_int(), default=1,
                    help="parallel worker processes")
     p.add_argument("--seed", type=int_range(0), default=None,
@@ -134,6 +137,7 @@ def _window_job(events, *, warp, objective, reg, weight, optimizer, K, t_ref, se
 
 def run(args) -> int:
     from evmotion.cli import print_json, warn_line
+    from evmotion.cli.options import select_windows
     from evmotion.parallel import map_windows
     from evmotion.utils import progress
 
@@ -145,14 +149,10 @@ def run(args) -> int:
         reject_unused(args, {"--seed": "seed"}, f"with --optimizer {args.optimizer} "
                       "(it seeds the TPE sampler)")
     args.seed = 0 if args.seed is None else args.seed
+    check_time_order(args)
     events, cam = load_events_and_camera(args)
-    if args.window_events is not None:
-        windows = events.windows_by_count(args.window_events)
-    else:
-        windows = events.windows_by_duration(args.window_us)
-    windows = [w for w in windows if w.count >= 10]
-    if not windows:
-        raise ParameterError(f"{args.file}: no window holds 10 events or more")
+    windows = select_windows(args, events, file=args.file, min_events=10,
+                             n_events=args.window_events, duration_us=args.window_us)
     K = None if cam is None else cam.K
     job = functools.partial(_window_job, warp=args.warp, objective=args.objective,
                             reg=args.reg, weight=args.weight, optimizer=args.optimizer, K=K,

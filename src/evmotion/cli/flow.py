@@ -17,6 +17,8 @@ import argparse
 import importlib
 
 from evmotion.cli.options import (
+    add_time_arguments,
+    check_time_order,
     existing_input,
     positive_float,
     positive_int,
@@ -86,12 +88,17 @@ def add_parser(sub) -> None:
                    help="video of the windows: events | warped IWE | flow (needs the 'video' "
                         "extra; multicm only)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    add_time_arguments(p, what="windows (multicm, dnn)")
     for name, mod in _method_modules():
         mod.add_arguments(p.add_argument_group(f"{name} options"))
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    check_time_order(args)
+    if args.method == "triplet":
+        reject_unused(args, {"--max-windows": "max_windows"},
+                      "with --method triplet (it streams the recording: crop it with --t1)")
     if args.window_gt is None:
         reject_unused(args, {"--gt-dt": "gt_dt"}, "without --window-gt")
     args.gt_dt = 1 if args.gt_dt is None else args.gt_dt

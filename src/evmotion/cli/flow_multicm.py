@@ -82,16 +82,22 @@ def _read(path, fmt):
 
 
 def _windows(args, events):
+    """The windows to estimate (at least 10 events each), within --t0/--t1, at most
+    --max-windows of them."""
+    from evmotion.cli.options import select_windows
+
+    kw = {"min_events": 10, "file": args.file}
     if args.window_gt:
         from evmotion.io.flowfiles import read_gt_flow
 
         gt = read_gt_flow(args.window_gt)
         # frame edges: every GT start plus the end of the last frame
         edges = np.append(np.asarray(gt.t0), np.asarray(gt.t1)[-1:])
-        return events.windows_at(edges, dt=args.gt_dt)
+        return select_windows(args, events, edges_us=edges, dt=args.gt_dt, **kw)
     if args.window_us is not None:
-        return events.windows_by_duration(args.window_us)
-    return events.windows_by_count(args.window_events or DEFAULT_WINDOW_EVENTS)
+        return select_windows(args, events, duration_us=args.window_us, **kw)
+    return select_windows(args, events, n_events=args.window_events or DEFAULT_WINDOW_EVENTS,
+                          **kw)
 
 
 def _lean(res, keep_iwes: bool):
@@ -263,9 +269,7 @@ def run(args) -> int:
     out = Path(args.out)
     t_start = time.perf_counter()
     events = _read(args.file, getattr(args, "format", None))
-    windows = [w for w in _windows(args, events) if w.count >= 10]
-    if not windows:
-        raise ParameterError(f"{args.file}: no window with at least 10 events")
+    windows = _windows(args, events)
     _check_space(out, windows, events.sensor_size)
     if args.method == "dnn":
         from evmotion.cli.flow_dnn import estimator

@@ -16,10 +16,12 @@ from __future__ import annotations
 import argparse
 
 from evmotion.cli.options import (
+    check_time_order,
     existing_input,
     finite_float,
     int_range,
     reject_unused,
+    time_us,
     writable_output,
 )
 
@@ -61,10 +63,11 @@ def add_parser(sub) -> None:
                    help="add a panel of frame differences at the frame rate (folder with "
                         "images.txt, or a frames file)")
     p.add_argument("--format", default=None, help="event format (default: detect)")
-    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="start, absolute µs (default: first event / window)")
-    p.add_argument("--t1", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="end (exclusive), absolute µs")
+    p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
+                   help="start: seconds on the recording's clock, or with a unit (1.5, "
+                        "1500ms, 1500000us; default: first event / window)")
+    p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
+                   help="end (exclusive), same units as --t0")
     p.add_argument("--signed", action="store_true",
                    help="events: polarity sums instead of counts")
     fit = p.add_argument_group("velocimetry")
@@ -111,8 +114,7 @@ def _or(value, default):
 def _check_args(args) -> dict | None:
     from evmotion.errors import ParameterError
 
-    if args.t0 is not None and args.t1 is not None and args.t1 <= args.t0:
-        raise ParameterError(f"--t1 ({args.t1} µs) must be after --t0 ({args.t0} µs)")
+    check_time_order(args)
     if args.source != "events":
         reject_unused(args, {"--rate": "rate", "--compare-rate": "compare_rate",
                              "--signed": "signed", "--format": "format"},

@@ -48,6 +48,11 @@ Sign conventions of the parameters (camera frame x right, y down, z forward):
 * ``rotation``: ``theta = omega`` is the camera's angular velocity in rad/s:
   ``x'_n ~ exp(dt omega^) x_n`` in normalized coordinates (3.22). Its flow at dt = 0 is minus
   the rotational part of the feature sensitivity matrix (3.29), its divergence is (3.23).
+  Right-handed about the camera axes: ``wz > 0`` turns the image content counter-clockwise
+  on screen (x right, y down).
+* ``se2``, ``similarity``: ``wz`` in rad/s has the rotation's sign (the camera's rate about
+  the optical axis; the thesis' A.11/A.36 ``w_z`` is minus it), so that a camera turning
+  about z gives the same-sign ``wz`` from ``rotation`` and ``se2``.
 
 Examples
 --------
@@ -1867,8 +1872,15 @@ def _rot2(a):
 
 
 class SimilarityWarp(_FusedAdjoint, Warp):
-    """4-DOF similarity Sim(2) (A.36): ``x' = c + beta^-1 R(-dt w_z)(x - c - dt v)``,
+    """4-DOF similarity Sim(2) (A.36): ``x' = c + beta^-1 R(dt w_z)(x - c - dt v)``,
     ``beta = 1 + dt s``; theta = (vx, vy [px/s], wz [rad/s], s [1/s]).
+
+    ``wz`` follows the rotation warp's convention: the camera's angular velocity about its
+    optical axis, right-handed in the camera frame (x right, y down, z forward), so the
+    image content turns by ``-wz`` (counter-clockwise on screen for ``wz > 0``) and a camera
+    rotating about z gives the same ``wz`` from ``rotation`` and ``se2``. The thesis (A.11,
+    A.36) writes ``R(-dt w_z)``, i.e. the image's rotation rate: its ``w_z`` is minus this one.
+    ``R(a)`` is ``[[cos a, -sin a], [sin a, cos a]]`` acting on (x, y) pixel offsets.
 
     With ``scaled=False`` it is the 3-DOF planar SE(2) warp (A.11), theta = (vx, vy, wz)."""
 
@@ -1876,18 +1888,23 @@ class SimilarityWarp(_FusedAdjoint, Warp):
 
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         s = th[3] if self.scaled else 0.0
-        _k_similarity(x, y, dt, th[0], th[1], th[2], s, self.center[0], self.center[1],
+        # the kernels take the image rotation rate -wz (A.11's sign, see the class docstring)
+        _k_similarity(x, y, dt, th[0], th[1], -th[2], s, self.center[0], self.center[1],
                       xw, yw, jx, jy, jac, self.scaled)
+        if jac:
+            jx[:, 2] *= -1.0
+            jy[:, 2] *= -1.0
 
     def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
              blk=_NO_BLOCKS):
-        prm = np.array([th[2], th[3] if self.scaled else 0.0, self.center[0], self.center[1]])
+        prm = np.array([-th[2], th[3] if self.scaled else 0.0, self.center[0], self.center[1]])
         _similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
+        out[2] = -out[2]
 
     def _mats_c(self, dt, th):
         n = dt.shape[0]
         s = th[3] if self.scaled else 0.0
-        w = th[2]
+        w = -th[2]
         c, sn = _rot2(-dt * w)
         ib = 1.0 / (1.0 + dt * s)
         # A = R(-dt w)/beta, b = -A dt v
@@ -1910,8 +1927,12 @@ class SimilarityWarp(_FusedAdjoint, Warp):
 
 
 class SE2Warp(SimilarityWarp):
-    """3-DOF planar motion SE(2) (A.11): ``x' = c + R(-dt w_z)(x - c - dt v)``;
-    theta = (vx, vy [px/s], wz [rad/s]). div f = -2 wz sin(dt wz) (A.13), det J = 1."""
+    """3-DOF planar motion SE(2) (A.11): ``x' = c + R(dt w_z)(x - c - dt v)``;
+    theta = (vx, vy [px/s], wz [rad/s]). div f = -2 wz sin(dt wz) (A.13), det J = 1.
+
+    ``wz`` is the camera's angular velocity about the optical axis with the rotation warp's
+    sign (right-handed, camera frame x right, y down, z forward; see
+    :class:`SimilarityWarp`): the thesis' A.11 ``w_z`` is minus this one."""
 
     scaled = False
 
