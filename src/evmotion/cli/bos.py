@@ -31,10 +31,12 @@ from evmotion.cli.options import (
 )
 
 EXAMPLES = """examples:
-  evmotion bos scene/ --out bos.h5
-  evmotion bos scene/ --roi 320 0 640 720 --max-intervals 10 --png-dir png/ --json --out bos.h5
-  evmotion bos events.h5 --frames frames/ --param flow --data-term scale --out bos.h5
+  evmotion bos scene/ --max-intervals 2 --out bos.h5
+  evmotion bos scene/ --roi 32 0 96 128 --max-windows 1 --png-dir png/ --json --out bos_roi.h5
+  evmotion bos scene/events.txt --frames scene/ --param flow --data-term scale --t1 0.01 --out bos_flow.h5
   evmotion eval bos.h5 --gt scene/schlieren_gt.h5 --json
+(scene/: made by 'evmotion simulate schlieren --scene plume --size 128x160 --duration 0.05
+--out scene/'; --roi X0 Y0 X1 Y1 in px; --t0/--t1 in seconds, or 10ms, 10000us.)
 """
 
 

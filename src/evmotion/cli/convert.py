@@ -23,9 +23,10 @@ from evmotion.cli.options import (
 )
 
 EXAMPLES = """examples:
-  evmotion convert boxes_rotation/ boxes.h5                  # ECD folder -> evmotion HDF5
-  evmotion convert rec.raw rec.h5 --t0 0 --t1 2000000         # first 2 s of an EVT3 file
-  evmotion convert events.h5 out.txt --format-in dsec --json
+  evmotion convert boxes_rotation/ boxes.h5       # ECD folder -> evmotion HDF5 (+ IMU, frames)
+  evmotion convert rec.raw first_20ms.h5 --t0 0 --t1 0.02     # seconds, or 20ms, 20000us
+  evmotion convert rec.h5 out.txt --format-in h5 --json
+  evmotion convert rec.h5 out.aedat4 --t1 30ms
 """
 
 
@@ -143,7 +144,7 @@ def _aux_streams(src, fmt_in: str, fmt_out: str, t0: int | None, t1: int | None)
     for name, read in (("imu", eio.read_imu), ("frames", eio.read_frames)):
         try:
             seq = read(src, format=fmt_in)
-        except FormatError:  # the input format or this file holds none
+        except (FormatError, FileNotFoundError):  # the format or this recording has none
             continue
         t = np.asarray(seq.t, np.int64)
         sel = np.ones(t.shape, bool)

@@ -31,6 +31,15 @@ from evmotion.cli.options import (
 from evmotion.core.regularizers import DEFAULT_WEIGHTS
 from evmotion.errors import CalibrationError, ParameterError
 
+EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5'):
+  evmotion egomotion sim.h5 --warp rotation --window-events 30000 --max-windows 3 --out ego/
+  evmotion egomotion sim.h5 --warp rotation --reg rcad --window-events 30000 --t0 0.02 --t1 0.06 --out ego_rcad/ --json
+  evmotion egomotion sim.h5 --warp se2 --window-us 10000 --t0 20ms --max-windows 2 --workers 2 --max-png 0 --out ego_se2/
+  evmotion egomotion boxes_rotation/ --warp rotation --window-us 10000 --max-windows 2 --out ego_ecd/
+(an ECD folder's calib.txt gives the intrinsics and undistorts the events; --calib FILE
+for others. --t0/--t1 are seconds on the recording's clock, or 20ms, 20000us.)
+"""
+
 
 def add_common(p) -> None:
     """Arguments shared by ``egomotion``, ``landscape`` and ``segment``."""
@@ -63,8 +72,11 @@ def add_common(p) -> None:
 
 
 def add_parser(sub) -> None:
+    import argparse
+
     p = sub.add_parser("egomotion", help="camera ego-motion by contrast maximization (ch. 3)",
-                       description=__doc__)
+                       description=__doc__, epilog=EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     add_common(p)
     p.add_argument("--optimizer", default="bfgs", choices=["bfgs", "newton-cg", "adam", "tpe"],
                    help="optimizer (default bfgs)")

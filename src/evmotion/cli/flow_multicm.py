@@ -310,6 +310,8 @@ def run(args) -> int:
                                      keep_iwes=png_dir is not None)
     rows, written = _run_windows(args, events, windows, attrs, after, progress,
                                  estimate=estimate, results=results)
+    args.flow_summary = {"windows": len(rows), "outputs": written,
+                         "events": sum(w.count for w in windows)}
     if video is not None:
         from evmotion.viz import write_flow_video
 

@@ -218,6 +218,7 @@ def run(args) -> int:
     finally:
         bar.close()
     wall = time.perf_counter() - wall0
+    args.flow_summary = {"windows": n_windows if dense else None, "events": n_events}
     # numba's first-use compilation is not the matcher's speed: reported apart
     compiled = compile_seconds() - c0
     run_s = wall - compiled

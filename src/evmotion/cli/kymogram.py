@@ -26,11 +26,13 @@ from evmotion.cli.options import (
 )
 
 EXAMPLES = """examples:
-  evmotion kymogram scene/ --col 320 --width 9 --rate 1200 --out kymo.png
-  evmotion kymogram scene/ --col 320 --compare-rate 120 --frames scene/ --out kymo.png
-  evmotion kymogram bos.h5 --from q --line 300 700 300 100 --width 5 --out q_kymo.png
-  evmotion kymogram scene/ --row 200 --focal-mm 25 --distance-m 1.7 --pixel-um 4.86 \\
-      --out kymo.png --json
+  evmotion kymogram scene/ --col 64 --width 9 --rate 1200 --out kymo.png
+  evmotion kymogram scene/ --col 64 --compare-rate 120 --frames scene/ --out kymo_frames.png
+  evmotion kymogram bos.h5 --from q --line 60 120 60 10 --width 5 --out q_kymo.png
+  evmotion kymogram scene/ --row 100 --focal-mm 25 --distance-m 1.7 --pixel-um 4.86 \\
+      --t0 0.01 --out kymo_ms.png --json
+(scene/: made by 'evmotion simulate schlieren --scene plume --size 128x160 --duration 0.05
+--out scene/'; bos.h5 by 'evmotion bos scene/ --out bos.h5'.)
 """
 
 SOURCES = ("events", "q", "flow")

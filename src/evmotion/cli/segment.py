@@ -20,12 +20,20 @@ from evmotion.cli.options import (
 )
 from evmotion.errors import ParameterError
 
+EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5'):
+  evmotion segment sim.h5 --warp rotation --warps 2 --max-windows 1 --out seg/
+  evmotion segment sim.h5 --warp translation --warps 3 --window-us 20000 --t0 0.02 --max-windows 2 --iterations 5 --out seg3/ --json
+"""
+
 
 def add_parser(sub) -> None:
+    import argparse
+
     from evmotion.cli.egomotion import add_common
 
     p = sub.add_parser("segment", help="motion segmentation with several warps (Sec. 3.6.6)",
-                       description=__doc__)
+                       description=__doc__, epilog=EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     add_common(p)
     p.add_argument("--warps", type=int_range(1, 64), default=2,
                    help="number of motion clusters (default 2)")

@@ -22,8 +22,8 @@ from evmotion.cli.options import (
 
 EXAMPLES = """examples:
   evmotion view rec.h5 --out events.png                       # first 30,000 events
-  evmotion view rec.raw --t0 1000000 --t1 1020000 --out slice.png --polarity
-  evmotion view events.txt --window-events 50000 --out w.png --json
+  evmotion view rec.raw --t0 0.01 --t1 0.012 --out slice.png --polarity   # 10 to 12 ms
+  evmotion view events.txt --t0 20ms --window-events 5000 --scale 2 --out w.png --json
 """
 
 DEFAULT_EVENTS = 30_000
