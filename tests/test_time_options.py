@@ -137,3 +137,46 @@ def test_flow_and_segment_take_the_time_options(rec, tmp_path, capsys):
     rows = json.loads(capsys.readouterr().out)["clusters"]
     assert rows and max(r["t1_us"] for r in rows) <= 5_200_000
     assert len({r["window"] for r in rows}) <= 5
+
+
+def test_flow_prints_one_summary_line(rec, tmp_path, capsys):
+    ev = _events(4000)
+    out = tmp_path / "f.h5"
+    rc = main(["flow", str(rec), "--window-us", "100000", "--max-windows", "3", "--scales", "1",
+               "--max-iter", "2", "--out", str(out)])
+    cap = capsys.readouterr()
+    assert rc == 0
+    lines = cap.out.strip().splitlines()
+    assert len(lines) == 1, cap.out
+    n3 = int((ev.t < ev.t[0] + 300_000).sum())
+    assert lines[0].startswith(f"multicm: 3 windows, {n3:,} events, ")
+    assert lines[0].endswith(f" s -> {out}")
+    rc = main(["flow", str(rec), "--method", "triplet", "--t1", "5.5",
+               "--out", str(tmp_path / "t.npz")])
+    line = capsys.readouterr().out.strip()
+    assert rc == 0 and "\n" not in line
+    assert line.startswith(f"triplet: {int((ev.t < 5_500_000).sum()):,} events, ")
+    assert line.endswith(f" -> {tmp_path / 't.npz'}")
+    # --json: the JSON alone on stdout
+    rc = main(["flow", str(rec), "--method", "triplet", "--out", str(tmp_path / "t2.npz"),
+               "--json"])
+    assert rc == 0 and json.loads(capsys.readouterr().out)["events"] == 4000
+
+
+def test_landscape_json_and_time_window(rec, tmp_path, capsys):
+    ev = _events(4000)
+    rc = main(["landscape", str(rec), "--warp", "translation", "--param", "vx", "--range",
+               "-50", "50", "--steps", "5", "--t0", "5.25", "--window-events", "300",
+               "--out", str(tmp_path / "l.png"), "--json"])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    i0 = int(np.searchsorted(ev.t, 5_250_000))
+    assert doc["window"] == {"t0_us": int(ev.t[i0]), "t1_us": int(ev.t[i0 + 299]) + 1,
+                             "n_events": 300}
+    assert doc["values"] == [-50.0, -25.0, 0.0, 25.0, 50.0]
+    assert len(doc["curves"]["no regularizer"]) == 5
+    assert doc["minimum"] in doc["values"] and doc["param"] == "vx" and doc["unit"] == "px/s"
+    rc = main(["landscape", str(rec), "--warp", "translation", "--range", "-1", "1",
+               "--t0", "9", "--out", str(tmp_path / "l2.png")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--t0 9 s" in err and "spans" in err
