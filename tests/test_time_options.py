@@ -180,3 +180,11 @@ def test_landscape_json_and_time_window(rec, tmp_path, capsys):
                "--t0", "9", "--out", str(tmp_path / "l2.png")])
     err = capsys.readouterr().err
     assert rc == 2 and "--t0 9 s" in err and "spans" in err
+
+
+def test_kymogram_out_of_range_names_the_recordings_span(rec, tmp_path, capsys):
+    rc = main(["kymogram", str(rec), "--col", "3", "--t0", "7", "--out", str(tmp_path / "k.png")])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1
+    ev = _events(4000)
+    assert "--t0 7 s (7000000 µs)" in err and f"[{ev.t[0]}, {ev.t[-1]}] µs" in err

@@ -17,6 +17,7 @@ import argparse
 
 from evmotion.cli.options import (
     check_time_order,
+    empty_selection,
     existing_input,
     finite_float,
     int_range,
@@ -162,7 +163,6 @@ def _field_kymogram(args):
     """Kymogram of q (BOS file) or |flow| (any flow file), one sample per window."""
     import numpy as np
 
-    from evmotion.errors import EmptyWindowError
     from evmotion.io.flowfiles import read_flow_h5
     from evmotion.methods.kymogram import kymogram_from_images
 
@@ -182,8 +182,7 @@ def _field_kymogram(args):
     if args.t1 is not None:
         sel &= t1 <= args.t1
     if not sel.any():
-        raise EmptyWindowError(f"{args.file}: no window inside --t0 {args.t0} / --t1 "
-                               f"{args.t1} us (windows span [{t0.min()}, {t1.max()}] us)")
+        raise empty_selection(args, args.file, int(t0.min()), int(t1.max()), "no window")
     # outside the ROI the fields are NaN: no signal there
     imgs = np.nan_to_num(np.asarray(images)[sel], nan=0.0)
     mid_s = 0.5 * (t0[sel] + t1[sel]) * 1e-6
@@ -228,7 +227,12 @@ def run(args) -> int:
 
         events = eio.read_events(args.file, format=args.format, t0=args.t0, t1=args.t1)
         if not len(events):
-            raise EmptyWindowError(f"{args.file}: no events in [{args.t0}, {args.t1}) us")
+            # the error path only: one more pass over the file for its time range
+            info = eio.describe(args.file, format=args.format)
+            if info.get("t_first_us") is None:
+                raise EmptyWindowError(f"{args.file}: the recording holds no events")
+            raise empty_selection(args, args.file, int(info["t_first_us"]),
+                                  int(info["t_last_us"]), "no events")
         line = _line(args, events.sensor_size)
         rate = 1200.0 if args.rate is None else args.rate
         t0 = int(events.t[0]) if args.t0 is None else args.t0
