@@ -26,6 +26,7 @@ from evmotion.cli.options import (
     nonnegative_float,
     positive_int,
     reject_unused,
+    select_windows,
     writable_folder,
 )
 from evmotion.core.regularizers import DEFAULT_WEIGHTS
@@ -149,7 +150,6 @@ def _window_job(events, *, warp, objective, reg, weight, optimizer, K, t_ref, se
 
 def run(args) -> int:
     from evmotion.cli import print_json, warn_line
-    from evmotion.cli.options import select_windows
     from evmotion.parallel import map_windows
     from evmotion.utils import progress
 
