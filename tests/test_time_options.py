@@ -127,7 +127,9 @@ def test_flow_and_segment_take_the_time_options(rec, tmp_path, capsys):
     out = tmp_path / "f.h5"
     rc = main(["flow", str(rec), "--window-us", "100000", "--t0", "5.3", "--max-windows", "2",
                "--scales", "1", "--max-iter", "2", "--out", str(out)])
-    assert rc == 0, capsys.readouterr().err
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert cap.out.startswith("multicm: 2 windows, ")
     seq = read_flow_h5(out)
     assert list(np.asarray(seq.t0)) == [5_300_000, 5_400_000]
     rc = main(["segment", str(rec), "--warp", "translation", "--window-events", "500",
