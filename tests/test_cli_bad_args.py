@@ -209,7 +209,7 @@ CASES = [
      ["--scale", "'0'"]),
     ("view-percentile-0", ["view", "{rec}", "--percentile", "0", "--out", "{dir}/v.png"],
      ["--percentile", "'0'"]),
-    ("view-t1-before-t0", ["view", "{rec}", "--t0", "50", "--t1", "10", "--out",
+    ("view-t1-before-t0", ["view", "{rec}", "--t0", "50us", "--t1", "10us", "--out",
                            "{dir}/v.png"], ["--t1", "--t0"]),
     ("view-out-jpg", ["view", "{rec}", "--out", "{dir}/v.jpg"], ["--out", "v.jpg", ".png"]),
     ("landscape-theta-text", ["landscape", "{rec}", "--warp", "translation", "--range", "-1",

@@ -184,7 +184,7 @@ def test_workers_give_the_cold_start_solutions(scene, tmp_path, capsys):
     assert len(two) == 2
     for k, t0 in enumerate(two.flow.t0):
         out1 = tmp_path / f"w1_{k}.h5"
-        rc, _, err = _run(["bos", scene, "--t0", t0, "--max-intervals", 1, "--iterations", 20,
+        rc, _, err = _run(["bos", scene, "--t0", f"{t0}us", "--max-intervals", 1, "--iterations", 20,
                            "--contrast-threshold", 0.2, "--out", out1], capsys)
         assert rc == 0, err
         one = read_bos_h5(out1)

@@ -53,8 +53,8 @@ def test_convert_time_range(tmp_path, capsys, shared_data):
     src = shared_data / "ecd_30k_windows" / "boxes_translation"
     ev = eio.read_events(src)
     t0, t1 = int(ev.t[100]), int(ev.t[9000])
-    rc, *_ = _run(capsys, "convert", str(src), str(tmp_path / "c.npz"), "--t0", str(t0),
-                  "--t1", str(t1))
+    rc, *_ = _run(capsys, "convert", str(src), str(tmp_path / "c.npz"), "--t0", f"{t0}us",
+                  "--t1", f"{t1}us")
     assert rc == 0
     np.testing.assert_array_equal(eio.read_events(tmp_path / "c.npz").t,
                                   ev.slice_time(t0, t1).t)

@@ -38,13 +38,15 @@ def fake_reader(monkeypatch):
 
     monkeypatch.setattr(eio, "read_events", read_events)
     monkeypatch.setattr(eio, "iter_events", iter_events)
+    monkeypatch.setattr(eio, "describe", lambda path, format=None, **kw: {
+        "t_first_us": int(ev.t[0]), "t_last_us": int(ev.t[-1])})
     return ev, calls
 
 
 def test_time_slice_png_and_json(fake_reader, tmp_path, capsys):
     ev, calls = fake_reader
     out = tmp_path / "v.png"
-    rc = main(["view", "rec.h5", "--t0", "1020000", "--t1", "1050000", "--out", str(out),
+    rc = main(["view", "rec.h5", "--t0", "1020000us", "--t1", "1050000us", "--out", str(out),
                "--json"])
     assert rc == 0
     summary = json.loads(capsys.readouterr().out)
@@ -60,7 +62,7 @@ def test_time_slice_png_and_json(fake_reader, tmp_path, capsys):
 def test_count_window_streams_and_polarity(fake_reader, tmp_path, capsys):
     ev, calls = fake_reader
     out = tmp_path / "p.png"
-    rc = main(["view", "rec.raw", "--t0", "1010000", "--window-events", "700",
+    rc = main(["view", "rec.raw", "--t0", "1010000us", "--window-events", "700",
                "--out", str(out), "--polarity", "--scale", "2", "--json"])
     assert rc == 0
     summary = json.loads(capsys.readouterr().out)
@@ -81,9 +83,13 @@ def test_errors_are_reported_without_traceback(fake_reader, tmp_path, capsys):
     assert "--t1" in capsys.readouterr().err
     assert main(["view", "rec.h5", "--out", str(tmp_path / "a.jpg")]) == 2
     assert "PNG" in capsys.readouterr().err
-    assert main(["view", "rec.h5", "--t0", "9000000", "--t1", "9100000",
+    assert main(["view", "rec.h5", "--t0", "9000000us", "--t1", "9100000us",
                  "--out", str(tmp_path / "a.png")]) == 2
-    assert "no events" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "no events" in err and "--t0 9 s (9000000 µs)" in err
+    # the recording's time range is named, so that the user can pick another slice
+    assert f"[{int(_events().t[0])}, {int(_events().t[-1])}] µs" in err
+    assert len(err.strip().splitlines()) == 1
     assert not list(tmp_path.iterdir())
 
 

@@ -18,12 +18,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evmotion.errors import EmptyWindowError, EventDataError
+from evmotion.errors import EmptyWindowError, EventDataError, ParameterError
 
 __all__ = [
     "EventArray",
     "Window",
     "concatenate",
+    "make_windows",
 ]
 
 TONIC_DTYPE = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
@@ -440,3 +441,82 @@ def concatenate(arrays: Sequence[EventArray], *, validate: bool = True) -> Event
     cat = {k: np.concatenate([getattr(a, k) for a in arrays]) for k in "xytp"}
     return EventArray(**cat, sensor_size=arrays[0].sensor_size, validate=validate,
                       meta=dict(arrays[0].meta))
+
+
+def make_windows(events: EventArray, *, n_events: int | None = None,
+                 duration_us: int | None = None,
+                 edges_us: Sequence[int] | np.ndarray | None = None, dt: int = 1,
+                 t0: int | None = None, t1: int | None = None,
+                 max_windows: int | None = None, min_events: int = 1) -> list[Window]:
+    """The processing windows of a recording, cropped in time and limited in number.
+
+    Exactly one of ``n_events`` (:meth:`EventArray.windows_by_count`), ``duration_us``
+    (:meth:`EventArray.windows_by_duration`) or ``edges_us`` (:meth:`EventArray.windows_at`,
+    ``dt`` edges per window) says how windows are cut. Only the events with
+    ``t0 <= t < t1`` are windowed: count and duration windows start at ``t0`` (default the
+    first event) and end by ``t1`` (the last one is cut there); edge windows are kept when they
+    lie within ``[t0, t1)``. Of the windows holding at least ``min_events`` events, the first
+    ``max_windows`` are returned. ``start``/``stop`` index ``events`` itself.
+
+    Parameters
+    ----------
+    events : EventArray
+        The recording (timestamps sorted).
+    n_events : int, optional
+        Events per window.
+    duration_us : int, optional
+        Window duration in µs.
+    edges_us : array_like of int, optional
+        Window edges in µs (e.g. ground-truth frame times).
+    dt : int
+        Edges per window with ``edges_us`` (default 1).
+    t0, t1 : int, optional
+        Time range in absolute µs, ``[t0, t1)`` (None: open).
+    max_windows : int, optional
+        Keep at most this many windows (None: all).
+    min_events : int
+        Drop windows with fewer events (default 1: drop empty ones).
+
+    Returns
+    -------
+    list of Window
+        In time order; ``index`` counts from the first window of the range.
+
+    Raises
+    ------
+    ParameterError
+        ``t1 <= t0``, ``max_windows < 1`` or not exactly one way of cutting windows.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=np.zeros(10), y=np.zeros(10), t=np.arange(0, 1000, 100),
+    ...                 p=np.ones(10), sensor_size=(4, 4))
+    >>> [(w.t0, w.t1, w.count) for w in make_windows(ev, duration_us=300, t0=200, t1=700)]
+    [(200, 500, 3), (500, 700, 2)]
+    >>> [w.count for w in make_windows(ev, n_events=4, max_windows=2)]
+    [4, 4]
+    """
+    given = [k for k, v in (("n_events", n_events), ("duration_us", duration_us),
+                            ("edges_us", edges_us)) if v is not None]
+    if len(given) != 1:
+        raise ParameterError("make_windows needs exactly one of n_events, duration_us, "
+                             f"edges_us; got {given or 'none'}")
+    if t0 is not None and t1 is not None and t1 <= t0:
+        raise ParameterError(f"t1 = {t1} µs must be after t0 = {t0} µs")
+    if max_windows is not None and max_windows < 1:
+        raise ParameterError(f"max_windows must be >= 1, got {max_windows}")
+    i0 = 0 if t0 is None else int(events.index_at(t0))
+    i1 = len(events) if t1 is None else max(i0, int(events.index_at(t1)))
+    if edges_us is not None:
+        windows = [w for w in events.windows_at(edges_us, dt=dt)
+                   if (t0 is None or w.t0 >= t0) and (t1 is None or w.t1 <= t1)]
+    else:
+        sub = events[i0:i1]
+        if n_events is not None:
+            made = sub.windows_by_count(n_events)
+        else:
+            made = sub.windows_by_duration(duration_us, t0=t0, t1=t1) if len(sub) else []
+        windows = [Window(w.index, w.t0, w.t1 if t1 is None else min(w.t1, int(t1)),
+                          w.start + i0, w.stop + i0) for w in made]
+    windows = [w for w in windows if w.count >= max(min_events, 1)]
+    return windows if max_windows is None else windows[:max_windows]

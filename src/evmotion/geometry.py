@@ -127,7 +127,7 @@ def _translation(dt, th):
 def _similarity(dt, th):
     n = dt.shape[0]
     s = th[3] if th.shape[0] == 4 else 0.0  # SE(2): 3 parameters, no scaling
-    w = th[2]
+    w = -th[2]  # the image's rotation rate (A.11's w_z): wz has the rotation warp's sign
     c, sn = np.cos(-dt * w), np.sin(-dt * w)
     ib = 1.0 / (1.0 + dt * s)
     # A = R(-dt w)/beta, b = -A dt v

@@ -35,9 +35,10 @@ COMMANDS: tuple[str, ...] = (
 EPILOG = """examples:
   evmotion simulate rotation --out sim.h5           # events + ground truth
   evmotion info sim.h5 --json                       # what a file holds
-  evmotion egomotion sim.h5 --warp rotation --reg rcad --out ego/
-  evmotion flow sim.h5 --method multicm --out flow.h5
-  evmotion flow rec.raw --method triplet --out flow.h5
+  evmotion egomotion sim.h5 --warp rotation --reg rcad --window-events 30000 --out ego/
+  evmotion flow sim.h5 --method multicm --max-windows 2 --out flow.h5
+  evmotion flow sim.h5 --method triplet --out triplet.h5
+every command's --help ends with examples of its own.
 """
 
 

@@ -21,18 +21,22 @@ import time
 from pathlib import Path
 
 from evmotion.cli.options import (
+    check_time_order,
     existing_input,
     finite_float,
     int_range,
+    time_us,
     writable_folder,
     writable_output,
 )
 
 EXAMPLES = """examples:
-  evmotion bos scene/ --out bos.h5
-  evmotion bos scene/ --roi 320 0 640 720 --max-intervals 10 --png-dir png/ --json --out bos.h5
-  evmotion bos events.h5 --frames frames/ --param flow --data-term scale --out bos.h5
+  evmotion bos scene/ --max-intervals 2 --out bos.h5
+  evmotion bos scene/ --roi 32 0 96 128 --max-windows 1 --png-dir png/ --json --out bos_roi.h5
+  evmotion bos scene/events.txt --frames scene/ --param flow --data-term scale --t1 0.01 --out bos_flow.h5
   evmotion eval bos.h5 --gt scene/schlieren_gt.h5 --json
+(scene/: made by 'evmotion simulate schlieren --scene plume --size 128x160 --duration 0.05
+--out scene/'; --roi X0 Y0 X1 Y1 in px; --t0/--t1 in seconds, or 10ms, 10000us.)
 """
 
 
@@ -67,11 +71,13 @@ def add_parser(sub) -> None:
                         "one; 600: the thesis' schedule)")
     p.add_argument("--seed", type=int_range(0), default=0,
                    help="seed of the random initial q (default 0)")
-    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="only frame intervals from this time, µs")
-    p.add_argument("--t1", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="only frame intervals up to this time, µs")
-    p.add_argument("--max-intervals", type=int_range(1), default=None,
+    p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
+                   help="only frame intervals from this time: seconds on the recording's "
+                        "clock, or with a unit (1.5, 1500ms, 1500000us)")
+    p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
+                   help="only frame intervals up to this time, same units as --t0")
+    p.add_argument("--max-intervals", "--max-windows", dest="max_intervals",
+                   type=int_range(1), default=None,
                    metavar="N", help="at most N frame intervals (default all)")
     p.add_argument("--workers", type=int_range(1, 256), default=1,
                    help="parallel worker processes over frame intervals (default 1)")
@@ -88,14 +94,12 @@ def run(args) -> int:
     import numpy as np
 
     from evmotion.cli import print_json
-    from evmotion.errors import ParameterError
     from evmotion.io.bosfiles import BosWriter
     from evmotion.io.bosinput import load_bos_input
     from evmotion.methods.bos_run import solve_bos_input
 
     out = Path(args.out)
-    if args.t0 is not None and args.t1 is not None and args.t1 <= args.t0:
-        raise ParameterError(f"--t1 ({args.t1} us) must be after --t0 ({args.t0} us)")
+    check_time_order(args)
     t_start = time.perf_counter()
     data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi, t0=args.t0,
                           t1=args.t1, max_intervals=args.max_intervals)

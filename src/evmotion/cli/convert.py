@@ -4,18 +4,29 @@ The input format is detected by content, the output format follows the extension
 (``.h5`` evmotion HDF5, ``.txt`` ECD text, ``.npz``, ``.raw``, ``.dat``, ``.aedat4``...)
 unless given. Events go chunk by chunk for the streaming writers (``h5``, ``ecd``), so a
 file of any size converts in bounded memory; the output appears only when complete.
+
+IMU samples and APS frames (within --t0/--t1) go along where the output format can hold them
+(``.h5``: its ``imu`` and ``frames`` groups); each stream the output cannot hold is named
+in one warning line on stderr.
 """
 
 from __future__ import annotations
 
 import argparse
 
-from evmotion.cli.options import int_range, positive_int, writable_output
+from evmotion.cli.options import (
+    check_time_order,
+    empty_selection,
+    positive_int,
+    time_us,
+    writable_output,
+)
 
 EXAMPLES = """examples:
-  evmotion convert boxes_rotation/ boxes.h5                  # ECD folder -> evmotion HDF5
-  evmotion convert rec.raw rec.h5 --t0 0 --t1 2000000         # first 2 s of an EVT3 file
-  evmotion convert events.h5 out.txt --format-in dsec --json
+  evmotion convert boxes_rotation/ boxes.h5       # ECD folder -> evmotion HDF5 (+ IMU, frames)
+  evmotion convert rec.raw first_20ms.h5 --t0 0 --t1 0.02     # seconds, or 20ms, 20000us
+  evmotion convert rec.h5 out.txt --format-in h5 --json
+  evmotion convert rec.h5 out.aedat4 --t1 30ms
 """
 
 
@@ -30,10 +41,11 @@ def add_parser(sub) -> None:
                    help="output file; its extension picks the format")
     p.add_argument("--format-in", default=None, help="input format (default: detect)")
     p.add_argument("--format-out", default=None, help="output format (default: extension)")
-    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="start, absolute µs")
-    p.add_argument("--t1", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="end (exclusive), absolute µs")
+    p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
+                   help="start: seconds on the recording's clock, or with a unit (1.5, "
+                        "1500ms, 1500000us)")
+    p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
+                   help="end (exclusive), same units as --t0")
     p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,
                    metavar=("H", "W"),
                    help="override the input sensor size (height width)")
@@ -48,13 +60,12 @@ def run(args) -> int:
     from pathlib import Path
 
     import evmotion.io as eio
-    from evmotion.cli import print_json
+    from evmotion.cli import print_json, warn_line
     from evmotion.errors import ParameterError
     from evmotion.utils import progress
 
     src, dst = Path(args.input), Path(args.output)
-    if args.t0 is not None and args.t1 is not None and args.t1 <= args.t0:
-        raise ParameterError(f"--t1 {args.t1} µs must be after --t0 {args.t0} µs")
+    check_time_order(args)
     if src.resolve() == dst.resolve():
         raise ParameterError(f"input and output are the same file: {src}")
     fmt_in = args.format_in or eio.detect_format(src)
@@ -83,20 +94,79 @@ def run(args) -> int:
     it = chunks()
     first = next(it, None)
     if first is None:
-        raise ParameterError(f"{src}: no events in the requested range "
-                             f"[{args.t0}, {args.t1}) us; nothing written")
+        info = eio.describe(src, format=fmt_in) if args.t0 or args.t1 else {}
+        if info.get("t_first_us") is None:
+            raise ParameterError(f"{src}: no events; nothing written")
+        raise empty_selection(args, src, int(info["t_first_us"]), int(info["t_last_us"]),
+                              "nothing written: no events")
 
     def all_chunks():
         yield first
         yield from it
 
+    kept, dropped = _aux_streams(src, fmt_in, fmt_out, args.t0, args.t1)
+    for name, stream in kept.items():
+        opts[name] = stream
     eio.write_events(dst, all_chunks(), format=fmt_out, **opts)
+    for name, (n, why) in dropped.items():
+        warn_line(f"{dst}: dropped the {n:,} {_AUX_NAMES[name]} of {src}: {why}")
     summary = {"input": str(src), "format_in": fmt_in, "output": str(dst),
                "format_out": fmt_out, "n_events": counted["n"],
                "t_first_us": counted["t_first"], "t_last_us": counted["t_last"],
+               "kept": {name: int(len(v["t"])) for name, v in kept.items()},
+               "dropped": {name: n for name, (n, _) in dropped.items()},
                "seconds": round(time.perf_counter() - start, 3)}
     if args.json:
         print_json(summary)
     else:
-        print(f"wrote {counted['n']:,} events ({fmt_in} -> {fmt_out}) to {dst}")
+        extra = "".join(f" + {len(v['t']):,} {_AUX_NAMES[name]}" for name, v in kept.items())
+        print(f"wrote {counted['n']:,} events{extra} ({fmt_in} -> {fmt_out}) to {dst}")
     return 0
+
+
+_AUX_NAMES = {"imu": "IMU samples", "frames": "APS frames"}
+
+
+def _aux_streams(src, fmt_in: str, fmt_out: str, t0: int | None, t1: int | None):
+    """The IMU samples and APS frames of ``src`` within ``[t0, t1)``: ``(kept, dropped)``,
+    ``kept`` the writer options (``imu``/``frames`` dicts) for an output format whose writer
+    takes them, ``dropped`` ``{name: (count, reason)}`` for the others."""
+    import inspect
+
+    import numpy as np
+
+    import evmotion.io as eio
+    from evmotion.errors import FormatError
+    from evmotion.io.registry import get_format
+
+    takes = inspect.signature(get_format(fmt_out).write).parameters
+    kept, dropped = {}, {}
+    for name, read in (("imu", eio.read_imu), ("frames", eio.read_frames)):
+        try:
+            seq = read(src, format=fmt_in)
+        except (FormatError, FileNotFoundError):  # the format or this recording has none
+            continue
+        t = np.asarray(seq.t, np.int64)
+        sel = np.ones(t.shape, bool)
+        if t0 is not None:
+            sel &= t >= t0
+        if t1 is not None:
+            sel &= t < t1
+        if not sel.any():
+            continue
+        idx = np.flatnonzero(sel)
+        if name == "imu":
+            stream = {"t": t[idx], "gyro": seq.gyro[idx], "accel": seq.accel[idx]}
+        else:
+            images = [np.asarray(seq.images[i]) for i in idx]
+            if len({im.shape for im in images}) > 1:
+                dropped[name] = (len(idx), "the frames differ in size, the output stores a "
+                                           "stack of equal frames")
+                continue
+            stream = {"t": t[idx], "images": np.stack(images)}
+        if name in takes:
+            kept[name] = stream
+        else:
+            dropped[name] = (len(idx), f"format '{fmt_out}' cannot store them (convert to "
+                                       ".h5 to keep them)")
+    return kept, dropped

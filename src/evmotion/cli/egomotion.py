@@ -20,14 +20,26 @@ import numpy as np
 
 from evmotion.cli.calib import add_camera_arguments
 from evmotion.cli.options import (
+    add_time_arguments,
+    check_time_order,
     int_range,
     nonnegative_float,
     positive_int,
     reject_unused,
+    select_windows,
     writable_folder,
 )
 from evmotion.core.regularizers import DEFAULT_WEIGHTS
 from evmotion.errors import CalibrationError, ParameterError
+
+EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5'):
+  evmotion egomotion sim.h5 --warp rotation --window-events 30000 --max-windows 3 --out ego/
+  evmotion egomotion sim.h5 --warp rotation --reg rcad --window-events 30000 --t0 0.02 --t1 0.06 --out ego_rcad/ --json
+  evmotion egomotion sim.h5 --warp se2 --window-us 10000 --t0 20ms --max-windows 2 --workers 2 --max-png 0 --out ego_se2/
+  evmotion egomotion boxes_rotation/ --warp rotation --window-us 10000 --max-windows 2 --out ego_ecd/
+(an ECD folder's calib.txt gives the intrinsics and undistorts the events; --calib FILE
+for others. --t0/--t1 are seconds on the recording's clock, or 20ms, 20000us.)
+"""
 
 
 def add_common(p) -> None:
@@ -59,8 +71,11 @@ def add_common(p) -> None:
 
 
 def add_parser(sub) -> None:
+    import argparse
+
     p = sub.add_parser("egomotion", help="camera ego-motion by contrast maximization (ch. 3)",
-                       description=__doc__)
+                       description=__doc__, epilog=EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     add_common(p)
     p.add_argument("--optimizer", default="bfgs", choices=["bfgs", "newton-cg", "adam", "tpe"],
                    help="optimizer (default bfgs)")
@@ -68,6 +83,7 @@ def add_parser(sub) -> None:
     g.add_argument("--window-events", type=int_range(10), help="events per window (>= 10)")
     g.add_argument("--window-us", type=positive_int(unit="µs"),
                    help="window duration in microseconds")
+    add_time_arguments(p)
     p.add_argument("--workers", type=positive_int(), default=1,
                    help="parallel worker processes")
     p.add_argument("--seed", type=int_range(0), default=None,
@@ -134,14 +150,10 @@ def run(args) -> int:
         reject_unused(args, {"--seed": "seed"}, f"with --optimizer {args.optimizer} "
                       "(it seeds the TPE sampler)")
     args.seed = 0 if args.seed is None else args.seed
+    check_time_order(args)
     events, cam = load_events_and_camera(args)
-    if args.window_events is not None:
-        windows = events.windows_by_count(args.window_events)
-    else:
-        windows = events.windows_by_duration(args.window_us)
-    windows = [w for w in windows if w.count >= 10]
-    if not windows:
-        raise ParameterError(f"{args.file}: no window holds 10 events or more")
+    windows = select_windows(args, events, file=args.file, min_events=10,
+                             n_events=args.window_events, duration_us=args.window_us)
     K = None if cam is None else cam.K
     job = functools.partial(_window_job, warp=args.warp, objective=args.objective,
                             reg=args.reg, weight=args.weight, optimizer=args.optimizer, K=K,

@@ -4,7 +4,10 @@ Each method lives in its own CLI module (``FLOW_METHODS``) that defines
 ``add_arguments(group)`` for its options, ``OPTIONS`` (``{"--flag": (attribute,
 default)}``: the options only it reads), ``check_args(args)`` (options that do not go
 together, seen before the defaults are filled in) and ``run(args) -> int``. An option of another
-method is an error, not silently ignored; the defaults are filled in here.
+method is an error, not silently ignored; the defaults are filled in here. A method's
+``run`` sets ``args.flow_summary`` (``windows``, ``events``, ``outputs``), from which
+:func:`summary_line` prints the one line of a successful run. (These notes are for
+developers: ``--help`` shows :data:`DESCRIPTION`.)
 
 Every output (:mod:`evmotion.io.flowout`) says its units, each window's ``[t0, t1)`` in µs
 and its validity mask (the pixels whose flow events support), by ``--out`` extension:
@@ -27,9 +30,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import time
 
 from evmotion.cli.calib import add_camera_arguments, check_camera_args
 from evmotion.cli.options import (
+    add_time_arguments,
+    check_time_order,
     existing_input,
     positive_float,
     positive_int,
@@ -39,22 +45,37 @@ from evmotion.cli.options import (
 )
 from evmotion.errors import ParameterError
 
+DESCRIPTION = """Optical flow of a recording, window by window (multicm, dnn) or event by event
+(triplet), written to one file.
+
+Methods: multicm (multi-reference contrast maximization, ch. 4: dense, accurate, the
+default), dnn (the unsupervised EV-FlowNet, one network pass per window), triplet (ch. 5:
+per-event flow at millions of events per second; dense windows on request).
+Windows: --window-events N (default 30000), --window-us T or --window-gt GT; --t0/--t1
+crop the recording (seconds, or with a unit: 1.5, 1500ms, 1500000us) and --max-windows N
+keeps the first N windows. Flow is in px/s (u right, v down) on the sensor grid; .flo
+stores Middlebury displacement over each window. On success one line says how many
+windows and events went in, the time taken and the output (--json: a JSON summary).
+"""
+
 FLOW_METHODS: dict[str, str] = {
     "multicm": "evmotion.cli.flow_multicm",
     "dnn": "evmotion.cli.flow_dnn",
     "triplet": "evmotion.cli.flow_triplet",
 }
 
-EXAMPLES = """examples:
-  evmotion flow sim.h5 --method multicm --window-events 30000 --out flow.h5
-  evmotion flow sim.h5 --method multicm --time-aware burgers --out flow_{:05d}.flo
-  evmotion flow sim.h5 --method multicm --out flow.npz
-  evmotion flow rec.raw --method triplet --out flow.h5 --json
-  evmotion flow rec.raw --method triplet --dense robust --out flow.h5 --resume
-  evmotion flow window.txt --method dnn --window-events 30000 --out x.flo
-  evmotion flow boxes_rotation/ --out flow.h5       # ECD folder: undistorted with calib.txt
-  evmotion flow rec.aedat4 --calib calib.xml --out flow.h5 --json
-  evmotion flow rec.raw --K 1050,1050,640,360 --dist=-0.1,0.02,0,0 --out flow.h5
+EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5'):
+  evmotion flow sim.h5 --method multicm --window-events 30000 --max-windows 2 --out flow.h5
+  evmotion flow sim.h5 --method multicm --time-aware burgers --t0 0.02 --max-windows 1 --out flow.flo
+  evmotion flow sim.h5 --method multicm --max-windows 3 --out flow_{:05d}.flo
+  evmotion flow sim.h5 --method multicm --max-windows 2 --out flow.npz
+  evmotion flow rec.raw --method triplet --out triplet.h5 --json
+  evmotion flow rec.raw --method triplet --dense robust --t1 0.03 --out robust.h5 --resume
+  evmotion flow window.txt --method dnn --window-events 30000 --max-windows 1 --out x.flo
+  evmotion flow boxes_rotation/ --max-windows 1 --out ecd_flow.h5
+  evmotion flow sim.h5 --K 200,200,120,90 --dist=-0.1,0.02,0,0 --max-windows 1 --out k.h5
+(an ECD folder is undistorted with its calib.txt; --calib FILE reads Kalibr/ROS/DSEC YAML,
+DV XML or JSON intrinsics)
 """
 
 OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz", ".png")
@@ -77,7 +98,7 @@ def _method_modules():
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "flow", help="optical flow (multi-reference CMax, triplet matching, network)",
-        description=__doc__, epilog=EXAMPLES,
+        description=DESCRIPTION, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("file", help="recording (any readable format)")
@@ -114,6 +135,7 @@ def add_parser(sub) -> None:
     add_camera_arguments(p.add_argument_group(
         "camera (the flow is estimated on the undistorted grid when the calibration has "
         "distortion; the output's 'grid' attribute says which)"))
+    add_time_arguments(p, what="windows (multicm, dnn)")
     for name, mod in _method_modules():
         mod.add_arguments(p.add_argument_group(f"{name} options"))
     p.set_defaults(func=run)
@@ -121,6 +143,10 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     check_camera_args(args)
+    check_time_order(args)
+    if args.method == "triplet":
+        reject_unused(args, {"--max-windows": "max_windows"},
+                      "with --method triplet (it streams the recording: crop it with --t1)")
     if args.window_gt is None:
         reject_unused(args, {"--gt-dt": "gt_dt"}, "without --window-gt")
     args.gt_dt = 1 if args.gt_dt is None else args.gt_dt
@@ -141,7 +167,28 @@ def run(args) -> int:
     for attr, default in mod.OPTIONS.values():
         if getattr(args, attr, None) is None:
             setattr(args, attr, default)
-    return mod.run(args)
+    start = time.perf_counter()
+    rc = mod.run(args)
+    if rc == 0 and not args.json:
+        print(summary_line(args, time.perf_counter() - start))
+    return rc
+
+
+def summary_line(args, seconds: float) -> str:
+    """The one line ``flow`` prints on success: windows, events, time and output, from
+    ``args.flow_summary`` (``windows``, ``events``, ``outputs``) that a method's ``run``
+    sets; what a method does not report is left out."""
+    info = getattr(args, "flow_summary", None) or {}
+    parts = [f"{args.method}:"]
+    if info.get("windows") is not None:
+        parts.append(f"{info['windows']:,} window{'' if info['windows'] == 1 else 's'},")
+    if info.get("events") is not None:
+        parts.append(f"{info['events']:,} events,")
+    outputs = info.get("outputs") or [args.out]
+    shown = outputs[0] if len(outputs) == 1 else f"{outputs[0]} ... {outputs[-1]} " \
+                                                  f"({len(outputs)} files)"
+    parts.append(f"{seconds:.1f} s -> {shown}")
+    return " ".join(parts)
 
 
 def __getattr__(name: str):

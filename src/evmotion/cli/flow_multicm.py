@@ -71,16 +71,22 @@ def add_arguments(group) -> None:
 
 
 def _windows(args, events):
+    """The windows to estimate (at least 10 events each), within --t0/--t1, at most
+    --max-windows of them."""
+    from evmotion.cli.options import select_windows
+
+    kw = {"min_events": 10, "file": args.file}
     if args.window_gt:
         from evmotion.io.flowfiles import read_gt_flow
 
         gt = read_gt_flow(args.window_gt)
         # frame edges: every GT start plus the end of the last frame
         edges = np.append(np.asarray(gt.t0), np.asarray(gt.t1)[-1:])
-        return events.windows_at(edges, dt=args.gt_dt)
+        return select_windows(args, events, edges_us=edges, dt=args.gt_dt, **kw)
     if args.window_us is not None:
-        return events.windows_by_duration(args.window_us)
-    return events.windows_by_count(args.window_events or DEFAULT_WINDOW_EVENTS)
+        return select_windows(args, events, duration_us=args.window_us, **kw)
+    return select_windows(args, events, n_events=args.window_events or DEFAULT_WINDOW_EVENTS,
+                          **kw)
 
 
 def _lean(res, keep_iwes: bool):
@@ -201,9 +207,7 @@ def run(args) -> int:
     fmt = getattr(args, "format", None)
     events = read_events(args.file, **({"format": fmt} if fmt else {}))
     events, _, grid = undistort_for(args, events)
-    windows = [w for w in _windows(args, events) if w.count >= 10]
-    if not windows:
-        raise ParameterError(f"{args.file}: no window with at least 10 events")
+    windows = _windows(args, events)
     check_output(out, len(windows))
     _check_space(out, windows, events.sensor_size)
     if args.method == "dnn":
@@ -246,6 +250,8 @@ def run(args) -> int:
                                      keep_iwes=png_dir is not None)
     rows, written = _run_windows(args, events, windows, attrs, after, progress,
                                  estimate=estimate, results=results)
+    args.flow_summary = {"windows": len(rows), "outputs": written,
+                         "events": sum(w.count for w in windows)}
     if video is not None:
         from evmotion.viz import write_flow_video
 

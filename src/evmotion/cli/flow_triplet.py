@@ -138,7 +138,8 @@ def run(args) -> int:
     gap_us = int(round(args.gap_ms * 1000))
     dense = kind != ".npz" or args.png_dir
     chunks, grid = undistorted_chunks(
-        args, _iter_chunks(args.file, getattr(args, "format", None), args.chunk_events))
+        args, _iter_chunks(args.file, getattr(args, "format", None), args.chunk_events,
+                           getattr(args, "t0", None), getattr(args, "t1", None)))
     first = next((c for c in chunks if len(c)), None)
     if first is None:
         raise ParameterError(f"{args.file}: no events")
@@ -219,6 +220,7 @@ def run(args) -> int:
     finally:
         bar.close()
     wall = time.perf_counter() - wall0
+    args.flow_summary = {"windows": n_windows if dense else None, "events": n_events}
     # numba's first-use compilation is not the matcher's speed: reported apart
     compiled = compile_seconds() - c0
     run_s = wall - compiled
@@ -238,12 +240,12 @@ def run(args) -> int:
     return 0
 
 
-def _iter_chunks(path, fmt, chunk_events):
+def _iter_chunks(path, fmt, chunk_events, t0=None, t1=None):
     import evmotion.io as eio
 
     if hasattr(eio, "iter_events"):
         kw = {"format": fmt} if fmt else {}
-        yield from eio.iter_events(path, chunk_events=chunk_events, **kw)
+        yield from eio.iter_events(path, chunk_events=chunk_events, t0=t0, t1=t1, **kw)
         return
     from evmotion.io.registry import resolve_format
 

@@ -16,19 +16,24 @@ from __future__ import annotations
 import argparse
 
 from evmotion.cli.options import (
+    check_time_order,
+    empty_selection,
     existing_input,
     finite_float,
     int_range,
     reject_unused,
+    time_us,
     writable_output,
 )
 
 EXAMPLES = """examples:
-  evmotion kymogram scene/ --col 320 --width 9 --rate 1200 --out kymo.png
-  evmotion kymogram scene/ --col 320 --compare-rate 120 --frames scene/ --out kymo.png
-  evmotion kymogram bos.h5 --from q --line 300 700 300 100 --width 5 --out q_kymo.png
-  evmotion kymogram scene/ --row 200 --focal-mm 25 --distance-m 1.7 --pixel-um 4.86 \\
-      --out kymo.png --json
+  evmotion kymogram scene/ --col 64 --width 9 --rate 1200 --out kymo.png
+  evmotion kymogram scene/ --col 64 --compare-rate 120 --frames scene/ --out kymo_frames.png
+  evmotion kymogram bos.h5 --from q --line 60 120 60 10 --width 5 --out q_kymo.png
+  evmotion kymogram scene/ --row 100 --focal-mm 25 --distance-m 1.7 --pixel-um 4.86 \\
+      --t0 0.01 --out kymo_ms.png --json
+(scene/: made by 'evmotion simulate schlieren --scene plume --size 128x160 --duration 0.05
+--out scene/'; bos.h5 by 'evmotion bos scene/ --out bos.h5'.)
 """
 
 SOURCES = ("events", "q", "flow")
@@ -61,10 +66,11 @@ def add_parser(sub) -> None:
                    help="add a panel of frame differences at the frame rate (folder with "
                         "images.txt, or a frames file)")
     p.add_argument("--format", default=None, help="event format (default: detect)")
-    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="start, absolute µs (default: first event / window)")
-    p.add_argument("--t1", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="end (exclusive), absolute µs")
+    p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
+                   help="start: seconds on the recording's clock, or with a unit (1.5, "
+                        "1500ms, 1500000us; default: first event / window)")
+    p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
+                   help="end (exclusive), same units as --t0")
     p.add_argument("--signed", action="store_true",
                    help="events: polarity sums instead of counts")
     fit = p.add_argument_group("velocimetry")
@@ -111,8 +117,7 @@ def _or(value, default):
 def _check_args(args) -> dict | None:
     from evmotion.errors import ParameterError
 
-    if args.t0 is not None and args.t1 is not None and args.t1 <= args.t0:
-        raise ParameterError(f"--t1 ({args.t1} µs) must be after --t0 ({args.t0} µs)")
+    check_time_order(args)
     if args.source != "events":
         reject_unused(args, {"--rate": "rate", "--compare-rate": "compare_rate",
                              "--signed": "signed", "--format": "format"},
@@ -158,7 +163,6 @@ def _field_kymogram(args):
     """Kymogram of q (BOS file) or |flow| (any flow file), one sample per window."""
     import numpy as np
 
-    from evmotion.errors import EmptyWindowError
     from evmotion.io.flowfiles import read_flow_h5
     from evmotion.methods.kymogram import kymogram_from_images
 
@@ -178,8 +182,7 @@ def _field_kymogram(args):
     if args.t1 is not None:
         sel &= t1 <= args.t1
     if not sel.any():
-        raise EmptyWindowError(f"{args.file}: no window inside --t0 {args.t0} / --t1 "
-                               f"{args.t1} us (windows span [{t0.min()}, {t1.max()}] us)")
+        raise empty_selection(args, args.file, int(t0.min()), int(t1.max()), "no window")
     # outside the ROI the fields are NaN: no signal there
     imgs = np.nan_to_num(np.asarray(images)[sel], nan=0.0)
     mid_s = 0.5 * (t0[sel] + t1[sel]) * 1e-6
@@ -224,7 +227,12 @@ def run(args) -> int:
 
         events = eio.read_events(args.file, format=args.format, t0=args.t0, t1=args.t1)
         if not len(events):
-            raise EmptyWindowError(f"{args.file}: no events in [{args.t0}, {args.t1}) us")
+            # the error path only: one more pass over the file for its time range
+            info = eio.describe(args.file, format=args.format)
+            if info.get("t_first_us") is None:
+                raise EmptyWindowError(f"{args.file}: the recording holds no events")
+            raise empty_selection(args, args.file, int(info["t_first_us"]),
+                                  int(info["t_last_us"]), "no events")
         line = _line(args, events.sensor_size)
         rate = 1200.0 if args.rate is None else args.rate
         t0 = int(events.t[0]) if args.t0 is None else args.t0

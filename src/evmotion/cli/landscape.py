@@ -1,19 +1,37 @@
 """``evmotion landscape FILE``: the cost along one warp parameter (Fig. 3.12), with and
-without a regularizer, plotted to a PNG (and optionally saved as CSV)."""
+without a regularizer, plotted to a PNG (and optionally saved as CSV). The window is the
+``--window-events`` events from ``--t0`` (before ``--t1``); ``--json`` prints the curves."""
 
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 
-from evmotion.cli.options import finite_float, float_list, int_range, writable_output
+from evmotion.cli.options import (
+    check_time_order,
+    check_time_range,
+    finite_float,
+    float_list,
+    int_range,
+    time_us,
+    writable_output,
+)
 from evmotion.errors import ParameterError
+
+EXAMPLES = """examples:
+  evmotion simulate rotation --out sim.h5
+  evmotion landscape sim.h5 --warp rotation --param wz --range 0 2.5 --theta 0.5,-0.7,0 --out land.png
+  evmotion landscape sim.h5 --warp rotation --param wz --range 0 2.5 --theta 0.5,-0.7,0 --reg rcad --steps 21 --t0 0.05 --out land_rcad.png --csv land.csv --json
+"""
 
 
 def add_parser(sub) -> None:
     from evmotion.cli.egomotion import add_common
 
     p = sub.add_parser("landscape", help="cost landscape along one warp parameter (Fig. 3.12)",
-                       description=__doc__)
+                       description=__doc__, epilog=EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     add_common(p)
     p.add_argument("--param", default="0",
                    help="parameter to scan: index or name (e.g. 0, hz, wz)")
@@ -23,14 +41,20 @@ def add_parser(sub) -> None:
                    help="number of samples (default 101)")
     p.add_argument("--theta", default=None, type=float_list(),
                    help="comma-separated values of the other parameters (default identity)")
-    p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None,
-                   help="window start (µs, default first event)")
+    p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
+                   help="window start: seconds on the recording's clock, or with a unit "
+                        "(1.5, 1500ms, 1500000us; default: the first event)")
+    p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
+                   help="the window ends before this time, same units as --t0 (default: "
+                        "after --window-events events)")
     p.add_argument("--window-events", type=int_range(10), default=30000,
-                   help="events of the window from --t0-us (default 30000)")
+                   help="events of the window from --t0 (default 30000)")
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
                    help="output PNG")
     p.add_argument("--csv", default=None, type=writable_output(),
                    help="also write the curves as CSV")
+    p.add_argument("--json", action="store_true",
+                   help="print the curves, the window and the minimum as JSON on stdout")
     p.set_defaults(func=run)
 
 
@@ -46,14 +70,21 @@ def run(args) -> int:
     from evmotion.utils import atomic_path, atomic_write_text
 
     check_common(args)
+    check_time_order(args)
     lo, hi = args.range
     if not hi > lo:
         raise ParameterError(f"--range {lo:g} {hi:g}: HI must be greater than LO")
     events, cam = load_events_and_camera(args)
-    start = 0 if args.t0_us is None else int(events.index_at(args.t0_us))
-    events = events[start:start + args.window_events]
+    if not len(events):
+        raise ParameterError(f"{args.file}: the recording holds no events")
+    check_time_range(args, events.t_start, events.t_end, args.file)
+    events = events.slice_time(args.t0, args.t1)[:args.window_events]
     if len(events) < 10:
-        raise ParameterError(f"{args.file}: the window holds {len(events)} events")
+        from evmotion.cli.options import empty_selection
+
+        full = load_events_and_camera(args)[0]
+        raise empty_selection(args, args.file, full.t_start, full.t_end,
+                              f"the window holds {len(events)} events (10 needed)")
     K = None if cam is None else cam.K
     w = make_warp(args.warp, events.sensor_size, K=K)
     if args.param.isdigit():
@@ -99,6 +130,17 @@ def run(args) -> int:
                   for row in zip(values, *curves.values(), strict=True)]
         atomic_write_text(args.csv, "\n".join(lines) + "\n")
     best = values[int(np.argmin(plain["cost"]))]
-    print(f"{args.out}: minimum without regularizer at {name} = {best:.4g} {unit} "
-          f"(events on the {args.grid} grid)")
+    if args.json:
+        from evmotion.cli import print_json
+
+        print_json({"file": str(args.file), "out": str(args.out), "warp": args.warp,
+                    "objective": args.objective, "regularizer": args.reg,
+                    "param": name, "unit": unit, "theta": theta,
+                    "window": {"t0_us": int(events.t[0]), "t1_us": int(events.t[-1]) + 1,
+                               "n_events": len(events)},
+                    "grid": args.grid, "values": values, "curves": curves,
+                    "minimum": float(best)})
+    else:
+        print(f"{args.out}: minimum without regularizer at {name} = {best:.4g} {unit} "
+              f"(events on the {args.grid} grid)")
     return 0

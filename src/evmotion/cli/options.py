@@ -347,3 +347,123 @@ def reject_unused(args: argparse.Namespace, options: dict[str, str], reason: str
         if value is not None and value is not False:
             shown = "" if value is True else f" {value!r}"
             raise ParameterError(f"{flag}{shown} does not apply {reason}")
+
+
+# ----------------------------------------------------------------- time range and windows
+_TIME_UNITS = {"us": 1, "µs": 1, "ms": 1_000, "s": 1_000_000}
+
+
+def time_us(text: str) -> int:
+    """``type=`` for a time: seconds by default, or with an explicit ``us``/``µs``, ``ms``
+    or ``s`` suffix; returns integer microseconds (absolute: the recording's own clock).
+
+    Examples
+    --------
+    >>> time_us("1.5"), time_us("1500000us"), time_us("250ms"), time_us("2s")
+    (1500000, 1500000, 250000, 2000000)
+    """
+    raw = str(text).strip()
+    body, scale = raw, _TIME_UNITS["s"]
+    for suffix in ("us", "µs", "ms", "s"):  # "ms" and "us" before "s"
+        if raw.lower().endswith(suffix):
+            body, scale = raw[: -len(suffix)].strip(), _TIME_UNITS[suffix]
+            break
+    try:
+        v = float(body)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(
+            f"must be a time >= 0 in seconds, or with a unit (e.g. 1.5, 1500ms, 1500000us), "
+            f"got {text!r}")
+    return int(round(v * scale))
+
+
+time_us.__name__ = "time"
+
+
+def _seconds(t_us: int) -> str:
+    return f"{int(t_us) / 1e6:.6f}".rstrip("0").rstrip(".")
+
+
+def format_time_us(t_us: int) -> str:
+    """``1500000`` -> ``'1.5 s (1500000 µs)'``."""
+    return f"{_seconds(t_us)} s ({int(t_us)} µs)"
+
+
+def _span(t_start: int, t_end: int) -> str:
+    return (f"[{_seconds(t_start)}, {_seconds(t_end)}] s ([{int(t_start)}, {int(t_end)}] µs)")
+
+
+def add_time_arguments(parser, *, max_windows: bool = True, what: str = "windows") -> None:
+    """``--t0``, ``--t1`` (seconds, or with a us/ms/s suffix; absolute, on the recording's
+    clock) and, with ``max_windows``, ``--max-windows N``; check them against the recording
+    with :func:`check_time_range`."""
+    parser.add_argument("--t0", type=time_us, default=None, metavar="TIME",
+                        help="start of the part to process: seconds on the recording's own "
+                             "clock (what 'evmotion info' shows), or with a unit: 1.5, "
+                             "1500ms, 1500000us (default: the first event)")
+    parser.add_argument("--t1", type=time_us, default=None, metavar="TIME",
+                        help="end (exclusive), same units as --t0 (default: the last event)")
+    if max_windows:
+        parser.add_argument("--max-windows", type=positive_int(), default=None, metavar="N",
+                            help=f"process at most the first N {what} (default: all)")
+
+
+def check_time_order(args) -> None:
+    """``--t1`` must be after ``--t0`` (before anything is read); raises ParameterError."""
+    t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
+    if t0 is not None and t1 is not None and t1 <= t0:
+        raise ParameterError(f"--t1 {format_time_us(t1)} must be after --t0 "
+                             f"{format_time_us(t0)}")
+
+
+def check_time_range(args, t_start: int, t_end: int, file: str | os.PathLike = "") -> None:
+    """Refuse ``--t0``/``--t1`` that select nothing of a recording whose events span
+    ``[t_start, t_end]`` µs: one line naming the option, its value and the recording's range.
+    """
+    check_time_order(args)
+    t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
+    span = f"the recording{' ' + os.fspath(file) if file else ''} spans {_span(t_start, t_end)}"
+    if t0 is not None and t0 > t_end:
+        raise ParameterError(f"--t0 {format_time_us(t0)} is after the last event: {span}")
+    if t1 is not None and t1 <= t_start:
+        raise ParameterError(f"--t1 {format_time_us(t1)} is at or before the first event: "
+                             f"{span}")
+
+
+def empty_selection(args, file: str | os.PathLike, t_start: int, t_end: int, what: str
+                    ) -> ParameterError:
+    """The error for a selection that holds no usable window (``what`` says why)."""
+    t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
+    chosen = " ".join(f"{flag} {format_time_us(v)}" for flag, v in (("--t0", t0), ("--t1", t1))
+                      if v is not None)
+    return ParameterError(f"{os.fspath(file)}: {what}" + (f" with {chosen}" if chosen else "")
+                          + f"; the recording spans {_span(t_start, t_end)}")
+
+
+def select_windows(args, events, *, file: str | os.PathLike = "", min_events: int = 1,
+                   what: str = "", **window_kw) -> list:
+    """The windows of ``events`` a per-window command processes: made by
+    :func:`evmotion.events.make_windows` (``window_kw``: ``n_events``, ``duration_us`` or
+    ``edges_us`` and ``dt``) within ``--t0``/``--t1``, at most ``--max-windows`` of those
+    holding ``min_events`` events or more. Refuses a range outside the recording or a
+    selection with no such window in one line (naming the options and the recording's range).
+    """
+    from evmotion.events import make_windows
+
+    if not len(events):
+        raise ParameterError(f"{os.fspath(file)}: the recording holds no events")
+    t_start, t_end = events.t_start, int(events.t[-1])
+    check_time_range(args, t_start, t_end, file)
+    windows = make_windows(events, t0=getattr(args, "t0", None), t1=getattr(args, "t1", None),
+                           max_windows=getattr(args, "max_windows", None),
+                           min_events=min_events, **window_kw)
+    if not windows:
+        raise empty_selection(args, file, t_start, t_end,
+                              what or f"no window holds {min_events} events or more")
+    return windows
+
+
+__all__ += ["add_time_arguments", "check_time_order", "check_time_range", "empty_selection",
+            "format_time_us", "select_windows", "time_us"]

@@ -10,15 +10,30 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.cli.options import int_range, positive_int, writable_folder
+from evmotion.cli.options import (
+    add_time_arguments,
+    check_time_order,
+    int_range,
+    positive_int,
+    select_windows,
+    writable_folder,
+)
 from evmotion.errors import ParameterError
+
+EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5'):
+  evmotion segment sim.h5 --warp rotation --warps 2 --max-windows 1 --out seg/
+  evmotion segment sim.h5 --warp translation --warps 3 --window-us 20000 --t0 0.02 --max-windows 2 --iterations 5 --out seg3/ --json
+"""
 
 
 def add_parser(sub) -> None:
+    import argparse
+
     from evmotion.cli.egomotion import add_common
 
     p = sub.add_parser("segment", help="motion segmentation with several warps (Sec. 3.6.6)",
-                       description=__doc__)
+                       description=__doc__, epilog=EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     add_common(p)
     p.add_argument("--warps", type=int_range(1, 64), default=2,
                    help="number of motion clusters (default 2)")
@@ -29,8 +44,7 @@ def add_parser(sub) -> None:
     g.add_argument("--window-events", type=int_range(10), help="events per window (default: 30000)")
     g.add_argument("--window-us", type=positive_int(unit="µs"),
                    help="window duration in microseconds")
-    p.add_argument("--max-windows", type=positive_int(), default=None,
-                   help="process at most N windows")
+    add_time_arguments(p)
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
     p.add_argument("--json", action="store_true", help="print per-window results as JSON")
     p.set_defaults(func=run)
@@ -46,14 +60,11 @@ def run(args) -> int:
     check_common(args)
     if args.objective not in ("variance", "gradient_magnitude"):
         raise ParameterError("segment supports --objective variance or gradient_magnitude")
+    check_time_order(args)
     events, cam = load_events_and_camera(args)
-    if args.window_us:
-        windows = events.windows_by_duration(args.window_us)
-    else:
-        windows = events.windows_by_count(args.window_events or 30000)
-    windows = [w for w in windows if w.count >= 10 * args.warps][:args.max_windows]
-    if not windows:
-        raise ParameterError(f"{args.file}: no window holds enough events")
+    count = None if args.window_us else args.window_events or 30000
+    windows = select_windows(args, events, file=args.file, min_events=10 * args.warps,
+                             n_events=count, duration_us=args.window_us or None)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     K = None if cam is None else cam.K

@@ -28,9 +28,9 @@ from evmotion.cli.options import (
 )
 
 EXAMPLES = """examples:
-  evmotion train --sim-windows 64 --epochs 10 --out runs/sim
-  evmotion train rec1.raw rec2.aedat4 --sim-windows 32 --val val.h5 --out runs/mix
-  evmotion train --sim-windows 64 --epochs 20 --out runs/sim --resume
+  evmotion train --sim-windows 4 --epochs 1 --out runs/sim      # a smoke run (64 and 10 for real)
+  evmotion train rec1.raw rec2.aedat4 --sim-windows 0 --epochs 1 --val val.h5 --out runs/mix
+  evmotion train --sim-windows 4 --epochs 2 --out runs/sim --resume   # one more epoch
 """
 
 

@@ -11,17 +11,19 @@ import argparse
 from pathlib import Path
 
 from evmotion.cli.options import (
+    add_time_arguments,
+    check_time_order,
+    empty_selection,
     finite_float,
     format_bytes,
-    int_range,
     positive_int,
     writable_output,
 )
 
 EXAMPLES = """examples:
   evmotion view rec.h5 --out events.png                       # first 30,000 events
-  evmotion view rec.raw --t0 1000000 --t1 1020000 --out slice.png --polarity
-  evmotion view events.txt --window-events 50000 --out w.png --json
+  evmotion view rec.raw --t0 0.01 --t1 0.012 --out slice.png --polarity   # 10 to 12 ms
+  evmotion view events.txt --t0 20ms --window-events 5000 --scale 2 --out w.png --json
 """
 
 DEFAULT_EVENTS = 30_000
@@ -39,10 +41,7 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
                    help="output PNG")
     p.add_argument("--format", default=None, help="input format (default: detect)")
-    p.add_argument("--t0", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="slice start, absolute µs (default: first event)")
-    p.add_argument("--t1", type=int_range(0, unit="µs"), default=None, metavar="US",
-                   help="slice end (exclusive), absolute µs")
+    add_time_arguments(p, max_windows=False)
     p.add_argument("--window-events", type=positive_int(), default=None, metavar="N",
                    help=f"take N events from --t0 (default {DEFAULT_EVENTS:,} "
                         "when --t1 is not given)")
@@ -95,11 +94,10 @@ def run(args) -> int:
     import numpy as np
 
     from evmotion.cli import print_json
-    from evmotion.errors import EmptyWindowError, EvmotionError, ParameterError
+    from evmotion.errors import EmptyWindowError, EvmotionError
     from evmotion.viz import event_histogram, iwe_to_rgb, save_png
 
-    if args.t0 is not None and args.t1 is not None and args.t1 <= args.t0:
-        raise ParameterError(f"--t1 ({args.t1} µs) must be after --t0 ({args.t0} µs)")
+    check_time_order(args)
     out = Path(args.out)
     n = args.window_events
     if n is None and args.t1 is None:
@@ -116,8 +114,18 @@ def run(args) -> int:
             check_scale(args.scale, tuple(size))
     ev = _read_slice(args.file, args.format, args.t0, args.t1, n)
     if ev is None or not len(ev):
-        raise EmptyWindowError(f"{args.file}: no events in the requested slice "
-                               f"(t0={args.t0}, t1={args.t1} µs)")
+        import evmotion.io as eio
+
+        # the error path only: reads the file through once more for its time range
+        try:
+            info = eio.describe(args.file, format=args.format)
+        except EvmotionError:
+            info = {}
+        if info.get("t_first_us") is None:
+            raise EmptyWindowError(f"{args.file}: no events in the requested slice "
+                                   f"(--t0 {args.t0}, --t1 {args.t1} µs)")
+        raise empty_selection(args, args.file, int(info["t_first_us"]),
+                              int(info["t_last_us"]), "no events")
     check_scale(args.scale, ev.sensor_size)
     hist = event_histogram(ev, signed=args.polarity)
     rgb = iwe_to_rgb(hist, polarity=args.polarity, percentile=args.percentile)

@@ -71,11 +71,44 @@ def read_frames(path: str | os.PathLike, format: str | None = None) -> FrameSequ
 
 
 def read_imu(path: str | os.PathLike, format: str | None = None) -> ImuSequence:
-    """IMU samples of a recording (``imu.txt`` of an ECD folder, AEDAT IMU packets...).
+    """IMU samples of a recording, whatever its format.
+
+    Reads ``imu.txt`` of an ECD folder, the IMU packets of AEDAT4 and jAER AEDAT 2.0 files,
+    the ``imu`` group of evmotion HDF5 and the IMU messages of ROS1 bags.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Recording file or folder.
+    format : str, optional
+        Format name (see :func:`evmotion.io.all_formats`); default detected by content.
+
+    Returns
+    -------
+    ImuSequence
+        ``t`` (N,) int64 µs on the events' clock; ``gyro`` (N, 3) float64 angular velocity
+        in rad/s; ``accel`` (N, 3) float64 linear acceleration in m/s² (gravity included).
+        Axes are the IMU's own as the source stores them (a DAVIS IMU is not the camera
+        frame: rotate with the extrinsics before comparing with a rotation estimate).
+
+    Raises
+    ------
+    FormatError
+        The format holds no IMU samples, or this file has none.
 
     Examples
     --------
-    >>> imu = read_imu("boxes_rotation/")  # doctest: +SKIP
+    >>> import tempfile, numpy as np
+    >>> from evmotion.events import EventArray
+    >>> from evmotion.io import h5
+    >>> ev = EventArray(np.array([1, 2]), np.array([0, 1]), np.array([10, 20]),
+    ...                 np.array([1, 0]), sensor_size=(2, 3))
+    >>> path = tempfile.mkdtemp() + "/rec.h5"
+    >>> h5.write(path, ev, imu={"t": [0, 1000], "gyro": np.zeros((2, 3)),
+    ...                         "accel": [[0.0, -9.81, 0.0]] * 2})
+    >>> imu = read_imu(path)
+    >>> len(imu), imu.t.tolist(), imu.accel[0].tolist()
+    (2, [0, 1000], [0.0, -9.81, 0.0])
     """
     path = Path(path)
     name, mod = _module(path, format)

@@ -13,7 +13,8 @@ rotation     rotation    ``wx, wy, wz`` (or ``omega``) camera angular velocity, 
 zoom         zoom        ``hz`` = forward speed / depth, 1/s (time to contact 1/hz; the
                          thesis' (3.7) ``b_z = hz * T`` for a window of T s); ``foe``
                          focus of expansion (x, y) px (default image centre)
-se2          se2         ``vx, vy`` px/s, ``wz`` rad/s (A.11)
+se2          se2         ``vx, vy`` px/s, ``wz`` rad/s (A.11; ``wz`` with the rotation
+                         warp's sign: the camera's rate about z, minus A.11's ``w_z``)
 inplane      inplane     ``vx, vy`` px/s, ``phi`` rad/s, ``hz`` 1/s (A.22)
 similarity   similarity  ``vx, vy`` px/s, ``wz`` rad/s, ``s`` 1/s (A.36)
 affine       affine      ``vx, vy`` px/s, ``g11, g12, g21, g22`` 1/s (A.47)

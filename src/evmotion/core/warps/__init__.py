@@ -59,6 +59,11 @@ Sign conventions of the parameters (camera frame x right, y down, z forward):
 * ``rotation``: ``theta = omega`` is the camera's angular velocity in rad/s:
   ``x'_n ~ exp(dt omega^) x_n`` in normalized coordinates (3.22). Its flow at dt = 0 is minus
   the rotational part of the feature sensitivity matrix (3.29), its divergence is (3.23).
+  Right-handed about the camera axes: ``wz > 0`` turns the image content counter-clockwise
+  on screen (x right, y down).
+* ``se2``, ``similarity``: ``wz`` in rad/s has the rotation's sign (the camera's rate about
+  the optical axis; the thesis' A.11/A.36 ``w_z`` is minus it), so that a camera turning
+  about z gives the same-sign ``wz`` from ``rotation`` and ``se2``.
 
 Examples
 --------

@@ -224,32 +224,54 @@ def similarity_values(is_div, dt, th, T, d, g, want_g):
 
 
 class SimilarityWarp(FusedAdjoint, Warp):
-    """4-DOF similarity Sim(2) (A.36): ``x' = c + beta^-1 R(-dt w_z)(x - c - dt v)``,
+    """4-DOF similarity Sim(2) (A.36): ``x' = c + beta^-1 R(dt w_z)(x - c - dt v)``,
     ``beta = 1 + dt s``; theta = (vx, vy [px/s], wz [rad/s], s [1/s]).
+
+    ``wz`` follows the rotation warp's convention: the camera's angular velocity about its
+    optical axis, right-handed in the camera frame (x right, y down, z forward), so the
+    image content turns by ``-wz`` (counter-clockwise on screen for ``wz > 0``) and a camera
+    rotating about z gives the same ``wz`` from ``rotation`` and ``se2``. The thesis (A.11,
+    A.36) writes ``R(-dt w_z)``, i.e. the image's rotation rate: its ``w_z`` is minus this one.
+    ``R(a)`` is ``[[cos a, -sin a], [sin a, cos a]]`` acting on (x, y) pixel offsets.
 
     With ``scaled=False`` it is the 3-DOF planar SE(2) warp (A.11), theta = (vx, vy, wz)."""
 
     scaled = True
 
+    # the kernels below take the image rotation rate -wz (A.11's sign, see the docstring):
+    # parameters are flipped going in, the wz derivatives coming out
+
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         s = th[3] if self.scaled else 0.0
-        _k_similarity(x, y, dt, th[0], th[1], th[2], s, self.center[0], self.center[1],
+        _k_similarity(x, y, dt, th[0], th[1], -th[2], s, self.center[0], self.center[1],
                       xw, yw, jx, jy, jac, self.scaled)
+        if jac:
+            jx[:, 2] *= -1.0
+            jy[:, 2] *= -1.0
 
     def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
              blk=NO_BLOCKS):
-        prm = np.array([th[2], th[3] if self.scaled else 0.0, self.center[0], self.center[1]])
+        prm = np.array([-th[2], th[3] if self.scaled else 0.0, self.center[0], self.center[1]])
         _similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
+        out[2] = -out[2]
 
     def event_values(self, is_div, dt, th, T, d, g, want_g) -> None:
         """Closed-form per-event collapse values: ``d`` (N,) = divergence times ``T`` (1/s
         times s) if ``is_div``, else ``|det J| - 1``, and their ``theta``-derivatives into
         ``g`` (N, P) if ``want_g``; ``th`` checked float64 (P,), ``dt`` float64 (N,)."""
-        similarity_values(is_div, dt, th, T, d, g, want_g)
+        image_th = th.copy()
+        image_th[2] = -th[2]
+        similarity_values(is_div, dt, image_th, T, d, g, want_g)
+        if want_g:
+            g[:, 2] *= -1.0
 
 
 class SE2Warp(SimilarityWarp):
-    """3-DOF planar motion SE(2) (A.11): ``x' = c + R(-dt w_z)(x - c - dt v)``;
-    theta = (vx, vy [px/s], wz [rad/s]). div f = -2 wz sin(dt wz) (A.13), det J = 1."""
+    """3-DOF planar motion SE(2) (A.11): ``x' = c + R(dt w_z)(x - c - dt v)``;
+    theta = (vx, vy [px/s], wz [rad/s]). div f = -2 wz sin(dt wz) (A.13), det J = 1.
+
+    ``wz`` is the camera's angular velocity about the optical axis with the rotation warp's
+    sign (right-handed, camera frame x right, y down, z forward; see
+    :class:`SimilarityWarp`): the thesis' A.11 ``w_z`` is minus this one."""
 
     scaled = False
