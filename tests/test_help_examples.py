@@ -150,6 +150,8 @@ def world(tmp_path_factory) -> Path:
         rng = np.random.default_rng(0)
         save_png("photo.png", rng.integers(0, 256, (64, 80, 3), dtype=np.uint8))
         _ok(["flow", "sim.h5", "--max-windows", "2", "--scales", "2", "--out", "flow.h5"])
+        _ok(["flow", "sim.h5", "--max-windows", "2", "--scales", "2", "--out",
+             "flow_{:05d}.flo"])
         _ok(["simulate", "schlieren", "--scene", "plume", "--size", "128x160", "--duration",
              "0.05", "--out", "scene/"])
         _ok(["bos", "scene/", "--max-intervals", "2", "--out", "bos.h5"])
