@@ -123,7 +123,7 @@ class H5Output:
     """
 
     def __init__(self, out, sensor_size, attrs: dict, *, resume: bool,
-                 with_valid: bool = False):
+                 with_valid: bool = False, compression: str | None = "gzip"):
         from pathlib import Path
 
         import numpy as np
@@ -135,7 +135,8 @@ class H5Output:
         self.reopened_final = resume and self.out.exists() and not self.part.exists()
         self.done: list[tuple[int, int]] = []
         if not resume:
-            self.w = FlowWriter(out, sensor_size, with_valid=with_valid, attrs=attrs)
+            self.w = FlowWriter(out, sensor_size, with_valid=with_valid, attrs=attrs,
+                                compression=compression)
             return
         self.w = FlowWriter(out, sensor_size, with_valid=with_valid, resume=True)
         old = dict(self.w.f.attrs)
