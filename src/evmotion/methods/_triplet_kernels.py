@@ -469,66 +469,228 @@ def dense_lsq_from_sums(acc, cnt, r, ridge, out, out_mask):
 
 
 @njit(cache=True)
+def _solve_row(b, ridge):
+    """:func:`_solve_normal` on one box-summed row ``b`` = ``[M11, M12, M22, r1, r2, n]``:
+    ``(ok, vx, vy)``."""
+    if b[5] < 0.5:
+        return False, 0.0, 0.0
+    m11 = b[0]
+    m12 = b[1]
+    m22 = b[2]
+    # Summed-area differences leave rounding residue where every weight is zero.
+    if not m11 + m22 > 1e-9 * b[5]:
+        return False, 0.0, 0.0
+    eps = ridge * 0.5 * (m11 + m22)
+    m11 += eps
+    m22 += eps
+    det = m11 * m22 - m12 * m12
+    if not det > 0.0:
+        return False, 0.0, 0.0
+    return True, (m22 * b[3] - m12 * b[4]) / det, (m11 * b[4] - m12 * b[3]) / det
+
+
+@njit(cache=True)
+def _pixel_pairs(px, py, r, limit):
+    """Neighbour lists of the active pixels ``(px, py)``: for each, the active pixels within
+    the (2r+1)^2 box around it (itself included), CSR ``(start, nbr)``; ``start[-1]`` is
+    -1 when there are more than ``limit`` pairs (then no list is built)."""
+    m = px.shape[0]
+    cs = 2 * r + 1  # a box overlaps at most the 3 x 3 cells around its centre's cell
+    gx = (np.max(px) // cs) + 1 if m else 1
+    gy = (np.max(py) // cs) + 1 if m else 1
+    cell_start = np.zeros(gx * gy + 1, np.int64)
+    for i in range(m):
+        cell_start[(py[i] // cs) * gx + px[i] // cs + 1] += 1
+    for c in range(gx * gy):
+        cell_start[c + 1] += cell_start[c]
+    fill = cell_start[:-1].copy()
+    members = np.empty(m, np.int64)
+    for i in range(m):
+        c = (py[i] // cs) * gx + px[i] // cs
+        members[fill[c]] = i
+        fill[c] += 1
+    start = np.zeros(m + 1, np.int64)
+    total = _scan_pairs(px, py, r, cs, gx, gy, cell_start, members, start,
+                        np.empty(0, np.int64), False)
+    if total > limit:
+        start[m] = -1
+        return start, np.empty(0, np.int64)
+    nbr = np.empty(total, np.int64)
+    _scan_pairs(px, py, r, cs, gx, gy, cell_start, members, start, nbr, True)
+    return start, nbr
+
+
+@njit(cache=True)
+def _scan_pairs(px, py, r, cs, gx, gy, cell_start, members, start, nbr, write):
+    """One pass of :func:`_pixel_pairs`: the number of pairs, and with ``write`` the lists."""
+    m = px.shape[0]
+    total = 0
+    for i in range(m):
+        cx = px[i] // cs
+        cy = py[i] // cs
+        start[i] = total
+        for qy in range(max(cy - 1, 0), min(cy + 2, gy)):
+            for qx in range(max(cx - 1, 0), min(cx + 2, gx)):
+                c = qy * gx + qx
+                for a in range(cell_start[c], cell_start[c + 1]):
+                    j = members[a]
+                    if abs(px[j] - px[i]) <= r and abs(py[j] - py[i]) <= r:
+                        if write:
+                            nbr[total] = j
+                        total += 1
+    start[m] = total
+    return total
+
+
+@njit(cache=True)
+def _box_at(acc, px, py, x0, y0, bh, bw, r, sat, box):
+    """(2r+1)^2 box sums of the per-pixel rows ``acc`` (P, 6) at the active pixels, through
+    a summed-area table ``sat`` over the ``bh`` x ``bw`` region at ``(x0, y0)``."""
+    sat[: bh + 1, : bw + 1, :] = 0.0
+    for i in range(px.shape[0]):
+        for ch in range(6):
+            sat[py[i] - y0 + 1, px[i] - x0 + 1, ch] += acc[i, ch]
+    for yy in range(1, bh + 1):
+        for xx in range(1, bw + 1):
+            for ch in range(6):
+                sat[yy, xx, ch] += sat[yy - 1, xx, ch] + sat[yy, xx - 1, ch] \
+                    - sat[yy - 1, xx - 1, ch]
+    for i in range(px.shape[0]):
+        _sat_query(sat, py[i] - y0, px[i] - x0, bh, bw, r, box[i])
+
+
+@njit(cache=True)
+def _sat_query(sat, yy, xx, bh, bw, r, dst):
+    ya = max(yy - r, 0)
+    yb = min(yy + r + 1, bh)
+    xa = max(xx - r, 0)
+    xb = min(xx + r + 1, bw)
+    for ch in range(6):
+        dst[ch] = sat[yb, xb, ch] - sat[ya, xb, ch] - sat[yb, xa, ch] + sat[ya, xa, ch]
+
+
+@njit(cache=True)
 def dense_robust(x, y, t, nx, ny, t0, t1, n_bins, vmax, r, ridge, c, iters, out, out_mask):
     """Robust counterpart of :func:`dense_lsq_from_sums` over the events themselves: per time
     bin, ``iters`` re-weightings of the neighbourhood fit, each event's normal-flow
     constraint weighted by Tukey's biweight of its relative residual
     ``(v . n - |u|) / |u|`` (zero beyond ``c``) under the flow ``v`` of its own pixel.
-    Events outside ``[t0, t1)`` or with ``|u|`` = 0 or over ``vmax`` are left out."""
+    Events outside ``[t0, t1)`` or with ``|u|`` = 0 or over ``vmax`` are left out.
+
+    Only the bin's active pixels enter the re-weightings (their box sums over neighbour
+    lists, or a summed-area table over the active region when the lists would be longer),
+    and the final fit covers the active region grown by ``r``: outside it no event is near,
+    so there is no flow. The work follows the events, not the sensor."""
     h, w = out_mask.shape
     n = t.shape[0]
     span = float(t1 - t0)
     bin_of = np.empty(n, np.int64)
+    per_bin = np.zeros(n_bins + 1, np.int64)
     for k in range(n):
-        s2 = float(nx[k]) * nx[k] + float(ny[k]) * ny[k]
+        s2 = np.float64(nx[k]) * nx[k] + np.float64(ny[k]) * ny[k]
         if t[k] < t0 or t[k] >= t1 or not (s2 > 0.0 and s2 <= vmax * vmax):
             bin_of[k] = -1
         else:
             bin_of[k] = min(int((t[k] - t0) * n_bins / span), n_bins - 1)
-    wgt = np.ones(n)
-    c6 = np.empty((h, w, 6))
-    tmp = np.empty((h, w, 6))
-    box = np.empty((h, w, 6))
-    v = np.empty((h, w, 2))
-    ok = np.empty((h, w), np.bool_)
+            per_bin[bin_of[k] + 1] += 1
+    for b in range(n_bins):
+        per_bin[b + 1] += per_bin[b]
+    order = np.empty(per_bin[n_bins], np.int64)
+    fill = per_bin[:-1].copy()
+    for k in range(n):
+        if bin_of[k] >= 0:
+            order[fill[bin_of[k]]] = k
+            fill[bin_of[k]] += 1
+    # constraint rows of the events: [n_x^2, n_x n_y, n_y^2, u_x, u_y] (n = u / |u|)
+    rows = np.empty((order.shape[0], 5))
+    for j in range(order.shape[0]):
+        k = order[j]
+        ux = np.float64(nx[k])
+        uy = np.float64(ny[k])
+        s2 = ux * ux + uy * uy
+        rows[j, 0] = ux * ux / s2
+        rows[j, 1] = ux * uy / s2
+        rows[j, 2] = uy * uy / s2
+        rows[j, 3] = ux
+        rows[j, 4] = uy
     su = np.zeros((h, w, 2))
     nbins = np.zeros((h, w), np.int64)
+    pid = np.full(h * w, -1, np.int64)
+    sat = np.empty((0, 0, 6))
     for b in range(n_bins):
+        lo = per_bin[b]
+        hi = per_bin[b + 1]
+        m = hi - lo
+        if m == 0:
+            continue
+        # the bin's active pixels, and each event's
+        ev_pix = np.empty(m, np.int64)
+        px = np.empty(m, np.int64)
+        py = np.empty(m, np.int64)
+        npx = 0
+        for j in range(m):
+            k = order[lo + j]
+            q = y[k] * w + x[k]
+            if pid[q] < 0:
+                pid[q] = npx
+                px[npx] = x[k]
+                py[npx] = y[k]
+                npx += 1
+            ev_pix[j] = pid[q]
+        px = px[:npx]
+        py = py[:npx]
+        for i in range(npx):
+            pid[py[i] * w + px[i]] = -1
+        x0 = max(np.min(px) - r, 0)
+        y0 = max(np.min(py) - r, 0)
+        bw = min(np.max(px) + r + 1, w) - x0
+        bh = min(np.max(py) + r + 1, h) - y0
+        if sat.shape[0] < bh + 1 or sat.shape[1] < bw + 1:
+            sat = np.empty((max(bh + 1, sat.shape[0]), max(bw + 1, sat.shape[1]), 6))
+        # neighbour lists while they cost less than a summed-area table of the region
+        start, nbr = _pixel_pairs(px, py, r, 2 * (bh + 1) * (bw + 1))
+        wgt = np.ones(m)
+        acc = np.empty((npx, 6))
+        box = np.empty((npx, 6))
         for it in range(iters + 1):
-            c6[:] = 0.0
-            for k in range(n):
-                if bin_of[k] != b:
-                    continue
-                ux = float(nx[k])
-                uy = float(ny[k])
-                s2 = ux * ux + uy * uy
-                wk = wgt[k]
-                yk = y[k]
-                xk = x[k]
-                c6[yk, xk, 0] += wk * ux * ux / s2
-                c6[yk, xk, 1] += wk * ux * uy / s2
-                c6[yk, xk, 2] += wk * uy * uy / s2
-                c6[yk, xk, 3] += wk * ux
-                c6[yk, xk, 4] += wk * uy
-                c6[yk, xk, 5] += 1.0
-            _box_sum(c6, r, tmp, box)
-            for yy in range(h):
-                for xx in range(w):
-                    ok[yy, xx] = _solve_normal(box, yy, xx, ridge, v)
+            acc[:] = 0.0
+            for j in range(m):
+                i = ev_pix[j]
+                wk = wgt[j]
+                for ch in range(5):
+                    acc[i, ch] += wk * rows[lo + j, ch]
+                acc[i, 5] += 1.0
             if it == iters:
                 break
-            for k in range(n):
-                if bin_of[k] != b or not ok[y[k], x[k]]:
+            if start[npx] >= 0:
+                for i in range(npx):
+                    for ch in range(6):
+                        box[i, ch] = 0.0
+                    for a in range(start[i], start[i + 1]):
+                        q = nbr[a]
+                        for ch in range(6):
+                            box[i, ch] += acc[q, ch]
+            else:
+                _box_at(acc, px, py, x0, y0, bh, bw, r, sat, box)
+            for j in range(m):
+                i = ev_pix[j]
+                ok, vx, vy = _solve_row(box[i], ridge)
+                if not ok:
                     continue
-                ux = float(nx[k])
-                uy = float(ny[k])
-                z = ((v[y[k], x[k], 0] * ux + v[y[k], x[k], 1] * uy) / (ux * ux + uy * uy)
-                     - 1.0) / c
-                wgt[k] = (1.0 - z * z) ** 2 if z * z < 1.0 else 0.0
-        for yy in range(h):
-            for xx in range(w):
-                if ok[yy, xx]:
-                    su[yy, xx, 0] += v[yy, xx, 0]
-                    su[yy, xx, 1] += v[yy, xx, 1]
-                    nbins[yy, xx] += 1
+                k = order[lo + j]
+                ux = np.float64(nx[k])
+                uy = np.float64(ny[k])
+                z = ((vx * ux + vy * uy) / (ux * ux + uy * uy) - 1.0) / c
+                wgt[j] = (1.0 - z * z) ** 2 if z * z < 1.0 else 0.0
+        # the final fit at every pixel of the region
+        _box_at(acc, px, py, x0, y0, bh, bw, r, sat, box)
+        row = np.empty(6)
+        for yy in range(bh):
+            for xx in range(bw):
+                _sat_query(sat, yy, xx, bh, bw, r, row)
+                ok, vx, vy = _solve_row(row, ridge)
+                if ok:
+                    su[y0 + yy, x0 + xx, 0] += vx
+                    su[y0 + yy, x0 + xx, 1] += vy
+                    nbins[y0 + yy, x0 + xx] += 1
     _mean_over_bins(su, nbins, out, out_mask)
