@@ -468,7 +468,7 @@ def dense_lsq_from_sums(acc, cnt, r, ridge, out, out_mask):
     _mean_over_bins(su, nbins, out, out_mask)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _solve_row(b, ridge):
     """:func:`_solve_normal` on one box-summed row ``b`` = ``[M11, M12, M22, r1, r2, n]``:
     ``(ok, vx, vy)``."""
@@ -490,56 +490,35 @@ def _solve_row(b, ridge):
 
 
 @njit(cache=True)
-def _pixel_pairs(px, py, r, limit):
-    """Neighbour lists of the active pixels ``(px, py)``: for each, the active pixels within
-    the (2r+1)^2 box around it (itself included), CSR ``(start, nbr)``; ``start[-1]`` is
-    -1 when there are more than ``limit`` pairs (then no list is built)."""
+def _row_segments(px, py, r):
+    """For the active pixels ``(px, py)`` sorted by row then column: the neighbours of each
+    within the (2r+1)^2 box around it, as one run of the sorted order per row of the box,
+    CSR ``(start, seg)`` with ``seg[s] = (first, stop)``."""
     m = px.shape[0]
-    cs = 2 * r + 1  # a box overlaps at most the 3 x 3 cells around its centre's cell
-    gx = (np.max(px) // cs) + 1 if m else 1
-    gy = (np.max(py) // cs) + 1 if m else 1
-    cell_start = np.zeros(gx * gy + 1, np.int64)
+    h = np.max(py) + 1
+    row_start = np.zeros(h + 1, np.int64)
     for i in range(m):
-        cell_start[(py[i] // cs) * gx + px[i] // cs + 1] += 1
-    for c in range(gx * gy):
-        cell_start[c + 1] += cell_start[c]
-    fill = cell_start[:-1].copy()
-    members = np.empty(m, np.int64)
-    for i in range(m):
-        c = (py[i] // cs) * gx + px[i] // cs
-        members[fill[c]] = i
-        fill[c] += 1
+        row_start[py[i] + 1] += 1
+    for yy in range(h):
+        row_start[yy + 1] += row_start[yy]
     start = np.zeros(m + 1, np.int64)
-    total = _scan_pairs(px, py, r, cs, gx, gy, cell_start, members, start,
-                        np.empty(0, np.int64), False)
-    if total > limit:
-        start[m] = -1
-        return start, np.empty(0, np.int64)
-    nbr = np.empty(total, np.int64)
-    _scan_pairs(px, py, r, cs, gx, gy, cell_start, members, start, nbr, True)
-    return start, nbr
-
-
-@njit(cache=True)
-def _scan_pairs(px, py, r, cs, gx, gy, cell_start, members, start, nbr, write):
-    """One pass of :func:`_pixel_pairs`: the number of pairs, and with ``write`` the lists."""
-    m = px.shape[0]
-    total = 0
+    seg = np.empty((m * (2 * r + 1), 2), np.int64)
+    n = 0
     for i in range(m):
-        cx = px[i] // cs
-        cy = py[i] // cs
-        start[i] = total
-        for qy in range(max(cy - 1, 0), min(cy + 2, gy)):
-            for qx in range(max(cx - 1, 0), min(cx + 2, gx)):
-                c = qy * gx + qx
-                for a in range(cell_start[c], cell_start[c + 1]):
-                    j = members[a]
-                    if abs(px[j] - px[i]) <= r and abs(py[j] - py[i]) <= r:
-                        if write:
-                            nbr[total] = j
-                        total += 1
-    start[m] = total
-    return total
+        start[i] = n
+        for yy in range(max(py[i] - r, 0), min(py[i] + r + 1, h)):
+            rs = row_start[yy]
+            re = row_start[yy + 1]
+            if rs == re:
+                continue
+            a = rs + np.searchsorted(px[rs:re], px[i] - r)
+            b = rs + np.searchsorted(px[rs:re], px[i] + r, side="right")
+            if a < b:
+                seg[n, 0] = a
+                seg[n, 1] = b
+                n += 1
+    start[m] = n
+    return start, seg[:n]
 
 
 @njit(cache=True)
@@ -577,8 +556,9 @@ def dense_robust(x, y, t, nx, ny, t0, t1, n_bins, vmax, r, ridge, c, iters, out,
     ``(v . n - |u|) / |u|`` (zero beyond ``c``) under the flow ``v`` of its own pixel.
     Events outside ``[t0, t1)`` or with ``|u|`` = 0 or over ``vmax`` are left out.
 
-    Only the bin's active pixels enter the re-weightings (their box sums over neighbour
-    lists, or a summed-area table over the active region when the lists would be longer),
+    Only the bin's active pixels enter the re-weightings (their box sums from runs of
+    neighbours in row order, or a summed-area table over the active region when the runs
+    would be longer),
     and the final fit covers the active region grown by ``r``: outside it no event is near,
     so there is no flow. The work follows the events, not the sensor."""
     h, w = out_mask.shape
@@ -613,9 +593,13 @@ def dense_robust(x, y, t, nx, ny, t0, t1, n_bins, vmax, r, ridge, c, iters, out,
         rows[j, 2] = uy * uy / s2
         rows[j, 3] = ux
         rows[j, 4] = uy
-    su = np.zeros((h, w, 2))
-    nbins = np.zeros((h, w), np.int64)
-    pid = np.full(h * w, -1, np.int64)
+    # one bin: the fits go straight to the output (no per-pixel sums over bins to average)
+    direct = n_bins == 1
+    out[:] = 0.0
+    out_mask[:] = False
+    su = np.zeros((1, 1, 2)) if direct else np.zeros((h, w, 2))
+    nbins = np.zeros((1, 1), np.int64) if direct else np.zeros((h, w), np.int64)
+    pid = np.full(h * w, -1, np.int32)
     sat = np.empty((0, 0, 6))
     for b in range(n_bins):
         lo = per_bin[b]
@@ -637,21 +621,33 @@ def dense_robust(x, y, t, nx, ny, t0, t1, n_bins, vmax, r, ridge, c, iters, out,
                 py[npx] = y[k]
                 npx += 1
             ev_pix[j] = pid[q]
-        px = px[:npx]
-        py = py[:npx]
+        # sorted by row, then column: a box's neighbours are one run per row
+        key = np.empty(npx, np.int64)
         for i in range(npx):
-            pid[py[i] * w + px[i]] = -1
+            key[i] = py[i] * w + px[i]
+            pid[key[i]] = -1
+        perm = np.argsort(key)
+        rank = np.empty(npx, np.int64)
+        for i in range(npx):
+            rank[perm[i]] = i
+        for j in range(m):
+            ev_pix[j] = rank[ev_pix[j]]
+        px = px[:npx][perm]
+        py = py[:npx][perm]
         x0 = max(np.min(px) - r, 0)
         y0 = max(np.min(py) - r, 0)
         bw = min(np.max(px) + r + 1, w) - x0
         bh = min(np.max(py) + r + 1, h) - y0
         if sat.shape[0] < bh + 1 or sat.shape[1] < bw + 1:
             sat = np.empty((max(bh + 1, sat.shape[0]), max(bw + 1, sat.shape[1]), 6))
-        # neighbour lists while they cost less than a summed-area table of the region
-        start, nbr = _pixel_pairs(px, py, r, 2 * (bh + 1) * (bw + 1))
+        # row runs of neighbours while they cost less than a summed-area table of the region
+        runs = npx * (2 * r + 1) <= 2 * (bh + 1) * (bw + 1)
+        if runs:
+            start, seg = _row_segments(px, py, r)
         wgt = np.ones(m)
         acc = np.empty((npx, 6))
         box = np.empty((npx, 6))
+        pre = np.empty((npx + 1, 6))
         for it in range(iters + 1):
             acc[:] = 0.0
             for j in range(m):
@@ -662,14 +658,19 @@ def dense_robust(x, y, t, nx, ny, t0, t1, n_bins, vmax, r, ridge, c, iters, out,
                 acc[i, 5] += 1.0
             if it == iters:
                 break
-            if start[npx] >= 0:
+            if runs:
+                pre[0, :] = 0.0
+                for i in range(npx):
+                    for ch in range(6):
+                        pre[i + 1, ch] = pre[i, ch] + acc[i, ch]
                 for i in range(npx):
                     for ch in range(6):
                         box[i, ch] = 0.0
-                    for a in range(start[i], start[i + 1]):
-                        q = nbr[a]
+                    for sg in range(start[i], start[i + 1]):
+                        a = seg[sg, 0]
+                        b = seg[sg, 1]
                         for ch in range(6):
-                            box[i, ch] += acc[q, ch]
+                            box[i, ch] += pre[b, ch] - pre[a, ch]
             else:
                 _box_at(acc, px, py, x0, y0, bh, bw, r, sat, box)
             for j in range(m):
@@ -682,15 +683,68 @@ def dense_robust(x, y, t, nx, ny, t0, t1, n_bins, vmax, r, ridge, c, iters, out,
                 uy = np.float64(ny[k])
                 z = ((vx * ux + vy * uy) / (ux * ux + uy * uy) - 1.0) / c
                 wgt[j] = (1.0 - z * z) ** 2 if z * z < 1.0 else 0.0
-        # the final fit at every pixel of the region
-        _box_at(acc, px, py, x0, y0, bh, bw, r, sat, box)
-        row = np.empty(6)
-        for yy in range(bh):
-            for xx in range(bw):
-                _sat_query(sat, yy, xx, bh, bw, r, row)
-                ok, vx, vy = _solve_row(row, ridge)
-                if ok:
-                    su[y0 + yy, x0 + xx, 0] += vx
-                    su[y0 + yy, x0 + xx, 1] += vy
-                    nbins[y0 + yy, x0 + xx] += 1
-    _mean_over_bins(su, nbins, out, out_mask)
+        _final_fit(acc, px, py, x0, y0, bh, bw, r, ridge, su, nbins, direct, out, out_mask)
+    if not direct:
+        _mean_over_bins(su, nbins, out, out_mask)
+
+
+@njit(cache=True)
+def _final_fit(acc, px, py, x0, y0, bh, bw, r, ridge, su, nbins, direct, out, out_mask):
+    """The fit at every pixel within ``r`` of an active pixel, added to ``su`` / ``nbins``
+    (``direct``: written to ``out`` / ``out_mask``):
+    block by block (64 x 64 px) of the ``bh`` x ``bw`` region at ``(x0, y0)``, only the
+    blocks an active pixel's box reaches, each through a summed-area table of the block
+    grown by ``r``."""
+    bs = 64
+    nby = (bh + bs - 1) // bs
+    nbx = (bw + bs - 1) // bs
+    need = np.zeros((nby, nbx), np.bool_)
+    for i in range(px.shape[0]):
+        lx = px[i] - x0
+        ly = py[i] - y0
+        for by in range(max(ly - r, 0) // bs, min(ly + r, bh - 1) // bs + 1):
+            for bx in range(max(lx - r, 0) // bs, min(lx + r, bw - 1) // bs + 1):
+                need[by, bx] = True
+    side = bs + 2 * r + 1
+    sat = np.empty((side, side, 6))
+    row = np.empty(6)
+    for by in range(nby):
+        for bx in range(nbx):
+            if not need[by, bx]:
+                continue
+            ra = max(by * bs - r, 0)
+            rb = min(by * bs + bs + r, bh)
+            ca = max(bx * bs - r, 0)
+            cb = min(bx * bs + bs + r, bw)
+            sh = rb - ra
+            sw = cb - ca
+            sat[: sh + 1, : sw + 1, :] = 0.0
+            for i in range(px.shape[0]):
+                ly = py[i] - y0 - ra
+                lx = px[i] - x0 - ca
+                if 0 <= ly < sh and 0 <= lx < sw:
+                    for ch in range(6):
+                        sat[ly + 1, lx + 1, ch] += acc[i, ch]
+            for yy in range(1, sh + 1):
+                for xx in range(1, sw + 1):
+                    for ch in range(6):
+                        sat[yy, xx, ch] += sat[yy - 1, xx, ch] + sat[yy, xx - 1, ch] \
+                            - sat[yy - 1, xx - 1, ch]
+            for yy in range(by * bs, min(by * bs + bs, bh)):
+                for xx in range(bx * bs, min(bx * bs + bs, bw)):
+                    ya = max(yy - r, 0) - ra
+                    yb = min(yy + r + 1, bh) - ra
+                    xa = max(xx - r, 0) - ca
+                    xb = min(xx + r + 1, bw) - ca
+                    for ch in range(6):
+                        row[ch] = (sat[yb, xb, ch] - sat[ya, xb, ch] - sat[yb, xa, ch]
+                                   + sat[ya, xa, ch])
+                    ok, vx, vy = _solve_row(row, ridge)
+                    if ok and direct:
+                        out[y0 + yy, x0 + xx, 0] = vx
+                        out[y0 + yy, x0 + xx, 1] = vy
+                        out_mask[y0 + yy, x0 + xx] = True
+                    elif ok:
+                        su[y0 + yy, x0 + xx, 0] += vx
+                        su[y0 + yy, x0 + xx, 1] += vy
+                        nbins[y0 + yy, x0 + xx] += 1
