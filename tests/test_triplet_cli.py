@@ -213,3 +213,39 @@ def test_real_evt3_file_streams(shared_data, tmp_path, capsys):
         ref = TripletMatcher(ev.sensor_size).process(ev)
         np.testing.assert_array_equal(z["vx"][:len(ev)], ref.vx)
         np.testing.assert_array_equal(z["t"][:len(ev)], ev.t)
+
+
+def test_h5_is_per_event_unless_windows_are_asked(edge_file, tmp_path, capsys):
+    """Default output: per event (no dense field is computed or written); --dense (or a
+    window option) asks for windows, written Blosc-compressed."""
+    import h5py
+
+    from evmotion.io.eventflow import read_event_flow
+
+    path, ev, _ = edge_file
+    out = tmp_path / "ev.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
+                 "--chunk-events", "300", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["output"] == "per event" and summary["windows"] == 0
+    got = read_event_flow(out)
+    ref = TripletMatcher(ev.sensor_size).process(ev)
+    np.testing.assert_array_equal(got["vx"], ref.vx)
+    np.testing.assert_array_equal(got["nx"], ref.nx)
+    np.testing.assert_array_equal(got["x"], ev.x)
+    assert got.attrs["method"] == "triplet" and got.attrs["units"] == "px/s"
+    assert "triplet_dense" not in got.attrs
+    with h5py.File(out) as f:
+        assert "flow" not in f
+    dense = tmp_path / "dense.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(dense),
+                 "--dense", "mean"]) == 0
+    ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000))
+    seq = read_flow_h5(dense)
+    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    with h5py.File(dense) as f:
+        assert "32001" in f["flow"]._filters  # Blosc
+    rc = main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "r.h5"),
+               "--resume"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "--resume" in err and "per-event" in err and "\n" not in err
