@@ -310,37 +310,51 @@ def dense_from_sums(acc, cnt, r, out, out_mask):
     """Voxel means, (2r+1)x(2r+1) non-zero average per bin (r = 1: the thesis' 3x3; r = 0:
     none), mean over the bins that hold a value: ``acc`` (B, H, W, 2) sums, ``cnt``
     (B, H, W) counts -> ``out`` (H, W, 2) float32 and ``out_mask`` (H, W) bool. Fused
-    version of the numpy functions in :mod:`evmotion.methods.triplet`."""
+    version of the numpy functions in :mod:`evmotion.methods.triplet`; only the pixels
+    within ``r`` of a voxel with events are computed (elsewhere there is no value)."""
     nb, h, w = cnt.shape
-    for yy in range(h):
-        for xx in range(w):
-            su = 0.0
-            sv = 0.0
-            nbins = 0
-            for b in range(nb):
-                bu = 0.0
-                bv = 0.0
-                nv = 0
+    out[:] = 0.0
+    out_mask[:] = False
+    need = np.zeros((h, w), np.bool_)
+    todo = np.empty(h * w, np.int64)
+    n = 0
+    for b in range(nb):
+        for yy in range(h):
+            for xx in range(w):
+                if cnt[b, yy, xx] == 0:
+                    continue
                 for qy in range(max(yy - r, 0), min(yy + r + 1, h)):
                     for qx in range(max(xx - r, 0), min(xx + r + 1, w)):
-                        c = cnt[b, qy, qx]
-                        if c > 0:
-                            # float32 voxel means, as the numpy path stores them
-                            bu += np.float32(acc[b, qy, qx, 0] / c)
-                            bv += np.float32(acc[b, qy, qx, 1] / c)
-                            nv += 1
-                if nv > 0:
-                    su += np.float32(bu / nv)
-                    sv += np.float32(bv / nv)
-                    nbins += 1
-            if nbins > 0:
-                out[yy, xx, 0] = su / nbins
-                out[yy, xx, 1] = sv / nbins
-                out_mask[yy, xx] = True
-            else:
-                out[yy, xx, 0] = 0.0
-                out[yy, xx, 1] = 0.0
-                out_mask[yy, xx] = False
+                        if not need[qy, qx]:
+                            need[qy, qx] = True
+                            todo[n] = qy * w + qx
+                            n += 1
+    for i in range(n):
+        yy = todo[i] // w
+        xx = todo[i] % w
+        su = 0.0
+        sv = 0.0
+        nbins = 0
+        for b in range(nb):
+            bu = 0.0
+            bv = 0.0
+            nv = 0
+            for qy in range(max(yy - r, 0), min(yy + r + 1, h)):
+                for qx in range(max(xx - r, 0), min(xx + r + 1, w)):
+                    c = cnt[b, qy, qx]
+                    if c > 0:
+                        # float32 voxel means, as the numpy path stores them
+                        bu += np.float32(acc[b, qy, qx, 0] / c)
+                        bv += np.float32(acc[b, qy, qx, 1] / c)
+                        nv += 1
+            if nv > 0:
+                su += np.float32(bu / nv)
+                sv += np.float32(bv / nv)
+                nbins += 1
+        if nbins > 0:
+            out[yy, xx, 0] = su / nbins
+            out[yy, xx, 1] = sv / nbins
+            out_mask[yy, xx] = True
 
 
 @njit(cache=True)
