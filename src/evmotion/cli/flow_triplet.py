@@ -156,10 +156,6 @@ def run(args) -> int:
             params["window_us"] = args.window_us
         if args.window_events is not None:
             params["window_events"] = args.window_events
-    # the same order as the keys of the files this command wrote before per-event outputs
-    order = ("dx", "dt_ms", "tau_ms", "quadruple", "bins", "depth", "dense", "filter_size",
-             "ridge", "gap_ms", "window_us", "window_events")
-    params = {k: params[k] for k in order if k in params}
 
     def stream(skip: int = 0) -> TripletStream:
         return TripletStream(
