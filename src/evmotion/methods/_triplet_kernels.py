@@ -390,58 +390,6 @@ def voxel_accumulate_normal(x, y, t, nx, ny, t0, t1, n_bins, vmax, acc, cnt):
 
 
 @njit(cache=True, inline="always")
-def _running_sum(src, r, dst):
-    """``dst[i] = sum(src[i - r : i + r + 1])`` with zero padding (1-D, any stride)."""
-    n = src.shape[0]
-    s = 0.0
-    for i in range(min(r, n)):
-        s += src[i]
-    for i in range(n):
-        if i + r < n:
-            s += src[i + r]
-        dst[i] = s
-        if i - r >= 0:
-            s -= src[i - r]
-
-
-@njit(cache=True)
-def _box_sum(a, r, tmp, out):
-    """(2r+1)x(2r+1) sums of ``a`` (H, W, C) with zero padding: rows, then columns."""
-    h, w, c = a.shape
-    for ch in range(c):
-        for yy in range(h):
-            _running_sum(a[yy, :, ch], r, tmp[yy, :, ch])
-        for xx in range(w):
-            _running_sum(tmp[:, xx, ch], r, out[:, xx, ch])
-
-
-@njit(cache=True, inline="always")
-def _solve_normal(box, yy, xx, ridge, v):
-    """Flow ``v[yy, xx]`` from the box-summed normal equations ``[M11, M12, M22, r1, r2]``,
-    ``(M + ridge tr(M)/2 I) v = r``; False where the neighbourhood holds no event, where its
-    events' weights (the trace: unit normals) all but vanish, or where ``M`` is singular."""
-    if box[yy, xx, 5] < 0.5:
-        return False
-    m11 = box[yy, xx, 0]
-    m12 = box[yy, xx, 1]
-    m22 = box[yy, xx, 2]
-    # Sliding sums leave rounding residue where every weight is zero.
-    if not m11 + m22 > 1e-9 * box[yy, xx, 5]:
-        return False
-    eps = ridge * 0.5 * (m11 + m22)
-    m11 += eps
-    m22 += eps
-    det = m11 * m22 - m12 * m12
-    if not det > 0.0:
-        return False
-    r1 = box[yy, xx, 3]
-    r2 = box[yy, xx, 4]
-    v[yy, xx, 0] = (m22 * r1 - m12 * r2) / det
-    v[yy, xx, 1] = (m11 * r2 - m12 * r1) / det
-    return True
-
-
-@njit(cache=True, inline="always")
 def _mean_over_bins(su, nbins, out, out_mask):
     """``out`` = per-pixel sum ``su`` (H, W, 2) over ``nbins`` bins, 0 and masked out where 0."""
     h, w = nbins.shape
@@ -458,34 +406,50 @@ def dense_lsq_from_sums(acc, cnt, r, ridge, out, out_mask):
     """Per bin, the flow that best meets the normal-flow constraints of a (2r+1)^2
     neighbourhood, ``(M + ridge tr(M)/2 I) v = sum u`` with ``M = sum n n^T``; then the mean
     over the bins that hold a value. ``acc``/``cnt`` from :func:`voxel_accumulate_normal`;
-    ``out`` (H, W, 2) float32 px/s, ``out_mask`` (H, W) bool."""
+    ``out`` (H, W, 2) float32 px/s, ``out_mask`` (H, W) bool. Only the pixels within ``r``
+    of a voxel with events are fitted (:func:`_final_fit`); elsewhere there is no flow."""
     nb, h, w = cnt.shape
-    c6 = np.empty((h, w, 6))
-    tmp = np.empty((h, w, 6))
-    box = np.empty((h, w, 6))
-    v = np.empty((h, w, 2))
-    su = np.zeros((h, w, 2))
-    nbins = np.zeros((h, w), np.int64)
+    direct = nb == 1
+    out[:] = 0.0
+    out_mask[:] = False
+    su = np.zeros((1, 1, 2)) if direct else np.zeros((h, w, 2))
+    nbins = np.zeros((1, 1), np.int64) if direct else np.zeros((h, w), np.int64)
     for b in range(nb):
+        m = 0
         for yy in range(h):
             for xx in range(w):
-                for ch in range(5):
-                    c6[yy, xx, ch] = acc[b, yy, xx, ch]
-                c6[yy, xx, 5] = cnt[b, yy, xx]
-        _box_sum(c6, r, tmp, box)
+                if cnt[b, yy, xx] > 0:
+                    m += 1
+        if m == 0:
+            continue
+        px = np.empty(m, np.int64)
+        py = np.empty(m, np.int64)
+        rows = np.empty((m, 6))
+        i = 0
         for yy in range(h):
             for xx in range(w):
-                if _solve_normal(box, yy, xx, ridge, v):
-                    su[yy, xx, 0] += v[yy, xx, 0]
-                    su[yy, xx, 1] += v[yy, xx, 1]
-                    nbins[yy, xx] += 1
-    _mean_over_bins(su, nbins, out, out_mask)
+                if cnt[b, yy, xx] > 0:
+                    px[i] = xx
+                    py[i] = yy
+                    for ch in range(5):
+                        rows[i, ch] = acc[b, yy, xx, ch]
+                    rows[i, 5] = cnt[b, yy, xx]
+                    i += 1
+        x0 = max(np.min(px) - r, 0)
+        y0 = max(np.min(py) - r, 0)
+        bw = min(np.max(px) + r + 1, w) - x0
+        bh = min(np.max(py) + r + 1, h) - y0
+        _final_fit(rows, px, py, x0, y0, bh, bw, r, ridge, su, nbins, direct, out, out_mask)
+    if not direct:
+        _mean_over_bins(su, nbins, out, out_mask)
 
 
 @njit(cache=True, inline="always")
 def _solve_row(b, ridge):
-    """:func:`_solve_normal` on one box-summed row ``b`` = ``[M11, M12, M22, r1, r2, n]``:
-    ``(ok, vx, vy)``."""
+    """Flow from one box-summed row of normal equations ``b`` = ``[M11, M12, M22, r1, r2,
+    n]``, ``(M + ridge tr(M)/2 I) v = r``: ``(ok, vx, vy)``; not ok where the neighbourhood
+    holds no event (``n``), where its events' weights (the trace: unit normals) all but
+    vanish, or where the system is singular."""
     if b[5] < 0.5:
         return False, 0.0, 0.0
     m11 = b[0]
