@@ -9,8 +9,9 @@ runs, the variants interleaved (A B C A B C ...) so that a change of load on the
 machine reaches all alike; CPU time (user + sys of the child) beside wall time. "before" runs
 the same commands on main's code (``EVMOTION_BEFORE_SRC``, default ``/work/main/src``).
 ``--dense robust``: the full file after; before only on a 120k-event cut (main took 438 s on
-the full file), with the per-window time of both on that cut; and the agreement of the re-written robust fit with
-main's on real windows (same masks; flow differences in px/s).
+the full file), with the per-window time of both on that cut; ``--dense lsq`` on the full
+file; and the agreement of the re-written robust fit with main's on real windows (same
+masks; flow differences in px/s).
 
 ``python benchmarks/run.py triplet_cli [--quick]``
 """
@@ -67,6 +68,13 @@ def _run(argv: list[str], src: Path, cpu: int) -> tuple[float, float, str]:
         raise RuntimeError(f"{argv}: exit {p.returncode}: {p.stderr.strip()[-500:]}")
     cpu_s = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return wall, cpu_s, p.stdout
+
+
+def _h5_t1(path: Path):
+    import h5py
+
+    with h5py.File(path) as f:
+        return f["t1"][()]
 
 
 def _size(path: Path) -> int:
@@ -145,7 +153,8 @@ def main(quick: bool = False) -> list[dict]:
              "children's CPU time (the 2-core machine is shared by other jobs: CPU time "
              "excludes their work, wall time does not). before = main's code "
              f"({BEFORE_SRC}). Robust rows: --dense robust --out x.h5 (after, Blosc-LZ4) and "
-             "--out x.npy (before, as the issue's 1.59 GB run); before on the 120k cut only.")
+             "--out x.npy (before, as the issue's 1.59 GB run); before on the 120k cut only. "
+             "--dense lsq rows: the full file, .h5 (after Blosc-LZ4, before gzip).")
     harness.record("triplet_cli", rows, notes)
     return rows
 
@@ -187,13 +196,15 @@ def _robust(files, n_ev, tmp, cpu, repeat) -> list[dict]:
     rows = []
     runs = [("after: --dense robust --out x.h5", SRC, "big", ".h5", repeat),
             ("after: --dense robust --out x.h5", SRC, "cut", ".h5", repeat),
-            ("before: --dense robust --out x.npy", BEFORE_SRC, "cut", ".npy", 1)]
+            ("before: --dense robust --out x.npy", BEFORE_SRC, "cut", ".npy", 1),
+            ("after: --dense lsq --out x.h5", SRC, "big", ".h5", repeat),
+            ("before: --dense lsq --out x.h5", BEFORE_SRC, "big", ".h5", 1)]
     for name, src, f, suffix, reps in runs:
-        out = tmp / f"robust_{abs(hash(name))}_{f}{suffix}"
+        out = tmp / f"dense_{abs(hash(name))}_{f}{suffix}"
         argv = ["-m", "evmotion", "flow", str(files[f]), "--method", "triplet", "--dense",
-                "robust", "--out", str(out), "--json"] if suffix == ".h5" else \
-            ["-m", "evmotion", "flow", str(files[f]), "--method", "triplet", "--dense",
-             "robust", "--out", str(out)]
+                name.split("--dense ")[1].split()[0], "--out", str(out)]
+        if suffix == ".h5":
+            argv.append("--json")
         walls, cpus, n_win = [], [], None
         for _ in range(reps):
             wall, cpu_s, stdout = _run(argv, src, cpu)
@@ -201,6 +212,8 @@ def _robust(files, n_ev, tmp, cpu, repeat) -> list[dict]:
             cpus.append(cpu_s)
             if stdout.strip():
                 n_win = json.loads(stdout)["windows"]
+            elif suffix == ".h5":
+                n_win = len(_h5_t1(out))
         if n_win is None:
             import numpy as np
 
