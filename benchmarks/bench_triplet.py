@@ -16,8 +16,10 @@ import numpy as np
 
 import harness
 from evmotion.events import EventArray
-from evmotion.methods._triplet_reference import triplet_reference
 from evmotion.methods.triplet import TripletMatcher
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from _triplet_reference import triplet_reference
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 THESIS_MS_PER_EVENT = 0.0934

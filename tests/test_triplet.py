@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _triplet_reference import triplet_reference
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray
-from evmotion.methods._triplet_reference import triplet_reference
 from evmotion.methods.triplet import (
     TripletFlow,
     TripletMatcher,

@@ -94,27 +94,31 @@ def test_wider_filter_option(edge_file, tmp_path):
     assert seq.attrs["triplet_filter_size"] == 5
 
 
-def test_npy_and_flo_outputs_match_the_api(edge_file, tmp_path):
+def test_dense_h5_and_flo_outputs_match_the_api(edge_file, tmp_path):
     from evmotion.io.flowfiles import read_flo
 
     path, ev, _ = edge_file
     wins = ev.windows_by_duration(50_000)
     ref = estimate_flow_triplet(ev, wins)
-    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "f.npy"),
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "f.h5"),
                  "--window-us", "50000", "--chunk-events", "300"]) == 0
-    arr = np.load(tmp_path / "f.npy")
+    arr = read_flow_h5(tmp_path / "f.h5").flow
     assert arr.dtype == np.float32 and arr.shape == ref.flows.shape
     np.testing.assert_allclose(arr, ref.flows, rtol=1e-5, atol=1e-3)
-    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "f.flo"),
-                 "--window-us", "50000"]) == 0
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "f.npy"),
+                 "--window-us", "50000"]) == 2
+    assert main(["flow", str(path), "--method", "triplet", "--out",
+                 str(tmp_path / "f_{:05d}.flo"), "--window-us", "50000"]) == 0
     for i in range(len(wins)):
-        disp = read_flo(tmp_path / f"f_{i:04d}.flo")
-        np.testing.assert_allclose(disp, ref.displacement(i), rtol=1e-5, atol=1e-4)
+        disp = read_flo(tmp_path / f"f_{i:05d}.flo")
+        known = np.isfinite(disp).all(axis=-1)  # Middlebury's "unknown" where not valid
+        np.testing.assert_allclose(disp[known], ref.displacement(i)[known], rtol=1e-5,
+                                   atol=1e-4)
     assert not (tmp_path / "f.flo").exists()
     one = tmp_path / "one.flo"
     assert main(["flow", str(path), "--method", "triplet", "--out", str(one),
                  "--window-us", "1000000"]) == 0
-    assert one.exists() and not (tmp_path / "one_0000.flo").exists()
+    assert one.exists() and not (tmp_path / "one_00000.flo").exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
@@ -154,7 +158,7 @@ def test_dense_robust_option_matches_the_api(edge_file, tmp_path, chunk):
 def test_bad_options_are_reported(edge_file, tmp_path, capsys):
     path, _, _ = edge_file
     assert main(["flow", str(path), "--method", "triplet", "--out",
-                 str(tmp_path / "x.png")]) == 2
+                 str(tmp_path / "x.txt")]) == 2
     assert "must end in .h5" in capsys.readouterr().err
     assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "x.h5"),
                  "--dense", "lsq", "--ridge", "nan"]) == 2
@@ -213,3 +217,39 @@ def test_real_evt3_file_streams(shared_data, tmp_path, capsys):
         ref = TripletMatcher(ev.sensor_size).process(ev)
         np.testing.assert_array_equal(z["vx"][:len(ev)], ref.vx)
         np.testing.assert_array_equal(z["t"][:len(ev)], ev.t)
+
+
+def test_h5_is_per_event_unless_windows_are_asked(edge_file, tmp_path, capsys):
+    """Default output: per event (no dense field is computed or written); --dense (or a
+    window option) asks for windows, written Blosc-compressed."""
+    import h5py
+
+    from evmotion.io.eventflow import read_event_flow
+
+    path, ev, _ = edge_file
+    out = tmp_path / "ev.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
+                 "--chunk-events", "300", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["output"] == "per event" and summary["windows"] == 0
+    got = read_event_flow(out)
+    ref = TripletMatcher(ev.sensor_size).process(ev)
+    np.testing.assert_array_equal(got["vx"], ref.vx)
+    np.testing.assert_array_equal(got["nx"], ref.nx)
+    np.testing.assert_array_equal(got["x"], ev.x)
+    assert got.attrs["method"] == "triplet" and got.attrs["units"] == "px/s"
+    assert "triplet_dense" not in got.attrs
+    with h5py.File(out) as f:
+        assert "flow" not in f
+    dense = tmp_path / "dense.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(dense),
+                 "--dense", "mean"]) == 0
+    ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000))
+    seq = read_flow_h5(dense)
+    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    with h5py.File(dense) as f:
+        assert "32001" in f["flow"]._filters  # Blosc
+    rc = main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "r.h5"),
+               "--resume"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "--resume" in err and "per-event" in err and "\n" not in err

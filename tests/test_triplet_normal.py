@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from _helpers import mean_window_aee
+from _triplet_reference import triplet_reference
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
-from evmotion.methods._triplet_reference import triplet_reference
 from evmotion.methods.triplet import (
     TripletFlow,
     TripletMatcher,

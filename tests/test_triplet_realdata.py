@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _triplet_reference import triplet_reference
 from evmotion.events import EventArray
-from evmotion.methods._triplet_reference import triplet_reference
 from evmotion.methods.triplet import (
     TripletFlow,
     TripletMatcher,

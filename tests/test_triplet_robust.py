@@ -136,3 +136,18 @@ def test_simulated_translation_robust_is_near_exact():
     assert a_rob < 0.5 * mean_window_aee(res, wins, dense="lsq")
     out = estimate_flow_triplet(res.events, wins[:1], dense="robust")
     assert out.bursts is not None and len(out.burst_flow) == len(out.bursts) < len(res.events)
+
+
+@pytest.mark.parametrize(("n", "shape", "size"), [(80, (120, 160), 9), (300, (90, 200), 21)])
+def test_sparse_events_match_numpy(n, shape, size):
+    """Few events on a large sensor: the fit works on neighbour lists of the active pixels
+    and on the region around them only; the result is the full-frame fit's."""
+    ev, fl = _constraints(n, shape, np.array([-60.0, 45.0]), 0.3, seed=n)
+    got, mask = dense_robust_fit(ev, fl, 0, 1000, filter_size=size, ridge=1e-3, c=0.3,
+                                 iters=5)
+    u = np.stack([fl.nx, fl.ny], 1).astype(np.float64)
+    ref, rmask = _robust_numpy(ev.x.astype(int), ev.y.astype(int), u, ev.sensor_size,
+                               size // 2, 1e-3, 0.3, 5)
+    np.testing.assert_array_equal(mask, rmask)
+    np.testing.assert_allclose(got[mask], ref[mask], rtol=1e-4, atol=1e-3)
+    assert not got[~mask].any()

@@ -17,7 +17,8 @@ and its validity mask (the pixels whose flow events support), by ``--out`` exten
 not valid; ``NAME.flo.json`` beside it keeps ``dt_s``, ``t0_us``, ``t1_us`` and units) and
 ``.png`` (DSEC 16-bit *displacement*, the benchmark's format, with the same JSON sidecar).
 ``.flo``/``.png`` hold one window per file: several windows need an explicit pattern,
-``--out flow_{:05d}.flo``. (``--method triplet`` writes ``.npz`` per event.) Pictures in
+``--out flow_{:05d}.flo``. (``--method triplet`` writes its per-event flow to ``.h5`` or
+``.npz``, :mod:`evmotion.io.eventflow`, and dense windows only when asked.) Pictures in
 ``--png-dir`` are numbered with 5 digits (``flow_00000.png``).
 
 An ``.h5`` output is written window by window to ``OUT.part`` and renamed when complete;
@@ -79,11 +80,6 @@ DV XML or JSON intrinsics)
 """
 
 OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz", ".png")
-# the outputs of a method that does not write through evmotion.io.flowout yet (all others:
-# OUTPUT_SUFFIXES, their check_args refusing .npy)
-METHOD_OUTPUTS: dict[str, tuple[str, ...]] = {
-    "triplet": (".h5", ".hdf5", ".npy", ".flo", ".npz"),
-}
 
 
 def _method_modules():
@@ -106,8 +102,9 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True,
                    type=writable_output(OUTPUT_SUFFIXES, "a flow file (.h5, .npz: all "
                                         "windows; .flo, .png: per window)"),
-                   help="output: .h5 (all windows, px/s, t0/t1, valid; resumable), .npz (the "
-                        "same arrays; triplet: per event), .flo (Middlebury displacement in "
+                   help="output: .h5 (all windows, px/s, t0/t1, valid; resumable; triplet: "
+                        "per event unless --dense or a window option), .npz (the same "
+                        "arrays; triplet: per event), .flo (Middlebury displacement in "
                         "px, dt/t0/t1 in NAME.flo.json) or .png (DSEC 16-bit displacement, "
                         "same sidecar); several .flo/.png windows need a pattern: "
                         "--out flow_{:05d}.flo")
@@ -153,10 +150,6 @@ def run(args) -> int:
     if args.resume and args.out.lower().endswith((".npy", ".flo", ".npz", ".png")):
         raise ParameterError(f"--resume continues an .h5 output; --out {args.out} is written "
                              "whole at the end (an interrupted run leaves nothing)")
-    suffixes = METHOD_OUTPUTS.get(args.method, OUTPUT_SUFFIXES)
-    if not args.out.lower().endswith(suffixes):
-        raise ParameterError(f"--out {args.out}: with --method {args.method} the name must end "
-                             f"in {', '.join(suffixes)}")
     for name, modname in FLOW_METHODS.items():
         if name != args.method:
             options = importlib.import_module(modname).OPTIONS
@@ -189,13 +182,3 @@ def summary_line(args, seconds: float) -> str:
                                                   f"({len(outputs)} files)"
     parts.append(f"{seconds:.1f} s -> {shown}")
     return " ".join(parts)
-
-
-def __getattr__(name: str):
-    # the .h5 sink moved to evmotion.io.flowout; flow_triplet still takes it from here
-    # (imported on demand: `evmotion --help` does not load the io package)
-    if name == "H5Output":
-        from evmotion.io.flowout import H5FlowOutput
-
-        return H5FlowOutput
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -310,37 +310,51 @@ def dense_from_sums(acc, cnt, r, out, out_mask):
     """Voxel means, (2r+1)x(2r+1) non-zero average per bin (r = 1: the thesis' 3x3; r = 0:
     none), mean over the bins that hold a value: ``acc`` (B, H, W, 2) sums, ``cnt``
     (B, H, W) counts -> ``out`` (H, W, 2) float32 and ``out_mask`` (H, W) bool. Fused
-    version of the numpy functions in :mod:`evmotion.methods.triplet`."""
+    version of the numpy functions in :mod:`evmotion.methods.triplet`; only the pixels
+    within ``r`` of a voxel with events are computed (elsewhere there is no value)."""
     nb, h, w = cnt.shape
-    for yy in range(h):
-        for xx in range(w):
-            su = 0.0
-            sv = 0.0
-            nbins = 0
-            for b in range(nb):
-                bu = 0.0
-                bv = 0.0
-                nv = 0
+    out[:] = 0.0
+    out_mask[:] = False
+    need = np.zeros((h, w), np.bool_)
+    todo = np.empty(h * w, np.int64)
+    n = 0
+    for b in range(nb):
+        for yy in range(h):
+            for xx in range(w):
+                if cnt[b, yy, xx] == 0:
+                    continue
                 for qy in range(max(yy - r, 0), min(yy + r + 1, h)):
                     for qx in range(max(xx - r, 0), min(xx + r + 1, w)):
-                        c = cnt[b, qy, qx]
-                        if c > 0:
-                            # float32 voxel means, as the numpy path stores them
-                            bu += np.float32(acc[b, qy, qx, 0] / c)
-                            bv += np.float32(acc[b, qy, qx, 1] / c)
-                            nv += 1
-                if nv > 0:
-                    su += np.float32(bu / nv)
-                    sv += np.float32(bv / nv)
-                    nbins += 1
-            if nbins > 0:
-                out[yy, xx, 0] = su / nbins
-                out[yy, xx, 1] = sv / nbins
-                out_mask[yy, xx] = True
-            else:
-                out[yy, xx, 0] = 0.0
-                out[yy, xx, 1] = 0.0
-                out_mask[yy, xx] = False
+                        if not need[qy, qx]:
+                            need[qy, qx] = True
+                            todo[n] = qy * w + qx
+                            n += 1
+    for i in range(n):
+        yy = todo[i] // w
+        xx = todo[i] % w
+        su = 0.0
+        sv = 0.0
+        nbins = 0
+        for b in range(nb):
+            bu = 0.0
+            bv = 0.0
+            nv = 0
+            for qy in range(max(yy - r, 0), min(yy + r + 1, h)):
+                for qx in range(max(xx - r, 0), min(xx + r + 1, w)):
+                    c = cnt[b, qy, qx]
+                    if c > 0:
+                        # float32 voxel means, as the numpy path stores them
+                        bu += np.float32(acc[b, qy, qx, 0] / c)
+                        bv += np.float32(acc[b, qy, qx, 1] / c)
+                        nv += 1
+            if nv > 0:
+                su += np.float32(bu / nv)
+                sv += np.float32(bv / nv)
+                nbins += 1
+        if nbins > 0:
+            out[yy, xx, 0] = su / nbins
+            out[yy, xx, 1] = sv / nbins
+            out_mask[yy, xx] = True
 
 
 @njit(cache=True)
@@ -376,58 +390,6 @@ def voxel_accumulate_normal(x, y, t, nx, ny, t0, t1, n_bins, vmax, acc, cnt):
 
 
 @njit(cache=True, inline="always")
-def _running_sum(src, r, dst):
-    """``dst[i] = sum(src[i - r : i + r + 1])`` with zero padding (1-D, any stride)."""
-    n = src.shape[0]
-    s = 0.0
-    for i in range(min(r, n)):
-        s += src[i]
-    for i in range(n):
-        if i + r < n:
-            s += src[i + r]
-        dst[i] = s
-        if i - r >= 0:
-            s -= src[i - r]
-
-
-@njit(cache=True)
-def _box_sum(a, r, tmp, out):
-    """(2r+1)x(2r+1) sums of ``a`` (H, W, C) with zero padding: rows, then columns."""
-    h, w, c = a.shape
-    for ch in range(c):
-        for yy in range(h):
-            _running_sum(a[yy, :, ch], r, tmp[yy, :, ch])
-        for xx in range(w):
-            _running_sum(tmp[:, xx, ch], r, out[:, xx, ch])
-
-
-@njit(cache=True, inline="always")
-def _solve_normal(box, yy, xx, ridge, v):
-    """Flow ``v[yy, xx]`` from the box-summed normal equations ``[M11, M12, M22, r1, r2]``,
-    ``(M + ridge tr(M)/2 I) v = r``; False where the neighbourhood holds no event, where its
-    events' weights (the trace: unit normals) all but vanish, or where ``M`` is singular."""
-    if box[yy, xx, 5] < 0.5:
-        return False
-    m11 = box[yy, xx, 0]
-    m12 = box[yy, xx, 1]
-    m22 = box[yy, xx, 2]
-    # Sliding sums leave rounding residue where every weight is zero.
-    if not m11 + m22 > 1e-9 * box[yy, xx, 5]:
-        return False
-    eps = ridge * 0.5 * (m11 + m22)
-    m11 += eps
-    m22 += eps
-    det = m11 * m22 - m12 * m12
-    if not det > 0.0:
-        return False
-    r1 = box[yy, xx, 3]
-    r2 = box[yy, xx, 4]
-    v[yy, xx, 0] = (m22 * r1 - m12 * r2) / det
-    v[yy, xx, 1] = (m11 * r2 - m12 * r1) / det
-    return True
-
-
-@njit(cache=True, inline="always")
 def _mean_over_bins(su, nbins, out, out_mask):
     """``out`` = per-pixel sum ``su`` (H, W, 2) over ``nbins`` bins, 0 and masked out where 0."""
     h, w = nbins.shape
@@ -444,28 +406,124 @@ def dense_lsq_from_sums(acc, cnt, r, ridge, out, out_mask):
     """Per bin, the flow that best meets the normal-flow constraints of a (2r+1)^2
     neighbourhood, ``(M + ridge tr(M)/2 I) v = sum u`` with ``M = sum n n^T``; then the mean
     over the bins that hold a value. ``acc``/``cnt`` from :func:`voxel_accumulate_normal`;
-    ``out`` (H, W, 2) float32 px/s, ``out_mask`` (H, W) bool."""
+    ``out`` (H, W, 2) float32 px/s, ``out_mask`` (H, W) bool. Only the pixels within ``r``
+    of a voxel with events are fitted (:func:`_final_fit`); elsewhere there is no flow."""
     nb, h, w = cnt.shape
-    c6 = np.empty((h, w, 6))
-    tmp = np.empty((h, w, 6))
-    box = np.empty((h, w, 6))
-    v = np.empty((h, w, 2))
-    su = np.zeros((h, w, 2))
-    nbins = np.zeros((h, w), np.int64)
+    direct = nb == 1
+    out[:] = 0.0
+    out_mask[:] = False
+    su = np.zeros((1, 1, 2)) if direct else np.zeros((h, w, 2))
+    nbins = np.zeros((1, 1), np.int64) if direct else np.zeros((h, w), np.int64)
     for b in range(nb):
+        m = 0
         for yy in range(h):
             for xx in range(w):
-                for ch in range(5):
-                    c6[yy, xx, ch] = acc[b, yy, xx, ch]
-                c6[yy, xx, 5] = cnt[b, yy, xx]
-        _box_sum(c6, r, tmp, box)
+                if cnt[b, yy, xx] > 0:
+                    m += 1
+        if m == 0:
+            continue
+        px = np.empty(m, np.int64)
+        py = np.empty(m, np.int64)
+        rows = np.empty((m, 6))
+        i = 0
         for yy in range(h):
             for xx in range(w):
-                if _solve_normal(box, yy, xx, ridge, v):
-                    su[yy, xx, 0] += v[yy, xx, 0]
-                    su[yy, xx, 1] += v[yy, xx, 1]
-                    nbins[yy, xx] += 1
-    _mean_over_bins(su, nbins, out, out_mask)
+                if cnt[b, yy, xx] > 0:
+                    px[i] = xx
+                    py[i] = yy
+                    for ch in range(5):
+                        rows[i, ch] = acc[b, yy, xx, ch]
+                    rows[i, 5] = cnt[b, yy, xx]
+                    i += 1
+        x0 = max(np.min(px) - r, 0)
+        y0 = max(np.min(py) - r, 0)
+        bw = min(np.max(px) + r + 1, w) - x0
+        bh = min(np.max(py) + r + 1, h) - y0
+        _final_fit(rows, px, py, x0, y0, bh, bw, r, ridge, su, nbins, direct, out, out_mask)
+    if not direct:
+        _mean_over_bins(su, nbins, out, out_mask)
+
+
+@njit(cache=True, inline="always")
+def _solve_row(b, ridge):
+    """Flow from one box-summed row of normal equations ``b`` = ``[M11, M12, M22, r1, r2,
+    n]``, ``(M + ridge tr(M)/2 I) v = r``: ``(ok, vx, vy)``; not ok where the neighbourhood
+    holds no event (``n``), where its events' weights (the trace: unit normals) all but
+    vanish, or where the system is singular."""
+    if b[5] < 0.5:
+        return False, 0.0, 0.0
+    m11 = b[0]
+    m12 = b[1]
+    m22 = b[2]
+    # Summed-area differences leave rounding residue where every weight is zero.
+    if not m11 + m22 > 1e-9 * b[5]:
+        return False, 0.0, 0.0
+    eps = ridge * 0.5 * (m11 + m22)
+    m11 += eps
+    m22 += eps
+    det = m11 * m22 - m12 * m12
+    if not det > 0.0:
+        return False, 0.0, 0.0
+    return True, (m22 * b[3] - m12 * b[4]) / det, (m11 * b[4] - m12 * b[3]) / det
+
+
+@njit(cache=True)
+def _row_segments(px, py, r):
+    """For the active pixels ``(px, py)`` sorted by row then column: the neighbours of each
+    within the (2r+1)^2 box around it, as one run of the sorted order per row of the box,
+    CSR ``(start, seg)`` with ``seg[s] = (first, stop)``."""
+    m = px.shape[0]
+    h = np.max(py) + 1
+    row_start = np.zeros(h + 1, np.int64)
+    for i in range(m):
+        row_start[py[i] + 1] += 1
+    for yy in range(h):
+        row_start[yy + 1] += row_start[yy]
+    start = np.zeros(m + 1, np.int64)
+    seg = np.empty((m * (2 * r + 1), 2), np.int64)
+    n = 0
+    for i in range(m):
+        start[i] = n
+        for yy in range(max(py[i] - r, 0), min(py[i] + r + 1, h)):
+            rs = row_start[yy]
+            re = row_start[yy + 1]
+            if rs == re:
+                continue
+            a = rs + np.searchsorted(px[rs:re], px[i] - r)
+            b = rs + np.searchsorted(px[rs:re], px[i] + r, side="right")
+            if a < b:
+                seg[n, 0] = a
+                seg[n, 1] = b
+                n += 1
+    start[m] = n
+    return start, seg[:n]
+
+
+@njit(cache=True)
+def _box_at(acc, px, py, x0, y0, bh, bw, r, sat, box):
+    """(2r+1)^2 box sums of the per-pixel rows ``acc`` (P, 6) at the active pixels, through
+    a summed-area table ``sat`` over the ``bh`` x ``bw`` region at ``(x0, y0)``."""
+    sat[: bh + 1, : bw + 1, :] = 0.0
+    for i in range(px.shape[0]):
+        for ch in range(6):
+            sat[py[i] - y0 + 1, px[i] - x0 + 1, ch] += acc[i, ch]
+    for yy in range(1, bh + 1):
+        for xx in range(1, bw + 1):
+            for ch in range(6):
+                sat[yy, xx, ch] += sat[yy - 1, xx, ch] + sat[yy, xx - 1, ch] \
+                    - sat[yy - 1, xx - 1, ch]
+    for i in range(px.shape[0]):
+        _sat_query(sat, py[i] - y0, px[i] - x0, bh, bw, r, box[i])
+
+
+@njit(cache=True)
+def _sat_query(sat, yy, xx, bh, bw, r, dst):
+    ya = max(yy - r, 0)
+    yb = min(yy + r + 1, bh)
+    xa = max(xx - r, 0)
+    xb = min(xx + r + 1, bw)
+    for ch in range(6):
+        dst[ch] = sat[yb, xb, ch] - sat[ya, xb, ch] - sat[yb, xa, ch] + sat[ya, xa, ch]
 
 
 @njit(cache=True)
@@ -474,61 +532,197 @@ def dense_robust(x, y, t, nx, ny, t0, t1, n_bins, vmax, r, ridge, c, iters, out,
     bin, ``iters`` re-weightings of the neighbourhood fit, each event's normal-flow
     constraint weighted by Tukey's biweight of its relative residual
     ``(v . n - |u|) / |u|`` (zero beyond ``c``) under the flow ``v`` of its own pixel.
-    Events outside ``[t0, t1)`` or with ``|u|`` = 0 or over ``vmax`` are left out."""
+    Events outside ``[t0, t1)`` or with ``|u|`` = 0 or over ``vmax`` are left out.
+
+    Only the bin's active pixels enter the re-weightings (their box sums from runs of
+    neighbours in row order, or a summed-area table over the active region when the runs
+    would be longer),
+    and the final fit covers the active region grown by ``r``: outside it no event is near,
+    so there is no flow. The work follows the events, not the sensor."""
     h, w = out_mask.shape
     n = t.shape[0]
     span = float(t1 - t0)
     bin_of = np.empty(n, np.int64)
+    per_bin = np.zeros(n_bins + 1, np.int64)
     for k in range(n):
-        s2 = float(nx[k]) * nx[k] + float(ny[k]) * ny[k]
+        s2 = np.float64(nx[k]) * nx[k] + np.float64(ny[k]) * ny[k]
         if t[k] < t0 or t[k] >= t1 or not (s2 > 0.0 and s2 <= vmax * vmax):
             bin_of[k] = -1
         else:
             bin_of[k] = min(int((t[k] - t0) * n_bins / span), n_bins - 1)
-    wgt = np.ones(n)
-    c6 = np.empty((h, w, 6))
-    tmp = np.empty((h, w, 6))
-    box = np.empty((h, w, 6))
-    v = np.empty((h, w, 2))
-    ok = np.empty((h, w), np.bool_)
-    su = np.zeros((h, w, 2))
-    nbins = np.zeros((h, w), np.int64)
+            per_bin[bin_of[k] + 1] += 1
     for b in range(n_bins):
+        per_bin[b + 1] += per_bin[b]
+    order = np.empty(per_bin[n_bins], np.int64)
+    fill = per_bin[:-1].copy()
+    for k in range(n):
+        if bin_of[k] >= 0:
+            order[fill[bin_of[k]]] = k
+            fill[bin_of[k]] += 1
+    # constraint rows of the events: [n_x^2, n_x n_y, n_y^2, u_x, u_y] (n = u / |u|)
+    rows = np.empty((order.shape[0], 5))
+    for j in range(order.shape[0]):
+        k = order[j]
+        ux = np.float64(nx[k])
+        uy = np.float64(ny[k])
+        s2 = ux * ux + uy * uy
+        rows[j, 0] = ux * ux / s2
+        rows[j, 1] = ux * uy / s2
+        rows[j, 2] = uy * uy / s2
+        rows[j, 3] = ux
+        rows[j, 4] = uy
+    # one bin: the fits go straight to the output (no per-pixel sums over bins to average)
+    direct = n_bins == 1
+    out[:] = 0.0
+    out_mask[:] = False
+    su = np.zeros((1, 1, 2)) if direct else np.zeros((h, w, 2))
+    nbins = np.zeros((1, 1), np.int64) if direct else np.zeros((h, w), np.int64)
+    pid = np.full(h * w, -1, np.int32)
+    sat = np.empty((0, 0, 6))
+    for b in range(n_bins):
+        lo = per_bin[b]
+        hi = per_bin[b + 1]
+        m = hi - lo
+        if m == 0:
+            continue
+        # the bin's active pixels, and each event's
+        ev_pix = np.empty(m, np.int64)
+        px = np.empty(m, np.int64)
+        py = np.empty(m, np.int64)
+        npx = 0
+        for j in range(m):
+            k = order[lo + j]
+            q = y[k] * w + x[k]
+            if pid[q] < 0:
+                pid[q] = npx
+                px[npx] = x[k]
+                py[npx] = y[k]
+                npx += 1
+            ev_pix[j] = pid[q]
+        # sorted by row, then column: a box's neighbours are one run per row
+        key = np.empty(npx, np.int64)
+        for i in range(npx):
+            key[i] = py[i] * w + px[i]
+            pid[key[i]] = -1
+        perm = np.argsort(key)
+        rank = np.empty(npx, np.int64)
+        for i in range(npx):
+            rank[perm[i]] = i
+        for j in range(m):
+            ev_pix[j] = rank[ev_pix[j]]
+        px = px[:npx][perm]
+        py = py[:npx][perm]
+        x0 = max(np.min(px) - r, 0)
+        y0 = max(np.min(py) - r, 0)
+        bw = min(np.max(px) + r + 1, w) - x0
+        bh = min(np.max(py) + r + 1, h) - y0
+        if sat.shape[0] < bh + 1 or sat.shape[1] < bw + 1:
+            sat = np.empty((max(bh + 1, sat.shape[0]), max(bw + 1, sat.shape[1]), 6))
+        # row runs of neighbours while they cost less than a summed-area table of the region
+        runs = npx * (2 * r + 1) <= 2 * (bh + 1) * (bw + 1)
+        if runs:
+            start, seg = _row_segments(px, py, r)
+        wgt = np.ones(m)
+        acc = np.empty((npx, 6))
+        box = np.empty((npx, 6))
+        pre = np.empty((npx + 1, 6))
         for it in range(iters + 1):
-            c6[:] = 0.0
-            for k in range(n):
-                if bin_of[k] != b:
-                    continue
-                ux = float(nx[k])
-                uy = float(ny[k])
-                s2 = ux * ux + uy * uy
-                wk = wgt[k]
-                yk = y[k]
-                xk = x[k]
-                c6[yk, xk, 0] += wk * ux * ux / s2
-                c6[yk, xk, 1] += wk * ux * uy / s2
-                c6[yk, xk, 2] += wk * uy * uy / s2
-                c6[yk, xk, 3] += wk * ux
-                c6[yk, xk, 4] += wk * uy
-                c6[yk, xk, 5] += 1.0
-            _box_sum(c6, r, tmp, box)
-            for yy in range(h):
-                for xx in range(w):
-                    ok[yy, xx] = _solve_normal(box, yy, xx, ridge, v)
+            acc[:] = 0.0
+            for j in range(m):
+                i = ev_pix[j]
+                wk = wgt[j]
+                for ch in range(5):
+                    acc[i, ch] += wk * rows[lo + j, ch]
+                acc[i, 5] += 1.0
             if it == iters:
                 break
-            for k in range(n):
-                if bin_of[k] != b or not ok[y[k], x[k]]:
+            if runs:
+                pre[0, :] = 0.0
+                for i in range(npx):
+                    for ch in range(6):
+                        pre[i + 1, ch] = pre[i, ch] + acc[i, ch]
+                for i in range(npx):
+                    for ch in range(6):
+                        box[i, ch] = 0.0
+                    for sg in range(start[i], start[i + 1]):
+                        a = seg[sg, 0]
+                        b = seg[sg, 1]
+                        for ch in range(6):
+                            box[i, ch] += pre[b, ch] - pre[a, ch]
+            else:
+                _box_at(acc, px, py, x0, y0, bh, bw, r, sat, box)
+            for j in range(m):
+                i = ev_pix[j]
+                ok, vx, vy = _solve_row(box[i], ridge)
+                if not ok:
                     continue
-                ux = float(nx[k])
-                uy = float(ny[k])
-                z = ((v[y[k], x[k], 0] * ux + v[y[k], x[k], 1] * uy) / (ux * ux + uy * uy)
-                     - 1.0) / c
-                wgt[k] = (1.0 - z * z) ** 2 if z * z < 1.0 else 0.0
-        for yy in range(h):
-            for xx in range(w):
-                if ok[yy, xx]:
-                    su[yy, xx, 0] += v[yy, xx, 0]
-                    su[yy, xx, 1] += v[yy, xx, 1]
-                    nbins[yy, xx] += 1
-    _mean_over_bins(su, nbins, out, out_mask)
+                k = order[lo + j]
+                ux = np.float64(nx[k])
+                uy = np.float64(ny[k])
+                z = ((vx * ux + vy * uy) / (ux * ux + uy * uy) - 1.0) / c
+                wgt[j] = (1.0 - z * z) ** 2 if z * z < 1.0 else 0.0
+        _final_fit(acc, px, py, x0, y0, bh, bw, r, ridge, su, nbins, direct, out, out_mask)
+    if not direct:
+        _mean_over_bins(su, nbins, out, out_mask)
+
+
+@njit(cache=True)
+def _final_fit(acc, px, py, x0, y0, bh, bw, r, ridge, su, nbins, direct, out, out_mask):
+    """The fit at every pixel within ``r`` of an active pixel, added to ``su`` / ``nbins``
+    (``direct``: written to ``out`` / ``out_mask``):
+    block by block (64 x 64 px) of the ``bh`` x ``bw`` region at ``(x0, y0)``, only the
+    blocks an active pixel's box reaches, each through a summed-area table of the block
+    grown by ``r``."""
+    bs = 64
+    nby = (bh + bs - 1) // bs
+    nbx = (bw + bs - 1) // bs
+    need = np.zeros((nby, nbx), np.bool_)
+    for i in range(px.shape[0]):
+        lx = px[i] - x0
+        ly = py[i] - y0
+        for by in range(max(ly - r, 0) // bs, min(ly + r, bh - 1) // bs + 1):
+            for bx in range(max(lx - r, 0) // bs, min(lx + r, bw - 1) // bs + 1):
+                need[by, bx] = True
+    side = bs + 2 * r + 1
+    sat = np.empty((side, side, 6))
+    row = np.empty(6)
+    for by in range(nby):
+        for bx in range(nbx):
+            if not need[by, bx]:
+                continue
+            ra = max(by * bs - r, 0)
+            rb = min(by * bs + bs + r, bh)
+            ca = max(bx * bs - r, 0)
+            cb = min(bx * bs + bs + r, bw)
+            sh = rb - ra
+            sw = cb - ca
+            sat[: sh + 1, : sw + 1, :] = 0.0
+            for i in range(px.shape[0]):
+                ly = py[i] - y0 - ra
+                lx = px[i] - x0 - ca
+                if 0 <= ly < sh and 0 <= lx < sw:
+                    for ch in range(6):
+                        sat[ly + 1, lx + 1, ch] += acc[i, ch]
+            for yy in range(1, sh + 1):
+                for xx in range(1, sw + 1):
+                    for ch in range(6):
+                        sat[yy, xx, ch] += sat[yy - 1, xx, ch] + sat[yy, xx - 1, ch] \
+                            - sat[yy - 1, xx - 1, ch]
+            for yy in range(by * bs, min(by * bs + bs, bh)):
+                for xx in range(bx * bs, min(bx * bs + bs, bw)):
+                    ya = max(yy - r, 0) - ra
+                    yb = min(yy + r + 1, bh) - ra
+                    xa = max(xx - r, 0) - ca
+                    xb = min(xx + r + 1, bw) - ca
+                    for ch in range(6):
+                        row[ch] = (sat[yb, xb, ch] - sat[ya, xb, ch] - sat[yb, xa, ch]
+                                   + sat[ya, xa, ch])
+                    ok, vx, vy = _solve_row(row, ridge)
+                    if ok and direct:
+                        out[y0 + yy, x0 + xx, 0] = vx
+                        out[y0 + yy, x0 + xx, 1] = vy
+                        out_mask[y0 + yy, x0 + xx] = True
+                    elif ok:
+                        su[y0 + yy, x0 + xx, 0] += vx
+                        su[y0 + yy, x0 + xx, 1] += vy
+                        nbins[y0 + yy, x0 + xx] += 1

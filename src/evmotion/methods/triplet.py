@@ -45,6 +45,9 @@ the same windows (``benchmarks/results/triplet_accuracy_summary.md``), dt = 1 an
 2.1 and 27 / 1.9 / 1.3; ``dense="robust"`` 0.65 / 1.24 / 1.42 and 2.55 / 1.21 / 0.98; at a
 quarter of that speed ``dense="robust"`` 0.59 / 1.01 / 0.97 and 2.44 / 1.84 / 1.93.
 
+Streaming dense output, window by window in bounded memory:
+:func:`evmotion.methods.triplet_stream.iter_flow_triplet`.
+
 Units: pixels, microseconds for times, px/s for flow.
 """
 

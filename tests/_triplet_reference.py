@@ -1,7 +1,8 @@
 """Literal, slow implementation of thesis Algorithm 1 with explicit index maps.
 
-Kept as the reference that :class:`evmotion.methods.triplet.TripletMatcher` must match
-(tests) and as the Python baseline of the speed benchmark. Pure Python + numpy, O(N) work
+The test oracle that :class:`evmotion.methods.triplet.TripletMatcher` must match (kept
+under ``tests/``, not shipped in the package) and the Python baseline of the speed
+benchmark (``benchmarks/bench_triplet.py``). Pure Python + numpy, O(N) work
 per event over the kept history.
 """
 

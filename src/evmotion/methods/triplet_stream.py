@@ -1,0 +1,389 @@
+"""Streaming triplet-matching flow (thesis ch. 5): per-event flow chunk by chunk and dense
+per-window fields, in memory bounded by one window, whatever the length of the recording.
+
+:func:`iter_flow_triplet` is the streaming counterpart of
+:func:`~evmotion.methods.triplet.estimate_flow_triplet`: fed the chunks of a reader (e.g.
+:func:`evmotion.io.iter_events`), it yields one :class:`TripletWindow` per window with the
+same dense flow and mask as the batch function on the whole recording. :class:`TripletStream`
+is the object behind it, for callers that also want every chunk's per-event flow (the
+``evmotion flow --method triplet`` command writes both).
+
+Units: pixels, microseconds for times, px/s for flow.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.events import EventArray, concatenate
+from evmotion.methods import triplet
+from evmotion.methods.bursts import BURST_GAP_US, BurstMeans
+
+__all__ = ["DEFAULT_WINDOW_US", "TripletStream", "TripletWindow", "iter_flow_triplet"]
+
+# Time windows when neither a duration, a count nor explicit windows are given.
+DEFAULT_WINDOW_US = 50_000
+
+
+@dataclass(frozen=True)
+class TripletWindow:
+    """One dense window of :func:`iter_flow_triplet`.
+
+    Attributes
+    ----------
+    index : int
+        Position in the sequence of windows (0, 1, ...).
+    t0, t1 : int
+        The window ``[t0, t1)`` in µs.
+    flow : ndarray of float32, shape (H, W, 2), or None
+        Dense flow in px/s (u right, v down); 0 outside ``valid``. None for the windows
+        before ``skip`` (delimited, not computed).
+    valid : ndarray of bool, shape (H, W), or None
+        Pixels whose flow events support.
+    n_events : int
+        Events of the window (with ``dense="robust"``: burst means).
+    iwe : ndarray of float64, shape (H, W), or None
+        With ``with_iwe``: the image of the window's events, each warped by its own flow to
+        ``t0`` (a picture of how well the per-event flow aligns the events).
+    """
+
+    index: int
+    t0: int
+    t1: int
+    flow: np.ndarray | None
+    valid: np.ndarray | None
+    n_events: int
+    iwe: np.ndarray | None = None
+
+    @property
+    def duration_s(self) -> float:
+        return (self.t1 - self.t0) * 1e-6
+
+
+class _Windows:
+    """Accumulates per-event flow into the sums of the current window (time, count or
+    explicit windows) and closes windows as the stream passes their end."""
+
+    def __init__(self, sensor, *, bins, window_us, window_events, edges, filter_size, dense,
+                 ridge, vmax, with_iwe, skip):
+        self.sensor, self.bins, self.filter_size = sensor, bins, filter_size
+        self.dense, self.ridge, self.vmax = dense, ridge, vmax
+        self.with_iwe, self.skip = with_iwe, skip
+        self.by_count = window_events
+        self.window_us = window_us or (None if window_events or edges else DEFAULT_WINDOW_US)
+        self.edges = edges
+        self.index = 0
+        self.t0: int | None = None if edges is None else (
+            int(edges[0][0]) if len(edges[0]) else 0)
+        self._new()
+
+    def _bounds(self):
+        """(t0, t1) of the current time window, or None past the last explicit window."""
+        if self.edges is None:
+            return self.t0, self.t0 + self.window_us
+        if self.index >= self.edges[0].size:
+            return None
+        return int(self.edges[0][self.index]), int(self.edges[1][self.index])
+
+    def _new(self):
+        h, w = self.sensor
+        computed = self.index >= self.skip
+        if self.dense == "robust" or not computed:
+            self.kept = []  # the window's (events, flow): the robust fit re-weights events
+        else:
+            self.acc = np.zeros((self.bins, h, w, 5 if self.dense == "lsq" else 2), np.float64)
+            self.cnt = np.zeros((self.bins, h, w), np.int64)
+        self.iwe = np.zeros((h, w), np.float64) if self.with_iwe and computed else None
+        self.n = 0
+        self.pending = []  # count windows: (events, flow) until the end time is known
+
+    def add(self, chunk, flow):
+        if not len(chunk):
+            return
+        if self.t0 is None:
+            self.t0 = int(chunk.t[0])
+        if self.by_count:
+            yield from self._add_count(chunk, flow)
+            return
+        t = chunk.t
+        start = 0
+        while start < len(chunk) and (b := self._bounds()) is not None:
+            t0, t1 = b
+            start = max(start, int(np.searchsorted(t, t0, side="left")))
+            stop = int(np.searchsorted(t, t1, side="left"))
+            self._accumulate(chunk[start:stop], flow[start:stop], t0, t1)
+            start = stop
+            if stop < len(chunk):
+                yield self._close(t0, t1)
+                self.t0 = t1
+
+    def _add_count(self, chunk, flow):
+        start = 0
+        while start < len(chunk):
+            take = min(self.by_count - self.n, len(chunk) - start)
+            self.pending.append((chunk[start:start + take], flow[start:start + take]))
+            self.n += take
+            start += take
+            if self.n == self.by_count:
+                t1 = (int(chunk.t[start]) if start < len(chunk)
+                      else int(self.pending[-1][0].t[-1]) + 1)
+                yield self._close_count(t1)
+
+    def _close_count(self, t1):
+        n = self.n
+        for ev, fl in self.pending:
+            self._accumulate(ev, fl, self.t0, t1, count=False)
+        self.n = n
+        win = self._close(self.t0, t1)
+        self.t0 = t1
+        return win
+
+    def _accumulate(self, ev, fl, t0, t1, count=True):
+        if not len(ev):
+            return
+        if count:
+            self.n += len(ev)
+        if self.index < self.skip:
+            return
+        if self.dense == "robust":
+            self.kept.append((ev, fl))
+        elif self.dense == "lsq":
+            triplet.add_normal_voxels(ev, fl, t0, t1, self.acc, self.cnt, self.vmax)
+        else:
+            triplet.add_voxels(ev, fl, t0, t1, self.acc, self.cnt)
+        if self.iwe is not None:
+            from evmotion.core.iwe import accumulate
+
+            dt = (ev.t - t0).astype(np.float64) * 1e-6
+            self.iwe += accumulate(ev.x.astype(np.float64) - fl.vx * dt,
+                                   ev.y.astype(np.float64) - fl.vy * dt, self.sensor)
+
+    def _close(self, t0, t1):
+        if self.index < self.skip:
+            flow = mask = None  # delimited only: the caller has this window already
+        elif self.dense == "robust" and not self.kept:
+            flow = np.zeros((*self.sensor, 2), np.float32)  # no event: no flow anywhere
+            mask = np.zeros(self.sensor, bool)
+        elif self.dense == "robust":
+            ev = concatenate([e for e, _ in self.kept], validate=False)
+            fl = triplet.TripletFlow.concatenate([f for _, f in self.kept])
+            flow, mask = triplet.dense_robust_fit(ev, fl, t0, t1, n_bins=self.bins,
+                                                  filter_size=self.filter_size,
+                                                  ridge=self.ridge, vmax=self.vmax)
+        elif self.dense == "lsq":
+            flow, mask = triplet.dense_lsq_from_sums(self.acc, self.cnt,
+                                                     filter_size=self.filter_size,
+                                                     ridge=self.ridge)
+        else:
+            flow, mask = triplet.dense_from_sums(self.acc, self.cnt,
+                                                 filter_size=self.filter_size)
+        win = TripletWindow(self.index, int(t0), int(t1), flow, mask, self.n, self.iwe)
+        self.index += 1
+        self._new()
+        return win
+
+    def finish(self):
+        if self.by_count:
+            if self.n:
+                last = self.pending[-1][0]
+                yield self._close_count(int(last.t[-1]) + 1)
+            return
+        if self.t0 is None:
+            return
+        while (b := self._bounds()) is not None:
+            if self.edges is None and not self.n:
+                return
+            yield self._close(*b)
+
+
+class TripletStream:
+    """Triplet-matching flow of a stream of event chunks: the per-event flow of every chunk
+    (:meth:`process`) and, with ``dense``, the dense flow of each window as soon as the
+    stream passes its end (:meth:`windows`; :meth:`finish` closes the last ones).
+
+    Parameters
+    ----------
+    sensor_size : (int, int)
+        ``(height, width)`` in pixels.
+    dense : {None, "mean", "lsq", "robust"}
+        The dense output (see :func:`~evmotion.methods.triplet.estimate_flow_triplet`);
+        None: per-event flow only (no window is delimited or computed).
+    window_us, window_events : int, optional
+        Consecutive time windows of ``window_us`` µs from the first event, or windows of
+        ``window_events`` events; default time windows of :data:`DEFAULT_WINDOW_US`.
+    windows : sequence of (int, int), optional
+        Explicit windows ``[t0, t1)`` µs in time order (e.g. between ground-truth frames).
+    n_bins, filter_size, ridge, gap_us
+        As in :func:`~evmotion.methods.triplet.estimate_flow_triplet`.
+    dx, dt_us, tau_us, quadruple, depth, normal_kappa
+        As in :class:`~evmotion.methods.triplet.TripletMatcher`; ``dx``, ``tau_us`` and
+        ``filter_size`` default by ``dense`` (:func:`~evmotion.methods.triplet.dense_defaults`).
+    with_iwe : bool
+        Give each window the image of its events warped by their own flow
+        (:attr:`TripletWindow.iwe`).
+    skip : int
+        Windows ``0 .. skip - 1`` are delimited but not computed (their ``flow`` is None):
+        a caller resuming an interrupted output checks their times and carries on.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[2, 3, 4], y=[5, 5, 5], t=[0, 10_000, 20_000], p=[1, 1, 1],
+    ...                 sensor_size=(10, 10))
+    >>> s = TripletStream(ev.sensor_size, dense="mean", window_us=30_000)
+    >>> flow = s.process(ev)
+    >>> s.finish()
+    >>> wins = list(s.windows())
+    >>> float(flow.vx[2]), len(wins), float(wins[0].flow[5, 4, 0])
+    (100.0, 1, 100.0)
+    """
+
+    def __init__(self, sensor_size: tuple[int, int], *, dense: str | None = "mean",
+                 window_us: int | None = None, window_events: int | None = None,
+                 windows: Sequence[tuple[int, int]] | None = None, n_bins: int = 1,
+                 filter_size: int | None = None, ridge: float | None = None,
+                 gap_us: int = BURST_GAP_US, dx: float | None = None, dt_us: int = 100_000,
+                 tau_us: int | None = None, quadruple: bool = False, depth: int = 8,
+                 normal_kappa: int = triplet.NORMAL_KAPPA, with_iwe: bool = False,
+                 skip: int = 0) -> None:
+        given = [k for k, v in (("window_us", window_us), ("window_events", window_events),
+                                ("windows", windows)) if v is not None]
+        if len(given) > 1:
+            raise ParameterError(f"give at most one of window_us, window_events and windows, "
+                                 f"got {', '.join(given)}")
+        if window_us is not None and int(window_us) <= 0:
+            raise ParameterError(f"window_us must be > 0 µs, got {window_us}")
+        if window_events is not None and int(window_events) <= 0:
+            raise ParameterError(f"window_events must be > 0, got {window_events}")
+        if int(n_bins) != n_bins or n_bins < 1:
+            raise ParameterError(f"n_bins must be an integer >= 1, got {n_bins}")
+        if int(skip) != skip or skip < 0:
+            raise ParameterError(f"skip must be an integer >= 0, got {skip}")
+        self.dense = dense
+        dx, tau_us, filter_size = triplet.dense_defaults(dense or "mean", dx, tau_us,
+                                                         filter_size)
+        ridge = triplet.default_ridge(dense or "mean", ridge)
+        self.matcher = triplet.TripletMatcher(sensor_size, dx, dt_us, tau_us,
+                                              quadruple=quadruple, depth=depth,
+                                              normal_kappa=normal_kappa)
+        self.sensor_size = self.matcher.sensor_size
+        self.params = {"dx": self.matcher.dx, "dt_us": self.matcher.dt_us,
+                       "tau_us": self.matcher.tau_us, "quadruple": self.matcher.quadruple,
+                       "depth": self.matcher.depth, "dense": dense}
+        self._bursts = self._burst_matcher = self._windows = None
+        self._queue: deque = deque()
+        self._finished = self._closed = False
+        if dense is None:
+            return
+        self.params.update(n_bins=int(n_bins), filter_size=int(filter_size), ridge=ridge)
+        if int(filter_size) != filter_size or filter_size < 1 or filter_size % 2 == 0:
+            raise ParameterError(f"filter_size must be an odd number of pixels >= 1, "
+                                 f"got {filter_size}")
+        edges = None
+        if windows is not None:
+            spans = np.asarray(list(windows), np.int64).reshape(-1, 2)
+            if np.any(spans[:, 1] <= spans[:, 0]) or np.any(np.diff(spans[:, 0]) < 0):
+                raise ParameterError("windows must be non-empty [t0, t1) µs in time order")
+            edges = (spans[:, 0], spans[:, 1])
+        if dense == "robust":
+            if int(gap_us) != gap_us or gap_us < 1:
+                raise ParameterError(f"gap_us must be an integer >= 1 µs, got {gap_us}")
+            self.params["gap_us"] = int(gap_us)
+            self._bursts = BurstMeans(self.sensor_size, int(gap_us))
+            self._burst_matcher = triplet.TripletMatcher(
+                self.sensor_size, dx, dt_us, tau_us, quadruple=quadruple, depth=depth,
+                normal_kappa=normal_kappa)
+        self._windows = _Windows(
+            self.sensor_size, bins=int(n_bins), window_us=window_us,
+            window_events=window_events, edges=edges, filter_size=int(filter_size),
+            dense=dense, ridge=ridge, vmax=triplet.max_normal_speed(dx, tau_us),
+            with_iwe=with_iwe, skip=int(skip))
+
+    @property
+    def overflow(self) -> int:
+        """See :attr:`~evmotion.methods.triplet.TripletMatcher.overflow`."""
+        return self.matcher.overflow
+
+    def process(self, chunk: EventArray) -> triplet.TripletFlow:
+        """Per-event flow of ``chunk`` (continuing the stream); the windows that the chunk
+        closes come out of :meth:`windows`."""
+        flow = self.matcher.process(chunk)
+        if self._windows is not None:
+            if self._bursts is not None:
+                b = self._bursts.process(chunk)
+                self._queue.append((b, self._burst_matcher.process(b)))
+            else:
+                self._queue.append((chunk, flow))
+        return flow
+
+    def finish(self) -> None:
+        """End of the stream: :meth:`windows` then gives the windows still open."""
+        if self._windows is not None and not self._finished:
+            if self._bursts is not None:
+                b = self._bursts.flush()
+                self._queue.append((b, self._burst_matcher.process(b)))
+            self._finished = True
+
+    def windows(self) -> Iterator[TripletWindow]:
+        """The dense windows closed by the chunks processed so far (all of them after
+        :meth:`finish`), each computed when it is asked for: consume the iterator before
+        the next :meth:`process`. Empty without ``dense``."""
+        if self._windows is None:
+            return
+        while self._queue:
+            ev, fl = self._queue.popleft()
+            yield from self._windows.add(ev, fl)
+        if self._finished and not self._closed:
+            self._closed = True
+            yield from self._windows.finish()
+
+
+def iter_flow_triplet(chunks: Iterable[EventArray], *, dense: str = "mean",
+                      **kwargs) -> Iterator[TripletWindow]:
+    """Dense triplet-matching flow of a stream of event chunks, window by window.
+
+    The streaming counterpart of :func:`~evmotion.methods.triplet.estimate_flow_triplet`:
+    each window's flow and mask equal the batch function's on the whole recording with the
+    same windows, while memory stays bounded by one window (a chunk reader such as
+    :func:`evmotion.io.iter_events` never holds the file).
+
+    Parameters
+    ----------
+    chunks : iterable of EventArray
+        The recording in time order, in chunks of any size (all of one sensor size).
+    dense : {"mean", "lsq", "robust"}
+        The dense output (see :func:`~evmotion.methods.triplet.estimate_flow_triplet`).
+    **kwargs
+        The windows and parameters of :class:`TripletStream`.
+
+    Yields
+    ------
+    TripletWindow
+        ``(index, t0, t1, flow, valid, n_events)`` of each window, in order.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[2, 3, 4], y=[5, 5, 5], t=[0, 10_000, 20_000], p=[1, 1, 1],
+    ...                 sensor_size=(10, 10))
+    >>> wins = list(iter_flow_triplet([ev[:2], ev[2:]], window_us=30_000))
+    >>> [(w.t0, w.t1) for w in wins], float(wins[0].flow[5, 4, 0])
+    ([(0, 30000)], 100.0)
+    """
+    if dense not in triplet.DENSE_KINDS:
+        raise ParameterError(f"dense must be one of {triplet.DENSE_KINDS}, got {dense!r}")
+    stream = None
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        if stream is None:
+            stream = TripletStream(chunk.sensor_size, dense=dense, **kwargs)
+        stream.process(chunk)
+        yield from stream.windows()
+    if stream is None:
+        raise EmptyWindowError("no events to estimate the triplet flow of")
+    stream.finish()
+    yield from stream.windows()

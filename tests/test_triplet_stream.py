@@ -1,0 +1,110 @@
+"""Streaming triplet flow (:mod:`evmotion.methods.triplet_stream`): every window equals the
+batch :func:`estimate_flow_triplet` on the whole recording, whatever the chunking."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.events import EventArray
+from evmotion.methods.triplet import TripletFlow, TripletMatcher, estimate_flow_triplet
+from evmotion.methods.triplet_stream import TripletStream, iter_flow_triplet
+
+
+def two_edges(size: int = 48) -> EventArray:
+    """A vertical edge moving right at 200 px/s and a horizontal one moving down at 120 px/s:
+    two orientations, so the lsq/robust fits see more than one normal."""
+    yy, xx = np.mgrid[0:size, 0:size]
+    tx = np.rint(xx.ravel() / 200.0 * 1e6).astype(np.int64)
+    ty = np.rint(yy.ravel() / 120.0 * 1e6).astype(np.int64) + 3_000
+    x = np.concatenate([xx.ravel(), xx.ravel()])
+    y = np.concatenate([yy.ravel(), yy.ravel()])
+    t = np.concatenate([tx, ty])
+    p = np.concatenate([np.ones(tx.size), np.zeros(ty.size)])
+    order = np.argsort(t, kind="stable")
+    return EventArray(x[order], y[order], t[order], p[order], (size, size))
+
+
+def chunked(ev: EventArray, n: int):
+    return (ev[s:s + n] for s in range(0, len(ev), n))
+
+
+def assert_windows_equal(wins, ref):
+    assert len(wins) == len(ref.windows)
+    for w, rw, flow, mask in zip(wins, ref.windows, ref.flows, ref.masks, strict=True):
+        assert (w.t0, w.t1) == (rw.t0, rw.t1)
+        np.testing.assert_array_equal(w.valid, mask)
+        np.testing.assert_allclose(w.flow, flow, rtol=1e-5, atol=1e-3)
+
+
+@pytest.mark.parametrize("dense", ["mean", "lsq", "robust"])
+@pytest.mark.parametrize("chunk", [97, 100_000])
+def test_time_windows_equal_the_batch_function(dense, chunk):
+    ev = two_edges()
+    wins = list(iter_flow_triplet(chunked(ev, chunk), dense=dense, window_us=60_000,
+                                  n_bins=2, filter_size=9 if dense != "mean" else 3))
+    ref = estimate_flow_triplet(ev, ev.windows_by_duration(60_000), dense=dense, n_bins=2,
+                                filter_size=9 if dense != "mean" else 3)
+    assert_windows_equal(wins, ref)
+    assert sum(w.valid.any() for w in wins) >= 3  # not a comparison of empty fields
+
+
+@pytest.mark.parametrize("dense", ["mean", "lsq"])
+def test_count_and_explicit_windows(dense):
+    ev = two_edges()
+    wins = list(iter_flow_triplet(chunked(ev, 333), dense=dense, window_events=700))
+    assert_windows_equal(wins, estimate_flow_triplet(ev, ev.windows_by_count(700),
+                                                     dense=dense))
+    frames = np.arange(20_000, 400_000, 37_000)
+    spans = list(zip(frames[:-1].tolist(), frames[1:].tolist(), strict=True))
+    wins = list(iter_flow_triplet(chunked(ev, 500), dense=dense, windows=spans))
+    assert_windows_equal(wins, estimate_flow_triplet(ev, ev.windows_at(frames), dense=dense))
+
+
+def test_per_event_flow_and_no_windows_without_dense():
+    ev = two_edges()
+    s = TripletStream(ev.sensor_size, dense=None)
+    flows = []
+    for c in chunked(ev, 250):
+        flows.append(s.process(c))
+        assert list(s.windows()) == []
+    s.finish()
+    assert list(s.windows()) == []
+    got = TripletFlow.concatenate(flows)
+    ref = TripletMatcher(ev.sensor_size).process(ev)
+    np.testing.assert_array_equal(got.vx, ref.vx)
+    np.testing.assert_array_equal(got.ny, ref.ny)
+    assert s.overflow == 0
+
+
+def test_windows_come_as_the_stream_passes_them():
+    ev = two_edges()
+    s = TripletStream(ev.sensor_size, dense="mean", window_us=50_000)
+    s.process(ev[ev.t < 120_000])
+    assert [w.t1 for w in s.windows()] == [50_000, 100_000]
+    s.finish()
+    assert s.windows().__next__().t0 == 100_000
+
+
+def test_skip_delimits_without_computing():
+    ev = two_edges()
+    full = list(iter_flow_triplet(chunked(ev, 400), window_us=50_000, with_iwe=True))
+    part = list(iter_flow_triplet(chunked(ev, 400), window_us=50_000, skip=3))
+    assert [(w.t0, w.t1) for w in part] == [(w.t0, w.t1) for w in full]
+    assert all(w.flow is None for w in part[:3])
+    for a, b in zip(part[3:], full[3:], strict=True):
+        np.testing.assert_array_equal(a.flow, b.flow)
+        assert a.iwe is None and b.iwe is not None and b.iwe.sum() > 0
+
+
+def test_bad_input_is_reported():
+    ev = two_edges()
+    with pytest.raises(ParameterError, match="at most one of window_us, window_events"):
+        TripletStream(ev.sensor_size, window_us=10, window_events=10)
+    with pytest.raises(ParameterError, match="filter_size must be an odd"):
+        TripletStream(ev.sensor_size, filter_size=4)
+    with pytest.raises(ParameterError, match="dense must be"):
+        next(iter_flow_triplet([ev], dense="median"))
+    with pytest.raises(EmptyWindowError):
+        next(iter_flow_triplet([ev[:0]]))
