@@ -5,6 +5,9 @@ Windows come from ``--window-events N`` (default 30000), ``--window-us T`` or
 window is warm-started from the previous one. With ``--workers > 1`` the windows are split
 into one contiguous chunk per worker (:func:`evmotion.parallel.map_windows`) and the warm
 start runs within each chunk only, so the first window of every chunk starts from zero flow.
+``--scheduler ADDRESS`` runs the chunks on a Dask cluster instead (one chunk per worker
+thread of the cluster, or ``--workers`` chunks: the same chunks give the same flow as
+``--workers`` here); this process sends each chunk its events (see docs/cluster.rst).
 
 Output by ``--out`` extension: ``.h5`` all windows (flow in px/s with each window's
 ``[t0, t1)``, and ``valid``: the pixels whose flow events support), ``.npy`` an
@@ -23,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.cli.options import (
+    add_scheduler_argument,
     check_free_space,
     int_range,
     nonnegative_float,
@@ -43,6 +47,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--max-iter": ("max_iter", 20),
     "--workers": ("workers", 1),
     "--init": ("init", "previous"),
+    "--scheduler": ("scheduler", None),
 }
 
 
@@ -64,7 +69,9 @@ def add_arguments(group) -> None:
                        help="optimizer iterations per scale (default 20)")
     group.add_argument("--workers", type=positive_int(), default=None,
                        help="parallel worker processes (default 1); each takes a contiguous "
-                            "chunk of windows")
+                            "chunk of windows; with --scheduler, the number of chunks "
+                            "(default: the cluster's worker threads)")
+    add_scheduler_argument(group, "chunks of windows")
     group.add_argument("--init", choices=("previous", "dnn"), default=None,
                        help="start each window from the previous one's flow (default) or "
                             "from the network's (--checkpoint), skipping the coarse scales")
@@ -117,20 +124,27 @@ def _chunk_fn(events, t0, t1, *, spans, kwargs, keep_iwes=False):
     return out
 
 
-def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False):
+def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False, scheduler=None):
+    """The windows' results in order, from ``workers`` contiguous chunks run by local
+    processes or, with ``scheduler`` (an address), by that Dask cluster's workers
+    (``workers`` None: one chunk per worker thread of the cluster)."""
+    from evmotion.cli.options import cluster_threads, scheduler_client
     from evmotion.parallel import map_windows
 
     spans = [(w.t0, w.t1) for w in windows]
-    bounds = np.linspace(0, len(spans), min(workers, len(spans)) + 1).astype(int)
-    chunks = [(spans[a][0], spans[b - 1][1]) for a, b in zip(bounds[:-1], bounds[1:],
-                                                             strict=True) if b > a]
     fn = functools.partial(_chunk_fn, spans=spans, kwargs=kwargs, keep_iwes=keep_iwes)
-    results = map_windows(fn, events, chunks, workers=workers, with_window=True,
-                          desc="multicm")
+    with scheduler_client(scheduler) as client:
+        if workers is None:
+            workers = cluster_threads(client)
+        bounds = np.linspace(0, len(spans), min(workers, len(spans)) + 1).astype(int)
+        chunks = [(spans[a][0], spans[b - 1][1]) for a, b in zip(bounds[:-1], bounds[1:],
+                                                                 strict=True) if b > a]
+        results = map_windows(fn, events, chunks, workers=workers, scheduler=client,
+                              with_window=True, desc="multicm")
     for r in results:
         if not r.ok:
             raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
-        yield from r.value
+    return (res for r in results for res in r.value)
 
 
 class _Output:
@@ -242,6 +256,13 @@ def check_args(args) -> None:
     if args.resume and (args.workers or 1) > 1:
         raise ParameterError(f"--resume needs --workers 1 (got {args.workers}): with several "
                              "workers each chunk of windows starts from zero flow")
+    if args.scheduler is not None:
+        for given, why in ((args.resume, "--resume continues a run in this process"),
+                           (args.init == "dnn", "--init dnn runs the network in this process")):
+            if given:
+                raise ParameterError(f"--scheduler {args.scheduler} does not apply: {why}")
+        # the chunks: --workers if given, else the cluster's worker threads (run())
+        args.scheduler_chunks = args.workers
 
 
 def _check_space(out: Path, windows, sensor_size) -> None:
@@ -301,7 +322,11 @@ def run(args) -> int:
             video.append((r.flow, _valid(r)))
 
     results = None
-    if workers > 1:
+    scheduler = getattr(args, "scheduler", None)
+    if scheduler is not None:
+        results = _estimate_parallel(events, windows, kwargs, args.scheduler_chunks,
+                                     keep_iwes=png_dir is not None, scheduler=scheduler)
+    elif workers > 1:
         results = _estimate_parallel(events, windows, kwargs, workers,
                                      keep_iwes=png_dir is not None)
     rows, written = _run_windows(args, events, windows, attrs, after, progress,

@@ -34,8 +34,10 @@ argparse.ArgumentTypeError: must be a finite number > 0 ms, got 'nan'
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -46,6 +48,7 @@ from evmotion.errors import ParameterError
 
 __all__ = [
     "Parser",
+    "add_scheduler_argument",
     "check_folder",
     "check_free_space",
     "check_output",
@@ -58,6 +61,8 @@ __all__ = [
     "positive_float",
     "positive_int",
     "reject_unused",
+    "scheduler_address",
+    "scheduler_client",
     "writable_folder",
     "writable_output",
 ]
@@ -347,3 +352,68 @@ def reject_unused(args: argparse.Namespace, options: dict[str, str], reason: str
         if value is not None and value is not False:
             shown = "" if value is True else f" {value!r}"
             raise ParameterError(f"{flag}{shown} does not apply {reason}")
+
+
+# ---------------------------------------------------------------- Dask cluster
+SCHEDULER_TIMEOUT_S = 5.0
+_SCHEDULER_ADDRESS = re.compile(
+    r"(?:(?:tcp|tls|ucx|ws|wss)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})"
+    r"|inproc://\S+")
+
+
+def scheduler_address(text: str) -> str:
+    """``type=`` for a Dask scheduler address: ``[tcp|tls|ucx|ws|wss://]host:port`` (what
+    ``dask scheduler`` prints) or an in-process ``inproc://`` one; also checks that the
+    ``dask`` extra is installed.
+
+    Examples
+    --------
+    >>> scheduler_address("tcp://10.0.0.5:8786")  # doctest: +SKIP
+    'tcp://10.0.0.5:8786'
+    """
+    import importlib.util
+
+    m = _SCHEDULER_ADDRESS.fullmatch(text.strip())
+    port = m.group(1) if m else None
+    if m is None or (port is not None and not 1 <= int(port) <= 65535):
+        raise argparse.ArgumentTypeError(
+            f"must be a Dask scheduler address such as tcp://host:8786, got {text!r}")
+    if importlib.util.find_spec("distributed") is None:
+        raise argparse.ArgumentTypeError(
+            f"{text}: running on a Dask cluster needs the package 'distributed', which is "
+            "not installed: pip install 'evmotion[dask]'")
+    return text.strip()
+
+
+def add_scheduler_argument(p, what: str = "windows") -> None:
+    """Add ``--scheduler ADDRESS`` (attribute ``scheduler``, default None) to a parser or
+    argument group: run the ``what`` on a Dask ``distributed`` cluster. The client
+    ships each task's events to the workers (see docs/cluster.rst)."""
+    p.add_argument("--scheduler", type=scheduler_address, default=None, metavar="ADDRESS",
+                   help=f"run the {what} on the Dask cluster whose scheduler is at ADDRESS "
+                        "(tcp://host:8786, from 'dask scheduler'; needs the 'dask' extra); "
+                        "this process reads the recording and sends each task its events, "
+                        "so the workers need no access to the file")
+
+
+@contextlib.contextmanager
+def scheduler_client(address: str | None, timeout_s: float | None = None):
+    """A ``distributed.Client`` connected to ``address`` for the ``with`` block (None
+    without an address); raises ParameterError, one line naming the address, when no
+    scheduler with workers answers within ``timeout_s`` seconds (default
+    ``SCHEDULER_TIMEOUT_S``)."""
+    if address is None:
+        yield None
+        return
+    from evmotion.parallel import connect_scheduler
+
+    client = connect_scheduler(address, SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s)
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+def cluster_threads(client) -> int:
+    """Worker threads of a connected Dask cluster (at least 1)."""
+    return max(1, sum(client.nthreads().values()))

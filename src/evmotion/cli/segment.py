@@ -5,12 +5,18 @@ of every cluster (CSV), event labels (NPZ) and PNGs of the per-cluster IWEs."""
 from __future__ import annotations
 
 import csv
+import functools
 import io
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.cli.options import int_range, positive_int, writable_folder
+from evmotion.cli.options import (
+    add_scheduler_argument,
+    int_range,
+    positive_int,
+    writable_folder,
+)
 from evmotion.errors import ParameterError
 
 
@@ -31,6 +37,9 @@ def add_parser(sub) -> None:
                    help="window duration in microseconds")
     p.add_argument("--max-windows", type=positive_int(), default=None,
                    help="process at most N windows")
+    p.add_argument("--workers", type=positive_int(), default=1,
+                   help="parallel worker processes (default 1)")
+    add_scheduler_argument(p)
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
     p.add_argument("--json", action="store_true", help="print per-window results as JSON")
     p.set_defaults(func=run)
@@ -38,12 +47,15 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.cli.egomotion import check_common, load_events_and_camera
-    from evmotion.methods.segmentation import segment_motion
-    from evmotion.utils import atomic_path, atomic_write_text, progress
+    from evmotion.cli.egomotion import check_common, check_scheduler, load_events_and_camera
+    from evmotion.cli.options import scheduler_client
+    from evmotion.errors import EvmotionError
+    from evmotion.parallel import map_windows
+    from evmotion.utils import atomic_path, atomic_write_text
     from evmotion.viz import images
 
     check_common(args)
+    check_scheduler(args)
     if args.objective not in ("variance", "gradient_magnitude"):
         raise ParameterError("segment supports --objective variance or gradient_magnitude")
     events, cam = load_events_and_camera(args)
@@ -57,13 +69,21 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     K = None if cam is None else cam.K
+    job = functools.partial(_segment_job, n_warps=args.warps, warp=args.warp,
+                            objective=args.objective, K=K, t_ref=args.t_ref,
+                            n_iter=args.iterations, seed=args.seed, regularizer=args.reg,
+                            weight=args.weight, dataset=args.dataset)
+    with scheduler_client(args.scheduler) as client:
+        results = map_windows(job, events, windows, workers=args.workers, scheduler=client,
+                              desc="segment")
+    failed = next((r for r in results if not r.ok), None)
+    if failed is not None:
+        raise EvmotionError(f"{args.file}: window {failed.index} [{failed.t0}, {failed.t1}) us "
+                            f"failed: {failed.error.splitlines()[0]}")
     rows, labels, pngs = [], {}, []
     try:
-        for w in progress(windows, desc="segment", unit="win"):
-            seg = segment_motion(events.window(w), args.warps, args.warp, args.objective, K=K,
-                                 t_ref=args.t_ref, n_iter=args.iterations, seed=args.seed,
-                                 regularizer=args.reg, weight=args.weight,
-                                 dataset=args.dataset)
+        for w, res in zip(windows, results, strict=True):
+            seg = res.value
             labels[f"window_{w.index:05d}"] = seg.labels.astype(np.int16)
             for j in range(args.warps):
                 rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "cluster": j,
@@ -96,3 +116,10 @@ def run(args) -> int:
     else:
         print(f"{len(windows)} windows x {args.warps} clusters -> {out}/clusters.csv")
     return 0
+
+
+def _segment_job(events, **kwargs):
+    """One window's segmentation, in a worker (module level, so that it pickles)."""
+    from evmotion.methods.segmentation import segment_motion
+
+    return segment_motion(events, **kwargs)
