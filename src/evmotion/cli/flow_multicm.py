@@ -110,14 +110,19 @@ def _lean(res, keep_iwes: bool):
 
 
 def _chunk_fn(events, t0, t1, *, spans, kwargs, keep_iwes=False):
-    """Worker: the sub-windows of one chunk, warm-started in sequence."""
+    """Worker: the sub-windows of one chunk, warm-started in sequence.
+
+    ``events`` are the chunk's events, from its first window's first event to its last
+    window's last; ``spans`` are every window's ``(t0, t1, start, stop)``, the index range
+    in the whole recording, so that each window gets exactly the events of the serial run
+    (cutting by time would move events that share a timestamp across a boundary)."""
     from evmotion.methods.multicm import estimate_flow
 
+    mine = [sp for sp in spans if t0 <= sp[0] < t1]
+    offset = mine[0][2] if mine else 0
     out, init = [], None
-    for a, b in spans:
-        if a < t0 or a >= t1:
-            continue
-        sub = events.slice_time(a, b)
+    for _, _, start, stop in mine:
+        sub = events[start - offset:stop - offset]
         res = estimate_flow(sub, init=init, **kwargs)
         out.append(_lean(res, keep_iwes))
         init = res
@@ -129,22 +134,31 @@ def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False, schedu
     processes or, with ``scheduler`` (an address), by that Dask cluster's workers
     (``workers`` None: one chunk per worker thread of the cluster)."""
     from evmotion.cli.options import cluster_threads, scheduler_client
+    from evmotion.events import Window
     from evmotion.parallel import map_windows
 
-    spans = [(w.t0, w.t1) for w in windows]
+    spans = [(w.t0, w.t1, w.start, w.stop) for w in windows]
     fn = functools.partial(_chunk_fn, spans=spans, kwargs=kwargs, keep_iwes=keep_iwes)
     with scheduler_client(scheduler) as client:
         if workers is None:
             workers = cluster_threads(client)
         bounds = np.linspace(0, len(spans), min(workers, len(spans)) + 1).astype(int)
-        chunks = [(spans[a][0], spans[b - 1][1]) for a, b in zip(bounds[:-1], bounds[1:],
-                                                                 strict=True) if b > a]
+        # a Window is sent by its index range: the chunk's events, exactly
+        chunks = [Window(k, windows[a].t0, windows[b - 1].t1, windows[a].start,
+                         windows[b - 1].stop)
+                  for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True))
+                  if b > a]
         results = map_windows(fn, events, chunks, workers=workers, scheduler=client,
                               with_window=True, desc="multicm")
     for r in results:
         if not r.ok:
             raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
-    return (res for r in results for res in r.value)
+    flows = [res for r in results for res in r.value]
+    if len(flows) != len(windows):
+        # only where more than a window's worth of events share one timestamp
+        raise ParameterError(f"{len(windows)} windows but the chunks made {len(flows)}: "
+                             "windows starting at the same µs; use --window-us")
+    return iter(flows)
 
 
 class _Output:
