@@ -193,3 +193,29 @@ def test_scheduler_rejected_where_it_cannot_apply(rec, tmp_path, capsys):
     line = _one_line_error(["flow", rec, "--method", "multicm", "--resume", "--out",
                             tmp_path / "f.h5", "--scheduler", address], capsys)
     assert "--scheduler" in line and "--resume" in line
+
+
+def test_missing_dask_extra_is_one_line(rec, tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "distributed" else real(name, *a))
+    line = _one_line_error(["segment", rec, "--warp", "translation", "--out", tmp_path / "s",
+                            "--scheduler", "tcp://127.0.0.1:8786"], capsys)
+    assert "argument --scheduler" in line and "pip install 'evmotion[dask]'" in line
+
+
+def test_workers_with_malloc_trim_threshold_get_one_warning(rec, cluster, tmp_path, capsys,
+                                                            monkeypatch):
+    # the test cluster's workers are threads of this process: they see its environment
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
+    assert main(["egomotion", str(rec), "--warp", "translation", "--window-events", "6000",
+                 "--max-png", "0", "--out", str(tmp_path / "o"), "--scheduler", cluster]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines()
+                if "MALLOC_TRIM_THRESHOLD_=65536" in line]
+    assert len(warnings) == 1 and warnings[0].startswith("evmotion: warning:")
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_")
+    assert main(["egomotion", str(rec), "--warp", "translation", "--window-events", "6000",
+                 "--max-png", "0", "--out", str(tmp_path / "o"), "--scheduler", cluster]) == 0
+    assert "MALLOC_TRIM_THRESHOLD_" not in capsys.readouterr().err

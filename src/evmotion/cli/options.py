@@ -409,6 +409,7 @@ def scheduler_client(address: str | None, timeout_s: float | None = None):
 
     client = connect_scheduler(address, SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s)
     try:
+        _warn_slow_workers(client, address)
         yield client
     finally:
         client.close()
@@ -417,3 +418,19 @@ def scheduler_client(address: str | None, timeout_s: float | None = None):
 def cluster_threads(client) -> int:
     """Worker threads of a connected Dask cluster (at least 1)."""
     return max(1, sum(client.nthreads().values()))
+
+
+def _warn_slow_workers(client, address: str) -> None:
+    """One warning line when the workers run with ``MALLOC_TRIM_THRESHOLD_`` set, as Dask's
+    nanny sets it by default: glibc then stops adapting its mmap threshold, every large
+    temporary array is mapped and zeroed afresh, and the estimates ran 3-4x slower
+    (flow multicm, benchmarks/results/cluster.md)."""
+    from evmotion.cli import warn_line
+
+    values = sorted({v for v in client.run(os.getenv, "MALLOC_TRIM_THRESHOLD_").values()
+                     if v is not None})
+    if values:
+        warn_line(f"the Dask workers at {address} run with MALLOC_TRIM_THRESHOLD_="
+                  f"{','.join(values)} (Dask's default), which made the estimates 3-4x "
+                  "slower; start them with distributed.nanny.pre-spawn-environ."
+                  "MALLOC_TRIM_THRESHOLD_ set to null (see docs/cluster.rst)")
