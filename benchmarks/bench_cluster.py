@@ -1,7 +1,7 @@
 """Per-window commands on a Dask cluster: ``--scheduler`` on 2 local workers against the
 serial local run, end to end (read, estimate, write) through ``evmotion.cli.main``.
 
-A simulated recording (``evmotion.sim``, translation scene, 240 x 180, 0.5 s, ~324k
+A simulated recording (``evmotion.sim``, translation scene, 240 x 180, 1 s, ~650k
 events) is cut into windows of ``--window-events``; each case runs the same command
 ``repeat`` times in turn serial / local ``--workers 2`` / ``--scheduler`` on a
 ``distributed.LocalCluster`` of 2 worker processes with 1 thread each, after one warm-up
@@ -51,7 +51,7 @@ def _recording(folder: Path) -> Path:
     from evmotion.io import write_events
     from evmotion.sim import simulate
 
-    sim = simulate("translation", duration_s=0.5, sensor_size=(180, 240), seed=0,
+    sim = simulate("translation", duration_s=1.0, sensor_size=(180, 240), seed=0,
                    show_progress=False)
     path = folder / "rec.h5"
     write_events(path, sim.events)
@@ -132,6 +132,9 @@ def _speedup(case: str, rec: Path, tmp: Path, address: str, repeat: int,
         "cluster_window_s_sum": statistics.median(work["--scheduler"]),
         "load1_per_round": [round(v, 2) for v in loads],
         "two_process_ceiling_per_round": [round(v, 2) for v in ceilings],
+        # the cluster's speed-up over what 2 processes got on pure CPU work in that round
+        "speedup_over_ceiling": statistics.median(
+            a / b / c for a, b, c in zip(ser, runs["--scheduler"], ceilings, strict=True)),
         # egomotion windows are independent: the cluster gives the serial estimates;
         # multicm warm-starts within each of the 2 chunks (as --workers 2 does), so the
         # first window of the second chunk starts from zero flow
