@@ -10,6 +10,7 @@ computes what is missing.
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures as cf
 import os
 import pickle
@@ -25,7 +26,7 @@ from evmotion.events import EventArray, Window
 from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
 
-__all__ = ["WindowResult", "map_windows"]
+__all__ = ["WindowResult", "connect_scheduler", "map_windows"]
 
 
 @dataclass(frozen=True)
@@ -358,7 +359,7 @@ def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
         raise MissingDependencyError("distributed", "running on a Dask cluster",
                                      extra="dask") from exc
     client, owned = (scheduler, False) if isinstance(scheduler, Client) else (
-        Client(scheduler), True)
+        connect_scheduler(scheduler), True)
     limit = 2 * max(1, sum(client.nthreads().values()))
     queue = iter(tasks)
     futures: dict[str, _Task] = {}
@@ -375,7 +376,7 @@ def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
 
     try:
         initial = [f for f in (submit() for _ in range(limit)) if f is not None]
-        stream = as_completed(initial)
+        stream = as_completed(initial, loop=client.loop)
         for fut in stream:
             task = futures.pop(fut.key)
             yield _future_result(fut, task)
@@ -385,3 +386,70 @@ def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
     finally:
         if owned:
             client.close()
+
+
+def connect_scheduler(address: str, timeout_s: float = 5.0) -> Any:
+    """A ``distributed.Client`` connected to the Dask scheduler at ``address``.
+
+    Parameters
+    ----------
+    address : str
+        Scheduler address, ``"tcp://host:8786"`` (what ``dask scheduler`` prints).
+    timeout_s : float
+        Seconds to wait for the scheduler to answer before giving up.
+
+    Returns
+    -------
+    distributed.Client
+        Close it (``client.close()``) when done; pass it as ``map_windows(scheduler=)``
+        to run several computations on one connection.
+
+    Raises
+    ------
+    MissingDependencyError
+        ``distributed`` is not installed (the ``dask`` extra).
+    ParameterError
+        No scheduler answered at ``address`` within ``timeout_s``: one line naming it.
+
+    Examples
+    --------
+    >>> connect_scheduler("tcp://127.0.0.1:1", timeout_s=1)  # doctest: +SKIP
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.ParameterError: cannot reach the Dask scheduler at tcp://127.0.0.1:1 ...
+    """
+    try:
+        from distributed import Client
+    except ImportError as exc:
+        raise MissingDependencyError("distributed", "running on a Dask cluster",
+                                     extra="dask") from exc
+    if timeout_s <= 0:
+        raise ParameterError(f"timeout_s must be > 0 s, got {timeout_s}")
+    hint = "start one with 'dask scheduler' and its workers with 'dask worker ADDRESS'"
+    try:
+        # Probe first: a Client that fails to connect spends seconds more closing itself
+        # when collected and prints a traceback at exit.
+        asyncio.run(_probe(address, timeout_s))
+        client = Client(address, timeout=timeout_s, set_as_default=False)
+    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+        # distributed raises OSError("Timed out trying to connect to ...") for a closed
+        # port or an unknown host, ValueError for an address it cannot parse
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ParameterError(f"cannot reach the Dask scheduler at {address} within "
+                             f"{timeout_s:g} s ({reason}); {hint}") from exc
+    try:
+        # without workers the tasks would wait for ever
+        client.wait_for_workers(1, timeout=timeout_s)
+    except (OSError, TimeoutError) as exc:
+        client.close()
+        raise ParameterError(f"the Dask scheduler at {address} has no worker after "
+                             f"{timeout_s:g} s; start them with 'dask worker {address}'"
+                             ) from exc
+    return client
+
+
+async def _probe(address: str, timeout_s: float) -> None:
+    from distributed.comm import connect
+
+    comm = await connect(address, timeout=timeout_s)
+    await comm.close()

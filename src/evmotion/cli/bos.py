@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from evmotion.cli.options import (
+    add_scheduler_argument,
     check_time_order,
     existing_input,
     finite_float,
@@ -80,7 +81,10 @@ def add_parser(sub) -> None:
                    type=int_range(1), default=None,
                    metavar="N", help="at most N frame intervals (default all)")
     p.add_argument("--workers", type=int_range(1, 256), default=1,
-                   help="parallel worker processes over frame intervals (default 1)")
+                   help="parallel worker processes over frame intervals (default 1); with "
+                        "--scheduler, the number of chunks of intervals (default: one per "
+                        "worker thread of the cluster)")
+    add_scheduler_argument(p, "chunks of frame intervals")
     p.add_argument("--out", required=True,
                    type=writable_output((".h5", ".hdf5"), "a BOS file (HDF5)"),
                    help="output .h5 file")
@@ -94,6 +98,7 @@ def run(args) -> int:
     import numpy as np
 
     from evmotion.cli import print_json
+    from evmotion.cli.options import cluster_threads, scheduler_client
     from evmotion.io.bosfiles import BosWriter
     from evmotion.io.bosinput import load_bos_input
     from evmotion.methods.bos_run import solve_bos_input
@@ -106,8 +111,10 @@ def run(args) -> int:
     opts = {"param": args.param, "data_term": args.data_term, "seed": args.seed}
     if args.iterations is not None:
         opts["iterations"] = args.iterations
-    run_ = solve_bos_input(data, workers=args.workers, progress=True,
-                           contrast_threshold=args.contrast_threshold, **opts)
+    with scheduler_client(args.scheduler) as client:
+        chunks = args.workers if client is None or args.workers > 1 else cluster_threads(client)
+        run_ = solve_bos_input(data, workers=chunks, scheduler=client, progress=True,
+                               contrast_threshold=args.contrast_threshold, **opts)
     results = run_.results
     attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
              "seed": args.seed, "source": data.source,

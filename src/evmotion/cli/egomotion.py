@@ -20,6 +20,7 @@ import numpy as np
 
 from evmotion.cli.calib import add_camera_arguments
 from evmotion.cli.options import (
+    add_scheduler_argument,
     add_time_arguments,
     check_time_order,
     int_range,
@@ -86,6 +87,7 @@ def add_parser(sub) -> None:
     add_time_arguments(p)
     p.add_argument("--workers", type=positive_int(), default=1,
                    help="parallel worker processes")
+    add_scheduler_argument(p)
     p.add_argument("--seed", type=int_range(0), default=None,
                    help="seed of the TPE sampler (--optimizer tpe; default 0)")
     p.add_argument("--warm-start", action="store_true",
@@ -102,6 +104,19 @@ def check_common(args) -> None:
     if args.reg is None:
         reject_unused(args, {"--weight": "weight", "--dataset": "dataset"},
                       "without --reg (no regularizer to weigh)")
+
+
+def check_scheduler(args) -> None:
+    """``--scheduler`` runs the windows on the cluster's workers: ``--workers`` and
+    ``--warm-start`` (windows in sequence) do not go with it."""
+    if args.scheduler is None:
+        return
+    if args.workers != 1:
+        raise ParameterError(f"--workers {args.workers} does not apply with --scheduler "
+                             f"{args.scheduler}: the cluster's workers run the windows")
+    if getattr(args, "warm_start", False):
+        raise ParameterError(f"--warm-start runs the windows in sequence; it does not apply "
+                             f"with --scheduler {args.scheduler}")
 
 
 def load_events_and_camera(args):
@@ -139,6 +154,7 @@ def _window_job(events, *, warp, objective, reg, weight, optimizer, K, t_ref, se
 
 def run(args) -> int:
     from evmotion.cli import print_json, warn_line
+    from evmotion.cli.options import scheduler_client
     from evmotion.parallel import map_windows
     from evmotion.utils import progress
 
@@ -146,6 +162,7 @@ def run(args) -> int:
     if args.warm_start and args.workers > 1:
         raise ParameterError(f"--warm-start runs the windows in sequence; it does not apply "
                              f"with --workers {args.workers}")
+    check_scheduler(args)
     if args.optimizer != "tpe":
         reject_unused(args, {"--seed": "seed"}, f"with --optimizer {args.optimizer} "
                       "(it seeds the TPE sampler)")
@@ -166,7 +183,9 @@ def run(args) -> int:
             init = r.params
             results.append((w, r, None))
     else:
-        out = map_windows(job, events, windows, workers=args.workers, desc="egomotion")
+        with scheduler_client(args.scheduler) as client:
+            out = map_windows(job, events, windows, workers=args.workers, scheduler=client,
+                              desc="egomotion")
         results = [(w, r.value, r.error) for w, r in zip(windows, out, strict=True)]
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -5,6 +5,9 @@ Windows come from ``--window-events N`` (default 30000), ``--window-us T`` or
 window is warm-started from the previous one. With ``--workers > 1`` the windows are split
 into one contiguous chunk per worker (:func:`evmotion.parallel.map_windows`) and the warm
 start runs within each chunk only, so the first window of every chunk starts from zero flow.
+``--scheduler ADDRESS`` runs the chunks on a Dask cluster instead (one chunk per worker
+thread of the cluster, or ``--workers`` chunks: the same chunks give the same flow as
+``--workers`` here); this process sends each chunk its events (see docs/cluster.rst).
 
 Output through :func:`evmotion.io.flowout.open_flow_output`, by ``--out`` extension:
 ``.h5`` or ``.npz`` all windows (flow in px/s, each window's ``[t0, t1)``, and ``valid``:
@@ -23,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.cli.options import (
+    add_scheduler_argument,
     check_free_space,
     int_range,
     nonnegative_float,
@@ -43,6 +47,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--max-iter": ("max_iter", 20),
     "--workers": ("workers", 1),
     "--init": ("init", "previous"),
+    "--scheduler": ("scheduler", None),
 }
 
 
@@ -64,7 +69,9 @@ def add_arguments(group) -> None:
                        help="optimizer iterations per scale (default 20)")
     group.add_argument("--workers", type=positive_int(), default=None,
                        help="parallel worker processes (default 1); each takes a contiguous "
-                            "chunk of windows")
+                            "chunk of windows; with --scheduler, the number of chunks "
+                            "(default: the cluster's worker threads)")
+    add_scheduler_argument(group, "chunks of windows")
     group.add_argument("--init", choices=("previous", "dnn"), default=None,
                        help="start each window from the previous one's flow (default) or "
                             "from the network's (--checkpoint), skipping the coarse scales")
@@ -98,34 +105,55 @@ def _lean(res, keep_iwes: bool):
 
 
 def _chunk_fn(events, t0, t1, *, spans, kwargs, keep_iwes=False):
-    """Worker: the sub-windows of one chunk, warm-started in sequence."""
+    """Worker: the sub-windows of one chunk, warm-started in sequence.
+
+    ``events`` are the chunk's events, from its first window's first event to its last
+    window's last; ``spans`` are every window's ``(t0, t1, start, stop)``, the index range
+    in the whole recording, so that each window gets exactly the events of the serial run
+    (cutting by time would move events that share a timestamp across a boundary)."""
     from evmotion.methods.multicm import estimate_flow
 
+    mine = [sp for sp in spans if t0 <= sp[0] < t1]
+    offset = mine[0][2] if mine else 0
     out, init = [], None
-    for a, b in spans:
-        if a < t0 or a >= t1:
-            continue
-        sub = events.slice_time(a, b)
+    for _, _, start, stop in mine:
+        sub = events[start - offset:stop - offset]
         res = estimate_flow(sub, init=init, **kwargs)
         out.append(_lean(res, keep_iwes))
         init = res
     return out
 
 
-def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False):
+def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False, scheduler=None):
+    """The windows' results in order, from ``workers`` contiguous chunks run by local
+    processes or, with ``scheduler`` (an address), by that Dask cluster's workers
+    (``workers`` None: one chunk per worker thread of the cluster)."""
+    from evmotion.cli.options import cluster_threads, scheduler_client
+    from evmotion.events import Window
     from evmotion.parallel import map_windows
 
-    spans = [(w.t0, w.t1) for w in windows]
-    bounds = np.linspace(0, len(spans), min(workers, len(spans)) + 1).astype(int)
-    chunks = [(spans[a][0], spans[b - 1][1]) for a, b in zip(bounds[:-1], bounds[1:],
-                                                             strict=True) if b > a]
+    spans = [(w.t0, w.t1, w.start, w.stop) for w in windows]
     fn = functools.partial(_chunk_fn, spans=spans, kwargs=kwargs, keep_iwes=keep_iwes)
-    results = map_windows(fn, events, chunks, workers=workers, with_window=True,
-                          desc="multicm")
+    with scheduler_client(scheduler) as client:
+        if workers is None:
+            workers = cluster_threads(client)
+        bounds = np.linspace(0, len(spans), min(workers, len(spans)) + 1).astype(int)
+        # a Window is sent by its index range: the chunk's events, exactly
+        chunks = [Window(k, windows[a].t0, windows[b - 1].t1, windows[a].start,
+                         windows[b - 1].stop)
+                  for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True))
+                  if b > a]
+        results = map_windows(fn, events, chunks, workers=workers, scheduler=client,
+                              with_window=True, desc="multicm")
     for r in results:
         if not r.ok:
             raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
-        yield from r.value
+    flows = [res for r in results for res in r.value]
+    if len(flows) != len(windows):
+        # only where more than a window's worth of events share one timestamp
+        raise ParameterError(f"{len(windows)} windows but the chunks made {len(flows)}: "
+                             "windows starting at the same µs; use --window-us")
+    return iter(flows)
 
 
 def _png(png_dir: Path, i: int, r, max_speed) -> None:
@@ -182,6 +210,13 @@ def check_args(args) -> None:
     if args.resume and (args.workers or 1) > 1:
         raise ParameterError(f"--resume needs --workers 1 (got {args.workers}): with several "
                              "workers each chunk of windows starts from zero flow")
+    if args.scheduler is not None:
+        for given, why in ((args.resume, "--resume continues a run in this process"),
+                           (args.init == "dnn", "--init dnn runs the network in this process")):
+            if given:
+                raise ParameterError(f"--scheduler {args.scheduler} does not apply: {why}")
+        # the chunks: --workers if given, else the cluster's worker threads (run())
+        args.scheduler_chunks = args.workers
 
 
 def _check_space(out: Path, windows, sensor_size) -> None:
@@ -245,7 +280,11 @@ def run(args) -> int:
             video.append((r.flow, _valid(r)))
 
     results = None
-    if workers > 1:
+    scheduler = getattr(args, "scheduler", None)
+    if scheduler is not None:
+        results = _estimate_parallel(events, windows, kwargs, args.scheduler_chunks,
+                                     keep_iwes=png_dir is not None, scheduler=scheduler)
+    elif workers > 1:
         results = _estimate_parallel(events, windows, kwargs, workers,
                                      keep_iwes=png_dir is not None)
     rows, written = _run_windows(args, events, windows, attrs, after, progress,

@@ -34,8 +34,10 @@ argparse.ArgumentTypeError: must be a finite number > 0 ms, got 'nan'
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -46,6 +48,7 @@ from evmotion.errors import ParameterError
 
 __all__ = [
     "Parser",
+    "add_scheduler_argument",
     "check_folder",
     "check_free_space",
     "check_output",
@@ -58,6 +61,8 @@ __all__ = [
     "positive_float",
     "positive_int",
     "reject_unused",
+    "scheduler_address",
+    "scheduler_client",
     "writable_folder",
     "writable_output",
 ]
@@ -467,3 +472,83 @@ def select_windows(args, events, *, file: str | os.PathLike = "", min_events: in
 
 __all__ += ["add_time_arguments", "check_time_order", "check_time_range", "empty_selection",
             "format_time_us", "select_windows", "time_us"]
+# ---------------------------------------------------------------- Dask cluster
+SCHEDULER_TIMEOUT_S = 5.0
+_SCHEDULER_ADDRESS = re.compile(
+    r"(?:(?:tcp|tls|ucx|ws|wss)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})"
+    r"|inproc://\S+")
+
+
+def scheduler_address(text: str) -> str:
+    """``type=`` for a Dask scheduler address: ``[tcp|tls|ucx|ws|wss://]host:port`` (what
+    ``dask scheduler`` prints) or an in-process ``inproc://`` one; also checks that the
+    ``dask`` extra is installed.
+
+    Examples
+    --------
+    >>> scheduler_address("tcp://10.0.0.5:8786")  # doctest: +SKIP
+    'tcp://10.0.0.5:8786'
+    """
+    import importlib.util
+
+    m = _SCHEDULER_ADDRESS.fullmatch(text.strip())
+    port = m.group(1) if m else None
+    if m is None or (port is not None and not 1 <= int(port) <= 65535):
+        raise argparse.ArgumentTypeError(
+            f"must be a Dask scheduler address such as tcp://host:8786, got {text!r}")
+    if importlib.util.find_spec("distributed") is None:
+        raise argparse.ArgumentTypeError(
+            f"{text}: running on a Dask cluster needs the package 'distributed', which is "
+            "not installed: pip install 'evmotion[dask]'")
+    return text.strip()
+
+
+def add_scheduler_argument(p, what: str = "windows") -> None:
+    """Add ``--scheduler ADDRESS`` (attribute ``scheduler``, default None) to a parser or
+    argument group: run the ``what`` on a Dask ``distributed`` cluster. The client
+    ships each task's events to the workers (see docs/cluster.rst)."""
+    p.add_argument("--scheduler", type=scheduler_address, default=None, metavar="ADDRESS",
+                   help=f"run the {what} on the Dask cluster whose scheduler is at ADDRESS "
+                        "(tcp://host:8786, from 'dask scheduler'; needs the 'dask' extra); "
+                        "this process reads the recording and sends each task its events, "
+                        "so the workers need no access to the file")
+
+
+@contextlib.contextmanager
+def scheduler_client(address: str | None, timeout_s: float | None = None):
+    """A ``distributed.Client`` connected to ``address`` for the ``with`` block (None
+    without an address); raises ParameterError, one line naming the address, when no
+    scheduler with workers answers within ``timeout_s`` seconds (default
+    ``SCHEDULER_TIMEOUT_S``)."""
+    if address is None:
+        yield None
+        return
+    from evmotion.parallel import connect_scheduler
+
+    client = connect_scheduler(address, SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s)
+    try:
+        _warn_slow_workers(client, address)
+        yield client
+    finally:
+        client.close()
+
+
+def cluster_threads(client) -> int:
+    """Worker threads of a connected Dask cluster (at least 1)."""
+    return max(1, sum(client.nthreads().values()))
+
+
+def _warn_slow_workers(client, address: str) -> None:
+    """One warning line when the workers run with ``MALLOC_TRIM_THRESHOLD_`` set, as Dask's
+    nanny sets it by default: glibc then stops adapting its mmap threshold, every large
+    temporary array is mapped and zeroed afresh, and the estimates ran 3-4x slower
+    (flow multicm, benchmarks/results/cluster.md)."""
+    from evmotion.cli import warn_line
+
+    values = sorted({v for v in client.run(os.getenv, "MALLOC_TRIM_THRESHOLD_").values()
+                     if v is not None})
+    if values:
+        warn_line(f"the Dask workers at {address} run with MALLOC_TRIM_THRESHOLD_="
+                  f"{','.join(values)} (Dask's default), which made the estimates 3-4x "
+                  "slower; start them with distributed.nanny.pre-spawn-environ."
+                  "MALLOC_TRIM_THRESHOLD_ set to null (see docs/cluster.rst)")

@@ -5,12 +5,14 @@ of every cluster (CSV), event labels (NPZ) and PNGs of the per-cluster IWEs."""
 from __future__ import annotations
 
 import csv
+import functools
 import io
 from pathlib import Path
 
 import numpy as np
 
 from evmotion.cli.options import (
+    add_scheduler_argument,
     add_time_arguments,
     check_time_order,
     int_range,
@@ -45,6 +47,9 @@ def add_parser(sub) -> None:
     g.add_argument("--window-us", type=positive_int(unit="µs"),
                    help="window duration in microseconds")
     add_time_arguments(p)
+    p.add_argument("--workers", type=positive_int(), default=1,
+                   help="parallel worker processes (default 1)")
+    add_scheduler_argument(p)
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
     p.add_argument("--json", action="store_true", help="print per-window results as JSON")
     p.set_defaults(func=run)
@@ -52,12 +57,15 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.cli.egomotion import check_common, load_events_and_camera
-    from evmotion.methods.segmentation import segment_motion
-    from evmotion.utils import atomic_path, atomic_write_text, progress
+    from evmotion.cli.egomotion import check_common, check_scheduler, load_events_and_camera
+    from evmotion.cli.options import scheduler_client
+    from evmotion.errors import EvmotionError
+    from evmotion.parallel import map_windows
+    from evmotion.utils import atomic_path, atomic_write_text
     from evmotion.viz import images
 
     check_common(args)
+    check_scheduler(args)
     if args.objective not in ("variance", "gradient_magnitude"):
         raise ParameterError("segment supports --objective variance or gradient_magnitude")
     check_time_order(args)
@@ -68,13 +76,21 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     K = None if cam is None else cam.K
+    job = functools.partial(_segment_job, n_warps=args.warps, warp=args.warp,
+                            objective=args.objective, K=K, t_ref=args.t_ref,
+                            n_iter=args.iterations, seed=args.seed, regularizer=args.reg,
+                            weight=args.weight, dataset=args.dataset)
+    with scheduler_client(args.scheduler) as client:
+        results = map_windows(job, events, windows, workers=args.workers, scheduler=client,
+                              desc="segment")
+    failed = next((r for r in results if not r.ok), None)
+    if failed is not None:
+        raise EvmotionError(f"{args.file}: window {failed.index} [{failed.t0}, {failed.t1}) us "
+                            f"failed: {failed.error.splitlines()[0]}")
     rows, labels, pngs = [], {}, []
     try:
-        for w in progress(windows, desc="segment", unit="win"):
-            seg = segment_motion(events.window(w), args.warps, args.warp, args.objective, K=K,
-                                 t_ref=args.t_ref, n_iter=args.iterations, seed=args.seed,
-                                 regularizer=args.reg, weight=args.weight,
-                                 dataset=args.dataset)
+        for w, res in zip(windows, results, strict=True):
+            seg = res.value
             labels[f"window_{w.index:05d}"] = seg.labels.astype(np.int16)
             for j in range(args.warps):
                 rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "cluster": j,
@@ -108,3 +124,10 @@ def run(args) -> int:
     else:
         print(f"{len(windows)} windows x {args.warps} clusters -> {out}/clusters.csv")
     return 0
+
+
+def _segment_job(events, **kwargs):
+    """One window's segmentation, in a worker (module level, so that it pickles)."""
+    from evmotion.methods.segmentation import segment_motion
+
+    return segment_motion(events, **kwargs)

@@ -892,6 +892,7 @@ def estimate_bos_sequence(
     workers: int = 1,
     chunks: int | None = None,
     progress: bool = False,
+    scheduler=None,
     **kwargs,
 ) -> list[BosResult]:
     """:func:`estimate_bos` over every frame interval ``[times[i], times[i+1])``.
@@ -900,7 +901,8 @@ def estimate_bos_sequence(
     ``warm_start`` an interval starts from the previous interval's solution, so the
     intervals of one chunk run in order; ``chunks`` contiguous chunks (default ``workers``)
     run in parallel with :func:`evmotion.parallel.map_windows` (each chunk's first interval
-    starts cold).
+    starts cold). With ``scheduler`` (a Dask scheduler address or ``distributed.Client``)
+    the chunks run on that cluster instead of local processes.
 
     Returns
     -------
@@ -940,8 +942,8 @@ def estimate_bos_sequence(
     windows = [(int(times[a]), int(times[b])) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
     fn = functools.partial(_solve_chunk, frames=frames, times=times, roi=roi, options=o,
                            warm_start=warm_start)
-    results = map_windows(fn, events, windows, workers=workers, progress=progress,
-                          desc="bos", with_window=True)
+    results = map_windows(fn, events, windows, workers=workers, scheduler=scheduler,
+                          progress=progress, desc="bos", with_window=True)
     out: list[BosResult] = []
     for res in results:
         if not res.ok:

@@ -80,7 +80,7 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
 
 def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
                     contrast_threshold: float | None = None, c_samples: int = 15,
-                    **options) -> BosRun:
+                    scheduler=None, **options) -> BosRun:
     """Solve every selected frame interval of ``data``.
 
     Parameters
@@ -93,6 +93,9 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
         chunk (:func:`evmotion.methods.bos.estimate_bos_sequence`).
     progress : bool
         Progress bar (rate, ETA) on stderr.
+    scheduler : str or distributed.Client, optional
+        Run the ``workers`` chunks on this Dask cluster instead of local processes
+        (:func:`evmotion.parallel.map_windows`).
     contrast_threshold : float, optional
         C in log-intensity units; default: :func:`sequence_contrast_threshold`.
     c_samples : int
@@ -124,9 +127,10 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     first, last = int(data.intervals[0, 0]), int(data.intervals[-1, 0]) + 1
     frames = data.frames[first:last + 1]
     times = data.frame_times[first:last + 1]
-    if workers > 1:
+    if workers > 1 or scheduler is not None:
         results = estimate_bos_sequence(data.events, frames, times, roi=data.roi,
-                                        workers=workers, progress=progress,
+                                        workers=workers, scheduler=scheduler,
+                                        progress=progress,
                                         contrast_threshold=c, **options)
         return BosRun(results, c, source, samples)
     results, prev = [], None
