@@ -210,9 +210,25 @@ def limited(line: str) -> str:
     return " ".join(shlex.quote(a) for a in argv + extra)
 
 
+def _on_local_cluster(lines: list[str], stack: contextlib.ExitStack) -> list[str]:
+    """``lines`` with each ``--scheduler ADDRESS`` pointed at a local Dask cluster (started
+    here, two single-threaded workers), so that the README's cluster example really runs on
+    one; the lines are unchanged when none names a scheduler."""
+    if not any("--scheduler" in line for line in lines):
+        return lines
+    distributed = pytest.importorskip("distributed")
+    cluster = stack.enter_context(distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=False, protocol="tcp",
+        dashboard_address=":0"))
+    return [re.sub(r"--scheduler\s+\S+", f"--scheduler {cluster.scheduler_address}", line)
+            for line in lines]
+
+
 def test_readme_examples_run(world, tmp_path, capsys):
     lines = readme_lines()
     if not lines:
         pytest.skip("README.md has no evmotion example in a code block")
-    failures = _run_lines(world, tmp_path / "run", [limited(line) for line in lines], capsys)
+    with contextlib.ExitStack() as stack:
+        lines = _on_local_cluster([limited(line) for line in lines], stack)
+        failures = _run_lines(world, tmp_path / "run", lines, capsys)
     assert not failures, "README.md examples that fail:\n" + "\n".join(failures)
