@@ -167,9 +167,9 @@ def _field_kymogram(args):
     from evmotion.methods.kymogram import kymogram_from_images
 
     if args.source == "q":
-        from evmotion.io.bosfiles import read_bos_h5
+        from evmotion.io.bosfiles import read_bos
 
-        bos = read_bos_h5(args.file)
+        bos = read_bos(args.file)
         seq, images, label = bos.flow, bos.q, "q"
     else:
         seq = read_flow_h5(args.file)
