@@ -333,7 +333,7 @@ class FlowWriter(PartFileWriter):
     def _trim_partial(self) -> None:
         # A crash between resizing and writing t1 leaves a window that is not done.
         n = int(self.f["t1"].shape[0])
-        for name in ("flow", "t0", "valid", *getattr(self, "extras", {})):
+        for name in ("flow", "t0", "valid", *self.extras):
             if name in self.f and self.f[name].shape[0] != n:
                 self.f[name].resize(n, axis=0)
 
