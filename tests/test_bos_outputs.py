@@ -94,6 +94,7 @@ def test_file_of_the_layout_before_is_read(tmp_path):
     seq = read_flow(path)
     np.testing.assert_array_equal(seq.extras["q"], q)
     assert sorted(seq.extras) == ["p", "q", "window/loss"]
+    assert seq.attrs["eval_out_px"] == 1.0  # eval's threshold for these files, as before
     for bos in (read_bos_h5(path), read_bos(path)):
         np.testing.assert_array_equal(bos.q, q)
         np.testing.assert_array_equal(bos.scalars["loss"], [1.0, 2.0])
@@ -188,6 +189,11 @@ def test_bos_other_containers(scene, bos_h5, tmp_path, capsys):
     np.testing.assert_array_equal(seq.valid, ref.valid)
     np.testing.assert_array_equal(seq.extras["q"], ref.extras["q"])
     np.testing.assert_array_equal(read_bos(npz).p, read_bos_h5(bos_h5).p)
+    for source, label in (("q", "q"), ("flow", "|flow| px/s")):  # kymogram reads .npz too
+        rc, text, err = _run(["kymogram", npz, "--from", source, "--col", 20, "--no-fit",
+                              "--out", tmp_path / f"k_{source}.png", "--json"], capsys)
+        assert rc == 0, err
+        assert json.loads(text)["panels"][0]["source"] == label
     flo = tmp_path / "bos_{:05d}.flo"
     rc, _, err = _run(["bos", scene, *BOS_ARGS, "--out", flo], capsys)
     assert rc == 0, err

@@ -456,7 +456,7 @@ def extra_specs(group) -> dict:
     raw = group.attrs.get(EXTRAS_ATTR)
     if raw is not None:
         names = json.loads(raw.decode() if isinstance(raw, bytes) else raw)
-    elif group.attrs.get("content") == "evmotion-bos":
+    elif _legacy_bos(group):
         names = [n for n in ("q", "p") if n in group]
         if "window" in group:
             names += [f"window/{k}" for k in group["window"]]
@@ -470,6 +470,12 @@ def extra_specs(group) -> dict:
                               units.decode() if isinstance(units, bytes) else str(units),
                               meaning.decode() if isinstance(meaning, bytes) else str(meaning))
     return out
+
+
+def _legacy_bos(group) -> bool:
+    """A BOS file written before the ``extras`` attribute (same datasets, ``valid`` = the
+    ROI, evaluated at 1 px by ``evmotion eval``)."""
+    return group.attrs.get("content") == "evmotion-bos" and EXTRAS_ATTR not in group.attrs
 
 
 def check_extras(specs: dict, values: dict | None, path=None) -> dict:
@@ -580,6 +586,8 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
     extras = {name: group[name][sel] for name in specs}
     if specs:
         attrs["extras_units"] = {name: spec.units for name, spec in specs.items()}
+    if _legacy_bos(group):
+        attrs.setdefault("eval_out_px", 1.0)
     return FlowSequence(flow=flow, t0=group["t0"][sel], t1=group["t1"][sel], valid=valid,
                         attrs=attrs, extras=extras)
 
