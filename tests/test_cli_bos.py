@@ -78,7 +78,11 @@ def test_options_roi_png_json(scene, tmp_path, capsys):
     summary = json.loads(text)
     assert summary["n_intervals"] == 1 and summary["roi"] == [4, 8, 32, 32]
     bos = read_bos_h5(out)
-    assert bos.flow.valid[0, 8:40, 4:36].all() and bos.flow.valid[0].sum() == 32 * 32
+    # valid: the ROI's pixels with event support (was: the whole ROI; issue 15 §2)
+    roi = np.zeros((48, 40), bool)
+    roi[8:40, 4:36] = True
+    assert not bos.flow.valid[0][~roi].any() and 0 < bos.flow.valid[0].sum() <= 32 * 32
+    assert np.isfinite(bos.flow.flow[0][roi]).all()
     assert np.isnan(bos.flow.flow[0, 0, 0]).all()
     for name in ("q_00000.png", "flow_00000.png", "p_00000.png"):
         assert (tmp_path / "png" / name).stat().st_size > 1000
@@ -115,7 +119,12 @@ def test_bad_inputs(scene, tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")
     _one_line_error(["bos", scene, "--out", blocker / "x.h5"], capsys, "cannot write")
-    _one_line_error(["bos", scene, "--out", tmp_path / "x.png"], capsys, ".h5")
+    # .png is a flow output now (DSEC 16-bit, one file per interval): two intervals need
+    # a pattern, and --png-dir needs q and p (.h5 / .npz)
+    _one_line_error(["bos", scene, "--out", tmp_path / "x.png"], capsys, "pattern")
+    _one_line_error(["bos", scene, "--png-dir", tmp_path / "pngs", "--out",
+                     tmp_path / "x_{:05d}.png"], capsys, "--png-dir", ".npz")
+    _one_line_error(["bos", scene, "--out", tmp_path / "x.npy"], capsys, "--out", ".npz")
     assert not out.exists()
 
 

@@ -155,6 +155,8 @@ def world(tmp_path_factory) -> Path:
         _ok(["simulate", "schlieren", "--scene", "plume", "--size", "128x160", "--duration",
              "0.05", "--out", "scene/"])
         _ok(["bos", "scene/", "--max-intervals", "2", "--out", "bos.h5"])
+        _ok(["egomotion", "sim.h5", "--warp", "rotation", "--window-events", "30000",
+             "--max-windows", "2", "--max-png", "0", "--out", "ego/"])
     return root
 
 

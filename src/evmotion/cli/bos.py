@@ -8,10 +8,16 @@ translation field ``p`` (px), warm-started from the previous interval. The contr
 threshold C that sets the flow's magnitude (``--data-term scale``) is one per sequence:
 the median of its estimates from the frames bracketing up to 15 intervals, unless given.
 
-The output is an evmotion flow HDF5 file (``read_flow_h5``, ``evmotion eval`` read it)
-with ``/q``, ``/p`` and per-window numbers (contrast threshold, objective, events, seconds)
-beside the flow; ``--png-dir`` adds ``q_XXXX.png``, ``flow_XXXX.png`` and ``p_XXXX.png``
-per interval.
+The output is a regular evmotion flow output (:mod:`evmotion.io.flowout`, the one every
+``evmotion flow`` method writes; ``read_flow``, ``evmotion info`` and ``evmotion eval``
+read it): the flow in px/s, each interval's ``[t0, t1)`` µs, ``valid`` = the ROI's pixels
+with event support (elsewhere the flow is the regularizer's interpolation), units and grid.
+``.h5`` (the reference) and ``.npz`` also hold ``q``, ``p`` and per-window numbers
+(contrast threshold, objective, events, seconds) as extra datasets; ``.flo`` (Middlebury
+displacement in px, ``NAME.flo.json`` with dt/t0/t1) and ``.png`` (DSEC 16-bit
+displacement) hold the flow only, one file per interval (a pattern such as
+``bos_{:05d}.flo`` for several). ``--png-dir`` adds ``q_XXXX.png``, ``flow_XXXX.png``
+and ``p_XXXX.png`` per interval (with .h5 / .npz).
 """
 
 from __future__ import annotations
@@ -35,9 +41,10 @@ EXAMPLES = """examples:
   evmotion bos scene/ --max-intervals 2 --out bos.h5
   evmotion bos scene/ --roi 32 0 96 128 --max-windows 1 --png-dir png/ --json --out bos_roi.h5
   evmotion bos scene/events.txt --frames scene/ --param flow --data-term scale --t1 0.01 --out bos_flow.h5
+  evmotion bos scene/ --max-intervals 2 --iterations 20 --out 'bos_{:05d}.flo'
   evmotion eval bos.h5 --gt scene/schlieren_gt.h5 --json
 (scene/: made by 'evmotion simulate schlieren --scene plume --size 128x160 --duration 0.05
---out scene/'; --roi X0 Y0 X1 Y1 in px; --t0/--t1 in seconds, or 10ms, 10000us.)
+--out scene/'; --roi X Y W H in px; --t0/--t1 in seconds, or 10ms, 10000us.)
 """
 
 
@@ -86,60 +93,72 @@ def add_parser(sub) -> None:
                         "worker thread of the cluster)")
     add_scheduler_argument(p, "chunks of frame intervals")
     p.add_argument("--out", required=True,
-                   type=writable_output((".h5", ".hdf5"), "a BOS file (HDF5)"),
-                   help="output .h5 file")
+                   type=writable_output((".h5", ".hdf5", ".npz", ".flo", ".png"),
+                                        "a flow output (.h5, .npz; .flo, .png per interval)"),
+                   help="output: .h5 (reference: flow px/s, t0/t1, valid, q, p, per-window "
+                        "numbers; resumable layout), .npz (the same arrays), .flo "
+                        "(Middlebury displacement px + NAME.flo.json) or .png (DSEC 16-bit "
+                        "displacement + NAME.png.json): flow only, no q/p; a pattern "
+                        "(bos_{:05d}.flo) for several intervals")
     p.add_argument("--png-dir", default=None, type=writable_folder,
-                   help="write q/flow/p PNGs per interval here")
+                   help="write q/flow/p PNGs per interval here (needs --out .h5 or .npz)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
-    import numpy as np
+def _check_out(out, n_windows=None) -> str:
+    from evmotion.errors import ParameterError
+    from evmotion.io.flowout import check_flow_output
 
+    try:
+        return check_flow_output(out, n_windows)
+    except ParameterError as exc:
+        raise ParameterError(f"--out {exc}") from None
+
+
+def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.options import cluster_threads, scheduler_client
-    from evmotion.io.bosfiles import BosWriter
+    from evmotion.errors import ParameterError
     from evmotion.io.bosinput import load_bos_input
-    from evmotion.methods.bos_run import solve_bos_input
+    from evmotion.io.flowout import EXTRA_CONTAINERS
+    from evmotion.methods.bos_run import solve_bos_input, write_bos_output
 
     out = Path(args.out)
     check_time_order(args)
+    kind = _check_out(out)
+    if args.png_dir and kind not in EXTRA_CONTAINERS:
+        raise ParameterError(f"--png-dir draws q and p, which a .{kind} output does not hold; "
+                             "write --out .h5 or .npz")
     t_start = time.perf_counter()
-    data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi, t0=args.t0,
-                          t1=args.t1, max_intervals=args.max_intervals)
     opts = {"param": args.param, "data_term": args.data_term, "seed": args.seed}
     if args.iterations is not None:
         opts["iterations"] = args.iterations
-    with scheduler_client(args.scheduler) as client:
-        chunks = args.workers if client is None or args.workers > 1 else cluster_threads(client)
-        run_ = solve_bos_input(data, workers=chunks, scheduler=client, progress=True,
-                               contrast_threshold=args.contrast_threshold, **opts)
-    results = run_.results
+    try:
+        data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi,
+                              t0=args.t0, t1=args.t1, max_intervals=args.max_intervals)
+        _check_out(out, len(data.intervals))
+        with scheduler_client(args.scheduler) as client:
+            chunks = (args.workers if client is None or args.workers > 1
+                      else cluster_threads(client))
+            run_ = solve_bos_input(data, workers=chunks, scheduler=client, progress=True,
+                                   contrast_threshold=args.contrast_threshold, **opts)
+    except ParameterError as exc:
+        if args.roi is not None and str(exc).startswith("roi "):
+            # the library names its argument; the user typed the option
+            raise ParameterError(f"--{exc} (--roi X Y W H)") from None
+        raise
     attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
              "seed": args.seed, "source": data.source,
              "contrast_threshold": -1.0 if run_.contrast_threshold is None
              else run_.contrast_threshold, "contrast_threshold_source": run_.c_source}
-    rows = []
+    rows = write_bos_output(out, data, run_, attrs)
     png_files: list[str] = []
-    with BosWriter(out, data.events.sensor_size, roi=data.roi, attrs=attrs) as bw:
-        for (i, t0, t1), res in zip(data.intervals, results, strict=True):
-            c = res.contrast_threshold
-            scalars = {"frame_index": int(i),
-                       "contrast_threshold": float("nan") if c is None else c,
-                       "calibrated": float(res.calibrated), "objective": res.objective,
-                       "n_events": len(data.events.slice_time(int(t0), int(t1))),
-                       "seconds": float(sum(res.timings_s))}
-            bw.append(res.flow, int(t0), int(t1), q=res.q, p=res.p, scalars=scalars)
-            speed = np.hypot(res.flow[..., 0], res.flow[..., 1])[res.valid]
-            rows.append({"t0_us": int(t0), "t1_us": int(t1), **scalars,
-                         "contrast_threshold": c,
-                         "median_speed_px_s": float(np.median(speed)) if speed.size else 0.0})
     if args.png_dir:
-        from evmotion.io.bosfiles import read_bos_h5
+        from evmotion.io.bosfiles import read_bos
         from evmotion.viz.bos import save_bos_pngs
 
-        bos = read_bos_h5(out)
+        bos = read_bos(out)
         for k in range(len(bos)):
             png_files += save_bos_pngs(args.png_dir, k, bos.flow.flow[k], bos.q[k], bos.p[k],
                                        q_unit=bos.attrs["q_units"],

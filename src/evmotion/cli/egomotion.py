@@ -2,7 +2,9 @@
 
 Writes into ``--out DIR``: ``params.csv`` and ``params.h5`` (one row per window: time range,
 reference time, event count, the warp parameters with their units, cost, focus, penalty,
-seconds), and PNG panels (IWE before / after, DIWE and IWA maps) for the first
+seconds; ``params.h5`` (:mod:`evmotion.io.paramsfiles`) also says the warp, the pixel grid,
+each value's units and a ``valid`` flag per window, and ``evmotion info`` describes it),
+and PNG panels (IWE before / after, DIWE and IWA maps) for the first
 ``--max-png`` windows. ``--json`` prints the per-window parameters with names and units,
 and each window's checks: ``collapsed`` and ``diagnostics`` (explained share of the image,
 contrast gain over the identity warp; see :mod:`evmotion.methods.diagnostics`). A window
@@ -214,9 +216,9 @@ def write_outputs(out_dir: Path, results, max_png: int, grid: str | None = None
                   ) -> list[dict]:
     """params.csv, params.h5 and PNG panels; returns the JSON rows. ``grid`` (which pixel
     grid the events were on) goes into params.h5's attributes."""
-    import h5py
-
-    from evmotion.utils import atomic_path, atomic_write_text
+    from evmotion.io.paramsfiles import ParamsTable, write_params_h5
+    from evmotion.methods.diagnostics import POOR_FIT_SHARE
+    from evmotion.utils import atomic_write_text
     from evmotion.viz import images
 
     ok = [(w, r) for w, r, err in results if err is None and r is not None]
@@ -250,24 +252,30 @@ def write_outputs(out_dir: Path, results, max_png: int, grid: str | None = None
                      int(row["collapsed"]), repr(_share(row)),
                      repr(row["diagnostics"].get("contrast_gain", float("nan")))])
     atomic_write_text(out_dir / "params.csv", buf.getvalue())
-    with atomic_path(out_dir / "params.h5") as tmp, h5py.File(tmp, "w") as f:
-        f["params"] = np.array([r.params for _, r in ok])
-        for key in ("t0_us", "t1_us", "t_ref_us", "n_events", "window"):
-            f[key] = np.array([row[key] for row in rows], dtype=np.int64)
-        for key in ("cost", "focus", "penalty"):
-            f[key] = np.array([row[key] for row in rows])
-        # the checks of every window: collapsed estimates are not measurements
-        f["collapsed"] = np.array([row["collapsed"] for row in rows], dtype=bool)
-        f["explained_share"] = np.array([_share(row) for row in rows])
-        f["contrast_gain"] = np.array([row["diagnostics"].get("contrast_gain", np.nan)
-                                       for row in rows])
-        f.attrs["param_names"] = list(names)
-        f.attrs["param_units"] = list(units)
-        f.attrs["warp"] = ok[0][1].warp
-        f.attrs["regularizer"] = str(ok[0][1].regularizer)
-        f.attrs["objective"] = ok[0][1].objective
-        if grid is not None:
-            f.attrs["grid"] = grid
+    params = np.array([r.params for _, r in ok], dtype=np.float64)
+    # the checks of every window: collapsed estimates and poor fits are not measurements
+    collapsed = np.array([row["collapsed"] for row in rows], dtype=bool)
+    share = np.array([_share(row) for row in rows])
+    poor_fit = share < POOR_FIT_SHARE  # NaN (not checked) is not flagged
+    cols = {"window": ("", "window index"), "t_ref_us": ("us", "reference time of the warp"),
+            "n_events": ("events", "events in the window"), "cost": ("", "objective value"),
+            "focus": ("", "focus term"), "penalty": ("", "regularizer term"),
+            "collapsed": ("", "flag: the IWE collapsed"),
+            "poor_fit": ("", f"flag: explained_share < {POOR_FIT_SHARE}"),
+            "explained_share": ("", "share of the image the warp explains"),
+            "contrast_gain": ("", "contrast over the identity warp's")}
+    values = {k: np.array([row[k] for row in rows]) for k in list(cols)[:6]}
+    values.update(collapsed=collapsed, poor_fit=poor_fit, explained_share=share,
+                  contrast_gain=np.array([row["diagnostics"].get("contrast_gain", np.nan)
+                                          for row in rows]))
+    first = ok[0][1]
+    write_params_h5(out_dir / "params.h5", ParamsTable(
+        params, tuple(names), tuple(units),
+        np.array([row["t0_us"] for row in rows]), np.array([row["t1_us"] for row in rows]),
+        ~collapsed & ~poor_fit & np.isfinite(params).all(axis=1), values,
+        {k: u for k, (u, _) in cols.items()}, {k: m for k, (_, m) in cols.items()},
+        {"method": "egomotion", "warp": first.warp, "regularizer": str(first.regularizer),
+         "objective": first.objective, "grid": "not recorded" if grid is None else grid}))
     for w, r in ok[:max(max_png, 0)]:
         panels = [images.iwe_to_rgb(r.iwe_before), images.iwe_to_rgb(r.iwe_after)]
         titles = ["IWE identity", "IWE " + ", ".join(

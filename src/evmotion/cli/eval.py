@@ -54,7 +54,8 @@ def add_parser(sub) -> None:
     p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None,
                    help="window end of a .npy, or a .flo/.png without sidecar")
     p.add_argument("--out-px", type=positive_float(unit="px"), default=None,
-                   help="%%Out threshold in px (default 3; 1 for BOS files, thesis §6.6.1)")
+                   help="%%Out threshold in px (default: the flow file's eval_out_px "
+                        "attribute, e.g. 1 for BOS outputs (thesis §6.6.1), else 3)")
     p.add_argument("--along-streamlines", action="store_true",
                    help="compare the displacement of the point at each pixel at the window "
                         "start: the window's flow (taken at its midpoint) transported to the "
@@ -67,7 +68,6 @@ def add_parser(sub) -> None:
 def _load_flow(args):
     from pathlib import Path
 
-    from evmotion.io.bosfiles import BOS_CONTENT
     from evmotion.io.flowout import CONTAINERS
     from evmotion.io.flowread import read_flow
 
@@ -91,9 +91,10 @@ def _load_flow(args):
     if suffix in (".h5", ".hdf5"):
         _check_estimate(path)
     seq = read_flow(path, t0_us=args.t0_us, t1_us=args.t1_us)
-    # a BOS file is defined inside its ROI only (NaN outside, valid = ROI)
-    domain = seq.valid if seq.attrs.get("content") == BOS_CONTENT else None
-    return seq.flow, np.asarray(seq.t0), np.asarray(seq.t1), domain
+    # a method may name its evaluation's %Out threshold (BOS: 1 px)
+    out_px = seq.attrs.get("eval_out_px")
+    return (seq.flow, np.asarray(seq.t0), np.asarray(seq.t1),
+            None if out_px is None else float(out_px))
 
 
 def _load_npy(args, path):
@@ -191,8 +192,8 @@ def run(args) -> int:
     from evmotion.eval.metrics import aggregate_flow_metrics, event_mask, flow_metrics, fwl
     from evmotion.io.flowfiles import read_gt_flow
 
-    flow, t0s, t1s, domain = _load_flow(args)
-    out_px = args.out_px if args.out_px is not None else 3.0 if domain is None else 1.0
+    flow, t0s, t1s, file_out_px = _load_flow(args)
+    out_px = args.out_px if args.out_px is not None else file_out_px or 3.0
     gt = read_gt_flow(args.gt)
     if gt.flow.shape[1:3] != flow.shape[1:3]:
         raise ParameterError(f"flow is {flow.shape[1:3]} px but ground truth {args.gt} is "
@@ -213,9 +214,10 @@ def run(args) -> int:
 
             est = transport_to_times(np.ascontiguousarray(est.transpose(2, 0, 1)),
                                      np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
-        mask = valid if domain is None else valid & domain[i]
+        mask = valid
         known = np.isfinite(flow[i]).all(axis=-1)
-        if domain is None and not known.all():  # .flo / .png: "unknown" where not valid
+        # NaN where the estimate is not defined (outside a BOS ROI; .flo / .png "unknown")
+        if not known.all():
             mask = mask & known
             unknown = True
         win = None
@@ -240,7 +242,7 @@ def run(args) -> int:
         total["FWL_gt"] = float(np.mean([r["FWL_gt"] for r in per_window if "FWL_gt" in r]))
     summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
                "n_windows": len(per_window), "windows_with_other_dt": mismatched,
-               "mask": "valid GT" + (" & ROI" if domain is not None else "")
+               "mask": "valid GT"
                + (" & at least one event" if events is not None else "")
                + (" & estimate known" if unknown else ""), "out_px": out_px,
                "mean": total, "windows": per_window}

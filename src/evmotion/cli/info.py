@@ -6,7 +6,9 @@ recording brings (``intrinsics``: K = fx, fy, cx, cy in px, distortion k1 k2 p1 
 resolution and the file or header they come from). Events are streamed chunk by
 chunk, so memory stays bounded for any file size. A flow output of ``evmotion flow`` (any
 container, or a per-window pattern) is described by its container, windows, time range,
-units, grid and valid fraction.
+units, grid and valid fraction; a parameters file (``egomotion``'s ``params.h5``,
+``segment``'s ``clusters.h5``) by its windows, parameters with their units, warp, grid,
+valid fraction and flags.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ EXAMPLES = """examples:
   evmotion info rec.raw --header-only          # no pass over the events
   evmotion info flow.h5                        # a flow output: windows, times, units, valid
   evmotion info 'flow_{:05d}.flo'              # per-window flow files, by their pattern
+  evmotion info ego/params.h5                  # egomotion's parameters: units, warp, grid
 """
 
 _HIDDEN = {"path", "format"}
@@ -99,6 +102,10 @@ def run(args) -> int:
     if args.sensor_size is not None:
         kw["sensor_size"] = tuple(args.sensor_size)
     info = describe_flow(args.file) if args.format is None else None
+    if info is None and args.format is None:
+        from evmotion.io.paramsfiles import describe_params
+
+        info = describe_params(args.file)
     if info is None:
         info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
         if "sensor_size" in info:

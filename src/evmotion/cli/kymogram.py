@@ -56,7 +56,8 @@ def add_parser(sub) -> None:
     p.add_argument("--width", type=int_range(1, 4096, unit="px"), default=1, metavar="PX",
                    help="px across the line averaged (default 1)")
     p.add_argument("--from", dest="source", choices=SOURCES, default="events",
-                   help="events (default), q of a BOS file, or |flow| of a flow file")
+                   help="events (default), q of a BOS output (.h5, .npz), or |flow| of any "
+                        "flow output (.h5, .npz, .flo/.png pattern)")
     p.add_argument("--rate", type=finite_float(0, 1e6, lo_open=True, unit="Hz"), default=None,
                    metavar="HZ", help="time bins per second of the events (default 1200)")
     p.add_argument("--compare-rate", type=finite_float(0, 1e6, lo_open=True, unit="Hz"),
@@ -163,16 +164,16 @@ def _field_kymogram(args):
     """Kymogram of q (BOS file) or |flow| (any flow file), one sample per window."""
     import numpy as np
 
-    from evmotion.io.flowfiles import read_flow_h5
+    from evmotion.io.flowread import read_flow
     from evmotion.methods.kymogram import kymogram_from_images
 
     if args.source == "q":
-        from evmotion.io.bosfiles import read_bos_h5
+        from evmotion.io.bosfiles import read_bos
 
-        bos = read_bos_h5(args.file)
+        bos = read_bos(args.file)
         seq, images, label = bos.flow, bos.q, "q"
     else:
-        seq = read_flow_h5(args.file)
+        seq = read_flow(args.file)
         images, label = np.hypot(seq.flow[..., 0], seq.flow[..., 1]), "|flow| px/s"
     t0 = np.asarray(seq.t0, dtype=np.int64)
     t1 = np.asarray(seq.t1, dtype=np.int64)

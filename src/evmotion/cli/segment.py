@@ -1,6 +1,8 @@
 """``evmotion segment FILE --warps N``: split the events of each window into N motions by
 expectation-maximization of per-cluster contrast (Sec. 3.6.6). Writes per-window parameters
-of every cluster (CSV), event labels (NPZ) and PNGs of the per-cluster IWEs."""
+of every cluster (``clusters.csv``, and ``clusters.h5``: :mod:`evmotion.io.paramsfiles`,
+with units, each row's [t0, t1) µs, warp, grid and a valid flag; ``evmotion info``
+describes it), event labels (``labels.npz``) and PNGs of the per-cluster IWEs."""
 
 from __future__ import annotations
 
@@ -60,6 +62,7 @@ def run(args) -> int:
     from evmotion.cli.egomotion import check_common, check_scheduler, load_events_and_camera
     from evmotion.cli.options import scheduler_client
     from evmotion.errors import EvmotionError
+    from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.parallel import map_windows
     from evmotion.utils import atomic_path, atomic_write_text
     from evmotion.viz import images
@@ -118,11 +121,27 @@ def run(args) -> int:
     atomic_write_text(out / "clusters.csv", buf.getvalue())
     with atomic_path(out / "labels.npz") as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **labels)
+    n_ev = np.array([r["n_events"] for r in rows], np.int64)
+    params = np.array([[r["params"][n] for n in names] for r in rows], np.float64)
+    write_params_h5(out / "clusters.h5", ParamsTable(
+        params, tuple(names), tuple(rows[0]["units"][n] for n in names),
+        np.array([r["t0_us"] for r in rows]), np.array([r["t1_us"] for r in rows]),
+        (n_ev > 0) & np.isfinite(params).all(axis=1),
+        {"window": np.array([r["window"] for r in rows]),
+         "cluster": np.array([r["cluster"] for r in rows]), "n_events": n_ev,
+         "empty": n_ev == 0},
+        {"n_events": "events"},
+        {"window": "window index", "cluster": "cluster index (labels.npz)",
+         "n_events": "events assigned to the cluster", "empty": "flag: no event assigned"},
+        {"method": "segment", "warp": args.warp, "grid": args.grid,
+         "objective": args.objective, "warps": args.warps, "iterations": args.iterations,
+         "seed": args.seed}))
     if args.json:
         print_json({"file": str(args.file), "grid": args.grid, "warp": args.warp,
                     "clusters": rows})
     else:
-        print(f"{len(windows)} windows x {args.warps} clusters -> {out}/clusters.csv")
+        print(f"{len(windows)} windows x {args.warps} clusters -> {out}/clusters.csv, "
+              "clusters.h5")
     return 0
 
 

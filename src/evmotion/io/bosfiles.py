@@ -1,13 +1,18 @@
-"""Schlieren (BOS) outputs: flow, Poisson field q and translation field p in one HDF5 file.
+"""Schlieren (BOS) outputs: flow, Poisson field q and translation field p.
 
-The file *is* an evmotion flow HDF5 file (:mod:`evmotion.io.flowfiles`): one window per
-frame interval, so :func:`~evmotion.io.flowfiles.read_flow_h5` and ``evmotion eval`` read
-its flow unchanged. Beside the flow datasets it holds::
+A BOS output *is* an evmotion flow output (:mod:`evmotion.io.flowout`): one window per
+frame interval, so :func:`~evmotion.io.flowread.read_flow`, ``evmotion info`` and
+``evmotion eval`` read its flow, times and validity unchanged. Its extra datasets
+(:func:`bos_extras`; ``.h5`` and ``.npz`` only) are::
 
     /q      (N, H, W)    float32, the Poisson field (v = Sobel(q)), attribute units
     /p      (N, H, W, 2) float32, px, per-pixel translation of the frame (x, y)
     /window/<name> (N,)  float64, per-window scalars (contrast threshold, loss, events...)
-    attrs: content="evmotion-bos", roi=(x, y, w, h), plus the writer's attributes
+    attrs: content="evmotion-bos", roi=(x, y, w, h), extras (their names), plus the
+    writer's attributes
+
+Files written before the ``extras`` attribute existed (same datasets, ``valid`` = the ROI)
+are read the same way.
 
 Pixels outside the ROI are NaN in flow, q and p and False in ``/valid``. The file is
 written to ``<name>.part`` and renamed by :meth:`BosWriter.close` (atomic), as
@@ -23,10 +28,17 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
-from evmotion.io.flowfiles import FlowSequence, FlowWriter, read_flow_group
+from evmotion.io.flowfiles import (
+    ExtraSpec,
+    FlowSequence,
+    FlowWriter,
+    create_extras,
+    read_flow_group,
+)
 from evmotion.io.guard import open_h5
 
-__all__ = ["BOS_CONTENT", "BosSequence", "BosWriter", "read_bos_h5", "roi_mask"]
+__all__ = ["BOS_CONTENT", "BosSequence", "BosWriter", "bos_extras", "read_bos",
+           "read_bos_h5", "roi_mask"]
 
 BOS_CONTENT = "evmotion-bos"
 
@@ -81,8 +93,45 @@ class BosSequence:
         return len(self.flow)
 
 
+def bos_extras(sensor_size: tuple[int, int], q_units: str = "px^2/s",
+               scalars: tuple[str, ...] = ()) -> dict:
+    """The extra datasets of a BOS flow output (name -> :class:`~evmotion.io.flowfiles.
+    ExtraSpec`): ``q`` (H, W), ``p`` (H, W, 2) px, and one float64 ``window/<name>`` per
+    per-window number in ``scalars``.
+
+    Examples
+    --------
+    >>> sorted(bos_extras((4, 5), scalars=("loss",)))
+    ['p', 'q', 'window/loss']
+    """
+    h, w = (int(v) for v in sensor_size)
+    out = {"q": ExtraSpec((h, w), "<f4", q_units, Q_MEANING),
+           "p": ExtraSpec((h, w, 2), "<f4", "px", P_MEANING)}
+    for name in scalars:
+        out[f"window/{name}"] = ExtraSpec((), "<f8", SCALAR_UNITS.get(name, ""),
+                                          SCALAR_MEANINGS.get(name, "per-window number"))
+    return out
+
+
+Q_MEANING = "Poisson field: flow = Sobel(q), q proportional to drho/dt"
+P_MEANING = "per-pixel translation (x, y) of the frame, W(x; p) = x + p"
+#: Units and meanings of the per-window numbers ``evmotion bos`` stores.
+SCALAR_UNITS = {"contrast_threshold": "log intensity", "objective": "", "n_events": "events",
+                "seconds": "s", "frame_index": "", "calibrated": ""}
+SCALAR_MEANINGS = {
+    "contrast_threshold": "event contrast threshold C used (NaN: unknown)",
+    "objective": "final objective (6.10) at full resolution",
+    "n_events": "events in the window",
+    "seconds": "wall time of the estimate",
+    "frame_index": "index of the frame the window's events are compared with",
+    "calibrated": "1: the flow magnitude is physical; 0: only its direction is measured",
+}
+
+
 class BosWriter(FlowWriter):
-    """Append per-interval schlieren estimates (flow, q, p) to a BOS HDF5 file.
+    """Append per-interval schlieren estimates (flow, q, p) to a BOS HDF5 file: an
+    evmotion flow file whose extra datasets (:func:`bos_extras`) are ``q``, ``p`` and
+    ``window/<name>``.
 
     Parameters
     ----------
@@ -116,37 +165,17 @@ class BosWriter(FlowWriter):
         all_attrs = {"content": BOS_CONTENT,
                      "roi": np.asarray(roi if roi is not None else (0, 0, w, h), np.int64),
                      **(attrs or {})}
+        self._compression = compression
         super().__init__(path, (h, w), with_valid=True, resume=resume, attrs=all_attrs,
-                         compression=compression)
-        if "q" not in self.f:
-            kw = {"compression": compression} if compression else {}
-            q = self.f.create_dataset("q", shape=(0, h, w), maxshape=(None, h, w),
-                                      dtype="<f4", chunks=(1, h, w), **kw)
-            q.attrs["units"] = q_units
-            q.attrs["meaning"] = "Poisson field: flow = Sobel(q), q proportional to drho/dt"
-            p = self.f.create_dataset("p", shape=(0, h, w, 2), maxshape=(None, h, w, 2),
-                                      dtype="<f4", chunks=(1, h, w, 2), **kw)
-            p.attrs["units"] = "px"
-            p.attrs["meaning"] = "per-pixel translation (x, y) of the frame, W(x; p) = x + p"
-            self.f.require_group("window")
-        self._trim_partial()
-
-    def _trim_partial(self) -> None:
-        super()._trim_partial()
-        n = int(self.f["t1"].shape[0])
-        for name in ("q", "p"):
-            if name in self.f and self.f[name].shape[0] != n:
-                self.f[name].resize(n, axis=0)
-        if "window" in self.f:
-            for ds in self.f["window"].values():
-                if ds.shape[0] != n:
-                    ds.resize(n, axis=0)
+                         compression=compression,
+                         extras=None if resume else bos_extras((h, w), q_units))
 
     def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None,
-               *, q: np.ndarray | None = None, p: np.ndarray | None = None,
-               scalars: dict | None = None) -> None:
+               extras: dict | None = None, *, q: np.ndarray | None = None,
+               p: np.ndarray | None = None, scalars: dict | None = None) -> None:
         """Add one frame interval ``[t0, t1)`` µs: flow (H, W, 2) px/s, q (H, W), p (H, W, 2)
-        px, and per-window numbers ``scalars``. Values outside the ROI are set to NaN."""
+        px, and per-window numbers ``scalars`` (the first window creates their datasets).
+        Values outside the ROI are set to NaN."""
         h, w = self.sensor_size
         if q is None or p is None:
             raise ParameterError("BosWriter.append needs q (H, W) and p (H, W, 2)")
@@ -161,25 +190,46 @@ class BosWriter(FlowWriter):
         for arr in (flow, q, p):
             arr[outside] = np.nan
         n = self.n_done
-        f = self.f
-        # q, p and scalars first: t1 (written last by FlowWriter.append) marks completion.
-        for name, arr in (("q", q), ("p", p)):
-            f[name].resize(n + 1, axis=0)
-            f[name][n] = arr
-        group = f["window"]
-        for key, value in (scalars or {}).items():
-            if key not in group:
-                if n > 0:
-                    raise ParameterError(f"scalar '{key}' was not given for the earlier "
-                                         f"{n} windows")
-                group.create_dataset(key, shape=(0,), maxshape=(None,), dtype="<f8",
-                                     chunks=(1024,))
-            group[key].resize(n + 1, axis=0)
-            group[key][n] = float(value)
-        missing = set(group) - set(scalars or {})
+        values = {"q": q, "p": p, **{f"window/{k}": float(v) for k, v in
+                                     (scalars or {}).items()}}
+        new = {k: v for k, v in bos_extras((h, w), scalars=tuple(scalars or {})).items()
+               if k.startswith("window/") and k not in self.extras}
+        if new:
+            if n > 0:
+                raise ParameterError(f"scalar '{sorted(new)[0][7:]}' was not given for the "
+                                     f"earlier {n} windows")
+            create_extras(self.f, new, self._compression)
+            self.extras.update(new)
+        missing = sorted(k[7:] for k in set(self.extras) - set(values))
         if missing:
-            raise ParameterError(f"window {n} lacks scalars {sorted(missing)}")
-        super().append(flow, t0, t1, valid=self.mask if valid is None else valid & self.mask)
+            raise ParameterError(f"window {n} lacks scalars {missing}")
+        super().append(flow, t0, t1, valid=self.mask if valid is None else valid & self.mask,
+                       extras=values)
+
+
+def read_bos(path: str | os.PathLike) -> BosSequence:
+    """Read a BOS output from any container that holds q and p (``.h5``, ``.npz``).
+
+    Examples
+    --------
+    >>> bos = read_bos("bos.npz")  # doctest: +SKIP
+    >>> bos.q.shape  # doctest: +SKIP
+    (3, 720, 640)
+    """
+    from evmotion.io.flowread import read_flow
+
+    seq = read_flow(path)
+    for name in ("q", "p"):
+        if name not in seq.extras:
+            raise FormatError(path, f"not a BOS output: no '{name}' beside the flow (the "
+                              ".flo / .png containers hold the flow only)")
+    scalars = {k[len("window/"):]: np.asarray(v) for k, v in seq.extras.items()
+               if k.startswith("window/")}
+    attrs = dict(seq.attrs)
+    attrs["q_units"] = attrs.get("extras_units", {}).get("q", "")
+    flow = FlowSequence(flow=seq.flow, t0=seq.t0, t1=seq.t1, valid=seq.valid, attrs=attrs)
+    return BosSequence(flow=flow, q=np.asarray(seq.extras["q"]),
+                       p=np.asarray(seq.extras["p"]), scalars=scalars, attrs=attrs)
 
 
 def read_bos_h5(path: str | os.PathLike, index: int | slice | None = None) -> BosSequence:

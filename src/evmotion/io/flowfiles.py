@@ -10,6 +10,9 @@ dense per-window flow::
     /flow   (N, H, W, 2) float32, px/s, chunked one window per chunk
     /t0, /t1 (N,) int64 µs, the window each flow belongs to
     /valid  (N, H, W) bool, optional
+    /<extra> (N, ...) per-window extra datasets a method adds (BOS: ``q``, ``p``,
+            ``window/<scalar>``), each with attributes ``units`` and ``meaning``; the file
+            attribute ``extras`` lists their names (JSON)
     attrs: format="evmotion-flow", version, height, width, units="px/s", plus user attributes
 
 It is written window by window to ``<name>.part`` and renamed onto ``<name>`` by
@@ -36,6 +39,10 @@ __all__ = [
     "FLO_MAGIC",
     "FlowSequence",
     "FlowWriter",
+    "ExtraSpec",
+    "create_extras",
+    "extra_specs",
+    "check_extras",
     "read_flo",
     "write_flo",
     "read_dsec_flow_png",
@@ -72,6 +79,10 @@ class FlowSequence:
         Where the flow is defined (ground truth) or trusted.
     attrs : dict
         Metadata stored with the flow.
+    extras : dict of str to ndarray
+        Per-window extra arrays a method stored beside the flow (first axis N), e.g. BOS's
+        ``q`` (N, H, W) and ``p`` (N, H, W, 2); their units are in
+        ``attrs["extras_units"]``.
     """
 
     flow: np.ndarray
@@ -79,6 +90,7 @@ class FlowSequence:
     t1: np.ndarray
     valid: np.ndarray | None = None
     attrs: dict = field(default_factory=dict)
+    extras: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.flow.shape[0])
@@ -264,6 +276,10 @@ class FlowWriter(PartFileWriter):
         HDF5 filter of the flow and mask datasets (:func:`h5_compression`): ``"gzip"``
         (readable everywhere, slow to write), ``"lzf"``, ``"lz4"`` or ``"zstd"`` (Blosc with
         byte shuffle through hdf5plugin: fast; readers need ``import hdf5plugin``) or None.
+    extras : dict of str to ExtraSpec, optional
+        Per-window datasets stored beside the flow (``append(..., extras=)`` gives each
+        window's values); a name may hold a group (``window/loss``). Every window must
+        give all of them.
 
     Examples
     --------
@@ -273,7 +289,7 @@ class FlowWriter(PartFileWriter):
 
     def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int], *,
                  with_valid: bool = False, resume: bool = False, attrs: dict | None = None,
-                 compression: str | None = "gzip"):
+                 compression: str | None = "gzip", extras: dict | None = None):
         import h5py
 
         self.path = Path(path)
@@ -298,19 +314,26 @@ class FlowWriter(PartFileWriter):
                 raise FormatError(self.part, f"cannot resume: holds format {fmt!r} of size "
                                   f"{got}, expected {FLOW_FORMAT!r} of size {self.sensor_size}")
             self.with_valid = "valid" in self.f
+            self.extras = extra_specs(self.f)
+            if extras is not None and set(extras) != set(self.extras):
+                self.f.close()
+                raise FormatError(self.part, f"cannot resume: holds extra datasets "
+                                  f"{sorted(self.extras)}, this run writes {sorted(extras)}")
             self._trim_partial()
         else:
             self.f = h5py.File(self.part, "w")
             self.with_valid = with_valid
             write_flow_group(self.f, None, None, None, sensor_size=self.sensor_size,
                              with_valid=with_valid, compression=compression)
+            self.extras = dict(extras or {})
+            create_extras(self.f, self.extras, compression)
         for k, v in (attrs or {}).items():
             self.f.attrs[k] = v
 
     def _trim_partial(self) -> None:
         # A crash between resizing and writing t1 leaves a window that is not done.
         n = int(self.f["t1"].shape[0])
-        for name in ("flow", "t0", "valid"):
+        for name in ("flow", "t0", "valid", *self.extras):
             if name in self.f and self.f[name].shape[0] != n:
                 self.f[name].resize(n, axis=0)
 
@@ -324,10 +347,12 @@ class FlowWriter(PartFileWriter):
         """Start times (µs) of the windows written so far."""
         return self.f["t0"][: self.n_done]
 
-    def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None
-               ) -> None:
-        """Add one window: ``flow`` (H, W, 2) px/s over ``[t0, t1)`` µs."""
+    def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None,
+               extras: dict | None = None) -> None:
+        """Add one window: ``flow`` (H, W, 2) px/s over ``[t0, t1)`` µs, and the window's
+        value of every extra dataset (``extras``, name -> array of its spec's shape)."""
         arr = _check_flow(flow)
+        values = check_extras(self.extras, extras, self.path)
         if arr.shape[:2] != self.sensor_size:
             raise ParameterError(f"flow has size {arr.shape[:2]}, the file holds "
                                  f"{self.sensor_size}")
@@ -348,6 +373,9 @@ class FlowWriter(PartFileWriter):
                 raise ParameterError(f"valid has shape {v.shape}, expected {self.sensor_size}")
             f["valid"].resize(n + 1, axis=0)
             f["valid"][n] = v
+        for name, value in values.items():
+            f[name].resize(n + 1, axis=0)
+            f[name][n] = value
         f["t0"].resize(n + 1, axis=0)
         f["t0"][n] = int(t0)
         # t1 is written last: its length is the number of complete windows.
@@ -365,6 +393,107 @@ class FlowWriter(PartFileWriter):
         """Close without renaming: the ``.part`` file stays for ``resume=True``."""
         if self.f.id.valid:
             self.f.close()
+
+
+@dataclass(frozen=True)
+class ExtraSpec:
+    """A per-window dataset stored beside the flow.
+
+    Attributes
+    ----------
+    shape : tuple of int
+        Shape of one window's value (``()`` for a number, ``(H, W)`` for an image).
+    dtype : str
+        numpy dtype of the stored values (default float32; ``"<f8"`` for numbers).
+    units : str
+        Unit of the values (``"px"``, ``"px^2/s"``, ``""`` for a count or a flag).
+    meaning : str
+        What the values are, in a sentence.
+
+    Examples
+    --------
+    >>> ExtraSpec((4, 5), units="px").shape
+    (4, 5)
+    """
+
+    shape: tuple = ()
+    dtype: str = "<f4"
+    units: str = ""
+    meaning: str = ""
+
+
+#: File attribute listing the extra datasets (JSON list of names).
+EXTRAS_ATTR = "extras"
+
+
+def create_extras(group, extras: dict, compression: str | None = "gzip") -> None:
+    """Create the empty, resizable extra datasets ``extras`` (name -> :class:`ExtraSpec`)
+    in an open flow group and add them to its ``extras`` attribute (none: no attribute)."""
+    import json
+
+    if not extras:
+        return
+    kw = h5_compression(compression)
+    for name, spec in extras.items():
+        shape = tuple(int(v) for v in spec.shape)
+        big = len(shape) > 0
+        ds = group.create_dataset(name, shape=(0, *shape), maxshape=(None, *shape),
+                                  dtype=spec.dtype, chunks=(1, *shape) if big else (1024,),
+                                  **(kw if big else {}))
+        ds.attrs["units"] = spec.units
+        ds.attrs["meaning"] = spec.meaning
+    listed = [n for n in extra_specs(group) if n not in extras] if EXTRAS_ATTR in \
+        group.attrs else []
+    group.attrs[EXTRAS_ATTR] = json.dumps(listed + list(extras))
+
+
+def extra_specs(group) -> dict:
+    """The extra datasets of a flow group (name -> :class:`ExtraSpec`), from its
+    ``extras`` attribute; a BOS file written before that attribute existed lists ``q``,
+    ``p`` and ``window/*``."""
+    import json
+
+    raw = group.attrs.get(EXTRAS_ATTR)
+    if raw is not None:
+        names = json.loads(raw.decode() if isinstance(raw, bytes) else raw)
+    elif _legacy_bos(group):
+        names = [n for n in ("q", "p") if n in group]
+        if "window" in group:
+            names += [f"window/{k}" for k in group["window"]]
+    else:
+        names = []
+    out = {}
+    for name in names:
+        ds = group[name]
+        units, meaning = ds.attrs.get("units", ""), ds.attrs.get("meaning", "")
+        out[name] = ExtraSpec(tuple(ds.shape[1:]), ds.dtype.str,
+                              units.decode() if isinstance(units, bytes) else str(units),
+                              meaning.decode() if isinstance(meaning, bytes) else str(meaning))
+    return out
+
+
+def _legacy_bos(group) -> bool:
+    """A BOS file written before the ``extras`` attribute (same datasets, ``valid`` = the
+    ROI, evaluated at 1 px by ``evmotion eval``)."""
+    return group.attrs.get("content") == "evmotion-bos" and EXTRAS_ATTR not in group.attrs
+
+
+def check_extras(specs: dict, values: dict | None, path=None) -> dict:
+    """One window's extra values, checked against ``specs`` (same names, shapes) and cast
+    to their dtypes; a ParameterError naming the file and the dataset otherwise."""
+    values = dict(values or {})
+    if set(values) != set(specs):
+        missing, unknown = sorted(set(specs) - set(values)), sorted(set(values) - set(specs))
+        raise ParameterError(f"{path}: extra datasets of a window: missing {missing}, "
+                             f"unknown {unknown}")
+    out = {}
+    for name, spec in specs.items():
+        arr = np.asarray(values[name], dtype=spec.dtype)
+        if arr.shape != tuple(spec.shape):
+            raise ParameterError(f"{path}: extra '{name}' has shape {arr.shape}, expected "
+                                 f"{tuple(spec.shape)}")
+        out[name] = arr
+    return out
 
 
 H5_COMPRESSIONS = ("gzip", "lzf", "lz4", "zstd", None)
@@ -453,8 +582,14 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
     flow = group["flow"][sel]
     valid = group["valid"][sel] if "valid" in group else None
     attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in group.attrs.items()}
+    specs = extra_specs(group)
+    extras = {name: group[name][sel] for name in specs}
+    if specs:
+        attrs["extras_units"] = {name: spec.units for name, spec in specs.items()}
+    if _legacy_bos(group):
+        attrs.setdefault("eval_out_px", 1.0)
     return FlowSequence(flow=flow, t0=group["t0"][sel], t1=group["t1"][sel], valid=valid,
-                        attrs=attrs)
+                        attrs=attrs, extras=extras)
 
 
 def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> FlowSequence:

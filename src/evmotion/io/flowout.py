@@ -12,11 +12,14 @@ Every container says its units, each window's ``[t0, t1)`` (µs) and its validit
 =================  ===========================================================================
 ``.h5``            the reference: ``flow`` (N, H, W, 2) float32 **px/s**, ``t0``/``t1`` (N,)
                    int64 µs, ``valid`` (N, H, W) bool; attributes ``units``, ``grid``,
-                   ``method`` and the method's options. Written window by window to
-                   ``OUT.part``, renamed when complete, resumable (``resume=True``).
-``.npz``           the same arrays (``flow`` px/s, ``t0``, ``t1``, ``valid``) with ``units``,
-                   ``format`` and ``attrs`` (JSON); windows spooled to a hidden temporary file
-                   and stored (uncompressed) when complete.
+                   ``method`` and the method's options; a method's extra per-window
+                   datasets (``extras``: BOS's ``q``, ``p``) beside them, each with its
+                   ``units``. Written window by window to ``OUT.part``, renamed when
+                   complete, resumable (``resume=True``).
+``.npz``           the same arrays (``flow`` px/s, ``t0``, ``t1``, ``valid``, the extras) with
+                   ``units``, ``format``, ``attrs`` and ``extras`` (JSON: names, units);
+                   windows spooled to hidden temporary files and stored (uncompressed)
+                   when complete.
 ``.flo``           Middlebury **displacement** in px over the window (the convention of the
                    format), unknown (1e10) where not valid; ``NAME.flo.json`` beside it holds
                    ``t0_us``, ``t1_us``, ``dt_s``, ``units`` and the attributes.
@@ -25,7 +28,7 @@ Every container says its units, each window's ``[t0, t1)`` (µs) and its validit
                    as for ``.flo``.
 =================  ===========================================================================
 
-``.flo`` and ``.png`` hold one window per file: several windows need an explicit pattern
+``.flo`` and ``.png`` hold the flow only (no extras): one window per file; several windows need an explicit pattern
 (``flow_{:05d}.flo``, formatted with the window index from 0); a plain name with several
 windows is an error, never a silent rename. A bare ``.npy`` (no times, units or mask) is
 refused in favour of ``.npz``.
@@ -57,11 +60,18 @@ import numpy as np
 
 from evmotion.errors import ParameterError
 from evmotion.io.base import PartFileWriter
-from evmotion.io.flowfiles import FLOW_FORMAT, FlowWriter, write_dsec_flow_png, write_flo
+from evmotion.io.flowfiles import (
+    FLOW_FORMAT,
+    FlowWriter,
+    check_extras,
+    write_dsec_flow_png,
+    write_flo,
+)
 from evmotion.utils import atomic_path
 
 __all__ = [
     "CONTAINERS",
+    "EXTRA_CONTAINERS",
     "FlowOutput",
     "H5FlowOutput",
     "NpzFlowOutput",
@@ -79,6 +89,8 @@ __all__ = [
 CONTAINERS = {".h5": "h5", ".hdf5": "h5", ".npz": "npz", ".flo": "flo", ".png": "png"}
 #: Containers holding one window per file.
 PER_WINDOW = ("flo", "png")
+#: Containers that store a method's extra per-window datasets beside the flow.
+EXTRA_CONTAINERS = ("h5", "npz")
 SIDECAR_FORMAT = "evmotion-flow-window"
 #: What the validity mask of every output means.
 VALID_MEANING = "pixels whose flow events support"
@@ -218,6 +230,7 @@ class FlowOutput(PartFileWriter):
         self.attrs = _attrs(attrs)
         self.done: list[tuple[int, int]] = []
         self.n_written = 0
+        self.extras: dict = {}
 
     def _checked(self, flow, t0: int, t1: int, valid) -> tuple[np.ndarray, np.ndarray]:
         arr = np.ascontiguousarray(flow, dtype=np.float32)
@@ -235,15 +248,18 @@ class FlowOutput(PartFileWriter):
                                  f"{self.sensor_size}")
         return arr, v
 
-    def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None
-               ) -> None:
+    def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None,
+               extras: dict | None = None) -> None:
         """Add one window: ``flow`` (H, W, 2) px/s over ``[t0, t1)`` µs, ``valid`` (H, W)
-        bool (default: where the flow is finite)."""
+        bool (default: where the flow is finite), and the window's value of every extra
+        dataset opened with the output (``extras``: name -> array)."""
         arr, v = self._checked(flow, t0, t1, valid)
-        self._append(arr, int(t0), int(t1), v)
+        values = check_extras(self.extras, extras, self.path)
+        self._append(arr, int(t0), int(t1), v, values)
         self.n_written += 1
 
-    def _append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray) -> None:
+    def _append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray,
+                extras: dict) -> None:
         raise NotImplementedError
 
     def close(self) -> list[Path]:
@@ -290,16 +306,19 @@ class H5FlowOutput(FlowOutput):
 
     def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int],
                  attrs: dict | None = None, *, resume: bool = False, with_valid: bool = True,
-                 compression: str | None = "gzip"):
+                 compression: str | None = "gzip", extras: dict | None = None):
         super().__init__(path, sensor_size, attrs or {})
         attrs = self.attrs
         self.part = self.path.with_name(self.path.name + ".part")  # FlowWriter's own name
         self.reopened_final = resume and self.path.exists() and not self.part.exists()
         if not resume:
             self.w = FlowWriter(self.path, self.sensor_size, with_valid=with_valid,
-                                attrs=attrs, compression=compression)
+                                attrs=attrs, compression=compression, extras=extras)
+            self.extras = self.w.extras
             return
-        self.w = FlowWriter(self.path, self.sensor_size, with_valid=with_valid, resume=True)
+        self.w = FlowWriter(self.path, self.sensor_size, with_valid=with_valid, resume=True,
+                            extras=dict(extras or {}))
+        self.extras = self.w.extras
         old = dict(self.w.f.attrs)
         for key, value in attrs.items():
             if self.w.n_done and key in old and not _same(old[key], value):
@@ -319,13 +338,13 @@ class H5FlowOutput(FlowOutput):
         """Flow (H, W, 2) float32 px/s of a window already in the file, as written."""
         return np.asarray(self.w.f["flow"][index])
 
-    def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None
-               ) -> None:
+    def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None,
+               extras: dict | None = None) -> None:
         """Add one window (see :meth:`FlowOutput.append`)."""
         if not self.w.with_valid:  # a file made without masks (FlowWriter's choice)
-            self.w.append(flow, t0, t1)
+            self.w.append(flow, t0, t1, extras=extras)
         else:
-            self.w.append(flow, t0, t1, valid=valid)
+            self.w.append(flow, t0, t1, valid=valid, extras=extras)
         self.n_written += 1
 
     def close(self) -> list[Path]:
@@ -350,25 +369,31 @@ def _same(a, b) -> bool:
 class NpzFlowOutput(FlowOutput):
     """``.npz`` output: windows spooled to hidden temporary files (bounded memory), stored
     as ``flow`` (N, H, W, 2) float32 px/s, ``valid`` (N, H, W) bool, ``t0``/``t1`` (N,)
-    int64 µs, ``units``, ``format`` and ``attrs`` (a JSON string) when complete."""
+    int64 µs, ``units``, ``format`` and ``attrs`` (a JSON string) when complete; each
+    extra dataset under its name, and ``extras`` (JSON: name -> units, meaning)."""
 
     container = "npz"
 
     def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int],
-                 attrs: dict | None = None):
+                 attrs: dict | None = None, extras: dict | None = None):
         super().__init__(path, sensor_size, attrs or {})
+        self.extras = dict(extras or {})
         self._ctx = atomic_path(self.path)
         self._tmp = self._ctx.__enter__()
         spool = dict(dir=self.path.parent, prefix=f".{self.path.name}.")
         # unnamed temporary files: the system removes them whatever ends the process
         self._flow = tempfile.TemporaryFile(suffix=".flow.part", **spool)
         self._valid = tempfile.TemporaryFile(suffix=".valid.part", **spool)
+        self._extra = {name: tempfile.TemporaryFile(suffix=".extra.part", **spool)
+                       for name in self.extras}
         self._t0: list[int] = []
         self._t1: list[int] = []
 
-    def _append(self, flow, t0, t1, valid) -> None:
+    def _append(self, flow, t0, t1, valid, extras) -> None:
         self._flow.write(flow.astype("<f4", copy=False).tobytes())
         self._valid.write(valid.tobytes())
+        for name, value in extras.items():
+            self._extra[name].write(np.ascontiguousarray(value).tobytes())
         self._t0.append(t0)
         self._t1.append(t1)
 
@@ -380,9 +405,15 @@ class NpzFlowOutput(FlowOutput):
                  "units": np.asarray("px/s"), "format": np.asarray(FLOW_FORMAT),
                  "attrs": np.asarray(json.dumps({k: json_value(v)
                                                   for k, v in self.attrs.items()}))}
+        if self.extras:
+            small["extras"] = np.asarray(json.dumps(
+                {k: {"units": s.units, "meaning": s.meaning} for k, s in self.extras.items()}))
+        big = [("flow", self._flow, "<f4", (n, h, w, 2)),
+               ("valid", self._valid, "|b1", (n, h, w))]
+        big += [(name, self._extra[name], np.dtype(s.dtype).str, (n, *s.shape))
+                for name, s in self.extras.items()]
         with zipfile.ZipFile(self._tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
-            for name, spool, dtype, shape in (("flow", self._flow, "<f4", (n, h, w, 2)),
-                                              ("valid", self._valid, "|b1", (n, h, w))):
+            for name, spool, dtype, shape in big:
                 spool.seek(0)
                 with zf.open(f"{name}.npy", "w", force_zip64=True) as dst:
                     np.lib.format.write_array_header_1_0(
@@ -399,8 +430,8 @@ class NpzFlowOutput(FlowOutput):
     def abort(self) -> None:
         if self._ctx is None:
             return
-        self._flow.close()
-        self._valid.close()
+        for spool in (self._flow, self._valid, *self._extra.values()):
+            spool.close()
         err = RuntimeError("aborted")
         self._ctx.__exit__(type(err), err, None)  # removes the temporary file
         self._ctx = None
@@ -424,7 +455,7 @@ class PerWindowFlowOutput(FlowOutput):
                                                         dir=self.path.parent))
         self.files: list[Path] = []
 
-    def _append(self, flow, t0, t1, valid) -> None:
+    def _append(self, flow, t0, t1, valid, extras) -> None:
         i = len(self.files)
         if not self.pattern and i >= 1:
             raise ParameterError(_several(self.path, "several"))
@@ -472,8 +503,8 @@ class PerWindowFlowOutput(FlowOutput):
 
 def open_flow_output(path: str | os.PathLike, sensor_size: tuple[int, int],
                      attrs: dict | None = None, *, resume: bool = False,
-                     n_windows: int | None = None, compression: str | None = "gzip"
-                     ) -> FlowOutput:
+                     n_windows: int | None = None, compression: str | None = "gzip",
+                     extras: dict | None = None) -> FlowOutput:
     """Open a dense flow output; the container follows the name (see the module notes).
 
     Parameters
@@ -492,6 +523,11 @@ def open_flow_output(path: str | os.PathLike, sensor_size: tuple[int, int],
         Number of windows, when known: a plain per-window name is refused for several.
     compression : str or None
         ``.h5`` only: the flow dataset's filter (see :class:`FlowWriter`).
+    extras : dict of str to ExtraSpec, optional
+        ``.h5`` and ``.npz`` only (:data:`EXTRA_CONTAINERS`): a method's per-window
+        datasets stored beside the flow (:class:`~evmotion.io.flowfiles.ExtraSpec`: shape
+        of one window's value, dtype, units, meaning); ``append(..., extras=)`` gives
+        each window's values. A name may hold a group (``window/loss``).
 
     Returns
     -------
@@ -505,11 +541,15 @@ def open_flow_output(path: str | os.PathLike, sensor_size: tuple[int, int],
     ...     out.append(np.ones((4, 5, 2), np.float32), t0=0, t1=10_000)
     """
     kind = check_flow_output(path, n_windows)
+    if extras and kind not in EXTRA_CONTAINERS:
+        raise ParameterError(f"{os.fspath(path)}: a .{kind} file holds the flow only, not "
+                             f"{', '.join(extras)}; write .h5 or .npz to keep them")
     if resume and kind != "h5":
         raise ParameterError(f"{os.fspath(path)}: only an .h5 output can be resumed (a "
                              f".{kind} output is written whole at the end)")
     if kind == "h5":
-        return H5FlowOutput(path, sensor_size, attrs, resume=resume, compression=compression)
+        return H5FlowOutput(path, sensor_size, attrs, resume=resume, compression=compression,
+                            extras=extras)
     if kind == "npz":
-        return NpzFlowOutput(path, sensor_size, attrs)
+        return NpzFlowOutput(path, sensor_size, attrs, extras=extras)
     return PerWindowFlowOutput(path, sensor_size, attrs, n_windows=n_windows)

@@ -21,6 +21,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.io.flowfiles import (
     FLOW_FORMAT,
     FlowSequence,
+    extra_specs,
     read_dsec_flow_png,
     read_flo,
     read_flow_h5,
@@ -116,8 +117,20 @@ def _read_npz(path: Path) -> FlowSequence:
             except ValueError as exc:
                 raise FormatError(path, f"array 'attrs' is not JSON: {exc}") from None
             attrs.update(format=FLOW_FORMAT, units=str(z["units"]), container="npz")
+            extras = {}
+            if "extras" in names:
+                try:
+                    specs = json.loads(str(z["extras"]))
+                except ValueError as exc:
+                    raise FormatError(path, f"array 'extras' is not JSON: {exc}") from None
+                for name in specs:
+                    if name not in names or z[name].shape[:1] != (n,):
+                        raise FormatError(path, f"extra '{name}' is missing or does not "
+                                          f"hold {n} windows")
+                    extras[name] = z[name]
+                attrs["extras_units"] = {k: v.get("units", "") for k, v in specs.items()}
             return FlowSequence(flow=flow.astype(np.float32), t0=t0, t1=t1, valid=valid,
-                                attrs=attrs)
+                                attrs=attrs, extras=extras)
         if {"timestamps", "x_flow_dist"} <= names:
             return read_mvsec_gt_flow(path)
         if {"t", "x", "y", "vx", "vy"} <= names:
@@ -144,7 +157,9 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
     FlowSequence
         ``flow`` (N, H, W, 2) float32 in **px/s** whatever the container stores
         (``.flo``/``.png`` displacements are divided by their window's duration), ``t0``,
-        ``t1`` (N,) µs, ``valid`` (N, H, W) bool.
+        ``t1`` (N,) µs, ``valid`` (N, H, W) bool, and ``extras`` (name -> (N, ...)
+        array) the method stored beside the flow in ``.h5`` / ``.npz`` (BOS: ``q``, ``p``,
+        ``window/<number>``), their units in ``attrs["extras_units"]``.
 
     Examples
     --------
@@ -180,7 +195,8 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
     seq = read_flow_h5(p)
     if seq.valid is None:
         seq = FlowSequence(flow=seq.flow, t0=seq.t0, t1=seq.t1,
-                           valid=np.isfinite(seq.flow).all(axis=3), attrs=seq.attrs)
+                           valid=np.isfinite(seq.flow).all(axis=3), attrs=seq.attrs,
+                           extras=seq.extras)
     return seq
 
 
@@ -261,6 +277,8 @@ def _summary(size, t0, t1, valid_fraction_or_mask, attrs) -> dict:
     for key in ("grid", "method", "source"):
         if key in attrs:
             out[key] = json_value(attrs[key])
+    if attrs.get("extras_units"):
+        out["extras"] = {k: u or "-" for k, u in attrs["extras_units"].items()}
     return out
 
 
@@ -284,6 +302,9 @@ def _describe_h5(p: Path) -> dict | None:
             vf = float(sum(int(np.count_nonzero(f["valid"][i])) for i in range(n))
                        / (n * f["valid"].shape[1] * f["valid"].shape[2]))
         attrs = {k: json_value(v) for k, v in f.attrs.items()}
+        specs = extra_specs(f)
+        if specs:
+            attrs["extras_units"] = {k: s.units for k, s in specs.items()}
         out = {"path": str(p), "format": FLOW_FORMAT, "container": "h5"}
         out.update(_summary(f["flow"].shape[1:3], t0, t1, vf, attrs))
         out["units"] = str(attrs.get("units", "px/s"))

@@ -23,7 +23,16 @@ import numpy as np
 from evmotion.errors import EvmotionError, ParameterError
 from evmotion.io.bosinput import BosInput
 
-__all__ = ["BosRun", "sequence_contrast_threshold", "solve_bos_input"]
+__all__ = ["BOS_EVAL_OUT_PX", "BosRun", "bos_valid", "sequence_contrast_threshold",
+           "solve_bos_input", "write_bos_output"]
+
+#: Event support of the flow, the rule of multicm (``methods.multicm.SUPPORT_*``; not
+#: imported: that module takes a second to load): at least 2 events within a 5-px square.
+SUPPORT_RADIUS = 2
+SUPPORT_MIN_EVENTS = 2
+#: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
+#: in the output as ``eval_out_px`` for ``evmotion eval``.
+BOS_EVAL_OUT_PX = 1.0
 
 
 @dataclass(frozen=True)
@@ -141,3 +150,77 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
                             init=prev, contrast_threshold=c, **options)
         results.append(prev)
     return BosRun(results, c, source, samples)
+
+
+def bos_valid(events, t0_us: int, t1_us: int, roi_valid: np.ndarray) -> np.ndarray:
+    """Validity mask of a BOS window: inside the ROI (``roi_valid``, (H, W) bool) and
+    supported by the window's events (:func:`evmotion.methods.diagnostics.event_support`,
+    at least :data:`SUPPORT_MIN_EVENTS` within :data:`SUPPORT_RADIUS` px). Outside it the
+    flow is the regularizer's interpolation, not a measurement.
+
+    Examples
+    --------
+    >>> from evmotion.events import EventArray
+    >>> ev = EventArray(np.array([2, 2]), np.array([2, 2]), np.array([0, 5]),
+    ...                 np.array([1, 1]), (5, 5))
+    >>> int(bos_valid(ev, 0, 10, np.ones((5, 5), bool)).sum())
+    25
+    """
+    from evmotion.methods.diagnostics import event_support
+
+    win = events.slice_time(int(t0_us), int(t1_us))
+    support = event_support(win.x, win.y, roi_valid.shape, SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
+    return support & roi_valid
+
+
+def write_bos_output(path, data: BosInput, run: BosRun, attrs: dict, *,
+                     compression: str | None = "gzip") -> list[dict]:
+    """Write the flow of every interval of ``run`` through the shared flow output
+    (:func:`evmotion.io.flowout.open_flow_output`: ``.h5``, ``.npz``, ``.flo`` / ``.png``
+    patterns), with ``q``, ``p`` and the per-window numbers as extra datasets where the
+    container holds them (``.h5``, ``.npz``).
+
+    The flow, q and p are NaN outside the ROI; ``valid`` is the ROI's pixels with event
+    support (:func:`bos_valid`). Returns one dict per window (times, numbers, median
+    speed over the valid pixels).
+
+    Examples
+    --------
+    >>> rows = write_bos_output("bos.h5", data, run, {"method": "bos"})  # doctest: +SKIP
+    """
+    from evmotion.io.bosfiles import BOS_CONTENT, bos_extras
+    from evmotion.io.flowout import EXTRA_CONTAINERS, flow_container, open_flow_output
+
+    h, w = data.events.sensor_size
+    roi = data.roi if data.roi is not None else (0, 0, w, h)
+    names = ("frame_index", "contrast_threshold", "calibrated", "objective", "n_events",
+             "seconds")
+    keep = flow_container(path) in EXTRA_CONTAINERS
+    extras = bos_extras((h, w), scalars=names) if keep else None
+    full = {"content": BOS_CONTENT, "roi": np.asarray(roi, np.int64),
+            "eval_out_px": BOS_EVAL_OUT_PX, **attrs}
+    rows = []
+    with open_flow_output(path, (h, w), full, n_windows=len(run.results),
+                          compression=compression, extras=extras) as out:
+        for (i, t0, t1), res in zip(data.intervals, run.results, strict=True):
+            c = res.contrast_threshold
+            numbers = {"frame_index": int(i),
+                       "contrast_threshold": float("nan") if c is None else c,
+                       "calibrated": float(res.calibrated), "objective": res.objective,
+                       "n_events": len(data.events.slice_time(int(t0), int(t1))),
+                       "seconds": float(sum(res.timings_s))}
+            inside = np.asarray(res.valid, bool)
+            fields = [np.array(a, np.float32) for a in (res.flow, res.q, res.p)]
+            for arr in fields:
+                arr[~inside] = np.nan
+            valid = bos_valid(data.events, int(t0), int(t1), inside)
+            values = None
+            if keep:
+                values = {"q": fields[1], "p": fields[2],
+                          **{f"window/{k}": v for k, v in numbers.items()}}
+            out.append(fields[0], int(t0), int(t1), valid=valid, extras=values)
+            speed = np.hypot(res.flow[..., 0], res.flow[..., 1])[valid]
+            rows.append({"t0_us": int(t0), "t1_us": int(t1), **numbers,
+                         "contrast_threshold": c, "valid_fraction": float(valid.mean()),
+                         "median_speed_px_s": float(np.median(speed)) if speed.size else 0.0})
+    return rows
