@@ -15,7 +15,7 @@ name           dtype      unit   meaning
 ``n_triplets`` int32             matches that voted (triplet matching)
 =============  =========  =====  ==================================================
 
-``.h5``: one resizable dataset per column (Blosc-LZ4 by default, :func:`h5_compression`),
+``.h5``: one resizable dataset per column (Blosc-LZ4 with bit shuffle by default),
 attributes ``format="evmotion-event-flow"``, ``version``, ``height``, ``width``,
 ``units="px/s"``, ``time_units="us"``, ``columns`` and the caller's own (method,
 parameters). ``.npz``: the same columns as ``.npy`` members plus ``height``, ``width`` and
@@ -79,7 +79,8 @@ class EventFlowWriter(PartFileWriter):
     attrs : dict, optional
         Metadata (strings, numbers): the method, its parameters, the source recording.
     compression : str or None
-        ``.h5`` filter (:func:`~evmotion.io.flowfiles.h5_compression`, default ``"lz4"``);
+        ``.h5`` filter (:func:`~evmotion.io.flowfiles.h5_compression`, default ``"lz4"``;
+        Blosc codecs shuffle bits);
         ``.npz`` members are stored uncompressed (the zip's deflate is several times slower
         than the estimators).
 

@@ -150,7 +150,9 @@ def normal_flow(lsq):
 
 
 # Not fastmath here: its reciprocal shortcut overflows when every weight is subnormal.
-@njit(cache=True)
+# numpy's error model: no zero-divisor test before each division (every divisor here is a
+# time difference of at least tau >= 1 µs or a sum tested > 0); 7-8 % faster, same bits.
+@njit(cache=True, error_model="numpy")
 def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple, n_sq,
                    out_vx, out_vy, out_n, out_valid, out_nx, out_ny, stats):
     """Process events in order, writing one flow per event and updating the ring state.
