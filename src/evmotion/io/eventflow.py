@@ -47,7 +47,7 @@ EVENT_FLOW_VERSION = 1
 EVENT_FLOW_COLUMNS: tuple[tuple[str, str], ...] = (
     ("t", "<i8"), ("x", "<f4"), ("y", "<f4"), ("p", "u1"), ("vx", "<f4"), ("vy", "<f4"),
     ("nx", "<f4"), ("ny", "<f4"), ("valid", "?"), ("n_triplets", "<i4"))
-_H5_CHUNK = 1 << 18  # events per HDF5 chunk
+_H5_CHUNK = 1 << 16  # events per HDF5 chunk (512 KiB of t: smaller and faster than 1 << 18)
 
 
 @dataclass(frozen=True)
