@@ -6,16 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _bos_reference import objective_numpy, upsample_numpy
 from bos_synth import legm_case
 from evmotion.errors import EmptyWindowError, EventDataError, ParameterError
 from evmotion.events import EventArray
-from evmotion.methods._bos_kernels import (
-    LevelBuffers,
-    interp_index,
-    objective_grad,
-    upsample,
-)
-from evmotion.methods._bos_reference import objective_numpy, upsample_numpy
 from evmotion.methods.bos import (
     BosLevel,
     BosOptions,
@@ -23,6 +17,12 @@ from evmotion.methods.bos import (
     estimate_bos_sequence,
     estimate_contrast_threshold,
     event_sums,
+)
+from evmotion.methods.bos_kernels import (
+    LevelBuffers,
+    interp_index,
+    objective_grad,
+    upsample,
 )
 
 DT_US = 8333

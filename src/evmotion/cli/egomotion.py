@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import OBJECTIVE_NAMES, WARP_NAMES, WEIGHT_DATASETS
 from evmotion.cli.calib import add_camera_arguments
 from evmotion.cli.options import (
     add_scheduler_argument,
@@ -32,7 +33,6 @@ from evmotion.cli.options import (
     select_windows,
     writable_folder,
 )
-from evmotion.core.regularizers import DEFAULT_WEIGHTS
 from evmotion.errors import CalibrationError, ParameterError
 
 EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5'):
@@ -46,14 +46,12 @@ for others. --t0/--t1 are seconds on the recording's clock, or 20ms, 20000us.)
 
 
 def add_common(p) -> None:
-    """Arguments shared by ``egomotion``, ``landscape`` and ``segment``."""
-    from evmotion.core.objectives import OBJECTIVES
-    from evmotion.core.warps import WARPS
-
+    """Arguments shared by ``egomotion``, ``landscape`` and ``segment`` (their choices from
+    :mod:`evmotion.catalog`: the parser does not load the numerical core)."""
     p.add_argument("file", help="recording (any format evmotion reads, or an ECD folder)")
-    p.add_argument("--warp", default="rotation", choices=sorted(WARPS),
+    p.add_argument("--warp", default="rotation", choices=sorted(WARP_NAMES),
                    help="motion model (default rotation)")
-    p.add_argument("--objective", default="variance", choices=sorted(OBJECTIVES),
+    p.add_argument("--objective", default="variance", choices=sorted(OBJECTIVE_NAMES),
                    help="focus objective (default variance)")
     p.add_argument("--reg", default=None,
                    choices=["divergence", "deformation", "rcad", "whitening",
@@ -64,7 +62,7 @@ def add_common(p) -> None:
                    help="regularizer weight lambda >= 0, with --reg (default derived from each "
                         "window: scaled by its effective pixel count; with "
                         "divergence+deformation, one weight for both terms)")
-    p.add_argument("--dataset", default=None, choices=sorted(DEFAULT_WEIGHTS),
+    p.add_argument("--dataset", default=None, choices=sorted(WEIGHT_DATASETS),
                    help="with --reg: use this data set's thesis weights (Sec. 3.6.1) instead "
                         "of the window's (default: the window's)")
     add_camera_arguments(p)

@@ -23,7 +23,7 @@ The flow is parameterized on a patch grid either directly (``param="flow"``) or 
 gradient of a scalar field q (``param="poisson"``, §6.4.3), bilinearly interpolated to the
 pixels, and solved coarse to fine (patches 64 -> 32 -> 16 -> 8 px) with Adam (lr 0.05
 decaying exponentially to 0.1 x lr over each scale's iterations, §6.4.5). Gradients are
-analytic (numba kernels in :mod:`evmotion.methods._bos_kernels`; every absolute value is a
+analytic (numba kernels in :mod:`evmotion.methods.bos_kernels`; every absolute value is a
 Charbonnier ``sqrt(r^2 + eps^2) - eps`` with a small eps so that it is differentiable).
 
 Differences from the thesis, and why:
@@ -73,7 +73,7 @@ from scipy.ndimage import gaussian_filter
 
 from evmotion.errors import EmptyWindowError, EventDataError, EvmotionError, ParameterError
 from evmotion.events import EventArray
-from evmotion.methods._bos_kernels import (
+from evmotion.methods.bos_kernels import (
     LevelBuffers,
     interp_index,
     objective_grad,

@@ -81,11 +81,13 @@ from evmotion.methods.diagnostics import (
     warn_collapse,
     warn_poor_fit,
 )
+from evmotion.methods.options import merge_options
 
 __all__ = [
     "COMBINED_REGULARIZERS",
     "REGULARIZER_CHOICES",
     "CMaxCost",
+    "EgomotionOptions",
     "EgomotionResult",
     "cost_landscape",
     "default_bounds",
@@ -183,6 +185,77 @@ def _summary_diagnostics(diag: dict) -> dict:
     return out
 
 
+@dataclass(frozen=True)
+class EgomotionOptions:
+    """Tuning of :func:`estimate_egomotion`, as one object (every field is also a keyword of
+    the function, with the same default).
+
+    Attributes
+    ----------
+    objective : str
+        Focus objective: ``"variance"``, ``"gradient_magnitude"``, ``"avg_timestamp"`` or
+        ``"avg_timestamp_norm"`` (dimensionless after division by its value at the
+        identity warp).
+    regularizer : {None, "divergence", "deformation", "rcad", "whitening", \
+"divergence+deformation"}
+        Event-collapse penalty (or the whitening baseline); None: none.
+    weight : float or mapping, optional
+        ``lambda`` (dimensionless, the penalty is per window); None: derived from the
+        window, or the thesis' for ``dataset``.
+    optimizer : {"bfgs", "newton-cg", "adam", "tpe"}
+    t_ref : {"start", "mid", "end"} or int
+        Reference time of the warp; an int is absolute, µs.
+    seed : int
+        Seed of the TPE sampler.
+    starts : list of arrays, optional
+        Extra starting points (multi-start), each (P,) in the warp's parameter units.
+    bounds : (lower, upper), optional
+        TPE search box, each (P,) in the warp's parameter units.
+    n_samples : int, optional
+        TPE samples (None: 300 for 1 DOF, 600 otherwise).
+    n_iter : int
+        Adam iterations.
+    lr : float
+        Adam step, in units of the parameter scale.
+    kernel : {"bilinear", "gaussian"}
+        IWE delta approximation.
+    sigma : float
+        Gaussian standard deviation, px.
+    use_polarity : bool
+        Signed IWE.
+    dataset : {None, "mvsec", "dsec", "ecd"}
+        Use the thesis' weights of this data set (Sec. 3.6.1).
+    maps : bool
+        Compute the divergence/deformation maps at the estimate.
+    diagnose : bool
+        Check the estimate for collapse and model fit (about 0.1 s per 30k events).
+
+    Examples
+    --------
+    >>> opts = EgomotionOptions(regularizer="divergence", dataset="dsec")
+    >>> opts.optimizer
+    'bfgs'
+    """
+
+    objective: str = "variance"
+    regularizer: str | None = None
+    weight: float | dict | None = None
+    optimizer: str = "bfgs"
+    t_ref: str | int = "start"
+    seed: int = 0
+    starts: list | None = None
+    bounds: tuple | None = None
+    n_samples: int | None = None
+    n_iter: int = 100
+    lr: float = 0.05
+    kernel: str = "bilinear"
+    sigma: float = 1.0
+    use_polarity: bool = False
+    dataset: str | None = None
+    maps: bool = True
+    diagnose: bool = True
+
+
 def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                        objective: str = "variance", regularizer: str | None = None,
                        weight: float | None = None, optimizer: str = "bfgs", K=None,
@@ -191,7 +264,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                        n_iter: int = 100, lr: float = 0.05, kernel: str = "bilinear",
                        sigma: float = 1.0, use_polarity: bool = False,
                        dataset: str | None = None, maps: bool = True,
-                       diagnose: bool = True) -> EgomotionResult:
+                       diagnose: bool = True,
+                       options: EgomotionOptions | None = None) -> EgomotionResult:
     """Estimate the warp parameters of one window by contrast maximization (ch. 3).
 
     Parameters
@@ -245,6 +319,9 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         Check the estimate for collapse and model fit (``collapsed``, ``diagnostics``;
         warnings :class:`~evmotion.errors.CollapseWarning`,
         :class:`~evmotion.errors.PoorFitWarning`); about 0.1 s per 30k-event window.
+    options : EgomotionOptions, optional
+        All of the above but ``events``, ``warp``, ``K`` and ``init`` as one object; the
+        keywords must then be left at their defaults.
 
     Returns
     -------
@@ -254,34 +331,39 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     --------
     See the module docstring.
     """
+    o = merge_options(EgomotionOptions, options, objective=objective, regularizer=regularizer,
+                      weight=weight, optimizer=optimizer, t_ref=t_ref, seed=seed,
+                      starts=starts, bounds=bounds, n_samples=n_samples, n_iter=n_iter, lr=lr,
+                      kernel=kernel, sigma=sigma, use_polarity=use_polarity, dataset=dataset,
+                      maps=maps, diagnose=diagnose)
     c0 = compile_seconds()
     t0 = time.perf_counter()
-    cost, t_ref_us = make_cost(events, warp, objective, regularizer, weight, K, t_ref, kernel,
-                               sigma, use_polarity, dataset)
+    cost, t_ref_us = make_cost(events, warp, o.objective, o.regularizer, o.weight, K, o.t_ref,
+                               o.kernel, o.sigma, o.use_polarity, o.dataset)
     w = cost.warp
     x0 = w.identity() if init is None else np.asarray(init, dtype=np.float64)
     if x0.shape != (w.n_params,):
         raise ParameterError(f"init must have shape ({w.n_params},) {w.param_names}, "
                              f"got {x0.shape}")
-    lo, hi = default_bounds(w) if bounds is None else (np.asarray(bounds[0], float),
-                                                       np.asarray(bounds[1], float))
+    lo, hi = default_bounds(w) if o.bounds is None else (np.asarray(o.bounds[0], float),
+                                                         np.asarray(o.bounds[1], float))
     t1 = time.perf_counter()
-    res: OptimResult = minimize(cost.value_grad, x0, optimizer, lower=lo, upper=hi,
-                                scale=param_scales(w), starts=starts, n_samples=n_samples,
-                                n_iter=n_iter, lr=lr, seed=seed)
+    res: OptimResult = minimize(cost.value_grad, x0, o.optimizer, lower=lo, upper=hi,
+                                scale=param_scales(w), starts=o.starts, n_samples=o.n_samples,
+                                n_iter=o.n_iter, lr=o.lr, seed=o.seed)
     t2 = time.perf_counter()
     theta = res.x
     parts = cost.parts(theta)
     out_maps = {}
-    if maps:
+    if o.maps:
         for name, key in (("divergence", "diwe"), ("deformation", "iwa")):
             m = regularizer_maps(name, w, cost.x, cost.y, cost.dt, theta, cost.shape)
             out_maps[key] = m[key]
     iwe_before, iwe_after = cost.iwe_at(w.identity()), cost.iwe_at(theta)
     t3 = time.perf_counter()
-    source = "given" if weight is not None else (dataset or "window")
-    diagnostics = (_diagnose(cost, theta, iwe_before, iwe_after, regularizer, source)
-                   if diagnose else {})
+    source = "given" if o.weight is not None else (o.dataset or "window")
+    diagnostics = (_diagnose(cost, theta, iwe_before, iwe_after, o.regularizer, source)
+                   if o.diagnose else {})
     t4 = time.perf_counter()
     total = t4 - t0
     # numba's first-use compilation is not the estimate's time: reported apart
@@ -290,8 +372,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                "compile": compiled, "estimate": total - compiled, "n_evals": res.n_evals}
     return EgomotionResult(
         params=theta.copy(), param_names=tuple(w.param_names), param_units=tuple(w.param_units),
-        warp=w.name, objective=objective, regularizer=regularizer, weight=cost.weight,
-        optimizer=optimizer, t_ref_us=t_ref_us,
+        warp=w.name, objective=o.objective, regularizer=o.regularizer, weight=cost.weight,
+        optimizer=o.optimizer, t_ref_us=t_ref_us,
         window_us=(int(events.t[0]), int(events.t[-1])), n_events=len(events),
         cost=parts["cost"], focus=parts["focus"], penalty=parts["penalty"],
         iwe_before=iwe_before, iwe_after=iwe_after,

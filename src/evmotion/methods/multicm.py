@@ -39,6 +39,7 @@ converted to px/s.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -54,8 +55,10 @@ from evmotion.events import EventArray, Window
 from evmotion.jitcache import compile_seconds
 from evmotion.methods import transport as tr
 from evmotion.methods.diagnostics import event_support
+from evmotion.methods.options import merge_options
 
-__all__ = ["FlowResult", "MultiCMProblem", "estimate_flow", "estimate_flow_sequence"]
+__all__ = ["FlowResult", "MultiCMOptions", "MultiCMProblem", "estimate_flow",
+           "estimate_flow_sequence"]
 
 TV_EPS = 1e-2  # 1/s; Charbonnier smoothing of |grad v| so TV is differentiable at 0
 RESTART_PX = 1.0  # px per window; see the restart in estimate_flow
@@ -459,6 +462,64 @@ def _init_params(init, grid, duration_s, shape):
     return p * duration_s
 
 
+@dataclass(frozen=True)
+class MultiCMOptions:
+    """Tuning of :func:`estimate_flow` (method ``"multicm"``), as one object (every field is
+    also a keyword of the function, with the same default).
+
+    Attributes
+    ----------
+    time_aware : {None, "upwind", "burgers"}
+        Warp with the flow transported over time bins (4.8) instead of (4.4).
+    n_scales : int
+        Coarse-to-fine scales ending at ``finest_level``; scale ``l`` has
+        ``2^(l-1) x 2^(l-1)`` tiles (5: 1x1 ... 16x16; 1: the finest only).
+    objective : {"gradient_magnitude", "variance", "avg_timestamp", "avg_timestamp_norm"}
+        Focus of the IWEs (4.5 or 4.3), or the average-timestamp losses (Table 4.5).
+    lam : float
+        TV weight in (4.9), dimensionless (the flow enters as px per window).
+    n_bins : int, optional
+        Time bins of the time-aware flow (None: 5, or 40 for sensors >= 640 px wide).
+    seed : int
+        Accepted for API uniformity; the estimator is deterministic.
+    max_iter : int
+        Optimizer iterations per scale.
+    references : {"multi", "single"}
+        Multi-reference loss (t_1, t_mid, t_N) or single reference at t_1 (ablation).
+    optimizer : {"lbfgs", "newton-cg"}
+    time_aware_scales : int, optional
+        Use the time-aware warp only on the finest this-many scales (None: all).
+    finest_level : int
+        Level of the finest scale (5: 16 x 16 tiles).
+    transport_cell : int
+        Cell size of the grid the time-aware PDE runs on, px (1 = every pixel).
+    restart : bool
+        At the first multi-tile scale, also optimize from the warm start (or zero flow) when
+        the optimum moved more than ``RESTART_PX`` px from the single-tile flow, and keep the
+        better optimum.
+
+    Examples
+    --------
+    >>> opts = MultiCMOptions(time_aware="upwind", n_scales=3)
+    >>> opts.lam
+    0.0025
+    """
+
+    time_aware: str | None = None
+    n_scales: int = 5
+    objective: str = "gradient_magnitude"
+    lam: float = 0.0025
+    n_bins: int | None = None
+    seed: int = 0
+    max_iter: int = 20
+    references: str = "multi"
+    optimizer: str = "lbfgs"
+    time_aware_scales: int | None = None
+    finest_level: int = 5
+    transport_cell: int = 4
+    restart: bool = True
+
+
 def estimate_flow(events: EventArray, method: str = "multicm", *,
                   time_aware: str | None = None, n_scales: int = 5,
                   objective: str = "gradient_magnitude", lam: float = 0.0025,
@@ -466,7 +527,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                   references: str = "multi", optimizer: str = "lbfgs",
                   time_aware_scales: int | None = None, finest_level: int = 5,
                   transport_cell: int = 4, restart: bool = True,
-                  checkpoint=None) -> FlowResult:
+                  checkpoint=None, options: MultiCMOptions | None = None) -> FlowResult:
     """Dense optical flow of one event window by multi-reference contrast maximization.
 
     Parameters
@@ -515,6 +576,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         are not translations, e.g. zoom over 20 px).
     checkpoint : path, optional
         Network weights for ``method="dnn"`` or ``init="dnn"`` (default: shipped).
+    options : MultiCMOptions, optional
+        The multicm options above (all but ``init`` and ``checkpoint``) as one object; the
+        keywords must then be left at their defaults.
 
     Returns
     -------
@@ -535,6 +599,11 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     >>> bool(abs(np.median(res.flow[..., 0]) - 1000) < 150)
     True
     """
+    o = merge_options(MultiCMOptions, options, time_aware=time_aware, n_scales=n_scales,
+                      objective=objective, lam=lam, n_bins=n_bins, seed=seed,
+                      max_iter=max_iter, references=references, optimizer=optimizer,
+                      time_aware_scales=time_aware_scales, finest_level=finest_level,
+                      transport_cell=transport_cell, restart=restart)
     if method == "dnn":
         from evmotion.methods.dnn import estimate_flow_dnn
 
@@ -548,42 +617,75 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         from evmotion.methods.dnn import estimate_flow_dnn
 
         init = estimate_flow_dnn(events, checkpoint, with_iwes=False)
-        n_scales = min(n_scales, DNN_INIT_SCALES)
-    if time_aware not in (None, "none", "upwind", "burgers"):
-        raise ParameterError(f"time_aware must be None, 'upwind' or 'burgers', got {time_aware!r}")
-    time_aware = None if time_aware == "none" else time_aware
-    if objective not in OBJECTIVE_NAMES:
-        raise ParameterError(f"objective must be one of {OBJECTIVE_NAMES}, got {objective!r}")
-    if references not in REFERENCES:
-        raise ParameterError(f"references must be 'multi' or 'single', got {references!r}")
-    if optimizer not in ("lbfgs", "newton-cg"):
-        raise ParameterError(f"optimizer must be 'lbfgs' or 'newton-cg', got {optimizer!r}")
-    if not 1 <= n_scales <= finest_level or max_iter < 1 or lam < 0 or transport_cell < 1:
-        raise ParameterError(f"need 1 <= n_scales <= finest_level, max_iter >= 1, lam >= 0, "
-                             f"transport_cell >= 1; got n_scales={n_scales}, "
-                             f"finest_level={finest_level}, max_iter={max_iter}, lam={lam}, "
-                             f"transport_cell={transport_cell}")
-    if len(events) < 10 or events.t[-1] <= events.t[0]:
-        raise EmptyWindowError(f"window has {len(events)} events spanning "
-                               f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
-                               "need at least 10 events and a positive duration")
-    shape = events.sensor_size
-    if n_bins is None:
-        n_bins = 40 if shape[1] >= 640 else 5
-    if n_bins < 1:
-        raise ParameterError(f"n_bins must be >= 1, got {n_bins}")
+        o = dataclasses.replace(o, n_scales=min(o.n_scales, DNN_INIT_SCALES))
+    o = _checked(o, events)
     c_start = compile_seconds()
     t_start = time.perf_counter()
     t0, t1 = int(events.t[0]), int(events.t[-1])
     duration_s = (t1 - t0) * 1e-6
     x, y = _as_xy(events)
     s = (events.t - t0).astype(np.float64) / (t1 - t0)
-    levels = range(finest_level - n_scales + 1, finest_level + 1)
+    shape = events.sensor_size
+    valid = event_support(x, y, shape, SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
+    params, prob, all_params, history, timings = _coarse_to_fine(
+        x, y, s, events.p, shape, valid, init, duration_s, o)
+    focus, iwe_dict = _final_iwes(prob, params, x, y, s, shape)
+    flow = (tf.dense_flow(params, shape) / duration_s).astype(np.float32)
+    timings["total_s"] = time.perf_counter() - t_start
+    # numba's first-use compilation is not the estimate's time: reported apart
+    timings["compile_s"] = compile_seconds() - c_start
+    timings["estimate_s"] = timings["total_s"] - timings["compile_s"]
+    return FlowResult(flow=flow, t0_us=t0, t1_us=t1, t_ref_us=(t0 + t1) // 2,
+                      params=tuple(all_params), iwes=iwe_dict, focus=float(focus),
+                      history=history, timings=timings, time_aware=o.time_aware,
+                      n_bins=o.n_bins if o.time_aware else 0, n_events=len(events),
+                      meta={"objective": o.objective, "lam": o.lam,
+                            "references": o.references, "optimizer": o.optimizer,
+                            "n_scales": o.n_scales, "seed": o.seed,
+                            "finest_level": o.finest_level,
+                            "transport_cell": o.transport_cell, "restart": o.restart},
+                      valid=valid)
+
+
+def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
+    """``o`` validated against ``events``, with ``time_aware="none"`` read as None and
+    ``n_bins`` resolved for the sensor."""
+    if o.time_aware not in (None, "none", "upwind", "burgers"):
+        raise ParameterError(f"time_aware must be None, 'upwind' or 'burgers', "
+                             f"got {o.time_aware!r}")
+    if o.objective not in OBJECTIVE_NAMES:
+        raise ParameterError(f"objective must be one of {OBJECTIVE_NAMES}, got {o.objective!r}")
+    if o.references not in REFERENCES:
+        raise ParameterError(f"references must be 'multi' or 'single', got {o.references!r}")
+    if o.optimizer not in ("lbfgs", "newton-cg"):
+        raise ParameterError(f"optimizer must be 'lbfgs' or 'newton-cg', got {o.optimizer!r}")
+    if (not 1 <= o.n_scales <= o.finest_level or o.max_iter < 1 or o.lam < 0
+            or o.transport_cell < 1):
+        raise ParameterError(f"need 1 <= n_scales <= finest_level, max_iter >= 1, lam >= 0, "
+                             f"transport_cell >= 1; got n_scales={o.n_scales}, "
+                             f"finest_level={o.finest_level}, max_iter={o.max_iter}, "
+                             f"lam={o.lam}, transport_cell={o.transport_cell}")
+    if len(events) < 10 or events.t[-1] <= events.t[0]:
+        raise EmptyWindowError(f"window has {len(events)} events spanning "
+                               f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
+                               "need at least 10 events and a positive duration")
+    n_bins = o.n_bins
+    if n_bins is None:
+        n_bins = 40 if events.sensor_size[1] >= 640 else 5
+    if n_bins < 1:
+        raise ParameterError(f"n_bins must be >= 1, got {n_bins}")
+    return dataclasses.replace(o, n_bins=n_bins,
+                               time_aware=None if o.time_aware == "none" else o.time_aware)
+
+
+def _coarse_to_fine(x, y, s, p, shape, valid, init, duration_s, o: MultiCMOptions):
+    """Optimize the tile flow scale by scale (4.9), each scale started from the previous
+    one's upsampled flow. Returns the finest params (px per window), the finest scale's
+    problem, every scale's params (px/s), the (level, cost) history and per-scale seconds."""
+    levels = range(o.finest_level - o.n_scales + 1, o.finest_level + 1)
     # (a single tile is a constant flow, which the transport leaves unchanged: level 1 uses
     # the plain warp whatever time_aware says, at identical result and lower cost)
-    ta_from = 1 if time_aware_scales is None else finest_level - time_aware_scales + 1
-
-    valid = event_support(x, y, shape, SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
+    ta_from = 1 if o.time_aware_scales is None else o.finest_level - o.time_aware_scales + 1
     g0 = None
     params = None
     all_params, history, timings = [], [], {}
@@ -595,17 +697,17 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
             params = _init_params(init, grid, duration_s, shape)
         else:
             params = tf.resample(params, grid)
-        prob = MultiCMProblem(x, y, s, shape, grid, objective=objective, lam=lam,
-                              references=references,
-                              time_aware=time_aware if level >= max(ta_from, 2) else None,
-                              n_bins=n_bins, transport_cell=transport_cell, g0=g0,
-                              p=events.p, duration_s=duration_s, support=valid)
+        prob = MultiCMProblem(x, y, s, shape, grid, objective=o.objective, lam=o.lam,
+                              references=o.references,
+                              time_aware=o.time_aware if level >= max(ta_from, 2) else None,
+                              n_bins=o.n_bins, transport_cell=o.transport_cell, g0=g0,
+                              p=p, duration_s=duration_s, support=valid)
         g0 = prob.g0
         # few events constrain an empty tile: start it towards rest rather than at the
         # coarser scale's flow extrapolated into it
         params = params * (1.0 - prob.empty[..., None])
-        theta, val = _optimize(prob, params.ravel(), optimizer, max_iter)
-        if (restart and len(all_params) == 1 and all_params[0].size == 2 and grid.nx > 1
+        theta, val = _optimize(prob, params.ravel(), o.optimizer, o.max_iter)
+        if (o.restart and len(all_params) == 1 and all_params[0].size == 2 and grid.nx > 1
                 and np.abs(theta - params.ravel()).max() > RESTART_PX):
             # The single tile fits one translation to the whole image; where the flow is
             # not a translation (zoom, rotation about the image centre, a moving object)
@@ -615,14 +717,19 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
             # translation (by more than RESTART_PX somewhere), it also starts from the
             # warm start (or zero flow) and keeps the better optimum.
             th2, val2 = _optimize(prob, _init_params(init, grid, duration_s, shape).ravel(),
-                                  optimizer, max_iter)
+                                  o.optimizer, o.max_iter)
             if val2 < val:
                 theta, val = th2, val2
         params = theta.reshape(grid.ny, grid.nx, 2)
         all_params.append(params / duration_s)
         history.append((level, float(val)))
         timings[f"scale{level}_s"] = time.perf_counter() - ts
+    return params, prob, all_params, history, timings
 
+
+def _final_iwes(prob: MultiCMProblem, params, x, y, s, shape):
+    """Focus at the estimate and the float32 IWEs at t_1, t_mid, t_N and of the identity
+    warp (the single-reference loss builds only t_1: the other two are voted here)."""
     focus, _, iwes = prob.focus_grad(params)
     zero = np.zeros((x.size, 2))
     iwe_id = tf.iwe_forward(x, y, zero, np.zeros(x.size), shape)
@@ -634,20 +741,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                     for name, r in (("t1", 0.0), ("tmid", 0.5), ("tN", 1.0))}
     iwe_dict = {k: v.astype(np.float32) for k, v in iwe_dict.items()}
     iwe_dict["identity"] = iwe_id.astype(np.float32)
-    flow = (tf.dense_flow(params, shape) / duration_s).astype(np.float32)
-    timings["total_s"] = time.perf_counter() - t_start
-    # numba's first-use compilation is not the estimate's time: reported apart
-    timings["compile_s"] = compile_seconds() - c_start
-    timings["estimate_s"] = timings["total_s"] - timings["compile_s"]
-    return FlowResult(flow=flow, t0_us=t0, t1_us=t1, t_ref_us=(t0 + t1) // 2,
-                      params=tuple(all_params), iwes=iwe_dict, focus=float(focus),
-                      history=history, timings=timings, time_aware=time_aware,
-                      n_bins=n_bins if time_aware else 0, n_events=len(events),
-                      meta={"objective": objective, "lam": lam, "references": references,
-                            "optimizer": optimizer, "n_scales": n_scales, "seed": seed,
-                            "finest_level": finest_level, "transport_cell": transport_cell,
-                            "restart": restart},
-                      valid=valid)
+    return focus, iwe_dict
 
 
 def _optimize(prob: MultiCMProblem, theta0: np.ndarray, optimizer: str, max_iter: int):

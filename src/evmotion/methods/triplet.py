@@ -66,7 +66,7 @@ from evmotion.events import (
     pixel_indices,
     sensor_pixels,
 )
-from evmotion.methods import _triplet_kernels as K
+from evmotion.methods import triplet_kernels as K
 from evmotion.methods.bursts import BURST_GAP_US, burst_means
 
 __all__ = [

@@ -1,4 +1,4 @@
-"""Plain-numpy references of the BOS kernels (:mod:`evmotion.methods._bos_kernels`), for tests.
+"""Plain-numpy references of the BOS kernels (:mod:`evmotion.methods.bos_kernels`), for tests.
 
 Written for clarity, not speed: dense interpolation matrices, whole-array expressions, the
 objective (6.10) with the same smooth L1 (Charbonnier) as the kernels.
@@ -33,7 +33,7 @@ def _charb(r, eps):
 
 def objective_numpy(fields, gimg, meas, weight, s_meas, k, lam_tv, lam_p, eps_d, eps_r,
                     normalized, use_p):
-    """(total, data, tv, p) of :func:`evmotion.methods._bos_kernels.objective_grad`."""
+    """(total, data, tv, p) of :func:`evmotion.methods.bos_kernels.objective_grad`."""
     du, dv, pu, pv = (np.asarray(f, dtype=np.float64) for f in fields)
     gx, gy, hxx, hxy, hyy = gimg
     h, w = gx.shape

@@ -15,7 +15,7 @@ The frame translated by p enters to first order, ``grad L(x + p) = grad L + H p`
 Hessian of the smoothed log frame): p is a small correction (bounded, see
 :class:`evmotion.methods.bos.BosOptions`), and the expansion keeps the objective smooth in p
 and the loops vectorizable. Plain-numpy references live in
-:mod:`evmotion.methods._bos_reference`.
+``tests/_bos_reference.py``.
 
 Smooth L1: every absolute value is the Charbonnier ``sqrt(r^2 + eps^2) - eps``, so that the
 objective is differentiable; ``eps`` is small (see :class:`evmotion.methods.bos.BosOptions`).

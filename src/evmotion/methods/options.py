@@ -1,0 +1,64 @@
+"""Options objects of the estimators: one dataclass per estimator gathers its tuning
+keywords, so that a configuration can be built once, stored, compared and passed around
+(``estimate_egomotion(events, options=opts)``), while the keywords keep working.
+
+Examples
+--------
+>>> from dataclasses import dataclass
+>>> @dataclass(frozen=True)
+... class Opts:
+...     n_iter: int = 100
+>>> merge_options(Opts, None, n_iter=5)
+Opts(n_iter=5)
+>>> merge_options(Opts, Opts(n_iter=7), n_iter=100)   # keywords at their defaults
+Opts(n_iter=7)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from evmotion.errors import ParameterError
+
+__all__ = ["merge_options"]
+
+
+def _is_default(value, default) -> bool:
+    if value is default:
+        return True
+    scalar = (str, int, float, bool)
+    return (isinstance(value, scalar) and type(value) is type(default) and value == default)
+
+
+def merge_options(cls: type, options, **keywords):
+    """The options of one call: ``cls(**keywords)``, or ``options`` when it is given.
+
+    Parameters
+    ----------
+    cls : dataclass type
+        The estimator's options class; its field defaults are the keywords' defaults.
+    options : cls or None
+        Options passed as an object.
+    **keywords
+        The estimator's keyword arguments, one per field of ``cls``.
+
+    Returns
+    -------
+    cls instance
+
+    Raises
+    ------
+    ParameterError
+        ``options`` is not a ``cls``, or it is given together with a keyword that is not at
+        its default (the call would be ambiguous).
+    """
+    if options is None:
+        return cls(**keywords)
+    if not isinstance(options, cls):
+        raise ParameterError(f"options must be a {cls.__name__}, got {type(options).__name__}")
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    given = sorted(k for k, v in keywords.items() if not _is_default(v, defaults[k]))
+    if given:
+        raise ParameterError(f"pass either options= or the keyword(s) {', '.join(given)}, "
+                             "not both")
+    return options

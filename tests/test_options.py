@@ -1,0 +1,72 @@
+"""Options objects of the estimators: the same result as the keywords, the same defaults
+as the keywords, and an ambiguous call (both) refused."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+
+import numpy as np
+import pytest
+
+from evmotion.errors import ParameterError
+from evmotion.events import EventArray
+from evmotion.methods.egomotion import EgomotionOptions, estimate_egomotion
+from evmotion.methods.multicm import MultiCMOptions, estimate_flow
+from evmotion.methods.options import merge_options
+
+
+@pytest.mark.parametrize("func, cls", [(estimate_egomotion, EgomotionOptions),
+                                       (estimate_flow, MultiCMOptions)])
+def test_every_field_is_a_keyword_with_the_same_default(func, cls):
+    sig = inspect.signature(func).parameters
+    for f in dataclasses.fields(cls):
+        assert f.name in sig, f.name
+        assert sig[f.name].default == f.default, f.name
+
+
+def _translating_dots(n=6000, seed=0):
+    rng = np.random.default_rng(seed)
+    dots = rng.uniform(10, 60, (200, 2))
+    k = rng.integers(0, 200, n)
+    t = np.sort(rng.integers(0, 50_000, n))
+    return EventArray(dots[k, 0] + 400.0 * t * 1e-6, dots[k, 1], t, np.ones(n, int),
+                      sensor_size=(80, 128), validate=False)
+
+
+def test_egomotion_options_object_equals_keywords():
+    ev = _translating_dots()
+    kw = dict(objective="gradient_magnitude", optimizer="newton-cg", t_ref="mid",
+              maps=False, diagnose=False)
+    a = estimate_egomotion(ev, warp="translation", **kw)
+    b = estimate_egomotion(ev, warp="translation", options=EgomotionOptions(**kw))
+    np.testing.assert_array_equal(a.params, b.params)
+    assert (b.objective, b.optimizer, b.maps, b.t_ref_us) == (
+        "gradient_magnitude", "newton-cg", {}, a.t_ref_us)
+    assert abs(b.params[0] - 400.0) < 20.0
+
+
+def test_multicm_options_object_equals_keywords():
+    ev = _translating_dots(4000)
+    kw = dict(n_scales=2, finest_level=2, max_iter=5, objective="variance")
+    a = estimate_flow(ev, **kw)
+    b = estimate_flow(ev, options=MultiCMOptions(**kw))
+    np.testing.assert_array_equal(a.flow, b.flow)
+    assert b.meta["objective"] == "variance" and b.meta["n_scales"] == 2
+
+
+def test_options_with_keywords_is_refused():
+    ev = _translating_dots(500)
+    with pytest.raises(ParameterError, match="either options= or the keyword"):
+        estimate_egomotion(ev, warp="translation", optimizer="tpe",
+                           options=EgomotionOptions())
+    with pytest.raises(ParameterError, match="either options= or the keyword.*max_iter"):
+        estimate_flow(ev, max_iter=3, options=MultiCMOptions())
+    with pytest.raises(ParameterError, match="options must be a MultiCMOptions"):
+        estimate_flow(ev, options=EgomotionOptions())
+
+
+def test_merge_options_keeps_the_object_when_keywords_are_defaults():
+    opts = MultiCMOptions(lam=0.01)
+    assert merge_options(MultiCMOptions, opts, lam=0.0025, n_bins=None) is opts
+    assert merge_options(MultiCMOptions, None, lam=0.01) == opts
