@@ -99,3 +99,23 @@ def test_flow_writer_codecs_round_trip(tmp_path, codec):
         assert (BLOSC in f["flow"]._filters) == (codec in ("lz4", "zstd"))
     with pytest.raises(ParameterError, match="compression must be one of"):
         h5_compression("snappy")
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".npz"])
+def test_per_event_files_describe_themselves(tmp_path, suffix, capsys):
+    from evmotion.cli import main
+    from evmotion.io.flowread import describe_flow
+
+    cols = columns(500, 3)
+    out = tmp_path / f"ev{suffix}"
+    with EventFlowWriter(out, (480, 640), attrs={"method": "triplet", "grid": "sensor"}) as w:
+        w.append(**cols)
+    d = describe_flow(out)
+    assert d["format"] == "evmotion-event-flow" and d["container"] == suffix[1:]
+    assert d["events"] == 500 and d["sensor_size"] == [480, 640] and d["units"] == "px/s"
+    assert d["t_first_us"] == cols["t"][0] and d["t_last_us"] == cols["t"][-1]
+    assert d["valid_fraction"] == pytest.approx(cols["valid"].mean())
+    assert d["method"] == "triplet" and d["grid"] == "sensor"
+    assert main(["info", str(out)]) == 0
+    shown = capsys.readouterr().out
+    assert "evmotion-event-flow" in shown and "500" in shown

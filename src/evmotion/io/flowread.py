@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
+from evmotion.io.eventflow import EVENT_FLOW_FORMAT, describe_event_flow
 from evmotion.io.flowfiles import (
     FLOW_FORMAT,
     FlowSequence,
@@ -293,7 +294,11 @@ def _describe_h5(p: Path) -> dict | None:
     except OSError:
         return None
     with f:
-        if json_value(f.attrs.get("format")) != FLOW_FORMAT or "t1" not in f:
+        fmt = json_value(f.attrs.get("format"))
+        if fmt == EVENT_FLOW_FORMAT:
+            f.close()
+            return describe_event_flow(p)
+        if fmt != FLOW_FORMAT or "t1" not in f:
             return None
         n = int(f["t1"].shape[0])
         t0, t1 = f["t0"][:n], f["t1"][:n]
@@ -319,6 +324,9 @@ def _describe_npz(p: Path) -> dict | None:
         return None
     with z:
         names = set(z.files)
+        if "meta" in names and {"t", "valid"} <= names:
+            z.close()
+            return describe_event_flow(p)
         if {"t", "x", "y", "vx", "vy"} <= names:
             t = z["t"]
             out = {"path": str(p), "format": "per-event-flow", "container": "npz",
