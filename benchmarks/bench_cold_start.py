@@ -105,7 +105,7 @@ def commands(d: Path) -> list[tuple[str, list[str]]]:
         ("flow triplet", ["flow", rec, "--method", "triplet", "--out", str(d / "tr.h5")]),
         ("flow triplet --dense robust",
          ["flow", rec, "--method", "triplet", "--dense", "robust", "--window-events", "30000",
-          "--out", str(d / "trr.npy")]),
+          "--out", str(d / "trr.h5")]),
         ("eval", ["eval", str(d / "mc.h5"), "--gt", gt]),
         ("flow dnn", ["flow", rec, "--method", "dnn", "--window-events", "30000",
                       "--out", str(d / "dnn.h5")]),

@@ -310,7 +310,8 @@ def _step(layers, state, events, t_a, t_b, refr, target):
     h, w = la.shape
     rows = (np.empty(TILE, np.int64), np.empty(TILE, np.int64), np.empty(TILE, np.float64),
             np.empty(TILE, np.float64))
-    n = 0
+    # a typed start: a literal 0 would make numba compile _tile_events a second time
+    n = np.int64(0)
     nsub_total = 0
     for ty0 in range(0, h, TILE):
         ty1 = min(ty0 + TILE, h) - 1
@@ -318,7 +319,11 @@ def _step(layers, state, events, t_a, t_b, refr, target):
             tx1 = min(tx0 + TILE, w) - 1
             if sat.shape[0] > 1 and _tile_static(Mseq[0, 0], Mseq[MAX_SUBSAMPLES, 0], sat,
                                                  origins, boxes, tx0, ty0, tx1, ty1):
-                lb[ty0:ty1 + 1, tx0:tx1 + 1] = la[ty0:ty1 + 1, tx0:tx1 + 1]
+                # element by element: a slice assignment makes numba compile its
+                # shape-mismatch message (string formatting, ~1 s on first use)
+                for yy in range(ty0, ty1 + 1):
+                    for xx in range(tx0, tx1 + 1):
+                        lb[yy, xx] = la[yy, xx]
                 continue
             n, nsub = _tile_events(layers, state, events, rows, (tx0, ty0, tx1, ty1), t_a, t_b,
                                    refr, target, n)
