@@ -63,3 +63,26 @@ def legm_case(shape=(128, 128), seed=0, C=0.1, amplitude=40.0, t0=0, t1=8333, n_
     frame_next = np.exp(L + D)
     d_true = np.stack([dx, dy], axis=-1)
     return ev, intensity, frame_next, d_true, C
+
+
+def plume_scene(folder):
+    """A tiny simulated plume scene (48 x 40 px, two frame intervals) written to ``folder``:
+    the input of the ``evmotion bos`` CLI tests."""
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    sim = simulate_schlieren("plume", sensor_size=(48, 40), duration_s=2 / 120, seed=0)
+    write_schlieren(sim, folder)
+    return folder
+
+
+def run_cli(argv, capsys):
+    """``evmotion ARGV`` in this process: (exit code, stdout, stderr); argparse's rejections at
+    parse time (SystemExit) give their exit code too."""
+    from evmotion.cli import main
+
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:
+        rc = exc.code
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err

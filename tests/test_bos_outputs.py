@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from bos_synth import plume_scene, run_cli
 from evmotion.cli import main
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.bosfiles import read_bos, read_bos_h5
@@ -104,21 +105,10 @@ def test_file_of_the_layout_before_is_read(tmp_path):
 # ---------------------------------------------------------------------------- CLI
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
-
-    d = tmp_path_factory.mktemp("bosout") / "plume"
-    sim = simulate_schlieren("plume", sensor_size=(48, 40), duration_s=2 / 120, seed=0)
-    write_schlieren(sim, d)
-    return d
+    return plume_scene(tmp_path_factory.mktemp("bosout") / "plume")
 
 
-def _run(argv, capsys):
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as exc:
-        rc = exc.code
-    cap = capsys.readouterr()
-    return rc, cap.out, cap.err
+_run = run_cli
 
 
 BOS_ARGS = ["--roi", 4, 8, 32, 32, "--iterations", 10, "--contrast-threshold", 0.2]

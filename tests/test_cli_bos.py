@@ -7,28 +7,17 @@ import shutil
 import numpy as np
 import pytest
 
-from evmotion.cli import main
+from bos_synth import plume_scene, run_cli
 from evmotion.io.bosfiles import read_bos_h5
 from evmotion.io.flowfiles import read_flow_h5
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
-
-    d = tmp_path_factory.mktemp("bos") / "plume"
-    sim = simulate_schlieren("plume", sensor_size=(48, 40), duration_s=2 / 120, seed=0)
-    write_schlieren(sim, d)
-    return d
+    return plume_scene(tmp_path_factory.mktemp("bos") / "plume")
 
 
-def _run(argv, capsys):
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as exc:  # argparse rejects options at parse time
-        rc = exc.code
-    cap = capsys.readouterr()
-    return rc, cap.out, cap.err
+_run = run_cli
 
 
 def test_no_options_then_eval(scene, tmp_path, capsys):
