@@ -34,7 +34,10 @@ import harness
 
 HERE = Path(__file__).resolve().parent
 SRC = HERE.parent / "src"
-BEFORE_SRC = Path(os.environ.get("EVMOTION_BEFORE_SRC", "/work/wt/merge/src"))
+# an older tree to compare with (optional): its rows and the identity row are left out
+# without it
+BEFORE_SRC = Path(os.environ["EVMOTION_BEFORE_SRC"]) if os.environ.get("EVMOTION_BEFORE_SRC") \
+    else None
 BEFORE_LABEL = os.environ.get("EVMOTION_BEFORE_LABEL", "the code this tree started from")
 DATA = Path(os.environ.get("EVMOTION_SHARED_DATA", HERE.parents[1] / "shared" / "data"))
 SMALL = 30_000
@@ -111,6 +114,7 @@ def main(quick: bool = False) -> list[dict]:
         "after: --out x.npz (per event)": (SRC, cli(".npz"), ".npz"),
         "after: --dense mean --out x.h5 (windows)": (SRC, cli(".h5", "--dense", "mean"), ".h5"),
     }
+    variants = {k: v for k, v in variants.items() if v[0] is not None}
     times = {(v, f): [] for v in variants for f in ("small", "big")}
     outputs = {}
     for src, argv, _ in variants.values():  # warm the numba caches of both trees
@@ -151,8 +155,9 @@ def main(quick: bool = False) -> list[dict]:
             "load_avg_max": max(loads),
             "output_MB_big": _size(big_out) / 1e6 if big_out else None,
         })
-    rows.append(_identical(outputs[("after: --out x.h5 (per event)", "big")],
-                           outputs[("before: --out x.h5 (per event)", "big")]))
+    if BEFORE_SRC is not None:
+        rows.append(_identical(outputs[("after: --out x.h5 (per event)", "big")],
+                               outputs[("before: --out x.h5 (per event)", "big")]))
     rows.extend(_dense(files, n_ev, tmp, min(repeat, 3)))
     notes = (f"Prophesee EVT3 1280x720 ({n_ev['big']} events, 10.8 s) and a {SMALL}-event "
              f"cut of it; fresh processes, nothing pinned, NUMBA/BLAS/Blosc threads 1; "
@@ -164,8 +169,9 @@ def main(quick: bool = False) -> list[dict]:
              "not); cpu_marginal_min: the same from the fastest runs (other jobs only add "
              "CPU time); load_avg_*: the 1-minute load average at the start of the row's "
              "runs. "
-             f"before = {BEFORE_SRC} ({BEFORE_LABEL}). The identity row "
-             "compares every column of the before and after per-event .h5 of the full file. "
+             + (f"before = {BEFORE_SRC} ({BEFORE_LABEL}). The identity row "
+                "compares every column of the before and after per-event .h5 of the full "
+                "file. " if BEFORE_SRC is not None else "No before tree this run. ") +
              "Earlier figures against main's code (commit 968b339 of this file): main's CLI "
              "wrote gzip dense windows at 0.21 M ev/s CPU marginal, and --dense robust took "
              "14.0 s on a 120k-event cut (the issue: 438 s and 1.59 GB on the full file).")
