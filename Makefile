@@ -19,11 +19,11 @@ demo: $(STAMP)
 	$(BIN)/python -m evmotion.demo --out demo_out
 
 test: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks examples docs/conf.py
 	$(BIN)/python -m pytest -n 2 -q
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks examples docs/conf.py
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
