@@ -60,6 +60,7 @@ import numpy as np
 
 from evmotion.camera import Camera
 from evmotion.errors import CalibrationError, FormatError
+from evmotion.io.h5filters import HDF5_MAGIC
 
 __all__ = [
     "read_calibration",
@@ -360,8 +361,8 @@ def recording_camera(path: str | os.PathLike, events_meta: dict | None = None,
         return read_ecd(folder, sensor_size=sensor_size)
     if path.is_file():
         with open(path, "rb") as fh:
-            head = fh.read(12)
-        if head.startswith(b"\x89HDF\r\n\x1a\n"):
+            head = fh.read(12)  # one read for both signatures
+        if head.startswith(HDF5_MAGIC):
             from evmotion.io import read_calibration as stored
 
             try:

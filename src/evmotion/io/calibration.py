@@ -18,6 +18,7 @@ from pathlib import Path
 
 from evmotion.errors import FormatError
 from evmotion.io.guard import guard_call
+from evmotion.io.h5filters import is_hdf5
 
 __all__ = ["read_calibration"]
 
@@ -48,9 +49,7 @@ def read_calibration(path: str | os.PathLike) -> dict:
         raise FormatError(path, "no such file or folder")
     if path.is_dir() or path.suffix.lower() == ".txt":
         return ecd.read_calibration(path)
-    with open(path, "rb") as fh:
-        head = fh.read(8)
-    if head.startswith(b"\x89HDF\r\n\x1a\n"):
+    if is_hdf5(path):
         return guard_call(_h5_calibration, "HDF5", "read the calibration")(path)
     if path.suffix.lower() in (".yaml", ".yml", ".xml", ".json"):
         from evmotion.io import calib

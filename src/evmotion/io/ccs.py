@@ -26,11 +26,11 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import open_h5
+from evmotion.io.h5filters import HDF5_MAGIC
 
 __all__ = ["FORMAT", "describe", "iter_chunks", "read", "read_frames"]
 
 SENSOR_SIZE = (720, 1280)
-HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
 def _events_file(path: Path) -> Path:

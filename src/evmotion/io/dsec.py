@@ -25,14 +25,19 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_h5_dataset, open_h5
-from evmotion.io.h5filters import FILTER_HINT, filter_error, missing_filters, register_filters
+from evmotion.io.h5filters import (
+    FILTER_HINT,
+    HDF5_MAGIC,
+    filter_error,
+    missing_filters,
+    register_filters,
+)
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "rectify_events",
            "missing_filters",
            "FORMAT", "DSEC_SENSOR_SIZE"]
 
 DSEC_SENSOR_SIZE = (480, 640)
-HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 # Largest |t_offset| accepted: offset plus uint32 times stays far inside int64.
 MAX_T_OFFSET_US = 1 << 60
 

@@ -37,6 +37,7 @@ from evmotion.io.flowout import (
     sidecar_path,
     window_path,
 )
+from evmotion.io.h5filters import is_hdf5
 
 __all__ = ["describe_flow", "read_flow"]
 
@@ -286,9 +287,8 @@ def _summary(size, t0, t1, valid_fraction_or_mask, attrs) -> dict:
 def _describe_h5(p: Path) -> dict | None:
     import h5py
 
-    with open(p, "rb") as fh:
-        if not fh.read(8).startswith(b"\x89HDF\r\n\x1a\n"):
-            return None
+    if not is_hdf5(p):
+        return None
     try:
         f = h5py.File(p, "r")
     except OSError:

@@ -32,7 +32,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, PartFileWriter
 from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
-from evmotion.io.h5filters import filter_error, register_filters
+from evmotion.io.h5filters import HDF5_MAGIC, filter_error, register_filters
 
 __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
            "read_imu", "FORMAT", "FORMAT_NAME"]
@@ -40,7 +40,6 @@ __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_fram
 FORMAT_NAME = "evmotion-events"
 VERSION = 1
 CHUNK = 1 << 18
-HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
 def _compression() -> dict:

@@ -1,6 +1,6 @@
-"""HDF5 compression filters (Blosc/zstd, Blosc/LZ4 through :mod:`hdf5plugin`) for the HDF5
-readers and writers: registering them, and the one-line error a dataset that needs a filter
-this process cannot load gets.
+"""What every HDF5 reader and writer shares: the file signature (:func:`is_hdf5`) and the
+compression filters (Blosc/zstd, Blosc/LZ4 through :mod:`hdf5plugin`): registering them, and
+the one-line error a dataset that needs a filter this process cannot load gets.
 
 Examples
 --------
@@ -11,13 +11,23 @@ True
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from evmotion.errors import FormatError
 
-__all__ = ["FILTER_HINT", "filter_error", "missing_filters", "register_filters"]
+__all__ = ["FILTER_HINT", "HDF5_MAGIC", "filter_error", "is_hdf5", "missing_filters",
+           "register_filters"]
+
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"  # the first 8 bytes of every HDF5 file
 
 FILTER_HINT = "pip install hdf5plugin (DSEC compresses events with Blosc/zstd)"
+
+
+def is_hdf5(path: str | os.PathLike) -> bool:
+    """True if the file ``path`` starts with the HDF5 signature (read without h5py)."""
+    with open(path, "rb") as fh:
+        return fh.read(8).startswith(HDF5_MAGIC)
 
 
 def register_filters() -> bool:

@@ -24,13 +24,13 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_h5_dataset, open_h5
+from evmotion.io.h5filters import HDF5_MAGIC
 from evmotion.io.npy import events_from_columns
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_frames", "FORMAT",
            "MVSEC_SENSOR_SIZE"]
 
 MVSEC_SENSOR_SIZE = (260, 346)
-HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
 def _open(path: Path, camera: str):

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
+from evmotion.io.h5filters import is_hdf5
 
 __all__ = ["PARAMS_FORMAT", "ParamsTable", "describe_params", "read_params",
            "write_params_h5"]
@@ -195,9 +196,8 @@ def describe_params(path: str | os.PathLike) -> dict | None:
     p = Path(path)
     if p.suffix.lower() not in (".h5", ".hdf5") or not p.is_file():
         return None
-    with open(p, "rb") as fh:
-        if not fh.read(8).startswith(b"\x89HDF\r\n\x1a\n"):
-            return None
+    if not is_hdf5(p):
+        return None
     import h5py
 
     try:

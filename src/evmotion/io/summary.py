@@ -17,6 +17,7 @@ import numpy as np
 
 from evmotion.errors import FormatError
 from evmotion.io.guard import guard_call
+from evmotion.io.h5filters import is_hdf5
 from evmotion.io.read import iter_events
 from evmotion.io.registry import resolve_format
 
@@ -104,9 +105,8 @@ def _describe_flow(path: Path) -> dict | None:
 
     if not path.is_file():
         return None
-    with open(path, "rb") as fh:
-        if not fh.read(8).startswith(b"\x89HDF\r\n\x1a\n"):
-            return None
+    if not is_hdf5(path):
+        return None
     import h5py
 
     try:
