@@ -28,6 +28,7 @@ from pathlib import Path
 
 from evmotion.cli.options import (
     add_scheduler_argument,
+    check_flow_out,
     check_time_order,
     existing_input,
     finite_float,
@@ -106,16 +107,6 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _check_out(out, n_windows=None) -> str:
-    from evmotion.errors import ParameterError
-    from evmotion.io.flowout import check_flow_output
-
-    try:
-        return check_flow_output(out, n_windows)
-    except ParameterError as exc:
-        raise ParameterError(f"--out {exc}") from None
-
-
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.options import cluster_threads, scheduler_client
@@ -126,7 +117,7 @@ def run(args) -> int:
 
     out = Path(args.out)
     check_time_order(args)
-    kind = _check_out(out)
+    kind = check_flow_out(out)
     if args.png_dir and kind not in EXTRA_CONTAINERS:
         raise ParameterError(f"--png-dir draws q and p, which a .{kind} output does not hold; "
                              "write --out .h5 or .npz")
@@ -137,7 +128,7 @@ def run(args) -> int:
     try:
         data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi,
                               t0=args.t0, t1=args.t1, max_intervals=args.max_intervals)
-        _check_out(out, len(data.intervals))
+        check_flow_out(out, len(data.intervals))
         with scheduler_client(args.scheduler) as client:
             chunks = (args.workers if client is None or args.workers > 1
                       else cluster_threads(client))

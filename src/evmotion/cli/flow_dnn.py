@@ -29,10 +29,10 @@ def add_arguments(group) -> None:
 
 def check_args(args) -> None:
     """The network writes dense windows: .h5, .npz, .flo or .png."""
-    from evmotion.cli.flow_multicm import check_output
+    from evmotion.cli.options import check_flow_out
     from evmotion.errors import ParameterError
 
-    check_output(args.out)
+    check_flow_out(args.out)
     if args.resume and args.video:
         raise ParameterError(f"--video {args.video} needs every window's flow: it cannot "
                              "be made with --resume; run without --resume")

@@ -27,6 +27,7 @@ import numpy as np
 
 from evmotion.cli.options import (
     add_scheduler_argument,
+    check_flow_out,
     check_free_space,
     int_range,
     nonnegative_float,
@@ -173,17 +174,6 @@ def _valid(r) -> np.ndarray:
     return r.valid if r.valid is not None else np.ones(r.flow.shape[:2], bool)
 
 
-def check_output(out, n_windows: int | None = None) -> None:
-    """``--out`` names a dense flow output (:func:`evmotion.io.flowout.check_flow_output`:
-    no bare ``.npy``, a pattern for several ``.flo``/``.png`` windows)."""
-    from evmotion.io.flowout import check_flow_output
-
-    try:
-        check_flow_output(out, n_windows)
-    except ParameterError as exc:
-        raise ParameterError(f"--out {exc}") from None
-
-
 def _row(r, w) -> dict:
     valid = _valid(r)
     speed = np.linalg.norm(r.flow, axis=-1)
@@ -201,7 +191,7 @@ def check_args(args) -> None:
     if args.init == "dnn" and (args.workers or 1) > 1:
         raise ParameterError(f"--init dnn starts every window from the network: --workers "
                              f"{args.workers} would change nothing; leave it out")
-    check_output(args.out)
+    check_flow_out(args.out)
     if args.time_aware in (None, "none"):
         reject_unused(args, {"--time-bins": "time_bins"}, "without --time-aware")
     if args.resume and args.video:
@@ -243,7 +233,7 @@ def run(args) -> int:
     events = read_events(args.file, **({"format": fmt} if fmt else {}))
     events, _, grid = undistort_for(args, events)
     windows = _windows(args, events)
-    check_output(out, len(windows))
+    check_flow_out(out, len(windows))
     _check_space(out, windows, events.sensor_size)
     if args.method == "dnn":
         from evmotion.cli.flow_dnn import estimator

@@ -110,9 +110,9 @@ def check_args(args) -> None:
     args.dense_output = kind in (".flo", ".png") or (
         kind in (".h5", ".hdf5") and any(getattr(args, a, None) is not None for a in DENSE_ASKS))
     if args.dense_output:
-        from evmotion.cli.flow_multicm import check_output
+        from evmotion.cli.options import check_flow_out
 
-        check_output(args.out)
+        check_flow_out(args.out)
     if args.resume and not args.dense_output:
         raise ParameterError(f"--resume continues a dense .h5 output (--dense or a window "
                              f"option); the per-event --out {args.out} is written whole")

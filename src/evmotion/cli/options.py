@@ -552,3 +552,18 @@ def _warn_slow_workers(client, address: str) -> None:
                   f"{','.join(values)} (Dask's default), which made the estimates 3-4x "
                   "slower; start them with distributed.nanny.pre-spawn-environ."
                   "MALLOC_TRIM_THRESHOLD_ set to null (see docs/cluster.rst)")
+
+
+def check_flow_out(out: str | os.PathLike, n_windows: int | None = None) -> str:
+    """``--out`` names a flow output (:func:`evmotion.io.flowout.check_flow_output`: no bare
+    ``.npy``, a pattern for several ``.flo``/``.png`` windows); returns its container. Every
+    command writing flow windows checks its ``--out`` with this."""
+    from evmotion.io.flowout import check_flow_output
+
+    try:
+        return check_flow_output(out, n_windows)
+    except ParameterError as exc:
+        raise ParameterError(f"--out {exc}") from None
+
+
+__all__ += ["check_flow_out"]
