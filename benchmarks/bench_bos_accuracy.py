@@ -225,6 +225,7 @@ def table65(size, iterations, scenes=("plume", "ice"), noise_rate: float = 0.0) 
 
 
 SWEEP_C = (0.1, 0.05, 0.025)
+DIFF_VARIANT = "increment = G*(L1 - L0) (frames' log difference)"
 
 
 def diagnosis(size, iterations, scenes=SCENES) -> list[dict]:
@@ -269,7 +270,7 @@ def diagnosis(size, iterations, scenes=SCENES) -> list[dict]:
                 legm = -(g0x * gt[..., 0] + g0y * gt[..., 1]) * dt
                 mid = np.sqrt(f0.astype(np.float64) * f1.astype(np.float64)) / 255.0
                 variants += [
-                    ("increment = G*(L1 - L0) (frames' log difference)", {"increment": l1 - l0}),
+                    (DIFF_VARIANT, {"increment": l1 - l0}),
                     ("increment = -grad L0 . v dt (exact LEGM, true flow)", {"increment": legm}),
                     # C as the events' run: estimated against the mid frame it would halve
                     ("frame gradient at mid-window", {"frame": mid, "contrast_threshold": None}),
@@ -461,6 +462,98 @@ def low_light_goal(rows: list[dict]) -> list[str]:
     return lines
 
 
+def _load_rows(name: str) -> list[dict] | None:
+    import json
+
+    path = RESULTS / f"{name}.json"
+    return json.loads(path.read_text())["rows"] if path.exists() else None
+
+
+def verdict_lines(suffix: str = "") -> list[str]:
+    """One line per issue goal: holds or not, with the figures (from the recorded rows)."""
+    out = ["## Verdict", ""]
+    acc = _load_rows("bos_accuracy" + suffix)
+    if acc:
+        by = {}
+        for x in acc:
+            by.setdefault(x["scene"], {})[x["method"]] = x
+        n = len(by)
+        p_ae = {s: r["Ours (Poisson)"]["AE_rad"] for s, r in by.items()}
+        fb_ae = {s: r["Farneback (frames)"]["AE_rad"] for s, r in by.items()}
+        ev_best = sum(all(r["Ours (Poisson)"]["AE_rad"] <= r[m]["AE_rad"]
+                          for m in ("Ours (Flow)", "MultiCM (events)")) for r in by.values())
+        all_best = sum(p_ae[s] <= min(x["AE_rad"] for k, x in r.items()
+                                      if "normalized" not in k) for s, r in by.items())
+        pf = sum(r["Ours (Poisson)"]["AEE"] < r["Ours (Flow)"]["AEE"] for r in by.values())
+        cap = sum(v <= 0.42 for v in p_ae.values())
+        ratios = [r["Ours (Poisson)"]["ratio_median"] for r in by.values()]
+        fb = ", ".join(f"{s} {fb_ae[s]:.3f} vs {p_ae[s]:.3f}" for s in by)
+        out += [
+            f"1. Table 6.4 analog: Ours (Poisson) lowest AE of all methods on {all_best}/{n} "
+            f"scenes: {'HOLDS' if all_best == n else 'DOES NOT HOLD'} (Farneback on the "
+            f"noise-free frames vs Ours, rad: {fb}); lowest AE of the event methods (the "
+            f"thesis' Table 6.4 rows: Ours (Flow), MultiCM) on {ev_best}/{n}; Poisson AEE < "
+            f"Flow AEE on {pf}/{n}; AE <= 0.42 rad on {cap}/{n}."]
+        goal2 = [
+            f"2. Magnitude: median |v|/|v_gt| of the scale-aware term "
+            f"{min(ratios):.3f}-{max(ratios):.3f}: "
+            f"{'HOLDS' if all(0.9 <= r <= 1.1 for r in ratios) else 'DOES NOT HOLD'}."]
+    diag = _load_rows("bos_diagnosis" + suffix)
+    if diag:
+        ae = {(x["scene"], x["C_sensor"], x["variant"]): x["AE_rad"] for x in diag}
+        scenes = list(dict.fromkeys(x["scene"] for x in diag))
+
+        def rng(c, v):
+            vals = [ae[(s, c, v)] for s in scenes if (s, c, v) in ae]
+            return f"{min(vals):.3f}-{max(vals):.3f}"
+        c_min = min(x["C_sensor"] for x in diag)
+        wins = sum(ae[(s, c_min, "Ours (Poisson), events")]
+                   < ae[(s, c_min, "Farneback (frames)")] for s in scenes)
+        suspects = [v for c, v in dict.fromkeys((x["C_sensor"], x["variant"]) for x in diag)
+                    if c == 0.2 and not v.startswith(("increment", "Farneback", "Ours"))]
+        moved = max(abs(ae[(s, 0.2, v)] - ae[(s, 0.2, "Ours (Poisson), events")])
+                    for s in scenes for v in suspects if (s, 0.2, v) in ae)
+        out.append(
+            "   Why goal 1 fails against Farneback (bos_diagnosis): the same solver fed the "
+            "frames' log difference instead of the events reaches AE "
+            f"{rng(0.2, DIFF_VARIANT)} rad, "
+            f"Farneback {rng(0.2, 'Farneback (frames)')}, Ours on the events "
+            f"{rng(0.2, 'Ours (Poisson), events')}: the events (C = 0.2, sub-pixel flow) "
+            "measure the increment far more coarsely than 8-bit frames. With the sensor's C "
+            f"lowered to {c_min:g} Ours is lower than Farneback on {wins}/{len(scenes)} "
+            f"scenes. The solver's suspects ({'; '.join(suspects)}) move the AE by at most "
+            f"{moved:.4f} rad.")
+    if acc:
+        out += goal2
+    abl = _load_rows("bos_ablation")
+    if abl:
+        sc = sorted({x["scene"] for x in abl})
+        out.append(f"3. Table 6.5 analog on {len(sc)} scenes ({', '.join(sc)}): "
+                   f"{'HOLDS' if len(sc) >= 2 else 'DOES NOT HOLD'} (bos_ablation.md).")
+    low = _load_rows("bos_lowlight" + suffix)
+    if low:
+        goal = [ln for ln in low_light_goal(low) if ln.startswith("Lowest level")]
+        out.append("4. Low light: " + (goal[0] if goal else "no level where the noisy "
+                                       "events show the schlieren: NOT met."))
+        shown = [x for x in low if goal and f": {x['photons']} photons;" in goal[0]]
+        bright = shown[0] if shown else low[0]
+        out.append(f"   At {bright['photons']} photons Ours on noise-free events already has AEE "
+                   f"{bright['AEE_ours_C_bright_clean']:.3f} against Farneback's "
+                   f"{bright['AEE_farneback']:.3f}: goal 1's cause; the events' shot noise "
+                   "(event_photons = 0.24 x photons per 1 ms) then swamps the events below "
+                   "that level while the frames (4.17 ms exposure) hold up.")
+    kym = _load_rows("bos_kymogram")
+    if kym:
+        ok = [x for x in kym if x["source"] == "events" and x["rate_hz"] >= 1200
+              and x["method"] == "correlation" and isinstance(x["ratio"], float)]
+        if ok:
+            worst = max(abs(x["ratio"] - 1) for x in ok)
+            out.append(f"5. Kymogram >= 1200 Hz: worst |fitted/true - 1| {worst:.3f} over "
+                       f"{len(ok)} event kymograms (correlation fit): "
+                       f"{'HOLDS' if worst <= 0.1 else 'DOES NOT HOLD'} (bos_kymogram.md).")
+    return out + [""]
+
+
 def summarize(suffix: str = "") -> str:
     """Check the issue's accuracy goals against the recorded results; write
     ``results/bos_goals<suffix>.md`` and return its text."""
@@ -469,6 +562,7 @@ def summarize(suffix: str = "") -> str:
     lines = ["# bos_goals" + suffix, "",
              "Issue #12 accuracy goals checked against the recorded benchmark rows "
              f"(bos_accuracy{suffix}.json, bos_lowlight{suffix}.json).", ""]
+    lines += verdict_lines(suffix)
     acc = RESULTS / f"bos_accuracy{suffix}.json"
     if acc.exists():
         data = json.loads(acc.read_text())

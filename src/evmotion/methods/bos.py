@@ -57,6 +57,10 @@ the scale-aware term's median ``|v|/|v_gt|`` on the 640x720 scenes is 0.93, 0.98
 (CPU time, 2-CPU machine at load ~7): 8.5 s with the thesis' schedule (26 s wall), 1.8 s
 with the defaults 150/150/150/300 on pooled coarse scales (5.5 s wall; +0.29 % of the
 thesis' final objective, same AEE), 3.6 s with ``iterations=600`` (+0.21 %).
+Against Farneback on two noise-free frames (AE 0.04-0.06 rad there, 0.08-0.16 here) the
+events' quantization is what loses, not the solver: fed the frames' log difference
+(``increment=``) the same solver reaches 0.02-0.03 rad, and the frame time of the
+gradient, the thesis' schedule and w = 1 change nothing (``bos_diagnosis.md``).
 
 Units: flow in px/s (u right, v down), q in px^2/s (``v ~ grad q``), p in px.
 """
