@@ -274,7 +274,8 @@ class BosResult:
         C used (given or estimated); None when unknown.
     calibrated : bool
         True when the flow magnitude is physical (scale term, or normalized term rescaled
-        with a known C); False: only the direction is a measurement.
+        with a known C or a given ``increment`` in log units); False: only the direction
+        is a measurement.
     scale : float
         Factor the normalized solution was multiplied by (1 when not rescaled).
     objective : float
