@@ -25,7 +25,9 @@ Model
   crossings at interpolated times, refractory period, noise), with every frame time a
   sample time, so the events between two frames sum (times their thresholds) to the
   log-intensity change within a threshold at each end (6.7)-(6.8). Low light for the
-  events: ``event_photons`` adds shot noise to the log intensity they see.
+  events: ``event_photons`` adds shot noise to the log intensity they see, with a
+  fixed noise bandwidth (worst case) or, ``event_bandwidth="intensity"``, through a
+  photoreceptor whose bandwidth falls with the light (:mod:`evmotion.sim.photoreceptor`).
 
 Ground truth (:class:`SchlierenGT`): the exact flow between consecutive frames (px/s),
 ``q`` per frame interval, the displacement ``d`` at every frame, the contrast
@@ -56,6 +58,7 @@ from evmotion.events import EventArray
 from evmotion.io.frames import Frames
 from evmotion.io.guard import open_h5
 from evmotion.io.pngfile import write_png
+from evmotion.sim.photoreceptor import EVENT_BANDWIDTHS, Photoreceptor
 from evmotion.sim.scenes import BOS_SCENES
 from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
 
@@ -525,7 +528,8 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
                        refractory_us: int = 0, noise_rate: float = 0.0,
                        event_photons: float | None = None, event_tau_us: int = 1000,
                        max_step_px: float = 0.25, max_step_fraction: float = 0.5,
-                       show_progress: bool = False) -> SchlierenSim:
+                       show_progress: bool = False,
+                       event_bandwidth: str = "fixed") -> SchlierenSim:
     """Simulate an event camera and a frame camera watching a BOS scene.
 
     Parameters
@@ -578,6 +582,15 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
         Bound on the log-intensity change between samples of an event pixel, as a
         fraction of the threshold.
     show_progress : bool
+    event_bandwidth : {"fixed", "intensity"}
+        The event pixels' photoreceptor under ``event_photons``
+        (:mod:`evmotion.sim.photoreceptor`): ``"fixed"`` (default), the worst case above,
+        noise redrawn every ``event_tau_us`` at any light level; ``"intensity"``, the
+        standard DVS model: a first-order low-pass of the log photocurrent whose time
+        constant grows as the photon count falls (``event_tau_us`` in bright light, up to
+        13.75 x in the dark), so its noise stays at about 0.079 in dim light while its
+        response slows (Lichtsteiner et al. 2008; v2e, Hu et al. 2021). Needs
+        ``event_photons``.
 
     Returns
     -------
@@ -613,6 +626,11 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     if event_photons is not None:
         event_photons = _num("event_photons", event_photons, 0.0, 1e12, lo_open=True)
     event_tau_us = int(_num("event_tau_us", event_tau_us, 1.0, 1e6))
+    if event_bandwidth not in EVENT_BANDWIDTHS:
+        raise ParameterError(f"event_bandwidth must be one of {list(EVENT_BANDWIDTHS)}, "
+                             f"got {event_bandwidth!r}")
+    if event_bandwidth != "fixed" and event_photons is None:
+        raise ParameterError(f"event_bandwidth={event_bandwidth!r} needs event_photons")
 
     t_us = np.round(np.arange(n_frames) * 1e6 / fps).astype(np.int64)
     t_s = t_us * 1e-6
@@ -686,27 +704,13 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     max_step_us = int(min(t_us[1] - t_us[0], max(1.0, 1e6 * max_step_px / max(vmax, 1e-9))))
     if event_photons is not None:
         max_step_us = min(max_step_us, event_tau_us)
-    knots: dict = {}
-
-    def shot(k: int) -> np.ndarray:
-        """Standard normals of every pixel at noise knot ``k`` (seeded by k, so any time
-        is reproducible whatever order the sampler asks in); the last few are kept."""
-        if k not in knots:
-            if len(knots) >= 4:
-                knots.pop(next(iter(knots)))
-            rng = np.random.default_rng(np.random.SeedSequence([seed, 0xE7E, k]))
-            knots[k] = rng.standard_normal(h * w)
-        return knots[k]
-
-    def log_at(t, pix):
-        rad = radiance(t * 1e-6, pix)
-        if event_photons is None:
-            return np.log(rad)
-        k, r = divmod(int(t), event_tau_us)
-        a = r / event_tau_us
-        sel = slice(None) if pix is None else pix
-        z = ((1 - a) * shot(k)[sel] + a * shot(k + 1)[sel]).reshape(rad.shape)
-        return np.log(rad) + z / np.sqrt(event_photons * rad)
+    if event_photons is None:
+        def log_at(t, pix):
+            return np.log(radiance(t * 1e-6, pix))
+    else:
+        log_at = Photoreceptor(radiance, (h, w), event_photons=event_photons,
+                               tau_us=event_tau_us, bandwidth=event_bandwidth, seed=seed,
+                               step_us=max_step_us)
 
     res = simulate_log_function(log_at, (h, w), int(t_us[-1]), breaks_us=t_us,
                                 max_step_us=max_step_us, threshold=contrast_threshold,
@@ -724,7 +728,8 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
             "field_gain_px2": air.gain, "n_puffs": int(air.birth.size),
             "max_flow_px_s": vmax, "mismatch": float(mismatch),
             "refractory_us": int(refractory_us), "noise_rate": float(noise_rate),
-            "event_photons": event_photons, "event_tau_us": event_tau_us}
+            "event_photons": event_photons, "event_tau_us": event_tau_us,
+            "event_bandwidth": event_bandwidth}
     if scene == "plume":
         meta["rise_speed_px_s"] = float(-air.v0[0, 1])
         meta["plume_axis_x_px"] = w / 2
