@@ -40,10 +40,12 @@ preset ``noisy`` (cutoff 30 Hz, shot noise 5 Hz per pixel, threshold 0.2).
 
 >>> import numpy as np
 >>> flat = lambda t_s, pix: np.full((2, 3) if pix is None else len(pix), 0.5)
->>> pr = Photoreceptor(flat, (2, 3), event_photons=20.0, tau_us=1000,
+>>> pr = Photoreceptor(flat, (2, 3), event_photons=40.0, tau_us=1000,
 ...                    bandwidth="intensity")
->>> float(pr.time_constant_us(np.array([0.5]))[0])  # 162 / (20 * 0.5) ms
-16200.0
+>>> float(pr.time_constant_us(np.array([0.5]))[0])  # 162 / (40 * 0.5) ms
+8100.0
+>>> round(float(pr.noise_std(np.array([0.5]))[0]), 4)  # 1 / sqrt(162)
+0.0786
 >>> pr(0, None).shape
 (2, 3)
 """
