@@ -124,15 +124,14 @@ def _check_estimate(path) -> None:
     import h5py
 
     from evmotion.io.flowfiles import FLOW_FORMAT
+    from evmotion.io.h5attrs import read_attrs
 
     try:
         with h5py.File(path, "r") as f:
-            fmt = f.attrs.get("format")
+            fmt = read_attrs(path, f, ("format",)).get("format")
     except OSError as exc:
         raise FormatError(path, f"not a readable HDF5 file: {' '.join(str(exc).split())}"
                           ) from None
-    if isinstance(fmt, bytes):
-        fmt = fmt.decode(errors="replace")
     if fmt != FLOW_FORMAT:
         raise FormatError(path, f"not an evmotion flow file (format attribute {fmt!r}, "
                           f"expected {FLOW_FORMAT!r}): FLOW must be an estimate written by "

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from evmotion.errors import FormatError
 from evmotion.io.guard import guard_call
+from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 
 __all__ = ["read_calibration"]
@@ -64,11 +65,15 @@ def _h5_calibration(path: Path) -> dict:
     import h5py
 
     with h5py.File(path, "r") as f:
-        if "calibration" in f.attrs:
-            cal = json.loads(f.attrs["calibration"])
+        attrs = read_attrs(path, f, ("calibration", "height", "width"))
+        if "calibration" in attrs:
+            try:
+                cal = json.loads(attrs["calibration"])
+            except (TypeError, ValueError):
+                raise FormatError(path, "attribute 'calibration' is not valid JSON") from None
             if not isinstance(cal, dict):
                 raise FormatError(path, "attribute 'calibration' is not a JSON object")
-            cal.setdefault("sensor_size", [int(f.attrs["height"]), int(f.attrs["width"])]
-                           if "height" in f.attrs else None)
+            cal.setdefault("sensor_size", [int(attrs["height"]), int(attrs["width"])]
+                           if "height" in attrs and "width" in attrs else None)
             return cal
     raise FormatError(path, "no 'calibration' attribute in this HDF5 file")

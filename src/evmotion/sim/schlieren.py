@@ -55,6 +55,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.frames import Frames
 from evmotion.io.guard import open_h5
+from evmotion.io.h5attrs import read_attrs
 from evmotion.io.pngfile import write_png
 from evmotion.sim.scenes import BOS_SCENES
 from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
@@ -818,9 +819,10 @@ def read_schlieren_gt(path: str | Path) -> SchlierenGT:
         path = path / "schlieren_gt.h5"
     f = open_h5(path)
     with f:
-        if f.attrs.get("schlieren_format") != GT_FORMAT:
+        attrs = read_attrs(path, f)
+        if attrs.get("schlieren_format") != GT_FORMAT:
             raise FormatError(path, "not schlieren ground truth (attribute "
-                              f"schlieren_format={f.attrs.get('schlieren_format')!r})")
+                              f"schlieren_format={attrs.get('schlieren_format')!r})")
         for name in ("flow", "q", "displacement", "frame_t"):
             if name not in f:
                 raise FormatError(path, f"schlieren ground truth lacks dataset '{name}'")
@@ -831,5 +833,5 @@ def read_schlieren_gt(path: str | Path) -> SchlierenGT:
         return SchlierenGT(flow=f["flow"][()], q=f["q"][()],
                            displacement=f["displacement"][()],
                            t_us=f["frame_t"][()].astype(np.int64),
-                           contrast_threshold=float(f.attrs["contrast_threshold"]),
-                           thresholds=thr, meta=json.loads(f.attrs["schlieren_meta"]))
+                           contrast_threshold=float(attrs["contrast_threshold"]),
+                           thresholds=thr, meta=json.loads(attrs["schlieren_meta"]))
