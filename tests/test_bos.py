@@ -226,6 +226,27 @@ def test_poisson_beats_flow_in_angle(case):
     assert ae["poisson"] < ae["flow"]
 
 
+def test_increment_replaces_the_event_sums(case):
+    """A given log increment (here the exact, unquantized LEGM one) is the measurement: no C
+    is needed, the flow comes out in px, and closer to the truth than from the quantized
+    events; the normalized term is rescaled by it too."""
+    ev, f0, f1, d, C = case
+    inc = np.log(f1) - np.log(f0)
+    kw = dict(t0_us=0, t1_us=DT_US, iterations=150)
+    res = estimate_bos(ev, f0, data_term="scale", increment=inc, **kw)
+    assert res.calibrated and res.contrast_threshold is None
+    ae, ratio = _errors(res.flow, d)
+    ae_events, _ = _errors(estimate_bos(ev, f0, data_term="scale", contrast_threshold=C,
+                                        **kw).flow, d)
+    assert ae < 0.6 * ae_events
+    assert 0.9 < ratio < 1.1
+    norm = estimate_bos(ev, f0, increment=inc, **kw)
+    assert norm.calibrated and norm.scale != 1.0
+    assert 0.85 < _errors(norm.flow, d)[1] < 1.15
+    with pytest.raises(EventDataError, match="increment has shape"):
+        estimate_bos(ev, f0, increment=inc[1:], **kw)
+
+
 def test_deterministic_with_seed(case):
     ev, f0, f1, d, C = case
     kw = dict(t0_us=0, t1_us=DT_US, scales=(32, 16), iterations=30)

@@ -57,6 +57,10 @@ the scale-aware term's median ``|v|/|v_gt|`` on the 640x720 scenes is 0.93, 0.98
 (CPU time, 2-CPU machine at load ~7): 8.5 s with the thesis' schedule (26 s wall), 1.8 s
 with the defaults 150/150/150/300 on pooled coarse scales (5.5 s wall; +0.29 % of the
 thesis' final objective, same AEE), 3.6 s with ``iterations=600`` (+0.21 %).
+Against Farneback on two noise-free frames (AE 0.04-0.06 rad there, 0.08-0.16 here) the
+events' quantization is what loses, not the solver: fed the frames' log difference
+(``increment=``) the same solver reaches 0.02-0.03 rad, and the frame time of the
+gradient, the thesis' schedule and w = 1 change nothing (``bos_diagnosis.md``).
 
 Units: flow in px/s (u right, v down), q in px^2/s (``v ~ grad q``), p in px.
 """
@@ -270,7 +274,8 @@ class BosResult:
         C used (given or estimated); None when unknown.
     calibrated : bool
         True when the flow magnitude is physical (scale term, or normalized term rescaled
-        with a known C); False: only the direction is a measurement.
+        with a known C or a given ``increment`` in log units); False: only the direction
+        is a measurement.
     scale : float
         Factor the normalized solution was multiplied by (1 when not rescaled).
     objective : float
@@ -667,9 +672,14 @@ def _adam(level: BosLevel, theta: np.ndarray, iters: int, normalized: bool):
     return theta, losses[:n]
 
 
-def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions):
-    """Crop, check and build the measured increment, TV weight and log frame."""
+def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions, increment=None):
+    """Crop, check and build the measured increment, TV weight and log frame. Returns the
+    ROI, smoothed log frame, measured increment, TV weight, C (or None) and whether the
+    increment is in log units."""
     sensor = events.sensor_size
+    if increment is not None and np.shape(increment) != tuple(sensor):
+        raise EventDataError(f"increment has shape {np.shape(increment)} but the events' "
+                             f"sensor is {tuple(sensor)} (H, W)")
     if np.shape(frame) != tuple(sensor):
         raise EventDataError(f"frame has shape {np.shape(frame)} but the events' sensor is "
                              f"{tuple(sensor)} (H, W): frames and events do not overlap in size")
@@ -688,7 +698,12 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions):
                              "BOS needs a textured background")
     sums, counts = event_sums(ev, r)
     c = o.contrast_threshold
-    if c is None and frame_next is not None:
+    if increment is not None:
+        inc = np.asarray(increment, dtype=np.float64)[y:y + rh, x:x + rw]
+        if not np.isfinite(inc).all():
+            raise ParameterError("increment has NaN or inf values in the ROI")
+        meas = gaussian_filter(inc, o.sigma_meas, mode="nearest")
+    elif c is None and frame_next is not None:
         try:
             c = estimate_contrast_threshold(ev, frame, frame_next, t0_us=int(t0_us),
                                             t1_us=int(t1_us), roi=r, sigma=o.sigma_meas,
@@ -697,17 +712,18 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions):
             # the normalized term needs no C: its result is then flagged uncalibrated
             if o.data_term == "scale":
                 raise
-    if o.data_term == "scale" and c is None:
+    if increment is None and o.data_term == "scale" and c is None:
         raise ParameterError("data_term='scale' needs contrast_threshold or frame_next "
                              "(to estimate it)")
-    meas = gaussian_filter(sums * (1.0 if c is None else c), o.sigma_meas, mode="nearest")
+    if increment is None:
+        meas = gaussian_filter(sums * (1.0 if c is None else c), o.sigma_meas, mode="nearest")
     # the prediction must see the measurement's blur: G * (grad L . v) = (G * grad L) . v
     # for a flow smooth over the kernel, so the model frame is smoothed alike
     logf = gaussian_filter(logf, o.sigma_meas, mode="nearest")
     b = gaussian_filter(counts, o.sigma_weight, mode="nearest")
     b /= max(b.max(), 1e-12)
     weight = 1.0 - o.alpha * b
-    return r, logf, meas, weight, c
+    return r, logf, meas, weight, c, increment is not None or c is not None
 
 
 def estimate_bos(
@@ -721,6 +737,7 @@ def estimate_bos(
     options: BosOptions | None = None,
     init: BosResult | None = None,
     dtype=np.float32,
+    increment: np.ndarray | None = None,
     **kwargs,
 ) -> BosResult:
     """Flow of a schlieren scene from the events of one frame interval and its first frame.
@@ -746,6 +763,12 @@ def estimate_bos(
     dtype : numpy dtype
         Precision of the dense images (float32: half the memory traffic of float64, which
         bounds the kernels' speed).
+    increment : ndarray (H, W), optional
+        A measured log-brightness increment over the window (log units) used instead of
+        the events' polarity sums times C, e.g. the frames' log difference: a diagnostic
+        of how much the events' quantized measurement costs against the same solver fed
+        a finer one (``benchmarks/bench_bos_accuracy.py``, part ``diagnosis``). The events
+        still give the TV weight; C is then neither needed nor estimated.
 
     Returns
     -------
@@ -776,7 +799,8 @@ def estimate_bos(
         if unknown:
             raise ParameterError(f"unknown option(s) {sorted(unknown)}")
         o = replace(o, **kwargs)
-    r, logf, meas, weight, c = _prepare(events, frame, t0_us, t1_us, frame_next, roi, o)
+    r, logf, meas, weight, c, log_units = _prepare(events, frame, t0_us, t1_us, frame_next,
+                                                   roi, o, increment)
     normalized = o.data_term == "normalized"
     if init is not None and len(init.params) != len(o.scales):
         raise ParameterError(f"init has {len(init.params)} scales, expected {len(o.scales)}")
@@ -809,7 +833,7 @@ def estimate_bos(
     dense = np.zeros((4,) + logf.shape)
     upsample(pf, final.iy, final.fy, final.ix, final.fx, dense)
     scale = 1.0
-    if normalized and o.rescale and c is not None:
+    if normalized and o.rescale and log_units:
         final.objective(pf, True, regularize=False)
         pr = final.buf.pred.astype(np.float64)
         den = float(np.sum(pr * pr))
@@ -832,7 +856,7 @@ def estimate_bos(
         q[y:y + rh, x:x + rw] = qd[0] * 8.0 * final.patch * scale / dt
     valid = np.zeros((H, W), bool)
     valid[y:y + rh, x:x + rw] = True
-    calibrated = c is not None and (not normalized or o.rescale)
+    calibrated = log_units and (not normalized or o.rescale)
     return BosResult(flow=flow, q=q, p=p, valid=valid, roi=r, t0_us=int(t0_us),
                      t1_us=int(t1_us), contrast_threshold=None if c is None else float(c),
                      calibrated=bool(calibrated), scale=scale, objective=float(objective),
