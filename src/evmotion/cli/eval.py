@@ -10,6 +10,13 @@ along the trajectories (each GT frame weighted by its overlap, chained as in the
 protocol), compared with the estimated flow times the window duration. ``--dt`` states the protocol (GT frames per window, MVSEC dt = 1 or 4); windows
 spanning a different number of GT frames are reported.
 
+A per-event flow file (``evmotion flow --method triplet``'s default output, ``.h5`` or
+``.npz``: :mod:`evmotion.io.eventflow`) is scored event by event
+(:func:`evmotion.eval.eventflow.event_flow_metrics`): each event with a flow against the
+GT window holding its time, bilinear at its position; AEE in px/s and in px of
+displacement over ``--dt`` GT frame intervals, %Out and AE on those displacements, and
+how many events were scored, had no flow or no ground truth.
+
 Masks (thesis ch. 4): valid ground truth, and with ``--events`` at least one event in the
 window at the pixel; ``--events`` also enables the FWL (IWE variance with the flow over
 that of zero flow).
@@ -34,6 +41,8 @@ EXAMPLES = """examples:
   evmotion eval flow.h5 --gt outdoor_day1_gt_flow_dist.npz --events rec.h5 --dt 4 --json
   evmotion eval flow.h5 --gt sim.h5 --events sim.h5
   evmotion eval 'flow_{:05d}.flo' --gt sim.h5
+  evmotion flow sim.h5 --method triplet --out triplet.h5   # per-event flow
+  evmotion eval triplet.h5 --gt sim_gt.h5 --json            # scored event by event
 """
 
 
@@ -42,13 +51,16 @@ def add_parser(sub) -> None:
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("flow", help="estimated flow (.h5, .npz, .flo, .png, a pattern "
-                                "flow_{:05d}.flo; .npy with --t0-us/--t1-us)")
+                                "flow_{:05d}.flo; .npy with --t0-us/--t1-us), or a "
+                                "per-event flow file (.h5/.npz of --method triplet)")
     p.add_argument("--gt", required=True, type=existing_input,
                    help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
     p.add_argument("--events", default=None, type=existing_input,
                    help="recording of the events: event mask and FWL")
     p.add_argument("--format", default=None, help="format of --events (default: detect)")
-    p.add_argument("--dt", type=positive_int(), default=1, help="GT frames per window (1 or 4)")
+    p.add_argument("--dt", type=positive_int(), default=1,
+                   help="GT frames per window (1 or 4); per-event files: the GT frame "
+                        "intervals the displacements span")
     p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None,
                    help="window start of a .npy, or a .flo/.png without sidecar")
     p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None,
@@ -117,21 +129,51 @@ def _load_npy(args, path):
     return flow.astype(np.float32), np.array([args.t0_us]), np.array([args.t1_us]), None
 
 
-def _check_estimate(path) -> None:
-    """FLOW must be an estimate (an evmotion flow file), not events or ground truth: the
-    reader also accepts an events file by the ground truth beside it, which would compare
-    the ground truth with itself."""
+def _h5_format(path) -> object:
+    """The ``format`` attribute of an HDF5 file (None if it has none)."""
     import h5py
 
-    from evmotion.io.flowfiles import FLOW_FORMAT
     from evmotion.io.h5attrs import read_attrs
 
     try:
         with h5py.File(path, "r") as f:
-            fmt = read_attrs(path, f, ("format",)).get("format")
+            return read_attrs(path, f, ("format",)).get("format")
     except OSError as exc:
         raise FormatError(path, f"not a readable HDF5 file: {' '.join(str(exc).split())}"
                           ) from None
+
+
+def _is_event_flow(path) -> bool:
+    """Whether FLOW is a per-event flow file (:mod:`evmotion.io.eventflow`), by its
+    ``format`` attribute (``.h5``) or its ``meta`` member (``.npz``); anything else goes to
+    the dense readers, which report what is wrong with it."""
+    import json
+    import zipfile
+
+    from evmotion.io.eventflow import EVENT_FLOW_FORMAT
+
+    suffix = path.suffix.lower()
+    if suffix in (".h5", ".hdf5") and path.is_file():
+        return _h5_format(path) == EVENT_FLOW_FORMAT
+    if suffix != ".npz" or not path.is_file():
+        return False
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "meta" not in z.files:
+                return False
+            meta = json.loads(str(z["meta"]))
+    except (OSError, ValueError, zipfile.BadZipFile):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == EVENT_FLOW_FORMAT
+
+
+def _check_estimate(path) -> None:
+    """FLOW must be an estimate (an evmotion flow file), not events or ground truth: the
+    reader also accepts an events file by the ground truth beside it, which would compare
+    the ground truth with itself."""
+    from evmotion.io.flowfiles import FLOW_FORMAT
+
+    fmt = _h5_format(path)
     if fmt != FLOW_FORMAT:
         raise FormatError(path, f"not an evmotion flow file (format attribute {fmt!r}, "
                           f"expected {FLOW_FORMAT!r}): FLOW must be an estimate written by "
@@ -186,11 +228,60 @@ def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float
     return disp, valid, frames
 
 
+def _run_event_flow(args, path) -> int:
+    """Score a per-event flow file (see the module docstring)."""
+    from evmotion.cli import print_json
+    from evmotion.errors import EmptyWindowError
+    from evmotion.eval.eventflow import event_flow_metrics
+    from evmotion.io.eventflow import read_event_flow
+    from evmotion.io.flowfiles import read_gt_flow
+
+    reject_unused(args, {"--events": "events", "--format": "format", "--t0-us": "t0_us",
+                         "--t1-us": "t1_us", "--along-streamlines": "along_streamlines"},
+                  f"to the per-event flow file {path.name} (it holds its events and times)")
+    ef = read_event_flow(path)
+    if len(ef) == 0:
+        raise FormatError(path, "no events (events=0): nothing to evaluate")
+    gt = read_gt_flow(args.gt)
+    if tuple(gt.flow.shape[1:3]) != ef.sensor_size:
+        raise ParameterError(f"{path} is on a {ef.sensor_size} px grid but ground truth "
+                             f"{args.gt} is {tuple(gt.flow.shape[1:3])} px (height, width)")
+    file_out_px = ef.attrs.get("eval_out_px")
+    out_px = args.out_px if args.out_px is not None else \
+        float(file_out_px) if file_out_px is not None else 3.0
+    try:
+        m = event_flow_metrics(ef, gt, frames=args.dt, out_px=out_px, per_window=True)
+    except EmptyWindowError as exc:
+        raise ParameterError(f"{path} against ground truth {args.gt}: {exc}") from None
+    mean = m.as_dict()
+    mean["AE_rad"] = float(np.radians(m.ae_deg))
+    summary = {"flow": str(args.flow), "gt": str(args.gt), "kind": "per-event",
+               "dt": args.dt, "displacement": f"over {args.dt} GT frame interval(s) "
+                                               "(of the GT window holding each event)",
+               "mask": "event with a flow & valid GT at its pixel", "out_px": out_px,
+               "grid": str(ef.attrs.get("grid", "sensor")), "n_windows": len(m.windows),
+               "mean": mean, "windows": list(m.windows)}
+    if args.json:
+        print_json(summary)
+    else:
+        print(f"{m.n_scored} of {m.n_events} events scored ({m.n_no_flow} without a flow, "
+              f"{m.n_no_gt} without GT; dt={args.dt}): AEE={m.aee:.4g} px  "
+              f"AEE={m.aee_px_s:.4g} px/s  %Out={m.pct_out:.4g}  AE_deg={m.ae_deg:.4g}")
+    return 0
+
+
 def run(args) -> int:
+    from pathlib import Path
+
     from evmotion.cli import print_json
     from evmotion.eval.metrics import aggregate_flow_metrics, event_mask, flow_metrics, fwl
     from evmotion.io.flowfiles import read_gt_flow
 
+    path = Path(args.flow)
+    if _is_event_flow(path):
+        if Path(args.gt).resolve() == path.resolve():
+            raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
+        return _run_event_flow(args, path)
     flow, t0s, t1s, file_out_px = _load_flow(args)
     out_px = args.out_px if args.out_px is not None else file_out_px or 3.0
     gt = read_gt_flow(args.gt)
