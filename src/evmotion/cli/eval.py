@@ -180,54 +180,6 @@ def _check_estimate(path) -> None:
                           "'evmotion flow', not events or ground truth")
 
 
-def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """GT displacement (px) over ``[t0, t1)`` µs, its validity mask, and the number of GT
-    frames it spans (fractional).
-
-    The GT frames are chained along the trajectories, as in the MVSEC protocol for
-    ``dt = 4`` (Zhu et al. propagate each pixel through the per-frame flows): frame ``j``'s
-    flow is sampled (bilinearly) where the pixel's scene point is after the previous
-    frames, not at the pixel itself. Summing the frames at a fixed pixel instead is off
-    by ``|grad v| |d|`` -- about 1 px at 20 px displacement for a camera rotation, and
-    the whole object motion at a motion boundary. A pixel is valid while its point stays
-    in the image on valid GT.
-    """
-    from scipy.ndimage import map_coordinates
-
-    a = np.maximum(gt.t0, t0)
-    b = np.minimum(gt.t1, t1)
-    overlap = np.clip(b - a, 0, None).astype(np.float64)
-    sel = np.flatnonzero(overlap > 0)
-    sel = sel[np.argsort(np.asarray(gt.t0)[sel], kind="stable")]
-    h, w = gt.flow.shape[1:3]
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    px, py = xs.copy(), ys.copy()
-    valid = np.ones((h, w), bool)
-    frames = 0.0
-    for j in sel:
-        inside = (px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)
-        valid &= inside
-        coords = np.stack([np.clip(py, 0, h - 1), np.clip(px, 0, w - 1)])
-        f = gt.flow[j].astype(np.float64)
-        ok = np.isfinite(f).all(-1)
-        if gt.valid is not None:
-            ok &= np.asarray(gt.valid[j], bool)
-        # validity at the nearest GT pixel; the flow itself bilinear over valid pixels
-        iy = np.rint(coords[0]).astype(np.int64)
-        ix = np.rint(coords[1]).astype(np.int64)
-        valid &= ok[iy, ix]
-        f = np.where(ok[..., None], f, 0.0)
-        dt_s = overlap[j] * 1e-6
-        px = px + map_coordinates(f[..., 0], coords, order=1, mode="nearest") * dt_s
-        py = py + map_coordinates(f[..., 1], coords, order=1, mode="nearest") * dt_s
-        frames += overlap[j] / max(gt.t1[j] - gt.t0[j], 1)
-    disp = np.stack([px - xs, py - ys], axis=-1)
-    valid &= np.isfinite(disp).all(-1)
-    if sel.size == 0:
-        valid[:] = False
-    return disp, valid, frames
-
-
 def _run_event_flow(args, path) -> int:
     """Score a per-event flow file (see the module docstring)."""
     from evmotion.cli import print_json
@@ -274,7 +226,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from evmotion.cli import print_json
-    from evmotion.eval.metrics import aggregate_flow_metrics, event_mask, flow_metrics, fwl
+    from evmotion.eval.windows import evaluate_windows
     from evmotion.io.flowfiles import read_gt_flow
 
     path = Path(args.flow)
@@ -293,48 +245,12 @@ def run(args) -> int:
         from evmotion.io import read_events
 
         events = read_events(args.events, **({"format": args.format} if args.format else {}))
-    rows, per_window, mismatched, unknown = [], [], 0, False
-    for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
-        disp_gt, valid, frames = gt_displacement(gt, int(t0), int(t1))
-        if abs(frames - args.dt) > 0.5:
-            mismatched += 1
-        est = flow[i].astype(np.float64) * (t1 - t0) * 1e-6
-        if args.along_streamlines:
-            from evmotion.methods.transport import transport_to_times
-
-            est = transport_to_times(np.ascontiguousarray(est.transpose(2, 0, 1)),
-                                     np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
-        mask = valid
-        known = np.isfinite(flow[i]).all(axis=-1)
-        # NaN where the estimate is not defined (outside a BOS ROI; .flo / .png "unknown")
-        if not known.all():
-            mask = mask & known
-            unknown = True
-        win = None
-        if events is not None:
-            win = events.slice_time(int(t0), int(t1))
-            mask = mask & event_mask(win, flow.shape[1:3])
-        m = flow_metrics(est, np.where(valid[..., None], disp_gt, np.nan), mask=mask,
-                         out_px=out_px)
-        row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), **m.as_dict(),
-               "AE_rad": float(np.radians(m.ae_deg)), "gt_frames": round(frames, 2)}
-        if win is not None and len(win) > 1:
-            row["FWL"] = fwl(win, flow[i], t_ref_us=(int(t0) + int(t1)) // 2)
-            row["FWL_gt"] = fwl(win, (disp_gt / ((t1 - t0) * 1e-6)).astype(np.float32),
-                                t_ref_us=(int(t0) + int(t1)) // 2)
-        rows.append(m)
-        per_window.append(row)
-    total = aggregate_flow_metrics(rows).as_dict()
-    total["AE_rad"] = float(np.radians(total["AE_deg"]))
-    fwls = [r["FWL"] for r in per_window if "FWL" in r]
-    if fwls:
-        total["FWL"] = float(np.mean(fwls))
-        total["FWL_gt"] = float(np.mean([r["FWL_gt"] for r in per_window if "FWL_gt" in r]))
+    res = evaluate_windows(flow, t0s, t1s, gt, events=events, dt=args.dt, out_px=out_px,
+                           along_streamlines=args.along_streamlines)
+    per_window, total, mismatched = res.windows, res.total, res.mismatched
     summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
                "n_windows": len(per_window), "windows_with_other_dt": mismatched,
-               "mask": "valid GT"
-               + (" & at least one event" if events is not None else "")
-               + (" & estimate known" if unknown else ""), "out_px": out_px,
+               "mask": res.mask, "out_px": out_px,
                "mean": total, "windows": per_window}
     if args.json:
         print_json(summary)
