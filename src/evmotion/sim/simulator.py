@@ -16,6 +16,9 @@ from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
 from evmotion.sim.render import (
     MAX_SUBSAMPLES,
+    EventBuffers,
+    PixelState,
+    StepLayers,
     emit_crossings,
     full_boxes,
     pad_periodic,
@@ -127,17 +130,17 @@ def _noise_events(rng, sensor_size, duration_us, noise_rate, hot_pixels, hot_rat
             np.concatenate(ts).astype(np.int64), rng.integers(0, 2, x.size).astype(np.uint8))
 
 
-def _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr, target,
-                ex, ey, et, ep):
-    """:func:`sim_step_numpy` behind the interface of :func:`sim_step`."""
-    alphas = np.stack([t.alpha if t.alpha is not None else np.ones(t.shape, np.float32)
-                       for t in texs])
-    lbn, x, y, t, p = sim_step_numpy(Mseq, np.stack([t.log_i for t in texs]), alphas, origins,
-                                     la, ref, cp, cn, last, t_a, t_b, refr, target)
-    lb[:] = lbn
+def _step_numpy(layers: StepLayers, state: PixelState, events: EventBuffers, t_a, t_b, refr,
+                target):
+    """:func:`sim_step_numpy` behind the interface of :func:`sim_step` (``layers`` with
+    unpadded rasters)."""
+    lbn, x, y, t, p = sim_step_numpy(layers.Mseq, layers.texs, layers.alphas, layers.origins,
+                                     state.la, state.ref, state.cp, state.cn, state.last, t_a,
+                                     t_b, refr, target)
+    state.lb[:] = lbn
     n = x.size
-    if n <= ex.size:
-        ex[:n], ey[:n], et[:n], ep[:n] = x, y, t, p
+    if n <= events.x.size:
+        events.x[:n], events.y[:n], events.t[:n], events.p[:n] = x, y, t, p
     return n, 0
 
 
@@ -213,12 +216,6 @@ def _thresholds(rng, C, mismatch, shape):
     cp = np.maximum(C * (1 + mismatch * rng.standard_normal(shape)), cmin)
     cn = np.maximum(C * (1 + mismatch * rng.standard_normal(shape)), cmin)
     return cp, cn
-
-
-def _event_buffers(cap):
-    """Empty x, y, t, p buffers for ``cap`` events (filled by the step kernels)."""
-    return (np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.int64),
-            np.empty(cap, np.uint8))
 
 
 def _sorted_chunk(ex, ey, et, ep, n, w, h, packed):
@@ -534,35 +531,39 @@ def _support(tex: Texture):
     return support, np.array([[x0, x1, x1, x0], [y0, y0, y1, y1], [1.0, 1, 1, 1]])
 
 
+def _step_layers(texs, boxes, backend: str) -> tuple[StepLayers, StepLayers]:
+    """The layers of the steps (matrices left out) with padded rasters, as the numba
+    kernels take them, and as ``backend``'s kernel takes them (unpadded for numpy);
+    ``boxes`` is the array the stepper updates in place."""
+    alphas = [t.alpha if t.alpha is not None else np.ones(t.shape, np.float32) for t in texs]
+    origins = np.array([t.origin for t in texs], dtype=np.float64)
+    padded = StepLayers(None, np.stack([pad_periodic(t.log_i) for t in texs]),
+                        np.stack([pad_periodic(a) for a in alphas]), origins, boxes,
+                        textured_cells_sat(texs[0].log_i))
+    if backend == "numpy":
+        return padded, StepLayers(None, np.stack([t.log_i for t in texs]), np.stack(alphas),
+                                  origins)
+    return padded, padded
+
+
 def _signal_events(run: _Run, layers, texs, cp, cn):
     """The events of the moving scene, in time order: ``x, y, t, p`` and the step and
     sub-sample counts."""
     h, w = run.sensor_size
     duration_us = run.duration_us
-    tex_stack = np.stack([pad_periodic(t.log_i) for t in texs])
-    alpha_stack = np.stack([pad_periodic(t.alpha if t.alpha is not None
-                                         else np.ones(t.shape, np.float32)) for t in texs])
-    origins = np.array([t.origin for t in texs], dtype=np.float64)
     stepper = _Stepper(layers, texs, run.sensor_size, duration_us)
-    sat = textured_cells_sat(texs[0].log_i)
+    padded, scene = _step_layers(texs, stepper.boxes, run.backend)
+    kernel = _step_numpy if run.backend == "numpy" else sim_step
     refr = run.model.refractory_us
-
-    def step(Mseq, t, tb, la, lb, ref, last, bufs):
-        if run.backend == "numpy":
-            return _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t, tb, refr,
-                               run.target, *bufs)
-        return sim_step(Mseq, tex_stack, alpha_stack, origins, la, lb, ref, cp, cn, last, t,
-                        tb, refr, run.target, *bufs, stepper.boxes, sat)
-
     la = np.zeros((h, w), np.float32)
     lb = np.empty((h, w), np.float32)
     m_start = stepper.mats(0, 0)[0]
     stepper.update_boxes(m_start, m_start)
-    render_log(m_start, tex_stack, alpha_stack, origins, la, stepper.boxes)
+    render_log(m_start, padded.texs, padded.alphas, padded.origins, la, stepper.boxes)
     ref = la.astype(np.float64)
     last = np.full((h, w), np.iinfo(np.int64).min // 2, dtype=np.int64)
     ref_bak, last_bak = ref.copy(), last.copy()
-    bufs = _event_buffers(h * w * 4)
+    bufs = EventBuffers.empty(h * w * 4)
     chunks = []
     packed = (duration_us + 1) * 2 * h * w < 2 ** 62  # the sort key fits in an int64
     t, dt, n_samples, n_sub = 0, 200, 0, 0
@@ -579,13 +580,14 @@ def _signal_events(run: _Run, layers, texs, cp, cn):
         np.copyto(ref_bak, ref)
         np.copyto(last_bak, last)
         while True:
-            n, ns = step(Mseq, t, tb, la, lb, ref, last, bufs)
-            if n <= bufs[0].size:
+            n, ns = kernel(scene._replace(Mseq=Mseq), PixelState(la, lb, ref, cp, cn, last),
+                           bufs, t, tb, refr, run.target)
+            if n <= bufs.x.size:
                 break
             # the buffers overflowed: redo the step with room for every event
             np.copyto(ref, ref_bak)
             np.copyto(last, last_bak)
-            bufs = _event_buffers(2 * n)
+            bufs = EventBuffers.empty(2 * n)
         if n:
             chunks.append(_sorted_chunk(*bufs, n, w, h, packed))
         n_samples += 1
@@ -748,7 +750,7 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     la = full(0)
     ref = la.copy()
     last = np.full(h * w, np.iinfo(np.int64).min // 2, dtype=np.int64)
-    bufs = _event_buffers(max(1024, h * w))
+    bufs = EventBuffers.empty(max(1024, h * w))
     packed = (duration_us + 1) * 2 * h * w < 2 ** 62
     chunks = []
     todo = _base_steps(duration_us, breaks_us, max_step_us)[::-1]
@@ -770,12 +772,12 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
             n = 0
             for times, pix, vals in samples:
                 n = emit_crossings(vals, times, pix, w, ref, cp, cn, last,
-                                   model.refractory_us, *bufs, n)
-            if n <= bufs[0].size:
+                                   model.refractory_us, bufs, n)
+            if n <= bufs.x.size:
                 break
             # the buffers overflowed: redo the step with room for every event
             ref, last = ref_bak, last_bak
-            bufs = _event_buffers(2 * n)
+            bufs = EventBuffers.empty(2 * n)
         if n:
             chunks.append(_sorted_chunk(*bufs, n, w, h, packed))
         n_steps += 1
