@@ -17,7 +17,6 @@ evmotion.errors.ParameterError: threshold must be finite and > 0.0 (log intensit
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -25,7 +24,7 @@ import numpy as np
 
 from evmotion.errors import CalibrationError, ParameterError
 
-__all__ = ["EventOptions", "SchlierenOptions", "SimOptions", "check_number", "resolve_options"]
+__all__ = ["EventOptions", "SchlierenOptions", "SimOptions", "check_number"]
 
 
 def check_number(name: str, value, lo: float = 0.0, hi: float = math.inf, *,
@@ -286,43 +285,3 @@ class SchlierenOptions:
         return EventOptions(threshold=self.contrast_threshold, mismatch=self.mismatch,
                             refractory_us=self.refractory_us, noise_rate=self.noise_rate,
                             max_step_fraction=self.max_step_fraction)
-
-
-def resolve_options(cls: type, options, keywords: dict, func: str):
-    """The options of one call of ``func``: ``cls(**keywords)``, or ``options``.
-
-    Parameters
-    ----------
-    cls : dataclass type
-        The options class; its fields are the keywords ``func`` accepts.
-    options : cls or None
-        Options passed as an object.
-    keywords : dict
-        The keywords the caller passed (only those).
-    func : str
-        Name of the function, for the messages.
-
-    Raises
-    ------
-    ParameterError
-        A keyword that is not a field of ``cls``, ``options`` not a ``cls``, or both
-        ``options`` and keywords given (the call would be ambiguous).
-
-    Examples
-    --------
-    >>> resolve_options(EventOptions, None, {"threshold": 0.5}, "f").threshold
-    0.5
-    """
-    names = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(set(keywords) - set(names))
-    if unknown:
-        raise ParameterError(f"{func}() got unknown keyword(s) {', '.join(unknown)}; its "
-                             f"options are {', '.join(names)}")
-    if options is None:
-        return cls(**keywords)
-    if not isinstance(options, cls):
-        raise ParameterError(f"options must be a {cls.__name__}, got {type(options).__name__}")
-    if keywords:
-        raise ParameterError(f"pass either options= or the keyword(s) "
-                             f"{', '.join(sorted(keywords))}, not both")
-    return options

@@ -56,9 +56,10 @@ from evmotion.events import EventArray
 from evmotion.io.frames import Frames
 from evmotion.io.guard import open_h5
 from evmotion.io.pngfile import write_png
-from evmotion.sim.options import SchlierenOptions, check_number, resolve_options
+from evmotion.sim.options import SchlierenOptions, check_number
 from evmotion.sim.scenes import BOS_SCENES
 from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
+from evmotion.utils import resolve_options
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
            "make_background", "make_field", "read_schlieren_gt", "simulate_schlieren",

@@ -14,7 +14,7 @@ from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
-from evmotion.sim.options import EventOptions, SimOptions, check_number, resolve_options
+from evmotion.sim.options import EventOptions, SimOptions, check_number
 from evmotion.sim.render import (
     MAX_SUBSAMPLES,
     EventBuffers,
@@ -31,7 +31,7 @@ from evmotion.sim.render import (
 )
 from evmotion.sim.scenes import SCENES, default_K, resolve_params
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
-from evmotion.utils import progress
+from evmotion.utils import progress, resolve_options
 
 __all__ = ["EventOptions", "LogSimResult", "SimOptions", "SimResult", "parse_sensor_size",
            "simulate", "simulate_log_function"]
