@@ -105,10 +105,7 @@ def resolve_options(cls: type, options, keywords: dict, func: str):
 
     Examples
     --------
-    >>> from dataclasses import dataclass
-    >>> @dataclass(frozen=True)
-    ... class Opts:
-    ...     n_iter: int = 100
+    >>> Opts = dataclasses.make_dataclass("Opts", [("n_iter", int, 100)], frozen=True)
     >>> resolve_options(Opts, None, {"n_iter": 5}, "f")
     Opts(n_iter=5)
     >>> resolve_options(Opts, None, {"n_it": 5}, "f")
