@@ -56,6 +56,7 @@ from evmotion.jitcache import compile_seconds
 from evmotion.methods import transport as tr
 from evmotion.methods.diagnostics import event_support
 from evmotion.methods.options import merge_options
+from evmotion.utils import resolve_options
 
 __all__ = ["FlowResult", "MultiCMOptions", "MultiCMProblem", "estimate_flow",
            "estimate_flow_sequence"]
@@ -175,6 +176,10 @@ class FlowResult:
         return d.astype(np.float32)
 
 
+# The fields of MultiCMOptions that MultiCMProblem reads (its keywords).
+PROBLEM_OPTIONS = ("objective", "lam", "references", "time_aware", "n_bins", "transport_cell")
+
+
 class MultiCMProblem:
     """The composite objective (4.9) of one window at one scale, with its gradient.
 
@@ -187,8 +192,6 @@ class MultiCMProblem:
     shape : (H, W)
     grid : TileGrid
         The scale's tiles; the unknowns are tile flows ``(ny, nx, 2)`` in px per window.
-    objective, lam, references, time_aware, n_bins, transport_cell
-        As in :func:`estimate_flow`.
     p : ndarray (N,), optional
         Polarities (0/1), needed by the average-timestamp objectives.
     g0 : float, optional
@@ -200,6 +203,12 @@ class MultiCMProblem:
     support : ndarray (H, W) bool, optional
         Pixels with event support; tiles with little of it are anchored to zero flow
         (:meth:`anchor_grad`). None: no anchor.
+    options : MultiCMOptions, optional
+        The objective's tuning as one object (only the fields of ``PROBLEM_OPTIONS``
+        apply; ``n_bins`` None means 5); then no keyword below may be given.
+    **keywords
+        ``objective``, ``lam``, ``references``, ``time_aware``, ``n_bins`` (default 5),
+        ``transport_cell``: as in :func:`estimate_flow`.
 
     Examples
     --------
@@ -211,13 +220,20 @@ class MultiCMProblem:
     True
     """
 
-    def __init__(self, x, y, s, shape, grid, *, objective="gradient_magnitude", lam=0.0025,
-                 references="multi", time_aware=None, n_bins=5, transport_cell=4, g0=None,
-                 p=None, duration_s=1.0, support=None):
+    def __init__(self, x, y, s, shape, grid, *, g0=None, p=None, duration_s=1.0,
+                 support=None, options: MultiCMOptions | None = None, **keywords):
+        unknown = sorted(set(keywords) - set(PROBLEM_OPTIONS))
+        if unknown:
+            raise ParameterError(f"MultiCMProblem() got unknown keyword(s) "
+                                 f"{', '.join(unknown)}; its options are "
+                                 f"{', '.join(PROBLEM_OPTIONS)}")
+        o = resolve_options(MultiCMOptions, options, keywords, "MultiCMProblem")
+        objective, time_aware = o.objective, o.time_aware
+        n_bins = 5 if o.n_bins is None else o.n_bins
         self.x, self.y, self.s, self.shape, self.grid = x, y, s, shape, grid
         self.duration_s = float(duration_s)
-        self.objective, self.lam = objective, lam
-        self.refs = REFERENCES[references]
+        self.objective, self.lam = objective, o.lam
+        self.refs = REFERENCES[o.references]
         self.wsum = sum(w for _, w in self.refs)
         self.time_aware = time_aware
         self.idx, self.w = tf.event_weights(x, y, grid)
@@ -247,8 +263,8 @@ class MultiCMProblem:
             self.bin_times = (np.arange(n_bins) + 0.5) / n_bins - 0.5
             # the PDE runs on a grid of ~transport_cell px cells, in cells per window
             h, w = shape
-            self.tgrid = tf.TileGrid(max(1, round(h / transport_cell)),
-                                     max(1, round(w / transport_cell)), shape)
+            self.tgrid = tf.TileGrid(max(1, round(h / o.transport_cell)),
+                                     max(1, round(w / o.transport_cell)), shape)
             self.cell = np.array(self.tgrid.spacing)[::-1]  # (sx, sy)
             self.ay = tf.axis_matrix(self.tgrid.centers_y(), grid.ny, h)
             self.ax = tf.axis_matrix(self.tgrid.centers_x(), grid.nx, w)
