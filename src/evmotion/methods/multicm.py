@@ -43,6 +43,7 @@ import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -785,6 +786,7 @@ def _optimize(prob: MultiCMProblem, theta0: np.ndarray, optimizer: str, max_iter
 
 def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
                            warm_start: bool = True, show_progress: bool = False,
+                           workers: int = 1, scheduler: Any = None, keep_iwes: bool = True,
                            **kwargs) -> list[FlowResult]:
     """:func:`estimate_flow` over consecutive windows, each warm-started from the previous.
 
@@ -797,6 +799,15 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
         Initialize each window with the previous result (§4.2.4).
     show_progress : bool
         Progress bar on stderr.
+    workers : int
+        With more than 1, the windows are split into ``workers`` contiguous chunks run by
+        as many processes, warm-started within each chunk only
+        (:mod:`evmotion.methods.multicm_windows`).
+    scheduler : distributed.Client, optional
+        Run those chunks on this Dask cluster instead.
+    keep_iwes : bool
+        With chunks: keep each result's images of warped events (15 MB a window at
+        1280x720).
     **kwargs
         Passed to :func:`estimate_flow` (``init`` seeds the first window).
 
@@ -805,6 +816,15 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
     list of FlowResult (empty windows raise :class:`EmptyWindowError`).
     """
     from evmotion.utils import progress
+
+    if workers > 1 or scheduler is not None:
+        from evmotion.methods.multicm_windows import estimate_in_chunks
+
+        if not warm_start:
+            raise ParameterError("warm_start=False with workers or a scheduler: chunks are "
+                                 "warm-started; run one process")
+        return estimate_in_chunks(events, windows, workers=workers, scheduler=scheduler,
+                                  keep_iwes=keep_iwes, **kwargs)
 
     init = kwargs.pop("init", None)
     out = []
