@@ -146,7 +146,7 @@ def rotation_rows(quick: bool) -> list[dict]:
 
 def ecd_rows() -> list[dict]:
     from evmotion.events import EventArray
-    from evmotion.io.calib import read_ecd
+    from evmotion.io.calibration import read_ecd
 
     base = Path(os.environ.get("EVMOTION_SHARED_DATA", Path(__file__).resolve().parents[2]
                                / "shared" / "data")) / "ecd_rotation_windows"

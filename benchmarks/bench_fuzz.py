@@ -14,8 +14,10 @@ rise over the resident set before the case (``peak_mb``) and the largest peak it
 an address-space limit (``RLIMIT_AS``, start + 2 GiB): an allocation past it fails with
 MemoryError, which the readers report as a FormatError and the row counts as
 ``memory_limit_hits``. Time per case is wall time; ``hang`` is a case over 20 s (SIGALRM
-in the worker); ``crash`` is a case whose worker process died (a segfault in a C
-library): the pool is restarted after it and the case is named.
+in the worker), or a case whose worker made no progress for ``STALL_S`` (stuck in C code,
+where no alarm reaches: the parent kills that worker); ``crash`` is a case whose worker
+process died (a segfault in a C library). After either the pool is restarted and the case
+is named.
 
 Run: ``python benchmarks/bench_fuzz.py [--cases 100000] [--workers 2] [--budget-s 1080]``
 (``run.py fuzz`` runs the default, ``--quick`` 100 cases per seed).
@@ -45,6 +47,7 @@ import fuzzing  # noqa: E402  (the test helpers, one folder over)
 SHARED = Path(os.environ.get("EVMOTION_SHARED_DATA", HERE.parents[1] / "shared" / "data"))
 BATCH = 200
 CASE_TIMEOUT_S = 20.0
+STALL_S = CASE_TIMEOUT_S + 30.0  # no new case for this long: the worker is stuck in C code
 
 _SEEDS: list = []
 _DIR: Path | None = None
@@ -129,10 +132,11 @@ def _merge(tot: dict, agg: dict) -> None:
 
 
 def _run_pool(todo: collections.deque, seeds, workdir: Path, workers: int, t_start: float,
-              budget_s: float) -> tuple[list[dict], list[tuple[int, int]]]:
+              budget_s: float) -> tuple[list[dict], list[tuple[int, int, str]]]:
     """Run tasks from ``todo`` (removing those done) on a fresh pool until it is empty,
-    the budget is spent or a worker dies. Returns the batch results and, after a death,
-    the ``(seed, case)`` each dead worker was running; the unfinished tasks go back on
+    the budget is spent or a worker dies (or is killed for making no progress). Returns
+    the batch results and, after a death, ``(seed, case, kind)`` for each dead worker's
+    case, kind "hang" for a killed worker, else "crash"; the unfinished tasks go back on
     ``todo``, a dead worker's resumed after its case."""
     done: list[dict] = []
     ctx = mp.get_context("fork")
@@ -140,6 +144,7 @@ def _run_pool(todo: collections.deque, seeds, workdir: Path, workers: int, t_sta
     started = {p.pid for p in pool._pool}
     pending: dict = {}
     dead: set[int] = set()
+    stalled: set[int] = set()
     try:
         while todo or pending:
             while todo and len(pending) < 2 * workers and \
@@ -158,6 +163,7 @@ def _run_pool(todo: collections.deque, seeds, workdir: Path, workers: int, t_sta
             if dead:
                 break
             started |= {p.pid for p in pool._pool}
+            stalled |= _kill_stalled(workdir)
             time.sleep(0.05)
     finally:
         pool.terminate()
@@ -173,7 +179,7 @@ def _run_pool(todo: collections.deque, seeds, workdir: Path, workers: int, t_sta
         for task in [t for t in pending if t[0] == si and t[1] <= k < t[1] + t[2]]:
             del pending[task]
             if pid in dead:
-                crashed.append((si, k))
+                crashed.append((si, k, "hang" if pid in stalled else "crash"))
                 # the cases before it ran but their results died with the worker
                 for part in ((si, task[1], k - task[1]),
                              (si, k + 1, task[1] + task[2] - k - 1)):
@@ -185,6 +191,25 @@ def _run_pool(todo: collections.deque, seeds, workdir: Path, workers: int, t_sta
     return done, crashed
 
 
+def _kill_stalled(workdir: Path) -> set[int]:
+    """Kill the workers whose current case started more than ``STALL_S`` ago; their pids."""
+    killed = set()
+    now = time.time()
+    for prog in workdir.glob("worker*/progress"):
+        try:
+            stuck = now - prog.stat().st_mtime > STALL_S
+        except FileNotFoundError:
+            continue
+        if stuck:
+            pid = int(prog.parent.name.removeprefix("worker"))
+            try:
+                os.kill(pid, 9)
+            except ProcessLookupError:
+                continue
+            killed.add(pid)
+    return killed
+
+
 def _zombie(pid: int) -> bool:
     try:
         return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] in "ZX"
@@ -192,13 +217,13 @@ def _zombie(pid: int) -> bool:
         return True
 
 
-def run(cases: int, workers: int, budget_s: float, only: list[str] | None = None,
-        first: int = 0) -> tuple[list[dict], dict]:
+def run(cases: int | None, workers: int, budget_s: float, only: list[str] | None = None,
+        first: int = 0, per_seed: int | None = None) -> tuple[list[dict], dict]:
     workdir = Path(tempfile.mkdtemp(prefix="evmotion_fuzz_"))
     seeds, missing = fuzzing.make_seeds(workdir / "seeds", SHARED if SHARED.is_dir() else None)
     if only:
         seeds = [s for s in seeds if s.name in only]
-    per_seed = -(-cases // len(seeds))
+    per_seed = per_seed or -(-cases // len(seeds))
     tasks = [(si, a, min(BATCH, first + per_seed - a)) for a in range(first, first + per_seed,
                                                                       BATCH)
              for si in range(len(seeds))]
@@ -213,13 +238,14 @@ def run(cases: int, workers: int, budget_s: float, only: list[str] | None = None
         done, crashed = _run_pool(todo, seeds, workdir, workers, t_start, budget_s)
         for agg in done:
             _merge(totals[agg["seed"]], agg)
-        for si, k in crashed:
+        for si, k, kind in crashed:
             tot = totals[si]
             tot["cases"] += 1
-            tot["kinds"]["crash"] += 1
+            tot["kinds"][kind] += 1
             ops = fuzzing.random_ops(np.random.default_rng([si, k]))
-            tot["findings"].append({"case": k, "kind": "crash", "ops": ops,
-                                    "message": "the worker process died (segfault?)"})
+            tot["findings"].append({"case": k, "kind": kind, "ops": ops, "message": (
+                f"no progress for {STALL_S:g} s: stuck outside Python, killed"
+                if kind == "hang" else "the worker process died (segfault?)")})
         if time.perf_counter() - t_start >= budget_s:
             stopped = bool(todo)
             break
@@ -259,9 +285,8 @@ def main(quick: bool = False, argv: list[str] | None = None) -> list[dict]:
     ap.add_argument("--seed", action="append", help="only this seed (repeatable)")
     ap.add_argument("--first", type=int, default=0, help="first case index per seed")
     args = ap.parse_args([] if argv is None else argv)
-    if quick:
-        args.cases = 100 * 13
-    rows, info = run(args.cases, args.workers, args.budget_s, args.seed, args.first)
+    rows, info = run(args.cases, args.workers, args.budget_s, args.seed, args.first,
+                     per_seed=100 if quick else None)
     table = [{k: v for k, v in r.items() if k != "example_findings"} for r in rows]
     total = {"seed": "ALL", "format": "", "cases": info["cases"],
              **{k: sum(r[k] for r in rows) for k in ("ok", "errors", "findings", "leaks",

@@ -210,7 +210,7 @@ def _read_ecd_txt(path: Path):
 
 
 def real(quick: bool) -> list[dict]:
-    from evmotion.io.calib import read_ecd
+    from evmotion.io.calibration import read_ecd
     from evmotion.methods.multicm import estimate_flow
 
     rows = []

@@ -172,6 +172,9 @@ def make_seeds(workdir: Path, shared: Path | None) -> tuple[list[Seed], dict[str
     # writer-made files: no shared data needed
     h5.write(workdir / "ev.h5", ev, provenance={"tool": "fuzz seed"})
     seeds.append(Seed("h5", "h5", workdir / "ev.h5", 4096))
+    _vlen_copy(workdir / "ev.h5", workdir / "ev_vlen.h5")
+    # header_len covers the global heap at 2048 that holds the text attributes
+    seeds.append(Seed("h5_vlen", "h5", workdir / "ev_vlen.h5", 6144))
     (workdir / "dsec").mkdir(exist_ok=True)
     try:
         dsec.write(workdir / "dsec" / "events.h5", ev)
@@ -198,6 +201,18 @@ def make_seeds(workdir: Path, shared: Path | None) -> tuple[list[Seed], dict[str
         seeds.append(Seed("mat", "mat", workdir / "sim.mat", 128))
         missing.pop("mat")
     return seeds, missing
+
+
+def _vlen_copy(src: Path, dst: Path) -> None:
+    """``src`` (an evmotion .h5) with its text attributes variable-length, as evmotion
+    wrote them before 2026-11: their bytes sit in a global heap, which libhdf5 can loop on
+    when it is corrupt. The attributes are written first, so the heap comes early."""
+    import h5py
+
+    with h5py.File(dst, "w") as out, h5py.File(src, "r") as f:
+        for k, v in f.attrs.items():
+            out.attrs[k] = v.decode() if isinstance(v, bytes) else v
+        f.copy("events", out)
 
 
 # ------------------------------------------------------------------------- mutations

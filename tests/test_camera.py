@@ -4,7 +4,7 @@ import pytest
 from evmotion import EventArray
 from evmotion.camera import Camera
 from evmotion.errors import CalibrationError, FormatError
-from evmotion.io.calib import read_calibration, read_ecd
+from evmotion.io.calibration import read_camera, read_ecd
 
 DAVIS = Camera(199.092366, 198.82882, 132.192071, 110.712276,
                (-0.368436311798, 0.150947243557, -0.000296130534, -0.000759431726, 0.0),
@@ -76,10 +76,10 @@ def test_yaml_calibrations(tmp_path):
     mv.write_text("cam0:\n  intrinsics: [226.4, 226.2, 173.6, 133.7]\n"
                   "  distortion_coeffs: [-0.048, 0.0123, -0.00094, -0.00051]\n"
                   "  distortion_model: radtan\n  resolution: [346, 260]\n")
-    cam = read_calibration(mv)
+    cam = read_camera(mv)
     assert cam.sensor_size == (260, 346) and cam.dist[4] == 0.0 and cam.fx == 226.4
     ds = tmp_path / "cam_to_cam.yaml"
     ds.write_text("intrinsics:\n  camRect0:\n    camera_matrix: [569.7, 569.7, 335.0, 221.9]\n"
                   "    resolution: [640, 480]\n")
-    cam = read_calibration(ds)
+    cam = read_camera(ds)
     assert cam.sensor_size == (480, 640) and not cam.is_distorted

@@ -456,6 +456,20 @@ def test_keyboard_interrupt_in_process_returns_130(rec, capsys, monkeypatch):
     assert capsys.readouterr().err == "evmotion: interrupted\n"
 
 
+@pytest.mark.parametrize("argv0,expected", [("/usr/bin/evmotion", "_interrupted_at_start"),
+                                             ("/usr/bin/myscript", "default_int_handler")])
+def test_command_takes_ctrl_c_from_the_package_first_line(argv0, expected):
+    """The evmotion command answers Ctrl-C from the first line of evmotion/__init__ (a
+    traceback used to come from its imports, before evmotion.cli.main set a handler); a
+    program that imports evmotion as a library keeps Python's own handler."""
+    code = (f"import sys; sys.argv[0] = {argv0!r}; import evmotion, signal; "
+            "print(signal.getsignal(signal.SIGINT).__name__)")
+    env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=60)
+    assert out.stdout.strip() == expected, out.stderr
+
+
 def _popen(argv):
     env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     return subprocess.Popen([sys.executable, "-m", "evmotion", *argv], stdout=subprocess.PIPE,

@@ -14,7 +14,7 @@ import pytest
 from evmotion.cli import main
 from evmotion.events import EventArray
 from evmotion.io import write_events
-from evmotion.io.calib import read_calibration
+from evmotion.io.calibration import read_camera
 
 CALIB = "199.092366542 198.82882 132.192071378 110.712660011 -0.368436311798 " \
         "0.150947243557 -0.000296130534 -0.000759431726 0.0"
@@ -93,7 +93,7 @@ def test_flow_on_ecd_folder_undistorts_unless_told_not_to(ecd, tmp_path, capsys)
             return np.asarray(f["flow"][0]), f.attrs["grid"], summary["grid"]
 
     ev = _events(ecd)
-    cam = read_calibration(ecd / "calib.txt")
+    cam = read_camera(ecd / "calib.txt")
     expect_und = estimate_flow(cam.undistort_events(ev), n_scales=1, max_iter=3).flow
     expect_raw = estimate_flow(ev, n_scales=1, max_iter=3).flow
 
@@ -122,7 +122,7 @@ def test_flow_triplet_undistorts_on_the_pixel_lattice(ecd, tmp_path, capsys):
     assert main(["flow", str(ecd), "--method", "triplet", "--out", str(out), "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["grid"].startswith("undistorted (K=[199.092")
-    cam = read_calibration(ecd / "calib.txt")
+    cam = read_camera(ecd / "calib.txt")
     assert s["events"] == len(cam.undistort_events(_events(ecd), integer=True))
     with h5py.File(out) as f:
         assert f.attrs["grid"] == s["grid"]

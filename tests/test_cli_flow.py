@@ -124,7 +124,7 @@ def test_eval_npy_needs_interval_and_checks_shape(recording, tmp_path, capsys):
 def test_gt_displacement_chains_frames_along_trajectories():
     # u = a x, constant in time, 4 GT frames of 20 ms: a point at x0 moves to
     # x0 exp(4 a T); summing the frames at the fixed pixel would give x0 (1 + 4 a T)
-    from evmotion.cli.eval import gt_displacement
+    from evmotion.eval.windows import gt_displacement
     from evmotion.io.flowfiles import FlowSequence
 
     h, w, a, T = 8, 200, 5.0, 20_000

@@ -9,7 +9,7 @@ import pytest
 from evmotion.core.warps import make_warp
 from evmotion.eval.metrics import fwl
 from evmotion.events import EventArray
-from evmotion.io.calib import read_ecd
+from evmotion.io.calibration import read_ecd
 from evmotion.methods.egomotion import estimate_egomotion
 
 pytestmark = pytest.mark.realdata

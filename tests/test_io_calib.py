@@ -1,4 +1,4 @@
-"""Calibration readers (evmotion.io.calib) against small handwritten files of known content,
+"""Calibration readers (evmotion.io.calibration) against small handwritten files of known content,
 one per format, and their one-line errors naming the file, the field and the value."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 
 from evmotion.camera import Camera
 from evmotion.errors import CalibrationError, FormatError
-from evmotion.io import calib
+from evmotion.io import calibration as calib
 from evmotion.io import read_calibration as stored_calibration
 
 # one camera, written in every format below
@@ -35,10 +35,10 @@ def _one_line(exc) -> str:
 def test_ecd_calib_txt(tmp_path):
     p = tmp_path / "calib.txt"
     p.write_text(f"{FX} {FY} {CX} {CY} " + " ".join(map(str, DIST)) + "\n")
-    _check(calib.read_calibration(p, sensor_size=SIZE), p)
-    _check(calib.read_calibration(tmp_path, sensor_size=SIZE), p)  # the folder
+    _check(calib.read_camera(p, sensor_size=SIZE), p)
+    _check(calib.read_camera(tmp_path, sensor_size=SIZE), p)  # the folder
     # no size in the file nor given: the ECD's DAVIS240C
-    assert calib.read_calibration(p).sensor_size == (180, 240)
+    assert calib.read_camera(p).sensor_size == (180, 240)
 
 
 def test_kalibr_camchain_yaml(tmp_path):
@@ -58,15 +58,15 @@ cam1:
   intrinsics: [300.0, 300.0, 170.0, 130.0]
   resolution: [346, 260]
 """)
-    _check(calib.read_calibration(p), p, dist=DIST[:4] + (0.0,))
-    assert calib.read_calibration(p, camera="cam1").fx == 300.0
+    _check(calib.read_camera(p), p, dist=DIST[:4] + (0.0,))
+    assert calib.read_camera(p, camera="cam1").fx == 300.0
     with pytest.raises(FormatError) as e:
-        calib.read_calibration(p, camera="cam2")
+        calib.read_camera(p, camera="cam2")
     assert "no camera 'cam2'" in _one_line(e) and str(p) in str(e.value)
     p.write_text(p.read_text().replace("distortion_model: radtan", "distortion_model: equidistant",
                                        1))
     with pytest.raises(CalibrationError) as e:
-        calib.read_calibration(p)
+        calib.read_camera(p)
     assert "cam0.distortion_model = 'equidistant'" in _one_line(e)
 
 
@@ -93,10 +93,10 @@ projection_matrix:
   cols: 4
   data: [{FX}, 0, {CX}, 0, 0, {FY}, {CY}, 0, 0, 0, 1, 0]
 """)
-    _check(calib.read_calibration(p), p)
+    _check(calib.read_camera(p), p)
     p.write_text(p.read_text().replace(f"data: [{FX}, 0, {CX}", f"data: [{FX}, 0, x{CX}"))
     with pytest.raises(FormatError) as e:
-        calib.read_calibration(p)
+        calib.read_camera(p)
     assert "field 'camera_matrix.data' must be a number, got 'x173.64'" in _one_line(e)
 
 
@@ -127,14 +127,14 @@ def test_dv_calibration_xml(tmp_path):
 <distortion_model>RadialTangential</distortion_model>
 </opencv_storage>
 """)
-    _check(calib.read_calibration(p), p)
+    _check(calib.read_camera(p), p)
     p.write_text(p.read_text().replace("<use_fisheye_model>0", "<use_fisheye_model>1"))
     with pytest.raises(CalibrationError) as e:
-        calib.read_calibration(p)
+        calib.read_camera(p)
     assert "use_fisheye_model = 1" in _one_line(e)
     p.write_text("<opencv_storage><a>1</a>")
     with pytest.raises(FormatError) as e:
-        calib.read_calibration(p)
+        calib.read_camera(p)
     assert "not valid XML" in _one_line(e)
 
 
@@ -150,7 +150,7 @@ def test_dv_older_root_level_xml(tmp_path):
 <data>{' '.join(map(str, DIST))}</data></distortion_coefficients>
 </opencv_storage>
 """)
-    _check(calib.read_calibration(p), p)
+    _check(calib.read_camera(p), p)
 
 
 def test_dsec_cam_to_cam_yaml(tmp_path):
@@ -169,12 +169,12 @@ intrinsics:
     camera_matrix: [569.7, 569.7, 335.0, 221.9]
     resolution: [640, 480]
 """)
-    rect = calib.read_calibration(p, camera="camRect0")  # the rectified left event camera
+    rect = calib.read_camera(p, camera="camRect0")  # the rectified left event camera
     assert rect.fx == 569.7 and rect.sensor_size == (480, 640) and not rect.is_distorted
     # default: cam0, the raw left event camera (the grid of DSEC's events)
-    _check(calib.read_calibration(p), p, dist=DIST[:4] + (0.0,))
+    _check(calib.read_camera(p), p, dist=DIST[:4] + (0.0,))
     with pytest.raises(FormatError) as e:
-        calib.read_calibration(p, camera="cam9")
+        calib.read_camera(p, camera="cam9")
     assert "intrinsics.cam9" in _one_line(e)
 
 
@@ -182,25 +182,25 @@ def test_json_round_trip_and_schema(tmp_path):
     cam = Camera(FX, FY, CX, CY, DIST, SIZE, source="made here")
     p = tmp_path / "cam.json"
     calib.write_json(p, cam)
-    back = calib.read_calibration(p)
+    back = calib.read_camera(p)
     _check(back, p)
     assert back == cam  # source is not compared
     # K instead of fx.. and width/height instead of sensor_size
     q = tmp_path / "k.json"
     q.write_text(json.dumps({"K": [[FX, 0, CX], [0, FY, CY], [0, 0, 1]], "dist": list(DIST),
                              "width": 346, "height": 260}))
-    _check(calib.read_calibration(q), q)
+    _check(calib.read_camera(q), q)
     # no size: unknown until fitted to the events
     q.write_text(json.dumps({"fx": FX, "fy": FY, "cx": CX, "cy": CY}))
-    assert calib.read_calibration(q).sensor_size is None
-    assert calib.read_calibration(q).for_sensor(SIZE).sensor_size == SIZE
+    assert calib.read_camera(q).sensor_size is None
+    assert calib.read_camera(q).for_sensor(SIZE).sensor_size == SIZE
     q.write_text(json.dumps({"fx": FX, "fy": -1, "cx": CX, "cy": CY}))
     with pytest.raises(CalibrationError) as e:
-        calib.read_calibration(q)
+        calib.read_camera(q)
     assert str(q) in _one_line(e) and "fy=-1" in str(e.value)
     q.write_text(json.dumps({"fx": FX, "fy": FY, "cx": "nan", "cy": CY}))
     with pytest.raises(FormatError) as e:
-        calib.read_calibration(q)
+        calib.read_camera(q)
     assert "field 'cx' must be finite, got 'nan'" in _one_line(e)
 
 
@@ -208,10 +208,10 @@ def test_size_stated_by_the_file_is_checked(tmp_path):
     p = tmp_path / "cam.json"
     calib.write_json(p, Camera(FX, FY, CX, CY, DIST, SIZE))
     with pytest.raises(CalibrationError) as e:
-        calib.read_calibration(p, sensor_size=(180, 240))
+        calib.read_camera(p, sensor_size=(180, 240))
     assert "346 x 260 px" in _one_line(e) and "240 x 180 px" in str(e.value)
     with pytest.raises(CalibrationError, match="346 x 260 px sensor"):
-        calib.read_calibration(p).for_sensor((180, 240))
+        calib.read_camera(p).for_sensor((180, 240))
 
 
 def test_io_read_calibration_dict_reads_every_format(tmp_path):
@@ -225,16 +225,16 @@ def test_io_read_calibration_dict_reads_every_format(tmp_path):
 
 def test_unknown_and_missing(tmp_path):
     with pytest.raises(CalibrationError, match="not found"):
-        calib.read_calibration(tmp_path / "nope.yaml")
+        calib.read_camera(tmp_path / "nope.yaml")
     p = tmp_path / "cam.ini"
     p.write_text("fx=1")
     with pytest.raises(CalibrationError) as e:
-        calib.read_calibration(p)
+        calib.read_camera(p)
     assert "unknown calibration format '.ini'" in _one_line(e)
     y = tmp_path / "bad.yaml"
     y.write_text("cam0: [unclosed\n")
     with pytest.raises(FormatError) as e:
-        calib.read_calibration(y)
+        calib.read_camera(y)
     assert "not valid YAML" in _one_line(e)
 
 

@@ -248,7 +248,7 @@ def test_rms_error():
 def test_fwl_on_real_ecd_window_peaks_at_ground_truth(shared_data, scene):
     """ECD rotation windows: the IMU's rotational flow sharpens the IWE (FWL > 1.3) and
     beats its reverse, half and 1.5x, so FWL's warp direction and time sign are right."""
-    from evmotion.io.calib import read_ecd
+    from evmotion.io.calibration import read_ecd
 
     folder = shared_data / "ecd_rotation_windows" / scene
     a = np.loadtxt(folder / "events.txt")

@@ -34,7 +34,7 @@ def _read_ecd(path):
 
 @pytest.mark.realdata
 def test_ecd_rotation_window_against_imu_flow(shared_data):
-    from evmotion.io.calib import read_ecd
+    from evmotion.io.calibration import read_ecd
 
     d = shared_data / "ecd_rotation_windows" / "poster_rotation"
     if not d.is_dir():
@@ -48,7 +48,7 @@ def test_ecd_rotation_window_against_imu_flow(shared_data):
 
 @pytest.mark.realdata
 def test_ecd_30k_window_sharpens(shared_data):
-    from evmotion.io.calib import read_ecd
+    from evmotion.io.calibration import read_ecd
 
     d = shared_data / "ecd_30k_windows" / "boxes_translation"
     if not d.is_dir():

@@ -9,6 +9,9 @@ import pytest
 from evmotion.errors import ParameterError
 from evmotion.sim import Texture, simulate
 from evmotion.sim.render import (
+    EventBuffers,
+    PixelState,
+    StepLayers,
     pad_periodic,
     render_log,
     render_log_numpy,
@@ -56,8 +59,9 @@ def _run_numba(c):
     texs = np.stack([pad_periodic(t) for t in c["texs"]])
     alphas = np.stack([pad_periodic(t) for t in c["alphas"]])
     Mseq = np.ascontiguousarray(c["Mseq"])
-    n, ns = sim_step(Mseq, texs, alphas, c["origins"], c["la"], lb, ref, c["cp"], c["cn"],
-                     last, c["t_a"], c["t_b"], c["refr"], c["target"], ex, ey, et, ep)
+    n, ns = sim_step(StepLayers(Mseq, texs, alphas, c["origins"]),
+                     PixelState(c["la"], lb, ref, c["cp"], c["cn"], last),
+                     EventBuffers(ex, ey, et, ep), c["t_a"], c["t_b"], c["refr"], c["target"])
     x, y, t, p = ex[:n].astype(np.int64), ey[:n].astype(np.int64), et[:n], ep[:n]
     order = np.lexsort((t, x, y))
     return lb, ref, last, (x[order], y[order], t[order], p[order].astype(np.int64)), ns
@@ -111,8 +115,9 @@ def test_crossing_times_are_interpolated():
     et, ep = np.empty(10, np.int64), np.empty(10, np.uint8)
     texp = pad_periodic(np.tile(tex, (1, 2))[:, :3])
     texp[:, :] = [[0, 1, 2, 0], [0, 1, 2, 0], [0, 1, 2, 0]]
-    n, _ = sim_step(Mseq, texp[None], np.ones_like(texp)[None], np.zeros((1, 2)), la, lb,
-                    ref, c, c, last, 0, 1000, 0, 10.0, ex, ey, et, ep)
+    n, _ = sim_step(StepLayers(Mseq, texp[None], np.ones_like(texp)[None], np.zeros((1, 2))),
+                    PixelState(la, lb, ref, c, c, last), EventBuffers(ex, ey, et, ep), 0, 1000,
+                    0, 10.0)
     assert n == 3
     assert et[:3].tolist() == [300, 600, 900]
     assert ep[:3].tolist() == [1, 1, 1]
@@ -320,7 +325,7 @@ def test_event_buffer_overflow_redoes_the_step(monkeypatch):
 
     def spy(*args, **kwargs):
         n, ns = real(*args, **kwargs)
-        calls.append(n > args[14].shape[0])
+        calls.append(n > args[2].x.shape[0])
         return n, ns
 
     monkeypatch.setattr(simulator, "sim_step", spy)
@@ -343,7 +348,7 @@ def test_object_layer_box_is_tight(monkeypatch):
     real = simulator.sim_step
 
     def spy(*args, **kwargs):
-        boxes.append(np.array(args[18], copy=True))
+        boxes.append(np.array(args[0].boxes, copy=True))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(simulator, "sim_step", spy)

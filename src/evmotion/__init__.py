@@ -3,7 +3,29 @@
 The public API is re-exported here; see the README for a tour.
 """
 
-from evmotion.errors import (
+import os as _os
+import sys as _sys
+
+try:  # the C module: `signal` imports enum first, milliseconds more without a handler
+    import _signal
+except ImportError:
+    import signal as _signal
+
+
+def _interrupted_at_start(signum, frame) -> None:
+    _os.write(2, b"evmotion: interrupted\n")
+    _os._exit(130)
+
+
+# The evmotion command (the installed script, or python -m evmotion) answers Ctrl-C with
+# one line from here on, before the imports below and those of evmotion.cli, until
+# evmotion.cli.main puts its own handler in place; nothing has been written yet. Only the
+# interpreter's start-up (site, the script's first line) comes before this.
+if _os.path.basename(_sys.argv[0] if _sys.argv else "") in ("evmotion", "evmotion.exe") or \
+        getattr(_sys, "orig_argv", [])[1:3] == ["-m", "evmotion"]:
+    _signal.signal(_signal.SIGINT, _interrupted_at_start)
+
+from evmotion.errors import (  # noqa: E402  (after the Ctrl-C handler above)
     CalibrationError,
     EmptyWindowError,
     EventDataError,
@@ -11,7 +33,7 @@ from evmotion.errors import (
     FormatError,
     ParameterError,
 )
-from evmotion.jitcache import ensure_cache_dir
+from evmotion.jitcache import ensure_cache_dir  # noqa: E402
 
 # before any kernel is defined (the modules above define none): an installation numba
 # cannot cache next to gets a cache folder elsewhere (one line on stderr), not an error

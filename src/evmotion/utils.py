@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import sys
 import tempfile
@@ -78,3 +79,50 @@ def check_finite(name: str, value) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ParameterError(f"parameter '{name}' must be finite, got {value!r}")
     return arr
+
+
+def resolve_options(cls: type, options, keywords: dict, func: str):
+    """The options of one call of ``func(..., options=None, **keywords)``:
+    ``cls(**keywords)``, or ``options``; a function with many tuning parameters takes
+    them either way (an options dataclass, or its fields as keywords).
+
+    Parameters
+    ----------
+    cls : dataclass type
+        The options class; its fields are the keywords ``func`` accepts.
+    options : cls or None
+        Options passed as an object.
+    keywords : dict
+        The keywords the caller passed (only those).
+    func : str
+        Name of the function, for the messages.
+
+    Raises
+    ------
+    ParameterError
+        A keyword that is not a field of ``cls``, ``options`` not a ``cls``, or both
+        ``options`` and keywords given (the call would be ambiguous).
+
+    Examples
+    --------
+    >>> Opts = dataclasses.make_dataclass("Opts", [("n_iter", int, 100)], frozen=True)
+    >>> resolve_options(Opts, None, {"n_iter": 5}, "f")
+    Opts(n_iter=5)
+    >>> resolve_options(Opts, None, {"n_it": 5}, "f")
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.ParameterError: f() got unknown keyword(s) n_it; its options are n_iter
+    """
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(keywords) - set(names))
+    if unknown:
+        raise ParameterError(f"{func}() got unknown keyword(s) {', '.join(unknown)}; its "
+                             f"options are {', '.join(names)}")
+    if options is None:
+        return cls(**keywords)
+    if not isinstance(options, cls):
+        raise ParameterError(f"options must be a {cls.__name__}, got {type(options).__name__}")
+    if keywords:
+        raise ParameterError(f"pass either options= or the keyword(s) "
+                             f"{', '.join(sorted(keywords))}, not both")
+    return options

@@ -67,7 +67,7 @@ def camera_for(args, sensor_size, events_meta: dict | None = None):
     """The camera of this run (``--K``, ``--calib`` or the recording's own), fitted to
     ``sensor_size`` (height, width); None when no intrinsics are known."""
     from evmotion.camera import Camera
-    from evmotion.io.calib import read_calibration, recording_camera
+    from evmotion.io.calibration import read_camera, recording_camera
 
     check_camera_args(args)
     if getattr(args, "K", None) is not None:
@@ -75,7 +75,7 @@ def camera_for(args, sensor_size, events_meta: dict | None = None):
         return Camera(*args.K, dist=tuple(dist + [0.0] * (5 - len(dist))),
                       sensor_size=sensor_size, source="--K")
     if getattr(args, "calib", None):
-        return read_calibration(args.calib, sensor_size=sensor_size).for_sensor(sensor_size)
+        return read_camera(args.calib, sensor_size=sensor_size).for_sensor(sensor_size)
     cam = recording_camera(args.file, events_meta, sensor_size)
     return None if cam is None else cam.for_sensor(sensor_size)
 

@@ -10,6 +10,13 @@ along the trajectories (each GT frame weighted by its overlap, chained as in the
 protocol), compared with the estimated flow times the window duration. ``--dt`` states the protocol (GT frames per window, MVSEC dt = 1 or 4); windows
 spanning a different number of GT frames are reported.
 
+A per-event flow file (``evmotion flow --method triplet``'s default output, ``.h5`` or
+``.npz``: :mod:`evmotion.io.eventflow`) is scored event by event
+(:func:`evmotion.eval.eventflow.event_flow_metrics`): each event with a flow against the
+GT window holding its time, bilinear at its position; AEE in px/s and in px of
+displacement over ``--dt`` GT frame intervals, %Out and AE on those displacements, and
+how many events were scored, had no flow or no ground truth.
+
 Masks (thesis ch. 4): valid ground truth, and with ``--events`` at least one event in the
 window at the pixel; ``--events`` also enables the FWL (IWE variance with the flow over
 that of zero flow).
@@ -34,6 +41,8 @@ EXAMPLES = """examples:
   evmotion eval flow.h5 --gt outdoor_day1_gt_flow_dist.npz --events rec.h5 --dt 4 --json
   evmotion eval flow.h5 --gt sim.h5 --events sim.h5
   evmotion eval 'flow_{:05d}.flo' --gt sim.h5
+  evmotion flow sim.h5 --method triplet --out triplet.h5   # per-event flow
+  evmotion eval triplet.h5 --gt sim_gt.h5 --json            # scored event by event
 """
 
 
@@ -42,13 +51,16 @@ def add_parser(sub) -> None:
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("flow", help="estimated flow (.h5, .npz, .flo, .png, a pattern "
-                                "flow_{:05d}.flo; .npy with --t0-us/--t1-us)")
+                                "flow_{:05d}.flo; .npy with --t0-us/--t1-us), or a "
+                                "per-event flow file (.h5/.npz of --method triplet)")
     p.add_argument("--gt", required=True, type=existing_input,
                    help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
     p.add_argument("--events", default=None, type=existing_input,
                    help="recording of the events: event mask and FWL")
     p.add_argument("--format", default=None, help="format of --events (default: detect)")
-    p.add_argument("--dt", type=positive_int(), default=1, help="GT frames per window (1 or 4)")
+    p.add_argument("--dt", type=positive_int(), default=1,
+                   help="GT frames per window (1 or 4); per-event files: the GT frame "
+                        "intervals the displacements span")
     p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None,
                    help="window start of a .npy, or a .flo/.png without sidecar")
     p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None,
@@ -117,81 +129,111 @@ def _load_npy(args, path):
     return flow.astype(np.float32), np.array([args.t0_us]), np.array([args.t1_us]), None
 
 
+def _h5_format(path) -> object:
+    """The ``format`` attribute of an HDF5 file (None if it has none)."""
+    import h5py
+
+    from evmotion.io.h5attrs import read_attrs
+
+    try:
+        with h5py.File(path, "r") as f:
+            return read_attrs(path, f, ("format",)).get("format")
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {' '.join(str(exc).split())}"
+                          ) from None
+
+
+def _is_event_flow(path) -> bool:
+    """Whether FLOW is a per-event flow file (:mod:`evmotion.io.eventflow`), by its
+    ``format`` attribute (``.h5``) or its ``meta`` member (``.npz``); anything else goes to
+    the dense readers, which report what is wrong with it."""
+    import json
+    import zipfile
+
+    from evmotion.io.eventflow import EVENT_FLOW_FORMAT
+
+    suffix = path.suffix.lower()
+    if suffix in (".h5", ".hdf5") and path.is_file():
+        return _h5_format(path) == EVENT_FLOW_FORMAT
+    if suffix != ".npz" or not path.is_file():
+        return False
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "meta" not in z.files:
+                return False
+            meta = json.loads(str(z["meta"]))
+    except (OSError, ValueError, zipfile.BadZipFile):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == EVENT_FLOW_FORMAT
+
+
 def _check_estimate(path) -> None:
     """FLOW must be an estimate (an evmotion flow file), not events or ground truth: the
     reader also accepts an events file by the ground truth beside it, which would compare
     the ground truth with itself."""
-    import h5py
-
     from evmotion.io.flowfiles import FLOW_FORMAT
 
-    try:
-        with h5py.File(path, "r") as f:
-            fmt = f.attrs.get("format")
-    except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {' '.join(str(exc).split())}"
-                          ) from None
-    if isinstance(fmt, bytes):
-        fmt = fmt.decode(errors="replace")
+    fmt = _h5_format(path)
     if fmt != FLOW_FORMAT:
         raise FormatError(path, f"not an evmotion flow file (format attribute {fmt!r}, "
                           f"expected {FLOW_FORMAT!r}): FLOW must be an estimate written by "
                           "'evmotion flow', not events or ground truth")
 
 
-def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """GT displacement (px) over ``[t0, t1)`` µs, its validity mask, and the number of GT
-    frames it spans (fractional).
+def _run_event_flow(args, path) -> int:
+    """Score a per-event flow file (see the module docstring)."""
+    from evmotion.cli import print_json
+    from evmotion.errors import EmptyWindowError
+    from evmotion.eval.eventflow import event_flow_metrics
+    from evmotion.io.eventflow import read_event_flow
+    from evmotion.io.flowfiles import read_gt_flow
 
-    The GT frames are chained along the trajectories, as in the MVSEC protocol for
-    ``dt = 4`` (Zhu et al. propagate each pixel through the per-frame flows): frame ``j``'s
-    flow is sampled (bilinearly) where the pixel's scene point is after the previous
-    frames, not at the pixel itself. Summing the frames at a fixed pixel instead is off
-    by ``|grad v| |d|`` -- about 1 px at 20 px displacement for a camera rotation, and
-    the whole object motion at a motion boundary. A pixel is valid while its point stays
-    in the image on valid GT.
-    """
-    from scipy.ndimage import map_coordinates
-
-    a = np.maximum(gt.t0, t0)
-    b = np.minimum(gt.t1, t1)
-    overlap = np.clip(b - a, 0, None).astype(np.float64)
-    sel = np.flatnonzero(overlap > 0)
-    sel = sel[np.argsort(np.asarray(gt.t0)[sel], kind="stable")]
-    h, w = gt.flow.shape[1:3]
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    px, py = xs.copy(), ys.copy()
-    valid = np.ones((h, w), bool)
-    frames = 0.0
-    for j in sel:
-        inside = (px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)
-        valid &= inside
-        coords = np.stack([np.clip(py, 0, h - 1), np.clip(px, 0, w - 1)])
-        f = gt.flow[j].astype(np.float64)
-        ok = np.isfinite(f).all(-1)
-        if gt.valid is not None:
-            ok &= np.asarray(gt.valid[j], bool)
-        # validity at the nearest GT pixel; the flow itself bilinear over valid pixels
-        iy = np.rint(coords[0]).astype(np.int64)
-        ix = np.rint(coords[1]).astype(np.int64)
-        valid &= ok[iy, ix]
-        f = np.where(ok[..., None], f, 0.0)
-        dt_s = overlap[j] * 1e-6
-        px = px + map_coordinates(f[..., 0], coords, order=1, mode="nearest") * dt_s
-        py = py + map_coordinates(f[..., 1], coords, order=1, mode="nearest") * dt_s
-        frames += overlap[j] / max(gt.t1[j] - gt.t0[j], 1)
-    disp = np.stack([px - xs, py - ys], axis=-1)
-    valid &= np.isfinite(disp).all(-1)
-    if sel.size == 0:
-        valid[:] = False
-    return disp, valid, frames
+    reject_unused(args, {"--events": "events", "--format": "format", "--t0-us": "t0_us",
+                         "--t1-us": "t1_us", "--along-streamlines": "along_streamlines"},
+                  f"to the per-event flow file {path.name} (it holds its events and times)")
+    ef = read_event_flow(path)
+    if len(ef) == 0:
+        raise FormatError(path, "no events (events=0): nothing to evaluate")
+    gt = read_gt_flow(args.gt)
+    if tuple(gt.flow.shape[1:3]) != ef.sensor_size:
+        raise ParameterError(f"{path} is on a {ef.sensor_size} px grid but ground truth "
+                             f"{args.gt} is {tuple(gt.flow.shape[1:3])} px (height, width)")
+    file_out_px = ef.attrs.get("eval_out_px")
+    out_px = args.out_px if args.out_px is not None else \
+        float(file_out_px) if file_out_px is not None else 3.0
+    try:
+        m = event_flow_metrics(ef, gt, frames=args.dt, out_px=out_px, per_window=True)
+    except EmptyWindowError as exc:
+        raise ParameterError(f"{path} against ground truth {args.gt}: {exc}") from None
+    mean = m.as_dict()
+    mean["AE_rad"] = float(np.radians(m.ae_deg))
+    summary = {"flow": str(args.flow), "gt": str(args.gt), "kind": "per-event",
+               "dt": args.dt, "displacement": f"over {args.dt} GT frame interval(s) "
+                                               "(of the GT window holding each event)",
+               "mask": "event with a flow & valid GT at its pixel", "out_px": out_px,
+               "grid": str(ef.attrs.get("grid", "sensor")), "n_windows": len(m.windows),
+               "mean": mean, "windows": list(m.windows)}
+    if args.json:
+        print_json(summary)
+    else:
+        print(f"{m.n_scored} of {m.n_events} events scored ({m.n_no_flow} without a flow, "
+              f"{m.n_no_gt} without GT; dt={args.dt}): AEE={m.aee:.4g} px  "
+              f"AEE={m.aee_px_s:.4g} px/s  %Out={m.pct_out:.4g}  AE_deg={m.ae_deg:.4g}")
+    return 0
 
 
 def run(args) -> int:
+    from pathlib import Path
+
     from evmotion.cli import print_json
-    from evmotion.eval.metrics import aggregate_flow_metrics, event_mask, flow_metrics, fwl
+    from evmotion.eval.windows import evaluate_windows
     from evmotion.io.flowfiles import read_gt_flow
 
+    path = Path(args.flow)
+    if _is_event_flow(path):
+        if Path(args.gt).resolve() == path.resolve():
+            raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
+        return _run_event_flow(args, path)
     flow, t0s, t1s, file_out_px = _load_flow(args)
     out_px = args.out_px if args.out_px is not None else file_out_px or 3.0
     gt = read_gt_flow(args.gt)
@@ -203,48 +245,12 @@ def run(args) -> int:
         from evmotion.io import read_events
 
         events = read_events(args.events, **({"format": args.format} if args.format else {}))
-    rows, per_window, mismatched, unknown = [], [], 0, False
-    for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
-        disp_gt, valid, frames = gt_displacement(gt, int(t0), int(t1))
-        if abs(frames - args.dt) > 0.5:
-            mismatched += 1
-        est = flow[i].astype(np.float64) * (t1 - t0) * 1e-6
-        if args.along_streamlines:
-            from evmotion.methods.transport import transport_to_times
-
-            est = transport_to_times(np.ascontiguousarray(est.transpose(2, 0, 1)),
-                                     np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
-        mask = valid
-        known = np.isfinite(flow[i]).all(axis=-1)
-        # NaN where the estimate is not defined (outside a BOS ROI; .flo / .png "unknown")
-        if not known.all():
-            mask = mask & known
-            unknown = True
-        win = None
-        if events is not None:
-            win = events.slice_time(int(t0), int(t1))
-            mask = mask & event_mask(win, flow.shape[1:3])
-        m = flow_metrics(est, np.where(valid[..., None], disp_gt, np.nan), mask=mask,
-                         out_px=out_px)
-        row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), **m.as_dict(),
-               "AE_rad": float(np.radians(m.ae_deg)), "gt_frames": round(frames, 2)}
-        if win is not None and len(win) > 1:
-            row["FWL"] = fwl(win, flow[i], t_ref_us=(int(t0) + int(t1)) // 2)
-            row["FWL_gt"] = fwl(win, (disp_gt / ((t1 - t0) * 1e-6)).astype(np.float32),
-                                t_ref_us=(int(t0) + int(t1)) // 2)
-        rows.append(m)
-        per_window.append(row)
-    total = aggregate_flow_metrics(rows).as_dict()
-    total["AE_rad"] = float(np.radians(total["AE_deg"]))
-    fwls = [r["FWL"] for r in per_window if "FWL" in r]
-    if fwls:
-        total["FWL"] = float(np.mean(fwls))
-        total["FWL_gt"] = float(np.mean([r["FWL_gt"] for r in per_window if "FWL_gt" in r]))
+    res = evaluate_windows(flow, t0s, t1s, gt, events=events, dt=args.dt, out_px=out_px,
+                           along_streamlines=args.along_streamlines)
+    per_window, total, mismatched = res.windows, res.total, res.mismatched
     summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
                "n_windows": len(per_window), "windows_with_other_dt": mismatched,
-               "mask": "valid GT"
-               + (" & at least one event" if events is not None else "")
-               + (" & estimate known" if unknown else ""), "out_px": out_px,
+               "mask": res.mask, "out_px": out_px,
                "mean": total, "windows": per_window}
     if args.json:
         print_json(summary)

@@ -19,7 +19,6 @@ the number of windows.
 
 from __future__ import annotations
 
-import functools
 import time
 from pathlib import Path
 
@@ -97,64 +96,18 @@ def _windows(args, events):
                           **kw)
 
 
-def _lean(res, keep_iwes: bool):
-    """The result without its four full-size IWEs unless PNGs need them (at 1280x720 they
-    are 15 MB a window)."""
-    import dataclasses
-
-    return res if keep_iwes else dataclasses.replace(res, iwes={})
-
-
-def _chunk_fn(events, t0, t1, *, spans, kwargs, keep_iwes=False):
-    """Worker: the sub-windows of one chunk, warm-started in sequence.
-
-    ``events`` are the chunk's events, from its first window's first event to its last
-    window's last; ``spans`` are every window's ``(t0, t1, start, stop)``, the index range
-    in the whole recording, so that each window gets exactly the events of the serial run
-    (cutting by time would move events that share a timestamp across a boundary)."""
-    from evmotion.methods.multicm import estimate_flow
-
-    mine = [sp for sp in spans if t0 <= sp[0] < t1]
-    offset = mine[0][2] if mine else 0
-    out, init = [], None
-    for _, _, start, stop in mine:
-        sub = events[start - offset:stop - offset]
-        res = estimate_flow(sub, init=init, **kwargs)
-        out.append(_lean(res, keep_iwes))
-        init = res
-    return out
-
-
 def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False, scheduler=None):
-    """The windows' results in order, from ``workers`` contiguous chunks run by local
-    processes or, with ``scheduler`` (an address), by that Dask cluster's workers
-    (``workers`` None: one chunk per worker thread of the cluster)."""
+    """The windows' results in order, from ``workers`` chunks on local processes or, with
+    ``scheduler`` (an address), on that Dask cluster (``workers`` None: one chunk per
+    worker thread of the cluster)."""
     from evmotion.cli.options import cluster_threads, scheduler_client
-    from evmotion.events import Window
-    from evmotion.parallel import map_windows
+    from evmotion.methods.multicm import estimate_flow_sequence
 
-    spans = [(w.t0, w.t1, w.start, w.stop) for w in windows]
-    fn = functools.partial(_chunk_fn, spans=spans, kwargs=kwargs, keep_iwes=keep_iwes)
     with scheduler_client(scheduler) as client:
         if workers is None:
             workers = cluster_threads(client)
-        bounds = np.linspace(0, len(spans), min(workers, len(spans)) + 1).astype(int)
-        # a Window is sent by its index range: the chunk's events, exactly
-        chunks = [Window(k, windows[a].t0, windows[b - 1].t1, windows[a].start,
-                         windows[b - 1].stop)
-                  for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True))
-                  if b > a]
-        results = map_windows(fn, events, chunks, workers=workers, scheduler=client,
-                              with_window=True, desc="multicm")
-    for r in results:
-        if not r.ok:
-            raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
-    flows = [res for r in results for res in r.value]
-    if len(flows) != len(windows):
-        # only where more than a window's worth of events share one timestamp
-        raise ParameterError(f"{len(windows)} windows but the chunks made {len(flows)}: "
-                             "windows starting at the same µs; use --window-us")
-    return iter(flows)
+        return iter(estimate_flow_sequence(events, windows, workers=workers, scheduler=client,
+                                           keep_iwes=keep_iwes, **kwargs))
 
 
 def _png(png_dir: Path, i: int, r, max_speed) -> None:

@@ -109,7 +109,7 @@ def run(args) -> int:
     if info is None:
         info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
         if "sensor_size" in info:
-            from evmotion.io.calib import recording_intrinsics
+            from evmotion.io.calibration import recording_intrinsics
 
             info["intrinsics"] = recording_intrinsics(args.file, tuple(info["sensor_size"]))
     if args.json:

@@ -181,6 +181,7 @@ def _or(value, default):
 def run_schlieren(args) -> int:
     from evmotion.cli import print_json
     from evmotion.errors import ParameterError
+    from evmotion.sim.options import SchlierenOptions
     from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
 
     reject_unused(args, MOTION_ONLY, "to 'evmotion simulate schlieren'")
@@ -199,16 +200,16 @@ def run_schlieren(args) -> int:
     if args.gain is not None and args.photons is None:
         raise ParameterError(f"--gain {args.gain:g} needs --photons (shot-noise mode)")
     check_folder(args.out, "--out")
+    opts = SchlierenOptions(magnitude_px=_or(args.magnitude, 1.0),
+                            dot_density=_or(args.dot_density, 0.06),
+                            dot_radius_px=_or(args.dot_radius, 1.0), speed_px_s=args.speed,
+                            photons=args.photons, gain=args.gain, exposure_s=args.exposure,
+                            contrast_threshold=args.threshold, mismatch=args.mismatch,
+                            refractory_us=args.refractory_us, noise_rate=args.noise_rate,
+                            event_photons=args.event_photons,
+                            event_tau_us=_or(args.event_tau_us, 1000))
     sim = simulate_schlieren(scene, sensor_size=size, duration_s=args.duration, fps=fps,
-                             seed=args.seed, magnitude_px=_or(args.magnitude, 1.0),
-                             dot_density=_or(args.dot_density, 0.06),
-                             dot_radius_px=_or(args.dot_radius, 1.0), speed_px_s=args.speed,
-                             photons=args.photons, gain=args.gain, exposure_s=args.exposure,
-                             contrast_threshold=args.threshold, mismatch=args.mismatch,
-                             refractory_us=args.refractory_us, noise_rate=args.noise_rate,
-                             event_photons=args.event_photons,
-                             event_tau_us=_or(args.event_tau_us, 1000),
-                             show_progress=not args.json)
+                             seed=args.seed, show_progress=not args.json, options=opts)
     gt_path = write_schlieren(sim, args.out)
     if args.json:
         print_json({"scene": scene, "out": str(args.out), "gt_file": str(gt_path),
@@ -232,7 +233,13 @@ def run(args) -> int:
 
     from evmotion.cli import print_json
     from evmotion.errors import EvmotionError
-    from evmotion.sim import gt_path_for, sim_calibration, simulate, write_ground_truth
+    from evmotion.sim import (
+        SimOptions,
+        gt_path_for,
+        sim_calibration,
+        simulate,
+        write_ground_truth,
+    )
 
     try:
         from evmotion.io import format_for_output, write_events
@@ -241,12 +248,13 @@ def run(args) -> int:
     check_output(args.out, "--out")
     check_output(gt_path_for(args.out), "--out (its ground truth)")
     fmt = args.format or format_for_output(args.out)
+    opts = SimOptions(threshold=args.threshold, mismatch=args.mismatch,
+                      refractory_us=args.refractory_us, noise_rate=args.noise_rate,
+                      hot_pixels=_or(args.hot_pixels, 0), hot_rate=_or(args.hot_rate, 1000.0),
+                      frame_rate=_or(args.frame_rate, 100.0))
     res = simulate(args.scene, duration_s=args.duration, sensor_size=_size(args, (260, 346)),
-                   seed=args.seed, texture=_or(args.texture, "dots"), threshold=args.threshold,
-                   params=parse_params(args.params or []), image=args.image,
-                   mismatch=args.mismatch, refractory_us=args.refractory_us,
-                   noise_rate=args.noise_rate, hot_pixels=_or(args.hot_pixels, 0),
-                   hot_rate=_or(args.hot_rate, 1000.0), frame_rate=_or(args.frame_rate, 100.0))
+                   seed=args.seed, texture=_or(args.texture, "dots"),
+                   params=parse_params(args.params or []), image=args.image, options=opts)
     # only HDF5 keeps free metadata; other formats would warn about it
     meta = {"simulator_scene": args.scene, "simulator_seed": args.seed,
             "calibration": sim_calibration(res.gt.K, res.events.sensor_size)} \

@@ -36,6 +36,7 @@ from evmotion.io.flowfiles import (
     read_flow_group,
 )
 from evmotion.io.guard import open_h5
+from evmotion.io.h5attrs import read_attrs
 
 __all__ = ["BOS_CONTENT", "BosSequence", "BosWriter", "bos_extras", "read_bos",
            "read_bos_h5", "roi_mask"]
@@ -252,9 +253,10 @@ def read_bos_h5(path: str | os.PathLike, index: int | slice | None = None) -> Bo
     path = Path(path)
     f = open_h5(path)
     with f:
-        if f.attrs.get("content") != BOS_CONTENT:
-            raise FormatError(path, f"not a BOS file (attribute content="
-                              f"{f.attrs.get('content')!r}, expected {BOS_CONTENT!r})")
+        content = read_attrs(path, f, ("content",)).get("content")
+        if content != BOS_CONTENT:
+            raise FormatError(path, f"not a BOS file (attribute content={content!r}, "
+                              f"expected {BOS_CONTENT!r})")
         for name in ("q", "p"):
             if name not in f:
                 raise FormatError(path, f"BOS file lacks dataset '/{name}'")
@@ -268,5 +270,5 @@ def read_bos_h5(path: str | os.PathLike, index: int | slice | None = None) -> Bo
             np.zeros((0, *f["p"].shape[1:]), np.float32)
         scalars = {k: ds[:n][sel] for k, ds in f["window"].items()} if "window" in f else {}
         attrs = dict(flow.attrs)
-        attrs["q_units"] = f["q"].attrs.get("units", "")
+        attrs["q_units"] = read_attrs(path, f["q"], ("units",)).get("units", "")
     return BosSequence(flow=flow, q=q, p=p, scalars=scalars, attrs=attrs)

@@ -37,6 +37,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.flowfiles import h5_compression
+from evmotion.io.h5attrs import read_attrs
 from evmotion.utils import atomic_path
 
 __all__ = ["EVENT_FLOW_COLUMNS", "EVENT_FLOW_FORMAT", "EventFlow", "EventFlowWriter",
@@ -228,7 +229,7 @@ def read_event_flow(path: str | os.PathLike) -> EventFlow:
         from evmotion.io.guard import open_h5
 
         with open_h5(path) as f:
-            attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+            attrs = read_attrs(path, f)
             if attrs.get("format") != EVENT_FLOW_FORMAT:
                 raise FormatError(path, f"not an evmotion per-event flow file (attribute "
                                   f"format={attrs.get('format')!r})")
@@ -264,7 +265,7 @@ def describe_event_flow(path: str | os.PathLike) -> dict:
         from evmotion.io.guard import open_h5
 
         with open_h5(path) as f:
-            attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+            attrs = read_attrs(path, f)
             if attrs.get("format") != EVENT_FLOW_FORMAT or "t" not in f or "valid" not in f:
                 raise FormatError(path, "not an evmotion per-event flow file")
             n = int(f["t"].shape[0])

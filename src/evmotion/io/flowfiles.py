@@ -32,6 +32,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.guard import open_h5
+from evmotion.io.h5attrs import read_attrs
 from evmotion.io.pngfile import read_png, write_png
 from evmotion.utils import atomic_path
 
@@ -307,8 +308,9 @@ class FlowWriter(PartFileWriter):
             except OSError as exc:
                 raise FormatError(self.part, f"cannot reopen to resume: {exc}",
                                   "delete it to start again") from None
-            got = (int(self.f.attrs.get("height", -1)), int(self.f.attrs.get("width", -1)))
-            fmt = self.f.attrs.get("format")
+            old = read_attrs(self.part, self.f, ("height", "width", "format"))
+            got = (int(old.get("height", -1)), int(old.get("width", -1)))
+            fmt = old.get("format")
             if fmt != FLOW_FORMAT or got != self.sensor_size:
                 self.f.close()
                 raise FormatError(self.part, f"cannot resume: holds format {fmt!r} of size "
@@ -447,16 +449,17 @@ def create_extras(group, extras: dict, compression: str | None = "gzip") -> None
     group.attrs[EXTRAS_ATTR] = json.dumps(listed + list(extras))
 
 
-def extra_specs(group) -> dict:
+def extra_specs(group, path: str | os.PathLike | None = None) -> dict:
     """The extra datasets of a flow group (name -> :class:`ExtraSpec`), from its
     ``extras`` attribute; a BOS file written before that attribute existed lists ``q``,
     ``p`` and ``window/*``."""
     import json
 
-    raw = group.attrs.get(EXTRAS_ATTR)
+    attrs = read_attrs(path, group, (EXTRAS_ATTR, "content"))
+    raw = attrs.get(EXTRAS_ATTR)
     if raw is not None:
-        names = json.loads(raw.decode() if isinstance(raw, bytes) else raw)
-    elif _legacy_bos(group):
+        names = json.loads(raw)
+    elif _legacy_bos(attrs):
         names = [n for n in ("q", "p") if n in group]
         if "window" in group:
             names += [f"window/{k}" for k in group["window"]]
@@ -465,17 +468,16 @@ def extra_specs(group) -> dict:
     out = {}
     for name in names:
         ds = group[name]
-        units, meaning = ds.attrs.get("units", ""), ds.attrs.get("meaning", "")
-        out[name] = ExtraSpec(tuple(ds.shape[1:]), ds.dtype.str,
-                              units.decode() if isinstance(units, bytes) else str(units),
-                              meaning.decode() if isinstance(meaning, bytes) else str(meaning))
+        text = read_attrs(path, ds, ("units", "meaning"))
+        out[name] = ExtraSpec(tuple(ds.shape[1:]), ds.dtype.str, str(text.get("units", "")),
+                              str(text.get("meaning", "")))
     return out
 
 
-def _legacy_bos(group) -> bool:
+def _legacy_bos(attrs: dict) -> bool:
     """A BOS file written before the ``extras`` attribute (same datasets, ``valid`` = the
-    ROI, evaluated at 1 px by ``evmotion eval``)."""
-    return group.attrs.get("content") == "evmotion-bos" and EXTRAS_ATTR not in group.attrs
+    ROI, evaluated at 1 px by ``evmotion eval``), by its group's attributes."""
+    return attrs.get("content") == "evmotion-bos" and EXTRAS_ATTR not in attrs
 
 
 def check_extras(specs: dict, values: dict | None, path=None) -> dict:
@@ -567,9 +569,10 @@ def write_flow_group(group, flow: np.ndarray | None, t0, t1, valid=None, *,
 def read_flow_group(group, path: str | os.PathLike | None = None,
                     index: int | slice | None = None) -> FlowSequence:
     """Read a flow group written by :func:`write_flow_group` / :class:`FlowWriter`."""
-    if group.attrs.get("format") != FLOW_FORMAT:
+    attrs = read_attrs(path, group)
+    if attrs.get("format") != FLOW_FORMAT:
         raise FormatError(path, f"group '{group.name}' is not an evmotion flow container "
-                          f"(attribute format={group.attrs.get('format')!r})")
+                          f"(attribute format={attrs.get('format')!r})")
     for name in ("flow", "t0", "t1"):
         if name not in group:
             raise FormatError(path, f"flow container lacks dataset '{group.name}/{name}'")
@@ -581,12 +584,11 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
         sel = slice(int(idx[0]), int(idx[0]) + 1)
     flow = group["flow"][sel]
     valid = group["valid"][sel] if "valid" in group else None
-    attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in group.attrs.items()}
-    specs = extra_specs(group)
+    specs = extra_specs(group, path)
     extras = {name: group[name][sel] for name in specs}
     if specs:
         attrs["extras_units"] = {name: spec.units for name, spec in specs.items()}
-    if _legacy_bos(group):
+    if _legacy_bos(attrs):
         attrs.setdefault("eval_out_px", 1.0)
     return FlowSequence(flow=flow, t0=group["t0"][sel], t1=group["t1"][sel], valid=valid,
                         attrs=attrs, extras=extras)
@@ -616,13 +618,14 @@ def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> F
     path = Path(path)
     f = open_h5(path)
     with f:
-        if f.attrs.get("format") == FLOW_FORMAT:
+        fmt = read_attrs(path, f, ("format",)).get("format")
+        if fmt == FLOW_FORMAT:
             return read_flow_group(f, path, index)
-        if f.attrs.get("format") == SIM_GT_FORMAT:
+        if fmt == SIM_GT_FORMAT:
             return _read_sim_gt(f, path, index)
         if "ground_truth" in f:
             g = f["ground_truth"]
-            if g.attrs.get("format") == SIM_GT_FORMAT:
+            if read_attrs(path, g, ("format",)).get("format") == SIM_GT_FORMAT:
                 return _read_sim_gt(g, path, index)
             if "flow" in g:
                 return read_flow_group(g["flow"], path, index)
@@ -649,7 +652,7 @@ def _read_sim_gt(g, path: Path, index) -> FlowSequence:
     valid = None
     if "event_masks" in g and g["event_masks"].shape[0] == n:
         valid = np.stack([g["event_masks"][int(i)] for i in idx]) if idx.size else None
-    attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in g.attrs.items()}
+    attrs = read_attrs(path, g)
     return FlowSequence(flow=flow.astype(np.float32), t0=ft[idx], t1=ft[idx + 1], valid=valid,
                         attrs=attrs)
 

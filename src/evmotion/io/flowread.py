@@ -37,6 +37,7 @@ from evmotion.io.flowout import (
     sidecar_path,
     window_path,
 )
+from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 
 __all__ = ["describe_flow", "read_flow"]
@@ -294,7 +295,8 @@ def _describe_h5(p: Path) -> dict | None:
     except OSError:
         return None
     with f:
-        fmt = json_value(f.attrs.get("format"))
+        attrs = {k: json_value(v) for k, v in read_attrs(p, f).items()}
+        fmt = attrs.get("format")
         if fmt == EVENT_FLOW_FORMAT:
             f.close()
             return describe_event_flow(p)
@@ -306,8 +308,7 @@ def _describe_h5(p: Path) -> dict | None:
         if "valid" in f and n:
             vf = float(sum(int(np.count_nonzero(f["valid"][i])) for i in range(n))
                        / (n * f["valid"].shape[1] * f["valid"].shape[2]))
-        attrs = {k: json_value(v) for k, v in f.attrs.items()}
-        specs = extra_specs(f)
+        specs = extra_specs(f, p)
         if specs:
             attrs["extras_units"] = {k: s.units for k, s in specs.items()}
         out = {"path": str(p), "format": FLOW_FORMAT, "container": "h5"}

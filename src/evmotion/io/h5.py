@@ -32,6 +32,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, PartFileWriter
 from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
+from evmotion.io.h5attrs import read_attrs, text_attr
 from evmotion.io.h5filters import HDF5_MAGIC, filter_error, register_filters
 
 __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
@@ -103,16 +104,16 @@ class EventWriter(PartFileWriter):
         self.sensor_size = (h, w)
         self.f = h5py.File(self.part, "w")
         f = self.f
-        f.attrs["format"] = FORMAT_NAME
+        f.attrs["format"] = text_attr(FORMAT_NAME)
         f.attrs["version"] = VERSION
         f.attrs["height"] = h
         f.attrs["width"] = w
-        f.attrs["provenance"] = json.dumps(_jsonable(provenance or {}))
+        f.attrs["provenance"] = text_attr(json.dumps(_jsonable(provenance or {})))
         if calibration is not None:
-            f.attrs["calibration"] = json.dumps(_jsonable(calibration))
+            f.attrs["calibration"] = text_attr(json.dumps(_jsonable(calibration)))
         for k, v in (attrs or {}).items():
-            f.attrs[k] = v if isinstance(v, (str, int, float, np.ndarray)) else json.dumps(
-                _jsonable(v))
+            f.attrs[k] = v if isinstance(v, (int, float, np.ndarray)) else text_attr(
+                v if isinstance(v, str) else json.dumps(_jsonable(v)))
         g = f.create_group("events")
         comp = _compression()
         cdt = "<f4" if float_coords else "<u2"
@@ -254,28 +255,28 @@ def _open(path: Path):
 
 
 def _meta(f, path: Path) -> tuple[tuple[int, int], dict]:
-    if "height" not in f.attrs or "width" not in f.attrs:
+    attrs = read_attrs(path, f, ("height", "width", "calibration", "provenance"))
+    if "height" not in attrs or "width" not in attrs:
         raise FormatError(path, "missing attribute 'height'/'width' (the sensor size)")
-    size = check_sensor_size(path, (f.attrs["height"], f.attrs["width"]),
+    size = check_sensor_size(path, (attrs["height"], attrs["width"]),
                              "attributes 'height', 'width'")
     meta = {"source": str(path), "format": "h5"}
     for key in ("calibration", "provenance"):
-        if key in f.attrs:
+        if key in attrs:
             try:
-                meta[key] = json.loads(f.attrs[key])
+                meta[key] = json.loads(attrs[key])
             except (TypeError, ValueError):
                 raise FormatError(path, f"attribute '{key}' is not valid JSON") from None
     return size, meta
 
 
-def _index_range(f, t0: int | None, t1: int | None) -> tuple[int, int]:
+def _index_range(f, base: int, t0: int | None, t1: int | None) -> tuple[int, int]:
     g = f["events"]
     n = g["t"].shape[0]
     lo, hi = 0, n
     # Only the two index entries around each query are read: the index of a long
     # recording is large.
     ms = g["ms_to_idx"] if "ms_to_idx" in g else None
-    base = int(f.attrs.get("t_index0", 0))
 
     def locate(tq: int) -> int:
         if ms is None or ms.size == 0:
@@ -319,7 +320,12 @@ def _events_range(path: Path, sensor_size: tuple[int, int] | None, t0: int | Non
     with _open(path) as f:
         size, meta = _meta(f, path)
         size = tuple(sensor_size) if sensor_size is not None else size
-        lo, hi = _index_range(f, t0, t1)
+        base = read_attrs(path, f, ("t_index0",)).get("t_index0", 0)
+        try:
+            base = int(base)
+        except (TypeError, ValueError):
+            raise FormatError(path, f"attribute 't_index0' is not an integer: {base!r}") from None
+        lo, hi = _index_range(f, base, t0, t1)
         yield f["events"], size, meta, lo, hi
 
 

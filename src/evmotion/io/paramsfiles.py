@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
+from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 
 __all__ = ["PARAMS_FORMAT", "ParamsTable", "describe_params", "read_params",
@@ -157,22 +158,26 @@ def read_params(path: str | os.PathLike) -> ParamsTable:
     path = Path(path)
     f = open_h5(path)
     with f:
-        if _text(f.attrs.get("format", "")) != PARAMS_FORMAT:
+        attrs = read_attrs(path, f)
+        if attrs.get("format", "") != PARAMS_FORMAT:
             raise FormatError(path, f"not an evmotion parameters file (attribute format="
-                              f"{f.attrs.get('format')!r}, expected {PARAMS_FORMAT!r})")
+                              f"{attrs.get('format')!r}, expected {PARAMS_FORMAT!r})")
         for name in _RESERVED:
             if name not in f:
                 raise FormatError(path, f"parameters file lacks dataset '/{name}'")
-        names = tuple(_text(v) for v in f["params"].attrs["names"])
-        units = tuple(_text(v) for v in f["params"].attrs["units"])
+        labels = read_attrs(path, f["params"], ("names", "units"))
+        if len(labels) < 2:
+            raise FormatError(path, "dataset '/params' lacks attribute 'names' or 'units'")
+        names = tuple(_text(v) for v in labels["names"])
+        units = tuple(_text(v) for v in labels["units"])
         columns, cu, cm = {}, {}, {}
         for name, ds in f.items():
             if name in _RESERVED or not hasattr(ds, "shape"):
                 continue
             columns[name] = ds[()]
-            cu[name] = _text(ds.attrs.get("units", ""))
-            cm[name] = _text(ds.attrs.get("meaning", ""))
-        attrs = {k: (_text(v) if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+            text = read_attrs(path, ds, ("units", "meaning"))
+            cu[name] = _text(text.get("units", ""))
+            cm[name] = _text(text.get("meaning", ""))
         return ParamsTable(params=f["params"][()], names=names, units=units,
                            t0=f["t0_us"][()], t1=f["t1_us"][()], valid=f["valid"][()],
                            columns=columns, column_units=cu, column_meanings=cm, attrs=attrs)
@@ -202,7 +207,7 @@ def describe_params(path: str | os.PathLike) -> dict | None:
 
     try:
         with h5py.File(p, "r") as f:
-            if _text(f.attrs.get("format", "")) != PARAMS_FORMAT:
+            if read_attrs(p, f, ("format",)).get("format", "") != PARAMS_FORMAT:
                 return None
     except OSError:
         return None

@@ -17,6 +17,7 @@ import numpy as np
 
 from evmotion.errors import FormatError
 from evmotion.io.guard import guard_call
+from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 from evmotion.io.read import iter_events
 from evmotion.io.registry import resolve_format
@@ -114,7 +115,7 @@ def _describe_flow(path: Path) -> dict | None:
     except OSError:
         return None
     with f:
-        fmt = f.attrs.get("format")
+        fmt = read_attrs(path, f, ("format",)).get("format")
         if fmt == FLOW_FORMAT and "t1" in f:
             t0, t1 = f["t0"][: f["t1"].shape[0]], f["t1"][:]
         elif fmt == SIM_GT_FORMAT and "frame_times_us" in f:

@@ -43,6 +43,7 @@ import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -56,6 +57,7 @@ from evmotion.jitcache import compile_seconds
 from evmotion.methods import transport as tr
 from evmotion.methods.diagnostics import event_support
 from evmotion.methods.options import merge_options
+from evmotion.utils import resolve_options
 
 __all__ = ["FlowResult", "MultiCMOptions", "MultiCMProblem", "estimate_flow",
            "estimate_flow_sequence"]
@@ -175,6 +177,10 @@ class FlowResult:
         return d.astype(np.float32)
 
 
+# The fields of MultiCMOptions that MultiCMProblem reads (its keywords).
+PROBLEM_OPTIONS = ("objective", "lam", "references", "time_aware", "n_bins", "transport_cell")
+
+
 class MultiCMProblem:
     """The composite objective (4.9) of one window at one scale, with its gradient.
 
@@ -187,8 +193,6 @@ class MultiCMProblem:
     shape : (H, W)
     grid : TileGrid
         The scale's tiles; the unknowns are tile flows ``(ny, nx, 2)`` in px per window.
-    objective, lam, references, time_aware, n_bins, transport_cell
-        As in :func:`estimate_flow`.
     p : ndarray (N,), optional
         Polarities (0/1), needed by the average-timestamp objectives.
     g0 : float, optional
@@ -200,6 +204,12 @@ class MultiCMProblem:
     support : ndarray (H, W) bool, optional
         Pixels with event support; tiles with little of it are anchored to zero flow
         (:meth:`anchor_grad`). None: no anchor.
+    options : MultiCMOptions, optional
+        The objective's tuning as one object (only the fields of ``PROBLEM_OPTIONS``
+        apply; ``n_bins`` None means 5); then no keyword below may be given.
+    **keywords
+        ``objective``, ``lam``, ``references``, ``time_aware``, ``n_bins`` (default 5),
+        ``transport_cell``: as in :func:`estimate_flow`.
 
     Examples
     --------
@@ -211,13 +221,20 @@ class MultiCMProblem:
     True
     """
 
-    def __init__(self, x, y, s, shape, grid, *, objective="gradient_magnitude", lam=0.0025,
-                 references="multi", time_aware=None, n_bins=5, transport_cell=4, g0=None,
-                 p=None, duration_s=1.0, support=None):
+    def __init__(self, x, y, s, shape, grid, *, g0=None, p=None, duration_s=1.0,
+                 support=None, options: MultiCMOptions | None = None, **keywords):
+        unknown = sorted(set(keywords) - set(PROBLEM_OPTIONS))
+        if unknown:
+            raise ParameterError(f"MultiCMProblem() got unknown keyword(s) "
+                                 f"{', '.join(unknown)}; its options are "
+                                 f"{', '.join(PROBLEM_OPTIONS)}")
+        o = resolve_options(MultiCMOptions, options, keywords, "MultiCMProblem")
+        objective, time_aware = o.objective, o.time_aware
+        n_bins = 5 if o.n_bins is None else o.n_bins
         self.x, self.y, self.s, self.shape, self.grid = x, y, s, shape, grid
         self.duration_s = float(duration_s)
-        self.objective, self.lam = objective, lam
-        self.refs = REFERENCES[references]
+        self.objective, self.lam = objective, o.lam
+        self.refs = REFERENCES[o.references]
         self.wsum = sum(w for _, w in self.refs)
         self.time_aware = time_aware
         self.idx, self.w = tf.event_weights(x, y, grid)
@@ -247,8 +264,8 @@ class MultiCMProblem:
             self.bin_times = (np.arange(n_bins) + 0.5) / n_bins - 0.5
             # the PDE runs on a grid of ~transport_cell px cells, in cells per window
             h, w = shape
-            self.tgrid = tf.TileGrid(max(1, round(h / transport_cell)),
-                                     max(1, round(w / transport_cell)), shape)
+            self.tgrid = tf.TileGrid(max(1, round(h / o.transport_cell)),
+                                     max(1, round(w / o.transport_cell)), shape)
             self.cell = np.array(self.tgrid.spacing)[::-1]  # (sx, sy)
             self.ay = tf.axis_matrix(self.tgrid.centers_y(), grid.ny, h)
             self.ax = tf.axis_matrix(self.tgrid.centers_x(), grid.nx, w)
@@ -769,6 +786,7 @@ def _optimize(prob: MultiCMProblem, theta0: np.ndarray, optimizer: str, max_iter
 
 def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
                            warm_start: bool = True, show_progress: bool = False,
+                           workers: int = 1, scheduler: Any = None, keep_iwes: bool = True,
                            **kwargs) -> list[FlowResult]:
     """:func:`estimate_flow` over consecutive windows, each warm-started from the previous.
 
@@ -781,6 +799,15 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
         Initialize each window with the previous result (§4.2.4).
     show_progress : bool
         Progress bar on stderr.
+    workers : int
+        With more than 1, the windows are split into ``workers`` contiguous chunks run by
+        as many processes, warm-started within each chunk only
+        (:mod:`evmotion.methods.multicm_windows`).
+    scheduler : distributed.Client, optional
+        Run those chunks on this Dask cluster instead.
+    keep_iwes : bool
+        With chunks: keep each result's images of warped events (15 MB a window at
+        1280x720).
     **kwargs
         Passed to :func:`estimate_flow` (``init`` seeds the first window).
 
@@ -789,6 +816,15 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
     list of FlowResult (empty windows raise :class:`EmptyWindowError`).
     """
     from evmotion.utils import progress
+
+    if workers > 1 or scheduler is not None:
+        from evmotion.methods.multicm_windows import estimate_in_chunks
+
+        if not warm_start:
+            raise ParameterError("warm_start=False with workers or a scheduler: chunks are "
+                                 "warm-started; run one process")
+        return estimate_in_chunks(events, windows, workers=workers, scheduler=scheduler,
+                                  keep_iwes=keep_iwes, **kwargs)
 
     init = kwargs.pop("init", None)
     out = []

@@ -23,8 +23,10 @@ from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, concatenate
 from evmotion.methods import triplet
 from evmotion.methods.bursts import BURST_GAP_US, BurstMeans
+from evmotion.utils import resolve_options
 
-__all__ = ["DEFAULT_WINDOW_US", "TripletStream", "TripletWindow", "iter_flow_triplet"]
+__all__ = ["DEFAULT_WINDOW_US", "TripletOptions", "TripletStream", "TripletWindow",
+           "iter_flow_triplet"]
 
 # Time windows when neither a duration, a count nor explicit windows are given.
 DEFAULT_WINDOW_US = 50_000
@@ -201,6 +203,90 @@ class _Windows:
             yield self._close(*b)
 
 
+@dataclass(frozen=True)
+class TripletOptions:
+    """Tuning of :class:`TripletStream` and :func:`iter_flow_triplet` as one object
+    (every field is also a keyword of them, with the same default).
+
+    Attributes
+    ----------
+    n_bins : int
+        Time bins per window (>= 1), as in
+        :func:`~evmotion.methods.triplet.estimate_flow_triplet`.
+    filter_size : int, optional
+        Side of the non-zero average filter, px (odd, >= 1); default by ``dense``.
+    ridge : float, optional
+        Ridge of the ``lsq``/``robust`` dense fit; default by ``dense``.
+    gap_us : int
+        Burst gap of the ``robust`` dense output, µs (>= 1).
+    dx : float, optional
+        Matching distance, px; default by ``dense``.
+    dt_us : int
+        Largest time between the events of a triplet, µs.
+    tau_us : int, optional
+        Time window of the pixel history, µs; default by ``dense``.
+    quadruple, depth, normal_kappa
+        As in :class:`~evmotion.methods.triplet.TripletMatcher`.
+
+    Raises
+    ------
+    ParameterError
+        One line naming the field and the value (the matcher checks its own fields).
+
+    Examples
+    --------
+    >>> TripletOptions(n_bins=2).gap_us == BURST_GAP_US
+    True
+    """
+
+    n_bins: int = 1
+    filter_size: int | None = None
+    ridge: float | None = None
+    gap_us: int = BURST_GAP_US
+    dx: float | None = None
+    dt_us: int = 100_000
+    tau_us: int | None = None
+    quadruple: bool = False
+    depth: int = 8
+    normal_kappa: int = triplet.NORMAL_KAPPA
+
+    def __post_init__(self):
+        if int(self.n_bins) != self.n_bins or self.n_bins < 1:
+            raise ParameterError(f"n_bins must be an integer >= 1, got {self.n_bins}")
+        if self.filter_size is not None:
+            _check_filter_size(self.filter_size)
+        if int(self.gap_us) != self.gap_us or self.gap_us < 1:
+            raise ParameterError(f"gap_us must be an integer >= 1 µs, got {self.gap_us}")
+
+
+def _check_filter_size(filter_size) -> None:
+    if int(filter_size) != filter_size or filter_size < 1 or filter_size % 2 == 0:
+        raise ParameterError(f"filter_size must be an odd number of pixels >= 1, "
+                             f"got {filter_size}")
+
+
+def _check_windows(window_us, window_events, windows, skip) -> tuple | None:
+    """The window arguments of :class:`TripletStream` checked; explicit ``windows`` as
+    ``(starts, ends)`` arrays (None without)."""
+    given = [k for k, v in (("window_us", window_us), ("window_events", window_events),
+                            ("windows", windows)) if v is not None]
+    if len(given) > 1:
+        raise ParameterError(f"give at most one of window_us, window_events and windows, "
+                             f"got {', '.join(given)}")
+    if window_us is not None and int(window_us) <= 0:
+        raise ParameterError(f"window_us must be > 0 µs, got {window_us}")
+    if window_events is not None and int(window_events) <= 0:
+        raise ParameterError(f"window_events must be > 0, got {window_events}")
+    if int(skip) != skip or skip < 0:
+        raise ParameterError(f"skip must be an integer >= 0, got {skip}")
+    if windows is None:
+        return None
+    spans = np.asarray(list(windows), np.int64).reshape(-1, 2)
+    if np.any(spans[:, 1] <= spans[:, 0]) or np.any(np.diff(spans[:, 0]) < 0):
+        raise ParameterError("windows must be non-empty [t0, t1) µs in time order")
+    return spans[:, 0], spans[:, 1]
+
+
 class TripletStream:
     """Triplet-matching flow of a stream of event chunks: the per-event flow of every chunk
     (:meth:`process`) and, with ``dense``, the dense flow of each window as soon as the
@@ -218,17 +304,21 @@ class TripletStream:
         ``window_events`` events; default time windows of :data:`DEFAULT_WINDOW_US`.
     windows : sequence of (int, int), optional
         Explicit windows ``[t0, t1)`` µs in time order (e.g. between ground-truth frames).
-    n_bins, filter_size, ridge, gap_us
-        As in :func:`~evmotion.methods.triplet.estimate_flow_triplet`.
-    dx, dt_us, tau_us, quadruple, depth, normal_kappa
-        As in :class:`~evmotion.methods.triplet.TripletMatcher`; ``dx``, ``tau_us`` and
-        ``filter_size`` default by ``dense`` (:func:`~evmotion.methods.triplet.dense_defaults`).
     with_iwe : bool
         Give each window the image of its events warped by their own flow
         (:attr:`TripletWindow.iwe`).
     skip : int
         Windows ``0 .. skip - 1`` are delimited but not computed (their ``flow`` is None):
         a caller resuming an interrupted output checks their times and carries on.
+    options : TripletOptions, optional
+        The matcher and dense tuning as one object; then no keyword below may be given.
+    **keywords
+        The fields of :class:`TripletOptions`: ``n_bins``, ``filter_size``, ``ridge``,
+        ``gap_us`` (as in :func:`~evmotion.methods.triplet.estimate_flow_triplet`),
+        ``dx``, ``dt_us``, ``tau_us``, ``quadruple``, ``depth``, ``normal_kappa`` (as in
+        :class:`~evmotion.methods.triplet.TripletMatcher`); ``dx``, ``tau_us`` and
+        ``filter_size`` default by ``dense``
+        (:func:`~evmotion.methods.triplet.dense_defaults`).
 
     Examples
     --------
@@ -244,32 +334,15 @@ class TripletStream:
 
     def __init__(self, sensor_size: tuple[int, int], *, dense: str | None = "mean",
                  window_us: int | None = None, window_events: int | None = None,
-                 windows: Sequence[tuple[int, int]] | None = None, n_bins: int = 1,
-                 filter_size: int | None = None, ridge: float | None = None,
-                 gap_us: int = BURST_GAP_US, dx: float | None = None, dt_us: int = 100_000,
-                 tau_us: int | None = None, quadruple: bool = False, depth: int = 8,
-                 normal_kappa: int = triplet.NORMAL_KAPPA, with_iwe: bool = False,
-                 skip: int = 0) -> None:
-        given = [k for k, v in (("window_us", window_us), ("window_events", window_events),
-                                ("windows", windows)) if v is not None]
-        if len(given) > 1:
-            raise ParameterError(f"give at most one of window_us, window_events and windows, "
-                                 f"got {', '.join(given)}")
-        if window_us is not None and int(window_us) <= 0:
-            raise ParameterError(f"window_us must be > 0 µs, got {window_us}")
-        if window_events is not None and int(window_events) <= 0:
-            raise ParameterError(f"window_events must be > 0, got {window_events}")
-        if int(n_bins) != n_bins or n_bins < 1:
-            raise ParameterError(f"n_bins must be an integer >= 1, got {n_bins}")
-        if int(skip) != skip or skip < 0:
-            raise ParameterError(f"skip must be an integer >= 0, got {skip}")
+                 windows: Sequence[tuple[int, int]] | None = None, with_iwe: bool = False,
+                 skip: int = 0, options: TripletOptions | None = None, **keywords) -> None:
+        o = resolve_options(TripletOptions, options, keywords, "TripletStream")
+        edges = _check_windows(window_us, window_events, windows, skip)
         self.dense = dense
-        dx, tau_us, filter_size = triplet.dense_defaults(dense or "mean", dx, tau_us,
-                                                         filter_size)
-        ridge = triplet.default_ridge(dense or "mean", ridge)
-        self.matcher = triplet.TripletMatcher(sensor_size, dx, dt_us, tau_us,
-                                              quadruple=quadruple, depth=depth,
-                                              normal_kappa=normal_kappa)
+        dx, tau_us, filter_size = triplet.dense_defaults(dense or "mean", o.dx, o.tau_us,
+                                                         o.filter_size)
+        ridge = triplet.default_ridge(dense or "mean", o.ridge)
+        self.matcher = self._matcher(sensor_size, dx, tau_us, o)
         self.sensor_size = self.matcher.sensor_size
         self.params = {"dx": self.matcher.dx, "dt_us": self.matcher.dt_us,
                        "tau_us": self.matcher.tau_us, "quadruple": self.matcher.quadruple,
@@ -279,29 +352,22 @@ class TripletStream:
         self._finished = self._closed = False
         if dense is None:
             return
-        self.params.update(n_bins=int(n_bins), filter_size=int(filter_size), ridge=ridge)
-        if int(filter_size) != filter_size or filter_size < 1 or filter_size % 2 == 0:
-            raise ParameterError(f"filter_size must be an odd number of pixels >= 1, "
-                                 f"got {filter_size}")
-        edges = None
-        if windows is not None:
-            spans = np.asarray(list(windows), np.int64).reshape(-1, 2)
-            if np.any(spans[:, 1] <= spans[:, 0]) or np.any(np.diff(spans[:, 0]) < 0):
-                raise ParameterError("windows must be non-empty [t0, t1) µs in time order")
-            edges = (spans[:, 0], spans[:, 1])
+        self.params.update(n_bins=int(o.n_bins), filter_size=int(filter_size), ridge=ridge)
+        _check_filter_size(filter_size)
         if dense == "robust":
-            if int(gap_us) != gap_us or gap_us < 1:
-                raise ParameterError(f"gap_us must be an integer >= 1 µs, got {gap_us}")
-            self.params["gap_us"] = int(gap_us)
-            self._bursts = BurstMeans(self.sensor_size, int(gap_us))
-            self._burst_matcher = triplet.TripletMatcher(
-                self.sensor_size, dx, dt_us, tau_us, quadruple=quadruple, depth=depth,
-                normal_kappa=normal_kappa)
+            self.params["gap_us"] = int(o.gap_us)
+            self._bursts = BurstMeans(self.sensor_size, int(o.gap_us))
+            self._burst_matcher = self._matcher(self.sensor_size, dx, tau_us, o)
         self._windows = _Windows(
-            self.sensor_size, bins=int(n_bins), window_us=window_us,
+            self.sensor_size, bins=int(o.n_bins), window_us=window_us,
             window_events=window_events, edges=edges, filter_size=int(filter_size),
             dense=dense, ridge=ridge, vmax=triplet.max_normal_speed(dx, tau_us),
             with_iwe=with_iwe, skip=int(skip))
+
+    @staticmethod
+    def _matcher(sensor_size, dx, tau_us, o: TripletOptions) -> triplet.TripletMatcher:
+        return triplet.TripletMatcher(sensor_size, dx, o.dt_us, tau_us, quadruple=o.quadruple,
+                                      depth=o.depth, normal_kappa=o.normal_kappa)
 
     @property
     def overflow(self) -> int:
@@ -358,7 +424,7 @@ def iter_flow_triplet(chunks: Iterable[EventArray], *, dense: str = "mean",
     dense : {"mean", "lsq", "robust"}
         The dense output (see :func:`~evmotion.methods.triplet.estimate_flow_triplet`).
     **kwargs
-        The windows and parameters of :class:`TripletStream`.
+        The windows, ``options`` and option keywords of :class:`TripletStream`.
 
     Yields
     ------

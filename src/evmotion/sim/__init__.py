@@ -19,6 +19,10 @@ Model
   interval (exact along trajectories), parameters at any time, angular velocity, event
   masks; saved beside the events as ``<stem>_gt.h5`` (:mod:`~evmotion.sim.gtio`).
 
+* Options (:mod:`~evmotion.sim.options`): :class:`SimOptions`, :class:`EventOptions` and
+  :class:`SchlierenOptions` gather the tuning of the three simulators as one checked,
+  frozen value (``simulate(scene, options=opts)``); their fields are also keywords.
+
 * Schlieren (:mod:`~evmotion.sim.schlieren`): events and frames of a random-dot
   background seen through moving air (thesis ch. 6), with the exact flow between frames;
   its events come from :func:`~evmotion.sim.simulator.simulate_log_function`, the same
@@ -61,6 +65,9 @@ _HOME = {
     "read_schlieren_gt": "schlieren",
     "simulate_schlieren": "schlieren",
     "write_schlieren": "schlieren",
+    "EventOptions": "options",
+    "SchlierenOptions": "options",
+    "SimOptions": "options",
     "LogSimResult": "simulator",
     "SimResult": "simulator",
     "simulate": "simulator",
@@ -71,12 +78,15 @@ __all__ = [
     "BOS_SCENES",
     "SCENES",
     "TEXTURES",
+    "EventOptions",
     "GroundTruth",
     "Layer",
     "LogSimResult",
     "Motion",
     "SchlierenGT",
+    "SchlierenOptions",
     "SchlierenSim",
+    "SimOptions",
     "SimResult",
     "Texture",
     "default_K",

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError
+from evmotion.io.h5attrs import read_attrs
 from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
 from evmotion.utils import atomic_path
@@ -149,10 +150,11 @@ def read_ground_truth(path: str | Path) -> GroundTruth:
     except OSError as exc:
         raise FormatError(path, f"not an HDF5 file ({exc})") from None
     with f:
-        g = f
-        if g.attrs.get("format") != GT_FORMAT and "ground_truth" in f:
+        g, ga = f, read_attrs(path, f)
+        if ga.get("format") != GT_FORMAT and "ground_truth" in f:
             g = f["ground_truth"]
-        if g.attrs.get("format") != GT_FORMAT:
+            ga = read_attrs(path, g)
+        if ga.get("format") != GT_FORMAT:
             alt = gt_path_for(path)
             if alt != path and alt.is_file():
                 return read_ground_truth(alt)
@@ -160,26 +162,28 @@ def read_ground_truth(path: str | Path) -> GroundTruth:
                               hint=f"expected attribute format={GT_FORMAT!r} at / or "
                                    "/ground_truth, or a <stem>_gt.h5 file beside it")
         try:
-            sensor_size = tuple(int(v) for v in g.attrs["sensor_size"])
+            sensor_size = tuple(int(v) for v in ga["sensor_size"])
             K = g["K"][()]
             layers = []
             for key in sorted(g["layers"], key=int):
                 li = g["layers"][key]
-                warp = str(li.attrs["warp"])
+                la = read_attrs(path, li)
+                warp = str(la["warp"])
                 motion = make_motion(warp, li["theta"][()], sensor_size,
                                      K=K if warp == "rotation" else None,
-                                     center=tuple(li.attrs["center"]),
-                                     t_ref_s=float(li.attrs["t_ref_s"]))
+                                     center=tuple(la["center"]),
+                                     t_ref_s=float(la["t_ref_s"]))
                 alpha, origin = None, (0.0, 0.0)
                 if "alpha" in li:
                     alpha = li["alpha"][()].astype(np.float32)
-                    origin = tuple(float(v) for v in li["alpha"].attrs["origin"])
-                layers.append(Layer(str(li.attrs["name"]), motion, alpha, origin))
+                    origin = tuple(float(v) for v in
+                                   read_attrs(path, li["alpha"], ("origin",))["origin"])
+                layers.append(Layer(str(la["name"]), motion, alpha, origin))
             av = g["angular_velocity"][()]
             omega = None if av.shape[0] == 0 or np.isnan(av[0]).all() else av[0]
-            return GroundTruth(scene=str(g.attrs["scene"]), sensor_size=sensor_size, K=K,
+            return GroundTruth(scene=str(ga["scene"]), sensor_size=sensor_size, K=K,
                                layers=layers, frame_times_us=g["frame_times_us"][()],
-                               duration_us=int(g.attrs["duration_us"]),
+                               duration_us=int(ga["duration_us"]),
                                angular_velocity_rad_s=omega,
                                frame_masks=g["event_masks"][()])
         except KeyError as exc:

@@ -16,16 +16,85 @@ Plain-numpy references: :func:`render_log_numpy`, :func:`sim_step_numpy`.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-__all__ = ["MAX_SUBSAMPLES", "emit_crossings", "full_boxes", "pad_periodic", "render_log",
-           "render_log_numpy", "sample_wrap_numpy", "sim_step", "sim_step_numpy", "step_grid",
-           "textured_cells_sat"]
+__all__ = ["MAX_SUBSAMPLES", "EventBuffers", "PixelState", "StepLayers", "emit_crossings",
+           "full_boxes", "pad_periodic", "render_log", "render_log_numpy", "sample_wrap_numpy",
+           "sim_step", "sim_step_numpy", "step_grid", "textured_cells_sat"]
 
 MAX_SUBSAMPLES = 64
 TILE = 16  # pixels per side of the tiles skipped where the texture is locally constant
+
+
+class StepLayers(NamedTuple):
+    """The scene over one step of :func:`sim_step`.
+
+    Attributes
+    ----------
+    Mseq : ndarray (MAX_SUBSAMPLES + 1, L, 9) float64
+        Layer matrices (pixel -> reference pixel) at the sub-sample grid
+        ``step_grid(t_a, t_b)``.
+    texs, alphas : ndarray (L, Ht + 1, Wt + 1) float32
+        Log-intensity and opacity rasters, as :func:`render_log`.
+    origins : ndarray (L, 2) float64
+        Reference pixel ``(x, y)`` of raster pixel (0, 0) per layer.
+    boxes : ndarray (L, 4) float64, optional
+        As :func:`render_log`, valid for the whole step (default: the whole sensor).
+    sat : ndarray, optional
+        :func:`textured_cells_sat` of the bottom layer's raster: 16x16 tiles whose texture
+        footprint is constant over the step are copied instead of rendered (same result).
+    """
+
+    Mseq: np.ndarray
+    texs: np.ndarray
+    alphas: np.ndarray
+    origins: np.ndarray
+    boxes: np.ndarray | None = None
+    sat: np.ndarray | None = None
+
+
+class PixelState(NamedTuple):
+    """The sensor's pixels (H, W) as :func:`sim_step` reads and updates them.
+
+    Attributes
+    ----------
+    la : ndarray float32
+        Log intensity at the step's start.
+    lb : ndarray float32
+        Receives the log intensity at the step's end.
+    ref : ndarray float64
+        Reference level per pixel (updated).
+    cp, cn : ndarray float64
+        ON and OFF thresholds per pixel.
+    last : ndarray int64
+        Time of each pixel's previous event, µs (updated).
+    """
+
+    la: np.ndarray
+    lb: np.ndarray
+    ref: np.ndarray
+    cp: np.ndarray
+    cn: np.ndarray
+    last: np.ndarray
+
+
+class EventBuffers(NamedTuple):
+    """Output buffers of the event kernels: ``x, y`` (uint16), ``t`` (int64 µs), ``p``
+    (uint8), of equal length."""
+
+    x: np.ndarray
+    y: np.ndarray
+    t: np.ndarray
+    p: np.ndarray
+
+    @classmethod
+    def empty(cls, capacity: int) -> EventBuffers:
+        """Buffers for ``capacity`` events."""
+        return cls(np.empty(capacity, np.uint16), np.empty(capacity, np.uint16),
+                   np.empty(capacity, np.int64), np.empty(capacity, np.uint8))
 
 
 @njit(cache=True)
@@ -64,8 +133,9 @@ def _render(Ms, texs, alphas, origins, boxes, out):
     h, w = out.shape
     for y in range(h):
         for x in range(w):
-            # the layer sampling is written out here and in _step rather than called: a
-            # call with this many array arguments is not inlined and costs ~5x the work
+            # the layer sampling is written out here and in _resampled_events rather than
+            # called: a call with this many array arguments costs ~5x the work (inlined
+            # by numba, still ~15% of a step: its arrays' reference counts)
             val = 0.0
             for k in range(Ms.shape[1]):
                 if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
@@ -149,8 +219,11 @@ def render_log_numpy(Ms, texs, alphas, origins, xs, ys) -> np.ndarray:
 
 
 @njit(cache=True)
-def _cross(a, b, t0, t1, r, c, sign, last, refr, x, y, ex, ey, et, ep, n, cap):
-    """Crossings of one polarity between samples (t0, a) and (t1, b); returns r, last, n."""
+def _cross(a, b, t0, t1, r, c, sign, last, refr, x, y, events, n):
+    """Crossings of one polarity between samples (t0, a) and (t1, b) into the buffers
+    ``events = (ex, ey, et, ep)`` (counted past their end); returns r, last, n."""
+    ex, ey, et, ep = events
+    cap = ex.shape[0]
     span = t1 - t0
     d = b - a
     while sign * (b - r) >= c:
@@ -172,9 +245,8 @@ def _cross(a, b, t0, t1, r, c, sign, last, refr, x, y, ex, ey, et, ep, n, cap):
 
 
 @njit(cache=True)
-def _cross_columns(vals, times, pix, width, ref, cp, cn, last, refr, ex, ey, et, ep, n):
+def _cross_columns(vals, times, pix, width, ref, cp, cn, last, refr, events, n):
     s_count, p_count = vals.shape
-    cap = ex.shape[0]
     for j in range(p_count):
         k = pix[j]
         y = k // width
@@ -186,10 +258,10 @@ def _cross_columns(vals, times, pix, width, ref, cp, cn, last, refr, ex, ey, et,
             b = vals[s, j]
             if b - r >= cp[k]:
                 r, lt, n = _cross(a, b, times[s - 1], times[s], r, cp[k], 1.0, lt, refr, x, y,
-                                  ex, ey, et, ep, n, cap)
+                                  events, n)
             elif r - b >= cn[k]:
                 r, lt, n = _cross(a, b, times[s - 1], times[s], r, cn[k], -1.0, lt, refr, x,
-                                  y, ex, ey, et, ep, n, cap)
+                                  y, events, n)
         ref[k] = r
         last[k] = lt
     return n
@@ -197,7 +269,7 @@ def _cross_columns(vals, times, pix, width, ref, cp, cn, last, refr, ex, ey, et,
 
 def emit_crossings(vals: np.ndarray, times_us: np.ndarray, pix: np.ndarray, width: int,
                    ref: np.ndarray, cp: np.ndarray, cn: np.ndarray, last: np.ndarray,
-                   refractory_us: int, ex, ey, et, ep, n: int = 0) -> int:
+                   refractory_us: int, events: EventBuffers, n: int = 0) -> int:
     """Events of pixels whose log intensity is sampled at common times, linear in between.
 
     The same crossing rule as :func:`sim_step` (interpolated crossing time rounded up to
@@ -215,8 +287,8 @@ def emit_crossings(vals: np.ndarray, times_us: np.ndarray, pix: np.ndarray, widt
         Flat reference levels (float64, updated), ON/OFF thresholds (float64), times of the
         previous events (int64 µs, updated).
     refractory_us : int
-    ex, ey, et, ep : ndarray
-        Output buffers (uint16, uint16, int64, uint8); events go from index ``n`` on.
+    events : EventBuffers
+        Output buffers; events go from index ``n`` on.
 
     Returns
     -------
@@ -228,7 +300,7 @@ def emit_crossings(vals: np.ndarray, times_us: np.ndarray, pix: np.ndarray, widt
     return int(_cross_columns(np.ascontiguousarray(vals, dtype=np.float64),
                               np.ascontiguousarray(times_us, dtype=np.int64),
                               np.ascontiguousarray(pix, dtype=np.int64), int(width), ref, cp, cn,
-                              last, np.int64(refractory_us), ex, ey, et, ep, np.int64(n)))
+                              last, np.int64(refractory_us), tuple(events), np.int64(n)))
 
 
 @njit(cache=True)
@@ -305,63 +377,90 @@ def _step(layers, state, events, t_a, t_b, refr, target):
     ``state = (la, lb, ref, cp, cn, last)`` and ``events = (ex, ey, et, ep)``: tile by
     tile, copying the tiles where the texture is locally constant. Returns the event and
     extra sub-sample counts."""
-    Mseq, texs, alphas, origins, boxes, sat = layers
+    Mseq, _, _, origins, boxes, sat = layers
     la, lb = state[0], state[1]
     h, w = la.shape
-    rows = (np.empty(TILE, np.int64), np.empty(TILE, np.int64), np.empty(TILE, np.float64),
-            np.empty(TILE, np.float64))
-    # a typed start: a literal 0 would make numba compile _tile_events a second time
+    scratch = _tile_scratch()
+    # a typed start: a literal 0 would make numba compile the tile kernels a second time
     n = np.int64(0)
     nsub_total = 0
     for ty0 in range(0, h, TILE):
         ty1 = min(ty0 + TILE, h) - 1
         for tx0 in range(0, w, TILE):
             tx1 = min(tx0 + TILE, w) - 1
+            tile = (tx0, ty0, tx1, ty1)
             if sat.shape[0] > 1 and _tile_static(Mseq[0, 0], Mseq[MAX_SUBSAMPLES, 0], sat,
                                                  origins, boxes, tx0, ty0, tx1, ty1):
-                # element by element: a slice assignment makes numba compile its
-                # shape-mismatch message (string formatting, ~1 s on first use)
-                for yy in range(ty0, ty1 + 1):
-                    for xx in range(tx0, tx1 + 1):
-                        lb[yy, xx] = la[yy, xx]
+                _copy_tile(la, lb, tile)
                 continue
-            n, nsub = _tile_events(layers, state, events, rows, (tx0, ty0, tx1, ty1), t_a, t_b,
-                                   refr, target, n)
+            n, nsub = _tile_events(layers, state, events, scratch, tile, t_a, t_b, refr,
+                                   target, n)
             nsub_total += nsub
     return n, nsub_total
 
 
-@njit(cache=True, error_model="numpy")
-def _tile_events(layers, state, events, rows, tile, t_a, t_b, refr, target, n):
-    """Render the tile ``(tx0, ty0, tx1, ty1)`` (inclusive pixels) at the step's end into
-    ``lb`` and emit its pixels' events from index ``n`` on; ``rows`` is scratch for one
-    tile row. Returns the event count and the extra sub-samples. The per-pixel work is
-    written out: a call per pixel costs more than its work."""
-    Mseq, texs, alphas, origins, boxes, _ = layers
-    la, lb, ref, cp, cn, last = state
-    ex, ey, et, ep = events
-    row_x0, row_y0, row_ax, row_ay = rows
+# The passes of a tile below (inlined into _tile_events) each loop over the tile's pixels
+# with the per-pixel work written out: a call per pixel (or per row) pays for the
+# reference counts of its array arguments even when numba inlines it, which costs more
+# than the pixel's work (measured: the kernel took 1.3-3x as long with per-pixel helpers).
+
+
+@njit(cache=True)
+def _tile_scratch():
+    """Per-tile scratch of :func:`_tile_events`: the bottom layer's raster cells and
+    bilinear weights ``(x0, y0, ax, ay)`` of each pixel, the unrounded log intensity at
+    the step's end, and the pixels to re-sample ``(x, y, n)``; TILE x TILE each."""
+    cells = (np.empty((TILE, TILE), np.int64), np.empty((TILE, TILE), np.int64),
+             np.empty((TILE, TILE), np.float64), np.empty((TILE, TILE), np.float64))
+    rare = (np.empty(TILE * TILE, np.int64), np.empty(TILE * TILE, np.int64),
+            np.empty(TILE * TILE, np.int64))
+    return cells, np.empty((TILE, TILE), np.float64), rare
+
+
+@njit(cache=True, inline="always")
+def _copy_tile(la, lb, tile):
+    """``lb = la`` over the tile (its log intensity did not change)."""
     tx0, ty0, tx1, ty1 = tile
-    n_layers = Mseq.shape[1]
-    span = t_b - t_a
-    cap = ex.shape[0]
-    nsub_total = 0
-    m_end = Mseq[MAX_SUBSAMPLES]
-    # the bottom layer's end matrix in scalars: the per-pixel render of the step's end is
-    # the hot loop (every textured pixel, every step), kept free of array indexing
-    m0, m1, m2 = m_end[0, 0], m_end[0, 1], m_end[0, 2]
-    m3, m4, m5 = m_end[0, 3], m_end[0, 4], m_end[0, 5]
-    m6, m7, m8 = m_end[0, 6], m_end[0, 7], m_end[0, 8]
+    # element by element: a slice assignment makes numba compile its shape-mismatch
+    # message (string formatting, ~1 s on first use)
+    for yy in range(ty0, ty1 + 1):
+        for xx in range(tx0, tx1 + 1):
+            lb[yy, xx] = la[yy, xx]
+
+
+@njit(cache=True, error_model="numpy")
+def _tile_events(layers, state, events, scratch, tile, t_a, t_b, refr, target, n):
+    """Render the tile ``(tx0, ty0, tx1, ty1)`` (inclusive pixels) at the step's end into
+    ``lb`` and emit its pixels' events from index ``n`` on (those of the re-sampled
+    pixels last). Returns the event count and the extra sub-samples."""
+    Mseq, texs, _, origins, _, _ = layers
+    cells, v_end, rare = scratch
+    _bottom_cells(Mseq[MAX_SUBSAMPLES, 0], origins, texs.shape[2] - 1, texs.shape[1] - 1,
+                  tile, cells)
+    _render_tile(layers, cells, tile, v_end, state[1])
+    n, n_rare, nsub = _tile_crossings(state, events, v_end, tile, t_a, t_b, refr, target,
+                                      rare, n)
+    n = _resampled_events(layers, state, events, rare, n_rare, t_a, t_b, refr, n)
+    return n, nsub
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _bottom_cells(m, origins, tw, th, tile, cells):
+    """The bottom layer's raster cell and bilinear weights of each pixel of the tile under
+    its matrix ``m`` (9,) into ``cells = (x0, y0, ax, ay)``: the arithmetic of
+    :func:`_bilinear_wrap`, with the matrix in scalars (every textured pixel, every
+    step)."""
+    tx0, ty0, tx1, ty1 = tile
+    cx0, cy0, cax, cay = cells
+    m0, m1, m2 = m[0], m[1], m[2]
+    m3, m4, m5 = m[3], m[4], m[5]
+    m6, m7, m8 = m[6], m[7], m[8]
     ox, oy = origins[0, 0], origins[0, 1]
-    tex0 = texs[0]
-    th = texs.shape[1] - 1
-    tw = texs.shape[2] - 1
-    for y in range(ty0, ty1 + 1):
+    for j in range(ty1 - ty0 + 1):
+        y = ty0 + j
         m1y = m1 * y
         m4y = m4 * y
         m7y = m7 * y
-        # the bottom layer's raster coordinates of a tile row first (same
-        # arithmetic as _bilinear_wrap), then the texture reads
         for i in range(tx1 - tx0 + 1):
             x = tx0 + i
             den = m6 * x + m7y + m8
@@ -373,96 +472,138 @@ def _tile_events(layers, state, events, rows, tile, t_a, t_b, refr, target, n):
                 yr -= th * math.floor(yr * (1.0 / th))
             x0 = min(int(xr), tw - 1)
             y0 = min(int(yr), th - 1)
-            row_x0[i] = x0
-            row_y0[i] = y0
-            row_ax[i] = xr - x0
-            row_ay[i] = yr - y0
+            cx0[j, i] = x0
+            cy0[j, i] = y0
+            cax[j, i] = xr - x0
+            cay[j, i] = yr - y0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _render_tile(layers, cells, tile, v_end, lb):
+    """Log intensity of the tile's pixels at the step's end: bilinear samples of the
+    bottom raster at ``cells`` (:func:`_bottom_cells`), upper layers composited over
+    them; into ``v_end`` (float64, tile coordinates) and ``lb`` (float32)."""
+    Mseq, texs, alphas, origins, boxes, _ = layers
+    cx0, cy0, cax, cay = cells
+    tx0, ty0, tx1, ty1 = tile
+    m_end = Mseq[MAX_SUBSAMPLES]
+    tex0 = texs[0]
+    for y in range(ty0, ty1 + 1):
+        j = y - ty0
         for x in range(tx0, tx1 + 1):
             i = x - tx0
-            x0 = row_x0[i]
-            y0 = row_y0[i]
-            ax = row_ax[i]
-            ay = row_ay[i]
-            v1 = ((1 - ay) * ((1 - ax) * tex0[y0, x0] + ax * tex0[y0, x0 + 1])
-                  + ay * ((1 - ax) * tex0[y0 + 1, x0] + ax * tex0[y0 + 1, x0 + 1]))
-            for k in range(1, n_layers):
-                if (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
-                        or y > boxes[k, 3]):
+            x0 = cx0[j, i]
+            y0 = cy0[j, i]
+            ax = cax[j, i]
+            ay = cay[j, i]
+            v = ((1 - ay) * ((1 - ax) * tex0[y0, x0] + ax * tex0[y0, x0 + 1])
+                 + ay * ((1 - ax) * tex0[y0 + 1, x0] + ax * tex0[y0 + 1, x0 + 1]))
+            for k in range(1, m_end.shape[0]):
+                if x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2] or y > boxes[k, 3]:
                     continue
                 den = m_end[k, 6] * x + m_end[k, 7] * y + m_end[k, 8]
-                xr = (m_end[k, 0] * x + m_end[k, 1] * y + m_end[k, 2]) / den \
-                    - origins[k, 0]
-                yr = (m_end[k, 3] * x + m_end[k, 4] * y + m_end[k, 5]) / den \
-                    - origins[k, 1]
+                xr = (m_end[k, 0] * x + m_end[k, 1] * y + m_end[k, 2]) / den - origins[k, 0]
+                yr = (m_end[k, 3] * x + m_end[k, 4] * y + m_end[k, 5]) / den - origins[k, 1]
                 al = _bilinear_wrap(alphas, k, xr, yr)
-                if al > 0.0:
-                    v1 = al * _bilinear_wrap(texs, k, xr, yr) + (1.0 - al) * v1
+                if al > 0.0:  # upper layers are mostly transparent: skip them there
+                    v = al * _bilinear_wrap(texs, k, xr, yr) + (1.0 - al) * v
+            v_end[j, i] = v
+            lb[y, x] = v
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _tile_crossings(state, events, v_end, tile, t_a, t_b, refr, target, rare, n):
+    """Events of the tile's pixels whose change over the step is within ``target``
+    (linear between ``la`` and ``lb``); the others go to ``rare = (x, y, n_samples)``
+    with the fewest samples (a power of two) that keep the change between consecutive
+    samples within ``target``. Returns the event count, the rare pixel count and their
+    extra sub-samples."""
+    la, lb, ref, cp, cn, last = state
+    tx0, ty0, tx1, ty1 = tile
+    rx, ry, rns = rare
+    n_rare = 0
+    nsub_total = 0
+    for y in range(ty0, ty1 + 1):
+        for x in range(tx0, tx1 + 1):
             a = np.float64(la[y, x])
-            lb[y, x] = v1
-            b = np.float64(lb[y, x])
-            # sub-samples: the fewest (a power of two) that keep the change
-            # between consecutive samples of the pixel within target
+            # the change is that of the unrounded sample, the one rendered
+            change = abs(v_end[y - ty0, x - tx0] - a)
             ns = 1
-            while ns < MAX_SUBSAMPLES and abs(v1 - a) > target * ns:
+            while ns < MAX_SUBSAMPLES and change > target * ns:
                 ns *= 2
             if ns > 1:
-                # the rare pixels that changed by more than target: walk through
-                # ns sub-samples (written out here: a call per pixel costs more
-                # than its work)
+                rx[n_rare] = x
+                ry[n_rare] = y
+                rns[n_rare] = ns
+                n_rare += 1
                 nsub_total += ns - 1
-                stride = MAX_SUBSAMPLES // ns
-                r = ref[y, x]
-                lt = last[y, x]
-                t0 = t_a
-                v0 = a
-                for j in range(1, ns + 1):
-                    if j == ns:
-                        v1 = b
-                        t1 = t_b
-                    else:
-                        g = j * stride
-                        t1 = t_a + (g * span) // MAX_SUBSAMPLES
-                        v1 = 0.0
-                        for k in range(n_layers):
-                            if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1]
-                                          or x > boxes[k, 2] or y > boxes[k, 3]):
-                                continue
-                            den = (Mseq[g, k, 6] * x + Mseq[g, k, 7] * y
-                                   + Mseq[g, k, 8])
-                            xr = ((Mseq[g, k, 0] * x + Mseq[g, k, 1] * y
-                                   + Mseq[g, k, 2]) / den - origins[k, 0])
-                            yr = ((Mseq[g, k, 3] * x + Mseq[g, k, 4] * y
-                                   + Mseq[g, k, 5]) / den - origins[k, 1])
-                            if k == 0:
-                                v1 = _bilinear_wrap(texs, k, xr, yr)
-                            else:
-                                al = _bilinear_wrap(alphas, k, xr, yr)
-                                if al > 0.0:
-                                    v1 = (al * _bilinear_wrap(texs, k, xr, yr)
-                                          + (1.0 - al) * v1)
-                    if v1 - r >= cp[y, x]:
-                        r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr,
-                                          x, y, ex, ey, et, ep, n, cap)
-                    elif r - v1 >= cn[y, x]:
-                        r, lt, n = _cross(v0, v1, t0, t1, r, cn[y, x], -1.0, lt,
-                                          refr, x, y, ex, ey, et, ep, n, cap)
-                    t0 = t1
-                    v0 = v1
-                ref[y, x] = r
-                last[y, x] = lt
                 continue
+            b = np.float64(lb[y, x])
             r = ref[y, x]
             if b - r >= cp[y, x]:
-                r, lt, n = _cross(a, b, t_a, t_b, r, cp[y, x], 1.0, last[y, x], refr,
-                                  x, y, ex, ey, et, ep, n, cap)
+                r, lt, n = _cross(a, b, t_a, t_b, r, cp[y, x], 1.0, last[y, x], refr, x, y,
+                                  events, n)
             elif r - b >= cn[y, x]:
-                r, lt, n = _cross(a, b, t_a, t_b, r, cn[y, x], -1.0, last[y, x],
-                                  refr, x, y, ex, ey, et, ep, n, cap)
+                r, lt, n = _cross(a, b, t_a, t_b, r, cn[y, x], -1.0, last[y, x], refr, x, y,
+                                  events, n)
             else:
                 continue
             ref[y, x] = r
             last[y, x] = lt
-    return n, nsub_total
+    return n, n_rare, nsub_total
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _resampled_events(layers, state, events, rare, n_rare, t_a, t_b, refr, n):
+    """Events of the pixels ``rare = (x, y, n_samples)``, each re-sampled at
+    ``n_samples`` evenly spaced points of the step's grid (rendered from the layer
+    matrices there), linear in between. Returns the event count."""
+    Mseq, texs, alphas, origins, boxes, _ = layers
+    la, lb, ref, cp, cn, last = state
+    rx, ry, rns = rare
+    span = t_b - t_a
+    for q in range(n_rare):
+        x = rx[q]
+        y = ry[q]
+        ns = rns[q]
+        stride = MAX_SUBSAMPLES // ns
+        r = ref[y, x]
+        lt = last[y, x]
+        t0 = t_a
+        v0 = np.float64(la[y, x])
+        for j in range(1, ns + 1):
+            if j == ns:
+                v1 = np.float64(lb[y, x])
+                t1 = t_b
+            else:
+                g = j * stride
+                t1 = t_a + (g * span) // MAX_SUBSAMPLES
+                v1 = 0.0
+                for k in range(Mseq.shape[1]):
+                    if k > 0 and (x < boxes[k, 0] or y < boxes[k, 1] or x > boxes[k, 2]
+                                  or y > boxes[k, 3]):
+                        continue
+                    den = Mseq[g, k, 6] * x + Mseq[g, k, 7] * y + Mseq[g, k, 8]
+                    xr = (Mseq[g, k, 0] * x + Mseq[g, k, 1] * y + Mseq[g, k, 2]) / den \
+                        - origins[k, 0]
+                    yr = (Mseq[g, k, 3] * x + Mseq[g, k, 4] * y + Mseq[g, k, 5]) / den \
+                        - origins[k, 1]
+                    if k == 0:
+                        v1 = _bilinear_wrap(texs, k, xr, yr)
+                    else:
+                        al = _bilinear_wrap(alphas, k, xr, yr)
+                        if al > 0.0:
+                            v1 = al * _bilinear_wrap(texs, k, xr, yr) + (1.0 - al) * v1
+            if v1 - r >= cp[y, x]:
+                r, lt, n = _cross(v0, v1, t0, t1, r, cp[y, x], 1.0, lt, refr, x, y, events, n)
+            elif r - v1 >= cn[y, x]:
+                r, lt, n = _cross(v0, v1, t0, t1, r, cn[y, x], -1.0, lt, refr, x, y, events,
+                                  n)
+            t0 = t1
+            v0 = v1
+        ref[y, x] = r
+        last[y, x] = lt
+    return n
 
 
 def step_grid(t_a: int, t_b: int) -> np.ndarray:
@@ -473,37 +614,24 @@ def step_grid(t_a: int, t_b: int) -> np.ndarray:
     return t_a + (g * (t_b - t_a)) // MAX_SUBSAMPLES
 
 
-def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t_b: int,
-             refractory_us: int, target: float, ex, ey, et, ep,
-             boxes: np.ndarray | None = None,
-             sat: np.ndarray | None = None) -> tuple[int, int]:
+def sim_step(layers: StepLayers, state: PixelState, events: EventBuffers, t_a: int, t_b: int,
+             refractory_us: int, target: float) -> tuple[int, int]:
     """Advance the sensor from ``t_a`` to ``t_b`` (integer µs, ``t_b > t_a``).
 
     Parameters
     ----------
-    Mseq : ndarray (MAX_SUBSAMPLES + 1, L, 9) float64
-        Layer matrices (pixel -> reference pixel) at the sub-sample grid
-        ``step_grid(t_a, t_b)``.
-    texs, alphas, origins
-        As :func:`render_log`.
-    la : ndarray (H, W) float32
-        Log intensity at ``t_a``; ``lb`` receives it at ``t_b``.
-    ref : ndarray (H, W) float64
-        Reference level per pixel (updated).
-    cp, cn : ndarray (H, W) float64
-        ON and OFF thresholds per pixel.
-    last : ndarray (H, W) int64
-        Time of each pixel's previous event, µs (updated).
+    layers : StepLayers
+        The layers' matrices over the step, rasters, origins and (optional) boxes and
+        summed-area table.
+    state : PixelState
+        Log intensity at ``t_a`` (``lb`` receives it at ``t_b``), reference levels,
+        thresholds and previous event times (updated).
+    events : EventBuffers
+        Output buffers; the events of the step in no particular order.
     refractory_us : int
+        Refractory period, µs.
     target : float
         Largest log-intensity change between samples of a pixel before it is re-sampled.
-    ex, ey, et, ep : ndarray
-        Output buffers (uint16, uint16, int64, uint8), events in pixel (row-major) order.
-    boxes : ndarray (L, 4), optional
-        As :func:`render_log`, valid for the whole step.
-    sat : ndarray, optional
-        :func:`textured_cells_sat` of the bottom layer's raster: 16x16 tiles whose texture
-        footprint is constant over the step are copied instead of rendered (same result).
 
     Returns
     -------
@@ -512,13 +640,11 @@ def sim_step(Mseq, texs, alphas, origins, la, lb, ref, cp, cn, last, t_a: int, t
         first events and the caller must redo the step with larger buffers (restoring
         ``ref`` and ``last``).
     """
-    if boxes is None:
-        boxes = full_boxes(Mseq.shape[1], la.shape)
-    if sat is None:
-        sat = np.zeros((1, 1), dtype=np.int64)
-    n, ns = _step((Mseq, texs, alphas, origins, boxes, sat), (la, lb, ref, cp, cn, last),
-                  (ex, ey, et, ep), np.int64(t_a), np.int64(t_b), np.int64(refractory_us),
-                  float(target))
+    boxes = full_boxes(layers.Mseq.shape[1], state.la.shape) if layers.boxes is None \
+        else layers.boxes
+    sat = np.zeros((1, 1), dtype=np.int64) if layers.sat is None else layers.sat
+    n, ns = _step((*layers[:4], boxes, sat), tuple(state), tuple(events), np.int64(t_a),
+                  np.int64(t_b), np.int64(refractory_us), float(target))
     return int(n), int(ns)
 
 

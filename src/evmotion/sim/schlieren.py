@@ -57,10 +57,13 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.frames import Frames
 from evmotion.io.guard import open_h5
+from evmotion.io.h5attrs import read_attrs
 from evmotion.io.pngfile import write_png
-from evmotion.sim.photoreceptor import EVENT_BANDWIDTHS, Photoreceptor
+from evmotion.sim.options import SchlierenOptions, check_number
+from evmotion.sim.photoreceptor import Photoreceptor
 from evmotion.sim.scenes import BOS_SCENES
 from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
+from evmotion.utils import resolve_options
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
            "make_background", "make_field", "read_schlieren_gt", "simulate_schlieren",
@@ -335,92 +338,113 @@ class PuffField:
         return phi, np.stack([gx, gy], axis=-1)
 
 
+def _births(rng, t0: float, t1: float, every: float) -> np.ndarray:
+    """Birth times (s) of puffs about every ``every`` s over ``[t0, t1)``, jittered."""
+    n = max(1, int(math.ceil((t1 - t0) / every)))
+    return t0 + every * (np.arange(n) + rng.uniform(-0.3, 0.3, n))
+
+
+def _plume_puffs(h: int, w: int, duration_s: float, speed: float, rng) -> dict:
+    """A plume of warm air rising from the bottom centre."""
+    u = float(min(h, w))
+    s0 = 0.012 * u + 2.5
+    life = 1.3 * h / speed
+    b = _births(rng, -life, duration_s, 1.1 * s0 / speed)
+    n = b.size
+    return dict(p0=np.stack([w / 2 + rng.normal(0, 0.01 * w, n), np.full(n, h + 2 * s0)], 1),
+                v0=np.stack([np.zeros(n), np.full(n, -speed)], 1),
+                acc=np.zeros((n, 2)), drag=np.zeros(n), s0=s0 * rng.uniform(0.8, 1.2, n),
+                grow=np.full(n, 1.2 * s0 / h), amp=rng.uniform(0.3, 1.0, n),
+                life=np.full(n, life), fade_in=np.full(n, 0.1 * life),
+                fade_out=np.full(n, 0.1 * life), wobble_amp=np.full(n, 0.06 * w),
+                wobble_freq=rng.uniform(0.5, 1.5, n) * speed / h,
+                wobble_phase=np.full(n, rng.uniform(0, 2 * np.pi)),
+                birth=b)
+
+
+def _jet_puffs(h: int, w: int, duration_s: float, speed: float, rng) -> dict:
+    """A turbulent jet from the left edge, eddies of both signs (mostly warm)."""
+    u = float(min(h, w))
+    s0 = 0.008 * u + 2.0
+    drag = 1.3 * w / speed
+    life = 2.0 * drag
+    b = _births(rng, -life, duration_s, 1.0 * s0 / speed)
+    n = b.size
+    theta = rng.normal(0, 0.12, n)
+    v = speed * rng.uniform(0.8, 1.2, n)
+    return dict(p0=np.stack([np.full(n, -2 * s0), h / 2 + rng.normal(0, s0, n)], 1),
+                v0=np.stack([v * np.cos(theta), v * np.sin(theta)], 1),
+                acc=np.zeros((n, 2)), drag=np.full(n, drag),
+                s0=s0 * rng.uniform(0.6, 1.4, n), grow=np.full(n, 2.0 * s0 / w),
+                amp=rng.uniform(0.3, 1.0, n) * np.where(rng.random(n) < 0.75, 1.0, -1.0),
+                life=np.full(n, life), fade_in=np.full(n, 0.05 * life),
+                fade_out=np.full(n, 0.3 * life), wobble_amp=np.full(n, 0.08 * h),
+                wobble_freq=rng.uniform(2.0, 6.0, n) * speed / w,
+                wobble_phase=rng.uniform(0, 2 * np.pi, n),
+                birth=b)
+
+
+def _breath_puffs(h: int, w: int, duration_s: float, speed: float, rng) -> dict:
+    """Breath: a pulsed, decelerating turbulent jet of warm air, eddies of both signs
+    (mostly warm) that spread and thin out, so no warm lump piles up in front of the
+    mouth."""
+    u = float(min(h, w))
+    s0 = 0.01 * u + 2.5
+    drag = 0.8 * w / speed
+    life = 2.0 * drag
+    # exhaling 1 s of every 2.5 s; the first exhale began 0.5 s before the recording
+    period, exhale = 2.5, 1.0
+    starts = np.arange(-0.5 - period * math.ceil(life / period), duration_s, period)
+    per = [_births(rng, t, t + exhale, 0.8 * s0 / speed) for t in starts]
+    b = np.concatenate(per)
+    phase = np.concatenate([(bb - t) / exhale for t, bb in zip(starts, per, strict=True)])
+    n = b.size
+    theta = np.deg2rad(20.0) + rng.normal(0, 0.15, n)
+    v = speed * (0.5 + 0.5 * np.sin(np.pi * np.clip(phase, 0, 1))) * rng.uniform(0.8, 1.2, n)
+    return dict(p0=np.stack([np.full(n, 0.08 * w), 0.4 * h + rng.normal(0, s0, n)], 1),
+                v0=np.stack([v * np.cos(theta), v * np.sin(theta)], 1),
+                acc=np.zeros((n, 2)), drag=np.full(n, drag),
+                s0=s0 * rng.uniform(0.7, 1.3, n), grow=np.full(n, 0.12),
+                dilute=np.full(n, 1.0),
+                amp=rng.uniform(0.5, 1.0, n) * np.where(rng.random(n) < 0.7, 1.0, -1.0),
+                life=np.full(n, life), fade_in=np.full(n, 0.12 * life),
+                fade_out=np.full(n, 0.5 * life), wobble_amp=np.full(n, 0.06 * h),
+                wobble_freq=rng.uniform(2.0, 5.0, n) * speed / w,
+                wobble_phase=rng.uniform(0, 2 * np.pi, n),
+                birth=b)
+
+
+def _ice_puffs(h: int, w: int, duration_s: float, speed: float, rng) -> dict:
+    """Cold air falling from the top centre (an ice cube), accelerating."""
+    u = float(min(h, w))
+    s0 = 0.012 * u + 2.5
+    g = speed ** 2 / (2 * 1.1 * h)  # reaches `speed` at the bottom
+    v0y = 0.1 * speed
+    life = (-v0y + math.sqrt(v0y ** 2 + 2 * g * 1.3 * h)) / g
+    b = _births(rng, -life, duration_s, 1.2 * s0 / (0.5 * speed))
+    n = b.size
+    return dict(p0=np.stack([w / 2 + rng.normal(0, 0.02 * w, n), np.full(n, -2 * s0)], 1),
+                v0=np.stack([np.zeros(n), np.full(n, v0y)], 1),
+                acc=np.tile([0.0, g], (n, 1)), drag=np.zeros(n),
+                s0=s0 * rng.uniform(0.8, 1.2, n), grow=np.full(n, 0.8 * s0 / h),
+                amp=-rng.uniform(0.3, 1.0, n), life=np.full(n, life),
+                fade_in=np.full(n, 0.1 * life), fade_out=np.full(n, 0.1 * life),
+                wobble_amp=np.full(n, 0.03 * w),
+                wobble_freq=rng.uniform(0.5, 1.5, n) * speed / h,
+                wobble_phase=rng.uniform(0, 2 * np.pi, n),
+                birth=b)
+
+
+_PUFFS = {"plume": _plume_puffs, "jet": _jet_puffs, "breath": _breath_puffs, "ice": _ice_puffs}
+
+
 def _scene_table(scene: str, sensor_size, duration_s: float, speed: float, rng) -> dict:
     """Puff parameters of a scene (see :data:`BOS_SCENES`), in px, s, px/s."""
-    h, w = sensor_size
-    u = float(min(h, w))
-    tab: dict = {}
-
-    def births(t0, t1, every):
-        n = max(1, int(math.ceil((t1 - t0) / every)))
-        return t0 + every * (np.arange(n) + rng.uniform(-0.3, 0.3, n))
-
-    if scene == "plume":
-        s0 = 0.012 * u + 2.5
-        life = 1.3 * h / speed
-        b = births(-life, duration_s, 1.1 * s0 / speed)
-        n = b.size
-        tab.update(p0=np.stack([w / 2 + rng.normal(0, 0.01 * w, n), np.full(n, h + 2 * s0)], 1),
-                   v0=np.stack([np.zeros(n), np.full(n, -speed)], 1),
-                   acc=np.zeros((n, 2)), drag=np.zeros(n), s0=s0 * rng.uniform(0.8, 1.2, n),
-                   grow=np.full(n, 1.2 * s0 / h), amp=rng.uniform(0.3, 1.0, n),
-                   life=np.full(n, life), fade_in=np.full(n, 0.1 * life),
-                   fade_out=np.full(n, 0.1 * life), wobble_amp=np.full(n, 0.06 * w),
-                   wobble_freq=rng.uniform(0.5, 1.5, n) * speed / h,
-                   wobble_phase=np.full(n, rng.uniform(0, 2 * np.pi)))
-    elif scene == "jet":
-        s0 = 0.008 * u + 2.0
-        drag = 1.3 * w / speed
-        life = 2.0 * drag
-        b = births(-life, duration_s, 1.0 * s0 / speed)
-        n = b.size
-        theta = rng.normal(0, 0.12, n)
-        v = speed * rng.uniform(0.8, 1.2, n)
-        tab.update(p0=np.stack([np.full(n, -2 * s0), h / 2 + rng.normal(0, s0, n)], 1),
-                   v0=np.stack([v * np.cos(theta), v * np.sin(theta)], 1),
-                   acc=np.zeros((n, 2)), drag=np.full(n, drag),
-                   s0=s0 * rng.uniform(0.6, 1.4, n), grow=np.full(n, 2.0 * s0 / w),
-                   amp=rng.uniform(0.3, 1.0, n) * np.where(rng.random(n) < 0.75, 1.0, -1.0),
-                   life=np.full(n, life), fade_in=np.full(n, 0.05 * life),
-                   fade_out=np.full(n, 0.3 * life), wobble_amp=np.full(n, 0.08 * h),
-                   wobble_freq=rng.uniform(2.0, 6.0, n) * speed / w,
-                   wobble_phase=rng.uniform(0, 2 * np.pi, n))
-    elif scene == "breath":
-        # a pulsed, decelerating turbulent jet of warm air: eddies of both signs (mostly
-        # warm) that spread and thin out, so no warm lump piles up in front of the mouth
-        s0 = 0.01 * u + 2.5
-        drag = 0.8 * w / speed
-        life = 2.0 * drag
-        # exhaling 1 s of every 2.5 s; the first exhale began 0.5 s before the recording
-        period, exhale = 2.5, 1.0
-        starts = np.arange(-0.5 - period * math.ceil(life / period), duration_s, period)
-        per = [births(t, t + exhale, 0.8 * s0 / speed) for t in starts]
-        b = np.concatenate(per)
-        phase = np.concatenate([(bb - t) / exhale for t, bb in zip(starts, per, strict=True)])
-        n = b.size
-        theta = np.deg2rad(20.0) + rng.normal(0, 0.15, n)
-        v = speed * (0.5 + 0.5 * np.sin(np.pi * np.clip(phase, 0, 1))) * rng.uniform(0.8, 1.2, n)
-        tab.update(p0=np.stack([np.full(n, 0.08 * w), 0.4 * h + rng.normal(0, s0, n)], 1),
-                   v0=np.stack([v * np.cos(theta), v * np.sin(theta)], 1),
-                   acc=np.zeros((n, 2)), drag=np.full(n, drag),
-                   s0=s0 * rng.uniform(0.7, 1.3, n), grow=np.full(n, 0.12),
-                   dilute=np.full(n, 1.0),
-                   amp=rng.uniform(0.5, 1.0, n) * np.where(rng.random(n) < 0.7, 1.0, -1.0),
-                   life=np.full(n, life), fade_in=np.full(n, 0.12 * life),
-                   fade_out=np.full(n, 0.5 * life), wobble_amp=np.full(n, 0.06 * h),
-                   wobble_freq=rng.uniform(2.0, 5.0, n) * speed / w,
-                   wobble_phase=rng.uniform(0, 2 * np.pi, n))
-    elif scene == "ice":
-        s0 = 0.012 * u + 2.5
-        g = speed ** 2 / (2 * 1.1 * h)  # reaches `speed` at the bottom
-        v0y = 0.1 * speed
-        life = (-v0y + math.sqrt(v0y ** 2 + 2 * g * 1.3 * h)) / g
-        b = births(-life, duration_s, 1.2 * s0 / (0.5 * speed))
-        n = b.size
-        tab.update(p0=np.stack([w / 2 + rng.normal(0, 0.02 * w, n), np.full(n, -2 * s0)], 1),
-                   v0=np.stack([np.zeros(n), np.full(n, v0y)], 1),
-                   acc=np.tile([0.0, g], (n, 1)), drag=np.zeros(n),
-                   s0=s0 * rng.uniform(0.8, 1.2, n), grow=np.full(n, 0.8 * s0 / h),
-                   amp=-rng.uniform(0.3, 1.0, n), life=np.full(n, life),
-                   fade_in=np.full(n, 0.1 * life), fade_out=np.full(n, 0.1 * life),
-                   wobble_amp=np.full(n, 0.03 * w),
-                   wobble_freq=rng.uniform(0.5, 1.5, n) * speed / h,
-                   wobble_phase=rng.uniform(0, 2 * np.pi, n))
-    else:
+    if scene not in _PUFFS:
         raise ParameterError(f"unknown schlieren scene {scene!r}; choose one of "
                              f"{sorted(BOS_SCENES)}")
-    tab["birth"] = b
-    return tab
+    h, w = sensor_size
+    return _PUFFS[scene](h, w, duration_s, speed, rng)
 
 
 DEFAULT_SPEED = {  # px/s at the thesis ROI (720 px high, 640 wide); scaled with the size
@@ -510,26 +534,10 @@ class SchlierenSim:
     stats: dict = field(default_factory=dict)
 
 
-def _num(name, value, lo, hi=math.inf, lo_open=False):
-    v = float(value)
-    if not math.isfinite(v) or v < lo or (lo_open and v <= lo) or v > hi:
-        rng = f"{'(' if lo_open else '['}{lo}, {hi}]"
-        raise ParameterError(f"{name} must be a finite number in {rng}, got {value!r}")
-    return v
-
-
 def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720, 640),
                        duration_s: float = 0.1, fps: float = 120.0, seed: int = 0, *,
-                       magnitude_px: float = 1.0, dot_density: float = 0.06,
-                       dot_radius_px: float = 1.0, dot_contrast: float = 0.85,
-                       speed_px_s: float | None = None, photons: float | None = None,
-                       gain: float | None = None, exposure_s: float | None = None,
-                       contrast_threshold: float = 0.2, mismatch: float = 0.03,
-                       refractory_us: int = 0, noise_rate: float = 0.0,
-                       event_photons: float | None = None, event_tau_us: int = 1000,
-                       max_step_px: float = 0.25, max_step_fraction: float = 0.5,
-                       show_progress: bool = False,
-                       event_bandwidth: str = "fixed") -> SchlierenSim:
+                       show_progress: bool = False, options: SchlierenOptions | None = None,
+                       **keywords) -> SchlierenSim:
     """Simulate an event camera and a frame camera watching a BOS scene.
 
     Parameters
@@ -544,6 +552,14 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
         Frame rate, Hz (120 in the thesis).
     seed : int
         Seeds the background, the air, threshold mismatch, event noise and shot noise.
+    show_progress : bool
+        Progress bar of the events on stderr (only when it is a terminal).
+    options : SchlierenOptions, optional
+        The air, background, frame and event cameras as one object; then no keyword
+        below may be given.
+
+    Other Parameters
+    ----------------
     magnitude_px : float
         Largest inter-frame displacement ``|v| Δt`` over the pixels and frame intervals,
         px (the thesis' scenes: about 0.05-3 px).
@@ -581,7 +597,6 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     max_step_fraction : float
         Bound on the log-intensity change between samples of an event pixel, as a
         fraction of the threshold.
-    show_progress : bool
     event_bandwidth : {"fixed", "intensity"}
         The event pixels' photoreceptor under ``event_photons``
         (:mod:`evmotion.sim.photoreceptor`): ``"fixed"`` (default), the worst case above,
@@ -604,38 +619,66 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     >>> round(float((np.linalg.norm(sim.gt.flow, axis=-1).max(axis=(1, 2)) * dt).max()), 3)
     0.5
     """
+    o = resolve_options(SchlierenOptions, options, keywords, "simulate_schlieren")
     if scene not in BOS_SCENES:
         raise ParameterError(f"unknown schlieren scene {scene!r}; choose one of "
                              f"{sorted(BOS_SCENES)}")
     h, w = parse_sensor_size(sensor_size, 8)
-    fps = _num("fps", fps, 0.0, 1e5, lo_open=True)
-    duration_s = _num("duration_s", duration_s, 0.0, 1e4, lo_open=True)
+    fps = check_number("fps", fps, 0.0, 1e5, lo_open=True, units="Hz")
+    duration_s = check_number("duration_s", duration_s, 0.0, 1e4, lo_open=True, units="s")
     n_frames = int(math.floor(duration_s * fps + 1e-9)) + 1
     if n_frames < 2:
         raise ParameterError(f"duration_s={duration_s} holds fewer than two frames at "
                              f"fps={fps}; use duration_s >= {1 / fps:.6g}")
-    magnitude_px = _num("magnitude_px", magnitude_px, 0.0, 50.0, lo_open=True)
-    exposure_s = 0.5 / fps if exposure_s is None else _num("exposure_s", exposure_s, 0.0,
-                                                           1.0 / fps)
-    if photons is not None:
-        photons = _num("photons", photons, 0.0, 1e9, lo_open=True)
-        gain = 255.0 / photons if gain is None else _num("gain", gain, 0.0, lo_open=True)
-    elif gain is not None:
-        raise ParameterError("gain needs photons (shot-noise mode)")
-    max_step_px = _num("max_step_px", max_step_px, 0.0, 2.0, lo_open=True)
-    if event_photons is not None:
-        event_photons = _num("event_photons", event_photons, 0.0, 1e12, lo_open=True)
-    event_tau_us = int(_num("event_tau_us", event_tau_us, 1.0, 1e6))
-    if event_bandwidth not in EVENT_BANDWIDTHS:
-        raise ParameterError(f"event_bandwidth must be one of {list(EVENT_BANDWIDTHS)}, "
-                             f"got {event_bandwidth!r}")
-    if event_bandwidth != "fixed" and event_photons is None:
-        raise ParameterError(f"event_bandwidth={event_bandwidth!r} needs event_photons")
-
+    exposure_s = 0.5 / fps if o.exposure_s is None else check_number(
+        "exposure_s", o.exposure_s, 0.0, 1.0 / fps, units="s, at most the frame period")
     t_us = np.round(np.arange(n_frames) * 1e6 / fps).astype(np.int64)
-    t_s = t_us * 1e-6
+    air, (disp, flow, q), vmax = _air_truth(scene, (h, w), duration_s, t_us * 1e-6,
+                                            o.magnitude_px, o.speed_px_s, seed)
+    margin = float(np.abs(disp).max()) * 1.5 + 6.0
+    bg = make_background((h, w), density=o.dot_density, radius_px=o.dot_radius_px,
+                         contrast=o.dot_contrast, margin_px=margin, seed=seed)
+    radiance = _radiance_of(bg, air, (h, w))
+    # frames: exposures sampled finely enough that the background moves at most
+    # max_step_px between samples
+    n_exp = 1 if exposure_s == 0 else int(min(64, max(1, math.ceil(
+        vmax * exposure_s / o.max_step_px))))
+    frames = _frames(radiance, t_us, exposure_s, n_exp, o, seed, scene)
+    # events from the log of the same radiance, every frame time a sample time
+    max_step_us = int(min(t_us[1] - t_us[0], max(1.0, 1e6 * o.max_step_px / max(vmax, 1e-9))))
+    if o.event_photons is not None:
+        max_step_us = min(max_step_us, o.event_tau_us)
+    log_at = _log_radiance(radiance, o, seed, (h, w), max_step_us)
+    res = simulate_log_function(log_at, (h, w), int(t_us[-1]), breaks_us=t_us,
+                                max_step_us=max_step_us, seed=seed, show_progress=show_progress,
+                                meta={"scene": f"schlieren-{scene}"},
+                                options=o.event_options())
+    meta = dict(scene=scene, description=BOS_SCENES[scene], sensor_size=[h, w], fps=fps,
+                duration_s=duration_s, seed=int(seed), magnitude_px=o.magnitude_px,
+                exposure_s=exposure_s, exposure_samples=n_exp, photons=o.photons, gain=o.gain,
+                dot_density=float(o.dot_density), dot_radius_px=float(o.dot_radius_px),
+                dot_contrast=float(o.dot_contrast), n_dots=int(bg.x.size),
+                field_gain_px2=air.gain, n_puffs=int(air.birth.size), max_flow_px_s=vmax,
+                mismatch=float(o.mismatch), refractory_us=int(o.refractory_us),
+                noise_rate=float(o.noise_rate), event_photons=o.event_photons,
+                event_tau_us=o.event_tau_us, event_bandwidth=o.event_bandwidth,
+                **_air_meta(scene, air, (h, w)))
+    gt = SchlierenGT(flow=flow, q=q, displacement=disp, t_us=t_us,
+                     contrast_threshold=float(o.contrast_threshold),
+                     thresholds=res.thresholds, meta=meta)
+    stats = dict(res.stats, max_step_us=max_step_us, n_frames=n_frames)
+    return SchlierenSim(events=res.events, frames=frames, gt=gt, background=bg, air=air,
+                        stats=stats)
+
+
+def _air_truth(scene, shape, duration_s, t_s, magnitude_px, speed_px_s, seed):
+    """The air of ``scene`` scaled so that the largest inter-frame displacement is
+    ``magnitude_px``, and its exact ground truth at the frame times ``t_s`` (s):
+    ``(displacement, flow, q)`` (float32, as :class:`SchlierenGT`) and the largest speed
+    (px/s)."""
+    h, w = shape
+    n_frames = len(t_s)
     air = make_field(scene, (h, w), duration_s, speed_px_s=speed_px_s, seed=seed)
-    # scale the air so that the largest inter-frame displacement is magnitude_px
     # one pass over the frames at unit gain, float32 storage (a 1 s sequence at 720x640
     # holds about 1 GB of ground truth); differences in float64 from consecutive frames
     disp = np.empty((n_frames, h, w, 2), np.float32)
@@ -661,14 +704,15 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     air.gain = magnitude_px / peak
     for arr in (disp, flow, q):
         arr *= np.float32(air.gain)
-    vmax = max(speeds) * air.gain
+    return air, (disp, flow, q), max(speeds) * air.gain
 
-    margin = float(np.abs(disp).max()) * 1.5 + 6.0
-    bg = make_background((h, w), density=dot_density, radius_px=dot_radius_px,
-                         contrast=dot_contrast, margin_px=margin, seed=seed)
+
+def _radiance_of(bg: Background, air: PuffField, shape):
+    """``radiance(t, pix=None)``: the background seen through the air at time ``t`` (s),
+    (H, W), or at the row-major pixels ``pix`` (P,)."""
+    h, w = shape
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     xs_f, ys_f = xs.ravel(), ys.ravel()
-
     still = bg.radiance(xs_f, ys_f)
 
     def radiance(t, pix=None):
@@ -683,67 +727,50 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
                                  ys_f[idx[moved]] - d[moved, 1])
         return out.reshape(h, w) if pix is None else out
 
-    # frames: radiance averaged over the exposure, shot noise, gain, 8 bits
-    n_exp = 1 if exposure_s == 0 else int(min(64, max(1, math.ceil(
-        vmax * exposure_s / max_step_px))))
+    return radiance
+
+
+def _frames(radiance, t_us, exposure_s: float, n_exp: int, o: SchlierenOptions, seed: int,
+            scene: str) -> Frames:
+    """The frame camera: the radiance averaged over ``n_exp`` samples of the exposure
+    centred on each frame time, shot noise (``o.photons``), gain, 8 bits."""
     offs = (np.arange(n_exp) + 0.5) / n_exp * exposure_s - 0.5 * exposure_s
     rng_shot = np.random.default_rng(np.random.SeedSequence([seed, 0x5407]))
-    images = np.empty((n_frames, h, w), np.uint8)
-    for i, t in enumerate(t_s):
-        rad = np.mean([radiance(float(t + o)) for o in offs], axis=0)
-        if photons is None:
+    images = []
+    for t in t_us * 1e-6:
+        rad = np.mean([radiance(float(t + off)) for off in offs], axis=0)
+        if o.photons is None:
             val = 255.0 * rad
         else:
-            val = gain * rng_shot.poisson(photons * rad)
-        images[i] = np.clip(np.rint(val), 0, 255).astype(np.uint8)
-    frames = Frames(images, t_us, source=f"simulate_schlieren({scene!r})", bit_depth=8,
-                    exposure_start=t_us - round(exposure_s * 5e5),
-                    exposure_end=t_us + round(exposure_s * 5e5))
+            val = o.gain * rng_shot.poisson(o.photons * rad)
+        images.append(np.clip(np.rint(val), 0, 255).astype(np.uint8))
+    return Frames(np.stack(images), t_us, source=f"simulate_schlieren({scene!r})", bit_depth=8,
+                  exposure_start=t_us - round(exposure_s * 5e5),
+                  exposure_end=t_us + round(exposure_s * 5e5))
 
-    # events from the log of the same radiance, every frame time a sample time
-    max_step_us = int(min(t_us[1] - t_us[0], max(1.0, 1e6 * max_step_px / max(vmax, 1e-9))))
-    if event_photons is not None:
-        max_step_us = min(max_step_us, event_tau_us)
-    if event_photons is None:
+
+def _log_radiance(radiance, o: SchlierenOptions, seed: int, shape, step_us: int):
+    """``log_at(t_us, pix)`` of :func:`simulate_log_function`: the log of the radiance,
+    through the event pixels' photoreceptor (:class:`Photoreceptor`, shot noise of the
+    ``o.event_bandwidth`` model) when ``o.event_photons`` is given."""
+    if o.event_photons is None:
         def log_at(t, pix):
             return np.log(radiance(t * 1e-6, pix))
-    else:
-        log_at = Photoreceptor(radiance, (h, w), event_photons=event_photons,
-                               tau_us=event_tau_us, bandwidth=event_bandwidth, seed=seed,
-                               step_us=max_step_us)
+        return log_at
+    return Photoreceptor(radiance, shape, event_photons=o.event_photons,
+                         tau_us=o.event_tau_us, bandwidth=o.event_bandwidth, seed=seed,
+                         step_us=step_us)
 
-    res = simulate_log_function(log_at, (h, w), int(t_us[-1]), breaks_us=t_us,
-                                max_step_us=max_step_us, threshold=contrast_threshold,
-                                mismatch=mismatch, refractory_us=refractory_us,
-                                noise_rate=noise_rate, seed=seed,
-                                max_step_fraction=max_step_fraction,
-                                show_progress=show_progress,
-                                meta={"scene": f"schlieren-{scene}"})
-    meta = {"scene": scene, "description": BOS_SCENES[scene], "sensor_size": [h, w],
-            "fps": fps, "duration_s": duration_s, "seed": int(seed),
-            "magnitude_px": magnitude_px, "exposure_s": exposure_s,
-            "exposure_samples": n_exp, "photons": photons, "gain": gain,
-            "dot_density": float(dot_density), "dot_radius_px": float(dot_radius_px),
-            "dot_contrast": float(dot_contrast), "n_dots": int(bg.x.size),
-            "field_gain_px2": air.gain, "n_puffs": int(air.birth.size),
-            "max_flow_px_s": vmax, "mismatch": float(mismatch),
-            "refractory_us": int(refractory_us), "noise_rate": float(noise_rate),
-            "event_photons": event_photons, "event_tau_us": event_tau_us,
-            "event_bandwidth": event_bandwidth}
+
+def _air_meta(scene: str, air: PuffField, shape) -> dict:
+    """The scene's own speeds, for the ground truth's metadata."""
+    h, w = shape
     if scene == "plume":
-        meta["rise_speed_px_s"] = float(-air.v0[0, 1])
-        meta["plume_axis_x_px"] = w / 2
-    elif scene == "ice":
-        meta["fall_acceleration_px_s2"] = float(air.acc[0, 1])
-        meta["fall_speed_bottom_px_s"] = float(math.sqrt(2 * air.acc[0, 1] * 1.1 * h))
-    else:
-        meta["exit_speed_px_s"] = float(np.median(np.hypot(air.v0[:, 0], air.v0[:, 1])))
-    gt = SchlierenGT(flow=flow, q=q, displacement=disp, t_us=t_us,
-                     contrast_threshold=float(contrast_threshold), thresholds=res.thresholds,
-                     meta=meta)
-    stats = dict(res.stats, max_step_us=max_step_us, n_frames=n_frames)
-    return SchlierenSim(events=res.events, frames=frames, gt=gt, background=bg, air=air,
-                        stats=stats)
+        return {"rise_speed_px_s": float(-air.v0[0, 1]), "plume_axis_x_px": w / 2}
+    if scene == "ice":
+        return {"fall_acceleration_px_s2": float(air.acc[0, 1]),
+                "fall_speed_bottom_px_s": float(math.sqrt(2 * air.acc[0, 1] * 1.1 * h))}
+    return {"exit_speed_px_s": float(np.median(np.hypot(air.v0[:, 0], air.v0[:, 1])))}
 
 
 # ---------------------------------------------------------------------------------------
@@ -823,9 +850,10 @@ def read_schlieren_gt(path: str | Path) -> SchlierenGT:
         path = path / "schlieren_gt.h5"
     f = open_h5(path)
     with f:
-        if f.attrs.get("schlieren_format") != GT_FORMAT:
+        attrs = read_attrs(path, f)
+        if attrs.get("schlieren_format") != GT_FORMAT:
             raise FormatError(path, "not schlieren ground truth (attribute "
-                              f"schlieren_format={f.attrs.get('schlieren_format')!r})")
+                              f"schlieren_format={attrs.get('schlieren_format')!r})")
         for name in ("flow", "q", "displacement", "frame_t"):
             if name not in f:
                 raise FormatError(path, f"schlieren ground truth lacks dataset '{name}'")
@@ -836,5 +864,5 @@ def read_schlieren_gt(path: str | Path) -> SchlierenGT:
         return SchlierenGT(flow=f["flow"][()], q=f["q"][()],
                            displacement=f["displacement"][()],
                            t_us=f["frame_t"][()].astype(np.int64),
-                           contrast_threshold=float(f.attrs["contrast_threshold"]),
-                           thresholds=thr, meta=json.loads(f.attrs["schlieren_meta"]))
+                           contrast_threshold=float(attrs["contrast_threshold"]),
+                           thresholds=thr, meta=json.loads(attrs["schlieren_meta"]))

@@ -10,12 +10,16 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import CalibrationError, ParameterError
+from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
+from evmotion.sim.options import EventOptions, SimOptions, check_number
 from evmotion.sim.render import (
     MAX_SUBSAMPLES,
+    EventBuffers,
+    PixelState,
+    StepLayers,
     emit_crossings,
     full_boxes,
     pad_periodic,
@@ -27,10 +31,10 @@ from evmotion.sim.render import (
 )
 from evmotion.sim.scenes import SCENES, default_K, resolve_params
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
-from evmotion.utils import progress
+from evmotion.utils import progress, resolve_options
 
-__all__ = ["EventModel", "LogSimResult", "SimResult", "parse_sensor_size", "simulate",
-           "simulate_log_function"]
+__all__ = ["EventOptions", "LogSimResult", "SimOptions", "SimResult", "parse_sensor_size",
+           "simulate", "simulate_log_function"]
 
 MAX_STEP_US = 5000  # sample at least every 5 ms (the 1 px bound usually binds first)
 STEP_SHIFT_PX = 1.0  # global steps move no texture point by more than ~1 px
@@ -127,17 +131,17 @@ def _noise_events(rng, sensor_size, duration_us, noise_rate, hot_pixels, hot_rat
             np.concatenate(ts).astype(np.int64), rng.integers(0, 2, x.size).astype(np.uint8))
 
 
-def _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t_a, t_b, refr, target,
-                ex, ey, et, ep):
-    """:func:`sim_step_numpy` behind the interface of :func:`sim_step`."""
-    alphas = np.stack([t.alpha if t.alpha is not None else np.ones(t.shape, np.float32)
-                       for t in texs])
-    lbn, x, y, t, p = sim_step_numpy(Mseq, np.stack([t.log_i for t in texs]), alphas, origins,
-                                     la, ref, cp, cn, last, t_a, t_b, refr, target)
-    lb[:] = lbn
+def _step_numpy(layers: StepLayers, state: PixelState, events: EventBuffers, t_a, t_b, refr,
+                target):
+    """:func:`sim_step_numpy` behind the interface of :func:`sim_step` (``layers`` with
+    unpadded rasters)."""
+    lbn, x, y, t, p = sim_step_numpy(layers.Mseq, layers.texs, layers.alphas, layers.origins,
+                                     state.la, state.ref, state.cp, state.cn, state.last, t_a,
+                                     t_b, refr, target)
+    state.lb[:] = lbn
     n = x.size
-    if n <= ex.size:
-        ex[:n], ey[:n], et[:n], ep[:n] = x, y, t, p
+    if n <= events.x.size:
+        events.x[:n], events.y[:n], events.t[:n], events.p[:n] = x, y, t, p
     return n, 0
 
 
@@ -156,14 +160,6 @@ def _check_motion(scene, p, layers, duration_s):
                                  f"({layer.motion.warp.name}) degenerates within {duration_s:.6g} s "
                                  "(area scale beyond 100x); use smaller rates or a shorter "
                                  "duration")
-
-
-def _check(name, value, lo=0.0, strict=False):
-    v = float(value)
-    if not math.isfinite(v) or v < lo or (strict and v <= lo):
-        op = ">" if strict else ">="
-        raise ParameterError(f"{name} must be finite and {op} {lo}, got {value!r}")
-    return v
 
 
 def parse_sensor_size(sensor_size, min_side: int = 1) -> tuple[int, int]:
@@ -190,22 +186,6 @@ def parse_sensor_size(sensor_size, min_side: int = 1) -> tuple[int, int]:
     return h, w
 
 
-def _check_event_model(threshold, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels,
-                       n_pixels):
-    """The checked event-model parameters shared by :func:`simulate` and
-    :func:`simulate_log_function`, in that order (``threshold`` as ``C``)."""
-    C = _check("threshold", threshold, strict=True)
-    mismatch = _check("mismatch", mismatch)
-    refractory_us = int(_check("refractory_us", refractory_us))
-    noise_rate = _check("noise_rate", noise_rate)
-    hot_rate = _check("hot_rate", hot_rate)
-    hot_pixels = int(_check("hot_pixels", hot_pixels))
-    if hot_pixels > n_pixels:
-        raise ParameterError(f"hot_pixels ({hot_pixels}) exceeds the number of pixels "
-                             f"({n_pixels})")
-    return C, mismatch, refractory_us, noise_rate, hot_rate, hot_pixels
-
-
 def _thresholds(rng, C, mismatch, shape):
     """Per-pixel ON and OFF thresholds: ``C`` with relative mismatch, at least 0.25 C
     (mismatch never makes a pixel absurdly sensitive)."""
@@ -213,12 +193,6 @@ def _thresholds(rng, C, mismatch, shape):
     cp = np.maximum(C * (1 + mismatch * rng.standard_normal(shape)), cmin)
     cn = np.maximum(C * (1 + mismatch * rng.standard_normal(shape)), cmin)
     return cp, cn
-
-
-def _event_buffers(cap):
-    """Empty x, y, t, p buffers for ``cap`` events (filled by the step kernels)."""
-    return (np.empty(cap, np.uint16), np.empty(cap, np.uint16), np.empty(cap, np.int64),
-            np.empty(cap, np.uint8))
 
 
 def _sorted_chunk(ex, ey, et, ep, n, w, h, packed):
@@ -265,87 +239,35 @@ def _add_noise(x, y, tt, pp, rng, sensor_size, duration_us, noise_rate, hot_pixe
 
 
 @dataclass(frozen=True)
-class EventModel:
-    """The sensor's event model (checked values): what :func:`simulate` and
-    :func:`simulate_log_function` share besides the scene.
-
-    Attributes
-    ----------
-    threshold : float
-        Nominal contrast threshold C (log intensity).
-    mismatch : float
-        Relative standard deviation of the per-pixel thresholds.
-    refractory_us : int
-        Refractory period, µs.
-    noise_rate : float
-        Background-activity noise, events per second per pixel.
-    hot_rate : float
-        Rate of each hot pixel, events/s.
-    hot_pixels : int
-        Number of hot pixels.
-    """
-
-    threshold: float
-    mismatch: float
-    refractory_us: int
-    noise_rate: float
-    hot_rate: float
-    hot_pixels: int
-
-    @classmethod
-    def checked(cls, n_pixels: int, threshold, mismatch, refractory_us, noise_rate, hot_rate,
-                hot_pixels) -> EventModel:
-        """The model of these values, each checked (one-line :class:`ParameterError`)."""
-        return cls(*_check_event_model(threshold, mismatch, refractory_us, noise_rate,
-                                       hot_rate, hot_pixels, n_pixels))
-
-
-@dataclass(frozen=True)
 class _Run:
-    """The checked options of one :func:`simulate` call."""
+    """The checked arguments of one :func:`simulate` call."""
 
     scene: str
     duration_us: int
     sensor_size: tuple[int, int]
-    model: EventModel
-    frame_rate: float
-    target: float  # largest log-intensity change between samples of a pixel
+    options: SimOptions
     K: np.ndarray
-    backend: str
     show_progress: bool
 
 
-def _checked_run(scene, duration_s, sensor_size, threshold, mismatch, refractory_us,
-                 noise_rate, hot_pixels, hot_rate, frame_rate, max_step_fraction, K,
-                 show_progress, backend) -> _Run:
+def _checked_run(scene, duration_s, sensor_size, options: SimOptions, show_progress) -> _Run:
     if scene not in SCENES:
         raise ParameterError(f"unknown scene '{scene}'; choose one of {sorted(SCENES)}")
-    duration_us = int(round(_check("duration_s", duration_s, strict=True) * 1e6))
+    duration_us = int(round(check_number("duration_s", duration_s, lo_open=True, units="s")
+                            * 1e6))
     if duration_us < 1:
         raise ParameterError(f"duration_s must be at least 1 µs, got {duration_s!r}")
     h, w = parse_sensor_size(sensor_size, 2)
-    model = EventModel.checked(h * w, threshold, mismatch, refractory_us, noise_rate,
-                               hot_rate, hot_pixels)
-    frame_rate = _check("frame_rate", frame_rate, strict=True)
-    frac = _check("max_step_fraction", max_step_fraction, strict=True)
-    if backend not in ("numba", "numpy"):
-        raise ParameterError(f"backend must be 'numba' or 'numpy', got {backend!r}")
-    K = default_K((h, w)) if K is None else np.asarray(K, dtype=np.float64)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise CalibrationError(f"K must be a finite 3x3 pinhole matrix with positive focal "
-                               f"lengths (pixels), got {np.asarray(K).tolist()!r}")
-    return _Run(scene, duration_us, (h, w), model, frame_rate, frac * model.threshold, K,
-                backend, bool(show_progress))
+    options.check_hot_pixels(h * w)
+    K = default_K((h, w)) if options.K is None else np.array(options.K, dtype=np.float64)
+    return _Run(scene, duration_us, (h, w), options, K, bool(show_progress))
 
 
 def simulate(scene: str = "rotation", duration_s: float = 0.1,
              sensor_size: tuple[int, int] = (260, 346), seed: int = 0,
-             texture: str | np.ndarray | Texture = "dots", threshold: float = 0.2,
-             params: dict | None = None, *, image=None, mismatch: float = 0.03,
-             refractory_us: int = 0, noise_rate: float = 0.0, hot_pixels: int = 0,
-             hot_rate: float = 1000.0, frame_rate: float = 100.0,
-             max_step_fraction: float = 0.5, K: np.ndarray | None = None,
-             show_progress: bool = True, backend: str = "numba") -> SimResult:
+             texture: str | np.ndarray | Texture = "dots", threshold: float | None = None,
+             params: dict | None = None, *, image=None, show_progress: bool = True,
+             options: SimOptions | None = None, **keywords) -> SimResult:
     """Simulate an event camera watching a textured scene under a known motion.
 
     The log intensity of the scene is rendered at adaptive time steps chosen so that no
@@ -367,59 +289,64 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
     texture : str, ndarray or Texture
         ``dots``, ``shapes``, ``noise``, ``checker``, an image path or array (mirrored to
         a periodic raster), or a ready :class:`~evmotion.sim.textures.Texture` (used as is).
-    threshold : float
-        Nominal contrast threshold C (log intensity) for ON and OFF events.
+    threshold : float, optional
+        Nominal contrast threshold C (log intensity) for ON and OFF events; default 0.2
+        (a field of :class:`SimOptions`, positional here as it always was).
     params : dict, optional
         Motion parameters overriding the scene defaults (warp units, rates per second).
     image : path or ndarray, optional
         User image as the texture (overrides ``texture``).
-    mismatch : float
-        Relative standard deviation of the per-pixel thresholds (ON and OFF drawn
-        independently, clipped to at least 0.25 C).
-    refractory_us : int
-        Refractory period in µs: a pixel emits no event within this time after its last.
-    noise_rate : float
-        Background-activity noise, events per second per pixel (Poisson, random polarity).
-    hot_pixels : int
-        Number of hot pixels, each firing at ``hot_rate`` events/s (Poisson).
-    frame_rate : float
-        Rate of the virtual ground-truth frames, Hz.
-    max_step_fraction : float
-        Bound on the per-sample log-intensity change, as a fraction of ``threshold``.
-    K : ndarray (3, 3), optional
-        Intrinsics; default :func:`~evmotion.sim.scenes.default_K`.
     show_progress : bool
         Progress bar on stderr (only when it is a terminal).
-    backend : str
-        ``numba`` (default) or ``numpy``: the plain-numpy reference of the kernel, slow,
-        kept for testing and benchmarking; both give identical events.
+    options : SimOptions, optional
+        The event sensor, ground-truth frame rate, intrinsics and backend as one object;
+        then neither ``threshold`` nor the keywords below may be given.
+    **keywords
+        The fields of :class:`SimOptions`, with their defaults: ``mismatch`` (0.03,
+        relative std of the per-pixel thresholds), ``refractory_us`` (0, µs),
+        ``noise_rate`` (0, events/s per pixel), ``hot_pixels`` (0), ``hot_rate``
+        (1000 events/s), ``max_step_fraction`` (0.5: bound on the per-sample
+        log-intensity change, a fraction of the threshold), ``frame_rate`` (100 Hz, the
+        ground-truth frames), ``K`` ((3, 3) intrinsics; default
+        :func:`~evmotion.sim.scenes.default_K`), ``backend`` (``numba``, or ``numpy``:
+        the plain-numpy reference of the kernel, slow, identical events).
 
     Returns
     -------
     SimResult
+
+    Raises
+    ------
+    ParameterError
+        One line naming the bad argument or option (an unknown keyword included).
 
     Examples
     --------
     >>> res = simulate("zoom", duration_s=0.01, sensor_size=(60, 80), seed=1)
     >>> res.events.sensor_size, res.gt.params(0)["hz"]
     ((60, 80), 1.5)
+    >>> quiet = SimOptions(threshold=0.4)
+    >>> res2 = simulate("zoom", duration_s=0.01, sensor_size=(60, 80), seed=1, options=quiet)
+    >>> len(res2.events) < len(res.events)
+    True
     """
-    run = _checked_run(scene, duration_s, sensor_size, threshold, mismatch, refractory_us,
-                       noise_rate, hot_pixels, hot_rate, frame_rate, max_step_fraction, K,
-                       show_progress, backend)
+    if threshold is not None:
+        keywords["threshold"] = threshold
+    opts = resolve_options(SimOptions, options, keywords, "simulate")
+    run = _checked_run(scene, duration_s, sensor_size, opts, show_progress)
     p = resolve_params(scene, params, run.sensor_size)
     layers, texs = build_layers(scene, p, run.sensor_size, run.K, texture, image, seed)
     _check_motion(scene, p, layers, run.duration_us * 1e-6)
     ss = np.random.SeedSequence(seed).spawn(4)
-    cp, cn = _thresholds(np.random.default_rng(ss[2]), run.model.threshold, run.model.mismatch,
+    cp, cn = _thresholds(np.random.default_rng(ss[2]), opts.threshold, opts.mismatch,
                          run.sensor_size)
     x, y, tt, pp, n_samples, n_sub = _signal_events(run, layers, texs, cp, cn)
     events, n_signal, n_noise = _with_noise(x, y, tt, pp, np.random.default_rng(ss[3]),
-                                            run.sensor_size, run.duration_us, run.model,
+                                            run.sensor_size, run.duration_us, opts,
                                             {"simulator": "evmotion.sim", "scene": scene})
     gt = _ground_truth(run, layers, events)
     stats = {"n_events": len(events), "n_signal": int(n_signal), "n_noise": int(n_noise),
-             "n_steps": n_samples, "n_subsamples": n_sub, "threshold": run.model.threshold,
+             "n_steps": n_samples, "n_subsamples": n_sub, "threshold": opts.threshold,
              "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean()),
              "texture": texs[0].name}
     return SimResult(events, gt, scene, p, stats, (cp, cn))
@@ -534,35 +461,39 @@ def _support(tex: Texture):
     return support, np.array([[x0, x1, x1, x0], [y0, y0, y1, y1], [1.0, 1, 1, 1]])
 
 
+def _step_layers(texs, boxes, backend: str) -> tuple[StepLayers, StepLayers]:
+    """The layers of the steps (matrices left out) with padded rasters, as the numba
+    kernels take them, and as ``backend``'s kernel takes them (unpadded for numpy);
+    ``boxes`` is the array the stepper updates in place."""
+    alphas = [t.alpha if t.alpha is not None else np.ones(t.shape, np.float32) for t in texs]
+    origins = np.array([t.origin for t in texs], dtype=np.float64)
+    padded = StepLayers(None, np.stack([pad_periodic(t.log_i) for t in texs]),
+                        np.stack([pad_periodic(a) for a in alphas]), origins, boxes,
+                        textured_cells_sat(texs[0].log_i))
+    if backend == "numpy":
+        return padded, StepLayers(None, np.stack([t.log_i for t in texs]), np.stack(alphas),
+                                  origins)
+    return padded, padded
+
+
 def _signal_events(run: _Run, layers, texs, cp, cn):
     """The events of the moving scene, in time order: ``x, y, t, p`` and the step and
     sub-sample counts."""
     h, w = run.sensor_size
     duration_us = run.duration_us
-    tex_stack = np.stack([pad_periodic(t.log_i) for t in texs])
-    alpha_stack = np.stack([pad_periodic(t.alpha if t.alpha is not None
-                                         else np.ones(t.shape, np.float32)) for t in texs])
-    origins = np.array([t.origin for t in texs], dtype=np.float64)
     stepper = _Stepper(layers, texs, run.sensor_size, duration_us)
-    sat = textured_cells_sat(texs[0].log_i)
-    refr = run.model.refractory_us
-
-    def step(Mseq, t, tb, la, lb, ref, last, bufs):
-        if run.backend == "numpy":
-            return _step_numpy(Mseq, texs, origins, la, lb, ref, cp, cn, last, t, tb, refr,
-                               run.target, *bufs)
-        return sim_step(Mseq, tex_stack, alpha_stack, origins, la, lb, ref, cp, cn, last, t,
-                        tb, refr, run.target, *bufs, stepper.boxes, sat)
-
+    padded, scene = _step_layers(texs, stepper.boxes, run.options.backend)
+    kernel = _step_numpy if run.options.backend == "numpy" else sim_step
+    refr = run.options.refractory_us
     la = np.zeros((h, w), np.float32)
     lb = np.empty((h, w), np.float32)
     m_start = stepper.mats(0, 0)[0]
     stepper.update_boxes(m_start, m_start)
-    render_log(m_start, tex_stack, alpha_stack, origins, la, stepper.boxes)
+    render_log(m_start, padded.texs, padded.alphas, padded.origins, la, stepper.boxes)
     ref = la.astype(np.float64)
     last = np.full((h, w), np.iinfo(np.int64).min // 2, dtype=np.int64)
     ref_bak, last_bak = ref.copy(), last.copy()
-    bufs = _event_buffers(h * w * 4)
+    bufs = EventBuffers.empty(h * w * 4)
     chunks = []
     packed = (duration_us + 1) * 2 * h * w < 2 ** 62  # the sort key fits in an int64
     t, dt, n_samples, n_sub = 0, 200, 0, 0
@@ -579,13 +510,14 @@ def _signal_events(run: _Run, layers, texs, cp, cn):
         np.copyto(ref_bak, ref)
         np.copyto(last_bak, last)
         while True:
-            n, ns = step(Mseq, t, tb, la, lb, ref, last, bufs)
-            if n <= bufs[0].size:
+            n, ns = kernel(scene._replace(Mseq=Mseq), PixelState(la, lb, ref, cp, cn, last),
+                           bufs, t, tb, refr, run.options.target)
+            if n <= bufs.x.size:
                 break
             # the buffers overflowed: redo the step with room for every event
             np.copyto(ref, ref_bak)
             np.copyto(last, last_bak)
-            bufs = _event_buffers(2 * n)
+            bufs = EventBuffers.empty(2 * n)
         if n:
             chunks.append(_sorted_chunk(*bufs, n, w, h, packed))
         n_samples += 1
@@ -610,7 +542,8 @@ def _next_step(dt: int, taken: int, d: float) -> int:
     return dt
 
 
-def _with_noise(x, y, tt, pp, rng, sensor_size, duration_us, model: EventModel, meta: dict):
+def _with_noise(x, y, tt, pp, rng, sensor_size, duration_us, model: EventOptions,
+                meta: dict):
     """The EventArray of the signal events plus the model's noise (the refractory period
     applied to the merged stream); also the signal and noise counts."""
     n_signal = x.size
@@ -626,7 +559,7 @@ def _with_noise(x, y, tt, pp, rng, sensor_size, duration_us, model: EventModel, 
 
 
 def _ground_truth(run: _Run, layers, events: EventArray) -> GroundTruth:
-    period = 1e6 / run.frame_rate
+    period = 1e6 / run.options.frame_rate
     frame_times = np.round(np.arange(0, run.duration_us + 0.5 * period, period)).astype(np.int64)
     frame_times = frame_times[frame_times <= run.duration_us]
     omega = None
@@ -675,12 +608,9 @@ def _base_steps(duration_us: int, breaks_us, max_step_us: int) -> list[tuple[int
 
 
 def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int, *,
-                          breaks_us=None, max_step_us: int = 1000, threshold: float = 0.2,
-                          mismatch: float = 0.03, refractory_us: int = 0,
-                          noise_rate: float = 0.0, hot_pixels: int = 0,
-                          hot_rate: float = 1000.0, seed: int = 0,
-                          max_step_fraction: float = 0.5, show_progress: bool = False,
-                          meta: dict | None = None) -> LogSimResult:
+                          breaks_us=None, max_step_us: int = 1000, seed: int = 0,
+                          show_progress: bool = False, meta: dict | None = None,
+                          options: EventOptions | None = None, **keywords) -> LogSimResult:
     """Events of a sensor watching a log intensity given as a function of time.
 
     The same event model as :func:`simulate` (per-pixel threshold mismatch, crossings at
@@ -710,16 +640,20 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     max_step_us : int
         Longest step; bounds the motion between full-sensor samples (a pixel whose log
         intensity leaves and comes back within one step is not re-sampled).
-    threshold, mismatch, refractory_us, noise_rate, hot_pixels, hot_rate
-        As :func:`simulate`.
     seed : int
         Seeds threshold mismatch and noise.
-    max_step_fraction : float
-        Bound on the per-sample log-intensity change, as a fraction of ``threshold``.
     show_progress : bool
         Progress bar on stderr (only when it is a terminal).
     meta : dict, optional
         Stored in the events' ``meta``.
+    options : EventOptions, optional
+        The event sensor as one object (a :class:`SimOptions` works too; its frame rate,
+        intrinsics and backend do not apply); then no keyword below may be given.
+    **keywords
+        The fields of :class:`EventOptions`: ``threshold``, ``mismatch``,
+        ``refractory_us``, ``noise_rate``, ``hot_pixels``, ``hot_rate`` (as
+        :func:`simulate`) and ``max_step_fraction`` (bound on the per-sample
+        log-intensity change, as a fraction of ``threshold``).
 
     Returns
     -------
@@ -737,10 +671,10 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     duration_us = int(duration_us)
     if duration_us < 1:
         raise ParameterError(f"duration_us must be at least 1, got {duration_us!r}")
-    max_step_us = int(_check("max_step_us", max_step_us, lo=1))
-    model = EventModel.checked(h * w, threshold, mismatch, refractory_us, noise_rate,
-                               hot_rate, hot_pixels)
-    target = _check("max_step_fraction", max_step_fraction, strict=True) * model.threshold
+    max_step_us = int(check_number("max_step_us", max_step_us, 1, units="µs"))
+    model = resolve_options(EventOptions, options, keywords, "simulate_log_function")
+    model.check_hot_pixels(h * w)
+    target = model.target
     ss = np.random.SeedSequence(seed).spawn(2)
     cp, cn = _thresholds(np.random.default_rng(ss[0]), model.threshold, model.mismatch, h * w)
 
@@ -748,7 +682,7 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     la = full(0)
     ref = la.copy()
     last = np.full(h * w, np.iinfo(np.int64).min // 2, dtype=np.int64)
-    bufs = _event_buffers(max(1024, h * w))
+    bufs = EventBuffers.empty(max(1024, h * w))
     packed = (duration_us + 1) * 2 * h * w < 2 ** 62
     chunks = []
     todo = _base_steps(duration_us, breaks_us, max_step_us)[::-1]
@@ -770,12 +704,12 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
             n = 0
             for times, pix, vals in samples:
                 n = emit_crossings(vals, times, pix, w, ref, cp, cn, last,
-                                   model.refractory_us, *bufs, n)
-            if n <= bufs[0].size:
+                                   model.refractory_us, bufs, n)
+            if n <= bufs.x.size:
                 break
             # the buffers overflowed: redo the step with room for every event
             ref, last = ref_bak, last_bak
-            bufs = _event_buffers(2 * n)
+            bufs = EventBuffers.empty(2 * n)
         if n:
             chunks.append(_sorted_chunk(*bufs, n, w, h, packed))
         n_steps += 1

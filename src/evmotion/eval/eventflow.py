@@ -1,0 +1,292 @@
+"""Accuracy of per-event flow (one velocity per event, e.g. the triplet matcher's output)
+against dense ground-truth flow windows.
+
+Each event ``k`` at ``(x_k, y_k, t_k)`` with a flow (its ``valid`` flag) is compared with the
+ground truth of the GT window ``[t0_j, t1_j)`` that contains ``t_k``, held constant over
+the window (as ``evmotion eval`` integrates the same ground truth for dense windows; the
+simulator's windows are its frame intervals with the flow at their start, MVSEC's and
+DSEC's the displacement over the interval divided by its duration), looked up bilinearly
+at the event's sub-pixel position. The errors are reported in px/s and, as in the MVSEC
+protocol, as displacements in px over ``frames`` GT frame intervals: both vectors times
+``frames * (t1_j - t0_j)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.eval.metrics import NPE_THRESHOLDS
+
+if TYPE_CHECKING:
+    from evmotion.io.eventflow import EventFlow
+    from evmotion.io.flowfiles import FlowSequence
+
+__all__ = ["EventFlowMetrics", "event_flow_metrics"]
+
+
+@dataclass(frozen=True)
+class EventFlowMetrics:
+    """Per-event flow accuracy over the scored events (valid flow and valid ground truth).
+
+    Attributes
+    ----------
+    aee : float
+        Average endpoint error in px of displacement over ``frames`` GT frame intervals.
+    aee_px_s : float
+        Average endpoint error of the velocities in px/s.
+    npe : dict of int to float
+        ``npe[N]``: percentage of scored events with a displacement error > N px.
+    pct_out : float
+        Percentage of scored events with a displacement error > ``out_px`` px.
+    ae_deg : float
+        Mean angle in degrees between the space-time vectors ``(dx, dy, 1)`` of the
+        displacements (so it depends on ``frames``, as the dense AE on the window).
+    n_events : int
+        Events in the file.
+    n_scored : int
+        Events with a flow and ground truth: the ones averaged over.
+    n_no_flow : int
+        Events the estimator gave no flow (``valid`` false).
+    n_no_gt : int
+        Events with a flow but no ground truth: outside every GT window, off the GT grid,
+        or on a pixel whose ground truth is invalid.
+    frames : float
+        GT frame intervals the displacements span (MVSEC ``dt``).
+    out_px : float
+        %Out threshold in px.
+    windows : tuple of dict
+        One row per GT window with scored events (``window`` index in the GT,
+        ``t0_us``, ``t1_us``, ``n_events``, ``AEE``, ``AEE_px_s``, ``%Out``, ``AE_deg``),
+        when asked for; empty otherwise.
+    """
+
+    aee: float
+    aee_px_s: float
+    npe: dict[int, float]
+    pct_out: float
+    ae_deg: float
+    n_events: int
+    n_scored: int
+    n_no_flow: int
+    n_no_gt: int
+    frames: float
+    out_px: float
+    windows: tuple[dict, ...] = field(default_factory=tuple)
+
+    @property
+    def valid_fraction(self) -> float:
+        """Share of the events that have a flow (0..1)."""
+        return (self.n_events - self.n_no_flow) / self.n_events
+
+    @property
+    def scored_fraction(self) -> float:
+        """Share of the events scored (0..1)."""
+        return self.n_scored / self.n_events
+
+    def as_dict(self) -> dict[str, float | int]:
+        """Flat dict (``"3PE"`` style keys, as :meth:`FlowMetrics.as_dict`) without the
+        per-window rows."""
+        d: dict[str, float | int] = {"AEE": self.aee, "AEE_px_s": self.aee_px_s}
+        d.update({f"{n}PE": v for n, v in self.npe.items()})
+        d.update({"%Out": self.pct_out, "AE_deg": self.ae_deg, "n_events": self.n_events,
+                  "n_scored": self.n_scored, "n_no_flow": self.n_no_flow,
+                  "n_no_gt": self.n_no_gt, "valid_fraction": self.valid_fraction,
+                  "scored_fraction": self.scored_fraction})
+        return d
+
+
+def event_flow_metrics(
+    event_flow: EventFlow | Mapping[str, np.ndarray],
+    gt: FlowSequence,
+    *,
+    frames: float = 1.0,
+    out_px: float = 3.0,
+    npe_thresholds: Iterable[int] = NPE_THRESHOLDS,
+    per_window: bool = False,
+) -> EventFlowMetrics:
+    """Accuracy of a per-event flow against ground-truth flow windows.
+
+    Parameters
+    ----------
+    event_flow : EventFlow or mapping of str to ndarray
+        Per-event columns (:func:`evmotion.io.eventflow.read_event_flow`): ``t`` (N,) int
+        µs, ``x``, ``y`` (N,) px (column, row; sub-pixel when undistorted), ``vx``, ``vy``
+        (N,) px/s (u right, v down) and optionally ``valid`` (N,) bool (default: every
+        event has a flow). An :class:`~evmotion.io.eventflow.EventFlow`'s ``sensor_size``
+        must equal the ground truth's.
+    gt : FlowSequence
+        Ground truth (:func:`evmotion.io.flowfiles.read_gt_flow`): ``flow`` (M, H, W, 2)
+        px/s, ``t0``, ``t1`` (M,) µs, ``valid`` (M, H, W) bool or None.
+    frames : float
+        The displacements span ``frames`` times the duration of the GT window that holds
+        the event (MVSEC ``dt = 1`` or ``4``; > 0).
+    out_px : float
+        %Out threshold in px of displacement (thesis §4.3.1: 3 px).
+    npe_thresholds : iterable of int
+        N values for the NPE percentages in px (default 1, 2, 3, 5, 10, 20).
+    per_window : bool
+        Also return one row per GT window (:attr:`EventFlowMetrics.windows`).
+
+    Returns
+    -------
+    EventFlowMetrics
+        Means over the scored events (each event weighs the same, whatever its window).
+        The GT at an event is the bilinear interpolation of the valid GT pixels around it;
+        the event is scored when the GT pixel nearest to it is valid (finite, and in
+        ``gt.valid``).
+
+    Raises
+    ------
+    EmptyWindowError
+        No event, or no event with both a flow and ground truth (the message gives the
+        events' and the ground truth's time spans).
+    ParameterError
+        Columns of different lengths, a grid other than the ground truth's, an event with
+        a flow that is NaN/inf, ``frames`` or ``out_px`` not finite and > 0.
+
+    Examples
+    --------
+    >>> from evmotion.io.flowfiles import FlowSequence
+    >>> gt = FlowSequence(flow=np.full((1, 4, 5, 2), [100.0, 0.0], np.float32),
+    ...                   t0=np.array([0]), t1=np.array([10_000]))
+    >>> ev = {"t": np.array([1_000, 9_000]), "x": np.array([1.0, 2.5]),
+    ...       "y": np.array([1.0, 2.0]), "vx": np.array([100.0, 400.0]), "vy": np.zeros(2)}
+    >>> m = event_flow_metrics(ev, gt)  # errors 0 and 300 px/s, 0 and 3 px over 10 ms
+    >>> m.aee_px_s, m.aee, m.pct_out, m.n_scored
+    (150.0, 1.5, 0.0, 2)
+    """
+    for name, value in (("frames", frames), ("out_px", out_px)):
+        if not (np.isfinite(value) and value > 0):
+            raise ParameterError(f"{name} must be a finite number > 0, got {value!r}")
+    cols = {k: np.asarray(event_flow[k]) for k in ("t", "x", "y", "vx", "vy")}
+    if _has_valid(event_flow):
+        cols["valid"] = np.asarray(event_flow["valid"])
+    shapes = {k: a.shape for k, a in cols.items()}
+    if len(set(shapes.values())) != 1 or cols["t"].ndim != 1:
+        raise ParameterError(f"per-event columns must be 1-D of one length, got shapes {shapes}")
+    n = cols["t"].shape[0]
+    t = cols["t"].astype(np.int64)
+    x = cols["x"].astype(np.float64)
+    y = cols["y"].astype(np.float64)
+    vel = np.stack([cols["vx"], cols["vy"]], axis=1).astype(np.float64)
+    valid = cols["valid"].astype(bool) if "valid" in cols else np.ones(n, bool)
+    if n == 0:
+        raise EmptyWindowError("no events: the per-event flow is empty")
+    gflow, gt0, gt1, gvalid = _gt_arrays(gt)
+    h, w = gflow.shape[1:3]
+    size = getattr(event_flow, "sensor_size", None)
+    if size is not None and tuple(int(s) for s in size) != (h, w):
+        raise ParameterError(f"the per-event flow is on a {tuple(size)} px grid but the ground "
+                             f"truth is {(h, w)} px (height, width)")
+    bad = valid & ~np.isfinite(vel).all(axis=1)
+    if bad.any():
+        raise ParameterError(f"{int(bad.sum())} events marked valid have a NaN/inf flow "
+                             f"(first at t={int(t[bad][0])} µs)")
+
+    # the GT window holding each event: the latest one starting at or before it
+    order = np.argsort(gt0, kind="stable")
+    k = np.searchsorted(gt0[order], t, side="right") - 1
+    win = order[np.clip(k, 0, None)]
+    has_gt = (k >= 0) & (t < gt1[win]) & (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
+    cand = np.flatnonzero(valid & has_gt)
+    gvel, ok = _sample_gt(gflow, gvalid, win[cand], x[cand], y[cand])
+    sel = cand[ok]
+    n_no_flow = int(n - valid.sum())
+    if sel.size == 0:
+        raise EmptyWindowError(
+            f"no event has both a flow and ground truth: {n} events ({n - n_no_flow} with a "
+            f"flow) at t = {int(t.min())}..{int(t.max())} µs, ground truth {gt0.size} "
+            f"windows at t = {int(gt0.min()) if gt0.size else 0}.."
+            f"{int(gt1.max()) if gt1.size else 0} µs")
+    win = win[sel]
+    dur_s = (gt1[win] - gt0[win]).astype(np.float64) * 1e-6 * float(frames)
+    est = vel[sel]
+    ref = gvel[ok]
+    err_s = np.hypot(est[:, 0] - ref[:, 0], est[:, 1] - ref[:, 1])
+    ee = err_s * dur_s
+    de, dg = est * dur_s[:, None], ref * dur_s[:, None]
+    num = (de * dg).sum(axis=1) + 1.0
+    den = np.sqrt((de * de).sum(axis=1) + 1.0) * np.sqrt((dg * dg).sum(axis=1) + 1.0)
+    ae = np.degrees(np.arccos(np.clip(num / den, -1.0, 1.0)))
+    out = ee > out_px
+    rows: tuple[dict, ...] = ()
+    if per_window:
+        rows = _window_rows(win, gt0, gt1, ee, err_s, out, ae)
+    return EventFlowMetrics(
+        aee=float(ee.mean()), aee_px_s=float(err_s.mean()),
+        npe={int(m): float(100.0 * np.mean(ee > int(m))) for m in npe_thresholds},
+        pct_out=float(100.0 * out.mean()), ae_deg=float(ae.mean()), n_events=int(n),
+        n_scored=int(sel.size), n_no_flow=n_no_flow, n_no_gt=int(n - n_no_flow - sel.size),
+        frames=float(frames), out_px=float(out_px), windows=rows)
+
+
+def _has_valid(event_flow) -> bool:
+    try:
+        event_flow["valid"]
+    except KeyError:
+        return False
+    return True
+
+
+def _gt_arrays(gt) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    flow = np.asarray(gt.flow)
+    t0 = np.asarray(gt.t0, dtype=np.int64)
+    t1 = np.asarray(gt.t1, dtype=np.int64)
+    if flow.ndim != 4 or flow.shape[-1] != 2 or t0.shape != (flow.shape[0],) \
+            or t1.shape != t0.shape:
+        raise ParameterError(f"ground truth flow must be (M, H, W, 2) with t0, t1 (M,), got "
+                             f"flow {flow.shape}, t0 {t0.shape}, t1 {t1.shape}")
+    if flow.shape[0] == 0:
+        raise EmptyWindowError("the ground truth has no window")
+    valid = None if gt.valid is None else np.asarray(gt.valid, dtype=bool)
+    if valid is not None and valid.shape != flow.shape[:3]:
+        raise ParameterError(f"ground truth valid is {valid.shape}, expected {flow.shape[:3]}")
+    return flow, t0, t1, valid
+
+
+def _sample_gt(flow: np.ndarray, valid: np.ndarray | None, j: np.ndarray, x: np.ndarray,
+               y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """GT flow of window ``j[k]`` at ``(x[k], y[k])`` (inside the grid): bilinear over the
+    valid ones of the four pixels around it, renormalised, so that an invalid neighbour
+    (MVSEC's zero, NaN) does not pull the value towards zero; usable where the nearest
+    pixel is valid (its weight is then >= 1/4)."""
+    h, w = flow.shape[1:3]
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(w - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(h - 2, 0))
+    ax, ay = x - x0, y - y0
+    num = np.zeros((x.size, 2))
+    den = np.zeros(x.size)
+    for dy, dx, wgt in ((0, 0, (1 - ax) * (1 - ay)), (0, 1, ax * (1 - ay)),
+                        (1, 0, (1 - ax) * ay), (1, 1, ax * ay)):
+        yy, xx = np.minimum(y0 + dy, h - 1), np.minimum(x0 + dx, w - 1)
+        f = flow[j, yy, xx].astype(np.float64)
+        good = np.isfinite(f).all(axis=1)
+        if valid is not None:
+            good &= valid[j, yy, xx]
+        wk = np.where(good, wgt, 0.0)
+        num += np.where(good[:, None], f, 0.0) * wk[:, None]
+        den += wk
+    yi, xi = np.rint(y).astype(np.int64), np.rint(x).astype(np.int64)
+    near = flow[j, yi, xi]
+    ok = np.isfinite(near).all(axis=1)
+    if valid is not None:
+        ok &= valid[j, yi, xi]
+    return num / np.where(ok, den, 1.0)[:, None], ok
+
+
+def _window_rows(win, gt0, gt1, ee, err_s, out, ae) -> tuple[dict, ...]:
+    ids, inv, counts = np.unique(win, return_inverse=True, return_counts=True)
+
+    def mean(v):
+        return np.bincount(inv, weights=v, minlength=ids.size) / counts
+
+    aee, aee_s, pct, aed = mean(ee), mean(err_s), 100.0 * mean(out.astype(float)), mean(ae)
+    return tuple({"window": int(i), "t0_us": int(gt0[i]), "t1_us": int(gt1[i]),
+                  "n_events": int(c), "AEE": float(a), "AEE_px_s": float(s),
+                  "%Out": float(p), "AE_deg": float(d)}
+                 for i, c, a, s, p, d in zip(ids, counts, aee, aee_s, pct, aed, strict=True))

@@ -1,0 +1,100 @@
+"""Multi-reference flow over many windows in parallel, what
+:func:`evmotion.methods.multicm.estimate_flow_sequence` runs with ``workers > 1`` or a
+``scheduler``: the windows are split into contiguous chunks, one per worker, and each
+chunk is estimated window after window, every window warm-started from the one before (the
+first window of a chunk from zero flow), on local worker processes or a Dask cluster
+(:func:`evmotion.parallel.map_windows`).
+
+The same chunks give the same flow whoever runs them: ``workers`` chunks on a cluster equal
+``workers`` local processes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from evmotion.errors import ParameterError
+from evmotion.events import EventArray, Window
+
+__all__ = ["estimate_in_chunks"]
+
+
+def _lean(res, keep_iwes: bool):
+    # the four full-size IWEs are 15 MB a window at 1280x720: drop them unless wanted
+    return res if keep_iwes else dataclasses.replace(res, iwes={})
+
+
+def _chunk(events: EventArray, t0: int, t1: int, *, windows, kwargs, keep_iwes):
+    """Worker: the windows of one chunk ``[t0, t1)`` µs, warm-started in sequence.
+    ``events`` are the chunk's events; ``windows`` carry their index ranges in the whole
+    recording, so that each window gets exactly the events of a serial run (cutting by
+    time would move events that share a timestamp across a boundary)."""
+    from evmotion.methods.multicm import estimate_flow_sequence
+
+    mine = [w for w in windows if t0 <= w.t0 < t1]
+    offset = mine[0].start if mine else 0
+    rebased = [Window(w.index, w.t0, w.t1, w.start - offset, w.stop - offset) for w in mine]
+    return [_lean(res, keep_iwes) for res in estimate_flow_sequence(events, rebased, **kwargs)]
+
+
+def estimate_in_chunks(events: EventArray, windows: Sequence[Window], *, workers: int = 2,
+                          scheduler: Any = None, keep_iwes: bool = True,
+                          **kwargs: Any) -> list:
+    """Multi-reference flow of every window, in window order, from contiguous chunks of
+    windows run in parallel (see the module).
+
+    Parameters
+    ----------
+    events : EventArray
+        The recording.
+    windows : sequence of Window
+        Windows with their index ranges (:func:`evmotion.events.make_windows`), in time
+        order.
+    workers : int
+        Number of chunks (and local worker processes).
+    scheduler : distributed.Client, optional
+        Run the chunks on this Dask cluster instead of local processes.
+    keep_iwes : bool
+        Keep each result's images of warped events (large at high resolution).
+    **kwargs
+        Options of :func:`evmotion.methods.multicm.estimate_flow` (``init`` is refused:
+        each chunk starts from zero flow).
+
+    Returns
+    -------
+    list of MultiCMResult
+
+    Raises
+    ------
+    ParameterError
+        A chunk failed, or windows starting at the same µs could not be cut into chunks.
+    """
+    from evmotion.parallel import map_windows
+
+    if workers < 1:
+        raise ParameterError(f"workers must be >= 1, got {workers}")
+    if kwargs.get("init") is not None:
+        raise ParameterError("init cannot seed windows split into chunks (each chunk "
+                             "starts from zero flow); use workers=1")
+    fn = functools.partial(_chunk, windows=list(windows), kwargs=kwargs, keep_iwes=keep_iwes)
+    bounds = np.linspace(0, len(windows), min(workers, len(windows)) + 1).astype(int)
+    # a Window is sent by its index range: the chunk's events, exactly
+    chunks = [Window(k, windows[a].t0, windows[b - 1].t1, windows[a].start,
+                     windows[b - 1].stop)
+              for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)) if b > a]
+    results = map_windows(fn, events, chunks, workers=workers, scheduler=scheduler,
+                          with_window=True, desc="multicm")
+    for r in results:
+        if not r.ok:
+            raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
+    flows = [res for r in results for res in r.value]
+    if len(flows) != len(windows):
+        # only where more than a window's worth of events share one timestamp
+        raise ParameterError(f"{len(windows)} windows but the chunks made {len(flows)}: "
+                             "windows starting at the same µs; use --window-us")
+    return flows
