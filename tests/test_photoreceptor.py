@@ -111,3 +111,15 @@ def test_schlieren_events_in_dim_light_intensity_vs_fixed():
     # the fixed bandwidth's noise (std 0.18-0.47 on white-to-dot pixels, redrawn every ms)
     # fires many times more events than the low-passed photoreceptor (std 0.079)
     assert len(fixed.events) > 5 * len(slow.events)
+
+
+def test_cli_event_bandwidth_reaches_the_ground_truth(tmp_path):
+    from evmotion.cli import main
+    from evmotion.sim.schlieren import read_schlieren_gt
+
+    out = tmp_path / "dim"
+    assert main(["simulate", "schlieren", "--size", "40x48", "--duration", str(1 / 120),
+                 "--event-photons", "30", "--event-bandwidth", "intensity",
+                 "--out", str(out)]) == 0
+    meta = read_schlieren_gt(out).meta
+    assert meta["event_bandwidth"] == "intensity" and meta["event_photons"] == 30

@@ -104,6 +104,10 @@ def add_parser(sub) -> None:
                         "the events (low light); default none")
     g.add_argument("--event-tau-us", type=int_range(1, 1_000_000, unit="µs"), default=None,
                    help="time constant of the events' shot noise, µs (1000)")
+    g.add_argument("--event-bandwidth", choices=("fixed", "intensity"), default=None,
+                   help="event photoreceptor under --event-photons: 'fixed' noise bandwidth "
+                        "(worst case, default) or 'intensity' (the DVS's time constant "
+                        "grows as the light falls; from --event-tau-us in bright light)")
     g.add_argument("--exposure", type=nonnegative_float(unit="s"), default=None,
                    help="exposure, s (default half the frame period)")
     g.add_argument("--dot-density", type=finite_float(0, 2, lo_open=True, unit="dots/px²"),
@@ -170,6 +174,7 @@ MOTION_ONLY = {"--format": "format", "--texture": "texture", "--image": "image",
 SCHLIEREN_ONLY = {"--scene": "bos_scene", "--fps": "fps", "--magnitude": "magnitude",
                   "--speed": "speed", "--photons": "photons", "--gain": "gain",
                   "--event-photons": "event_photons", "--event-tau-us": "event_tau_us",
+                  "--event-bandwidth": "event_bandwidth",
                   "--exposure": "exposure", "--dot-density": "dot_density",
                   "--dot-radius": "dot_radius"}
 
@@ -199,6 +204,9 @@ def run_schlieren(args) -> int:
                              f"period at --fps {fps:g} ({1.0 / fps:.6g} s)")
     if args.gain is not None and args.photons is None:
         raise ParameterError(f"--gain {args.gain:g} needs --photons (shot-noise mode)")
+    if args.event_bandwidth == "intensity" and args.event_photons is None:
+        raise ParameterError("--event-bandwidth intensity needs --event-photons (the "
+                             "photoreceptor's time constant depends on the light)")
     check_folder(args.out, "--out")
     opts = SchlierenOptions(magnitude_px=_or(args.magnitude, 1.0),
                             dot_density=_or(args.dot_density, 0.06),
@@ -207,7 +215,8 @@ def run_schlieren(args) -> int:
                             contrast_threshold=args.threshold, mismatch=args.mismatch,
                             refractory_us=args.refractory_us, noise_rate=args.noise_rate,
                             event_photons=args.event_photons,
-                            event_tau_us=_or(args.event_tau_us, 1000))
+                            event_tau_us=_or(args.event_tau_us, 1000),
+                            event_bandwidth=_or(args.event_bandwidth, "fixed"))
     sim = simulate_schlieren(scene, sensor_size=size, duration_s=args.duration, fps=fps,
                              seed=args.seed, show_progress=not args.json, options=opts)
     gt_path = write_schlieren(sim, args.out)
