@@ -23,7 +23,8 @@ simulator as an intensity-dependent first-order low-pass, Hu, Liu & Delbruck, CV
         tau(n) = tau_us * clip(NOISE_PHOTONS / n, 1, TAU_RATIO_MAX)
 
     ``tau_us`` is the bright-light time constant; below ``NOISE_PHOTONS`` photons per
-    ``tau_us`` the pixel integrates over ``NOISE_PHOTONS`` photons, so its noise (the
+    ``tau_us`` the time constant is ``NOISE_PHOTONS`` over the photon flux (whatever
+    ``tau_us``): the pixel integrates over ``NOISE_PHOTONS`` photons, so its noise (the
     stationary standard deviation of ``y - log I``, ``1 / sqrt(n * tau / tau_us)``) stays
     at ``1 / sqrt(NOISE_PHOTONS)`` while its response slows, down to ``TAU_RATIO_MAX``
     times ``tau_us``; darker still, the noise grows again. The filter is advanced exactly
