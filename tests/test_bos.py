@@ -20,6 +20,9 @@ from evmotion.methods.bos import (
 )
 from evmotion.methods.bos_kernels import (
     LevelBuffers,
+    LevelGrid,
+    LevelImages,
+    ObjectiveTerms,
     interp_index,
     objective_grad,
     upsample,
@@ -89,8 +92,9 @@ def test_objective_kernel_vs_numpy_and_fd(normalized, use_p, k):
 
     buf = LevelBuffers(h, w, 4, np.float64)
     grad = np.zeros_like(xpatch)
-    got = objective_grad(xpatch, iy, fy, ix, fx, gimg, meas, weight, s_meas, 1.0 / k, *lam,
-                         normalized, use_p, buf, grad)
+    got = objective_grad(xpatch, LevelGrid(iy, fy, ix, fx, 1.0 / k),
+                         LevelImages(gimg, meas, weight, s_meas),
+                         ObjectiveTerms(*lam, normalized, use_p), buf, grad)
     np.testing.assert_allclose(got, ref(xpatch), rtol=1e-10, atol=1e-12)
     step = 1e-6
     for idx in np.ndindex(*xpatch.shape):
