@@ -34,10 +34,8 @@ class PenaltyEvents(NamedTuple):
 
     Attributes
     ----------
-    x, y : array (N,)
-        Event pixels.
-    dt : array (N,)
-        ``t_k - t_ref`` in seconds.
+    x, y, dt : array (N,)
+        The events: pixels and ``t_k - t_ref`` in seconds.
     xw, yw : array (N,), optional
         The events warped with the parameters evaluated.
     jx, jy : array (N, P), optional

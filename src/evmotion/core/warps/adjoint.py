@@ -30,7 +30,7 @@ from evmotion.errors import ParameterError
 
 __all__ = ["DIV_BLOCK", "VALUE_KINDS", "AdjointInput", "FusedAdjoint", "bilinear_sample",
            "cell_diff", "event_cell", "pad_diff", "pad_image", "pad_index", "src_diff",
-           "warped_cell"]
+           "store_sums", "warped_cell"]
 
 #: Events per block of the rotation's block loop (the blocks of ``reduce_pair``'s
 #: ``blocks``, :mod:`evmotion.core.trim`).
@@ -133,6 +133,13 @@ def src_diff(pair, a, fx, fy, e, i, src):
     _, _, _, pad, h, wd, _, _ = src
     wp = wd + 2
     return pad_diff(pair, a, fx, fy, e, pad, i, wp, (h + 2) * wp)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def store_sums(acc, out):
+    """``out[j] = acc[j]``: a loop's sums (a tuple) into the (P,) result."""
+    for j in range(out.shape[0]):
+        out[j] = acc[j]
 
 
 #: :meth:`FusedAdjoint.reduce_pair`'s ``derivs`` -> the kernels' value kind ``vk``.

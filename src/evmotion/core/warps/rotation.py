@@ -17,6 +17,7 @@ from evmotion.core.warps.adjoint import (
     FusedAdjoint,
     event_cell,
     src_diff,
+    store_sums,
     warped_cell,
 )
 from evmotion.core.warps.base import Warp
@@ -373,9 +374,7 @@ def _rot_adj_plain(mode, fuse, use_w):
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
     def rot_adj(ev, prm, src, out):
-        acc = _rot_loop(mode, fuse, use_w, False, ev, prm, src)
-        for j in range(3):
-            out[j] = acc[j]
+        store_sums(_rot_loop(mode, fuse, use_w, False, ev, prm, src), out)
 
     return rot_adj
 
@@ -389,9 +388,7 @@ def _rot_adj_blocks(mode, pair, vk):
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
     def rot_adj_blocks(ev, prm, src, blk, out):
-        acc = _rot_block_loop(mode, pair, vk, ev, prm, src, blk)
-        for j in range(3):
-            out[j] = acc[j]
+        store_sums(_rot_block_loop(mode, pair, vk, ev, prm, src, blk), out)
 
     return rot_adj_blocks
 

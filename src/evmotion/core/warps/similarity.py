@@ -9,7 +9,13 @@ import math
 import numpy as np
 from numba import njit
 
-from evmotion.core.warps.adjoint import AdjointInput, FusedAdjoint, src_diff, warped_cell
+from evmotion.core.warps.adjoint import (
+    AdjointInput,
+    FusedAdjoint,
+    src_diff,
+    store_sums,
+    warped_cell,
+)
 from evmotion.core.warps.base import Warp
 from evmotion.core.warps.common import BLOCK, FAST_FINITE, max_abs
 from evmotion.core.warps.so3 import rod_coeffs_short, sincos_any, sincos_block
@@ -130,9 +136,7 @@ def _similarity_adj_case(small, fuse, use_w, pair, vk):
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
     def similarity_adj(ev, prm, src, out):
-        acc = _similarity_loop(small, fuse, use_w, pair, vk, ev, prm, src)
-        for j in range(out.shape[0]):
-            out[j] = acc[j]
+        store_sums(_similarity_loop(small, fuse, use_w, pair, vk, ev, prm, src), out)
 
     return similarity_adj
 

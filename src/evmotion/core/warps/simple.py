@@ -9,7 +9,13 @@ import math
 import numpy as np
 from numba import njit
 
-from evmotion.core.warps.adjoint import AdjointInput, FusedAdjoint, event_cell, src_diff
+from evmotion.core.warps.adjoint import (
+    AdjointInput,
+    FusedAdjoint,
+    event_cell,
+    src_diff,
+    store_sums,
+)
 from evmotion.core.warps.base import Warp
 from evmotion.core.warps.common import FAST_FINITE
 from evmotion.jitcache import kernel_case
@@ -169,9 +175,7 @@ def _simple_adj_case(kind, fuse, use_w, pair, vk):
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
     def simple_adj(ev, prm, src, out):
-        acc = _simple_loop(kind, fuse, use_w, pair, vk, ev, prm, src)
-        for j in range(out.shape[0]):
-            out[j] = acc[j]
+        store_sums(_simple_loop(kind, fuse, use_w, pair, vk, ev, prm, src), out)
 
     return simple_adj
 
