@@ -161,6 +161,9 @@ def _rcad(warp, ev, theta, shape, options, grad):
                            int(options.stride), grad, ev.span)
 
 
+_DEFAULT_OPTIONS = PenaltyOptions()
+
+
 #: Name -> function(warp, events (:class:`PenaltyEvents`), theta, shape, options
 #: (:class:`PenaltyOptions`), grad) -> (value, grad (P,)).
 REGULARIZERS = {"divergence": _divergence, "deformation": _deformation, "rcad": _rcad}
@@ -230,7 +233,7 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
     jx, jy = (None, None) if jac is None else jac
     ev = PenaltyEvents(x, y, dt, xw, yw, jx, jy, span, count)
     return REGULARIZERS[name](warp, ev, theta, shape,
-                              PenaltyOptions() if options is None else options, grad)
+                              _DEFAULT_OPTIONS if options is None else options, grad)
 
 
 def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,

@@ -184,9 +184,10 @@ class AdjointInput(NamedTuple):
     blk: np.ndarray = NO_BLOCKS
 
     def kernel_args(self) -> tuple:
-        """The plain tuple the kernels take: ``(gx, gy, wts, pad, h, wd, scale, T)``."""
-        return (self.gx, self.gy, self.wts, self.pad, int(self.h), int(self.wd),
-                float(self.scale), float(self.T))
+        """The plain tuple the kernels take: ``(gx, gy, wts, pad, h, wd, scale, T)`` (a
+        slice: the callers build ``h, wd`` as ints and ``scale, T`` as floats, so that
+        every call has the kernels' one signature)."""
+        return self[:8]
 
     def case(self, derivs: bool = True) -> tuple[bool, bool, bool, int]:
         """``(fuse, use_w, pair, vk)``: whether the pixel gradients come from a padded image,
