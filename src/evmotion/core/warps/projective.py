@@ -13,10 +13,9 @@ from evmotion.core.warps.common import FAST_FINITE
 __all__ = ["AffineWarp", "HomographyWarp"]
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _inv33(h):
-    """The inverse of the 3x3 matrix ``h`` (a 9-tuple, row by row) by cofactors, its nine
+def _inv33(h00, h01, h02, h10, h11, h12, h20, h21, h22):
+    """The inverse of the 3x3 matrix ``h`` (entries row by row) by cofactors, its nine
     entries row by row, and ``1 / det h`` (real or complex: complex-step derivatives)."""
-    h00, h01, h02, h10, h11, h12, h20, h21, h22 = h
     c00 = h11 * h22 - h12 * h21
     c01 = h02 * h21 - h01 * h22
     c02 = h01 * h12 - h02 * h11
@@ -26,19 +25,6 @@ def _inv33(h):
              (h02 * h10 - h00 * h12) * idet,
              (h10 * h21 - h11 * h20) * idet, (h01 * h20 - h00 * h21) * idet,
              (h00 * h11 - h01 * h10) * idet), idet)
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _traj_inverse(t, g, M):
-    """``M = H^-1`` (3, 3) for the trajectory ``H = Id + t G`` (``g``: G's entries row by
-    row, a 9-tuple); returns ``1 / det H``."""
-    g00, g01, g02, g10, g11, g12, g20, g21, g22 = g
-    m, idet = _inv33((1.0 + t * g00, t * g01, t * g02, t * g10, 1.0 + t * g11, t * g12,
-                      t * g20, t * g21, 1.0 + t * g22))
-    for i in range(3):
-        for j in range(3):
-            M[i, j] = m[3 * i + j]
-    return idet
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
@@ -96,10 +82,21 @@ def _affine_event(x, y, t, vx, vy, g11, g12, g21, g22, cx, cy):
 def _k_homography(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
     inv = np.empty((3, 3))
     q = np.empty(3)
-    g = (th[0], th[1], th[2], th[3], th[4], th[5], th[6], th[7], 0.0)
     for k in range(x.shape[0]):
         t = dt[k]
-        _traj_inverse(t, g, inv)
+        h00 = 1.0 + t * th[0]
+        h01 = t * th[1]
+        h02 = t * th[2]
+        h10 = t * th[3]
+        h11 = 1.0 + t * th[4]
+        h12 = t * th[5]
+        h20 = t * th[6]
+        h21 = t * th[7]
+        h22 = 1.0
+        m, _ = _inv33(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+        for i in range(3):
+            for j in range(3):
+                inv[i, j] = m[3 * i + j]
         u = x[k] - cx
         v = y[k] - cy
         for i in range(3):
@@ -128,10 +125,21 @@ def _k_hom_divdet(x, y, dt, G, cx, cy, div, det):
     the centring), complex so that a complex G gives complex-step derivatives:
     M = H^-1, dM/dt = -M G M."""
     M = np.empty((3, 3), dtype=np.complex128)
-    g = (G[0, 0], G[0, 1], G[0, 2], G[1, 0], G[1, 1], G[1, 2], G[2, 0], G[2, 1], G[2, 2])
     for k in range(x.shape[0]):
         t = dt[k]
-        idet = _traj_inverse(t, g, M)
+        h00 = 1.0 + t * G[0, 0]
+        h01 = t * G[0, 1]
+        h02 = t * G[0, 2]
+        h10 = t * G[1, 0]
+        h11 = 1.0 + t * G[1, 1]
+        h12 = t * G[1, 2]
+        h20 = t * G[2, 0]
+        h21 = t * G[2, 1]
+        h22 = 1.0 + t * G[2, 2]
+        m, idet = _inv33(h00, h01, h02, h10, h11, h12, h20, h21, h22)
+        for i in range(3):
+            for j in range(3):
+                M[i, j] = m[3 * i + j]
         u = x[k] - cx
         v = y[k] - cy
         q0 = M[0, 0] * u + M[0, 1] * v + M[0, 2]
