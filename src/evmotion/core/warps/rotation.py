@@ -266,7 +266,8 @@ def _rot_block_loop(mode, pair, vk, ev, prm, src, blk):
         # views per block, so that the loops index from 0: an index numba cannot prove
         # non-negative gets a wraparound select, and its loads become gathers
         k1 = k0 + DIV_BLOCK
-        sub = (x, y, dt[k0:k1], xw[k0:k1], yw[k0:k1])
+        ts, xs, ys = dt[k0:k1], xw[k0:k1], yw[k0:k1]
+        sub = (x, y, ts, xs, ys)
         ssrc = (gx, gy, wts[k0:k1] if pair else wts, pad, h, wd, scale, T)
         if not pair:
             d0, d1, d2, _ = _rot_loop(mode, True, False, False, sub, prm, ssrc)
@@ -280,10 +281,8 @@ def _rot_block_loop(mode, pair, vk, ev, prm, src, blk):
         a2 += d2
         if vk == 0 or active == 0.0:
             continue
-        ts = sub[2]
         for k in range(ts.shape[0]):
-            xv, yv, t, a, fx, fy, i = event_cell(sub[3][k], sub[4][k], ts[k], k, False, True,
-                                                 ssrc)
+            xv, yv, t, a, fx, fy, i = event_cell(xs[k], ys[k], ts[k], k, False, True, ssrc)
             _, _, gd = src_diff(True, a, fx, fy, 0.0, i, ssrc)
             ra, b, c = rod_mode(t * t * ww, mode)
             X = i00 * xv + i01 * yv + i02
