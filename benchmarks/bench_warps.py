@@ -101,10 +101,10 @@ def _bench_size(n: int, repeat: int) -> list[dict]:
             slow = name == "homography" and reg != "rcad"  # complex-step derivatives
             r = harness.timeit(
                 lambda w=w, th=th, reg=reg, xw=xw, yw=yw, jx=jx, jy=jy: regularizer_value_grad(
-                    reg, w, x, y, dt, th, (H, W), xw, yw, jx=jx, jy=jy),
+                    reg, w, x, y, dt, th, (H, W), xw, yw, jac=(jx, jy)),
                 repeat=min(repeat, 5) if slow else repeat)
             t, t_min = r["median_s"], r["min_s"]
-            val = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw, jx=jx, jy=jy)[0]
+            val = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw, jac=(jx, jy))[0]
             rows.append({"what": f"regularizer {reg} ({name}) value+grad", "events": n,
                          "dof": P, "ms": t * 1e3, "vs_objective_%": 100.0 * t / ref,
                          "ms_min": t_min * 1e3, "vs_objective_min_%": 100.0 * t_min / ref_min,

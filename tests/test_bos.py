@@ -10,6 +10,7 @@ from _bos_reference import objective_numpy, upsample_numpy
 from bos_synth import legm_case
 from evmotion.errors import EmptyWindowError, EventDataError, ParameterError
 from evmotion.events import EventArray
+from evmotion.methods import bos_kernels
 from evmotion.methods.bos import (
     BosLevel,
     BosOptions,
@@ -89,8 +90,9 @@ def test_objective_kernel_vs_numpy_and_fd(normalized, use_p, k):
 
     buf = LevelBuffers(h, w, 4, np.float64)
     grad = np.zeros_like(xpatch)
-    got = objective_grad(xpatch, iy, fy, ix, fx, gimg, meas, weight, s_meas, 1.0 / k, *lam,
-                         normalized, use_p, buf, grad)
+    got = objective_grad(xpatch, bos_kernels.LevelGrid(iy, fy, ix, fx, 1.0 / k),
+                         bos_kernels.LevelImages(gimg, meas, weight, s_meas),
+                         bos_kernels.ObjectiveTerms(*lam, normalized, use_p), buf, grad)
     np.testing.assert_allclose(got, ref(xpatch), rtol=1e-10, atol=1e-12)
     step = 1e-6
     for idx in np.ndindex(*xpatch.shape):

@@ -126,11 +126,11 @@ def test_vjp_and_reduce_bilinear_match_numpy(name):
     pads = np.zeros((2, SHAPE[0] + 2, SHAPE[1] + 2))
     pads[0, 1:-1, 1:-1] = A
     pads[1, 1:-1, 1:-1] = B
-    out = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, *SHAPE,
+    out = warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d,
                            np.empty(warp.n_params), 0.4)
     np.testing.assert_allclose(out, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
     with pytest.raises(ParameterError, match="pads"):
-        warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel()[1:], d, *SHAPE,
+        warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel()[1:], d,
                          np.empty(warp.n_params))
 
 
@@ -166,11 +166,11 @@ def test_reduce_pair_chains_the_values_derivatives(name, fast):
                                np.sign(det)[:, None] * ddet)):
             votes = (ax + d * bx) @ jx + (ay + d * by) @ jy
             ref = 0.4 * (votes + sB @ dd)
-            out = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, *SHAPE,
+            out = warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d,
                                    np.empty(warp.n_params), 0.4, derivs, 0.07)
             np.testing.assert_allclose(out, ref, rtol=1e-9, atol=1e-11 * np.abs(ref).max())
     with pytest.raises(ParameterError, match="derivs"):
-        warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, *SHAPE,
+        warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d,
                          np.empty(warp.n_params), 1.0, "rcad")
 
 
@@ -222,7 +222,7 @@ def test_penalties_equal_the_composed_chain(name, reg, obj):
     v, g = cost.value_grad(theta)
     G, gref = _composed(warp, x, y, dt, theta, obj, "bilinear", p, tn, None)
     xw, yw, jx, jy = warp.warp(x, y, dt, theta, jacobian=True)
-    R, gR = regularizer_value_grad(reg, warp, x, y, dt, theta, SHAPE, xw, yw, jx=jx, jy=jy)
+    R, gR = regularizer_value_grad(reg, warp, x, y, dt, theta, SHAPE, xw, yw, jac=(jx, jy))
     assert R > 0.1
     assert v == pytest.approx(-G / cost.g0 + 0.7 * R, rel=1e-9)
     assert cost.value(theta) == pytest.approx(v, rel=1e-9)

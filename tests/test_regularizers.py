@@ -10,6 +10,7 @@ from _helpers import bilinear_adjoint_numpy
 from evmotion.core.regularizers import (
     DEFAULT_WEIGHTS,
     REGULARIZERS,
+    PenaltyOptions,
     regularizer_maps,
     regularizer_value_grad,
     whiten,
@@ -100,7 +101,7 @@ def test_gradients_vs_finite_differences(reg, name):
     # one event votes alone, so such rounding moves the gradient by up to ~1e-11 of its
     # largest component)
     xw, yw, jx, jy = w.warp(x, y, dt, th, jacobian=True)
-    for kw in ({"jx": jx, "jy": jy}, {}):
+    for kw in ({"jac": (jx, jy)}, {}):
         v2, g2 = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw, **kw)
         assert v2 == pytest.approx(v, rel=1e-12)
         np.testing.assert_allclose(g2, g, rtol=1e-10, atol=1e-10 * np.abs(g).max())
@@ -218,7 +219,7 @@ def test_errors_and_defaults():
         regularizer_value_grad("rcad", w, x, y, dt, np.array([1.0]), (0, W))
     with pytest.raises(ParameterError, match="bilinear"):
         regularizer_value_grad("divergence", w, x, y, dt, np.array([1.0]), (H, W),
-                               kernel="gaussian")
+                               options=PenaltyOptions(kernel="gaussian"))
     assert DEFAULT_WEIGHTS["mvsec"] == {"divergence": 2.0, "deformation": 5.0, "rcad": 0.2}
     assert DEFAULT_WEIGHTS["dsec"] == {"divergence": 50.0, "deformation": 100.0, "rcad": 1.0}
     assert DEFAULT_WEIGHTS["ecd"]["divergence"] == 5.0
@@ -436,10 +437,10 @@ def test_vjp_chain_rule_on_few_and_many_trimmed_pixels(name):
         maps = regularizer_maps(reg, w, x, y, dt, th, (H, W))
         vals = maps["diwe" if reg == "divergence" else "iwa"][maps["count"] > 1e-9]
         for margin in (np.quantile(vals, 0.02), vals.max() + 1.0):
-            v, g = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw, jx=jx, jy=jy,
-                                          margin=margin)
+            v, g = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw, jac=(jx, jy),
+                                          options=PenaltyOptions(margin=margin))
             v2, g2 = regularizer_value_grad(reg, w, x, y, dt, th, (H, W), xw, yw,
-                                            margin=margin)
+                                            options=PenaltyOptions(margin=margin))
             if name in ("zoom", "inplane") and reg == "divergence":
                 continue  # constant divergence: no per-pixel maps
             assert v2 == v and v != 0

@@ -183,25 +183,25 @@ def test_reduce_pair_with_block_flags_equals_every_block(fast):
     flags[np.flatnonzero(touches) // BLOCK] = 1
     assert 0 < flags.sum() < flags.size
     for derivs in (None, "divergence", "deformation"):
-        ref = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, h, w, np.empty(3),
+        ref = warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d, np.empty(3),
                                0.7, derivs, 0.05)
-        got = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, h, w, np.empty(3),
+        got = warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d, np.empty(3),
                                0.7, derivs, 0.05, flags)
         np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
     votes = ((ax + d * bx) @ jx + (ay + d * by) @ jy) * 0.7
-    got = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, h, w, np.empty(3), 0.7,
+    got = warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d, np.empty(3), 0.7,
                            None, 1.0, flags)
     np.testing.assert_allclose(got, votes, rtol=1e-9, atol=1e-11 * np.abs(votes).max())
     # all flagged, none flagged (B = 0): the same
     ones = np.ones_like(flags)
-    got = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, h, w, np.empty(3), 0.7,
+    got = warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d, np.empty(3), 0.7,
                            None, 1.0, ones)
     np.testing.assert_allclose(got, votes, rtol=1e-9, atol=1e-11 * np.abs(votes).max())
     pads[1] = 0.0
-    ref = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, h, w, np.empty(3), 0.7)
-    got = warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, h, w, np.empty(3), 0.7,
+    ref = warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d, np.empty(3), 0.7)
+    got = warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d, np.empty(3), 0.7,
                            None, 1.0, np.zeros_like(flags))
     np.testing.assert_allclose(got, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
     with pytest.raises(ParameterError, match="blocks"):
-        warp.reduce_pair(x, y, dt, xw, yw, theta, pads.ravel(), d, h, w, np.empty(3), 0.7,
+        warp.reduce_pair(x, y, dt, xw, yw, theta, pads, d, np.empty(3), 0.7,
                          None, 1.0, flags[1:])

@@ -79,6 +79,9 @@ from evmotion.errors import EmptyWindowError, EventDataError, EvmotionError, Par
 from evmotion.events import EventArray
 from evmotion.methods.bos_kernels import (
     LevelBuffers,
+    LevelGrid,
+    LevelImages,
+    ObjectiveTerms,
     interp_index,
     objective_grad,
     upsample,
@@ -627,10 +630,12 @@ class BosLevel:
         to them in ``self.gpatch`` and the predicted increment in ``self.buf.pred``."""
         o = self.opts
         lam_tv, lam_p = (o.lambda_tv, o.lambda_p) if regularize else (0.0, 0.0)
-        return objective_grad(np.ascontiguousarray(patch_fields), self.iy, self.fy_d, self.ix,
-                              self.fx_d, self.gimg, self.meas, self.weight, self.s_meas,
-                              1.0 / self.k, lam_tv, lam_p, o.eps_data, o.eps_reg, normalized,
-                              o.use_p, self.buf, self.gpatch)
+        return objective_grad(np.ascontiguousarray(patch_fields),
+                              LevelGrid(self.iy, self.fy_d, self.ix, self.fx_d, 1.0 / self.k),
+                              LevelImages(self.gimg, self.meas, self.weight, self.s_meas),
+                              ObjectiveTerms(lam_tv, lam_p, o.eps_data, o.eps_reg, normalized,
+                                             o.use_p),
+                              self.buf, self.gpatch)
 
     def n_params(self) -> int:
         """Parameters per patch (flow, then p when estimated)."""

@@ -23,10 +23,13 @@ objective is differentiable; ``eps`` is small (see :class:`evmotion.methods.bos.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 
-__all__ = ["LevelBuffers", "interp_index", "objective_grad", "upsample"]
+__all__ = ["LevelBuffers", "LevelGrid", "LevelImages", "ObjectiveTerms", "interp_index",
+           "objective_grad", "upsample"]
 
 # the numpy error model (no zero-division checks) and fastmath let the pixel loops vectorize
 _JIT = dict(cache=True, fastmath=True, error_model="numpy")
@@ -44,6 +47,14 @@ def interp_index(n_out: int, step_out: float, n_in: int, step_in: float):
     return np.ascontiguousarray(i0), np.ascontiguousarray(u - i0)
 
 
+@njit(cache=True, inline="always")
+def _tap(idx, frac, i, n):
+    """``(i0, i1, f)``: output ``i`` of the interpolation ``(idx, frac)``
+    (:func:`interp_index`) from ``n`` inputs is ``(1 - f) in[i0] + f in[i1]``."""
+    i0 = idx[i]
+    return i0, min(i0 + 1, n - 1), frac[i]
+
+
 @njit(**_JIT)
 def _interp_x(x, ix, fx, out):
     """``out[c, a] = x[c, a] A_x^T``: (c, nh, nw) to (c, nh, w)."""
@@ -52,9 +63,7 @@ def _interp_x(x, ix, fx, out):
     for c in range(nc):
         for a in range(nh):
             for j in range(w):
-                j0 = ix[j]
-                j1 = min(j0 + 1, nw - 1)
-                f = fx[j]
+                j0, j1, f = _tap(ix, fx, j, nw)
                 out[c, a, j] = (1.0 - f) * x[c, a, j0] + f * x[c, a, j1]
 
 
@@ -67,9 +76,7 @@ def _interp_x_adjoint(t, ix, fx, out):
     for c in range(nc):
         for a in range(nh):
             for j in range(w):
-                j0 = ix[j]
-                j1 = min(j0 + 1, nw - 1)
-                f = fx[j]
+                j0, j1, f = _tap(ix, fx, j, nw)
                 v = t[c, a, j]
                 out[c, a, j0] += (1.0 - f) * v
                 out[c, a, j1] += f * v
@@ -90,10 +97,7 @@ def upsample(x, iy, fy, ix, fx, out):
 @njit(**_JIT)
 def _row(xr, iy, fy, c, i, out):
     """Row i of channel c of the dense field from its x-interpolated patch rows."""
-    nh = xr.shape[1]
-    i0 = iy[i]
-    i1 = min(i0 + 1, nh - 1)
-    g = fy[i]
+    i0, i1, g = _tap(iy, fy, i, xr.shape[1])
     a = xr[c, i0]
     b = xr[c, i1]
     for j in range(out.shape[0]):
@@ -160,10 +164,12 @@ def _data_sums(pred, meas, a_pred, a_meas, eps_d):
 
 
 @njit(**_JIT)
-def _tv_row(f, fn, wr, has_next, inv_k, ct, eps_r, g, bx, by, byp):
-    """TV of one field at one row (x difference, y difference to the next row): adds ``ct``
-    times the derivatives to the row's gradient ``g`` (the previous row's y terms come in
-    ``byp``, this row's are left there). Returns the row's (unscaled) TV."""
+def _tv_row(f, fn, wr, has_next, tv, g, bx, by, byp):
+    """TV of one field at one row (x difference, y difference to the next row; ``tv``:
+    ``(inv_k, ct, eps_r)``): adds ``ct`` times the derivatives to the row's gradient ``g``
+    (the previous row's y terms come in ``byp``, this row's are left there). Returns the
+    row's (unscaled) TV."""
+    inv_k, ct, eps_r = tv
     w = f.shape[0]
     e2 = eps_r * eps_r
     e = 0.0
@@ -189,10 +195,16 @@ def _tv_row(f, fn, wr, has_next, inv_k, ct, eps_r, g, bx, by, byp):
 
 
 @njit(**_JIT)
-def _grad(xr, iy, fy, gimg, pred, meas, weight, a_pred, a_meas, eps_d, c_der, c_pred, lam_p_n,
-          ct, inv_k, eps_r, use_p, t, rows, grows, tvb):
-    """Pass 3: gradient with respect to the x-interpolated patch rows ``t`` (the adjoint of
-    the y interpolation applied row by row). Returns (sum |p|, sum TV), unscaled."""
+def _grad(xr, iy, fy, images, coef, use_p, work):
+    """Pass 3: gradient with respect to the x-interpolated patch rows ``t`` of ``work = (t,
+    rows, grows, tvb)`` (the adjoint of the y interpolation applied row by row), from
+    ``images = (gimg, pred, meas, weight)`` and the scalars ``coef = (a_pred, a_meas,
+    eps_d, c_der, c_pred, lam_p_n, ct, inv_k, eps_r)`` of :func:`objective_grad`. Returns
+    (sum |p|, sum TV), unscaled."""
+    gimg, pred, meas, weight = images
+    a_pred, a_meas, eps_d, c_der, c_pred, lam_p_n, ct, inv_k, eps_r = coef
+    t, rows, grows, tvb = work
+    tv = (inv_k, ct, eps_r)
     h, w = pred.shape
     nh = xr.shape[1]
     e2d = eps_d * eps_d
@@ -244,11 +256,9 @@ def _grad(xr, iy, fy, gimg, pred, meas, weight, a_pred, a_meas, eps_d, c_der, c_
                 g0[j] = -gx[j] * dp
                 g1[j] = -gy[j] * dp
         wr = weight[i]
-        etv += _tv_row(du, dun, wr, has_next, inv_k, ct, eps_r, g0, tvb[0], tvb[1], tvb[2])
-        etv += _tv_row(dv, dvn, wr, has_next, inv_k, ct, eps_r, g1, tvb[3], tvb[4], tvb[5])
-        i0 = iy[i]
-        i1 = min(i0 + 1, nh - 1)
-        f = fy[i]
+        etv += _tv_row(du, dun, wr, has_next, tv, g0, tvb[0], tvb[1], tvb[2])
+        etv += _tv_row(dv, dvn, wr, has_next, tv, g1, tvb[3], tvb[4], tvb[5])
+        i0, i1, f = _tap(iy, fy, i, nh)
         for c in range(4 if use_p else 2):
             gc = grows[c]
             a0 = t[c, i0]
@@ -272,8 +282,58 @@ class LevelBuffers:
         self.tvb = np.zeros((6, w), dtype)
 
 
-def objective_grad(xpatch, iy, fy, ix, fx, gimg, meas, weight, s_meas, inv_k, lam_tv, lam_p,
-                   eps_d, eps_r, normalized, use_p, buf: LevelBuffers, grad):
+class LevelGrid(NamedTuple):
+    """The grid of one pyramid level: bilinear interpolation from the patches to its rows
+    (``iy, fy``) and columns (``ix, fx``) (:func:`interp_index`; ``fy, fx`` in the images'
+    precision) and ``inv_k``, 1 / its pooling factor (pixels of this grid per original
+    pixel)."""
+
+    iy: np.ndarray
+    fy: np.ndarray
+    ix: np.ndarray
+    fx: np.ndarray
+    inv_k: float
+
+
+class LevelImages(NamedTuple):
+    """The images of one pyramid level, all (h, w) but ``gimg``, float32 or float64.
+
+    Attributes
+    ----------
+    gimg : (5, h, w)
+        Gradient of the log frame per original pixel ``gx, gy`` and its Hessian
+        ``hxx, hxy, hyy``: the frame translated by p has gradient ``grad L + H p``.
+    meas : (h, w)
+        Measured increment (events, smoothed; in log units when calibrated).
+    weight : (h, w)
+        TV weight ``w = 1 - alpha b``.
+    s_meas : float
+        RMS of ``meas`` (its normalization).
+    """
+
+    gimg: np.ndarray
+    meas: np.ndarray
+    weight: np.ndarray
+    s_meas: float
+
+
+class ObjectiveTerms(NamedTuple):
+    """The terms of the objective (6.10): weights of TV and |p| (``lam_tv``, ``lam_p``),
+    Charbonnier eps of the data term and of the regularizers (``eps_d``, ``eps_r``), the
+    data term of normalized increments (6.11) if ``normalized`` (else ``(pred - meas) /
+    s_meas``), and whether the frame is translated by ``p`` (``use_p``; else p is ignored
+    and its gradient is zero)."""
+
+    lam_tv: float
+    lam_p: float
+    eps_d: float
+    eps_r: float
+    normalized: bool
+    use_p: bool
+
+
+def objective_grad(xpatch, grid: LevelGrid, images: LevelImages, terms: ObjectiveTerms,
+                   buf: LevelBuffers, grad):
     """Objective (6.10) at one level and its gradient with respect to the patch values.
 
     Parameters
@@ -281,26 +341,12 @@ def objective_grad(xpatch, iy, fy, ix, fx, gimg, meas, weight, s_meas, inv_k, la
     xpatch : (4, nh, nw) float
         Patch-grid ``du, dv`` (displacement over the window, px) and ``pu, pv`` (frame
         translation, px).
-    iy, fy, ix, fx : arrays
-        Bilinear interpolation from the patches to the grid's rows and columns
-        (:func:`interp_index`).
-    gimg : (5, h, w) float32 or float64
-        Gradient of the log frame per original pixel ``gx, gy`` and its Hessian
-        ``hxx, hxy, hyy``: the frame translated by p has gradient ``grad L + H p``.
-    meas : (h, w), same dtype
-        Measured increment (events, smoothed; in log units when calibrated).
-    weight : (h, w), same dtype
-        TV weight ``w = 1 - alpha b``.
-    s_meas : float
-        RMS of ``meas`` (its normalization).
-    inv_k : float
-        1 / pooling factor (pixels of this grid per original pixel).
-    lam_tv, lam_p, eps_d, eps_r : float
-        Weights of TV and |p|, Charbonnier eps of the data term and of the regularizers.
-    normalized : bool
-        Data term of normalized increments (6.11) if True, else ``(pred - meas) / s_meas``.
-    use_p : bool
-        Translate the frame by ``p`` (else p is ignored and its gradient is zero).
+    grid : LevelGrid
+        The level's interpolation from the patches and pooling.
+    images : LevelImages
+        The frame's derivatives, the measured increment and the TV weight.
+    terms : ObjectiveTerms
+        Weights, smoothing and variant of the objective's terms.
     buf : LevelBuffers
         Work arrays (``buf.pred`` holds the predicted increment on return).
     grad : (4, nh, nw) float64
@@ -311,6 +357,9 @@ def objective_grad(xpatch, iy, fy, ix, fx, gimg, meas, weight, s_meas, inv_k, la
     (total, data, tv, p) : floats
         The objective and its three terms (regularizers without their lambdas).
     """
+    iy, fy, ix, fx, inv_k = grid
+    gimg, meas, weight, s_meas = images
+    lam_tv, lam_p, eps_d, eps_r, normalized, use_p = terms
     sc = gimg.dtype.type  # scalars in the arrays' precision keep float32 loops in float32
     h, w = meas.shape
     inv_n = 1.0 / (h * w)
@@ -327,10 +376,10 @@ def objective_grad(xpatch, iy, fy, ix, fx, gimg, meas, weight, s_meas, inv_k, la
     else:
         c_der = inv_n * inv_sm
         c_pred = 0.0
-    e_p, e_tv = _grad(buf.xr, iy, fy, gimg, buf.pred, meas, weight, sc(a_pred), sc(inv_sm),
-                      sc(eps_d), sc(c_der), sc(c_pred), sc(lam_p * inv_n),
-                      sc(lam_tv * inv_n * inv_k), sc(inv_k), sc(eps_r), use_p, buf.t, buf.rows,
-                      buf.grows, buf.tvb)
+    coef = tuple(sc(v) for v in (a_pred, inv_sm, eps_d, c_der, c_pred, lam_p * inv_n,
+                                 lam_tv * inv_n * inv_k, inv_k, eps_r))
+    e_p, e_tv = _grad(buf.xr, iy, fy, (gimg, buf.pred, meas, weight), coef, use_p,
+                      (buf.t, buf.rows, buf.grows, buf.tvb))
     _interp_x_adjoint(buf.t, ix, fx, grad)
     e_tv *= inv_n
     e_p = e_p * inv_n if use_p else 0.0

@@ -29,6 +29,7 @@ from evmotion.core.collapse import (
     DEFAULT_WEIGHTS,
     RCAD_STRIDE,
     REGULARIZERS,
+    PenaltyEvents,
     chains_pair,
     regularizer_value_grad,
 )
@@ -429,9 +430,9 @@ class CMaxCost:
                     continue
             else:
                 r, g = regularizer_value_grad(name, self.warp, self._fx, self._fy, self._fdt,
-                                              theta, self.shape, self.xw, self.yw, jx=self.jx,
-                                              jy=self.jy, grad=grad, span=self.span,
-                                              count=count)
+                                              theta, self.shape, self.xw, self.yw,
+                                              jac=(self.jx, self.jy), grad=grad,
+                                              span=self.span, count=count)
             # the divergence is already measured per window (core.collapse), so the
             # margin and lambda apply as the thesis states them: no further time scaling
             total += lam * r
@@ -453,8 +454,9 @@ class CMaxCost:
         # the rotation's per-event values come from the warp's own pass
         values = warp_values(reg, w, x, y, dt, th, xw, yw, self.span)
         # the IWE is voted there, with the penalty's image of values when it builds its maps
-        R, gR, d, _, s, blocks = trimmed_parts(reg, w, x, y, dt, th, self.shape, xw, yw,
-                                                DEFAULT_MARGINS[reg], pads, self.span,
+        R, gR, d, _, s, blocks = trimmed_parts(reg, w, PenaltyEvents(x, y, dt, xw, yw,
+                                                                     span=self.span),
+                                                th, self.shape, DEFAULT_MARGINS[reg], pads,
                                                 count_out=self.iwe, values=values)
         G, g, shift, scale = self._image_grad()
         lam = self.weight
@@ -467,7 +469,8 @@ class CMaxCost:
         # pixel is trimmed), so the data term's adjoint enters divided by it
         f = lam * s
         _fold_adjoints(g, shift, -scale / self.g0 / f, pads[:size])
-        w.reduce_pair(x, y, dt, xw, yw, th, pads[:2 * size], d, self.shape[0], self.shape[1],
+        h, wd = self.shape
+        w.reduce_pair(x, y, dt, xw, yw, th, pads[:2 * size].reshape(2, h + 2, wd + 2), d,
                       self.gtheta, f, reg, span_duration(self.span), blocks)
         return -G / self.g0 + lam * R, self.gtheta.copy()
 

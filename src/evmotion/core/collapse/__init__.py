@@ -60,6 +60,8 @@ thesis compares with, is not a penalty: :mod:`evmotion.core.whitening`.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from evmotion.core.collapse.rcad import rcad_closed_form, rcad_value_grad
@@ -69,7 +71,7 @@ from evmotion.core.collapse.trimmed import (
     pixel_average,
     trimmed_value_grad,
 )
-from evmotion.core.collapse.values import time_span, window_span
+from evmotion.core.collapse.values import PenaltyEvents, time_span, window_span
 from evmotion.core.warps import Warp
 from evmotion.errors import ParameterError
 from evmotion.geometry import sensor_shape
@@ -78,6 +80,8 @@ __all__ = [
     "DEFAULT_MARGINS",
     "DEFAULT_WEIGHTS",
     "RCAD_STRIDE",
+    "PenaltyEvents",
+    "PenaltyOptions",
     "REGULARIZERS",
     "chains_pair",
     "window_span",
@@ -108,36 +112,69 @@ def _check_kernel(kernel):
                              f"got kernel={kernel!r}")
 
 
-def _divergence(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None,
-                margin=None, kernel="bilinear", grad=True, span=None, count=None):
-    m = DEFAULT_MARGINS["divergence"] if margin is None else float(margin)
-    return trimmed_value_grad("divergence", warp, x, y, dt, theta, shape, xw, yw, jx, jy, m,
-                               kernel, grad, span, count)
+@dataclass(frozen=True)
+class PenaltyOptions:
+    """Settings of a collapse penalty (:func:`regularizer_value_grad`).
+
+    Attributes
+    ----------
+    margin : float, optional
+        Trimming margin; None: :data:`DEFAULT_MARGINS` of the penalty.
+    kernel : {"bilinear"}
+        Vote kernel of the DIWE/IWA maps (the bilinear votes of core.iwe, fused here into
+        one forward and one adjoint pass).
+    stride : int
+        Pixel stride of the RCAD map grid (rotation, homography).
+
+    Examples
+    --------
+    >>> PenaltyOptions(margin=-0.5).margin_of("divergence")
+    -0.5
+    >>> PenaltyOptions().margin_of("rcad")
+    0.2
+    """
+
+    margin: float | None = None
+    kernel: str = "bilinear"
+    stride: int = RCAD_STRIDE
+
+    def __post_init__(self):
+        _check_kernel(self.kernel)
+
+    def margin_of(self, name: str) -> float:
+        """The margin of penalty ``name``: ``margin``, or its default."""
+        return DEFAULT_MARGINS[name] if self.margin is None else float(self.margin)
 
 
-def _deformation(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None,
-                 margin=None, kernel="bilinear", grad=True, span=None, count=None):
-    m = DEFAULT_MARGINS["deformation"] if margin is None else float(margin)
-    return trimmed_value_grad("deformation", warp, x, y, dt, theta, shape, xw, yw, jx, jy, m,
-                               kernel, grad, span, count)
+def _divergence(warp, ev, theta, shape, options, grad):
+    return trimmed_value_grad("divergence", warp, ev, theta, shape,
+                              options.margin_of("divergence"), grad)
 
 
-def _rcad(warp, x, y, dt, theta, shape, xw=None, yw=None, jx=None, jy=None, margin=None,
-          kernel="bilinear", grad=True, stride=RCAD_STRIDE, span=None, count=None):
-    m = DEFAULT_MARGINS["rcad"] if margin is None else float(margin)
-    return rcad_value_grad(warp, x, y, dt, theta, shape, m, int(stride), grad, span)
+def _deformation(warp, ev, theta, shape, options, grad):
+    return trimmed_value_grad("deformation", warp, ev, theta, shape,
+                              options.margin_of("deformation"), grad)
 
 
-#: Name -> function(warp, x, y, dt, theta, shape, **kw) -> (value, grad (P,)).
+def _rcad(warp, ev, theta, shape, options, grad):
+    return rcad_value_grad(warp, ev.x, ev.y, ev.dt, theta, shape, options.margin_of("rcad"),
+                           int(options.stride), grad, ev.span)
+
+
+_DEFAULT_OPTIONS = PenaltyOptions()
+
+
+#: Name -> function(warp, events (:class:`PenaltyEvents`), theta, shape, options
+#: (:class:`PenaltyOptions`), grad) -> (value, grad (P,)).
 REGULARIZERS = {"divergence": _divergence, "deformation": _deformation, "rcad": _rcad}
 
 
 def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
-                           xw=None, yw=None, *, jx=None, jy=None, margin: float | None = None,
-                           kernel: str = "bilinear", stride: int = RCAD_STRIDE,
-                           grad: bool = True,
+                           xw=None, yw=None, *,
+                           jac: tuple[np.ndarray, np.ndarray] | None = None,
                            span: tuple[float, float] | None = None,
-                           count: np.ndarray | None = None,
+                           count: np.ndarray | None = None, grad: bool = True,
+                           options: PenaltyOptions | None = None,
                            ) -> tuple[float, np.ndarray | None]:
     """Value of a collapse penalty and its gradient with respect to ``theta``.
 
@@ -156,18 +193,11 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
         ``(H, W)`` of the DIWE/IWA maps, pixels.
     xw, yw : array (N,), optional
         The events warped with ``theta`` (saves a warp; the rotation's per-event values are
-        read from them), in the order of ``x, y, dt``; ``jx, jy`` (N, P) their parameter
-        Jacobians. Without Jacobians, warps with a ``vjp`` contract the adjoint themselves
-        (no (N, P) buffers); others compute the Jacobians when a pixel is trimmed.
-    margin : float, optional
-        Trimming margin; defaults :data:`DEFAULT_MARGINS`.
-    kernel : {"bilinear"}
-        Vote kernel of the DIWE/IWA maps (the bilinear votes of core.iwe, fused here into
-        one forward and one adjoint pass).
-    stride : int
-        Pixel stride of the RCAD map grid (rotation, homography).
-    grad : bool
-        Compute the gradient (else ``None`` is returned in its place).
+        read from them), in the order of ``x, y, dt``.
+    jac : (jx, jy), optional
+        The parameter Jacobians (N, P) of ``xw, yw``. Without them, warps with a ``vjp``
+        contract the adjoint themselves (no (N, P) buffers); others compute the Jacobians
+        when a pixel is trimmed.
     span : (float, float), optional
         ``(min dt, max dt)`` in seconds, when the caller knows it (e.g. once per window for
         many evaluations): saves a pass over ``dt`` per call. It must be that of ``dt``.
@@ -175,6 +205,10 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
         The bilinear IWE of ``xw, yw`` without weights, when the caller has it (CMax's data
         term): the DIWE/IWA vote-count map is then not accumulated again (divergence,
         deformation; ignored by rcad). It must be that of ``xw, yw``; it is not modified.
+    grad : bool
+        Compute the gradient (else ``None`` is returned in its place).
+    options : PenaltyOptions, optional
+        Margin, vote kernel and RCAD grid stride (defaults: :class:`PenaltyOptions`).
 
     Returns
     -------
@@ -195,11 +229,11 @@ def regularizer_value_grad(name: str, warp: Warp, x, y, dt, theta, shape,
     if name not in REGULARIZERS:
         raise ParameterError(f"unknown regularizer '{name}'; choose one of "
                              f"{sorted(REGULARIZERS)}")
-    _check_kernel(kernel)
     shape = sensor_shape(shape)
-    return REGULARIZERS[name](warp, x, y, dt, theta, shape, xw=xw, yw=yw, jx=jx, jy=jy,
-                              margin=margin, kernel=kernel, grad=grad, span=span,
-                              count=count, **({"stride": stride} if name == "rcad" else {}))
+    jx, jy = (None, None) if jac is None else jac
+    ev = PenaltyEvents(x, y, dt, xw, yw, jx, jy, span, count)
+    return REGULARIZERS[name](warp, ev, theta, shape,
+                              _DEFAULT_OPTIONS if options is None else options, grad)
 
 
 def regularizer_maps(name: str, warp: Warp, x, y, dt, theta, shape, *,

@@ -14,13 +14,12 @@ import numpy as np
 from numba import njit
 
 from evmotion.core.collapse.values import (
+    PenaltyEvents,
     all_above,
     checked_theta,
     event_values,
     rotation_grad,
     scratch,
-    span_duration,
-    window_span,
 )
 from evmotion.core.iwe import vote_bilinear, vote_pair, vote_pairs
 from evmotion.core.trim import (
@@ -36,7 +35,7 @@ from evmotion.core.trim import (
     vote_values,
 )
 from evmotion.core.warps import Warp
-from evmotion.core.warps.adjoint import bilinear_sample, cell_diff, pad_index
+from evmotion.core.warps.adjoint import pad_diff, pad_index
 from evmotion.core.warps.common import EMPTY1, EMPTY2
 from evmotion.errors import EmptyWindowError, ParameterError
 
@@ -98,14 +97,7 @@ def _backward_events(xw, yw, d, pads, h, wd, scale, gx, gy, gd):
     b = (h + 2) * wp
     for k in range(xw.shape[0]):
         _, _, _, a, fx, fy, i = pad_index(xw[k], yw[k], 0.0, scale, 1.0, h, wd)
-        e = d[k]
-        s00 = pads[b + i]
-        s01 = pads[b + i + 1]
-        s10 = pads[b + i + wp]
-        s11 = pads[b + i + wp + 1]
-        gx[k], gy[k] = cell_diff(a, fx, fy, e * s00 + pads[i], e * s01 + pads[i + 1],
-                                  e * s10 + pads[i + wp], e * s11 + pads[i + wp + 1])
-        gd[k] = a * bilinear_sample(fx, fy, s00, s01, s10, s11)
+        gx[k], gy[k], gd[k] = pad_diff(True, a, fx, fy, d[k], pads, i, wp, b)
 
 
 @njit(cache=True, error_model="numpy")
@@ -145,17 +137,21 @@ def _count_image(count, shape) -> np.ndarray:
     return count
 
 
-def _prepare(warp, x, y, dt, theta, xw, yw):
-    """Checked events and theta, and the warped events (computed unless given)."""
-    x, y, dt = Warp.check_events(x, y, dt)
+def _prepare(warp, ev: PenaltyEvents, theta, shape):
+    """``ev`` with checked events, warped events (computed unless given) and count image
+    (if given; of ``shape``), and the checked theta."""
+    x, y, dt = Warp.check_events(ev.x, ev.y, ev.dt)
     if x.shape[0] == 0:
         raise EmptyWindowError("the regularizer needs at least one event, got none")
     th = checked_theta(warp, theta)
+    xw, yw = ev.xw, ev.yw
     if xw is None or yw is None:
         xw, yw = warp.warp(x, y, dt, th)
     xw = np.ascontiguousarray(xw, dtype=np.float64)
     yw = np.ascontiguousarray(yw, dtype=np.float64)
-    return x, y, dt, th, xw, yw
+    count = None if ev.count is None else _count_image(ev.count, shape)
+    # built, not _replace()d: this runs per evaluation, and _replace costs microseconds
+    return PenaltyEvents(x, y, dt, xw, yw, ev.jx, ev.jy, ev.span, count), th
 
 
 def pixel_average(kind, warp, x, y, dt, th, shape, xw, yw):
@@ -165,21 +161,23 @@ def pixel_average(kind, warp, x, y, dt, th, shape, xw, yw):
     return d, fac, cnt, num
 
 
-def trimmed_value_grad(kind, warp, x, y, dt, theta, shape, xw, yw, jx, jy, margin, kernel,
-                        grad=True, span=None, count=None):
-    x, y, dt, th, xw, yw = _prepare(warp, x, y, dt, theta, xw, yw)
-    if count is not None:
-        count = _count_image(count, shape)
+def trimmed_value_grad(kind, warp, ev: PenaltyEvents, theta, shape, margin, grad=True):
+    """The divergence or deformation penalty (``kind``) of the events ``ev`` with
+    ``theta`` and its gradient (None without ``grad``), DIWE/IWA maps ``shape`` (H, W),
+    trimming margin ``margin``."""
+    ev, th = _prepare(warp, ev, theta, shape)
     h, wd = shape
     (buf,) = scratch(((pairs_size(shape),),), "adj")
-    value, g, d, fac, scale, blocks = trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw,
-                                                     margin, buf, span, count, grad)
+    value, g, d, fac, scale, blocks = trimmed_parts(kind, warp, ev, th, shape, margin, buf,
+                                                     grad)
     if d is None or not grad:
         return value, g
+    x, y, dt, xw, yw, jx, jy = ev.x, ev.y, ev.dt, ev.xw, ev.yw, ev.jx, ev.jy
     pads = buf[:2 * (h + 2) * (wd + 2)]
-    T = window_span(dt) if span is None else span_duration(span)
+    T = ev.duration()
     if (jx is None or jy is None) and chains_pair(warp):
-        warp.reduce_pair(x, y, dt, xw, yw, th, pads, d, h, wd, g, scale, kind, T, blocks)
+        warp.reduce_pair(x, y, dt, xw, yw, th, pads.reshape(2, h + 2, wd + 2), d, g, scale,
+                         kind, T, blocks)
         return value, g
     n = x.shape[0]
     dd = None
@@ -207,11 +205,12 @@ def chains_pair(warp: Warp) -> bool:
                                              or hasattr(warp, "values_from_warped"))
 
 
-def trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=None,
-                   count=None, grad=True, count_out=None, values=None):
+def trimmed_parts(kind, warp, ev: PenaltyEvents, th, shape, margin, pads, grad=True,
+                  count_out=None, values=None):
     """The divergence or deformation penalty up to the chain rule through the warp, for
     callers that fuse that step with their own (CMax's data term): ``(value, g, d, fac,
-    scale, blocks)`` for checked events and theta (:func:`_prepare`).
+    scale, blocks)`` for checked events and theta (:func:`_prepare`; ``ev.xw, ev.yw``
+    given, ``ev.jx, ev.jy`` unused).
 
     ``d`` None: ``value`` and ``g`` (P,) are complete (no pixel trimmed, or the constant
     divergence; ``g`` None without ``grad``). Otherwise ``g`` (P,) is uninitialized and
@@ -224,11 +223,12 @@ def trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=No
     rotation's factor from its raw divergence / det J to ``d``, for the chain rule through
     stored Jacobians; ``blocks``: the flags of the blocks of events that reach a nonzero
     ``gS``, for ``reduce_pair``'s ``blocks``: :mod:`evmotion.core.trim`).
-    ``count_out`` (H, W), if given (and ``count`` not), receives the bilinear IWE of
+    ``count_out`` (H, W), if given (and ``ev.count`` not), receives the bilinear IWE of
     ``xw, yw`` in every case, voted with the values' IWE where the maps are built (the data
     term's IWE of a caller that votes once). ``values``: ``(d, fac)`` of
     :func:`event_values` for ``xw, yw``, if at hand (:func:`warp_values`)."""
     zero = (0.0, np.zeros(warp.n_params) if grad else None, None, None, 0.0, None)
+    x, y, dt, xw, yw, count = ev.x, ev.y, ev.dt, ev.xw, ev.yw, ev.count
 
     def unvoted(result):
         # returned before the maps: the caller's count image is still to be voted
@@ -236,9 +236,7 @@ def trimmed_parts(kind, warp, x, y, dt, th, shape, xw, yw, margin, pads, span=No
             vote_bilinear(xw, yw, EMPTY1, count_out)
         return result
 
-    T = None
-    if kind == "divergence":
-        T = window_span(dt) if span is None else span_duration(span)
+    T = ev.duration() if kind == "divergence" else None
     # deformation's map is 1 + mean: its margin on `mean` is margin - 1
     m = margin - 1.0 if kind == "deformation" else margin
     if kind == "divergence" and getattr(warp, "constant_divergence", False):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 import threading
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -19,12 +20,46 @@ from numba import njit
 from evmotion.core.warps import Warp
 from evmotion.core.warps.common import EMPTY2
 
-__all__ = ["all_above", "checked_theta", "event_values", "rotation_grad", "scratch",
-           "span_duration", "time_span", "warp_values", "window_span"]
+__all__ = ["PenaltyEvents", "all_above", "checked_theta", "event_values", "rotation_grad",
+           "scratch", "span_duration", "time_span", "warp_values", "window_span"]
 
 _LOW63 = np.int64(0x7FFFFFFFFFFFFFFF)  # all float64 bits but the sign
 
 _TLS = threading.local()
+
+
+class PenaltyEvents(NamedTuple):
+    """A window's events as the collapse penalties take them, with what the caller already
+    has of them (each optional: computed where needed).
+
+    Attributes
+    ----------
+    x, y, dt : array (N,)
+        The events: pixels and ``t_k - t_ref`` in seconds.
+    xw, yw : array (N,), optional
+        The events warped with the parameters evaluated.
+    jx, jy : array (N, P), optional
+        Their parameter Jacobians.
+    span : (float, float), optional
+        ``(min dt, max dt)`` in seconds.
+    count : array (H, W) float64, optional
+        The bilinear IWE of ``xw, yw`` without weights (the vote counts; read only).
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    dt: np.ndarray
+    xw: np.ndarray | None = None
+    yw: np.ndarray | None = None
+    jx: np.ndarray | None = None
+    jy: np.ndarray | None = None
+    span: tuple[float, float] | None = None
+    count: np.ndarray | None = None
+
+    def duration(self) -> float:
+        """The window's duration ``T`` in seconds (:func:`window_span`), from ``span`` when
+        given."""
+        return window_span(self.dt) if self.span is None else span_duration(self.span)
 
 def scratch(shapes, tag, dtype=np.float64):
     """Reusable buffers per thread (float64 unless ``dtype``): fresh large arrays cost page

@@ -10,7 +10,9 @@ reaches the inlined loop as a constant and its branches fold away. The helpers c
 the loops take scalars only: an array argument costs reference counting per call, which
 stops the vectorization.
 
-This module holds the pixel-side helpers the families' loops share and the
+The kernels take their arguments grouped: the events ``ev = (x, y, dt, xw, yw)``, the
+warp's parameter array ``prm`` and the pixel side ``src`` (:class:`AdjointInput`, as a plain
+tuple). This module holds the pixel-side helpers the families' loops share and the
 :class:`FusedAdjoint` mixin (``vjp``, ``reduce_bilinear``, ``reduce_pair``) a warp gets by
 defining ``_adj``.
 """
@@ -18,15 +20,17 @@ defining ``_adj``.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from evmotion.core.warps.common import EMPTY1
+from evmotion.core.warps.common import EMPTY1, NO_BLOCKS
 from evmotion.errors import ParameterError
 
-__all__ = ["DIV_BLOCK", "VALUE_KINDS", "FusedAdjoint", "bilinear_sample", "cell_diff",
-           "pad_diff", "pad_image", "pad_index"]
+__all__ = ["DIV_BLOCK", "VALUE_KINDS", "AdjointInput", "FusedAdjoint", "bilinear_sample",
+           "cell_diff", "event_cell", "pad_diff", "pad_image", "pad_index", "src_diff",
+           "store_sums", "warped_cell"]
 
 #: Events per block of the rotation's block loop (the blocks of ``reduce_pair``'s
 #: ``blocks``, :mod:`evmotion.core.trim`).
@@ -103,16 +107,104 @@ def pad_diff(pair, a, fx, fy, e, pad, i, wp, p2):
     return gX, gY, gd
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def event_cell(xv, yv, t, k, use_w, pair, src):
+    """:func:`pad_index` of event ``k`` at ``(xv, yv)`` px for the pixel side ``src``
+    (:meth:`AdjointInput.kernel_args`): its weight is ``wts[k]`` where ``use_w`` (one
+    image with weights), else 1, times ``scale``."""
+    _, _, wts, _, h, wd, scale, _ = src
+    return pad_index(xv, yv, t, wts[k] if use_w and not pair else 1.0, scale, h, wd)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def warped_cell(fuse, use_w, pair, k, ev, src):
+    """``(xv, yv, t, a, fx, fy, i)`` of event ``k`` of ``ev = (x, y, dt, xw, yw)``: its
+    :func:`event_cell` where ``fuse`` (a padded image), else its warped pixel and dt (the
+    rest 0: the pixel gradients come from ``gx, gy``)."""
+    _, _, dt, xw, yw = ev
+    if fuse:
+        return event_cell(xw[k], yw[k], dt[k], k, use_w, pair, src)
+    return xw[k], yw[k], dt[k], 0.0, 0.0, 0.0, 0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def src_diff(pair, a, fx, fy, e, i, src):
+    """:func:`pad_diff` in the padded image(s) of the pixel side ``src``."""
+    _, _, _, pad, h, wd, _, _ = src
+    wp = wd + 2
+    return pad_diff(pair, a, fx, fy, e, pad, i, wp, (h + 2) * wp)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def store_sums(acc, out):
+    """``out[j] = acc[j]``: a loop's sums (a tuple) into the (P,) result."""
+    for j in range(out.shape[0]):
+        out[j] = acc[j]
+
+
 #: :meth:`FusedAdjoint.reduce_pair`'s ``derivs`` -> the kernels' value kind ``vk``.
 VALUE_KINDS = {None: 0, "divergence": 1, "deformation": 2}
+
+
+class AdjointInput(NamedTuple):
+    """The pixel side of a fused adjoint pass (``FusedAdjoint._adj``'s ``src``).
+
+    Attributes
+    ----------
+    gx, gy : array (N,)
+        Per-event pixel gradients (:meth:`FusedAdjoint.vjp`); empty where ``pad`` is given.
+    wts : array (N,)
+        With one padded image, optional per-event weights (empty: none); with two (pair
+        mode), the per-event values.
+    pad : array
+        Empty (``vjp``), one (h + 2) (wd + 2) padded image (:func:`pad_image`) or two
+        (pair mode, :meth:`FusedAdjoint.reduce_pair`), flat float64.
+    h, wd : int
+        The image's size, px.
+    scale : float
+        Factor of the pixel gradients.
+    T : float
+        The window's span (s): the divergence values are the divergence times ``T``.
+    vk : int
+        The values' kind in pair mode (:data:`VALUE_KINDS`).
+    blk : array of int64
+        The blocks of :data:`DIV_BLOCK` events to visit (empty: every), where the warp is
+        ``_blocked``.
+    """
+
+    gx: np.ndarray = EMPTY1
+    gy: np.ndarray = EMPTY1
+    wts: np.ndarray = EMPTY1
+    pad: np.ndarray = EMPTY1
+    h: int = 0
+    wd: int = 0
+    scale: float = 1.0
+    T: float = 1.0
+    vk: int = 0
+    blk: np.ndarray = NO_BLOCKS
+
+    def kernel_args(self) -> tuple:
+        """The plain tuple the kernels take: ``(gx, gy, wts, pad, h, wd, scale, T)`` (a
+        slice: the callers build ``h, wd`` as ints and ``scale, T`` as floats, so that
+        every call has the kernels' one signature)."""
+        return self[:8]
+
+    def case(self, derivs: bool = True) -> tuple[bool, bool, bool, int]:
+        """``(fuse, use_w, pair, vk)``: whether the pixel gradients come from a padded image,
+        weights are given (one image), two images are (pair mode) and the values' kind
+        (pair mode; 0 unless ``derivs``: the warp's values do not depend on theta)."""
+        if self.pad.shape[0] == 0:
+            return False, False, False, 0
+        if self.pad.shape[0] == 2 * (self.h + 2) * (self.wd + 2):
+            return True, True, True, self.vk if derivs and self.vk in (1, 2) else 0
+        return True, self.wts.shape[0] > 0, False, 0
 
 
 class FusedAdjoint:
     """Warps whose adjoint kernel recomputes the parameter Jacobian per event, so the chain
     rule needs no (N, P) Jacobian buffers (the hot path of gradient-based CMax). Each such
-    warp defines ``_adj(x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0,
-    T=1.0, blk=NO_BLOCKS)`` (``vk``, ``T``: :meth:`reduce_pair`'s ``derivs``, ``T``;
-    ``blk``: the blocks of events to visit, where ``_blocked``)."""
+    warp defines ``_adj(x, y, dt, xw, yw, th, src, out)``: ``out`` (P,) from the events, the
+    checked parameters and the pixel side ``src`` (:class:`AdjointInput`)."""
 
     #: Whether ``_adj`` visits listed blocks of events only (:meth:`reduce_pair`'s
     #: ``blocks``); elsewhere ``blocks`` is ignored (same result, every event visited).
@@ -136,8 +228,7 @@ class FusedAdjoint:
         >>> w.vjp(x, x, dt, xw, yw, th, np.array([1.0]), np.array([0.0]), np.empty(2))
         array([-0.5,  0. ])
         """
-        self._adj(x, y, dt, xw, yw, self.check_theta(theta), gx, gy, EMPTY1, EMPTY1, 0, 0, 1.0,
-                  out)
+        self._adj(x, y, dt, xw, yw, self.check_theta(theta), AdjointInput(gx, gy), out)
         return out
 
     def reduce_bilinear(self, x, y, dt, xw, yw, theta, grad_iwe, out, weights=None,
@@ -170,19 +261,19 @@ class FusedAdjoint:
         size = (h + 2) * (wd + 2)
         pad = np.empty(size) if work is None or work.shape[0] < size else work[:size]
         pad_image(g, float(shift), pad)
-        w = EMPTY1 if weights is None else weights
-        self._adj(x, y, dt, xw, yw, self.check_theta(theta), EMPTY1, EMPTY1, w, pad, h, wd,
-                  float(scale), out)
+        src = AdjointInput(wts=EMPTY1 if weights is None else weights, pad=pad, h=h, wd=wd,
+                           scale=float(scale))
+        self._adj(x, y, dt, xw, yw, self.check_theta(theta), src, out)
         return out
 
-    def reduce_pair(self, x, y, dt, xw, yw, theta, pads, values, h, wd, out,
+    def reduce_pair(self, x, y, dt, xw, yw, theta, pads, values, out,
                     scale: float = 1.0, derivs: str | None = None,
                     T: float = 1.0, blocks: np.ndarray | None = None) -> np.ndarray:
         """:meth:`reduce_bilinear` for a loss on two bilinear IWEs of ``xw, yw``, of ones
         and of per-event ``values``: ``out`` (P,) = dL/dtheta given ``dL/dIWE_ones = A``
         and ``dL/dIWE_values = B``, one pass over the events with the Jacobians recomputed,
-        not stored. ``pads`` (2 (h + 2) (wd + 2),) float64 holds ``A`` then ``B``, each an
-        (h, wd) image padded by a ring of zeros (row-major); ``values`` (N,) float64
+        not stored. ``pads`` (2, H + 2, W + 2) float64 C-contiguous holds ``A`` then ``B``,
+        each an (H, W) image padded by a ring of zeros; ``values`` (N,) float64
         contiguous; the result is multiplied by ``scale``; other arguments as in
         :meth:`vjp`.
 
@@ -201,21 +292,24 @@ class FusedAdjoint:
         >>> w = make_warp("translation", sensor_size=(1, 2))
         >>> x = np.array([0.25]); y = np.zeros(1); dt = np.array([1.0])
         >>> pads = np.zeros((2, 3, 4)); pads[0, 1, 2] = 1.0; pads[1, 1, 2] = 2.0
-        >>> w.reduce_pair(x, y, dt, x, y, np.zeros(2), pads.ravel(), np.array([0.5]), 1,
-        ...               2, np.empty(2))
+        >>> w.reduce_pair(x, y, dt, x, y, np.zeros(2), pads, np.array([0.5]), np.empty(2))
         array([-2. ,  0.5])
         """
-        if pads.shape[0] != 2 * (h + 2) * (wd + 2):
-            raise ParameterError(f"pads must hold two padded ({h}, {wd}) images, got "
-                                 f"{pads.shape[0]} values")
+        if not (isinstance(pads, np.ndarray) and pads.dtype == np.float64 and pads.ndim == 3
+                and pads.shape[0] == 2 and min(pads.shape[1:]) > 2
+                and pads.flags.c_contiguous):
+            raise ParameterError(f"pads must be two padded images, a C-contiguous float64 "
+                                 f"(2, H + 2, W + 2) array, got "
+                                 f"{getattr(pads, 'dtype', type(pads))} {np.shape(pads)}")
         if derivs not in VALUE_KINDS:
             raise ParameterError(f"derivs must be one of {sorted(VALUE_KINDS, key=str)}, "
                                  f"got {derivs!r}")
         th = self.check_theta(theta)
-        vk = VALUE_KINDS[derivs]
+        flat = pads.reshape(-1)
+        src = AdjointInput(wts=values, pad=flat, h=pads.shape[1] - 2, wd=pads.shape[2] - 2,
+                           scale=float(scale), T=float(T), vk=VALUE_KINDS[derivs])
         if blocks is None or not self._blocked:
-            self._adj(x, y, dt, xw, yw, th, EMPTY1, EMPTY1, values, pads, h, wd,
-                      float(scale), out, vk, float(T))
+            self._adj(x, y, dt, xw, yw, th, src, out)
             return out
         nb = -(-xw.shape[0] // DIV_BLOCK)
         if not (isinstance(blocks, np.ndarray) and blocks.dtype == np.uint8
@@ -228,11 +322,10 @@ class FusedAdjoint:
         out[:] = 0.0
         part = np.empty_like(out)
         if pair.shape[0]:
-            self._adj(x, y, dt, xw, yw, th, EMPTY1, EMPTY1, values, pads, h, wd,
-                      float(scale), part, vk, float(T), pair)
+            self._adj(x, y, dt, xw, yw, th, src._replace(blk=pair), part)
             out += part
         if single.shape[0]:
-            self._adj(x, y, dt, xw, yw, th, EMPTY1, EMPTY1, EMPTY1,
-                      pads[:pads.shape[0] // 2], h, wd, float(scale), part, 0, float(T), single)
+            one = src._replace(wts=EMPTY1, pad=flat[:flat.shape[0] // 2], vk=0, blk=single)
+            self._adj(x, y, dt, xw, yw, th, one, part)
             out += part
         return out

@@ -14,21 +14,10 @@ __all__ = ["Warp"]
 _CSTEP = 1e-30  # complex-step size: exact derivatives to machine precision, any tiny value works
 
 class Warp(MotionModel):
-    """A parametric warp (see the module docstring for conventions).
-
-    Attributes
-    ----------
-    name : str
-    n_params : int
-    param_names : tuple of str
-    param_units : tuple of str
-    sensor_size : (int, int)
-        ``(height, width)`` in pixels.
-    center : (float, float)
-        ``(cx, cy)`` pixel position of the origin of the centred coordinates.
-    K : ndarray (3, 3) or None
-        Camera intrinsics (pixels); required by ``rotation``.
-    """
+    """A parametric warp (see the module docstring for conventions): the attributes of
+    :class:`~evmotion.geometry.MotionModel` (``name``, ``n_params``, ``param_names``,
+    ``param_units``, ``sensor_size``, ``center``, ``K``), with the warp, its differential
+    quantities and their parameter derivatives."""
 
     @staticmethod
     def check_events(x, y, dt):

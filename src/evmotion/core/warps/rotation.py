@@ -11,68 +11,68 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from evmotion.core.warps.adjoint import DIV_BLOCK, FusedAdjoint, pad_diff, pad_index
+from evmotion.core.warps.adjoint import (
+    DIV_BLOCK,
+    AdjointInput,
+    FusedAdjoint,
+    event_cell,
+    src_diff,
+    store_sums,
+    warped_cell,
+)
 from evmotion.core.warps.base import Warp
 from evmotion.core.warps.common import (
     BLOCK,
     EMPTY1,
     EMPTY2,
     FAST_FINITE,
-    NO_BLOCKS,
     max_abs,
     rows01,
 )
-from evmotion.core.warps.so3 import rod_block, rod_mode, rot_matrix
+from evmotion.core.warps.so3 import cross, rod_block, rod_mode, rot_matrix
 from evmotion.jitcache import kernel_case
 
 __all__ = ["RotationWarp", "rot_series_mode", "rot_values", "rot_warp_values"]
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20, i21, i22):
-    """Rodrigues rotation of K^-1 (x, y, 1) by t omega, with its projection."""
-    xn = i00 * x + i01 * y + i02
-    yn = i10 * x + i11 * y + i12
-    zn = i20 * x + i21 * y + i22
-    c1x = wy * zn - wz * yn
-    c1y = wz * xn - wx * zn
-    c1z = wx * yn - wy * xn
-    c2x = wy * c1z - wz * c1y
-    c2y = wz * c1x - wx * c1z
-    c2z = wx * c1y - wy * c1x
+def _rot_point(x, y, t, a, b, w, ki):
+    """Rodrigues rotation of K^-1 (x, y, 1) by t omega, with its projection (``w``: omega;
+    ``ki``: K^-1, row by row)."""
+    i00, i01, i02, i10, i11, i12, i20, i21, i22 = ki
+    n = (i00 * x + i01 * y + i02, i10 * x + i11 * y + i12, i20 * x + i21 * y + i22)
+    c1 = cross(w, n)
+    c2 = cross(w, c1)
     at = a * t
     bt = b * t * t
-    q0 = xn + at * c1x + bt * c2x
-    q1 = yn + at * c1y + bt * c2y
-    q2 = zn + at * c1z + bt * c2z
+    q0 = n[0] + at * c1[0] + bt * c2[0]
+    q1 = n[1] + at * c1[1] + bt * c2[1]
+    q2 = n[2] + at * c1[2] + bt * c2[2]
     iz = 1.0 / q2
     return q0 * iz, q1 * iz, q0, q1, q2, iz
 
 
 @njit(cache=True, error_model="numpy")
-def _rot_warp_event(x, y, t, a, b, wx, wy, wz, km, ki):
+def _rot_warp_event(x, y, t, a, b, w, km, ki):
     """Warped pixel of one event: :func:`_rot_warp_norm`, then K (``km``, ``ki``: the first
     two rows of K and K^-1, :func:`~evmotion.core.warps.common.rows01`)."""
     k00, k01, k02, k10, k11, k12 = km
-    i00, i01, i02, i10, i11, i12 = ki
-    X, Y = _rot_warp_norm(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12)
+    X, Y = _rot_warp_norm(x, y, t, a, b, w, ki)
     return k00 * X + k01 * Y + k02, k10 * X + k11 * Y + k12
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_warp_norm(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12):
+def _rot_warp_norm(x, y, t, a, b, w, ki):
     """Warped normalized point of one event: :func:`_rot_point` with K^-1's last row
-    (0, 0, 1) written in."""
+    (0, 0, 1) written in (``ki``: the first two rows of K^-1)."""
+    i00, i01, i02, i10, i11, i12 = ki
     xn = i00 * x + i01 * y + i02
     yn = i10 * x + i11 * y + i12
-    c1x = wy - wz * yn
-    c1y = wz * xn - wx
-    c1z = wx * yn - wy * xn
+    c1 = cross(w, (xn, yn, 1.0))
+    c2 = cross(w, c1)
     at = a * t
     bt = b * t * t
-    q0 = xn + at * c1x + bt * (wy * c1z - wz * c1y)
-    q1 = yn + at * c1y + bt * (wz * c1x - wx * c1z)
-    iz = 1.0 / (1.0 + at * c1z + bt * (wx * c1y - wy * c1x))
-    return q0 * iz, q1 * iz
+    iz = 1.0 / (1.0 + at * c1[2] + bt * c2[2])
+    return (xn + at * c1[0] + bt * c2[0]) * iz, (yn + at * c1[1] + bt * c2[1]) * iz
 
 
 def _rot_warp_case(mode, jac):
@@ -88,14 +88,14 @@ def _rot_warp_case(mode, jac):
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
     def rot_warp(x, y, dt, w, Kmat, Kinv, xw, yw, jx, jy):
-        wx, wy, wz = w[0], w[1], w[2]
-        ww = wx * wx + wy * wy + wz * wz
+        w3 = (w[0], w[1], w[2])
+        ww = w3[0] * w3[0] + w3[1] * w3[1] + w3[2] * w3[2]
         km = rows01(Kmat)
         ki = rows01(Kinv)
         for k in range(x.shape[0]):
             t = dt[k]
             a, b, _ = rod_mode(t * t * ww, mode)
-            xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, wx, wy, wz, km, ki)
+            xw[k], yw[k] = _rot_warp_event(x[k], y[k], t, a, b, w3, km, ki)
 
     return rot_warp
 
@@ -107,9 +107,7 @@ def _rot_jac_event(x, y, t, a, b, c, w, km, ki):
     row)."""
     wx, wy, wz, ww = w
     k00, k01, k02, k10, k11, k12 = km
-    i00, i01, i02, i10, i11, i12, i20, i21, i22 = ki
-    X, Y, _, _, _, _ = _rot_point(x, y, t, a, b, wx, wy, wz, i00, i01, i02, i10, i11, i12, i20,
-                                  i21, i22)
+    X, Y, _, _, _, _ = _rot_point(x, y, t, a, b, (wx, wy, wz), ki)
     # d(X, Y)/d omega = -t L J_l(t omega) with L the rotational interaction matrix
     # at the warped point, rows L0 = (XY, -(1 + X^2), Y), L1 = (1 + Y^2, -XY, -X),
     # and J_l = g Id + b t omega^ + c t^2 omega omega^T, g = 1 - c t^2 |omega|^2:
@@ -153,16 +151,19 @@ def _rot_jac_loop(mode, args):
 
 
 @njit(cache=True, error_model="numpy")
-def _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gX, gY):
-    """``gX dX/domega + gY dY/domega`` (3 terms) at the warped normalized point (X, Y);
-    the formula of the Jacobian in :func:`_rot_jac_event`, contracted instead of stored."""
-    return _rot_vjp_u(X, Y, t, b, c, wx, wy, wz, ww, gX, gY, 0.0, 0.0, 0.0)
+def _rot_vjp_event(X, Y, t, b, c, w, gX, gY):
+    """``gX dX/domega + gY dY/domega`` (3 terms) at the warped normalized point (X, Y)
+    (``w``: omega and |omega|^2); the formula of the Jacobian in :func:`_rot_jac_event`,
+    contracted instead of stored."""
+    return _rot_vjp_u(X, Y, t, b, c, w, gX, gY, (0.0, 0.0, 0.0))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_vjp_u(X, Y, t, b, c, wx, wy, wz, ww, gX, gY, e0, e1, e2):
-    """:func:`_rot_vjp_event` with ``e`` added to its vector ``u`` (``-t J_l^T u`` is the
-    result)."""
+def _rot_vjp_u(X, Y, t, b, c, w, gX, gY, e):
+    """:func:`_rot_vjp_event` with the 3-tuple ``e`` added to its vector ``u`` (``-t J_l^T
+    u`` is the result)."""
+    wx, wy, wz, ww = w
+    e0, e1, e2 = e
     bt1 = b * t
     ct2 = c * t * t
     g = 1.0 - ct2 * ww
@@ -183,13 +184,11 @@ def _rot_adj_event(xv, yv, t, b, c, gx, gy, w, k2, ki):
     point comes back through K^-1 (affine), the gradient through K^T, so no division
     (``w``: omega and |omega|^2; ``k2``: K's 2x2 block; ``ki``: the first two rows of
     K^-1)."""
-    wx, wy, wz, ww = w
     k00, k01, k10, k11 = k2
     i00, i01, i02, i10, i11, i12 = ki
     X = i00 * xv + i01 * yv + i02
     Y = i10 * xv + i11 * yv + i12
-    return _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, gx * k00 + gy * k10,
-                          gx * k01 + gy * k11)
+    return _rot_vjp_event(X, Y, t, b, c, w, gx * k00 + gy * k10, gx * k01 + gy * k11)
 
 
 @njit(cache=True, inline="always")
@@ -212,31 +211,28 @@ def _rot_bc(z, mode):
 
 @njit(cache=True, inline="always")
 def _rot_prm(prm):
-    """The scalars of the rotation adjoint's ``prm``: omega, |omega|^2, K's 2x2 block
-    and the first two rows of K^-1."""
+    """The scalars of the rotation adjoint's ``prm``, grouped: omega and |omega|^2, K's 2x2
+    block and the first two rows of K^-1."""
     wx, wy, wz = prm[0], prm[1], prm[2]
-    return (wx, wy, wz, wx * wx + wy * wy + wz * wz, prm[3], prm[4], prm[5], prm[6], prm[7],
-            prm[8], prm[9], prm[10], prm[11], prm[12])
+    return ((wx, wy, wz, wx * wx + wy * wy + wz * wz), (prm[3], prm[4], prm[5], prm[6]),
+            (prm[7], prm[8], prm[9], prm[10], prm[11], prm[12]))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_loop(mode, fuse, use_w, pair, args):
-    """The rotation's adjoint loop: its three sums and, in pair mode, that of ``|gd|``
-    (:func:`pad_diff`)."""
-    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, _ = args
-    wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02, i10, i11, i12 = _rot_prm(prm)
-    w4, k2, ki = (wx, wy, wz, ww), (k00, k01, k10, k11), (i00, i01, i02, i10, i11, i12)
-    wp = wd + 2
-    p2 = (h + 2) * wp  # start of the second image in pair mode
+def _rot_loop(mode, fuse, use_w, pair, ev, prm, src):
+    """The rotation's adjoint loop over the events ``ev`` (:mod:`~.adjoint`): its three sums
+    and, in pair mode, that of ``|gd|`` (:func:`~.adjoint.pad_diff`)."""
+    gx, gy, wts, _, _, _, _, _ = src
+    w4, k2, ki = _rot_prm(prm)
+    ww = w4[3]
     a0 = a1 = a2 = a3 = 0.0
-    for k in range(xw.shape[0]):
+    for k in range(ev[3].shape[0]):
         gd = 0.0
+        xv, yv, t, a, fx, fy, i = warped_cell(fuse, use_w, pair, k, ev, src)
         if fuse:
-            xv, yv, t, a, fx, fy, i = pad_index(xw[k], yw[k], dt[k], wts[k] if use_w and
-                                                 not pair else 1.0, scale, h, wd)
-            gX, gY, gd = pad_diff(pair, a, fx, fy, wts[k] if pair else 0.0, pad, i, wp, p2)
+            gX, gY, gd = src_diff(pair, a, fx, fy, wts[k] if pair else 0.0, i, src)
         else:
-            xv, yv, t, gX, gY = xw[k], yw[k], dt[k], gx[k], gy[k]
+            gX, gY = gx[k], gy[k]
         b, c = _rot_bc(t * t * ww, mode)
         d0, d1, d2 = _rot_adj_event(xv, yv, t, b, c, gX, gY, w4, k2, ki)
         a0 += d0
@@ -247,7 +243,7 @@ def _rot_loop(mode, fuse, use_w, pair, args):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_block_loop(mode, pair, vk, args, blk):
+def _rot_block_loop(mode, pair, vk, ev, prm, src, blk):
     """:func:`_rot_loop` (fused) over the blocks of :data:`DIV_BLOCK` events listed in
     ``blk`` (all if empty), in pair mode with the values' derivatives (``vk``: 1 divergence,
     2 det J): the votes' adjoint over every event of a block, then the values' part (linear
@@ -257,10 +253,11 @@ def _rot_block_loop(mode, pair, vk, args, blk):
     about as much as the rest of the loop). No per-event buffer: each loop only sums, so
     both vectorize. (A list, not flags tested per block: a test in the outer loop slowed
     the inner one by half.)"""
-    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T = args
-    wx, wy, wz, ww, k00, k01, k10, k11, i00, i01, i02, i10, i11, i12 = _rot_prm(prm)
-    wp = wd + 2
-    p2 = (h + 2) * wp  # start of the second image
+    x, y, dt, xw, yw = ev
+    gx, gy, wts, pad, h, wd, scale, T = src
+    w4, _, ki = _rot_prm(prm)
+    i00, i01, i02, i10, i11, i12 = ki
+    ww = w4[3]
     listed = blk.shape[0] > 0
     nb = blk.shape[0] if listed else -(-xw.shape[0] // DIV_BLOCK)
     a0 = a1 = a2 = 0.0
@@ -269,31 +266,32 @@ def _rot_block_loop(mode, pair, vk, args, blk):
         # views per block, so that the loops index from 0: an index numba cannot prove
         # non-negative gets a wraparound select, and its loads become gathers
         k1 = k0 + DIV_BLOCK
-        xs, ys, ts = xw[k0:k1], yw[k0:k1], dt[k0:k1]
-        sub = (xs, ys, ts, prm, gx, gy, wts[k0:k1] if pair else wts, pad, h, wd, scale, T)
+        ts, xs, ys = dt[k0:k1], xw[k0:k1], yw[k0:k1]
+        sub = (x, y, ts, xs, ys)
+        ssrc = (gx, gy, wts[k0:k1] if pair else wts, pad, h, wd, scale, T)
         if not pair:
-            d0, d1, d2, _ = _rot_loop(mode, True, False, False, sub)
+            d0, d1, d2, _ = _rot_loop(mode, True, False, False, sub, prm, ssrc)
             a0 += d0
             a1 += d1
             a2 += d2
             continue
-        d0, d1, d2, active = _rot_loop(mode, True, True, True, sub)
+        d0, d1, d2, active = _rot_loop(mode, True, True, True, sub, prm, ssrc)
         a0 += d0
         a1 += d1
         a2 += d2
         if vk == 0 or active == 0.0:
             continue
-        for k in range(xs.shape[0]):
-            xv, yv, t, a, fx, fy, i = pad_index(xs[k], ys[k], ts[k], 1.0, scale, h, wd)
-            _, _, gd = pad_diff(True, a, fx, fy, 0.0, pad, i, wp, p2)
+        for k in range(ts.shape[0]):
+            xv, yv, t, a, fx, fy, i = event_cell(xs[k], ys[k], ts[k], k, False, True, ssrc)
+            _, _, gd = src_diff(True, a, fx, fy, 0.0, i, ssrc)
             ra, b, c = rod_mode(t * t * ww, mode)
             X = i00 * xv + i01 * yv + i02
             Y = i10 * xv + i11 * yv + i12
             if vk == 1:
-                d0, d1, d2 = _rot_value_adj(X, Y, t, ra, b, c, gd, T, wx, wy, wz, ww)
+                d0, d1, d2 = _rot_value_adj(X, Y, t, (ra, b, c), gd, T, w4)
             else:
-                kap = _rot_det_weight(X, Y, t, ra, b, wx, wy, wz, ww, gd)
-                d0, d1, d2 = _rot_vjp_event(X, Y, t, b, c, wx, wy, wz, ww, kap * X, kap * Y)
+                kap = _rot_det_weight(X, Y, t, ra, b, w4, gd)
+                d0, d1, d2 = _rot_vjp_event(X, Y, t, b, c, w4, kap * X, kap * Y)
             a0 += d0
             a1 += d1
             a2 += d2
@@ -301,19 +299,19 @@ def _rot_block_loop(mode, pair, vk, args, blk):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_det_weight(X, Y, t, a, b, wx, wy, wz, ww, gd):
+def _rot_det_weight(X, Y, t, a, b, w, gd):
     """``kap``: ``gd`` times the omega-derivative of the event's ``|det J| - 1`` is that of
     ``kap (X, Y)`` as a normalized pixel gradient (:func:`_rot_value_adj`)."""
-    _, _, r02, _, _, r12, _, _, r22 = rot_matrix(a, b, t, wx, wy, wz, ww)
+    _, _, r02, _, _, r12, _, _, r22 = rot_matrix(a, b, t, w)
     iz = r02 * X + r12 * Y + r22
     return gd * 3.0 * abs(iz * iz * iz) / (1.0 + X * X + Y * Y)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_value_adj(X, Y, t, a, b, c, gd, T, wx, wy, wz, ww):
+def _rot_value_adj(X, Y, t, abc, gd, T, w):
     """``gd`` times the omega-derivative of the event's divergence times ``T`` (its
     ``|det J| - 1``: :func:`_rot_det_weight`), from the warped normalized point (X, Y)
-    alone.
+    alone (``abc``: the Rodrigues coefficients; ``w``: omega and |omega|^2).
 
     The value is a function ``D(X, Y, omega)`` (:func:`_rot_value_event`), so
     ``dD/domega = D_X dX/domega + D_Y dY/domega + D_omega``: the
@@ -325,7 +323,9 @@ def _rot_value_adj(X, Y, t, a, b, c, gd, T, wx, wy, wz, ww):
     = t (J_l e_j)^ R``: ``sum_mn (dD/dR)_mn (dR/domega_j)_mn = t (J_l e_j) . n``, ``n``
     the axial vector of ``R M^T - M R^T``, ``M = dD/dR``; :func:`_rot_vjp_u` contracts
     ``-t J_l^T u``, so ``n`` enters as ``u -= gd n``."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot_matrix(a, b, t, wx, wy, wz, ww)
+    a, b, c = abc
+    wx, wy, wz, _ = w
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot_matrix(a, b, t, w)
     iz = r02 * X + r12 * Y + r22
     f = gd * T
     p00 = r00 - X * r20
@@ -359,24 +359,21 @@ def _rot_value_adj(X, Y, t, a, b, c, gd, T, wx, wy, wz, ww):
     ea0 = -Y * p00 - X * p10 - 2.0 * Y * p11
     ea1 = 2.0 * X * p00 + Y * p01 + X * p11
     ea2 = p01 - p10
-    d0, d1, d2 = _rot_vjp_u(X, Y, t, b, c, wx, wy, wz, ww, gXd, gYd, -f * n0, -f * n1, -f * n2)
+    d0, d1, d2 = _rot_vjp_u(X, Y, t, b, c, w, gXd, gYd, (-f * n0, -f * n1, -f * n2))
     fi = f * iz
     return d0 + fi * ea0, d1 + fi * ea1, d2 + fi * ea2
 
 
 def _rot_adj_plain(mode, fuse, use_w):
     """The rotation adjoint (:func:`_rot_loop`) in one case, ``out`` (3,) = ``jx^T gx + jy^T
-    gy`` with the Jacobian recomputed per event from the warped pixels ``xw, yw`` (``prm``:
-    omega, K's 2x2 block, the first two rows of K^-1); with a padded image ``pad``
-    (:func:`pad_image`, ``fuse``) the pixel gradients come from it (weights ``wts`` times
-    ``scale`` where ``use_w``), not from ``gx, gy``."""
+    gy`` with the Jacobian recomputed per event from the warped pixels of ``ev``
+    (:mod:`~.adjoint`; ``prm``: omega, K's 2x2 block, the first two rows of K^-1); with a
+    padded image (``fuse``) the pixel gradients come from it (weights times ``scale`` where
+    ``use_w``), not from ``gx, gy``."""
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
-    def rot_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, out):
-        acc = _rot_loop(mode, fuse, use_w, False,
-                        (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T))
-        for j in range(3):
-            out[j] = acc[j]
+    def rot_adj(ev, prm, src, out):
+        store_sums(_rot_loop(mode, fuse, use_w, False, ev, prm, src), out)
 
     return rot_adj
 
@@ -389,11 +386,8 @@ def _rot_adj_blocks(mode, pair, vk):
     then chained as well (:data:`VALUE_KINDS`)."""
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
-    def rot_adj_blocks(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, blk, out):
-        acc = _rot_block_loop(mode, pair, vk,
-                              (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T), blk)
-        for j in range(3):
-            out[j] = acc[j]
+    def rot_adj_blocks(ev, prm, src, blk, out):
+        store_sums(_rot_block_loop(mode, pair, vk, ev, prm, src, blk), out)
 
     return rot_adj_blocks
 
@@ -405,24 +399,17 @@ def rot_series_mode(dt, w) -> int:
     return 0 if zmax < 0.05 else (1 if zmax < 1.0 else 2)
 
 
-def _rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, blk, out):
+def _rotation_adj(ev, prm, src: AdjointInput, out):
     """The rotation adjoint: picks the case kernel (see :func:`_rot_adj_plain`,
     :func:`_rot_adj_blocks`; blocks are visited in pair mode or with one image and unit
     weights)."""
-    mode = rot_series_mode(dt, prm)
-    fuse = pad.shape[0] > 0
-    if not fuse:
-        kernel_case(_rot_adj_plain, mode, False, False)(xw, yw, dt, prm, gx, gy, wts, pad,
-                                                        h, wd, scale, T, out)
-    elif pad.shape[0] == 2 * (h + 2) * (wd + 2):
-        kernel_case(_rot_adj_blocks, mode, True, vk if vk in (1, 2) else 0)(
-            xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, blk, out)
-    elif blk.shape[0] > 0:
-        kernel_case(_rot_adj_blocks, mode, False, 0)(xw, yw, dt, prm, gx, gy, wts, pad, h,
-                                                     wd, scale, T, blk, out)
+    mode = rot_series_mode(ev[2], prm)
+    fuse, use_w, pair, vk = src.case()
+    args = src.kernel_args()
+    if pair or (fuse and src.blk.shape[0] > 0):
+        kernel_case(_rot_adj_blocks, mode, pair, vk)(ev, prm, args, src.blk, out)
     else:
-        kernel_case(_rot_adj_plain, mode, True, wts.shape[0] > 0)(
-            xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, out)
+        kernel_case(_rot_adj_plain, mode, fuse, use_w)(ev, prm, args, out)
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
@@ -465,7 +452,7 @@ def _rot_divdet_block(x, y, dt, w, ki, want_div, mode_g, blk, val, grad, gw, out
         c = cbuf[k - k0]
         xn = i00 * x[k] + i01 * y[k] + i02
         yn = i10 * x[k] + i11 * y[k] + i12
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot_matrix(a, b, t, wx, wy, wz, ww)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot_matrix(a, b, t, w)
         q0 = r00 * xn + r01 * yn + r02
         q1 = r10 * xn + r11 * yn + r12
         q2 = r20 * xn + r21 * yn + r22
@@ -534,23 +521,16 @@ def _rot_div_dir(l, e, wx, wy, q, X, Y, iz, r, j, A):
     """Derivative of tr(A J) along omega_j, given ``l = t J_l(t omega) e_j`` and ``e = e_j``
     (3-tuples), the rotated point ``q``, its projection ``(X, Y)`` and ``iz = 1 / q_z``,
     ``r`` = (R00, R01, R10, R11, R20, R21), and ``j``, ``A`` of :func:`_rot_div_parts`."""
-    l0, l1, l2 = l
     e0, e1, e2 = e
-    q0, q1, q2 = q
     r00, r01, r10, r11, r20, r21 = r
     j00, j01, j10, j11 = j
     a00, a01, a10, a11 = A
-    dq0 = l1 * q2 - l2 * q1
-    dq1 = l2 * q0 - l0 * q2
-    dq2 = l0 * q1 - l1 * q0
+    dq0, dq1, dq2 = cross(l, q)
     dX = (dq0 - X * dq2) * iz
     dY = (dq1 - Y * dq2) * iz
-    dr00 = l1 * r20 - l2 * r10
-    dr10 = l2 * r00 - l0 * r20
-    dr20 = l0 * r10 - l1 * r00
-    dr01 = l1 * r21 - l2 * r11
-    dr11 = l2 * r01 - l0 * r21
-    dr21 = l0 * r11 - l1 * r01
+    # the columns of dR = l^ R
+    dr00, dr10, dr20 = cross(l, (r00, r10, r20))
+    dr01, dr11, dr21 = cross(l, (r01, r11, r21))
     dz = dq2 * iz
     dj00 = (dr00 - dX * r20 - X * dr20) * iz - j00 * dz
     dj01 = (dr01 - dX * r21 - X * dr21) * iz - j01 * dz
@@ -565,7 +545,7 @@ def _rot_div_dir(l, e, wx, wy, q, X, Y, iz, r, j, A):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _rot_value_event(X, Y, t, a, b, wx, wy, wz, ww, want_div):
+def _rot_value_event(X, Y, t, a, b, w, want_div):
     """Divergence (1/s) or det J of the rotation warp for the event whose warped normalized
     point is (X, Y), ``dt = t``, Rodrigues coefficients ``a, b`` of ``|t omega|``.
 
@@ -573,12 +553,12 @@ def _rot_value_event(X, Y, t, a, b, wx, wy, wz, ww, want_div):
     ``v_z = 1`` give ``1 / q_z = R_02 X + R_12 Y + R_22``, so neither the event nor a
     division is needed: det J = (1 / q_z)^3, and div f = tr(A J) with ``J = dX/dv``
     (rows ``(R_i. - X_i R_2.) / q_z``) and ``A`` the derivative of the rotational flow at
-    (X, Y) (the formulas of :func:`_k_rot_divdet`)."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot_matrix(a, b, t, wx, wy, wz, ww)
+    (X, Y) (the formulas of :func:`_k_rot_divdet`; ``w``: omega and |omega|^2)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot_matrix(a, b, t, w)
     iz = r02 * X + r12 * Y + r22
     if not want_div:
         return iz * iz * iz
-    j, A = _rot_div_parts(X, Y, iz, (r00, r01, r10, r11, r20, r21), wx, wy, wz)
+    j, A = _rot_div_parts(X, Y, iz, (r00, r01, r10, r11, r20, r21), w[0], w[1], w[2])
     return _trace22(A, j)
 
 
@@ -601,12 +581,13 @@ def _rot_values_case(mode, want_div):
     def rot_values(xw, yw, dt, w, Kinv, T, d, fac):
         wx, wy, wz = w[0], w[1], w[2]
         ww = wx * wx + wy * wy + wz * wz
+        w4 = (wx, wy, wz, ww)
         i00, i01, i02, i10, i11, i12 = rows01(Kinv)
         for k in range(xw.shape[0]):
             t = dt[k]
             a, b, _ = rod_mode(t * t * ww, mode)
             v = _rot_value_event(i00 * xw[k] + i01 * yw[k] + i02, i10 * xw[k] + i11 * yw[k]
-                                 + i12, t, a, b, wx, wy, wz, ww, want_div)
+                                 + i12, t, a, b, w4, want_div)
             _rot_finish(v, want_div, T, d, fac, k)
 
     return rot_values
@@ -628,16 +609,16 @@ def _rot_warp_values_case(mode, want_div):
     def rot_warp_values(x, y, dt, w, Kmat, Kinv, T, xw, yw, d, fac):
         wx, wy, wz = w[0], w[1], w[2]
         ww = wx * wx + wy * wy + wz * wz
+        w4 = (wx, wy, wz, ww)
         k00, k01, k02, k10, k11, k12 = rows01(Kmat)
-        i00, i01, i02, i10, i11, i12 = rows01(Kinv)
+        ki = rows01(Kinv)
         for k in range(x.shape[0]):
             t = dt[k]
             a, b, _ = rod_mode(t * t * ww, mode)
-            X, Y = _rot_warp_norm(x[k], y[k], t, a, b, wx, wy, wz, i00, i01, i02, i10, i11,
-                                  i12)
+            X, Y = _rot_warp_norm(x[k], y[k], t, a, b, (wx, wy, wz), ki)
             xw[k] = k00 * X + k01 * Y + k02
             yw[k] = k10 * X + k11 * Y + k12
-            v = _rot_value_event(X, Y, t, a, b, wx, wy, wz, ww, want_div)
+            v = _rot_value_event(X, Y, t, a, b, w4, want_div)
             _rot_finish(v, want_div, T, d, fac, k)
 
     return rot_warp_values
@@ -663,12 +644,11 @@ class RotationWarp(FusedAdjoint, Warp):
         kernel_case(_rot_warp_case, rot_series_mode(dt, th), bool(jac))(
             x, y, dt, th, self.K, self.K_inv, xw, yw, jx, jy)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
-             blk=NO_BLOCKS):
+    def _adj(self, x, y, dt, xw, yw, th, src, out):
         K, Ki = self.K, self.K_inv
         prm = np.array([th[0], th[1], th[2], K[0, 0], K[0, 1], K[1, 0], K[1, 1], Ki[0, 0],
                         Ki[0, 1], Ki[0, 2], Ki[1, 0], Ki[1, 1], Ki[1, 2]])
-        _rotation_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, blk, out)
+        _rotation_adj((x, y, dt, xw, yw), prm, src, out)
 
     def _divdet(self, x, y, dt, theta, want_div, grad):
         x, y, dt = self.check_events(x, y, dt)

@@ -9,17 +9,25 @@ import math
 import numpy as np
 from numba import njit
 
-from evmotion.core.warps.adjoint import FusedAdjoint, pad_diff, pad_index
+from evmotion.core.warps.adjoint import (
+    AdjointInput,
+    FusedAdjoint,
+    src_diff,
+    store_sums,
+    warped_cell,
+)
 from evmotion.core.warps.base import Warp
-from evmotion.core.warps.common import BLOCK, FAST_FINITE, NO_BLOCKS, max_abs
+from evmotion.core.warps.common import BLOCK, FAST_FINITE, max_abs
 from evmotion.core.warps.so3 import rod_coeffs_short, sincos_any, sincos_block
 from evmotion.jitcache import kernel_case
 
 __all__ = ["SE2Warp", "SimilarityWarp", "similarity_values"]
 
 @njit(cache=True, error_model="numpy")
-def _similarity_event(x, y, t, sn, c, vx, vy, s, cx, cy):
-    """Centred warped point ``(ox, oy)`` and ``1 / beta`` of one event."""
+def _similarity_event(x, y, t, sn, c, prm):
+    """Centred warped point ``(ox, oy)`` and ``1 / beta`` of one event (``prm``: vx, vy, the
+    image rotation rate, s, cx, cy)."""
+    vx, vy, _, s, cx, cy = prm
     ib = 1.0 / (1.0 + t * s)  # s is 0 for SE(2)
     u = x - cx - t * vx
     v = y - cy - t * vy
@@ -27,8 +35,12 @@ def _similarity_event(x, y, t, sn, c, vx, vy, s, cx, cy):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _similarity_jac_loop(small, scaled, args):
-    x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy = args
+def _similarity_fwd_loop(small, scaled, jac, args):
+    """The warp of :func:`_k_similarity` and, if ``jac``, its Jacobian; ``small`` (a
+    constant, :func:`~evmotion.core.warps.so3.sincos_any`), ``scaled`` and ``jac`` are
+    constants, so the branches fold away."""
+    x, y, dt, prm, xw, yw, jx, jy = args
+    w, cx, cy = prm[2], prm[4], prm[5]
     p = 4 if scaled else 3
     # flat views: strided stores into 1-D arrays vectorize, 2-D item stores do not
     jxf = jx.reshape(jx.size)
@@ -36,9 +48,11 @@ def _similarity_jac_loop(small, scaled, args):
     for k in range(x.shape[0]):
         t = dt[k]
         sn, c = sincos_any(-t * w, small)
-        ox, oy, ib = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
+        ox, oy, ib = _similarity_event(x[k], y[k], t, sn, c, prm)
         xw[k] = cx + ox
         yw[k] = cy + oy
+        if not jac:
+            continue
         r = p * k
         jxf[r] = -t * c * ib
         jyf[r] = -t * sn * ib
@@ -52,34 +66,23 @@ def _similarity_jac_loop(small, scaled, args):
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
-def _k_similarity(x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy, jac, scaled):
+def _k_similarity(x, y, dt, prm, xw, yw, jx, jy, jac, scaled):
+    """The SE(2)/similarity warp (``prm``: vx, vy, the image rotation rate, s, cx, cy) and,
+    if ``jac``, its Jacobian."""
     # angles below 1 rad take the series of sincos (exact to rounding, vectorizes)
-    small = max_abs(dt) * abs(w) < 1.0
+    small = max_abs(dt) * abs(prm[2]) < 1.0
+    a = (x, y, dt, prm, xw, yw, jx, jy)
     if jac:
-        a = (x, y, dt, vx, vy, w, s, cx, cy, xw, yw, jx, jy)
         if small and scaled:
-            _similarity_jac_loop(True, True, a)
+            _similarity_fwd_loop(True, True, True, a)
         elif small:
-            _similarity_jac_loop(True, False, a)
+            _similarity_fwd_loop(True, False, True, a)
         else:
-            _similarity_jac_loop(False, scaled, a)
+            _similarity_fwd_loop(False, scaled, True, a)
     elif small:
-        _similarity_warp_loop(True, (x, y, dt, vx, vy, w, s, cx, cy, xw, yw))
+        _similarity_fwd_loop(True, False, False, a)
     else:
-        _similarity_warp_loop(False, (x, y, dt, vx, vy, w, s, cx, cy, xw, yw))
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _similarity_warp_loop(small, args):
-    """The warp of :func:`_k_similarity` without its Jacobian, ``small`` a constant
-    (:func:`~evmotion.core.warps.so3.sincos_any`)."""
-    x, y, dt, vx, vy, w, s, cx, cy, xw, yw = args
-    for k in range(x.shape[0]):
-        t = dt[k]
-        sn, c = sincos_any(-t * w, small)
-        ox, oy, _ = _similarity_event(x[k], y[k], t, sn, c, vx, vy, s, cx, cy)
-        xw[k] = cx + ox
-        yw[k] = cy + oy
+        _similarity_fwd_loop(False, False, False, a)
 
 
 @njit(cache=True, error_model="numpy")
@@ -93,19 +96,15 @@ def _similarity_vjp_event(ox, oy, t, sn, c, s, gX, gY):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _similarity_loop(small, fuse, use_w, pair, vk, args):
-    xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T = args
+def _similarity_loop(small, fuse, use_w, pair, vk, ev, prm, src):
+    """The SE(2)/similarity adjoint loop over the events ``ev`` (:mod:`~.adjoint`), with
+    the values' derivatives in pair mode (``vk``)."""
+    gx, gy, wts, _, _, _, _, T = src
     w, s, cx, cy = prm[0], prm[1], prm[2], prm[3]
-    wp = wd + 2
-    p2 = (h + 2) * wp  # start of the second image in pair mode
     a0 = a1 = a2 = a3 = 0.0
-    for k in range(xw.shape[0]):
+    for k in range(ev[3].shape[0]):
         gd = 0.0
-        if fuse:
-            xv, yv, t, a, fx, fy, i = pad_index(xw[k], yw[k], dt[k], wts[k] if use_w and
-                                                 not pair else 1.0, scale, h, wd)
-        else:
-            xv, yv, t = xw[k], yw[k], dt[k]
+        xv, yv, t, a, fx, fy, i = warped_cell(fuse, use_w, pair, k, ev, src)
         sn, c = sincos_any(-t * w, small)
         ib = 1.0 / (1.0 + t * s)
         ib2 = ib * ib
@@ -113,7 +112,7 @@ def _similarity_loop(small, fuse, use_w, pair, vk, args):
             # the values (A.40)/(A.42) from t (cheaper than reading them; sin(t w) = -sn)
             e = (T * (-2.0 * s * ib2 * c + 2.0 * w * ib * sn) if vk == 1 else
                  ib2 - 1.0 if vk == 2 else wts[k] if pair else 0.0)
-            gX, gY, gd = pad_diff(pair, a, fx, fy, e, pad, i, wp, p2)
+            gX, gY, gd = src_diff(pair, a, fx, fy, e, i, src)
         else:
             gX, gY = gx[k], gy[k]
         d0, d1, d2, d3 = _similarity_vjp_event(xv - cx, yv - cy, t, sn, c, s, gX, gY)
@@ -132,31 +131,21 @@ def _similarity_loop(small, fuse, use_w, pair, vk, args):
 
 
 def _similarity_adj_case(small, fuse, use_w, pair, vk):
-    """:func:`_rot_adj_plain` for SE(2) and the similarity (``prm``: wz, s, c; ``out``
+    """The SE(2)/similarity adjoint (``prm``: the image rotation rate, s, cx, cy; ``out``
     (3,) or (4,)), one case of :func:`_similarity_loop`."""
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
-    def similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, out):
-        acc = _similarity_loop(small, fuse, use_w, pair, vk,
-                               (xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T))
-        for j in range(out.shape[0]):
-            out[j] = acc[j]
+    def similarity_adj(ev, prm, src, out):
+        store_sums(_similarity_loop(small, fuse, use_w, pair, vk, ev, prm, src), out)
 
     return similarity_adj
 
 
-def _similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
+def _similarity_adj(ev, prm, src: AdjointInput, out):
     """The SE(2)/similarity adjoint: picks the case kernel of :func:`_similarity_adj_case`
     (angles below 1 rad take the series of :func:`sincos`)."""
-    small = bool(max_abs(dt) * abs(prm[0]) < 1.0)
-    if pad.shape[0] == 0:
-        key = (small, False, False, False, 0)
-    elif pad.shape[0] == 2 * (h + 2) * (wd + 2):
-        key = (small, True, True, True, vk if vk in (1, 2) else 0)
-    else:
-        key = (small, True, wts.shape[0] > 0, False, 0)
-    kernel_case(_similarity_adj_case, *key)(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale,
-                                            T, out)
+    small = bool(max_abs(ev[2]) * abs(prm[0]) < 1.0)
+    kernel_case(_similarity_adj_case, small, *src.case())(ev, prm, src.kernel_args(), out)
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
@@ -167,9 +156,7 @@ def similarity_values(is_div, dt, th, T, d, g, want_g):
     n = dt.shape[0]
     P = th.shape[0]
     if want_g:
-        for k in range(n):
-            for j in range(P):
-                g[k, j] = 0.0
+        g[:, :] = 0.0
     w = th[2]
     s = th[3] if P == 4 else 0.0
     amax = max_abs(dt) * abs(w)
@@ -242,17 +229,16 @@ class SimilarityWarp(FusedAdjoint, Warp):
     # parameters are flipped going in, the wz derivatives coming out
 
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
-        s = th[3] if self.scaled else 0.0
-        _k_similarity(x, y, dt, th[0], th[1], -th[2], s, self.center[0], self.center[1],
-                      xw, yw, jx, jy, jac, self.scaled)
+        prm = (float(th[0]), float(th[1]), -float(th[2]), float(th[3]) if self.scaled else 0.0,
+               float(self.center[0]), float(self.center[1]))
+        _k_similarity(x, y, dt, prm, xw, yw, jx, jy, jac, self.scaled)
         if jac:
             jx[:, 2] *= -1.0
             jy[:, 2] *= -1.0
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
-             blk=NO_BLOCKS):
+    def _adj(self, x, y, dt, xw, yw, th, src, out):
         prm = np.array([-th[2], th[3] if self.scaled else 0.0, self.center[0], self.center[1]])
-        _similarity_adj(xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
+        _similarity_adj((x, y, dt, xw, yw), prm, src, out)
         out[2] = -out[2]
 
     def event_values(self, is_div, dt, th, T, d, g, want_g) -> None:

@@ -9,9 +9,15 @@ import math
 import numpy as np
 from numba import njit
 
-from evmotion.core.warps.adjoint import FusedAdjoint, pad_diff, pad_index
+from evmotion.core.warps.adjoint import (
+    AdjointInput,
+    FusedAdjoint,
+    event_cell,
+    src_diff,
+    store_sums,
+)
 from evmotion.core.warps.base import Warp
-from evmotion.core.warps.common import FAST_FINITE, NO_BLOCKS
+from evmotion.core.warps.common import FAST_FINITE
 from evmotion.jitcache import kernel_case
 
 __all__ = ["InPlaneWarp", "TranslationWarp", "ZoomWarp", "simple_values"]
@@ -62,10 +68,11 @@ def _inplane_event(x, y, t, vx, vy, c, sn, kk, cx, cy):
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
-def _k_inplane(x, y, dt, vx, vy, phi, hz, cx, cy, xw, yw, jx, jy, jac):
-    c = math.cos(phi)
-    sn = math.sin(phi)
-    kk = hz + 1.0
+def _k_inplane(x, y, dt, th, cx, cy, xw, yw, jx, jy, jac):
+    vx, vy = th[0], th[1]
+    c = math.cos(th[2])
+    sn = math.sin(th[2])
+    kk = th[3] + 1.0
     if not jac:
         for k in range(x.shape[0]):
             xw[k], yw[k], _, _ = _inplane_event(x[k], y[k], dt[k], vx, vy, c, sn, kk, cx, cy)
@@ -86,18 +93,18 @@ def _k_inplane(x, y, dt, vx, vy, phi, hz, cx, cy, xw, yw, jx, jy, jac):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _simple_loop(kind, fuse, use_w, pair, vk, args):
-    """Zoom (kind 0), translation (1), in-plane (2): the zoom and in-plane warps are
-    recomputed from the events (cheaper than reading their warped pixels as well)."""
-    x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T = args
+def _simple_loop(kind, fuse, use_w, pair, vk, ev, prm, src):
+    """Zoom (kind 0), translation (1), in-plane (2): the adjoint loop over the events ``ev``
+    (:mod:`~.adjoint`); the zoom and in-plane warps are recomputed from the events (cheaper
+    than reading their warped pixels as well)."""
+    x, y, dt, xw, yw = ev
+    gx, gy, wts, _, _, _, _, T = src
     cx, cy = prm[0], prm[1]
     hz = c = sn = kk = vx = vy = 0.0
     if kind == 0:
         hz = prm[2]
     elif kind == 2:
         c, sn, kk, vx, vy = prm[2], prm[3], prm[4], prm[5], prm[6]
-    wp = wd + 2
-    p2 = (h + 2) * wp  # start of the second image in pair mode
     a0 = a1 = a2 = a3 = 0.0
     for k in range(xw.shape[0]):
         t = dt[k]
@@ -126,9 +133,8 @@ def _simple_loop(kind, fuse, use_w, pair, vk, args):
                         + t * t * kk * kk) - 1.0
             else:
                 e = wts[k] if pair else 0.0
-            xv, yv, t, a, fx, fy, i = pad_index(xv0, yv0, t, wts[k] if use_w and not pair
-                                                 else 1.0, scale, h, wd)
-            gX, gY, gd = pad_diff(pair, a, fx, fy, e, pad, i, wp, p2)
+            xv, yv, t, a, fx, fy, i = event_cell(xv0, yv0, t, k, use_w, pair, src)
+            gX, gY, gd = src_diff(pair, a, fx, fy, e, i, src)
             # where the event has no vote its weight is 0: any finite point will do
             ok = xv == xv0
             xc = xc if ok else 0.0
@@ -163,43 +169,30 @@ def _simple_loop(kind, fuse, use_w, pair, vk, args):
 
 
 def _simple_adj_case(kind, fuse, use_w, pair, vk):
-    """:func:`_rot_adj_plain` for the zoom, translation and in-plane warps (``kind`` 0, 1,
+    """The fused adjoint of the zoom, translation and in-plane warps (``kind`` 0, 1,
     2; ``prm``: c, then h_z (zoom) or cos phi, sin phi, h_z + 1, vx, vy (in-plane)), one
     case of :func:`_simple_loop`."""
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
-    def simple_adj(x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T, out):
-        acc = _simple_loop(kind, fuse, use_w, pair, vk,
-                           (x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, T))
-        for j in range(out.shape[0]):
-            out[j] = acc[j]
+    def simple_adj(ev, prm, src, out):
+        store_sums(_simple_loop(kind, fuse, use_w, pair, vk, ev, prm, src), out)
 
     return simple_adj
 
 
-def _simple_adj(kind, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out):
+def _simple_adj(kind, ev, prm, src: AdjointInput, out):
     """The zoom/translation/in-plane adjoint: picks the case kernel of
-    :func:`_simple_adj_case`."""
-    if pad.shape[0] == 0:
-        key = (kind, False, False, False, 0)
-    elif pad.shape[0] == 2 * (h + 2) * (wd + 2):
-        # translation: divergence 0 and det J = 1, whatever theta
-        key = (kind, True, True, True, 0 if kind == 1 or vk not in (1, 2) else vk)
-    else:
-        key = (kind, True, wts.shape[0] > 0, False, 0)
-    kernel_case(_simple_adj_case, *key)(x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd,
-                                        scale, T, out)
+    :func:`_simple_adj_case` (translation: divergence 0 and det J = 1, whatever theta)."""
+    kernel_case(_simple_adj_case, kind, *src.case(derivs=kind != 1))(
+        ev, prm, src.kernel_args(), out)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _simple_values_body(kind, is_div, dt, th, T, d, g, want_g):
     """The loops of :func:`simple_values`."""
     n = dt.shape[0]
-    P = th.shape[0]
     if want_g:
-        for k in range(n):
-            for j in range(P):
-                g[k, j] = 0.0
+        g[:, :] = 0.0
     if kind == 0 and not want_g:  # zoom values alone: branch-free loops that vectorize
         h = th[0]
         if is_div:
@@ -283,10 +276,9 @@ class ZoomWarp(FusedAdjoint, Warp):
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_zoom(x, y, dt, th[0], self.center[0], self.center[1], xw, yw, jx, jy, jac)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
-             blk=NO_BLOCKS):
+    def _adj(self, x, y, dt, xw, yw, th, src, out):
         prm = np.array([self.center[0], self.center[1], th[0]])
-        _simple_adj(0, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
+        _simple_adj(0, (x, y, dt, xw, yw), prm, src, out)
 
     def event_values(self, is_div, dt, th, T, d, g, want_g) -> None:
         """Closed-form per-event collapse values: ``d`` (N,) = divergence times ``T`` (1/s
@@ -305,10 +297,8 @@ class TranslationWarp(FusedAdjoint, Warp):
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         _k_translation(x, y, dt, th[0], th[1], xw, yw, jx, jy, jac)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
-             blk=NO_BLOCKS):
-        _simple_adj(1, x, y, xw, yw, dt, np.array(self.center), gx, gy, wts, pad, h, wd,
-                      scale, vk, T, out)
+    def _adj(self, x, y, dt, xw, yw, th, src, out):
+        _simple_adj(1, (x, y, dt, xw, yw), np.array(self.center), src, out)
 
     def event_values(self, is_div, dt, th, T, d, g, want_g) -> None:
         """Closed-form per-event collapse values: ``d`` (N,) = divergence times ``T`` (1/s
@@ -327,15 +317,13 @@ class InPlaneWarp(FusedAdjoint, Warp):
     constant_divergence = True
 
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
-        _k_inplane(x, y, dt, th[0], th[1], th[2], th[3], self.center[0], self.center[1],
-                   xw, yw, jx, jy, jac)
+        _k_inplane(x, y, dt, th, self.center[0], self.center[1], xw, yw, jx, jy, jac)
 
-    def _adj(self, x, y, dt, xw, yw, th, gx, gy, wts, pad, h, wd, scale, out, vk=0, T=1.0,
-             blk=NO_BLOCKS):
+    def _adj(self, x, y, dt, xw, yw, th, src, out):
         # the rotation as _k_inplane computes it (libm through numba and math alike)
         prm = np.array([self.center[0], self.center[1], math.cos(th[2]), math.sin(th[2]),
                         th[3] + 1.0, th[0], th[1]])
-        _simple_adj(2, x, y, xw, yw, dt, prm, gx, gy, wts, pad, h, wd, scale, vk, T, out)
+        _simple_adj(2, (x, y, dt, xw, yw), prm, src, out)
 
     def event_values(self, is_div, dt, th, T, d, g, want_g) -> None:
         """Closed-form per-event collapse values: ``d`` (N,) = divergence times ``T`` (1/s

@@ -13,8 +13,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["rod_block", "rod_coeffs", "rod_coeffs_exact", "rod_coeffs_short", "rod_mode",
-           "rot_matrix", "sincos", "sincos_any", "sincos_block"]
+__all__ = ["cross", "rod_block", "rod_coeffs", "rod_coeffs_exact", "rod_coeffs_short",
+           "rod_mode", "rot_matrix", "sincos", "sincos_any", "sincos_block"]
 
 #: 1/n! for n = 0..23, the coefficients of the Rodrigues series below.
 _INV_FACT = np.array([1.0 / math.factorial(n) for n in range(24)])
@@ -107,9 +107,19 @@ def rod_mode(z, mode):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def rot_matrix(a, b, t, wx, wy, wz, ww):
+def cross(u, v):
+    """The cross product ``u x v`` of two 3-tuples."""
+    u0, u1, u2 = u
+    v0, v1, v2 = v
+    return u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rot_matrix(a, b, t, w):
     """The entries of ``R = exp(t omega^) = Id + a t omega^ + b t^2 (omega omega^T -
-    |omega|^2 Id)``, row by row, from the Rodrigues coefficients ``a, b``."""
+    |omega|^2 Id)``, row by row, from the Rodrigues coefficients ``a, b`` (``w``: omega
+    and |omega|^2, a 4-tuple)."""
+    wx, wy, wz, ww = w
     at = a * t
     bt = b * t * t
     return (1.0 + bt * (wx * wx - ww), -at * wz + bt * wx * wy, at * wy + bt * wx * wz,
