@@ -11,8 +11,9 @@ per-round serial time over the other's, medians over the rounds; the 1-minute lo
 with the speed-up 2 processes get over 1 on pure CPU work at that moment (the ceiling any
 2-worker run could reach then). Egomotion's ~60 ms windows go several to a Dask task
 (``evmotion.parallel.BATCH_TARGET_S``); each round also runs it with one window a task, as
-before batching (``single_*`` columns), and the CPU this process used during each cluster
-run (the client, and the LocalCluster's scheduler and nannies, which live here).
+before batching (``single_*``), and on a second cluster whose workers keep Dask's profiler
+on (``profiler_on_*``; docs/cluster.rst recommends it off). Each run records the CPU this
+process used (the client, and the LocalClusters' schedulers and nannies, which live here).
 
 A second part checks the numba cache on workers: a cluster whose workers point
 ``NUMBA_CACHE_DIR`` at an empty folder runs egomotion once (each worker compiles the
@@ -45,6 +46,7 @@ CASES = {
                      "--json", "--out", "{out}.h5"],
 }
 WORKERS = 2
+QUIET = 1.8
 # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which stops glibc from
 # adapting its mmap threshold: every large temporary array is mapped and zeroed afresh
 NO_TRIM = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
@@ -122,16 +124,16 @@ def _one_window_a_task():
         parallel.BATCH_TARGET_S = saved
 
 
-def _speedup(case: str, rec: Path, tmp: Path, address: str, repeat: int,
-             pool: cf.Executor, unbatched: bool = False) -> dict:
-    """Serial and cluster runs in turn, each round; with ``unbatched`` a third run per
-    round sends every window as its own task (``single_*`` columns), for comparison."""
-    extra = {"serial": [], "cluster": ["--scheduler", address]}
-    if unbatched:
-        extra["single"] = ["--scheduler", address]
+def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[str, bool]],
+             repeat: int, pool: cf.Executor) -> dict:
+    """The serial run and every cluster variant in turn, each round (so that a change of
+    the machine's load hits them alike). ``variants``: name -> (scheduler address,
+    batched); unbatched runs send every window as its own task, as before batching."""
+    extra = {"serial": [], **{k: ["--scheduler", a] for k, (a, _) in variants.items()}}
 
     def once(k):
-        with _one_window_a_task() if k == "single" else contextlib.nullcontext():
+        batched = k == "serial" or variants[k][1]
+        with contextlib.nullcontext() if batched else _one_window_a_task():
             return _cli(_argv(case, rec, tmp / k, extra[k]))
 
     docs = {k: once(k)[1] for k in extra}  # warm-up
@@ -176,6 +178,12 @@ def _speedup(case: str, rec: Path, tmp: Path, address: str, repeat: int,
         "speedup_over_ceiling": statistics.median(
             a / b / c for a, b, c in zip(ser, runs["cluster"], ceilings, strict=True)),
     })
+    # the rounds where nothing else held a core (2 processes got >= QUIET x on pure CPU
+    # work just before): what the cluster reaches on an idle machine
+    quiet = [a / b for a, b, c in zip(ser, runs["cluster"], ceilings, strict=True)
+             if c >= QUIET]
+    row.update({"quiet_rounds": len(quiet),
+                "speedup_cluster_quiet_rounds": statistics.median(quiet) if quiet else None})
     return row
 
 
@@ -207,30 +215,41 @@ def main(quick: bool = False) -> list[dict]:
     import dask
     from distributed import LocalCluster
 
-    repeat = 3 if quick else 5
+    repeat = 3 if quick else 7
     rows = []
-    runs = [("MALLOC_TRIM_THRESHOLD_ unset, profiler off (docs/cluster.rst)", RECOMMENDED,
-             ["egomotion"] if quick else list(CASES), repeat),
-            ("MALLOC_TRIM_THRESHOLD_ unset, profiler on (Dask's default)", NO_TRIM,
-             [] if quick else ["egomotion"], 3),
-            ("Dask's default (MALLOC_TRIM_THRESHOLD_=65536)", {}, [] if quick else
-             ["flow multicm"], 3)]
+
+    def cluster(config: dict) -> LocalCluster:
+        with dask.config.set(config):  # the nannies pass it to their workers at start
+            return LocalCluster(n_workers=WORKERS, threads_per_worker=1, processes=True,
+                                dashboard_address=":0",
+                                env={"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"})
+
     with tempfile.TemporaryDirectory(prefix="bench_cluster_") as d, \
             cf.ProcessPoolExecutor(WORKERS, mp_context=mp.get_context("spawn")) as pool:
         list(pool.map(_spin, [1, 1]))  # started before the timing
         tmp = Path(d)
         rec = _recording(tmp)
-        env = {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
-        for label, config, cases, rounds in runs:
-            with dask.config.set(config), LocalCluster(
-                    n_workers=WORKERS, threads_per_worker=1, processes=True,
-                    dashboard_address=":0", env=env) as cluster:
-                for case in cases:
-                    rows.append({"workers_env": label,
-                                 **_speedup(case, rec, tmp, cluster.scheduler_address,
-                                            rounds, pool, unbatched=config is RECOMMENDED
-                                            and case == "egomotion")})
-                    print(rows[-1], flush=True)
+        # the recommended workers (docs/cluster.rst), and workers with Dask's profiler on
+        with cluster(RECOMMENDED) as good, cluster(NO_TRIM) as profiled:
+            ego = {"cluster": (good.scheduler_address, True),
+                   "single": (good.scheduler_address, False),
+                   "profiler_on": (profiled.scheduler_address, True)}
+            rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset, profiler off "
+                                    "(docs/cluster.rst); profiler_on: Dask's default",
+                         **_speedup("egomotion", rec, tmp, ego, repeat, pool)})
+            print(rows[-1], flush=True)
+            if not quick:
+                rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset, profiler off",
+                             **_speedup("flow multicm", rec, tmp,
+                                        {"cluster": (good.scheduler_address, True)}, 5, pool)})
+                print(rows[-1], flush=True)
+        if not quick:
+            with cluster({}) as default:
+                rows.append({"workers": "Dask's default (MALLOC_TRIM_THRESHOLD_=65536)",
+                             **_speedup("flow multicm", rec, tmp,
+                                        {"cluster": (default.scheduler_address, True)}, 3,
+                                        pool)})
+                print(rows[-1], flush=True)
             # the nanny sets its pre-spawn variables in this process too: later workers
             # would inherit them
             os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
@@ -248,8 +267,12 @@ def main(quick: bool = False) -> list[dict]:
               "(the most any 2-worker run could reach then). window_s_sum: the estimates' "
               "own seconds summed over the windows; client_cpu_s: CPU seconds of this "
               "process during a cluster run (client + in-process scheduler and nannies). "
-              "cluster: windows batched per task (BATCH_TARGET_S); single: one window a "
-              "task, as before batching. Goal: speed-up >= 1.7 on 2 workers.")
+              "cluster: windows batched per task (BATCH_TARGET_S), workers with Dask's "
+              "profiler off; single: the same workers, one window a task, as before "
+              "batching; profiler_on: batched, on workers with Dask's profiler on. "
+              f"quiet_rounds: rounds whose two-process ceiling was >= {QUIET} (nothing else "
+              "held a core). Goal: speed-up >= 1.7 on 2 workers (speedup_cluster, the "
+              "median over all rounds).")
     return rows
 
 

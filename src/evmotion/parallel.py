@@ -26,7 +26,7 @@ from evmotion.events import EventArray, Window
 from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
 
-__all__ = ["WindowResult", "connect_scheduler", "map_windows"]
+__all__ = ["BATCH_TARGET_S", "WindowResult", "connect_scheduler", "map_windows"]
 
 
 @dataclass(frozen=True)
@@ -207,7 +207,9 @@ def map_windows(
         connected ``distributed.Client``. Workers must be able to read ``source``. A
         worker process compiles each numba kernel once, on its first window that needs it
         (or loads it from numba's cache; workers sharing one ``NUMBA_CACHE_DIR`` share
-        it): :attr:`WindowResult.compile_s` says which windows paid.
+        it): :attr:`WindowResult.compile_s` says which windows paid. Windows shorter than
+        :data:`BATCH_TARGET_S` go several consecutive ones to a task (results, their
+        order and ``resume_dir`` stay per window).
     resume_dir : path, optional
         Save each finished window there (pickle, atomically) and skip windows already
         saved. Failed windows are not saved, so a rerun retries them. Use one folder per
