@@ -36,6 +36,7 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import harness
 
@@ -124,29 +125,47 @@ def _one_window_a_task():
         parallel.BATCH_TARGET_S = saved
 
 
-def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[str, bool]],
+def _worker_pids(cluster) -> list[int]:
+    from distributed import Client
+
+    with Client(cluster) as client:
+        return list(client.run(os.getpid).values())
+
+
+def _cpu_s(pids: list[int]) -> float:
+    import psutil  # a dependency of distributed
+
+    return sum(sum(psutil.Process(p).cpu_times()[:2]) for p in pids)
+
+
+def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[Any, bool]],
              repeat: int, pool: cf.Executor) -> dict:
     """The serial run and every cluster variant in turn, each round (so that a change of
-    the machine's load hits them alike). ``variants``: name -> (scheduler address,
-    batched); unbatched runs send every window as its own task, as before batching."""
-    extra = {"serial": [], **{k: ["--scheduler", a] for k, (a, _) in variants.items()}}
+    the machine's load hits them alike). ``variants``: name -> (LocalCluster, batched);
+    unbatched runs send every window as its own task, as before batching."""
+    extra = {"serial": [], **{k: ["--scheduler", c.scheduler_address]
+                              for k, (c, _) in variants.items()}}
+    pids = {k: _worker_pids(c) for k, (c, _) in variants.items()}
 
     def once(k):
         batched = k == "serial" or variants[k][1]
+        c0 = _cpu_s(pids.get(k, []))
         with contextlib.nullcontext() if batched else _one_window_a_task():
-            return _cli(_argv(case, rec, tmp / k, extra[k]))
+            seconds, doc, used = _cli(_argv(case, rec, tmp / k, extra[k]))
+        return seconds, doc, used, _cpu_s(pids.get(k, [])) - c0
 
     docs = {k: once(k)[1] for k in extra}  # warm-up
     loads, ceilings = [], []
-    runs, work, cpu = ({k: [] for k in extra} for _ in range(3))
+    runs, work, cpu, wcpu = ({k: [] for k in extra} for _ in range(4))
     for _ in range(repeat):
         loads.append(os.getloadavg()[0])
         ceilings.append(_ceiling(pool))
         for k in extra:
-            seconds, doc, used = once(k)
+            seconds, doc, used, workers_cpu = once(k)
             runs[k].append(seconds)
             work[k].append(sum(w["seconds"] for w in doc["windows"]))
             cpu[k].append(used)
+            wcpu[k].append(workers_cpu)
     ser = runs["serial"]
     row = {"case": case, "windows": len(docs["serial"]["windows"]), "repeat": repeat,
            "serial_s": statistics.median(ser)}
@@ -165,6 +184,9 @@ def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[str, boo
             # writing) and the in-process scheduler and nannies, taken from the 2 cores
             # the workers run on
             f"{k}_client_cpu_s": statistics.median(cpu[k]),
+            # CPU of the worker processes during the run: the estimates and whatever else
+            # the workers do (receiving tasks, sending results, Dask's profiler)
+            f"{k}_workers_cpu_s": statistics.median(wcpu[k]),
             # egomotion windows are independent: the cluster gives the serial estimates;
             # multicm warm-starts within each of the 2 chunks (as --workers 2 does), so
             # the first window of the second chunk starts from zero flow
@@ -231,9 +253,8 @@ def main(quick: bool = False) -> list[dict]:
         rec = _recording(tmp)
         # the recommended workers (docs/cluster.rst), and workers with Dask's profiler on
         with cluster(RECOMMENDED) as good, cluster(NO_TRIM) as profiled:
-            ego = {"cluster": (good.scheduler_address, True),
-                   "single": (good.scheduler_address, False),
-                   "profiler_on": (profiled.scheduler_address, True)}
+            ego = {"cluster": (good, True), "single": (good, False),
+                   "profiler_on": (profiled, True)}
             rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset, profiler off "
                                     "(docs/cluster.rst); profiler_on: Dask's default",
                          **_speedup("egomotion", rec, tmp, ego, repeat, pool)})
@@ -241,13 +262,13 @@ def main(quick: bool = False) -> list[dict]:
             if not quick:
                 rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset, profiler off",
                              **_speedup("flow multicm", rec, tmp,
-                                        {"cluster": (good.scheduler_address, True)}, 5, pool)})
+                                        {"cluster": (good, True)}, 5, pool)})
                 print(rows[-1], flush=True)
         if not quick:
             with cluster({}) as default:
                 rows.append({"workers": "Dask's default (MALLOC_TRIM_THRESHOLD_=65536)",
                              **_speedup("flow multicm", rec, tmp,
-                                        {"cluster": (default.scheduler_address, True)}, 3,
+                                        {"cluster": (default, True)}, 3,
                                         pool)})
                 print(rows[-1], flush=True)
             # the nanny sets its pre-spawn variables in this process too: later workers
@@ -266,7 +287,8 @@ def main(quick: bool = False) -> list[dict]:
               "speed-up 2 processes got over 1 on pure CPU work just before each round "
               "(the most any 2-worker run could reach then). window_s_sum: the estimates' "
               "own seconds summed over the windows; client_cpu_s: CPU seconds of this "
-              "process during a cluster run (client + in-process scheduler and nannies). "
+              "process during a cluster run (client + in-process scheduler and nannies); "
+              "workers_cpu_s: CPU seconds of the worker processes during the run. "
               "cluster: windows batched per task (BATCH_TARGET_S), workers with Dask's "
               "profiler off; single: the same workers, one window a task, as before "
               "batching; profiler_on: batched, on workers with Dask's profiler on. "
