@@ -11,8 +11,8 @@ per-round serial time over the other's, medians over the rounds; the 1-minute lo
 with the speed-up 2 processes get over 1 on pure CPU work at that moment (the ceiling any
 2-worker run could reach then). Egomotion's ~60 ms windows go several to a Dask task
 (``evmotion.parallel.BATCH_TARGET_S``); each round also runs it with one window a task, as
-before batching (``single_*``), and on a second cluster whose workers keep Dask's profiler
-on (``profiler_on_*``; docs/cluster.rst recommends it off). Each run records the CPU this
+before batching (``single_*``), and on a second cluster whose workers have Dask's profiler
+off (``profiler_off_*``). Each run records the CPU this
 process used (the client, and the LocalClusters' schedulers and nannies, which live here).
 
 A second part checks the numba cache on workers: a cluster whose workers point
@@ -51,10 +51,9 @@ QUIET = 1.8
 # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which stops glibc from
 # adapting its mmap threshold: every large temporary array is mapped and zeroed afresh
 NO_TRIM = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
-# Dask's worker profiler samples the task thread's stack every 10 ms, from the worker's
-# event loop, which then waits for the GIL that the estimate holds: about 5 % more CPU per
-# window here (docs/cluster.rst, "Speed")
-RECOMMENDED = {**NO_TRIM, "distributed.worker.profile.enabled": False}
+# Dask's worker profiler samples the task thread's stack every 10 ms from the worker's
+# event loop, which must take the GIL the estimate holds: compared with it off
+NO_PROFILER = {**NO_TRIM, "distributed.worker.profile.enabled": False}
 
 
 def _recording(folder: Path) -> Path:
@@ -251,16 +250,16 @@ def main(quick: bool = False) -> list[dict]:
         list(pool.map(_spin, [1, 1]))  # started before the timing
         tmp = Path(d)
         rec = _recording(tmp)
-        # the recommended workers (docs/cluster.rst), and workers with Dask's profiler on
-        with cluster(RECOMMENDED) as good, cluster(NO_TRIM) as profiled:
+        # the workers docs/cluster.rst recommends, and the same with Dask's profiler off
+        with cluster(NO_TRIM) as good, cluster(NO_PROFILER) as unprofiled:
             ego = {"cluster": (good, True), "single": (good, False),
-                   "profiler_on": (profiled, True)}
-            rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset, profiler off "
-                                    "(docs/cluster.rst); profiler_on: Dask's default",
+                   "profiler_off": (unprofiled, True)}
+            rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset (docs/cluster.rst); "
+                                    "profiler_off: also Dask's profiler off",
                          **_speedup("egomotion", rec, tmp, ego, repeat, pool)})
             print(rows[-1], flush=True)
             if not quick:
-                rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset, profiler off",
+                rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset (docs/cluster.rst)",
                              **_speedup("flow multicm", rec, tmp,
                                         {"cluster": (good, True)}, 5, pool)})
                 print(rows[-1], flush=True)
@@ -274,7 +273,7 @@ def main(quick: bool = False) -> list[dict]:
             # the nanny sets its pre-spawn variables in this process too: later workers
             # would inherit them
             os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
-        with dask.config.set(RECOMMENDED):
+        with dask.config.set(NO_TRIM):
             rows.append(_cold_cache(rec, tmp))
         print(rows[-1], flush=True)
     harness.record(
@@ -289,9 +288,9 @@ def main(quick: bool = False) -> list[dict]:
               "own seconds summed over the windows; client_cpu_s: CPU seconds of this "
               "process during a cluster run (client + in-process scheduler and nannies); "
               "workers_cpu_s: CPU seconds of the worker processes during the run. "
-              "cluster: windows batched per task (BATCH_TARGET_S), workers with Dask's "
-              "profiler off; single: the same workers, one window a task, as before "
-              "batching; profiler_on: batched, on workers with Dask's profiler on. "
+              "cluster: windows batched per task (BATCH_TARGET_S); single: the same "
+              "workers, one window a task, as before batching; profiler_off: batched, on "
+              "workers with Dask's profiler off. "
               f"quiet_rounds: rounds whose two-process ceiling was >= {QUIET} (nothing else "
               "held a core). Goal: speed-up >= 1.7 on 2 workers (speedup_cluster, the "
               "median over all rounds).")
