@@ -293,6 +293,12 @@ def test_batches_of_short_windows_fill_the_target_and_shrink_at_the_end():
     assert len(out) < 30
     # seconds spent compiling kernels are left out of the mean
     assert _batches(_Batcher(tasks, limit=4), elapsed_s=0.04, compile_s=2.0) == out
+    # each fresh worker's first window (imports, cached kernels loaded) does not stop it
+    slow_first = _Batcher(tasks, limit=4)
+    for t in [slow_first.next()[0] for _ in range(2)]:
+        slow_first.record(WindowResult(t.index, t.t0, t.t1, elapsed_s=1.5))
+    sizes = [len(b) for b in _batches(slow_first, elapsed_s=0.04)]
+    assert max(sizes) == 6 and len(sizes) < 30
     # windows as long as the target go one a task, as without batching
     long = _batches(_Batcher(tasks, limit=4), elapsed_s=BATCH_TARGET_S)
     assert long == [[k] for k in range(60)]

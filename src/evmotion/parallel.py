@@ -14,8 +14,10 @@ import asyncio
 import concurrent.futures as cf
 import os
 import pickle
+import statistics
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -365,8 +367,9 @@ def _run_batch(fn: Callable, payloads: list, tasks: list[_Task], with_window: bo
             for payload, task in zip(payloads, tasks, strict=True)]
 
 
-# A Dask task costs a few ms of CPU in the client, the scheduler and the worker: windows
-# shorter than this are sent several to a task, so that this cost stays a few per cent.
+# A Dask task costs a few ms of CPU in the client, the scheduler and the worker (about 4 and
+# 2 ms, benchmarks/results/cluster.md): windows shorter than this go several to a task, so
+# that this cost stays a few per cent.
 BATCH_TARGET_S = 0.25
 
 
@@ -374,8 +377,9 @@ class _Batcher:
     """Cuts the windows into consecutive batches, one batch a Dask task.
 
     Until a window's time is known every batch is one window. Then a batch holds as many
-    windows as fit in :data:`BATCH_TARGET_S` at the mean compute time seen so far (compile
-    time left out), but never more than the windows left over ``limit`` (the tasks kept in
+    windows as fit in :data:`BATCH_TARGET_S` at the median time of the last windows
+    (compile time left out; the median, because each fresh worker's first window also
+    pays for imports and loading cached kernels), but never more than the windows left over ``limit`` (the tasks kept in
     flight), so that the last batches are short and the workers finish together. Windows
     of ``BATCH_TARGET_S`` or more go one a task, as without batching. The windows of a
     batch whose task broke (a result that does not pickle, a worker that died) go again
@@ -386,21 +390,19 @@ class _Batcher:
         self.queue = list(reversed(tasks))
         self.retry: list[_Task] = []
         self.limit = limit
-        self.seconds = 0.0
-        self.done = 0
+        self.seconds: deque[float] = deque(maxlen=64)
 
     def record(self, res: WindowResult) -> None:
-        self.seconds += max(res.elapsed_s - res.compile_s, 0.0)
-        self.done += 1
+        self.seconds.append(max(res.elapsed_s - res.compile_s, 0.0))
 
     def again(self, batch: list[_Task]) -> None:
         self.retry.extend(reversed(batch))
 
     def size(self) -> int:
-        if not self.done:
+        if not self.seconds:
             return 1
-        mean_s = self.seconds / self.done
-        fit = int(BATCH_TARGET_S / mean_s) if mean_s > 0 else len(self.queue)
+        window_s = statistics.median(self.seconds)
+        fit = int(BATCH_TARGET_S / window_s) if window_s > 0 else len(self.queue)
         return max(1, min(fit, len(self.queue) // self.limit))
 
     def next(self) -> list[_Task]:
