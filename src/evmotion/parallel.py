@@ -367,9 +367,9 @@ def _run_batch(fn: Callable, payloads: list, tasks: list[_Task], with_window: bo
             for payload, task in zip(payloads, tasks, strict=True)]
 
 
-# A Dask task costs a few ms of CPU in the client, the scheduler and the worker (about 4 and
-# 2 ms, benchmarks/results/cluster.md): windows shorter than this go several to a task, so
-# that this cost stays a few per cent.
+# A Dask task costs a few ms of CPU in the client and scheduler and in the worker (about 4
+# and 2 to 4 ms, benchmarks/results/cluster.md): windows shorter than this go several to a
+# task, so that this cost stays a few per cent.
 BATCH_TARGET_S = 0.25
 
 
@@ -377,10 +377,11 @@ class _Batcher:
     """Cuts the windows into consecutive batches, one batch a Dask task.
 
     Until a window's time is known every batch is one window. Then a batch holds as many
-    windows as fit in :data:`BATCH_TARGET_S` at the median time of the last windows
+    windows as fit in :data:`BATCH_TARGET_S` at the median time of the last 64 windows
     (compile time left out; the median, because each fresh worker's first window also
-    pays for imports and loading cached kernels), but never more than the windows left over ``limit`` (the tasks kept in
-    flight), so that the last batches are short and the workers finish together. Windows
+    pays for imports and loading cached kernels), but never more than the windows left
+    over ``limit`` (the tasks kept in flight), so that the last batches are short and the
+    workers finish together. Windows
     of ``BATCH_TARGET_S`` or more go one a task, as without batching. The windows of a
     batch whose task broke (a result that does not pickle, a worker that died) go again
     one a task, so that the failure stays the window's own.
