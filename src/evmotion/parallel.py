@@ -367,9 +367,10 @@ def _run_batch(fn: Callable, payloads: list, tasks: list[_Task], with_window: bo
             for payload, task in zip(payloads, tasks, strict=True)]
 
 
-# A Dask task costs a few ms of CPU in the client and scheduler and in the worker (about 4
-# and 2 to 4 ms, benchmarks/results/cluster.md): windows shorter than this go several to a
-# task, so that this cost stays a few per cent.
+#: Seconds of work a Dask task gets at least, when windows are shorter (several
+#: consecutive windows a task). A task costs a few ms of CPU in the client and scheduler
+#: and in the worker (about 4 and 2 to 4 ms, benchmarks/results/cluster.md): batching keeps
+#: that cost a few per cent of the work.
 BATCH_TARGET_S = 0.25
 
 
