@@ -367,8 +367,8 @@ def _run_batch(fn: Callable, payloads: list, tasks: list[_Task], with_window: bo
             for payload, task in zip(payloads, tasks, strict=True)]
 
 
-#: Seconds of work a Dask task gets at least, when windows are shorter (several
-#: consecutive windows a task). A task costs a few ms of CPU in the client and scheduler
+#: Seconds of work one Dask task is given when windows are shorter than this: as many
+#: consecutive windows as fit, at their median time. A task costs a few ms of CPU in the client and scheduler
 #: and in the worker (about 4 and 2 to 4 ms, benchmarks/results/cluster.md): batching keeps
 #: that cost a few per cent of the work.
 BATCH_TARGET_S = 0.25
