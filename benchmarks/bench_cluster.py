@@ -9,7 +9,11 @@ run of each (numba kernels compiled or loaded from the cache in every process). 
 per-round serial time over the other's, medians over the rounds; the 1-minute load average
 (``os.getloadavg``) is recorded before every round, since this machine's cores are shared,
 with the speed-up 2 processes get over 1 on pure CPU work at that moment (the ceiling any
-2-worker run could reach then).
+2-worker run could reach then). Egomotion's ~60 ms windows go several to a Dask task
+(``evmotion.parallel.BATCH_TARGET_S``); each round also runs it with one window a task, as
+before batching (``single_*``), and on a second cluster whose workers have Dask's profiler
+off (``profiler_off_*``). Each run records the CPU this
+process used (the client, and the LocalClusters' schedulers and nannies, which live here).
 
 A second part checks the numba cache on workers: a cluster whose workers point
 ``NUMBA_CACHE_DIR`` at an empty folder runs egomotion once (each worker compiles the
@@ -32,6 +36,7 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import harness
 
@@ -42,9 +47,13 @@ CASES = {
                      "--json", "--out", "{out}.h5"],
 }
 WORKERS = 2
+QUIET = 1.8
 # Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which stops glibc from
 # adapting its mmap threshold: every large temporary array is mapped and zeroed afresh
 NO_TRIM = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+# Dask's worker profiler samples the task thread's stack every 10 ms from the worker's
+# event loop, which must take the GIL the estimate holds: compared with it off
+NO_PROFILER = {**NO_TRIM, "distributed.worker.profile.enabled": False}
 
 
 def _recording(folder: Path) -> Path:
@@ -58,18 +67,20 @@ def _recording(folder: Path) -> Path:
     return path
 
 
-def _cli(argv: list[str]) -> tuple[float, dict]:
-    """Wall time of one command and its JSON summary (progress bars swallowed)."""
+def _cli(argv: list[str]) -> tuple[float, dict, float]:
+    """Wall time of one command, its JSON summary (progress bars swallowed) and the CPU
+    seconds of this process meanwhile (all its threads: with ``--scheduler`` the client,
+    and the LocalCluster's scheduler and nannies, which live in this process)."""
     from evmotion.cli import main
 
     out, err = io.StringIO(), io.StringIO()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         rc = main(argv)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     if rc != 0:
         raise RuntimeError(f"{' '.join(argv)} failed: {err.getvalue()[-500:]}")
-    return seconds, json.loads(out.getvalue())
+    return seconds, json.loads(out.getvalue()), cpu
 
 
 def _argv(case: str, rec: Path, out: Path, extra: list[str]) -> list[str]:
@@ -101,45 +112,103 @@ def _ceiling(pool: cf.Executor, n: int = 3_000_000) -> float:
     return one / (time.perf_counter() - t0)
 
 
-def _speedup(case: str, rec: Path, tmp: Path, address: str, repeat: int,
-             pool: cf.Executor) -> dict:
-    runs = {"serial": [], "--scheduler": []}
-    extra = {"serial": [], "--scheduler": ["--scheduler", address]}
-    docs = {k: _cli(_argv(case, rec, tmp / k.strip("-").replace(" ", ""), extra[k]))[1]
-            for k in runs}  # warm-up
+@contextlib.contextmanager
+def _one_window_a_task():
+    """``map_windows`` as before batching: every window its own Dask task."""
+    import evmotion.parallel as parallel
+
+    saved, parallel.BATCH_TARGET_S = parallel.BATCH_TARGET_S, 0.0
+    try:
+        yield
+    finally:
+        parallel.BATCH_TARGET_S = saved
+
+
+def _worker_pids(cluster) -> list[int]:
+    from distributed import Client
+
+    with Client(cluster) as client:
+        return list(client.run(os.getpid).values())
+
+
+def _cpu_s(pids: list[int]) -> float:
+    import psutil  # a dependency of distributed
+
+    return sum(sum(psutil.Process(p).cpu_times()[:2]) for p in pids)
+
+
+def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[Any, bool]],
+             repeat: int, pool: cf.Executor) -> dict:
+    """The serial run and every cluster variant in turn, each round, in an order that
+    turns from round to round (so that a change of the machine's load hits them alike). ``variants``: name -> (LocalCluster, batched);
+    unbatched runs send every window as its own task, as before batching."""
+    extra = {"serial": [], **{k: ["--scheduler", c.scheduler_address]
+                              for k, (c, _) in variants.items()}}
+    pids = {k: _worker_pids(c) for k, (c, _) in variants.items()}
+
+    def once(k):
+        batched = k == "serial" or variants[k][1]
+        c0 = _cpu_s(pids.get(k, []))
+        with contextlib.nullcontext() if batched else _one_window_a_task():
+            seconds, doc, used = _cli(_argv(case, rec, tmp / k, extra[k]))
+        return seconds, doc, used, _cpu_s(pids.get(k, [])) - c0
+
+    docs = {k: once(k)[1] for k in extra}  # warm-up
     loads, ceilings = [], []
-    work = {k: [] for k in runs}
-    for _ in range(repeat):
+    runs, work, cpu, wcpu = ({k: [] for k in extra} for _ in range(4))
+    order = list(extra)
+    for r in range(repeat):
         loads.append(os.getloadavg()[0])
         ceilings.append(_ceiling(pool))
-        for k in runs:
-            seconds, doc = _cli(_argv(case, rec, tmp / k.strip("-").replace(" ", ""), extra[k]))
+        # the runs' order turns each round: in a fixed order the run that came last was
+        # the fastest of the cluster runs (5 % on egomotion, either cluster)
+        for k in order[r % len(order):] + order[:r % len(order)]:
+            seconds, doc, used, workers_cpu = once(k)
             runs[k].append(seconds)
             work[k].append(sum(w["seconds"] for w in doc["windows"]))
+            cpu[k].append(used)
+            wcpu[k].append(workers_cpu)
     ser = runs["serial"]
-    n_windows = len(docs["serial"]["windows"])
-    return {
-        "case": case, "windows": n_windows, "repeat": repeat,
-        "serial_s": statistics.median(ser),
-        "cluster_s": statistics.median(runs["--scheduler"]),
-        "speedup_cluster": statistics.median(a / b for a, b in zip(ser, runs["--scheduler"],
-                                                                    strict=True)),
-        "speedup_cluster_per_round": [round(a / b, 3) for a, b in
-                                      zip(ser, runs["--scheduler"], strict=True)],
-        # the estimates' own seconds, summed over the windows (in the workers for the
-        # cluster): what the CPUs gave the work, apart from reading, shipping and writing
+    row = {"case": case, "windows": len(docs["serial"]["windows"]), "repeat": repeat,
+           "serial_s": statistics.median(ser)}
+    for k in extra:
+        if k == "serial":
+            continue
+        ratios = [a / b for a, b in zip(ser, runs[k], strict=True)]
+        row.update({
+            f"{k}_s": statistics.median(runs[k]),
+            f"speedup_{k}": statistics.median(ratios),
+            f"speedup_{k}_per_round": [round(v, 3) for v in ratios],
+            # the estimates' own seconds, summed over the windows (in the workers): what
+            # the CPUs gave the work, apart from reading, shipping and writing
+            f"{k}_window_s_sum": statistics.median(work[k]),
+            # CPU of this process during the cluster run: the client (reading, shipping,
+            # writing) and the in-process scheduler and nannies, taken from the 2 cores
+            # the workers run on
+            f"{k}_client_cpu_s": statistics.median(cpu[k]),
+            # CPU of the worker processes during the run: the estimates and whatever else
+            # the workers do (receiving tasks, sending results, Dask's profiler)
+            f"{k}_workers_cpu_s": statistics.median(wcpu[k]),
+            # egomotion windows are independent: the cluster gives the serial estimates;
+            # multicm warm-starts within each of the 2 chunks (as --workers 2 does), so
+            # the first window of the second chunk starts from zero flow
+            f"{k}_equals_serial": _estimates(docs[k]) == _estimates(docs["serial"]),
+        })
+    row.update({
         "serial_window_s_sum": statistics.median(work["serial"]),
-        "cluster_window_s_sum": statistics.median(work["--scheduler"]),
         "load1_per_round": [round(v, 2) for v in loads],
         "two_process_ceiling_per_round": [round(v, 2) for v in ceilings],
         # the cluster's speed-up over what 2 processes got on pure CPU work in that round
         "speedup_over_ceiling": statistics.median(
-            a / b / c for a, b, c in zip(ser, runs["--scheduler"], ceilings, strict=True)),
-        # egomotion windows are independent: the cluster gives the serial estimates;
-        # multicm warm-starts within each of the 2 chunks (as --workers 2 does), so the
-        # first window of the second chunk starts from zero flow
-        "cluster_equals_serial": _estimates(docs["--scheduler"]) == _estimates(docs["serial"]),
-    }
+            a / b / c for a, b, c in zip(ser, runs["cluster"], ceilings, strict=True)),
+    })
+    # the rounds where nothing else held a core (2 processes got >= QUIET x on pure CPU
+    # work just before): what the cluster reaches on an idle machine
+    quiet = [a / b for a, b, c in zip(ser, runs["cluster"], ceilings, strict=True)
+             if c >= QUIET]
+    row.update({"quiet_rounds": len(quiet),
+                "speedup_cluster_quiet_rounds": statistics.median(quiet) if quiet else None})
+    return row
 
 
 def _cold_cache(rec: Path, tmp: Path) -> dict:
@@ -154,8 +223,8 @@ def _cold_cache(rec: Path, tmp: Path) -> dict:
         with LocalCluster(n_workers=WORKERS, threads_per_worker=1, processes=True,
                           dashboard_address=":0", env=env) as cluster:
             load = os.getloadavg()[0]
-            seconds, doc = _cli(_argv("egomotion", rec, tmp / key,
-                                      ["--scheduler", cluster.scheduler_address]))
+            seconds, doc, _ = _cli(_argv("egomotion", rec, tmp / key,
+                                         ["--scheduler", cluster.scheduler_address]))
         comp = [w["compile_s"] for w in doc["windows"]]
         row.update({f"{key}_load1": round(load, 2), f"{key}_s": seconds,
                     f"{key}_compile_s_total": sum(comp),
@@ -170,26 +239,40 @@ def main(quick: bool = False) -> list[dict]:
     import dask
     from distributed import LocalCluster
 
-    repeat = 3 if quick else 5
+    repeat = 3 if quick else 7
     rows = []
-    runs = [("MALLOC_TRIM_THRESHOLD_ unset", NO_TRIM, ["egomotion"] if quick else list(CASES)),
-            ("Dask's default (MALLOC_TRIM_THRESHOLD_=65536)", {}, [] if quick else
-             ["flow multicm"])]
+
+    def cluster(config: dict) -> LocalCluster:
+        with dask.config.set(config):  # the nannies pass it to their workers at start
+            return LocalCluster(n_workers=WORKERS, threads_per_worker=1, processes=True,
+                                dashboard_address=":0",
+                                env={"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"})
+
     with tempfile.TemporaryDirectory(prefix="bench_cluster_") as d, \
             cf.ProcessPoolExecutor(WORKERS, mp_context=mp.get_context("spawn")) as pool:
         list(pool.map(_spin, [1, 1]))  # started before the timing
         tmp = Path(d)
         rec = _recording(tmp)
-        env = {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
-        for label, config, cases in runs:
-            with dask.config.set(config), LocalCluster(
-                    n_workers=WORKERS, threads_per_worker=1, processes=True,
-                    dashboard_address=":0", env=env) as cluster:
-                for case in cases:
-                    rows.append({"workers_env": label,
-                                 **_speedup(case, rec, tmp, cluster.scheduler_address,
-                                            repeat if config else 3, pool)})
-                    print(rows[-1], flush=True)
+        # the workers docs/cluster.rst recommends, and the same with Dask's profiler off
+        with cluster(NO_TRIM) as good, cluster(NO_PROFILER) as unprofiled:
+            ego = {"cluster": (good, True), "single": (good, False),
+                   "profiler_off": (unprofiled, True)}
+            rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset (docs/cluster.rst); "
+                                    "profiler_off: also Dask's profiler off",
+                         **_speedup("egomotion", rec, tmp, ego, repeat, pool)})
+            print(rows[-1], flush=True)
+            if not quick:
+                rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset (docs/cluster.rst)",
+                             **_speedup("flow multicm", rec, tmp,
+                                        {"cluster": (good, True)}, 5, pool)})
+                print(rows[-1], flush=True)
+        if not quick:
+            with cluster({}) as default:
+                rows.append({"workers": "Dask's default (MALLOC_TRIM_THRESHOLD_=65536)",
+                             **_speedup("flow multicm", rec, tmp,
+                                        {"cluster": (default, True)}, 3,
+                                        pool)})
+                print(rows[-1], flush=True)
             # the nanny sets its pre-spawn variables in this process too: later workers
             # would inherit them
             os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
@@ -205,7 +288,15 @@ def main(quick: bool = False) -> list[dict]:
               "depresses every parallel speed-up; two_process_ceiling_per_round is the "
               "speed-up 2 processes got over 1 on pure CPU work just before each round "
               "(the most any 2-worker run could reach then). window_s_sum: the estimates' "
-              "own seconds summed over the windows. Goal: speed-up >= 1.7 on 2 workers.")
+              "own seconds summed over the windows; client_cpu_s: CPU seconds of this "
+              "process during a cluster run (client + in-process scheduler and nannies); "
+              "workers_cpu_s: CPU seconds of the worker processes during the run. "
+              "cluster: windows batched per task (BATCH_TARGET_S); single: the same "
+              "workers, one window a task, as before batching; profiler_off: batched, on "
+              "workers with Dask's profiler off. "
+              f"quiet_rounds: rounds whose two-process ceiling was >= {QUIET} (nothing else "
+              "held a core). Goal: speed-up >= 1.7 on 2 workers (speedup_cluster, the "
+              "median over all rounds).")
     return rows
 
 

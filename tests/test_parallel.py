@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 import time
 from pathlib import Path
 
@@ -257,3 +258,88 @@ def test_path_source_with_real_reader(tmp_path, executor, workers):
                       progress=False)
     assert all(r.ok for r in res), [r.error for r in res if not r.ok]
     assert [r.value for r in res] == _expected(ev)
+
+
+def _batches(batcher, elapsed_s: float, compile_s: float = 0.0) -> list[list[int]]:
+    """Drain a batcher as the Dask loop does: the first ``limit`` batches go out before
+    any result, then each result returned lets the next batch go."""
+    from evmotion.parallel import WindowResult as Res
+
+    out, inflight = [], []
+    while len(inflight) < batcher.limit and (b := batcher.next()):
+        inflight.append(b)
+    while inflight:
+        batch = inflight.pop(0)
+        out.append([t.index for t in batch])
+        for t in batch:
+            batcher.record(Res(t.index, t.t0, t.t1, elapsed_s=elapsed_s + compile_s,
+                               compile_s=compile_s))
+        if b := batcher.next():
+            inflight.append(b)
+    return out
+
+
+def test_batches_of_short_windows_fill_the_target_and_shrink_at_the_end():
+    from evmotion.parallel import BATCH_TARGET_S, _Batcher, _Task
+
+    tasks = [_Task(k, 10 * k, 10 * k + 10) for k in range(60)]
+    out = _batches(_Batcher(tasks, limit=4), elapsed_s=0.04)
+    assert [k for b in out for k in b] == list(range(60))  # every window once, in order
+    sizes = [len(b) for b in out]
+    assert sizes[:4] == [1, 1, 1, 1]  # nothing known yet
+    assert max(sizes) == int(BATCH_TARGET_S / 0.04) == 6
+    assert sizes[-4:] == [1, 1, 1, 1]  # the workers finish together
+    assert sizes[4:] == sorted(sizes[4:], reverse=True)
+    assert len(out) < 30
+    # seconds spent compiling kernels are left out of the mean
+    assert _batches(_Batcher(tasks, limit=4), elapsed_s=0.04, compile_s=2.0) == out
+    # each fresh worker's first window (imports, cached kernels loaded) does not stop it
+    slow_first = _Batcher(tasks, limit=4)
+    for t in [slow_first.next()[0] for _ in range(2)]:
+        slow_first.record(WindowResult(t.index, t.t0, t.t1, elapsed_s=1.5))
+    sizes = [len(b) for b in _batches(slow_first, elapsed_s=0.04)]
+    assert max(sizes) == 6 and len(sizes) < 30
+    # windows as long as the target go one a task, as without batching
+    long = _batches(_Batcher(tasks, limit=4), elapsed_s=BATCH_TARGET_S)
+    assert long == [[k] for k in range(60)]
+
+
+def test_broken_batch_goes_again_one_window_a_task():
+    from evmotion.parallel import _Batcher, _Task
+
+    b = _Batcher([_Task(k, k, k + 1) for k in range(5)], limit=1)
+    first = b.next()
+    b.again(first + b.next())  # nothing recorded yet: single windows
+    assert [[t.index for t in b.next()] for _ in range(3)] == [[0], [1], [2]]
+
+
+def short_window(ev: EventArray, t0: int, t1: int):
+    if t0 == 36_000:
+        return threading.Lock()  # does not pickle: the task of its batch breaks
+    if t0 == 52_000:
+        raise RuntimeError("deliberate failure")
+    time.sleep(0.002)
+    return count_and_span(ev)
+
+
+def test_dask_batches_short_windows_and_keeps_failures_per_window(tmp_path):
+    """Windows of 2 ms go several to a task; a window that raises or whose result does not
+    pickle fails alone; the others give the serial results, saved for resume."""
+    distributed = pytest.importorskip("distributed")
+    ev = _events(4000)
+    windows = [(k * 2000, (k + 1) * 2000) for k in range(50)]
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  protocol="tcp", dashboard_address=":0") as cluster, \
+            distributed.Client(cluster) as client, \
+            distributed.get_task_stream(client) as stream:
+        res = map_windows(short_window, ev, windows, scheduler=client, with_window=True,
+                          progress=False, resume_dir=tmp_path)
+    assert [r.index for r in res] == list(range(50))
+    assert [r.index for r in res if not r.ok] == [18, 26]
+    assert "Could not serialize" in res[18].error and "picklable" in res[18].error
+    assert "deliberate failure" in res[26].error
+    expected = [count_and_span(ev.slice_time(a, b)) for a, b in windows]
+    assert all(r.value == expected[r.index] for r in res if r.ok)
+    tasks = len(stream.data)
+    assert tasks < 40, tasks  # batched (without batching: 50 tasks)
+    assert len(list(tmp_path.glob("*.pkl"))) == 48

@@ -14,8 +14,10 @@ import asyncio
 import concurrent.futures as cf
 import os
 import pickle
+import statistics
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +28,7 @@ from evmotion.events import EventArray, Window
 from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
 
-__all__ = ["WindowResult", "connect_scheduler", "map_windows"]
+__all__ = ["BATCH_TARGET_S", "WindowResult", "connect_scheduler", "map_windows"]
 
 
 @dataclass(frozen=True)
@@ -207,7 +209,9 @@ def map_windows(
         connected ``distributed.Client``. Workers must be able to read ``source``. A
         worker process compiles each numba kernel once, on its first window that needs it
         (or loads it from numba's cache; workers sharing one ``NUMBA_CACHE_DIR`` share
-        it): :attr:`WindowResult.compile_s` says which windows paid.
+        it): :attr:`WindowResult.compile_s` says which windows paid. Windows shorter than
+        :data:`BATCH_TARGET_S` go several consecutive ones to a task (results, their
+        order and ``resume_dir`` stay per window).
     resume_dir : path, optional
         Save each finished window there (pickle, atomically) and skip windows already
         saved. Failed windows are not saved, so a rerun retries them. Use one folder per
@@ -343,16 +347,76 @@ def _future_result(fut, task: _Task) -> WindowResult:
     try:
         return fut.result()
     except Exception as exc:
-        hint = ""
-        if isinstance(exc, (pickle.PicklingError, AttributeError, TypeError)):
-            hint = (" (with processes or Dask, fn, its arguments and its result must be "
-                    "picklable: use a module-level function, or executor='thread')")
-        return WindowResult(task.index, task.t0, task.t1,
-                            error=f"{type(exc).__name__}: {exc}{hint}")
+        return _broken(exc, task)
+
+
+def _broken(exc: Exception, task: _Task) -> WindowResult:
+    """The error result of a window whose task broke (pickling, a crashed process)."""
+    hint = ""
+    if isinstance(exc, (pickle.PicklingError, AttributeError, TypeError)):
+        hint = (" (with processes or Dask, fn, its arguments and its result must be "
+                "picklable: use a module-level function, or executor='thread')")
+    return WindowResult(task.index, task.t0, task.t1,
+                        error=f"{type(exc).__name__}: {exc}{hint}")
+
+
+def _run_batch(fn: Callable, payloads: list, tasks: list[_Task], with_window: bool,
+               read_kwargs: dict) -> list[WindowResult]:
+    """Run in a Dask worker: :func:`_run_window` on each window of a batch, in order."""
+    return [_run_window(fn, payload, task, with_window, read_kwargs)
+            for payload, task in zip(payloads, tasks, strict=True)]
+
+
+#: Seconds of work one Dask task is given when windows are shorter than this: as many
+#: consecutive windows as fit, at their median time. A task costs a few ms of CPU in the client and scheduler
+#: and in the worker (about 4 and 2 to 4 ms, benchmarks/results/cluster.md): batching keeps
+#: that cost a few per cent of the work.
+BATCH_TARGET_S = 0.25
+
+
+class _Batcher:
+    """Cuts the windows into consecutive batches, one batch a Dask task.
+
+    Until a window's time is known every batch is one window. Then a batch holds as many
+    windows as fit in :data:`BATCH_TARGET_S` at the median time of the last 64 windows
+    (compile time left out; the median, because each fresh worker's first window also
+    pays for imports and loading cached kernels), but never more than the windows left
+    over ``limit`` (the tasks kept in flight), so that the last batches are short and the
+    workers finish together. Windows
+    of ``BATCH_TARGET_S`` or more go one a task, as without batching. The windows of a
+    batch whose task broke (a result that does not pickle, a worker that died) go again
+    one a task, so that the failure stays the window's own.
+    """
+
+    def __init__(self, tasks: list[_Task], limit: int):
+        self.queue = list(reversed(tasks))
+        self.retry: list[_Task] = []
+        self.limit = limit
+        self.seconds: deque[float] = deque(maxlen=64)
+
+    def record(self, res: WindowResult) -> None:
+        self.seconds.append(max(res.elapsed_s - res.compile_s, 0.0))
+
+    def again(self, batch: list[_Task]) -> None:
+        self.retry.extend(reversed(batch))
+
+    def size(self) -> int:
+        if not self.seconds:
+            return 1
+        window_s = statistics.median(self.seconds)
+        fit = int(BATCH_TARGET_S / window_s) if window_s > 0 else len(self.queue)
+        return max(1, min(fit, len(self.queue) // self.limit))
+
+    def next(self) -> list[_Task]:
+        if self.retry:
+            return [self.retry.pop()]
+        return [self.queue.pop() for _ in range(min(self.size(), len(self.queue)))]
 
 
 def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
               read_kwargs: dict) -> Iterator[WindowResult]:
+    """Yield results as batches complete (:class:`_Batcher`), keeping ``2 *`` the cluster's
+    threads tasks in flight, so that in-memory slices are not all shipped at once."""
     try:
         from distributed import Client, as_completed
     except ImportError as exc:
@@ -361,28 +425,37 @@ def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
     client, owned = (scheduler, False) if isinstance(scheduler, Client) else (
         connect_scheduler(scheduler), True)
     limit = 2 * max(1, sum(client.nthreads().values()))
-    queue = iter(tasks)
-    futures: dict[str, _Task] = {}
+    batcher = _Batcher(tasks, limit)
+    futures: dict[str, list[_Task]] = {}
 
-    def submit():
-        task = next(queue, None)
-        if task is None:
-            return None
-        # pure=False: the same window must run again on a rerun, never be deduplicated.
-        fut = client.submit(_run_window, fn, _payload(source, task), task, with_window,
-                            read_kwargs, pure=False)
-        futures[fut.key] = task
-        return fut
+    def refill(stream=None) -> list:
+        new = []
+        while len(futures) < limit and (batch := batcher.next()):
+            # pure=False: the same window must run again on a rerun, never be deduplicated.
+            fut = client.submit(_run_batch, fn, [_payload(source, t) for t in batch], batch,
+                                with_window, read_kwargs, pure=False)
+            futures[fut.key] = batch
+            new.append(fut)
+            if stream is not None:
+                stream.add(fut)
+        return new
 
     try:
-        initial = [f for f in (submit() for _ in range(limit)) if f is not None]
-        stream = as_completed(initial, loop=client.loop)
+        stream = as_completed(refill(), loop=client.loop)
         for fut in stream:
-            task = futures.pop(fut.key)
-            yield _future_result(fut, task)
-            nxt = submit()
-            if nxt is not None:
-                stream.add(nxt)
+            batch = futures.pop(fut.key)
+            try:
+                results = fut.result()
+            except Exception as exc:
+                if len(batch) > 1:
+                    batcher.again(batch)
+                    results = []
+                else:
+                    results = [_broken(exc, batch[0])]
+            for res in results:
+                batcher.record(res)
+                yield res
+            refill(stream)
     finally:
         if owned:
             client.close()
