@@ -36,7 +36,6 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 import harness
 
@@ -137,23 +136,32 @@ def _cpu_s(pids: list[int]) -> float:
     return sum(sum(psutil.Process(p).cpu_times()[:2]) for p in pids)
 
 
-def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[Any, bool]],
-             repeat: int, pool: cf.Executor) -> dict:
+def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[dict, bool]],
+             repeat: int, pool: cf.Executor, start) -> dict:
     """The serial run and every cluster variant in turn, each round, in an order that
-    turns from round to round (so that a change of the machine's load hits them alike). ``variants``: name -> (LocalCluster, batched);
-    unbatched runs send every window as its own task, as before batching."""
-    extra = {"serial": [], **{k: ["--scheduler", c.scheduler_address]
-                              for k, (c, _) in variants.items()}}
-    pids = {k: _worker_pids(c) for k, (c, _) in variants.items()}
+    turns from round to round (so that a change of the machine's load hits them alike).
+    ``variants``: name -> (Dask configuration of its workers, batched); unbatched runs
+    send every window as its own task, as before batching. ``start(config)`` makes a
+    LocalCluster: each cluster run gets its own, started for it, warmed up by one run of
+    the command (imports, kernels from the numba cache) and closed after it, so that no
+    other cluster's idle scheduler, nannies and workers share the two cores."""
+    extra = ["serial", *variants]
 
     def once(k):
-        batched = k == "serial" or variants[k][1]
-        c0 = _cpu_s(pids.get(k, []))
-        with contextlib.nullcontext() if batched else _one_window_a_task():
-            seconds, doc, used = _cli(_argv(case, rec, tmp / k, extra[k]))
-        return seconds, doc, used, _cpu_s(pids.get(k, [])) - c0
+        if k == "serial":
+            seconds, doc, used = _cli(_argv(case, rec, tmp / k, []))
+            return seconds, doc, used, 0.0
+        config, batched = variants[k]
+        with start(config) as cluster:
+            argv = _argv(case, rec, tmp / k, ["--scheduler", cluster.scheduler_address])
+            pids = _worker_pids(cluster)
+            with contextlib.nullcontext() if batched else _one_window_a_task():
+                _cli(argv)  # warm-up
+                c0 = _cpu_s(pids)
+                seconds, doc, used = _cli(argv)
+            return seconds, doc, used, _cpu_s(pids) - c0
 
-    docs = {k: once(k)[1] for k in extra}  # warm-up
+    docs = {k: once(k)[1] for k in extra}  # warm-up (and the estimates compared)
     loads, ceilings = [], []
     runs, work, cpu, wcpu = ({k: [] for k in extra} for _ in range(4))
     order = list(extra)
@@ -254,25 +262,21 @@ def main(quick: bool = False) -> list[dict]:
         tmp = Path(d)
         rec = _recording(tmp)
         # the workers docs/cluster.rst recommends, and the same with Dask's profiler off
-        with cluster(NO_TRIM) as good, cluster(NO_PROFILER) as unprofiled:
-            ego = {"cluster": (good, True), "single": (good, False),
-                   "profiler_off": (unprofiled, True)}
-            rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset (docs/cluster.rst); "
-                                    "profiler_off: also Dask's profiler off",
-                         **_speedup("egomotion", rec, tmp, ego, repeat, pool)})
-            print(rows[-1], flush=True)
-            if not quick:
-                rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset (docs/cluster.rst)",
-                             **_speedup("flow multicm", rec, tmp,
-                                        {"cluster": (good, True)}, 5, pool)})
-                print(rows[-1], flush=True)
+        ego = {"cluster": (NO_TRIM, True), "single": (NO_TRIM, False),
+               "profiler_off": (NO_PROFILER, True)}
+        rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset (docs/cluster.rst); "
+                                "profiler_off: also Dask's profiler off",
+                     **_speedup("egomotion", rec, tmp, ego, repeat, pool, cluster)})
+        print(rows[-1], flush=True)
         if not quick:
-            with cluster({}) as default:
-                rows.append({"workers": "Dask's default (MALLOC_TRIM_THRESHOLD_=65536)",
-                             **_speedup("flow multicm", rec, tmp,
-                                        {"cluster": (default, True)}, 3,
-                                        pool)})
-                print(rows[-1], flush=True)
+            rows.append({"workers": "MALLOC_TRIM_THRESHOLD_ unset (docs/cluster.rst)",
+                         **_speedup("flow multicm", rec, tmp, {"cluster": (NO_TRIM, True)},
+                                    5, pool, cluster)})
+            print(rows[-1], flush=True)
+            rows.append({"workers": "Dask's default (MALLOC_TRIM_THRESHOLD_=65536)",
+                         **_speedup("flow multicm", rec, tmp, {"cluster": ({}, True)}, 3,
+                                    pool, cluster)})
+            print(rows[-1], flush=True)
             # the nanny sets its pre-spawn variables in this process too: later workers
             # would inherit them
             os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
@@ -290,7 +294,9 @@ def main(quick: bool = False) -> list[dict]:
               "(the most any 2-worker run could reach then). window_s_sum: the estimates' "
               "own seconds summed over the windows; client_cpu_s: CPU seconds of this "
               "process during a cluster run (client + in-process scheduler and nannies); "
-              "workers_cpu_s: CPU seconds of the worker processes during the run. "
+              "workers_cpu_s: CPU seconds of the worker processes during the run. Each "
+              "cluster run on a LocalCluster of its own, started, warmed up by one run and "
+              "closed around it (no other cluster idling beside it). "
               "cluster: windows batched per task (BATCH_TARGET_S); single: the same "
               "workers, one window a task, as before batching; profiler_off: batched, on "
               "workers with Dask's profiler off. "
