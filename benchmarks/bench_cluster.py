@@ -99,6 +99,13 @@ def _spin(n: int) -> int:
     return acc
 
 
+def _pair(pool: cf.Executor, argvs: list[list[str]]) -> float:
+    """Wall time of the command run by the 2 pool processes at once, one copy each."""
+    t0 = time.perf_counter()
+    list(pool.map(_cli, argvs))
+    return time.perf_counter() - t0
+
+
 def _ceiling(pool: cf.Executor, n: int = 3_000_000) -> float:
     """Speed-up of 2 processes over 1 on two equal pieces of pure CPU work, right now: the
     most any 2-worker run could reach on this machine at this moment."""
@@ -162,12 +169,20 @@ def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[dict, bo
             return seconds, doc, used, _cpu_s(pids) - c0
 
     docs = {k: once(k)[1] for k in extra}  # warm-up (and the estimates compared)
-    loads, ceilings = [], []
+    # The same command, serial, once in each of the 2 pool processes at the same time:
+    # 2 x (time of one alone) / (time of both) is the speed-up 2 processes can get on this
+    # very work here (cores shared with another compute process run each estimate
+    # slower than an idle machine does), with no Dask at all.
+    pair_argvs = [_argv(case, rec, tmp / f"pair{i}", []) for i in range(WORKERS)]
+    _pair(pool, pair_argvs)  # warm-up: imports and kernels in the pool processes
+    loads, ceilings, work_ceilings = [], [], []
     runs, work, cpu, wcpu = ({k: [] for k in extra} for _ in range(4))
     order = list(extra)
     for r in range(repeat):
         loads.append(os.getloadavg()[0])
         ceilings.append(_ceiling(pool))
+        alone = _cli(pair_argvs[0])[0]
+        work_ceilings.append(WORKERS * alone / _pair(pool, pair_argvs))
         # the runs' order turns each round: in a fixed order the run that came last was
         # the fastest of the cluster runs (5 % on egomotion, either cluster)
         for k in order[r % len(order):] + order[:r % len(order)]:
@@ -206,6 +221,9 @@ def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[dict, bo
         "serial_window_s_sum": statistics.median(work["serial"]),
         "load1_per_round": [round(v, 2) for v in loads],
         "two_process_ceiling_per_round": [round(v, 2) for v in ceilings],
+        # the speed-up 2 plain processes got on this command in that round (no Dask)
+        "workload_ceiling": statistics.median(work_ceilings),
+        "workload_ceiling_per_round": [round(v, 3) for v in work_ceilings],
         # the cluster's speed-up over what 2 processes got on pure CPU work in that round
         "speedup_over_ceiling": statistics.median(
             a / b / c for a, b, c in zip(ser, runs["cluster"], ceilings, strict=True)),
@@ -291,7 +309,9 @@ def main(quick: bool = False) -> list[dict]:
               "1-minute load average before each round, and a load above the core count "
               "depresses every parallel speed-up; two_process_ceiling_per_round is the "
               "speed-up 2 processes got over 1 on pure CPU work just before each round "
-              "(the most any 2-worker run could reach then). window_s_sum: the estimates' "
+              "(the most any 2-worker run could reach then); workload_ceiling: the speed-up "
+              "2 plain processes got on the same command, each running it whole at the same "
+              "time as the other (2 x alone / together, no Dask). window_s_sum: the estimates' "
               "own seconds summed over the windows; client_cpu_s: CPU seconds of this "
               "process during a cluster run (client + in-process scheduler and nannies); "
               "workers_cpu_s: CPU seconds of the worker processes during the run. Each "
