@@ -15,7 +15,7 @@ import pytest
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import h5
-from evmotion.io.h5attrs import read_attrs, text_attr
+from evmotion.io.h5attrs import read_attrs, read_attrs_many, text_attr
 
 
 def _events() -> EventArray:
@@ -114,3 +114,29 @@ def test_child_time_limit_is_reported(tmp_path):
     _vlen_file(path, corrupt=True)
     with h5py.File(path, "r") as f, pytest.raises(FormatError, match="did not finish in 0.5 s"):
         read_attrs(path, f, ("provenance",), timeout_s=0.5)
+
+
+def test_read_attrs_many_forks_once_for_all_objects(tmp_path, monkeypatch):
+    import os
+
+    path = tmp_path / "many.h5"
+    with h5py.File(path, "w") as f:
+        for name, unit in (("q", "1/s"), ("p", "px"), ("n", "count")):
+            ds = f.create_dataset(name, data=np.zeros(3))
+            ds.attrs["units"] = unit            # variable-length, as h5py writes a str
+            ds.attrs["scale"] = 2.0
+    forks = []
+    real_fork = os.fork
+
+    def counting_fork():
+        pid = real_fork()
+        if pid:
+            forks.append(pid)
+        return pid
+
+    monkeypatch.setattr(os, "fork", counting_fork)
+    with h5py.File(path, "r") as f:
+        got = read_attrs_many(path, [f["q"], f["p"], f["n"]], ("units", "scale", "absent"))
+    assert got == [{"units": "1/s", "scale": 2.0}, {"units": "px", "scale": 2.0},
+                   {"units": "count", "scale": 2.0}]
+    assert len(forks) == 1

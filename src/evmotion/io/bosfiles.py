@@ -253,14 +253,15 @@ def read_bos_h5(path: str | os.PathLike, index: int | slice | None = None) -> Bo
     path = Path(path)
     f = open_h5(path)
     with f:
-        content = read_attrs(path, f, ("content",)).get("content")
+        root = read_attrs(path, f)
+        content = root.get("content")
         if content != BOS_CONTENT:
             raise FormatError(path, f"not a BOS file (attribute content={content!r}, "
                               f"expected {BOS_CONTENT!r})")
         for name in ("q", "p"):
             if name not in f:
                 raise FormatError(path, f"BOS file lacks dataset '/{name}'")
-        flow = read_flow_group(f, path, index)
+        flow = read_flow_group(f, path, index, root)
         n = int(f["t1"].shape[0])
         sel = np.arange(n)[slice(None) if index is None else index]
         sel = np.atleast_1d(sel)
@@ -270,5 +271,5 @@ def read_bos_h5(path: str | os.PathLike, index: int | slice | None = None) -> Bo
             np.zeros((0, *f["p"].shape[1:]), np.float32)
         scalars = {k: ds[:n][sel] for k, ds in f["window"].items()} if "window" in f else {}
         attrs = dict(flow.attrs)
-        attrs["q_units"] = read_attrs(path, f["q"], ("units",)).get("units", "")
+        attrs["q_units"] = attrs.get("extras_units", {}).get("q", "")
     return BosSequence(flow=flow, q=q, p=p, scalars=scalars, attrs=attrs)

@@ -32,7 +32,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.guard import open_h5
-from evmotion.io.h5attrs import read_attrs
+from evmotion.io.h5attrs import read_attrs, read_attrs_many
 from evmotion.io.pngfile import read_png, write_png
 from evmotion.utils import atomic_path
 
@@ -449,13 +449,15 @@ def create_extras(group, extras: dict, compression: str | None = "gzip") -> None
     group.attrs[EXTRAS_ATTR] = json.dumps(listed + list(extras))
 
 
-def extra_specs(group, path: str | os.PathLike | None = None) -> dict:
+def extra_specs(group, path: str | os.PathLike | None = None,
+                attrs: dict | None = None) -> dict:
     """The extra datasets of a flow group (name -> :class:`ExtraSpec`), from its
     ``extras`` attribute; a BOS file written before that attribute existed lists ``q``,
-    ``p`` and ``window/*``."""
+    ``p`` and ``window/*``. ``attrs``: the group's attributes, when already read."""
     import json
 
-    attrs = read_attrs(path, group, (EXTRAS_ATTR, "content"))
+    if attrs is None:
+        attrs = read_attrs(path, group, (EXTRAS_ATTR, "content"))
     raw = attrs.get(EXTRAS_ATTR)
     if raw is not None:
         names = json.loads(raw)
@@ -466,9 +468,9 @@ def extra_specs(group, path: str | os.PathLike | None = None) -> dict:
     else:
         names = []
     out = {}
-    for name in names:
-        ds = group[name]
-        text = read_attrs(path, ds, ("units", "meaning"))
+    datasets = [group[name] for name in names]
+    texts = read_attrs_many(path, datasets, ("units", "meaning"))
+    for name, ds, text in zip(names, datasets, texts, strict=True):
         out[name] = ExtraSpec(tuple(ds.shape[1:]), ds.dtype.str, str(text.get("units", "")),
                               str(text.get("meaning", "")))
     return out
@@ -567,9 +569,10 @@ def write_flow_group(group, flow: np.ndarray | None, t0, t1, valid=None, *,
 
 
 def read_flow_group(group, path: str | os.PathLike | None = None,
-                    index: int | slice | None = None) -> FlowSequence:
-    """Read a flow group written by :func:`write_flow_group` / :class:`FlowWriter`."""
-    attrs = read_attrs(path, group)
+                    index: int | slice | None = None, attrs: dict | None = None) -> FlowSequence:
+    """Read a flow group written by :func:`write_flow_group` / :class:`FlowWriter`
+    (``attrs``: the group's attributes, when already read)."""
+    attrs = read_attrs(path, group) if attrs is None else dict(attrs)
     if attrs.get("format") != FLOW_FORMAT:
         raise FormatError(path, f"group '{group.name}' is not an evmotion flow container "
                           f"(attribute format={attrs.get('format')!r})")
@@ -584,7 +587,7 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
         sel = slice(int(idx[0]), int(idx[0]) + 1)
     flow = group["flow"][sel]
     valid = group["valid"][sel] if "valid" in group else None
-    specs = extra_specs(group, path)
+    specs = extra_specs(group, path, attrs)
     extras = {name: group[name][sel] for name in specs}
     if specs:
         attrs["extras_units"] = {name: spec.units for name, spec in specs.items()}
@@ -618,15 +621,16 @@ def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> F
     path = Path(path)
     f = open_h5(path)
     with f:
-        fmt = read_attrs(path, f, ("format",)).get("format")
-        if fmt == FLOW_FORMAT:
-            return read_flow_group(f, path, index)
-        if fmt == SIM_GT_FORMAT:
-            return _read_sim_gt(f, path, index)
+        root = read_attrs(path, f)
+        if root.get("format") == FLOW_FORMAT:
+            return read_flow_group(f, path, index, root)
+        if root.get("format") == SIM_GT_FORMAT:
+            return _read_sim_gt(f, path, index, root)
         if "ground_truth" in f:
             g = f["ground_truth"]
-            if read_attrs(path, g, ("format",)).get("format") == SIM_GT_FORMAT:
-                return _read_sim_gt(g, path, index)
+            gt_attrs = read_attrs(path, g)
+            if gt_attrs.get("format") == SIM_GT_FORMAT:
+                return _read_sim_gt(g, path, index, gt_attrs)
             if "flow" in g:
                 return read_flow_group(g["flow"], path, index)
     beside = path.with_name(path.stem + "_gt.h5")
@@ -637,7 +641,7 @@ def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> F
                       f"group, nor a {beside.name} beside it")
 
 
-def _read_sim_gt(g, path: Path, index) -> FlowSequence:
+def _read_sim_gt(g, path: Path, index, attrs: dict) -> FlowSequence:
     # The simulator stores instantaneous flow at frame times; window i is
     # [frame_i, frame_i+1) with the flow at its start and the event mask as valid.
     for name in ("flow", "frame_times_us"):
@@ -652,7 +656,6 @@ def _read_sim_gt(g, path: Path, index) -> FlowSequence:
     valid = None
     if "event_masks" in g and g["event_masks"].shape[0] == n:
         valid = np.stack([g["event_masks"][int(i)] for i in idx]) if idx.size else None
-    attrs = read_attrs(path, g)
     return FlowSequence(flow=flow.astype(np.float32), t0=ft[idx], t1=ft[idx + 1], valid=valid,
                         attrs=attrs)
 

@@ -295,7 +295,8 @@ def _describe_h5(p: Path) -> dict | None:
     except OSError:
         return None
     with f:
-        attrs = {k: json_value(v) for k, v in read_attrs(p, f).items()}
+        raw = read_attrs(p, f)
+        attrs = {k: json_value(v) for k, v in raw.items()}
         fmt = attrs.get("format")
         if fmt == EVENT_FLOW_FORMAT:
             f.close()
@@ -308,7 +309,7 @@ def _describe_h5(p: Path) -> dict | None:
         if "valid" in f and n:
             vf = float(sum(int(np.count_nonzero(f["valid"][i])) for i in range(n))
                        / (n * f["valid"].shape[1] * f["valid"].shape[2]))
-        specs = extra_specs(f, p)
+        specs = extra_specs(f, p, raw)
         if specs:
             attrs["extras_units"] = {k: s.units for k, s in specs.items()}
         out = {"path": str(p), "format": FLOW_FORMAT, "container": "h5"}

@@ -31,7 +31,7 @@ import os
 import pickle
 import select
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,7 +39,7 @@ import numpy as np
 
 from evmotion.errors import FormatError
 
-__all__ = ["ATTR_TIMEOUT_S", "read_attrs", "text_attr"]
+__all__ = ["ATTR_TIMEOUT_S", "read_attrs", "read_attrs_many", "text_attr"]
 
 #: Seconds a child process gets to read a file's variable-length attributes (a healthy
 #: read takes microseconds; the margin is for a loaded machine).
@@ -77,18 +77,43 @@ def read_attrs(path: str | os.PathLike | None, obj: Any, keys: Iterable[str] | N
     FormatError
         An attribute cannot be read (corrupt file), naming the file and the attribute.
     """
+    return read_attrs_many(path, [obj], keys, timeout_s)[0]
+
+
+def read_attrs_many(path: str | os.PathLike | None, objs: Sequence[Any],
+                    keys: Iterable[str] | None = None,
+                    timeout_s: float = ATTR_TIMEOUT_S) -> list[dict[str, Any]]:
+    """:func:`read_attrs` of several objects of one file (the same ``keys`` of each), with
+    one child process for all their variable-length attributes: a reader that needs the
+    attributes of every dataset of a group forks once, not once a dataset.
+
+    Returns
+    -------
+    list of dict
+        One per object, in the order of ``objs``.
+    """
     path = None if path is None else Path(path)
+    keys = None if keys is None else list(keys)
+    names = [_names(path, obj, keys) for obj in objs]
+    out = [{k: _read_one(path, obj, k) for k in ks if not _variable_length(obj, k)}
+           for obj, ks in zip(objs, names, strict=True)]
+    heap = [(i, obj, [k for k in ks if k not in got])
+            for i, (obj, ks, got) in enumerate(zip(objs, names, out, strict=True))]
+    heap = [job for job in heap if job[2]]
+    if heap:
+        jobs = [(obj, ks) for _, obj, ks in heap]
+        values = _read_in_child(path, jobs, timeout_s) if hasattr(os, "fork") else \
+            [{k: _read_one(path, obj, k) for k in ks} for obj, ks in jobs]
+        for (i, _, _), value in zip(heap, values, strict=True):
+            out[i].update(value)
+    return [{k: got[k] for k in ks} for got, ks in zip(out, names, strict=True)]
+
+
+def _names(path: Path | None, obj: Any, keys: list[str] | None) -> list[str]:
     try:
-        names = list(obj.attrs) if keys is None else [k for k in keys if k in obj.attrs]
+        return list(obj.attrs) if keys is None else [k for k in keys if k in obj.attrs]
     except (OSError, RuntimeError, KeyError, ValueError) as exc:
         raise FormatError(path, f"cannot list the attributes of '{obj.name}': {exc}") from None
-    direct = [k for k in names if not _variable_length(obj, k)]
-    out = {k: _read_one(path, obj, k) for k in direct}
-    heap = [k for k in names if k not in out]
-    if heap:
-        out.update(_read_in_child(path, obj, heap, timeout_s) if hasattr(os, "fork")
-                   else {k: _read_one(path, obj, k) for k in heap})
-    return {k: out[k] for k in names}
 
 
 def _variable_length(obj: Any, key: str) -> bool:
@@ -123,7 +148,8 @@ def _decoded(value: Any) -> Any:
     return value
 
 
-def _read_in_child(path: Path | None, obj: Any, keys: list[str], timeout_s: float) -> dict:
+def _read_in_child(path: Path | None, jobs: list[tuple[Any, list[str]]],
+                   timeout_s: float) -> list[dict]:
     r, w = os.pipe()
     with _h5py_lock():
         # Holding h5py's lock across fork: a lock held by another thread at that moment
@@ -134,7 +160,8 @@ def _read_in_child(path: Path | None, obj: Any, keys: list[str], timeout_s: floa
         try:
             os.close(r)
             try:
-                payload = ("ok", {k: _read_one(path, obj, k) for k in keys})
+                payload = ("ok", [{k: _read_one(path, obj, k) for k in keys}
+                                  for obj, keys in jobs])
             except FormatError as exc:
                 payload = ("error", exc.message)
             data = pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)
@@ -161,15 +188,15 @@ def _read_in_child(path: Path | None, obj: Any, keys: list[str], timeout_s: floa
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, 9)
         os.waitpid(pid, 0)
-    names = ", ".join(f"'{k}'" for k in keys)
+    names = "; ".join(", ".join(f"'{k}'" for k in keys) + f" of '{obj.name}'"
+                      for obj, keys in jobs)
     if not done:
-        raise FormatError(path, f"reading attribute {names} of '{obj.name}' did not finish "
-                          f"in {timeout_s:g} s (corrupt variable-length data)")
+        raise FormatError(path, f"reading attribute {names} did not finish in {timeout_s:g} "
+                          "s (corrupt variable-length data)")
     try:
         status, value = pickle.loads(b"".join(chunks))
     except Exception:  # a child that died mid-write leaves any bytes
-        raise FormatError(path, f"cannot read attribute {names} of '{obj.name}' (corrupt "
-                          "file?)") from None
+        raise FormatError(path, f"cannot read attribute {names} (corrupt file?)") from None
     if status != "ok":
         raise FormatError(path, value)
     return value

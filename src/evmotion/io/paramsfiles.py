@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
-from evmotion.io.h5attrs import read_attrs
+from evmotion.io.h5attrs import read_attrs, read_attrs_many
 from evmotion.io.h5filters import is_hdf5
 
 __all__ = ["PARAMS_FORMAT", "ParamsTable", "describe_params", "read_params",
@@ -171,11 +171,11 @@ def read_params(path: str | os.PathLike) -> ParamsTable:
         names = tuple(_text(v) for v in labels["names"])
         units = tuple(_text(v) for v in labels["units"])
         columns, cu, cm = {}, {}, {}
-        for name, ds in f.items():
-            if name in _RESERVED or not hasattr(ds, "shape"):
-                continue
+        found = {name: ds for name, ds in f.items()
+                 if name not in _RESERVED and hasattr(ds, "shape")}
+        texts = read_attrs_many(path, list(found.values()), ("units", "meaning"))
+        for (name, ds), text in zip(found.items(), texts, strict=True):
             columns[name] = ds[()]
-            text = read_attrs(path, ds, ("units", "meaning"))
             cu[name] = _text(text.get("units", ""))
             cm[name] = _text(text.get("meaning", ""))
         return ParamsTable(params=f["params"][()], names=names, units=units,
