@@ -170,19 +170,18 @@ def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[dict, bo
 
     docs = {k: once(k)[1] for k in extra}  # warm-up (and the estimates compared)
     # The same command, serial, once in each of the 2 pool processes at the same time:
-    # 2 x (time of one alone) / (time of both) is the speed-up 2 processes can get on this
-    # very work here (cores shared with another compute process run each estimate
+    # 2 x (the round's serial run) / (time of both) is the speed-up 2 processes can get on
+    # this very work here (cores shared with another compute process run each estimate
     # slower than an idle machine does), with no Dask at all.
     pair_argvs = [_argv(case, rec, tmp / f"pair{i}", []) for i in range(WORKERS)]
     _pair(pool, pair_argvs)  # warm-up: imports and kernels in the pool processes
-    loads, ceilings, work_ceilings = [], [], []
+    loads, ceilings, pairs = [], [], []
     runs, work, cpu, wcpu = ({k: [] for k in extra} for _ in range(4))
     order = list(extra)
     for r in range(repeat):
         loads.append(os.getloadavg()[0])
         ceilings.append(_ceiling(pool))
-        alone = _cli(pair_argvs[0])[0]
-        work_ceilings.append(WORKERS * alone / _pair(pool, pair_argvs))
+        pairs.append(_pair(pool, pair_argvs))
         # the runs' order turns each round: in a fixed order the run that came last was
         # the fastest of the cluster runs (5 % on egomotion, either cluster)
         for k in order[r % len(order):] + order[:r % len(order)]:
@@ -192,6 +191,7 @@ def _speedup(case: str, rec: Path, tmp: Path, variants: dict[str, tuple[dict, bo
             cpu[k].append(used)
             wcpu[k].append(workers_cpu)
     ser = runs["serial"]
+    work_ceilings = [WORKERS * a / b for a, b in zip(ser, pairs, strict=True)]
     row = {"case": case, "windows": len(docs["serial"]["windows"]), "repeat": repeat,
            "serial_s": statistics.median(ser)}
     for k in extra:
