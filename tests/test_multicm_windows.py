@@ -43,8 +43,11 @@ def test_chunks_refuse_what_they_cannot_honour(rec):
     from evmotion.methods.multicm_windows import estimate_in_chunks
 
     ev, wins = rec
-    with pytest.raises(ParameterError, match="workers must be >= 1, got 0"):
+    with pytest.raises(ParameterError, match="workers must be an integer >= 1, got 0"):
         estimate_in_chunks(ev, wins, workers=0)
+    for bad in (0, -2, float("nan"), 2.5):
+        with pytest.raises(ParameterError, match="workers must be an integer >= 1, got"):
+            estimate_flow_sequence(ev, wins, workers=bad)
     with pytest.raises(ParameterError, match="init cannot seed"):
         estimate_flow_sequence(ev, wins, workers=2, init=np.zeros((48, 64, 2), np.float32))
     with pytest.raises(ParameterError, match="warm_start=False"):

@@ -817,7 +817,7 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
     """
     from evmotion.utils import progress
 
-    if workers > 1 or scheduler is not None:
+    if workers != 1 or scheduler is not None:
         from evmotion.methods.multicm_windows import estimate_in_chunks
 
         if not warm_start:

@@ -76,8 +76,8 @@ def estimate_in_chunks(events: EventArray, windows: Sequence[Window], *, workers
     """
     from evmotion.parallel import map_windows
 
-    if workers < 1:
-        raise ParameterError(f"workers must be >= 1, got {workers}")
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise ParameterError(f"workers must be an integer >= 1, got {workers!r}")
     if kwargs.get("init") is not None:
         raise ParameterError("init cannot seed windows split into chunks (each chunk "
                              "starts from zero flow); use workers=1")
