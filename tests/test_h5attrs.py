@@ -140,3 +140,14 @@ def test_read_attrs_many_forks_once_for_all_objects(tmp_path, monkeypatch):
     assert got == [{"units": "1/s", "scale": 2.0}, {"units": "px", "scale": 2.0},
                    {"units": "count", "scale": 2.0}]
     assert len(forks) == 1
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf")])
+def test_time_limit_must_be_a_finite_positive_number(tmp_path, bad):
+    from evmotion.errors import ParameterError
+
+    path = tmp_path / "t.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs["a"] = "x"
+    with h5py.File(path, "r") as f, pytest.raises(ParameterError, match="timeout_s must be"):
+        read_attrs(path, f, timeout_s=bad)

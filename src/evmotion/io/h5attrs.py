@@ -27,6 +27,7 @@ Examples
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import pickle
 import select
@@ -37,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from evmotion.errors import FormatError
+from evmotion.errors import FormatError, ParameterError
 
 __all__ = ["ATTR_TIMEOUT_S", "read_attrs", "read_attrs_many", "text_attr"]
 
@@ -92,6 +93,9 @@ def read_attrs_many(path: str | os.PathLike | None, objs: Sequence[Any],
     list of dict
         One per object, in the order of ``objs``.
     """
+    if not isinstance(timeout_s, (int, float)) or not math.isfinite(timeout_s) \
+            or timeout_s <= 0:
+        raise ParameterError(f"timeout_s must be a finite number > 0 s, got {timeout_s!r}")
     path = None if path is None else Path(path)
     keys = None if keys is None else list(keys)
     names = [_names(path, obj, keys) for obj in objs]
