@@ -77,7 +77,7 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _load_flow(args):
+def _load_flow(args, h5_format=None):
     from pathlib import Path
 
     from evmotion.io.flowout import CONTAINERS
@@ -101,7 +101,8 @@ def _load_flow(args):
         raise ParameterError(f"{path}: no {path.name}.json beside it, so no time interval; "
                              "give --t0-us and --t1-us (t1 > t0)")
     if suffix in (".h5", ".hdf5"):
-        _check_estimate(path)
+        # a file that is not there (or has no format attribute) is read here, for its error
+        _check_estimate(path, h5_format if h5_format is not None else _h5_format(path))
     seq = read_flow(path, t0_us=args.t0_us, t1_us=args.t1_us)
     # a method may name its evaluation's %Out threshold (BOS: 1 px)
     out_px = seq.attrs.get("eval_out_px")
@@ -143,10 +144,11 @@ def _h5_format(path) -> object:
                           ) from None
 
 
-def _is_event_flow(path) -> bool:
+def _is_event_flow(path, h5_format=None) -> bool:
     """Whether FLOW is a per-event flow file (:mod:`evmotion.io.eventflow`), by its
-    ``format`` attribute (``.h5``) or its ``meta`` member (``.npz``); anything else goes to
-    the dense readers, which report what is wrong with it."""
+    ``format`` attribute (``.h5``: ``h5_format``, read by the caller) or its ``meta``
+    member (``.npz``); anything else goes to the dense readers, which report what is wrong
+    with it."""
     import json
     import zipfile
 
@@ -154,7 +156,7 @@ def _is_event_flow(path) -> bool:
 
     suffix = path.suffix.lower()
     if suffix in (".h5", ".hdf5") and path.is_file():
-        return _h5_format(path) == EVENT_FLOW_FORMAT
+        return h5_format == EVENT_FLOW_FORMAT
     if suffix != ".npz" or not path.is_file():
         return False
     try:
@@ -167,13 +169,12 @@ def _is_event_flow(path) -> bool:
     return isinstance(meta, dict) and meta.get("format") == EVENT_FLOW_FORMAT
 
 
-def _check_estimate(path) -> None:
-    """FLOW must be an estimate (an evmotion flow file), not events or ground truth: the
-    reader also accepts an events file by the ground truth beside it, which would compare
-    the ground truth with itself."""
+def _check_estimate(path, fmt) -> None:
+    """FLOW must be an estimate (an evmotion flow file: its format attribute ``fmt``), not
+    events or ground truth: the reader also accepts an events file by the ground truth
+    beside it, which would compare the ground truth with itself."""
     from evmotion.io.flowfiles import FLOW_FORMAT
 
-    fmt = _h5_format(path)
     if fmt != FLOW_FORMAT:
         raise FormatError(path, f"not an evmotion flow file (format attribute {fmt!r}, "
                           f"expected {FLOW_FORMAT!r}): FLOW must be an estimate written by "
@@ -230,11 +231,14 @@ def run(args) -> int:
     from evmotion.io.flowfiles import read_gt_flow
 
     path = Path(args.flow)
-    if _is_event_flow(path):
+    # the format attribute of an .h5 FLOW, read once for both checks below
+    h5_format = _h5_format(path) if path.suffix.lower() in (".h5", ".hdf5") and \
+        path.is_file() else None
+    if _is_event_flow(path, h5_format):
         if Path(args.gt).resolve() == path.resolve():
             raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
         return _run_event_flow(args, path)
-    flow, t0s, t1s, file_out_px = _load_flow(args)
+    flow, t0s, t1s, file_out_px = _load_flow(args, h5_format)
     out_px = args.out_px if args.out_px is not None else file_out_px or 3.0
     gt = read_gt_flow(args.gt)
     if gt.flow.shape[1:3] != flow.shape[1:3]:
