@@ -111,6 +111,8 @@ def test_schlieren_options_equal_keywords():
     _same_events(a.events, b.events)
     np.testing.assert_array_equal(a.frames.images, b.frames.images)
     assert a.gt.meta == b.gt.meta and a.gt.meta["gain"] == pytest.approx(255 / 40)
+    # the default gain puts white at the ADC's full scale at any bit depth
+    assert SchlierenOptions(photons=40.0, bit_depth=10).gain == pytest.approx(1023 / 40)
 
 
 @pytest.mark.parametrize("kw, match", [
@@ -119,6 +121,8 @@ def test_schlieren_options_equal_keywords():
     ({"event_tau_us": 0}, r"event_tau_us .*\(µs\)"),
     ({"contrast_threshold": -0.1}, "contrast_threshold"),
     ({"refractory_us": -3}, "refractory_us"),
+    ({"photons": 5.0, "read_noise_e": float("inf")}, r"read_noise_e .*\(electrons rms\)"),
+    ({"bit_depth": 32}, r"bit_depth .*\[1.0, 16.0\] \(bits\)"),
 ])
 def test_schlieren_options_refuse_bad_values(kw, match):
     with pytest.raises(ParameterError, match=match):

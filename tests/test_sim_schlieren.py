@@ -228,6 +228,87 @@ def test_low_light_shot_noise_statistics():
                                                   for k in range(40)}
 
 
+def _flat(**kw):
+    """Frames of a flat white field (dot contrast 1e-6): every pixel sees the same light."""
+    args = dict(sensor_size=(96, 96), duration_s=2 / 120, seed=0, exposure_s=0.0,
+                dot_contrast=1e-6) | kw
+    return simulate_schlieren("plume", **args)
+
+
+def test_frame_noise_is_shot_and_read_noise_in_quadrature():
+    photons, read, gain = 400.0, 10.0, 0.5
+    img = _flat(photons=photons, read_noise_e=read, gain=gain).frames.images.astype(float)
+    # grey levels: gain * sqrt(shot^2 + read^2), plus 1/12 grey^2 of rounding
+    expect = math.sqrt(gain ** 2 * (photons + read ** 2) + 1 / 12)
+    assert img.mean() == pytest.approx(gain * photons, abs=0.3)
+    assert img.std() == pytest.approx(expect, rel=0.03)
+    # without the read noise: shot noise alone, 10 % lower (the test tells them apart)
+    shot = _flat(photons=photons, gain=gain).frames.images.astype(float)
+    assert shot.std() == pytest.approx(math.sqrt(gain ** 2 * photons + 1 / 12), rel=0.03)
+
+
+def test_fixed_gain_quantizes_dim_frames_to_a_few_levels():
+    # a gain set for 10000 photons at white, light at 100 photons: white is 2.55 grey
+    kw = dict(sensor_size=(64, 64), duration_s=2 / 120, seed=0, exposure_s=0.0,
+              photons=100.0)
+    fixed = simulate_schlieren("plume", gain=255 / 10000, **kw).frames.images
+    assert set(np.unique(fixed)) <= {0, 1, 2, 3, 4}
+    # the default gain follows the light: the same photons spread over many levels
+    assert len(np.unique(simulate_schlieren("plume", **kw).frames.images)) > 40
+    # normalizing stretches the range but cannot add levels
+    norm = simulate_schlieren("plume", gain=255 / 10000, normalize=True, **kw).frames.images
+    for a, b in zip(fixed, norm, strict=True):
+        assert len(np.unique(a)) == len(np.unique(b))
+        assert b.min() == 0 and b.max() == 255
+        # the stretch keeps the order of the grey levels
+        np.testing.assert_array_equal(np.argsort(a.ravel(), kind="stable"),
+                                      np.argsort(b.ravel(), kind="stable"))
+
+
+def test_adc_clips_at_full_scale_and_bit_depth():
+    # white at 2x full scale: the bright pixels clip at 2**bits - 1
+    for bits, dtype in ((8, np.uint8), (4, np.uint8), (12, np.uint16)):
+        full = 2 ** bits - 1
+        fr = _flat(photons=1000.0, gain=2 * full / 1000.0, bit_depth=bits).frames
+        assert fr.images.dtype == dtype and fr.bit_depth == bits
+        assert fr.images.max() == full and (fr.images == full).mean() > 0.99
+    # a dark pixel with read noise clips at 0, not below
+    dark = _flat(photons=1.0, read_noise_e=20.0, gain=1.0).frames.images
+    assert dark.min() == 0 and (dark == 0).mean() > 0.3
+    # default gain at 10 bits: white near 1023
+    ten = _flat(photons=1e6, bit_depth=10).frames
+    assert ten.images.dtype == np.uint16 and abs(float(ten.images.mean()) - 1023) < 2
+
+
+def test_normalize_range():
+    from evmotion.sim.schlieren import normalize_range
+
+    img = np.array([[3.0, 5.0], [4.0, 7.0]])
+    out = normalize_range(img, 255)
+    assert out.min() == 0 and out.max() == 255
+    assert out.tolist() == [[0.0, 128.0], [64.0, 255.0]]
+    flat = np.full((2, 3), 9.0)
+    np.testing.assert_array_equal(normalize_range(flat, 255), flat)
+    # normalized frames in the simulator: every frame spans 0..2**bits - 1
+    fr = _flat(photons=50.0, read_noise_e=5.0, gain=0.5, normalize=True, bit_depth=10)
+    for im in fr.frames.images:
+        assert im.min() == 0 and im.max() == 1023
+    assert fr.gt.meta["normalize"] is True and fr.gt.meta["bit_depth"] == 10
+    assert fr.gt.meta["read_noise_e"] == 5.0
+
+
+def test_read_noise_is_seeded_and_leaves_shot_noise_draws():
+    kw = dict(photons=200.0, read_noise_e=6.8, gain=255 / 10000 * 40)
+    a, b = _flat(**kw).frames.images, _flat(**kw).frames.images
+    np.testing.assert_array_equal(a, b)
+    c = _flat(seed=1, **kw).frames.images
+    assert (a != c).mean() > 0.3
+    # the defaults (no read noise, 8 bits, no stretch) give the former frames exactly
+    old = _flat(photons=200.0).frames.images
+    np.testing.assert_array_equal(
+        old, _flat(photons=200.0, read_noise_e=0.0, bit_depth=8, normalize=False).frames.images)
+
+
 def test_exposure_blurs_toward_the_mean():
     kw = dict(sensor_size=(48, 48), duration_s=2 / 120, seed=0, magnitude_px=3.0)
     sharp = simulate_schlieren("jet", exposure_s=0.0, **kw)
@@ -284,6 +365,16 @@ def test_write_and_read_back(tmp_path, plume):
     (dict(dot_density=0.0), "dot_density"),
     (dict(dot_radius_px=50), "dot_radius_px"),
     (dict(exposure_s=0.5), "exposure_s"),
+    (dict(photons=10.0, read_noise_e=float("nan")), "read_noise_e"),
+    (dict(photons=10.0, read_noise_e=-1.0), "read_noise_e"),
+    (dict(photons=10.0, read_noise_e=2e6), "read_noise_e"),
+    (dict(read_noise_e=5.0), "read_noise_e needs photons"),
+    (dict(bit_depth=0), "bit_depth"),
+    (dict(bit_depth=17), "bit_depth"),
+    (dict(bit_depth=8.5), "bit_depth must be an integer"),
+    (dict(bit_depth=float("nan")), "bit_depth"),
+    (dict(bit_depth=True), "bit_depth must be an integer"),
+    (dict(normalize="yes"), "normalize must be True or False"),
 ])
 def test_bad_parameters(kw, match):
     args = dict(scene="plume", sensor_size=(32, 32), duration_s=2 / 120) | kw
@@ -308,6 +399,18 @@ def test_cli_simulate_schlieren(tmp_path, capsys):
     assert gt.meta["seed"] == 4 and gt.meta["magnitude_px"] == 2
     assert gt.meta["event_photons"] == 500
     assert read_frames(out).images.shape == (3, 40, 48)
+    assert gt.meta["read_noise_e"] == 0 and gt.meta["bit_depth"] == 8
+    assert gt.meta["normalize"] is False
+    # the thesis' camera: a fixed gain, read noise, 8 bits, normalized frames
+    rc = main(["simulate", "schlieren", "--size", "40x48", "--duration", str(1 / 120),
+               "--photons", "100", "--gain", "0.0255", "--read-noise", "6.8", "--bits", "8",
+               "--normalize", "--out", str(tmp_path / "dim")])
+    capsys.readouterr()
+    meta = read_schlieren_gt(tmp_path / "dim").meta
+    assert rc == 0 and meta["gain"] == 0.0255 and meta["read_noise_e"] == 6.8
+    assert meta["normalize"] is True and meta["bit_depth"] == 8
+    dim = read_frames(tmp_path / "dim").images
+    assert dim.max() == 255 and len(np.unique(dim[0])) <= 5
     rc = main(["simulate", "schlieren", "--height", "32", "--width", "36", "--duration",
                str(1 / 120), "--out", str(tmp_path / "p")])
     line = capsys.readouterr().out

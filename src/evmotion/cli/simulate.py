@@ -5,7 +5,7 @@ ground truth beside them as ``<stem>_gt.h5`` (motion parameters per frame, dense
 px/s at virtual frame times, intrinsics, angular velocity, event masks).
 
 ``evmotion simulate schlieren --scene plume|jet|breath|ice --out DIR`` simulates
-background-oriented schlieren (thesis ch. 6): events and 8-bit frames of a random-dot
+background-oriented schlieren (thesis ch. 6): events and 8-bit (--bits) frames of a random-dot
 background seen through moving air, written as an ECD-style folder (events.txt,
 images.txt, images/) with the exact flow between frames, q and the displacement in
 DIR/schlieren_gt.h5.
@@ -96,9 +96,21 @@ def add_parser(sub) -> None:
     g.add_argument("--speed", type=positive_float(unit="px/s"), default=None,
                    help="air speed, px/s (plume rise speed; default scaled to the size)")
     g.add_argument("--photons", type=finite_float(0, 1e9, lo_open=True), default=None,
-                   help="photons of a white pixel per frame: shot noise (low light: a few)")
+                   help="photons (photoelectrons) of a white pixel per frame: shot noise "
+                        "(low light: a few)")
     g.add_argument("--gain", type=positive_float(), default=None,
-                   help="grey levels per photon (default 255/photons)")
+                   help="frame camera's gain, grey levels per photon (default "
+                        "(2^bits - 1)/photons: full scale at any light; a real camera at a "
+                        "fixed exposure keeps its bright-scene gain)")
+    g.add_argument("--read-noise", type=finite_float(0, 1e6, unit="e- rms"), default=None,
+                   help="frame camera's temporal dark (read) noise, electrons rms, Gaussian "
+                        "(default 0; needs --photons)")
+    g.add_argument("--bits", type=int_range(1, 16, unit="bits"), default=None,
+                   help="frame ADC bit depth, 1-16 (default 8): rounded and clipped to "
+                        "0..2^bits-1; PNGs are 16-bit above 8")
+    g.add_argument("--normalize", action="store_true",
+                   help="stretch each quantized frame to the full grey range (min to 0, "
+                        "max to 2^bits-1), as the thesis did with its dark frames")
     g.add_argument("--event-photons", type=finite_float(0, 1e12, lo_open=True), default=None,
                    help="photons of a white event pixel per --event-tau-us: shot noise in "
                         "the events (low light); default none")
@@ -173,6 +185,7 @@ MOTION_ONLY = {"--format": "format", "--texture": "texture", "--image": "image",
                "--frame-rate": "frame_rate", "--params": "params"}
 SCHLIEREN_ONLY = {"--scene": "bos_scene", "--fps": "fps", "--magnitude": "magnitude",
                   "--speed": "speed", "--photons": "photons", "--gain": "gain",
+                  "--read-noise": "read_noise", "--bits": "bits", "--normalize": "normalize",
                   "--event-photons": "event_photons", "--event-tau-us": "event_tau_us",
                   "--event-bandwidth": "event_bandwidth",
                   "--exposure": "exposure", "--dot-density": "dot_density",
@@ -204,6 +217,9 @@ def run_schlieren(args) -> int:
                              f"period at --fps {fps:g} ({1.0 / fps:.6g} s)")
     if args.gain is not None and args.photons is None:
         raise ParameterError(f"--gain {args.gain:g} needs --photons (shot-noise mode)")
+    if args.read_noise and args.photons is None:
+        raise ParameterError(f"--read-noise {args.read_noise:g} needs --photons (the noise "
+                             "is in electrons)")
     if args.event_bandwidth == "intensity" and args.event_photons is None:
         raise ParameterError("--event-bandwidth intensity needs --event-photons (the "
                              "photoreceptor's time constant depends on the light)")
@@ -211,7 +227,10 @@ def run_schlieren(args) -> int:
     opts = SchlierenOptions(magnitude_px=_or(args.magnitude, 1.0),
                             dot_density=_or(args.dot_density, 0.06),
                             dot_radius_px=_or(args.dot_radius, 1.0), speed_px_s=args.speed,
-                            photons=args.photons, gain=args.gain, exposure_s=args.exposure,
+                            photons=args.photons, gain=args.gain,
+                            read_noise_e=_or(args.read_noise, 0.0),
+                            bit_depth=_or(args.bits, 8), normalize=args.normalize,
+                            exposure_s=args.exposure,
                             contrast_threshold=args.threshold, mismatch=args.mismatch,
                             refractory_us=args.refractory_us, noise_rate=args.noise_rate,
                             event_photons=args.event_photons,

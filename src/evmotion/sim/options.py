@@ -209,7 +209,22 @@ class SchlierenOptions:
         Expected photons of a white pixel per frame: Poisson shot noise. None:
         noise-free frames.
     gain : float, optional
-        Grey levels per photon (default ``255 / photons``); needs ``photons``.
+        Grey levels (ADC units) per photon, > 0 (default ``(2**bit_depth - 1) / photons``:
+        a white pixel at full scale whatever the light, the quantization never bites);
+        needs ``photons``. A real camera at a fixed exposure keeps the gain set for the
+        bright scene: pass it here to dim the frames at a fixed gain.
+    read_noise_e : float
+        Temporal dark (read) noise of the frame camera, electrons rms, in [0, 1e6]: a
+        seeded Gaussian added to the photoelectrons before the gain; needs ``photons``
+        when > 0. Default 0 (shot noise only).
+    bit_depth : int
+        ADC bit depth of the frames, in [1, 16]: values are rounded and clipped to
+        ``[0, 2**bit_depth - 1]``; stored as uint8 up to 8 bits, uint16 above (the
+        values are not rescaled to 16 bits). Default 8.
+    normalize : bool
+        Stretch each quantized frame to the full range ``[0, 2**bit_depth - 1]`` (its
+        minimum to 0, its maximum to full scale, rounded back to integers), as the thesis
+        did with its dark frames; a flat frame is left as it is. Default False.
     exposure_s : float, optional
         Exposure time centred on each frame time, s (default half the frame period; at
         most the frame period).
@@ -249,6 +264,9 @@ class SchlierenOptions:
     speed_px_s: float | None = None
     photons: float | None = None
     gain: float | None = None
+    read_noise_e: float = 0.0
+    bit_depth: int = 8
+    normalize: bool = False
     exposure_s: float | None = None
     contrast_threshold: float = 0.2
     mismatch: float = 0.03
@@ -270,14 +288,28 @@ class SchlierenOptions:
         if self.exposure_s is not None:
             _set(self, "exposure_s", check_number("exposure_s", self.exposure_s, 0.0, 1.0,
                                                   units="s"))
+        depth = check_number("bit_depth", self.bit_depth, 1.0, 16.0, units="bits")
+        if isinstance(self.bit_depth, bool) or depth != int(depth):
+            raise ParameterError(f"bit_depth must be an integer in [1, 16] (bits), got "
+                                 f"{self.bit_depth!r}")
+        _set(self, "bit_depth", int(depth))
+        if not isinstance(self.normalize, (bool, np.bool_)):
+            raise ParameterError(f"normalize must be True or False, got {self.normalize!r}")
+        _set(self, "normalize", bool(self.normalize))
+        _set(self, "read_noise_e", check_number("read_noise_e", self.read_noise_e, 0.0, 1e6,
+                                                units="electrons rms"))
         if self.photons is not None:
             photons = check_number("photons", self.photons, 0.0, 1e9, lo_open=True,
                                    units="photons per frame")
             _set(self, "photons", photons)
-            _set(self, "gain", 255.0 / photons if self.gain is None else check_number(
-                "gain", self.gain, 0.0, lo_open=True, units="grey levels per photon"))
+            _set(self, "gain", (2 ** self.bit_depth - 1) / photons if self.gain is None
+                 else check_number("gain", self.gain, 0.0, lo_open=True,
+                                   units="grey levels per photon"))
         elif self.gain is not None:
             raise ParameterError("gain needs photons (shot-noise mode)")
+        elif self.read_noise_e > 0:
+            raise ParameterError("read_noise_e needs photons (shot-noise mode: the noise is "
+                                 "in electrons)")
         _set(self, "max_step_px", check_number("max_step_px", self.max_step_px, 0.0, 2.0,
                                                lo_open=True, units="px"))
         if self.event_photons is not None:

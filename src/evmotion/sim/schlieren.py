@@ -18,8 +18,11 @@ Model
   a curl-free field, the thesis' Poisson parameterization ``v = ∇q``. The field is
   scaled so that the largest inter-frame displacement ``|v| Δt`` is ``magnitude_px``.
 * **Frames** (default 120 fps): the radiance averaged over the exposure (centred on the
-  frame time), shot noise (Poisson photons, seeded) when ``photons`` (expected photons
-  of a white pixel) is given, a gain and 8-bit quantization.
+  frame time), shot noise (Poisson photons, seeded) when ``photons`` (expected
+  photoelectrons of a white pixel) is given, Gaussian read noise (``read_noise_e``,
+  electrons rms), a gain (grey levels per electron: by default full scale at any light,
+  or fixed as a real camera's at a fixed exposure), ``bit_depth``-bit quantization with
+  clipping, and optionally each frame stretched to the full range (``normalize``).
 * **Events** from the same radiance (its log) through the project's event model
   (:func:`evmotion.sim.simulator.simulate_log_function`: per-pixel threshold mismatch,
   crossings at interpolated times, refractory period, noise), with every frame time a
@@ -66,8 +69,8 @@ from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
 from evmotion.utils import resolve_options
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
-           "make_background", "make_field", "read_schlieren_gt", "simulate_schlieren",
-           "write_schlieren"]
+           "make_background", "make_field", "normalize_range", "read_schlieren_gt",
+           "simulate_schlieren", "write_schlieren"]
 
 GT_FORMAT = "evmotion-schlieren-gt"
 BLOB_CUTOFF = 4.0  # puffs are evaluated within this many widths (exp(-8) beyond)
@@ -572,8 +575,19 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
         Expected photons of a white pixel per frame: Poisson shot noise. None: noise-free
         frames. A few photons is the low-light case of Fig. 6.12.
     gain : float, optional
-        Grey levels per photon (default ``255 / photons``: the frames are normalized to
-        the full range, as the thesis did for its dark sequences).
+        Grey levels per photon (default ``(2**bit_depth - 1) / photons``: a white pixel is
+        at full scale at any light level, as if the gain followed the light). A real
+        camera at a fixed exposure keeps the gain of the bright scene: give it here.
+    read_noise_e : float
+        Frame camera's temporal dark noise, electrons rms (Gaussian, seeded), added to the
+        photoelectrons before the gain; needs ``photons``. Default 0.
+    bit_depth : int
+        ADC bits of the frames, 1-16 (default 8): rounded, clipped to
+        ``[0, 2**bit_depth - 1]``; uint8 up to 8 bits, uint16 above.
+    normalize : bool
+        Stretch each quantized frame to the full range (min to 0, max to full scale,
+        :func:`normalize_range`), as the thesis did with its dark frames (§6.6.3,
+        §6.6.6). Default False.
     exposure_s : float, optional
         Exposure time centred on each frame time (default half the frame period); the
         radiance is averaged over it (enough samples that the background moves at most
@@ -656,6 +670,7 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     meta = dict(scene=scene, description=BOS_SCENES[scene], sensor_size=[h, w], fps=fps,
                 duration_s=duration_s, seed=int(seed), magnitude_px=o.magnitude_px,
                 exposure_s=exposure_s, exposure_samples=n_exp, photons=o.photons, gain=o.gain,
+                read_noise_e=o.read_noise_e, bit_depth=o.bit_depth, normalize=o.normalize,
                 dot_density=float(o.dot_density), dot_radius_px=float(o.dot_radius_px),
                 dot_contrast=float(o.dot_contrast), n_dots=int(bg.x.size),
                 field_gain_px2=air.gain, n_puffs=int(air.birth.size), max_flow_px_s=vmax,
@@ -733,20 +748,48 @@ def _radiance_of(bg: Background, air: PuffField, shape):
 def _frames(radiance, t_us, exposure_s: float, n_exp: int, o: SchlierenOptions, seed: int,
             scene: str) -> Frames:
     """The frame camera: the radiance averaged over ``n_exp`` samples of the exposure
-    centred on each frame time, shot noise (``o.photons``), gain, 8 bits."""
+    centred on each frame time, shot noise (``o.photons``), read noise, gain, ADC
+    (``o.bit_depth`` bits, clipped) and the optional per-frame normalization."""
     offs = (np.arange(n_exp) + 0.5) / n_exp * exposure_s - 0.5 * exposure_s
     rng_shot = np.random.default_rng(np.random.SeedSequence([seed, 0x5407]))
+    # its own stream: the shot noise is drawn the same with and without read noise
+    rng_read = np.random.default_rng(np.random.SeedSequence([seed, 0x8EAD]))
+    full = 2 ** o.bit_depth - 1
     images = []
     for t in t_us * 1e-6:
         rad = np.mean([radiance(float(t + off)) for off in offs], axis=0)
         if o.photons is None:
-            val = 255.0 * rad
+            val = full * rad
         else:
-            val = o.gain * rng_shot.poisson(o.photons * rad)
-        images.append(np.clip(np.rint(val), 0, 255).astype(np.uint8))
-    return Frames(np.stack(images), t_us, source=f"simulate_schlieren({scene!r})", bit_depth=8,
-                  exposure_start=t_us - round(exposure_s * 5e5),
+            electrons = rng_shot.poisson(o.photons * rad).astype(np.float64)
+            if o.read_noise_e > 0:
+                electrons += rng_read.normal(0.0, o.read_noise_e, electrons.shape)
+            val = o.gain * electrons
+        img = np.clip(np.rint(val), 0, full)
+        if o.normalize:
+            img = normalize_range(img, full)
+        images.append(img.astype(np.uint8 if o.bit_depth <= 8 else np.uint16))
+    return Frames(np.stack(images), t_us, source=f"simulate_schlieren({scene!r})",
+                  bit_depth=o.bit_depth, exposure_start=t_us - round(exposure_s * 5e5),
                   exposure_end=t_us + round(exposure_s * 5e5))
+
+
+def normalize_range(image: np.ndarray, full: int) -> np.ndarray:
+    """Stretch a quantized frame to the full range: its minimum to 0, its maximum to
+    ``full`` (grey levels), rounded back to integers, as a camera's 8-bit frames
+    normalized after capture (thesis §6.6.3). A flat frame is returned unchanged: there
+    is no range to stretch. The stretch cannot add levels: a frame holding ``k``
+    distinct values still holds ``k`` after it.
+
+    Examples
+    --------
+    >>> normalize_range(np.array([[2.0, 3.0, 4.0]]), 255).tolist()
+    [[0.0, 128.0, 255.0]]
+    """
+    lo, hi = float(image.min()), float(image.max())
+    if hi <= lo:
+        return image
+    return np.rint((image - lo) * (full / (hi - lo)))
 
 
 def _log_radiance(radiance, o: SchlierenOptions, seed: int, shape, step_us: int):
