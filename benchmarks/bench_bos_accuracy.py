@@ -56,14 +56,16 @@ EVENT_TAU_US = 1000
 
 def _simulate(scene: str, size, seed: int = 0, photons: float | None = None,
               noise_rate: float = 0.0, event_photons: float | None = None,
-              contrast_threshold: float = 0.2, event_bandwidth: str = "fixed"):
+              contrast_threshold: float = 0.2, event_bandwidth: str = "fixed", **camera):
+    """A three-frame simulation; ``camera``: the frame camera's keywords of
+    :func:`simulate_schlieren` (gain, read_noise_e, bit_depth, normalize)."""
     from evmotion.sim.schlieren import simulate_schlieren
 
     return simulate_schlieren(scene, sensor_size=tuple(size), duration_s=2 / 120, seed=seed,
                               photons=photons, noise_rate=noise_rate,
                               event_photons=event_photons, event_tau_us=EVENT_TAU_US,
                               contrast_threshold=contrast_threshold,
-                              event_bandwidth=event_bandwidth)
+                              event_bandwidth=event_bandwidth, **camera)
 
 
 def exact_flow(sim, k: int) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -102,10 +104,13 @@ def _its(res) -> str:
     return "/".join(str(i) for i in res.iterations)
 
 
-def _ours(sim, k, iterations, **kw):
+def _ours(sim, k, iterations, frames=None, **kw):
+    """Ours on interval ``k`` of ``sim``'s events, with ``sim``'s frames or ``frames``
+    (another camera's frames of the same scene)."""
     from evmotion.methods.bos import estimate_bos
 
-    f, t = sim.frames.images, sim.frames.t
+    fr = sim.frames if frames is None else frames
+    f, t = fr.images, fr.t
     start = time.perf_counter()
     res = estimate_bos(sim.events, f[k], t0_us=int(t[k]), t1_us=int(t[k + 1]),
                        frame_next=f[k + 1], iterations=iterations, **kw)
@@ -318,6 +323,50 @@ def diagnosis_lines(rows: list[dict]) -> list[str]:
 
 PHOTONS = (None, 10000.0, 1000.0, 100.0, 30.0, 10.0, 3.0, 1.0)
 
+# The thesis' frame camera (§6.5.1): Basler acA1300-200um, onsemi PYTHON 1300 sensor,
+# 4.8 um pixels, Mono8 at 120 fps. Basler's EMVA 1288 figures for it, as quoted in a public
+# camera-model preset (basler_ace_aca1300_200um: temporal dark noise 6.83 e-, saturation
+# capacity 10.2 ke-, peak QE ~52 %); the onsemi NOIP1SN1300A data sheet: 4.8 um global
+# shutter pixels with in-pixel CDS, 10-bit on-chip ADC.
+CAMERA_READ_NOISE_E = 6.83
+CAMERA_BITS = 8
+CAMERA = ("thesis' camera: gain fixed at the brightest level, read noise "
+          f"{CAMERA_READ_NOISE_E:g} e-, {CAMERA_BITS} bits, each frame normalized to 0-255")
+IDEAL = "ideal camera: gain 255/photons (full scale at any light), shot noise only"
+CAMERA_RAW = ("thesis' camera, Ours on the original (not normalized) frames, Farneback on "
+              "the normalized ones, as the thesis' Fig. 6.12 (read noise "
+              f"{CAMERA_READ_NOISE_E:g} e-, {CAMERA_BITS} bits, gain fixed)")
+# column suffix -> (short name, frame camera, suffix of the Farneback run that the ratio
+# divides)
+CAMERAS = {"": ("ideal camera", IDEAL, ""),
+           "_cam": ("thesis' camera, Ours on the normalized frames", CAMERA, "_cam"),
+           "_camraw": ("thesis' camera, Ours on the original frames", CAMERA_RAW, "_cam")}
+
+# Rough photoelectrons of a white background pixel per lux on the background (an ESTIMATE,
+# uncertain by 2x or more): Lambertian white paper (reflectance, assumed), image-plane
+# illuminance E * R * T * split / (4 N^2) (magnification 25 mm / 3.3 m ~ 0), photons of
+# white LED light per lux s um^2 (~300 lm/W of radiation, mean photon ~ 560 nm; 4.1e3 for
+# monochromatic 555 nm), the pixel's area and QE. Thesis §6.5.1: f/10, 50/50 splitter.
+LUX_MODEL = dict(reflectance=0.8, lens_transmission=0.9, splitter=0.5, f_number=10.0,
+                 photons_per_lux_s_um2=9.3e3, pixel_um=4.8, qe=0.5)
+
+
+def electrons_per_lux(exposure_s: float, m: dict = LUX_MODEL) -> float:
+    """Photoelectrons a white background pixel of the frame camera collects per lux of
+    illuminance on the background in ``exposure_s`` (:data:`LUX_MODEL`; an estimate)."""
+    image_lux = m["reflectance"] * m["lens_transmission"] * m["splitter"] / (
+        4 * m["f_number"] ** 2)
+    return (image_lux * m["photons_per_lux_s_um2"] * m["pixel_um"] ** 2 * exposure_s
+            * m["qe"])
+
+
+def camera_keywords(brightest_photons: float) -> dict:
+    """The thesis' frame camera as :func:`simulate_schlieren` keywords: the exposure and
+    the gain fixed (white at full scale at ``brightest_photons``), read noise, 8 bits, each
+    frame normalized to the full range after quantization (thesis §6.6.6)."""
+    return dict(gain=(2 ** CAMERA_BITS - 1) / brightest_photons,
+                read_noise_e=CAMERA_READ_NOISE_E, bit_depth=CAMERA_BITS, normalize=True)
+
 
 def event_photons_for(photons: float, exposure_s: float,
                       event_tau_us: int = EVENT_TAU_US) -> float:
@@ -336,14 +385,20 @@ def lowlight(size, iterations, scene="plume", photon_levels=PHOTONS) -> list[dic
     under the simulator's two photoreceptor models: a noise bandwidth fixed at every light
     level ("noisy" columns, the worst case) and a photoreceptor whose bandwidth falls with
     the light ("dvs" columns, ``event_bandwidth="intensity"``, the standard DVS model).
-    Every score is taken on the pixels with >= 1 noise-free event (the schlieren's
-    support): noise events reach every pixel and would otherwise change the mask."""
+    Two frame cameras see the same photons (same shot-noise draws): the ideal one (gain
+    following the light; columns without suffix) and the thesis' (:func:`camera_keywords`:
+    fixed gain, read noise, 8 bits, normalized; columns ``*_cam``); Farneback and Ours run
+    on each camera's frames with the same events. Every score is taken on the pixels with
+    >= 1 noise-free event (the schlieren's support): noise events reach every pixel and
+    would otherwise change the mask."""
     from scipy.ndimage import gaussian_filter
 
     from evmotion.errors import EventDataError
     from evmotion.methods.farneback import farneback_flow
     from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_panel
 
+    brightest = max(p for p in photon_levels if p is not None)
+    camera = camera_keywords(brightest)
     rows, images, titles = [], [], []
     k = 1
     for photons in photon_levels:
@@ -357,72 +412,103 @@ def lowlight(size, iterations, scene="plume", photon_levels=PHOTONS) -> list[dic
             # the trivial estimate: a method worse than it has learnt nothing
             zero = _score(np.zeros_like(gt), gt, mask, dt)["AEE"]
         runs, panel = [("clean", sim, None)], {}
+        cameras = {"": sim.frames}
         if photons is not None:
             ep = event_photons_for(photons, sim.gt.meta["exposure_s"])
-            runs.append(("noisy", _simulate(scene, size, photons=photons, event_photons=ep),
-                         ep))
-            runs.append(("dvs", _simulate(scene, size, photons=photons, event_photons=ep,
-                                          event_bandwidth="intensity"), ep))
-        fb = farneback_flow(sim.frames.images[k], sim.frames.images[k + 1], dt)
-        farn = _score(fb, gt, mask, dt)
+            # the noisy events' simulations carry the thesis' camera: the same scene, shot
+            # noise draws and events as with the ideal camera, other frames
+            noisy = _simulate(scene, size, photons=photons, event_photons=ep, **camera)
+            dvs = _simulate(scene, size, photons=photons, event_photons=ep,
+                            event_bandwidth="intensity", **camera)
+            if not np.array_equal(noisy.frames.images, dvs.frames.images):
+                raise RuntimeError("the two photoreceptor runs gave different frames")
+            runs += [("noisy", noisy, ep), ("dvs", dvs, ep)]
+            cameras["_cam"] = noisy.frames
+            # the same camera's frames before the normalization (thesis: Ours used these)
+            cameras["_camraw"] = _simulate(scene, size, photons=photons,
+                                           **(camera | {"normalize": False})).frames
         label = "noise-free" if photons is None else f"{photons:g}"
         row = {"scene": scene, "size": f"{size[1]}x{size[0]}", "photons": label,
                "event_photons": "noise-free" if photons is None else runs[1][2],
                "frame_mean_grey": float(sim.frames.images[k].mean()),
-               "AEE_zero_flow": zero, "AEE_farneback": farn["AEE"], "AE_farneback_rad": farn["AE_rad"]}
+               "frame_levels": int(np.unique(sim.frames.images[k]).size),
+               "AEE_zero_flow": zero}
+        if photons is not None:
+            row.update({"lux_estimate": photons / electrons_per_lux(
+                            sim.gt.meta["exposure_s"]),
+                        "frame_white_grey_cam": camera["gain"] * photons,
+                        "frame_levels_cam": int(np.unique(cameras["_cam"].images[k]).size),
+                        "gain_cam": camera["gain"]})
+        fbs = {}
+        for cs, fr in cameras.items():
+            fbs[cs] = farneback_flow(fr.images[k], fr.images[k + 1], dt)
+            farn = _score(fbs[cs], gt, mask, dt)
+            row.update({f"AEE_farneback{cs}": farn["AEE"],
+                        f"AE_farneback_rad{cs}": farn["AE_rad"]})
         for kind, s, _ in runs:
             ev = s.events.slice_time(t0, t1)
-            if photons is None:
-                res, sec = _ours(s, k, iterations, param="poisson", data_term="scale")
-                c_bright, res_c, c_err = res.contrast_threshold, res, ""
-            else:
-                res_c, sec = _ours(s, k, iterations, param="poisson", data_term="scale",
-                                   contrast_threshold=c_bright)
-                try:
-                    res, _ = _ours(s, k, iterations, param="poisson", data_term="scale")
-                    c_err = ""
-                except EventDataError as e:  # the estimator refuses: recorded, not scored
-                    res, c_err = None, str(e)
-            ours_c = _score(res_c.flow, gt, mask, dt)
-            ours = _score(res.flow, gt, mask, dt) if res is not None else dict.fromkeys(
-                ("AEE", "AE_rad"), float("nan"))
             # how well the events alone show the schlieren: correlation of the event count
             # image (sigma 2 px) with the exact |flow|
             counts = np.zeros(gt.shape[:2])
             np.add.at(counts, (ev.y, ev.x), 1.0)
             corr = float(np.corrcoef(gaussian_filter(counts, 2.0).ravel(), gt_mag)[0, 1])
-            row.update({
-                f"events_{kind}": len(ev), f"event_map_vs_|v|_corr_{kind}": corr,
-                f"AEE_ours_C_bright_{kind}": ours_c["AEE"],
-                f"AE_ours_C_bright_rad_{kind}": ours_c["AE_rad"],
-                f"AEE_ratio_farneback_over_ours_C_bright_{kind}": farn["AEE"] / ours_c["AEE"],
-                f"ratio_median_ours_C_bright_{kind}": _ratio(res_c.flow, gt, mask, dt),
-                f"AEE_ours_C_est_{kind}": ours["AEE"], f"AE_ours_C_est_rad_{kind}": ours["AE_rad"],
-                f"AEE_ratio_farneback_over_ours_C_est_{kind}": farn["AEE"] / ours["AEE"],
-                f"ratio_median_ours_C_est_{kind}": float("nan") if res is None
-                else _ratio(res.flow, gt, mask, dt),
-                f"C_est_{kind}": float("nan") if res is None else res.contrast_threshold,
-                f"C_est_error_{kind}": c_err, f"seconds_{kind}": sec})
-            panel[kind] = (counts, res_c, ours_c)
+            row.update({f"events_{kind}": len(ev), f"event_map_vs_|v|_corr_{kind}": corr})
+            for cs, fr in cameras.items():
+                if photons is None:
+                    res, sec = _ours(s, k, iterations, frames=fr, param="poisson",
+                                     data_term="scale")
+                    c_bright, res_c, c_err = res.contrast_threshold, res, ""
+                else:
+                    res_c, sec = _ours(s, k, iterations, frames=fr, param="poisson",
+                                       data_term="scale", contrast_threshold=c_bright)
+                    try:
+                        res, _ = _ours(s, k, iterations, frames=fr, param="poisson",
+                                       data_term="scale")
+                        c_err = ""
+                    except EventDataError as e:  # the estimator refuses: recorded, not scored
+                        res, c_err = None, str(e)
+                farn_aee = row[f"AEE_farneback{CAMERAS[cs][2]}"]
+                ours_c = _score(res_c.flow, gt, mask, dt)
+                ours = _score(res.flow, gt, mask, dt) if res is not None else dict.fromkeys(
+                    ("AEE", "AE_rad"), float("nan"))
+                sfx = f"{kind}{cs}"
+                row.update({
+                    f"AEE_ours_C_bright_{sfx}": ours_c["AEE"],
+                    f"AE_ours_C_bright_rad_{sfx}": ours_c["AE_rad"],
+                    f"AEE_ratio_farneback_over_ours_C_bright_{sfx}": farn_aee / ours_c["AEE"],
+                    f"ratio_median_ours_C_bright_{sfx}": _ratio(res_c.flow, gt, mask, dt),
+                    f"AEE_ours_C_est_{sfx}": ours["AEE"],
+                    f"AE_ours_C_est_rad_{sfx}": ours["AE_rad"],
+                    f"AEE_ratio_farneback_over_ours_C_est_{sfx}": farn_aee / ours["AEE"],
+                    f"ratio_median_ours_C_est_{sfx}": float("nan") if res is None
+                    else _ratio(res.flow, gt, mask, dt),
+                    f"C_est_{sfx}": float("nan") if res is None else res.contrast_threshold,
+                    f"C_est_error_{sfx}": c_err, f"seconds_{sfx}": sec})
+                panel[sfx] = (counts, res_c, ours_c)
         row.update({"C_bright": c_bright, "iterations": _its(res_c)})
         rows.append(row)
-        if photons in (None, 1000.0, 10.0, 1.0):
-            images += [sim.frames.images[k], flow_to_rgb(np.nan_to_num(fb), vmax)]
-            titles += ["frame (noise-free)" if photons is None else f"frame ({label} photons)",
-                       f"Farneback AEE {farn['AEE']:.3f}"]
+        if photons in (None, 1000.0, 100.0, 10.0):
+            cs = "_cam" if photons is not None else ""
+            images += [sim.frames.images[k], flow_to_rgb(np.nan_to_num(fbs[""]), vmax),
+                       cameras[cs].images[k], flow_to_rgb(np.nan_to_num(fbs[cs]), vmax)]
+            titles += ["frame (noise-free)" if photons is None else f"ideal frame ({label} ph)",
+                       f"Farneback AEE {row['AEE_farneback']:.3f}",
+                       "frame (noise-free)" if photons is None else "thesis' camera frame",
+                       f"Farneback AEE {row['AEE_farneback' + cs]:.3f}"]
             for kind in ("noisy", "dvs"):
-                counts, res_c, ours_c = panel.get(kind, panel["clean"])
+                counts, res_c, ours_c = panel.get(kind + cs, panel["clean"])
                 name = {"noisy": "fixed tau", "dvs": "DVS tau(I)"}[kind]
                 images += [iwe_to_rgb(counts), flow_to_rgb(res_c.flow, vmax)]
                 titles += ["events" if photons is None else f"events ({name})",
                            f"Ours AEE {ours_c['AEE']:.3f}" if photons is None
-                           else f"Ours ({name}) AEE {ours_c['AEE']:.3f}"]
+                           else f"Ours ({name}, cam) AEE {ours_c['AEE']:.3f}"]
         print(f"photons {label}: done", flush=True)
     PNG_DIR.mkdir(parents=True, exist_ok=True)
-    save_panel(PNG_DIR / "lowlight.png", images, titles, ncols=6,
-               suptitle="Fig. 6.12 analog: frames and events with shot noise "
-                        "(white frame pixel = N photons per exposure); events with a fixed "
-                        "photoreceptor bandwidth and with the DVS's tau(I)")
+    save_panel(PNG_DIR / "lowlight.png", images, titles, ncols=8,
+               suptitle="Fig. 6.12 analog: frames of the ideal camera and of the thesis' "
+                        "(fixed gain, read noise, 8 bits, normalized) with shot noise (white "
+                        "pixel = N photons per exposure); events with a fixed photoreceptor "
+                        "bandwidth and with the DVS's tau(I); Ours on the thesis' camera")
     return rows
 
 
@@ -469,13 +555,16 @@ MODELS = {"noisy": "fixed photoreceptor bandwidth (worst case)",
 
 def low_light_goal(rows: list[dict]) -> list[str]:
     """Goal 4's lines: Farneback AEE / Ours AEE per level, with clean events and with the
-    noisy events of each photoreceptor model (:data:`MODELS`), and per model the verdict at
-    the lowest level where its events still show the schlieren (their count image
-    correlates with |v| at least ``SHOWS_SCHLIEREN`` times as well as the noise-free
-    events' does)."""
+    noisy events of each photoreceptor model (:data:`MODELS`), one table per frame camera
+    (the ideal one and, when recorded, the thesis' :data:`CAMERA`), and per model and
+    camera the verdict at the lowest level where its events still show the schlieren
+    (their count image correlates with |v| at least ``SHOWS_SCHLIEREN`` times as well as
+    the noise-free events' does)."""
     ref_row = rows[0]
     ref = ref_row["event_map_vs_|v|_corr_clean"]
     kinds = [k for k in MODELS if any(f"events_{k}" in x for x in rows)]
+    cams = [(cs, short, cam) for cs, (short, cam, _) in CAMERAS.items()
+            if any(f"AEE_farneback{cs}" in x for x in rows)]
     lines = ["Low light (Fig. 6.12 analog): Farneback AEE / Ours AEE on the same noisy "
              "frames, Ours on events with the matching shot noise under each photoreceptor "
              "model of the simulator (" + "; ".join(f"{k}: {MODELS[k]}" for k in kinds)
@@ -484,49 +573,90 @@ def low_light_goal(rows: list[dict]) -> list[str]:
              f"events' count image correlates with |v| >= {SHOWS_SCHLIEREN:g} x as well as "
              f"the noise-free events' ({ref:.3f}). Ratio: Farneback AEE / Ours AEE with "
              "C_bright (the sensor's threshold calibrated in good light) | with C_est "
-             "(estimated in the interval).", ""]
-    head = "| photons | event photons | Farneback AEE |"
-    for k in kinds:
-        head += (f" events ({k}) | event map corr ({k}) | Ours AEE ({k}, C_bright) | ratio "
-                 f"| Ours AEE ({k}, C_est) | ratio |")
-    head += " Ours AEE clean (C_bright) | ratio |"
-    lines += [head, "|" + "---|" * (head.count("|") - 1)]
+             "(estimated in the interval). One table per frame camera, the same photons, "
+             "shot-noise draws and events.", ""]
     shown = dict.fromkeys(kinds)
     for x in rows:
-        noise_free = x["event_photons"] == "noise-free"
-        ep = "noise-free" if noise_free else f"{x['event_photons']:.3g}"
-        cells = f"| {x['photons']} | {ep} | {x['AEE_farneback']:.3f} |"
         for k in kinds:
-            if noise_free:
-                corr = ref
-                cells += f" {x['events_clean']} | {corr:.3f} | - | - | - | - |"
-            else:
-                corr = x[f"event_map_vs_|v|_corr_{k}"]
-                cells += (f" {x[f'events_{k}']} | {corr:.3f} | "
-                          f"{x[f'AEE_ours_C_bright_{k}']:.3f} | "
-                          f"{x[f'AEE_ratio_farneback_over_ours_C_bright_{k}']:.2f} | "
-                          f"{x[f'AEE_ours_C_est_{k}']:.3f} | "
-                          f"{x[f'AEE_ratio_farneback_over_ours_C_est_{k}']:.2f} |")
+            corr = ref if x["event_photons"] == "noise-free" \
+                else x[f"event_map_vs_|v|_corr_{k}"]
             if corr >= SHOWS_SCHLIEREN * ref:
                 shown[k] = x
-        lines.append(cells + f" {x['AEE_ours_C_bright_clean']:.3f} | "
-                     f"{x['AEE_ratio_farneback_over_ours_C_bright_clean']:.2f} |")
-    lines.append("")
+    verdicts = []
+    for cs, short, cam in cams:
+        has = [x for x in rows if f"AEE_farneback{cs}" in x]
+        lines += [f"Frame camera: {cam}.", ""]
+        head = "| photons | ~lux (estimate) | event photons |"
+        if cs:
+            head += " white grey before normalizing | grey levels |"
+        fb = CAMERAS[cs][2]
+        head += " Farneback AEE |" if fb == cs else " Farneback AEE (normalized frames) |"
+        for k in kinds:
+            head += (f" events ({k}) | event map corr ({k}) | Ours AEE ({k}, C_bright) | "
+                     f"ratio | Ours AEE ({k}, C_est) | ratio |")
+        head += " Ours AEE clean (C_bright) | ratio |"
+        lines += [head, "|" + "---|" * (head.count("|") - 1)]
+        for x in has:
+            noise_free = x["event_photons"] == "noise-free"
+            ep = "noise-free" if noise_free else f"{x['event_photons']:.3g}"
+            lux = f"{x['lux_estimate']:.3g}" if "lux_estimate" in x else "-"
+            cells = f"| {x['photons']} | {lux} | {ep} |"
+            if cs:
+                cells += f" {x['frame_white_grey_cam']:.3g} | {x['frame_levels_cam']} |"
+            cells += f" {x[f'AEE_farneback{fb}']:.3f} |"
+            for k in kinds:
+                if noise_free:
+                    cells += f" {x['events_clean']} | {ref:.3f} | - | - | - | - |"
+                else:
+                    sfx = k + cs
+                    cells += (f" {x[f'events_{k}']} | {x[f'event_map_vs_|v|_corr_{k}']:.3f} | "
+                              f"{x[f'AEE_ours_C_bright_{sfx}']:.3f} | "
+                              f"{x[f'AEE_ratio_farneback_over_ours_C_bright_{sfx}']:.2f} | "
+                              f"{x[f'AEE_ours_C_est_{sfx}']:.3f} | "
+                              f"{x[f'AEE_ratio_farneback_over_ours_C_est_{sfx}']:.2f} |")
+            lines.append(cells + f" {x[f'AEE_ours_C_bright_clean{cs}']:.3f} | "
+                         f"{x[f'AEE_ratio_farneback_over_ours_C_bright_clean{cs}']:.2f} |")
+        lines.append("")
+        for k in kinds:
+            x = shown[k]
+            what = f"({MODELS[k]}; {short})"
+            if x is None or x["event_photons"] == "noise-free":
+                verdicts += [f"Lowest level where the events show the schlieren {what}: "
+                             "none with shot noise (goal >= 2: NOT met).", ""]
+                continue
+            sfx = k + cs
+            best = max(x[f"AEE_ratio_farneback_over_ours_C_bright_{sfx}"],
+                       x[f"AEE_ratio_farneback_over_ours_C_est_{sfx}"])
+            verdicts += [f"Lowest level where the events show the schlieren {what}: "
+                         f"{x['photons']} photons; Farneback / Ours = {best:.2f} "
+                         f"(Farneback AEE {x[f'AEE_farneback{fb}']:.3f}, Ours "
+                         f"{x[f'AEE_ours_C_bright_{sfx}']:.3f} | "
+                         f"{x[f'AEE_ours_C_est_{sfx}']:.3f}; goal >= 2: "
+                         f"{'met' if best >= 2 else 'NOT met'}).", ""]
     if "AEE_zero_flow" in ref_row:
         lines += [f"The zero flow scores AEE {ref_row['AEE_zero_flow']:.3f} px on these "
                   "pixels: an estimate above it carries no information.", ""]
-    for k in kinds:
-        x = shown[k]
-        if x is None or x["event_photons"] == "noise-free":
-            lines += [f"Lowest level where the events show the schlieren ({MODELS[k]}): "
-                      "none with shot noise (goal >= 2: NOT met).", ""]
-            continue
-        best = max(x[f"AEE_ratio_farneback_over_ours_C_bright_{k}"],
-                   x[f"AEE_ratio_farneback_over_ours_C_est_{k}"])
-        lines += [f"Lowest level where the events show the schlieren ({MODELS[k]}): "
-                  f"{x['photons']} photons; Farneback / Ours = {best:.2f} (goal >= 2: "
-                  f"{'met' if best >= 2 else 'NOT met'}).", ""]
-    return lines
+    if len(cams) > 1:
+        exp_s = 0.5 / 120
+        lines += [f"~lux: an ESTIMATE of the illuminance on the background giving that many "
+                  f"photoelectrons per white pixel ({electrons_per_lux(exp_s):.2f} e-/lx in "
+                  f"{exp_s * 1e3:.2f} ms): {_lux_text()}. The thesis' levels: 4000 lx "
+                  f"~ {4000 * electrons_per_lux(exp_s):.0f} e-, 1000 lx ~ "
+                  f"{1000 * electrons_per_lux(exp_s):.0f} e-, 225 lx ~ "
+                  f"{225 * electrons_per_lux(exp_s):.0f} e-, 110 lx ~ "
+                  f"{110 * electrons_per_lux(exp_s):.0f} e- (times 2 if its fixed exposure "
+                  "was the whole 8.3 ms frame period).", ""]
+    return lines + verdicts
+
+
+def _lux_text() -> str:
+    m = LUX_MODEL
+    return (f"white paper reflectance {m['reflectance']:g} (assumed), lens transmission "
+            f"{m['lens_transmission']:g} (assumed), beam splitter {m['splitter']:g}, "
+            f"f/{m['f_number']:g}, image-plane lux = scene lux x R T split / (4 N^2), "
+            f"{m['photons_per_lux_s_um2']:.2g} photons per lux s um^2 (white LED light; "
+            f"4.1e3 at 555 nm), pixel {m['pixel_um']:g} um, QE {m['qe']:g} (PYTHON 1300, "
+            "~52 % peak)")
 
 
 def append_low_light_goal(suffix: str = "") -> None:
@@ -608,7 +738,12 @@ def verdict_lines(suffix: str = "") -> list[str]:
     low = _load_rows("bos_lowlight" + suffix)
     if low:
         goal = [ln for ln in low_light_goal(low) if ln.startswith("Lowest level")]
-        out.append("4. Low light: " + " ".join(goal))
+        cam = any("AEE_farneback_cam" in x for x in low)
+        out.append("4. Low light" + (" (the verdict: the thesis' camera lines, Ours on the "
+                                     "normalized frames as Farneback, and on the original "
+                                     "frames as the thesis' Fig. 6.12; the ideal camera's "
+                                     "for comparison)" if cam else "") + ": "
+                   + " ".join(goal))
         bright = low[1] if len(low) > 1 else low[0]
         lag = _load_rows("bos_lowlight_lag" + suffix)
         if lag:
@@ -624,21 +759,36 @@ def verdict_lines(suffix: str = "") -> list[str]:
                    f"{bright['AEE_farneback']:.3f} (goal 1's cause: the events' coarse "
                    "increment at C = 0.2). With a fixed photoreceptor bandwidth the events' "
                    "shot noise (event_photons = 0.24 x photons per 1 ms) swamps the events "
-                   "below that level while the frames (4.17 ms exposure) hold up; with the "
+                   "below that level; with the "
                    "DVS's intensity-dependent bandwidth the noise stays near 1/sqrt(162) "
                    "down to 162/13.75 photons per ms and the response slows instead "
                    "(sim/photoreceptor.py)." + lag_text)
-        zero = low[0].get("AEE_zero_flow")
-        for kind in [k for k in MODELS if any(f"events_{k}" in x for x in low)]:
-            noisy = [x for x in low[1:] if isinstance(x.get(f"AEE_ours_C_bright_{kind}"), float)]
-            best = max(noisy, key=lambda x: x[f"AEE_ratio_farneback_over_ours_C_bright_{kind}"])
+        if cam:
+            levels = [x for x in low[1:] if "AEE_farneback_cam" in x]
             out.append(
-                f"   Highest Farneback / Ours (C_bright) at any level, {MODELS[kind]}: "
-                f"{best[f'AEE_ratio_farneback_over_ours_C_bright_{kind}']:.2f} at "
-                f"{best['photons']} photons (event map corr "
-                f"{best[f'event_map_vs_|v|_corr_{kind}']:.3f}; Ours AEE "
-                f"{best[f'AEE_ours_C_bright_{kind}']:.3f}, Farneback "
-                f"{best['AEE_farneback']:.3f}, zero flow {zero:.3f}).")
+                f"   Frames: Farneback AEE with the ideal camera | the thesis' camera ({CAMERA}"
+                "): " + ", ".join(
+                    f"{x['photons']} photons (~{x['lux_estimate']:.3g} lx) "
+                    f"{x['AEE_farneback']:.3f} | {x['AEE_farneback_cam']:.3f} "
+                    f"({x['frame_levels_cam']} grey levels)" for x in levels) + ".")
+        zero = low[0].get("AEE_zero_flow")
+        for cs, (short, _, fb) in CAMERAS.items():
+            if not any(f"AEE_farneback{cs}" in x for x in low):
+                continue
+            for kind in [k for k in MODELS if any(f"events_{k}" in x for x in low)]:
+                sfx = kind + cs
+                noisy = [x for x in low[1:]
+                         if isinstance(x.get(f"AEE_ours_C_bright_{sfx}"), float)]
+                best = max(noisy,
+                           key=lambda x: x[f"AEE_ratio_farneback_over_ours_C_bright_{sfx}"])
+                out.append(
+                    f"   Highest Farneback / Ours (C_bright) at any level, {MODELS[kind]}, "
+                    f"{short}: "
+                    f"{best[f'AEE_ratio_farneback_over_ours_C_bright_{sfx}']:.2f} at "
+                    f"{best['photons']} photons (event map corr "
+                    f"{best[f'event_map_vs_|v|_corr_{kind}']:.3f}; Ours AEE "
+                    f"{best[f'AEE_ours_C_bright_{sfx}']:.3f}, Farneback "
+                    f"{best[f'AEE_farneback{fb}']:.3f}, zero flow {zero:.3f}).")
     kym = _load_rows("bos_kymogram")
     if kym:
         ok = [x for x in kym if x["source"] == "events" and x["rate_hz"] >= 1200
@@ -759,10 +909,27 @@ def main(quick: bool = False, parts=("table64", "table65", "diagnosis", "lowligh
                        "0.2, nominal, 3 % mismatch). " + note)
         out += rows
     if "lowlight" in parts:
+        load = os.getloadavg()[0]
         rows = lowlight(size, iterations, photon_levels=photons)
         harness.record("bos_lowlight" + suffix, rows,
-                       "Fig. 6.12 analog: photons = expected photons of a white pixel per "
-                       "frame (grey levels normalized to 255, exposure 0.5/fps = 4.17 ms); "
+                       "Fig. 6.12 analog: photons = expected photons (photoelectrons) of a "
+                       "white pixel per frame (exposure 0.5/fps = 4.17 ms, fixed). Two frame "
+                       f"cameras see them: columns without _cam, the {IDEAL}; columns *_cam, "
+                       f"the {CAMERA} (gain 255/{max(p for p in photons if p):g} grey per "
+                       "e-: the brightest level, about the sensor's 10.2 ke- saturation "
+                       "capacity, at full scale), same shot-noise draws and events; columns "
+                       "*_camraw: that camera's frames before the normalization, on which "
+                       "the thesis ran Ours (Fig. 6.12 caption), ratios against Farneback on "
+                       "the normalized frames. Camera: "
+                       "Basler acA1300-200um (onsemi PYTHON 1300, 4.8 um pixels, 10-bit "
+                       "on-chip ADC: onsemi NOIP1SN1300A data sheet), temporal dark noise "
+                       f"{CAMERA_READ_NOISE_E:g} e-, saturation 10.2 ke-, peak QE ~52 % "
+                       "(Basler EMVA 1288 figures as quoted in a public camera-model preset, "
+                       "basler_ace_aca1300_200um; Basler's own sheet was not retrieved). "
+                       "lux_estimate: a rough estimate of the background illuminance (" +
+                       _lux_text() + f"). Load average (1 min) {load:.2f} at the start, "
+                       f"{os.getloadavg()[0]:.2f} at the end (a 2-core machine shared with "
+                       "other runs). "
                        "event_photons = the photons of a white event pixel per "
                        f"event_tau_us = {EVENT_TAU_US} us, set to "
                        "photons * event_tau_us / exposure (same photon flux per pixel on "
