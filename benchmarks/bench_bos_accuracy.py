@@ -117,6 +117,22 @@ def _ours(sim, k, iterations, frames=None, **kw):
     return res, time.perf_counter() - start
 
 
+def _ours_refusable(sim, k, iterations, **kw):
+    """:func:`_ours`, or ``(None, nan, reason)`` when the estimator refuses the input (a
+    black frame has no texture; the events may not give C): recorded, not scored."""
+    from evmotion.errors import EventDataError, ParameterError
+
+    try:
+        res, sec = _ours(sim, k, iterations, **kw)
+    except EventDataError as e:
+        return None, float("nan"), str(e)
+    except ParameterError as e:
+        if "textureless" not in str(e):  # only the black frame's refusal is an outcome
+            raise
+        return None, float("nan"), str(e)
+    return res, sec, ""
+
+
 def _panel(path, scene, gt, flows: dict, mask, gt_q, q):
     from evmotion.viz import flow_to_rgb, save_panel
     from evmotion.viz.bos import symmetric_limit
@@ -393,7 +409,6 @@ def lowlight(size, iterations, scene="plume", photon_levels=PHOTONS) -> list[dic
     would otherwise change the mask."""
     from scipy.ndimage import gaussian_filter
 
-    from evmotion.errors import EventDataError
     from evmotion.methods.farneback import farneback_flow
     from evmotion.viz import flow_to_rgb, iwe_to_rgb, save_panel
 
@@ -457,35 +472,36 @@ def lowlight(size, iterations, scene="plume", photon_levels=PHOTONS) -> list[dic
                 if photons is None:
                     res, sec = _ours(s, k, iterations, frames=fr, param="poisson",
                                      data_term="scale")
-                    c_bright, res_c, c_err = res.contrast_threshold, res, ""
+                    c_bright, res_c, c_err, b_err = res.contrast_threshold, res, "", ""
                 else:
-                    res_c, sec = _ours(s, k, iterations, frames=fr, param="poisson",
-                                       data_term="scale", contrast_threshold=c_bright)
-                    try:
-                        res, _ = _ours(s, k, iterations, frames=fr, param="poisson",
-                                       data_term="scale")
-                        c_err = ""
-                    except EventDataError as e:  # the estimator refuses: recorded, not scored
-                        res, c_err = None, str(e)
+                    res_c, sec, b_err = _ours_refusable(s, k, iterations, frames=fr,
+                                                        param="poisson", data_term="scale",
+                                                        contrast_threshold=c_bright)
+                    res, _, c_err = _ours_refusable(s, k, iterations, frames=fr,
+                                                    param="poisson", data_term="scale")
                 farn_aee = row[f"AEE_farneback{CAMERAS[cs][2]}"]
-                ours_c = _score(res_c.flow, gt, mask, dt)
-                ours = _score(res.flow, gt, mask, dt) if res is not None else dict.fromkeys(
-                    ("AEE", "AE_rad"), float("nan"))
+                ours_c, ours = (_score(r.flow, gt, mask, dt) if r is not None
+                                else dict.fromkeys(("AEE", "AE_rad"), float("nan"))
+                                for r in (res_c, res))
                 sfx = f"{kind}{cs}"
                 row.update({
                     f"AEE_ours_C_bright_{sfx}": ours_c["AEE"],
                     f"AE_ours_C_bright_rad_{sfx}": ours_c["AE_rad"],
                     f"AEE_ratio_farneback_over_ours_C_bright_{sfx}": farn_aee / ours_c["AEE"],
-                    f"ratio_median_ours_C_bright_{sfx}": _ratio(res_c.flow, gt, mask, dt),
+                    f"ratio_median_ours_C_bright_{sfx}": float("nan") if res_c is None
+                    else _ratio(res_c.flow, gt, mask, dt),
                     f"AEE_ours_C_est_{sfx}": ours["AEE"],
                     f"AE_ours_C_est_rad_{sfx}": ours["AE_rad"],
                     f"AEE_ratio_farneback_over_ours_C_est_{sfx}": farn_aee / ours["AEE"],
                     f"ratio_median_ours_C_est_{sfx}": float("nan") if res is None
                     else _ratio(res.flow, gt, mask, dt),
                     f"C_est_{sfx}": float("nan") if res is None else res.contrast_threshold,
-                    f"C_est_error_{sfx}": c_err, f"seconds_{sfx}": sec})
-                panel[sfx] = (counts, res_c, ours_c)
-        row.update({"C_bright": c_bright, "iterations": _its(res_c)})
+                    f"C_est_error_{sfx}": c_err, f"C_bright_error_{sfx}": b_err,
+                    f"seconds_{sfx}": sec})
+                panel[sfx] = (counts, None if res_c is None else res_c.flow, ours_c)
+                if res_c is not None:  # the iterations of the last scored run
+                    its = _its(res_c)
+        row.update({"C_bright": c_bright, "iterations": its})
         rows.append(row)
         if photons in (None, 1000.0, 100.0, 10.0):
             cs = "_cam" if photons is not None else ""
@@ -496,9 +512,10 @@ def lowlight(size, iterations, scene="plume", photon_levels=PHOTONS) -> list[dic
                        "frame (noise-free)" if photons is None else "thesis' camera frame",
                        f"Farneback AEE {row['AEE_farneback' + cs]:.3f}"]
             for kind in ("noisy", "dvs"):
-                counts, res_c, ours_c = panel.get(kind + cs, panel["clean"])
+                counts, flow, ours_c = panel.get(kind + cs, panel["clean"])
                 name = {"noisy": "fixed tau", "dvs": "DVS tau(I)"}[kind]
-                images += [iwe_to_rgb(counts), flow_to_rgb(res_c.flow, vmax)]
+                images += [iwe_to_rgb(counts),
+                           flow_to_rgb(np.zeros_like(gt) if flow is None else flow, vmax)]
                 titles += ["events" if photons is None else f"events ({name})",
                            f"Ours AEE {ours_c['AEE']:.3f}" if photons is None
                            else f"Ours ({name}, cam) AEE {ours_c['AEE']:.3f}"]
@@ -625,8 +642,10 @@ def low_light_goal(rows: list[dict]) -> list[str]:
                              "none with shot noise (goal >= 2: NOT met).", ""]
                 continue
             sfx = k + cs
-            best = max(x[f"AEE_ratio_farneback_over_ours_C_bright_{sfx}"],
-                       x[f"AEE_ratio_farneback_over_ours_C_est_{sfx}"])
+            # a refused (NaN) estimate is no ratio
+            best = max((v for v in (x[f"AEE_ratio_farneback_over_ours_C_bright_{sfx}"],
+                                    x[f"AEE_ratio_farneback_over_ours_C_est_{sfx}"])
+                        if v == v), default=float("nan"))
             verdicts += [f"Lowest level where the events show the schlieren {what}: "
                          f"{x['photons']} photons; Farneback / Ours = {best:.2f} "
                          f"(Farneback AEE {x[f'AEE_farneback{fb}']:.3f}, Ours "
@@ -777,8 +796,9 @@ def verdict_lines(suffix: str = "") -> list[str]:
                 continue
             for kind in [k for k in MODELS if any(f"events_{k}" in x for x in low)]:
                 sfx = kind + cs
-                noisy = [x for x in low[1:]
-                         if isinstance(x.get(f"AEE_ours_C_bright_{sfx}"), float)]
+                noisy = [x for x in low[1:]  # scored levels (NaN: Ours refused the input)
+                         if isinstance(x.get(f"AEE_ours_C_bright_{sfx}"), float)
+                         and x[f"AEE_ours_C_bright_{sfx}"] == x[f"AEE_ours_C_bright_{sfx}"]]
                 best = max(noisy,
                            key=lambda x: x[f"AEE_ratio_farneback_over_ours_C_bright_{sfx}"])
                 out.append(
