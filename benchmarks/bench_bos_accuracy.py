@@ -784,12 +784,18 @@ def verdict_lines(suffix: str = "") -> list[str]:
                    "(sim/photoreceptor.py)." + lag_text)
         if cam:
             levels = [x for x in low[1:] if "AEE_farneback_cam" in x]
+            ref = low[0]["event_map_vs_|v|_corr_clean"]
+            kinds = [k for k in MODELS if any(f"events_{k}" in x for x in low)]
             out.append(
-                f"   Frames: Farneback AEE with the ideal camera | the thesis' camera ({CAMERA}"
-                "): " + ", ".join(
-                    f"{x['photons']} photons (~{x['lux_estimate']:.3g} lx) "
+                f"   Frames against events per level: Farneback AEE with the ideal camera | "
+                f"the thesis' camera ({CAMERA}; its grey levels), and the events' map "
+                f"correlation ({' / '.join(kinds)}; they show the schlieren from "
+                f"{SHOWS_SCHLIEREN * ref:.3f}): " + ", ".join(
+                    f"{x['photons']} photons (~{x['lux_estimate']:.3g} lx, an estimate) "
                     f"{x['AEE_farneback']:.3f} | {x['AEE_farneback_cam']:.3f} "
-                    f"({x['frame_levels_cam']} grey levels)" for x in levels) + ".")
+                    f"({x['frame_levels_cam']} levels), corr "
+                    + " / ".join(f"{x[f'event_map_vs_|v|_corr_{k}']:.3f}" for k in kinds)
+                    for x in levels) + ".")
         zero = low[0].get("AEE_zero_flow")
         for cs, (short, _, fb) in CAMERAS.items():
             if not any(f"AEE_farneback{cs}" in x for x in low):
@@ -808,7 +814,9 @@ def verdict_lines(suffix: str = "") -> list[str]:
                     f"{best['photons']} photons (event map corr "
                     f"{best[f'event_map_vs_|v|_corr_{kind}']:.3f}; Ours AEE "
                     f"{best[f'AEE_ours_C_bright_{sfx}']:.3f}, Farneback "
-                    f"{best[f'AEE_farneback{fb}']:.3f}, zero flow {zero:.3f}).")
+                    f"{best[f'AEE_farneback{fb}']:.3f}, zero flow {zero:.3f}"
+                    + _no_information(best[f"AEE_farneback{fb}"],
+                                      best[f"AEE_ours_C_bright_{sfx}"], zero) + ").")
     kym = _load_rows("bos_kymogram")
     if kym:
         ok = [x for x in kym if x["source"] == "events" and x["rate_hz"] >= 1200
@@ -819,6 +827,15 @@ def verdict_lines(suffix: str = "") -> list[str]:
                        f"{len(ok)} event kymograms (correlation fit): "
                        f"{'HOLDS' if worst <= 0.1 else 'DOES NOT HOLD'} (bos_kymogram.md).")
     return out + [""]
+
+
+def _no_information(farneback: float, ours: float, zero: float) -> str:
+    """The clause saying which estimate is no better than the zero flow (within 5 %)."""
+    names = [n for n, v in (("Farneback", farneback), ("Ours", ours)) if v >= 0.95 * zero]
+    if not names:
+        return ""
+    return (f"; {' and '.join(names)} no better than the zero flow (within 5 %): "
+            f"{'neither carries' if len(names) == 2 else 'it carries no'} information")
 
 
 def summarize(suffix: str = "") -> str:
