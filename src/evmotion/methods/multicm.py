@@ -47,7 +47,6 @@ from typing import Any
 
 import numpy as np
 from numba import njit
-from scipy.optimize import minimize
 
 from evmotion.core import tileflow as tf
 from evmotion.core.objectives import events_value_grad, objective_value_grad
@@ -762,6 +761,10 @@ def _final_iwes(prob: MultiCMProblem, params, x, y, s, shape):
 
 
 def _optimize(prob: MultiCMProblem, theta0: np.ndarray, optimizer: str, max_iter: int):
+    # imported here: scipy.optimize costs ~0.3 s of start-up that the network's path
+    # (method="dnn"), which shares this module's result type, never needs
+    from scipy.optimize import minimize
+
     if optimizer == "lbfgs":
         # a tile cannot move further over the window than the sensor is long: the box keeps
         # the line search from trying such flows (whose time-aware transport needs a CFL
