@@ -3,7 +3,7 @@
 The window's voxel grid (whole sensor, zero-padded to a multiple of 16) goes through the
 network once; its finest flow, cropped back to the sensor, is the displacement over the
 window in px, divided by the window's duration to give px/s at the window's midpoint
-(like multicm). The result is a :class:`~evmotion.methods.multicm.FlowResult` with the
+(like multicm). The result is a :class:`~evmotion.methods.flowresult.FlowResult` with the
 same IWEs and focus as multicm's, so every output, picture and evaluation of
 ``evmotion flow`` works unchanged.
 """
@@ -17,8 +17,12 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray
-from evmotion.methods.diagnostics import event_support
-from evmotion.methods.multicm import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, FlowResult
+from evmotion.methods.flowresult import (
+    SUPPORT_MIN_EVENTS,
+    SUPPORT_RADIUS,
+    FlowResult,
+    event_support,
+)
 
 __all__ = ["estimate_flow_dnn", "predict_displacement"]
 
