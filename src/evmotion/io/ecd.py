@@ -19,13 +19,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_sensor_size
 from evmotion.io.pngfile import read_png
+from evmotion.jitcache import lazy_njit
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_calibration", "parse_text",
@@ -42,7 +42,7 @@ _ERR_COLUMNS = 1
 _ERR_CHAR = 2
 
 
-@njit(cache=True)
+@lazy_njit(cache=True)
 def _parse(buf, start, end, ox, oy, ot, op, out_start):
     """Parse whole lines of ``t x y p`` in ``buf[start:end]`` into the outputs from index
     ``out_start``. Returns (events written, byte offset of the bad line or -1, error code,
@@ -392,7 +392,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
         yield ev
 
 
-@njit(cache=True)
+@lazy_njit(cache=True)
 def _put_uint(buf, pos, v):
     if v == 0:
         buf[pos] = 48
@@ -408,7 +408,7 @@ def _put_uint(buf, pos, v):
     return pos + n
 
 
-@njit(cache=True)
+@lazy_njit(cache=True)
 def _format(x, y, t, p, buf):
     pos = 0
     for i in range(t.shape[0]):
