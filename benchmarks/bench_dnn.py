@@ -4,13 +4,20 @@
    independently moving object; default scene parameters, seeds 900000000+ never drawn in
    training): AEE (px over the window, pixels with events), %Out (> 3 px) and FWL of
    dnn, multicm (defaults) and zero flow -- the Table 4.4 analog -- and multicm started
-   from the network's flow (``init="dnn"``, finest 2 scales) with its time.
+   from the network's flow (``init="dnn"``, finest 2 scales), its AEE and time as ratios
+   to plain multicm's on the same window in the same run (median CPU seconds of 3 runs),
+   and the share of multicm's time in its finest 2 scales: the least any start that
+   skips only the coarse scales can cost.
 2. FWL of dnn / multicm / DNN-init multicm on the eight ECD 30k-event windows (never
    trained on).
 3. Speed, one torch thread, one pinned core: inference (voxel grid + network) at 346x260
-   and 640x480; ``evmotion flow WINDOW --method dnn --window-events 30000 --out x.flo``
-   wall time including start-up; one training step (batch 8, 346x260 input) and the share
-   of the loss in it.
+   and 640x480 by ``predict_displacement`` (``InferenceNet`` and ``network_input``) and,
+   interleaved in the same run, by the training forward (``EVFlowNet`` on
+   ``voxel_grid`` / ``normalize_voxel`` / ``pad_to_multiple``), with the largest
+   difference of their flows; ``evmotion flow WINDOW --method dnn --window-events 30000
+   --out x.flo`` wall and CPU time including start-up, with the numba cache warm and empty
+   (a fresh ``NUMBA_CACHE_DIR`` per run), the command not pinned (a user's is not); one
+   training step (batch 8, 346x260 input) and the share of the loss in it.
 
 Checkpoint: the shipped one, or ``EVMOTION_DNN_CHECKPOINT``. Run:
 ``python benchmarks/run.py dnn``.
@@ -64,6 +71,20 @@ def _errors(disp, gt, mask):
     return float(e[ok].mean()), float((e[ok] > 3.0).mean() * 100)
 
 
+def _cpu_wall(fn, repeat: int):
+    """``fn()``'s last result and the median / min of its CPU and wall seconds over
+    ``repeat`` runs after one warm-up (numba, checkpoint cache)."""
+    fn()
+    cpu, wall = [], []
+    for _ in range(repeat):
+        c0, t0 = time.process_time(), time.perf_counter()
+        res = fn()
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - t0)
+    return res, {"seconds": float(np.median(wall)), "min_s": float(min(wall)),
+                 "cpu_s": float(np.median(cpu)), "cpu_min_s": float(min(cpu))}
+
+
 def accuracy_sim(quick: bool) -> list[dict]:
     from evmotion.methods.multicm import estimate_flow
 
@@ -76,14 +97,20 @@ def accuracy_sim(quick: bool) -> list[dict]:
                 "multicm": lambda w=win: estimate_flow(w),
                 "multicm init=dnn": lambda w=win: estimate_flow(w, init="dnn",
                                                                checkpoint=_ckpt())}
+        ref = {}
         for name, fn in runs.items():
-            fn()  # warm (numba, checkpoint cache)
-            t0 = time.perf_counter()
-            res = fn()
-            sec = time.perf_counter() - t0
+            res, t = _cpu_wall(fn, 1 if quick else 3)
             aee, out = _errors(res.displacement(), gt, mask)
-            rows.append({"section": "sim 40k 346x260", "data": scene, "method": name,
-                         "AEE_px": aee, "pct_out": out, "FWL": _fwl(res), "seconds": sec})
+            row = {"section": "sim 40k 346x260", "data": scene, "method": name,
+                   "AEE_px": aee, "pct_out": out, "FWL": _fwl(res), **t}
+            if name == "multicm":
+                ref = row
+                row["finest2_share"] = (res.timings["scale4_s"] + res.timings["scale5_s"]) \
+                    / res.timings["total_s"]
+            elif name == "multicm init=dnn":
+                row["AEE_vs_multicm"] = aee / ref["AEE_px"]
+                row["cpu_vs_multicm"] = t["cpu_s"] / ref["cpu_s"]
+            rows.append(row)
         zaee, zout = _errors(np.zeros_like(gt), gt, mask)
         rows.append({"section": "sim 40k 346x260", "data": scene, "method": "zero flow",
                      "AEE_px": zaee, "pct_out": zout, "FWL": 1.0, "seconds": 0.0})
@@ -123,18 +150,6 @@ def _window(shape, n, seed=0):
                       sensor_size=shape)
 
 
-def _cpu_median(fn, repeat: int) -> float:
-    """Median CPU time (process_time) of ``fn()``: on a shared machine the wall time also
-    counts the time this process waited for a core."""
-    fn()
-    out = []
-    for _ in range(repeat):
-        c0 = time.process_time()
-        fn()
-        out.append(time.process_time() - c0)
-    return float(np.median(out))
-
-
 def speed(quick: bool) -> list[dict]:
     import torch
 
@@ -142,23 +157,41 @@ def speed(quick: bool) -> list[dict]:
     from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
     from evmotion.methods.dnn.model import load_model
     from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
-    from evmotion.methods.dnn.voxel import normalize_voxel, pad_to_multiple, voxel_grid
+    from evmotion.methods.dnn.voxel import (
+        network_input,
+        normalize_voxel,
+        pad_to_multiple,
+        voxel_grid,
+    )
 
     torch.set_num_threads(1)
     rows = []
     net = load_model(_ckpt())
     params = sum(p.numel() for p in net.parameters())
+
+    def training_forward(e):
+        h, w = e.sensor_size
+        vox = torch.from_numpy(pad_to_multiple(normalize_voxel(voxel_grid(e, net.n_bins))))
+        with torch.inference_mode():
+            return net(vox[None])[-1][0, :, :h, :w].permute(1, 2, 0).numpy()
+
     for shape in ((260, 346), (480, 640)):
         ev = _window(shape, N_EVENTS)
-        t = harness.timeit(lambda e=ev: predict_displacement(e, _ckpt()),
-                           repeat=5 if quick else 20)
-        tv = harness.timeit(lambda e=ev: pad_to_multiple(normalize_voxel(voxel_grid(e))),
-                            repeat=5 if quick else 20)
-        cpu = _cpu_median(lambda e=ev: predict_displacement(e, _ckpt()), 5 if quick else 20)
-        rows.append({"section": "speed", "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
-                     "method": f"dnn width {net.width} ({params} params)",
-                     "seconds": t["median_s"], "min_s": t["min_s"], "cpu_s": cpu,
-                     "voxel_s": tv["median_s"]})
+        fns = {"predict_displacement": lambda e=ev: predict_displacement(e, _ckpt()),
+               "training forward": lambda e=ev: training_forward(e),
+               "network_input": lambda e=ev: network_input(e, net.n_bins),
+               "voxel_grid+normalize+pad": lambda e=ev: pad_to_multiple(
+                   normalize_voxel(voxel_grid(e)))}
+        times = _interleaved(fns, 5 if quick else 30)
+        diff = float(np.abs(fns["predict_displacement"]() - fns["training forward"]()).max())
+        for name, voxel in (("predict_displacement", "network_input"),
+                            ("training forward", "voxel_grid+normalize+pad")):
+            rows.append({"section": "speed",
+                         "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
+                         "method": f"{name}, width {net.width} ({params} params)",
+                         **times[name], "voxel_s": times[voxel]["seconds"],
+                         "voxel_cpu_s": times[voxel]["cpu_s"],
+                         "max_diff_px": diff if name == "predict_displacement" else 0.0})
     # one training step, batch 8 at 346x260 (padded 352x272), simulated windows
     from evmotion.methods.dnn.data import sim_window
 
@@ -193,34 +226,80 @@ def speed(quick: bool) -> list[dict]:
                  "loss_share_pct": float(100 * lf / tot)})
     win = DATA / "ecd_30k_windows" / "boxes_rotation"
     if win.is_dir():
-        with tempfile.TemporaryDirectory() as tmp:
-            cmd = [sys.executable, "-m", "evmotion", "flow", str(win), "--method", "dnn",
-                   "--window-events", "30000", "--out", str(Path(tmp) / "x.flo")]
-            walls = []
-            for _ in range(2 if quick else 3):
-                t0 = time.perf_counter()
-                r = subprocess.run(cmd, capture_output=True, text=True, check=False)
-                walls.append(time.perf_counter() - t0)
-                if r.returncode:
-                    raise RuntimeError(r.stderr)
-            cpu = os.times()
-        rows.append({"section": "speed", "data": "evmotion flow ECD window --method dnn "
-                     "(30k ev) incl. start-up", "method": "CLI, shipped checkpoint",
-                     "seconds": float(np.median(walls)), "min_s": float(min(walls)),
-                     "children_cpu_s": float((cpu.children_user + cpu.children_system)
-                                             / len(walls))})
+        for cache in ("warm", "empty"):
+            rows.append(_cli_row(win, cache, 2 if quick else 5))
     return rows
+
+
+def _interleaved(fns: dict, repeat: int) -> dict:
+    """Median / min wall and CPU seconds of each function, run in turn (A B C A B C ...)
+    after one warm-up each, so that a change in the machine's load hits all alike."""
+    for fn in fns.values():
+        fn()
+    wall = {k: [] for k in fns}
+    cpu = {k: [] for k in fns}
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            c0, t0 = time.process_time(), time.perf_counter()
+            fn()
+            cpu[k].append(time.process_time() - c0)
+            wall[k].append(time.perf_counter() - t0)
+    return {k: {"seconds": float(np.median(wall[k])), "min_s": float(min(wall[k])),
+                "cpu_s": float(np.median(cpu[k])), "cpu_min_s": float(min(cpu[k]))}
+            for k in fns}
+
+
+def _cli_row(win: Path, cache: str, repeat: int) -> dict:
+    """``evmotion flow WIN --method dnn --window-events 30000 --out x.flo`` as a user runs
+    it (not pinned: the affinity of this pinned process is undone in the child), numba's
+    cache warm (after one run) or empty (a fresh NUMBA_CACHE_DIR each run)."""
+    import resource
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "evmotion", "flow", str(win), "--method", "dnn",
+               "--window-events", "30000", "--out", str(Path(tmp) / "x.flo")]
+        walls, cpus = [], []
+        for i in range(repeat + (cache == "warm")):
+            env = dict(os.environ)
+            if cache == "empty":
+                env["NUMBA_CACHE_DIR"] = str(Path(tmp) / f"numba{i}")
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            r = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env,
+                               preexec_fn=lambda: os.sched_setaffinity(
+                                   0, set(range(os.cpu_count() or 1))))
+            wall = time.perf_counter() - t0
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            if r.returncode:
+                raise RuntimeError(r.stderr)
+            if cache == "warm" and i == 0:
+                continue  # fills the cache
+            walls.append(wall)
+            cpus.append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
+    return {"section": "speed", "data": "evmotion flow ECD window --method dnn (30k ev) "
+            f"incl. start-up, numba cache {cache}", "method": "CLI, shipped checkpoint",
+            "seconds": float(np.median(walls)), "min_s": float(min(walls)),
+            "cpu_s": float(np.median(cpus)), "cpu_min_s": float(min(cpus)),
+            "load_1min": os.getloadavg()[0]}
 
 
 def main(quick: bool = False) -> list[dict]:
     cpu = harness.pin_idlest_core()
+    load0 = os.getloadavg()
     rows = speed(quick) + accuracy_sim(quick) + accuracy_ecd(quick)
+    load1 = os.getloadavg()
     harness.record("dnn", rows, notes=(
-        f"one pinned core (cpu {cpu}), torch threads 1; checkpoint "
+        f"one pinned core (cpu {cpu}; the CLI rows unpinned), torch threads 1; checkpoint "
         f"{_ckpt() or 'shipped'}. AEE px over the window on pixels with events, %Out > 3 px; "
         "FWL = var(IWE t_mid) / var(IWE zero flow). multicm: defaults (5 scales); "
-        "init=dnn: the network's flow then the finest 2 scales. Wall times on a shared "
-        "2-core machine (load from other jobs inflates them)."))
+        "init=dnn: the network's flow (tile means over the events) then the finest 2 "
+        "scales; AEE_vs_multicm / cpu_vs_multicm: its AEE and median CPU time over plain "
+        "multicm's on the same window in the same run; finest2_share: the share of "
+        "multicm's time in its finest 2 scales. seconds / min_s wall, cpu_s / cpu_min_s "
+        "CPU (median / min). Shared 2-core machine (other jobs running): load average "
+        f"(1, 5, 15 min) {load0[0]:.1f}, {load0[1]:.1f}, {load0[2]:.1f} at the start, "
+        f"{load1[0]:.1f}, {load1[1]:.1f}, {load1[2]:.1f} at the end; wall times are "
+        "inflated by it, CPU times less so."))
     return rows
 
 

@@ -21,13 +21,14 @@ True
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import tempfile
 import threading
 from pathlib import Path
 
-__all__ = ["compile_seconds", "ensure_cache_dir", "kernel_case"]
+__all__ = ["LazyKernel", "compile_seconds", "ensure_cache_dir", "kernel_case", "lazy_njit"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -123,6 +124,60 @@ def kernel_case(factory, *key):
     if k is None:
         k = _CASES[(factory, key)] = factory(*key)
     return k
+
+
+class LazyKernel:
+    """A ``numba.njit`` kernel that imports numba and compiles (or loads from the cache) on
+    its first call, not when its module is imported: made by :func:`lazy_njit`.
+
+    For the modules that every run imports but few runs execute (the file-format readers,
+    all imported to detect a file's format): importing numba costs ~0.2 s, which a command
+    that never runs one of their kernels should not pay.
+
+    A kernel that calls another lazy kernel of its module works: on its first call the
+    callees it names are compiled first and their module names rebound to their numba
+    dispatchers (numba can type a call to a dispatcher, not to this wrapper).
+    """
+
+    def __init__(self, py_func, options: dict):
+        self.py_func = py_func
+        self._options = options
+        self._dispatcher = None
+        functools.update_wrapper(self, py_func)
+
+    def dispatcher(self):
+        """The numba dispatcher, made on the first call."""
+        d = self._dispatcher
+        if d is None:
+            from numba import njit
+
+            names = self.py_func.__globals__
+            for name in self.py_func.__code__.co_names:
+                callee = names.get(name)
+                if isinstance(callee, LazyKernel):
+                    names[name] = callee.dispatcher()
+            d = self._dispatcher = njit(**self._options)(self.py_func)
+        return d
+
+    def __call__(self, *args):
+        return self.dispatcher()(*args)
+
+
+def lazy_njit(**options):
+    """``numba.njit(**options)`` applied on the kernel's first call (:class:`LazyKernel`).
+
+    Examples
+    --------
+    >>> @lazy_njit(cache=False)
+    ... def twice(v):
+    ...     return 2 * v
+    >>> twice(21)
+    42
+    """
+    def wrap(fn):
+        return LazyKernel(fn, options)
+
+    return wrap
 
 
 # ---------------------------------------------------------------------------------------

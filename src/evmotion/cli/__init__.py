@@ -42,8 +42,15 @@ every command's --help ends with examples of its own.
 """
 
 
-def build_parser():
-    """The ``evmotion`` parser (an :class:`argparse.ArgumentParser`) with every command."""
+def build_parser(commands: tuple[str, ...] = COMMANDS):
+    """The ``evmotion`` parser (an :class:`argparse.ArgumentParser`) with ``commands``
+    (default: every command).
+
+    Examples
+    --------
+    >>> build_parser(("info",)).parse_args(["info", "x.h5"]).command
+    'info'
+    """
     import argparse
     import importlib
 
@@ -59,7 +66,7 @@ def build_parser():
 
     parser.add_argument("--version", action="version", version=f"evmotion {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
+    for name in commands:
         try:
             mod = importlib.import_module(f"evmotion.cli.{name}")
         except ModuleNotFoundError as exc:
@@ -106,8 +113,16 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 _PY_SHOWWARNING = warnings.showwarning
 
 
+def _command_of(argv: list[str]) -> tuple[str, ...]:
+    """The commands the parser needs for ``argv``: the one it names first (then the
+    others' modules, which import e.g. the simulator's scenes, are not loaded: a tenth of
+    a second off every run), or all of them (top-level options, no or an unknown
+    command: the top-level help and errors list every command)."""
+    return (argv[0],) if argv and argv[0] in COMMANDS else COMMANDS
+
+
 def _build_and_run(argv: list[str] | None) -> int:
-    parser = build_parser()
+    parser = build_parser(_command_of(sys.argv[1:] if argv is None else argv))
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # a bad argument (its line is written), --help, --version

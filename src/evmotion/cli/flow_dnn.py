@@ -48,8 +48,14 @@ def estimator(args):
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
              "source": str(args.file)}
 
+    # the IWEs and the focus serve only the pictures (--png-dir) and the JSON rows; the
+    # flow files do not hold them, and their numba kernels would cost a first run seconds
+    # of compilation
+    with_iwes = args.png_dir is not None or bool(args.json)
+
     def estimate(events, init):
-        return estimate_flow_dnn(events, args.checkpoint, device=args.device)
+        return estimate_flow_dnn(events, args.checkpoint, device=args.device,
+                                 with_iwes=with_iwes)
 
     return estimate, attrs
 

@@ -177,7 +177,6 @@ def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.calib import undistort_for
     from evmotion.io import read_events
-    from evmotion.methods.multicm import estimate_flow
     from evmotion.utils import progress
 
     out = Path(args.out)
@@ -194,6 +193,9 @@ def run(args) -> int:
         estimate, attrs = estimator(args)
         workers = 1
     else:
+        # imported here: --method dnn (which runs through this runner) needs none of it
+        from evmotion.methods.multicm import estimate_flow
+
         kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
                       n_scales=args.scales, objective=args.objective, lam=args.lam,
                       n_bins=args.time_bins, max_iter=args.max_iter)

@@ -7,12 +7,12 @@ from collections import deque
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.guard import check_sensor_size
+from evmotion.jitcache import lazy_njit
 
 # Decoded blocks are 4-tuples of contiguous arrays (x uint16, y uint16, t int64, p uint8).
 Block = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
@@ -102,7 +102,7 @@ def _make(cols, a: int, b: int, sensor_size, meta, validate) -> EventArray:
     return ev
 
 
-@numba.njit(cache=True)
+@lazy_njit(cache=True)
 def _valid(x, y, t, width, height):
     """One fused pass for what EventArray.check tests (sorted t, on-sensor x, y); the
     numpy version takes several passes and a temporary, a large share of decode time."""

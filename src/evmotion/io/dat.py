@@ -10,13 +10,13 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
 from evmotion.io.base import FormatSpec
+from evmotion.jitcache import lazy_njit
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
@@ -27,7 +27,7 @@ RECORD = 8
 DEFAULT_SIZE = (240, 304)
 
 
-@numba.njit(cache=True)
+@lazy_njit(cache=True)
 def _decode(ts, data, state, ox, oy, ot, op):
     """Unwrap u32 times (state = [last raw t, wrap offset]) and split the address word."""
     last = state[0]

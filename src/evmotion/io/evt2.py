@@ -11,12 +11,12 @@ from __future__ import annotations
 from collections.abc import Iterator
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
 from evmotion.io.base import FormatSpec
+from evmotion.jitcache import lazy_njit
 
 __all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "FORMAT"]
 
@@ -24,7 +24,7 @@ WRAP_US = 1 << 34
 _HALF = 1 << 27
 
 
-@numba.njit(cache=True)
+@lazy_njit(cache=True)
 def _decode(words, state, ox, oy, ot, op):
     """Decode a block; ``state`` = [time high, wrap offset, seen] (updated in place)."""
     th = state[0]
@@ -120,7 +120,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
                                  validate=validate, block_bytes=block_bytes)
 
 
-@numba.njit(cache=True)
+@lazy_njit(cache=True)
 def _encode(x, y, t, p, out):
     k = 0
     cur = np.int64(-1)

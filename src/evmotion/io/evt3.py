@@ -14,13 +14,13 @@ from collections.abc import Iterator
 from functools import partial
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
 from evmotion.io.base import FormatSpec
+from evmotion.jitcache import lazy_njit
 
 __all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
 
@@ -31,7 +31,7 @@ WHOLE_FILE_BYTES = 1 << 28
 _Y, _TH, _TL, _OVF, _BX, _VP, _SEEN = range(7)
 
 
-@numba.njit(cache=True)
+@lazy_njit(cache=True)
 def _decode(words, start, state, ox, oy, ot, op):
     """Decode ``words[start:]`` into the output arrays until they might overflow.
 
@@ -223,7 +223,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
                                  validate=validate, block_bytes=block_bytes)
 
 
-@numba.njit(cache=True)
+@lazy_njit(cache=True)
 def _encode(x, y, t, p, out):
     """EVT3 words for sorted events (times relative to the file's time base, ≥ 0).
 

@@ -44,6 +44,7 @@ from numba import njit
 
 from evmotion.core.warps import Warp
 from evmotion.errors import CollapseWarning, ParameterError, PoorFitWarning
+from evmotion.methods.flowresult import event_support  # here too: the checks of estimates
 
 __all__ = [
     "COLLAPSE_MAX_TOP_SHARE",
@@ -409,50 +410,3 @@ def warn_poor_fit(diag: dict, warp: str, stacklevel: int = 3) -> str | None:
            f"richer warp, or dense flow (evmotion flow)")
     warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
     return msg
-
-
-# ---------------------------------------------------------------------------------------
-# Event support of dense flow
-
-def event_support(x, y, shape, radius: int = 2, min_count: float = 1.0) -> np.ndarray:
-    """Pixels supported by events: the event-count image dilated by a square of
-    ``2 * radius + 1`` px, at least ``min_count``.
-
-    Parameters
-    ----------
-    x, y : array (N,)
-        Event pixels (rounded; outside the sensor ignored).
-    shape : (int, int)
-        ``(H, W)``.
-    radius : int
-        Dilation radius in px (a tile flow is smooth over a few px around its events).
-    min_count : float
-        Events needed within the square.
-
-    Returns
-    -------
-    ndarray (H, W) bool
-
-    Examples
-    --------
-    >>> m = event_support(np.array([5]), np.array([5]), (10, 10), radius=1)
-    >>> int(m.sum()), bool(m[4, 6]), bool(m[5, 7])
-    (9, True, False)
-    """
-    h, w = int(shape[0]), int(shape[1])
-    if radius < 0:
-        raise ParameterError(f"event_support: radius must be >= 0, got {radius}")
-    xi = np.rint(np.asarray(x, dtype=np.float64)).astype(np.int64)
-    yi = np.rint(np.asarray(y, dtype=np.float64)).astype(np.int64)
-    ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-    cnt = np.bincount(yi[ok] * w + xi[ok], minlength=h * w).reshape(h, w).astype(np.float32)
-    # box sum by integral image (float64: exact counts)
-    ii = np.zeros((h + 1, w + 1))
-    ii[1:, 1:] = cnt.cumsum(0).cumsum(1)
-    r = int(radius)
-    y0 = np.clip(np.arange(h) - r, 0, h)
-    y1 = np.clip(np.arange(h) + r + 1, 0, h)
-    x0 = np.clip(np.arange(w) - r, 0, w)
-    x1 = np.clip(np.arange(w) + r + 1, 0, w)
-    box = (ii[y1][:, x1] - ii[y0][:, x1] - ii[y1][:, x0] + ii[y0][:, x0])
-    return box >= min_count

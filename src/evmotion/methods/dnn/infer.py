@@ -3,7 +3,7 @@
 The window's voxel grid (whole sensor, zero-padded to a multiple of 16) goes through the
 network once; its finest flow, cropped back to the sensor, is the displacement over the
 window in px, divided by the window's duration to give px/s at the window's midpoint
-(like multicm). The result is a :class:`~evmotion.methods.multicm.FlowResult` with the
+(like multicm). The result is a :class:`~evmotion.methods.flowresult.FlowResult` with the
 same IWEs and focus as multicm's, so every output, picture and evaluation of
 ``evmotion flow`` works unchanged.
 """
@@ -17,8 +17,12 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray
-from evmotion.methods.diagnostics import event_support
-from evmotion.methods.multicm import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, FlowResult
+from evmotion.methods.flowresult import (
+    SUPPORT_MIN_EVENTS,
+    SUPPORT_RADIUS,
+    FlowResult,
+    event_support,
+)
 
 __all__ = ["estimate_flow_dnn", "predict_displacement"]
 
@@ -41,14 +45,15 @@ def predict_displacement(events: EventArray, checkpoint: str | Path | None = Non
         raise ParameterError("method 'dnn' needs PyTorch: pip install 'evmotion[dnn]'"
                              ) from None
 
-    from evmotion.methods.dnn.model import load_model
-    from evmotion.methods.dnn.voxel import normalize_voxel, pad_to_multiple, voxel_grid
+    from evmotion.methods.dnn.model import load_inference_net
+    from evmotion.methods.dnn.voxel import network_input
 
-    net = load_model(checkpoint, device)
+    net = load_inference_net(checkpoint, device)
     h, w = events.sensor_size
-    vox = torch.from_numpy(pad_to_multiple(normalize_voxel(voxel_grid(events, net.n_bins))))
+    # (H', W', bins) -> (1, bins, H', W') in channels-last memory: a view, no copy
+    vox = torch.from_numpy(network_input(events, net.n_bins)).permute(2, 0, 1)[None]
     with torch.inference_mode():
-        out = net(vox[None].to(device))[-1][0, :, :h, :w]
+        out = net(vox.to(device))[0, :, :h, :w]
     return np.ascontiguousarray(out.permute(1, 2, 0).cpu().numpy(), dtype=np.float32)
 
 

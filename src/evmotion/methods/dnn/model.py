@@ -8,15 +8,17 @@ from pathlib import Path
 import torch
 
 from evmotion.errors import ParameterError
-from evmotion.methods.dnn.network import EVFlowNet
+from evmotion.methods.dnn.network import EVFlowNet, InferenceNet
 from evmotion.utils import atomic_path
 
-__all__ = ["DEFAULT_CHECKPOINT", "load_model", "save_model"]
+__all__ = ["DEFAULT_CHECKPOINT", "load_inference_net", "load_model", "save_model"]
 
 #: The shipped checkpoint (see MODEL_CARD.md beside this module).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "weights" / "evflownet_w0125.pt"
 
+# the last checkpoint loaded (key: path, mtime, device) and its InferenceNet, if made
 _CACHE: dict = {}
+_FAST: dict = {}
 
 
 def save_model(path: str | Path, net: EVFlowNet, **meta) -> None:
@@ -33,8 +35,7 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
     Accepts the files of :func:`save_model` and the per-epoch training checkpoints of
     ``evmotion train``.
     """
-    path = Path(checkpoint) if checkpoint is not None else DEFAULT_CHECKPOINT
-    key = (str(path.resolve()), path.stat().st_mtime_ns if path.exists() else 0, device)
+    path, key = _cache_key(checkpoint, device)
     if key in _CACHE:
         return _CACHE[key]
     if not path.is_file():
@@ -50,5 +51,24 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
                              ) from None
     net.to(device).eval()
     _CACHE.clear()
+    _FAST.clear()
     _CACHE[key] = net
     return net
+
+
+def load_inference_net(checkpoint: str | Path | None = None,
+                       device: str = "cpu") -> InferenceNet:
+    """The :class:`~evmotion.methods.dnn.network.InferenceNet` of a checkpoint (default:
+    the shipped one), which computes its finest flow faster; cached like :func:`load_model`.
+    """
+    net = load_model(checkpoint, device)
+    key = _cache_key(checkpoint, device)[1]
+    if key not in _FAST:
+        _FAST[key] = InferenceNet(net)
+    return _FAST[key]
+
+
+def _cache_key(checkpoint, device: str) -> tuple[Path, tuple]:
+    path = Path(checkpoint) if checkpoint is not None else DEFAULT_CHECKPOINT
+    return path, (str(path.resolve()), path.stat().st_mtime_ns if path.exists() else 0,
+                  device)

@@ -7,6 +7,9 @@ window at full resolution (u right, v down), i.e. the displacement over the wind
 
 Width 1 has the paper's channels (64, 128, 256, 512; about 13 M parameters); the shipped
 default is width 0.125.
+
+:class:`InferenceNet` computes the finest flow of a trained :class:`EVFlowNet` with the same
+weights, rearranged for speed (training always runs :class:`EVFlowNet`).
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-__all__ = ["FLOW_SCALE", "EVFlowNet", "upsample_flows"]
+__all__ = ["FLOW_SCALE", "EVFlowNet", "InferenceNet", "upsample_flows"]
 
 #: The prediction heads output flow in units of FLOW_SCALE px per window, so that the
 #: network works with O(1) values.
@@ -92,3 +95,109 @@ def upsample_flows(flows: list[torch.Tensor], shape: tuple[int, int]) -> list[to
     return [f if tuple(f.shape[-2:]) == tuple(shape)
             else F.interpolate(f, size=tuple(shape), mode="bilinear", align_corners=False)
             for f in flows]
+
+
+# Row (or column) taps of a 3 x 3 kernel seen from the input of a x2 nearest upsampling:
+# output row 2i + a reads upsampled rows 2i + a - 1 .. 2i + a + 1, i.e. input rows
+# i - 1, i, i (a = 0) or i, i, i + 1 (a = 1). _PHASE_TAPS[a][r, k]: 1 where kernel tap k
+# lands on input row i + r - 1.
+_PHASE_TAPS = (((1.0, 0.0, 0.0), (0.0, 1.0, 1.0), (0.0, 0.0, 0.0)),
+               ((0.0, 0.0, 0.0), (1.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
+
+
+def _subpixel_conv(conv: nn.Conv2d) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weights of ``conv(upsample_nearest_x2(x))`` as one 3 x 3 convolution of ``x`` with
+    4 outputs per channel (the four phases ``(a, b)`` of each output pixel ``(2i + a,
+    2j + b)``, in :func:`torch.nn.functional.pixel_shuffle`'s order ``c * 4 + 2 a + b``):
+    the same sums at a quarter of the pixels, with no upsampled copy of the input."""
+    w = conv.weight.detach()
+    taps = [torch.tensor(t, dtype=w.dtype, device=w.device) for t in _PHASE_TAPS]
+    phases = [torch.einsum("pk,oikl,ql->oipq", taps[a], w, taps[b])
+              for a in (0, 1) for b in (0, 1)]
+    cout, cin = w.shape[:2]
+    weight = torch.stack(phases, 1).reshape(cout * 4, cin, 3, 3)
+    return (weight.contiguous(memory_format=torch.channels_last),
+            conv.bias.detach().repeat_interleave(4))
+
+
+def _phase_head(head: nn.Conv2d, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """A 1 x 1 prediction head applied to each phase of a sub-pixel feature map (channels
+    ``c * 4 + phase``), as a matrix for :func:`torch.nn.functional.linear`, times ``scale``."""
+    w = head.weight.detach()[:, :, 0, 0]
+    k, c = w.shape
+    eye = torch.eye(4, dtype=w.dtype, device=w.device)
+    weight = torch.einsum("kc,pq->kpcq", w, eye).reshape(k * 4, c * 4)
+    return weight * scale, head.bias.detach().repeat_interleave(4) * scale
+
+
+class InferenceNet:
+    """The finest flow of a trained :class:`EVFlowNet`, computed faster (inference only).
+
+    The same function of the same weights, rearranged (the results agree to float32
+    rounding, ``tests/test_dnn_infer.py``):
+
+    * each decoder level's "x2 nearest upsampling, then 3 x 3 convolution" is one 3 x 3
+      convolution at the lower resolution with four outputs per channel (the four
+      sub-pixel phases; :func:`_subpixel_conv`), rearranged by ``pixel_shuffle``: the
+      upsampled copy of the concatenated input is never made, and the convolution has 4x
+      more outputs on 4x fewer pixels, which the CPU's GEMM runs far better (4 output
+      channels at full resolution leave most of its vector lanes empty);
+    * the prediction heads run on the phase maps as a matrix product (1 x 1 convolutions
+      took torch's slow path), and the finest level's features are never shuffled to full
+      resolution: only its flow is;
+    * tensors are channels-last (NHWC), the layout of the CPU's convolution kernels, and
+      ReLUs work in place;
+    * only the finest flow is scaled to px (the coarser ones feed the next level
+      unscaled, as in training).
+
+    Parameters
+    ----------
+    net : EVFlowNet
+        Trained network (its current weights are copied; later changes to it are not seen).
+
+    Examples
+    --------
+    >>> net = EVFlowNet(width=0.0625).eval()
+    >>> x = torch.randn(1, 5, 32, 48)
+    >>> with torch.inference_mode():
+    ...     bool(torch.allclose(InferenceNet(net)(x), net(x)[-1], atol=1e-5))
+    True
+    """
+
+    def __init__(self, net: EVFlowNet):
+        self.n_bins, self.width = net.n_bins, net.width
+        cl = torch.channels_last
+
+        def conv(c: nn.Conv2d) -> tuple[torch.Tensor, torch.Tensor]:
+            return c.weight.detach().contiguous(memory_format=cl), c.bias.detach()
+
+        self.enc = [conv(seq[0]) for seq in net.enc]
+        self.res = [(*conv(r.c1), *conv(r.c2)) for r in net.res]
+        self.dec = [_subpixel_conv(seq[0]) for seq in net.dec]
+        n = len(net.heads)
+        self.heads = [_phase_head(h, FLOW_SCALE if i == n - 1 else 1.0)
+                      for i, h in enumerate(net.heads)]
+
+    def __call__(self, voxel: torch.Tensor) -> torch.Tensor:
+        """The finest flow ``(B, 2, H, W)`` in px per window (``net(voxel)[-1]``), for a
+        voxel grid ``(B, n_bins, H, W)`` (H, W multiples of 16; any memory layout)."""
+        x = voxel.contiguous(memory_format=torch.channels_last)
+        skips = []
+        for w, b in self.enc:
+            x = F.relu_(F.conv2d(x, w, b, stride=2, padding=1))
+            skips.append(x)
+        for w1, b1, w2, b2 in self.res:
+            x = F.relu_(x + F.conv2d(F.relu_(F.conv2d(x, w1, b1, padding=1)), w2, b2,
+                                     padding=1))
+        flow = None
+        last = len(self.dec) - 1
+        for i, ((w, b), head) in enumerate(zip(self.dec, self.heads, strict=True)):
+            parts = [x, skips[last - i]] + ([flow] if flow is not None else [])
+            y = F.relu_(F.conv2d(torch.cat(parts, 1), w, b, padding=1))
+            # the head on each phase (NHWC: channels last is a matrix product), then the
+            # phases to their pixels
+            flow = F.pixel_shuffle(F.linear(y.permute(0, 2, 3, 1), *head).permute(0, 3, 1, 2),
+                                   2)
+            if i < last:
+                x = F.pixel_shuffle(y, 2)
+        return flow

@@ -1,0 +1,84 @@
+"""DNN-initialized multicm: each first-scale tile starts from the network's flow averaged
+over the tile's events, not over its pixels (where no event is, the network's flow is an
+extrapolation that nothing constrained)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")
+
+import evmotion.methods.dnn as dnn_pkg
+import evmotion.methods.multicm as mc
+from evmotion.core import tileflow as tf
+from evmotion.events import EventArray
+from evmotion.methods.dnn.data import sim_window
+
+
+def _loop_reference(flow, x, y, grid):
+    h, w = flow.shape[:2]
+    sums = np.zeros((grid.ny, grid.nx, 2))
+    cnt = np.zeros((grid.ny, grid.nx))
+    for xe, ye in zip(x, y, strict=True):
+        i = min(ye * grid.ny // h, grid.ny - 1)
+        j = min(xe * grid.nx // w, grid.nx - 1)
+        sums[i, j] += flow[ye, xe]
+        cnt[i, j] += 1
+    return np.where(cnt[..., None] > 0, sums / np.maximum(cnt, 1)[..., None], 0.0)
+
+
+@pytest.mark.parametrize(("shape", "level"), [((260, 346), 4), ((37, 51), 3), ((20, 20), 5)])
+def test_event_tile_means_match_a_loop(shape, level):
+    rng = np.random.default_rng(level)
+    h, w = shape
+    # events only in the left half: the right half's tiles have none
+    n = 3000
+    x = rng.integers(0, w // 2, n)
+    y = rng.integers(0, h, n)
+    ev = EventArray(x=x, y=y, t=np.arange(n), p=rng.integers(0, 2, n), sensor_size=shape)
+    flow = rng.normal(0, 50, (h, w, 2)).astype(np.float32)
+    grid = tf.scale_grid(level, shape)
+    got = mc._event_tile_means(flow, ev, grid)
+    np.testing.assert_allclose(got, _loop_reference(flow, x, y, grid), rtol=1e-9, atol=1e-9)
+
+
+def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
+    win = sim_window(5, scene="translation", texture="shapes", sensor_size=(64, 96),
+                     window_events=4000)
+    ev = win.events
+    dur = (int(ev.t[-1]) - int(ev.t[0])) * 1e-6
+    truth = win.gt / dur  # px/s
+    hit = np.zeros(ev.sensor_size, bool)
+    hit[ev.y.astype(int), ev.x.astype(int)] = True
+    # the network right on the event pixels, 300 px/s off on the others
+    fake = np.where(hit[..., None], truth, truth + 300.0).astype(np.float32)
+    real_net = dnn_pkg.estimate_flow_dnn(ev)
+
+    def net(events, checkpoint=None, **kw):
+        return dataclasses.replace(real_net, flow=fake)
+
+    starts = []
+    real_opt = mc._optimize
+
+    def spy(prob, theta0, optimizer, max_iter):
+        starts.append((prob.grid, theta0.copy()))
+        return real_opt(prob, theta0, optimizer, max_iter)
+
+    monkeypatch.setattr(dnn_pkg, "estimate_flow_dnn", net)
+    monkeypatch.setattr(mc, "_optimize", spy)
+    res = mc.estimate_flow(ev, init="dnn")
+    grid, theta0 = starts[0]
+    assert (grid.ny, grid.nx) == (8, 8) and len(res.params) == 2
+    support = mc.MultiCMProblem(
+        ev.x.astype(float), ev.y.astype(float), np.linspace(0, 1, len(ev)), ev.sensor_size,
+        grid, support=res.valid, duration_s=dur).empty
+    want = mc._event_tile_means(fake, ev, grid) * dur * (1.0 - support[..., None])
+    np.testing.assert_allclose(theta0.reshape(8, 8, 2), want, rtol=1e-9, atol=1e-9)
+    # the start is the truth's event mean, not pulled 300 px/s off by the empty pixels
+    tiles = mc._event_tile_means(truth.astype(np.float32), ev, grid) * dur
+    full = support < 1.0
+    np.testing.assert_allclose(theta0.reshape(8, 8, 2)[full],
+                               (tiles * (1.0 - support[..., None]))[full], atol=1e-6)
