@@ -25,13 +25,15 @@ products by central differences of the analytic gradient, for comparison (see
 Flow where no event was seen is not a measurement. The result carries a validity mask
 ``valid``: the pixels with event support (:func:`evmotion.methods.flowresult.event_support`:
 at least ``SUPPORT_MIN_EVENTS`` events within ``SUPPORT_RADIUS`` px; an isolated noise event
-supports nothing), which the CLI writes next to the flow. The estimate is also kept from
-extrapolating into the empty tiles (a near-static 1280x720 recording gave up to 19,000 px/s
-in empty regions before): a tile whose neighbourhood has support on less than
-``EMPTY_TILE_SUPPORT`` of its pixels starts each scale towards zero flow instead of at the
-upsampled coarser flow, and an *anchor* term pulls it to zero (the thesis' prior for regions
-with few events, Sec. 6.4.4: "encourage zero flow therein"), in the units of the TV term;
-and L-BFGS-B bounds each tile's displacement over the window by the sensor's longer side.
+supports nothing), which the CLI writes next to the flow. The optimization is the
+thesis' objective alone, so the tiles next to an empty region are free to fit the events
+near them; the flow it extrapolates into empty regions (a near-static 1280x720 recording
+gave up to 19,000 px/s there) is not returned: a pixel without support whose tile
+neighbourhood (3 x 3 finest tiles) has support on less than ``EMPTY_TILE_SUPPORT`` of its
+pixels is brought to rest in proportion (fully at rest where the neighbourhood has none).
+An earlier version pulled such tiles to zero flow inside the objective instead, which also
+dragged the supported tiles beside them (simulated translation: AEE 0.077 -> 0.099 px).
+L-BFGS-B bounds each tile's displacement over the window by the sensor's longer side.
 
 Internal units: flow in px per window, time as the fraction of the window; results are
 converted to px/s.
@@ -64,20 +66,17 @@ from evmotion.methods.options import merge_options
 from evmotion.utils import resolve_options
 
 __all__ = ["FlowResult", "MultiCMOptions", "MultiCMProblem", "estimate_flow",
-           "estimate_flow_sequence"]
+           "estimate_flow_sequence", "rest_where_empty"]
 
 TV_EPS = 1e-2  # 1/s; Charbonnier smoothing of |grad v| so TV is differentiable at 0
 RESTART_PX = 1.0  # px per window; see the restart in estimate_flow
 DNN_INIT_SCALES = 2  # scales multicm still runs from the network's flow (init="dnn")
 TIMESTAMP_OBJECTIVES = ("avg_timestamp", "avg_timestamp_norm")
 OBJECTIVE_NAMES = ("gradient_magnitude", "variance", *TIMESTAMP_OBJECTIVES)
-#: A tile whose neighbourhood (3 x 3 tiles) has event support (``valid``) on less than
-#: this fraction of its pixels is (partly) empty: its emptiness ``e = 1 - fraction / EMPTY_TILE_SUPPORT`` scales its start
-#: (``(1 - e)`` times the coarser scale's flow) and its zero-flow anchor.
+#: A pixel without event support whose tile neighbourhood (3 x 3 finest tiles) has support
+#: on less than this fraction of its pixels is brought to rest in proportion: its flow is
+#: scaled by ``fraction / EMPTY_TILE_SUPPORT`` (see :func:`rest_where_empty`).
 EMPTY_TILE_SUPPORT = 0.02
-#: Weight of the zero-flow anchor relative to the TV term: an empty tile follows its
-#: neighbours' flow (TV pulls from up to four of them) only where events are near.
-ANCHOR_GAIN = 4.0
 REFERENCES = {
     "multi": ((0.0, 1.0), (0.5, 2.0), (1.0, 1.0)),
     "single": ((0.0, 1.0),),
@@ -108,9 +107,6 @@ class MultiCMProblem:
     duration_s : float
         Window duration ``t_N - t_1`` in seconds (default 1): the TV term is measured on
         the flow in px/s, so that its weight does not grow with the window's displacement.
-    support : ndarray (H, W) bool, optional
-        Pixels with event support; tiles with little of it are anchored to zero flow
-        (:meth:`anchor_grad`). None: no anchor.
     options : MultiCMOptions, optional
         The objective's tuning as one object (only the fields of ``PROBLEM_OPTIONS``
         apply; ``n_bins`` None means 5); then no keyword below may be given.
@@ -129,7 +125,7 @@ class MultiCMProblem:
     """
 
     def __init__(self, x, y, s, shape, grid, *, g0=None, p=None, duration_s=1.0,
-                 support=None, options: MultiCMOptions | None = None, **keywords):
+                 options: MultiCMOptions | None = None, **keywords):
         unknown = sorted(set(keywords) - set(PROBLEM_OPTIONS))
         if unknown:
             raise ParameterError(f"MultiCMProblem() got unknown keyword(s) "
@@ -145,13 +141,6 @@ class MultiCMProblem:
         self.wsum = sum(w for _, w in self.refs)
         self.time_aware = time_aware
         self.idx, self.w = tf.event_weights(x, y, grid)
-        # tiles with little event support are anchored to zero flow (anchor_grad)
-        self.empty = np.zeros((grid.ny, grid.nx))
-        if support is not None and grid.ny * grid.nx > 1:
-            # support over the tile and its 8 neighbours: a tile between supported ones
-            # (a gap in a sparse texture) follows them; only empty regions are anchored
-            frac = _box3(_tile_means(np.asarray(support, dtype=np.float64), grid))
-            self.empty = np.clip(1.0 - frac / EMPTY_TILE_SUPPORT, 0.0, 1.0)
         self.p = p
         self.dtn = [np.ascontiguousarray(tr_ - s) for tr_, _ in self.refs]
         if g0 is not None:
@@ -276,36 +265,55 @@ class MultiCMProblem:
             gc[1:, :] += ay[:-1, :]
         return total, g
 
-    def anchor_grad(self, params):
-        """Charbonnier magnitude of the flow of the empty tiles and its gradient.
-
-        ``mean over tiles of e_i sqrt(|v_i|^2 / s^2 + eps^2)`` with ``v_i`` in px/s, ``s``
-        the mean tile spacing in px and ``e_i`` in [0, 1] the tile's emptiness
-        (:data:`EMPTY_TILE_FRACTION`): the cost of the flow falling to zero over one
-        tile, in the units of the TV term, so that one weight serves both.
-        """
-        if not self.empty.any():
-            return 0.0, np.zeros_like(params)
-        n = float(self.grid.ny * self.grid.nx)
-        sy, sx = self.grid.spacing
-        k = 2.0 / (self.duration_s * (sx + sy))
-        a = params * k
-        mag = np.sqrt(a[..., 0] ** 2 + a[..., 1] ** 2 + TV_EPS ** 2)
-        val = float((self.empty * mag).sum() / n)
-        g = (self.empty / mag / n)[..., None] * a * k
-        return val, g
-
     def value_grad(self, theta):
-        """Composite objective ``1/f + lam * (TV + ANCHOR_GAIN * anchor)`` ((4.9) with the
-        zero-flow anchor of the empty tiles) and its gradient (flat)."""
+        """Composite objective ``1/f + lam * TV`` (4.9) and its gradient (flat)."""
         params = theta.reshape(self.grid.ny, self.grid.nx, 2)
         f, gf, _ = self.focus_grad(params)
         f = max(f, 1e-12)
         tv, gtv = self.tv_grad(params)
-        an, gan = self.anchor_grad(params)
-        val = 1.0 / f + self.lam * (tv + ANCHOR_GAIN * an)
-        grad = -gf / (f * f) + self.lam * (gtv + ANCHOR_GAIN * gan)
+        val = 1.0 / f + self.lam * tv
+        grad = -gf / (f * f) + self.lam * gtv
         return val, grad.ravel()
+
+
+def rest_where_empty(flow: np.ndarray, valid: np.ndarray, grid) -> np.ndarray:
+    """Dense flow with the pixels of empty regions brought to rest.
+
+    A pixel without event support (``~valid``) keeps its flow scaled by
+    ``min(1, fraction / EMPTY_TILE_SUPPORT)``, ``fraction`` the share of supported pixels in
+    its tile's 3 x 3 tile neighbourhood: a gap between events keeps the flow the
+    optimization carried into it, a region far from any event is at rest instead of an
+    extrapolation. Supported pixels are returned unchanged.
+
+    Parameters
+    ----------
+    flow : ndarray (H, W, 2)
+        Dense flow, px/s.
+    valid : ndarray (H, W) bool
+        Pixels with event support (:func:`evmotion.methods.flowresult.event_support`).
+    grid : TileGrid
+        The finest scale's tiles.
+
+    Returns
+    -------
+    ndarray (H, W, 2)
+        A new array of ``flow``'s dtype.
+
+    Examples
+    --------
+    >>> flow = np.full((4, 40, 2), 10.0, np.float32)
+    >>> valid = np.zeros((4, 40), bool); valid[:, :2] = True
+    >>> out = rest_where_empty(flow, valid, tf.TileGrid(1, 10, (4, 40)))
+    >>> out[0, [0, 5, 39], 0].tolist()  # supported, a neighbour of support, far from it
+    [10.0, 10.0, 0.0]
+    """
+    out = flow.copy()
+    if valid.all():
+        return out
+    frac = _box3(_tile_means(valid.astype(np.float64), grid))
+    keep = np.clip(frac / EMPTY_TILE_SUPPORT, 0.0, 1.0)[_pixel_tiles(valid.shape, grid)]
+    out[~valid] *= keep[~valid, None].astype(flow.dtype)
+    return out
 
 
 def _box3(a: np.ndarray) -> np.ndarray:
@@ -317,12 +325,18 @@ def _box3(a: np.ndarray) -> np.ndarray:
     return s / c
 
 
-def _tile_means(img: np.ndarray, grid) -> np.ndarray:
-    """Mean of ``img`` (H, W) over the pixels nearest each tile centre, (ny, nx)."""
-    h, w = img.shape
+def _pixel_tiles(shape, grid) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column index ``(ty (H, 1), tx (1, W))`` of the tile each pixel falls in."""
+    h, w = shape
     ty = np.minimum(np.arange(h) * grid.ny // h, grid.ny - 1)
     tx = np.minimum(np.arange(w) * grid.nx // w, grid.nx - 1)
-    key = (ty[:, None] * grid.nx + tx[None, :]).ravel()
+    return ty[:, None], tx[None, :]
+
+
+def _tile_means(img: np.ndarray, grid) -> np.ndarray:
+    """Mean of ``img`` (H, W) over the pixels of each tile (:func:`_pixel_tiles`), (ny, nx)."""
+    ty, tx = _pixel_tiles(img.shape, grid)
+    key = (ty * grid.nx + tx).ravel()
     n = grid.ny * grid.nx
     sums = np.bincount(key, weights=img.ravel(), minlength=n)
     counts = np.bincount(key, minlength=n)
@@ -588,9 +602,10 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     shape = events.sensor_size
     valid = event_support(x, y, shape, SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
     params, prob, all_params, history, timings = _coarse_to_fine(
-        x, y, s, events.p, shape, valid, init, duration_s, o)
+        x, y, s, events.p, shape, init, duration_s, o)
     focus, iwe_dict = _final_iwes(prob, params, x, y, s, shape)
-    flow = (tf.dense_flow(params, shape) / duration_s).astype(np.float32)
+    flow = rest_where_empty((tf.dense_flow(params, shape) / duration_s).astype(np.float32),
+                            valid, prob.grid)
     timings["total_s"] = time.perf_counter() - t_start
     # numba's first-use compilation is not the estimate's time: reported apart
     timings["compile_s"] = compile_seconds() - c_start
@@ -638,7 +653,7 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
                                time_aware=None if o.time_aware == "none" else o.time_aware)
 
 
-def _coarse_to_fine(x, y, s, p, shape, valid, init, duration_s, o: MultiCMOptions):
+def _coarse_to_fine(x, y, s, p, shape, init, duration_s, o: MultiCMOptions):
     """Optimize the tile flow scale by scale (4.9), each scale started from the previous
     one's upsampled flow. Returns the finest params (px per window), the finest scale's
     problem, every scale's params (px/s), the (level, cost) history and per-scale seconds."""
@@ -661,11 +676,8 @@ def _coarse_to_fine(x, y, s, p, shape, valid, init, duration_s, o: MultiCMOption
                               references=o.references,
                               time_aware=o.time_aware if level >= max(ta_from, 2) else None,
                               n_bins=o.n_bins, transport_cell=o.transport_cell, g0=g0,
-                              p=p, duration_s=duration_s, support=valid)
+                              p=p, duration_s=duration_s)
         g0 = prob.g0
-        # few events constrain an empty tile: start it towards rest rather than at the
-        # coarser scale's flow extrapolated into it
-        params = params * (1.0 - prob.empty[..., None])
         theta, val = _optimize(prob, params.ravel(), o.optimizer, o.max_iter)
         if (o.restart and len(all_params) == 1 and all_params[0].size == 2 and grid.nx > 1
                 and np.abs(theta - params.ravel()).max() > RESTART_PX):
