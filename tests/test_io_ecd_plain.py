@@ -106,3 +106,9 @@ def test_lazy_kernels_calling_lazy_kernels():
     assert text == b"1.500000 3 4 1\n2.000001 10 0 0\n"
     assert [a.tolist() for a in ecd.parse_text(text)] == [[3, 10], [4, 0],
                                                           [1_500_000, 2_000_001], [1, 0]]
+
+
+def test_bad_line_in_bytes_names_the_line_without_a_file():
+    # in-memory text (no file to reopen for the line count): still one FormatError
+    with pytest.raises(FormatError, match=r"<bytes>: line 3 has 3 column"):
+        ecd.parse_text(b"0.1 1 2 1\n0.2 1 3 0\n0.3 1 3\n")

@@ -131,15 +131,16 @@ def _line_error(path: Path, data: bytes, file_offset: int, bad: int, code: int, 
                 ) -> FormatError:
     line_end = data.find(b"\n", bad)
     text = data[bad: line_end if line_end >= 0 else len(data)].decode("latin-1").strip()
-    with open(path, "rb") as fh:
-        lineno = 1
-        remaining = file_offset + bad
-        while remaining > 0:
-            blk = fh.read(min(remaining, 1 << 24))
-            if not blk:
-                break
-            lineno += blk.count(b"\n")
-            remaining -= len(blk)
+    lineno = 1 + data.count(b"\n", 0, bad)
+    if file_offset > 0:  # a chunk of a file: count the lines before it in the file
+        with open(path, "rb") as fh:
+            remaining = file_offset
+            while remaining > 0:
+                blk = fh.read(min(remaining, 1 << 24))
+                if not blk:
+                    break
+                lineno += blk.count(b"\n")
+                remaining -= len(blk)
     if code == _ERR_COLUMNS:
         msg = f"line {lineno} has {cols} column(s), expected 4 ('t x y p'): {text[:80]!r}"
     else:
