@@ -164,3 +164,40 @@ def test_timestamp_objectives_gradient(objective):
     e = 1e-6
     fd = (prob.value_grad(th + e * d)[0] - prob.value_grad(th - e * d)[0]) / (2 * e)
     assert g @ d == pytest.approx(fd, rel=1e-4)
+
+
+def test_large_displacement_window_is_not_stalled_by_the_box():
+    """A simulated translation over 4 GT frames (89 ms, up to 22.7 px): given to L-BFGS-B
+    as bounds, the sensor-size box made its first step the raw gradient's length and the
+    single-tile scales stalled at zero flow (AEE 0.209 px); the wall of ``_boxed`` keeps
+    the unit first step (0.046 px)."""
+    from evmotion.sim import simulate
+
+    sim = simulate("translation", duration_s=0.3, seed=0, frame_rate=45.0,
+                   show_progress=False)
+    w = sim.events.windows_at(sim.gt.frame_times_us, dt=4, drop_empty=True)[1]
+    full = sim.events.window(w)
+    win = full[np.linspace(0, len(full) - 1, 30_000).astype(np.int64)]
+    res = estimate_flow(win)
+    gt = sim.gt.displacement(w.t0, w.t1)
+    d = res.flow.astype(np.float64) * (w.t1 - w.t0) * 1e-6
+    hit = np.zeros(full.sensor_size, bool)
+    hit[full.y.astype(int), full.x.astype(int)] = True
+    assert np.linalg.norm(d - gt, axis=-1)[hit].mean() < 0.1
+    assert res.history[0][1] < 0.5  # the single tile already focuses (was 0.997)
+
+
+def test_boxed_objective_never_evaluates_outside_the_box():
+    from evmotion.methods.multicm import _boxed
+
+    seen = []
+
+    def vg(th):
+        seen.append(th.copy())
+        return float(th @ th), 2.0 * th
+
+    f = _boxed(vg, 2.0)
+    val, grad = f(np.array([1.0, 5.0, -7.0]))
+    assert np.abs(np.concatenate(seen)).max() <= 2.0
+    assert val == pytest.approx(1 + 4 + 4 + 3 ** 2 + 5 ** 2)
+    np.testing.assert_allclose(grad, [2.0, 6.0, -10.0])
