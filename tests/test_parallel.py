@@ -328,10 +328,23 @@ def test_dask_batches_short_windows_and_keeps_failures_per_window(tmp_path):
     distributed = pytest.importorskip("distributed")
     ev = _events(4000)
     windows = [(k * 2000, (k + 1) * 2000) for k in range(50)]
+    from distributed.diagnostics.plugin import SchedulerPlugin
+
+    class Updates(SchedulerPlugin):
+        """The number of tasks in each graph update the scheduler receives."""
+
+        def __init__(self):
+            self.sizes = []
+
+        def update_graph(self, scheduler, *, keys, **kwargs):
+            self.sizes.append(len(keys))
+
+    updates = Updates()
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
                                   protocol="tcp", dashboard_address=":0") as cluster, \
             distributed.Client(cluster) as client, \
             distributed.get_task_stream(client) as stream:
+        cluster.scheduler.add_plugin(updates)
         res = map_windows(short_window, ev, windows, scheduler=client, with_window=True,
                           progress=False, resume_dir=tmp_path)
     assert [r.index for r in res] == list(range(50))
@@ -342,4 +355,6 @@ def test_dask_batches_short_windows_and_keeps_failures_per_window(tmp_path):
     assert all(r.value == expected[r.index] for r in res if r.ok)
     tasks = len(stream.data)
     assert tasks < 40, tasks  # batched (without batching: 50 tasks)
+    # the first fill (2 tasks per worker thread) reaches the scheduler as one graph update
+    assert updates.sizes[0] == 4 and sum(updates.sizes) == tasks, updates.sizes
     assert len(list(tmp_path.glob("*.pkl"))) == 48
