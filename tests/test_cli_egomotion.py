@@ -98,3 +98,45 @@ def test_segment_cli(rec, tmp_path, capsys):
     assert (out / "clusters.csv").exists() and (out / "window_00000.png").exists()
     with np.load(out / "labels.npz") as z:
         assert z["window_00000"].max() <= 1
+
+
+def test_egomotion_keeps_images_only_of_windows_drawn(rec):
+    """A window past the last PNG leaves out its IWEs and maps (nothing reads them; a
+    worker need not send them back) with the estimate unchanged."""
+    from evmotion.cli.egomotion import _window_job
+    from evmotion.io import read_events
+    from evmotion.methods.egomotion import estimate_egomotion
+
+    ev = read_events(rec)
+    w0, w1 = ev.windows_by_duration(50_000)[:2]
+    kw = dict(warp="translation", objective="variance", reg="divergence", weight=None,
+              optimizer="bfgs", K=None, t_ref="start", seed=0, dataset=None,
+              last_png_t0_us=w0.t0)
+    drawn = _window_job(ev.window(w0), w0.t0, w0.t1, **kw)
+    assert drawn.iwe_after.shape == drawn.maps["diwe"].shape == ev.sensor_size
+    left = _window_job(ev.window(w1), w1.t0, w1.t1, **kw)
+    assert left.iwe_before is None and left.iwe_after is None and left.maps == {}
+    full = estimate_egomotion(ev.window(w1), "translation", regularizer="divergence")
+    assert left.params.tobytes() == full.params.tobytes() and left.cost == full.cost
+    assert left.diagnostics == full.diagnostics
+    none = _window_job(ev.window(w0), w0.t0, w0.t1, **{**kw, "last_png_t0_us": None})
+    assert none.iwe_after is None
+
+
+def test_egomotion_png_panels_of_first_windows_less_failed(rec, tmp_path):
+    """--max-png N draws the first N windows; one that failed has no panel and does not
+    pass its turn to a later window (whose IWEs were not kept)."""
+    from evmotion.cli.egomotion import _window_job, write_outputs
+    from evmotion.io import read_events
+
+    ev = read_events(rec)
+    w0, w1 = ev.windows_by_duration(50_000)[:2]
+    kw = dict(warp="translation", objective="variance", reg=None, weight=None,
+              optimizer="bfgs", K=None, t_ref="start", seed=0, dataset=None)
+    r1 = _window_job(ev.window(w1), w1.t0, w1.t1, **kw, last_png_t0_us=w0.t0)
+    rows = write_outputs(tmp_path / "a", [(w0, None, "RuntimeError: x"), (w1, r1, None)], 1)
+    assert [r["window"] for r in rows] == [w1.index]
+    assert not list((tmp_path / "a").glob("*.png"))
+    r1 = _window_job(ev.window(w1), w1.t0, w1.t1, **kw, last_png_t0_us=w1.t0)
+    write_outputs(tmp_path / "b", [(w0, None, "RuntimeError: x"), (w1, r1, None)], 2)
+    assert [p.name for p in (tmp_path / "b").glob("*.png")] == [f"window_{w1.index:05d}.png"]

@@ -283,22 +283,22 @@ def test_batches_of_short_windows_fill_the_target_and_shrink_at_the_end():
     from evmotion.parallel import BATCH_TARGET_S, _Batcher, _Task
 
     tasks = [_Task(k, 10 * k, 10 * k + 10) for k in range(60)]
-    out = _batches(_Batcher(tasks, limit=4), elapsed_s=0.04)
+    window_s = BATCH_TARGET_S / 6.5
+    out = _batches(_Batcher(tasks, limit=4), elapsed_s=window_s)
     assert [k for b in out for k in b] == list(range(60))  # every window once, in order
     sizes = [len(b) for b in out]
-    assert sizes[:4] == [1, 1, 1, 1]  # nothing known yet
-    assert max(sizes) == int(BATCH_TARGET_S / 0.04) == 6
-    assert sizes[-4:] == [1, 1, 1, 1]  # the workers finish together
-    assert sizes[4:] == sorted(sizes[4:], reverse=True)
-    assert len(out) < 30
+    # nothing known yet: one window a task; then the 6 windows that fit in the target;
+    # then the windows left over the 4 tasks in flight, rounded up (20 left: 5, 15: 4,
+    # ...), so that the last tasks are single windows and the workers finish together
+    assert sizes == [1, 1, 1, 1, 6, 6, 6, 6, 6, 6, 5, 4, 3, 2, 2, 1, 1, 1, 1]
     # seconds spent compiling kernels are left out of the mean
-    assert _batches(_Batcher(tasks, limit=4), elapsed_s=0.04, compile_s=2.0) == out
+    assert _batches(_Batcher(tasks, limit=4), elapsed_s=window_s, compile_s=2.0) == out
     # each fresh worker's first window (imports, cached kernels loaded) does not stop it
     slow_first = _Batcher(tasks, limit=4)
     for t in [slow_first.next()[0] for _ in range(2)]:
         slow_first.record(WindowResult(t.index, t.t0, t.t1, elapsed_s=1.5))
-    sizes = [len(b) for b in _batches(slow_first, elapsed_s=0.04)]
-    assert max(sizes) == 6 and len(sizes) < 30
+    sizes = [len(b) for b in _batches(slow_first, elapsed_s=window_s)]
+    assert max(sizes) == 6 and len(sizes) < 25
     # windows as long as the target go one a task, as without batching
     long = _batches(_Batcher(tasks, limit=4), elapsed_s=BATCH_TARGET_S)
     assert long == [[k] for k in range(60)]
@@ -328,10 +328,23 @@ def test_dask_batches_short_windows_and_keeps_failures_per_window(tmp_path):
     distributed = pytest.importorskip("distributed")
     ev = _events(4000)
     windows = [(k * 2000, (k + 1) * 2000) for k in range(50)]
+    from distributed.diagnostics.plugin import SchedulerPlugin
+
+    class Updates(SchedulerPlugin):
+        """The number of tasks in each graph update the scheduler receives."""
+
+        def __init__(self):
+            self.sizes = []
+
+        def update_graph(self, scheduler, *, keys, **kwargs):
+            self.sizes.append(len(keys))
+
+    updates = Updates()
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
                                   protocol="tcp", dashboard_address=":0") as cluster, \
             distributed.Client(cluster) as client, \
             distributed.get_task_stream(client) as stream:
+        cluster.scheduler.add_plugin(updates)
         res = map_windows(short_window, ev, windows, scheduler=client, with_window=True,
                           progress=False, resume_dir=tmp_path)
     assert [r.index for r in res] == list(range(50))
@@ -342,4 +355,6 @@ def test_dask_batches_short_windows_and_keeps_failures_per_window(tmp_path):
     assert all(r.value == expected[r.index] for r in res if r.ok)
     tasks = len(stream.data)
     assert tasks < 40, tasks  # batched (without batching: 50 tasks)
+    # the first fill (2 tasks per worker thread) reaches the scheduler as one graph update
+    assert updates.sizes[0] == 4 and sum(updates.sizes) == tasks, updates.sizes
     assert len(list(tmp_path.glob("*.pkl"))) == 48

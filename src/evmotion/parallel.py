@@ -368,10 +368,10 @@ def _run_batch(fn: Callable, payloads: list, tasks: list[_Task], with_window: bo
 
 
 #: Seconds of work one Dask task is given when windows are shorter than this: as many
-#: consecutive windows as fit, at their median time. A task costs a few ms of CPU in the client and scheduler
-#: and in the worker (about 4 and 2 to 4 ms, benchmarks/results/cluster.md): batching keeps
-#: that cost a few per cent of the work.
-BATCH_TARGET_S = 0.25
+#: consecutive windows as fit, at their median time. A task costs a few ms of CPU in the
+#: client and scheduler and in the worker (about 4 and 2 to 4 ms,
+#: benchmarks/results/cluster.md): batching keeps that cost about 1 % of the work.
+BATCH_TARGET_S = 0.5
 
 
 class _Batcher:
@@ -381,8 +381,8 @@ class _Batcher:
     windows as fit in :data:`BATCH_TARGET_S` at the median time of the last 64 windows
     (compile time left out; the median, because each fresh worker's first window also
     pays for imports and loading cached kernels), but never more than the windows left
-    over ``limit`` (the tasks kept in flight), so that the last batches are short and the
-    workers finish together. Windows
+    over ``limit`` (the tasks kept in flight), rounded up, so that the last batches are
+    short and the workers finish together. Windows
     of ``BATCH_TARGET_S`` or more go one a task, as without batching. The windows of a
     batch whose task broke (a result that does not pickle, a worker that died) go again
     one a task, so that the failure stays the window's own.
@@ -405,7 +405,7 @@ class _Batcher:
             return 1
         window_s = statistics.median(self.seconds)
         fit = int(BATCH_TARGET_S / window_s) if window_s > 0 else len(self.queue)
-        return max(1, min(fit, len(self.queue) // self.limit))
+        return max(1, min(fit, -(-len(self.queue) // self.limit)))
 
     def next(self) -> list[_Task]:
         if self.retry:
@@ -429,13 +429,20 @@ def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
     futures: dict[str, list[_Task]] = {}
 
     def refill(stream=None) -> list:
-        new = []
-        while len(futures) < limit and (batch := batcher.next()):
-            # pure=False: the same window must run again on a rerun, never be deduplicated.
-            fut = client.submit(_run_batch, fn, [_payload(source, t) for t in batch], batch,
-                                with_window, read_kwargs, pure=False)
+        batches = []
+        while len(futures) + len(batches) < limit and (batch := batcher.next()):
+            batches.append(batch)
+        if not batches:
+            return []
+        # One graph update for all the new tasks (the first fill is one per slot): separate
+        # submits cost the scheduler one update each and reached the second worker 10 ms
+        # later. pure=False: the same window must run again on a rerun, never be deduplicated.
+        n = len(batches)
+        new = client.map(_run_batch, [fn] * n,
+                         [[_payload(source, t) for t in batch] for batch in batches], batches,
+                         [with_window] * n, [read_kwargs] * n, pure=False)
+        for fut, batch in zip(new, batches, strict=True):
             futures[fut.key] = batch
-            new.append(fut)
             if stream is not None:
                 stream.add(fut)
         return new

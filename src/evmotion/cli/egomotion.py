@@ -136,20 +136,28 @@ def load_events_and_camera(args):
     return events, cam
 
 
-def _window_job(events, *, warp, objective, reg, weight, optimizer, K, t_ref, seed, dataset,
-                maps, init=None):
+def _window_job(events, t0_us: int, t1_us: int, *, warp, objective, reg, weight, optimizer, K,
+                t_ref, seed, dataset, last_png_t0_us: int | None, init=None):
+    """Estimate one window ``[t0_us, t1_us)``. Only the windows that get a PNG panel (those
+    starting at or before ``last_png_t0_us``, the start of the last one; None: no panel)
+    compute the DIWE/IWA maps and keep their IWEs: the others' results leave them out
+    (``iwe_before``/``iwe_after`` None), since nothing reads them and they are 0.7 MB a
+    window of 240 x 180 pixels to send back from a worker and to hold until the outputs
+    are written."""
+    import dataclasses
     import warnings
 
     from evmotion.errors import EvmotionWarning
     from evmotion.methods.egomotion import estimate_egomotion
 
+    png = last_png_t0_us is not None and t0_us <= last_png_t0_us
     # the result carries its warnings (diagnostics["warnings"]); run() prints them once
     # per window, also for results from worker processes
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", EvmotionWarning)
-        return estimate_egomotion(events, warp, objective, reg, weight, optimizer, K=K,
-                                  t_ref=t_ref, init=init, seed=seed, dataset=dataset,
-                                  maps=maps)
+        r = estimate_egomotion(events, warp, objective, reg, weight, optimizer, K=K,
+                               t_ref=t_ref, init=init, seed=seed, dataset=dataset, maps=png)
+    return r if png else dataclasses.replace(r, iwe_before=None, iwe_after=None)
 
 
 def run(args) -> int:
@@ -172,20 +180,22 @@ def run(args) -> int:
     windows = select_windows(args, events, file=args.file, min_events=10,
                              n_events=args.window_events, duration_us=args.window_us)
     K = None if cam is None else cam.K
+    # windows are in time order: the first --max-png are those starting by the last one's t0
+    last_png = windows[min(args.max_png, len(windows)) - 1].t0 if args.max_png > 0 else None
     job = functools.partial(_window_job, warp=args.warp, objective=args.objective,
                             reg=args.reg, weight=args.weight, optimizer=args.optimizer, K=K,
                             t_ref=args.t_ref, seed=args.seed, dataset=args.dataset,
-                            maps=args.max_png > 0)
+                            last_png_t0_us=last_png)
     if args.warm_start:
         results, init = [], None
         for w in progress(windows, desc="egomotion", unit="win"):
-            r = job(events.window(w), init=init)
+            r = job(events.window(w), w.t0, w.t1, init=init)
             init = r.params
             results.append((w, r, None))
     else:
         with scheduler_client(args.scheduler) as client:
             out = map_windows(job, events, windows, workers=args.workers, scheduler=client,
-                              desc="egomotion")
+                              desc="egomotion", with_window=True)
         results = [(w, r.value, r.error) for w, r in zip(windows, out, strict=True)]
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -212,8 +222,9 @@ def run(args) -> int:
 
 def write_outputs(out_dir: Path, results, max_png: int, grid: str | None = None
                   ) -> list[dict]:
-    """params.csv, params.h5 and PNG panels; returns the JSON rows. ``grid`` (which pixel
-    grid the events were on) goes into params.h5's attributes."""
+    """params.csv, params.h5 and PNG panels of the first ``max_png`` windows (not of those
+    that failed); returns the JSON rows. ``grid`` (which pixel grid the events were on)
+    goes into params.h5's attributes."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.methods.diagnostics import POOR_FIT_SHARE
     from evmotion.utils import atomic_write_text
@@ -274,7 +285,10 @@ def write_outputs(out_dir: Path, results, max_png: int, grid: str | None = None
         {k: u for k, (u, _) in cols.items()}, {k: m for k, (_, m) in cols.items()},
         {"method": "egomotion", "warp": first.warp, "regularizer": str(first.regularizer),
          "objective": first.objective, "grid": "not recorded" if grid is None else grid}))
-    for w, r in ok[:max(max_png, 0)]:
+    # the first max_png windows less those that failed: the first ok ones (ok keeps the
+    # windows' order); later windows kept no IWE (_window_job)
+    drawn = sum(err is None and r is not None for _, r, err in results[:max(max_png, 0)])
+    for w, r in ok[:drawn]:
         panels = [images.iwe_to_rgb(r.iwe_before), images.iwe_to_rgb(r.iwe_after)]
         titles = ["IWE identity", "IWE " + ", ".join(
             f"{n}={v:.3g}" for n, v in zip(names, r.params, strict=True))]

@@ -117,8 +117,9 @@ class EgomotionResult:
     n_events : int
     cost, focus, penalty : float
         ``J``, ``G/G0`` and ``lambda R`` at ``params``.
-    iwe_before, iwe_after : ndarray (H, W)
-        IWE with the identity warp and with ``params``.
+    iwe_before, iwe_after : ndarray (H, W) or None
+        IWE with the identity warp and with ``params``; None where a caller dropped them
+        (``evmotion egomotion`` keeps them only for the windows it draws a PNG panel of).
     history : ndarray
         Cost per optimizer iteration.
     maps : dict of ndarray
@@ -154,8 +155,8 @@ class EgomotionResult:
     cost: float
     focus: float
     penalty: float
-    iwe_before: np.ndarray = field(repr=False)
-    iwe_after: np.ndarray = field(repr=False)
+    iwe_before: np.ndarray | None = field(repr=False)
+    iwe_after: np.ndarray | None = field(repr=False)
     history: np.ndarray = field(repr=False)
     maps: dict = field(repr=False, default_factory=dict)
     timings: dict = field(default_factory=dict)
