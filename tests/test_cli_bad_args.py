@@ -488,6 +488,24 @@ def test_command_takes_ctrl_c_from_the_package_first_line(argv0, expected):
     assert out.stdout.strip() == expected, out.stderr
 
 
+@pytest.mark.parametrize("argv0,preset,expected", [("/usr/bin/evmotion", None, "1"),
+                                                    ("/usr/bin/evmotion", "3", "3"),
+                                                    ("/usr/bin/myscript", None, "None")])
+def test_command_runs_one_blas_thread_unless_told(argv0, preset, expected):
+    """The evmotion command sets OPENBLAS_NUM_THREADS=1 before numpy loads (the spinning
+    threads doubled multicm's CPU for no wall time); a value the user set stays, and a
+    program importing evmotion as a library is left alone."""
+    code = (f"import sys; sys.argv[0] = {argv0!r}; import evmotion, os; "
+            "print(os.environ.get('OPENBLAS_NUM_THREADS'))")
+    env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env.pop("OPENBLAS_NUM_THREADS", None)
+    if preset is not None:
+        env["OPENBLAS_NUM_THREADS"] = preset
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=60)
+    assert out.stdout.strip() == expected, out.stderr
+
+
 def _popen(argv):
     env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     return subprocess.Popen([sys.executable, "-m", "evmotion", *argv], stdout=subprocess.PIPE,
