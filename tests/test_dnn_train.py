@@ -120,3 +120,38 @@ def test_init_weights_starts_from_a_checkpoint(tmp_path):
     got = _weights(tmp_path / "run" / "model.pt")
     for k, v in start.state_dict().items():
         torch.testing.assert_close(got[k], v, rtol=0, atol=1e-6)
+
+
+def test_transpose_window_swaps_axes_and_flow_components():
+    from evmotion.methods.dnn.data import transpose_window
+
+    win = sim_window(4, scene="translation", sensor_size=(48, 64), window_events=3000)
+    t = transpose_window(win)
+    assert t.events.sensor_size == (64, 48) and t.gt.shape == (64, 48, 2)
+    np.testing.assert_array_equal(t.events.x, win.events.y)
+    # the swapped ground truth is the flow of the transposed events: the loss there equals
+    # the loss of the original window at its ground truth (an unswapped (u, v) would not)
+    lo = window_problem(win.events).value_grad(win.gt.astype(np.float64).ravel())[0]
+    lt = window_problem(t.events).value_grad(t.gt.astype(np.float64).ravel())[0]
+    lbad = window_problem(t.events).value_grad(
+        win.gt.transpose(1, 0, 2).astype(np.float64).ravel())[0]
+    assert lt == pytest.approx(lo, rel=1e-9) and lbad > 1.2 * lt
+
+
+def test_transpose_and_kaiming_options(tmp_path):
+    from evmotion.errors import ParameterError
+    from evmotion.methods.dnn.train import _kaiming_init
+
+    torch.manual_seed(0)
+    net = EVFlowNet(width=0.0625)
+    heads = [h.weight.detach().clone() for h in net.heads]
+    _kaiming_init(net)
+    assert all(float(m.bias.abs().max()) == 0.0 for m in net.enc.modules()
+               if isinstance(m, torch.nn.Conv2d))
+    for h, w in zip(net.heads, heads, strict=True):
+        assert torch.equal(h.weight, w)  # the flow heads keep their near-zero start
+    with pytest.raises(ParameterError, match="init"):
+        TrainConfig(init="xavier").check()
+    s = train(TrainConfig(epochs=1, transpose=True, init="kaiming", sim_duration_s=0.02,
+                          **TINY), tmp_path)
+    assert np.isfinite(s["train_loss"]) and np.isfinite(s["val_AEE_px"])

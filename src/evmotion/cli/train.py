@@ -59,6 +59,16 @@ def add_parser(sub) -> None:
     p.add_argument("--window-events", type=int_range(100), default=40_000)
     p.add_argument("--crop", type=_size, default=(176, 240), metavar="HxW",
                    help="training crop, multiples of 16 (default 176x240)")
+    p.add_argument("--sim-duration", type=positive_float(), default=0.05, metavar="S",
+                   help="length of each simulated recording in s; the window is its middle "
+                        "--window-events events (scaled to the crop), fewer if it has fewer "
+                        "(default 0.05)")
+    p.add_argument("--transpose", action="store_true",
+                   help="mirror half the training windows about the diagonal (x <-> y) so that "
+                        "both flow components get the same statistics")
+    p.add_argument("--init", default="default", choices=("default", "kaiming"),
+                   help="convolution weight initialization (default: torch's; kaiming: "
+                        "He-normal, zero biases: keeps the ReLUs alive)")
     p.add_argument("--objective", default="gradient_magnitude",
                    choices=("gradient_magnitude", "variance", "avg_timestamp",
                             "avg_timestamp_norm"))
@@ -89,7 +99,8 @@ def run(args) -> int:
                       lr=args.lr, lr_decay=args.lr_decay, sim_windows=args.sim_windows,
                       recordings=list(args.recordings), val_sim=args.val_sim,
                       val_recordings=list(args.val), window_events=args.window_events,
-                      crop=tuple(args.crop), objective=args.objective, lam=args.lam,
+                      crop=tuple(args.crop), sim_duration_s=args.sim_duration,
+                      transpose=args.transpose, init=args.init, objective=args.objective, lam=args.lam,
                       seed=args.seed, threads=args.threads, device=args.device,
                       max_steps_per_epoch=args.max_steps, init_weights=args.init_weights)
     # the progress bar follows evmotion.utils.progress: on a terminal, or EVMOTION_PROGRESS=1

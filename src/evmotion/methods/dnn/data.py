@@ -17,7 +17,8 @@ import numpy as np
 from evmotion.errors import EvmotionError, ParameterError
 from evmotion.events import EventArray
 
-__all__ = ["SIM_SCENES", "TrainWindow", "crop_window", "recording_windows", "sim_window"]
+__all__ = ["SIM_SCENES", "TrainWindow", "crop_window", "recording_windows", "sim_window",
+           "transpose_window"]
 
 SIM_SCENES = ("translation", "rotation", "zoom", "se2", "inplane", "similarity", "affine",
               "homography", "object")
@@ -123,3 +124,27 @@ def crop_window(win: TrainWindow, crop: tuple[int, int], rng: np.random.Generato
         gt = None if win.gt is None else win.gt[oy:oy + ch, ox:ox + cw]
         return TrainWindow(sub, gt, f"{win.name}@{oy},{ox}")
     return None
+
+
+def transpose_window(win: TrainWindow) -> TrainWindow:
+    """The window mirrored about the image diagonal: x and y swapped, the sensor ``(h, w)``
+    becomes ``(w, h)`` and the ground truth's (u, v) becomes (v, u).
+
+    Training augmentation: the simulated scenes and the recordings move more horizontally
+    than vertically (e.g. the translation default 220 / -130 px/s, wider than tall
+    sensors), and a network trained on them learned u only (gain of v on the held-out
+    windows 0.05); transposing half the windows gives both axes the same statistics.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=np.array([3]), y=np.array([1]), t=np.array([0]), p=np.array([1]),
+    ...                 sensor_size=(2, 5))
+    >>> w = transpose_window(TrainWindow(ev, np.zeros((2, 5, 2)), "a"))
+    >>> (int(w.events.x[0]), int(w.events.y[0]), w.events.sensor_size, w.gt.shape)
+    (1, 3, (5, 2), (5, 2, 2))
+    """
+    ev = win.events
+    h, w = ev.sensor_size
+    sub = EventArray(x=ev.y, y=ev.x, t=ev.t, p=ev.p, sensor_size=(w, h), validate=False)
+    gt = None if win.gt is None else np.ascontiguousarray(win.gt.transpose(1, 0, 2)[..., ::-1])
+    return TrainWindow(sub, gt, f"{win.name}:T")
