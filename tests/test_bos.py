@@ -215,9 +215,14 @@ def test_recovery_normalized_direction_and_rescale(case):
     assert res.calibrated
     _, ratio = _errors(res.flow, d)
     assert 0.8 < ratio < 1.15
-    # the same solution (up to rounding: C only scales the normalized measurement) rescaled
+    # the same path (C only scales the normalized measurement) rescaled: checked over the
+    # first iterations, since the normalized problem is flat along the flow's magnitude and
+    # rounding differences drift along it later (numba 0.68 / numpy 2.4: 2.7 % of the flow
+    # after 150 iterations, 1e-5 px/s after 20)
+    kw["iterations"] = 20
+    raw, res = estimate_bos(ev, f0, **kw), estimate_bos(ev, f0, contrast_threshold=C, **kw)
     diff = np.abs(res.flow - raw.flow * res.scale)
-    assert np.median(diff) < 0.02 * np.median(np.abs(res.flow))
+    assert diff.max() < 1e-4 * np.median(np.abs(res.flow))
 
 
 def test_poisson_beats_flow_in_angle(case):

@@ -22,14 +22,11 @@ import numpy as np
 
 from evmotion.errors import EvmotionError, ParameterError
 from evmotion.io.bosinput import BosInput
+from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_support
 
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "bos_valid", "sequence_contrast_threshold",
            "solve_bos_input", "write_bos_output"]
 
-#: Event support of the flow, the rule of multicm (``methods.multicm.SUPPORT_*``; not
-#: imported: that module takes a second to load): at least 2 events within a 5-px square.
-SUPPORT_RADIUS = 2
-SUPPORT_MIN_EVENTS = 2
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
 BOS_EVAL_OUT_PX = 1.0
@@ -154,7 +151,7 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
 
 def bos_valid(events, t0_us: int, t1_us: int, roi_valid: np.ndarray) -> np.ndarray:
     """Validity mask of a BOS window: inside the ROI (``roi_valid``, (H, W) bool) and
-    supported by the window's events (:func:`evmotion.methods.diagnostics.event_support`,
+    supported by the window's events (:func:`evmotion.methods.flowresult.event_support`,
     at least :data:`SUPPORT_MIN_EVENTS` within :data:`SUPPORT_RADIUS` px). Outside it the
     flow is the regularizer's interpolation, not a measurement.
 
@@ -166,7 +163,6 @@ def bos_valid(events, t0_us: int, t1_us: int, roi_valid: np.ndarray) -> np.ndarr
     >>> int(bos_valid(ev, 0, 10, np.ones((5, 5), bool)).sum())
     25
     """
-    from evmotion.methods.diagnostics import event_support
 
     win = events.slice_time(int(t0_us), int(t1_us))
     support = event_support(win.x, win.y, roi_valid.shape, SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
