@@ -146,7 +146,7 @@ def test_transpose_and_kaiming_options(tmp_path):
     net = EVFlowNet(width=0.0625)
     heads = [h.weight.detach().clone() for h in net.heads]
     _kaiming_init(net)
-    assert all(float(m.bias.abs().max()) == 0.0 for m in net.enc.modules()
+    assert all(float(m.bias.detach().abs().max()) == 0.0 for m in net.enc.modules()
                if isinstance(m, torch.nn.Conv2d))
     for h, w in zip(net.heads, heads, strict=True):
         assert torch.equal(h.weight, w)  # the flow heads keep their near-zero start
