@@ -17,8 +17,8 @@ Pipeline for one window of events (times ``t_1 .. t_N``, ``t_mid = (t_1 + t_N) /
   objective ``1/f + lam * TV`` (4.9).
 
 Optimizer: L-BFGS-B (scipy) with the analytic gradient, at most ``max_iter`` iterations
-per scale (default 20), each tile's displacement over the window bounded by the sensor's
-longer side. ``optimizer="newton-cg"`` runs scipy's Newton-CG with Hessian-vector
+per scale (default 20), each tile's displacement over the window kept within the sensor's
+longer side by a wall around the objective (:func:`_boxed`). ``optimizer="newton-cg"`` runs scipy's Newton-CG with Hessian-vector
 products by central differences of the analytic gradient, for comparison (see
 ``benchmarks/bench_multicm_accuracy.py``).
 
@@ -33,7 +33,6 @@ neighbourhood (3 x 3 finest tiles) has support on less than ``EMPTY_TILE_SUPPORT
 pixels is brought to rest in proportion (fully at rest where the neighbourhood has none).
 An earlier version pulled such tiles to zero flow inside the objective instead, which also
 dragged the supported tiles beside them (simulated translation: AEE 0.077 -> 0.099 px).
-L-BFGS-B bounds each tile's displacement over the window by the sensor's longer side.
 
 Internal units: flow in px per window, time as the fraction of the window; results are
 converted to px/s.
@@ -346,7 +345,7 @@ def _tile_means(img: np.ndarray, grid) -> np.ndarray:
 def _event_tile_means(flow: np.ndarray, events: EventArray, grid) -> np.ndarray:
     """Tile flow ``(ny, nx, 2)``: the mean of a dense ``flow`` (H, W, 2) over the events of
     each tile (a pixel counts once per event on it); zero flow in a tile without events
-    (multicm's prior where nothing is seen, see the module docstring).
+    (nothing there to fit the network's flow to).
 
     Examples
     --------
@@ -357,9 +356,8 @@ def _event_tile_means(flow: np.ndarray, events: EventArray, grid) -> np.ndarray:
     [0.0, 2.0]
     """
     h, w = flow.shape[:2]
-    ty = np.minimum(np.arange(h) * grid.ny // h, grid.ny - 1)
-    tx = np.minimum(np.arange(w) * grid.nx // w, grid.nx - 1)
-    key = (ty[:, None] * grid.nx + tx[None, :]).ravel()
+    ty, tx = _pixel_tiles((h, w), grid)
+    key = (ty * grid.nx + tx).ravel()
     n = grid.ny * grid.nx
     xi = np.clip(np.rint(np.asarray(events.x, dtype=np.float64)), 0, w - 1).astype(np.int64)
     yi = np.clip(np.rint(np.asarray(events.y, dtype=np.float64)), 0, h - 1).astype(np.int64)
@@ -727,7 +725,9 @@ def _optimize(prob: MultiCMProblem, theta0: np.ndarray, optimizer: str, max_iter
                        jac=True, method="L-BFGS-B",
                        options={"maxiter": max_iter, "maxfun": 2 * max_iter + 10})
         theta = np.clip(res.x, -vmax, vmax)
-        return theta, float(prob.value_grad(theta)[0])
+        # res.fun is the objective at res.x (the wall adds nothing inside the box)
+        return theta, float(res.fun if np.array_equal(theta, res.x)
+                            else prob.value_grad(theta)[0])
 
     def fun(th):
         return prob.value_grad(th)
@@ -738,7 +738,7 @@ def _optimize(prob: MultiCMProblem, theta0: np.ndarray, optimizer: str, max_iter
 
     res = minimize(fun, theta0, jac=True, hessp=hessp, method="Newton-CG",
                    options={"maxiter": max_iter, "xtol": 1e-6})
-    return res.x, float(prob.value_grad(res.x)[0])
+    return res.x, float(res.fun)
 
 
 def _boxed(value_grad, vmax: float):
