@@ -73,6 +73,22 @@ def test_bad_checkpoint_is_one_line_error(tmp_path):
         load_model(tmp_path / "missing.pt")
 
 
+def test_checkpoint_keeps_its_norm_and_older_ones_load_without(tmp_path, window):
+    torch.manual_seed(1)
+    for norm in ("batch", "none"):
+        net = EVFlowNet(width=0.0625, norm=norm)
+        save_model(tmp_path / f"{norm}.pt", net)
+        assert load_model(tmp_path / f"{norm}.pt").norm == norm
+    # a checkpoint written before batch norm: no "norm" key, no batch-norm tensors
+    blob = torch.load(tmp_path / "none.pt", weights_only=True)
+    del blob["norm"]
+    torch.save(blob, tmp_path / "old.pt")
+    old = load_model(tmp_path / "old.pt")
+    assert old.norm == "none"
+    np.testing.assert_array_equal(predict_displacement(window.events, tmp_path / "old.pt"),
+                                  predict_displacement(window.events, tmp_path / "none.pt"))
+
+
 def test_shipped_checkpoint_is_small_and_sharpens_a_simulated_window():
     assert DEFAULT_CHECKPOINT.is_file()
     assert DEFAULT_CHECKPOINT.stat().st_size <= 10 * 2 ** 20

@@ -26,20 +26,25 @@ from evmotion.methods.dnn.voxel import (  # noqa: E402
 )
 
 
-def _random_net(width: float, seed: int) -> EVFlowNet:
+def _random_net(width: float, seed: int, norm: str = "batch") -> EVFlowNet:
     torch.manual_seed(seed)
-    net = EVFlowNet(width=width)
+    net = EVFlowNet(width=width, norm=norm)
     with torch.no_grad():
         for p in net.parameters():  # every weight and bias matters, heads included
             p.normal_(0.0, 0.3)
+        for m in net.modules():  # batch norm's running statistics, folded at inference
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.running_mean.normal_(0.0, 0.5)
+                m.running_var.uniform_(0.2, 3.0)
     return net.eval()
 
 
-@pytest.mark.parametrize(("width", "shape", "batch"), [(0.0625, (32, 48), 1),
-                                                        (0.125, (48, 80), 2),
-                                                        (0.25, (64, 32), 1)])
-def test_inference_net_equals_the_training_forward(width, shape, batch):
-    net = _random_net(width, seed=int(width * 100))
+@pytest.mark.parametrize(("width", "shape", "batch", "norm"), [(0.0625, (32, 48), 1, "batch"),
+                                                                (0.125, (48, 80), 2, "batch"),
+                                                                (0.125, (48, 80), 1, "none"),
+                                                                (0.25, (64, 32), 1, "batch")])
+def test_inference_net_equals_the_training_forward(width, shape, batch, norm):
+    net = _random_net(width, seed=int(width * 100), norm=norm)
     x = torch.randn(batch, 5, *shape)
     with torch.inference_mode():
         ref = net(x)[-1]

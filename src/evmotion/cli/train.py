@@ -69,6 +69,9 @@ def add_parser(sub) -> None:
     p.add_argument("--init", default="default", choices=("default", "kaiming"),
                    help="convolution weight initialization (default: torch's; kaiming: "
                         "He-normal, zero biases: keeps the ReLUs alive)")
+    p.add_argument("--norm", default="batch", choices=("batch", "none"),
+                   help="normalization after each convolution (default batch: EV-FlowNet's; "
+                        "without it the network learned one flow component only)")
     p.add_argument("--objective", default="gradient_magnitude",
                    choices=("gradient_magnitude", "variance", "avg_timestamp",
                             "avg_timestamp_norm"))
@@ -100,7 +103,8 @@ def run(args) -> int:
                       recordings=list(args.recordings), val_sim=args.val_sim,
                       val_recordings=list(args.val), window_events=args.window_events,
                       crop=tuple(args.crop), sim_duration_s=args.sim_duration,
-                      transpose=args.transpose, init=args.init, objective=args.objective, lam=args.lam,
+                      transpose=args.transpose, init=args.init, norm=args.norm,
+                      objective=args.objective, lam=args.lam,
                       seed=args.seed, threads=args.threads, device=args.device,
                       max_steps_per_epoch=args.max_steps, init_weights=args.init_weights)
     # the progress bar follows evmotion.utils.progress: on a terminal, or EVMOTION_PROGRESS=1

@@ -18,15 +18,21 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-__all__ = ["FLOW_SCALE", "EVFlowNet", "InferenceNet", "upsample_flows"]
+__all__ = ["FLOW_SCALE", "NORMS", "EVFlowNet", "InferenceNet", "upsample_flows"]
 
 #: The prediction heads output flow in units of FLOW_SCALE px per window, so that the
 #: network works with O(1) values.
 FLOW_SCALE = 10.0
+#: Normalization after each encoder and decoder convolution: ``"batch"`` (batch norm, as
+#: EV-FlowNet) or ``"none"`` (the checkpoints of before 2026-11-28 carry no norm).
+NORMS = ("batch", "none")
 
 
-def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride=stride, padding=1), nn.ReLU())
+def _conv(cin: int, cout: int, stride: int = 1, norm: str = "batch") -> nn.Sequential:
+    layers = [nn.Conv2d(cin, cout, 3, stride=stride, padding=1)]
+    if norm == "batch":
+        layers.append(nn.BatchNorm2d(cout))
+    return nn.Sequential(*layers, nn.ReLU())
 
 
 class _Residual(nn.Module):
@@ -48,6 +54,11 @@ class EVFlowNet(nn.Module):
         Input channels (voxel time bins).
     width : float
         Channel multiplier (1 = the paper's network).
+    norm : {"batch", "none"}
+        Batch normalization after each encoder and decoder convolution (EV-FlowNet's), or
+        none. Why batch norm: without it the network learned one flow component only (the
+        larger one in the data; the other's gain stayed near 0, supervised or not); with it
+        both (``benchmarks/results/dnn_training_ab.md``).
 
     Examples
     --------
@@ -56,16 +67,19 @@ class EVFlowNet(nn.Module):
     [6, 12, 24, 48]
     """
 
-    def __init__(self, n_bins: int = 5, width: float = 0.125):
+    def __init__(self, n_bins: int = 5, width: float = 0.125, norm: str = "batch"):
         super().__init__()
-        self.n_bins, self.width = int(n_bins), float(width)
+        if norm not in NORMS:
+            raise ValueError(f"norm must be one of {', '.join(NORMS)}, got {norm!r}")
+        self.n_bins, self.width, self.norm = int(n_bins), float(width), norm
         c = [max(4, round(width * k)) for k in (32, 64, 128, 256, 512)]
-        self.enc = nn.ModuleList([_conv(n_bins, c[1], 2), _conv(c[1], c[2], 2),
-                                  _conv(c[2], c[3], 2), _conv(c[3], c[4], 2)])
+        ins = (n_bins, c[1], c[2], c[3])
+        self.enc = nn.ModuleList([_conv(i, o, 2, norm) for i, o in zip(ins, c[1:], strict=True)])
         self.res = nn.Sequential(_Residual(c[4]), _Residual(c[4]))
         # decoder level i: concat(previous, skip, previous flow) -> x2 upsample -> conv
-        self.dec = nn.ModuleList([_conv(2 * c[4], c[3]), _conv(2 * c[3] + 2, c[2]),
-                                  _conv(2 * c[2] + 2, c[1]), _conv(2 * c[1] + 2, c[0])])
+        ins = (2 * c[4], 2 * c[3] + 2, 2 * c[2] + 2, 2 * c[1] + 2)
+        self.dec = nn.ModuleList([_conv(i, o, 1, norm)
+                                  for i, o in zip(ins, (c[3], c[2], c[1], c[0]), strict=True)])
         self.heads = nn.ModuleList([nn.Conv2d(ch, 2, 1) for ch in (c[3], c[2], c[1], c[0])])
         for h in self.heads:
             # start near zero flow: the identity warp, where the loss is 1
@@ -105,19 +119,31 @@ _PHASE_TAPS = (((1.0, 0.0, 0.0), (0.0, 1.0, 1.0), (0.0, 0.0, 0.0)),
                ((0.0, 0.0, 0.0), (1.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
 
 
-def _subpixel_conv(conv: nn.Conv2d) -> tuple[torch.Tensor, torch.Tensor]:
+def _folded(seq: nn.Sequential) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weight and bias of a block's convolution with its batch norm (if any) folded in, in
+    eval mode (running statistics): ``bn(conv(x)) = conv'(x)``."""
+    conv = seq[0]
+    w, b = conv.weight.detach(), conv.bias.detach()
+    if isinstance(seq[1], nn.BatchNorm2d):
+        bn = seq[1]
+        k = bn.weight.detach() / torch.sqrt(bn.running_var + bn.eps)
+        w = w * k[:, None, None, None]
+        b = (b - bn.running_mean) * k + bn.bias.detach()
+    return w, b
+
+
+def _subpixel_conv(w: torch.Tensor, bias: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Weights of ``conv(upsample_nearest_x2(x))`` as one 3 x 3 convolution of ``x`` with
     4 outputs per channel (the four phases ``(a, b)`` of each output pixel ``(2i + a,
     2j + b)``, in :func:`torch.nn.functional.pixel_shuffle`'s order ``c * 4 + 2 a + b``):
     the same sums at a quarter of the pixels, with no upsampled copy of the input."""
-    w = conv.weight.detach()
     taps = [torch.tensor(t, dtype=w.dtype, device=w.device) for t in _PHASE_TAPS]
     phases = [torch.einsum("pk,oikl,ql->oipq", taps[a], w, taps[b])
               for a in (0, 1) for b in (0, 1)]
     cout, cin = w.shape[:2]
     weight = torch.stack(phases, 1).reshape(cout * 4, cin, 3, 3)
     return (weight.contiguous(memory_format=torch.channels_last),
-            conv.bias.detach().repeat_interleave(4))
+            bias.repeat_interleave(4))
 
 
 def _phase_head(head: nn.Conv2d, scale: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -142,6 +168,7 @@ class InferenceNet:
       upsampled copy of the concatenated input is never made, and the convolution has 4x
       more outputs on 4x fewer pixels, which the CPU's GEMM runs far better (4 output
       channels at full resolution leave most of its vector lanes empty);
+    * batch norms are folded into their convolutions (eval mode: running statistics);
     * the prediction heads run on the phase maps as a matrix product (1 x 1 convolutions
       took torch's slow path), and the finest level's features are never shuffled to full
       resolution: only its flow is;
@@ -168,12 +195,15 @@ class InferenceNet:
         self.n_bins, self.width = net.n_bins, net.width
         cl = torch.channels_last
 
-        def conv(c: nn.Conv2d) -> tuple[torch.Tensor, torch.Tensor]:
-            return c.weight.detach().contiguous(memory_format=cl), c.bias.detach()
+        def conv(w: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            return w.contiguous(memory_format=cl), b
 
-        self.enc = [conv(seq[0]) for seq in net.enc]
-        self.res = [(*conv(r.c1), *conv(r.c2)) for r in net.res]
-        self.dec = [_subpixel_conv(seq[0]) for seq in net.dec]
+        def plain(c: nn.Conv2d) -> tuple[torch.Tensor, torch.Tensor]:
+            return conv(c.weight.detach(), c.bias.detach())
+
+        self.enc = [conv(*_folded(seq)) for seq in net.enc]
+        self.res = [(*plain(r.c1), *plain(r.c2)) for r in net.res]
+        self.dec = [_subpixel_conv(*_folded(seq)) for seq in net.dec]
         n = len(net.heads)
         self.heads = [_phase_head(h, FLOW_SCALE if i == n - 1 else 1.0)
                       for i, h in enumerate(net.heads)]

@@ -38,7 +38,7 @@ from evmotion.methods.dnn.data import (
 )
 from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
 from evmotion.methods.dnn.model import load_model, save_model
-from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
+from evmotion.methods.dnn.network import NORMS, EVFlowNet, upsample_flows
 from evmotion.methods.dnn.voxel import (
     N_BINS,
     PAD_MULTIPLE,
@@ -78,6 +78,7 @@ class TrainConfig:
     sim_duration_s: float = 0.05
     transpose: bool = False
     init: str = "default"
+    norm: str = "batch"
     objective: str = "gradient_magnitude"
     lam: float = 0.0025
     seed: int = 0
@@ -101,6 +102,8 @@ class TrainConfig:
                                  f"{self.lr_decay}, {self.width}, {self.threads}")
         if not 0 < self.sim_duration_s <= 10:
             raise ParameterError(f"sim_duration_s must be in (0, 10] s, got {self.sim_duration_s}")
+        if self.norm not in NORMS:
+            raise ParameterError(f"norm must be one of {', '.join(NORMS)}, got {self.norm!r}")
         if self.init not in INITS:
             raise ParameterError(f"init must be one of {', '.join(INITS)}, got {self.init!r}")
         if self.sim_windows >= 10_000:
@@ -262,7 +265,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     out.mkdir(parents=True, exist_ok=True)
     _seed_all(cfg)
     device = torch.device(cfg.device)
-    net = EVFlowNet(width=cfg.width)
+    net = EVFlowNet(width=cfg.width, norm=cfg.norm)
     if cfg.init == "kaiming":
         _kaiming_init(net)
     net = net.to(device)
