@@ -75,16 +75,18 @@ def test_bad_checkpoint_is_one_line_error(tmp_path):
 
 def test_checkpoint_keeps_its_norm_and_older_ones_load_without(tmp_path, window):
     torch.manual_seed(1)
-    for norm in ("batch", "none"):
-        net = EVFlowNet(width=0.0625, norm=norm)
+    for norm, sym in (("batch", True), ("none", False)):
+        net = EVFlowNet(width=0.0625, norm=norm, symmetric=sym)
         save_model(tmp_path / f"{norm}.pt", net)
-        assert load_model(tmp_path / f"{norm}.pt").norm == norm
-    # a checkpoint written before batch norm: no "norm" key, no batch-norm tensors
+        back = load_model(tmp_path / f"{norm}.pt")
+        assert (back.norm, back.symmetric) == (norm, sym)
+    # a checkpoint written before batch norm and the symmetric network: neither key, no
+    # batch-norm tensors
     blob = torch.load(tmp_path / "none.pt", weights_only=True)
-    del blob["norm"]
+    del blob["norm"], blob["symmetric"]
     torch.save(blob, tmp_path / "old.pt")
     old = load_model(tmp_path / "old.pt")
-    assert old.norm == "none"
+    assert (old.norm, old.symmetric) == ("none", False)
     np.testing.assert_array_equal(predict_displacement(window.events, tmp_path / "old.pt"),
                                   predict_displacement(window.events, tmp_path / "none.pt"))
 

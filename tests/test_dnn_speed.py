@@ -26,9 +26,10 @@ from evmotion.methods.dnn.voxel import (  # noqa: E402
 )
 
 
-def _random_net(width: float, seed: int, norm: str = "batch") -> EVFlowNet:
+def _random_net(width: float, seed: int, norm: str = "batch",
+                symmetric: bool = True) -> EVFlowNet:
     torch.manual_seed(seed)
-    net = EVFlowNet(width=width, norm=norm)
+    net = EVFlowNet(width=width, norm=norm, symmetric=symmetric)
     with torch.no_grad():
         for p in net.parameters():  # every weight and bias matters, heads included
             p.normal_(0.0, 0.3)
@@ -39,12 +40,14 @@ def _random_net(width: float, seed: int, norm: str = "batch") -> EVFlowNet:
     return net.eval()
 
 
-@pytest.mark.parametrize(("width", "shape", "batch", "norm"), [(0.0625, (32, 48), 1, "batch"),
-                                                                (0.125, (48, 80), 2, "batch"),
-                                                                (0.125, (48, 80), 1, "none"),
-                                                                (0.25, (64, 32), 1, "batch")])
-def test_inference_net_equals_the_training_forward(width, shape, batch, norm):
-    net = _random_net(width, seed=int(width * 100), norm=norm)
+@pytest.mark.parametrize(("width", "shape", "batch", "norm", "symmetric"),
+                         [(0.0625, (32, 48), 1, "batch", True),
+                          (0.125, (48, 80), 2, "batch", True),
+                          (0.125, (48, 80), 1, "none", False),
+                          (0.125, (48, 80), 1, "batch", False),
+                          (0.25, (64, 32), 1, "batch", True)])
+def test_inference_net_equals_the_training_forward(width, shape, batch, norm, symmetric):
+    net = _random_net(width, seed=int(width * 100), norm=norm, symmetric=symmetric)
     x = torch.randn(batch, 5, *shape)
     with torch.inference_mode():
         ref = net(x)[-1]
@@ -52,6 +55,22 @@ def test_inference_net_equals_the_training_forward(width, shape, batch, norm):
     assert got.shape == ref.shape == (batch, 2, *shape)
     assert ref.abs().max() > 1.0  # a non-trivial flow
     torch.testing.assert_close(got, ref, rtol=1e-4, atol=1e-4 * float(ref.abs().max()))
+
+
+@pytest.mark.parametrize("train_mode", [False, True])
+def test_symmetric_network_is_equivariant_to_the_diagonal_mirror(train_mode):
+    net = _random_net(0.0625, seed=3).train(train_mode)
+    x = torch.randn(2, 5, 32, 48)
+    with torch.no_grad():
+        direct, mirrored = net(x), net(x.transpose(-1, -2))
+    for a, b in zip(direct, mirrored, strict=True):
+        assert a.abs().max() > 0.1
+        # mirroring the input swaps the axes: (u, v)(x^T) = (v, u)(x)^T, at every scale
+        torch.testing.assert_close(b, a.flip(1).transpose(-1, -2), rtol=1e-5, atol=1e-5)
+    plain = _random_net(0.0625, seed=3, symmetric=False).eval()
+    with torch.no_grad():
+        a, b = plain(x)[-1], plain(x.transpose(-1, -2))[-1]
+    assert not torch.allclose(b, a.flip(1).transpose(-1, -2), atol=1e-3)
 
 
 def test_inference_net_of_the_shipped_checkpoint():

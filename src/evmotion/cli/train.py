@@ -72,6 +72,9 @@ def add_parser(sub) -> None:
     p.add_argument("--norm", default="batch", choices=("batch", "none"),
                    help="normalization after each convolution (default batch: EV-FlowNet's; "
                         "without it the network learned one flow component only)")
+    p.add_argument("--symmetric", action=argparse.BooleanOptionalAction, default=True,
+                   help="one set of weights for both axes: v is u of the input mirrored about "
+                        "the diagonal (default; --no-symmetric: two output channels)")
     p.add_argument("--objective", default="gradient_magnitude",
                    choices=("gradient_magnitude", "variance", "avg_timestamp",
                             "avg_timestamp_norm"))
@@ -104,6 +107,7 @@ def run(args) -> int:
                       val_recordings=list(args.val), window_events=args.window_events,
                       crop=tuple(args.crop), sim_duration_s=args.sim_duration,
                       transpose=args.transpose, init=args.init, norm=args.norm,
+                      symmetric=args.symmetric,
                       objective=args.objective, lam=args.lam,
                       seed=args.seed, threads=args.threads, device=args.device,
                       max_steps_per_epoch=args.max_steps, init_weights=args.init_weights)

@@ -22,13 +22,13 @@ _FAST: dict = {}
 
 
 def save_model(path: str | Path, net: EVFlowNet, **meta) -> None:
-    """Write the weights (float32) and ``{"n_bins", "width", "norm"}`` plus ``meta``
-    atomically."""
+    """Write the weights (float32) and ``{"n_bins", "width", "norm", "symmetric"}`` plus
+    ``meta`` atomically."""
     state = {k: v.detach().cpu().float() if v.is_floating_point() else v.detach().cpu()
              for k, v in net.state_dict().items()}
     with atomic_path(path) as tmp:
         torch.save({"model": state, "n_bins": net.n_bins, "width": net.width,
-                    "norm": net.norm, "meta": meta}, tmp)
+                    "norm": net.norm, "symmetric": net.symmetric, "meta": meta}, tmp)
 
 
 def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVFlowNet:
@@ -44,9 +44,10 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
         raise ParameterError(f"checkpoint {path}: file not found")
     try:
         blob = torch.load(path, map_location=device, weights_only=True)
-        # checkpoints written before batch norm existed carry no "norm"
+        # checkpoints written before batch norm and the symmetric network carry neither key
         net = EVFlowNet(n_bins=int(blob["n_bins"]), width=float(blob["width"]),
-                        norm=str(blob.get("norm", "none")))
+                        norm=str(blob.get("norm", "none")),
+                        symmetric=bool(blob.get("symmetric", False)))
         net.load_state_dict(blob["model"])
     except (RuntimeError, KeyError, ValueError, TypeError, OSError, EOFError,
             AttributeError, pickle.UnpicklingError) as exc:

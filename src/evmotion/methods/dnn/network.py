@@ -58,7 +58,13 @@ class EVFlowNet(nn.Module):
         Batch normalization after each encoder and decoder convolution (EV-FlowNet's), or
         none. Why batch norm: without it the network learned one flow component only (the
         larger one in the data; the other's gain stayed near 0, supervised or not); with it
-        both (``benchmarks/results/dnn_training_ab.md``).
+        both (``benchmarks/results/dnn_axes.md``).
+    symmetric : bool
+        One set of weights for both axes: u is the network's first output channel, and v
+        the same channel of the input mirrored about the diagonal (x <-> y), mirrored back.
+        Optical flow is equivariant to that mirroring (it swaps u and v), and this makes
+        the network so by construction: each axis learns from every window's motion along
+        both, and neither can be learned at the other's expense. Costs a second pass.
 
     Examples
     --------
@@ -67,11 +73,13 @@ class EVFlowNet(nn.Module):
     [6, 12, 24, 48]
     """
 
-    def __init__(self, n_bins: int = 5, width: float = 0.125, norm: str = "batch"):
+    def __init__(self, n_bins: int = 5, width: float = 0.125, norm: str = "batch",
+                 symmetric: bool = True):
         super().__init__()
         if norm not in NORMS:
             raise ValueError(f"norm must be one of {', '.join(NORMS)}, got {norm!r}")
         self.n_bins, self.width, self.norm = int(n_bins), float(width), norm
+        self.symmetric = bool(symmetric)
         c = [max(4, round(width * k)) for k in (32, 64, 128, 256, 512)]
         ins = (n_bins, c[1], c[2], c[3])
         self.enc = nn.ModuleList([_conv(i, o, 2, norm) for i, o in zip(ins, c[1:], strict=True)])
@@ -87,6 +95,13 @@ class EVFlowNet(nn.Module):
             nn.init.zeros_(h.bias)
 
     def forward(self, voxel: torch.Tensor) -> list[torch.Tensor]:
+        if not self.symmetric:
+            return self._flows(voxel)
+        return [_mirror_merge(a, b) for a, b in zip(self._flows(voxel),
+                                                    self._flows(_mirrored(voxel)), strict=True)]
+
+    def _flows(self, voxel: torch.Tensor) -> list[torch.Tensor]:
+        """The four flows of one pass (both output channels as predicted)."""
         skips = []
         x = voxel
         for layer in self.enc:
@@ -101,6 +116,17 @@ class EVFlowNet(nn.Module):
             flow = head(x)
             flows.append(flow)
         return [f * FLOW_SCALE for f in flows]
+
+
+def _mirrored(x: torch.Tensor) -> torch.Tensor:
+    """``x`` mirrored about the image diagonal (its last two axes swapped), contiguous."""
+    return x.transpose(-1, -2).contiguous()
+
+
+def _mirror_merge(direct: torch.Tensor, mirrored: torch.Tensor) -> torch.Tensor:
+    """The flow ``(u, v)`` of a symmetric network: u from the direct pass, v the mirrored
+    pass's first channel mirrored back."""
+    return torch.cat([direct[:, :1], mirrored[:, :1].transpose(-1, -2)], 1)
 
 
 def upsample_flows(flows: list[torch.Tensor], shape: tuple[int, int]) -> list[torch.Tensor]:
@@ -192,7 +218,7 @@ class InferenceNet:
     """
 
     def __init__(self, net: EVFlowNet):
-        self.n_bins, self.width = net.n_bins, net.width
+        self.n_bins, self.width, self.symmetric = net.n_bins, net.width, net.symmetric
         cl = torch.channels_last
 
         def conv(w: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -211,6 +237,11 @@ class InferenceNet:
     def __call__(self, voxel: torch.Tensor) -> torch.Tensor:
         """The finest flow ``(B, 2, H, W)`` in px per window (``net(voxel)[-1]``), for a
         voxel grid ``(B, n_bins, H, W)`` (H, W multiples of 16; any memory layout)."""
+        if not self.symmetric:
+            return self._finest(voxel)
+        return _mirror_merge(self._finest(voxel), self._finest(voxel.transpose(-1, -2)))
+
+    def _finest(self, voxel: torch.Tensor) -> torch.Tensor:
         x = voxel.contiguous(memory_format=torch.channels_last)
         skips = []
         for w, b in self.enc:

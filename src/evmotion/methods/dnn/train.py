@@ -79,6 +79,7 @@ class TrainConfig:
     transpose: bool = False
     init: str = "default"
     norm: str = "batch"
+    symmetric: bool = True
     objective: str = "gradient_magnitude"
     lam: float = 0.0025
     seed: int = 0
@@ -265,7 +266,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     out.mkdir(parents=True, exist_ok=True)
     _seed_all(cfg)
     device = torch.device(cfg.device)
-    net = EVFlowNet(width=cfg.width, norm=cfg.norm)
+    net = EVFlowNet(width=cfg.width, norm=cfg.norm, symmetric=cfg.symmetric)
     if cfg.init == "kaiming":
         _kaiming_init(net)
     net = net.to(device)
