@@ -70,8 +70,7 @@ def add_parser(sub) -> None:
                    help="convolution weight initialization (default: torch's; kaiming: "
                         "He-normal, zero biases: keeps the ReLUs alive)")
     p.add_argument("--norm", default="batch", choices=("batch", "none"),
-                   help="normalization after each convolution (default batch: EV-FlowNet's; "
-                        "without it the network learned one flow component only)")
+                   help="normalization after each convolution (default batch: EV-FlowNet's)")
     p.add_argument("--symmetric", action=argparse.BooleanOptionalAction, default=True,
                    help="one set of weights for both axes: v is u of the input mirrored about "
                         "the diagonal (default; --no-symmetric: two output channels)")

@@ -56,9 +56,10 @@ class EVFlowNet(nn.Module):
         Channel multiplier (1 = the paper's network).
     norm : {"batch", "none"}
         Batch normalization after each encoder and decoder convolution (EV-FlowNet's), or
-        none. Why batch norm: without it the network learned one flow component only (the
-        larger one in the data; the other's gain stayed near 0, supervised or not); with it
-        both (``benchmarks/results/dnn_axes.md``).
+        none. Why batch norm: without it a two-channel network learned one flow component
+        only (the larger one in the data; the other's gain stayed near 0, even supervised
+        with the ground truth); with it, it fits both on its training windows
+        (``benchmarks/results/dnn_axes.md``); ``symmetric`` makes both hold on new ones.
     symmetric : bool
         One set of weights for both axes: u is the network's first output channel, and v
         the same channel of the input mirrored about the diagonal (x <-> y), mirrored back.
