@@ -9,6 +9,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from evmotion.errors import ParameterError  # noqa: E402
 from evmotion.methods.dnn.data import crop_window, sim_window  # noqa: E402
 from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem  # noqa: E402
 from evmotion.methods.dnn.network import EVFlowNet, upsample_flows  # noqa: E402
@@ -121,6 +122,17 @@ def test_init_weights_starts_from_a_checkpoint(tmp_path):
     # the parameters (at lr 1e-12); batch norm's running statistics move with each forward
     for k, v in start.named_parameters():
         torch.testing.assert_close(got[k], v.detach(), rtol=0, atol=1e-6)
+
+
+def test_init_weights_of_another_network_is_one_line_error(tmp_path):
+    from evmotion.methods.dnn.model import save_model
+
+    save_model(tmp_path / "old.pt", EVFlowNet(width=0.0625, norm="none", symmetric=False))
+    with pytest.raises(ParameterError, match="norm none, symmetric False") as exc:
+        train(TrainConfig(epochs=1, val_sim=0, init_weights=str(tmp_path / "old.pt"),
+                          **{k: v for k, v in TINY.items() if k != "val_sim"}),
+              tmp_path / "run")
+    assert "\n" not in str(exc.value)
 
 
 def test_transpose_window_swaps_axes_and_flow_components():

@@ -170,7 +170,7 @@ def bos_valid(events, t0_us: int, t1_us: int, roi_valid: np.ndarray) -> np.ndarr
 
 
 def write_bos_output(path, data: BosInput, run: BosRun, attrs: dict, *,
-                     compression: str | None = "gzip") -> list[dict]:
+                     compression: str | None = "lz4") -> list[dict]:
     """Write the flow of every interval of ``run`` through the shared flow output
     (:func:`evmotion.io.flowout.open_flow_output`: ``.h5``, ``.npz``, ``.flo`` / ``.png``
     patterns), with ``q``, ``p`` and the per-window numbers as extra datasets where the

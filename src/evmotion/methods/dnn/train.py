@@ -293,8 +293,15 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
         steps_log, epochs_log = blob["steps"], blob["epochs"]
         start = int(blob["epoch"]) + 1
     elif cfg.init_weights:
-        # fine-tuning: start from a checkpoint's weights (same width), fresh optimizer
-        net.load_state_dict(load_model(cfg.init_weights, str(device)).state_dict())
+        # fine-tuning: start from a checkpoint's weights (same network), fresh optimizer
+        start_net = load_model(cfg.init_weights, str(device))
+        theirs = (start_net.width, start_net.norm, start_net.symmetric)
+        if theirs != (net.width, net.norm, net.symmetric):
+            raise ParameterError(
+                f"--init-weights {cfg.init_weights}: its network (width {theirs[0]}, norm "
+                f"{theirs[1]}, symmetric {theirs[2]}) differs from this training's (width "
+                f"{net.width}, norm {net.norm}, symmetric {net.symmetric})")
+        net.load_state_dict(start_net.state_dict())
     rec = recording_windows(cfg.recordings, cfg.window_events) if cfg.recordings else []
     val = [sim_window(VAL_SEED_BASE + i, sensor_size=cfg.sim_sensor,
                       window_events=cfg.window_events) for i in range(cfg.val_sim)]
