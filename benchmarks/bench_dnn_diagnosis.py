@@ -13,7 +13,9 @@ zoom, object; seeds 900000000 + k and 900000100 + k, never drawn in training):
   network's flow: if the ground truth were not the lowest, the loss could not teach it.
 * ``AEE_transposed_px``: u from the window and v as the u the network predicts on the
   window mirrored about the diagonal (x <-> y): what the network knows about both axes
-  when it is only asked for its horizontal output.
+  when it is only asked for its horizontal output. For a symmetric network (the shipped
+  one since 2026-11-28) this is how it computes v: equal to ``AEE_px``, a check of its
+  equivariance on real windows.
 * one ``inactive`` row per layer: channels whose ReLU output is 0 on every pixel of the
   four windows of the first seed set.
 
