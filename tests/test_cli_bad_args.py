@@ -483,8 +483,11 @@ def test_command_takes_ctrl_c_from_the_package_first_line(argv0, expected):
     code = (f"import sys; sys.argv[0] = {argv0!r}; import evmotion, signal; "
             "print(signal.getsignal(signal.SIGINT).__name__)")
     env = dict(os.environ, PYTHONPATH=str(SRC) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    # Python installs its handler only where SIGINT is not ignored at start-up, and a job
+    # started in the background by a non-interactive shell (`make test &`) ignores it
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=env, timeout=60)
+                         env=env, timeout=60,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert out.stdout.strip() == expected, out.stderr
 
 
