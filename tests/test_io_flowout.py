@@ -214,3 +214,32 @@ def test_per_event_npz_is_described_not_read_as_windows(tmp_path):
     assert d["format"] == "per-event-flow" and d["events"] == n and d["valid_fraction"] == 0.5
     with pytest.raises(FormatError, match="per-event"):
         read_flow(tmp_path / "ev.npz")
+
+
+def test_a_fresh_process_reads_the_compressed_h5_output(tmp_path):
+    """The .h5 output is Blosc-LZ4 compressed: ``info`` (which reads the masks) and the
+    reader must register hdf5plugin's filters themselves. In a fresh process, since this
+    one may have imported hdf5plugin already."""
+    import subprocess
+    import sys
+
+    import h5py
+
+    path = tmp_path / "flow.h5"
+    yy, xx = np.mgrid[0:60, 0:80]
+    flow = np.stack([xx, yy], -1).astype(np.float32)
+    # compressible data: Blosc is an optional filter, which HDF5 skips on chunks it does
+    # not shrink (those would read without the plugin)
+    with fo.open_flow_output(path, (60, 80), {"method": "x"}) as out:
+        out.append(flow, 0, 10_000, valid=xx < 50)
+    with h5py.File(path, "r") as f:
+        assert f["flow"].id.get_create_plist().get_filter(0)[0] == 32001  # Blosc
+    code = ("import sys; from evmotion.io.flowread import describe_flow, read_flow; "
+            "p = sys.argv[1]; d = describe_flow(p); s = read_flow(p); "
+            "print(d['windows'], round(d['valid_fraction'], 4), s.flow.shape)")
+    res = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    seq = read_flow(path)
+    assert res.stdout.split()[0] == "1"
+    assert float(res.stdout.split()[1]) == pytest.approx(seq.valid.mean(), abs=1e-4)

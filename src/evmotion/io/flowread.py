@@ -288,8 +288,11 @@ def _summary(size, t0, t1, valid_fraction_or_mask, attrs) -> dict:
 def _describe_h5(p: Path) -> dict | None:
     import h5py
 
+    from evmotion.io.h5filters import register_filters
+
     if not is_hdf5(p):
         return None
+    register_filters()  # flow outputs are Blosc-LZ4 compressed: their masks are read below
     try:
         f = h5py.File(p, "r")
     except OSError:

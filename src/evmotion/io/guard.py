@@ -158,6 +158,9 @@ def open_h5(path):
     """
     import h5py
 
+    from evmotion.io.h5filters import register_filters
+
+    register_filters()  # evmotion writes Blosc-compressed datasets (events, flow)
     try:
         return h5py.File(path, "r")
     except OSError as exc:
