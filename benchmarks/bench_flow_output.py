@@ -47,7 +47,9 @@ def main(quick: bool = False) -> list[dict]:
     flows, valids = _sequence()
     repeat = 1 if quick else 3
     cases = {
-        ".h5 (gzip 1 + shuffle, default)": ("f.h5", {"compression": "gzip"}),
+        ".h5 (Blosc-LZ4, default)": ("f.h5", {}),
+        ".h5 (Blosc-zstd)": ("f.h5", {"compression": "zstd"}),
+        ".h5 (gzip 1 + shuffle)": ("f.h5", {"compression": "gzip"}),
         ".h5 (lzf)": ("f.h5", {"compression": "lzf"}),
         ".h5 (no compression)": ("f.h5", {"compression": None}),
         ".npz (stored)": ("f.npz", {}),
