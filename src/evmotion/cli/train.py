@@ -65,7 +65,8 @@ def add_parser(sub) -> None:
                         "(default 0.05)")
     p.add_argument("--transpose", action="store_true",
                    help="mirror half the training windows about the diagonal (x <-> y) so that "
-                        "both flow components get the same statistics")
+                        "both flow components get the same statistics (for --no-symmetric: "
+                        "the symmetric network already sees every window both ways)")
     p.add_argument("--init", default="default", choices=("default", "kaiming"),
                    help="convolution weight initialization (default: torch's; kaiming: "
                         "He-normal, zero biases: keeps the ReLUs alive)")

@@ -133,7 +133,9 @@ def transpose_window(win: TrainWindow) -> TrainWindow:
     Training augmentation: the simulated scenes and the recordings move more horizontally
     than vertically (e.g. the translation default 220 / -130 px/s, wider than tall
     sensors), and a network trained on them learned u only (gain of v on the held-out
-    windows 0.05); transposing half the windows gives both axes the same statistics.
+    windows 0.05); transposing half the windows gives both axes the same statistics. The
+    symmetric network (the default since) computes each axis with the other's weights on
+    the mirrored input, so it sees every window both ways already.
 
     Examples
     --------
