@@ -54,11 +54,11 @@ def _targets(wins):
 def _score(net, wins) -> dict:
     import torch
 
-    from evmotion.methods.dnn.train import _net_input
+    from evmotion.methods.dnn.train import batch_input
 
     net.eval()
     with torch.no_grad():
-        flow = net(_net_input(wins, CROP))[-1].numpy()
+        flow = net(batch_input(wins, CROP))[-1].numpy()
     net.train()
     mask, gt = (a.numpy() for a in _targets(wins))
     m = mask[:, 0] > 0
@@ -75,7 +75,7 @@ def _run(mode: str, norm: str, symmetric: bool, steps: int, train, held,
 
     from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
     from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
-    from evmotion.methods.dnn.train import _net_input
+    from evmotion.methods.dnn.train import batch_input
 
     torch.manual_seed(0)
     net = EVFlowNet(width=0.125, norm=norm, symmetric=symmetric)
@@ -86,7 +86,7 @@ def _run(mode: str, norm: str, symmetric: bool, steps: int, train, held,
         idx = [((step - 1) * BATCH + i) % len(train) for i in range(BATCH)]
         batch = [train[i] for i in idx]
         opt.zero_grad()
-        flows = upsample_flows(net(_net_input(batch, CROP)), CROP)
+        flows = upsample_flows(net(batch_input(batch, CROP)), CROP)
         if mode == "unsupervised":
             loss = multiscale_loss(flows, [probs[i] for i in idx])
         else:

@@ -48,7 +48,7 @@ from evmotion.methods.dnn.voxel import (
 )
 from evmotion.utils import atomic_path, atomic_write_text
 
-__all__ = ["TrainConfig", "evaluate_windows", "train"]
+__all__ = ["TrainConfig", "batch_input", "evaluate_windows", "train"]
 
 #: Seeds of validation windows start here; training seeds are ``seed * 1e6 + epoch * 1e4 + i``
 #: with ``i < 1e4`` and must stay below.
@@ -111,8 +111,16 @@ class TrainConfig:
             raise ParameterError(f"sim_windows must be < 10000, got {self.sim_windows}")
 
 
-def _net_input(windows: Sequence[TrainWindow], shape: tuple[int, int]) -> torch.Tensor:
-    """Voxel grids of the windows zero-padded to the common ``shape`` (B, 5, H, W)."""
+def batch_input(windows: Sequence[TrainWindow], shape: tuple[int, int]) -> torch.Tensor:
+    """The network's input for a training batch: the windows' normalized voxel grids,
+    zero-padded to the common ``shape`` (B, 5, H, W).
+
+    Examples
+    --------
+    >>> w = sim_window(3, sensor_size=(30, 40), window_events=1000)
+    >>> tuple(batch_input([w, w], (32, 48)).shape)
+    (2, 5, 32, 48)
+    """
     out = np.zeros((len(windows), N_BINS, *shape), np.float32)
     for i, w in enumerate(windows):
         v = normalize_voxel(voxel_grid(w.events))
@@ -337,7 +345,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
             probs = [WindowLoss(window_problem(w.events, objective=cfg.objective,
                                                lam=cfg.lam), w.events.sensor_size)
                      for w in batch]
-            vox = _net_input(batch, shape).to(device)
+            vox = batch_input(batch, shape).to(device)
             opt.zero_grad()
             flows = upsample_flows(net(vox), shape)
             tl = time.perf_counter()
