@@ -29,6 +29,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.flowfiles import (
+    FLOW_COMPRESSION,
     ExtraSpec,
     FlowSequence,
     FlowWriter,
@@ -160,7 +161,7 @@ class BosWriter(FlowWriter):
     def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int], *,
                  roi: tuple[int, int, int, int] | None = None, attrs: dict | None = None,
                  q_units: str = "px^2/s", resume: bool = False,
-                 compression: str | None = "gzip"):
+                 compression: str | None = FLOW_COMPRESSION):
         self.mask = roi_mask(sensor_size, roi)
         h, w = self.mask.shape
         all_attrs = {"content": BOS_CONTENT,

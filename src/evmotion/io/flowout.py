@@ -61,6 +61,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.flowfiles import (
+    FLOW_COMPRESSION,
     FLOW_FORMAT,
     FlowWriter,
     check_extras,
@@ -306,7 +307,7 @@ class H5FlowOutput(FlowOutput):
 
     def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int],
                  attrs: dict | None = None, *, resume: bool = False, with_valid: bool = True,
-                 compression: str | None = "lz4", extras: dict | None = None):
+                 compression: str | None = FLOW_COMPRESSION, extras: dict | None = None):
         super().__init__(path, sensor_size, attrs or {})
         attrs = self.attrs
         self.part = self.path.with_name(self.path.name + ".part")  # FlowWriter's own name
@@ -503,7 +504,7 @@ class PerWindowFlowOutput(FlowOutput):
 
 def open_flow_output(path: str | os.PathLike, sensor_size: tuple[int, int],
                      attrs: dict | None = None, *, resume: bool = False,
-                     n_windows: int | None = None, compression: str | None = "lz4",
+                     n_windows: int | None = None, compression: str | None = FLOW_COMPRESSION,
                      extras: dict | None = None) -> FlowOutput:
     """Open a dense flow output; the container follows the name (see the module notes).
 
@@ -522,10 +523,8 @@ def open_flow_output(path: str | os.PathLike, sensor_size: tuple[int, int],
     n_windows : int, optional
         Number of windows, when known: a plain per-window name is refused for several.
     compression : str or None
-        ``.h5`` only: the flow dataset's filter (see :class:`FlowWriter`). Default
-        Blosc-LZ4, as evmotion's event files: 4-5x faster to write than gzip on flow
-        fields (10 ms a 240x180 window with gzip), which is the serial part of a
-        parallel run; other HDF5 readers need ``import hdf5plugin``.
+        ``.h5`` only: the flow dataset's filter (see :class:`FlowWriter`; default
+        :data:`~evmotion.io.flowfiles.FLOW_COMPRESSION`, Blosc-LZ4).
     extras : dict of str to ExtraSpec, optional
         ``.h5`` and ``.npz`` only (:data:`EXTRA_CONTAINERS`): a method's per-window
         datasets stored beside the flow (:class:`~evmotion.io.flowfiles.ExtraSpec`: shape

@@ -37,6 +37,7 @@ from evmotion.io.flowout import (
     sidecar_path,
     window_path,
 )
+from evmotion.io.guard import open_h5
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 
@@ -286,16 +287,12 @@ def _summary(size, t0, t1, valid_fraction_or_mask, attrs) -> dict:
 
 
 def _describe_h5(p: Path) -> dict | None:
-    import h5py
-
-    from evmotion.io.h5filters import register_filters
-
     if not is_hdf5(p):
         return None
-    register_filters()  # flow outputs are Blosc-LZ4 compressed: their masks are read below
     try:
-        f = h5py.File(p, "r")
-    except OSError:
+        # open_h5 registers the Blosc filters of the flow and masks read below
+        f = open_h5(p)
+    except FormatError:
         return None
     with f:
         raw = read_attrs(p, f)

@@ -22,6 +22,7 @@ import numpy as np
 
 from evmotion.errors import EvmotionError, ParameterError
 from evmotion.io.bosinput import BosInput
+from evmotion.io.flowfiles import FLOW_COMPRESSION
 from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_support
 
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "bos_valid", "sequence_contrast_threshold",
@@ -170,7 +171,7 @@ def bos_valid(events, t0_us: int, t1_us: int, roi_valid: np.ndarray) -> np.ndarr
 
 
 def write_bos_output(path, data: BosInput, run: BosRun, attrs: dict, *,
-                     compression: str | None = "lz4") -> list[dict]:
+                     compression: str | None = FLOW_COMPRESSION) -> list[dict]:
     """Write the flow of every interval of ``run`` through the shared flow output
     (:func:`evmotion.io.flowout.open_flow_output`: ``.h5``, ``.npz``, ``.flo`` / ``.png``
     patterns), with ``q``, ``p`` and the per-window numbers as extra datasets where the
