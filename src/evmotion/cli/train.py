@@ -20,12 +20,14 @@ import sys
 
 from evmotion.cli.options import (
     existing_input,
+    finite_float,
     int_range,
     nonnegative_float,
     positive_float,
     positive_int,
     writable_folder,
 )
+from evmotion.errors import ParameterError
 
 EXAMPLES = """examples:
   evmotion train --sim-windows 4 --epochs 1 --out runs/sim      # a smoke run (64 and 10 for real)
@@ -35,10 +37,16 @@ EXAMPLES = """examples:
 
 
 def _size(text: str) -> tuple[int, int]:
+    from evmotion.methods.dnn.voxel import PAD_MULTIPLE
+
     try:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected HxW, got {text!r}") from None
+    if h <= 0 or w <= 0 or h % PAD_MULTIPLE or w % PAD_MULTIPLE:
+        raise argparse.ArgumentTypeError(f"each side must be a positive multiple of "
+                                         f"{PAD_MULTIPLE} (the network halves it 4 times), "
+                                         f"got {text!r}")
     return h, w
 
 
@@ -48,18 +56,20 @@ def add_parser(sub) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("recordings", nargs="*", type=existing_input, help="training recordings (any readable format)")
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
-    p.add_argument("--sim-windows", type=int_range(0), default=64,
+    p.add_argument("--sim-windows", type=int_range(0, 9999), default=64,
                    help="simulated windows per epoch (default 64; 0: recordings only)")
     p.add_argument("--epochs", type=positive_int(), default=10)
     p.add_argument("--batch-size", type=int_range(1, 4096), default=8)
     p.add_argument("--lr", type=positive_float(), default=1e-3)
-    p.add_argument("--lr-decay", type=positive_float(), default=0.8, help="per epoch (default 0.8)")
+    p.add_argument("--lr-decay", type=finite_float(0, 1, lo_open=True), default=0.8,
+                   help="per epoch (default 0.8)")
     p.add_argument("--width", type=positive_float(), default=0.125,
                    help="channel multiplier (1 = the paper's EV-FlowNet; default 0.125)")
     p.add_argument("--window-events", type=int_range(100), default=40_000)
     p.add_argument("--crop", type=_size, default=(176, 240), metavar="HxW",
                    help="training crop, multiples of 16 (default 176x240)")
-    p.add_argument("--sim-duration", type=positive_float(), default=0.05, metavar="S",
+    p.add_argument("--sim-duration", type=finite_float(0, 10, lo_open=True, unit="s"),
+                   default=0.05, metavar="S",
                    help="length of each simulated recording in s; the window is its middle "
                         "--window-events events (scaled to the crop), fewer if it has fewer "
                         "(default 0.05)")
@@ -101,6 +111,8 @@ def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.methods.dnn.train import TrainConfig, train
 
+    if args.sim_windows == 0 and not args.recordings:
+        raise ParameterError("no training data: give recordings or --sim-windows > 0")
     cfg = TrainConfig(width=args.width, epochs=args.epochs, batch_size=args.batch_size,
                       lr=args.lr, lr_decay=args.lr_decay, sim_windows=args.sim_windows,
                       recordings=list(args.recordings), val_sim=args.val_sim,
