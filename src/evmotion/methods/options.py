@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from evmotion.errors import ParameterError
+from evmotion.utils import resolve_options
 
 __all__ = ["merge_options"]
 
@@ -52,13 +52,6 @@ def merge_options(cls: type, options, **keywords):
         ``options`` is not a ``cls``, or it is given together with a keyword that is not at
         its default (the call would be ambiguous).
     """
-    if options is None:
-        return cls(**keywords)
-    if not isinstance(options, cls):
-        raise ParameterError(f"options must be a {cls.__name__}, got {type(options).__name__}")
     defaults = {f.name: f.default for f in dataclasses.fields(cls)}
-    given = sorted(k for k, v in keywords.items() if not _is_default(v, defaults[k]))
-    if given:
-        raise ParameterError(f"pass either options= or the keyword(s) {', '.join(given)}, "
-                             "not both")
-    return options
+    given = {k: v for k, v in keywords.items() if not _is_default(v, defaults[k])}
+    return resolve_options(cls, options, given, cls.__name__)
