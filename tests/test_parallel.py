@@ -358,3 +358,85 @@ def test_dask_batches_short_windows_and_keeps_failures_per_window(tmp_path):
     # the first fill (2 tasks per worker thread) reaches the scheduler as one graph update
     assert updates.sizes[0] == 4 and sum(updates.sizes) == tasks, updates.sizes
     assert len(list(tmp_path.glob("*.pkl"))) == 48
+
+
+# ------------------------------------------------------------------ live progress of chunks
+def two_steps(ev: EventArray) -> int:
+    """A chunk of 3 progress units that reports 2 of them, the second 0.4 s after the first
+    (the third is counted when it returns)."""
+    from evmotion.parallel import report_progress
+
+    report_progress()
+    time.sleep(0.4)
+    report_progress()
+    time.sleep(0.4)
+    return len(ev)
+
+
+class _Bar:
+    """Stands in for the tqdm bar: when each update came and how many units."""
+
+    def __init__(self, *args, **kwargs):
+        self.total = kwargs.get("total")
+        self.updates: list[tuple[float, int]] = []
+        _Bar.last = self
+
+    def update(self, n):
+        self.updates.append((time.perf_counter(), n))
+
+    def close(self):
+        pass
+
+
+def _live_updates(monkeypatch, **kwargs) -> tuple[list[int], list[float]]:
+    import evmotion.parallel as parallel
+
+    monkeypatch.setattr(parallel, "progress_bar", _Bar)
+    res = map_windows(two_steps, _events(), [(0, 50_000)], units=[3], unit="step", **kwargs)
+    assert res[0].ok, res[0].error
+    bar = _Bar.last
+    assert bar.total == 3
+    times = [t for t, _ in bar.updates]
+    return [n for _, n in bar.updates], np.diff(times).tolist()
+
+
+@pytest.mark.parametrize("executor,workers", [("process", 1), ("thread", 2), ("process", 2)])
+def test_reports_reach_the_bar_while_the_window_runs(monkeypatch, executor, workers):
+    """Each report_progress call advances the bar when it is made (0.4 s apart), not when
+    the window returns; the rest of the window's units come with its result."""
+    units, gaps = _live_updates(monkeypatch, executor=executor, workers=workers)
+    assert units == [1, 1, 1]
+    assert all(g > 0.25 for g in gaps), gaps
+
+
+def test_reports_reach_the_bar_from_dask_workers(monkeypatch):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        units, gaps = _live_updates(monkeypatch, scheduler=client)
+    assert units == [1, 1, 1]
+    assert all(g > 0.25 for g in gaps), gaps
+
+
+def test_reports_beyond_a_window_s_units_are_not_counted(monkeypatch):
+    """A window reporting more than its units, or reports outside map_windows, never move
+    the bar past its total."""
+    from evmotion.parallel import report_progress
+
+    report_progress(5)  # outside map_windows: nothing to report to
+    units, _ = _live_updates(monkeypatch, executor="thread", workers=1)
+    assert sum(units) == 3
+    import evmotion.parallel as parallel
+
+    monkeypatch.setattr(parallel, "progress_bar", _Bar)
+    map_windows(two_steps, _events(), [(0, 50_000), (50_000, 100_000)], units=[1, 0],
+                progress=True)
+    assert [n for _, n in _Bar.last.updates] == [1]
+
+
+def test_units_must_match_the_windows():
+    with pytest.raises(ParameterError, match="units"):
+        map_windows(count_and_span, _events(), WINDOWS, units=[1, 2], progress=False)
+    with pytest.raises(ParameterError, match="units"):
+        map_windows(count_and_span, _events(), WINDOWS, units=[1, 1, 1, 1, -1], progress=False)

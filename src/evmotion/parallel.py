@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures as cf
+import contextlib
 import os
 import pickle
 import statistics
+import threading
 import time
 import traceback
+import uuid
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
@@ -28,7 +31,74 @@ from evmotion.events import EventArray, Window
 from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
 
-__all__ = ["BATCH_TARGET_S", "WindowResult", "connect_scheduler", "map_windows"]
+__all__ = ["BATCH_TARGET_S", "WindowResult", "connect_scheduler", "map_windows",
+           "report_progress"]
+
+#: Where :func:`report_progress` sends ``(window index, units)`` in this process: the
+#: caller's bar (in-process runs), a queue to it (worker processes) or a Dask event
+#: topic (Dask workers). None: reports are dropped.
+_sink: Callable[[int, int], None] | None = None
+#: The window the calling thread is running (:func:`_run_window` sets ``index``) and, in a
+#: Dask worker, where this thread's reports go (``sink``: a worker's threads may serve
+#: different runs).
+_current = threading.local()
+
+
+def report_progress(n: int = 1) -> None:
+    """Inside a function that :func:`map_windows` runs: ``n`` more progress units of the
+    current window are done (e.g. one frame interval of a chunk of several).
+
+    The caller's progress bar counts ``map_windows(units=...)`` per window and advances as
+    the reports arrive, from this process, worker processes or Dask workers; whatever a
+    window has not reported is counted when it finishes. Outside :func:`map_windows` (or
+    with an executor it did not make) this does nothing.
+
+    Parameters
+    ----------
+    n : int
+        Units done since the last report.
+
+    Examples
+    --------
+    >>> def chunk(ev):
+    ...     for _ in range(3):
+    ...         report_progress()  # one of the chunk's 3 steps is done
+    ...     return len(ev)
+    >>> ev = EventArray(x=[0, 1], y=[0, 0], t=[0, 10], p=[1, 1], sensor_size=(1, 2))
+    >>> [r.value for r in map_windows(chunk, ev, [(0, 20)], units=[3], progress=False)]
+    [2]
+    """
+    sink = getattr(_current, "sink", None) or _sink
+    index = getattr(_current, "index", None)
+    if sink is not None and index is not None:
+        sink(index, int(n))
+
+
+class _Progress:
+    """The caller's bar in progress units, fed from any thread: live reports (clamped to
+    each window's units) and, when a window finishes, the rest of its units."""
+
+    def __init__(self, units: dict[int, int], desc: str, unit: str, enabled: bool):
+        self.units = units
+        self.done = dict.fromkeys(units, 0)
+        self.lock = threading.Lock()
+        self.bar = progress_bar(None, total=sum(units.values()), desc=desc, unit=unit,
+                                disable=None if enabled else True)
+
+    def tick(self, index: int, n: int) -> None:
+        with self.lock:
+            if index not in self.done:
+                return
+            n = max(0, min(n, self.units[index] - self.done[index]))
+            self.done[index] += n
+            if n:
+                self.bar.update(n)
+
+    def finish(self, index: int) -> None:
+        self.tick(index, self.units.get(index, 0))
+
+    def close(self) -> None:
+        self.bar.close()
 
 
 @dataclass(frozen=True)
@@ -104,6 +174,7 @@ def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
 
     c0 = compile_seconds()
     start = time.perf_counter()
+    outer, _current.index = getattr(_current, "index", None), task.index
     try:
         if isinstance(source, EventArray):
             events = source
@@ -120,6 +191,8 @@ def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
         return WindowResult(task.index, task.t0, task.t1, error=text,
                             elapsed_s=time.perf_counter() - start,
                             compile_s=compile_seconds() - c0)
+    finally:
+        _current.index = outer
 
 
 class _Store:
@@ -181,6 +254,8 @@ def map_windows(
     desc: str = "",
     with_window: bool = False,
     read_kwargs: dict | None = None,
+    units: Sequence[int] | None = None,
+    unit: str = "win",
 ) -> list[WindowResult]:
     """Apply ``fn`` to the events of every window; results in window order.
 
@@ -224,6 +299,11 @@ def map_windows(
         Also pass the window's ``t0, t1`` (µs) to ``fn``.
     read_kwargs : dict, optional
         Extra arguments of ``read_events`` (e.g. ``{"format": "h5"}``).
+    units : sequence of int, optional
+        Progress units of each window (default 1): the bar counts these, ``fn`` advances
+        it live with :func:`report_progress`, and a finished window counts whole.
+    unit : str
+        Name of a progress unit on the bar.
 
     Returns
     -------
@@ -247,6 +327,11 @@ def map_windows(
     if not isinstance(source, EventArray):
         source = os.fspath(source)
     tasks = _normalize_windows(windows)
+    if units is not None:
+        units = [int(u) for u in units]
+        if len(units) != len(tasks) or min(units, default=0) < 0:
+            raise ParameterError(f"units must hold one count >= 0 per window ({len(tasks)}), "
+                                 f"got {units}")
     read_kwargs = dict(read_kwargs or {})
     store = _Store(resume_dir)
     results: dict[int, WindowResult] = {}
@@ -257,40 +342,88 @@ def map_windows(
             results[task.index] = cached
         else:
             pending.append(task)
+    if not pending:
+        return [results[t.index] for t in tasks]
 
-    if pending:
+    bar = _Progress({t.index: 1 if units is None else units[t.index] for t in pending},
+                    desc or "windows", unit, progress)
+    live = bar.tick if progress else None
+    try:
         if scheduler is not None:
-            stream = _run_dask(fn, source, pending, scheduler, with_window, read_kwargs)
+            stream = _run_dask(fn, source, pending, scheduler, with_window, read_kwargs, live)
         elif workers == 1 and isinstance(executor, str):
-            stream = (_run_window(fn, _payload(source, t), t, with_window, read_kwargs)
-                      for t in pending)
+            stream = _in_process(fn, source, pending, with_window, read_kwargs, live)
         else:
-            stream = _run_local(fn, source, pending, workers, executor, with_window, read_kwargs)
-        if progress:
-            stream = progress_bar(stream, total=len(pending), desc=desc or "windows",
-                                  unit="win")
+            stream = _run_local(fn, source, pending, workers, executor, with_window,
+                                read_kwargs, live)
         for res in stream:
             store.save(res)
             results[res.index] = res
+            bar.finish(res.index)
+    finally:
+        bar.close()
     return [results[t.index] for t in tasks]
 
 
+def _in_process(fn, source, tasks: list[_Task], with_window: bool, read_kwargs: dict,
+                live) -> Iterator[WindowResult]:
+    """The windows one after another in this process, reports going straight to the bar."""
+    global _sink
+    saved, _sink = _sink, live or _sink
+    try:
+        for t in tasks:
+            yield _run_window(fn, _payload(source, t), t, with_window, read_kwargs)
+    finally:
+        _sink = saved
+
+
 def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_window: bool,
-               read_kwargs: dict) -> Iterator[WindowResult]:
+               read_kwargs: dict, live) -> Iterator[WindowResult]:
     """Yield results as they complete, keeping at most ``2 * workers`` windows in flight so
     that in-memory slices are not all pickled at once. The pool is made before the
-    progress bar exists, so its start method sees only the caller's own threads."""
+    progress bar exists, so its start method sees only the caller's own threads. Worker
+    processes send their :func:`report_progress` calls through a queue that a thread here
+    passes to the bar; threads call the bar directly."""
+    global _sink
+    saved, relay = _sink, None
     if isinstance(executor, cf.Executor):
         pool, owned = executor, False
     elif executor == "process":
-        pool, owned = cf.ProcessPoolExecutor(max_workers=workers,
-                                             mp_context=_process_context()), True
+        context = _process_context()
+        queue = context.SimpleQueue() if live else None
+        pool, owned = cf.ProcessPoolExecutor(max_workers=workers, mp_context=context,
+                                             initializer=_install_queue,
+                                             initargs=(queue,)), True
+        if live:
+            relay = threading.Thread(target=_relay, args=(queue, live), daemon=True,
+                                     name="evmotion-progress")
+            relay.start()
     elif executor == "thread":
         pool, owned = cf.ThreadPoolExecutor(max_workers=workers), True
+        _sink = live or _sink
     else:
         raise ParameterError(f"executor must be 'process', 'thread' or an Executor, "
                              f"got {executor!r}")
-    return _drain(pool, owned, fn, source, tasks, 2 * workers, with_window, read_kwargs)
+    try:
+        yield from _drain(pool, owned, fn, source, tasks, 2 * workers, with_window,
+                          read_kwargs)
+    finally:
+        _sink = saved
+        if relay is not None:
+            queue.put(None)
+            relay.join(timeout=1.0)
+
+
+def _install_queue(queue) -> None:
+    """Worker process initializer: :func:`report_progress` goes to ``queue``."""
+    global _sink
+    _sink = None if queue is None else (lambda index, n: queue.put((index, n)))
+
+
+def _relay(queue, live) -> None:
+    """Pass the workers' reports to the bar until the ``None`` that ends the run."""
+    while (item := queue.get()) is not None:
+        live(*item)
 
 
 def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit: int,
@@ -361,10 +494,19 @@ def _broken(exc: Exception, task: _Task) -> WindowResult:
 
 
 def _run_batch(fn: Callable, payloads: list, tasks: list[_Task], with_window: bool,
-               read_kwargs: dict) -> list[WindowResult]:
-    """Run in a Dask worker: :func:`_run_window` on each window of a batch, in order."""
-    return [_run_window(fn, payload, task, with_window, read_kwargs)
-            for payload, task in zip(payloads, tasks, strict=True)]
+               read_kwargs: dict, topic: str | None = None) -> list[WindowResult]:
+    """Run in a Dask worker: :func:`_run_window` on each window of a batch, in order;
+    :func:`report_progress` logs Dask events on ``topic``, which the client follows."""
+    if topic is not None:
+        from distributed import get_worker
+
+        worker = get_worker()
+        _current.sink = lambda index, n: worker.log_event(topic, [index, n])
+    try:
+        return [_run_window(fn, payload, task, with_window, read_kwargs)
+                for payload, task in zip(payloads, tasks, strict=True)]
+    finally:
+        _current.sink = None
 
 
 #: Seconds of work one Dask task is given when windows are shorter than this: as many
@@ -414,9 +556,11 @@ class _Batcher:
 
 
 def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
-              read_kwargs: dict) -> Iterator[WindowResult]:
+              read_kwargs: dict, live) -> Iterator[WindowResult]:
     """Yield results as batches complete (:class:`_Batcher`), keeping ``2 *`` the cluster's
-    threads tasks in flight, so that in-memory slices are not all shipped at once."""
+    threads tasks in flight, so that in-memory slices are not all shipped at once. The
+    workers' :func:`report_progress` calls come back as Dask events on a topic of this
+    run, which the client's event loop passes to ``live``."""
     try:
         from distributed import Client, as_completed
     except ImportError as exc:
@@ -427,6 +571,7 @@ def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
     limit = 2 * max(1, sum(client.nthreads().values()))
     batcher = _Batcher(tasks, limit)
     futures: dict[str, list[_Task]] = {}
+    topic = f"evmotion-progress-{uuid.uuid4().hex}" if live else None
 
     def refill(stream=None) -> list:
         batches = []
@@ -440,13 +585,15 @@ def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
         n = len(batches)
         new = client.map(_run_batch, [fn] * n,
                          [[_payload(source, t) for t in batch] for batch in batches], batches,
-                         [with_window] * n, [read_kwargs] * n, pure=False)
+                         [with_window] * n, [read_kwargs] * n, [topic] * n, pure=False)
         for fut, batch in zip(new, batches, strict=True):
             futures[fut.key] = batch
             if stream is not None:
                 stream.add(fut)
         return new
 
+    if topic is not None:
+        client.subscribe_topic(topic, lambda event: live(*event[1]))
     try:
         stream = as_completed(refill(), loop=client.loop)
         for fut in stream:
@@ -464,6 +611,10 @@ def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
                 yield res
             refill(stream)
     finally:
+        if topic is not None:
+            # only the bar's feed: a lost connection is reported by the results, not here
+            with contextlib.suppress(Exception):
+                client.unsubscribe_topic(topic)
         if owned:
             client.close()
 

@@ -898,6 +898,8 @@ def _same_shape(prev: np.ndarray, like: np.ndarray) -> np.ndarray:
 def _solve_chunk(events: EventArray, t0_us: int, t1_us: int, *, frames, times, roi, options,
                  warm_start) -> list[BosResult]:
     """Solve the frame intervals inside ``[t0_us, t1_us]`` in order (a worker's chunk)."""
+    from evmotion.parallel import report_progress
+
     out = []
     prev = None
     idx = [i for i in range(len(times) - 1) if t0_us <= times[i] and times[i + 1] <= t1_us]
@@ -906,6 +908,7 @@ def _solve_chunk(events: EventArray, t0_us: int, t1_us: int, *, frames, times, r
                            frame_next=frames[i + 1], roi=roi, options=options,
                            init=prev if warm_start else None)
         out.append(res)
+        report_progress()
         prev = res
     return out
 
@@ -972,7 +975,8 @@ def estimate_bos_sequence(
     fn = functools.partial(_solve_chunk, frames=frames, times=times, roi=roi, options=o,
                            warm_start=warm_start)
     results = map_windows(fn, events, windows, workers=workers, scheduler=scheduler,
-                          progress=progress, desc="bos", with_window=True)
+                          progress=progress, desc="bos", with_window=True,
+                          units=np.diff(bounds).tolist(), unit="interval")
     out: list[BosResult] = []
     for res in results:
         if not res.ok:

@@ -802,6 +802,7 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
     -------
     list of FlowResult (empty windows raise :class:`EmptyWindowError`).
     """
+    from evmotion.parallel import report_progress
     from evmotion.utils import progress
 
     if workers != 1 or scheduler is not None:
@@ -819,6 +820,7 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
     for w in it:
         res = estimate_flow(events.window(w), init=init, **kwargs)
         out.append(res)
+        report_progress()  # a chunk run by map_windows: one of its windows is done
         if warm_start:
             init = res
     return out

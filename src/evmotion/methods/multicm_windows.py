@@ -88,7 +88,9 @@ def estimate_in_chunks(events: EventArray, windows: Sequence[Window], *, workers
                      windows[b - 1].stop)
               for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)) if b > a]
     results = map_windows(fn, events, chunks, workers=workers, scheduler=scheduler,
-                          with_window=True, desc="multicm")
+                          with_window=True, desc="multicm",
+                          units=[b - a for a, b in zip(bounds[:-1], bounds[1:], strict=True)
+                                 if b > a])
     for r in results:
         if not r.ok:
             raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
