@@ -378,6 +378,7 @@ class _Bar:
 
     def __init__(self, *args, **kwargs):
         self.total = kwargs.get("total")
+        self.disable = kwargs.get("disable") is True  # None: shown where stderr is a TTY
         self.updates: list[tuple[float, int]] = []
         _Bar.last = self
 

@@ -347,7 +347,8 @@ def map_windows(
 
     bar = _Progress({t.index: 1 if units is None else units[t.index] for t in pending},
                     desc or "windows", unit, progress)
-    live = bar.tick if progress else None
+    # no live channel where nobody sees the bar (stderr not a terminal, progress=False)
+    live = None if bar.bar.disable else bar.tick
     try:
         if scheduler is not None:
             stream = _run_dask(fn, source, pending, scheduler, with_window, read_kwargs, live)
