@@ -107,7 +107,8 @@ def test_cli_train_end_to_end(tmp_path, capsys):
     assert {p.name for p in out.iterdir()} >= {"last.pt", "model.pt", "steps.csv",
                                                 "epochs.csv", "loss.png"}
     assert main(argv[:-3] + ["--crop", "50x64", "--out", str(out)]) == 2
-    assert "multiples of 16" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--crop" in err and "multiple of 16" in err and "'50x64'" in err
 
 
 def test_init_weights_starts_from_a_checkpoint(tmp_path):
