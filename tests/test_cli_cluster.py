@@ -220,3 +220,35 @@ def test_workers_with_malloc_trim_threshold_get_one_warning(rec, cluster, tmp_pa
     assert main(["egomotion", str(rec), "--warp", "translation", "--window-events", "6000",
                  "--max-png", "0", "--out", str(tmp_path / "o"), "--scheduler", cluster]) == 0
     assert "MALLOC_TRIM_THRESHOLD_" not in capsys.readouterr().err
+
+
+def _flatten(tree: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def test_docs_worker_yaml_is_dask_configuration_and_what_the_benchmark_uses():
+    """The worker.yaml of docs/cluster.rst, as a user copies it: every key is one Dask
+    knows (a misspelt key would be ignored without a word), and it is the configuration
+    benchmarks/bench_cluster.py measures."""
+    import dask
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "docs" / "cluster.rst").read_text()
+    block = text.split("holds::\n\n", 1)[1].split("\n\n", 1)[0]
+    settings = _flatten(yaml.safe_load(block))
+    assert len(settings) >= 5, settings
+    for key in settings:
+        dask.config.get(key)  # raises KeyError for a key Dask does not have
+    sys.path.insert(0, str(root / "benchmarks"))
+    try:
+        import bench_cluster
+    finally:
+        sys.path.remove(str(root / "benchmarks"))
+    assert settings == bench_cluster.DOCS
