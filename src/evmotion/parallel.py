@@ -381,10 +381,10 @@ def _in_process(fn, source, tasks: list[_Task], with_window: bool, read_kwargs: 
 def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_window: bool,
                read_kwargs: dict, live) -> Iterator[WindowResult]:
     """Yield results as they complete, keeping at most ``2 * workers`` windows in flight so
-    that in-memory slices are not all pickled at once. The pool is made before the
-    progress bar exists, so its start method sees only the caller's own threads. Worker
-    processes send their :func:`report_progress` calls through a queue that a thread here
-    passes to the bar; threads call the bar directly."""
+    that in-memory slices are not all pickled at once. Worker processes send their
+    :func:`report_progress` calls through a queue that a thread here passes to the bar
+    (threads call the bar directly); that thread starts after the workers, so that a
+    forked worker never copies a process with it running."""
     global _sink
     saved, relay = _sink, None
     if isinstance(executor, cf.Executor):
@@ -396,6 +396,11 @@ def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_wind
                                              initializer=_install_queue,
                                              initargs=(queue,)), True
         if live:
+            try:
+                pool.submit(int).result()  # starts the workers (with fork: all of them)
+            except BaseException:
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
             relay = threading.Thread(target=_relay, args=(queue, live), daemon=True,
                                      name="evmotion-progress")
             relay.start()
