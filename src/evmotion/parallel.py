@@ -34,13 +34,12 @@ from evmotion.utils import progress as progress_bar
 __all__ = ["BATCH_TARGET_S", "WindowResult", "connect_scheduler", "map_windows",
            "report_progress"]
 
-#: Where :func:`report_progress` sends ``(window index, units)`` in this process: the
-#: caller's bar (in-process runs), a queue to it (worker processes) or a Dask event
-#: topic (Dask workers). None: reports are dropped.
+#: Where :func:`report_progress` sends ``(window index, units)`` in a worker process of
+#: :func:`map_windows`: a queue to the caller's bar (set by the pool's initializer).
 _sink: Callable[[int, int], None] | None = None
-#: The window the calling thread is running (:func:`_run_window` sets ``index``) and, in a
-#: Dask worker, where this thread's reports go (``sink``: a worker's threads may serve
-#: different runs).
+#: What the calling thread runs: the window (``index``) and where its reports go
+#: (``sink``: the caller's bar in the caller's own threads, a Dask event topic in a Dask
+#: worker; :func:`_run_window` sets both for the length of the call).
 _current = threading.local()
 
 
@@ -168,13 +167,15 @@ def _normalize_windows(windows: Iterable[Window | tuple[int, int]]) -> list[_Tas
 
 
 def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
-                read_kwargs: dict) -> WindowResult:
+                read_kwargs: dict, sink: Callable[[int, int], None] | None = None
+                ) -> WindowResult:
     """Run in the worker: read (or take) the window's events and call ``fn``."""
     from evmotion.jitcache import compile_seconds
 
     c0 = compile_seconds()
     start = time.perf_counter()
-    outer, _current.index = getattr(_current, "index", None), task.index
+    outer = getattr(_current, "index", None), getattr(_current, "sink", None)
+    _current.index, _current.sink = task.index, sink or outer[1]
     try:
         if isinstance(source, EventArray):
             events = source
@@ -192,7 +193,7 @@ def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
                             elapsed_s=time.perf_counter() - start,
                             compile_s=compile_seconds() - c0)
     finally:
-        _current.index = outer
+        _current.index, _current.sink = outer
 
 
 class _Store:
@@ -353,7 +354,8 @@ def map_windows(
         if scheduler is not None:
             stream = _run_dask(fn, source, pending, scheduler, with_window, read_kwargs, live)
         elif workers == 1 and isinstance(executor, str):
-            stream = _in_process(fn, source, pending, with_window, read_kwargs, live)
+            stream = (_run_window(fn, _payload(source, t), t, with_window, read_kwargs, live)
+                      for t in pending)
         else:
             stream = _run_local(fn, source, pending, workers, executor, with_window,
                                 read_kwargs, live)
@@ -366,18 +368,6 @@ def map_windows(
     return [results[t.index] for t in tasks]
 
 
-def _in_process(fn, source, tasks: list[_Task], with_window: bool, read_kwargs: dict,
-                live) -> Iterator[WindowResult]:
-    """The windows one after another in this process, reports going straight to the bar."""
-    global _sink
-    saved, _sink = _sink, live or _sink
-    try:
-        for t in tasks:
-            yield _run_window(fn, _payload(source, t), t, with_window, read_kwargs)
-    finally:
-        _sink = saved
-
-
 def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_window: bool,
                read_kwargs: dict, live) -> Iterator[WindowResult]:
     """Yield results as they complete, keeping at most ``2 * workers`` windows in flight so
@@ -385,8 +375,7 @@ def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_wind
     :func:`report_progress` calls through a queue that a thread here passes to the bar
     (threads call the bar directly); that thread starts after the workers, so that a
     forked worker never copies a process with it running."""
-    global _sink
-    saved, relay = _sink, None
+    relay, sink = None, None
     if isinstance(executor, cf.Executor):
         pool, owned = executor, False
     elif executor == "process":
@@ -405,16 +394,14 @@ def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_wind
                                      name="evmotion-progress")
             relay.start()
     elif executor == "thread":
-        pool, owned = cf.ThreadPoolExecutor(max_workers=workers), True
-        _sink = live or _sink
+        pool, owned, sink = cf.ThreadPoolExecutor(max_workers=workers), True, live
     else:
         raise ParameterError(f"executor must be 'process', 'thread' or an Executor, "
                              f"got {executor!r}")
     try:
         yield from _drain(pool, owned, fn, source, tasks, 2 * workers, with_window,
-                          read_kwargs)
+                          read_kwargs, sink)
     finally:
-        _sink = saved
         if relay is not None:
             queue.put(None)
             relay.join(timeout=1.0)
@@ -433,7 +420,7 @@ def _relay(queue, live) -> None:
 
 
 def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit: int,
-           with_window: bool, read_kwargs: dict) -> Iterator[WindowResult]:
+           with_window: bool, read_kwargs: dict, sink=None) -> Iterator[WindowResult]:
     queue = iter(tasks)
     running: dict[cf.Future, _Task] = {}
     interrupted = False
@@ -444,7 +431,7 @@ def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit
                 if task is None:
                     break
                 fut = pool.submit(_run_window, fn, _payload(source, task), task, with_window,
-                                  read_kwargs)
+                                  read_kwargs, sink)
                 running[fut] = task
             if not running:
                 return
@@ -503,16 +490,17 @@ def _run_batch(fn: Callable, payloads: list, tasks: list[_Task], with_window: bo
                read_kwargs: dict, topic: str | None = None) -> list[WindowResult]:
     """Run in a Dask worker: :func:`_run_window` on each window of a batch, in order;
     :func:`report_progress` logs Dask events on ``topic``, which the client follows."""
+    sink = None
     if topic is not None:
         from distributed import get_worker
 
         worker = get_worker()
-        _current.sink = lambda index, n: worker.log_event(topic, [index, n])
-    try:
-        return [_run_window(fn, payload, task, with_window, read_kwargs)
-                for payload, task in zip(payloads, tasks, strict=True)]
-    finally:
-        _current.sink = None
+
+        def sink(index: int, n: int) -> None:
+            worker.log_event(topic, [index, n])
+
+    return [_run_window(fn, payload, task, with_window, read_kwargs, sink)
+            for payload, task in zip(payloads, tasks, strict=True)]
 
 
 #: Seconds of work one Dask task is given when windows are shorter than this: as many

@@ -27,7 +27,6 @@ from evmotion.cli.options import (
     positive_int,
     writable_folder,
 )
-from evmotion.errors import ParameterError
 
 EXAMPLES = """examples:
   evmotion train --sim-windows 4 --epochs 1 --out runs/sim      # a smoke run (64 and 10 for real)
@@ -111,8 +110,6 @@ def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.methods.dnn.train import TrainConfig, train
 
-    if args.sim_windows == 0 and not args.recordings:
-        raise ParameterError("no training data: give recordings or --sim-windows > 0")
     cfg = TrainConfig(width=args.width, epochs=args.epochs, batch_size=args.batch_size,
                       lr=args.lr, lr_decay=args.lr_decay, sim_windows=args.sim_windows,
                       recordings=list(args.recordings), val_sim=args.val_sim,

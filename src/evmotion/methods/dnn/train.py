@@ -94,7 +94,8 @@ class TrainConfig:
                                  f"lr > 0; got {self.epochs}, {self.batch_size}, "
                                  f"{self.sim_windows}, {self.lr}")
         if self.sim_windows == 0 and not self.recordings:
-            raise ParameterError("no training data: give recordings or sim_windows > 0")
+            raise ParameterError("no training data: give recordings or sim_windows > 0 "
+                                 "(--sim-windows)")
         if any(c <= 0 or c % PAD_MULTIPLE for c in self.crop):
             raise ParameterError(f"crop must be positive multiples of {PAD_MULTIPLE}, "
                                  f"got {tuple(self.crop)}")
