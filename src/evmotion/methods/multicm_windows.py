@@ -83,14 +83,12 @@ def estimate_in_chunks(events: EventArray, windows: Sequence[Window], *, workers
                              "starts from zero flow); use workers=1")
     fn = functools.partial(_chunk, windows=list(windows), kwargs=kwargs, keep_iwes=keep_iwes)
     bounds = np.linspace(0, len(windows), min(workers, len(windows)) + 1).astype(int)
+    spans = [(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True) if b > a]
     # a Window is sent by its index range: the chunk's events, exactly
     chunks = [Window(k, windows[a].t0, windows[b - 1].t1, windows[a].start,
-                     windows[b - 1].stop)
-              for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)) if b > a]
+                     windows[b - 1].stop) for k, (a, b) in enumerate(spans)]
     results = map_windows(fn, events, chunks, workers=workers, scheduler=scheduler,
-                          with_window=True, desc="multicm",
-                          units=[b - a for a, b in zip(bounds[:-1], bounds[1:], strict=True)
-                                 if b > a])
+                          with_window=True, desc="multicm", units=[b - a for a, b in spans])
     for r in results:
         if not r.ok:
             raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
