@@ -420,7 +420,7 @@ def test_reports_reach_the_bar_from_dask_workers(monkeypatch):
     assert all(g > 0.25 for g in gaps), gaps
 
 
-def test_reports_beyond_a_window_s_units_are_not_counted(monkeypatch):
+def test_reports_are_clamped_to_each_window_units(monkeypatch):
     """A window reporting more than its units, or reports outside map_windows, never move
     the bar past its total."""
     from evmotion.parallel import report_progress
