@@ -43,8 +43,6 @@ MAX_T_OFFSET_US = 1 << 60
 
 
 def _open(path: Path):
-
-    register_filters()
     if path.is_dir():
         path = path / "events.h5"
     f = open_h5(path)

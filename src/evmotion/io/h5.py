@@ -233,9 +233,7 @@ def write(path: str | os.PathLike, events: EventArray | Iterable[EventArray], *,
 
 
 def _open(path: Path):
-
-    register_filters()
-    f = open_h5(path)
+    f = open_h5(path)  # registers the Blosc filters of the event datasets
     if "events" not in f:
         f.close()
         raise FormatError(path, "no 'events' group (not an evmotion event file)")
