@@ -4,6 +4,7 @@ mask; per-window patterns; .npy refused; atomic writes; .h5 resume; describe_flo
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -243,3 +244,37 @@ def test_a_fresh_process_reads_the_compressed_h5_output(tmp_path):
     seq = read_flow(path)
     assert res.stdout.split()[0] == "1"
     assert float(res.stdout.split()[1]) == pytest.approx(seq.valid.mean(), abs=1e-4)
+
+
+def test_without_hdf5plugin_blosc_outputs_fall_back_to_gzip(tmp_path):
+    """Where hdf5plugin cannot be imported, the Blosc defaults of the event and flow files
+    (LZ4) are written with gzip instead, and read back, rather than failing on an import
+    (a fresh process: this one has imported hdf5plugin)."""
+    import subprocess
+    import textwrap
+
+    code = textwrap.dedent(f"""
+        import sys
+        sys.modules["hdf5plugin"] = None  # as if it were not installed
+        import h5py, numpy as np
+        from evmotion.events import EventArray
+        from evmotion.io import read_events, write_events
+        from evmotion.io.flowfiles import FlowWriter, read_flow_h5
+        from evmotion.io.h5filters import h5_compression
+        assert h5_compression("zstd")["compression"] == "gzip"
+        n = 5000
+        ev = EventArray(np.arange(n) % 32, np.arange(n) % 24, np.arange(n), np.arange(n) % 2,
+                        sensor_size=(24, 32))
+        write_events({str(tmp_path / "ev.h5")!r}, ev)
+        assert len(read_events({str(tmp_path / "ev.h5")!r})) == n
+        with FlowWriter({str(tmp_path / "f.h5")!r}, (24, 32)) as w:
+            w.append(np.ones((24, 32, 2), np.float32), 0, 1000)
+        for name, key in (("ev.h5", "events/x"), ("f.h5", "flow")):
+            with h5py.File({str(tmp_path)!r} + "/" + name) as f:
+                print(name, f[key].compression)
+        print(float(read_flow_h5({str(tmp_path / "f.h5")!r}).flow.sum()))
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["ev.h5", "gzip", "f.h5", "gzip", "1536.0"], out.stdout

@@ -33,6 +33,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.guard import open_h5
 from evmotion.io.h5attrs import read_attrs, read_attrs_many
+from evmotion.io.h5filters import h5_compression
 from evmotion.io.pngfile import read_png, write_png
 from evmotion.utils import atomic_path
 
@@ -507,33 +508,6 @@ def check_extras(specs: dict, values: dict | None, path=None) -> dict:
     return out
 
 
-H5_COMPRESSIONS = ("gzip", "lzf", "lz4", "zstd", None)
-
-
-def h5_compression(name: str | None) -> dict:
-    """h5py dataset keywords of an HDF5 filter: ``"gzip"`` (level 1, shuffled), ``"lzf"``,
-    ``"lz4"`` / ``"zstd"`` (Blosc, byte shuffle, through :mod:`hdf5plugin`: several times
-    faster than gzip on flow fields), or None (uncompressed).
-
-    Examples
-    --------
-    >>> h5_compression("gzip")
-    {'compression': 'gzip', 'compression_opts': 1, 'shuffle': True}
-    """
-    if name not in H5_COMPRESSIONS:
-        raise ParameterError(f"compression must be one of {H5_COMPRESSIONS}, got {name!r}")
-    if name is None:
-        return {}
-    if name == "gzip":
-        return {"compression": "gzip", "compression_opts": 1, "shuffle": True}
-    if name == "lzf":
-        return {"compression": "lzf"}
-    import hdf5plugin
-
-    level = 5 if name == "lz4" else 1
-    return dict(hdf5plugin.Blosc(cname=name, clevel=level, shuffle=hdf5plugin.Blosc.SHUFFLE))
-
-
 def write_flow_group(group, flow: np.ndarray | None, t0, t1, valid=None, *,
                      sensor_size: tuple[int, int] | None = None, with_valid: bool | None = None,
                      compression: str | None = "gzip") -> None:
@@ -622,11 +596,8 @@ def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> F
     >>> seq.flow.shape  # doctest: +SKIP
     (2, 180, 240, 2)
     """
-
-    import hdf5plugin  # noqa: F401  (registers the Blosc filters of lz4/zstd flow files)
-
     path = Path(path)
-    f = open_h5(path)
+    f = open_h5(path)  # registers the Blosc filters of lz4/zstd flow files
     with f:
         root = read_attrs(path, f)
         if root.get("format") == FLOW_FORMAT:

@@ -33,7 +33,7 @@ from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, PartFileWriter
 from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
 from evmotion.io.h5attrs import read_attrs, text_attr
-from evmotion.io.h5filters import HDF5_MAGIC, filter_error, register_filters
+from evmotion.io.h5filters import HDF5_MAGIC, filter_error, h5_compression
 
 __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
            "read_imu", "FORMAT", "FORMAT_NAME"]
@@ -41,14 +41,6 @@ __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_fram
 FORMAT_NAME = "evmotion-events"
 VERSION = 1
 CHUNK = 1 << 18
-
-
-def _compression() -> dict:
-    if not register_filters():
-        return {"compression": "gzip", "compression_opts": 1, "shuffle": True}
-    import hdf5plugin
-
-    return dict(hdf5plugin.Blosc(cname="lz4", clevel=5, shuffle=hdf5plugin.Blosc.SHUFFLE))
 
 
 def _jsonable(obj):
@@ -115,7 +107,7 @@ class EventWriter(PartFileWriter):
             f.attrs[k] = v if isinstance(v, (int, float, np.ndarray)) else text_attr(
                 v if isinstance(v, str) else json.dumps(_jsonable(v)))
         g = f.create_group("events")
-        comp = _compression()
+        comp = h5_compression("lz4")
         cdt = "<f4" if float_coords else "<u2"
         for name, dt in (("x", cdt), ("y", cdt), ("t", "<i8"), ("p", "u1")):
             g.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(CHUNK,),
