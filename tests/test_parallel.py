@@ -143,7 +143,7 @@ def test_dask_local_cluster():
     distributed = pytest.importorskip("distributed")
     ev = _events()
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                                  dashboard_address=None) as cluster, \
+                                  dashboard_address=":0") as cluster, \
             distributed.Client(cluster) as client:
         res = map_windows(fail_in_middle, ev, WINDOWS, scheduler=client, with_window=True,
                           progress=False)
@@ -413,7 +413,7 @@ def test_reports_reach_the_bar_while_the_window_runs(monkeypatch, executor, work
 def test_reports_reach_the_bar_from_dask_workers(monkeypatch):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster, \
+                                  dashboard_address=":0") as cluster, \
             distributed.Client(cluster) as client:
         units, gaps = _live_updates(monkeypatch, scheduler=client)
     assert units == [1, 1, 1]
