@@ -63,9 +63,9 @@ def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
     starts = []
     real_opt = mc._optimize
 
-    def spy(prob, theta0, optimizer, max_iter):
+    def spy(prob, theta0, optimizer, max_iter, tol=0.0):
         starts.append((prob.grid, theta0.copy()))
-        return real_opt(prob, theta0, optimizer, max_iter)
+        return real_opt(prob, theta0, optimizer, max_iter, tol)
 
     monkeypatch.setattr(dnn_pkg, "estimate_flow_dnn", net)
     monkeypatch.setattr(mc, "_optimize", spy)

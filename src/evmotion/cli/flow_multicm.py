@@ -28,6 +28,7 @@ from evmotion.cli.options import (
     add_scheduler_argument,
     check_flow_out,
     check_free_space,
+    finite_float,
     int_range,
     nonnegative_float,
     positive_int,
@@ -45,6 +46,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--lambda": ("lam", 0.0025),
     "--objective": ("objective", "gradient_magnitude"),
     "--max-iter": ("max_iter", 20),
+    "--tol": ("tol", 3e-5),
     "--workers": ("workers", 1),
     "--init": ("init", "previous"),
     "--scheduler": ("scheduler", None),
@@ -67,6 +69,10 @@ def add_arguments(group) -> None:
                        help="focus function (default gradient magnitude)")
     group.add_argument("--max-iter", type=positive_int(), default=None,
                        help="optimizer iterations per scale (default 20)")
+    group.add_argument("--tol", type=finite_float(0.0, 1.0, hi_open=True), default=None,
+                       help="from the 4x4-tile scale on, stop a scale once an iteration "
+                            "lowers the objective by less than this, in [0, 1) (default "
+                            "3e-5; 0: always --max-iter iterations)")
     group.add_argument("--workers", type=positive_int(), default=None,
                        help="parallel worker processes (default 1); each takes a contiguous "
                             "chunk of windows; with --scheduler, the number of chunks "
@@ -198,9 +204,10 @@ def run(args) -> int:
 
         kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
                       n_scales=args.scales, objective=args.objective, lam=args.lam,
-                      n_bins=args.time_bins, max_iter=args.max_iter)
+                      n_bins=args.time_bins, max_iter=args.max_iter, tol=args.tol)
         attrs = {"method": "multicm", "time_aware": args.time_aware,
                  "objective": args.objective, "lambda": args.lam, "scales": args.scales,
+                 "max_iter": args.max_iter, "tol": args.tol,
                  "init": args.init, "source": str(args.file)}
         if args.time_bins is not None:
             attrs["time_bins"] = args.time_bins
