@@ -52,3 +52,19 @@ def test_chunks_refuse_what_they_cannot_honour(rec):
         estimate_flow_sequence(ev, wins, workers=2, init=np.zeros((48, 64, 2), np.float32))
     with pytest.raises(ParameterError, match="warm_start=False"):
         estimate_flow_sequence(ev, wins, workers=2, warm_start=False)
+
+
+def test_iter_chunks_streams_the_same_windows_first_chunk_shortest(rec):
+    from evmotion.methods.multicm_windows import iter_chunks
+
+    ev, wins = rec
+    wins = wins[:3]
+    got = list(iter_chunks(ev, wins, workers=2, keep_iwes=False, **KW))
+    # 3 windows in 2 chunks: [w0] then [w1, w2] (the first chunk the shorter, ending first)
+    want = _serial(ev, wins[:1]) + _serial(ev, wins[1:])
+    assert len(got) == 3
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(g.flow, w.flow)
+    lazy = iter_chunks(ev, wins, workers=0, **KW)  # checked when the work starts
+    with pytest.raises(ParameterError, match="workers"):
+        next(lazy)

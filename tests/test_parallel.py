@@ -441,3 +441,56 @@ def test_units_must_match_the_windows():
         map_windows(count_and_span, _events(), WINDOWS, units=[1, 2], progress=False)
     with pytest.raises(ParameterError, match="units"):
         map_windows(count_and_span, _events(), WINDOWS, units=[1, 1, 1, 1, -1], progress=False)
+
+
+def test_imap_yields_each_window_once_the_ones_before_it_are_done():
+    """Window 1 finishes first, window 0 only once released, window 2 only after the
+    caller has taken window 0: so the first result comes in window order, and before the
+    last window is done (map_windows would hold it until all are)."""
+    from evmotion.parallel import imap_windows
+
+    one_done, release_zero, zero_taken = (threading.Event() for _ in range(3))
+    finished = []
+
+    def work(ev, t0, t1):
+        if t0 == 0:
+            assert one_done.wait(10) and release_zero.wait(10)
+        elif t0 == 20_000:
+            one_done.set()
+        else:
+            assert zero_taken.wait(10)
+        finished.append(t0)
+        return t0
+
+    stream = imap_windows(work, _events(), [(0, 20_000), (20_000, 40_000), (40_000, 60_000)],
+                          workers=2, executor="thread", with_window=True, progress=False)
+    release_zero.set()
+    first = next(stream)
+    assert first.value == 0 and 40_000 not in finished
+    zero_taken.set()
+    assert [r.value for r in stream] == [20_000, 40_000]
+
+
+def test_imap_yields_resumed_windows_first(tmp_path):
+    from evmotion.parallel import imap_windows
+
+    ev = _events()
+    map_windows(count_and_span, ev, WINDOWS[:2], resume_dir=tmp_path, progress=False)
+    got = list(imap_windows(count_and_span, ev, WINDOWS, resume_dir=tmp_path, progress=False))
+    assert [r.cached for r in got] == [True, True, False, False, False]
+    assert [r.t0 for r in got] == [a for a, _ in WINDOWS]
+
+
+def test_imap_stopped_early_shuts_its_pool():
+    from evmotion.parallel import imap_windows
+
+    stream = imap_windows(count_and_span, _events(), WINDOWS, workers=2, executor="thread",
+                          progress=False)
+    before = threading.active_count()
+    assert next(stream).ok
+    assert threading.active_count() > before  # the pool's threads
+    stream.close()
+    deadline = time.monotonic() + 5
+    while threading.active_count() > before and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert threading.active_count() <= before

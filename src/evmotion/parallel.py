@@ -2,7 +2,8 @@
 
 :func:`map_windows` runs ``fn(events)`` for every window of a recording with a
 :mod:`concurrent.futures` executor (processes by default) or a Dask ``distributed``
-cluster, and returns one :class:`WindowResult` per window, in window order. A failing
+cluster, and returns one :class:`WindowResult` per window, in window order;
+:func:`imap_windows` yields them in that order as soon as each is ready. A failing
 window is reported (with its time range) without losing the others; with ``resume_dir``
 each finished window is saved as soon as it arrives, so a rerun after an interruption only
 computes what is missing.
@@ -31,8 +32,8 @@ from evmotion.events import EventArray, Window
 from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
 
-__all__ = ["BATCH_TARGET_S", "WindowResult", "connect_scheduler", "map_windows",
-           "report_progress"]
+__all__ = ["BATCH_TARGET_S", "WindowResult", "connect_scheduler", "imap_windows",
+           "map_windows", "report_progress"]
 
 #: Where :func:`report_progress` sends ``(window index, units)`` in a worker process of
 #: :func:`map_windows`: a queue to the caller's bar (set by the pool's initializer).
@@ -320,6 +321,43 @@ def map_windows(
     >>> [r.value for r in map_windows(count, ev, [(0, 15), (15, 30)], progress=False)]
     [2, 1]
     """
+    return list(imap_windows(fn, source, windows, workers=workers, executor=executor,
+                             scheduler=scheduler, resume_dir=resume_dir, progress=progress,
+                             desc=desc, with_window=with_window, read_kwargs=read_kwargs,
+                             units=units, unit=unit))
+
+
+def imap_windows(
+    fn: Callable[..., Any],
+    source: str | os.PathLike | EventArray,
+    windows: Sequence[Window | tuple[int, int]],
+    *,
+    workers: int = 1,
+    executor: str | cf.Executor = "process",
+    scheduler: str | Any | None = None,
+    resume_dir: str | os.PathLike | None = None,
+    progress: bool = True,
+    desc: str = "",
+    with_window: bool = False,
+    read_kwargs: dict | None = None,
+    units: Sequence[int] | None = None,
+    unit: str = "win",
+) -> Iterator[WindowResult]:
+    """:func:`map_windows` as a generator: each window's result in the order of
+    ``windows``, yielded as soon as it and every window before it are done, so that a
+    caller writes the first windows while the last are still computed (and holds only
+    those that arrived out of order). The work starts at the first ``next()``; the
+    options are checked then too. Parameters as :func:`map_windows`.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0, 1, 2], y=[0, 0, 0], t=[0, 10, 20], p=[1, 1, 0],
+    ...                 sensor_size=(1, 3))
+    >>> for r in imap_windows(len, ev, [(0, 15), (15, 30)], progress=False):
+    ...     print(r.t0, r.value)
+    0 2
+    15 1
+    """
     if workers < 1:
         raise ParameterError(f"workers must be >= 1, got {workers}")
     if isinstance(executor, str) and executor not in ("process", "thread"):
@@ -344,12 +382,27 @@ def map_windows(
         else:
             pending.append(task)
     if not pending:
-        return [results[t.index] for t in tasks]
+        for t in tasks:
+            yield results.pop(t.index)
+        return
 
     bar = _Progress({t.index: 1 if units is None else units[t.index] for t in pending},
                     desc or "windows", unit, progress)
     # no live channel where nobody sees the bar (stderr not a terminal, progress=False)
     live = None if bar.bar.disable else bar.tick
+    order = iter(tasks)
+    nxt = next(order, None)
+
+    def ready() -> list[WindowResult]:
+        """The results now complete in window order (results keeps only the others)."""
+        nonlocal nxt
+        out = []
+        while nxt is not None and nxt.index in results:
+            out.append(results.pop(nxt.index))
+            nxt = next(order, None)
+        return out
+
+    stream = None
     try:
         if scheduler is not None:
             stream = _run_dask(fn, source, pending, scheduler, with_window, read_kwargs, live)
@@ -359,13 +412,16 @@ def map_windows(
         else:
             stream = _run_local(fn, source, pending, workers, executor, with_window,
                                 read_kwargs, live)
+        yield from ready()  # windows resumed from resume_dir before the first pending one
         for res in stream:
             store.save(res)
             results[res.index] = res
             bar.finish(res.index)
+            yield from ready()
     finally:
+        if stream is not None:  # a caller that stops early ends the pool or the client
+            stream.close()
         bar.close()
-    return [results[t.index] for t in tasks]
 
 
 def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_window: bool,

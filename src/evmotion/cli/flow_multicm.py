@@ -19,6 +19,7 @@ the number of windows.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from pathlib import Path
 
@@ -102,18 +103,21 @@ def _windows(args, events):
                           **kw)
 
 
-def _estimate_parallel(events, windows, kwargs, workers, keep_iwes=False, scheduler=None):
+def _estimate_parallel(events, windows, kwargs, workers, stack, keep_iwes=False,
+                       scheduler=None):
     """The windows' results in order, from ``workers`` chunks on local processes or, with
     ``scheduler`` (an address), on that Dask cluster (``workers`` None: one chunk per
-    worker thread of the cluster)."""
+    worker thread of the cluster), each chunk's as soon as it is done. The scheduler is
+    reached here, before any output exists (a bad address writes nothing); the client
+    stays connected until ``stack`` (a :class:`contextlib.ExitStack`) closes."""
     from evmotion.cli.options import cluster_threads, scheduler_client
-    from evmotion.methods.multicm import estimate_flow_sequence
+    from evmotion.methods.multicm_windows import iter_chunks
 
-    with scheduler_client(scheduler) as client:
-        if workers is None:
-            workers = cluster_threads(client)
-        return iter(estimate_flow_sequence(events, windows, workers=workers, scheduler=client,
-                                           keep_iwes=keep_iwes, **kwargs))
+    client = stack.enter_context(scheduler_client(scheduler))
+    if workers is None:
+        workers = cluster_threads(client)
+    return iter_chunks(events, windows, workers=workers, scheduler=client,
+                       keep_iwes=keep_iwes, **kwargs)
 
 
 def _png(png_dir: Path, i: int, r, max_speed) -> None:
@@ -233,14 +237,15 @@ def run(args) -> int:
 
     results = None
     scheduler = getattr(args, "scheduler", None)
-    if scheduler is not None:
-        results = _estimate_parallel(events, windows, kwargs, args.scheduler_chunks,
-                                     keep_iwes=png_dir is not None, scheduler=scheduler)
-    elif workers > 1:
-        results = _estimate_parallel(events, windows, kwargs, workers,
-                                     keep_iwes=png_dir is not None)
-    rows, written = _run_windows(args, events, windows, attrs, after, progress,
-                                 estimate=estimate, results=results)
+    with contextlib.ExitStack() as stack:
+        if scheduler is not None:
+            results = _estimate_parallel(events, windows, kwargs, args.scheduler_chunks, stack,
+                                         keep_iwes=png_dir is not None, scheduler=scheduler)
+        elif workers > 1:
+            results = _estimate_parallel(events, windows, kwargs, workers, stack,
+                                         keep_iwes=png_dir is not None)
+        rows, written = _run_windows(args, events, windows, attrs, after, progress,
+                                     estimate=estimate, results=results)
     args.flow_summary = {"windows": len(rows), "outputs": written,
                          "events": sum(w.count for w in windows)}
     if video is not None:
@@ -289,5 +294,7 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
         written = [str(p) for p in sink.close()]
     except BaseException:
         sink.abort()
+        if todo is not None and hasattr(todo, "close"):
+            todo.close()  # ends the worker pool (or the cluster's tasks' feed) now
         raise
     return rows, written

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -21,7 +21,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray, Window
 
-__all__ = ["estimate_in_chunks"]
+__all__ = ["estimate_in_chunks", "iter_chunks"]
 
 
 def _lean(res, keep_iwes: bool):
@@ -74,7 +74,20 @@ def estimate_in_chunks(events: EventArray, windows: Sequence[Window], *, workers
     ParameterError
         A chunk failed, or windows starting at the same µs could not be cut into chunks.
     """
-    from evmotion.parallel import map_windows
+    return list(iter_chunks(events, windows, workers=workers, scheduler=scheduler,
+                            keep_iwes=keep_iwes, **kwargs))
+
+
+def iter_chunks(events: EventArray, windows: Sequence[Window], *, workers: int = 2,
+                scheduler: Any = None, keep_iwes: bool = True, **kwargs: Any) -> Iterator:
+    """:func:`estimate_in_chunks` as a generator: the windows' results in window order,
+    each chunk's as soon as it and the chunks before it are done, so that a caller writes
+    the first chunk's windows while the others still run. The first chunk is the shortest
+    (the windows are split as evenly as they go, the remainder to the later chunks), so
+    it ends first. Parameters and errors as :func:`estimate_in_chunks`; the checks run
+    at the first ``next()``.
+    """
+    from evmotion.parallel import imap_windows
 
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ParameterError(f"workers must be an integer >= 1, got {workers!r}")
@@ -87,14 +100,16 @@ def estimate_in_chunks(events: EventArray, windows: Sequence[Window], *, workers
     # a Window is sent by its index range: the chunk's events, exactly
     chunks = [Window(k, windows[a].t0, windows[b - 1].t1, windows[a].start,
                      windows[b - 1].stop) for k, (a, b) in enumerate(spans)]
-    results = map_windows(fn, events, chunks, workers=workers, scheduler=scheduler,
-                          with_window=True, desc="multicm", units=[b - a for a, b in spans])
-    for r in results:
+    made = 0
+    for r in imap_windows(fn, events, chunks, workers=workers, scheduler=scheduler,
+                          with_window=True, desc="multicm", units=[b - a for a, b in spans]):
         if not r.ok:
             raise ParameterError(f"window chunk [{r.t0}, {r.t1}) us failed: {r.error}")
-    flows = [res for r in results for res in r.value]
-    if len(flows) != len(windows):
+        made += len(r.value)
+        if made > len(windows):
+            break
+        yield from r.value
+    if made != len(windows):
         # only where more than a window's worth of events share one timestamp
-        raise ParameterError(f"{len(windows)} windows but the chunks made {len(flows)}: "
+        raise ParameterError(f"{len(windows)} windows but the chunks made {made}: "
                              "windows starting at the same µs; use --window-us")
-    return flows
