@@ -243,7 +243,33 @@ def _payload(source: Any, task: _Task) -> Any:
     return source.slice_time(task.t0, task.t1)
 
 
-def map_windows(
+def map_windows(fn: Callable[..., Any], source: str | os.PathLike | EventArray,
+                windows: Sequence[Window | tuple[int, int]], **options: Any
+                ) -> list[WindowResult]:
+    """Apply ``fn`` to the events of every window; results in window order, as a list.
+
+    Parameters
+    ----------
+    fn, source, windows, **options
+        As :func:`imap_windows` (``workers``, ``executor``, ``scheduler``, ``resume_dir``,
+        ``progress``, ``desc``, ``with_window``, ``read_kwargs``, ``units``, ``unit``).
+
+    Returns
+    -------
+    list of WindowResult
+        One per window, in the order of ``windows``; check ``.ok`` / ``.error``.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0, 1, 2], y=[0, 0, 0], t=[0, 10, 20], p=[1, 1, 0],
+    ...                 sensor_size=(1, 3))
+    >>> [r.value for r in map_windows(len, ev, [(0, 15), (15, 30)], progress=False)]
+    [2, 1]
+    """
+    return list(imap_windows(fn, source, windows, **options))
+
+
+def imap_windows(
     fn: Callable[..., Any],
     source: str | os.PathLike | EventArray,
     windows: Sequence[Window | tuple[int, int]],
@@ -258,8 +284,12 @@ def map_windows(
     read_kwargs: dict | None = None,
     units: Sequence[int] | None = None,
     unit: str = "win",
-) -> list[WindowResult]:
-    """Apply ``fn`` to the events of every window; results in window order.
+) -> Iterator[WindowResult]:
+    """Apply ``fn`` to the events of every window; yield each window's result in window
+    order as soon as it and every window before it are done, so that a caller writes the
+    first windows while the last are still computed (holding only those that arrived out
+    of order). The work, and the checks of the options, start at the first ``next()``;
+    stopping early (``close()``) ends the pool or the cluster's feed.
 
     Parameters
     ----------
@@ -307,9 +337,9 @@ def map_windows(
     unit : str
         Name of a progress unit on the bar.
 
-    Returns
-    -------
-    list of WindowResult
+    Yields
+    ------
+    WindowResult
         One per window, in the order of ``windows``; check ``.ok`` / ``.error``.
 
     Examples
@@ -318,42 +348,7 @@ def map_windows(
     ...     return len(ev)
     >>> ev = EventArray(x=[0, 1, 2], y=[0, 0, 0], t=[0, 10, 20], p=[1, 1, 0],
     ...                 sensor_size=(1, 3))
-    >>> [r.value for r in map_windows(count, ev, [(0, 15), (15, 30)], progress=False)]
-    [2, 1]
-    """
-    return list(imap_windows(fn, source, windows, workers=workers, executor=executor,
-                             scheduler=scheduler, resume_dir=resume_dir, progress=progress,
-                             desc=desc, with_window=with_window, read_kwargs=read_kwargs,
-                             units=units, unit=unit))
-
-
-def imap_windows(
-    fn: Callable[..., Any],
-    source: str | os.PathLike | EventArray,
-    windows: Sequence[Window | tuple[int, int]],
-    *,
-    workers: int = 1,
-    executor: str | cf.Executor = "process",
-    scheduler: str | Any | None = None,
-    resume_dir: str | os.PathLike | None = None,
-    progress: bool = True,
-    desc: str = "",
-    with_window: bool = False,
-    read_kwargs: dict | None = None,
-    units: Sequence[int] | None = None,
-    unit: str = "win",
-) -> Iterator[WindowResult]:
-    """:func:`map_windows` as a generator: each window's result in the order of
-    ``windows``, yielded as soon as it and every window before it are done, so that a
-    caller writes the first windows while the last are still computed (and holds only
-    those that arrived out of order). The work starts at the first ``next()``; the
-    options are checked then too. Parameters as :func:`map_windows`.
-
-    Examples
-    --------
-    >>> ev = EventArray(x=[0, 1, 2], y=[0, 0, 0], t=[0, 10, 20], p=[1, 1, 0],
-    ...                 sensor_size=(1, 3))
-    >>> for r in imap_windows(len, ev, [(0, 15), (15, 30)], progress=False):
+    >>> for r in imap_windows(count, ev, [(0, 15), (15, 30)], progress=False):
     ...     print(r.t0, r.value)
     0 2
     15 1
