@@ -100,12 +100,14 @@ def test_segment_cli(rec, tmp_path, capsys):
         assert z["window_00000"].max() <= 1
 
 
-def test_egomotion_keeps_images_only_of_windows_drawn(rec):
-    """A window past the last PNG leaves out its IWEs and maps (nothing reads them; a
-    worker need not send them back) with the estimate unchanged."""
+def test_egomotion_job_draws_its_panel_and_sends_no_images(rec, tmp_path):
+    """A window up to the last PNG's start draws its panel in the job (a worker), the
+    others none; no result carries IWEs or maps back (nothing reads them; 0.7 MB a
+    window), and the estimate is the library's."""
     from evmotion.cli.egomotion import _window_job
     from evmotion.io import read_events
     from evmotion.methods.egomotion import estimate_egomotion
+    from evmotion.viz import read_png
 
     ev = read_events(rec)
     w0, w1 = ev.windows_by_duration(50_000)[:2]
@@ -113,30 +115,39 @@ def test_egomotion_keeps_images_only_of_windows_drawn(rec):
               optimizer="bfgs", K=None, t_ref="start", seed=0, dataset=None,
               last_png_t0_us=w0.t0)
     drawn = _window_job(ev.window(w0), w0.t0, w0.t1, **kw)
-    assert drawn.iwe_after.shape == drawn.maps["diwe"].shape == ev.sensor_size
+    assert drawn.panel[:4] == b"\x89PNG"
+    assert drawn.result.iwe_after is None and drawn.result.maps == {}
     left = _window_job(ev.window(w1), w1.t0, w1.t1, **kw)
-    assert left.iwe_before is None and left.iwe_after is None and left.maps == {}
+    assert left.panel is None
+    assert left.result.iwe_before is None and left.result.iwe_after is None
     full = estimate_egomotion(ev.window(w1), "translation", regularizer="divergence")
-    assert left.params.tobytes() == full.params.tobytes() and left.cost == full.cost
-    assert left.diagnostics == full.diagnostics
+    assert left.result.params.tobytes() == full.params.tobytes()
+    assert left.result.cost == full.cost and left.result.diagnostics == full.diagnostics
     none = _window_job(ev.window(w0), w0.t0, w0.t1, **{**kw, "last_png_t0_us": None})
-    assert none.iwe_after is None
+    assert none.panel is None
+    assert none.result.params.tobytes() == drawn.result.params.tobytes()
+    # the panel decodes: 2 x 2 images (IWE without / with the warp, DIWE, IWA)
+    png = tmp_path / "p.png"
+    png.write_bytes(drawn.panel)
+    assert read_png(png).shape[1] > 2 * ev.width
 
 
 def test_egomotion_png_panels_of_first_windows_less_failed(rec, tmp_path):
     """--max-png N draws the first N windows; one that failed has no panel and does not
-    pass its turn to a later window (whose IWEs were not kept)."""
-    from evmotion.cli.egomotion import _window_job, write_outputs
+    pass its turn to a later window (whose images were not kept)."""
+    from evmotion.cli.egomotion import _window_job, _written, write_outputs
     from evmotion.io import read_events
 
     ev = read_events(rec)
     w0, w1 = ev.windows_by_duration(50_000)[:2]
     kw = dict(warp="translation", objective="variance", reg=None, weight=None,
               optimizer="bfgs", K=None, t_ref="start", seed=0, dataset=None)
-    r1 = _window_job(ev.window(w1), w1.t0, w1.t1, **kw, last_png_t0_us=w0.t0)
-    rows = write_outputs(tmp_path / "a", [(w0, None, "RuntimeError: x"), (w1, r1, None)], 1)
-    assert [r["window"] for r in rows] == [w1.index]
+    for folder, last in (("a", w0.t0), ("b", w1.t0)):
+        out = tmp_path / folder
+        out.mkdir()
+        r1 = _written(out, w1, _window_job(ev.window(w1), w1.t0, w1.t1, **kw,
+                                           last_png_t0_us=last))
+        rows = write_outputs(out, [(w0, None, "RuntimeError: x"), (w1, r1, None)])
+        assert [r["window"] for r in rows] == [w1.index]
     assert not list((tmp_path / "a").glob("*.png"))
-    r1 = _window_job(ev.window(w1), w1.t0, w1.t1, **kw, last_png_t0_us=w1.t0)
-    write_outputs(tmp_path / "b", [(w0, None, "RuntimeError: x"), (w1, r1, None)], 2)
     assert [p.name for p in (tmp_path / "b").glob("*.png")] == [f"window_{w1.index:05d}.png"]

@@ -17,6 +17,7 @@ import csv
 import functools
 import io
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -136,14 +137,21 @@ def load_events_and_camera(args):
     return events, cam
 
 
+class WindowOutput(NamedTuple):
+    """What a window job sends back: the estimate without its images, and its PNG panel
+    (None for windows past the last one drawn)."""
+
+    result: Any
+    panel: bytes | None
+
+
 def _window_job(events, t0_us: int, t1_us: int, *, warp, objective, reg, weight, optimizer, K,
-                t_ref, seed, dataset, last_png_t0_us: int | None, init=None):
-    """Estimate one window ``[t0_us, t1_us)``. Only the windows that get a PNG panel (those
+                t_ref, seed, dataset, last_png_t0_us: int | None, init=None) -> WindowOutput:
+    """Estimate one window ``[t0_us, t1_us)``. The windows that get a PNG panel (those
     starting at or before ``last_png_t0_us``, the start of the last one; None: no panel)
-    compute the DIWE/IWA maps and keep their IWEs: the others' results leave them out
-    (``iwe_before``/``iwe_after`` None), since nothing reads them and they are 0.7 MB a
-    window of 240 x 180 pixels to send back from a worker and to hold until the outputs
-    are written."""
+    compute the DIWE/IWA maps and draw the panel here, in the worker: drawing takes
+    ~0.16 s a 240 x 180 window, as long as its estimate, and the caller only writes the
+    bytes. No result keeps its IWEs or maps (0.7 MB a window to send back and hold)."""
     import dataclasses
     import warnings
 
@@ -157,13 +165,28 @@ def _window_job(events, t0_us: int, t1_us: int, *, warp, objective, reg, weight,
         warnings.simplefilter("ignore", EvmotionWarning)
         r = estimate_egomotion(events, warp, objective, reg, weight, optimizer, K=K,
                                t_ref=t_ref, init=init, seed=seed, dataset=dataset, maps=png)
-    return r if png else dataclasses.replace(r, iwe_before=None, iwe_after=None)
+    return WindowOutput(dataclasses.replace(r, iwe_before=None, iwe_after=None, maps={}),
+                        _panel(r) if png else None)
+
+
+def _panel(r) -> bytes:
+    """The window's PNG panel: its IWE without and with the warp (and the DIWE/IWA maps
+    where the regularizer made them)."""
+    from evmotion.viz import images
+
+    panels = [images.iwe_to_rgb(r.iwe_before), images.iwe_to_rgb(r.iwe_after)]
+    titles = ["IWE identity", "IWE " + ", ".join(
+        f"{n}={v:.3g}" for n, v in zip(r.param_names, r.params, strict=True))]
+    if "diwe" in r.maps:
+        panels += [_signed_rgb(r.maps["diwe"]), _signed_rgb(r.maps["iwa"] - 1.0)]
+        titles += ["DIWE (divergence)", "IWA - 1 (deformation)"]
+    return images.panel_png(panels, titles, ncols=2)
 
 
 def run(args) -> int:
     from evmotion.cli import print_json, warn_line
     from evmotion.cli.options import scheduler_client
-    from evmotion.parallel import map_windows
+    from evmotion.parallel import imap_windows
     from evmotion.utils import progress
 
     check_common(args)
@@ -186,20 +209,23 @@ def run(args) -> int:
                             reg=args.reg, weight=args.weight, optimizer=args.optimizer, K=K,
                             t_ref=args.t_ref, seed=args.seed, dataset=args.dataset,
                             last_png_t0_us=last_png)
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
     if args.warm_start:
         results, init = [], None
         for w in progress(windows, desc="egomotion", unit="win"):
-            r = job(events.window(w), w.t0, w.t1, init=init)
-            init = r.params
-            results.append((w, r, None))
+            out = job(events.window(w), w.t0, w.t1, init=init)
+            init = out.result.params
+            results.append((w, _written(out_dir, w, out), None))
     else:
         with scheduler_client(args.scheduler) as client:
-            out = map_windows(job, events, windows, workers=args.workers, scheduler=client,
-                              desc="egomotion", with_window=True)
-        results = [(w, r.value, r.error) for w, r in zip(windows, out, strict=True)]
-    out_dir = Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    rows = write_outputs(out_dir, results, args.max_png, grid=args.grid)
+            # each window's panel is written as its result comes in, while later windows run
+            results = [(w, None, r.error) if r.value is None
+                       else (w, _written(out_dir, w, r.value), r.error)
+                       for w, r in zip(windows, imap_windows(
+                           job, events, windows, workers=args.workers, scheduler=client,
+                           desc="egomotion", with_window=True), strict=True)]
+    rows = write_outputs(out_dir, results, grid=args.grid)
     failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
     if not rows:
         from evmotion.errors import EvmotionError
@@ -220,15 +246,24 @@ def run(args) -> int:
     return 0
 
 
-def write_outputs(out_dir: Path, results, max_png: int, grid: str | None = None
-                  ) -> list[dict]:
-    """params.csv, params.h5 and PNG panels of the first ``max_png`` windows (not of those
-    that failed); returns the JSON rows. ``grid`` (which pixel grid the events were on)
-    goes into params.h5's attributes."""
+def _written(out_dir: Path, w, out: WindowOutput):
+    """Write the window's panel (if it has one) and return its result."""
+    from evmotion.utils import atomic_path
+
+    if out.panel is not None:
+        with atomic_path(out_dir / f"window_{w.index:05d}.png") as tmp:
+            tmp.write_bytes(out.panel)
+    return out.result
+
+
+def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]:
+    """params.csv and params.h5 of the windows' results ``(window, result or None, error)``
+    (the panels are written as the results come in, :func:`_written`); returns the JSON
+    rows. ``grid`` (which pixel grid the events were on) goes into params.h5's
+    attributes."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.methods.diagnostics import POOR_FIT_SHARE
     from evmotion.utils import atomic_write_text
-    from evmotion.viz import images
 
     ok = [(w, r) for w, r, err in results if err is None and r is not None]
     rows = []
@@ -285,17 +320,6 @@ def write_outputs(out_dir: Path, results, max_png: int, grid: str | None = None
         {k: u for k, (u, _) in cols.items()}, {k: m for k, (_, m) in cols.items()},
         {"method": "egomotion", "warp": first.warp, "regularizer": str(first.regularizer),
          "objective": first.objective, "grid": "not recorded" if grid is None else grid}))
-    # the first max_png windows less those that failed: the first ok ones (ok keeps the
-    # windows' order); later windows kept no IWE (_window_job)
-    drawn = sum(err is None and r is not None for _, r, err in results[:max(max_png, 0)])
-    for w, r in ok[:drawn]:
-        panels = [images.iwe_to_rgb(r.iwe_before), images.iwe_to_rgb(r.iwe_after)]
-        titles = ["IWE identity", "IWE " + ", ".join(
-            f"{n}={v:.3g}" for n, v in zip(names, r.params, strict=True))]
-        if "diwe" in r.maps:
-            panels += [_signed_rgb(r.maps["diwe"]), _signed_rgb(r.maps["iwa"] - 1.0)]
-            titles += ["DIWE (divergence)", "IWA - 1 (deformation)"]
-        images.save_panel(out_dir / f"window_{w.index:05d}.png", panels, titles, ncols=2)
     return rows
 
 

@@ -21,6 +21,7 @@ from evmotion.viz.flowpic import FlowPicture, flow_panel, flow_picture
 __all__ = [
     "event_histogram",
     "iwe_to_rgb",
+    "panel_png",
     "read_png",
     "save_flow_png",
     "save_flow_summary",
@@ -162,11 +163,15 @@ def _figure(figsize: tuple[float, float], dpi: int):
     return fig
 
 
-def _save_figure(fig, path: str | os.PathLike, dpi: int) -> None:
+def _figure_png(fig, dpi: int) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def _save_figure(fig, path: str | os.PathLike, dpi: int) -> None:
     with atomic_path(path) as tmp:
-        tmp.write_bytes(buf.getvalue())
+        tmp.write_bytes(_figure_png(fig, dpi))
 
 
 def save_flow_png(path: str | os.PathLike, flow: np.ndarray, *,
@@ -219,7 +224,8 @@ def _title_row(width: int, title: str) -> np.ndarray:
 def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
                titles: Sequence[str] | None = None, *, ncols: int | None = None,
                suptitle: str | None = None, panel_inches: float = 3.0, dpi: int = 100) -> None:
-    """Save images side by side (a grid of ``ncols`` columns) as one PNG, atomically.
+    """Save images side by side (a grid of ``ncols`` columns) as one PNG, atomically
+    (:func:`panel_png`'s bytes).
 
     Parameters
     ----------
@@ -238,6 +244,23 @@ def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
     >>> read_png("panel.png").ndim
     3
     """
+    data = panel_png(images, titles, ncols=ncols, suptitle=suptitle,
+                     panel_inches=panel_inches, dpi=dpi)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None, *,
+              ncols: int | None = None, suptitle: str | None = None,
+              panel_inches: float = 3.0, dpi: int = 100) -> bytes:
+    """The PNG file :func:`save_panel` writes, as bytes: for a worker process that draws
+    a picture the caller writes (a Dask worker need not see the output folder).
+
+    Examples
+    --------
+    >>> panel_png([np.eye(8)])[:8] == b"\\x89PNG\\r\\n\\x1a\\n"
+    True
+    """
     images = list(images)
     if not images:
         raise ParameterError("save_panel needs at least one image")
@@ -251,7 +274,9 @@ def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
                    + (0.4 if suptitle else 0.0)), dpi)
     for k, im in enumerate(images):
         im = np.asarray(im)
-        ax = fig.add_subplot(nrows, ncols, k + 1)
+        # no ticks: the axes are hidden, but matplotlib still formats and measures the
+        # default tick labels for every layout pass (0.17 s of a 0.19 s 2x2 panel)
+        ax = fig.add_subplot(nrows, ncols, k + 1, xticks=[], yticks=[])
         if im.ndim == 2 and im.dtype != np.uint8:
             ax.imshow(im, cmap="gray", interpolation="nearest")
         else:
@@ -263,7 +288,7 @@ def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
     if suptitle:
         fig.suptitle(suptitle)
     fig.tight_layout()
-    _save_figure(fig, path, dpi)
+    return _figure_png(fig, dpi)
 
 
 def save_flow_summary(path: str | os.PathLike, events: EventArray, flow_px_per_s: np.ndarray,
