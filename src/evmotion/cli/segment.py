@@ -65,7 +65,6 @@ def run(args) -> int:
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.parallel import map_windows
     from evmotion.utils import atomic_path, atomic_write_text
-    from evmotion.viz import images
 
     check_common(args)
     check_scheduler(args)
@@ -93,7 +92,7 @@ def run(args) -> int:
     rows, labels, pngs = [], {}, []
     try:
         for w, res in zip(windows, results, strict=True):
-            seg = res.value
+            seg, panel = res.value
             labels[f"window_{w.index:05d}"] = seg.labels.astype(np.int16)
             for j in range(args.warps):
                 rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "cluster": j,
@@ -103,8 +102,8 @@ def run(args) -> int:
                              "units": dict(zip(seg.param_names, seg.param_units,
                                                strict=True))})
             pngs.append(out / f"window_{w.index:05d}.png")
-            images.save_panel(pngs[-1], [images.iwe_to_rgb(img) for img in seg.iwes],
-                              [f"cluster {j}" for j in range(args.warps)])
+            with atomic_path(pngs[-1]) as tmp:
+                tmp.write_bytes(panel)
     except BaseException:
         # an interrupted or failed run leaves no partial set of pictures without its CSV
         for path in pngs:
@@ -146,7 +145,16 @@ def run(args) -> int:
 
 
 def _segment_job(events, **kwargs):
-    """One window's segmentation, in a worker (module level, so that it pickles)."""
-    from evmotion.methods.segmentation import segment_motion
+    """One window's segmentation and its PNG panel (each cluster's IWE), in a worker
+    (module level, so that it pickles): drawing the panel, ~0.1 s, is as much work as a
+    small window's segmentation, and the client then only writes the bytes. The result
+    keeps no IWEs (a window's worth each to send back)."""
+    import dataclasses
 
-    return segment_motion(events, **kwargs)
+    from evmotion.methods.segmentation import segment_motion
+    from evmotion.viz import images
+
+    seg = segment_motion(events, **kwargs)
+    panel = images.panel_png([images.iwe_to_rgb(img) for img in seg.iwes],
+                             [f"cluster {j}" for j in range(len(seg.iwes))])
+    return dataclasses.replace(seg, iwes=None), panel
