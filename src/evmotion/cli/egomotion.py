@@ -149,9 +149,10 @@ def _window_job(events, t0_us: int, t1_us: int, *, warp, objective, reg, weight,
                 t_ref, seed, dataset, last_png_t0_us: int | None, init=None) -> WindowOutput:
     """Estimate one window ``[t0_us, t1_us)``. The windows that get a PNG panel (those
     starting at or before ``last_png_t0_us``, the start of the last one; None: no panel)
-    compute the DIWE/IWA maps and draw the panel here, in the worker: drawing takes
-    ~0.16 s a 240 x 180 window, as long as its estimate, and the caller only writes the
-    bytes. No result keeps its IWEs or maps (0.7 MB a window to send back and hold)."""
+    compute the DIWE/IWA maps and draw the panel here, in the worker: a 2 x 2 panel of a
+    240 x 180 window takes ~0.16 s, more than the estimate, and the caller only writes the
+    bytes (``benchmarks/results/cli_panels.md``). No result keeps its IWEs or maps (0.7 MB
+    a window to send back and hold)."""
     import dataclasses
     import warnings
 

@@ -146,9 +146,9 @@ def run(args) -> int:
 
 def _segment_job(events, **kwargs):
     """One window's segmentation and its PNG panel (each cluster's IWE), in a worker
-    (module level, so that it pickles): drawing the panel, ~0.1 s, is as much work as a
-    small window's segmentation, and the client then only writes the bytes. The result
-    keeps no IWEs (a window's worth each to send back)."""
+    (module level, so that it pickles): the workers share the drawing and the client only
+    writes the bytes (``benchmarks/results/cli_panels.md``). The result keeps no IWEs (a
+    window's worth each to send back)."""
     import dataclasses
 
     from evmotion.methods.segmentation import segment_motion

@@ -20,8 +20,9 @@ Optimizer: L-BFGS-B (scipy) with the analytic gradient, at most ``max_iter`` ite
 per scale (default 20), each tile's displacement over the window kept within the sensor's
 longer side by a wall around the objective (:func:`_boxed`). From the 4 x 4-tile scale on,
 a scale that starts from a flow (the coarser scale's, or ``init``) also stops when an
-iteration lowers the objective by less than ``tol`` (see :func:`_scale_tol`). ``optimizer="newton-cg"`` runs scipy's Newton-CG with Hessian-vector
-products by central differences of the analytic gradient, for comparison (see
+iteration lowers the objective by less than ``tol`` (see :func:`_scale_tol`).
+``optimizer="newton-cg"`` runs scipy's Newton-CG with Hessian-vector products by central
+differences of the analytic gradient, for comparison (see
 ``benchmarks/bench_multicm_accuracy.py``).
 
 Flow where no event was seen is not a measurement. The result carries a validity mask
