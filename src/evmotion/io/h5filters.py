@@ -81,11 +81,12 @@ def filter_error(path: Path, exc: Exception, ds, field: str) -> FormatError:
 H5_COMPRESSIONS = ("gzip", "lzf", "lz4", "zstd", None)
 
 
-def h5_compression(name: str | None) -> dict:
+def h5_compression(name: str | None, *, bitshuffle: bool = False) -> dict:
     """h5py dataset keywords of an HDF5 filter: ``"gzip"`` (level 1, shuffled), ``"lzf"``,
     ``"lz4"`` / ``"zstd"`` (Blosc, byte shuffle, through :mod:`hdf5plugin`: several times
     faster than gzip on flow fields; gzip where hdf5plugin cannot be imported, so that the
-    file is still written and read everywhere), or None (uncompressed).
+    file is still written and read everywhere), or None (uncompressed). ``bitshuffle``:
+    Blosc shuffles bits instead of bytes (for columns of small integers).
 
     Examples
     --------
@@ -103,4 +104,5 @@ def h5_compression(name: str | None) -> dict:
     import hdf5plugin
 
     level = 5 if name == "lz4" else 1
-    return dict(hdf5plugin.Blosc(cname=name, clevel=level, shuffle=hdf5plugin.Blosc.SHUFFLE))
+    shuffle = hdf5plugin.Blosc.BITSHUFFLE if bitshuffle else hdf5plugin.Blosc.SHUFFLE
+    return dict(hdf5plugin.Blosc(cname=name, clevel=level, shuffle=shuffle))
