@@ -249,11 +249,10 @@ def run(args) -> int:
 
 def _written(out_dir: Path, w, out: WindowOutput):
     """Write the window's panel (if it has one) and return its result."""
-    from evmotion.utils import atomic_path
+    from evmotion.utils import atomic_write_bytes
 
     if out.panel is not None:
-        with atomic_path(out_dir / f"window_{w.index:05d}.png") as tmp:
-            tmp.write_bytes(out.panel)
+        atomic_write_bytes(out_dir / f"window_{w.index:05d}.png", out.panel)
     return out.result
 
 

@@ -64,7 +64,7 @@ def run(args) -> int:
     from evmotion.errors import EvmotionError
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.parallel import map_windows
-    from evmotion.utils import atomic_path, atomic_write_text
+    from evmotion.utils import atomic_path, atomic_write_bytes, atomic_write_text
 
     check_common(args)
     check_scheduler(args)
@@ -102,8 +102,7 @@ def run(args) -> int:
                              "units": dict(zip(seg.param_names, seg.param_units,
                                                strict=True))})
             pngs.append(out / f"window_{w.index:05d}.png")
-            with atomic_path(pngs[-1]) as tmp:
-                tmp.write_bytes(panel)
+            atomic_write_bytes(pngs[-1], panel)
     except BaseException:
         # an interrupted or failed run leaves no partial set of pictures without its CSV
         for path in pngs:
@@ -151,10 +150,11 @@ def _segment_job(events, **kwargs):
     window's worth each to send back)."""
     import dataclasses
 
+    from evmotion.cli.egomotion import WindowOutput
     from evmotion.methods.segmentation import segment_motion
     from evmotion.viz import images
 
     seg = segment_motion(events, **kwargs)
     panel = images.panel_png([images.iwe_to_rgb(img) for img in seg.iwes],
                              [f"cluster {j}" for j in range(len(seg.iwes))])
-    return dataclasses.replace(seg, iwes=None), panel
+    return WindowOutput(dataclasses.replace(seg, iwes=None), panel)

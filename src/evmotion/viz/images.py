@@ -15,7 +15,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.io import pngfile
-from evmotion.utils import atomic_path
+from evmotion.utils import atomic_write_bytes
 from evmotion.viz.flowpic import FlowPicture, flow_panel, flow_picture
 
 __all__ = [
@@ -170,8 +170,7 @@ def _figure_png(fig, dpi: int) -> bytes:
 
 
 def _save_figure(fig, path: str | os.PathLike, dpi: int) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(_figure_png(fig, dpi))
+    atomic_write_bytes(path, _figure_png(fig, dpi))
 
 
 def save_flow_png(path: str | os.PathLike, flow: np.ndarray, *,
@@ -244,10 +243,8 @@ def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
     >>> read_png("panel.png").ndim
     3
     """
-    data = panel_png(images, titles, ncols=ncols, suptitle=suptitle,
-                     panel_inches=panel_inches, dpi=dpi)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
+    atomic_write_bytes(path, panel_png(images, titles, ncols=ncols, suptitle=suptitle,
+                                       panel_inches=panel_inches, dpi=dpi))
 
 
 def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None, *,
@@ -275,7 +272,8 @@ def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None,
     for k, im in enumerate(images):
         im = np.asarray(im)
         # no ticks: the axes are hidden, but matplotlib still formats and measures the
-        # default tick labels for every layout pass (0.17 s of a 0.19 s 2x2 panel)
+        # default tick labels in every layout pass (a 2x2 panel of 240x180 images: 0.19 s
+        # with them, 0.16 s without)
         ax = fig.add_subplot(nrows, ncols, k + 1, xticks=[], yticks=[])
         if im.ndim == 2 and im.dtype != np.uint8:
             ax.imshow(im, cmap="gray", interpolation="nearest")
