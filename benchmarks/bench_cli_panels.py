@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 import harness
-from bench_cluster import _recording
+from bench_cluster import recording
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
@@ -54,7 +54,7 @@ def main(quick: bool = False, before: str | None = None) -> list[dict]:
     cases = [(code, case, w) for code in codes for case in COMMANDS for w in (1, 2)]
     times: dict[tuple, list[float]] = {c: [] for c in cases}
     with tempfile.TemporaryDirectory(prefix="bench_ego_cli_") as d:
-        rec = _recording(Path(d))
+        rec = recording(Path(d))
         for code in codes:  # warm numba's cache and the file cache
             for case in COMMANDS:
                 _run(codes[code], rec, Path(d) / "warm", case, 1)

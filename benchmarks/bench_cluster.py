@@ -67,7 +67,7 @@ QUIET_LOOP = {"distributed.admin.tick.interval": "1s",
 DOCS = {**NO_PROFILER, **QUIET_LOOP}
 
 
-def _recording(folder: Path) -> Path:
+def recording(folder: Path) -> Path:
     from evmotion.io import write_events
     from evmotion.sim import simulate
 
@@ -290,7 +290,7 @@ def main(quick: bool = False) -> list[dict]:
             cf.ProcessPoolExecutor(WORKERS, mp_context=mp.get_context("spawn")) as pool:
         list(pool.map(_spin, [1, 1]))  # started before the timing
         tmp = Path(d)
-        rec = _recording(tmp)
+        rec = recording(tmp)
         # the workers docs/cluster.rst recommends; the same with Dask's default loop
         # intervals (its recommendation before QUIET_LOOP), or with Dask's profiler on
         ego = {"cluster": (DOCS, True), "loop_default": (NO_PROFILER, True),

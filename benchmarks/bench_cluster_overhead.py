@@ -59,14 +59,14 @@ def main(quick: bool = False) -> list[dict]:
     import dask
     from distributed import Client, LocalCluster, get_task_stream
 
-    from bench_cluster import NO_TRIM, _cpu_s, _recording
+    from bench_cluster import NO_TRIM, _cpu_s, recording
     from evmotion.events import make_windows
     from evmotion.io import read_events
     from evmotion.parallel import BATCH_TARGET_S, map_windows
 
     repeat = 3 if quick else 8
     with tempfile.TemporaryDirectory(prefix="bench_cluster_overhead_") as d:
-        ev = read_events(_recording(Path(d)))
+        ev = read_events(recording(Path(d)))
     windows = make_windows(ev, n_events=20000, min_events=10)
     fns = {k: functools.partial(_nap, nbytes=nb) for k, (nb, _) in CASES.items()}
     runs: dict[str, list[tuple]] = {k: [] for k in CASES}

@@ -42,18 +42,18 @@ DATA = Path(os.environ.get("EVMOTION_SHARED_DATA",
 N_EVENTS = 30_000
 
 
-def _fwl(res) -> float:
+def fwl(res) -> float:
     return float(np.var(res.iwes["tmid"]) / np.var(res.iwes["identity"]))
 
 
-def _event_mask(ev) -> np.ndarray:
+def event_mask(ev) -> np.ndarray:
     m = np.zeros(ev.sensor_size, bool)
     m[np.round(ev.y).astype(int).clip(0, ev.height - 1),
       np.round(ev.x).astype(int).clip(0, ev.width - 1)] = True
     return m
 
 
-def _aee(res, gt_disp, mask) -> float:
+def aee(res, gt_disp, mask) -> float:
     d = res.displacement().astype(np.float64) - gt_disp
     e = np.sqrt((d ** 2).sum(-1))
     ok = mask & np.isfinite(e)
@@ -84,7 +84,7 @@ def _sim_window(scene: str):
 
 
 def _row(data, name, res, gt, mask, **extra):
-    return {"data": data, "variant": name, "AEE_px": _aee(res, gt, mask), "FWL": _fwl(res),
+    return {"data": data, "variant": name, "AEE_px": aee(res, gt, mask), "FWL": fwl(res),
             "focus": res.focus, "seconds": res.timings["total_s"],
             "max_gt_disp_px": float(np.nanmax(np.linalg.norm(gt, axis=-1))), **extra}
 
@@ -105,7 +105,7 @@ def mvsec_like(quick: bool) -> list[dict]:
                 sub = full[np.linspace(0, len(full) - 1, min(N_EVENTS, len(full)))
                            .astype(np.int64)]
                 gt = sim.gt.displacement(w.t0, w.t1)
-                mask = _event_mask(full)
+                mask = event_mask(full)
                 for name, win in (("all events", full), ("30k events", sub)):
                     res = estimate_flow(win)
                     # the estimate is px/s at t_mid; evaluate over the GT interval
@@ -121,7 +121,7 @@ def mvsec_like(quick: bool) -> list[dict]:
                                  "AEE_streamline_px": float(np.linalg.norm(
                                      res.displacement(w.t0, w.t1, along_streamlines=True)
                                      - gt, axis=-1)[mask].mean()),
-                                 "FWL": _fwl(res), "focus": res.focus,
+                                 "FWL": fwl(res), "focus": res.focus,
                                  "seconds": res.timings["total_s"],
                                  "max_gt_disp_px": float(np.linalg.norm(gt, axis=-1).max())})
     return rows
@@ -140,7 +140,7 @@ def object_long(quick: bool) -> list[dict]:
     win = ev[mid - n // 2: mid + n // 2]
     t0, t1 = int(win.t[0]), int(win.t[-1])
     gt = sim.gt.displacement(t0, t1)
-    mask = _event_mask(win)
+    mask = event_mask(win)
     fg = (sim.gt.visible_layer(t0) == 1) | (sim.gt.visible_layer(t1) == 1)
     rows = []
     for name, kw in (("none", {}), ("upwind", {"time_aware": "upwind"}),
@@ -178,7 +178,7 @@ def simulated(quick: bool) -> list[dict]:
     ]
     for scene in scenes:
         win, gt = _sim_window(scene)
-        mask = _event_mask(win)
+        mask = event_mask(win)
         todo = list(variants)
         if scene in ("rotation", "object") or not quick:
             todo += ablations
@@ -191,7 +191,7 @@ def simulated(quick: bool) -> list[dict]:
         for name, kw in todo:
             res = estimate_flow(win, **kw)
             rows.append({"data": f"sim {scene}", "variant": name,
-                         "AEE_px": _aee(res, gt, mask), "FWL": _fwl(res), "focus": res.focus,
+                         "AEE_px": aee(res, gt, mask), "FWL": fwl(res), "focus": res.focus,
                          "seconds": res.timings["total_s"],
                          "max_gt_disp_px": float(np.nanmax(np.linalg.norm(gt, axis=-1)))})
             if name in ("none", "burgers", "single reference", "1 scale"):
@@ -200,7 +200,7 @@ def simulated(quick: bool) -> list[dict]:
     return rows
 
 
-def _read_ecd_txt(path: Path):
+def read_ecd_txt(path: Path):
     from evmotion.events import EventArray
 
     a = np.loadtxt(path, dtype=np.float64)
@@ -221,15 +221,15 @@ def real(quick: bool) -> list[dict]:
     out.mkdir(parents=True, exist_ok=True)
     for d in sorted((DATA / "ecd_rotation_windows").iterdir()):
         cam = read_ecd(d / "calib.txt")
-        ev = cam.undistort_events(_read_ecd_txt(d / "events.txt"))
+        ev = cam.undistort_events(read_ecd_txt(d / "events.txt"))
         gt = np.load(d / "flow.npy")[0].transpose(1, 2, 0).astype(np.float64)
-        mask = _event_mask(ev)
+        mask = event_mask(ev)
         for name, kw in (("none", {}), ("burgers", {"time_aware": "burgers"})):
             res = estimate_flow(ev, **kw)
             # flow.npy spans the whole window; our flow at t_mid times the first-to-last
             # event interval is the comparable displacement
             rows.append({"data": f"ECD {d.name}", "variant": name,
-                         "AEE_px": _aee(res, gt, mask), "FWL": _fwl(res), "focus": res.focus,
+                         "AEE_px": aee(res, gt, mask), "FWL": fwl(res), "focus": res.focus,
                          "seconds": res.timings["total_s"],
                          "max_gt_disp_px": float(np.linalg.norm(gt, axis=-1).max())})
             if name == "none":
@@ -237,11 +237,11 @@ def real(quick: bool) -> list[dict]:
     windows = sorted((DATA / "ecd_30k_windows").iterdir())
     for d in windows[:2] if quick else windows:
         cam = read_ecd(d / "calib.txt")
-        ev = cam.undistort_events(_read_ecd_txt(d / "events.txt"))
+        ev = cam.undistort_events(read_ecd_txt(d / "events.txt"))
         for name, kw in (("none", {}), ("burgers", {"time_aware": "burgers"})):
             res = estimate_flow(ev, **kw)
             rows.append({"data": f"ECD 30k {d.name}", "variant": name, "AEE_px": "",
-                         "FWL": _fwl(res), "focus": res.focus,
+                         "FWL": fwl(res), "focus": res.focus,
                          "seconds": res.timings["total_s"]})
             if name == "none":
                 _panel(out / f"ecd30k_{d.name}.png", res, f"ECD {d.name} (30k events)")

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 import harness
-from bench_multicm_accuracy import DATA, N_EVENTS, _aee, _event_mask, _fwl, _read_ecd_txt
+from bench_multicm_accuracy import DATA, N_EVENTS, aee, event_mask, fwl, read_ecd_txt
 
 TOLS = (0.0, 1e-5, 3e-5, 1e-4)
 
@@ -54,11 +54,11 @@ def _windows(quick: bool):
         from evmotion.io.calibration import read_ecd
 
         for d in sorted((DATA / "ecd_rotation_windows").iterdir()):
-            ev = read_ecd(d / "calib.txt").undistort_events(_read_ecd_txt(d / "events.txt"))
+            ev = read_ecd(d / "calib.txt").undistort_events(read_ecd_txt(d / "events.txt"))
             gt = np.load(d / "flow.npy")[0].transpose(1, 2, 0).astype(np.float64)
             out.append((f"ECD {d.name} (IMU flow)", ev, gt))
         for d in sorted((DATA / "ecd_30k_windows").iterdir())[: 2 if quick else 8]:
-            ev = read_ecd(d / "calib.txt").undistort_events(_read_ecd_txt(d / "events.txt"))
+            ev = read_ecd(d / "calib.txt").undistort_events(read_ecd_txt(d / "events.txt"))
             out.append((f"ECD 30k {d.name}", ev, None))
     else:
         print(f"real data not found at {DATA}: skipped")
@@ -81,13 +81,13 @@ def main(quick: bool = False) -> list[dict]:
     harness.single_core()
     rows = []
     for name, ev, gt in _windows(quick):
-        mask = _event_mask(ev)
+        mask = event_mask(ev)
         ref = None
         for tol in TOLS:
             res, cpu = _run(ev, tol, 1 if quick else 3)
             row = {"data": name, "tol": tol, "events": len(ev),
-                   "AEE_px": _aee(res, gt, mask) if gt is not None else "",
-                   "FWL": _fwl(res), "objective": res.history[-1][1], "cpu_s": cpu}
+                   "AEE_px": aee(res, gt, mask) if gt is not None else "",
+                   "FWL": fwl(res), "objective": res.history[-1][1], "cpu_s": cpu}
             if ref is None:
                 ref = row
             else:
@@ -99,10 +99,10 @@ def main(quick: bool = False) -> list[dict]:
     summary = []
     for tol in TOLS[1:]:
         sel = [r for r in rows if r["tol"] == tol]
-        aee = [r["AEE_vs_tol0"] for r in sel if "AEE_vs_tol0" in r]
+        ratios = [r["AEE_vs_tol0"] for r in sel if "AEE_vs_tol0" in r]
         summary.append({"data": "ALL (geometric mean; worst)", "tol": tol,
-                        "AEE_vs_tol0": float(np.exp(np.mean(np.log(aee)))),
-                        "AEE_worst_vs_tol0": float(max(aee)),
+                        "AEE_vs_tol0": float(np.exp(np.mean(np.log(ratios)))),
+                        "AEE_worst_vs_tol0": float(max(ratios)),
                         "FWL_vs_tol0": float(min(r["FWL_vs_tol0"] for r in sel)),
                         "cpu_vs_tol0": float(np.exp(np.mean(np.log(
                             [r["cpu_vs_tol0"] for r in sel]))))})
