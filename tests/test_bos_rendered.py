@@ -1,0 +1,46 @@
+"""``evmotion bos FOLDER --out bos.h5`` with no other option on schlieren scenes its own
+simulator did not make (``rendered_schlieren``: another renderer, event model, frame rate,
+contrast threshold, bit depth and sensor size): the flow it writes must be a measurement of
+the exact flow -- right magnitude, most of the error of the zero flow removed."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bos_synth import run_cli
+from evmotion.eval.metrics import flow_metrics
+from evmotion.io.flowread import read_flow
+from rendered_schlieren import render_scene
+
+CASES = {
+    "plume, 8-bit, C 0.15": dict(scene="plume", bits=8, contrast=0.15, size=(96, 128)),
+    "jet, 16-bit, C 0.25": dict(scene="jet", bits=16, contrast=0.25, size=(101, 133),
+                                magnitude_px=2.0),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", CASES)
+def test_no_option_run_measures_the_flow(case, tmp_path, capsys):
+    kw = CASES[case]
+    truth = render_scene(tmp_path / "rec", duration_s=0.05, blob_px=(10.0, 14.0), seed=1,
+                         **kw)
+    out = tmp_path / "bos.h5"
+    rc, text, err = run_cli(["bos", tmp_path / "rec", "--out", out, "--json"], capsys)
+    assert rc == 0, err
+    report = json.loads(text)
+    assert abs(report["contrast_threshold"] / kw["contrast"] - 1) < 0.15
+    seq = read_flow(out)
+    assert len(seq.t0) == len(truth["flow"])
+    aee, zero, ratios = [], [], []
+    for k in range(len(seq.t0)):
+        dt = (seq.t1[k] - seq.t0[k]) * 1e-6
+        est, gt, valid = seq.flow[k] * dt, truth["flow"][k] * dt, seq.valid[k]
+        aee.append(flow_metrics(est, gt, valid).aee)
+        zero.append(flow_metrics(np.zeros_like(gt), gt, valid).aee)
+        sel = valid & (np.hypot(gt[..., 0], gt[..., 1]) > 0.05)
+        ratios.append(np.hypot(est[sel, 0], est[sel, 1]) / np.hypot(gt[sel, 0], gt[sel, 1]))
+    ratio = float(np.median(np.concatenate(ratios)))
+    assert 0.8 < ratio < 1.25, ratio
+    assert np.mean(aee) < 0.6 * np.mean(zero), (aee, zero)
