@@ -9,6 +9,9 @@ a fresh process, exactly as a user would; its output is scored against the exact
 the pixels it marks valid (events in the interval): AEE (px over the interval), AE (rad, 2-D
 directions, as Table 6.4), median |v|/|v_gt| (pixels with |v_gt| dt > 0.05 px), against the
 zero flow and Farneback on the same frames (OpenCV, 4 levels: the thesis' reference).
+``evmotion kymogram FOLDER --col W/2`` (plume) or ``--row H/2`` (jet) ``--width 9 --json``
+at its default 1200 Hz gives the structures' speed, against the rendered blobs' speed, with
+the default stationary-peak removal and without it (``--stationary-px 0``).
 
 ``python benchmarks/run.py bos_foreign``
 """
@@ -52,6 +55,15 @@ def _farneback(folder: Path, k: int, dt: float) -> np.ndarray:
     return farneback_flow(a, b, dt) * dt
 
 
+def _kymogram_speed(folder: Path, kw: dict, extra: list[str]) -> float:
+    h, w = kw["size"]
+    line = ["--col", str(w // 2)] if kw["scene"] == "plume" else ["--row", str(h // 2)]
+    run = subprocess.run([sys.executable, "-m", "evmotion", "kymogram", str(folder), *line,
+                          "--width", "9", "--out", str(folder / "kymogram.png"), "--json",
+                          *extra], capture_output=True, text=True, check=True)
+    return json.loads(run.stdout)["panels"][0].get("velocity_px_s", float("nan"))
+
+
 def main(quick: bool = False) -> list[dict]:
     from evmotion.io.flowread import read_flow
 
@@ -90,6 +102,11 @@ def main(quick: bool = False) -> list[dict]:
                 if method != "zero":
                     row[f"AE_{method}_rad"] = float(np.mean([m["AE_rad"] for m in items]))
                     row[f"ratio_{method}"] = float(np.median([m["ratio"] for m in items]))
+            true_speed = sum(truth["velocity_px_s"])  # one component is 0; sign: along
+            row["kymo_true_px_s"] = true_speed
+            row["kymo_ratio"] = _kymogram_speed(folder, kw, []) / true_speed
+            row["kymo_ratio_no_stationary"] = _kymogram_speed(
+                folder, kw, ["--stationary-px", "0"]) / true_speed
             row.update({"AEE_ours_over_zero": row["AEE_ours"] / row["AEE_zero"],
                         "s_per_interval_median": float(np.median(secs)),
                         "cli_wall_s": wall, "render_s": t_render})

@@ -77,7 +77,8 @@ def render_scene(folder, *, scene: str = "plume", size=(300, 400), duration_s: f
                  seed: int = 0) -> dict:
     """Write an ECD-style folder (``events.txt`` ``t x y p`` with p in {0, 1}, ``images.txt``
     ``t path`` lines, ``images/*.png``) and return its truth: ``flow`` (N-1, H, W, 2) px/s,
-    ``t_s`` (N,) frame times, ``contrast``."""
+    ``t_s`` (N,) frame times, ``contrast``, ``events`` (their number) and ``velocity_px_s``
+    (the blobs' (u, v): the plume rises, the jet crosses to the right)."""
     if scene not in ("plume", "jet"):
         raise ValueError(f"scene must be 'plume' or 'jet', got {scene!r}")
     folder = Path(folder)
@@ -136,4 +137,6 @@ def render_scene(folder, *, scene: str = "plume", size=(300, 400), duration_s: f
     (folder / "images.txt").write_text("".join(lines))
     disp = [_displacement(t, scene, size, blobs, magnitude_px) for t in t_s]
     flow = np.stack([(disp[k + 1] - disp[k]) * fps for k in range(n_frames - 1)])
-    return {"flow": flow, "t_s": t_s, "contrast": contrast, "events": len(ev)}
+    velocity = (0.0, -speed_px_s) if scene == "plume" else (speed_px_s, 0.0)
+    return {"flow": flow, "t_s": t_s, "contrast": contrast, "events": len(ev),
+            "velocity_px_s": velocity}

@@ -98,6 +98,11 @@ def add_parser(sub) -> None:
                      help="... up to S seconds after the kymogram's start")
     fit.add_argument("--min-snr", type=finite_float(0, 1e6), default=None,
                      help="ridge peaks must stand this many robust sigmas above the median (3)")
+    fit.add_argument("--stationary-px", type=finite_float(0, 1e4, unit="px"), default=None,
+                     metavar="PX",
+                     help="correlation: replace the autocorrelation within PX of shift 0 by "
+                          "its running median (pixels that fire while structures pass; "
+                          "default 3 * sigma-px + 1; 0 keeps it)")
     geo = p.add_argument_group("set-up geometry (all three for m/s)")
     geo.add_argument("--focal-mm", type=finite_float(0, 1e5, lo_open=True, unit="mm"),
                      default=None, help="focal length f, mm")
@@ -126,11 +131,12 @@ def _check_args(args) -> dict | None:
     fit_options = {"--max-lag-s": "max_lag_s", "--sigma-px": "sigma_px",
                    "--sigma-bins": "sigma_bins", "--polarity": "polarity",
                    "--s-range": "s_range", "--fit-t0": "fit_t0", "--fit-t1": "fit_t1",
-                   "--min-snr": "min_snr"}
+                   "--min-snr": "min_snr", "--stationary-px": "stationary_px"}
     if args.no_fit:
         reject_unused(args, fit_options, "with --no-fit")
     elif args.method == "ridge":
-        reject_unused(args, {"--max-lag-s": "max_lag_s"}, "with --method ridge")
+        reject_unused(args, {"--max-lag-s": "max_lag_s", "--stationary-px": "stationary_px"},
+                      "with --method ridge")
     else:
         reject_unused(args, {"--sigma-bins": "sigma_bins", "--polarity": "polarity"},
                       "with --method correlation (ridge only)")
@@ -270,7 +276,8 @@ def run(args) -> int:
                     fit = fit_correlation(k, sigma_px=_or(args.sigma_px, 1.0),
                                           max_lag_s=args.max_lag_s,
                                           s_range=args.s_range, t_range=t_range,
-                                          min_snr=_or(args.min_snr, 3.0))
+                                          min_snr=_or(args.min_snr, 3.0),
+                                          stationary_px=args.stationary_px)
             except (EmptyWindowError, ParameterError) as exc:
                 # a coarse comparison panel may have too few bins for a fit: say so, draw it
                 error = str(exc)
