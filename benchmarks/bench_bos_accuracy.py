@@ -826,6 +826,11 @@ def verdict_lines(suffix: str = "") -> list[str]:
             out.append(f"5. Kymogram >= 1200 Hz: worst |fitted/true - 1| {worst:.3f} over "
                        f"{len(ok)} event kymograms (correlation fit): "
                        f"{'HOLDS' if worst <= 0.1 else 'DOES NOT HOLD'} (bos_kymogram.md).")
+    foreign = _load_rows("bos_foreign")
+    if foreign:
+        out.append("   On scenes rendered independently of the simulator (bos_foreign.md), "
+                   "the default CLI's fitted / rendered speed: "
+                   + ", ".join(f"{x['kymo_ratio']:.3f}" for x in foreign) + ".")
     return out + [""]
 
 
