@@ -15,6 +15,7 @@ from evmotion.cli.options import existing_input, int_range
 OPTIONS: dict[str, tuple[str, object]] = {
     "--device": ("device", "cpu"),
     "--threads": ("threads", 1),
+    "--input-scales": ("input_scales", (1, 2, 4)),
 }
 
 
@@ -25,6 +26,11 @@ def add_arguments(group) -> None:
     group.add_argument("--device", default=None, help="torch device (default cpu)")
     group.add_argument("--threads", type=int_range(1, 256), default=None,
                        help="torch threads (default 1: faster than 2 on a shared 2-core CPU)")
+    group.add_argument("--input-scales", type=int_range(1, 64), nargs="+", default=None,
+                       metavar="K",
+                       help="dnn: also predict from the events binned K times coarser and "
+                            "keep the sharpest warp (default 1 2 4: far-moving windows; "
+                            "1 = the network on the sensor's grid only)")
 
 
 def check_args(args) -> None:
@@ -46,7 +52,7 @@ def estimator(args):
 
     torch.set_num_threads(args.threads)
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
-             "source": str(args.file)}
+             "source": str(args.file), "input_scales": list(args.input_scales)}
 
     # the IWEs and the focus serve only the pictures (--png-dir) and the JSON rows; the
     # flow files do not hold them, and their numba kernels would cost a first run seconds
@@ -55,7 +61,7 @@ def estimator(args):
 
     def estimate(events, init):
         return estimate_flow_dnn(events, args.checkpoint, device=args.device,
-                                 with_iwes=with_iwes)
+                                 with_iwes=with_iwes, input_scales=tuple(args.input_scales))
 
     return estimate, attrs
 
