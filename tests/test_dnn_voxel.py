@@ -7,7 +7,13 @@ import pytest
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray
-from evmotion.methods.dnn.voxel import normalize_voxel, pad_to_multiple, voxel_grid
+from evmotion.methods.dnn.voxel import (
+    network_input,
+    network_inputs,
+    normalize_voxel,
+    pad_to_multiple,
+    voxel_grid,
+)
 
 
 def _reference(x, y, t, p, shape, n_bins):
@@ -76,3 +82,18 @@ def test_normalize_voxel_is_density_invariant():
     g = np.array([[[0.0, 1.0, -3.0]]], np.float32)
     np.testing.assert_allclose(normalize_voxel(g), normalize_voxel(4 * g))
     assert normalize_voxel(np.zeros((1, 2, 2), np.float32)).sum() == 0
+
+
+def test_network_inputs_are_the_binned_events_inputs():
+    # one set of votes, summed over k x k blocks, is the input of the events binned k
+    # times coarser, whatever the sensor size (here not a multiple of 4)
+    rng = np.random.default_rng(1)
+    h, w, n = 37, 53, 3000
+    ev = EventArray(x=rng.integers(0, w, n), y=rng.integers(0, h, n),
+                    t=np.sort(rng.integers(0, 10_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(h, w))
+    grids = network_inputs(ev, (1, 2, 4))
+    for k, grid in zip((1, 2, 4), grids, strict=True):
+        binned = EventArray(x=ev.x // k, y=ev.y // k, t=ev.t, p=ev.p,
+                            sensor_size=(-(-h // k), -(-w // k)))
+        np.testing.assert_allclose(grid, network_input(binned), rtol=1e-6, atol=1e-6)

@@ -26,8 +26,8 @@ def add_arguments(group) -> None:
     group.add_argument("--device", default=None, help="torch device (default cpu)")
     group.add_argument("--threads", type=int_range(1, 256), default=None,
                        help="torch threads (default 1: faster than 2 on a shared 2-core CPU)")
-    group.add_argument("--input-scales", type=int_range(1, 64), nargs="+", default=None,
-                       metavar="K",
+    group.add_argument("--input-scales", type=int, choices=(1, 2, 4, 8, 16), nargs="+",
+                       default=None, metavar="K",
                        help="dnn: also predict from the events binned K times coarser and "
                             "keep the sharpest warp (default 1 2 4: far-moving windows; "
                             "1 = the network on the sensor's grid only)")

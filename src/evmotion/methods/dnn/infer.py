@@ -44,29 +44,32 @@ def predict_displacement(events: EventArray, checkpoint: str | Path | None = Non
     >>> predict_displacement(ev).shape
     (30, 40, 2)
     """
-    try:
-        import torch
-    except ModuleNotFoundError:
-        raise ParameterError("method 'dnn' needs PyTorch: pip install 'evmotion[dnn]'"
-                             ) from None
-
+    _check_torch()
     from evmotion.methods.dnn.model import load_inference_net
     from evmotion.methods.dnn.voxel import network_input
 
     net = load_inference_net(checkpoint, device)
-    h, w = events.sensor_size
+    return _run(net, network_input(events, net.n_bins), events.sensor_size, device)
+
+
+def _check_torch() -> None:
+    try:
+        import torch  # noqa: F401
+    except ModuleNotFoundError:
+        raise ParameterError("method 'dnn' needs PyTorch: pip install 'evmotion[dnn]'"
+                             ) from None
+
+
+def _run(net, vox: np.ndarray, shape: tuple[int, int], device: str) -> np.ndarray:
+    """The network on one input ``(H', W', bins)``, its flow cropped to ``shape``."""
+    import torch
+
+    h, w = shape
     # (H', W', bins) -> (1, bins, H', W') in channels-last memory: a view, no copy
-    vox = torch.from_numpy(network_input(events, net.n_bins)).permute(2, 0, 1)[None]
+    t = torch.from_numpy(vox).permute(2, 0, 1)[None]
     with torch.inference_mode():
-        out = net(vox.to(device))[0, :, :h, :w]
+        out = net(t.to(device))[0, :, :h, :w]
     return np.ascontiguousarray(out.permute(1, 2, 0).cpu().numpy(), dtype=np.float32)
-
-
-def _binned(events: EventArray, k: int) -> EventArray:
-    """The events on a grid ``k`` times coarser (pixel ``x // k``)."""
-    h, w = events.sensor_size
-    return EventArray(x=events.x // k, y=events.y // k, t=events.t, p=events.p,
-                      sensor_size=(-(-h // k), -(-w // k)), validate=False)
 
 
 def _upsampled(disp: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
@@ -79,6 +82,26 @@ def _upsampled(disp: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
     up = torch.nn.functional.interpolate(t, size=(h * k, w * k), mode="bilinear",
                                          align_corners=False)[0].permute(1, 2, 0)
     return np.ascontiguousarray(up.numpy()[:shape[0], :shape[1]] * k, dtype=np.float32)
+
+
+def _sharpest(events: EventArray, scales: list[int], checkpoint, device: str):
+    """``(k, displacement)`` of the input scale whose prediction warps the events sharpest."""
+    from evmotion.methods.dnn.model import load_inference_net
+    from evmotion.methods.dnn.voxel import network_inputs
+
+    _check_torch()
+    net = load_inference_net(checkpoint, device)
+    h, w = events.sensor_size
+    xys = _pixels_and_times(events)
+    best, disp, score = 1, None, -np.inf
+    for k, vox in zip(scales, network_inputs(events, tuple(scales), net.n_bins), strict=True):
+        cand = _run(net, vox, (-(-h // k), -(-w // k)), device)
+        if k > 1:
+            cand = _upsampled(cand, k, (h, w))
+        s = _warped_variance(*xys, cand)
+        if s > score:
+            best, disp, score = k, cand, s
+    return best, disp
 
 
 def sharpness(events: EventArray, disp: np.ndarray) -> float:
@@ -94,16 +117,24 @@ def sharpness(events: EventArray, disp: np.ndarray) -> float:
     >>> sharpness(ev, right) > sharpness(ev, np.zeros_like(right))
     True
     """
+    return _warped_variance(*_pixels_and_times(events), disp)
+
+
+def _pixels_and_times(events: EventArray):
     h, w = events.sensor_size
-    x, y = pixel_indices(events.x, w), pixel_indices(events.y, h)
     t = events.t
-    s = (t - t[0]) / max(int(t[-1] - t[0]), 1) - 0.5
-    d = disp[y, x]
-    xw = np.rint(x - d[:, 0] * s).astype(np.int64)
-    yw = np.rint(y - d[:, 1] * s).astype(np.int64)
+    s = ((t - t[0]) / max(int(t[-1] - t[0]), 1) - 0.5).astype(np.float32)
+    x, y = pixel_indices(events.x, w), pixel_indices(events.y, h)
+    return x, y, y * w + x, s
+
+
+def _warped_variance(x, y, pix, s, disp) -> float:
+    h, w = disp.shape[:2]
+    d = disp.reshape(-1, 2)[pix]
+    xw = np.rint(x - d[:, 0] * s).astype(np.intp)
+    yw = np.rint(y - d[:, 1] * s).astype(np.intp)
     inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-    img = np.bincount(yw[inside] * w + xw[inside], minlength=h * w)
-    return float(np.var(img))
+    return float(np.var(np.bincount(yw[inside] * w + xw[inside], minlength=h * w)))
 
 
 def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, *,
@@ -125,9 +156,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         reports them (a few ms; default True).
     input_scales : tuple of int
         The network also predicts from the events binned this many times coarser (default
-        1, 2, 4), where far-moving windows move within what it was trained on; the
-        prediction whose warp gives the highest :func:`sharpness` is kept (``(1,)``: the
-        network on the sensor's grid only). Costs about 1/4 + 1/16 of a pass more.
+        1, 2, 4; each of 1, 2, 4, 8, 16), where far-moving windows move within what it
+        was trained on; the prediction whose warp gives the highest :func:`sharpness` is
+        kept (``(1,)``: the network on the sensor's grid only). The default takes about
+        twice the time of one pass (benchmarks/results/dnn.md).
 
     Returns
     -------
@@ -148,20 +180,15 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         raise EmptyWindowError(f"window has {len(events)} events spanning "
                                f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
                                "need at least 10 events and a positive duration")
-    scales = sorted({int(k) for k in input_scales}) if len(input_scales) else []
-    if not scales or scales[0] < 1 or any(k != int(k) for k in input_scales):
-        raise ParameterError(f"input_scales must be integers >= 1, got {input_scales!r}")
+    if not len(input_scales) or any(k not in (1, 2, 4, 8, 16) for k in input_scales):
+        raise ParameterError("input_scales must be one or more of 1, 2, 4, 8, 16 (divisors "
+                             f"of the network's 16-px padding), got {input_scales!r}")
+    scales = sorted({int(k) for k in input_scales})
     t_start = time.perf_counter()
-    best, disp, score = 1, None, -np.inf
-    for k in scales:
-        if k == 1:
-            cand = predict_displacement(events, checkpoint, device=device)
-        else:
-            cand = _upsampled(predict_displacement(_binned(events, k), checkpoint,
-                                                   device=device), k, events.sensor_size)
-        s = sharpness(events, cand) if len(scales) > 1 else 0.0
-        if s > score:
-            best, disp, score = k, cand, s
+    if scales == [1]:
+        best, disp = 1, predict_displacement(events, checkpoint, device=device)
+    else:
+        best, disp = _sharpest(events, scales, checkpoint, device)
     t_net = time.perf_counter() - t_start
     t0, t1 = int(events.t[0]), int(events.t[-1])
     duration_s = (t1 - t0) * 1e-6

@@ -14,8 +14,8 @@ import numpy as np
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray
 
-__all__ = ["N_BINS", "PAD_MULTIPLE", "network_input", "normalize_voxel", "pad_to_multiple",
-           "voxel_grid"]
+__all__ = ["N_BINS", "PAD_MULTIPLE", "network_input", "network_inputs", "normalize_voxel",
+           "pad_to_multiple", "voxel_grid"]
 
 N_BINS = 5
 PAD_MULTIPLE = 16
@@ -90,17 +90,55 @@ def network_input(events: EventArray, n_bins: int = N_BINS,
     >>> g.shape, g[0, 1].tolist()
     ((16, 16, 3), [1.0, 0.0, -1.0])
     """
+    return network_inputs(events, (1,), n_bins, multiple)[0]
+
+
+def network_inputs(events: EventArray, scales: tuple[int, ...], n_bins: int = N_BINS,
+                   multiple: int = PAD_MULTIPLE) -> list[np.ndarray]:
+    """:func:`network_input` of the events binned ``k`` times coarser (pixel ``(x // k,
+    y // k)``, grid ``ceil(H / k) x ceil(W / k)``) for each ``k`` in ``scales`` (each a
+    divisor of ``multiple``), from one set of votes: a coarse grid is the sum of the
+    ``k x k`` blocks of the padded fine one.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=np.array([1, 2]), y=np.array([0, 3]), t=np.array([0, 100]),
+    ...                 p=np.array([1, 1]), sensor_size=(4, 4))
+    >>> [g.shape for g in network_inputs(ev, (1, 2), 3)]
+    [(16, 16, 3), (16, 16, 3)]
+    >>> network_inputs(ev, (1, 2), 3)[1][:2, :2, 0].tolist()
+    [[1.0, 0.0], [0.0, 0.0]]
+    """
+    if any(int(k) != k or k < 1 or multiple % k for k in scales):
+        raise ParameterError(f"scales must divide {multiple}, got {tuple(scales)}")
     h, w = events.sensor_size
     hp, wp = h + (-h % multiple), w + (-w % multiple)
     y, x, b0, w0, w1 = _votes(events, n_bins)
     cell = (y * wp + x) * n_bins + b0
-    grid = np.bincount(np.concatenate([cell, cell + 1]), weights=np.concatenate([w0, w1]),
-                       minlength=hp * wp * n_bins).astype(np.float32)
-    nonzero = np.count_nonzero(grid)
-    if nonzero:
-        # normalize_voxel's scale, the mean |cell| over the non-zero cells
-        grid /= np.float32(np.abs(grid).sum(dtype=np.float64) / nonzero)
-    return grid.reshape(hp, wp, n_bins)
+    fine = np.bincount(np.concatenate([cell, cell + 1]), weights=np.concatenate([w0, w1]),
+                       minlength=hp * wp * n_bins).astype(np.float32).reshape(hp, wp, n_bins)
+    out = []
+    for k in scales:
+        k = int(k)
+        if k == 1:
+            grid = fine
+        else:
+            hk, wk = -(-h // k), -(-w // k)
+            grid = np.zeros((hk + (-hk % multiple), wk + (-wk % multiple), n_bins),
+                            np.float32)
+            # the k x k strided slices added up (a reshape to (H/k, k, W/k, k, bins) summed
+            # over its k axes took 8 ms at 346 x 260, this about 1 ms); the fine grid's
+            # padding is a multiple of k, and past the events it is zero
+            view = grid[:hp // k, :wp // k]
+            for i in range(k):
+                for j in range(k):
+                    view += fine[i::k, j::k][:view.shape[0], :view.shape[1]]
+        nonzero = np.count_nonzero(grid)
+        if nonzero:
+            # normalize_voxel's scale, the mean |cell| over the non-zero cells
+            grid = grid / np.float32(np.abs(grid).sum(dtype=np.float64) / nonzero)
+        out.append(grid)
+    return out
 
 
 def normalize_voxel(grid: np.ndarray) -> np.ndarray:
