@@ -14,7 +14,8 @@
    and 640x480 by ``predict_displacement`` (``InferenceNet`` and ``network_input``) and,
    interleaved in the same run, by the training forward (``EVFlowNet`` on
    ``voxel_grid`` / ``normalize_voxel`` / ``pad_to_multiple``), with the largest
-   difference of their flows; ``evmotion flow WINDOW --method dnn --window-events 30000
+   difference of their flows, and the method's default (``estimate_flow_dnn``: the
+   network at input scales 1, 2 and 4, the sharpest warp kept; no IWEs); ``evmotion flow WINDOW --method dnn --window-events 30000
    --out x.flo`` wall and CPU time including start-up, with the numba cache warm and empty
    (a fresh ``NUMBA_CACHE_DIR`` per run), the command not pinned (a user's is not); one
    training step (batch 8, 346x260 input) and the share of the loss in it.
@@ -153,7 +154,7 @@ def _window(shape, n, seed=0):
 def speed(quick: bool) -> list[dict]:
     import torch
 
-    from evmotion.methods.dnn.infer import predict_displacement
+    from evmotion.methods.dnn.infer import estimate_flow_dnn, predict_displacement
     from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
     from evmotion.methods.dnn.model import load_model
     from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
@@ -179,6 +180,8 @@ def speed(quick: bool) -> list[dict]:
         ev = _window(shape, N_EVENTS)
         fns = {"predict_displacement": lambda e=ev: predict_displacement(e, _ckpt()),
                "training forward": lambda e=ev: training_forward(e),
+               "estimate_flow_dnn": lambda e=ev: estimate_flow_dnn(e, _ckpt(),
+                                                                   with_iwes=False),
                "network_input": lambda e=ev: network_input(e, net.n_bins),
                "voxel_grid+normalize+pad": lambda e=ev: pad_to_multiple(
                    normalize_voxel(voxel_grid(e)))}
@@ -192,6 +195,9 @@ def speed(quick: bool) -> list[dict]:
                          **times[name], "voxel_s": times[voxel]["seconds"],
                          "voxel_cpu_s": times[voxel]["cpu_s"],
                          "max_diff_px": diff if name == "predict_displacement" else 0.0})
+        rows.append({"section": "speed", "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
+                     "method": "estimate_flow_dnn (input scales 1, 2, 4, sharpest kept; "
+                               "no IWEs)", **times["estimate_flow_dnn"]})
     # one training step, batch 8 at 346x260 (padded 352x272), simulated windows
     from evmotion.methods.dnn.data import sim_window
 
