@@ -88,7 +88,8 @@ def _numeric_options():
         for a in p._actions:
             name = getattr(a.type, "__name__", "")
             if a.option_strings and name in ("number", "integer", "list", "parse_size"):
-                out.append((command, a.option_strings[0], a.nargs or 1))
+                out.append((command, a.option_strings[0],
+                            a.nargs if isinstance(a.nargs, int) else 1))  # "+": one value
     return out
 
 

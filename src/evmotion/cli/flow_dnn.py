@@ -1,8 +1,8 @@
 """``evmotion flow FILE --method dnn``: dense flow by the unsupervised EV-FlowNet (§4.3.7).
 
 Same windows, outputs (``.h5`` / ``.npz`` / ``.flo`` / ``.png``), pictures, ``--resume`` and ``--json``
-as ``--method multicm`` (whose runner it uses); each window goes through the network once
-(no warm start needed). ``--checkpoint`` picks weights from ``evmotion train`` (default:
+as ``--method multicm`` (whose runner it uses); each window goes through the network at
+``--input-scales`` (the sharpest kept; no warm start needed). ``--checkpoint`` picks weights from ``evmotion train`` (default:
 the shipped checkpoint); multicm's ``--init dnn`` reads it too.
 """
 
@@ -26,7 +26,8 @@ def add_arguments(group) -> None:
     group.add_argument("--device", default=None, help="torch device (default cpu)")
     group.add_argument("--threads", type=int_range(1, 256), default=None,
                        help="torch threads (default 1: faster than 2 on a shared 2-core CPU)")
-    group.add_argument("--input-scales", type=int, choices=(1, 2, 4, 8, 16), nargs="+",
+    group.add_argument("--input-scales", type=int_range(1, 16), choices=(1, 2, 4, 8, 16),
+                       nargs="+",
                        default=None, metavar="K",
                        help="dnn: also predict from the events binned K times coarser and "
                             "keep the sharpest warp (default 1 2 4: far-moving windows; "

@@ -66,10 +66,9 @@ def load_inference_net(checkpoint: str | Path | None = None,
     """The :class:`~evmotion.methods.dnn.network.InferenceNet` of a checkpoint (default:
     the shipped one), which computes its finest flow faster; cached like :func:`load_model`.
     """
-    net = load_model(checkpoint, device)
     key = _cache_key(checkpoint, device)[1]
     if key not in _FAST:
-        _FAST[key] = InferenceNet(net)
+        _FAST[key] = InferenceNet(load_model(checkpoint, device))
     return _FAST[key]
 
 
