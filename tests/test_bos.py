@@ -187,6 +187,23 @@ def test_contrast_threshold_auto_removes_frame_noise():
         assert noisy == pytest.approx(clean, rel=0.05)
 
 
+def test_contrast_threshold_refused_when_events_do_not_follow_the_frames():
+    """Events that do not measure the frames' change (here: the plume's events against
+    two frames of still air) give no C: a one-line error naming the correlation, where the
+    slope alone came out at some number."""
+    ev, f0, f1, t0, t1 = _plume_240()
+    assert estimate_contrast_threshold(ev, f0, f1, t0_us=t0, t1_us=t1) > 0.1
+    with pytest.raises(EventDataError, match=r"correlate 0\.9\d .*\(< 0\.99\)"):
+        estimate_contrast_threshold(ev, f0, f1, t0_us=t0, t1_us=t1, min_correlation=0.99)
+    rng = np.random.default_rng(0)
+    still = f0 * np.exp(rng.normal(0.0, 0.01, f0.shape))  # shot noise only
+    with pytest.raises(EventDataError, match="contrast threshold.*--contrast-threshold"):
+        estimate_contrast_threshold(ev, f0, still, t0_us=t0, t1_us=t1)
+    with pytest.raises(EventDataError):
+        estimate_bos(ev, f0, t0_us=t0, t1_us=t1, frame_next=still, data_term="scale",
+                     iterations=5)
+
+
 def test_recovery_poisson_scale_term(case):
     """Direction and magnitude of a known curl-free flow from the LEGM."""
     ev, f0, f1, d, C = case

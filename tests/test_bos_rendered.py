@@ -44,3 +44,22 @@ def test_no_option_run_measures_the_flow(case, tmp_path, capsys):
     ratio = float(np.median(np.concatenate(ratios)))
     assert 0.8 < ratio < 1.25, ratio
     assert np.mean(aee) < 0.6 * np.mean(zero), (aee, zero)
+
+
+@pytest.mark.slow
+def test_still_air_is_refused_then_measured_as_still(tmp_path, capsys):
+    """No air: the events are noise, the frames differ by shot noise. The scale-aware run
+    cannot calibrate and says so in one line; given C it returns a flow near zero."""
+    render_scene(tmp_path / "rec", size=(96, 128), duration_s=0.04, magnitude_px=0.0,
+                 seed=2)
+    out = tmp_path / "bos.h5"
+    rc, _, err = run_cli(["bos", tmp_path / "rec", "--out", out], capsys)
+    assert rc == 2 and len(err.strip().splitlines()) == 1
+    assert "contrast threshold" in err and "--contrast-threshold" in err
+    assert not out.exists()
+    rc, _, err = run_cli(["bos", tmp_path / "rec", "--out", out, "--contrast-threshold",
+                          "0.15"], capsys)
+    assert rc == 0, err
+    seq = read_flow(out)
+    dt = (seq.t1 - seq.t0)[:, None, None] * 1e-6
+    assert np.median(np.hypot(seq.flow[..., 0], seq.flow[..., 1]) * dt) < 0.05  # px

@@ -98,6 +98,9 @@ __all__ = [
     "log_frame",
 ]
 
+# below it, the events do not measure the frames' change (estimate_contrast_threshold)
+MIN_CORRELATION = 0.3
+
 _ADAM_B1, _ADAM_B2, _ADAM_EPS = 0.9, 0.999, 1e-8
 
 
@@ -403,7 +406,8 @@ def event_sums(events: EventArray, roi=None, *, t0_us: int | None = None,
 def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_next: np.ndarray,
                                 *, t0_us: int, t1_us: int, roi=None,
                                 sigma: float | None = None, method: str = "auto",
-                                log_eps: float | None = None) -> float:
+                                log_eps: float | None = None,
+                                min_correlation: float = MIN_CORRELATION) -> float:
     """Contrast threshold C from two frames and the events between them.
 
     Per pixel, the log-frame difference ``D = L(t1) - L(t0)`` and the events' polarity sum
@@ -441,6 +445,14 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
       0.10, 0.27 and 0.49 var(D); 35 % at 30 photons, 0.78), and the events' own slope
       is the fallback.
 
+    Where ``D`` and ``S`` correlate less than ``min_correlation`` over the fitted pixels
+    the events do not measure the frames' change -- still air (the events are noise: -0.12
+    to 0.20 on rendered scenes with no air, against 0.66-0.98 with it), light so low that
+    noise events swamp them (0.07-0.28 on a simulated plume at 100-300 photons per white
+    pixel; at 100 photons the slope came out 2.85 and 10.2 for a sensor at C = 0.27,
+    ``benchmarks/results/bos_lowlight.json``), or frames not registered with the events --
+    and no C is returned.
+
     Returns
     -------
     float
@@ -449,7 +461,8 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
     Raises
     ------
     EventDataError
-        When the frames do not change where events fire (no slope to fit).
+        When the frames do not change where events fire (no slope to fit), or the events'
+        sums correlate with the frames' change less than ``min_correlation``.
 
     Examples
     --------
@@ -499,7 +512,15 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
     if dd.size < 16 or cov <= 0 or var_s <= 0:
         raise EventDataError(f"cannot estimate the contrast threshold: the events' polarity "
                              f"sums do not follow the frames' log difference in the ROI "
-                             f"(covariance {cov:.3g}; pass contrast_threshold)")
+                             f"(covariance {cov:.3g}; give contrast_threshold "
+                             "(--contrast-threshold))")
+    corr = cov / np.sqrt(var_d * var_s) if var_d > 0 else 0.0
+    if corr < min_correlation:
+        raise EventDataError(f"cannot estimate the contrast threshold: the events' polarity "
+                             f"sums correlate {corr:.2f} with the frames' log difference over "
+                             f"{dd.size} pixels (< {min_correlation:g}): no schlieren in this "
+                             "interval, events swamped by noise, or frames not registered "
+                             "with the events; give contrast_threshold (--contrast-threshold)")
     c_events = cov / var_s
     c_frames = (var_d - noise) / cov
     if method == "events":
