@@ -41,8 +41,10 @@ Differences from the thesis, and why:
   gradient: the smoothed increment of a smooth flow is ``-(G * grad L) . v``, and without
   it the scale-aware term returned about 0.2x the flow's magnitude on LEGM data;
 * p enters to first order and is bounded to +-``p_max`` (0.5 px) per component;
-* the returned q is the least-norm field with the same Sobel flow (the Sobel over patches
-  is blind to constants and checkerboards, which the random initialization leaves in q).
+* the returned q is the potential of the returned flow (:func:`potential_from_flow`), not
+  the solver's patch-grid q: the Sobel over patches is blind to constants and odd-even
+  patterns, which the random initialization leaves in that q, so its pictures showed a
+  lattice that the flow does not have.
 
 Measured (``benchmarks/results/bos_magnitude.md``, ``bos_accuracy.md``, ``bos.md``): on
 simulated plume, jet, breath and ice scenes (360x320, 2 px) Poisson beats Flow in AEE and
