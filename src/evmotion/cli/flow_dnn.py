@@ -2,8 +2,9 @@
 
 Same windows, outputs (``.h5`` / ``.npz`` / ``.flo`` / ``.png``), pictures, ``--resume`` and ``--json``
 as ``--method multicm`` (whose runner it uses); each window goes through the network at
-``--input-scales`` (the sharpest kept; no warm start needed). ``--checkpoint`` picks weights from ``evmotion train`` (default:
-the shipped checkpoint); multicm's ``--init dnn`` reads it too.
+``--input-scales`` (the sharpest kept; no warm start needed). ``--checkpoint`` picks
+weights from ``evmotion train`` (default: the shipped checkpoint); multicm's ``--init dnn``
+reads it too.
 """
 
 from __future__ import annotations
@@ -27,8 +28,7 @@ def add_arguments(group) -> None:
     group.add_argument("--threads", type=int_range(1, 256), default=None,
                        help="torch threads (default 1: faster than 2 on a shared 2-core CPU)")
     group.add_argument("--input-scales", type=int_range(1, 16), choices=(1, 2, 4, 8, 16),
-                       nargs="+",
-                       default=None, metavar="K",
+                       nargs="+", default=None, metavar="K",
                        help="dnn: also predict from the events binned K times coarser and "
                             "keep the sharpest warp (default 1 2 4: far-moving windows; "
                             "1 = the network on the sensor's grid only)")

@@ -6,9 +6,9 @@ in px, divided by the window's duration to give px/s at the window's midpoint (l
 multicm). A network trained on windows that move a few px underestimates windows that move
 far more (ECD shapes, 30k events: 25-36 px, predicted 14-17 px), so by default it also sees
 the events binned 2x and 4x coarser, where they move 2x and 4x less, and the prediction
-(upsampled, scaled back) whose warp makes the sharpest image of the events is kept. The result is a :class:`~evmotion.methods.flowresult.FlowResult` with the
-same IWEs and focus as multicm's, so every output, picture and evaluation of
-``evmotion flow`` works unchanged.
+(upsampled, scaled back) whose warp makes the sharpest image of the events is kept. The
+result is a :class:`~evmotion.methods.flowresult.FlowResult` with the same IWEs and focus
+as multicm's, so every output, picture and evaluation of ``evmotion flow`` works unchanged.
 """
 
 from __future__ import annotations
@@ -86,10 +86,10 @@ def _upsampled(disp: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
 
 def _sharpest(events: EventArray, scales: list[int], checkpoint, device: str):
     """``(k, displacement)`` of the input scale whose prediction warps the events sharpest."""
+    _check_torch()
     from evmotion.methods.dnn.model import load_inference_net
     from evmotion.methods.dnn.voxel import network_inputs
 
-    _check_torch()
     net = load_inference_net(checkpoint, device)
     h, w = events.sensor_size
     xys = _pixels_and_times(events)
