@@ -544,6 +544,15 @@ def _alive_in_group(pgid: int) -> list[int]:
     return alive
 
 
+def test_closed_stdout_is_a_quiet_exit(rec):
+    """``evmotion ... --json | head`` where head has gone: no error line, the status of a
+    process ended by SIGPIPE (it used to print "error: [Errno 32] Broken pipe")."""
+    p = _popen(["info", rec["rec"], "--json"])
+    p.stdout.close()  # no reader: the first write fails
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 141 and err == "", (p.returncode, err)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("command", ["flow", "simulate"])
 def test_ctrl_c_at_any_moment_is_one_line(rec, command):

@@ -136,6 +136,10 @@ def _build_and_run(argv: list[str] | None) -> int:
     except EvmotionError as exc:
         print(f"evmotion {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader of stdout went away (``evmotion ... --json | head``): stop quietly,
+        # with the status of a process that SIGPIPE ended, as other command-line tools do
+        return 141
     except OSError as exc:
         # a file system refusal that the checks before the work could not foresee
         # (the disk filled up, a folder removed meanwhile): one line, not a traceback
