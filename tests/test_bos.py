@@ -188,6 +188,20 @@ def test_contrast_threshold_auto_removes_frame_noise():
         assert noisy == pytest.approx(clean, rel=0.05)
 
 
+def test_potential_of_the_exact_flow_is_the_simulators_q():
+    """The simulator's q is analytic (its flow is grad q): the potential of its flow
+    matches it up to a constant, on a plume that enters through the image's edge."""
+    from evmotion.eval.windows import evaluate_potential
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    gt = simulate_schlieren("plume", sensor_size=(90, 80), duration_s=3 / 120, seed=1).gt
+    q = np.stack([potential_from_flow(f) for f in gt.flow])
+    rows = evaluate_potential(q, gt.t_us[:-1], gt.t_us[1:], gt.q, gt.t_us)
+    assert len(rows) == len(gt.flow)
+    for r in rows:
+        assert r["q_corr"] > 0.999 and abs(r["q_std_ratio"] - 1) < 0.01
+
+
 def test_contrast_threshold_refused_when_events_do_not_follow_the_frames():
     """Events that do not measure the frames' change (here: the plume's events against
     two frames of still air) give no C: a one-line error naming the correlation, where the

@@ -56,6 +56,16 @@ def test_no_options_then_eval(scene, tmp_path, capsys):
         assert w["AEE"] == pytest.approx(ee.mean(), rel=1e-5)
         assert w["%Out"] == pytest.approx(100 * np.mean(ee > 1.0))
         assert w["AE_rad"] == pytest.approx(np.radians(w["AE_deg"]))
+        # and the file's q against the simulator's exact q (numpy reference)
+        from evmotion.sim.schlieren import read_schlieren_gt
+
+        a = bos.q[i] - bos.q[i].mean()
+        b = read_schlieren_gt(scene).q[i].astype(np.float64)
+        b -= b.mean()
+        assert w["q_corr"] == pytest.approx(np.mean(a * b) / (a.std() * b.std()), rel=1e-4)
+        assert w["q_std_ratio"] == pytest.approx(a.std() / b.std(), rel=1e-4)
+    assert summary["mean"]["q_corr"] == pytest.approx(
+        np.mean([w["q_corr"] for w in summary["windows"]]))
 
 
 def test_options_roi_png_json(scene, tmp_path, capsys):

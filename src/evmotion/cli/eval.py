@@ -107,7 +107,28 @@ def _load_flow(args, h5_format=None):
     # a method may name its evaluation's %Out threshold (BOS: 1 px)
     out_px = seq.attrs.get("eval_out_px")
     return (seq.flow, np.asarray(seq.t0), np.asarray(seq.t1),
-            None if out_px is None else float(out_px))
+            None if out_px is None else float(out_px), seq.extras.get("q"))
+
+
+def _add_potential_scores(q, t0s, t1s, gt_path, per_window: list, total: dict) -> None:
+    """BOS outputs against the schlieren simulator's ground truth: each window's q against
+    the exact one (``q_corr``, ``q_std_ratio``), and their means; other GT has no q."""
+    from evmotion.errors import FormatError
+    from evmotion.eval.windows import evaluate_potential
+    from evmotion.sim.schlieren import read_schlieren_gt
+
+    try:
+        gt = read_schlieren_gt(gt_path)
+    except FormatError:
+        return
+    if gt.q.shape[1:] != q.shape[1:]:
+        return
+    rows = evaluate_potential(q, t0s, t1s, gt.q, gt.t_us)
+    for row in rows:
+        per_window[row["window"]].update(q_corr=row["q_corr"], q_std_ratio=row["q_std_ratio"])
+    if rows:
+        total["q_corr"] = float(np.mean([r["q_corr"] for r in rows]))
+        total["q_std_ratio"] = float(np.mean([r["q_std_ratio"] for r in rows]))
 
 
 def _load_npy(args, path):
@@ -127,7 +148,8 @@ def _load_npy(args, path):
     n = flow.shape[0]
     if n != 1:
         raise ParameterError(f"{path}: {n} windows but one --t0-us/--t1-us interval")
-    return flow.astype(np.float32), np.array([args.t0_us]), np.array([args.t1_us]), None
+    return (flow.astype(np.float32), np.array([args.t0_us]), np.array([args.t1_us]), None,
+            None)
 
 
 def _h5_format(path) -> object:
@@ -238,7 +260,7 @@ def run(args) -> int:
         if Path(args.gt).resolve() == path.resolve():
             raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
         return _run_event_flow(args, path)
-    flow, t0s, t1s, file_out_px = _load_flow(args, h5_format)
+    flow, t0s, t1s, file_out_px, q = _load_flow(args, h5_format)
     out_px = args.out_px if args.out_px is not None else file_out_px or 3.0
     gt = read_gt_flow(args.gt)
     if gt.flow.shape[1:3] != flow.shape[1:3]:
@@ -252,6 +274,8 @@ def run(args) -> int:
     res = evaluate_windows(flow, t0s, t1s, gt, events=events, dt=args.dt, out_px=out_px,
                            along_streamlines=args.along_streamlines)
     per_window, total, mismatched = res.windows, res.total, res.mismatched
+    if q is not None:
+        _add_potential_scores(q, t0s, t1s, args.gt, per_window, total)
     summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
                "n_windows": len(per_window), "windows_with_other_dt": mismatched,
                "mask": res.mask, "out_px": out_px,
@@ -259,7 +283,8 @@ def run(args) -> int:
     if args.json:
         print_json(summary)
     else:
-        keys = [k for k in ("AEE", "%Out", "AE_deg", "FWL", "FWL_gt", "n_pixels") if k in total]
+        keys = [k for k in ("AEE", "%Out", "AE_deg", "FWL", "FWL_gt", "q_corr", "q_std_ratio",
+                            "n_pixels") if k in total]
         print(f"{len(per_window)} windows ({summary['mask']}, dt={args.dt})")
         print("  ".join(f"{k}={total[k]:.4g}" for k in keys))
         if mismatched:

@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from evmotion.events import EventArray
     from evmotion.io.flowfiles import FlowSequence
 
-__all__ = ["WindowsEvaluation", "evaluate_windows", "gt_displacement"]
+__all__ = ["WindowsEvaluation", "evaluate_potential", "evaluate_windows", "gt_displacement"]
 
 
 @dataclass(frozen=True)
@@ -180,3 +180,58 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     mask_text = ("valid GT" + (" & at least one event" if events is not None else "")
                  + (" & estimate known" if unknown else ""))
     return WindowsEvaluation(per_window, total, mismatched, mask_text)
+
+
+def evaluate_potential(q: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
+                       gt_q: np.ndarray, gt_t_us: np.ndarray,
+                       mask: np.ndarray | None = None) -> list[dict]:
+    """Score BOS potentials ``q`` (px^2/s, defined up to a constant) against ground truth
+    on the same frame intervals.
+
+    Parameters
+    ----------
+    q : ndarray, shape (N, H, W)
+        Estimated potential of each window; NaN where not defined (not scored).
+    t0s, t1s : sequence of int
+        Each window's interval, µs.
+    gt_q : ndarray, shape (M, H, W)
+        Ground-truth potential of each frame interval ``[gt_t_us[j], gt_t_us[j + 1])``.
+    gt_t_us : ndarray, shape (M + 1,)
+        Frame times, µs.
+    mask : ndarray of bool, shape (N, H, W), optional
+        Pixels scored per window (default all known ones).
+
+    Returns
+    -------
+    list of dict
+        Per window matching a GT frame interval exactly: ``window``, ``q_corr`` (Pearson
+        correlation after removing each field's mean) and ``q_std_ratio`` (standard
+        deviation over the ground truth's: 1 is the right scale). Windows that span no
+        single frame interval are left out.
+
+    Examples
+    --------
+    >>> yy, xx = np.mgrid[0:8, 0:8].astype(float)
+    >>> gt = (xx * yy)[None]
+    >>> rows = evaluate_potential(2.0 * gt + 5.0, [0], [100], gt, np.array([0, 100]))
+    >>> round(rows[0]["q_corr"], 6), round(rows[0]["q_std_ratio"], 6)
+    (1.0, 2.0)
+    """
+    start = {int(t): j for j, t in enumerate(np.asarray(gt_t_us)[:-1])}
+    rows = []
+    for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
+        j = start.get(int(t0))
+        if j is None or int(gt_t_us[j + 1]) != int(t1):
+            continue
+        est, ref = q[i].astype(np.float64), gt_q[j].astype(np.float64)
+        sel = np.isfinite(est) & np.isfinite(ref)
+        if mask is not None:
+            sel &= mask[i]
+        if sel.sum() < 2:
+            continue
+        a, b = est[sel] - est[sel].mean(), ref[sel] - ref[sel].mean()
+        sa, sb = float(np.sqrt(np.mean(a * a))), float(np.sqrt(np.mean(b * b)))
+        corr = float(np.mean(a * b) / (sa * sb)) if sa > 0 and sb > 0 else float("nan")
+        rows.append({"window": i, "q_corr": corr,
+                     "q_std_ratio": sa / sb if sb > 0 else float("nan")})
+    return rows
