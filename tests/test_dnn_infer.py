@@ -137,6 +137,7 @@ def test_cli_flow_dnn_end_to_end(tmp_path, window, capsys):
                  "--png-dir", str(tmp_path / "png")]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["method"] == "dnn" and summary["n_windows"] >= 2
+    assert all(w["input_scale"] in (1, 2, 4) for w in summary["windows"])
     assert (tmp_path / "png" / "flow_00000.png").is_file()
     assert main(["flow", str(rec), "--method", "multicm", "--init", "dnn",
                  "--out", str(tmp_path / "z.npz"), "--json"]) == 0

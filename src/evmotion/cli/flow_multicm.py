@@ -140,11 +140,14 @@ def _valid(r) -> np.ndarray:
 def _row(r, w) -> dict:
     valid = _valid(r)
     speed = np.linalg.norm(r.flow, axis=-1)
-    return {"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events, "focus": r.focus,
-            "seconds": r.timings["total_s"], "compile_s": r.timings.get("compile_s", 0.0),
-            "estimate_s": r.timings.get("estimate_s", r.timings["total_s"]),
-            "mean_speed_px_s": float(speed[valid].mean()) if valid.any() else 0.0,
-            "valid_fraction": float(valid.mean())}
+    row = {"t0_us": w.t0, "t1_us": w.t1, "n_events": r.n_events, "focus": r.focus,
+           "seconds": r.timings["total_s"], "compile_s": r.timings.get("compile_s", 0.0),
+           "estimate_s": r.timings.get("estimate_s", r.timings["total_s"]),
+           "mean_speed_px_s": float(speed[valid].mean()) if valid.any() else 0.0,
+           "valid_fraction": float(valid.mean())}
+    if "input_scale" in r.meta:  # the network's: the input scale whose flow was kept
+        row["input_scale"] = int(r.meta["input_scale"])
+    return row
 
 
 def check_args(args) -> None:
