@@ -2,7 +2,8 @@
 
 Same windows, outputs (``.h5`` / ``.npz`` / ``.flo`` / ``.png``), pictures, ``--resume`` and ``--json``
 as ``--method multicm`` (whose runner it uses); each window goes through the network at
-``--input-scales`` (the sharpest kept; no warm start needed). ``--checkpoint`` picks
+``--input-scales`` (the sharpest kept), each averaged with the time-reversed window's
+negated flow unless ``--no-time-reversal`` (no warm start needed). ``--checkpoint`` picks
 weights from ``evmotion train`` (default: the shipped checkpoint); multicm's ``--init dnn``
 reads it too.
 """
@@ -17,6 +18,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--device": ("device", "cpu"),
     "--threads": ("threads", 1),
     "--input-scales": ("input_scales", (1, 2, 4)),
+    "--no-time-reversal": ("no_time_reversal", False),
 }
 
 
@@ -32,6 +34,9 @@ def add_arguments(group) -> None:
                        help="dnn: also predict from the events binned K times coarser and "
                             "keep the sharpest warp (default 1 2 4: far-moving windows; "
                             "1 = the network on the sensor's grid only)")
+    group.add_argument("--no-time-reversal", action="store_true", default=None,
+                       help="dnn: do not average with the negated flow of the time-reversed "
+                            "window (one pass per scale instead of two)")
 
 
 def check_args(args) -> None:
@@ -53,7 +58,8 @@ def estimator(args):
 
     torch.set_num_threads(args.threads)
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
-             "source": str(args.file), "input_scales": list(args.input_scales)}
+             "source": str(args.file), "input_scales": list(args.input_scales),
+             "time_reversal": not args.no_time_reversal}
 
     # the IWEs and the focus serve only the pictures (--png-dir) and the JSON rows; the
     # flow files do not hold them, and their numba kernels would cost a first run seconds
@@ -62,7 +68,8 @@ def estimator(args):
 
     def estimate(events, init):
         return estimate_flow_dnn(events, args.checkpoint, device=args.device,
-                                 with_iwes=with_iwes, input_scales=tuple(args.input_scales))
+                                 with_iwes=with_iwes, input_scales=tuple(args.input_scales),
+                                 time_reversal=not args.no_time_reversal)
 
     return estimate, attrs
 

@@ -60,16 +60,22 @@ def _check_torch() -> None:
                              ) from None
 
 
-def _run(net, vox: np.ndarray, shape: tuple[int, int], device: str) -> np.ndarray:
-    """The network on one input ``(H', W', bins)``, its flow cropped to ``shape``."""
+def _run(net, vox: np.ndarray, shape: tuple[int, int], device: str,
+         time_reversal: bool = False) -> np.ndarray:
+    """The network on one input ``(H', W', bins)``, its flow cropped to ``shape``; with
+    ``time_reversal``, the mean of its flow and the negated flow of the time-reversed
+    window (the bins in reverse order, polarities flipped), in one batch of two."""
     import torch
 
     h, w = shape
     # (H', W', bins) -> (1, bins, H', W') in channels-last memory: a view, no copy
     t = torch.from_numpy(vox).permute(2, 0, 1)[None]
+    if time_reversal:
+        t = torch.cat([t, -t.flip(1)])
     with torch.inference_mode():
-        out = net(t.to(device))[0, :, :h, :w]
-    return np.ascontiguousarray(out.permute(1, 2, 0).cpu().numpy(), dtype=np.float32)
+        out = net(t.to(device))[:, :, :h, :w]
+    flow = 0.5 * (out[0] - out[1]) if time_reversal else out[0]
+    return np.ascontiguousarray(flow.permute(1, 2, 0).cpu().numpy(), dtype=np.float32)
 
 
 def _upsampled(disp: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
@@ -84,20 +90,24 @@ def _upsampled(disp: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
     return np.ascontiguousarray(up.numpy()[:shape[0], :shape[1]] * k, dtype=np.float32)
 
 
-def _sharpest(events: EventArray, scales: list[int], checkpoint, device: str):
-    """``(k, displacement)`` of the input scale whose prediction warps the events sharpest."""
+def _sharpest(events: EventArray, scales: list[int], checkpoint, device: str,
+              time_reversal: bool):
+    """``(k, displacement)`` of the input scale whose prediction warps the events sharpest
+    (the one scale's when there is one)."""
     _check_torch()
     from evmotion.methods.dnn.model import load_inference_net
     from evmotion.methods.dnn.voxel import network_inputs
 
     net = load_inference_net(checkpoint, device)
     h, w = events.sensor_size
-    xys = _pixels_and_times(events)
+    xys = _pixels_and_times(events) if len(scales) > 1 else None
     best, disp, score = 1, None, -np.inf
     for k, vox in zip(scales, network_inputs(events, tuple(scales), net.n_bins), strict=True):
-        cand = _run(net, vox, (-(-h // k), -(-w // k)), device)
+        cand = _run(net, vox, (-(-h // k), -(-w // k)), device, time_reversal)
         if k > 1:
             cand = _upsampled(cand, k, (h, w))
+        if len(scales) == 1:
+            return k, cand
         s = _warped_variance(*xys, cand)
         if s > score:
             best, disp, score = k, cand, s
@@ -139,7 +149,8 @@ def _warped_variance(x, y, pix, s, disp) -> float:
 
 def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, *,
                       device: str = "cpu", with_iwes: bool = True,
-                      input_scales: tuple[int, ...] = INPUT_SCALES) -> FlowResult:
+                      input_scales: tuple[int, ...] = INPUT_SCALES,
+                      time_reversal: bool = True) -> FlowResult:
     """Dense optical flow of one window by the unsupervised EV-FlowNet.
 
     Parameters
@@ -158,8 +169,13 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         The network also predicts from the events binned this many times coarser (default
         1, 2, 4; each of 1, 2, 4, 8, 16), where far-moving windows move within what it
         was trained on; the prediction whose warp gives the highest :func:`sharpness` is
-        kept (``(1,)``: the network on the sensor's grid only). The default takes about
-        twice the time of one pass (benchmarks/results/dnn.md).
+        kept (``(1,)``: the network on the sensor's grid only).
+    time_reversal : bool
+        Also predict from the time-reversed window (events in reverse order, polarities
+        flipped: its flow is the negative) and average the two (default True): errors the
+        network makes alike forwards and backwards cancel. The two passes run as one batch.
+        Both options together take about 4x one pass (``benchmarks/results/dnn.md``);
+        ``input_scales=(1,), time_reversal=False`` is the network's single pass.
 
     Returns
     -------
@@ -185,10 +201,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                              f"of the network's 16-px padding), got {input_scales!r}")
     scales = sorted({int(k) for k in input_scales})
     t_start = time.perf_counter()
-    if scales == [1]:
+    if scales == [1] and not time_reversal:
         best, disp = 1, predict_displacement(events, checkpoint, device=device)
     else:
-        best, disp = _sharpest(events, scales, checkpoint, device)
+        best, disp = _sharpest(events, scales, checkpoint, device, bool(time_reversal))
     t_net = time.perf_counter() - t_start
     t0, t1 = int(events.t[0]), int(events.t[-1])
     duration_s = (t1 - t0) * 1e-6
@@ -214,4 +230,4 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                       timings={"network_s": t_net, "total_s": total}, time_aware=None,
                       n_bins=0, n_events=len(events), valid=valid,
                       meta={"method": "dnn", "checkpoint": str(checkpoint or "shipped"),
-                            "input_scale": best})
+                            "input_scale": best, "time_reversal": bool(time_reversal)})
