@@ -33,6 +33,10 @@ VELOCITY = (40.0, -25.0)
 C = 0.2
 RATE_HZ = 5000
 DURATION_S = 0.2
+NOTES = (f"Scene: {SIZE[1]}x{SIZE[0]} px, rotation {OMEGA} rad/s about the image centre plus "
+         f"{VELOCITY} px/s, C = {C}, {DURATION_S} s at {RATE_HZ} Hz, seed 1 (rendered here, "
+         "not by evmotion's simulator); 30k-event windows, default options otherwise; AEE "
+         "over the pixels each output marks valid.")
 
 
 def _transform(t: float) -> np.ndarray:
@@ -119,11 +123,7 @@ def main(quick: bool = False) -> list[dict]:
                          "zero_AEE_px_median": float(np.median(zero)),
                          "FWL_median": float(np.median(fwls))})
             print(rows[-1], flush=True)
-    notes = (f"Scene: {SIZE[1]}x{SIZE[0]} px, rotation {OMEGA} rad/s about the image centre "
-             f"plus {VELOCITY} px/s, C = {C}, {DURATION_S} s at {RATE_HZ} Hz, seed 1 "
-             "(rendered here, not by evmotion's simulator); 30k-event windows, default "
-             "options otherwise; AEE over the pixels each output marks valid.")
-    harness.record("flow_foreign", rows, notes)
+    harness.record("flow_foreign", rows, NOTES)
     return rows
 
 
