@@ -44,12 +44,7 @@ def predict_displacement(events: EventArray, checkpoint: str | Path | None = Non
     >>> predict_displacement(ev).shape
     (30, 40, 2)
     """
-    _check_torch()
-    from evmotion.methods.dnn.model import load_inference_net
-    from evmotion.methods.dnn.voxel import network_input
-
-    net = load_inference_net(checkpoint, device)
-    return _run(net, network_input(events, net.n_bins), events.sensor_size, device)
+    return _predict(events, [1], checkpoint, device, time_reversal=False)[1]
 
 
 def _check_torch() -> None:
@@ -90,10 +85,11 @@ def _upsampled(disp: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
     return np.ascontiguousarray(up.numpy()[:shape[0], :shape[1]] * k, dtype=np.float32)
 
 
-def _sharpest(events: EventArray, scales: list[int], checkpoint, device: str,
-              time_reversal: bool):
-    """``(k, displacement)`` of the input scale whose prediction warps the events sharpest
-    (the one scale's when there is one)."""
+def _predict(events: EventArray, scales: list[int], checkpoint, device: str,
+             time_reversal: bool):
+    """``(k, displacement)``: the network's prediction at input scale ``k``, of the
+    ``scales`` the one whose prediction warps the events sharpest (the one scale's when
+    there is one)."""
     _check_torch()
     from evmotion.methods.dnn.model import load_inference_net
     from evmotion.methods.dnn.voxel import network_inputs
@@ -201,10 +197,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                              f"of the network's 16-px padding), got {input_scales!r}")
     scales = sorted({int(k) for k in input_scales})
     t_start = time.perf_counter()
-    if scales == [1] and not time_reversal:
-        best, disp = 1, predict_displacement(events, checkpoint, device=device)
-    else:
-        best, disp = _sharpest(events, scales, checkpoint, device, bool(time_reversal))
+    best, disp = _predict(events, scales, checkpoint, device, bool(time_reversal))
     t_net = time.perf_counter() - t_start
     t0, t1 = int(events.t[0]), int(events.t[-1])
     duration_s = (t1 - t0) * 1e-6
