@@ -115,15 +115,15 @@ def _add_potential_scores(q, t0s, t1s, gt_path, per_window: list, total: dict) -
     the exact one (``q_corr``, ``q_std_ratio``), and their means; other GT has no q."""
     from evmotion.errors import FormatError
     from evmotion.eval.windows import evaluate_potential
-    from evmotion.sim.schlieren import read_schlieren_gt
+    from evmotion.sim.schlieren import read_schlieren_q
 
     try:
-        gt = read_schlieren_gt(gt_path)
+        gt_q, gt_t_us = read_schlieren_q(gt_path)
     except FormatError:
         return
-    if gt.q.shape[1:] != q.shape[1:]:
+    if gt_q.shape[1:] != q.shape[1:]:
         return
-    rows = evaluate_potential(q, t0s, t1s, gt.q, gt.t_us)
+    rows = evaluate_potential(q, t0s, t1s, gt_q, gt_t_us)
     for row in rows:
         per_window[row["window"]].update(q_corr=row["q_corr"], q_std_ratio=row["q_std_ratio"])
     if rows:

@@ -48,6 +48,7 @@ displacement of 2 px, 0.4-0.7 CPU s per frame interval (frames and events); 96x9
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -70,7 +71,7 @@ from evmotion.utils import resolve_options
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
            "make_background", "make_field", "normalize_range", "read_schlieren_gt",
-           "simulate_schlieren", "write_schlieren"]
+           "read_schlieren_q", "simulate_schlieren", "write_schlieren"]
 
 GT_FORMAT = "evmotion-schlieren-gt"
 BLOB_CUTOFF = 4.0  # puffs are evaluated within this many widths (exp(-8) beyond)
@@ -887,19 +888,7 @@ def read_schlieren_gt(path: str | Path) -> SchlierenGT:
     >>> gt.flow.shape                   # one flow per frame interval
     (2, 40, 48, 2)
     """
-
-    path = Path(path)
-    if path.is_dir():
-        path = path / "schlieren_gt.h5"
-    f = open_h5(path)
-    with f:
-        attrs = read_attrs(path, f)
-        if attrs.get("schlieren_format") != GT_FORMAT:
-            raise FormatError(path, "not schlieren ground truth (attribute "
-                              f"schlieren_format={attrs.get('schlieren_format')!r})")
-        for name in ("flow", "q", "displacement", "frame_t"):
-            if name not in f:
-                raise FormatError(path, f"schlieren ground truth lacks dataset '{name}'")
+    with _gt_file(path) as (f, attrs):
         thr = None
         if "thresholds_on" in f and "thresholds_off" in f:
             thr = (f["thresholds_on"][()].astype(np.float64),
@@ -909,3 +898,36 @@ def read_schlieren_gt(path: str | Path) -> SchlierenGT:
                            t_us=f["frame_t"][()].astype(np.int64),
                            contrast_threshold=float(attrs["contrast_threshold"]),
                            thresholds=thr, meta=json.loads(attrs["schlieren_meta"]))
+
+
+def read_schlieren_q(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(q, t_us)`` of ``schlieren_gt.h5`` (:func:`read_schlieren_gt`'s ``q`` and
+    ``t_us``) without reading its flows and displacements, which are most of the file.
+
+    Examples
+    --------
+    >>> sim = simulate_schlieren("plume", sensor_size=(40, 48), duration_s=2 / 120, seed=0)
+    >>> q, t_us = read_schlieren_q(write_schlieren(sim, "plume_sim/"))
+    >>> q.shape, t_us.shape             # one q per frame interval
+    ((2, 40, 48), (3,))
+    """
+    with _gt_file(path) as (f, _):
+        return f["q"][()], f["frame_t"][()].astype(np.int64)
+
+
+@contextlib.contextmanager
+def _gt_file(path: str | Path):
+    """The open ground-truth file and its attributes, checked to be schlieren ground truth
+    with all its datasets (a folder holding ``schlieren_gt.h5`` too)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "schlieren_gt.h5"
+    with open_h5(path) as f:
+        attrs = read_attrs(path, f)
+        if attrs.get("schlieren_format") != GT_FORMAT:
+            raise FormatError(path, "not schlieren ground truth (attribute "
+                              f"schlieren_format={attrs.get('schlieren_format')!r})")
+        for name in ("flow", "q", "displacement", "frame_t"):
+            if name not in f:
+                raise FormatError(path, f"schlieren ground truth lacks dataset '{name}'")
+        yield f, attrs
