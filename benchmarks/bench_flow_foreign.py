@@ -6,7 +6,8 @@ The scene (nothing of evmotion is used to make it): a blob texture (smoothed noi
 thresholded, blurred) turning about the image centre at ``OMEGA`` rad/s while translating
 at ``VELOCITY`` px/s, drawn with OpenCV's bicubic ``warpAffine`` at 5 kHz; a pixel fires
 each time its log intensity moves ``C`` from its reference (time interpolated inside the
-step), written as an ECD text file (240x180, 0.2 s). Each CLI runs on it with 30k-event
+step: ``tests/rendered_schlieren.crossing_events``), written as an ECD text file (240x180,
+0.2 s). Each CLI runs on it with 30k-event
 windows in a fresh process; AEE (px over the window, the pixels the output marks valid) of
 each window against the exact flow at its midpoint, the zero flow's, and the FWL of each
 estimate (variance of the events' image at the window's midpoint over the identity's).
@@ -26,6 +27,9 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 import harness
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from rendered_schlieren import crossing_events
 
 SIZE = (180, 240)
 OMEGA = 1.5
@@ -59,23 +63,10 @@ def render(path: Path, seed: int = 1) -> None:
                              borderMode=cv2.BORDER_REFLECT)
         return np.log(img[h:2 * h, w:2 * w] + 1e-2)
 
-    prev = log_frame(0.0)
-    ref = prev + rng.uniform(-0.5, 0.5, prev.shape) * C
-    chunks = []
-    for i in range(1, int(DURATION_S * RATE_HZ) + 1):
-        now = log_frame(i / RATE_HZ)
-        for sign in (1.0, -1.0):
-            while True:
-                yi, xi = np.nonzero(sign * (now - ref) >= C)
-                if yi.size == 0:
-                    break
-                level = ref[yi, xi] + sign * C
-                frac = np.clip((level - prev[yi, xi]) / (now[yi, xi] - prev[yi, xi]), 0, 1)
-                chunks.append(np.stack([(i - 1 + frac) / RATE_HZ, xi, yi,
-                                        np.full(yi.size, sign > 0)], 1))
-                ref[yi, xi] = level
-        prev = now
-    ev = np.concatenate(chunks)
+    first = log_frame(0.0)
+    ref = first + rng.uniform(-0.5, 0.5, first.shape) * C
+    ev = crossing_events(log_frame, first, ref, np.full(first.shape, C),
+                         int(DURATION_S * RATE_HZ), RATE_HZ)
     ev = ev[np.argsort(ev[:, 0], kind="stable")]
     np.savetxt(path, ev, fmt=["%.9f", "%d", "%d", "%d"])
 

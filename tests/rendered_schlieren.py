@@ -68,6 +68,30 @@ def _displacement(t, scene, shape, blobs, amp):
     return d
 
 
+def crossing_events(log_at, log_first: np.ndarray, ref: np.ndarray, c: np.ndarray,
+                    steps: int, rate_hz: float) -> np.ndarray:
+    """Events ``(N, 4)`` of ``t`` (s), ``x``, ``y``, ``p`` (0/1), in step order: the log
+    intensity ``log_at(t)`` sampled at ``rate_hz`` from ``log_first`` (its value at 0); a
+    pixel fires each time it moves its threshold ``c`` (per pixel) from its reference
+    ``ref`` (updated in place), the time interpolated linearly inside the step."""
+    chunks = [np.zeros((0, 4))]
+    log_prev = log_first
+    for i in range(1, steps + 1):
+        log_now = log_at(i / rate_hz)
+        for sign in (1.0, -1.0):
+            while True:
+                yi, xi = np.nonzero(sign * (log_now - ref) >= c)
+                if yi.size == 0:
+                    break
+                level = ref[yi, xi] + sign * c[yi, xi]
+                frac = (level - log_prev[yi, xi]) / (log_now[yi, xi] - log_prev[yi, xi])
+                t = (i - 1 + np.clip(frac, 0.0, 1.0)) / rate_hz
+                chunks.append(np.stack([t, xi, yi, np.full(yi.size, sign > 0)], 1))
+                ref[yi, xi] = level
+        log_prev = log_now
+    return np.concatenate(chunks)
+
+
 def render_scene(folder, *, scene: str = "plume", size=(300, 400), duration_s: float = 0.3,
                  fps: float = 100.0, contrast: float = 0.15, contrast_sigma: float = 0.02,
                  magnitude_px: float = 1.5, rate_hz: float = 4000.0, density: float = 0.08,
@@ -98,23 +122,10 @@ def render_scene(folder, *, scene: str = "plume", size=(300, 400), duration_s: f
 
     c = np.clip(contrast + contrast_sigma * rng.standard_normal(size), 0.3 * contrast,
                 None).astype(np.float32)
-    log_prev = np.log(radiance(0.0) + 1e-3)
-    ref = log_prev + rng.uniform(-0.5, 0.5, size).astype(np.float32) * c
-    chunks = []
-    steps = int(round(duration_s * rate_hz))
-    for i in range(1, steps + 1):
-        log_now = np.log(radiance(i / rate_hz) + 1e-3)
-        for sign in (1.0, -1.0):
-            while True:
-                yi, xi = np.nonzero(sign * (log_now - ref) >= c)
-                if yi.size == 0:
-                    break
-                level = ref[yi, xi] + sign * c[yi, xi]
-                frac = (level - log_prev[yi, xi]) / (log_now[yi, xi] - log_prev[yi, xi])
-                t = (i - 1 + np.clip(frac, 0.0, 1.0)) / rate_hz
-                chunks.append(np.stack([t, xi, yi, np.full(yi.size, sign > 0)], 1))
-                ref[yi, xi] = level
-        log_prev = log_now
+    log_first = np.log(radiance(0.0) + 1e-3)
+    ref = log_first + rng.uniform(-0.5, 0.5, size).astype(np.float32) * c
+    chunks = [crossing_events(lambda t: np.log(radiance(t) + 1e-3), log_first, ref, c,
+                              int(round(duration_s * rate_hz)), rate_hz)]
     n_noise = int(noise_hz * h * w * duration_s)
     chunks.append(np.stack([rng.uniform(0, duration_s, n_noise), rng.integers(0, w, n_noise),
                             rng.integers(0, h, n_noise), rng.integers(0, 2, n_noise)], 1))
