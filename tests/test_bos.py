@@ -214,6 +214,9 @@ def test_contrast_threshold_refused_when_events_do_not_follow_the_frames():
     still = f0 * np.exp(rng.normal(0.0, 0.01, f0.shape))  # shot noise only
     with pytest.raises(EventDataError, match="contrast threshold.*--contrast-threshold"):
         estimate_contrast_threshold(ev, f0, still, t0_us=t0, t1_us=t1)
+    for bad in (float("nan"), 1.5):
+        with pytest.raises(ParameterError, match="min_correlation"):
+            estimate_contrast_threshold(ev, f0, f1, t0_us=t0, t1_us=t1, min_correlation=bad)
     with pytest.raises(EventDataError):
         estimate_bos(ev, f0, t0_us=t0, t1_us=t1, frame_next=still, data_term="scale",
                      iterations=5)

@@ -110,7 +110,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.options import cluster_threads, scheduler_client
-    from evmotion.errors import ParameterError
+    from evmotion.errors import EventDataError, ParameterError
     from evmotion.io.bosinput import load_bos_input
     from evmotion.io.flowout import EXTRA_CONTAINERS
     from evmotion.methods.bos_run import solve_bos_input, write_bos_output
@@ -138,6 +138,11 @@ def run(args) -> int:
         if args.roi is not None and str(exc).startswith("roi "):
             # the library names its argument; the user typed the option
             raise ParameterError(f"--{exc} (--roi X Y W H)") from None
+        raise
+    except EventDataError as exc:
+        if str(exc).startswith("cannot estimate the contrast threshold"):
+            # the library names the interval; the user ran it on a recording
+            raise EventDataError(f"{args.rec}: {exc}") from None
         raise
     attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
              "seed": args.seed, "source": data.source,

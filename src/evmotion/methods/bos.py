@@ -484,6 +484,8 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
     if method not in ("auto", "rma", "events", "frames"):
         raise ParameterError(f"method must be 'auto', 'rma', 'events' or 'frames', got "
                              f"{method!r}")
+    if not -1.0 <= min_correlation <= 1.0:
+        raise ParameterError(f"min_correlation must be in [-1, 1], got {min_correlation!r}")
     sensor = events.sensor_size
     for name, f in (("frame", frame), ("frame_next", frame_next)):
         if np.shape(f) != tuple(sensor):
@@ -513,14 +515,16 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
     dd, ss = d[near], s[near]
     var_d, cov, var_s = (float(np.mean(v)) for v in (dd * dd, dd * ss, ss * ss))
     if dd.size < 16 or cov <= 0 or var_s <= 0:
-        raise EventDataError(f"cannot estimate the contrast threshold: the events' polarity "
-                             f"sums do not follow the frames' log difference in the ROI "
+        raise EventDataError(f"cannot estimate the contrast threshold in [{t0_us}, {t1_us}) "
+                             f"us: the events' polarity sums do not follow the frames' log "
+                             f"difference in the ROI "
                              f"(covariance {cov:.3g}; give contrast_threshold "
                              "(--contrast-threshold))")
     corr = cov / np.sqrt(var_d * var_s) if var_d > 0 else 0.0
     if corr < min_correlation:
-        raise EventDataError(f"cannot estimate the contrast threshold: the events' polarity "
-                             f"sums correlate {corr:.2f} with the frames' log difference over "
+        raise EventDataError(f"cannot estimate the contrast threshold in [{t0_us}, {t1_us}) "
+                             f"us: the events' polarity sums correlate {corr:.2f} with the "
+                             f"frames' log difference over "
                              f"{dd.size} pixels (< {min_correlation:g}): no schlieren in this "
                              "interval, events swamped by noise, or frames not registered "
                              "with the events; give contrast_threshold (--contrast-threshold)")
