@@ -200,6 +200,8 @@ def test_potential_of_the_exact_flow_is_the_simulators_q():
     assert len(rows) == len(gt.flow)
     for r in rows:
         assert r["q_corr"] > 0.999 and abs(r["q_std_ratio"] - 1) < 0.01
+    with pytest.raises(ParameterError, match="flow must be"):
+        potential_from_flow(np.zeros((4, 4)))
 
 
 def test_contrast_threshold_refused_when_events_do_not_follow_the_frames():

@@ -916,6 +916,8 @@ def potential_from_flow(flow: np.ndarray) -> np.ndarray:
     from scipy.fft import dctn, idctn
 
     v = np.asarray(flow, dtype=np.float64)
+    if v.ndim != 3 or v.shape[2] != 2 or min(v.shape[:2]) < 1:
+        raise ParameterError(f"flow must be (H, W, 2) px/s, got shape {v.shape}")
     h, w = v.shape[:2]
     # the divergence of the mid-point flow, as the adjoint of the forward difference
     div = np.zeros((h, w))
