@@ -208,3 +208,40 @@ def test_shipped_checkpoint_sharpens_a_held_out_ecd_window(shared_data):
     res = estimate_flow_dnn(read_events(path))
     # never trained on; benchmarks/results/dnn.md: FWL 1.18 (multicm 1.69)
     assert np.var(res.iwes["tmid"]) / np.var(res.iwes["identity"]) > 1.1
+
+
+def test_device_is_checked_before_anything_loads(tmp_path, window, capsys):
+    """A device torch does not know, or that this build or machine lacks, is one line
+    naming it, not a traceback or a complaint about the checkpoint."""
+    from evmotion.io import write_events
+    from evmotion.methods.dnn.model import check_device
+    from evmotion.methods.dnn.train import TrainConfig
+
+    assert check_device("cpu") == "cpu"
+    missing = ["gpu", "meta", "cuda:99"]
+    if not torch.cuda.is_available():
+        missing.append("cuda")
+    for dev in missing:
+        with pytest.raises(ParameterError, match=f"--device '{dev}'"):
+            check_device(dev)
+        with pytest.raises(ParameterError, match=f"--device '{dev}'"):
+            predict_displacement(window.events, device=dev)
+        with pytest.raises(ParameterError, match=f"--device '{dev}'"):
+            TrainConfig(sim_windows=1, device=dev).check()
+    rec = tmp_path / "win.h5"
+    write_events(rec, window.events)
+    assert main(["flow", str(rec), "--method", "dnn", "--device", "cuda:99",
+                 "--out", str(tmp_path / "x.flo")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "cuda:99" in err and "checkpoint" not in err
+    assert main(["train", "--out", str(tmp_path / "t"), "--sim-windows", "1",
+                 "--device", "gpu"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "'gpu'" in err
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cuda_inference_matches_cpu(window):
+    cpu = estimate_flow_dnn(window.events).displacement()
+    gpu = estimate_flow_dnn(window.events, device="cuda").displacement()
+    np.testing.assert_allclose(gpu, cpu, atol=1e-3)

@@ -11,7 +11,8 @@ from evmotion.errors import ParameterError
 from evmotion.methods.dnn.network import EVFlowNet, InferenceNet
 from evmotion.utils import atomic_path
 
-__all__ = ["DEFAULT_CHECKPOINT", "load_inference_net", "load_model", "save_model"]
+__all__ = ["DEFAULT_CHECKPOINT", "check_device", "load_inference_net", "load_model",
+           "save_model"]
 
 #: The shipped checkpoint (see MODEL_CARD.md beside this module).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "weights" / "evflownet_w0125.pt"
@@ -19,6 +20,45 @@ DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "weights" / "evflownet_w0
 # the last checkpoint loaded (key: path, mtime, device) and its InferenceNet, if made
 _CACHE: dict = {}
 _FAST: dict = {}
+
+
+def check_device(device: str) -> str:
+    """``device`` as torch spells it, once checked that this machine has it: ``"cpu"``,
+    ``"cuda"`` or ``"cuda:N"`` (``"mps"`` on Apple silicon).
+
+    Raises :class:`~evmotion.errors.ParameterError` naming the device when torch does not
+    know it or this torch build or machine lacks it (a CPU-only wheel asked for ``cuda``).
+
+    Examples
+    --------
+    >>> check_device("cpu")
+    'cpu'
+    >>> check_device("gpu")
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: --device 'gpu': not a torch device (cpu, cuda, cuda:N)
+    """
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError, ValueError):
+        raise ParameterError(f"--device {device!r}: not a torch device (cpu, cuda, cuda:N)"
+                             ) from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            why = ("a CPU-only build" if torch.version.cuda is None
+                   else "no CUDA device is visible")
+            raise ParameterError(f"--device {device!r}: torch {torch.__version__} is {why}; "
+                                 "use --device cpu")
+        n = torch.cuda.device_count()
+        if dev.index is not None and dev.index >= n:
+            raise ParameterError(f"--device {device!r}: this machine has {n} CUDA "
+                                 f"device(s), cuda:0 to cuda:{n - 1}")
+    elif dev.type == "mps":
+        if not torch.backends.mps.is_available():
+            raise ParameterError(f"--device {device!r}: MPS is not available here; "
+                                 "use --device cpu")
+    elif dev.type != "cpu":
+        raise ParameterError(f"--device {device!r}: evmotion runs on cpu, cuda or mps")
+    return str(dev)
 
 
 def save_model(path: str | Path, net: EVFlowNet, **meta) -> None:
@@ -37,6 +77,7 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
     Accepts the files of :func:`save_model` and the per-epoch training checkpoints of
     ``evmotion train``.
     """
+    device = check_device(device)
     path, key = _cache_key(checkpoint, device)
     if key in _CACHE:
         return _CACHE[key]
@@ -66,7 +107,7 @@ def load_inference_net(checkpoint: str | Path | None = None,
     """The :class:`~evmotion.methods.dnn.network.InferenceNet` of a checkpoint (default:
     the shipped one), which computes its finest flow faster; cached like :func:`load_model`.
     """
-    key = _cache_key(checkpoint, device)[1]
+    key = _cache_key(checkpoint, check_device(device))[1]
     if key not in _FAST:
         _FAST[key] = InferenceNet(load_model(checkpoint, device))
     return _FAST[key]

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -37,7 +38,7 @@ from evmotion.methods.dnn.data import (
     transpose_window,
 )
 from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
-from evmotion.methods.dnn.model import load_model, save_model
+from evmotion.methods.dnn.model import check_device, load_model, save_model
 from evmotion.methods.dnn.network import NORMS, EVFlowNet, upsample_flows
 from evmotion.methods.dnn.voxel import (
     N_BINS,
@@ -110,6 +111,7 @@ class TrainConfig:
             raise ParameterError(f"init must be one of {', '.join(INITS)}, got {self.init!r}")
         if self.sim_windows >= 10_000:
             raise ParameterError(f"sim_windows must be < 10000, got {self.sim_windows}")
+        check_device(self.device)
 
 
 def batch_input(windows: Sequence[TrainWindow], shape: tuple[int, int]) -> torch.Tensor:
@@ -248,6 +250,9 @@ def _kaiming_init(net: EVFlowNet) -> None:
 
 
 def _seed_all(cfg: TrainConfig) -> None:
+    if torch.device(cfg.device).type == "cuda":
+        # cuBLAS is deterministic only with a fixed workspace, read when it starts
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     torch.manual_seed(cfg.seed)
     torch.use_deterministic_algorithms(True)
     torch.set_num_threads(cfg.threads)
@@ -274,7 +279,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     _seed_all(cfg)
-    device = torch.device(cfg.device)
+    device = torch.device(check_device(cfg.device))
     net = EVFlowNet(width=cfg.width, norm=cfg.norm, symmetric=cfg.symmetric)
     if cfg.init == "kaiming":
         _kaiming_init(net)
