@@ -127,6 +127,34 @@ def test_bad_inputs(scene, tmp_path, capsys):
     assert not out.exists()
 
 
+def test_frames_inside_the_recording(scene, tmp_path, capsys):
+    """A recording that holds its frames (here an evmotion HDF5 with a frames group, as
+    AEDAT4 holds DAVIS APS frames) needs no --frames: the same result as the folder; one
+    without frames names the recording and --frames."""
+    import h5py
+
+    from evmotion.io import read_events, write_events
+    from evmotion.io.frames import read_frames
+
+    rec = tmp_path / "with_frames.h5"
+    write_events(rec, read_events(scene))
+    fr = read_frames(scene)
+    with h5py.File(rec, "a") as f:
+        f["frames/t"], f["frames/images"] = fr.t, fr.images
+    outs = []
+    for argv in (["bos", rec], ["bos", scene]):
+        outs.append(tmp_path / f"{len(outs)}.h5")
+        rc, _, err = _run([*argv, "--out", outs[-1]], capsys)
+        assert rc == 0, err
+    a, b = read_bos_h5(outs[0]), read_bos_h5(outs[1])
+    np.testing.assert_array_equal(a.flow.flow, b.flow.flow)
+    np.testing.assert_array_equal(a.q, b.q)
+    bare = tmp_path / "bare.h5"
+    write_events(bare, read_events(scene))
+    _one_line_error(["bos", bare, "--out", tmp_path / "x.h5"], capsys, "bare.h5",
+                    "no frames", "--frames")
+
+
 def _copy(scene, tmp_path, name):
     d = tmp_path / name
     shutil.copytree(scene, d)
@@ -198,3 +226,14 @@ def test_workers_give_the_cold_start_solutions(scene, tmp_path, capsys):
         one = read_bos_h5(out1)
         np.testing.assert_allclose(one.flow.flow[0], two.flow.flow[k], rtol=1e-5, atol=1e-4)
         np.testing.assert_allclose(one.q[0], two.q[k], rtol=1e-5, atol=1e-3)
+
+
+def test_aedat4_aps_frames_without_frames_option(shared_data, tmp_path, capsys):
+    """A DAVIS346 AEDAT4 recording brings its own APS frames (25 fps)."""
+    out = tmp_path / "bos.h5"
+    rc, text, err = _run(["bos", shared_data / "formats" / "davis346.aedat4", "--max-intervals",
+                          "1", "--out", out, "--json"], capsys)
+    assert rc == 0, err
+    summary = json.loads(text)
+    assert summary["n_intervals"] == 1 and summary["sensor_size"] == [260, 346]
+    assert summary["windows"][0]["t1_us"] - summary["windows"][0]["t0_us"] == 40_000

@@ -1,7 +1,9 @@
 """``evmotion bos REC --out bos.h5``: event-based background-oriented schlieren (ch. 6).
 
 REC is an ECD-style folder (``events.txt``, ``images.txt`` with ``t path`` lines,
-``images/``) or any event recording with ``--frames``. Every frame interval
+``images/``), a recording that holds its frames (AEDAT4 with DAVIS APS frames, a sequence
+folder of the published event-based BOS data, an HDF5 file with frames) or any event
+recording with ``--frames``. Every frame interval
 ``[t_i, t_{i+1})`` the events cover is one window: the events in it against frame ``i``
 give the flow ``v`` (px/s), the Poisson field ``q`` (``v = Sobel(q)``) and the frame's
 translation field ``p`` (px), warm-started from the previous interval. The contrast
@@ -53,11 +55,13 @@ def add_parser(sub) -> None:
     p = sub.add_parser("bos", help="background-oriented schlieren from events + frames (ch. 6)",
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("rec", help="ECD-style folder (events.txt + images.txt + images/) or an "
-                               "event recording (then --frames)")
+    p.add_argument("rec", help="ECD-style folder (events.txt + images.txt + images/), a "
+                               "recording holding frames (AEDAT4, event_based_bos sequence), or "
+                               "an event recording (then --frames)")
     p.add_argument("--frames", default=None, type=existing_input,
                    help="frames: ECD folder, AEDAT4, event_based_bos sequence, or a folder of "
-                        "images with a timestamps file (default: images.txt beside REC)")
+                        "images with a timestamps file (default: images.txt beside REC, else "
+                        "REC's own frames)")
     p.add_argument("--format", default=None, help="event format (default: detected)")
     p.add_argument("--roi", nargs=4, type=int_range(0, unit="px"), default=None,
                    metavar=("X", "Y", "W", "H"),

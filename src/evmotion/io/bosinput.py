@@ -76,6 +76,11 @@ def frame_intervals(frame_times: np.ndarray, t_first: int, t_last: int, *,
 
 
 def _frames_source(rec: Path, frames: str | os.PathLike | None) -> Path:
+    """Where the frames are: ``frames``; else the ``images.txt`` beside the events, or
+    the recording itself where it holds frames (AEDAT4 APS frames, the published BOS
+    layout, an HDF5 file with a frames dataset)."""
+    from evmotion.io.frames import find_frames
+
     if frames is not None:
         path = Path(frames)
         if not path.exists():
@@ -84,6 +89,8 @@ def _frames_source(rec: Path, frames: str | os.PathLike | None) -> Path:
     folder = rec if rec.is_dir() else rec.parent
     if (folder / "images.txt").is_file():
         return folder
+    if find_frames(rec) in ("ccs", "recording"):
+        return rec
     raise FormatError(rec, "no frames: BOS needs frames of the background, and there is no "
                       "images.txt beside the events", "give them with --frames")
 
@@ -101,7 +108,8 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         recording :func:`evmotion.io.read_events` reads.
     frames : path-like, optional
         Frames (:func:`evmotion.io.frames.read_frames`); default the ``images.txt`` of
-        ``rec``'s folder.
+        ``rec``'s folder, else the frames ``rec`` holds (AEDAT4 APS frames, the published
+        BOS layout's).
     fmt : str, optional
         Event format (default: detected).
     roi : (x, y, w, h), optional
@@ -134,7 +142,14 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     if not rec.exists():
         raise FormatError(rec, "no such file or folder")
     src = _frames_source(rec, frames)
-    fr = read_frames(src)
+    try:
+        fr = read_frames(src)
+    except FormatError as exc:
+        if frames is not None or src != rec:
+            raise
+        raise FormatError(rec, "no frames: BOS needs frames of the background; there is no "
+                          "images.txt beside the events and the recording gives none "
+                          f"({exc.message})", "give them with --frames") from None
     images = np.asarray(fr.images)
     times = np.asarray(fr.t, dtype=np.int64)
     if images.shape[0] < 2:
