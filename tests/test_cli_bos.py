@@ -169,6 +169,11 @@ def test_bad_recordings(scene, tmp_path, capsys):
     d = _copy(scene, tmp_path, "noframes")
     (d / "images.txt").unlink()
     _one_line_error(["bos", d, "--out", out], capsys, "no frames", "--frames")
+    # a corrupt frame names the frame, not 'no frames'
+    d = _copy(scene, tmp_path, "corrupt")
+    f = d / "images" / "frame_00000001.png"
+    f.write_bytes(f.read_bytes()[:60])
+    _one_line_error(["bos", d, "--out", out], capsys, "frame_00000001.png", "cannot read PNG")
     d = _copy(scene, tmp_path, "gone")
     (d / "images" / "frame_00000001.png").unlink()
     _one_line_error(["bos", d, "--out", out], capsys, "frame_00000001.png")

@@ -179,12 +179,27 @@ def test_second_image_unlike_the_first(tmp_path, second, match):
 
 
 @pytest.mark.parametrize("times, what", [(["0.2", "0.1"], "unsorted"),
-                                         (["0.1", "0.1"], "duplicate")])
+                                         (["0.1", "0.1"], "duplicate"),
+                                         (["0.1", "inf"], "line 2: time 'inf' is not a finite"),
+                                         (["nan", "0.1"], "line 1: time 'nan'"),
+                                         (["0.1", "1e400"], "line 2: time '1e400'"),
+                                         (["0.1", "1e30"], "line 2: time '1e30'"),
+                                         (["0.1", "soon"], "line 2: 'soon' is not a time")])
 def test_bad_timestamps(tmp_path, times, what):
+    """Every time field that is not a finite number within +-2^62 us is one line naming
+    the file and the line, in images.txt and in a timestamps file alike (an infinite one
+    used to raise OverflowError, and one past int64 to wrap silently)."""
     _ecd(tmp_path, _images(2), times)
     with pytest.raises(FormatError, match=what) as e:
         read_frames(tmp_path)
     _one_line(e, "images.txt")
+    folder = tmp_path / "folder"
+    for i, img in enumerate(_images(2)):
+        _png(folder / f"{i}.png", img)
+    (folder / "timestamps.txt").write_text("".join(f"{t}\n" for t in times))
+    with pytest.raises(FormatError, match=what) as e:
+        read_frames(folder)
+    _one_line(e, "timestamps.txt")
 
 
 def test_count_mismatch(tmp_path):

@@ -75,22 +75,23 @@ def frame_intervals(frame_times: np.ndarray, t_first: int, t_last: int, *,
     return np.stack([idx, lo[idx], hi[idx]], axis=1).astype(np.int64).reshape(-1, 3)
 
 
-def _frames_source(rec: Path, frames: str | os.PathLike | None) -> Path:
-    """Where the frames are: ``frames``; else the ``images.txt`` beside the events, or
-    the recording itself where it holds frames (AEDAT4 APS frames, the published BOS
-    layout, an HDF5 file with a frames dataset)."""
+def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, bool]:
+    """Where the frames are, and whether that is a guess that the recording holds its
+    own: ``frames``; else the ``images.txt`` beside the events, or the recording itself
+    where it may hold frames (AEDAT4 APS frames, the published BOS layout, an HDF5 file
+    with a frames dataset)."""
     from evmotion.io.frames import find_frames
 
     if frames is not None:
         path = Path(frames)
         if not path.exists():
             raise FormatError(path, "frames not found (no such file or folder)")
-        return path
+        return path, False
     folder = rec if rec.is_dir() else rec.parent
     if (folder / "images.txt").is_file():
-        return folder
+        return folder, False
     if find_frames(rec) in ("ccs", "recording"):
-        return rec
+        return rec, True
     raise FormatError(rec, "no frames: BOS needs frames of the background, and there is no "
                       "images.txt beside the events", "give them with --frames")
 
@@ -141,11 +142,11 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     rec = Path(rec)
     if not rec.exists():
         raise FormatError(rec, "no such file or folder")
-    src = _frames_source(rec, frames)
+    src, guessed = _frames_source(rec, frames)
     try:
         fr = read_frames(src)
     except FormatError as exc:
-        if frames is not None or src != rec:
+        if not guessed:
             raise
         raise FormatError(rec, "no frames: BOS needs frames of the background; there is no "
                           "images.txt beside the events and the recording gives none "

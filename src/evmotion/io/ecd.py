@@ -23,7 +23,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_sensor_size
+from evmotion.io.guard import check_sensor_size, time_to_us
 from evmotion.io.pngfile import read_png
 from evmotion.jitcache import lazy_njit
 from evmotion.utils import atomic_path
@@ -512,7 +512,7 @@ def read_image_list(path: str | Path) -> dict:
                 continue
             if len(parts) != 2:
                 raise FormatError(path, f"line {i}: expected 't file', got {line.strip()!r}")
-            t.append(round(float(parts[0]) * 1e6))
+            t.append(time_to_us(path, parts[0], 1e6, f"line {i}"))
             files.append(parts[1])
     return {"t": np.asarray(t, np.int64), "files": files}
 

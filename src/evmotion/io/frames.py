@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import FormatError, MissingDependencyError, ParameterError
+from evmotion.io.guard import time_to_us
 from evmotion.io.pngfile import png_header, read_png
 
 __all__ = ["Frames", "describe_frames", "find_frames", "read_frames", "read_image"]
@@ -191,6 +192,8 @@ def _ecd_list(folder: Path) -> tuple[np.ndarray, list[Path], Path]:
     lst_path = folder / "images.txt"
     try:
         lst = read_image_list(lst_path)
+    except FormatError:
+        raise
     except ValueError as exc:
         raise FormatError(lst_path, f"cannot parse 't path' lines: {exc}") from None
     files = [folder / name for name in lst["files"]]
@@ -215,15 +218,11 @@ def _parse_timestamps(path: Path, unit: str) -> tuple[np.ndarray, list[str] | No
             continue
         if len(parts) > 2:
             raise FormatError(path, f"line {i}: expected 't' or 't path', got {line.strip()!r}")
-        try:
-            times.append(float(parts[0]))
-        except ValueError:
-            raise FormatError(path, f"line {i}: {parts[0]!r} is not a time") from None
+        times.append(time_to_us(path, parts[0], TIME_UNITS[unit], f"line {i}"))
         names.append(parts[1] if len(parts) == 2 else None)
     if any(n is None for n in names) and not all(n is None for n in names):
         raise FormatError(path, "mixes 't' and 't path' lines")
-    t = np.rint(np.asarray(times, dtype=np.float64) * TIME_UNITS[unit]).astype(np.int64)
-    return t, (names if names and names[0] is not None else None)
+    return np.asarray(times, dtype=np.int64), (names if names and names[0] is not None else None)
 
 
 def _images_in(folder: Path) -> list[Path]:

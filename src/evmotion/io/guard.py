@@ -63,6 +63,33 @@ def check_sensor_size(path, size, field: str = "sensor size") -> tuple[int, int]
     return h, w
 
 
+# 2^62 us is 146,000 years: any timestamp beyond it is a corrupt field, and int64 holds it
+MAX_ABS_TIME_US = 1 << 62
+
+
+def time_to_us(path, text: str, scale: float, where: str) -> int:
+    """A time field of a text file (``text`` in units of ``scale`` us) as int us, or a
+    FormatError naming ``where`` (e.g. ``"line 3"``) when it is not a finite number within
+    +-2^62 us.
+
+    Examples
+    --------
+    >>> time_to_us("images.txt", "0.008333", 1e6, "line 2")
+    8333
+    >>> time_to_us("images.txt", "inf", 1e6, "line 2")
+    Traceback (most recent call last):
+    evmotion.errors.FormatError: images.txt: line 2: time 'inf' is not a finite number within +-2^62 us
+    """
+    try:
+        us = float(text) * scale
+    except ValueError:
+        raise FormatError(path, f"{where}: {text!r} is not a time") from None
+    if not abs(us) < MAX_ABS_TIME_US:  # NaN fails too
+        raise FormatError(path, f"{where}: time {text!r} is not a finite number within "
+                          "+-2^62 us")
+    return round(us)
+
+
 def as_format_error(exc: BaseException, path, fmt: str, action: str) -> BaseException:
     """The exception to raise for ``exc`` met while ``action``-ing ``path`` as ``fmt``:
     ``exc`` itself when it already names the file or is not about the file, else a
