@@ -36,7 +36,7 @@ from evmotion.io.flowfiles import (
     create_extras,
     read_flow_group,
 )
-from evmotion.io.guard import open_h5
+from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs
 
 __all__ = ["BOS_CONTENT", "BosSequence", "BosWriter", "bos_extras", "read_bos",
@@ -209,6 +209,7 @@ class BosWriter(FlowWriter):
                        extras=values)
 
 
+@guarded('BOS file')
 def read_bos(path: str | os.PathLike) -> BosSequence:
     """Read a BOS output from any container that holds q and p (``.h5``, ``.npz``).
 
@@ -234,6 +235,7 @@ def read_bos(path: str | os.PathLike) -> BosSequence:
                        p=np.asarray(seq.extras["p"]), scalars=scalars, attrs=attrs)
 
 
+@guarded('BOS HDF5')
 def read_bos_h5(path: str | os.PathLike, index: int | slice | None = None) -> BosSequence:
     """Read a BOS file written by :class:`BosWriter`.
 

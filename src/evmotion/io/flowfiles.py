@@ -31,7 +31,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
-from evmotion.io.guard import open_h5
+from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs, read_attrs_many
 from evmotion.io.h5filters import h5_compression
 from evmotion.io.pngfile import read_png, write_png
@@ -159,6 +159,7 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
             fh.write(arr.astype("<f4").tobytes())
 
 
+@guarded('Middlebury .flo')
 def read_flo(path: str | os.PathLike, dt_s: float | None = None) -> np.ndarray:
     """Read a Middlebury ``.flo`` file.
 
@@ -233,6 +234,7 @@ def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
     write_png(path, enc, compression=1)
 
 
+@guarded('DSEC flow PNG')
 def read_dsec_flow_png(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read a DSEC optical-flow PNG.
 
@@ -583,6 +585,7 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
                         attrs=attrs, extras=extras)
 
 
+@guarded('flow HDF5')
 def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> FlowSequence:
     """Read dense flow windows from an evmotion flow HDF5 file.
 
@@ -656,6 +659,7 @@ def flow_h5_done(path: str | os.PathLike) -> int:
 
 
 # ---------------------------------------------------------------------------- ground truth
+@guarded('MVSEC ground-truth flow')
 def read_mvsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
     """Read MVSEC ground-truth flow (``*_gt_flow_dist.npz``).
 
@@ -697,6 +701,7 @@ def read_mvsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
                         attrs={"source": str(path), "format": "mvsec-gt"})
 
 
+@guarded('DSEC ground-truth flow')
 def read_dsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
     """Read DSEC ground-truth flow: a ``flow/forward`` folder of 16-bit PNGs with
     ``forward_timestamps.txt`` (``from_us, to_us`` per line) beside or inside it.
@@ -745,6 +750,7 @@ def read_dsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
                         attrs={"source": str(path), "format": "dsec-gt"})
 
 
+@guarded('ground-truth flow')
 def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
     """Ground-truth flow from MVSEC ``.npz``, a DSEC flow folder / timestamps file, or an
     evmotion HDF5 file (flow container or the simulator's ``ground_truth/flow``).

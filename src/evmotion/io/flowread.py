@@ -37,7 +37,7 @@ from evmotion.io.flowout import (
     sidecar_path,
     window_path,
 )
-from evmotion.io.guard import open_h5
+from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 
@@ -143,6 +143,7 @@ def _read_npz(path: Path) -> FlowSequence:
     raise FormatError(path, f"not an evmotion flow .npz (arrays: {', '.join(sorted(names))})")
 
 
+@guarded('flow file')
 def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
               t1_us: int | None = None) -> FlowSequence:
     """Read dense flow back from any container, with its windows' times and masks.
@@ -204,6 +205,7 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
     return seq
 
 
+@guarded('flow file', 'describe')
 def describe_flow(path: str | os.PathLike) -> dict | None:
     """What a flow output holds (``evmotion info``), or None if ``path`` is not one.
 

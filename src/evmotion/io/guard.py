@@ -132,6 +132,21 @@ def guard_call(fn: Callable, fmt: str, action: str) -> Callable:
     return guarded
 
 
+def guarded(fmt: str, action: str = "read") -> Callable[[Callable], Callable]:
+    """:func:`guard_call` as a decorator, for readers whose first argument is the path.
+
+    Examples
+    --------
+    >>> @guarded("flow HDF5")
+    ... def read_it(path):
+    ...     return {}["flow"]
+    >>> read_it("x.h5")
+    Traceback (most recent call last):
+    evmotion.errors.FormatError: x.h5: cannot read as flow HDF5: KeyError: 'flow' (the file is corrupt, truncated or not in this format)
+    """
+    return lambda fn: guard_call(fn, fmt, action)
+
+
 def guard_iter(fn: Callable, fmt: str, action: str = "read") -> Callable:
     """As :func:`guard_call` for a function returning an iterator: errors raised while
     iterating are converted too, and closing the result closes ``fn``'s iterator."""

@@ -60,7 +60,7 @@ from numba import njit
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.frames import Frames
-from evmotion.io.guard import open_h5
+from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.pngfile import write_png
 from evmotion.sim.options import SchlierenOptions, check_number
@@ -878,6 +878,7 @@ def _write_gt(path: Path, gt: SchlierenGT) -> Path:
     return path
 
 
+@guarded('schlieren ground truth')
 def read_schlieren_gt(path: str | Path) -> SchlierenGT:
     """Read ``schlieren_gt.h5`` written by :func:`write_schlieren` (a folder holding it too).
 
@@ -900,6 +901,7 @@ def read_schlieren_gt(path: str | Path) -> SchlierenGT:
                            thresholds=thr, meta=json.loads(attrs["schlieren_meta"]))
 
 
+@guarded('schlieren ground truth')
 def read_schlieren_q(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """``(q, t_us)`` of ``schlieren_gt.h5`` (:func:`read_schlieren_gt`'s ``q`` and
     ``t_us``) without reading its flows and displacements, which are most of the file.
