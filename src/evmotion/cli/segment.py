@@ -144,17 +144,16 @@ def run(args) -> int:
 
 
 def _segment_job(events, **kwargs):
-    """One window's segmentation and its PNG panel (each cluster's IWE), in a worker
+    """``(segmentation, PNG panel)`` of one window (each cluster's IWE), in a worker
     (module level, so that it pickles): the workers share the drawing and the client only
     writes the bytes (``benchmarks/results/cli_panels.md``). The result keeps no IWEs (a
     window's worth each to send back)."""
     import dataclasses
 
-    from evmotion.cli.egomotion import WindowOutput
     from evmotion.methods.segmentation import segment_motion
     from evmotion.viz import images
 
     seg = segment_motion(events, **kwargs)
     panel = images.panel_png([images.iwe_to_rgb(img) for img in seg.iwes],
                              [f"cluster {j}" for j in range(len(seg.iwes))])
-    return WindowOutput(dataclasses.replace(seg, iwes=None), panel)
+    return dataclasses.replace(seg, iwes=None), panel
