@@ -65,12 +65,12 @@ def legm_case(shape=(128, 128), seed=0, C=0.1, amplitude=40.0, t0=0, t1=8333, n_
     return ev, intensity, frame_next, d_true, C
 
 
-def plume_scene(folder):
-    """A tiny simulated plume scene (48 x 40 px, two frame intervals) written to ``folder``:
-    the input of the ``evmotion bos`` CLI tests."""
+def plume_scene(folder, intervals: int = 2):
+    """A tiny simulated plume scene (48 x 40 px, ``intervals`` frame intervals) written to
+    ``folder``: the input of the ``evmotion bos`` CLI tests."""
     from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
 
-    sim = simulate_schlieren("plume", sensor_size=(48, 40), duration_s=2 / 120, seed=0)
+    sim = simulate_schlieren("plume", sensor_size=(48, 40), duration_s=intervals / 120, seed=0)
     write_schlieren(sim, folder)
     return folder
 

@@ -18,6 +18,7 @@ from evmotion.methods.bos import (
     estimate_bos_sequence,
     estimate_contrast_threshold,
     event_sums,
+    iter_bos_sequence,
     potential_from_flow,
 )
 from evmotion.methods.bos_kernels import (
@@ -376,6 +377,14 @@ def test_sequence_warm_start_and_chunks():
         np.testing.assert_array_equal(a.flow, b.flow)
     with pytest.raises(ParameterError, match="timestamps"):
         estimate_bos_sequence(ev, frames, [0, 5, 5], **kw)
+    # a sequence continued from the stored parameters of its previous interval (--resume)
+    # is the warm-started one; iter_bos_sequence yields the same results
+    cont = list(iter_bos_sequence(ev, frames[1:], times[1:], init=[np.array(a) for a in
+                                                                   first.params], **kw))
+    np.testing.assert_array_equal(cont[0].flow, seq[1].flow)
+    np.testing.assert_array_equal(cont[0].q, warm.q)
+    with pytest.raises(ParameterError, match="init has 1 scales"):
+        estimate_bos(ev, f1, t0_us=DT_US, t1_us=2 * DT_US, init=first.params[:1], **kw)
 
 
 @pytest.fixture(scope="module")

@@ -242,3 +242,50 @@ def test_aedat4_aps_frames_without_frames_option(shared_data, tmp_path, capsys):
     summary = json.loads(text)
     assert summary["n_intervals"] == 1 and summary["sensor_size"] == [260, 346]
     assert summary["windows"][0]["t1_us"] - summary["windows"][0]["t0_us"] == 40_000
+
+
+def test_interrupted_bos_resumes_to_the_uninterrupted_output(tmp_path, capsys, monkeypatch):
+    """Ctrl-C after some intervals keeps them in OUT.part; the same command with --resume
+    solves only the others, the first of them warm-started from the stored solver state,
+    and writes the file an uninterrupted run writes, bit for bit."""
+    import h5py
+
+    import evmotion.methods.bos as bos
+
+    scene = plume_scene(tmp_path / "scene", intervals=4)
+    real, calls, stop_at = bos.estimate_bos, [], [0]
+
+    def counted(*args, **kwargs):
+        calls.append(kwargs["t0_us"])
+        if len(calls) == stop_at[0]:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(bos, "estimate_bos", counted)
+    full, out = tmp_path / "full.h5", tmp_path / "out.h5"
+    argv = ["bos", scene, "--iterations", "30"]
+    assert _run([*argv, "--out", full], capsys)[0] == 0
+    n = len(calls)
+    assert n == 4
+    calls.clear()
+    stop_at[0] = 3
+    rc, _, err = _run([*argv, "--out", out], capsys)
+    assert rc == 130 and err == "evmotion: interrupted\n"
+    part = tmp_path / "out.h5.part"
+    assert part.exists() and not out.exists()
+    with h5py.File(part) as f:
+        assert f["t1"].shape[0] == 2
+    # other options: one line, the .part kept
+    _one_line_error([*argv[:-1], "20", "--out", out, "--resume"], capsys, "--resume",
+                    "iterations")
+    _one_line_error([*argv, "--out", out, "--resume", "--workers", "2"], capsys, "--workers 1")
+    assert part.exists()
+    calls.clear()
+    stop_at[0] = 0
+    rc, text, err = _run([*argv, "--out", out, "--resume", "--json"], capsys)
+    assert rc == 0, err
+    assert len(calls) == n - 2 and not part.exists()
+    assert [w.get("resumed", False) for w in json.loads(text)["windows"]] == [True] * 2 + [False] * 2
+    with h5py.File(full) as a, h5py.File(out) as b:
+        for name in ("flow", "valid", "q", "p", "t0", "t1", "window/objective", "warm/scale3"):
+            np.testing.assert_array_equal(a[name][()], b[name][()], err_msg=name)

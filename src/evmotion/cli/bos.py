@@ -19,7 +19,10 @@ with event support (elsewhere the flow is the regularizer's interpolation), unit
 displacement in px, ``NAME.flo.json`` with dt/t0/t1) and ``.png`` (DSEC 16-bit
 displacement) hold the flow only, one file per interval (a pattern such as
 ``bos_{:05d}.flo`` for several). ``--png-dir`` adds ``q_XXXX.png``, ``flow_XXXX.png``
-and ``p_XXXX.png`` per interval (with .h5 / .npz).
+and ``p_XXXX.png`` per interval (with .h5 / .npz). Each interval is written as soon as it
+is solved: an interrupted ``.h5`` run keeps ``OUT.part`` (with each interval's solver
+state, ``warm/scale<s>``), and the same command with ``--resume`` continues it to the file
+an uninterrupted run writes.
 """
 
 from __future__ import annotations
@@ -105,6 +108,11 @@ def add_parser(sub) -> None:
                         "(Middlebury displacement px + NAME.flo.json) or .png (DSEC 16-bit "
                         "displacement + NAME.png.json): flow only, no q/p; a pattern "
                         "(bos_{:05d}.flo) for several intervals")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the .h5 output of an interrupted run (its OUT.part): the "
+                        "intervals it holds are kept, the next starts from the last one's "
+                        "solver state, so the file is the one an uninterrupted run writes "
+                        "(needs --workers 1 and the first run's options)")
     p.add_argument("--png-dir", default=None, type=writable_folder,
                    help="write q/flow/p PNGs per interval here (needs --out .h5 or .npz)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
@@ -112,12 +120,21 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    import numpy as np
+
     from evmotion.cli import print_json
     from evmotion.cli.options import cluster_threads, scheduler_client
     from evmotion.errors import EventDataError, ParameterError
     from evmotion.io.bosinput import load_bos_input
     from evmotion.io.flowout import EXTRA_CONTAINERS
-    from evmotion.methods.bos_run import solve_bos_input, write_bos_output
+    from evmotion.methods.bos import BosOptions
+    from evmotion.methods.bos_run import (
+        append_bos_result,
+        iter_bos_input,
+        open_bos_output,
+        sequence_threshold,
+        stored_warm_start,
+    )
 
     out = Path(args.out)
     check_time_order(args)
@@ -125,6 +142,13 @@ def run(args) -> int:
     if args.png_dir and kind not in EXTRA_CONTAINERS:
         raise ParameterError(f"--png-dir draws q and p, which a .{kind} output does not hold; "
                              "write --out .h5 or .npz")
+    if args.resume:
+        if kind != "h5":
+            raise ParameterError(f"--resume continues an .h5 output; --out {out} is written "
+                                 "whole at the end")
+        if args.workers > 1 or args.scheduler is not None:
+            raise ParameterError("--resume needs --workers 1 and no --scheduler: with several "
+                                 "chunks each chunk's first interval starts cold")
     t_start = time.perf_counter()
     opts = {"param": args.param, "data_term": args.data_term, "seed": args.seed}
     if args.iterations is not None:
@@ -133,11 +157,21 @@ def run(args) -> int:
         data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi,
                               t0=args.t0, t1=args.t1, max_intervals=args.max_intervals)
         check_flow_out(out, len(data.intervals))
+        c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
+        options = BosOptions(**opts)
+        attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
+                 "seed": args.seed, "source": data.source,
+                 "iterations": np.asarray(options.iterations_per_scale(), np.int64),
+                 "contrast_threshold": -1.0 if c is None else c,
+                 "contrast_threshold_source": c_source}
         with scheduler_client(args.scheduler) as client:
             chunks = (args.workers if client is None or args.workers > 1
                       else cluster_threads(client))
-            run_ = solve_bos_input(data, workers=chunks, scheduler=client, progress=True,
-                                   contrast_threshold=args.contrast_threshold, **opts)
+            rows = _solve_into(open_bos_output(out, data, attrs, options, resume=args.resume),
+                               data, lambda start, init: iter_bos_input(
+                                   data, c, start=start, init=init, workers=chunks,
+                                   scheduler=client, progress=True, **opts),
+                               append_bos_result, stored_warm_start)
     except ParameterError as exc:
         if args.roi is not None and str(exc).startswith("roi "):
             # the library names its argument; the user typed the option
@@ -148,11 +182,6 @@ def run(args) -> int:
             # the library names the interval; the user ran it on a recording
             raise EventDataError(f"{args.rec}: {exc}") from None
         raise
-    attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
-             "seed": args.seed, "source": data.source,
-             "contrast_threshold": -1.0 if run_.contrast_threshold is None
-             else run_.contrast_threshold, "contrast_threshold_source": run_.c_source}
-    rows = write_bos_output(out, data, run_, attrs)
     png_files: list[str] = []
     if args.png_dir:
         from evmotion.io.bosfiles import read_bos
@@ -167,11 +196,33 @@ def run(args) -> int:
     if args.json:
         print_json({"rec": str(args.rec), "out": str(out), "param": args.param,
                     "data_term": args.data_term, "roi": list(data.roi) if data.roi else None,
-                    "contrast_threshold": run_.contrast_threshold,
-                    "contrast_threshold_source": run_.c_source,
+                    "contrast_threshold": c, "contrast_threshold_source": c_source,
                     "sensor_size": list(data.events.sensor_size),
                     "n_intervals": len(rows), "windows": rows, "pngs": png_files,
                     "seconds": seconds})
     else:
-        print(f"{len(rows)} frame intervals -> {out} ({seconds:.1f} s)")
+        resumed = sum(1 for r in rows if r.get("resumed"))
+        note = f", {resumed} kept from {out.name}.part" if resumed else ""
+        print(f"{len(rows)} frame intervals -> {out} ({seconds:.1f} s{note})")
     return 0
+
+
+def _solve_into(sink, data, results, append, stored_warm_start) -> list[dict]:
+    """Every selected interval into ``sink``, in order, each as soon as it is solved (an
+    interrupted run keeps the ``.part`` file); the intervals a resumed output holds are
+    checked against this run's and kept, the last one's solver state starting the next."""
+    rows = []
+    try:
+        sink.check_count(len(data.intervals))
+        for i, (_, t0, t1) in enumerate(data.intervals[:len(sink.done)]):
+            sink.check_done(i, int(t0), int(t1))
+            rows.append({"t0_us": int(t0), "t1_us": int(t1), "resumed": True})
+        start = len(sink.done)
+        init = stored_warm_start(sink, start - 1) if start else None
+        for interval, res in zip(data.intervals[start:], results(start, init), strict=True):
+            rows.append(append(sink, data, interval, res))
+        sink.close()
+    except BaseException:
+        sink.abort()
+        raise
+    return rows

@@ -68,6 +68,7 @@ from evmotion.io.flowfiles import (
     write_dsec_flow_png,
     write_flo,
 )
+from evmotion.io.h5filters import register_filters
 from evmotion.utils import atomic_path
 
 __all__ = [
@@ -317,6 +318,7 @@ class H5FlowOutput(FlowOutput):
                                 attrs=attrs, compression=compression, extras=extras)
             self.extras = self.w.extras
             return
+        register_filters()  # the stored windows are read back (Blosc-compressed)
         self.w = FlowWriter(self.path, self.sensor_size, with_valid=with_valid, resume=True,
                             extras=dict(extras or {}))
         self.extras = self.w.extras
@@ -325,8 +327,9 @@ class H5FlowOutput(FlowOutput):
             if self.w.n_done and key in old and not _same(old[key], value):
                 self.abort()
                 raise ParameterError(f"cannot resume (--resume): {self.part} was made with "
-                                     f"{key}={json_value(old[key])!r}, this run has {value!r}; "
-                                     "repeat the options of the first run, or start again")
+                                     f"{key}={json_value(old[key])!r}, this run has "
+                                     f"{json_value(value)!r}; repeat the options of the first "
+                                     "run, or start again")
             self.w.f.attrs[key] = value
         if self.w.with_valid != with_valid:
             self.abort()
@@ -337,7 +340,12 @@ class H5FlowOutput(FlowOutput):
 
     def stored_flow(self, index: int) -> np.ndarray:
         """Flow (H, W, 2) float32 px/s of a window already in the file, as written."""
-        return np.asarray(self.w.f["flow"][index])
+        return self.stored("flow", index)
+
+    def stored(self, name: str, index: int) -> np.ndarray:
+        """Dataset ``name`` (``flow``, ``valid`` or an extra) of a window already in the
+        file, as written."""
+        return np.asarray(self.w.f[name][index])
 
     def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None,
                extras: dict | None = None) -> None:
@@ -353,10 +361,13 @@ class H5FlowOutput(FlowOutput):
         return [self.path]
 
     def abort(self) -> None:
+        empty = self.w.f.id.valid and self.w.n_done == 0
         self.w.abort()
         if self.reopened_final and self.part.exists():
             os.replace(self.part, self.path)
             self.reopened_final = False
+        elif empty and self.part.exists():
+            self.part.unlink()  # no window to resume from: leave nothing behind
 
 
 def _same(a, b) -> bool:

@@ -71,7 +71,7 @@ from __future__ import annotations
 
 import functools
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -95,6 +95,7 @@ __all__ = [
     "BosLevel",
     "estimate_bos",
     "estimate_bos_sequence",
+    "iter_bos_sequence",
     "estimate_contrast_threshold",
     "event_sums",
     "log_frame",
@@ -242,6 +243,18 @@ class BosOptions:
             raise ParameterError(f"iterations must be >= 0, one or one per scale "
                                  f"({len(self.scales)}), got {self.iterations!r}")
         return its
+
+    def param_shapes(self, height: int, width: int) -> list[tuple[int, int, int]]:
+        """Shape of each scale's patch-grid parameters (:attr:`BosResult.params`, the warm
+        start of the next interval) for a ROI of ``height`` x ``width`` px.
+
+        Examples
+        --------
+        >>> BosOptions().param_shapes(720, 640)
+        [(3, 12, 10), (3, 23, 20), (3, 45, 40), (3, 90, 80)]
+        """
+        n = (1 if self.param == "poisson" else 2) + (2 if self.use_p else 0)
+        return [(n, -(-int(height) // s), -(-int(width) // s)) for s in self.scales]
 
     def pool_per_scale(self) -> tuple[int, ...]:
         """Pooling factor of each scale (the last is always 1)."""
@@ -768,7 +781,7 @@ def estimate_bos(
     frame_next: np.ndarray | None = None,
     roi: Sequence[int] | None = None,
     options: BosOptions | None = None,
-    init: BosResult | None = None,
+    init: BosResult | Sequence[np.ndarray] | None = None,
     dtype=np.float32,
     increment: np.ndarray | None = None,
     **kwargs,
@@ -790,9 +803,10 @@ def estimate_bos(
     options : BosOptions, optional
         Settings; keyword arguments (e.g. ``param="flow"``, ``iterations=300``) override
         its fields.
-    init : BosResult, optional
-        Warm start: a previous interval's result with the same scales (its parameters start
-        each scale, averaged with the coarser scale's solution as in the authors' code).
+    init : BosResult or sequence of ndarray, optional
+        Warm start: a previous interval's result with the same scales, or its
+        :attr:`BosResult.params` (its parameters start each scale, averaged with the
+        coarser scale's solution as in the authors' code).
     dtype : numpy dtype
         Precision of the dense images (float32: half the memory traffic of float64, which
         bounds the kernels' speed).
@@ -835,8 +849,9 @@ def estimate_bos(
     r, logf, meas, weight, c, log_units = _prepare(events, frame, t0_us, t1_us, frame_next,
                                                    roi, o, increment)
     normalized = o.data_term == "normalized"
-    if init is not None and len(init.params) != len(o.scales):
-        raise ParameterError(f"init has {len(init.params)} scales, expected {len(o.scales)}")
+    warm = None if init is None else list(init.params if isinstance(init, BosResult) else init)
+    if warm is not None and len(warm) != len(o.scales):
+        raise ParameterError(f"init has {len(warm)} scales, expected {len(o.scales)}")
     rng = np.random.default_rng(o.seed)
     losses, timings, iters, params = [], [], [], []
     prev_level = theta = None
@@ -848,12 +863,12 @@ def estimate_bos(
             theta = np.zeros((level.n_params(), level.nh, level.nw))
             if o.param == "poisson":
                 theta[0] = rng.uniform(-1.0, 1.0, (level.nh, level.nw))
-            if init is not None:
-                theta = _same_shape(init.params[s], theta)
+            if warm is not None:
+                theta = _same_shape(warm[s], theta)
         else:
             theta = _resample_params(theta, prev_level, level)
-            if init is not None:
-                theta = 0.5 * (theta + _same_shape(init.params[s], theta))
+            if warm is not None:
+                theta = 0.5 * (theta + _same_shape(warm[s], theta))
         theta, lh = _adam(level, theta, n_it, normalized)
         losses.append(lh)
         iters.append(len(lh))
@@ -936,6 +951,7 @@ def potential_from_flow(flow: np.ndarray) -> np.ndarray:
 
 
 def _same_shape(prev: np.ndarray, like: np.ndarray) -> np.ndarray:
+    prev = np.asarray(prev, dtype=np.float64)
     if prev.shape != like.shape:
         raise ParameterError(f"init parameters have shape {prev.shape}, expected {like.shape} "
                              "(same ROI, scales and options)")
@@ -945,13 +961,14 @@ def _same_shape(prev: np.ndarray, like: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- sequences
 
 def _solve_chunk(events: EventArray, t0_us: int, t1_us: int, *, frames, times, roi, options,
-                 warm_start) -> list[BosResult]:
-    """Solve the frame intervals inside ``[t0_us, t1_us]`` in order (a worker's chunk)."""
+                 warm_start, init=None) -> list[BosResult]:
+    """Solve the frame intervals inside ``[t0_us, t1_us]`` in order (a worker's chunk);
+    ``init`` warm-starts the sequence's first interval."""
     from evmotion.parallel import report_progress
 
     out = []
-    prev = None
     idx = [i for i in range(len(times) - 1) if t0_us <= times[i] and times[i + 1] <= t1_us]
+    prev = init if idx and idx[0] == 0 else None
     for i in idx:
         res = estimate_bos(events, frames[i], t0_us=int(times[i]), t1_us=int(times[i + 1]),
                            frame_next=frames[i + 1], roi=roi, options=options,
@@ -974,16 +991,19 @@ def estimate_bos_sequence(
     chunks: int | None = None,
     progress: bool = False,
     scheduler=None,
+    init: BosResult | Sequence[np.ndarray] | None = None,
     **kwargs,
 ) -> list[BosResult]:
     """:func:`estimate_bos` over every frame interval ``[times[i], times[i+1])``.
 
     Each interval uses ``frames[i]`` and ``frames[i+1]`` (the latter for C). With
-    ``warm_start`` an interval starts from the previous interval's solution, so the
-    intervals of one chunk run in order; ``chunks`` contiguous chunks (default ``workers``)
-    run in parallel with :func:`evmotion.parallel.map_windows` (each chunk's first interval
-    starts cold). With ``scheduler`` (a Dask scheduler address or ``distributed.Client``)
-    the chunks run on that cluster instead of local processes.
+    ``warm_start`` an interval starts from the previous interval's solution (the first
+    from ``init``, if given), so the intervals of one chunk run in order; ``chunks``
+    contiguous chunks (default ``workers``) run in parallel with
+    :func:`evmotion.parallel.imap_windows` (each later chunk's first interval starts cold).
+    With ``scheduler`` (a Dask scheduler address or ``distributed.Client``) the chunks run
+    on that cluster instead of local processes. :func:`iter_bos_sequence` gives the
+    results as the chunks finish.
 
     Returns
     -------
@@ -1005,7 +1025,42 @@ def estimate_bos_sequence(
     >>> [(r.t0_us, r.t1_us) for r in res]
     [(0, 4500), (4500, 9000)]
     """
-    from evmotion.parallel import map_windows
+    return list(iter_bos_sequence(events, frames, times_us, roi=roi, options=options,
+                                  warm_start=warm_start, workers=workers, chunks=chunks,
+                                  progress=progress, scheduler=scheduler, init=init, **kwargs))
+
+
+def iter_bos_sequence(
+    events: EventArray,
+    frames: Sequence[np.ndarray] | np.ndarray,
+    times_us: Sequence[int],
+    *,
+    roi: Sequence[int] | None = None,
+    options: BosOptions | None = None,
+    warm_start: bool = True,
+    workers: int = 1,
+    chunks: int | None = None,
+    progress: bool = False,
+    scheduler=None,
+    init: BosResult | Sequence[np.ndarray] | None = None,
+    **kwargs,
+) -> Iterator[BosResult]:
+    """:func:`estimate_bos_sequence`, yielding each interval's result in time order as
+    soon as its chunk is done (one interval at a time with one chunk), so that a caller
+    writes them while the later ones are computed. The arguments are checked here, the
+    work starts at the first ``next()``.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> frames = (rng.random((3, 32, 32)) * 200 + 20).astype(np.uint8)
+    >>> ev = EventArray(x=rng.integers(0, 32, 900), y=rng.integers(0, 32, 900),
+    ...                 t=np.arange(900) * 10, p=rng.integers(0, 2, 900), sensor_size=(32, 32))
+    >>> it = iter_bos_sequence(ev, frames, [0, 4500, 9000], scales=(16, 8), iterations=10)
+    >>> next(it).t1_us
+    4500
+    """
+    from evmotion.parallel import imap_windows
 
     o = options or BosOptions()
     if kwargs:
@@ -1021,15 +1076,22 @@ def estimate_bos_sequence(
     n_chunks = max(1, min(n, workers if chunks is None else int(chunks)))
     bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
     windows = [(int(times[a]), int(times[b])) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    if init is not None and not isinstance(init, BosResult):
+        init = [np.asarray(a, dtype=np.float64) for a in init]
     fn = functools.partial(_solve_chunk, frames=frames, times=times, roi=roi, options=o,
-                           warm_start=warm_start)
-    results = map_windows(fn, events, windows, workers=workers, scheduler=scheduler,
-                          progress=progress, desc="bos", with_window=True,
-                          units=np.diff(bounds).tolist(), unit="interval")
-    out: list[BosResult] = []
-    for res in results:
-        if not res.ok:
-            raise EvmotionError(f"window [{res.t0}, {res.t1}) us failed: "
-                                 f"{res.error.splitlines()[0]}")
-        out.extend(res.value)
-    return out
+                           warm_start=warm_start, init=init if warm_start else None)
+    results = imap_windows(fn, events, windows, workers=workers, scheduler=scheduler,
+                           progress=progress, desc="bos", with_window=True,
+                           units=np.diff(bounds).tolist(), unit="interval")
+    return _chunk_results(results)
+
+
+def _chunk_results(results) -> Iterator[BosResult]:
+    try:
+        for res in results:
+            if not res.ok:
+                raise EvmotionError(f"window [{res.t0}, {res.t1}) us failed: "
+                                     f"{res.error.splitlines()[0]}")
+            yield from res.value
+    finally:
+        results.close()  # ends the worker pool (or the cluster's feed) when stopped early

@@ -16,6 +16,7 @@ estimate can be far off where few pixels change (the first interval of a startin
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,8 +26,9 @@ from evmotion.io.bosinput import BosInput
 from evmotion.io.flowfiles import FLOW_COMPRESSION
 from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_support
 
-__all__ = ["BOS_EVAL_OUT_PX", "BosRun", "bos_valid", "sequence_contrast_threshold",
-           "solve_bos_input", "write_bos_output"]
+__all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "bos_valid", "iter_bos_input",
+           "open_bos_output", "sequence_contrast_threshold", "sequence_threshold",
+           "solve_bos_input", "stored_warm_start", "write_bos_output"]
 
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
@@ -85,6 +87,76 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
     return (float(np.median(est)) if est.size else None), est
 
 
+def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, *,
+                       samples: int = 15) -> tuple[float | None, str, np.ndarray]:
+    """The C of a run: ``(C or None, source, per-interval estimates)``, the source being
+    ``"given"``, ``"median of N intervals"`` (:func:`sequence_contrast_threshold`) or
+    ``"none"``.
+
+    Examples
+    --------
+    >>> sequence_threshold(load_bos_input("scene/"), 0.2)[:2]  # doctest: +SKIP
+    (0.2, 'given')
+    """
+    if contrast_threshold is not None:
+        return float(contrast_threshold), "given", np.zeros(0)
+    c, est = sequence_contrast_threshold(data, samples=samples)
+    return c, (f"median of {est.size} intervals" if c is not None else "none"), est
+
+
+def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: int = 0,
+                   init=None, workers: int = 1, progress: bool = False, scheduler=None,
+                   **options) -> Iterator:
+    """The results of the selected frame intervals ``data.intervals[start:]``, in time
+    order, each as soon as it is done (a chunk at a time with several workers).
+
+    Parameters
+    ----------
+    data : BosInput
+    contrast_threshold : float or None
+        C of every interval (:func:`sequence_threshold`).
+    start : int
+        First selected interval to solve (those before are done: ``--resume``).
+    init : BosResult or list of ndarray, optional
+        Warm start of interval ``start`` (the previous interval's result or its
+        :attr:`~evmotion.methods.bos.BosResult.params`).
+    workers, progress, scheduler, **options
+        As :func:`solve_bos_input`.
+
+    Examples
+    --------
+    >>> first = next(iter_bos_input(load_bos_input("scene/"), 0.2))  # doctest: +SKIP
+    """
+    from evmotion.methods.bos import estimate_bos, iter_bos_sequence
+    from evmotion.utils import progress as progress_bar
+
+    if int(workers) != workers or workers < 1:
+        raise ParameterError(f"workers must be an integer >= 1, got {workers!r}")
+    if not 0 <= int(start) <= len(data.intervals):
+        raise ParameterError(f"start must be in [0, {len(data.intervals)}], got {start!r}")
+    if int(start) == len(data.intervals):
+        return iter(())
+    sel = data.intervals[int(start):]
+    first, last = int(sel[0, 0]), int(sel[-1, 0]) + 1
+    frames = data.frames[first:last + 1]
+    times = data.frame_times[first:last + 1]
+    if workers > 1 or scheduler is not None:
+        return iter_bos_sequence(data.events, frames, times, roi=data.roi, workers=workers,
+                                 scheduler=scheduler, progress=progress, init=init,
+                                 contrast_threshold=contrast_threshold, **options)
+    return _in_order(data, frames, times, contrast_threshold, init, progress, options,
+                     progress_bar, estimate_bos)
+
+
+def _in_order(data, frames, times, c, prev, progress, options, progress_bar, estimate_bos):
+    for k in progress_bar(range(len(times) - 1), total=len(times) - 1, desc="bos",
+                          unit="interval", disable=None if progress else True):
+        prev = estimate_bos(data.events, frames[k], t0_us=int(times[k]),
+                            t1_us=int(times[k + 1]), frame_next=frames[k + 1], roi=data.roi,
+                            init=prev, contrast_threshold=c, **options)
+        yield prev
+
+
 def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
                     contrast_threshold: float | None = None, c_samples: int = 15,
                     scheduler=None, **options) -> BosRun:
@@ -102,7 +174,7 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
         Progress bar (rate, ETA) on stderr.
     scheduler : str or distributed.Client, optional
         Run the ``workers`` chunks on this Dask cluster instead of local processes
-        (:func:`evmotion.parallel.map_windows`).
+        (:func:`evmotion.parallel.imap_windows`).
     contrast_threshold : float, optional
         C in log-intensity units; default: :func:`sequence_contrast_threshold`.
     c_samples : int
@@ -121,32 +193,9 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     >>> run.results[0].flow.shape  # doctest: +SKIP
     (720, 640, 2)
     """
-    from evmotion.methods.bos import estimate_bos, estimate_bos_sequence
-    from evmotion.utils import progress as progress_bar
-
-    if int(workers) != workers or workers < 1:
-        raise ParameterError(f"workers must be an integer >= 1, got {workers!r}")
-    if contrast_threshold is not None:
-        c, source, samples = float(contrast_threshold), "given", np.zeros(0)
-    else:
-        c, samples = sequence_contrast_threshold(data, samples=c_samples)
-        source = f"median of {samples.size} intervals" if c is not None else "none"
-    first, last = int(data.intervals[0, 0]), int(data.intervals[-1, 0]) + 1
-    frames = data.frames[first:last + 1]
-    times = data.frame_times[first:last + 1]
-    if workers > 1 or scheduler is not None:
-        results = estimate_bos_sequence(data.events, frames, times, roi=data.roi,
-                                        workers=workers, scheduler=scheduler,
-                                        progress=progress,
-                                        contrast_threshold=c, **options)
-        return BosRun(results, c, source, samples)
-    results, prev = [], None
-    for k in progress_bar(range(len(times) - 1), total=len(times) - 1, desc="bos",
-                          unit="interval", disable=None if progress else True):
-        prev = estimate_bos(data.events, frames[k], t0_us=int(times[k]),
-                            t1_us=int(times[k + 1]), frame_next=frames[k + 1], roi=data.roi,
-                            init=prev, contrast_threshold=c, **options)
-        results.append(prev)
+    c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
+    results = list(iter_bos_input(data, c, workers=workers, progress=progress,
+                                  scheduler=scheduler, **options))
     return BosRun(results, c, source, samples)
 
 
@@ -170,54 +219,94 @@ def bos_valid(events, t0_us: int, t1_us: int, roi_valid: np.ndarray) -> np.ndarr
     return support & roi_valid
 
 
-def write_bos_output(path, data: BosInput, run: BosRun, attrs: dict, *,
-                     compression: str | None = FLOW_COMPRESSION) -> list[dict]:
-    """Write the flow of every interval of ``run`` through the shared flow output
-    (:func:`evmotion.io.flowout.open_flow_output`: ``.h5``, ``.npz``, ``.flo`` / ``.png``
-    patterns), with ``q``, ``p`` and the per-window numbers as extra datasets where the
-    container holds them (``.h5``, ``.npz``).
+#: The per-window numbers a BOS output stores (``window/<name>``).
+WINDOW_NUMBERS = ("frame_index", "contrast_threshold", "calibrated", "objective", "n_events",
+                  "seconds")
+WARM_MEANING = "the solver's patch-grid parameters of this scale (warm start of the next interval)"
+
+
+def open_bos_output(path, data: BosInput, attrs: dict, options, *, resume: bool = False,
+                    compression: str | None = FLOW_COMPRESSION):
+    """The flow output of a BOS run (:func:`evmotion.io.flowout.open_flow_output`: ``.h5``,
+    ``.npz``, ``.flo`` / ``.png`` patterns) with ``q``, ``p`` and the per-window numbers as
+    extra datasets where the container holds them (``.h5``, ``.npz``); an ``.h5`` also keeps
+    each interval's solver parameters (``warm/scale<s>``, :func:`stored_warm_start`), so
+    that ``resume`` continues it as an uninterrupted run would have (the next interval's
+    warm start). ``options``: the run's :class:`~evmotion.methods.bos.BosOptions`.
+
+    Examples
+    --------
+    >>> out = open_bos_output("bos.h5", data, {"method": "bos"}, BosOptions())  # doctest: +SKIP
+    """
+    from evmotion.io.bosfiles import BOS_CONTENT, bos_extras
+    from evmotion.io.flowfiles import ExtraSpec
+    from evmotion.io.flowout import EXTRA_CONTAINERS, flow_container, open_flow_output
+
+    h, w = data.events.sensor_size
+    roi = data.roi if data.roi is not None else (0, 0, w, h)
+    kind = flow_container(path)
+    extras = bos_extras((h, w), scalars=WINDOW_NUMBERS) if kind in EXTRA_CONTAINERS else None
+    if kind == "h5":
+        for s, shape in enumerate(options.param_shapes(roi[3], roi[2])):
+            extras[f"warm/scale{s}"] = ExtraSpec(shape, "<f8", "", WARM_MEANING)
+    full = {"content": BOS_CONTENT, "roi": np.asarray(roi, np.int64),
+            "eval_out_px": BOS_EVAL_OUT_PX, **attrs}
+    return open_flow_output(path, (h, w), full, n_windows=len(data.intervals), resume=resume,
+                            compression=compression, extras=extras)
+
+
+def stored_warm_start(out, index: int) -> list[np.ndarray]:
+    """The solver parameters of window ``index`` of a resumed ``.h5`` BOS output
+    (:func:`open_bos_output`): the warm start of window ``index + 1``, as in memory."""
+    names = sorted((n for n in out.extras if n.startswith("warm/scale")),
+                   key=lambda n: int(n.removeprefix("warm/scale")))
+    return [out.stored(n, index) for n in names]
+
+
+def append_bos_result(out, data: BosInput, interval, res) -> dict:
+    """Append one interval's :class:`~evmotion.methods.bos.BosResult` to ``out``
+    (:func:`open_bos_output`) and return its summary row (times, numbers, median speed
+    over the valid pixels).
 
     The flow, q and p are NaN outside the ROI; ``valid`` is the ROI's pixels with event
-    support (:func:`bos_valid`). Returns one dict per window (times, numbers, median
-    speed over the valid pixels).
+    support (:func:`bos_valid`).
+    """
+    i, t0, t1 = (int(v) for v in interval)
+    c = res.contrast_threshold
+    numbers = {"frame_index": i, "contrast_threshold": float("nan") if c is None else c,
+               "calibrated": float(res.calibrated), "objective": res.objective,
+               "n_events": len(data.events.slice_time(t0, t1)),
+               "seconds": float(sum(res.timings_s))}
+    inside = np.asarray(res.valid, bool)
+    fields = [np.array(a, np.float32) for a in (res.flow, res.q, res.p)]
+    for arr in fields:
+        arr[~inside] = np.nan
+    valid = bos_valid(data.events, t0, t1, inside)
+    values = None
+    if out.extras:
+        values = {"q": fields[1], "p": fields[2],
+                  **{f"window/{k}": v for k, v in numbers.items()}}
+        values.update({f"warm/scale{s}": a for s, a in enumerate(res.params)
+                       if f"warm/scale{s}" in out.extras})
+    out.append(fields[0], t0, t1, valid=valid, extras=values)
+    speed = np.hypot(res.flow[..., 0], res.flow[..., 1])[valid]
+    return {"t0_us": t0, "t1_us": t1, **numbers, "contrast_threshold": c,
+            "valid_fraction": float(valid.mean()),
+            "median_speed_px_s": float(np.median(speed)) if speed.size else 0.0}
+
+
+def write_bos_output(path, data: BosInput, run: BosRun, attrs: dict, *,
+                     compression: str | None = FLOW_COMPRESSION) -> list[dict]:
+    """Write every interval of ``run`` (:func:`open_bos_output`,
+    :func:`append_bos_result`); returns one summary row per window.
 
     Examples
     --------
     >>> rows = write_bos_output("bos.h5", data, run, {"method": "bos"})  # doctest: +SKIP
     """
-    from evmotion.io.bosfiles import BOS_CONTENT, bos_extras
-    from evmotion.io.flowout import EXTRA_CONTAINERS, flow_container, open_flow_output
-
-    h, w = data.events.sensor_size
-    roi = data.roi if data.roi is not None else (0, 0, w, h)
-    names = ("frame_index", "contrast_threshold", "calibrated", "objective", "n_events",
-             "seconds")
-    keep = flow_container(path) in EXTRA_CONTAINERS
-    extras = bos_extras((h, w), scalars=names) if keep else None
-    full = {"content": BOS_CONTENT, "roi": np.asarray(roi, np.int64),
-            "eval_out_px": BOS_EVAL_OUT_PX, **attrs}
     rows = []
-    with open_flow_output(path, (h, w), full, n_windows=len(run.results),
-                          compression=compression, extras=extras) as out:
-        for (i, t0, t1), res in zip(data.intervals, run.results, strict=True):
-            c = res.contrast_threshold
-            numbers = {"frame_index": int(i),
-                       "contrast_threshold": float("nan") if c is None else c,
-                       "calibrated": float(res.calibrated), "objective": res.objective,
-                       "n_events": len(data.events.slice_time(int(t0), int(t1))),
-                       "seconds": float(sum(res.timings_s))}
-            inside = np.asarray(res.valid, bool)
-            fields = [np.array(a, np.float32) for a in (res.flow, res.q, res.p)]
-            for arr in fields:
-                arr[~inside] = np.nan
-            valid = bos_valid(data.events, int(t0), int(t1), inside)
-            values = None
-            if keep:
-                values = {"q": fields[1], "p": fields[2],
-                          **{f"window/{k}": v for k, v in numbers.items()}}
-            out.append(fields[0], int(t0), int(t1), valid=valid, extras=values)
-            speed = np.hypot(res.flow[..., 0], res.flow[..., 1])[valid]
-            rows.append({"t0_us": int(t0), "t1_us": int(t1), **numbers,
-                         "contrast_threshold": c, "valid_fraction": float(valid.mean()),
-                         "median_speed_px_s": float(np.median(speed)) if speed.size else 0.0})
+    with open_bos_output(path, data, attrs, run.results[0].options,
+                         compression=compression) as out:
+        for interval, res in zip(data.intervals, run.results, strict=True):
+            rows.append(append_bos_result(out, data, interval, res))
     return rows
