@@ -169,3 +169,20 @@ def test_transpose_and_kaiming_options(tmp_path):
     s = train(TrainConfig(epochs=1, transpose=True, init="kaiming", sim_duration_s=0.02,
                           **TINY), tmp_path)
     assert np.isfinite(s["train_loss"]) and np.isfinite(s["val_AEE_px"])
+
+
+def test_width_beyond_the_memory_is_refused(tmp_path, capsys):
+    """--width 1e9 used to try to allocate 11.5 TB (a torch traceback): (0, MAX_WIDTH]."""
+    from evmotion.cli import main
+    from evmotion.errors import ParameterError
+    from evmotion.methods.dnn import MAX_WIDTH
+    from evmotion.methods.dnn.network import EVFlowNet
+
+    for bad in (0.0, -1.0, float("nan"), 2 * MAX_WIDTH, 1e9):
+        with pytest.raises(ParameterError, match="width"):
+            EVFlowNet(width=bad)
+        with pytest.raises(ParameterError, match="width"):
+            TrainConfig(**{**TINY, "width": bad}).check()
+    assert main(["train", "--out", str(tmp_path), "--sim-windows", "1", "--width", "1e9"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--width" in err and "1e9" in err

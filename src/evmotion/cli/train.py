@@ -27,6 +27,7 @@ from evmotion.cli.options import (
     positive_int,
     writable_folder,
 )
+from evmotion.methods.dnn import MAX_WIDTH
 
 EXAMPLES = """examples:
   evmotion train --sim-windows 4 --epochs 1 --out runs/sim      # a smoke run (64 and 10 for real)
@@ -62,8 +63,9 @@ def add_parser(sub) -> None:
     p.add_argument("--lr", type=positive_float(), default=1e-3)
     p.add_argument("--lr-decay", type=finite_float(0, 1, lo_open=True), default=0.8,
                    help="per epoch (default 0.8)")
-    p.add_argument("--width", type=positive_float(), default=0.125,
-                   help="channel multiplier (1 = the paper's EV-FlowNet; default 0.125)")
+    p.add_argument("--width", type=finite_float(0, MAX_WIDTH, lo_open=True), default=0.125,
+                   help=f"channel multiplier in (0, {MAX_WIDTH:g}] (1 = the paper's EV-FlowNet, "
+                        "14 M parameters; default 0.125)")
     p.add_argument("--window-events", type=int_range(100), default=40_000)
     p.add_argument("--crop", type=_size, default=(176, 240), metavar="HxW",
                    help="training crop, multiples of 16 (default 176x240)")

@@ -14,6 +14,10 @@ that need it import it.
 
 from evmotion.methods.dnn.voxel import voxel_grid
 
+#: The widest network evmotion builds: 4x the paper's EV-FlowNet (~225 M parameters); a
+#: wider one only exhausts the memory.
+MAX_WIDTH = 4.0
+
 
 def estimate_flow_dnn(*args, **kwargs):
     """See :func:`evmotion.methods.dnn.infer.estimate_flow_dnn` (imports torch lazily)."""
@@ -22,4 +26,4 @@ def estimate_flow_dnn(*args, **kwargs):
     return fn(*args, **kwargs)
 
 
-__all__ = ["estimate_flow_dnn", "voxel_grid"]
+__all__ = ["MAX_WIDTH", "estimate_flow_dnn", "voxel_grid"]

@@ -18,6 +18,9 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from evmotion.errors import ParameterError
+from evmotion.methods.dnn import MAX_WIDTH
+
 __all__ = ["FLOW_SCALE", "NORMS", "EVFlowNet", "InferenceNet", "upsample_flows"]
 
 #: The prediction heads output flow in units of FLOW_SCALE px per window, so that the
@@ -79,6 +82,8 @@ class EVFlowNet(nn.Module):
         super().__init__()
         if norm not in NORMS:
             raise ValueError(f"norm must be one of {', '.join(NORMS)}, got {norm!r}")
+        if not 0 < width <= MAX_WIDTH:
+            raise ParameterError(f"width must be in (0, {MAX_WIDTH:g}], got {width!r}")
         self.n_bins, self.width, self.norm = int(n_bins), float(width), norm
         self.symmetric = bool(symmetric)
         c = [max(4, round(width * k)) for k in (32, 64, 128, 256, 512)]

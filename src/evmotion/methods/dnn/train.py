@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from evmotion.errors import ParameterError
+from evmotion.methods.dnn import MAX_WIDTH
 from evmotion.methods.dnn.data import (
     TrainWindow,
     crop_window,
@@ -100,9 +101,10 @@ class TrainConfig:
         if any(c <= 0 or c % PAD_MULTIPLE for c in self.crop):
             raise ParameterError(f"crop must be positive multiples of {PAD_MULTIPLE}, "
                                  f"got {tuple(self.crop)}")
-        if not 0 < self.lr_decay <= 1 or self.width <= 0 or self.threads < 1:
-            raise ParameterError(f"need 0 < lr_decay <= 1, width > 0, threads >= 1; got "
-                                 f"{self.lr_decay}, {self.width}, {self.threads}")
+        if not 0 < self.lr_decay <= 1 or not 0 < self.width <= MAX_WIDTH or self.threads < 1:
+            raise ParameterError(f"need 0 < lr_decay <= 1, 0 < width <= {MAX_WIDTH:g}, "
+                                 f"threads >= 1; got {self.lr_decay}, {self.width}, "
+                                 f"{self.threads}")
         if not 0 < self.sim_duration_s <= 10:
             raise ParameterError(f"sim_duration_s must be in (0, 10] s, got {self.sim_duration_s}")
         if self.norm not in NORMS:
