@@ -293,6 +293,9 @@ CASES = [
      ["--fps 60.0", "rotation"]),
     ("train-crop-not-16", ["train", "--crop", "100x240", "--out", "{dir}/tr"],
      ["--crop", "'100x240'", "multiple of 16"]),
+    ("train-crop-huge", ["train", "--crop", "16000x16000", "--out", "{dir}/tr"],
+     ["--crop", "4096", "16000x16000"]),
+    ("train-width-huge", ["train", "--width", "1e9", "--out", "{dir}/tr"], ["--width", "1e9"]),
     ("train-lr-decay-above-1", ["train", "--lr-decay", "2", "--out", "{dir}/tr"],
      ["--lr-decay", "'2'", "(0, 1]"]),
     ("train-sim-duration-long", ["train", "--sim-duration", "11", "--out", "{dir}/tr"],
@@ -683,3 +686,16 @@ def test_interrupted_segment_leaves_no_pictures(rec, tmp_path, capsys, monkeypat
                  "--iterations", "2", "--out", str(out)]) == 130
     assert capsys.readouterr().err == "evmotion: interrupted\n"
     assert len(calls) == 2 and not list(out.iterdir())
+
+
+def test_out_of_memory_is_one_line(rec, capsys, monkeypatch):
+    """Sizes that pass the checks but not the machine's memory: one line, exit 1 (numpy's
+    MemoryError used to print a traceback, e.g. 'train --crop 4096x4096' under a limit)."""
+    import evmotion.cli.info as info
+
+    def huge(args):
+        np.zeros(1 << 62, np.uint8)
+
+    monkeypatch.setattr(info, "run", huge)
+    rc, err = _run(["info", rec["rec"]], capsys)
+    assert rc == 1 and err.count("\n") == 1 and "out of memory" in err, err

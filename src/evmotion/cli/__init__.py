@@ -136,6 +136,12 @@ def _build_and_run(argv: list[str] | None) -> int:
     except EvmotionError as exc:
         print(f"evmotion {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except MemoryError as exc:
+        # sizes that passed the checks but not this machine's memory: one line, not a
+        # traceback
+        print(f"evmotion {args.command}: error: out of memory ({_one_line(exc)}); try "
+              "smaller sizes, windows or batches", file=sys.stderr)
+        return 1
     except BrokenPipeError:
         # the reader of stdout went away (``evmotion ... --json | head``): stop quietly,
         # with the status of a process that SIGPIPE ended, as other command-line tools do

@@ -17,6 +17,9 @@ from evmotion.methods.dnn.voxel import voxel_grid
 #: The widest network evmotion builds: 4x the paper's EV-FlowNet (~225 M parameters); a
 #: wider one only exhausts the memory.
 MAX_WIDTH = 4.0
+#: Largest side of a training crop, px (the simulator renders each training window at the
+#: crop's size, in float64 frames: ``evmotion simulate`` allows 4096 px too).
+MAX_CROP_SIDE = 4096
 
 
 def estimate_flow_dnn(*args, **kwargs):
@@ -26,4 +29,4 @@ def estimate_flow_dnn(*args, **kwargs):
     return fn(*args, **kwargs)
 
 
-__all__ = ["MAX_WIDTH", "estimate_flow_dnn", "voxel_grid"]
+__all__ = ["MAX_CROP_SIDE", "MAX_WIDTH", "estimate_flow_dnn", "voxel_grid"]
