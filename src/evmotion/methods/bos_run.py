@@ -127,8 +127,7 @@ def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: i
     --------
     >>> first = next(iter_bos_input(load_bos_input("scene/"), 0.2))  # doctest: +SKIP
     """
-    from evmotion.methods.bos import estimate_bos, iter_bos_sequence
-    from evmotion.utils import progress as progress_bar
+    from evmotion.methods.bos import iter_bos_sequence
 
     if int(workers) != workers or workers < 1:
         raise ParameterError(f"workers must be an integer >= 1, got {workers!r}")
@@ -144,11 +143,14 @@ def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: i
         return iter_bos_sequence(data.events, frames, times, roi=data.roi, workers=workers,
                                  scheduler=scheduler, progress=progress, init=init,
                                  contrast_threshold=contrast_threshold, **options)
-    return _in_order(data, frames, times, contrast_threshold, init, progress, options,
-                     progress_bar, estimate_bos)
+    return _in_order(data, frames, times, contrast_threshold, init, progress, options)
 
 
-def _in_order(data, frames, times, c, prev, progress, options, progress_bar, estimate_bos):
+def _in_order(data, frames, times, c, prev, progress, options):
+    """One interval after the other, each warm-started from the previous (``prev`` first)."""
+    from evmotion.methods.bos import estimate_bos
+    from evmotion.utils import progress as progress_bar
+
     for k in progress_bar(range(len(times) - 1), total=len(times) - 1, desc="bos",
                           unit="interval", disable=None if progress else True):
         prev = estimate_bos(data.events, frames[k], t0_us=int(times[k]),
