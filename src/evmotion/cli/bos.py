@@ -128,13 +128,7 @@ def run(args) -> int:
     from evmotion.io.bosinput import load_bos_input
     from evmotion.io.flowout import EXTRA_CONTAINERS
     from evmotion.methods.bos import BosOptions
-    from evmotion.methods.bos_run import (
-        append_bos_result,
-        iter_bos_input,
-        open_bos_output,
-        sequence_threshold,
-        stored_warm_start,
-    )
+    from evmotion.methods.bos_run import open_bos_output, sequence_threshold, solve_bos_into
 
     out = Path(args.out)
     check_time_order(args)
@@ -167,11 +161,10 @@ def run(args) -> int:
         with scheduler_client(args.scheduler) as client:
             chunks = (args.workers if client is None or args.workers > 1
                       else cluster_threads(client))
-            rows = _solve_into(open_bos_output(out, data, attrs, options, resume=args.resume),
-                               data, lambda start, init: iter_bos_input(
-                                   data, c, start=start, init=init, workers=chunks,
-                                   scheduler=client, progress=True, **opts),
-                               append_bos_result, stored_warm_start)
+            rows = solve_bos_into(open_bos_output(out, data, attrs, options,
+                                                  resume=args.resume),
+                                  data, c, workers=chunks, scheduler=client, progress=True,
+                                  **opts)
     except ParameterError as exc:
         if args.roi is not None and str(exc).startswith("roi "):
             # the library names its argument; the user typed the option
@@ -206,23 +199,3 @@ def run(args) -> int:
         print(f"{len(rows)} frame intervals -> {out} ({seconds:.1f} s{note})")
     return 0
 
-
-def _solve_into(sink, data, results, append, stored_warm_start) -> list[dict]:
-    """Every selected interval into ``sink``, in order, each as soon as it is solved (an
-    interrupted run keeps the ``.part`` file); the intervals a resumed output holds are
-    checked against this run's and kept, the last one's solver state starting the next."""
-    rows = []
-    try:
-        sink.check_count(len(data.intervals))
-        for i, (_, t0, t1) in enumerate(data.intervals[:len(sink.done)]):
-            sink.check_done(i, int(t0), int(t1))
-            rows.append({"t0_us": int(t0), "t1_us": int(t1), "resumed": True})
-        start = len(sink.done)
-        init = stored_warm_start(sink, start - 1) if start else None
-        for interval, res in zip(data.intervals[start:], results(start, init), strict=True):
-            rows.append(append(sink, data, interval, res))
-        sink.close()
-    except BaseException:
-        sink.abort()
-        raise
-    return rows

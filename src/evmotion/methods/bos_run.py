@@ -28,7 +28,7 @@ from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, even
 
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "bos_valid", "iter_bos_input",
            "open_bos_output", "sequence_contrast_threshold", "sequence_threshold",
-           "solve_bos_input", "stored_warm_start", "write_bos_output"]
+           "solve_bos_input", "solve_bos_into", "stored_warm_start", "write_bos_output"]
 
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
@@ -295,6 +295,42 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
     return {"t0_us": t0, "t1_us": t1, **numbers, "contrast_threshold": c,
             "valid_fraction": float(valid.mean()),
             "median_speed_px_s": float(np.median(speed)) if speed.size else 0.0}
+
+
+def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
+                   workers: int = 1, progress: bool = False, scheduler=None,
+                   **options) -> list[dict]:
+    """Solve every selected interval of ``data`` into ``out`` (:func:`open_bos_output`),
+    in order, each written as soon as it is solved, and close it; on any error or
+    interrupt ``out`` is aborted (an ``.h5`` keeps its ``.part`` for ``resume``). The
+    intervals a resumed output already holds are checked against ``data``'s and kept, and
+    the last one's stored solver state warm-starts the next, so the result is the file an
+    uninterrupted run writes. Returns one summary row per interval (``{"t0_us", "t1_us",
+    "resumed": True}`` for the kept ones).
+
+    Examples
+    --------
+    >>> out = open_bos_output("bos.h5", data, attrs, BosOptions(), resume=True)  # doctest: +SKIP
+    >>> rows = solve_bos_into(out, data, 0.2)  # doctest: +SKIP
+    """
+    rows = []
+    try:
+        out.check_count(len(data.intervals))
+        for i, (_, t0, t1) in enumerate(data.intervals[:len(out.done)]):
+            out.check_done(i, int(t0), int(t1))
+            rows.append({"t0_us": int(t0), "t1_us": int(t1), "resumed": True})
+        start = len(out.done)
+        init = stored_warm_start(out, start - 1) if start else None
+        results = iter_bos_input(data, contrast_threshold, start=start, init=init,
+                                 workers=workers, progress=progress, scheduler=scheduler,
+                                 **options)
+        for interval, res in zip(data.intervals[start:], results, strict=True):
+            rows.append(append_bos_result(out, data, interval, res))
+        out.close()
+    except BaseException:
+        out.abort()
+        raise
+    return rows
 
 
 def write_bos_output(path, data: BosInput, run: BosRun, attrs: dict, *,
