@@ -113,7 +113,7 @@ def training(quick: bool) -> list[dict]:
 
         def cfg(device, epochs=2):
             return TrainConfig(sim_windows=8 * steps, batch_size=8, epochs=epochs,
-                               val_sim=0, device=device, max_steps_per_epoch=steps)
+                               val_sim=1, device=device, max_steps_per_epoch=steps)
 
         for name, device in (("cpu", "cpu"), ("device", DEVICE)):
             t0 = time.perf_counter()
@@ -185,7 +185,8 @@ def main(quick: bool = False) -> list[dict]:
         f"{torch.version.cuda}; CPU side one torch thread on a {os.cpu_count()}-CPU host. "
         "Inference: median wall s of interleaved runs (the CUDA times include the copies "
         "to and from the device); max_diff_px: the largest |CPU flow - CUDA flow|. "
-        "Training: evmotion's train() with val_sim=0, seconds per step of the last epoch, "
+        "Training: evmotion's train() with one validation window, seconds per step of the last epoch "
+        "(validation not included), "
         "the loss (multicm's numba objective, on the CPU for both devices) as a share; "
         "repeat/resume_identical: bit-identical weights of two CUDA runs, and of a run "
         "interrupted after epoch 1 and resumed."))

@@ -217,7 +217,10 @@ def test_device_is_checked_before_anything_loads(tmp_path, window, capsys):
     from evmotion.methods.dnn.model import check_device
     from evmotion.methods.dnn.train import TrainConfig
 
-    assert check_device("cpu") == "cpu"
+    assert check_device("cpu") == check_device("cpu:0") == "cpu"
+    # torch.load cannot map a checkpoint to "cpu:0": it was taken for a corrupt checkpoint
+    np.testing.assert_array_equal(predict_displacement(window.events, device="cpu:0"),
+                                  predict_displacement(window.events))
     missing = ["gpu", "meta", "cuda:99"]
     if not torch.cuda.is_available():
         missing.append("cuda")
@@ -245,3 +248,16 @@ def test_cuda_inference_matches_cpu(window):
     cpu = estimate_flow_dnn(window.events).displacement()
     gpu = estimate_flow_dnn(window.events, device="cuda").displacement()
     np.testing.assert_allclose(gpu, cpu, atol=1e-3)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cuda_training_with_validation(tmp_path):
+    """Validation windows go to the network's device (they stayed on the CPU: a device
+    mismatch in the first epoch of every CUDA training with --val-sim)."""
+    from evmotion.methods.dnn.train import TrainConfig, train
+
+    cfg = dict(width=0.0625, batch_size=2, sim_windows=2, val_sim=1, window_events=2000,
+               crop=(32, 32), sim_sensor=(40, 48), epochs=1)
+    gpu = train(TrainConfig(device="cuda", **cfg), tmp_path / "gpu")
+    cpu = train(TrainConfig(device="cpu", **cfg), tmp_path / "cpu")
+    assert np.isfinite(gpu["val_FWL"]) and abs(gpu["val_loss"] - cpu["val_loss"]) < 0.05

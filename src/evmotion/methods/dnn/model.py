@@ -31,8 +31,8 @@ def check_device(device: str) -> str:
 
     Examples
     --------
-    >>> check_device("cpu")
-    'cpu'
+    >>> check_device("cpu"), check_device("cpu:0")
+    ('cpu', 'cpu')
     >>> check_device("gpu")
     Traceback (most recent call last):
     evmotion.errors.ParameterError: --device 'gpu': not a torch device (cpu, cuda, cuda:N)
@@ -58,6 +58,8 @@ def check_device(device: str) -> str:
                                  "use --device cpu")
     elif dev.type != "cpu":
         raise ParameterError(f"--device {device!r}: evmotion runs on cpu, cuda or mps")
+    else:
+        return "cpu"  # torch.load cannot map storages to "cpu:0"
     return str(dev)
 
 

@@ -178,8 +178,9 @@ def evaluate_windows(net: EVFlowNet, windows: Sequence[TrainWindow], *,
         h, wd = ev.sensor_size
         prob = window_problem(ev, objective=objective, lam=lam)
         vox = torch.from_numpy(pad_to_multiple(normalize_voxel(voxel_grid(ev)))[None])
+        vox = vox.to(next(net.parameters()).device)
         with torch.no_grad():
-            flow = net(vox)[-1][0, :, :h, :wd].permute(1, 2, 0).double().numpy()
+            flow = net(vox)[-1][0, :, :h, :wd].permute(1, 2, 0).double().cpu().numpy()
         val, _ = prob.value_grad(flow.ravel())
         _, _, iwes = prob.focus_grad(flow)
         ident = iwe_forward(prob.x, prob.y, np.zeros((prob.x.size, 2)), np.zeros(prob.x.size),
