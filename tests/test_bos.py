@@ -354,6 +354,46 @@ def test_errors(case):
     assert not res.calibrated and res.contrast_threshold is None
 
 
+@pytest.mark.parametrize("opts, match", [
+    ({"log_eps": float("nan")}, "log_eps"), ({"log_eps": -1.0}, "log_eps"),
+    ({"patience": float("nan")}, "patience"), ({"patience": 1.5}, "patience"),
+    ({"seed": -1}, "seed"), ({"seed": 1.5}, "seed"),
+    ({"contrast_threshold": 1e300}, "contrast_threshold"),
+    ({"contrast_threshold": "0.2"}, "contrast_threshold"),
+    ({"iterations": float("nan")}, "iterations"), ({"iterations": 2.7}, "iterations"),
+    ({"scales": (float("nan"), 8)}, "scales"), ({"scales": 8}, "scales"),
+    ({"scales": (256, 128)}, "finest patches"), ({"dtype": np.int32}, "dtype"),
+    ({"t0_us": float("nan")}, "t0_us"), ({"options": {"param": "flow"}}, "BosOptions"),
+])
+def test_bad_options_are_parameter_errors(case, opts, match):
+    """Each used to end in NaN results, a silent zero flow (patches as large as the ROI:
+    q on one patch has no gradient), a truncated value, or a raw numpy / Python error."""
+    ev, f0, f1, d, C = case
+    kw = {"t0_us": 0, "t1_us": DT_US, "iterations": 2, "scales": (16,), **opts}
+    with pytest.raises(ParameterError, match=match):
+        estimate_bos(ev, f0, **kw)
+
+
+def test_bad_arguments_of_the_other_functions(case):
+    ev, f0, f1, d, C = case
+    with pytest.raises(ParameterError, match="sigma"):
+        estimate_contrast_threshold(ev, f0, f1, t0_us=0, t1_us=DT_US, sigma=float("nan"))
+    with pytest.raises(ParameterError, match="unknown option"):
+        estimate_bos_sequence(ev, [f0, f1], [0, DT_US], foo=1)
+    for bad in ({"workers": 1.5}, {"chunks": 0}, {"chunks": float("nan")}):
+        with pytest.raises(ParameterError, match=next(iter(bad))):
+            estimate_bos_sequence(ev, [f0, f1], [0, DT_US], **bad)
+    with pytest.raises(ParameterError, match="times_us"):
+        estimate_bos_sequence(ev, [f0, f1], [0, float("nan")])
+    flow = np.zeros((8, 9, 2))
+    flow[3, 3, 0] = np.nan
+    with pytest.raises(ParameterError, match="1 pixels with NaN"):
+        potential_from_flow(flow)
+    with pytest.raises(ParameterError, match="flow must be"):
+        potential_from_flow("abc")
+    assert BosOptions.fast(scales=(16, 8)).iterations_per_scale() == (150, 300)
+
+
 def test_sequence_warm_start_and_chunks():
     ev0, f0, f1, d, C = legm_case((64, 64), seed=2, t0=0, t1=DT_US)
     ev1, g0, g1, _, _ = legm_case((64, 64), seed=2, t0=DT_US, t1=2 * DT_US)

@@ -27,6 +27,15 @@ def test_frame_intervals_select_overlap_and_limits():
     assert frame_intervals(ft, 41, 50).shape == (0, 3)
 
 
+def test_max_intervals_must_be_a_count(data):
+    """-1 used to drop the last interval silently (a slice)."""
+    from evmotion.errors import ParameterError
+
+    for bad in (-1, 0, 1.5):
+        with pytest.raises(ParameterError, match="max_intervals"):
+            load_bos_input(data.source, max_intervals=bad)
+
+
 def test_sequence_c_is_the_median_of_the_intervals(data):
     c, est = sequence_contrast_threshold(data, samples=3)
     picks = [0, 2, 3]  # round(linspace(0, 3, 3))

@@ -139,6 +139,9 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     from evmotion.io import read_events
     from evmotion.io.frames import read_frames
 
+    if max_intervals is not None and not (isinstance(max_intervals, (int, np.integer))
+                                          and max_intervals >= 1):
+        raise ParameterError(f"max_intervals must be an integer >= 1, got {max_intervals!r}")
     rec = Path(rec)
     if not rec.exists():
         raise FormatError(rec, "no such file or folder")

@@ -104,6 +104,18 @@ __all__ = [
 
 # below it, the events do not measure the frames' change (estimate_contrast_threshold)
 MIN_CORRELATION = 0.3
+#: Largest contrast threshold accepted, log units (sensors: 0.1-0.5): beyond it the
+#: predicted increments overflow float32.
+MAX_CONTRAST_THRESHOLD = 10.0
+
+
+def _is_int(v) -> bool:
+    """A whole number (int, numpy integer, or an integral finite float)."""
+    if isinstance(v, (bool, np.bool_)):
+        return False
+    if isinstance(v, (int, np.integer)):
+        return True
+    return isinstance(v, (float, np.floating)) and bool(np.isfinite(v)) and float(v).is_integer()
 
 _ADAM_B1, _ADAM_B2, _ADAM_EPS = 0.9, 0.999, 1e-8
 
@@ -202,9 +214,11 @@ class BosOptions:
         if self.data_term not in ("normalized", "scale"):
             raise ParameterError(f"data_term must be 'normalized' or 'scale', "
                                  f"got {self.data_term!r}")
+        if not (isinstance(self.scales, (tuple, list)) and self.scales
+                and all(_is_int(v) and v >= 1 for v in self.scales)):
+            raise ParameterError(f"scales must be positive patch sizes in px, e.g. "
+                                 f"(64, 32, 16, 8), got {self.scales!r}")
         scales = tuple(int(s) for s in self.scales)
-        if not scales or min(scales) < 1:
-            raise ParameterError(f"scales must be positive patch sizes, got {self.scales!r}")
         object.__setattr__(self, "scales", scales)
         self.iterations_per_scale()
         self.pool_per_scale()
@@ -218,10 +232,19 @@ class BosOptions:
         if self.alpha > 1:
             raise ParameterError(f"alpha must be in [0, 1], got {self.alpha}")
         c = self.contrast_threshold
-        if c is not None and not (np.isfinite(c) and c > 0):
-            raise ParameterError(f"contrast_threshold must be > 0, got {c}")
-        if self.patience < 1:
-            raise ParameterError(f"patience must be >= 1, got {self.patience}")
+        if c is not None and not (isinstance(c, (int, float, np.number)) and np.isfinite(c)
+                                  and c > 0):
+            raise ParameterError(f"contrast_threshold must be a number > 0, got {c!r}")
+        if not (_is_int(self.patience) and self.patience >= 1):
+            raise ParameterError(f"patience must be an integer >= 1, got {self.patience!r}")
+        if not (_is_int(self.seed) and self.seed >= 0):
+            raise ParameterError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if c is not None and c > MAX_CONTRAST_THRESHOLD:
+            raise ParameterError(f"contrast_threshold must be at most "
+                                 f"{MAX_CONTRAST_THRESHOLD:g} (log units), got {c}")
+        e = self.log_eps
+        if e is not None and not (np.isfinite(e) and e > 0):
+            raise ParameterError(f"log_eps must be None or a finite number > 0, got {e!r}")
 
     @classmethod
     def fast(cls, **kwargs) -> BosOptions:
@@ -230,7 +253,8 @@ class BosOptions:
         pooled coarse scales. On a 640x720 plume interval its final objective is within
         0.3 % of the thesis' 600 per scale at a fifth of the time
         (``benchmarks/results/bos.md``). Keyword arguments override fields."""
-        return cls(**{"iterations": (150, 150, 150, 300), **kwargs})
+        n = len(kwargs.get("scales", cls.scales))
+        return cls(**{"iterations": (150,) * (n - 1) + (300,), **kwargs})
 
     def iterations_per_scale(self) -> tuple[int, ...]:
         """Adam iterations of each scale."""
@@ -238,11 +262,11 @@ class BosOptions:
         if its is None:
             n = len(self.scales)
             its = (150,) * (n - 1) + (300,) if self.data_term == "scale" else 600
-        its = (int(its),) * len(self.scales) if np.isscalar(its) else tuple(int(i) for i in its)
-        if len(its) != len(self.scales) or min(its) < 0:
-            raise ParameterError(f"iterations must be >= 0, one or one per scale "
-                                 f"({len(self.scales)}), got {self.iterations!r}")
-        return its
+        its = (its,) * len(self.scales) if np.isscalar(its) else tuple(its)
+        if len(its) != len(self.scales) or not all(_is_int(i) and i >= 0 for i in its):
+            raise ParameterError(f"iterations must be whole numbers >= 0, one or one per "
+                                 f"scale ({len(self.scales)}), got {self.iterations!r}")
+        return tuple(int(i) for i in its)
 
     def param_shapes(self, height: int, width: int) -> list[tuple[int, int, int]]:
         """Shape of each scale's patch-grid parameters (:attr:`BosResult.params`, the warm
@@ -352,6 +376,8 @@ def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
     else:
         full = 1.0
         e = 1e-3 if eps is None else float(eps)
+    if not (np.isfinite(e) and e > 0):
+        raise ParameterError(f"log_eps must be a finite number > 0, got {eps!r}")
     g = f.astype(np.float64) / full
     if not np.isfinite(g).all():
         raise ParameterError("frame has NaN or inf values")
@@ -513,6 +539,8 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
     d, level = l1 - l0, 0.5 * (l0 + l1)
     if sigma is None:
         sigma = 2.0 if method == "auto" else 1.0
+    if not (np.isfinite(sigma) and 0 <= sigma <= 1000):
+        raise ParameterError(f"sigma must be a number of px in [0, 1000], got {sigma!r}")
     if sigma > 0:
         s = gaussian_filter(s, sigma, mode="nearest")
         d = gaussian_filter(d, sigma, mode="nearest")
@@ -840,14 +868,18 @@ def estimate_bos(
     >>> res.flow.shape, res.flow.dtype, res.calibrated
     ((32, 32, 2), dtype('float32'), False)
     """
-    o = options or BosOptions()
-    if kwargs:
-        unknown = set(kwargs) - set(BosOptions.__dataclass_fields__)
-        if unknown:
-            raise ParameterError(f"unknown option(s) {sorted(unknown)}")
-        o = replace(o, **kwargs)
+    o = _options(options, kwargs)
+    if np.dtype(dtype) not in (np.float32, np.float64):
+        raise ParameterError(f"dtype must be float32 or float64, got {np.dtype(dtype)}")
+    for name, t in (("t0_us", t0_us), ("t1_us", t1_us)):
+        if not _is_int(t):
+            raise ParameterError(f"{name} must be a whole number of us, got {t!r}")
     r, logf, meas, weight, c, log_units = _prepare(events, frame, t0_us, t1_us, frame_next,
                                                    roi, o, increment)
+    if o.param == "poisson" and min(-(-r[3] // o.scales[-1]), -(-r[2] // o.scales[-1])) < 2:
+        raise ParameterError(f"the finest patches ({o.scales[-1]} px) cover the {r[2]}x{r[3]} "
+                             "px ROI in one row or column: q on it has no gradient (flow 0); "
+                             "use smaller scales or a larger ROI")
     normalized = o.data_term == "normalized"
     warm = None if init is None else list(init.params if isinstance(init, BosResult) else init)
     if warm is not None and len(warm) != len(o.scales):
@@ -930,9 +962,18 @@ def potential_from_flow(flow: np.ndarray) -> np.ndarray:
     """
     from scipy.fft import dctn, idctn
 
-    v = np.asarray(flow, dtype=np.float64)
+    try:
+        v = np.asarray(flow, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(f"flow must be an (H, W, 2) array in px/s, got "
+                             f"{type(flow).__name__}") from None
     if v.ndim != 3 or v.shape[2] != 2 or min(v.shape[:2]) < 1:
         raise ParameterError(f"flow must be (H, W, 2) px/s, got shape {v.shape}")
+    bad = int(np.count_nonzero(~np.isfinite(v).all(axis=2)))
+    if bad:
+        raise ParameterError(f"flow has {bad} pixels with NaN or inf, which a cosine "
+                             "transform spreads everywhere: crop it to where it is finite "
+                             "(a BOS output is NaN outside its ROI)")
     h, w = v.shape[:2]
     # the divergence of the mid-point flow, as the adjoint of the forward difference
     div = np.zeros((h, w))
@@ -948,6 +989,17 @@ def potential_from_flow(flow: np.ndarray) -> np.ndarray:
     coef = dctn(div, type=2, norm="ortho") / lam
     coef[0, 0] = 0.0
     return idctn(coef, type=2, norm="ortho").astype(np.float32)
+
+
+def _options(options, kwargs: dict) -> BosOptions:
+    """``options`` (default :class:`BosOptions`) with the fields in ``kwargs`` replaced."""
+    if options is not None and not isinstance(options, BosOptions):
+        raise ParameterError(f"options must be a BosOptions, got {type(options).__name__}")
+    o = options or BosOptions()
+    unknown = set(kwargs) - set(BosOptions.__dataclass_fields__)
+    if unknown:
+        raise ParameterError(f"unknown option(s) {sorted(unknown)}")
+    return replace(o, **kwargs) if kwargs else o
 
 
 def _same_shape(prev: np.ndarray, like: np.ndarray) -> np.ndarray:
@@ -1062,10 +1114,14 @@ def iter_bos_sequence(
     """
     from evmotion.parallel import imap_windows
 
-    o = options or BosOptions()
-    if kwargs:
-        o = replace(o, **kwargs)
-    times = np.asarray(times_us, dtype=np.int64)
+    o = _options(options, kwargs)
+    for name, v in (("workers", workers), ("chunks", 1 if chunks is None else chunks)):
+        if not (_is_int(v) and v >= 1):
+            raise ParameterError(f"{name} must be an integer >= 1, got {v!r}")
+    times = np.asarray(times_us, dtype=np.float64)
+    if times.ndim != 1 or not np.isfinite(times).all():
+        raise ParameterError(f"times_us must be finite frame times in us, got {times_us!r}")
+    times = times.astype(np.int64)
     if len(frames) != len(times):
         raise ParameterError(f"{len(frames)} frames but {len(times)} timestamps")
     if len(times) < 2:
