@@ -152,9 +152,13 @@ def test_input_scales_one_is_the_plain_network(tiny_ckpt, window):
     np.testing.assert_allclose(res.displacement(), predict_displacement(window.events, tiny_ckpt),
                                rtol=1e-4, atol=1e-4)
     assert res.meta["input_scale"] == 1
-    for bad in ((), (0, 1), (1.5,)):
+    for bad in ((), (0, 1), (1.5,), 3):
         with pytest.raises(ParameterError, match="input_scales"):
             estimate_flow_dnn(window.events, tiny_ckpt, input_scales=bad)
+    # one scale as a plain number (was a TypeError)
+    assert estimate_flow_dnn(window.events, tiny_ckpt, input_scales=1).meta["input_scale"] == 1
+    with pytest.raises(ParameterError, match="checkpoint must be a path"):
+        estimate_flow_dnn(window.events, 5)
 
 
 def test_time_reversal_makes_the_flow_antisymmetric(tiny_ckpt, window):

@@ -186,3 +186,27 @@ def test_width_beyond_the_memory_is_refused(tmp_path, capsys):
     assert main(["train", "--out", str(tmp_path), "--sim-windows", "1", "--width", "1e9"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--width" in err and "1e9" in err
+
+
+@pytest.mark.parametrize("bad", [{"max_steps_per_epoch": -1}, {"lr": float("inf")},
+                                 {"lam": float("nan")}, {"lam": -1.0}, {"val_sim": -1},
+                                 {"window_events": 1}, {"epochs": 1.5}, {"seed": -1},
+                                 {"recordings": "/tmp/x.h5"}, {"crop": (32,)}])
+def test_config_values_that_trained_nothing_or_nan_are_refused(bad):
+    """Each was accepted and ran zero steps (max_steps -1), gave a NaN loss (lr inf, lam
+    NaN), iterated a path letter by letter, or ended in a raw Python error."""
+    from evmotion.errors import ParameterError
+
+    with pytest.raises(ParameterError, match=next(iter(bad)).split("_")[0]):
+        TrainConfig(**{**TINY, **bad}).check()
+
+
+def test_an_epoch_without_windows_warns(tmp_path):
+    from evmotion.errors import EvmotionWarning
+
+    # epoch 1's two 32x32 crops both keep fewer than min_events (seeded: always so)
+    cfg = TrainConfig(epochs=2, sim_windows=2, crop=(32, 32), sim_sensor=(40, 48),
+                      window_events=2000, batch_size=2, max_steps_per_epoch=1, val_sim=0)
+    with pytest.warns(EvmotionWarning, match="epoch 1: .* nothing was trained"):
+        summary = train(cfg, tmp_path)
+    assert np.isnan(summary["train_loss"])

@@ -207,6 +207,8 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         raise EmptyWindowError(f"window has {len(events)} events spanning "
                                f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
                                "need at least 10 events and a positive duration")
+    if np.isscalar(input_scales):
+        input_scales = (input_scales,)
     if not len(input_scales) or any(k not in (1, 2, 4, 8, 16) for k in input_scales):
         raise ParameterError("input_scales must be one or more of 1, 2, 4, 8, 16 (divisors "
                              f"of the network's 16-px padding), got {input_scales!r}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import pickle
 from pathlib import Path
 
@@ -116,6 +117,8 @@ def load_inference_net(checkpoint: str | Path | None = None,
 
 
 def _cache_key(checkpoint, device: str) -> tuple[Path, tuple]:
+    if checkpoint is not None and not isinstance(checkpoint, (str, os.PathLike)):
+        raise ParameterError(f"checkpoint must be a path, got {type(checkpoint).__name__}")
     path = Path(checkpoint) if checkpoint is not None else DEFAULT_CHECKPOINT
     return path, (str(path.resolve()), path.stat().st_mtime_ns if path.exists() else 0,
                   device)

@@ -22,6 +22,7 @@ import csv
 import io
 import os
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -29,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from evmotion.errors import ParameterError
+from evmotion.errors import EvmotionWarning, ParameterError
 from evmotion.methods.dnn import MAX_CROP_SIDE, MAX_WIDTH
 from evmotion.methods.dnn.data import (
     TrainWindow,
@@ -91,10 +92,25 @@ class TrainConfig:
     init_weights: str | None = None
 
     def check(self) -> None:
-        if self.epochs < 1 or self.batch_size < 1 or self.sim_windows < 0 or self.lr <= 0:
-            raise ParameterError(f"need epochs >= 1, batch_size >= 1, sim_windows >= 0, "
-                                 f"lr > 0; got {self.epochs}, {self.batch_size}, "
-                                 f"{self.sim_windows}, {self.lr}")
+        counts = {"epochs": 1, "batch_size": 1, "sim_windows": 0, "val_sim": 0,
+                  "window_events": 100, "threads": 1, "seed": 0}
+        if self.max_steps_per_epoch is not None:
+            counts["max_steps_per_epoch"] = 1
+        for name, least in counts.items():
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < least:
+                raise ParameterError(f"{name} must be an integer >= {least}, got {v!r}")
+        for name, v, positive in (("lr", self.lr, True), ("lam", self.lam, False)):
+            number = isinstance(v, (int, float, np.number)) and bool(np.isfinite(v))
+            if not number or v < 0 or (positive and v == 0):
+                raise ParameterError(f"{name} must be a finite number "
+                                     f"{'> 0' if positive else '>= 0'}, got {v!r}")
+        if isinstance(self.recordings, (str, Path)) or isinstance(self.val_recordings,
+                                                                   (str, Path)):
+            raise ParameterError("recordings and val_recordings are lists of paths, got "
+                                 "a single path")
+        if len(self.crop) != 2:
+            raise ParameterError(f"crop must be (height, width), got {self.crop!r}")
         if self.sim_windows == 0 and not self.recordings:
             raise ParameterError("no training data: give recordings or sim_windows > 0 "
                                  "(--sim-windows)")
@@ -369,6 +385,11 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                 bar.set_postfix(epoch=epoch, loss=f"{losses[-1]:.4f}")
                 bar.update(1)
         sched.step()
+        if not losses:
+            warnings.warn(EvmotionWarning(
+                f"epoch {epoch}: no training window kept enough events in its "
+                f"{shape[0]}x{shape[1]} crop; nothing was trained (a larger --crop or "
+                "--window-events)"), stacklevel=2)
         row = {"epoch": epoch, "step": (epoch + 1) * per_epoch, "train_loss":
                float(np.mean(losses)) if losses else float("nan"),
                "lr": opt.param_groups[0]["lr"], "seconds": time.perf_counter() - t_epoch,
