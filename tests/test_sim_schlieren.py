@@ -354,6 +354,20 @@ def test_write_and_read_back(tmp_path, plume):
         read_schlieren_gt(tmp_path / "x.h5")
 
 
+def test_12_bit_frames_keep_their_intensity_scale(tmp_path):
+    """Frames of more than 8 bits are written as 16-bit PNGs with the samples in the top
+    bits (a 12-bit white used to read back as 1/16 of the full scale)."""
+    from evmotion.io.frames import read_frames
+
+    sim = simulate_schlieren("plume", sensor_size=(32, 40), duration_s=1 / 60, seed=0,
+                             bit_depth=12)
+    assert sim.frames.images.max() <= 4095
+    write_schlieren(sim, tmp_path / "s")
+    fr = read_frames(tmp_path / "s")
+    np.testing.assert_array_equal(fr.images, sim.frames.images.astype(np.uint16) << 4)
+    np.testing.assert_allclose(fr.as_float(), sim.frames.as_float(), atol=1 / 4095)
+
+
 @pytest.mark.parametrize("kw, match", [
     (dict(scene="smoke"), "unknown schlieren scene"),
     (dict(magnitude_px=0.0), "magnitude_px"),

@@ -825,7 +825,9 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
     """Write a simulated recording as an ECD-style folder.
 
     ``events.txt`` (``t[s] x y p``), ``images.txt`` (``t[s] images/frame_XXXXXXXX.png``),
-    ``images/`` (8-bit PNGs) and ``schlieren_gt.h5``: the flow in the project's flow
+    ``images/`` (8-bit PNGs; 16-bit above 8 bits, the samples shifted to the top bits as
+    cameras store 10- and 12-bit frames, so that the full scale stays white) and
+    ``schlieren_gt.h5``: the flow in the project's flow
     layout (:func:`evmotion.io.flowfiles.read_flow_h5` reads it; windows = frame
     intervals) plus datasets ``q``, ``displacement``, ``frame_t``, ``thresholds_on``,
     ``thresholds_off`` and the metadata as JSON (attribute ``schlieren_meta``).
@@ -848,9 +850,10 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
     (out / "images").mkdir(parents=True, exist_ok=True)
     ecd.write(out / "events.txt", sim.events)
     lines = []
+    shift = 16 - sim.frames.bit_depth if sim.frames.images.dtype == np.uint16 else 0
     for i, (t, img) in enumerate(zip(sim.frames.t, sim.frames.images, strict=True)):
         name = f"images/frame_{i:08d}.png"
-        write_png(out / name, img)
+        write_png(out / name, img << shift if shift else img)
         lines.append(f"{t * 1e-6:.6f} {name}\n")
     atomic_write_text(out / "images.txt", "".join(lines))
     return _write_gt(out / "schlieren_gt.h5", sim.gt)
