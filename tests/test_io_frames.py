@@ -258,6 +258,14 @@ def test_frames_container_checks():
     with pytest.raises(FormatError, match="duplicate"):
         Frames(np.zeros((2, 3, 3), np.uint8), [5, 5], source="x")
     assert np.isnan(Frames(np.zeros((1, 3, 3), np.uint8), [0]).fps)
+    # a bit depth the dtype cannot hold made as_float() inf/NaN (0) or zeros (40)
+    for depth, dtype in ((0, np.uint8), (12, np.uint8), (40, np.uint16), (2.5, np.uint16)):
+        with pytest.raises(FormatError, match="bit_depth"):
+            Frames(np.zeros((1, 3, 3), dtype), [0], bit_depth=depth)
+    with pytest.raises(FormatError, match="finite"):
+        Frames(np.zeros((2, 3, 3), np.uint8), [0, float("nan")])
+    big = 1_589_163_147_365_215  # DAVIS timestamps: us since 1970, kept exact
+    assert Frames(np.zeros((1, 3, 3), np.uint8), [big]).t[0] == big
 
 
 def test_published_bos_events(tmp_path):

@@ -80,7 +80,20 @@ class Frames:
             raise FormatError(src, f"frames must be a stack (N, H, W), got shape {images.shape}")
         if images.dtype not in (np.uint8, np.uint16):
             raise FormatError(src, f"frames must be uint8 or uint16, got {images.dtype}")
-        t = np.asarray(self.t, dtype=np.int64).reshape(-1)
+        bits = 8 if images.dtype == np.uint8 else 16
+        if not (isinstance(self.bit_depth, (int, np.integer)) and 1 <= self.bit_depth <= bits):
+            raise FormatError(src, f"bit_depth must be an integer in 1..{bits} for "
+                              f"{images.dtype} frames, got {self.bit_depth!r}")
+        t = np.asarray(self.t).reshape(-1)
+        if t.dtype.kind not in "iu":
+            # whole microseconds: a float list (or NaN) is checked, not wrapped by a cast
+            try:
+                t = t.astype(np.float64)
+            except (TypeError, ValueError):
+                raise FormatError(src, "frame timestamps must be numbers (us)") from None
+            if not np.isfinite(t).all():
+                raise FormatError(src, "frame timestamps must be finite numbers (us)")
+        t = t.astype(np.int64)
         if t.shape[0] != images.shape[0]:
             raise FormatError(src, f"{images.shape[0]} images but {t.shape[0]} timestamps")
         _check_times(t, src)
