@@ -71,7 +71,7 @@ def test_bad_checkpoint_is_one_line_error(tmp_path):
     with pytest.raises(ParameterError, match="bad.pt") as exc:
         load_model(bad)
     assert "\n" not in str(exc.value)
-    with pytest.raises(ParameterError, match="not found"):
+    with pytest.raises(ParameterError, match="no such file"):
         load_model(tmp_path / "missing.pt")
 
 
@@ -265,3 +265,35 @@ def test_cuda_training_with_validation(tmp_path):
     gpu = train(TrainConfig(device="cuda", **cfg), tmp_path / "gpu")
     cpu = train(TrainConfig(device="cpu", **cfg), tmp_path / "cpu")
     assert np.isfinite(gpu["val_FWL"]) and abs(gpu["val_loss"] - cpu["val_loss"]) < 0.05
+
+
+def test_unusable_checkpoints_are_one_line(tmp_path, window):
+    """Each used to be a traceback (IndexError while formatting an empty message, or on a
+    file holding a bare tensor), or to blame a missing file for a folder."""
+    empty = tmp_path / "empty.pt"
+    empty.write_bytes(b"")
+    tensor = tmp_path / "tensor.pt"
+    torch.save(torch.zeros(3), tensor)
+    wrong = tmp_path / "wrong.pt"
+    torch.save({"n_bins": 5, "width": 0.125, "model": {"x": torch.zeros(1)}}, wrong)
+    run = tmp_path / "run"
+    run.mkdir()
+    save_model(run / "model.pt", EVFlowNet(width=0.0625))
+    for path, match in ((empty, "EOFError"), (tensor, "no 'n_bins'"), (wrong, "Missing key"),
+                        (run, "folder.*model.pt"), (tmp_path / "none.pt", "no such file")):
+        with pytest.raises(ParameterError, match=match) as exc:
+            load_model(path)
+        assert "\n" not in str(exc.value) and str(path) in str(exc.value)
+
+
+def test_a_diverged_checkpoint_is_refused(tmp_path, window):
+    """NaN weights (a training that diverged) gave an all-NaN flow marked valid, exit 0."""
+    net = EVFlowNet(width=0.0625)
+    with torch.no_grad():
+        net.heads[0].bias.fill_(float("nan"))
+    path = tmp_path / "nan.pt"
+    save_model(path, net)
+    with pytest.raises(ParameterError, match="non-finite flow"):
+        estimate_flow_dnn(window.events, path)
+    with pytest.raises(ParameterError, match="non-finite flow"):
+        estimate_flow(window.events, init="dnn", checkpoint=path)

@@ -210,3 +210,31 @@ def test_an_epoch_without_windows_warns(tmp_path):
     with pytest.warns(EvmotionWarning, match="epoch 1: .* nothing was trained"):
         summary = train(cfg, tmp_path)
     assert np.isnan(summary["train_loss"])
+
+
+def test_runs_that_cannot_train_say_so(tmp_path):
+    """A recording too short for a window is named; a run in which no crop keeps enough
+    events is an error with nothing written (it used to exit 0 with an untrained
+    model.pt); resuming a finished run reports its last epoch; a network whose flow is not
+    finite stops the validation (a diverged training)."""
+    from evmotion.errors import EvmotionWarning, ParameterError
+    from evmotion.io import write_events
+    from evmotion.methods.dnn.train import evaluate_windows
+
+    short = tmp_path / "short.h5"
+    write_events(short, sim_window(5, sensor_size=(48, 64), window_events=500).events)
+    with pytest.warns(EvmotionWarning, match="short.h5: .* give no window"):
+        with pytest.raises(ParameterError, match="no training data|no training window"):
+            train(TrainConfig(**{**TINY, "sim_windows": 0, "recordings": [str(short)]}),
+                  tmp_path / "a")
+    assert not (tmp_path / "a" / "model.pt").exists()
+    lines = []
+    train(TrainConfig(epochs=1, **TINY), tmp_path / "b")
+    summary = train(TrainConfig(epochs=1, **TINY), tmp_path / "b", resume=True,
+                    log=lines.append)
+    assert summary["epoch"] == 0 and "already trained 1 of 1 epochs" in lines[0]
+    net = EVFlowNet(width=0.0625)
+    with torch.no_grad():
+        net.heads[0].bias.fill_(float("nan"))
+    with pytest.raises(ParameterError, match="diverged"):
+        evaluate_windows(net, [sim_window(6, sensor_size=(48, 64), window_events=2000)])

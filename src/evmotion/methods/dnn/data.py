@@ -8,13 +8,14 @@ Every random choice (scene, texture, motion, noise, crop) is drawn from a
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionError, ParameterError
+from evmotion.errors import EvmotionError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray
 
 __all__ = ["SIM_SCENES", "TrainWindow", "crop_window", "recording_windows", "sim_window",
@@ -81,10 +82,12 @@ def sim_window(seed: int, *, scene: str | None = None, sensor_size=(260, 346),
     return TrainWindow(win, gt, f"sim:{scene}:{texture}:seed{seed}")
 
 
-def recording_windows(paths: Sequence[str | Path], window_events: int = 40_000,
-                      ) -> list[TrainWindow]:
+def recording_windows(paths: Sequence[str | Path], window_events: int = 40_000, *,
+                      what: str = "training recording") -> list[TrainWindow]:
     """Consecutive ``window_events`` windows of each recording (any readable format); a
-    last partial window is kept if it has at least half as many events."""
+    last partial window is kept if it has at least half as many events, a first one if it
+    has 1000. A recording that gives no window is named in an
+    :class:`~evmotion.errors.EvmotionWarning` (``what`` says which kind it is)."""
     from evmotion.io import read_events
 
     out = []
@@ -92,10 +95,15 @@ def recording_windows(paths: Sequence[str | Path], window_events: int = 40_000,
         try:
             ev = read_events(path)
         except EvmotionError as exc:
-            raise ParameterError(f"training recording {path}: {exc}") from None
+            raise ParameterError(f"{what} {path}: {exc}") from None
+        n = len(out)
         for w in ev.windows_by_count(window_events):
             if w.count >= max(window_events // 2, 1000) or (w.index == 0 and w.count >= 1000):
                 out.append(TrainWindow(ev.window(w), None, f"{path}#{w.index}"))
+        if len(out) == n:
+            warnings.warn(EvmotionWarning(
+                f"{what} {path}: {len(ev)} events give no window (a window needs 1000, and "
+                f"half of --window-events {window_events}): not used"), stacklevel=2)
     return out
 
 

@@ -115,6 +115,11 @@ def _predict(events: EventArray, scales: list[int], checkpoint, device: str,
     best, disp, score = 1, None, -np.inf
     for k, vox in zip(scales, network_inputs(events, tuple(scales), net.n_bins), strict=True):
         cand = _run(net, vox, (-(-h // k), -(-w // k)), device, time_reversal)
+        if not np.isfinite(cand).all():
+            from evmotion.methods.dnn.model import DEFAULT_CHECKPOINT
+
+            raise ParameterError(f"checkpoint {checkpoint or DEFAULT_CHECKPOINT}: the network "
+                                 "gives a non-finite flow (its training diverged)")
         if k > 1:
             cand = _upsampled(cand, k, (h, w))
         if len(scales) == 1:

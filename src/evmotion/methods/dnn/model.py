@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import pickle
 from pathlib import Path
 
 import torch
@@ -84,20 +83,31 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
     path, key = _cache_key(checkpoint, device)
     if key in _CACHE:
         return _CACHE[key]
+    if path.is_dir():
+        inside = " (give the model.pt in it)" if (path / "model.pt").is_file() else ""
+        raise ParameterError(f"checkpoint {path}: is a folder, not a checkpoint file{inside}")
     if not path.is_file():
-        raise ParameterError(f"checkpoint {path}: file not found")
+        raise ParameterError(f"checkpoint {path}: no such file")
     try:
         blob = torch.load(path, map_location=device, weights_only=True)
+    except Exception as exc:  # torch.load raises many types for files it cannot read
+        hint = ("; the training state (last.pt) needs the trusted loader: give the model.pt "
+                "beside it") if path.name == "last.pt" else ""
+        raise ParameterError(f"checkpoint {path}: not an evmotion EV-FlowNet checkpoint "
+                             f"({_reason(exc)}){hint}") from None
+    if not isinstance(blob, dict) or not {"n_bins", "width", "model"} <= set(blob):
+        raise ParameterError(f"checkpoint {path}: not an evmotion EV-FlowNet checkpoint (no "
+                             "'n_bins', 'width' and 'model' entries: write it with "
+                             "evmotion train)")
+    try:
         # checkpoints written before batch norm and the symmetric network carry neither key
         net = EVFlowNet(n_bins=int(blob["n_bins"]), width=float(blob["width"]),
                         norm=str(blob.get("norm", "none")),
                         symmetric=bool(blob.get("symmetric", False)))
         net.load_state_dict(blob["model"])
-    except (RuntimeError, KeyError, ValueError, TypeError, OSError, EOFError,
-            AttributeError, pickle.UnpicklingError) as exc:
+    except Exception as exc:  # shapes, names or values that do not make the network
         raise ParameterError(f"checkpoint {path}: not an evmotion EV-FlowNet checkpoint "
-                             f"({type(exc).__name__}: {str(exc).splitlines()[0][:120]})"
-                             ) from None
+                             f"({_reason(exc)})") from None
     net.to(device).eval()
     _CACHE.clear()
     _FAST.clear()
@@ -114,6 +124,11 @@ def load_inference_net(checkpoint: str | Path | None = None,
     if key not in _FAST:
         _FAST[key] = InferenceNet(load_model(checkpoint, device))
     return _FAST[key]
+
+
+def _reason(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text[:160]}" if text else type(exc).__name__
 
 
 def _cache_key(checkpoint, device: str) -> tuple[Path, tuple]:

@@ -174,8 +174,7 @@ def _materialize(cfg, item, rec, epoch, k) -> TrainWindow | None:
         win = rec[val]
     if flip:
         win = transpose_window(win)
-    return crop_window(win, tuple(cfg.crop), rng,
-                       min_events=min(1000, cfg.window_events // 10))
+    return crop_window(win, tuple(cfg.crop), rng, min_events=_min_events(cfg))
 
 
 def evaluate_windows(net: EVFlowNet, windows: Sequence[TrainWindow], *,
@@ -197,6 +196,9 @@ def evaluate_windows(net: EVFlowNet, windows: Sequence[TrainWindow], *,
         vox = vox.to(next(net.parameters()).device)
         with torch.no_grad():
             flow = net(vox)[-1][0, :, :h, :wd].permute(1, 2, 0).double().cpu().numpy()
+        if not np.isfinite(flow).all():
+            raise ParameterError(f"the network's flow on {w.name} is not finite: its weights "
+                                 "diverged (train again with a lower --lr)")
         val, _ = prob.value_grad(flow.ravel())
         _, _, iwes = prob.focus_grad(flow)
         ident = iwe_forward(prob.x, prob.y, np.zeros((prob.x.size, 2)), np.zeros(prob.x.size),
@@ -266,6 +268,22 @@ def _kaiming_init(net: EVFlowNet) -> None:
         if isinstance(m, torch.nn.Conv2d) and id(m) not in heads:
             torch.nn.init.kaiming_normal_(m.weight, nonlinearity="relu")
             torch.nn.init.zeros_(m.bias)
+
+
+def _diverged(what: str, epoch: int, step: int, opt) -> None:
+    raise ParameterError(f"training diverged: {what} at epoch {epoch}, step {step} (lr "
+                         f"{opt.param_groups[0]['lr']:g}); train again with a lower --lr, "
+                         "or --resume from the last good epoch")
+
+
+def _epoch_line(row: dict) -> str:
+    return " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                    for k, v in row.items())
+
+
+def _min_events(cfg: TrainConfig) -> int:
+    """Events a training crop must keep to be used."""
+    return min(1000, cfg.window_events // 10)
 
 
 def _seed_all(cfg: TrainConfig) -> None:
@@ -339,7 +357,8 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     val = [sim_window(VAL_SEED_BASE + i, sensor_size=cfg.sim_sensor,
                       window_events=cfg.window_events) for i in range(cfg.val_sim)]
     if cfg.val_recordings:
-        val += recording_windows(cfg.val_recordings, cfg.window_events)
+        val += recording_windows(cfg.val_recordings, cfg.window_events,
+                                 what="validation recording")
     n_items = cfg.sim_windows + len(rec)
     per_epoch = -(-n_items // cfg.batch_size)
     if cfg.max_steps_per_epoch:
@@ -351,7 +370,11 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
 
         bar = tqdm(total=cfg.epochs * per_epoch, initial=start * per_epoch, desc="train",
                    unit="step", dynamic_ncols=True)
-    summary: dict = {}
+    summary: dict = dict(epochs_log[-1]) if epochs_log else {}
+    if start >= cfg.epochs and log is not None:
+        log(f"already trained {start} of {cfg.epochs} epochs: nothing to do (the last epoch "
+            "below)")
+        log(_epoch_line(summary))
     for epoch in range(start, cfg.epochs):
         t_epoch = time.perf_counter()
         net.train()
@@ -376,15 +399,29 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
             tl = time.perf_counter()
             loss = multiscale_loss(flows, probs)
             t_loss += time.perf_counter() - tl
+            if not torch.isfinite(loss):
+                # stop before the step: the checkpoints written so far stay usable
+                _diverged(f"the loss is {float(loss)}", epoch, step, opt)
             loss.backward()
             opt.step()
+            if not all(bool(torch.isfinite(p).all()) for p in net.parameters()):
+                _diverged("a weight is not finite after the step", epoch, step, opt)
             losses.append(float(loss.detach()))
             steps_log.append({"epoch": epoch, "step": epoch * per_epoch + step,
                               "loss": losses[-1], "lr": opt.param_groups[0]["lr"]})
             if bar is not None:
                 bar.set_postfix(epoch=epoch, loss=f"{losses[-1]:.4f}")
                 bar.update(1)
-        sched.step()
+        if not steps_log:
+            raise ParameterError(
+                f"no training window kept {_min_events(cfg)} events in a {shape[0]}x"
+                f"{shape[1]} crop in epoch {epoch}: the recordings are too short or sparse "
+                "for --window-events, or --crop is too small; nothing was written")
+        with warnings.catch_warnings():
+            # an epoch without a step still decays the rate (the schedule is per epoch)
+            warnings.filterwarnings("ignore", "Detected call of `lr_scheduler.step",
+                                    UserWarning)
+            sched.step()
         if not losses:
             warnings.warn(EvmotionWarning(
                 f"epoch {epoch}: no training window kept enough events in its "
@@ -415,8 +452,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
         _plot(out / "loss.png", steps_log, epochs_log)
         summary = row
         if log is not None:
-            log(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                         for k, v in row.items()))
+            log(_epoch_line(row))
     if bar is not None:
         bar.close()
     return summary
