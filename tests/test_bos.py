@@ -502,3 +502,25 @@ def test_float32_level_matches_float64(case, param):
         (t64, *_), g64 = lev64.value_grad(theta, normalized)
         assert t32 == pytest.approx(t64, rel=1e-5)
         np.testing.assert_allclose(g32, g64, rtol=1e-3, atol=1e-4 * np.abs(g64).max())
+
+
+def test_on_empty_skip_carries_the_warm_start(case):
+    from evmotion.errors import EvmotionWarning
+
+    ev, f0, f1, d, C = case
+    kw = dict(t0_us=0, t1_us=DT_US, scales=(32, 16), iterations=10, contrast_threshold=C)
+    prev = estimate_bos(ev, f0, **kw)
+    late = dict(kw, t0_us=DT_US, t1_us=2 * DT_US)  # after every event of the case
+    none = EventArray(x=[0, 1], y=[0, 1], t=[0, 3 * DT_US], p=[1, 0], sensor_size=ev.sensor_size)
+    with pytest.raises(EmptyWindowError):
+        estimate_bos(none, f0, **late)
+    with pytest.warns(EvmotionWarning, match="no valid pixel"):
+        skipped = estimate_bos(none, f0, init=prev, on_empty="skip", **late)
+    assert not skipped.valid.any() and np.isnan(skipped.objective)
+    for a, b in zip(skipped.params, prev.params, strict=True):
+        np.testing.assert_array_equal(a, b)
+    with pytest.warns(EvmotionWarning):
+        cold = estimate_bos(none, f0, on_empty="skip", **late)
+    # no warm start to carry: NaN parameters, which the next interval takes as none
+    assert all(np.isnan(a).all() for a in cold.params)
+    np.testing.assert_array_equal(estimate_bos(ev, f0, init=cold, **kw).flow, prev.flow)

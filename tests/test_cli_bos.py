@@ -289,3 +289,25 @@ def test_interrupted_bos_resumes_to_the_uninterrupted_output(tmp_path, capsys, m
     with h5py.File(full) as a, h5py.File(out) as b:
         for name in ("flow", "valid", "q", "p", "t0", "t1", "window/objective", "warm/scale3"):
             np.testing.assert_array_equal(a[name][()], b[name][()], err_msg=name)
+
+
+def test_an_interval_without_events_is_written_invalid(tmp_path, capsys):
+    """Still air over one frame interval (no event in it) used to abort the whole run;
+    it is written with no valid pixel, a warning names it, the next interval starts from
+    the one before, and --json stays strict JSON (NaN objective as null)."""
+    scene = plume_scene(tmp_path / "scene", intervals=4)
+    quiet = _copy(scene, tmp_path, "quiet")
+    lines = (scene / "events.txt").read_text().splitlines()
+    t0, t1 = 2 / 120, 3 / 120
+    (quiet / "events.txt").write_text("".join(ln + "\n" for ln in lines
+                                              if not t0 <= float(ln.split()[0]) < t1))
+    out = tmp_path / "q.h5"
+    rc, text, err = _run(["bos", quiet, "--out", out, "--json"], capsys)
+    assert rc == 0, err
+    assert "no events in the window [16667, 25000) us" in err and err.count("\n") == 1
+    summary = json.loads(text, parse_constant=lambda c: pytest.fail(f"not JSON: {c}"))
+    assert [w["valid_fraction"] > 0 for w in summary["windows"]] == [True, True, False, True]
+    assert summary["windows"][2]["objective"] is None
+    bos = read_bos_h5(out)
+    assert not bos.flow.valid[2].any() and np.isnan(bos.flow.flow[2]).all()
+    assert np.isfinite(bos.flow.flow[3][bos.flow.valid[3]]).all()

@@ -78,19 +78,26 @@ def build_parser(commands: tuple[str, ...] = COMMANDS):
 
 
 def print_json(obj) -> None:
-    """Machine-readable summary on stdout (numpy scalars and arrays converted)."""
+    """Machine-readable summary on stdout (numpy scalars and arrays converted; NaN and
+    infinities, which strict JSON has not, written as null)."""
     import json
 
     import numpy as np
 
-    def default(o):
-        if isinstance(o, np.generic):
-            return o.item()
+    def plain(o):
+        if isinstance(o, dict):
+            return {k: plain(v) for k, v in o.items()}
+        if isinstance(o, (list, tuple)):
+            return [plain(v) for v in o]
         if isinstance(o, np.ndarray):
-            return o.tolist()
-        return str(o)
+            return plain(o.tolist())
+        if isinstance(o, np.generic):
+            o = o.item()
+        if isinstance(o, float) and not np.isfinite(o):
+            return None
+        return o
 
-    json.dump(obj, sys.stdout, indent=2, default=default)
+    json.dump(plain(obj), sys.stdout, indent=2, default=str, allow_nan=False)
     sys.stdout.write("\n")
 
 

@@ -71,13 +71,20 @@ from __future__ import annotations
 
 import functools
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from evmotion.errors import EmptyWindowError, EventDataError, EvmotionError, ParameterError
+from evmotion.errors import (
+    EmptyWindowError,
+    EventDataError,
+    EvmotionError,
+    EvmotionWarning,
+    ParameterError,
+)
 from evmotion.events import EventArray
 from evmotion.methods.bos_kernels import (
     LevelBuffers,
@@ -812,6 +819,7 @@ def estimate_bos(
     init: BosResult | Sequence[np.ndarray] | None = None,
     dtype=np.float32,
     increment: np.ndarray | None = None,
+    on_empty: str = "raise",
     **kwargs,
 ) -> BosResult:
     """Flow of a schlieren scene from the events of one frame interval and its first frame.
@@ -844,6 +852,12 @@ def estimate_bos(
         of how much the events' quantized measurement costs against the same solver fed
         a finer one (``benchmarks/bench_bos_accuracy.py``, part ``diagnosis``). The events
         still give the TV weight; C is then neither needed nor estimated.
+    on_empty : {"raise", "skip"}
+        A window without events in the ROI (still air, or a sensor that saw nothing):
+        raise EmptyWindowError, or ``"skip"``: return a result that estimates nothing
+        (``valid`` all False, zero flow, ``objective`` NaN) and carries ``init``'s
+        parameters on as the next interval's warm start, with an EvmotionWarning (the
+        sequence functions skip).
 
     Returns
     -------
@@ -854,7 +868,7 @@ def estimate_bos(
     EventDataError
         Frames and events differ in size or do not overlap in time.
     EmptyWindowError
-        No event in the window inside the ROI.
+        No event in the window inside the ROI (``on_empty="raise"``).
     ParameterError
         Bad option, ROI outside the sensor, textureless frame, scale term without C.
 
@@ -874,14 +888,26 @@ def estimate_bos(
     for name, t in (("t0_us", t0_us), ("t1_us", t1_us)):
         if not _is_int(t):
             raise ParameterError(f"{name} must be a whole number of us, got {t!r}")
-    r, logf, meas, weight, c, log_units = _prepare(events, frame, t0_us, t1_us, frame_next,
-                                                   roi, o, increment)
+    if on_empty not in ("raise", "skip"):
+        raise ParameterError(f"on_empty must be 'raise' or 'skip', got {on_empty!r}")
+    try:
+        r, logf, meas, weight, c, log_units = _prepare(events, frame, t0_us, t1_us,
+                                                       frame_next, roi, o, increment)
+    except EmptyWindowError as exc:
+        if on_empty == "raise":
+            raise
+        warnings.warn(EvmotionWarning(f"{exc}: the interval is written with no valid pixel"),
+                      stacklevel=2)
+        return _nothing_measured(events.sensor_size, _check_roi(roi, events.sensor_size),
+                                 int(t0_us), int(t1_us), o, init)
     if o.param == "poisson" and min(-(-r[3] // o.scales[-1]), -(-r[2] // o.scales[-1])) < 2:
         raise ParameterError(f"the finest patches ({o.scales[-1]} px) cover the {r[2]}x{r[3]} "
                              "px ROI in one row or column: q on it has no gradient (flow 0); "
                              "use smaller scales or a larger ROI")
     normalized = o.data_term == "normalized"
     warm = None if init is None else list(init.params if isinstance(init, BosResult) else init)
+    if warm is not None and all(np.isnan(np.asarray(a, dtype=np.float64)).all() for a in warm):
+        warm = None  # an interval before without events and no warm start (_nothing_measured)
     if warm is not None and len(warm) != len(o.scales):
         raise ParameterError(f"init has {len(warm)} scales, expected {len(o.scales)}")
     rng = np.random.default_rng(o.seed)
@@ -991,6 +1017,24 @@ def potential_from_flow(flow: np.ndarray) -> np.ndarray:
     return idctn(coef, type=2, norm="ortho").astype(np.float32)
 
 
+def _nothing_measured(sensor, r, t0_us: int, t1_us: int, o: BosOptions, init) -> BosResult:
+    """The result of a window without events: nothing valid, and the warm start it was
+    given passed on (NaN parameters where there was none: the next starts cold)."""
+    h, w = sensor
+    if init is None:
+        params = [np.full(shape, np.nan) for shape in o.param_shapes(r[3], r[2])]
+    else:
+        params = [np.array(a, dtype=np.float64)
+                  for a in (init.params if isinstance(init, BosResult) else init)]
+    n = len(o.scales)
+    return BosResult(flow=np.zeros((h, w, 2), np.float32), q=np.zeros((h, w), np.float32),
+                     p=np.zeros((h, w, 2), np.float32), valid=np.zeros((h, w), bool), roi=r,
+                     t0_us=t0_us, t1_us=t1_us, contrast_threshold=o.contrast_threshold,
+                     calibrated=False, scale=1.0, objective=float("nan"),
+                     losses=[np.zeros(0)] * n, timings_s=[0.0] * n, iterations=[0] * n,
+                     params=params, options=o)
+
+
 def _options(options, kwargs: dict) -> BosOptions:
     """``options`` (default :class:`BosOptions`) with the fields in ``kwargs`` replaced."""
     if options is not None and not isinstance(options, BosOptions):
@@ -1024,7 +1068,7 @@ def _solve_chunk(events: EventArray, t0_us: int, t1_us: int, *, frames, times, r
     for i in idx:
         res = estimate_bos(events, frames[i], t0_us=int(times[i]), t1_us=int(times[i + 1]),
                            frame_next=frames[i + 1], roi=roi, options=options,
-                           init=prev if warm_start else None)
+                           init=prev if warm_start else None, on_empty="skip")
         out.append(res)
         report_progress()
         prev = res

@@ -155,7 +155,7 @@ def _in_order(data, frames, times, c, prev, progress, options):
                           unit="interval", disable=None if progress else True):
         prev = estimate_bos(data.events, frames[k], t0_us=int(times[k]),
                             t1_us=int(times[k + 1]), frame_next=frames[k + 1], roi=data.roi,
-                            init=prev, contrast_threshold=c, **options)
+                            init=prev, contrast_threshold=c, on_empty="skip", **options)
         yield prev
 
 
