@@ -311,3 +311,15 @@ def test_an_interval_without_events_is_written_invalid(tmp_path, capsys):
     bos = read_bos_h5(out)
     assert not bos.flow.valid[2].any() and np.isnan(bos.flow.flow[2]).all()
     assert np.isfinite(bos.flow.flow[3][bos.flow.valid[3]]).all()
+
+
+def test_frame_times_in_another_unit(scene, tmp_path, capsys):
+    """images.txt written in us (or ms) made one interval of 8333 s holding every event,
+    solved and written without a word."""
+    for unit, scale in (("us", 1e6), ("ms", 1e3)):
+        d = _copy(scene, tmp_path, unit)
+        lines = (d / "images.txt").read_text().splitlines()
+        (d / "images.txt").write_text("".join(f"{float(t) * scale:.6f} {f}\n"
+                                              for t, f in (ln.split() for ln in lines)))
+        _one_line_error(["bos", d, "--out", tmp_path / "x.h5"], capsys, "images.txt",
+                        "apart but the events span", "another unit")
