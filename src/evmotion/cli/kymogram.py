@@ -242,8 +242,10 @@ def run(args) -> int:
                                   int(info["t_last_us"]), "no events")
         line = _line(args, events.sensor_size)
         rate = 1200.0 if args.rate is None else args.rate
-        t0 = int(events.t[0]) if args.t0 is None else args.t0
-        t1 = int(events.t[-1]) + 1 if args.t1 is None else args.t1
+        # the time axis spans the events: a --t0 / --t1 beyond them (0.5 s on a recording
+        # whose clock starts at 1.6e9 s) only adds empty bins, petabytes of them
+        t0 = int(events.t[0]) if args.t0 is None else max(args.t0, int(events.t[0]))
+        t1 = int(events.t[-1]) + 1 if args.t1 is None else min(args.t1, int(events.t[-1]) + 1)
         kymos = [kymogram_from_events(events, line, rate, t0_us=t0, t1_us=t1,
                                       signed=args.signed)]
         if args.compare_rate is not None:

@@ -553,16 +553,21 @@ def px_per_s_to_m_per_s(v_px_s, focal_mm: float, distance_m: float, pixel_um: fl
 def _lag_spectra(d: np.ndarray, n_lags: int, edges: np.ndarray) -> np.ndarray:
     # per time block b and lag: sum over t in b of conj(F[t]) F[t + lag], F the zero-padded
     # spectra of the rows (no wrap-around); the inverse FFT of a sum is the autocorrelation
-    # sum_t,s d[t, s] d[t + lag, s + shift] over those t
+    # sum_t,s d[t, s] d[t + lag, s + shift] over those t. Along time each block's sum is a
+    # cross-correlation, taken by FFT over the block and the n_lags rows after it: a loop
+    # over the lags cost n_lags x n_t rows (14.6 s for 2831 bins x 346 px)
+    from scipy import fft as sfft
+
     n_t, n_s = d.shape
     f = np.fft.rfft(d, n=2 * n_s, axis=1)
     out = np.zeros((edges.size - 1, n_lags, f.shape[1]), dtype=complex)
-    for lag in range(n_lags):
-        prod = np.conj(f[:n_t - lag]) * f[lag:]
-        csum = np.concatenate([np.zeros((1, f.shape[1]), complex), np.cumsum(prod, axis=0)])
-        lo = np.minimum(edges[:-1], n_t - lag)
-        hi = np.minimum(edges[1:], n_t - lag)
-        out[:, lag] = csum[hi] - csum[lo]
+    for b, (lo, hi) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        if hi <= lo:
+            continue
+        n = sfft.next_fast_len(int(hi - lo) + n_lags - 1)
+        head = sfft.fft(f[lo:hi], n=n, axis=0)
+        tail = sfft.fft(f[lo:min(hi + n_lags - 1, n_t)], n=n, axis=0)
+        out[b] = sfft.ifft(np.conj(head) * tail, axis=0)[:n_lags]
     return out
 
 
