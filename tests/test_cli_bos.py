@@ -169,6 +169,10 @@ def test_bad_recordings(scene, tmp_path, capsys):
     d = _copy(scene, tmp_path, "noframes")
     (d / "images.txt").unlink()
     _one_line_error(["bos", d, "--out", out], capsys, "no frames", "--frames")
+    # frames but no events: said so (was "format not recognised")
+    d = _copy(scene, tmp_path, "noevents")
+    (d / "events.txt").unlink()
+    _one_line_error(["bos", d, "--out", out], capsys, "noevents", "no events.txt")
     # a corrupt frame names the frame, not 'no frames'
     d = _copy(scene, tmp_path, "corrupt")
     f = d / "images" / "frame_00000001.png"
@@ -193,7 +197,8 @@ def test_bad_recordings(scene, tmp_path, capsys):
         with open(f, "wb") as fh:
             png.Writer(width=40, height=48, greyscale=True).write(
                 fh, np.full((48, 40), 128, np.uint8))
-    _one_line_error(["bos", d, "--out", out], capsys, "textureless")
+    _one_line_error(["bos", d, "--out", out, "--contrast-threshold", "0.2"], capsys,
+                    "frame interval [0, 8333) us", "textureless")
     assert not out.exists()
 
 
@@ -279,6 +284,9 @@ def test_interrupted_bos_resumes_to_the_uninterrupted_output(tmp_path, capsys, m
     _one_line_error([*argv[:-1], "20", "--out", out, "--resume"], capsys, "--resume",
                     "iterations")
     _one_line_error([*argv, "--out", out, "--resume", "--workers", "2"], capsys, "--workers 1")
+    # another selection is named as such (C, estimated on it, used to be blamed)
+    _one_line_error([*argv, "--out", out, "--resume", "--max-intervals", "3"], capsys,
+                    "frame_intervals")
     assert part.exists()
     calls.clear()
     stop_at[0] = 0

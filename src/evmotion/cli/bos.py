@@ -156,6 +156,10 @@ def run(args) -> int:
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
                  "seed": args.seed, "source": data.source,
                  "iterations": np.asarray(options.iterations_per_scale(), np.int64),
+                 # the selection before C, which is estimated on it: a --resume with other
+                 # --t0 / --t1 / --max-intervals is named as such
+                 "frame_intervals": np.asarray([data.intervals[0, 0], len(data.intervals)],
+                                               np.int64),
                  "contrast_threshold": -1.0 if c is None else c,
                  "contrast_threshold_source": c_source}
         with scheduler_client(args.scheduler) as client:
@@ -195,7 +199,7 @@ def run(args) -> int:
                     "seconds": seconds})
     else:
         resumed = sum(1 for r in rows if r.get("resumed"))
-        note = f", {resumed} kept from {out.name}.part" if resumed else ""
+        note = f", {resumed} kept from the interrupted run" if resumed else ""
         print(f"{len(rows)} frame intervals -> {out} ({seconds:.1f} s{note})")
     return 0
 

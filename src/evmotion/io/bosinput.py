@@ -167,6 +167,10 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         bad = int(np.argmax(np.diff(times) <= 0))
         raise FormatError(src, f"frame times are not increasing: frame {bad + 1} at "
                           f"{times[bad + 1]} us after {times[bad]} us")
+    if fmt is None and rec.is_dir() and (rec / "images.txt").is_file() \
+            and not (rec / "events.txt").is_file():
+        raise FormatError(rec, "an ECD-style folder with frames (images.txt) but no "
+                          "events.txt: BOS needs the events too")
     events = read_events(rec, **({"format": fmt} if fmt else {}))
     if not len(events):
         raise EmptyWindowError(f"{rec}: no events")
@@ -193,7 +197,10 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
                                 max_intervals=max_intervals)
     if not len(intervals):
         span = f" within --t0 {t0} / --t1 {t1} us" if t0 is not None or t1 is not None else ""
-        raise ParameterError(f"no frame interval overlaps the events' time span "
-                             f"[{t_first}, {t_last}] us{span}")
+        raise ParameterError(f"no frame interval [t_i, t_i+1) overlaps the events' time span "
+                             f"[{t_first}, {t_last}] us{span} (an interval must lie wholly "
+                             "within --t0 / --t1)" if span else
+                             f"no frame interval overlaps the events' time span "
+                             f"[{t_first}, {t_last}] us")
     return BosInput(events=events, frames=images, frame_times=times, intervals=intervals,
                     roi=roi, source=str(rec))

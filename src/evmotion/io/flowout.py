@@ -323,10 +323,11 @@ class H5FlowOutput(FlowOutput):
                             extras=dict(extras or {}))
         self.extras = self.w.extras
         old = dict(self.w.f.attrs)
+        made = self.path if self.reopened_final else self.part
         for key, value in attrs.items():
             if self.w.n_done and key in old and not _same(old[key], value):
                 self.abort()
-                raise ParameterError(f"cannot resume (--resume): {self.part} was made with "
+                raise ParameterError(f"cannot resume (--resume): {made} was made with "
                                      f"{key}={json_value(old[key])!r}, this run has "
                                      f"{json_value(value)!r}; repeat the options of the first "
                                      "run, or start again")

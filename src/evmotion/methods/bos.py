@@ -396,14 +396,21 @@ def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
 def _check_roi(roi, sensor):
     h, w = sensor
     if roi is None:
-        return 0, 0, w, h
+        roi = (0, 0, w, h)
     try:
-        x, y, rw, rh = (int(v) for v in roi)
-    except (TypeError, ValueError) as exc:
-        raise ParameterError(f"roi must be (x, y, w, h) in px, got {roi!r}") from exc
-    if rw < 16 or rh < 16 or x < 0 or y < 0 or x + rw > w or y + rh > h:
+        vals = list(roi)
+    except TypeError:
+        vals = []
+    if len(vals) != 4 or not all(_is_int(v) for v in vals):
+        raise ParameterError(f"roi must be (x, y, w, h), whole px, got {roi!r}")
+    x, y, rw, rh = (int(v) for v in vals)
+    if rw < 16 or rh < 16:
+        what = "the sensor" if (x, y, rw, rh) == (0, 0, w, h) else "roi"
+        raise ParameterError(f"{what} ({rw}x{rh} px) is smaller than the 16x16 px that BOS "
+                             "needs")
+    if x < 0 or y < 0 or x + rw > w or y + rh > h:
         raise ParameterError(f"roi (x={x}, y={y}, w={rw}, h={rh}) must lie inside the "
-                             f"{w}x{h} sensor and be at least 16x16 px")
+                             f"{w}x{h} sensor")
     return x, y, rw, rh
 
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evmotion.errors import EvmotionError, ParameterError
+from evmotion.errors import EventDataError, EvmotionError, ParameterError
 from evmotion.io.bosinput import BosInput
 from evmotion.io.flowfiles import FLOW_COMPRESSION
 from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_support
@@ -153,9 +153,18 @@ def _in_order(data, frames, times, c, prev, progress, options):
 
     for k in progress_bar(range(len(times) - 1), total=len(times) - 1, desc="bos",
                           unit="interval", disable=None if progress else True):
-        prev = estimate_bos(data.events, frames[k], t0_us=int(times[k]),
-                            t1_us=int(times[k + 1]), frame_next=frames[k + 1], roi=data.roi,
-                            init=prev, contrast_threshold=c, on_empty="skip", **options)
+        t0, t1 = int(times[k]), int(times[k + 1])
+        try:
+            prev = estimate_bos(data.events, frames[k], t0_us=t0, t1_us=t1,
+                                frame_next=frames[k + 1], roi=data.roi, init=prev,
+                                contrast_threshold=c, on_empty="skip", **options)
+        except (ParameterError, EventDataError) as exc:
+            # which interval of a long recording (a dark or blurred frame, say), unless
+            # the message names it or is about the ROI, the same for every interval
+            text = str(exc)
+            if f"[{t0}, {t1})" in text or text.startswith(("roi ", "the sensor ")):
+                raise
+            raise type(exc)(f"frame interval [{t0}, {t1}) us: {text}") from None
         yield prev
 
 
