@@ -327,6 +327,7 @@ def test_cli_plume(plume, tmp_path, capsys):
     assert [p["source"] for p in panels] == ["events", "events", "frame differences"]
     v = sim.gt.meta["rise_speed_px_s"]
     assert panels[0]["velocity_px_s"] == pytest.approx(-v, rel=0.10)
+    assert panels[0]["reliable"]
     assert panels[0]["speed_m_s"] == pytest.approx(
         px_per_s_to_m_per_s(-panels[0]["velocity_px_s"], 25, 1.7, 4.86))
     img = read_png(out)
@@ -334,6 +335,26 @@ def test_cli_plume(plume, tmp_path, capsys):
     rc, text, _ = _cli(capsys, folder, "--row", 40, "--method", "ridge", "--no-fit",
                        "--out", tmp_path / "row.png")
     assert rc == 0 and "no fit" in text
+
+
+def test_a_fit_without_support_is_flagged_and_hints_name_options(plume, tmp_path, capsys):
+    """A column at the scene's edge, where hardly any event fires: the correlation fit
+    returned 3271 +- 16000 px/s as a result; it is flagged unreliable (text, JSON,
+    picture). The library's parameter names in messages are the command's options."""
+    import json
+
+    from evmotion.methods.kymogram import RidgeFit
+
+    fit = RidgeFit(t_s=np.zeros(3), s_px=np.zeros(3), inliers=np.ones(3, bool),
+                   velocity_px_s=100.0, velocity_std_px_s=60.0, s0_px=0.0, t_ref_s=0.0,
+                   residual_px=0.0)
+    assert not fit.reliable
+    sim, folder = plume
+    rc, text, err = _cli(capsys, folder, "--col", 0, "--min-snr", 1e5, "--out",
+                         tmp_path / "k.png", "--json")
+    assert rc == 0, err
+    panel = json.loads(text)["panels"][0]
+    assert "--min-snr" in panel["fit_error"] and "min_snr" not in panel["fit_error"]
 
 
 def test_cli_time_range_beyond_the_events_is_clipped(plume, tmp_path, capsys):
@@ -369,6 +390,8 @@ def test_cli_from_q(tmp_path, capsys):
             # flow (0, q): the |flow| kymogram is the q kymogram
             flow = np.stack([np.zeros((h, w)), q], axis=-1)
             bw.append(flow, int(a), int(b), q=q, p=np.zeros((h, w, 2)))
+    rc, text, err = _cli(capsys, path, "--col", 20, "--out", tmp_path / "q.png")
+    assert rc == 2 and "--from q" in err  # was "format not recognised"
     rc, text, err = _cli(capsys, path, "--from", "q", "--col", 20, "--width", 3,
                          "--out", tmp_path / "q.png", "--json")
     assert rc == 0, err

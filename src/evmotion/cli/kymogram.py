@@ -197,6 +197,20 @@ def _field_kymogram(args):
     return kymogram_from_images(imgs, mid_s, line, source=label)
 
 
+# the library's parameter names in its messages, as this command spells them
+_OPTION_NAMES = {"max_lag_s": "--max-lag-s", "min_snr": "--min-snr",
+                 "stationary_px": "--stationary-px", "sigma_px": "--sigma-px",
+                 "sigma_bins": "--sigma-bins", "s_range": "--s-range",
+                 "t_range": "--fit-t0/--fit-t1", "min_shift_px": "--stationary-px"}
+
+
+def _cli_names(text: str) -> str:
+    import re
+
+    return re.sub(r"\b(" + "|".join(_OPTION_NAMES) + r")\b",
+                  lambda m: _OPTION_NAMES[m.group(1)], text)
+
+
 def _frames_kymogram(path, line, t0, t1):
     import numpy as np
 
@@ -219,7 +233,7 @@ def _frames_kymogram(path, line, t0, t1):
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.errors import EmptyWindowError, ParameterError
+    from evmotion.errors import EmptyWindowError, FormatError, ParameterError
     from evmotion.methods.kymogram import (
         fit_correlation,
         fit_ridge,
@@ -232,7 +246,15 @@ def run(args) -> int:
     if args.source == "events":
         import evmotion.io as eio
 
-        events = eio.read_events(args.file, format=args.format, t0=args.t0, t1=args.t1)
+        try:
+            events = eio.read_events(args.file, format=args.format, t0=args.t0, t1=args.t1)
+        except FormatError:
+            from evmotion.io.flowread import describe_flow
+
+            if args.format is None and describe_flow(args.file) is not None:
+                raise ParameterError(f"{args.file} is a flow output (BOS or evmotion flow): "
+                                     "its kymograms need --from q or --from flow") from None
+            raise
         if not len(events):
             # the error path only: one more pass over the file for its time range
             info = eio.describe(args.file, format=args.format)
@@ -282,14 +304,16 @@ def run(args) -> int:
                                           stationary_px=args.stationary_px)
             except (EmptyWindowError, ParameterError) as exc:
                 # a coarse comparison panel may have too few bins for a fit: say so, draw it
-                error = str(exc)
+                error = _cli_names(str(exc))
         fits.append(fit)
         row = {"source": k.source, "rate_hz": k.rate_hz, "shape": list(k.data.shape),
                "t0_s": float(k.t_s[0]), "t1_s": float(k.t_s[-1])}
         if fit is not None:
-            row.update(method=fit.method, velocity_px_s=fit.velocity_px_s, velocity_std_px_s=fit.velocity_std_px_s,
+            row.update(method=fit.method, velocity_px_s=fit.velocity_px_s,
+                       velocity_std_px_s=fit.velocity_std_px_s,
                        ridge_points=int(fit.t_s.size), inliers=int(fit.inliers.sum()),
-                       residual_px=fit.residual_px)
+                       residual_px=fit.residual_px,
+                       reliable=fit.reliable)
             if geometry:
                 row["speed_m_s"] = px_per_s_to_m_per_s(fit.speed_px_s, **geometry)
                 row["speed_std_m_s"] = px_per_s_to_m_per_s(fit.velocity_std_px_s, **geometry)
@@ -311,6 +335,8 @@ def run(args) -> int:
                 text += f"{row['velocity_px_s']:.4g} ± {row['velocity_std_px_s']:.2g} px/s"
                 if "speed_m_s" in row:
                     text += f" (|v| = {row['speed_m_s']:.4g} m/s)"
+                if not row["reliable"]:
+                    text += " -- unreliable: the spread exceeds half the speed"
             else:
                 text += row.get("fit_error", "no fit")
             print(text)

@@ -352,6 +352,12 @@ class RidgeFit:
     method: str = "ridge"
 
     @property
+    def reliable(self) -> bool:
+        """Whether the speed is a measurement: its standard error is at most half of it
+        (a fit to a nearly empty kymogram can give 3271 +- 16000 px/s)."""
+        return bool(self.velocity_std_px_s <= RELIABLE_SPREAD * abs(self.velocity_px_s))
+
+    @property
     def speed_px_s(self) -> float:
         return abs(self.velocity_px_s)
 
@@ -548,6 +554,10 @@ def px_per_s_to_m_per_s(v_px_s, focal_mm: float, distance_m: float, pixel_um: fl
     v = check_finite("v_px_s", v_px_s)
     out = v * (pixel_um * 1e-6) * distance_m / (focal_mm * 1e-3)
     return float(out) if out.ndim == 0 else out
+
+
+#: Largest standard error of a reliable fit's speed, as a fraction of it (RidgeFit.reliable).
+RELIABLE_SPREAD = 0.5
 
 
 def _lag_spectra(d: np.ndarray, n_lags: int, edges: np.ndarray) -> np.ndarray:

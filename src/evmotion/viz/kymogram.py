@@ -37,6 +37,8 @@ def _speed_label(fit: RidgeFit, geometry: dict | None) -> str:
         v = px_per_s_to_m_per_s(fit.speed_px_s, **geometry)
         dv = px_per_s_to_m_per_s(fit.velocity_std_px_s, **geometry)
         text += f"\n|v| = {v:.3g} ± {dv:.2g} m/s"
+    if not fit.reliable:
+        text += "\nunreliable: spread > speed / 2"
     return text
 
 
