@@ -297,3 +297,33 @@ def test_a_diverged_checkpoint_is_refused(tmp_path, window):
         estimate_flow_dnn(window.events, path)
     with pytest.raises(ParameterError, match="non-finite flow"):
         estimate_flow(window.events, init="dnn", checkpoint=path)
+
+
+def test_multicm_init_dnn_records_its_checkpoint(tmp_path, window, tiny_ckpt, capsys):
+    from evmotion.io import write_events
+    from evmotion.io.flowread import read_flow
+
+    rec = tmp_path / "win.h5"
+    write_events(rec, window.events)
+    out = tmp_path / "f.h5"
+    assert main(["flow", str(rec), "--method", "multicm", "--init", "dnn", "--checkpoint",
+                 str(tiny_ckpt), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert read_flow(out).attrs["checkpoint"] == str(tiny_ckpt)
+
+
+def test_video_without_its_extra_fails_before_the_work(tmp_path, window, capsys):
+    """The missing 'video' extra was reported after every window was computed and its
+    files written."""
+    import importlib.util
+
+    from evmotion.io import write_events
+
+    if importlib.util.find_spec("imageio_ffmpeg") is not None:
+        pytest.skip("the 'video' extra is installed")
+    rec = tmp_path / "win.h5"
+    write_events(rec, window.events)
+    assert main(["flow", str(rec), "--method", "dnn", "--out", str(tmp_path / "x_{:05d}.flo"),
+                 "--video", str(tmp_path / "v.mp4")]) == 2
+    assert "imageio-ffmpeg" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["win.h5"]

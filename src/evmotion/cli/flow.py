@@ -38,6 +38,7 @@ from evmotion.cli.options import (
     add_time_arguments,
     check_time_order,
     existing_input,
+    int_range,
     positive_float,
     positive_int,
     reject_unused,
@@ -110,7 +111,8 @@ def add_parser(sub) -> None:
                         "--out flow_{:05d}.flo")
     p.add_argument("--format", default=None, help="input format (default: detect)")
     win = p.add_mutually_exclusive_group()
-    win.add_argument("--window-events", type=positive_int(), default=None, metavar="N")
+    win.add_argument("--window-events", type=int_range(10), default=None, metavar="N",
+                     help="events per window (>= 10; default 30000)")
     win.add_argument("--window-us", type=positive_int(unit="µs"), default=None, metavar="T")
     win.add_argument("--window-gt", type=existing_input, default=None, metavar="GT",
                      help="ground-truth file whose timestamps define the windows")
@@ -127,7 +129,7 @@ def add_parser(sub) -> None:
                         "(default: each picture's own maximum, said so in its legend)")
     p.add_argument("--video", default=None, metavar="MP4", type=writable_output((".mp4",)),
                    help="video of the windows: events | warped IWE | flow (needs the 'video' "
-                        "extra; multicm only)")
+                        "extra; multicm and dnn)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     add_camera_arguments(p.add_argument_group(
         "camera (the flow is estimated on the undistorted grid when the calibration has "

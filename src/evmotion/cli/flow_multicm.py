@@ -194,6 +194,10 @@ def run(args) -> int:
 
     out = Path(args.out)
     t_start = time.perf_counter()
+    if args.video:
+        from evmotion.viz.video import require_video
+
+        require_video()  # before the windows are computed and written, not after
     fmt = getattr(args, "format", None)
     events = read_events(args.file, **({"format": fmt} if fmt else {}))
     events, _, grid = undistort_for(args, events)
@@ -220,6 +224,7 @@ def run(args) -> int:
             attrs["time_bins"] = args.time_bins
         if args.init == "dnn":
             kwargs.update(init="dnn", checkpoint=args.checkpoint)
+            attrs["checkpoint"] = str(args.checkpoint or "shipped")
 
             def estimate(ev, init):
                 return estimate_flow(ev, **kwargs)

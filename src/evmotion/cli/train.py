@@ -27,7 +27,7 @@ from evmotion.cli.options import (
     positive_int,
     writable_folder,
 )
-from evmotion.methods.dnn import MAX_CROP_SIDE, MAX_WIDTH
+from evmotion.methods.dnn import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 
 EXAMPLES = """examples:
   evmotion train --sim-windows 4 --epochs 1 --out runs/sim      # a smoke run (64 and 10 for real)
@@ -43,11 +43,11 @@ def _size(text: str) -> tuple[int, int]:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected HxW, got {text!r}") from None
-    if not (0 < h <= MAX_CROP_SIDE and 0 < w <= MAX_CROP_SIDE) or h % PAD_MULTIPLE \
-            or w % PAD_MULTIPLE:
+    if not (MIN_CROP_SIDE <= h <= MAX_CROP_SIDE and MIN_CROP_SIDE <= w <= MAX_CROP_SIDE) \
+            or h % PAD_MULTIPLE or w % PAD_MULTIPLE:
         raise argparse.ArgumentTypeError(f"each side must be a multiple of {PAD_MULTIPLE} "
-                                         f"(the network halves it 4 times) from {PAD_MULTIPLE} "
-                                         f"to {MAX_CROP_SIDE} px, got {text!r}")
+                                         f"(the network halves it 4 times) from "
+                                         f"{MIN_CROP_SIDE} to {MAX_CROP_SIDE} px, got {text!r}")
     return h, w
 
 

@@ -24,7 +24,7 @@ from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_sensor_size
+from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "read_imu", "describe", "ImuSamples", "FORMAT"]
@@ -74,7 +74,7 @@ def _parse_header(path: Path, sensor_size):
                 break
         else:
             raise FormatError(path, f"unknown AEChip '{name or '(none)'}' in the header",
-                              "pass sensor_size=(height, width)")
+                              SENSOR_SIZE_HINT)
     return lines, offset, sensor_size
 
 

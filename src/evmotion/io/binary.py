@@ -11,7 +11,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io.guard import check_sensor_size
+from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size
 from evmotion.jitcache import lazy_njit
 
 # Decoded blocks are 4-tuples of contiguous arrays (x uint16, y uint16, t int64, p uint8).
@@ -232,7 +232,7 @@ def geometry_from_header(lines: list[str], path: Path, default: tuple[int, int] 
     if width is None or height is None:
         if default is None:
             raise FormatError(path, "the header gives no sensor geometry",
-                              "pass sensor_size=(height, width)")
+                              SENSOR_SIZE_HINT)
         return default
     return check_sensor_size(path, (height, width), "header geometry")
 

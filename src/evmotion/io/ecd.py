@@ -23,7 +23,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_sensor_size, time_to_us
+from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size, time_to_us
 from evmotion.io.pngfile import read_png
 from evmotion.jitcache import lazy_njit
 from evmotion.utils import atomic_path
@@ -293,7 +293,7 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
             bad = int(np.argmax((x >= w) | (y >= h)))
             raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]} lies outside the "
                               f"sensor {w}x{h} (W x H, {size_src})",
-                              "pass sensor_size=(height, width)")
+                              SENSOR_SIZE_HINT)
         if p.min() < -1 or p.max() > 1:
             bad = int(np.argmax((p < -1) | (p > 1)))
             raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1")

@@ -63,6 +63,10 @@ def check_sensor_size(path, size, field: str = "sensor size") -> tuple[int, int]
     return h, w
 
 
+#: What to do when a file does not give its sensor size: in Python and on the command line.
+SENSOR_SIZE_HINT = ("pass sensor_size=(height, width), or rewrite the file with "
+                    "`evmotion convert --sensor-size H W`")
+
 # 2^62 us is 146,000 years: any timestamp beyond it is a corrupt field, and int64 holds it
 MAX_ABS_TIME_US = 1 << 62
 

@@ -16,10 +16,12 @@ from evmotion.events import EventArray, Window
 from evmotion.utils import atomic_path
 from evmotion.viz.flowpic import flow_panel, sequence_max_speed
 
-__all__ = ["flow_video_frames", "write_flow_video", "write_video"]
+__all__ = ["flow_video_frames", "require_video", "write_flow_video", "write_video"]
 
 
-def _imageio_ffmpeg():
+def require_video():
+    """The ``imageio_ffmpeg`` module, or MissingDependencyError naming the extra: for
+    commands to check before their work, not after it."""
     try:
         import imageio_ffmpeg
     except ImportError:
@@ -63,7 +65,7 @@ def write_video(frames_rgb: Iterable[np.ndarray], path: str | os.PathLike,
         raise ParameterError(f"fps must be finite and > 0, got {fps}")
     if not 0 <= quality <= 10:
         raise ParameterError(f"quality must be in 0..10, got {quality}")
-    iio = _imageio_ffmpeg()
+    iio = require_video()
     frames = iter(frames_rgb)
     first = next(frames, None)
     if first is None:
@@ -151,6 +153,6 @@ def write_flow_video(path: str | os.PathLike, events: EventArray, windows: Seque
     --------
     >>> write_flow_video("flow.mp4", events, windows, [r.flow for r in results])  # doctest: +SKIP
     """
-    _imageio_ffmpeg()  # fail before rendering anything
+    require_video()  # fail before rendering anything
     frames = flow_video_frames(events, windows, flows, valids=valids, max_speed=max_speed)
     return write_video(frames, path, fps)

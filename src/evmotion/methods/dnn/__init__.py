@@ -20,6 +20,9 @@ MAX_WIDTH = 4.0
 #: Largest side of a training crop, px (the simulator renders each training window at the
 #: crop's size, in float64 frames: ``evmotion simulate`` allows 4096 px too).
 MAX_CROP_SIDE = 4096
+#: Smallest side of a training crop, px: a 16-px crop is 1 px at the network's coarsest
+#: level and rarely keeps the events a training window needs.
+MIN_CROP_SIDE = 32
 
 
 def estimate_flow_dnn(*args, **kwargs):
@@ -29,4 +32,4 @@ def estimate_flow_dnn(*args, **kwargs):
     return fn(*args, **kwargs)
 
 
-__all__ = ["MAX_CROP_SIDE", "MAX_WIDTH", "estimate_flow_dnn", "voxel_grid"]
+__all__ = ["MAX_CROP_SIDE", "MAX_WIDTH", "MIN_CROP_SIDE", "estimate_flow_dnn", "voxel_grid"]

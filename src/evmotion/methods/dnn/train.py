@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from evmotion.errors import EvmotionWarning, ParameterError
-from evmotion.methods.dnn import MAX_CROP_SIDE, MAX_WIDTH
+from evmotion.methods.dnn import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 from evmotion.methods.dnn.data import (
     TrainWindow,
     crop_window,
@@ -114,9 +114,10 @@ class TrainConfig:
         if self.sim_windows == 0 and not self.recordings:
             raise ParameterError("no training data: give recordings or sim_windows > 0 "
                                  "(--sim-windows)")
-        if any(not 0 < c <= MAX_CROP_SIDE or c % PAD_MULTIPLE for c in self.crop):
-            raise ParameterError(f"crop sides must be multiples of {PAD_MULTIPLE} up to "
-                                 f"{MAX_CROP_SIDE} px, got {tuple(self.crop)}")
+        if any(not MIN_CROP_SIDE <= c <= MAX_CROP_SIDE or c % PAD_MULTIPLE for c in self.crop):
+            raise ParameterError(f"crop sides must be multiples of {PAD_MULTIPLE} from "
+                                 f"{MIN_CROP_SIDE} to {MAX_CROP_SIDE} px, got "
+                                 f"{tuple(self.crop)}")
         if not 0 < self.lr_decay <= 1 or not 0 < self.width <= MAX_WIDTH or self.threads < 1:
             raise ParameterError(f"need 0 < lr_decay <= 1, 0 < width <= {MAX_WIDTH:g}, "
                                  f"threads >= 1; got {self.lr_decay}, {self.width}, "
