@@ -14,7 +14,8 @@ True
 
 from __future__ import annotations
 
-__all__ = ["OBJECTIVE_NAMES", "WARP_NAMES", "WEIGHT_DATASETS"]
+__all__ = ["MAX_CROP_SIDE", "MAX_WIDTH", "MIN_CROP_SIDE", "OBJECTIVE_NAMES", "WARP_NAMES",
+           "WEIGHT_DATASETS"]
 
 #: Warps :func:`evmotion.core.warps.make_warp` builds (keys of
 #: :data:`evmotion.core.warps.WARPS`).
@@ -28,3 +29,13 @@ OBJECTIVE_NAMES: tuple[str, ...] = ("variance", "gradient_magnitude", "avg_times
 #: Data sets with thesis regularizer weights, Sec. 3.6.1 (keys of
 #: :data:`evmotion.core.collapse.DEFAULT_WEIGHTS`).
 WEIGHT_DATASETS: tuple[str, ...] = ("mvsec", "dsec", "ecd")
+
+#: The widest network :class:`evmotion.methods.dnn.network.EVFlowNet` builds: 4x the
+#: paper's EV-FlowNet (~225 M parameters); a wider one only exhausts the memory.
+MAX_WIDTH = 4.0
+#: Largest side of a training crop, px (the simulator renders each training window at the
+#: crop's size, in float64 frames: ``evmotion simulate`` allows 4096 px too).
+MAX_CROP_SIDE = 4096
+#: Smallest side of a training crop, px: a 16-px crop is 1 px at the network's coarsest
+#: level and rarely keeps the events a training window needs.
+MIN_CROP_SIDE = 32

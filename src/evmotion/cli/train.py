@@ -18,6 +18,7 @@ import argparse
 import os
 import sys
 
+from evmotion.catalog import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 from evmotion.cli.options import (
     existing_input,
     finite_float,
@@ -27,7 +28,6 @@ from evmotion.cli.options import (
     positive_int,
     writable_folder,
 )
-from evmotion.methods.dnn import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 
 EXAMPLES = """examples:
   evmotion train --sim-windows 4 --epochs 1 --out runs/sim      # a smoke run (64 and 10 for real)

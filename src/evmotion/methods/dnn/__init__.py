@@ -12,17 +12,8 @@ torch is an optional dependency (``pip install evmotion[dnn]``); only the submod
 that need it import it.
 """
 
+from evmotion.catalog import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 from evmotion.methods.dnn.voxel import voxel_grid
-
-#: The widest network evmotion builds: 4x the paper's EV-FlowNet (~225 M parameters); a
-#: wider one only exhausts the memory.
-MAX_WIDTH = 4.0
-#: Largest side of a training crop, px (the simulator renders each training window at the
-#: crop's size, in float64 frames: ``evmotion simulate`` allows 4096 px too).
-MAX_CROP_SIDE = 4096
-#: Smallest side of a training crop, px: a 16-px crop is 1 px at the network's coarsest
-#: level and rarely keeps the events a training window needs.
-MIN_CROP_SIDE = 32
 
 
 def estimate_flow_dnn(*args, **kwargs):
