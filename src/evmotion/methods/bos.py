@@ -1082,41 +1082,10 @@ def _solve_chunk(events: EventArray, t0_us: int, t1_us: int, *, frames, times, r
     return out
 
 
-def estimate_bos_sequence(
-    events: EventArray,
-    frames: Sequence[np.ndarray] | np.ndarray,
-    times_us: Sequence[int],
-    *,
-    roi: Sequence[int] | None = None,
-    options: BosOptions | None = None,
-    warm_start: bool = True,
-    workers: int = 1,
-    chunks: int | None = None,
-    progress: bool = False,
-    scheduler=None,
-    init: BosResult | Sequence[np.ndarray] | None = None,
-    **kwargs,
-) -> list[BosResult]:
-    """:func:`estimate_bos` over every frame interval ``[times[i], times[i+1])``.
-
-    Each interval uses ``frames[i]`` and ``frames[i+1]`` (the latter for C). With
-    ``warm_start`` an interval starts from the previous interval's solution (the first
-    from ``init``, if given), so the intervals of one chunk run in order; ``chunks``
-    contiguous chunks (default ``workers``) run in parallel with
-    :func:`evmotion.parallel.imap_windows` (each later chunk's first interval starts cold).
-    With ``scheduler`` (a Dask scheduler address or ``distributed.Client``) the chunks run
-    on that cluster instead of local processes. :func:`iter_bos_sequence` gives the
-    results as the chunks finish.
-
-    Returns
-    -------
-    list of BosResult
-        One per interval, in time order.
-
-    Raises
-    ------
-    EvmotionError
-        The first interval's error, re-raised with its window (see :func:`estimate_bos`).
+def estimate_bos_sequence(events: EventArray, frames, times_us: Sequence[int],
+                          **kwargs) -> list[BosResult]:
+    """:func:`iter_bos_sequence`'s results as a list, once every interval is solved (the
+    same arguments).
 
     Examples
     --------
@@ -1128,9 +1097,7 @@ def estimate_bos_sequence(
     >>> [(r.t0_us, r.t1_us) for r in res]
     [(0, 4500), (4500, 9000)]
     """
-    return list(iter_bos_sequence(events, frames, times_us, roi=roi, options=options,
-                                  warm_start=warm_start, workers=workers, chunks=chunks,
-                                  progress=progress, scheduler=scheduler, init=init, **kwargs))
+    return list(iter_bos_sequence(events, frames, times_us, **kwargs))
 
 
 def iter_bos_sequence(
@@ -1148,20 +1115,38 @@ def iter_bos_sequence(
     init: BosResult | Sequence[np.ndarray] | None = None,
     **kwargs,
 ) -> Iterator[BosResult]:
-    """:func:`estimate_bos_sequence`, yielding each interval's result in time order as
-    soon as its chunk is done (one interval at a time with one chunk), so that a caller
-    writes them while the later ones are computed. The arguments are checked here, the
+    """:func:`estimate_bos` over every frame interval ``[times[i], times[i+1])``.
+
+    Each interval uses ``frames[i]`` and ``frames[i+1]`` (the latter for C). With
+    ``warm_start`` an interval starts from the previous interval's solution (the first
+    from ``init``, if given), so the intervals of one chunk run in order; ``chunks``
+    contiguous chunks (default ``workers``) run in parallel with
+    :func:`evmotion.parallel.imap_windows` (each later chunk's first interval starts cold).
+    With ``scheduler`` (a Dask scheduler address or ``distributed.Client``) the chunks run
+    on that cluster instead of local processes. The results come in time order as soon as
+    their chunk is done (one interval at a time with one chunk), so that a caller writes
+    them while the later ones are computed; the arguments are checked at the call, the
     work starts at the first ``next()``.
+
+    Returns
+    -------
+    iterator of BosResult
+        One per interval, in time order.
+
+    Raises
+    ------
+    EvmotionError
+        The first interval's error, re-raised with its window (see :func:`estimate_bos`).
 
     Examples
     --------
-    >>> rng = np.random.default_rng(0)
-    >>> frames = (rng.random((3, 32, 32)) * 200 + 20).astype(np.uint8)
-    >>> ev = EventArray(x=rng.integers(0, 32, 900), y=rng.integers(0, 32, 900),
-    ...                 t=np.arange(900) * 10, p=rng.integers(0, 2, 900), sensor_size=(32, 32))
-    >>> it = iter_bos_sequence(ev, frames, [0, 4500, 9000], scales=(16, 8), iterations=10)
-    >>> next(it).t1_us
-    4500
+    >>> rng = np.random.default_rng(1)
+    >>> ev = EventArray(x=rng.integers(0, 32, 600), y=rng.integers(0, 32, 600),
+    ...                 t=np.sort(rng.integers(0, 9000, 600)), p=rng.integers(0, 2, 600),
+    ...                 sensor_size=(32, 32))
+    >>> images = rng.integers(20, 220, (3, 32, 32)).astype(np.uint8)
+    >>> [r.t1_us for r in iter_bos_sequence(ev, images, [0, 4500, 9000], scales=(16, 8))]
+    [4500, 9000]
     """
     from evmotion.parallel import imap_windows
 
