@@ -289,6 +289,8 @@ CASES = [
                                    "{dir}/ss"], ["--params", "schlieren"]),
     ("simulate-schlieren-out-file", ["simulate", "schlieren", "--out", "{dir}/afile"],
      ["--out", "afile", "it is a file"]),
+    ("simulate-schlieren-h5", ["simulate", "schlieren", "--out", "{dir}/s.h5"],
+     ["--out", "s.h5", "writes a folder"]),
     ("simulate-fps-rotation", ["simulate", "rotation", "--fps", "60", "--out", "{dir}/s.h5"],
      ["--fps 60.0", "rotation"]),
     ("train-crop-not-16", ["train", "--crop", "100x240", "--out", "{dir}/tr"],
@@ -699,3 +701,22 @@ def test_out_of_memory_is_one_line(rec, capsys, monkeypatch):
     monkeypatch.setattr(info, "run", huge)
     rc, err = _run(["info", rec["rec"]], capsys)
     assert rc == 1 and err.count("\n") == 1 and "out of memory" in err, err
+
+
+def test_a_window_without_duration_is_named(tmp_path, capsys):
+    """All of a window's events at one time: the error named no window of the recording."""
+    from evmotion.events import EventArray, concatenate
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(0)
+
+    def win(t0, n=2000, dt=1):
+        return EventArray(x=rng.integers(0, 40, n), y=rng.integers(0, 30, n),
+                          t=t0 + np.arange(n) * dt, p=rng.integers(0, 2, n),
+                          sensor_size=(30, 40))
+
+    rec = tmp_path / "stuck.h5"
+    write_events(rec, concatenate([win(0), win(5000, dt=0), win(6000)]))
+    rc, err = _run(["flow", str(rec), "--method", "multicm", "--window-events", "2000",
+                    "--out", str(tmp_path / "f.h5")], capsys)
+    _assert_one_line(rc, err, "stuck.h5", "window 1 [5000,", "spanning 0 us")

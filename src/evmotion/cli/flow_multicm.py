@@ -35,7 +35,7 @@ from evmotion.cli.options import (
     positive_int,
     reject_unused,
 )
-from evmotion.errors import ParameterError
+from evmotion.errors import EmptyWindowError, ParameterError
 
 DEFAULT_WINDOW_EVENTS = 30_000
 
@@ -294,7 +294,12 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
                     init = sink.stored_flow(i)  # only an .h5 output resumes
                 rows.append({"t0_us": w.t0, "t1_us": w.t1, "resumed": True})
                 continue
-            res = estimate(events.window(w), init) if todo is None else next(todo)
+            try:
+                res = estimate(events.window(w), init) if todo is None else next(todo)
+            except EmptyWindowError as exc:
+                # which window of the recording (all its events at one time, say)
+                raise EmptyWindowError(f"{args.file}: window {i} [{w.t0}, {w.t1}) us: "
+                                       f"{exc}") from None
             init = res
             sink.append(res.flow, w.t0, w.t1, valid=_valid(res))
             after(i, res)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from evmotion.cli.options import (
     check_folder,
@@ -223,6 +224,12 @@ def run_schlieren(args) -> int:
     if args.event_bandwidth == "intensity" and args.event_photons is None:
         raise ParameterError("--event-bandwidth intensity needs --event-photons (the "
                              "photoreceptor's time constant depends on the light)")
+    if Path(args.out).suffix.lower() in (".h5", ".hdf5", ".txt", ".npz", ".raw", ".dat",
+                                          ".aedat4"):
+        # a schlieren recording is a folder (events.txt, images/, schlieren_gt.h5)
+        raise ParameterError(f"--out {args.out}: 'simulate schlieren' writes a folder "
+                             "(events.txt, images.txt, images/, schlieren_gt.h5); give a "
+                             "folder name, e.g. plume/")
     check_folder(args.out, "--out")
     opts = SchlierenOptions(magnitude_px=_or(args.magnitude, 1.0),
                             dot_density=_or(args.dot_density, 0.06),
