@@ -423,6 +423,10 @@ def test_sequence_warm_start_and_chunks():
                                                                    first.params], **kw))
     np.testing.assert_array_equal(cont[0].flow, seq[1].flow)
     np.testing.assert_array_equal(cont[0].q, warm.q)
+    bad = [np.array(a) for a in first.params]
+    bad[0][0, 0, 0] = np.nan
+    with pytest.raises(ParameterError, match="NaN parameters"):  # was an all-NaN result
+        estimate_bos(ev, f1, t0_us=DT_US, t1_us=2 * DT_US, init=bad, **kw)
     with pytest.raises(ParameterError, match="init has 1 scales"):
         estimate_bos(ev, f1, t0_us=DT_US, t1_us=2 * DT_US, init=first.params[:1], **kw)
 

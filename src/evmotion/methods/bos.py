@@ -913,8 +913,13 @@ def estimate_bos(
                              "use smaller scales or a larger ROI")
     normalized = o.data_term == "normalized"
     warm = None if init is None else list(init.params if isinstance(init, BosResult) else init)
-    if warm is not None and all(np.isnan(np.asarray(a, dtype=np.float64)).all() for a in warm):
-        warm = None  # an interval before without events and no warm start (_nothing_measured)
+    if warm is not None:
+        nan = [np.isnan(np.asarray(a, dtype=np.float64)) for a in warm]
+        if all(m.all() for m in nan):
+            warm = None  # an interval before without events and no warm start
+        elif any(m.any() for m in nan):
+            raise ParameterError("init has NaN parameters (a diverged or corrupt warm start): "
+                                 "every value NaN means none, or none at all")
     if warm is not None and len(warm) != len(o.scales):
         raise ParameterError(f"init has {len(warm)} scales, expected {len(o.scales)}")
     rng = np.random.default_rng(o.seed)
