@@ -22,8 +22,8 @@ from evmotion.io.bosfiles import roi_mask
 
 __all__ = ["BosInput", "frame_intervals", "load_bos_input"]
 
-# frames further apart than this many times the events' whole span: a unit slip (frame
-# times in us or ms read as seconds), not a recording
+# frames more than a second and this many times the events' whole span apart: a unit slip
+# (frame times in us or ms read as seconds), not a recording
 UNIT_SLIP = 100
 
 
@@ -188,7 +188,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         raise ParameterError(f"frames span [{times[0]}, {times[-1]}] us but the events "
                              f"[{t_first}, {t_last}] us: they do not overlap in time")
     spacing = float(np.median(np.diff(times)))
-    if spacing > UNIT_SLIP * max(t_last - t_first, 1):
+    if spacing > max(UNIT_SLIP * (t_last - t_first), 1e6):
         where = src / "images.txt" if (src / "images.txt").is_file() else src
         raise FormatError(where, f"frames are {spacing * 1e-6:g} s apart but the events span "
                           f"{(t_last - t_first) * 1e-6:g} s: frame times in another unit? "
