@@ -331,3 +331,13 @@ def test_frame_times_in_another_unit(scene, tmp_path, capsys):
                                               for t, f in (ln.split() for ln in lines)))
         _one_line_error(["bos", d, "--out", tmp_path / "x.h5"], capsys, "images.txt",
                         "apart but the events span", "another unit")
+    # ordinary frames (8.3 ms apart) around events that span 20 us are no unit slip
+    from evmotion.io import read_events
+    from evmotion.io.bosinput import load_bos_input
+
+    d = _copy(scene, tmp_path, "sparse")
+    ev = read_events(scene)
+    keep = [ln for ln, t in zip((scene / "events.txt").read_text().splitlines(), ev.t,
+                                strict=True) if 9000 <= t < 9020]
+    (d / "events.txt").write_text("".join(ln + "\n" for ln in keep))
+    assert len(load_bos_input(d).intervals) == 1
