@@ -14,8 +14,8 @@ True
 
 from __future__ import annotations
 
-__all__ = ["MAX_CROP_SIDE", "MAX_WIDTH", "MIN_CROP_SIDE", "OBJECTIVE_NAMES", "WARP_NAMES",
-           "WEIGHT_DATASETS"]
+__all__ = ["MAX_CROP_SIDE", "MAX_SIM_SIDE", "MAX_WIDTH", "MIN_CROP_SIDE", "OBJECTIVE_NAMES",
+           "WARP_NAMES", "WEIGHT_DATASETS"]
 
 #: Warps :func:`evmotion.core.warps.make_warp` builds (keys of
 #: :data:`evmotion.core.warps.WARPS`).
@@ -33,9 +33,12 @@ WEIGHT_DATASETS: tuple[str, ...] = ("mvsec", "dsec", "ecd")
 #: The widest network :class:`evmotion.methods.dnn.network.EVFlowNet` builds: 4x the
 #: paper's EV-FlowNet (~225 M parameters); a wider one only exhausts the memory.
 MAX_WIDTH = 4.0
-#: Largest side of a training crop, px (the simulator renders each training window at the
-#: crop's size, in float64 frames: ``evmotion simulate`` allows 4096 px too).
-MAX_CROP_SIDE = 4096
+#: Largest side of a simulated sensor, px (``evmotion simulate --size``): the simulator
+#: renders float64 frames of this size.
+MAX_SIM_SIDE = 4096
+#: Largest side of a training crop, px: the simulator renders each training window at the
+#: crop's size.
+MAX_CROP_SIDE = MAX_SIM_SIDE
 #: Smallest side of a training crop, px: a 16-px crop is 1 px at the network's coarsest
 #: level and rarely keeps the events a training window needs.
 MIN_CROP_SIDE = 32

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
+from evmotion.catalog import MAX_SIM_SIDE
 from evmotion.cli.options import (
     check_folder,
     check_output,
@@ -27,9 +27,6 @@ from evmotion.cli.options import (
     positive_float,
     reject_unused,
 )
-
-# sides of a simulated sensor: the simulator renders float64 frames of this size
-MAX_SIDE = 4096
 
 EXAMPLES = """examples:
   evmotion simulate rotation --out sim.h5
@@ -61,9 +58,9 @@ def add_parser(sub) -> None:
                    help="seconds (default 0.1)")
     p.add_argument("--size", default=None, type=parse_size,
                    help="HxW pixels (default 260x346, DAVIS346; schlieren 720x640)")
-    p.add_argument("--height", type=int_range(1, MAX_SIDE, unit="px"), default=None,
+    p.add_argument("--height", type=int_range(1, MAX_SIM_SIDE, unit="px"), default=None,
                    help="pixels (overrides --size)")
-    p.add_argument("--width", type=int_range(1, MAX_SIDE, unit="px"), default=None,
+    p.add_argument("--width", type=int_range(1, MAX_SIM_SIDE, unit="px"), default=None,
                    help="pixels (overrides --size)")
     p.add_argument("--seed", type=int_range(0), default=0)
     p.add_argument("--texture", default=None, choices=["dots", "shapes", "noise", "checker"],
@@ -164,13 +161,13 @@ def parse_params(items: list[str]) -> dict:
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    """``"260x346"`` -> ``(260, 346)``; an ``argparse`` type (sides 1 to :data:`MAX_SIDE`)."""
+    """``"260x346"`` -> ``(260, 346)``; an ``argparse`` type (sides 1 to :data:`MAX_SIM_SIDE`)."""
     try:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"must be HxW (e.g. 260x346), got {text!r}") from None
-    if not (1 <= h <= MAX_SIDE and 1 <= w <= MAX_SIDE):
-        raise argparse.ArgumentTypeError(f"sides must be 1 to {MAX_SIDE} px, got {text!r}")
+    if not (1 <= h <= MAX_SIM_SIDE and 1 <= w <= MAX_SIM_SIDE):
+        raise argparse.ArgumentTypeError(f"sides must be 1 to {MAX_SIM_SIDE} px, got {text!r}")
     return h, w
 
 
@@ -199,7 +196,8 @@ def _or(value, default):
 
 def run_schlieren(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.errors import ParameterError
+    from evmotion.errors import FormatError, ParameterError
+    from evmotion.io import format_for_output
     from evmotion.sim.options import SchlierenOptions
     from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
 
@@ -224,8 +222,11 @@ def run_schlieren(args) -> int:
     if args.event_bandwidth == "intensity" and args.event_photons is None:
         raise ParameterError("--event-bandwidth intensity needs --event-photons (the "
                              "photoreceptor's time constant depends on the light)")
-    if Path(args.out).suffix.lower() in (".h5", ".hdf5", ".txt", ".npz", ".raw", ".dat",
-                                          ".aedat4"):
+    try:
+        event_file = format_for_output(args.out)
+    except FormatError:
+        event_file = None
+    if event_file is not None:
         # a schlieren recording is a folder (events.txt, images/, schlieren_gt.h5)
         raise ParameterError(f"--out {args.out}: 'simulate schlieren' writes a folder "
                              "(events.txt, images.txt, images/, schlieren_gt.h5); give a "
