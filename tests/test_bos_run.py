@@ -36,6 +36,16 @@ def test_max_intervals_must_be_a_count(data):
             load_bos_input(data.source, max_intervals=bad)
 
 
+def test_iter_bos_input_checks_start_and_workers(data):
+    from evmotion.errors import ParameterError
+    from evmotion.methods.bos_run import iter_bos_input
+
+    for kw in ({"start": float("nan")}, {"start": 1.5}, {"start": -1}, {"workers": 0},
+               {"workers": float("nan")}, {"workers": 1.5}):
+        with pytest.raises(ParameterError, match=next(iter(kw))):
+            iter_bos_input(data, 0.2, **kw)
+
+
 def test_sequence_c_is_the_median_of_the_intervals(data):
     c, est = sequence_contrast_threshold(data, samples=3)
     picks = [0, 2, 3]  # round(linspace(0, 3, 3))

@@ -355,6 +355,10 @@ def test_a_fit_without_support_is_flagged_and_hints_name_options(plume, tmp_path
     assert rc == 0, err
     panel = json.loads(text)["panels"][0]
     assert "--min-snr" in panel["fit_error"] and "min_snr" not in panel["fit_error"]
+    from evmotion.cli.kymogram import _cli_names
+
+    assert _cli_names("a longer max_lag_s or a lower min_shift_px / stationary_px") == \
+        "a longer --max-lag-s or a lower --stationary-px"
 
 
 def test_cli_time_range_beyond_the_events_is_clipped(plume, tmp_path, capsys):

@@ -198,16 +198,20 @@ def _field_kymogram(args):
 
 
 # the library's parameter names in its messages, as this command spells them
-_OPTION_NAMES = {"max_lag_s": "--max-lag-s", "min_snr": "--min-snr",
-                 "stationary_px": "--stationary-px", "sigma_px": "--sigma-px",
-                 "sigma_bins": "--sigma-bins", "s_range": "--s-range",
-                 "t_range": "--fit-t0/--fit-t1", "min_shift_px": "--stationary-px"}
+# (min_shift_px has no option: "a lower min_shift_px / stationary_px" reads as the one
+# option that sets both)
+_OPTION_NAMES = {"min_shift_px / stationary_px": "--stationary-px", "max_lag_s": "--max-lag-s",
+                 "min_snr": "--min-snr", "stationary_px": "--stationary-px",
+                 "sigma_px": "--sigma-px", "sigma_bins": "--sigma-bins",
+                 "s_range": "--s-range", "t_range": "--fit-t0/--fit-t1"}
 
 
 def _cli_names(text: str) -> str:
     import re
 
-    return re.sub(r"\b(" + "|".join(_OPTION_NAMES) + r")\b",
+    # longest names first, so that a phrase is replaced before the words in it
+    names = sorted(_OPTION_NAMES, key=len, reverse=True)
+    return re.sub(r"\b(" + "|".join(map(re.escape, names)) + r")\b",
                   lambda m: _OPTION_NAMES[m.group(1)], text)
 
 

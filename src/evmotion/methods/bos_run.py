@@ -129,17 +129,18 @@ def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: i
     """
     from evmotion.methods.bos import iter_bos_sequence
 
-    if int(workers) != workers or workers < 1:
-        raise ParameterError(f"workers must be an integer >= 1, got {workers!r}")
-    if not 0 <= int(start) <= len(data.intervals):
-        raise ParameterError(f"start must be in [0, {len(data.intervals)}], got {start!r}")
-    if int(start) == len(data.intervals):
+    n = len(data.intervals)
+    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or \
+            not 0 <= start <= n:
+        raise ParameterError(f"start must be an integer in [0, {n}], got {start!r}")
+    if start == n:
         return iter(())
-    sel = data.intervals[int(start):]
+    sel = data.intervals[start:]
     first, last = int(sel[0, 0]), int(sel[-1, 0]) + 1
     frames = data.frames[first:last + 1]
     times = data.frame_times[first:last + 1]
-    if workers > 1 or scheduler is not None:
+    if workers != 1 or scheduler is not None:
+        # (iter_bos_sequence checks workers: 0, 1.5 or NaN are refused there)
         return iter_bos_sequence(data.events, frames, times, roi=data.roi, workers=workers,
                                  scheduler=scheduler, progress=progress, init=init,
                                  contrast_threshold=contrast_threshold, **options)
