@@ -3,7 +3,8 @@
 Same windows, outputs (``.h5`` / ``.npz`` / ``.flo`` / ``.png``), pictures, ``--resume`` and ``--json``
 as ``--method multicm`` (whose runner it uses); each window goes through the network at
 ``--input-scales`` (the sharpest kept), each averaged with the time-reversed window's
-negated flow unless ``--no-time-reversal`` (no warm start needed). ``--checkpoint`` picks
+negated flow unless ``--no-time-reversal`` (no warm start needed), at the gain whose warp
+is sharpest unless ``--no-rescale``. ``--checkpoint`` picks
 weights from ``evmotion train`` (default: the shipped checkpoint); multicm's ``--init dnn``
 reads it too.
 """
@@ -19,6 +20,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--threads": ("threads", 1),
     "--input-scales": ("input_scales", (1, 2, 4)),
     "--no-time-reversal": ("no_time_reversal", False),
+    "--no-rescale": ("no_rescale", False),
 }
 
 
@@ -37,6 +39,9 @@ def add_arguments(group) -> None:
     group.add_argument("--no-time-reversal", action="store_true", default=None,
                        help="dnn: do not average with the negated flow of the time-reversed "
                             "window (one pass per scale instead of two)")
+    group.add_argument("--no-rescale", action="store_true", default=None,
+                       help="dnn: keep the network's magnitude (default: the gain among "
+                            "0.7-1.6 whose warp is sharpest)")
 
 
 def check_args(args) -> None:
@@ -59,7 +64,7 @@ def estimator(args):
     torch.set_num_threads(args.threads)
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
              "source": str(args.file), "input_scales": list(args.input_scales),
-             "time_reversal": not args.no_time_reversal}
+             "time_reversal": not args.no_time_reversal, "rescale": not args.no_rescale}
 
     # the IWEs and the focus serve only the pictures (--png-dir) and the JSON rows; the
     # flow files do not hold them, and their numba kernels would cost a first run seconds
@@ -69,7 +74,8 @@ def estimator(args):
     def estimate(events, init):
         return estimate_flow_dnn(events, args.checkpoint, device=args.device,
                                  with_iwes=with_iwes, input_scales=tuple(args.input_scales),
-                                 time_reversal=not args.no_time_reversal)
+                                 time_reversal=not args.no_time_reversal,
+                                 rescale=not args.no_rescale)
 
     return estimate, attrs
 

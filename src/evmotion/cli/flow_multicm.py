@@ -147,6 +147,8 @@ def _row(r, w) -> dict:
            "valid_fraction": float(valid.mean())}
     if "input_scale" in r.meta:  # the network's: the input scale whose flow was kept
         row["input_scale"] = int(r.meta["input_scale"])
+    if "gain" in r.meta:  # the network's: the magnitude its flow was kept at
+        row["gain"] = float(r.meta["gain"])
     return row
 
 
