@@ -196,8 +196,8 @@ def speed(quick: bool) -> list[dict]:
                          "voxel_cpu_s": times[voxel]["cpu_s"],
                          "max_diff_px": diff if name == "predict_displacement" else 0.0})
         rows.append({"section": "speed", "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
-                     "method": "estimate_flow_dnn (input scales 1, 2, 4, sharpest kept; "
-                               "no IWEs)", **times["estimate_flow_dnn"]})
+                     "method": "estimate_flow_dnn (defaults: input scales 1, 2, 4, "
+                               "time reversal, gain; no IWEs)", **times["estimate_flow_dnn"]})
     # one training step, batch 8 at 346x260 (padded 352x272), simulated windows
     from evmotion.methods.dnn.data import sim_window
 
