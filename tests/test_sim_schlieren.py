@@ -368,6 +368,25 @@ def test_12_bit_frames_keep_their_intensity_scale(tmp_path):
     np.testing.assert_allclose(fr.as_float(), sim.frames.as_float(), atol=1 / 4095)
 
 
+def test_few_bit_frames_keep_their_intensity_scale_and_stale_frames_go(tmp_path):
+    """Frames of fewer than 8 bits fill the 8-bit PNG's top bits (4-bit white was written
+    as 15 of 255), and a shorter simulation written over a longer one leaves only its
+    own frames."""
+    from evmotion.io.frames import read_frames
+
+    long = simulate_schlieren("plume", sensor_size=(32, 40), duration_s=4 / 120, seed=0)
+    write_schlieren(long, tmp_path / "s")
+    sim = simulate_schlieren("plume", sensor_size=(32, 40), duration_s=1 / 60, seed=0,
+                             bit_depth=4)
+    assert sim.frames.images.max() <= 15
+    (tmp_path / "s" / "images" / "notes.png").write_bytes(b"kept")
+    write_schlieren(sim, tmp_path / "s")
+    fr = read_frames(tmp_path / "s")
+    np.testing.assert_array_equal(fr.images, sim.frames.images << 4)
+    assert sorted(p.name for p in (tmp_path / "s" / "images").iterdir()) == [
+        *(f"frame_{i:08d}.png" for i in range(len(sim.frames.t))), "notes.png"]
+
+
 @pytest.mark.parametrize("kw, match", [
     (dict(scene="smoke"), "unknown schlieren scene"),
     (dict(magnitude_px=0.0), "magnitude_px"),

@@ -825,8 +825,9 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
     """Write a simulated recording as an ECD-style folder.
 
     ``events.txt`` (``t[s] x y p``), ``images.txt`` (``t[s] images/frame_XXXXXXXX.png``),
-    ``images/`` (8-bit PNGs; 16-bit above 8 bits, the samples shifted to the top bits as
-    cameras store 10- and 12-bit frames, so that the full scale stays white) and
+    ``images/`` (8-bit PNGs; 16-bit above 8 bits; the samples shifted to the top bits as
+    cameras store 10- and 12-bit frames, so that the full scale stays white, and below 8
+    bits likewise; frames a longer simulation left there are removed) and
     ``schlieren_gt.h5``: the flow in the project's flow
     layout (:func:`evmotion.io.flowfiles.read_flow_h5` reads it; windows = frame
     intervals) plus datasets ``q``, ``displacement``, ``frame_t``, ``thresholds_on``,
@@ -850,12 +851,18 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
     (out / "images").mkdir(parents=True, exist_ok=True)
     ecd.write(out / "events.txt", sim.events)
     lines = []
-    shift = 16 - sim.frames.bit_depth if sim.frames.images.dtype == np.uint16 else 0
+    shift = 8 * sim.frames.images.dtype.itemsize - sim.frames.bit_depth
     for i, (t, img) in enumerate(zip(sim.frames.t, sim.frames.images, strict=True)):
         name = f"images/frame_{i:08d}.png"
         write_png(out / name, img << shift if shift else img)
         lines.append(f"{t * 1e-6:.6f} {name}\n")
     atomic_write_text(out / "images.txt", "".join(lines))
+    # a longer simulation written here before left more frames: drop them, so the folder
+    # holds what images.txt lists
+    for old in (out / "images").glob("frame_*.png"):
+        stem = old.stem.removeprefix("frame_")
+        if len(stem) == 8 and stem.isdigit() and int(stem) >= len(lines):
+            old.unlink()
     return _write_gt(out / "schlieren_gt.h5", sim.gt)
 
 
