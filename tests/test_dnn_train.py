@@ -83,6 +83,11 @@ def test_resume_refuses_other_settings(tmp_path):
     train(TrainConfig(epochs=1, **TINY), tmp_path)
     with pytest.raises(ParameterError, match="width"):
         train(TrainConfig(epochs=2, **{**TINY, "width": 0.125}), tmp_path, resume=True)
+    # without --resume, a second run would have overwritten the first's checkpoints
+    before = (tmp_path / "last.pt").read_bytes()
+    with pytest.raises(ParameterError, match="already holds a training.*--resume"):
+        train(TrainConfig(epochs=1, **TINY), tmp_path)
+    assert (tmp_path / "last.pt").read_bytes() == before
 
 
 def test_crop_window_keeps_events_inside_and_shifts_them():
@@ -227,7 +232,7 @@ def test_runs_that_cannot_train_say_so(tmp_path):
         with pytest.raises(ParameterError, match="no training data|no training window"):
             train(TrainConfig(**{**TINY, "sim_windows": 0, "recordings": [str(short)]}),
                   tmp_path / "a")
-    assert not (tmp_path / "a" / "model.pt").exists()
+    assert not (tmp_path / "a").exists()  # nor an empty folder
     lines = []
     train(TrainConfig(epochs=1, **TINY), tmp_path / "b")
     summary = train(TrainConfig(epochs=1, **TINY), tmp_path / "b", resume=True,

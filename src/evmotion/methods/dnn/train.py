@@ -304,7 +304,8 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     ----------
     cfg : TrainConfig
     out_dir : path
-        Folder for checkpoints and logs (created).
+        Folder for checkpoints and logs (created once the data has loaded); one holding a
+        training (``last.pt``) is refused unless ``resume``.
     resume : bool
         Continue from ``out_dir/last.pt`` (its configuration must equal ``cfg`` except
         ``epochs``).
@@ -315,7 +316,11 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     """
     cfg.check()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    last = out / "last.pt"
+    if not resume and last.exists():
+        # a fresh run would overwrite that training's checkpoints at its first epoch
+        raise ParameterError(f"--out {out} already holds a training ({last}): add --resume "
+                             "to continue it, or choose another --out")
     _seed_all(cfg)
     device = torch.device(check_device(cfg.device))
     net = EVFlowNet(width=cfg.width, norm=cfg.norm, symmetric=cfg.symmetric)
@@ -327,7 +332,6 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     steps_log: list[dict] = []
     epochs_log: list[dict] = []
     start = 0
-    last = out / "last.pt"
     if resume:
         if not last.is_file():
             raise ParameterError(f"--resume: no checkpoint {last}")
@@ -360,6 +364,8 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     if cfg.val_recordings:
         val += recording_windows(cfg.val_recordings, cfg.window_events,
                                  what="validation recording")
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)  # once the data is known to load
     n_items = cfg.sim_windows + len(rec)
     per_epoch = -(-n_items // cfg.batch_size)
     if cfg.max_steps_per_epoch:
@@ -414,6 +420,8 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                 bar.set_postfix(epoch=epoch, loss=f"{losses[-1]:.4f}")
                 bar.update(1)
         if not steps_log:
+            if created:
+                out.rmdir()
             raise ParameterError(
                 f"no training window kept {_min_events(cfg)} events in a {shape[0]}x"
                 f"{shape[1]} crop in epoch {epoch}: the recordings are too short or sparse "
