@@ -5,6 +5,7 @@ uninterrupted run writes."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -703,11 +704,19 @@ def test_out_of_memory_is_one_line(rec, capsys, monkeypatch):
     assert rc == 1 and err.count("\n") == 1 and "out of memory" in err, err
 
 
-def test_a_window_without_duration_is_named(tmp_path, capsys):
-    """All of a window's events at one time: the error named no window of the recording."""
+@pytest.mark.parametrize("extra", [["--method", "multicm"], ["--method", "multicm",
+                                   "--workers", "2"], ["--method", "dnn"]])
+def test_a_window_without_duration_is_skipped_and_named(tmp_path, capsys, extra):
+    """All of a window's events at one time (a burst): the run used to stop there; the
+    window is now written with no valid pixel, named in one warning line and in the JSON
+    rows, and the windows around it are estimated. A recording of nothing but such windows
+    is still an error."""
     from evmotion.events import EventArray, concatenate
     from evmotion.io import write_events
+    from evmotion.io.flowfiles import read_flow_h5
 
+    if "dnn" in extra:
+        pytest.importorskip("torch")
     rng = np.random.default_rng(0)
 
     def win(t0, n=2000, dt=1):
@@ -717,6 +726,20 @@ def test_a_window_without_duration_is_named(tmp_path, capsys):
 
     rec = tmp_path / "stuck.h5"
     write_events(rec, concatenate([win(0), win(5000, dt=0), win(6000)]))
-    rc, err = _run(["flow", str(rec), "--method", "multicm", "--window-events", "2000",
-                    "--out", str(tmp_path / "f.h5")], capsys)
-    _assert_one_line(rc, err, "stuck.h5", "window 1 [5000,", "spanning 0 us")
+    out = tmp_path / "f.h5"
+    rc = main(["flow", str(rec), *extra, "--window-events", "2000", "--out", str(out),
+               "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    warned = [ln for ln in cap.err.splitlines() if "warning" in ln]
+    assert len(warned) == 1 and "window 1 [5000," in warned[0] and "spanning 0 us" in warned[0]
+    rows = json.loads(cap.out)["windows"]
+    assert [("skipped" in r) for r in rows] == [False, True, False]
+    flow = read_flow_h5(out)
+    assert flow.valid[1].sum() == 0 and flow.valid[0].any() and flow.valid[2].any()
+    only = tmp_path / "only.h5"
+    write_events(only, concatenate([win(0, dt=0), win(10, dt=0)]))
+    rc, err = _run(["flow", str(only), *extra, "--window-events", "2000",
+                    "--out", str(tmp_path / "g.h5")], capsys)
+    assert rc == 2 and "only.h5" in err and "no window could be estimated" in err, err
+    assert not (tmp_path / "g.h5").exists() and not (tmp_path / "g.h5.part").exists()

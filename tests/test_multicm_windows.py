@@ -68,3 +68,31 @@ def test_iter_chunks_streams_the_same_windows_first_chunk_shortest(rec):
     lazy = iter_chunks(ev, wins, workers=0, **KW)  # checked when the work starts
     with pytest.raises(ParameterError, match="workers"):
         next(lazy)
+
+
+def test_on_empty_skip_keeps_every_window_and_warm_starts_past_it(rec):
+    """A window whose events share one time: ``on_empty="raise"`` (default) stops the
+    sequence; ``"skip"`` gives it no valid pixel and a warning, and the window after it
+    starts from the last estimated one, serially and in chunks."""
+    from evmotion.errors import EmptyWindowError, EvmotionWarning
+    from evmotion.events import EventArray
+
+    ev, wins = rec
+    t = ev.t.copy()
+    w = wins[1]
+    t[w.start:w.stop] = t[w.start]
+    t[w.stop:] = np.maximum(t[w.stop:], t[w.start])
+    stuck = EventArray(x=ev.x, y=ev.y, t=t, p=ev.p, sensor_size=ev.sensor_size)
+    with pytest.raises(EmptyWindowError, match="spanning 0 us"):
+        estimate_flow_sequence(stuck, wins, **KW)
+    with pytest.raises(ParameterError, match="on_empty"):
+        estimate_flow_sequence(stuck, wins, on_empty="ignore", **KW)
+    for workers in (1, 2):
+        with pytest.warns(EvmotionWarning, match=r"window 1 \[.* skipped: .*spanning 0 us"):
+            got = estimate_flow_sequence(stuck, wins, on_empty="skip", workers=workers, **KW)
+        assert [("skipped" in r.meta) for r in got] == [False, True, False, False]
+        assert not got[1].valid.any() and np.isnan(got[1].focus)
+    with pytest.warns(EvmotionWarning):
+        serial = estimate_flow_sequence(stuck, wins, on_empty="skip", **KW)
+    after = estimate_flow(stuck.window(wins[2]), init=serial[0], **KW)
+    np.testing.assert_array_equal(serial[2].flow, after.flow)

@@ -171,12 +171,14 @@ def run(args) -> int:
 
 def summary_line(args, seconds: float) -> str:
     """The one line ``flow`` prints on success: windows, events, time and output, from
-    ``args.flow_summary`` (``windows``, ``events``, ``outputs``) that a method's ``run``
-    sets; what a method does not report is left out."""
+    ``args.flow_summary`` (``windows``, ``events``, ``outputs``, ``skipped``) that a
+    method's ``run`` sets; what a method does not report is left out."""
     info = getattr(args, "flow_summary", None) or {}
     parts = [f"{args.method}:"]
     if info.get("windows") is not None:
-        parts.append(f"{info['windows']:,} window{'' if info['windows'] == 1 else 's'},")
+        parts.append(f"{info['windows']:,} window{'' if info['windows'] == 1 else 's'}"
+                     + (f" ({info['skipped']:,} skipped: no flow)," if info.get("skipped")
+                        else ","))
     if info.get("events") is not None:
         parts.append(f"{info['events']:,} events,")
     outputs = info.get("outputs") or [args.out]

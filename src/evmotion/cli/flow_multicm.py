@@ -14,7 +14,9 @@ Output through :func:`evmotion.io.flowout.open_flow_output`, by ``--out`` extens
 the pixels whose flow events support), ``.flo`` or ``.png`` (DSEC) displacement over each
 window with a JSON sidecar of its times (a pattern such as ``flow_{:05d}.flo`` for several
 windows). Each window is written as soon as it is estimated, so memory does not grow with
-the number of windows.
+the number of windows. A window that cannot be estimated (all its events at one time, say)
+is written with no valid pixel, named in a warning and marked ``skipped`` in the ``--json``
+rows; a run in which no window can be is an error.
 """
 
 from __future__ import annotations
@@ -104,7 +106,7 @@ def _windows(args, events):
 
 
 def _estimate_parallel(events, windows, kwargs, workers, stack, keep_iwes=False,
-                       scheduler=None):
+                       scheduler=None, on_empty="raise"):
     """The windows' results in order, from ``workers`` chunks on local processes or, with
     ``scheduler`` (an address), on that Dask cluster (``workers`` None: one chunk per
     worker thread of the cluster), each chunk's as soon as it is done. The scheduler is
@@ -117,7 +119,7 @@ def _estimate_parallel(events, windows, kwargs, workers, stack, keep_iwes=False,
     if workers is None:
         workers = cluster_threads(client)
     return iter_chunks(events, windows, workers=workers, scheduler=client,
-                       keep_iwes=keep_iwes, **kwargs)
+                       keep_iwes=keep_iwes, on_empty=on_empty, **kwargs)
 
 
 def _png(png_dir: Path, i: int, r, max_speed) -> None:
@@ -239,7 +241,13 @@ def run(args) -> int:
     video = [] if args.video else None
 
     def after(i, r) -> None:
-        """Pictures of window ``i``, and its flow kept for the video."""
+        """Pictures of window ``i``, and its flow kept for the video (``r`` None: a
+        skipped window, no picture and nothing valid in the video)."""
+        if r is None:
+            if video is not None:
+                h, w = events.sensor_size
+                video.append((np.zeros((h, w, 2), np.float32), np.zeros((h, w), bool)))
+            return
         if png_dir is not None:
             _png(png_dir, i, r, args.max_speed)
         if video is not None:
@@ -250,13 +258,16 @@ def run(args) -> int:
     with contextlib.ExitStack() as stack:
         if scheduler is not None:
             results = _estimate_parallel(events, windows, kwargs, args.scheduler_chunks, stack,
-                                         keep_iwes=png_dir is not None, scheduler=scheduler)
+                                         keep_iwes=png_dir is not None, scheduler=scheduler,
+                                         on_empty="skip" if len(windows) > 1 else "raise")
         elif workers > 1:
             results = _estimate_parallel(events, windows, kwargs, workers, stack,
-                                         keep_iwes=png_dir is not None)
+                                         keep_iwes=png_dir is not None,
+                                         on_empty="skip" if len(windows) > 1 else "raise")
         rows, written = _run_windows(args, events, windows, attrs, after, progress,
                                      estimate=estimate, results=results)
     args.flow_summary = {"windows": len(rows), "outputs": written,
+                         "skipped": sum("skipped" in r for r in rows),
                          "events": sum(w.count for w in windows)}
     if video is not None:
         from evmotion.viz import write_flow_video
@@ -280,10 +291,11 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
     file are taken from it (the last one as warm start, as stored: float32, exactly the flow
     that was written)."""
     from evmotion.io.flowout import open_flow_output
+    from evmotion.methods.flowresult import estimate_or_skip
 
     sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
                             n_windows=len(windows))
-    rows, init = [], None
+    rows, init, held = [], None, []
     todo = None if results is None else iter(results)
     order = (progress(windows, total=len(windows), desc=attrs["method"]) if todo is None
              else windows)
@@ -297,15 +309,32 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
                 rows.append({"t0_us": w.t0, "t1_us": w.t1, "resumed": True})
                 continue
             try:
-                res = estimate(events.window(w), init) if todo is None else next(todo)
+                res = (next(todo) if todo is not None else estimate_or_skip(
+                    lambda ev, i0=init: estimate(ev, i0), events, w,
+                    "skip" if len(windows) > 1 else "raise"))
             except EmptyWindowError as exc:
                 # which window of the recording (all its events at one time, say)
                 raise EmptyWindowError(f"{args.file}: window {i} [{w.t0}, {w.t1}) us: "
                                        f"{exc}") from None
-            init = res
+            if "skipped" in res.meta:
+                # written once a window is estimated: a run of nothing else writes nothing
+                held.append((res, w))
+                rows.append({"t0_us": w.t0, "t1_us": w.t1, "n_events": res.n_events,
+                             "skipped": res.meta["skipped"], "valid_fraction": 0.0})
+                after(i, None)
+                continue
+            for r, rw in held:
+                sink.append(r.flow, rw.t0, rw.t1, valid=_valid(r))
+            held = []
             sink.append(res.flow, w.t0, w.t1, valid=_valid(res))
+            init = res
             after(i, res)
             rows.append(_row(res, w))
+        if rows and all("skipped" in r for r in rows):
+            raise EmptyWindowError(f"{args.file}: no window could be estimated (the first: "
+                                   f"{rows[0]['skipped']})")
+        for r, rw in held:
+            sink.append(r.flow, rw.t0, rw.t1, valid=_valid(r))
         written = [str(p) for p in sink.close()]
     except BaseException:
         sink.abort()

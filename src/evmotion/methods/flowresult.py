@@ -7,13 +7,17 @@ importing numba and loading its first kernel costs ~0.6 s of a one-window comman
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from evmotion.errors import ParameterError
+from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
+from evmotion.events import EventArray, Window
 
-__all__ = ["SUPPORT_MIN_EVENTS", "SUPPORT_RADIUS", "FlowResult", "event_support"]
+__all__ = ["SUPPORT_MIN_EVENTS", "SUPPORT_RADIUS", "FlowResult", "estimate_or_skip",
+           "event_support", "skipped_window"]
 
 #: Validity mask of the flow: pixels with at least SUPPORT_MIN_EVENTS events within a
 #: (2 SUPPORT_RADIUS + 1)-px square over the window (an isolated noise event supports none).
@@ -114,6 +118,43 @@ class FlowResult:
                                          scheme)
             d = plan.flows[0].transpose(1, 2, 0)
         return d.astype(np.float32)
+
+
+def skipped_window(sensor_size: tuple[int, int], t0_us: int, t1_us: int, n_events: int,
+                   reason: str) -> FlowResult:
+    """The result standing for a window of a sequence that could not be estimated (all its
+    events at one time, say): zero flow, no pixel valid, ``focus`` NaN and
+    ``meta["skipped"]`` the reason, so the outputs keep one entry per window and none of
+    it reads as a measurement.
+
+    Examples
+    --------
+    >>> r = skipped_window((3, 4), 100, 200, 5, "all 5 events at one time")
+    >>> bool(r.valid.any()), r.meta["skipped"]
+    (False, 'all 5 events at one time')
+    """
+    h, w = sensor_size
+    return FlowResult(flow=np.zeros((h, w, 2), np.float32), t0_us=int(t0_us),
+                      t1_us=int(t1_us), t_ref_us=(int(t0_us) + int(t1_us)) // 2, params=(),
+                      iwes={}, focus=float("nan"), history=[], timings={"total_s": 0.0},
+                      time_aware=None, n_bins=0, n_events=int(n_events),
+                      meta={"skipped": str(reason)}, valid=np.zeros((h, w), bool))
+
+
+def estimate_or_skip(estimate: Callable[[EventArray], FlowResult], events: EventArray,
+                     window: Window, on_empty: str = "skip") -> FlowResult:
+    """``estimate(events.window(window))``, or with ``on_empty="skip"`` a
+    :func:`~evmotion.methods.flowresult.skipped_window` and a warning naming the window
+    where it raises :class:`EmptyWindowError`."""
+    ev = events.window(window)
+    try:
+        return estimate(ev)
+    except EmptyWindowError as exc:
+        if on_empty != "skip":
+            raise
+        warnings.warn(EvmotionWarning(f"window {window.index} [{window.t0}, {window.t1}) us "
+                                      f"skipped: {exc}"), stacklevel=2)
+        return skipped_window(events.sensor_size, window.t0, window.t1, len(ev), str(exc))
 
 
 def event_support(x, y, shape, radius: int = 2, min_count: float = 1.0) -> np.ndarray:

@@ -62,6 +62,7 @@ from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
     FlowResult,
+    estimate_or_skip,
     event_support,
 )
 from evmotion.methods.options import merge_options
@@ -817,7 +818,7 @@ def _boxed(value_grad, vmax: float):
 def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
                            warm_start: bool = True, show_progress: bool = False,
                            workers: int = 1, scheduler: Any = None, keep_iwes: bool = True,
-                           **kwargs) -> list[FlowResult]:
+                           on_empty: str = "raise", **kwargs) -> list[FlowResult]:
     """:func:`estimate_flow` over consecutive windows, each warm-started from the previous.
 
     Parameters
@@ -838,16 +839,24 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
     keep_iwes : bool
         With chunks: keep each result's images of warped events (15 MB a window at
         1280x720).
+    on_empty : {"raise", "skip"}
+        A window that cannot be estimated (fewer than 10 events, or all at one time)
+        raises :class:`EmptyWindowError` (default), or with ``"skip"`` gives a
+        :func:`~evmotion.methods.flowresult.skipped_window` (no valid pixel) and an
+        :class:`~evmotion.errors.EvmotionWarning` naming it; the next window starts from
+        the last estimated one.
     **kwargs
         Passed to :func:`estimate_flow` (``init`` seeds the first window).
 
     Returns
     -------
-    list of FlowResult (empty windows raise :class:`EmptyWindowError`).
+    list of FlowResult
     """
     from evmotion.parallel import report_progress
     from evmotion.utils import progress
 
+    if on_empty not in ("raise", "skip"):
+        raise ParameterError(f"on_empty must be 'raise' or 'skip', got {on_empty!r}")
     if workers != 1 or scheduler is not None:
         from evmotion.methods.multicm_windows import estimate_in_chunks
 
@@ -855,15 +864,17 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
             raise ParameterError("warm_start=False with workers or a scheduler: chunks are "
                                  "warm-started; run one process")
         return estimate_in_chunks(events, windows, workers=workers, scheduler=scheduler,
-                                  keep_iwes=keep_iwes, **kwargs)
+                                  keep_iwes=keep_iwes, on_empty=on_empty, **kwargs)
 
     init = kwargs.pop("init", None)
     out = []
     it = progress(windows, total=len(windows), desc="multicm") if show_progress else windows
     for w in it:
-        res = estimate_flow(events.window(w), init=init, **kwargs)
+        res = estimate_or_skip(lambda ev, i0=init: estimate_flow(ev, init=i0, **kwargs),
+                               events, w, on_empty)
         out.append(res)
         report_progress()  # a chunk run by map_windows: one of its windows is done
-        if warm_start:
+        if warm_start and "skipped" not in res.meta:
             init = res
     return out
+

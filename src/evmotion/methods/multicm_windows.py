@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
-from evmotion.errors import ParameterError
+from evmotion.errors import EvmotionWarning, ParameterError
 from evmotion.events import EventArray, Window
 
 __all__ = ["estimate_in_chunks", "iter_chunks"]
@@ -39,7 +40,12 @@ def _chunk(events: EventArray, t0: int, t1: int, *, windows, kwargs, keep_iwes):
     mine = [w for w in windows if t0 <= w.t0 < t1]
     offset = mine[0].start if mine else 0
     rebased = [Window(w.index, w.t0, w.t1, w.start - offset, w.stop - offset) for w in mine]
-    return [_lean(res, keep_iwes) for res in estimate_flow_sequence(events, rebased, **kwargs)]
+    with warnings.catch_warnings():
+        # a skipped window is said where the results arrive (iter_chunks), not on a
+        # worker's stderr
+        warnings.filterwarnings("ignore", r"window \d+ .* skipped", EvmotionWarning)
+        results = estimate_flow_sequence(events, rebased, **kwargs)
+    return [_lean(res, keep_iwes) for res in results]
 
 
 def estimate_in_chunks(events: EventArray, windows: Sequence[Window], *, workers: int = 2,
@@ -108,7 +114,12 @@ def iter_chunks(events: EventArray, windows: Sequence[Window], *, workers: int =
         made += len(r.value)
         if made > len(windows):
             break
-        yield from r.value
+        for k, res in enumerate(r.value, made - len(r.value)):
+            if "skipped" in res.meta:
+                warnings.warn(EvmotionWarning(
+                    f"window {windows[k].index} [{res.t0_us}, {res.t1_us}) us skipped: "
+                    f"{res.meta['skipped']}"), stacklevel=2)
+            yield res
     if made != len(windows):
         # only where more than a window's worth of events share one timestamp
         raise ParameterError(f"{len(windows)} windows but the chunks made {made}: "
