@@ -743,3 +743,24 @@ def test_a_window_without_duration_is_skipped_and_named(tmp_path, capsys, extra)
                     "--out", str(tmp_path / "g.h5")], capsys)
     assert rc == 2 and "only.h5" in err and "no window could be estimated" in err, err
     assert not (tmp_path / "g.h5").exists() and not (tmp_path / "g.h5.part").exists()
+
+
+def test_eval_of_a_missing_flow_file_and_info_of_an_unfinished_one(tmp_path, capsys):
+    """eval named a missing FLOW through h5py's errno text; info showed an interrupted
+    run's .part as if it were a finished output."""
+    sim = tmp_path / "sim.h5"
+    assert main(["simulate", "translation", "--size", "40x48", "--duration", "0.05",
+                 "--out", str(sim)]) == 0
+    capsys.readouterr()
+    rc, err = _run(["eval", str(tmp_path / "nothere.h5"), "--gt", str(tmp_path / "sim_gt.h5")],
+                   capsys)
+    _assert_one_line(rc, err, "FLOW", "nothere.h5: no such file or folder")
+    assert "Errno" not in err
+    out = tmp_path / "f.h5"
+    assert main(["flow", str(sim), "--window-events", "3000", "--out", str(out)]) == 0
+    shutil.copy(out, tmp_path / "g.h5.part")
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "g.h5.part")]) == 0
+    assert "status:      unfinished" in capsys.readouterr().out
+    assert main(["info", str(out)]) == 0
+    assert "unfinished" not in capsys.readouterr().out

@@ -85,6 +85,8 @@ def _load_flow(args, h5_format=None):
 
     path = Path(args.flow)
     suffix = path.suffix.lower()
+    if "{" not in path.name and not path.exists():
+        raise ParameterError(f"FLOW {path}: no such file or folder")
     if "{" not in path.name and Path(args.gt).resolve() == path.resolve():
         raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
     if suffix == ".npy":

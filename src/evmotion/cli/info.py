@@ -112,6 +112,10 @@ def run(args) -> int:
             from evmotion.io.calibration import recording_intrinsics
 
             info["intrinsics"] = recording_intrinsics(args.file, tuple(info["sensor_size"]))
+    if str(args.file).endswith(".part"):
+        # what an interrupted run leaves (flow, bos, ...): readable, but not finished
+        info["status"] = ("unfinished: an interrupted run's partial output; run the same "
+                          "command with --resume to complete it")
     if args.json:
         print_json(info)
     else:
