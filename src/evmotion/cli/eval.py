@@ -85,7 +85,8 @@ def _load_flow(args, h5_format=None):
 
     path = Path(args.flow)
     suffix = path.suffix.lower()
-    if "{" not in path.name and not path.exists():
+    missing = "{" not in path.name and not path.exists()
+    if missing and suffix not in (".h5", ".hdf5", ".npz"):
         raise ParameterError(f"FLOW {path}: no such file or folder")
     if "{" not in path.name and Path(args.gt).resolve() == path.resolve():
         raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
@@ -99,6 +100,8 @@ def _load_flow(args, h5_format=None):
             path.with_name(path.name + ".json").exists():
         reject_unused(args, {"--t0-us": "t0_us", "--t1-us": "t1_us"},
                       f"to {path.name} (it carries its windows' times)")
+        if missing:
+            raise ParameterError(f"FLOW {path}: no such file or folder")
     elif args.t0_us is None or args.t1_us is None or args.t1_us <= args.t0_us:
         raise ParameterError(f"{path}: no {path.name}.json beside it, so no time interval; "
                              "give --t0-us and --t1-us (t1 > t0)")
