@@ -3,11 +3,13 @@ eval`` on its output, and a one-line error with exit code 2 for every bad input.
 
 import json
 import shutil
+import warnings
 
 import numpy as np
 import pytest
 
 from bos_synth import plume_scene, run_cli
+from evmotion.errors import EvmotionWarning
 from evmotion.io.bosfiles import read_bos_h5
 from evmotion.io.flowfiles import read_flow_h5
 
@@ -330,7 +332,7 @@ def test_frame_times_in_another_unit(scene, tmp_path, capsys):
         (d / "images.txt").write_text("".join(f"{float(t) * scale:.6f} {f}\n"
                                               for t, f in (ln.split() for ln in lines)))
         _one_line_error(["bos", d, "--out", tmp_path / "x.h5"], capsys, "images.txt",
-                        "apart but the events span", "another unit")
+                        " s apart", "another unit")
     # ordinary frames (8.3 ms apart) around events that span 20 us are no unit slip
     from evmotion.io import read_events
     from evmotion.io.bosinput import load_bos_input
@@ -340,4 +342,62 @@ def test_frame_times_in_another_unit(scene, tmp_path, capsys):
     keep = [ln for ln, t in zip((scene / "events.txt").read_text().splitlines(), ev.t,
                                 strict=True) if 9000 <= t < 9020]
     (d / "events.txt").write_text("".join(ln + "\n" for ln in keep))
-    assert len(load_bos_input(d).intervals) == 1
+    with pytest.warns(EvmotionWarning, match="cover only part"):
+        assert len(load_bos_input(d).intervals) == 1
+
+
+def test_other_tools_time_units_and_partial_coverage(scene, tmp_path, capsys):
+    """Both files in us ran with the flow a million times too small; events in us or ms
+    gave no unit hint; intervals the events cover half of were solved at half the
+    magnitude without a word."""
+    from evmotion.io.bosinput import load_bos_input
+
+    def rewrite(d, name, scale, keep=lambda t: True):
+        lines = (d / name).read_text().splitlines()
+        (d / name).write_text("".join(f"{float(a) * scale:.6f} {b}\n" for a, b in
+                                      (ln.split(None, 1) for ln in lines)
+                                      if keep(float(a))))
+
+    both = _copy(scene, tmp_path, "both")
+    rewrite(both, "images.txt", 1e6)
+    rewrite(both, "events.txt", 1e6)
+    _one_line_error(["bos", both, "--out", tmp_path / "x.h5"], capsys, "images.txt",
+                    "8333", "s apart (median)", "another unit")
+    ev_us = _copy(scene, tmp_path, "ev_us")
+    rewrite(ev_us, "events.txt", 1e6)
+    _one_line_error(["bos", ev_us, "--out", tmp_path / "x.h5"], capsys,
+                    "do not overlap in time", "event times in another unit")
+    late = _copy(scene, tmp_path, "late")
+    rewrite(late, "events.txt", 1.0, keep=lambda t: t >= 0.5 / 120)
+    with pytest.warns(EvmotionWarning, match=r"cover only part of frame intervals "
+                                             r"\(\[0, 8333\) us 50 %\)"):
+        assert len(load_bos_input(late).intervals) == 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(load_bos_input(scene).intervals) == 2  # the simulated scene: no warning
+
+
+def test_events_without_a_sensor_size_take_the_frames(scene, tmp_path, capsys):
+    """events.txt alone with --frames elsewhere was read on the 240x180 ECD default and
+    refused as 'frames ... but the events' sensor is 240x180'."""
+    ev_dir = tmp_path / "ev"
+    ev_dir.mkdir()
+    shutil.copy(scene / "events.txt", ev_dir / "events.txt")
+    frames = _copy(scene, tmp_path, "frames")
+    (frames / "events.txt").unlink()
+    rc, _, err = _run(["bos", ev_dir / "events.txt", "--frames", frames, "--out",
+                       tmp_path / "o.h5"], capsys)
+    assert rc == 0, err
+    assert read_flow_h5(tmp_path / "o.h5").flow.shape[1:3] == (48, 40)
+
+
+def test_mostly_clipped_frames_are_flagged(scene, tmp_path):
+    from evmotion.io.bosinput import load_bos_input
+    from evmotion.io.pngfile import read_png, write_png
+
+    d = _copy(scene, tmp_path, "bright")
+    for f in (d / "images").glob("*.png"):
+        img = read_png(f)[0][..., 0].astype(int)
+        write_png(f, np.minimum(img * 4, 255).astype(np.uint8))
+    with pytest.warns(EvmotionWarning, match="clipped at full scale"):
+        load_bos_input(d)

@@ -157,3 +157,38 @@ def test_microsecond_text(tmp_path):
     assert ev.t.tolist() == [1000, 2500]
     assert [c.t.tolist() for c in ecd.iter_chunks(tmp_path / "us.txt", 1, time_unit="us")] == \
         [[1000], [2500]]
+
+
+def test_other_tools_text_variants(tmp_path):
+    """Comment lines and a byte-order mark at the top of events.txt; images.txt with a
+    header, a BOM, commas, a path with spaces, Windows separators and an exposure column;
+    the sensor size from a JPEG frame (it used to fall back to 240x180 for any non-PNG)."""
+    cv2 = pytest.importorskip("cv2")
+    d = tmp_path / "rec"
+    (d / "my images").mkdir(parents=True)
+    (d / "events.txt").write_bytes(b"\xef\xbb\xbf# t x y p\n% exported by a tool\n"
+                                   b"0.1 1 2 1\n0.2 3 4 0\n")
+    ev = ecd.read(d / "events.txt", sensor_size=(10, 10))
+    assert ev.t.tolist() == [100_000, 200_000] and ev.x.tolist() == [1, 3]
+    from evmotion.io import read_events
+
+    assert read_events(d / "events.txt").t.tolist() == [100_000, 200_000]  # detected
+    (d / "events.txt").write_text("# t x y p\n0.1 1 2 1\n0.2 a 4 0\n")
+    with pytest.raises(FormatError, match="line 3 is not"):
+        ecd.read(d / "events.txt", sensor_size=(10, 10))
+    (d / "events.txt").write_text("0.1 1 2 1\n0.2 3 4 0\n")
+    img = np.zeros((30, 50), np.uint8)
+    for name in ("a.jpg", "b.jpg", "c.jpg"):
+        cv2.imwrite(str(d / "my images" / name), img)
+    (d / "images.txt").write_bytes(b"\xef\xbb\xbf# timestamp filename\n"
+                                   b"0.0,my images/a.jpg\n"
+                                   b"0.1 my images\\b.jpg 0.004\n"
+                                   b"0.2 my images/c.jpg\n")
+    lst = ecd.read_image_list(d)
+    assert lst["t"].tolist() == [0, 100_000, 200_000]
+    assert lst["files"] == ["my images/a.jpg", "my images/b.jpg", "my images/c.jpg"]
+    assert ecd.read(d).sensor_size == (30, 50)
+    assert ecd.describe(d)["sensor_size_from"] == "images"
+    (d / "images.txt").write_text("0.0 nothere.png 7\n")
+    with pytest.raises(FormatError, match="line 1: expected 't file'.*no file"):
+        ecd.read_image_list(d)

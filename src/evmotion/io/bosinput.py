@@ -2,7 +2,8 @@
 
 :func:`load_bos_input` reads a recording (an ECD-style folder ``events.txt`` +
 ``images.txt`` + ``images/``, or any event file with ``--frames``), the frames and their
-timestamps, and cuts the frame intervals ``[t_i, t_{i+1})`` that the events cover. It
+timestamps, and cuts the frame intervals ``[t_i, t_{i+1})`` that the events cover (a
+warning names those they cover less than :data:`MIN_COVERAGE` of). It
 raises one clear error for each input the method cannot use: frames missing, frames and
 events of different sizes or not overlapping in time, an ROI outside the sensor (the
 solver, :func:`evmotion.methods.bos.estimate_bos`, rejects a frame without texture).
@@ -11,12 +12,13 @@ solver, :func:`evmotion.methods.bos.estimate_bos`, rejects a frame without textu
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EmptyWindowError, FormatError, ParameterError
+from evmotion.errors import EmptyWindowError, EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.bosfiles import roi_mask
 
@@ -25,6 +27,14 @@ __all__ = ["BosInput", "frame_intervals", "load_bos_input"]
 # frames more than a second and this many times the events' whole span apart: a unit slip
 # (frame times in us or ms read as seconds), not a recording
 UNIT_SLIP = 100
+# frames further apart than this (median) see no schlieren: times in another unit
+MAX_FRAME_SPACING_US = 60_000_000
+# a frame interval the events cover less than this share of is warned about
+MIN_COVERAGE = 0.6
+# a frame with more pixels than this share clipped at full scale is warned about
+MAX_CLIPPED = 0.75
+# where readers say the sensor size came from when the file does not state it
+GUESSED_SIZES = ("ECD default", "default", "max coordinate")
 
 
 @dataclass(frozen=True)
@@ -77,6 +87,29 @@ def frame_intervals(frame_times: np.ndarray, t_first: int, t_last: int, *,
     if max_intervals is not None:
         idx = idx[:max_intervals]
     return np.stack([idx, lo[idx], hi[idx]], axis=1).astype(np.int64).reshape(-1, 3)
+
+
+def _covered(intervals: np.ndarray, t_first: int, t_last: int, rec) -> np.ndarray:
+    """``intervals``, with a warning naming those the events cover less than
+    :data:`MIN_COVERAGE` of: where the recording of the events begins or ends inside an
+    interval, its measured increment holds only part of the change and the flow comes out
+    too small (half, for half an interval). They are kept: events may also begin late
+    because the air was still (the simulated plume's first event comes 20 % into its
+    first interval)."""
+    if not len(intervals):
+        return intervals
+    lo, hi = intervals[:, 1], intervals[:, 2]
+    cover = (np.minimum(hi, t_last) - np.maximum(lo, t_first)) / (hi - lo)
+    short = cover < MIN_COVERAGE
+    if short.any():
+        listed = ", ".join(f"[{a}, {b}) us {100 * c:.0f} %" for a, b, c in
+                           zip(lo[short][:3], hi[short][:3], cover[short][:3], strict=True))
+        more = f" and {int(short.sum()) - 3} more" if short.sum() > 3 else ""
+        warnings.warn(EvmotionWarning(
+            f"{rec}: the events cover only part of frame intervals ({listed}{more}): if "
+            "they were not recorded all through, the flow there is too small by that share "
+            "(--t0 / --t1 leave intervals out)"), stacklevel=3)
+    return intervals
 
 
 def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, bool]:
@@ -175,6 +208,11 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     if not len(events):
         raise EmptyWindowError(f"{rec}: no events")
     fh, fw = images.shape[1:3]
+    if (fh, fw) != tuple(events.sensor_size) and str(
+            events.meta.get("sensor_size_from", "")).startswith(GUESSED_SIZES):
+        # events that do not state their sensor (ECD text without frames beside it, say)
+        # lie on the frames' grid
+        events = read_events(rec, sensor_size=(fh, fw), **({"format": fmt} if fmt else {}))
     if (fh, fw) != tuple(events.sensor_size):
         eh, ew = events.sensor_size
         raise ParameterError(f"frames {src} are {fw}x{fh} px but the events' sensor is "
@@ -184,17 +222,28 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         roi = tuple(int(v) for v in roi)
         roi_mask(events.sensor_size, roi)
     t_first, t_last = int(events.t[0]), int(events.t[-1])
-    if times[-1] <= t_first or times[0] >= t_last:
-        raise ParameterError(f"frames span [{times[0]}, {times[-1]}] us but the events "
-                             f"[{t_first}, {t_last}] us: they do not overlap in time")
+    where = src / "images.txt" if (src / "images.txt").is_file() else src
     spacing = float(np.median(np.diff(times)))
+    if spacing > MAX_FRAME_SPACING_US:
+        raise FormatError(where, f"frames are {spacing * 1e-6:g} s apart (median): times in "
+                          "another unit? (images.txt, timestamps files and events.txt hold "
+                          "seconds)")
     if spacing > max(UNIT_SLIP * (t_last - t_first), 1e6):
-        where = src / "images.txt" if (src / "images.txt").is_file() else src
         raise FormatError(where, f"frames are {spacing * 1e-6:g} s apart but the events span "
                           f"{(t_last - t_first) * 1e-6:g} s: frame times in another unit? "
                           "(images.txt and timestamps files hold seconds)")
-    intervals = frame_intervals(times, t_first, t_last, t0=t0, t1=t1,
-                                max_intervals=max_intervals)
+    ev_span, fr_span = t_last - t_first, int(times[-1] - times[0])
+    slip = ev_span > max(UNIT_SLIP * fr_span, 1e6)
+    hint = " (event times in another unit? events.txt holds seconds)" if slip else ""
+    if times[-1] <= t_first or times[0] >= t_last:
+        raise ParameterError(f"frames span [{times[0]}, {times[-1]}] us but the events "
+                             f"[{t_first}, {t_last}] us: they do not overlap in time{hint}")
+    if slip:
+        warnings.warn(EvmotionWarning(
+            f"{rec}: the events span {ev_span * 1e-6:g} s, the frames {fr_span * 1e-6:g} s"
+            f"{hint}"), stacklevel=2)
+    intervals = _covered(frame_intervals(times, t_first, t_last, t0=t0, t1=t1,
+                                         max_intervals=max_intervals), t_first, t_last, rec)
     if not len(intervals):
         span = f" within --t0 {t0} / --t1 {t1} us" if t0 is not None or t1 is not None else ""
         raise ParameterError(f"no frame interval [t_i, t_i+1) overlaps the events' time span "
@@ -202,5 +251,26 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
                              "within --t0 / --t1)" if span else
                              f"no frame interval overlaps the events' time span "
                              f"[{t_first}, {t_last}] us")
+    _warn_clipped(images, intervals, src, roi)
     return BosInput(events=events, frames=images, frame_times=times, intervals=intervals,
                     roi=roi, source=str(rec))
+
+
+def _warn_clipped(images: np.ndarray, intervals: np.ndarray, src, roi) -> None:
+    """A warning where a frame the solver uses is mostly clipped at full scale: there it
+    has no gradient, so the predicted increment is flat and the flow's magnitude is not a
+    measurement (on a rendered scene: 1.06x the true magnitude at 64 % clipped, 1.53x at
+    85 %)."""
+    top = np.iinfo(images.dtype).max
+    full = top - (top >> 8)  # 255 of 8 bits; 10-16-bit samples in a 16-bit word
+    y0, x0, y1, x1 = (0, 0, *images.shape[1:3]) if roi is None else \
+        (roi[1], roi[0], roi[1] + roi[3], roi[0] + roi[2])
+    share = np.array([np.mean(images[i, y0:y1, x0:x1] >= full) for i in intervals[:, 0]])
+    bad = share > MAX_CLIPPED
+    if bad.any():
+        i = int(np.argmax(share))
+        warnings.warn(EvmotionWarning(
+            f"{src}: {int(bad.sum())} of the {len(share)} frames used are more than "
+            f"{100 * MAX_CLIPPED:.0f} % clipped at full scale (frame {int(intervals[i, 0])}: "
+            f"{100 * share[i]:.0f} %): no texture there, and the flow's magnitude is not a "
+            "measurement; lower the exposure or gain"), stacklevel=3)

@@ -15,6 +15,7 @@ cache), more than numpy takes for ~100k lines (a one-window command reads ~30k).
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -212,25 +213,26 @@ def _events_file(path: Path) -> Path:
 
 
 def _image_size(folder: Path) -> tuple[int, int] | None:
-    """Size of the first APS frame listed in ``images.txt`` (ECD frames share the sensor)."""
-    lst = folder / "images.txt"
-    cands = []
-    if lst.exists():
-        with open(lst) as fh:
-            for line in fh:
-                parts = line.split()
-                if len(parts) >= 2:
-                    cands.append(folder / parts[1])
-                    break
-    for c in cands:
-        if c.exists():
-            with open(c, "rb") as fh:
-                head = fh.read(24)
-            if head[:8] == b"\x89PNG\r\n\x1a\n":
-                w = int.from_bytes(head[16:20], "big")
-                h = int.from_bytes(head[20:24], "big")
-                return check_sensor_size(c, (h, w), "PNG image size")
-    return None
+    """Size of the first APS frame listed in ``images.txt`` (ECD frames share the sensor):
+    from a PNG's header, other formats (JPEG, TIFF, BMP) decoded with OpenCV where it is
+    installed."""
+    from evmotion.errors import MissingDependencyError
+    from evmotion.io.frames import image_size
+
+    if not (folder / "images.txt").is_file():
+        return None
+    try:
+        files = read_image_list(folder)["files"]
+    except (FormatError, OSError, UnicodeDecodeError):
+        return None  # reading the frames says what is wrong with the list
+    first = folder / files[0] if files else None
+    if first is None or not first.is_file():
+        return None
+    try:
+        size = image_size(first)
+    except (FormatError, MissingDependencyError):
+        return None
+    return check_sensor_size(first, size, "image size")
 
 
 def _sensor_size(path: Path, sensor_size) -> tuple[tuple[int, int], str]:
@@ -254,7 +256,7 @@ def _blocks(path: Path, block_bytes: int, time_unit: str = "s"
         raise ParameterError(f"time_unit must be 's' (ECD) or 'us', got {time_unit!r}")
     with open(path, "rb") as fh:
         carry = b""
-        offset = 0
+        offset = _skip_header(fh)
         while True:
             blk = fh.read(block_bytes)
             data = carry + blk
@@ -269,6 +271,19 @@ def _blocks(path: Path, block_bytes: int, time_unit: str = "s"
             yield parse_text(data[:cut], path, offset)
             offset += cut
             carry = data[cut:]
+
+
+def _skip_header(fh) -> int:
+    """Past a UTF-8 byte-order mark and the comment lines (``#`` or ``%``) that open some
+    tools' event text files; returns the byte offset where the events start."""
+    pos = 3 if fh.read(3) == b"\xef\xbb\xbf" else 0
+    fh.seek(pos)
+    while True:
+        line = fh.readline()
+        if not line.lstrip(b" \t").startswith((b"#", b"%")):
+            fh.seek(pos)
+            return pos
+        pos = fh.tell()
 
 
 def _folder_meta(ev_path: Path) -> dict:
@@ -502,19 +517,42 @@ def read_groundtruth(path: str | Path) -> dict:
 
 
 def read_image_list(path: str | Path) -> dict:
-    """ECD ``images.txt``: ``t`` (µs) and ``files`` (paths relative to the folder)."""
+    """ECD ``images.txt``: ``t`` (µs) and ``files`` (paths relative to the folder).
+
+    Lines are ``t path`` (t in seconds; a comma after t is taken as a space); lines
+    starting with ``#`` are comments. Other tools' variants are read where the file they
+    name exists: a path with spaces, Windows separators (``images\\x.png``), further
+    columns after the path (an exposure, say).
+    """
     path = _in_folder(path, "images.txt")
+    folder = path.parent
     t, files = [], []
-    with open(path) as fh:
+    with open(path, encoding="utf-8-sig") as fh:
         for i, line in enumerate(fh, 1):
-            parts = line.split()
-            if not parts or parts[0].startswith("#"):
+            text = line.strip()
+            if not text or text.startswith("#"):
                 continue
-            if len(parts) != 2:
-                raise FormatError(path, f"line {i}: expected 't file', got {line.strip()!r}")
-            t.append(time_to_us(path, parts[0], 1e6, f"line {i}"))
-            files.append(parts[1])
+            fields = re.split(r"[\s,]+", text, maxsplit=1)
+            if len(fields) != 2:
+                raise FormatError(path, f"line {i}: expected 't file', got {text!r}")
+            t.append(time_to_us(path, fields[0], 1e6, f"line {i}"))
+            files.append(_listed_file(folder, fields[1], path, i, text))
     return {"t": np.asarray(t, np.int64), "files": files}
+
+
+def _listed_file(folder: Path, rest: str, path: Path, i: int, text: str) -> str:
+    """The file a line of ``images.txt`` names after its time: the longest start of the
+    rest of the line that is an existing file (a name may hold spaces; further columns are
+    ignored), with Windows separators read as ``/`` where that finds the file."""
+    words = rest.split()
+    for cand in (rest, *(" ".join(words[:k]) for k in range(len(words) - 1, 0, -1))):
+        for name in (cand, cand.replace("\\", "/")):
+            if (folder / name).is_file():
+                return name
+    if len(words) != 1:
+        raise FormatError(path, f"line {i}: expected 't file', got {text!r} (no "
+                          f"file {rest!r} nor {words[0]!r} in {folder})")
+    return words[0].replace("\\", "/")
 
 
 def read_frames(path: str | Path) -> dict:
@@ -611,7 +649,8 @@ def describe(path: str | Path) -> dict:
 def _sniff(path: Path, head: bytes) -> bool:
     if path.is_dir():
         return (path / "events.txt").is_file()
-    line = head.split(b"\n", 1)[0].strip()
+    lines = head.removeprefix(b"\xef\xbb\xbf").split(b"\n")
+    line = next((ln.strip() for ln in lines if not ln.lstrip().startswith((b"#", b"%"))), b"")
     parts = line.replace(b",", b" ").split()
     if len(parts) != 4:
         return False

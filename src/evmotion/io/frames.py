@@ -25,7 +25,8 @@ from evmotion.errors import FormatError, MissingDependencyError, ParameterError
 from evmotion.io.guard import time_to_us
 from evmotion.io.pngfile import png_header, read_png
 
-__all__ = ["Frames", "describe_frames", "find_frames", "read_frames", "read_image"]
+__all__ = ["Frames", "describe_frames", "find_frames", "image_size", "read_frames",
+           "read_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".webp")
 TIMESTAMP_FILES = ("timestamps.txt", "times.txt", "frame_timestamps.txt",
@@ -495,6 +496,18 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
     if not files:
         raise FormatError(src, "lists no frames")
     return Frames(images, t, source=str(path), bit_depth=depth)
+
+
+def image_size(path: str | os.PathLike) -> tuple[int, int]:
+    """``(height, width)`` of an image file: from a PNG's header, other formats decoded
+    (OpenCV).
+
+    Examples
+    --------
+    >>> image_size("images/frame_00000000.png")  # doctest: +SKIP
+    (720, 640)
+    """
+    return _header(Path(path))[0]
 
 
 def _header(path: Path) -> tuple[tuple[int, int], int]:

@@ -56,10 +56,11 @@ def read_png(path: str | os.PathLike, *, direct: bool = True,
     import png
 
     try:
-        reader = png.Reader(filename=os.fspath(path))
-        w, h, rows, info = reader.asDirect() if direct else reader.read()
-        dtype = np.uint16 if info["bitdepth"] > 8 else np.uint8
-        img = np.vstack([np.asarray(r, dtype=dtype) for r in rows])
+        with open(path, "rb") as fh:  # Reader(filename=...) leaves its file open
+            reader = png.Reader(file=fh)
+            w, h, rows, info = reader.asDirect() if direct else reader.read()
+            dtype = np.uint16 if info["bitdepth"] > 8 else np.uint8
+            img = np.vstack([np.asarray(r, dtype=dtype) for r in rows])
     except Exception as exc:  # pypng raises many types (zlib, struct, Value...) for corrupt files
         raise FormatError(Path(path), f"{what}: {exc}") from None
     return img.reshape(h, w, info["planes"]), info
@@ -70,10 +71,13 @@ def png_header(path: str | os.PathLike) -> tuple[tuple[int, int], int]:
     import png
 
     try:
-        w, h, _, info = png.Reader(filename=os.fspath(path)).read()
+        with open(path, "rb") as fh:  # Reader(filename=...) leaves its file open
+            r = png.Reader(file=fh)
+            r.preamble()
+            w, h, depth = r.width, r.height, r.bitdepth
     except Exception as exc:  # as in read_png
         raise FormatError(Path(path), f"cannot read PNG: {exc}") from None
-    return (int(h), int(w)), int(info.get("bitdepth", 8))
+    return (int(h), int(w)), int(depth)
 
 
 def write_png(path: str | os.PathLike, img: np.ndarray, *, compression: int | None = None
