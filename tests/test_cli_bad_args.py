@@ -764,3 +764,15 @@ def test_eval_of_a_missing_flow_file_and_info_of_an_unfinished_one(tmp_path, cap
     assert "status:      unfinished" in capsys.readouterr().out
     assert main(["info", str(out)]) == 0
     assert "unfinished" not in capsys.readouterr().out
+
+
+def test_eval_against_ground_truth_of_other_times_says_so(tmp_path, capsys):
+    """It said 'no window has evaluated pixels: nothing to aggregate'."""
+    from evmotion.io.flowfiles import FlowWriter
+
+    flow = np.ones((6, 7, 2), np.float32)
+    for name, start in (("est.h5", 0), ("gt.h5", 1_000_000)):
+        with FlowWriter(tmp_path / name, (6, 7)) as fw:
+            fw.append(flow, t0=start, t1=start + 10_000)
+    rc, err = _run(["eval", str(tmp_path / "est.h5"), "--gt", str(tmp_path / "gt.h5")], capsys)
+    _assert_one_line(rc, err, "[0, 10000] us", "[1000000, 1010000] us", "do not overlap")

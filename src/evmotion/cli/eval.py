@@ -271,6 +271,12 @@ def run(args) -> int:
     if gt.flow.shape[1:3] != flow.shape[1:3]:
         raise ParameterError(f"flow is {flow.shape[1:3]} px but ground truth {args.gt} is "
                              f"{gt.flow.shape[1:3]} px (height, width)")
+    if len(t0s) and len(gt.t0) and (int(np.max(t1s)) <= int(gt.t0[0])
+                                    or int(np.min(t0s)) >= int(gt.t1[-1])):
+        raise ParameterError(f"the windows of {path} span [{int(np.min(t0s))}, "
+                             f"{int(np.max(t1s))}] us but ground truth {args.gt} "
+                             f"[{int(gt.t0[0])}, {int(gt.t1[-1])}] us: they do not overlap "
+                             "in time (another recording, or another time origin?)")
     events = None
     if args.events:
         from evmotion.io import read_events
