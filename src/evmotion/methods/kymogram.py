@@ -407,8 +407,8 @@ def ridge_points(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1
     smask = np.ones(s.size, bool) if s_range is None else (s >= s_range[0]) & (s <= s_range[1])
     tmask = np.ones(t.size, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
     if smask.sum() < 3 or not tmask.any():
-        raise ParameterError(f"the search region s_range={s_range} px, t_range={t_range} s "
-                             f"holds fewer than 3 positions or no time bin of the kymogram")
+        raise ParameterError(f"the search region ({_region(s_range, t_range)}) holds fewer "
+                             "than 3 positions or no time bin of the kymogram")
     cols = np.flatnonzero(smask)
     sub = d[np.ix_(tmask, cols)]
     med = np.median(sub)
@@ -448,6 +448,14 @@ def _theil_sen(t: np.ndarray, s: np.ndarray) -> tuple[float, float]:
     ok = dt != 0
     slope = float(np.median((s[j] - s[i])[ok] / dt[ok]))
     return slope, float(np.median(s - slope * t))
+
+
+def _region(s_range, t_range) -> str:
+    """A fit's search region in words (None: the whole line / the whole kymogram)."""
+    s = "the whole line" if s_range is None else \
+        f"s_range={s_range[0]:g}..{s_range[1]:g} px"
+    t = "all times" if t_range is None else f"t_range={t_range[0]:g}..{t_range[1]:g} s"
+    return f"{s}, {t}"
 
 
 def fit_ridge(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1.0,
@@ -690,7 +698,7 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     n_t, n_s = d.shape
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     if n_s < 5 or n_t < 2 * n_blocks or dt <= 0:
-        raise ParameterError(f"the region s_range={s_range} px, t_range={t_range} s holds "
+        raise ParameterError(f"the region ({_region(s_range, t_range)}) holds "
                              f"{n_s} positions and {n_t} time bins; the correlation needs "
                              f">= 5 positions and >= {2 * n_blocks} bins ({n_blocks} blocks)")
     n_lags = max(3, int(round((0.25 * n_t * dt if max_lag_s is None else max_lag_s) / dt)))
