@@ -122,3 +122,48 @@ def test_missing_file_is_a_clear_error(tmp_path, capsys):
     assert main(["view", str(tmp_path / "missing.h5"), "--out", str(tmp_path / "a.png")]) == 2
     err = capsys.readouterr().err
     assert "missing.h5" in err and "Traceback" not in err
+
+
+def test_view_draws_a_window_of_a_flow_output(tmp_path, capsys):
+    """Issue #12: the flow outputs (flow, bos) are viewable; 'view bos.h5' said 'format
+    not recognised'."""
+    from evmotion.io.flowfiles import FlowWriter
+
+    flow = np.zeros((30, 40, 2), np.float32)
+    flow[..., 0] = 5.0
+    valid = np.zeros((30, 40), bool)
+    valid[5:20, 5:30] = True
+    path = tmp_path / "f.h5"
+    with FlowWriter(path, (30, 40), with_valid=True) as fw:
+        for k in range(3):
+            fw.append(flow * (k + 1), t0=10_000 * k, t1=10_000 * (k + 1), valid=valid)
+    out = tmp_path / "v.png"
+    assert main(["view", str(path), "--t0", "0.015", "--out", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["kind"] == "flow" and info["window"] == 1 and info["has_q"] is False
+    assert info["valid_fraction"] == pytest.approx(valid.mean())
+    img = read_png(out)
+    assert img.shape[0] >= 30 and img.shape[1] > 40
+    assert main(["view", str(path), "--window", "2", "--out", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["t0_us"] == 20_000
+    for argv, words in ((["--window", "3"], ("--window 3", "holds 3 windows")),
+                        (["--t0", "0.5"], ("no window", "holds it")),
+                        (["--polarity"], ("--polarity", "flow output"))):
+        assert main(["view", str(path), *argv, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and all(w in err for w in words), err
+
+
+def test_view_of_a_bos_output_shows_q(tmp_path, capsys):
+    pytest.importorskip("cv2")
+    from bos_synth import plume_scene
+
+    scene = plume_scene(tmp_path / "scene")
+    assert main(["bos", str(scene), "--out", str(tmp_path / "bos.h5")]) == 0
+    capsys.readouterr()
+    out = tmp_path / "b.png"
+    assert main(["view", str(tmp_path / "bos.h5"), "--out", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["has_q"] is True
+    assert read_png(out).shape[1] > 2 * 40
+    assert main(["view", str(scene), "--window", "1", "--out", str(out)]) == 2
+    assert "--window 1 does not apply to a recording" in capsys.readouterr().err

@@ -1,8 +1,14 @@
-"""``evmotion view``: a picture of the events of a time slice of any readable recording.
+"""``evmotion view``: a picture of the events of a time slice of any readable recording,
+or of one window of a flow output.
 
 Counts per pixel in grayscale (dark = many events), or with ``--polarity`` the signed
 polarity sum (red positive, blue negative). This is the image of events with the identity
 warp: motion blur in it is what the motion-estimation commands remove.
+
+Given a flow output (``evmotion flow`` or ``evmotion bos``: ``.h5``, ``.npz``, ``.flo``, a
+pattern), the window ``--window K`` (default: the one holding ``--t0``, else the first) is
+drawn colour-coded beside its legend, grey where no event supports it; a BOS output's
+Poisson field q beside it.
 """
 
 from __future__ import annotations
@@ -16,7 +22,9 @@ from evmotion.cli.options import (
     empty_selection,
     finite_float,
     format_bytes,
+    int_range,
     positive_int,
+    reject_unused,
     writable_output,
 )
 
@@ -24,6 +32,7 @@ EXAMPLES = """examples:
   evmotion view rec.h5 --out events.png                       # first 30,000 events
   evmotion view rec.raw --t0 0.01 --t1 0.012 --out slice.png --polarity   # 10 to 12 ms
   evmotion view events.txt --t0 20ms --window-events 5000 --scale 2 --out w.png --json
+  evmotion view bos.h5 --window 1 --out w1.png                # a flow output's window 1
 """
 
 DEFAULT_EVENTS = 30_000
@@ -37,7 +46,7 @@ def add_parser(sub) -> None:
         description=__doc__, epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("file", help="recording (any readable format)")
+    p.add_argument("file", help="recording (any readable format), or a flow output")
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
                    help="output PNG")
     p.add_argument("--format", default=None, help="input format (default: detect)")
@@ -52,6 +61,9 @@ def add_parser(sub) -> None:
     p.add_argument("--scale", type=positive_int(), default=1,
                    help="enlarge each pixel to SCALE x SCALE (nearest neighbour; the image "
                         f"may hold at most {format_bytes(MAX_IMAGE_BYTES)} as RGB)")
+    p.add_argument("--window", type=int_range(0), default=None, metavar="K",
+                   help="flow outputs: the window to draw, from 0 (default: the one holding "
+                        "--t0, else the first)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -99,6 +111,14 @@ def run(args) -> int:
 
     check_time_order(args)
     out = Path(args.out)
+    if args.format is None:
+        from evmotion.io.flowread import describe_flow
+
+        info = describe_flow(args.file)
+        if info is not None and "windows" in info:
+            return _view_flow(args, out)
+    reject_unused(args, {"--window": "window"}, "to a recording (it draws events; --t0 / "
+                  "--t1 choose them)")
     n = args.window_events
     if n is None and args.t1 is None:
         n = DEFAULT_EVENTS
@@ -146,4 +166,57 @@ def run(args) -> int:
             "pixels_with_events": int((hist != 0).sum()),
             "max_per_pixel": float(np.abs(hist).max()),
         })
+    return 0
+
+
+def _view_flow(args, out: Path) -> int:
+    """``view`` of a flow output: one window's flow (and a BOS output's q)."""
+    import numpy as np
+
+    from evmotion.cli import print_json
+    from evmotion.errors import ParameterError
+    from evmotion.io.flowread import read_flow
+    from evmotion.viz import save_png
+    from evmotion.viz.bos import flow_window_picture
+
+    reject_unused(args, {"--t1": "t1", "--window-events": "window_events",
+                         "--polarity": "polarity"},
+                  f"to a flow output ({args.file}: --window or --t0 choose its window)")
+    seq = read_flow(args.file)
+    n = len(seq.t0)
+    if args.window is not None:
+        if args.window >= n:
+            raise ParameterError(f"--window {args.window}: {args.file} holds {n} window"
+                                 f"{'' if n == 1 else 's'} (0 to {n - 1})")
+        k = args.window
+    elif args.t0 is not None:
+        inside = np.flatnonzero((seq.t0 <= args.t0) & (args.t0 < seq.t1))
+        if not inside.size:
+            raise ParameterError(f"--t0 {args.t0} us: no window of {args.file} holds it "
+                                 f"(they span [{int(seq.t0[0])}, {int(seq.t1[-1])}) us)")
+        k = int(inside[0])
+    else:
+        k = 0
+    t0, t1 = int(seq.t0[k]), int(seq.t1[k])
+    check_scale(args.scale, seq.flow.shape[1:3])
+    q = seq.extras.get("q")
+    units = seq.attrs.get("extras_units") or {}
+    rgb = flow_window_picture(seq.flow[k], valid=None if seq.valid is None else seq.valid[k],
+                              q=None if q is None else q[k],
+                              q_unit=units.get("q", "px^2/s") if isinstance(units, dict)
+                              else "px^2/s",
+                              title=f"{Path(args.file).name}: window {k} of {n}, "
+                                    f"[{t0}, {t1}) us")
+    if args.scale > 1:
+        rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
+    save_png(out, rgb)
+    if args.json:
+        valid = seq.valid[k] if seq.valid is not None else np.isfinite(seq.flow[k]).all(-1)
+        print_json({"file": str(args.file), "out": str(out), "kind": "flow", "window": k,
+                    "n_windows": n, "t0_us": t0, "t1_us": t1,
+                    "sensor_size": {"height": int(seq.flow.shape[1]),
+                                    "width": int(seq.flow.shape[2])},
+                    "image": {"height": int(rgb.shape[0]), "width": int(rgb.shape[1])},
+                    "valid_fraction": float(np.mean(valid)),
+                    "has_q": q is not None})
     return 0

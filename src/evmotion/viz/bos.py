@@ -9,10 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.utils import atomic_write_bytes
-from evmotion.viz.images import save_flow_png
+from evmotion.viz.flowpic import flow_picture, picture_row
+from evmotion.viz.images import save_flow_png, save_png
 
-__all__ = ["save_bos_pngs", "save_q_png", "symmetric_limit"]
+__all__ = ["flow_window_picture", "q_picture", "save_bos_pngs", "save_q_png",
+           "symmetric_limit"]
 
 
 def symmetric_limit(values: np.ndarray, percentile: float = 99.0) -> float:
@@ -30,9 +31,9 @@ def symmetric_limit(values: np.ndarray, percentile: float = 99.0) -> float:
     return c if c > 0 else 1.0
 
 
-def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = None,
-               unit: str = "px^2/s", title: str | None = None, dpi: int = 100) -> float:
-    """Save a Poisson field q as a PNG: blue negative, white zero, red positive, with a
+def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s",
+              title: str | None = None, dpi: int = 100) -> tuple[np.ndarray, float]:
+    """A Poisson field q as an RGB image: blue negative, white zero, red positive, with a
     colour bar in ``unit``; NaN (outside the ROI) is grey.
 
     Parameters
@@ -44,27 +45,27 @@ def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = 
 
     Returns
     -------
-    float
+    rgb : ndarray of uint8, (rows, cols, 3)
+    limit : float
         The limit used.
 
     Examples
     --------
-    >>> save_q_png("q.png", np.linspace(-1, 1, 64).reshape(8, 8))
-    1.0
+    >>> rgb, limit = q_picture(np.linspace(-1, 1, 64).reshape(8, 8))
+    >>> rgb.dtype, rgb.shape[2], limit
+    (dtype('uint8'), 3, 1.0)
     """
     q = np.asarray(q, dtype=np.float64)
     if limit is None:
         limit = symmetric_limit(q)
     h, w = q.shape
     scale = 6.0 / max(h, w)
-    import io
-
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(w * scale + 1.6, h * scale + 0.7), dpi=dpi)
-    FigureCanvasAgg(fig)
+    canvas = FigureCanvasAgg(fig)
     ax = fig.add_axes((0.02, 0.04, 0.74, 0.86))
 
     cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad=(0.6, 0.6, 0.6))
@@ -77,10 +78,49 @@ def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = 
     bar = fig.colorbar(im, cax=cax)
     bar.set_label(f"q [{unit}]", fontsize=8)
     bar.ax.tick_params(labelsize=7)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    atomic_write_bytes(path, buf.getvalue())
-    return float(limit)
+    canvas.draw()
+    return np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[..., :3]), float(limit)
+
+
+def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = None,
+               unit: str = "px^2/s", title: str | None = None, dpi: int = 100) -> float:
+    """Save :func:`q_picture` of ``q`` as a PNG, atomically; returns the colour limit.
+
+    Examples
+    --------
+    >>> save_q_png("q.png", np.linspace(-1, 1, 64).reshape(8, 8))
+    1.0
+    """
+    rgb, limit = q_picture(q, limit=limit, unit=unit, title=title, dpi=dpi)
+    save_png(path, rgb)
+    return limit
+
+
+def flow_window_picture(flow: np.ndarray, *, valid: np.ndarray | None = None,
+                        q: np.ndarray | None = None, title: str | None = None,
+                        q_unit: str = "px^2/s") -> np.ndarray:
+    """One window of a flow output as an RGB image: the colour-coded flow (grey where not
+    ``valid`` or NaN) beside its legend, and with ``q`` (BOS outputs) the Poisson field
+    beside it.
+
+    Examples
+    --------
+    >>> f = np.zeros((40, 50, 2), np.float32); f[..., 0] = 3.0
+    >>> flow_window_picture(f, q=np.zeros((40, 50)), title="window 0").dtype
+    dtype('uint8')
+    """
+    flow = np.asarray(flow, dtype=np.float32)
+    ok = np.isfinite(flow).all(axis=-1)
+    valid = ok if valid is None else (np.asarray(valid, bool) & ok)
+    pic = flow_picture(np.nan_to_num(flow), valid=valid, unit="px/s").rgb
+    if q is None:
+        return picture_row([pic], title=title)
+    # q's axes about as tall as the flow (q_picture's axes: 86 % of 6 in over the longer
+    # side), its labels still legible
+    h, w = np.shape(q)[:2]
+    dpi = max(72, int(round(pic.shape[0] / (0.86 * 6.0 * h / max(h, w)))))
+    qrgb, _ = q_picture(q, unit=q_unit, dpi=dpi)
+    return picture_row([pic, qrgb], ["flow", "Poisson field q"], title=title)
 
 
 def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np.ndarray,
