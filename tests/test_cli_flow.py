@@ -214,3 +214,41 @@ def test_interrupted_run_leaves_no_file(recording, tmp_path, capsys, monkeypatch
                  "--scales", "2", "--out", str(out / name)]) == 130
     assert capsys.readouterr().err == "evmotion: interrupted\n"
     assert len(calls) == 2 and not list(out.iterdir())
+
+
+def test_eval_leaves_out_windows_beyond_the_ground_truth(recording, tmp_path, capsys):
+    """A --window-us window reaching past the last event stated 30 ms for events of 9.6;
+    windows reaching beyond the ground truth were scored against part of the motion (and
+    dominated the mean); --along-streamlines on a .flo (unknown pixels NaN) crashed in the
+    transport."""
+    from evmotion.events import make_windows
+    from evmotion.io import read_events
+
+    path, gt = recording
+    ev = read_events(path)
+    wins = make_windows(ev, duration_us=15_000)
+    assert wins[-1].t1 == int(ev.t[-1]) + 1
+    out = tmp_path / "w.h5"
+    rc, text = _run(["flow", str(path), "--window-us", "15000", "--scales", "2", "--out",
+                     str(out)], capsys)
+    assert rc == 0
+    longer = tmp_path / "gt_short.h5"
+    from evmotion.io.flowfiles import FlowWriter, read_flow_h5
+
+    g = read_flow_h5(gt)
+    with FlowWriter(longer, g.flow.shape[1:3]) as fw:
+        fw.append(g.flow[0], t0=int(g.t0[0]), t1=int(g.t1[0]))  # covers [0, 20000) only
+    rc, text = _run(["eval", str(out), "--gt", str(longer), "--json"], capsys)
+    assert rc == 0
+    res = json.loads(text)
+    assert res["windows_scored"] == 1 and res["windows_beyond_gt"] == res["n_windows"] - 1
+    assert [w.get("scored", True) for w in res["windows"]][:2] == [True, False]
+    assert res["mean"]["AEE"] < 0.3
+    rc, text = _run(["eval", str(out), "--gt", str(longer)], capsys)
+    assert f"1 of {res['n_windows']} windows" in text and "not scored" in text
+    flo = tmp_path / "one.flo"
+    assert _run(["flow", str(path), "--window-gt", str(gt), "--max-windows", "1",
+                 "--scales", "2", "--out", str(flo)], capsys)[0] == 0
+    rc, text = _run(["eval", str(flo), "--gt", str(gt), "--along-streamlines", "--json"],
+                    capsys)
+    assert rc == 0 and json.loads(text)["mean"]["AEE"] < 0.3

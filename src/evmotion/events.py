@@ -454,8 +454,8 @@ def make_windows(events: EventArray, *, n_events: int | None = None,
     (:meth:`EventArray.windows_by_duration`) or ``edges_us`` (:meth:`EventArray.windows_at`,
     ``dt`` edges per window) says how windows are cut. Only the events with
     ``t0 <= t < t1`` are windowed: count and duration windows start at ``t0`` (default the
-    first event) and end by ``t1`` (the last one is cut there); edge windows are kept when they
-    lie within ``[t0, t1)``. Of the windows holding at least ``min_events`` events, the first
+    first event) and end by ``t1`` (the last one is cut there; without ``t1``, just after
+    the last event); edge windows are kept when they lie within ``[t0, t1)``. Of the windows holding at least ``min_events`` events, the first
     ``max_windows`` are returned. ``start``/``stop`` index ``events`` itself.
 
     Parameters
@@ -516,7 +516,10 @@ def make_windows(events: EventArray, *, n_events: int | None = None,
             made = sub.windows_by_count(n_events)
         else:
             made = sub.windows_by_duration(duration_us, t0=t0, t1=t1) if len(sub) else []
-        windows = [Window(w.index, w.t0, w.t1 if t1 is None else min(w.t1, int(t1)),
+        # the last window ends with the recording (or t1): a duration window reaching
+        # past the last event would state a longer interval than its events cover
+        end = int(events.t[-1]) + 1 if t1 is None and len(events) else t1
+        windows = [Window(w.index, w.t0, w.t1 if end is None else min(w.t1, int(end)),
                           w.start + i0, w.stop + i0) for w in made]
     windows = [w for w in windows if w.count >= max(min_events, 1)]
     return windows if max_windows is None else windows[:max_windows]

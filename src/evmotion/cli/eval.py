@@ -288,7 +288,8 @@ def run(args) -> int:
     if q is not None:
         _add_potential_scores(q, t0s, t1s, args.gt, per_window, total)
     summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
-               "n_windows": len(per_window), "windows_with_other_dt": mismatched,
+               "n_windows": len(per_window), "windows_scored": len(per_window) - res.uncovered,
+               "windows_beyond_gt": res.uncovered, "windows_with_other_dt": mismatched,
                "mask": res.mask, "out_px": out_px,
                "mean": total, "windows": per_window}
     if args.json:
@@ -296,8 +297,13 @@ def run(args) -> int:
     else:
         keys = [k for k in ("AEE", "%Out", "AE_deg", "FWL", "FWL_gt", "q_corr", "q_std_ratio",
                             "n_pixels") if k in total]
-        print(f"{len(per_window)} windows ({summary['mask']}, dt={args.dt})")
+        scored = summary["windows_scored"]
+        print(f"{len(per_window)} windows" if not res.uncovered else
+              f"{scored} of {len(per_window)} windows", f"({summary['mask']}, dt={args.dt})")
         print("  ".join(f"{k}={total[k]:.4g}" for k in keys))
+        if res.uncovered:
+            print(f"note: {res.uncovered} windows reach beyond the ground truth's time span: "
+                  "not scored (their ground truth would be only part of the motion)")
         if mismatched:
             print(f"note: {mismatched} windows span a number of GT frames other than "
                   f"--dt {args.dt}")

@@ -27,13 +27,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from evmotion.errors import EmptyWindowError
 from evmotion.eval.metrics import aggregate_flow_metrics, event_mask, flow_metrics, fwl
 
 if TYPE_CHECKING:
     from evmotion.events import EventArray
     from evmotion.io.flowfiles import FlowSequence
 
-__all__ = ["WindowsEvaluation", "evaluate_potential", "evaluate_windows", "gt_displacement"]
+__all__ = ["WindowsEvaluation", "evaluate_potential", "evaluate_windows", "gt_coverage",
+           "gt_displacement"]
+
+# a window is scored when the ground truth covers this share of it (1 us in 10 s short)
+FULL_COVERAGE = 1.0 - 1e-7
 
 
 @dataclass(frozen=True)
@@ -53,12 +58,32 @@ class WindowsEvaluation:
         Windows spanning a number of GT frames other than ``dt`` (more than 0.5 off).
     mask : str
         Which pixels were scored, in words.
+    uncovered : int
+        Windows the ground truth does not cover all through (they reach before its first
+        or past its last time): listed with ``scored`` False and ``gt_coverage``, left out
+        of ``total`` (their GT displacement would be only part of the motion).
     """
 
     windows: list[dict] = field(default_factory=list)
     total: dict = field(default_factory=dict)
     mismatched: int = 0
     mask: str = "valid GT"
+    uncovered: int = 0
+
+
+def gt_coverage(gt, t0: int, t1: int) -> float:
+    """The share of ``[t0, t1)`` µs that the ground truth's windows cover.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> gt = SimpleNamespace(t0=np.array([0, 10]), t1=np.array([10, 20]))
+    >>> gt_coverage(gt, 5, 25), gt_coverage(gt, 0, 20)
+    (0.75, 1.0)
+    """
+    a = np.maximum(gt.t0, t0)
+    b = np.minimum(gt.t1, t1)
+    return float(np.clip(b - a, 0, None).sum() / max(int(t1) - int(t0), 1))
 
 
 def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float]:
@@ -140,19 +165,26 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     -------
     WindowsEvaluation
     """
-    rows, per_window, mismatched, unknown = [], [], 0, False
+    rows, per_window, mismatched, unknown, uncovered = [], [], 0, False, 0
     for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
+        cover = gt_coverage(gt, int(t0), int(t1))
+        if cover < FULL_COVERAGE:
+            uncovered += 1
+            per_window.append({"window": i, "t0_us": int(t0), "t1_us": int(t1),
+                               "scored": False, "gt_coverage": round(cover, 3)})
+            continue
         disp_gt, valid, frames = gt_displacement(gt, int(t0), int(t1))
         if abs(frames - dt) > 0.5:
             mismatched += 1
+        known = np.isfinite(flow[i]).all(axis=-1)
         est = flow[i].astype(np.float64) * (t1 - t0) * 1e-6
         if along_streamlines:
             from evmotion.methods.transport import transport_to_times
 
-            est = transport_to_times(np.ascontiguousarray(est.transpose(2, 0, 1)),
-                                     np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
+            est = transport_to_times(np.ascontiguousarray(
+                _filled(est, known).transpose(2, 0, 1)),
+                np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
         mask = valid
-        known = np.isfinite(flow[i]).all(axis=-1)
         # NaN where the estimate is not defined (outside a BOS ROI; .flo / .png "unknown")
         if not known.all():
             mask = mask & known
@@ -171,6 +203,10 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
                                 t_ref_us=(int(t0) + int(t1)) // 2)
         rows.append(m)
         per_window.append(row)
+    if not rows:
+        span = f"[{int(np.min(gt.t0))}, {int(np.max(gt.t1))}) us" if len(gt.t0) else "none"
+        raise EmptyWindowError(f"no window lies within the ground truth's time span {span}: "
+                               "nothing to score")
     total = aggregate_flow_metrics(rows).as_dict()
     total["AE_rad"] = float(np.radians(total["AE_deg"]))
     fwls = [r["FWL"] for r in per_window if "FWL" in r]
@@ -179,7 +215,21 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
         total["FWL_gt"] = float(np.mean([r["FWL_gt"] for r in per_window if "FWL_gt" in r]))
     mask_text = ("valid GT" + (" & at least one event" if events is not None else "")
                  + (" & estimate known" if unknown else ""))
-    return WindowsEvaluation(per_window, total, mismatched, mask_text)
+    return WindowsEvaluation(per_window, total, mismatched, mask_text, uncovered)
+
+
+def _filled(flow: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """``flow`` with each unknown pixel (NaN: .flo / .png "unknown", outside a ROI) given
+    its nearest known pixel's flow, so that transporting it carries no NaN and no zero
+    flow into the known pixels (zero where nothing is known)."""
+    if known.all():
+        return flow
+    if not known.any():
+        return np.zeros_like(flow)
+    from scipy.ndimage import distance_transform_edt
+
+    iy, ix = distance_transform_edt(~known, return_distances=False, return_indices=True)
+    return flow[iy, ix]
 
 
 def evaluate_potential(q: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
