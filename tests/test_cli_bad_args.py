@@ -776,3 +776,20 @@ def test_eval_against_ground_truth_of_other_times_says_so(tmp_path, capsys):
             fw.append(flow, t0=start, t1=start + 10_000)
     rc, err = _run(["eval", str(tmp_path / "est.h5"), "--gt", str(tmp_path / "gt.h5")], capsys)
     _assert_one_line(rc, err, "[0, 10000] us", "[1000000, 1010000] us", "do not overlap")
+
+
+@pytest.mark.parametrize("command", [
+    lambda r: ["flow", r, "--out", r],
+    lambda r: ["flow", r, "--method", "triplet", "--out", r],
+    lambda r: ["convert", r, r],
+])
+def test_an_output_that_is_an_input_is_refused(tmp_path, capsys, command):
+    """'flow rec.h5 --out rec.h5' replaced the recording with its flow."""
+    rec = tmp_path / "rec.h5"
+    assert main(["simulate", "translation", "--size", "40x48", "--duration", "0.02",
+                 "--out", str(rec)]) == 0
+    capsys.readouterr()
+    before = rec.read_bytes()
+    rc, err = _run(command(str(rec)), capsys)
+    assert rc == 2 and "is the command's input" in err and err.count("\n") == 1, err
+    assert rec.read_bytes() == before

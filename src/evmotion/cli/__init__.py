@@ -139,6 +139,9 @@ def _build_and_run(argv: list[str] | None) -> int:
         return 2
     warnings.showwarning = _show_warning
     try:
+        from evmotion.cli.options import check_outputs_spare_inputs
+
+        check_outputs_spare_inputs(args)
         return int(args.func(args) or 0)
     except EvmotionError as exc:
         print(f"evmotion {args.command}: error: {_one_line(exc)}", file=sys.stderr)

@@ -567,3 +567,39 @@ def check_flow_out(out: str | os.PathLike, n_windows: int | None = None) -> str:
 
 
 __all__ += ["check_flow_out"]
+
+
+# the attributes naming what a command reads, and what it writes
+INPUT_ATTRS = ("file", "rec", "flow", "input", "gt", "events", "frames", "checkpoint",
+               "calib")
+OUTPUT_ATTRS = ("out", "output", "video", "csv", "png_dir")
+
+
+def check_outputs_spare_inputs(args: argparse.Namespace) -> None:
+    """Refuse an output that is one of the command's inputs (``flow rec.h5 --out rec.h5``
+    replaced the recording with its flow).
+
+    Examples
+    --------
+    >>> ns = argparse.Namespace(file="rec.h5", out="./rec.h5")
+    >>> check_outputs_spare_inputs(ns)
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.ParameterError: --out ./rec.h5 is the command's input rec.h5: it would be overwritten; choose another --out
+    """
+    from evmotion.errors import ParameterError
+
+    positional = ("file", "rec", "flow", "input")
+    inputs = {}
+    for name in INPUT_ATTRS:
+        v = getattr(args, name, None)
+        if isinstance(v, (str, os.PathLike)):
+            label = "" if name in positional else "--" + name + " "
+            inputs[os.path.realpath(v)] = f"{label}{v}"
+    for name in OUTPUT_ATTRS:
+        v = getattr(args, name, None)
+        if isinstance(v, (str, os.PathLike)) and os.path.realpath(v) in inputs:
+            flag = "OUTPUT" if name == "output" else "--" + name.replace("_", "-")
+            raise ParameterError(f"{flag} {v} is the command's input "
+                                 f"{inputs[os.path.realpath(v)]}: it would be overwritten; "
+                                 f"choose another {flag}")
