@@ -162,3 +162,21 @@ def test_simulator_ground_truth_layout(tmp_path):
         f["events/t"] = np.zeros(1)
     (tmp_path / "ev_gt.h5").write_bytes((tmp_path / "sim_gt.h5").read_bytes())
     np.testing.assert_array_equal(ff.read_gt_flow(tmp_path / "ev.h5").flow, flow[:2])
+
+
+def test_dsec_png_marks_what_its_code_cannot_hold(tmp_path):
+    """Displacements beyond +-256 px were clipped silently (read back 2560 for 3000 px/s
+    over 0.1 s: AEE 44 px); they are marked invalid with a warning."""
+    import pytest
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io.flowfiles import read_dsec_flow_png, write_dsec_flow_png
+
+    d = np.zeros((4, 5, 2), np.float32)
+    d[0, 0] = (300.0, 0.0)
+    d[1, 1] = (-255.5, 100.0)
+    with pytest.warns(EvmotionWarning, match="1 valid pixels move more than.*300.0 px"):
+        write_dsec_flow_png(tmp_path / "f.png", d)
+    back, valid = read_dsec_flow_png(tmp_path / "f.png")
+    assert not valid[0, 0] and valid[1, 1] and valid.sum() == 19
+    np.testing.assert_allclose(back[1, 1], d[1, 1], atol=1 / 256)

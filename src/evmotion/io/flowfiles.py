@@ -24,12 +24,13 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs, read_attrs_many
@@ -207,13 +208,15 @@ def read_flo(path: str | os.PathLike, dt_s: float | None = None) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- DSEC PNG
+DSEC_MAX_PX = 256.0  # the 16-bit code's range: v * 128 + 2^15 in 0..65535
 def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
                         valid: np.ndarray | None = None) -> None:
     """Write a DSEC optical-flow PNG (16-bit RGB, atomically).
 
     Channels: ``x`` and ``y`` displacement encoded as ``v · 128 + 2^15``, third channel the
     valid flag (1 = valid). Displacement is in px over the file's interval (DSEC's
-    ``forward_timestamps.txt``); values are clipped to ±256 px and rounded to 1/128 px.
+    ``forward_timestamps.txt``), rounded to 1/128 px; a valid pixel moving more than the
+    code holds (±256 px) is marked invalid, with an :class:`~evmotion.errors.EvmotionWarning`.
 
     Examples
     --------
@@ -228,6 +231,15 @@ def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
         raise ParameterError(f"valid must have shape {(h, w)}, got {valid.shape}")
     enc = np.zeros((h, w, 3), dtype=np.uint16)
     dd = np.nan_to_num(d, nan=0.0)
+    # the 16-bit code holds -256 .. +255.99 px: a valid pixel beyond is not stored as a
+    # wrong (clipped) displacement but marked invalid, and said
+    beyond = valid & ((dd < -DSEC_MAX_PX) | (dd > DSEC_MAX_PX - 1 / 128)).any(axis=2)
+    if beyond.any():
+        warnings.warn(EvmotionWarning(
+            f"{path}: {int(beyond.sum())} valid pixels move more than the DSEC PNG code's "
+            f"{DSEC_MAX_PX:g} px (up to {float(np.abs(dd[beyond]).max()):.1f} px): marked "
+            "invalid; write .h5, .npz or .flo to keep them"), stacklevel=2)
+        valid = valid & ~beyond
     enc[..., :2] = np.clip(np.rint(dd * 128.0 + 2.0**15), 0, 65535).astype(np.uint16)
     enc[..., 2] = valid
     # zlib level 1: files ~1 % larger than level 6 in a third of the time
