@@ -110,7 +110,6 @@ def test_folder_extras(tmp_path):
     ("0.1 1 2 1\n0.2 3 4\n", r"line 2 has 3 column\(s\)"),
     ("0.1 1 2 1\n0.2 3 4 1 5\n", r"line 2 has 5 column"),
     ("0.1 1 2 1\n0.1 1 2 1\n0.2 a 4 1\n", "line 3 is not"),
-    ("0.1 1 2 1\n0.2 300 4 1\n", "x=300.*outside the sensor"),
     ("0.2 1 2 1\n0.1 3 4 1\n", "not sorted"),
     ("0.1 1 2 7\n", "polarity p=7"),
 ])
@@ -192,3 +191,30 @@ def test_other_tools_text_variants(tmp_path):
     (d / "images.txt").write_text("0.0 nothere.png 7\n")
     with pytest.raises(FormatError, match="line 1: expected 't file'.*no file"):
         ecd.read_image_list(d)
+
+
+def test_a_sensor_size_from_header_or_largest_coordinate(tmp_path):
+    """Text written for another sensor (346x260) could not be read back (events outside
+    the ECD's 240x180): write() states the size in a comment line; a file stating none
+    takes the largest coordinates, with a warning; a given size still refuses events
+    outside it."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
+    ev = EventArray(x=[1, 345], y=[2, 10], t=[100, 200], p=[1, 0], sensor_size=(260, 346))
+    ecd.write(tmp_path / "a.txt", ev)
+    assert (tmp_path / "a.txt").read_text().startswith("# evmotion ECD text")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = ecd.read(tmp_path / "a.txt")
+    assert back.sensor_size == (260, 346) and back.x.tolist() == [1, 345]
+    assert ecd.describe(tmp_path / "a.txt")["sensor_size_from"] == "header"
+    ecd.write(tmp_path / "b.txt", ev, header=False)
+    with pytest.warns(EvmotionWarning, match="taken as 346x180 px"):
+        assert ecd.read(tmp_path / "b.txt").sensor_size == (180, 346)
+    with pytest.raises(FormatError, match="x=345.*outside the sensor"):
+        ecd.read(tmp_path / "b.txt", sensor_size=(260, 300))
+    small = EventArray(x=[1], y=[2], t=[100], p=[1], sensor_size=(180, 240))
+    ecd.write(tmp_path / "c.txt", small)
+    assert not (tmp_path / "c.txt").read_text().startswith("#")  # the ECD's own: pure

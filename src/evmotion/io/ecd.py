@@ -16,12 +16,13 @@ cache), more than numpy takes for ~100k lines (a one-window command reads ~30k).
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size, time_to_us
@@ -33,6 +34,9 @@ __all__ = ["read", "iter_chunks", "write", "describe", "read_calibration", "pars
            "read_imu", "read_groundtruth", "read_image_list", "read_frames", "FORMAT"]
 
 ECD_SENSOR_SIZE = (180, 240)
+# the sensor size in a comment line of an events file (what write() puts there when the
+# sensor is not the ECD's)
+HEADER_SIZE = re.compile(r"height\s+(\d+)\s+width\s+(\d+)")
 BLOCK_BYTES = 1 << 24
 #: Largest text parsed without numba (see the module docstring).
 PLAIN_TEXT_BYTES = 1 << 22
@@ -242,7 +246,29 @@ def _sensor_size(path: Path, sensor_size) -> tuple[tuple[int, int], str]:
     size = _image_size(folder)
     if size is not None:
         return size, "images"
+    ev_path = _events_file(path)
+    size = _header_size(ev_path)
+    if size is not None:
+        return check_sensor_size(ev_path, size, "header sensor size"), "header"
     return ECD_SENSOR_SIZE, "ECD default (DAVIS240C)"
+
+
+def _header_size(ev_path: Path) -> tuple[int, int] | None:
+    """The sensor size a comment line at the top of the events file states
+    (``# ... height H width W``, as :func:`write` puts it), if one does."""
+    try:
+        with open(ev_path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return None
+    for line in head.removeprefix(b"\xef\xbb\xbf").splitlines():
+        text = line.strip()
+        if not text.startswith((b"#", b"%")):
+            return None
+        m = HEADER_SIZE.search(text.decode("ascii", "replace"))
+        if m:
+            return int(m.group(1)), int(m.group(2))
+    return None
 
 
 def _blocks(path: Path, block_bytes: int, time_unit: str = "s"
@@ -367,6 +393,16 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
         x, y, t, p = (np.concatenate([q[i] for q in parts]) for i in range(4))
     else:
         x = y = t = p = np.zeros(0, np.int64)
+    if src.startswith("ECD default") and x.size and x.min() >= 0 and y.min() >= 0 and (
+            x.max() >= size[1] or y.max() >= size[0]):
+        # text from another sensor, its size stated nowhere: the smallest sensor holding
+        # every event (at least the ECD's), said so
+        size = (max(size[0], int(y.max()) + 1), max(size[1], int(x.max()) + 1))
+        src = "largest coordinate (the file states no sensor size)"
+        warnings.warn(EvmotionWarning(
+            f"{ev_path}: no sensor size in the file and events beyond the ECD's 240x180: "
+            f"taken as {size[1]}x{size[0]} px (W x H) from the largest coordinates; give "
+            "the true size (--sensor-size H W in convert, sensor_size=(H, W))"), stacklevel=2)
     return _to_events(ev_path, x, y, t, p, size, src, validate, _folder_meta(ev_path))
 
 
@@ -465,9 +501,13 @@ def format_text(events: EventArray) -> bytes:
     return buf[:n].tobytes()
 
 
-def write(path: str | Path, events: EventArray | Iterator[EventArray]) -> None:
+def write(path: str | Path, events: EventArray | Iterator[EventArray], *,
+          header: bool = True) -> None:
     """Write ECD ``events.txt`` (atomically); accepts one EventArray or an iterable of
-    chunks (streamed). A folder path gets ``events.txt`` inside it.
+    chunks (streamed). A folder path gets ``events.txt`` inside it. A sensor other than
+    the ECD's 240x180 is stated in a first comment line (``# ... sensor height H width
+    W``), which :func:`read` takes its size from, unless ``header`` is False (a folder
+    whose frames give the size, for tools that read the lines as numbers only).
 
     Examples
     --------
@@ -477,7 +517,13 @@ def write(path: str | Path, events: EventArray | Iterator[EventArray]) -> None:
     chunks = [events] if isinstance(events, EventArray) else events
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
-            for ev in chunks:
+            for k, ev in enumerate(chunks):
+                if k == 0 and header and tuple(ev.sensor_size) != ECD_SENSOR_SIZE:
+                    # ECD text has no header; a comment line (which ECD readers skip)
+                    # keeps the sensor size for reading back
+                    h, w = ev.sensor_size
+                    fh.write(f"# evmotion ECD text: t[s] x y p; sensor height {h} width "
+                             f"{w}\n".encode())
                 for s in range(0, len(ev), 200_000):
                     fh.write(format_text(ev[s:s + 200_000]))
 

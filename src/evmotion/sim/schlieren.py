@@ -849,7 +849,7 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
 
     out = Path(out_dir)
     (out / "images").mkdir(parents=True, exist_ok=True)
-    ecd.write(out / "events.txt", sim.events)
+    ecd.write(out / "events.txt", sim.events, header=False)  # the frames give the size
     lines = []
     shift = 8 * sim.frames.images.dtype.itemsize - sim.frames.bit_depth
     for i, (t, img) in enumerate(zip(sim.frames.t, sim.frames.images, strict=True)):
