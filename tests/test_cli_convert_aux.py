@@ -81,3 +81,25 @@ def test_convert_real_davis346_keeps_imu_and_frames(tmp_path, capsys, shared_dat
     fa, fb = eio.read_frames(src), eio.read_frames(out)
     np.testing.assert_array_equal(fa.t, fb.t)
     np.testing.assert_array_equal(np.asarray(fa.images[5]), np.asarray(fb.images[5]))
+
+
+def test_convert_names_a_dropped_calibration(tmp_path, capsys):
+    """.h5 -> .raw / .npz dropped the calibration with '"dropped": {}'."""
+    import json
+
+    from evmotion.cli import main
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    ev = EventArray(x=[1, 2, 3], y=[1, 2, 3], t=[10, 20, 30], p=[1, 0, 1],
+                    sensor_size=(40, 50))
+    calib = {"K": [40.0, 40.0, 25.0, 20.0], "dist": [0.1, 0.0, 0.0, 0.0, 0.0],
+             "resolution": [40, 50]}
+    write_events(tmp_path / "c.h5", ev, calibration=calib)
+    capsys.readouterr()
+    assert main(["convert", str(tmp_path / "c.h5"), str(tmp_path / "c.npz"), "--json"]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["dropped"] == {"calibration": 1}
+    assert "dropped the calibration" in cap.err and "cannot store it" in cap.err
+    assert main(["convert", str(tmp_path / "c.h5"), str(tmp_path / "d.h5"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["dropped"] == {}

@@ -108,8 +108,12 @@ def run(args) -> int:
     for name, stream in kept.items():
         opts[name] = stream
     eio.write_events(dst, all_chunks(), format=fmt_out, **opts)
+    if fmt_out != "h5" and _has_calibration(src, first):
+        dropped["calibration"] = (1, f"format '{fmt_out}' cannot store it (convert to .h5 "
+                                     "to keep it, or give the calibration with --calib)")
     for name, (n, why) in dropped.items():
-        warn_line(f"{dst}: dropped the {n:,} {_AUX_NAMES[name]} of {src}: {why}")
+        what = "calibration" if name == "calibration" else f"{n:,} {_AUX_NAMES[name]}"
+        warn_line(f"{dst}: dropped the {what} of {src}: {why}")
     summary = {"input": str(src), "format_in": fmt_in, "output": str(dst),
                "format_out": fmt_out, "n_events": counted["n"],
                "t_first_us": counted["t_first"], "t_last_us": counted["t_last"],
@@ -125,6 +129,16 @@ def run(args) -> int:
 
 
 _AUX_NAMES = {"imu": "IMU samples", "frames": "APS frames"}
+
+
+def _has_calibration(src, first) -> bool:
+    """Whether the recording brings a camera calibration (not a header's nominal lens)."""
+    if first.meta.get("calibration"):
+        return True
+    from evmotion.io.calibration import recording_intrinsics
+
+    intr = recording_intrinsics(src, tuple(first.sensor_size))
+    return bool(intr.get("K")) and not intr.get("nominal")
 
 
 def _aux_streams(src, fmt_in: str, fmt_out: str, t0: int | None, t1: int | None):
