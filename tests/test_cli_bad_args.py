@@ -793,3 +793,28 @@ def test_an_output_that_is_an_input_is_refused(tmp_path, capsys, command):
     rc, err = _run(command(str(rec)), capsys)
     assert rc == 2 and "is the command's input" in err and err.count("\n") == 1, err
     assert rec.read_bytes() == before
+
+
+def test_results_without_motion_information_are_flagged(tmp_path, capsys):
+    """egomotion of a window whose events share one time returned zero motion marked
+    valid; landscape named a minimum on the edge of its range without a word."""
+    from evmotion.errors import EmptyWindowError
+    from evmotion.events import EventArray
+    from evmotion.methods.egomotion import estimate_egomotion
+
+    rng = np.random.default_rng(0)
+    stuck = EventArray(x=rng.integers(0, 40, 500), y=rng.integers(0, 30, 500),
+                       t=np.full(500, 7), p=rng.integers(0, 2, 500), sensor_size=(30, 40))
+    with pytest.raises(EmptyWindowError, match="all at one time"):
+        estimate_egomotion(stuck, "translation")
+    rec = tmp_path / "z.h5"
+    assert main(["simulate", "translation", "--size", "60x80", "--duration", "0.05",
+                 "--params", "vx=40", "--out", str(rec)]) == 0
+    capsys.readouterr()
+    for lo, hi, edge in ((-100, 60, True), (-1000, 1000, False)):
+        assert main(["landscape", str(rec), "--warp", "translation", "--param", "0",
+                     "--range", str(lo), str(hi), "--out", str(tmp_path / "l.png"),
+                     "--json"]) == 0
+        cap = capsys.readouterr()
+        assert json.loads(cap.out)["minimum_at_edge"] is edge
+        assert ("edge of --range" in cap.err) is edge

@@ -129,7 +129,16 @@ def run(args) -> int:
         lines += [",".join(repr(float(v)) for v in row)
                   for row in zip(values, *curves.values(), strict=True)]
         atomic_write_text(args.csv, "\n".join(lines) + "\n")
-    best = values[int(np.argmin(plain["cost"]))]
+    i_best = int(np.argmin(plain["cost"]))
+    best = values[i_best]
+    # a minimum on the range's edge may lie beyond it: not a measurement of the motion
+    at_edge = i_best in (0, len(values) - 1)
+    if at_edge:
+        from evmotion.cli import warn_line
+
+        warn_line(f"the minimum ({name} = {best:.4g} {unit}) is at the edge of --range "
+                  f"[{values[0]:.4g}, {values[-1]:.4g}]: the true one may lie beyond; "
+                  "widen --range")
     if args.json:
         from evmotion.cli import print_json
 
@@ -139,7 +148,7 @@ def run(args) -> int:
                     "window": {"t0_us": int(events.t[0]), "t1_us": int(events.t[-1]) + 1,
                                "n_events": len(events)},
                     "grid": args.grid, "values": values, "curves": curves,
-                    "minimum": float(best)})
+                    "minimum": float(best), "minimum_at_edge": at_edge})
     else:
         print(f"{args.out}: minimum without regularizer at {name} = {best:.4g} {unit} "
               f"(events on the {args.grid} grid)")

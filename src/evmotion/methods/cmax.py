@@ -572,6 +572,10 @@ def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str 
     if len(events) < 3:
         raise EmptyWindowError(f"window has {len(events)} events; contrast maximization "
                                f"needs more")
+    if int(events.t[-1]) == int(events.t[0]):
+        # no time for the motion to act: every warp leaves the image as it is
+        raise EmptyWindowError(f"window's {len(events)} events are all at one time "
+                               f"({int(events.t[0])} us): no motion to estimate")
     if isinstance(warp, str):
         if warp not in WARPS:
             raise ParameterError(f"unknown warp '{warp}'; choose one of {sorted(WARPS)}")
