@@ -280,8 +280,10 @@ def test_cli_egomotion_reports_checks_and_warns_once(tmp_path, capsys):
     assert len(lines) == 1 and lines[0].startswith("evmotion: warning: window 0: poor fit")
     with h5py.File(out / "params.h5") as f:
         assert f["explained_share"][0] < 0.4 and not f["collapsed"][0]
-    header = (out / "params.csv").read_text().splitlines()[0]
-    assert header.endswith("collapsed,explained_share,contrast_gain")
+    header, first = (out / "params.csv").read_text().splitlines()[:2]
+    # the csv carries the checks the .h5 does (poor_fit and valid were missing)
+    assert header.endswith("collapsed,explained_share,contrast_gain,poor_fit,valid")
+    assert first.endswith(",1,0")
 
 
 def test_cli_multicm_writes_the_validity_mask(tmp_path, capsys):

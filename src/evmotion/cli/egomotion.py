@@ -2,8 +2,9 @@
 
 Writes into ``--out DIR``: ``params.csv`` and ``params.h5`` (one row per window: time range,
 reference time, event count, the warp parameters with their units, cost, focus, penalty,
-seconds; ``params.h5`` (:mod:`evmotion.io.paramsfiles`) also says the warp, the pixel grid,
-each value's units and a ``valid`` flag per window, and ``evmotion info`` describes it),
+seconds and the checks: ``collapsed``, ``explained_share``, ``poor_fit`` and ``valid``;
+``params.h5`` (:mod:`evmotion.io.paramsfiles`) also says the warp, the pixel grid and each
+value's units, and ``evmotion info`` describes it),
 and PNG panels (IWE before / after, DIWE and IWA maps) for the first
 ``--max-png`` windows. ``--json`` prints the per-window parameters with names and units,
 and each window's checks: ``collapsed`` and ``diagnostics`` (explained share of the image,
@@ -283,24 +284,26 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
         return rows
     names = ok[0][1].param_names
     units = ok[0][1].param_units
-    buf = io.StringIO()
-    wr = csv.writer(buf)
-    wr.writerow(["window", "t0_us", "t1_us", "t_ref_us", "n_events",
-                 *[f"{n} [{u}]" for n, u in zip(names, units, strict=True)],
-                 "cost", "focus", "penalty", "seconds", "collapsed", "explained_share",
-                 "contrast_gain"])
-    for row in rows:
-        wr.writerow([row["window"], row["t0_us"], row["t1_us"], row["t_ref_us"], row["n_events"],
-                     *[repr(row["params"][n]) for n in names], repr(row["cost"]),
-                     repr(row["focus"]), repr(row["penalty"]), f"{row['seconds']:.4f}",
-                     int(row["collapsed"]), repr(_share(row)),
-                     repr(row["diagnostics"].get("contrast_gain", float("nan")))])
-    atomic_write_text(out_dir / "params.csv", buf.getvalue())
     params = np.array([r.params for _, r in ok], dtype=np.float64)
     # the checks of every window: collapsed estimates and poor fits are not measurements
     collapsed = np.array([row["collapsed"] for row in rows], dtype=bool)
     share = np.array([_share(row) for row in rows])
     poor_fit = share < POOR_FIT_SHARE  # NaN (not checked) is not flagged
+    valid = ~collapsed & ~poor_fit & np.isfinite(params).all(axis=1)
+    buf = io.StringIO()
+    wr = csv.writer(buf)
+    wr.writerow(["window", "t0_us", "t1_us", "t_ref_us", "n_events",
+                 *[f"{n} [{u}]" for n, u in zip(names, units, strict=True)],
+                 "cost", "focus", "penalty", "seconds", "collapsed", "explained_share",
+                 "contrast_gain", "poor_fit", "valid"])
+    for k, row in enumerate(rows):
+        wr.writerow([row["window"], row["t0_us"], row["t1_us"], row["t_ref_us"], row["n_events"],
+                     *[repr(row["params"][n]) for n in names], repr(row["cost"]),
+                     repr(row["focus"]), repr(row["penalty"]), f"{row['seconds']:.4f}",
+                     int(row["collapsed"]), repr(_share(row)),
+                     repr(row["diagnostics"].get("contrast_gain", float("nan"))),
+                     int(poor_fit[k]), int(valid[k])])
+    atomic_write_text(out_dir / "params.csv", buf.getvalue())
     cols = {"window": ("", "window index"), "t_ref_us": ("us", "reference time of the warp"),
             "n_events": ("events", "events in the window"), "cost": ("", "objective value"),
             "focus": ("", "focus term"), "penalty": ("", "regularizer term"),
@@ -316,7 +319,7 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
     write_params_h5(out_dir / "params.h5", ParamsTable(
         params, tuple(names), tuple(units),
         np.array([row["t0_us"] for row in rows]), np.array([row["t1_us"] for row in rows]),
-        ~collapsed & ~poor_fit & np.isfinite(params).all(axis=1), values,
+        valid, values,
         {k: u for k, (u, _) in cols.items()}, {k: m for k, (_, m) in cols.items()},
         {"method": "egomotion", "warp": first.warp, "regularizer": str(first.regularizer),
          "objective": first.objective, "grid": "not recorded" if grid is None else grid}))
