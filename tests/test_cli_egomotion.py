@@ -151,3 +151,25 @@ def test_egomotion_png_panels_of_first_windows_less_failed(rec, tmp_path):
         assert [r["window"] for r in rows] == [w1.index]
     assert not list((tmp_path / "a").glob("*.png"))
     assert [p.name for p in (tmp_path / "b").glob("*.png")] == [f"window_{w1.index:05d}.png"]
+
+
+def test_a_rerun_leaves_no_stale_pictures(rec, tmp_path, capsys):
+    """A second run with fewer windows into the same folder left the first run's
+    window_00001.png beside its own (egomotion, segment, flow --png-dir alike)."""
+    out = tmp_path / "ego"
+    argv = ["egomotion", str(rec), "--warp", "translation", "--window-us", "50000",
+            "--out", str(out)]
+    assert main(argv + ["--max-png", "2"]) == 0
+    (out / "notes.png").write_bytes(b"mine")
+    assert (out / "window_00001.png").is_file()
+    assert main(argv + ["--max-png", "1"]) == 0
+    assert (out / "window_00000.png").is_file() and not (out / "window_00001.png").exists()
+    assert (out / "notes.png").read_bytes() == b"mine"
+    png = tmp_path / "png"
+    flow = ["flow", str(rec), "--scales", "2", "--out", str(tmp_path / "f.h5"), "--png-dir",
+            str(png)]
+    assert main(flow + ["--window-us", "50000"]) == 0
+    assert (png / "flow_00001.png").is_file()
+    assert main(flow + ["--window-us", "100000"]) == 0
+    assert (png / "flow_00000.png").is_file() and not (png / "flow_00001.png").exists()
+    capsys.readouterr()

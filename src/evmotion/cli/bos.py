@@ -38,6 +38,7 @@ from evmotion.cli.options import (
     existing_input,
     finite_float,
     int_range,
+    remove_stale_pictures,
     time_us,
     writable_folder,
     writable_output,
@@ -187,6 +188,7 @@ def run(args) -> int:
         from evmotion.viz.bos import save_bos_pngs
 
         bos = read_bos(out)
+        remove_stale_pictures(args.png_dir, ("q_", "flow_", "p_"))
         for k in range(len(bos)):
             png_files += save_bos_pngs(args.png_dir, k, bos.flow.flow[k], bos.q[k], bos.p[k],
                                        q_unit=bos.attrs["q_units"],

@@ -32,6 +32,7 @@ from evmotion.cli.options import (
     nonnegative_float,
     positive_int,
     reject_unused,
+    remove_stale_pictures,
     select_windows,
     writable_folder,
 )
@@ -213,6 +214,7 @@ def run(args) -> int:
                             last_png_t0_us=last_png)
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
+    remove_stale_pictures(out_dir, ("window_",))
     if args.warm_start:
         results, init = [], None
         for w in progress(windows, desc="egomotion", unit="win"):

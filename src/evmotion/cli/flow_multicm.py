@@ -36,6 +36,7 @@ from evmotion.cli.options import (
     nonnegative_float,
     positive_int,
     reject_unused,
+    remove_stale_pictures,
 )
 from evmotion.errors import EmptyWindowError, ParameterError
 
@@ -238,6 +239,9 @@ def run(args) -> int:
         workers = args.workers
     attrs["grid"] = grid
     png_dir = Path(args.png_dir) if args.png_dir else None
+    if png_dir is not None and not args.resume:
+        remove_stale_pictures(png_dir, ("flow_", "flow_masked_", "iwe_tmid_",
+                                        "iwe_identity_"))
     video = [] if args.video else None
 
     def after(i, r) -> None:

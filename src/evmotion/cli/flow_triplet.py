@@ -31,6 +31,7 @@ from evmotion.cli.options import (
     positive_float,
     positive_int,
     reject_unused,
+    remove_stale_pictures,
 )
 from evmotion.errors import ParameterError
 
@@ -140,6 +141,8 @@ def run(args) -> int:
         raise ParameterError(f"--video {args.video}: written by --method multicm only")
     out = Path(args.out)
     png_dir = Path(args.png_dir) if args.png_dir else None
+    if png_dir is not None and not args.resume:
+        remove_stale_pictures(png_dir, ("flow_", "iwe_"))
     tau_us = None if args.tau_ms is None else int(round(args.tau_ms * 1000))
     args.dx, tau_us, args.filter_size = dense_defaults(args.dense, args.dx, tau_us,
                                                        args.filter_size)

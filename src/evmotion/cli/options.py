@@ -603,3 +603,29 @@ def check_outputs_spare_inputs(args: argparse.Namespace) -> None:
             raise ParameterError(f"{flag} {v} is the command's input "
                                  f"{inputs[os.path.realpath(v)]}: it would be overwritten; "
                                  f"choose another {flag}")
+
+
+def remove_stale_pictures(folder, prefixes: tuple[str, ...]) -> int:
+    """Delete the per-window pictures (``PREFIX00012.png``) an earlier run left in
+    ``folder``, so that a run with fewer windows does not leave the old ones looking like
+    its own; other files are kept. Returns how many were removed.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> for name in ("window_00003.png", "notes.png"):
+    ...     _ = (d / name).write_bytes(b"")
+    >>> remove_stale_pictures(d, ("window_",)), sorted(p.name for p in d.iterdir())
+    (1, ['notes.png'])
+    """
+    from pathlib import Path
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        return 0
+    pattern = re.compile(r"(?:" + "|".join(map(re.escape, prefixes)) + r")\d{5}\.png")
+    stale = [p for p in folder.iterdir() if pattern.fullmatch(p.name) and p.is_file()]
+    for p in stale:
+        p.unlink()
+    return len(stale)

@@ -19,6 +19,7 @@ from evmotion.cli.options import (
     check_time_order,
     int_range,
     positive_int,
+    remove_stale_pictures,
     select_windows,
     writable_folder,
 )
@@ -77,6 +78,7 @@ def run(args) -> int:
                              n_events=count, duration_us=args.window_us or None)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    remove_stale_pictures(out, ("window_",))
     K = None if cam is None else cam.K
     job = functools.partial(_segment_job, n_warps=args.warps, warp=args.warp,
                             objective=args.objective, K=K, t_ref=args.t_ref,
