@@ -278,3 +278,22 @@ def test_without_hdf5plugin_blosc_outputs_fall_back_to_gzip(tmp_path):
                          timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["ev.h5", "gzip", "f.h5", "gzip", "1536.0"], out.stdout
+
+
+def test_a_gap_in_a_pattern_is_named(tmp_path):
+    """Deleting f_01.flo made the pattern read as one window, f_02.flo ignored."""
+    import pytest
+
+    from evmotion.errors import FormatError
+    from evmotion.io.flowout import open_flow_output
+    from evmotion.io.flowread import read_flow
+
+    pat = tmp_path / "f_{:02d}.flo"
+    sink = open_flow_output(pat, (4, 5), {"method": "test"}, n_windows=3)
+    for k in range(3):
+        sink.append(np.full((4, 5, 2), float(k), np.float32), 10 * k, 10 * k + 10)
+    sink.close()
+    assert len(read_flow(pat).t0) == 3
+    (tmp_path / "f_01.flo").unlink()
+    with pytest.raises(FormatError, match="f_01.flo is missing but f_02.flo exists"):
+        read_flow(pat)

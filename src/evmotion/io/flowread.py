@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import zipfile
 from pathlib import Path
 
@@ -96,6 +97,16 @@ def _pattern_files(path: Path) -> list[Path]:
         files.append(p)
     if not files:
         raise FormatError(path, f"no file of this pattern (looked for {window_path(path, 0)})")
+    # a missing file in the middle would silently end the sequence there
+    m = re.fullmatch(r"(.*)\{[^{}]*\}(.*)", path.name)
+    if m and path.parent.is_dir():
+        number = re.compile(re.escape(m.group(1)) + r"(\d+)" + re.escape(m.group(2)))
+        later = sorted(int(k.group(1)) for q in path.parent.iterdir()
+                       if (k := number.fullmatch(q.name)) and int(k.group(1)) > len(files))
+        if later:
+            raise FormatError(path, f"{window_path(path, len(files)).name} is missing but "
+                              f"{window_path(path, later[0]).name} exists: a gap in the "
+                              f"sequence after {len(files)} files")
     return files
 
 
