@@ -818,3 +818,32 @@ def test_results_without_motion_information_are_flagged(tmp_path, capsys):
         cap = capsys.readouterr()
         assert json.loads(cap.out)["minimum_at_edge"] is edge
         assert ("edge of --range" in cap.err) is edge
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", ["flow", "convert"])
+def test_sigterm_unwinds_as_ctrl_c_does(rec, command):
+    """SIGTERM (kill, timeout) to the command's process only: convert left its x.h5.part;
+    now the work unwinds as after Ctrl-C (one line, exit 130, no partial file, no worker
+    left running: the forked workers still die of their pool's SIGTERM)."""
+    d = rec["dir"]
+    argv = {"flow": ["flow", rec["rec"], "--window-events", "1500", "--workers", "2",
+                     "--out", str(d / "term.npz")],
+            "convert": ["convert", rec["rec"], str(d / "term.h5"), "--chunk-events", "20"]
+            }[command]
+    start = time.perf_counter()
+    p = _popen(argv)
+    p.communicate(timeout=300)
+    full = time.perf_counter() - start
+    for name in ("term.npz", "term.h5"):
+        (d / name).unlink(missing_ok=True)
+    p = _popen(argv)
+    time.sleep(full * 0.6)
+    p.send_signal(signal.SIGTERM)
+    out, err = p.communicate(timeout=60)
+    time.sleep(0.2)
+    assert not _alive_in_group(p.pid)
+    assert (p.returncode == 130 and err == "evmotion: interrupted\n") or \
+        (p.returncode == 0 and err == ""), (p.returncode, err)
+    left = [q.name for q in d.iterdir() if ".part" in q.name or q.name.startswith(".")]
+    assert not left

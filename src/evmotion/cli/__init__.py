@@ -210,6 +210,15 @@ def _on_sigint(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
+def _on_sigterm(signum, frame) -> None:
+    """``kill`` / ``timeout``: unwind as for Ctrl-C (partial outputs removed, or kept for
+    ``--resume``); a worker process (forked, so it has this handler) ends at once, as
+    SIGTERM's default action would, when its pool is terminated."""
+    if os.getpid() != _MAIN_PID[0]:
+        os._exit(128 + signum)
+    _on_sigint(signum, frame)
+
+
 def _stop_children() -> None:
     """End the worker processes (which ignore Ctrl-C, see :func:`_on_sigint`): none may
     outlive the command, nor keep its output pipes open."""
@@ -267,8 +276,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run the ``evmotion`` command; returns its exit code.
 
     With ``argv=None`` (the installed script, ``python -m evmotion``) this is the whole
-    process: Ctrl-C at any moment prints one line "evmotion: interrupted" and exits with
-    code 130. With a list (tests, scripts), Ctrl-C returns 130 after the same line.
+    process: Ctrl-C (or SIGTERM) at any moment prints one line "evmotion: interrupted"
+    and exits with code 130. With a list (tests, scripts), Ctrl-C returns 130 after the same line.
     """
     if argv is not None:
         try:
@@ -278,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
             return 130
     _MAIN_PID[0] = os.getpid()
     signal.signal(signal.SIGINT, _on_sigint)
+    signal.signal(signal.SIGTERM, _on_sigterm)
     sys.unraisablehook = _unraisable
     try:
         rc = _build_and_run(None)
