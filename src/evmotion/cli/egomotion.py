@@ -28,6 +28,7 @@ from evmotion.cli.options import (
     add_scheduler_argument,
     add_time_arguments,
     check_time_order,
+    duration_us,
     int_range,
     nonnegative_float,
     positive_int,
@@ -85,8 +86,8 @@ def add_parser(sub) -> None:
                    help="optimizer (default bfgs)")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--window-events", type=int_range(10), help="events per window (>= 10)")
-    g.add_argument("--window-us", type=positive_int(unit="µs"),
-                   help="window duration in microseconds")
+    g.add_argument("--window-us", type=duration_us,
+                   help="window duration: microseconds, or with a unit (10000, 10ms, 0.01s)")
     add_time_arguments(p)
     p.add_argument("--workers", type=positive_int(), default=1,
                    help="parallel worker processes")

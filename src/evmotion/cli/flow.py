@@ -37,6 +37,7 @@ from evmotion.cli.calib import add_camera_arguments, check_camera_args
 from evmotion.cli.options import (
     add_time_arguments,
     check_time_order,
+    duration_us,
     existing_input,
     int_range,
     positive_float,
@@ -113,7 +114,7 @@ def add_parser(sub) -> None:
     win = p.add_mutually_exclusive_group()
     win.add_argument("--window-events", type=int_range(10), default=None, metavar="N",
                      help="events per window (>= 10; default 30000)")
-    win.add_argument("--window-us", type=positive_int(unit="µs"), default=None, metavar="T")
+    win.add_argument("--window-us", type=duration_us, default=None, metavar="T")
     win.add_argument("--window-gt", type=existing_input, default=None, metavar="GT",
                      help="ground-truth file whose timestamps define the windows")
     p.add_argument("--gt-dt", type=positive_int(), default=None,

@@ -387,6 +387,35 @@ def time_us(text: str) -> int:
 time_us.__name__ = "time"
 
 
+def duration_us(text: str) -> int:
+    """``type=`` for ``--window-us``: microseconds by default, or with a ``us``/``µs``,
+    ``ms`` or ``s`` suffix as ``--t0`` takes; a whole number of µs > 0.
+
+    Examples
+    --------
+    >>> duration_us("10000"), duration_us("10ms"), duration_us("0.01s")
+    (10000, 10000, 10000)
+    """
+    raw = str(text).strip()
+    body, scale = raw, 1
+    for suffix in ("us", "µs", "ms", "s"):
+        if raw.lower().endswith(suffix):
+            body, scale = raw[: -len(suffix)].strip(), _TIME_UNITS[suffix]
+            break
+    try:
+        v = float(body) * scale
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v) or v < 1 or v > 2**62 or abs(v - round(v)) > 1e-6 * max(v, 1):
+        raise argparse.ArgumentTypeError(
+            f"must be a whole number of microseconds >= 1, or with a unit (e.g. 10000, "
+            f"10ms, 0.01s), got {text!r}")
+    return int(round(v))
+
+
+duration_us.__name__ = "duration"
+
+
 def _seconds(t_us: int) -> str:
     return f"{int(t_us) / 1e6:.6f}".rstrip("0").rstrip(".")
 
