@@ -109,8 +109,9 @@ def run(args) -> int:
         opts[name] = stream
     eio.write_events(dst, all_chunks(), format=fmt_out, **opts)
     if fmt_out != "h5" and _has_calibration(src, first):
-        dropped["calibration"] = (1, f"format '{fmt_out}' cannot store it (convert to .h5 "
-                                     "to keep it, or give the calibration with --calib)")
+        dropped["calibration"] = (1, f"evmotion's '{fmt_out}' writer does not store it "
+                                     "(convert to .h5 to keep it, or give the calibration "
+                                     "with --calib)")
     for name, (n, why) in dropped.items():
         what = "calibration" if name == "calibration" else f"{n:,} {_AUX_NAMES[name]}"
         warn_line(f"{dst}: dropped the {what} of {src}: {why}")
@@ -181,6 +182,6 @@ def _aux_streams(src, fmt_in: str, fmt_out: str, t0: int | None, t1: int | None)
         if name in takes:
             kept[name] = stream
         else:
-            dropped[name] = (len(idx), f"format '{fmt_out}' cannot store them (convert to "
-                                       ".h5 to keep them)")
+            dropped[name] = (len(idx), f"evmotion's '{fmt_out}' writer does not store them "
+                                       "(convert to .h5 to keep them)")
     return kept, dropped

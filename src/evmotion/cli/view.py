@@ -166,6 +166,8 @@ def run(args) -> int:
             "pixels_with_events": int((hist != 0).sum()),
             "max_per_pixel": float(np.abs(hist).max()),
         })
+    else:
+        print(f"{out}: {len(ev):,} events, [{int(ev.t[0])}, {int(ev.t[-1]) + 1}) us")
     return 0
 
 
@@ -219,4 +221,6 @@ def _view_flow(args, out: Path) -> int:
                     "image": {"height": int(rgb.shape[0]), "width": int(rgb.shape[1])},
                     "valid_fraction": float(np.mean(valid)),
                     "has_q": q is not None})
+    else:
+        print(f"{out}: window {k} of {n} of {args.file}, [{t0}, {t1}) us")
     return 0
