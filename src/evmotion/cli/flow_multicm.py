@@ -99,6 +99,9 @@ def _windows(args, events):
         gt = read_gt_flow(args.window_gt)
         # frame edges: every GT start plus the end of the last frame
         edges = np.append(np.asarray(gt.t0), np.asarray(gt.t1)[-1:])
+        if edges.size < args.gt_dt + 1:
+            raise ParameterError(f"--window-gt {args.window_gt}: {max(edges.size - 1, 0)} "
+                                 f"ground-truth frame(s), fewer than --gt-dt {args.gt_dt}")
         return select_windows(args, events, edges_us=edges, dt=args.gt_dt, **kw)
     if args.window_us is not None:
         return select_windows(args, events, duration_us=args.window_us, **kw)
