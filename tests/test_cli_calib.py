@@ -183,3 +183,25 @@ def test_real_jaer_info_says_why_no_intrinsics(shared_data, capsys):
     assert main(["info", str(f), "--header-only", "--json"]) == 0
     intr = json.loads(capsys.readouterr().out)["intrinsics"]
     assert intr["source"] is None and "4.5, 8.5, 12 mm" in intr["reason"]
+
+
+def test_undistortion_that_drops_many_events_says_so(tmp_path, capsys):
+    """Undistorting an ECD window left 18 % of its events out without a word."""
+    from evmotion.cli import main
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    ev = EventArray(x=rng.integers(0, 60, n), y=rng.integers(0, 40, n), t=np.arange(n) * 10,
+                    p=rng.integers(0, 2, n), sensor_size=(40, 60))
+    calib = {"K": [[30.0, 0, 30.0], [0, 30.0, 20.0], [0, 0, 1]],
+             "dist": [-0.5, 0.2, 0.0, 0.0, 0.0], "resolution": [40, 60]}
+    write_events(tmp_path / "r.h5", ev, calibration=calib)
+    assert main(["flow", str(tmp_path / "r.h5"), "--scales", "2", "--out",
+                 str(tmp_path / "f.h5")]) == 0
+    err = capsys.readouterr().err
+    assert "undistortion moved" in err and "outside the image" in err
+    assert main(["flow", str(tmp_path / "r.h5"), "--scales", "2", "--no-undistort", "--out",
+                 str(tmp_path / "g.h5")]) == 0
+    assert "undistortion moved" not in capsys.readouterr().err

@@ -97,8 +97,21 @@ def undistort_for(args, events, *, integer: bool = False):
                  and not getattr(args, "no_undistort", False))
     grid = _grid(cam, events, undistort)
     if undistort:
+        n = len(events)
         events = cam.undistort_events(events, integer=integer)
+        lost = n - len(events)
+        if lost > UNDISTORT_LOSS_NOTE * n:
+            # a large share is worth knowing (a wide-angle lens, or the wrong calibration)
+            from evmotion.cli import warn_line
+
+            warn_line(f"undistortion moved {lost:,} of {n:,} events ({100 * lost / n:.0f} %) "
+                      "outside the image: they are left out (--no-undistort keeps the "
+                      "sensor's grid)")
     return events, cam, grid
+
+
+# the share of events undistortion may move out of the image before it is said
+UNDISTORT_LOSS_NOTE = 0.05
 
 
 def undistorted_chunks(args, chunks: Iterator, *, integer: bool = True
