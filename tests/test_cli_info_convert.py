@@ -96,3 +96,22 @@ def test_info_on_flow_file(tmp_path, capsys):
     d = json.loads(out)
     assert rc == 0 and d["format"] == "evmotion-flow" and d["windows"] == 2
     assert d["sensor_size"] == [6, 7] and d["duration_s"] == pytest.approx(0.02)
+
+
+def test_convert_sort_mends_unsorted_timestamps(tmp_path, capsys):
+    """An unsorted recording was refused everywhere with a hint (EventArray.sorted()) no
+    command could follow; convert --sort sorts it (and the refusal names that)."""
+    from evmotion.cli import main
+    from evmotion.events import EventArray
+    from evmotion.io import read_events, write_events
+
+    t = np.array([0, 10, 30, 20, 40, 50], np.int64)
+    ev = EventArray(x=np.arange(6), y=np.zeros(6, int), t=t, p=[1, 0, 1, 0, 1, 0],
+                    sensor_size=(4, 8), validate=False)
+    write_events(tmp_path / "u.h5", ev)
+    assert main(["info", str(tmp_path / "u.h5")]) == 2
+    assert "convert IN OUT --sort" in capsys.readouterr().err
+    assert main(["convert", str(tmp_path / "u.h5"), str(tmp_path / "s.h5"), "--sort",
+                 "--t1", "45us"]) == 0
+    back = read_events(tmp_path / "s.h5")
+    assert back.t.tolist() == [0, 10, 20, 30, 40] and back.x.tolist() == [0, 1, 3, 2, 4]

@@ -124,7 +124,7 @@ class EventArray:
             i = int(np.argmax(dt < 0))
             raise EventDataError(
                 f"timestamps are not sorted: t[{i}]={self.t[i]} > t[{i + 1}]={self.t[i + 1]} us "
-                "(sort with EventArray.sorted() or fix the source)"
+                "(sort them: evmotion convert IN OUT --sort, or EventArray.sorted())"
             )
         h, w = self.sensor_size
         for name, lim in (("x", w), ("y", h)):

@@ -27,6 +27,7 @@ EXAMPLES = """examples:
   evmotion convert rec.raw first_20ms.h5 --t0 0 --t1 0.02     # seconds, or 20ms, 20000us
   evmotion convert rec.h5 out.txt --format-in h5 --json
   evmotion convert rec.h5 out.aedat4 --t1 30ms
+  evmotion convert rec.h5 sorted.h5 --sort         # timestamps out of order -> sorted
 """
 
 
@@ -51,6 +52,9 @@ def add_parser(sub) -> None:
                    help="override the input sensor size (height width)")
     p.add_argument("--chunk-events", type=positive_int(), default=1_000_000,
                    help="events read and written at a time (1,000,000)")
+    p.add_argument("--sort", action="store_true",
+                   help="sort the events by time (stable) for a recording whose timestamps "
+                        "are not in order; reads the whole recording into memory")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -76,8 +80,14 @@ def run(args) -> int:
     counted = {"n": 0, "t_first": None, "t_last": None}
 
     def chunks():
-        it = eio.iter_events(src, args.chunk_events, format=fmt_in, t0=args.t0, t1=args.t1,
-                             **kw)
+        if args.sort:
+            whole = eio.read_events(src, format=fmt_in, validate=False, **kw).sorted()
+            whole = whole.slice_time(args.t0, args.t1)
+            it = (whole[s:s + args.chunk_events] for s in range(0, len(whole),
+                                                                args.chunk_events))
+        else:
+            it = eio.iter_events(src, args.chunk_events, format=fmt_in, t0=args.t0,
+                                 t1=args.t1, **kw)
         for chunk in progress(it, desc="convert", unit="chunk"):
             if len(chunk):
                 counted["n"] += len(chunk)
