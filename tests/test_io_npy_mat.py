@@ -28,8 +28,11 @@ def test_mat_ecd_struct(shared_data):
 
 
 def test_mat_undistorted_seq(shared_data):
+    from evmotion.errors import EvmotionWarning
+
     path = shared_data / "ecd_dynamic_undistorted_excerpt" / "event.mat"
-    kept = mat.read(path)
+    with pytest.warns(EvmotionWarning, match="4,039 of 18,978 events lie outside"):
+        kept = mat.read(path)
     assert kept.x.dtype == np.float32  # undistorted coordinates stay fractional
     assert len(kept) + kept.meta["dropped_outside"] == 18_978
     raw = mat.read(path, drop_outside=False, validate=False)
@@ -101,3 +104,25 @@ def test_npy_errors(tmp_path):
              sensor_size=[180, 240])
     with pytest.raises(FormatError, match=r"o.npz.*x=500.*outside"):
         npy.read(tmp_path / "o.npz")
+
+
+def test_mat_of_a_larger_sensor_keeps_every_event_and_drops_are_said(tmp_path):
+    """A .mat of 346x260 pixels lost every event beyond 240x180 silently (14,500 of
+    30,000 read); undistorted events off the sensor are still left out, now with a
+    warning."""
+    import scipy.io as sio
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io import mat
+
+    i = np.arange(3000)
+    sio.savemat(tmp_path / "big.mat", {"ev": np.stack([1 + i * 1e-6, i % 346, i % 260,
+                                                      i % 2], 1)})
+    with pytest.warns(EvmotionWarning, match="taken as 346x260"):
+        ev = mat.read(tmp_path / "big.mat")
+    assert len(ev) == 3000 and ev.sensor_size == (260, 346)
+    und = np.stack([1 + i * 1e-6, (i % 250) + 0.5, (i % 170) + 0.25, i % 2], 1)
+    sio.savemat(tmp_path / "und.mat", {"ev": und})
+    with pytest.warns(EvmotionWarning, match="of 3,000 events lie outside the 240x180"):
+        ev = mat.read(tmp_path / "und.mat")
+    assert len(ev) == int(np.sum((i % 250) + 0.5 <= 239))

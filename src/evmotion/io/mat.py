@@ -14,12 +14,13 @@ inferred (a span under 100 with fractional values -> seconds, else µs) unless
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError
+from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 from evmotion.io.npy import chunks_of_read, events_from_columns
@@ -114,10 +115,28 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     if sensor_size is None:
         sensor_size = DEFAULT_SENSOR_SIZE
         meta["sensor_size_from"] = "default 180x240 (DAVIS240C)"
+        whole = x.size and np.all(x == np.round(x)) and np.all(y == np.round(y))
+        if whole and x.min() >= 0 and y.min() >= 0 and (
+                x.max() >= sensor_size[1] or y.max() >= sensor_size[0]):
+            # raw pixels of a larger sensor (whole numbers; undistorted ones are not):
+            # every event kept, on the smallest sensor holding them
+            sensor_size = (max(sensor_size[0], int(y.max()) + 1),
+                           max(sensor_size[1], int(x.max()) + 1))
+            meta["sensor_size_from"] = "largest coordinate (the file states no sensor size)"
+            warnings.warn(EvmotionWarning(
+                f"{path}: no sensor size in the file and pixels beyond the DAVIS240C's "
+                f"240x180: taken as {sensor_size[1]}x{sensor_size[0]} px (W x H); give the "
+                "true size (--sensor-size H W in convert, sensor_size=(H, W))"), stacklevel=2)
     p = np.where(p > 0, 1, 0) if p.size and np.all(np.isin(p, (-1, 0, 1))) else p
     ev = events_from_columns(path, x, y, t.astype(np.float64), p, sensor_size=sensor_size,
                              time_unit=time_unit, meta=meta, validate=validate,
                              drop_outside=drop_outside)
+    lost = ev.meta.get("dropped_outside", 0)
+    if lost:
+        warnings.warn(EvmotionWarning(
+            f"{path}: {lost:,} of {lost + len(ev):,} events lie outside the "
+            f"{ev.sensor_size[1]}x{ev.sensor_size[0]} sensor (undistorted coordinates, or "
+            "another sensor's: give its size) and are left out"), stacklevel=2)
     return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
 
 
