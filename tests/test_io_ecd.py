@@ -218,3 +218,25 @@ def test_a_sensor_size_from_header_or_largest_coordinate(tmp_path):
     small = EventArray(x=[1], y=[2], t=[100], p=[1], sensor_size=(180, 240))
     ecd.write(tmp_path / "c.txt", small)
     assert not (tmp_path / "c.txt").read_text().startswith("#")  # the ECD's own: pure
+
+
+def test_whole_number_times_are_microseconds_or_as_given(tmp_path):
+    """Text whose times are whole numbers (other tools' us exports) was read as seconds:
+    durations 1e6 too long, epoch-us times overflowed int64; they are read as us with a
+    warning, or in the unit given."""
+    from evmotion.errors import EvmotionWarning
+
+    text = "".join(f"{1_700_000_000_000_000 + 10 * i} {i % 7} {i % 5} {i % 2}\n"
+                   for i in range(50))
+    (tmp_path / "e.txt").write_text(text)
+    with pytest.warns(EvmotionWarning, match="whole number: read as microseconds"):
+        ev = ecd.read(tmp_path / "e.txt", sensor_size=(5, 7))
+    assert ev.t[0] == 1_700_000_000_000_000 and ev.t[-1] - ev.t[0] == 490
+    assert ecd.read(tmp_path / "e.txt", sensor_size=(5, 7), time_unit="ns").t[-1] == \
+        1_700_000_000_000 + 0  # 490 ns round to 0 us
+    (tmp_path / "s.txt").write_text("0 1 2 1\n0.5 1 2 0\n")
+    assert ecd.read(tmp_path / "s.txt", sensor_size=(5, 7)).t.tolist() == [0, 500_000]
+    with pytest.raises(FormatError, match="decimal numbers, not whole us"):
+        ecd.read(tmp_path / "s.txt", sensor_size=(5, 7), time_unit="us")
+    with pytest.raises(Exception, match="time_unit must be one of"):
+        ecd.read(tmp_path / "s.txt", time_unit="min")

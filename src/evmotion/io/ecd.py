@@ -271,15 +271,15 @@ def _header_size(ev_path: Path) -> tuple[int, int] | None:
     return None
 
 
-def _blocks(path: Path, block_bytes: int, time_unit: str = "s"
+def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s"
             ) -> Iterator[tuple[np.ndarray, ...]]:
-    if time_unit == "us":
-        for x, y, t, p in _blocks(path, block_bytes):
-            # The parser reads the first column as seconds; undo its scaling exactly.
-            yield x, y, t // 1_000_000, p
-        return
-    if time_unit != "s":
-        raise ParameterError(f"time_unit must be 's' (ECD) or 'us', got {time_unit!r}")
+    """Parsed blocks ``x, y, t [us], p`` of an events text file. ``time_unit`` is that of
+    the first column: "s" (ECD), or "ms" / "us" / "ns" for whole numbers (other tools'
+    exports); None sniffs it (:func:`sniff_time_unit`)."""
+    unit = sniff_time_unit(path) if time_unit is None else time_unit
+    if unit not in TEXT_TIME_UNITS:
+        raise ParameterError(f"time_unit must be one of {sorted(TEXT_TIME_UNITS)} (or None: "
+                             f"from the text), got {time_unit!r}")
     with open(path, "rb") as fh:
         carry = b""
         offset = _skip_header(fh)
@@ -288,15 +288,70 @@ def _blocks(path: Path, block_bytes: int, time_unit: str = "s"
             data = carry + blk
             if not blk:
                 if data.strip():
-                    yield parse_text(data, path, offset)
+                    yield _parse_block(data, path, offset, unit)
                 return
             cut = data.rfind(b"\n") + 1
             if cut == 0:
                 carry = data
                 continue
-            yield parse_text(data[:cut], path, offset)
+            yield _parse_block(data[:cut], path, offset, unit)
             offset += cut
             carry = data[cut:]
+
+
+# the time units of the first column of an events text file, in us per unit ("s": the
+# ECD's decimal seconds, parsed exactly; the others whole numbers)
+TEXT_TIME_UNITS = {"s": 1_000_000, "ms": 1_000, "us": 1, "ns": None}
+
+
+def _parse_block(data: bytes, path: Path, offset: int, unit: str):
+    if unit == "s":
+        return parse_text(data, path, offset)
+    rows = data.replace(b",", b" ").split()
+    try:
+        arr = np.array(rows, dtype="S20").astype(np.int64).reshape(-1, 4)
+        lines = sum(1 for ln in data.split(b"\n") if ln.strip())
+        if arr.shape[0] != lines:
+            raise ValueError("not four numbers a line")
+    except ValueError:
+        parse_text(data, path, offset)  # names the bad line, if the text is not numbers
+        raise FormatError(path, f"the first column holds decimal numbers, not whole {unit}: "
+                          "give time_unit 's'") from None
+    t = arr[:, 0]
+    if unit == "ns":
+        t = (t + 500) // 1000
+    elif TEXT_TIME_UNITS[unit] != 1:
+        t = t * TEXT_TIME_UNITS[unit]
+    return arr[:, 1].copy(), arr[:, 2].copy(), np.ascontiguousarray(t), arr[:, 3].copy()
+
+
+def sniff_time_unit(path: str | Path) -> str:
+    """The unit of an events text file's first column: "s" (the ECD's decimal seconds) if
+    a time among the first lines has a decimal point or exponent, else "us" (whole
+    numbers: other tools' microseconds; a file of whole seconds does not occur), with an
+    :class:`~evmotion.errors.EvmotionWarning` saying so.
+
+    Examples
+    --------
+    >>> sniff_time_unit("events.txt")  # doctest: +SKIP
+    's'
+    """
+    path = _events_file(Path(path))
+    with open(path, "rb") as fh:
+        _skip_header(fh)
+        head = fh.read(SNIFF_BYTES)
+    lines = head.split(b"\n")[:-1] if len(head) == SNIFF_BYTES else head.split(b"\n")
+    firsts = [ln.replace(b",", b" ").split()[0] for ln in lines if ln.strip()]
+    if not firsts or any(re.search(rb"[.eE]", f) for f in firsts):
+        return "s"
+    warnings.warn(EvmotionWarning(
+        f"{path}: every time in the first column is a whole number: read as microseconds "
+        "(ECD text holds decimal seconds; other units: time_unit=, or convert --time-unit)"),
+        stacklevel=3)
+    return "us"
+
+
+SNIFF_BYTES = 65_536  # the lines sniff_time_unit looks at
 
 
 def _skip_header(fh) -> int:
@@ -349,7 +404,7 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
-         block_bytes: int = BLOCK_BYTES, time_unit: str = "s") -> EventArray:
+         block_bytes: int = BLOCK_BYTES, time_unit: str | None = None) -> EventArray:
     """Read ECD events (``events.txt`` or a folder holding one).
 
     Parameters
@@ -362,8 +417,9 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
         ``(height, width)``; default from the APS images, else 180x240 (DAVIS240C).
     validate : bool
         Check sortedness and bounds.
-    time_unit : {"s", "us"}
-        Unit of the first column: seconds (ECD) or integer microseconds (other tools).
+    time_unit : {"s", "ms", "us", "ns"}, optional
+        Unit of the first column: decimal seconds (ECD) or whole numbers of ms, us or ns
+        (other tools' exports); default from the text (:func:`sniff_time_unit`).
 
     Returns
     -------
@@ -408,7 +464,7 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, validate: bool = True,
-                block_bytes: int = BLOCK_BYTES, time_unit: str = "s"
+                block_bytes: int = BLOCK_BYTES, time_unit: str | None = None
                 ) -> Iterator[EventArray]:
     """Stream ECD events in chunks of ``chunk_events`` (the last may be shorter).
 
