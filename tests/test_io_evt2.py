@@ -78,3 +78,24 @@ def test_truncated(raw, tmp_path):
     cut.write_bytes(raw.read_bytes()[:off + 4000 + 3])
     with pytest.raises(FormatError, match=rf"byte offset {off + 4000}"):
         evt2.read(cut)
+
+
+def test_data_starting_with_the_header_marker_is_not_eaten(tmp_path):
+    """A RAW file without '% end' whose first event word begins with 0x25 ('%') lost the
+    bytes up to the next 0x0A as a header line (19,980 of 20,000 events read)."""
+    import numpy as np
+
+    from evmotion.io import read_events
+
+    words = []
+    for k in range(100):
+        t = 0x25 * 64 + 40 + k * 64
+        words.append(0x80000000 | (t >> 6))  # EV_TIME_HIGH: first byte 0x25
+        words += [(i % 2) << 28 | (t & 63) << 22 | (i * 7 % 640) << 11 | (i * 3 % 480)
+                  for i in range(20)]
+    path = tmp_path / "pct.raw"
+    path.write_bytes(b"% evt 2.0\n% geometry 640x480\n"
+                     + np.array(words, "<u4").tobytes())
+    assert path.read_bytes()[len(b"% evt 2.0\n% geometry 640x480\n")] == 0x25
+    ev = read_events(path)
+    assert len(ev) == 2000 and ev.sensor_size == (480, 640)

@@ -3,6 +3,7 @@ re-chunking and time filtering."""
 
 from __future__ import annotations
 
+import re
 from collections import deque
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -30,9 +31,11 @@ def read_text_header(path: Path, marker: bytes, *, end_line: bytes | None = None
     """Lines starting with ``marker`` at the top of ``path`` and the offset of the first
     byte after them.
 
-    Parsing stops at the first line that does not start with ``marker``, or right after a
-    line equal to ``end_line`` (Prophesee's ``% end``), so binary data that happens to
-    begin with the marker byte is not eaten when the terminator is present.
+    Parsing stops at the first line that does not start with ``marker``, right after a
+    line equal to ``end_line`` (Prophesee's ``% end``), or at a "line" holding control
+    bytes: binary data that happens to begin with the marker byte (1 file in 256 of RAW
+    files without ``% end``; jAER's AEDAT2 headers have no terminator) is not text, and
+    is not eaten as header.
     """
     lines: list[str] = []
     pos = 0
@@ -40,7 +43,11 @@ def read_text_header(path: Path, marker: bytes, *, end_line: bytes | None = None
         head = fh.read(max_bytes)
     while pos < len(head) and head.startswith(marker, pos):
         nl = head.find(b"\n", pos)
+        if nl >= 0 and _CONTROL.search(head, pos, nl):
+            break  # event data starting with the marker byte
         if nl < 0:
+            if _CONTROL.search(head, pos):
+                break
             raise FormatError(path, f"header line at byte {pos} has no end of line",
                               "the file is truncated or not a text-header format")
         line = head[pos:nl].rstrip(b"\r")
@@ -49,6 +56,10 @@ def read_text_header(path: Path, marker: bytes, *, end_line: bytes | None = None
         if end_line is not None and line == end_line:
             break
     return lines, pos
+
+
+# bytes no text header line holds (tab and carriage return allowed)
+_CONTROL = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 
 
 def check_chunk_events(chunk_events: int) -> int:
