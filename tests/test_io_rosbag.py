@@ -100,3 +100,23 @@ def test_no_imu_topic(events, tmp_path):
     assert rosbag.read_imu(out).t.size == 0
     with pytest.raises(FormatError, match="/imu"):
         rosbag.read_imu(out, topic="/imu")
+
+
+def test_a_stereo_bag_reads_the_first_topic_by_name_and_says_so(events, tmp_path):
+    """Two EventArray topics: whichever was connected first (the right camera) was read
+    without a word; now the first by name (left), with a warning naming both."""
+    from rosbags.rosbag1 import Writer
+
+    from evmotion.errors import EvmotionWarning
+
+    right = EventArray(events.x, events.y, events.t, 1 - events.p, events.sensor_size)
+    path = tmp_path / "stereo.bag"
+    store = rosbag.typestore()
+    with Writer(path) as w:
+        for name, ev in (("/davis/right/events", right), ("/davis/left/events", events)):
+            conn = w.add_connection(name, rosbag.MSGTYPE, typestore=store)
+            w.write(conn, int(ev.t[-1]) * 1000, rosbag._serialize(ev, 0, b"dvs"))
+    with pytest.warns(EvmotionWarning, match="/davis/left/events, /davis/right/events"):
+        got = rosbag.read(path)
+    assert_same_events(got, events)
+    assert_same_events(rosbag.read(path, topic="/davis/right/events"), right)

@@ -53,8 +53,10 @@ def _fmt_value(v) -> str:
     if isinstance(v, int) and not isinstance(v, bool):
         return f"{v:,}"
     if isinstance(v, dict):
-        return ", ".join(f"{k}={_fmt_value(x)}" for k, x in v.items()
-                         if not isinstance(x, (list, dict)))
+        # a dict of dicts (a bag's topics: type and message count) as "key (its values)"
+        return ", ".join(f"{k} ({_fmt_value(x)})" if isinstance(x, dict) else
+                         f"{k}={_fmt_value(x)}" for k, x in v.items()
+                         if not isinstance(x, list))
     return str(v)
 
 

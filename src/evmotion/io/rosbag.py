@@ -9,13 +9,14 @@ The bag container is read and written with the ``rosbags`` package (optional ext
 from __future__ import annotations
 
 import struct
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, MissingDependencyError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, MissingDependencyError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
@@ -92,18 +93,25 @@ def _open_bag(path: Path):
     return reader
 
 
-def _topic_connections(reader, msgtype: str, topic: str | None) -> list:
-    """The connections of ``topic`` (default: the first topic of type ``msgtype``), empty
-    when there is none."""
+def _topic_connections(reader, msgtype: str, topic: str | None, path=None,
+                       quiet: bool = False) -> list:
+    """The connections of ``topic`` (default: of the topics of type ``msgtype``, the first
+    by name -- a stereo rig's "left" before its "right" -- with a warning naming the
+    others), empty when there is none."""
     conns = [c for c in reader.connections if c.msgtype == msgtype
              and (topic is None or c.topic == topic)]
-    return [c for c in conns if c.topic == conns[0].topic]
+    names = sorted({c.topic for c in conns})
+    if topic is None and len(names) > 1 and not quiet:
+        warnings.warn(EvmotionWarning(
+            f"{path}: {len(names)} topics carry {msgtype.rsplit('/', 1)[-1]} messages "
+            f"({', '.join(names)}): read {names[0]} (topic= chooses another)"), stacklevel=4)
+    return [c for c in conns if names and c.topic == names[0]]
 
 
-def _messages(path: Path, topic: str | None):
+def _messages(path: Path, topic: str | None, quiet: bool = False):
     reader = _open_bag(path)
     try:
-        conns = _topic_connections(reader, MSGTYPE, topic)
+        conns = _topic_connections(reader, MSGTYPE, topic, path, quiet)
         if not conns:
             found = sorted({(c.topic, c.msgtype) for c in reader.connections})
             raise FormatError(path, f"no {MSGTYPE} messages"
@@ -126,7 +134,7 @@ def _blocks(path: Path, topic: str | None, info: dict) -> Iterator[binary.Block]
 def _first_size(path: Path, topic: str | None, sensor_size):
     if sensor_size is not None:
         return tuple(sensor_size)
-    for _, raw in _messages(path, topic):
+    for _, raw in _messages(path, topic, quiet=True):  # _blocks says which topic is read
         size, _ = _decode(raw, path)
         if size[0] > 0 and size[1] > 0:
             return check_sensor_size(path, size, "EventArray message height, width")
