@@ -126,3 +126,16 @@ def test_mat_of_a_larger_sensor_keeps_every_event_and_drops_are_said(tmp_path):
     with pytest.warns(EvmotionWarning, match="of 3,000 events lie outside the 240x180"):
         ev = mat.read(tmp_path / "und.mat")
     assert len(ev) == int(np.sum((i % 250) + 0.5 <= 239))
+
+
+def test_mat_seconds_over_a_long_recording(tmp_path):
+    """Float seconds spanning 150 s were read as us (1 .. 151 us)."""
+    import scipy.io as sio
+
+    from evmotion.io import mat
+
+    i = np.arange(30000)
+    sio.savemat(tmp_path / "long.mat", {"ev": np.stack([1 + i * 0.005, i % 240, i % 180,
+                                                       i % 2], 1)})
+    ev = mat.read(tmp_path / "long.mat")
+    assert ev.t[0] == 1_000_000 and ev.t[-1] == 150_995_000

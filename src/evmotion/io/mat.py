@@ -75,6 +75,10 @@ def _find(path: Path, m: dict, variable: str | None) -> tuple[str, np.ndarray]:
                       "pass variable='name'")
 
 
+# events a second beyond any sensor's sustained rate: times that would mean it are not us
+MAX_RATE = 1e8
+
+
 def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, variable: str | None = None,
          time_unit: str | None = None, drop_outside: bool = True,
@@ -108,9 +112,13 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     t, x, y, p = (np.ascontiguousarray(arr[:, i]) for i in range(4))
     meta = {"source": str(path), "format": "mat", "variable": name}
     if time_unit is None:
+        # whole numbers are us; fractional ones seconds when they span under 100, or
+        # when as us they would mean more than MAX_RATE events a second (a 150 s
+        # recording in seconds); interpolated us (the ECD excerpts') stay us
         span = float(t.max() - t.min()) if t.size else 0.0
         fractional = bool(np.any(t != np.round(t)))
-        time_unit = "s" if (span < 100 and fractional) else "us"
+        too_fast = span > 0 and t.size / (span * 1e-6) > MAX_RATE
+        time_unit = "s" if fractional and (span < 100 or too_fast) else "us"
         meta["time_unit_inferred"] = True
     if sensor_size is None:
         sensor_size = DEFAULT_SENSOR_SIZE
