@@ -240,3 +240,48 @@ def test_whole_number_times_are_microseconds_or_as_given(tmp_path):
         ecd.read(tmp_path / "s.txt", sensor_size=(5, 7), time_unit="us")
     with pytest.raises(Exception, match="time_unit must be one of"):
         ecd.read(tmp_path / "s.txt", time_unit="min")
+
+
+@pytest.mark.parametrize("text, size, t, x, p", [
+    # a header of column names, comma separated, decimal seconds
+    ("t,x,y,p\n0.001,1,2,1\n0.002,3,4,0\n", (180, 240), [1000, 2000], [1, 3], [1, 0]),
+    # Metavision's CSV order x,y,p,t with whole microseconds
+    ("x,y,p,t\n1,2,1,1000\n3,4,0,2500\n", (180, 240), [1000, 2500], [1, 3], [1, 0]),
+    # rpg / E2VID text: a first line 'W H', then t x y p
+    ("346 260\n0.001 345 2 1\n0.002 3 259 0\n", (260, 346), [1000, 2000], [345, 3], [1, 0]),
+    # names other tools use, polarity -1/1
+    ("timestamp x y polarity\n1000 1 2 1\n2000 3 4 -1\n", (180, 240), [1000, 2000], [1, 3],
+     [1, 0]),
+])
+def test_other_tools_text_layouts(tmp_path, text, size, t, x, p):
+    """A header line of column names (any order) or a 'W H' size line was 'format not
+    recognised'."""
+    import warnings
+
+    from evmotion.io import iter_events, read_events
+
+    path = tmp_path / "ev.csv"
+    path.write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # whole-number times: read as us, said so
+        ev = read_events(path)
+        streamed = list(iter_events(path, 1))
+    assert ev.sensor_size == size and ev.t.tolist() == t and ev.x.tolist() == x
+    assert ev.p.tolist() == p
+    assert [c.t[0] for c in streamed] == t and streamed[0].sensor_size == size
+
+
+def test_streaming_text_beyond_240x180_matches_reading_it(tmp_path):
+    """info / convert (streaming) refused text that flow (reading whole) took at its
+    largest coordinates; both take it now, and no coordinate makes an absurd sensor."""
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io import iter_events, read_events
+
+    (tmp_path / "b.txt").write_text("0.001 539 2 1\n0.002 3 379 0\n")
+    with pytest.warns(EvmotionWarning, match="taken as 540x380"):
+        assert next(iter_events(tmp_path / "b.txt", 10)).sensor_size == (380, 540)
+    with pytest.warns(EvmotionWarning, match="taken as 540x380"):
+        assert read_events(tmp_path / "b.txt").sensor_size == (380, 540)
+    (tmp_path / "c.txt").write_text("0.001 100000000 2 1\n")
+    with pytest.raises(FormatError, match="outside the sensor"):
+        read_events(tmp_path / "c.txt")

@@ -25,7 +25,12 @@ import numpy as np
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size, time_to_us
+from evmotion.io.guard import (
+    MAX_SENSOR_SIDE,
+    SENSOR_SIZE_HINT,
+    check_sensor_size,
+    time_to_us,
+)
 from evmotion.io.pngfile import read_png
 from evmotion.jitcache import lazy_njit
 from evmotion.utils import atomic_path
@@ -247,7 +252,7 @@ def _sensor_size(path: Path, sensor_size) -> tuple[tuple[int, int], str]:
     if size is not None:
         return size, "images"
     ev_path = _events_file(path)
-    size = _header_size(ev_path)
+    size = _header_size(ev_path) or text_layout(ev_path)["size"]
     if size is not None:
         return check_sensor_size(ev_path, size, "header sensor size"), "header"
     return ECD_SENSOR_SIZE, "ECD default (DAVIS240C)"
@@ -280,6 +285,7 @@ def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s"
     if unit not in TEXT_TIME_UNITS:
         raise ParameterError(f"time_unit must be one of {sorted(TEXT_TIME_UNITS)} (or None: "
                              f"from the text), got {time_unit!r}")
+    order = text_layout(path)["order"]
     with open(path, "rb") as fh:
         carry = b""
         offset = _skip_header(fh)
@@ -288,13 +294,13 @@ def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s"
             data = carry + blk
             if not blk:
                 if data.strip():
-                    yield _parse_block(data, path, offset, unit)
+                    yield _parse_block(data, path, offset, unit, order)
                 return
             cut = data.rfind(b"\n") + 1
             if cut == 0:
                 carry = data
                 continue
-            yield _parse_block(data[:cut], path, offset, unit)
+            yield _parse_block(data[:cut], path, offset, unit, order)
             offset += cut
             carry = data[cut:]
 
@@ -304,29 +310,44 @@ def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s"
 TEXT_TIME_UNITS = {"s": 1_000_000, "ms": 1_000, "us": 1, "ns": None}
 
 
-def _parse_block(data: bytes, path: Path, offset: int, unit: str):
-    if unit == "s":
+def _parse_block(data: bytes, path: Path, offset: int, unit: str, order: str = "txyp"):
+    if unit == "s" and order == "txyp":
         return parse_text(data, path, offset)
-    rows = data.replace(b",", b" ").split()
+    rows = data.replace(b",", b" ").replace(b";", b" ").split()
+    cols = {k: order.index(k) for k in "txyp"}
     try:
-        arr = np.array(rows, dtype="S20").astype(np.int64).reshape(-1, 4)
         lines = sum(1 for ln in data.split(b"\n") if ln.strip())
-        if arr.shape[0] != lines:
+        if len(rows) != 4 * lines:
             raise ValueError("not four numbers a line")
-    except ValueError:
-        parse_text(data, path, offset)  # names the bad line, if the text is not numbers
-        raise FormatError(path, f"the first column holds decimal numbers, not whole {unit}: "
-                          "give time_unit 's'") from None
-    t = arr[:, 0]
+        table = np.array(rows, dtype="S32").reshape(-1, 4)
+        xyp = table[:, [cols["x"], cols["y"], cols["p"]]].astype(np.int64)
+        tcol = table[:, cols["t"]]
+        if unit == "s":
+            with np.errstate(all="ignore"):
+                t = np.rint(tcol.astype(np.float64) * 1e6)
+            if t.size and not np.all(np.abs(t) < 2.0**62):
+                raise ValueError("a time beyond +-2^62 us")
+            t = t.astype(np.int64)
+        else:
+            t = tcol.astype(np.int64)
+    except ValueError as exc:
+        if order == "txyp":
+            parse_text(data, path, offset)  # names the bad line, if not numbers at all
+            raise FormatError(path, f"the first column holds decimal numbers, not whole "
+                              f"{unit}: give time_unit 's'") from None
+        raise FormatError(path, f"cannot read '{order[0]} {order[1]} {order[2]} "
+                          f"{order[3]}' numbers (the header's column order) near byte "
+                          f"{offset}: {exc}") from None
     if unit == "ns":
         t = (t + 500) // 1000
-    elif TEXT_TIME_UNITS[unit] != 1:
+    elif unit != "s" and TEXT_TIME_UNITS[unit] != 1:
         t = t * TEXT_TIME_UNITS[unit]
-    return arr[:, 1].copy(), arr[:, 2].copy(), np.ascontiguousarray(t), arr[:, 3].copy()
+    return (np.ascontiguousarray(xyp[:, 0]), np.ascontiguousarray(xyp[:, 1]),
+            np.ascontiguousarray(t), np.ascontiguousarray(xyp[:, 2]))
 
 
 def sniff_time_unit(path: str | Path) -> str:
-    """The unit of an events text file's first column: "s" (the ECD's decimal seconds) if
+    """The unit of an events text file's time column: "s" (the ECD's decimal seconds) if
     a time among the first lines has a decimal point or exponent, else "us" (whole
     numbers: other tools' microseconds; a file of whole seconds does not occur), with an
     :class:`~evmotion.errors.EvmotionWarning` saying so.
@@ -337,16 +358,18 @@ def sniff_time_unit(path: str | Path) -> str:
     's'
     """
     path = _events_file(Path(path))
+    col = text_layout(path)["order"].index("t")
     with open(path, "rb") as fh:
         _skip_header(fh)
         head = fh.read(SNIFF_BYTES)
     lines = head.split(b"\n")[:-1] if len(head) == SNIFF_BYTES else head.split(b"\n")
-    firsts = [ln.replace(b",", b" ").split()[0] for ln in lines if ln.strip()]
+    fields = [ln.replace(b",", b" ").replace(b";", b" ").split() for ln in lines]
+    firsts = [f[col] for f in fields if len(f) > col]
     if not firsts or any(re.search(rb"[.eE]", f) for f in firsts):
         return "s"
     warnings.warn(EvmotionWarning(
-        f"{path}: every time in the first column is a whole number: read as microseconds "
-        "(ECD text holds decimal seconds; other units: time_unit=, or convert --time-unit)"),
+        f"{path}: every time is a whole number: read as microseconds (ECD text holds "
+        "decimal seconds; other units: time_unit=, or convert --time-unit)"),
         stacklevel=3)
     return "us"
 
@@ -355,8 +378,20 @@ SNIFF_BYTES = 65_536  # the lines sniff_time_unit looks at
 
 
 def _skip_header(fh) -> int:
-    """Past a UTF-8 byte-order mark and the comment lines (``#`` or ``%``) that open some
-    tools' event text files; returns the byte offset where the events start."""
+    """Past a UTF-8 byte-order mark, the comment lines (``#`` or ``%``) that open some
+    tools' event text files, and the size and column-name lines of :func:`text_layout`;
+    returns the byte offset where the events start."""
+    pos = _skip_comments(fh)
+    for _ in range(2):
+        line = fh.readline()
+        if _size_line(line) is None and _names_line(line) is None:
+            break
+        pos = fh.tell()
+    fh.seek(pos)
+    return pos
+
+
+def _skip_comments(fh) -> int:
     pos = 3 if fh.read(3) == b"\xef\xbb\xbf" else 0
     fh.seek(pos)
     while True:
@@ -365,6 +400,64 @@ def _skip_header(fh) -> int:
             fh.seek(pos)
             return pos
         pos = fh.tell()
+
+
+# names other tools give the columns of an events text file (lowercase)
+COLUMN_NAMES = {"t": ("t", "ts", "time", "times", "timestamp", "timestamps", "t_us", "t_s",
+                      "time_us", "timestamp_us"),
+                "x": ("x", "xs"), "y": ("y", "ys"),
+                "p": ("p", "pol", "polarity", "polarities", "ps")}
+
+
+def _size_line(line: bytes) -> tuple[int, int] | None:
+    """``(height, width)`` from a line of two whole numbers ``W H`` (the first line of
+    the rpg / E2VID event text)."""
+    fields = line.split()
+    if len(fields) == 2 and all(f.isdigit() for f in fields):
+        return int(fields[1]), int(fields[0])
+    return None
+
+
+def _names_line(line: bytes) -> str | None:
+    """The column order (a permutation of "txyp") a line of column names states, if it is
+    one: ``t,x,y,p``, ``timestamp x y polarity``, Metavision's ``x,y,p,t``..."""
+    fields = [f.lower() for f in re.split(rb"[\s,;]+", line.strip()) if f]
+    if len(fields) != 4 or not all(re.fullmatch(rb"[a-z_]+", f) for f in fields):
+        return None
+    order = ""
+    for f in fields:
+        key = next((k for k, names in COLUMN_NAMES.items() if f.decode() in names), None)
+        if key is None or key in order:
+            return None
+        order += key
+    return order
+
+
+def text_layout(path: str | Path) -> dict:
+    """How an events text file is laid out: ``order`` of its columns ("txyp" for the
+    ECD's ``t x y p``; a header line of column names states another, e.g. ``x,y,p,t``)
+    and ``size`` ``(height, width)`` when a first line of two numbers ``W H`` (rpg /
+    E2VID text) states it, else None.
+
+    Examples
+    --------
+    >>> text_layout("events.txt")  # doctest: +SKIP
+    {'order': 'txyp', 'size': None}
+    """
+    path = _events_file(Path(path))
+    out = {"order": "txyp", "size": None}
+    with open(path, "rb") as fh:
+        _skip_comments(fh)
+        for _ in range(2):
+            line = fh.readline()
+            size, order = _size_line(line), _names_line(line)
+            if size is not None:
+                out["size"] = size
+            elif order is not None:
+                out["order"] = order
+            else:
+                break
+    return out
 
 
 def _folder_meta(ev_path: Path) -> dict:
@@ -435,8 +528,9 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     path = Path(path)
     ev_path = _events_file(path)
     size, src = _sensor_size(path, sensor_size)
+    unit = sniff_time_unit(ev_path) if time_unit is None else time_unit
     parts = []
-    for x, y, t, p in _blocks(ev_path, block_bytes, time_unit):
+    for x, y, t, p in _blocks(ev_path, block_bytes, unit):
         if t0 is not None or t1 is not None:
             m = np.ones(t.shape, bool)
             if t0 is not None:
@@ -449,17 +543,28 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
         x, y, t, p = (np.concatenate([q[i] for q in parts]) for i in range(4))
     else:
         x = y = t = p = np.zeros(0, np.int64)
-    if src.startswith("ECD default") and x.size and x.min() >= 0 and y.min() >= 0 and (
-            x.max() >= size[1] or y.max() >= size[0]):
-        # text from another sensor, its size stated nowhere: the smallest sensor holding
-        # every event (at least the ECD's), said so
-        size = (max(size[0], int(y.max()) + 1), max(size[1], int(x.max()) + 1))
-        src = "largest coordinate (the file states no sensor size)"
-        warnings.warn(EvmotionWarning(
-            f"{ev_path}: no sensor size in the file and events beyond the ECD's 240x180: "
-            f"taken as {size[1]}x{size[0]} px (W x H) from the largest coordinates; give "
-            "the true size (--sensor-size H W in convert, sensor_size=(H, W))"), stacklevel=2)
+    if src.startswith("ECD default") and x.size and x.min() >= 0 and y.min() >= 0:
+        size, src = _extended_size(ev_path, size, src, int(x.max()), int(y.max()))
     return _to_events(ev_path, x, y, t, p, size, src, validate, _folder_meta(ev_path))
+
+
+def _extended_size(ev_path: Path, size, src: str, x_max: int, y_max: int):
+    """Text from another sensor, its size stated nowhere: the smallest sensor holding
+    every event (at least the ECD's), with a warning; ``(size, src)`` unchanged when the
+    events fit the ECD's."""
+    if (x_max < size[1] and y_max < size[0]) or max(x_max, y_max) >= MAX_SENSOR_SIDE:
+        return size, src  # they fit; or no sensor is that large: refused as outside
+    size = (max(size[0], y_max + 1), max(size[1], x_max + 1))
+    warnings.warn(EvmotionWarning(
+        f"{ev_path}: no sensor size in the file and events beyond the ECD's 240x180: taken "
+        f"as {size[1]}x{size[0]} px (W x H) from the largest coordinates; give the true "
+        "size (--sensor-size H W in convert, sensor_size=(H, W))"), stacklevel=3)
+    return size, "largest coordinate (the file states no sensor size)"
+
+
+# a text file without a sensor size is scanned once for its largest coordinates before
+# it is streamed, up to this size (beyond, events outside 240x180 are refused)
+PRESCAN_BYTES = 1 << 29
 
 
 def iter_chunks(path: str | Path, chunk_events: int, *,
@@ -478,10 +583,18 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     path = Path(path)
     ev_path = _events_file(path)
     size, src = _sensor_size(path, sensor_size)
+    unit = sniff_time_unit(ev_path) if time_unit is None else time_unit
+    if src.startswith("ECD default") and ev_path.stat().st_size <= PRESCAN_BYTES:
+        # the chunks must share one sensor size: the whole file's, as read() finds it
+        x_max = y_max = -1
+        for x, y, _, _ in _blocks(ev_path, block_bytes, unit):
+            if x.size and x.min() >= 0 and y.min() >= 0:
+                x_max, y_max = max(x_max, int(x.max())), max(y_max, int(y.max()))
+        size, src = _extended_size(ev_path, size, src, x_max, y_max)
     extra = _folder_meta(ev_path)
     buf = [np.zeros(0, np.int64)] * 4
     last_t = None
-    for block in _blocks(ev_path, block_bytes, time_unit):
+    for block in _blocks(ev_path, block_bytes, unit):
         buf = [np.concatenate([a, b]) for a, b in zip(buf, block, strict=True)]
         while buf[2].size >= chunk_events:
             part = [a[:chunk_events] for a in buf]
@@ -751,17 +864,24 @@ def describe(path: str | Path) -> dict:
 def _sniff(path: Path, head: bytes) -> bool:
     if path.is_dir():
         return (path / "events.txt").is_file()
-    lines = head.removeprefix(b"\xef\xbb\xbf").split(b"\n")
-    line = next((ln.strip() for ln in lines if not ln.lstrip().startswith((b"#", b"%"))), b"")
-    parts = line.replace(b",", b" ").split()
+    lines = [ln.strip() for ln in head.removeprefix(b"\xef\xbb\xbf").split(b"\n")
+             if not ln.lstrip().startswith((b"#", b"%"))]
+    order = "txyp"
+    for _ in range(2):
+        if lines and _size_line(lines[0]) is not None:
+            lines = lines[1:]
+        elif lines and _names_line(lines[0]) is not None:
+            order = _names_line(lines[0])
+            lines = lines[1:]
+    parts = (lines[0] if lines else b"").replace(b",", b" ").replace(b";", b" ").split()
     if len(parts) != 4:
         return False
     try:
         [float(v) for v in parts]
     except ValueError:
         return False
-    return all(v.lstrip(b"-").isdigit() for v in parts[1:])
+    return all(v.lstrip(b"-").isdigit() for k, v in enumerate(parts) if order[k] != "t")
 
 
-FORMAT = FormatSpec(name="ecd", extensions=(".txt",), sniff=_sniff, read=read,
+FORMAT = FormatSpec(name="ecd", extensions=(".txt", ".csv"), sniff=_sniff, read=read,
                     iter_chunks=iter_chunks, write=write, describe=describe)

@@ -23,6 +23,7 @@ import numpy as np
 from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import MAX_SENSOR_SIDE
 from evmotion.io.npy import chunks_of_read, events_from_columns
 
 __all__ = ["read", "iter_chunks", "describe", "FORMAT"]
@@ -125,7 +126,8 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         meta["sensor_size_from"] = "default 180x240 (DAVIS240C)"
         whole = x.size and np.all(x == np.round(x)) and np.all(y == np.round(y))
         if whole and x.min() >= 0 and y.min() >= 0 and (
-                x.max() >= sensor_size[1] or y.max() >= sensor_size[0]):
+                x.max() >= sensor_size[1] or y.max() >= sensor_size[0]) and \
+                max(x.max(), y.max()) < MAX_SENSOR_SIDE:
             # raw pixels of a larger sensor (whole numbers; undistorted ones are not):
             # every event kept, on the smallest sensor holding them
             sensor_size = (max(sensor_size[0], int(y.max()) + 1),
