@@ -139,3 +139,18 @@ def test_mat_seconds_over_a_long_recording(tmp_path):
                                                        i % 2], 1)})
     ev = mat.read(tmp_path / "long.mat")
     assert ev.t[0] == 1_000_000 and ev.t[-1] == 150_995_000
+
+
+def test_npz_and_structured_arrays_with_other_tools_names(tmp_path):
+    """Arrays named timestamp/polarity or ts/pol were refused ('lacks arrays x, y, t, p')."""
+    from evmotion.io import npy
+
+    t = np.array([10, 20, 30], np.int64)
+    np.savez(tmp_path / "a.npz", x=[1, 2, 3], y=[0, 1, 2], timestamp=t, polarity=[1, 0, 1])
+    ev = npy.read(tmp_path / "a.npz")
+    assert ev.t.tolist() == [10, 20, 30] and ev.p.tolist() == [1, 0, 1]
+    rec = np.zeros(3, dtype=[("ts", "<i8"), ("x", "<u2"), ("y", "<u2"), ("pol", "?")])
+    rec["ts"], rec["x"], rec["y"], rec["pol"] = t, [4, 5, 6], [1, 1, 1], [True, False, True]
+    np.save(tmp_path / "s.npy", rec)
+    ev = npy.read(tmp_path / "s.npy")
+    assert ev.x.tolist() == [4, 5, 6] and ev.p.tolist() == [1, 0, 1]

@@ -80,3 +80,32 @@ class PartFileWriter:
             self.close()
         else:
             self.abort()
+
+
+#: Names other tools give the fields of events (lowercase): columns of text headers, arrays
+#: of .npz files, fields of structured arrays.
+EVENT_FIELD_NAMES = {
+    "t": ("t", "ts", "time", "times", "timestamp", "timestamps", "t_us", "t_s", "time_us",
+          "timestamp_us"),
+    "x": ("x", "xs"), "y": ("y", "ys"),
+    "p": ("p", "pol", "polarity", "polarities", "ps")}
+
+
+def event_fields(names) -> dict[str, str] | None:
+    """Which of ``names`` holds each of ``t``, ``x``, ``y``, ``p`` (by
+    :data:`EVENT_FIELD_NAMES`, case-insensitive), or None when one is missing.
+
+    Examples
+    --------
+    >>> event_fields(["timestamp", "x", "y", "polarity"])
+    {'t': 'timestamp', 'x': 'x', 'y': 'y', 'p': 'polarity'}
+    >>> event_fields(["a", "b"]) is None
+    True
+    """
+    found = {}
+    for key, aliases in EVENT_FIELD_NAMES.items():
+        hit = next((n for n in names if str(n).lower() in aliases), None)
+        if hit is None:
+            return None
+        found[key] = hit
+    return found

@@ -24,7 +24,7 @@ import numpy as np
 
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io.base import FormatSpec
+from evmotion.io.base import FormatSpec, event_fields
 from evmotion.io.guard import (
     MAX_SENSOR_SIDE,
     SENSOR_SIZE_HINT,
@@ -402,13 +402,6 @@ def _skip_comments(fh) -> int:
         pos = fh.tell()
 
 
-# names other tools give the columns of an events text file (lowercase)
-COLUMN_NAMES = {"t": ("t", "ts", "time", "times", "timestamp", "timestamps", "t_us", "t_s",
-                      "time_us", "timestamp_us"),
-                "x": ("x", "xs"), "y": ("y", "ys"),
-                "p": ("p", "pol", "polarity", "polarities", "ps")}
-
-
 def _size_line(line: bytes) -> tuple[int, int] | None:
     """``(height, width)`` from a line of two whole numbers ``W H`` (the first line of
     the rpg / E2VID event text)."""
@@ -424,13 +417,10 @@ def _names_line(line: bytes) -> str | None:
     fields = [f.lower() for f in re.split(rb"[\s,;]+", line.strip()) if f]
     if len(fields) != 4 or not all(re.fullmatch(rb"[a-z_]+", f) for f in fields):
         return None
-    order = ""
-    for f in fields:
-        key = next((k for k, names in COLUMN_NAMES.items() if f.decode() in names), None)
-        if key is None or key in order:
-            return None
-        order += key
-    return order
+    named = event_fields([f.decode() for f in fields])
+    if named is None or len(set(named.values())) != 4:
+        return None
+    return "".join(next(k for k, n in named.items() if n == f.decode()) for f in fields)
 
 
 def text_layout(path: str | Path) -> dict:

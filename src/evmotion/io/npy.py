@@ -18,7 +18,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io.base import FormatSpec
+from evmotion.io.base import FormatSpec, event_fields
 from evmotion.io.guard import MAX_SENSOR_SIDE, check_sensor_size
 from evmotion.utils import atomic_path
 
@@ -188,8 +188,9 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     if isinstance(obj, np.lib.npyio.NpzFile):
         with obj:
             files = set(obj.files)
-            if {"x", "y", "t", "p"} <= files:
-                cols = {k: obj[k] for k in "xytp"}
+            named = event_fields(sorted(files))
+            if named is not None:
+                cols = {k: obj[named[k]] for k in "xytp"}
             elif "events" in files:
                 arr = obj["events"]
                 cols = None
@@ -205,11 +206,11 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         cols = None
     if cols is None:
         if arr.dtype.names:
-            missing = [k for k in "xytp" if k not in arr.dtype.names]
-            if missing:
-                raise FormatError(path, f"structured array lacks field(s) {missing} "
-                                  f"(has {list(arr.dtype.names)})")
-            cols = {k: arr[k] for k in "xytp"}
+            named = event_fields(arr.dtype.names)
+            if named is None:
+                raise FormatError(path, "structured array lacks a field for each of t, x, "
+                                  f"y, p (has {list(arr.dtype.names)})")
+            cols = {k: arr[named[k]] for k in "xytp"}
         else:
             cols, meta["columns"] = _split_columns(path, arr, columns)
     lens = {k: np.shape(v) for k, v in cols.items()}
