@@ -85,3 +85,22 @@ def test_atomic_path_leaves_nothing_on_error_and_respects_umask(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (target.stat().st_mode & 0o777) == (0o666 & ~umask)
+
+
+def test_unsorted_hint_depends_on_how_many_step_back():
+    """A time column that is another column (x y t p text) got the advice to sort it,
+    which made garbage; many events stepping back now ask about the column instead."""
+    import pytest
+
+    from evmotion.errors import EventDataError
+    from evmotion.events import EventArray
+
+    few = np.arange(1000)
+    few[500], few[501] = few[501], few[500]
+    with pytest.raises(EventDataError, match="convert IN OUT --sort"):
+        EventArray(x=np.zeros(1000, int), y=np.zeros(1000, int), t=few,
+                   p=np.zeros(1000, int), sensor_size=(4, 4))
+    many = np.array([1, 200, 3, 150, 5, 90] * 50)
+    with pytest.raises(EventDataError, match="step back: is the time column"):
+        EventArray(x=np.zeros(300, int), y=np.zeros(300, int), t=many,
+                   p=np.zeros(300, int), sensor_size=(4, 4))

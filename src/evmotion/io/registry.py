@@ -96,8 +96,9 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
     if not candidates and failed is not None:
         raise failed
     if not candidates:
+        names = ", ".join(sorted(f.name for f in all_formats()))
         raise FormatError(path, "format not recognised",
-                          "give --format explicitly; see `evmotion convert --help` for the list")
+                          f"give --format explicitly, one of: {names}")
     if len(candidates) > 1:
         suffix = path.suffix.lower()
         by_ext = [f for f in candidates if suffix in f.extensions]
