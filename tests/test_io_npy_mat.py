@@ -154,3 +154,14 @@ def test_npz_and_structured_arrays_with_other_tools_names(tmp_path):
     np.save(tmp_path / "s.npy", rec)
     ev = npy.read(tmp_path / "s.npy")
     assert ev.x.tolist() == [4, 5, 6] and ev.p.tolist() == [1, 0, 1]
+
+
+def test_n_by_4_unsigned_finds_its_time_column(tmp_path):
+    """np.diff of unsigned columns wraps, so every column of a uint32 N x 4 array looked
+    sorted: 'cannot tell which column is time'."""
+    from evmotion.io import npy
+
+    arr = np.array([[0, 192, 13, 0], [5, 7, 13, 1], [9, 3, 2, 1]], np.uint32)
+    np.save(tmp_path / "u.npy", arr)
+    ev = npy.read(tmp_path / "u.npy")
+    assert ev.t.tolist() == [0, 5, 9] and ev.x.tolist() == [192, 7, 3]

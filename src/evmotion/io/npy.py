@@ -22,7 +22,8 @@ from evmotion.io.base import FormatSpec, event_fields
 from evmotion.io.guard import MAX_SENSOR_SIDE, check_sensor_size
 from evmotion.utils import atomic_path
 
-__all__ = ["read", "iter_chunks", "write", "describe", "events_from_columns", "FORMAT"]
+__all__ = ["read", "iter_chunks", "write", "describe", "events_from_columns", "split_columns",
+           "FORMAT"]
 
 NPY_MAGIC = b"\x93NUMPY"
 # Largest |time| accepted, in µs (146,000 years): int64 arithmetic on it cannot overflow.
@@ -134,7 +135,9 @@ def _load(path: Path):
     return np.load(path, allow_pickle=False)
 
 
-def _split_columns(path: Path, arr: np.ndarray, columns: str | None):
+def split_columns(path: Path, arr: np.ndarray, columns: str | None):
+    """The columns ``{"t", "x", "y", "p"}`` of an N×4 (or 4×N) array, and how their
+    order was known: ``columns`` (a permutation of "txyp") or the one sorted column."""
     if arr.ndim != 2 or 4 not in arr.shape:
         raise FormatError(path, f"expected a structured array (x, y, t, p) or an N×4 array, "
                           f"got shape {arr.shape} dtype {arr.dtype}")
@@ -142,7 +145,8 @@ def _split_columns(path: Path, arr: np.ndarray, columns: str | None):
         arr = arr.T
     how = "given"
     if columns is None:
-        sorted_ = [bool(np.all(np.diff(arr[:, i]) >= 0)) for i in range(4)]
+        # compared, not differenced: np.diff of unsigned columns wraps (all "sorted")
+        sorted_ = [bool(np.all(arr[1:, i] >= arr[:-1, i])) for i in range(4)]
         if sorted_[0] and not sorted_[2]:
             columns = "txyp"
         elif sorted_[2] and not sorted_[0]:
@@ -212,7 +216,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
                                   f"y, p (has {list(arr.dtype.names)})")
             cols = {k: arr[named[k]] for k in "xytp"}
         else:
-            cols, meta["columns"] = _split_columns(path, arr, columns)
+            cols, meta["columns"] = split_columns(path, arr, columns)
     lens = {k: np.shape(v) for k, v in cols.items()}
     if len(set(lens.values())) != 1 or len(lens["t"]) != 1:
         raise FormatError(path, f"fields x, y, t, p have different shapes: {lens}")

@@ -24,6 +24,7 @@ FORMAT_MODULES: tuple[str, ...] = (
     "evmotion.io.evt2",
     "evmotion.io.dat",
     "evmotion.io.rosbag",
+    "evmotion.io.h5generic",  # other tools' HDF5 layouts: after every specific one
 )
 
 

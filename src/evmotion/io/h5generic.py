@@ -1,0 +1,167 @@
+"""HDF5 event files in other tools' layouts (read-only).
+
+The formats with a layout of their own (evmotion's, DSEC, MVSEC, the published BOS data)
+are detected first; this one takes the HDF5 files that hold events in any of the layouts
+other tools write:
+
+* one dataset per field at the root or in a group ``events`` / ``CD`` / ``dvs``, named as
+  :data:`evmotion.io.base.EVENT_FIELD_NAMES` knows them (``x``, ``y``, ``t`` / ``ts`` /
+  ``timestamp``, ``p`` / ``pol`` / ``polarity``; event_utils' ``xs, ys, ts, ps``);
+* a compound dataset ``events`` or ``CD/events`` with such fields (Metavision's HDF5,
+  when stored without its ECF compression);
+* an N×4 dataset ``events`` (v2e's ``t, x, y, p``; the time column is the sorted one).
+
+Times: whole numbers are µs, floating point seconds (as for NumPy inputs). The sensor size
+comes from ``width`` / ``height`` (or ``sensor_size`` ``(H, W)``, or Metavision's
+``geometry`` ``WxH``) attributes of the file or the events, else from the largest
+coordinates, said in a warning.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from evmotion.errors import EvmotionWarning, FormatError
+from evmotion.events import EventArray
+from evmotion.io.base import FormatSpec, event_fields
+from evmotion.io.guard import check_sensor_size
+from evmotion.io.h5attrs import read_attrs_many
+from evmotion.io.h5filters import HDF5_MAGIC
+from evmotion.io.npy import chunks_of_read, events_from_columns, split_columns
+
+__all__ = ["FORMAT", "find_layout", "read"]
+
+GROUPS = ("", "events", "CD", "cd", "dvs")  # where the field datasets may lie
+TABLES = ("events", "CD/events", "cd/events", "event")  # compound or N x 4 datasets
+
+
+def find_layout(f) -> dict | None:
+    """Where an open HDF5 file holds its events: ``{"kind": "fields", "group", "names"}``,
+    ``{"kind": "compound", "dataset", "names"}``, ``{"kind": "table", "dataset"}``, or
+    None."""
+    import h5py
+
+    for g in GROUPS:
+        if g and (g not in f or not isinstance(f[g], h5py.Group)):
+            continue
+        grp = f[g] if g else f
+        names = [k for k, v in grp.items() if isinstance(v, h5py.Dataset) and v.ndim == 1]
+        named = event_fields(names)
+        if named is not None:
+            return {"kind": "fields", "group": g, "names": named}
+    for d in TABLES:
+        if d not in f or not isinstance(f[d], h5py.Dataset):
+            continue
+        ds = f[d]
+        if ds.dtype.names:
+            named = event_fields(ds.dtype.names)
+            if named is not None:
+                return {"kind": "compound", "dataset": d, "names": named}
+        elif ds.ndim == 2 and 4 in ds.shape and ds.dtype.kind in "iuf":
+            return {"kind": "table", "dataset": d}
+    return None
+
+
+SIZE_ATTRS = ("height", "width", "sensor_height", "sensor_width", "geometry", "sensor_size")
+
+
+def _size_attrs(path: Path, *objs) -> tuple[int, int] | None:
+    """The sensor size the attributes of ``objs`` (first one stating it) give, or None;
+    read by :func:`evmotion.io.h5attrs.read_attrs_many` (a corrupt variable-length
+    attribute cannot hang the reader)."""
+    for a in read_attrs_many(path, objs, SIZE_ATTRS):
+        for hk, wk in (("height", "width"), ("sensor_height", "sensor_width")):
+            if hk in a and wk in a:
+                return _checked_size(path, a[hk], a[wk], f"attributes '{hk}', '{wk}'")
+        if "geometry" in a:  # Metavision: "1280x720"
+            wh = str(a["geometry"]).lower().split("x")
+            if len(wh) == 2 and all(v.strip().isdigit() for v in wh):
+                return _checked_size(path, wh[1], wh[0], "attribute 'geometry' (WxH)")
+        if "sensor_size" in a:
+            v = np.asarray(a["sensor_size"]).ravel()
+            if v.size >= 2:
+                return _checked_size(path, v[0], v[1], "attribute 'sensor_size' (H, W)")
+    return None
+
+
+def _checked_size(path: Path, h, w, what: str) -> tuple[int, int]:
+    try:
+        size = (int(h), int(w))
+    except (TypeError, ValueError):
+        raise FormatError(path, f"{what} is not a sensor size: {h!r}, {w!r}") from None
+    return check_sensor_size(path, size, what)
+
+
+def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
+         sensor_size: tuple[int, int] | None = None, columns: str | None = None,
+         time_unit: str | None = None, validate: bool = True) -> EventArray:
+    """Read events from an HDF5 file in another tool's layout (see the module).
+
+    Examples
+    --------
+    >>> ev = read("v2e_events.h5")  # doctest: +SKIP
+    """
+    import h5py
+
+    path = Path(path)
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+    with f:
+        lay = find_layout(f)
+        if lay is None:
+            raise FormatError(path, "no events found: no x, y, t, p datasets (at the root or "
+                              "in events/, CD/), no compound or N x 4 'events' dataset")
+        meta = {"source": str(path), "format": "h5generic", "layout": lay["kind"]}
+        if lay["kind"] == "fields":
+            grp = f[lay["group"]] if lay["group"] else f
+            cols = {k: grp[n][()] for k, n in lay["names"].items()}
+            size = _size_attrs(path, grp, f)
+        elif lay["kind"] == "compound":
+            data = f[lay["dataset"]][()]
+            cols = {k: data[n] for k, n in lay["names"].items()}
+            size = _size_attrs(path, f[lay["dataset"]], f)
+        else:
+            cols, meta["columns"] = split_columns(path, f[lay["dataset"]][()], columns)
+            size = _size_attrs(path, f[lay["dataset"]], f)
+    if sensor_size is not None:
+        size = tuple(sensor_size)
+    if size is None:
+        meta["sensor_size_from"] = "largest coordinate (the file states no sensor size)"
+    p = np.asarray(cols["p"])
+    p = p.astype(np.int8) if p.dtype.kind == "b" else p
+    ev = events_from_columns(path, cols["x"], cols["y"], cols["t"], p, sensor_size=size,
+                             time_unit=time_unit, meta=meta, validate=validate)
+    if size is None:
+        warnings.warn(EvmotionWarning(
+            f"{path}: no sensor size in the file: taken as {ev.sensor_size[1]}x"
+            f"{ev.sensor_size[0]} px (W x H) from the largest coordinates; give the true "
+            "size (--sensor-size H W in convert, sensor_size=(H, W))"), stacklevel=2)
+    return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
+
+
+def iter_chunks(path: str | os.PathLike, chunk_events: int, **kw) -> Iterator[EventArray]:
+    """Chunks of ``chunk_events`` (the file is read whole)."""
+    yield from chunks_of_read(read, path, chunk_events, **kw)
+
+
+def _sniff(path: Path, head: bytes) -> bool:
+    if not head.startswith(HDF5_MAGIC):
+        return False
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return find_layout(f) is not None
+    except (OSError, KeyError, ValueError):
+        return False
+
+
+FORMAT = FormatSpec(name="h5generic", extensions=(".h5", ".hdf5"), sniff=_sniff, read=read,
+                    iter_chunks=iter_chunks)
