@@ -115,3 +115,22 @@ def test_convert_sort_mends_unsorted_timestamps(tmp_path, capsys):
                  "--t1", "45us"]) == 0
     back = read_events(tmp_path / "s.h5")
     assert back.t.tolist() == [0, 10, 20, 30, 40] and back.x.tolist() == [0, 1, 3, 2, 4]
+
+
+def test_info_sensor_size_rescues_a_header_that_cannot_size(tmp_path, capsys):
+    """info --sensor-size still failed on the header ('unknown AEChip ... pass
+    sensor_size') that convert --sensor-size read."""
+    from evmotion.cli import main
+
+    head = (b"#!AER-DAT2.0\r\n# Data format is int32 address, int32 timestamp (8 bytes "
+            b"total), repeated for each event\r\n# AEChip: eu.seebetter.ini.chips.davis."
+            b"DVXplorer\r\n")
+    x, y, p, t = np.array([1, 600]), np.array([2, 400]), np.array([1, 0]), np.array([10, 20])
+    rec = np.empty((2, 2), ">u4")
+    rec[:, 0] = ((479 - y) << 22) | ((639 - x) << 12) | (p << 11)
+    rec[:, 1] = t
+    (tmp_path / "x.aedat").write_bytes(head + rec.tobytes())
+    assert main(["info", str(tmp_path / "x.aedat")]) == 2
+    assert "unknown AEChip" in capsys.readouterr().err
+    assert main(["info", str(tmp_path / "x.aedat"), "--sensor-size", "480", "640"]) == 0
+    assert "events:      2" in capsys.readouterr().out

@@ -62,7 +62,12 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
         return flow
     out: dict = {"path": str(path), "format": spec.name}
     if spec.describe is not None:
-        extra = spec.describe(path)
+        try:
+            extra = spec.describe(path)
+        except FormatError:
+            if kw.get("sensor_size") is None:
+                raise
+            extra = {}  # a header that cannot size the sensor: the size given does
         out.update({k: v for k, v in extra.items() if k != "format"})
     try:
         frames = describe_frames(path)
