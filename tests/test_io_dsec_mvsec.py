@@ -156,3 +156,16 @@ def test_rectify_events(tmp_path):
     assert len(r) == keep.sum() and r.meta["dropped_outside"] == (~keep).sum()
     np.testing.assert_array_equal(r.x, ev.x[keep] + np.float32(0.5))
     np.testing.assert_array_equal(r.t, ev.t[keep])
+
+
+def test_mvsec_file_of_the_right_camera_only(tmp_path):
+    """A file holding davis/right only was 'missing davis/left/events'."""
+    from evmotion.errors import EvmotionWarning
+
+    path = tmp_path / "right.hdf5"
+    rows = np.array([[3, 4, 1.0, 1], [5, 6, 1.001, -1]], np.float64)
+    with h5py.File(path, "w") as f:
+        f["davis/right/events"] = rows
+    with pytest.warns(EvmotionWarning, match="no davis/left/events; read davis/right/events"):
+        ev = mvsec.read(path)
+    assert ev.x.tolist() == [3, 5] and ev.meta["camera"] == "right"

@@ -15,12 +15,13 @@ is read by :func:`evmotion.io.flowfiles.read_mvsec_gt_flow`.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_h5_dataset, open_h5
@@ -33,10 +34,16 @@ __all__ = ["read", "iter_chunks", "write", "describe", "read_frames", "FORMAT",
 MVSEC_SENSOR_SIZE = (260, 346)
 
 
-def _open(path: Path, camera: str):
+def _open(path: Path, camera: str, quiet: bool = False):
 
     f = open_h5(path)
     key = f"davis/{camera}/events"
+    other = f"davis/{'right' if camera == 'left' else 'left'}/events"
+    if key not in f and other in f:
+        # a file of the other camera only (the right one's, say): read it, said so
+        if not quiet:
+            warnings.warn(EvmotionWarning(f"{path}: no {key}; read {other}"), stacklevel=3)
+        key = other
     if key not in f:
         f.close()
         raise FormatError(path, f"missing dataset '{key}' (not an MVSEC data file?)")
@@ -45,7 +52,7 @@ def _open(path: Path, camera: str):
     except BaseException:
         f.close()
         raise
-    return f, ds
+    return f, ds, key.split("/")[1]
 
 
 def _make(path: Path, block: np.ndarray, size, meta, validate: bool) -> EventArray:
@@ -82,7 +89,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     >>> ev = read("indoor_flying1_data.hdf5", t0=..., t1=...)  # doctest: +SKIP
     """
     path = Path(path)
-    f, ds = _open(path, camera)
+    f, ds, camera = _open(path, camera)
     with f:
         n = ds.shape[0]
         lo = 0 if t0 is None else _locate(ds, int(t0), n)
@@ -100,7 +107,7 @@ def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
     if int(chunk_events) <= 0:
         raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
     path = Path(path)
-    f, ds = _open(path, camera)
+    f, ds, camera = _open(path, camera)
     size = tuple(sensor_size or MVSEC_SENSOR_SIZE)
     meta = {"source": str(path), "format": "mvsec", "camera": camera}
     with f:
@@ -145,7 +152,7 @@ def write(path: str | os.PathLike, events: EventArray, *, camera: str = "left",
 
 def describe(path: str | os.PathLike, camera: str = "left") -> dict:
     path = Path(path)
-    f, ds = _open(path, camera)
+    f, ds, camera = _open(path, camera, quiet=True)
     with f:
         n = ds.shape[0]
         g = f[f"davis/{camera}"]
