@@ -142,8 +142,9 @@ def run(args) -> int:
         except EvmotionError:
             info = {}
         if info.get("t_first_us") is None:
-            raise EmptyWindowError(f"{args.file}: no events in the requested slice "
-                                   f"(--t0 {args.t0}, --t1 {args.t1} µs)")
+            raise EmptyWindowError(f"{args.file}: no events" if args.t0 is None and
+                                   args.t1 is None else f"{args.file}: no events in the "
+                                   f"requested slice (--t0 {args.t0}, --t1 {args.t1} µs)")
         raise empty_selection(args, args.file, int(info["t_first_us"]),
                               int(info["t_last_us"]), "no events")
     check_scale(args.scale, ev.sensor_size)
