@@ -105,8 +105,9 @@ def test_convert_sort_mends_unsorted_timestamps(tmp_path, capsys):
     from evmotion.events import EventArray
     from evmotion.io import read_events, write_events
 
-    t = np.array([0, 10, 30, 20, 40, 50], np.int64)
-    ev = EventArray(x=np.arange(6), y=np.zeros(6, int), t=t, p=[1, 0, 1, 0, 1, 0],
+    t = np.arange(200, dtype=np.int64) * 10
+    t[2], t[3] = t[3], t[2]  # one event out of order: a recorder's slip
+    ev = EventArray(x=np.arange(200) % 8, y=np.zeros(200, int), t=t, p=np.arange(200) % 2,
                     sensor_size=(4, 8), validate=False)
     write_events(tmp_path / "u.h5", ev)
     assert main(["info", str(tmp_path / "u.h5")]) == 2
