@@ -27,8 +27,8 @@ __all__ = [
     "make_windows",
 ]
 
-# the share of events stepping back in time beyond which the times are not a recorder's
-# slips but another column (EventArray.check's hint)
+# the share of events (and more than 10) stepping back in time beyond which the times are
+# not a recorder's slips but another column (EventArray.check's hint)
 MAX_UNSORTED_SHARE = 0.01
 
 TONIC_DTYPE = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
@@ -126,13 +126,14 @@ class EventArray:
         dt = np.diff(self.t)
         if dt.size and dt.min() < 0:
             i = int(np.argmax(dt < 0))
-            share = float(np.mean(dt < 0))
+            back = int(np.count_nonzero(dt < 0))
             # a few events out of order are a recorder's; many, a column taken for time
             # that is not (sorting those would make garbage)
             hint = ("sort them: evmotion convert IN OUT --sort, or EventArray.sorted()"
-                    if share <= MAX_UNSORTED_SHARE else
-                    f"{100 * share:.0f} % of them step back: is the time column where the "
-                    "format has it? (text: t x y p, or a header line naming the columns)")
+                    if back <= max(10, MAX_UNSORTED_SHARE * dt.size) else
+                    f"{100 * back / dt.size:.0f} % of them step back: is the time column "
+                    "where the format has it? (text: t x y p, or a header line naming the "
+                    "columns)")
             raise EventDataError(
                 f"timestamps are not sorted: t[{i}]={self.t[i]} > t[{i + 1}]={self.t[i + 1]} us "
                 f"({hint})"
