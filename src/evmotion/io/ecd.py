@@ -30,6 +30,7 @@ from evmotion.io.guard import (
     SENSOR_SIZE_HINT,
     check_sensor_size,
     time_to_us,
+    warn_inferred_size,
 )
 from evmotion.io.pngfile import read_png
 from evmotion.jitcache import lazy_njit
@@ -545,10 +546,7 @@ def _extended_size(ev_path: Path, size, src: str, x_max: int, y_max: int):
     if (x_max < size[1] and y_max < size[0]) or max(x_max, y_max) >= MAX_SENSOR_SIDE:
         return size, src  # they fit; or no sensor is that large: refused as outside
     size = (max(size[0], y_max + 1), max(size[1], x_max + 1))
-    warnings.warn(EvmotionWarning(
-        f"{ev_path}: no sensor size in the file and events beyond the ECD's 240x180: taken "
-        f"as {size[1]}x{size[0]} px (W x H) from the largest coordinates; give the true "
-        "size (--sensor-size H W in convert, sensor_size=(H, W))"), stacklevel=3)
+    warn_inferred_size(ev_path, size, ", events beyond the ECD's 240x180")
     return size, "largest coordinate (the file states no sensor size)"
 
 

@@ -30,7 +30,7 @@ from evmotion.errors import (
 )
 
 __all__ = ["MAX_SENSOR_SIDE", "check_sensor_size", "guard_call", "guard_iter", "as_format_error",
-           "open_h5"]
+           "open_h5", "warn_inferred_size"]
 
 # Largest sensor side (pixels) a header may declare: today's largest event sensors are
 # 1280x720 (Prophesee IMX636) and 1920x1080 (Samsung); 16384 leaves room while keeping a
@@ -320,3 +320,16 @@ def _check_blosc_header(path, name: str, info, head: bytes, chunk_bytes: int) ->
                           f"{info.byte_offset} declares {nbytes} bytes in {cbytes} (blocks of "
                           f"{blocksize}), expected {chunk_bytes} in {info.size}",
                           "corrupt compressed chunk")
+
+
+def warn_inferred_size(path, size: tuple[int, int], why: str = "") -> None:
+    """Say that a file stating no sensor size was given the smallest one holding its
+    events (``size`` ``(H, W)``); ``why`` says more (", events beyond 240x180")."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
+    warnings.warn(EvmotionWarning(
+        f"{path}: no sensor size in the file{why}: taken as {size[1]}x{size[0]} px (W x H) "
+        "from the largest coordinates; give the true size (--sensor-size H W in convert, "
+        "sensor_size=(H, W))"), stacklevel=3)

@@ -20,16 +20,15 @@ coordinates, said in a warning.
 from __future__ import annotations
 
 import os
-import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionWarning, FormatError
+from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields
-from evmotion.io.guard import check_sensor_size
+from evmotion.io.guard import check_sensor_size, warn_inferred_size
 from evmotion.io.h5attrs import read_attrs_many
 from evmotion.io.h5filters import HDF5_MAGIC
 from evmotion.io.npy import chunks_of_read, events_from_columns, split_columns
@@ -139,10 +138,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     ev = events_from_columns(path, cols["x"], cols["y"], cols["t"], p, sensor_size=size,
                              time_unit=time_unit, meta=meta, validate=validate)
     if size is None:
-        warnings.warn(EvmotionWarning(
-            f"{path}: no sensor size in the file: taken as {ev.sensor_size[1]}x"
-            f"{ev.sensor_size[0]} px (W x H) from the largest coordinates; give the true "
-            "size (--sensor-size H W in convert, sensor_size=(H, W))"), stacklevel=2)
+        warn_inferred_size(path, ev.sensor_size)
     return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import MAX_SENSOR_SIDE
+from evmotion.io.guard import MAX_SENSOR_SIDE, warn_inferred_size
 from evmotion.io.npy import chunks_of_read, events_from_columns
 
 __all__ = ["read", "iter_chunks", "describe", "FORMAT"]
@@ -133,10 +133,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
             sensor_size = (max(sensor_size[0], int(y.max()) + 1),
                            max(sensor_size[1], int(x.max()) + 1))
             meta["sensor_size_from"] = "largest coordinate (the file states no sensor size)"
-            warnings.warn(EvmotionWarning(
-                f"{path}: no sensor size in the file and pixels beyond the DAVIS240C's "
-                f"240x180: taken as {sensor_size[1]}x{sensor_size[0]} px (W x H); give the "
-                "true size (--sensor-size H W in convert, sensor_size=(H, W))"), stacklevel=2)
+            warn_inferred_size(path, sensor_size, ", pixels beyond the DAVIS240C's 240x180")
     p = np.where(p > 0, 1, 0) if p.size and np.all(np.isin(p, (-1, 0, 1))) else p
     ev = events_from_columns(path, x, y, t.astype(np.float64), p, sensor_size=sensor_size,
                              time_unit=time_unit, meta=meta, validate=validate,
