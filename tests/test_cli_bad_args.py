@@ -851,3 +851,21 @@ def test_sigterm_unwinds_as_ctrl_c_does(rec, command):
         (p.returncode == 0 and err == ""), (p.returncode, err)
     left = [q.name for q in d.iterdir() if ".part" in q.name or q.name.startswith(".")]
     assert not left
+
+
+@pytest.mark.parametrize("argv", [
+    ["flow", "{rec}", "--method", "dnn", "--out", "{dir}/x.flo"],
+    ["train", "--sim-windows", "2", "--epochs", "1", "--out", "{dir}/run"],
+])
+def test_without_torch_the_network_commands_say_how_to_install(rec, capsys, monkeypatch,
+                                                               argv):
+    """A plain 'pip install -e .' (no [dnn] extra): flow --method dnn and train ended in a
+    ModuleNotFoundError traceback."""
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "torch" else real(name, *a))
+    argv = [a.format(rec=rec["rec"], dir=rec["dir"]) for a in argv]
+    rc, err = _run(argv, capsys)
+    _assert_one_line(rc, err, "torch", "pip install 'evmotion[dnn]'")

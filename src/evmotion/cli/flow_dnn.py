@@ -57,9 +57,10 @@ def check_args(args) -> None:
 
 def estimator(args):
     """``(estimate(events, init) -> FlowResult, attrs)`` for the multicm runner."""
-    import torch
+    from evmotion.methods.dnn import estimate_flow_dnn, require_torch
 
-    from evmotion.methods.dnn import estimate_flow_dnn
+    require_torch()
+    import torch
 
     torch.set_num_threads(args.threads)
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),

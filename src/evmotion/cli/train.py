@@ -112,6 +112,9 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
+    from evmotion.methods.dnn import require_torch
+
+    require_torch("evmotion train")
     from evmotion.methods.dnn.train import TrainConfig, train
 
     cfg = TrainConfig(width=args.width, epochs=args.epochs, batch_size=args.batch_size,

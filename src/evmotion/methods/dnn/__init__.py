@@ -16,6 +16,17 @@ from evmotion.catalog import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 from evmotion.methods.dnn.voxel import voxel_grid
 
 
+def require_torch(feature: str = "the network (method 'dnn')") -> None:
+    """Raise :class:`~evmotion.errors.MissingDependencyError` (one line: how to install)
+    when PyTorch is absent; call it before importing a submodule that needs torch."""
+    import importlib.util
+
+    from evmotion.errors import MissingDependencyError
+
+    if importlib.util.find_spec("torch") is None:
+        raise MissingDependencyError("torch", feature, "dnn")
+
+
 def estimate_flow_dnn(*args, **kwargs):
     """See :func:`evmotion.methods.dnn.infer.estimate_flow_dnn` (imports torch lazily)."""
     from evmotion.methods.dnn.infer import estimate_flow_dnn as fn
@@ -23,4 +34,5 @@ def estimate_flow_dnn(*args, **kwargs):
     return fn(*args, **kwargs)
 
 
-__all__ = ["MAX_CROP_SIDE", "MAX_WIDTH", "MIN_CROP_SIDE", "estimate_flow_dnn", "voxel_grid"]
+__all__ = ["MAX_CROP_SIDE", "MAX_WIDTH", "MIN_CROP_SIDE", "estimate_flow_dnn", "require_torch",
+           "voxel_grid"]
