@@ -19,10 +19,12 @@ import argparse
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from evmotion.errors import EvmotionWarning
 from evmotion.eval.metrics import event_mask, flow_metrics, fwl, rms_error
 from evmotion.events import Window
 from evmotion.io import write_events
@@ -246,6 +248,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
+    shown = warnings.showwarning
+
+    def one_line(message, category, *rest, **kw):
+        # the demo shows a collapse on purpose: its warning is a line, not a source dump
+        if issubclass(category, EvmotionWarning):
+            print(f"evmotion demo: warning: {' '.join(str(message).split())}",
+                  file=sys.stderr)
+        else:
+            shown(message, category, *rest, **kw)
+
+    warnings.showwarning = one_line
+    try:
+        return _run(args)
+    finally:
+        warnings.showwarning = shown
+
+
+def _run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rep = HtmlReport("evmotion demo: simulated recordings with ground truth")
