@@ -252,3 +252,17 @@ def test_eval_leaves_out_windows_beyond_the_ground_truth(recording, tmp_path, ca
     rc, text = _run(["eval", str(flo), "--gt", str(gt), "--along-streamlines", "--json"],
                     capsys)
     assert rc == 0 and json.loads(text)["mean"]["AEE"] < 0.3
+
+
+def test_a_window_one_microsecond_past_the_ground_truth_is_scored(recording, tmp_path,
+                                                                  capsys):
+    """The last window of a recording ends 1 us after its last event: it was left out as
+    'beyond the ground truth' (gt_coverage printed 1.0)."""
+    from evmotion.eval.windows import evaluate_windows
+    from evmotion.io.flowfiles import read_flow_h5
+
+    _, gt = recording
+    g = read_flow_h5(gt)
+    t1 = int(g.t1[-1])
+    res = evaluate_windows(g.flow[-1:], [t1 - 15_000], [t1 + 1], g)
+    assert res.uncovered == 0 and res.windows[0]["AEE"] < 1e-3

@@ -302,8 +302,9 @@ def run(args) -> int:
               f"{scored} of {len(per_window)} windows", f"({summary['mask']}, dt={args.dt})")
         print("  ".join(f"{k}={total[k]:.4g}" for k in keys))
         if res.uncovered:
-            print(f"note: {res.uncovered} windows reach beyond the ground truth's time span: "
-                  "not scored (their ground truth would be only part of the motion)")
+            print(f"note: {res.uncovered} window{'' if res.uncovered == 1 else 's'} reach "
+                  "more than 1 % beyond the ground truth's time span: not scored (their "
+                  "ground truth would be only part of the motion)")
         if mismatched:
             print(f"note: {mismatched} windows span a number of GT frames other than "
                   f"--dt {args.dt}")
