@@ -309,3 +309,24 @@ def test_cli_multicm_writes_the_validity_mask(tmp_path, capsys):
         arr, valid = z["flow"], z["valid"]
     assert arr.shape == (len(seq), 96, 128, 2) and not valid[:, :, 70:].any()
     np.testing.assert_array_equal(valid, seq.valid)
+
+
+def test_an_estimate_that_sharpens_nothing_is_no_measurement(tmp_path, capsys):
+    """A 3.3 ms ECD window gave a rotation far from the IMU's with valid=1 (contrast gain
+    1.002); below a 5 % gain the window is flagged 'no focus', poor_fit and not valid."""
+    from evmotion.errors import PoorFitWarning
+    from evmotion.events import EventArray
+    from evmotion.methods.diagnostics import warn_no_gain
+    from evmotion.methods.egomotion import estimate_egomotion
+
+    with pytest.warns(PoorFitWarning, match="no focus: .* by only 0.2 %"):
+        assert warn_no_gain(1.002, "rotation") is not None
+    assert warn_no_gain(1.5, "rotation") is None and warn_no_gain(float("nan"), "x") is None
+    rng = np.random.default_rng(1)
+    n = 3000  # uniform noise: no motion for any warp to focus
+    noise = EventArray(x=rng.integers(0, 64, n), y=rng.integers(0, 48, n),
+                       t=np.sort(rng.integers(0, 10_000, n)), p=rng.integers(0, 2, n),
+                       sensor_size=(48, 64))
+    with pytest.warns(PoorFitWarning, match="no focus"):
+        res = estimate_egomotion(noise, "translation")
+    assert res.diagnostics["contrast_gain"] < 1.05

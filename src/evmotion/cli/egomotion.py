@@ -266,7 +266,7 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
     rows. ``grid`` (which pixel grid the events were on) goes into params.h5's
     attributes."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
-    from evmotion.methods.diagnostics import POOR_FIT_SHARE
+    from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN, POOR_FIT_SHARE
     from evmotion.utils import atomic_write_text
 
     ok = [(w, r) for w, r, err in results if err is None and r is not None]
@@ -291,7 +291,9 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
     # the checks of every window: collapsed estimates and poor fits are not measurements
     collapsed = np.array([row["collapsed"] for row in rows], dtype=bool)
     share = np.array([_share(row) for row in rows])
-    poor_fit = share < POOR_FIT_SHARE  # NaN (not checked) is not flagged
+    gain = np.array([row["diagnostics"].get("contrast_gain", np.nan) for row in rows])
+    # NaN (not checked) is not flagged; no focus (no contrast gain) is no fit either
+    poor_fit = (share < POOR_FIT_SHARE) | (gain < MIN_CONTRAST_GAIN)
     valid = ~collapsed & ~poor_fit & np.isfinite(params).all(axis=1)
     buf = io.StringIO()
     wr = csv.writer(buf)
@@ -311,13 +313,13 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
             "n_events": ("events", "events in the window"), "cost": ("", "objective value"),
             "focus": ("", "focus term"), "penalty": ("", "regularizer term"),
             "collapsed": ("", "flag: the IWE collapsed"),
-            "poor_fit": ("", f"flag: explained_share < {POOR_FIT_SHARE}"),
+            "poor_fit": ("", f"flag: explained_share < {POOR_FIT_SHARE} or contrast_gain < "
+                             f"{MIN_CONTRAST_GAIN}"),
             "explained_share": ("", "share of the image the warp explains"),
             "contrast_gain": ("", "contrast over the identity warp's")}
     values = {k: np.array([row[k] for row in rows]) for k in list(cols)[:6]}
     values.update(collapsed=collapsed, poor_fit=poor_fit, explained_share=share,
-                  contrast_gain=np.array([row["diagnostics"].get("contrast_gain", np.nan)
-                                          for row in rows]))
+                  contrast_gain=gain)
     first = ok[0][1]
     write_params_h5(out_dir / "params.h5", ParamsTable(
         params, tuple(names), tuple(units),

@@ -72,6 +72,9 @@ COLLAPSE_MAX_TOP_SHARE = 0.9
 
 #: Explained share below which the fit is poor (:func:`fit_diagnostics`).
 POOR_FIT_SHARE = 0.55
+# an estimate whose image of warped events is not this much sharper (variance ratio) than
+# the identity warp's measures nothing (a 3.3 ms ECD window: 1.002, its rotation wrong)
+MIN_CONTRAST_GAIN = 1.05
 
 #: A tile supports the estimate when its sharpness under the estimate reaches this fraction
 #: of the best local translation's ...
@@ -394,6 +397,21 @@ def fit_diagnostics(x, y, dt, xw, yw, shape, tile: int | None = None) -> dict:
             "tile_support": [{"x0": r[0], "y0": r[1], "n_events": r[2], "S_estimate": r[3],
                               "S_static": r[4], "S_best": r[5], "supports": r[6]}
                              for r in rows]}
+
+
+def warn_no_gain(gain: float, warp: str, stacklevel: int = 3) -> str | None:
+    """Issue a :class:`~evmotion.errors.PoorFitWarning` when the estimate sharpens the
+    image of the events by less than :data:`MIN_CONTRAST_GAIN` (its variance over the
+    identity warp's): the window shows no motion the warp can measure; returns its
+    message (else None)."""
+    if not gain < MIN_CONTRAST_GAIN:  # NaN (no contrast at all) is collapse's to say
+        return None
+    msg = (f"no focus: the {warp} warp sharpens the image of the events by only "
+           f"{100 * (gain - 1):.1f} % (threshold {100 * (MIN_CONTRAST_GAIN - 1):.0f} %) -- "
+           "too short a window, too few events or no motion; the estimate is not a "
+           "measurement")
+    warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
+    return msg
 
 
 def warn_poor_fit(diag: dict, warp: str, stacklevel: int = 3) -> str | None:

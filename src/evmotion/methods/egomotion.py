@@ -79,6 +79,7 @@ from evmotion.methods.diagnostics import (
     collapse_diagnostics,
     fit_diagnostics,
     warn_collapse,
+    warn_no_gain,
     warn_poor_fit,
 )
 from evmotion.methods.options import merge_options
@@ -398,8 +399,10 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
         fit = fit_diagnostics(cost.x, cost.y, cost.dt, xw, yw, cost.shape)
         msgs.append(warn_poor_fit(fit, w.name, stacklevel=4))
     v0 = float(np.var(iwe_before))
-    return {"collapse": coll, "fit": fit,
-            "contrast_gain": float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan"),
+    gain = float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan")
+    if not coll["collapsed"]:
+        msgs.append(warn_no_gain(gain, w.name, stacklevel=4))
+    return {"collapse": coll, "fit": fit, "contrast_gain": gain,
             "weight_source": weight_source, "warnings": [m for m in msgs if m]}
 
 
