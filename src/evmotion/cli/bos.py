@@ -204,6 +204,7 @@ def run(args) -> int:
     else:
         resumed = sum(1 for r in rows if r.get("resumed"))
         note = f", {resumed} kept from the interrupted run" if resumed else ""
-        print(f"{len(rows)} frame intervals -> {out} ({seconds:.1f} s{note})")
+        print(f"{len(rows)} frame interval{'' if len(rows) == 1 else 's'} -> {out} "
+              f"({seconds:.1f} s{note})")
     return 0
 

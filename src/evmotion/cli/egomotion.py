@@ -246,7 +246,8 @@ def run(args) -> int:
                     "objective": args.objective, "optimizer": args.optimizer,
                     "windows": rows, "failed": failed})
     else:
-        print(f"{len(rows)} windows -> {out_dir}/params.csv, params.h5"
+        print(f"{len(rows)} window{'' if len(rows) == 1 else 's'} -> {out_dir}/params.csv, "
+              "params.h5"
               + (f"; {len(failed)} failed" if failed else ""))
     return 0
 

@@ -130,9 +130,10 @@ def _png(png_dir: Path, i: int, r, max_speed) -> None:
     from evmotion.viz import iwe_to_rgb, save_flow_png, save_png
 
     png_dir.mkdir(parents=True, exist_ok=True)
-    save_flow_png(png_dir / f"flow_{i:05d}.png", r.flow, max_speed=max_speed)
+    when = f"window {i}: {r.t0_us * 1e-6:.4f}-{r.t1_us * 1e-6:.4f} s"
+    save_flow_png(png_dir / f"flow_{i:05d}.png", r.flow, max_speed=max_speed, title=when)
     save_flow_png(png_dir / f"flow_masked_{i:05d}.png", r.flow, max_speed=max_speed,
-                  valid=_valid(r))
+                  valid=_valid(r), title=when)
     has = r.iwes["identity"] > 0
     vmax = float(np.percentile(r.iwes["tmid"][has], 99)) if has.any() else None
     for key in ("tmid", "identity"):

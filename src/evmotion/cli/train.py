@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 from evmotion.catalog import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 from evmotion.cli.options import (
@@ -133,4 +134,7 @@ def run(args) -> int:
                     log=lambda line: print(line, file=sys.stderr, flush=True))
     if args.json:
         print_json(summary)
+    else:
+        print(f"model: {Path(args.out) / 'model.pt'} (evmotion flow --method dnn "
+              f"--checkpoint {Path(args.out) / 'model.pt'})")
     return 0
