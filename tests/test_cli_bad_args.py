@@ -869,3 +869,10 @@ def test_without_torch_the_network_commands_say_how_to_install(rec, capsys, monk
     argv = [a.format(rec=rec["rec"], dir=rec["dir"]) for a in argv]
     rc, err = _run(argv, capsys)
     _assert_one_line(rc, err, "torch", "pip install 'evmotion[dnn]'")
+
+
+def test_triplet_time_range_without_events_names_the_recordings_span(rec, capsys):
+    """flow --method triplet with --t0/--t1 outside the recording said only 'no events'."""
+    rc, err = _run(["flow", rec["rec"], "--method", "triplet", "--t0", "100", "--out",
+                    str(rec["dir"] / "tr.h5")], capsys)
+    _assert_one_line(rc, err, "no events with --t0 100 s", "the recording spans")

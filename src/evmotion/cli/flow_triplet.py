@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.cli.options import (
+    empty_selection,
     finite_float,
     int_range,
     nonnegative_float,
@@ -155,6 +156,14 @@ def run(args) -> int:
                            getattr(args, "t0", None), getattr(args, "t1", None)))
     first = next((c for c in chunks if len(c)), None)
     if first is None:
+        if getattr(args, "t0", None) is not None or getattr(args, "t1", None) is not None:
+            # the error path only: the recording's own span, for the message
+            import evmotion.io as eio
+
+            info = eio.describe(args.file, format=getattr(args, "format", None))
+            if info.get("t_first_us") is not None:
+                raise empty_selection(args, args.file, int(info["t_first_us"]),
+                                      int(info["t_last_us"]), "no events")
         raise ParameterError(f"{args.file}: no events")
     sensor = first.sensor_size
     params = {"dx": args.dx, "dt_ms": args.dt_ms, "tau_ms": args.tau_ms,
