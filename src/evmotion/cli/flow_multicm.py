@@ -22,6 +22,7 @@ rows; a run in which no window can be is an error.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import time
 from pathlib import Path
 
@@ -301,10 +302,23 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
     from evmotion.io.flowout import open_flow_output
     from evmotion.methods.flowresult import estimate_or_skip
 
+    todo = None
+    if results is not None:
+        # the worker processes fork at the first result: before the output is open, so
+        # that none holds the file (and its HDF5 lock) after this run has closed it
+        it = iter(results)
+        try:
+            head = [next(it)]
+        except StopIteration:
+            head = []
+        except BaseException:
+            if hasattr(it, "close"):
+                it.close()
+            raise
+        todo = itertools.chain(head, it)
     sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
                             n_windows=len(windows))
     rows, init, held = [], None, []
-    todo = None if results is None else iter(results)
     order = (progress(windows, total=len(windows), desc=attrs["method"]) if todo is None
              else windows)
     try:
@@ -346,7 +360,7 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
         written = [str(p) for p in sink.close()]
     except BaseException:
         sink.abort()
-        if todo is not None and hasattr(todo, "close"):
-            todo.close()  # ends the worker pool (or the cluster's tasks' feed) now
+        if results is not None and hasattr(it, "close"):
+            it.close()  # ends the worker pool (or the cluster's tasks' feed) now
         raise
     return rows, written
