@@ -3,7 +3,7 @@
 :func:`load_bos_input` reads a recording (an ECD-style folder ``events.txt`` +
 ``images.txt`` + ``images/``, or any event file with ``--frames``), the frames and their
 timestamps, and cuts the frame intervals ``[t_i, t_{i+1})`` that the events cover (a
-warning names those they cover less than :data:`MIN_COVERAGE` of). It
+warning names those inside which their recording was cut). It
 raises one clear error for each input the method cannot use: frames missing, frames and
 events of different sizes or not overlapping in time, an ROI outside the sensor (the
 solver, :func:`evmotion.methods.bos.estimate_bos`, rejects a frame without texture).
@@ -29,8 +29,10 @@ __all__ = ["BosInput", "frame_intervals", "load_bos_input"]
 UNIT_SLIP = 100
 # frames further apart than this (median) see no schlieren: times in another unit
 MAX_FRAME_SPACING_US = 60_000_000
-# a frame interval the events cover less than this share of is warned about
+# a frame interval the events cover less than this share of, as densely as the whole
+# intervals (CUT_DENSITY of their rate, at least), is warned about: a cut recording
 MIN_COVERAGE = 0.6
+CUT_DENSITY = 0.5
 # a frame with more pixels than this share clipped at full scale is warned about
 MAX_CLIPPED = 0.75
 # where readers say the sensor size came from when the file does not state it
@@ -89,26 +91,34 @@ def frame_intervals(frame_times: np.ndarray, t_first: int, t_last: int, *,
     return np.stack([idx, lo[idx], hi[idx]], axis=1).astype(np.int64).reshape(-1, 3)
 
 
-def _covered(intervals: np.ndarray, t_first: int, t_last: int, rec) -> np.ndarray:
-    """``intervals``, with a warning naming those the events cover less than
-    :data:`MIN_COVERAGE` of: where the recording of the events begins or ends inside an
-    interval, its measured increment holds only part of the change and the flow comes out
-    too small (half, for half an interval). They are kept: events may also begin late
-    because the air was still (the simulated plume's first event comes 20 % into its
-    first interval)."""
+def _covered(intervals: np.ndarray, t: np.ndarray, rec) -> np.ndarray:
+    """``intervals``, with a warning naming those the events ``t`` (sorted, µs) cover
+    less than :data:`MIN_COVERAGE` of while coming as densely as in the whole intervals:
+    a recording of the events cut there (the measured increment then holds only part of
+    the change and the flow comes out too small: half, for half an interval). Events that
+    begin late and sparse are the air starting to move, not a cut, and are not warned
+    about; a dense onset cannot be told from a cut, hence "if" in the warning."""
     if not len(intervals):
         return intervals
     lo, hi = intervals[:, 1], intervals[:, 2]
-    cover = (np.minimum(hi, t_last) - np.maximum(lo, t_first)) / (hi - lo)
-    short = cover < MIN_COVERAGE
-    if short.any():
+    t_first, t_last = int(t[0]), int(t[-1])
+    covered = np.clip(np.minimum(hi, t_last + 1) - np.maximum(lo, t_first), 0, None)
+    cover = covered / (hi - lo)
+    count = np.searchsorted(t, hi) - np.searchsorted(t, lo)
+    full = cover >= 0.99
+    if full.all() or not full.any():
+        return intervals
+    rate = float(np.median(count[full] / (hi - lo)[full]))
+    cut = (cover < MIN_COVERAGE) & (count >= CUT_DENSITY * rate * covered)
+    if cut.any():
         listed = ", ".join(f"[{a}, {b}) us {100 * c:.0f} %" for a, b, c in
-                           zip(lo[short][:3], hi[short][:3], cover[short][:3], strict=True))
-        more = f" and {int(short.sum()) - 3} more" if short.sum() > 3 else ""
+                           zip(lo[cut][:3], hi[cut][:3], cover[cut][:3], strict=True))
+        more = f" and {int(cut.sum()) - 3} more" if cut.sum() > 3 else ""
         warnings.warn(EvmotionWarning(
-            f"{rec}: the events cover only part of frame intervals ({listed}{more}): if "
-            "they were not recorded all through, the flow there is too small by that share "
-            "(--t0 / --t1 leave intervals out)"), stacklevel=3)
+            f"{rec}: the events stop or start inside frame intervals as densely as they "
+            f"come elsewhere ({listed} covered{more}): if their recording was cut there, "
+            "the flow of those intervals is too small by that share (--t0 / --t1 leave them "
+            "out)"), stacklevel=3)
     return intervals
 
 
@@ -243,7 +253,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
             f"{rec}: the events span {ev_span * 1e-6:g} s, the frames {fr_span * 1e-6:g} s"
             f"{hint}"), stacklevel=2)
     intervals = _covered(frame_intervals(times, t_first, t_last, t0=t0, t1=t1,
-                                         max_intervals=max_intervals), t_first, t_last, rec)
+                                         max_intervals=max_intervals), events.t, rec)
     if not len(intervals):
         span = f" within --t0 {t0} / --t1 {t1} us" if t0 is not None or t1 is not None else ""
         raise ParameterError(f"no frame interval [t_i, t_i+1) overlaps the events' time span "
