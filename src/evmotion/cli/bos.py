@@ -207,4 +207,3 @@ def run(args) -> int:
         print(f"{len(rows)} frame interval{'' if len(rows) == 1 else 's'} -> {out} "
               f"({seconds:.1f} s{note})")
     return 0
-

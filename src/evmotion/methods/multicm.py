@@ -877,4 +877,3 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
         if warm_start and "skipped" not in res.meta:
             init = res
     return out
-
