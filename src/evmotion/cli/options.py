@@ -358,6 +358,21 @@ def reject_unused(args: argparse.Namespace, options: dict[str, str], reason: str
 _TIME_UNITS = {"us": 1, "µs": 1, "ms": 1_000, "s": 1_000_000}
 
 
+def _with_unit(text: str, default_scale: int) -> tuple[float, int]:
+    """``(number, us per unit)`` of a time with an optional ``us``/``µs``/``ms``/``s``
+    suffix (``default_scale`` without one); the number NaN when it is not one."""
+    raw = str(text).strip()
+    body, scale = raw, default_scale
+    for suffix in ("us", "µs", "ms", "s"):  # "ms" and "us" before "s"
+        if raw.lower().endswith(suffix):
+            body, scale = raw[: -len(suffix)].strip(), _TIME_UNITS[suffix]
+            break
+    try:
+        return float(body), scale
+    except ValueError:
+        return math.nan, scale
+
+
 def time_us(text: str) -> int:
     """``type=`` for a time: seconds by default, or with an explicit ``us``/``µs``, ``ms``
     or ``s`` suffix; returns integer microseconds (absolute: the recording's own clock).
@@ -367,16 +382,7 @@ def time_us(text: str) -> int:
     >>> time_us("1.5"), time_us("1500000us"), time_us("250ms"), time_us("2s")
     (1500000, 1500000, 250000, 2000000)
     """
-    raw = str(text).strip()
-    body, scale = raw, _TIME_UNITS["s"]
-    for suffix in ("us", "µs", "ms", "s"):  # "ms" and "us" before "s"
-        if raw.lower().endswith(suffix):
-            body, scale = raw[: -len(suffix)].strip(), _TIME_UNITS[suffix]
-            break
-    try:
-        v = float(body)
-    except ValueError:
-        v = math.nan
+    v, scale = _with_unit(text, _TIME_UNITS["s"])
     if not math.isfinite(v) or v < 0:
         raise argparse.ArgumentTypeError(
             f"must be a time >= 0 in seconds, or with a unit (e.g. 1.5, 1500ms, 1500000us), "
@@ -396,16 +402,8 @@ def duration_us(text: str) -> int:
     >>> duration_us("10000"), duration_us("10ms"), duration_us("0.01s")
     (10000, 10000, 10000)
     """
-    raw = str(text).strip()
-    body, scale = raw, 1
-    for suffix in ("us", "µs", "ms", "s"):
-        if raw.lower().endswith(suffix):
-            body, scale = raw[: -len(suffix)].strip(), _TIME_UNITS[suffix]
-            break
-    try:
-        v = float(body) * scale
-    except ValueError:
-        v = math.nan
+    v, scale = _with_unit(text, _TIME_UNITS["us"])
+    v = v * scale
     if not math.isfinite(v) or v < 1 or v > 2**62 or abs(v - round(v)) > 1e-6 * max(v, 1):
         raise argparse.ArgumentTypeError(
             f"must be a whole number of microseconds >= 1, or with a unit (e.g. 10000, "
