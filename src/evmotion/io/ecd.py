@@ -253,28 +253,10 @@ def _sensor_size(path: Path, sensor_size) -> tuple[tuple[int, int], str]:
     if size is not None:
         return size, "images"
     ev_path = _events_file(path)
-    size = _header_size(ev_path) or text_layout(ev_path)["size"]
+    size = text_layout(ev_path)["size"]
     if size is not None:
         return check_sensor_size(ev_path, size, "header sensor size"), "header"
     return ECD_SENSOR_SIZE, "ECD default (DAVIS240C)"
-
-
-def _header_size(ev_path: Path) -> tuple[int, int] | None:
-    """The sensor size a comment line at the top of the events file states
-    (``# ... height H width W``, as :func:`write` puts it), if one does."""
-    try:
-        with open(ev_path, "rb") as fh:
-            head = fh.read(4096)
-    except OSError:
-        return None
-    for line in head.removeprefix(b"\xef\xbb\xbf").splitlines():
-        text = line.strip()
-        if not text.startswith((b"#", b"%")):
-            return None
-        m = HEADER_SIZE.search(text.decode("ascii", "replace"))
-        if m:
-            return int(m.group(1)), int(m.group(2))
-    return None
 
 
 def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s"
@@ -286,10 +268,11 @@ def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s"
     if unit not in TEXT_TIME_UNITS:
         raise ParameterError(f"time_unit must be one of {sorted(TEXT_TIME_UNITS)} (or None: "
                              f"from the text), got {time_unit!r}")
-    order = text_layout(path)["order"]
+    layout = text_layout(path)
+    order, offset = layout["order"], layout["offset"]
     with open(path, "rb") as fh:
+        fh.seek(offset)
         carry = b""
-        offset = _skip_header(fh)
         while True:
             blk = fh.read(block_bytes)
             data = carry + blk
@@ -359,9 +342,10 @@ def sniff_time_unit(path: str | Path) -> str:
     's'
     """
     path = _events_file(Path(path))
-    col = text_layout(path)["order"].index("t")
+    layout = text_layout(path)
+    col = layout["order"].index("t")
     with open(path, "rb") as fh:
-        _skip_header(fh)
+        fh.seek(layout["offset"])
         head = fh.read(SNIFF_BYTES)
     lines = head.split(b"\n")[:-1] if len(head) == SNIFF_BYTES else head.split(b"\n")
     fields = [ln.replace(b",", b" ").replace(b";", b" ").split() for ln in lines]
@@ -378,29 +362,24 @@ def sniff_time_unit(path: str | Path) -> str:
 SNIFF_BYTES = 65_536  # the lines sniff_time_unit looks at
 
 
-def _skip_header(fh) -> int:
-    """Past a UTF-8 byte-order mark, the comment lines (``#`` or ``%``) that open some
-    tools' event text files, and the size and column-name lines of :func:`text_layout`;
-    returns the byte offset where the events start."""
-    pos = _skip_comments(fh)
-    for _ in range(2):
-        line = fh.readline()
-        if _size_line(line) is None and _names_line(line) is None:
-            break
-        pos = fh.tell()
-    fh.seek(pos)
-    return pos
-
-
-def _skip_comments(fh) -> int:
+def _skip_comments(fh) -> tuple[int, list[bytes]]:
+    """Past a UTF-8 byte-order mark and the comment lines (``#`` or ``%``) that open some
+    tools' event text files: the offset after them, and the comments that begin in the
+    first :data:`HEADER_BYTES` (where :func:`write`'s size line is looked for)."""
     pos = 3 if fh.read(3) == b"\xef\xbb\xbf" else 0
     fh.seek(pos)
+    comments = []
     while True:
         line = fh.readline()
         if not line.lstrip(b" \t").startswith((b"#", b"%")):
             fh.seek(pos)
-            return pos
+            return pos, comments
+        if pos < HEADER_BYTES:
+            comments.append(line)
         pos = fh.tell()
+
+
+HEADER_BYTES = 4096
 
 
 def _size_line(line: bytes) -> tuple[int, int] | None:
@@ -426,28 +405,34 @@ def _names_line(line: bytes) -> str | None:
 
 def text_layout(path: str | Path) -> dict:
     """How an events text file is laid out: ``order`` of its columns ("txyp" for the
-    ECD's ``t x y p``; a header line of column names states another, e.g. ``x,y,p,t``)
-    and ``size`` ``(height, width)`` when a first line of two numbers ``W H`` (rpg /
-    E2VID text) states it, else None.
+    ECD's ``t x y p``; a header line of column names states another, e.g. ``x,y,p,t``);
+    ``size`` ``(height, width)`` when a comment line (``# ... height H width W``, as
+    :func:`write` puts it) or a first line of two numbers ``W H`` (rpg / E2VID text)
+    states it, else None; and ``offset``, the byte where the events start (past a
+    byte-order mark, comments and those lines).
 
     Examples
     --------
     >>> text_layout("events.txt")  # doctest: +SKIP
-    {'order': 'txyp', 'size': None}
+    {'order': 'txyp', 'size': None, 'offset': 0}
     """
     path = _events_file(Path(path))
-    out = {"order": "txyp", "size": None}
     with open(path, "rb") as fh:
-        _skip_comments(fh)
+        pos, comments = _skip_comments(fh)
+        stated = (HEADER_SIZE.search(c.decode("ascii", "replace")) for c in comments)
+        m = next((m for m in stated if m), None)
+        out = {"order": "txyp", "size": None if m is None else (int(m[1]), int(m[2])),
+               "offset": pos}
         for _ in range(2):
             line = fh.readline()
             size, order = _size_line(line), _names_line(line)
             if size is not None:
-                out["size"] = size
+                out["size"] = out["size"] or size
             elif order is not None:
                 out["order"] = order
             else:
                 break
+            out["offset"] = fh.tell()
     return out
 
 
