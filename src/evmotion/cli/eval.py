@@ -35,7 +35,7 @@ from evmotion.cli.options import (
     positive_int,
     reject_unused,
 )
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import EmptyWindowError, FormatError, ParameterError
 
 EXAMPLES = """examples:
   evmotion eval flow.h5 --gt outdoor_day1_gt_flow_dist.npz --events rec.h5 --dt 4 --json
@@ -211,7 +211,6 @@ def _check_estimate(path, fmt) -> None:
 def _run_event_flow(args, path) -> int:
     """Score a per-event flow file (see the module docstring)."""
     from evmotion.cli import print_json
-    from evmotion.errors import EmptyWindowError
     from evmotion.eval.eventflow import event_flow_metrics
     from evmotion.io.eventflow import read_event_flow
     from evmotion.io.flowfiles import read_gt_flow
@@ -271,19 +270,16 @@ def run(args) -> int:
     if gt.flow.shape[1:3] != flow.shape[1:3]:
         raise ParameterError(f"flow is {flow.shape[1:3]} px but ground truth {args.gt} is "
                              f"{gt.flow.shape[1:3]} px (height, width)")
-    if len(t0s) and len(gt.t0) and (int(np.max(t1s)) <= int(gt.t0[0])
-                                    or int(np.min(t0s)) >= int(gt.t1[-1])):
-        raise ParameterError(f"the windows of {path} span [{int(np.min(t0s))}, "
-                             f"{int(np.max(t1s))}] us but ground truth {args.gt} "
-                             f"[{int(gt.t0[0])}, {int(gt.t1[-1])}] us: they do not overlap "
-                             "in time (another recording, or another time origin?)")
     events = None
     if args.events:
         from evmotion.io import read_events
 
         events = read_events(args.events, **({"format": args.format} if args.format else {}))
-    res = evaluate_windows(flow, t0s, t1s, gt, events=events, dt=args.dt, out_px=out_px,
-                           along_streamlines=args.along_streamlines)
+    try:
+        res = evaluate_windows(flow, t0s, t1s, gt, events=events, dt=args.dt, out_px=out_px,
+                               along_streamlines=args.along_streamlines)
+    except EmptyWindowError as exc:
+        raise ParameterError(f"{path} against ground truth {args.gt}: {exc}") from None
     per_window, total, mismatched = res.windows, res.total, res.mismatched
     if q is not None:
         _add_potential_scores(q, t0s, t1s, args.gt, per_window, total)

@@ -206,9 +206,7 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
         rows.append(m)
         per_window.append(row)
     if not rows:
-        span = f"[{int(np.min(gt.t0))}, {int(np.max(gt.t1))}) us" if len(gt.t0) else "none"
-        raise EmptyWindowError(f"no window lies within the ground truth's time span {span}: "
-                               "nothing to score")
+        raise EmptyWindowError(_nothing_to_score(t0s, t1s, gt))
     total = aggregate_flow_metrics(rows).as_dict()
     total["AE_rad"] = float(np.radians(total["AE_deg"]))
     fwls = [r["FWL"] for r in per_window if "FWL" in r]
@@ -218,6 +216,17 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     mask_text = ("valid GT" + (" & at least one event" if events is not None else "")
                  + (" & estimate known" if unknown else ""))
     return WindowsEvaluation(per_window, total, mismatched, mask_text, uncovered)
+
+
+def _nothing_to_score(t0s, t1s, gt) -> str:
+    """Why no window was scored: the windows' and the ground truth's time spans."""
+    if not len(gt.t0):
+        return "the ground truth holds no window: nothing to score"
+    a, b = int(np.min(t0s)), int(np.max(t1s))
+    c, d = int(np.min(gt.t0)), int(np.max(gt.t1))
+    why = ("they do not overlap in time (another recording, or another time origin?)"
+           if b <= c or a >= d else "no window lies within the ground truth's")
+    return f"the windows span [{a}, {b}] us but the ground truth [{c}, {d}] us: {why}"
 
 
 def _filled(flow: np.ndarray, known: np.ndarray) -> np.ndarray:
