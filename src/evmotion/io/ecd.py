@@ -26,11 +26,11 @@ from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields
 from evmotion.io.guard import (
-    MAX_SENSOR_SIDE,
+    LARGEST_COORDINATE,
     SENSOR_SIZE_HINT,
     check_sensor_size,
+    extended_size,
     time_to_us,
-    warn_inferred_size,
 )
 from evmotion.io.pngfile import read_png
 from evmotion.jitcache import lazy_njit
@@ -525,14 +525,10 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
 
 def _extended_size(ev_path: Path, size, src: str, x_max: int, y_max: int):
-    """Text from another sensor, its size stated nowhere: the smallest sensor holding
-    every event (at least the ECD's), with a warning; ``(size, src)`` unchanged when the
-    events fit the ECD's."""
-    if (x_max < size[1] and y_max < size[0]) or max(x_max, y_max) >= MAX_SENSOR_SIDE:
-        return size, src  # they fit; or no sensor is that large: refused as outside
-    size = (max(size[0], y_max + 1), max(size[1], x_max + 1))
-    warn_inferred_size(ev_path, size, ", events beyond the ECD's 240x180")
-    return size, "largest coordinate (the file states no sensor size)"
+    """Text from another sensor, its size stated nowhere: ``(size, src)`` of
+    :func:`evmotion.io.guard.extended_size`, unchanged when the events fit the ECD's."""
+    wider = extended_size(ev_path, size, x_max, y_max, ", events beyond the ECD's 240x180")
+    return (size, src) if wider is None else (wider, LARGEST_COORDINATE)
 
 
 # a text file without a sensor size is scanned once for its largest coordinates before

@@ -30,7 +30,7 @@ from evmotion.errors import (
 )
 
 __all__ = ["MAX_SENSOR_SIDE", "check_sensor_size", "guard_call", "guard_iter", "as_format_error",
-           "open_h5", "warn_inferred_size"]
+           "extended_size", "open_h5", "warn_inferred_size", "LARGEST_COORDINATE"]
 
 # Largest sensor side (pixels) a header may declare: today's largest event sensors are
 # 1280x720 (Prophesee IMX636) and 1920x1080 (Samsung); 16384 leaves room while keeping a
@@ -322,7 +322,31 @@ def _check_blosc_header(path, name: str, info, head: bytes, chunk_bytes: int) ->
                           "corrupt compressed chunk")
 
 
-def warn_inferred_size(path, size: tuple[int, int], why: str = "") -> None:
+# where a reader says a sensor size came from when it took the largest coordinates
+LARGEST_COORDINATE = "largest coordinate (the file states no sensor size)"
+
+
+def extended_size(path, size: tuple[int, int], x_max: int, y_max: int,
+                  why: str = "") -> tuple[int, int] | None:
+    """A file stating no sensor size, read on a default ``size`` ``(H, W)``, whose events
+    reach ``x_max, y_max`` (pixels, >= 0) beyond it: the smallest sensor holding every
+    event (at least ``size``), said by :func:`warn_inferred_size`; None when the events
+    fit ``size``, or when no sensor is that large (they are refused as outside).
+
+    Examples
+    --------
+    >>> extended_size("a.txt", (180, 240), 100, 100) is None
+    True
+    """
+    if (x_max < size[1] and y_max < size[0]) or max(x_max, y_max) >= MAX_SENSOR_SIDE:
+        return None
+    size = (max(size[0], int(y_max) + 1), max(size[1], int(x_max) + 1))
+    warn_inferred_size(path, size, why, stacklevel=4)
+    return size
+
+
+def warn_inferred_size(path, size: tuple[int, int], why: str = "",
+                       stacklevel: int = 3) -> None:
     """Say that a file stating no sensor size was given the smallest one holding its
     events (``size`` ``(H, W)``); ``why`` says more (", events beyond 240x180")."""
     import warnings
@@ -332,4 +356,4 @@ def warn_inferred_size(path, size: tuple[int, int], why: str = "") -> None:
     warnings.warn(EvmotionWarning(
         f"{path}: no sensor size in the file{why}: taken as {size[1]}x{size[0]} px (W x H) "
         "from the largest coordinates; give the true size (--sensor-size H W in convert, "
-        "sensor_size=(H, W))"), stacklevel=3)
+        "sensor_size=(H, W))"), stacklevel=stacklevel)

@@ -28,7 +28,7 @@ import numpy as np
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields
-from evmotion.io.guard import check_sensor_size, warn_inferred_size
+from evmotion.io.guard import LARGEST_COORDINATE, check_sensor_size, warn_inferred_size
 from evmotion.io.h5attrs import read_attrs_many
 from evmotion.io.h5filters import HDF5_MAGIC
 from evmotion.io.npy import chunks_of_read, events_from_columns, split_columns
@@ -132,7 +132,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     if sensor_size is not None:
         size = tuple(sensor_size)
     if size is None:
-        meta["sensor_size_from"] = "largest coordinate (the file states no sensor size)"
+        meta["sensor_size_from"] = LARGEST_COORDINATE
     p = np.asarray(cols["p"])
     p = p.astype(np.int8) if p.dtype.kind == "b" else p
     ev = events_from_columns(path, cols["x"], cols["y"], cols["t"], p, sensor_size=size,

@@ -23,7 +23,7 @@ import numpy as np
 from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import MAX_SENSOR_SIDE, warn_inferred_size
+from evmotion.io.guard import LARGEST_COORDINATE, extended_size
 from evmotion.io.npy import chunks_of_read, events_from_columns
 
 __all__ = ["read", "iter_chunks", "describe", "FORMAT"]
@@ -125,15 +125,14 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         sensor_size = DEFAULT_SENSOR_SIZE
         meta["sensor_size_from"] = "default 180x240 (DAVIS240C)"
         whole = x.size and np.all(x == np.round(x)) and np.all(y == np.round(y))
-        if whole and x.min() >= 0 and y.min() >= 0 and (
-                x.max() >= sensor_size[1] or y.max() >= sensor_size[0]) and \
-                max(x.max(), y.max()) < MAX_SENSOR_SIDE:
+        if whole and x.min() >= 0 and y.min() >= 0:
             # raw pixels of a larger sensor (whole numbers; undistorted ones are not):
             # every event kept, on the smallest sensor holding them
-            sensor_size = (max(sensor_size[0], int(y.max()) + 1),
-                           max(sensor_size[1], int(x.max()) + 1))
-            meta["sensor_size_from"] = "largest coordinate (the file states no sensor size)"
-            warn_inferred_size(path, sensor_size, ", pixels beyond the DAVIS240C's 240x180")
+            wider = extended_size(path, sensor_size, int(x.max()), int(y.max()),
+                                  ", pixels beyond the DAVIS240C's 240x180")
+            if wider is not None:
+                sensor_size = wider
+                meta["sensor_size_from"] = LARGEST_COORDINATE
     p = np.where(p > 0, 1, 0) if p.size and np.all(np.isin(p, (-1, 0, 1))) else p
     ev = events_from_columns(path, x, y, t.astype(np.float64), p, sensor_size=sensor_size,
                              time_unit=time_unit, meta=meta, validate=validate,
