@@ -407,3 +407,18 @@ def test_mostly_clipped_frames_are_flagged(scene, tmp_path):
         write_png(f, np.minimum(img * 4, 255).astype(np.uint8))
     with pytest.warns(EvmotionWarning, match="clipped at full scale"):
         load_bos_input(d)
+
+
+def test_events_beyond_240x180_without_a_size_take_the_frames(tmp_path, capsys):
+    """events.txt alone whose pixels reach beyond 240x180 was sized to its largest
+    coordinates, then refused against the (larger) frames' grid."""
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    write_schlieren(simulate_schlieren("plume", sensor_size=(200, 300), duration_s=2 / 120,
+                                       seed=0), tmp_path / "scene")
+    (tmp_path / "ev").mkdir()
+    shutil.copy(tmp_path / "scene" / "events.txt", tmp_path / "ev" / "events.txt")
+    rc, _, err = _run(["bos", tmp_path / "ev" / "events.txt", "--frames", tmp_path / "scene",
+                       "--out", tmp_path / "o.h5"], capsys)
+    assert rc == 0, err
+    assert read_flow_h5(tmp_path / "o.h5").flow.shape[1:3] == (200, 300)

@@ -21,6 +21,7 @@ import numpy as np
 from evmotion.errors import EmptyWindowError, EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.bosfiles import roi_mask
+from evmotion.io.guard import LARGEST_COORDINATE
 
 __all__ = ["BosInput", "frame_intervals", "load_bos_input"]
 
@@ -36,7 +37,7 @@ CUT_DENSITY = 0.5
 # a frame with more pixels than this share clipped at full scale is warned about
 MAX_CLIPPED = 0.75
 # where readers say the sensor size came from when the file does not state it
-GUESSED_SIZES = ("ECD default", "default", "max coordinate")
+GUESSED_SIZES = ("ECD default", "default", "max coordinate", LARGEST_COORDINATE)
 
 
 @dataclass(frozen=True)
