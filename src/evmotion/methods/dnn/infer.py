@@ -139,10 +139,8 @@ def _rescaled(xys, disp: np.ndarray) -> tuple[float, np.ndarray]:
     network's own magnitude (1) unless another is strictly sharper, so a window whose
     image no gain changes keeps it."""
     scores = {g: _warped_variance(*xys, disp * np.float32(g)) for g in GAINS}
-    best = max(GAINS, key=lambda g: (scores[g], g == 1.0))
-    if scores[best] <= scores[1.0]:
-        return 1.0, disp
-    return best, disp * np.float32(best)
+    best = max(GAINS, key=lambda g: (scores[g], g == 1.0))  # a tie keeps 1
+    return best, disp if best == 1.0 else disp * np.float32(best)
 
 
 def sharpness(events: EventArray, disp: np.ndarray) -> float:
