@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionWarning
 from evmotion.eval.metrics import event_mask, flow_metrics, fwl, rms_error
 from evmotion.events import Window
 from evmotion.io import write_events
@@ -248,17 +247,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
+    from evmotion.cli import show_warning
+
     shown = warnings.showwarning
-
-    def one_line(message, category, *rest, **kw):
-        # the demo shows a collapse on purpose: its warning is a line, not a source dump
-        if issubclass(category, EvmotionWarning):
-            print(f"evmotion demo: warning: {' '.join(str(message).split())}",
-                  file=sys.stderr)
-        else:
-            shown(message, category, *rest, **kw)
-
-    warnings.showwarning = one_line
+    # the demo shows a collapse on purpose: its warning is a line, as the CLI prints it,
+    # not a source dump
+    warnings.showwarning = show_warning
     try:
         return _run(args)
     finally:

@@ -107,8 +107,9 @@ def warn_line(message: str) -> None:
     print(f"evmotion: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):
-    """Project warnings as one line each; others as Python prints them."""
+def show_warning(message, category, filename, lineno, file=None, line=None):
+    """A ``warnings.showwarning``: project warnings as one line each (:func:`warn_line`),
+    others as Python prints them."""
     from evmotion.errors import EvmotionWarning
 
     if issubclass(category, EvmotionWarning):
@@ -137,7 +138,7 @@ def _build_and_run(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    warnings.showwarning = _show_warning
+    warnings.showwarning = show_warning
     try:
         from evmotion.cli.options import check_outputs_spare_inputs
 
