@@ -319,6 +319,11 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
     sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
                             n_windows=len(windows))
     rows, init, held = [], None, []
+
+    def flush(pending: list) -> None:
+        for r, rw in pending:
+            sink.append(r.flow, rw.t0, rw.t1, valid=_valid(r))
+        pending.clear()
     order = (progress(windows, total=len(windows), desc=attrs["method"]) if todo is None
              else windows)
     try:
@@ -338,25 +343,22 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
                 # which window of the recording (all its events at one time, say)
                 raise EmptyWindowError(f"{args.file}: window {i} [{w.t0}, {w.t1}) us: "
                                        f"{exc}") from None
+            # skipped windows are written once a window is estimated: a run of nothing
+            # else writes nothing
+            held.append((res, w))
             if "skipped" in res.meta:
-                # written once a window is estimated: a run of nothing else writes nothing
-                held.append((res, w))
                 rows.append({"t0_us": w.t0, "t1_us": w.t1, "n_events": res.n_events,
                              "skipped": res.meta["skipped"], "valid_fraction": 0.0})
                 after(i, None)
                 continue
-            for r, rw in held:
-                sink.append(r.flow, rw.t0, rw.t1, valid=_valid(r))
-            held = []
-            sink.append(res.flow, w.t0, w.t1, valid=_valid(res))
+            flush(held)
             init = res
             after(i, res)
             rows.append(_row(res, w))
         if rows and all("skipped" in r for r in rows):
             raise EmptyWindowError(f"{args.file}: no window could be estimated (the first: "
                                    f"{rows[0]['skipped']})")
-        for r, rw in held:
-            sink.append(r.flow, rw.t0, rw.t1, valid=_valid(r))
+        flush(held)
         written = [str(p) for p in sink.close()]
     except BaseException:
         sink.abort()
