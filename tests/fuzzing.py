@@ -96,7 +96,7 @@ def make_seeds(workdir: Path, shared: Path | None) -> tuple[list[Seed], dict[str
     """Seeds in ``workdir``: cuts of the real format samples in ``shared`` (when present)
     and files that evmotion's own writers produce. Returns the seeds and, per format
     without a seed, the reason."""
-    from evmotion.io import dsec, h5, mvsec, npy, rosbag
+    from evmotion.io import aedat3, dsec, h5, mvsec, npy, rosbag
 
     workdir.mkdir(parents=True, exist_ok=True)
     seeds: list[Seed] = []
@@ -185,6 +185,9 @@ def make_seeds(workdir: Path, shared: Path | None) -> tuple[list[Seed], dict[str
     seeds.append(Seed("mvsec", "mvsec", workdir / "mvsec_data.hdf5", 4096))
     npy.write(workdir / "ev.npy", ev)
     seeds.append(Seed("npy", "npy", workdir / "ev.npy", 128))
+    aedat3.write(workdir / "cAER.aedat", ev[:2500])
+    # the text header and the first packet's header
+    seeds.append(Seed("aedat3", "aedat3", workdir / "cAER.aedat", 256))
     npy.write(workdir / "ev.npz", ev)
     seeds.append(Seed("npz", "npy", workdir / "ev.npz", 128))
     try:

@@ -20,6 +20,7 @@ FORMAT_MODULES: tuple[str, ...] = (
     "evmotion.io.mat",        # MATLAB .mat excerpts
     "evmotion.io.aedat4",
     "evmotion.io.aedat2",
+    "evmotion.io.aedat3",
     "evmotion.io.evt3",
     "evmotion.io.evt2",
     "evmotion.io.dat",
