@@ -8,7 +8,7 @@ import pytest
 from _helpers import assert_same_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
-from evmotion.io import dat
+from evmotion.io import binary, dat
 from evmotion.io.registry import detect_spec
 
 
@@ -73,3 +73,20 @@ def test_errors(gen4, tmp_path):
     with pytest.raises(FormatError, match="float"):
         dat.write(tmp_path / "f.dat", EventArray(x=[0.5], y=[0.0], t=[0], p=[1],
                                                  sensor_size=(4, 4)))
+
+
+def test_atis_td_files_read_like_cd(tmp_path):
+    """Gen1 / ATIS ``_td.dat`` files carry event type 0x00 (Event2d), same address word."""
+    ev = EventArray(x=[0, 303, 7], y=[0, 239, 5], t=[5, 10, 20], p=[1, 0, 1],
+                    sensor_size=(240, 304))
+    dat.write(tmp_path / "cd.dat", ev)
+    data = bytearray((tmp_path / "cd.dat").read_bytes())
+    _, off = binary.read_text_header(tmp_path / "cd.dat", b"%")
+    assert data[off:off + 2] == bytes([dat.CD_TYPE, 8])
+    data[off] = 0x00
+    (tmp_path / "rec_td.dat").write_bytes(bytes(data))
+    assert_same_events(dat.read(tmp_path / "rec_td.dat"), ev)
+    data[off] = 0x0E
+    (tmp_path / "trig.dat").write_bytes(bytes(data))
+    with pytest.raises(FormatError, match="0xe \\(external trigger events\\)"):
+        dat.read(tmp_path / "trig.dat")

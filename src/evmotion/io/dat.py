@@ -1,6 +1,8 @@
-"""Prophesee DAT files (``% Data file containing CD events``).
+"""Prophesee DAT files (``% Data file containing CD events``; the ATIS / Gen1 ``_td.dat``
+files of ``Event2D`` events alike).
 
-After ``%`` header lines come two bytes (event type, event size = 8), then 8-byte
+After ``%`` header lines come two bytes (event type: 0x0C CD, or 0x00 the generic 2D event
+of the ATIS files, laid out the same; event size = 8), then 8-byte
 little-endian records: u32 timestamp (µs) and u32 with x in bits 0-13, y in bits 14-27
 and polarity in bit 28. The 32-bit timestamp wraps after 71.6 min; the reader unwraps it.
 """
@@ -22,6 +24,9 @@ from evmotion.utils import atomic_path
 __all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
 
 CD_TYPE = 0x0C
+# Event2d (the ATIS / Gen1 "TD" files): the same address word as CD events
+EVENT2D_TYPE = 0x00
+_OTHER_TYPES = {0x0E: "external trigger events", 0x0D: "exposure measurement (APS) events"}
 RECORD = 8
 # Sensor size of the ATIS (Gen1) files, whose header has no geometry.
 DEFAULT_SIZE = (240, 304)
@@ -60,9 +65,11 @@ def _parse_header(path: Path, sensor_size):
     if ev_size != RECORD:
         raise FormatError(path, f"field 'event size' at byte offset {offset + 1} is {ev_size}, "
                           f"expected {RECORD}", "corrupt header or not a CD-event DAT file")
-    if ev_type != CD_TYPE:
-        raise FormatError(path, f"field 'event type' at byte offset {offset} is {ev_type:#x}; "
-                          f"only CD events ({CD_TYPE:#x}) are supported")
+    if ev_type not in (CD_TYPE, EVENT2D_TYPE):
+        what = _OTHER_TYPES.get(ev_type, "an unknown event type")
+        raise FormatError(path, f"field 'event type' at byte offset {offset} is {ev_type:#x} "
+                          f"({what}); only CD ({CD_TYPE:#x}) and 2D / TD ({EVENT2D_TYPE:#x}) "
+                          "events are read")
     size = sensor_size or binary.geometry_from_header(lines, path, DEFAULT_SIZE)
     return lines, offset + 2, size
 
