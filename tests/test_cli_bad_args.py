@@ -639,8 +639,11 @@ def test_interrupted_h5_resumes_to_the_uninterrupted_output(rec, tmp_path, capsy
     stop_at[0] = 3
     out = tmp_path / "out.h5"
     assert main(base + ["--out", str(out)]) == 130
-    assert capsys.readouterr().err == "evmotion: interrupted\n"
     part = tmp_path / "out.h5.part"
+    # the line names what a rerun with --resume continues
+    assert capsys.readouterr().err == (f"evmotion: interrupted; the work done so far is kept "
+                                       f"in {part}: run the same command with --resume to "
+                                       "continue\n")
     assert part.exists() and not out.exists()
     with h5py.File(part) as f:
         assert 2 <= f["t1"].shape[0] < n_calls

@@ -277,8 +277,9 @@ def test_interrupted_bos_resumes_to_the_uninterrupted_output(tmp_path, capsys, m
     calls.clear()
     stop_at[0] = 3
     rc, _, err = _run([*argv, "--out", out], capsys)
-    assert rc == 130 and err == "evmotion: interrupted\n"
     part = tmp_path / "out.h5.part"
+    assert rc == 130 and err == (f"evmotion: interrupted; the work done so far is kept in "
+                                 f"{part}: run the same command with --resume to continue\n")
     assert part.exists() and not out.exists()
     with h5py.File(part) as f:
         assert f["t1"].shape[0] == 2

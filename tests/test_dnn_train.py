@@ -116,6 +116,28 @@ def test_cli_train_end_to_end(tmp_path, capsys):
     assert "--crop" in err and "multiple of 16" in err and "'50x64'" in err
 
 
+
+def test_interrupted_training_names_the_checkpoint_to_resume(tmp_path, capsys, monkeypatch):
+    import evmotion.methods.dnn.train as dnn_train
+    from evmotion.cli import main
+
+    out = tmp_path / "run"
+    argv = ["train", "--sim-windows", "2", "--epochs", "1", "--batch-size", "2", "--width",
+            "0.0625", "--crop", "48x64", "--window-events", "4000", "--val-sim", "0",
+            "--out", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dnn_train, "train", interrupted)
+    assert main(argv[:-2] + ["--epochs", "3", "--resume", "--out", str(out)]) == 130
+    assert capsys.readouterr().err == (
+        f"evmotion: interrupted; the work done so far is kept in {out / 'last.pt'}: run the "
+        "same command with --resume to continue\n")
+
+
 def test_init_weights_starts_from_a_checkpoint(tmp_path):
     from evmotion.methods.dnn.model import save_model
 

@@ -51,6 +51,27 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             tmp_path.unlink()
 
 
+# partial outputs an interrupted run kept for --resume, in the order they were kept
+_KEPT_FOR_RESUME: list[Path] = []
+
+
+def keep_for_resume(path: str | os.PathLike) -> None:
+    """Record that an interrupted run left ``path`` (an ``OUT.part``, a checkpoint) for
+    ``--resume`` to continue: the command line names it when it reports the interruption.
+    """
+    _KEPT_FOR_RESUME.append(Path(path))
+
+
+def kept_for_resume() -> list[Path]:
+    """The partial outputs recorded by :func:`keep_for_resume`."""
+    return list(_KEPT_FOR_RESUME)
+
+
+def forget_kept_for_resume() -> None:
+    """Start a new command: forget what :func:`keep_for_resume` recorded."""
+    _KEPT_FOR_RESUME.clear()
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)

@@ -191,9 +191,20 @@ def _interrupted(*_) -> None:
     _stop_children()
     _flush_std()
     try:
-        os.write(2, b"evmotion: interrupted\n")
+        os.write(2, _interrupted_line().encode("utf-8", "replace") + b"\n")
     finally:
         os._exit(130)
+
+
+def _interrupted_line() -> str:
+    """The line that reports an interruption, naming what the work kept for ``--resume``."""
+    utils = sys.modules.get("evmotion.utils")
+    kept = utils.kept_for_resume() if utils is not None else []
+    if not kept:
+        return "evmotion: interrupted"
+    return (f"evmotion: interrupted; the work done so far is kept in "
+            f"{', '.join(str(p) for p in kept)}: run the same command with --resume to "
+            "continue")
 
 
 def _on_sigint(signum, frame) -> None:
@@ -280,11 +291,14 @@ def main(argv: list[str] | None = None) -> int:
     process: Ctrl-C (or SIGTERM) at any moment prints one line "evmotion: interrupted"
     and exits with code 130. With a list (tests, scripts), Ctrl-C returns 130 after the same line.
     """
+    utils = sys.modules.get("evmotion.utils")
+    if utils is not None:
+        utils.forget_kept_for_resume()  # an earlier call's, in this process
     if argv is not None:
         try:
             return _build_and_run(argv)
         except KeyboardInterrupt:
-            print("evmotion: interrupted", file=sys.stderr)
+            print(_interrupted_line(), file=sys.stderr)
             return 130
     _MAIN_PID[0] = os.getpid()
     signal.signal(signal.SIGINT, _on_sigint)

@@ -114,6 +114,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.methods.dnn import require_torch
+    from evmotion.utils import keep_for_resume
 
     require_torch("evmotion train")
     from evmotion.methods.dnn.train import TrainConfig, train
@@ -130,8 +131,14 @@ def run(args) -> int:
                       max_steps_per_epoch=args.max_steps, init_weights=args.init_weights)
     # the progress bar follows evmotion.utils.progress: on a terminal, or EVMOTION_PROGRESS=1
     bar = sys.stderr.isatty() or os.environ.get("EVMOTION_PROGRESS") == "1"
-    summary = train(cfg, args.out, resume=args.resume, show_progress=bar,
-                    log=lambda line: print(line, file=sys.stderr, flush=True))
+    try:
+        summary = train(cfg, args.out, resume=args.resume, show_progress=bar,
+                        log=lambda line: print(line, file=sys.stderr, flush=True))
+    except KeyboardInterrupt:
+        last = Path(args.out) / "last.pt"
+        if last.exists():
+            keep_for_resume(last)
+        raise
     if args.json:
         print_json(summary)
     else:

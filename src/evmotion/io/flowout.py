@@ -69,7 +69,7 @@ from evmotion.io.flowfiles import (
     write_flo,
 )
 from evmotion.io.h5filters import register_filters
-from evmotion.utils import atomic_path
+from evmotion.utils import atomic_path, keep_for_resume
 
 __all__ = [
     "CONTAINERS",
@@ -369,6 +369,8 @@ class H5FlowOutput(FlowOutput):
             self.reopened_final = False
         elif empty and self.part.exists():
             self.part.unlink()  # no window to resume from: leave nothing behind
+        elif self.part.exists():
+            keep_for_resume(self.part)
 
 
 def _same(a, b) -> bool:
