@@ -205,3 +205,16 @@ def test_undistortion_that_drops_many_events_says_so(tmp_path, capsys):
     assert main(["flow", str(tmp_path / "r.h5"), "--scales", "2", "--no-undistort", "--out",
                  str(tmp_path / "g.h5")]) == 0
     assert "undistortion moved" not in capsys.readouterr().err
+
+
+def test_info_shows_the_simulators_camera_in_its_ground_truth(tmp_path, capsys):
+    """``sim_gt.h5`` stores K (the events were made with it); info said "none"."""
+    sim = tmp_path / "sim.h5"
+    assert main(["simulate", "translation", "--duration", "0.02", "--size", "60x80",
+                 "--out", str(sim)]) == 0
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "sim_gt.h5"), "--json"]) == 0
+    intr = json.loads(capsys.readouterr().out)["intrinsics"]
+    assert intr["source"] == f"{tmp_path / 'sim_gt.h5'} (its camera K)"
+    assert main(["info", str(sim), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["intrinsics"]["K"] == intr["K"]

@@ -418,8 +418,9 @@ def recording_camera(path: str | os.PathLike, events_meta: dict | None = None,
             head = fh.read(12)  # one read for both signatures
         if head.startswith(HDF5_MAGIC):
             try:
-                return camera_from_dict(read_calibration(path),
-                                        source=f"{path} (calibration attribute)",
+                cal = read_calibration(path)
+                what = "its camera K" if cal.get("simulated") else "calibration attribute"
+                return camera_from_dict(cal, source=f"{path} ({what})",
                                         sensor_size=sensor_size)
             except FormatError:
                 return None
@@ -491,6 +492,11 @@ def _h5_calibration(path: Path) -> dict:
             cal.setdefault("sensor_size", [int(attrs["height"]), int(attrs["width"])]
                            if "height" in attrs and "width" in attrs else None)
             return cal
+        if f.attrs.get("format") == "evmotion-sim-gt" and "K" in f:
+            # the simulator's ground truth: the pinhole camera its events were made with
+            return {"K": np.asarray(f["K"]).tolist(),
+                    "sensor_size": np.asarray(f.attrs["sensor_size"]).tolist(),
+                    "simulated": True}
     raise FormatError(path, "no 'calibration' attribute in this HDF5 file")
 
 
