@@ -216,6 +216,39 @@ def test_interrupted_run_leaves_no_file(recording, tmp_path, capsys, monkeypatch
     assert len(calls) == 2 and not list(out.iterdir())
 
 
+def test_eval_events_of_another_recording(recording, tmp_path, capsys):
+    """--events of another recording was accepted silently: its pixels masked the score."""
+    from evmotion.events import EventArray
+    from evmotion.io import read_events, write_events
+
+    path, gt = recording
+    out = tmp_path / "flow.h5"
+    assert main(["flow", str(path), "--window-gt", str(gt), "--scales", "2", "--out",
+                 str(out)]) == 0
+    ev = read_events(path)
+    capsys.readouterr()
+    small = tmp_path / "small.h5"
+    write_events(small, EventArray(ev.x // 2, ev.y // 2, ev.t, ev.p, (45, 60)))
+    assert main(["eval", str(out), "--gt", str(gt), "--events", str(small)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--events {small}" in err and "60x45 px sensor" in err
+    late = tmp_path / "late.h5"
+    write_events(late, EventArray(ev.x, ev.y, ev.t + 10_000_000, ev.p, ev.sensor_size))
+    assert main(["eval", str(out), "--gt", str(gt), "--events", str(late)]) == 2
+    assert "do not overlap in time" in capsys.readouterr().err
+    # same sensor and times, another name: scored, with a warning naming both
+    other = tmp_path / "other.h5"
+    write_events(other, ev)
+    assert main(["eval", str(out), "--gt", str(gt), "--events", str(other)]) == 0
+    err = capsys.readouterr().err
+    assert f"warning: {out} was estimated on '{path}'" in err and f"--events is {other}" in err
+    # a converted copy of the recording passes without one
+    copy = tmp_path / "rec.h5"
+    write_events(copy, ev)
+    assert main(["eval", str(out), "--gt", str(gt), "--events", str(copy)]) == 0
+    assert capsys.readouterr().err == ""
+
+
 def test_eval_leaves_out_windows_beyond_the_ground_truth(recording, tmp_path, capsys):
     """A --window-us window reaching past the last event stated 30 ms for events of 9.6;
     windows reaching beyond the ground truth were scored against part of the motion (and

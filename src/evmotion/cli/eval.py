@@ -25,6 +25,8 @@ that of zero flow).
 from __future__ import annotations
 
 import argparse
+import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -35,7 +37,13 @@ from evmotion.cli.options import (
     positive_int,
     reject_unused,
 )
-from evmotion.errors import EmptyWindowError, FormatError, ParameterError
+from evmotion.errors import (
+    EmptyWindowError,
+    EventDataError,
+    EvmotionWarning,
+    FormatError,
+    ParameterError,
+)
 
 EXAMPLES = """examples:
   evmotion eval flow.h5 --gt outdoor_day1_gt_flow_dist.npz --events rec.h5 --dt 4 --json
@@ -78,8 +86,6 @@ def add_parser(sub) -> None:
 
 
 def _load_flow(args, h5_format=None):
-    from pathlib import Path
-
     from evmotion.io.flowout import CONTAINERS
     from evmotion.io.flowread import read_flow
 
@@ -159,16 +165,36 @@ def _load_npy(args, path):
 
 def _h5_format(path) -> object:
     """The ``format`` attribute of an HDF5 file (None if it has none)."""
+    return _h5_attrs(path, ("format",)).get("format")
+
+
+def _h5_attrs(path, names) -> dict:
+    """The attributes ``names`` an HDF5 file has."""
     import h5py
 
     from evmotion.io.h5attrs import read_attrs
 
     try:
         with h5py.File(path, "r") as f:
-            return read_attrs(path, f, ("format",)).get("format")
+            return read_attrs(path, f, names)
     except OSError as exc:
         raise FormatError(path, f"not a readable HDF5 file: {' '.join(str(exc).split())}"
                           ) from None
+
+
+def _warn_other_source(path: Path, events_path) -> None:
+    """Warn when ``--events`` is not named as the recording the flow file says it was
+    estimated on (its ``source`` attribute): another file of the same sensor and times
+    passes the checks, and would mask the score with unrelated pixels. Names are compared
+    without their suffix, so a converted copy (``rec.raw`` -> ``rec.h5``) passes."""
+    source = _h5_attrs(path, ("source",)).get("source")
+    if not isinstance(source, str) or not source:
+        return
+    if Path(source).stem != Path(events_path).stem:
+        warnings.warn(EvmotionWarning(
+            f"{path} was estimated on '{source}' (its source attribute) but --events is "
+            f"{events_path}: if that is another recording, the event mask and FWL are "
+            "meaningless"), stacklevel=2)
 
 
 def _is_event_flow(path, h5_format=None) -> bool:
@@ -250,7 +276,6 @@ def _run_event_flow(args, path) -> int:
 
 
 def run(args) -> int:
-    from pathlib import Path
 
     from evmotion.cli import print_json
     from evmotion.eval.windows import evaluate_windows
@@ -280,6 +305,10 @@ def run(args) -> int:
                                along_streamlines=args.along_streamlines)
     except EmptyWindowError as exc:
         raise ParameterError(f"{path} against ground truth {args.gt}: {exc}") from None
+    except EventDataError as exc:
+        raise ParameterError(f"--events {args.events} against {path}: {exc}") from None
+    if events is not None and h5_format is not None:
+        _warn_other_source(path, args.events)
     per_window, total, mismatched = res.windows, res.total, res.mismatched
     if q is not None:
         _add_potential_scores(q, t0s, t1s, args.gt, per_window, total)

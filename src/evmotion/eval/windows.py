@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from evmotion.errors import EmptyWindowError
+from evmotion.errors import EmptyWindowError, EventDataError
 from evmotion.eval.metrics import aggregate_flow_metrics, event_mask, flow_metrics, fwl
 
 if TYPE_CHECKING:
@@ -167,6 +167,8 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     -------
     WindowsEvaluation
     """
+    if events is not None:
+        _check_same_recording(events, flow.shape[1:3], t0s, t1s)
     rows, per_window, mismatched, unknown, uncovered = [], [], 0, False, 0
     for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
         cover = gt_coverage(gt, int(t0), int(t1))
@@ -216,6 +218,24 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     mask_text = ("valid GT" + (" & at least one event" if events is not None else "")
                  + (" & estimate known" if unknown else ""))
     return WindowsEvaluation(per_window, total, mismatched, mask_text, uncovered)
+
+
+def _check_same_recording(events: EventArray, shape, t0s, t1s) -> None:
+    """EventDataError unless ``events`` can be the recording the flow windows were
+    estimated on: the same sensor, and events within the windows' time span (events of
+    another recording would mask the score with pixels that have nothing to do with it)."""
+    if tuple(events.sensor_size) != tuple(shape):
+        raise EventDataError(f"the events are on a {events.sensor_size[1]}x"
+                             f"{events.sensor_size[0]} px sensor but the flow is {shape[1]}x"
+                             f"{shape[0]} px (W x H): not the recording it was estimated on")
+    if not len(t0s):
+        return
+    a, b = int(np.min(t0s)), int(np.max(t1s))
+    if not len(events) or int(events.t[-1]) < a or int(events.t[0]) >= b:
+        span = f"[{int(events.t[0])}, {int(events.t[-1])}] us" if len(events) else "nothing"
+        raise EventDataError(f"the events span {span} but the flow windows [{a}, {b}] us: "
+                             "they do not overlap in time (another recording, or another "
+                             "time origin?)")
 
 
 def _nothing_to_score(t0s, t1s, gt) -> str:
