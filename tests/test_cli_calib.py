@@ -210,7 +210,7 @@ def test_undistortion_that_drops_many_events_says_so(tmp_path, capsys):
 def test_info_shows_the_simulators_camera_in_its_ground_truth(tmp_path, capsys):
     """``sim_gt.h5`` stores K (the events were made with it); info said "none"."""
     sim = tmp_path / "sim.h5"
-    assert main(["simulate", "translation", "--duration", "0.02", "--size", "60x80",
+    assert main(["simulate", "translation", "--duration", "0.02", "--sensor-size", "60", "80",
                  "--out", str(sim)]) == 0
     capsys.readouterr()
     assert main(["info", str(tmp_path / "sim_gt.h5"), "--json"]) == 0

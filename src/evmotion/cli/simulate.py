@@ -56,8 +56,10 @@ def add_parser(sub) -> None:
     p.add_argument("--format", default=None, help="events format (default: from the extension)")
     p.add_argument("--duration", type=positive_float(unit="s"), default=0.1,
                    help="seconds (default 0.1)")
-    p.add_argument("--size", default=None, type=parse_size,
-                   help="HxW pixels (default 260x346, DAVIS346; schlieren 720x640)")
+    p.add_argument("--size", "--sensor-size", default=None, nargs="+", action=_SizeAction,
+                   metavar="HxW",
+                   help="HxW pixels, or H W as convert's --sensor-size (default 260x346, "
+                   "DAVIS346; schlieren 720x640)")
     p.add_argument("--height", type=int_range(1, MAX_SIM_SIDE, unit="px"), default=None,
                    help="pixels (overrides --size)")
     p.add_argument("--width", type=int_range(1, MAX_SIM_SIDE, unit="px"), default=None,
@@ -169,6 +171,21 @@ def parse_size(text: str) -> tuple[int, int]:
     if not (1 <= h <= MAX_SIM_SIDE and 1 <= w <= MAX_SIM_SIDE):
         raise argparse.ArgumentTypeError(f"sides must be 1 to {MAX_SIM_SIDE} px, got {text!r}")
     return h, w
+
+
+class _SizeAction(argparse.Action):
+    """``--size 260x346`` or ``--sensor-size 260 346`` (the spelling of convert and info)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        text = " ".join(values)
+        if len(values) > 2 or (len(values) == 2 and not all(v.isdigit() for v in values)):
+            raise argparse.ArgumentError(self, f"must be HxW or H W, got {text!r}")
+        try:
+            size = parse_size("x".join(values))
+        except argparse.ArgumentTypeError as exc:
+            raise argparse.ArgumentError(self, str(exc).replace("x".join(values), text)
+                                         ) from None
+        setattr(namespace, self.dest, size)
 
 
 def _size(args, default: tuple[int, int]) -> tuple[int, int]:
