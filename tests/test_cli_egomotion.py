@@ -86,6 +86,12 @@ def test_landscape_png_and_csv(rec, tmp_path, capsys):
     assert abs(data[np.argmin(data[:, 1]), 0] - 300) <= 20
     assert main(["landscape", str(rec), "--warp", "translation", "--param", "hz", "--range",
                  "0", "1", "--out", str(png)]) == 2
+    # a negative bound in scientific notation is a number, not an option (argparse alone
+    # said "expected 2 arguments")
+    assert main(["landscape", str(rec), "--warp", "translation", "--param", "vx", "--range",
+                 "-3e2", "6e2", "--steps", "4", "--window-events", "5000", "--out", str(png),
+                 "--csv", str(csv_path)]) == 0
+    assert np.loadtxt(csv_path, delimiter=",", skiprows=1)[0, 0] == -300
 
 
 def test_segment_cli(rec, tmp_path, capsys):

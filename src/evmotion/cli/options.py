@@ -69,12 +69,24 @@ __all__ = [
 
 
 class Parser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line on stderr and exit code 2."""
+    """An argument parser whose errors are one line on stderr and exit code 2, and which
+    takes ``-5e-1``, ``-1e3``, ``-inf`` and ``-nan`` for (negative) numbers, not options:
+    argparse's own test knows only ``-5`` and ``-0.5``, so ``--range -5e-1 5`` was
+    "expected 2 arguments" and ``--t0 -inf`` escaped the option checks."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # the pattern argparse consults (an attribute of ArgumentParser since Python 3.2)
+        self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def error(self, message: str):
         text = " ".join(str(message).split())
         sys.stderr.write(f"{self.prog}: error: {text} (see '{self.prog} --help')\n")
         sys.exit(2)
+
+
+_NEGATIVE_NUMBER = re.compile(r"^-(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan)$",
+                              re.IGNORECASE)
 
 
 def _unit(unit: str) -> str:
@@ -111,20 +123,23 @@ def finite_float(lo: float | None = None, hi: float | None = None, *, lo_open: b
     99.5
     """
     want = _bound_text(lo, hi, lo_open, hi_open, unit)
+    if lo is None and hi is None:  # "finite [unit]": the message says finite already
+        want = f"in {unit}" if unit else ""
+    want = f" {want}" if want else ""
 
     def parse(text: str) -> float:
         try:
             v = float(text)
         except (TypeError, ValueError):
             raise argparse.ArgumentTypeError(
-                f"must be a number {want}, got {text!r}") from None
+                f"must be a number{want}, got {text!r}") from None
         bad = not math.isfinite(v)
         if lo is not None:
             bad |= v <= lo if lo_open else v < lo
         if hi is not None:
             bad |= v >= hi if hi_open else v > hi
         if bad:
-            raise argparse.ArgumentTypeError(f"must be a finite number {want}, got {text!r}")
+            raise argparse.ArgumentTypeError(f"must be a finite number{want}, got {text!r}")
         return v
 
     parse.__name__ = "number"
