@@ -19,12 +19,12 @@ from evmotion.io import write_events
 
 @pytest.mark.parametrize("text,us", [("1.5", 1_500_000), ("1500000us", 1_500_000),
                                      ("1500ms", 1_500_000), ("2s", 2_000_000), ("0", 0),
-                                     ("250 µs", 250), ("1e-3", 1000)])
+                                     ("250 µs", 250), ("1e-3", 1000), ("+2ms", 2000)])
 def test_time_us_units(text, us):
     assert time_us(text) == us
 
 
-@pytest.mark.parametrize("text", ["-1", "abc", "nan", "inf", "1.5h", "", "us"])
+@pytest.mark.parametrize("text", ["-1", "abc", "nan", "inf", "1.5h", "", "us", "+", "+-1"])
 def test_time_us_rejects(text):
     with pytest.raises(argparse.ArgumentTypeError, match="time >= 0"):
         time_us(text)
@@ -139,6 +139,31 @@ def test_flow_and_segment_take_the_time_options(rec, tmp_path, capsys):
     rows = json.loads(capsys.readouterr().out)["clusters"]
     assert rows and max(r["t1_us"] for r in rows) <= 5_200_000
     assert len({r["window"] for r in rows}) <= 5
+
+
+def test_times_after_the_first_event(rec, tmp_path, capsys):
+    """``--t0 +TIME``: TIME after the recording's first event (a recording whose clock
+    starts late needed its absolute times looked up with info first)."""
+    from evmotion.io.flowfiles import read_flow_h5
+
+    first = int(_events(4000).t[0])
+    out = tmp_path / "f.h5"
+    assert main(["flow", str(rec), "--window-us", "100000", "--t0", "+0.3", "--t1", "+500ms",
+                 "--scales", "1", "--max-iter", "2", "--out", str(out)]) == 0
+    seq = read_flow_h5(out)
+    assert list(np.asarray(seq.t0)) == [first + 300_000, first + 400_000]
+    assert int(np.asarray(seq.t1)[-1]) == first + 500_000
+    capsys.readouterr()
+    rc = main(["flow", str(rec), "--t0", "+3", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "after the last event" in err
+    assert main(["flow", str(rec), "--t0", "+x", "--out", str(out)]) == 2
+    assert "got '+x'" in capsys.readouterr().err
+    # a file that is no recording: the first event cannot be read, in one line
+    rc = main(["kymogram", str(out), "--col", "3", "--t0", "+1ms", "--out",
+               str(tmp_path / "k.png")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "cannot read the first event" in err
 
 
 def test_flow_prints_one_summary_line(rec, tmp_path, capsys):

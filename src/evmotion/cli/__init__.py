@@ -140,9 +140,10 @@ def _build_and_run(argv: list[str] | None) -> int:
         return 2
     warnings.showwarning = show_warning
     try:
-        from evmotion.cli.options import check_outputs_spare_inputs
+        from evmotion.cli.options import check_outputs_spare_inputs, resolve_relative_times
 
         check_outputs_spare_inputs(args)
+        resolve_relative_times(args)
         return int(args.func(args) or 0)
     except EvmotionError as exc:
         print(f"evmotion {args.command}: error: {_one_line(exc)}", file=sys.stderr)

@@ -90,7 +90,8 @@ def add_parser(sub) -> None:
                    help="seed of the random initial q (default 0)")
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
                    help="only frame intervals from this time: seconds on the recording's "
-                        "clock, or with a unit (1.5, 1500ms, 1500000us)")
+                        "clock, or with a unit (1.5, 1500ms, 1500000us); +TIME: after the first "
+                        "event")
     p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
                    help="only frame intervals up to this time, same units as --t0")
     p.add_argument("--max-intervals", "--max-windows", dest="max_intervals",

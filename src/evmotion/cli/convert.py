@@ -44,7 +44,7 @@ def add_parser(sub) -> None:
     p.add_argument("--format-out", default=None, help="output format (default: extension)")
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
                    help="start: seconds on the recording's clock, or with a unit (1.5, "
-                        "1500ms, 1500000us)")
+                        "1500ms, 1500000us); +TIME: after the first event")
     p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
                    help="end (exclusive), same units as --t0")
     p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,

@@ -69,7 +69,8 @@ def add_parser(sub) -> None:
     p.add_argument("--format", default=None, help="event format (default: detect)")
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
                    help="start: seconds on the recording's clock, or with a unit (1.5, "
-                        "1500ms, 1500000us; default: first event / window)")
+                        "1500ms, 1500000us; +TIME: after the first event; default: first "
+                        "event / window)")
     p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
                    help="end (exclusive), same units as --t0")
     p.add_argument("--signed", action="store_true",

@@ -43,7 +43,8 @@ def add_parser(sub) -> None:
                    help="comma-separated values of the other parameters (default identity)")
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
                    help="window start: seconds on the recording's clock, or with a unit "
-                        "(1.5, 1500ms, 1500000us; default: the first event)")
+                        "(1.5, 1500ms, 1500000us; +TIME: after the first event; default: "
+                        "the first event)")
     p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
                    help="the window ends before this time, same units as --t0 (default: "
                         "after --window-events events)")

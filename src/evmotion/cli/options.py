@@ -388,21 +388,30 @@ def _with_unit(text: str, default_scale: int) -> tuple[float, int]:
         return math.nan, scale
 
 
+class FromStart(int):
+    """A time option given as ``+TIME``: that many µs after the recording's first event,
+    made absolute by :func:`resolve_relative_times` before the command runs."""
+
+
 def time_us(text: str) -> int:
     """``type=`` for a time: seconds by default, or with an explicit ``us``/``µs``, ``ms``
     or ``s`` suffix; returns integer microseconds (absolute: the recording's own clock).
+    With a leading ``+``, the time after the recording's first event (a :class:`FromStart`).
 
     Examples
     --------
     >>> time_us("1.5"), time_us("1500000us"), time_us("250ms"), time_us("2s")
     (1500000, 1500000, 250000, 2000000)
+    >>> t = time_us("+10ms"); (t, isinstance(t, FromStart))
+    (10000, True)
     """
-    v, scale = _with_unit(text, _TIME_UNITS["s"])
+    relative = isinstance(text, str) and text.strip().startswith("+")
+    v, scale = _with_unit(text.strip()[1:] if relative else text, _TIME_UNITS["s"])
     if not math.isfinite(v) or v < 0:
         raise argparse.ArgumentTypeError(
             f"must be a time >= 0 in seconds, or with a unit (e.g. 1.5, 1500ms, 1500000us), "
-            f"got {text!r}")
-    return int(round(v * scale))
+            f"or +TIME after the first event, got {text!r}")
+    return FromStart(round(v * scale)) if relative else int(round(v * scale))
 
 
 time_us.__name__ = "time"
@@ -449,12 +458,45 @@ def add_time_arguments(parser, *, max_windows: bool = True, what: str = "windows
     parser.add_argument("--t0", type=time_us, default=None, metavar="TIME",
                         help="start of the part to process: seconds on the recording's own "
                              "clock (what 'evmotion info' shows), or with a unit: 1.5, "
-                             "1500ms, 1500000us (default: the first event)")
+                             "1500ms, 1500000us; +TIME: after the first event, e.g. +0.5 "
+                             "(default: the first event)")
     parser.add_argument("--t1", type=time_us, default=None, metavar="TIME",
                         help="end (exclusive), same units as --t0 (default: the last event)")
     if max_windows:
         parser.add_argument("--max-windows", type=positive_int(), default=None, metavar="N",
                             help=f"process at most the first N {what} (default: all)")
+
+
+# the positional arguments that name a command's recording
+RECORDING_ATTRS = ("file", "rec", "input")
+
+
+def resolve_relative_times(args: argparse.Namespace) -> None:
+    """Make ``--t0``/``--t1`` given as ``+TIME`` (:class:`FromStart`) absolute: the time of
+    the recording's first event plus TIME. Reads only the first event."""
+    names = [n for n in ("t0", "t1") if isinstance(getattr(args, n, None), FromStart)]
+    if not names:
+        return
+    path = next((getattr(args, n) for n in RECORDING_ATTRS
+                 if isinstance(getattr(args, n, None), (str, os.PathLike))), None)
+    flags = " and ".join(f"--{n} +{format_time_us(getattr(args, n))}" for n in names)
+    if path is None:
+        raise ParameterError(f"{flags}: a time after the first event needs a recording")
+    from evmotion.errors import EvmotionError
+    from evmotion.io import iter_events
+
+    fmt = getattr(args, "format", None) or getattr(args, "format_in", None)
+    try:
+        first = next(iter_events(path, 1, **({"format": fmt} if fmt else {})), None)
+    except EvmotionError as exc:
+        if not os.path.exists(path):
+            raise
+        raise ParameterError(f"{flags}: cannot read the first event of {path} ({exc}); "
+                             "give the time on the recording's clock") from None
+    if first is None or not len(first):
+        raise ParameterError(f"{flags}: {path} holds no event to count from")
+    for n in names:
+        setattr(args, n, int(first.t[0]) + int(getattr(args, n)))
 
 
 def check_time_order(args) -> None:
