@@ -27,6 +27,7 @@ from evmotion.methods.bos_kernels import (
     objective_grad,
     upsample,
 )
+from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_support
 
 DT_US = 8333
 
@@ -311,8 +312,14 @@ def test_roi_and_result_layout(case):
     res = estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, roi=(16, 8, 96, 64), scales=(32, 16),
                        iterations=20, contrast_threshold=C)
     assert res.flow.shape == (128, 128, 2) and res.flow.dtype == np.float32
-    assert res.valid.sum() == 96 * 64 and res.valid[8, 16] and not res.valid[7, 16]
-    assert np.all(res.flow[~res.valid] == 0)
+    inside = np.zeros((128, 128), bool)
+    inside[8:72, 16:112] = True
+    # valid: the ROI's pixels the window's events support (as every flow method marks them)
+    win = ev.slice_time(0, DT_US)
+    support = event_support(win.x, win.y, (128, 128), SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
+    np.testing.assert_array_equal(res.valid, inside & support)
+    assert 0.5 < res.valid[inside].mean() < 1
+    assert np.all(res.flow[~inside] == 0)
     assert [len(x) for x in res.losses] == res.iterations == [20, 20]
     assert len(res.timings_s) == 2 and np.isfinite(res.objective)
 

@@ -95,6 +95,7 @@ from evmotion.methods.bos_kernels import (
     objective_grad,
     upsample,
 )
+from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_support
 
 __all__ = [
     "BosOptions",
@@ -226,6 +227,9 @@ class BosOptions:
             raise ParameterError(f"scales must be positive patch sizes in px, e.g. "
                                  f"(64, 32, 16, 8), got {self.scales!r}")
         scales = tuple(int(s) for s in self.scales)
+        if any(a <= b for a, b in zip(scales[:-1], scales[1:], strict=True)):
+            raise ParameterError(f"scales must run coarse to fine (decreasing patch sizes, "
+                                 f"e.g. (64, 32, 16, 8)), got {self.scales!r}")
         object.__setattr__(self, "scales", scales)
         self.iterations_per_scale()
         self.pool_per_scale()
@@ -270,8 +274,8 @@ class BosOptions:
             n = len(self.scales)
             its = (150,) * (n - 1) + (300,) if self.data_term == "scale" else 600
         its = (its,) * len(self.scales) if np.isscalar(its) else tuple(its)
-        if len(its) != len(self.scales) or not all(_is_int(i) and i >= 0 for i in its):
-            raise ParameterError(f"iterations must be whole numbers >= 0, one or one per "
+        if len(its) != len(self.scales) or not all(_is_int(i) and i >= 1 for i in its):
+            raise ParameterError(f"iterations must be whole numbers >= 1, one or one per "
                                  f"scale ({len(self.scales)}), got {self.iterations!r}")
         return tuple(int(i) for i in its)
 
@@ -318,7 +322,9 @@ class BosResult:
     p : ndarray (H, W, 2) float32
         Translation of the frame in px.
     valid : ndarray (H, W) bool
-        Pixels where the flow was estimated (the ROI).
+        Pixels of the ROI the window's events support (at least 2 events within 2 px, as
+        every flow method marks them); elsewhere the flow is the regularizers'
+        interpolation. Fewer than 1 % of the ROI is warned about.
     roi : (x, y, w, h)
         The ROI in px.
     t0_us, t1_us : int
@@ -768,6 +774,10 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions, increm
     if increment is not None and np.shape(increment) != tuple(sensor):
         raise EventDataError(f"increment has shape {np.shape(increment)} but the events' "
                              f"sensor is {tuple(sensor)} (H, W)")
+    for name, img in (("frame", frame), ("frame_next", frame_next)):
+        if img is not None and np.asarray(img).dtype.kind not in "uif":
+            raise ParameterError(f"{name} has dtype {np.asarray(img).dtype}: give grey levels "
+                                 "(uint8 / uint16) or a float relative intensity")
     if np.shape(frame) != tuple(sensor):
         raise EventDataError(f"frame has shape {np.shape(frame)} but the events' sensor is "
                              f"{tuple(sensor)} (H, W): frames and events do not overlap in size")
@@ -970,12 +980,31 @@ def estimate_bos(
     q[y:y + rh, x:x + rw] = potential_from_flow(flow[y:y + rh, x:x + rw])
     valid = np.zeros((H, W), bool)
     valid[y:y + rh, x:x + rw] = True
+    valid &= _supported(events, int(t0_us), int(t1_us))
     calibrated = log_units and (not normalized or o.rescale)
+    share = valid.sum() / max(rw * rh, 1)
+    if share < MIN_SUPPORTED_SHARE:
+        warnings.warn(EvmotionWarning(
+            f"interval [{int(t0_us)}, {int(t1_us)}) us: events support the flow on "
+            f"{100 * share:.2g} % of the ROI only (valid); elsewhere it is the regularizer's "
+            "interpolation, not a measurement"), stacklevel=2)
     return BosResult(flow=flow, q=q, p=p, valid=valid, roi=r, t0_us=int(t0_us),
                      t1_us=int(t1_us), contrast_threshold=None if c is None else float(c),
                      calibrated=bool(calibrated), scale=scale, objective=float(objective),
                      losses=losses, timings_s=timings, iterations=iters, params=params,
                      options=o)
+
+
+# below this share of the ROI with event support, the interval is warned about: the flow
+# elsewhere is the regularizer's interpolation of a handful of measurements
+MIN_SUPPORTED_SHARE = 0.01
+
+
+def _supported(events: EventArray, t0_us: int, t1_us: int) -> np.ndarray:
+    """Pixels with event support in ``[t0_us, t1_us)`` (as every flow method marks them:
+    :func:`~evmotion.methods.flowresult.event_support`)."""
+    win = events.slice_time(t0_us, t1_us)
+    return event_support(win.x, win.y, events.sensor_size, SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
 
 
 def potential_from_flow(flow: np.ndarray) -> np.ndarray:

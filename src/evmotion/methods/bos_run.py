@@ -24,9 +24,8 @@ import numpy as np
 from evmotion.errors import EventDataError, EvmotionError, ParameterError
 from evmotion.io.bosinput import BosInput
 from evmotion.io.flowfiles import FLOW_COMPRESSION
-from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_support
 
-__all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "bos_valid", "iter_bos_input",
+__all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "iter_bos_input",
            "open_bos_output", "sequence_contrast_threshold", "sequence_threshold",
            "solve_bos_input", "solve_bos_into", "stored_warm_start", "write_bos_output"]
 
@@ -211,26 +210,6 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     return BosRun(results, c, source, samples)
 
 
-def bos_valid(events, t0_us: int, t1_us: int, roi_valid: np.ndarray) -> np.ndarray:
-    """Validity mask of a BOS window: inside the ROI (``roi_valid``, (H, W) bool) and
-    supported by the window's events (:func:`evmotion.methods.flowresult.event_support`,
-    at least :data:`SUPPORT_MIN_EVENTS` within :data:`SUPPORT_RADIUS` px). Outside it the
-    flow is the regularizer's interpolation, not a measurement.
-
-    Examples
-    --------
-    >>> from evmotion.events import EventArray
-    >>> ev = EventArray(np.array([2, 2]), np.array([2, 2]), np.array([0, 5]),
-    ...                 np.array([1, 1]), (5, 5))
-    >>> int(bos_valid(ev, 0, 10, np.ones((5, 5), bool)).sum())
-    25
-    """
-
-    win = events.slice_time(int(t0_us), int(t1_us))
-    support = event_support(win.x, win.y, roi_valid.shape, SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
-    return support & roi_valid
-
-
 #: The per-window numbers a BOS output stores (``window/<name>``).
 WINDOW_NUMBERS = ("frame_index", "contrast_threshold", "calibrated", "objective", "n_events",
                   "seconds")
@@ -281,7 +260,7 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
     over the valid pixels).
 
     The flow, q and p are NaN outside the ROI; ``valid`` is the ROI's pixels with event
-    support (:func:`bos_valid`).
+    support (:attr:`~evmotion.methods.bos.BosResult.valid`).
     """
     i, t0, t1 = (int(v) for v in interval)
     c = res.contrast_threshold
@@ -289,11 +268,14 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
                "calibrated": float(res.calibrated), "objective": res.objective,
                "n_events": len(data.events.slice_time(t0, t1)),
                "seconds": float(sum(res.timings_s))}
-    inside = np.asarray(res.valid, bool)
+    inside = np.zeros(res.valid.shape, bool)
+    if np.isfinite(res.objective):  # NaN: an interval without events, nothing estimated
+        x, y, w, h = res.roi
+        inside[y:y + h, x:x + w] = True
     fields = [np.array(a, np.float32) for a in (res.flow, res.q, res.p)]
     for arr in fields:
         arr[~inside] = np.nan
-    valid = bos_valid(data.events, t0, t1, inside)
+    valid = res.valid
     values = None
     if out.extras:
         values = {"q": fields[1], "p": fields[2],
