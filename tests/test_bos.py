@@ -8,7 +8,7 @@ import pytest
 
 from _bos_reference import objective_numpy, upsample_numpy
 from bos_synth import legm_case
-from evmotion.errors import EmptyWindowError, EventDataError, ParameterError
+from evmotion.errors import EmptyWindowError, EventDataError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray
 from evmotion.methods import bos_kernels
 from evmotion.methods.bos import (
@@ -359,6 +359,17 @@ def test_errors(case):
     # the normalized term goes on without C, flagged uncalibrated
     res = estimate_bos(ev, f0, frame_next=f0, **kw)
     assert not res.calibrated and res.contrast_threshold is None
+    with pytest.raises(ParameterError, match="coarse to fine"):
+        estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, scales=(8, 16))
+    with pytest.raises(ParameterError, match="iterations must be whole numbers >= 1"):
+        estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, iterations=0)
+    with pytest.raises(ParameterError, match="dtype bool"):
+        estimate_bos(ev, f0 > 0.5, **kw)
+    # one event: the flow it gives is not a measurement on (almost) any pixel, and says so
+    one = EventArray(x=[60], y=[60], t=[5], p=[1], sensor_size=(128, 128))
+    with pytest.warns(EvmotionWarning, match="support the flow on 0 % of the ROI"):
+        res = estimate_bos(one, f0, contrast_threshold=C, **kw)
+    assert not res.valid.any()
 
 
 @pytest.mark.parametrize("opts, match", [
