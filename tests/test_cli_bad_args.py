@@ -734,11 +734,15 @@ def test_a_window_without_duration_is_skipped_and_named(tmp_path, capsys, extra)
     if "dnn" in extra:
         pytest.importorskip("torch")
     rng = np.random.default_rng(0)
+    dots = rng.uniform(2, 28, (60, 2))
 
     def win(t0, n=2000, dt=1):
-        return EventArray(x=rng.integers(0, 40, n), y=rng.integers(0, 30, n),
-                          t=t0 + np.arange(n) * dt, p=rng.integers(0, 2, n),
-                          sensor_size=(30, 40))
+        # 60 dots moving right at 1500 px/s: a flow the windows around the burst measure
+        k = rng.integers(0, 60, n)
+        t = t0 + np.arange(n) * dt
+        return EventArray(x=np.rint(dots[k, 0] + 1.5e-3 * (t - t0)).astype(int),
+                          y=np.rint(dots[k, 1]).astype(int),
+                          t=t, p=rng.integers(0, 2, n), sensor_size=(30, 40))
 
     rec = tmp_path / "stuck.h5"
     write_events(rec, concatenate([win(0), win(5000, dt=0), win(6000)]))

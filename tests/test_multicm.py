@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from evmotion.core import tileflow as tf
-from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.errors import EmptyWindowError, ParameterError, PoorFitWarning
 from evmotion.events import EventArray
 from evmotion.methods.multicm import (
     FlowResult,
@@ -125,6 +125,23 @@ def test_input_errors(translation):
         estimate_flow(translation, init=np.zeros((3, 2)))
     with pytest.raises(EmptyWindowError):
         estimate_flow(translation[:3])
+    bad = np.zeros(translation.sensor_size + (2,))
+    bad[0, 0] = np.nan
+    with pytest.raises(ParameterError, match="init has 1 pixels or tiles with a NaN"):
+        estimate_flow(translation, init=bad)
+    with pytest.raises(ParameterError, match="finest_level=10 makes 512 tiles per side"):
+        estimate_flow(translation, finest_level=10, n_scales=1)
+    with pytest.raises(ParameterError, match=r"lam, init apply to method 'multicm' only"):
+        estimate_flow(translation, method="dnn", lam=float("nan"), init=bad)
+
+
+def test_a_flow_that_sharpens_nothing_is_flagged(translation):
+    """Ten events: the multicm flow (22 valid pixels of 1000 px/s) was returned as valid."""
+    with pytest.warns(PoorFitWarning, match="no focus"):
+        res = estimate_flow(translation[:10])
+    assert res.meta["no_focus"] and not res.valid.any()
+    res = estimate_flow(translation)
+    assert not res.meta["no_focus"] and res.valid.any()
 
 
 def test_focus_matches_numpy_composition_with_core_objective():

@@ -157,6 +157,8 @@ def _row(r, w) -> dict:
         row["input_scale"] = int(r.meta["input_scale"])
     if "gain" in r.meta:  # the network's: the magnitude its flow was kept at
         row["gain"] = float(r.meta["gain"])
+    if r.meta.get("no_focus"):  # warned: the flow sharpens nothing, no pixel is valid
+        row["no_focus"] = True
     return row
 
 

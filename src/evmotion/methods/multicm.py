@@ -58,6 +58,7 @@ from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, Window
 from evmotion.jitcache import compile_seconds
 from evmotion.methods import transport as tr
+from evmotion.methods.diagnostics import warn_no_gain
 from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
@@ -417,6 +418,11 @@ def _init_params(init, grid, duration_s, shape):
     if init.ndim != 3 or init.shape[2] != 2:
         raise ParameterError(f"init must be a FlowResult, a dense flow (H, W, 2) or tile "
                              f"params (ny, nx, 2) in px/s; got shape {init.shape}")
+    bad = ~np.isfinite(init)
+    if bad.any():
+        raise ParameterError(f"init has {int(bad.any(axis=-1).sum())} pixels or tiles with a "
+                             "NaN or infinite flow: a warm start must be finite everywhere "
+                             "(np.nan_to_num, or the previous result's flow)")
     if init.shape[:2] == tuple(shape):
         # tile averages of the dense flow
         ys = np.minimum((np.arange(shape[0]) * grid.ny) // shape[0], grid.ny - 1)
@@ -494,6 +500,10 @@ class MultiCMOptions:
     restart: bool = True
 
 
+# what a caller who set nothing gets (method="dnn" refuses anything else)
+MULTICM_DEFAULTS = MultiCMOptions()
+
+
 def estimate_flow(events: EventArray, method: str = "multicm", *,
                   time_aware: str | None = None, n_scales: int = 5,
                   objective: str = "gradient_magnitude", lam: float = 0.0025,
@@ -567,7 +577,10 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     Returns
     -------
     FlowResult
-        With ``valid``, the pixels whose flow events support.
+        With ``valid``, the pixels whose flow events support. A flow that sharpens the
+        events by less than 5 % (``focus`` under
+        :data:`~evmotion.methods.diagnostics.MIN_CONTRAST_GAIN`: too few events, no motion)
+        is no measurement: PoorFitWarning, ``valid`` all False, ``meta["no_focus"]`` True.
 
     Examples
     --------
@@ -591,6 +604,14 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     if method == "dnn":
         from evmotion.methods.dnn import estimate_flow_dnn
 
+        given = [f.name for f in dataclasses.fields(o)
+                 if getattr(o, f.name) != getattr(MULTICM_DEFAULTS, f.name)]
+        if init is not None:
+            given.append("init")
+        if given:
+            raise ParameterError(f"estimate_flow(method='dnn'): {', '.join(given)} "
+                                 "apply to method 'multicm' only (the network takes "
+                                 "checkpoint; estimate_flow_dnn has its own options)")
         return estimate_flow_dnn(events, checkpoint)
     if method != "multicm":
         raise ParameterError(f"estimate_flow: unknown method {method!r} "
@@ -624,6 +645,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     focus, iwe_dict = _final_iwes(prob, params, x, y, s, shape)
     flow = rest_where_empty((tf.dense_flow(params, shape) / duration_s).astype(np.float32),
                             valid, prob.grid)
+    no_focus = warn_no_gain(focus, "dense flow") is not None
+    if no_focus:
+        valid = np.zeros_like(valid)
     timings["total_s"] = time.perf_counter() - t_start
     # numba's first-use compilation is not the estimate's time: reported apart
     timings["compile_s"] = compile_seconds() - c_start
@@ -637,7 +661,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                             "max_iter": o.max_iter, "tol": o.tol,
                             "n_scales": o.n_scales, "seed": o.seed,
                             "finest_level": o.finest_level,
-                            "transport_cell": o.transport_cell, "restart": o.restart},
+                            "transport_cell": o.transport_cell, "restart": o.restart,
+                            "no_focus": no_focus},
                       valid=valid)
 
 
@@ -653,6 +678,11 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
         raise ParameterError(f"references must be 'multi' or 'single', got {o.references!r}")
     if o.optimizer not in ("lbfgs", "newton-cg"):
         raise ParameterError(f"optimizer must be 'lbfgs' or 'newton-cg', got {o.optimizer!r}")
+    if 2 ** (o.finest_level - 1) > max(events.sensor_size):
+        raise ParameterError(f"finest_level={o.finest_level} makes {2 ** (o.finest_level - 1)} "
+                             f"tiles per side, more than the {max(events.sensor_size)} px "
+                             "of the sensor: tiles under a pixel fit nothing (at most "
+                             f"{int(np.log2(max(events.sensor_size))) + 1} here)")
     if (not 1 <= o.n_scales <= o.finest_level or o.max_iter < 1 or not o.lam >= 0
             or o.transport_cell < 1 or not 0 <= o.tol < 1):
         raise ParameterError(f"need 1 <= n_scales <= finest_level, max_iter >= 1, lam >= 0, "

@@ -22,6 +22,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, pixel_indices
+from evmotion.methods.diagnostics import warn_no_gain
 from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
@@ -216,7 +217,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     FlowResult
         ``flow`` in px/s at the window's midpoint; ``valid`` the pixels with event support,
         as multicm's; ``params`` empty; ``meta["method"]`` is ``"dnn"`` and
-        ``meta["input_scale"]`` the scale kept, ``meta["gain"]`` the gain applied.
+        ``meta["input_scale"]`` the scale kept, ``meta["gain"]`` the gain applied;
+        with ``with_iwes``, a flow that sharpens the events by less than 5 % (multi-reference
+        focus under :data:`~evmotion.methods.diagnostics.MIN_CONTRAST_GAIN`) is no
+        measurement: PoorFitWarning, ``valid`` all False, ``meta["no_focus"]`` True.
 
     Examples
     --------
@@ -259,6 +263,9 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     # the network answers everywhere; only where events are is it a measurement
     valid = event_support(events.x, events.y, events.sensor_size, SUPPORT_RADIUS,
                           SUPPORT_MIN_EVENTS)
+    no_focus = with_iwes and warn_no_gain(focus, "network's flow") is not None
+    if no_focus:
+        valid = np.zeros_like(valid)
     total = time.perf_counter() - t_start
     return FlowResult(flow=flow, t0_us=t0, t1_us=t1, t_ref_us=(t0 + t1) // 2, params=(),
                       iwes=iwes, focus=float(focus), history=[],
@@ -266,4 +273,4 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                       n_bins=0, n_events=len(events), valid=valid,
                       meta={"method": "dnn", "checkpoint": str(checkpoint or "shipped"),
                             "input_scale": best, "time_reversal": bool(time_reversal),
-                            "gain": gain})
+                            "gain": gain, "no_focus": bool(no_focus)})
