@@ -19,9 +19,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, EventDataError, ParameterError
+from evmotion.utils import whole_number
 
 __all__ = [
     "EventArray",
+    "require_events",
     "Window",
     "concatenate",
     "make_windows",
@@ -104,9 +106,9 @@ class EventArray:
     def __post_init__(self) -> None:
         self.x = _coord(self.x, "x")
         self.y = _coord(self.y, "y")
-        self.t = np.ascontiguousarray(self.t, dtype=np.int64)
+        self.t = _timestamps(self.t)
         self.p = _polarity(self.p)
-        h, w = (int(v) for v in self.sensor_size)
+        h, w = _sensor_size(self.sensor_size)
         self.sensor_size = (h, w)
         n = self.t.shape[0]
         for name in ("x", "y", "p"):
@@ -224,6 +226,9 @@ class EventArray:
         """Index by slice, integer array or boolean mask; returns an EventArray."""
         if isinstance(key, (int, np.integer)):
             key = slice(int(key), int(key) + 1 if int(key) != -1 else None)
+        if isinstance(key, (float, np.floating, str)):
+            raise ParameterError(f"index events with an int, a slice, an integer array or a "
+                                 f"boolean mask, got {key!r}")
         if isinstance(key, slice) and key.step not in (None, 1):
             raise EventDataError("slices with a step would break nothing but are rarely meant; "
                                  "use an index array")
@@ -259,8 +264,7 @@ class EventArray:
                             t1: int | None = None, drop_empty: bool = False,
                             ) -> list[Window]:
         """Consecutive windows of ``duration_us`` microseconds covering ``[t0, t1)``."""
-        if duration_us <= 0:
-            raise EventDataError(f"window duration must be > 0 us, got {duration_us}")
+        duration_us = whole_number("window duration (duration_us, µs)", duration_us, lo=1)
         if not len(self):
             return []
         t0 = self.t_start if t0 is None else int(t0)
@@ -273,8 +277,7 @@ class EventArray:
     def windows_by_count(self, n_events: int, *, drop_last_partial: bool = False,
                          ) -> list[Window]:
         """Consecutive windows of ``n_events`` events each (the last may be shorter)."""
-        if n_events <= 0:
-            raise EventDataError(f"events per window must be > 0, got {n_events}")
+        n_events = whole_number("events per window (n_events)", n_events, lo=1)
         n = len(self)
         out = []
         for k, s in enumerate(range(0, n, n_events)):
@@ -392,8 +395,27 @@ def _polarity(p) -> np.ndarray:
     return (p > 0).astype(np.uint8)
 
 
+def require_events(events, func: str) -> EventArray:
+    """``events`` if it is an :class:`EventArray`, else :class:`ParameterError` naming
+    ``func`` (a list or an array of rows would otherwise fail deep inside it).
+
+    Examples
+    --------
+    >>> require_events([1, 2], "estimate_flow")
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: estimate_flow: events must be an EventArray (EventArray(x, y, t, p, sensor_size) or evmotion.io.read_events(path)), got list
+    """
+    if not isinstance(events, EventArray):
+        raise ParameterError(f"{func}: events must be an EventArray (EventArray(x, y, t, p, "
+                             "sensor_size) or evmotion.io.read_events(path)), got "
+                             f"{type(events).__name__}")
+    return events
+
+
 def _coord(a, name: str) -> np.ndarray:
     a = np.asarray(a)
+    if a.size == 0:  # an empty list is float64 to numpy: no undistorted coordinates here
+        return np.empty(a.shape, np.uint16)
     if a.dtype.kind == "f":
         return np.ascontiguousarray(a, dtype=np.float32)
     if a.dtype.kind not in "iub":
@@ -402,6 +424,48 @@ def _coord(a, name: str) -> np.ndarray:
         bad = int(np.argmax((a < 0) | (a > 65535)))
         raise EventDataError(f"event {bad} has {name}={a[bad]}, outside 0..65535")
     return np.ascontiguousarray(a, dtype=np.uint16)
+
+
+# timestamps beyond +-2^62 us (146,000 years) are corrupt values, and int64 holds them
+_MAX_ABS_T = 1 << 62
+
+
+def _timestamps(t) -> np.ndarray:
+    """``t`` as contiguous int64 µs, refusing what the conversion would change: fractions
+    (seconds given for µs would all become 0), NaN, values beyond +-2^62 (uint64 wraps)."""
+    a = np.asarray(t)
+    if a.dtype == np.int64:
+        return np.ascontiguousarray(a)
+    if a.dtype.kind not in "iuf" or a.dtype.kind == "b":
+        if a.size == 0:
+            return np.empty(a.shape, np.int64)
+        raise EventDataError(f"field 't' must be numeric (integer µs), got dtype {a.dtype}")
+    if a.size and a.dtype.kind in "uf":
+        lo, hi = a.min(), a.max()
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            raise EventDataError("field 't' contains NaN or inf")
+        if hi > _MAX_ABS_T or lo < -_MAX_ABS_T:
+            raise EventDataError(f"field 't' holds {hi if hi > _MAX_ABS_T else lo}, beyond "
+                                 "+-2^62 µs: not a timestamp (corrupt, or another unit?)")
+        if a.dtype.kind == "f":
+            frac = a != np.floor(a)
+            if frac.any():
+                i = int(np.argmax(frac))
+                raise EventDataError(
+                    f"field 't' has fractional values (t[{i}]={float(a[i])!r}): timestamps are "
+                    "integer microseconds; from seconds: np.round(t * 1e6).astype(np.int64)")
+    return np.ascontiguousarray(a, dtype=np.int64)
+
+
+def _sensor_size(size) -> tuple[int, int]:
+    try:
+        h, w = size
+        if float(h) != int(h) or float(w) != int(w):
+            raise ValueError
+        return int(h), int(w)
+    except (TypeError, ValueError, OverflowError):
+        raise EventDataError(f"sensor_size must be two whole numbers (height, width), "
+                             f"got {size!r}") from None
 
 
 def pixel_indices(a: np.ndarray, size: int) -> np.ndarray:

@@ -102,6 +102,32 @@ def check_finite(name: str, value) -> np.ndarray:
     return arr
 
 
+def whole_number(name: str, value, lo: int | None = None, hi: int | None = None) -> int:
+    """``value`` as an int, or :class:`ParameterError` naming ``name`` unless it is a whole
+    number (an int, or a float such as ``1e5`` without a fraction) within ``[lo, hi]``.
+
+    Examples
+    --------
+    >>> whole_number("dt_us", 1e5, lo=1)
+    100000
+    >>> whole_number("n_bins", 2.5, lo=1)
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: n_bins must be a whole number >= 1, got 2.5
+    """
+    want = ("a whole number" + (f" >= {lo}" if lo is not None and hi is None else "")
+            + (f" in {lo}..{hi}" if lo is not None and hi is not None else "")
+            + (f" <= {hi}" if lo is None and hi is not None else ""))
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    if not ok and isinstance(value, (float, np.floating)):
+        ok = bool(np.isfinite(value)) and float(value).is_integer()
+    if ok:
+        v = int(value)
+        ok = (lo is None or v >= lo) and (hi is None or v <= hi)
+    if not ok:
+        raise ParameterError(f"{name} must be {want}, got {value!r}")
+    return v
+
+
 def resolve_options(cls: type, options, keywords: dict, func: str):
     """The options of one call of ``func(..., options=None, **keywords)``:
     ``cls(**keywords)``, or ``options``; a function with many tuning parameters takes

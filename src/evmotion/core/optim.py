@@ -337,8 +337,18 @@ def minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]], x0: np.
         ns = n_samples or (300 if x0.size == 1 else 600)
         return tpe_minimize(lambda th: fun_grad(th)[0], lower, upper, n_samples=ns, seed=seed,
                             x0=x0)
+    checked = []
+    for k, s0 in enumerate(starts or []):
+        try:
+            s0 = np.asarray(s0, dtype=np.float64)
+        except (TypeError, ValueError):
+            s0 = None
+        if s0 is None or s0.shape != x0.shape or not np.isfinite(s0).all():
+            raise ParameterError(f"starts[{k}] must be {x0.size} finite numbers (one per "
+                                 f"parameter), got {starts[k]!r}")
+        checked.append(s0)
     results = []
-    for s0 in [x0, *(starts or [])]:
+    for s0 in [x0, *checked]:
         if method == "adam":
             results.append(adam_minimize(fun_grad, s0, n_iter=n_iter, lr=lr, scale=scale))
         else:

@@ -35,6 +35,7 @@ __all__ = [
     "angular_error_deg",
     "endpoint_error",
     "event_mask",
+    "events_where_defined",
     "flow_metrics",
     "fwl",
     "rms_error",
@@ -250,7 +251,12 @@ def flow_metrics(
             raise ParameterError(f"mask has shape {mask.shape}, expected {sel.shape} (H, W)")
         sel &= mask
     if events is not None:
+        if tuple(events.sensor_size) != sel.shape:
+            raise ParameterError(f"events are on a {events.sensor_size} sensor but the flow "
+                                 f"is {sel.shape} px (height, width)")
         sel &= event_mask(events, sel.shape)
+    if not (np.isfinite(out_px) and out_px > 0):
+        raise ParameterError(f"out_px must be a finite number of px > 0, got {out_px!r}")
     thresholds = tuple(int(n) for n in npe_thresholds)
     n = int(sel.sum())
     if n == 0:
@@ -341,8 +347,12 @@ def sample_flow_bilinear(flow: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.n
     [[1.0, 0.0]]
     """
     h, w = flow.shape[:2]
-    xf = np.clip(np.asarray(x, dtype=np.float64), 0.0, w - 1.0)
-    yf = np.clip(np.asarray(y, dtype=np.float64), 0.0, h - 1.0)
+    xf, yf = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    if not (np.isfinite(xf).all() and np.isfinite(yf).all()):
+        raise ParameterError("sample_flow_bilinear: x and y must be finite positions (px), "
+                             "got NaN or inf")
+    xf = np.clip(xf, 0.0, w - 1.0)
+    yf = np.clip(yf, 0.0, h - 1.0)
     x0 = np.minimum(np.floor(xf).astype(np.int64), max(w - 2, 0))
     y0 = np.minimum(np.floor(yf).astype(np.int64), max(h - 2, 0))
     x1 = np.minimum(x0 + 1, w - 1)
@@ -397,6 +407,26 @@ def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | 
     return np.ascontiguousarray(x + uv[:, 0] * dt), np.ascontiguousarray(y + uv[:, 1] * dt)
 
 
+def events_where_defined(events: EventArray, flow: np.ndarray) -> EventArray:
+    """The events at pixels where ``flow`` (H, W, 2) is finite: what :func:`fwl` can warp
+    when the flow is undefined somewhere (NaN outside a BOS ROI, "unknown" in a ``.flo``).
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0, 1], y=[0, 0], t=[0, 5], p=[1, 1], sensor_size=(1, 2))
+    >>> flow = np.zeros((1, 2, 2)); flow[0, 1] = np.nan
+    >>> events_where_defined(ev, flow).x.tolist()
+    [0]
+    """
+    known = np.isfinite(flow).all(axis=-1)
+    if known.all() or not len(events):
+        return events
+    h, w = known.shape
+    xi = np.clip(np.rint(events.x).astype(np.int64), 0, w - 1)
+    yi = np.clip(np.rint(events.y).astype(np.int64), 0, h - 1)
+    return events[known[yi, xi]]
+
+
 def fwl(
     events: EventArray,
     flow_px_per_s: np.ndarray,
@@ -437,6 +467,8 @@ def fwl(
     ------
     EmptyWindowError
         No events, or the zero-flow IWE has zero variance.
+    ParameterError
+        The flow is NaN/inf where events are.
 
     Examples
     --------
@@ -448,6 +480,11 @@ def fwl(
     from evmotion.core.iwe import accumulate
 
     xw, yw = warp_by_flow(events, flow_px_per_s, t_ref_us)
+    lost = ~(np.isfinite(xw) & np.isfinite(yw))
+    if lost.any():
+        raise ParameterError(f"the flow is NaN/inf where {int(lost.sum())} of the "
+                             f"{len(events)} events are: they would drop out of the warped "
+                             "image (pass only the events where the flow is defined)")
     x = events.x.astype(np.float64)
     y = events.y.astype(np.float64)
     shape = events.sensor_size

@@ -28,7 +28,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, EventDataError
-from evmotion.eval.metrics import aggregate_flow_metrics, event_mask, flow_metrics, fwl
+from evmotion.eval.metrics import (
+    aggregate_flow_metrics,
+    event_mask,
+    events_where_defined,
+    flow_metrics,
+    fwl,
+)
 
 if TYPE_CHECKING:
     from evmotion.events import EventArray
@@ -201,6 +207,9 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
                          out_px=out_px)
         row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), **m.as_dict(),
                "AE_rad": float(np.radians(m.ae_deg)), "gt_frames": round(frames, 2)}
+        if win is not None:
+            # the events where the estimate is defined, for both FWLs alike
+            win = events_where_defined(win, flow[i])
         if win is not None and len(win) > 1:
             row["FWL"] = fwl(win, flow[i], t_ref_us=(int(t0) + int(t1)) // 2)
             row["FWL_gt"] = fwl(win, (disp_gt / ((t1 - t0) * 1e-6)).astype(np.float32),

@@ -119,11 +119,25 @@ def _path_of(args, kw):
     return Path(p) if isinstance(p, (str, os.PathLike)) else p
 
 
+def _check_call(fn: Callable, fmt: str, args, kw) -> None:
+    """ParameterError for arguments ``fn`` does not take (a misspelt option): called
+    unchecked, its TypeError would be reported as a corrupt file."""
+    import inspect
+
+    try:
+        inspect.signature(fn).bind(*args, **kw)
+    except TypeError as exc:
+        raise ParameterError(f"{fmt} {fn.__name__}: {exc}") from None
+    except ValueError:  # no signature to check (a builtin): let the call say
+        pass
+
+
 def guard_call(fn: Callable, fmt: str, action: str) -> Callable:
     """``fn(path, ...)`` whose exceptions go through :func:`as_format_error`."""
 
     @functools.wraps(fn)
     def guarded(*args, **kw):
+        _check_call(fn, fmt, args, kw)
         try:
             return fn(*args, **kw)
         except Exception as exc:
@@ -157,6 +171,7 @@ def guard_iter(fn: Callable, fmt: str, action: str = "read") -> Callable:
 
     @functools.wraps(fn)
     def guarded(*args, **kw) -> Iterator:
+        _check_call(fn, fmt, args, kw)
         path = _path_of(args, kw)
         it = None
         try:

@@ -22,6 +22,7 @@ from evmotion.errors import ParameterError
 from evmotion.events import EventArray, concatenate
 from evmotion.io.base import FormatSpec
 from evmotion.io.registry import resolve_format
+from evmotion.utils import whole_number
 
 __all__ = ["iter_events", "read_events"]
 
@@ -146,9 +147,7 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
     if window_us is None:
         yield from chunks
         return
-    window_us = int(window_us)
-    if window_us <= 0:
-        raise ParameterError(f"window_us must be positive, got {window_us}")
+    window_us = whole_number("window_us (microseconds)", window_us, lo=1)
     yield from _windows(chunks, window_us, t0, drop_empty)
 
 

@@ -85,7 +85,7 @@ from evmotion.errors import (
     EvmotionWarning,
     ParameterError,
 )
-from evmotion.events import EventArray
+from evmotion.events import EventArray, require_events
 from evmotion.methods.bos_kernels import (
     LevelBuffers,
     LevelGrid,
@@ -899,6 +899,7 @@ def estimate_bos(
     >>> res.flow.shape, res.flow.dtype, res.calibrated
     ((32, 32, 2), dtype('float32'), False)
     """
+    require_events(events, "estimate_bos")
     o = _options(options, kwargs)
     if np.dtype(dtype) not in (np.float32, np.float64):
         raise ParameterError(f"dtype must be float32 or float64, got {np.dtype(dtype)}")

@@ -96,7 +96,7 @@ class BurstMeans:
         h, w = (int(v) for v in sensor_size)
         if h <= 0 or w <= 0:
             raise ParameterError(f"sensor_size must be positive (height, width), got {(h, w)}")
-        if int(gap_us) != gap_us or gap_us < 1:
+        if not (np.isfinite(gap_us) and int(gap_us) == gap_us and gap_us >= 1):
             raise ParameterError(f"gap_us must be an integer >= 1 microsecond, got {gap_us}")
         self.sensor_size = (h, w)
         self.gap_us = int(gap_us)

@@ -65,7 +65,7 @@ from evmotion.core.collapse import regularizer_maps
 from evmotion.core.optim import OptimResult, landscape, minimize
 from evmotion.core.warps import Warp
 from evmotion.errors import ParameterError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, require_events
 from evmotion.jitcache import compile_seconds
 from evmotion.methods.cmax import (
     COMBINED_REGULARIZERS,
@@ -257,6 +257,22 @@ class EgomotionOptions:
     maps: bool = True
     diagnose: bool = True
 
+    def __post_init__(self):
+        def whole(name, lo, allow_none=False):
+            v = getattr(self, name)
+            if v is None and allow_none:
+                return
+            if not (isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= lo):
+                raise ParameterError(f"{name} must be an integer >= {lo}, got {v!r}")
+
+        whole("n_iter", 1)
+        whole("seed", 0)
+        whole("n_samples", 1, allow_none=True)
+        for name in ("lr", "sigma"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0):
+                raise ParameterError(f"{name} must be a finite number > 0, got {v!r}")
+
 
 def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                        objective: str = "variance", regularizer: str | None = None,
@@ -333,17 +349,27 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     --------
     See the module docstring.
     """
+    require_events(events, "estimate_egomotion")
     o = merge_options(EgomotionOptions, options, objective=objective, regularizer=regularizer,
                       weight=weight, optimizer=optimizer, t_ref=t_ref, seed=seed,
                       starts=starts, bounds=bounds, n_samples=n_samples, n_iter=n_iter, lr=lr,
                       kernel=kernel, sigma=sigma, use_polarity=use_polarity, dataset=dataset,
                       maps=maps, diagnose=diagnose)
+    if o.regularizer is None and o.weight not in (None, 0, 0.0):
+        raise ParameterError(f"weight={o.weight!r} weighs a regularizer, but regularizer is "
+                             "None: give regularizer= too (or leave weight out)")
     c0 = compile_seconds()
     t0 = time.perf_counter()
     cost, t_ref_us = make_cost(events, warp, o.objective, o.regularizer, o.weight, K, o.t_ref,
                                o.kernel, o.sigma, o.use_polarity, o.dataset)
     w = cost.warp
-    x0 = w.identity() if init is None else np.asarray(init, dtype=np.float64)
+    try:
+        x0 = w.identity() if init is None else np.asarray(init, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(f"init must be {w.n_params} numbers {w.param_names}, "
+                             f"got {init!r}") from None
+    if x0.shape == (w.n_params,) and not np.isfinite(x0).all():
+        raise ParameterError(f"init must be finite, got {init!r}")
     if x0.shape != (w.n_params,):
         raise ParameterError(f"init must have shape ({w.n_params},) {w.param_names}, "
                              f"got {x0.shape}")
@@ -374,7 +400,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                "compile": compiled, "estimate": total - compiled, "n_evals": res.n_evals}
     return EgomotionResult(
         params=theta.copy(), param_names=tuple(w.param_names), param_units=tuple(w.param_units),
-        warp=w.name, objective=o.objective, regularizer=o.regularizer, weight=cost.weight,
+        warp=w.name, objective=o.objective, regularizer=o.regularizer,
+        weight=cost.weight if o.regularizer else 0.0,
         optimizer=o.optimizer, t_ref_us=t_ref_us,
         window_us=(int(events.t[0]), int(events.t[-1])), n_events=len(events),
         cost=parts["cost"], focus=parts["focus"], penalty=parts["penalty"],

@@ -55,7 +55,7 @@ from numba import njit
 from evmotion.core import tileflow as tf
 from evmotion.core.objectives import events_value_grad, objective_value_grad
 from evmotion.errors import EmptyWindowError, ParameterError
-from evmotion.events import EventArray, Window
+from evmotion.events import EventArray, Window, require_events
 from evmotion.jitcache import compile_seconds
 from evmotion.methods import transport as tr
 from evmotion.methods.diagnostics import warn_no_gain
@@ -67,7 +67,7 @@ from evmotion.methods.flowresult import (
     event_support,
 )
 from evmotion.methods.options import merge_options
-from evmotion.utils import resolve_options
+from evmotion.utils import resolve_options, whole_number
 
 __all__ = ["FlowResult", "MultiCMOptions", "MultiCMProblem", "estimate_flow",
            "estimate_flow_sequence", "rest_where_empty"]
@@ -596,6 +596,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     >>> bool(abs(np.median(res.flow[..., 0]) - 1000) < 150)
     True
     """
+    require_events(events, "estimate_flow")
     o = merge_options(MultiCMOptions, options, time_aware=time_aware, n_scales=n_scales,
                       objective=objective, lam=lam, n_bins=n_bins, seed=seed,
                       max_iter=max_iter, tol=tol, references=references, optimizer=optimizer,
@@ -613,9 +614,13 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                                  "apply to method 'multicm' only (the network takes "
                                  "checkpoint; estimate_flow_dnn has its own options)")
         return estimate_flow_dnn(events, checkpoint)
+    if method == "triplet":
+        raise ParameterError("estimate_flow: the triplet method is event by event: "
+                             "evmotion.methods.triplet.estimate_flow_triplet(events) for "
+                             "dense windows, or evmotion.TripletMatcher for a stream")
     if method != "multicm":
         raise ParameterError(f"estimate_flow: unknown method {method!r} "
-                             "(available: 'multicm', 'dnn')")
+                             "(available: 'multicm', 'dnn'; 'triplet' has its own functions)")
     net = None
     if isinstance(init, str):
         if init != "dnn":
@@ -669,6 +674,16 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
 def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
     """``o`` validated against ``events``, with ``time_aware="none"`` read as None and
     ``n_bins`` resolved for the sensor."""
+    for name in ("n_scales", "finest_level", "max_iter", "transport_cell", "seed"):
+        whole_number(name, getattr(o, name), lo=0)
+    if o.n_bins is not None:
+        whole_number("n_bins", o.n_bins, lo=1)
+    if o.time_aware_scales is not None:
+        whole_number("time_aware_scales", o.time_aware_scales, lo=1)
+    for name in ("lam", "tol"):
+        v = getattr(o, name)
+        if not (isinstance(v, (int, float, np.number)) and not isinstance(v, bool)):
+            raise ParameterError(f"{name} must be a number, got {v!r}")
     if o.time_aware not in (None, "none", "upwind", "burgers"):
         raise ParameterError(f"time_aware must be None, 'upwind' or 'burgers', "
                              f"got {o.time_aware!r}")

@@ -39,7 +39,7 @@ import numpy as np
 from evmotion.core.iwe import accumulate
 from evmotion.core.optim import gradient_minimize
 from evmotion.errors import ParameterError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, require_events
 from evmotion.methods.cmax import make_cost, param_scales
 
 __all__ = ["SegmentationResult", "segment_motion"]
@@ -158,9 +158,12 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
     --------
     See the module docstring.
     """
+    require_events(events, "segment_motion")
     t_start = time.perf_counter()
     if n_warps < 1:
         raise ParameterError(f"n_warps must be >= 1, got {n_warps}")
+    if not (isinstance(n_iter, (int, np.integer)) and n_iter >= 1):
+        raise ParameterError(f"n_iter must be an integer >= 1, got {n_iter!r}")
     if objective not in ("variance", "gradient_magnitude"):
         raise ParameterError(f"segmentation supports the variance and gradient_magnitude "
                              f"objectives, got '{objective}'")

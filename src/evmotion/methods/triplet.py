@@ -64,10 +64,13 @@ from evmotion.events import (
     Window,
     check_stream_order,
     pixel_indices,
+    require_events,
     sensor_pixels,
 )
+from evmotion.io.guard import MAX_SENSOR_SIDE
 from evmotion.methods import triplet_kernels as K
 from evmotion.methods.bursts import BURST_GAP_US, burst_means
+from evmotion.utils import whole_number
 
 __all__ = [
     "LSQ_DX",
@@ -266,16 +269,18 @@ class TripletMatcher:
     def __init__(self, sensor_size: tuple[int, int], dx: float = float(np.sqrt(2.0)),
                  dt_us: int = 100_000, tau_us: int = 3_000, *, quadruple: bool = False,
                  depth: int = 8, normal_kappa: int = NORMAL_KAPPA) -> None:
-        h, w = (int(v) for v in sensor_size)
-        if h <= 0 or w <= 0:
-            raise ParameterError(f"sensor_size must be positive (height, width), got {(h, w)}")
-        if not 1 <= int(depth) <= 255:
-            raise ParameterError(f"depth must be in 1..255, got {depth}")
-        if int(dt_us) <= 0:
-            raise ParameterError(f"dt_us must be > 0 microseconds, got {dt_us}")
-        if int(tau_us) < 1:
-            # tau = 0 would admit t_i = t_k: delta = 0, a Gaussian of zero width in (5.3).
-            raise ParameterError(f"tau_us must be >= 1 microsecond, got {tau_us}")
+        try:
+            h, w = (whole_number("sensor_size", v, lo=1, hi=MAX_SENSOR_SIDE)
+                    for v in sensor_size)
+        except (TypeError, ValueError):
+            raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}"
+                                 ) from None
+        depth = whole_number("depth", depth, lo=1, hi=255)
+        dt_us = whole_number("dt_us (microseconds)", dt_us, lo=1)
+        # tau = 0 would admit t_i = t_k: delta = 0, a Gaussian of zero width in (5.3).
+        tau_us = whole_number("tau_us (microseconds)", tau_us, lo=1)
+        if not np.isfinite(dx) or dx <= 0:
+            raise ParameterError(f"dx must be a finite number of px > 0, got {dx!r}")
         if 3 * (int(dt_us) + int(tau_us)) >= K.REBASE_SPAN_US // 2:
             raise ParameterError(f"dt_us + tau_us = {int(dt_us) + int(tau_us)} us is too long "
                                  f"(limit {K.REBASE_SPAN_US // 6} us)")
@@ -437,8 +442,7 @@ def voxelize_flow(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: int,
 
 
 def _check_interval(t0_us, t1_us, n_bins):
-    if n_bins < 1:
-        raise ParameterError(f"n_bins must be >= 1, got {n_bins}")
+    whole_number("n_bins", n_bins, lo=1)
     if t1_us <= t0_us:
         raise ParameterError(f"empty interval [{t0_us}, {t1_us}) us")
 
@@ -701,6 +705,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     >>> res.flows.shape, float(res.flows[0, 5, 4, 0])
     ((1, 10, 10, 2), 100.0)
     """
+    require_events(events, "estimate_flow_triplet")
     if len(events) == 0:
         raise EmptyWindowError("no events to estimate the triplet flow of")
     dx, tau_us, filter_size = dense_defaults(dense, dx, tau_us, filter_size)

@@ -67,7 +67,7 @@ from evmotion.sim.options import SchlierenOptions, check_number
 from evmotion.sim.photoreceptor import Photoreceptor
 from evmotion.sim.scenes import BOS_SCENES
 from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
-from evmotion.utils import resolve_options
+from evmotion.utils import resolve_options, whole_number
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
            "make_background", "make_field", "normalize_range", "read_schlieren_gt",
@@ -639,6 +639,7 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
         raise ParameterError(f"unknown schlieren scene {scene!r}; choose one of "
                              f"{sorted(BOS_SCENES)}")
     h, w = parse_sensor_size(sensor_size, 8)
+    seed = whole_number("seed", seed, lo=0)
     fps = check_number("fps", fps, 0.0, 1e5, lo_open=True, units="Hz")
     duration_s = check_number("duration_s", duration_s, 0.0, 1e4, lo_open=True, units="s")
     n_frames = int(math.floor(duration_s * fps + 1e-9)) + 1

@@ -31,7 +31,7 @@ from evmotion.sim.render import (
 )
 from evmotion.sim.scenes import SCENES, default_K, resolve_params
 from evmotion.sim.textures import TEXTURES, Texture, make_texture, texture_from_image
-from evmotion.utils import progress, resolve_options
+from evmotion.utils import progress, resolve_options, whole_number
 
 __all__ = ["EventOptions", "LogSimResult", "SimOptions", "SimResult", "parse_sensor_size",
            "simulate", "simulate_log_function"]
@@ -334,6 +334,7 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
         keywords["threshold"] = threshold
     opts = resolve_options(SimOptions, options, keywords, "simulate")
     run = _checked_run(scene, duration_s, sensor_size, opts, show_progress)
+    seed = whole_number("seed", seed, lo=0)
     p = resolve_params(scene, params, run.sensor_size)
     layers, texs = build_layers(scene, p, run.sensor_size, run.K, texture, image, seed)
     _check_motion(scene, p, layers, run.duration_us * 1e-6)

@@ -306,7 +306,7 @@ def flow_panel(events: EventArray, flow_px_per_s: np.ndarray, *, t_ref_us: int |
     >>> rgb, info = flow_panel(events, flow, max_speed=500.0)  # doctest: +SKIP
     """
     from evmotion.core.iwe import accumulate
-    from evmotion.eval.metrics import fwl, warp_by_flow
+    from evmotion.eval.metrics import events_where_defined, fwl, warp_by_flow
     from evmotion.viz.images import iwe_to_rgb
 
     flow = np.asarray(flow_px_per_s)
@@ -322,7 +322,8 @@ def flow_panel(events: EventArray, flow_px_per_s: np.ndarray, *, t_ref_us: int |
     iwe1 = accumulate(xw, yw, shape, weights=weights)
     # one scale for both: the 99th percentile of the unwarped counts
     vmax = float(np.percentile(np.abs(iwe0[iwe0 != 0]), 99.0)) if np.any(iwe0) else 1.0
-    value = float(fwl(events, flow, t_ref_us)) if len(events) else float("nan")
+    defined = events_where_defined(events, flow)
+    value = float(fwl(defined, flow, t_ref_us)) if len(defined) else float("nan")
     k = pic.scale
     titles = ["events (zero flow)", f"IWE warped by the flow (FWL {value:.3f})",
               f"flow ({pic.unit})"]

@@ -100,6 +100,8 @@ def iwe_to_rgb(iwe: np.ndarray, polarity: bool = False, *, percentile: float = 9
     if iwe.ndim != 2:
         raise ParameterError(f"iwe must be 2-D (H, W), got shape {iwe.shape}")
     iwe = np.where(np.isfinite(iwe), iwe, 0.0)
+    if not (isinstance(percentile, (int, float, np.number)) and 0 <= percentile <= 100):
+        raise ParameterError(f"percentile must be in [0, 100], got {percentile!r}")
     if vmax is None:
         nz = np.abs(iwe[iwe != 0])
         vmax = float(np.percentile(nz, percentile)) if nz.size else 1.0

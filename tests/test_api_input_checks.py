@@ -1,0 +1,120 @@
+"""Bad arguments to the public functions: the library's own one-line errors, never a raw
+numpy / numba exception from deep inside, and never a silently changed input. Each case
+is a repro of a new user's report (2026-11-29)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evmotion.errors import EventDataError, ParameterError
+from evmotion.eval.metrics import flow_metrics, fwl, sample_flow_bilinear
+from evmotion.events import EventArray
+from evmotion.io import iter_events, read_events, write_events
+from evmotion.methods.egomotion import estimate_egomotion
+from evmotion.methods.multicm import estimate_flow
+from evmotion.methods.segmentation import segment_motion
+from evmotion.methods.triplet import TripletMatcher, estimate_flow_triplet
+from evmotion.sim import simulate
+from evmotion.viz import iwe_to_rgb
+
+
+@pytest.fixture(scope="module")
+def ev():
+    """Dots moving right at 400 px/s on an 80x128 sensor."""
+    rng = np.random.default_rng(0)
+    n = 3000
+    t = np.sort(rng.integers(0, 50_000, n))
+    d = rng.uniform(10, 60, (200, 2))
+    k = rng.integers(0, 200, n)
+    return EventArray(np.round(d[k, 0] + 400 * t * 1e-6).astype(int),
+                      np.round(d[k, 1]).astype(int), t, np.ones(n, int), (80, 128))
+
+
+@pytest.mark.parametrize("t, match", [
+    ([10.9, 20.5, 30.99], r"fractional values \(t\[0\]=10.9\)"),
+    ([0.01, 0.02, 0.03], "from seconds"),           # all three used to become 0
+    ([0.0, 1.0, np.nan], "NaN"),
+    (np.array([10, 2**63 + 5, 2**63 + 6], np.uint64), "beyond"),   # wrapped negative
+])
+def test_timestamps_are_not_silently_changed(t, match):
+    with pytest.raises(EventDataError, match=match):
+        EventArray([1, 2, 3], [0, 0, 0], t, [1, 1, 1], (4, 4))
+    # whole float microseconds are fine
+    assert EventArray([1], [0], [7.0], [1], (4, 4)).t.tolist() == [7]
+
+
+def test_container_arguments():
+    with pytest.raises(EventDataError, match="sensor_size must be two whole numbers"):
+        EventArray([1], [0], [0], [1], 4)
+    with pytest.raises(EventDataError, match="sensor_size must be two whole numbers"):
+        EventArray([1], [0], [0], [1], (4.7, 4))
+    empty = EventArray([], [], [], [], (4, 4))
+    assert empty.x.dtype == np.uint16 and empty.t.dtype == np.int64
+    ev = EventArray([1, 2], [0, 0], [0, 5], [1, 1], (4, 4))
+    with pytest.raises(ParameterError, match="index events with an int"):
+        ev[1.5]
+    with pytest.raises(ParameterError, match="whole number >= 1"):
+        ev.windows_by_duration(0.5)  # 41 empty windows before
+    with pytest.raises(ParameterError, match="whole number >= 1"):
+        ev.windows_by_duration(float("nan"))
+
+
+def test_estimators_name_their_bad_arguments(ev):
+    with pytest.raises(ParameterError, match="estimate_flow: events must be an EventArray"):
+        estimate_flow([1, 2, 3])
+    with pytest.raises(ParameterError, match="n_bins must be a whole number >= 1, got 2.5"):
+        estimate_flow(ev, time_aware="burgers", n_bins=2.5)
+    with pytest.raises(ParameterError, match="lam must be a number, got '0.1'"):
+        estimate_flow(ev, lam="0.1")
+    with pytest.raises(ParameterError, match="estimate_flow_triplet"):
+        estimate_flow(ev, method="triplet")
+    with pytest.raises(ParameterError, match="init must be 2 numbers"):
+        estimate_egomotion(ev, warp="translation", init=["a", 0])
+    with pytest.raises(ParameterError, match=r"starts\[0\] must be 2 finite numbers"):
+        estimate_egomotion(ev, warp="translation", starts=[[1, 2, 3]])
+    with pytest.raises(ParameterError, match="n_iter must be an integer >= 1"):
+        estimate_egomotion(ev, warp="translation", optimizer="adam", n_iter=0)
+    with pytest.raises(ParameterError, match="seed must be an integer >= 0"):
+        estimate_egomotion(ev, warp="translation", optimizer="tpe", n_samples=10, seed="a")
+    with pytest.raises(ParameterError, match="regularizer is None"):
+        estimate_egomotion(ev, warp="translation", weight=100.0)  # the weight weighed nothing
+    with pytest.raises(ParameterError, match="n_iter must be an integer >= 1"):
+        segment_motion(ev, 2, n_iter=0)  # returned zero parameters as a result
+    with pytest.raises(ParameterError, match="seed must be a whole number >= 0"):
+        simulate("rotation", duration_s=0.005, sensor_size=(40, 40), seed=-1,
+                 show_progress=False)
+    with pytest.raises(ParameterError, match="dt_us"):
+        TripletMatcher((10, 10), dt_us=float("nan"))
+    with pytest.raises(ParameterError, match="sensor_size"):
+        TripletMatcher((60000, 60000))  # asked numpy for 215 GiB
+    with pytest.raises(ParameterError, match="gap_us"):
+        estimate_flow_triplet(ev, dense="robust", gap_us=float("nan"))
+    with pytest.raises(ParameterError, match="n_bins must be a whole number"):
+        estimate_flow_triplet(ev, n_bins=2.5)
+
+
+def test_metrics_refuse_what_they_cannot_measure(ev):
+    flow = np.tile(np.array([400.0, 0.0], np.float32), (80, 128, 1))
+    assert fwl(ev, flow) > 1.5
+    with pytest.raises(ParameterError, match="NaN/inf where 3000 of the 3000 events"):
+        fwl(ev, np.full_like(flow, np.nan))  # was 0.0
+    g = np.zeros((4, 4, 2))
+    with pytest.raises(ParameterError, match="out_px"):
+        flow_metrics(g + 4, g, out_px=float("nan"))  # %Out was 0 at AEE 5.7
+    other = EventArray([9], [9], [0], [1], sensor_size=(10, 10))
+    with pytest.raises(ParameterError, match="sensor"):
+        flow_metrics(g + 1, g, events=other)
+    with pytest.raises(ParameterError, match="finite positions"):
+        sample_flow_bilinear(g, np.array([np.nan]), np.array([0.0]))
+    with pytest.raises(ParameterError, match="percentile"):
+        iwe_to_rgb(np.ones((8, 8)), percentile=200)
+
+
+def test_readers_name_a_misspelt_option(ev, tmp_path):
+    path = tmp_path / "rec.h5"
+    write_events(path, ev)
+    with pytest.raises(ParameterError, match="unexpected keyword argument 'sensor_sise'"):
+        read_events(path, sensor_sise=(80, 128))  # was reported as a corrupt file
+    with pytest.raises(ParameterError, match="window_us"):
+        list(iter_events(path, window_us=float("nan")))
