@@ -211,7 +211,10 @@ MODELS: dict[str, Model] = {
     "translation": Model(("vx", "vy"), ("px/s", "px/s"), _translation),
     "rotation": Model(("wx", "wy", "wz"), ("rad/s",) * 3, _rotation, True),
     "se2": Model(("vx", "vy", "wz"), ("px/s", "px/s", "rad/s"), _similarity),
-    "inplane": Model(("vx", "vy", "phi", "hz"), ("px/s", "px/s", "rad/s", "1/s"), _inplane),
+    # (A.22)'s per-second rate matrix (1 + hz) R(phi) - I: phi an angle and hz a factor;
+    # the rotation rate is (1 + hz) sin(phi) rad/s and the zoom rate (1 + hz) cos(phi) - 1
+    # per s (phi, hz only for small ones: a 2 rad/s rotation is phi = atan 2, hz = 1.24)
+    "inplane": Model(("vx", "vy", "phi", "hz"), ("px/s", "px/s", "rad", "1"), _inplane),
     "similarity": Model(("vx", "vy", "wz", "s"), ("px/s", "px/s", "rad/s", "1/s"),
                         _similarity),
     "affine": Model(("vx", "vy", "g11", "g12", "g21", "g22"),

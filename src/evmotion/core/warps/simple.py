@@ -310,7 +310,10 @@ class TranslationWarp(FusedAdjoint, Warp):
 class InPlaneWarp(FusedAdjoint, Warp):
     """4-DOF in-plane approximation (A.22):
     ``x' = x - dt (v + ((h_z + 1) R(phi) - Id)(x - c))``; theta = (vx, vy [px/s],
-    phi [rad/s, small-angle rate], hz [1/s]). div f = 2 - 2 (h_z + 1) cos(phi) (A.25)."""
+    phi [rad], hz [1]): the per-second rate matrix ``(h_z + 1) R(phi) - Id`` rotates at
+    ``(h_z + 1) sin(phi)`` rad/s and zooms at ``(h_z + 1) cos(phi) - 1`` per s, which are
+    phi and hz only when both are small (se2 / similarity give the rates themselves).
+    div f = 2 - 2 (h_z + 1) cos(phi) (A.25)."""
 
     #: The divergence is the same for every event ((3.10), (A.25)): the collapse
     #: penalties evaluate it once.
