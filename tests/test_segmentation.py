@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evmotion.errors import ParameterError
+from evmotion.errors import ParameterError, PoorFitWarning
 from evmotion.events import EventArray
-from evmotion.methods.segmentation import segment_motion
+from evmotion.methods.segmentation import MIN_CLUSTER_GAIN, segment_motion
 
 
 def two_motions(seed=0, n=6000):
@@ -36,6 +36,25 @@ def test_two_translations_are_separated():
     assert seg.iwes.shape == (2, 80, 130)
     again = segment_motion(ev, n_warps=2, warp="translation", seed=0)
     np.testing.assert_array_equal(again.params, seg.params)
+    assert seg.valid.all() and (seg.gains > MIN_CLUSTER_GAIN).all()
+
+
+@pytest.mark.parametrize("kind", ["noise", "static"])
+def test_clusters_of_noise_or_no_motion_are_not_measurements(kind):
+    """On noise the clusters used to come back valid with parameters of tens of px/s."""
+    rng = np.random.default_rng(3)
+    n = 6000
+    t = np.sort(rng.integers(0, 40_000, n))
+    if kind == "noise":
+        x, y = rng.integers(0, 130, n), rng.integers(0, 80, n)
+    else:  # flickering dots that do not move
+        dots = rng.uniform([5, 5], [125, 75], (80, 2)).round()
+        k = rng.integers(0, 80, n)
+        x, y = dots[k, 0], dots[k, 1]
+    ev = EventArray(x, y, t, rng.integers(0, 2, n), (80, 130))
+    with pytest.warns(PoorFitWarning, match="no focus: cluster"):
+        seg = segment_motion(ev, n_warps=2, warp="translation", seed=0)
+    assert not seg.valid.any() and (seg.gains < MIN_CLUSTER_GAIN).all()
 
 
 def test_single_cluster_and_errors():

@@ -65,6 +65,7 @@ def run(args) -> int:
     from evmotion.cli.options import scheduler_client
     from evmotion.errors import EvmotionError
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
+    from evmotion.methods.segmentation import MIN_CLUSTER_EVENTS, MIN_CLUSTER_GAIN
     from evmotion.parallel import map_windows
     from evmotion.utils import atomic_path, atomic_write_bytes, atomic_write_text
 
@@ -103,7 +104,9 @@ def run(args) -> int:
                              "params": dict(zip(seg.param_names, map(float, seg.params[j]),
                                                 strict=True)),
                              "units": dict(zip(seg.param_names, seg.param_units,
-                                               strict=True))})
+                                               strict=True)),
+                             "contrast_gain": float(seg.gains[j]),
+                             "valid": bool(seg.valid[j])})
             pngs.append(out / f"window_{w.index:05d}.png")
             atomic_write_bytes(pngs[-1], panel)
     except BaseException:
@@ -111,14 +114,16 @@ def run(args) -> int:
         for path in pngs:
             path.unlink(missing_ok=True)
         raise
+    _warn_invalid(rows)
     buf = io.StringIO()
     wr = csv.writer(buf)
     names = list(rows[0]["params"])
     wr.writerow(["window", "t0_us", "t1_us", "cluster", "n_events",
-                 *[f"{n} [{rows[0]['units'][n]}]" for n in names]])
+                 *[f"{n} [{rows[0]['units'][n]}]" for n in names], "contrast_gain", "valid"])
     for r in rows:
         wr.writerow([r["window"], r["t0_us"], r["t1_us"], r["cluster"], r["n_events"],
-                     *[repr(r["params"][n]) for n in names]])
+                     *[repr(r["params"][n]) for n in names], repr(r["contrast_gain"]),
+                     int(r["valid"])])
     atomic_write_text(out / "clusters.csv", buf.getvalue())
     with atomic_path(out / "labels.npz") as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **labels)
@@ -127,13 +132,16 @@ def run(args) -> int:
     write_params_h5(out / "clusters.h5", ParamsTable(
         params, tuple(names), tuple(rows[0]["units"][n] for n in names),
         np.array([r["t0_us"] for r in rows]), np.array([r["t1_us"] for r in rows]),
-        (n_ev > 0) & np.isfinite(params).all(axis=1),
+        np.array([r["valid"] for r in rows]) & np.isfinite(params).all(axis=1),
         {"window": np.array([r["window"] for r in rows]),
          "cluster": np.array([r["cluster"] for r in rows]), "n_events": n_ev,
-         "empty": n_ev == 0},
+         "empty": n_ev == 0,
+         "contrast_gain": np.array([r["contrast_gain"] for r in rows])},
         {"n_events": "events"},
         {"window": "window index", "cluster": "cluster index (labels.npz)",
-         "n_events": "events assigned to the cluster", "empty": "flag: no event assigned"},
+         "n_events": "events assigned to the cluster", "empty": "flag: no event assigned",
+         "contrast_gain": "IWE variance at the cluster's parameters over unwarped (valid: "
+                          f">= {MIN_CLUSTER_GAIN} with >= {MIN_CLUSTER_EVENTS} events)"},
         {"method": "segment", "warp": args.warp, "grid": args.grid,
          "objective": args.objective, "warps": args.warps, "iterations": args.iterations,
          "seed": args.seed}))
@@ -146,17 +154,41 @@ def run(args) -> int:
     return 0
 
 
+def _warn_invalid(rows: list[dict]) -> None:
+    """One warning line per window whose clusters are not all measurements."""
+    import warnings
+
+    from evmotion.errors import PoorFitWarning
+
+    bad: dict[int, list[dict]] = {}
+    for r in rows:
+        if not r["valid"]:
+            bad.setdefault(r["window"], []).append(r)
+    for window, rs in bad.items():
+        what = ", ".join(f"{r['cluster']} ({r['n_events']} events, contrast gain "
+                         f"{r['contrast_gain']:.3f})" for r in rs)
+        warnings.warn(PoorFitWarning(
+            f"window {window}: cluster{'s' if len(rs) > 1 else ''} {what} sharpen"
+            f"{'' if len(rs) > 1 else 's'} nothing or hold too few events: not a measurement "
+            "(valid 0 in clusters.csv / clusters.h5)"), stacklevel=2)
+
+
 def _segment_job(events, **kwargs):
     """``(segmentation, PNG panel)`` of one window (each cluster's IWE), in a worker
     (module level, so that it pickles): the workers share the drawing and the client only
     writes the bytes (``benchmarks/results/cli_panels.md``). The result keeps no IWEs (a
     window's worth each to send back)."""
     import dataclasses
+    import warnings
 
+    from evmotion.errors import PoorFitWarning
     from evmotion.methods.segmentation import segment_motion
     from evmotion.viz import images
 
-    seg = segment_motion(events, **kwargs)
+    with warnings.catch_warnings():
+        # the client says which clusters are not measurements, once, whichever process
+        warnings.simplefilter("ignore", PoorFitWarning)
+        seg = segment_motion(events, **kwargs)
     panel = images.panel_png([images.iwe_to_rgb(img) for img in seg.iwes],
                              [f"cluster {j}" for j in range(len(seg.iwes))])
     return dataclasses.replace(seg, iwes=None), panel

@@ -32,13 +32,14 @@ Examples
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from evmotion.core.iwe import accumulate
 from evmotion.core.optim import gradient_minimize
-from evmotion.errors import ParameterError
+from evmotion.errors import ParameterError, PoorFitWarning
 from evmotion.events import EventArray, require_events
 from evmotion.methods.cmax import make_cost, param_scales
 
@@ -66,6 +67,13 @@ class SegmentationResult:
     history : ndarray (n_iter,)
         Sum over clusters of the focus (G/G0) after each M-step.
     seconds : float
+    gains : ndarray (n_warps,)
+        Each cluster's contrast gain: the variance of its IWE at its parameters over that
+        of its events unwarped (membership-weighted alike).
+    valid : ndarray (n_warps,) bool
+        Clusters that are measurements: at least :data:`MIN_CLUSTER_EVENTS` events and a
+        gain of at least :data:`MIN_CLUSTER_GAIN` (each other cluster is warned about: no
+        motion, noise, or a warp that fits nothing).
     """
 
     params: np.ndarray
@@ -78,6 +86,17 @@ class SegmentationResult:
     n_iter: int
     history: np.ndarray = field(repr=False)
     seconds: float
+    gains: np.ndarray = field(default_factory=lambda: np.empty(0))
+    valid: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
+
+
+#: Fewest events a cluster needs to be a measurement.
+MIN_CLUSTER_EVENTS = 50
+#: Least contrast gain of a cluster that is a measurement. Higher than one warp's
+#: :data:`~evmotion.methods.diagnostics.MIN_CONTRAST_GAIN`: the memberships are fitted to
+#: make each cluster sharp, which sharpens even noise (gains of 1.00-1.09 on pure noise and
+#: flicker, 1.46-2.5 for real motions: 2026-11-29, tests/test_segmentation.py).
+MIN_CLUSTER_GAIN = 1.2
 
 
 def _bilinear_sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -210,8 +229,26 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
             break
     iwes = np.stack([accumulate(*w.warp(cost.x, cost.y, cost.dt, params[j]), cost.shape,
                                 prob[:, j]) for j in range(n_warps)])
-    return SegmentationResult(params=params, labels=prob.argmax(axis=1), probabilities=prob,
+    labels = prob.argmax(axis=1)
+    gains, valid = np.empty(n_warps), np.zeros(n_warps, bool)
+    for j in range(n_warps):
+        still = np.var(accumulate(cost.x, cost.y, cost.shape, prob[:, j]))
+        gains[j] = np.var(iwes[j]) / still if still > 0 else np.nan
+        enough = int(np.sum(labels == j)) >= MIN_CLUSTER_EVENTS
+        if not enough:
+            warnings.warn(PoorFitWarning(
+                f"cluster {j} holds {int(np.sum(labels == j))} events (fewer than "
+                f"{MIN_CLUSTER_EVENTS}): its {w.name} parameters are not a measurement"),
+                stacklevel=2)
+        elif not gains[j] >= MIN_CLUSTER_GAIN:
+            warnings.warn(PoorFitWarning(
+                f"no focus: cluster {j}'s {w.name} warp sharpens its events by "
+                f"{100 * (gains[j] - 1):.1f} % only (threshold "
+                f"{100 * (MIN_CLUSTER_GAIN - 1):.0f} %): not a measurement"), stacklevel=2)
+        else:
+            valid[j] = True
+    return SegmentationResult(params=params, labels=labels, probabilities=prob,
                               iwes=iwes, param_names=tuple(w.param_names),
                               param_units=tuple(w.param_units), warp=w.name, n_iter=len(history),
                               history=np.asarray(history),
-                              seconds=time.perf_counter() - t_start)
+                              seconds=time.perf_counter() - t_start, gains=gains, valid=valid)
