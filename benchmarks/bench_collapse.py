@@ -101,8 +101,9 @@ def collapse_rows(quick: bool, duration_s: float = 0.05, warps=("zoom", "inplane
                 # in normalized time): TPE can reach the collapse, RCAD's barrier applies.
                 # The in-plane rotation rate of forward driving is small: +-1 rad/s (with
                 # +-8 rad/s, 600 samples miss the narrow 4-DOF collapse basin)
-                half = np.array([0.999 / span_s if u == "1/s" else
-                                 (1.0 if u == "rad/s" else 1500.0) for u in w.param_units])
+                half = np.array([0.999 / span_s if u in ("1/s", "1") else
+                                 (1.0 if u in ("rad/s", "rad") else 1500.0)
+                                 for u in w.param_units])
                 res = estimate_egomotion(ev, wname, obj, reg, optimizer="tpe", seed=0,
                                          t_ref=t_ref, maps=False, bounds=(-half, half),
                                          dataset=_dataset(dataset),

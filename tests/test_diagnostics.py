@@ -49,7 +49,8 @@ def forward():
     ev = sim.events
     span = (int(ev.t[-1]) - int(ev.t[0])) * 1e-6
     w = make_warp("inplane", SHAPE)
-    half = np.array([0.999 / span if u == "1/s" else (1.0 if u == "rad/s" else 1500.0)
+    # inplane's (vx, vy, phi, hz): hz (a factor, "1") up to just below collapse 1/T
+    half = np.array([0.999 / span if u == "1" else (1.0 if u == "rad" else 1500.0)
                      for u in w.param_units])
     return ev, (-half, half), sim.gt.params(int(ev.t[0]))["hz"]
 

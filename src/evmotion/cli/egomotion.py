@@ -267,7 +267,7 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
     rows. ``grid`` (which pixel grid the events were on) goes into params.h5's
     attributes."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
-    from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN, POOR_FIT_SHARE
+    from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN, MIN_FIT_EVENTS, POOR_FIT_SHARE
     from evmotion.utils import atomic_write_text
 
     ok = [(w, r) for w, r, err in results if err is None and r is not None]
@@ -293,9 +293,13 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
     collapsed = np.array([row["collapsed"] for row in rows], dtype=bool)
     share = np.array([_share(row) for row in rows])
     gain = np.array([row["diagnostics"].get("contrast_gain", np.nan) for row in rows])
-    # NaN (not checked) is not flagged; no focus (no contrast gain) is no fit either
-    poor_fit = (share < POOR_FIT_SHARE) | (gain < MIN_CONTRAST_GAIN)
+    few = np.array([bool(row["diagnostics"].get("too_few_events", False)) for row in rows])
+    # NaN (not checked) is not flagged; no focus (no contrast gain) is no fit either, nor
+    # a window of too few events for its contrast to mean anything
+    poor_fit = (share < POOR_FIT_SHARE) | (gain < MIN_CONTRAST_GAIN) | few
     valid = ~collapsed & ~poor_fit & np.isfinite(params).all(axis=1)
+    for k, row in enumerate(rows):
+        row["poor_fit"], row["valid"] = bool(poor_fit[k]), bool(valid[k])
     buf = io.StringIO()
     wr = csv.writer(buf)
     wr.writerow(["window", "t0_us", "t1_us", "t_ref_us", "n_events",
@@ -314,8 +318,8 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
             "n_events": ("events", "events in the window"), "cost": ("", "objective value"),
             "focus": ("", "focus term"), "penalty": ("", "regularizer term"),
             "collapsed": ("", "flag: the IWE collapsed"),
-            "poor_fit": ("", f"flag: explained_share < {POOR_FIT_SHARE} or contrast_gain < "
-                             f"{MIN_CONTRAST_GAIN}"),
+            "poor_fit": ("", f"flag: explained_share < {POOR_FIT_SHARE}, contrast_gain < "
+                             f"{MIN_CONTRAST_GAIN} or fewer than {MIN_FIT_EVENTS} events"),
             "explained_share": ("", "share of the image the warp explains"),
             "contrast_gain": ("", "contrast over the identity warp's")}
     values = {k: np.array([row[k] for row in rows]) for k in list(cols)[:6]}

@@ -81,6 +81,7 @@ from evmotion.methods.diagnostics import (
     warn_collapse,
     warn_no_gain,
     warn_poor_fit,
+    warn_too_few,
 )
 from evmotion.methods.options import merge_options
 
@@ -427,9 +428,12 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
         msgs.append(warn_poor_fit(fit, w.name, stacklevel=4))
     v0 = float(np.var(iwe_before))
     gain = float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan")
-    if not coll["collapsed"]:
+    too_few = warn_too_few(int(cost.x.shape[0]), w.name, stacklevel=4)
+    msgs.append(too_few)
+    if not coll["collapsed"] and too_few is None:
         msgs.append(warn_no_gain(gain, w.name, stacklevel=4))
     return {"collapse": coll, "fit": fit, "contrast_gain": gain,
+            "too_few_events": too_few is not None,
             "weight_source": weight_source, "warnings": [m for m in msgs if m]}
 
 
