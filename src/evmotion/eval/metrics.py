@@ -408,23 +408,31 @@ def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | 
 
 
 def events_where_defined(events: EventArray, flow: np.ndarray) -> EventArray:
-    """The events at pixels where ``flow`` (H, W, 2) is finite: what :func:`fwl` can warp
-    when the flow is undefined somewhere (NaN outside a BOS ROI, "unknown" in a ``.flo``).
+    """The events whose bilinear flow lookup reads only finite pixels of ``flow`` (H, W, 2):
+    what :func:`fwl` can warp when the flow is undefined somewhere (NaN outside a BOS ROI,
+    "unknown" in a ``.flo``).
 
     Examples
     --------
-    >>> ev = EventArray(x=[0, 1], y=[0, 0], t=[0, 5], p=[1, 1], sensor_size=(1, 2))
-    >>> flow = np.zeros((1, 2, 2)); flow[0, 1] = np.nan
+    >>> ev = EventArray(x=[0, 1, 3], y=[0, 0, 0], t=[0, 5, 9], p=[1, 1, 1],
+    ...                 sensor_size=(1, 4))
+    >>> flow = np.zeros((1, 4, 2)); flow[0, 1] = np.nan   # read by the events at x 0 and 1
     >>> events_where_defined(ev, flow).x.tolist()
-    [0]
+    [3]
     """
     known = np.isfinite(flow).all(axis=-1)
     if known.all() or not len(events):
         return events
     h, w = known.shape
-    xi = np.clip(np.rint(events.x).astype(np.int64), 0, w - 1)
-    yi = np.clip(np.rint(events.y).astype(np.int64), 0, h - 1)
-    return events[known[yi, xi]]
+    # the four pixels the bilinear lookup of warp_by_flow reads (a zero weight on a NaN
+    # neighbour is still NaN)
+    xf = np.clip(events.x.astype(np.float64), 0.0, w - 1.0)
+    yf = np.clip(events.y.astype(np.float64), 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(xf).astype(np.int64), max(w - 2, 0))
+    y0 = np.minimum(np.floor(yf).astype(np.int64), max(h - 2, 0))
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    ok = known[y0, x0] & known[y0, x1] & known[y1, x0] & known[y1, x1]
+    return events[ok]
 
 
 def fwl(

@@ -207,13 +207,14 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
                          out_px=out_px)
         row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), **m.as_dict(),
                "AE_rad": float(np.radians(m.ae_deg)), "gt_frames": round(frames, 2)}
+        gt_flow = (disp_gt / ((t1 - t0) * 1e-6)).astype(np.float32)
         if win is not None:
-            # the events where the estimate is defined, for both FWLs alike
-            win = events_where_defined(win, flow[i])
+            # the events where the estimate and the ground truth are defined, for both
+            # FWLs alike
+            win = events_where_defined(events_where_defined(win, flow[i]), gt_flow)
         if win is not None and len(win) > 1:
             row["FWL"] = fwl(win, flow[i], t_ref_us=(int(t0) + int(t1)) // 2)
-            row["FWL_gt"] = fwl(win, (disp_gt / ((t1 - t0) * 1e-6)).astype(np.float32),
-                                t_ref_us=(int(t0) + int(t1)) // 2)
+            row["FWL_gt"] = fwl(win, gt_flow, t_ref_us=(int(t0) + int(t1)) // 2)
         rows.append(m)
         per_window.append(row)
     if not rows:
