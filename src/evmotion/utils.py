@@ -72,6 +72,31 @@ def forget_kept_for_resume() -> None:
     _KEPT_FOR_RESUME.clear()
 
 
+class NoRoomError(OSError):
+    """The device has no room for the next write (checked before it, so what was written
+    so far is intact, unlike a write that fails half-way)."""
+
+
+# what a write may add beyond its arrays (HDF5 metadata, chunk indexes)
+_WRITE_MARGIN = 1 << 20
+
+
+def ensure_room(path: str | os.PathLike, nbytes: int) -> None:
+    """Raise :class:`NoRoomError` (errno ENOSPC) when the file system of ``path`` has less
+    than ``nbytes`` (plus 1 MiB) free: before a streamed write, so that a full device
+    stops it between two writes instead of in the middle of one (where libhdf5 leaves a
+    damaged file, prints tracebacks and may crash the process at exit)."""
+    import errno
+    import shutil
+
+    path = Path(path)
+    free = shutil.disk_usage(path.parent if path.parent.exists() else ".").free
+    if nbytes + _WRITE_MARGIN > free:
+        raise NoRoomError(errno.ENOSPC, f"no space left on the device for {path}: the next "
+                          f"write needs up to {(nbytes + _WRITE_MARGIN) / 2**20:.1f} MiB, "
+                          f"{free / 2**20:.1f} MiB are free")
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)

@@ -161,10 +161,57 @@ def _build_and_run(argv: list[str] | None) -> int:
     except OSError as exc:
         # a file system refusal that the checks before the work could not foresee
         # (the disk filled up, a folder removed meanwhile): one line, not a traceback
-        print(f"evmotion {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"evmotion {args.command}: error: {_one_line(exc)}{_dropped_parts(exc)}",
+              file=sys.stderr)
+        return 1
+    except RuntimeError as exc:
+        if not disk_full(exc):
+            raise
+        # h5py reports a failed write as RuntimeError ("... errno = 28 ...")
+        print(f"evmotion {args.command}: error: no space left on the device while writing: "
+              f"{_one_line(exc)[:300]}{_dropped_parts(exc)}", file=sys.stderr)
         return 1
     finally:
         warnings.showwarning = _PY_SHOWWARNING
+
+
+def disk_full(exc: BaseException | None) -> bool:
+    """Whether ``exc`` (or an exception it was raised from) is a write that found the
+    device full: an OSError with ENOSPC, or h5py's RuntimeError quoting errno 28."""
+    import errno
+
+    seen = 0
+    while exc is not None and seen < 10:
+        if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+            return True
+        if isinstance(exc, RuntimeError) and ("errno = 28" in str(exc)
+                                              or "No space left on device" in str(exc)):
+            return True
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return False
+
+
+def _dropped_parts(exc: BaseException) -> str:
+    """After a full device: remove the partial outputs kept for ``--resume`` (their last
+    write failed, so they cannot be trusted) and say so."""
+    utils = sys.modules.get("evmotion.utils")
+    if not disk_full(exc) or utils is None:
+        return ""
+    if isinstance(exc, utils.NoRoomError):
+        # stopped before the write that would not fit: what was written is intact
+        kept = utils.kept_for_resume()
+        return (f"; the work done so far is kept in {', '.join(map(str, kept))}: free space "
+                "and run the same command with --resume" if kept else "")
+    gone = []
+    for path in utils.kept_for_resume():
+        try:
+            path.unlink()
+            gone.append(str(path))
+        except OSError:
+            pass
+    utils.forget_kept_for_resume()
+    return (f"; removed the partial output {', '.join(gone)} (its last write failed): free "
+            "space and run again" if gone else "")
 
 
 def _one_line(exc: BaseException) -> str:
@@ -252,6 +299,8 @@ def _unraisable(hook_args) -> None:
     """A Ctrl-C whose KeyboardInterrupt was raised where Python ignores exceptions (a
     weakref callback, ``__del__``): instead of "Exception ignored ..." and a run that
     goes on, deliver it again, to land in the work and unwind it."""
+    if disk_full(hook_args.exc_value):
+        return  # an h5py object failing to flush on a full device: the error says so once
     if isinstance(hook_args.exc_value, KeyboardInterrupt) and os.getpid() == _MAIN_PID[0]:
         import _thread  # the documented low-level API: starts without waiting here
 

@@ -38,7 +38,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import h5_compression
-from evmotion.utils import atomic_path
+from evmotion.utils import atomic_path, ensure_room
 
 __all__ = ["EVENT_FLOW_COLUMNS", "EVENT_FLOW_FORMAT", "EventFlow", "EventFlowWriter",
            "describe_event_flow",
@@ -137,6 +137,7 @@ class EventFlowWriter(PartFileWriter):
         m = n.pop()
         if m == 0:
             return
+        ensure_room(self.path, sum(np.asarray(v).nbytes for v in columns.values()))
         for k, dt in EVENT_FLOW_COLUMNS:
             a = np.ascontiguousarray(columns[k], dtype=dt)
             if self.kind == ".npz":

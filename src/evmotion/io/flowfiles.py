@@ -36,7 +36,7 @@ from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs, read_attrs_many
 from evmotion.io.h5filters import h5_compression
 from evmotion.io.pngfile import read_png, write_png
-from evmotion.utils import atomic_path
+from evmotion.utils import atomic_path, ensure_room
 
 __all__ = [
     "FLO_MAGIC",
@@ -383,6 +383,8 @@ class FlowWriter(PartFileWriter):
                                  f"{self.sensor_size}")
         if int(t1) < int(t0):
             raise ParameterError(f"window end t1={t1} us is before t0={t0} us")
+        ensure_room(self.part, arr.nbytes + arr.shape[0] * arr.shape[1]
+                    + sum(np.asarray(v).nbytes for v in (values or {}).values()))
         if self.with_valid and valid is None:
             valid = np.isfinite(arr).all(axis=2)
         elif not self.with_valid and valid is not None:
@@ -421,7 +423,10 @@ class FlowWriter(PartFileWriter):
     def abort(self) -> None:
         """Close without renaming: the ``.part`` file stays for ``resume=True``."""
         if self.f.id.valid:
-            self.f.close()
+            try:
+                self.f.close()
+            except RuntimeError:  # its flush failed again (a full device): the caller says
+                pass
 
 
 @dataclass(frozen=True)

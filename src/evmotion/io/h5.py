@@ -34,6 +34,7 @@ from evmotion.io.base import FormatSpec, PartFileWriter
 from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
 from evmotion.io.h5attrs import read_attrs, text_attr
 from evmotion.io.h5filters import HDF5_MAGIC, filter_error, h5_compression
+from evmotion.utils import ensure_room
 
 __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
            "read_imu", "FORMAT", "FORMAT_NAME"]
@@ -126,6 +127,7 @@ class EventWriter(PartFileWriter):
         if tuple(events.sensor_size) != self.sensor_size:
             raise ParameterError(f"chunk sensor_size {events.sensor_size} differs from the "
                                  f"file's {self.sensor_size}")
+        ensure_room(self.part, sum(a.nbytes for a in (events.x, events.y, events.t, events.p)))
         t = events.t
         if self.t_last is not None and t[0] < self.t_last:
             raise ParameterError(f"chunk starts at t={t[0]} us, before the previous chunk's "
@@ -172,7 +174,10 @@ class EventWriter(PartFileWriter):
 
     def abort(self) -> None:
         if self.f.id.valid:
-            self.f.close()
+            try:
+                self.f.close()
+            except RuntimeError:  # a flush that fails again (a full device): drop the file
+                pass
         if self.part.exists():
             self.part.unlink()
 
@@ -218,10 +223,10 @@ def write(path: str | os.PathLike, events: EventArray | Iterable[EventArray], *,
             g = w.f.create_group("imu")
             for k, v in imu.items():
                 g.create_dataset(k, data=np.asarray(v))
+        w.close()  # its flush can fail too (a full device): the .part goes then
     except BaseException:
         w.abort()
         raise
-    w.close()
 
 
 def _open(path: Path):

@@ -1,0 +1,91 @@
+"""A device that fills up during a run: the streamed HDF5 writers stop before the write that
+would not fit (libhdf5 failing half-way through a write printed tracebacks, left damaged
+files and crashed the process at exit), the command says so in one line, and a flow run
+resumes to the output an uninterrupted run writes once there is room."""
+
+from __future__ import annotations
+
+import shutil
+from collections import namedtuple
+
+import numpy as np
+import pytest
+
+from evmotion.cli import disk_full, main
+from evmotion.errors import EvmotionError
+from evmotion.io.flowfiles import read_flow_h5
+from evmotion.utils import NoRoomError, ensure_room
+
+Usage = namedtuple("Usage", "total used free")
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory):
+    d = tmp_path_factory.mktemp("full")
+    path = d / "sim.h5"
+    assert main(["simulate", "translation", "--size", "60x80", "--duration", "0.06",
+                 "--out", str(path)]) == 0
+    return path
+
+
+def _room_for(monkeypatch, n_writes: int) -> None:
+    """A device with room for ``n_writes`` more streamed writes."""
+    real, calls = shutil.disk_usage, [0]
+
+    def usage(path):
+        calls[0] += 1
+        u = real(path)
+        return Usage(u.total, u.used, u.free if calls[0] <= n_writes else 1024)
+
+    monkeypatch.setattr(shutil, "disk_usage", usage)
+
+
+def test_ensure_room():
+    ensure_room(".", 0)
+    with pytest.raises(NoRoomError, match="no space left on the device"):
+        ensure_room(".", 1 << 62)
+    assert disk_full(NoRoomError(28, "x"))
+    assert disk_full(RuntimeError("file write failed: ... errno = 28, error message = ..."))
+    assert not disk_full(RuntimeError("something else"))
+
+
+def test_flow_stops_between_windows_and_resumes(rec, tmp_path, capsys, monkeypatch):
+    argv = ["flow", str(rec), "--window-events", "3000", "--max-windows", "5", "--scales", "2"]
+    ref = tmp_path / "ref.h5"
+    assert main([*argv, "--out", str(ref)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "f.h5"
+    _room_for(monkeypatch, 2)
+    assert main([*argv, "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    part = tmp_path / "f.h5.part"
+    assert err.count("\n") == 1 and "no space left on the device" in err
+    assert f"kept in {part}" in err and "--resume" in err and "Traceback" not in err
+    assert part.exists() and not out.exists()
+    monkeypatch.undo()
+    assert main([*argv, "--out", str(out), "--resume"]) == 0
+    np.testing.assert_array_equal(read_flow_h5(out).flow, read_flow_h5(ref).flow)
+
+
+@pytest.mark.parametrize("command", ["convert", "simulate"])
+def test_event_writers_leave_nothing(rec, tmp_path, capsys, monkeypatch, command):
+    out = tmp_path / "o.h5"
+    argv = {"convert": ["convert", str(rec), str(out), "--chunk-events", "2000"],
+            "simulate": ["simulate", "rotation", "--size", "60x80", "--duration", "0.05",
+                         "--out", str(out)]}[command]
+    _room_for(monkeypatch, 1 if command == "convert" else 0)
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no space left on the device" in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_the_library_raises_an_oserror(rec, tmp_path, monkeypatch):
+    from evmotion.io import read_events, write_events
+
+    ev = read_events(rec)
+    _room_for(monkeypatch, 0)
+    with pytest.raises(OSError) as info:
+        write_events(tmp_path / "x.h5", ev)
+    assert isinstance(info.value, NoRoomError) and not isinstance(info.value, EvmotionError)
+    assert not list(tmp_path.iterdir())
