@@ -299,3 +299,32 @@ def test_a_window_one_microsecond_past_the_ground_truth_is_scored(recording, tmp
     t1 = int(g.t1[-1])
     res = evaluate_windows(g.flow[-1:], [t1 - 15_000], [t1 + 1], g)
     assert res.uncovered == 0 and res.windows[0]["AEE"] < 1e-3
+
+
+def test_resume_refuses_another_recording_or_distortion(recording, tmp_path, capsys):
+    """Resuming over another recording with the same times (mirrored), or with another
+    --dist (the grid names K only), was accepted and mixed two inputs in one file."""
+    import shutil
+
+    from evmotion.events import EventArray
+    from evmotion.io import read_events
+    from evmotion.io.registry import get_format
+
+    rec = tmp_path / "rec.dat"
+    shutil.copy(recording[0], rec)
+    out = tmp_path / "f.h5"
+    argv = ["--window-events", "4000", "--scales", "2", "--out", str(out)]
+    assert main(["flow", str(rec), *argv]) == 0
+    ev = read_events(rec)
+    # the same file name and times, other events: only the events tell
+    get_format("dat").write(rec, EventArray(ev.sensor_size[1] - 1 - ev.x.astype(int), ev.y,
+                                            ev.t, ev.p, ev.sensor_size))
+    capsys.readouterr()
+    assert main(["flow", str(rec), *argv, "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot resume" in err and "source_events" in err
+    k = ["--K", "100,100,60,45"]
+    assert main(["flow", str(rec), *k, "--dist=-0.1,0.01,0,0", *argv]) == 0
+    capsys.readouterr()
+    assert main(["flow", str(rec), *k, "--dist=-0.2,0.01,0,0", *argv, "--resume"]) == 2
+    assert "distortion=[-0.1, 0.01" in capsys.readouterr().err

@@ -201,6 +201,7 @@ def _check_space(out: Path, windows, sensor_size) -> None:
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.calib import undistort_for
+    from evmotion.events import fingerprint
     from evmotion.io import read_events
     from evmotion.utils import progress
 
@@ -212,7 +213,7 @@ def run(args) -> int:
         require_video()  # before the windows are computed and written, not after
     fmt = getattr(args, "format", None)
     events = read_events(args.file, **({"format": fmt} if fmt else {}))
-    events, _, grid = undistort_for(args, events)
+    events, cam, grid = undistort_for(args, events)
     windows = _windows(args, events)
     check_flow_out(out, len(windows))
     _check_space(out, windows, events.sensor_size)
@@ -245,6 +246,11 @@ def run(args) -> int:
                 return estimate_flow(ev, init=init, **kwargs)
         workers = args.workers
     attrs["grid"] = grid
+    # what --resume must find unchanged beside the options: the distortion removed (the
+    # grid names K only) and the events themselves
+    if cam is not None and grid.startswith("undistorted"):
+        attrs["distortion"] = [float(v) for v in cam.dist]
+    attrs["source_events"] = fingerprint(events)
     png_dir = Path(args.png_dir) if args.png_dir else None
     if png_dir is not None and not args.resume:
         remove_stale_pictures(png_dir, ("flow_", "flow_masked_", "iwe_tmid_",
