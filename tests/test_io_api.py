@@ -140,6 +140,13 @@ def test_frames_and_imu_from_any_format(tmp_path, shared_data):
     np.testing.assert_array_equal(fr.images[0], img)
     imu = aux.read_imu(tmp_path)
     assert imu.gyro.tolist() == [[0.1, 0.2, 0.3]] and imu.accel[0, 2] == 9.8
+    # given the events file, the IMU is the imu.txt beside it (the events file itself was
+    # parsed as an IMU table: a second pass over the whole recording, to fail)
+    imu = aux.read_imu(tmp_path / "events.txt", format="ecd")
+    assert imu.gyro.tolist() == [[0.1, 0.2, 0.3]]
+    (tmp_path / "imu.txt").unlink()
+    with pytest.raises(FormatError, match="no imu.txt beside"):
+        aux.read_imu(tmp_path / "events.txt", format="ecd")
     a4 = shared_data / "formats" / "davis346.aedat4"
     assert len(aux.read_imu(a4)) == 2363 and len(aux.read_frames(a4)) == 59
     with pytest.raises(FormatError, match="holds no APS frames"):

@@ -114,6 +114,12 @@ def read_imu(path: str | os.PathLike, format: str | None = None) -> ImuSequence:
     name, mod = _module(path, format)
     if not hasattr(mod, "read_imu"):
         raise FormatError(path, f"format '{name}' holds no IMU samples")
+    if name == "ecd" and path.is_file() and path.name != "imu.txt":
+        # an ECD events file: its IMU is the imu.txt beside it (reading the events file
+        # as an IMU table cost a second pass over the whole recording, to fail)
+        if not (path.parent / "imu.txt").is_file():
+            raise FormatError(path, "no imu.txt beside this ECD events file")
+        path = path.parent / "imu.txt"
     s = mod.read_imu(path)
     return ImuSequence(t=np.asarray(_get(s, "t"), np.int64),
                        gyro=np.asarray(_get(s, "gyro"), np.float64),
