@@ -892,3 +892,22 @@ def test_triplet_time_range_without_events_names_the_recordings_span(rec, capsys
     rc, err = _run(["flow", rec["rec"], "--method", "triplet", "--t0", "100", "--out",
                     str(rec["dir"] / "tr.h5")], capsys)
     _assert_one_line(rc, err, "no events with --t0 100 s", "the recording spans")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_workers_end_with_a_killed_parent(rec):
+    """kill -9 (the out-of-memory killer) of flow --workers 2 left both workers asleep for
+    good, holding their memory."""
+    p = _popen(["flow", rec["rec"], "--window-events", "300", "--workers", "2",
+                "--out", str(rec["dir"] / "k9.npz")])
+    deadline = time.time() + 60
+    while len(_alive_in_group(p.pid)) < 3 and time.time() < deadline and p.poll() is None:
+        time.sleep(0.1)
+    if p.poll() is not None:
+        pytest.skip("the run ended before its workers could be seen")
+    os.kill(p.pid, signal.SIGKILL)
+    p.communicate(timeout=60)
+    deadline = time.time() + 10
+    while _alive_in_group(p.pid) and time.time() < deadline:
+        time.sleep(0.1)
+    assert not _alive_in_group(p.pid)

@@ -17,6 +17,7 @@ import contextlib
 import os
 import pickle
 import statistics
+import sys
 import threading
 import time
 import traceback
@@ -459,9 +460,27 @@ def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_wind
 
 
 def _install_queue(queue) -> None:
-    """Worker process initializer: :func:`report_progress` goes to ``queue``."""
+    """Worker process initializer: :func:`report_progress` goes to ``queue``, and the
+    worker ends with the process that started it."""
     global _sink
     _sink = None if queue is None else (lambda index, n: queue.put((index, n)))
+    _die_with_parent()
+
+
+def _die_with_parent() -> None:
+    """Ask Linux to send SIGTERM to this process when its parent dies: a parent killed
+    outright (``kill -9``, the out-of-memory killer) left its workers asleep forever,
+    holding their memory. Elsewhere a no-op."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 def _relay(queue, live) -> None:
