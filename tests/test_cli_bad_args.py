@@ -654,6 +654,12 @@ def test_interrupted_h5_resumes_to_the_uninterrupted_output(rec, tmp_path, capsy
                                        f"in {part}: run the same command with --resume to "
                                        "continue\n")
     assert part.exists() and not out.exists()
+    # run again without --resume: refused, the interrupted run's windows stay (they were
+    # overwritten silently)
+    before = part.read_bytes()
+    rc, err = _run(base + ["--out", str(out)], capsys)
+    _assert_one_line(rc, err, str(part), "--resume", "delete it")
+    assert part.read_bytes() == before
     with h5py.File(part) as f:
         assert 2 <= f["t1"].shape[0] < n_calls
     # other windows: refused in one line, and the .part file is kept

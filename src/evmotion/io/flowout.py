@@ -313,6 +313,10 @@ class H5FlowOutput(FlowOutput):
         attrs = self.attrs
         self.part = self.path.with_name(self.path.name + ".part")  # FlowWriter's own name
         self.reopened_final = resume and self.path.exists() and not self.part.exists()
+        if not resume and self.part.exists():
+            # a fresh run would overwrite an interrupted run's windows at its first window
+            raise ParameterError(f"{self.part} holds the work of an interrupted run: add "
+                                 "--resume to continue it, or delete it to start again")
         if not resume:
             self.w = FlowWriter(self.path, self.sensor_size, with_valid=with_valid,
                                 attrs=attrs, compression=compression, extras=extras)
