@@ -329,6 +329,10 @@ class FlowWriter(PartFileWriter):
             try:
                 self.f = h5py.File(self.part, "a")
             except OSError as exc:
+                if "lock" in str(exc):  # HDF5's file lock: another program has it open
+                    raise FormatError(self.part, "cannot reopen to resume: another program "
+                                      "has it open (HDF5 file lock)",
+                                      "close it there and run again") from None
                 raise FormatError(self.part, f"cannot reopen to resume: {exc}",
                                   "delete it to start again") from None
             old = read_attrs(self.part, self.f, ("height", "width", "format"))
