@@ -131,7 +131,7 @@ def run(args) -> int:
     if fmt_out != "h5" and _has_calibration(src, first):
         dropped["calibration"] = (1, f"evmotion's '{fmt_out}' writer does not store it "
                                      "(convert to .h5 to keep it, or give the calibration "
-                                     "with --calib)")
+                                     "to the commands that read the output, with --calib)")
     for name, (n, why) in dropped.items():
         what = "calibration" if name == "calibration" else f"{n:,} {_AUX_NAMES[name]}"
         warn_line(f"{dst}: dropped the {what} of {src}: {why}")
