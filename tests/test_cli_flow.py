@@ -328,3 +328,15 @@ def test_resume_refuses_another_recording_or_distortion(recording, tmp_path, cap
     capsys.readouterr()
     assert main(["flow", str(rec), *k, "--dist=-0.2,0.01,0,0", *argv, "--resume"]) == 2
     assert "distortion=[-0.1, 0.01" in capsys.readouterr().err
+
+
+def test_pattern_output_onto_a_folder_is_refused_before_the_work(recording, tmp_path, capsys):
+    """A folder named like the second window's file: found after every window was
+    computed, with the first window's files left behind as a complete-looking set."""
+    path, _ = recording
+    (tmp_path / "f_001.flo").mkdir()
+    rc = main(["flow", str(path), "--window-events", "4000", "--max-windows", "3",
+               "--scales", "2", "--out", str(tmp_path / "f_{:03d}.flo")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "f_001.flo is a folder" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f_001.flo"]

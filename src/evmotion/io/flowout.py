@@ -468,6 +468,13 @@ class PerWindowFlowOutput(FlowOutput):
         super().__init__(path, sensor_size, attrs or {})
         self.container = check_flow_output(self.path, n_windows)
         self.pattern = is_pattern(self.path)
+        names = ([window_path(self.path, i) for i in range(n_windows or 0)] if self.pattern
+                 else [self.path])
+        for name in names:
+            for target in (name, sidecar_path(name)):
+                if target.is_dir():  # found before the work, not when moving its files in
+                    raise ParameterError(f"--out {self.path}: {target} is a folder; choose "
+                                         "another name")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         stem = self.path.name.split("{")[0] or "flow"
         self.stage: Path | None = Path(tempfile.mkdtemp(prefix=f".{stem}.", suffix=".part",
