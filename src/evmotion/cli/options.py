@@ -607,14 +607,27 @@ def scheduler_client(address: str | None, timeout_s: float | None = None):
     if address is None:
         yield None
         return
+    import logging
+
     from evmotion.parallel import connect_scheduler
 
     client = connect_scheduler(address, SCHEDULER_TIMEOUT_S if timeout_s is None else timeout_s)
+    # a scheduler lost mid-run is reported in one line by the command; distributed's own
+    # log of it (tens of traceback lines) would come first
+    quiet = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict)
+             if name.split(".")[0] == "distributed"]
+    was = [lg.disabled for lg in quiet]
+    for lg in quiet:
+        lg.disabled = True
     try:
         _warn_slow_workers(client, address)
         yield client
     finally:
-        client.close()
+        try:
+            client.close()
+        finally:
+            for lg, disabled in zip(quiet, was, strict=True):
+                lg.disabled = disabled
 
 
 def cluster_threads(client) -> int:
