@@ -111,6 +111,14 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _above_the_bar(line: str) -> None:
+    """An epoch's line on stderr, above the progress bar (printed plainly it was glued to
+    the end of the bar's line)."""
+    from tqdm.auto import tqdm
+
+    tqdm.write(line, file=sys.stderr)
+
+
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.methods.dnn import require_torch
@@ -133,7 +141,7 @@ def run(args) -> int:
     bar = sys.stderr.isatty() or os.environ.get("EVMOTION_PROGRESS") == "1"
     try:
         summary = train(cfg, args.out, resume=args.resume, show_progress=bar,
-                        log=lambda line: print(line, file=sys.stderr, flush=True))
+                        log=_above_the_bar)
     except KeyboardInterrupt:
         last = Path(args.out) / "last.pt"
         if last.exists():

@@ -271,25 +271,31 @@ class FlowOutput(PartFileWriter):
     def abort(self) -> None:
         raise NotImplementedError
 
+    def stored_at(self) -> Path:
+        """The file a resumed output's windows are in (``OUT.part`` until it is complete)."""
+        return self.path
+
     def check_count(self, n_windows: int) -> None:
         """The run makes ``n_windows``: a resumed output must not hold more."""
         if len(self.done) > n_windows:
+            where = self.stored_at()
             self.abort()
-            raise ParameterError(f"cannot resume (--resume): {self.path} holds "
+            raise ParameterError(f"cannot resume (--resume): {where} holds "
                                  f"{len(self.done)} windows, this run makes {n_windows}; "
                                  "repeat the options of the first run, or start again")
 
     def check_done(self, index: int, t0: int, t1: int) -> None:
         """Raise ParameterError if window ``index`` of this run is not the ``index``-th
         window of the resumed output (other windowing options, or another recording)."""
+        where = self.stored_at()
         if index >= len(self.done):
             self.abort()
             raise ParameterError(f"cannot resume (--resume): this run skipped window {index}, "
-                                 f"which {self.path} does not hold")
+                                 f"which {where} does not hold")
         if (int(t0), int(t1)) != tuple(self.done[index]):
             self.abort()
             a, b = self.done[index]
-            raise ParameterError(f"cannot resume (--resume): window {index} of {self.path} is "
+            raise ParameterError(f"cannot resume (--resume): window {index} of {where} is "
                                  f"[{a}, {b}) µs but this run makes [{t0}, {t1}) µs; repeat "
                                  "the windowing options of the first run, or start again")
 
@@ -342,6 +348,9 @@ class H5FlowOutput(FlowOutput):
                                  f"(valid masks: {self.w.with_valid}); start again")
         t1 = np.asarray(self.w.f["t1"][: self.w.n_done])
         self.done = list(zip(np.asarray(self.w.done_t0).tolist(), t1.tolist(), strict=True))
+
+    def stored_at(self) -> Path:
+        return self.path if self.reopened_final else self.part
 
     def stored_flow(self, index: int) -> np.ndarray:
         """Flow (H, W, 2) float32 px/s of a window already in the file, as written."""
