@@ -69,6 +69,7 @@ def run(args) -> int:
 
     import evmotion.io as eio
     from evmotion.cli import print_json, warn_line
+    from evmotion.cli.options import header_event_count
     from evmotion.errors import ParameterError
     from evmotion.utils import progress
 
@@ -98,13 +99,20 @@ def run(args) -> int:
         else:
             it = eio.iter_events(src, args.chunk_events, format=fmt_in, t0=args.t0,
                                  t1=args.t1, **kw)
-        for chunk in progress(it, desc="convert", unit="chunk"):
-            if len(chunk):
-                counted["n"] += len(chunk)
-                if counted["t_first"] is None:
-                    counted["t_first"] = int(chunk.t[0])
-                counted["t_last"] = int(chunk.t[-1])
-            yield chunk
+        # events, not chunks, with the total when the header states it (rate and ETA)
+        bar = progress(None, total=header_event_count(src, fmt_in, args.t0, args.t1),
+                       desc="convert", unit="ev", unit_scale=True)
+        try:
+            for chunk in it:
+                if len(chunk):
+                    counted["n"] += len(chunk)
+                    if counted["t_first"] is None:
+                        counted["t_first"] = int(chunk.t[0])
+                    counted["t_last"] = int(chunk.t[-1])
+                    bar.update(len(chunk))
+                yield chunk
+        finally:
+            bar.close()
 
     opts = {}
     if fmt_out == "h5":

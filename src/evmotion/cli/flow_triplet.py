@@ -133,6 +133,7 @@ def check_args(args) -> None:
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.calib import undistorted_chunks
+    from evmotion.cli.options import header_event_count
     from evmotion.jitcache import compile_seconds
     from evmotion.methods.triplet import default_ridge, dense_defaults
     from evmotion.methods.triplet_stream import TripletStream
@@ -202,7 +203,9 @@ def run(args) -> int:
                                      compression="lz4")
         if getattr(dense_out, "done", None):
             tri = stream(skip=len(dense_out.done))
-    bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True)
+    bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True,
+                   total=header_event_count(args.file, getattr(args, "format", None),
+                                            getattr(args, "t0", None), getattr(args, "t1", None)))
     n_events = n_valid = n_trip = n_windows = 0
     t_first = t_last = int(first.t[0])
     wall0 = time.perf_counter()

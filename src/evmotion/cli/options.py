@@ -499,6 +499,22 @@ def resolve_relative_times(args: argparse.Namespace) -> None:
         setattr(args, n, int(first.t[0]) + int(getattr(args, n)))
 
 
+def header_event_count(path, fmt: str | None, t0: int | None = None,
+                       t1: int | None = None) -> int | None:
+    """The event count a recording's header states, for a progress bar's total and ETA
+    (None when it states none, or when ``t0``/``t1`` select part of it)."""
+    if t0 is not None or t1 is not None:
+        return None
+    from evmotion.errors import EvmotionError
+    from evmotion.io import describe
+
+    try:
+        n = describe(path, format=fmt, stream=False).get("n_events")
+        return int(n) if n is not None and int(n) > 0 else None
+    except (EvmotionError, TypeError, ValueError):
+        return None
+
+
 def check_time_order(args) -> None:
     """``--t1`` must be after ``--t0`` (before anything is read); raises ParameterError."""
     t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
