@@ -9,6 +9,7 @@ import pytest
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray
 from evmotion.methods.kymogram import (
+    RELIABLE_SPREAD,
     Kymogram,
     KymoLine,
     fit_correlation,
@@ -236,6 +237,25 @@ def test_correlation_fit_many_streaks_vs_ridge():
         fit_correlation(k, n_blocks=1)
     with pytest.raises(EmptyWindowError, match="max_lag_s"):
         fit_correlation(k, min_shift_px=500.0)
+
+
+def test_a_ridge_jumping_between_streaks_is_unreliable():
+    """Six parallel bars at 120 px/s: the per-bin ridge jumps between them; its standard
+    error alone passed (75 +- 15 px/s, marked reliable, in a new user's scene), the RMS
+    residual of its points off the line tells."""
+    rng = np.random.default_rng(0)
+    t = np.arange(1200) / 1200.0
+    data = np.zeros((t.size, 400))
+    for k in range(6):
+        for edge in (-2, 2):
+            data[np.arange(t.size), np.rint(20 + 50 * k + 120 * t + edge).astype(int)] += 0.5
+    k = Kymogram(rng.poisson(data).astype(np.float32), t, np.arange(400.0),
+                 KymoLine.column(0, (400, 1)), 1200.0, "events")
+    ridge = fit_ridge(k)
+    assert ridge.velocity_std_px_s <= RELIABLE_SPREAD * abs(ridge.velocity_px_s)
+    assert ridge.residual_px > 50 and not ridge.reliable
+    corr = fit_correlation(k)
+    assert corr.reliable and corr.velocity_px_s == pytest.approx(120, rel=0.01)
 
 
 def _slow_textured(seed: int) -> Kymogram:

@@ -334,6 +334,8 @@ def run(args) -> int:
     if args.json:
         print_json(summary)
     else:
+        from evmotion.methods.kymogram import RELIABLE_SPREAD
+
         for row in summaries:
             text = f"{row['source']} at {row['rate_hz']:.4g} Hz {tuple(row['shape'])}: "
             if "velocity_px_s" in row:
@@ -341,7 +343,11 @@ def run(args) -> int:
                 if "speed_m_s" in row:
                     text += f" (|v| = {row['speed_m_s']:.4g} m/s)"
                 if not row["reliable"]:
-                    text += " -- unreliable: the spread exceeds half the speed"
+                    text += (" -- unreliable: the spread exceeds half the speed"
+                             if row["velocity_std_px_s"]
+                             > RELIABLE_SPREAD * abs(row["velocity_px_s"])
+                             else f" -- unreliable: the ridge points lie {row['residual_px']:.3g}"
+                             " px (RMS) off the line (several streaks? --method correlation)")
             else:
                 text += row.get("fit_error", "no fit")
             print(text)
