@@ -215,3 +215,17 @@ def test_kymogram_out_of_range_names_the_recordings_span(rec, tmp_path, capsys):
     assert rc == 2 and len(err.strip().splitlines()) == 1
     ev = _events(4000)
     assert "--t0 7 s (7000000 µs)" in err and f"[{ev.t[0]}, {ev.t[-1]}] µs" in err
+
+
+def test_duration_windows_far_from_t0_or_across_a_pause():
+    """--t0 0.5 s on a recording whose clock reads 1.6e9 s made 3e10 empty windows first
+    (237 GiB asked of numpy); a pause of 2000 s at 1 ms windows, two million."""
+    t = np.r_[1_600_000_000_000_000 + np.arange(0, 5000, 10),
+              1_600_002_000_000_000 + np.arange(0, 5000, 10)]
+    ev = EventArray(np.zeros(t.size, int), np.zeros(t.size, int), t, np.ones(t.size, int),
+                    (4, 4))
+    wins = make_windows(ev, duration_us=1000, t0=500_000)
+    assert len(wins) == 10 and sum(w.count for w in wins) == t.size
+    assert all((w.t0 - 500_000) % 1000 == 0 and w.t1 - w.t0 == 1000 for w in wins[:-1])
+    assert wins[0].t0 <= t[0] < wins[0].t1 and wins[-1].t0 <= t[-1] < wins[-1].t1
+    assert wins[5].index - wins[4].index == 2_000_000_000 - 4

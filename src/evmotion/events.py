@@ -416,6 +416,24 @@ def fingerprint(events: EventArray, n: int = 1 << 16) -> str:
     return f"{len(events)} events, sha1 {h.hexdigest()[:16]}"
 
 
+def _occupied_windows(sub: EventArray, duration_us: int, t0: int | None) -> list[Window]:
+    """The windows of the grid ``t0 + k duration_us`` (``t0`` default the first event)
+    that hold events, each with its grid position as index: what
+    :meth:`EventArray.windows_by_duration` gives less its empty windows, without making
+    them (a ``t0`` long before a recording on an absolute clock, or a pause of hours, made
+    millions of empty windows first: minutes and gigabytes)."""
+    duration_us = whole_number("window duration (duration_us, µs)", duration_us, lo=1)
+    if not len(sub):
+        return []
+    start = sub.t_start if t0 is None else int(t0)
+    k = (sub.t - start) // duration_us
+    first = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
+    stop = np.r_[first[1:], len(sub)]
+    return [Window(int(k[a]), start + int(k[a]) * duration_us,
+                   start + (int(k[a]) + 1) * duration_us, int(a), int(b))
+            for a, b in zip(first, stop, strict=True)]
+
+
 def require_events(events, func: str) -> EventArray:
     """``events`` if it is an :class:`EventArray`, else :class:`ParameterError` naming
     ``func`` (a list or an array of rows would otherwise fail deep inside it).
@@ -612,7 +630,7 @@ def make_windows(events: EventArray, *, n_events: int | None = None,
         if n_events is not None:
             made = sub.windows_by_count(n_events)
         else:
-            made = sub.windows_by_duration(duration_us, t0=t0, t1=t1) if len(sub) else []
+            made = _occupied_windows(sub, duration_us, t0)
         # the last window ends with the recording (or t1): a duration window reaching
         # past the last event would state a longer interval than its events cover
         end = int(events.t[-1]) + 1 if t1 is None and len(events) else t1
