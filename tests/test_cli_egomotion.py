@@ -184,3 +184,29 @@ def test_a_rerun_leaves_no_stale_pictures(rec, tmp_path, capsys):
     assert main(flow + ["--window-us", "100000"]) == 0
     assert (png / "flow_00000.png").is_file() and not (png / "flow_00001.png").exists()
     capsys.readouterr()
+
+
+def test_sensor_size_of_a_text_file_without_one(tmp_path, capsys):
+    """Text events without a size got the ECD's 240x180 silently: the zoom warp then turned
+    about the wrong centre (hz 0.35 for 0.8 on a 128x128 recording); --sensor-size gives
+    the true one, in egomotion and flow alike."""
+    from evmotion.io import read_events
+
+    sim = tmp_path / "z.h5"
+    assert main(["simulate", "zoom", "--size", "100x100", "--duration", "0.05",
+                 "--out", str(sim)]) == 0
+    ev = read_events(sim)
+    txt = tmp_path / "z.txt"
+    np.savetxt(txt, np.c_[ev.t * 1e-6, ev.x, ev.y, ev.p], fmt=["%.6f", "%d", "%d", "%d"])
+    capsys.readouterr()
+    argv = ["egomotion", str(txt), "--warp", "zoom", "--window-events", "5000",
+            "--max-windows", "1", "--out", str(tmp_path / "o"), "--json"]
+    assert main(argv) == 0
+    assert "states no sensor size: taken as 240x180" in capsys.readouterr().err
+    assert main([*argv, "--sensor-size", "100", "100"]) == 0
+    cap = capsys.readouterr()
+    assert "states no sensor size" not in cap.err
+    assert main(["flow", str(txt), "--sensor-size", "100", "100", "--max-windows", "1",
+                 "--window-events", "5000", "--scales", "2", "--out",
+                 str(tmp_path / "f.h5"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["sensor_size"] == [100, 100]

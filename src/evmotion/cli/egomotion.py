@@ -26,6 +26,7 @@ from evmotion.catalog import OBJECTIVE_NAMES, WARP_NAMES, WEIGHT_DATASETS
 from evmotion.cli.calib import add_camera_arguments
 from evmotion.cli.options import (
     add_scheduler_argument,
+    add_sensor_size_argument,
     add_time_arguments,
     check_time_order,
     duration_us,
@@ -53,6 +54,7 @@ def add_common(p) -> None:
     """Arguments shared by ``egomotion``, ``landscape`` and ``segment`` (their choices from
     :mod:`evmotion.catalog`: the parser does not load the numerical core)."""
     p.add_argument("file", help="recording (any format evmotion reads, or an ECD folder)")
+    add_sensor_size_argument(p)
     p.add_argument("--warp", default="rotation", choices=sorted(WARP_NAMES),
                    help="motion model (default rotation)")
     p.add_argument("--objective", default="variance", choices=sorted(OBJECTIVE_NAMES),
@@ -123,16 +125,31 @@ def check_scheduler(args) -> None:
                              f"with --scheduler {args.scheduler}")
 
 
+def centred_warp(warp: str) -> bool:
+    """Whether a warp (without intrinsics) rotates or scales about the image centre, which
+    a wrong sensor size moves."""
+    return warp not in ("translation", "homography", "affine")
+
+
 def load_events_and_camera(args):
     """Read the recording and its camera (:func:`evmotion.cli.calib.camera_for`); undistort
     when the camera is distorted, unless ``--no-undistort``. Returns ``(events, camera)``
     and sets ``args.grid`` (which pixel grid the events are on)."""
     from evmotion.cli.calib import undistort_for
+    from evmotion.cli.options import read_kwargs
     from evmotion.io import read_events
 
-    kw = {"format": args.format} if args.format else {}
-    events = read_events(args.file, **kw)
+    events = read_events(args.file, **read_kwargs(args))
     events, cam, args.grid = undistort_for(args, events)
+    guessed = str(events.meta.get("sensor_size_from", ""))
+    if guessed.startswith("ECD default") and cam is None and centred_warp(args.warp):
+        # (a calibration says the sensor, as the ECD folders' calib.txt does)
+        from evmotion.cli import warn_line
+
+        h, w = events.sensor_size
+        warn_line(f"{args.file} states no sensor size: taken as {w}x{h} px ({guessed}); "
+                  f"the {args.warp} warp turns or scales about the image centre, so give "
+                  "the true size with --sensor-size H W")
     if cam is None and args.warp == "rotation":
         raise CalibrationError(f"{args.file}: the rotation warp needs camera intrinsics; "
                                "none found with the recording, pass --calib FILE or --K "

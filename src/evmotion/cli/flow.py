@@ -35,6 +35,7 @@ import time
 
 from evmotion.cli.calib import add_camera_arguments, check_camera_args
 from evmotion.cli.options import (
+    add_sensor_size_argument,
     add_time_arguments,
     check_time_order,
     duration_us,
@@ -111,6 +112,7 @@ def add_parser(sub) -> None:
                         "same sidecar); several .flo/.png windows need a pattern: "
                         "--out flow_{:05d}.flo")
     p.add_argument("--format", default=None, help="input format (default: detect)")
+    add_sensor_size_argument(p)
     win = p.add_mutually_exclusive_group()
     win.add_argument("--window-events", type=int_range(10), default=None, metavar="N",
                      help="events per window (>= 10; default 30000)")

@@ -201,6 +201,7 @@ def _check_space(out: Path, windows, sensor_size) -> None:
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.calib import undistort_for
+    from evmotion.cli.options import read_kwargs
     from evmotion.events import fingerprint
     from evmotion.io import read_events
     from evmotion.utils import progress
@@ -211,8 +212,7 @@ def run(args) -> int:
         from evmotion.viz.video import require_video
 
         require_video()  # before the windows are computed and written, not after
-    fmt = getattr(args, "format", None)
-    events = read_events(args.file, **({"format": fmt} if fmt else {}))
+    events = read_events(args.file, **read_kwargs(args))
     events, cam, grid = undistort_for(args, events)
     windows = _windows(args, events)
     check_flow_out(out, len(windows))

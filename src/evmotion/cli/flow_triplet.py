@@ -133,7 +133,7 @@ def check_args(args) -> None:
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.calib import undistorted_chunks
-    from evmotion.cli.options import header_event_count
+    from evmotion.cli.options import header_event_count, read_kwargs
     from evmotion.jitcache import compile_seconds
     from evmotion.methods.triplet import default_ridge, dense_defaults
     from evmotion.methods.triplet_stream import TripletStream
@@ -153,7 +153,7 @@ def run(args) -> int:
     gap_us = int(round(args.gap_ms * 1000))
     windows_made = args.dense_output or png_dir is not None
     chunks, grid = undistorted_chunks(
-        args, _iter_chunks(args.file, getattr(args, "format", None), args.chunk_events,
+        args, _iter_chunks(args.file, read_kwargs(args), args.chunk_events,
                            getattr(args, "t0", None), getattr(args, "t1", None)))
     first = next((c for c in chunks if len(c)), None)
     if first is None:
@@ -271,10 +271,9 @@ def run(args) -> int:
     return 0
 
 
-def _iter_chunks(path, fmt, chunk_events, t0=None, t1=None):
+def _iter_chunks(path, kw, chunk_events, t0=None, t1=None):
     import evmotion.io as eio
 
-    kw = {"format": fmt} if fmt else {}
     yield from eio.iter_events(path, chunk_events=chunk_events, t0=t0, t1=t1, **kw)
 
 

@@ -451,6 +451,26 @@ def _span(t_start: int, t_end: int) -> str:
     return (f"[{_seconds(t_start)}, {_seconds(t_end)}] s ([{int(t_start)}, {int(t_end)}] µs)")
 
 
+def add_sensor_size_argument(parser) -> None:
+    """``--sensor-size H W``: the input's sensor when its file does not state it (text
+    events otherwise get the ECD's 240x180, which puts the centre of rotation and zoom
+    warps in the wrong place) or states it wrongly."""
+    parser.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,
+                        metavar=("H", "W"),
+                        help="the input's sensor size (height width) when its file does not "
+                             "state it (text events default to the ECD's 240 x 180)")
+
+
+def read_kwargs(args) -> dict:
+    """The reader options of ``--format`` and ``--sensor-size``, as given."""
+    kw = {}
+    if getattr(args, "format", None):
+        kw["format"] = args.format
+    if getattr(args, "sensor_size", None):
+        kw["sensor_size"] = tuple(args.sensor_size)
+    return kw
+
+
 def add_time_arguments(parser, *, max_windows: bool = True, what: str = "windows") -> None:
     """``--t0``, ``--t1`` (seconds, or with a us/ms/s suffix; absolute, on the recording's
     clock) and, with ``max_windows``, ``--max-windows N``; check them against the recording

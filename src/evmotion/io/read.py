@@ -69,7 +69,8 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
 
 
 def _chunks(spec: FormatSpec, path: Path, chunk_events: int, t0, t1, kw) -> Iterator[EventArray]:
-    if spec.iter_chunks is None:
+    if spec.iter_chunks is None or not all(_accepts(spec.iter_chunks, k) for k in kw):
+        # a format that streams without the option (sensor_size of .npy) reads whole
         ev = spec.read(path, t0=t0, t1=t1, **kw)
         for s in range(0, len(ev), chunk_events):
             yield ev[s:s + chunk_events]
