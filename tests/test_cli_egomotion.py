@@ -210,3 +210,32 @@ def test_sensor_size_of_a_text_file_without_one(tmp_path, capsys):
                  "--window-events", "5000", "--scales", "2", "--out",
                  str(tmp_path / "f.h5"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["sensor_size"] == [100, 100]
+
+
+def test_landscape_says_what_its_minimum_is(tmp_path, capsys):
+    """On noise the curve is flat and its 'minimum at vx = 0' was printed as any other;
+    with --reg only the unregularized minimum was reported; a window shorter than asked
+    was not said."""
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(0)
+    n = 20000
+    noise = tmp_path / "noise.h5"
+    write_events(noise, EventArray(rng.integers(0, 80, n), rng.integers(0, 60, n),
+                                   np.sort(rng.integers(0, 100_000, n)), rng.integers(0, 2, n),
+                                   (60, 80)))
+    out = tmp_path / "l.png"
+    # (a range that keeps the events on the sensor: pushing noise off its edges raises the
+    # variance of what is left, a contrast that is no motion)
+    assert main(["landscape", str(noise), "--warp", "translation", "--param", "vx", "--range",
+                 "-5", "5", "--steps", "11", "--out", str(out), "--json"]) == 0
+    cap = capsys.readouterr()
+    doc = json.loads(cap.out)
+    assert doc["flat"] and doc["best_contrast_gain"] < 1.05 and "flat:" in cap.err
+    assert "holds 20,000 events, not the 30,000 asked" in cap.err
+    assert main(["landscape", str(noise), "--warp", "zoom", "--param", "hz", "--range", "-5",
+                 "30", "--steps", "15", "--reg", "divergence", "--out", str(out),
+                 "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["minimum_with_regularizer"] is not None

@@ -130,16 +130,34 @@ def run(args) -> int:
         lines += [",".join(repr(float(v)) for v in row)
                   for row in zip(values, *curves.values(), strict=True)]
         atomic_write_text(args.csv, "\n".join(lines) + "\n")
+    from evmotion.cli import warn_line
+    from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN
+
+    if args.window_events and len(events) < args.window_events:
+        warn_line(f"the window holds {len(events):,} events, not the {args.window_events:,} "
+                  "asked: the recording (or --t1) ends first")
     i_best = int(np.argmin(plain["cost"]))
     best = values[i_best]
     # a minimum on the range's edge may lie beyond it: not a measurement of the motion
     at_edge = i_best in (0, len(values) - 1)
     if at_edge:
-        from evmotion.cli import warn_line
-
         warn_line(f"the minimum ({name} = {best:.4g} {unit}) is at the edge of --range "
                   f"[{values[0]:.4g}, {values[-1]:.4g}]: the true one may lie beyond; "
                   "widen --range")
+    gain = float(np.max(plain["focus"])) if len(plain["focus"]) else float("nan")
+    flat = not gain >= MIN_CONTRAST_GAIN
+    if flat:
+        warn_line(f"flat: no {name} in the range sharpens the events by {100 * (MIN_CONTRAST_GAIN - 1):.0f} % "
+                  f"(best {100 * (gain - 1):.1f} %): its minimum is no measurement -- no motion "
+                  "along this parameter, too few events, or the other parameters (--theta) "
+                  "far off")
+    best_reg = None
+    if args.reg:
+        best_reg = float(values[int(np.argmin(curves[f"with {args.reg}"]))])
+        if abs(best_reg - best) > (values[1] - values[0]) * 1.5:
+            warn_line(f"{args.reg} moves the minimum from {name} = {best:.4g} to "
+                      f"{best_reg:.4g} {unit}: the one without a regularizer may be an event "
+                      "collapse (thesis Fig. 3.12)")
     if args.json:
         from evmotion.cli import print_json
 
@@ -149,8 +167,12 @@ def run(args) -> int:
                     "window": {"t0_us": int(events.t[0]), "t1_us": int(events.t[-1]) + 1,
                                "n_events": len(events)},
                     "grid": args.grid, "values": values, "curves": curves,
-                    "minimum": float(best), "minimum_at_edge": at_edge})
+                    "minimum": float(best), "minimum_at_edge": at_edge,
+                    "minimum_with_regularizer": best_reg,
+                    "best_contrast_gain": gain, "flat": flat})
     else:
-        print(f"{args.out}: minimum without regularizer at {name} = {best:.4g} {unit} "
-              f"(events on the {args.grid} grid)")
+        with_reg = (f"; with {args.reg} at {name} = {best_reg:.4g} {unit}"
+                    if best_reg is not None else "")
+        print(f"{args.out}: minimum without regularizer at {name} = {best:.4g} {unit}"
+              f"{with_reg} (events on the {args.grid} grid)")
     return 0
