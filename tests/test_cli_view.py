@@ -47,7 +47,7 @@ def test_time_slice_png_and_json(fake_reader, tmp_path, capsys):
     ev, calls = fake_reader
     out = tmp_path / "v.png"
     rc = main(["view", "rec.h5", "--t0", "1020000us", "--t1", "1050000us", "--out", str(out),
-               "--json"])
+               "--json", "--raw"])
     assert rc == 0
     summary = json.loads(capsys.readouterr().out)
     sl = ev.slice_time(1_020_000, 1_050_000)
@@ -59,11 +59,25 @@ def test_time_slice_png_and_json(fake_reader, tmp_path, capsys):
     assert calls[0][0] == "read" and calls[0][3:] == (1_020_000, 1_050_000)
 
 
+def test_the_default_picture_has_a_title_axes_and_colour_bar(fake_reader, tmp_path, capsys):
+    """The events' picture was the bare image: no time, count or scale on it."""
+    out = tmp_path / "a.png"
+    assert main(["view", "rec.h5", "--t0", "1020000us", "--t1", "1050000us", "--out",
+                 str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    img = read_png(out)
+    assert summary["image"] == {"height": img.shape[0], "width": img.shape[1]}
+    assert img.shape[0] > 2 * 30 and img.shape[1] > 2 * 40  # axes, title and bar around it
+    # the colour bar: a column running from white to black on the right
+    col = img[:, int(img.shape[1] * 0.8):].mean(axis=2)
+    assert col.min() < 100 and col.max() > 225
+
+
 def test_count_window_streams_and_polarity(fake_reader, tmp_path, capsys):
     ev, calls = fake_reader
     out = tmp_path / "p.png"
     rc = main(["view", "rec.raw", "--t0", "1010000us", "--window-events", "700",
-               "--out", str(out), "--polarity", "--scale", "2", "--json"])
+               "--out", str(out), "--polarity", "--scale", "2", "--json", "--raw"])
     assert rc == 0
     summary = json.loads(capsys.readouterr().out)
     sl = ev.slice_time(1_010_000, None)[:700]
@@ -110,7 +124,7 @@ def test_real_recording(shared_data, tmp_path, capsys, rel, size):
         pytest.skip(f"no reader for {rel} yet: {exc}")
     out = tmp_path / "real.png"
     assert main(["view", str(path), "--window-events", "5000", "--out", str(out),
-                 "--json"]) == 0
+                 "--json", "--raw"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["events"] == 5000
     assert summary["sensor_size"] == {"height": size[0], "width": size[1]}

@@ -61,6 +61,9 @@ def add_parser(sub) -> None:
     p.add_argument("--scale", type=positive_int(), default=1,
                    help="enlarge each pixel to SCALE x SCALE (nearest neighbour; the image "
                         f"may hold at most {format_bytes(MAX_IMAGE_BYTES)} as RGB)")
+    p.add_argument("--raw", action="store_true",
+                   help="write the bare image, one pixel per sensor pixel (times --scale), "
+                        "without title, axes and colour bar")
     p.add_argument("--window", type=int_range(0), default=None, metavar="K",
                    help="flow outputs: the window to draw, from 0 (default: the one holding "
                         "--t0, else the first)")
@@ -107,7 +110,8 @@ def run(args) -> int:
 
     from evmotion.cli import print_json
     from evmotion.errors import EmptyWindowError, EvmotionError
-    from evmotion.viz import event_histogram, iwe_to_rgb, save_png
+    from evmotion.utils import atomic_write_bytes
+    from evmotion.viz import event_histogram, event_picture_png, iwe_to_rgb, read_png, save_png
 
     check_time_order(args)
     out = Path(args.out)
@@ -149,10 +153,19 @@ def run(args) -> int:
                               int(info["t_last_us"]), "no events")
     check_scale(args.scale, ev.sensor_size)
     hist = event_histogram(ev, signed=args.polarity)
-    rgb = iwe_to_rgb(hist, polarity=args.polarity, percentile=args.percentile)
-    if args.scale > 1:
-        rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
-    save_png(out, rgb)
+    if args.raw:
+        rgb = iwe_to_rgb(hist, polarity=args.polarity, percentile=args.percentile)
+        if args.scale > 1:
+            rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
+        save_png(out, rgb)
+    else:
+        t0_s, t1_s = int(ev.t[0]) * 1e-6, (int(ev.t[-1]) + 1) * 1e-6
+        title = (f"{Path(args.file).name}: {len(ev):,} events, [{t0_s:.6g}, {t1_s:.6g}) s "
+                 f"({(t1_s - t0_s) * 1e3:.4g} ms)")
+        atomic_write_bytes(out, event_picture_png(hist, polarity=args.polarity,
+                                                  percentile=args.percentile, title=title,
+                                                  scale=args.scale))
+        rgb = read_png(out)
     if args.json:
         print_json({
             "file": str(args.file),
