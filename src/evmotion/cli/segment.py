@@ -181,6 +181,8 @@ def _segment_job(events, **kwargs):
     import dataclasses
     import warnings
 
+    import numpy as np
+
     from evmotion.errors import PoorFitWarning
     from evmotion.methods.segmentation import segment_motion
     from evmotion.viz import images
@@ -189,6 +191,15 @@ def _segment_job(events, **kwargs):
         # the client says which clusters are not measurements, once, whichever process
         warnings.simplefilter("ignore", PoorFitWarning)
         seg = segment_motion(events, **kwargs)
-    panel = images.panel_png([images.iwe_to_rgb(img) for img in seg.iwes],
-                             [f"cluster {j}" for j in range(len(seg.iwes))])
+    titles = []
+    for j in range(len(seg.iwes)):
+        values = " ".join(f"{n}={v:.3g}" for n, v in zip(seg.param_names, seg.params[j],
+                                                          strict=True))
+        units = "/".join(sorted(set(seg.param_units)))
+        flag = "" if seg.valid[j] else ", NOT VALID"
+        titles.append(f"cluster {j}: {values} {units}\n"
+                      f"{int(np.sum(seg.labels == j)):,} ev, gain {seg.gains[j]:.2f}{flag}")
+    t0_ms, t1_ms = int(events.t[0]) / 1e3, (int(events.t[-1]) + 1) / 1e3
+    panel = images.panel_png([images.iwe_to_rgb(img) for img in seg.iwes], titles,
+                             suptitle=f"{seg.warp}, [{t0_ms:.6g}, {t1_ms:.6g}) ms")
     return dataclasses.replace(seg, iwes=None), panel
