@@ -196,12 +196,22 @@ def _panel(r) -> bytes:
     from evmotion.viz import images
 
     panels = [images.iwe_to_rgb(r.iwe_before), images.iwe_to_rgb(r.iwe_after)]
-    titles = ["IWE identity", "IWE " + ", ".join(
-        f"{n}={v:.3g}" for n, v in zip(r.param_names, r.params, strict=True))]
+    parts = [f"{n}={v:.3g} {u}" for n, v, u in zip(r.param_names, r.params, r.param_units,
+                                                   strict=True)]
+    # two values to a line: the title stays within its panel
+    values = "\n".join(", ".join(parts[k:k + 2]) for k in range(0, len(parts), 2))
+    titles = ["IWE, zero motion", f"IWE warped\n{values}"]
     if "diwe" in r.maps:
-        panels += [_signed_rgb(r.maps["diwe"]), _signed_rgb(r.maps["iwa"] - 1.0)]
-        titles += ["DIWE (divergence)", "IWA - 1 (deformation)"]
-    return images.panel_png(panels, titles, ncols=2)
+        for name, img in (("DIWE (divergence)", r.maps["diwe"]),
+                          ("IWA - 1 (deformation)", r.maps["iwa"] - 1.0)):
+            peak = float(np.nanmax(np.abs(img))) if np.size(img) else 0.0
+            panels.append(_signed_rgb(img))
+            titles.append(f"{name}\n0 everywhere: none in a {r.warp}" if peak < 1e-12
+                          else f"{name}\nred +, blue -, full at +-{peak:.3g}")
+    t0_ms, t1_ms = r.window_us[0] / 1e3, r.window_us[1] / 1e3
+    return images.panel_png(panels, titles, ncols=2,
+                            suptitle=f"{r.warp}, {r.n_events:,} events, "
+                                     f"[{t0_ms:.6g}, {t1_ms:.6g}] ms")
 
 
 def run(args) -> int:
