@@ -207,6 +207,25 @@ _OPTION_NAMES = {"min_shift_px / stationary_px": "--stationary-px", "max_lag_s":
                  "s_range": "--s-range", "t_range": "--fit-t0/--fit-t1"}
 
 
+def _check_fit_region(args, kymo, t_start: float) -> None:
+    """--fit-t0/--fit-t1 and --s-range must select part of the kymogram (a region outside
+    it gave a run with exit code 0 and a message about 0 time bins)."""
+    from evmotion.errors import ParameterError
+
+    if args.no_fit:
+        return
+    span = float(kymo.t_s[-1]) + 0.5 / kymo.rate_hz - t_start
+    if args.fit_t0 is not None and args.fit_t0 >= span:
+        raise ParameterError(f"--fit-t0 {args.fit_t0:g} s is at or after the kymogram's end: "
+                             f"it spans {span:.6g} s from its start")
+    if args.fit_t1 is not None and args.fit_t1 <= 0:
+        raise ParameterError(f"--fit-t1 {args.fit_t1:g} s is at or before the kymogram's start")
+    length = float(kymo.s_px[-1]) if len(kymo.s_px) else 0.0
+    if args.s_range is not None and (args.s_range[0] > length or args.s_range[1] < 0):
+        raise ParameterError(f"--s-range {args.s_range[0]:g} {args.s_range[1]:g} px lies off "
+                             f"the line, which runs from 0 to {length:.4g} px")
+
+
 def _cli_names(text: str) -> str:
     import re
 
@@ -287,6 +306,7 @@ def run(args) -> int:
 
     fits, summaries = [], []
     t_start = float(kymos[0].t_s[0]) - 0.5 / kymos[0].rate_hz
+    _check_fit_region(args, kymos[0], t_start)
     for k in kymos:
         fit, error = None, None
         if not args.no_fit:
