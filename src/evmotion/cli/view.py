@@ -30,7 +30,7 @@ from evmotion.cli.options import (
 
 EXAMPLES = """examples:
   evmotion view rec.h5 --out events.png                       # first 30,000 events
-  evmotion view rec.raw --t0 0.01 --t1 0.012 --out slice.png --polarity   # 10 to 12 ms
+  evmotion view rec.raw --t0 +0.01 --t1 +0.012 --out slice.png --polarity   # 10 to 12 ms in
   evmotion view events.txt --t0 20ms --window-events 5000 --scale 2 --out w.png --json
   evmotion view bos.h5 --window 1 --out w1.png                # a flow output's window 1
 """
