@@ -238,11 +238,17 @@ def _cli_names(text: str) -> str:
 def _frames_kymogram(path, line, t0, t1):
     import numpy as np
 
-    from evmotion.errors import ParameterError
+    from evmotion.errors import FormatError, ParameterError
     from evmotion.io.frames import read_frames
     from evmotion.methods.kymogram import kymogram_from_frame_differences
 
-    fr = read_frames(path)
+    try:
+        fr = read_frames(path)
+    except FormatError as exc:
+        # the reader's hint names --format, the events' option: these are frames
+        raise ParameterError(f"--frames {path}: no frames read ({exc.message}); give an "
+                             "ECD-style folder (images.txt + images/), an AEDAT4 file with "
+                             "APS frames, or images with a timestamps file") from None
     t = np.asarray(fr.t, dtype=np.int64)
     sel = np.ones(t.size, bool)
     if t0 is not None:
