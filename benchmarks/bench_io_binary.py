@@ -33,7 +33,7 @@ def _row(name, path, fn, n_events, repeat, note=""):
 
 def main(quick: bool = False) -> list[dict]:
     harness.single_core()
-    from evmotion.io import aedat2, aedat4, dat, evt2, evt3, rosbag
+    from evmotion.io import aedat2, aedat3, aedat4, dat, evt2, evt3, rosbag
     from evmotion.io.prophesee import parse_raw_header
 
     repeat = 3 if quick else 15
@@ -73,6 +73,18 @@ def main(quick: bool = False) -> list[dict]:
     na4 = len(aedat4.read(a4))
     rows.append(_row("aedat4.read", a4, lambda: aedat4.read(a4), na4, repeat,
                      "LZ4 packets; file mostly frames"))
+    # AEDAT 3.1 (no shared sample): evt3.raw's events written by evmotion, in packets of
+    # the writer's 8192 events and of 256 (small packets cost per-packet work)
+    for events_per_packet in (aedat3.WRITE_PACKET_EVENTS, 256):
+        a3 = tmp / f"ev_{events_per_packet}.aedat"
+        default = aedat3.WRITE_PACKET_EVENTS
+        aedat3.WRITE_PACKET_EVENTS = events_per_packet
+        try:
+            aedat3.write(a3, ev3)
+        finally:
+            aedat3.WRITE_PACKET_EVENTS = default
+        rows.append(_row("aedat3.read", a3, lambda p=a3: aedat3.read(p), n3, repeat,
+                         f"evt3.raw's events, {events_per_packet} per packet"))
     bag = tmp / "evt2.bag"
     rosbag.write(bag, evt2.read(raw2))
     rows.append(_row("rosbag.read", bag, lambda: rosbag.read(bag), n2, repeat,
