@@ -21,10 +21,12 @@ Usage = namedtuple("Usage", "total used free")
 
 @pytest.fixture(scope="module")
 def rec(tmp_path_factory):
-    d = tmp_path_factory.mktemp("full")
-    path = d / "sim.h5"
-    assert main(["simulate", "translation", "--size", "60x80", "--duration", "0.06",
-                 "--out", str(path)]) == 0
+    from evmotion.io import write_events
+    from evmotion.sim import simulate
+
+    path = tmp_path_factory.mktemp("full") / "sim.h5"
+    write_events(path, simulate("translation", duration_s=0.06, sensor_size=(60, 80),
+                                show_progress=False).events)
     return path
 
 

@@ -230,12 +230,7 @@ def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> N
     h, w = events.sensor_size
     if chip is None:
         chip = {(180, 240): "DAVIS240C", (260, 346): "DAVIS346B"}.get((h, w), "DAVIS")
-    if events.x.dtype.kind == "f":
-        raise FormatError(None, "events have float (undistorted) coordinates; AEDAT 2.0 "
-                          "stores integer pixels")
-    if w > 1024 or h > 512:
-        raise FormatError(None, f"sensor_size {events.sensor_size} exceeds the DAVIS address "
-                          "range (512 rows, 1024 columns)")
+    binary.check_writable(events, "AEDAT 2.0 (DAVIS)", 512, 1024)
     if len(events) and (events.t[0] < 0 or events.t[0] >= 1 << 32):
         raise FormatError(None, f"first timestamp {events.t[0]} us is outside the u32 range",
                           "subtract a time offset first")

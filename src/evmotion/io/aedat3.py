@@ -238,19 +238,10 @@ def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
          block_bytes: int = binary.BLOCK_BYTES) -> EventArray:
-    """Read the polarity events of an AEDAT 3.1 / 3.0 file.
-
-    Parameters
-    ----------
-    path : path-like
-    t0, t1 : int, optional
-        Keep ``t0 <= t < t1`` (µs, as in the file).
-    sensor_size : (int, int), optional
-        ``(height, width)``; taken from the ``#Source`` device name otherwise.
-    validate : bool
-        Check sortedness and bounds.
-    block_bytes : int
-        Read granularity.
+    """Read the polarity events of an AEDAT 3.1 / 3.0 file: those with ``t0 <= t < t1``
+    (µs, as in the file) when given, on ``sensor_size`` ``(height, width)`` when given (else
+    the ``#Source`` device's), checked for order and bounds unless ``validate=False``,
+    ``block_bytes`` at a time.
 
     Examples
     --------
@@ -291,12 +282,7 @@ def write(path: str | Path, events: EventArray, *, device: str | None = None) ->
     if device is None:
         device = {(128, 128): "DVS128", (180, 240): "DAVIS240C", (260, 346): "DAVIS346B",
                   (480, 640): "DAVIS640"}.get((h, w), "evmotion")
-    if events.x.dtype.kind == "f":
-        raise FormatError(None, "events have float (undistorted) coordinates; AEDAT 3.1 "
-                          "stores integer pixels")
-    if w > 0x8000 or h > 0x8000:
-        raise FormatError(None, f"sensor_size {events.sensor_size} exceeds AEDAT 3.1's "
-                          "15-bit addresses")
+    binary.check_writable(events, "AEDAT 3.1", 0x8000, 0x8000)
     t = np.asarray(events.t, np.int64)
     if len(t) and t[0] < 0:
         raise FormatError(None, f"first timestamp {t[0]} us is negative; AEDAT 3.1 stores "

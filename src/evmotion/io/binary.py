@@ -248,6 +248,18 @@ def geometry_from_header(lines: list[str], path: Path, default: tuple[int, int] 
     return check_sensor_size(path, (height, width), "header geometry")
 
 
+def check_writable(events: EventArray, fmt: str, height: int, width: int) -> None:
+    """FormatError unless ``events`` fit a format that stores integer pixels of at most
+    ``height`` rows and ``width`` columns (``fmt`` names it in the message)."""
+    if events.x.dtype.kind == "f":
+        raise FormatError(None, f"events have float (undistorted) coordinates; {fmt} stores "
+                          "integer pixels")
+    h, w = events.sensor_size
+    if w > width or h > height:
+        raise FormatError(None, f"sensor_size {events.sensor_size} exceeds {fmt}'s address "
+                          f"range ({height} rows, {width} columns)")
+
+
 def header_bytes(lines: list[str]) -> bytes:
     return "".join(line + "\n" for line in lines).encode("latin-1")
 

@@ -129,22 +129,12 @@ def raw_blocks(path: Path, offset: int, t_offset: int, block_bytes: int, word: s
         yield x, y, t, p
 
 
-def check_writable(events: EventArray, limit: int) -> None:
-    if events.x.dtype.kind == "f":
-        raise FormatError(None, "events have float (undistorted) coordinates; this format "
-                          "stores integer pixels")
-    h, w = events.sensor_size
-    if w > limit or h > limit:
-        raise FormatError(None, f"sensor_size {events.sensor_size} exceeds this format's "
-                          f"{limit}-pixel address range")
-
-
 def write_raw(path: str | Path, events: EventArray, *, version: str, wrap_us: int,
               encode: Callable, word: str, header: dict | None = None) -> None:
     """Write an EVT ``version`` RAW file atomically: the ``%`` header (with ``header``'s
     extra keys and, past the ``wrap_us`` counter range, :data:`OFFSET_KEY`), then
     ``encode(events, t_base)`` as ``word`` words."""
-    check_writable(events, 2048)
+    binary.check_writable(events, f"EVT {version}", 2048, 2048)
     h, w = events.sensor_size
     t_base = int(events.t[0]) - int(events.t[0]) % wrap_us if len(events) else 0
     lines = [f"% evt {version}", f"% format EVT{version[0]};height={h};width={w}",
