@@ -475,7 +475,7 @@ def _timestamps(t) -> np.ndarray:
     a = np.asarray(t)
     if a.dtype == np.int64:
         return np.ascontiguousarray(a)
-    if a.dtype.kind not in "iuf" or a.dtype.kind == "b":
+    if a.dtype.kind not in "iuf":  # bool, strings, objects
         if a.size == 0:
             return np.empty(a.shape, np.int64)
         raise EventDataError(f"field 't' must be numeric (integer µs), got dtype {a.dtype}")

@@ -94,8 +94,9 @@ class SegmentationResult:
 MIN_CLUSTER_EVENTS = 50
 #: Least contrast gain of a cluster that is a measurement. Higher than one warp's
 #: :data:`~evmotion.methods.diagnostics.MIN_CONTRAST_GAIN`: the memberships are fitted to
-#: make each cluster sharp, which sharpens even noise (gains of 1.00-1.09 on pure noise and
-#: flicker, 1.46-2.5 for real motions: 2026-11-29, tests/test_segmentation.py).
+#: make each cluster sharp, which sharpens even noise (measured 2026-11-29 through the CLI:
+#: 1.00-1.09 on pure noise and flicker, 1.46-2.5 on moving scenes and an ECD window;
+#: tests/test_segmentation.py checks noise and static dots).
 MIN_CLUSTER_GAIN = 1.2
 
 

@@ -258,8 +258,8 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
 
     Examples
     --------
-    >>> event_picture_png(np.eye(8), title="8 events")[:8] == b"\x89PNG\r\n\x1a\n"
-    True
+    >>> event_picture_png(np.eye(8), title="8 events")[1:4]
+    b'PNG'
     """
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import LinearSegmentedColormap, Normalize
