@@ -45,6 +45,12 @@ from numba import njit
 from evmotion.core.warps import Warp
 from evmotion.errors import CollapseWarning, ParameterError, PoorFitWarning
 from evmotion.methods.flowresult import event_support  # here too: the checks of estimates
+from evmotion.methods.measured import (  # noqa: F401 (re-exported: callers import them here)
+    MIN_CONTRAST_GAIN,
+    MIN_FIT_EVENTS,
+    warn_no_gain,
+    warn_too_few,
+)
 
 __all__ = [
     "COLLAPSE_MAX_TOP_SHARE",
@@ -72,12 +78,6 @@ COLLAPSE_MAX_TOP_SHARE = 0.9
 
 #: Explained share below which the fit is poor (:func:`fit_diagnostics`).
 POOR_FIT_SHARE = 0.55
-# an estimate whose image of warped events is not this much sharper (variance ratio) than
-# the identity warp's measures nothing (a 3.3 ms ECD window: 1.002, its rotation wrong)
-MIN_CONTRAST_GAIN = 1.05
-#: Fewest events a window needs for its contrast to measure a motion: 20-30 events of a
-#: 2 rad/s rotation sharpened by 6-10 % at random parameters (2026-11-29).
-MIN_FIT_EVENTS = 100
 
 #: A tile supports the estimate when its sharpness under the estimate reaches this fraction
 #: of the best local translation's ...
@@ -402,34 +402,6 @@ def fit_diagnostics(x, y, dt, xw, yw, shape, tile: int | None = None) -> dict:
             "tile_support": [{"x0": r[0], "y0": r[1], "n_events": r[2], "S_estimate": r[3],
                               "S_static": r[4], "S_best": r[5], "supports": r[6]}
                              for r in rows]}
-
-
-def warn_no_gain(gain: float, warp: str, stacklevel: int = 3) -> str | None:
-    """Issue a :class:`~evmotion.errors.PoorFitWarning` when the estimate sharpens the
-    image of the events by less than :data:`MIN_CONTRAST_GAIN` (its variance over the
-    identity warp's): the window shows no motion the warp can measure; returns its
-    message (else None)."""
-    if not gain < MIN_CONTRAST_GAIN:  # NaN (no contrast at all) is collapse's to say
-        return None
-    msg = (f"no focus: the {warp} warp sharpens the image of the events by only "
-           f"{100 * (gain - 1):.1f} % (threshold {100 * (MIN_CONTRAST_GAIN - 1):.0f} %) -- "
-           "too few events, no motion, hot or flickering pixels, a window too short or too "
-           "long for the motion, or a local optimum (the tpe optimizer searches the whole "
-           "box); the estimate is not a measurement")
-    warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
-    return msg
-
-
-def warn_too_few(n_events: int, warp: str, stacklevel: int = 3) -> str | None:
-    """Issue a :class:`~evmotion.errors.PoorFitWarning` when a window holds fewer than
-    :data:`MIN_FIT_EVENTS` events: too few for a contrast to measure a motion (a handful
-    of events sharpen by chance); returns its message (else None)."""
-    if n_events >= MIN_FIT_EVENTS:
-        return None
-    msg = (f"too few events: {n_events} (fewer than {MIN_FIT_EVENTS}) cannot measure a "
-           f"{warp} motion; the estimate is not a measurement -- use longer windows")
-    warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
-    return msg
 
 
 def warn_poor_fit(diag: dict, warp: str, stacklevel: int = 3) -> str | None:

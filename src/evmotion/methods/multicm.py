@@ -58,7 +58,6 @@ from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, Window, require_events
 from evmotion.jitcache import compile_seconds
 from evmotion.methods import transport as tr
-from evmotion.methods.diagnostics import warn_no_gain
 from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
@@ -66,6 +65,7 @@ from evmotion.methods.flowresult import (
     estimate_or_skip,
     event_support,
 )
+from evmotion.methods.measured import warn_no_gain
 from evmotion.methods.options import merge_options
 from evmotion.utils import resolve_options, whole_number
 

@@ -22,13 +22,13 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, pixel_indices
-from evmotion.methods.diagnostics import warn_no_gain
 from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
     FlowResult,
     event_support,
 )
+from evmotion.methods.measured import warn_no_gain
 
 __all__ = ["estimate_flow_dnn", "predict_displacement", "sharpness"]
 
