@@ -147,10 +147,10 @@ def run(args) -> int:
     gain = float(np.max(plain["focus"])) if len(plain["focus"]) else float("nan")
     flat = not gain >= MIN_CONTRAST_GAIN
     if flat:
-        warn_line(f"flat: no {name} in the range sharpens the events by {100 * (MIN_CONTRAST_GAIN - 1):.0f} % "
-                  f"(best {100 * (gain - 1):.1f} %): its minimum is no measurement -- no motion "
-                  "along this parameter, too few events, or the other parameters (--theta) "
-                  "far off")
+        warn_line(f"flat: no {name} in the range sharpens the events by "
+                  f"{100 * (MIN_CONTRAST_GAIN - 1):.0f} % (best {100 * (gain - 1):.1f} %): its "
+                  "minimum is no measurement -- no motion along this parameter, too few "
+                  "events, or the other parameters (--theta) far off")
     best_reg = None
     if args.reg:
         best_reg = float(values[int(np.argmin(curves[f"with {args.reg}"]))])

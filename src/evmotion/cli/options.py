@@ -505,9 +505,11 @@ def resolve_relative_times(args: argparse.Namespace) -> None:
     from evmotion.errors import EvmotionError
     from evmotion.io import iter_events
 
-    fmt = getattr(args, "format", None) or getattr(args, "format_in", None)
+    kw = read_kwargs(args)
+    if getattr(args, "format_in", None):  # convert's name of --format
+        kw["format"] = args.format_in
     try:
-        first = next(iter_events(path, 1, **({"format": fmt} if fmt else {})), None)
+        first = next(iter_events(path, 1, **kw), None)
     except EvmotionError as exc:
         if not os.path.exists(path):
             raise
