@@ -232,6 +232,14 @@ CASES = [
                                   "1", "-1", "--out", "{dir}/l.png"], ["--range", "1 -1"]),
     ("landscape-steps-1", ["landscape", "{rec}", "--warp", "translation", "--range", "-1",
                            "1", "--steps", "1", "--out", "{dir}/l.png"], ["--steps", "'1'"]),
+    # negative lists and values with units are the option's to judge, not argparse's
+    # "expected one argument"
+    ("egomotion-K-negative", ["egomotion", "{rec}", "--warp", "rotation", "--K",
+                              "-300,300,20,20", "--window-events", "500", "--out", "{dir}/e"],
+     ["--K", "fx, fy must be > 0", "'-300,300,20,20'"]),
+    ("egomotion-window-us-negative", ["egomotion", "{rec}", "--warp", "translation",
+                                      "--window-us", "-10ms", "--out", "{dir}/e"],
+     ["--window-us", "'-10ms'"]),
     ("landscape-range-minus-inf", ["landscape", "{rec}", "--warp", "translation", "--range",
                                    "-inf", "1", "--out", "{dir}/l.png"],
      ["--range", "must be a finite number, got '-inf'"]),

@@ -85,7 +85,10 @@ class Parser(argparse.ArgumentParser):
         sys.exit(2)
 
 
-_NEGATIVE_NUMBER = re.compile(r"^-(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan)$",
+# a negative number (scientific notation, inf, nan), with a unit suffix (-10ms) or as the
+# first of a comma-separated list (--K -300,300,172,129): the option's own check judges it
+_NUMBER = r"(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan)"
+_NEGATIVE_NUMBER = re.compile(rf"^-{_NUMBER}(?:\s*[a-zµ]{{1,3}})?(?:,\s*[-+]?{_NUMBER})*$",
                               re.IGNORECASE)
 
 
