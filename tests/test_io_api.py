@@ -191,3 +191,19 @@ def test_output_format_from_extension(ext, name):
     if name not in {f.name for f in eio.all_formats()}:
         pytest.skip(f"format module {name} not present")
     assert eio.format_for_output(f"out{ext}") == name
+
+
+def test_own_outputs_are_named_not_unrecognised(tmp_path, capsys):
+    """egomotion or view on params.h5 (or a ground truth) said 'format not recognised'."""
+    from evmotion.cli import main
+
+    sim = tmp_path / "s.h5"
+    assert main(["simulate", "translation", "--size", "40x50", "--duration", "0.02",
+                 "--out", str(sim)]) == 0
+    assert main(["egomotion", str(sim), "--warp", "translation", "--window-events", "500",
+                 "--max-windows", "1", "--out", str(tmp_path / "e")]) == 0
+    capsys.readouterr()
+    for path, what in ((tmp_path / "e" / "params.h5", "evmotion-params of egomotion"),
+                       (tmp_path / "s_gt.h5", "evmotion-sim-gt")):
+        with pytest.raises(FormatError, match=f"is an evmotion output \\({what}\\)"):
+            eio.read_events(path)

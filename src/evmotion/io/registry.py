@@ -98,6 +98,10 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
     if not candidates and failed is not None:
         raise failed
     if not candidates:
+        own = _own_output(path, head)
+        if own is not None:
+            raise FormatError(path, f"is an evmotion output ({own}), not a recording of events",
+                              "evmotion info describes it; eval and view read flow outputs")
         names = ", ".join(sorted(f.name for f in all_formats()))
         raise FormatError(path, "format not recognised",
                           f"give --format explicitly, one of: {names}")
@@ -107,3 +111,26 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
         if by_ext:
             return by_ext[0]
     return candidates[0]
+
+
+def _own_output(path: Path, head: bytes) -> str | None:
+    """What an HDF5 file evmotion wrote as a result (flow, parameters, ground truth...)
+    holds, by its ``format`` / ``content`` attribute; None for anything else."""
+    from evmotion.io.h5filters import HDF5_MAGIC
+
+    if not head.startswith(HDF5_MAGIC):
+        return None
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            attrs = {k: f.attrs.get(k) for k in ("content", "format", "method")}
+    except (OSError, ValueError):
+        return None
+    text = {k: v.decode() if isinstance(v, bytes) else v for k, v in attrs.items()}
+    kind = next((v for v in (text["content"], text["format"])
+                 if isinstance(v, str) and v.startswith("evmotion-")), None)
+    if kind is None:
+        return None
+    return kind + (f" of {text['method']}" if isinstance(text["method"], str) else "")
+
