@@ -72,6 +72,14 @@ def forget_kept_for_resume() -> None:
     _KEPT_FOR_RESUME.clear()
 
 
+def nearest_existing(path: str | os.PathLike) -> Path:
+    """The path itself or its closest ancestor that exists (what ``mkdir -p`` starts from)."""
+    p = Path(path).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
 class NoRoomError(OSError):
     """The device has no room for the next write (checked before it, so what was written
     so far is intact, unlike a write that fails half-way)."""
@@ -90,7 +98,7 @@ def ensure_room(path: str | os.PathLike, nbytes: int) -> None:
     import shutil
 
     path = Path(path)
-    free = shutil.disk_usage(path.parent if path.parent.exists() else ".").free
+    free = shutil.disk_usage(nearest_existing(path.parent)).free
     if nbytes + _WRITE_MARGIN > free:
         raise NoRoomError(errno.ENOSPC, f"no space left on the device for {path}: the next "
                           f"write needs up to {(nbytes + _WRITE_MARGIN) / 2**20:.1f} MiB, "

@@ -45,6 +45,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from evmotion.errors import ParameterError
+from evmotion.utils import nearest_existing
 
 __all__ = [
     "Parser",
@@ -238,20 +239,12 @@ def existing_input(text: str) -> str:
     return text
 
 
-def _nearest_existing(path: Path) -> Path:
-    """The path itself or its closest ancestor that exists (what ``mkdir -p`` starts from)."""
-    p = path.absolute()
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    return p
-
-
 def _folder_problem(folder: Path) -> str | None:
     """Why files cannot be created in ``folder`` (created if missing), or None.
 
     Probes by creating and removing a file: permission bits say nothing for root, nor
     for read-only mounts, ACLs or pseudo file systems."""
-    base = _nearest_existing(folder)
+    base = nearest_existing(folder)
     if not base.is_dir():
         return f"{base} is a file, not a folder"
     try:
@@ -342,7 +335,7 @@ def check_free_space(path: str | os.PathLike, nbytes: int, option: str, what: st
 
     ``nbytes`` is a lower bound of what the output needs, so a refusal is certain to be
     right; call it before the work starts."""
-    base = _nearest_existing(Path(path).parent)
+    base = nearest_existing(Path(path).parent)
     free = shutil.disk_usage(base).free
     if nbytes > free:
         raise ParameterError(f"{option} {os.fspath(path)}: {what or 'the output'} needs at "
