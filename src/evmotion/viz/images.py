@@ -101,11 +101,9 @@ def iwe_to_rgb(iwe: np.ndarray, polarity: bool = False, *, percentile: float = 9
     if iwe.ndim != 2:
         raise ParameterError(f"iwe must be 2-D (H, W), got shape {iwe.shape}")
     iwe = np.where(np.isfinite(iwe), iwe, 0.0)
-    if not (isinstance(percentile, (int, float, np.number)) and 0 <= percentile <= 100):
-        raise ParameterError(f"percentile must be in [0, 100], got {percentile!r}")
+    _check_percentile(percentile)
     if vmax is None:
-        nz = np.abs(iwe[iwe != 0])
-        vmax = float(np.percentile(nz, percentile)) if nz.size else 1.0
+        vmax = _full_scale(iwe, percentile)
     if not vmax > 0:
         vmax = 1.0
     if polarity:
@@ -117,6 +115,19 @@ def iwe_to_rgb(iwe: np.ndarray, polarity: bool = False, *, percentile: float = 9
         g = 1.0 - g if invert else g
         rgb = np.repeat(g[..., None], 3, axis=-1)
     return np.round(255.0 * rgb).astype(np.uint8)
+
+
+def _check_percentile(percentile) -> None:
+    if not (isinstance(percentile, (int, float, np.number)) and 0 <= percentile <= 100):
+        raise ParameterError(f"percentile must be in [0, 100], got {percentile!r}")
+
+
+def _full_scale(iwe: np.ndarray, percentile: float) -> float:
+    """The value :func:`iwe_to_rgb` shows at full intensity by default: ``percentile`` of
+    the nonzero ``|iwe|`` (1 for an empty image)."""
+    _check_percentile(percentile)
+    nz = np.abs(iwe[iwe != 0])
+    return float(np.percentile(nz, percentile)) if nz.size else 1.0
 
 
 def _as_image(img: np.ndarray, what: str) -> np.ndarray:
@@ -265,8 +276,7 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
     from matplotlib.colors import LinearSegmentedColormap, Normalize
 
     image = np.asarray(image, dtype=np.float64)
-    nz = np.abs(image[(image != 0) & np.isfinite(image)])
-    vmax = float(np.percentile(nz, percentile)) if nz.size else 1.0
+    vmax = _full_scale(np.where(np.isfinite(image), image, 0.0), percentile)
     vmax = vmax if vmax > 0 else 1.0
     rgb = iwe_to_rgb(image, polarity, vmax=vmax)
     if polarity:
