@@ -345,6 +345,8 @@ def run(args) -> int:
                        ridge_points=int(fit.t_s.size), inliers=int(fit.inliers.sum()),
                        residual_px=fit.residual_px,
                        reliable=fit.reliable)
+            if not fit.reliable:
+                row["unreliable_because"] = fit.unreliable_because
             if geometry:
                 row["speed_m_s"] = px_per_s_to_m_per_s(fit.speed_px_s, **geometry)
                 row["speed_std_m_s"] = px_per_s_to_m_per_s(fit.velocity_std_px_s, **geometry)
@@ -360,8 +362,6 @@ def run(args) -> int:
     if args.json:
         print_json(summary)
     else:
-        from evmotion.methods.kymogram import RELIABLE_SPREAD
-
         for row in summaries:
             text = f"{row['source']} at {row['rate_hz']:.4g} Hz {tuple(row['shape'])}: "
             if "velocity_px_s" in row:
@@ -369,11 +369,7 @@ def run(args) -> int:
                 if "speed_m_s" in row:
                     text += f" (|v| = {row['speed_m_s']:.4g} m/s)"
                 if not row["reliable"]:
-                    text += (" -- unreliable: the spread exceeds half the speed"
-                             if row["velocity_std_px_s"]
-                             > RELIABLE_SPREAD * abs(row["velocity_px_s"])
-                             else f" -- unreliable: the ridge points lie {row['residual_px']:.3g}"
-                             " px (RMS) off the line (several streaks? --method correlation)")
+                    text += f" -- unreliable: {row['unreliable_because']}"
             else:
                 text += row.get("fit_error", "no fit")
             print(text)

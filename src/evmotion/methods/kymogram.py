@@ -353,19 +353,27 @@ class RidgeFit:
 
     @property
     def reliable(self) -> bool:
-        """Whether the speed is a measurement: its standard error is at most half of it
-        (a fit to a nearly empty kymogram can give 3271 +- 16000 px/s), and for a ridge
-        fit, the ridge points lie on the line: RMS residual at most
-        :data:`RELIABLE_RESIDUAL` of the line's travel over the fit (and 3 px at least);
-        a ridge jumping between parallel streaks gave 75 +- 15 px/s for 120 with
-        residuals of 79 px."""
-        spread_ok = self.velocity_std_px_s <= RELIABLE_SPREAD * abs(self.velocity_px_s)
+        """Whether the speed is a measurement (:attr:`unreliable_because` is None)."""
+        return self.unreliable_because is None
+
+    @property
+    def unreliable_because(self) -> str | None:
+        """Why the speed is no measurement, or None: its standard error exceeds half of it
+        (a fit to a nearly empty kymogram can give 3271 +- 16000 px/s), or, for a ridge
+        fit, the ridge points lie off the line: RMS residual over :data:`RELIABLE_RESIDUAL`
+        of the line's travel over the fit (and 3 px at least); a ridge jumping between
+        parallel streaks gave 75 +- 15 px/s for 120 with residuals of 79 px."""
+        if not self.velocity_std_px_s <= RELIABLE_SPREAD * abs(self.velocity_px_s):
+            return "the spread exceeds half the speed"
         if self.method != "ridge" or not len(self.t_s):
-            return bool(spread_ok)
+            return None
         span = float(np.ptp(np.asarray(self.t_s)[np.asarray(self.inliers, bool)])) \
             if np.any(self.inliers) else 0.0
         bound = max(MIN_RESIDUAL_BOUND_PX, RELIABLE_RESIDUAL * abs(self.velocity_px_s) * span)
-        return bool(spread_ok and self.residual_px <= bound)
+        if self.residual_px <= bound:
+            return None
+        return (f"the ridge points lie {self.residual_px:.3g} px (RMS) off the line (several "
+                "streaks? the correlation fit takes their common slope)")
 
     @property
     def speed_px_s(self) -> float:
