@@ -131,6 +131,7 @@ def check_args(args) -> None:
 
 
 def run(args) -> int:
+    import evmotion.io as eio
     from evmotion.cli import print_json
     from evmotion.cli.calib import undistorted_chunks
     from evmotion.cli.options import header_event_count, read_kwargs
@@ -153,14 +154,13 @@ def run(args) -> int:
     gap_us = int(round(args.gap_ms * 1000))
     windows_made = args.dense_output or png_dir is not None
     chunks, grid = undistorted_chunks(
-        args, _iter_chunks(args.file, read_kwargs(args), args.chunk_events,
-                           getattr(args, "t0", None), getattr(args, "t1", None)))
+        args, eio.iter_events(args.file, chunk_events=args.chunk_events,
+                              t0=getattr(args, "t0", None), t1=getattr(args, "t1", None),
+                              **read_kwargs(args)))
     first = next((c for c in chunks if len(c)), None)
     if first is None:
         if getattr(args, "t0", None) is not None or getattr(args, "t1", None) is not None:
             # the error path only: the recording's own span, for the message
-            import evmotion.io as eio
-
             info = eio.describe(args.file, format=getattr(args, "format", None))
             if info.get("t_first_us") is not None:
                 raise empty_selection(args, args.file, int(info["t_first_us"]),
@@ -269,12 +269,6 @@ def run(args) -> int:
             "params": params,
         })
     return 0
-
-
-def _iter_chunks(path, kw, chunk_events, t0=None, t1=None):
-    import evmotion.io as eio
-
-    yield from eio.iter_events(path, chunk_events=chunk_events, t0=t0, t1=t1, **kw)
 
 
 def _gt_edges(args):
