@@ -218,3 +218,15 @@ def test_info_shows_the_simulators_camera_in_its_ground_truth(tmp_path, capsys):
     assert intr["source"] == f"{tmp_path / 'sim_gt.h5'} (its camera K)"
     assert main(["info", str(sim), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["intrinsics"]["K"] == intr["K"]
+
+
+@pytest.mark.parametrize("k, warned", [("200,200,120,90", False), ("120,90,200,170", False),
+                                       ("200,200,300,90", True), ("90,200,-5,90", True)])
+def test_k_principal_point_off_the_sensor_is_said(ecd, tmp_path, capsys, k, warned):
+    """--K in another order (cx, cy past the 240 x 180 sensor) runs, with one line saying
+    the principal point is off the sensor; a plausible one says nothing."""
+    assert main(["flow", str(ecd), "--out", str(tmp_path / "f.h5"), *MULTICM, "--K", k]) == 0
+    err = capsys.readouterr().err
+    assert ("principal point" in err) == warned, err
+    if warned:
+        assert "240 x 180 px sensor" in err and "FX,FY,CX,CY" in err

@@ -71,6 +71,7 @@ def camera_for(args, sensor_size, events_meta: dict | None = None):
 
     check_camera_args(args)
     if getattr(args, "K", None) is not None:
+        _check_principal_point(args.K, sensor_size)
         dist = list(args.dist or [])
         return Camera(*args.K, dist=tuple(dist + [0.0] * (5 - len(dist))),
                       sensor_size=sensor_size, source="--K")
@@ -78,6 +79,19 @@ def camera_for(args, sensor_size, events_meta: dict | None = None):
         return read_camera(args.calib, sensor_size=sensor_size).for_sensor(sensor_size)
     cam = recording_camera(args.file, events_meta, sensor_size)
     return None if cam is None else cam.for_sensor(sensor_size)
+
+
+def _check_principal_point(k, sensor_size) -> None:
+    """Say when --K puts the principal point off the sensor: most often the four values
+    were given in another order than fx,fy,cx,cy (a cropped sensor can have it outside,
+    so this is a warning, not a refusal)."""
+    h, w = sensor_size
+    cx, cy = k[2], k[3]
+    if not (0 <= cx <= w and 0 <= cy <= h):
+        from evmotion.cli import warn_line
+
+        warn_line(f"--K: the principal point (cx, cy) = ({cx:g}, {cy:g}) px lies outside the "
+                  f"{w} x {h} px sensor; the order is FX,FY,CX,CY")
 
 
 def _grid(cam, events, undistort: bool) -> str:
