@@ -13,7 +13,7 @@ constructor checks this and the sensor bounds unless ``validate=False``.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,6 +28,7 @@ __all__ = [
     "Window",
     "concatenate",
     "make_windows",
+    "events_for_windows",
 ]
 
 # the share of events (and more than 10) stepping back in time beyond which the times are
@@ -432,6 +433,71 @@ def _occupied_windows(sub: EventArray, duration_us: int, t0: int | None) -> list
     return [Window(int(k[a]), start + int(k[a]) * duration_us,
                    start + (int(k[a]) + 1) * duration_us, int(a), int(b))
             for a, b in zip(first, stop, strict=True)]
+
+
+def events_for_windows(chunks: Iterable[EventArray], *, max_windows: int,
+                       n_events: int | None = None, duration_us: int | None = None,
+                       t0: int | None = None, min_events: int = 1) -> EventArray | None:
+    """The events of a chunk stream as far as the first ``max_windows`` windows that
+    :func:`make_windows` cuts with the same arguments need: ``make_windows`` on the result
+    gives the windows it gives on the whole stream. Reads no further (the first windows of
+    a long recording do not wait for all of it, nor hold it in memory).
+
+    Parameters
+    ----------
+    chunks : iterable of EventArray
+        Consecutive events, sorted by time, from ``t0`` on (e.g. :func:`evmotion.io.iter_events`
+        with ``t0``/``t1``).
+    max_windows : int
+        Windows wanted.
+    n_events, duration_us : int
+        How windows are cut (exactly one), as in :func:`make_windows`.
+    t0 : int, optional
+        Start of the duration windows' grid (default the first event).
+    min_events : int
+        Windows holding fewer events do not count, as in :func:`make_windows`.
+
+    Returns
+    -------
+    EventArray or None
+        None when the stream holds no events.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=np.zeros(10), y=np.zeros(10), t=np.arange(0, 1000, 100),
+    ...                 p=np.ones(10), sensor_size=(4, 4))
+    >>> len(events_for_windows((ev[i:i + 2] for i in range(0, 10, 2)), max_windows=2,
+    ...                        n_events=3))
+    8
+    """
+    if (n_events is None) == (duration_us is None):
+        raise ParameterError("events_for_windows needs exactly one of n_events, duration_us")
+    max_windows = whole_number("max_windows", max_windows, lo=1)
+    need = max(min_events, 1)
+    parts: list[EventArray] = []
+    seen = 0
+    start = t0
+    cells: dict[int, int] = {}
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        parts.append(chunk)
+        seen += len(chunk)
+        if n_events is not None:
+            # the windows end at the first event of the next one: one event past them
+            if seen > max_windows * whole_number("n_events", n_events, lo=1):
+                break
+            continue
+        if start is None:
+            start = int(chunk.t[0])
+        k, counts = np.unique((chunk.t - start) // duration_us, return_counts=True)
+        for a, b in zip(k.tolist(), counts.tolist(), strict=True):
+            cells[a] = cells.get(a, 0) + b
+        # a window is complete once an event past it arrived
+        last = int(k[-1])
+        if sum(1 for a, c in cells.items() if a < last and c >= need) >= max_windows:
+            break
+    return concatenate(parts) if parts else None
 
 
 def require_events(events, func: str) -> EventArray:

@@ -20,7 +20,7 @@ from evmotion.cli.options import existing_input, float_list
 from evmotion.errors import ParameterError
 
 __all__ = ["add_camera_arguments", "camera_for", "undistort_for", "undistorted_chunks",
-           "check_camera_args"]
+           "check_camera_args", "read_for_windows"]
 
 
 def _intrinsics(text: str) -> list[float]:
@@ -102,28 +102,76 @@ def _grid(cam, events, undistort: bool) -> str:
     return cam.grid_label(undistorted=undistort or not cam.is_distorted)
 
 
+def _distortion_rule(args, first):
+    """``(camera, undistort, grid)`` for a recording whose events (or first chunk) are
+    ``first``: the one rule of every command."""
+    cam = camera_for(args, first.sensor_size, first.meta)
+    undistort = (cam is not None and cam.is_distorted and first.x.dtype.kind != "f"
+                 and not getattr(args, "no_undistort", False))
+    return cam, undistort, _grid(cam, first, undistort)
+
+
+def _say_lost(lost: int, n: int) -> None:
+    if lost > UNDISTORT_LOSS_NOTE * n:
+        # a large share is worth knowing (a wide-angle lens, or the wrong calibration)
+        from evmotion.cli import warn_line
+
+        warn_line(f"undistortion moved {lost:,} of {n:,} events ({100 * lost / n:.0f} %) "
+                  "outside the image: they are left out (--no-undistort keeps the "
+                  "sensor's grid)")
+
+
 def undistort_for(args, events, *, integer: bool = False):
     """``(events, camera, grid)``: the events undistorted when the camera has distortion and
     ``--no-undistort`` is not given; ``integer`` rounds to the pixel lattice (methods that
     need integer pixels)."""
-    cam = camera_for(args, events.sensor_size, events.meta)
-    undistort = (cam is not None and cam.is_distorted and events.x.dtype.kind != "f"
-                 and not getattr(args, "no_undistort", False))
-    grid = _grid(cam, events, undistort)
+    cam, undistort, grid = _distortion_rule(args, events)
     if undistort:
         n = len(events)
         events = cam.undistort_events(events, integer=integer)
-        lost = n - len(events)
-        if lost > UNDISTORT_LOSS_NOTE * n:
-            # a large share is worth knowing (a wide-angle lens, or the wrong calibration)
-            from evmotion.cli import warn_line
-
-            warn_line(f"undistortion moved {lost:,} of {n:,} events ({100 * lost / n:.0f} %) "
-                      "outside the image: they are left out (--no-undistort keeps the "
-                      "sensor's grid)")
+        _say_lost(n - len(events), n)
     return events, cam, grid
 
 
+def read_for_windows(args, *, n_events: int | None = None, duration_us: int | None = None,
+                     min_events: int = 1):
+    """``(events, camera, grid)`` of ``args.file`` as :func:`undistort_for` gives them. With
+    ``--max-windows`` and windows cut by count (``n_events``) or duration (``duration_us``),
+    only the part the first N windows within ``--t0``/``--t1`` need is read, as a stream
+    (:func:`evmotion.events.events_for_windows`): the first windows of a long recording
+    neither wait for all of it nor hold it in memory. The whole recording otherwise, or
+    when that part holds no such window (the refusal then names the recording's span)."""
+    from evmotion.cli.options import read_kwargs
+    from evmotion.events import events_for_windows, make_windows
+    from evmotion.io import iter_events, read_events
+
+    kw = read_kwargs(args)
+    n_max = getattr(args, "max_windows", None)
+    if n_max is not None and (n_events is not None or duration_us is not None):
+        t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
+        chunks = iter_events(args.file, CHUNK_EVENTS, t0=t0, t1=t1, **kw)
+        first = next((c for c in chunks if len(c)), None)
+        if first is not None:
+            cam, undistort, grid = _distortion_rule(args, first)
+            read = [0]
+
+            def stream():
+                for chunk in itertools.chain((first,), chunks):
+                    read[0] += len(chunk)
+                    yield cam.undistort_events(chunk) if undistort else chunk
+
+            events = events_for_windows(stream(), max_windows=n_max, n_events=n_events,
+                                        duration_us=duration_us, t0=t0, min_events=min_events)
+            if events is not None and make_windows(
+                    events, n_events=n_events, duration_us=duration_us, t0=t0, t1=t1,
+                    max_windows=n_max, min_events=min_events):
+                _say_lost(read[0] - len(events), read[0])
+                return events, cam, grid
+    return undistort_for(args, read_events(args.file, **kw))
+
+
+# events read at a time by read_for_windows
+CHUNK_EVENTS = 1 << 20
 # the share of events undistortion may move out of the image before it is said
 UNDISTORT_LOSS_NOTE = 0.05
 
@@ -135,10 +183,7 @@ def undistorted_chunks(args, chunks: Iterator, *, integer: bool = True
     first = next((c for c in chunks if len(c)), None)
     if first is None:
         return iter(()), "sensor (no calibration known)"
-    cam = camera_for(args, first.sensor_size, first.meta)
-    undistort = (cam is not None and cam.is_distorted and first.x.dtype.kind != "f"
-                 and not getattr(args, "no_undistort", False))
-    grid = _grid(cam, first, undistort)
+    cam, undistort, grid = _distortion_rule(args, first)
 
     def stream():
         for chunk in itertools.chain((first,), chunks):

@@ -131,16 +131,16 @@ def centred_warp(warp: str) -> bool:
     return warp not in ("translation", "homography", "affine")
 
 
-def load_events_and_camera(args):
+def load_events_and_camera(args, **cut):
     """Read the recording and its camera (:func:`evmotion.cli.calib.camera_for`); undistort
     when the camera is distorted, unless ``--no-undistort``. Returns ``(events, camera)``
-    and sets ``args.grid`` (which pixel grid the events are on)."""
-    from evmotion.cli.calib import undistort_for
-    from evmotion.cli.options import read_kwargs
-    from evmotion.io import read_events
+    and sets ``args.grid`` (which pixel grid the events are on). ``cut``: how the windows
+    are cut (``n_events`` or ``duration_us``, and ``min_events``), so that with
+    ``--max-windows`` only what those windows need is read
+    (:func:`evmotion.cli.calib.read_for_windows`)."""
+    from evmotion.cli.calib import read_for_windows
 
-    events = read_events(args.file, **read_kwargs(args))
-    events, cam, args.grid = undistort_for(args, events)
+    events, cam, args.grid = read_for_windows(args, **cut)
     guessed = str(events.meta.get("sensor_size_from", ""))
     if guessed.startswith("ECD default") and cam is None and centred_warp(args.warp):
         # (a calibration says the sensor, as the ECD folders' calib.txt does)
@@ -230,9 +230,9 @@ def run(args) -> int:
                       "(it seeds the TPE sampler)")
     args.seed = 0 if args.seed is None else args.seed
     check_time_order(args)
-    events, cam = load_events_and_camera(args)
-    windows = select_windows(args, events, file=args.file, min_events=10,
-                             n_events=args.window_events, duration_us=args.window_us)
+    cut = {"n_events": args.window_events, "duration_us": args.window_us, "min_events": 10}
+    events, cam = load_events_and_camera(args, **cut)
+    windows = select_windows(args, events, file=args.file, **cut)
     K = None if cam is None else cam.K
     # windows are in time order: the first --max-png are those starting by the last one's t0
     last_png = windows[min(args.max_png, len(windows)) - 1].t0 if args.max_png > 0 else None

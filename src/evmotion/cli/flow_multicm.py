@@ -93,7 +93,7 @@ def _windows(args, events):
     --max-windows of them."""
     from evmotion.cli.options import select_windows
 
-    kw = {"min_events": 10, "file": args.file}
+    kw = {"min_events": MIN_WINDOW_EVENTS, "file": args.file}
     if args.window_gt:
         from evmotion.io.flowfiles import read_gt_flow
 
@@ -104,10 +104,18 @@ def _windows(args, events):
             raise ParameterError(f"--window-gt {args.window_gt}: {max(edges.size - 1, 0)} "
                                  f"ground-truth frame(s), fewer than --gt-dt {args.gt_dt}")
         return select_windows(args, events, edges_us=edges, dt=args.gt_dt, **kw)
+    return select_windows(args, events, **_cut(args), **kw)
+
+
+def _cut(args) -> dict:
+    """How the windows are cut, by duration or by count (not by ground-truth frames)."""
     if args.window_us is not None:
-        return select_windows(args, events, duration_us=args.window_us, **kw)
-    return select_windows(args, events, n_events=args.window_events or DEFAULT_WINDOW_EVENTS,
-                          **kw)
+        return {"duration_us": args.window_us}
+    return {"n_events": args.window_events or DEFAULT_WINDOW_EVENTS}
+
+
+# the fewest events a window must hold to be estimated
+MIN_WINDOW_EVENTS = 10
 
 
 def _estimate_parallel(events, windows, kwargs, workers, stack, keep_iwes=False,
@@ -200,10 +208,8 @@ def _check_space(out: Path, windows, sensor_size) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.cli.calib import undistort_for
-    from evmotion.cli.options import read_kwargs
+    from evmotion.cli.calib import read_for_windows
     from evmotion.events import fingerprint
-    from evmotion.io import read_events
     from evmotion.utils import progress
 
     out = Path(args.out)
@@ -212,8 +218,8 @@ def run(args) -> int:
         from evmotion.viz.video import require_video
 
         require_video()  # before the windows are computed and written, not after
-    events = read_events(args.file, **read_kwargs(args))
-    events, cam, grid = undistort_for(args, events)
+    events, cam, grid = read_for_windows(args, **({} if args.window_gt else _cut(args)),
+                                         min_events=MIN_WINDOW_EVENTS)
     windows = _windows(args, events)
     check_flow_out(out, len(windows))
     _check_space(out, windows, events.sensor_size)
@@ -250,7 +256,9 @@ def run(args) -> int:
     # grid names K only) and the events themselves
     if cam is not None and grid.startswith("undistorted"):
         attrs["distortion"] = [float(v) for v in cam.dist]
-    attrs["source_events"] = fingerprint(events)
+    # of the first window's events: the same whether the run read the whole recording or
+    # only what its --max-windows need, so that a resume may ask for more windows
+    attrs["source_events"] = fingerprint(events[windows[0].start:windows[0].stop])
     png_dir = Path(args.png_dir) if args.png_dir else None
     if png_dir is not None and not args.resume:
         remove_stale_pictures(png_dir, ("flow_", "flow_masked_", "iwe_tmid_",

@@ -74,10 +74,10 @@ def run(args) -> int:
     if args.objective not in ("variance", "gradient_magnitude"):
         raise ParameterError("segment supports --objective variance or gradient_magnitude")
     check_time_order(args)
-    events, cam = load_events_and_camera(args)
-    count = None if args.window_us else args.window_events or 30000
-    windows = select_windows(args, events, file=args.file, min_events=10 * args.warps,
-                             n_events=count, duration_us=args.window_us or None)
+    cut = {"n_events": None if args.window_us else args.window_events or 30000,
+           "duration_us": args.window_us or None, "min_events": 10 * args.warps}
+    events, cam = load_events_and_camera(args, **cut)
+    windows = select_windows(args, events, file=args.file, **cut)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     remove_stale_pictures(out, ("window_",))
