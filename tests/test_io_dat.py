@@ -90,3 +90,27 @@ def test_atis_td_files_read_like_cd(tmp_path):
     (tmp_path / "trig.dat").write_bytes(bytes(data))
     with pytest.raises(FormatError, match="0xe \\(external trigger events\\)"):
         dat.read(tmp_path / "trig.dat")
+
+
+@pytest.mark.parametrize("fmt", ["dat", "aedat2"])
+@pytest.mark.parametrize("gap_us", [80 * 60 * 10 ** 6, 3 * 3600 * 10 ** 6, (1 << 32) + 7])
+def test_gaps_the_reader_cannot_unwrap_are_refused(tmp_path, fmt, gap_us):
+    """A pause longer than the u32 wrap was written wrapped and read back hours early,
+    silently; now the writers refuse it, naming the events and the gap, and write nothing
+    (a gap the reader restores, even near 2^32 us, still round-trips: see above)."""
+    from evmotion.io import aedat2
+
+    mod = {"dat": dat, "aedat2": aedat2}[fmt]
+    t = np.array([0, 1000, 1000 + gap_us, 2000 + gap_us], np.int64)
+    ev = EventArray(x=[0, 1, 2, 3], y=[0, 1, 2, 3], t=t, p=[0, 1, 1, 0], sensor_size=(180, 240))
+    out = tmp_path / f"g.{fmt}"
+    with pytest.raises(FormatError, match=rf"events 1 and 2 are {gap_us} us apart.*2\^32"):
+        mod.write(out, ev)
+    assert not out.exists()
+
+
+def test_coordinates_past_14_bits_are_refused(tmp_path):
+    ev = EventArray(x=[0, 19999], y=[19999, 0], t=[0, 1], p=[0, 1], sensor_size=(20000, 20000))
+    with pytest.raises(FormatError, match=r"DAT's address range \(16384 rows, 16384 columns\)"):
+        dat.write(tmp_path / "big.dat", ev)
+    assert not (tmp_path / "big.dat").exists()

@@ -231,9 +231,7 @@ def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> N
     if chip is None:
         chip = {(180, 240): "DAVIS240C", (260, 346): "DAVIS346B"}.get((h, w), "DAVIS")
     binary.check_writable(events, "AEDAT 2.0 (DAVIS)", 512, 1024)
-    if len(events) and (events.t[0] < 0 or events.t[0] >= 1 << 32):
-        raise FormatError(None, f"first timestamp {events.t[0]} us is outside the u32 range",
-                          "subtract a time offset first")
+    binary.check_u32_times(events, "AEDAT 2.0")
     header = (f"{MAGIC.decode()}\r\n# This is a raw AE data file written by evmotion\r\n"
               "# Data format is int32 address, int32 timestamp (8 bytes total), repeated "
               "for each event\r\n# Timestamps tick is 1 us\r\n"

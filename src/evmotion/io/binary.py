@@ -260,6 +260,29 @@ def check_writable(events: EventArray, fmt: str, height: int, width: int) -> Non
                           f"range ({height} rows, {width} columns)")
 
 
+def check_u32_times(events: EventArray, fmt: str) -> None:
+    """FormatError unless ``events``' times survive a format that stores them modulo 2^32 µs
+    and is unwrapped on reading wherever the stored time drops by more than 2^31 µs: the
+    first time within ``[0, 2^32)`` µs and no gap the reader cannot tell from a wrap (one
+    of 2^31 µs, 35.8 min, or more may be) (``fmt`` names the format in the message)."""
+    if not len(events):
+        return
+    t = np.asarray(events.t, np.int64)
+    if t[0] < 0 or t[0] >= 1 << 32:
+        raise FormatError(None, f"first timestamp {int(t[0])} us is outside {fmt}'s u32 range",
+                          "subtract a time offset first")
+    raw = t & 0xFFFFFFFF
+    wraps = np.concatenate([[0], np.cumsum(np.diff(raw) < -(1 << 31))]) << 32
+    lost = np.flatnonzero(raw + wraps != t)
+    if lost.size:
+        k = int(lost[0])
+        raise FormatError(None, f"events {k - 1} and {k} are {int(t[k] - t[k - 1])} us apart: "
+                          f"{fmt} stores times modulo 2^32 us and cannot restore them across "
+                          "that gap (gaps under 2^31 us, 35.8 min, are always restored)",
+                          "write the parts before and after the gap to separate files, or "
+                          "write .h5, whose times are 64-bit")
+
+
 def header_bytes(lines: list[str]) -> bytes:
     return "".join(line + "\n" for line in lines).encode("latin-1")
 

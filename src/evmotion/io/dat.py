@@ -133,19 +133,17 @@ def write(path: str | Path, events: EventArray) -> None:
     """Write ``events`` as a DAT file (atomically).
 
     Times are stored modulo 2^32 µs, as cameras do; :func:`read` restores them exactly
-    when consecutive events are less than 2^31 µs (35 min) apart and the first time is
-    below 2^32 µs.
+    when consecutive events are less than 2^31 µs (35.8 min) apart and the first time is
+    below 2^32 µs; other times, and coordinates past DAT's 14 bits, are refused
+    (FormatError).
 
     Examples
     --------
     >>> write("out_td.dat", events)  # doctest: +SKIP
     """
-    if events.x.dtype.kind == "f":
-        raise FormatError(None, "events have float (undistorted) coordinates; DAT stores "
-                          "integer pixels")
-    if len(events) and (events.t[0] < 0 or events.t[0] >= 1 << 32):
-        raise FormatError(None, f"first timestamp {events.t[0]} us is outside DAT's u32 range",
-                          "subtract a time offset first")
+    # 14-bit x and y address fields
+    binary.check_writable(events, "DAT", 1 << 14, 1 << 14)
+    binary.check_u32_times(events, "DAT")
     h, w = events.sensor_size
     header = ("% Data file containing CD events.\n% Version 2\n"
               f"% Width {w}\n% Height {h}\n").encode()
