@@ -14,6 +14,7 @@ import pytest
 import evmotion.io as eio
 from _helpers import assert_same_events
 from evmotion.errors import FormatError
+from evmotion.events import EventArray
 from evmotion.io import dsec, mvsec
 
 T_OFFSET = 47_000_000_123
@@ -169,3 +170,38 @@ def test_mvsec_file_of_the_right_camera_only(tmp_path):
     with pytest.warns(EvmotionWarning, match="no davis/left/events; read davis/right/events"):
         ev = mvsec.read(path)
     assert ev.x.tolist() == [3, 5] and ev.meta["camera"] == "right"
+
+
+@pytest.mark.parametrize("mod", [dsec, mvsec])
+@pytest.mark.parametrize("size", [(180, 240), (720, 1280)])
+def test_writers_keep_the_sensor_size(tmp_path, mod, size):
+    """A 240 x 180 recording came back as DSEC's 640 x 480 or MVSEC's 346 x 260, and a
+    1280 x 720 one as unreadable: the size now travels in an attribute (other tools ignore
+    it), read, streamed and described back; an explicit sensor_size still wins."""
+    h, w = size
+    ev = EventArray(x=[0, w - 1, 5], y=[0, h - 1, 7], t=[10, 20, 3000], p=[0, 1, 1],
+                        sensor_size=size)
+    path = tmp_path / "e.h5"
+    mod.write(path, ev)
+    assert_same_events(mod.read(path), ev)
+    assert next(mod.iter_chunks(path, 2)).sensor_size == size
+    assert tuple(mod.describe(path)["sensor_size"]) == size
+    assert eio.read_events(path).sensor_size == size
+    assert mod.read(path, sensor_size=(2000, 2000)).sensor_size == (2000, 2000)
+
+
+@pytest.mark.parametrize("mod", [dsec, mvsec])
+def test_writers_take_an_empty_recording(tmp_path, mod):
+    ev = EventArray(x=[], y=[], t=[], p=[], sensor_size=(180, 240))
+    mod.write(tmp_path / "e.h5", ev)  # was h5py's "Chunk shape must not be greater..."
+    back = mod.read(tmp_path / "e.h5")
+    assert len(back) == 0 and back.sensor_size == (180, 240)
+
+
+def test_a_corrupt_size_attribute_is_named(tmp_path):
+    ev = EventArray(x=[0], y=[0], t=[10], p=[1], sensor_size=(180, 240))
+    dsec.write(tmp_path / "e.h5", ev)
+    with h5py.File(tmp_path / "e.h5", "r+") as f:
+        f.attrs["sensor_size"] = np.array([0, 99999])
+    with pytest.raises(FormatError, match=r"e\.h5.*attribute 'sensor_size'.*outside"):
+        dsec.read(tmp_path / "e.h5")

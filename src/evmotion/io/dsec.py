@@ -24,7 +24,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_h5_dataset, open_h5
+from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
 from evmotion.io.h5filters import (
     FILTER_HINT,
     HDF5_MAGIC,
@@ -123,6 +123,16 @@ def _make(path: Path, f, lo: int, hi: int, size, meta, validate: bool) -> EventA
         raise FormatError(path, str(exc)) from None
 
 
+def _size(path: Path, f, sensor_size) -> tuple[int, int]:
+    """The size asked for, else the one evmotion's writer stores (``sensor_size`` attribute,
+    not part of DSEC's layout), else DSEC's 480 x 640."""
+    if sensor_size:
+        return tuple(sensor_size)
+    if "sensor_size" in f.attrs:
+        return check_sensor_size(path, f.attrs["sensor_size"], "attribute 'sensor_size'")
+    return DSEC_SENSOR_SIZE
+
+
 def _meta(path: Path, f) -> dict:
     return {"source": str(path), "format": "dsec", "t_offset_us": _t_offset(f)}
 
@@ -152,8 +162,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     f, path = _open(path)
     with f:
         lo, hi = _range(path, f, t0, t1)
-        return _make(path, f, lo, hi, tuple(sensor_size or DSEC_SENSOR_SIZE),
-                     _meta(path, f), validate)
+        return _make(path, f, lo, hi, _size(path, f, sensor_size), _meta(path, f), validate)
 
 
 def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
@@ -165,7 +174,7 @@ def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
     f, path = _open(Path(path))
     with f:
         lo, hi = _range(path, f, t0, t1)
-        size = tuple(sensor_size or DSEC_SENSOR_SIZE)
+        size = _size(path, f, sensor_size)
         meta = _meta(path, f)
         for s in range(lo, hi, int(chunk_events)):
             yield _make(path, f, s, min(hi, s + int(chunk_events)), size, meta, validate)
@@ -202,9 +211,14 @@ def write(path: str | os.PathLike, events: EventArray, *, t_offset: int | None =
         raise ParameterError(f"compression must be 'zstd' or 'none', got {compression!r}")
     n_ms = int(rel[-1] // 1000) + 2 if len(events) else 1
     ms_to_idx = np.searchsorted(rel, 1000 * np.arange(n_ms, dtype=np.int64)).astype(np.uint64)
-    chunks = (min(max(len(events), 1), 1 << 18),)
+    chunks = (min(len(events), 1 << 18),) if len(events) else None
+    if not len(events):
+        kw = {}  # HDF5 filters need chunks, which an empty dataset cannot have
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
+            # not in DSEC's layout (its sensor is 640 x 480): what a reader of another
+            # size needs, ignored by DSEC's own tools
+            f.attrs["sensor_size"] = np.asarray(events.sensor_size, np.int64)
             g = f.create_group("events")
             g.create_dataset("x", data=events.x.astype(np.uint16), chunks=chunks, **kw)
             g.create_dataset("y", data=events.y.astype(np.uint16), chunks=chunks, **kw)
@@ -266,7 +280,7 @@ def describe(path: str | os.PathLike) -> dict:
     with f:
         n = int(f["events/t"].shape[0])
         off = _t_offset(f)
-        out: dict = {"format": "dsec", "sensor_size": DSEC_SENSOR_SIZE, "n_events": n,
+        out: dict = {"format": "dsec", "sensor_size": _size(path, f, None), "n_events": n,
                      "t_offset_us": off}
         if n:
             out["t_first_us"] = int(_read(path, f["events/t"], 0, 1, "events/t")[0]) + off

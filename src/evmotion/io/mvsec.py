@@ -24,7 +24,7 @@ import numpy as np
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_h5_dataset, open_h5
+from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
 from evmotion.io.h5filters import HDF5_MAGIC
 from evmotion.io.npy import events_from_columns
 
@@ -72,6 +72,18 @@ def _locate(ds, tq_us: int, n: int) -> int:
     return lo
 
 
+def _size(path: Path, f, camera: str, sensor_size) -> tuple[int, int]:
+    """The size asked for, else the one evmotion's writer stores (``sensor_size`` attribute
+    of the camera's group, not part of MVSEC's layout), else the DAVIS346's 260 x 346."""
+    if sensor_size:
+        return tuple(sensor_size)
+    attrs = f[f"davis/{camera}"].attrs
+    if "sensor_size" in attrs:
+        return check_sensor_size(path, attrs["sensor_size"],
+                                 f"attribute 'davis/{camera}/sensor_size'")
+    return MVSEC_SENSOR_SIZE
+
+
 def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, camera: str = "left",
          validate: bool = True) -> EventArray:
@@ -95,8 +107,9 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         lo = 0 if t0 is None else _locate(ds, int(t0), n)
         hi = n if t1 is None else _locate(ds, int(t1), n)
         block = ds[lo:max(lo, hi)]
+        size = _size(path, f, camera, sensor_size)
     meta = {"source": str(path), "format": "mvsec", "camera": camera}
-    ev = _make(path, block, tuple(sensor_size or MVSEC_SENSOR_SIZE), meta, validate)
+    ev = _make(path, block, size, meta, validate)
     return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
 
 
@@ -108,7 +121,7 @@ def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
         raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
     path = Path(path)
     f, ds, camera = _open(path, camera)
-    size = tuple(sensor_size or MVSEC_SENSOR_SIZE)
+    size = _size(path, f, camera, sensor_size)
     meta = {"source": str(path), "format": "mvsec", "camera": camera}
     with f:
         for s in range(0, ds.shape[0], int(chunk_events)):
@@ -143,7 +156,11 @@ def write(path: str | os.PathLike, events: EventArray, *, camera: str = "left",
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
             g = f.create_group(f"davis/{camera}")
-            g.create_dataset("events", data=arr, chunks=(min(max(len(arr), 1), 1 << 16), 4))
+            # not in MVSEC's layout (its DAVIS346 is 346 x 260): what a reader of another
+            # size needs
+            g.attrs["sensor_size"] = np.asarray(events.sensor_size, np.int64)
+            g.create_dataset("events", data=arr.reshape(-1, 4),
+                             chunks=(min(len(arr), 1 << 16), 4) if len(arr) else None)
             if frames is not None:
                 g.create_dataset("image_raw", data=np.asarray(frames["images"]))
                 g.create_dataset("image_raw_ts",
@@ -156,7 +173,8 @@ def describe(path: str | os.PathLike, camera: str = "left") -> dict:
     with f:
         n = ds.shape[0]
         g = f[f"davis/{camera}"]
-        out: dict = {"format": "mvsec", "camera": camera, "sensor_size": MVSEC_SENSOR_SIZE,
+        out: dict = {"format": "mvsec", "camera": camera,
+                     "sensor_size": _size(path, f, camera, None),
                      "n_events": int(n), "cameras": sorted(f["davis"].keys())}
         if n:
             out["t_first_us"] = round(float(ds[0, 2]) * 1e6)
