@@ -17,7 +17,9 @@ GT window holding its time, bilinear at its position; AEE in px/s and in px of
 displacement over ``--dt`` GT frame intervals, %Out and AE on those displacements, and
 how many events were scored, had no flow or no ground truth.
 
-Masks (thesis ch. 4): valid ground truth, and with ``--events`` at least one event in the
+Masks (thesis ch. 4): valid ground truth, the estimate's own validity (its ``valid``
+mask, or unknown values in a ``.flo``/``.png``: pixels without event support, or a window
+without focus, are not measurements), and with ``--events`` at least one event in the
 window at the pixel; ``--events`` also enables the FWL (IWE variance with the flow over
 that of zero flow).
 """
@@ -117,7 +119,11 @@ def _load_flow(args, h5_format=None):
     seq = read_flow(path, t0_us=args.t0_us, t1_us=args.t1_us)
     # a method may name its evaluation's %Out threshold (BOS: 1 px)
     out_px = seq.attrs.get("eval_out_px")
-    return (seq.flow, np.asarray(seq.t0), np.asarray(seq.t1),
+    # the pixels the estimate does not claim (no event support, no focus) are not scored,
+    # in every container: a .flo or .png stores them as unknown, an .h5 or .npz as a mask
+    # beside the regularizer's fill
+    flow = np.where(seq.valid[..., None], seq.flow, np.float32(np.nan))
+    return (flow, np.asarray(seq.t0), np.asarray(seq.t1),
             None if out_px is None else float(out_px), seq.extras.get("q"))
 
 

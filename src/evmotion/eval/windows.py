@@ -126,14 +126,18 @@ def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float
         ok = np.isfinite(f).all(-1)
         if gt.valid is not None:
             ok &= np.asarray(gt.valid[j], bool)
-        # validity at the nearest GT pixel; the flow itself bilinear over valid pixels
+        # validity at the nearest GT pixel; the flow itself bilinear over the valid pixels
+        # among the four (normalized by their weights: an invalid pixel's flow, unknown,
+        # would otherwise enter as zero and pull its valid neighbours' GT towards it)
         iy = np.rint(coords[0]).astype(np.int64)
         ix = np.rint(coords[1]).astype(np.int64)
         valid &= ok[iy, ix]
         f = np.where(ok[..., None], f, 0.0)
+        weight = map_coordinates(ok.astype(np.float64), coords, order=1, mode="nearest")
+        weight = np.where(valid, np.maximum(weight, 1e-12), 1.0)
         dt_s = overlap[j] * 1e-6
-        px = px + map_coordinates(f[..., 0], coords, order=1, mode="nearest") * dt_s
-        py = py + map_coordinates(f[..., 1], coords, order=1, mode="nearest") * dt_s
+        px = px + map_coordinates(f[..., 0], coords, order=1, mode="nearest") / weight * dt_s
+        py = py + map_coordinates(f[..., 1], coords, order=1, mode="nearest") / weight * dt_s
         frames += overlap[j] / max(gt.t1[j] - gt.t0[j], 1)
     disp = np.stack([px - xs, py - ys], axis=-1)
     valid &= np.isfinite(disp).all(-1)
