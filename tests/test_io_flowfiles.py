@@ -180,3 +180,25 @@ def test_dsec_png_marks_what_its_code_cannot_hold(tmp_path):
     back, valid = read_dsec_flow_png(tmp_path / "f.png")
     assert not valid[0, 0] and valid[1, 1] and valid.sum() == 19
     np.testing.assert_allclose(back[1, 1], d[1, 1], atol=1 / 256)
+
+
+@pytest.mark.parametrize("mask", [None, "all"])
+def test_dsec_png_never_writes_a_nan_or_inf_as_valid(tmp_path, mask):
+    """A NaN displacement inside the given mask was written as a valid zero, an infinite
+    one said 'up to 3.4e38 px' with numpy's overflow warning: both are unknown now."""
+    import warnings
+
+    from evmotion.io.flowfiles import read_dsec_flow_png, write_dsec_flow_png
+
+    d = np.zeros((2, 3, 2), np.float32)
+    d[0, 0] = [np.nan, 1.0]
+    d[0, 1] = [np.inf, 1.0]
+    d[1, 2] = [2.0, -2.0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_dsec_flow_png(tmp_path / "f.png", d,
+                            valid=None if mask is None else np.ones((2, 3), bool))
+    back, valid = read_dsec_flow_png(tmp_path / "f.png")
+    assert valid.tolist() == [[False, False, True], [True, True, True]]
+    np.testing.assert_array_equal(back[1, 2], [2.0, -2.0])
+    assert np.isnan(back[0, :2]).all()

@@ -229,8 +229,11 @@ def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
     valid = np.asarray(valid, dtype=bool)
     if valid.shape != (h, w):
         raise ParameterError(f"valid must have shape {(h, w)}, got {valid.shape}")
+    # a NaN or infinite displacement is no displacement, whatever the mask says (its code
+    # would be a valid zero)
+    valid = valid & np.isfinite(d).all(axis=2)
     enc = np.zeros((h, w, 3), dtype=np.uint16)
-    dd = np.nan_to_num(d, nan=0.0)
+    dd = np.where(valid[..., None], d, 0.0)
     # the 16-bit code holds -256 .. +255.99 px: a valid pixel beyond is not stored as a
     # wrong (clipped) displacement but marked invalid, and said
     beyond = valid & ((dd < -DSEC_MAX_PX) | (dd > DSEC_MAX_PX - 1 / 128)).any(axis=2)
@@ -240,6 +243,7 @@ def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
             f"{DSEC_MAX_PX:g} px (up to {float(np.abs(dd[beyond]).max()):.1f} px): marked "
             "invalid; write .h5, .npz or .flo to keep them"), stacklevel=2)
         valid = valid & ~beyond
+        dd = np.where(valid[..., None], dd, 0.0)
     enc[..., :2] = np.clip(np.rint(dd * 128.0 + 2.0**15), 0, 65535).astype(np.uint16)
     enc[..., 2] = valid
     # zlib level 1: files ~1 % larger than level 6 in a third of the time
