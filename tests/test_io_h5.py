@@ -124,3 +124,33 @@ def test_describe_mentions_ground_truth(tmp_path):
     (tmp_path / "s_gt.h5").write_bytes(b"")
     d = h5.describe(tmp_path / "s.h5")
     assert d["ground_truth"] == ["flow"] and d["ground_truth_file"].endswith("s_gt.h5")
+
+
+def test_the_time_index_stays_in_proportion_to_the_events(tmp_path):
+    """100 events over 30 h made an 865 MB file (an entry per millisecond), 40 days ran out
+    of memory; the index now coarsens its step, and time slices still read exactly."""
+    from evmotion.io import h5
+
+    rng = np.random.default_rng(0)
+    hour = 3600 * 10 ** 6
+    t = np.sort(np.concatenate([rng.integers(0, 10 ** 6, 50), rng.integers(0, 10 ** 6, 50)
+                                + 40 * 24 * hour]))
+    ev = EventArray(x=rng.integers(0, 64, 100), y=rng.integers(0, 48, 100), t=t,
+                    p=rng.integers(0, 2, 100), sensor_size=(48, 64))
+    path = tmp_path / "gap.h5"
+    h5.write(path, (ev[i:i + 10] for i in range(0, 100, 10)))
+    assert path.stat().st_size < 20 * 2 ** 20
+    for t0, t1 in ((None, None), (0, 500_000), (int(t[37]), int(t[71])), (hour, 41 * 24 * hour),
+                   (int(t[50]), None)):
+        got = h5.read(path, t0=t0, t1=t1)
+        np.testing.assert_array_equal(got.t, ev.slice_time(t0, t1).t)
+    # a dense recording keeps the 1 ms step
+    dense = EventArray(x=np.zeros(5000), y=np.zeros(5000), t=np.arange(5000) * 300,
+                       p=np.ones(5000), sensor_size=(4, 4))
+    h5.write(tmp_path / "dense.h5", dense)
+    import h5py
+
+    with h5py.File(tmp_path / "dense.h5") as f:
+        assert "index_step_us" not in f.attrs and f["events/ms_to_idx"].shape[0] == 1501
+    np.testing.assert_array_equal(h5.read(tmp_path / "dense.h5", t0=1000, t1=2000).t,
+                                  [1200, 1500, 1800])

@@ -5,8 +5,10 @@ Layout::
     /events/x, /events/y   uint16 (float32 when undistorted)
     /events/t              int64 µs, absolute
     /events/p              uint8 0/1
-    /events/ms_to_idx      int64: ms_to_idx[k] = first event with t >= t_index0 + 1000·k
+    /events/ms_to_idx      int64: ms_to_idx[k] = first event with t >= t_index0 + step·k
     attrs: format="evmotion-events", version, height, width, t_index0 (µs),
+           index_step_us (step: 1000, coarser when the recording spans far more
+           milliseconds than it holds events; absent in older files: 1000),
            provenance (JSON), calibration (JSON, optional), plus user attributes
     /frames/images (N,H,W), /frames/t        optional APS frames
     /imu/t, /imu/gyro, /imu/accel             optional
@@ -35,6 +37,12 @@ from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
 from evmotion.io.h5attrs import read_attrs, text_attr
 from evmotion.io.h5filters import HDF5_MAGIC, filter_error, h5_compression
 from evmotion.utils import ensure_room
+
+# the time index: its finest step (µs), the entries it may always have, and how many it
+# fills at a time
+INDEX_STEP_US = 1000
+INDEX_MIN_ENTRIES = 1 << 20
+INDEX_BLOCK = 1 << 20
 
 __all__ = ["EventWriter", "read", "iter_chunks", "write", "describe", "read_frames",
            "read_imu", "FORMAT", "FORMAT_NAME"]
@@ -118,6 +126,7 @@ class EventWriter(PartFileWriter):
         self.n = 0
         self.t_last: int | None = None
         self.t_index0: int | None = None
+        self.step = INDEX_STEP_US
 
     def append(self, events: EventArray) -> None:
         """Append a chunk; its timestamps must not precede the previous chunk's."""
@@ -150,16 +159,29 @@ class EventWriter(PartFileWriter):
 
     def _extend_index(self, t: np.ndarray) -> None:
         ms = self.f["events/ms_to_idx"]
+        # Entries for every step boundary up to this chunk's last event; later boundaries
+        # are added once later events show where they fall.
+        k1 = int((t[-1] - self.t_index0) // self.step) + 1
+        limit = max(INDEX_MIN_ENTRIES, 2 * (self.n + len(t)))
+        if k1 > limit:
+            # a recording spanning far more steps than it holds events (a pause of hours):
+            # a coarser step, whose entries are every m-th of the finer ones, keeps the
+            # index in proportion to the events (was 865 MB for 100 events over 30 h)
+            m = -(-k1 // limit)
+            kept = ms[::m] if ms.shape[0] else np.zeros(0, np.int64)
+            ms.resize(len(kept), axis=0)
+            ms[:] = kept
+            self.step *= m
+            self.f.attrs["index_step_us"] = self.step
+            k1 = int((t[-1] - self.t_index0) // self.step) + 1
         k0 = ms.shape[0]
-        # Entries for every ms boundary up to this chunk's last event; later boundaries are
-        # added once later events show where they fall.
-        k1 = int((t[-1] - self.t_index0) // 1000) + 1
         if k1 <= k0:
             return
-        bounds = self.t_index0 + 1000 * np.arange(k0, k1, dtype=np.int64)
-        idx = self.n + np.searchsorted(t, bounds, side="left")
         ms.resize(k1, axis=0)
-        ms[k0:k1] = idx
+        for a in range(k0, k1, INDEX_BLOCK):  # bounded memory across a long pause
+            b = min(a + INDEX_BLOCK, k1)
+            bounds = self.t_index0 + self.step * np.arange(a, b, dtype=np.int64)
+            ms[a:b] = self.n + np.searchsorted(t, bounds, side="left")
 
     def close(self) -> None:
         """Finish (close the index with the end marker) and rename onto the final name."""
@@ -265,7 +287,8 @@ def _meta(f, path: Path) -> tuple[tuple[int, int], dict]:
     return size, meta
 
 
-def _index_range(f, base: int, t0: int | None, t1: int | None) -> tuple[int, int]:
+def _index_range(f, base: int, t0: int | None, t1: int | None, step: int = INDEX_STEP_US
+                 ) -> tuple[int, int]:
     g = f["events"]
     n = g["t"].shape[0]
     lo, hi = 0, n
@@ -276,10 +299,10 @@ def _index_range(f, base: int, t0: int | None, t1: int | None) -> tuple[int, int
     def locate(tq: int) -> int:
         if ms is None or ms.size == 0:
             return int(np.searchsorted(g["t"][:], tq, side="left"))
-        k = (tq - base) // 1000
+        k = (tq - base) // step
         if k < 0:
             return 0
-        # ms[k] <= answer <= ms[k+1]: search only the events of that millisecond.
+        # ms[k] <= answer <= ms[k+1]: search only the events of that step.
         a = int(ms[k]) if k < ms.size else int(ms[ms.size - 1])
         b = int(ms[k + 1]) if k + 1 < ms.size else n
         a, b = min(max(a, 0), n), min(max(b, 0), n)  # a corrupt index stays in range
@@ -315,12 +338,16 @@ def _events_range(path: Path, sensor_size: tuple[int, int] | None, t0: int | Non
     with _open(path) as f:
         size, meta = _meta(f, path)
         size = tuple(sensor_size) if sensor_size is not None else size
-        base = read_attrs(path, f, ("t_index0",)).get("t_index0", 0)
+        attrs = read_attrs(path, f, ("t_index0", "index_step_us"))
+        base, step = attrs.get("t_index0", 0), attrs.get("index_step_us", INDEX_STEP_US)
         try:
-            base = int(base)
+            base, step = int(base), int(step)
         except (TypeError, ValueError):
-            raise FormatError(path, f"attribute 't_index0' is not an integer: {base!r}") from None
-        lo, hi = _index_range(f, base, t0, t1)
+            raise FormatError(path, "attributes 't_index0', 'index_step_us' are not integers: "
+                              f"{base!r}, {step!r}") from None
+        if step < 1:
+            raise FormatError(path, f"attribute 'index_step_us' is {step}, not positive")
+        lo, hi = _index_range(f, base, t0, t1, step)
         yield f["events"], size, meta, lo, hi
 
 
