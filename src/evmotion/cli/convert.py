@@ -153,7 +153,9 @@ def run(args) -> int:
         print_json(summary)
     else:
         extra = "".join(f" + {len(v['t']):,} {_AUX_NAMES[name]}" for name, v in kept.items())
-        print(f"wrote {counted['n']:,} events{extra} ({fmt_in} -> {fmt_out}) to {dst}")
+        n = counted["n"]
+        print(f"wrote {n:,} event{'' if n == 1 else 's'}{extra} ({fmt_in} -> {fmt_out}) to "
+              f"{dst}")
     return 0
 
 

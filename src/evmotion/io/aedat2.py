@@ -230,7 +230,8 @@ def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> N
     h, w = events.sensor_size
     if chip is None:
         chip = {(180, 240): "DAVIS240C", (260, 346): "DAVIS346B"}.get((h, w), "DAVIS")
-    binary.check_writable(events, "AEDAT 2.0 (DAVIS)", 512, 1024)
+    binary.check_writable(events, "AEDAT 2.0 (DAVIS)", 512, 1024,
+                          hint="AEDAT 3.1 (--format-out aedat3) holds sensors up to 32768 px")
     binary.check_u32_times(events, "AEDAT 2.0")
     header = (f"{MAGIC.decode()}\r\n# This is a raw AE data file written by evmotion\r\n"
               "# Data format is int32 address, int32 timestamp (8 bytes total), repeated "

@@ -248,16 +248,18 @@ def geometry_from_header(lines: list[str], path: Path, default: tuple[int, int] 
     return check_sensor_size(path, (height, width), "header geometry")
 
 
-def check_writable(events: EventArray, fmt: str, height: int, width: int) -> None:
+def check_writable(events: EventArray, fmt: str, height: int, width: int,
+                   hint: str | None = None) -> None:
     """FormatError unless ``events`` fit a format that stores integer pixels of at most
-    ``height`` rows and ``width`` columns (``fmt`` names it in the message)."""
+    ``height`` rows and ``width`` columns (``fmt`` names it in the message, ``hint`` says
+    what holds a larger sensor)."""
     if events.x.dtype.kind == "f":
         raise FormatError(None, f"events have float (undistorted) coordinates; {fmt} stores "
                           "integer pixels")
     h, w = events.sensor_size
     if w > width or h > height:
         raise FormatError(None, f"sensor_size {events.sensor_size} exceeds {fmt}'s address "
-                          f"range ({height} rows, {width} columns)")
+                          f"range ({height} rows, {width} columns)", hint)
 
 
 def check_u32_times(events: EventArray, fmt: str) -> None:
