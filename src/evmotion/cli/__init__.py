@@ -226,8 +226,13 @@ def _flush_std() -> None:
             pass
 
 
+# the exit code of an interrupted run: 130 after Ctrl-C (SIGINT), 143 after SIGTERM
+_EXIT_CODE = [130]
+
+
 def _interrupted(*_) -> None:
-    """Ctrl-C in the command-line process: one line, exit code 130, nothing else.
+    """Ctrl-C in the command-line process: one line, exit code 130 (143 after SIGTERM),
+    nothing else.
 
     Exits with ``os._exit`` once the work has unwound (outputs removed or kept for
     ``--resume`` by their ``finally`` blocks), so that no interpreter-shutdown hook
@@ -241,7 +246,7 @@ def _interrupted(*_) -> None:
     try:
         os.write(2, _interrupted_line().encode("utf-8", "replace") + b"\n")
     finally:
-        os._exit(130)
+        os._exit(_EXIT_CODE[0])
 
 
 def _interrupted_line() -> str:
@@ -276,6 +281,7 @@ def _on_sigterm(signum, frame) -> None:
     SIGTERM's default action would, when its pool is terminated."""
     if os.getpid() != _MAIN_PID[0]:
         os._exit(128 + signum)
+    _EXIT_CODE[0] = 128 + signum  # 143, as the shell reports a process SIGTERM ended
     _on_sigint(signum, frame)
 
 
