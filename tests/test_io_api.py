@@ -207,3 +207,17 @@ def test_own_outputs_are_named_not_unrecognised(tmp_path, capsys):
                        (tmp_path / "s_gt.h5", "evmotion-sim-gt")):
         with pytest.raises(FormatError, match=f"is an evmotion output \\({what}\\)"):
             eio.read_events(path)
+
+
+@pytest.mark.parametrize("ext", ["h5", "npz", "txt", "aedat4"])
+def test_a_sensor_no_reader_takes_back_is_not_written(tmp_path, ext):
+    """20000 x 20000 px was written by most writers, then refused by every reader as a
+    corrupt header (over 16384 px per side)."""
+    from evmotion.errors import FormatError
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    ev = EventArray(x=[0, 19999], y=[0, 5], t=[0, 1], p=[1, 0], sensor_size=(20000, 20000))
+    with pytest.raises(FormatError, match=r"larger than the 16384 px per side"):
+        write_events(tmp_path / f"big.{ext}", ev)
+    assert not list(tmp_path.iterdir())

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from evmotion.errors import FormatError
 from evmotion.events import EventArray, concatenate
+from evmotion.io.guard import MAX_SENSOR_SIDE
 from evmotion.io.registry import all_formats, get_format
 
 __all__ = ["format_for_output", "write_events"]
@@ -83,6 +84,11 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
                           "write .h5, .txt, .npz or another writable format")
     if not isinstance(events, EventArray) and name not in _STREAMING_WRITERS:
         events = concatenate(list(events))
+    if isinstance(events, EventArray) and max(events.sensor_size) > MAX_SENSOR_SIDE:
+        # every reader refuses such a size as a corrupt header: a file that cannot be read
+        # back is not written
+        raise FormatError(path, f"sensor_size {events.sensor_size} is larger than the "
+                          f"{MAX_SENSOR_SIDE} px per side evmotion reads back")
     opts, extra = {}, {}
     for k, v in meta.items():
         (opts if _accepts_named(spec.write, k) else extra)[k] = v
