@@ -69,6 +69,9 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
                 raise
             extra = {}  # a header that cannot size the sensor: the size given does
         out.update({k: v for k, v in extra.items() if k != "format"})
+    # the same keys for every format: one that cannot hold frames or IMU samples has none
+    out.setdefault("frames", 0)
+    out.setdefault("imu", 0)
     try:
         frames = describe_frames(path)
     except FormatError as exc:
