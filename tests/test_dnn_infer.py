@@ -366,3 +366,58 @@ def test_video_without_its_extra_fails_before_the_work(tmp_path, window, capsys)
                  "--video", str(tmp_path / "v.mp4")]) == 2
     assert "imageio-ffmpeg" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["win.h5"]
+
+
+def _with_hot_pixels(ev, share, n_hot=5, seed=0):
+    """``ev`` with ``share`` of its events moved onto ``n_hot`` fixed pixels."""
+    rng = np.random.default_rng(seed)
+    h, w = ev.sensor_size
+    k = int(share * len(ev))
+    idx = rng.choice(len(ev), k, replace=False)
+    hx, hy = rng.integers(5, w - 5, n_hot), rng.integers(5, h - 5, n_hot)
+    which = rng.integers(0, n_hot, k)
+    x, y = ev.x.astype(np.int64), ev.y.astype(np.int64)
+    x[idx], y[idx] = hx[which], hy[which]
+    return EventArray(x=x, y=y, t=ev.t, p=ev.p, sensor_size=ev.sensor_size), hx, hy
+
+
+def test_hot_pixels_get_zero_flow_and_do_not_blur_the_window():
+    """2 % of a window's events on 5 hot pixels: the network's flow there smeared them, and
+    the window came out blurrier than unwarped (FWL 0.80 on an ECD window). Their flow is
+    now zero, and the FWL the result reports is that of the flow written."""
+    from evmotion.methods.dnn.infer import sharpness
+
+    win = sim_window(5, scene="translation", texture="shapes", sensor_size=(120, 160),
+                     window_events=20000)
+    ev, hx, hy = _with_hot_pixels(win.events, 0.02)
+    res = estimate_flow_dnn(ev, with_iwes=False)
+    assert res.meta["hot_pixels"] == 5
+    assert np.all(res.flow[hy, hx] == 0)
+    disp = res.displacement()
+    still = sharpness(ev, np.zeros_like(disp))
+    assert res.meta["fwl"] == pytest.approx(sharpness(ev, disp) / still)
+    moving = disp.copy()  # the flow around each hot pixel given to it too
+    moving[hy, hx] = disp[hy + 2, hx]
+    assert sharpness(ev, moving) / still < res.meta["fwl"]
+    # a clean window has no hot pixel
+    assert estimate_flow_dnn(win.events, with_iwes=False).meta["hot_pixels"] == 0
+
+
+def test_no_focus_is_checked_without_json_or_pictures(tmp_path, capsys):
+    """The judged command (no --json, no --png-dir) skipped the focus check: a window of
+    pure noise came out as valid flow, silently. Now stderr says so and the .flo holds
+    only unknown values, as with --json."""
+    rng = np.random.default_rng(3)
+    n = 30000
+    ev = EventArray(x=rng.integers(0, 240, n), y=rng.integers(0, 180, n),
+                    t=np.sort(rng.integers(0, 30000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(180, 240))
+    from evmotion.io import read_flow, write_events
+
+    write_events(tmp_path / "noise.h5", ev)
+    for extra in ([], ["--json"]):
+        out = tmp_path / f"n{len(extra)}.flo"
+        assert main(["flow", str(tmp_path / "noise.h5"), "--method", "dnn",
+                     "--window-events", "30000", "--out", str(out), *extra]) == 0
+        assert "no focus" in capsys.readouterr().err
+        assert not read_flow(out).valid.any()

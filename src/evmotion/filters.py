@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
+from evmotion.jitcache import lazy_njit
 
 __all__ = ["hot_pixel_mask", "refractory_filter", "remove_hot_pixels"]
 
 
-@njit(cache=True)
+# compiled on first use: the hot-pixel mask, used at a network's start-up, needs no numba
+@lazy_njit(cache=True)
 def _refractory_keep(x, y, t, p, width, height, refractory_us, per_polarity, keep):
     n_pol = 2 if per_polarity else 1
     last = np.full(n_pol * width * height, np.iinfo(np.int64).min // 2, dtype=np.int64)
@@ -55,9 +56,20 @@ def refractory_filter(events: EventArray, refractory_us: int, *, per_polarity: b
 
 
 def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int = 10,
-                   ) -> np.ndarray:
+                   neighbour_ratio: float | None = None) -> np.ndarray:
     """(H, W) bool mask of hot pixels: event count above ``median + n_sigma * 1.4826 * MAD``
-    of the active pixels and at least ``min_count`` events."""
+    of the active pixels and at least ``min_count`` events; with ``neighbour_ratio``, also
+    more than that many times the count of each of its 8 neighbours (a hot pixel fires
+    alone, while a busy pixel of a moving edge or texture has busy neighbours).
+
+    Examples
+    --------
+    >>> x = np.r_[np.repeat(3, 40), np.arange(8), np.arange(8)]
+    >>> y = np.r_[np.repeat(2, 40), np.zeros(8, int), np.ones(8, int)]
+    >>> ev = EventArray(x=x, y=y, t=np.arange(56), p=np.ones(56), sensor_size=(6, 8))
+    >>> np.argwhere(hot_pixel_mask(ev, neighbour_ratio=4)).tolist()
+    [[2, 3]]
+    """
     counts = np.bincount(events.y.astype(np.intp) * events.width + events.x.astype(np.intp),
                          minlength=events.width * events.height)
     active = counts[counts > 0]
@@ -66,7 +78,15 @@ def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int =
     med = np.median(active)
     mad = 1.4826 * np.median(np.abs(active - med))
     thr = max(med + n_sigma * max(mad, 1.0), float(min_count))
-    return (counts > thr).reshape(events.sensor_size)
+    hot = (counts > thr).reshape(events.sensor_size)
+    if neighbour_ratio is not None and hot.any():
+        img = counts.reshape(events.sensor_size)
+        pad = np.pad(img, 1)
+        h, w = img.shape
+        around = np.max([pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                         for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], axis=0)
+        hot &= img > neighbour_ratio * around
+    return hot
 
 
 def remove_hot_pixels(events: EventArray, mask: np.ndarray | None = None, **kw) -> EventArray:

@@ -22,6 +22,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, pixel_indices
+from evmotion.filters import hot_pixel_mask
 from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
@@ -31,6 +32,9 @@ from evmotion.methods.flowresult import (
 from evmotion.methods.measured import warn_no_gain
 
 __all__ = ["estimate_flow_dnn", "predict_displacement", "sharpness"]
+
+# a hot pixel holds more than this many times the events of each of its neighbours
+HOT_NEIGHBOUR_RATIO = 4.0
 
 INPUT_SCALES = (1, 2, 4)  # the events binned this many times coarser (estimate_flow_dnn)
 # the magnitudes the network's flow is tried at (estimate_flow_dnn's rescale): its
@@ -217,9 +221,12 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     FlowResult
         ``flow`` in px/s at the window's midpoint; ``valid`` the pixels with event support,
         as multicm's; ``params`` empty; ``meta["method"]`` is ``"dnn"`` and
-        ``meta["input_scale"]`` the scale kept, ``meta["gain"]`` the gain applied;
-        with ``with_iwes``, a flow that sharpens the events by less than 5 % (multi-reference
-        focus under :data:`~evmotion.methods.diagnostics.MIN_CONTRAST_GAIN`) is no
+        ``meta["input_scale"]`` the scale kept, ``meta["gain"]`` the gain applied,
+        ``meta["fwl"]`` the variance of the image of the events warped to the midpoint over
+        the unwarped one's, ``meta["hot_pixels"]`` how many hot pixels
+        (:func:`evmotion.filters.hot_pixel_mask`) were given zero flow. A flow that sharpens
+        the events by less than 5 % (that ratio, or with ``with_iwes`` the multi-reference
+        focus, under :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`) is no
         measurement: PoorFitWarning, ``valid`` all False, ``meta["no_focus"]`` True.
 
     Examples
@@ -241,9 +248,18 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                              f"of the network's 16-px padding), got {input_scales!r}")
     scales = sorted({int(k) for k in input_scales})
     t_start = time.perf_counter()
-    xys = _pixels_and_times(events) if len(scales) > 1 or rescale else None
+    xys = _pixels_and_times(events)
     best, disp = _predict(events, scales, checkpoint, device, xys, bool(time_reversal))
+    # a hot pixel's events do not move: any flow there smears them, and they outnumber
+    # a moving pixel's many times over (2 % of a window's events on 5 hot pixels brought
+    # the window's contrast below the unwarped one's); their flow is zero
+    hot = hot_pixel_mask(events, neighbour_ratio=HOT_NEIGHBOUR_RATIO)
+    disp[hot] = 0.0
     gain, disp = _rescaled(xys, disp) if rescale else (1.0, disp)
+    # the contrast gain of the flow kept, checked on every call (the focus below only
+    # with the IWEs): the variance of the warped events' image over the unwarped one's
+    still = _warped_variance(*xys, np.zeros_like(disp))
+    fwl = _warped_variance(*xys, disp) / still if still > 0 else float("nan")
     t_net = time.perf_counter() - t_start
     t0, t1 = int(events.t[0]), int(events.t[-1])
     duration_s = (t1 - t0) * 1e-6
@@ -263,7 +279,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     # the network answers everywhere; only where events are is it a measurement
     valid = event_support(events.x, events.y, events.sensor_size, SUPPORT_RADIUS,
                           SUPPORT_MIN_EVENTS)
-    no_focus = with_iwes and warn_no_gain(focus, "network's flow") is not None
+    # the lower of the two gains decides: hot pixels can leave the multi-reference focus
+    # above the threshold while the flow blurs the window
+    gains = [g for g in (fwl, focus if with_iwes else float("nan")) if np.isfinite(g)]
+    no_focus = bool(gains) and warn_no_gain(min(gains), "network's flow") is not None
     if no_focus:
         valid = np.zeros_like(valid)
     total = time.perf_counter() - t_start
@@ -273,4 +292,5 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                       n_bins=0, n_events=len(events), valid=valid,
                       meta={"method": "dnn", "checkpoint": str(checkpoint or "shipped"),
                             "input_scale": best, "time_reversal": bool(time_reversal),
-                            "gain": gain, "no_focus": bool(no_focus)})
+                            "gain": gain, "no_focus": bool(no_focus), "fwl": float(fwl),
+                            "hot_pixels": int(hot.sum())})
