@@ -340,3 +340,29 @@ def test_pattern_output_onto_a_folder_is_refused_before_the_work(recording, tmp_
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and "f_001.flo is a folder" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f_001.flo"]
+
+
+@pytest.mark.parametrize("n, per_window", [(10_000, 10_000), (10_005, 10_000), (10_500, 10_000),
+                                           (14_000, 10_000), (14_000, 7_000)])
+def test_one_file_output_takes_a_window_with_a_remainder_whole(recording, tmp_path, capsys, n,
+                                                               per_window):
+    """A .flo of a recording holding one --window-events window and a few more events:
+    10,500 events (the remainder a window of its own) gave no output at all, 10,005 (a
+    remainder under 10 events) left those events out, silently. Now every event is in the
+    one window, with a warning line; two whole windows still need a pattern."""
+    from evmotion.io import read_events, read_flow, write_events
+
+    ev = read_events(recording[0])[:n]
+    src = tmp_path / "w.h5"
+    write_events(src, ev)
+    out = tmp_path / "w.flo"
+    rc = main(["flow", str(src), "--method", "multicm", "--scales", "1", "--max-iter", "3",
+               "--window-events", str(per_window), "--out", str(out)])
+    err = capsys.readouterr().err
+    if n >= 2 * per_window:
+        assert rc == 2 and "2 windows but one .flo file" in err
+        return
+    assert rc == 0, err
+    seq = read_flow(out)
+    assert (int(seq.t0[0]), int(seq.t1[0])) == (int(ev.t[0]), int(ev.t[-1]) + 1)
+    assert (f"holds {n:,} events" in err) == (n > per_window)

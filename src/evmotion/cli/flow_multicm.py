@@ -104,7 +104,33 @@ def _windows(args, events):
             raise ParameterError(f"--window-gt {args.window_gt}: {max(edges.size - 1, 0)} "
                                  f"ground-truth frame(s), fewer than --gt-dt {args.gt_dt}")
         return select_windows(args, events, edges_us=edges, dt=args.gt_dt, **kw)
-    return select_windows(args, events, **_cut(args), **kw)
+    windows = select_windows(args, events, **_cut(args), **kw)
+    return _one_window_for_one_file(args, events, windows)
+
+
+def _one_window_for_one_file(args, events, windows):
+    """A single .flo/.png output and a recording of one count window plus a remainder
+    (a window cut by time from another tool holds 30,457 events, not 30,000): one window
+    of all its events, with a warning line, rather than no output (a second window) or the
+    remainder's events left out (a remainder under 10 events)."""
+    from evmotion.events import make_windows
+    from evmotion.io.flowout import PER_WINDOW, flow_container, is_pattern
+
+    out = Path(args.out)
+    n = args.window_events or DEFAULT_WINDOW_EVENTS
+    if (args.window_us is not None or args.window_gt or is_pattern(out)
+            or flow_container(out) not in PER_WINDOW or args.max_windows is not None):
+        return windows
+    t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
+    total = events.slice_time(t0, t1) if t0 is not None or t1 is not None else events
+    if not n < len(total) < 2 * n:
+        return windows
+    from evmotion.cli import warn_line
+
+    warn_line(f"{args.file} holds {len(total):,} events, one window of --window-events {n} "
+              f"and {len(total) - n:,} more: {out.name} holds one window, so all "
+              f"{len(total):,} are estimated as one")
+    return make_windows(events, n_events=len(total), t0=t0, t1=t1)
 
 
 def _cut(args) -> dict:
