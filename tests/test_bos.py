@@ -190,6 +190,47 @@ def test_contrast_threshold_auto_removes_frame_noise():
         assert noisy == pytest.approx(clean, rel=0.05)
 
 
+def _weak_air(n=160, c=0.15, disp=0.3, seed=0):
+    """Random dots seen through weak air (0.3 px at the centre) and the events of a sensor
+    at ``c`` with random leftover charge: relative intensities of the two frames, events."""
+    from scipy.ndimage import gaussian_filter, map_coordinates
+
+    rng = np.random.default_rng(seed)
+    bg = gaussian_filter((rng.random((n, n)) < 0.15).astype(float), 1.0)
+    bg = 0.2 + 0.8 * bg / bg.max()
+    yy, xx = np.mgrid[0:n, 0:n]
+    amp = disp * np.exp(-((xx - n / 2) ** 2 + (yy - n / 2) ** 2) / (2 * (n / 5) ** 2))
+    moved = map_coordinates(bg, [yy, xx - amp], order=3, mode="nearest")
+    d = np.log(moved) - np.log(bg)
+    s = np.sign(d).astype(int) * np.floor((np.abs(d) + rng.uniform(0, c, d.shape)) / c
+                                          ).astype(int)
+    ys, xs = np.nonzero(s)
+    m = np.abs(s[ys, xs])
+    ev = EventArray(x=np.repeat(xs, m), y=np.repeat(ys, m), t=np.zeros(m.sum(), int),
+                    p=np.repeat(s[ys, xs] > 0, m), sensor_size=(n, n))
+    return bg, moved, ev
+
+
+def test_contrast_threshold_of_dark_frames():
+    """The same events, the frames imaged at a white of 255, 60, 20 or 6 grey levels. The
+    quantization error, absent in still air (an unchanged pixel rounds alike in both
+    frames) and so missed by the still-air noise, made C rise as the frames darkened
+    (0.126 / 0.129 / 0.205 / 0.472); it now counts as frame noise, and where it exceeds
+    half the frames' change C is the events' own slope (low: the sequence warns)."""
+    from evmotion.methods.bos import contrast_threshold_slope
+
+    bg, moved, ev = _weak_air()
+    got = {}
+    for white in (255, 60, 20, 6):
+        def q(f, w=white):
+            return np.rint(np.clip(f, 0, 1) * w).astype(np.uint8)
+
+        got[white] = contrast_threshold_slope(ev, q(bg), q(moved), t0_us=0, t1_us=1)
+    bright = got[255][0]
+    assert got[60] == (pytest.approx(bright, rel=0.1), "frames")
+    assert all(slope == "events" and c < bright for c, slope in (got[20], got[6]))
+
+
 def test_potential_of_the_exact_flow_is_the_simulators_q():
     """The simulator's q is analytic (its flow is grad q): the potential of its flow
     matches it up to a constant, on a plume that enters through the image's edge."""

@@ -71,3 +71,37 @@ def test_one_worker_warm_starts_in_order(data):
         prev = ref
     with pytest.raises(ParameterError, match="workers"):
         solve_bos_input(data, workers=0)
+
+
+def test_sequence_c_from_the_events_alone_is_said(data):
+    """Frames of weak air imaged at 6 grey levels: their noise exceeds their change, C
+    comes from the events' slope (low where the air changes the image by less than C), and
+    the run says so instead of scaling the flow silently; bright frames say nothing."""
+    import dataclasses
+    import sys
+    import warnings
+    from pathlib import Path
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.events import EventArray
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from test_bos import _weak_air
+
+    bg, moved, ev = _weak_air()
+    t = np.sort(np.random.default_rng(1).integers(0, 1000, len(ev)))
+    ev = EventArray(x=ev.x, y=ev.y, t=t, p=ev.p, sensor_size=ev.sensor_size)
+    said = {}
+    for white in (255, 6):
+        frames = np.rint(np.clip(np.stack([bg, moved]), 0, 1) * white).astype(np.uint8)
+        run = dataclasses.replace(data, events=ev, frames=frames,
+                                  frame_times=np.array([0, 1000]),
+                                  intervals=np.array([[0, 0, 1000]]), roi=None)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            sequence_contrast_threshold(run)
+        said[white] = [str(w.message) for w in caught
+                       if issubclass(w.category, EvmotionWarning)]
+    assert said[255] == []
+    assert len(said[6]) == 1 and "from the events alone" in said[6][0]
+    assert "--contrast-threshold" in said[6][0]

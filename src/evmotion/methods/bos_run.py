@@ -16,12 +16,13 @@ estimate can be far off where few pixels change (the first interval of a startin
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from evmotion.errors import EventDataError, EvmotionError, ParameterError
+from evmotion.errors import EventDataError, EvmotionError, EvmotionWarning, ParameterError
 from evmotion.io.bosinput import BosInput
 from evmotion.io.flowfiles import FLOW_COMPRESSION
 
@@ -66,23 +67,32 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
     --------
     >>> c, per_interval = sequence_contrast_threshold(load_bos_input("scene/"))  # doctest: +SKIP
     """
-    from evmotion.methods.bos import estimate_contrast_threshold
+    from evmotion.methods.bos import contrast_threshold_slope
 
     if samples < 1:
         raise ParameterError(f"samples must be >= 1, got {samples}")
     pick = np.unique(np.linspace(0, len(data.intervals) - 1, min(samples, len(data.intervals)))
                      .round().astype(int))
-    estimates = []
+    estimates, slopes = [], []
     for j in pick:
         i, t0, t1 = (int(v) for v in data.intervals[j])
         try:
-            c = estimate_contrast_threshold(data.events, data.frames[i], data.frames[i + 1],
-                                            t0_us=t0, t1_us=t1, roi=data.roi)
+            c, slope = contrast_threshold_slope(data.events, data.frames[i],
+                                                data.frames[i + 1], t0_us=t0, t1_us=t1,
+                                                roi=data.roi)
         except EvmotionError:
             continue
         if np.isfinite(c) and c > 0:
             estimates.append(c)
+            slopes.append(slope)
     est = np.asarray(estimates, dtype=np.float64)
+    if slopes.count("events") > len(slopes) / 2:
+        warnings.warn(EvmotionWarning(
+            f"the contrast threshold C = {np.median(est):.3g} comes from the events alone in "
+            f"{slopes.count('events')} of {len(slopes)} intervals: the frames' noise "
+            "(dark or noisy frames, few grey levels) exceeds half their change, and the "
+            "events' slope is low where the air changes the image by less than C, so the "
+            "flow's magnitude may be too small; give --contrast-threshold"), stacklevel=2)
     return (float(np.median(est)) if est.size else None), est
 
 
