@@ -587,3 +587,22 @@ def test_on_empty_skip_carries_the_warm_start(case):
     # no warm start to carry: NaN parameters, which the next interval takes as none
     assert all(np.isnan(a).all() for a in cold.params)
     np.testing.assert_array_equal(estimate_bos(ev, f0, init=cold, **kw).flow, prev.flow)
+
+
+def test_background_noise_events_do_not_make_still_air_valid():
+    """Uniform noise events (20 per pixel and second) over a plume seen through clean
+    frames: two-thirds of the still background was marked valid; the support rule now
+    asks for more events than the noise gives in the squares the frames show unchanged."""
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    shares = {}
+    for rate in (0.0, 20.0):
+        sim = simulate_schlieren("plume", sensor_size=(96, 80), duration_s=2 / 120, seed=0,
+                                 noise_rate=rate)
+        fr, t = sim.frames.images, sim.frames.t
+        res = estimate_bos(sim.events, fr[1], t0_us=int(t[1]), t1_us=int(t[2]),
+                           frame_next=fr[2], iterations=5)
+        still = np.hypot(*np.moveaxis(sim.gt.flow[1], -1, 0)) * (t[2] - t[1]) * 1e-6 < 1e-3
+        shares[rate] = (res.valid[still].mean(), res.valid[~still].mean())
+    assert shares[20.0][0] < 0.05 and shares[0.0][0] < 0.05
+    assert shares[20.0][1] > 0.3 * shares[0.0][1]  # the air keeps most of its support

@@ -76,7 +76,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
+from scipy.ndimage import gaussian_filter, maximum_filter
 
 from evmotion.errors import (
     EmptyWindowError,
@@ -95,7 +95,7 @@ from evmotion.methods.bos_kernels import (
     objective_grad,
     upsample,
 )
-from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_support
+from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_box_counts
 
 __all__ = [
     "BosOptions",
@@ -1020,7 +1020,7 @@ def estimate_bos(
     q[y:y + rh, x:x + rw] = potential_from_flow(flow[y:y + rh, x:x + rw])
     valid = np.zeros((H, W), bool)
     valid[y:y + rh, x:x + rw] = True
-    valid &= _supported(events, int(t0_us), int(t1_us))
+    valid &= _supported(events, int(t0_us), int(t1_us), frame, frame_next, o.log_eps)
     calibrated = log_units and (not normalized or o.rescale)
     share = valid.sum() / max(rw * rh, 1)
     if share < MIN_SUPPORTED_SHARE:
@@ -1040,11 +1040,52 @@ def estimate_bos(
 MIN_SUPPORTED_SHARE = 0.01
 
 
-def _supported(events: EventArray, t0_us: int, t1_us: int) -> np.ndarray:
-    """Pixels with event support in ``[t0_us, t1_us)`` (as every flow method marks them:
-    :func:`~evmotion.methods.flowresult.event_support`)."""
+def _supported(events: EventArray, t0_us: int, t1_us: int, frame: np.ndarray,
+               frame_next: np.ndarray | None, log_eps: float | None) -> np.ndarray:
+    """Pixels with event support in ``[t0_us, t1_us)``: as every flow method marks them
+    (:func:`~evmotion.methods.flowresult.event_support`), with the count needed raised
+    above what background noise events give where the two frames show still air
+    (:func:`noise_floor_count`): at 20 noise events per pixel and second two-thirds of a
+    still background passed the plain rule. Without ``frame_next``, the plain rule."""
     win = events.slice_time(t0_us, t1_us)
-    return event_support(win.x, win.y, events.sensor_size, SUPPORT_RADIUS, SUPPORT_MIN_EVENTS)
+    box = event_box_counts(win.x, win.y, events.sensor_size, SUPPORT_RADIUS)
+    if frame_next is None:
+        return box >= SUPPORT_MIN_EVENTS
+    # still air: no pixel of the square changed between the frames at all (noisy frames
+    # have none, and keep the plain rule)
+    changed = log_frame(frame_next, log_eps) != log_frame(frame, log_eps)
+    still = ~maximum_filter(changed, size=2 * SUPPORT_RADIUS + 1, mode="nearest")
+    return box >= noise_floor_count(box[still])
+
+
+# the chance a square of background noise alone passes the support rule
+NOISE_TAIL = 1e-3
+# still-air pixels needed to measure the background noise's events
+MIN_STILL_PIXELS = 100
+
+
+def noise_floor_count(still_box: np.ndarray, tail: float = NOISE_TAIL) -> int:
+    """Events a support square must hold to stand out of uniform background noise: the
+    smallest ``k >= SUPPORT_MIN_EVENTS`` that a Poisson count, of mean the squares' mean
+    count in still air (``still_box``), reaches with probability at most ``tail``;
+    ``SUPPORT_MIN_EVENTS`` with no noise or fewer than ``MIN_STILL_PIXELS`` still pixels.
+
+    Examples
+    --------
+    >>> noise_floor_count(np.zeros(400))
+    2
+    >>> noise_floor_count(np.full(400, 4.0))  # 4 noise events per square
+    12
+    """
+    vals = np.asarray(still_box, dtype=np.float64).ravel()
+    lam = float(vals.mean()) if vals.size >= MIN_STILL_PIXELS else 0.0
+    if lam <= 0:
+        return int(SUPPORT_MIN_EVENTS)
+    from scipy.special import pdtrc  # P(X > k) for X ~ Poisson(lam)
+
+    ks = np.arange(int(lam + 10 * np.sqrt(lam) + 10))
+    k = int(ks[np.argmax(pdtrc(ks, lam) <= tail)]) + 1  # P(X >= k) <= tail
+    return max(k, int(SUPPORT_MIN_EVENTS))
 
 
 def potential_from_flow(flow: np.ndarray) -> np.ndarray:

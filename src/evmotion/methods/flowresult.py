@@ -17,7 +17,7 @@ from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray, Window
 
 __all__ = ["SUPPORT_MIN_EVENTS", "SUPPORT_RADIUS", "FlowResult", "estimate_or_skip",
-           "event_support", "skipped_window"]
+           "event_box_counts", "event_support", "skipped_window"]
 
 #: Validity mask of the flow: pixels with at least SUPPORT_MIN_EVENTS events within a
 #: (2 SUPPORT_RADIUS + 1)-px square over the window (an isolated noise event supports none).
@@ -182,6 +182,18 @@ def event_support(x, y, shape, radius: int = 2, min_count: float = 1.0) -> np.nd
     >>> int(m.sum()), bool(m[4, 6]), bool(m[5, 7])
     (9, True, False)
     """
+    return event_box_counts(x, y, shape, radius) >= min_count
+
+
+def event_box_counts(x, y, shape, radius: int = 2) -> np.ndarray:
+    """(H, W) float64: the events within the square of ``2 * radius + 1`` px around each
+    pixel (the image's border cuts the square), as :func:`event_support` thresholds them.
+
+    Examples
+    --------
+    >>> event_box_counts(np.array([0, 1]), np.array([0, 0]), (2, 3), radius=1).tolist()
+    [[2.0, 2.0, 1.0], [2.0, 2.0, 1.0]]
+    """
     h, w = int(shape[0]), int(shape[1])
     if radius < 0:
         raise ParameterError(f"event_support: radius must be >= 0, got {radius}")
@@ -197,5 +209,4 @@ def event_support(x, y, shape, radius: int = 2, min_count: float = 1.0) -> np.nd
     y1 = np.clip(np.arange(h) + r + 1, 0, h)
     x0 = np.clip(np.arange(w) - r, 0, w)
     x1 = np.clip(np.arange(w) + r + 1, 0, w)
-    box = (ii[y1][:, x1] - ii[y0][:, x1] - ii[y1][:, x0] + ii[y0][:, x0])
-    return box >= min_count
+    return ii[y1][:, x1] - ii[y0][:, x1] - ii[y1][:, x0] + ii[y0][:, x0]
