@@ -143,8 +143,8 @@ def _read_png(path: Path) -> tuple[np.ndarray, int]:
 
 
 def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
-    """A grey image (colour is averaged over its channels) and its bit depth (8 or 16):
-    PNG with pypng (8 or 16 bit), other formats with OpenCV.
+    """A grey image (colour is averaged over its channels) and its bit depth (8 or 16), read
+    with OpenCV (the ``bos`` extra); PNG with pypng when OpenCV is not installed.
 
     Examples
     --------
@@ -153,18 +153,23 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     path = Path(path)
     if not path.is_file():
         raise FormatError(path, "frame file not found")
-    if path.suffix.lower() == ".png":
-        return _read_png(path)
     try:
         import cv2
     except ImportError:
+        if path.suffix.lower() == ".png":
+            return _read_png(path)
         raise MissingDependencyError("opencv-python-headless", f"reading {path.suffix} frames",
                                      "bos") from None
+    # OpenCV decodes a PNG 5-30 times faster than pypng (a 1280x720 frame: 16 ms against
+    # 0.37 s), which reads them when it is not installed
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
+        if path.suffix.lower() == ".png":
+            return _read_png(path)  # its message says what is wrong with the file
         raise FormatError(path, "cannot read image (corrupt or unsupported)")
     if img.ndim == 3:
-        img = np.rint(img[..., :3].mean(axis=2)).astype(img.dtype)
+        img = img[..., 0] if img.shape[2] < 3 else \
+            np.rint(img[..., :3].mean(axis=2)).astype(img.dtype)
     if img.dtype not in (np.uint8, np.uint16):
         raise FormatError(path, f"frames must be 8- or 16-bit, got {img.dtype}")
     return img, 16 if img.dtype == np.uint16 else 8
