@@ -415,9 +415,13 @@ def test_no_focus_is_checked_without_json_or_pictures(tmp_path, capsys):
     from evmotion.io import read_flow, write_events
 
     write_events(tmp_path / "noise.h5", ev)
+    import warnings
+
     for extra in ([], ["--json"]):
         out = tmp_path / f"n{len(extra)}.flo"
-        assert main(["flow", str(tmp_path / "noise.h5"), "--method", "dnn",
-                     "--window-events", "30000", "--out", str(out), *extra]) == 0
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")  # each run is a process of its own
+            assert main(["flow", str(tmp_path / "noise.h5"), "--method", "dnn",
+                         "--window-events", "30000", "--out", str(out), *extra]) == 0
         assert "no focus" in capsys.readouterr().err
         assert not read_flow(out).valid.any()

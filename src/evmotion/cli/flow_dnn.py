@@ -18,7 +18,7 @@ from evmotion.cli.options import existing_input, int_range
 OPTIONS: dict[str, tuple[str, object]] = {
     "--device": ("device", "cpu"),
     "--threads": ("threads", 1),
-    "--input-scales": ("input_scales", (1, 2, 4)),
+    "--input-scales": ("input_scales", (1, 2, 4, 8)),
     "--no-time-reversal": ("no_time_reversal", False),
     "--no-rescale": ("no_rescale", False),
 }
@@ -34,14 +34,14 @@ def add_arguments(group) -> None:
     group.add_argument("--input-scales", type=int_range(1, 16), choices=(1, 2, 4, 8, 16),
                        nargs="+", default=None, metavar="K",
                        help="dnn: also predict from the events binned K times coarser and "
-                            "keep the sharpest warp (default 1 2 4: far-moving windows; "
+                            "keep the sharpest warp (default 1 2 4 8: far-moving windows; "
                             "1 = the network on the sensor's grid only)")
     group.add_argument("--no-time-reversal", action="store_true", default=None,
                        help="dnn: do not average with the negated flow of the time-reversed "
                             "window (one pass per scale instead of two)")
     group.add_argument("--no-rescale", action="store_true", default=None,
                        help="dnn: keep the network's magnitude (default: the gain among "
-                            "0.7-1.6 whose warp is sharpest)")
+                            "0.7-3.2 whose warp is sharpest)")
 
 
 def check_args(args) -> None:

@@ -7,7 +7,7 @@ multicm). A network trained on windows that move a few px underestimates windows
 far more (ECD shapes, 30k events: 25-36 px, predicted 14-17 px), so by default it also sees
 the events binned 2x and 4x coarser, where they move 2x and 4x less, and the prediction
 (upsampled, scaled back) whose warp makes the sharpest image of the events is kept, at the
-magnitude (0.7-1.6 times its own) that warps the events sharpest. The
+magnitude (0.7-3.2 times its own) that warps the events sharpest. The
 result is a :class:`~evmotion.methods.flowresult.FlowResult` with the same IWEs and focus
 as multicm's, so every output, picture and evaluation of ``evmotion flow`` works unchanged.
 """
@@ -36,10 +36,14 @@ __all__ = ["estimate_flow_dnn", "predict_displacement", "sharpness"]
 # a hot pixel holds more than this many times the events of each of its neighbours
 HOT_NEIGHBOUR_RATIO = 4.0
 
-INPUT_SCALES = (1, 2, 4)  # the events binned this many times coarser (estimate_flow_dnn)
+# the events binned this many times coarser (estimate_flow_dnn): 8 for windows whose
+# events move tens of px (a 0.95 s DAVIS346 window: FWL 2.30 with 1-4, 3.24 with 8 too)
+INPUT_SCALES = (1, 2, 4, 8)
 # the magnitudes the network's flow is tried at (estimate_flow_dnn's rescale): its
-# least-squares gains on held-out windows lie between 0.7 and 1.0
-GAINS = tuple(round(0.7 + 0.05 * i, 2) for i in range(19))
+# least-squares gains on held-out windows lie between 0.7 and 1.0, finely; coarser up to
+# 3.2 for windows past what the network was trained on (the DAVIS346 window kept 1.6,
+# the largest of 0.7-1.6, at a third of multicm's speed)
+GAINS = tuple(round(0.7 + 0.05 * i, 2) for i in range(19)) + (1.8, 2.0, 2.25, 2.5, 2.8, 3.2)
 
 
 def predict_displacement(events: EventArray, checkpoint: str | Path | None = None, *,
@@ -201,7 +205,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         reports them (a few ms; default True).
     input_scales : tuple of int
         The network also predicts from the events binned this many times coarser (default
-        1, 2, 4; each of 1, 2, 4, 8, 16), where far-moving windows move within what it
+        1, 2, 4, 8; each of 1, 2, 4, 8, 16), where far-moving windows move within what it
         was trained on; the prediction whose warp gives the highest :func:`sharpness` is
         kept (``(1,)``: the network on the sensor's grid only).
     time_reversal : bool
@@ -211,7 +215,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         Both options together take about 4x one pass (``benchmarks/results/dnn.md``);
         ``input_scales=(1,), time_reversal=False`` is the network's single pass.
     rescale : bool
-        Multiply the flow kept by the gain among 0.7, 0.75, ..., 1.6 whose warp gives the
+        Multiply the flow kept by the gain among 0.7, 0.75, ..., 1.6, 1.8, ..., 3.2 whose warp gives the
         highest :func:`sharpness` (default True; 1 unless another is strictly sharper):
         the network tends to underestimate magnitudes (least-squares gains 0.7-1.0 on
         held-out simulated windows), and a whole-window gain costs 19 event images.
