@@ -174,8 +174,8 @@ def run(args) -> int:
 
 def summary_line(args, seconds: float) -> str:
     """The one line ``flow`` prints on success: windows, events, time and output, from
-    ``args.flow_summary`` (``windows``, ``events``, ``outputs``, ``skipped``) that a
-    method's ``run`` sets; what a method does not report is left out."""
+    ``args.flow_summary`` (``windows``, ``events``, ``outputs``, ``skipped``, ``grid``) that
+    a method's ``run`` sets; what a method does not report is left out."""
     info = getattr(args, "flow_summary", None) or {}
     parts = [f"{args.method}:"]
     if info.get("windows") is not None:
@@ -188,4 +188,9 @@ def summary_line(args, seconds: float) -> str:
     shown = outputs[0] if len(outputs) == 1 else f"{outputs[0]} ... {outputs[-1]} " \
                                                   f"({len(outputs)} files)"
     parts.append(f"{seconds:.1f} s -> {shown}")
+    grid = str(info.get("grid", ""))
+    if grid.startswith("undistorted") and "as recorded" not in grid:
+        # a calibration beside the recording moved the flow off the sensor's pixel grid:
+        # said here, as a .flo cannot say it
+        parts.append("(on the undistorted pixel grid; --no-undistort keeps the sensor's)")
     return " ".join(parts)

@@ -319,7 +319,7 @@ def run(args) -> int:
                                      estimate=estimate, results=results)
     args.flow_summary = {"windows": len(rows), "outputs": written,
                          "skipped": sum("skipped" in r for r in rows),
-                         "events": sum(w.count for w in windows)}
+                         "events": sum(w.count for w in windows), "grid": grid}
     if video is not None:
         from evmotion.viz import write_flow_video
 
