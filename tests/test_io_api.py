@@ -221,3 +221,28 @@ def test_a_sensor_no_reader_takes_back_is_not_written(tmp_path, ext):
     with pytest.raises(FormatError, match=r"larger than the 16384 px per side"):
         write_events(tmp_path / f"big.{ext}", ev)
     assert not list(tmp_path.iterdir())
+
+
+def test_npz_size_keys_and_the_inferred_size_warning(tmp_path, capsys):
+    """height/width and resolution (width, height) arrays were ignored, and a file without
+    any took its largest coordinates as the sensor silently (text, .mat and .h5 said so);
+    the CLI says a warning once even when it reads the file twice (summary, events)."""
+    import warnings
+
+    from evmotion.cli import main
+    from evmotion.errors import EvmotionWarning
+
+    cols = {"x": np.array([0, 5, 100]), "y": np.array([0, 3, 50]), "t": np.array([0, 10, 20]),
+            "p": np.array([0, 1, 1])}
+    for name, extra, size in (("a", {"height": 180, "width": 240}, (180, 240)),
+                              ("b", {"resolution": np.array([346, 260])}, (260, 346)),
+                              ("c", {}, (51, 101))):
+        np.savez(tmp_path / f"{name}.npz", **cols, **extra)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            assert eio.read_events(tmp_path / f"{name}.npz").sensor_size == size
+        said = [w for w in caught if issubclass(w.category, EvmotionWarning)]
+        assert (len(said) == 1 and "no sensor size in the file" in str(said[0].message)) \
+            == (not extra)
+    assert main(["info", str(tmp_path / "c.npz")]) == 0
+    assert capsys.readouterr().err.count("no sensor size in the file") == 1

@@ -113,12 +113,17 @@ def show_warning(message, category, filename, lineno, file=None, line=None):
     from evmotion.errors import EvmotionWarning
 
     if issubclass(category, EvmotionWarning):
-        warn_line(str(message))
+        # once per run: a file read twice (its summary, then its events) says it once
+        if str(message) not in _SAID:
+            _SAID.add(str(message))
+            warn_line(str(message))
     else:
         _PY_SHOWWARNING(message, category, filename, lineno, file, line)
 
 
 _PY_SHOWWARNING = warnings.showwarning
+# the project warnings this run has printed
+_SAID: set[str] = set()
 
 
 def _command_of(argv: list[str]) -> tuple[str, ...]:
@@ -138,6 +143,7 @@ def _build_and_run(argv: list[str] | None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    _SAID.clear()
     warnings.showwarning = show_warning
     try:
         from evmotion.cli.options import check_outputs_spare_inputs, resolve_relative_times

@@ -120,7 +120,10 @@ def _make(path: Path, f, lo: int, hi: int, size, meta, validate: bool) -> EventA
         return EventArray(x=x, y=y, t=t, p=p, sensor_size=size, validate=validate,
                           meta=dict(meta))
     except Exception as exc:
-        raise FormatError(path, str(exc)) from None
+        assumed = tuple(size) == DSEC_SENSOR_SIZE and "sensor_size" not in f.attrs
+        raise FormatError(path, str(exc), "the file does not state its sensor, and DSEC's "
+                          "640 x 480 was assumed: give the size (--sensor-size H W, or "
+                          "sensor_size=)" if assumed else None) from None
 
 
 def _size(path: Path, f, sensor_size) -> tuple[int, int]:

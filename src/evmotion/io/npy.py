@@ -1,5 +1,6 @@
 """NumPy event files: structured ``.npy`` (fields x, y, t, p, as tonic writes), plain
-``N×4`` arrays, and ``.npz`` archives with arrays ``x, y, t, p`` (+ ``sensor_size``).
+``N×4`` arrays, and ``.npz`` archives with arrays ``x, y, t, p`` (+ ``sensor_size``, or
+``height`` and ``width``, or ``resolution`` as (width, height)).
 
 Plain ``N×4`` arrays have no field names: give ``columns=`` (e.g. ``"txyp"``); otherwise
 the time column is taken as the first or third column, whichever is sorted, and
@@ -19,7 +20,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields
-from evmotion.io.guard import MAX_SENSOR_SIDE, check_sensor_size
+from evmotion.io.guard import MAX_SENSOR_SIDE, check_sensor_size, warn_inferred_size
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "events_from_columns", "split_columns",
@@ -200,9 +201,8 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
                 cols = None
             else:
                 raise FormatError(path, f"npz lacks arrays x, y, t, p (has {sorted(files)})")
-            if sensor_size is None and "sensor_size" in files:
-                sensor_size = check_sensor_size(path, obj["sensor_size"].ravel(),
-                                                "array 'sensor_size'")
+            if sensor_size is None:
+                sensor_size = _stated_size(path, obj, files)
             if time_unit is None and "time_unit" in files:
                 time_unit = str(obj["time_unit"])
     else:
@@ -223,7 +223,26 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     ev = events_from_columns(path, cols["x"], cols["y"], cols["t"], cols["p"],
                              sensor_size=sensor_size, time_unit=time_unit, meta=meta,
                              validate=validate)
+    if sensor_size is None:  # as the other readers of files without one say it
+        warn_inferred_size(path, ev.sensor_size)
     return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
+
+
+def _stated_size(path, obj, files) -> tuple[int, int] | None:
+    """The sensor size an .npz states: ``sensor_size`` (height, width), ``height`` and
+    ``width``, or ``resolution`` (width, height, as tonic and Metavision write it)."""
+    if "sensor_size" in files:
+        return check_sensor_size(path, obj["sensor_size"].ravel(), "array 'sensor_size'")
+    if "height" in files and "width" in files:
+        return check_sensor_size(path, (np.ravel(obj["height"])[0], np.ravel(obj["width"])[0]),
+                                 "arrays 'height', 'width'")
+    if "resolution" in files:
+        res = np.ravel(obj["resolution"])
+        if res.size != 2:
+            raise FormatError(path, f"array 'resolution' holds {res.size} values, not (width, "
+                              "height)")
+        return check_sensor_size(path, (res[1], res[0]), "array 'resolution' (width, height)")
+    return None
 
 
 def iter_chunks(path: str | os.PathLike, chunk_events: int, **kw) -> Iterator[EventArray]:
