@@ -7,7 +7,7 @@ from decimal import ROUND_HALF_EVEN, Decimal
 import numpy as np
 import pytest
 
-from evmotion.errors import FormatError
+from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
 from evmotion.io import ecd
 
@@ -285,3 +285,26 @@ def test_streaming_text_beyond_240x180_matches_reading_it(tmp_path):
     (tmp_path / "c.txt").write_text("0.001 100000000 2 1\n")
     with pytest.raises(FormatError, match="outside the sensor"):
         read_events(tmp_path / "c.txt")
+
+
+@pytest.mark.parametrize("order", ["x y p t", "x y t p", "p t x y"])
+def test_other_column_orders_are_named_in_the_error(tmp_path, order):
+    """A Metavision CSV (x,y,p,t) without a header said 'event 0 has polarity
+    p=1002738'; the error now names the order the columns look like and how to state it,
+    and a header line naming them reads the file."""
+    from evmotion.io import read_events
+
+    rng = np.random.default_rng(0)
+    n = 50
+    cols = {"t": np.sort(rng.integers(1_000_000, 2_000_000, n)), "x": rng.integers(0, 240, n),
+            "y": rng.integers(0, 180, n), "p": rng.integers(0, 2, n)}
+    names = order.split()
+    path = tmp_path / "e.csv"
+    np.savetxt(path, np.column_stack([cols[k] for k in names]), fmt="%d", delimiter=",")
+    with pytest.raises(FormatError, match=f"look like '{order}'.*naming them \\({','.join(names)}"):
+        read_events(path)
+    path.write_text(",".join(names) + "\n" + path.read_text())
+    with pytest.warns(EvmotionWarning, match="microseconds"):
+        ev = read_events(path)
+    np.testing.assert_array_equal(ev.x, cols["x"])
+    np.testing.assert_array_equal(ev.t, cols["t"])

@@ -448,6 +448,23 @@ def _folder_meta(ev_path: Path) -> dict:
     return meta
 
 
+def _order_hint(t, x, y, p) -> str | None:
+    """When the columns read as ``t x y p`` look like another order (a Metavision CSV is
+    ``x,y,p,t``): the order they look like and how to state it, else None. A time column
+    never decreases and varies; a polarity column holds only -1, 0 and 1."""
+    cols = {"t": np.asarray(t), "x": np.asarray(x), "y": np.asarray(y), "p": np.asarray(p)}
+    as_read = ["t", "x", "y", "p"]
+    times = [k for k in as_read if cols[k].size > 1 and np.all(np.diff(cols[k]) >= 0)
+             and cols[k][-1] > cols[k][0]]
+    pols = [k for k in as_read if np.isin(cols[k], (-1, 0, 1)).all()]
+    if len(times) != 1 or len(pols) != 1 or (times[0], pols[0]) == ("t", "p"):
+        return None
+    xy = iter(("x", "y"))  # the other two columns, x first
+    order = ["t" if k == times[0] else "p" if k == pols[0] else next(xy) for k in as_read]
+    return (f"the columns look like '{' '.join(order)}', not ECD's 't x y p': a first line "
+            f"naming them ({','.join(order)}) reads the file so")
+
+
 def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
                extra: dict | None = None) -> EventArray:
     h, w = size
@@ -458,10 +475,11 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
             bad = int(np.argmax((x >= w) | (y >= h)))
             raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]} lies outside the "
                               f"sensor {w}x{h} (W x H, {size_src})",
-                              SENSOR_SIZE_HINT)
+                              _order_hint(t, x, y, p) or SENSOR_SIZE_HINT)
         if p.min() < -1 or p.max() > 1:
             bad = int(np.argmax((p < -1) | (p > 1)))
-            raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1")
+            raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1",
+                              _order_hint(t, x, y, p))
     meta = {"source": str(path), "format": "ecd", "sensor_size_from": size_src, **(extra or {})}
     try:
         return EventArray(x=x.astype(np.uint16), y=y.astype(np.uint16), t=t,
