@@ -357,3 +357,26 @@ def test_png_frames_read_alike_by_opencv_and_pypng(tmp_path, kind, monkeypatch):
     slow = read_image(tmp_path / "f.png")
     assert fast[1] == slow[1] and fast[0].dtype == slow[0].dtype
     np.testing.assert_array_equal(fast[0], slow[0])
+
+
+def test_images_txt_in_whole_microseconds_is_read_as_such(tmp_path):
+    """Events in whole microseconds were read as such (with a warning), the same folder's
+    images.txt in whole microseconds stopped the run ('frames are 8333 s apart')."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io.ecd import read_image_list
+    from evmotion.io.pngfile import write_png
+
+    (tmp_path / "images").mkdir()
+    for k in range(3):
+        write_png(tmp_path / "images" / f"f{k}.png", np.full((4, 5), 100, np.uint8))
+    lines = [f"{1_700_000_000_000_000 + 8333 * k} images/f{k}.png" for k in range(3)]
+    (tmp_path / "images.txt").write_text("\n".join(lines) + "\n")
+    with pytest.warns(EvmotionWarning, match="whole number: read as microseconds"):
+        got = read_image_list(tmp_path / "images.txt")
+    assert np.diff(got["t"]).tolist() == [8333, 8333]
+    (tmp_path / "images.txt").write_text("0.0 images/f0.png\n0.008333 images/f1.png\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_image_list(tmp_path / "images.txt")["t"].tolist() == [0, 8333]

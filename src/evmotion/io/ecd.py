@@ -728,7 +728,7 @@ def read_image_list(path: str | Path) -> dict:
     """
     path = _in_folder(path, "images.txt")
     folder = path.parent
-    t, files = [], []
+    raw, files = [], []
     with open(path, encoding="utf-8-sig") as fh:
         for i, line in enumerate(fh, 1):
             text = line.strip()
@@ -737,8 +737,16 @@ def read_image_list(path: str | Path) -> dict:
             fields = re.split(r"[\s,]+", text, maxsplit=1)
             if len(fields) != 2:
                 raise FormatError(path, f"line {i}: expected 't file', got {text!r}")
-            t.append(time_to_us(path, fields[0], 1e6, f"line {i}"))
+            raw.append((i, fields[0]))
             files.append(_listed_file(folder, fields[1], path, i, text))
+    # as events.txt: whole numbers are microseconds (frames a second or more apart in
+    # whole seconds is no rate a camera beside an event sensor runs at)
+    whole = len(raw) > 1 and all(f.lstrip("+-").isdigit() for _, f in raw)
+    if whole:
+        warnings.warn(EvmotionWarning(
+            f"{path}: every time is a whole number: read as microseconds (images.txt holds "
+            "decimal seconds)"), stacklevel=2)
+    t = [time_to_us(path, f, 1.0 if whole else 1e6, f"line {i}") for i, f in raw]
     return {"t": np.asarray(t, np.int64), "files": files}
 
 
