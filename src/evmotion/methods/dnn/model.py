@@ -87,14 +87,15 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
         inside = " (give the model.pt in it)" if (path / "model.pt").is_file() else ""
         raise ParameterError(f"checkpoint {path}: is a folder, not a checkpoint file{inside}")
     if not path.is_file():
-        raise ParameterError(f"checkpoint {path}: no such file")
+        raise ParameterError(f"checkpoint {path}: " + ("not a regular file" if path.exists()
+                                                       else "no such file"))
     try:
         blob = torch.load(path, map_location=device, weights_only=True)
     except Exception as exc:  # torch.load raises many types for files it cannot read
         hint = ("; the training state (last.pt) needs the trusted loader: give the model.pt "
                 "beside it") if path.name == "last.pt" else ""
         raise ParameterError(f"checkpoint {path}: not an evmotion EV-FlowNet checkpoint "
-                             f"({_reason(exc)}){hint}") from None
+                             f"({_load_failure(path, exc)}){hint}") from None
     if not isinstance(blob, dict) or not {"n_bins", "width", "model"} <= set(blob):
         raise ParameterError(f"checkpoint {path}: not an evmotion EV-FlowNet checkpoint (no "
                              "'n_bins', 'width' and 'model' entries: write it with "
@@ -124,6 +125,18 @@ def load_inference_net(checkpoint: str | Path | None = None,
     if key not in _FAST:
         _FAST[key] = InferenceNet(load_model(checkpoint, device))
     return _FAST[key]
+
+
+def _load_failure(path: Path, exc: BaseException) -> str:
+    """Why torch could not load ``path``: a file that is no PyTorch archive at all (torch's
+    own message is then a paragraph about ``weights_only``) or what torch said."""
+    import zipfile
+
+    with open(path, "rb") as fh:
+        head = fh.read(2)
+    if not zipfile.is_zipfile(path) and head[:1] != b"\x80":  # torch archives, old pickles
+        return "not a PyTorch file: torch.save writes a zip archive"
+    return _reason(exc)
 
 
 def _reason(exc: BaseException) -> str:
