@@ -239,3 +239,45 @@ def test_landscape_says_what_its_minimum_is(tmp_path, capsys):
                  "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["minimum_with_regularizer"] is not None
+
+
+@pytest.mark.parametrize("extra", [[], ["--warm-start"]])
+def test_egomotion_resume_after_an_interrupt(rec, tmp_path, capsys, monkeypatch, extra):
+    """egomotion wrote its outputs at the end only: an interrupted run lost every window.
+    The finished windows are now kept in OUT/params.part; --resume estimates the others
+    only, and gives the numbers of an uninterrupted run."""
+    import evmotion.cli.egomotion as ego
+
+    argv = ["egomotion", str(rec), "--warp", "translation", "--window-events", "2000",
+            "--max-png", "0", "--json", *extra]
+    assert main(argv + ["--out", str(tmp_path / "whole")]) == 0
+    whole = json.loads(capsys.readouterr().out)["windows"]
+    assert len(whole) == 6
+
+    real, calls = ego._window_job, []
+
+    def job(*a, **k):
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(ego, "_window_job", job)
+    out = tmp_path / "cut"
+    assert main(argv + ["--out", str(out)]) == 130
+    assert "kept in" in capsys.readouterr().err and (out / "params.part").exists()
+    assert not (out / "params.csv").exists()
+    # without --resume the kept windows are not overwritten
+    assert main(argv + ["--out", str(out)]) == 2
+    assert "--resume to continue" in capsys.readouterr().err
+    # other options: refused, naming them
+    assert main(argv + ["--out", str(out), "--resume", "--objective",
+                        "gradient_magnitude"]) == 2
+    assert "other objective" in capsys.readouterr().err
+    calls.clear()
+    assert main(argv + ["--out", str(out), "--resume"]) == 0
+    resumed = json.loads(capsys.readouterr().out)["windows"]
+    assert len(calls) == 3 and not (out / "params.part").exists()
+    keys = ("window", "t0_us", "t1_us", "n_events", "params", "cost", "valid")
+    assert [{k: r[k] for k in keys} for r in resumed] == [{k: r[k] for k in keys}
+                                                          for r in whole]

@@ -10,6 +10,8 @@ and PNG panels (IWE before / after, DIWE and IWA maps) for the first
 and each window's checks: ``collapsed`` and ``diagnostics`` (explained share of the image,
 contrast gain over the identity warp; see :mod:`evmotion.methods.diagnostics`). A window
 whose estimate is collapsed or explains the image poorly gets one warning line on stderr.
+Each finished window is kept in ``OUT/params.part`` until the outputs are written: after an
+interruption the same command with ``--resume`` estimates only the others.
 """
 
 from __future__ import annotations
@@ -101,6 +103,9 @@ def add_parser(sub) -> None:
     p.add_argument("--max-png", type=int_range(0), default=20,
                    help="PNG panels for the first N windows (default 20; 0 = none)")
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run: the windows it finished (kept in "
+                        "OUT/params.part) are not estimated again; the same options needed")
     p.add_argument("--json", action="store_true", help="print per-window parameters as JSON")
     p.set_defaults(func=run)
 
@@ -242,22 +247,40 @@ def run(args) -> int:
                             last_png_t0_us=last_png)
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    remove_stale_pictures(out_dir, ("window_",))
-    if args.warm_start:
-        results, init = [], None
-        for w in progress(windows, desc="egomotion", unit="win"):
-            out = job(events.window(w), w.t0, w.t1, init=init)
-            init = out.result.params
-            results.append((w, _written(out_dir, w, out), None))
-    else:
-        with scheduler_client(args.scheduler) as client:
-            # each window's panel is written as its result comes in, while later windows run
-            results = [(w, None, r.error) if r.value is None
-                       else (w, _written(out_dir, w, r.value), r.error)
-                       for w, r in zip(windows, imap_windows(
-                           job, events, windows, workers=args.workers, scheduler=client,
-                           desc="egomotion", with_window=True), strict=True)]
+    journal, done = _open_journal(args, out_dir, events, windows, K)
+    if not args.resume:
+        remove_stale_pictures(out_dir, ("window_",))
+    todo = [k for k in range(len(windows)) if k not in done]
+    try:
+        with journal:
+            if args.warm_start:
+                prev = [k for k in done if done[k][2][0] is not None]
+                init = done[max(prev)][2][0].params if prev else None
+                for k in progress(todo, desc="egomotion", unit="win"):
+                    w = windows[k]
+                    out = job(events.window(w), w.t0, w.t1, init=init)
+                    init = out.result.params
+                    journal.add(k, w.t0, w.t1, (_written(out_dir, w, out), None))
+            else:
+                with scheduler_client(args.scheduler) as client:
+                    # each window's panel is written as its result comes in, while later
+                    # windows run
+                    for k, r in zip(todo, imap_windows(
+                            job, events, [windows[k] for k in todo], workers=args.workers,
+                            scheduler=client, desc="egomotion", with_window=True),
+                            strict=True):
+                        value = None if r.value is None else _written(out_dir, windows[k],
+                                                                      r.value)
+                        journal.add(k, windows[k].t0, windows[k].t1, (value, r.error))
+    except BaseException:
+        from evmotion.utils import keep_for_resume
+
+        keep_for_resume(journal.path)
+        raise
+    done = type(journal).read(journal.path, _journal_header(args, events, windows, K))
+    results = [(w, *done[k][2]) for k, w in enumerate(windows)]
     rows = write_outputs(out_dir, results, grid=args.grid)
+    journal.path.unlink()
     failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
     if not rows:
         from evmotion.errors import EvmotionError
@@ -277,6 +300,52 @@ def run(args) -> int:
               "params.h5"
               + (f"; {len(failed)} failed" if failed else ""))
     return 0
+
+
+# the journal of a run's finished windows, in its output folder until the run ends
+JOURNAL_NAME = "params.part"
+
+
+def _journal_header(args, events, windows, K) -> dict:
+    """What a resumed run must share with the interrupted one: the estimate's options, the
+    windows' cut and the events of the first window (another recording has others)."""
+    from evmotion.events import fingerprint
+
+    w = windows[0]
+    return {"warp": args.warp, "objective": args.objective, "reg": args.reg,
+            "weight": args.weight, "optimizer": args.optimizer, "t_ref": args.t_ref,
+            "seed": args.seed, "dataset": args.dataset, "warm_start": args.warm_start,
+            "window_events": args.window_events, "window_us": args.window_us,
+            "t0": args.t0, "grid": args.grid,
+            "K": None if K is None else np.asarray(K, np.float64).round(9).tolist(),
+            "first_window": fingerprint(events[w.start:w.stop])}
+
+
+def _open_journal(args, out_dir: Path, events, windows, K):
+    """The run's journal (a fresh one, or with ``--resume`` the interrupted run's,
+    reopened) and the windows it already holds ``{position: (t0, t1, (result, error))}``;
+    a ParameterError for a journal left without ``--resume``, or one whose windows are not
+    this run's."""
+    from evmotion.io.journal import Journal
+
+    path = out_dir / JOURNAL_NAME
+    header = _journal_header(args, events, windows, K)
+    if not args.resume:
+        if path.exists():
+            raise ParameterError(f"{path} holds the windows of an interrupted run: run the "
+                                 "same command with --resume to continue it, or delete it "
+                                 "to start again")
+        return Journal(path, header), {}
+    if not path.exists():
+        return Journal(path, header), {}
+    journal, done = Journal.resume(path, header)
+    for k, (t0, t1, _) in done.items():
+        if k >= len(windows) or (windows[k].t0, windows[k].t1) != (t0, t1):
+            journal.close()
+            raise ParameterError(f"cannot resume (--resume): window {k} of {path} is "
+                                 f"[{t0}, {t1}) us, not one of this run's (other --t1 or "
+                                 "--max-windows, or another recording)")
+    return journal, done
 
 
 def _written(out_dir: Path, w, out: WindowOutput):

@@ -1,0 +1,110 @@
+"""A run's journal: the results of its windows as they come in, kept when the run is
+interrupted so that ``--resume`` computes only the others.
+
+The file is a stream of pickles: a header (what the run was asked: options, the source's
+fingerprint), then one record per finished window ``(position, t0_us, t1_us, payload)``.
+Each record is flushed as it is written; a record cut short by a kill is dropped on
+reading. The file is the command's own (written and read back by the same code), so
+unpickling it trusts nothing foreign.
+
+Examples
+--------
+>>> import tempfile, pathlib
+>>> path = pathlib.Path(tempfile.mkdtemp()) / "params.part"
+>>> with Journal(path, {"warp": "rotation"}) as j:
+...     j.add(0, 0, 100, "first window's result")
+>>> Journal.read(path, {"warp": "rotation"})
+{0: (0, 100, "first window's result")}
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+from pathlib import Path
+from typing import Any
+
+from evmotion.errors import ParameterError
+from evmotion.utils import ensure_room
+
+__all__ = ["Journal"]
+
+
+class Journal:
+    """Append the results of a run's windows to ``path`` (a context manager). ``header``:
+    what the run was asked (compared by :meth:`read` on ``--resume``)."""
+
+    def __init__(self, path: str | os.PathLike, header: dict, *, append: bool = False):
+        self.path = Path(path)
+        self.fh = open(self.path, "ab" if append else "wb")
+        if not append:
+            self._dump(("evmotion-journal", 1, header))
+
+    def _dump(self, obj) -> None:
+        data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+        ensure_room(self.path, len(data))
+        self.fh.write(data)
+        self.fh.flush()
+
+    def add(self, position: int, t0_us: int, t1_us: int, payload: Any) -> None:
+        """Record window ``position`` (its place in the run's list) of ``[t0_us, t1_us)``."""
+        self._dump((int(position), int(t0_us), int(t1_us), payload))
+
+    def close(self) -> None:
+        self.fh.close()
+
+    def __enter__(self) -> Journal:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @classmethod
+    def resume(cls, path: str | os.PathLike, header: dict
+               ) -> tuple[Journal, dict[int, tuple[int, int, Any]]]:
+        """The journal of an interrupted run, reopened to append (a record cut short at its
+        end dropped), and the windows it holds (:meth:`read`)."""
+        done, end = cls._records(Path(path), header)
+        with open(path, "r+b") as fh:
+            fh.truncate(end)
+        return cls(path, header, append=True), done
+
+    @classmethod
+    def read(cls, path: str | os.PathLike, header: dict) -> dict[int, tuple[int, int, Any]]:
+        """The windows a journal holds, ``{position: (t0_us, t1_us, payload)}``; a
+        ParameterError when its header differs from ``header`` (another run's journal:
+        the options that differ are named)."""
+        return cls._records(Path(path), header)[0]
+
+    @staticmethod
+    def _records(path: Path, header: dict) -> tuple[dict[int, tuple[int, int, Any]], int]:
+        done: dict[int, tuple[int, int, Any]] = {}
+        with open(path, "rb") as fh:
+            try:
+                head = pickle.load(fh)
+            except Exception:  # pickle raises many types for a cut or foreign file
+                raise ParameterError(f"cannot resume (--resume): {path} is not a run's "
+                                     "journal (cut short or another file); delete it to "
+                                     "start again") from None
+            if not (isinstance(head, tuple) and len(head) == 3
+                    and head[0] == "evmotion-journal"):
+                raise ParameterError(f"cannot resume (--resume): {path} is not a run's "
+                                     "journal; delete it to start again")
+            differ = sorted(k for k in set(head[2]) | set(header)
+                            if head[2].get(k) != header.get(k))
+            if differ:
+                raise ParameterError(
+                    f"cannot resume (--resume): {path} was made with other "
+                    f"{', '.join(differ)} ("
+                    + "; ".join(f"{k}: {head[2].get(k)!r} there, {header.get(k)!r} now"
+                                for k in differ[:3])
+                    + "); run with those, or delete it to start again")
+            end = fh.tell()
+            while True:
+                try:
+                    pos, t0, t1, payload = pickle.load(fh)
+                except Exception:  # the end, or a record cut short by a kill: stop there
+                    break
+                done[pos] = (t0, t1, payload)
+                end = fh.tell()
+        return done, end
