@@ -366,3 +366,4 @@ def test_one_file_output_takes_a_window_with_a_remainder_whole(recording, tmp_pa
     seq = read_flow(out)
     assert (int(seq.t0[0]), int(seq.t1[0])) == (int(ev.t[0]), int(ev.t[-1]) + 1)
     assert (f"holds {n:,} events" in err) == (n > per_window)
+

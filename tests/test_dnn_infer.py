@@ -430,3 +430,25 @@ def test_no_focus_is_checked_without_json_or_pictures(tmp_path, capsys):
                          "--window-events", "30000", "--out", str(out), *extra]) == 0
         assert "no focus" in capsys.readouterr().err
         assert not read_flow(out).valid.any()
+
+
+def test_poor_fit_lines_name_their_window_and_stop_after_five(tmp_path, capsys):
+    """A recording of noise said 'no focus' once per window with nothing to tell the
+    windows apart (hundreds of lines on a long one): each line now names its window, and
+    after five one closing line counts the rest."""
+    from evmotion.io import read_flow, write_events
+
+    rng = np.random.default_rng(0)
+    n = 9 * 20000
+    ev = EventArray(x=rng.integers(0, 240, n), y=rng.integers(0, 180, n),
+                    t=np.sort(rng.integers(0, 900_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(180, 240))
+    write_events(tmp_path / "noise.h5", ev)
+    out = tmp_path / "f.h5"
+    assert main(["flow", str(tmp_path / "noise.h5"), "--method", "dnn", "--window-events",
+                 "20000", "--out", str(out)]) == 0
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 6, lines
+    assert all(f"window {k} [" in lines[k] and "no focus" in lines[k] for k in range(5))
+    assert "and 4 more such warnings" in lines[5]
+    assert not read_flow(out).valid.any()

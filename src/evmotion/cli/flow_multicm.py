@@ -335,6 +335,48 @@ def run(args) -> int:
     return 0
 
 
+class _PoorFitLines:
+    """The poor-fit warnings of a run's windows (no focus, too few events): each line names
+    its window, the first :data:`POOR_FIT_LINES` are printed and the others counted in one
+    closing line (a recording of noise said 'no focus' once per window, hundreds of
+    lines); other warnings pass unchanged."""
+
+    def __init__(self, n_windows: int):
+        self.n_windows = n_windows
+        self.shown = self.held = 0
+
+    @contextlib.contextmanager
+    def window(self, i: int, w):
+        import warnings
+
+        from evmotion.cli import warn_line
+        from evmotion.errors import PoorFitWarning
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield
+        for m in caught:
+            if not issubclass(m.category, PoorFitWarning) or self.n_windows == 1:
+                warnings.warn_explicit(m.message, m.category, m.filename, m.lineno)
+            elif self.shown < POOR_FIT_LINES:
+                self.shown += 1
+                warn_line(f"window {i} [{w.t0}, {w.t1}) us: {m.message}")
+            else:
+                self.held += 1
+
+    def close(self) -> None:
+        if self.held:
+            from evmotion.cli import warn_line
+
+            warn_line(f"... and {self.held} more such warning{'s' if self.held > 1 else ''} "
+                      "of other windows (their flow is marked not valid; --json lists each "
+                      "window's numbers)")
+
+
+# the poor-fit warning lines a run prints before it only counts them
+POOR_FIT_LINES = 5
+
+
 def _run_windows(args, events, windows, attrs, after, progress, *, estimate, results=None):
     """Every window into the output, in order: its result taken from ``results`` (worker
     processes, in window order) or made by ``estimate(events, init)`` warm-started from the
@@ -361,6 +403,7 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
     sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
                             n_windows=len(windows))
     rows, init, held = [], None, []
+    said = _PoorFitLines(len(windows))
 
     def flush(pending: list) -> None:
         for r, rw in pending:
@@ -378,9 +421,10 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
                 rows.append({"t0_us": w.t0, "t1_us": w.t1, "resumed": True})
                 continue
             try:
-                res = (next(todo) if todo is not None else estimate_or_skip(
-                    lambda ev, i0=init: estimate(ev, i0), events, w,
-                    "skip" if len(windows) > 1 else "raise"))
+                with said.window(i, w):
+                    res = (next(todo) if todo is not None else estimate_or_skip(
+                        lambda ev, i0=init: estimate(ev, i0), events, w,
+                        "skip" if len(windows) > 1 else "raise"))
             except EmptyWindowError as exc:
                 # which window of the recording (all its events at one time, say)
                 raise EmptyWindowError(f"{args.file}: window {i} [{w.t0}, {w.t1}) us: "
@@ -402,6 +446,7 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
                                    f"{rows[0]['skipped']})")
         flush(held)
         written = [str(p) for p in sink.close()]
+        said.close()
     except BaseException:
         sink.abort()
         if results is not None and hasattr(it, "close"):

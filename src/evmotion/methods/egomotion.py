@@ -431,7 +431,8 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
     too_few = warn_too_few(int(cost.x.shape[0]), w.name, stacklevel=4)
     msgs.append(too_few)
     if not coll["collapsed"] and too_few is None:
-        msgs.append(warn_no_gain(gain, w.name, stacklevel=4))
+        msgs.append(warn_no_gain(gain, w.name, stacklevel=4,
+                                 optimum_hint=" (the tpe optimizer searches the whole box)"))
     return {"collapse": coll, "fit": fit, "contrast_gain": gain,
             "too_few_events": too_few is not None,
             "weight_source": weight_source, "warnings": [m for m in msgs if m]}

@@ -18,18 +18,20 @@ MIN_CONTRAST_GAIN = 1.05
 MIN_FIT_EVENTS = 100
 
 
-def warn_no_gain(gain: float, warp: str, stacklevel: int = 3) -> str | None:
+def warn_no_gain(gain: float, warp: str, stacklevel: int = 3,
+                 optimum_hint: str = "") -> str | None:
     """Issue a :class:`~evmotion.errors.PoorFitWarning` when the estimate sharpens the
     image of the events by less than :data:`MIN_CONTRAST_GAIN` (its variance over the
     identity warp's): the window shows no motion the warp can measure; returns its
-    message (else None)."""
+    message (else None). ``optimum_hint`` says how to escape a local optimum, where the
+    method has a way."""
     if not gain < MIN_CONTRAST_GAIN:  # NaN (no contrast at all) is collapse's to say
         return None
     msg = (f"no focus: the {warp} warp sharpens the image of the events by only "
            f"{100 * (gain - 1):.1f} % (threshold {100 * (MIN_CONTRAST_GAIN - 1):.0f} %) -- "
            "too few events, no motion, hot or flickering pixels, a window too short or too "
-           "long for the motion, or a local optimum (the tpe optimizer searches the whole "
-           "box); the estimate is not a measurement")
+           f"long for the motion, or a local optimum{optimum_hint}; the estimate is not a "
+           "measurement")
     warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
     return msg
 
