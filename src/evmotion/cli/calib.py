@@ -13,6 +13,7 @@ label says which pixel grid the results live on.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 from collections.abc import Iterator
 
@@ -149,24 +150,27 @@ def read_for_windows(args, *, n_events: int | None = None, duration_us: int | No
     n_max = getattr(args, "max_windows", None)
     if n_max is not None and (n_events is not None or duration_us is not None):
         t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
-        chunks = iter_events(args.file, CHUNK_EVENTS, t0=t0, t1=t1, **kw)
-        first = next((c for c in chunks if len(c)), None)
-        if first is not None:
-            cam, undistort, grid = _distortion_rule(args, first)
-            read = [0]
+        # closed when done: the rest of the file is not read, and its handle not kept
+        with contextlib.closing(iter_events(args.file, CHUNK_EVENTS, t0=t0, t1=t1,
+                                            **kw)) as chunks:
+            first = next((c for c in chunks if len(c)), None)
+            if first is not None:
+                cam, undistort, grid = _distortion_rule(args, first)
+                read = [0]
 
-            def stream():
-                for chunk in itertools.chain((first,), chunks):
-                    read[0] += len(chunk)
-                    yield cam.undistort_events(chunk) if undistort else chunk
+                def stream():
+                    for chunk in itertools.chain((first,), chunks):
+                        read[0] += len(chunk)
+                        yield cam.undistort_events(chunk) if undistort else chunk
 
-            events = events_for_windows(stream(), max_windows=n_max, n_events=n_events,
-                                        duration_us=duration_us, t0=t0, min_events=min_events)
-            if events is not None and make_windows(
-                    events, n_events=n_events, duration_us=duration_us, t0=t0, t1=t1,
-                    max_windows=n_max, min_events=min_events):
-                _say_lost(read[0] - len(events), read[0])
-                return events, cam, grid
+                events = events_for_windows(stream(), max_windows=n_max, n_events=n_events,
+                                            duration_us=duration_us, t0=t0,
+                                            min_events=min_events)
+                if events is not None and make_windows(
+                        events, n_events=n_events, duration_us=duration_us, t0=t0, t1=t1,
+                        max_windows=n_max, min_events=min_events):
+                    _say_lost(read[0] - len(events), read[0])
+                    return events, cam, grid
     return undistort_for(args, read_events(args.file, **kw))
 
 
