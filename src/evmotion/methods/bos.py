@@ -108,6 +108,7 @@ __all__ = [
     "contrast_threshold_slope",
     "event_sums",
     "log_frame",
+    "noise_floor_count",
     "potential_from_flow",
 ]
 
