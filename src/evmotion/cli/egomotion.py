@@ -273,9 +273,12 @@ def run(args) -> int:
                                                                       r.value)
                         journal.add(k, windows[k].t0, windows[k].t1, (value, r.error))
     except BaseException:
-        from evmotion.utils import keep_for_resume
+        if journal.count or done:
+            from evmotion.utils import keep_for_resume
 
-        keep_for_resume(journal.path)
+            keep_for_resume(journal.path)
+        else:  # nothing finished (a cluster out of reach, say): nothing to resume
+            journal.path.unlink(missing_ok=True)
         raise
     done = type(journal).read(journal.path, _journal_header(args, events, windows, K))
     results = [(w, *done[k][2]) for k, w in enumerate(windows)]

@@ -36,6 +36,7 @@ class Journal:
 
     def __init__(self, path: str | os.PathLike, header: dict, *, append: bool = False):
         self.path = Path(path)
+        self.count = 0  # the windows this process added
         self.fh = open(self.path, "ab" if append else "wb")
         if not append:
             self._dump(("evmotion-journal", 1, header))
@@ -49,6 +50,7 @@ class Journal:
     def add(self, position: int, t0_us: int, t1_us: int, payload: Any) -> None:
         """Record window ``position`` (its place in the run's list) of ``[t0_us, t1_us)``."""
         self._dump((int(position), int(t0_us), int(t1_us), payload))
+        self.count += 1
 
     def close(self) -> None:
         self.fh.close()
