@@ -234,8 +234,9 @@ def test_k_principal_point_off_the_sensor_is_said(ecd, tmp_path, capsys, k, warn
 
 def test_the_summary_line_says_when_the_flow_left_the_sensor_grid(ecd, tmp_path, capsys):
     """A calib.txt beside events.txt undistorts the events, so a .flo (which cannot say
-    so) is on another grid than the sensor's: the line the command prints says it."""
-    for extra, said in (([], True), (["--no-undistort"], False)):
+    so) is on another grid than the sensor's: the line the command prints says it (not
+    for a pinhole calibration, which moves nothing)."""
+    for extra, said in (([], True), (["--no-undistort"], False), (["--K", K_ARG], False)):
         assert main(["flow", str(ecd), "--out", str(tmp_path / "f.flo"), *MULTICM,
                      *extra]) == 0
         out = capsys.readouterr().out

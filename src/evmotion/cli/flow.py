@@ -174,7 +174,7 @@ def run(args) -> int:
 
 def summary_line(args, seconds: float) -> str:
     """The one line ``flow`` prints on success: windows, events, time and output, from
-    ``args.flow_summary`` (``windows``, ``events``, ``outputs``, ``skipped``, ``grid``) that
+    ``args.flow_summary`` (``windows``, ``events``, ``outputs``, ``skipped``, ``undistorted``) that
     a method's ``run`` sets; what a method does not report is left out."""
     info = getattr(args, "flow_summary", None) or {}
     parts = [f"{args.method}:"]
@@ -188,8 +188,7 @@ def summary_line(args, seconds: float) -> str:
     shown = outputs[0] if len(outputs) == 1 else f"{outputs[0]} ... {outputs[-1]} " \
                                                   f"({len(outputs)} files)"
     parts.append(f"{seconds:.1f} s -> {shown}")
-    grid = str(info.get("grid", ""))
-    if grid.startswith("undistorted") and "as recorded" not in grid:
+    if info.get("undistorted"):
         # a calibration beside the recording moved the flow off the sensor's pixel grid:
         # said here, as a .flo cannot say it
         parts.append("(on the undistorted pixel grid; --no-undistort keeps the sensor's)")

@@ -133,6 +133,13 @@ def _one_window_for_one_file(args, events, windows):
     return make_windows(events, n_events=len(total), t0=t0, t1=t1)
 
 
+def _moved(cam, grid: str) -> bool:
+    """Whether this run moved the events off the sensor's grid (a calibration with
+    distortion; a pinhole one, or events undistorted as recorded, leave them)."""
+    return (cam is not None and cam.is_distorted and grid.startswith("undistorted")
+            and "as recorded" not in grid)
+
+
 def _cut(args) -> dict:
     """How the windows are cut, by duration or by count (not by ground-truth frames)."""
     if args.window_us is not None:
@@ -319,7 +326,8 @@ def run(args) -> int:
                                      estimate=estimate, results=results)
     args.flow_summary = {"windows": len(rows), "outputs": written,
                          "skipped": sum("skipped" in r for r in rows),
-                         "events": sum(w.count for w in windows), "grid": grid}
+                         "events": sum(w.count for w in windows),
+                         "undistorted": _moved(cam, grid)}
     if video is not None:
         from evmotion.viz import write_flow_video
 

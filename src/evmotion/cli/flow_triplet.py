@@ -253,7 +253,7 @@ def run(args) -> int:
     compiled = compile_seconds() - c0
     run_s = wall - compiled
     args.flow_summary = {"windows": n_windows if windows_made else None, "events": n_events,
-                         "outputs": outputs, "grid": grid}
+                         "outputs": outputs}
     if args.json:
         print_json({
             "method": "triplet", "file": str(args.file), "out": str(out),
