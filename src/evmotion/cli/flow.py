@@ -74,7 +74,7 @@ EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5
   evmotion flow sim.h5 --method multicm --max-windows 3 --out flow_{:05d}.flo
   evmotion flow sim.h5 --method multicm --max-windows 2 --out flow.npz
   evmotion flow rec.raw --method triplet --out triplet.h5 --json
-  evmotion flow rec.raw --method triplet --dense robust --t1 0.03 --out robust.h5 --resume
+  evmotion flow rec.raw --method triplet --dense robust --t1 +0.03 --out robust.h5 --resume
   evmotion flow window.txt --method dnn --window-events 30000 --max-windows 1 --out x.flo
   evmotion flow boxes_rotation/ --max-windows 1 --out ecd_flow.h5
   evmotion flow sim.h5 --K 200,200,120,90 --dist=-0.1,0.02,0,0 --max-windows 1 --out k.h5

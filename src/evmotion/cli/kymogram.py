@@ -32,7 +32,7 @@ EXAMPLES = """examples:
   evmotion kymogram bos.h5 --from q --line 60 120 60 10 --width 5 --out q_kymo.png
   evmotion kymogram scene/ --row 100 --focal-mm 25 --distance-m 1.7 --pixel-um 4.86 \\
       --t0 0.01 --out kymo_ms.png --json
-(scene/: made by 'evmotion simulate schlieren --scene plume --size 128x160 --duration 0.05
+(scene/: made by 'evmotion simulate schlieren --scene plume --size 128x160 --duration 0.25
 --out scene/'; bos.h5 by 'evmotion bos scene/ --out bos.h5'.)
 """
 

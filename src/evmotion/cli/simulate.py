@@ -30,9 +30,9 @@ from evmotion.cli.options import (
 
 EXAMPLES = """examples:
   evmotion simulate rotation --out sim.h5
-  evmotion simulate zoom --params hz=2.0 --params foe=80,60 --size 160x120 --out zoom.h5 --json
+  evmotion simulate zoom --params hz=2.0 --params foe=80,60 --size 120x160 --out zoom.h5 --json
   evmotion simulate object --texture shapes --duration 0.05 --noise-rate 0.1 --out obj.h5
-  evmotion simulate translation --image photo.png --params vx=300 --params vy=0 --size 160x120 --out t.h5
+  evmotion simulate translation --image photo.png --params vx=300 --params vy=0 --size 120x160 --out t.h5
   evmotion simulate schlieren --scene plume --size 128x160 --duration 0.05 --magnitude 2 --out plume/
   evmotion simulate schlieren --scene breath --size 96x96 --duration 0.05 --photons 5 --out dark/ --json
 """
