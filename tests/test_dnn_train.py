@@ -265,3 +265,65 @@ def test_runs_that_cannot_train_say_so(tmp_path):
         net.heads[0].bias.fill_(float("nan"))
     with pytest.raises(ParameterError, match="diverged"):
         evaluate_windows(net, [sim_window(6, sensor_size=(48, 64), window_events=2000)])
+
+
+def test_resume_rewrites_what_an_interruption_left_behind(tmp_path):
+    """Interrupted between last.pt and model.pt of the final epoch, --resume said 'nothing
+    to do' and left model.pt (and the logs) an epoch behind; it now writes them from
+    last.pt. The epochs' lr column is the rate each trained at (it was the next one)."""
+    cfg = TrainConfig(epochs=2, **TINY)
+    train(cfg, tmp_path / "a")
+    ref = _weights(tmp_path / "a" / "model.pt")
+    train(TrainConfig(epochs=1, **TINY), tmp_path / "b")
+    stale = (tmp_path / "b" / "model.pt").read_bytes()
+    train(cfg, tmp_path / "b", resume=True)
+    (tmp_path / "b" / "model.pt").write_bytes(stale)  # as if killed after last.pt
+    (tmp_path / "b" / "epochs.csv").unlink()
+    train(cfg, tmp_path / "b", resume=True)
+    got = _weights(tmp_path / "b" / "model.pt")
+    assert all(torch.equal(ref[k], got[k]) for k in ref)
+    rows = list(csv.DictReader(open(tmp_path / "b" / "epochs.csv")))
+    assert [float(r["lr"]) for r in rows] == pytest.approx([cfg.lr, cfg.lr * cfg.lr_decay])
+
+
+def test_resume_and_out_are_checked(tmp_path):
+    """A damaged last.pt was a traceback; another folder's model.pt was overwritten; the
+    recordings were told apart by the path string only (another file at the same path
+    resumed silently, the same file spelled otherwise was refused)."""
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(0)
+    n = 12000
+    rec = tmp_path / "rec.h5"
+    write_events(rec, EventArray(x=rng.integers(0, 64, n), y=rng.integers(0, 48, n),
+                                 t=np.sort(rng.integers(0, 100_000, n)), p=rng.integers(0, 2, n),
+                                 sensor_size=(48, 64)))
+    cfg = {**TINY, "sim_windows": 1, "recordings": [str(rec)]}
+    run = tmp_path / "run"
+    train(TrainConfig(epochs=1, **cfg), run)
+    # the same file by another path: resumed
+    train(TrainConfig(epochs=2, **{**cfg, "recordings": [str(tmp_path / "." / "rec.h5")]}), run,
+          resume=True)
+    # another file at the path: refused
+    write_events(rec, EventArray(x=rng.integers(0, 64, n), y=rng.integers(0, 48, n),
+                                 t=np.sort(rng.integers(0, 100_000, n)), p=rng.integers(0, 2, n),
+                                 sensor_size=(48, 64)))
+    with pytest.raises(ParameterError, match="rec.h5 changed since"):
+        train(TrainConfig(epochs=3, **cfg), run, resume=True)
+    (run / "last.pt").write_bytes(b"garbage")
+    with pytest.raises(ParameterError, match="not a readable training checkpoint"):
+        train(TrainConfig(epochs=3, **cfg), run, resume=True)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "model.pt").write_bytes(b"someone's")
+    with pytest.raises(ParameterError, match="holds model.pt but no training"):
+        train(TrainConfig(epochs=1, **TINY), other)
+    assert (other / "model.pt").read_bytes() == b"someone's"
+
+
+@pytest.mark.parametrize("bad, match", [({"seed": 2000}, "seed must be below 2000"),
+                                        ({"lr": 2.0}, "lr must be at most 1")])
+def test_seeds_of_the_validation_scenes_and_runaway_rates_are_refused(bad, match):
+    with pytest.raises(ParameterError, match=match):
+        TrainConfig(**{**TINY, **bad}).check()

@@ -96,6 +96,9 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
                 "beside it") if path.name == "last.pt" else ""
         raise ParameterError(f"checkpoint {path}: not an evmotion EV-FlowNet checkpoint "
                              f"({_load_failure(path, exc)}){hint}") from None
+    if isinstance(blob, dict) and {"config", "optimizer", "model"} <= set(blob):
+        raise ParameterError(f"checkpoint {path}: a training's state (for train --resume), "
+                             f"not its network: give the model.pt beside it")
     if not isinstance(blob, dict) or not {"n_bins", "width", "model"} <= set(blob):
         raise ParameterError(f"checkpoint {path}: not an evmotion EV-FlowNet checkpoint (no "
                              "'n_bins', 'width' and 'model' entries: write it with "

@@ -53,9 +53,13 @@ from evmotion.utils import atomic_path, atomic_write_text
 
 __all__ = ["TrainConfig", "batch_input", "evaluate_windows", "train"]
 
+#: The largest learning rate a training takes.
+MAX_LR = 1.0
 #: Seeds of validation windows start here; training seeds are ``seed * 1e6 + epoch * 1e4 + i``
 #: with ``i < 1e4`` and must stay below.
 VAL_SEED_BASE = 2_000_000_000
+#: Training seeds below this keep the training windows' seeds under VAL_SEED_BASE.
+MAX_SEED = VAL_SEED_BASE // 1_000_000
 #: Weight initializations of the convolutions (the flow heads keep theirs, near zero):
 #: ``default`` torch's (uniform, biases uniform too), ``kaiming`` He-normal weights for ReLU
 #: and zero biases (see :func:`_kaiming_init`).
@@ -105,6 +109,15 @@ class TrainConfig:
             if not number or v < 0 or (positive and v == 0):
                 raise ParameterError(f"{name} must be a finite number "
                                      f"{'> 0' if positive else '>= 0'}, got {v!r}")
+        if self.lr > MAX_LR:
+            # Adam steps each weight by about lr: beyond 1 the weights run off (1e30 trained
+            # to weights of 1e30, finite, and a checkpoint that answers nothing)
+            raise ParameterError(f"lr must be at most {MAX_LR:g}, got {self.lr!r}")
+        if self.seed >= MAX_SEED:
+            # the training windows' seeds would reach the validation windows'
+            raise ParameterError(f"seed must be below {MAX_SEED} (from {MAX_SEED} the "
+                                 "training scenes are the validation scenes), got "
+                                 f"{self.seed!r}")
         if isinstance(self.recordings, (str, Path)) or isinstance(self.val_recordings,
                                                                    (str, Path)):
             raise ParameterError("recordings and val_recordings are lists of paths, got "
@@ -296,6 +309,38 @@ def _seed_all(cfg: TrainConfig) -> None:
     torch.set_num_threads(cfg.threads)
 
 
+# what a training writes besides last.pt
+OUTPUT_NAMES = ("model.pt", "steps.csv", "epochs.csv", "loss.png")
+
+
+def _write_outputs(out: Path, net, epoch: int, cfg: TrainConfig, steps_log: list,
+                   epochs_log: list) -> None:
+    """model.pt, the CSV logs and the loss curve of the training so far."""
+    save_model(out / "model.pt", net, epoch=epoch, config=asdict(cfg))
+    _write_csv(out / "steps.csv", steps_log)
+    _write_csv(out / "epochs.csv", epochs_log)
+    _plot(out / "loss.png", steps_log, epochs_log)
+
+
+def _setting(key: str, value):
+    """A setting as a resumed run compares it: recordings by the files they name (a path
+    spelled another way is the same file), tuples as lists."""
+    if key in ("recordings", "val_recordings") and value is not None:
+        return [str(Path(v).resolve()) for v in value]
+    return list(value) if isinstance(value, tuple) else value
+
+
+def _file_id(path) -> tuple:
+    """What tells a recording apart from another at the same path: its resolved path,
+    size and modification time."""
+    p = Path(path).resolve()
+    try:
+        st = p.stat()
+    except OSError:
+        return (str(p), None, None)
+    return (str(p), st.st_size, st.st_mtime_ns)
+
+
 def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
           show_progress: bool = False, log: Callable[[str], None] | None = None) -> dict:
     """Train (or resume training) and return the summary of the last epoch.
@@ -321,6 +366,11 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
         # a fresh run would overwrite that training's checkpoints at its first epoch
         raise ParameterError(f"--out {out} already holds a training ({last}): add --resume "
                              "to continue it, or choose another --out")
+    theirs = sorted(n for n in OUTPUT_NAMES if (out / n).exists()) if not last.exists() else []
+    if theirs:
+        raise ParameterError(f"--out {out} holds {', '.join(theirs)} but no training "
+                             "(last.pt): a run would overwrite them; choose another --out "
+                             "or move them")
     _seed_all(cfg)
     device = torch.device(check_device(cfg.device))
     net = EVFlowNet(width=cfg.width, norm=cfg.norm, symmetric=cfg.symmetric)
@@ -335,19 +385,35 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     if resume:
         if not last.is_file():
             raise ParameterError(f"--resume: no checkpoint {last}")
-        blob = torch.load(last, map_location=device, weights_only=False)
-        saved = dict(blob["config"])
+        try:
+            blob = torch.load(last, map_location=device, weights_only=False)
+            saved = dict(blob["config"])
+            state = [blob[k] for k in ("model", "optimizer", "scheduler", "steps", "epochs",
+                                       "epoch")]
+        except Exception as exc:  # torch.load raises many types for a damaged file
+            raise ParameterError(f"--resume: {last} is not a readable training checkpoint "
+                                 f"({type(exc).__name__}); delete it to train from the "
+                                 "start, or choose another --out") from None
         mine = asdict(cfg)
-        diff = [k for k in mine if k != "epochs" and saved.get(k) != mine[k]
-                and not (isinstance(mine[k], tuple) and list(mine[k]) == list(saved.get(k)))]
+        diff = [k for k in mine if k != "epochs"
+                and _setting(k, saved.get(k)) != _setting(k, mine[k])]
         if diff:
             raise ParameterError(f"--resume: {last} was trained with other settings: "
-                                 + ", ".join(f"{k}={saved.get(k)!r}" for k in diff))
-        net.load_state_dict(blob["model"])
-        opt.load_state_dict(blob["optimizer"])
-        sched.load_state_dict(blob["scheduler"])
-        steps_log, epochs_log = blob["steps"], blob["epochs"]
-        start = int(blob["epoch"]) + 1
+                                 + "; ".join(f"{k} {saved.get(k)!r} there, {mine[k]!r} now"
+                                             for k in diff))
+        changed = [p for p, was in zip(cfg.recordings, blob.get("recording_files", []),
+                                       strict=False) if _file_id(p) != was]
+        if changed:
+            raise ParameterError(f"--resume: {', '.join(map(str, changed))} changed since "
+                                 f"{last} began (another file, or rewritten): the resumed "
+                                 "run would not be the one interrupted")
+        net.load_state_dict(state[0])
+        opt.load_state_dict(state[1])
+        sched.load_state_dict(state[2])
+        steps_log, epochs_log = state[3], state[4]
+        start = int(state[5]) + 1
+        # an interruption between last.pt and the files after it left those a step behind
+        _write_outputs(out, net, start - 1, cfg, steps_log, epochs_log)
     elif cfg.init_weights:
         # fine-tuning: start from a checkpoint's weights (same network), fresh optimizer
         start_net = load_model(cfg.init_weights, str(device))
@@ -426,6 +492,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                 f"no training window kept {_min_events(cfg)} events in a {shape[0]}x"
                 f"{shape[1]} crop in epoch {epoch}: the recordings are too short or sparse "
                 "for --window-events, or --crop is too small; nothing was written")
+        lr = opt.param_groups[0]["lr"]  # this epoch's, before the decay for the next
         with warnings.catch_warnings():
             # an epoch without a step still decays the rate (the schedule is per epoch)
             warnings.filterwarnings("ignore", "Detected call of `lr_scheduler.step",
@@ -438,7 +505,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                 "--window-events)"), stacklevel=2)
         row = {"epoch": epoch, "step": (epoch + 1) * per_epoch, "train_loss":
                float(np.mean(losses)) if losses else float("nan"),
-               "lr": opt.param_groups[0]["lr"], "seconds": time.perf_counter() - t_epoch,
+               "lr": lr, "seconds": time.perf_counter() - t_epoch,
                "loss_forward_seconds": t_loss}
         if val:
             scores = evaluate_windows(net, val, objective=cfg.objective, lam=cfg.lam)
@@ -452,13 +519,11 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
         epochs_log.append(row)
         state = {"model": net.state_dict(), "optimizer": opt.state_dict(),
                  "scheduler": sched.state_dict(), "epoch": epoch, "config": asdict(cfg),
-                 "steps": steps_log, "epochs": epochs_log}
+                 "steps": steps_log, "epochs": epochs_log,
+                 "recording_files": [_file_id(p) for p in cfg.recordings]}
         with atomic_path(last) as tmp:
             torch.save(state, tmp)
-        save_model(out / "model.pt", net, epoch=epoch, config=asdict(cfg))
-        _write_csv(out / "steps.csv", steps_log)
-        _write_csv(out / "epochs.csv", epochs_log)
-        _plot(out / "loss.png", steps_log, epochs_log)
+        _write_outputs(out, net, epoch, cfg, steps_log, epochs_log)
         summary = row
         if log is not None:
             log(_epoch_line(row))
