@@ -109,8 +109,13 @@ def test_cli_train_end_to_end(tmp_path, capsys):
     assert main(argv) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["epoch"] == 0 and summary["train_loss"] > 0
+    assert summary["model"] == str(out / "model.pt") and summary["seconds"] > 0
     assert {p.name for p in out.iterdir()} >= {"last.pt", "model.pt", "steps.csv",
                                                 "epochs.csv", "loss.png"}
+    # the closing line counts the epochs and steps, and gives the loss and time
+    assert main(argv[:-1] + ["--epochs", "2", "--resume"]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith("2 epochs, 2 steps, last training loss ") and " s -> " in line
     assert main(argv[:-3] + ["--crop", "50x64", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "--crop" in err and "multiple of 16" in err and "'50x64'" in err

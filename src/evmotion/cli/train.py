@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from pathlib import Path
 
 from evmotion.catalog import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
@@ -124,6 +125,7 @@ def run(args) -> int:
     from evmotion.methods.dnn import require_torch
     from evmotion.utils import keep_for_resume
 
+    t_start = time.perf_counter()
     require_torch("evmotion train")
     from evmotion.methods.dnn.train import TrainConfig, train
 
@@ -147,9 +149,14 @@ def run(args) -> int:
         if last.exists():
             keep_for_resume(last)
         raise
+    model = Path(args.out) / "model.pt"
     if args.json:
-        print_json(summary)
+        print_json({**summary, "model": str(model), "out": str(args.out),
+                    "seconds": time.perf_counter() - t_start})
     else:
-        print(f"model: {Path(args.out) / 'model.pt'} (evmotion flow --method dnn "
-              f"--checkpoint {Path(args.out) / 'model.pt'})")
+        done = int(summary.get("epoch", -1)) + 1
+        loss = summary.get("train_loss", float("nan"))
+        print(f"{done} epoch{'' if done == 1 else 's'}, {int(summary.get('step', 0)):,} steps, "
+              f"last training loss {loss:.4g}, {time.perf_counter() - t_start:.1f} s -> "
+              f"{model} (evmotion flow --method dnn --checkpoint {model})")
     return 0
