@@ -154,7 +154,12 @@ def _window(shape, n, seed=0):
 def speed(quick: bool) -> list[dict]:
     import torch
 
-    from evmotion.methods.dnn.infer import estimate_flow_dnn, predict_displacement
+    from evmotion.methods.dnn.infer import (
+        GAINS,
+        INPUT_SCALES,
+        estimate_flow_dnn,
+        predict_displacement,
+    )
     from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
     from evmotion.methods.dnn.model import load_model
     from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
@@ -196,8 +201,10 @@ def speed(quick: bool) -> list[dict]:
                          "voxel_cpu_s": times[voxel]["cpu_s"],
                          "max_diff_px": diff if name == "predict_displacement" else 0.0})
         rows.append({"section": "speed", "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
-                     "method": "estimate_flow_dnn (defaults: input scales 1, 2, 4, "
-                               "time reversal, gain; no IWEs)", **times["estimate_flow_dnn"]})
+                     "method": "estimate_flow_dnn (defaults: input scales "
+                               f"{', '.join(map(str, INPUT_SCALES))}, time reversal, gain "
+                               f"{GAINS[0]}-{GAINS[-1]}; no IWEs)",
+                     **times["estimate_flow_dnn"]})
     # one training step, batch 8 at 346x260 (padded 352x272), simulated windows
     from evmotion.methods.dnn.data import sim_window
 
