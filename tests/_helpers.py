@@ -71,3 +71,18 @@ def mean_window_aee(res, wins, **params) -> float:
     return float(np.mean([flow_metrics(out.displacement(k), res.gt.displacement(w.t0, w.t1),
                                        events=ev.window(w)).aee
                           for k, w in enumerate(wins)]))
+
+
+def interrupt_at_call(monkeypatch, owner, name: str, n: int) -> list:
+    """Make ``owner.name`` raise KeyboardInterrupt on its ``n``-th call (a Ctrl-C in the
+    middle of a run); returns the list its calls are counted in."""
+    real, calls = getattr(owner, name), []
+
+    def interrupted(*a, **k):
+        calls.append(1)
+        if len(calls) == n:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(owner, name, interrupted)
+    return calls

@@ -19,6 +19,7 @@ import h5py
 import numpy as np
 import pytest
 
+from _helpers import interrupt_at_call
 from evmotion.cli import build_parser, main
 
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -712,15 +713,7 @@ def test_resume_a_finished_file_keeps_it(rec, tmp_path, capsys):
 def test_interrupted_segment_leaves_no_pictures(rec, tmp_path, capsys, monkeypatch):
     import evmotion.methods.segmentation as segmentation
 
-    real, calls = segmentation.segment_motion, []
-
-    def interrupted(*a, **k):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real(*a, **k)
-
-    monkeypatch.setattr(segmentation, "segment_motion", interrupted)
+    calls = interrupt_at_call(monkeypatch, segmentation, "segment_motion", 2)
     out = tmp_path / "seg"
     assert main(["segment", rec["rec"], "--warp", "translation", "--window-events", "1000",
                  "--iterations", "2", "--out", str(out)]) == 130

@@ -9,6 +9,7 @@ import h5py
 import numpy as np
 import pytest
 
+from _helpers import interrupt_at_call
 from egomotion_synth import synth
 from evmotion.cli import main
 from evmotion.events import concatenate
@@ -254,15 +255,7 @@ def test_egomotion_resume_after_an_interrupt(rec, tmp_path, capsys, monkeypatch,
     whole = json.loads(capsys.readouterr().out)["windows"]
     assert len(whole) == 6
 
-    real, calls = ego._window_job, []
-
-    def job(*a, **k):
-        calls.append(1)
-        if len(calls) == 4:
-            raise KeyboardInterrupt
-        return real(*a, **k)
-
-    monkeypatch.setattr(ego, "_window_job", job)
+    calls = interrupt_at_call(monkeypatch, ego, "_window_job", 4)
     out = tmp_path / "cut"
     assert main(argv + ["--out", str(out)]) == 130
     assert "kept in" in capsys.readouterr().err and (out / "params.part").exists()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _helpers import interrupt_at_call
 from evmotion.cli import main
 from evmotion.events import concatenate
 from test_multicm import constant, synth
@@ -199,15 +200,7 @@ def test_npy_output_is_refused_for_npz(recording, tmp_path, capsys):
 def test_interrupted_run_leaves_no_file(recording, tmp_path, capsys, monkeypatch, name):
     import evmotion.methods.multicm as multicm
 
-    real, calls = multicm.estimate_flow, []
-
-    def interrupted(*a, **k):
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return real(*a, **k)
-
-    monkeypatch.setattr(multicm, "estimate_flow", interrupted)
+    calls = interrupt_at_call(monkeypatch, multicm, "estimate_flow", 2)
     path, _ = recording
     out = tmp_path / "out"
     assert main(["flow", str(path), "--method", "multicm", "--window-events", "4000",
