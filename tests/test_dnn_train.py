@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -332,3 +333,40 @@ def test_resume_and_out_are_checked(tmp_path):
 def test_seeds_of_the_validation_scenes_and_runaway_rates_are_refused(bad, match):
     with pytest.raises(ParameterError, match=match):
         TrainConfig(**{**TINY, **bad}).check()
+
+
+def test_interrupted_before_the_first_epoch_leaves_no_folder(tmp_path, capsys, monkeypatch):
+    """Ctrl-C before the first checkpoint left an empty --out folder, which a later
+    --resume took for a training ('no checkpoint'); a folder that was there stays."""
+    import evmotion.methods.dnn.train as dnn_train
+    from evmotion.cli import main
+
+    def interrupted(cfg, out_dir, **k):
+        Path(out_dir).mkdir(parents=True, exist_ok=True)  # as train() does once its data loads
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dnn_train, "train", interrupted)
+    argv = ["train", "--sim-windows", "2", "--epochs", "1", "--out"]
+    assert main(argv + [str(tmp_path / "new")]) == 130
+    assert not (tmp_path / "new").exists()
+    (tmp_path / "mine").mkdir()
+    assert main(argv + [str(tmp_path / "mine")]) == 130
+    assert (tmp_path / "mine").is_dir()
+    assert capsys.readouterr().err.count("evmotion: interrupted\n") == 2
+
+
+def test_crops_find_events_gathered_in_a_corner():
+    """2000 events in a 20 x 20 px corner of a 1280 x 720 sensor: every blind crop missed
+    them, and a training failed or not by its seed; the crops around an event find them."""
+    from evmotion.events import EventArray
+    from evmotion.methods.dnn.data import TrainWindow
+
+    rng = np.random.default_rng(0)
+    n = 2000
+    ev = EventArray(x=rng.integers(1200, 1220, n), y=rng.integers(690, 710, n),
+                    t=np.sort(rng.integers(0, 10_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(720, 1280))
+    for seed in range(10):
+        got = crop_window(TrainWindow(ev, None, "corner"), (176, 240),
+                          np.random.default_rng(seed), min_events=1000)
+        assert got is not None and len(got.events) == n and got.events.sensor_size == (176, 240)

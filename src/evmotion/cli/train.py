@@ -36,6 +36,8 @@ EXAMPLES = """examples:
   evmotion train --sim-windows 4 --epochs 1 --out runs/sim      # a smoke run (64 and 10 for real)
   evmotion train rec1.raw rec2.aedat4 --sim-windows 0 --epochs 1 --val val.h5 --out runs/mix
   evmotion train --sim-windows 4 --epochs 2 --out runs/sim --resume   # one more epoch
+(a progress bar with the loss and ETA shows on a terminal; elsewhere, e.g. under nohup,
+set EVMOTION_PROGRESS=1; each epoch's line is printed either way.)
 """
 
 
@@ -141,13 +143,17 @@ def run(args) -> int:
                       max_steps_per_epoch=args.max_steps, init_weights=args.init_weights)
     # the progress bar follows evmotion.utils.progress: on a terminal, or EVMOTION_PROGRESS=1
     bar = sys.stderr.isatty() or os.environ.get("EVMOTION_PROGRESS") == "1"
+    existed = Path(args.out).exists()
     try:
         summary = train(cfg, args.out, resume=args.resume, show_progress=bar,
                         log=_above_the_bar)
     except KeyboardInterrupt:
-        last = Path(args.out) / "last.pt"
+        out = Path(args.out)
+        last = out / "last.pt"
         if last.exists():
             keep_for_resume(last)
+        elif out.is_dir() and not any(out.iterdir()) and not existed:
+            out.rmdir()  # interrupted before its first epoch: nothing to keep
         raise
     model = Path(args.out) / "model.pt"
     if args.json:

@@ -111,15 +111,22 @@ def crop_window(win: TrainWindow, crop: tuple[int, int], rng: np.random.Generato
                 min_events: int = 1000, tries: int = 10) -> TrainWindow | None:
     """A random ``crop = (h, w)`` region of the window (each axis no larger than the
     sensor), its events shifted to the crop's origin; None if no try keeps
-    ``min_events`` events."""
+    ``min_events`` events. The first ``tries`` are anywhere on the sensor, the next
+    ``tries`` around a random event (events gathered in a corner of a large sensor were
+    missed by every blind try, and the run failed or not by the seed)."""
     h, w = win.events.sensor_size
     ch, cw = min(crop[0], h), min(crop[1], w)
     ev = win.events
     x = np.asarray(ev.x, dtype=np.float64)
     y = np.asarray(ev.y, dtype=np.float64)
-    for _ in range(tries):
-        oy = int(rng.integers(0, h - ch + 1))
-        ox = int(rng.integers(0, w - cw + 1))
+    for k in range(2 * tries):
+        if k < tries:
+            oy = int(rng.integers(0, h - ch + 1))
+            ox = int(rng.integers(0, w - cw + 1))
+        else:
+            e = int(rng.integers(0, len(ev))) if len(ev) else 0
+            oy = int(np.clip(y[e] - ch // 2, 0, h - ch)) if len(ev) else 0
+            ox = int(np.clip(x[e] - cw // 2, 0, w - cw)) if len(ev) else 0
         keep = (x >= ox) & (x < ox + cw) & (y >= oy) & (y < oy + ch)
         if keep.sum() < min_events:
             continue
