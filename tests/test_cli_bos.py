@@ -425,3 +425,21 @@ def test_events_beyond_240x180_without_a_size_take_the_frames(tmp_path, capsys):
                        "--out", tmp_path / "o.h5"], capsys)
     assert rc == 0, err
     assert read_flow_h5(tmp_path / "o.h5").flow.shape[1:3] == (200, 300)
+
+
+def test_events_off_the_frames_grid_are_named_as_such(scene, tmp_path, capsys):
+    """An event outside the frames' size was told to 'pass sensor_size=(height, width)',
+    an option bos does not have; a negative coordinate named no event nor value."""
+    import shutil
+
+    for name, x, words in (("outside", "45", ["event 3 at x=45", "frames' pixel grid, 40x48"]),
+                           ("negative", "-3", ["event 3 has a negative pixel coordinate: x=-3"])):
+        bad = tmp_path / name
+        shutil.copytree(scene, bad)
+        lines = (bad / "events.txt").read_text().splitlines()
+        header = [k for k, line in enumerate(lines) if line.startswith("#")]
+        k = len(header) + 3
+        t, _, y, p = lines[k].split()
+        lines[k] = f"{t} {x} {y} {p}"
+        (bad / "events.txt").write_text("\n".join(lines) + "\n")
+        _one_line_error(["bos", bad, "--out", tmp_path / f"{name}.h5"], capsys, *words)

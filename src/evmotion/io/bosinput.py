@@ -144,6 +144,20 @@ def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, b
                       "images.txt beside the events", "give them with --frames")
 
 
+def _events_on_frames(rec: Path, fmt: str | None, frame_size: tuple[int, int], **kw):
+    """The recording's events; one outside the sensor is refused naming the frames' grid
+    they must lie on (the reader's own hint names options bos does not have)."""
+    from evmotion.io import read_events
+
+    try:
+        return read_events(rec, **({"format": fmt} if fmt else {}), **kw)
+    except FormatError as exc:
+        if "outside the sensor" not in exc.message:
+            raise
+        raise FormatError(exc.path, exc.message, f"BOS needs the events on the frames' "
+                          f"pixel grid, {frame_size[1]}x{frame_size[0]} px (W x H)") from None
+
+
 def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = None, *,
                    fmt: str | None = None, roi: tuple[int, int, int, int] | None = None,
                    t0: int | None = None, t1: int | None = None,
@@ -184,7 +198,6 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     >>> data.intervals[:2]  # doctest: +SKIP
     array([[0, 0, 8333], [1, 8333, 16667]])
     """
-    from evmotion.io import read_events
     from evmotion.io.frames import read_frames
 
     if max_intervals is not None and not (isinstance(max_intervals, (int, np.integer))
@@ -215,15 +228,15 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
             and not (rec / "events.txt").is_file():
         raise FormatError(rec, "an ECD-style folder with frames (images.txt) but no "
                           "events.txt: BOS needs the events too")
-    events = read_events(rec, **({"format": fmt} if fmt else {}))
+    fh, fw = images.shape[1:3]
+    events = _events_on_frames(rec, fmt, (fh, fw))
     if not len(events):
         raise EmptyWindowError(f"{rec}: no events")
-    fh, fw = images.shape[1:3]
     if (fh, fw) != tuple(events.sensor_size) and str(
             events.meta.get("sensor_size_from", "")).startswith(GUESSED_SIZES):
         # events that do not state their sensor (ECD text without frames beside it, say)
         # lie on the frames' grid
-        events = read_events(rec, sensor_size=(fh, fw), **({"format": fmt} if fmt else {}))
+        events = _events_on_frames(rec, fmt, (fh, fw), sensor_size=(fh, fw))
     if (fh, fw) != tuple(events.sensor_size):
         eh, ew = events.sensor_size
         raise ParameterError(f"frames {src} are {fw}x{fh} px but the events' sensor is "

@@ -470,7 +470,9 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
     h, w = size
     if x.size:
         if x.min() < 0 or y.min() < 0:
-            raise FormatError(path, "negative pixel coordinate in field 'x' or 'y'")
+            bad = int(np.argmax((x < 0) | (y < 0)))
+            raise FormatError(path, f"event {bad} has a negative pixel coordinate: x={x[bad]}, "
+                              f"y={y[bad]}")
         if x.max() >= w or y.max() >= h:
             bad = int(np.argmax((x >= w) | (y >= h)))
             raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]} lies outside the "
