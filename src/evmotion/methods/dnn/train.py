@@ -425,6 +425,11 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                 f"{net.width}, norm {net.norm}, symmetric {net.symmetric})")
         net.load_state_dict(start_net.state_dict())
     rec = recording_windows(cfg.recordings, cfg.window_events) if cfg.recordings else []
+    if cfg.recordings and not rec and cfg.sim_windows == 0:
+        raise ParameterError(f"no training window: none of the {len(cfg.recordings)} "
+                             f"recording(s) holds a window of --window-events "
+                             f"{cfg.window_events} (at least 1000 events, and half of it); "
+                             "nothing was written")
     val = [sim_window(VAL_SEED_BASE + i, sensor_size=cfg.sim_sensor,
                       window_events=cfg.window_events) for i in range(cfg.val_sim)]
     if cfg.val_recordings:
