@@ -116,7 +116,9 @@ def add_parser(sub) -> None:
     win = p.add_mutually_exclusive_group()
     win.add_argument("--window-events", type=int_range(10), default=None, metavar="N",
                      help="events per window (>= 10; default 30000)")
-    win.add_argument("--window-us", type=duration_us, default=None, metavar="T")
+    win.add_argument("--window-us", type=duration_us, default=None, metavar="T",
+                     help="windows of this duration instead: microseconds, or with a unit "
+                          "(10000, 10ms, 0.01s)")
     win.add_argument("--window-gt", type=existing_input, default=None, metavar="GT",
                      help="ground-truth file whose timestamps define the windows")
     p.add_argument("--gt-dt", type=positive_int(), default=None,

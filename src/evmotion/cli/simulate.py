@@ -271,7 +271,7 @@ def run_schlieren(args) -> int:
                     "stats": sim.stats})
     else:
         print(f"schlieren {scene}: {len(sim.events)} events, {len(sim.frames)} frames "
-              f"({sim.events.sensor_size[1]}x{sim.events.sensor_size[0]}, "
+              f"({sim.events.sensor_size[1]} x {sim.events.sensor_size[0]} px (W x H), "
               f"{args.duration} s) -> {args.out}; ground truth -> {gt_path}")
     return 0
 

@@ -64,15 +64,19 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
     p.add_argument("--sim-windows", type=int_range(0, 9999), default=64,
                    help="simulated windows per epoch (default 64; 0: recordings only)")
-    p.add_argument("--epochs", type=positive_int(), default=10)
-    p.add_argument("--batch-size", type=int_range(1, 4096), default=8)
-    p.add_argument("--lr", type=positive_float(), default=1e-3)
+    p.add_argument("--epochs", type=positive_int(), default=10,
+                   help="passes over the data (default 10; with --resume, the total)")
+    p.add_argument("--batch-size", type=int_range(1, 4096), default=8,
+                   help="windows per step (default 8)")
+    p.add_argument("--lr", type=positive_float(), default=1e-3,
+                   help="Adam learning rate (default 0.001, at most 1)")
     p.add_argument("--lr-decay", type=finite_float(0, 1, lo_open=True), default=0.8,
                    help="per epoch (default 0.8)")
     p.add_argument("--width", type=finite_float(0, MAX_WIDTH, lo_open=True), default=0.125,
                    help=f"channel multiplier in (0, {MAX_WIDTH:g}] (1 = the paper's EV-FlowNet, "
                         "14 M parameters; default 0.125)")
-    p.add_argument("--window-events", type=int_range(100), default=40_000)
+    p.add_argument("--window-events", type=int_range(100), default=40_000,
+                   help="events per training window (default 40000, the thesis')")
     p.add_argument("--crop", type=_size, default=(176, 240), metavar="HxW",
                    help="training crop, multiples of 16 (default 176x240)")
     p.add_argument("--sim-duration", type=finite_float(0, 10, lo_open=True, unit="s"),
