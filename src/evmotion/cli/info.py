@@ -69,7 +69,10 @@ def summarize(info: dict) -> list[str]:
     if "n_events" in info:
         lines.append(f"events:      {info['n_events']:,}")
     if info.get("t_first_us") is not None:
-        lines.append(f"time range:  {info['t_first_us']:,} .. {info['t_last_us']:,} us")
+        # in s too: --t0 / --t1 take seconds
+        lines.append(f"time range:  {info['t_first_us']:,} .. {info['t_last_us']:,} us "
+                     f"({info['t_first_us'] * 1e-6:.6f} .. {info['t_last_us'] * 1e-6:.6f} s, "
+                     "as --t0/--t1 take it)")
     if info.get("duration_s") is not None:
         lines.append(f"duration:    {info['duration_s']:.6f} s")
     if info.get("rate_ev_per_s"):
