@@ -135,3 +135,16 @@ def test_info_sensor_size_rescues_a_header_that_cannot_size(tmp_path, capsys):
     assert "unknown AEChip" in capsys.readouterr().err
     assert main(["info", str(tmp_path / "x.aedat"), "--sensor-size", "480", "640"]) == 0
     assert "events:      2" in capsys.readouterr().out
+
+
+def test_info_time_range_in_seconds_too(tmp_path, capsys):
+    """info printed the time range in µs only, while --t0/--t1 take seconds: pasting it
+    selected nothing. The seconds are given beside."""
+    from evmotion.events import EventArray
+
+    ev = EventArray(x=[0, 1], y=[0, 1], t=[11_200_224, 21_968_221], p=[1, 0],
+                    sensor_size=(4, 4))
+    eio.write_events(tmp_path / "r.h5", ev)
+    assert main(["info", str(tmp_path / "r.h5")]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("time range"))
+    assert "11,200,224 .. 21,968,221 us (11.200224 .. 21.968221 s" in line
