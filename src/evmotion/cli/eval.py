@@ -68,9 +68,9 @@ def add_parser(sub) -> None:
     p.add_argument("--events", default=None, type=existing_input,
                    help="recording of the events: event mask and FWL")
     p.add_argument("--format", default=None, help="format of --events (default: detect)")
-    p.add_argument("--dt", type=positive_int(), default=1,
-                   help="GT frames per window (1 or 4); per-event files: the GT frame "
-                        "intervals the displacements span")
+    p.add_argument("--dt", "--gt-dt", dest="dt", type=positive_int(), default=1,
+                   help="GT frames per window (1 or 4; flow's --gt-dt); per-event files: "
+                        "the GT frame intervals the displacements span")
     p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None,
                    help="window start of a .npy, or a .flo/.png without sidecar")
     p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None,
