@@ -46,6 +46,8 @@ def test_sparse_npz_streams_and_matches_api(edge_file, tmp_path, capsys):
     assert rc == 0 and seen["chunk_events"] == 333
     summary = json.loads(capsys.readouterr().out)
     assert summary["events"] == len(ev) and summary["overflow"] == 0
+    # the keys every method's summary has
+    assert summary["outputs"] == [str(out)] and summary["seconds"] > 0 and "n_windows" in summary
     ref = TripletMatcher(ev.sensor_size).process(ev)
     with np.load(out) as z:
         np.testing.assert_array_equal(z["vx"], ref.vx)

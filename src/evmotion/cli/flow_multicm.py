@@ -336,7 +336,8 @@ def run(args) -> int:
     if args.json:
         print_json({
             "method": args.method, "outputs": written,
-            "time_aware": "none" if args.method == "dnn" else args.time_aware,
+            # a network has no time-aware transport to name
+            **({} if args.method == "dnn" else {"time_aware": args.time_aware}),
             "n_windows": len(rows), "sensor_size": list(events.sensor_size), "grid": grid,
             "windows": rows, "seconds": time.perf_counter() - t_start,
         })
