@@ -153,17 +153,17 @@ def read_for_windows(args, *, n_events: int | None = None, duration_us: int | No
         # closed when done: the rest of the file is not read, and its handle not kept
         with contextlib.closing(iter_events(args.file, CHUNK_EVENTS, t0=t0, t1=t1,
                                             **kw)) as chunks:
-            first = next((c for c in chunks if len(c)), None)
-            if first is not None:
-                cam, undistort, grid = _distortion_rule(args, first)
-                read = [0]
+            read = [0]
 
-                def stream():
-                    for chunk in itertools.chain((first,), chunks):
-                        read[0] += len(chunk)
-                        yield cam.undistort_events(chunk) if undistort else chunk
+            def counted():
+                for chunk in chunks:
+                    read[0] += len(chunk)
+                    yield chunk
 
-                events = events_for_windows(stream(), max_windows=n_max, n_events=n_events,
+            undistorted = _undistorting(args, counted(), integer=False)
+            if undistorted is not None:
+                stream, cam, grid = undistorted
+                events = events_for_windows(stream, max_windows=n_max, n_events=n_events,
                                             duration_us=duration_us, t0=t0,
                                             min_events=min_events)
                 if events is not None and make_windows(
@@ -184,13 +184,23 @@ def undistorted_chunks(args, chunks: Iterator, *, integer: bool = True
                        ) -> tuple[Iterator, str]:
     """A chunk stream undistorted like :func:`undistort_for` (the camera resolved from the
     first non-empty chunk), and its grid label."""
+    undistorted = _undistorting(args, chunks, integer=integer)
+    if undistorted is None:
+        return iter(()), "sensor (no calibration known)"
+    return undistorted[0], undistorted[2]
+
+
+def _undistorting(args, chunks: Iterator, *, integer: bool):
+    """``(stream, camera, grid)``: ``chunks`` undistorted by the rule of
+    :func:`undistort_for`, the camera resolved from the first non-empty chunk; None when
+    there is none."""
     first = next((c for c in chunks if len(c)), None)
     if first is None:
-        return iter(()), "sensor (no calibration known)"
+        return None
     cam, undistort, grid = _distortion_rule(args, first)
 
     def stream():
         for chunk in itertools.chain((first,), chunks):
             yield cam.undistort_events(chunk, integer=integer) if undistort else chunk
 
-    return stream(), grid
+    return stream(), cam, grid
