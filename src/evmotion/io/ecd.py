@@ -676,9 +676,11 @@ def write(path: str | Path, events: EventArray | Iterator[EventArray], *,
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             for k, ev in enumerate(chunks):
-                if k == 0 and header and tuple(ev.sensor_size) != ECD_SENSOR_SIZE:
+                if k == 0 and header and (tuple(ev.sensor_size) != ECD_SENSOR_SIZE
+                                          or len(ev) == 0):
                     # ECD text has no header; a comment line (which ECD readers skip)
-                    # keeps the sensor size for reading back
+                    # keeps the sensor size for reading back, and an empty recording
+                    # from an empty file (which reads as a mistake)
                     h, w = ev.sensor_size
                     fh.write(f"# evmotion ECD text: t[s] x y p; sensor height {h} width "
                              f"{w}\n".encode())
@@ -863,6 +865,8 @@ def _sniff(path: Path, head: bytes) -> bool:
         return (path / "events.txt").is_file()
     lines = [ln.strip() for ln in head.removeprefix(b"\xef\xbb\xbf").split(b"\n")
              if not ln.lstrip().startswith((b"#", b"%"))]
+    if not any(lines) and head.startswith(b"# evmotion ECD text"):
+        return True  # an empty recording written by :func:`write`
     order = "txyp"
     for _ in range(2):
         if lines and _size_line(lines[0]) is not None:

@@ -134,11 +134,15 @@ def _blocks(path: Path, topic: str | None, info: dict) -> Iterator[binary.Block]
 def _first_size(path: Path, topic: str | None, sensor_size):
     if sensor_size is not None:
         return tuple(sensor_size)
+    seen = False
     for _, raw in _messages(path, topic, quiet=True):  # _blocks says which topic is read
+        seen = True
         size, _ = _decode(raw, path)
         if size[0] > 0 and size[1] > 0:
             return check_sensor_size(path, size, "EventArray message height, width")
-    raise FormatError(path, "EventArray messages give height/width 0",
+    raise FormatError(path, "EventArray messages give height/width 0" if seen else
+                      f"no {MSGTYPE} message in the bag" + (f" on topic '{topic}'" if topic
+                                                            else ""),
                       "pass sensor_size=(height, width)")
 
 
@@ -229,14 +233,15 @@ def write(path: str | Path, events: EventArray, *, topic: str = "/dvs/events",
         cuts = np.searchsorted(events.t, edges[1:], side="left")
         bounds = np.unique(np.concatenate([[0], cuts, [len(events)]]))
     else:
-        bounds = np.array([0])
+        # one message without events keeps the sensor size of an empty recording
+        bounds = np.array([0, 0])
     with atomic_path(path) as tmp:
         tmp.unlink()
         with rosbag1.Writer(tmp) as writer:
             conn = writer.add_connection(topic, MSGTYPE, typestore=store)
             for seq, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
                 part = events[int(a):int(b)]
-                stamp_ns = int(part.t[-1]) * 1000
+                stamp_ns = int(part.t[-1]) * 1000 if len(part) else 0
                 writer.write(conn, stamp_ns, _serialize(part, seq, frame_id.encode()))
 
 
