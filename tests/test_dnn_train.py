@@ -371,3 +371,27 @@ def test_crops_find_events_gathered_in_a_corner():
         got = crop_window(TrainWindow(ev, None, "corner"), (176, 240),
                           np.random.default_rng(seed), min_events=1000)
         assert got is not None and len(got.events) == n and got.events.sensor_size == (176, 240)
+
+
+def test_recordings_take_the_readers_format_and_sensor_size(tmp_path):
+    """A text recording of a 48x64 sensor reads as the ECD's 240x180 unless its size is
+    given; the reader's errors name --format and --sensor-size, which train now has."""
+    from evmotion.cli import main
+    from evmotion.io import write_events
+    from evmotion.methods.dnn.data import recording_windows
+
+    ev = sim_window(5, sensor_size=(48, 64), window_events=4000).events
+    text = tmp_path / "rec.txt"
+    write_events(text, ev)
+    text.write_text("".join(ln for ln in text.read_text().splitlines(True)
+                            if not ln.startswith("#")))  # as other tools write ECD text
+    assert recording_windows([text], 4000)[0].events.sensor_size == (180, 240)
+    (win,) = recording_windows([text], 4000, format="ecd", sensor_size=(48, 64))
+    assert win.events.sensor_size == (48, 64) and len(win.events) == len(ev)
+    with pytest.raises(ParameterError, match=r"^training recording \S*rec.txt: no '%'"):
+        recording_windows([text], 4000, format="evt3")
+    rc = main(["train", str(text), "--format", "ecd", "--sensor-size", "48", "64",
+               "--out", str(tmp_path / "t"), "--sim-windows", "0", "--val-sim", "0",
+               "--window-events", "4000", "--crop", "48x64", "--width", "0.0625",
+               "--batch-size", "1", "--epochs", "1", "--max-steps", "1"])
+    assert rc == 0 and (tmp_path / "t" / "model.pt").is_file()

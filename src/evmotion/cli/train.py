@@ -23,6 +23,7 @@ from pathlib import Path
 
 from evmotion.catalog import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 from evmotion.cli.options import (
+    add_sensor_size_argument,
     existing_input,
     finite_float,
     int_range,
@@ -62,6 +63,9 @@ def add_parser(sub) -> None:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("recordings", nargs="*", type=existing_input, help="training recordings (any readable format)")
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
+    p.add_argument("--format", default=None,
+                   help="format of the recordings (default: detected per file)")
+    add_sensor_size_argument(p)
     p.add_argument("--sim-windows", type=int_range(0, 9999), default=64,
                    help="simulated windows per epoch (default 64; 0: recordings only)")
     p.add_argument("--epochs", type=positive_int(), default=10,
@@ -144,7 +148,9 @@ def run(args) -> int:
                       symmetric=args.symmetric,
                       objective=args.objective, lam=args.lam,
                       seed=args.seed, threads=args.threads, device=args.device,
-                      max_steps_per_epoch=args.max_steps, init_weights=args.init_weights)
+                      max_steps_per_epoch=args.max_steps, init_weights=args.init_weights,
+                      read_format=args.format,
+                      sensor_size=tuple(args.sensor_size) if args.sensor_size else None)
     # the progress bar follows evmotion.utils.progress: on a terminal, or EVMOTION_PROGRESS=1
     bar = sys.stderr.isatty() or os.environ.get("EVMOTION_PROGRESS") == "1"
     existed = Path(args.out).exists()

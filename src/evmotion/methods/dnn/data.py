@@ -83,19 +83,24 @@ def sim_window(seed: int, *, scene: str | None = None, sensor_size=(260, 346),
 
 
 def recording_windows(paths: Sequence[str | Path], window_events: int = 40_000, *,
-                      what: str = "training recording") -> list[TrainWindow]:
-    """Consecutive ``window_events`` windows of each recording (any readable format); a
-    last partial window is kept if it has at least half as many events, a first one if it
-    has 1000. A recording that gives no window is named in an
-    :class:`~evmotion.errors.EvmotionWarning` (``what`` says which kind it is)."""
+                      what: str = "training recording", format: str | None = None,
+                      sensor_size: tuple[int, int] | None = None) -> list[TrainWindow]:
+    """Consecutive ``window_events`` windows of each recording (any readable format, or
+    ``format``; ``sensor_size`` for files that do not state it); a last partial window is
+    kept if it has at least half as many events, a first one if it has 1000. A recording
+    that gives no window is named in an :class:`~evmotion.errors.EvmotionWarning`
+    (``what`` says which kind it is)."""
     from evmotion.io import read_events
 
+    kw = {k: v for k, v in (("format", format), ("sensor_size", sensor_size)) if v}
     out = []
     for path in paths:
         try:
-            ev = read_events(path)
+            ev = read_events(path, **kw)
         except EvmotionError as exc:
-            raise ParameterError(f"{what} {path}: {exc}") from None
+            said = str(exc)  # a reader's error mostly names the file already
+            raise ParameterError(f"{what} {said}" if said.startswith(str(path))
+                                 else f"{what} {path}: {said}") from None
         n = len(out)
         for w in ev.windows_by_count(window_events):
             if w.count >= max(window_events // 2, 1000) or (w.index == 0 and w.count >= 1000):

@@ -94,6 +94,8 @@ class TrainConfig:
     device: str = "cpu"
     max_steps_per_epoch: int | None = None
     init_weights: str | None = None
+    read_format: str | None = None
+    sensor_size: tuple[int, int] | None = None
 
     def check(self) -> None:
         counts = {"epochs": 1, "batch_size": 1, "sim_windows": 0, "val_sim": 0,
@@ -424,7 +426,9 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                 f"{theirs[1]}, symmetric {theirs[2]}) differs from this training's (width "
                 f"{net.width}, norm {net.norm}, symmetric {net.symmetric})")
         net.load_state_dict(start_net.state_dict())
-    rec = recording_windows(cfg.recordings, cfg.window_events) if cfg.recordings else []
+    reading = {"format": cfg.read_format, "sensor_size": cfg.sensor_size}
+    rec = recording_windows(cfg.recordings, cfg.window_events, **reading) \
+        if cfg.recordings else []
     if cfg.recordings and not rec and cfg.sim_windows == 0:
         raise ParameterError(f"no training window: none of the {len(cfg.recordings)} "
                              f"recording(s) holds a window of --window-events "
@@ -434,7 +438,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                       window_events=cfg.window_events) for i in range(cfg.val_sim)]
     if cfg.val_recordings:
         val += recording_windows(cfg.val_recordings, cfg.window_events,
-                                 what="validation recording")
+                                 what="validation recording", **reading)
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)  # once the data is known to load
     n_items = cfg.sim_windows + len(rec)
