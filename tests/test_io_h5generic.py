@@ -81,3 +81,33 @@ def test_float_seconds_and_evmotions_own_files_stay_theirs(tmp_path):
     own = tmp_path / "own.h5"
     write_events(own, EventArray(X, Y, T, P, sensor_size=(200, 320)))
     assert read_events(own).meta["format"] == "h5"
+
+
+def test_nanoseconds_since_the_epoch_and_event_utils_resolution(tmp_path):
+    """Integer times that as µs lie past the year 5000 are ns since the epoch (they read
+    as a 96 s recording in the year 55,000, every flow 1000x too small); event_utils'
+    ``sensor_resolution`` (H, W) attribute is the sensor, not the largest coordinate."""
+    from evmotion.cli import main
+
+    rng = np.random.default_rng(0)
+    n = 1000
+    t_us = 1_700_000_000_000_000 + np.sort(rng.integers(0, 95_800, n))
+    with h5py.File(tmp_path / "ns.h5", "w") as f:
+        f["x"], f["y"] = rng.integers(0, 346, n), rng.integers(0, 260, n)
+        f["t"], f["p"] = t_us * 1000, rng.integers(0, 2, n)
+        f.attrs["width"], f.attrs["height"] = 346, 260
+    ev = read_events(tmp_path / "ns.h5")
+    assert np.array_equal(ev.t, t_us) and ev.meta["time_unit"].startswith("ns (inferred")
+    # relative ns stay ambiguous: --time-unit (convert) states them, for HDF5 too
+    with h5py.File(tmp_path / "rel.h5", "w") as f:
+        f["x"], f["y"] = rng.integers(0, 346, n), rng.integers(0, 260, n)
+        f["t"], f["p"] = (t_us - t_us[0]) * 1000, rng.integers(0, 2, n)
+    assert main(["convert", str(tmp_path / "rel.h5"), str(tmp_path / "o.h5"),
+                 "--time-unit", "ns", "--sensor-size", "260", "346"]) == 0
+    assert read_events(tmp_path / "o.h5").t[-1] == t_us[-1] - t_us[0]
+    with h5py.File(tmp_path / "eu.h5", "w") as f:
+        g = f.create_group("events")
+        g["xs"], g["ys"] = rng.integers(0, 346, n), rng.integers(0, 260, n)
+        g["ts"], g["ps"] = np.sort(rng.uniform(0, 0.1, n)), rng.integers(0, 2, n)
+        f.attrs["sensor_resolution"] = (480, 640)
+    assert read_events(tmp_path / "eu.h5").sensor_size == (480, 640)

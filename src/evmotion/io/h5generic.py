@@ -66,7 +66,8 @@ def find_layout(f) -> dict | None:
     return None
 
 
-SIZE_ATTRS = ("height", "width", "sensor_height", "sensor_width", "geometry", "sensor_size")
+SIZE_ATTRS = ("height", "width", "sensor_height", "sensor_width", "geometry", "sensor_size",
+              "sensor_resolution")
 
 
 def _size_attrs(path: Path, *objs) -> tuple[int, int] | None:
@@ -81,10 +82,10 @@ def _size_attrs(path: Path, *objs) -> tuple[int, int] | None:
             wh = str(a["geometry"]).lower().split("x")
             if len(wh) == 2 and all(v.strip().isdigit() for v in wh):
                 return _checked_size(path, wh[1], wh[0], "attribute 'geometry' (WxH)")
-        if "sensor_size" in a:
-            v = np.asarray(a["sensor_size"]).ravel()
+        for key in ("sensor_size", "sensor_resolution"):  # event_utils / E2VID: (H, W)
+            v = np.asarray(a[key]).ravel() if key in a else np.zeros(0)
             if v.size >= 2:
-                return _checked_size(path, v[0], v[1], "attribute 'sensor_size' (H, W)")
+                return _checked_size(path, v[0], v[1], f"attribute '{key}' (H, W)")
     return None
 
 

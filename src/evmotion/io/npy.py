@@ -34,10 +34,19 @@ _DEFLATE_MAX_RATIO = 1032
 ZIP_MAGIC = b"PK\x03\x04"
 
 
+# integer times above this, read as µs, lie past the year 5000: they are nanoseconds
+# since the epoch (1e17 ns is 1973)
+NS_EPOCH_US = 10 ** 17
+
+
 def _time_us(t: np.ndarray, unit: str | None) -> tuple[np.ndarray, str]:
     if unit is None:
         unit = "s" if t.dtype.kind == "f" else "us"
         how = "inferred (float -> s, integer -> us)"
+        if unit == "us" and t.size and int(t.max()) > NS_EPOCH_US:
+            # as µs beyond the year 5000: nanoseconds since the epoch (ROS, Metavision
+            # HDF5 exports and event_utils write them)
+            unit, how = "ns", "inferred (integer times past 1e17, as µs the year 5000+)"
     else:
         how = "given"
     scale = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}.get(unit)
