@@ -103,3 +103,18 @@ def test_convert_names_a_dropped_calibration(tmp_path, capsys):
     assert "dropped the calibration" in cap.err and "does not store it" in cap.err
     assert main(["convert", str(tmp_path / "c.h5"), str(tmp_path / "d.h5"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["dropped"] == {}
+
+
+def test_a_listed_stream_that_cannot_be_read_is_named_not_dropped_silently(
+        rec_with_aux, tmp_path, capsys, monkeypatch):
+    from evmotion.errors import FormatError
+
+    def unreadable(path, format=None):
+        raise FormatError(path, "corrupt IMUS packet at byte offset 8")
+
+    monkeypatch.setattr(eio, "read_imu", unreadable)
+    path = rec_with_aux[0]
+    assert main(["convert", str(path), str(tmp_path / "o.h5"), "--json"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["dropped"] == {"imu": 40}
+    assert "dropped the 40 IMU samples" in out.err and "corrupt IMUS packet" in out.err

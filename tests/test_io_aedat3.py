@@ -168,3 +168,21 @@ def test_cli_info_and_convert(gesture, tmp_path):
     h5 = tmp_path / "g.h5"
     subprocess.run(run + ["convert", str(gesture), str(h5)], capture_output=True, check=True)
     assert read_events(h5).x.tolist() == [3, 64, 10, 11]
+
+
+def test_imu6_packets_read_in_si_units_and_convert_keeps_them(tmp_path):
+    imu = b"".join(struct.pack("<Ii7f", valid, ts, 0.0, 0.0, 1.0, 90.0, 0.0, -45.0, 30.0)
+                   for valid, ts in ((1, 100), (0, 150), (1, 200)))
+    path = _file(tmp_path / "d.aedat", [
+        _packet(1, 1, 8, 0, _polarity([(1, 2, 50, 1), (3, 4, 250, 0)])),
+        _packet(3, 1, 36, 1, imu)], device="DAVIS346B")
+    got = aedat3.read_imu(path)
+    np.testing.assert_array_equal(got["t"], [(1 << 31) | 100, (1 << 31) | 200])
+    np.testing.assert_allclose(got["accel"][0], [0.0, 0.0, 9.80665])
+    np.testing.assert_allclose(got["gyro"][1], np.deg2rad([90.0, 0.0, -45.0]))
+    from evmotion.cli import main
+
+    assert main(["convert", str(path), str(tmp_path / "o.h5")]) == 0
+    from evmotion.io import read_imu
+
+    assert len(read_imu(tmp_path / "o.h5")) == 2

@@ -205,3 +205,26 @@ def test_a_corrupt_size_attribute_is_named(tmp_path):
         f.attrs["sensor_size"] = np.array([0, 99999])
     with pytest.raises(FormatError, match=r"e\.h5.*attribute 'sensor_size'.*outside"):
         dsec.read(tmp_path / "e.h5")
+
+
+@pytest.mark.parametrize("accel_first", [True, False])
+def test_mvsec_imu_reads_with_gravity_telling_the_order(tmp_path, accel_first):
+    """MVSEC's (K, 6) IMU rows hold acceleration and angular velocity in an order the file
+    does not state: the triple near gravity is the acceleration; convert keeps them (it
+    dropped them silently, as it did every stream a format had no reader for)."""
+    path = tmp_path / "indoor_flying1_data.hdf5"
+    _mvsec_file(path)
+    k = 50
+    acc = np.tile([0.1, -9.8, 0.3], (k, 1))
+    gyr = np.tile([0.5, 0.0, -0.2], (k, 1))
+    with h5py.File(path, "a") as f:
+        f["davis/left/imu"] = np.hstack([acc, gyr] if accel_first else [gyr, acc])
+        f["davis/left/imu_ts"] = np.linspace(1.0, 2.0, k)
+    imu = eio.read_imu(path)
+    np.testing.assert_allclose(imu.accel, acc)
+    np.testing.assert_allclose(imu.gyro, gyr)
+    assert imu.t[-1] == 2_000_000
+    from evmotion.cli import main
+
+    assert main(["convert", str(path), str(tmp_path / "o.h5")]) == 0
+    assert len(eio.read_imu(tmp_path / "o.h5")) == k

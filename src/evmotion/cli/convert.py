@@ -189,10 +189,22 @@ def _aux_streams(src, fmt_in: str, fmt_out: str, t0: int | None, t1: int | None)
 
     takes = inspect.signature(get_format(fmt_out).write).parameters
     kept, dropped = {}, {}
+    listed = None
     for name, read in (("imu", eio.read_imu), ("frames", eio.read_frames)):
         try:
             seq = read(src, format=fmt_in)
-        except (FormatError, FileNotFoundError):  # the format or this recording has none
+        except (FormatError, FileNotFoundError) as exc:
+            # the format or this recording has none, unless its description lists some
+            # (a stream this reader cannot decode is dropped, and said so)
+            if listed is None:
+                try:
+                    listed = eio.describe(src, format=fmt_in)
+                except FormatError:
+                    listed = {}
+            n = listed.get(name, 0)
+            if isinstance(n, (int, np.integer)) and n > 0:
+                why = exc.message if isinstance(exc, FormatError) else str(exc)
+                dropped[name] = (int(n), f"they cannot be read ({why})")
             continue
         t = np.asarray(seq.t, np.int64)
         sel = np.ones(t.shape, bool)

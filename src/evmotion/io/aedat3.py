@@ -10,7 +10,7 @@ eventTSOverflow, eventCapacity, eventNumber, eventValid) followed by
 Polarity events (type 1, 8 bytes): uint32 data with bit 0 the valid mark, bit 1 the
 polarity, y in bits 2-16 and x in bits 17-31, then an int32 timestamp in µs; the full time is
 ``eventTSOverflow << 31 | timestamp``. Invalid events are skipped, and so are the packets of
-other types (frames, IMU, special events). The origin is the top left, as in evmotion.
+other types (frames, special events); IMU6/IMU9 packets are read by :func:`read_imu`. The origin is the top left, as in evmotion.
 AEDAT 3.0 differs in that its origin is the bottom left (y is mirrored here) and its header
 has no end line.
 
@@ -36,7 +36,7 @@ from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_sensor_size, warn_inferred_size
 from evmotion.utils import atomic_path
 
-__all__ = ["read", "iter_chunks", "write", "describe", "DEVICE_SIZES", "FORMAT"]
+__all__ = ["read", "iter_chunks", "write", "describe", "read_imu", "DEVICE_SIZES", "FORMAT"]
 
 MAGIC = b"#!AER-DAT3."
 END_LINE = b"#!END-HEADER"
@@ -309,6 +309,45 @@ def write(path: str | Path, events: EventArray, *, device: str | None = None) ->
                 rec["ts"] = (t[a:b] & 0x7FFFFFFF).astype(np.int32)
                 fh.write(hdr.tobytes())
                 fh.write(rec.tobytes())
+
+
+IMU6, IMU9 = 3, 4
+G = 9.80665
+
+
+def read_imu(path: str | Path) -> dict:
+    """The IMU samples (IMU6 and IMU9 packets: uint32 info with bit 0 the valid mark, int32
+    timestamp, accelerometer x, y, z in g, gyroscope x, y, z in °/s, temperature, float32
+    each; IMU9 adds the magnetometer) as ``{"t": µs, "accel": m/s², "gyro": rad/s}``.
+
+    >>> read_imu("davis346.aedat")["gyro"].shape  # doctest: +SKIP
+    (1200, 3)
+    """
+    path = Path(path)
+    _, offset, _, _ = _parse_header(path)
+    parts = []
+    for pos, h, payload in _packets(path, offset, payload_of=(IMU6, IMU9)):
+        if payload is None:
+            continue
+        size = int(h["size"])
+        if size < 36:
+            raise FormatError(path, f"IMU packet at byte offset {pos} has eventSize {size} "
+                              "(an IMU6 event is 36 bytes)")
+        rec = np.frombuffer(payload, np.uint8).reshape(-1, size)
+        info = rec[:, 0:4].copy().view("<u4").ravel()
+        ts = rec[:, 4:8].copy().view("<i4").ravel().astype(np.int64)
+        vals = rec[:, 8:32].copy().view("<f4").astype(np.float64)
+        keep = (info & 1).astype(bool)
+        parts.append((ts[keep] | (int(h["ts_overflow"]) << 31), vals[keep]))
+    if not parts or not sum(len(t) for t, _ in parts):
+        raise FormatError(path, "no IMU samples (IMU6 / IMU9 packets)")
+    t = np.concatenate([p[0] for p in parts])
+    vals = np.concatenate([p[1] for p in parts])
+    if not np.isfinite(vals).all():
+        raise FormatError(path, "IMU samples hold NaN or inf")
+    order = np.argsort(t, kind="stable")
+    return {"t": t[order], "accel": vals[order, 0:3] * G,
+            "gyro": np.deg2rad(vals[order, 3:6])}
 
 
 def describe(path: str | Path) -> dict:

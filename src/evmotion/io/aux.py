@@ -73,8 +73,9 @@ def read_frames(path: str | os.PathLike, format: str | None = None) -> FrameSequ
 def read_imu(path: str | os.PathLike, format: str | None = None) -> ImuSequence:
     """IMU samples of a recording, whatever its format.
 
-    Reads ``imu.txt`` of an ECD folder, the IMU packets of AEDAT4 and jAER AEDAT 2.0 files,
-    the ``imu`` group of evmotion HDF5 and the IMU messages of ROS1 bags.
+    Reads ``imu.txt`` of an ECD folder, the IMU packets of AEDAT4, cAER AEDAT 3.1 and jAER
+    AEDAT 2.0 files, MVSEC's ``davis/<camera>/imu``, the ``imu`` group of evmotion HDF5 and
+    the IMU messages of ROS1 bags.
 
     Parameters
     ----------

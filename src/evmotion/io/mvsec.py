@@ -28,7 +28,7 @@ from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
 from evmotion.io.h5filters import HDF5_MAGIC
 from evmotion.io.npy import events_from_columns
 
-__all__ = ["read", "iter_chunks", "write", "describe", "read_frames", "FORMAT",
+__all__ = ["read", "iter_chunks", "write", "describe", "read_frames", "read_imu", "FORMAT",
            "MVSEC_SENSOR_SIZE"]
 
 MVSEC_SENSOR_SIZE = (260, 346)
@@ -165,6 +165,45 @@ def write(path: str | os.PathLike, events: EventArray, *, camera: str = "left",
                 g.create_dataset("image_raw", data=np.asarray(frames["images"]))
                 g.create_dataset("image_raw_ts",
                                  data=np.asarray(frames["t"], np.float64) * 1e-6)
+
+
+def read_imu(path: str | os.PathLike, camera: str = "left") -> dict:
+    """The DAVIS IMU samples (``davis/<camera>/imu``, ``imu_ts`` in s) as ``{"t": µs,
+    "accel": m/s², "gyro": rad/s}``.
+
+    The (K, 6) rows hold the two triples of a ``sensor_msgs/Imu``; which one comes first is
+    told by gravity: the triple whose mean norm is nearer 9.81 m/s² is the acceleration (the
+    file does not say, and the two orders are both in use). Where neither is near it (a
+    free-falling or mislabelled IMU), the message's order is taken, angular velocity first,
+    with a warning.
+
+    >>> read_imu("indoor_flying1_data.hdf5")["accel"].shape  # doctest: +SKIP
+    (61542, 3)
+    """
+    path = Path(path)
+    f, _, camera = _open(path, camera, quiet=True)
+    with f:
+        g = f[f"davis/{camera}"]
+        if "imu" not in g or "imu_ts" not in g:
+            raise FormatError(path, f"no IMU samples (davis/{camera}/imu, imu_ts)")
+        ts = check_h5_dataset(path, f, f"davis/{camera}/imu_ts", ndim=1, kinds="iuf")[()]
+        data = check_h5_dataset(path, f, f"davis/{camera}/imu", ndim=2, kinds="iuf",
+                                length=ts.shape[0], row=6)[()]
+    ts = np.asarray(ts, np.float64)
+    data = np.asarray(data, np.float64)
+    if not (np.isfinite(data).all() and np.isfinite(ts).all()):
+        raise FormatError(path, f"davis/{camera}/imu or imu_ts holds NaN or inf")
+    norms = [float(np.mean(np.linalg.norm(data[:, k:k + 3], axis=1))) if len(data) else 0.0
+             for k in (0, 3)]
+    near = [abs(n - 9.81) < 4.0 for n in norms]
+    accel_first = near[0] and (not near[1] or abs(norms[0] - 9.81) < abs(norms[1] - 9.81))
+    if len(data) and not any(near):
+        warnings.warn(EvmotionWarning(
+            f"{path}: neither triple of davis/{camera}/imu averages near gravity (mean norms "
+            f"{norms[0]:.3g}, {norms[1]:.3g}): taken as angular velocity, then acceleration"),
+            stacklevel=2)
+    a, w = (data[:, 0:3], data[:, 3:6]) if accel_first else (data[:, 3:6], data[:, 0:3])
+    return {"t": np.rint(ts * 1e6).astype(np.int64), "accel": a, "gyro": w}
 
 
 def describe(path: str | os.PathLike, camera: str = "left") -> dict:
