@@ -4,7 +4,8 @@ Same windows, outputs (``.h5`` / ``.npz`` / ``.flo`` / ``.png``), pictures, ``--
 as ``--method multicm`` (whose runner it uses); each window goes through the network at
 ``--input-scales`` (the sharpest kept), each averaged with the time-reversed window's
 negated flow unless ``--no-time-reversal`` (no warm start needed), at the gain whose warp
-is sharpest unless ``--no-rescale``. ``--checkpoint`` picks
+is sharpest unless ``--no-rescale``, the scales' predictions chosen tile by tile unless
+``--no-fuse``. ``--checkpoint`` picks
 weights from ``evmotion train`` (default: the shipped checkpoint); multicm's ``--init dnn``
 reads it too.
 """
@@ -21,6 +22,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--input-scales": ("input_scales", (1, 2, 4, 8)),
     "--no-time-reversal": ("no_time_reversal", False),
     "--no-rescale": ("no_rescale", False),
+    "--no-fuse": ("no_fuse", False),
 }
 
 
@@ -42,6 +44,9 @@ def add_arguments(group) -> None:
     group.add_argument("--no-rescale", action="store_true", default=None,
                        help="dnn: keep the network's magnitude (default: the gain among "
                             "0.7-3.2 whose warp is sharpest)")
+    group.add_argument("--no-fuse", action="store_true", default=None,
+                       help="dnn: keep one input scale's prediction for the whole window "
+                            "(default: the sharpest, tile by tile of 32 px)")
 
 
 def check_args(args) -> None:
@@ -65,7 +70,8 @@ def estimator(args):
     torch.set_num_threads(args.threads)
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
              "source": str(args.file), "input_scales": list(args.input_scales),
-             "time_reversal": not args.no_time_reversal, "rescale": not args.no_rescale}
+             "time_reversal": not args.no_time_reversal, "rescale": not args.no_rescale,
+             "fuse": not args.no_fuse}
 
     # the IWEs and the focus serve only the pictures (--png-dir) and the JSON rows; the
     # flow files do not hold them, and their numba kernels would cost a first run seconds
@@ -76,7 +82,7 @@ def estimator(args):
         return estimate_flow_dnn(events, args.checkpoint, device=args.device,
                                  with_iwes=with_iwes, input_scales=tuple(args.input_scales),
                                  time_reversal=not args.no_time_reversal,
-                                 rescale=not args.no_rescale)
+                                 rescale=not args.no_rescale, fuse=not args.no_fuse)
 
     return estimate, attrs
 
