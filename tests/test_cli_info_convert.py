@@ -148,3 +148,13 @@ def test_info_time_range_in_seconds_too(tmp_path, capsys):
     assert main(["info", str(tmp_path / "r.h5")]) == 0
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("time range"))
     assert "11,200,224 .. 21,968,221 us (11.200224 .. 21.968221 s" in line
+
+
+def test_info_says_where_the_size_it_prints_came_from(tmp_path, capsys):
+    # text events beyond the ECD's 240x180: the size is the largest coordinates', and info
+    # said it came from the ECD default beside printing 346 x 260
+    (tmp_path / "e.txt").write_text("0.001 345 0 1\n0.002 3 259 0\n")
+    assert main(["info", str(tmp_path / "e.txt"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["sensor_size"] == [260, 346]
+    assert info["sensor_size_from"].startswith("largest coordinate")

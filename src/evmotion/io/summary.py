@@ -89,6 +89,9 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     for chunk in iter_events(path, chunk_events, format=spec.name, **kw):
         if not len(chunk):
             continue
+        if size is None and chunk.meta.get("sensor_size_from"):
+            # the reader's word: the header alone may have guessed another size
+            out["sensor_size_from"] = chunk.meta["sensor_size_from"]
         size = chunk.sensor_size
         n += len(chunk)
         n_pos += int(np.count_nonzero(chunk.p))
