@@ -111,3 +111,26 @@ def test_nanoseconds_since_the_epoch_and_event_utils_resolution(tmp_path):
         g["ts"], g["ps"] = np.sort(rng.uniform(0, 0.1, n)), rng.integers(0, 2, n)
         f.attrs["sensor_resolution"] = (480, 640)
     assert read_events(tmp_path / "eu.h5").sensor_size == (480, 640)
+
+
+def test_metavision_hdf5_with_the_ecf_codec_names_the_plugin(tmp_path):
+    # Metavision compresses CD/events with its own ECF filter (id 36559); without that
+    # plugin the read failed as a corrupt file. A lzf pipeline relabelled as ECF stands in.
+    from evmotion.errors import FormatError
+
+    dt = np.dtype([("x", "<u2"), ("y", "<u2"), ("p", "<i2"), ("t", "<i8")])
+    path = tmp_path / "mv.hdf5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("CD/events", data=np.zeros(5000, dt), chunks=(1024,),
+                         compression="lzf")
+        f.attrs["geometry"] = "346x260"
+    raw = bytearray(path.read_bytes())
+    at = raw.find(b"lzf")
+    filter_id = raw.rfind((32000).to_bytes(2, "little"), 0, at)
+    assert at > 0 and at - filter_id < 16
+    raw[filter_id:filter_id + 2] = (36559).to_bytes(2, "little")
+    raw[at:at + 3] = b"ecf"
+    path.write_bytes(raw)
+    with pytest.raises(FormatError, match=r"filter ecf \(id 36559\) is not available.*"
+                                          r"Metavision"):
+        read_events(path)

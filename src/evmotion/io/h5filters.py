@@ -22,6 +22,10 @@ __all__ = ["FILTER_HINT", "H5_COMPRESSIONS", "HDF5_MAGIC", "filter_error", "h5_c
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"  # the first 8 bytes of every HDF5 file
 
 FILTER_HINT = "pip install hdf5plugin (DSEC compresses events with Blosc/zstd)"
+# Prophesee's ECF codec (Metavision HDF5 event files), which only its own plugin decodes
+ECF_FILTER = 36559
+ECF_HINT = ("the ECF codec comes with Prophesee's Metavision SDK (or the hdf5_ecf plugin): "
+            "point HDF5_PLUGIN_PATH at it, or export the recording to RAW with Metavision")
 
 
 def is_hdf5(path: str | os.PathLike) -> bool:
@@ -73,8 +77,10 @@ def filter_error(path: Path, exc: Exception, ds, field: str) -> FormatError:
     corrupt or truncated."""
     missing = missing_filters(ds)
     if missing:
+        ecf = any(f"(id {ECF_FILTER})" in m for m in missing)
         return FormatError(path, f"cannot decompress '{field}': HDF5 compression filter "
-                           f"{', '.join(missing)} is not available", FILTER_HINT)
+                           f"{', '.join(missing)} is not available",
+                           ECF_HINT if ecf else FILTER_HINT)
     return FormatError(path, f"cannot read '{field}' (corrupt or truncated file?): {exc}")
 
 

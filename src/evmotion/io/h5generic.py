@@ -30,7 +30,7 @@ from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields
 from evmotion.io.guard import LARGEST_COORDINATE, check_sensor_size, warn_inferred_size
 from evmotion.io.h5attrs import read_attrs_many
-from evmotion.io.h5filters import HDF5_MAGIC
+from evmotion.io.h5filters import HDF5_MAGIC, filter_error
 from evmotion.io.npy import chunks_of_read, events_from_columns, split_columns
 
 __all__ = ["FORMAT", "find_layout", "read"]
@@ -121,14 +121,16 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         meta = {"source": str(path), "format": "h5generic", "layout": lay["kind"]}
         if lay["kind"] == "fields":
             grp = f[lay["group"]] if lay["group"] else f
-            cols = {k: grp[n][()] for k, n in lay["names"].items()}
+            prefix = f"{lay['group']}/" if lay["group"] else ""
+            cols = {k: _load(path, grp[n], prefix + n) for k, n in lay["names"].items()}
             size = _size_attrs(path, grp, f)
         elif lay["kind"] == "compound":
-            data = f[lay["dataset"]][()]
+            data = _load(path, f[lay["dataset"]], lay["dataset"])
             cols = {k: data[n] for k, n in lay["names"].items()}
             size = _size_attrs(path, f[lay["dataset"]], f)
         else:
-            cols, meta["columns"] = split_columns(path, f[lay["dataset"]][()], columns)
+            cols, meta["columns"] = split_columns(
+                path, _load(path, f[lay["dataset"]], lay["dataset"]), columns)
             size = _size_attrs(path, f[lay["dataset"]], f)
     if sensor_size is not None:
         size = tuple(sensor_size)
@@ -141,6 +143,14 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     if size is None:
         warn_inferred_size(path, ev.sensor_size)
     return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
+
+
+def _load(path: Path, ds, name: str) -> np.ndarray:
+    """The whole dataset ``ds``; a compression filter this process lacks is named."""
+    try:
+        return ds[()]
+    except OSError as exc:
+        raise filter_error(path, exc, ds, name) from None
 
 
 def iter_chunks(path: str | os.PathLike, chunk_events: int, **kw) -> Iterator[EventArray]:
