@@ -96,7 +96,7 @@ def make_seeds(workdir: Path, shared: Path | None) -> tuple[list[Seed], dict[str
     """Seeds in ``workdir``: cuts of the real format samples in ``shared`` (when present)
     and files that evmotion's own writers produce. Returns the seeds and, per format
     without a seed, the reason."""
-    from evmotion.io import aedat3, dsec, h5, mvsec, npy, rosbag
+    from evmotion.io import aedat3, dsec, evt21, h5, mvsec, npy, rosbag
 
     workdir.mkdir(parents=True, exist_ok=True)
     seeds: list[Seed] = []
@@ -185,6 +185,8 @@ def make_seeds(workdir: Path, shared: Path | None) -> tuple[list[Seed], dict[str
     seeds.append(Seed("mvsec", "mvsec", workdir / "mvsec_data.hdf5", 4096))
     npy.write(workdir / "ev.npy", ev)
     seeds.append(Seed("npy", "npy", workdir / "ev.npy", 128))
+    evt21.write(workdir / "evt21.raw", ev[:4000])
+    seeds.append(Seed("evt21", "evt21", workdir / "evt21.raw", 160))
     aedat3.write(workdir / "cAER.aedat", ev[:2500])
     # the text header and the first packet's header
     seeds.append(Seed("aedat3", "aedat3", workdir / "cAER.aedat", 256))

@@ -1,4 +1,4 @@
-"""What the Prophesee RAW formats (EVT 2.0, EVT 3.0) share: the ``%`` text header,
+"""What the Prophesee RAW formats (EVT 2.0, EVT 2.1, EVT 3.0) share: the ``%`` text header,
 sniffing, the time offset evmotion stores when timestamps exceed the counter range."""
 
 from __future__ import annotations
@@ -21,15 +21,28 @@ OFFSET_KEY = "evmotion_time_offset_us"
 MAX_TIME_OFFSET_US = 1 << 60
 
 
+def format_name(version: str) -> str:
+    """The ``format`` header key's name of EVT ``version``: "2.0" -> "EVT2", "2.1" ->
+    "EVT21", "3.0" -> "EVT3"."""
+    major, _, minor = version.partition(".")
+    return f"EVT{major}" + ("" if minor in ("", "0") else minor)
+
+
 def sniff_raw(head: bytes, version: str) -> bool:
-    """True if ``head`` is a Prophesee RAW header announcing EVT ``version`` ("2.0"/"3.0")."""
+    """True if ``head`` is a Prophesee RAW header announcing EVT ``version`` ("2.0", "2.1"
+    or "3.0")."""
     if not head.startswith(b"%"):
         return False
     text = head.split(b"\n% end", 1)[0]
     evt = f"% evt {version}".encode()
-    fmt = f"% format EVT{version[0]}".encode()
-    return any(line.strip() == evt or line.strip().startswith(fmt)
-               for line in text.split(b"\n"))
+    fmt = format_name(version).encode()
+    for line in text.split(b"\n"):
+        line = line.strip()
+        if line == evt:
+            return True
+        if line.startswith(b"% format "):
+            return line[len(b"% format "):].split(b";")[0].strip().upper() == fmt
+    return False
 
 
 def parse_raw_header(path: Path, sensor_size: tuple[int, int] | None,
@@ -37,8 +50,9 @@ def parse_raw_header(path: Path, sensor_size: tuple[int, int] | None,
                      ) -> tuple[list[str], int, tuple[int, int], int]:
     """(header lines, data offset, (height, width), time offset µs) of a RAW file.
 
-    With ``version`` ("2.0"/"3.0"), a header declaring another encoding raises
-    FormatError; EVT 3.0 must be declared, EVT 2.0 may be implicit (early Gen3 files).
+    With ``version`` ("2.0"/"2.1"/"3.0"), a header declaring another encoding raises
+    FormatError; EVT 2.1 and 3.0 must be declared, EVT 2.0 may be implicit (early Gen3
+    files).
     """
     lines, offset = read_text_header(path, b"%", end_line=b"% end")
     if not lines:
@@ -64,10 +78,12 @@ def parse_raw_header(path: Path, sensor_size: tuple[int, int] | None,
 def _check_version(path: Path, head: dict[str, str], version: str) -> None:
     evt = head.get("evt")
     fmt = head.get("format", "").split(";")[0].strip().upper()
-    want = f"EVT{version[0]}"
+    want = format_name(version)
     if evt is not None and evt != version:
+        known = evt in ("2.0", "2.1", "3.0")
         raise FormatError(path, f"header field 'evt' is '{evt}', expected '{version}'",
-                          "use the reader for that encoding or let evmotion detect it")
+                          "use the reader for that encoding or let evmotion detect it" if known
+                          else "evmotion reads EVT 2.0, 2.1 and 3.0")
     if fmt and fmt != want:
         raise FormatError(path, f"header field 'format' is '{fmt}', expected '{want}'")
     if evt is None and not fmt and version != "2.0":
@@ -137,7 +153,7 @@ def write_raw(path: str | Path, events: EventArray, *, version: str, wrap_us: in
     binary.check_writable(events, f"EVT {version}", 2048, 2048)
     h, w = events.sensor_size
     t_base = int(events.t[0]) - int(events.t[0]) % wrap_us if len(events) else 0
-    lines = [f"% evt {version}", f"% format EVT{version[0]};height={h};width={w}",
+    lines = [f"% evt {version}", f"% format {format_name(version)};height={h};width={w}",
              f"% geometry {w}x{h}", "% integrator_name evmotion"]
     if t_base:
         lines.append(f"% {OFFSET_KEY} {t_base}")

@@ -23,6 +23,7 @@ FORMAT_MODULES: tuple[str, ...] = (
     "evmotion.io.aedat3",
     "evmotion.io.evt3",
     "evmotion.io.evt2",
+    "evmotion.io.evt21",
     "evmotion.io.dat",
     "evmotion.io.rosbag",
     "evmotion.io.h5generic",  # other tools' HDF5 layouts: after every specific one
