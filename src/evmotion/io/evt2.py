@@ -15,10 +15,10 @@ import numpy as np
 
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
-from evmotion.io.base import FormatSpec
 from evmotion.jitcache import lazy_njit
 
-__all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "FORMAT"]
+__all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "time_high_words",
+           "FORMAT"]
 
 WRAP_US = 1 << 34
 _HALF = 1 << 27
@@ -121,20 +121,30 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
 
 
 @lazy_njit(cache=True)
+def time_high_words(out, k, cur, hi):
+    """TIME_HIGH words (type 0x8, time bits 6-33 in bits 0-27; EVT 2.1 keeps them in its
+    upper half, the lower 32 bits of its words as written) taking the time base from
+    ``cur`` (-1: none yet) to ``hi``, at ``out[k:]``: a jump of half the counter or more
+    gets intermediate words, so that the reader does not take it for a wrap. Returns the
+    next free index."""
+    if cur >= 0:
+        while hi - cur >= _HALF:
+            cur += _HALF - 1
+            out[k] = (np.int64(0x8) << 28) | (cur & 0xFFFFFFF)
+            k += 1
+    out[k] = (np.int64(0x8) << 28) | (hi & 0xFFFFFFF)
+    return k + 1
+
+
+@lazy_njit(cache=True)
 def _encode(x, y, t, p, out):
     k = 0
     cur = np.int64(-1)
     for i in range(x.shape[0]):
         hi = t[i] >> 6
         if hi != cur:
-            if cur >= 0:
-                while hi - cur >= _HALF:
-                    cur += _HALF - 1
-                    out[k] = (np.int64(0x8) << 28) | (cur & 0xFFFFFFF)
-                    k += 1
+            k = time_high_words(out, k, cur, hi)
             cur = hi
-            out[k] = (np.int64(0x8) << 28) | (hi & 0xFFFFFFF)
-            k += 1
         out[k] = ((np.int64(p[i]) << 28) | ((t[i] & 0x3F) << 22)
                   | (np.int64(x[i]) << 11) | np.int64(y[i]))
         k += 1
@@ -163,14 +173,6 @@ def write(path: str | Path, events: EventArray) -> None:
                          word="<u4")
 
 
-def describe(path: str | Path) -> dict:
-    """Header fields, geometry and payload size of an EVT 2.0 file."""
-    return prophesee.describe_raw(path, "evt2", 4)
+describe = prophesee.raw_describe("evt2", 4)
 
-
-def _sniff(path: Path, head: bytes) -> bool:
-    return prophesee.sniff_raw(head, "2.0")
-
-
-FORMAT = FormatSpec(name="evt2", extensions=(".raw",), sniff=_sniff, read=read,
-                    iter_chunks=iter_chunks, write=write, describe=describe)
+FORMAT = prophesee.raw_format("evt2", "2.0", describe, read, iter_chunks, write)

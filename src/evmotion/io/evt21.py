@@ -23,7 +23,7 @@ import numpy as np
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
-from evmotion.io.base import FormatSpec
+from evmotion.io.evt2 import time_high_words
 from evmotion.jitcache import lazy_njit
 
 __all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "FORMAT"]
@@ -147,19 +147,8 @@ def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
          block_bytes: int = binary.BLOCK_BYTES) -> EventArray:
-    """Read an EVT 2.1 RAW file.
-
-    Parameters
-    ----------
-    path : path-like
-    t0, t1 : int, optional
-        Keep ``t0 <= t < t1`` (µs).
-    sensor_size : (int, int), optional
-        ``(height, width)``; default from the header's geometry.
-    validate : bool
-        Check sortedness and bounds.
-    block_bytes : int
-        Read granularity.
+    """Read an EVT 2.1 RAW file; the arguments are :func:`evmotion.io.evt2.read`'s (the
+    sensor size by default from the header's geometry).
 
     Examples
     --------
@@ -188,14 +177,8 @@ def _encode(x, y, t, p, out):
     while i < m:
         hi = t[i] >> 6
         if hi != cur:
-            if cur >= 0:
-                while hi - cur >= _HALF:
-                    cur += _HALF - 1
-                    out[k] = np.uint64((np.int64(0x8) << 28) | (cur & 0xFFFFFFF))
-                    k += 1
+            k = time_high_words(out, k, cur, hi)
             cur = hi
-            out[k] = np.uint64((np.int64(0x8) << 28) | (hi & 0xFFFFFFF))
-            k += 1
         block = np.int64(x[i]) >> 5
         mask = np.int64(0)
         j = i
@@ -237,14 +220,6 @@ def write(path: str | Path, events: EventArray) -> None:
                         word="<u8")
 
 
-def describe(path: str | Path) -> dict:
-    """Header fields, geometry and payload size of an EVT 2.1 file."""
-    return prophesee.describe_raw(path, "evt21", 8)
+describe = prophesee.raw_describe("evt21", 8)
 
-
-def _sniff(path: Path, head: bytes) -> bool:
-    return prophesee.sniff_raw(head, "2.1")
-
-
-FORMAT = FormatSpec(name="evt21", extensions=(".raw",), sniff=_sniff, read=read,
-                    iter_chunks=iter_chunks, write=write, describe=describe)
+FORMAT = prophesee.raw_format("evt21", "2.1", describe, read, iter_chunks, write)

@@ -19,7 +19,6 @@ import numpy as np
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
-from evmotion.io.base import FormatSpec
 from evmotion.jitcache import lazy_njit
 
 __all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
@@ -326,14 +325,6 @@ def write(path: str | Path, events: EventArray, *, header: dict | None = None) -
                          word="<u2", header=header)
 
 
-def describe(path: str | Path) -> dict:
-    """Header fields, geometry and payload size of an EVT 3.0 file."""
-    return prophesee.describe_raw(path, "evt3", 2)
+describe = prophesee.raw_describe("evt3", 2)
 
-
-def _sniff(path: Path, head: bytes) -> bool:
-    return prophesee.sniff_raw(head, "3.0")
-
-
-FORMAT = FormatSpec(name="evt3", extensions=(".raw",), sniff=_sniff, read=read,
-                    iter_chunks=iter_chunks, write=write, describe=describe)
+FORMAT = prophesee.raw_format("evt3", "3.0", describe, read, iter_chunks, write)

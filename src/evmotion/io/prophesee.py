@@ -4,6 +4,7 @@ sniffing, the time offset evmotion stores when timestamps exceed the counter ran
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +12,7 @@ import numpy as np
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary
+from evmotion.io.base import FormatSpec
 from evmotion.io.binary import geometry_from_header, read_text_header
 from evmotion.utils import atomic_path
 
@@ -178,3 +180,22 @@ def describe_raw(path: str | Path, fmt: str, word_bytes: int) -> dict:
     return {"format": fmt, "sensor_size": size, "header": header_dict(lines),
             "data_offset": offset, "n_words": (path.stat().st_size - offset) // word_bytes,
             "frames": 0, "imu": 0}
+
+
+def _sniff_version(path: Path, head: bytes, *, version: str) -> bool:
+    return sniff_raw(head, version)
+
+
+def raw_describe(name: str, word_bytes: int) -> Callable[[str | Path], dict]:
+    """The ``describe`` of RAW format ``name``: header fields, geometry and payload size
+    (:func:`describe_raw`)."""
+    return partial(describe_raw, fmt=name, word_bytes=word_bytes)
+
+
+def raw_format(name: str, version: str, describe: Callable, read: Callable,
+               iter_chunks: Callable, write: Callable) -> FormatSpec:
+    """The :class:`FormatSpec` of RAW format ``name`` (EVT ``version``), detected by its
+    ``%`` header."""
+    return FormatSpec(name=name, extensions=(".raw",),
+                      sniff=partial(_sniff_version, version=version), read=read,
+                      iter_chunks=iter_chunks, write=write, describe=describe)
