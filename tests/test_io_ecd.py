@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from decimal import ROUND_HALF_EVEN, Decimal
 
 import numpy as np
@@ -308,3 +309,41 @@ def test_other_column_orders_are_named_in_the_error(tmp_path, order):
         ev = read_events(path)
     np.testing.assert_array_equal(ev.x, cols["x"])
     np.testing.assert_array_equal(ev.t, cols["t"])
+
+
+@pytest.mark.parametrize("name, unit, scale", [("t_ns", "ns", 1000), ("timestamp_us", "us", 1),
+                                               ("t[s]", "s", 1e-6), ("t(ms)", "ms", 1e-3)])
+def test_a_unit_in_the_time_columns_name_is_the_unit(tmp_path, name, unit, scale):
+    from evmotion.io import read_events
+
+    t_us = np.array([1_650_000_003_000_000, 1_650_000_003_016_000])
+    t = t_us * 1000 if unit == "ns" else t_us // round(1 / scale) if unit == "ms" else \
+        t_us * scale
+    text = "\n".join(f"{v if unit != 's' else format(v, '.6f')},{x},2,1"
+                     for v, x in zip(t, (5, 6), strict=True))
+    path = tmp_path / "e.csv"
+    path.write_text(f"{name},x,y,p\n{text}\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the unit is stated: no guess to warn about
+        ev = read_events(path)
+    np.testing.assert_array_equal(ev.t, t_us)
+
+
+def test_whole_nanoseconds_since_the_epoch_and_wider_tables(tmp_path):
+    """Text times of whole ns since the epoch read as µs put the recording in the year
+    55,000; a table of six columns or with the time in the third was 'format not
+    recognised'."""
+    from evmotion.io import read_events
+
+    (tmp_path / "ns.txt").write_text("1650000003000000000 5 2 1\n1650000003000016000 6 2 0\n")
+    with pytest.warns(EvmotionWarning, match="read as nanoseconds since the epoch"):
+        assert read_events(tmp_path / "ns.txt").t.tolist() == [1_650_000_003_000_000,
+                                                               1_650_000_003_000_016]
+    (tmp_path / "six.txt").write_text("0.001 5 2 1 0 0.5\n")
+    with pytest.raises(FormatError, match="line 1 has 6 column.*keep those four"):
+        read_events(tmp_path / "six.txt")
+    (tmp_path / "xytp.txt").write_text("5 2 0.001000 1\n6 2 0.002000 0\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(FormatError, match="column 3 holds decimals.*'x y t p'"):
+            read_events(tmp_path / "xytp.txt")

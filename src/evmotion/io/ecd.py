@@ -27,6 +27,7 @@ from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
+    NS_EPOCH_US,
     SENSOR_SIZE_HINT,
     check_sensor_size,
     extended_size,
@@ -152,10 +153,19 @@ def _line_error(path: Path, data: bytes, file_offset: int, bad: int, code: int, 
                     break
                 lineno += blk.count(b"\n")
                 remaining -= len(blk)
-    if code == _ERR_COLUMNS:
-        msg = f"line {lineno} has {cols} column(s), expected 4 ('t x y p'): {text[:80]!r}"
+    fields = text.replace(",", " ").replace(";", " ").split()
+    numeric = all(re.fullmatch(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?", f) for f in fields)
+    if code == _ERR_COLUMNS or (numeric and len(fields) != 4):
+        n = cols if code == _ERR_COLUMNS else len(fields)
+        msg = (f"line {lineno} has {n} column(s), expected 4 ('t x y p'): {text[:80]!r}; "
+               "keep those four columns of the table")
     else:
         msg = f"line {lineno} is not 't[s] x y p' numbers: {text[:80]!r}"
+        decimal = [k for k, f in enumerate(fields) if "." in f]
+        if numeric and len(fields) == 4 and decimal and decimal[0] != 0:
+            return FormatError(path, msg, f"column {decimal[0] + 1} holds decimals, the "
+                               "time in seconds? Name the columns in a first line (e.g. "
+                               "'x y t p')")
     return FormatError(path, msg)
 
 
@@ -343,6 +353,8 @@ def sniff_time_unit(path: str | Path) -> str:
     """
     path = _events_file(Path(path))
     layout = text_layout(path)
+    if layout["time_unit"] is not None:  # a header line named it (t_ns, timestamp_us...)
+        return layout["time_unit"]
     col = layout["order"].index("t")
     with open(path, "rb") as fh:
         fh.seek(layout["offset"])
@@ -352,6 +364,12 @@ def sniff_time_unit(path: str | Path) -> str:
     firsts = [f[col] for f in fields if len(f) > col]
     if not firsts or any(re.search(rb"[.eE]", f) for f in firsts):
         return "s"
+    if all(f.lstrip(b"-").isdigit() for f in firsts) and int(firsts[0]) > NS_EPOCH_US:
+        warnings.warn(EvmotionWarning(
+            f"{path}: the times are whole numbers past 1e17, as microseconds beyond the year "
+            "5000: read as nanoseconds since the epoch (other units: time_unit=, or convert "
+            "--time-unit)"), stacklevel=3)
+        return "ns"
     warnings.warn(EvmotionWarning(
         f"{path}: every time is a whole number: read as microseconds (ECD text holds "
         "decimal seconds; other units: time_unit=, or convert --time-unit)"),
@@ -393,14 +411,34 @@ def _size_line(line: bytes) -> tuple[int, int] | None:
 
 def _names_line(line: bytes) -> str | None:
     """The column order (a permutation of "txyp") a line of column names states, if it is
-    one: ``t,x,y,p``, ``timestamp x y polarity``, Metavision's ``x,y,p,t``..."""
+    one: ``t,x,y,p``, ``timestamp x y polarity``, Metavision's ``x,y,p,t``, ``t_ns,x,y,p``
+    (:func:`_names_and_unit` also gives the time unit such a name states)."""
+    found = _names_and_unit(line)
+    return None if found is None else found[0]
+
+
+# a column name with a unit: t_ns, timestamp_us, t[s], t(ms)
+_UNIT_NAME = re.compile(rb"([a-z_]*?[a-z])(?:_|\[|\()(ns|us|\xc2\xb5s|ms|s)[\])]?")
+
+
+def _names_and_unit(line: bytes) -> tuple[str, str | None] | None:
+    """``(order, time unit or None)`` of a line of column names, or None when it is not
+    one."""
     fields = [f.lower() for f in re.split(rb"[\s,;]+", line.strip()) if f]
-    if len(fields) != 4 or not all(re.fullmatch(rb"[a-z_]+", f) for f in fields):
+    if len(fields) != 4:
         return None
-    named = event_fields([f.decode() for f in fields])
+    names, units = [], []
+    for f in fields:
+        m = _UNIT_NAME.fullmatch(f)
+        if m is None and not re.fullmatch(rb"[a-z_]+", f):
+            return None
+        names.append((m[1] if m else f).decode())
+        units.append(None if m is None else m[2].replace(b"\xc2\xb5", b"u").decode())
+    named = event_fields(names)
     if named is None or len(set(named.values())) != 4:
         return None
-    return "".join(next(k for k, n in named.items() if n == f.decode()) for f in fields)
+    order = "".join(next(k for k, n in named.items() if n == name) for name in names)
+    return order, units[order.index("t")]
 
 
 def text_layout(path: str | Path) -> dict:
@@ -408,13 +446,14 @@ def text_layout(path: str | Path) -> dict:
     ECD's ``t x y p``; a header line of column names states another, e.g. ``x,y,p,t``);
     ``size`` ``(height, width)`` when a comment line (``# ... height H width W``, as
     :func:`write` puts it) or a first line of two numbers ``W H`` (rpg / E2VID text)
-    states it, else None; and ``offset``, the byte where the events start (past a
-    byte-order mark, comments and those lines).
+    states it, else None; ``offset``, the byte where the events start (past a
+    byte-order mark, comments and those lines); and ``time_unit``, the unit a column name
+    states (``t_ns``, ``timestamp_us``, ``t[s]``), else None.
 
     Examples
     --------
     >>> text_layout("events.txt")  # doctest: +SKIP
-    {'order': 'txyp', 'size': None, 'offset': 0}
+    {'order': 'txyp', 'size': None, 'offset': 0, 'time_unit': None}
     """
     path = _events_file(Path(path))
     with open(path, "rb") as fh:
@@ -422,14 +461,14 @@ def text_layout(path: str | Path) -> dict:
         stated = (HEADER_SIZE.search(c.decode("ascii", "replace")) for c in comments)
         m = next((m for m in stated if m), None)
         out = {"order": "txyp", "size": None if m is None else (int(m[1]), int(m[2])),
-               "offset": pos}
+               "offset": pos, "time_unit": None}
         for _ in range(2):
             line = fh.readline()
-            size, order = _size_line(line), _names_line(line)
+            size, names = _size_line(line), _names_and_unit(line)
             if size is not None:
                 out["size"] = out["size"] or size
-            elif order is not None:
-                out["order"] = order
+            elif names is not None:
+                out["order"], out["time_unit"] = names
             else:
                 break
             out["offset"] = fh.tell()
@@ -867,21 +906,19 @@ def _sniff(path: Path, head: bytes) -> bool:
              if not ln.lstrip().startswith((b"#", b"%"))]
     if not any(lines) and head.startswith(b"# evmotion ECD text"):
         return True  # an empty recording written by :func:`write`
-    order = "txyp"
     for _ in range(2):
-        if lines and _size_line(lines[0]) is not None:
-            lines = lines[1:]
-        elif lines and _names_line(lines[0]) is not None:
-            order = _names_line(lines[0])
+        if lines and (_size_line(lines[0]) is not None or _names_line(lines[0]) is not None):
             lines = lines[1:]
     parts = (lines[0] if lines else b"").replace(b",", b" ").replace(b";", b" ").split()
-    if len(parts) != 4:
+    if len(parts) < 4:
         return False
     try:
         [float(v) for v in parts]
     except ValueError:
         return False
-    return all(v.lstrip(b"-").isdigit() for k, v in enumerate(parts) if order[k] != "t")
+    # a table of numbers: ECD's 't x y p', or columns in another order or more of them,
+    # which the reader then names (rather than "format not recognised")
+    return True
 
 
 FORMAT = FormatSpec(name="ecd", extensions=(".txt", ".csv"), sniff=_sniff, read=read,

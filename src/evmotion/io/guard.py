@@ -69,6 +69,9 @@ SENSOR_SIZE_HINT = ("pass sensor_size=(height, width), or rewrite the file with 
 
 # 2^62 us is 146,000 years: any timestamp beyond it is a corrupt field, and int64 holds it
 MAX_ABS_TIME_US = 1 << 62
+# integer times above this, read as µs, lie past the year 5000: they are nanoseconds
+# since the epoch (1e17 ns is 1973), as ROS, Metavision exports and event_utils write them
+NS_EPOCH_US = 10 ** 17
 
 
 def time_to_us(path, text: str, scale: float, where: str) -> int:

@@ -20,7 +20,12 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields
-from evmotion.io.guard import MAX_SENSOR_SIDE, check_sensor_size, warn_inferred_size
+from evmotion.io.guard import (
+    MAX_SENSOR_SIDE,
+    NS_EPOCH_US,
+    check_sensor_size,
+    warn_inferred_size,
+)
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "events_from_columns", "split_columns",
@@ -32,11 +37,6 @@ MAX_ABS_TIME_US = 1 << 62
 # deflate cannot expand data more than 1032:1
 _DEFLATE_MAX_RATIO = 1032
 ZIP_MAGIC = b"PK\x03\x04"
-
-
-# integer times above this, read as µs, lie past the year 5000: they are nanoseconds
-# since the epoch (1e17 ns is 1973)
-NS_EPOCH_US = 10 ** 17
 
 
 def _time_us(t: np.ndarray, unit: str | None) -> tuple[np.ndarray, str]:
