@@ -83,3 +83,23 @@ def test_round_trip_other_sensor_size(tmp_path):
     assert back.sensor_size == (260, 346)
     np.testing.assert_array_equal(back.x, ev.x)
     np.testing.assert_array_equal(back.y, ev.y)
+
+
+def test_dvs128_address_layout(tmp_path):
+    """jAER's DVS128 files (x in bits 1-7, y in 8-14, bit 0 set for OFF, mirrored like
+    the DAVIS) were refused; they read as the chip's 128x128 events."""
+    rng = np.random.default_rng(0)
+    n = 500
+    x, y, p = rng.integers(0, 128, n), rng.integers(0, 128, n), rng.integers(0, 2, n)
+    t = np.sort(rng.integers(0, 10**6, n))
+    rec = np.zeros(n, [("a", ">u4"), ("t", ">i4")])
+    rec["a"] = (127 - y) << 8 | (127 - x) << 1 | (1 - p)
+    rec["t"] = t
+    path = tmp_path / "dvs128.aedat"
+    path.write_bytes(b"#!AER-DAT2.0\r\n# Timestamps tick is 1 us\r\n"
+                     b"# AEChip: ch.unizh.ini.jaer.chip.retina.DVS128\r\n" + rec.tobytes())
+    ev = aedat2.read(path)
+    assert ev.sensor_size == (128, 128)
+    for k, want in zip("xytp", (x, y, t, p), strict=True):
+        np.testing.assert_array_equal(getattr(ev, k), want)
+    assert aedat2.describe(path)["n_events"] == n

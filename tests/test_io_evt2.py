@@ -99,3 +99,18 @@ def test_data_starting_with_the_header_marker_is_not_eaten(tmp_path):
     assert path.read_bytes()[len(b"% evt 2.0\n% geometry 640x480\n")] == 0x25
     ev = read_events(path)
     assert len(ev) == 2000 and ev.sensor_size == (480, 640)
+
+
+def test_a_header_that_understates_the_sensor_says_how_to_give_it(tmp_path):
+    ev = EventArray(x=[697, 3], y=[5, 6], t=[10, 20], p=[1, 0], sensor_size=(720, 1280))
+    evt2.write(tmp_path / "a.raw", ev)
+    raw = (tmp_path / "a.raw").read_bytes()
+    raw = raw.replace(b"height=720;width=1280", b"height=480;width=640 ").replace(
+        b"geometry 1280x720", b"geometry 640x480  ")
+    (tmp_path / "a.raw").write_bytes(raw)
+    from evmotion.io import read_events
+
+    with pytest.raises(FormatError, match="x=697 outside the sensor.*sensor_size=.*"
+                                          "--sensor-size"):
+        read_events(tmp_path / "a.raw")
+    assert evt2.read(tmp_path / "a.raw", sensor_size=(720, 1280)).x.tolist() == [697, 3]

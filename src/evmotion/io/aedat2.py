@@ -1,4 +1,4 @@
-"""jAER AEDAT 2.0 files from DAVIS cameras (``#!AER-DAT2.0``).
+"""jAER AEDAT 2.0 files from DAVIS and DVS128 cameras (``#!AER-DAT2.0``).
 
 After ``#`` header lines, every record is a big-endian u32 address and u32 timestamp
 (µs). DAVIS address layout: bit 31 = APS/IMU flag; for DVS events (bit 31 = 0) y is in
@@ -9,6 +9,10 @@ signed 16-bit value in bits 12-27. Other APS addresses are frame samples, not ev
 
 jAER puts the origin at the bottom left and mirrors x; evmotion uses image coordinates
 (origin top left), so ``x = width - 1 - x_raw`` and ``y = height - 1 - y_raw``.
+
+Files of the DVS128 (``AEChip: ...DVS128``, 128x128) use that chip's address layout: x in
+bits 1-7, y in bits 8-14 and bit 0 the OFF mark (jAER's extractor flips the type), mirrored
+in x and y alike; they hold no APS or IMU data.
 """
 
 from __future__ import annotations
@@ -65,14 +69,9 @@ def _parse_header(path: Path, sensor_size):
     if sensor_size is None:
         chip = re.search(r"AEChip:\s*(\S+)", text)
         name = chip.group(1).upper() if chip else ""
-        if "DVS128" in name and "DAVIS" not in name:
-            raise FormatError(path, f"AEChip '{chip.group(1)}' uses the DVS128 address layout, "
-                              "which this reader does not decode")
-        for key, size in _CHIPS:
-            if key in name:
-                sensor_size = size
-                break
-        else:
+        sizes = (("DVS128", (128, 128)),) if _is_dvs128(lines) else _CHIPS
+        sensor_size = next((size for key, size in sizes if key in name), None)
+        if sensor_size is None:
             raise FormatError(path, f"unknown AEChip '{name or '(none)'}' in the header",
                               SENSOR_SIZE_HINT)
     return lines, offset, sensor_size
@@ -98,6 +97,20 @@ class _Unwrap:
         return out
 
 
+def _is_dvs128(lines: list[str]) -> bool:
+    chip = re.search(r"AEChip:\s*(\S+)", "\n".join(lines))
+    name = chip.group(1).upper() if chip else ""
+    return "DVS128" in name and "DAVIS" not in name
+
+
+def _decode_dvs128(addr: np.ndarray, t: np.ndarray, size) -> binary.Block:
+    h, w = size
+    x = (w - 1 - ((addr >> 1) & 0x7F)).astype(np.uint16)
+    y = (h - 1 - ((addr >> 8) & 0x7F)).astype(np.uint16)
+    p = (1 - (addr & 1)).astype(np.uint8)
+    return x, y, np.ascontiguousarray(t), p
+
+
 def _decode(addr: np.ndarray, t: np.ndarray, size) -> binary.Block:
     h, w = size
     dvs = (addr & 0x80000400) == 0
@@ -115,21 +128,22 @@ def _records(path: Path, offset: int, block_bytes: int):
         yield rec[:, 0].astype(np.uint32), unwrap(rec[:, 1])
 
 
-def _blocks(path, offset, size, block_bytes) -> Iterator[binary.Block]:
+def _blocks(path, offset, size, block_bytes, decode) -> Iterator[binary.Block]:
     for addr, t in _records(path, offset, block_bytes):
-        yield _decode(addr, t, size)
+        yield decode(addr, t, size)
 
 
 def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
           ) -> tuple[int, tuple[int, int], Iterator[binary.Block]]:
-    _, offset, size = _parse_header(path, sensor_size)
-    return offset, size, _blocks(path, offset, size, block_bytes)
+    lines, offset, size = _parse_header(path, sensor_size)
+    decode = _decode_dvs128 if _is_dvs128(lines) else _decode
+    return offset, size, _blocks(path, offset, size, block_bytes, decode)
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, validate: bool = True,
          block_bytes: int = binary.BLOCK_BYTES) -> EventArray:
-    """Read the DVS events of a jAER AEDAT 2.0 (DAVIS) file.
+    """Read the DVS events of a jAER AEDAT 2.0 (DAVIS or DVS128) file.
 
     Parameters
     ----------
@@ -251,9 +265,12 @@ def describe(path: str | Path) -> dict:
     """Chip, sensor size and counts of DVS events, APS samples and IMU samples."""
     path = Path(path)
     lines, offset, size = _parse_header(path, None)
+    dvs128 = _is_dvs128(lines)
     n_dvs = n_imu_words = n_aps = 0
     t_first = t_last = None
     for addr, t in _records(path, offset, binary.BLOCK_BYTES):
+        if dvs128:  # every record is a DVS event
+            addr = np.zeros_like(addr)
         n_dvs += int(((addr & 0x80000400) == 0).sum())
         imu = (addr & 0x80000C00) == 0x80000C00
         n_imu_words += int(imu.sum())

@@ -108,7 +108,9 @@ def as_format_error(exc: BaseException, path, fmt: str, action: str) -> BaseExce
             return exc
         return FormatError(path, exc.message, exc.hint)
     if isinstance(exc, EvmotionError):
-        return FormatError(path, str(exc))
+        # events beyond the size the file states: a header that understates its sensor
+        hint = SENSOR_SIZE_HINT if "outside the sensor" in str(exc) else None
+        return FormatError(path, str(exc), hint)
     if isinstance(exc, MemoryError):
         return FormatError(path, f"{action} as {fmt} needs more memory than is available "
                            "(MemoryError)", "corrupt header or file?")
