@@ -149,3 +149,17 @@ def test_zstd_packets(short, tmp_path):
     z.write_bytes(out)
     assert aedat4.describe(z)["compression"] == "zstd"
     assert_same_events(aedat4.read(z), ev)
+
+
+def test_a_packet_whose_flatbuffer_points_outside_is_named_by_describe(tmp_path):
+    # a packet without DV's size prefix read as one: info leaked struct's 'unpack_from
+    # requires a buffer of at least 1398036041 bytes'
+    ev = EventArray(x=[1, 2, 3], y=[0, 1, 2], t=[10, 20, 30], p=[1, 0, 1], sensor_size=(4, 5))
+    path = tmp_path / "a.aedat4"
+    aedat4.write(path, ev, compression="none")
+    _, _, pos = next(aedat4._packets(path))
+    raw = bytearray(path.read_bytes())
+    raw[pos + 12:pos + 16] = struct.pack("<I", 1_398_036_037)  # past the size prefix
+    path.write_bytes(raw)
+    with pytest.raises(FormatError, match=r"corrupt EVTS packet at byte offset \d+$"):
+        aedat4.describe(path)

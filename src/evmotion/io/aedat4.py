@@ -412,8 +412,11 @@ def describe(path: str | Path) -> dict:
         kind = streams[sid].type
         if kind == "FRME":
             counts[sid] += 1
-        else:
+            continue
+        try:
             counts[sid] += _root(buf, None, path, pos + 8).vector(0)[1]
+        except (struct.error, ValueError):
+            raise FormatError(path, f"corrupt {kind} packet at byte offset {pos}") from None
     out = {"format": "aedat4", "compression": COMPRESSION[compression],
            "streams": [{"id": s.id, "type": s.type, "name": s.name, "sensor_size": s.size,
                         "packets": packets[s.id], "elements": counts[s.id]}
