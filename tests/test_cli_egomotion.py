@@ -274,3 +274,12 @@ def test_egomotion_resume_after_an_interrupt(rec, tmp_path, capsys, monkeypatch,
     keys = ("window", "t0_us", "t1_us", "n_events", "params", "cost", "valid")
     assert [{k: r[k] for k in keys} for r in resumed] == [{k: r[k] for k in keys}
                                                           for r in whole]
+
+
+def test_egomotion_without_a_window_option_takes_flows_default(rec, tmp_path, capsys):
+    # it demanded one of --window-events / --window-us where flow has a default
+    rc = main(["egomotion", str(rec), "--warp", "translation", "--out", str(tmp_path / "e"),
+               "--json"])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert len(doc["windows"]) == 1 and doc["windows"][0]["n_events"] == 12_000

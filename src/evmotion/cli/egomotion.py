@@ -27,6 +27,7 @@ import numpy as np
 from evmotion.catalog import OBJECTIVE_NAMES, WARP_NAMES, WEIGHT_DATASETS
 from evmotion.cli.calib import add_camera_arguments
 from evmotion.cli.options import (
+    DEFAULT_WINDOW_EVENTS,
     add_scheduler_argument,
     add_sensor_size_argument,
     add_time_arguments,
@@ -88,8 +89,9 @@ def add_parser(sub) -> None:
     add_common(p)
     p.add_argument("--optimizer", default="bfgs", choices=["bfgs", "newton-cg", "adam", "tpe"],
                    help="optimizer (default bfgs)")
-    g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--window-events", type=int_range(10), help="events per window (>= 10)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--window-events", type=int_range(10),
+                   help=f"events per window (>= 10; default {DEFAULT_WINDOW_EVENTS}, as flow)")
     g.add_argument("--window-us", type=duration_us,
                    help="window duration: microseconds, or with a unit (10000, 10ms, 0.01s)")
     add_time_arguments(p)
@@ -235,6 +237,8 @@ def run(args) -> int:
                       "(it seeds the TPE sampler)")
     args.seed = 0 if args.seed is None else args.seed
     check_time_order(args)
+    if args.window_events is None and args.window_us is None:
+        args.window_events = DEFAULT_WINDOW_EVENTS
     cut = {"n_events": args.window_events, "duration_us": args.window_us, "min_events": 10}
     events, cam = load_events_and_camera(args, **cut)
     windows = select_windows(args, events, file=args.file, **cut)

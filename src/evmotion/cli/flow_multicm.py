@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.cli.options import (
+    DEFAULT_WINDOW_EVENTS,
     add_scheduler_argument,
     check_flow_out,
     check_free_space,
@@ -40,8 +41,6 @@ from evmotion.cli.options import (
     remove_stale_pictures,
 )
 from evmotion.errors import EmptyWindowError, ParameterError
-
-DEFAULT_WINDOW_EVENTS = 30_000
 
 # the options only this method reads: attribute and default (see evmotion.cli.flow)
 OPTIONS: dict[str, tuple[str, object]] = {

@@ -447,6 +447,10 @@ def _span(t_start: int, t_end: int) -> str:
     return (f"[{_seconds(t_start)}, {_seconds(t_end)}] s ([{int(t_start)}, {int(t_end)}] µs)")
 
 
+# events per window where a command is given no window option (flow, egomotion)
+DEFAULT_WINDOW_EVENTS = 30_000
+
+
 def add_sensor_size_argument(parser) -> None:
     """``--sensor-size H W``: the input's sensor when its file does not state it (text
     events otherwise get the ECD's 240x180, which puts the centre of rotation and zoom
