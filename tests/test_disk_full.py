@@ -91,3 +91,18 @@ def test_the_library_raises_an_oserror(rec, tmp_path, monkeypatch):
         write_events(tmp_path / "x.h5", ev)
     assert isinstance(info.value, NoRoomError) and not isinstance(info.value, EvmotionError)
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("fmt", ["h5", "ecd", "evt3"])
+def test_a_device_or_pipe_as_output_is_refused_not_replaced(rec, tmp_path, capsys, fmt):
+    # the writers' rename onto the target turned /dev/null and /dev/full into regular files
+    import os
+    import stat
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    assert main(["convert", str(rec), str(fifo), "--format-out", fmt]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not a regular file (a device or pipe)" in err
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe"]

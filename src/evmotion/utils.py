@@ -18,6 +18,21 @@ from evmotion.errors import ParameterError
 T = TypeVar("T")
 
 
+def ensure_file_target(path: str | os.PathLike) -> None:
+    """ParameterError when ``path`` exists and is not a regular file: an output written
+    beside it and renamed onto it would replace a device or pipe (``/dev/null``) with a
+    regular file, or fail on a folder at the end of the work.
+
+    >>> ensure_file_target("new_result.h5")
+    """
+    path = Path(path)
+    if path.exists() and not path.is_file():
+        from evmotion.errors import ParameterError
+
+        kind = "a folder" if path.is_dir() else "not a regular file (a device or pipe)"
+        raise ParameterError(f"cannot write {path}: it is {kind}; give a file path")
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
@@ -34,6 +49,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     [0, 1, 2]
     """
     path = Path(path)
+    ensure_file_target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix,
                                dir=path.parent)

@@ -36,7 +36,7 @@ from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs, read_attrs_many
 from evmotion.io.h5filters import h5_compression
 from evmotion.io.pngfile import read_png, write_png
-from evmotion.utils import atomic_path, ensure_room
+from evmotion.utils import atomic_path, ensure_file_target, ensure_room
 
 __all__ = [
     "FLO_MAGIC",
@@ -320,6 +320,7 @@ class FlowWriter(PartFileWriter):
         import h5py
 
         self.path = Path(path)
+        ensure_file_target(self.path)
         self.part = _part_path(self.path)
         h, w = (int(v) for v in sensor_size)
         if h <= 0 or w <= 0:

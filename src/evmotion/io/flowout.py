@@ -69,7 +69,7 @@ from evmotion.io.flowfiles import (
     write_flo,
 )
 from evmotion.io.h5filters import register_filters
-from evmotion.utils import atomic_path, keep_for_resume
+from evmotion.utils import atomic_path, ensure_file_target, keep_for_resume
 
 __all__ = [
     "CONTAINERS",
@@ -225,6 +225,7 @@ class FlowOutput(PartFileWriter):
 
     def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int], attrs: dict):
         self.path = Path(path)
+        ensure_file_target(self.path)
         h, w = (int(v) for v in sensor_size)
         if h <= 0 or w <= 0:
             raise ParameterError(f"sensor_size must be positive (height, width), got {(h, w)}")

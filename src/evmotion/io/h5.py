@@ -36,7 +36,7 @@ from evmotion.io.base import FormatSpec, PartFileWriter
 from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
 from evmotion.io.h5attrs import read_attrs, text_attr
 from evmotion.io.h5filters import HDF5_MAGIC, filter_error, h5_compression
-from evmotion.utils import ensure_room
+from evmotion.utils import ensure_file_target, ensure_room
 
 # the time index: its finest step (µs), the entries it may always have, and how many it
 # fills at a time
@@ -97,6 +97,7 @@ class EventWriter(PartFileWriter):
         import h5py
 
         self.path = Path(path)
+        ensure_file_target(self.path)
         self.part = self.path.with_name(self.path.name + ".part")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         h, w = (int(v) for v in sensor_size)
