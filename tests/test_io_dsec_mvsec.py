@@ -59,6 +59,15 @@ def test_dsec_ms_index_slices(tmp_path):
         np.testing.assert_array_equal(got.t, ref.t)
     chunks = list(eio.iter_events(tmp_path / "events.h5", 20_000))
     assert [len(c) for c in chunks] == [20_000, 20_000, 10_000]
+    # an index shifted by 500 events gave another time range, silently
+    with h5py.File(tmp_path / "events.h5", "a") as f:
+        f["ms_to_idx"][:-1] = f["ms_to_idx"][1:] + 500
+    from evmotion.errors import EvmotionWarning
+
+    with pytest.warns(EvmotionWarning, match="time index \\(ms_to_idx\\) does not match"):
+        got = dsec.read(tmp_path / "events.h5", t0=T_OFFSET + 500_000, t1=T_OFFSET + 700_000)
+    np.testing.assert_array_equal(got.t, full.slice_time(T_OFFSET + 500_000,
+                                                         T_OFFSET + 700_000).t)
 
 
 def test_dsec_missing_field(tmp_path):

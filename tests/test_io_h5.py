@@ -154,3 +154,23 @@ def test_the_time_index_stays_in_proportion_to_the_events(tmp_path):
         assert "index_step_us" not in f.attrs and f["events/ms_to_idx"].shape[0] == 1501
     np.testing.assert_array_equal(h5.read(tmp_path / "dense.h5", t0=1000, t1=2000).t,
                                   [1200, 1500, 1800])
+
+
+@pytest.mark.parametrize("mutate", ["t_index0 + 10 ms", "t_index0 huge", "ms_to_idx shifted"])
+def test_a_stale_time_index_is_noticed_and_the_times_searched(tmp_path, mutate):
+    # an index that no longer matches the timestamps gave another time range, silently
+    from evmotion.errors import EvmotionWarning
+
+    ev = _events()
+    h5.write(tmp_path / "c.h5", ev)
+    with h5py.File(tmp_path / "c.h5", "a") as f:
+        if mutate == "t_index0 + 10 ms":
+            f.attrs["t_index0"] = int(f.attrs["t_index0"]) + 10_000
+        elif mutate == "t_index0 huge":
+            f.attrs["t_index0"] = 1 << 50
+        else:
+            f["events/ms_to_idx"][:-1] = f["events/ms_to_idx"][1:] + 500
+    t0, t1 = int(ev.t[5000]), int(ev.t[9000])
+    with pytest.warns(EvmotionWarning, match="time index .* does not match its timestamps"):
+        got = h5.read(tmp_path / "c.h5", t0=t0, t1=t1)
+    assert_same_events(got, ev.slice_time(t0, t1), dtypes=True)

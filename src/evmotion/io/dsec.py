@@ -24,7 +24,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
+from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5, verified_position
 from evmotion.io.h5filters import (
     FILTER_HINT,
     HDF5_MAGIC,
@@ -102,7 +102,9 @@ def _range(path: Path, f, t0: int | None, t1: int | None) -> tuple[int, int]:
         else:
             a = min(entry(k), n)
             b = min(entry(k + 1), n) if k + 1 < ms.size else n
-        return a + int(np.searchsorted(_read(path, t_ds, a, b, "events/t"), rel))
+        i = a + int(np.searchsorted(_read(path, t_ds, a, b, "events/t"), rel))
+        return verified_position(path, lambda u, v: _read(path, t_ds, u, v, "events/t"), n,
+                                 rel, i, "ms_to_idx")
 
     lo = 0 if t0 is None else locate(int(t0))
     hi = n if t1 is None else locate(int(t1))

@@ -377,3 +377,29 @@ def warn_inferred_size(path, size: tuple[int, int], why: str = "",
         f"{path}: no sensor size in the file{why}: taken as {size[1]}x{size[0]} px (W x H) "
         "from the largest coordinates; give the true size (--sensor-size H W in convert, "
         "sensor_size=(H, W))"), stacklevel=stacklevel)
+
+
+def verified_position(path, read_t: Callable, n: int, tq: int, i: int, index: str) -> int:
+    """Where ``tq`` goes among a file's ``n`` sorted times (``read_t(a, b)`` reads times
+    ``a..b``): ``i``, the position its time ``index`` gave, when the times around it agree;
+    otherwise (a stale or corrupt index, which silently gave another time range) the
+    position found by bisecting the times, with a warning naming the index."""
+    import warnings
+
+    import numpy as np
+
+    from evmotion.errors import EvmotionWarning
+
+    if (i == 0 or read_t(i - 1, i)[0] < tq) and (i == n or read_t(i, i + 1)[0] >= tq):
+        return i
+    warnings.warn(EvmotionWarning(
+        f"{path}: its time index ({index}) does not match its timestamps (a stale or "
+        "corrupt index): the times were searched instead"), stacklevel=4)
+    lo, hi = 0, n
+    while hi - lo > 1 << 16:  # a few reads of one time each, then one block
+        mid = (lo + hi) // 2
+        if read_t(mid, mid + 1)[0] < tq:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo + int(np.searchsorted(read_t(lo, hi), tq, side="left"))

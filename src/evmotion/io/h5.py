@@ -33,7 +33,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, PartFileWriter
-from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
+from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5, verified_position
 from evmotion.io.h5attrs import read_attrs, text_attr
 from evmotion.io.h5filters import HDF5_MAGIC, filter_error, h5_compression
 from evmotion.utils import ensure_file_target, ensure_room
@@ -302,12 +302,15 @@ def _index_range(f, base: int, t0: int | None, t1: int | None, step: int = INDEX
             return int(np.searchsorted(g["t"][:], tq, side="left"))
         k = (tq - base) // step
         if k < 0:
-            return 0
-        # ms[k] <= answer <= ms[k+1]: search only the events of that step.
-        a = int(ms[k]) if k < ms.size else int(ms[ms.size - 1])
-        b = int(ms[k + 1]) if k + 1 < ms.size else n
-        a, b = min(max(a, 0), n), min(max(b, 0), n)  # a corrupt index stays in range
-        return a + int(np.searchsorted(g["t"][a:b], tq, side="left"))
+            i = 0
+        else:
+            # ms[k] <= answer <= ms[k+1]: search only the events of that step.
+            a = int(ms[k]) if k < ms.size else int(ms[ms.size - 1])
+            b = int(ms[k + 1]) if k + 1 < ms.size else n
+            a, b = min(max(a, 0), n), min(max(b, 0), n)  # a corrupt index stays in range
+            i = a + int(np.searchsorted(g["t"][a:b], tq, side="left"))
+        return verified_position(f.filename, lambda u, v: g["t"][u:v], n, tq, i,
+                                 "events/ms_to_idx, t_index0")
 
     if t0 is not None:
         lo = locate(int(t0))
