@@ -4,6 +4,7 @@ mask; per-window patterns; .npy refused; atomic writes; .h5 resume; describe_flo
 from __future__ import annotations
 
 import json
+import re
 import sys
 
 import numpy as np
@@ -297,3 +298,41 @@ def test_a_gap_in_a_pattern_is_named(tmp_path):
     (tmp_path / "f_01.flo").unlink()
     with pytest.raises(FormatError, match="f_01.flo is missing but f_02.flo exists"):
         read_flow(pat)
+
+
+@pytest.mark.parametrize("mutate, match", [
+    (lambda d, a: d.update(flow=d["flow"][..., 0]), r"'flow' has shape \(2, 6, 8\)"),
+    (lambda d, a: d.update(t0=d["t0"][:1]), "'t0' has 1 and 't1' 2 values for 2"),
+    (lambda d, a: d.update(valid=d["valid"][:, :3]), "'valid' has shape"),
+    (lambda d, a: d.update(t1=d["t0"]), "window 0 has t1 = .* not after t0"),
+    (lambda d, a: a.update(units="px"), "attribute 'units' is 'px'"),
+    (lambda d, a: d.update({k: d[k][:0] for k in ("flow", "t0", "t1", "valid")}),
+     "holds no flow window"),
+])
+def test_a_malformed_flow_file_is_one_line_in_eval_and_view(tmp_path, capsys, mutate, match):
+    """eval, view and kymogram met them with numpy's tracebacks (broadcast, zip, an empty
+    minimum), and scored a flow stated in px as px/s."""
+    import h5py
+
+    from evmotion.cli import main
+    from evmotion.io.flowfiles import write_flow_group
+
+    rng = np.random.default_rng(0)
+    with h5py.File(tmp_path / "ok.h5", "w") as f:
+        write_flow_group(f, rng.normal(size=(2, 6, 8, 2)).astype(np.float32),
+                         np.array([0, 1000]), np.array([1000, 2000]),
+                         valid=np.ones((2, 6, 8), bool), compression=None)
+    with h5py.File(tmp_path / "ok.h5") as f:
+        data = {k: f[k][()] for k in f}
+        attrs = dict(f.attrs)
+    mutate(data, attrs)
+    with h5py.File(tmp_path / "bad.h5", "w") as f:
+        f.attrs.update(attrs)
+        for k, v in data.items():
+            f[k] = v
+    for argv in (["eval", str(tmp_path / "bad.h5"), "--gt", str(tmp_path / "ok.h5")],
+                 ["view", str(tmp_path / "bad.h5"), "--out", str(tmp_path / "v.png")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "bad.h5" in err
+        assert re.search(match, err), err

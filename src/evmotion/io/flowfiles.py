@@ -582,6 +582,33 @@ def write_flow_group(group, flow: np.ndarray | None, t0, t1, valid=None, *,
                              chunks=(1, h, w), data=data, **kw)
 
 
+def check_flow_arrays(path, flow, t0, t1, valid, units) -> None:
+    """FormatError naming ``path`` unless the arrays read from a flow file make windows:
+    ``flow`` (N, H, W, 2) numbers, ``t0``/``t1`` N whole µs with ``t1 > t0``, ``valid``
+    (N, H, W) or None, and ``units`` px/s (the only units evmotion writes: a flow stated in
+    other units would be scored as px/s)."""
+    flow, t0, t1 = np.asarray(flow), np.asarray(t0), np.asarray(t1)
+    if flow.ndim != 4 or flow.shape[-1] != 2 or flow.dtype.kind not in "fiu":
+        raise FormatError(path, f"'flow' has shape {flow.shape} and dtype {flow.dtype}: "
+                          "expected (windows, height, width, 2) numbers")
+    n = flow.shape[0]
+    if t0.shape != (n,) or t1.shape != (n,):
+        raise FormatError(path, f"'t0' has {t0.size} and 't1' {t1.size} values for "
+                          f"{n} flow windows")
+    if n and (t0.dtype.kind not in "iu" or t1.dtype.kind not in "iu"):
+        raise FormatError(path, f"'t0'/'t1' are {t0.dtype}/{t1.dtype}: expected whole µs")
+    if n and np.any(t1 <= t0):
+        k = int(np.argmax(t1 <= t0))
+        raise FormatError(path, f"window {k} has t1 = {int(t1[k])} us not after t0 = "
+                          f"{int(t0[k])} us")
+    if valid is not None and np.shape(valid) != flow.shape[:3]:
+        raise FormatError(path, f"'valid' has shape {np.shape(valid)}, the flow windows "
+                          f"{flow.shape[:3]}")
+    if units is not None and str(units) != "px/s":
+        raise FormatError(path, f"attribute 'units' is {str(units)!r}: evmotion reads flow in "
+                          "px/s (flow over the window's duration)")
+
+
 def read_flow_group(group, path: str | os.PathLike | None = None,
                     index: int | slice | None = None, attrs: dict | None = None) -> FlowSequence:
     """Read a flow group written by :func:`write_flow_group` / :class:`FlowWriter`
@@ -607,8 +634,12 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
         attrs["extras_units"] = {name: spec.units for name, spec in specs.items()}
     if _legacy_bos(attrs):
         attrs.setdefault("eval_out_px", 1.0)
-    return FlowSequence(flow=flow, t0=group["t0"][sel], t1=group["t1"][sel], valid=valid,
-                        attrs=attrs, extras=extras)
+    t0, t1 = group["t0"][sel], group["t1"][sel]
+    if index is None:
+        check_flow_arrays(path, flow, group["t0"][:], t1, valid, attrs.get("units"))
+    else:
+        check_flow_arrays(path, flow, t0, t1, valid, attrs.get("units"))
+    return FlowSequence(flow=flow, t0=t0, t1=t1, valid=valid, attrs=attrs, extras=extras)
 
 
 @guarded('flow HDF5')

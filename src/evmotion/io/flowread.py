@@ -23,6 +23,7 @@ from evmotion.io.eventflow import EVENT_FLOW_FORMAT, describe_event_flow
 from evmotion.io.flowfiles import (
     FLOW_FORMAT,
     FlowSequence,
+    check_flow_arrays,
     extra_specs,
     read_dsec_flow_png,
     read_flo,
@@ -121,12 +122,10 @@ def _read_npz(path: Path) -> FlowSequence:
             for key in ("flow", "t0", "t1", "valid", "units"):
                 if key not in names:
                     raise FormatError(path, f"evmotion flow .npz lacks array '{key}'")
-            flow, t0, t1 = z["flow"], z["t0"].astype(np.int64), z["t1"].astype(np.int64)
+            flow, t0, t1 = z["flow"], z["t0"], z["t1"]
             valid = z["valid"].astype(bool)
-            n = t1.shape[0]
-            if flow.shape[0] != n or valid.shape != flow.shape[:3] or t0.shape != (n,):
-                raise FormatError(path, f"inconsistent shapes: flow {flow.shape}, valid "
-                                  f"{valid.shape}, t0 {t0.shape}, t1 {t1.shape}")
+            check_flow_arrays(path, flow, t0, t1, valid, z["units"])
+            t0, t1, n = t0.astype(np.int64), t1.astype(np.int64), t1.shape[0]
             try:
                 attrs = json.loads(str(z["attrs"])) if "attrs" in names else {}
             except ValueError as exc:
@@ -207,8 +206,11 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
     if kind == "npz":
         if not p.is_file():
             raise FormatError(p, "no such file")
-        return _read_npz(p)
-    seq = read_flow_h5(p)
+        seq = _read_npz(p)
+    else:
+        seq = read_flow_h5(p)
+    if not len(seq):
+        raise FormatError(p, "holds no flow window (a run interrupted before its first?)")
     if seq.valid is None:
         seq = FlowSequence(flow=seq.flow, t0=seq.t0, t1=seq.t1,
                            valid=np.isfinite(seq.flow).all(axis=3), attrs=seq.attrs,
