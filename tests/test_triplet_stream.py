@@ -108,3 +108,17 @@ def test_bad_input_is_reported():
         next(iter_flow_triplet([ev], dense="median"))
     with pytest.raises(EmptyWindowError):
         next(iter_flow_triplet([ev[:0]]))
+
+
+def test_a_pause_in_the_recording_makes_no_empty_windows():
+    # one stray timestamp 2^40 us on stepped through a billion empty 50 ms windows
+    ev = two_edges()
+    late = EventArray(x=ev.x[-1:], y=ev.y[-1:], t=ev.t[-1:] + (1 << 40), p=ev.p[-1:],
+                      sensor_size=ev.sensor_size)
+    from evmotion.events import concatenate
+
+    wins = list(iter_flow_triplet(chunked(concatenate([ev, late]), 500), window_us=50_000))
+    plain = list(iter_flow_triplet(chunked(ev, 500), window_us=50_000))
+    assert len(wins) == len(plain) + 1
+    assert wins[-1].t0 <= int(late.t[0]) < wins[-1].t1
+    assert (wins[-1].t0 - wins[0].t0) % 50_000 == 0  # still on the grid of windows

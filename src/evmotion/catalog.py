@@ -42,3 +42,12 @@ MAX_CROP_SIDE = MAX_SIM_SIDE
 #: Smallest side of a training crop, px: a 16-px crop is 1 px at the network's coarsest
 #: level and rarely keeps the events a training window needs.
 MIN_CROP_SIDE = 32
+#: Most time bins of multicm's time-aware flow: the thesis uses 5 (40 from 640 px wide);
+#: each bin holds a flow field and an IWE per reference, so memory grows with them.
+MAX_TIME_BINS = 200
+#: Most worker processes a command starts (``--workers``); no more than it has windows.
+MAX_WORKERS = 256
+#: Largest sensor side (pixels) a header may declare: today's largest event sensors are
+#: 1280x720 (Prophesee IMX636) and 1920x1080 (Samsung); 16384 leaves room while keeping a
+#: per-pixel float32 image of a corrupt header's sensor under 1 GiB.
+MAX_SENSOR_SIDE = 16384

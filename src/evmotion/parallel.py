@@ -428,6 +428,7 @@ def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_wind
     (threads call the bar directly); that thread starts after the workers, so that a
     forked worker never copies a process with it running."""
     relay, sink = None, None
+    workers = max(1, min(int(workers), len(tasks)))  # a process per window at the most
     if isinstance(executor, cf.Executor):
         pool, owned = executor, False
     elif executor == "process":

@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import argparse
 
+from evmotion.catalog import MAX_SENSOR_SIDE
 from evmotion.cli.options import (
     check_time_order,
     empty_selection,
+    int_range,
     positive_int,
     time_us,
     writable_output,
@@ -47,8 +49,8 @@ def add_parser(sub) -> None:
                         "1500ms, 1500000us); +TIME: after the first event")
     p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
                    help="end (exclusive), same units as --t0")
-    p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,
-                   metavar=("H", "W"),
+    p.add_argument("--sensor-size", type=int_range(1, MAX_SENSOR_SIDE, unit="px"), nargs=2,
+                   default=None, metavar=("H", "W"),
                    help="override the input sensor size (height width)")
     p.add_argument("--chunk-events", type=positive_int(), default=1_000_000,
                    help="events read and written at a time (1,000,000)")

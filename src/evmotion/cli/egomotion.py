@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from evmotion.catalog import OBJECTIVE_NAMES, WARP_NAMES, WEIGHT_DATASETS
+from evmotion.catalog import MAX_WORKERS, OBJECTIVE_NAMES, WARP_NAMES, WEIGHT_DATASETS
 from evmotion.cli.calib import add_camera_arguments
 from evmotion.cli.options import (
     DEFAULT_WINDOW_EVENTS,
@@ -35,7 +35,6 @@ from evmotion.cli.options import (
     duration_us,
     int_range,
     nonnegative_float,
-    positive_int,
     reject_unused,
     remove_stale_pictures,
     select_windows,
@@ -95,7 +94,7 @@ def add_parser(sub) -> None:
     g.add_argument("--window-us", type=duration_us,
                    help="window duration: microseconds, or with a unit (10000, 10ms, 0.01s)")
     add_time_arguments(p)
-    p.add_argument("--workers", type=positive_int(), default=1,
+    p.add_argument("--workers", type=int_range(1, MAX_WORKERS), default=1,
                    help="parallel worker processes")
     add_scheduler_argument(p)
     p.add_argument("--seed", type=int_range(0), default=None,

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import MAX_TIME_BINS, MAX_WORKERS
 from evmotion.cli.options import (
     DEFAULT_WINDOW_EVENTS,
     add_scheduler_argument,
@@ -60,7 +61,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
 def add_arguments(group) -> None:
     group.add_argument("--time-aware", choices=("none", "upwind", "burgers"), default=None,
                        help="time-aware flow transport (4.8) (default none)")
-    group.add_argument("--time-bins", type=positive_int(), default=None, metavar="B",
+    group.add_argument("--time-bins", type=int_range(1, MAX_TIME_BINS), default=None, metavar="B",
                        help="with --time-aware: time bins of the time-aware flow (default 5; "
                             "40 from 640 px wide)")
     group.add_argument("--scales", type=int_range(1, 5), default=None,
@@ -77,7 +78,7 @@ def add_arguments(group) -> None:
                        help="from the 4x4-tile scale on, stop a scale once an iteration "
                             "lowers the objective by less than this, in [0, 1) (default "
                             "3e-5; 0: always --max-iter iterations)")
-    group.add_argument("--workers", type=positive_int(), default=None,
+    group.add_argument("--workers", type=int_range(1, MAX_WORKERS), default=None,
                        help="parallel worker processes (default 1); each takes a contiguous "
                             "chunk of windows; with --scheduler, the number of chunks "
                             "(default: the cluster's worker threads)")

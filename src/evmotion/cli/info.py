@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import argparse
 
-from evmotion.cli.options import positive_int
+from evmotion.catalog import MAX_SENSOR_SIDE
+from evmotion.cli.options import int_range
 
 EXAMPLES = """examples:
   evmotion info boxes_rotation/                # an ECD folder
@@ -38,8 +39,8 @@ def add_parser(sub) -> None:
     p.add_argument("file", help="recording (file or ECD folder), any readable format, or a "
                                 "flow output")
     p.add_argument("--format", default=None, help="input format (default: detect by content)")
-    p.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,
-                   metavar=("H", "W"),
+    p.add_argument("--sensor-size", type=int_range(1, MAX_SENSOR_SIDE, unit="px"), nargs=2,
+                   default=None, metavar=("H", "W"),
                    help="override the sensor size (height width)")
     p.add_argument("--header-only", action="store_true",
                    help="report the header / layout only, without streaming the events")

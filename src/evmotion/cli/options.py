@@ -44,6 +44,7 @@ import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from evmotion.catalog import MAX_SENSOR_SIDE
 from evmotion.errors import ParameterError
 from evmotion.utils import nearest_existing
 
@@ -455,7 +456,7 @@ def add_sensor_size_argument(parser) -> None:
     """``--sensor-size H W``: the input's sensor when its file does not state it (text
     events otherwise get the ECD's 240x180, which puts the centre of rotation and zoom
     warps in the wrong place) or states it wrongly."""
-    parser.add_argument("--sensor-size", type=positive_int(unit="px"), nargs=2, default=None,
+    parser.add_argument("--sensor-size", type=int_range(1, MAX_SENSOR_SIDE, unit="px"), nargs=2, default=None,
                         metavar=("H", "W"),
                         help="the input's sensor size (height width) when its file does not "
                              "state it (text events default to the ECD's 240 x 180)")

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import MAX_WORKERS
 from evmotion.cli.options import (
     add_scheduler_argument,
     add_time_arguments,
@@ -51,7 +52,7 @@ def add_parser(sub) -> None:
     g.add_argument("--window-us", type=duration_us,
                    help="window duration: microseconds, or with a unit (10000, 10ms, 0.01s)")
     add_time_arguments(p)
-    p.add_argument("--workers", type=positive_int(), default=1,
+    p.add_argument("--workers", type=int_range(1, MAX_WORKERS), default=1,
                    help="parallel worker processes (default 1)")
     add_scheduler_argument(p)
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")

@@ -21,6 +21,7 @@ import struct
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from evmotion.catalog import MAX_SENSOR_SIDE
 from evmotion.errors import (
     EvmotionError,
     FormatError,
@@ -32,10 +33,6 @@ from evmotion.errors import (
 __all__ = ["MAX_SENSOR_SIDE", "check_sensor_size", "guard_call", "guard_iter", "as_format_error",
            "extended_size", "open_h5", "warn_inferred_size", "LARGEST_COORDINATE"]
 
-# Largest sensor side (pixels) a header may declare: today's largest event sensors are
-# 1280x720 (Prophesee IMX636) and 1920x1080 (Samsung); 16384 leaves room while keeping a
-# per-pixel float32 image of a corrupt header's sensor under 1 GiB.
-MAX_SENSOR_SIDE = 16384
 
 # Errors of the code itself or of the installation, not of the file: let them through
 # unchanged so a bug is not reported as a corrupt file.

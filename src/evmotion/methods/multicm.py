@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from evmotion.catalog import MAX_TIME_BINS
 from evmotion.core import tileflow as tf
 from evmotion.core.objectives import events_value_grad, objective_value_grad
 from evmotion.errors import EmptyWindowError, ParameterError
@@ -711,8 +712,8 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
     n_bins = o.n_bins
     if n_bins is None:
         n_bins = 40 if events.sensor_size[1] >= 640 else 5
-    if n_bins < 1:
-        raise ParameterError(f"n_bins must be >= 1, got {n_bins}")
+    if not 1 <= n_bins <= MAX_TIME_BINS:
+        raise ParameterError(f"n_bins must be in [1, {MAX_TIME_BINS}], got {n_bins}")
     return dataclasses.replace(o, n_bins=n_bins,
                                time_aware=None if o.time_aware == "none" else o.time_aware)
 

@@ -123,6 +123,10 @@ class _Windows:
             if stop < len(chunk):
                 yield self._close(t0, t1)
                 self.t0 = t1
+                if self.edges is None and t[stop] >= t1 + self.window_us:
+                    # a pause: the windows before the next event hold none; go to its
+                    # window (a stray timestamp hours on made millions of empty ones)
+                    self.t0 = t1 + (int(t[stop]) - t1) // self.window_us * self.window_us
 
     def _add_count(self, chunk, flow):
         start = 0
@@ -300,8 +304,10 @@ class TripletStream:
         The dense output (see :func:`~evmotion.methods.triplet.estimate_flow_triplet`);
         None: per-event flow only (no window is delimited or computed).
     window_us, window_events : int, optional
-        Consecutive time windows of ``window_us`` µs from the first event, or windows of
-        ``window_events`` events; default time windows of :data:`DEFAULT_WINDOW_US`.
+        Consecutive time windows of ``window_us`` µs from the first event (past a pause,
+        the run of windows without events is skipped: the next window is the one on that
+        grid holding the next event), or windows of ``window_events`` events; default
+        time windows of :data:`DEFAULT_WINDOW_US`.
     windows : sequence of (int, int), optional
         Explicit windows ``[t0, t1)`` µs in time order (e.g. between ground-truth frames).
     with_iwe : bool
