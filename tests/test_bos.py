@@ -225,7 +225,7 @@ def test_contrast_threshold_of_dark_frames():
         def q(f, w=white):
             return np.rint(np.clip(f, 0, 1) * w).astype(np.uint8)
 
-        got[white] = contrast_threshold_slope(ev, q(bg), q(moved), t0_us=0, t1_us=1)
+        got[white] = contrast_threshold_slope(ev, q(bg), q(moved), t0_us=0, t1_us=1)[:2]
     bright = got[255][0]
     assert got[60] == (pytest.approx(bright, rel=0.1), "frames")
     assert all(slope == "events" and c < bright for c, slope in (got[20], got[6]))

@@ -103,5 +103,50 @@ def test_sequence_c_from_the_events_alone_is_said(data):
         said[white] = [str(w.message) for w in caught
                        if issubclass(w.category, EvmotionWarning)]
     assert said[255] == []
-    assert len(said[6]) == 1 and "from the events alone" in said[6][0]
-    assert "--contrast-threshold" in said[6][0]
+    alone = [m for m in said[6] if "from the events alone" in m]
+    assert len(alone) == 1 and "--contrast-threshold" in alone[0]
+
+
+def test_a_low_contrast_background_warns_that_the_magnitude_is_uncertain(data):
+    """Dots of 15 % contrast behind 1 px of air: most of the change stays below C, the
+    pixels that fired correlate with it well enough to give a C (4x low on probe A's
+    scene of this kind, flow 0.2x), and around them the events follow it weakly; the run
+    says the magnitude is uncertain. Dots of 80 % contrast say nothing."""
+    import dataclasses
+    import warnings
+
+    from scipy.ndimage import gaussian_filter, map_coordinates
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.events import EventArray
+
+    n, c = 160, 0.15
+    rng = np.random.default_rng(0)
+    dots = gaussian_filter((rng.random((n, n)) < 0.15).astype(float), 1.0)
+    yy, xx = np.mgrid[0:n, 0:n]
+    amp = np.exp(-((xx - n / 2) ** 2 + (yy - n / 2) ** 2) / (2 * (n / 5) ** 2))
+    said = {}
+    for contrast in (0.8, 0.15):
+        bg = (1 - contrast) + contrast * dots / dots.max()
+        moved = map_coordinates(bg, [yy, xx - amp], order=3, mode="nearest")
+        d = np.log(moved) - np.log(bg)
+        first = c + rng.uniform(-c, c, d.shape) * np.sign(d)  # level in the 2C band
+        k = np.where(np.abs(d) >= first, 1 + np.floor((np.abs(d) - first) / c), 0)
+        s = (k * np.sign(d)).astype(int)
+        ys, xs = np.nonzero(s)
+        m = np.abs(s[ys, xs])
+        ev = EventArray(x=np.repeat(xs, m), y=np.repeat(ys, m),
+                        t=np.sort(rng.integers(0, 1000, m.sum())), p=np.repeat(s[ys, xs] > 0, m),
+                        sensor_size=(n, n))
+        frames = np.rint(np.stack([bg, moved]) * 255).astype(np.uint8)
+        run = dataclasses.replace(data, events=ev, frames=frames,
+                                  frame_times=np.array([0, 1000]),
+                                  intervals=np.array([[0, 0, 1000]]), roi=None)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            sequence_contrast_threshold(run)
+        said[contrast] = [str(w.message) for w in caught
+                          if issubclass(w.category, EvmotionWarning)]
+    assert said[0.8] == []
+    assert any("follow the frames' change weakly" in m and "uncertain" in m
+               for m in said[0.15])

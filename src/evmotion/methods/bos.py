@@ -76,7 +76,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.ndimage import gaussian_filter, maximum_filter
+from scipy.ndimage import distance_transform_edt, gaussian_filter, maximum_filter
 
 from evmotion.errors import (
     EmptyWindowError,
@@ -114,6 +114,10 @@ __all__ = [
 
 # below it, the events do not measure the frames' change (estimate_contrast_threshold)
 MIN_CORRELATION = 0.3
+# below this correlation over the pixels within NEAR_EVENTS_PX of an event (fired or not),
+# the events follow the frames' change too weakly for a sure magnitude (warned)
+WEAK_CORRELATION = 0.45
+NEAR_EVENTS_PX = 10.0
 #: Largest contrast threshold accepted, log units (sensors: 0.1-0.5): beyond it the
 #: predicted increments overflow float32.
 MAX_CONTRAST_THRESHOLD = 10.0
@@ -550,10 +554,16 @@ def estimate_contrast_threshold(events: EventArray, frame: np.ndarray, frame_nex
 def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: np.ndarray,
                              *, t0_us: int, t1_us: int, roi=None, sigma: float | None = None,
                              method: str = "auto", log_eps: float | None = None,
-                             min_correlation: float = MIN_CORRELATION) -> tuple[float, str]:
-    """:func:`estimate_contrast_threshold` (the same arguments) and the slope it returned:
-    ``"frames"``, ``"events"`` (also the fallback where the frames' noise exceeds half
-    their change: low where the air changes the image by less than C) or ``"rma"``."""
+                             min_correlation: float = MIN_CORRELATION
+                             ) -> tuple[float, str, float]:
+    """:func:`estimate_contrast_threshold` (the same arguments), the slope it returned
+    (``"frames"``, ``"events"``: also the fallback where the frames' noise exceeds half
+    their change, low where the air changes the image by less than C; or ``"rma"``) and
+    the correlation of the events' sums with the frames' change over every pixel within
+    :data:`NEAR_EVENTS_PX` of an event. Below :data:`WEAK_CORRELATION` the flow's
+    magnitude is uncertain: on 21 scenes (15 from an independent renderer, 6 from the
+    simulator at 240x320) it marked 9 of the 16 whose median ``|v|/|v_gt|`` left
+    [0.9, 1.1] (those 9: 0.18-1.24) and none of the 5 within."""
     if method not in ("auto", "rma", "events", "frames"):
         raise ParameterError(f"method must be 'auto', 'rma', 'events' or 'frames', got "
                              f"{method!r}")
@@ -606,18 +616,25 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
                              "with the events; give contrast_threshold (--contrast-threshold)")
     c_events = cov / var_s
     c_frames = (var_d - noise) / cov
+    # how well the events follow the change around them, the pixels below threshold too:
+    # the fired pixels alone are selected by the events and correlate well even where
+    # most of the air's change goes unseen
+    ring = distance_transform_edt(counts == 0) <= NEAR_EVENTS_PX
+    dr, sr = d[ring], s[ring]
+    ring_var = float(np.mean(dr * dr)) * float(np.mean(sr * sr))
+    ring_corr = float(np.mean(dr * sr)) / np.sqrt(ring_var) if ring_var > 0 else 0.0
     if method == "events":
-        return float(c_events), "events"
+        return float(c_events), "events", ring_corr
     if method == "frames":
         if c_frames <= 0:
             raise EventDataError("cannot estimate the contrast threshold from the frames: "
                                  "their noise exceeds their change (use method='events')")
-        return float(c_frames), "frames"
+        return float(c_frames), "frames", ring_corr
     if noise > 0.5 * var_d or c_frames <= 0:
-        return float(c_events), "events"
+        return float(c_events), "events", ring_corr
     if method == "auto":
-        return float(c_frames), "frames"
-    return float(np.sqrt(c_frames * c_events)), "rma"
+        return float(c_frames), "frames", ring_corr
+    return float(np.sqrt(c_frames * c_events)), "rma", ring_corr
 
 
 def _quantization_noise(frame, frame_next, crop, sigma: float, fit: np.ndarray,

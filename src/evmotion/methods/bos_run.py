@@ -67,25 +67,37 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
     --------
     >>> c, per_interval = sequence_contrast_threshold(load_bos_input("scene/"))  # doctest: +SKIP
     """
-    from evmotion.methods.bos import contrast_threshold_slope
+    from evmotion.methods.bos import (
+        NEAR_EVENTS_PX,
+        WEAK_CORRELATION,
+        contrast_threshold_slope,
+    )
 
     if samples < 1:
         raise ParameterError(f"samples must be >= 1, got {samples}")
     pick = np.unique(np.linspace(0, len(data.intervals) - 1, min(samples, len(data.intervals)))
                      .round().astype(int))
-    estimates, slopes = [], []
+    estimates, slopes, corrs = [], [], []
     for j in pick:
         i, t0, t1 = (int(v) for v in data.intervals[j])
         try:
-            c, slope = contrast_threshold_slope(data.events, data.frames[i],
-                                                data.frames[i + 1], t0_us=t0, t1_us=t1,
-                                                roi=data.roi)
+            c, slope, corr = contrast_threshold_slope(data.events, data.frames[i],
+                                                      data.frames[i + 1], t0_us=t0, t1_us=t1,
+                                                      roi=data.roi)
         except EvmotionError:
             continue
         if np.isfinite(c) and c > 0:
             estimates.append(c)
             slopes.append(slope)
+            corrs.append(corr)
     est = np.asarray(estimates, dtype=np.float64)
+    if corrs and np.median(corrs) < WEAK_CORRELATION:
+        warnings.warn(EvmotionWarning(
+            f"the events follow the frames' change weakly around them (correlation "
+            f"{np.median(corrs):.2f} within {NEAR_EVENTS_PX:g} px of the events, median of "
+            f"{len(corrs)} intervals): few events, a low-contrast background or noise; the "
+            "flow's magnitude is uncertain (on such scenes it came out 0.2-1.2x the true "
+            "one)"), stacklevel=2)
     if slopes.count("events") > len(slopes) / 2:
         warnings.warn(EvmotionWarning(
             f"the contrast threshold C = {np.median(est):.3g} comes from the events alone in "
