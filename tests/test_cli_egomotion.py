@@ -283,3 +283,19 @@ def test_egomotion_without_a_window_option_takes_flows_default(rec, tmp_path, ca
     assert rc == 0
     doc = json.loads(capsys.readouterr().out)
     assert len(doc["windows"]) == 1 and doc["windows"][0]["n_events"] == 12_000
+
+
+@pytest.mark.parametrize("left", [b"", b"\x80\x05\x95"])
+def test_a_journal_with_no_window_does_not_block_the_next_run(rec, tmp_path, capsys, left):
+    # a full disk at the first write left a 0-byte params.part: the next run was refused
+    # ('holds the windows of an interrupted run') and --resume called it not a journal
+    out = tmp_path / "e"
+    out.mkdir()
+    (out / "params.part").write_bytes(left)
+    argv = ["egomotion", str(rec), "--warp", "translation", "--window-events", "6000",
+            "--max-png", "0", "--out", str(out)]
+    assert main(argv) == 0
+    assert (out / "params.csv").exists() and not (out / "params.part").exists()
+    (out / "params.part").write_bytes(left)
+    assert main(argv + ["--resume"]) == 0
+    capsys.readouterr()

@@ -106,3 +106,16 @@ def test_a_device_or_pipe_as_output_is_refused_not_replaced(rec, tmp_path, capsy
     assert err.count("\n") == 1 and "not a regular file (a device or pipe)" in err
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe"]
+
+
+@pytest.mark.parametrize("resume", [False, True])
+def test_a_part_killed_before_its_first_window_does_not_block(rec, tmp_path, capsys, resume):
+    # kill -9 right after OUT.part appeared left 96 bytes HDF5 cannot open: --resume blamed
+    # a file lock, a plain run told to add --resume
+    out = tmp_path / "f.h5"
+    (tmp_path / "f.h5.part").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(88))
+    argv = ["flow", str(rec), "--window-events", "3000", "--max-windows", "2", "--scales", "2",
+            "--out", str(out)]
+    assert main(argv + (["--resume"] if resume else [])) == 0
+    capsys.readouterr()
+    assert len(read_flow_h5(out).t0) == 2 and not (tmp_path / "f.h5.part").exists()

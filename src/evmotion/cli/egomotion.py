@@ -336,6 +336,8 @@ def _open_journal(args, out_dir: Path, events, windows, K):
 
     path = out_dir / JOURNAL_NAME
     header = _journal_header(args, events, windows, K)
+    if path.exists() and Journal.holds_nothing(path):
+        path.unlink()  # a run stopped before its first window left it: no work to keep
     if not args.resume:
         if path.exists():
             raise ParameterError(f"{path} holds the windows of an interrupted run: run the "

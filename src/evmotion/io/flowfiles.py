@@ -330,6 +330,8 @@ class FlowWriter(PartFileWriter):
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if resume and not self.part.exists() and self.path.exists():
             os.replace(self.path, self.part)
+        if resume and self.part.exists() and part_holds_nothing(self.part):
+            self.part.unlink()  # killed before its first window: nothing to resume
         if resume and self.part.exists():
             try:
                 self.f = h5py.File(self.part, "a")
@@ -701,6 +703,22 @@ def _read_sim_gt(g, path: Path, index, attrs: dict) -> FlowSequence:
         valid = np.stack([g["event_masks"][int(i)] for i in idx]) if idx.size else None
     return FlowSequence(flow=flow.astype(np.float32), t0=ft[idx], t1=ft[idx + 1], valid=valid,
                         attrs=attrs)
+
+
+def part_holds_nothing(part: str | os.PathLike) -> bool:
+    """Whether an unfinished ``.part`` flow file holds no finished window: no such file,
+    one with no window, or one too short to hold any that HDF5 cannot open (a run killed
+    before HDF5 wrote its first page, 2 KiB: 'truncated file: eof = 96')."""
+    import h5py
+
+    part = Path(part)
+    if not part.exists():
+        return True
+    try:
+        with h5py.File(part, "r") as f:
+            return "t1" not in f or int(f["t1"].shape[0]) == 0
+    except OSError:
+        return part.stat().st_size < 4096
 
 
 def flow_h5_done(path: str | os.PathLike) -> int:

@@ -65,6 +65,7 @@ from evmotion.io.flowfiles import (
     FLOW_FORMAT,
     FlowWriter,
     check_extras,
+    part_holds_nothing,
     write_dsec_flow_png,
     write_flo,
 )
@@ -320,6 +321,8 @@ class H5FlowOutput(FlowOutput):
         attrs = self.attrs
         self.part = self.path.with_name(self.path.name + ".part")  # FlowWriter's own name
         self.reopened_final = resume and self.path.exists() and not self.part.exists()
+        if not resume and self.part.exists() and part_holds_nothing(self.part):
+            self.part.unlink()  # a run killed before its first window left it: no work
         if not resume and self.part.exists():
             # a fresh run would overwrite an interrupted run's windows at its first window
             raise ParameterError(f"{self.part} holds the work of an interrupted run: add "

@@ -71,6 +71,18 @@ class Journal:
             fh.truncate(end)
         return cls(path, header, append=True), done
 
+    @staticmethod
+    def holds_nothing(path: str | os.PathLike) -> bool:
+        """Whether the journal at ``path`` records no finished window: empty (a full disk
+        at its first write), cut within its header, or a header alone."""
+        try:
+            with open(path, "rb") as fh:
+                pickle.load(fh)
+                pickle.load(fh)
+        except Exception:  # pickle raises many types for a cut file
+            return True
+        return False
+
     @classmethod
     def read(cls, path: str | os.PathLike, header: dict) -> dict[int, tuple[int, int, Any]]:
         """The windows a journal holds, ``{position: (t0_us, t1_us, payload)}``; a
