@@ -328,10 +328,10 @@ class FlowWriter(PartFileWriter):
         self.sensor_size = (h, w)
         self._open: dict = {}
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        if resume and not self.part.exists() and self.path.exists():
-            os.replace(self.path, self.part)
         if resume and self.part.exists() and part_holds_nothing(self.part):
             self.part.unlink()  # killed before its first window: nothing to resume
+        if resume and not self.part.exists() and self.path.exists():
+            os.replace(self.path, self.part)
         if resume and self.part.exists():
             try:
                 self.f = h5py.File(self.part, "a")
