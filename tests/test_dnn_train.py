@@ -395,3 +395,24 @@ def test_recordings_take_the_readers_format_and_sensor_size(tmp_path):
                "--window-events", "4000", "--crop", "48x64", "--width", "0.0625",
                "--batch-size", "1", "--epochs", "1", "--max-steps", "1"])
     assert rc == 0 and (tmp_path / "t" / "model.pt").is_file()
+
+
+def test_a_full_device_at_a_checkpoint_is_one_line(tmp_path, capsys, monkeypatch):
+    # torch's zip writer said only 'unexpected pos 125760 vs 125656' (a traceback)
+    import shutil
+
+    from evmotion.cli import main
+
+    real_usage = shutil.disk_usage
+
+    def short_write(obj, f, *a, **k):
+        raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 1 vs 2")
+
+    monkeypatch.setattr(torch, "save", short_write)
+    monkeypatch.setattr(shutil, "disk_usage",
+                        lambda p: real_usage(p)._replace(free=4096))
+    rc = main(["train", "--out", str(tmp_path / "t"), "--sim-windows", "2", "--val-sim", "0",
+               "--window-events", "4000", "--crop", "48x64", "--width", "0.0625",
+               "--batch-size", "2", "--epochs", "1", "--max-steps", "1"])
+    err = capsys.readouterr().err
+    assert rc == 1 and err.count("\n") == 1 and "no space left" in err, err

@@ -63,14 +63,30 @@ def check_device(device: str) -> str:
     return str(dev)
 
 
+def save_atomically(obj, path: str | Path) -> None:
+    """``torch.save(obj)`` to ``path`` through a temporary file. torch's zip writer fails
+    on a full device with a RuntimeError ('unexpected pos ...') that names no cause: with
+    under 1 MiB left beside ``path`` it becomes an OSError ENOSPC (one line on the CLI)."""
+    import errno
+    import shutil
+
+    with atomic_path(path) as tmp:
+        try:
+            torch.save(obj, tmp)
+        except RuntimeError as exc:
+            if shutil.disk_usage(Path(path).resolve().parent).free >= 1 << 20:
+                raise
+            raise OSError(errno.ENOSPC, f"no space left on the device writing {path}") \
+                from exc
+
+
 def save_model(path: str | Path, net: EVFlowNet, **meta) -> None:
     """Write the weights (float32) and ``{"n_bins", "width", "norm", "symmetric"}`` plus
     ``meta`` atomically."""
     state = {k: v.detach().cpu().float() if v.is_floating_point() else v.detach().cpu()
              for k, v in net.state_dict().items()}
-    with atomic_path(path) as tmp:
-        torch.save({"model": state, "n_bins": net.n_bins, "width": net.width,
-                    "norm": net.norm, "symmetric": net.symmetric, "meta": meta}, tmp)
+    save_atomically({"model": state, "n_bins": net.n_bins, "width": net.width,
+                     "norm": net.norm, "symmetric": net.symmetric, "meta": meta}, path)
 
 
 def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVFlowNet:

@@ -40,7 +40,7 @@ from evmotion.methods.dnn.data import (
     transpose_window,
 )
 from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
-from evmotion.methods.dnn.model import check_device, load_model, save_model
+from evmotion.methods.dnn.model import check_device, load_model, save_atomically, save_model
 from evmotion.methods.dnn.network import NORMS, EVFlowNet, upsample_flows
 from evmotion.methods.dnn.voxel import (
     N_BINS,
@@ -530,8 +530,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                  "scheduler": sched.state_dict(), "epoch": epoch, "config": asdict(cfg),
                  "steps": steps_log, "epochs": epochs_log,
                  "recording_files": [_file_id(p) for p in cfg.recordings]}
-        with atomic_path(last) as tmp:
-            torch.save(state, tmp)
+        save_atomically(state, last)
         _write_outputs(out, net, epoch, cfg, steps_log, epochs_log)
         summary = row
         if log is not None:
