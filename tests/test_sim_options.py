@@ -171,3 +171,15 @@ def test_multicm_problem_options_equal_keywords():
     assert MultiCMProblem(x, y, s, ev.sensor_size, grid, time_aware="upwind").n_bins == 5
     with pytest.raises(ParameterError, match="unknown keyword.*n_scales"):
         MultiCMProblem(x, y, s, ev.sensor_size, grid, n_scales=3)
+
+
+@pytest.mark.parametrize("kw, match", [({"duration_s": 1e9}, r"duration_s must be .* 3600"),
+                                       ({"frame_rate": 1e9}, "ground-truth frames")])
+def test_absurd_durations_and_frame_rates_are_refused_at_once(kw, match):
+    # they ran for minutes without a word (1e9 s) or filled the memory (1e9 Hz)
+    from evmotion.sim import simulate
+
+    duration = kw.pop("duration_s", 0.1)
+    with pytest.raises(ParameterError, match=match):
+        simulate("rotation", duration_s=duration, sensor_size=(60, 80), show_progress=False,
+                 **kw)

@@ -37,6 +37,10 @@ __all__ = ["EventOptions", "LogSimResult", "SimOptions", "SimResult", "parse_sen
            "simulate", "simulate_log_function"]
 
 MAX_STEP_US = 5000  # sample at least every 5 ms (the 1 px bound usually binds first)
+# a simulated recording of an hour is already days of rendering; beyond, a typo
+MAX_DURATION_S = 3600.0
+# each ground-truth frame is a dense flow field when written (0.7 MB at 346x260)
+MAX_GT_FRAMES = 100_000
 STEP_SHIFT_PX = 1.0  # global steps move no texture point by more than ~1 px
 STEP_GROW = 0.98  # aim steps at this fraction of the bound (a step beyond it is redone)
 PREFETCH_STEPS = 8  # steps of equal length whose matrices are computed together
@@ -253,10 +257,15 @@ class _Run:
 def _checked_run(scene, duration_s, sensor_size, options: SimOptions, show_progress) -> _Run:
     if scene not in SCENES:
         raise ParameterError(f"unknown scene '{scene}'; choose one of {sorted(SCENES)}")
-    duration_us = int(round(check_number("duration_s", duration_s, lo_open=True, units="s")
-                            * 1e6))
+    duration_us = int(round(check_number("duration_s", duration_s, hi=MAX_DURATION_S,
+                                         lo_open=True, units="s") * 1e6))
     if duration_us < 1:
         raise ParameterError(f"duration_s must be at least 1 µs, got {duration_s!r}")
+    n_frames = duration_us * options.frame_rate * 1e-6 + 1
+    if n_frames > MAX_GT_FRAMES:
+        raise ParameterError(f"{n_frames:.3g} ground-truth frames ({options.frame_rate:g} Hz "
+                             f"over {duration_s:g} s): at most {MAX_GT_FRAMES}; lower "
+                             "frame_rate (--frame-rate) or duration_s (--duration)")
     h, w = parse_sensor_size(sensor_size, 2)
     options.check_hot_pixels(h * w)
     K = default_K((h, w)) if options.K is None else np.array(options.K, dtype=np.float64)
