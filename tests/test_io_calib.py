@@ -276,3 +276,32 @@ def test_real_ecd_folder_camera(shared_data):
     cam = calib.recording_camera(folder)
     assert cam.fx == pytest.approx(199.092366542) and cam.dist[0] == pytest.approx(-0.368436311798)
     assert cam.source == str(folder / "calib.txt")
+
+
+ROS = """image_width: 160
+image_height: 120
+camera_matrix: {{rows: 3, cols: 3, data: [{k}]}}
+distortion_model: plumb_bob
+distortion_coefficients: {{rows: 1, cols: {cols}, data: [{dist}]}}
+"""
+
+
+@pytest.mark.parametrize("k, dist, cols, match", [
+    ("120, 0, 79.5, 0, 120, 59.5, 0, 0, 0", "0, 0, 0, 0, 0", 5, "last row .* expected"),
+    ("120, 0, 79.5, 0, 120, 59.5, 0, 0, 1", "0.1, 0.2", 5, "states 1 x 5 values but holds 2"),
+    ("120, 0, 79.5, 0, 120, 59.5, 0, 0, 1", "0.1, 0.2, 0.3", 3, "3 distortion coefficients"),
+    ("120, 0, 79.5, 0, 120, 59.5, 0, 0, 1", "1e300, 0, 0, 0, 0", 5, "not a lens"),
+    ("1e308, 0, 79.5, 0, 1e308, 59.5, 0, 0, 1", "0, 0, 0, 0, 0", 5, "focal lengths"),
+    ("120, 0, 1e9, 0, 120, 59.5, 0, 0, 1", "0, 0, 0, 0, 0", 5, "far outside the 160 x 120"),
+])
+def test_calibrations_that_are_not_a_camera_are_refused(tmp_path, k, dist, cols, match):
+    """Accepted before: a K whose last row was zeros, a distortion list shorter than its
+    stated size or of 3 values (zero-padded), coefficients of 1e300 (numpy warnings, then
+    'the recording holds no events'), fx = 1e308, a principal point 1e9 px away."""
+    path = tmp_path / "cam.yaml"
+    path.write_text(ROS.format(k=k, dist=dist, cols=cols))
+    with pytest.raises(CalibrationError, match=match):
+        calib.read_camera(path)
+    path.write_text(ROS.format(k="120, 0, 79.5, 0, 120, 59.5, 0, 0, 1", dist="0.1, -0.2",
+                               cols=2))
+    assert calib.read_camera(path).dist == (0.1, -0.2, 0.0, 0.0, 0.0)

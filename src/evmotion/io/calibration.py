@@ -234,12 +234,14 @@ def read_ros_yaml(path: str | os.PathLike, *, sensor_size: tuple[int, int] | Non
     (plumb_bob), ``distortion_coefficients.data``."""
     data = _load_yaml(path)
     _check_model(path, "distortion_model", data.get("distortion_model", "plumb_bob"), _RADTAN)
-    k = _numbers(path, "camera_matrix.data",
-                 _field(path, _mapping(path, data.get("camera_matrix"), "camera_matrix"),
-                        "data", "camera_matrix"), 9)
-    dist_node = data.get("distortion_coefficients") or {}
-    dist = _numbers(path, "distortion_coefficients.data",
-                    _mapping(path, dist_node, "distortion_coefficients").get("data", []), None)
+    k_node = _mapping(path, data.get("camera_matrix"), "camera_matrix")
+    k = _numbers(path, "camera_matrix.data", _field(path, k_node, "data", "camera_matrix"), 9)
+    _k_row3(path, "camera_matrix.data", k)
+    dist_node = _mapping(path, data.get("distortion_coefficients") or {},
+                         "distortion_coefficients")
+    dist = _numbers(path, "distortion_coefficients.data", dist_node.get("data", []), None)
+    if dist:
+        _count(path, "distortion_coefficients", dist_node, dist)
     size = None
     if "image_width" in data or "image_height" in data:
         size = _resolution(path, "image_width/image_height",
@@ -280,8 +282,11 @@ def read_dv_xml(path: str | os.PathLike, *, camera: str | None = None,
     _check_model(path, "distortion_model", model, _RADTAN)
     where = node.tag if node is not root else ""
     k = _cv_matrix(path, node, "camera_matrix", where, 9)
+    _k_row3(path, "camera_matrix", k)
     dist = _cv_matrix(path, node, "distortion_coefficients", where, None) \
         if node.find("distortion_coefficients") is not None else []
+    if dist:
+        _count(path, "distortion_coefficients", node.find("distortion_coefficients"), dist)
     size = None
     if node.find("image_width") is not None or node.find("image_height") is not None:
         size = _resolution(path, f"{where + '.' if where else ''}image_width/image_height",
@@ -354,6 +359,7 @@ def camera_from_dict(data, *, source: str = "", sensor_size: tuple[int, int] | N
         fx, fy, cx, cy = (_number(where, k, data[k]) for k in ("fx", "fy", "cx", "cy"))
     elif "K" in data:
         k = _numbers(where, "K", np.asarray(data["K"], dtype=object).ravel().tolist(), 9)
+        _k_row3(where, "K", k)
         fx, fy, cx, cy = k[0], k[4], k[2], k[5]
     else:
         raise FormatError(where, "fields 'fx', 'fy', 'cx', 'cy' (or 'K') are missing; has "
@@ -408,8 +414,9 @@ def recording_camera(path: str | os.PathLike, events_meta: dict | None = None,
     path = Path(path)
     cal = (events_meta or {}).get("calibration")
     if isinstance(cal, dict):
-        return camera_from_dict(cal, source=str(cal.get("source") or path),
-                                sensor_size=sensor_size)
+        # the file first: the dict's own source (a simulator, a tool) says what made it
+        made = f" (calibration from {cal['source']})" if cal.get("source") else ""
+        return camera_from_dict(cal, source=f"{path}{made}", sensor_size=sensor_size)
     folder = path if path.is_dir() else path.parent
     if (folder / "calib.txt").is_file() and (path.is_dir() or path.suffix == ".txt"):
         return read_ecd(folder, sensor_size=sensor_size)
@@ -419,11 +426,10 @@ def recording_camera(path: str | os.PathLike, events_meta: dict | None = None,
         if head.startswith(HDF5_MAGIC):
             try:
                 cal = read_calibration(path)
-                what = "its camera K" if cal.get("simulated") else "calibration attribute"
-                return camera_from_dict(cal, source=f"{path} ({what})",
-                                        sensor_size=sensor_size)
             except FormatError:
-                return None
+                return None  # no calibration in it; a broken one is said below
+            what = "its camera K" if cal.get("simulated") else "calibration attribute"
+            return camera_from_dict(cal, source=f"{path} ({what})", sensor_size=sensor_size)
         if head == b"#!AER-DAT2.0" and sensor_size is not None:
             return jaer_header_camera(path, sensor_size)[0]
     return None
@@ -460,6 +466,30 @@ def recording_intrinsics(path: str | os.PathLike, sensor_size: tuple[int, int]) 
 
 
 # ------------------------------------------------------------------------------ helpers
+# beyond these a value is a typo, not a lens: radtan coefficients of real lenses stay
+# within a few units (k3 up to some tens), focal lengths within 10^5 px
+MAX_DISTORTION = 1e4
+MAX_FOCAL_PX = 1e6
+
+
+def _k_row3(path, field: str, k: list[float]) -> None:
+    """A 3x3 camera matrix's last row must be 0 0 1 (a projective K is not intrinsics)."""
+    if abs(k[6]) > 1e-9 or abs(k[7]) > 1e-9 or abs(k[8] - 1.0) > 1e-9:
+        raise CalibrationError(f"{path}: {field} has last row {k[6:9]}, expected [0, 0, 1]")
+
+
+def _count(path, field: str, node, values: list) -> None:
+    """An OpenCV / ROS matrix whose ``rows`` x ``cols`` disagree with its data."""
+    get = node.get if isinstance(node, dict) else (lambda k: node.findtext(k))
+    try:
+        rows, cols = int(get("rows")), int(get("cols"))
+    except (TypeError, ValueError):
+        return  # not stated
+    if rows * cols != len(values):
+        raise CalibrationError(f"{path}: {field} states {rows} x {cols} values but holds "
+                               f"{len(values)}")
+
+
 def _camera(path, fx, fy, cx, cy, dist, size, *, skew: float = 0.0) -> Camera:
     if skew != 0.0:
         raise CalibrationError(f"{path}: camera_matrix skew = {skew!r}: a skewed K is not "
@@ -469,9 +499,20 @@ def _camera(path, fx, fy, cx, cy, dist, size, *, skew: float = 0.0) -> Camera:
             raise CalibrationError(f"{path}: distortion coefficients {list(dist)}: only "
                                    "k1 k2 p1 p2 k3 are supported")
         dist = dist[:5]
-    if fx <= 0 or fy <= 0:
-        raise CalibrationError(f"{path}: focal lengths must be > 0 px, got fx={fx!r}, "
-                               f"fy={fy!r}")
+    if len(dist) in (1, 3):
+        raise CalibrationError(f"{path}: {len(dist)} distortion coefficients {list(dist)}: "
+                               "radtan takes k1 k2 (2), k1 k2 p1 p2 (4) or k1 k2 p1 p2 k3 (5)")
+    if any(abs(d) > MAX_DISTORTION for d in dist):
+        raise CalibrationError(f"{path}: distortion coefficients {list(dist)}: beyond "
+                               f"+-{MAX_DISTORTION:g}, not a lens")
+    if not (0 < fx <= MAX_FOCAL_PX and 0 < fy <= MAX_FOCAL_PX):
+        raise CalibrationError(f"{path}: focal lengths must be in (0, {MAX_FOCAL_PX:g}] px, "
+                               f"got fx={fx!r}, fy={fy!r}")
+    if size is not None:
+        h, w = size
+        if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
+            raise CalibrationError(f"{path}: principal point (cx, cy) = ({cx:g}, {cy:g}) lies "
+                                   f"far outside the {w} x {h} px sensor")
     d = tuple(dist) + (0.0,) * (5 - len(dist))
     return Camera(float(fx), float(fy), float(cx), float(cy), d,
                   None if size is None else tuple(size), source=str(path))
