@@ -926,3 +926,23 @@ def test_workers_end_with_a_killed_parent(rec):
     while _alive_in_group(p.pid) and time.time() < deadline:
         time.sleep(0.1)
     assert not _alive_in_group(p.pid)
+
+
+def test_outputs_that_land_elsewhere_and_times_in_the_wrong_unit(tmp_path, capsys):
+    # '--out ""' wrote params.csv into the current folder; --csv on --out's file overwrote
+    # the picture; '--t1 60000' (µs meant) read as seconds took the whole recording silently
+    from evmotion.io import write_events
+    from evmotion.sim import simulate
+
+    rec = tmp_path / "r.h5"
+    write_events(rec, simulate("translation", duration_s=0.03, sensor_size=(40, 50),
+                               show_progress=False).events)
+    assert main(["egomotion", str(rec), "--warp", "translation", "--out", ""]) == 2
+    assert "empty name" in capsys.readouterr().err
+    png = tmp_path / "l.png"
+    assert main(["landscape", str(rec), "--warp", "translation", "--param", "0", "--range",
+                 "0", "10", "--steps", "3", "--out", str(png), "--csv", str(png)]) == 2
+    assert "--out's file" in capsys.readouterr().err
+    assert main(["flow", str(rec), "--t1", "60000", "--scales", "1", "--out",
+                 str(tmp_path / "f.h5")]) == 0
+    assert "seconds meant as µs" in capsys.readouterr().err

@@ -5,6 +5,7 @@ without a regularizer, plotted to a PNG (and optionally saved as CSV). The windo
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 
@@ -72,6 +73,9 @@ def run(args) -> int:
 
     check_common(args)
     check_time_order(args)
+    if args.csv is not None and Path(args.csv).resolve() == Path(args.out).resolve():
+        raise ParameterError(f"--csv {args.csv} is --out's file: the table would overwrite the "
+                             "picture")
     lo, hi = args.range
     if not hi > lo:
         raise ParameterError(f"--range {lo:g} {hi:g}: HI must be greater than LO")

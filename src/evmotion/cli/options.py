@@ -301,7 +301,8 @@ def _folder_output_problem(path: Path) -> str | None:
 def writable_folder(text: str) -> str:
     """``type=`` for an output folder: an existing folder or one that can be made, in
     which files can be created."""
-    problem = _folder_output_problem(Path(text))
+    problem = "an empty name would write into the current folder" if not text.strip() \
+        else _folder_output_problem(Path(text))
     if problem:
         raise argparse.ArgumentTypeError(f"cannot write into {text!r}: {problem}")
     return text
@@ -558,6 +559,16 @@ def check_time_range(args, t_start: int, t_end: int, file: str | os.PathLike = "
     if t1 is not None and t1 <= t_start:
         raise ParameterError(f"--t1 {format_time_us(t1)} is at or before the first event: "
                              f"{span}")
+    if t1 is not None and t1 - t_end > 1000 * max(t_end - t_start, 1000):
+        # '--t1 60000' meant as µs reads as 60000 s: the whole recording, silently
+        import warnings
+
+        from evmotion.errors import EvmotionWarning
+
+        warnings.warn(EvmotionWarning(
+            f"--t1 {format_time_us(t1)} lies more than 1000 times the recording's length "
+            f"past its last event ({span}): seconds meant as µs? Give a unit (60000us)"),
+            stacklevel=2)
 
 
 def empty_selection(args, file: str | os.PathLike, t_start: int, t_end: int, what: str
