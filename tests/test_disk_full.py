@@ -119,3 +119,20 @@ def test_a_part_killed_before_its_first_window_does_not_block(rec, tmp_path, cap
     assert main(argv + (["--resume"] if resume else [])) == 0
     capsys.readouterr()
     assert len(read_flow_h5(out).t0) == 2 and not (tmp_path / "f.h5.part").exists()
+
+
+def test_a_write_error_without_a_file_name_names_the_output(rec, tmp_path, capsys,
+                                                           monkeypatch):
+    # convert to text on a full device said only '[Errno 28] No space left on device'
+    import errno
+
+    from evmotion.io import ecd
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(ecd, "format_text", full)
+    out = tmp_path / "c.txt"
+    assert main(["convert", str(rec), str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out}: [Errno 28]" in err

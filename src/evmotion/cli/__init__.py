@@ -166,8 +166,11 @@ def _build_and_run(argv: list[str] | None) -> int:
         return 141
     except OSError as exc:
         # a file system refusal that the checks before the work could not foresee
-        # (the disk filled up, a folder removed meanwhile): one line, not a traceback
-        print(f"evmotion {args.command}: error: {_one_line(exc)}{_dropped_parts(exc)}",
+        # (the disk filled up, a folder removed meanwhile): one line, not a traceback,
+        # naming the output when the error names no file
+        out = getattr(args, "out", None) or getattr(args, "output", None)
+        where = f"{out}: " if exc.filename is None and out else ""
+        print(f"evmotion {args.command}: error: {where}{_one_line(exc)}{_dropped_parts(exc)}",
               file=sys.stderr)
         return 1
     except RuntimeError as exc:
