@@ -230,6 +230,30 @@ def test_rescale_lowers_the_shipped_networks_error_on_a_zoom():
     assert aee[1] < 0.9 * aee[0], aee
 
 
+def test_tile_sharpness_kernel_matches_a_numpy_reference():
+    """The numba kernel's per-tile sums of squared counts against np.unique over (tile,
+    warped pixel) pairs, events leaving the sensor dropped."""
+    from evmotion.methods.dnn.infer import _pixels_and_times, _tile_groups, _tile_sharpness
+
+    rng = np.random.default_rng(3)
+    h, w, n = 70, 90, 5000
+    ev = EventArray(x=rng.integers(0, w, n), y=rng.integers(0, h, n),
+                    t=np.sort(rng.integers(0, 10**5, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(h, w))
+    disp = rng.normal(0, 6, (h, w, 2)).astype(np.float32)
+    xys = _pixels_and_times(ev)
+    got = _tile_sharpness(xys, disp, _tile_groups(xys, (h, w), 32))
+    x, y, pix, s = xys
+    xw = np.rint(x - disp.reshape(-1, 2)[pix, 0] * s).astype(int)
+    yw = np.rint(y - disp.reshape(-1, 2)[pix, 1] * s).astype(int)
+    ok = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
+    tiles = (y // 32) * 3 + x // 32
+    keys, counts = np.unique(np.stack([tiles[ok], yw[ok] * w + xw[ok]]), axis=1,
+                             return_counts=True)
+    ref = np.bincount(keys[0], counts.astype(float) ** 2, minlength=9).reshape(3, 3)
+    np.testing.assert_array_equal(got, ref)
+
+
 def test_fusion_takes_each_tiles_sharpest_candidate():
     """Dots in the left half move +4 px over the window, in the right half -4 px: of the
     candidates +4 and -4 everywhere, each tile keeps the one that focuses its events."""

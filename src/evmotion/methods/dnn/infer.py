@@ -23,6 +23,7 @@ import numpy as np
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, pixel_indices
 from evmotion.filters import hot_pixel_mask
+from evmotion.jitcache import lazy_njit
 from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
@@ -152,23 +153,52 @@ def _predict(events: EventArray, scales: list[int], checkpoint, device: str, xys
     return best, disp, cands
 
 
-def _tile_sharpness(xys, disp: np.ndarray, tile: int) -> np.ndarray:
-    """Per ``tile`` x ``tile`` px tile of the sensor, the sum of squares of the image of
-    its events (those that start in it) moved by ``disp`` to the window's midpoint: for a
-    tile's fixed events, the higher the sharper."""
+@lazy_njit(cache=True)
+def _tile_sums_of_squares(order, starts, pix, n_tiles, n_pix, out):
+    """``out[k]``: the sum of squares of the image of the events ``order[starts[k]:
+    starts[k + 1]]`` (tile ``k``'s) voting at ``pix`` (-1: off the sensor); one scratch
+    image, its touched pixels reset after each tile."""
+    img = np.zeros(n_pix, np.int32)
+    for k in range(n_tiles):
+        acc = 0
+        for j in range(starts[k], starts[k + 1]):
+            q = pix[order[j]]
+            if q >= 0:
+                acc += 2 * img[q] + 1
+                img[q] += 1
+        for j in range(starts[k], starts[k + 1]):
+            q = pix[order[j]]
+            if q >= 0:
+                img[q] = 0
+        out[k] = acc
+
+
+def _tile_groups(xys, shape, tile: int):
+    """The events grouped by the tile they start in: ``(order, starts, n_tiles, grid)``."""
+    x, y = xys[0], xys[1]
+    h, w = shape
+    grid = (-(-h // tile), -(-w // tile))
+    tiles = (y // tile) * grid[1] + x // tile
+    order = np.argsort(tiles, kind="stable")
+    starts = np.searchsorted(tiles[order], np.arange(grid[0] * grid[1] + 1))
+    return order, starts, grid
+
+
+def _tile_sharpness(xys, disp: np.ndarray, groups) -> np.ndarray:
+    """Per tile of the sensor (``groups``: :func:`_tile_groups`), the sum of squares of the
+    image of its events (those that start in it) moved by ``disp`` to the window's
+    midpoint: for a tile's fixed events, the higher the sharper."""
     x, y, pix, s = xys
     h, w = disp.shape[:2]
     d = disp.reshape(-1, 2)[pix]
     xw = np.rint(x - d[:, 0] * s).astype(np.int64)
     yw = np.rint(y - d[:, 1] * s).astype(np.int64)
     inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-    ntx = -(-w // tile)
-    tiles = (y // tile) * ntx + x // tile
-    keys, counts = np.unique(tiles[inside] * (h * w) + yw[inside] * w + xw[inside],
-                             return_counts=True)
-    out = np.bincount(keys // (h * w), counts.astype(np.float64) ** 2,
-                      minlength=-(-h // tile) * ntx)
-    return out.reshape(-(-h // tile), ntx)
+    q = np.where(inside, yw * w + xw, -1)
+    order, starts, grid = groups
+    out = np.zeros(grid[0] * grid[1], np.int64)
+    _tile_sums_of_squares(order, starts.astype(np.int64), q, out.size, h * w, out)
+    return out.reshape(grid).astype(np.float64)
 
 
 def _fused(xys, cands: list[np.ndarray], fallback: np.ndarray, shape) -> np.ndarray:
@@ -176,25 +206,31 @@ def _fused(xys, cands: list[np.ndarray], fallback: np.ndarray, shape) -> np.ndar
     scale's prediction times one of :data:`FUSE_GAINS`) that warps the tile's events
     sharpest, the choices blended smoothly across tiles; tiles with fewer than
     :data:`FUSE_MIN_EVENTS` events keep ``fallback`` (the whole window's choice)."""
-    from scipy.ndimage import gaussian_filter, zoom
+    import torch
+    from scipy.ndimage import gaussian_filter
 
     h, w = shape
     tile = FUSE_TILE
     options = [c * np.float32(g) for c in cands for g in FUSE_GAINS] + [fallback]
-    scores = np.stack([_tile_sharpness(xys, c, tile) for c in options])
-    x, y = xys[0], xys[1]
-    ntx = -(-w // tile)
-    n = np.bincount((y // tile) * ntx + x // tile, minlength=scores[0].size)
-    pick = np.where(n.reshape(scores[0].shape) >= FUSE_MIN_EVENTS, scores.argmax(0),
-                    len(options) - 1)
+    groups = _tile_groups(xys, shape, tile)
+    scores = np.stack([_tile_sharpness(xys, c, groups) for c in options])
+    n = np.diff(groups[1]).reshape(scores[0].shape)
+    pick = np.where(n >= FUSE_MIN_EVENTS, scores.argmax(0), len(options) - 1)
     weights = np.stack([gaussian_filter((pick == k).astype(np.float64), FUSE_BLEND,
                                         mode="nearest") for k in range(len(options))])
     weights /= weights.sum(0)
-    fused = np.zeros((h, w, 2), np.float32)
-    for k in np.flatnonzero(weights.max(axis=(1, 2)) > 1e-3):
-        # bilinear between tile centres, the sensor's pixels cut from the padded grid
-        wk = zoom(weights[k], tile, order=1, grid_mode=True, mode="nearest")[:h, :w]
-        fused += wk[..., None].astype(np.float32) * options[k]
+    # per scale, its gains' weights fold into one weighted gain: one map per scale and
+    # one for the fallback, upsampled at once (bilinear between tile centres)
+    g = np.asarray(FUSE_GAINS)[:, None, None]
+    maps = [(weights[i * len(FUSE_GAINS):(i + 1) * len(FUSE_GAINS)] * g).sum(0)
+            for i in range(len(cands))] + [weights[-1]]
+    up = torch.nn.functional.interpolate(
+        torch.from_numpy(np.stack(maps).astype(np.float32))[None],
+        size=(weights.shape[1] * tile, weights.shape[2] * tile), mode="bilinear",
+        align_corners=False)[0, :, :h, :w].numpy()
+    fused = up[-1][..., None] * fallback
+    for m, c in zip(up[:-1], cands, strict=True):
+        fused += m[..., None] * c
     return fused
 
 
