@@ -254,6 +254,16 @@ def test_tile_sharpness_kernel_matches_a_numpy_reference():
     np.testing.assert_array_equal(got, ref)
 
 
+def test_the_fusions_blur_is_scipys_gaussian():
+    from scipy.ndimage import gaussian_filter
+
+    from evmotion.methods.dnn.infer import _blurred
+
+    maps = np.random.default_rng(0).random((3, 9, 11))
+    ref = np.stack([gaussian_filter(m, 0.5, mode="nearest", truncate=2.0) for m in maps])
+    np.testing.assert_allclose(_blurred(maps, 0.5), ref, atol=1e-12)
+
+
 def test_fusion_takes_each_tiles_sharpest_candidate():
     """Dots in the left half move +4 px over the window, in the right half -4 px: of the
     candidates +4 and -4 everywhere, each tile keeps the one that focuses its events."""

@@ -23,7 +23,6 @@ import numpy as np
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, pixel_indices
 from evmotion.filters import hot_pixel_mask
-from evmotion.jitcache import lazy_njit
 from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
@@ -153,52 +152,48 @@ def _predict(events: EventArray, scales: list[int], checkpoint, device: str, xys
     return best, disp, cands
 
 
-@lazy_njit(cache=True)
-def _tile_sums_of_squares(order, starts, pix, n_tiles, n_pix, out):
-    """``out[k]``: the sum of squares of the image of the events ``order[starts[k]:
-    starts[k + 1]]`` (tile ``k``'s) voting at ``pix`` (-1: off the sensor); one scratch
-    image, its touched pixels reset after each tile."""
-    img = np.zeros(n_pix, np.int32)
-    for k in range(n_tiles):
-        acc = 0
-        for j in range(starts[k], starts[k + 1]):
-            q = pix[order[j]]
-            if q >= 0:
-                acc += 2 * img[q] + 1
-                img[q] += 1
-        for j in range(starts[k], starts[k + 1]):
-            q = pix[order[j]]
-            if q >= 0:
-                img[q] = 0
-        out[k] = acc
-
-
 def _tile_groups(xys, shape, tile: int):
-    """The events grouped by the tile they start in: ``(order, starts, n_tiles, grid)``."""
+    """The tile each event starts in, the tile grid and each tile's event count."""
     x, y = xys[0], xys[1]
     h, w = shape
     grid = (-(-h // tile), -(-w // tile))
     tiles = (y // tile) * grid[1] + x // tile
-    order = np.argsort(tiles, kind="stable")
-    starts = np.searchsorted(tiles[order], np.arange(grid[0] * grid[1] + 1))
-    return order, starts, grid
+    return tiles, grid, np.bincount(tiles, minlength=grid[0] * grid[1]).reshape(grid)
 
 
 def _tile_sharpness(xys, disp: np.ndarray, groups) -> np.ndarray:
     """Per tile of the sensor (``groups``: :func:`_tile_groups`), the sum of squares of the
     image of its events (those that start in it) moved by ``disp`` to the window's
-    midpoint: for a tile's fixed events, the higher the sharper."""
+    midpoint: for a tile's fixed events, the higher the sharper. numpy only: the dnn path
+    does not import numba (0.5-1 s of a one-window command)."""
     x, y, pix, s = xys
     h, w = disp.shape[:2]
     d = disp.reshape(-1, 2)[pix]
     xw = np.rint(x - d[:, 0] * s).astype(np.int64)
     yw = np.rint(y - d[:, 1] * s).astype(np.int64)
     inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-    q = np.where(inside, yw * w + xw, -1)
-    order, starts, grid = groups
-    out = np.zeros(grid[0] * grid[1], np.int64)
-    _tile_sums_of_squares(order, starts.astype(np.int64), q, out.size, h * w, out)
-    return out.reshape(grid).astype(np.float64)
+    tiles, grid, _ = groups
+    key = np.sort(tiles[inside] * (h * w) + yw[inside] * w + xw[inside])
+    if not key.size:
+        return np.zeros(grid)
+    first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    runs = np.diff(np.r_[first, key.size]).astype(np.float64)
+    out = np.bincount(key[first] // (h * w), runs * runs, minlength=grid[0] * grid[1])
+    return out.reshape(grid)
+
+
+def _blurred(maps: np.ndarray, sigma: float) -> np.ndarray:
+    """``maps`` (K, h, w) smoothed along their last two axes by a 3-tap Gaussian of
+    ``sigma`` cells, edges repeated (numpy: scipy.ndimage costs a one-window command a
+    quarter of a second to import)."""
+    side = float(np.exp(-0.5 / (sigma * sigma)))
+    out = maps
+    for axis in (1, 2):
+        pad = np.concatenate([out.take([0], axis), out, out.take([-1], axis)], axis)
+        n = out.shape[axis]
+        out = (side * pad.take(range(0, n), axis) + pad.take(range(1, n + 1), axis)
+               + side * pad.take(range(2, n + 2), axis)) / (1.0 + 2.0 * side)
+    return out
 
 
 def _fused(xys, cands: list[np.ndarray], fallback: np.ndarray, shape) -> np.ndarray:
@@ -207,17 +202,15 @@ def _fused(xys, cands: list[np.ndarray], fallback: np.ndarray, shape) -> np.ndar
     sharpest, the choices blended smoothly across tiles; tiles with fewer than
     :data:`FUSE_MIN_EVENTS` events keep ``fallback`` (the whole window's choice)."""
     import torch
-    from scipy.ndimage import gaussian_filter
 
     h, w = shape
     tile = FUSE_TILE
     options = [c * np.float32(g) for c in cands for g in FUSE_GAINS] + [fallback]
     groups = _tile_groups(xys, shape, tile)
     scores = np.stack([_tile_sharpness(xys, c, groups) for c in options])
-    n = np.diff(groups[1]).reshape(scores[0].shape)
-    pick = np.where(n >= FUSE_MIN_EVENTS, scores.argmax(0), len(options) - 1)
-    weights = np.stack([gaussian_filter((pick == k).astype(np.float64), FUSE_BLEND,
-                                        mode="nearest") for k in range(len(options))])
+    pick = np.where(groups[2] >= FUSE_MIN_EVENTS, scores.argmax(0), len(options) - 1)
+    weights = _blurred(np.stack([(pick == k).astype(np.float64)
+                                 for k in range(len(options))]), FUSE_BLEND)
     weights /= weights.sum(0)
     # per scale, its gains' weights fold into one weighted gain: one map per scale and
     # one for the fallback, upsampled at once (bilinear between tile centres)
