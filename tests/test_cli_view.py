@@ -181,3 +181,17 @@ def test_view_of_a_bos_output_shows_q(tmp_path, capsys):
     assert read_png(out).shape[1] > 2 * 40
     assert main(["view", str(scene), "--window", "1", "--out", str(out)]) == 2
     assert "--window 1 does not apply to a recording" in capsys.readouterr().err
+
+
+def test_a_long_title_on_a_small_sensor_is_wrapped_not_cut(tmp_path):
+    # view's titles on a 128x128 sensor lost their start and end at the figure's edges
+    from evmotion.io.pngfile import read_png
+    from evmotion.viz.images import event_picture_png
+
+    img = np.ones((128, 128))
+    (tmp_path / "s.png").write_bytes(event_picture_png(img, title="w"))
+    (tmp_path / "l.png").write_bytes(event_picture_png(
+        img, title="a_long_recording_name.aedat: 30,000 events, [0.002539, 0.062113) s "
+                   "(59.57 ms)"))
+    short, long = read_png(tmp_path / "s.png"), read_png(tmp_path / "l.png")
+    assert long.shape[1] == short.shape[1] and long.shape[0] > short.shape[0]

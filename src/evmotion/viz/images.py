@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import os
+import textwrap
 from collections.abc import Sequence
 
 import numpy as np
@@ -287,13 +288,16 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
         norm, label = Normalize(0.0, vmax), "events per pixel"
     h, w = image.shape
     width_in = max(3.0, w * max(int(scale), 1) / dpi)
-    fig = _figure((width_in + 1.4, width_in * h / w + 0.9), dpi)
+    # a title wider than a small sensor's figure was cut at both sides: wrapped to it
+    lines = textwrap.wrap(title, max(20, int((width_in + 1.4) * 12))) if title else []
+    fig = _figure((width_in + 1.4, width_in * h / w + 0.9 + 0.16 * max(len(lines) - 1, 0)),
+                  dpi)
     ax = fig.add_subplot(1, 1, 1)
     ax.imshow(rgb, interpolation="nearest")
     ax.set_xlabel("x [px]")
     ax.set_ylabel("y [px]")
-    if title:
-        ax.set_title(title, fontsize=9)
+    if lines:
+        ax.set_title("\n".join(lines), fontsize=9)
     bar = fig.colorbar(ScalarMappable(norm, cmap), ax=ax, fraction=0.046, pad=0.03,
                        extend="max" if not polarity else "both")
     bar.set_label(label)
