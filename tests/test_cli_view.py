@@ -193,5 +193,5 @@ def test_a_long_title_on_a_small_sensor_is_wrapped_not_cut(tmp_path):
     (tmp_path / "l.png").write_bytes(event_picture_png(
         img, title="a_long_recording_name.aedat: 30,000 events, [0.002539, 0.062113) s "
                    "(59.57 ms)"))
-    short, long = read_png(tmp_path / "s.png"), read_png(tmp_path / "l.png")
+    short, long = read_png(tmp_path / "s.png")[0], read_png(tmp_path / "l.png")[0]
     assert long.shape[1] == short.shape[1] and long.shape[0] > short.shape[0]
