@@ -347,3 +347,16 @@ def test_whole_nanoseconds_since_the_epoch_and_wider_tables(tmp_path):
         warnings.simplefilter("ignore")
         with pytest.raises(FormatError, match="column 3 holds decimals.*'x y t p'"):
             read_events(tmp_path / "xytp.txt")
+
+
+def test_metavision_csv_geometry_comment_gives_the_sensor(tmp_path):
+    # Metavision's CSV export opens with '%geometry:W,H'; the size came from the largest
+    # coordinates instead, with a warning
+    from evmotion.io import read_events
+
+    (tmp_path / "mv.csv").write_text("%geometry:346,260\nx,y,p,t\n5,2,1,1000\n6,3,0,1016\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # whole-number times: read as µs, said so
+        ev = read_events(tmp_path / "mv.csv")
+    assert ev.sensor_size == (260, 346) and ev.t.tolist() == [1000, 1016]
+    assert ev.meta["sensor_size_from"] != "largest coordinate (the file states no sensor size)"

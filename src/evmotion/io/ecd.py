@@ -400,6 +400,24 @@ def _skip_comments(fh) -> tuple[int, list[bytes]]:
 HEADER_BYTES = 4096
 
 
+# Metavision's CSV export: '%geometry:W,H' (or '% geometry WxH')
+METAVISION_GEOMETRY = re.compile(r"^\s*%\s*geometry\s*[:\s]\s*(\d+)\s*[,x]\s*(\d+)", re.I)
+
+
+def _comment_size(comments: list[bytes]) -> tuple[int, int] | None:
+    """``(height, width)`` a comment line states: :func:`write`'s ``# ... height H width W``
+    or Metavision's ``%geometry:W,H``."""
+    for c in comments:
+        text = c.decode("ascii", "replace")
+        m = HEADER_SIZE.search(text)
+        if m:
+            return int(m[1]), int(m[2])
+        m = METAVISION_GEOMETRY.search(text)
+        if m:
+            return int(m[2]), int(m[1])
+    return None
+
+
 def _size_line(line: bytes) -> tuple[int, int] | None:
     """``(height, width)`` from a line of two whole numbers ``W H`` (the first line of
     the rpg / E2VID event text)."""
@@ -458,10 +476,8 @@ def text_layout(path: str | Path) -> dict:
     path = _events_file(Path(path))
     with open(path, "rb") as fh:
         pos, comments = _skip_comments(fh)
-        stated = (HEADER_SIZE.search(c.decode("ascii", "replace")) for c in comments)
-        m = next((m for m in stated if m), None)
-        out = {"order": "txyp", "size": None if m is None else (int(m[1]), int(m[2])),
-               "offset": pos, "time_unit": None}
+        out = {"order": "txyp", "size": _comment_size(comments), "offset": pos,
+               "time_unit": None}
         for _ in range(2):
             line = fh.readline()
             size, names = _size_line(line), _names_and_unit(line)
