@@ -70,3 +70,30 @@ def _block():
     b = np.zeros((H, W), bool)
     b[8:12, 10:14] = True
     return b
+
+
+def test_windows_without_pixels_are_not_counted_as_scored(gt_file, tmp_path, capsys):
+    """20 windows of which 2 had no valid pixel were reported as '20 windows' scored;
+    half-frame windows against --dt 1 were not noted; an evmotion .npz is a reference too
+    (it was read as MVSEC's), a .flo is refused as one in words."""
+    path, flow = gt_file
+    est = tmp_path / "est.h5"
+    with open_flow_output(est, (H, W), {"method": "probe"}) as o:
+        for k in range(4):
+            valid = np.full((H, W), k != 3)
+            o.append(flow, t0=k * 5000, t1=(k + 1) * 5000, valid=valid)
+    assert main(["eval", str(est), "--gt", str(path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["windows_scored"] == 3 and doc["windows_without_pixels"] == 1
+    assert doc["windows_with_other_dt"] == 4  # half a GT frame each
+    ref = tmp_path / "ref.npz"
+    with open_flow_output(ref, (H, W), {"method": "gt"}) as o:
+        o.append(flow, t0=0, t1=10_000)
+        o.append(flow, t0=10_000, t1=20_000)
+    assert main(["eval", str(est), "--gt", str(ref), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["windows_scored"] == 3
+    flo = tmp_path / "g.flo"
+    with open_flow_output(flo, (H, W), {"method": "gt"}) as o:
+        o.append(flow, t0=0, t1=10_000)
+    assert main(["eval", str(est), "--gt", str(flo)]) == 2
+    assert "is not read as ground truth" in capsys.readouterr().err

@@ -318,8 +318,13 @@ def run(args) -> int:
     per_window, total, mismatched = res.windows, res.total, res.mismatched
     if q is not None:
         _add_potential_scores(q, t0s, t1s, args.gt, per_window, total)
+    # a window with no pixel where both the estimate and the ground truth are known
+    # adds nothing to the means: it is not counted as scored
+    empty = sum(1 for w in per_window if w.get("scored", True) and not w.get("n_pixels"))
     summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
-               "n_windows": len(per_window), "windows_scored": len(per_window) - res.uncovered,
+               "n_windows": len(per_window),
+               "windows_scored": len(per_window) - res.uncovered - empty,
+               "windows_without_pixels": empty,
                "windows_beyond_gt": res.uncovered, "windows_with_other_dt": mismatched,
                "mask": res.mask, "out_px": out_px,
                "mean": total, "windows": per_window}
@@ -329,14 +334,19 @@ def run(args) -> int:
         keys = [k for k in ("AEE", "%Out", "AE_deg", "FWL", "FWL_gt", "q_corr", "q_std_ratio",
                             "n_pixels") if k in total]
         scored = summary["windows_scored"]
-        print(f"{len(per_window)} windows" if not res.uncovered else
-              f"{scored} of {len(per_window)} windows", f"({summary['mask']}, dt={args.dt})")
-        print("  ".join(f"{k}={total[k]:.4g}" for k in keys))
+        n = len(per_window)
+        print(f"{n} window{'' if n == 1 else 's'}" if scored == n else
+              f"{scored} of {n} windows scored", f"({summary['mask']}, dt={args.dt})")
+        print("  ".join(f"{k}={int(total[k]):,}" if k == "n_pixels" else f"{k}={total[k]:.4g}"
+                        for k in keys))
         if res.uncovered:
             print(f"note: {res.uncovered} window{'' if res.uncovered == 1 else 's'} reach "
                   "more than 1 % beyond the ground truth's time span: not scored (their "
                   "ground truth would be only part of the motion)")
+        if empty:
+            print(f"note: {empty} window{'' if empty == 1 else 's'} have no pixel where both "
+                  "the estimate and the ground truth are known: not scored")
         if mismatched:
-            print(f"note: {mismatched} windows span a number of GT frames other than "
-                  f"--dt {args.dt}")
+            print(f"note: {mismatched} window{'' if mismatched == 1 else 's'} span a number "
+                  f"of GT frames other than --dt {args.dt}")
     return 0

@@ -796,6 +796,8 @@ def read_dsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
         ts_file = path
         folder = path.parent / "forward" if (path.parent / "forward").is_dir() else path.parent
     else:
+        if not (path / "forward").is_dir() and (path / "flow" / "forward").is_dir():
+            path = path / "flow"  # the sequence folder that holds flow/
         folder = path / "forward" if (path / "forward").is_dir() else path
         cands = [folder / "forward_timestamps.txt", folder.parent / "forward_timestamps.txt",
                  path / "forward_timestamps.txt"]
@@ -807,6 +809,8 @@ def read_dsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
     except ValueError as exc:
         raise FormatError(ts_file, f"cannot parse 'from_us, to_us' lines: {exc}") from None
     pngs = sorted(folder.glob("*.png"))
+    if ts.shape[1] == 3:  # from_us, to_us, file_index (the test set's listing)
+        ts = ts[:, :2]
     if ts.shape[1] != 2:
         raise FormatError(ts_file, f"expected 2 columns (from_us, to_us), got {ts.shape[1]}")
     if len(pngs) != ts.shape[0]:
@@ -837,8 +841,20 @@ def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
     path = Path(path)
     if not path.exists():
         raise FormatError(path, "no such file or folder")
-    if path.is_dir() or path.suffix.lower() == ".txt":
+    suffix = path.suffix.lower()
+    if path.is_dir() or suffix == ".txt":
         return read_dsec_gt_flow(path)
-    if path.suffix.lower() == ".npz":
+    if suffix == ".npz":
+        with np.load(path, allow_pickle=False) as z:
+            own = "format" in z.files and str(z["format"]) == FLOW_FORMAT
+        if own:  # an evmotion flow output as the reference
+            from evmotion.io.flowread import read_flow
+
+            return read_flow(path)
         return read_mvsec_gt_flow(path)
+    if suffix in (".flo", ".png", ".npy"):
+        raise FormatError(path, f"a {suffix} file is not read as ground truth (no times or "
+                          "mask of its own): give an evmotion flow .h5 / .npz, the "
+                          "simulator's *_gt.h5, MVSEC *_gt_flow_dist.npz or a DSEC flow "
+                          "folder / forward_timestamps.txt")
     return read_flow_h5(path)
