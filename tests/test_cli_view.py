@@ -195,3 +195,17 @@ def test_a_long_title_on_a_small_sensor_is_wrapped_not_cut(tmp_path):
                    "(59.57 ms)"))
     short, long = read_png(tmp_path / "s.png")[0], read_png(tmp_path / "l.png")[0]
     assert long.shape[1] == short.shape[1] and long.shape[0] > short.shape[0]
+
+
+def test_another_tools_flo_without_sidecar_is_drawn_as_displacement(tmp_path, capsys):
+    # a RAFT / E-RAFT .flo carries no times: view asked for t0/t1, which it does not take
+    from evmotion.io.flowfiles import write_flo
+
+    disp = np.zeros((30, 40, 2), np.float32)
+    disp[..., 0] = 2.5
+    write_flo(tmp_path / "raft.flo", disp)
+    assert main(["view", str(tmp_path / "raft.flo"), "--out", str(tmp_path / "v.png"),
+                 "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["units"] == "px" and doc["t0_us"] is None and doc["valid_fraction"] == 1.0
+    assert (tmp_path / "v.png").stat().st_size > 0

@@ -198,6 +198,9 @@ def _view_flow(args, out: Path) -> int:
     reject_unused(args, {"--t1": "t1", "--window-events": "window_events",
                          "--polarity": "polarity"},
                   f"to a flow output ({args.file}: --window or --t0 choose its window)")
+    undated = _undated_window(Path(args.file))
+    if undated is not None:  # a .flo / .png of another tool: its displacement, in px
+        return _view_undated(args, out, undated)
     seq = read_flow(args.file)
     n = len(seq.t0)
     if args.window is not None:
@@ -237,4 +240,52 @@ def _view_flow(args, out: Path) -> int:
                     "has_q": q is not None})
     else:
         print(f"{out}: window {k} of {n} of {args.file}, [{t0}, {t1}) us")
+    return 0
+
+
+def _undated_window(path: Path):
+    """The displacement (H, W, 2) px and validity of a single ``.flo`` / DSEC ``.png``
+    without the JSON sidecar that gives its window's times (another tool's output), or
+    None for anything else."""
+    import numpy as np
+
+    from evmotion.io.flowfiles import read_dsec_flow_png, read_flo
+    from evmotion.io.flowout import is_pattern, sidecar_path
+
+    suffix = path.suffix.lower()
+    if suffix not in (".flo", ".png") or is_pattern(path) or sidecar_path(path).exists() \
+            or not path.is_file():
+        return None
+    if suffix == ".flo":
+        disp = read_flo(path)
+        return disp, np.isfinite(disp).all(axis=2)
+    return read_dsec_flow_png(path)
+
+
+def _view_undated(args, out, undated) -> int:
+    import numpy as np
+
+    from evmotion.cli import print_json
+    from evmotion.viz import save_png
+    from evmotion.viz.bos import flow_window_picture
+
+    reject_unused(args, {"--t1": "t1", "--window-events": "window_events",
+                         "--polarity": "polarity", "--window": "window", "--t0": "t0"},
+                  f"to {args.file}: one window, with no times")
+    disp, valid = undated
+    check_scale(args.scale, disp.shape[:2])
+    rgb = flow_window_picture(disp, valid=valid, unit="px",
+                              title=f"{Path(args.file).name}: displacement (no times: no "
+                                    "sidecar)")
+    if args.scale > 1:
+        rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
+    save_png(out, rgb)
+    if args.json:
+        print_json({"file": str(args.file), "out": str(out), "kind": "flow", "window": 0,
+                    "n_windows": 1, "t0_us": None, "t1_us": None, "units": "px",
+                    "sensor_size": {"height": int(disp.shape[0]), "width": int(disp.shape[1])},
+                    "image": {"height": int(rgb.shape[0]), "width": int(rgb.shape[1])},
+                    "valid_fraction": float(np.mean(valid))})
+    else:
+        print(f"{out}: the displacement of {args.file} (px; no times without its sidecar)")
     return 0

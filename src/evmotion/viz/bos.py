@@ -98,10 +98,10 @@ def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = 
 
 def flow_window_picture(flow: np.ndarray, *, valid: np.ndarray | None = None,
                         q: np.ndarray | None = None, title: str | None = None,
-                        q_unit: str = "px^2/s") -> np.ndarray:
-    """One window of a flow output as an RGB image: the colour-coded flow (grey where not
-    ``valid`` or NaN) beside its legend, and with ``q`` (BOS outputs) the Poisson field
-    beside it.
+                        q_unit: str = "px^2/s", unit: str = "px/s") -> np.ndarray:
+    """One window of a flow output as an RGB image: the colour-coded flow in ``unit``
+    (grey where not ``valid`` or NaN) beside its legend, and with ``q`` (BOS outputs) the
+    Poisson field beside it.
 
     Examples
     --------
@@ -112,7 +112,7 @@ def flow_window_picture(flow: np.ndarray, *, valid: np.ndarray | None = None,
     flow = np.asarray(flow, dtype=np.float32)
     ok = np.isfinite(flow).all(axis=-1)
     valid = ok if valid is None else (np.asarray(valid, bool) & ok)
-    pic = flow_picture(np.nan_to_num(flow), valid=valid, unit="px/s").rgb
+    pic = flow_picture(np.nan_to_num(flow), valid=valid, unit=unit).rgb
     if q is None:
         return picture_row([pic], title=title)
     # q's axes about as tall as the flow (q_picture's axes: 86 % of 6 in over the longer
