@@ -209,3 +209,18 @@ def test_another_tools_flo_without_sidecar_is_drawn_as_displacement(tmp_path, ca
     doc = json.loads(capsys.readouterr().out)
     assert doc["units"] == "px" and doc["t0_us"] is None and doc["valid_fraction"] == 1.0
     assert (tmp_path / "v.png").stat().st_size > 0
+
+
+def test_the_simulators_ground_truth_is_viewed_and_an_undated_flo_counts_one_window(
+        tmp_path, capsys):
+    # view called the *_gt.h5 'not a recording of events' and read no flow from it; info
+    # said 'windows: 0' of a .flo without sidecar
+    from evmotion.io.flowfiles import write_flo
+
+    assert main(["simulate", "translation", "--duration", "0.03", "--size", "30x40", "--out",
+                 str(tmp_path / "s.h5")]) == 0
+    assert main(["view", str(tmp_path / "s_gt.h5"), "--out", str(tmp_path / "g.png")]) == 0
+    assert "window 0 of" in capsys.readouterr().out
+    write_flo(tmp_path / "raft.flo", np.ones((30, 40, 2), np.float32))
+    assert main(["info", str(tmp_path / "raft.flo"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["windows"] == 1

@@ -119,7 +119,7 @@ def run(args) -> int:
         from evmotion.io.flowread import describe_flow
 
         info = describe_flow(args.file)
-        if info is not None and "windows" in info:
+        if (info is not None and "windows" in info) or _is_simulator_gt(Path(args.file)):
             return _view_flow(args, out)
     reject_unused(args, {"--window": "window"}, "to a recording (it draws events; --t0 / "
                   "--t1 choose them)")
@@ -289,3 +289,20 @@ def _view_undated(args, out, undated) -> int:
     else:
         print(f"{out}: the displacement of {args.file} (px; no times without its sidecar)")
     return 0
+
+
+def _is_simulator_gt(path: Path) -> bool:
+    """Whether ``path`` is the simulator's ground truth (``*_gt.h5``), a flow file too."""
+    from evmotion.io.flowfiles import SIM_GT_FORMAT
+    from evmotion.io.h5filters import is_hdf5
+
+    if not path.is_file() or not is_hdf5(path):
+        return False
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            fmt = f.attrs.get("format")
+    except OSError:
+        return False
+    return (fmt.decode() if isinstance(fmt, bytes) else fmt) == SIM_GT_FORMAT

@@ -251,12 +251,15 @@ def describe_flow(path: str | os.PathLike) -> dict | None:
     if not is_pattern(p) and _read_sidecar(p) is None:
         if kind == "png" and not _is_dsec_png(p):
             return None
-    seq = read_flow(p) if is_pattern(p) or _read_sidecar(p) else _read_undated(p)
+    dated = is_pattern(p) or _read_sidecar(p) is not None
+    seq = read_flow(p) if dated else _read_undated(p)
     out = {"path": str(p), "format": "middlebury-flo" if kind == "flo" else "dsec-flow-png",
            "container": kind}
     if is_pattern(p):
         out["files"] = len(seq)
     out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
+    if not dated:
+        out["windows"] = 1  # one window, whose times are not stored
     out["units"] = "px (displacement over each window)"
     return out
 
