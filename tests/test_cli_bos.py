@@ -443,3 +443,21 @@ def test_events_off_the_frames_grid_are_named_as_such(scene, tmp_path, capsys):
         lines[k] = f"{t} {x} {y} {p}"
         (bad / "events.txt").write_text("\n".join(lines) + "\n")
         _one_line_error(["bos", bad, "--out", tmp_path / f"{name}.h5"], capsys, *words)
+
+
+def test_frame_intervals_without_events_are_said_to_be_left_out(scene, tmp_path):
+    # air that stops (or a recording of events shorter than the frames'): the intervals
+    # with no event were dropped from the output without a word
+    from evmotion.io.bosinput import load_bos_input
+
+    short = tmp_path / "short"
+    shutil.copytree(scene, short)
+    lines = (short / "events.txt").read_text().splitlines(True)
+    keep = [ln for ln in lines if ln.startswith("#") or float(ln.split()[0]) < 0.008]
+    (short / "events.txt").write_text("".join(keep))
+    with pytest.warns(EvmotionWarning, match=r"1 of 2 frame intervals hold no event"):
+        data = load_bos_input(short)
+    assert len(data.intervals) == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(load_bos_input(scene).intervals) == 2

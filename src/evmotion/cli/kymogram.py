@@ -182,6 +182,8 @@ def _field_kymogram(args):
     else:
         seq = read_flow(args.file)
         images, label = np.hypot(seq.flow[..., 0], seq.flow[..., 1]), "|flow| px/s"
+        if seq.valid is not None:  # where no event supports the flow, no signal either
+            images = np.where(seq.valid, images, np.nan)
     t0 = np.asarray(seq.t0, dtype=np.int64)
     t1 = np.asarray(seq.t1, dtype=np.int64)
     sel = np.ones(t0.size, bool)

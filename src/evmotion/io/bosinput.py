@@ -268,6 +268,17 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
             f"{hint}"), stacklevel=2)
     intervals = _covered(frame_intervals(times, t_first, t_last, t0=t0, t1=t1,
                                          max_intervals=max_intervals), events.t, rec)
+    if max_intervals is None:
+        # the frames' intervals before the first event or after the last: still air, or
+        # events recorded for part of the frames only; said, as the output leaves them out
+        every = frame_intervals(times, int(times[0]), int(times[-1]), t0=t0, t1=t1)
+        skipped = len(every) - len(intervals)
+        if skipped > 0 and len(intervals):
+            warnings.warn(EvmotionWarning(
+                f"{rec}: {skipped} of {len(every)} frame intervals hold no event (the events "
+                f"span [{t_first * 1e-6:.6g}, {t_last * 1e-6:.6g}] s, the frames "
+                f"[{times[0] * 1e-6:.6g}, {times[-1] * 1e-6:.6g}] s): not estimated, not in "
+                "the output"), stacklevel=2)
     if not len(intervals):
         span = f" within --t0 {t0} / --t1 {t1} us" if t0 is not None or t1 is not None else ""
         raise ParameterError(f"no frame interval [t_i, t_i+1) overlaps the events' time span "
