@@ -501,3 +501,15 @@ def test_lag_spectra_match_the_per_lag_reference(n_t, n_s, n_lags, blocks):
     ref = _lag_spectra_reference(d, n_lags, edges)
     np.testing.assert_allclose(_lag_spectra(d, n_lags, edges), ref,
                                atol=1e-12 * np.abs(ref).max())
+
+
+def test_a_fit_whose_spread_is_half_its_speed_is_no_measurement():
+    # 699 +- 331 px/s for a true 500 (puffs 34 px apart) was marked reliable
+    from evmotion.methods.kymogram import RidgeFit
+
+    fit = RidgeFit(velocity_px_s=-699.0, velocity_std_px_s=331.0, s0_px=0.0, t_ref_s=0.0,
+                   t_s=np.zeros(0), s_px=np.zeros(0), inliers=np.zeros(0, bool),
+                   residual_px=0.0, method="correlation")
+    assert not fit.reliable and "quarter" in fit.unreliable_because
+    assert RidgeFit(-500.0, 10.0, 0.0, 0.0, np.zeros(0), np.zeros(0), np.zeros(0, bool), 0.0,
+                    "correlation").reliable
