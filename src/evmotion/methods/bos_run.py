@@ -229,6 +229,7 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
     results = list(iter_bos_input(data, c, workers=workers, progress=progress,
                                   scheduler=scheduler, **options))
+    warn_underfit(r.fit_gain for r in results)
     return BosRun(results, c, source, samples)
 
 
@@ -308,7 +309,22 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
     speed = np.hypot(res.flow[..., 0], res.flow[..., 1])[valid]
     return {"t0_us": t0, "t1_us": t1, **numbers, "contrast_threshold": c,
             "valid_fraction": float(valid.mean()),
-            "median_speed_px_s": float(np.median(speed)) if speed.size else 0.0}
+            "median_speed_px_s": float(np.median(speed)) if speed.size else 0.0,
+            "fit_gain": res.fit_gain}
+
+
+def warn_underfit(gains) -> None:
+    """Say when the median :attr:`BosResult.fit_gain` of a run's intervals exceeds
+    :data:`~evmotion.methods.bos.FIT_GAIN_WARN`: the flow is too small."""
+    from evmotion.methods.bos import FIT_GAIN_WARN
+
+    g = np.asarray([v for v in gains if v is not None and np.isfinite(v)], np.float64)
+    if g.size and np.median(g) > FIT_GAIN_WARN:
+        warnings.warn(EvmotionWarning(
+            f"the flow explains the events' increment at 1/{np.median(g):.2f} of its size "
+            f"where they fired (median over {g.size} intervals): air structures finer than "
+            "the solver's finest patches (8 px)? Its magnitude is then too small (0.4-0.7x "
+            "on such scenes)"), stacklevel=2)
 
 
 def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
@@ -341,6 +357,7 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
         for interval, res in zip(data.intervals[start:], results, strict=True):
             rows.append(append_bos_result(out, data, interval, res))
         out.close()
+        warn_underfit(r.get("fit_gain") for r in rows)
     except BaseException:
         out.abort()
         raise
