@@ -73,16 +73,30 @@ def test_one_worker_warm_starts_in_order(data):
         solve_bos_input(data, workers=0)
 
 
+def _threshold_warnings(data, events, frames) -> list[str]:
+    """The warnings of :func:`sequence_contrast_threshold` on one interval [0, 1000) us of
+    ``events`` between the two ``frames``."""
+    import dataclasses
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
+    run = dataclasses.replace(data, events=events, frames=frames,
+                              frame_times=np.array([0, 1000]),
+                              intervals=np.array([[0, 0, 1000]]), roi=None)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sequence_contrast_threshold(run)
+    return [str(w.message) for w in caught if issubclass(w.category, EvmotionWarning)]
+
+
 def test_sequence_c_from_the_events_alone_is_said(data):
     """Frames of weak air imaged at 6 grey levels: their noise exceeds their change, C
     comes from the events' slope (low where the air changes the image by less than C), and
     the run says so instead of scaling the flow silently; bright frames say nothing."""
-    import dataclasses
     import sys
-    import warnings
     from pathlib import Path
 
-    from evmotion.errors import EvmotionWarning
     from evmotion.events import EventArray
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -94,14 +108,7 @@ def test_sequence_c_from_the_events_alone_is_said(data):
     said = {}
     for white in (255, 6):
         frames = np.rint(np.clip(np.stack([bg, moved]), 0, 1) * white).astype(np.uint8)
-        run = dataclasses.replace(data, events=ev, frames=frames,
-                                  frame_times=np.array([0, 1000]),
-                                  intervals=np.array([[0, 0, 1000]]), roi=None)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            sequence_contrast_threshold(run)
-        said[white] = [str(w.message) for w in caught
-                       if issubclass(w.category, EvmotionWarning)]
+        said[white] = _threshold_warnings(data, ev, frames)
     assert said[255] == []
     alone = [m for m in said[6] if "from the events alone" in m]
     assert len(alone) == 1 and "--contrast-threshold" in alone[0]
@@ -112,12 +119,9 @@ def test_a_low_contrast_background_warns_that_the_magnitude_is_uncertain(data):
     pixels that fired correlate with it well enough to give a C (4x low on probe A's
     scene of this kind, flow 0.2x), and around them the events follow it weakly; the run
     says the magnitude is uncertain. Dots of 80 % contrast say nothing."""
-    import dataclasses
-    import warnings
 
     from scipy.ndimage import gaussian_filter, map_coordinates
 
-    from evmotion.errors import EvmotionWarning
     from evmotion.events import EventArray
 
     n, c = 160, 0.15
@@ -139,14 +143,7 @@ def test_a_low_contrast_background_warns_that_the_magnitude_is_uncertain(data):
                         t=np.sort(rng.integers(0, 1000, m.sum())), p=np.repeat(s[ys, xs] > 0, m),
                         sensor_size=(n, n))
         frames = np.rint(np.stack([bg, moved]) * 255).astype(np.uint8)
-        run = dataclasses.replace(data, events=ev, frames=frames,
-                                  frame_times=np.array([0, 1000]),
-                                  intervals=np.array([[0, 0, 1000]]), roi=None)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            sequence_contrast_threshold(run)
-        said[contrast] = [str(w.message) for w in caught
-                          if issubclass(w.category, EvmotionWarning)]
+        said[contrast] = _threshold_warnings(data, ev, frames)
     assert said[0.8] == []
     assert any("follow the frames' change weakly" in m and "uncertain" in m
                for m in said[0.15])
