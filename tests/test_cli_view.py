@@ -224,3 +224,28 @@ def test_the_simulators_ground_truth_is_viewed_and_an_undated_flo_counts_one_win
     write_flo(tmp_path / "raft.flo", np.ones((30, 40, 2), np.float32))
     assert main(["info", str(tmp_path / "raft.flo"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["windows"] == 1
+
+
+def test_public_ground_truths_are_described_and_viewed_as_flow(tmp_path, capsys):
+    # info answered "npz lacks arrays x, y, t, p" for MVSEC's *_gt_flow_dist.npz and "format
+    # not recognised" for a DSEC flow folder
+    import cv2
+
+    ts = np.array([1.0, 1.05, 1.1])
+    d = np.ones((3, 20, 30), np.float32)
+    np.savez(tmp_path / "x_gt_flow_dist.npz", timestamps=ts, x_flow_dist=d, y_flow_dist=-d)
+    assert main(["info", str(tmp_path / "x_gt_flow_dist.npz"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["format"] == "mvsec-gt-flow" and doc["windows"] == 2
+    flow = tmp_path / "seq" / "flow"
+    (flow / "forward").mkdir(parents=True)
+    png = np.zeros((20, 30, 3), np.uint16)
+    png[..., 2] = 2 ** 15 + 128  # u = 1 px (cv2 writes BGR: R is the last channel)
+    png[..., 1] = 2 ** 15
+    png[..., 0] = 1
+    cv2.imwrite(str(flow / "forward" / "000000.png"), png)
+    (flow / "forward_timestamps.txt").write_text("# from_us, to_us\n0, 50000\n")
+    for target in (tmp_path / "seq", flow):
+        assert main(["info", str(target), "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["format"] == "dsec-gt-flow"
+    assert main(["view", str(flow), "--out", str(tmp_path / "d.png")]) == 0

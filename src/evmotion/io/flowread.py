@@ -26,6 +26,7 @@ from evmotion.io.flowfiles import (
     check_flow_arrays,
     extra_specs,
     read_dsec_flow_png,
+    read_dsec_gt_flow,
     read_flo,
     read_flow_h5,
     read_mvsec_gt_flow,
@@ -183,6 +184,8 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
     """
     p = Path(path)
     suffix = p.suffix.lower()
+    if _is_dsec_flow_folder(p):
+        return read_dsec_gt_flow(p)
     if suffix == ".npy":
         raise FormatError(p, "a bare .npy holds no times, units or validity mask; evmotion "
                           "writes .npz (flow, t0, t1, valid, units)")
@@ -236,6 +239,12 @@ def describe_flow(path: str | os.PathLike) -> dict | None:
     2
     """
     p = Path(path)
+    if _is_dsec_flow_folder(p):  # DSEC's ground truth: PNGs and their timestamps
+        seq = read_dsec_gt_flow(p)
+        out = {"path": str(p), "format": "dsec-gt-flow", "container": "png folder"}
+        out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
+        out["units"] = "px (displacement over each window)"
+        return out
     kind = CONTAINERS.get(p.suffix.lower())
     if kind is None:
         return None
@@ -358,11 +367,27 @@ def _describe_npz(p: Path) -> dict | None:
             if "valid" in names:
                 out["valid_fraction"] = float(z["valid"].mean()) if t.size else None
             return out
-        if "format" not in names or str(z["format"]) != FLOW_FORMAT:
+        mvsec_gt = {"timestamps", "x_flow_dist", "y_flow_dist"} <= names
+        if not mvsec_gt and ("format" not in names or str(z["format"]) != FLOW_FORMAT):
             return None
+    if mvsec_gt:  # a ground truth's flow: described as such, not as events
+        seq = read_mvsec_gt_flow(p)
+        out = {"path": str(p), "format": "mvsec-gt-flow", "container": "npz"}
+        out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
+        out["units"] = "px (displacement between consecutive timestamps)"
+        return out
     seq = _read_npz(p)
     out = {"path": str(p), "format": FLOW_FORMAT, "container": "npz"}
     out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
     out["units"] = seq.attrs["units"]
     out["valid_masks"] = True
     return out
+
+
+def _is_dsec_flow_folder(p: Path) -> bool:
+    """A DSEC optical-flow folder: ``forward/`` PNGs with ``forward_timestamps.txt``, or
+    the sequence folder holding ``flow/``."""
+    if not p.is_dir():
+        return False
+    where = [p, p / "flow"] + ([p.parent] if p.name == "forward" else [])
+    return any((d / "forward_timestamps.txt").is_file() for d in where)
