@@ -81,6 +81,11 @@ class HtmlReport:
         now, as any file argument, not from the page's folder."""
         self._items.append(("figure", (Path(path).resolve(), str(caption))))
 
+    @property
+    def figure_paths(self) -> list[Path]:
+        """The figures added so far, in order."""
+        return [item[0] for kind, item in self._items if kind == "figure"]
+
     def add_table(self, rows: Sequence[Mapping[str, object]], caption: str = "") -> None:
         """A table from a list of dicts (columns: union of keys in first-seen order)."""
         rows = [dict(r) for r in rows]
