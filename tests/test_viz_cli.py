@@ -39,7 +39,7 @@ def test_multicm_pictures_and_video(recording, tmp_path):
     masked = read_png(png / "flow_masked_00000.png")[..., :3]
     ref = flow_picture(np.broadcast_to(np.float32(FLOW), (90, 120, 2)), max_speed=1000.0)
     assert img.shape == ref.rgb.shape  # flow upscaled to a legible size + legend strip
-    # the legend says "rim 1000 px/s, fixed scale": the strip equals the reference's
+    # the legend says "rim 1000 px/s, fixed; darker: beyond": the strip equals the reference's
     np.testing.assert_array_equal(img[:, ref.legend_box[2]:], ref.rgb[:, ref.legend_box[2]:])
     k = ref.scale
     assert np.all(masked[:90 * k, :120 * k] == GREY, axis=-1).mean() > 0.05

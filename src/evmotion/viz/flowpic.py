@@ -100,7 +100,9 @@ def _figure_px(width: int, height: int):
 
 
 def _legend_texts(max_speed: float, unit: str, fixed: bool) -> tuple[str, ...]:
-    return ("u", "v", f"rim {max_speed:.3g} {unit}", "fixed scale" if fixed else "max of image")
+    # on a fixed scale, faster pixels are drawn darker (saturated beyond the rim)
+    return ("u", "v", f"rim {max_speed:.3g} {unit}",
+            "fixed; darker: beyond" if fixed else "max of image")
 
 
 @functools.lru_cache(maxsize=32)
