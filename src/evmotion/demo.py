@@ -255,7 +255,8 @@ def _schlieren(out: Path, rep: HtmlReport, seed: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m evmotion.demo",
+                                 description=__doc__.replace("``", ""),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="demo_out", help="output folder (default demo_out)")
     ap.add_argument("--seed", type=int, default=0)
