@@ -299,3 +299,22 @@ def test_a_journal_with_no_window_does_not_block_the_next_run(rec, tmp_path, cap
     (out / "params.part").write_bytes(left)
     assert main(argv + ["--resume"]) == 0
     capsys.readouterr()
+
+
+def test_poor_fit_lines_stop_after_five_and_suggest_longer_windows(tmp_path, capsys):
+    # 419 windows of an HD recording printed 419 'no focus' lines at once, each naming the
+    # tpe optimizer though bfgs ran
+    from evmotion.events import EventArray
+
+    rng = np.random.default_rng(0)
+    n = 12_000
+    noise = EventArray(x=rng.integers(0, 60, n), y=rng.integers(0, 40, n),
+                       t=np.sort(rng.integers(0, 10**6, n)), p=rng.integers(0, 2, n),
+                       sensor_size=(40, 60))
+    write_events(tmp_path / "noise.h5", noise)
+    assert main(["egomotion", str(tmp_path / "noise.h5"), "--warp", "translation",
+                 "--window-events", "1000", "--max-png", "0", "--out", str(tmp_path / "e")]) == 0
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if "window" in ln]
+    assert sum(ln.startswith("evmotion: warning: window ") for ln in lines) == 5
+    assert "more warnings of other windows" in lines[-1] and "too short" in lines[-1]
+    assert not any("the tpe optimizer" in ln for ln in lines)

@@ -360,3 +360,19 @@ def test_one_file_output_takes_a_window_with_a_remainder_whole(recording, tmp_pa
     assert (int(seq.t0[0]), int(seq.t1[0])) == (int(ev.t[0]), int(ev.t[-1]) + 1)
     assert (f"holds {n:,} events" in err) == (n > per_window)
 
+
+
+def test_windows_hold_as_many_events_per_pixel_on_larger_sensors(tmp_path):
+    # 30,000 events on a 1280x720 sensor last ~2 ms at 15 M events/s: most windows had no
+    # focus and some a wrong flow marked valid
+    from evmotion.cli.options import default_window_events
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    for size, want in (((180, 240), 30_000), ((260, 346), 30_000), ((520, 692), 120_000),
+                       ((720, 1280), 307_000)):
+        path = tmp_path / f"r{size[1]}.h5"
+        write_events(path, EventArray(x=[0, 1], y=[0, 1], t=[0, 10], p=[1, 0],
+                                      sensor_size=size))
+        assert default_window_events(path) == want
+    assert default_window_events(tmp_path / "missing.h5") == 30_000

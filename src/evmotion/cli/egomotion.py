@@ -28,10 +28,13 @@ from evmotion.catalog import MAX_WORKERS, OBJECTIVE_NAMES, WARP_NAMES, WEIGHT_DA
 from evmotion.cli.calib import add_camera_arguments
 from evmotion.cli.options import (
     DEFAULT_WINDOW_EVENTS,
+    POOR_FIT_LINES,
+    SHORT_WINDOWS_HINT,
     add_scheduler_argument,
     add_sensor_size_argument,
     add_time_arguments,
     check_time_order,
+    default_window_events,
     duration_us,
     int_range,
     nonnegative_float,
@@ -90,7 +93,8 @@ def add_parser(sub) -> None:
                    help="optimizer (default bfgs)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--window-events", type=int_range(10),
-                   help=f"events per window (>= 10; default {DEFAULT_WINDOW_EVENTS}, as flow)")
+                   help=f"events per window (>= 10; default {DEFAULT_WINDOW_EVENTS}, as flow, "
+                        "as many per pixel on sensors larger than 346 x 260)")
     g.add_argument("--window-us", type=duration_us,
                    help="window duration: microseconds, or with a unit (10000, 10ms, 0.01s)")
     add_time_arguments(p)
@@ -237,7 +241,7 @@ def run(args) -> int:
     args.seed = 0 if args.seed is None else args.seed
     check_time_order(args)
     if args.window_events is None and args.window_us is None:
-        args.window_events = DEFAULT_WINDOW_EVENTS
+        args.window_events = default_window_events(args.file, args.format)
     cut = {"n_events": args.window_events, "duration_us": args.window_us, "min_events": 10}
     events, cam = load_events_and_camera(args, **cut)
     windows = select_windows(args, events, file=args.file, **cut)
@@ -293,9 +297,16 @@ def run(args) -> int:
 
         raise EvmotionError(f"{args.file}: all {len(results)} windows failed; the first: "
                             f"{failed[0] if failed else 'no result'}")
-    for w, r, err in results:
-        for msg in ([] if err or r is None else r.diagnostics.get("warnings", [])):
-            warn_line(f"window {w.index}: {msg}")
+    said = [f"window {w.index}: {msg}" for w, r, err in results
+            for msg in ([] if err or r is None else r.diagnostics.get("warnings", []))]
+    for line in said[:POOR_FIT_LINES]:
+        warn_line(line)
+    if len(said) > POOR_FIT_LINES:
+        # hundreds of windows of one recording said the same thing, line by line
+        no_focus = sum("no focus" in ln for ln in said)
+        warn_line(f"... and {len(said) - POOR_FIT_LINES} more warnings of other windows "
+                  "(--json lists each window's diagnostics)"
+                  + (SHORT_WINDOWS_HINT if 2 * no_focus >= len(results) else ""))
     if args.json:
         print_json({"file": str(args.file), "grid": args.grid, "warp": args.warp,
                     "regularizer": args.reg,

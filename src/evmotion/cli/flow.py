@@ -55,7 +55,8 @@ DESCRIPTION = """Optical flow of a recording, window by window (multicm, dnn) or
 Methods: multicm (multi-reference contrast maximization, ch. 4: dense, accurate, the
 default), dnn (the unsupervised EV-FlowNet, one network pass per window), triplet (ch. 5:
 per-event flow at millions of events per second; dense windows on request).
-Windows: --window-events N (default 30000), --window-us T or --window-gt GT; --t0/--t1
+Windows: --window-events N (default 30000, as many per pixel on sensors over 346 x 260),
+--window-us T or --window-gt GT; --t0/--t1
 crop the recording (seconds, or with a unit: 1.5, 1500ms, 1500000us) and --max-windows N
 keeps the first N windows. Flow is in px/s (u right, v down) on the sensor grid; .flo
 stores Middlebury displacement over each window. On success one line says how many
@@ -115,7 +116,8 @@ def add_parser(sub) -> None:
     add_sensor_size_argument(p)
     win = p.add_mutually_exclusive_group()
     win.add_argument("--window-events", type=int_range(10), default=None, metavar="N",
-                     help="events per window (>= 10; default 30000)")
+                     help="events per window (>= 10; default 30000, as many per pixel on "
+                          "sensors larger than 346 x 260)")
     win.add_argument("--window-us", type=duration_us, default=None, metavar="T",
                      help="windows of this duration instead: microseconds, or with a unit "
                           "(10000, 10ms, 0.01s)")

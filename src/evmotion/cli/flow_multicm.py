@@ -1,6 +1,7 @@
 """``evmotion flow FILE --method multicm``: dense flow by multi-reference CMax (ch. 4).
 
-Windows come from ``--window-events N`` (default 30000), ``--window-us T`` or
+Windows come from ``--window-events N`` (default 30000; on a sensor larger than 346 x 260
+as many events per pixel), ``--window-us T`` or
 ``--window-gt GT`` (the ground truth's timestamps, ``--gt-dt`` frames per window). Each
 window is warm-started from the previous one. With ``--workers > 1`` the windows are split
 into one contiguous chunk per worker (:func:`evmotion.parallel.map_windows`) and the warm
@@ -31,9 +32,12 @@ import numpy as np
 from evmotion.catalog import MAX_TIME_BINS, MAX_WORKERS
 from evmotion.cli.options import (
     DEFAULT_WINDOW_EVENTS,
+    POOR_FIT_LINES,
+    SHORT_WINDOWS_HINT,
     add_scheduler_argument,
     check_flow_out,
     check_free_space,
+    default_window_events,
     finite_float,
     int_range,
     nonnegative_float,
@@ -251,6 +255,8 @@ def run(args) -> int:
         from evmotion.viz.video import require_video
 
         require_video()  # before the windows are computed and written, not after
+    if args.window_events is None and args.window_us is None and not args.window_gt:
+        args.window_events = default_window_events(args.file, args.format)
     events, cam, grid = read_for_windows(args, **({} if args.window_gt else _cut(args)),
                                          min_events=MIN_WINDOW_EVENTS)
     windows = _windows(args, events)
@@ -379,11 +385,9 @@ class _PoorFitLines:
 
             warn_line(f"... and {self.held} more such warning{'s' if self.held > 1 else ''} "
                       "of other windows (their flow is marked not valid; --json lists each "
-                      "window's numbers)")
+                      "window's numbers)" + (SHORT_WINDOWS_HINT if 2 * (self.shown + self.held)
+                                             >= self.n_windows else ""))
 
-
-# the poor-fit warning lines a run prints before it only counts them
-POOR_FIT_LINES = 5
 
 
 def _run_windows(args, events, windows, attrs, after, progress, *, estimate, results=None):

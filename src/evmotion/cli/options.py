@@ -449,8 +449,34 @@ def _span(t_start: int, t_end: int) -> str:
     return (f"[{_seconds(t_start)}, {_seconds(t_end)}] s ([{int(t_start)}, {int(t_end)}] µs)")
 
 
-# events per window where a command is given no window option (flow, egomotion)
+# the poor-fit warning lines a per-window run prints before it only counts them
+POOR_FIT_LINES = 5
+# said when half a run's windows or more warned: most often they were too short
+SHORT_WINDOWS_HINT = ("; windows too short for the motion? try --window-events or --window-us a "
+                      "few times longer")
+
+# events per window where a command is given no window option (flow, egomotion), for a
+# sensor up to the DAVIS346's 346 x 260 px; larger sensors get as many per pixel
 DEFAULT_WINDOW_EVENTS = 30_000
+DEFAULT_WINDOW_PIXELS = 346 * 260
+
+
+def default_window_events(path, fmt: str | None = None) -> int:
+    """The events per window of a recording given no window option: 30,000, times the
+    sensor's area over the DAVIS346's where it is larger (from the header; 30,000 when it
+    does not say). On a 1280 x 720 sensor 30,000 events are ~2 ms at 15 M events/s, too
+    short for the motion to show (most windows had no focus, some a wrong flow)."""
+    import evmotion.io as eio
+    from evmotion.errors import EvmotionError
+
+    try:
+        size = eio.describe(path, format=fmt, stream=False).get("sensor_size")
+    except EvmotionError:
+        size = None
+    if not size:
+        return DEFAULT_WINDOW_EVENTS
+    scale = max(1.0, int(size[0]) * int(size[1]) / DEFAULT_WINDOW_PIXELS)
+    return int(round(DEFAULT_WINDOW_EVENTS * scale, -3))
 
 
 def add_sensor_size_argument(parser) -> None:

@@ -391,7 +391,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     iwe_before, iwe_after = cost.iwe_at(w.identity()), cost.iwe_at(theta)
     t3 = time.perf_counter()
     source = "given" if o.weight is not None else (o.dataset or "window")
-    diagnostics = (_diagnose(cost, theta, iwe_before, iwe_after, o.regularizer, source)
+    diagnostics = (_diagnose(cost, theta, iwe_before, iwe_after, o.regularizer, source,
+                             o.optimizer)
                    if o.diagnose else {})
     t4 = time.perf_counter()
     total = t4 - t0
@@ -412,7 +413,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         diagnostics=diagnostics)
 
 
-def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_source) -> dict:
+def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_source,
+              optimizer: str = "") -> dict:
     """Collapse and fit checks of an estimate (:mod:`evmotion.methods.diagnostics`); issues
     their warnings (pointing at the caller of :func:`estimate_egomotion`)."""
     w = cost.warp
@@ -431,8 +433,8 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
     too_few = warn_too_few(int(cost.x.shape[0]), w.name, stacklevel=4)
     msgs.append(too_few)
     if not coll["collapsed"] and too_few is None:
-        msgs.append(warn_no_gain(gain, w.name, stacklevel=4,
-                                 optimum_hint=" (the tpe optimizer searches the whole box)"))
+        hint = "" if optimizer == "tpe" else " (--optimizer tpe searches the whole box)"
+        msgs.append(warn_no_gain(gain, w.name, stacklevel=4, optimum_hint=hint))
     return {"collapse": coll, "fit": fit, "contrast_gain": gain,
             "too_few_events": too_few is not None,
             "weight_source": weight_source, "warnings": [m for m in msgs if m]}
