@@ -54,6 +54,10 @@ def test_flow_h5_then_eval(recording, tmp_path, capsys):
     assert summary["n_windows"] == 2 and all(w["focus"] > 1.2 for w in summary["windows"])
     assert (tmp_path / "png" / "flow_00000.png").exists()
     assert (tmp_path / "png" / "iwe_tmid_00001.png").exists()
+    # the IWE pictures carry a title, axes and a colour bar now (they were the bare image)
+    from evmotion.io.pngfile import read_png
+
+    assert read_png(tmp_path / "png" / "iwe_tmid_00001.png")[0].shape[1] > 120 + 100
     from evmotion.io.flowfiles import read_flow_h5
 
     seq = read_flow_h5(out)

@@ -173,7 +173,8 @@ def _estimate_parallel(events, windows, kwargs, workers, stack, keep_iwes=False,
 
 
 def _png(png_dir: Path, i: int, r, max_speed) -> None:
-    from evmotion.viz import iwe_to_rgb, save_flow_png, save_png
+    from evmotion.utils import atomic_write_bytes
+    from evmotion.viz import event_picture_png, save_flow_png
 
     png_dir.mkdir(parents=True, exist_ok=True)
     when = f"window {i}: {r.t0_us * 1e-6:.4f}-{r.t1_us * 1e-6:.4f} s"
@@ -182,8 +183,11 @@ def _png(png_dir: Path, i: int, r, max_speed) -> None:
                   valid=_valid(r), title=when)
     has = r.iwes["identity"] > 0
     vmax = float(np.percentile(r.iwes["tmid"][has], 99)) if has.any() else None
-    for key in ("tmid", "identity"):
-        save_png(png_dir / f"iwe_{key}_{i:05d}.png", iwe_to_rgb(r.iwes[key], vmax=vmax))
+    for key, what in (("tmid", "events warped by the flow to the window's middle"),
+                      ("identity", "events not warped")):
+        # one full scale for both: the warped image's sharpness shows against the other's
+        atomic_write_bytes(png_dir / f"iwe_{key}_{i:05d}.png", event_picture_png(
+            r.iwes[key], vmax=vmax, title=f"{when}, {what}"))
 
 
 def _valid(r) -> np.ndarray:

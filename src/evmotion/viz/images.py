@@ -263,10 +263,12 @@ def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
 
 
 def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: float = 99.0,
-                      title: str = "", scale: int = 1, dpi: int = 100) -> bytes:
+                      title: str = "", scale: int = 1, dpi: int = 100,
+                      vmax: float | None = None) -> bytes:
     """An image of events (counts, or signed polarity sums with ``polarity``) as a PNG
     with its colour bar (events per pixel), pixel axes and ``title``: :func:`iwe_to_rgb`'s
-    colours, each pixel ``scale`` screen pixels wide.
+    colours, each pixel ``scale`` screen pixels wide; full scale at ``vmax`` (default the
+    ``percentile`` of the image: give one ``vmax`` to pictures compared side by side).
 
     Examples
     --------
@@ -277,7 +279,8 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
     from matplotlib.colors import LinearSegmentedColormap, Normalize
 
     image = np.asarray(image, dtype=np.float64)
-    vmax = _full_scale(np.where(np.isfinite(image), image, 0.0), percentile)
+    if vmax is None:
+        vmax = _full_scale(np.where(np.isfinite(image), image, 0.0), percentile)
     vmax = vmax if vmax > 0 else 1.0
     rgb = iwe_to_rgb(image, polarity, vmax=vmax)
     if polarity:
