@@ -296,9 +296,12 @@ def _emit(win, dense_out, png_dir, max_speed) -> None:
     if dense_out is not None:
         dense_out.append(win.flow, win.t0, win.t1, valid=win.valid)
     if png_dir is not None:
-        from evmotion.viz import iwe_to_rgb, save_flow_png, save_png
+        from evmotion.utils import atomic_write_bytes
+        from evmotion.viz import event_picture_png, save_flow_png
 
         png_dir.mkdir(parents=True, exist_ok=True)
+        when = f"window {win.index}: {win.t0 * 1e-6:.4f}-{win.t1 * 1e-6:.4f} s"
         save_flow_png(png_dir / f"flow_{win.index:05d}.png", win.flow, max_speed=max_speed,
-                      valid=win.valid)
-        save_png(png_dir / f"iwe_{win.index:05d}.png", iwe_to_rgb(win.iwe))
+                      valid=win.valid, title=when)
+        atomic_write_bytes(png_dir / f"iwe_{win.index:05d}.png", event_picture_png(
+            win.iwe, title=f"{when}, events warped by their flow to the window's start"))
