@@ -204,3 +204,23 @@ def test_streaming_memory_is_bounded(raw):
         tracemalloc.stop()
     assert n == 1_218_618
     assert peak < 10 << 20  # the whole recording decoded takes 16 MB
+
+
+@pytest.mark.parametrize("block_bytes", [4096, 1 << 30])  # many blocks; the whole at once
+def test_chunks_say_how_far_into_the_file_they_are(tmp_path, block_bytes):
+    # EVT headers state no event count: the share of the file read gives a progress
+    # bar its total; the events' share and the bytes' share agree for uniform data
+    rng = np.random.default_rng(1)
+    n = 40_000
+    ev = EventArray(x=rng.integers(0, 640, n), y=rng.integers(0, 480, n),
+                    t=np.sort(rng.integers(0, 2_000_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(480, 640))
+    out = tmp_path / "pos.raw"
+    evt3.write(out, ev)
+    size = out.stat().st_size
+    chunks = list(evt3.iter_chunks(out, 7_000, block_bytes=block_bytes))
+    done = np.cumsum([len(c) for c in chunks])
+    read = np.array([c.meta["bytes_read"] for c in chunks])
+    assert all(c.meta["file_bytes"] == size for c in chunks)
+    assert read[-1] == size and np.all(np.diff(read) > 0)
+    np.testing.assert_allclose(read / size, done / n, atol=0.03)

@@ -279,3 +279,20 @@ def test_real_evt3_per_event_h5_equals_the_library(shared_data, tmp_path, capsys
     for name, dt in EVENT_FLOW_COLUMNS:
         assert got[name].dtype == np.dtype(dt)
         np.testing.assert_array_equal(got[name], np.asarray(want[name]).astype(dt))
+
+
+def test_progress_of_a_raw_file_has_a_total(tmp_path, monkeypatch, capsys):
+    # an EVT RAW header states no event count: the bar's total (and ETA) comes from the
+    # share of the file read, and it ends at the true count
+    from evmotion.io import evt3
+
+    ev = edge_events(200.0, size=40)
+    path = tmp_path / "edge.raw"
+    evt3.write(path, ev)
+    monkeypatch.setenv("EVMOTION_PROGRESS", "1")
+    rc = main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "f.npz"),
+               "--chunk-events", "400"])
+    assert rc == 0
+    bars = [b for b in capsys.readouterr().err.replace("\r", "\n").splitlines()
+            if b.startswith("triplet:") and "|" in b]
+    assert bars and "25%" in bars[0] and "1.60k/1.60k" in bars[-1] and "100%" in bars[-1]

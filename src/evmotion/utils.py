@@ -143,6 +143,27 @@ def progress(iterable: Iterable[T], *, total: int | None = None, desc: str = "",
                 unit_scale=unit_scale, file=sys.stderr, dynamic_ncols=True)
 
 
+def refine_total(bar, done: int, meta: dict) -> None:
+    """Set a progress bar's total (and so its ETA) to ``done`` items scaled by the share
+    of the file read so far, when ``meta`` (of the last chunk read) tells it
+    (``bytes_read`` and ``file_bytes``, from a reader whose header states no event count:
+    EVT RAW files); otherwise leave the bar as it is.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> bar = SimpleNamespace(total=None, refresh=lambda: None)
+    >>> refine_total(bar, 1000, {"bytes_read": 250, "file_bytes": 1000})
+    >>> bar.total
+    4000
+    """
+    read, size = meta.get("bytes_read"), meta.get("file_bytes")
+    if not read or not size or done <= 0:
+        return
+    bar.total = max(int(done), int(round(done * size / read)))
+    bar.refresh()
+
+
 def check_finite(name: str, value) -> np.ndarray:
     """Raise :class:`ParameterError` naming ``name`` if ``value`` has NaN or inf."""
     arr = np.asarray(value, dtype=np.float64)

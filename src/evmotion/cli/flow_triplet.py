@@ -138,7 +138,7 @@ def run(args) -> int:
     from evmotion.jitcache import compile_seconds
     from evmotion.methods.triplet import default_ridge, dense_defaults
     from evmotion.methods.triplet_stream import TripletStream
-    from evmotion.utils import progress
+    from evmotion.utils import progress, refine_total
 
     if args.video:
         raise ParameterError(f"--video {args.video}: written by --method multicm only")
@@ -203,9 +203,10 @@ def run(args) -> int:
                                      compression="lz4")
         if getattr(dense_out, "done", None):
             tri = stream(skip=len(dense_out.done))
-    bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True,
-                   total=header_event_count(args.file, getattr(args, "format", None),
-                                            getattr(args, "t0", None), getattr(args, "t1", None)))
+    whole = getattr(args, "t0", None) is None and getattr(args, "t1", None) is None
+    total = header_event_count(args.file, getattr(args, "format", None),
+                               getattr(args, "t0", None), getattr(args, "t1", None))
+    bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True, total=total)
     n_events = n_valid = n_trip = n_windows = 0
     t_first = t_last = int(first.t[0])
     wall0 = time.perf_counter()
@@ -232,6 +233,9 @@ def run(args) -> int:
                                   n_triplets=flow.n_triplets)
             emit(tri.windows())
             bar.update(len(chunk))
+            if total is None and whole:
+                # no count in the header (EVT RAW): the share of the file read says it
+                refine_total(bar, n_events, chunk.meta)
             chunk = next(chunks, None)
         tri.finish()
         emit(tri.windows())

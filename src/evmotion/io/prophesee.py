@@ -131,20 +131,27 @@ def open_raw(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int, 
 
 def raw_blocks(path: Path, offset: int, t_offset: int, block_bytes: int, word: str,
                decode_words: Callable, state: np.ndarray, whole_bytes: int | None = None
-               ) -> Iterator[binary.Block]:
-    """Decoded ``(x, y, t, p)`` blocks of the payload from ``offset`` on; ``state`` is the
-    decoder state carried from block to block. A payload of at most ``whole_bytes`` is
+               ) -> binary.Positioned:
+    """Decoded ``(x, y, t, p)`` blocks of the payload from ``offset`` on, as
+    :class:`binary.Positioned`; ``state`` is the decoder state carried from block to block. A payload of at most ``whole_bytes`` is
     decoded in one pass (no per-block buffers to concatenate)."""
-    if whole_bytes is not None and path.stat().st_size - offset <= whole_bytes:
-        payload = iter([np.fromfile(path, np.uint8, offset=offset).view(word)])
+    file_bytes = path.stat().st_size
+    if whole_bytes is not None and file_bytes - offset <= whole_bytes:
+        # lazily, as the blocks: a truncated file is refused by name before this reads it
+        payload = ((file_bytes, np.fromfile(path, np.uint8, offset=offset).view(word))
+                   for _ in range(1))
     else:
-        payload = (np.frombuffer(buf, word) for _, buf in
+        payload = ((pos + len(buf), np.frombuffer(buf, word)) for pos, buf in
                    binary.iter_blocks(path, offset, block_bytes, np.dtype(word).itemsize))
-    for words in payload:
+    return binary.Positioned(_decoded(payload, decode_words, state, t_offset), file_bytes)
+
+
+def _decoded(payload, decode_words: Callable, state: np.ndarray, t_offset: int):
+    for end, words in payload:
         x, y, t, p = decode_words(words, state)
         if t_offset:
             t += t_offset
-        yield x, y, t, p
+        yield end, (x, y, t, p)
 
 
 def write_raw(path: str | Path, events: EventArray, *, version: str, wrap_us: int,
