@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import colorsys
+import io
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
@@ -229,3 +231,15 @@ def test_flow_summary_png(tmp_path):
         assert value == pytest.approx(fwl(ev, flow)) and value > 1.5
         img = read_png(path)
         assert img.ndim == 3 and img.shape[1] > 2.5 * img.shape[0]
+
+
+def test_panels_of_large_sensors_keep_half_their_resolution():
+    # a 1280-px IWE drawn 300 px wide no longer shows whether its events are sharp
+    from evmotion.viz.images import panel_png
+
+    def width(w):
+        png = panel_png([np.zeros((w * 9 // 16, w)), np.zeros((w * 9 // 16, w))], ["a", "b"])
+        return Image.open(io.BytesIO(png)).size[0]
+
+    assert width(240) == width(346) <= 640
+    assert width(1280) >= 2 * 640 - 60

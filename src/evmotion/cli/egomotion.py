@@ -205,12 +205,16 @@ def _panel(r) -> bytes:
     where the regularizer made them)."""
     from evmotion.viz import images
 
-    panels = [images.iwe_to_rgb(r.iwe_before), images.iwe_to_rgb(r.iwe_after)]
+    # one scale for both (the warped image's): the sharper one is also the darker
+    vmax = images.full_scale(r.iwe_after)
+    panels = [images.iwe_to_rgb(r.iwe_before, vmax=vmax),
+              images.iwe_to_rgb(r.iwe_after, vmax=vmax)]
     parts = [f"{n}={v:.3g} {u}" for n, v, u in zip(r.param_names, r.params, r.param_units,
                                                    strict=True)]
     # two values to a line: the title stays within its panel
     values = "\n".join(", ".join(parts[k:k + 2]) for k in range(0, len(parts), 2))
-    titles = ["IWE, zero motion", f"IWE warped\n{values}"]
+    titles = [f"IWE, zero motion\nwhite 0, black >= {vmax:.3g} events / px",
+              f"IWE warped (same scale)\n{values}"]
     if "diwe" in r.maps:
         for name, img in (("DIWE (divergence)", r.maps["diwe"]),
                           ("IWA - 1 (deformation)", r.maps["iwa"] - 1.0)):

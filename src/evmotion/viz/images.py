@@ -24,6 +24,7 @@ __all__ = [
     "event_picture_png",
     "iwe_to_rgb",
     "panel_png",
+    "full_scale",
     "read_png",
     "save_flow_png",
     "save_flow_summary",
@@ -104,7 +105,7 @@ def iwe_to_rgb(iwe: np.ndarray, polarity: bool = False, *, percentile: float = 9
     iwe = np.where(np.isfinite(iwe), iwe, 0.0)
     _check_percentile(percentile)
     if vmax is None:
-        vmax = _full_scale(iwe, percentile)
+        vmax = full_scale(iwe, percentile)
     if not vmax > 0:
         vmax = 1.0
     if polarity:
@@ -123,9 +124,16 @@ def _check_percentile(percentile) -> None:
         raise ParameterError(f"percentile must be in [0, 100], got {percentile!r}")
 
 
-def _full_scale(iwe: np.ndarray, percentile: float) -> float:
+def full_scale(iwe: np.ndarray, percentile: float = 99.0) -> float:
     """The value :func:`iwe_to_rgb` shows at full intensity by default: ``percentile`` of
-    the nonzero ``|iwe|`` (1 for an empty image)."""
+    the nonzero ``|iwe|`` (1 for an empty image); give it as ``vmax`` to draw several
+    images on one scale, and state it in their titles.
+
+    Examples
+    --------
+    >>> full_scale(np.array([[0.0, 2.0], [4.0, 0.0]]), 100)
+    4.0
+    """
     _check_percentile(percentile)
     nz = np.abs(iwe[iwe != 0])
     return float(np.percentile(nz, percentile)) if nz.size else 1.0
@@ -235,9 +243,23 @@ def _title_row(width: int, title: str) -> np.ndarray:
     return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
 
+def panel_width_inches(width_px: int, dpi: int = 100) -> float:
+    """Default width of one panel of :func:`panel_png` for images ``width_px`` wide: 3 in,
+    or half their width in pixels where that is more (a 1280-px IWE squeezed into 300 px
+    no longer shows whether the events are sharp).
+
+    Examples
+    --------
+    >>> panel_width_inches(346), panel_width_inches(1280)
+    (3.0, 6.4)
+    """
+    return max(3.0, float(width_px) / 2 / dpi)
+
+
 def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
                titles: Sequence[str] | None = None, *, ncols: int | None = None,
-               suptitle: str | None = None, panel_inches: float = 3.0, dpi: int = 100) -> None:
+               suptitle: str | None = None, panel_inches: float | None = None,
+               dpi: int = 100) -> None:
     """Save images side by side (a grid of ``ncols`` columns) as one PNG, atomically
     (:func:`panel_png`'s bytes).
 
@@ -280,7 +302,7 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
 
     image = np.asarray(image, dtype=np.float64)
     if vmax is None:
-        vmax = _full_scale(np.where(np.isfinite(image), image, 0.0), percentile)
+        vmax = full_scale(np.where(np.isfinite(image), image, 0.0), percentile)
     vmax = vmax if vmax > 0 else 1.0
     rgb = iwe_to_rgb(image, polarity, vmax=vmax)
     if polarity:
@@ -310,9 +332,10 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
 
 def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None, *,
               ncols: int | None = None, suptitle: str | None = None,
-              panel_inches: float = 3.0, dpi: int = 100) -> bytes:
+              panel_inches: float | None = None, dpi: int = 100) -> bytes:
     """The PNG file :func:`save_panel` writes, as bytes: for a worker process that draws
     a picture the caller writes (a Dask worker need not see the output folder).
+    ``panel_inches`` (width of a panel) defaults to :func:`panel_width_inches`.
 
     Examples
     --------
@@ -328,6 +351,8 @@ def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None,
     ncols = n if ncols is None else max(1, min(int(ncols), n))
     nrows = -(-n // ncols)
     aspect = max(np.asarray(im).shape[0] / max(np.asarray(im).shape[1], 1) for im in images)
+    if panel_inches is None:
+        panel_inches = panel_width_inches(max(np.asarray(im).shape[1] for im in images), dpi)
     fig = _figure((panel_inches * ncols, panel_inches * aspect * nrows + 0.5 * nrows
                    + (0.4 if suptitle else 0.0)), dpi)
     for k, im in enumerate(images):
