@@ -409,6 +409,16 @@ CASES = [
      ["--sensor-size", "'-1'"]),
     ("unknown-option", ["flow", "{rec}", "--out", "{dir}/f.h5", "--bogus", "1"],
      ["--bogus"]),
+    # typos: the closest name is suggested, from the command's own options and choices
+    ("typo-option", ["flow", "{rec}", "--out", "{dir}/f.h5", "--methd", "dnn"],
+     ["evmotion flow: error", "--methd", "did you mean --method?"]),
+    ("typo-choice", ["egomotion", "{rec}", "--warp", "rotaton", "--out", "{dir}/e"],
+     ["'rotaton'", "did you mean rotation?"]),
+    ("typo-command", ["flwo", "{rec}"], ["'flwo'", "did you mean flow?"]),
+    ("typo-required", ["flow", "{rec}", "--outt", "{dir}/f.h5"],
+     ["required: --out", "did you mean --out for --outt?"]),
+    ("typo-file", ["flow", "{dir}/sim.h", "--out", "{dir}/f.h5"],
+     ["sim.h: no such file", "did you mean", "sim.h5'?"]),
 ]
 
 

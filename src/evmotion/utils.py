@@ -96,6 +96,28 @@ def nearest_existing(path: str | os.PathLike) -> Path:
     return p
 
 
+def missing_path_hint(path: str | os.PathLike) -> str:
+    """For a path that does not exist: ``" (did you mean 'NAME'?)"`` naming the entry of
+    its folder whose name is closest to it (a typo), or ``""`` when none is close.
+
+    Examples
+    --------
+    >>> Path("recording.h5").touch()
+    >>> missing_path_hint("recordng.h5"), missing_path_hint("other.txt")
+    (" (did you mean 'recording.h5'?)", '')
+    """
+    import difflib
+
+    p = Path(path)
+    try:
+        names = [e.name for e in os.scandir(p.parent if str(p.parent) else ".")]
+    except OSError:
+        return ""
+    close = difflib.get_close_matches(p.name, names, n=1, cutoff=0.75)
+    return f" (did you mean '{p.parent / close[0] if p.parent != Path() else close[0]}'?)" \
+        if close else ""
+
+
 class NoRoomError(OSError):
     """The device has no room for the next write (checked before it, so what was written
     so far is intact, unlike a write that fails half-way)."""

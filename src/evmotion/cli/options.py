@@ -46,7 +46,7 @@ from pathlib import Path
 
 from evmotion.catalog import MAX_SENSOR_SIDE
 from evmotion.errors import ParameterError
-from evmotion.utils import nearest_existing
+from evmotion.utils import missing_path_hint, nearest_existing
 
 __all__ = [
     "Parser",
@@ -81,10 +81,70 @@ class Parser(argparse.ArgumentParser):
         # the pattern argparse consults (an attribute of ArgumentParser since Python 3.2)
         self._negative_number_matcher = _NEGATIVE_NUMBER
 
+    def parse_known_args(self, args=None, namespace=None):
+        # kept for error(): an unknown option is reported by the top-level parser, which
+        # must look up the command's options for a suggestion
+        self._argv = [str(a) for a in (sys.argv[1:] if args is None else args)]
+        return super().parse_known_args(args, namespace)
+
     def error(self, message: str):
         text = " ".join(str(message).split())
-        sys.stderr.write(f"{self.prog}: error: {text} (see '{self.prog} --help')\n")
+        prog, hint = self.prog, ""
+        unknown = re.match(r"unrecognized arguments: (.*)", text)
+        choice = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", text)
+        if unknown:
+            prog, hint = self._unknown_options(unknown.group(1).split())
+        elif choice:
+            hint = _did_you_mean([choice.group(1)], re.findall(r"'([^']*)'", choice.group(2)))
+        elif text.startswith("the following arguments are required:"):
+            # a misspelt required option is reported as missing, before as unknown
+            known = {o for a in self._actions for o in a.option_strings}
+            typed = [a.split("=", 1)[0] for a in getattr(self, "_argv", [])
+                     if a.startswith("--") and a.split("=", 1)[0] not in known]
+            hint = _did_you_mean(typed, text.split(":", 1)[1].replace(",", " ").split(),
+                                 name_typed=True)
+        sys.stderr.write(f"{prog}: error: {text}{hint} (see '{prog} --help')\n")
         sys.exit(2)
+
+    def _unknown_options(self, tokens: list[str]) -> tuple[str, str]:
+        """The command's parser name and a "did you mean" for the unknown ``tokens``,
+        against that command's own options."""
+        argv = getattr(self, "_argv", [])
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                name = next((a for a in argv if a in action.choices), None)
+                if name is not None:
+                    sub = action.choices[name]
+                    options = [o for a in sub._actions for o in a.option_strings]
+                    return sub.prog, _did_you_mean(
+                        [t.split("=", 1)[0] for t in tokens if t.startswith("-")], options)
+        return self.prog, _did_you_mean(
+            [t.split("=", 1)[0] for t in tokens if t.startswith("-")],
+            [o for a in self._actions for o in a.option_strings])
+
+
+def _did_you_mean(words: list[str], known: list[str], name_typed: bool = False) -> str:
+    """``" (did you mean --method?)"`` for the known names closest to ``words`` (typos);
+    ``name_typed``: also say which word each is for, where the message does not show it.
+
+    Examples
+    --------
+    >>> _did_you_mean(["--methd"], ["--method", "--out"])
+    ' (did you mean --method?)'
+    >>> _did_you_mean(["--outt"], ["--out"], name_typed=True)
+    ' (did you mean --out for --outt?)'
+    >>> _did_you_mean(["--zzz"], ["--method"])
+    ''
+    """
+    import difflib
+
+    pairs = {w: m[0] for w in words
+             if (m := difflib.get_close_matches(w, known, n=1, cutoff=0.6))}
+    if not pairs:
+        return ""
+    if name_typed:
+        return f" (did you mean {', '.join(f'{m} for {w}' for w, m in pairs.items())}?)"
+    return f" (did you mean {', '.join(dict.fromkeys(pairs.values()))}?)"
 
 
 # a negative number (scientific notation, inf, nan), with a unit suffix (-10ms) or as the
@@ -234,7 +294,8 @@ def existing_input(text: str) -> str:
     read first anyway, and its reader names a missing file in one line."""
     p = Path(text)
     if not p.exists():
-        raise argparse.ArgumentTypeError(f"{text}: no such file or folder")
+        raise argparse.ArgumentTypeError(f"{text}: no such file or folder"
+                                         f"{missing_path_hint(p)}")
     if not os.access(p, os.R_OK):
         raise argparse.ArgumentTypeError(f"{text}: cannot be read (permission denied)")
     return text

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from evmotion.errors import FormatError
 from evmotion.io.base import FormatSpec
+from evmotion.utils import missing_path_hint
 
 # Modules that define ``FORMAT``; imported lazily so optional dependencies stay optional.
 FORMAT_MODULES: tuple[str, ...] = (
@@ -76,7 +77,7 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
     :func:`detect_format` gives its name."""
     path = Path(path)
     if not path.exists():
-        raise FormatError(path, "no such file or folder")
+        raise FormatError(path, f"no such file or folder{missing_path_hint(path)}")
     head = b""
     if path.is_file():
         try:
