@@ -262,7 +262,7 @@ def run(args) -> int:
         print_json({
             "method": "triplet", "file": str(args.file), "out": str(out),
             "output": "dense windows" if args.dense_output else "per event",
-            "sensor_size": {"height": sensor[0], "width": sensor[1]}, "grid": grid,
+            "sensor_size": list(sensor), "grid": grid,  # [H, W], as multicm and dnn
             "events": n_events, "duration_s": (t_last - t_first) * 1e-6,
             "valid_fraction": n_valid / max(n_events, 1),
             "mean_triplets": n_trip / max(n_events, 1),
