@@ -165,3 +165,24 @@ def test_n_by_4_unsigned_finds_its_time_column(tmp_path):
     np.save(tmp_path / "u.npy", arr)
     ev = npy.read(tmp_path / "u.npy")
     assert ev.t.tolist() == [0, 5, 9] and ev.x.tolist() == [192, 7, 3]
+
+
+def test_nanoseconds_of_a_microsecond_sensor_are_questioned(tmp_path):
+    # relative ns times (a 1.5 s recording from t = 0) cannot be told from µs by their
+    # size, but a µs sensor's ns are all multiples of 1000: warned, read as stated
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
+    n = 500
+    cols = dict(x=np.arange(n) % 300, y=np.arange(n) % 200, p=np.arange(n) % 2)
+    ns = tmp_path / "ns.npz"
+    np.savez(ns, t=np.arange(n, dtype=np.int64) * 3_000_000, sensor_size=[200, 300], **cols)
+    with pytest.warns(EvmotionWarning, match=r"multiples of 1000.*time_unit='ns'"):
+        assert eio.read_events(ns).t[-1] == (n - 1) * 3_000_000
+    assert eio.read_events(ns, time_unit="ns").t[-1] == (n - 1) * 3_000
+    us = tmp_path / "us.npz"
+    np.savez(us, t=np.arange(n, dtype=np.int64) * 3_001, sensor_size=[200, 300], **cols)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EvmotionWarning)
+        eio.read_events(us)

@@ -11,13 +11,14 @@ unless ``time_unit=`` says otherwise.
 from __future__ import annotations
 
 import os
+import warnings
 import zipfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields
 from evmotion.io.guard import (
@@ -64,6 +65,21 @@ def _time_us(t: np.ndarray, unit: str | None) -> tuple[np.ndarray, str]:
     return us.astype(np.int64), f"{unit} ({how})"
 
 
+def _ns_in_whole_microseconds(t: np.ndarray, unit: str) -> bool:
+    """Whether integer times read as µs look like nanoseconds of a sensor with µs steps:
+    at least 100 events, all on multiples of 1000, spanning more than a second as µs.
+
+    Examples
+    --------
+    >>> t = np.arange(0, 2_000_000_000, 1_000_000)
+    >>> _ns_in_whole_microseconds(t, "us (inferred)"), _ns_in_whole_microseconds(t + 1, "us (x)")
+    (True, False)
+    """
+    return (unit.startswith("us") and t.dtype.kind in "iu" and t.size >= 100
+            and int(t.max()) - int(t.min()) > 1_000_000
+            and not np.any(t[:1000] % 1000) and not np.any(t % 1000))
+
+
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
                         meta=None, validate=True, drop_outside=False) -> EventArray:
     """Build an EventArray from loose columns, with clear errors naming ``path``.
@@ -85,6 +101,13 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
             raise
         raise FormatError(path, f"field 't': {exc}, not a time within +-2^62 us") from None
     meta["time_unit"] = unit
+    if time_unit is None and _ns_in_whole_microseconds(t, unit):
+        warnings.warn(
+            f"{path}: field 't' holds integers, read as microseconds, that are all multiples "
+            f"of 1000 ({len(t)} events; as µs, millisecond steps, which event cameras do "
+            "not make): nanoseconds? If so, read with time_unit='ns' (or `evmotion convert "
+            "--time-unit ns`); every speed is 1000x too small otherwise",
+            EvmotionWarning, stacklevel=3)
     x = np.asarray(x)
     y = np.asarray(y)
     p = np.asarray(p)
