@@ -360,3 +360,16 @@ def test_metavision_csv_geometry_comment_gives_the_sensor(tmp_path):
         ev = read_events(tmp_path / "mv.csv")
     assert ev.sensor_size == (260, 346) and ev.t.tolist() == [1000, 1016]
     assert ev.meta["sensor_size_from"] != "largest coordinate (the file states no sensor size)"
+
+
+def test_whole_number_times_on_millisecond_steps_are_questioned(tmp_path):
+    # relative ns of a µs sensor: all multiples of 1000; the warning says so, and a µs
+    # file's does not
+    from evmotion.errors import EvmotionWarning
+
+    for step, said in ((3_000_000, True), (3_001, False)):
+        (tmp_path / "e.txt").write_text("".join(f"{step * i} {i % 7} {i % 5} {i % 2}\n"
+                                                for i in range(200)))
+        with pytest.warns(EvmotionWarning, match="whole number") as rec:
+            ecd.read(tmp_path / "e.txt", sensor_size=(5, 7))
+        assert any("multiples of 1000" in str(w.message) for w in rec) == said

@@ -370,10 +370,14 @@ def sniff_time_unit(path: str | Path) -> str:
             "5000: read as nanoseconds since the epoch (other units: time_unit=, or convert "
             "--time-unit)"), stacklevel=3)
         return "ns"
+    ts = [int(f) for f in firsts if f.lstrip(b"-").isdigit()]
+    ns_like = len(ts) >= 100 and ts[-1] - ts[0] > 1_000_000 and not any(v % 1000 for v in ts)
     warnings.warn(EvmotionWarning(
         f"{path}: every time is a whole number: read as microseconds (ECD text holds "
-        "decimal seconds; other units: time_unit=, or convert --time-unit)"),
-        stacklevel=3)
+        "decimal seconds; other units: time_unit=, or convert --time-unit)"
+        + ("; they are all multiples of 1000 (as µs, millisecond steps, which event "
+           "cameras do not make): nanoseconds? every speed is 1000x too small otherwise"
+           if ns_like else "")), stacklevel=3)
     return "us"
 
 
