@@ -202,3 +202,54 @@ def test_dsec_png_never_writes_a_nan_or_inf_as_valid(tmp_path, mask):
     assert valid.tolist() == [[False, False, True], [True, True, True]]
     np.testing.assert_array_equal(back[1, 2], [2.0, -2.0])
     assert np.isnan(back[0, :2]).all()
+
+
+def _dsec_gt_and_predictions(tmp_path, shift: float):
+    """A DSEC ground-truth folder of 3 windows (files 000002, 000004, 000006) and E-RAFT
+    style predictions: PNGs of the same names, no times, the GT's displacement + shift."""
+    fwd = tmp_path / "gt" / "flow" / "forward"
+    fwd.mkdir(parents=True)
+    pred = tmp_path / "pred"
+    pred.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        d = rng.normal(0, 3, (6, 8, 2)).astype(np.float32)
+        ff.write_dsec_flow_png(fwd / f"{2 * i + 2:06d}.png", d)
+        ff.write_dsec_flow_png(pred / f"{2 * i + 2:06d}.png", d + shift)
+    (tmp_path / "gt" / "flow" / "forward_timestamps.txt").write_text(
+        "# from_timestamp_us, to_timestamp_us\n0, 100000\n100000, 150000\n150000, 250000\n")
+    return tmp_path / "gt", pred
+
+
+def test_predictions_without_times_take_the_ground_truths_windows(tmp_path):
+    from evmotion.io.flowread import read_flow_paired
+
+    gt_dir, pred = _dsec_gt_and_predictions(tmp_path, 0.5)
+    gt = ff.read_gt_flow(gt_dir)
+    names = [f.name for f in ff.dsec_gt_files(gt_dir)]
+    (pred / "000002.png").unlink()  # a prediction for some windows only: paired by name
+    seq, how = read_flow_paired(pred, gt, names)
+    assert "by name" in how and seq.t0.tolist() == [100_000, 150_000]
+    for k, (name, dt) in enumerate((("000004.png", 0.05), ("000006.png", 0.1))):
+        np.testing.assert_allclose(seq.flow[k] * dt, ff.read_dsec_flow_png(pred / name)[0],
+                                   atol=1e-5)
+    for f in pred.iterdir():  # other names, as many files as windows: in name order
+        f.rename(pred / f"pred_{f.name}")
+    ff.write_dsec_flow_png(pred / "pred_000000.png", np.zeros((6, 8, 2)))
+    seq, how = read_flow_paired(pred, gt, names)
+    assert "name order" in how and seq.t1.tolist() == [100_000, 150_000, 250_000]
+    (pred / "pred_000000.png").unlink()
+    with pytest.raises(FormatError, match="2 flow files carry no times.*3 windows"):
+        read_flow_paired(pred, gt, names)
+
+
+def test_eval_of_a_folder_of_predictions(tmp_path, capsys):
+    from evmotion.cli import main
+
+    gt_dir, pred = _dsec_gt_and_predictions(tmp_path, 0.5)
+    assert main(["eval", str(pred), "--gt", str(gt_dir), "--json"]) == 0
+    out = capsys.readouterr()
+    import json
+
+    assert json.loads(out.out)["mean"]["AEE"] == pytest.approx(0.5 * 2 ** 0.5, abs=0.01)
+    assert "3 files paired by name" in out.err

@@ -3,7 +3,11 @@
 FLOW is any flow output of ``evmotion flow`` (:func:`evmotion.io.flowread.read_flow`:
 ``.h5``, ``.npz``, ``.flo`` / DSEC ``.png`` with their JSON sidecar, or a pattern such as
 ``flow_{:05d}.flo``), read back with each window's times; a ``.flo``/``.png`` without
-sidecar or a bare ``.npy`` (px/s) needs ``--t0-us``/``--t1-us``. GT is MVSEC ``.npz``, a DSEC flow folder or timestamps file, or an
+sidecar or a bare ``.npy`` (px/s) needs ``--t0-us``/``--t1-us``. Other tools' per-window
+files without times (a folder of ``.flo`` or ``.png``, or a pattern: RAFT, E-RAFT on DSEC)
+take the ground truth's windows, paired by file name with a DSEC ground truth's PNGs, else
+in name order when there are as many files as windows
+(:func:`evmotion.io.flowread.read_flow_paired`). GT is MVSEC ``.npz``, a DSEC flow folder or timestamps file, or an
 evmotion/simulator ``.h5`` (:func:`evmotion.io.flowfiles.read_gt_flow`). For every estimated
 window ``[t0, t1)`` the ground-truth displacement is the GT flow integrated over the window
 along the trajectories (each GT frame weighted by its overlap, chained as in the MVSEC
@@ -27,6 +31,7 @@ that of zero flow).
 from __future__ import annotations
 
 import argparse
+import sys
 import warnings
 from pathlib import Path
 
@@ -61,8 +66,9 @@ def add_parser(sub) -> None:
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("flow", help="estimated flow (.h5, .npz, .flo, .png, a pattern "
-                                "flow_{:05d}.flo; .npy with --t0-us/--t1-us), or a "
-                                "per-event flow file (.h5/.npz of --method triplet)")
+                                "flow_{:05d}.flo; .npy with --t0-us/--t1-us), a folder of "
+                                "another tool's .flo/.png (paired with the GT's windows), "
+                                "or a per-event flow file (.h5/.npz of --method triplet)")
     p.add_argument("--gt", required=True, type=existing_input,
                    help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
     p.add_argument("--events", default=None, type=existing_input,
@@ -87,6 +93,36 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _without_times(path: Path) -> bool:
+    """Whether FLOW is other tools' per-window files without their times: a folder of
+    them (not a DSEC ground-truth folder, which has its timestamps), or a pattern whose
+    first file has no JSON sidecar."""
+    from evmotion.io.flowout import is_pattern, sidecar_path, window_path
+    from evmotion.io.flowread import is_dsec_flow_folder
+
+    if is_pattern(path):
+        first = window_path(path, 0)
+        return first.exists() and not sidecar_path(first).exists()
+    return path.is_dir() and not is_dsec_flow_folder(path) and not any(
+        f.name.endswith((".flo.json", ".png.json")) for f in path.iterdir())
+
+
+def _load_paired(args, path: Path):
+    """FLOW files paired with the ground truth's windows (by name or order)."""
+    from evmotion.io.flowfiles import dsec_gt_files, read_gt_flow
+    from evmotion.io.flowread import read_flow_paired
+
+    reject_unused(args, {"--t0-us": "t0_us", "--t1-us": "t1_us"},
+                  f"to {path.name} (its files take the ground truth's windows)")
+    gt = Path(args.gt)
+    names = ([f.name for f in dsec_gt_files(gt)]
+             if gt.is_dir() or gt.suffix.lower() == ".txt" else None)
+    seq, how = read_flow_paired(path, read_gt_flow(gt), names)
+    print(f"note: {path}: {how}", file=sys.stderr)
+    flow = np.where(seq.valid[..., None], seq.flow, np.float32(np.nan))
+    return flow, np.asarray(seq.t0), np.asarray(seq.t1), None, None
+
+
 def _load_flow(args, h5_format=None):
     from evmotion.io.flowout import CONTAINERS
     from evmotion.io.flowread import read_flow
@@ -98,6 +134,8 @@ def _load_flow(args, h5_format=None):
         raise ParameterError(f"FLOW {path}: no such file or folder")
     if "{" not in path.name and Path(args.gt).resolve() == path.resolve():
         raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
+    if _without_times(path):
+        return _load_paired(args, path)
     if suffix == ".npy":
         return _load_npy(args, path)
     if suffix not in CONTAINERS:

@@ -59,6 +59,7 @@ __all__ = [
     "read_gt_flow",
     "read_mvsec_gt_flow",
     "read_dsec_gt_flow",
+    "dsec_gt_files",
 ]
 
 FLO_MAGIC = 202021.25
@@ -777,6 +778,28 @@ def read_mvsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
 
 
 @guarded('DSEC ground-truth flow')
+def _dsec_gt_layout(path: Path) -> tuple[Path, Path]:
+    """The folder of a DSEC flow ground truth's PNGs and its timestamps file."""
+    if path.is_file():
+        folder = path.parent / "forward" if (path.parent / "forward").is_dir() else path.parent
+        return folder, path
+    if not (path / "forward").is_dir() and (path / "flow" / "forward").is_dir():
+        path = path / "flow"  # the sequence folder that holds flow/
+    folder = path / "forward" if (path / "forward").is_dir() else path
+    cands = [folder / "forward_timestamps.txt", folder.parent / "forward_timestamps.txt",
+             path / "forward_timestamps.txt"]
+    ts_file = next((c for c in cands if c.exists()), None)
+    if ts_file is None:
+        raise FormatError(path, "no forward_timestamps.txt beside the flow PNGs")
+    return folder, ts_file
+
+
+def dsec_gt_files(path: str | os.PathLike) -> list[Path]:
+    """The PNGs of a DSEC flow ground truth (folder, its ``flow`` parent, or timestamps
+    file), in the order of its timestamps' lines (:func:`read_dsec_gt_flow`)."""
+    return sorted(_dsec_gt_layout(Path(path))[0].glob("*.png"))
+
+
 def read_dsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
     """Read DSEC ground-truth flow: a ``flow/forward`` folder of 16-bit PNGs with
     ``forward_timestamps.txt`` (``from_us, to_us`` per line) beside or inside it.
@@ -792,23 +815,12 @@ def read_dsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
         Flow in px/s (displacement / interval), NaN and invalid where the PNG says so.
     """
     path = Path(path)
-    if path.is_file():
-        ts_file = path
-        folder = path.parent / "forward" if (path.parent / "forward").is_dir() else path.parent
-    else:
-        if not (path / "forward").is_dir() and (path / "flow" / "forward").is_dir():
-            path = path / "flow"  # the sequence folder that holds flow/
-        folder = path / "forward" if (path / "forward").is_dir() else path
-        cands = [folder / "forward_timestamps.txt", folder.parent / "forward_timestamps.txt",
-                 path / "forward_timestamps.txt"]
-        ts_file = next((c for c in cands if c.exists()), None)
-        if ts_file is None:
-            raise FormatError(path, "no forward_timestamps.txt beside the flow PNGs")
+    folder, ts_file = _dsec_gt_layout(path)
     try:
         ts = np.loadtxt(ts_file, delimiter=",", comments="#", dtype=np.int64, ndmin=2)
     except ValueError as exc:
         raise FormatError(ts_file, f"cannot parse 'from_us, to_us' lines: {exc}") from None
-    pngs = sorted(folder.glob("*.png"))
+    pngs = dsec_gt_files(path)
     if ts.shape[1] == 3:  # from_us, to_us, file_index (the test set's listing)
         ts = ts[:, :2]
     if ts.shape[1] != 2:

@@ -44,7 +44,7 @@ from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 
-__all__ = ["describe_flow", "read_flow"]
+__all__ = ["describe_flow", "read_flow", "read_flow_paired"]
 
 
 def _read_sidecar(path: Path) -> dict | None:
@@ -91,6 +91,74 @@ def _read_one_window(path: Path, t0_us: int | None, t1_us: int | None) -> FlowSe
                  units="px/s", stored_units="px")
     return FlowSequence(flow=flow[None], t0=np.array([t0_us], np.int64),
                         t1=np.array([t1_us], np.int64), valid=valid[None], attrs=attrs)
+
+
+def read_flow_paired(path: str | os.PathLike, reference: FlowSequence,
+                     reference_names: list[str] | None = None) -> tuple[FlowSequence, str]:
+    """Per-window ``.flo`` / ``.png`` files that carry no times of their own (other tools'
+    output: RAFT, E-RAFT), given the windows of a ``reference`` (ground truth).
+
+    Parameters
+    ----------
+    path : path-like
+        A folder of ``.flo`` or ``.png`` files (one kind), or a pattern such as
+        ``pred_{:06d}.png``.
+    reference : FlowSequence
+        Its windows' times go to the files: by file name where ``reference_names`` (the
+        reference's own file names, e.g. a DSEC flow folder's PNGs) holds every file's
+        name, else in order where there are as many files as windows.
+    reference_names : list of str, optional
+        One name per reference window.
+
+    Returns
+    -------
+    (FlowSequence, str)
+        The flow in px/s (each file's displacement over its window's duration) with the
+        windows' times, and how the files were paired, for the user to read.
+
+    Examples
+    --------
+    >>> seq, how = read_flow_paired("eraft_pred/", read_dsec_gt_flow("flow/"))  # doctest: +SKIP
+    """
+    p = Path(path)
+    if is_pattern(p):
+        files = _pattern_files(p)
+    elif p.is_dir():
+        kinds = {f.suffix.lower() for f in p.iterdir() if f.suffix.lower() in (".flo", ".png")}
+        if len(kinds) != 1:
+            raise FormatError(p, f"expected a folder of .flo or of .png flow files, found "
+                              f"{'both' if kinds else 'neither'}")
+        files = sorted(f for f in p.iterdir() if f.suffix.lower() in kinds)
+    else:
+        raise FormatError(p, "no such folder" if not p.exists() else
+                          "expected a folder or a pattern of per-window .flo / .png files")
+    if CONTAINERS.get(files[0].suffix.lower()) not in PER_WINDOW:
+        raise FormatError(files[0], "not a per-window flow file (.flo or .png)")
+    n_ref = len(reference.t0)
+    index = {Path(n).stem: k for k, n in enumerate(reference_names or [])}
+    if index and all(f.stem in index for f in files):
+        at = [index[f.stem] for f in files]
+        how = f"{len(files)} files paired by name with the ground truth's {n_ref} windows"
+    elif len(files) == n_ref:
+        at = list(range(n_ref))
+        how = f"{len(files)} files paired in name order with the ground truth's windows"
+    else:
+        raise FormatError(p, f"{len(files)} flow files carry no times (no .json sidecars) "
+                          f"and the ground truth has {n_ref} windows"
+                          + (" whose file names they do not all share" if index else "")
+                          + ": cannot tell which window each file is; give one sidecar per "
+                          "file (t0_us, t1_us) or as many files as windows")
+    seqs = [_read_one_window(f, int(reference.t0[k]), int(reference.t1[k]))
+            if _read_sidecar(f) is None else _read_one_window(f, None, None)
+            for f, k in zip(files, at, strict=True)]
+    shapes = {s.flow.shape[1:3] for s in seqs}
+    if len(shapes) != 1:
+        raise FormatError(p, f"the files have different sizes: {sorted(shapes)}")
+    return FlowSequence(flow=np.concatenate([s.flow for s in seqs]),
+                        t0=np.concatenate([s.t0 for s in seqs]),
+                        t1=np.concatenate([s.t1 for s in seqs]),
+                        valid=np.concatenate([s.valid for s in seqs]),
+                        attrs={**seqs[0].attrs, "source": str(p)}), how
 
 
 def _pattern_files(path: Path) -> list[Path]:
@@ -184,7 +252,7 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
     """
     p = Path(path)
     suffix = p.suffix.lower()
-    if _is_dsec_flow_folder(p):
+    if is_dsec_flow_folder(p):
         return read_dsec_gt_flow(p)
     if suffix == ".npy":
         raise FormatError(p, "a bare .npy holds no times, units or validity mask; evmotion "
@@ -239,7 +307,7 @@ def describe_flow(path: str | os.PathLike) -> dict | None:
     2
     """
     p = Path(path)
-    if _is_dsec_flow_folder(p):  # DSEC's ground truth: PNGs and their timestamps
+    if is_dsec_flow_folder(p):  # DSEC's ground truth: PNGs and their timestamps
         seq = read_dsec_gt_flow(p)
         out = {"path": str(p), "format": "dsec-gt-flow", "container": "png folder"}
         out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
@@ -384,7 +452,7 @@ def _describe_npz(p: Path) -> dict | None:
     return out
 
 
-def _is_dsec_flow_folder(p: Path) -> bool:
+def is_dsec_flow_folder(p: Path) -> bool:
     """A DSEC optical-flow folder: ``forward/`` PNGs with ``forward_timestamps.txt``, or
     the sequence folder holding ``flow/``."""
     if not p.is_dir():
