@@ -462,3 +462,39 @@ def test_frame_intervals_without_events_are_said_to_be_left_out(scene, tmp_path)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert len(load_bos_input(scene).intervals) == 2
+
+
+def test_resume_knows_the_recording_by_its_events_not_its_path(tmp_path, capsys,
+                                                                monkeypatch):
+    """An interrupted run resumed on a recording replaced in place spliced two recordings
+    (the path was all it compared); the same recording named by another path was refused.
+    Now the events' fingerprint decides."""
+    import evmotion.methods.bos as bos
+
+    scene = plume_scene(tmp_path / "scene", intervals=3)
+    real, calls = bos.estimate_bos, []
+
+    def stop_second(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(bos, "estimate_bos", stop_second)
+    out = tmp_path / "out.h5"
+    argv = ["--iterations", "20", "--contrast-threshold", "0.2", "--out", out]
+    assert _run(["bos", scene, *argv], capsys)[0] == 130
+    monkeypatch.setattr(bos, "estimate_bos", real)
+    # the same recording by another path: resumed
+    other_path = tmp_path / "." / "scene" / ".." / "scene"
+    keep = out.with_name("out.h5.part").read_bytes()
+    rc, _, err = _run(["bos", other_path, *argv, "--resume"], capsys)
+    assert rc == 0, err
+    # another recording in the same place: refused, the interrupted work kept
+    out.unlink()
+    out.with_name("out.h5.part").write_bytes(keep)
+    other = plume_scene(tmp_path / "other", intervals=3)
+    events = (other / "events.txt").read_text().splitlines()
+    (scene / "events.txt").write_text("\n".join(events[:-7]) + "\n")
+    _one_line_error(["bos", scene, *argv, "--resume"], capsys, "source_events")
+    assert out.with_name("out.h5.part").exists()

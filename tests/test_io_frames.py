@@ -380,3 +380,29 @@ def test_images_txt_in_whole_microseconds_is_read_as_such(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert read_image_list(tmp_path / "images.txt")["t"].tolist() == [0, 8333]
+
+
+def test_unpadded_names_sort_as_numbers(tmp_path):
+    # frame_0 .. frame_11 sorted as text put frame_10 third: the flow of scrambled
+    # intervals, silently
+    imgs = _images(12)
+    for i, img in enumerate(imgs):
+        _png(tmp_path / f"frame_{i}.png", img)
+    (tmp_path / "timestamps.txt").write_text("".join(f"{i / 120:.6f}\n" for i in range(12)))
+    np.testing.assert_array_equal(read_frames(tmp_path).images, imgs)
+
+
+def test_timestamps_in_whole_microseconds_and_with_a_header(tmp_path):
+    from evmotion.errors import EvmotionWarning
+
+    imgs = _images(3)
+    for i, img in enumerate(imgs):
+        _png(tmp_path / f"img_{i}.png", img)
+    (tmp_path / "timestamps.txt").write_text("0\n8333\n16667\n")
+    with pytest.warns(EvmotionWarning, match="whole number: read as microseconds"):
+        assert read_frames(tmp_path).t.tolist() == [0, 8333, 16667]
+    assert read_frames(tmp_path, time_unit="ms").t.tolist() == [0, 8_333_000, 16_667_000]
+    (tmp_path / "timestamps.txt").unlink()
+    (tmp_path / "timestamps.csv").write_text("timestamp, filename\n0.0, img_0.png\n"
+                                             "0.008333, img_1.png\n0.016667, img_2.png\n")
+    assert read_frames(tmp_path).t.tolist() == [0, 8333, 16667]

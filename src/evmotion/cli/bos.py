@@ -99,7 +99,8 @@ def add_parser(sub) -> None:
                    metavar="N", help="at most N frame intervals (default all)")
     p.add_argument("--workers", type=int_range(1, 256), default=1,
                    help="parallel worker processes over frame intervals (default 1): each "
-                        "takes a contiguous chunk, whose first interval starts cold instead "
+                        "takes contiguous chunks (of at most 8 intervals, written as each "
+                        "is done), whose first interval starts cold instead "
                         "of from the previous one; the solution depends on its start, so "
                         "each later interval of the chunk differs from one worker's too "
                         "(by up to a quarter of the flow per window on a simulated plume, at "
@@ -131,6 +132,7 @@ def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.options import cluster_threads, scheduler_client
     from evmotion.errors import EventDataError, ParameterError
+    from evmotion.events import fingerprint
     from evmotion.io.bosinput import load_bos_input
     from evmotion.io.flowout import EXTRA_CONTAINERS
     from evmotion.methods.bos import BosOptions
@@ -160,7 +162,8 @@ def run(args) -> int:
         c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
         options = BosOptions(**opts)
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
-                 "seed": args.seed, "source": data.source,
+                 "seed": args.seed, "source": data.source, "frames": data.frames_source,
+                 "source_events": fingerprint(data.events),
                  "iterations": np.asarray(options.iterations_per_scale(), np.int64),
                  # the selection before C, which is estimated on it: a --resume with other
                  # --t0 / --t1 / --max-intervals is named as such
@@ -198,7 +201,8 @@ def run(args) -> int:
                                        label=f"[{bos.flow.t0[k]}, {bos.flow.t1[k]}) us")
     seconds = time.perf_counter() - t_start
     if args.json:
-        print_json({"rec": str(args.rec), "out": str(out), "param": args.param,
+        print_json({"rec": str(args.rec), "frames": data.frames_source, "out": str(out),
+                    "param": args.param,
                     "data_term": args.data_term, "roi": list(data.roi) if data.roi else None,
                     "contrast_threshold": c, "contrast_threshold_source": c_source,
                     "sensor_size": list(data.events.sensor_size),

@@ -135,6 +135,7 @@ def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.calib import undistorted_chunks
     from evmotion.cli.options import header_event_count, read_kwargs
+    from evmotion.events import fingerprint
     from evmotion.jitcache import compile_seconds
     from evmotion.methods.triplet import default_ridge, dense_defaults
     from evmotion.methods.triplet_stream import TripletStream
@@ -189,6 +190,8 @@ def run(args) -> int:
 
     tri = stream()
     attrs = {"method": "triplet", "source": str(args.file), "grid": grid,
+             # its first events (as many whatever --chunk-events), read before anything
+             "source_events": fingerprint(first[:4096]),
              **{f"triplet_{k}": v for k, v in params.items()}}
     # the outputs come last: nothing that can refuse the options runs after one exists
     events_out = dense_out = None

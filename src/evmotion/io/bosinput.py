@@ -58,6 +58,9 @@ class BosInput:
         ``(x, y, w, h)`` px.
     source : str
         Where the data came from.
+    frames_source : str
+        Where the frames came from (``images.txt`` beside the events, ``--frames``, or
+        the recording's own), as a real path.
     """
 
     events: EventArray
@@ -66,6 +69,7 @@ class BosInput:
     intervals: np.ndarray
     roi: tuple[int, int, int, int] | None
     source: str
+    frames_source: str = ""
 
 
 def frame_intervals(frame_times: np.ndarray, t_first: int, t_last: int, *,
@@ -136,12 +140,38 @@ def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, b
             raise FormatError(path, "frames not found (no such file or folder)")
         return path, False
     folder = rec if rec.is_dir() else rec.parent
-    if (folder / "images.txt").is_file():
+    beside = (folder / "images.txt").is_file()
+    if beside and rec.is_file() and rec.name != "events.txt" and _holds_frames(rec):
+        # a recording with frames of its own (AEDAT4 APS) next to another scene's
+        # images.txt: its own frames are the ones registered with its events
+        warnings.warn(EvmotionWarning(
+            f"{rec}: the recording holds frames of its own, which are used; the images.txt "
+            f"beside it ({folder / 'images.txt'}) is not (give it with --frames to use it)"),
+            stacklevel=3)
+        return rec, False
+    if beside:
         return folder, False
+    if rec.is_file() and rec.name == "events.txt":
+        raise FormatError(rec, "no frames: BOS needs frames of the background, and there "
+                          "is no images.txt beside these ECD-style events",
+                          "give them with --frames")
     if find_frames(rec) in ("ccs", "recording"):
         return rec, True
     raise FormatError(rec, "no frames: BOS needs frames of the background, and there is no "
                       "images.txt beside the events", "give them with --frames")
+
+
+def _holds_frames(rec: Path) -> bool:
+    """Whether an event recording holds frames of its own: AEDAT4 APS frames (the DAVIS
+    files that come with frames)."""
+    from evmotion.io.frames import describe_frames
+
+    if rec.suffix.lower() != ".aedat4":
+        return False
+    try:
+        return describe_frames(rec) is not None
+    except FormatError:
+        return False
 
 
 def _events_on_frames(rec: Path, fmt: str | None, frame_size: tuple[int, int], **kw):
@@ -229,11 +259,18 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         raise FormatError(rec, "an ECD-style folder with frames (images.txt) but no "
                           "events.txt: BOS needs the events too")
     fh, fw = images.shape[1:3]
-    events = _events_on_frames(rec, fmt, (fh, fw))
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        events = _events_on_frames(rec, fmt, (fh, fw))
     if not len(events):
         raise EmptyWindowError(f"{rec}: no events")
-    if (fh, fw) != tuple(events.sensor_size) and str(
-            events.meta.get("sensor_size_from", "")).startswith(GUESSED_SIZES):
+    guessed_size = (fh, fw) != tuple(events.sensor_size) and str(
+        events.meta.get("sensor_size_from", "")).startswith(GUESSED_SIZES)
+    for w in said:
+        # the reader's guess of a size the frames then give is not worth a word
+        if not (guessed_size and "no sensor size" in str(w.message)):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if guessed_size:
         # events that do not state their sensor (ECD text without frames beside it, say)
         # lie on the frames' grid
         events = _events_on_frames(rec, fmt, (fh, fw), sensor_size=(fh, fw))
@@ -288,7 +325,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
                              f"[{t_first}, {t_last}] us")
     _warn_clipped(images, intervals, src, roi)
     return BosInput(events=events, frames=images, frame_times=times, intervals=intervals,
-                    roi=roi, source=str(rec))
+                    roi=roi, source=str(rec), frames_source=os.path.realpath(src))
 
 
 def _warn_clipped(images: np.ndarray, intervals: np.ndarray, src, roi) -> None:

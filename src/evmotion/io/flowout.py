@@ -302,6 +302,12 @@ class FlowOutput(PartFileWriter):
                                  "the windowing options of the first run, or start again")
 
 
+# attributes that describe a run without identifying its input: the recording's path
+# (``./rec`` and ``/data/rec`` are one recording, and a file replaced in place is
+# another), which the events' fingerprint (``source_events``) identifies instead
+NOT_COMPARED = frozenset({"source"})
+
+
 class H5FlowOutput(FlowOutput):
     """``.h5`` output written window by window to ``OUT.part``
     (:class:`~evmotion.io.flowfiles.FlowWriter`), renamed when complete, resumable.
@@ -339,7 +345,8 @@ class H5FlowOutput(FlowOutput):
         old = dict(self.w.f.attrs)
         made = self.path if self.reopened_final else self.part
         for key, value in attrs.items():
-            if self.w.n_done and key in old and not _same(old[key], value):
+            if (self.w.n_done and key in old and key not in NOT_COMPARED
+                    and not _same(old[key], value)):
                 self.abort()
                 raise ParameterError(f"cannot resume (--resume): {made} was made with "
                                      f"{key}={json_value(old[key])!r}, this run has "

@@ -16,13 +16,15 @@ timestamps (int64 µs). :func:`read_frames` reads it from
 from __future__ import annotations
 
 import os
+import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, MissingDependencyError, ParameterError
-from evmotion.io.guard import time_to_us
+from evmotion.errors import EvmotionWarning, FormatError, MissingDependencyError, ParameterError
+from evmotion.io.guard import NS_EPOCH_US, time_to_us
 from evmotion.io.pngfile import png_header, read_png
 
 __all__ = ["Frames", "describe_frames", "find_frames", "image_size", "read_frames",
@@ -222,21 +224,31 @@ def _ecd_list(folder: Path) -> tuple[np.ndarray, list[Path], Path]:
     return lst["t"], files, lst_path
 
 
-def _parse_timestamps(path: Path, unit: str) -> tuple[np.ndarray, list[str] | None]:
-    """Times (µs) of a timestamps file, and the image names when its lines are ``t path``."""
-    if unit not in TIME_UNITS:
+def _parse_timestamps(path: Path, unit: str | None) -> tuple[np.ndarray, list[str] | None]:
+    """Times (µs) of a timestamps file, and the image names when its lines are ``t path``.
+    ``unit`` None: seconds where a time has a decimal point or exponent, else whole
+    numbers, read as µs (ns past 1e17) with a warning, as events text."""
+    if unit is not None and unit not in TIME_UNITS:
         raise ParameterError(f"time_unit must be one of {sorted(TIME_UNITS)}, got {unit!r}")
-    times, names = [], []
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
         raise FormatError(path, f"cannot read timestamps: {exc}") from None
-    for i, line in enumerate(text.splitlines(), 1):
-        parts = line.replace(",", " ").split()
-        if not parts or parts[0].startswith("#"):
-            continue
+    lines = [(i, line.replace(",", " ").split()) for i, line in enumerate(text.splitlines(), 1)]
+    lines = [(i, parts) for i, parts in lines if parts and not parts[0].startswith("#")]
+    if len(lines) > 1 and _HEADER.fullmatch(lines[0][1][0]) and \
+            _NUMBER.fullmatch(lines[1][1][0]):
+        lines = lines[1:]  # a header line ("timestamp, filename")
+    rows = []
+    for i, parts in lines:
         if len(parts) > 2:
-            raise FormatError(path, f"line {i}: expected 't' or 't path', got {line.strip()!r}")
+            raise FormatError(path, f"line {i}: expected 't' or 't path', got "
+                              f"{' '.join(parts)!r}")
+        rows.append((i, parts))
+    if unit is None:
+        unit = _sniffed_unit(path, [parts[0] for _, parts in rows])
+    times, names = [], []
+    for i, parts in rows:
         times.append(time_to_us(path, parts[0], TIME_UNITS[unit], f"line {i}"))
         names.append(parts[1] if len(parts) == 2 else None)
     if any(n is None for n in names) and not all(n is None for n in names):
@@ -244,9 +256,41 @@ def _parse_timestamps(path: Path, unit: str) -> tuple[np.ndarray, list[str] | No
     return np.asarray(times, dtype=np.int64), (names if names and names[0] is not None else None)
 
 
+def natural_key(path: Path) -> list:
+    """Sort key of a file name with its digit runs as numbers: ``frame_2`` before
+    ``frame_10`` (plain text order puts ``frame_10`` first, unpadded names scrambled).
+
+    Examples
+    --------
+    >>> [p.name for p in sorted(map(Path, ["f_10.png", "f_2.png", "f_1.png"]), key=natural_key)]
+    ['f_1.png', 'f_2.png', 'f_10.png']
+    """
+    return [(0, int(tok), "") if tok.isdigit() else (1, 0, tok)
+            for tok in re.split(r"(\d+)", path.name) if tok]
+
+
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+# a column name: letters, not a number's spelling (nan, inf: a bad time, said as such)
+_HEADER = re.compile(r"(?!(?i:[-+]?(nan|inf|infinity))$)[A-Za-z_][\w\[\]()./ -]*")
+
+
+def _sniffed_unit(path: Path, firsts: list[str]) -> str:
+    """The unit of a timestamps file's times, as :func:`evmotion.io.ecd.sniff_time_unit`
+    tells an events file's: decimals are seconds; whole numbers are µs (ns past 1e17),
+    said in a warning."""
+    if not firsts or not all(f.lstrip("+-").isdigit() for f in firsts):
+        return "s"  # decimals (or a bad field, which time_to_us names)
+    unit = "ns" if int(firsts[0]) > NS_EPOCH_US else "us"
+    warnings.warn(EvmotionWarning(
+        f"{path}: every frame time is a whole number: read as "
+        f"{'nanoseconds since the epoch' if unit == 'ns' else 'microseconds'} (decimal "
+        "times are seconds; other units: time_unit=)"), stacklevel=4)
+    return unit
+
+
 def _images_in(folder: Path) -> list[Path]:
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
-                   and p.is_file())
+    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+                    and p.is_file()), key=natural_key)
     if not files and (folder / "images").is_dir():
         files = _images_in(folder / "images")
     return files
@@ -427,7 +471,7 @@ def find_frames(path: str | os.PathLike, timestamps: str | os.PathLike | None = 
 
 
 def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None = None,
-                time_unit: str = "s", sensor_size: tuple[int, int] | None = None,
+                time_unit: str | None = None, sensor_size: tuple[int, int] | None = None,
                 warp: bool = True) -> Frames:
     """Frames co-captured with events, from any supported layout.
 
@@ -452,8 +496,10 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
           HDF5...).
     timestamps : path-like, optional
         Timestamps file of an image folder or a video.
-    time_unit : str
-        Unit of the times in a timestamps file: ``s`` (default), ``ms``, ``us``, ``ns``.
+    time_unit : str, optional
+        Unit of the times in a timestamps file: ``s``, ``ms``, ``us``, ``ns``; default
+        seconds where a time has a decimal point, else whole numbers read as µs (ns past
+        1e17) with a warning.
     sensor_size : (int, int), optional
         ``(height, width)`` of the event sensor the BOS frames are mapped onto
         (default 720x1280).
@@ -525,7 +571,8 @@ def _header(path: Path) -> tuple[tuple[int, int], int]:
 
 
 def describe_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None = None,
-                    time_unit: str = "s", sensor_size: tuple[int, int] | None = None) -> dict | None:
+                    time_unit: str | None = None, sensor_size: tuple[int, int] | None = None
+                    ) -> dict | None:
     """Summary of the frames at ``path`` without decoding them all: ``count``, ``size``
     (``WxH``), ``bit_depth``, ``t_first_us``, ``t_last_us``, ``span_s``, ``fps``; None when
     ``path`` holds no frames (AEDAT4 frames are decoded; other event files are not looked
