@@ -498,3 +498,25 @@ def test_resume_knows_the_recording_by_its_events_not_its_path(tmp_path, capsys,
     (scene / "events.txt").write_text("\n".join(events[:-7]) + "\n")
     _one_line_error(["bos", scene, *argv, "--resume"], capsys, "source_events")
     assert out.with_name("out.h5.part").exists()
+
+
+def test_where_the_frames_come_from(shared_data, tmp_path, capsys):
+    """ECD events without images.txt: one line (a raw FileNotFoundError before); an AEDAT4
+    with APS frames beside another scene's images.txt: its own frames, said (the other
+    scene's were used silently)."""
+    scene = plume_scene(tmp_path / "scene")
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    shutil.copy(scene / "events.txt", bare / "events.txt")
+    _one_line_error(["bos", bare / "events.txt", "--out", tmp_path / "b.h5"], capsys,
+                    "no images.txt beside", "--frames")
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    (mixed / "rec.aedat4").symlink_to(shared_data / "formats" / "davis346.aedat4")
+    shutil.copytree(scene / "images", mixed / "images")
+    shutil.copy(scene / "images.txt", mixed / "images.txt")
+    rc, text, err = _run(["bos", mixed / "rec.aedat4", "--max-intervals", "1", "--out",
+                          tmp_path / "m.h5", "--json"], capsys)
+    assert rc == 0, err
+    assert "holds frames of its own, which are used" in err
+    assert json.loads(text)["frames"].endswith("davis346.aedat4")
