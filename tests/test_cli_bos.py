@@ -104,7 +104,7 @@ def _one_line_error(argv, capsys, *words):
 
 @pytest.mark.parametrize("opt,value,word", [
     ("--iterations", "0", "[1, 100000]"), ("--iterations", "x", "integer"),
-    ("--contrast-threshold", "nan", "finite"), ("--contrast-threshold", "-0.1", "(0, 10]"),
+    ("--contrast-threshold", "nan", "finite"), ("--contrast-threshold", "-0.1", "[0.001, 10]"),
     ("--workers", "0", "[1, 256]"), ("--max-intervals", "0", ">= 1"), ("--param", "q", "invalid"),
     ("--data-term", "l2", "invalid"),
 ])
