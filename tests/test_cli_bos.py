@@ -520,3 +520,20 @@ def test_where_the_frames_come_from(shared_data, tmp_path, capsys):
     assert rc == 0, err
     assert "holds frames of its own, which are used" in err
     assert json.loads(text)["frames"].endswith("davis346.aedat4")
+
+
+def test_rows_count_the_rois_events_and_no_speed_without_support(tmp_path, capsys):
+    """The rows counted the whole sensor's events under --roi, and said 0 px/s (still air)
+    where no pixel was valid (the file holds NaN there)."""
+    from evmotion.io.ecd import read as read_ecd
+
+    scene = plume_scene(tmp_path / "scene")
+    rc, text, err = _run(["bos", scene, "--roi", "10", "16", "20", "16", "--iterations",
+                          "20", "--out", tmp_path / "b.h5", "--json"], capsys)
+    assert rc == 0, err
+    ev = read_ecd(scene)
+    for row in json.loads(text)["windows"]:
+        w = ev.slice_time(row["t0_us"], row["t1_us"])
+        inside = (w.x >= 10) & (w.x < 30) & (w.y >= 16) & (w.y < 32)
+        assert row["n_events"] == int(inside.sum()) < len(w)
+        assert (row["median_speed_px_s"] is None) == (row["valid_fraction"] == 0)

@@ -298,7 +298,7 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
     c = res.contrast_threshold
     numbers = {"frame_index": i, "contrast_threshold": float("nan") if c is None else c,
                "calibrated": float(res.calibrated), "objective": res.objective,
-               "n_events": len(data.events.slice_time(t0, t1)),
+               "n_events": _events_in(data, t0, t1),
                "seconds": float(sum(res.timings_s))}
     inside = np.zeros(res.valid.shape, bool)
     if np.isfinite(res.objective):  # NaN: an interval without events, nothing estimated
@@ -318,8 +318,18 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
     speed = np.hypot(res.flow[..., 0], res.flow[..., 1])[valid]
     return {"t0_us": t0, "t1_us": t1, **numbers, "contrast_threshold": c,
             "valid_fraction": float(valid.mean()),
-            "median_speed_px_s": float(np.median(speed)) if speed.size else 0.0,
+            # no valid pixel: no speed measured (not 0 px/s, which reads as still air)
+            "median_speed_px_s": float(np.median(speed)) if speed.size else float("nan"),
             "fit_gain": res.fit_gain}
+
+
+def _events_in(data: BosInput, t0: int, t1: int) -> int:
+    """Events of the interval inside the ROI (all of the sensor without one)."""
+    ev = data.events.slice_time(t0, t1)
+    if data.roi is None:
+        return len(ev)
+    x, y, w, h = data.roi
+    return int(np.count_nonzero((ev.x >= x) & (ev.x < x + w) & (ev.y >= y) & (ev.y < y + h)))
 
 
 def warn_underfit(gains) -> None:
