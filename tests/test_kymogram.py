@@ -513,3 +513,24 @@ def test_a_fit_whose_spread_is_half_its_speed_is_no_measurement():
     assert not fit.reliable and "quarter" in fit.unreliable_because
     assert RidgeFit(-500.0, 10.0, 0.0, 0.0, np.zeros(0), np.zeros(0), np.zeros(0, bool), 0.0,
                     "correlation").reliable
+
+
+def test_cli_frames_on_another_grid_are_refused(plume, tmp_path, capsys):
+    """Frames of another size than the events: the line sampled another part of the
+    scene, silently (probe N)."""
+    import png
+
+    sim, folder = plume
+    other = tmp_path / "big"
+    (other / "images").mkdir(parents=True)
+    lines = []
+    for i in range(4):
+        with open(other / "images" / f"f{i}.png", "wb") as fh:
+            png.Writer(width=128, height=96, greyscale=True).write(
+                fh, np.full((96, 128), 100 + i, np.uint8))
+        lines.append(f"{i / 120:.6f} images/f{i}.png\n")
+    (other / "images.txt").write_text("".join(lines))
+    rc, _, err = _cli(capsys, folder, "--col", 32, "--frames", other, "--out",
+                      tmp_path / "k.png")
+    assert rc == 2 and "128x96 px but the events' sensor is 64x96" in err
+    assert len(err.strip().splitlines()) == 1

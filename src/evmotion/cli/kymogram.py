@@ -237,7 +237,7 @@ def _cli_names(text: str) -> str:
                   lambda m: _OPTION_NAMES[m.group(1)], text)
 
 
-def _frames_kymogram(path, line, t0, t1):
+def _frames_kymogram(path, line, t0, t1, sensor_size):
     import numpy as np
 
     from evmotion.errors import FormatError, ParameterError
@@ -251,6 +251,12 @@ def _frames_kymogram(path, line, t0, t1):
         raise ParameterError(f"--frames {path}: no frames read ({exc.message}); give an "
                              "ECD-style folder (images.txt + images/), an AEDAT4 file with "
                              "APS frames, or images with a timestamps file") from None
+    if sensor_size is not None and tuple(fr.sensor_size) != tuple(sensor_size):
+        # another grid: the line's pixels would sample another part of the scene
+        raise ParameterError(f"--frames {path} are {fr.sensor_size[1]}x{fr.sensor_size[0]} "
+                             f"px but the events' sensor is {sensor_size[1]}x"
+                             f"{sensor_size[0]} px (W x H): a kymogram line needs both on "
+                             "one pixel grid")
     t = np.asarray(fr.t, dtype=np.int64)
     sel = np.ones(t.size, bool)
     if t0 is not None:
@@ -295,6 +301,7 @@ def run(args) -> int:
             raise empty_selection(args, args.file, int(info["t_first_us"]),
                                   int(info["t_last_us"]), "no events")
         line = _line(args, events.sensor_size)
+        grid = events.sensor_size
         rate = 1200.0 if args.rate is None else args.rate
         # the time axis spans the events: a --t0 / --t1 beyond them (0.5 s on a recording
         # whose clock starts at 1.6e9 s) only adds empty bins, petabytes of them
@@ -308,9 +315,10 @@ def run(args) -> int:
     else:
         kymos = [_field_kymogram(args)]
         line = kymos[0].line
+        grid = None
         t0, t1 = args.t0, args.t1
     if args.frames is not None:
-        kymos.append(_frames_kymogram(args.frames, line, t0, t1))
+        kymos.append(_frames_kymogram(args.frames, line, t0, t1, grid))
 
     fits, summaries = [], []
     t_start = float(kymos[0].t_s[0]) - 0.5 / kymos[0].rate_hz
