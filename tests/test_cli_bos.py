@@ -116,7 +116,9 @@ def test_bad_options_at_parse_time(scene, tmp_path, capsys, opt, value, word):
 def test_bad_inputs(scene, tmp_path, capsys):
     out = tmp_path / "x.h5"
     _one_line_error(["bos", scene, "--roi", 30, 0, 20, 20, "--out", out], capsys, "roi",
-                    "outside")
+                    "reaches beyond the 40x48")
+    _one_line_error(["bos", scene, "--roi", 60, 0, 20, 20, "--out", out], capsys, "roi",
+                    "lies outside the 40x48")
     _one_line_error(["bos", scene, "--t0", 10, "--t1", 5, "--out", out], capsys, "--t1")
     _one_line_error(["bos", tmp_path / "nothing", "--out", out], capsys, "no such")
     blocker = tmp_path / "file"

@@ -64,8 +64,10 @@ def roi_mask(sensor_size: tuple[int, int], roi: tuple[int, int, int, int] | None
         raise ParameterError(f"roi (x={x}, y={y}, w={rw}, h={rh}) is empty: its width and "
                              "height must be > 0")
     if x < 0 or y < 0 or x + rw > w or y + rh > h:
-        raise ParameterError(f"roi (x={x}, y={y}, w={rw}, h={rh}) lies outside the "
-                             f"{w}x{h} (W x H) sensor")
+        inside = x < w and y < h and x + rw > 0 and y + rh > 0
+        raise ParameterError(f"roi (x={x}, y={y}, w={rw}, h={rh}) "
+                             f"{'reaches beyond' if inside else 'lies outside'} the {w}x{h} "
+                             "(W x H) sensor")
     mask[y:y + rh, x:x + rw] = True
     return mask
 

@@ -317,10 +317,12 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
                 f"[{times[0] * 1e-6:.6g}, {times[-1] * 1e-6:.6g}] s): not estimated, not in "
                 "the output"), stacklevel=2)
     if not len(intervals):
-        span = f" within --t0 {t0} / --t1 {t1} us" if t0 is not None or t1 is not None else ""
+        span = " within " + " / ".join(f"{name} {v} us" for name, v in (("--t0", t0),
+                                                                        ("--t1", t1))
+                                        if v is not None)
         raise ParameterError(f"no frame interval [t_i, t_i+1) overlaps the events' time span "
                              f"[{t_first}, {t_last}] us{span} (an interval must lie wholly "
-                             "within --t0 / --t1)" if span else
+                             "within them)" if t0 is not None or t1 is not None else
                              f"no frame interval overlaps the events' time span "
                              f"[{t_first}, {t_last}] us")
     _warn_clipped(images, intervals, src, roi)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import os
+import textwrap
 from collections.abc import Sequence
 
 import numpy as np
@@ -38,7 +39,8 @@ def _speed_label(fit: RidgeFit, geometry: dict | None) -> str:
         dv = px_per_s_to_m_per_s(fit.velocity_std_px_s, **geometry)
         text += f"\n|v| = {v:.3g} ± {dv:.2g} m/s"
     if not fit.reliable:
-        text += "\nunreliable: spread > speed / 2"
+        # the fit's own reason (spread over a quarter of the speed, or ridge residuals)
+        text += "\n" + textwrap.fill(f"unreliable: {fit.unreliable_because}", 48)
     return text
 
 
