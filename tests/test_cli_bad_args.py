@@ -956,3 +956,20 @@ def test_outputs_that_land_elsewhere_and_times_in_the_wrong_unit(tmp_path, capsy
     assert main(["flow", str(rec), "--t1", "60000", "--scales", "1", "--out",
                  str(tmp_path / "f.h5")]) == 0
     assert "seconds meant as µs" in capsys.readouterr().err
+
+
+def test_t0_on_an_epoch_clock_is_questioned(tmp_path, capsys):
+    # '--t0 0.5' on a recording whose clock is the Unix epoch (DV's AEDAT4) lies before
+    # every event: the whole recording, silently; the warning names +0.5
+    from evmotion.io import write_events
+    from evmotion.sim import simulate
+
+    ev = simulate("translation", duration_s=0.03, sensor_size=(40, 50),
+                  show_progress=False).events
+    ev.t += 1_700_000_000_000_000
+    rec = tmp_path / "epoch.h5"
+    write_events(rec, ev)
+    assert main(["flow", str(rec), "--t0", "0.01", "--scales", "1", "--out",
+                 str(tmp_path / "f.h5")]) == 0
+    err = capsys.readouterr().err
+    assert "before its first event" in err and "is +0.01" in err

@@ -133,7 +133,7 @@ def run(args) -> int:
     import numpy as np
 
     from evmotion.cli import print_json
-    from evmotion.cli.options import cluster_threads, scheduler_client
+    from evmotion.cli.options import check_time_range, cluster_threads, scheduler_client
     from evmotion.errors import EventDataError, ParameterError
     from evmotion.events import fingerprint
     from evmotion.io.bosinput import load_bos_input
@@ -161,6 +161,7 @@ def run(args) -> int:
     try:
         data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi,
                               t0=args.t0, t1=args.t1, max_intervals=args.max_intervals)
+        check_time_range(args, int(data.events.t[0]), int(data.events.t[-1]), args.rec)
         check_flow_out(out, len(data.intervals))
         c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
         options = BosOptions(**opts)

@@ -646,16 +646,23 @@ def check_time_range(args, t_start: int, t_end: int, file: str | os.PathLike = "
     if t1 is not None and t1 <= t_start:
         raise ParameterError(f"--t1 {format_time_us(t1)} is at or before the first event: "
                              f"{span}")
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
     if t1 is not None and t1 - t_end > 1000 * max(t_end - t_start, 1000):
         # '--t1 60000' meant as µs reads as 60000 s: the whole recording, silently
-        import warnings
-
-        from evmotion.errors import EvmotionWarning
-
         warnings.warn(EvmotionWarning(
             f"--t1 {format_time_us(t1)} lies more than 1000 times the recording's length "
             f"past its last event ({span}): seconds meant as µs? Give a unit (60000us)"),
             stacklevel=2)
+    if t0 is not None and t_start - t0 > 1000 * max(t_end - t_start, 1000):
+        # '--t0 0.5' on a recording whose clock is the Unix epoch (DV's AEDAT4): before
+        # every event, so the whole recording, silently
+        warnings.warn(EvmotionWarning(
+            f"--t0 {format_time_us(t0)} lies more than 1000 times the recording's length "
+            f"before its first event ({span}): a time after the first event is "
+            f"+{_seconds(t0)}"), stacklevel=2)
 
 
 def empty_selection(args, file: str | os.PathLike, t_start: int, t_end: int, what: str
