@@ -58,6 +58,8 @@ def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s"
     q = np.asarray(q, dtype=np.float64)
     if limit is None:
         limit = symmetric_limit(q)
+    finite = np.abs(q[np.isfinite(q)])
+    peak = float(finite.max()) if finite.size else 0.0
     h, w = q.shape
     scale = 6.0 / max(h, w)
     import matplotlib
@@ -75,8 +77,11 @@ def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s"
     if title:
         ax.set_title(title, fontsize=10)
     cax = fig.add_axes((0.8, 0.1, 0.04, 0.76))
-    bar = fig.colorbar(im, cax=cax)
-    bar.set_label(f"q [{unit}]", fontsize=8)
+    clipped = peak > limit * (1 + 1e-9)
+    bar = fig.colorbar(im, cax=cax, extend="both" if clipped else "neither")
+    # a scale that clips says so: the arrows' ends and the peak it does not show
+    bar.set_label(f"q [{unit}]" + (f"; |q| up to {peak:.3g} shown at the ends" if clipped
+                                   else ""), fontsize=8)
     bar.ax.tick_params(labelsize=7)
     canvas.draw()
     return np.ascontiguousarray(np.asarray(canvas.buffer_rgba())[..., :3]), float(limit)
