@@ -342,7 +342,7 @@ CASES = [
     ("bos-roi-negative", ["bos", "{bos}", "--roi", "-1", "0", "8", "8", "--out",
                           "{dir}/b.h5"], ["--roi", "'-1'"]),
     ("bos-roi-outside", ["bos", "{bos}", "--roi", "30", "0", "20", "20", "--out",
-                         "{dir}/b.h5"], ["--roi", "x=30", "outside", "48x40"]),
+                         "{dir}/b.h5"], ["--roi", "x=30", "beyond", "48x40"]),
     ("bos-roi-empty", ["bos", "{bos}", "--roi", "0", "0", "0", "8", "--out", "{dir}/b.h5"],
      ["--roi", "w=0", "empty"]),
     ("bos-roi-small", ["bos", "{bos}", "--roi", "0", "0", "8", "8", "--out", "{dir}/b.h5"],

@@ -380,3 +380,27 @@ def test_windows_hold_as_many_events_per_pixel_on_larger_sensors(tmp_path):
                                       sensor_size=size))
         assert default_window_events(path) == want
     assert default_window_events(tmp_path / "missing.h5") == 30_000
+
+
+def test_an_interrupted_parallel_run_says_what_it_kept(tmp_path, capsys, monkeypatch):
+    """With several workers the windows are written a chunk at a time and --resume needs
+    one worker: the interruption said 'run the same command with --resume' (refused), or
+    a bare 'interrupted' for work lost (probe O)."""
+    import evmotion.cli.flow_multicm as fm
+    from evmotion.cli import main
+    from evmotion.io import write_events
+    from evmotion.sim import simulate
+
+    rec = tmp_path / "r.h5"
+    write_events(rec, simulate("translation", duration_s=0.05, sensor_size=(40, 50),
+                               show_progress=False).events)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+        yield
+
+    monkeypatch.setattr(fm, "_estimate_parallel", interrupted)
+    rc = main(["flow", str(rec), "--workers", "2", "--window-events", "2000",
+               "--out", str(tmp_path / "f.h5")])
+    err = capsys.readouterr().err
+    assert rc == 130 and "a chunk at a time" in err and "nothing is kept" in err

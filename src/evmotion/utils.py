@@ -84,8 +84,26 @@ def kept_for_resume() -> list[Path]:
 
 
 def forget_kept_for_resume() -> None:
-    """Start a new command: forget what :func:`keep_for_resume` recorded."""
+    """Start a new command: forget what :func:`keep_for_resume` recorded, and its
+    :func:`set_interrupt_note`."""
     _KEPT_FOR_RESUME.clear()
+    _INTERRUPT_NOTE.clear()
+
+
+def set_interrupt_note(kept: str, lost: str) -> None:
+    """What the command line says after an interruption in place of its usual "run the
+    same command with --resume" (``kept``: with partial outputs kept) or its bare
+    "interrupted" (``lost``: none kept), for a run whose resume needs other options (a
+    parallel run: one worker)."""
+    _INTERRUPT_NOTE[:] = [kept, lost]
+
+
+def interrupt_note() -> tuple[str, str] | None:
+    """The ``(kept, lost)`` of :func:`set_interrupt_note`, or None."""
+    return tuple(_INTERRUPT_NOTE) if _INTERRUPT_NOTE else None
+
+
+_INTERRUPT_NOTE: list[str] = []
 
 
 def nearest_existing(path: str | os.PathLike) -> Path:

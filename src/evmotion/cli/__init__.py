@@ -262,11 +262,12 @@ def _interrupted_line() -> str:
     """The line that reports an interruption, naming what the work kept for ``--resume``."""
     utils = sys.modules.get("evmotion.utils")
     kept = utils.kept_for_resume() if utils is not None else []
+    note = utils.interrupt_note() if utils is not None else None
     if not kept:
-        return "evmotion: interrupted"
+        return "evmotion: interrupted" + (f"; {note[1]}" if note else "")
     return (f"evmotion: interrupted; the work done so far is kept in "
-            f"{', '.join(str(p) for p in kept)}: run the same command with --resume to "
-            "continue")
+            f"{', '.join(str(p) for p in kept)}: "
+            + (note[0] if note else "run the same command with --resume to continue"))
 
 
 def _on_sigint(signum, frame) -> None:

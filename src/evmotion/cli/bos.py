@@ -102,8 +102,7 @@ def add_parser(sub) -> None:
                    metavar="N", help="at most N frame intervals (default all)")
     p.add_argument("--workers", type=int_range(1, 256), default=1,
                    help="parallel worker processes over frame intervals (default 1): each "
-                        "takes contiguous chunks (of at most 8 intervals, written as each "
-                        "is done), whose first interval starts cold instead "
+                        "takes a contiguous chunk, whose first interval starts cold instead "
                         "of from the previous one; the solution depends on its start, so "
                         "each later interval of the chunk differs from one worker's too "
                         "(by up to a quarter of the flow per window on a simulated plume, at "
@@ -133,7 +132,12 @@ def run(args) -> int:
     import numpy as np
 
     from evmotion.cli import print_json
-    from evmotion.cli.options import check_time_range, cluster_threads, scheduler_client
+    from evmotion.cli.options import (
+        check_time_range,
+        cluster_threads,
+        note_parallel_interrupt,
+        scheduler_client,
+    )
     from evmotion.errors import EventDataError, ParameterError
     from evmotion.events import fingerprint
     from evmotion.io.bosinput import load_bos_input
@@ -154,6 +158,7 @@ def run(args) -> int:
         if args.workers > 1 or args.scheduler is not None:
             raise ParameterError("--resume needs --workers 1 and no --scheduler: with several "
                                  "chunks each chunk's first interval starts cold")
+    note_parallel_interrupt(args, "interval")
     t_start = time.perf_counter()
     opts = {"param": args.param, "data_term": args.data_term, "seed": args.seed}
     if args.iterations is not None:

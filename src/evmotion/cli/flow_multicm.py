@@ -250,6 +250,7 @@ def _check_space(out: Path, windows, sensor_size) -> None:
 def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.calib import read_for_windows
+    from evmotion.cli.options import note_parallel_interrupt
     from evmotion.events import fingerprint
     from evmotion.utils import progress
 
@@ -272,6 +273,7 @@ def run(args) -> int:
         estimate, attrs = estimator(args)
         workers = 1
     else:
+        note_parallel_interrupt(args, "window")
         # imported here: --method dnn (which runs through this runner) needs none of it
         from evmotion.methods.multicm import estimate_flow
 

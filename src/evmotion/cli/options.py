@@ -816,6 +816,21 @@ INPUT_ATTRS = ("file", "rec", "flow", "input", "gt", "events", "frames", "checkp
 OUTPUT_ATTRS = ("out", "output", "video", "csv", "png_dir")
 
 
+def note_parallel_interrupt(args: argparse.Namespace, unit: str) -> None:
+    """For a resumable run (``--out`` .h5) on several workers or a cluster: what an
+    interruption keeps, said as it is (``--resume`` needs one worker; the ``unit``s are
+    written a chunk at a time)."""
+    from evmotion.utils import set_interrupt_note
+
+    if str(getattr(args, "out", "")).lower().endswith((".h5", ".hdf5")) and (
+            (getattr(args, "workers", None) or 1) > 1 or getattr(args, "scheduler", None)):
+        set_interrupt_note(
+            f"continue it with --resume and --workers 1 (no --scheduler): the {unit}s after "
+            "those kept then run as one worker runs them",
+            f"with several workers the {unit}s are written a chunk at a time, as each chunk "
+            "ends, and none had ended: nothing is kept")
+
+
 def check_outputs_spare_inputs(args: argparse.Namespace) -> None:
     """Refuse an output that is one of the command's inputs (``flow rec.h5 --out rec.h5``
     replaced the recording with its flow).

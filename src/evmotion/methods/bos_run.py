@@ -125,11 +125,6 @@ def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, 
     return c, (f"median of {est.size} intervals" if c is not None else "none"), est
 
 
-#: Most frame intervals of one parallel chunk (warm-started within it; each chunk's first
-#: interval starts cold, as accurate on the simulator's scenes)
-CHUNK_INTERVALS = 8
-
-
 def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: int = 0,
                    init=None, workers: int = 1, progress: bool = False, scheduler=None,
                    **options) -> Iterator:
@@ -166,14 +161,10 @@ def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: i
     frames = data.frames[first:last + 1]
     times = data.frame_times[first:last + 1]
     if workers != 1 or scheduler is not None:
-        # (iter_bos_sequence checks workers: 0, 1.5 or NaN are refused there). Chunks of
-        # at most CHUNK_INTERVALS: a chunk's results come when it is done, and with one
-        # chunk per worker a Ctrl-C before half the run had nothing written to keep
-        chunks = (max(workers, -(-len(sel) // CHUNK_INTERVALS))
-                  if isinstance(workers, (int, np.integer)) and workers >= 1 else None)
+        # (iter_bos_sequence checks workers: 0, 1.5 or NaN are refused there)
         return iter_bos_sequence(data.events, frames, times, roi=data.roi, workers=workers,
-                                 chunks=chunks, scheduler=scheduler, progress=progress,
-                                 init=init, contrast_threshold=contrast_threshold, **options)
+                                 scheduler=scheduler, progress=progress, init=init,
+                                 contrast_threshold=contrast_threshold, **options)
     return _in_order(data, frames, times, contrast_threshold, init, progress, options)
 
 
