@@ -973,3 +973,50 @@ def test_t0_on_an_epoch_clock_is_questioned(tmp_path, capsys):
                  str(tmp_path / "f.h5")]) == 0
     err = capsys.readouterr().err
     assert "before its first event" in err and "is +0.01" in err
+
+
+def test_two_runs_into_one_output(tmp_path, capsys):
+    # the second run took the first one's .part (its result under the other's name, the
+    # first reporting success) or called it "an interrupted run"; it is refused while the
+    # first holds the output, and runs once that has ended
+    import argparse
+
+    from evmotion.cli.options import outputs_locked
+    from evmotion.io import write_events
+    from evmotion.sim import simulate
+
+    rec = tmp_path / "r.h5"
+    write_events(rec, simulate("translation", duration_s=0.03, sensor_size=(40, 50),
+                               show_progress=False).events)
+    out = tmp_path / "f.h5"
+    argv = ["flow", str(rec), "--scales", "1", "--out", str(out)]
+    with outputs_locked(argparse.Namespace(out=str(tmp_path / "." / "f.h5"))):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "is being written by another evmotion run" in err and not out.exists()
+        assert main(["egomotion", str(rec), "--warp", "translation", "--out",
+                     str(tmp_path / "ego"), "--max-png", "0"]) == 0  # another output
+    assert main(argv) == 0
+
+
+def test_an_interrupted_run_leaves_no_other_runs_results_in_its_folder(tmp_path, capsys,
+                                                                       monkeypatch):
+    # a new egomotion run into a folder, interrupted, left the earlier run's complete-
+    # looking params.csv / params.h5 beside its own pictures and params.part
+    import evmotion.methods.egomotion as ego
+    from evmotion.io import write_events
+    from evmotion.sim import simulate
+
+    rec = tmp_path / "r.h5"
+    write_events(rec, simulate("translation", duration_s=0.05, sensor_size=(40, 50),
+                               show_progress=False).events)
+    out = tmp_path / "ego"
+    argv = ["egomotion", str(rec), "--warp", "translation", "--window-events", "2000",
+            "--out", str(out)]
+    assert main([*argv, "--max-windows", "1"]) == 0
+    assert (out / "params.csv").exists() and (out / "params.h5").exists()
+    interrupt_at_call(monkeypatch, ego, "estimate_egomotion", 2)
+    assert main([*argv, "--reg", "rcad"]) == 130
+    assert not (out / "params.csv").exists() and not (out / "params.h5").exists()
+    assert (out / "params.part").exists()
+    capsys.readouterr()

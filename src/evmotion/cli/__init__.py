@@ -146,11 +146,16 @@ def _build_and_run(argv: list[str] | None) -> int:
     _SAID.clear()
     warnings.showwarning = show_warning
     try:
-        from evmotion.cli.options import check_outputs_spare_inputs, resolve_relative_times
+        from evmotion.cli.options import (
+            check_outputs_spare_inputs,
+            outputs_locked,
+            resolve_relative_times,
+        )
 
         check_outputs_spare_inputs(args)
         resolve_relative_times(args)
-        return int(args.func(args) or 0)
+        with outputs_locked(args):
+            return int(args.func(args) or 0)
     except EvmotionError as exc:
         print(f"evmotion {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2

@@ -40,6 +40,7 @@ from evmotion.cli.options import (
     nonnegative_float,
     reject_unused,
     remove_stale_pictures,
+    remove_stale_results,
     select_windows,
     writable_folder,
 )
@@ -261,6 +262,7 @@ def run(args) -> int:
     journal, done = _open_journal(args, out_dir, events, windows, K)
     if not args.resume:
         remove_stale_pictures(out_dir, ("window_",))
+        remove_stale_results(out_dir, ("params.csv", "params.h5"))
     todo = [k for k in range(len(windows)) if k not in done]
     try:
         with journal:

@@ -55,6 +55,7 @@ __all__ = [
     "check_free_space",
     "check_output",
     "existing_input",
+    "outputs_locked",
     "finite_float",
     "float_list",
     "format_bytes",
@@ -63,6 +64,7 @@ __all__ = [
     "positive_float",
     "positive_int",
     "reject_unused",
+    "remove_stale_results",
     "scheduler_address",
     "scheduler_client",
     "writable_folder",
@@ -831,6 +833,63 @@ def note_parallel_interrupt(args: argparse.Namespace, unit: str) -> None:
             "ends, and none had ended: nothing is kept")
 
 
+@contextlib.contextmanager
+def outputs_locked(args: argparse.Namespace):
+    """Hold a lock on each of the command's outputs while it runs: a second run writing
+    the same output is refused in one line (two runs into one ``--out`` left one's result
+    under the other's name, the first reporting success). The locks are advisory
+    (``fcntl.flock``, released by the system when a process dies, so a killed run leaves
+    none held) on files in the temporary folder, named after the output's real path.
+
+    Examples
+    --------
+    >>> ns = argparse.Namespace(out="flow.h5")
+    >>> with outputs_locked(ns):
+    ...     with outputs_locked(ns):
+    ...         pass
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.ParameterError: --out flow.h5 is being written by another evmotion run (process ...): wait for it to end, or choose another --out
+    """
+    try:
+        import fcntl
+    except ImportError:  # no flock (Windows): no lock
+        yield
+        return
+    import hashlib
+
+    held, seen = [], set()
+    try:
+        for name in OUTPUT_ATTRS:
+            v = getattr(args, name, None)
+            if not isinstance(v, (str, os.PathLike)) or not os.fspath(v):
+                continue
+            real = os.path.realpath(v)
+            if real in seen:
+                continue
+            seen.add(real)
+            lock = Path(tempfile.gettempdir()) / "evmotion-locks" / (
+                hashlib.sha1(real.encode()).hexdigest()[:20] + ".lock")
+            lock.parent.mkdir(exist_ok=True)
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                other = os.read(fd, 32).decode(errors="replace").strip() or "?"
+                os.close(fd)
+                flag = "OUTPUT" if name == "output" else "--" + name.replace("_", "-")
+                raise ParameterError(f"{flag} {v} is being written by another evmotion run "
+                                     f"(process {other}): wait for it to end, or choose "
+                                     f"another {flag}") from None
+            os.ftruncate(fd, 0)
+            os.write(fd, str(os.getpid()).encode())
+            held.append(fd)
+        yield
+    finally:
+        for fd in held:
+            os.close(fd)  # releases the lock; the small file stays for the next run
+
+
 def check_outputs_spare_inputs(args: argparse.Namespace) -> None:
     """Refuse an output that is one of the command's inputs (``flow rec.h5 --out rec.h5``
     replaced the recording with its flow).
@@ -859,6 +918,18 @@ def check_outputs_spare_inputs(args: argparse.Namespace) -> None:
             raise ParameterError(f"{flag} {v} is the command's input "
                                  f"{inputs[os.path.realpath(v)]}: it would be overwritten; "
                                  f"choose another {flag}")
+
+
+def remove_stale_results(folder, names: tuple[str, ...]) -> None:
+    """Delete the result files ``names`` an earlier run left in ``folder`` as a new run
+    (not a resume) starts in it: interrupted, it left them, complete-looking but another
+    run's, beside its own pictures and ``.part``."""
+    from pathlib import Path
+
+    for name in names:
+        p = Path(folder) / name
+        if p.is_file():
+            p.unlink()
 
 
 def remove_stale_pictures(folder, prefixes: tuple[str, ...]) -> int:

@@ -22,6 +22,7 @@ from evmotion.cli.options import (
     int_range,
     positive_int,
     remove_stale_pictures,
+    remove_stale_results,
     select_windows,
     writable_folder,
 )
@@ -82,6 +83,7 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     remove_stale_pictures(out, ("window_",))
+    remove_stale_results(out, ("clusters.csv", "clusters.h5", "labels.npz"))
     K = None if cam is None else cam.K
     job = functools.partial(_segment_job, n_warps=args.warps, warp=args.warp,
                             objective=args.objective, K=K, t_ref=args.t_ref,
@@ -150,7 +152,8 @@ def run(args) -> int:
         print_json({"file": str(args.file), "grid": args.grid, "warp": args.warp,
                     "clusters": rows})
     else:
-        print(f"{len(windows)} windows x {args.warps} clusters -> {out}/clusters.csv, "
+        print(f"{len(windows)} window{'' if len(windows) == 1 else 's'} x {args.warps} "
+              f"clusters -> {out}/clusters.csv, "
               "clusters.h5")
     return 0
 
