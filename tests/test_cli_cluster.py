@@ -253,3 +253,32 @@ def test_docs_worker_yaml_is_dask_configuration_and_what_the_benchmark_uses():
     finally:
         sys.path.remove(str(root / "benchmarks"))
     assert settings == bench_cluster.DOCS
+
+
+@pytest.mark.parametrize("reply", [b"", b"HTTP/1.0 400 Bad request\r\n\r\n"])
+def test_a_server_that_is_not_a_scheduler(reply):
+    """An HTTP server at the address hung the Client past any timeout, or its reply was
+    read as a frame of 3 EiB ('out of memory'); it is named in one line within the
+    timeout (probe O)."""
+    import threading
+    import time
+
+    from evmotion.errors import ParameterError
+    from evmotion.parallel import connect_scheduler
+
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+
+    def serve():
+        conn, _ = srv.accept()
+        conn.sendall(reply)
+        time.sleep(3)
+        conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    t0 = time.perf_counter()
+    with pytest.raises(ParameterError, match="not as a Dask scheduler"):
+        connect_scheduler(f"tcp://127.0.0.1:{srv.getsockname()[1]}", timeout_s=1.0)
+    assert time.perf_counter() - t0 < 3
+    srv.close()

@@ -16,6 +16,7 @@ import concurrent.futures as cf
 import contextlib
 import os
 import pickle
+import re
 import statistics
 import sys
 import threading
@@ -722,10 +723,12 @@ def connect_scheduler(address: str, timeout_s: float = 5.0) -> Any:
     if timeout_s <= 0:
         raise ParameterError(f"timeout_s must be > 0 s, got {timeout_s}")
     hint = "start one with 'dask scheduler' and its workers with 'dask worker ADDRESS'"
+    greeted = _speaks_dask(address, timeout_s)
     try:
         # Probe first: a Client that fails to connect spends seconds more closing itself
         # when collected and prints a traceback at exit.
-        asyncio.run(_probe(address, timeout_s))
+        if not greeted:
+            asyncio.run(_probe(address, timeout_s))
         client = Client(address, timeout=timeout_s, set_as_default=False)
     except (OSError, TimeoutError, ValueError, TypeError) as exc:
         # distributed raises OSError("Timed out trying to connect to ...") for a closed
@@ -742,6 +745,47 @@ def connect_scheduler(address: str, timeout_s: float = 5.0) -> Any:
                              f"{timeout_s:g} s; start them with 'dask worker {address}'"
                              ) from exc
     return client
+
+
+def _speaks_dask(address: str, timeout_s: float) -> bool:
+    """For a plain TCP address: True when the server there greets as a Dask scheduler
+    does (it writes its handshake first: an 8-byte message length, then a frame count);
+    a ParameterError when something else answers (an HTTP server made the Client hang,
+    or read its reply as a frame of 3 EiB); False for other schemes (not checked here).
+
+    Examples
+    --------
+    >>> _speaks_dask("inproc://1.2.3.4/1/2", 1.0)
+    False
+    """
+    import socket
+    import struct
+
+    m = re.fullmatch(r"(?:tcp://)?\[?([^\[\]/]+?)\]?:(\d+)", address.strip())
+    if m is None:
+        return False
+    try:
+        conn = socket.create_connection((m.group(1), int(m.group(2))), timeout=timeout_s)
+    except OSError:
+        return False  # no connection (a closed port, an unknown host): _probe says so
+    head = b""
+    with conn:
+        conn.settimeout(timeout_s)
+        try:
+            while len(head) < 16:
+                part = conn.recv(16 - len(head))
+                if not part:
+                    break
+                head += part
+        except OSError:  # a timeout: the server waits for a request, as HTTP does
+            pass
+    if len(head) == 16:
+        size, frames = struct.unpack("<QQ", head)
+        if 0 < size < 1 << 24 and 1 <= frames <= 64:
+            return True
+    raise ParameterError(f"something answers at {address} but not as a Dask scheduler (no "
+                         f"Dask greeting within {timeout_s:g} s): is it the scheduler's "
+                         "address ('dask scheduler' prints it; port 8786 by default)?")
 
 
 async def _probe(address: str, timeout_s: float) -> None:
