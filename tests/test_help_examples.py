@@ -117,6 +117,23 @@ def _mvsec_gt(sim_gt: Path, out: Path) -> None:
              y_flow_dist=disp[..., 1])
 
 
+def _dsec_gt_and_predictions(sim_gt: Path, seq: Path, pred: Path) -> None:
+    """A DSEC sequence folder (``flow/forward`` PNGs + timestamps) of the simulator's
+    ground truth, and another tool's predictions: PNGs of the same names, no times."""
+    from evmotion.io.flowfiles import read_gt_flow, write_dsec_flow_png
+
+    gt = read_gt_flow(sim_gt)
+    (seq / "flow" / "forward").mkdir(parents=True)
+    pred.mkdir()
+    lines = ["# from_timestamp_us, to_timestamp_us"]
+    for k in range(min(3, len(gt.t0))):
+        disp = np.nan_to_num(gt.flow[k] * ((gt.t1[k] - gt.t0[k]) * 1e-6))
+        write_dsec_flow_png(seq / "flow" / "forward" / f"{2 * k:06d}.png", disp)
+        write_dsec_flow_png(pred / f"{2 * k:06d}.png", disp + 0.25)
+        lines.append(f"{gt.t0[k]}, {gt.t1[k]}")
+    (seq / "flow" / "forward_timestamps.txt").write_text("\n".join(lines) + "\n")
+
+
 @pytest.fixture(scope="session")
 def world(tmp_path_factory) -> Path:
     """A folder holding every input the examples name, small enough to run them fast."""
@@ -147,6 +164,7 @@ def world(tmp_path_factory) -> Path:
         Path("boxes_rotation/calib.txt").write_text(
             f"{cal['fx']} {cal['fy']} {cal['cx']} {cal['cy']} 0.01 0 0 0 0\n")
         _mvsec_gt(Path("sim_gt.h5"), Path("outdoor_day1_gt_flow_dist.npz"))
+        _dsec_gt_and_predictions(Path("sim_gt.h5"), Path("dsec_seq"), Path("eraft_pred"))
         rng = np.random.default_rng(0)
         save_png("photo.png", rng.integers(0, 256, (64, 80, 3), dtype=np.uint8))
         _ok(["flow", "sim.h5", "--max-windows", "2", "--scales", "2", "--out", "flow.h5"])

@@ -7,6 +7,7 @@ import dataclasses
 import os
 import sys
 import tempfile
+import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TypeVar
@@ -173,14 +174,44 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
 def progress(iterable: Iterable[T], *, total: int | None = None, desc: str = "",
              unit: str = "it", disable: bool | None = None, unit_scale: bool = False,
              ) -> Iterable[T]:
-    """A tqdm progress bar on stderr (rate and ETA); silent when stderr is not a TTY
-    unless ``EVMOTION_PROGRESS=1``."""
+    """A tqdm progress bar on stderr (rate and ETA). When stderr is not a TTY (a log
+    file), a plain line every :data:`LOG_PROGRESS_S` seconds instead, from the first
+    such interval on (short runs print none); ``EVMOTION_PROGRESS=1`` forces the bar,
+    ``EVMOTION_PROGRESS=0`` silences both."""
     from tqdm.auto import tqdm
 
-    if disable is None:
-        disable = not (sys.stderr.isatty() or os.environ.get("EVMOTION_PROGRESS") == "1")
-    return tqdm(iterable, total=total, desc=desc, unit=unit, disable=disable,
+    env = os.environ.get("EVMOTION_PROGRESS")
+    if disable is None and env != "1" and not sys.stderr.isatty():
+        if env == "0":
+            disable = True
+        else:
+            return tqdm(iterable, total=total, desc=desc, unit=unit, unit_scale=unit_scale,
+                        file=_LogLines(sys.stderr), mininterval=LOG_PROGRESS_S,
+                        bar_format="{desc}: {n_fmt}/{total_fmt} {unit} [{elapsed} elapsed, "
+                                   "{remaining} left, {rate_fmt}]")
+    return tqdm(iterable, total=total, desc=desc, unit=unit, disable=bool(disable),
                 unit_scale=unit_scale, file=sys.stderr, dynamic_ncols=True)
+
+
+#: Seconds between the progress lines written to a log (stderr not a TTY)
+LOG_PROGRESS_S = 30.0
+
+
+class _LogLines:
+    """A file for tqdm that turns its carriage-return updates into whole lines, none
+    before :data:`LOG_PROGRESS_S` seconds have passed."""
+
+    def __init__(self, fh):
+        self.fh = fh
+        self.start = time.monotonic()
+
+    def write(self, text: str) -> None:
+        line = text.replace("\r", "").strip()
+        if line and time.monotonic() - self.start >= LOG_PROGRESS_S:
+            self.fh.write(line + "\n")
+
+    def flush(self) -> None:
+        self.fh.flush()
 
 
 def refine_total(bar, done: int, meta: dict) -> None:
