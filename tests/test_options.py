@@ -80,17 +80,17 @@ def test_progress_in_a_log_is_a_line_now_and_then(monkeypatch, capsys):
     import evmotion.utils as utils
 
     monkeypatch.delenv("EVMOTION_PROGRESS", raising=False)
-    for i in utils.progress(range(3), desc="flow", unit="win"):
+    for _ in utils.progress(range(3), desc="flow", unit="win"):
         pass
     assert capsys.readouterr().err == ""
     monkeypatch.setattr(utils, "LOG_PROGRESS_S", 0.05)
-    for i in utils.progress(range(4), desc="flow", unit="win"):
+    for _ in utils.progress(range(4), desc="flow", unit="win"):
         time.sleep(0.03)
     lines = capsys.readouterr().err.splitlines()
     assert lines and all(ln.startswith("flow: ") and "left" in ln and "win/s" in ln
                          for ln in lines)
     assert lines[-1].startswith("flow: 4/4 win") and "\r" not in "".join(lines)
     monkeypatch.setenv("EVMOTION_PROGRESS", "0")
-    for i in utils.progress(range(4), desc="flow", unit="win"):
+    for _ in utils.progress(range(4), desc="flow", unit="win"):
         time.sleep(0.03)
     assert capsys.readouterr().err == ""
