@@ -131,6 +131,6 @@ def test_metavision_hdf5_with_the_ecf_codec_names_the_plugin(tmp_path):
     raw[filter_id:filter_id + 2] = (36559).to_bytes(2, "little")
     raw[at:at + 3] = b"ecf"
     path.write_bytes(raw)
-    with pytest.raises(FormatError, match=r"filter ecf \(id 36559\) is not available.*"
+    with pytest.raises(FormatError, match=r"filter 'ecf' \(id 36559\) is not available.*"
                                           r"Metavision"):
         read_events(path)

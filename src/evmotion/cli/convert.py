@@ -16,7 +16,9 @@ import argparse
 
 from evmotion.catalog import MAX_SENSOR_SIDE
 from evmotion.cli.options import (
+    add_time_unit_argument,
     check_time_order,
+    check_time_unit,
     empty_selection,
     int_range,
     positive_int,
@@ -54,11 +56,7 @@ def add_parser(sub) -> None:
                    help="override the input sensor size (height width)")
     p.add_argument("--chunk-events", type=positive_int(), default=1_000_000,
                    help="events read and written at a time (1,000,000)")
-    p.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
-                   help="unit of the input's times, for text, NumPy, MATLAB and other "
-                        "tools' HDF5 inputs (default: from the data: decimal seconds or "
-                        "whole microseconds in text, by dtype in NumPy and HDF5; integers "
-                        "past 1e17 as ns)")
+    add_time_unit_argument(p)
     p.add_argument("--sort", action="store_true",
                    help="sort the events by time (stable) for a recording whose timestamps "
                         "are not in order; reads the whole recording into memory")
@@ -86,10 +84,7 @@ def run(args) -> int:
     if args.sensor_size is not None:
         kw["sensor_size"] = tuple(args.sensor_size)
     if args.time_unit is not None:
-        if fmt_in not in TIME_UNIT_FORMATS:
-            raise ParameterError(f"--time-unit {args.time_unit}: {src} is '{fmt_in}', whose "
-                                 "times carry their unit; it applies to text, NumPy, "
-                                 "MATLAB and other tools' HDF5 inputs")
+        check_time_unit(args.time_unit, src, fmt_in)
         kw["time_unit"] = args.time_unit
     counted = {"n": 0, "t_first": None, "t_last": None}
 
@@ -163,8 +158,6 @@ def run(args) -> int:
 
 
 _AUX_NAMES = {"imu": "IMU samples", "frames": "APS frames"}
-# the input formats whose times --time-unit may state
-TIME_UNIT_FORMATS = ("ecd", "npy", "mat", "h5generic")
 
 
 def _has_calibration(src, first) -> bool:

@@ -33,6 +33,7 @@ from evmotion.cli.options import (
     add_scheduler_argument,
     add_sensor_size_argument,
     add_time_arguments,
+    add_time_unit_argument,
     check_time_order,
     default_window_events,
     duration_us,
@@ -61,6 +62,7 @@ def add_common(p) -> None:
     :mod:`evmotion.catalog`: the parser does not load the numerical core)."""
     p.add_argument("file", help="recording (any format evmotion reads, or an ECD folder)")
     add_sensor_size_argument(p)
+    add_time_unit_argument(p)
     p.add_argument("--warp", default="rotation", choices=sorted(WARP_NAMES),
                    help="motion model (default rotation)")
     p.add_argument("--objective", default="variance", choices=sorted(OBJECTIVE_NAMES),

@@ -37,6 +37,7 @@ from evmotion.cli.calib import add_camera_arguments, check_camera_args
 from evmotion.cli.options import (
     add_sensor_size_argument,
     add_time_arguments,
+    add_time_unit_argument,
     check_time_order,
     duration_us,
     existing_input,
@@ -114,6 +115,7 @@ def add_parser(sub) -> None:
                         "--out flow_{:05d}.flo")
     p.add_argument("--format", default=None, help="input format (default: detect)")
     add_sensor_size_argument(p)
+    add_time_unit_argument(p)
     win = p.add_mutually_exclusive_group()
     win.add_argument("--window-events", type=int_range(10), default=None, metavar="N",
                      help="events per window (>= 10; default 30000, as many per pixel on "

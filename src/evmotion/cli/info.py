@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 
 from evmotion.catalog import MAX_SENSOR_SIDE
-from evmotion.cli.options import int_range
+from evmotion.cli.options import add_time_unit_argument, int_range
 
 EXAMPLES = """examples:
   evmotion info boxes_rotation/                # an ECD folder
@@ -42,6 +42,7 @@ def add_parser(sub) -> None:
     p.add_argument("--sensor-size", type=int_range(1, MAX_SENSOR_SIDE, unit="px"), nargs=2,
                    default=None, metavar=("H", "W"),
                    help="override the sensor size (height width)")
+    add_time_unit_argument(p)
     p.add_argument("--header-only", action="store_true",
                    help="report the header / layout only, without streaming the events")
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
@@ -102,11 +103,11 @@ def summarize(info: dict) -> list[str]:
 def run(args) -> int:
     import evmotion.io as eio
     from evmotion.cli import print_json
+    from evmotion.cli.options import read_kwargs
     from evmotion.io.flowread import describe_flow
 
-    kw = {}
-    if args.sensor_size is not None:
-        kw["sensor_size"] = tuple(args.sensor_size)
+    kw = read_kwargs(args)
+    kw.pop("format", None)
     info = describe_flow(args.file) if args.format is None else None
     if info is None and args.format is None:
         from evmotion.io.paramsfiles import describe_params

@@ -552,13 +552,48 @@ def add_sensor_size_argument(parser) -> None:
                              "state it (text events default to the ECD's 240 x 180)")
 
 
+#: The input formats whose times ``--time-unit`` may state (the others carry their unit).
+TIME_UNIT_FORMATS = ("ecd", "npy", "mat", "h5generic")
+
+
+def add_time_unit_argument(parser) -> None:
+    """``--time-unit s|ms|us|ns``: the unit of a text, NumPy, MATLAB or other tool's HDF5
+    input's times, where the file does not state it and the reader's guess is wrong."""
+    parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
+                        help="unit of the input's times, for text, NumPy, MATLAB and other "
+                             "tools' HDF5 inputs (default: a unit in the time column's name; "
+                             "else decimal seconds or whole microseconds in text, by dtype "
+                             "in NumPy and HDF5; integers past 1e17 as ns)")
+
+
+def check_time_unit(time_unit: str | None, path, fmt: str | None) -> None:
+    """Refuse ``--time-unit`` for an input whose format carries its times' unit."""
+    if time_unit is None or path is None:
+        return
+    import evmotion.io as eio
+
+    fmt = fmt or eio.detect_format(path)
+    if fmt not in TIME_UNIT_FORMATS:
+        hint = ("; another tool's HDF5 read as evmotion's: add --format h5generic"
+                if fmt == "h5" else "")
+        raise ParameterError(f"--time-unit {time_unit}: {path} is '{fmt}', whose times "
+                             "carry their unit; it applies to text, NumPy, MATLAB and other "
+                             f"tools' HDF5 inputs{hint}")
+
+
 def read_kwargs(args) -> dict:
-    """The reader options of ``--format`` and ``--sensor-size``, as given."""
+    """The reader options of ``--format``, ``--sensor-size`` and ``--time-unit``, as given
+    (``--time-unit`` checked against the recording's format)."""
     kw = {}
     if getattr(args, "format", None):
         kw["format"] = args.format
     if getattr(args, "sensor_size", None):
         kw["sensor_size"] = tuple(args.sensor_size)
+    if getattr(args, "time_unit", None):
+        path = next((getattr(args, n) for n in RECORDING_ATTRS
+                     if isinstance(getattr(args, n, None), (str, os.PathLike))), None)
+        check_time_unit(args.time_unit, path, kw.get("format"))
+        kw["time_unit"] = args.time_unit
     return kw
 
 

@@ -24,7 +24,7 @@ from evmotion.events import EventArray
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
 from evmotion.io.frames import Frames
-from evmotion.io.guard import check_sensor_size
+from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "read_frames", "read_imu", "describe",
@@ -279,7 +279,7 @@ def _event_stream(path: Path, stream: int | None, sensor_size):
     size = sensor_size or s.size
     if size is None:
         raise FormatError(path, f"stream {s.id} gives no sizeX/sizeY",
-                          "pass sensor_size=(height, width)")
+                          SENSOR_SIZE_HINT)
     meta = {"source": str(path), "format": "aedat4", "stream": s.id}
     return s, size, meta
 

@@ -6,6 +6,7 @@ Each module in :mod:`evmotion.io` that handles a file format defines a module-le
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,29 +84,62 @@ class PartFileWriter:
 
 
 #: Names other tools give the fields of events (lowercase): columns of text headers, arrays
-#: of .npz files, fields of structured arrays.
+#: of .npz files, fields of structured arrays. A time name may carry its unit
+#: (:func:`time_unit_in_name`: ``t_ns``, ``timestamp_us``, ``t[s]``).
 EVENT_FIELD_NAMES = {
-    "t": ("t", "ts", "time", "times", "timestamp", "timestamps", "t_us", "t_s", "time_us",
-          "timestamp_us"),
+    "t": ("t", "ts", "time", "times", "timestamp", "timestamps"),
     "x": ("x", "xs"), "y": ("y", "ys"),
     "p": ("p", "pol", "polarity", "polarities", "ps")}
+
+# a name with a unit: t_ns, timestamp_us, t[s], t(ms), time_µs
+_UNIT_NAME = re.compile(r"([a-z_]*?[a-z])(?:_|\[|\()(ns|us|µs|ms|s)[\])]?")
+
+
+def split_unit(name: str) -> tuple[str, str | None]:
+    """A field name without the time unit it ends with, and that unit (``"s"``, ``"ms"``,
+    ``"us"`` or ``"ns"``; None when it states none).
+
+    Examples
+    --------
+    >>> split_unit("timestamp_us"), split_unit("t[s]"), split_unit("x")
+    (('timestamp', 'us'), ('t', 's'), ('x', None))
+    """
+    low = str(name).lower()
+    m = _UNIT_NAME.fullmatch(low)
+    if m is None or m[1] not in EVENT_FIELD_NAMES["t"]:
+        return low, None
+    return m[1], m[2].replace("µ", "u")
 
 
 def event_fields(names) -> dict[str, str] | None:
     """Which of ``names`` holds each of ``t``, ``x``, ``y``, ``p`` (by
-    :data:`EVENT_FIELD_NAMES`, case-insensitive), or None when one is missing.
+    :data:`EVENT_FIELD_NAMES`, case-insensitive; a time name may end with its unit), or
+    None when one is missing.
 
     Examples
     --------
     >>> event_fields(["timestamp", "x", "y", "polarity"])
     {'t': 'timestamp', 'x': 'x', 'y': 'y', 'p': 'polarity'}
+    >>> event_fields(["x", "y", "t_ns", "p"])["t"]
+    't_ns'
     >>> event_fields(["a", "b"]) is None
     True
     """
     found = {}
     for key, aliases in EVENT_FIELD_NAMES.items():
-        hit = next((n for n in names if str(n).lower() in aliases), None)
+        hit = next((n for n in names if split_unit(n)[0] in aliases), None)
         if hit is None:
             return None
         found[key] = hit
     return found
+
+
+def time_unit_in_name(name: str) -> str | None:
+    """The unit a time field's name states (``t_us`` -> ``"us"``), else None.
+
+    Examples
+    --------
+    >>> time_unit_in_name("t_us"), time_unit_in_name("timestamp")
+    ('us', None)
+    """
+    return split_unit(name)[1]

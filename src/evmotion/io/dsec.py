@@ -24,7 +24,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5, verified_position
+from evmotion.io.guard import check_h5_dataset, open_h5, verified_position
 from evmotion.io.h5filters import (
     FILTER_HINT,
     HDF5_MAGIC,
@@ -32,6 +32,7 @@ from evmotion.io.h5filters import (
     missing_filters,
     register_filters,
 )
+from evmotion.io.h5generic import size_from_attrs
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "rectify_events",
            "missing_filters",
@@ -122,24 +123,26 @@ def _make(path: Path, f, lo: int, hi: int, size, meta, validate: bool) -> EventA
         return EventArray(x=x, y=y, t=t, p=p, sensor_size=size, validate=validate,
                           meta=dict(meta))
     except Exception as exc:
-        assumed = tuple(size) == DSEC_SENSOR_SIZE and "sensor_size" not in f.attrs
+        assumed = tuple(size) == DSEC_SENSOR_SIZE and size_from_attrs(path, f) is None
         raise FormatError(path, str(exc), "the file does not state its sensor, and DSEC's "
                           "640 x 480 was assumed: give the size (--sensor-size H W, or "
                           "sensor_size=)" if assumed else None) from None
 
 
 def _size(path: Path, f, sensor_size) -> tuple[int, int]:
-    """The size asked for, else the one evmotion's writer stores (``sensor_size`` attribute,
-    not part of DSEC's layout), else DSEC's 480 x 640."""
+    """The size asked for, else one the file's attributes state (not part of DSEC's
+    layout: evmotion's writer stores ``sensor_size``, other tools ``width`` / ``height``),
+    else DSEC's 480 x 640."""
     if sensor_size:
         return tuple(sensor_size)
-    if "sensor_size" in f.attrs:
-        return check_sensor_size(path, f.attrs["sensor_size"], "attribute 'sensor_size'")
-    return DSEC_SENSOR_SIZE
+    return size_from_attrs(path, f) or DSEC_SENSOR_SIZE
 
 
 def _meta(path: Path, f) -> dict:
-    return {"source": str(path), "format": "dsec", "t_offset_us": _t_offset(f)}
+    meta = {"source": str(path), "format": "dsec", "t_offset_us": _t_offset(f)}
+    if size_from_attrs(path, f) is None:
+        meta["sensor_size_from"] = "DSEC's 640 x 480 (the file states no size)"
+    return meta
 
 
 def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,

@@ -24,7 +24,7 @@ import numpy as np
 
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io.base import FormatSpec, event_fields
+from evmotion.io.base import FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
     NS_EPOCH_US,
@@ -354,6 +354,7 @@ def sniff_time_unit(path: str | Path) -> str:
     path = _events_file(Path(path))
     layout = text_layout(path)
     if layout["time_unit"] is not None:  # a header line named it (t_ns, timestamp_us...)
+        # or the layout has one (Metavision's CSV)
         return layout["time_unit"]
     col = layout["order"].index("t")
     with open(path, "rb") as fh:
@@ -367,14 +368,14 @@ def sniff_time_unit(path: str | Path) -> str:
     if all(f.lstrip(b"-").isdigit() for f in firsts) and int(firsts[0]) > NS_EPOCH_US:
         warnings.warn(EvmotionWarning(
             f"{path}: the times are whole numbers past 1e17, as microseconds beyond the year "
-            "5000: read as nanoseconds since the epoch (other units: time_unit=, or convert "
+            "5000: read as nanoseconds since the epoch (other units: time_unit=, or "
             "--time-unit)"), stacklevel=3)
         return "ns"
     ts = [int(f) for f in firsts if f.lstrip(b"-").isdigit()]
     ns_like = len(ts) >= 100 and ts[-1] - ts[0] > 1_000_000 and not any(v % 1000 for v in ts)
     warnings.warn(EvmotionWarning(
         f"{path}: every time is a whole number: read as microseconds (ECD text holds "
-        "decimal seconds; other units: time_unit=, or convert --time-unit)"
+        "decimal seconds; other units: --time-unit, or time_unit= in Python)"
         + ("; they are all multiples of 1000 (as µs, millisecond steps, which event "
            "cameras do not make): nanoseconds? every speed is 1000x too small otherwise"
            if ns_like else "")), stacklevel=3)
@@ -439,33 +440,26 @@ def _names_line(line: bytes) -> str | None:
     return None if found is None else found[0]
 
 
-# a column name with a unit: t_ns, timestamp_us, t[s], t(ms)
-_UNIT_NAME = re.compile(rb"([a-z_]*?[a-z])(?:_|\[|\()(ns|us|\xc2\xb5s|ms|s)[\])]?")
-
-
 def _names_and_unit(line: bytes) -> tuple[str, str | None] | None:
     """``(order, time unit or None)`` of a line of column names, or None when it is not
     one."""
-    fields = [f.lower() for f in re.split(rb"[\s,;]+", line.strip()) if f]
-    if len(fields) != 4:
+    try:
+        fields = [f.lower() for f in re.split(r"[\s,;]+", line.decode().strip()) if f]
+    except UnicodeDecodeError:
         return None
-    names, units = [], []
-    for f in fields:
-        m = _UNIT_NAME.fullmatch(f)
-        if m is None and not re.fullmatch(rb"[a-z_]+", f):
-            return None
-        names.append((m[1] if m else f).decode())
-        units.append(None if m is None else m[2].replace(b"\xc2\xb5", b"u").decode())
-    named = event_fields(names)
+    if len(fields) != 4 or not all(re.fullmatch(r"[a-zµ_\[\]()]+", f) for f in fields):
+        return None
+    named = event_fields(fields)
     if named is None or len(set(named.values())) != 4:
         return None
-    order = "".join(next(k for k, n in named.items() if n == name) for name in names)
-    return order, units[order.index("t")]
+    order = "".join(next(k for k, n in named.items() if n == name) for name in fields)
+    return order, time_unit_in_name(named["t"])
 
 
 def text_layout(path: str | Path) -> dict:
     """How an events text file is laid out: ``order`` of its columns ("txyp" for the
-    ECD's ``t x y p``; a header line of column names states another, e.g. ``x,y,p,t``);
+    ECD's ``t x y p``, "xypt" for Metavision's CSV export, told by its ``%geometry``
+    comment, in µs; a header line of column names states another, e.g. ``x,y,p,t``);
     ``size`` ``(height, width)`` when a comment line (``# ... height H width W``, as
     :func:`write` puts it) or a first line of two numbers ``W H`` (rpg / E2VID text)
     states it, else None; ``offset``, the byte where the events start (past a
@@ -480,8 +474,11 @@ def text_layout(path: str | Path) -> dict:
     path = _events_file(Path(path))
     with open(path, "rb") as fh:
         pos, comments = _skip_comments(fh)
-        out = {"order": "txyp", "size": _comment_size(comments), "offset": pos,
-               "time_unit": None}
+        # Metavision's CSV export states its geometry in a comment and writes x,y,p,t
+        metavision = any(METAVISION_GEOMETRY.search(c.decode("ascii", "replace"))
+                         for c in comments)
+        out = {"order": "xypt" if metavision else "txyp", "size": _comment_size(comments),
+               "offset": pos, "time_unit": "us" if metavision else None}
         for _ in range(2):
             line = fh.readline()
             size, names = _size_line(line), _names_and_unit(line)

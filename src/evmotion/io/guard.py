@@ -61,8 +61,7 @@ def check_sensor_size(path, size, field: str = "sensor size") -> tuple[int, int]
 
 
 #: What to do when a file does not give its sensor size: in Python and on the command line.
-SENSOR_SIZE_HINT = ("pass sensor_size=(height, width), or rewrite the file with "
-                    "`evmotion convert --sensor-size H W`")
+SENSOR_SIZE_HINT = "give the size: --sensor-size H W (sensor_size=(height, width) in Python)"
 
 # 2^62 us is 146,000 years: any timestamp beyond it is a corrupt field, and int64 holds it
 MAX_ABS_TIME_US = 1 << 62
@@ -372,8 +371,8 @@ def warn_inferred_size(path, size: tuple[int, int], why: str = "",
 
     warnings.warn(EvmotionWarning(
         f"{path}: no sensor size in the file{why}: taken as {size[1]}x{size[0]} px (W x H) "
-        "from the largest coordinates; give the true size (--sensor-size H W in convert, "
-        "sensor_size=(H, W))"), stacklevel=stacklevel)
+        "from the largest coordinates; give the true size (--sensor-size H W, or "
+        "sensor_size=(H, W) in Python)"), stacklevel=stacklevel)
 
 
 def verified_position(path, read_t: Callable, n: int, tq: int, i: int, index: str) -> int:

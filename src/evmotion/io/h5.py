@@ -451,11 +451,12 @@ def _sniff(path: Path, head: bytes) -> bool:
             # of a corrupt file can crash libhdf5 (a segfault found by fuzzing), and
             # detection must survive any file. Same field names as DSEC, which has a root
             # t_offset / ms_to_idx instead.
-            # its own layout states the sensor and stores integer us; other HDF5 with
-            # events/x, events/t (no size, float seconds) is io.h5generic's
+            # its own layout states the sensor and its name ('format', whose presence
+            # is checked, not its value) and stores integer us; other HDF5 with
+            # events/x, events/t (in any unit, sized or not) is io.h5generic's
             return ("events/t" in f and "events/x" in f and "t_offset" not in f
                     and "ms_to_idx" not in f and "height" in f.attrs and "width" in f.attrs
-                    and f["events/t"].dtype.kind in "iu")
+                    and "format" in f.attrs and f["events/t"].dtype.kind in "iu")
     except OSError:
         return False
 

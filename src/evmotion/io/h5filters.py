@@ -67,7 +67,9 @@ def missing_filters(ds) -> list[str]:
         code, _, _, name = plist.get_filter(i)
         if not h5py.h5z.filter_avail(code):
             label = name.decode(errors="replace") if isinstance(name, bytes) else str(name)
-            missing.append(f"{label or 'filter'} (id {code})")
+            if not label and code == ECF_FILTER:
+                label = "ECF"
+            missing.append(f"'{label}' (id {code})" if label else f"(id {code})")
     return missing
 
 

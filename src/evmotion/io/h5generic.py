@@ -11,7 +11,8 @@ other tools write:
   when stored without its ECF compression);
 * an N×4 dataset ``events`` (v2e's ``t, x, y, p``; the time column is the sorted one).
 
-Times: whole numbers are µs, floating point seconds (as for NumPy inputs). The sensor size
+Times: whole numbers are µs, floating point seconds (as for NumPy inputs), unless the
+time field's name states its unit (``t_ns``, ``timestamp_us``). The sensor size
 comes from ``width`` / ``height`` (or ``sensor_size`` ``(H, W)``, or Metavision's
 ``geometry`` ``WxH``) attributes of the file or the events, else from the largest
 coordinates, said in a warning.
@@ -33,7 +34,7 @@ from evmotion.io.h5attrs import read_attrs_many
 from evmotion.io.h5filters import HDF5_MAGIC, filter_error
 from evmotion.io.npy import chunks_of_read, events_from_columns, split_columns
 
-__all__ = ["FORMAT", "find_layout", "read"]
+__all__ = ["FORMAT", "find_layout", "read", "size_from_attrs"]
 
 GROUPS = ("", "events", "CD", "cd", "dvs")  # where the field datasets may lie
 TABLES = ("events", "CD/events", "cd/events", "event")  # compound or N x 4 datasets
@@ -70,7 +71,7 @@ SIZE_ATTRS = ("height", "width", "sensor_height", "sensor_width", "geometry", "s
               "sensor_resolution")
 
 
-def _size_attrs(path: Path, *objs) -> tuple[int, int] | None:
+def size_from_attrs(path: Path, *objs) -> tuple[int, int] | None:
     """The sensor size the attributes of ``objs`` (first one stating it) give, or None;
     read by :func:`evmotion.io.h5attrs.read_attrs_many` (a corrupt variable-length
     attribute cannot hang the reader)."""
@@ -123,15 +124,15 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
             grp = f[lay["group"]] if lay["group"] else f
             prefix = f"{lay['group']}/" if lay["group"] else ""
             cols = {k: _load(path, grp[n], prefix + n) for k, n in lay["names"].items()}
-            size = _size_attrs(path, grp, f)
+            size = size_from_attrs(path, grp, f)
         elif lay["kind"] == "compound":
             data = _load(path, f[lay["dataset"]], lay["dataset"])
             cols = {k: data[n] for k, n in lay["names"].items()}
-            size = _size_attrs(path, f[lay["dataset"]], f)
+            size = size_from_attrs(path, f[lay["dataset"]], f)
         else:
             cols, meta["columns"] = split_columns(
                 path, _load(path, f[lay["dataset"]], lay["dataset"]), columns)
-            size = _size_attrs(path, f[lay["dataset"]], f)
+            size = size_from_attrs(path, f[lay["dataset"]], f)
     if sensor_size is not None:
         size = tuple(sensor_size)
     if size is None:
@@ -139,7 +140,8 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     p = np.asarray(cols["p"])
     p = p.astype(np.int8) if p.dtype.kind == "b" else p
     ev = events_from_columns(path, cols["x"], cols["y"], cols["t"], p, sensor_size=size,
-                             time_unit=time_unit, meta=meta, validate=validate)
+                             time_unit=time_unit, meta=meta, validate=validate,
+                             time_field=lay.get("names", {}).get("t"))
     if size is None:
         warn_inferred_size(path, ev.sensor_size)
     return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev

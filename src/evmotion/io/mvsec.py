@@ -56,6 +56,9 @@ def _open(path: Path, camera: str, quiet: bool = False):
 
 
 def _make(path: Path, block: np.ndarray, size, meta, validate: bool) -> EventArray:
+    if size == MVSEC_SENSOR_SIZE and "sensor_size_from" not in meta:
+        meta = {**meta, "sensor_size_from": "MVSEC's DAVIS346, 346 x 260 (the file states "
+                "no size)"}
     return events_from_columns(path, block[:, 0], block[:, 1], block[:, 2], block[:, 3],
                                sensor_size=size, time_unit="s", meta=meta, validate=validate)
 

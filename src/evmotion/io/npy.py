@@ -5,7 +5,7 @@
 Plain ``N×4`` arrays have no field names: give ``columns=`` (e.g. ``"txyp"``); otherwise
 the time column is taken as the first or third column, whichever is sorted, and
 ``meta["columns_from"]`` says it was inferred. Float times are seconds, integer times µs,
-unless ``time_unit=`` says otherwise.
+unless ``time_unit=`` or the time field's name (``t_ns``, ``timestamp_us``) says otherwise.
 """
 
 from __future__ import annotations
@@ -20,10 +20,11 @@ import numpy as np
 
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io.base import FormatSpec, event_fields
+from evmotion.io.base import EVENT_FIELD_NAMES, FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.guard import (
     MAX_SENSOR_SIDE,
     NS_EPOCH_US,
+    SENSOR_SIZE_HINT,
     check_sensor_size,
     warn_inferred_size,
 )
@@ -40,7 +41,7 @@ _DEFLATE_MAX_RATIO = 1032
 ZIP_MAGIC = b"PK\x03\x04"
 
 
-def _time_us(t: np.ndarray, unit: str | None) -> tuple[np.ndarray, str]:
+def _time_us(t: np.ndarray, unit: str | None, how: str = "given") -> tuple[np.ndarray, str]:
     if unit is None:
         unit = "s" if t.dtype.kind == "f" else "us"
         how = "inferred (float -> s, integer -> us)"
@@ -48,8 +49,6 @@ def _time_us(t: np.ndarray, unit: str | None) -> tuple[np.ndarray, str]:
             # as µs beyond the year 5000: nanoseconds since the epoch (ROS, Metavision
             # HDF5 exports and event_utils write them)
             unit, how = "ns", "inferred (integer times past 1e17, as µs the year 5000+)"
-    else:
-        how = "given"
     scale = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}.get(unit)
     if scale is None:
         raise ParameterError(f"time_unit must be 's', 'ms', 'us' or 'ns', got {unit!r}")
@@ -80,9 +79,33 @@ def _ns_in_whole_microseconds(t: np.ndarray, unit: str) -> bool:
             and not np.any(t[:1000] % 1000) and not np.any(t % 1000))
 
 
+def _sparse_as_microseconds(t: np.ndarray, unit: str) -> tuple[float, float] | None:
+    """``(rate ev/s, span s)`` when integer times read as µs by inference make a
+    recording of at least 1000 events longer than a minute at under 1000 events/s: event
+    cameras make far more while anything moves, and nanoseconds of a simulator read as µs
+    look so (1000x long, every speed 1000x small). None otherwise.
+
+    Examples
+    --------
+    >>> t = np.arange(8000) * 50_003  # ns, 20 kev/s
+    >>> [round(v) for v in _sparse_as_microseconds(t, "us (inferred)")]
+    [20, 400]
+    >>> _sparse_as_microseconds(t // 1000, "us (inferred)") is None
+    True
+    """
+    if not (unit.startswith("us (inferred") and t.dtype.kind in "iu" and t.size >= 1000):
+        return None
+    span = (int(t.max()) - int(t.min())) * 1e-6
+    return (t.size / span, span) if span > 60 and t.size / span < 1000 else None
+
+
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
-                        meta=None, validate=True, drop_outside=False) -> EventArray:
+                        meta=None, validate=True, drop_outside=False,
+                        time_field: str | None = None) -> EventArray:
     """Build an EventArray from loose columns, with clear errors naming ``path``.
+
+    ``time_field``, the name ``t`` had in the file: a unit it states (``t_ns``,
+    ``timestamp_us``) is the unit when ``time_unit`` is None.
 
     Integer-valued coordinates become uint16; fractional ones (undistorted) float32.
     ``drop_outside`` drops events off the sensor (undistorted coordinates) instead of
@@ -94,19 +117,30 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     t = np.asarray(t)
     if t.dtype.kind not in "iuf":
         raise FormatError(path, f"field 't' has dtype {t.dtype}, expected numbers")
+    how = "given"
+    if time_unit is None and time_field is not None and time_unit_in_name(time_field):
+        time_unit, how = time_unit_in_name(time_field), f"from the field name '{time_field}'"
     try:
-        t_us, unit = _time_us(t, time_unit)
+        t_us, unit = _time_us(t, time_unit, how)
     except ValueError as exc:
         if isinstance(exc, ParameterError):
             raise
         raise FormatError(path, f"field 't': {exc}, not a time within +-2^62 us") from None
     meta["time_unit"] = unit
-    if time_unit is None and _ns_in_whole_microseconds(t, unit):
+    if how == "given" and time_unit is None and _ns_in_whole_microseconds(t, unit):
         warnings.warn(
             f"{path}: field 't' holds integers, read as microseconds, that are all multiples "
             f"of 1000 ({len(t)} events; as µs, millisecond steps, which event cameras do "
-            "not make): nanoseconds? If so, read with time_unit='ns' (or `evmotion convert "
-            "--time-unit ns`); every speed is 1000x too small otherwise",
+            "not make): nanoseconds? If so, read with --time-unit ns (time_unit='ns' in "
+            "Python); every speed is 1000x too small otherwise",
+            EvmotionWarning, stacklevel=3)
+    sparse = _sparse_as_microseconds(t, unit) if how == "given" and time_unit is None else None
+    if sparse is not None:
+        warnings.warn(
+            f"{path}: field 't' holds integers, read as microseconds: {len(t)} events over "
+            f"{sparse[1]:.0f} s, {sparse[0]:.0f} events/s (an event camera makes far more "
+            "while anything moves): nanoseconds? If so, read with --time-unit ns "
+            "(time_unit='ns' in Python); every speed is 1000x too small otherwise",
             EvmotionWarning, stacklevel=3)
     x = np.asarray(x)
     y = np.asarray(y)
@@ -118,11 +152,11 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     if sensor_size is None:
         if x.size == 0:
             raise FormatError(path, "no events and no sensor size",
-                              "pass sensor_size=(height, width)")
+                              SENSOR_SIZE_HINT)
         if min(x.min(), y.min()) < 0 or max(x.max(), y.max()) >= MAX_SENSOR_SIDE:
             raise FormatError(path, f"coordinates span x {x.min()}..{x.max()}, y {y.min()}.."
                               f"{y.max()}: no sensor of at most {MAX_SENSOR_SIDE} px per side",
-                              "pass sensor_size=(height, width)")
+                              SENSOR_SIZE_HINT)
         sensor_size = (int(np.ceil(y.max())) + 1, int(np.ceil(x.max())) + 1)
         meta["sensor_size_from"] = "max coordinate (no sensor size in the file)"
     h, w = check_sensor_size(path, sensor_size)
@@ -136,8 +170,9 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
             meta["dropped_outside"] = int((~inside).sum())
             x, y, t_us, p = x[inside], y[inside], t_us[inside], p[inside]
         elif validate:
+            assumed = f", {meta['sensor_size_from']}" if meta.get("sensor_size_from") else ""
             raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]} lies outside the "
-                              f"sensor {w}x{h} (W x H)", "pass sensor_size=(height, width)")
+                              f"sensor {w}x{h} (W x H{assumed})", SENSOR_SIZE_HINT)
     if frac:
         x, y = x.astype(np.float32), y.astype(np.float32)
     else:
@@ -178,12 +213,13 @@ def split_columns(path: Path, arr: np.ndarray, columns: str | None):
         arr = arr.T
     how = "given"
     if columns is None:
-        # compared, not differenced: np.diff of unsigned columns wraps (all "sorted")
-        sorted_ = [bool(np.all(arr[1:, i] >= arr[:-1, i])) for i in range(4)]
-        if sorted_[0] and not sorted_[2]:
-            columns = "txyp"
-        elif sorted_[2] and not sorted_[0]:
-            columns = "xytp"
+        # compared, not differenced: np.diff of unsigned columns wraps (all "sorted");
+        # the share of steps forward, so that a few times out of order (which the
+        # unsorted-time check then names) still tell time from a coordinate (~half)
+        ahead = [float(np.mean(arr[1:, i] >= arr[:-1, i])) if len(arr) > 1 else 1.0
+                 for i in (0, 2)]
+        if max(ahead) >= 0.99 and min(ahead) < 0.9:
+            columns = "txyp" if ahead[0] > ahead[1] else "xytp"
         else:
             raise FormatError(path, "cannot tell which column is time in this N×4 array",
                               "pass columns='txyp' or columns='xytp'")
@@ -216,6 +252,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     """
     path = Path(path)
     meta = {"source": str(path), "format": "npy"}
+    time_field = None
     try:
         obj = _load(path)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
@@ -228,11 +265,13 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
             named = event_fields(sorted(files))
             if named is not None:
                 cols = {k: obj[named[k]] for k in "xytp"}
+                time_field = named["t"]
             elif "events" in files:
                 arr = obj["events"]
                 cols = None
             else:
-                raise FormatError(path, f"npz lacks arrays x, y, t, p (has {sorted(files)})")
+                raise FormatError(path, f"npz lacks arrays x, y, t, p (has {sorted(files)}); "
+                                  f"names read: {_names_read()}")
             if sensor_size is None:
                 sensor_size = _stated_size(path, obj, files)
             if time_unit is None and "time_unit" in files:
@@ -245,8 +284,10 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
             named = event_fields(arr.dtype.names)
             if named is None:
                 raise FormatError(path, "structured array lacks a field for each of t, x, "
-                                  f"y, p (has {list(arr.dtype.names)})")
+                                  f"y, p (has {list(arr.dtype.names)}); names read: "
+                                  f"{_names_read()}")
             cols = {k: arr[named[k]] for k in "xytp"}
+            time_field = named["t"]
         else:
             cols, meta["columns"] = split_columns(path, arr, columns)
     lens = {k: np.shape(v) for k, v in cols.items()}
@@ -254,10 +295,17 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         raise FormatError(path, f"fields x, y, t, p have different shapes: {lens}")
     ev = events_from_columns(path, cols["x"], cols["y"], cols["t"], cols["p"],
                              sensor_size=sensor_size, time_unit=time_unit, meta=meta,
-                             validate=validate)
+                             validate=validate, time_field=time_field)
     if sensor_size is None:  # as the other readers of files without one say it
         warn_inferred_size(path, ev.sensor_size)
     return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
+
+
+def _names_read() -> str:
+    """The field names the readers take, for an error that finds none of them."""
+
+    return "; ".join(f"{k}: {', '.join(v)}" for k, v in EVENT_FIELD_NAMES.items()) + (
+        " (a time name may end with its unit: t_ns, timestamp_us, t[s])")
 
 
 def _stated_size(path, obj, files) -> tuple[int, int] | None:

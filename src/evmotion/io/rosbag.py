@@ -20,7 +20,7 @@ from evmotion.errors import EvmotionWarning, FormatError, MissingDependencyError
 from evmotion.events import EventArray
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_sensor_size
+from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "read_imu", "describe", "typestore", "ImuSamples",
@@ -143,7 +143,7 @@ def _first_size(path: Path, topic: str | None, sensor_size):
     raise FormatError(path, "EventArray messages give height/width 0" if seen else
                       f"no {MSGTYPE} message in the bag" + (f" on topic '{topic}'" if topic
                                                             else ""),
-                      "pass sensor_size=(height, width)")
+                      SENSOR_SIZE_HINT)
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,

@@ -92,6 +92,8 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
         if size is None and chunk.meta.get("sensor_size_from"):
             # the reader's word: the header alone may have guessed another size
             out["sensor_size_from"] = chunk.meta["sensor_size_from"]
+        if size is None and chunk.meta.get("time_unit"):  # how the events were read
+            out["time_unit"] = chunk.meta["time_unit"]
         size = chunk.sensor_size
         n += len(chunk)
         n_pos += int(np.count_nonzero(chunk.p))
