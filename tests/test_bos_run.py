@@ -157,7 +157,7 @@ def test_a_flow_that_explains_the_events_at_a_fraction_of_their_size_is_said(tmp
     import warnings
 
     from evmotion.errors import EvmotionWarning
-    from evmotion.methods.bos_run import warn_underfit
+    from evmotion.methods.bos import warn_underfit
 
     with pytest.warns(EvmotionWarning, match="1/1.6. of its size.*too small"):
         warn_underfit([1.55, 1.62, float("nan"), 1.7])

@@ -94,6 +94,11 @@ class CollapseWarning(EvmotionWarning):
     near zero, or speeds the window cannot hold); the message names the cure."""
 
 
+class UnderfitWarning(EvmotionWarning):
+    """A schlieren flow explains the events' increment at a fraction of its size where they
+    fired (:attr:`evmotion.methods.bos.BosResult.fit_gain`): its magnitude is too small."""
+
+
 class PoorFitWarning(EvmotionWarning):
     """The motion model explains the window poorly (e.g. independently moving objects over a
     static scene): the estimate is not the camera's motion."""

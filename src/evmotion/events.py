@@ -225,20 +225,33 @@ class EventArray:
         )
 
     def __getitem__(self, key) -> EventArray:
-        """Index by slice, integer array or boolean mask; returns an EventArray."""
+        """Index by an int, a slice (a positive step subsamples), an integer array (taken
+        in increasing order: events stay in time order) or a boolean mask; returns an
+        EventArray."""
         if isinstance(key, (int, np.integer)):
-            key = slice(int(key), int(key) + 1 if int(key) != -1 else None)
+            k = int(key)
+            if not -len(self) <= k < len(self):
+                raise IndexError(f"event {k} of {len(self)} events")
+            k %= len(self)
+            key = slice(k, k + 1)
         if isinstance(key, (float, np.floating, str)):
             raise ParameterError(f"index events with an int, a slice, an integer array or a "
                                  f"boolean mask, got {key!r}")
+        if isinstance(key, slice) and key.step is not None and key.step < 0:
+            raise EventDataError(f"a slice with step {key.step} would put the events out of "
+                                 "time order; use ev.t[::-1] etc. for the reversed columns")
         if isinstance(key, slice) and key.step not in (None, 1):
-            raise EventDataError("slices with a step would break nothing but are rarely meant; "
-                                 "use an index array")
+            key = np.arange(len(self))[key]  # copied: the kernels take contiguous columns
         if not isinstance(key, slice):
             key = np.asarray(key)
             if key.dtype != bool:
                 key = np.sort(key)
         return self._take(key)
+
+    def __iter__(self):
+        raise TypeError("an EventArray is not iterated event by event: index it (ev[i]), "
+                        "cut it into windows (ev.windows_by_count / windows_by_duration) or "
+                        "pass it whole (a function taking chunks takes [ev])")
 
     def sorted(self) -> EventArray:
         """Return a copy sorted by time (stable)."""
@@ -338,14 +351,19 @@ class EventArray:
 
         ``time_unit_us`` converts the ``t`` field to microseconds (1 for µs, 1e6 for s).
         """
+        from evmotion.io.base import event_fields
+
         names = arr.dtype.names or ()
-        missing = [f for f in "xytp" if f not in names]
-        if missing:
-            raise EventDataError(f"structured array lacks field(s) {missing}; has {names}")
-        t = arr["t"]
+        named = event_fields(names)
+        if named is None:
+            raise EventDataError(f"structured array lacks a field for each of x, y, t, p "
+                                 f"(as x/xs, y/ys, t/ts/timestamp, p/pol/polarity); has "
+                                 f"{names}")
+        t = arr[named["t"]]
         if time_unit_us != 1.0:
             t = np.round(t.astype(np.float64) * time_unit_us)
-        return cls(arr["x"], arr["y"], t, arr["p"], sensor_size, validate=validate)
+        return cls(arr[named["x"]], arr[named["y"]], t, arr[named["p"]], sensor_size,
+                   validate=validate)
 
     def as_dict(self) -> dict[str, np.ndarray]:
         return {"x": self.x, "y": self.y, "t": self.t, "p": self.p}
@@ -514,7 +532,39 @@ def require_events(events, func: str) -> EventArray:
         raise ParameterError(f"{func}: events must be an EventArray (EventArray(x, y, t, p, "
                              "sensor_size) or evmotion.io.read_events(path)), got "
                              f"{type(events).__name__}")
+    _check_on_sensor(events, func)
     return events
+
+
+# Share of events off the sensor above which an unchecked array (validate=False) is
+# suspect: undistortion without dropping leaves a few percent past the borders.
+OFF_SENSOR_WARN = 0.1
+
+
+def _check_on_sensor(events: EventArray, func: str) -> None:
+    """Refuse events of an unchecked array (``validate=False``) that all lie off the
+    sensor, and warn when many do: an estimate from them was a silent zero, or came from
+    the rest without a word (a sensor size given as (W, H))."""
+    if not len(events):
+        return
+    h, w = events.sensor_size
+    x, y = events.x, events.y
+    if x.min() >= 0 and y.min() >= 0 and x.max() <= w - 1 and y.max() <= h - 1:
+        return
+    off = int(np.count_nonzero((x < 0) | (y < 0) | (x > w - 1) | (y > h - 1)))
+    where = (f"x {x.min():g}..{x.max():g}, y {y.min():g}..{y.max():g} on a {w}x{h} (W x H) "
+             "sensor")
+    if off == len(events):
+        raise EventDataError(f"{func}: all {off} events lie off the sensor ({where}): "
+                             "sensor_size is (height, width)")
+    if off > OFF_SENSOR_WARN * len(events):
+        import warnings
+
+        from evmotion.errors import EvmotionWarning
+
+        warnings.warn(EvmotionWarning(
+            f"{func}: {off} of {len(events)} events lie off the sensor ({where}) and are "
+            "left out: sensor_size is (height, width)"), stacklevel=3)
 
 
 def _coord(a, name: str) -> np.ndarray:

@@ -412,17 +412,14 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
     names = ok[0][1].param_names
     units = ok[0][1].param_units
     params = np.array([r.params for _, r in ok], dtype=np.float64)
-    # the checks of every window: collapsed estimates and poor fits are not measurements
+    # each result's verdict (collapsed estimates and poor fits are not measurements)
+    for row, (_, r) in zip(rows, ok, strict=True):
+        row["poor_fit"], row["valid"] = r.poor_fit, r.valid
     collapsed = np.array([row["collapsed"] for row in rows], dtype=bool)
+    poor_fit = np.array([row["poor_fit"] for row in rows], dtype=bool)
+    valid = np.array([row["valid"] for row in rows], dtype=bool)
     share = np.array([_share(row) for row in rows])
     gain = np.array([row["diagnostics"].get("contrast_gain", np.nan) for row in rows])
-    few = np.array([bool(row["diagnostics"].get("too_few_events", False)) for row in rows])
-    # NaN (not checked) is not flagged; no focus (no contrast gain) is no fit either, nor
-    # a window of too few events for its contrast to mean anything
-    poor_fit = (share < POOR_FIT_SHARE) | (gain < MIN_CONTRAST_GAIN) | few
-    valid = ~collapsed & ~poor_fit & np.isfinite(params).all(axis=1)
-    for k, row in enumerate(rows):
-        row["poor_fit"], row["valid"] = bool(poor_fit[k]), bool(valid[k])
     buf = io.StringIO()
     wr = csv.writer(buf)
     wr.writerow(["window", "t0_us", "t1_us", "t_ref_us", "n_events",

@@ -132,7 +132,7 @@ def check_args(args) -> None:
 
 def run(args) -> int:
     import evmotion.io as eio
-    from evmotion.cli import print_json
+    from evmotion.cli import print_json, warn_line
     from evmotion.cli.calib import undistorted_chunks
     from evmotion.cli.options import header_event_count, read_kwargs
     from evmotion.events import fingerprint
@@ -215,11 +215,15 @@ def run(args) -> int:
     wall0 = time.perf_counter()
     c0 = compile_seconds()
 
+    no_focus: list[int] = []
+
     def emit(wins) -> None:
         nonlocal n_windows
         for win in wins:
             _emit(win, dense_out, png_dir, args.max_speed)
             n_windows += 1
+            if win.no_focus:
+                no_focus.append(win.index)
 
     try:
         chunk = first
@@ -259,6 +263,13 @@ def run(args) -> int:
     # numba's first-use compilation is not the matcher's speed: reported apart
     compiled = compile_seconds() - c0
     run_s = wall - compiled
+    if no_focus:
+        from evmotion.methods.measured import MIN_CONTRAST_GAIN
+
+        warn_line(f"{args.file}: {len(no_focus)} of {n_windows} windows (first: "
+                  f"{no_focus[0]}) have no focus: their dense flow sharpens their events by "
+                  f"less than {100 * (MIN_CONTRAST_GAIN - 1):.0f} % (noise, no texture or no "
+                  "motion); no pixel of them is valid")
     args.flow_summary = {"windows": n_windows if windows_made else None, "events": n_events,
                          "outputs": outputs}
     if args.json:
@@ -269,7 +280,7 @@ def run(args) -> int:
             "events": n_events, "duration_s": (t_last - t_first) * 1e-6,
             "valid_fraction": n_valid / max(n_events, 1),
             "mean_triplets": n_trip / max(n_events, 1),
-            "windows": n_windows, "overflow": tri.overflow,
+            "windows": n_windows, "no_focus_windows": no_focus, "overflow": tri.overflow,
             "state_bytes": tri.matcher.state_nbytes,
             "wall_s": wall, "compile_s": compiled, "run_s": run_s,
             "events_per_s": n_events / run_s if run_s > 0 else None,

@@ -84,6 +84,7 @@ from evmotion.errors import (
     EvmotionError,
     EvmotionWarning,
     ParameterError,
+    UnderfitWarning,
 )
 from evmotion.events import EventArray, require_events
 from evmotion.methods.bos_kernels import (
@@ -1061,6 +1062,12 @@ def estimate_bos(
         den = float(np.sum(pr[sup] ** 2))
         if den > 0:
             fit_gain = float(np.sum(pr[sup] * final.meas[sup]) / den)
+    if fit_gain > FIT_GAIN_WARN:
+        warnings.warn(UnderfitWarning(
+            f"interval [{int(t0_us)}, {int(t1_us)}) us: the flow explains the events' "
+            f"increment at 1/{fit_gain:.2f} of its size where they fired (fit_gain > "
+            f"{FIT_GAIN_WARN}): air structures finer than the finest patches "
+            f"({min(o.scales)} px)? Its magnitude is then too small"), stacklevel=2)
     share = valid.sum() / max(rw * rh, 1)
     if share < MIN_SUPPORTED_SHARE:
         warnings.warn(EvmotionWarning(
@@ -1227,9 +1234,12 @@ def _solve_chunk(events: EventArray, t0_us: int, t1_us: int, *, frames, times, r
     idx = [i for i in range(len(times) - 1) if t0_us <= times[i] and times[i + 1] <= t1_us]
     prev = init if idx and idx[0] == 0 else None
     for i in idx:
-        res = estimate_bos(events, frames[i], t0_us=int(times[i]), t1_us=int(times[i + 1]),
-                           frame_next=frames[i + 1], roi=roi, options=options,
-                           init=prev if warm_start else None, on_empty="skip")
+        with warnings.catch_warnings():  # said once for the sequence, by its median
+            warnings.simplefilter("ignore", UnderfitWarning)
+            res = estimate_bos(events, frames[i], t0_us=int(times[i]),
+                               t1_us=int(times[i + 1]), frame_next=frames[i + 1], roi=roi,
+                               options=options, init=prev if warm_start else None,
+                               on_empty="skip")
         out.append(res)
         report_progress()
         prev = res
@@ -1251,7 +1261,22 @@ def estimate_bos_sequence(events: EventArray, frames, times_us: Sequence[int],
     >>> [(r.t0_us, r.t1_us) for r in res]
     [(0, 4500), (4500, 9000)]
     """
-    return list(iter_bos_sequence(events, frames, times_us, **kwargs))
+    results = list(iter_bos_sequence(events, frames, times_us, **kwargs))
+    warn_underfit(r.fit_gain for r in results)
+    return results
+
+
+def warn_underfit(gains) -> None:
+    """Say when the median :attr:`BosResult.fit_gain` of a sequence's intervals exceeds
+    :data:`FIT_GAIN_WARN`: the flow is too small (the intervals' own warnings are left
+    out in a sequence: one per run)."""
+    g = np.asarray([v for v in gains if v is not None and np.isfinite(v)], np.float64)
+    if g.size and np.median(g) > FIT_GAIN_WARN:
+        warnings.warn(UnderfitWarning(
+            f"the flow explains the events' increment at 1/{np.median(g):.2f} of its size "
+            f"where they fired (median over {g.size} intervals): air structures finer than "
+            "the solver's finest patches (8 px)? Its magnitude is then too small (0.4-0.7x "
+            "on such scenes)"), stacklevel=2)
 
 
 def iter_bos_sequence(

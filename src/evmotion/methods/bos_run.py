@@ -22,7 +22,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evmotion.errors import EventDataError, EvmotionError, EvmotionWarning, ParameterError
+from evmotion.errors import (
+    EventDataError,
+    EvmotionError,
+    EvmotionWarning,
+    ParameterError,
+    UnderfitWarning,
+)
 from evmotion.io.bosinput import BosInput
 from evmotion.io.flowfiles import FLOW_COMPRESSION
 
@@ -177,9 +183,11 @@ def _in_order(data, frames, times, c, prev, progress, options):
                           unit="interval", disable=None if progress else True):
         t0, t1 = int(times[k]), int(times[k + 1])
         try:
-            prev = estimate_bos(data.events, frames[k], t0_us=t0, t1_us=t1,
-                                frame_next=frames[k + 1], roi=data.roi, init=prev,
-                                contrast_threshold=c, on_empty="skip", **options)
+            with warnings.catch_warnings():  # said once for the run, by its median
+                warnings.simplefilter("ignore", UnderfitWarning)
+                prev = estimate_bos(data.events, frames[k], t0_us=t0, t1_us=t1,
+                                    frame_next=frames[k + 1], roi=data.roi, init=prev,
+                                    contrast_threshold=c, on_empty="skip", **options)
         except (ParameterError, EventDataError) as exc:
             # which interval of a long recording (a dark or blurred frame, say), unless
             # the message names it or is about the ROI, the same for every interval
@@ -226,6 +234,8 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     >>> run.results[0].flow.shape  # doctest: +SKIP
     (720, 640, 2)
     """
+    from evmotion.methods.bos import warn_underfit
+
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
     results = list(iter_bos_input(data, c, workers=workers, progress=progress,
                                   scheduler=scheduler, **options))
@@ -323,20 +333,6 @@ def _events_in(data: BosInput, t0: int, t1: int) -> int:
     return int(np.count_nonzero((ev.x >= x) & (ev.x < x + w) & (ev.y >= y) & (ev.y < y + h)))
 
 
-def warn_underfit(gains) -> None:
-    """Say when the median :attr:`BosResult.fit_gain` of a run's intervals exceeds
-    :data:`~evmotion.methods.bos.FIT_GAIN_WARN`: the flow is too small."""
-    from evmotion.methods.bos import FIT_GAIN_WARN
-
-    g = np.asarray([v for v in gains if v is not None and np.isfinite(v)], np.float64)
-    if g.size and np.median(g) > FIT_GAIN_WARN:
-        warnings.warn(EvmotionWarning(
-            f"the flow explains the events' increment at 1/{np.median(g):.2f} of its size "
-            f"where they fired (median over {g.size} intervals): air structures finer than "
-            "the solver's finest patches (8 px)? Its magnitude is then too small (0.4-0.7x "
-            "on such scenes)"), stacklevel=2)
-
-
 def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
                    workers: int = 1, progress: bool = False, scheduler=None,
                    **options) -> list[dict]:
@@ -353,6 +349,8 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
     >>> out = open_bos_output("bos.h5", data, attrs, BosOptions(), resume=True)  # doctest: +SKIP
     >>> rows = solve_bos_into(out, data, 0.2)  # doctest: +SKIP
     """
+    from evmotion.methods.bos import warn_underfit
+
     rows = []
     try:
         out.check_count(len(data.intervals))

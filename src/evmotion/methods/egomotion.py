@@ -141,6 +141,12 @@ class EgomotionResult:
         over that at the identity warp), ``"weight_source"`` (``"window"``, ``"given"`` or
         the data set) and ``"warnings"`` (the messages issued); empty with
         ``diagnose=False``.
+    poor_fit : bool
+        (property) The warp explains too little of the image, sharpens it by less than
+        :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`, or the window holds too few
+        events for its contrast to mean anything (False when not diagnosed).
+    valid : bool
+        (property) A measurement: not collapsed, not a poor fit, finite parameters.
     """
 
     params: np.ndarray
@@ -165,8 +171,26 @@ class EgomotionResult:
     collapsed: bool = False
     diagnostics: dict = field(default_factory=dict)
 
+    @property
+    def poor_fit(self) -> bool:
+        from evmotion.methods.diagnostics import POOR_FIT_SHARE
+        from evmotion.methods.measured import MIN_CONTRAST_GAIN
+
+        d = self.diagnostics
+        share = float(d.get("fit", {}).get("explained_share", np.nan))
+        gain = float(d.get("contrast_gain", np.nan))
+        # NaN (not checked, collapsed) is not a poor fit: collapse says itself
+        return bool(share < POOR_FIT_SHARE or gain < MIN_CONTRAST_GAIN
+                    or d.get("too_few_events", False))
+
+    @property
+    def valid(self) -> bool:
+        return bool(not self.collapsed and not self.poor_fit
+                    and np.isfinite(self.params).all())
+
     def as_dict(self) -> dict:
-        """JSON-friendly summary: parameters with names and units, cost, timings."""
+        """JSON-friendly summary: parameters with names and units, cost, timings, and the
+        verdict (``valid``, ``poor_fit``)."""
         return {
             "warp": self.warp,
             "params": {n: float(v) for n, v in zip(self.param_names, self.params, strict=True)},
@@ -176,7 +200,8 @@ class EgomotionResult:
             "t_ref_us": self.t_ref_us, "t0_us": self.window_us[0], "t1_us": self.window_us[1],
             "n_events": self.n_events, "cost": self.cost, "focus": self.focus,
             "penalty": self.penalty, "timings": dict(self.timings),
-            "collapsed": self.collapsed, "diagnostics": _summary_diagnostics(self.diagnostics),
+            "collapsed": self.collapsed, "poor_fit": self.poor_fit, "valid": self.valid,
+            "diagnostics": _summary_diagnostics(self.diagnostics),
         }
 
 

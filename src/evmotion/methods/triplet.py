@@ -53,12 +53,13 @@ Units: pixels, microseconds for times, px/s for flow.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.errors import EmptyWindowError, ParameterError, PoorFitWarning
 from evmotion.events import (
     EventArray,
     Window,
@@ -326,6 +327,7 @@ class TripletMatcher:
         Any split of a stream into chunks gives bit-identical results. Float (undistorted)
         coordinates are rounded to the nearest pixel, since (5.2) asks for equal pixel steps.
         """
+        require_events(chunk, "TripletMatcher.process")
         if tuple(chunk.sensor_size) != self.sensor_size:
             raise ParameterError(f"chunk sensor_size {chunk.sensor_size} differs from the "
                                  f"matcher's {self.sensor_size}")
@@ -621,6 +623,11 @@ class TripletBatchResult:
         (:func:`~evmotion.methods.bursts.burst_means`); None otherwise.
     burst_flow : TripletFlow or None
         ``dense="robust"``: the matcher's output on ``bursts``.
+    gains : ndarray of float, shape (n_windows,)
+        How much each window's dense flow sharpens its events (:func:`dense_gain`; of the
+        burst means with ``dense="robust"``); where it is below
+        :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` the window is no measurement,
+        its mask all False (a :class:`~evmotion.errors.PoorFitWarning` counts them).
     """
 
     flows: np.ndarray
@@ -630,6 +637,7 @@ class TripletBatchResult:
     overflow: int
     bursts: EventArray | None = None
     burst_flow: TripletFlow | None = None
+    gains: np.ndarray | None = None
 
     def displacement(self, i: int) -> np.ndarray:
         """Flow of window ``i`` as pixel displacement over the window's duration."""
@@ -729,12 +737,14 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     vmax = max_normal_speed(dx, tau_us)
     flows = np.zeros((len(windows), h, w, 2), np.float32)
     masks = np.zeros((len(windows), h, w), bool)
+    gains = np.full(len(windows), np.nan)
     for i, win in enumerate(windows):
         sub = events[win.start:win.stop]
         fsub = flow[win.start:win.stop]
         if dense == "robust":
             lo, hi = np.searchsorted(bursts.t, [win.t0, win.t1])
-            flows[i], masks[i] = dense_robust_fit(bursts[lo:hi], bflow[lo:hi], win.t0, win.t1,
+            sub = bursts[lo:hi]  # what the window's flow was fitted to, as the stream's
+            flows[i], masks[i] = dense_robust_fit(sub, bflow[lo:hi], win.t0, win.t1,
                                                   n_bins=n_bins, filter_size=filter_size,
                                                   ridge=ridge, vmax=vmax)
         elif dense == "lsq":
@@ -748,7 +758,59 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
             acc, cnt = _voxel_sums(sub, fsub, win.t0, win.t1, n_bins)
             flows[i], masks[i] = dense_from_sums(acc, cnt, smooth=smooth,
                                                  filter_size=filter_size)
-    return TripletBatchResult(flows, masks, windows, flow, m.overflow, bursts, bflow)
+        gains[i], masks[i] = focus_checked(sub, flows[i], masks[i], win.t0)
+    _warn_no_focus(gains)
+    return TripletBatchResult(flows, masks, windows, flow, m.overflow, bursts, bflow, gains)
+
+
+def _warn_no_focus(gains: np.ndarray) -> None:
+    """One :class:`~evmotion.errors.PoorFitWarning` for the windows whose dense flow
+    sharpens their events by less than the threshold."""
+    from evmotion.methods.measured import MIN_CONTRAST_GAIN
+
+    low = np.flatnonzero(gains < MIN_CONTRAST_GAIN)
+    if low.size:
+        warnings.warn(
+            f"no focus in {low.size} of {gains.size} windows (e.g. window {low[0]}: the "
+            f"dense flow sharpens its events by {100 * (gains[low[0]] - 1):.1f} %, threshold "
+            f"{100 * (MIN_CONTRAST_GAIN - 1):.0f} %): noise, no texture or no motion; their "
+            "masks are all False", PoorFitWarning, stacklevel=3)
+
+
+def dense_gain(events: EventArray, flow: np.ndarray, t0_us: int) -> float:
+    """How much a window's dense flow (px/s, (H, W, 2)) sharpens its events: their FWL
+    (:func:`evmotion.eval.metrics.fwl`) warped to ``t0_us``; NaN when undefined (no
+    events, a constant image).
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[2, 3, 4], y=[5, 5, 5], t=[0, 10_000, 20_000], p=[1, 1, 1],
+    ...                 sensor_size=(10, 10))
+    >>> flow = np.zeros((10, 10, 2), np.float32); flow[..., 0] = 100.0
+    >>> round(dense_gain(ev, flow, 0), 2)
+    3.0
+    """
+    from evmotion.eval.metrics import fwl
+
+    if not len(events):
+        return float("nan")
+    try:
+        return fwl(events, flow, t_ref_us=int(t0_us))
+    except EmptyWindowError:
+        return float("nan")
+
+
+def focus_checked(events: EventArray, flow: np.ndarray, mask: np.ndarray,
+                  t0_us: int) -> tuple[float, np.ndarray]:
+    """``(gain, mask)`` of a dense window: :func:`dense_gain`, and ``mask`` all False when
+    the gain is below :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` (the flow
+    aligns nothing: noise, no texture or no motion gave a flow "everywhere")."""
+    from evmotion.methods.measured import MIN_CONTRAST_GAIN
+
+    if not mask.any():
+        return float("nan"), mask
+    gain = dense_gain(events, np.where(mask[..., None], flow, 0).astype(np.float32), t0_us)
+    return gain, (np.zeros_like(mask) if gain < MIN_CONTRAST_GAIN else mask)
 
 
 def event_fwl(events: EventArray, flow: TripletFlow, t_ref_us: int | None = None) -> float:

@@ -23,6 +23,7 @@ from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, concatenate
 from evmotion.methods import triplet
 from evmotion.methods.bursts import BURST_GAP_US, BurstMeans
+from evmotion.methods.measured import MIN_CONTRAST_GAIN
 from evmotion.utils import resolve_options
 
 __all__ = ["DEFAULT_WINDOW_US", "TripletOptions", "TripletStream", "TripletWindow",
@@ -52,6 +53,13 @@ class TripletWindow:
     iwe : ndarray of float64, shape (H, W), or None
         With ``with_iwe``: the image of the window's events, each warped by its own flow to
         ``t0`` (a picture of how well the per-event flow aligns the events).
+    gain : float
+        How much the dense flow sharpens the window's events (their FWL,
+        :func:`~evmotion.methods.triplet.dense_gain`); NaN where undefined.
+    no_focus : bool
+        ``gain`` below :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`: the flow
+        aligns nothing (noise, no texture, no motion), is no measurement, and ``valid``
+        is all False.
     """
 
     index: int
@@ -61,6 +69,8 @@ class TripletWindow:
     valid: np.ndarray | None
     n_events: int
     iwe: np.ndarray | None = None
+    gain: float = float("nan")
+    no_focus: bool = False
 
     @property
     def duration_s(self) -> float:
@@ -101,6 +111,7 @@ class _Windows:
             self.acc = np.zeros((self.bins, h, w, 5 if self.dense == "lsq" else 2), np.float64)
             self.cnt = np.zeros((self.bins, h, w), np.int64)
         self.iwe = np.zeros((h, w), np.float64) if self.with_iwe and computed else None
+        self.seen = []  # the window's events, for the gain of its dense flow
         self.n = 0
         self.pending = []  # count windows: (events, flow) until the end time is known
 
@@ -156,6 +167,7 @@ class _Windows:
             self.n += len(ev)
         if self.index < self.skip:
             return
+        self.seen.append(ev)
         if self.dense == "robust":
             self.kept.append((ev, fl))
         elif self.dense == "lsq":
@@ -188,7 +200,13 @@ class _Windows:
         else:
             flow, mask = triplet.dense_from_sums(self.acc, self.cnt,
                                                  filter_size=self.filter_size)
-        win = TripletWindow(self.index, int(t0), int(t1), flow, mask, self.n, self.iwe)
+        gain, no_focus = float("nan"), False
+        if flow is not None and self.seen:
+            gain, mask = triplet.focus_checked(
+                concatenate(self.seen, validate=False), flow, mask, t0)
+            no_focus = bool(gain < MIN_CONTRAST_GAIN)
+        win = TripletWindow(self.index, int(t0), int(t1), flow, mask, self.n, self.iwe,
+                            gain, no_focus)
         self.index += 1
         self._new()
         return win
@@ -425,8 +443,9 @@ def iter_flow_triplet(chunks: Iterable[EventArray], *, dense: str = "mean",
 
     Parameters
     ----------
-    chunks : iterable of EventArray
-        The recording in time order, in chunks of any size (all of one sensor size).
+    chunks : iterable of EventArray, or EventArray
+        The recording in time order, in chunks of any size (all of one sensor size), or
+        whole.
     dense : {"mean", "lsq", "robust"}
         The dense output (see :func:`~evmotion.methods.triplet.estimate_flow_triplet`).
     **kwargs
@@ -447,6 +466,8 @@ def iter_flow_triplet(chunks: Iterable[EventArray], *, dense: str = "mean",
     """
     if dense not in triplet.DENSE_KINDS:
         raise ParameterError(f"dense must be one of {triplet.DENSE_KINDS}, got {dense!r}")
+    if isinstance(chunks, EventArray):  # the whole recording, one chunk
+        chunks = [chunks]
     stream = None
     for chunk in chunks:
         if not len(chunk):

@@ -1,0 +1,125 @@
+"""The library used from a script as another lab would (probe P): what was a hang, a
+silent non-measurement or a deep exception is now a clear result or error."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from evmotion import EventArray
+from evmotion.errors import EventDataError, EvmotionWarning, PoorFitWarning, UnderfitWarning
+
+RNG = np.random.default_rng(5)
+
+
+def _noise(n=5000, size=(90, 120), seed=0):
+    rng = np.random.default_rng(seed)
+    return EventArray(x=rng.integers(0, size[1], n), y=rng.integers(0, size[0], n),
+                      t=np.sort(rng.integers(0, 100_000, n)), p=rng.integers(0, 2, n),
+                      sensor_size=size)
+
+
+def test_indexing_past_the_end_raises_and_iteration_is_refused():
+    ev = EventArray(x=[1, 2, 3], y=[1, 1, 1], t=[0, 1, 2], p=[1, 1, 1], sensor_size=(4, 4))
+    assert ev[-1].t[0] == 2 and ev[2].t[0] == 2
+    for k in (3, -4, 10**9):
+        with pytest.raises(IndexError):
+            ev[k]
+    with pytest.raises(TypeError, match="not iterated event by event"):
+        list(ev)  # it never ended: ev[k] past the end was an empty array
+
+
+def test_step_slices_subsample_in_time_order():
+    ev = _noise(100)
+    sub = ev[::3]
+    np.testing.assert_array_equal(sub.t, ev.t[::3])
+    assert sub.x.flags.c_contiguous
+    with pytest.raises(EventDataError, match="out of time order"):
+        ev[::-1]
+
+
+def test_from_structured_takes_other_tools_field_names():
+    arr = np.zeros(3, [("ts", "<i8"), ("x", "<u2"), ("y", "<u2"), ("pol", "i1")])
+    arr["ts"], arr["x"], arr["pol"] = [0, 5, 9], [1, 2, 3], [1, -1, 1]
+    ev = EventArray.from_structured(arr, (4, 4))
+    np.testing.assert_array_equal(ev.t, [0, 5, 9])
+    np.testing.assert_array_equal(ev.p, [1, 0, 1])
+
+
+def test_iter_flow_triplet_takes_a_whole_event_array():
+    from evmotion.methods.triplet_stream import iter_flow_triplet
+
+    ev = EventArray(x=[2, 3, 4], y=[5, 5, 5], t=[0, 10_000, 20_000], p=[1, 1, 1],
+                    sensor_size=(10, 10))
+    wins = list(iter_flow_triplet(ev, window_us=30_000))  # it spun forever
+    assert len(wins) == 1 and float(wins[0].flow[5, 4, 0]) == 100.0
+
+
+def test_events_off_the_sensor_are_refused_or_warned():
+    from evmotion import estimate_egomotion, estimate_flow
+
+    ev = _noise(3000)
+    off = EventArray(x=ev.x.astype(np.int64) + 500, y=ev.y, t=ev.t, p=ev.p,
+                     sensor_size=ev.sensor_size, validate=False)
+    for call in (lambda: estimate_egomotion(off, warp="translation"),
+                 lambda: estimate_flow(off)):
+        with pytest.raises(EventDataError, match="all 3000 events lie off the sensor"):
+            call()  # egomotion returned params 0, cost 0 and no warning
+    swapped = EventArray(x=ev.x, y=ev.y, t=ev.t, p=ev.p, sensor_size=(120, 90),
+                         validate=False)  # (W, H) for (H, W)
+    with pytest.warns(EvmotionWarning, match=r"events lie off the sensor .*\(height, width\)"):
+        estimate_egomotion(swapped, warp="translation")
+
+
+@pytest.mark.parametrize("dense", ["mean", "lsq", "robust"])
+def test_triplet_dense_flow_of_noise_is_no_measurement(dense):
+    from evmotion.methods.triplet import estimate_flow_triplet
+    from evmotion.methods.triplet_stream import iter_flow_triplet
+
+    ev = _noise(5000)
+    with pytest.warns(PoorFitWarning, match="no focus in 1 of 1 windows"):
+        res = estimate_flow_triplet(ev, dense=dense)
+    assert not res.masks.any() and res.gains[0] < 1.05  # robust: 100 % valid at 208 px/s
+    wins = list(iter_flow_triplet(ev, dense=dense, window_us=200_000))
+    assert wins[0].no_focus and not wins[0].valid.any()
+
+
+def test_triplet_dense_flow_of_a_moving_scene_keeps_its_mask():
+    from evmotion.methods.triplet import estimate_flow_triplet
+    from evmotion.sim import simulate
+
+    ev = simulate("translation", duration_s=0.05, sensor_size=(90, 120), seed=1,
+                  show_progress=False).events
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PoorFitWarning)
+        res = estimate_flow_triplet(ev, dense="robust")
+    assert res.gains[0] > 1.5 and res.masks.mean() > 0.3
+
+
+def test_egomotion_result_says_whether_it_is_a_measurement():
+    from evmotion import estimate_egomotion
+
+    with pytest.warns(PoorFitWarning):
+        res = estimate_egomotion(_noise(5000), warp="translation")
+    assert res.poor_fit and not res.valid
+    d = res.as_dict()
+    assert d["valid"] is False and d["poor_fit"] is True
+
+
+def test_estimate_bos_says_when_its_flow_is_too_small():
+    from evmotion.methods.bos import estimate_bos, estimate_bos_sequence
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    bos = simulate_schlieren("plume", sensor_size=(90, 80), duration_s=3 / 120, seed=0)
+    f, t = bos.frames.images, bos.frames.t
+    with pytest.warns(UnderfitWarning, match=r"1/\d\.\d\d of its size"):
+        res = estimate_bos(bos.events, f[0], t0_us=t[0], t1_us=t[1], frame_next=f[1],
+                           scales=(16, 8), iterations=30)
+    assert res.fit_gain > 1.25  # 2.35: 0.20x the true magnitude, and no word before
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        estimate_bos_sequence(bos.events, f[:3], t[:3], scales=(16, 8), iterations=30)
+    under = [w for w in said if issubclass(w.category, UnderfitWarning)]
+    assert len(under) == 1 and "median over 2 intervals" in str(under[0].message)
