@@ -27,3 +27,11 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "shared_data" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.realdata)
+
+
+@pytest.fixture(autouse=True)
+def _no_progress_lines(monkeypatch):
+    """No progress on stderr unless a test asks for it: on a loaded machine a slow command
+    writes a progress line every 30 s into a log, and the error lines the tests compare
+    would then not stand alone."""
+    monkeypatch.setenv("EVMOTION_PROGRESS", "0")

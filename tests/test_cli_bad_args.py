@@ -999,6 +999,27 @@ def test_two_runs_into_one_output(tmp_path, capsys):
     assert main(argv) == 0
 
 
+def test_output_locks_are_per_user_and_never_fail_a_run(tmp_path, monkeypatch):
+    # one folder of locks for all users: the first user's made every other user's runs
+    # fail ('Permission denied', exit 1) until it was removed
+    import argparse
+    import stat
+    import tempfile
+
+    from evmotion.cli.options import outputs_locked
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    with outputs_locked(argparse.Namespace(out=str(tmp_path / "a.h5"))):
+        folder = tmp_path / f"evmotion-locks-{os.getuid()}"
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o700 and any(folder.iterdir())
+    other = tmp_path / "o"
+    other.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(other))
+    (other / f"evmotion-locks-{os.getuid()}").write_text("not a folder")
+    with outputs_locked(argparse.Namespace(out=str(tmp_path / "b.h5"))):
+        pass  # no lock where none can be had, and no error
+
+
 def test_an_interrupted_run_leaves_no_other_runs_results_in_its_folder(tmp_path, capsys,
                                                                        monkeypatch):
     # a new egomotion run into a folder, interrupted, left the earlier run's complete-

@@ -74,12 +74,32 @@ def test_read_only_install_without_home_runs(read_only_install):
     # a kernel compiles and is cached in the folder the line names
     code = ("import numpy as np; from evmotion.core.iwe import accumulate; "
             "print(accumulate(np.array([1.5]), np.array([1.0]), (3, 3)).sum())")
+    folder = lines[0].split(" in ")[-1].split(" (")[0]
     res = _run_as_user([sys.executable, "-c", code], env)
     assert res.returncode == 0, res.stderr
     assert float(res.stdout) == 1.0
-    assert len(res.stderr.strip().splitlines()) == 1
-    folder = res.stderr.split(" in ")[-1].split(" (")[0]
+    assert res.stderr == ""  # said when the folder was made, not at every command
     assert Path(folder).parent == tmp and any(Path(folder).rglob("*.nbi"))
+    assert stat.S_IMODE(os.stat(folder).st_mode) == 0o700
+
+
+def test_a_cache_folder_of_another_user_is_not_used(read_only_install):
+    # numba unpickles the cache's index: a folder another user made at the predictable
+    # path was used as it was (or, unwritable, crashed every command with a traceback)
+    site, tmp, env = read_only_install
+    probe = _run_as_user([sys.executable, "-c", "import os; print(os.getuid())"], env)
+    if probe.returncode != 0:
+        pytest.skip(f"cannot run the interpreter as an unprivileged user: {probe.stderr}")
+    planted = tmp / f"evmotion-numba-cache-{probe.stdout.strip()}"
+    planted.mkdir()
+    os.chmod(planted, 0o777)
+    code = ("import numpy as np; from evmotion.core.iwe import accumulate; "
+            "print(accumulate(np.array([1.5]), np.array([1.0]), (3, 3)).sum())")
+    res = _run_as_user([sys.executable, "-c", code], env)
+    assert res.returncode == 0, res.stderr
+    assert float(res.stdout) == 1.0
+    folder = Path(res.stderr.split(" in ")[-1].split(" (")[0])
+    assert folder != planted and folder.parent == tmp and not any(planted.iterdir())
 
 
 def test_ensure_cache_dir_leaves_a_working_setup(monkeypatch, tmp_path):

@@ -86,15 +86,41 @@ def ensure_cache_dir(package_dir: str | os.PathLike | None = None, stream=None) 
         return None
     uid = os.getuid() if hasattr(os, "getuid") else "user"
     folder = os.path.join(tempfile.gettempdir(), f"evmotion-numba-cache-{uid}")
+    new = not os.path.lexists(folder)
+    if not _private_dir(folder):
+        # another user's or an open folder: numba unpickles its index, so a cache there
+        # could run their code; a fresh private folder (compiled anew each run) instead
+        folder, new = tempfile.mkdtemp(prefix="evmotion-numba-cache-"), True
     os.environ["NUMBA_CACHE_DIR"] = folder
     if "numba" in sys.modules:  # numba read its configuration at import
         from numba.core import config
 
         config.CACHE_DIR = folder
-    print(f"evmotion: cannot cache compiled kernels next to {root} or in the user cache; "
-          f"caching them in {folder} (set NUMBA_CACHE_DIR to choose)",
-          file=sys.stderr if stream is None else stream)
+    if new:  # said when the folder is made, not at every command
+        print(f"evmotion: cannot cache compiled kernels next to {root} or in the user "
+              f"cache; caching them in {folder} (set NUMBA_CACHE_DIR to choose)",
+              file=sys.stderr if stream is None else stream)
     return folder
+
+
+def _private_dir(folder: str) -> bool:
+    """Whether ``folder`` is (or now is, made with mode 700) a directory of this user
+    that only this user can write."""
+    import stat
+
+    try:
+        os.mkdir(folder, 0o700)
+    except FileExistsError:
+        pass
+    except OSError:
+        return False
+    try:
+        st = os.lstat(folder)
+    except OSError:
+        return False
+    own = not hasattr(os, "getuid") or st.st_uid == os.getuid()
+    return (stat.S_ISDIR(st.st_mode) and own and not st.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
+            and os.access(folder, os.W_OK | os.X_OK))
 
 
 _CASES: dict = {}

@@ -903,10 +903,14 @@ def outputs_locked(args: argparse.Namespace):
             if real in seen:
                 continue
             seen.add(real)
-            lock = Path(tempfile.gettempdir()) / "evmotion-locks" / (
-                hashlib.sha1(real.encode()).hexdigest()[:20] + ".lock")
-            lock.parent.mkdir(exist_ok=True)
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+            folder = _lock_folder()
+            if folder is None:
+                continue  # advisory: no private folder for it, no lock (never a failure)
+            lock = folder / (hashlib.sha1(real.encode()).hexdigest()[:20] + ".lock")
+            try:
+                fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o600)
+            except OSError:
+                continue
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:
@@ -923,6 +927,24 @@ def outputs_locked(args: argparse.Namespace):
     finally:
         for fd in held:
             os.close(fd)  # releases the lock; the small file stays for the next run
+
+
+def _lock_folder() -> Path | None:
+    """This user's folder of output locks in the temporary folder (``evmotion-locks-UID``,
+    mode 700; one shared by all users was created by the first and refused every other's
+    locks: 'Permission denied', exit 1), or None where it cannot be had."""
+    folder = Path(tempfile.gettempdir()) / f"evmotion-locks-{os.getuid()}"
+    try:
+        folder.mkdir(mode=0o700, exist_ok=True)
+        st = folder.lstat()
+    except OSError:
+        return None
+    import stat
+
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or not os.access(
+            folder, os.W_OK | os.X_OK):
+        return None
+    return folder
 
 
 def check_outputs_spare_inputs(args: argparse.Namespace) -> None:

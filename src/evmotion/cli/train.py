@@ -37,8 +37,8 @@ EXAMPLES = """examples:
   evmotion train --sim-windows 4 --epochs 1 --out runs/sim      # a smoke run (64 and 10 for real)
   evmotion train rec1.raw rec2.aedat4 --sim-windows 0 --epochs 1 --val val.h5 --out runs/mix
   evmotion train --sim-windows 4 --epochs 2 --out runs/sim --resume   # one more epoch
-(a progress bar with the loss and ETA shows on a terminal; elsewhere, e.g. under nohup,
-set EVMOTION_PROGRESS=1; each epoch's line is printed either way.)
+(a progress bar with the loss and ETA shows on a terminal, EVMOTION_PROGRESS=1 forces it
+and 0 hides it; each epoch's line is printed either way, in a log too.)
 """
 
 
@@ -151,8 +151,10 @@ def run(args) -> int:
                       max_steps_per_epoch=args.max_steps, init_weights=args.init_weights,
                       read_format=args.format,
                       sensor_size=tuple(args.sensor_size) if args.sensor_size else None)
-    # the progress bar follows evmotion.utils.progress: on a terminal, or EVMOTION_PROGRESS=1
-    bar = sys.stderr.isatty() or os.environ.get("EVMOTION_PROGRESS") == "1"
+    # the bar as evmotion.utils.progress draws it: on a terminal, or EVMOTION_PROGRESS=1;
+    # in a log the epochs' lines stand for its lines
+    env = os.environ.get("EVMOTION_PROGRESS")
+    bar = env == "1" or (env != "0" and sys.stderr.isatty())
     existed = Path(args.out).exists()
     try:
         summary = train(cfg, args.out, resume=args.resume, show_progress=bar,
