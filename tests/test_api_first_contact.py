@@ -123,3 +123,17 @@ def test_estimate_bos_says_when_its_flow_is_too_small():
         estimate_bos_sequence(bos.events, f[:3], t[:3], scales=(16, 8), iterations=30)
     under = [w for w in said if issubclass(w.category, UnderfitWarning)]
     assert len(under) == 1 and "median over 2 intervals" in str(under[0].message)
+
+
+def test_dotted_names_of_the_readme_and_tab_completion():
+    import subprocess
+    import sys
+
+    code = ("import evmotion; f = evmotion.methods.bos.estimate_bos; "
+            "g = evmotion.io.read_events; h = evmotion.eval.metrics.fwl; "
+            "d = dir(evmotion); print(all(n in d for n in ('estimate_flow', 'EventArray', "
+            "'simulate', 'methods', 'io')), 'triplet' in dir(evmotion.methods))")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert res.returncode == 0, res.stderr  # 'module evmotion has no attribute methods'
+    assert res.stdout.split() == ["True", "True"]

@@ -64,12 +64,24 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
+# subpackages and modules reached as attributes (evmotion.methods.bos.estimate_bos, as
+# the README writes them) without importing them all at start-up
+_SUBMODULES = ("camera", "catalog", "core", "demo", "errors", "eval", "events", "filters",
+               "geometry", "io", "methods", "parallel", "sim", "utils", "viz")
 
+
+def __getattr__(name: str):
+    import importlib
+
+    if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
+    if name in _SUBMODULES:
+        return importlib.import_module(f"evmotion.{name}")
     raise AttributeError(f"module 'evmotion' has no attribute '{name}'")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY, *_SUBMODULES})
 
 __all__ = [
     "Camera",
