@@ -137,3 +137,64 @@ def test_dotted_names_of_the_readme_and_tab_completion():
                          timeout=120)
     assert res.returncode == 0, res.stderr  # 'module evmotion has no attribute methods'
     assert res.stdout.split() == ["True", "True"]
+
+
+def test_arguments_that_failed_deep_inside_are_named():
+    from evmotion import estimate_egomotion, estimate_flow, write_events
+    from evmotion.errors import ParameterError
+    from evmotion.eval.metrics import fwl
+    from evmotion.methods.triplet import TripletMatcher, estimate_flow_triplet
+
+    ev = _noise(2000)
+    cases = [
+        (lambda: estimate_egomotion(ev, warp="translation", optimizer="tpe",
+                                    bounds=([0], [1])), "bounds must be"),  # broadcast error
+        (lambda: TripletMatcher(ev.sensor_size, dx="a"), "dx must be"),  # ufunc isfinite
+        (lambda: TripletMatcher(ev.sensor_size).process(ev.to_structured()),
+         "events must be an EventArray"),  # no attribute 'sensor_size'
+        (lambda: write_events("s.h5", ev.to_structured()), "from_structured"),
+        (lambda: fwl(ev, np.zeros((*ev.sensor_size, 2)), mask=np.ones((3, 3), bool)),
+         "mask has shape"),  # IndexError
+        (lambda: fwl(ev, np.zeros((*ev.sensor_size, 2)), t_ref_us="mid"), "t_ref_us must"),
+        (lambda: estimate_flow(ev, init=np.zeros((120, 90, 2))), "H and W swapped"),
+        (lambda: estimate_flow(ev, n_scales=3, time_aware="upwind", time_aware_scales=9),
+         "time_aware_scales"),
+    ]
+    for call, words in cases:
+        with pytest.raises(ParameterError, match=words):
+            call()
+    from evmotion.errors import EmptyWindowError
+
+    with pytest.raises(EmptyWindowError, match="selects no pixel"):  # NaN and numpy noise
+        fwl(ev, np.zeros((*ev.sensor_size, 2)), mask=np.zeros(ev.sensor_size, bool))
+    with pytest.warns(PoorFitWarning):  # (t0, t1) pairs as iter_events takes them
+        res = estimate_flow_triplet(ev, windows=[(0, 50_000), (50_000, 100_000)])
+    assert [(w.t0, w.t1) for w in res.windows] == [(0, 50_000), (50_000, 100_000)]
+
+
+def test_reading_and_writing_say_what_is_lost_or_empty(tmp_path):
+    from evmotion.errors import ParameterError
+    from evmotion.io import read_events, write_events
+    from evmotion.sim import simulate
+
+    ev = _noise(500, size=(30, 40))
+    write_events(tmp_path / "a.h5", ev)
+    with pytest.raises(ParameterError, match="t1 = 10 µs must be after t0 = 20 µs"):
+        read_events(tmp_path / "a.h5", t0=20, t1=10)  # 0 events, silently
+    with pytest.warns(EvmotionWarning, match="keeps no sensor size"):
+        write_events(tmp_path / "a.npy", ev)
+    with pytest.warns(EvmotionWarning, match="no event in 0.01 s.*constant image"):
+        simulate("translation", duration_s=0.01, sensor_size=(30, 40),
+                 image=np.ones((10, 10)), show_progress=False)
+
+
+def test_nanoseconds_read_as_microseconds_are_questioned(tmp_path):
+    from evmotion.io import read_events
+
+    t = np.sort(RNG.integers(0, 30_000_000_000, 6600))  # 30 s in ns, not multiples of 1000
+    arr = np.zeros(t.size, [("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "u1")])
+    arr["t"] = t
+    np.save(tmp_path / "ns.npy", arr)
+    with pytest.warns(EvmotionWarning,
+                      match=r"6600 events over \d+ s, 0.22 events/s.*--time-unit ns"):
+        read_events(tmp_path / "ns.npy", sensor_size=(10, 10))

@@ -81,7 +81,7 @@ def _ns_in_whole_microseconds(t: np.ndarray, unit: str) -> bool:
 
 def _sparse_as_microseconds(t: np.ndarray, unit: str) -> tuple[float, float] | None:
     """``(rate ev/s, span s)`` when integer times read as µs by inference make a
-    recording of at least 1000 events longer than a minute at under 1000 events/s: event
+    recording of at least 1000 events longer than 10 s at under 1000 events/s: event
     cameras make far more while anything moves, and nanoseconds of a simulator read as µs
     look so (1000x long, every speed 1000x small). None otherwise.
 
@@ -96,7 +96,7 @@ def _sparse_as_microseconds(t: np.ndarray, unit: str) -> tuple[float, float] | N
     if not (unit.startswith("us (inferred") and t.dtype.kind in "iu" and t.size >= 1000):
         return None
     span = (int(t.max()) - int(t.min())) * 1e-6
-    return (t.size / span, span) if span > 60 and t.size / span < 1000 else None
+    return (t.size / span, span) if span > 10 and t.size / span < 1000 else None
 
 
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
@@ -138,7 +138,7 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     if sparse is not None:
         warnings.warn(
             f"{path}: field 't' holds integers, read as microseconds: {len(t)} events over "
-            f"{sparse[1]:.0f} s, {sparse[0]:.0f} events/s (an event camera makes far more "
+            f"{sparse[1]:.0f} s, {sparse[0]:.3g} events/s (an event camera makes far more "
             "while anything moves): nanoseconds? If so, read with --time-unit ns "
             "(time_unit='ns' in Python); every speed is 1000x too small otherwise",
             EvmotionWarning, stacklevel=3)

@@ -64,8 +64,25 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
     --------
     >>> ev = read_events("shapes_rotation.mat")  # doctest: +SKIP
     """
+    _check_span(t0, t1)
     spec = resolve_format(path, format)
     return spec.read(Path(path), t0=t0, t1=t1, **kw)
+
+
+def _check_span(t0, t1) -> None:
+    """``t0``, ``t1``: whole µs (or None), ``t1`` after ``t0``; ParameterError otherwise
+    (``t0 > t1`` gave no event, silently)."""
+    for name, v in (("t0", t0), ("t1", t1)):
+        if v is None:
+            continue
+        try:
+            whole = not isinstance(v, (bool, str, bytes)) and float(v) == int(v)
+        except (TypeError, ValueError, OverflowError):
+            whole = False
+        if not whole:
+            raise ParameterError(f"{name} must be a time in whole µs, got {v!r}")
+    if t0 is not None and t1 is not None and int(t1) <= int(t0):
+        raise ParameterError(f"t1 = {t1} µs must be after t0 = {t0} µs")
 
 
 def _chunks(spec: FormatSpec, path: Path, chunk_events: int, t0, t1, kw) -> Iterator[EventArray]:
@@ -129,6 +146,7 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
     chunk_events = int(chunk_events)
     if chunk_events <= 0:
         raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
+    _check_span(t0, t1)
     path = Path(path)
     spec = resolve_format(path, format)
     if window_us is not None and windows is not None:

@@ -16,7 +16,9 @@ import warnings
 from collections.abc import Iterable
 from pathlib import Path
 
-from evmotion.errors import FormatError
+import numpy as np
+
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray, concatenate
 from evmotion.io.guard import MAX_SENSOR_SIDE
 from evmotion.io.registry import all_formats, get_format
@@ -82,8 +84,16 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
     if spec.write is None:
         raise FormatError(path, f"format '{name}' is read-only",
                           "write .h5, .txt, .npz or another writable format")
+    if isinstance(events, np.ndarray) or not isinstance(events, (EventArray, Iterable)):
+        raise ParameterError(f"write_events: events must be an EventArray or an iterable of "
+                             f"them, got {type(events).__name__} (a structured array: "
+                             "EventArray.from_structured(arr, sensor_size))")
     if not isinstance(events, EventArray) and name not in _STREAMING_WRITERS:
         events = concatenate(list(events))
+    if isinstance(events, EventArray) and name == "npy" and Path(path).suffix.lower() == ".npy":
+        warnings.warn(f"{path}: a .npy file keeps no sensor size ({events.width}x"
+                      f"{events.height} px is left out; reading it back takes the largest "
+                      "coordinates): write .npz to keep it", EvmotionWarning, stacklevel=2)
     if isinstance(events, EventArray) and max(events.sensor_size) > MAX_SENSOR_SIDE:
         # every reader refuses such a size as a corrupt header: a file that cannot be read
         # back is not written

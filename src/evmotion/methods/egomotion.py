@@ -300,6 +300,21 @@ class EgomotionOptions:
                 raise ParameterError(f"{name} must be a finite number > 0, got {v!r}")
 
 
+def _checked_bounds(bounds, w: Warp) -> tuple[np.ndarray, np.ndarray]:
+    """``bounds`` as (lower, upper) arrays of the warp's parameters, or ParameterError."""
+    try:
+        lo, hi = (np.asarray(b, float) for b in bounds)
+    except (TypeError, ValueError):
+        raise ParameterError(f"bounds must be (lower, upper), each {w.n_params} numbers "
+                             f"{w.param_names}, got {bounds!r}") from None
+    if lo.shape != (w.n_params,) or hi.shape != (w.n_params,):
+        raise ParameterError(f"bounds must be (lower, upper), each {w.n_params} numbers "
+                             f"{w.param_names}, got shapes {lo.shape} and {hi.shape}")
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and np.all(lo < hi)):
+        raise ParameterError(f"bounds must be finite with lower < upper, got {bounds!r}")
+    return lo, hi
+
+
 def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                        objective: str = "variance", regularizer: str | None = None,
                        weight: float | None = None, optimizer: str = "bfgs", K=None,
@@ -399,8 +414,7 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     if x0.shape != (w.n_params,):
         raise ParameterError(f"init must have shape ({w.n_params},) {w.param_names}, "
                              f"got {x0.shape}")
-    lo, hi = default_bounds(w) if o.bounds is None else (np.asarray(o.bounds[0], float),
-                                                         np.asarray(o.bounds[1], float))
+    lo, hi = default_bounds(w) if o.bounds is None else _checked_bounds(o.bounds, w)
     t1 = time.perf_counter()
     res: OptimResult = minimize(cost.value_grad, x0, o.optimizer, lower=lo, upper=hi,
                                 scale=param_scales(w), starts=o.starts, n_samples=o.n_samples,

@@ -424,6 +424,12 @@ def _init_params(init, grid, duration_s, shape):
         raise ParameterError(f"init has {int(bad.any(axis=-1).sum())} pixels or tiles with a "
                              "NaN or infinite flow: a warm start must be finite everywhere "
                              "(np.nan_to_num, or the previous result's flow)")
+    h, w = shape
+    if init.shape[0] > h or init.shape[1] > w:
+        hint = (" (H and W swapped? a dense flow is (H, W, 2))"
+                if init.shape[:2] == (w, h) else "")
+        raise ParameterError(f"init of shape {init.shape} is neither the sensor's dense flow "
+                             f"({h}, {w}, 2) nor tile params (at most the sensor){hint}")
     if init.shape[:2] == tuple(shape):
         # tile averages of the dense flow
         ys = np.minimum((np.arange(shape[0]) * grid.ny) // shape[0], grid.ny - 1)
@@ -680,7 +686,7 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
     if o.n_bins is not None:
         whole_number("n_bins", o.n_bins, lo=1)
     if o.time_aware_scales is not None:
-        whole_number("time_aware_scales", o.time_aware_scales, lo=1)
+        whole_number("time_aware_scales", o.time_aware_scales, lo=1, hi=max(1, o.n_scales))
     for name in ("lam", "tol"):
         v = getattr(o, name)
         if not (isinstance(v, (int, float, np.number)) and not isinstance(v, bool)):

@@ -280,7 +280,8 @@ class TripletMatcher:
         dt_us = whole_number("dt_us (microseconds)", dt_us, lo=1)
         # tau = 0 would admit t_i = t_k: delta = 0, a Gaussian of zero width in (5.3).
         tau_us = whole_number("tau_us (microseconds)", tau_us, lo=1)
-        if not np.isfinite(dx) or dx <= 0:
+        if not (isinstance(dx, (int, float, np.integer, np.floating))
+                and not isinstance(dx, bool) and np.isfinite(dx) and dx > 0):
             raise ParameterError(f"dx must be a finite number of px > 0, got {dx!r}")
         if 3 * (int(dt_us) + int(tau_us)) >= K.REBASE_SPAN_US // 2:
             raise ParameterError(f"dt_us + tau_us = {int(dt_us) + int(tau_us)} us is too long "
@@ -661,7 +662,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     ----------
     events : EventArray
         The recording, sorted by time.
-    windows : sequence of Window, optional
+    windows : sequence of Window or of (t0, t1) µs, optional
         E.g. ``events.windows_at(gt_times, dt=1)``; default: one window over all events.
     dx, dt_us, tau_us, quadruple, depth, normal_kappa
         As in :class:`TripletMatcher`. ``dx`` and ``tau_us`` default to the thesis' sqrt(2)
@@ -721,7 +722,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     _filter_radius(filter_size)
     if windows is None:
         windows = [Window(0, events.t_start, events.t_end + 1, 0, len(events))]
-    windows = list(windows)
+    windows = [_as_window(events, k, win) for k, win in enumerate(windows)]
     m = TripletMatcher(events.sensor_size, dx, dt_us, tau_us, quadruple=quadruple, depth=depth,
                        normal_kappa=normal_kappa)
     stop = max((w.stop for w in windows), default=len(events))
@@ -761,6 +762,21 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         gains[i], masks[i] = focus_checked(sub, flows[i], masks[i], win.t0)
     _warn_no_focus(gains)
     return TripletBatchResult(flows, masks, windows, flow, m.overflow, bursts, bflow, gains)
+
+
+def _as_window(events: EventArray, k: int, win) -> Window:
+    """A :class:`~evmotion.events.Window`, or one made of a ``(t0, t1)`` pair of µs."""
+    if isinstance(win, Window):
+        return win
+    try:
+        t0, t1 = (int(v) for v in win)
+    except (TypeError, ValueError):
+        raise ParameterError(f"windows[{k}] must be a Window or a (t0, t1) pair of µs, "
+                             f"got {win!r}") from None
+    if t1 <= t0:
+        raise ParameterError(f"windows[{k}] = ({t0}, {t1}): t1 must be after t0")
+    start, stop = (int(i) for i in np.searchsorted(events.t, [t0, t1]))
+    return Window(k, t0, t1, start, stop)
 
 
 def _warn_no_focus(gains: np.ndarray) -> None:

@@ -359,6 +359,16 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
              "n_steps": n_samples, "n_subsamples": n_sub, "threshold": opts.threshold,
              "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean()),
              "texture": texs[0].name}
+    if not len(events):
+        import warnings
+
+        from evmotion.errors import EvmotionWarning
+
+        warnings.warn(EvmotionWarning(
+            f"simulate('{scene}'): no event in {duration_s} s: the texture has no contrast "
+            f"the motion moves across (a constant image?), the motion is too slow, or the "
+            f"threshold {opts.threshold} is above the scene's log-intensity changes"),
+            stacklevel=2)
     return SimResult(events, gt, scene, p, stats, (cp, cn))
 
 
