@@ -62,6 +62,18 @@ def test_count_and_explicit_windows(dense):
     assert_windows_equal(wins, estimate_flow_triplet(ev, ev.windows_at(frames), dense=dense))
 
 
+@pytest.mark.parametrize("chunk", [97, 100_000])
+def test_robust_count_windows_count_the_recordings_events(chunk):
+    # they counted the burst means: --window-events 30000 held 42-64k events, unsaid
+    ev = two_edges()
+    wins = list(iter_flow_triplet(chunked(ev, chunk), dense="robust", window_events=700,
+                                  filter_size=9))
+    ref = ev.windows_by_count(700)
+    assert [(w.t0, w.t1) for w in wins] == [(w.t0, w.t1) for w in ref]
+    assert_windows_equal(wins, estimate_flow_triplet(ev, ref, dense="robust", filter_size=9))
+    assert sum(w.valid.any() for w in wins) >= 2
+
+
 def test_per_event_flow_and_no_windows_without_dense():
     ev = two_edges()
     s = TripletStream(ev.sensor_size, dense=None)

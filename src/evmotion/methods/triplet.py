@@ -328,7 +328,8 @@ class TripletMatcher:
         Any split of a stream into chunks gives bit-identical results. Float (undistorted)
         coordinates are rounded to the nearest pixel, since (5.2) asks for equal pixel steps.
         """
-        require_events(chunk, "TripletMatcher.process")
+        if not isinstance(chunk, EventArray):  # (off-sensor events: named below)
+            require_events(chunk, "TripletMatcher.process")
         if tuple(chunk.sensor_size) != self.sensor_size:
             raise ParameterError(f"chunk sensor_size {chunk.sensor_size} differs from the "
                                  f"matcher's {self.sensor_size}")

@@ -86,7 +86,13 @@ class _Windows:
         self.sensor, self.bins, self.filter_size = sensor, bins, filter_size
         self.dense, self.ridge, self.vmax = dense, ridge, vmax
         self.with_iwe, self.skip = with_iwe, skip
-        self.by_count = window_events
+        # robust windows of N events count the recording's events, not the burst means
+        # they are fitted to: their bounds come from the raw stream (:meth:`count_raw`)
+        self.live: list[int] | None = [] if window_events and dense == "robust" else None
+        self.by_count = None if self.live is not None else window_events
+        self.count = window_events
+        self.raw_n = 0
+        self.raw_last: int | None = None
         self.window_us = window_us or (None if window_events or edges else DEFAULT_WINDOW_US)
         self.edges = edges
         self.index = 0
@@ -94,8 +100,27 @@ class _Windows:
             int(edges[0][0]) if len(edges[0]) else 0)
         self._new()
 
+    def count_raw(self, t: np.ndarray) -> None:
+        """The recording's events (their times, in order) for robust windows of N events:
+        a window ends where its N-th event's successor starts, as a count window does."""
+        if self.live is None or not t.size:
+            return
+        # the stream's events 0, N, 2N... start the windows (a bound on the time of the
+        # last one is no new window: windows hold a time span)
+        for v in t[(-self.raw_n) % self.count::self.count]:
+            if not self.live or int(v) > self.live[-1]:
+                self.live.append(int(v))
+        self.raw_n += t.size
+        self.raw_last = int(t[-1])
+
     def _bounds(self):
         """(t0, t1) of the current time window, or None past the last explicit window."""
+        if self.live is not None:
+            if self.index >= len(self.live):
+                return None
+            nxt = self.index + 1
+            return self.live[self.index], (self.live[nxt] if nxt < len(self.live)
+                                           else np.iinfo(np.int64).max)
         if self.edges is None:
             return self.t0, self.t0 + self.window_us
         if self.index >= self.edges[0].size:
@@ -134,7 +159,7 @@ class _Windows:
             if stop < len(chunk):
                 yield self._close(t0, t1)
                 self.t0 = t1
-                if self.edges is None and t[stop] >= t1 + self.window_us:
+                if self.live is None and self.edges is None and t[stop] >= t1 + self.window_us:
                     # a pause: the windows before the next event hold none; go to its
                     # window (a stray timestamp hours on made millions of empty ones)
                     self.t0 = t1 + (int(t[stop]) - t1) // self.window_us * self.window_us
@@ -212,6 +237,12 @@ class _Windows:
         return win
 
     def finish(self):
+        if self.live is not None:
+            if self.raw_n % self.count and self.raw_last is not None:
+                self.live.append(self.raw_last + 1)  # the last window, short of N
+            while self.index < len(self.live) - 1:
+                yield self._close(self.live[self.index], self.live[self.index + 1])
+            return
         if self.by_count:
             if self.n:
                 last = self.pending[-1][0]
@@ -403,6 +434,7 @@ class TripletStream:
         closes come out of :meth:`windows`."""
         flow = self.matcher.process(chunk)
         if self._windows is not None:
+            self._windows.count_raw(chunk.t)
             if self._bursts is not None:
                 b = self._bursts.process(chunk)
                 self._queue.append((b, self._burst_matcher.process(b)))
