@@ -198,3 +198,21 @@ def test_nanoseconds_read_as_microseconds_are_questioned(tmp_path):
     with pytest.warns(EvmotionWarning,
                       match=r"6600 events over \d+ s, 0.22 events/s.*--time-unit ns"):
         read_events(tmp_path / "ns.npy", sensor_size=(10, 10))
+
+
+def test_egomotion_on_too_few_events_to_test_is_no_measurement():
+    # windows of ~1000 events of a real-like scene gave speeds of chance (2000 px/s for a
+    # true 134) that sharpened the image by 5 %, marked valid: no tile held enough events
+    # for the fit test, whose NaN passed
+    from evmotion import estimate_egomotion
+    from evmotion.sim import simulate
+
+    ev = simulate("translation", duration_s=0.2, seed=2, show_progress=False).events
+    with pytest.warns(PoorFitWarning, match="unchecked fit"):
+        res = estimate_egomotion(ev[5000:5400], warp="translation")
+    assert not np.isfinite(res.diagnostics["fit"]["explained_share"])
+    assert res.poor_fit and not res.valid
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PoorFitWarning)
+        full = estimate_egomotion(ev[5000:35000], warp="translation")
+    assert full.valid

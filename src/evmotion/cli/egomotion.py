@@ -438,8 +438,9 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
             "n_events": ("events", "events in the window"), "cost": ("", "objective value"),
             "focus": ("", "focus term"), "penalty": ("", "regularizer term"),
             "collapsed": ("", "flag: the IWE collapsed"),
-            "poor_fit": ("", f"flag: explained_share < {POOR_FIT_SHARE}, contrast_gain < "
-                             f"{MIN_CONTRAST_GAIN} or fewer than {MIN_FIT_EVENTS} events"),
+            "poor_fit": ("", f"flag: explained_share < {POOR_FIT_SHARE} or NaN (no tile to "
+                             f"test), contrast_gain < {MIN_CONTRAST_GAIN} or fewer than "
+                             f"{MIN_FIT_EVENTS} events"),
             "explained_share": ("", "share of the image the warp explains"),
             "contrast_gain": ("", "contrast over the identity warp's")}
     values = {k: np.array([row[k] for row in rows]) for k in list(cols)[:6]}

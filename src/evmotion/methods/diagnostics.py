@@ -404,12 +404,26 @@ def fit_diagnostics(x, y, dt, xw, yw, shape, tile: int | None = None) -> dict:
                              for r in rows]}
 
 
+def unchecked_fit(diag: dict) -> bool:
+    """Whether :func:`fit_diagnostics` ran (``diag`` not empty) but found no tile to test
+    the estimate against (``explained_share`` NaN): on a window of too few events, where
+    the optimizer finds speeds of chance that sharpen the image by a few percent."""
+    return bool(diag) and not np.isfinite(diag.get("explained_share", np.nan))
+
+
 def warn_poor_fit(diag: dict, warp: str, stacklevel: int = 3) -> str | None:
     """Issue a :class:`~evmotion.errors.PoorFitWarning` when the explained share of
     ``diag`` (from :func:`fit_diagnostics`) is below :data:`POOR_FIT_SHARE`; returns its
     message (else None)."""
     share = diag.get("explained_share", 1.0)
-    if not share < POOR_FIT_SHARE:  # NaN: no tile to check against
+    if unchecked_fit(diag):
+        msg = (f"unchecked fit: no tile of {diag.get('tile_px', '?')} px holds enough events "
+               f"with structure to test the {warp} warp against -- too few events to tell a "
+               "motion from chance (windows of a few hundred or thousand events find wild "
+               "speeds); the estimate is not a measurement -- use longer windows")
+        warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
+        return msg
+    if not share < POOR_FIT_SHARE:
         return None
     msg = (f"poor fit: the {warp} warp explains only {100 * share:.0f} % of the image "
            f"(tiles it sharpens about as well as their own motion; threshold "

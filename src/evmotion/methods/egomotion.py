@@ -142,7 +142,8 @@ class EgomotionResult:
         the data set) and ``"warnings"`` (the messages issued); empty with
         ``diagnose=False``.
     poor_fit : bool
-        (property) The warp explains too little of the image, sharpens it by less than
+        (property) The warp explains too little of the image (or no tile holds enough
+        events to test it), sharpens it by less than
         :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`, or the window holds too few
         events for its contrast to mean anything (False when not diagnosed).
     valid : bool
@@ -173,15 +174,16 @@ class EgomotionResult:
 
     @property
     def poor_fit(self) -> bool:
-        from evmotion.methods.diagnostics import POOR_FIT_SHARE
+        from evmotion.methods.diagnostics import POOR_FIT_SHARE, unchecked_fit
         from evmotion.methods.measured import MIN_CONTRAST_GAIN
 
         d = self.diagnostics
         share = float(d.get("fit", {}).get("explained_share", np.nan))
         gain = float(d.get("contrast_gain", np.nan))
-        # NaN (not checked, collapsed) is not a poor fit: collapse says itself
+        # not diagnosed, or collapsed (said by itself): not a poor fit; a fit test that ran
+        # and found nothing to test is one (too few events)
         return bool(share < POOR_FIT_SHARE or gain < MIN_CONTRAST_GAIN
-                    or d.get("too_few_events", False))
+                    or unchecked_fit(d.get("fit", {})) or d.get("too_few_events", False))
 
     @property
     def valid(self) -> bool:
