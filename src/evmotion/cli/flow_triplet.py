@@ -267,9 +267,9 @@ def run(args) -> int:
         from evmotion.methods.measured import MIN_CONTRAST_GAIN
 
         warn_line(f"{args.file}: {len(no_focus)} of {n_windows} windows (first: "
-                  f"{no_focus[0]}) have no focus: their dense flow sharpens their events by "
-                  f"less than {100 * (MIN_CONTRAST_GAIN - 1):.0f} % (noise, no texture or no "
-                  "motion); no pixel of them is valid")
+                  f"{no_focus[0]}) have no focus: their dense flow aligns their events less "
+                  f"than {100 * (MIN_CONTRAST_GAIN - 1):.0f} % better than chance (noise or "
+                  "no texture); no pixel of them is valid")
     args.flow_summary = {"windows": n_windows if windows_made else None, "events": n_events,
                          "outputs": outputs}
     if args.json:

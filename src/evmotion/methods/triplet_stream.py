@@ -54,12 +54,13 @@ class TripletWindow:
         With ``with_iwe``: the image of the window's events, each warped by its own flow to
         ``t0`` (a picture of how well the per-event flow aligns the events).
     gain : float
-        How much the dense flow sharpens the window's events (their FWL,
-        :func:`~evmotion.methods.triplet.dense_gain`); NaN where undefined.
+        How much better the dense flow aligns the window's events than chance
+        (:func:`~evmotion.methods.triplet.dense_gain`); NaN where undefined.
     no_focus : bool
-        ``gain`` below :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`: the flow
-        aligns nothing (noise, no texture, no motion), is no measurement, and ``valid``
-        is all False.
+        ``gain`` below :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` for a flow
+        that moves the events by a few pixels
+        (:func:`~evmotion.methods.triplet.focus_checked`): it aligns nothing (noise, no
+        texture), is no measurement, and ``valid`` is all False.
     """
 
     index: int
@@ -238,8 +239,8 @@ class _Windows:
 
     def finish(self):
         if self.live is not None:
-            if self.raw_n % self.count and self.raw_last is not None:
-                self.live.append(self.raw_last + 1)  # the last window, short of N
+            if self.raw_last is not None:
+                self.live.append(self.raw_last + 1)  # the end of the last window
             while self.index < len(self.live) - 1:
                 yield self._close(self.live[self.index], self.live[self.index + 1])
             return
