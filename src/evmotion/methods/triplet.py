@@ -742,6 +742,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     flows = np.zeros((len(windows), h, w, 2), np.float32)
     masks = np.zeros((len(windows), h, w), bool)
     gains = np.full(len(windows), np.nan)
+    flagged = np.zeros(len(windows), bool)
     for i, win in enumerate(windows):
         sub = events[win.start:win.stop]
         fsub = flow[win.start:win.stop]
@@ -762,8 +763,8 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
             acc, cnt = _voxel_sums(sub, fsub, win.t0, win.t1, n_bins)
             flows[i], masks[i] = dense_from_sums(acc, cnt, smooth=smooth,
                                                  filter_size=filter_size)
-        gains[i], masks[i] = focus_checked(sub, flows[i], masks[i], win.t0)
-    _warn_no_focus(gains, (gains < MIN_CONTRAST_GAIN) & ~masks.any(axis=(1, 2)))
+        gains[i], masks[i], flagged[i] = focus_checked(sub, flows[i], masks[i], win.t0)
+    _warn_no_focus(gains, flagged)
     return TripletBatchResult(flows, masks, windows, flow, m.overflow, bursts, bflow, gains)
 
 
@@ -832,27 +833,28 @@ def dense_gain(events: EventArray, flow: np.ndarray, t0_us: int) -> float:
 
 
 def focus_checked(events: EventArray, flow: np.ndarray, mask: np.ndarray,
-                  t0_us: int) -> tuple[float, np.ndarray]:
-    """``(gain, mask)`` of a dense window: :func:`dense_gain`, and ``mask`` all False when
+                  t0_us: int) -> tuple[float, np.ndarray, bool]:
+    """``(gain, mask, no_focus)`` of a dense window: :func:`dense_gain`, and ``mask`` all
+    False (``no_focus`` True) when
     the flow moves the events by :data:`MIN_TESTED_SHIFT_PX` or more (median) and sharpens
     them by less than :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` (it aligns
     nothing: noise or no texture gave a flow "everywhere")."""
     if not mask.any() or not len(events):
-        return float("nan"), mask
+        return float("nan"), mask, False
     field = np.where(mask[..., None], flow, 0).astype(np.float32)
     gain = dense_gain(events, field, t0_us)
     x = np.clip(np.rint(events.x).astype(np.intp), 0, mask.shape[1] - 1)
     y = np.clip(np.rint(events.y).astype(np.intp), 0, mask.shape[0] - 1)
     on = mask[y, x]  # the events where the window has a flow
     if not on.any():
-        return gain, mask
+        return gain, mask, False
     speed = float(np.median(np.hypot(*field[y[on], x[on]].T)))
     shift = speed * (int(events.t[-1]) - t0_us) * 1e-6
     # a flow that moves the events by less than a few pixels over the window sharpens
     # little even when right (1.2-1.6 px: gains 0.94-1.4 for accurate flows): untested
-    if shift < MIN_TESTED_SHIFT_PX:
-        return gain, mask
-    return gain, (np.zeros_like(mask) if gain < MIN_CONTRAST_GAIN else mask)
+    if shift < MIN_TESTED_SHIFT_PX or not gain < MIN_CONTRAST_GAIN:
+        return gain, mask, False
+    return gain, np.zeros_like(mask), True
 
 
 #: The median shift (px) a window's dense flow must give its events over the window for

@@ -23,7 +23,6 @@ from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, concatenate
 from evmotion.methods import triplet
 from evmotion.methods.bursts import BURST_GAP_US, BurstMeans
-from evmotion.methods.measured import MIN_CONTRAST_GAIN
 from evmotion.utils import resolve_options
 
 __all__ = ["DEFAULT_WINDOW_US", "TripletOptions", "TripletStream", "TripletWindow",
@@ -228,9 +227,8 @@ class _Windows:
                                                  filter_size=self.filter_size)
         gain, no_focus = float("nan"), False
         if flow is not None and self.seen:
-            gain, mask = triplet.focus_checked(
+            gain, mask, no_focus = triplet.focus_checked(
                 concatenate(self.seen, validate=False), flow, mask, t0)
-            no_focus = bool(gain < MIN_CONTRAST_GAIN)
         win = TripletWindow(self.index, int(t0), int(t1), flow, mask, self.n, self.iwe,
                             gain, no_focus)
         self.index += 1
