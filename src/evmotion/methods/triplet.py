@@ -816,17 +816,27 @@ def dense_gain(events: EventArray, flow: np.ndarray, t0_us: int) -> float:
     if not len(events):
         return float("nan")
     h, w = events.sensor_size
-    x, y = np.rint(events.x).astype(np.intp), np.rint(events.y).astype(np.intp)
-    inside = (x >= 0) & (x < w) & (y >= 0) & (y < h)
-    x, y = x[inside], y[inside]
-    dt = (events.t[inside] - np.int64(t0_us)).astype(np.float64) * 1e-6
-    f = flow[y, x].astype(np.float64)
+    x = np.clip(np.rint(events.x).astype(np.intp), 0, w - 1)
+    y = np.clip(np.rint(events.y).astype(np.intp), 0, h - 1)
+    return _alignment_gain(x, y, events.t, flow[y, x], t0_us, (h, w))
+
+
+def _alignment_gain(x, y, t, f, t0_us: int, shape) -> float:
+    """:func:`dense_gain` of events at pixels ``x, y``, times ``t`` (µs) with flows ``f``
+    (N, 2) px/s."""
+    h, w = shape
+    dt = (t - np.int64(t0_us)).astype(np.float64) * 1e-6
+    f = np.asarray(f, np.float64)
 
     def variance(times):
         xw = np.rint(x - f[:, 0] * times).astype(np.intp)
         yw = np.rint(y - f[:, 1] * times).astype(np.intp)
         keep = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-        return float(np.var(np.bincount(yw[keep] * w + xw[keep], minlength=h * w)))
+        # the image's variance from the counts of its occupied pixels (a window of a few
+        # thousand events on a megapixel sensor: no image of a million bins twice)
+        counts = np.unique(yw[keep] * w + xw[keep], return_counts=True)[1].astype(np.float64)
+        n_px = float(h * w)
+        return float(np.sum(counts**2) / n_px - (np.sum(counts) / n_px) ** 2)
 
     null = variance(np.random.default_rng(0).permutation(dt))
     return variance(dt) / null if null > 0 else float("nan")
@@ -834,21 +844,22 @@ def dense_gain(events: EventArray, flow: np.ndarray, t0_us: int) -> float:
 
 def focus_checked(events: EventArray, flow: np.ndarray, mask: np.ndarray,
                   t0_us: int) -> tuple[float, np.ndarray, bool]:
-    """``(gain, mask, no_focus)`` of a dense window: :func:`dense_gain`, and ``mask`` all
-    False (``no_focus`` True) when
-    the flow moves the events by :data:`MIN_TESTED_SHIFT_PX` or more (median) and sharpens
-    them by less than :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` (it aligns
-    nothing: noise or no texture gave a flow "everywhere")."""
-    if not mask.any() or not len(events):
+    """``(gain, mask, no_focus)`` of a dense window: :func:`dense_gain` of the flow inside
+    ``mask``, and ``mask`` all False (``no_focus`` True) when the flow moves the events by
+    :data:`MIN_TESTED_SHIFT_PX` or more (median) and aligns them less than
+    :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` times better than chance (noise
+    or no texture gave a flow "everywhere")."""
+    if not len(events):
         return float("nan"), mask, False
-    field = np.where(mask[..., None], flow, 0).astype(np.float32)
-    gain = dense_gain(events, field, t0_us)
-    x = np.clip(np.rint(events.x).astype(np.intp), 0, mask.shape[1] - 1)
-    y = np.clip(np.rint(events.y).astype(np.intp), 0, mask.shape[0] - 1)
+    h, w = mask.shape
+    x = np.clip(np.rint(events.x).astype(np.intp), 0, w - 1)
+    y = np.clip(np.rint(events.y).astype(np.intp), 0, h - 1)
     on = mask[y, x]  # the events where the window has a flow
     if not on.any():
-        return gain, mask, False
-    speed = float(np.median(np.hypot(*field[y[on], x[on]].T)))
+        return float("nan"), mask, False
+    at = np.where(on[:, None], flow[y, x], 0)  # the flow inside the mask, at the events
+    gain = _alignment_gain(x, y, events.t, at, t0_us, (h, w))
+    speed = float(np.median(np.hypot(*at[on].T)))
     shift = speed * (int(events.t[-1]) - t0_us) * 1e-6
     # a flow that moves the events by less than a few pixels over the window sharpens
     # little even when right (1.2-1.6 px: gains 0.94-1.4 for accurate flows): untested
