@@ -158,3 +158,39 @@ def test_info_says_where_the_size_it_prints_came_from(tmp_path, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["sensor_size"] == [260, 346]
     assert info["sensor_size_from"].startswith("largest coordinate")
+
+
+def test_convert_to_a_read_only_format_is_one_line(tmp_path, capsys):
+    # --format-out mat crashed with a 25-line traceback (TypeError in the aux streams)
+    src = tmp_path / "a.npz"
+    np.savez(src, x=[1, 2], y=[1, 1], t=[0, 10], p=[1, 0], sensor_size=[10, 10])
+    rc, _, err = _run(capsys, "convert", str(src), str(tmp_path / "o.h5"), "--format-out",
+                      "mat")
+    assert rc == 2 and len(err.strip().splitlines()) == 1
+    assert "reads only" in err and "h5" in err
+
+
+def test_convert_with_sensor_size_does_not_ask_for_it(tmp_path, capsys):
+    # the aux streams' look at the file read it without the size and warned 'give the
+    # true size (--sensor-size H W)' beside the --sensor-size given
+    src = tmp_path / "a.npz"
+    np.savez(src, x=[1, 2, 3], y=[1, 1, 3], t=[0, 10, 20], p=[1, 0, 1])
+    rc, _, err = _run(capsys, "convert", str(src), str(tmp_path / "o.h5"), "--sensor-size",
+                      "10", "10")
+    assert rc == 0 and err == ""
+    assert eio.read_events(tmp_path / "o.h5").sensor_size == (10, 10)
+
+
+def test_landscape_of_noise_says_no_measurement(tmp_path, capsys):
+    from evmotion import EventArray
+
+    rng = np.random.default_rng(0)
+    n = 30000
+    eio.write_events(tmp_path / "n.h5", EventArray(
+        x=rng.integers(0, 240, n), y=rng.integers(0, 180, n), t=np.sort(rng.integers(0, 20_000, n)),
+        p=rng.integers(0, 2, n), sensor_size=(180, 240)))
+    rc, out, err = _run(capsys, "landscape", str(tmp_path / "n.h5"), "--warp", "translation",
+                        "--param", "vx", "--range", "-500", "500", "--steps", "21",
+                        "--theta", "0,0", "--out", str(tmp_path / "l.png"))
+    assert rc == 0 and "flat" in err
+    assert "(no measurement: flat)" in out and (tmp_path / "l.png").stat().st_size > 0

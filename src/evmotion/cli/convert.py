@@ -80,6 +80,7 @@ def run(args) -> int:
         raise ParameterError(f"input and output are the same file: {src}")
     fmt_in = args.format_in or eio.detect_format(src)
     fmt_out = args.format_out or eio.format_for_output(dst)
+    _check_writable(fmt_out)
     kw = {}
     if args.sensor_size is not None:
         kw["sensor_size"] = tuple(args.sensor_size)
@@ -170,6 +171,18 @@ def _has_calibration(src, first) -> bool:
     return bool(intr.get("K")) and not intr.get("nominal")
 
 
+def _check_writable(fmt_out: str) -> None:
+    """``--format-out`` names a format evmotion writes (a read-only one crashed the aux
+    streams' check with a traceback)."""
+    from evmotion.errors import ParameterError
+    from evmotion.io.registry import all_formats, get_format
+
+    if get_format(fmt_out).write is None:
+        writable = sorted(f.name for f in all_formats() if f.write is not None)
+        raise ParameterError(f"--format-out {fmt_out}: a format evmotion reads only; it "
+                             f"writes {', '.join(writable)}")
+
+
 def _aux_streams(src, fmt_in: str, fmt_out: str, t0: int | None, t1: int | None):
     """The IMU samples and APS frames of ``src`` within ``[t0, t1)``: ``(kept, dropped)``,
     ``kept`` the writer options (``imu``/``frames`` dicts) for an output format whose writer
@@ -193,7 +206,7 @@ def _aux_streams(src, fmt_in: str, fmt_out: str, t0: int | None, t1: int | None)
             # (a stream this reader cannot decode is dropped, and said so)
             if listed is None:
                 try:
-                    listed = eio.describe(src, format=fmt_in)
+                    listed = eio.describe(src, format=fmt_in, stream=False)
                 except FormatError:
                     listed = {}
             n = listed.get(name, 0)

@@ -61,15 +61,12 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from evmotion.cli.egomotion import check_common, load_events_and_camera
     from evmotion.core.warps import make_warp
-    from evmotion.methods.egomotion import cost_landscape
-    from evmotion.utils import atomic_path, atomic_write_text
+    from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN
+    from evmotion.methods.egomotion import cost_landscape, landscape_verdict
+    from evmotion.utils import atomic_write_text
+    from evmotion.viz.landscape import landscape_png
 
     check_common(args)
     check_time_order(args)
@@ -117,44 +114,41 @@ def run(args) -> int:
                              K=K, t_ref=args.t_ref, dataset=args.dataset)
         curves[f"with {args.reg}"] = reg["cost"]
         curves[f"{args.reg} penalty"] = reg["penalty"]
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
-    for label, c in curves.items():
-        ax.plot(values, c, label=label, ls="--" if "penalty" in label else "-")
     name, unit = w.param_names[j], w.param_units[j]
-    ax.set_xlabel(f"{name} [{unit}]")
-    ax.set_ylabel("cost J = -G/G0 + lambda R")
-    ax.set_title(f"{args.warp} warp, {args.objective}, {len(events)} events\n{args.grid}")
-    ax.legend()
-    ax.grid(alpha=0.3)
-    with atomic_path(args.out) as tmp:
-        fig.savefig(tmp, format="png", bbox_inches="tight")
-    plt.close(fig)
+    verdict = landscape_verdict(values, plain["cost"], plain["focus"])
+    best, at_edge, gain, flat = (verdict[k] for k in ("minimum", "at_edge", "best_gain", "flat"))
+    why, said = [], []  # the warnings, and their short form on the picture
+    if flat:
+        said.append(f"flat: the best {name} sharpens the events by {100 * (gain - 1):.1f} % "
+                    f"(< {100 * (MIN_CONTRAST_GAIN - 1):.0f} %)")
+        why.append(f"flat: no {name} in the range sharpens the events by "
+                   f"{100 * (MIN_CONTRAST_GAIN - 1):.0f} % (best {100 * (gain - 1):.1f} %): "
+                   "its minimum is no measurement -- no motion along this parameter, too few "
+                   "events, or the other parameters (--theta) far off")
+    if at_edge:
+        said.append("the minimum is at the edge of the range")
+        why.append(f"the minimum ({name} = {best:.4g} {unit}) is at the edge of --range "
+                   f"[{values[0]:.4g}, {values[-1]:.4g}]: the true one may lie beyond; "
+                   "widen --range")
+    fixed = ", ".join(f"{n} = {v:.4g}" for i, (n, v) in enumerate(zip(w.param_names, theta,
+                                                                     strict=True)) if i != j)
+    landscape_png(args.out, values, curves, name=name, unit=unit, minimum=best,
+                  title=f"{args.warp} warp, {args.objective}, {len(events):,} events, "
+                        f"{events.t[0] * 1e-6:.4f}-{events.t[-1] * 1e-6:.4f} s\n"
+                        f"{fixed or 'one parameter'}; {args.grid}",
+                  verdict="\n".join(said) or None)
     if args.csv:
         lines = [",".join([name] + list(curves))]
         lines += [",".join(repr(float(v)) for v in row)
                   for row in zip(values, *curves.values(), strict=True)]
         atomic_write_text(args.csv, "\n".join(lines) + "\n")
     from evmotion.cli import warn_line
-    from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN
 
     if args.window_events and len(events) < args.window_events:
         warn_line(f"the window holds {len(events):,} events, not the {args.window_events:,} "
                   "asked: the recording (or --t1) ends first")
-    i_best = int(np.argmin(plain["cost"]))
-    best = values[i_best]
-    # a minimum on the range's edge may lie beyond it: not a measurement of the motion
-    at_edge = i_best in (0, len(values) - 1)
-    if at_edge:
-        warn_line(f"the minimum ({name} = {best:.4g} {unit}) is at the edge of --range "
-                  f"[{values[0]:.4g}, {values[-1]:.4g}]: the true one may lie beyond; "
-                  "widen --range")
-    gain = float(np.max(plain["focus"])) if len(plain["focus"]) else float("nan")
-    flat = not gain >= MIN_CONTRAST_GAIN
-    if flat:
-        warn_line(f"flat: no {name} in the range sharpens the events by "
-                  f"{100 * (MIN_CONTRAST_GAIN - 1):.0f} % (best {100 * (gain - 1):.1f} %): its "
-                  "minimum is no measurement -- no motion along this parameter, too few "
-                  "events, or the other parameters (--theta) far off")
+    for line in reversed(why):  # the edge first, as before
+        warn_line(line)
     best_reg = None
     if args.reg:
         best_reg = float(values[int(np.argmin(curves[f"with {args.reg}"]))])
@@ -178,5 +172,6 @@ def run(args) -> int:
         with_reg = (f"; with {args.reg} at {name} = {best_reg:.4g} {unit}"
                     if best_reg is not None else "")
         print(f"{args.out}: minimum without regularizer at {name} = {best:.4g} {unit}"
+              f"{' (no measurement: ' + said[0].split(':')[0] + ')' if said else ''}"
               f"{with_reg} (events on the {args.grid} grid)")
     return 0

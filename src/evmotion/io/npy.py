@@ -371,7 +371,9 @@ def write(path: str | os.PathLike, events: EventArray) -> None:
 
 def describe(path: str | os.PathLike) -> dict:
     path = Path(path)
-    ev = read(path, validate=False)
+    with warnings.catch_warnings():  # the size's origin is in the description itself
+        warnings.simplefilter("ignore", EvmotionWarning)
+        ev = read(path, validate=False)
     return {"format": "npy", "sensor_size": ev.sensor_size, "n_events": len(ev),
             **{k: v for k, v in ev.meta.items() if k not in ("source", "format")}}
 

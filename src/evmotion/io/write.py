@@ -50,7 +50,8 @@ def format_for_output(path: str | os.PathLike) -> str:
             return spec.name
     writable = sorted({s for f in all_formats() if f.write for s in f.extensions})
     raise FormatError(path, f"cannot tell the output format from the extension '{suffix}'",
-                      f"use one of {', '.join(writable)} or give format=")
+                      f"use one of {', '.join(writable)}, or name the format (--format-out in "
+                      "convert, format= in Python)")
 
 
 _STREAMING_WRITERS = ("h5", "ecd")

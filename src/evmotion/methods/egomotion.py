@@ -76,8 +76,11 @@ from evmotion.methods.cmax import (
     param_scales,
 )
 from evmotion.methods.diagnostics import (
+    MIN_CONTRAST_GAIN,
+    POOR_FIT_SHARE,
     collapse_diagnostics,
     fit_diagnostics,
+    unchecked_fit,
     warn_collapse,
     warn_no_gain,
     warn_poor_fit,
@@ -92,6 +95,7 @@ __all__ = [
     "EgomotionOptions",
     "EgomotionResult",
     "cost_landscape",
+    "landscape_verdict",
     "default_bounds",
     "estimate_egomotion",
     "make_cost",
@@ -174,9 +178,6 @@ class EgomotionResult:
 
     @property
     def poor_fit(self) -> bool:
-        from evmotion.methods.diagnostics import POOR_FIT_SHARE, unchecked_fit
-        from evmotion.methods.measured import MIN_CONTRAST_GAIN
-
         d = self.diagnostics
         share = float(d.get("fit", {}).get("explained_share", np.nan))
         gain = float(d.get("contrast_gain", np.nan))
@@ -479,6 +480,26 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
     return {"collapse": coll, "fit": fit, "contrast_gain": gain,
             "too_few_events": too_few is not None,
             "weight_source": weight_source, "warnings": [m for m in msgs if m]}
+
+
+def landscape_verdict(values, cost, focus) -> dict:
+    """What a scanned landscape (:func:`cost_landscape`) measures: ``minimum`` (the value
+    where ``cost`` is lowest), ``at_edge`` (it lies on the range's edge: the true one may
+    lie beyond), ``best_gain`` (the highest focus G/G0 over the range) and ``flat`` (no
+    value sharpens the events by :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`:
+    the minimum is no measurement).
+
+    Examples
+    --------
+    >>> v = landscape_verdict([0.0, 1.0, 2.0], [-1.0, -1.5, -1.2], [1.0, 1.5, 1.2])
+    >>> v["minimum"], v["at_edge"], v["flat"]
+    (1.0, False, False)
+    """
+    values, cost = np.asarray(values, float), np.asarray(cost, float)
+    i = int(np.argmin(cost))
+    gain = float(np.max(focus)) if len(focus) else float("nan")
+    return {"minimum": float(values[i]), "at_edge": i in (0, len(values) - 1),
+            "best_gain": gain, "flat": not gain >= MIN_CONTRAST_GAIN}
 
 
 def cost_landscape(events: EventArray, warp: str | Warp, param: int, values,
