@@ -110,6 +110,10 @@ def test_segment_cli(rec, tmp_path, capsys):
                for c in doc["clusters"])
     with np.load(out / "labels.npz") as z:
         assert z["window_00000"].max() <= 1
+        # which events they label (undistortion may drop some of the recording's)
+        assert z["window_00000_t_us"].shape == z["window_00000"].shape
+        assert z["window_00000_x"].shape == z["window_00000"].shape
+        assert doc["clusters"][0]["t0_us"] <= z["window_00000_t_us"][0]
 
 
 def test_egomotion_job_draws_its_panel_and_sends_no_images(rec, tmp_path):

@@ -39,6 +39,19 @@ def test_two_translations_are_separated():
     assert seg.valid.all() and (seg.gains > MIN_CLUSTER_GAIN).all()
 
 
+def test_one_motion_split_in_two_is_one_measurement():
+    # three clusters for two motions came back as three valid ones, two of them
+    # (306, 0.5) and (301, -0.9) px/s: one object cut in half (probe T)
+    ev, _ = two_motions()
+    with pytest.warns(PoorFitWarning, match="moves its events as cluster"):
+        seg = segment_motion(ev, n_warps=3, warp="translation", seed=0)
+    assert seg.valid.sum() == 2 and (seg.same_as >= 0).sum() == 1
+    dup = int(np.flatnonzero(seg.same_as >= 0)[0])
+    assert seg.valid[seg.same_as[dup]] and not seg.valid[dup]
+    two = segment_motion(ev, n_warps=2, warp="translation", seed=0)
+    assert (two.same_as == -1).all() and two.valid.all()
+
+
 @pytest.mark.parametrize("kind", ["noise", "static"])
 def test_clusters_of_noise_or_no_motion_are_not_measurements(kind):
     """On noise the clusters used to come back valid with parameters of tens of px/s."""

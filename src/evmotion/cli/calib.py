@@ -25,18 +25,28 @@ __all__ = ["add_camera_arguments", "camera_for", "undistort_for", "undistorted_c
 
 
 def _intrinsics(text: str) -> list[float]:
+    from evmotion.io.calibration import MAX_FOCAL_PX, MIN_FOCAL_PX
+
     vals = float_list(4, unit="px")(text)
-    if vals[0] <= 0 or vals[1] <= 0:
-        raise argparse.ArgumentTypeError(f"focal lengths fx, fy must be > 0 px, got {text!r}")
+    if not all(MIN_FOCAL_PX <= v <= MAX_FOCAL_PX for v in vals[:2]):
+        # the limits of a calibration file's focal lengths (1e-9 failed later, naming
+        # no option; 1e30 was taken)
+        raise argparse.ArgumentTypeError(f"focal lengths fx, fy must be in [{MIN_FOCAL_PX:g}, "
+                                         f"{MAX_FOCAL_PX:g}] px, got {text!r}")
     return vals
 
 
 def _distortion(text: str) -> list[float]:
+    from evmotion.io.calibration import MAX_DISTORTION
+
     vals = float_list()(text)
     if len(vals) not in (4, 5):
         raise argparse.ArgumentTypeError(
             f"must be 4 or 5 comma-separated numbers (k1,k2,p1,p2[,k3]), got {len(vals)} in "
             f"{text!r}")
+    if any(abs(v) > MAX_DISTORTION for v in vals):
+        raise argparse.ArgumentTypeError(f"coefficients beyond +-{MAX_DISTORTION:g} are not "
+                                         f"a lens, got {text!r}")
     return vals
 
 

@@ -57,15 +57,17 @@ for others. --t0/--t1 are seconds on the recording's clock, or 20ms, 20000us.)
 """
 
 
-def add_common(p) -> None:
+def add_common(p, objectives=None) -> None:
     """Arguments shared by ``egomotion``, ``landscape`` and ``segment`` (their choices from
-    :mod:`evmotion.catalog`: the parser does not load the numerical core)."""
+    :mod:`evmotion.catalog`: the parser does not load the numerical core); ``objectives``:
+    the focus objectives the command takes (default all)."""
     p.add_argument("file", help="recording (any format evmotion reads, or an ECD folder)")
     add_sensor_size_argument(p)
     add_time_unit_argument(p)
     p.add_argument("--warp", default="rotation", choices=sorted(WARP_NAMES),
                    help="motion model (default rotation)")
-    p.add_argument("--objective", default="variance", choices=sorted(OBJECTIVE_NAMES),
+    p.add_argument("--objective", default="variance",
+                   choices=sorted(objectives or OBJECTIVE_NAMES),
                    help="focus objective (default variance)")
     p.add_argument("--reg", default=None,
                    choices=["divergence", "deformation", "rcad", "whitening",

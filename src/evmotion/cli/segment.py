@@ -2,7 +2,9 @@
 expectation-maximization of per-cluster contrast (Sec. 3.6.6). Writes per-window parameters
 of every cluster (``clusters.csv``, and ``clusters.h5``: :mod:`evmotion.io.paramsfiles`,
 with units, each row's [t0, t1) µs, warp, grid and a valid flag; ``evmotion info``
-describes it), event labels (``labels.npz``) and PNGs of the per-cluster IWEs."""
+describes it), event labels (``labels.npz``: ``window_NNNNN`` the cluster of each event,
+with its time ``window_NNNNN_t_us`` and pixel ``_x``, ``_y`` on the grid the command used,
+undistorted where a calibration undistorts) and PNGs of the per-cluster IWEs."""
 
 from __future__ import annotations
 
@@ -26,12 +28,15 @@ from evmotion.cli.options import (
     select_windows,
     writable_folder,
 )
-from evmotion.errors import ParameterError
 
 EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5'):
   evmotion segment sim.h5 --warp rotation --warps 2 --max-windows 1 --out seg/
   evmotion segment sim.h5 --warp translation --warps 3 --window-us 20000 --t0 0.02 --max-windows 2 --iterations 5 --out seg3/ --json
 """
+
+
+# the objectives the clusters' weighted images take (the average-timestamp ones do not)
+SEGMENT_OBJECTIVES = ("variance", "gradient_magnitude")
 
 
 def add_parser(sub) -> None:
@@ -42,7 +47,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser("segment", help="motion segmentation with several warps (Sec. 3.6.6)",
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_common(p)
+    add_common(p, objectives=SEGMENT_OBJECTIVES)
     p.add_argument("--warps", type=int_range(1, 64), default=2,
                    help="number of motion clusters (default 2)")
     p.add_argument("--iterations", type=positive_int(), default=10,
@@ -73,8 +78,6 @@ def run(args) -> int:
 
     check_common(args)
     check_scheduler(args)
-    if args.objective not in ("variance", "gradient_magnitude"):
-        raise ParameterError("segment supports --objective variance or gradient_magnitude")
     check_time_order(args)
     cut = {"n_events": None if args.window_us else args.window_events or 30000,
            "duration_us": args.window_us or None, "min_events": 10 * args.warps}
@@ -100,7 +103,13 @@ def run(args) -> int:
     try:
         for w, res in zip(windows, results, strict=True):
             seg, panel = res.value
-            labels[f"window_{w.index:05d}"] = seg.labels.astype(np.int16)
+            key = f"window_{w.index:05d}"
+            labels[key] = seg.labels.astype(np.int16)
+            # which events they label: undistortion drops those leaving the sensor, so a
+            # window's labels need not line up with the recording's events there
+            sub = events.window(w)
+            labels[key + "_t_us"] = sub.t
+            labels[key + "_x"], labels[key + "_y"] = sub.x, sub.y
             for j in range(args.warps):
                 rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "cluster": j,
                              "n_events": int(np.sum(seg.labels == j)),
@@ -109,7 +118,7 @@ def run(args) -> int:
                              "units": dict(zip(seg.param_names, seg.param_units,
                                                strict=True)),
                              "contrast_gain": float(seg.gains[j]),
-                             "valid": bool(seg.valid[j])})
+                             "valid": bool(seg.valid[j]), "same_as": int(seg.same_as[j])})
             pngs.append(out / f"window_{w.index:05d}.png")
             atomic_write_bytes(pngs[-1], panel)
     except BaseException:
@@ -170,11 +179,14 @@ def _warn_invalid(rows: list[dict]) -> None:
             bad.setdefault(r["window"], []).append(r)
     for window, rs in bad.items():
         what = ", ".join(f"{r['cluster']} ({r['n_events']} events, contrast gain "
-                         f"{r['contrast_gain']:.3f})" for r in rs)
+                         f"{r['contrast_gain']:.3f}"
+                         + (f", the motion of cluster {r['same_as']}" if r["same_as"] >= 0
+                            else "") + ")" for r in rs)
         warnings.warn(PoorFitWarning(
-            f"window {window}: cluster{'s' if len(rs) > 1 else ''} {what} sharpen"
-            f"{'' if len(rs) > 1 else 's'} nothing or hold too few events: not a measurement "
-            "(valid 0 in clusters.csv / clusters.h5)"), stacklevel=2)
+            f"window {window}: cluster{'s' if len(rs) > 1 else ''} {what}: "
+            "not a measurement -- it sharpens nothing, holds too few events, or repeats "
+            "another cluster's motion (fewer --warps) (valid 0 in clusters.csv / "
+            "clusters.h5)"), stacklevel=2)
 
 
 def _segment_job(events, **kwargs):

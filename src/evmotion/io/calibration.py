@@ -470,6 +470,7 @@ def recording_intrinsics(path: str | os.PathLike, sensor_size: tuple[int, int]) 
 # within a few units (k3 up to some tens), focal lengths within 10^5 px
 MAX_DISTORTION = 1e4
 MAX_FOCAL_PX = 1e6
+MIN_FOCAL_PX = 1.0
 
 
 def _k_row3(path, field: str, k: list[float]) -> None:
@@ -505,9 +506,9 @@ def _camera(path, fx, fy, cx, cy, dist, size, *, skew: float = 0.0) -> Camera:
     if any(abs(d) > MAX_DISTORTION for d in dist):
         raise CalibrationError(f"{path}: distortion coefficients {list(dist)}: beyond "
                                f"+-{MAX_DISTORTION:g}, not a lens")
-    if not (0 < fx <= MAX_FOCAL_PX and 0 < fy <= MAX_FOCAL_PX):
-        raise CalibrationError(f"{path}: focal lengths must be in (0, {MAX_FOCAL_PX:g}] px, "
-                               f"got fx={fx!r}, fy={fy!r}")
+    if not (MIN_FOCAL_PX <= fx <= MAX_FOCAL_PX and MIN_FOCAL_PX <= fy <= MAX_FOCAL_PX):
+        raise CalibrationError(f"{path}: focal lengths must be in [{MIN_FOCAL_PX:g}, "
+                               f"{MAX_FOCAL_PX:g}] px, got fx={fx!r}, fy={fy!r}")
     if size is not None:
         h, w = size
         if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):

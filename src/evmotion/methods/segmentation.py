@@ -71,9 +71,13 @@ class SegmentationResult:
         Each cluster's contrast gain: the variance of its IWE at its parameters over that
         of its events unwarped (membership-weighted alike).
     valid : ndarray (n_warps,) bool
-        Clusters that are measurements: at least :data:`MIN_CLUSTER_EVENTS` events and a
-        gain of at least :data:`MIN_CLUSTER_GAIN` (each other cluster is warned about: no
-        motion, noise, or a warp that fits nothing).
+        Clusters that are measurements: at least :data:`MIN_CLUSTER_EVENTS` events, a gain
+        of at least :data:`MIN_CLUSTER_GAIN` and a motion of their own (each other cluster
+        is warned about: no motion, noise, a warp that fits nothing, or one motion split
+        in two).
+    same_as : ndarray (n_warps,) int
+        The larger cluster whose motion a cluster repeats (within :data:`SAME_MOTION_PX`
+        over the window), else -1.
     """
 
     params: np.ndarray
@@ -88,6 +92,7 @@ class SegmentationResult:
     seconds: float
     gains: np.ndarray = field(default_factory=lambda: np.empty(0))
     valid: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
+    same_as: np.ndarray = field(default_factory=lambda: np.empty(0, int))
 
 
 #: Fewest events a cluster needs to be a measurement.
@@ -248,8 +253,39 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
                 f"{100 * (MIN_CLUSTER_GAIN - 1):.0f} %): not a measurement"), stacklevel=2)
         else:
             valid[j] = True
+    same_as = _duplicates(w, cost, params, labels, valid)
+    for k in np.flatnonzero(same_as >= 0):
+        warnings.warn(PoorFitWarning(
+            f"cluster {k} moves its events as cluster {same_as[k]} does (within "
+            f"{SAME_MOTION_PX:g} px over the window): one motion split in two, not another "
+            "measurement -- use fewer --warps"), stacklevel=2)
+        valid[k] = False
     return SegmentationResult(params=params, labels=labels, probabilities=prob,
                               iwes=iwes, param_names=tuple(w.param_names),
                               param_units=tuple(w.param_units), warp=w.name, n_iter=len(history),
                               history=np.asarray(history),
-                              seconds=time.perf_counter() - t_start, gains=gains, valid=valid)
+                              seconds=time.perf_counter() - t_start, gains=gains, valid=valid,
+                              same_as=same_as)
+
+
+def _duplicates(w, cost, params, labels, valid) -> np.ndarray:
+    """For each valid cluster, the larger valid cluster whose warp moves the events of
+    both to within :data:`SAME_MOTION_PX` of where its own does (median over the window),
+    else -1: EM splits one motion in two when asked for more clusters than there are."""
+    same_as = np.full(len(params), -1)
+    order = sorted(np.flatnonzero(valid), key=lambda j: -int(np.sum(labels == j)))
+    for a, j in enumerate(order):
+        for k in order[a + 1:]:
+            if same_as[k] >= 0:
+                continue
+            sel = (labels == j) | (labels == k)
+            xj, yj = w.warp(cost.x[sel], cost.y[sel], cost.dt[sel], params[j])
+            xk, yk = w.warp(cost.x[sel], cost.y[sel], cost.dt[sel], params[k])
+            if np.median(np.hypot(xj - xk, yj - yk)) < SAME_MOTION_PX:
+                same_as[k] = j
+    return same_as
+
+
+#: Two clusters whose warps put their events within this many pixels of each other
+#: (median over the window) measure one motion (:func:`segment_motion`).
+SAME_MOTION_PX = 1.0
