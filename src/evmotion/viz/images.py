@@ -354,23 +354,28 @@ def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None,
     if panel_inches is None:
         panel_inches = panel_width_inches(max(np.asarray(im).shape[1] for im in images), dpi)
     fig = _figure((panel_inches * ncols, panel_inches * aspect * nrows + 0.5 * nrows
-                   + (0.4 if suptitle else 0.0)), dpi)
+                   + (0.4 * len(suptitle.splitlines()) if suptitle else 0.0)), dpi)
     for k, im in enumerate(images):
         im = np.asarray(im)
-        # no ticks: the axes are hidden, but matplotlib still formats and measures the
-        # default tick labels in every layout pass (a 2x2 panel of 240x180 images: 0.19 s
-        # with them, 0.16 s without)
-        ax = fig.add_subplot(nrows, ncols, k + 1, xticks=[], yticks=[])
+        # the sensor's first and last pixel as the only ticks: its extent and scale, framed
+        # (white images on white lost their edges), without the default tick labels that
+        # matplotlib formats and measures in every layout pass (a 2x2 panel of 240x180
+        # images: 0.19 s with them, 0.16 s without)
+        h, w = im.shape[:2]
+        ax = fig.add_subplot(nrows, ncols, k + 1, xticks=[0, w - 1], yticks=[0, h - 1])
         if im.ndim == 2 and im.dtype != np.uint8:
             ax.imshow(im, cmap="gray", interpolation="nearest")
         else:
             ax.imshow(_as_image(im, f"images[{k}]"), cmap="gray" if im.ndim == 2 else None,
                       vmin=0, vmax=255, interpolation="nearest")
-        ax.set_axis_off()
+        ax.tick_params(labelsize=7, length=2, pad=1)
+        for spine in ax.spines.values():
+            spine.set_color("0.6")
+            spine.set_linewidth(0.6)
         if titles is not None:
             ax.set_title(str(titles[k]), fontsize=10)
     if suptitle:
-        fig.suptitle(suptitle)
+        fig.suptitle(suptitle, fontsize=10 if "\n" in suptitle else None)
     fig.tight_layout()
     return _figure_png(fig, dpi)
 
