@@ -44,7 +44,7 @@ def test_flow_pixels_are_the_bare_picture_and_the_legend_is_drawn():
     assert np.any((px[:, 2] > 240) & (px[:, 0] < 120) & (px[:, 1] < 60))
     # black ink: the arrows and the text
     assert np.sum(px.max(axis=1) < 60) > 50
-    assert pic.texts == ("u", "v", "rim 60 px/s", "fixed; darker: beyond")
+    assert pic.texts == ("u", "v", "rim 60 px/s", "fixed; darker: beyond", "grey: no events")
     assert pic.max_speed == 60.0 and pic.fixed_scale
 
 

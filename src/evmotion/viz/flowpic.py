@@ -102,7 +102,7 @@ def _figure_px(width: int, height: int):
 def _legend_texts(max_speed: float, unit: str, fixed: bool) -> tuple[str, ...]:
     # on a fixed scale, faster pixels are drawn darker (saturated beyond the rim)
     return ("u", "v", f"rim {max_speed:.3g} {unit}",
-            "fixed; darker: beyond" if fixed else "max of image")
+            "fixed; darker: beyond" if fixed else "max of image", "grey: no events")
 
 
 @functools.lru_cache(maxsize=32)
@@ -112,7 +112,7 @@ def _legend_strip(height: int, texts: tuple[str, ...]) -> np.ndarray:
     d = width - 26  # wheel diameter, px; the margin holds the 'u' label
     pt = max(7.0, d / 11.0)  # font size, points (1 pt = 1.39 px at 100 dpi)
     line = 1.5 * pt * 100 / 72
-    top = max(2.0, (height - d - 2.4 * line) / 2)
+    top = max(2.0, (height - d - 3.4 * line) / 2)
     x0 = 6.0
     cx, cy, r = x0 + d / 2, top + d / 2, d / 2
     fig, ax = _figure_px(width, height)
@@ -125,6 +125,9 @@ def _legend_strip(height: int, texts: tuple[str, ...]) -> np.ndarray:
     ax.text(cx - 3, cy + 0.75 * r, texts[1], fontsize=pt, va="center", ha="right")
     ax.text(width / 2, top + d + 5, texts[2], fontsize=pt, va="top", ha="center")
     ax.text(width / 2, top + d + 5 + line, texts[3], fontsize=pt * 0.85, va="top",
+            ha="center", color="#444444")
+    # the pixels drawn grey: no event supports a flow there (not valid)
+    ax.text(width / 2, top + d + 5 + 2 * line, texts[4], fontsize=pt * 0.85, va="top",
             ha="center", color="#444444")
     strip = _render(fig)
     strip.setflags(write=False)
