@@ -246,7 +246,7 @@ CASES = [
     # "expected one argument"
     ("egomotion-K-negative", ["egomotion", "{rec}", "--warp", "rotation", "--K",
                               "-300,300,20,20", "--window-events", "500", "--out", "{dir}/e"],
-     ["--K", "fx, fy must be > 0", "'-300,300,20,20'"]),
+     ["--K", "fx, fy must be in [1, 1e+06] px", "'-300,300,20,20'"]),
     ("egomotion-window-us-negative", ["egomotion", "{rec}", "--warp", "translation",
                                       "--window-us", "-10ms", "--out", "{dir}/e"],
      ["--window-us", "'-10ms'"]),
