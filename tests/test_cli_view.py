@@ -249,3 +249,15 @@ def test_public_ground_truths_are_described_and_viewed_as_flow(tmp_path, capsys)
         assert main(["info", str(target), "--json"]) == 0
         assert json.loads(capsys.readouterr().out)["format"] == "dsec-gt-flow"
     assert main(["view", str(flow), "--out", str(tmp_path / "d.png")]) == 0
+
+
+def test_view_takes_the_sensor_size_and_time_unit_of_a_bare_file(tmp_path, capsys):
+    # an .npz stating neither size nor unit could not be viewed at its true size (probe T)
+    path = tmp_path / "a.npz"
+    np.savez(path, x=[1, 2, 3], y=[1, 2, 3], t=np.array([0, 5_000_000, 10_000_000]),
+             p=[1, 0, 1])
+    assert main(["view", str(path), "--sensor-size", "40", "60", "--time-unit", "ns",
+                 "--out", str(tmp_path / "v.png"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["sensor_size"] == {"height": 40, "width": 60}
+    assert doc["events"] == 3

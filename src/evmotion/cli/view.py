@@ -17,13 +17,16 @@ import argparse
 from pathlib import Path
 
 from evmotion.cli.options import (
+    add_sensor_size_argument,
     add_time_arguments,
+    add_time_unit_argument,
     check_time_order,
     empty_selection,
     finite_float,
     format_bytes,
     int_range,
     positive_int,
+    read_kwargs,
     reject_unused,
     writable_output,
 )
@@ -50,6 +53,8 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
                    help="output PNG")
     p.add_argument("--format", default=None, help="input format (default: detect)")
+    add_sensor_size_argument(p)
+    add_time_unit_argument(p)
     add_time_arguments(p, max_windows=False)
     p.add_argument("--window-events", type=positive_int(), default=None, metavar="N",
                    help=f"take N events from --t0 (default {DEFAULT_EVENTS:,} "
@@ -71,17 +76,17 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _read_slice(path: str, fmt: str | None, t0: int | None, t1: int | None, n: int | None):
+def _read_slice(path: str, kw: dict, t0: int | None, t1: int | None, n: int | None):
     """Events of ``[t0, t1)``, cut to the first ``n``; a count window is streamed so that
-    it does not load the whole file."""
+    it does not load the whole file. ``kw``: the reader options (:func:`read_kwargs`)."""
     import evmotion.io as eio
     from evmotion.events import concatenate
 
     if n is None:
-        return eio.read_events(path, format=fmt, t0=t0, t1=t1).slice_time(t0, t1)
+        return eio.read_events(path, t0=t0, t1=t1, **kw).slice_time(t0, t1)
     parts, have = [], 0
-    for chunk in eio.iter_events(path, chunk_events=max(min(n, 1_000_000), 1), format=fmt,
-                                 t0=t0, t1=t1):
+    for chunk in eio.iter_events(path, chunk_events=max(min(n, 1_000_000), 1), t0=t0, t1=t1,
+                                 **kw):
         chunk = chunk.slice_time(t0, t1)
         if len(chunk):
             parts.append(chunk[: n - have])
@@ -136,7 +141,7 @@ def run(args) -> int:
             size = None  # reading the events below reports what is wrong with the file
         if size is not None:
             check_scale(args.scale, tuple(size))
-    ev = _read_slice(args.file, args.format, args.t0, args.t1, n)
+    ev = _read_slice(args.file, read_kwargs(args), args.t0, args.t1, n)
     if ev is None or not len(ev):
         import evmotion.io as eio
 
