@@ -28,7 +28,8 @@ import tempfile
 import threading
 from pathlib import Path
 
-__all__ = ["LazyKernel", "compile_seconds", "ensure_cache_dir", "kernel_case", "lazy_njit"]
+__all__ = ["LazyKernel", "compile_seconds", "ensure_cache_dir", "kernel_case", "lazy_njit",
+           "private_dir"]
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -87,7 +88,7 @@ def ensure_cache_dir(package_dir: str | os.PathLike | None = None, stream=None) 
     uid = os.getuid() if hasattr(os, "getuid") else "user"
     folder = os.path.join(tempfile.gettempdir(), f"evmotion-numba-cache-{uid}")
     new = not os.path.lexists(folder)
-    if not _private_dir(folder):
+    if not private_dir(folder):
         # another user's or an open folder: numba unpickles its index, so a cache there
         # could run their code; a fresh private folder (compiled anew each run) instead
         folder, new = tempfile.mkdtemp(prefix="evmotion-numba-cache-"), True
@@ -103,7 +104,7 @@ def ensure_cache_dir(package_dir: str | os.PathLike | None = None, stream=None) 
     return folder
 
 
-def _private_dir(folder: str) -> bool:
+def private_dir(folder: str | os.PathLike) -> bool:
     """Whether ``folder`` is (or now is, made with mode 700) a directory of this user
     that only this user can write."""
     import stat

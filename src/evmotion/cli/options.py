@@ -933,18 +933,10 @@ def _lock_folder() -> Path | None:
     """This user's folder of output locks in the temporary folder (``evmotion-locks-UID``,
     mode 700; one shared by all users was created by the first and refused every other's
     locks: 'Permission denied', exit 1), or None where it cannot be had."""
-    folder = Path(tempfile.gettempdir()) / f"evmotion-locks-{os.getuid()}"
-    try:
-        folder.mkdir(mode=0o700, exist_ok=True)
-        st = folder.lstat()
-    except OSError:
-        return None
-    import stat
+    from evmotion.jitcache import private_dir
 
-    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or not os.access(
-            folder, os.W_OK | os.X_OK):
-        return None
-    return folder
+    folder = Path(tempfile.gettempdir()) / f"evmotion-locks-{os.getuid()}"
+    return folder if private_dir(folder) else None
 
 
 def check_outputs_spare_inputs(args: argparse.Namespace) -> None:

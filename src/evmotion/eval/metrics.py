@@ -26,6 +26,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray
+from evmotion.utils import whole_number
 
 __all__ = [
     "NPE_THRESHOLDS",
@@ -365,16 +366,6 @@ def sample_flow_bilinear(flow: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.n
     return top * (1 - ay) + bottom * ay
 
 
-def _whole_us(v) -> int:
-    """A time in µs given as an integer (a float must be whole); ValueError otherwise."""
-    if isinstance(v, (bool, str, bytes)):
-        raise ValueError(v)
-    f = float(v)
-    if not np.isfinite(f) or f != int(f):
-        raise ValueError(v)
-    return int(f)
-
-
 def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | None = None,
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Move each event along the flow at its position to the reference time.
@@ -409,11 +400,7 @@ def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | 
         raise ParameterError(
             f"flow has shape {flow.shape[:2]}, expected the sensor size {events.sensor_size}"
         )
-    try:
-        t_ref = events.t_start if t_ref_us is None else _whole_us(t_ref_us)
-    except (TypeError, ValueError):
-        raise ParameterError(f"t_ref_us must be a time in µs (an integer), got {t_ref_us!r}"
-                             ) from None
+    t_ref = events.t_start if t_ref_us is None else whole_number("t_ref_us", t_ref_us)
     x = events.x.astype(np.float64)
     y = events.y.astype(np.float64)
     dt = (np.int64(t_ref) - events.t).astype(np.float64) * 1e-6

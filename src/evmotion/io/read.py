@@ -73,14 +73,8 @@ def _check_span(t0, t1) -> None:
     """``t0``, ``t1``: whole µs (or None), ``t1`` after ``t0``; ParameterError otherwise
     (``t0 > t1`` gave no event, silently)."""
     for name, v in (("t0", t0), ("t1", t1)):
-        if v is None:
-            continue
-        try:
-            whole = not isinstance(v, (bool, str, bytes)) and float(v) == int(v)
-        except (TypeError, ValueError, OverflowError):
-            whole = False
-        if not whole:
-            raise ParameterError(f"{name} must be a time in whole µs, got {v!r}")
+        if v is not None:
+            whole_number(name, v)
     if t0 is not None and t1 is not None and int(t1) <= int(t0):
         raise ParameterError(f"t1 = {t1} µs must be after t0 = {t0} µs")
 
