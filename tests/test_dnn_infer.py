@@ -60,7 +60,7 @@ def test_flow_units_and_shape(tiny_ckpt, window):
 
 def test_dnn_init_runs_the_finest_scales_only(tiny_ckpt, window):
     res = estimate_flow(window.events, init="dnn", checkpoint=tiny_ckpt)
-    assert len(res.params) == 2 and res.params[0].shape[:2] == (8, 8)
+    assert len(res.params) == 3 and res.params[0].shape[:2] == (4, 4)
     full = estimate_flow(window.events)
     assert len(full.params) == 5
     with pytest.raises(ParameterError, match="init"):

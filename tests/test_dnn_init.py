@@ -57,7 +57,10 @@ def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
     fake = np.where(hit[..., None], truth, truth + 300.0).astype(np.float32)
     real_net = dnn_pkg.estimate_flow_dnn(ev)
 
+    calls = []
+
     def net(events, checkpoint=None, **kw):
+        calls.append(kw)
         return dataclasses.replace(real_net, flow=fake)
 
     starts = []
@@ -71,9 +74,12 @@ def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
     monkeypatch.setattr(mc, "_optimize", spy)
     res = mc.estimate_flow(ev, init="dnn")
     grid, theta0 = starts[0]
-    assert (grid.ny, grid.nx) == (8, 8) and len(res.params) == 2
+    assert (grid.ny, grid.nx) == (4, 4) and len(res.params) == mc.DNN_INIT_SCALES == 3
     want = mc._event_tile_means(fake, ev, grid) * dur
-    np.testing.assert_allclose(theta0.reshape(8, 8, 2), want, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(theta0.reshape(4, 4, 2), want, rtol=1e-9, atol=1e-9)
     # the start is the truth's event mean, not pulled 300 px/s off by the empty pixels
     tiles = mc._event_tile_means(truth.astype(np.float32), ev, grid) * dur
-    np.testing.assert_allclose(theta0.reshape(8, 8, 2), tiles, atol=1e-6)
+    np.testing.assert_allclose(theta0.reshape(4, 4, 2), tiles, atol=1e-6)
+    # the network's plain pass: the refinement does what the extras would
+    assert calls == [{"with_iwes": False, "time_reversal": False, "fuse": False,
+                      "rescale": False}]
