@@ -45,5 +45,45 @@ def _add_optional_guides(app, docname: str, source: list[str]) -> None:
     source[0] = source[0].replace(f"   {_MARK}\n", lines)
 
 
+_CLI_MARK = ".. command reference (filled in by conf.py)"
+# the width argparse wraps the help at here (it reads COLUMNS): the page must not depend
+# on the terminal the documentation was built in
+_CLI_COLUMNS = "92"
+
+
+def _help(parser, argv: list[str]) -> str:
+    """What ``evmotion ARGV`` prints (``--help`` exits the parser)."""
+    import contextlib
+    import io
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.suppress(SystemExit):
+        parser.parse_args(argv)
+    return out.getvalue()
+
+
+def _cli_reference() -> str:
+    """One section per command: its ``--help``, from the parser ``evmotion`` itself runs."""
+    import os
+
+    os.environ["COLUMNS"] = _CLI_COLUMNS
+    from evmotion.cli import COMMANDS, build_parser
+
+    parser = build_parser()
+    parts = []
+    for title, argv in [("evmotion", ["--help"])] + [(f"evmotion {c}", [c, "--help"])
+                                                      for c in COMMANDS]:
+        text = _help(parser, argv)
+        body = "".join(f"   {line}".rstrip() + "\n" for line in text.splitlines())
+        parts.append(f"{title}\n{'-' * len(title)}\n\n.. code-block:: text\n\n{body}\n")
+    return "\n".join(parts)
+
+
+def _add_cli_reference(app, docname: str, source: list[str]) -> None:
+    if docname == "cli":
+        source[0] = source[0].replace(_CLI_MARK, _cli_reference())
+
+
 def setup(app) -> None:
     app.connect("source-read", _add_optional_guides)
+    app.connect("source-read", _add_cli_reference)
