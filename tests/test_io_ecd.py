@@ -10,7 +10,7 @@ import pytest
 
 from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
-from evmotion.io import ecd
+from evmotion.io import ecd, read_events
 
 SCENES = ["boxes_rotation", "boxes_translation", "dynamic_rotation", "dynamic_translation",
           "poster_rotation", "poster_translation", "shapes_rotation", "shapes_translation"]
@@ -373,3 +373,21 @@ def test_whole_number_times_on_millisecond_steps_are_questioned(tmp_path):
         with pytest.warns(EvmotionWarning, match="whole number") as rec:
             ecd.read(tmp_path / "e.txt", sensor_size=(5, 7))
         assert any("multiples of 1000" in str(w.message) for w in rec) == said
+
+
+def test_whole_pixels_written_as_decimals_are_read(tmp_path):
+    # other tools write float columns ("146.0"): whole values are pixels and polarities
+    f = tmp_path / "floats.txt"
+    f.write_text("0.001 146.0 166.0 1\n0.002 10.00 12.0 0.0\n0.003 11 12 1\n")
+    ev = read_events(f, sensor_size=(200, 200))
+    assert ev.x.tolist() == [146, 10, 11] and ev.y.tolist() == [166, 12, 12]
+    assert ev.p.tolist() == [1, 0, 1] and ev.t.tolist() == [1000, 2000, 3000]
+
+
+def test_a_fractional_pixel_is_named(tmp_path):
+    f = tmp_path / "half.txt"
+    f.write_text("0.001 14 16 1\n0.002 146.5 166.0 1\n")
+    with pytest.raises(FormatError, match=r"half.txt: line 2: x = 146.5 is not a whole "
+                                          r"number.*\.npy / \.h5 with float x, y") as exc:
+        read_events(f, sensor_size=(200, 200))
+    assert "\n" not in str(exc.value)

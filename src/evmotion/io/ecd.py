@@ -52,6 +52,7 @@ _PLAIN[list(b"0123456789. \t\r\n")] = True
 
 _ERR_COLUMNS = 1
 _ERR_CHAR = 2
+_ERR_FRACTION = 3  # a pixel or polarity with a non-zero fraction ("146.5")
 
 
 @lazy_njit(cache=True)
@@ -72,6 +73,9 @@ def _parse(buf, start, end, ox, oy, ot, op, out_start):
         val = np.int64(0)
         in_num = False
         neg = False
+        # x, y, p written as decimals ("146.0", other tools' float columns): the point
+        # and zeros after it are read, any other fraction refused
+        vfrac = False
         line_start = i
         while i < end:
             c = buf[i]
@@ -88,10 +92,15 @@ def _parse(buf, start, end, ox, oy, ot, op, out_start):
                             nfrac += 1
                     else:
                         ip = ip * 10 + d
+                elif vfrac:
+                    if d != 0 and col <= 3:  # (extra columns: the count's error)
+                        return k - out_start, line_start, _ERR_FRACTION, col
                 else:
                     val = val * 10 + d
             elif c == 46 and col == 0 and in_num and not in_frac:  # '.'
                 in_frac = True
+            elif c == 46 and col > 0 and in_num and not vfrac:
+                vfrac = True
             elif c == 45 and not in_num:  # '-'
                 neg = True
                 in_num = True
@@ -109,6 +118,7 @@ def _parse(buf, start, end, ox, oy, ot, op, out_start):
                     val = 0
                     in_num = False
                     neg = False
+                    vfrac = False
             else:
                 return k - out_start, line_start, _ERR_CHAR, col
             i += 1
@@ -154,6 +164,14 @@ def _line_error(path: Path, data: bytes, file_offset: int, bad: int, code: int, 
                 lineno += blk.count(b"\n")
                 remaining -= len(blk)
     fields = text.replace(",", " ").replace(";", " ").split()
+    first_decimal = next((k for k, f in enumerate(fields) if "." in f), 0)
+    if code == _ERR_FRACTION and first_decimal == 0:
+        name = ("t", "x", "y", "p")[cols]
+        value = fields[cols] if cols < len(fields) else "?"
+        return FormatError(path, f"line {lineno}: {name} = {value} is not a whole number "
+                           f"({text[:80]!r}); the text layout holds whole pixels and "
+                           "polarities (sub-pixel, undistorted events: save them as .npy / "
+                           ".h5 with float x, y)")
     numeric = all(re.fullmatch(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?", f) for f in fields)
     if code == _ERR_COLUMNS or (numeric and len(fields) != 4):
         n = cols if code == _ERR_COLUMNS else len(fields)
@@ -161,9 +179,8 @@ def _line_error(path: Path, data: bytes, file_offset: int, bad: int, code: int, 
                "keep those four columns of the table")
     else:
         msg = f"line {lineno} is not 't[s] x y p' numbers: {text[:80]!r}"
-        decimal = [k for k, f in enumerate(fields) if "." in f]
-        if numeric and len(fields) == 4 and decimal and decimal[0] != 0:
-            return FormatError(path, msg, f"column {decimal[0] + 1} holds decimals, the "
+        if numeric and len(fields) == 4 and first_decimal != 0:
+            return FormatError(path, msg, f"column {first_decimal + 1} holds decimals, the "
                                "time in seconds? Name the columns in a first line (e.g. "
                                "'x y t p')")
     return FormatError(path, msg)
