@@ -208,6 +208,8 @@ def _row(r, w) -> dict:
         row["gain"] = float(r.meta["gain"])
     if r.meta.get("no_focus"):  # warned: the flow sharpens nothing, no pixel is valid
         row["no_focus"] = True
+    if r.meta.get("beyond_range"):  # warned: the network's magnitudes are a lower bound
+        row["beyond_range"] = True
     return row
 
 

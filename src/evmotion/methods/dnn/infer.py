@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import contextlib
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.errors import EmptyWindowError, ParameterError, PoorFitWarning
 from evmotion.events import EventArray, pixel_indices
 from evmotion.filters import hot_pixel_mask
 from evmotion.methods.flowresult import (
@@ -321,7 +322,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         ``meta["input_scale"]`` the scale kept, ``meta["gain"]`` the gain applied,
         ``meta["fwl"]`` the variance of the image of the events warped to the midpoint over
         the unwarped one's, ``meta["hot_pixels"]`` how many hot pixels
-        (:func:`evmotion.filters.hot_pixel_mask`) were given zero flow. A flow that sharpens
+        (:func:`evmotion.filters.hot_pixel_mask`) were given zero flow (and are left out of
+        the checks), ``meta["beyond_range"]`` whether the gain kept by a measured flow is
+        the largest tried (PoorFitWarning: the magnitudes are a lower bound). A flow that
+        sharpens
         the events by less than 5 % (that ratio, or with ``with_iwes`` the multi-reference
         focus, under :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`) is no
         measurement: PoorFitWarning, ``valid`` all False, ``meta["no_focus"]`` True.
@@ -356,10 +360,21 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     hot = hot_pixel_mask(events, neighbour_ratio=HOT_NEIGHBOUR_RATIO)
     disp[hot] = 0.0
     gain, disp = _rescaled(xys, disp) if rescale else (1.0, disp)
+    # the magnitude at the top of the search: the window moves further than the network
+    # sees even on its coarsest input (a 240x180 window moving 80 px came out at 11 px,
+    # gain 3.2): what it gives is a lower bound
+    beyond = bool(rescale and gain == GAINS[-1])
+    # the checks below leave out the hot pixels' events: no flow moves them, so they are
+    # alike in the warped and the unwarped image and pull the ratio to 1 (8 hot pixels
+    # holding 11 % of a 640x480 window: 1.003 for a flow of 1.8 px AEE, 1.35 without)
+    checked, xyc = events, xys
+    if hot.any():
+        keep = ~hot.ravel()[xys[2]]
+        checked, xyc = events[np.flatnonzero(keep)], tuple(a[keep] for a in xys)
     # the contrast gain of the flow kept, checked on every call (the focus below only
     # with the IWEs): the variance of the warped events' image over the unwarped one's
-    still = _warped_variance(*xys, np.zeros_like(disp))
-    fwl = _warped_variance(*xys, disp) / still if still > 0 else float("nan")
+    still = _warped_variance(*xyc, np.zeros_like(disp)) if len(checked) else 0.0
+    fwl = _warped_variance(*xyc, disp) / still if still > 0 else float("nan")
     t_net = time.perf_counter() - t_start
     t0, t1 = int(events.t[0]), int(events.t[-1])
     duration_s = (t1 - t0) * 1e-6
@@ -368,7 +383,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         from evmotion.core.tileflow import iwe_forward
         from evmotion.methods.dnn.loss import window_problem
 
-        prob = window_problem(events)
+        prob = window_problem(checked if len(checked) >= 2 else events)
         focus, _, imgs = prob.focus_grad(disp.astype(np.float64))
         iwes = {k: v.astype(np.float32) for k, v in zip(("t1", "tmid", "tN"), imgs,
                                                          strict=True)}
@@ -385,6 +400,12 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     no_focus = bool(gains) and warn_no_gain(min(gains), "network's flow") is not None
     if no_focus:
         valid = np.zeros_like(valid)
+        beyond = False  # said already: not a measurement at all
+    if beyond:
+        warnings.warn(f"the network's flow needed the largest gain tried ({gain}x its own): "
+                      "the window's motion may exceed what the network measures and the "
+                      "magnitudes are a lower bound; use shorter windows "
+                      "(--window-events) or multicm", PoorFitWarning, stacklevel=2)
     total = time.perf_counter() - t_start
     return FlowResult(flow=flow, t0_us=t0, t1_us=t1, t_ref_us=(t0 + t1) // 2, params=(),
                       iwes=iwes, focus=float(focus), history=[],
@@ -393,4 +414,4 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                       meta={"method": "dnn", "checkpoint": str(checkpoint or "shipped"),
                             "input_scale": best, "time_reversal": bool(time_reversal),
                             "gain": gain, "no_focus": bool(no_focus), "fwl": float(fwl),
-                            "hot_pixels": int(hot.sum())})
+                            "hot_pixels": int(hot.sum()), "beyond_range": beyond})
