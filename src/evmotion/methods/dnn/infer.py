@@ -325,9 +325,8 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         (:func:`evmotion.filters.hot_pixel_mask`) were given zero flow (and are left out of
         the checks), ``meta["beyond_range"]`` whether the gain kept by a measured flow is
         the largest tried (PoorFitWarning: the magnitudes are a lower bound). A flow that
-        sharpens
-        the events by less than 5 % (that ratio, or with ``with_iwes`` the multi-reference
-        focus, under :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`) is no
+        sharpens the events by less than 5 % (that ratio, or with ``with_iwes`` the
+        multi-reference focus, under :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`) is no
         measurement: PoorFitWarning, ``valid`` all False, ``meta["no_focus"]`` True.
 
     Examples
