@@ -194,3 +194,18 @@ def test_landscape_of_noise_says_no_measurement(tmp_path, capsys):
                         "--theta", "0,0", "--out", str(tmp_path / "l.png"))
     assert rc == 0 and "flat" in err
     assert "(no measurement: flat)" in out and (tmp_path / "l.png").stat().st_size > 0
+
+
+def test_json_summary_lists_the_warnings_said_on_stderr(tmp_path, capsys):
+    """A result flagged on stderr only looked normal to a program reading --json (probe V):
+    the summary now lists every warning line of the run, and an empty list when none."""
+    a = np.zeros(100, dtype=[("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "u1")])
+    a["t"], a["x"], a["y"] = np.arange(100) * 10, np.arange(100) % 30, 5
+    np.save(tmp_path / "w.npy", a)
+    assert main(["info", str(tmp_path / "w.npy"), "--json"]) == 0
+    out, err = capsys.readouterr()
+    said = [ln.removeprefix("evmotion: warning: ") for ln in err.splitlines()
+            if ln.startswith("evmotion: warning: ")]
+    assert said and json.loads(out)["warnings"] == said
+    assert main(["info", str(tmp_path / "w.npy"), "--sensor-size", "6", "30", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["warnings"] == []

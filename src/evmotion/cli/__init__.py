@@ -79,10 +79,15 @@ def build_parser(commands: tuple[str, ...] = COMMANDS):
 
 def print_json(obj) -> None:
     """Machine-readable summary on stdout (numpy scalars and arrays converted; NaN and
-    infinities, which strict JSON has not, written as null)."""
+    infinities, which strict JSON has not, written as null). A summary (a dict) also lists
+    under ``"warnings"`` the warning lines the run has printed on stderr, so that a
+    result flagged there is flagged for a program too."""
     import json
 
     import numpy as np
+
+    if isinstance(obj, dict) and "warnings" not in obj:
+        obj = {**obj, "warnings": list(_WARNED)}
 
     def plain(o):
         if isinstance(o, dict):
@@ -103,8 +108,10 @@ def print_json(obj) -> None:
 
 def warn_line(message: str) -> None:
     """One warning line on stderr, ``evmotion: warning: ...`` (a result that may not be a
-    measurement)."""
-    print(f"evmotion: warning: {' '.join(str(message).split())}", file=sys.stderr)
+    measurement); the JSON summary (:func:`print_json`) lists them too."""
+    line = " ".join(str(message).split())
+    _WARNED.append(line)
+    print(f"evmotion: warning: {line}", file=sys.stderr)
 
 
 def show_warning(message, category, filename, lineno, file=None, line=None):
@@ -124,6 +131,8 @@ def show_warning(message, category, filename, lineno, file=None, line=None):
 _PY_SHOWWARNING = warnings.showwarning
 # the project warnings this run has printed
 _SAID: set[str] = set()
+# every warning line of this run, in order (the JSON summary's "warnings")
+_WARNED: list[str] = []
 
 
 def _command_of(argv: list[str]) -> tuple[str, ...]:
@@ -144,6 +153,7 @@ def _build_and_run(argv: list[str] | None) -> int:
         parser.print_help()
         return 2
     _SAID.clear()
+    _WARNED.clear()
     warnings.showwarning = show_warning
     try:
         from evmotion.cli.options import (
