@@ -76,7 +76,12 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt, gaussian_filter, maximum_filter
+from scipy.ndimage import (
+    distance_transform_edt,
+    gaussian_filter,
+    map_coordinates,
+    maximum_filter,
+)
 
 from evmotion.errors import (
     EmptyWindowError,
@@ -119,6 +124,15 @@ MIN_CORRELATION = 0.3
 # the events follow the frames' change too weakly for a sure magnitude (warned)
 WEAK_CORRELATION = 0.45
 NEAR_EVENTS_PX = 10.0
+#: Displacement over a frame interval (px, 95th percentile over the ROI) from which
+#: :func:`estimate_bos` solves again with the frame warped by its flow
+#: (``BosOptions.relinearize``): below it the linearized model's error is under ~5 %.
+RELINEARIZE_PX = 1.0
+LARGE_DISPLACEMENT_NOTE = (
+    "0.73x at 2.5-3.5 px on rendered scenes): a higher frame rate keeps it small; "
+    "relinearize=2 (--relinearize 2) solves again at the flow found, which corrects the "
+    "magnitude of smooth air (0.86x there) but can raise the error of structures finer "
+    "than the patches")
 #: Largest contrast threshold accepted, log units (sensors: 0.1-0.5): beyond it the
 #: predicted increments overflow float32.
 MAX_CONTRAST_THRESHOLD = 10.0
@@ -197,6 +211,18 @@ class BosOptions:
         Least 90th percentile of ``|grad log frame|`` (log units per px) in the ROI.
     seed : int
         Seed of the uniform [-1, 1] initialization of q.
+    relinearize : int
+        With the scale-aware term, at most this many further solves, each with the frame
+        warped by the flow found so far and the prediction linearized there (as
+        Lucas-Kanade iterates), while the flow moves the background by
+        :data:`RELINEARIZE_PX` or more over the interval (95th percentile over the ROI).
+        The linearized model (6.9) holds within the frame's smoothing (2 px): a smooth
+        wave rendered independently, moving 2.5-3.5 px per interval, came out at 0.73x
+        its magnitude (0.86x with 2), one moving up to 6 px at AEE 1.06 px (0.43); but
+        on a plume of 18-27 px blobs moving up to 4.8 px the magnitudes grew (0.73 ->
+        0.89x above 2.5 px) while the AEE rose from 0.48 to 0.58 px: structures finer
+        than the patches are placed no better, only larger. 0 (default): the thesis'
+        single solve, with an UnderfitWarning past :data:`RELINEARIZE_PX`.
     """
 
     param: str = "poisson"
@@ -222,6 +248,7 @@ class BosOptions:
     log_eps: float | None = None
     min_texture: float = 0.02
     seed: int = 0
+    relinearize: int = 0
 
     def __post_init__(self):
         if self.param not in ("poisson", "flow"):
@@ -257,6 +284,9 @@ class BosOptions:
             raise ParameterError(f"patience must be an integer >= 1, got {self.patience!r}")
         if not (_is_int(self.seed) and self.seed >= 0):
             raise ParameterError(f"seed must be an integer >= 0, got {self.seed!r}")
+        if not (_is_int(self.relinearize) and 0 <= self.relinearize <= 10):
+            raise ParameterError(f"relinearize must be an integer in [0, 10], "
+                                 f"got {self.relinearize!r}")
         if c is not None and c > MAX_CONTRAST_THRESHOLD:
             raise ParameterError(f"contrast_threshold must be at most "
                                  f"{MAX_CONTRAST_THRESHOLD:g} (log units), got {c}")
@@ -361,6 +391,11 @@ class BosResult:
         events (1.01-1.08 on the simulator's and other renderers' scenes), above
         :data:`FIT_GAIN_WARN` where the flow fields cannot follow the air and its magnitude
         shrinks (1.3-1.6 with structures of 4-5 px: 0.4-0.7x the true magnitude).
+    relinearized : int
+        Further solves with the frame warped by the flow (``BosOptions.relinearize``).
+    displacement_q95 : float
+        95th percentile over the ROI of the flow's displacement over the interval, px
+        (calibrated results; NaN otherwise).
     """
 
     flow: np.ndarray
@@ -380,6 +415,8 @@ class BosResult:
     params: list = field(default_factory=list)
     options: BosOptions = field(default_factory=BosOptions)
     fit_gain: float = float("nan")
+    relinearized: int = 0
+    displacement_q95: float = float("nan")
 
 
 # above this median fit gain over a run, the flow is said to be too small (bos_run)
@@ -721,7 +758,8 @@ class BosLevel:
     benchmarks and custom solvers.
     """
 
-    def __init__(self, patch: int, k: int, logf, meas, weight, opts: BosOptions, dtype):
+    def __init__(self, patch: int, k: int, logf, meas, weight, opts: BosOptions, dtype,
+                 gradient=None):
         self.patch, self.k = patch, k
         H, W = logf.shape
         self.nh, self.nw = -(-H // patch), -(-W // patch)
@@ -732,8 +770,11 @@ class BosLevel:
         hxy, hxx = np.gradient(gx)
         hyy, hyx = np.gradient(gy)
         # per original pixel: gradient / k, Hessian / k^2 (symmetrized)
+        gx, gy = gx / k, gy / k
+        if gradient is not None:  # (gx, gy) per original pixel, given at full resolution
+            gx, gy = _pool(gradient[0], k), _pool(gradient[1], k)
         self.gimg = np.ascontiguousarray(
-            np.stack([gx / k, gy / k, hxx / k**2, 0.5 * (hxy + hyx) / k**2, hyy / k**2]),
+            np.stack([gx, gy, hxx / k**2, 0.5 * (hxy + hyx) / k**2, hyy / k**2]),
             dtype=dtype)
         self.meas = np.ascontiguousarray(_pool(meas, k), dtype=dtype)
         self.weight = np.ascontiguousarray(_pool(weight, k), dtype=dtype)
@@ -892,6 +933,53 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions, increm
     return r, logf, meas, weight, c, increment is not None or c is not None
 
 
+def _coarse_to_fine(logf, meas, weight, o: BosOptions, dtype, warm, normalized: bool,
+                    gradient=None):
+    """Solve (6.10) scale by scale. Returns the finest parameters and level, and per scale
+    the losses, iterations, parameters and seconds."""
+    rng = np.random.default_rng(o.seed)
+    losses, timings, iters, params = [], [], [], []
+    prev_level = theta = level = None
+    for s, (patch, k, n_it) in enumerate(zip(o.scales, o.pool_per_scale(),
+                                             o.iterations_per_scale(), strict=True)):
+        start = time.perf_counter()
+        level = BosLevel(patch, k, logf, meas, weight, o, dtype, gradient)
+        if prev_level is None:
+            theta = np.zeros((level.n_params(), level.nh, level.nw))
+            if o.param == "poisson":
+                theta[0] = rng.uniform(-1.0, 1.0, (level.nh, level.nw))
+            if warm is not None:
+                theta = _same_shape(warm[s], theta)
+        else:
+            theta = _resample_params(theta, prev_level, level)
+            if warm is not None:
+                theta = 0.5 * (theta + _same_shape(warm[s], theta))
+        theta, lh = _adam(level, theta, n_it, normalized)
+        losses.append(lh)
+        iters.append(len(lh))
+        params.append(theta.copy())
+        timings.append(time.perf_counter() - start)
+        prev_level = level
+    return theta, level, losses, iters, params, timings
+
+
+def _relinearized(logf: np.ndarray, meas: np.ndarray, du: np.ndarray, dv: np.ndarray):
+    """``(Lw, (gx, gy), meas - (Lw - L + g . d))``: the log frame ``L`` warped by the
+    displacement ``d = (du, dv)`` (px over the interval; ``Lw(x) = L(x - d)``), its
+    gradient warped alike (``g(x) = grad L(x - d)``, the derivative of ``L(x - d')`` in
+    ``d'`` at ``d``: not ``grad Lw``, which the warp's own gradient distorts where the air
+    varies within a few px), and the measured increment less the part of the prediction
+    the linearization at ``d`` makes known, so that ``-g . d'`` predicts the rest."""
+    h, w = logf.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    at = [yy - dv, xx - du]
+    gy, gx = np.gradient(logf)
+    lw = map_coordinates(logf, at, order=3, mode="nearest")
+    gxw = map_coordinates(gx, at, order=3, mode="nearest")
+    gyw = map_coordinates(gy, at, order=3, mode="nearest")
+    return lw, (gxw, gyw), meas - (lw - logf + gxw * du + gyw * dv)
+
+
 def estimate_bos(
     events: EventArray,
     frame: np.ndarray,
@@ -1001,34 +1089,31 @@ def estimate_bos(
                                  "every value NaN means none, or none at all")
     if warm is not None and len(warm) != len(o.scales):
         raise ParameterError(f"init has {len(warm)} scales, expected {len(o.scales)}")
-    rng = np.random.default_rng(o.seed)
-    losses, timings, iters, params = [], [], [], []
-    prev_level = theta = None
-    for s, (patch, k, n_it) in enumerate(zip(o.scales, o.pool_per_scale(), o.iterations_per_scale(),
-                                                 strict=True)):
-        start = time.perf_counter()
-        level = BosLevel(patch, k, logf, meas, weight, o, dtype)
-        if prev_level is None:
-            theta = np.zeros((level.n_params(), level.nh, level.nw))
-            if o.param == "poisson":
-                theta[0] = rng.uniform(-1.0, 1.0, (level.nh, level.nw))
-            if warm is not None:
-                theta = _same_shape(warm[s], theta)
-        else:
-            theta = _resample_params(theta, prev_level, level)
-            if warm is not None:
-                theta = 0.5 * (theta + _same_shape(warm[s], theta))
-        theta, lh = _adam(level, theta, n_it, normalized)
-        losses.append(lh)
-        iters.append(len(lh))
-        params.append(theta.copy())
-        timings.append(time.perf_counter() - start)
-        prev_level = level
+    theta, level, losses, iters, params, timings = _coarse_to_fine(
+        logf, meas, weight, o, dtype, warm, normalized)
     final = level if level.k == 1 else BosLevel(level.patch, 1, logf, meas, weight, o, dtype)
-    (objective, *_), _ = final.value_grad(theta, normalized)
     pf = final.patch_fields(theta)
     dense = np.zeros((4,) + logf.shape)
     upsample(pf, final.iy, final.fy, final.ix, final.fx, dense)
+    passes = 0
+    while (log_units and not normalized and passes < o.relinearize
+           and np.quantile(np.hypot(dense[0], dense[1]), 0.95) >= RELINEARIZE_PX):
+        # the prediction linearized at the flow found: L(x - v dt) ~ Lw - grad Lw . (v -
+        # v0) dt with Lw the frame warped by v0: the same model on Lw, with the known part
+        # moved to the measurement
+        logf_w, grad_w, meas_w = _relinearized(logf, meas, dense[0], dense[1])
+        theta, level, more_losses, more_iters, params, more_t = _coarse_to_fine(
+            logf_w, meas_w, weight, o, dtype, params, normalized, grad_w)
+        # per scale, over the passes
+        losses = [np.concatenate([a, b]) for a, b in zip(losses, more_losses, strict=True)]
+        iters = [a + b for a, b in zip(iters, more_iters, strict=True)]
+        timings = [a + b for a, b in zip(timings, more_t, strict=True)]
+        final = level
+        pf = final.patch_fields(theta)
+        dense = np.zeros((4,) + logf.shape)
+        upsample(pf, final.iy, final.fy, final.ix, final.fx, dense)
+        passes += 1
+    (objective, *_), _ = final.value_grad(theta, normalized)
     scale = 1.0
     if normalized and o.rescale and log_units:
         final.objective(pf, True, regularize=False)
@@ -1062,6 +1147,14 @@ def estimate_bos(
         den = float(np.sum(pr[sup] ** 2))
         if den > 0:
             fit_gain = float(np.sum(pr[sup] * final.meas[sup]) / den)
+    q95 = float(np.quantile(np.hypot(dense[0], dense[1]), 0.95) * scale) if calibrated \
+        else float("nan")
+    if o.relinearize == 0 and q95 >= RELINEARIZE_PX:
+        warnings.warn(UnderfitWarning(
+            f"interval [{int(t0_us)}, {int(t1_us)}) us: the flow moves the background "
+            f"{q95:.2g} px over the interval (95th percentile): the linearized model "
+            f"(6.9) holds within ~{RELINEARIZE_PX:g} px, beyond it the magnitude comes out "
+            f"too small ({LARGE_DISPLACEMENT_NOTE})"), stacklevel=2)
     if fit_gain > FIT_GAIN_WARN:
         warnings.warn(UnderfitWarning(
             f"interval [{int(t0_us)}, {int(t1_us)}) us: the flow explains the events' "
@@ -1078,7 +1171,8 @@ def estimate_bos(
                      t1_us=int(t1_us), contrast_threshold=None if c is None else float(c),
                      calibrated=bool(calibrated), scale=scale, objective=float(objective),
                      losses=losses, timings_s=timings, iterations=iters, params=params,
-                     options=o, fit_gain=fit_gain)
+                     options=o, fit_gain=fit_gain, relinearized=passes,
+                     displacement_q95=q95)
 
 
 # below this share of the ROI with event support, the interval is warned about: the flow
@@ -1262,14 +1356,23 @@ def estimate_bos_sequence(events: EventArray, frames, times_us: Sequence[int],
     [(0, 4500), (4500, 9000)]
     """
     results = list(iter_bos_sequence(events, frames, times_us, **kwargs))
-    warn_underfit(r.fit_gain for r in results)
+    warn_underfit((r.fit_gain for r in results), single_solve_displacements(results))
     return results
 
 
-def warn_underfit(gains) -> None:
+def warn_underfit(gains, displacements=()) -> None:
     """Say when the median :attr:`BosResult.fit_gain` of a sequence's intervals exceeds
-    :data:`FIT_GAIN_WARN`: the flow is too small (the intervals' own warnings are left
-    out in a sequence: one per run)."""
+    :data:`FIT_GAIN_WARN`, or the median of their :attr:`BosResult.displacement_q95`
+    (solved once: NaN for the others) reaches :data:`RELINEARIZE_PX`: the flow is too
+    small (the intervals' own warnings are left out in a sequence: one per run)."""
+    d = np.asarray([v for v in displacements if v is not None and np.isfinite(v)],
+                   np.float64)
+    if d.size and np.median(d) >= RELINEARIZE_PX:
+        warnings.warn(UnderfitWarning(
+            f"the flow moves the background {np.median(d):.2g} px over an interval (95th "
+            f"percentile, median over {d.size} intervals): the linearized model (6.9) "
+            f"holds within ~{RELINEARIZE_PX:g} px, beyond it the magnitude comes out too "
+            f"small ({LARGE_DISPLACEMENT_NOTE})"), stacklevel=2)
     g = np.asarray([v for v in gains if v is not None and np.isfinite(v)], np.float64)
     if g.size and np.median(g) > FIT_GAIN_WARN:
         warnings.warn(UnderfitWarning(
@@ -1277,6 +1380,13 @@ def warn_underfit(gains) -> None:
             f"where they fired (median over {g.size} intervals): air structures finer than "
             "the solver's finest patches (8 px)? Its magnitude is then too small (0.4-0.7x "
             "on such scenes)"), stacklevel=2)
+
+
+def single_solve_displacements(results) -> list[float]:
+    """:attr:`BosResult.displacement_q95` of the results solved once (``relinearize=0``),
+    NaN for the others: the second argument of :func:`warn_underfit`."""
+    return [r.displacement_q95 if r.options.relinearize == 0 else float("nan")
+            for r in results]
 
 
 def iter_bos_sequence(

@@ -234,12 +234,12 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     >>> run.results[0].flow.shape  # doctest: +SKIP
     (720, 640, 2)
     """
-    from evmotion.methods.bos import warn_underfit
+    from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
     results = list(iter_bos_input(data, c, workers=workers, progress=progress,
                                   scheduler=scheduler, **options))
-    warn_underfit(r.fit_gain for r in results)
+    warn_underfit((r.fit_gain for r in results), single_solve_displacements(results))
     return BosRun(results, c, source, samples)
 
 
@@ -295,6 +295,8 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
     The flow, q and p are NaN outside the ROI; ``valid`` is the ROI's pixels with event
     support (:attr:`~evmotion.methods.bos.BosResult.valid`).
     """
+    from evmotion.methods.bos import single_solve_displacements
+
     i, t0, t1 = (int(v) for v in interval)
     c = res.contrast_threshold
     numbers = {"frame_index": i, "contrast_threshold": float("nan") if c is None else c,
@@ -321,7 +323,10 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
             "valid_fraction": float(valid.mean()),
             # no valid pixel: no speed measured (not 0 px/s, which reads as still air)
             "median_speed_px_s": float(np.median(speed)) if speed.size else float("nan"),
-            "fit_gain": res.fit_gain}
+            "fit_gain": res.fit_gain, "relinearized": res.relinearized,
+            "displacement_q95": res.displacement_q95,
+            # the displacement of an interval solved once, for the run's one warning
+            "single_solve_q95": single_solve_displacements([res])[0]}
 
 
 def _events_in(data: BosInput, t0: int, t1: int) -> int:
@@ -365,7 +370,8 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
         for interval, res in zip(data.intervals[start:], results, strict=True):
             rows.append(append_bos_result(out, data, interval, res))
         out.close()
-        warn_underfit(r.get("fit_gain") for r in rows)
+        warn_underfit((r.get("fit_gain") for r in rows),
+                      (r.get("single_solve_q95") for r in rows))
     except BaseException:
         out.abort()
         raise
