@@ -197,15 +197,35 @@ def test_bad_recordings(scene, tmp_path, capsys):
     (d / "images.txt").write_text("".join(f"{float(t) + 100:.6f} {f}\n"
                                           for t, f in (ln.split() for ln in lines)))
     _one_line_error(["bos", d, "--out", out], capsys, "do not overlap")
-    # a textureless frame
+    # textureless frames only: nothing to measure against
     d = _copy(scene, tmp_path, "flat")
     for f in sorted((d / "images").glob("*.png")):
         with open(f, "wb") as fh:
             png.Writer(width=40, height=48, greyscale=True).write(
                 fh, np.full((48, 40), 128, np.uint8))
     _one_line_error(["bos", d, "--out", out, "--contrast-threshold", "0.2"], capsys,
-                    "frame interval [0, 8333) us", "textureless")
+                    "none of the 2 frames that start an interval has texture")
     assert not out.exists()
+
+
+def test_one_textureless_frame_is_skipped_not_the_run(tmp_path, capsys):
+    """A dropped (uniform) frame among textured ones aborted the whole run, naming no
+    frame (probe V): its interval is now written with no valid pixel and a warning
+    naming the frame's time; the other intervals are measured."""
+    import png
+
+    from evmotion.io import read_flow
+
+    scene = plume_scene(tmp_path / "scene", intervals=2)
+    with open(scene / "images" / "frame_00000001.png", "wb") as fh:
+        png.Writer(width=40, height=48, greyscale=True).write(
+            fh, np.full((48, 40), 128, np.uint8))
+    out = tmp_path / "bos.h5"
+    rc, _, err = run_cli(["bos", scene, "--out", out, "--contrast-threshold", "0.2"], capsys)
+    assert rc == 0, err
+    assert "the frame at 8333 us (interval [8333, 16667) us) is textureless" in err
+    seq = read_flow(out)
+    assert seq.valid[0].any() and not seq.valid[1].any()
 
 
 def _small_frames(tmp_path):

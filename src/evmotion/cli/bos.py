@@ -151,7 +151,12 @@ def run(args) -> int:
     from evmotion.io.bosinput import load_bos_input
     from evmotion.io.flowout import EXTRA_CONTAINERS
     from evmotion.methods.bos import BosOptions
-    from evmotion.methods.bos_run import open_bos_output, sequence_threshold, solve_bos_into
+    from evmotion.methods.bos_run import (
+        open_bos_output,
+        require_texture,
+        sequence_threshold,
+        solve_bos_into,
+    )
 
     out = Path(args.out)
     check_time_order(args)
@@ -177,8 +182,9 @@ def run(args) -> int:
                               t0=args.t0, t1=args.t1, max_intervals=args.max_intervals)
         check_time_range(args, int(data.events.t[0]), int(data.events.t[-1]), args.rec)
         check_flow_out(out, len(data.intervals))
-        c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
         options = BosOptions(**opts)
+        require_texture(data, options)
+        c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
                  "seed": args.seed, "relinearize": args.relinearize,
                  "source": data.source, "frames": data.frames_source,

@@ -107,12 +107,14 @@ __all__ = [
     "BosOptions",
     "BosResult",
     "BosLevel",
+    "TexturelessFrameError",
     "estimate_bos",
     "estimate_bos_sequence",
     "iter_bos_sequence",
     "estimate_contrast_threshold",
     "contrast_threshold_slope",
     "event_sums",
+    "frame_texture",
     "log_frame",
     "noise_floor_count",
     "potential_from_flow",
@@ -136,6 +138,11 @@ LARGE_DISPLACEMENT_NOTE = (
 #: Largest contrast threshold accepted, log units (sensors: 0.1-0.5): beyond it the
 #: predicted increments overflow float32.
 MAX_CONTRAST_THRESHOLD = 10.0
+
+
+class TexturelessFrameError(ParameterError):
+    """The interval's frame shows no texture in the ROI (uniform, black, out of focus):
+    nothing to measure the background's displacement against."""
 
 
 def _is_int(v) -> bool:
@@ -451,6 +458,26 @@ def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
     if (g < 0).any():
         raise ParameterError(f"frame has negative intensities (min {g.min():g})")
     return np.log(g + e)
+
+
+def _texture(logf: np.ndarray) -> float:
+    """90th percentile of ``|grad log I|`` (log units per px) of a log frame."""
+    gy, gx = np.gradient(logf)
+    return float(np.quantile(np.hypot(gx, gy), 0.9))
+
+
+def frame_texture(frame: np.ndarray, roi=None, log_eps: float | None = None) -> float:
+    """The texture :func:`estimate_bos` requires of a frame (at least
+    ``BosOptions.min_texture``): the 90th percentile of ``|grad log I|`` in the ROI, log
+    units per px.
+
+    Examples
+    --------
+    >>> frame_texture(np.full((8, 8), 100, np.uint8))
+    0.0
+    """
+    x, y, w, h = _check_roi(roi, np.shape(frame)[:2])
+    return _texture(log_frame(frame, log_eps)[y:y + h, x:x + w])
 
 
 def _check_roi(roi, sensor):
@@ -897,12 +924,12 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions, increm
     ev = _window_events(events, int(t0_us), int(t1_us), r)
     x, y, rw, rh = r
     logf = log_frame(frame, o.log_eps)[y:y + rh, x:x + rw]
-    gy, gx = np.gradient(logf)
-    texture = float(np.quantile(np.hypot(gx, gy), 0.9))
+    texture = _texture(logf)
     if texture < o.min_texture:
-        raise ParameterError(f"the frame is textureless in the ROI (90th percentile of "
-                             f"|grad log I| = {texture:.3g} < min_texture = {o.min_texture}): "
-                             "BOS needs a textured background")
+        raise TexturelessFrameError(
+            f"the frame at {int(t0_us)} us (interval [{int(t0_us)}, {int(t1_us)}) us) is "
+            f"textureless in the ROI (90th percentile of |grad log I| = {texture:.3g} < "
+            f"{o.min_texture}): BOS needs a textured background")
     sums, counts = event_sums(ev, r)
     c = o.contrast_threshold
     if increment is not None:
@@ -1026,8 +1053,10 @@ def estimate_bos(
         a finer one (``benchmarks/bench_bos_accuracy.py``, part ``diagnosis``). The events
         still give the TV weight; C is then neither needed nor estimated.
     on_empty : {"raise", "skip"}
-        A window without events in the ROI (still air, or a sensor that saw nothing):
-        raise EmptyWindowError, or ``"skip"``: return a result that estimates nothing
+        A window without events in the ROI (still air, or a sensor that saw nothing) or
+        whose frame is textureless there (a dropped, black or uniform frame): raise
+        EmptyWindowError / TexturelessFrameError, or ``"skip"``: return a result that
+        estimates nothing
         (``valid`` all False, zero flow, ``objective`` NaN) and carries ``init``'s
         parameters on as the next interval's warm start, with an EvmotionWarning (the
         sequence functions skip).
@@ -1043,7 +1072,8 @@ def estimate_bos(
     EmptyWindowError
         No event in the window inside the ROI (``on_empty="raise"``).
     ParameterError
-        Bad option, ROI outside the sensor, textureless frame, scale term without C.
+        Bad option, ROI outside the sensor, scale term without C; TexturelessFrameError
+        (a ParameterError) for a textureless frame (``on_empty="raise"``).
 
     Examples
     --------
@@ -1067,7 +1097,7 @@ def estimate_bos(
     try:
         r, logf, meas, weight, c, log_units = _prepare(events, frame, t0_us, t1_us,
                                                        frame_next, roi, o, increment)
-    except EmptyWindowError as exc:
+    except (EmptyWindowError, TexturelessFrameError) as exc:
         if on_empty == "raise":
             raise
         warnings.warn(EvmotionWarning(f"{exc}: the interval is written with no valid pixel"),

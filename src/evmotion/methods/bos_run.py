@@ -33,8 +33,9 @@ from evmotion.io.bosinput import BosInput
 from evmotion.io.flowfiles import FLOW_COMPRESSION
 
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "iter_bos_input",
-           "open_bos_output", "sequence_contrast_threshold", "sequence_threshold",
-           "solve_bos_input", "solve_bos_into", "stored_warm_start", "write_bos_output"]
+           "open_bos_output", "require_texture", "sequence_contrast_threshold",
+           "sequence_threshold", "solve_bos_input", "solve_bos_into", "stored_warm_start",
+           "write_bos_output"]
 
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
@@ -236,6 +237,7 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     """
     from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
+    require_texture(data)
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
     results = list(iter_bos_input(data, c, workers=workers, progress=progress,
                                   scheduler=scheduler, **options))
@@ -285,6 +287,25 @@ def stored_warm_start(out, index: int) -> list[np.ndarray]:
     names = sorted((n for n in out.extras if n.startswith("warm/scale")),
                    key=lambda n: int(n.removeprefix("warm/scale")))
     return [out.stored(n, index) for n in names]
+
+
+def require_texture(data: BosInput, options=None) -> None:
+    """Refuse a run none of whose intervals' frames has texture in the ROI (black,
+    uniform): a textureless frame among textured ones is skipped, with a warning, by the
+    solver (``on_empty="skip"``). Stops at the first textured frame."""
+    from evmotion.methods.bos import BosOptions, TexturelessFrameError, frame_texture
+
+    o = options if isinstance(options, BosOptions) else BosOptions()
+    best = 0.0
+    for i in data.intervals[:, 0]:
+        t = frame_texture(data.frames[int(i)], data.roi, o.log_eps)
+        if t >= o.min_texture:
+            return
+        best = max(best, t)
+    raise TexturelessFrameError(
+        f"{data.frames_source}: none of the {len(data.intervals)} frames that start an "
+        f"interval has texture in the ROI (90th percentile of |grad log I| at most "
+        f"{best:.3g} < {o.min_texture}): BOS needs a textured background")
 
 
 def append_bos_result(out, data: BosInput, interval, res) -> dict:
