@@ -322,3 +322,29 @@ def test_poor_fit_lines_stop_after_five_and_suggest_longer_windows(tmp_path, cap
     assert sum(ln.startswith("evmotion: warning: window ") for ln in lines) == 5
     assert "more warnings of other windows" in lines[-1] and "too short" in lines[-1]
     assert not any("the tpe optimizer" in ln for ln in lines)
+
+
+def test_an_interrupted_rerun_keeps_the_previous_results(rec, tmp_path, capsys, monkeypatch):
+    """A new run deleted the folder's complete results as it started, so interrupting it
+    lost them (probe X). They now stay until the new run's replace them; the interrupted
+    run's panels wait beside its journal, and --resume moves them in at the end."""
+    import evmotion.cli.egomotion as ego
+
+    out = tmp_path / "e"
+    argv = ["egomotion", str(rec), "--warp", "translation", "--window-events", "2000",
+            "--out", str(out)]
+    assert main(argv) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert "params.h5" in before and "window_00000.png" in before
+    interrupt_at_call(monkeypatch, ego, "_window_job", 4)
+    assert main(argv + ["--objective", "gradient_magnitude"]) == 130
+    capsys.readouterr()
+    for name, data in before.items():
+        assert (out / name).read_bytes() == data
+    assert (out / "params.part").exists() and any((out / "panels.part").iterdir())
+    monkeypatch.undo()
+    assert main(argv + ["--objective", "gradient_magnitude", "--resume"]) == 0
+    assert not (out / "panels.part").exists() and not (out / "params.part").exists()
+    assert (out / "params.h5").read_bytes() != before["params.h5"]
+    assert sorted(p.name for p in out.glob("window_*.png")) == sorted(
+        n for n in before if n.startswith("window_"))

@@ -19,6 +19,8 @@ from __future__ import annotations
 import csv
 import functools
 import io
+import os
+import shutil
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -41,7 +43,6 @@ from evmotion.cli.options import (
     nonnegative_float,
     reject_unused,
     remove_stale_pictures,
-    remove_stale_results,
     select_windows,
     writable_folder,
 )
@@ -264,9 +265,13 @@ def run(args) -> int:
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     journal, done = _open_journal(args, out_dir, events, windows, K)
+    # the panels of this run wait in a folder of their own until it ends: an earlier
+    # run's complete results (params.csv / .h5 and panels) stay as they are until this
+    # run's replace them, and an interrupted run leaves its panels beside its journal
+    staged = out_dir / PANELS_PART
     if not args.resume:
-        remove_stale_pictures(out_dir, ("window_",))
-        remove_stale_results(out_dir, ("params.csv", "params.h5"))
+        shutil.rmtree(staged, ignore_errors=True)
+    staged.mkdir(exist_ok=True)
     todo = [k for k in range(len(windows)) if k not in done]
     try:
         with journal:
@@ -277,7 +282,7 @@ def run(args) -> int:
                     w = windows[k]
                     out = job(events.window(w), w.t0, w.t1, init=init)
                     init = out.result.params
-                    journal.add(k, w.t0, w.t1, (_written(out_dir, w, out), None))
+                    journal.add(k, w.t0, w.t1, (_written(staged, w, out), None))
             else:
                 with scheduler_client(args.scheduler) as client:
                     # each window's panel is written as its result comes in, while later
@@ -286,7 +291,7 @@ def run(args) -> int:
                             job, events, [windows[k] for k in todo], workers=args.workers,
                             scheduler=client, desc="egomotion", with_window=True),
                             strict=True):
-                        value = None if r.value is None else _written(out_dir, windows[k],
+                        value = None if r.value is None else _written(staged, windows[k],
                                                                       r.value)
                         journal.add(k, windows[k].t0, windows[k].t1, (value, r.error))
     except BaseException:
@@ -299,6 +304,10 @@ def run(args) -> int:
         raise
     done = type(journal).read(journal.path, _journal_header(args, events, windows, K))
     results = [(w, *done[k][2]) for k, w in enumerate(windows)]
+    remove_stale_pictures(out_dir, ("window_",))
+    for panel in sorted(staged.glob("window_*.png")):
+        os.replace(panel, out_dir / panel.name)
+    shutil.rmtree(staged, ignore_errors=True)
     rows = write_outputs(out_dir, results, grid=args.grid)
     journal.path.unlink()
     failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
@@ -331,6 +340,8 @@ def run(args) -> int:
 
 # the journal of a run's finished windows, in its output folder until the run ends
 JOURNAL_NAME = "params.part"
+# the folder of a run's panels, in its output folder until the run ends
+PANELS_PART = "panels.part"
 
 
 def _journal_header(args, events, windows, K) -> dict:
