@@ -261,3 +261,12 @@ def test_empty_recording_round_trips_with_its_sensor(tmp_path, name, size):
     eio.write_events(tmp_path / name, empty)
     back = eio.read_events(tmp_path / name)
     assert len(back) == 0 and tuple(back.sensor_size) == size
+
+
+def test_an_unfinished_part_file_is_named_as_such(tmp_path):
+    # what a killed convert leaves ('c.h5.part') was 'format not recognised' (probe X)
+    part = tmp_path / "c.h5.part"
+    part.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 20)
+    with pytest.raises(FormatError, match="unfinished output of an interrupted evmotion "
+                                          "run.*--resume.*delete it"):
+        eio.read_events(part)

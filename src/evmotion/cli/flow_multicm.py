@@ -84,8 +84,11 @@ def add_arguments(group) -> None:
                             "3e-5; 0: always --max-iter iterations)")
     group.add_argument("--workers", type=int_range(1, MAX_WORKERS), default=None,
                        help="parallel worker processes (default 1); each takes a contiguous "
-                            "chunk of windows; with --scheduler, the number of chunks "
-                            "(default: the cluster's worker threads)")
+                            "chunk of windows, whose first window starts from zero flow "
+                            "instead of the previous window's, so the first windows of "
+                            "each chunk differ slightly from one worker's (0.1 %% of the "
+                            "flow on a simulated rotation); with --scheduler, the number of "
+                            "chunks (default: the cluster's worker threads)")
     add_scheduler_argument(group, "chunks of windows")
     group.add_argument("--init", choices=("previous", "dnn"), default=None,
                        help="start each window from the previous one's flow (default) or "

@@ -97,6 +97,11 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
             # a sniffer that cannot open the file (corrupt HDF5...) does not stop another
             # format from recognising it; if none does, its error says the most
             failed = failed or exc
+    if not candidates and path.name.endswith(".part"):
+        # what an interrupted convert (or a killed run) leaves: not a recording to decode
+        raise FormatError(path, "is the unfinished output of an interrupted evmotion run "
+                          "(a .part file)", "run the command that wrote it again (with "
+                          "--resume where it offers one), or delete it")
     if not candidates and failed is not None:
         raise failed
     if not candidates:
