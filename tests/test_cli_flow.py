@@ -11,7 +11,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _helpers import interrupt_at_call
 from evmotion.cli import main
-from evmotion.events import concatenate
+from evmotion.events import EventArray, concatenate
 from test_multicm import constant, synth
 
 FLOW = (-250.0, 120.0)
@@ -404,3 +404,21 @@ def test_an_interrupted_parallel_run_says_what_it_kept(tmp_path, capsys, monkeyp
                "--out", str(tmp_path / "f.h5")])
     err = capsys.readouterr().err
     assert rc == 130 and "a chunk at a time" in err and "nothing is kept" in err
+
+
+def test_a_file_shorter_than_the_asked_window_is_said(tmp_path, capsys):
+    # --window-events 30000 on a 5,000-event file gave one window of 5,000, silently
+    # (probe W); the default window says nothing
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(0)
+    n = 5000
+    write_events(tmp_path / "short.h5", EventArray(
+        x=rng.integers(0, 100, n), y=rng.integers(0, 80, n),
+        t=np.sort(rng.integers(0, 10_000, n)), p=rng.integers(0, 2, n), sensor_size=(80, 100)))
+    argv = ["flow", str(tmp_path / "short.h5"), "--out", str(tmp_path / "s.flo"),
+            "--max-iter", "2"]
+    assert main(argv + ["--window-events", "30000"]) == 0
+    assert "holds 5,000 events, fewer than --window-events 30000" in capsys.readouterr().err
+    assert main(argv) == 0
+    assert "fewer than" not in capsys.readouterr().err

@@ -130,9 +130,14 @@ def _one_window_for_one_file(args, events, windows):
         return windows
     t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
     total = events.slice_time(t0, t1) if t0 is not None or t1 is not None else events
+    from evmotion.cli import warn_line
+
+    if getattr(args, "window_events_given", False) and len(total) < n:
+        # asked for a window of n events, given fewer: said, as the opposite case is
+        warn_line(f"{args.file} holds {len(total):,} events, fewer than --window-events "
+                  f"{n}: {out.name} holds one window of those {len(total):,}")
     if not n < len(total) < 2 * n:
         return windows
-    from evmotion.cli import warn_line
 
     warn_line(f"{args.file} holds {len(total):,} events, one window of --window-events {n} "
               f"and {len(total) - n:,} more: {out.name} holds one window, so all "
@@ -265,6 +270,8 @@ def run(args) -> int:
         from evmotion.viz.video import require_video
 
         require_video()  # before the windows are computed and written, not after
+    # (a window count the user asked for: a file holding fewer events is said)
+    args.window_events_given = args.window_events is not None
     if args.window_events is None and args.window_us is None and not args.window_gt:
         args.window_events = default_window_events(args.file, args.format)
     events, cam, grid = read_for_windows(args, **({} if args.window_gt else _cut(args)),
