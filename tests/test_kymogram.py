@@ -534,3 +534,16 @@ def test_cli_frames_on_another_grid_are_refused(plume, tmp_path, capsys):
                       tmp_path / "k.png")
     assert rc == 2 and "128x96 px but the events' sensor is 64x96" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_correlation_without_a_ridge_says_so_in_its_own_terms():
+    # it said 'a ridge in only 0 time bins ... lower min_snr', the ridge method's words
+    # (probe V: a periodic train, where the lags alias)
+    rng = np.random.default_rng(0)
+    t = np.arange(120) / 1200.0
+    s = np.arange(60.0)
+    k = Kymogram(rng.random((120, 60)).astype(np.float32), t, s,
+                 KymoLine.column(0, (60, 1)), 1200.0, "noise")
+    with pytest.raises(EmptyWindowError, match="autocorrelation has a ridge .* at fewer "
+                                               "than 3 lags.*ridge method"):
+        fit_correlation(k, min_snr=50.0)

@@ -746,7 +746,15 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
         return fit_ridge(ka, sigma_px=0.0, sigma_bins=0.0, polarity="positive",
                          min_snr=min_snr)
 
-    rough = fit(total, 1)
+    try:
+        rough = fit(total, 1)
+    except EmptyWindowError as exc:
+        # fit_ridge's words are about a kymogram's time bins; here they are lags
+        raise EmptyWindowError(
+            f"the kymogram's autocorrelation has a ridge (peaks min_snr={min_snr} robust "
+            f"sigmas high) at fewer than 3 lags: no structure travels along the line at "
+            "one speed within max_lag_s (periodic structures alias); try a wider line, "
+            "another max_lag_s, or the ridge method") from exc
     speed = abs(rough.velocity_px_s)
     shortest = max(min_shift_px, band + 1.0 if band else 0.0)
     first = int(np.ceil(shortest / (speed * dt))) if speed > 0 else 1
