@@ -90,6 +90,10 @@ def test_progress_in_a_log_is_a_line_now_and_then(monkeypatch, capsys):
     assert lines and all(ln.startswith("flow: ") and "left" in ln and "win/s" in ln
                          for ln in lines)
     assert lines[-1].startswith("flow: 4/4 win") and "\r" not in "".join(lines)
+    # each line moves the count: no repeat of the last (tqdm's monitor between slow
+    # items, the closing refresh)
+    counts = [ln.split(" [")[0] for ln in lines]
+    assert len(counts) == len(set(counts))
     monkeypatch.setenv("EVMOTION_PROGRESS", "0")
     for _ in utils.progress(range(4), desc="flow", unit="win"):
         time.sleep(0.03)

@@ -185,10 +185,15 @@ def progress(iterable: Iterable[T], *, total: int | None = None, desc: str = "",
         if env == "0":
             disable = True
         else:
-            return tqdm(iterable, total=total, desc=desc, unit=unit, unit_scale=unit_scale,
-                        file=_LogLines(sys.stderr), mininterval=LOG_PROGRESS_S,
-                        bar_format="{desc}: {n_fmt}/{total_fmt} {unit} [{elapsed} elapsed, "
-                                   "{remaining} left, {rate_fmt}]")
+            # miniters=1: a line only as an item completes, with its count, rate and ETA
+            # (tqdm's monitor thread otherwise repeated the last line with only the
+            # elapsed time moved, between slow items)
+            bar = tqdm(iterable, total=total, desc=desc, unit=unit, unit_scale=unit_scale,
+                       file=_LogLines(sys.stderr), mininterval=LOG_PROGRESS_S, miniters=1,
+                       bar_format="{desc}: {n_fmt}/{total_fmt} {unit} [{elapsed} elapsed, "
+                                  "{remaining} left, {rate_fmt}]")
+            bar.log_lines = True  # (refine_total: no refresh, which writes a line)
+            return bar
     return tqdm(iterable, total=total, desc=desc, unit=unit, disable=bool(disable),
                 unit_scale=unit_scale, file=sys.stderr, dynamic_ncols=True)
 
@@ -204,11 +209,15 @@ class _LogLines:
     def __init__(self, fh):
         self.fh = fh
         self.start = time.monotonic()
+        self.last = None
 
     def write(self, text: str) -> None:
         line = text.replace("\r", "").strip()
-        if line and time.monotonic() - self.start >= LOG_PROGRESS_S:
+        # a line whose count did not move (the closing refresh) says nothing new
+        count = line.split(" [")[0]
+        if line and count != self.last and time.monotonic() - self.start >= LOG_PROGRESS_S:
             self.fh.write(line + "\n")
+            self.last = count
 
     def flush(self) -> None:
         self.fh.flush()
@@ -232,7 +241,10 @@ def refine_total(bar, done: int, meta: dict) -> None:
     if not read or not size or done <= 0:
         return
     bar.total = max(int(done), int(round(done * size / read)))
-    bar.refresh()
+    # a log's bar (lines every LOG_PROGRESS_S) shows it at its next line: a refresh there
+    # wrote a line per chunk, whatever the interval
+    if not getattr(bar, "log_lines", False):
+        bar.refresh()
 
 
 def check_finite(name: str, value) -> np.ndarray:
