@@ -336,3 +336,18 @@ def test_a_malformed_flow_file_is_one_line_in_eval_and_view(tmp_path, capsys, mu
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "bad.h5" in err
         assert re.search(match, err), err
+
+
+def test_an_output_removed_during_the_run_stops_it_at_the_next_window(tmp_path):
+    """Its folder deleted mid-run, flow wrote every window into the unlinked file and
+    failed only at the end, on the rename (probe X): the next window now stops it."""
+    from evmotion.errors import EvmotionError
+
+    out = fo.open_flow_output(tmp_path / "f.h5", (4, 6), {"method": "test"})
+    flow = np.zeros((4, 6, 2), np.float32)
+    out.append(flow, 0, 10)
+    (tmp_path / "f.h5.part").unlink()
+    with pytest.raises(EvmotionError, match=r"f\.h5\.part was removed during the run"):
+        out.append(flow, 10, 20)
+    out.abort()
+    assert list(tmp_path.iterdir()) == []

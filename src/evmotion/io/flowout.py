@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import ParameterError
+from evmotion.errors import EvmotionError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.flowfiles import (
     FLOW_COMPRESSION,
@@ -375,6 +375,12 @@ class H5FlowOutput(FlowOutput):
     def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None,
                extras: dict | None = None) -> None:
         """Add one window (see :meth:`FlowOutput.append`)."""
+        where = self.stored_at()
+        if not where.exists():
+            # the file was deleted under the open handle (its folder removed): the windows
+            # would go on into a file nobody can reach, and the run fail only at its end
+            raise EvmotionError(f"{where} was removed during the run (its folder deleted?): "
+                              "the windows done so far are lost; run the command again")
         if not self.w.with_valid:  # a file made without masks (FlowWriter's choice)
             self.w.append(flow, t0, t1, extras=extras)
         else:
