@@ -150,3 +150,24 @@ def test_divergence_plus_deformation_defaults_to_the_data_set_weights():
                                  dataset=dataset, maps=False)
         assert res.weight == lam
         assert res.as_dict()["weight"] == lam
+
+
+def test_a_motion_of_a_pixel_is_no_measurement():
+    """Rotation windows of 2,000 events moving ~1.3 px came out at errors up to 1.7 rad/s,
+    marked valid (probe Y): contrast needs the events to move a few px. The estimate's
+    median displacement over the window is now checked (MIN_MOTION_PX)."""
+    import warnings
+
+    from evmotion.errors import PoorFitWarning
+    from evmotion.methods.measured import MIN_MOTION_PX
+
+    # translation of 20 px/s: 1 px over a 50 ms window, 10 px over 500 ms
+    ev, _ = synth("translation", [20.0, 0.0], n_events=12000, duration_s=0.05)
+    with pytest.warns(PoorFitWarning, match="small motion"):
+        res = estimate_egomotion(ev, warp="translation")
+    assert res.diagnostics["motion_px"] < MIN_MOTION_PX and not res.valid
+    ev, _ = synth("translation", [20.0, 0.0], n_events=12000, duration_s=0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PoorFitWarning)
+        res = estimate_egomotion(ev, warp="translation")
+    assert res.diagnostics["motion_px"] == pytest.approx(10.0, rel=0.1) and res.valid

@@ -228,10 +228,11 @@ def _panel(r) -> bytes:
             panels.append(_signed_rgb(img))
             titles.append(f"{name}\n0 everywhere: none in a {r.warp}" if peak < 1e-12
                           else f"{name}\nred +, blue -, full at +-{peak:.3g}")
-    t0_ms, t1_ms = r.window_us[0] / 1e3, r.window_us[1] / 1e3
+    # whole µs: epoch times in ms at 6 digits read [1.58916e+12, 1.58916e+12] (probe Y)
+    t0, t1 = (int(v) for v in r.window_us)
     return images.panel_png(panels, titles, ncols=2,
-                            suptitle=f"{r.warp}, {r.n_events:,} events, "
-                                     f"[{t0_ms:.6g}, {t1_ms:.6g}] ms")
+                            suptitle=f"{r.warp}, {r.n_events:,} events, [{t0:,}, {t1:,}] us "
+                                     f"({(t1 - t0) / 1e3:.3g} ms)")
 
 
 def run(args) -> int:

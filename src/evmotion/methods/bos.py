@@ -126,9 +126,9 @@ MIN_CORRELATION = 0.3
 # the events follow the frames' change too weakly for a sure magnitude (warned)
 WEAK_CORRELATION = 0.45
 NEAR_EVENTS_PX = 10.0
-#: Displacement over a frame interval (px, 95th percentile over the ROI) from which
-#: :func:`estimate_bos` solves again with the frame warped by its flow
-#: (``BosOptions.relinearize``): below it the linearized model's error is under ~5 %.
+#: Displacement over a frame interval (px, 95th percentile where events support the flow)
+#: from which :func:`estimate_bos` warns that the linearized model underestimates it, or
+#: with ``BosOptions.relinearize`` solves again with the frame warped by its flow.
 RELINEARIZE_PX = 1.0
 LARGE_DISPLACEMENT_NOTE = (
     "0.73x at 2.5-3.5 px on rendered scenes): a higher frame rate keeps it small; "
@@ -222,7 +222,8 @@ class BosOptions:
         With the scale-aware term, at most this many further solves, each with the frame
         warped by the flow found so far and the prediction linearized there (as
         Lucas-Kanade iterates), while the flow moves the background by
-        :data:`RELINEARIZE_PX` or more over the interval (95th percentile over the ROI).
+        :data:`RELINEARIZE_PX` or more over the interval (95th percentile over the pixels
+        whose flow events support).
         The linearized model (6.9) holds within the frame's smoothing (2 px): a smooth
         wave rendered independently, moving 2.5-3.5 px per interval, came out at 0.73x
         its magnitude (0.86x with 2), one moving up to 6 px at AEE 1.06 px (0.43); but
@@ -401,8 +402,8 @@ class BosResult:
     relinearized : int
         Further solves with the frame warped by the flow (``BosOptions.relinearize``).
     displacement_q95 : float
-        95th percentile over the ROI of the flow's displacement over the interval, px
-        (calibrated results; NaN otherwise).
+        95th percentile of the flow's displacement over the interval on the ``valid``
+        pixels, px (calibrated results; NaN otherwise).
     """
 
     flow: np.ndarray
@@ -1119,6 +1120,16 @@ def estimate_bos(
                                  "every value NaN means none, or none at all")
     if warm is not None and len(warm) != len(o.scales):
         raise ParameterError(f"init has {len(warm)} scales, expected {len(o.scales)}")
+    x, y, rw, rh = r
+    # the pixels whose flow events support (valid): where the displacement is measured
+    support = _supported(events, int(t0_us), int(t1_us), frame, frame_next,
+                         o.log_eps)[y:y + rh, x:x + rw]
+
+    def q95(d) -> float:
+        # still air elsewhere in the ROI would dilute it: over the supported pixels
+        mag = np.hypot(d[0], d[1])
+        return float(np.quantile(mag[support] if support.any() else mag, 0.95))
+
     theta, level, losses, iters, params, timings = _coarse_to_fine(
         logf, meas, weight, o, dtype, warm, normalized)
     final = level if level.k == 1 else BosLevel(level.patch, 1, logf, meas, weight, o, dtype)
@@ -1127,7 +1138,7 @@ def estimate_bos(
     upsample(pf, final.iy, final.fy, final.ix, final.fx, dense)
     passes = 0
     while (log_units and not normalized and passes < o.relinearize
-           and np.quantile(np.hypot(dense[0], dense[1]), 0.95) >= RELINEARIZE_PX):
+           and q95(dense) >= RELINEARIZE_PX):
         # the prediction linearized at the flow found: L(x - v dt) ~ Lw - grad Lw . (v -
         # v0) dt with Lw the frame warped by v0: the same model on Lw, with the known part
         # moved to the measurement
@@ -1153,7 +1164,6 @@ def estimate_bos(
             scale = float(np.sum(pr * final.meas) / den)
     dt = (int(t1_us) - int(t0_us)) * 1e-6
     H, W = events.sensor_size
-    x, y, rw, rh = r
     flow = np.zeros((H, W, 2), np.float32)
     flow[y:y + rh, x:x + rw, 0] = dense[0] * scale / dt
     flow[y:y + rh, x:x + rw, 1] = dense[1] * scale / dt
@@ -1163,8 +1173,7 @@ def estimate_bos(
     q = np.zeros((H, W), np.float32)
     q[y:y + rh, x:x + rw] = potential_from_flow(flow[y:y + rh, x:x + rw])
     valid = np.zeros((H, W), bool)
-    valid[y:y + rh, x:x + rw] = True
-    valid &= _supported(events, int(t0_us), int(t1_us), frame, frame_next, o.log_eps)
+    valid[y:y + rh, x:x + rw] = support
     calibrated = log_units and (not normalized or o.rescale)
     fit_gain = float("nan")
     if calibrated and increment is None:
@@ -1177,12 +1186,12 @@ def estimate_bos(
         den = float(np.sum(pr[sup] ** 2))
         if den > 0:
             fit_gain = float(np.sum(pr[sup] * final.meas[sup]) / den)
-    q95 = float(np.quantile(np.hypot(dense[0], dense[1]), 0.95) * scale) if calibrated \
-        else float("nan")
-    if o.relinearize == 0 and q95 >= RELINEARIZE_PX:
+    moved = q95(dense) * scale if calibrated else float("nan")
+    if o.relinearize == 0 and moved >= RELINEARIZE_PX:
         warnings.warn(UnderfitWarning(
             f"interval [{int(t0_us)}, {int(t1_us)}) us: the flow moves the background "
-            f"{q95:.2g} px over the interval (95th percentile): the linearized model "
+            f"{moved:.2g} px over the interval (95th percentile where events support it): "
+            f"the linearized model "
             f"(6.9) holds within ~{RELINEARIZE_PX:g} px, beyond it the magnitude comes out "
             f"too small ({LARGE_DISPLACEMENT_NOTE})"), stacklevel=2)
     if fit_gain > FIT_GAIN_WARN:
@@ -1202,7 +1211,7 @@ def estimate_bos(
                      calibrated=bool(calibrated), scale=scale, objective=float(objective),
                      losses=losses, timings_s=timings, iterations=iters, params=params,
                      options=o, fit_gain=fit_gain, relinearized=passes,
-                     displacement_q95=q95)
+                     displacement_q95=moved)
 
 
 # below this share of the ROI with event support, the interval is warned about: the flow

@@ -86,6 +86,7 @@ from evmotion.methods.diagnostics import (
     warn_poor_fit,
     warn_too_few,
 )
+from evmotion.methods.measured import MIN_MOTION_PX, warn_small_motion
 from evmotion.methods.options import merge_options
 
 __all__ = [
@@ -184,7 +185,8 @@ class EgomotionResult:
         # not diagnosed, or collapsed (said by itself): not a poor fit; a fit test that ran
         # and found nothing to test is one (too few events)
         return bool(share < POOR_FIT_SHARE or gain < MIN_CONTRAST_GAIN
-                    or unchecked_fit(d.get("fit", {})) or d.get("too_few_events", False))
+                    or unchecked_fit(d.get("fit", {})) or d.get("too_few_events", False)
+                    or float(d.get("motion_px", np.inf)) < MIN_MOTION_PX)
 
     @property
     def valid(self) -> bool:
@@ -464,22 +466,39 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
     msgs = [warn_collapse(coll, regularizer, cost.weight, stacklevel=4)]
     if coll["collapsed"]:
         # a collapsed estimate explains nothing; the tile test would only repeat it
-        fit = {}
+        fit, moved = {}, float("nan")
     else:
         with np.errstate(all="ignore"):
             xw, yw = w.warp(cost.x, cost.y, cost.dt, theta)
         fit = fit_diagnostics(cost.x, cost.y, cost.dt, xw, yw, cost.shape)
         msgs.append(warn_poor_fit(fit, w.name, stacklevel=4))
+        moved = _moved_px(cost, xw, yw)
     v0 = float(np.var(iwe_before))
     gain = float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan")
     too_few = warn_too_few(int(cost.x.shape[0]), w.name, stacklevel=4)
     msgs.append(too_few)
     if not coll["collapsed"] and too_few is None:
         hint = "" if optimizer == "tpe" else " (--optimizer tpe searches the whole box)"
-        msgs.append(warn_no_gain(gain, w.name, stacklevel=4, optimum_hint=hint))
-    return {"collapse": coll, "fit": fit, "contrast_gain": gain,
+        no_gain = warn_no_gain(gain, w.name, stacklevel=4, optimum_hint=hint)
+        msgs.append(no_gain)
+        if no_gain is None:  # (no focus says it already)
+            msgs.append(warn_small_motion(moved, w.name, stacklevel=4))
+    return {"collapse": coll, "fit": fit, "contrast_gain": gain, "motion_px": moved,
             "too_few_events": too_few is not None,
             "weight_source": weight_source, "warnings": [m for m in msgs if m]}
+
+
+def _moved_px(cost: CMaxCost, xw, yw) -> float:
+    """Median over the events of how far the estimate moves each over the whole window,
+    px: its displacement to ``t_ref`` scaled from its own time offset to the window's
+    duration (events at ``t_ref`` itself carry no rate and are left out)."""
+    span = cost.span[1] - cost.span[0]
+    dt = np.abs(cost.dt)
+    keep = dt > 1e-3 * span
+    if span <= 0 or not keep.any():
+        return 0.0
+    d = np.hypot(xw[keep] - cost.x[keep], yw[keep] - cost.y[keep])
+    return float(np.median(d / dt[keep]) * span)
 
 
 def landscape_verdict(values, cost, focus) -> dict:
