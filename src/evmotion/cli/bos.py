@@ -95,10 +95,9 @@ def add_parser(sub) -> None:
                    help="scale term: at most N further solves with the frame warped by the "
                         "flow found, while the flow moves the background 1 px or more over "
                         "an interval (95th percentile), where the linearized model "
-                        "underestimates (a smooth wave moving 2.5-3.5 px: 0.73x, 0.86x with "
-                        "2); it corrects smooth air, but on air structures finer than the "
-                        "patches it raised the AEE (0.48 to 0.58 px): default 0, the "
-                        "thesis' single solve, with a warning past 1 px")
+                        "underestimates; it helped smooth air and hurt finer structures "
+                        "(AEE -6 %% to +38 %%, benchmarks/results/bos_relinearize.md): "
+                        "default 0, the thesis' single solve, with a warning past 1 px")
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
                    help="only frame intervals from this time: seconds on the recording's "
                         "clock, or with a unit (1.5, 1500ms, 1500000us); +TIME: after the first "

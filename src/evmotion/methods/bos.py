@@ -131,10 +131,10 @@ NEAR_EVENTS_PX = 10.0
 #: with ``BosOptions.relinearize`` solves again with the frame warped by its flow.
 RELINEARIZE_PX = 1.0
 LARGE_DISPLACEMENT_NOTE = (
-    "0.73x at 2.5-3.5 px on rendered scenes): a higher frame rate keeps it small; "
-    "relinearize=2 (--relinearize 2) solves again at the flow found, which corrects the "
-    "magnitude of smooth air (0.86x there) but can raise the error of structures finer "
-    "than the patches")
+    "0.58-0.98x above 1.5 px on scenes moving up to 3-5 px): a higher frame rate keeps it "
+    "small; relinearize=2 (--relinearize 2) solves again at the flow found, which can "
+    "correct smooth air but raised the error of finer structures "
+    "(benchmarks/results/bos_relinearize.md)")
 #: Largest contrast threshold accepted, log units (sensors: 0.1-0.5): beyond it the
 #: predicted increments overflow float32.
 MAX_CONTRAST_THRESHOLD = 10.0
@@ -220,16 +220,16 @@ class BosOptions:
         Seed of the uniform [-1, 1] initialization of q.
     relinearize : int
         With the scale-aware term, at most this many further solves, each with the frame
-        warped by the flow found so far and the prediction linearized there (as
-        Lucas-Kanade iterates), while the flow moves the background by
+        and its gradient warped by the flow found so far and the prediction linearized
+        there (as Lucas-Kanade iterates), while the flow moves the background by
         :data:`RELINEARIZE_PX` or more over the interval (95th percentile over the pixels
-        whose flow events support).
-        The linearized model (6.9) holds within the frame's smoothing (2 px): a smooth
-        wave rendered independently, moving 2.5-3.5 px per interval, came out at 0.73x
-        its magnitude (0.86x with 2), one moving up to 6 px at AEE 1.06 px (0.43); but
-        on a plume of 18-27 px blobs moving up to 4.8 px the magnitudes grew (0.73 ->
-        0.89x above 2.5 px) while the AEE rose from 0.48 to 0.58 px: structures finer
-        than the patches are placed no better, only larger. 0 (default): the thesis'
+        whose flow events support). The linearized model (6.9) holds within the frame's
+        smoothing (2 px): above 1.5 px the single solve came out at 0.58-0.98x the true
+        magnitude on scenes moving up to 3-5 px. Solving again did not fix it
+        reliably (``benchmarks/results/bos_relinearize.md``): the AEE changed by -6 % to
+        +11 % on the simulator's scenes and rose 38 % on a rendered plume of 18-27 px
+        blobs (magnitudes overshooting to 1.10x), while on a smooth wave rendered by a
+        probe moving up to 6 px it fell from 1.06 to 0.43 px. 0 (default): the thesis'
         single solve, with an UnderfitWarning past :data:`RELINEARIZE_PX`.
     """
 
