@@ -19,6 +19,7 @@ the thesis' voxel mean by the normal-flow fits of
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -245,7 +246,13 @@ def run(args) -> int:
                 refine_total(bar, n_events, chunk.meta)
             chunk = next(chunks, None)
         tri.finish()
-        emit(tri.windows())
+        last = tri.windows()
+        if args.window_events is None and not getattr(args, "window_gt", None):
+            # the last time window ends with the data, as multicm's does: its nominal end
+            # lay past the recording, beyond any ground truth of it, and eval dropped it
+            # (probe Z)
+            last = (dataclasses.replace(w, t1=min(w.t1, t_last + 1)) for w in last)
+        emit(last)
         outputs = [str(out)]
         if dense_out is not None:
             dense_out.check_count(n_windows)
