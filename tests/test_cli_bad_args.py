@@ -1034,7 +1034,9 @@ def test_output_locks_are_per_user_and_never_fail_a_run(tmp_path, monkeypatch):
 def test_an_interrupted_run_leaves_no_other_runs_results_in_its_folder(tmp_path, capsys,
                                                                        monkeypatch):
     # a new egomotion run into a folder, interrupted, left the earlier run's complete-
-    # looking params.csv / params.h5 beside its own pictures and params.part
+    # looking params.csv / params.h5 beside its own pictures and params.part; then it
+    # deleted them as it started, so the interruption lost them (probe X). Now the earlier
+    # run's results stay whole and the new run's pictures wait apart, in panels.part
     import evmotion.methods.egomotion as ego
     from evmotion.io import write_events
     from evmotion.sim import simulate
@@ -1048,7 +1050,9 @@ def test_an_interrupted_run_leaves_no_other_runs_results_in_its_folder(tmp_path,
     assert main([*argv, "--max-windows", "1"]) == 0
     assert (out / "params.csv").exists() and (out / "params.h5").exists()
     interrupt_at_call(monkeypatch, ego, "estimate_egomotion", 2)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
     assert main([*argv, "--reg", "rcad"]) == 130
-    assert not (out / "params.csv").exists() and not (out / "params.h5").exists()
-    assert (out / "params.part").exists()
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()
+            and p.name != "params.part"} == before
+    assert (out / "params.part").exists() and (out / "panels.part").is_dir()
     capsys.readouterr()

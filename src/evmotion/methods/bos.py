@@ -474,7 +474,7 @@ def frame_texture(frame: np.ndarray, roi=None, log_eps: float | None = None) -> 
 
     Examples
     --------
-    >>> frame_texture(np.full((8, 8), 100, np.uint8))
+    >>> frame_texture(np.full((32, 32), 100, np.uint8))
     0.0
     """
     x, y, w, h = _check_roi(roi, np.shape(frame)[:2])
