@@ -95,7 +95,12 @@ def test_triplet_dense_flow_of_a_moving_scene_keeps_its_mask():
     with warnings.catch_warnings():
         warnings.simplefilter("error", PoorFitWarning)
         res = estimate_flow_triplet(ev, dense="robust")
-    assert res.gains[0] > 1.5 and res.masks.mean() > 0.3
+    # valid where the events support a flow (18.6 % of this sensor), not the 9-px
+    # filter's spread into the still background around them
+    from evmotion.methods.flowresult import event_support
+
+    support = event_support(ev.x, ev.y, ev.sensor_size, 2, 2)
+    assert res.gains[0] > 1.5 and 0.8 * support.mean() < res.masks.mean() <= support.mean()
 
 
 def test_egomotion_result_says_whether_it_is_a_measurement():

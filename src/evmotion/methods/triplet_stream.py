@@ -227,8 +227,10 @@ class _Windows:
                                                  filter_size=self.filter_size)
         gain, no_focus = float("nan"), False
         if flow is not None and self.seen:
-            gain, mask, no_focus = triplet.focus_checked(
-                concatenate(self.seen, validate=False), flow, mask, t0)
+            seen = concatenate(self.seen, validate=False)
+            if self.dense in ("lsq", "robust"):
+                mask = triplet.supported(seen, mask)
+            gain, mask, no_focus = triplet.focus_checked(seen, flow, mask, t0)
         win = TripletWindow(self.index, int(t0), int(t1), flow, mask, self.n, self.iwe,
                             gain, no_focus)
         self.index += 1
