@@ -304,3 +304,24 @@ def test_progress_of_a_raw_file_has_a_total(tmp_path, monkeypatch, capsys):
     bars = [b for b in capsys.readouterr().err.replace("\r", "\n").splitlines()
             if b.startswith("triplet:") and "|" in b]
     assert bars and "25%" in bars[0] and "1.60k/1.60k" in bars[-1] and "100%" in bars[-1]
+
+
+def test_ring_overflow_is_said(tmp_path, capsys):
+    # 17-20 % of the shared EVT files' events overflowed their pixel's ring, said only
+    # in the JSON (probe Z)
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(0)
+    n = 4000  # 20 busy pixels, 200 events each within 40 ms
+    busy = EventArray(x=rng.integers(10, 30, n), y=np.full(n, 5), p=np.ones(n, np.uint8),
+                      t=np.sort(rng.integers(0, 40_000, n)), sensor_size=(20, 40))
+    write_events(tmp_path / "busy.h5", busy)
+    argv = ["flow", str(tmp_path / "busy.h5"), "--method", "triplet", "--json"]
+    assert main([*argv, "--out", str(tmp_path / "a.h5")]) == 0
+    out, err = capsys.readouterr()
+    doc = json.loads(out)
+    assert doc["overflow"] > 0.05 * doc["events"]
+    assert f"{doc['overflow']:,} of {doc['events']:,} events" in err and "--depth 8" in err
+    assert main([*argv, "--out", str(tmp_path / "b.h5"), "--depth", "255"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["overflow"] == 0 and "--depth" not in err

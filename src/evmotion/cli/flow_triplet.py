@@ -277,6 +277,12 @@ def run(args) -> int:
                   f"{no_focus[0]}) have no focus: their dense flow aligns their events less "
                   f"than {100 * (MIN_CONTRAST_GAIN - 1):.0f} % better than chance (noise or "
                   "no texture); no pixel of them is valid")
+    if tri.overflow > OVERFLOW_NOTE * max(n_events, 1):
+        warn_line(f"{args.file}: {tri.overflow:,} of {n_events:,} events "
+                  f"({100 * tri.overflow / n_events:.0f} %) fired more than --depth "
+                  f"{tri.matcher.depth} times within 2 (d_t + tau) at their pixel: the oldest "
+                  "of those timestamps were forgotten, so their matches differ from "
+                  "Algorithm 1's (a larger --depth keeps them, or a shorter --dt-ms)")
     args.flow_summary = {"windows": n_windows if windows_made else None, "events": n_events,
                          "outputs": outputs}
     if args.json:
@@ -311,6 +317,10 @@ def _gt_edges(args):
         raise ParameterError(f"--gt-dt {dt}: need >= 1 and at most {ts.size - 1} frames")
     starts = ts[:-dt:dt]
     return list(zip(starts.tolist(), ts[dt::dt][: starts.size].tolist(), strict=True))
+
+
+# above this share of the events overflowing the per-pixel rings, the run says so
+OVERFLOW_NOTE = 0.05
 
 
 def _emit(win, dense_out, png_dir, max_speed) -> None:
