@@ -114,6 +114,10 @@ def test_segment_cli(rec, tmp_path, capsys):
         assert z["window_00000_t_us"].shape == z["window_00000"].shape
         assert z["window_00000_x"].shape == z["window_00000"].shape
         assert doc["clusters"][0]["t0_us"] <= z["window_00000_t_us"][0]
+        # and per cluster what the JSON says (labels alone read as two motions where a
+        # cluster repeats the other; probe Z)
+        assert z["window_00000_valid"].tolist() == [c["valid"] for c in doc["clusters"]]
+        assert z["window_00000_same_as"].tolist() == [c["same_as"] for c in doc["clusters"]]
 
 
 def test_egomotion_job_draws_its_panel_and_sends_no_images(rec, tmp_path):

@@ -4,7 +4,8 @@ of every cluster (``clusters.csv``, and ``clusters.h5``: :mod:`evmotion.io.param
 with units, each row's [t0, t1) µs, warp, grid and a valid flag; ``evmotion info``
 describes it), event labels (``labels.npz``: ``window_NNNNN`` the cluster of each event,
 with its time ``window_NNNNN_t_us`` and pixel ``_x``, ``_y`` on the grid the command used,
-undistorted where a calibration undistorts) and PNGs of the per-cluster IWEs."""
+undistorted where a calibration undistorts, and per cluster ``_valid`` and ``_same_as``,
+the cluster it duplicates or -1) and PNGs of the per-cluster IWEs."""
 
 from __future__ import annotations
 
@@ -110,6 +111,10 @@ def run(args) -> int:
             sub = events.window(w)
             labels[key + "_t_us"] = sub.t
             labels[key + "_x"], labels[key + "_y"] = sub.x, sub.y
+            # per cluster: whether it is a measurement, and the cluster it repeats (-1:
+            # none), so that the labels alone do not read as two motions where one is
+            labels[key + "_valid"] = np.asarray(seg.valid, bool)
+            labels[key + "_same_as"] = np.asarray(seg.same_as, np.int16)
             for j in range(args.warps):
                 rows.append({"window": w.index, "t0_us": w.t0, "t1_us": w.t1, "cluster": j,
                              "n_events": int(np.sum(seg.labels == j)),
