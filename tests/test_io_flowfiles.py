@@ -253,3 +253,12 @@ def test_eval_of_a_folder_of_predictions(tmp_path, capsys):
 
     assert json.loads(out.out)["mean"]["AEE"] == pytest.approx(0.5 * 2 ** 0.5, abs=0.01)
     assert "3 files paired by name" in out.err
+
+
+def test_a_per_event_flow_given_as_ground_truth_is_named(tmp_path):
+    # it said "MVSEC ground truth lacks array 'timestamps'" (probe Z)
+    path = tmp_path / "triplet.npz"
+    np.savez(path, t=np.arange(3), x=np.zeros(3), y=np.zeros(3), vx=np.ones(3),
+             vy=np.ones(3))
+    with pytest.raises(FormatError, match="is a per-event flow file .* not a ground truth"):
+        ff.read_mvsec_gt_flow(path)

@@ -754,6 +754,11 @@ def read_mvsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
     except (OSError, ValueError) as exc:
         raise FormatError(path, f"cannot read as .npz: {exc}") from None
     with z:
+        if {"vx", "vy", "t"} <= set(z.files):
+            # what --method triplet writes: a flow to score, not a ground truth
+            raise FormatError(path, "is a per-event flow file (vx, vy per event), not a "
+                              "ground truth", "give it as the flow, and the MVSEC-style "
+                              "ground truth as --gt")
         for k in ("timestamps", "x_flow_dist", "y_flow_dist"):
             if k not in z.files:
                 raise FormatError(path, f"MVSEC ground truth lacks array '{k}'",
