@@ -41,9 +41,9 @@ burst, at the mean time of its events, :mod:`evmotion.methods.bursts`), whose ti
 symmetric, and fits the flow over 41 x 41 px re-weighted with Tukey's biweight
 (:func:`dense_robust_fit`). Simulated translation / rotation / zoom, AEE over MultiCM's on
 the same windows (``benchmarks/results/triplet_accuracy_summary.md``), dt = 1 and dt = 4 at
-250-300 px/s: thesis mean 21 / 9.4 / 8.5 and 129 / 6.0 / 3.7; ``dense="lsq"`` 4.5 / 2.0 /
-2.1 and 27 / 1.9 / 1.3; ``dense="robust"`` 0.65 / 1.24 / 1.42 and 2.55 / 1.21 / 0.98; at a
-quarter of that speed ``dense="robust"`` 0.59 / 1.01 / 0.97 and 2.44 / 1.84 / 1.93.
+250-300 px/s: thesis mean 21 / 11 / 8.9 and 127 / 6.2 / 3.7; ``dense="lsq"`` 4.6 / 2.3 /
+2.2 and 26 / 1.9 / 1.3; ``dense="robust"`` 0.67 / 1.41 / 1.48 and 2.52 / 1.26 / 0.99; at a
+quarter of that speed ``dense="robust"`` 0.60 / 1.04 / 0.98 and 2.58 / 2.03 / 2.14.
 
 Streaming dense output, window by window in bounded memory:
 :func:`evmotion.methods.triplet_stream.iter_flow_triplet`.
