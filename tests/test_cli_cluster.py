@@ -109,8 +109,9 @@ def test_segment_on_cluster_matches_local_run(rec, cluster, tmp_path, capsys):
     remote = _json([*base, tmp_path / "remote", "--scheduler", cluster], capsys)
     assert remote == {**local, "file": remote["file"]} and len(local["clusters"]) == 4
     la, lb = np.load(tmp_path / "local" / "labels.npz"), np.load(tmp_path / "remote" / "labels.npz")
-    assert sorted(la) == sorted(lb) == [f"window_0000{k}{part}" for k in (0, 1)
-                                        for part in ("", "_t_us", "_x", "_y")]
+    assert sorted(la) == sorted(lb) == sorted(
+        f"window_0000{k}{part}" for k in (0, 1)
+        for part in ("", "_t_us", "_x", "_y", "_valid", "_same_as"))
     for key in la:
         assert np.array_equal(la[key], lb[key])
     assert ((tmp_path / "local" / "clusters.csv").read_text()
