@@ -48,8 +48,13 @@ def rec(tmp_path_factory):
 
 
 def _json(argv, capsys) -> dict:
+    """The run's JSON summary without its "warnings": a library warning raised in a
+    remote worker is not relayed to the client's stderr, which that list repeats, so the
+    lists of a local and a cluster run differ where the estimates do not."""
     assert main([str(a) for a in argv]) == 0
-    return json.loads(capsys.readouterr().out)
+    doc = json.loads(capsys.readouterr().out)
+    doc.pop("warnings", None)
+    return doc
 
 
 def _h5(path: Path) -> dict:
