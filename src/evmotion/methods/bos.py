@@ -131,10 +131,11 @@ NEAR_EVENTS_PX = 10.0
 #: with ``BosOptions.relinearize`` solves again with the frame warped by its flow.
 RELINEARIZE_PX = 1.0
 LARGE_DISPLACEMENT_NOTE = (
-    "0.58-0.98x above 1.5 px on scenes moving up to 3-5 px): a higher frame rate keeps it "
-    "small; relinearize=2 (--relinearize 2) solves again at the flow found, which can "
-    "correct smooth air but raised the error of finer structures "
-    "(benchmarks/results/bos_relinearize.md)")
+    f"the linearized model (6.9) holds within ~{RELINEARIZE_PX:g} px, beyond it the "
+    "magnitude comes out too small (0.58-0.98x above 1.5 px on scenes moving up to 3-5 "
+    "px): a higher frame rate keeps it small; relinearize=2 (--relinearize 2) solves "
+    "again at the flow found, which can correct smooth air but raised the error of finer "
+    "structures (benchmarks/results/bos_relinearize.md)")
 #: Largest contrast threshold accepted, log units (sensors: 0.1-0.5): beyond it the
 #: predicted increments overflow float32.
 MAX_CONTRAST_THRESHOLD = 10.0
@@ -991,6 +992,15 @@ def _coarse_to_fine(logf, meas, weight, o: BosOptions, dtype, warm, normalized: 
     return theta, level, losses, iters, params, timings
 
 
+def _pixel_fields(level: BosLevel, theta: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray]:
+    """``(patch fields, dense fields)`` of a full-resolution level's parameters: du, dv,
+    pu, pv on its patch grid (4, nh, nw) and interpolated to its ``shape`` (H, W) pixels."""
+    pf = level.patch_fields(theta)
+    dense = np.zeros((4, *shape))
+    upsample(pf, level.iy, level.fy, level.ix, level.fx, dense)
+    return pf, dense
+
+
 def _relinearized(logf: np.ndarray, meas: np.ndarray, du: np.ndarray, dv: np.ndarray):
     """``(Lw, (gx, gy), meas - (Lw - L + g . d))``: the log frame ``L`` warped by the
     displacement ``d = (du, dv)`` (px over the interval; ``Lw(x) = L(x - d)``), its
@@ -1133,15 +1143,13 @@ def estimate_bos(
     theta, level, losses, iters, params, timings = _coarse_to_fine(
         logf, meas, weight, o, dtype, warm, normalized)
     final = level if level.k == 1 else BosLevel(level.patch, 1, logf, meas, weight, o, dtype)
-    pf = final.patch_fields(theta)
-    dense = np.zeros((4,) + logf.shape)
-    upsample(pf, final.iy, final.fy, final.ix, final.fx, dense)
+    pf, dense = _pixel_fields(final, theta, logf.shape)
     passes = 0
     while (log_units and not normalized and passes < o.relinearize
            and q95(dense) >= RELINEARIZE_PX):
-        # the prediction linearized at the flow found: L(x - v dt) ~ Lw - grad Lw . (v -
-        # v0) dt with Lw the frame warped by v0: the same model on Lw, with the known part
-        # moved to the measurement
+        # the prediction linearized at the flow found v0: L(x - v dt) ~ Lw - g . (v - v0) dt
+        # with Lw and g the frame and its gradient warped by v0 (_relinearized): the same
+        # model on them, with the known part moved to the measurement
         logf_w, grad_w, meas_w = _relinearized(logf, meas, dense[0], dense[1])
         theta, level, more_losses, more_iters, params, more_t = _coarse_to_fine(
             logf_w, meas_w, weight, o, dtype, params, normalized, grad_w)
@@ -1150,9 +1158,7 @@ def estimate_bos(
         iters = [a + b for a, b in zip(iters, more_iters, strict=True)]
         timings = [a + b for a, b in zip(timings, more_t, strict=True)]
         final = level
-        pf = final.patch_fields(theta)
-        dense = np.zeros((4,) + logf.shape)
-        upsample(pf, final.iy, final.fy, final.ix, final.fx, dense)
+        pf, dense = _pixel_fields(final, theta, logf.shape)
         passes += 1
     (objective, *_), _ = final.value_grad(theta, normalized)
     scale = 1.0
@@ -1191,9 +1197,7 @@ def estimate_bos(
         warnings.warn(UnderfitWarning(
             f"interval [{int(t0_us)}, {int(t1_us)}) us: the flow moves the background "
             f"{moved:.2g} px over the interval (95th percentile where events support it): "
-            f"the linearized model "
-            f"(6.9) holds within ~{RELINEARIZE_PX:g} px, beyond it the magnitude comes out "
-            f"too small ({LARGE_DISPLACEMENT_NOTE})"), stacklevel=2)
+            f"{LARGE_DISPLACEMENT_NOTE}"), stacklevel=2)
     if fit_gain > FIT_GAIN_WARN:
         warnings.warn(UnderfitWarning(
             f"interval [{int(t0_us)}, {int(t1_us)}) us: the flow explains the events' "
@@ -1409,9 +1413,8 @@ def warn_underfit(gains, displacements=()) -> None:
     if d.size and np.median(d) >= RELINEARIZE_PX:
         warnings.warn(UnderfitWarning(
             f"the flow moves the background {np.median(d):.2g} px over an interval (95th "
-            f"percentile, median over {d.size} intervals): the linearized model (6.9) "
-            f"holds within ~{RELINEARIZE_PX:g} px, beyond it the magnitude comes out too "
-            f"small ({LARGE_DISPLACEMENT_NOTE})"), stacklevel=2)
+            f"percentile, median over {d.size} intervals): {LARGE_DISPLACEMENT_NOTE}"),
+            stacklevel=2)
     g = np.asarray([v for v in gains if v is not None and np.isfinite(v)], np.float64)
     if g.size and np.median(g) > FIT_GAIN_WARN:
         warnings.warn(UnderfitWarning(

@@ -316,8 +316,6 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
     The flow, q and p are NaN outside the ROI; ``valid`` is the ROI's pixels with event
     support (:attr:`~evmotion.methods.bos.BosResult.valid`).
     """
-    from evmotion.methods.bos import single_solve_displacements
-
     i, t0, t1 = (int(v) for v in interval)
     c = res.contrast_threshold
     numbers = {"frame_index": i, "contrast_threshold": float("nan") if c is None else c,
@@ -345,9 +343,7 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
             # no valid pixel: no speed measured (not 0 px/s, which reads as still air)
             "median_speed_px_s": float(np.median(speed)) if speed.size else float("nan"),
             "fit_gain": res.fit_gain, "relinearized": res.relinearized,
-            "displacement_q95": res.displacement_q95,
-            # the displacement of an interval solved once, for the run's one warning
-            "single_solve_q95": single_solve_displacements([res])[0]}
+            "displacement_q95": res.displacement_q95}
 
 
 def _events_in(data: BosInput, t0: int, t1: int) -> int:
@@ -375,9 +371,9 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
     >>> out = open_bos_output("bos.h5", data, attrs, BosOptions(), resume=True)  # doctest: +SKIP
     >>> rows = solve_bos_into(out, data, 0.2)  # doctest: +SKIP
     """
-    from evmotion.methods.bos import warn_underfit
+    from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
-    rows = []
+    rows, gains, moved = [], [], []
     try:
         out.check_count(len(data.intervals))
         for i, (_, t0, t1) in enumerate(data.intervals[:len(out.done)]):
@@ -390,9 +386,11 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
                                  **options)
         for interval, res in zip(data.intervals[start:], results, strict=True):
             rows.append(append_bos_result(out, data, interval, res))
+            # (the run's one underfit warning, by the medians over the intervals solved)
+            gains.append(res.fit_gain)
+            moved += single_solve_displacements([res])
         out.close()
-        warn_underfit((r.get("fit_gain") for r in rows),
-                      (r.get("single_solve_q95") for r in rows))
+        warn_underfit(gains, moved)
     except BaseException:
         out.abort()
         raise
