@@ -763,8 +763,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
             acc, cnt = _voxel_sums(sub, fsub, win.t0, win.t1, n_bins)
             flows[i], masks[i] = dense_from_sums(acc, cnt, smooth=smooth,
                                                  filter_size=filter_size)
-        if dense in ("lsq", "robust"):
-            masks[i] = supported(sub, masks[i])
+        masks[i] = supported(sub, masks[i], dense)
         gains[i], masks[i], flagged[i] = focus_checked(sub, flows[i], masks[i], win.t0)
     _warn_no_focus(gains, flagged)
     return TripletBatchResult(flows, masks, windows, flow, m.overflow, bursts, bflow, gains)
@@ -844,12 +843,14 @@ def _alignment_gain(x, y, t, f, t0_us: int, shape) -> float:
     return variance(dt) / null if null > 0 else float("nan")
 
 
-def supported(events: EventArray, mask: np.ndarray) -> np.ndarray:
-    """``mask`` where ``events`` support a flow
-    (:func:`~evmotion.methods.flowresult.event_support`, as multicm's ``valid``): the
-    9-px filter of the ``lsq`` and ``robust`` dense flows carries it up to 4 px past the
+def supported(events: EventArray, mask: np.ndarray, dense: str) -> np.ndarray:
+    """The valid mask of a ``dense`` window's flow: for ``lsq`` and ``robust``, ``mask``
+    where ``events`` support a flow (:func:`~evmotion.methods.flowresult.event_support`,
+    as multicm's ``valid``), since their 9-px filter carries it up to 4 px past the
     events, into still background (54 % of a window valid where 11 % of its pixels had
-    events)."""
+    events); ``mask`` itself for ``mean`` (the thesis' 3x3 non-zero average)."""
+    if dense not in ("lsq", "robust"):
+        return mask
     from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_support
 
     return mask & event_support(events.x, events.y, mask.shape, SUPPORT_RADIUS,

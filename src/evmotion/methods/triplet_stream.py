@@ -228,8 +228,7 @@ class _Windows:
         gain, no_focus = float("nan"), False
         if flow is not None and self.seen:
             seen = concatenate(self.seen, validate=False)
-            if self.dense in ("lsq", "robust"):
-                mask = triplet.supported(seen, mask)
+            mask = triplet.supported(seen, mask, self.dense)
             gain, mask, no_focus = triplet.focus_checked(seen, flow, mask, t0)
         win = TripletWindow(self.index, int(t0), int(t1), flow, mask, self.n, self.iwe,
                             gain, no_focus)
