@@ -293,6 +293,9 @@ def test_interrupted_bos_resumes_to_the_uninterrupted_output(tmp_path, capsys, m
         return real(*args, **kwargs)
 
     monkeypatch.setattr(bos, "estimate_bos", counted)
+    summaries = []  # what the run's underfit warning is decided on
+    monkeypatch.setattr(bos, "warn_underfit", lambda g, d=(): summaries.append(
+        (list(g), list(d))))
     full, out = tmp_path / "full.h5", tmp_path / "out.h5"
     argv = ["bos", scene, "--iterations", "30"]
     assert _run([*argv, "--out", full], capsys)[0] == 0
@@ -321,8 +324,12 @@ def test_interrupted_bos_resumes_to_the_uninterrupted_output(tmp_path, capsys, m
     assert rc == 0, err
     assert len(calls) == n - 2 and not part.exists()
     assert [w.get("resumed", False) for w in json.loads(text)["windows"]] == [True] * 2 + [False] * 2
+    # the resumed run's summary covers the kept intervals too, as the full run's did
+    assert len(summaries) == 2 and len(summaries[0][0]) == 4
+    np.testing.assert_array_equal(summaries[1], summaries[0])
     with h5py.File(full) as a, h5py.File(out) as b:
-        for name in ("flow", "valid", "q", "p", "t0", "t1", "window/objective", "warm/scale3"):
+        for name in ("flow", "valid", "q", "p", "t0", "t1", "window/objective", "warm/scale3",
+                     "window/fit_gain", "window/displacement_q95"):
             np.testing.assert_array_equal(a[name][()], b[name][()], err_msg=name)
 
 

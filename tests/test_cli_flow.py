@@ -2,6 +2,7 @@
 recording with known constant flow."""
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -110,6 +111,47 @@ def test_workers_split_windows_in_chunks(recording, tmp_path, capsys):
     assert flow.shape == (4, 90, 120, 2)
     assert json.loads(text)["n_windows"] == 4
     assert np.median(flow[..., 0]) == pytest.approx(FLOW[0], rel=0.2)
+
+
+WARNS_PER_WINDOW = """
+import sys, warnings
+import evmotion.methods.multicm as multicm
+from evmotion.cli import main
+from evmotion.errors import PoorFitWarning
+
+real = multicm.estimate_flow
+
+def warns(events, **kw):  # the worker processes fork from here and inherit it
+    warnings.warn(f"no focus at first event {int(events.t[0])} us", PoorFitWarning,
+                  stacklevel=1)
+    return real(events, **kw)
+
+multicm.estimate_flow = warns
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_warnings_of_worker_processes_name_their_window_in_the_summary(
+        recording, tmp_path, workers):
+    """A window's warning, from this process or a worker process, is said once on stderr
+    with the window it belongs to, and listed in the --json summary. (A fresh process:
+    one with other threads, as this one may have from a Dask test, starts clean workers
+    that would not inherit the patched estimator.)"""
+    import subprocess
+
+    path, _ = recording
+    run = subprocess.run(
+        [sys.executable, "-c", WARNS_PER_WINDOW, "flow", str(path), "--window-events", "4000",
+         "--scales", "2", "--workers", workers, "--out", str(tmp_path / "f.h5"), "--json"],
+        capture_output=True, text=True, timeout=300,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    assert run.returncode == 0, run.stderr
+    said = json.loads(run.stdout)["warnings"]
+    assert len(said) == 4 and run.stderr.count("evmotion: warning: window") == 4
+    for k, line in enumerate(said):
+        t0 = int(line.split("[")[1].split(",")[0])
+        assert line.startswith(f"window {k} [") and line.endswith(f"first event {t0} us")
 
 
 def test_eval_npy_needs_interval_and_checks_shape(recording, tmp_path, capsys):

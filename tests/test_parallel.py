@@ -6,12 +6,13 @@ import functools
 import os
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from evmotion.errors import ParameterError
+from evmotion.errors import EvmotionWarning, ParameterError
 from evmotion.events import EventArray
 from evmotion.parallel import WindowResult, map_windows
 
@@ -137,6 +138,31 @@ def test_resume_skips_finished_windows(tmp_path):
     third = map_windows(functools.partial(counted, calls_dir=str(calls)), ev, WINDOWS,
                         resume_dir=resume, progress=False)
     assert all(r.cached for r in third) and not list(calls.iterdir())
+
+
+def warn_late(ev: EventArray, t0: int, t1: int) -> int:
+    if t0 >= 40_000:
+        warnings.warn(EvmotionWarning(f"window at {t0} us looks odd"), stacklevel=1)
+    return len(ev)
+
+
+@pytest.mark.parametrize("executor,workers", [("process", 1), ("thread", 2), ("process", 2)])
+def test_warnings_of_worker_processes_reach_the_caller(executor, workers, tmp_path):
+    """A window's warnings are issued here, where the caller's filters and summaries see
+    them (also from worker processes), and again when it is resumed from resume_dir."""
+    ev = _events()
+    with pytest.warns(EvmotionWarning) as caught:
+        res = map_windows(warn_late, ev, WINDOWS, workers=workers, executor=executor,
+                          with_window=True, resume_dir=tmp_path, progress=False)
+    said = sorted(str(w.message) for w in caught if issubclass(w.category, EvmotionWarning))
+    assert said == [f"window at {t} us looks odd" for t in (40_000, 60_000, 80_000)]
+    assert [r.value for r in res] == [len(ev.slice_time(a, b)) for a, b in WINDOWS]
+    assert [len(r.warnings) for r in res] == [0, 0, 1, 1, 1]
+    with pytest.warns(EvmotionWarning) as again:
+        resumed = map_windows(warn_late, ev, WINDOWS, workers=workers, with_window=True,
+                              resume_dir=tmp_path, progress=False)
+    assert all(r.cached for r in resumed)
+    assert sorted(str(w.message) for w in again) == said
 
 
 def test_dask_local_cluster():

@@ -23,6 +23,7 @@ import threading
 import time
 import traceback
 import uuid
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
@@ -34,8 +35,8 @@ from evmotion.events import EventArray, Window
 from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
 
-__all__ = ["BATCH_TARGET_S", "WindowResult", "connect_scheduler", "imap_windows",
-           "map_windows", "report_progress"]
+__all__ = ["BATCH_TARGET_S", "WindowResult", "collected_warnings", "connect_scheduler",
+           "imap_windows", "map_windows", "reissue_warnings", "report_progress"]
 
 #: Where :func:`report_progress` sends ``(window index, units)`` in a worker process of
 #: :func:`map_windows`: a queue to the caller's bar (set by the pool's initializer).
@@ -125,6 +126,12 @@ class WindowResult:
         Of ``elapsed_s``, the seconds spent compiling numba kernels on first use
         (:func:`evmotion.jitcache.compile_seconds`): a worker process compiles a kernel
         once (or loads it from the shared cache), so later windows on it report 0.
+    warnings : tuple
+        The warnings ``fn`` issued (where it ran: this process, a worker process, a
+        Dask worker), as ``(category, message, filename, lineno)``. :func:`imap_windows`
+        issues them in the calling process when the window arrives, and again when it is
+        resumed from ``resume_dir``, so that the caller's filters and summaries see
+        them.
     """
 
     index: int
@@ -135,6 +142,7 @@ class WindowResult:
     elapsed_s: float = 0.0
     cached: bool = False
     compile_s: float = 0.0
+    warnings: tuple = ()
 
     @property
     def ok(self) -> bool:
@@ -172,7 +180,9 @@ def _normalize_windows(windows: Iterable[Window | tuple[int, int]]) -> list[_Tas
 def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
                 read_kwargs: dict, sink: Callable[[int, int], None] | None = None
                 ) -> WindowResult:
-    """Run in the worker: read (or take) the window's events and call ``fn``."""
+    """Run in the worker: read (or take) the window's events and call ``fn``. The
+    warnings it issues go back in the result (a worker process's stderr is not the
+    caller's summary, and a resumed window has none)."""
     from evmotion.jitcache import compile_seconds
 
     c0 = compile_seconds()
@@ -180,23 +190,73 @@ def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
     outer = getattr(_current, "index", None), getattr(_current, "sink", None)
     _current.index, _current.sink = task.index, sink or outer[1]
     try:
-        if isinstance(source, EventArray):
-            events = source
-        else:
-            from evmotion.io import read_events
+        with collected_warnings() as kept:
+            if isinstance(source, EventArray):
+                events = source
+            else:
+                from evmotion.io import read_events
 
-            events = read_events(source, t0=task.t0, t1=task.t1, **read_kwargs)
-        value = fn(events, task.t0, task.t1) if with_window else fn(events)
-        return WindowResult(task.index, task.t0, task.t1, value=value,
-                            elapsed_s=time.perf_counter() - start,
-                            compile_s=compile_seconds() - c0)
+                events = read_events(source, t0=task.t0, t1=task.t1, **read_kwargs)
+            value = fn(events, task.t0, task.t1) if with_window else fn(events)
+        error = None
     except Exception as exc:
-        text = f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
-        return WindowResult(task.index, task.t0, task.t1, error=text,
-                            elapsed_s=time.perf_counter() - start,
-                            compile_s=compile_seconds() - c0)
+        value, error = None, f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
     finally:
         _current.index, _current.sink = outer
+    return WindowResult(task.index, task.t0, task.t1, value=value, error=error,
+                        elapsed_s=time.perf_counter() - start,
+                        compile_s=compile_seconds() - c0, warnings=tuple(kept))
+
+
+@contextlib.contextmanager
+def collected_warnings() -> Iterator[list[tuple]]:
+    """Collect, instead of showing, the warnings this thread issues inside the block.
+
+    Thread-safe, unlike ``warnings.catch_warnings`` (which swaps one process-wide
+    function): threads and Dask workers run windows side by side. Yields the list that
+    receives ``(category, message, filename, lineno)`` tuples, which pickle (a category
+    defined in a worker's ``__main__`` goes as ``UserWarning``); :func:`reissue_warnings`
+    issues them again, e.g. in the process that asked for the work. Filters apply as
+    usual: a warning they ignore is not collected.
+
+    Examples
+    --------
+    >>> import warnings
+    >>> with collected_warnings() as said:
+    ...     warnings.warn("window 3 looks odd", stacklevel=1)
+    >>> [m for _, m, _, _ in said]
+    ['window 3 looks odd']
+    """
+    if warnings.showwarning is not _show_or_keep:
+        _shown[0] = warnings.showwarning
+        warnings.showwarning = _show_or_keep
+    outer = getattr(_current, "kept", None)
+    _current.kept = kept = []
+    try:
+        yield kept
+    finally:
+        _current.kept = outer
+
+
+def reissue_warnings(said: Iterable[tuple]) -> None:
+    """Issue in this process the warnings :func:`collected_warnings` collected."""
+    for category, message, filename, lineno in said:
+        warnings.warn_explicit(message, category, filename, lineno)
+
+
+def _show_or_keep(message, category, filename, lineno, file=None, line=None) -> None:
+    kept = getattr(_current, "kept", None)
+    if kept is None:
+        _shown[0](message, category, filename, lineno, file, line)
+        return
+    try:  # a category the caller cannot import (a worker's __main__) goes as UserWarning
+        pickle.loads(pickle.dumps(category))
+    except Exception:
+        category = UserWarning
+    kept.append((category, str(message), filename, lineno))
+
+
+_shown: list = [warnings.showwarning]
 
 
 class _Store:
@@ -219,18 +279,19 @@ class _Store:
             return None
         try:
             with open(path, "rb") as fh:
-                value, elapsed = pickle.load(fh)
+                value, elapsed, *said = pickle.load(fh)
         except (OSError, EOFError, pickle.UnpicklingError, ValueError, TypeError):
             return None
         return WindowResult(task.index, task.t0, task.t1, value=value, elapsed_s=elapsed,
-                            cached=True)
+                            cached=True, warnings=tuple(said[0]) if said else ())
 
     def save(self, res: WindowResult) -> None:
         if self.folder is None or not res.ok:
             return
         with atomic_path(self._path(_Task(res.index, res.t0, res.t1))) as tmp:
             with open(tmp, "wb") as fh:
-                pickle.dump((res.value, res.elapsed_s), fh, protocol=pickle.HIGHEST_PROTOCOL)
+                pickle.dump((res.value, res.elapsed_s, res.warnings), fh,
+                            protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def _payload(source: Any, task: _Task) -> Any:
@@ -375,6 +436,7 @@ def imap_windows(
     for task in tasks:
         cached = store.load(task)
         if cached is not None:
+            reissue_warnings(cached.warnings)
             results[task.index] = cached
         else:
             pending.append(task)
@@ -412,6 +474,7 @@ def imap_windows(
         yield from ready()  # windows resumed from resume_dir before the first pending one
         for res in stream:
             store.save(res)
+            reissue_warnings(res.warnings)
             results[res.index] = res
             bar.finish(res.index)
             yield from ready()

@@ -80,9 +80,9 @@ def build_parser(commands: tuple[str, ...] = COMMANDS):
 def print_json(obj) -> None:
     """Machine-readable summary on stdout (numpy scalars and arrays converted; NaN and
     infinities, which strict JSON has not, written as null). A summary (a dict) also lists
-    under ``"warnings"`` the warning lines this process has printed on stderr, so that a
-    result flagged there is flagged for a program too (worker processes of ``--workers``
-    or ``--scheduler`` print their own; each window's row carries its flags)."""
+    under ``"warnings"`` the warning lines this run has printed on stderr, so that a
+    result flagged there is flagged for a program too (the warnings of worker processes
+    and Dask workers come back with their windows' results and are printed here)."""
     import json
 
     import numpy as np

@@ -418,12 +418,14 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
     from evmotion.methods.flowresult import estimate_or_skip
 
     todo = None
+    said = _PoorFitLines(len(windows))
     if results is not None:
         # the worker processes fork at the first result: before the output is open, so
         # that none holds the file (and its HDF5 lock) after this run has closed it
         it = iter(results)
         try:
-            head = [next(it)]
+            with said.window(0, windows[0]):
+                head = [next(it)]
         except StopIteration:
             head = []
         except BaseException:
@@ -434,7 +436,6 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
     sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
                             n_windows=len(windows))
     rows, init, held = [], None, []
-    said = _PoorFitLines(len(windows))
 
     def flush(pending: list) -> None:
         for r, rw in pending:

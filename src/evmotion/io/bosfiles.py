@@ -124,7 +124,8 @@ Q_MEANING = "Poisson field: flow = Sobel(q), q proportional to drho/dt"
 P_MEANING = "per-pixel translation (x, y) of the frame, W(x; p) = x + p"
 #: Units and meanings of the per-window numbers ``evmotion bos`` stores.
 SCALAR_UNITS = {"contrast_threshold": "log intensity", "objective": "", "n_events": "events",
-                "seconds": "s", "frame_index": "", "calibrated": ""}
+                "seconds": "s", "frame_index": "", "calibrated": "", "fit_gain": "",
+                "relinearized": "", "displacement_q95": "px"}
 SCALAR_MEANINGS = {
     "contrast_threshold": "event contrast threshold C used (NaN: unknown)",
     "objective": "final objective (6.10) at full resolution",
@@ -132,6 +133,11 @@ SCALAR_MEANINGS = {
     "seconds": "wall time of the estimate",
     "frame_index": "index of the frame the window's events are compared with",
     "calibrated": "1: the flow magnitude is physical; 0: only its direction is measured",
+    "fit_gain": "measured increment regressed on the predicted one where events fired "
+                "(about 1: the flow explains the events; NaN: not calibrated)",
+    "relinearized": "further solves with the frame warped by the flow",
+    "displacement_q95": "95th percentile of the flow's displacement over the window on "
+                        "the valid pixels",
 }
 
 

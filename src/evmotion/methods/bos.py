@@ -1425,10 +1425,10 @@ def warn_underfit(gains, displacements=()) -> None:
 
 
 def single_solve_displacements(results) -> list[float]:
-    """:attr:`BosResult.displacement_q95` of the results solved once (``relinearize=0``),
-    NaN for the others: the second argument of :func:`warn_underfit`."""
-    return [r.displacement_q95 if r.options.relinearize == 0 else float("nan")
-            for r in results]
+    """:attr:`BosResult.displacement_q95` of the results solved once (no
+    :attr:`~BosResult.relinearized` pass), NaN for the others: the second argument of
+    :func:`warn_underfit`."""
+    return [r.displacement_q95 if r.relinearized == 0 else float("nan") for r in results]
 
 
 def iter_bos_sequence(

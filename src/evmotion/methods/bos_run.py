@@ -247,7 +247,7 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
 
 #: The per-window numbers a BOS output stores (``window/<name>``).
 WINDOW_NUMBERS = ("frame_index", "contrast_threshold", "calibrated", "objective", "n_events",
-                  "seconds")
+                  "seconds", "fit_gain", "relinearized", "displacement_q95")
 WARM_MEANING = "the solver's patch-grid parameters of this scale (warm start of the next interval)"
 
 
@@ -321,7 +321,8 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
     numbers = {"frame_index": i, "contrast_threshold": float("nan") if c is None else c,
                "calibrated": float(res.calibrated), "objective": res.objective,
                "n_events": _events_in(data, t0, t1),
-               "seconds": float(sum(res.timings_s))}
+               "seconds": float(sum(res.timings_s)), "fit_gain": res.fit_gain,
+               "relinearized": res.relinearized, "displacement_q95": res.displacement_q95}
     inside = np.zeros(res.valid.shape, bool)
     if np.isfinite(res.objective):  # NaN: an interval without events, nothing estimated
         x, y, w, h = res.roi
@@ -341,9 +342,7 @@ def append_bos_result(out, data: BosInput, interval, res) -> dict:
     return {"t0_us": t0, "t1_us": t1, **numbers, "contrast_threshold": c,
             "valid_fraction": float(valid.mean()),
             # no valid pixel: no speed measured (not 0 px/s, which reads as still air)
-            "median_speed_px_s": float(np.median(speed)) if speed.size else float("nan"),
-            "fit_gain": res.fit_gain, "relinearized": res.relinearized,
-            "displacement_q95": res.displacement_q95}
+            "median_speed_px_s": float(np.median(speed)) if speed.size else float("nan")}
 
 
 def _events_in(data: BosInput, t0: int, t1: int) -> int:
@@ -379,6 +378,11 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
         for i, (_, t0, t1) in enumerate(data.intervals[:len(out.done)]):
             out.check_done(i, int(t0), int(t1))
             rows.append({"t0_us": int(t0), "t1_us": int(t1), "resumed": True})
+            # the run's underfit warning covers the kept intervals too
+            gains.append(float(out.stored("window/fit_gain", i)))
+            once = out.stored("window/relinearized", i) == 0
+            moved.append(float(out.stored("window/displacement_q95", i)) if once
+                         else float("nan"))
         start = len(out.done)
         init = stored_warm_start(out, start - 1) if start else None
         results = iter_bos_input(data, contrast_threshold, start=start, init=init,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import re
 import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
@@ -31,21 +32,31 @@ def _lean(res, keep_iwes: bool):
 
 
 def _chunk(events: EventArray, t0: int, t1: int, *, windows, kwargs, keep_iwes):
-    """Worker: the windows of one chunk ``[t0, t1)`` µs, warm-started in sequence.
-    ``events`` are the chunk's events; ``windows`` carry their index ranges in the whole
-    recording, so that each window gets exactly the events of a serial run (cutting by
-    time would move events that share a timestamp across a boundary)."""
+    """Worker: the windows of one chunk ``[t0, t1)`` µs, warm-started in sequence, each
+    with the warnings it issued (said where its result arrives, :func:`iter_chunks`, so
+    that a command names the window). ``events`` are the chunk's events; ``windows``
+    carry their index ranges in the whole recording, so that each window gets exactly the
+    events of a serial run (cutting by time would move events that share a timestamp
+    across a boundary)."""
     from evmotion.methods.multicm import estimate_flow_sequence
+    from evmotion.parallel import collected_warnings
 
     mine = [w for w in windows if t0 <= w.t0 < t1]
     offset = mine[0].start if mine else 0
-    rebased = [Window(w.index, w.t0, w.t1, w.start - offset, w.stop - offset) for w in mine]
-    with warnings.catch_warnings():
-        # a skipped window is said where the results arrive (iter_chunks), not on a
-        # worker's stderr
-        warnings.filterwarnings("ignore", r"window \d+ .* skipped", EvmotionWarning)
-        results = estimate_flow_sequence(events, rebased, **kwargs)
-    return [_lean(res, keep_iwes) for res in results]
+    out, init = [], None
+    for w in mine:
+        with collected_warnings() as said:
+            [res] = estimate_flow_sequence(
+                events, [Window(w.index, w.t0, w.t1, w.start - offset, w.stop - offset)],
+                init=init, **kwargs)
+        if "skipped" not in res.meta:
+            init = res
+        # a skipped window is said by iter_chunks, with its index in the whole recording
+        out.append((_lean(res, keep_iwes), [s for s in said if not _SKIPPED.search(s[1])]))
+    return out
+
+
+_SKIPPED = re.compile(r"window \d+ .* skipped")
 
 
 def estimate_in_chunks(events: EventArray, windows: Sequence[Window], *, workers: int = 2,
@@ -93,7 +104,7 @@ def iter_chunks(events: EventArray, windows: Sequence[Window], *, workers: int =
     it ends first. Parameters and errors as :func:`estimate_in_chunks`; the checks run
     at the first ``next()``.
     """
-    from evmotion.parallel import imap_windows
+    from evmotion.parallel import imap_windows, reissue_warnings
 
     if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ParameterError(f"workers must be an integer >= 1, got {workers!r}")
@@ -114,7 +125,8 @@ def iter_chunks(events: EventArray, windows: Sequence[Window], *, workers: int =
         made += len(r.value)
         if made > len(windows):
             break
-        for k, res in enumerate(r.value, made - len(r.value)):
+        for k, (res, said) in enumerate(r.value, made - len(r.value)):
+            reissue_warnings(said)
             if "skipped" in res.meta:
                 warnings.warn(EvmotionWarning(
                     f"window {windows[k].index} [{res.t0_us}, {res.t1_us}) us skipped: "
