@@ -428,6 +428,12 @@ CASES = [
      ["required: --out", "did you mean --out for --outt?"]),
     ("typo-file", ["flow", "{dir}/sim.h", "--out", "{dir}/f.h5"],
      ["sim.h: no such file", "did you mean", "sim.h5'?"]),
+    # the typo's value was checked as the positional argument: "2: no such file"
+    ("typo-option-value-as-file", ["train", "--sim-windows", "2", "--out", "{dir}/run",
+                                   "--epohcs", "2"],
+     ["unrecognized arguments: --epohcs", "did you mean --epochs?"]),
+    ("typo-option-beside-required", ["egomotion", "{rec}", "--wrap", "rotation"],
+     ["unrecognized arguments: --wrap", "did you mean --warp?"]),
 ]
 
 

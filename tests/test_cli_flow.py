@@ -70,6 +70,14 @@ def test_flow_h5_then_eval(recording, tmp_path, capsys):
     assert res["mean"]["AEE"] < 0.3
     assert res["mean"]["FWL"] > 1.2
     assert res["windows_with_other_dt"] == 0
+    # no ground truth: the sharpness alone, the FWL the accuracy run gave
+    rc, text = _run(["eval", str(out), "--events", str(path), "--json"], capsys)
+    assert rc == 0
+    sharp = json.loads(text)
+    assert sharp["kind"] == "sharpness" and sharp["windows_scored"] == 2
+    assert sharp["mean"]["FWL"] == pytest.approx(res["mean"]["FWL"], rel=1e-9)
+    assert main(["eval", str(out)]) == 2
+    assert "give --gt GT" in capsys.readouterr().err
     rc, text = _run(["eval", str(out), "--gt", str(gt), "--along-streamlines", "--json"],
                     capsys)
     assert rc == 0

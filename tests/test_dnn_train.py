@@ -251,6 +251,7 @@ def test_runs_that_cannot_train_say_so(tmp_path):
     model.pt); resuming a finished run reports its last epoch; a network whose flow is not
     finite stops the validation (a diverged training)."""
     from evmotion.errors import EvmotionWarning, ParameterError
+    from evmotion.events import EventArray
     from evmotion.io import write_events
     from evmotion.methods.dnn.train import evaluate_windows
 
@@ -262,6 +263,16 @@ def test_runs_that_cannot_train_say_so(tmp_path):
             train(TrainConfig(**{**TINY, "sim_windows": 0, "recordings": [str(short)]}),
                   tmp_path / "a")
     assert not (tmp_path / "a").exists()  # nor an empty folder
+    # all events at one time: trained on (loss 116 where a window's is ~4), and validated
+    ev = sim_window(5, sensor_size=(48, 64), window_events=3000).events
+    instant = tmp_path / "instant.h5"
+    write_events(instant, EventArray(ev.x, ev.y, np.full(len(ev), 1000), ev.p,
+                                     sensor_size=ev.sensor_size))
+    with pytest.warns(EvmotionWarning, match=r"instant.h5: .* 1 window with all events at "
+                                              r"one time \(0 us\)\): not used"):
+        with pytest.raises(ParameterError, match="none of the 1 recording.* holds a window"):
+            train(TrainConfig(**{**TINY, "sim_windows": 0, "recordings": [str(instant)],
+                                 "window_events": 3000}), tmp_path / "c")
     lines = []
     train(TrainConfig(epochs=1, **TINY), tmp_path / "b")
     summary = train(TrainConfig(epochs=1, **TINY), tmp_path / "b", resume=True,

@@ -1,4 +1,5 @@
-"""``evmotion eval FLOW --gt GT``: accuracy of estimated flow against ground truth.
+"""``evmotion eval FLOW --gt GT``: accuracy of estimated flow against ground truth;
+``evmotion eval FLOW --events REC``: its sharpness alone (FWL), which needs no ground truth.
 
 FLOW is any flow output of ``evmotion flow`` (:func:`evmotion.io.flowread.read_flow`:
 ``.h5``, ``.npz``, ``.flo`` / DSEC ``.png`` with their JSON sidecar, or a pattern such as
@@ -56,6 +57,7 @@ EXAMPLES = """examples:
   evmotion eval flow.h5 --gt outdoor_day1_gt_flow_dist.npz --events rec.h5 --dt 4 --json
   evmotion eval flow.h5 --gt sim.h5 --events sim.h5
   evmotion eval 'flow_{:05d}.flo' --gt sim.h5
+  evmotion eval flow.h5 --events sim.h5                    # no GT: sharpness (FWL)
   evmotion flow sim.h5 --method triplet --out triplet.h5   # per-event flow
   evmotion eval triplet.h5 --gt sim_gt.h5 --json            # scored event by event
 """
@@ -69,10 +71,12 @@ def add_parser(sub) -> None:
                                 "flow_{:05d}.flo; .npy with --t0-us/--t1-us), a folder of "
                                 "another tool's .flo/.png (paired with the GT's windows), "
                                 "or a per-event flow file (.h5/.npz of --method triplet)")
-    p.add_argument("--gt", required=True, type=existing_input,
-                   help="ground-truth flow (MVSEC .npz, DSEC, .h5)")
+    p.add_argument("--gt", default=None, type=existing_input,
+                   help="ground-truth flow (MVSEC .npz, DSEC, .h5); without it, --events "
+                        "gives the sharpness (FWL) alone")
     p.add_argument("--events", default=None, type=existing_input,
-                   help="recording of the events: event mask and FWL")
+                   help="recording of the events: event mask and FWL (with no --gt: the "
+                        "FWL of each window, which needs no ground truth)")
     p.add_argument("--format", default=None, help="format of --events (default: detect)")
     p.add_argument("--dt", "--gt-dt", dest="dt", type=positive_int(), default=1,
                    help="GT frames per window (1 or 4; flow's --gt-dt); per-event files: "
@@ -120,7 +124,7 @@ def _load_paired(args, path: Path):
     seq, how = read_flow_paired(path, read_gt_flow(gt), names)
     print(f"note: {path}: {how}", file=sys.stderr)
     flow = np.where(seq.valid[..., None], seq.flow, np.float32(np.nan))
-    return flow, np.asarray(seq.t0), np.asarray(seq.t1), None, None
+    return flow, np.asarray(seq.t0), np.asarray(seq.t1), None, None, {}
 
 
 def _load_flow(args, h5_format=None):
@@ -132,9 +136,13 @@ def _load_flow(args, h5_format=None):
     missing = "{" not in path.name and not path.exists()
     if missing and suffix not in (".h5", ".hdf5", ".npz"):
         raise ParameterError(f"FLOW {path}: no such file or folder")
-    if "{" not in path.name and Path(args.gt).resolve() == path.resolve():
+    if "{" not in path.name and args.gt is not None and \
+            Path(args.gt).resolve() == path.resolve():
         raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
     if _without_times(path):
+        if args.gt is None:
+            raise ParameterError(f"FLOW {path}: its files carry no times; give --gt, whose "
+                                 "windows they take")
         return _load_paired(args, path)
     if suffix == ".npy":
         return _load_npy(args, path)
@@ -162,7 +170,7 @@ def _load_flow(args, h5_format=None):
     # beside the regularizer's fill
     flow = np.where(seq.valid[..., None], seq.flow, np.float32(np.nan))
     return (flow, np.asarray(seq.t0), np.asarray(seq.t1),
-            None if out_px is None else float(out_px), seq.extras.get("q"))
+            None if out_px is None else float(out_px), seq.extras.get("q"), seq.attrs)
 
 
 def _add_potential_scores(q, t0s, t1s, gt_path, per_window: list, total: dict) -> None:
@@ -204,7 +212,7 @@ def _load_npy(args, path):
     if n != 1:
         raise ParameterError(f"{path}: {n} windows but one --t0-us/--t1-us interval")
     return (flow.astype(np.float32), np.array([args.t0_us]), np.array([args.t1_us]), None,
-            None)
+            None, {})
 
 
 def _h5_format(path) -> object:
@@ -319,6 +327,68 @@ def _run_event_flow(args, path) -> int:
     return 0
 
 
+def _run_sharpness(args, path: Path, h5_format) -> int:
+    """No ground truth: the FWL of each window on the recording's events."""
+    from evmotion.cli import print_json
+    from evmotion.eval.windows import sharpness_windows
+    from evmotion.io import read_events
+
+    if args.events is None:
+        raise ParameterError("give --gt GT (accuracy against ground truth), or --events REC "
+                             "alone (the sharpness, FWL, which needs no ground truth)")
+    if _is_event_flow(path, h5_format):
+        raise ParameterError(f"{path} is a per-event flow file: its FWL without ground truth "
+                             "is in the --json summary of 'evmotion flow --method triplet'; "
+                             "eval scores it against --gt")
+    reject_unused(args, {"--out-px": "out_px", "--along-streamlines": "along_streamlines"},
+                  "without --gt (no accuracy is computed)")
+    flow, t0s, t1s, _, _, attrs = _load_flow(args, h5_format)
+    events = _on_grid_of(args.events, read_events(
+        args.events, **({"format": args.format} if args.format else {})), attrs)
+    try:
+        rows = sharpness_windows(flow, t0s, t1s, events)
+    except EventDataError as exc:
+        raise ParameterError(f"--events {args.events} against {path}: {exc}") from None
+    if h5_format is not None:
+        _warn_other_source(path, args.events)
+    fwls = [r["FWL"] for r in rows if "FWL" in r]
+    mean = {"FWL": float(np.mean(fwls))} if fwls else {}
+    summary = {"flow": str(args.flow), "events": str(args.events), "kind": "sharpness",
+               "n_windows": len(rows), "windows_scored": len(fwls),
+               "mask": "events where the estimate is known", "mean": mean, "windows": rows}
+    if args.json:
+        print_json(summary)
+        return 0
+    n = len(rows)
+    print(f"{n} window{'' if n == 1 else 's'}" if len(fwls) == n else
+          f"{len(fwls)} of {n} windows scored", "(no ground truth: the FWL of the events "
+          "where the estimate is known; > 1: the flow sharpens them)")
+    print(f"FWL={mean['FWL']:.4g}" if fwls else
+          "FWL not defined: no window has two events where the estimate is known")
+    return 0
+
+
+def _on_grid_of(path, events, attrs: dict):
+    """``events`` on the pixel grid the flow was estimated on (its ``grid`` attribute):
+    undistorted as the flow command undistorted them, by the recording's own calibration;
+    refused when that does not give the flow's grid (another --calib or --K was used)."""
+    import argparse
+
+    from evmotion.cli.calib import undistort_for
+
+    grid = str(attrs.get("grid", ""))
+    if not grid.startswith("undistorted (K=") or events.x.dtype.kind == "f":
+        return events
+    moved, _, mine = undistort_for(argparse.Namespace(file=path, K=None, calib=None,
+                                                      no_undistort=False), events)
+    if mine != grid:
+        raise ParameterError(f"the flow is on the grid '{grid}', --events {path} with its "
+                             f"own calibration on '{mine}': give the recording as it was "
+                             "estimated (its calibration beside it), or estimate the flow "
+                             "with --no-undistort")
+    return moved
+
+
 def run(args) -> int:
 
     from evmotion.cli import print_json
@@ -329,11 +399,13 @@ def run(args) -> int:
     # the format attribute of an .h5 FLOW, read once for both checks below
     h5_format = _h5_format(path) if path.suffix.lower() in (".h5", ".hdf5") and \
         path.is_file() else None
+    if args.gt is None:
+        return _run_sharpness(args, path, h5_format)
     if _is_event_flow(path, h5_format):
         if Path(args.gt).resolve() == path.resolve():
             raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
         return _run_event_flow(args, path)
-    flow, t0s, t1s, file_out_px, q = _load_flow(args, h5_format)
+    flow, t0s, t1s, file_out_px, q, _ = _load_flow(args, h5_format)
     out_px = args.out_px if args.out_px is not None else file_out_px or 3.0
     gt = read_gt_flow(args.gt)
     if gt.flow.shape[1:3] != flow.shape[1:3]:

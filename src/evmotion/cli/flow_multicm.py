@@ -214,6 +214,9 @@ def _row(r, w) -> dict:
         row["input_scale"] = int(r.meta["input_scale"])
     if "gain" in r.meta:  # the network's: the magnitude its flow was kept at
         row["gain"] = float(r.meta["gain"])
+    if np.isfinite(r.meta.get("chance_gain", np.nan)):
+        # how much better the flow aligns the events than with their times shuffled
+        row["chance_gain"] = float(r.meta["chance_gain"])
     if r.meta.get("no_focus"):  # warned: the flow sharpens nothing, no pixel is valid
         row["no_focus"] = True
     if r.meta.get("beyond_range"):  # warned: the network's magnitudes are a lower bound

@@ -100,13 +100,24 @@ class Parser(argparse.ArgumentParser):
             hint = _did_you_mean([choice.group(1)], re.findall(r"'([^']*)'", choice.group(2)))
         elif text.startswith("the following arguments are required:"):
             # a misspelt required option is reported as missing, before as unknown
-            known = {o for a in self._actions for o in a.option_strings}
-            typed = [a.split("=", 1)[0] for a in getattr(self, "_argv", [])
-                     if a.startswith("--") and a.split("=", 1)[0] not in known]
-            hint = _did_you_mean(typed, text.split(":", 1)[1].replace(",", " ").split(),
+            hint = _did_you_mean(self._typed_unknown(),
+                                 text.split(":", 1)[1].replace(",", " ").split(),
                                  name_typed=True)
+        if not hint and self._typed_unknown() and not unknown and not any(
+                isinstance(a, argparse._SubParsersAction) for a in self._actions):
+            # a misspelt option's value was taken for the next positional argument and
+            # checked as one ("train --epohcs 2": "argument recordings: 2: no such file")
+            typed = self._typed_unknown()
+            text = f"unrecognized arguments: {' '.join(typed)}"
+            hint = _did_you_mean(typed, [o for a in self._actions for o in a.option_strings])
         sys.stderr.write(f"{prog}: error: {text}{hint} (see '{prog} --help')\n")
         sys.exit(2)
+
+    def _typed_unknown(self) -> list[str]:
+        """The ``--options`` typed that this parser does not know (typos)."""
+        known = {o for a in self._actions for o in a.option_strings}
+        return [a.split("=", 1)[0] for a in getattr(self, "_argv", [])
+                if a.startswith("--") and a != "--" and a.split("=", 1)[0] not in known]
 
     def _unknown_options(self, tokens: list[str]) -> tuple[str, str]:
         """The command's parser name and a "did you mean" for the unknown ``tokens``,

@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from evmotion.io.flowfiles import FlowSequence
 
 __all__ = ["WindowsEvaluation", "evaluate_potential", "evaluate_windows", "gt_coverage",
-           "gt_displacement"]
+           "gt_displacement", "sharpness_windows"]
 
 # a window is scored when the ground truth covers this share of it: the last window of a
 # recording ends 1 us after its last event, maybe just past the ground truth's end; a 1 %
@@ -232,6 +232,53 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     mask_text = ("valid GT" + (" & at least one event" if events is not None else "")
                  + (" & estimate known" if unknown else ""))
     return WindowsEvaluation(per_window, total, mismatched, mask_text, uncovered)
+
+
+def sharpness_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
+                      events: EventArray) -> list[dict]:
+    """How much each dense flow window sharpens its events, with no ground truth: the FWL
+    (:func:`evmotion.eval.metrics.fwl`, bilinear votes, reference the window's middle) of
+    the window's events where the estimate is known (NaN pixels: no event support, no
+    focus, outside a BOS ROI, are left out, as :func:`evaluate_windows` leaves them out).
+
+    Parameters
+    ----------
+    flow : ndarray, shape (N, H, W, 2)
+        Estimated flow in px/s, NaN where unknown.
+    t0s, t1s : sequence of int
+        Window bounds ``[t0, t1)`` in µs.
+    events : EventArray
+        The recording the flow was estimated on.
+
+    Returns
+    -------
+    list of dict
+        Per window: ``window``, ``t0_us``, ``t1_us``, ``n_events`` (those scored), and
+        ``FWL`` where at least two events fall on known flow.
+
+    Raises
+    ------
+    EventDataError
+        ``events`` cannot be the recording (another sensor size, no overlap in time).
+
+    Examples
+    --------
+    >>> from evmotion.events import EventArray
+    >>> ev = EventArray(x=[2, 3, 4], y=[5, 5, 5], t=[0, 10_000, 20_000], p=[1, 1, 1],
+    ...                 sensor_size=(10, 10))
+    >>> flow = np.zeros((1, 10, 10, 2), np.float32); flow[..., 0] = 100.0
+    >>> [round(r["FWL"], 2) for r in sharpness_windows(flow, [0], [20_001], ev)]
+    [3.06]
+    """
+    _check_same_recording(events, flow.shape[1:3], t0s, t1s)
+    rows = []
+    for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
+        win = events_where_defined(events.slice_time(int(t0), int(t1)), flow[i])
+        row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), "n_events": len(win)}
+        if len(win) > 1:
+            row["FWL"] = fwl(win, flow[i], t_ref_us=(int(t0) + int(t1)) // 2)
+        rows.append(row)
+    return rows
 
 
 def _check_same_recording(events: EventArray, shape, t0s, t1s) -> None:

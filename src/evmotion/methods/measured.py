@@ -6,10 +6,14 @@ from __future__ import annotations
 
 import warnings
 
-from evmotion.errors import PoorFitWarning
+import numpy as np
 
-__all__ = ["MIN_CONTRAST_GAIN", "MIN_FIT_EVENTS", "MIN_MOTION_PX", "warn_no_gain",
-           "warn_small_motion", "warn_too_few"]
+from evmotion.errors import PoorFitWarning
+from evmotion.events import EventArray
+
+__all__ = ["MIN_CONTRAST_GAIN", "MIN_FIT_EVENTS", "MIN_MOTION_PX", "alignment_gain",
+           "flow_alignment_gain", "warn_by_chance", "warn_no_gain", "warn_small_motion",
+           "warn_too_few"]
 
 # an estimate whose image of warped events is not this much sharper (variance ratio) than
 # the identity warp's measures nothing (a 3.3 ms ECD window: 1.002, its rotation wrong)
@@ -65,5 +69,71 @@ def warn_too_few(n_events: int, warp: str, stacklevel: int = 3) -> str | None:
         return None
     msg = (f"too few events: {n_events} (fewer than {MIN_FIT_EVENTS}) cannot measure a "
            f"{warp} motion; the estimate is not a measurement -- use longer windows")
+    warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
+    return msg
+
+
+def flow_alignment_gain(events: EventArray, flow: np.ndarray, t_ref_us: int) -> float:
+    """How much better a window's dense flow (px/s, (H, W, 2)) aligns its events than
+    chance: the variance of their image warped to ``t_ref_us`` over that of the same warp
+    with the events' times permuted (seeded). A flow's geometry alone (a converging field
+    crowds any events, noise too: its image sharpens by up to 1.4 against the unwarped
+    one) sharpens both alike; only a flow that follows the events' motion sharpens the
+    first more. An optimizer that fits a flexible flow to the window's own image can make
+    it sharper than the unwarped one with no motion to follow (multicm's focus 1.2 on a
+    window moving half a pixel, 19 on a sparse 1280x720 window whose warped image was
+    blurrier than the unwarped one); shuffled times keep that fit and lose the motion.
+    Nearest-pixel votes; NaN when undefined (no events, a constant image).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> t = np.sort(rng.integers(0, 50_000, 2000))
+    >>> ev = EventArray(x=np.round(rng.choice([10, 30], 2000) + 400 * t * 1e-6), y=
+    ...                 rng.integers(0, 40, 2000), t=t, p=np.ones(2000), sensor_size=(40, 60))
+    >>> flow = np.zeros((40, 60, 2), np.float32); flow[..., 0] = 400.0
+    >>> bool(flow_alignment_gain(ev, flow, 0) > 2)
+    True
+    """
+    if not len(events):
+        return float("nan")
+    h, w = events.sensor_size
+    x = np.clip(np.rint(events.x).astype(np.intp), 0, w - 1)
+    y = np.clip(np.rint(events.y).astype(np.intp), 0, h - 1)
+    return alignment_gain(x, y, events.t, flow[y, x], t_ref_us, (h, w))
+
+
+def alignment_gain(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
+                   t_ref_us: int, shape: tuple[int, int]) -> float:
+    """:func:`flow_alignment_gain` of events at integer pixels ``x, y``, times ``t`` (µs)
+    with flows ``f`` (N, 2) px/s, on a sensor of ``shape`` (H, W)."""
+    h, w = shape
+    dt = (t - np.int64(t_ref_us)).astype(np.float64) * 1e-6
+    f = np.asarray(f, np.float64)
+
+    def variance(times):
+        xw = np.rint(x - f[:, 0] * times).astype(np.intp)
+        yw = np.rint(y - f[:, 1] * times).astype(np.intp)
+        keep = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
+        # the image's variance from the counts of its occupied pixels (a window of a few
+        # thousand events on a megapixel sensor: no image of a million bins twice)
+        counts = np.unique(yw[keep] * w + xw[keep], return_counts=True)[1].astype(np.float64)
+        n_px = float(h * w)
+        return float(np.sum(counts**2) / n_px - (np.sum(counts) / n_px) ** 2)
+
+    null = variance(np.random.default_rng(0).permutation(dt))
+    return variance(dt) / null if null > 0 else float("nan")
+
+
+def warn_by_chance(gain: float, what: str, stacklevel: int = 3) -> str | None:
+    """Issue a :class:`~evmotion.errors.PoorFitWarning` when a dense flow aligns the
+    window's events less than :data:`MIN_CONTRAST_GAIN` better than chance
+    (:func:`flow_alignment_gain`); returns its message (else None)."""
+    if not gain < MIN_CONTRAST_GAIN:  # NaN: nothing to test
+        return None
+    msg = (f"no focus: the {what} aligns the events only {100 * (gain - 1):+.1f} % better "
+           f"than with their times shuffled (threshold {100 * (MIN_CONTRAST_GAIN - 1):.0f} "
+           "%) -- noise, no texture, a motion of a pixel or so, or one the window cannot "
+           "hold (too long, too fast, not constant); the estimate is not a measurement")
     warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
     return msg

@@ -71,7 +71,7 @@ from evmotion.events import (
 from evmotion.io.guard import MAX_SENSOR_SIDE
 from evmotion.methods import triplet_kernels as K
 from evmotion.methods.bursts import BURST_GAP_US, burst_means
-from evmotion.methods.measured import MIN_CONTRAST_GAIN
+from evmotion.methods.measured import MIN_CONTRAST_GAIN, alignment_gain
 from evmotion.utils import whole_number
 
 __all__ = [
@@ -628,7 +628,8 @@ class TripletBatchResult:
         ``dense="robust"``: the matcher's output on ``bursts``.
     gains : ndarray of float, shape (n_windows,)
         How much better each window's dense flow aligns its events than chance
-        (:func:`dense_gain`; of the burst means with ``dense="robust"``); where
+        (:func:`~evmotion.methods.measured.flow_alignment_gain`; of the burst means with
+        ``dense="robust"``); where
         :func:`focus_checked` finds it below
         :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` the window is no measurement,
         its mask all False (a :class:`~evmotion.errors.PoorFitWarning` counts them).
@@ -796,53 +797,6 @@ def _warn_no_focus(gains: np.ndarray, flagged: np.ndarray) -> None:
             "texture; their masks are all False", PoorFitWarning, stacklevel=3)
 
 
-def dense_gain(events: EventArray, flow: np.ndarray, t0_us: int) -> float:
-    """How much better a window's dense flow (px/s, (H, W, 2)) aligns its events than
-    chance: the variance of their image warped to ``t0_us`` over that of the same warp with
-    the events' times permuted (seeded). A flow's geometry alone (a converging field
-    crowds any events, noise too: its image sharpens by up to 1.4 against the unwarped
-    one) sharpens both alike; only a flow that follows the events' motion sharpens the
-    first more. Nearest-pixel votes; NaN when undefined (no events, a constant image).
-
-    Examples
-    --------
-    >>> rng = np.random.default_rng(0)
-    >>> t = np.sort(rng.integers(0, 50_000, 2000))
-    >>> ev = EventArray(x=np.round(rng.choice([10, 30], 2000) + 400 * t * 1e-6), y=
-    ...                 rng.integers(0, 40, 2000), t=t, p=np.ones(2000), sensor_size=(40, 60))
-    >>> flow = np.zeros((40, 60, 2), np.float32); flow[..., 0] = 400.0
-    >>> bool(dense_gain(ev, flow, 0) > 2)
-    True
-    """
-    if not len(events):
-        return float("nan")
-    h, w = events.sensor_size
-    x = np.clip(np.rint(events.x).astype(np.intp), 0, w - 1)
-    y = np.clip(np.rint(events.y).astype(np.intp), 0, h - 1)
-    return _alignment_gain(x, y, events.t, flow[y, x], t0_us, (h, w))
-
-
-def _alignment_gain(x, y, t, f, t0_us: int, shape) -> float:
-    """:func:`dense_gain` of events at pixels ``x, y``, times ``t`` (µs) with flows ``f``
-    (N, 2) px/s."""
-    h, w = shape
-    dt = (t - np.int64(t0_us)).astype(np.float64) * 1e-6
-    f = np.asarray(f, np.float64)
-
-    def variance(times):
-        xw = np.rint(x - f[:, 0] * times).astype(np.intp)
-        yw = np.rint(y - f[:, 1] * times).astype(np.intp)
-        keep = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-        # the image's variance from the counts of its occupied pixels (a window of a few
-        # thousand events on a megapixel sensor: no image of a million bins twice)
-        counts = np.unique(yw[keep] * w + xw[keep], return_counts=True)[1].astype(np.float64)
-        n_px = float(h * w)
-        return float(np.sum(counts**2) / n_px - (np.sum(counts) / n_px) ** 2)
-
-    null = variance(np.random.default_rng(0).permutation(dt))
-    return variance(dt) / null if null > 0 else float("nan")
-
-
 def supported(events: EventArray, mask: np.ndarray, dense: str) -> np.ndarray:
     """The valid mask of a ``dense`` window's flow: for ``lsq`` and ``robust``, ``mask``
     where ``events`` support a flow (:func:`~evmotion.methods.flowresult.event_support`,
@@ -859,7 +813,8 @@ def supported(events: EventArray, mask: np.ndarray, dense: str) -> np.ndarray:
 
 def focus_checked(events: EventArray, flow: np.ndarray, mask: np.ndarray,
                   t0_us: int) -> tuple[float, np.ndarray, bool]:
-    """``(gain, mask, no_focus)`` of a dense window: :func:`dense_gain` of the flow inside
+    """``(gain, mask, no_focus)`` of a dense window:
+    :func:`~evmotion.methods.measured.flow_alignment_gain` of the flow inside
     ``mask``, and ``mask`` all False (``no_focus`` True) when the flow moves the events by
     :data:`MIN_TESTED_SHIFT_PX` or more (median) and aligns them less than
     :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` times better than chance (noise
@@ -873,7 +828,7 @@ def focus_checked(events: EventArray, flow: np.ndarray, mask: np.ndarray,
     if not on.any():
         return float("nan"), mask, False
     at = np.where(on[:, None], flow[y, x], 0)  # the flow inside the mask, at the events
-    gain = _alignment_gain(x, y, events.t, at, t0_us, (h, w))
+    gain = alignment_gain(x, y, events.t, at, t0_us, (h, w))
     speed = float(np.median(np.hypot(*at[on].T)))
     shift = speed * (int(events.t[-1]) - t0_us) * 1e-6
     # a flow that moves the events by less than a few pixels over the window sharpens

@@ -54,7 +54,7 @@ class TripletWindow:
         ``t0`` (a picture of how well the per-event flow aligns the events).
     gain : float
         How much better the dense flow aligns the window's events than chance
-        (:func:`~evmotion.methods.triplet.dense_gain`); NaN where undefined.
+        (:func:`~evmotion.methods.measured.flow_alignment_gain`); NaN where undefined.
     no_focus : bool
         ``gain`` below :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` for a flow
         that moves the events by a few pixels

@@ -101,14 +101,23 @@ def recording_windows(paths: Sequence[str | Path], window_events: int = 40_000, 
             said = str(exc)  # a reader's error mostly names the file already
             raise ParameterError(f"{what} {said}" if said.startswith(str(path))
                                  else f"{what} {path}: {said}") from None
-        n = len(out)
+        n, instant = len(out), 0
         for w in ev.windows_by_count(window_events):
             if w.count >= max(window_events // 2, 1000) or (w.index == 0 and w.count >= 1000):
-                out.append(TrainWindow(ev.window(w), None, f"{path}#{w.index}"))
+                win = ev.window(w)
+                if win.t[-1] <= win.t[0]:
+                    instant += 1  # no time for motion: its loss is no flow's (116 vs ~4)
+                    continue
+                out.append(TrainWindow(win, None, f"{path}#{w.index}"))
+        zero = (f"{instant} window{'s' if instant > 1 else ''} with all events at one time "
+                "(0 us)" if instant else "")
         if len(out) == n:
             warnings.warn(EvmotionWarning(
                 f"{what} {path}: {len(ev)} events give no window (a window needs 1000, and "
-                f"half of --window-events {window_events}): not used"), stacklevel=2)
+                f"half of --window-events {window_events}, over a positive duration"
+                f"{': ' + zero if zero else ''}): not used"), stacklevel=2)
+        elif zero:
+            warnings.warn(EvmotionWarning(f"{what} {path}: {zero} left out"), stacklevel=2)
     return out
 
 

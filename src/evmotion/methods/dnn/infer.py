@@ -24,13 +24,14 @@ import numpy as np
 from evmotion.errors import EmptyWindowError, ParameterError, PoorFitWarning
 from evmotion.events import EventArray, pixel_indices
 from evmotion.filters import hot_pixel_mask
+from evmotion.jitcache import compile_seconds
 from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
     FlowResult,
     event_support,
 )
-from evmotion.methods.measured import warn_no_gain
+from evmotion.methods.measured import flow_alignment_gain, warn_by_chance, warn_no_gain
 
 __all__ = ["estimate_flow_dnn", "predict_displacement", "sharpness"]
 
@@ -347,6 +348,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         raise ParameterError("input_scales must be one or more of 1, 2, 4, 8, 16 (divisors "
                              f"of the network's 16-px padding), got {input_scales!r}")
     scales = sorted({int(k) for k in input_scales})
+    c_start = compile_seconds()
     t_start = time.perf_counter()
     xys = _pixels_and_times(events)
     best, disp, cands = _predict(events, scales, checkpoint, device, xys,
@@ -397,6 +399,12 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     # above the threshold while the flow blurs the window
     gains = [g for g in (fwl, focus if with_iwes else float("nan")) if np.isfinite(g)]
     no_focus = bool(gains) and warn_no_gain(min(gains), "network's flow") is not None
+    chance = float("nan")
+    if not no_focus:
+        # a flow that sharpens the window without following its motion (half a pixel of
+        # it; a sparse window it cannot hold) sharpens it as well with shuffled times
+        chance = flow_alignment_gain(checked, flow, (t0 + t1) // 2)
+        no_focus = warn_by_chance(chance, "network's flow") is not None
     if no_focus:
         valid = np.zeros_like(valid)
         beyond = False  # said already: not a measurement at all
@@ -406,11 +414,16 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                       "magnitudes are a lower bound; use shorter windows "
                       "(--window-events) or multicm", PoorFitWarning, stacklevel=2)
     total = time.perf_counter() - t_start
+    compiled = compile_seconds() - c_start
     return FlowResult(flow=flow, t0_us=t0, t1_us=t1, t_ref_us=(t0 + t1) // 2, params=(),
                       iwes=iwes, focus=float(focus), history=[],
-                      timings={"network_s": t_net, "total_s": total}, time_aware=None,
+                      # numba's first-use compilation (voxel grid, IWEs) apart, as multicm's
+                      timings={"network_s": t_net, "total_s": total, "compile_s": compiled,
+                               "estimate_s": total - compiled},
+                      time_aware=None,
                       n_bins=0, n_events=len(events), valid=valid,
                       meta={"method": "dnn", "checkpoint": str(checkpoint or "shipped"),
                             "input_scale": best, "time_reversal": bool(time_reversal),
                             "gain": gain, "no_focus": bool(no_focus), "fwl": float(fwl),
-                            "hot_pixels": int(hot.sum()), "beyond_range": beyond})
+                            "hot_pixels": int(hot.sum()), "beyond_range": beyond,
+                            "chance_gain": chance})

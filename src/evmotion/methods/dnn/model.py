@@ -11,8 +11,8 @@ from evmotion.errors import ParameterError
 from evmotion.methods.dnn.network import EVFlowNet, InferenceNet
 from evmotion.utils import atomic_path
 
-__all__ = ["DEFAULT_CHECKPOINT", "check_device", "load_inference_net", "load_model",
-           "save_model"]
+__all__ = ["DEFAULT_CHECKPOINT", "check_device", "damaged_archive", "load_inference_net",
+           "load_model", "save_model"]
 
 #: The shipped checkpoint (see MODEL_CARD.md beside this module).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "weights" / "evflownet_w0125.pt"
@@ -105,6 +105,10 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
     if not path.is_file():
         raise ParameterError(f"checkpoint {path}: " + ("not a regular file" if path.exists()
                                                        else "no such file"))
+    damaged = damaged_archive(path)
+    if damaged:
+        raise ParameterError(f"checkpoint {path}: damaged ({damaged}); copy it again or "
+                             "retrain")
     try:
         blob = torch.load(path, map_location=device, weights_only=True)
     except Exception as exc:  # torch.load raises many types for files it cannot read
@@ -124,7 +128,14 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
         net = EVFlowNet(n_bins=int(blob["n_bins"]), width=float(blob["width"]),
                         norm=str(blob.get("norm", "none")),
                         symmetric=bool(blob.get("symmetric", False)))
+        mismatch = _first_mismatch(net.state_dict(), blob["model"])
+        if mismatch:
+            raise ParameterError(f"checkpoint {path}: its weights do not make the network it "
+                                 f"names (width {float(blob['width']):g}, {int(blob['n_bins'])} "
+                                 f"time bins): {mismatch}")
         net.load_state_dict(blob["model"])
+    except ParameterError:
+        raise
     except Exception as exc:  # shapes, names or values that do not make the network
         raise ParameterError(f"checkpoint {path}: not an evmotion EV-FlowNet checkpoint "
                              f"({_reason(exc)})") from None
@@ -144,6 +155,37 @@ def load_inference_net(checkpoint: str | Path | None = None,
     if key not in _FAST:
         _FAST[key] = InferenceNet(load_model(checkpoint, device))
     return _FAST[key]
+
+
+def damaged_archive(path: Path) -> str | None:
+    """What is damaged in the zip archive ``torch.save`` wrote (a member whose CRC fails:
+    torch does not check them, and loaded a checkpoint with 400 flipped bytes as other
+    weights), or None (intact, or not a zip archive: torch.load says what it is)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            bad = zf.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError):
+        return None
+    except Exception as exc:  # a corrupt header (zlib, struct) raises where it is read
+        return _reason(exc)
+    return None if bad is None else f"member {bad} fails its CRC check"
+
+
+def _first_mismatch(expected: dict, stored) -> str | None:
+    """The first tensor of ``stored`` (a state dict) whose name or shape differs from the
+    network's, said with both shapes, or None."""
+    if not isinstance(stored, dict):
+        return f"'model' is a {type(stored).__name__}, not a state dict"
+    for name, tensor in expected.items():
+        if name not in stored:
+            return f"no tensor {name}"
+        got = tuple(getattr(stored[name], "shape", ()))
+        if got != tuple(tensor.shape):
+            return f"{name} is {list(got)} in the file, {list(tensor.shape)} in the network"
+    extra = sorted(set(stored) - set(expected))
+    return f"unexpected tensor {extra[0]}" if extra else None
 
 
 def _load_failure(path: Path, exc: BaseException) -> str:

@@ -40,7 +40,13 @@ from evmotion.methods.dnn.data import (
     transpose_window,
 )
 from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
-from evmotion.methods.dnn.model import check_device, load_model, save_atomically, save_model
+from evmotion.methods.dnn.model import (
+    check_device,
+    damaged_archive,
+    load_model,
+    save_atomically,
+    save_model,
+)
 from evmotion.methods.dnn.network import NORMS, EVFlowNet, upsample_flows
 from evmotion.methods.dnn.voxel import (
     N_BINS,
@@ -387,6 +393,10 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     if resume:
         if not last.is_file():
             raise ParameterError(f"--resume: no checkpoint {last}")
+        damaged = damaged_archive(last)
+        if damaged:
+            raise ParameterError(f"--resume: {last} is damaged ({damaged}); delete it to "
+                                 "train from the start, or choose another --out")
         try:
             blob = torch.load(last, map_location=device, weights_only=False)
             saved = dict(blob["config"])
