@@ -116,7 +116,8 @@ def test_cli_train_end_to_end(tmp_path, capsys):
     # the closing line counts the epochs and steps, and gives the loss and time
     assert main(argv[:-1] + ["--epochs", "2", "--resume"]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
-    assert line.startswith("2 epochs, 2 steps, last training loss ") and " s -> " in line
+    # (the second epoch's crops keep too few events: no step, said as such, not counted)
+    assert line.startswith("2 epochs, 1 step, last training loss ") and " s -> " in line
     assert main(argv[:-3] + ["--crop", "50x64", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "--crop" in err and "multiple of 16" in err and "'50x64'" in err
@@ -243,6 +244,13 @@ def test_an_epoch_without_windows_warns(tmp_path):
     with pytest.warns(EvmotionWarning, match="epoch 1: .* nothing was trained"):
         summary = train(cfg, tmp_path)
     assert np.isnan(summary["train_loss"])
+    # the steps taken are counted, and the crops left out (it said 2 steps for 1)
+    import csv
+
+    with open(tmp_path / "epochs.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["step"] for r in rows] == ["1", "1"] and rows[1]["dropped_crops"] == "2"
+    assert summary["step"] == 1
 
 
 def test_runs_that_cannot_train_say_so(tmp_path):
@@ -319,6 +327,10 @@ def test_resume_and_out_are_checked(tmp_path):
                                  sensor_size=(48, 64)))
     cfg = {**TINY, "sim_windows": 1, "recordings": [str(rec)]}
     run = tmp_path / "run"
+    first = train(TrainConfig(epochs=1, **{**cfg, "val_recordings": [str(rec)]}),
+                  tmp_path / "val")
+    # a --val recording's FWL on its own (it was only in the mean with the simulated ones)
+    assert np.isfinite(first["val_rec_FWL"]) and first["val_rec_FWL"] != first["val_FWL"]
     train(TrainConfig(epochs=1, **cfg), run)
     # the same file by another path: resumed
     train(TrainConfig(epochs=2, **{**cfg, "recordings": [str(tmp_path / "." / "rec.h5")]}), run,

@@ -106,7 +106,8 @@ def add_parser(sub) -> None:
     p.add_argument("--lambda", dest="lam", type=nonnegative_float(), default=0.0025,
                    help="Charbonnier smoothness weight (default 0.0025, multicm's)")
     p.add_argument("--val", action="append", default=[], metavar="REC", type=existing_input,
-                   help="validation recording (repeatable): FWL per epoch")
+                   help="validation recording (repeatable): its FWL per epoch (val_rec_FWL; "
+                        "val_FWL is over these and the simulated ones)")
     p.add_argument("--val-sim", type=int_range(0), default=4,
                    help="held-out simulated validation windows (AEE and FWL; default 4)")
     p.add_argument("--max-steps", type=positive_int(), default=None,
@@ -174,7 +175,8 @@ def run(args) -> int:
     else:
         done = int(summary.get("epoch", -1)) + 1
         loss = summary.get("train_loss", float("nan"))
-        print(f"{done} epoch{'' if done == 1 else 's'}, {int(summary.get('step', 0)):,} steps, "
+        steps = int(summary.get("step", 0))
+        print(f"{done} epoch{'' if done == 1 else 's'}, {steps:,} step{'' if steps == 1 else 's'}, "
               f"last training loss {loss:.4g}, {time.perf_counter() - t_start:.1f} s -> "
               f"{model} (evmotion flow --method dnn --checkpoint {model})")
     return 0

@@ -467,12 +467,14 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
         log(f"already trained {start} of {cfg.epochs} epochs: nothing to do (the last epoch "
             "below)")
         log(_epoch_line(summary))
+    # the steps taken: an epoch whose crops keep too few events takes fewer than planned
+    done = len(steps_log)
     for epoch in range(start, cfg.epochs):
         t_epoch = time.perf_counter()
         net.train()
         items = _epoch_items(cfg, epoch, rec)
         losses, t_loss = [], 0.0
-        k = 0
+        k = dropped = 0
         for step in range(per_epoch):
             batch = []
             while len(batch) < cfg.batch_size and k < len(items):
@@ -480,6 +482,8 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                 k += 1
                 if w is not None:
                     batch.append(w)
+                else:
+                    dropped += 1
             if not batch:
                 break
             probs = [WindowLoss(window_problem(w.events, objective=cfg.objective,
@@ -499,8 +503,9 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
             if not all(bool(torch.isfinite(p).all()) for p in net.parameters()):
                 _diverged("a weight is not finite after the step", epoch, step, opt)
             losses.append(float(loss.detach()))
-            steps_log.append({"epoch": epoch, "step": epoch * per_epoch + step,
-                              "loss": losses[-1], "lr": opt.param_groups[0]["lr"]})
+            steps_log.append({"epoch": epoch, "step": done, "loss": losses[-1],
+                              "lr": opt.param_groups[0]["lr"]})
+            done += 1
             if bar is not None:
                 bar.set_postfix(epoch=epoch, loss=f"{losses[-1]:.4f}")
                 bar.update(1)
@@ -522,7 +527,10 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                 f"epoch {epoch}: no training window kept enough events in its "
                 f"{shape[0]}x{shape[1]} crop; nothing was trained (a larger --crop or "
                 "--window-events)"), stacklevel=2)
-        row = {"epoch": epoch, "step": (epoch + 1) * per_epoch, "train_loss":
+        if bar is not None and len(losses) < per_epoch:
+            bar.total -= per_epoch - len(losses)  # the bar ends full, at the steps taken
+            bar.refresh()
+        row = {"epoch": epoch, "step": done, "dropped_crops": dropped, "train_loss":
                float(np.mean(losses)) if losses else float("nan"),
                "lr": lr, "seconds": time.perf_counter() - t_epoch,
                "loss_forward_seconds": t_loss}
@@ -530,6 +538,8 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
             scores = evaluate_windows(net, val, objective=cfg.objective, lam=cfg.lam)
             row["val_loss"] = float(np.mean([s["loss"] for s in scores]))
             row["val_FWL"] = float(np.mean([s["FWL"] for s in scores]))
+            if len(scores) > cfg.val_sim:  # the user's --val recordings, on their own
+                row["val_rec_FWL"] = float(np.mean([s["FWL"] for s in scores[cfg.val_sim:]]))
             aee = [s["AEE_px"] for s in scores if "AEE_px" in s]
             if aee:
                 row["val_AEE_px"] = float(np.mean(aee))
