@@ -1203,7 +1203,8 @@ def estimate_bos(
             f"interval [{int(t0_us)}, {int(t1_us)}) us: the flow explains the events' "
             f"increment at 1/{fit_gain:.2f} of its size where they fired (fit_gain > "
             f"{FIT_GAIN_WARN}): air structures finer than the finest patches "
-            f"({min(o.scales)} px)? Its magnitude is then too small"), stacklevel=2)
+            f"({min(o.scales)} px), or events that are noise, not schlieren? Its magnitude "
+            "is then too small, or no measurement"), stacklevel=2)
     share = valid.sum() / max(rw * rh, 1)
     if share < MIN_SUPPORTED_SHARE:
         warnings.warn(EvmotionWarning(
@@ -1420,8 +1421,9 @@ def warn_underfit(gains, displacements=()) -> None:
         warnings.warn(UnderfitWarning(
             f"the flow explains the events' increment at 1/{np.median(g):.2f} of its size "
             f"where they fired (median over {g.size} intervals): air structures finer than "
-            "the solver's finest patches (8 px)? Its magnitude is then too small (0.4-0.7x "
-            "on such scenes)"), stacklevel=2)
+            "the solver's finest patches (8 px), or events that are noise, not schlieren "
+            "(still air)? Its magnitude is then too small (0.4-0.7x on scenes of fine "
+            "structures), or no measurement"), stacklevel=2)
 
 
 def single_solve_displacements(results) -> list[float]:

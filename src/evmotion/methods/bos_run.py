@@ -64,6 +64,14 @@ class BosRun:
     c_samples: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
+#: Below this estimated contrast threshold (log intensity) a warning says it is lower than
+#: event cameras are usually set to (10-50 % of illumination, the survey of Gallego et al.
+#: 2020; a margin under 0.1 for the estimate's error): such an estimate comes from a weak
+#: background or noisy frames more often than from the sensor (probes: 0.04-0.07 for a
+#: true 0.15-0.2 on slow, weak or low-contrast scenes).
+LOWEST_USUAL_C = 0.08
+
+
 def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
                                 ) -> tuple[float | None, np.ndarray]:
     """Median of the per-interval contrast-threshold estimates over up to ``samples``
@@ -98,13 +106,21 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
             slopes.append(slope)
             corrs.append(corr)
     est = np.asarray(estimates, dtype=np.float64)
+    low = (f"; C = {np.median(est):.2g} is lower than event cameras are usually set to "
+           "(0.1-0.5)" if est.size and np.median(est) < LOWEST_USUAL_C else "")
     if corrs and np.median(corrs) < WEAK_CORRELATION:
         warnings.warn(EvmotionWarning(
             f"the events follow the frames' change weakly around them (correlation "
             f"{np.median(corrs):.2f} within {NEAR_EVENTS_PX:g} px of the events, median of "
-            f"{len(corrs)} intervals): few events, a low-contrast background or noise; the "
-            "flow's magnitude is uncertain (on such scenes it came out 0.2-1.2x the true "
-            "one)"), stacklevel=2)
+            f"{len(corrs)} intervals): few events, a low-contrast background, noise or still "
+            f"air{low}; the flow's magnitude is uncertain, most often too small (0.06-1.2x "
+            "the true one on such scenes); give --contrast-threshold if you know C"),
+            stacklevel=2)
+    elif low:
+        warnings.warn(EvmotionWarning(
+            f"the contrast threshold estimated from the frames{low}: a weak background or "
+            "noisy frames make it low, and the flow's magnitude then too small; give "
+            "--contrast-threshold if you know C"), stacklevel=2)
     if slopes.count("events") > len(slopes) / 2:
         warnings.warn(EvmotionWarning(
             f"the contrast threshold C = {np.median(est):.3g} comes from the events alone in "
