@@ -251,9 +251,13 @@ def test_multicm_does_not_extrapolate_into_empty_regions(shared_data):
     ev = read_events(path)
     wins = ev.windows_by_count(30_000)
     res = estimate_flow(ev.window(wins[len(wins) // 2]))
-    assert 0.01 < res.valid.mean() < 0.2
+    # near-static: its flow aligns the events no better than with shuffled times (0.95),
+    # so no pixel is a measurement
+    assert res.meta["no_focus"] and res.meta["chance_gain"] < 1.05 and not res.valid.any()
+    seen = res.iwes["identity"] > 0
+    assert 0.01 < seen.mean() < 0.2
     speed = np.linalg.norm(res.flow, axis=-1)
-    assert np.median(speed[~res.valid]) < 200.0
+    assert np.median(speed[~seen]) < 200.0
     assert speed.max() < max(ev.sensor_size) / res.duration_s  # the window's bound
 
 
