@@ -131,9 +131,10 @@ def warn_by_chance(gain: float, what: str, stacklevel: int = 3) -> str | None:
     (:func:`flow_alignment_gain`); returns its message (else None)."""
     if not gain < MIN_CONTRAST_GAIN:  # NaN: nothing to test
         return None
-    msg = (f"no focus: the {what} aligns the events only {100 * (gain - 1):+.1f} % better "
-           f"than with their times shuffled (threshold {100 * (MIN_CONTRAST_GAIN - 1):.0f} "
-           "%) -- noise, no texture, a motion of a pixel or so, or one the window cannot "
-           "hold (too long, too fast, not constant); the estimate is not a measurement")
-    warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
+    causes = ("noise, no texture, a motion of a pixel or so, or one the window cannot hold "
+              "(too long, too fast, not constant)")
+    warnings.warn(msg := f"no focus: the {what} aligns the events only {100 * (gain - 1):+.1f} "
+                  f"% better than with their times shuffled (threshold "
+                  f"{100 * (MIN_CONTRAST_GAIN - 1):.0f} %) -- {causes}; the estimate is not a "
+                  "measurement", PoorFitWarning, stacklevel=stacklevel)
     return msg
