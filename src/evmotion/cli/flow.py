@@ -84,7 +84,15 @@ EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5
 DV XML or JSON intrinsics)
 """
 
-OUTPUT_SUFFIXES = (".h5", ".hdf5", ".npy", ".flo", ".npz", ".png")
+OUTPUT_SUFFIXES = (".h5", ".hdf5", ".flo", ".npz", ".png")
+_CHECK_OUT = writable_output(OUTPUT_SUFFIXES, "a flow file (.h5, .npz: all windows; .flo, "
+                             ".png: per window)")
+
+
+def _flow_output(text: str) -> str:
+    """``--out``'s check; a bare ``.npy`` passes it to get its own advice (write .npz)
+    once the options are parsed, and is not listed as an output it can write."""
+    return text if text.lower().endswith(".npy") else _CHECK_OUT(text)
 
 
 def _method_modules():
@@ -104,9 +112,7 @@ def add_parser(sub) -> None:
     )
     p.add_argument("file", help="recording (any readable format)")
     p.add_argument("--method", default="multicm", choices=sorted(FLOW_METHODS))
-    p.add_argument("--out", required=True,
-                   type=writable_output(OUTPUT_SUFFIXES, "a flow file (.h5, .npz: all "
-                                        "windows; .flo, .png: per window)"),
+    p.add_argument("--out", required=True, type=_flow_output,
                    help="output: .h5 (all windows, px/s, t0/t1, valid; resumable; triplet: "
                         "per event unless --dense or a window option), .npz (the same "
                         "arrays; triplet: per event), .flo (Middlebury displacement in "
