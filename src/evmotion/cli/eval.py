@@ -405,7 +405,7 @@ def run(args) -> int:
         if Path(args.gt).resolve() == path.resolve():
             raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
         return _run_event_flow(args, path)
-    flow, t0s, t1s, file_out_px, q, _ = _load_flow(args, h5_format)
+    flow, t0s, t1s, file_out_px, q, attrs = _load_flow(args, h5_format)
     out_px = args.out_px if args.out_px is not None else file_out_px or 3.0
     gt = read_gt_flow(args.gt)
     if gt.flow.shape[1:3] != flow.shape[1:3]:
@@ -415,7 +415,8 @@ def run(args) -> int:
     if args.events:
         from evmotion.io import read_events
 
-        events = read_events(args.events, **({"format": args.format} if args.format else {}))
+        events = _on_grid_of(args.events, read_events(
+            args.events, **({"format": args.format} if args.format else {})), attrs)
     try:
         res = evaluate_windows(flow, t0s, t1s, gt, events=events, dt=args.dt, out_px=out_px,
                                along_streamlines=args.along_streamlines)
