@@ -76,6 +76,7 @@ def test_flow_h5_then_eval(recording, tmp_path, capsys):
     sharp = json.loads(text)
     assert sharp["kind"] == "sharpness" and sharp["windows_scored"] == 2
     assert sharp["mean"]["FWL"] == pytest.approx(res["mean"]["FWL"], rel=1e-9)
+    assert sharp["mean"]["FWL_gauss"] > 1.2
     assert main(["eval", str(out)]) == 2
     assert "give --gt GT" in capsys.readouterr().err
     rc, text = _run(["eval", str(out), "--gt", str(gt), "--along-streamlines", "--json"],
