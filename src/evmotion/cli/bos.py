@@ -155,6 +155,7 @@ def run(args) -> int:
         require_texture,
         sequence_threshold,
         solve_bos_into,
+        warn_startup,
     )
 
     out = Path(args.out)
@@ -183,6 +184,7 @@ def run(args) -> int:
         check_flow_out(out, len(data.intervals))
         options = BosOptions(**opts)
         require_texture(data, options)
+        warn_startup(data)
         c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
                  "seed": args.seed, "relinearize": args.relinearize,

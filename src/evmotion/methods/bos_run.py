@@ -35,7 +35,7 @@ from evmotion.io.flowfiles import FLOW_COMPRESSION
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "iter_bos_input",
            "open_bos_output", "require_texture", "sequence_contrast_threshold",
            "sequence_threshold", "solve_bos_input", "solve_bos_into", "stored_warm_start",
-           "write_bos_output"]
+           "warn_startup", "write_bos_output"]
 
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
@@ -129,6 +129,71 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
             "events' slope is low where the air changes the image by less than C, so the "
             "flow's magnitude may be too small; give --contrast-threshold"), stacklevel=2)
     return (float(np.median(est)) if est.size else None), est
+
+
+#: Below this share of the next intervals' event gain (:func:`warn_startup`) the interval
+#: where the events begin is said to be the sensor's start-up. The first interval scored
+#: 0.56-0.75 on the simulator's scenes (which start every pixel at its reference; their
+#: magnitude there 0.26-0.56x, the next intervals' 0.81-1.07x) and 0.57-0.82 on two other
+#: renderers' scenes, the next intervals 0.91-1.11 of each other.
+STARTUP_GAIN = 0.8
+
+
+def warn_startup(data: BosInput) -> float | None:
+    """Say when the events begin inside a selected frame interval and follow the frames'
+    change there at less than :data:`STARTUP_GAIN` of the rate of the next (up to four)
+    intervals: a sensor, or a simulator, that starts with the recording fires less until
+    its pixels' reference levels have spread over the threshold band, and the solver takes
+    the missing events for missing motion. The rate of an interval: its events' polarity
+    sums regressed on the frames' log difference, both Gaussian-smoothed (2 px), over the
+    ROI less an 8 px border. Returns that interval's share, or None (the events begin
+    before the selection, fewer than two intervals follow, or theirs disagree by more
+    than 1.5x: flicker).
+
+    Examples
+    --------
+    >>> warn_startup(load_bos_input("scene/"))  # doctest: +SKIP
+    0.56
+    """
+    first = int(data.events.t[0])
+    starts = [k for k, (_, t0, t1) in enumerate(data.intervals) if t0 <= first < t1]
+    if not starts or len(data.intervals) < starts[0] + 3:
+        return None
+    k0 = starts[0]
+    gains = [_event_gain(data, iv) for iv in data.intervals[k0:k0 + 5]]
+    later = np.asarray([g for g in gains[1:] if np.isfinite(g) and g > 0])
+    if len(later) < 2 or later.max() > 1.5 * later.min() or not np.isfinite(gains[0]):
+        return None
+    share = float(gains[0] / np.median(later))
+    if share < STARTUP_GAIN:
+        _, t0, t1 = (int(v) for v in data.intervals[k0])
+        warnings.warn(EvmotionWarning(
+            f"the events begin in the frame interval [{t0}, {t1}) us and follow the frames' "
+            f"change there at {share:.2f} of the next intervals' rate: a sensor (or a "
+            "simulator) that starts with the recording fires less until its pixels settle; "
+            "that interval's flow is too small (0.26-0.56x on the simulator's scenes): "
+            f"--t0 {t1 * 1e-6:.6g} leaves it out"), stacklevel=2)
+    return share
+
+
+def _event_gain(data: BosInput, interval) -> float:
+    """The events' polarity sums of ``interval`` regressed on the frames' log difference
+    (:func:`warn_startup`)."""
+    from scipy.ndimage import gaussian_filter
+
+    from evmotion.methods.bos import event_sums, log_frame
+
+    i, t0, t1 = (int(v) for v in interval)
+    s = gaussian_filter(event_sums(data.events, data.roi, t0_us=t0, t1_us=t1)[0], 2.0,
+                        mode="nearest")
+    d = log_frame(data.frames[i + 1]) - log_frame(data.frames[i])
+    if data.roi is not None:
+        x, y, w, h = data.roi
+        d = d[y:y + h, x:x + w]
+    d = gaussian_filter(d, 2.0, mode="nearest")[8:-8, 8:-8]
+    s = s[8:-8, 8:-8]
+    den = float(np.sum(d * d))
+    return float(np.sum(s * d)) / den if den > 0 else float("nan")
 
 
 def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, *,
@@ -254,6 +319,7 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
     require_texture(data)
+    warn_startup(data)
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
     results = list(iter_bos_input(data, c, workers=workers, progress=progress,
                                   scheduler=scheduler, **options))
