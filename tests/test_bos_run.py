@@ -193,9 +193,12 @@ def test_the_sensors_start_up_interval_is_said(tmp_path):
     write_schlieren(simulate_schlieren("ice", sensor_size=(120, 160), duration_s=6 / 120,
                                        seed=0), d)
     with pytest.warns(EvmotionWarning, match=r"begin in the frame interval \[0, 8333\) us .*"
-                                             r"--t0 0.008333"):
-        share = warn_startup(load_bos_input(d))
-    assert share < 0.8
+                                             r"no valid pixel; --t0 0.008333"):
+        assert warn_startup(load_bos_input(d)) == 0
+    # the sequence solve writes it with no valid pixel, the next intervals as they are
+    with pytest.warns(EvmotionWarning, match="begin in the frame interval"):
+        run = solve_bos_input(load_bos_input(d, max_intervals=3), iterations=20)
+    assert [bool(r.valid.any()) for r in run.results] == [False, True, True]
     later = load_bos_input(d, t0=8333)
     import warnings
 

@@ -184,7 +184,7 @@ def run(args) -> int:
         check_flow_out(out, len(data.intervals))
         options = BosOptions(**opts)
         require_texture(data, options)
-        warn_startup(data)
+        startup = warn_startup(data)
         c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
                  "seed": args.seed, "relinearize": args.relinearize,
@@ -203,7 +203,7 @@ def run(args) -> int:
             rows = solve_bos_into(open_bos_output(out, data, attrs, options,
                                                   resume=args.resume),
                                   data, c, workers=chunks, scheduler=client, progress=True,
-                                  **opts)
+                                  startup=startup, **opts)
     except ParameterError as exc:
         if args.roi is not None and str(exc).startswith("roi "):
             # the library names its argument; the user typed the option

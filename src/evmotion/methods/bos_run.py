@@ -35,7 +35,7 @@ from evmotion.io.flowfiles import FLOW_COMPRESSION
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "iter_bos_input",
            "open_bos_output", "require_texture", "sequence_contrast_threshold",
            "sequence_threshold", "solve_bos_input", "solve_bos_into", "stored_warm_start",
-           "warn_startup", "write_bos_output"]
+           "unmeasured", "warn_startup", "write_bos_output"]
 
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
@@ -139,21 +139,22 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
 STARTUP_GAIN = 0.8
 
 
-def warn_startup(data: BosInput) -> float | None:
+def warn_startup(data: BosInput) -> int | None:
     """Say when the events begin inside a selected frame interval and follow the frames'
     change there at less than :data:`STARTUP_GAIN` of the rate of the next (up to four)
     intervals: a sensor, or a simulator, that starts with the recording fires less until
     its pixels' reference levels have spread over the threshold band, and the solver takes
     the missing events for missing motion. The rate of an interval: its events' polarity
     sums regressed on the frames' log difference, both Gaussian-smoothed (2 px), over the
-    ROI less an 8 px border. Returns that interval's share, or None (the events begin
-    before the selection, fewer than two intervals follow, or theirs disagree by more
-    than 1.5x: flicker).
+    ROI less an 8 px border. Returns the index (in ``data.intervals``) of the interval it
+    names, whose flow is no measurement (the solvers write it with no valid pixel), or
+    None: nothing said (the events begin before the selection, fewer than two intervals
+    follow, theirs disagree by more than 1.5x as under flicker, or the share is higher).
 
     Examples
     --------
     >>> warn_startup(load_bos_input("scene/"))  # doctest: +SKIP
-    0.56
+    0
     """
     first = int(data.events.t[0])
     starts = [k for k, (_, t0, t1) in enumerate(data.intervals) if t0 <= first < t1]
@@ -165,15 +166,24 @@ def warn_startup(data: BosInput) -> float | None:
     if len(later) < 2 or later.max() > 1.5 * later.min() or not np.isfinite(gains[0]):
         return None
     share = float(gains[0] / np.median(later))
-    if share < STARTUP_GAIN:
-        _, t0, t1 = (int(v) for v in data.intervals[k0])
-        warnings.warn(EvmotionWarning(
-            f"the events begin in the frame interval [{t0}, {t1}) us and follow the frames' "
-            f"change there at {share:.2f} of the next intervals' rate: a sensor (or a "
-            "simulator) that starts with the recording fires less until its pixels settle; "
-            "that interval's flow is too small (0.26-0.56x on the simulator's scenes): "
-            f"--t0 {t1 * 1e-6:.6g} leaves it out"), stacklevel=2)
-    return share
+    if not share < STARTUP_GAIN:
+        return None
+    _, t0, t1 = (int(v) for v in data.intervals[k0])
+    warnings.warn(EvmotionWarning(
+        f"the events begin in the frame interval [{t0}, {t1}) us and follow the frames' "
+        f"change there at {share:.2f} of the next intervals' rate: a sensor (or a "
+        "simulator) that starts with the recording fires less until its pixels settle; "
+        "that interval's flow is too small (0.26-0.56x on the simulator's scenes) and is "
+        f"written with no valid pixel; --t0 {t1 * 1e-6:.6g} leaves it out"), stacklevel=2)
+    return k0
+
+
+def unmeasured(res):
+    """``res`` (a :class:`~evmotion.methods.bos.BosResult`) with no valid pixel: an
+    interval whose flow is no measurement (:func:`warn_startup`)."""
+    import dataclasses
+
+    return dataclasses.replace(res, valid=np.zeros_like(res.valid))
 
 
 def _event_gain(data: BosInput, interval) -> float:
@@ -319,10 +329,10 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
     require_texture(data)
-    warn_startup(data)
+    startup = warn_startup(data)
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
-    results = list(iter_bos_input(data, c, workers=workers, progress=progress,
-                                  scheduler=scheduler, **options))
+    results = [unmeasured(r) if k == startup else r for k, r in enumerate(iter_bos_input(
+        data, c, workers=workers, progress=progress, scheduler=scheduler, **options))]
     warn_underfit((r.fit_gain for r in results), single_solve_displacements(results))
     return BosRun(results, c, source, samples)
 
@@ -438,14 +448,15 @@ def _events_in(data: BosInput, t0: int, t1: int) -> int:
 
 def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
                    workers: int = 1, progress: bool = False, scheduler=None,
-                   **options) -> list[dict]:
+                   startup: int | None = None, **options) -> list[dict]:
     """Solve every selected interval of ``data`` into ``out`` (:func:`open_bos_output`),
     in order, each written as soon as it is solved, and close it; on any error or
     interrupt ``out`` is aborted (an ``.h5`` keeps its ``.part`` for ``resume``). The
     intervals a resumed output already holds are checked against ``data``'s and kept, and
     the last one's stored solver state warm-starts the next, so the result is the file an
     uninterrupted run writes. Returns one summary row per interval (``{"t0_us", "t1_us",
-    "resumed": True}`` for the kept ones).
+    "resumed": True}`` for the kept ones). Interval ``startup`` (an index of
+    ``data.intervals``, :func:`warn_startup`) is written with no valid pixel.
 
     Examples
     --------
@@ -470,8 +481,10 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
         results = iter_bos_input(data, contrast_threshold, start=start, init=init,
                                  workers=workers, progress=progress, scheduler=scheduler,
                                  **options)
-        for interval, res in zip(data.intervals[start:], results, strict=True):
-            rows.append(append_bos_result(out, data, interval, res))
+        for k, (interval, res) in enumerate(zip(data.intervals[start:], results, strict=True),
+                                            start):
+            rows.append(append_bos_result(out, data, interval,
+                                          unmeasured(res) if k == startup else res))
             # (the run's one underfit warning, by the medians over the intervals solved)
             gains.append(res.fit_gain)
             moved += single_solve_displacements([res])
