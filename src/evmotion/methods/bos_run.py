@@ -133,7 +133,7 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
 
 #: Below this share of the next intervals' event gain (:func:`warn_startup`) the interval
 #: where the events begin is said to be the sensor's start-up. The first interval scored
-#: 0.56-0.75 on the simulator's scenes (which start every pixel at its reference; their
+#: 0.55-0.74 on the simulator's scenes (which start every pixel at its reference; their
 #: magnitude there 0.26-0.56x, the next two intervals' 0.68-1.07x) and 0.57-0.82 on two other
 #: renderers' scenes, the next intervals 0.91-1.11 of each other.
 STARTUP_GAIN = 0.8
