@@ -48,9 +48,10 @@ def rec(tmp_path_factory):
 
 
 def _json(argv, capsys) -> dict:
-    """The run's JSON summary without its "warnings": a library warning raised in a
-    remote worker is not relayed to the client's stderr, which that list repeats, so the
-    lists of a local and a cluster run differ where the estimates do not."""
+    """The run's JSON summary without its "warnings": the tests run the local and the
+    cluster command in one process, where Python shows a warning of one text and place
+    once (a command has a process of its own), so the second run's list can lack what the
+    first one's holds where the estimates agree."""
     assert main([str(a) for a in argv]) == 0
     doc = json.loads(capsys.readouterr().out)
     doc.pop("warnings", None)

@@ -331,7 +331,6 @@ def _run_sharpness(args, path: Path, h5_format) -> int:
     """No ground truth: the FWL of each window on the recording's events."""
     from evmotion.cli import print_json
     from evmotion.eval.windows import sharpness_windows
-    from evmotion.io import read_events
 
     if args.events is None:
         raise ParameterError("give --gt GT (accuracy against ground truth), or --events REC "
@@ -343,8 +342,7 @@ def _run_sharpness(args, path: Path, h5_format) -> int:
     reject_unused(args, {"--out-px": "out_px", "--along-streamlines": "along_streamlines"},
                   "without --gt (no accuracy is computed)")
     flow, t0s, t1s, _, _, attrs = _load_flow(args, h5_format)
-    events = _on_grid_of(args.events, read_events(
-        args.events, **({"format": args.format} if args.format else {})), attrs)
+    events = _events_on_grid(args, attrs)
     try:
         rows = sharpness_windows(flow, t0s, t1s, events)
     except EventDataError as exc:
@@ -370,14 +368,18 @@ def _run_sharpness(args, path: Path, h5_format) -> int:
     return 0
 
 
-def _on_grid_of(path, events, attrs: dict):
-    """``events`` on the pixel grid the flow was estimated on (its ``grid`` attribute):
-    undistorted as the flow command undistorted them, by the recording's own calibration;
-    refused when that does not give the flow's grid (another --calib or --K was used)."""
+def _events_on_grid(args, attrs: dict):
+    """The events of ``--events`` on the pixel grid the flow was estimated on (its
+    ``grid`` attribute): undistorted as the flow command undistorted them, by the
+    recording's own calibration; refused when that does not give the flow's grid (another
+    --calib or --K was used)."""
     import argparse
 
     from evmotion.cli.calib import undistort_for
+    from evmotion.io import read_events
 
+    path = args.events
+    events = read_events(path, **({"format": args.format} if args.format else {}))
     grid = str(attrs.get("grid", ""))
     if not grid.startswith("undistorted (K=") or events.x.dtype.kind == "f":
         return events
@@ -413,12 +415,7 @@ def run(args) -> int:
     if gt.flow.shape[1:3] != flow.shape[1:3]:
         raise ParameterError(f"flow is {flow.shape[1:3]} px but ground truth {args.gt} is "
                              f"{gt.flow.shape[1:3]} px (height, width)")
-    events = None
-    if args.events:
-        from evmotion.io import read_events
-
-        events = _on_grid_of(args.events, read_events(
-            args.events, **({"format": args.format} if args.format else {})), attrs)
+    events = _events_on_grid(args, attrs) if args.events else None
     try:
         res = evaluate_windows(flow, t0s, t1s, gt, events=events, dt=args.dt, out_px=out_px,
                                along_streamlines=args.along_streamlines)

@@ -35,7 +35,7 @@ from evmotion.io.flowfiles import FLOW_COMPRESSION
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "iter_bos_input",
            "open_bos_output", "require_texture", "sequence_contrast_threshold",
            "sequence_threshold", "solve_bos_input", "solve_bos_into", "stored_warm_start",
-           "unmeasured", "warn_startup", "write_bos_output"]
+           "warn_startup", "write_bos_output"]
 
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
@@ -178,14 +178,6 @@ def warn_startup(data: BosInput) -> int | None:
     return k0
 
 
-def unmeasured(res):
-    """``res`` (a :class:`~evmotion.methods.bos.BosResult`) with no valid pixel: an
-    interval whose flow is no measurement (:func:`warn_startup`)."""
-    import dataclasses
-
-    return dataclasses.replace(res, valid=np.zeros_like(res.valid))
-
-
 def _event_gain(data: BosInput, interval) -> float:
     """The events' polarity sums of ``interval`` regressed on the frames' log difference
     (:func:`warn_startup`)."""
@@ -225,7 +217,7 @@ def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, 
 
 def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: int = 0,
                    init=None, workers: int = 1, progress: bool = False, scheduler=None,
-                   **options) -> Iterator:
+                   startup: int | None = None, **options) -> Iterator:
     """The results of the selected frame intervals ``data.intervals[start:]``, in time
     order, each as soon as it is done (a chunk at a time with several workers).
 
@@ -239,6 +231,9 @@ def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: i
     init : BosResult or list of ndarray, optional
         Warm start of interval ``start`` (the previous interval's result or its
         :attr:`~evmotion.methods.bos.BosResult.params`).
+    startup : int, optional
+        The interval (an index of ``data.intervals``) :func:`warn_startup` named: its
+        result comes with no valid pixel.
     workers, progress, scheduler, **options
         As :func:`solve_bos_input`.
 
@@ -260,10 +255,28 @@ def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: i
     times = data.frame_times[first:last + 1]
     if workers != 1 or scheduler is not None:
         # (iter_bos_sequence checks workers: 0, 1.5 or NaN are refused there)
-        return iter_bos_sequence(data.events, frames, times, roi=data.roi, workers=workers,
-                                 scheduler=scheduler, progress=progress, init=init,
-                                 contrast_threshold=contrast_threshold, **options)
-    return _in_order(data, frames, times, contrast_threshold, init, progress, options)
+        results = iter_bos_sequence(data.events, frames, times, roi=data.roi,
+                                    workers=workers, scheduler=scheduler, progress=progress,
+                                    init=init, contrast_threshold=contrast_threshold,
+                                    **options)
+    else:
+        results = _in_order(data, frames, times, contrast_threshold, init, progress, options)
+    if startup is None or startup < start:
+        return results
+    return _unmeasured_at(results, startup - start)
+
+
+def _unmeasured_at(results: Iterator, k: int) -> Iterator:
+    """``results`` with the ``k``-th one's ``valid`` all False (a flow that is no
+    measurement: :func:`warn_startup`); closing it closes ``results`` (a worker pool)."""
+    import dataclasses
+
+    try:
+        for i, res in enumerate(results):
+            yield dataclasses.replace(res, valid=np.zeros_like(res.valid)) if i == k else res
+    finally:
+        if hasattr(results, "close"):
+            results.close()
 
 
 def _in_order(data, frames, times, c, prev, progress, options):
@@ -331,8 +344,8 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     require_texture(data)
     startup = warn_startup(data)
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
-    results = [unmeasured(r) if k == startup else r for k, r in enumerate(iter_bos_input(
-        data, c, workers=workers, progress=progress, scheduler=scheduler, **options))]
+    results = list(iter_bos_input(data, c, workers=workers, progress=progress,
+                                  scheduler=scheduler, startup=startup, **options))
     warn_underfit((r.fit_gain for r in results), single_solve_displacements(results))
     return BosRun(results, c, source, samples)
 
@@ -480,11 +493,9 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
         init = stored_warm_start(out, start - 1) if start else None
         results = iter_bos_input(data, contrast_threshold, start=start, init=init,
                                  workers=workers, progress=progress, scheduler=scheduler,
-                                 **options)
-        for k, (interval, res) in enumerate(zip(data.intervals[start:], results, strict=True),
-                                            start):
-            rows.append(append_bos_result(out, data, interval,
-                                          unmeasured(res) if k == startup else res))
+                                 startup=startup, **options)
+        for interval, res in zip(data.intervals[start:], results, strict=True):
+            rows.append(append_bos_result(out, data, interval, res))
             # (the run's one underfit warning, by the medians over the intervals solved)
             gains.append(res.fit_gain)
             moved += single_solve_displacements([res])
