@@ -237,8 +237,10 @@ def test_whole_number_times_are_microseconds_or_as_given(tmp_path):
         1_700_000_000_000 + 0  # 490 ns round to 0 us
     (tmp_path / "s.txt").write_text("0 1 2 1\n0.5 1 2 0\n")
     assert ecd.read(tmp_path / "s.txt", sensor_size=(5, 7)).t.tolist() == [0, 500_000]
-    with pytest.raises(FormatError, match="decimal numbers, not whole us"):
-        ecd.read(tmp_path / "s.txt", sensor_size=(5, 7), time_unit="us")
+    # decimals in a unit given are that unit (they were refused, with advice to read them
+    # as seconds, 1e6 off for these)
+    assert ecd.read(tmp_path / "s.txt", sensor_size=(5, 7), time_unit="ms").t.tolist() == \
+        [0, 500]
     with pytest.raises(Exception, match="time_unit must be one of"):
         ecd.read(tmp_path / "s.txt", time_unit="min")
 
@@ -373,6 +375,33 @@ def test_whole_number_times_on_millisecond_steps_are_questioned(tmp_path):
         with pytest.warns(EvmotionWarning, match="whole number") as rec:
             ecd.read(tmp_path / "e.txt", sensor_size=(5, 7))
         assert any("multiples of 1000" in str(w.message) for w in rec) == said
+
+
+def test_ns_of_a_short_recording_and_whole_milliseconds_are_questioned(tmp_path):
+    # 0.47 ms of relative ns (all multiples of 1000) passed unsaid; whole milliseconds
+    # (thousands of events a step) read as µs are a readout no sensor makes
+    from evmotion.errors import EvmotionWarning
+
+    for step, per_t, said in ((1000, 1, "nanoseconds?"), (1, 2000, "milliseconds?"),
+                              (1, 2, None)):
+        n = 3000
+        (tmp_path / "e.txt").write_text("".join(f"{step * (i // per_t)} {i % 7} {i % 5} "
+                                                f"{i % 2}\n" for i in range(n)))
+        with pytest.warns(EvmotionWarning, match="whole number") as rec:
+            ecd.read(tmp_path / "e.txt", sensor_size=(5, 7))
+        text = " ".join(str(w.message) for w in rec)
+        for hint in ("nanoseconds?", "milliseconds?"):
+            assert (hint in text) == (hint == said), text
+
+
+def test_decimal_milliseconds_named_in_the_header(tmp_path):
+    # 't_ms' with decimals was refused, its advice ("give time_unit 's'") 1000x wrong
+    f = tmp_path / "lab.tsv"
+    f.write_text("t_ms\tx\ty\tp\n49006.624\t1\t2\t0\n49006.6245\t3\t4\t1\n"
+                 "49012.158\t5\t2\t1\n")
+    ev = ecd.read(f, sensor_size=(5, 7))
+    assert ev.t.tolist() == [49_006_624, 49_006_624, 49_012_158]
+    assert ev.x.tolist() == [1, 3, 5]
 
 
 def test_whole_pixels_written_as_decimals_are_read(tmp_path):

@@ -134,3 +134,24 @@ def test_metavision_hdf5_with_the_ecf_codec_names_the_plugin(tmp_path):
     with pytest.raises(FormatError, match=r"filter 'ecf' \(id 36559\) is not available.*"
                                           r"Metavision"):
         read_events(path)
+
+
+def test_blosc_compressed_layout_reads_in_a_fresh_process(tmp_path):
+    # event_utils files compressed with Blosc read under `info` but not `convert`/`flow`:
+    # only some paths had registered hdf5plugin's filters before h5generic opened the file
+    import subprocess
+    import sys
+
+    import hdf5plugin
+
+    path = tmp_path / "blosc.h5"
+    with h5py.File(path, "w") as f:
+        for key, name in {"t": "ts", "x": "xs", "y": "ys", "p": "ps"}.items():
+            f.create_dataset(f"events/{name}", data={"t": T, "x": X, "y": Y, "p": P}[key],
+                             **hdf5plugin.Blosc(cname="lz4"))
+    code = ("import sys; from evmotion.io.h5generic import read; "
+            "ev = read(sys.argv[1]); print(len(ev), int(ev.t[-1]), int(ev.x.sum()))")
+    out = subprocess.run([sys.executable, "-W", "ignore", "-c", code, str(path)],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == [str(N), str(T[-1]), str(int(X.sum()))]

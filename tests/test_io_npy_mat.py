@@ -66,6 +66,32 @@ def test_npz_keeps_sensor_size(tmp_path):
     assert npy.read(tmp_path / "a.npz").sensor_size == (180, 240)
 
 
+def test_npz_sensor_size_of_other_tools(tmp_path):
+    # tonic's sensor_size is (width, height, polarities): it was refused as "not two whole
+    # numbers"; a two-value size that reads as a portrait sensor may be (width, height):
+    # it is read as evmotion writes it, (height, width), and the other reading is said
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
+    ev = _events()
+    cols = {"x": ev.x, "y": ev.y, "t": ev.t, "p": ev.p}
+    np.savez(tmp_path / "tonic.npz", **cols, sensor_size=np.array([240, 180, 2]))
+    assert npy.read(tmp_path / "tonic.npz").sensor_size == (180, 240)
+    fits = ev[ev.x < 180]
+    np.savez(tmp_path / "wh.npz", x=fits.x, y=fits.y, t=fits.t, p=fits.p,
+             sensor_size=np.array([240, 180]))
+    with pytest.warns(EvmotionWarning, match=r"\[240, 180\] read as \(height, width\).*"
+                                             r"--sensor-size 180 240"):
+        assert npy.read(tmp_path / "wh.npz").sensor_size == (240, 180)
+    assert npy.read(tmp_path / "wh.npz", sensor_size=(180, 240)).sensor_size == (180, 240)
+    np.savez(tmp_path / "hw.npz", **cols, sensor_size=np.array([180, 240]))
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        assert npy.read(tmp_path / "hw.npz").sensor_size == (180, 240)
+    assert not any("(height, width)" in str(w.message) for w in rec)  # landscape: unsaid
+
+
 def test_tonic_structured_and_size_inference(tmp_path):
     from evmotion.events import TONIC_DTYPE
 

@@ -321,6 +321,23 @@ def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s"
 TEXT_TIME_UNITS = {"s": 1_000_000, "ms": 1_000, "us": 1, "ns": None}
 
 
+def _times_us(tcol: np.ndarray, unit: str) -> np.ndarray:
+    """The time column's text in ``unit`` as whole µs: whole numbers exactly, decimals
+    (seconds, or another tool's decimal milliseconds) rounded to the µs."""
+    if unit != "s":
+        try:
+            t = tcol.astype(np.int64)
+        except ValueError:
+            pass
+        else:
+            return (t + 500) // 1000 if unit == "ns" else t * TEXT_TIME_UNITS[unit]
+    with np.errstate(all="ignore"):
+        t = np.rint(tcol.astype(np.float64) * (TEXT_TIME_UNITS[unit] or 1e-3))
+    if t.size and not np.all(np.abs(t) < 2.0**62):
+        raise ValueError("a time beyond +-2^62 us")
+    return t.astype(np.int64)
+
+
 def _parse_block(data: bytes, path: Path, offset: int, unit: str, order: str = "txyp"):
     if unit == "s" and order == "txyp":
         return parse_text(data, path, offset)
@@ -332,27 +349,13 @@ def _parse_block(data: bytes, path: Path, offset: int, unit: str, order: str = "
             raise ValueError("not four numbers a line")
         table = np.array(rows, dtype="S32").reshape(-1, 4)
         xyp = table[:, [cols["x"], cols["y"], cols["p"]]].astype(np.int64)
-        tcol = table[:, cols["t"]]
-        if unit == "s":
-            with np.errstate(all="ignore"):
-                t = np.rint(tcol.astype(np.float64) * 1e6)
-            if t.size and not np.all(np.abs(t) < 2.0**62):
-                raise ValueError("a time beyond +-2^62 us")
-            t = t.astype(np.int64)
-        else:
-            t = tcol.astype(np.int64)
+        t = _times_us(table[:, cols["t"]], unit)
     except ValueError as exc:
         if order == "txyp":
             parse_text(data, path, offset)  # names the bad line, if not numbers at all
-            raise FormatError(path, f"the first column holds decimal numbers, not whole "
-                              f"{unit}: give time_unit 's'") from None
         raise FormatError(path, f"cannot read '{order[0]} {order[1]} {order[2]} "
-                          f"{order[3]}' numbers (the header's column order) near byte "
+                          f"{order[3]}' numbers ({unit} in the time column) near byte "
                           f"{offset}: {exc}") from None
-    if unit == "ns":
-        t = (t + 500) // 1000
-    elif unit != "s" and TEXT_TIME_UNITS[unit] != 1:
-        t = t * TEXT_TIME_UNITS[unit]
     return (np.ascontiguousarray(xyp[:, 0]), np.ascontiguousarray(xyp[:, 1]),
             np.ascontiguousarray(t), np.ascontiguousarray(xyp[:, 2]))
 
@@ -389,14 +392,25 @@ def sniff_time_unit(path: str | Path) -> str:
             "--time-unit)"), stacklevel=3)
         return "ns"
     ts = [int(f) for f in firsts if f.lstrip(b"-").isdigit()]
-    ns_like = len(ts) >= 100 and ts[-1] - ts[0] > 1_000_000 and not any(v % 1000 for v in ts)
+    span = ts[-1] - ts[0] if ts else 0
+    ns_like = len(ts) >= 100 and span >= 100_000 and not any(v % 1000 for v in ts)
+    # over MAX_EVENTS_PER_US (a readout of 1 G events/s) no sensor reads out
+    ms_like = len(ts) >= 1000 and len(ts) > MAX_EVENTS_PER_US * (span + 1)
+    hint = ""
+    if ns_like:
+        hint = ("; they are all multiples of 1000 (as µs, millisecond steps, which event "
+                "cameras do not make): nanoseconds? every speed is 1000x too small otherwise")
+    elif ms_like:
+        hint = (f"; as µs the first {len(ts)} events span {span + 1} µs, faster than any "
+                "sensor reads out: milliseconds? every speed is 1000x too large otherwise")
     warnings.warn(EvmotionWarning(
         f"{path}: every time is a whole number: read as microseconds (ECD text holds "
-        "decimal seconds; other units: --time-unit, or time_unit= in Python)"
-        + ("; they are all multiples of 1000 (as µs, millisecond steps, which event "
-           "cameras do not make): nanoseconds? every speed is 1000x too small otherwise"
-           if ns_like else "")), stacklevel=3)
+        "decimal seconds; other units: --time-unit, or time_unit= in Python)" + hint),
+        stacklevel=3)
     return "us"
+
+
+MAX_EVENTS_PER_US = 1000
 
 
 SNIFF_BYTES = 65_536  # the lines sniff_time_unit looks at

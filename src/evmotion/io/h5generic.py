@@ -29,7 +29,12 @@ import numpy as np
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields
-from evmotion.io.guard import LARGEST_COORDINATE, check_sensor_size, warn_inferred_size
+from evmotion.io.guard import (
+    LARGEST_COORDINATE,
+    check_sensor_size,
+    open_h5,
+    warn_inferred_size,
+)
 from evmotion.io.h5attrs import read_attrs_many
 from evmotion.io.h5filters import HDF5_MAGIC, filter_error
 from evmotion.io.npy import chunks_of_read, events_from_columns, split_columns
@@ -107,14 +112,8 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     --------
     >>> ev = read("v2e_events.h5")  # doctest: +SKIP
     """
-    import h5py
-
     path = Path(path)
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
-    with f:
+    with open_h5(path) as f:  # registers the Blosc filters other tools compress with
         lay = find_layout(f)
         if lay is None:
             raise FormatError(path, "no events found: no x, y, t, p datasets (at the root or "

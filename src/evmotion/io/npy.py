@@ -309,10 +309,22 @@ def _names_read() -> str:
 
 
 def _stated_size(path, obj, files) -> tuple[int, int] | None:
-    """The sensor size an .npz states: ``sensor_size`` (height, width), ``height`` and
-    ``width``, or ``resolution`` (width, height, as tonic and Metavision write it)."""
+    """The sensor size an .npz states: ``sensor_size`` (height, width; tonic's three
+    values are width, height, polarities), ``height`` and ``width``, or ``resolution``
+    (width, height, as tonic and Metavision write it)."""
     if "sensor_size" in files:
-        return check_sensor_size(path, obj["sensor_size"].ravel(), "array 'sensor_size'")
+        size = np.ravel(obj["sensor_size"])
+        if size.size == 3 and size[2] in (1, 2):
+            return check_sensor_size(path, (size[1], size[0]),
+                                     "array 'sensor_size' (tonic's width, height, polarities)")
+        h, w = check_sensor_size(path, size, "array 'sensor_size'")
+        if h > w:
+            warnings.warn(EvmotionWarning(
+                f"{path}: array 'sensor_size' [{h}, {w}] read as (height, width), as "
+                f"evmotion writes it: a sensor {w} px wide and {h} px tall. Tools that write "
+                f"(width, height) mean {h} px wide and {w} tall: if so, give --sensor-size "
+                f"{w} {h} (sensor_size=({w}, {h}) in Python)"), stacklevel=4)
+        return h, w
     if "height" in files and "width" in files:
         return check_sensor_size(path, (np.ravel(obj["height"])[0], np.ravel(obj["width"])[0]),
                                  "arrays 'height', 'width'")
