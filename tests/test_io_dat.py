@@ -53,6 +53,20 @@ def test_round_trip_with_u32_wrap(tmp_path):
     assert_same_events(dat.read(tmp_path / "w.dat", block_bytes=16), ev)
 
 
+def test_epoch_times_round_trip_through_the_header_offset(tmp_path):
+    # a DAVIS recording's epoch µs was refused ("outside DAT's u32 range (subtract a time
+    # offset first)"), which convert cannot do; the header keeps the offset, as EVT3's does
+    t0 = 1_589_163_147_368_868
+    t = t0 + np.array([0, 10, 1 << 30, 3 << 30, (1 << 32) + 7], np.int64)
+    ev = EventArray(x=[0, 1, 2, 3, 4], y=[0, 1, 2, 3, 4], t=t, p=[0, 1, 1, 0, 1],
+                    sensor_size=(260, 346))
+    dat.write(tmp_path / "e.dat", ev)
+    assert b"% evmotion_time_offset_us 1589159374356480\n" in (tmp_path / "e.dat").read_bytes()
+    assert_same_events(dat.read(tmp_path / "e.dat", block_bytes=16), ev)
+    chunks = list(dat.iter_chunks(tmp_path / "e.dat", 2))
+    np.testing.assert_array_equal(np.concatenate([c.t for c in chunks]), t)
+
+
 def test_round_trip_shared(gen4, tmp_path):
     ev = dat.read(gen4, t1=1_000_000)
     dat.write(tmp_path / "c.dat", ev)

@@ -420,3 +420,13 @@ def test_a_fractional_pixel_is_named(tmp_path):
                                           r"number.*\.npy / \.h5 with float x, y") as exc:
         read_events(f, sensor_size=(200, 200))
     assert "\n" not in str(exc.value)
+
+
+def test_a_negative_time_is_named_as_such(tmp_path):
+    # it was "line 1 is not 't[s] x y p' numbers", which the line plainly is
+    from evmotion.errors import FormatError
+
+    f = tmp_path / "neg.txt"
+    f.write_text("0.5 1 2 1\n-10.993376 1 2 0\n")
+    with pytest.raises(FormatError, match=r"line 2: t = -10.993376 is negative.*offset"):
+        ecd.read(f, sensor_size=(5, 7))

@@ -300,14 +300,15 @@ def check_writable(events: EventArray, fmt: str, height: int, width: int,
                           f"range ({height} rows, {width} columns)", hint)
 
 
-def check_u32_times(events: EventArray, fmt: str) -> None:
-    """FormatError unless ``events``' times survive a format that stores them modulo 2^32 µs
-    and is unwrapped on reading wherever the stored time drops by more than 2^31 µs: the
-    first time within ``[0, 2^32)`` µs and no gap the reader cannot tell from a wrap (one
-    of 2^31 µs, 35.8 min, or more may be) (``fmt`` names the format in the message)."""
+def check_u32_times(events: EventArray, fmt: str, t_base: int = 0) -> None:
+    """FormatError unless ``events``' times, less ``t_base`` µs, survive a format that
+    stores them modulo 2^32 µs and is unwrapped on reading wherever the stored time drops
+    by more than 2^31 µs: the first time within ``[0, 2^32)`` µs and no gap the reader
+    cannot tell from a wrap (one of 2^31 µs, 35.8 min, or more may be) (``fmt`` names the
+    format in the message)."""
     if not len(events):
         return
-    t = np.asarray(events.t, np.int64)
+    t = np.asarray(events.t, np.int64) - t_base
     if t[0] < 0 or t[0] >= 1 << 32:
         raise FormatError(None, f"first timestamp {int(t[0])} us is outside {fmt}'s u32 range",
                           "subtract a time offset first")

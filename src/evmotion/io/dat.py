@@ -74,8 +74,10 @@ def _parse_header(path: Path, sensor_size):
     return lines, offset + 2, size
 
 
-def _blocks(path: Path, offset: int, block_bytes: int) -> Iterator[binary.Block]:
+def _blocks(path: Path, offset: int, block_bytes: int, t_offset: int = 0
+            ) -> Iterator[binary.Block]:
     state = np.zeros(2, np.int64)
+    state[1] = t_offset  # the unwrapping offset starts at the header's time offset
     for _, buf in binary.iter_blocks(path, offset, block_bytes, RECORD):
         rec = np.frombuffer(buf, "<u4").reshape(-1, 2)
         n = rec.shape[0]
@@ -90,8 +92,9 @@ def _blocks(path: Path, offset: int, block_bytes: int) -> Iterator[binary.Block]
 
 def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
           ) -> tuple[int, tuple[int, int], Iterator[binary.Block]]:
-    _, offset, size = _parse_header(path, sensor_size)
-    return offset, size, _blocks(path, offset, block_bytes)
+    lines, offset, size = _parse_header(path, sensor_size)
+    return offset, size, _blocks(path, offset, block_bytes,
+                                 prophesee.header_time_offset(path, lines))
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
@@ -133,8 +136,10 @@ def write(path: str | Path, events: EventArray) -> None:
     """Write ``events`` as a DAT file (atomically).
 
     Times are stored modulo 2^32 µs, as cameras do; :func:`read` restores them exactly
-    when consecutive events are less than 2^31 µs (35.8 min) apart and the first time is
-    below 2^32 µs; other times, and coordinates past DAT's 14 bits, are refused
+    when consecutive events are less than 2^31 µs (35.8 min) apart. A first time past
+    2^32 µs (a clock since the epoch) is written from the multiple of 2^32 µs below it,
+    kept in the header as ``% evmotion_time_offset_us`` (other readers see times from
+    there); negative times, and coordinates past DAT's 14 bits, are refused
     (FormatError).
 
     Examples
@@ -143,10 +148,12 @@ def write(path: str | Path, events: EventArray) -> None:
     """
     # 14-bit x and y address fields
     binary.check_writable(events, "DAT", 1 << 14, 1 << 14)
-    binary.check_u32_times(events, "DAT")
+    t_base = int(events.t[0]) - int(events.t[0]) % (1 << 32) if len(events) else 0
+    binary.check_u32_times(events, "DAT", max(t_base, 0))
     h, w = events.sensor_size
     header = ("% Data file containing CD events.\n% Version 2\n"
-              f"% Width {w}\n% Height {h}\n").encode()
+              f"% Width {w}\n% Height {h}\n"
+              + (f"% {prophesee.OFFSET_KEY} {t_base}\n" if t_base > 0 else "")).encode()
     rec = np.empty((len(events), 2), "<u4")
     rec[:, 0] = (events.t & 0xFFFFFFFF).astype(np.uint32)
     rec[:, 1] = (events.x.astype(np.uint32) | (events.y.astype(np.uint32) << 14)

@@ -177,6 +177,12 @@ def _line_error(path: Path, data: bytes, file_offset: int, bad: int, code: int, 
         n = cols if code == _ERR_COLUMNS else len(fields)
         msg = (f"line {lineno} has {n} column(s), expected 4 ('t x y p'): {text[:80]!r}; "
                "keep those four columns of the table")
+    elif numeric and len(fields) == 4 and any(f.startswith("-") for f in fields):
+        k = next(k for k, f in enumerate(fields) if f.startswith("-"))
+        name = ("t", "x", "y", "p")[k]
+        fix = ("times count up from a clock's zero: add an offset to the column"
+               if k == 0 else "pixels and polarities are whole numbers from 0")
+        msg = f"line {lineno}: {name} = {fields[k]} is negative ({text[:80]!r}); {fix}"
     else:
         msg = f"line {lineno} is not 't[s] x y p' numbers: {text[:80]!r}"
         if numeric and len(fields) == 4 and first_decimal != 0:

@@ -63,6 +63,12 @@ def parse_raw_header(path: Path, sensor_size: tuple[int, int] | None,
         _check_version(path, header_dict(lines), version)
     size = sensor_size if sensor_size is not None else geometry_from_header(
         lines, path, default=plugin_geometry(lines))
+    return lines, offset, size, header_time_offset(path, lines)
+
+
+def header_time_offset(path: Path, lines: list[str]) -> int:
+    """The µs that evmotion's writer took off the times and wrote as :data:`OFFSET_KEY`
+    in the ``%`` header ``lines`` (0 without that line)."""
     t_offset = 0
     for line in lines:
         body = line.lstrip("%").strip()
@@ -74,7 +80,7 @@ def parse_raw_header(path: Path, sensor_size: tuple[int, int] | None,
             if not 0 <= t_offset <= MAX_TIME_OFFSET_US:
                 raise FormatError(path, f"header field '{OFFSET_KEY}' is {t_offset} us, "
                                   f"outside 0..{MAX_TIME_OFFSET_US} (2^60 us)")
-    return lines, offset, size, t_offset
+    return t_offset
 
 
 def _check_version(path: Path, head: dict[str, str], version: str) -> None:
