@@ -163,3 +163,18 @@ def test_a_packet_whose_flatbuffer_points_outside_is_named_by_describe(tmp_path)
     path.write_bytes(raw)
     with pytest.raises(FormatError, match=r"corrupt EVTS packet at byte offset \d+$"):
         aedat4.describe(path)
+
+
+def test_a_packet_of_an_undeclared_stream_is_said(tmp_path):
+    # a corrupt stream id dropped the packet's events silently (6676 -> 6274, probe AE)
+    from evmotion.errors import EvmotionWarning
+
+    ev = EventArray(x=[1, 2, 3], y=[0, 1, 2], t=[10, 20, 30], p=[1, 0, 1], sensor_size=(4, 5))
+    path = tmp_path / "a.aedat4"
+    aedat4.write(path, ev, compression="none")
+    _, _, pos = next(aedat4._packets(path))
+    raw = bytearray(path.read_bytes())
+    raw[pos:pos + 4] = struct.pack("<i", 77)
+    path.write_bytes(raw)
+    with pytest.warns(EvmotionWarning, match=r"skipped 1 packet\(s\) of stream id\(s\) \[77\]"):
+        assert len(aedat4.read(path)) == 0  # its only event packet

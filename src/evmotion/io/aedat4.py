@@ -12,6 +12,7 @@ below; no flatbuffers package is needed.
 from __future__ import annotations
 
 import struct
+import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
@@ -215,11 +216,12 @@ def _decompressor(compression: int):
 
 def _packets(path: Path, want: set[int] | None = None) -> Iterator[tuple[int, bytes, int]]:
     """(stream id, flatbuffer bytes without size prefix, file offset) per packet."""
-    compression, table_pos, _, pos = _parse_header(path)
+    compression, table_pos, streams, pos = _parse_header(path)
     decompress = _decompressor(compression)
     end = path.stat().st_size
     if table_pos >= 0:
         end = min(end, table_pos)
+    undeclared: dict[int, int] = {}
     with open(path, "rb") as fh:
         fh.seek(pos)
         while pos < end:
@@ -231,6 +233,8 @@ def _packets(path: Path, want: set[int] | None = None) -> Iterator[tuple[int, by
             if size < 0 or pos + 8 + size > path.stat().st_size:
                 raise FormatError(path, f"truncated or corrupt: field 'packet size' at byte "
                                   f"offset {pos + 4} is {size}, beyond the end of the file")
+            if sid not in streams:
+                undeclared[sid] = undeclared.get(sid, 0) + 1
             if want is not None and sid not in want:
                 fh.seek(size, 1)
                 pos += 8 + size
@@ -243,6 +247,13 @@ def _packets(path: Path, want: set[int] | None = None) -> Iterator[tuple[int, by
                                   f" decompression failed ({exc})") from None
             yield sid, memoryview(buf)[4:].tobytes(), pos
             pos += 8 + size
+    if undeclared:
+        # a stream id the infoNode does not list: a corrupt packet header, most likely
+        warnings.warn(EvmotionWarning(
+            f"{path}: skipped {sum(undeclared.values())} packet(s) of stream id(s) "
+            f"{sorted(undeclared)} that the header does not declare (declared: "
+            f"{sorted(streams)}): a corrupt packet header? Their data is not read"),
+            stacklevel=4)
 
 
 def _stream_of(path: Path, streams: dict[int, _Stream], type_id: str,
