@@ -473,3 +473,21 @@ def test_a_file_shorter_than_the_asked_window_is_said(tmp_path, capsys):
     assert "holds 5,000 events, fewer than --window-events 30000" in capsys.readouterr().err
     assert main(argv) == 0
     assert "fewer than" not in capsys.readouterr().err
+
+
+def test_seed_reaches_multicm_and_its_output(recording, tmp_path, capsys):
+    import h5py
+
+    from evmotion.io import read_flow
+
+    flows = {}
+    for seed in ("3", "3", "4"):
+        out = tmp_path / f"s{seed}_{len(flows)}.h5"
+        rc, _ = _run(["flow", str(recording[0]), "--window-events", "8000", "--max-windows",
+                      "1", "--scales", "3", "--seed", seed, "--out", str(out)], capsys)
+        assert rc == 0
+        with h5py.File(out) as f:
+            assert int(f.attrs["seed"]) == int(seed)
+        flows.setdefault(seed, []).append(read_flow(out).flow[0])
+    np.testing.assert_array_equal(*flows["3"])
+    assert not np.array_equal(flows["3"][0], flows["4"][0])

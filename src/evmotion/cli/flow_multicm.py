@@ -56,6 +56,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--objective": ("objective", "gradient_magnitude"),
     "--max-iter": ("max_iter", 20),
     "--tol": ("tol", 3e-5),
+    "--seed": ("seed", 0),
     "--workers": ("workers", 1),
     "--init": ("init", "previous"),
     "--scheduler": ("scheduler", None),
@@ -82,6 +83,9 @@ def add_arguments(group) -> None:
                        help="from the 4x4-tile scale on, stop a scale once an iteration "
                             "lowers the objective by less than this, in [0, 1) (default "
                             "3e-5; 0: always --max-iter iterations)")
+    group.add_argument("--seed", type=int_range(0), default=None,
+                       help="seed of the sub-pixel jitter of the event coordinates on the "
+                            "coarse scales (default 0); the same seed gives the same flow")
     group.add_argument("--workers", type=int_range(1, MAX_WORKERS), default=None,
                        help="parallel worker processes (default 1); each takes a contiguous "
                             "chunk of windows, whose first window starts from zero flow "
@@ -294,10 +298,11 @@ def run(args) -> int:
 
         kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
                       n_scales=args.scales, objective=args.objective, lam=args.lam,
-                      n_bins=args.time_bins, max_iter=args.max_iter, tol=args.tol)
+                      n_bins=args.time_bins, max_iter=args.max_iter, tol=args.tol,
+                      seed=args.seed)
         attrs = {"method": "multicm", "time_aware": args.time_aware,
                  "objective": args.objective, "lambda": args.lam, "scales": args.scales,
-                 "max_iter": args.max_iter, "tol": args.tol,
+                 "max_iter": args.max_iter, "tol": args.tol, "seed": args.seed,
                  "init": args.init, "source": str(args.file)}
         if args.time_bins is not None:
             attrs["time_bins"] = args.time_bins
