@@ -520,3 +520,19 @@ def test_imap_stopped_early_shuts_its_pool():
     while threading.active_count() > before and time.monotonic() < deadline:
         time.sleep(0.01)
     assert threading.active_count() <= before
+
+
+def interrupted_inside_c(events):
+    # what numba's dispatcher makes of a Ctrl-C that lands in it
+    try:
+        raise KeyboardInterrupt
+    except KeyboardInterrupt as ki:
+        raise SystemError("CPUDispatcher(<function vote_counts>) returned a result with an "
+                          "exception set") from ki
+
+
+def test_a_ctrl_c_turned_into_a_c_error_stops_the_run():
+    # it was recorded as a failed window, the run went on and exited 0 with the window
+    # missing, and --resume never estimated it again (probe AD)
+    with pytest.raises(KeyboardInterrupt):
+        map_windows(interrupted_inside_c, _events(), WINDOWS, progress=False)

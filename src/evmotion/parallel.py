@@ -35,7 +35,7 @@ from evmotion.events import EventArray, Window
 from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
 
-__all__ = ["BATCH_TARGET_S", "WindowResult", "collected_warnings", "connect_scheduler",
+__all__ = ["BATCH_TARGET_S", "WindowResult", "collected_warnings", "connect_scheduler", "interrupted_by",
            "imap_windows", "map_windows", "reissue_warnings", "report_progress"]
 
 #: Where :func:`report_progress` sends ``(window index, units)`` in a worker process of
@@ -200,12 +200,39 @@ def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
             value = fn(events, task.t0, task.t1) if with_window else fn(events)
         error = None
     except Exception as exc:
+        if interrupted_by(exc):
+            raise KeyboardInterrupt from exc
         value, error = None, f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
     finally:
         _current.index, _current.sink = outer
     return WindowResult(task.index, task.t0, task.t1, value=value, error=error,
                         elapsed_s=time.perf_counter() - start,
                         compile_s=compile_seconds() - c0, warnings=tuple(kept))
+
+
+def interrupted_by(exc: BaseException) -> bool:
+    """Whether ``exc`` is a Ctrl-C in disguise: a KeyboardInterrupt raised inside a C
+    call comes back as that call's error (numba's dispatcher: "SystemError: ...
+    returned a result with an exception set"), the interrupt as its cause or context.
+
+    Examples
+    --------
+    >>> try:
+    ...     try:
+    ...         raise KeyboardInterrupt
+    ...     except KeyboardInterrupt as ki:
+    ...         raise SystemError("returned a result with an exception set") from ki
+    ... except SystemError as exc:
+    ...     interrupted_by(exc)
+    True
+    """
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 @contextlib.contextmanager
