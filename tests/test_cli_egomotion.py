@@ -352,3 +352,24 @@ def test_an_interrupted_rerun_keeps_the_previous_results(rec, tmp_path, capsys, 
     assert (out / "params.h5").read_bytes() != before["params.h5"]
     assert sorted(p.name for p in out.glob("window_*.png")) == sorted(
         n for n in before if n.startswith("window_"))
+
+
+def test_a_failed_window_says_why(rec, tmp_path, capsys, monkeypatch):
+    # the text output said only "; 1 failed": the reason was in --json alone
+    import evmotion.cli.egomotion as cli_ego
+    from evmotion.io import read_events
+
+    job = cli_ego._window_job
+    second = int(read_events(rec).t[0]) + 50_000
+
+    def failing(events, t0, t1, **kw):
+        if t0 >= second:
+            raise RuntimeError("deliberate failure")
+        return job(events, t0, t1, **kw)
+
+    monkeypatch.setattr(cli_ego, "_window_job", failing)
+    rc = main(["egomotion", str(rec), "--warp", "translation", "--window-us", "50000",
+               "--max-windows", "2", "--out", str(tmp_path / "e")])
+    out = capsys.readouterr()
+    assert rc == 0 and "1 window" in out.out and "1 failed" in out.out
+    assert "window 1: RuntimeError: deliberate failure (no row" in out.err

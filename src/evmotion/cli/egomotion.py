@@ -317,6 +317,8 @@ def run(args) -> int:
 
         raise EvmotionError(f"{args.file}: all {len(results)} windows failed; the first: "
                             f"{failed[0] if failed else 'no result'}")
+    for line in failed[:POOR_FIT_LINES]:
+        warn_line(f"{line} (no row in params.csv / .h5)")
     said = [f"window {w.index}: {msg}" for w, r, err in results
             for msg in ([] if err or r is None else r.diagnostics.get("warnings", []))]
     for line in said[:POOR_FIT_LINES]:
