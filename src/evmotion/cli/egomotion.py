@@ -58,10 +58,13 @@ for others. --t0/--t1 are seconds on the recording's clock, or 20ms, 20000us.)
 """
 
 
-def add_common(p, objectives=None) -> None:
+REGULARIZERS = ("divergence", "deformation", "rcad", "whitening", "divergence+deformation")
+
+
+def add_common(p, objectives=None, regularizers=REGULARIZERS) -> None:
     """Arguments shared by ``egomotion``, ``landscape`` and ``segment`` (their choices from
-    :mod:`evmotion.catalog`: the parser does not load the numerical core); ``objectives``:
-    the focus objectives the command takes (default all)."""
+    :mod:`evmotion.catalog`: the parser does not load the numerical core); ``objectives``
+    and ``regularizers``: those the command takes (default all)."""
     p.add_argument("file", help="recording (any format evmotion reads, or an ECD folder)")
     add_sensor_size_argument(p)
     add_time_unit_argument(p)
@@ -70,11 +73,11 @@ def add_common(p, objectives=None) -> None:
     p.add_argument("--objective", default="variance",
                    choices=sorted(objectives or OBJECTIVE_NAMES),
                    help="focus objective (default variance)")
-    p.add_argument("--reg", default=None,
-                   choices=["divergence", "deformation", "rcad", "whitening",
-                            "divergence+deformation"],
-                   help="event-collapse regularizer (default none); divergence+deformation "
-                        "is the sum of both penalties (thesis 'Div. + Def.')")
+    p.add_argument("--reg", default=None, choices=list(regularizers),
+                   help="event-collapse regularizer (default none)"
+                        + ("; divergence+deformation is the sum of both penalties (thesis "
+                           "'Div. + Def.')" if "divergence+deformation" in regularizers
+                           else ""))
     p.add_argument("--weight", type=nonnegative_float(), default=None,
                    help="regularizer weight lambda >= 0, with --reg (default derived from each "
                         "window: scaled by its effective pixel count; with "

@@ -38,6 +38,7 @@ EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5
 
 # the objectives the clusters' weighted images take (the average-timestamp ones do not)
 SEGMENT_OBJECTIVES = ("variance", "gradient_magnitude")
+SEGMENT_REGULARIZERS = ("divergence", "deformation", "rcad")
 
 
 def add_parser(sub) -> None:
@@ -48,7 +49,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser("segment", help="motion segmentation with several warps (Sec. 3.6.6)",
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_common(p, objectives=SEGMENT_OBJECTIVES)
+    add_common(p, objectives=SEGMENT_OBJECTIVES, regularizers=SEGMENT_REGULARIZERS)
     p.add_argument("--warps", type=int_range(1, 64), default=2,
                    help="number of motion clusters (default 2)")
     p.add_argument("--iterations", type=positive_int(), default=10,
