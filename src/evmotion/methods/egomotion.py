@@ -57,7 +57,7 @@ Examples
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -424,6 +424,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     res: OptimResult = minimize(cost.value_grad, x0, o.optimizer, lower=lo, upper=hi,
                                 scale=param_scales(w), starts=o.starts, n_samples=o.n_samples,
                                 n_iter=o.n_iter, lr=o.lr, seed=o.seed)
+    if o.optimizer == "tpe":
+        res = _polished(cost, res, param_scales(w))
     t2 = time.perf_counter()
     theta = res.x
     parts = cost.parts(theta)
@@ -455,6 +457,19 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         history=res.history, maps=out_maps, timings=timings,
         collapsed=bool(diagnostics.get("collapse", {}).get("collapsed", False)),
         diagnostics=diagnostics)
+
+
+def _polished(cost: CMaxCost, res: OptimResult, scale: np.ndarray) -> OptimResult:
+    """TPE's best sample refined by BFGS from there. The samples find the basin but not
+    its bottom: 600 of them in a 3-DOF box left a rotation 1 rad/s off its optimum
+    (wz 2.57 for 1.5 on a rendered scene), marked valid."""
+    from evmotion.core.optim import gradient_minimize
+
+    local = gradient_minimize(cost.value_grad, res.x, method="bfgs", scale=scale)
+    best = local if local.fun < res.fun else res
+    return replace(res, x=best.x, fun=best.fun,
+                   history=np.concatenate([res.history, local.history]),
+                   n_evals=res.n_evals + local.n_evals, seconds=res.seconds + local.seconds)
 
 
 def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_source,
