@@ -180,3 +180,19 @@ def test_a_motion_of_a_pixel_is_no_measurement():
         warnings.simplefilter("error", PoorFitWarning)
         res = estimate_egomotion(ev, warp="translation")
     assert res.diagnostics["motion_px"] == pytest.approx(10.0, rel=0.1) and res.valid
+
+
+def test_landscape_of_a_timestamp_objective_is_not_called_flat():
+    # its G/G0 is minus the loss over the identity warp's: read as a contrast gain, a
+    # clear minimum (loss 0.51 of the identity's) was reported flat, "best -150 %"
+    from evmotion.methods.egomotion import cost_landscape, landscape_verdict
+
+    ev, _ = synth("translation", [400.0, -200.0], n_events=6000)
+    values = np.linspace(0.0, 800.0, 9)
+    scan = cost_landscape(ev, "translation", 0, values, np.array([0.0, -200.0]),
+                          "avg_timestamp")
+    v = landscape_verdict(values, scan["cost"], scan["focus"], "avg_timestamp")
+    assert not v["flat"] and v["best_gain"] > 1.2 and v["minimum"] == 400.0
+    for objective in ("avg_timestamp", "avg_timestamp_norm"):
+        flat = landscape_verdict(values, np.ones(9), -np.ones(9), objective)
+        assert flat["flat"] and flat["best_gain"] == 1.0

@@ -115,7 +115,7 @@ def run(args) -> int:
         curves[f"with {args.reg}"] = reg["cost"]
         curves[f"{args.reg} penalty"] = reg["penalty"]
     name, unit = w.param_names[j], w.param_units[j]
-    verdict = landscape_verdict(values, plain["cost"], plain["focus"])
+    verdict = landscape_verdict(values, plain["cost"], plain["focus"], args.objective)
     best, at_edge, gain, flat = (verdict[k] for k in ("minimum", "at_edge", "best_gain", "flat"))
     why, said = [], []  # the warnings, and their short form on the picture
     if flat:

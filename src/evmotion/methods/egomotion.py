@@ -62,6 +62,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from evmotion.core.collapse import regularizer_maps
+from evmotion.core.objectives import OBJECTIVES
 from evmotion.core.optim import OptimResult, landscape, minimize
 from evmotion.core.warps import Warp
 from evmotion.errors import ParameterError
@@ -516,12 +517,13 @@ def _moved_px(cost: CMaxCost, xw, yw) -> float:
     return float(np.median(d / dt[keep]) * span)
 
 
-def landscape_verdict(values, cost, focus) -> dict:
+def landscape_verdict(values, cost, focus, objective: str = "variance") -> dict:
     """What a scanned landscape (:func:`cost_landscape`) measures: ``minimum`` (the value
     where ``cost`` is lowest), ``at_edge`` (it lies on the range's edge: the true one may
-    lie beyond), ``best_gain`` (the highest focus G/G0 over the range) and ``flat`` (no
-    value sharpens the events by :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`:
-    the minimum is no measurement).
+    lie beyond), ``best_gain`` (the highest focus G/G0 over the range; for the
+    average-timestamp ``objective``, whose G/G0 is minus the loss over the identity
+    warp's, that loss over the best one) and ``flat`` (no value sharpens the events by
+    :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`: the minimum is no measurement).
 
     Examples
     --------
@@ -530,8 +532,13 @@ def landscape_verdict(values, cost, focus) -> dict:
     (1.0, False, False)
     """
     values, cost = np.asarray(values, float), np.asarray(cost, float)
+    focus = np.asarray(focus, float)
     i = int(np.argmin(cost))
-    gain = float(np.max(focus)) if len(focus) else float("nan")
+    if OBJECTIVES[objective].needs_time:
+        loss = -focus[focus < 0]  # 1 at the identity warp, lower where sharper
+        gain = float(np.max(1.0 / loss)) if loss.size else float("nan")
+    else:
+        gain = float(np.max(focus)) if len(focus) else float("nan")
     return {"minimum": float(values[i]), "at_edge": i in (0, len(values) - 1),
             "best_gain": gain, "flat": not gain >= MIN_CONTRAST_GAIN}
 
