@@ -144,6 +144,29 @@ def test_a_flow_that_sharpens_nothing_is_flagged(translation):
     assert not res.meta["no_focus"] and res.valid.any()
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_flow_fitted_to_noise_is_flagged(seed):
+    """2,000 events of noise on 128x128: a flow of 3-6 px, focus 1.2 and chance 1.10-1.13,
+    was marked valid. The same solver on the events with shuffled times sharpens them
+    as much (refit gain 1.01-1.03); a moving window of as few events is not flagged."""
+    import warnings
+
+    rng = np.random.default_rng(seed)
+    n = 2000
+    noise = EventArray(x=rng.integers(0, 128, n), y=rng.integers(0, 128, n),
+                       t=np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
+                       sensor_size=(128, 128))
+    with pytest.warns(PoorFitWarning, match="times shuffled"):
+        res = estimate_flow(noise)
+    assert res.meta["refit_gain"] < 1.05 and not res.valid.any()
+    moving = synth(constant(300.0, -150.0), n=n, shape=(128, 128), seed=seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PoorFitWarning)
+        res = estimate_flow(moving)
+    assert res.meta["refit_gain"] > 1.2 and res.valid.any()
+    assert aee_on_events(res, moving, (300.0, -150.0)) < 1.3  # a fifth of its 6.7 px
+
+
 def test_focus_matches_numpy_composition_with_core_objective():
     """The fused path equals warp (numpy) -> B-spline IWE (numpy reference) ->
     core.objectives.objective_value_grad, combined with the (1, 2, 1)/4 G(0) weights."""

@@ -221,6 +221,9 @@ def _row(r, w) -> dict:
     if np.isfinite(r.meta.get("chance_gain", np.nan)):
         # how much better the flow aligns the events than with their times shuffled
         row["chance_gain"] = float(r.meta["chance_gain"])
+    if np.isfinite(r.meta.get("refit_gain", np.nan)):
+        # with few events: its focus over that of the same fit with the times shuffled
+        row["refit_gain"] = float(r.meta["refit_gain"])
     if r.meta.get("no_focus"):  # warned: the flow sharpens nothing, no pixel is valid
         row["no_focus"] = True
     if r.meta.get("beyond_range"):  # warned: the network's magnitudes are a lower bound

@@ -12,7 +12,8 @@ from evmotion.errors import PoorFitWarning
 from evmotion.events import EventArray
 
 __all__ = ["MIN_CONTRAST_GAIN", "MIN_FIT_EVENTS", "MIN_MOTION_PX", "alignment_gain",
-           "flow_alignment_gain", "warn_by_chance", "warn_no_gain", "warn_small_motion",
+           "flow_alignment_gain", "warn_by_chance", "warn_by_refit", "warn_no_gain",
+           "warn_small_motion",
            "warn_too_few"]
 
 # an estimate whose image of warped events is not this much sharper (variance ratio) than
@@ -123,6 +124,21 @@ def alignment_gain(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
 
     null = variance(np.random.default_rng(0).permutation(dt))
     return variance(dt) / null if null > 0 else float("nan")
+
+
+def warn_by_refit(gain: float, what: str, stacklevel: int = 3) -> str | None:
+    """Issue a :class:`~evmotion.errors.PoorFitWarning` when a dense flow sharpens the
+    window's events less than :data:`MIN_CONTRAST_GAIN` more than the same solver
+    sharpens them with their times shuffled (``gain``: the ratio of the two focuses);
+    returns its message (else None)."""
+    if not gain < MIN_CONTRAST_GAIN:  # NaN: nothing to test
+        return None
+    warnings.warn(msg := f"no focus: the {what} sharpens the events only "
+                  f"{100 * (gain - 1):+.1f} % more than the same fit to them with their times "
+                  f"shuffled (threshold {100 * (MIN_CONTRAST_GAIN - 1):.0f} %) -- too few "
+                  "events for the flow's unknowns, or noise; the estimate is not a "
+                  "measurement", PoorFitWarning, stacklevel=stacklevel)
+    return msg
 
 
 def warn_by_chance(gain: float, what: str, stacklevel: int = 3) -> str | None:
