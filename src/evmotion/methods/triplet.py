@@ -41,9 +41,9 @@ burst, at the mean time of its events, :mod:`evmotion.methods.bursts`), whose ti
 symmetric, and fits the flow over 41 x 41 px re-weighted with Tukey's biweight
 (:func:`dense_robust_fit`). Simulated translation / rotation / zoom, AEE over MultiCM's on
 the same windows (``benchmarks/results/triplet_accuracy_summary.md``), dt = 1 and dt = 4 at
-250-300 px/s: thesis mean 21 / 11 / 8.9 and 127 / 6.2 / 3.7; ``dense="lsq"`` 4.6 / 2.3 /
-2.2 and 26 / 1.9 / 1.3; ``dense="robust"`` 0.67 / 1.41 / 1.48 and 2.52 / 1.26 / 0.99; at a
-quarter of that speed ``dense="robust"`` 0.60 / 1.04 / 0.98 and 2.58 / 2.03 / 2.14.
+250-300 px/s: thesis mean 24 / 11 / 8.9 and 157 / 6.2 / 3.7; ``dense="lsq"`` 5.2 / 2.3 /
+2.2 and 33 / 1.9 / 1.4; ``dense="robust"`` 0.74 / 1.40 / 1.48 and 3.10 / 1.25 / 0.99; at a
+quarter of that speed ``dense="robust"`` 0.60 / 1.03 / 0.98 and 2.69 / 2.14 / 2.13.
 
 Streaming dense output, window by window in bounded memory:
 :func:`evmotion.methods.triplet_stream.iter_flow_triplet`.
