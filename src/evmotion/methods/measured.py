@@ -55,7 +55,9 @@ def warn_small_motion(moved_px: float, warp: str, stacklevel: int = 3) -> str | 
     its message (else None)."""
     if not moved_px < MIN_MOTION_PX:
         return None
-    msg = (f"small motion: the estimate moves the events by {moved_px:.2g} px over the "
+    # rounded down: "1.5 px ... needs 1.5 px or more" read as a contradiction
+    shown = np.floor(moved_px * 100) / 100
+    msg = (f"small motion: the estimate moves the events by {shown:.2f} px over the "
            f"window (median; contrast maximization needs about {MIN_MOTION_PX:g} px or more "
            f"to measure a {warp} motion): not a measurement -- use longer windows")
     warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
