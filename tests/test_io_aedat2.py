@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from evmotion.errors import FormatError
+from evmotion.events import EventArray
 from evmotion.io import aedat2
 from evmotion.io.registry import detect_spec
 
@@ -103,3 +104,17 @@ def test_dvs128_address_layout(tmp_path):
     for k, want in zip("xytp", (x, y, t, p), strict=True):
         np.testing.assert_array_equal(getattr(ev, k), want)
     assert aedat2.describe(path)["n_events"] == n
+
+
+def test_epoch_times_round_trip_through_the_header_offset(tmp_path):
+    # a DAVIS recording's epoch µs was refused ("outside AEDAT 2.0's u32 range (subtract a
+    # time offset first)"), which convert cannot do; the header keeps the offset
+    t = 1_589_163_147_368_868 + np.array([0, 10, 1 << 30, 3 << 30, (1 << 32) + 7], np.int64)
+    ev = EventArray(x=[0, 1, 2, 3, 4], y=[0, 1, 2, 3, 4], t=t, p=[0, 1, 1, 0, 1],
+                    sensor_size=(180, 240))
+    aedat2.write(tmp_path / "e.aedat", ev)
+    assert b"# evmotion_time_offset_us 1589159374356480\r\n" in (tmp_path / "e.aedat").read_bytes()
+    back = aedat2.read(tmp_path / "e.aedat")
+    np.testing.assert_array_equal(back.t, t)
+    np.testing.assert_array_equal(back.x, ev.x)
+    assert aedat2.describe(tmp_path / "e.aedat")["n_events"] == 5

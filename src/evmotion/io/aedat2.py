@@ -29,6 +29,7 @@ from evmotion.events import EventArray
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size
+from evmotion.io.prophesee import OFFSET_KEY, header_time_offset
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "read_imu", "describe", "ImuSamples", "FORMAT"]
@@ -97,6 +98,12 @@ class _Unwrap:
         return out
 
 
+def _time_offset(path: Path, lines: list[str]) -> int:
+    """The µs evmotion's writer took off the times (header line
+    ``# evmotion_time_offset_us N``; 0 without it)."""
+    return header_time_offset(path, [ln.lstrip("#") for ln in lines])
+
+
 def _is_dvs128(lines: list[str]) -> bool:
     chip = re.search(r"AEChip:\s*(\S+)", "\n".join(lines))
     name = chip.group(1).upper() if chip else ""
@@ -121,15 +128,16 @@ def _decode(addr: np.ndarray, t: np.ndarray, size) -> binary.Block:
     return x, y, np.ascontiguousarray(t[dvs]), p
 
 
-def _records(path: Path, offset: int, block_bytes: int):
+def _records(path: Path, offset: int, block_bytes: int, lines: list[str]):
     unwrap = _Unwrap()
+    unwrap.offset = _time_offset(path, lines)
     for _, buf in binary.iter_blocks(path, offset, block_bytes, RECORD):
         rec = np.frombuffer(buf, ">u4").reshape(-1, 2)
         yield rec[:, 0].astype(np.uint32), unwrap(rec[:, 1])
 
 
-def _blocks(path, offset, size, block_bytes, decode) -> Iterator[binary.Block]:
-    for addr, t in _records(path, offset, block_bytes):
+def _blocks(path, offset, size, block_bytes, decode, lines) -> Iterator[binary.Block]:
+    for addr, t in _records(path, offset, block_bytes, lines):
         yield decode(addr, t, size)
 
 
@@ -137,7 +145,7 @@ def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int
           ) -> tuple[int, tuple[int, int], Iterator[binary.Block]]:
     lines, offset, size = _parse_header(path, sensor_size)
     decode = _decode_dvs128 if _is_dvs128(lines) else _decode
-    return offset, size, _blocks(path, offset, size, block_bytes, decode)
+    return offset, size, _blocks(path, offset, size, block_bytes, decode, lines)
 
 
 def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
@@ -208,7 +216,7 @@ def read_imu(path: str | Path) -> ImuSamples:
     binary.trailing_partial(path, offset, RECORD)
     acc_lsb, gyr_lsb = _imu_scales(lines)
     codes, vals, ts = [], [], []
-    for addr, t in _records(path, offset, binary.BLOCK_BYTES):
+    for addr, t in _records(path, offset, binary.BLOCK_BYTES, lines):
         m = (addr & 0x80000C00) == 0x80000C00
         codes.append(((addr[m] >> 28) & 7).astype(np.int8))
         vals.append(((addr[m] >> 12) & 0xFFFF).astype(np.uint16).view(np.int16))
@@ -232,8 +240,10 @@ def read_imu(path: str | Path) -> ImuSamples:
 def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> None:
     """Write DVS events as a jAER AEDAT 2.0 file (atomically), DAVIS address layout.
 
-    Timestamps are stored modulo 2^32 µs, coordinates mirrored back to jAER's raw
-    addresses, so :func:`read` returns exactly ``events``. ``chip`` (the ``AEChip``
+    Timestamps are stored modulo 2^32 µs (a first time past 2^32 µs, a clock since the
+    epoch, from the multiple of 2^32 µs below it, kept in the header as
+    ``# evmotion_time_offset_us``), coordinates mirrored back to jAER's raw addresses, so
+    :func:`read` returns exactly ``events``. ``chip`` (the ``AEChip``
     header line) defaults to the DAVIS model of that sensor size; the size itself is
     also written to the header.
 
@@ -246,11 +256,13 @@ def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> N
         chip = {(180, 240): "DAVIS240C", (260, 346): "DAVIS346B"}.get((h, w), "DAVIS")
     binary.check_writable(events, "AEDAT 2.0 (DAVIS)", 512, 1024,
                           hint="AEDAT 3.1 (--format-out aedat3) holds sensors up to 32768 px")
-    binary.check_u32_times(events, "AEDAT 2.0")
+    t_base = int(events.t[0]) - int(events.t[0]) % (1 << 32) if len(events) else 0
+    binary.check_u32_times(events, "AEDAT 2.0", max(t_base, 0))
     header = (f"{MAGIC.decode()}\r\n# This is a raw AE data file written by evmotion\r\n"
               "# Data format is int32 address, int32 timestamp (8 bytes total), repeated "
               "for each event\r\n# Timestamps tick is 1 us\r\n"
-              f"# AEChip: {chip}\r\n# sensor_size (height, width) = ({h}, {w})\r\n")
+              f"# AEChip: {chip}\r\n# sensor_size (height, width) = ({h}, {w})\r\n"
+              + (f"# {OFFSET_KEY} {t_base}\r\n" if t_base > 0 else ""))
     rec = np.empty((len(events), 2), ">u4")
     xr = (w - 1 - events.x.astype(np.int64)).astype(np.uint32)
     yr = (h - 1 - events.y.astype(np.int64)).astype(np.uint32)
@@ -268,7 +280,7 @@ def describe(path: str | Path) -> dict:
     dvs128 = _is_dvs128(lines)
     n_dvs = n_imu_words = n_aps = 0
     t_first = t_last = None
-    for addr, t in _records(path, offset, binary.BLOCK_BYTES):
+    for addr, t in _records(path, offset, binary.BLOCK_BYTES, lines):
         if dvs128:  # every record is a DVS event
             addr = np.zeros_like(addr)
         n_dvs += int(((addr & 0x80000400) == 0).sum())
