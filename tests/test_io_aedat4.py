@@ -151,16 +151,23 @@ def test_zstd_packets(short, tmp_path):
     assert_same_events(aedat4.read(z), ev)
 
 
-def test_a_packet_whose_flatbuffer_points_outside_is_named_by_describe(tmp_path):
-    # a packet without DV's size prefix read as one: info leaked struct's 'unpack_from
-    # requires a buffer of at least 1398036041 bytes'
+def _one_packet_file_patched(tmp_path, at: int, value: bytes):
+    """A three-event AEDAT4 file whose first packet has ``value`` written ``at`` bytes
+    past its header's start."""
     ev = EventArray(x=[1, 2, 3], y=[0, 1, 2], t=[10, 20, 30], p=[1, 0, 1], sensor_size=(4, 5))
     path = tmp_path / "a.aedat4"
     aedat4.write(path, ev, compression="none")
     _, _, pos = next(aedat4._packets(path))
     raw = bytearray(path.read_bytes())
-    raw[pos + 12:pos + 16] = struct.pack("<I", 1_398_036_037)  # past the size prefix
+    raw[pos + at:pos + at + len(value)] = value
     path.write_bytes(raw)
+    return path
+
+
+def test_a_packet_whose_flatbuffer_points_outside_is_named_by_describe(tmp_path):
+    # a packet without DV's size prefix read as one: info leaked struct's 'unpack_from
+    # requires a buffer of at least 1398036041 bytes'
+    path = _one_packet_file_patched(tmp_path, 12, struct.pack("<I", 1_398_036_037))
     with pytest.raises(FormatError, match=r"corrupt EVTS packet at byte offset \d+$"):
         aedat4.describe(path)
 
@@ -169,12 +176,6 @@ def test_a_packet_of_an_undeclared_stream_is_said(tmp_path):
     # a corrupt stream id dropped the packet's events silently (6676 -> 6274, probe AE)
     from evmotion.errors import EvmotionWarning
 
-    ev = EventArray(x=[1, 2, 3], y=[0, 1, 2], t=[10, 20, 30], p=[1, 0, 1], sensor_size=(4, 5))
-    path = tmp_path / "a.aedat4"
-    aedat4.write(path, ev, compression="none")
-    _, _, pos = next(aedat4._packets(path))
-    raw = bytearray(path.read_bytes())
-    raw[pos:pos + 4] = struct.pack("<i", 77)
-    path.write_bytes(raw)
+    path = _one_packet_file_patched(tmp_path, 0, struct.pack("<i", 77))
     with pytest.warns(EvmotionWarning, match=r"skipped 1 packet\(s\) of stream id\(s\) \[77\]"):
         assert len(aedat4.read(path)) == 0  # its only event packet
