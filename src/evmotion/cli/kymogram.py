@@ -29,9 +29,9 @@ from evmotion.cli.options import (
 EXAMPLES = """examples:
   evmotion kymogram scene/ --col 80 --width 9 --rate 1200 --out kymo.png
   evmotion kymogram scene/ --col 80 --compare-rate 120 --frames scene/ --out kymo_frames.png
-  evmotion kymogram bos.h5 --from q --line 60 120 60 10 --width 5 --out q_kymo.png
-  evmotion kymogram scene/ --row 100 --focal-mm 25 --distance-m 1.7 --pixel-um 4.86 \\
-      --t0 0.01 --out kymo_ms.png --json
+  evmotion kymogram bos.h5 --from q --line 80 120 80 10 --width 5 --out q_kymo.png
+  evmotion kymogram scene/ --col 80 --width 9 --focal-mm 25 --distance-m 1.7 \\
+      --pixel-um 4.86 --t0 0.01 --out kymo_ms.png --json
 (scene/: made by 'evmotion simulate schlieren --scene plume --size 128x160 --duration 0.25
 --out scene/', whose plume rises at 427 px/s along the middle column, 80; off it the air
 moves otherwise (column 64: 517 px/s); bos.h5 by 'evmotion bos scene/ --out bos.h5'.)
