@@ -19,7 +19,7 @@ from evmotion.errors import FormatError
 from evmotion.io.guard import guard_call
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
-from evmotion.io.read import iter_events
+from evmotion.io.read import iter_events, warn_time_jump
 from evmotion.io.registry import resolve_format
 
 __all__ = ["describe"]
@@ -86,9 +86,15 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     xmin = ymin = np.inf
     xmax = ymax = -np.inf
     size = None
+    gap = (0, 0)  # the longest pause between consecutive events and the index before it
     for chunk in iter_events(path, chunk_events, format=spec.name, **kw):
         if not len(chunk):
             continue
+        t = np.asarray(chunk.t, np.int64)
+        d = np.diff(t, prepend=t[0] if t_last is None else t_last)
+        k = int(np.argmax(d))
+        if d[k] > gap[0]:
+            gap = (int(d[k]), n + k - 1)
         if size is None and chunk.meta.get("sensor_size_from"):
             # the reader's word: the header alone may have guessed another size
             out["sensor_size_from"] = chunk.meta["sensor_size_from"]
@@ -107,6 +113,7 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     out["n_events"] = n
     if n:
         dur = (t_last - t_first) * 1e-6
+        warn_time_jump(path, gap[0], gap[1], t_last - t_first, n)
         out.update(t_first_us=t_first, t_last_us=t_last, duration_s=dur,
                    rate_ev_per_s=(n / dur) if dur > 0 else None,
                    positive_fraction=n_pos / n, x_range=[xmin, xmax], y_range=[ymin, ymax])
