@@ -239,7 +239,7 @@ def adam_minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]],
 def gradient_minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]],
                       x0: np.ndarray, method: str = "bfgs", scale: np.ndarray | float = 1.0,
                       max_iter: int = 100, gtol: float = 1e-6,
-                      xrtol: float = 1e-4) -> OptimResult:
+                      xrtol: float = 1e-4, restarts: int = 0) -> OptimResult:
     """Minimize with scipy's BFGS or Newton-CG using the analytic gradient.
 
     Parameters
@@ -257,6 +257,11 @@ def gradient_minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]]
         BFGS stops when a step changes the scaled parameters by less than this, relative:
         IWE objectives are piecewise smooth at the pixel scale, so near the optimum the
         line search otherwise spends dozens of evaluations on sub-pixel noise.
+    restarts : int
+        BFGS only: up to this many fresh starts (a new curvature model) from where the
+        last run stopped, while each lowers the cost. On an objective with kinks (the
+        average-timestamp losses) the model goes wrong at the first one, and the run
+        stops far from the minimum, by the step test (``xrtol``) or the line search.
 
     Returns
     -------
@@ -288,8 +293,17 @@ def gradient_minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]]
 
     z0 = np.asarray(x0, dtype=np.float64) / s
     if method == "bfgs":
-        res = optimize.minimize(fg, z0, jac=True, method="BFGS", callback=cb,
-                                options={"maxiter": max_iter, "gtol": gtol, "xrtol": xrtol})
+        def run(z):
+            return optimize.minimize(fg, z, jac=True, method="BFGS", callback=cb,
+                                     options={"maxiter": max_iter, "gtol": gtol,
+                                              "xrtol": xrtol})
+
+        res = run(z0)
+        for _ in range(restarts):
+            again = run(res.x)
+            if not again.fun < res.fun - 1e-6 * abs(res.fun):
+                break
+            res = again
     else:
         res = optimize.minimize(fg, z0, jac=True, method="Newton-CG", callback=cb,
                                 options={"maxiter": max_iter, "xtol": gtol})
@@ -300,7 +314,8 @@ def gradient_minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]]
 def minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]], x0: np.ndarray,
              method: str = "bfgs", *, lower=None, upper=None, scale=1.0,
              starts: Sequence[np.ndarray] | None = None, n_samples: int | None = None,
-             n_iter: int = 100, lr: float = 0.05, seed: int = 0) -> OptimResult:
+             n_iter: int = 100, lr: float = 0.05, seed: int = 0,
+             restarts: int = 0) -> OptimResult:
     """Dispatch to one optimizer, with optional multi-start (the best start wins).
 
     Parameters
@@ -321,6 +336,8 @@ def minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]], x0: np.
     n_iter, lr : Adam settings.
     seed : int
         TPE seed.
+    restarts : int
+        BFGS restarts from where a run stopped (:func:`gradient_minimize`).
 
     Examples
     --------
@@ -352,7 +369,8 @@ def minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]], x0: np.
         if method == "adam":
             results.append(adam_minimize(fun_grad, s0, n_iter=n_iter, lr=lr, scale=scale))
         else:
-            results.append(gradient_minimize(fun_grad, s0, method=method, scale=scale))
+            results.append(gradient_minimize(fun_grad, s0, method=method, scale=scale,
+                                             restarts=restarts))
     best = min(results, key=lambda r: r.fun)
     if len(results) == 1:
         return best
