@@ -241,3 +241,18 @@ def test_the_summary_line_says_when_the_flow_left_the_sensor_grid(ecd, tmp_path,
                      *extra]) == 0
         out = capsys.readouterr().out
         assert ("on the undistorted pixel grid" in out) == said, out
+
+
+def test_a_distortion_of_no_lens_is_said(ecd, tmp_path, capsys):
+    # --dist=5,0,0,0 (k1 = 5: the corners move 279 % of their distance from the principal
+    # point) ran without a word; the ECD's own calibration (19 %) still says nothing
+    from evmotion.camera import Camera
+
+    assert Camera(200, 200, 119.5, 89.5, (5.0, 0, 0, 0, 0), (180, 240)).corner_shift() > 2.5
+    assert read_camera(ecd / "calib.txt", sensor_size=(180, 240)).corner_shift() < 0.3
+    argv = ["egomotion", str(ecd), "--warp", "translation", "--window-events", "2000",
+            "--max-windows", "1", "--K", "200,200,119.5,89.5"]
+    assert main(argv + ["--dist=5,0,0,0", "--out", str(tmp_path / "a")]) == 0
+    assert "move the sensor's corners by 279% of their distance" in capsys.readouterr().err
+    assert main(argv + ["--dist=-0.37,0.15,0,0", "--out", str(tmp_path / "b")]) == 0
+    assert "sensor's corners" not in capsys.readouterr().err

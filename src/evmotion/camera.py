@@ -134,6 +134,26 @@ class Camera:
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
         return xd, yd
 
+    def corner_shift(self) -> float:
+        """How far the distortion model moves the sensor's corners, at most, as a share of
+        their distance from the principal point (0 without distortion; NaN without a
+        sensor size). Real lenses' radtan models stay at a few tenths (the ECD DAVIS240C's:
+        0.16).
+
+        Examples
+        --------
+        >>> Camera(200, 200, 119.5, 89.5, (5.0, 0, 0, 0, 0), (180, 240)).corner_shift() > 1
+        True
+        """
+        if self.sensor_size is None:
+            return float("nan")
+        h, w = self.sensor_size
+        u = np.array([0.0, w - 1.0, 0.0, w - 1.0])
+        v = np.array([0.0, 0.0, h - 1.0, h - 1.0])
+        ud, vd = self.distort_pixels(u, v)
+        r = np.hypot(u - self.cx, v - self.cy)
+        return float(np.max(np.hypot(ud - u, vd - v) / np.maximum(r, 1e-9)))
+
     def distort_pixels(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Undistorted pixels -> distorted (sensor) pixels."""
         xd, yd = self.distort_normalized(*self.normalize(u, v))
@@ -256,3 +276,29 @@ def _dist5(dist) -> tuple[float, float, float, float, float]:
         raise CalibrationError(f"at most 5 distortion coefficients (k1 k2 p1 p2 k3), got {vals.size}")
     d[: vals.size] = vals
     return (d[0], d[1], d[2], d[3], d[4])
+
+
+#: A distortion model that moves a sensor corner by more than this share of its distance
+#: from the principal point is said (:func:`warn_strong_distortion`).
+MAX_CORNER_SHIFT = 1.0
+
+
+def warn_strong_distortion(cam: Camera, where: str) -> str | None:
+    """Warn (EvmotionWarning) when ``cam``'s distortion moves a sensor corner by more than
+    :data:`MAX_CORNER_SHIFT` of its distance from the principal point: a model of no lens
+    (coefficients in another order, or of another model); returns the message (else
+    None)."""
+    shift = cam.corner_shift()
+    if not shift > MAX_CORNER_SHIFT:  # NaN: no sensor size to test
+        return None
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
+    d = ", ".join(f"{v:g}" for v in cam.dist)
+    msg = (f"{where}: the distortion coefficients [{d}] move the sensor's corners by "
+           f"{shift:.0%} of their distance from the principal point (real lenses: a few "
+           "tens of %): coefficients in another order (k1 k2 p1 p2 k3), or of another "
+           "lens model? The events are undistorted with them as given")
+    warnings.warn(EvmotionWarning(msg), stacklevel=3)
+    return msg

@@ -77,15 +77,17 @@ def check_camera_args(args) -> None:
 def camera_for(args, sensor_size, events_meta: dict | None = None):
     """The camera of this run (``--K``, ``--calib`` or the recording's own), fitted to
     ``sensor_size`` (height, width); None when no intrinsics are known."""
-    from evmotion.camera import Camera
+    from evmotion.camera import Camera, warn_strong_distortion
     from evmotion.io.calibration import read_camera, recording_camera
 
     check_camera_args(args)
     if getattr(args, "K", None) is not None:
         _check_principal_point(args.K, sensor_size)
         dist = list(args.dist or [])
-        return Camera(*args.K, dist=tuple(dist + [0.0] * (5 - len(dist))),
-                      sensor_size=sensor_size, source="--K")
+        cam = Camera(*args.K, dist=tuple(dist + [0.0] * (5 - len(dist))),
+                     sensor_size=sensor_size, source="--K")
+        warn_strong_distortion(cam, "--dist")
+        return cam
     if getattr(args, "calib", None):
         return read_camera(args.calib, sensor_size=sensor_size).for_sensor(sensor_size)
     cam = recording_camera(args.file, events_meta, sensor_size)

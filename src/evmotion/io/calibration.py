@@ -72,7 +72,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.camera import Camera
+from evmotion.camera import Camera, warn_strong_distortion
 from evmotion.errors import CalibrationError, FormatError
 from evmotion.io.guard import guard_call
 from evmotion.io.h5attrs import read_attrs
@@ -515,8 +515,10 @@ def _camera(path, fx, fy, cx, cy, dist, size, *, skew: float = 0.0) -> Camera:
             raise CalibrationError(f"{path}: principal point (cx, cy) = ({cx:g}, {cy:g}) lies "
                                    f"far outside the {w} x {h} px sensor")
     d = tuple(dist) + (0.0,) * (5 - len(dist))
-    return Camera(float(fx), float(fy), float(cx), float(cy), d,
-                  None if size is None else tuple(size), source=str(path))
+    cam = Camera(float(fx), float(fy), float(cx), float(cy), d,
+                 None if size is None else tuple(size), source=str(path))
+    warn_strong_distortion(cam, str(path))
+    return cam
 
 
 def _h5_calibration(path: Path) -> dict:
