@@ -243,3 +243,16 @@ def test_panels_of_large_sensors_keep_half_their_resolution():
 
     assert width(240) == width(346) <= 640
     assert width(1280) >= 2 * 640 - 60
+
+
+def test_panel_titles_wider_than_their_panel_wrap():
+    # segment's cluster titles ran into each other and off the picture (probe AD): a long
+    # line wraps to the panel's width, and the picture grows to hold it
+    from evmotion.viz.images import TITLE_CHARS_PER_INCH, panel_png, panel_width_inches
+
+    img = np.zeros((180, 240))
+    long = "cluster 0: wx=1.76 wy=-0.667 wz=1.65 rad/s and more words to wrap around"
+    short, wrapped = (Image.open(io.BytesIO(panel_png([img, img], [t, t])))
+                      for t in ("cluster 0", long))
+    assert wrapped.size[0] == short.size[0] and wrapped.size[1] > short.size[1]
+    assert len(long) > panel_width_inches(240, 100) * TITLE_CHARS_PER_INCH

@@ -330,6 +330,10 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
     return _figure_png(fig, dpi)
 
 
+#: Characters of a 10-point panel title per inch of panel width (wider lines wrap).
+TITLE_CHARS_PER_INCH = 13
+
+
 def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None, *,
               ncols: int | None = None, suptitle: str | None = None,
               panel_inches: float | None = None, dpi: int = 100) -> bytes:
@@ -353,7 +357,15 @@ def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None,
     aspect = max(np.asarray(im).shape[0] / max(np.asarray(im).shape[1], 1) for im in images)
     if panel_inches is None:
         panel_inches = panel_width_inches(max(np.asarray(im).shape[1] for im in images), dpi)
-    fig = _figure((panel_inches * ncols, panel_inches * aspect * nrows + 0.5 * nrows
+    extra = 0
+    if titles is not None:
+        # a title wider than its panel ran into the next one and off the picture
+        width = max(16, int(panel_inches * TITLE_CHARS_PER_INCH))
+        titles = ["\n".join(textwrap.fill(ln, width) or ln for ln in str(t).splitlines())
+                  for t in titles]
+        extra = max(len(t.splitlines()) for t in titles) - 1
+    fig = _figure((panel_inches * ncols, panel_inches * aspect * nrows
+                   + (0.5 + 0.17 * extra) * nrows
                    + (0.4 * len(suptitle.splitlines()) if suptitle else 0.0)), dpi)
     for k, im in enumerate(images):
         im = np.asarray(im)
