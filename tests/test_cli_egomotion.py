@@ -373,3 +373,25 @@ def test_a_failed_window_says_why(rec, tmp_path, capsys, monkeypatch):
     out = capsys.readouterr()
     assert rc == 0 and "1 window" in out.out and "1 failed" in out.out
     assert "window 1: RuntimeError: deliberate failure (no row" in out.err
+
+
+def test_a_run_interrupted_before_any_window_leaves_nothing(rec, tmp_path, capsys,
+                                                           monkeypatch):
+    # it left an empty panels.part/ in the output folder it had made (probe AD)
+    import evmotion.cli.egomotion as ego
+
+    out = tmp_path / "new" / "e"
+    interrupt_at_call(monkeypatch, ego, "_window_job", 1)
+    assert main(["egomotion", str(rec), "--warp", "translation", "--window-events", "2000",
+                 "--out", str(out)]) == 130
+    capsys.readouterr()
+    assert not out.exists()
+    kept = tmp_path / "mine"
+    kept.mkdir()
+    (kept / "notes.txt").write_text("mine")
+    monkeypatch.undo()
+    interrupt_at_call(monkeypatch, ego, "_window_job", 1)
+    assert main(["egomotion", str(rec), "--warp", "translation", "--window-events", "2000",
+                 "--out", str(kept)]) == 130
+    capsys.readouterr()
+    assert [p.name for p in kept.iterdir()] == ["notes.txt"]

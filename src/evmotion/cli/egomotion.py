@@ -267,6 +267,7 @@ def run(args) -> int:
                             t_ref=args.t_ref, seed=args.seed, dataset=args.dataset,
                             last_png_t0_us=last_png)
     out_dir = Path(args.out)
+    made_out = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
     journal, done = _open_journal(args, out_dir, events, windows, K)
     # the panels of this run wait in a folder of their own until it ends: an earlier
@@ -305,6 +306,11 @@ def run(args) -> int:
             keep_for_resume(journal.path)
         else:  # nothing finished (a cluster out of reach, say): nothing to resume
             journal.path.unlink(missing_ok=True)
+            # nor a picture: an empty staging folder, and the output folder this run made
+            if not any(staged.iterdir()):
+                staged.rmdir()
+            if made_out and not any(out_dir.iterdir()):
+                out_dir.rmdir()
         raise
     done = type(journal).read(journal.path, _journal_header(args, events, windows, K))
     results = [(w, *done[k][2]) for k, w in enumerate(windows)]

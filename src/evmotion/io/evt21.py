@@ -210,7 +210,8 @@ def encode(events: EventArray, t_base: int = 0) -> np.ndarray:
 def write(path: str | Path, events: EventArray) -> None:
     """Write ``events`` as an EVT 2.1 RAW file (atomically), in the IMX636's byte order;
     see :func:`evt3.write` for how times past the counter range (here 2^34 µs) are kept
-    exact.
+    exact. Consecutive events of one timestamp, row, polarity and 32-pixel group share
+    one vector word, so :func:`read` returns them ordered by x.
 
     Examples
     --------
