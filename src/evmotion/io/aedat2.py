@@ -256,8 +256,7 @@ def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> N
         chip = {(180, 240): "DAVIS240C", (260, 346): "DAVIS346B"}.get((h, w), "DAVIS")
     binary.check_writable(events, "AEDAT 2.0 (DAVIS)", 512, 1024,
                           hint="AEDAT 3.1 (--format-out aedat3) holds sensors up to 32768 px")
-    t_base = int(events.t[0]) - int(events.t[0]) % (1 << 32) if len(events) else 0
-    binary.check_u32_times(events, "AEDAT 2.0", max(t_base, 0))
+    t_base = binary.u32_time_base(events, "AEDAT 2.0")
     header = (f"{MAGIC.decode()}\r\n# This is a raw AE data file written by evmotion\r\n"
               "# Data format is int32 address, int32 timestamp (8 bytes total), repeated "
               "for each event\r\n# Timestamps tick is 1 us\r\n"

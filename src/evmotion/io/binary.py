@@ -300,6 +300,24 @@ def check_writable(events: EventArray, fmt: str, height: int, width: int,
                           f"range ({height} rows, {width} columns)", hint)
 
 
+def u32_time_base(events: EventArray, fmt: str) -> int:
+    """The µs a format that stores times modulo 2^32 µs writes ``events``' times from:
+    the multiple of 2^32 µs at or below the first time (0 for a first time within
+    ``[0, 2^32)``, or negative); the writer keeps it in its header. Checked with
+    :func:`check_u32_times` (``fmt`` names the format in its errors).
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0], y=[0], t=[(1 << 32) + 5], p=[1], sensor_size=(1, 1))
+    >>> u32_time_base(ev, "DAT") == 1 << 32
+    True
+    """
+    first = int(events.t[0]) if len(events) else 0
+    t_base = max(first - first % (1 << 32), 0)
+    check_u32_times(events, fmt, t_base)
+    return t_base
+
+
 def check_u32_times(events: EventArray, fmt: str, t_base: int = 0) -> None:
     """FormatError unless ``events``' times, less ``t_base`` µs, survive a format that
     stores them modulo 2^32 µs and is unwrapped on reading wherever the stored time drops

@@ -148,8 +148,7 @@ def write(path: str | Path, events: EventArray) -> None:
     """
     # 14-bit x and y address fields
     binary.check_writable(events, "DAT", 1 << 14, 1 << 14)
-    t_base = int(events.t[0]) - int(events.t[0]) % (1 << 32) if len(events) else 0
-    binary.check_u32_times(events, "DAT", max(t_base, 0))
+    t_base = binary.u32_time_base(events, "DAT")
     h, w = events.sensor_size
     header = ("% Data file containing CD events.\n% Version 2\n"
               f"% Width {w}\n% Height {h}\n"
