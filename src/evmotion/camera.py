@@ -138,7 +138,7 @@ class Camera:
         """How far the distortion model moves the sensor's corners, at most, as a share of
         their distance from the principal point (0 without distortion; NaN without a
         sensor size). Real lenses' radtan models stay at a few tenths (the ECD DAVIS240C's:
-        0.16).
+        0.19).
 
         Examples
         --------
