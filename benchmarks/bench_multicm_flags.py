@@ -15,6 +15,7 @@ events. ``valid``: the result marks any pixel valid (not flagged).
 
 from __future__ import annotations
 
+import itertools
 import warnings
 
 import numpy as np
@@ -25,20 +26,23 @@ NOISE = [((128, 128), 2000), ((128, 128), 5000), ((180, 240), 8000), ((260, 346)
 MOVING = [("translation", 2000), ("translation", 5000), ("rotation", 2000),
           ("rotation", 5000), ("zoom", 2000), ("zoom", 5000), ("object", 5000),
           ("object", 12000)]
-NOTES = ("multicm defaults; noise windows 20 ms of uniform events (seeds 0-2, medians and "
+NOTES = ("multicm defaults (finest level from the event count, 100 events a tile: "
+         "finest_level column) and with 16 x 16 tiles (finest_level 5, the default before); "
+         "noise windows 20 ms of uniform events (seeds 0-2, medians and "
          "ranges over the seeds); moving windows from evmotion.sim at 346x260, seed 0, 30k "
          "events subsampled to the count given. "
          "refit_gain is empty where the window has 64 events per finest tile or more, or "
          "an earlier test flagged it (not refitted); chance_gain is empty where the focus "
          "test flagged the window first.")
+LEVELS = ("auto", 5)
 
 
-def _flags(events) -> dict:
+def _flags(events, level) -> dict:
     from evmotion.methods.multicm import estimate_flow
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = estimate_flow(events)
+        res = estimate_flow(events, **({} if level == "auto" else {"finest_level": level}))
     return {"chance_gain": res.meta["chance_gain"], "refit_gain": res.meta["refit_gain"],
             "valid": bool(res.valid.any()), "res": res}
 
@@ -52,19 +56,21 @@ def main(quick: bool = False) -> list[dict]:
     from evmotion.sim import simulate
 
     rows = []
-    for size, n in NOISE[:2] if quick else NOISE:
+    for (size, n), level in itertools.product(NOISE[:2] if quick else NOISE, LEVELS):
         out = []
         for seed in range(3):
             rng = np.random.default_rng(seed)
             ev = EventArray(x=rng.integers(0, size[1], n), y=rng.integers(0, size[0], n),
                             t=np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
                             sensor_size=size)
-            f = _flags(ev)
+            f = _flags(ev, level)
             res = f.pop("res")
             f["flow_px"] = float(np.median(np.linalg.norm(res.flow, axis=-1)) * res.duration_s)
+            f["finest_level"] = res.meta["finest_level"]
             out.append(f)
         refit = [o["refit_gain"] for o in out if np.isfinite(o["refit_gain"])]
         rows.append({"data": f"noise {size[1]}x{size[0]}", "events": n,
+                     "finest_level": out[0]["finest_level"],
                      "chance_gain": _num(np.nanmedian([o["chance_gain"] for o in out])),
                      "refit_gain": _num(np.median(refit)) if refit else "",
                      "refit_range": f"{min(refit):.3f}-{max(refit):.3f}" if refit else "",
@@ -78,21 +84,23 @@ def main(quick: bool = False) -> list[dict]:
         mid = len(sim.events) // 2
         full = sim.events[mid - 15_000:mid + 15_000]
         win = full[np.linspace(0, len(full) - 1, n).round().astype(np.int64)]
-        f = _flags(win)
-        res = f.pop("res")
         gt = sim.gt.displacement(int(win.t[0]), int(win.t[-1]))
         hit = np.zeros(win.sensor_size, bool)
         hit[win.y.astype(int), win.x.astype(int)] = True
-        err = np.linalg.norm(res.displacement().astype(np.float64) - gt, axis=-1)
-        rows.append({"data": f"sim {scene}", "events": n,
-                     "chance_gain": _num(f["chance_gain"]),
-                     "refit_gain": _num(f["refit_gain"]), "refit_range": "",
-                     "valid_windows": "1 of 1" if f["valid"] else "0 of 1",
-                     "flow_px_median": float(np.median(np.linalg.norm(res.displacement(),
-                                                                      axis=-1)[hit])),
-                     "AEE_px": float(np.nanmean(err[hit])),
-                     "zero_AEE_px": float(np.nanmean(np.linalg.norm(gt, axis=-1)[hit]))})
-        print(rows[-1], flush=True)
+        for level in LEVELS:
+            f = _flags(win, level)
+            res = f.pop("res")
+            err = np.linalg.norm(res.displacement().astype(np.float64) - gt, axis=-1)
+            rows.append({"data": f"sim {scene}", "events": n,
+                         "finest_level": res.meta["finest_level"],
+                         "chance_gain": _num(f["chance_gain"]),
+                         "refit_gain": _num(f["refit_gain"]), "refit_range": "",
+                         "valid_windows": "1 of 1" if f["valid"] else "0 of 1",
+                         "flow_px_median": float(np.median(np.linalg.norm(
+                             res.displacement(), axis=-1)[hit])),
+                         "AEE_px": float(np.nanmean(err[hit])),
+                         "zero_AEE_px": float(np.nanmean(np.linalg.norm(gt, axis=-1)[hit]))})
+            print(rows[-1], flush=True)
     harness.record("multicm_flags", rows, NOTES)
     return rows
 

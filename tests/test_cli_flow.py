@@ -491,3 +491,24 @@ def test_seed_reaches_multicm_and_its_output(recording, tmp_path, capsys):
         flows.setdefault(seed, []).append(read_flow(out).flow[0])
     np.testing.assert_array_equal(*flows["3"])
     assert not np.array_equal(flows["3"][0], flows["4"][0])
+
+
+def test_finest_level_reaches_multicm_and_its_output(recording, tmp_path, capsys):
+    """--finest-level fixes the finest tiles (default: from each window's event count,
+    'auto' in the output); --scales cannot end finer than it."""
+    import h5py
+
+    out = tmp_path / "f.h5"
+    rc, _ = _run(["flow", str(recording[0]), "--window-events", "8000", "--max-windows",
+                  "1", "--finest-level", "2", "--out", str(out)], capsys)
+    assert rc == 0
+    with h5py.File(out) as f:
+        assert int(f.attrs["finest_level"]) == 2 and int(f.attrs["scales"]) == 2
+    rc, _ = _run(["flow", str(recording[0]), "--window-events", "8000", "--max-windows",
+                  "1", "--out", str(tmp_path / "a.h5")], capsys)
+    assert rc == 0
+    with h5py.File(tmp_path / "a.h5") as f:
+        assert f.attrs["finest_level"] == "auto"
+    rc = main(["flow", str(recording[0]), "--scales", "4", "--finest-level", "3", "--out",
+               str(tmp_path / "b.h5")])
+    assert rc == 2 and "--scales 4 needs --finest-level >= 4" in capsys.readouterr().err

@@ -64,10 +64,16 @@ def test_flow_units_and_shape(tiny_ckpt, window):
 
 
 def test_dnn_init_runs_the_finest_scales_only(tiny_ckpt, window):
-    res = estimate_flow(window.events, init="dnn", checkpoint=tiny_ckpt)
+    res = estimate_flow(window.events, init="dnn", checkpoint=tiny_ckpt, finest_level=5)
     assert len(res.params) == 3 and res.params[0].shape[:2] == (4, 4)
-    full = estimate_flow(window.events)
+    full = estimate_flow(window.events, finest_level=5)
     assert len(full.params) == 5
+    # 6,000 events: by default the finest level is 3 (8 x 8 tiles would hold ~94 events),
+    # and init="dnn" runs its three scales from one tile
+    assert len(window.events) < 6400
+    res = estimate_flow(window.events, init="dnn", checkpoint=tiny_ckpt)
+    assert [p.shape[:2] for p in res.params] == [(1, 1), (2, 2), (4, 4)]
+    assert res.meta["finest_level"] == estimate_flow(window.events).meta["finest_level"] == 3
     with pytest.raises(ParameterError, match="init"):
         estimate_flow(window.events, init="zero")
 

@@ -72,7 +72,7 @@ def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
 
     monkeypatch.setattr(dnn_pkg, "estimate_flow_dnn", net)
     monkeypatch.setattr(mc, "_optimize", spy)
-    res = mc.estimate_flow(ev, init="dnn")
+    res = mc.estimate_flow(ev, init="dnn", finest_level=5)
     grid, theta0 = starts[0]
     assert (grid.ny, grid.nx) == (4, 4) and len(res.params) == mc.DNN_INIT_SCALES == 3
     want = mc._event_tile_means(fake, ev, grid) * dur

@@ -52,6 +52,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--time-aware": ("time_aware", "none"),
     "--time-bins": ("time_bins", None),
     "--scales": ("scales", 5),
+    "--finest-level": ("finest_level", None),
     "--lambda": ("lam", 0.0025),
     "--objective": ("objective", "gradient_magnitude"),
     "--max-iter": ("max_iter", 20),
@@ -70,7 +71,12 @@ def add_arguments(group) -> None:
                        help="with --time-aware: time bins of the time-aware flow (default 5; "
                             "40 from 640 px wide)")
     group.add_argument("--scales", type=int_range(1, 5), default=None,
-                       help="coarse-to-fine scales ending at 16x16 tiles, 1 to 5 (default 5)")
+                       help="coarse-to-fine scales ending at the finest tiles, 1 to 5 "
+                            "(default 5, at most --finest-level)")
+    group.add_argument("--finest-level", type=int_range(1, 8), default=None, metavar="L",
+                       help="finest scale: 2^(L-1) x 2^(L-1) tiles, 1 to 8 (default: from "
+                            "each window's event count, the finest up to 5 whose tiles "
+                            "hold 100 events on average: 16x16 tiles from 25,600 events)")
     group.add_argument("--lambda", dest="lam", type=nonnegative_float(), default=None,
                        help="TV weight of (4.9), >= 0 (default 0.0025)")
     group.add_argument("--objective", default=None,
@@ -241,6 +247,12 @@ def check_args(args) -> None:
     check_flow_out(args.out)
     if args.time_aware in (None, "none"):
         reject_unused(args, {"--time-bins": "time_bins"}, "without --time-aware")
+    if args.finest_level is not None:
+        if args.scales is None:
+            args.scales = min(5, args.finest_level)
+        elif args.scales > args.finest_level:
+            raise ParameterError(f"--scales {args.scales} needs --finest-level >= {args.scales} "
+                                 f"(got {args.finest_level}): the scales end at the finest")
     if args.resume and args.video:
         raise ParameterError(f"--video {args.video} needs every window's flow: it cannot "
                              "be made with --resume; run without --resume")
@@ -300,11 +312,14 @@ def run(args) -> int:
         from evmotion.methods.multicm import estimate_flow
 
         kwargs = dict(time_aware=None if args.time_aware == "none" else args.time_aware,
-                      n_scales=args.scales, objective=args.objective, lam=args.lam,
+                      n_scales=args.scales, finest_level=args.finest_level,
+                      objective=args.objective, lam=args.lam,
                       n_bins=args.time_bins, max_iter=args.max_iter, tol=args.tol,
                       seed=args.seed)
         attrs = {"method": "multicm", "time_aware": args.time_aware,
                  "objective": args.objective, "lambda": args.lam, "scales": args.scales,
+                 # auto: each window's own (its meta), from its event count
+                 "finest_level": "auto" if args.finest_level is None else args.finest_level,
                  "max_iter": args.max_iter, "tol": args.tol, "seed": args.seed,
                  "init": args.init, "source": str(args.file)}
         if args.time_bins is not None:

@@ -75,8 +75,8 @@ from evmotion.methods.measured import (
 from evmotion.methods.options import merge_options
 from evmotion.utils import resolve_options, whole_number
 
-__all__ = ["FlowResult", "MultiCMOptions", "MultiCMProblem", "estimate_flow",
-           "estimate_flow_sequence", "rest_where_empty"]
+__all__ = ["FlowResult", "MultiCMOptions", "MultiCMProblem", "auto_finest_level",
+           "estimate_flow", "estimate_flow_sequence", "rest_where_empty"]
 
 TV_EPS = 1e-2  # 1/s; Charbonnier smoothing of |grad v| so TV is differentiable at 0
 RESTART_PX = 1.0  # px per window; see the restart in estimate_flow
@@ -100,6 +100,16 @@ JITTER_TO_LEVEL = 3
 #: solver reaches on the same events with their times shuffled (:func:`_shuffled_focus`,
 #: on its finest ``REFIT_SCALES`` scales, ``REFIT_MAX_ITER`` iterations each).
 REFIT_EVENTS_PER_TILE = 64
+#: ``finest_level=None`` (the default) ends the coarse-to-fine at the finest level, at most
+#: ``AUTO_FINEST_LEVEL`` (16 x 16 tiles, the thesis'), whose tiles hold at least this many
+#: events on average. Each tile's flow has two unknowns; fitted to a few dozen events it
+#: follows their noise. ECD rotation windows thinned to 8k / 4k events, against their IMU
+#: flow: AEE 0.81-0.94 / 1.47-1.92 px with 16 x 16 tiles, 0.63-0.71 / 0.88-1.17 px so;
+#: the simulator's rigid scenes at 2k-15k events 4-53 % lower, its moving object 8-21 %
+#: higher; the 30k-40k windows of the thesis keep 16 x 16
+#: (``benchmarks/results/multicm_finest.md``).
+AUTO_EVENTS_PER_TILE = 100
+AUTO_FINEST_LEVEL = 5
 REFIT_SCALES = 3
 REFIT_MAX_ITER = 10
 TIMESTAMP_OBJECTIVES = ("avg_timestamp", "avg_timestamp_norm")
@@ -479,7 +489,8 @@ class MultiCMOptions:
         Warp with the flow transported over time bins (4.8) instead of (4.4).
     n_scales : int
         Coarse-to-fine scales ending at ``finest_level``; scale ``l`` has
-        ``2^(l-1) x 2^(l-1)`` tiles (5: 1x1 ... 16x16; 1: the finest only).
+        ``2^(l-1) x 2^(l-1)`` tiles (5: 1x1 ... 16x16; 1: the finest only); at most the
+        finest level chosen when ``finest_level`` is None.
     objective : {"gradient_magnitude", "variance", "avg_timestamp", "avg_timestamp_norm"}
         Focus of the IWEs (4.5 or 4.3), or the average-timestamp losses (Table 4.5).
     lam : float
@@ -500,8 +511,10 @@ class MultiCMOptions:
     optimizer : {"lbfgs", "newton-cg"}
     time_aware_scales : int, optional
         Use the time-aware warp only on the finest this-many scales (None: all).
-    finest_level : int
-        Level of the finest scale (5: 16 x 16 tiles).
+    finest_level : int, optional
+        Level of the finest scale (5: 16 x 16 tiles). None: the finest level, at most
+        ``AUTO_FINEST_LEVEL`` (5), whose tiles hold ``AUTO_EVENTS_PER_TILE`` (100) events
+        on average (5 from 25,600 events on).
     transport_cell : int
         Cell size of the grid the time-aware PDE runs on, px (1 = every pixel).
     restart : bool
@@ -527,7 +540,7 @@ class MultiCMOptions:
     references: str = "multi"
     optimizer: str = "lbfgs"
     time_aware_scales: int | None = None
-    finest_level: int = 5
+    finest_level: int | None = None
     transport_cell: int = 4
     restart: bool = True
 
@@ -541,7 +554,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                   objective: str = "gradient_magnitude", lam: float = 0.0025,
                   n_bins: int | None = None, init=None, seed: int = 0, max_iter: int = 20,
                   tol: float = 3e-5, references: str = "multi", optimizer: str = "lbfgs",
-                  time_aware_scales: int | None = None, finest_level: int = 5,
+                  time_aware_scales: int | None = None, finest_level: int | None = None,
                   transport_cell: int = 4, restart: bool = True,
                   checkpoint=None, options: MultiCMOptions | None = None) -> FlowResult:
     """Dense optical flow of one event window by multi-reference contrast maximization.
@@ -557,7 +570,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         Warp with the flow transported over time bins (4.8) instead of (4.4).
     n_scales : int
         Coarse-to-fine scales ending at ``finest_level``; scale ``l`` has
-        ``2^(l-1) x 2^(l-1)`` tiles (default 5: 1x1 ... 16x16; 1: the finest only).
+        ``2^(l-1) x 2^(l-1)`` tiles (default 5: 1x1 ... 16x16; 1: the finest only); at
+        most the finest level when that is chosen from the window (``finest_level`` None).
     objective : {"gradient_magnitude", "variance", "avg_timestamp", "avg_timestamp_norm"}
         Focus of the IWEs (4.5 or 4.3), or the average-timestamp losses of Zhu et al. and
         Hagenaars et al. (Table 4.5 ablation; bilinear votes from :mod:`evmotion.core`).
@@ -592,8 +606,15 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     optimizer : {"lbfgs", "newton-cg"}
     time_aware_scales : int, optional
         Use the time-aware warp only on the finest this-many scales (default: all).
-    finest_level : int
-        Level of the finest scale (default 5: 16 x 16 tiles).
+    finest_level : int, optional
+        Level of the finest scale (5: 16 x 16 tiles). Default: chosen from the window, the
+        finest level up to 5 whose tiles hold at least ``AUTO_EVENTS_PER_TILE`` (100)
+        events on average: 16 x 16 tiles from 25,600 events on, 8 x 8 from 6,400, 4 x 4
+        from 1,600. A tile's flow fitted to a few dozen events follows their noise: on
+        the ECD rotation windows thinned to 4k events the AEE fell from 1.47 / 1.92 px
+        (16 x 16) to 0.88 / 1.17 px (``benchmarks/results/multicm_finest.md``). An
+        independently moving object smaller than the coarser tiles loses detail: give
+        ``finest_level=5`` for it.
     transport_cell : int
         Cell size in px of the grid the time-aware PDE runs on (default 4; 1 = every
         pixel). The tile flow is smooth at the scale of a tile (>= 16 px), so 4 px cells
@@ -727,14 +748,18 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
 
 
 def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
-    """``o`` validated against ``events``, with ``time_aware="none"`` read as None and
-    ``n_bins`` resolved for the sensor."""
-    for name in ("n_scales", "finest_level", "max_iter", "transport_cell", "seed"):
+    """``o`` validated against ``events``, with ``time_aware="none"`` read as None,
+    ``n_bins`` resolved for the sensor and ``finest_level`` for the window."""
+    for name in ("n_scales", "max_iter", "transport_cell", "seed"):
         whole_number(name, getattr(o, name), lo=0)
     if o.n_bins is not None:
         whole_number("n_bins", o.n_bins, lo=1)
     if o.time_aware_scales is not None:
         whole_number("time_aware_scales", o.time_aware_scales, lo=1, hi=max(1, o.n_scales))
+    if o.finest_level is None:
+        level = auto_finest_level(len(events), events.sensor_size)
+        o = dataclasses.replace(o, finest_level=level, n_scales=min(o.n_scales, level))
+    whole_number("finest_level", o.finest_level, lo=0)
     for name in ("lam", "tol"):
         v = getattr(o, name)
         if not (isinstance(v, (int, float, np.number)) and not isinstance(v, bool)):
@@ -770,6 +795,24 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
         raise ParameterError(f"n_bins must be in [1, {MAX_TIME_BINS}], got {n_bins}")
     return dataclasses.replace(o, n_bins=n_bins,
                                time_aware=None if o.time_aware == "none" else o.time_aware)
+
+
+def auto_finest_level(n_events: int, shape: tuple[int, int]) -> int:
+    """The finest level multicm uses by default for a window of ``n_events`` on a sensor
+    of ``shape`` (H, W): the finest, at most ``AUTO_FINEST_LEVEL``, whose
+    ``2^(l-1) x 2^(l-1)`` tiles hold ``AUTO_EVENTS_PER_TILE`` events on average, and whose
+    tiles are at least a pixel.
+
+    Examples
+    --------
+    >>> [auto_finest_level(n, (260, 346)) for n in (300, 2000, 8000, 30000)]
+    [1, 3, 4, 5]
+    """
+    level = AUTO_FINEST_LEVEL
+    while level > 1 and (n_events < AUTO_EVENTS_PER_TILE * 4 ** (level - 1)
+                         or 2 ** (level - 1) > max(shape)):
+        level -= 1
+    return level
 
 
 def _coarse_to_fine(x, y, s, p, shape, init, duration_s, o: MultiCMOptions):
