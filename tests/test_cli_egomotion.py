@@ -120,6 +120,41 @@ def test_segment_cli(rec, tmp_path, capsys):
         assert z["window_00000_same_as"].tolist() == [c["same_as"] for c in doc["clusters"]]
 
 
+def test_segment_resume_after_an_interrupt(rec, tmp_path, capsys, monkeypatch):
+    """segment wrote its outputs at the end only: an interrupted run lost every window
+    (probe AD). The finished windows are kept in OUT/segment.part; --resume segments the
+    others only and gives the clusters of an uninterrupted run."""
+    import evmotion.cli.segment as seg
+
+    argv = ["segment", str(rec), "--warp", "translation", "--warps", "2", "--window-us",
+            "20000", "--max-windows", "3", "--iterations", "3", "--json"]
+    assert main(argv + ["--out", str(tmp_path / "whole")]) == 0
+    whole = json.loads(capsys.readouterr().out)["clusters"]
+    assert len(whole) == 6
+
+    calls = interrupt_at_call(monkeypatch, seg, "_segment_job", 3)
+    out = tmp_path / "cut"
+    assert main(argv + ["--out", str(out)]) == 130
+    assert "kept in" in capsys.readouterr().err and (out / "segment.part").exists()
+    assert not (out / "clusters.csv").exists() and not list(out.glob("window_*.png"))
+    assert main(argv + ["--out", str(out)]) == 2
+    assert "--resume to continue" in capsys.readouterr().err
+    assert main(argv + ["--out", str(out), "--resume", "--seed", "1"]) == 2
+    assert "other seed" in capsys.readouterr().err
+    calls.clear()
+    assert main(argv + ["--out", str(out), "--resume"]) == 0
+    resumed = json.loads(capsys.readouterr().out)["clusters"]
+    assert len(calls) == 1 and not (out / "segment.part").exists()
+    assert resumed == whole
+    assert sorted(p.name for p in out.glob("window_*.png")) == [
+        "window_00000.png", "window_00001.png", "window_00002.png"]
+    # interrupted before any window: no journal, and no output folder it made
+    interrupt_at_call(monkeypatch, seg, "_segment_job", 1)
+    assert main(argv + ["--out", str(tmp_path / "none")]) == 130
+    capsys.readouterr()
+    assert not (tmp_path / "none").exists()
+
+
 def test_egomotion_job_draws_its_panel_and_sends_no_images(rec, tmp_path):
     """A window up to the last PNG's start draws its panel in the job (a worker), the
     others none; no result carries IWEs or maps back (nothing reads them; 0.7 MB a

@@ -372,32 +372,12 @@ def _journal_header(args, events, windows, K) -> dict:
 
 
 def _open_journal(args, out_dir: Path, events, windows, K):
-    """The run's journal (a fresh one, or with ``--resume`` the interrupted run's,
-    reopened) and the windows it already holds ``{position: (t0, t1, (result, error))}``;
-    a ParameterError for a journal left without ``--resume``, or one whose windows are not
-    this run's."""
+    """The run's journal and the windows it already holds
+    (:meth:`~evmotion.io.journal.Journal.open_run`)."""
     from evmotion.io.journal import Journal
 
-    path = out_dir / JOURNAL_NAME
-    header = _journal_header(args, events, windows, K)
-    if path.exists() and Journal.holds_nothing(path):
-        path.unlink()  # a run stopped before its first window left it: no work to keep
-    if not args.resume:
-        if path.exists():
-            raise ParameterError(f"{path} holds the windows of an interrupted run: run the "
-                                 "same command with --resume to continue it, or delete it "
-                                 "to start again")
-        return Journal(path, header), {}
-    if not path.exists():
-        return Journal(path, header), {}
-    journal, done = Journal.resume(path, header)
-    for k, (t0, t1, _) in done.items():
-        if k >= len(windows) or (windows[k].t0, windows[k].t1) != (t0, t1):
-            journal.close()
-            raise ParameterError(f"cannot resume (--resume): window {k} of {path} is "
-                                 f"[{t0}, {t1}) us, not one of this run's (other --t1 or "
-                                 "--max-windows, or another recording)")
-    return journal, done
+    return Journal.open_run(out_dir / JOURNAL_NAME, _journal_header(args, events, windows, K),
+                            windows, args.resume)
 
 
 def _written(out_dir: Path, w, out: WindowOutput):

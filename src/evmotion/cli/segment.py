@@ -5,7 +5,9 @@ with units, each row's [t0, t1) µs, warp, grid and a valid flag; ``evmotion inf
 describes it), event labels (``labels.npz``: ``window_NNNNN`` the cluster of each event,
 with its time ``window_NNNNN_t_us`` and pixel ``_x``, ``_y`` on the grid the command used,
 undistorted where a calibration undistorts, and per cluster ``_valid`` and ``_same_as``,
-the cluster it duplicates or -1) and PNGs of the per-cluster IWEs."""
+the cluster it duplicates or -1) and PNGs of the per-cluster IWEs. An interrupted run keeps
+the windows it finished in ``OUT/segment.part``; the same command with ``--resume``
+segments only the others."""
 
 from __future__ import annotations
 
@@ -39,6 +41,8 @@ EXAMPLES = """examples (sim.h5: made by 'evmotion simulate rotation --out sim.h5
 # the objectives the clusters' weighted images take (the average-timestamp ones do not)
 SEGMENT_OBJECTIVES = ("variance", "gradient_magnitude")
 SEGMENT_REGULARIZERS = ("divergence", "deformation", "rcad")
+# the journal of a run's finished windows, in its output folder until the run ends
+JOURNAL_NAME = "segment.part"
 
 
 def add_parser(sub) -> None:
@@ -64,6 +68,10 @@ def add_parser(sub) -> None:
                    help="parallel worker processes (default 1)")
     add_scheduler_argument(p)
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run: the windows it finished (kept in "
+                        f"OUT/{JOURNAL_NAME}) are not segmented again; the same options "
+                        "needed")
     p.add_argument("--json", action="store_true", help="print per-window results as JSON")
     p.set_defaults(func=run)
 
@@ -73,9 +81,10 @@ def run(args) -> int:
     from evmotion.cli.egomotion import check_common, check_scheduler, load_events_and_camera
     from evmotion.cli.options import scheduler_client
     from evmotion.errors import EvmotionError
+    from evmotion.io.journal import Journal
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.methods.segmentation import MIN_CLUSTER_EVENTS, MIN_CLUSTER_GAIN
-    from evmotion.parallel import map_windows
+    from evmotion.parallel import imap_windows
     from evmotion.utils import atomic_path, atomic_write_bytes, atomic_write_text
 
     check_common(args)
@@ -86,25 +95,42 @@ def run(args) -> int:
     events, cam = load_events_and_camera(args, **cut)
     windows = select_windows(args, events, file=args.file, **cut)
     out = Path(args.out)
+    made_out = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    remove_stale_pictures(out, ("window_",))
-    remove_stale_results(out, ("clusters.csv", "clusters.h5", "labels.npz"))
     K = None if cam is None else cam.K
     job = functools.partial(_segment_job, n_warps=args.warps, warp=args.warp,
                             objective=args.objective, K=K, t_ref=args.t_ref,
                             n_iter=args.iterations, seed=args.seed, regularizer=args.reg,
                             weight=args.weight, dataset=args.dataset)
-    with scheduler_client(args.scheduler) as client:
-        results = map_windows(job, events, windows, workers=args.workers, scheduler=client,
-                              desc="segment")
-    failed = next((r for r in results if not r.ok), None)
-    if failed is not None:
-        raise EvmotionError(f"{args.file}: window {failed.index} [{failed.t0}, {failed.t1}) us "
-                            f"failed: {failed.error.splitlines()[0]}")
+    journal, done = Journal.open_run(out / JOURNAL_NAME, _journal_header(args, events, windows, K),
+                                     windows, args.resume)
+    todo = [k for k in range(len(windows)) if k not in done]
+    try:
+        with journal, scheduler_client(args.scheduler) as client:
+            for k, r in zip(todo, imap_windows(job, events, [windows[k] for k in todo],
+                                               workers=args.workers, scheduler=client,
+                                               desc="segment"), strict=True):
+                if not r.ok:
+                    raise EvmotionError(f"{args.file}: window {windows[k].index} [{r.t0}, "
+                                        f"{r.t1}) us failed: {r.error.splitlines()[0]}")
+                journal.add(k, windows[k].t0, windows[k].t1, r.value)
+    except BaseException:
+        if journal.count or done:
+            from evmotion.utils import keep_for_resume
+
+            keep_for_resume(journal.path)
+        else:  # nothing finished: nothing to resume, nor the output folder this run made
+            journal.path.unlink(missing_ok=True)
+            if made_out and not any(out.iterdir()):
+                out.rmdir()
+        raise
+    done = Journal.read(journal.path, _journal_header(args, events, windows, K))
+    remove_stale_pictures(out, ("window_",))
+    remove_stale_results(out, ("clusters.csv", "clusters.h5", "labels.npz"))
     rows, labels, pngs = [], {}, []
     try:
-        for w, res in zip(windows, results, strict=True):
-            seg, panel = res.value
+        for k, w in enumerate(windows):
+            seg, panel = done[k][2]
             key = f"window_{w.index:05d}"
             labels[key] = seg.labels.astype(np.int16)
             # which events they label: undistortion drops those leaving the sensor, so a
@@ -163,6 +189,7 @@ def run(args) -> int:
         {"method": "segment", "warp": args.warp, "grid": args.grid,
          "objective": args.objective, "warps": args.warps, "iterations": args.iterations,
          "seed": args.seed}))
+    journal.path.unlink()
     if args.json:
         print_json({"file": str(args.file), "grid": args.grid, "warp": args.warp,
                     "clusters": rows})
@@ -171,6 +198,21 @@ def run(args) -> int:
               f"clusters -> {out}/clusters.csv, "
               "clusters.h5")
     return 0
+
+
+def _journal_header(args, events, windows, K) -> dict:
+    """What a resumed run must share with the interrupted one: the segmentation's options,
+    the windows' cut and the events of the first window (another recording has others)."""
+    from evmotion.events import fingerprint
+
+    w = windows[0]
+    return {"warp": args.warp, "warps": args.warps, "objective": args.objective,
+            "reg": args.reg, "weight": args.weight, "t_ref": args.t_ref, "seed": args.seed,
+            "iterations": args.iterations, "dataset": args.dataset,
+            "window_events": args.window_events, "window_us": args.window_us,
+            "t0": args.t0, "grid": args.grid,
+            "K": None if K is None else np.asarray(K, np.float64).round(9).tolist(),
+            "first_window": fingerprint(events[w.start:w.stop])}
 
 
 def _warn_invalid(rows: list[dict]) -> None:

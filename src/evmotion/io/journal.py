@@ -71,6 +71,33 @@ class Journal:
             fh.truncate(end)
         return cls(path, header, append=True), done
 
+    @classmethod
+    def open_run(cls, path: str | os.PathLike, header: dict, windows, resume: bool
+                 ) -> tuple[Journal, dict[int, tuple[int, int, Any]]]:
+        """A command's journal at ``path``: a fresh one, or with ``resume`` the
+        interrupted run's, reopened, and the windows it holds (:meth:`read`). A journal
+        that records no window is replaced; one left without ``resume``, or whose windows
+        are not among ``windows`` (objects with ``t0``, ``t1``), is a ParameterError."""
+        path = Path(path)
+        if path.exists() and cls.holds_nothing(path):
+            path.unlink()  # a run stopped before its first window left it: no work to keep
+        if not resume:
+            if path.exists():
+                raise ParameterError(f"{path} holds the windows of an interrupted run: run "
+                                     "the same command with --resume to continue it, or "
+                                     "delete it to start again")
+            return cls(path, header), {}
+        if not path.exists():
+            return cls(path, header), {}
+        journal, done = cls.resume(path, header)
+        for k, (t0, t1, _) in done.items():
+            if k >= len(windows) or (windows[k].t0, windows[k].t1) != (t0, t1):
+                journal.close()
+                raise ParameterError(f"cannot resume (--resume): window {k} of {path} is "
+                                     f"[{t0}, {t1}) us, not one of this run's (other --t1 "
+                                     "or --max-windows, or another recording)")
+        return journal, done
+
     @staticmethod
     def holds_nothing(path: str | os.PathLike) -> bool:
         """Whether the journal at ``path`` records no finished window: empty (a full disk
