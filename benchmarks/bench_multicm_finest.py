@@ -63,14 +63,10 @@ def _ecd_cases():
 
 
 def _rendered_cases():
-    from bench_multicm_sparse import SCENES, SIZE, exact_flow, render
-    from evmotion.events import EventArray
+    from bench_multicm_sparse import SCENES, exact_flow, rendered_events
 
     for name, scene in SCENES.items():
-        ev = render(scene)
-        events = EventArray(x=ev[:, 1].astype(np.uint16), y=ev[:, 2].astype(np.uint16),
-                            t=np.round(ev[:, 0] * 1e6).astype(np.int64),
-                            p=ev[:, 3].astype(np.uint8), sensor_size=SIZE)
+        events = rendered_events(scene)
         flow = exact_flow(scene)
         half = int(0.5e6 * 20.0 / float(np.linalg.norm(flow, axis=-1).max()))
         mid = int(np.median(events.t))

@@ -77,6 +77,16 @@ def render(scene: dict, seed: int = 2) -> np.ndarray:
     return ev[np.argsort(ev[:, 0], kind="stable")]
 
 
+def rendered_events(scene: dict):
+    """:func:`render`'s events as an EventArray on ``SIZE``."""
+    from evmotion.events import EventArray
+
+    ev = render(scene)
+    return EventArray(x=ev[:, 1].astype(np.uint16), y=ev[:, 2].astype(np.uint16),
+                      t=np.round(ev[:, 0] * 1e6).astype(np.int64),
+                      p=ev[:, 3].astype(np.uint8), sensor_size=SIZE)
+
+
 def exact_flow(scene: dict) -> np.ndarray:
     """(H, W, 2) px/s: the motion is stationary, the same at every time."""
     h, w = SIZE
@@ -90,15 +100,11 @@ def exact_flow(scene: dict) -> np.ndarray:
 
 
 def main(quick: bool = False) -> list[dict]:
-    from evmotion.events import EventArray
     from evmotion.methods import multicm
 
     rows = []
     for name, scene in SCENES.items():
-        ev = render(scene)
-        events = EventArray(x=ev[:, 1].astype(np.uint16), y=ev[:, 2].astype(np.uint16),
-                            t=np.round(ev[:, 0] * 1e6).astype(np.int64),
-                            p=ev[:, 3].astype(np.uint8), sensor_size=SIZE)
+        events = rendered_events(scene)
         gt = exact_flow(scene)
         speed = float(np.linalg.norm(gt, axis=-1).max())
         mid = int(np.median(events.t))

@@ -120,6 +120,20 @@ def test_segment_cli(rec, tmp_path, capsys):
         assert z["window_00000_same_as"].tolist() == [c["same_as"] for c in doc["clusters"]]
 
 
+def _whole_then_interrupted(argv, key, n_rows, job, journal, tmp_path, capsys, monkeypatch):
+    """Run ``argv`` whole (its JSON's ``key``: ``n_rows`` rows), then into ``cut/`` with
+    ``job`` = (module, function, n) interrupted at its n-th call, which must keep
+    ``cut/<journal>``; returns the whole run's rows, the job's call list and ``cut/``."""
+    assert main(argv + ["--out", str(tmp_path / "whole")]) == 0
+    whole = json.loads(capsys.readouterr().out)[key]
+    assert len(whole) == n_rows
+    calls = interrupt_at_call(monkeypatch, *job)
+    out = tmp_path / "cut"
+    assert main(argv + ["--out", str(out)]) == 130
+    assert "kept in" in capsys.readouterr().err and (out / journal).exists()
+    return whole, calls, out
+
+
 def test_segment_resume_after_an_interrupt(rec, tmp_path, capsys, monkeypatch):
     """segment wrote its outputs at the end only: an interrupted run lost every window
     (probe AD). The finished windows are kept in OUT/segment.part; --resume segments the
@@ -128,14 +142,8 @@ def test_segment_resume_after_an_interrupt(rec, tmp_path, capsys, monkeypatch):
 
     argv = ["segment", str(rec), "--warp", "translation", "--warps", "2", "--window-us",
             "20000", "--max-windows", "3", "--iterations", "3", "--json"]
-    assert main(argv + ["--out", str(tmp_path / "whole")]) == 0
-    whole = json.loads(capsys.readouterr().out)["clusters"]
-    assert len(whole) == 6
-
-    calls = interrupt_at_call(monkeypatch, seg, "_segment_job", 3)
-    out = tmp_path / "cut"
-    assert main(argv + ["--out", str(out)]) == 130
-    assert "kept in" in capsys.readouterr().err and (out / "segment.part").exists()
+    whole, calls, out = _whole_then_interrupted(argv, "clusters", 6, (seg, "_segment_job", 3),
+                                                "segment.part", tmp_path, capsys, monkeypatch)
     assert not (out / "clusters.csv").exists() and not list(out.glob("window_*.png"))
     assert main(argv + ["--out", str(out)]) == 2
     assert "--resume to continue" in capsys.readouterr().err
@@ -294,14 +302,8 @@ def test_egomotion_resume_after_an_interrupt(rec, tmp_path, capsys, monkeypatch,
 
     argv = ["egomotion", str(rec), "--warp", "translation", "--window-events", "2000",
             "--max-png", "0", "--json", *extra]
-    assert main(argv + ["--out", str(tmp_path / "whole")]) == 0
-    whole = json.loads(capsys.readouterr().out)["windows"]
-    assert len(whole) == 6
-
-    calls = interrupt_at_call(monkeypatch, ego, "_window_job", 4)
-    out = tmp_path / "cut"
-    assert main(argv + ["--out", str(out)]) == 130
-    assert "kept in" in capsys.readouterr().err and (out / "params.part").exists()
+    whole, calls, out = _whole_then_interrupted(argv, "windows", 6, (ego, "_window_job", 4),
+                                                "params.part", tmp_path, capsys, monkeypatch)
     assert not (out / "params.csv").exists()
     # without --resume the kept windows are not overwritten
     assert main(argv + ["--out", str(out)]) == 2
