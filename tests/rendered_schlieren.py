@@ -53,6 +53,9 @@ def _displacement(t, scene, shape, blobs, amp):
     births, sig, sign, phase, speed = blobs
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     d = np.zeros((h, w, 2), np.float32)
+    if scene == "shift":  # the whole view moves at ``speed`` px/s, 30 degrees below x
+        d[..., 0], d[..., 1] = speed * t * np.cos(np.pi / 6), speed * t * np.sin(np.pi / 6)
+        return d
     for b, s, a, ph in zip(births, sig, sign, phase, strict=True):
         age = t - b
         if scene == "plume":
@@ -102,9 +105,10 @@ def render_scene(folder, *, scene: str = "plume", size=(300, 400), duration_s: f
     """Write an ECD-style folder (``events.txt`` ``t x y p`` with p in {0, 1}, ``images.txt``
     ``t path`` lines, ``images/*.png``) and return its truth: ``flow`` (N-1, H, W, 2) px/s,
     ``t_s`` (N,) frame times, ``contrast``, ``events`` (their number) and ``velocity_px_s``
-    (the blobs' (u, v): the plume rises, the jet crosses to the right)."""
-    if scene not in ("plume", "jet"):
-        raise ValueError(f"scene must be 'plume' or 'jet', got {scene!r}")
+    (the blobs' (u, v): the plume rises, the jet crosses to the right). ``shift``: no
+    still air, the whole view moves at ``speed_px_s``."""
+    if scene not in ("plume", "jet", "shift"):
+        raise ValueError(f"scene must be 'plume', 'jet' or 'shift', got {scene!r}")
     folder = Path(folder)
     (folder / "images").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -148,6 +152,8 @@ def render_scene(folder, *, scene: str = "plume", size=(300, 400), duration_s: f
     (folder / "images.txt").write_text("".join(lines))
     disp = [_displacement(t, scene, size, blobs, magnitude_px) for t in t_s]
     flow = np.stack([(disp[k + 1] - disp[k]) * fps for k in range(n_frames - 1)])
-    velocity = (0.0, -speed_px_s) if scene == "plume" else (speed_px_s, 0.0)
+    velocity = {"plume": (0.0, -speed_px_s), "jet": (speed_px_s, 0.0),
+                "shift": tuple(speed_px_s * np.array([np.cos(np.pi / 6), np.sin(np.pi / 6)]))
+                }[scene]
     return {"flow": flow, "t_s": t_s, "contrast": contrast, "events": len(ev),
             "velocity_px_s": velocity}

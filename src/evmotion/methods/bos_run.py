@@ -96,9 +96,12 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
     for j in pick:
         i, t0, t1 = (int(v) for v in data.intervals[j])
         try:
+            # the frame after lets the frames' noise be measured in time where no still
+            # air is in view
+            after = data.frames[i + 2] if i + 2 < len(data.frames) else None
             c, slope, corr = contrast_threshold_slope(data.events, data.frames[i],
                                                       data.frames[i + 1], t0_us=t0, t1_us=t1,
-                                                      roi=data.roi)
+                                                      roi=data.roi, frame_after=after)
         except EvmotionError:
             continue
         if np.isfinite(c) and c > 0:
