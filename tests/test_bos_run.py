@@ -205,3 +205,34 @@ def test_the_sensors_start_up_interval_is_said(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", EvmotionWarning)
         assert warn_startup(later) is None
+
+
+def test_a_background_that_varies_pixel_to_pixel_is_said(data):
+    """A white-noise background (probe AF): C came out right, the flow worse than the zero
+    flow (AE 0.60 rad), and nothing was said. Its neighbouring pixels do not correlate;
+    dots of a pixel or two, as BOS uses, do."""
+    import dataclasses
+    import warnings
+
+    from scipy.ndimage import gaussian_filter
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos import MIN_TEXTURE_CORRELATION, texture_correlation
+    from evmotion.methods.bos_run import require_texture
+
+    rng = np.random.default_rng(0)
+    noise = rng.integers(30, 226, (2, 64, 80)).astype(np.uint8)
+    dots = gaussian_filter((rng.random((64, 80)) < 0.1).astype(float), 0.8)
+    dots = np.rint(255 * (1 - 0.8 * dots / dots.max())).astype(np.uint8)
+    assert texture_correlation(noise[0]) < 0.05
+    assert texture_correlation(dots) > 2 * MIN_TEXTURE_CORRELATION
+    said = {}
+    for name, frames in (("noise", noise), ("dots", np.stack([dots, dots]))):
+        run = dataclasses.replace(data, frames=frames, frame_times=np.array([0, 1000]),
+                                  intervals=np.array([[0, 0, 1000]]), roi=None)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            require_texture(run)
+        said[name] = [str(w.message) for w in caught if issubclass(w.category, EvmotionWarning)]
+    assert said["dots"] == []
+    assert len(said["noise"]) == 1 and "varies from one pixel to the next" in said["noise"][0]

@@ -400,14 +400,31 @@ def stored_warm_start(out, index: int) -> list[np.ndarray]:
 def require_texture(data: BosInput, options=None) -> None:
     """Refuse a run none of whose intervals' frames has texture in the ROI (black,
     uniform): a textureless frame among textured ones is skipped, with a warning, by the
-    solver (``on_empty="skip"``). Stops at the first textured frame."""
-    from evmotion.methods.bos import BosOptions, TexturelessFrameError, frame_texture
+    solver (``on_empty="skip"``). Stops at the first textured frame, and warns when its
+    texture varies from one pixel to the next (:func:`~evmotion.methods.bos.
+    texture_correlation`)."""
+    from evmotion.methods.bos import (
+        MIN_TEXTURE_CORRELATION,
+        BosOptions,
+        TexturelessFrameError,
+        frame_texture,
+        texture_correlation,
+    )
 
     o = options if isinstance(options, BosOptions) else BosOptions()
     best = 0.0
     for i in data.intervals[:, 0]:
         t = frame_texture(data.frames[int(i)], data.roi, o.log_eps)
         if t >= o.min_texture:
+            corr = texture_correlation(data.frames[int(i)], data.roi, o.log_eps)
+            if corr < MIN_TEXTURE_CORRELATION:
+                warnings.warn(EvmotionWarning(
+                    f"{data.frames_source}: the background varies from one pixel to the "
+                    f"next (neighbouring pixels correlate {corr:.2f} < "
+                    f"{MIN_TEXTURE_CORRELATION}): its gradient does not predict how it "
+                    "moves, and the flow is unreliable (on white noise worse than the zero "
+                    "flow); BOS needs a background smooth over a pixel or two (dots of "
+                    "2 px or more, or slightly defocused)"), stacklevel=2)
             return
         best = max(best, t)
     raise TexturelessFrameError(
