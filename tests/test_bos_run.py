@@ -235,4 +235,4 @@ def test_a_background_that_varies_pixel_to_pixel_is_said(data):
             require_texture(run)
         said[name] = [str(w.message) for w in caught if issubclass(w.category, EvmotionWarning)]
     assert said["dots"] == []
-    assert len(said["noise"]) == 1 and "varies from one pixel to the next" in said["noise"][0]
+    assert len(said["noise"]) == 1 and "vary from one pixel to the next" in said["noise"][0]

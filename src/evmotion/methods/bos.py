@@ -727,8 +727,9 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
         raise EventDataError(f"cannot estimate the contrast threshold in [{t0_us}, {t1_us}) "
                              f"us: the events' polarity sums do not follow the frames' log "
                              f"difference in the ROI "
-                             f"(covariance {cov:.3g}; give contrast_threshold "
-                             "(--contrast-threshold))")
+                             f"(covariance {cov:.3g}): no texture, still air or events "
+                             "that are noise; give contrast_threshold "
+                             "(--contrast-threshold) if you know C")
     corr = cov / np.sqrt(var_d * var_s) if var_d > 0 else 0.0
     if corr < min_correlation:
         raise EventDataError(f"cannot estimate the contrast threshold in [{t0_us}, {t1_us}) "

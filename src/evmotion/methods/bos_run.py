@@ -419,12 +419,13 @@ def require_texture(data: BosInput, options=None) -> None:
             corr = texture_correlation(data.frames[int(i)], data.roi, o.log_eps)
             if corr < MIN_TEXTURE_CORRELATION:
                 warnings.warn(EvmotionWarning(
-                    f"{data.frames_source}: the background varies from one pixel to the "
-                    f"next (neighbouring pixels correlate {corr:.2f} < "
-                    f"{MIN_TEXTURE_CORRELATION}): its gradient does not predict how it "
-                    "moves, and the flow is unreliable (on white noise worse than the zero "
-                    "flow); BOS needs a background smooth over a pixel or two (dots of "
-                    "2 px or more, or slightly defocused)"), stacklevel=2)
+                    f"{data.frames_source}: the frames vary from one pixel to the next "
+                    f"without structure (neighbouring pixels correlate {corr:.2f} < "
+                    f"{MIN_TEXTURE_CORRELATION}): noise on a flat background, or a texture "
+                    "finer than a pixel, whose gradient does not predict how it moves; the "
+                    "flow is unreliable (on white noise worse than the zero flow). BOS "
+                    "needs a background of dots of 2 px or more (or slightly defocused)"),
+                    stacklevel=2)
             return
         best = max(best, t)
     raise TexturelessFrameError(
