@@ -236,3 +236,36 @@ def test_a_background_that_varies_pixel_to_pixel_is_said(data):
         said[name] = [str(w.message) for w in caught if issubclass(w.category, EvmotionWarning)]
     assert said["dots"] == []
     assert len(said["noise"]) == 1 and "vary from one pixel to the next" in said["noise"][0]
+
+
+def test_frames_that_change_where_no_event_fires_are_said(tmp_path):
+    """Events covering the top-left part of the frames only (another sensor, a crop; probe
+    AF: C 0.7x, nothing said): the frames change as much far from every event as near
+    them. The whole scene's frames are still where no event fires."""
+    import shutil
+    import sys
+    import warnings
+    from pathlib import Path
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos_run import warn_uncovered
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from rendered_schlieren import render_scene
+
+    render_scene(tmp_path / "whole", scene="shift", size=(96, 128), duration_s=0.03,
+                 fps=200.0, speed_px_s=40.0, noise_hz=0.0, seed=3)
+    shutil.copytree(tmp_path / "whole", tmp_path / "part")
+    lines = (tmp_path / "whole" / "events.txt").read_text().splitlines()
+    (tmp_path / "part" / "events.txt").write_text("".join(
+        ln + "\n" for ln in lines if int(ln.split()[1]) < 60 and int(ln.split()[2]) < 40))
+    said = {}
+    for name in ("whole", "part"):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            ratio = warn_uncovered(load_bos_input(tmp_path / name))
+        said[name] = (ratio, [str(w.message) for w in caught
+                              if issubclass(w.category, EvmotionWarning)])
+    assert said["whole"] == (None, [])  # the air moves everywhere: no pixel far from events
+    ratio, msgs = said["part"]
+    assert ratio > 1.1 and len(msgs) == 1 and "--roi 0 0 60 40" in msgs[0]

@@ -156,6 +156,7 @@ def run(args) -> int:
         sequence_threshold,
         solve_bos_into,
         warn_startup,
+        warn_uncovered,
     )
 
     out = Path(args.out)
@@ -184,6 +185,7 @@ def run(args) -> int:
         check_flow_out(out, len(data.intervals))
         options = BosOptions(**opts)
         require_texture(data, options)
+        warn_uncovered(data)
         startup = warn_startup(data)
         c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,

@@ -35,7 +35,7 @@ from evmotion.io.flowfiles import FLOW_COMPRESSION
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "iter_bos_input",
            "open_bos_output", "require_texture", "sequence_contrast_threshold",
            "sequence_threshold", "solve_bos_input", "solve_bos_into", "stored_warm_start",
-           "warn_startup", "write_bos_output"]
+           "warn_startup", "warn_uncovered", "write_bos_output"]
 
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
@@ -179,6 +179,80 @@ def warn_startup(data: BosInput) -> int | None:
         "that interval's flow is too small (0.26-0.56x on the simulator's scenes) and is "
         f"written with no valid pixel; --t0 {t1 * 1e-6:.6g} leaves it out"), stacklevel=2)
     return k0
+
+
+#: Above this ratio of the frames' change (mean square of the smoothed log difference)
+#: far from every event to that near them, :func:`warn_uncovered` speaks: frames and
+#: events do not show the same view. 1.6-1.8 on a scene whose events covered only the
+#: top-left 200x150 px of 346x260 frames (probe AF, C 0.7x), 1.19 on a rendered uniform
+#: shift cut the same way. On AF's plume and white-noise scenes the frames far from the
+#: events change by less than twice their noise (still air: no ratio; without that test
+#: 0.05-0.11 and 0.5-0.6).
+UNCOVERED_CHANGE = 0.8
+
+
+def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
+    """Say when the frames change as much far from every event (more than
+    :data:`~evmotion.methods.bos.NEAR_EVENTS_PX` away, in the ROI) as near them, over up to
+    ``samples`` intervals (median): where no event fires the air is still, so the frames
+    and the events do not show the same view (events from a smaller or shifted sensor, a
+    crop, frames not registered). The contrast threshold and the flow's magnitude then come
+    out wrong. Intervals whose frames change far from the events by less than twice
+    their noise there (the second difference of three frames) say nothing: still air.
+    Returns the ratio (None: under 5 % of the ROI is far from the events, or no interval
+    changes there beyond its noise).
+
+    Examples
+    --------
+    >>> warn_uncovered(load_bos_input("scene/"))  # doctest: +SKIP
+    0.09
+    """
+    from scipy.ndimage import distance_transform_edt, gaussian_filter
+
+    from evmotion.methods.bos import NEAR_EVENTS_PX, event_sums, log_frame
+
+    x, y, w, h = data.roi if data.roi is not None else (0, 0, data.events.sensor_size[1],
+                                                        data.events.sensor_size[0])
+    counts = event_sums(data.events, (x, y, w, h))[1]
+    far = distance_transform_edt(counts == 0) > NEAR_EVENTS_PX
+    if far.mean() < 0.05 or far.all():
+        return None
+    pick = np.unique(np.linspace(0, len(data.intervals) - 1, min(samples, len(data.intervals)))
+                     .round().astype(int))
+    def change(a, b, c=None):  # smoothed squared log difference (c: second difference)
+        logs = [log_frame(data.frames[k])[y:y + h, x:x + w] for k in (a, b, c) if k is not None]
+        diff = logs[1] - logs[0] if c is None else logs[2] - 2.0 * logs[1] + logs[0]
+        return gaussian_filter(diff, 2.0, mode="nearest") ** 2
+
+    ratios = []
+    for j in pick:
+        i = int(data.intervals[j][0])
+        if i + 2 >= len(data.frames):
+            continue
+        d = change(i, i + 1)
+        # the frames' noise far from the events (the second difference over three frames
+        # holds it three times, plus how the change itself changed): still air in noisy
+        # frames is no change
+        noise = float(np.mean(change(i, i + 1, i + 2)[far])) / 3.0
+        near, away = float(np.mean(d[~far])), float(np.mean(d[far]))
+        if near > 0 and away > 2.0 * noise:
+            ratios.append(away / near)
+    if not ratios:
+        return None
+    ratio = float(np.median(ratios))
+    if ratio > UNCOVERED_CHANGE:
+        ys, xs = np.nonzero(counts)
+        box = (x + int(xs.min()), y + int(ys.min()), int(xs.max() - xs.min()) + 1,
+               int(ys.max() - ys.min()) + 1)
+        warnings.warn(EvmotionWarning(
+            f"{data.source}: the frames change where no event fires (more than "
+            f"{NEAR_EVENTS_PX:g} px from any, {ratio:.2f}x their change near the events); "
+            "the air should be still there, so frames and events do not show the same view (events "
+            "from a smaller or shifted sensor, a crop, or frames not registered with them); "
+            "the contrast threshold and the flow's magnitude come out wrong (0.7x on such a "
+            f"scene); register them, or keep to the events with --roi {' '.join(map(str, box))}"
+            ), stacklevel=2)
+    return ratio
 
 
 def _event_gain(data: BosInput, interval) -> float:
@@ -345,6 +419,7 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
     require_texture(data)
+    warn_uncovered(data)
     startup = warn_startup(data)
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
     results = list(iter_bos_input(data, c, workers=workers, progress=progress,
