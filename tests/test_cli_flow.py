@@ -347,6 +347,10 @@ def test_a_window_one_microsecond_past_the_ground_truth_is_scored(recording, tmp
     t1 = int(g.t1[-1])
     res = evaluate_windows(g.flow[-1:], [t1 - 15_000], [t1 + 1], g)
     assert res.uncovered == 0 and res.windows[0]["AEE"] < 1e-3
+    # beside it the zero flow's, the ground truth's displacement over the window
+    zero = np.hypot(*FLOW) * 15_001e-6
+    assert res.windows[0]["AEE_zero"] == pytest.approx(zero, rel=1e-4)
+    assert res.total["AEE_zero"] == pytest.approx(zero, rel=1e-4)
 
 
 def test_resume_refuses_another_recording_or_distortion(recording, tmp_path, capsys):

@@ -157,6 +157,11 @@ def test_cli_scores_a_per_event_file(tmp_path, capsys, suffix):
     assert res["kind"] == "per-event" and res["n_windows"] == 3
     assert res["mean"]["AEE"] < 1e-4 and res["mean"]["%Out"] == 0.0
     assert res["mean"]["n_scored"] == ev["valid"].sum()
+    # the zero flow's AEE beside it: each scored event's GT displacement over its window
+    ok = ev["valid"]
+    dur = (T1 - T0)[ev["window"][ok]] * 1e-6
+    want = np.mean(np.hypot(ev["vx"][ok], ev["vy"][ok]) * dur)
+    assert res["mean"]["AEE_zero"] == pytest.approx(want, rel=1e-4)
     assert res["mean"]["valid_fraction"] == pytest.approx(ev["valid"].mean())
     # 200 px/s: 4 px over the 20 ms window, 2 px and 1 px over the others
     shifted = write(tmp_path / f"off{suffix}", {**ev, "vx": ev["vx"] + 200.0})

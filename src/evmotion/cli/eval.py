@@ -22,6 +22,9 @@ GT window holding its time, bilinear at its position; AEE in px/s and in px of
 displacement over ``--dt`` GT frame intervals, %Out and AE on those displacements, and
 how many events were scored, had no flow or no ground truth.
 
+Beside the AEE, ``AEE_zero`` is the zero flow's on the same pixels or events (the ground
+truth's mean displacement): an AEE is read against it.
+
 Masks (thesis ch. 4): valid ground truth, the estimate's own validity (its ``valid``
 mask, or unknown values in a ``.flo``/``.png``: pixels without event support, or a window
 without focus, are not measurements), and with ``--events`` at least one event in the
@@ -323,7 +326,8 @@ def _run_event_flow(args, path) -> int:
     else:
         print(f"{m.n_scored} of {m.n_events} events scored ({m.n_no_flow} without a flow, "
               f"{m.n_no_gt} without GT; dt={args.dt}): AEE={m.aee:.4g} px  "
-              f"AEE={m.aee_px_s:.4g} px/s  %Out={m.pct_out:.4g}  AE_deg={m.ae_deg:.4g}")
+              f"AEE={m.aee_px_s:.4g} px/s  AEE_zero={m.aee_zero:.4g} px  "
+              f"%Out={m.pct_out:.4g}  AE_deg={m.ae_deg:.4g}")
     return 0
 
 
@@ -441,8 +445,8 @@ def run(args) -> int:
     if args.json:
         print_json(summary)
     else:
-        keys = [k for k in ("AEE", "%Out", "AE_deg", "FWL", "FWL_gt", "q_corr", "q_std_ratio",
-                            "n_pixels") if k in total]
+        keys = [k for k in ("AEE", "AEE_zero", "%Out", "AE_deg", "FWL", "FWL_gt", "q_corr",
+                            "q_std_ratio", "n_pixels") if k in total]
         scored = summary["windows_scored"]
         n = len(per_window)
         print(f"{n} window{'' if n == 1 else 's'}" if scored == n else

@@ -63,6 +63,9 @@ class EventFlowMetrics:
         One row per GT window with scored events (``window`` index in the GT,
         ``t0_us``, ``t1_us``, ``n_events``, ``AEE``, ``AEE_px_s``, ``%Out``, ``AE_deg``),
         when asked for; empty otherwise.
+    aee_zero : float
+        The zero flow's AEE on the same events, px over ``frames`` GT frame intervals:
+        the ground truth's mean displacement, against which ``aee`` is read.
     """
 
     aee: float
@@ -77,6 +80,7 @@ class EventFlowMetrics:
     frames: float
     out_px: float
     windows: tuple[dict, ...] = field(default_factory=tuple)
+    aee_zero: float = float("nan")
 
     @property
     def valid_fraction(self) -> float:
@@ -91,7 +95,8 @@ class EventFlowMetrics:
     def as_dict(self) -> dict[str, float | int]:
         """Flat dict (``"3PE"`` style keys, as :meth:`FlowMetrics.as_dict`) without the
         per-window rows."""
-        d: dict[str, float | int] = {"AEE": self.aee, "AEE_px_s": self.aee_px_s}
+        d: dict[str, float | int] = {"AEE": self.aee, "AEE_px_s": self.aee_px_s,
+                                     "AEE_zero": self.aee_zero}
         d.update({f"{n}PE": v for n, v in self.npe.items()})
         d.update({"%Out": self.pct_out, "AE_deg": self.ae_deg, "n_events": self.n_events,
                   "n_scored": self.n_scored, "n_no_flow": self.n_no_flow,
@@ -184,7 +189,8 @@ def event_flow_metrics(
                              f"truth is {(h, w)} px (height, width)")
     thresholds = [int(m) for m in npe_thresholds]
     order = np.argsort(gt0, kind="stable")
-    acc = np.zeros(4)  # sums of the endpoint error px, px/s, %Out hits and AE degrees
+    # sums of the endpoint error px, px/s, %Out hits, AE degrees and the GT's displacement
+    acc = np.zeros(5)
     npe = np.zeros(len(thresholds))
     per = np.zeros((5, gt0.size))  # per GT window: count, then the four sums
     n_scored = n_flow = 0
@@ -225,7 +231,8 @@ def event_flow_metrics(
         ae = np.degrees(np.arccos(np.clip(num / den, -1.0, 1.0)))
         out = (ee > out_px).astype(np.float64)
         n_scored += int(sel.size)
-        acc += [ee.sum(), err_s.sum(), out.sum(), ae.sum()]
+        acc += [ee.sum(), err_s.sum(), out.sum(), ae.sum(),
+                (np.hypot(ref[:, 0], ref[:, 1]) * dur_s).sum()]
         npe += [np.count_nonzero(ee > m) for m in thresholds]
         for row, v in enumerate((None, ee, err_s, out, ae)):
             per[row] += np.bincount(win, weights=v, minlength=gt0.size)
@@ -246,7 +253,7 @@ def event_flow_metrics(
         npe={m: float(100.0 * c / n_scored) for m, c in zip(thresholds, npe, strict=True)},
         pct_out=float(100.0 * mean[2]), ae_deg=float(mean[3]), n_events=int(n),
         n_scored=int(n_scored), n_no_flow=n_no_flow, n_no_gt=int(n - n_no_flow - n_scored),
-        frames=float(frames), out_px=float(out_px), windows=rows)
+        frames=float(frames), out_px=float(out_px), windows=rows, aee_zero=float(mean[4]))
 
 
 def _has_valid(event_flow) -> bool:

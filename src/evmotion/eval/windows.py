@@ -179,7 +179,7 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     """
     if events is not None:
         _check_same_recording(events, flow.shape[1:3], t0s, t1s)
-    rows, per_window, mismatched, unknown, uncovered = [], [], 0, False, 0
+    rows, zeros, per_window, mismatched, unknown, uncovered = [], [], [], 0, False, 0
     for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
         cover = gt_coverage(gt, int(t0), int(t1))
         if cover < FULL_COVERAGE:
@@ -207,10 +207,14 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
         if events is not None:
             win = events.slice_time(int(t0), int(t1))
             mask = mask & event_mask(win, flow.shape[1:3])
-        m = flow_metrics(est, np.where(valid[..., None], disp_gt, np.nan), mask=mask,
-                         out_px=out_px)
+        gt_px = np.where(valid[..., None], disp_gt, np.nan)
+        m = flow_metrics(est, gt_px, mask=mask, out_px=out_px)
+        # the zero flow's AEE on the same pixels: what the estimate's AEE is to be read
+        # against (a sub-pixel AEE of a window that barely moves is no achievement)
+        zero = flow_metrics(np.zeros_like(est), gt_px, mask=mask, out_px=out_px)
         row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), **m.as_dict(),
-               "AE_rad": float(np.radians(m.ae_deg)), "gt_frames": round(frames, 2)}
+               "AEE_zero": zero.aee, "AE_rad": float(np.radians(m.ae_deg)),
+               "gt_frames": round(frames, 2)}
         gt_flow = (disp_gt / ((t1 - t0) * 1e-6)).astype(np.float32)
         if win is not None:
             # the events where the estimate and the ground truth are defined, for both
@@ -220,10 +224,12 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
             row["FWL"] = fwl(win, flow[i], t_ref_us=(int(t0) + int(t1)) // 2)
             row["FWL_gt"] = fwl(win, gt_flow, t_ref_us=(int(t0) + int(t1)) // 2)
         rows.append(m)
+        zeros.append(zero)
         per_window.append(row)
     if not rows:
         raise EmptyWindowError(_nothing_to_score(t0s, t1s, gt))
     total = aggregate_flow_metrics(rows).as_dict()
+    total["AEE_zero"] = aggregate_flow_metrics(zeros).aee
     total["AE_rad"] = float(np.radians(total["AE_deg"]))
     fwls = [r["FWL"] for r in per_window if "FWL" in r]
     if fwls:
