@@ -508,11 +508,13 @@ def test_finest_level_reaches_multicm_and_its_output(recording, tmp_path, capsys
     assert rc == 0
     with h5py.File(out) as f:
         assert int(f.attrs["finest_level"]) == 2 and int(f.attrs["scales"]) == 2
-    rc, _ = _run(["flow", str(recording[0]), "--window-events", "8000", "--max-windows",
-                  "1", "--out", str(tmp_path / "a.h5")], capsys)
+    rc, text = _run(["flow", str(recording[0]), "--window-events", "8000", "--max-windows",
+                     "1", "--out", str(tmp_path / "a.h5"), "--json"], capsys)
     assert rc == 0
     with h5py.File(tmp_path / "a.h5") as f:
         assert f.attrs["finest_level"] == "auto"
+    # each window says its own: 8,000 events hold 100 a tile on 8 x 8 tiles
+    assert json.loads(text)["windows"][0]["finest_level"] == 4
     rc = main(["flow", str(recording[0]), "--scales", "4", "--finest-level", "3", "--out",
                str(tmp_path / "b.h5")])
     assert rc == 2 and "--scales 4 needs --finest-level >= 4" in capsys.readouterr().err

@@ -220,6 +220,8 @@ def _row(r, w) -> dict:
            "estimate_s": r.timings.get("estimate_s", r.timings["total_s"]),
            "mean_speed_px_s": float(speed[valid].mean()) if valid.any() else 0.0,
            "valid_fraction": float(valid.mean())}
+    if "finest_level" in r.meta:  # multicm's: its finest tiles, 2^(L-1) per side
+        row["finest_level"] = int(r.meta["finest_level"])
     if "input_scale" in r.meta:  # the network's: the input scale whose flow was kept
         row["input_scale"] = int(r.meta["input_scale"])
     if "gain" in r.meta:  # the network's: the magnitude its flow was kept at
