@@ -287,7 +287,7 @@ def test_cli_egomotion_reports_checks_and_warns_once(tmp_path, capsys):
         assert f["explained_share"][0] < 0.4 and not f["collapsed"][0]
     header, first = (out / "params.csv").read_text().splitlines()[:2]
     # the csv carries the checks the .h5 does (poor_fit and valid were missing)
-    assert header.endswith("collapsed,explained_share,contrast_gain,poor_fit,valid")
+    assert header.endswith("collapsed,explained_share,contrast_gain,chance_gain,poor_fit,valid")
     assert first.endswith(",1,0")
 
 

@@ -396,6 +396,7 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
     attributes."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN, MIN_FIT_EVENTS, POOR_FIT_SHARE
+    from evmotion.methods.measured import MIN_MOTION_PX
     from evmotion.utils import atomic_write_text
 
     ok = [(w, r) for w, r, err in results if err is None and r is not None]
@@ -425,32 +426,36 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
     valid = np.array([row["valid"] for row in rows], dtype=bool)
     share = np.array([_share(row) for row in rows])
     gain = np.array([row["diagnostics"].get("contrast_gain", np.nan) for row in rows])
+    chance = np.array([row["diagnostics"].get("chance_gain", np.nan) for row in rows])
     buf = io.StringIO()
     wr = csv.writer(buf)
     wr.writerow(["window", "t0_us", "t1_us", "t_ref_us", "n_events",
                  *[f"{n} [{u}]" for n, u in zip(names, units, strict=True)],
                  "cost", "focus", "penalty", "seconds", "collapsed", "explained_share",
-                 "contrast_gain", "poor_fit", "valid"])
+                 "contrast_gain", "chance_gain", "poor_fit", "valid"])
     for k, row in enumerate(rows):
         wr.writerow([row["window"], row["t0_us"], row["t1_us"], row["t_ref_us"], row["n_events"],
                      *[repr(row["params"][n]) for n in names], repr(row["cost"]),
                      repr(row["focus"]), repr(row["penalty"]), f"{row['seconds']:.4f}",
                      int(row["collapsed"]), repr(_share(row)),
                      repr(row["diagnostics"].get("contrast_gain", float("nan"))),
-                     int(poor_fit[k]), int(valid[k])])
+                     repr(float(chance[k])), int(poor_fit[k]), int(valid[k])])
     atomic_write_text(out_dir / "params.csv", buf.getvalue())
     cols = {"window": ("", "window index"), "t_ref_us": ("us", "reference time of the warp"),
             "n_events": ("events", "events in the window"), "cost": ("", "objective value"),
             "focus": ("", "focus term"), "penalty": ("", "regularizer term"),
             "collapsed": ("", "flag: the IWE collapsed"),
             "poor_fit": ("", f"flag: explained_share < {POOR_FIT_SHARE} or NaN (no tile to "
-                             f"test), contrast_gain < {MIN_CONTRAST_GAIN} or fewer than "
+                             f"test), contrast_gain or chance_gain < {MIN_CONTRAST_GAIN}, a "
+                             f"motion under {MIN_MOTION_PX} px or fewer than "
                              f"{MIN_FIT_EVENTS} events"),
             "explained_share": ("", "share of the image the warp explains"),
-            "contrast_gain": ("", "contrast over the identity warp's")}
+            "contrast_gain": ("", "contrast over the identity warp's"),
+            "chance_gain": ("", "the warp's alignment of the events over that with their "
+                                "times shuffled")}
     values = {k: np.array([row[k] for row in rows]) for k in list(cols)[:6]}
     values.update(collapsed=collapsed, poor_fit=poor_fit, explained_share=share,
-                  contrast_gain=gain)
+                  contrast_gain=gain, chance_gain=chance)
     first = ok[0][1]
     write_params_h5(out_dir / "params.h5", ParamsTable(
         params, tuple(names), tuple(units),

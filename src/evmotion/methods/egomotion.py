@@ -87,7 +87,12 @@ from evmotion.methods.diagnostics import (
     warn_poor_fit,
     warn_too_few,
 )
-from evmotion.methods.measured import MIN_MOTION_PX, warn_small_motion
+from evmotion.methods.measured import (
+    MIN_MOTION_PX,
+    alignment_gain,
+    warn_by_chance,
+    warn_small_motion,
+)
 from evmotion.methods.options import merge_options
 
 __all__ = [
@@ -193,7 +198,8 @@ class EgomotionResult:
         # and found nothing to test is one (too few events)
         return bool(share < POOR_FIT_SHARE or gain < MIN_CONTRAST_GAIN
                     or unchecked_fit(d.get("fit", {})) or d.get("too_few_events", False)
-                    or float(d.get("motion_px", np.inf)) < MIN_MOTION_PX)
+                    or float(d.get("motion_px", np.inf)) < MIN_MOTION_PX
+                    or float(d.get("chance_gain", np.inf)) < MIN_CONTRAST_GAIN)
 
     @property
     def valid(self) -> bool:
@@ -490,13 +496,14 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
     msgs = [warn_collapse(coll, regularizer, cost.weight, stacklevel=4)]
     if coll["collapsed"]:
         # a collapsed estimate explains nothing; the tile test would only repeat it
-        fit, moved = {}, float("nan")
+        fit, moved, chance = {}, float("nan"), float("nan")
     else:
         with np.errstate(all="ignore"):
             xw, yw = w.warp(cost.x, cost.y, cost.dt, theta)
         fit = fit_diagnostics(cost.x, cost.y, cost.dt, xw, yw, cost.shape)
         msgs.append(warn_poor_fit(fit, w.name, stacklevel=4))
         moved = _moved_px(cost, xw, yw)
+        chance = _chance_gain(cost, xw, yw)
     v0 = float(np.var(iwe_before))
     gain = float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan")
     too_few = warn_too_few(int(cost.x.shape[0]), w.name, stacklevel=4)
@@ -506,10 +513,32 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
         no_gain = warn_no_gain(gain, w.name, stacklevel=4, optimum_hint=hint)
         msgs.append(no_gain)
         if no_gain is None:  # (no focus says it already)
-            msgs.append(warn_small_motion(moved, w.name, stacklevel=4))
+            small = warn_small_motion(moved, w.name, stacklevel=4)
+            msgs.append(small)
+            if small is None:
+                msgs.append(warn_by_chance(chance, f"{w.name} warp", stacklevel=4))
     return {"collapse": coll, "fit": fit, "contrast_gain": gain, "motion_px": moved,
+            "chance_gain": chance,
             "too_few_events": too_few is not None,
             "weight_source": weight_source, "warnings": [m for m in msgs if m]}
+
+
+def _chance_gain(cost: CMaxCost, xw, yw) -> float:
+    """:func:`~evmotion.methods.measured.alignment_gain` of the estimate: how much better
+    its warp aligns the events than the same per-event motions with the times permuted.
+    An estimate that fits the window's own event clusters instead of its motion (real ECD
+    windows of 10k events, about a pixel of motion: twice the IMU rate, valid) sharpens
+    them as well with the times shuffled. The per-event motion is the warp's displacement
+    to ``t_ref`` over the event's time offset (events at ``t_ref`` itself: none)."""
+    dt = np.asarray(cost.dt, np.float64)
+    moving = np.abs(dt) > 1e-9
+    f = np.zeros((dt.size, 2))
+    f[moving, 0] = (cost.x[moving] - xw[moving]) / dt[moving]
+    f[moving, 1] = (cost.y[moving] - yw[moving]) / dt[moving]
+    if not np.isfinite(f).all():
+        return float("nan")
+    return alignment_gain(np.asarray(cost.x, np.float64), np.asarray(cost.y, np.float64),
+                          dt * 1e6, f, 0, cost.shape)
 
 
 def _moved_px(cost: CMaxCost, xw, yw) -> float:
