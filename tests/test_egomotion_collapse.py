@@ -119,3 +119,24 @@ def test_inplane_4dof_collapse_is_the_optimum_only_without_regularizer(zoom_even
     for reg in ("divergence", "deformation", "rcad"):
         cost, _ = make_cost(ev, "inplane", regularizer=reg, t_ref=t_ref, dataset="dsec")
         assert cost.value(truth) < cost.value(collapse), reg
+
+
+def test_a_regularized_estimate_held_at_rest_restarts_from_the_plain_optimum(monkeypatch):
+    """At the identity the divergence penalty can leave BFGS no slope: a zoom of 2 1/s came
+    out at hz = 0.000 (cost -1.00), flagged (probe AH, on a rendered forward motion). An
+    estimate that never left its start is started again from the plain optimum, and the
+    lower regularized cost kept: 2.02 here (cost -2.94)."""
+    import evmotion.methods.egomotion as eg
+    from egomotion_synth import synth
+    from evmotion.errors import PoorFitWarning
+
+    ev = synth("zoom", np.array([2.0]), n_events=20000, seed=1)[0]
+    real = eg._from_plain_optimum
+    monkeypatch.setattr(eg, "_from_plain_optimum", lambda *a: a[5])  # keep the first
+    with pytest.warns(PoorFitWarning, match="divergence regularizer holding the warp"):
+        stuck = eg.estimate_egomotion(ev, warp="zoom", regularizer="divergence")
+    assert stuck.params[0] == 0.0 and not stuck.valid
+    monkeypatch.setattr(eg, "_from_plain_optimum", real)
+    res = eg.estimate_egomotion(ev, warp="zoom", regularizer="divergence")
+    assert res.params[0] == pytest.approx(2.0, abs=0.1) and res.valid
+    assert res.cost < stuck.cost

@@ -441,6 +441,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                                 if OBJECTIVES[o.objective].needs_time else 0)
     if o.optimizer == "tpe":
         res = _polished(cost, res, param_scales(w))
+    elif o.regularizer is not None and np.array_equal(res.x, x0):
+        res = _from_plain_optimum(events, warp, K, o, cost, res, x0, (lo, hi))
     t2 = time.perf_counter()
     theta = res.x
     parts = cost.parts(theta)
@@ -472,6 +474,25 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         history=res.history, maps=out_maps, timings=timings,
         collapsed=bool(diagnostics.get("collapse", {}).get("collapsed", False)),
         diagnostics=diagnostics)
+
+
+def _from_plain_optimum(events, warp, K, o: EgomotionOptions, cost: CMaxCost,
+                        res: OptimResult, x0: np.ndarray, box) -> OptimResult:
+    """A regularized estimate that never left its start, started again from the plain
+    (unregularized) optimum; the lower regularized cost is kept. At the identity the
+    divergence and deformation penalties can leave the optimizer no slope to follow: on a
+    forward motion (hz 2.0 1/s) ``--reg divergence`` returned hz = 0.000 at cost -1.00 in 2
+    of 5 windows, where its own cost at the plain optimum was -1.97 (probe AH). Where the
+    plain optimum collapsed, the penalty there keeps the first answer."""
+    plain, _ = make_cost(events, warp, o.objective, None, None, K, o.t_ref, o.kernel,
+                         o.sigma, o.use_polarity, o.dataset)
+    w = cost.warp
+    opts = dict(lower=box[0], upper=box[1], scale=param_scales(w), starts=o.starts,
+                n_samples=o.n_samples, n_iter=o.n_iter, lr=o.lr, seed=o.seed,
+                restarts=TIMESTAMP_RESTARTS if OBJECTIVES[o.objective].needs_time else 0)
+    start = minimize(plain.value_grad, x0, o.optimizer, **opts).x
+    again = minimize(cost.value_grad, start, o.optimizer, **opts)
+    return again if again.fun < res.fun else res
 
 
 def _polished(cost: CMaxCost, res: OptimResult, scale: np.ndarray) -> OptimResult:
@@ -510,6 +531,12 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
     msgs.append(too_few)
     if not coll["collapsed"] and too_few is None:
         hint = "" if optimizer == "tpe" else " (--optimizer tpe searches the whole box)"
+        if regularizer is not None:
+            # its penalty can hold the estimate at the identity (probe AH: divergence on a
+            # forward motion, cost -1.00 at hz = 0 against -0.37 at its own optimum 2.52,
+            # where the plain warp finds 2.92)
+            hint += (f", or the {regularizer} regularizer holding the warp at rest (try "
+                     "without it, or a lower --weight)")
         no_gain = warn_no_gain(gain, w.name, stacklevel=4, optimum_hint=hint)
         msgs.append(no_gain)
         if no_gain is None:  # (no focus says it already)
