@@ -14,8 +14,8 @@ True
 
 from __future__ import annotations
 
-__all__ = ["MAX_CROP_SIDE", "MAX_SIM_SIDE", "MAX_WIDTH", "MIN_CROP_SIDE", "OBJECTIVE_NAMES",
-           "WARP_NAMES", "WEIGHT_DATASETS"]
+__all__ = ["HOT_NEIGHBOUR_RATIO", "MAX_CROP_SIDE", "MAX_SIM_SIDE", "MAX_WIDTH",
+           "MIN_CROP_SIDE", "OBJECTIVE_NAMES", "WARP_NAMES", "WEIGHT_DATASETS"]
 
 #: Warps :func:`evmotion.core.warps.make_warp` builds (keys of
 #: :data:`evmotion.core.warps.WARPS`).
@@ -47,6 +47,10 @@ MIN_CROP_SIDE = 32
 MAX_TIME_BINS = 200
 #: Most worker processes a command starts (``--workers``); no more than it has windows.
 MAX_WORKERS = 256
+
+#: A hot pixel, for the commands and the network (:func:`evmotion.filters.hot_pixel_mask`'s
+#: ``neighbour_ratio``): more than this many times the events of each of its neighbours.
+HOT_NEIGHBOUR_RATIO = 4.0
 #: Largest sensor side (pixels) a header may declare: today's largest event sensors are
 #: 1280x720 (Prophesee IMX636) and 1920x1080 (Samsung); 16384 leaves room while keeping a
 #: per-pixel float32 image of a corrupt header's sensor under 1 GiB.

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import HOT_NEIGHBOUR_RATIO
 from evmotion.errors import EmptyWindowError, ParameterError, PoorFitWarning
 from evmotion.events import EventArray, pixel_indices
 from evmotion.filters import hot_pixel_mask
@@ -34,9 +35,6 @@ from evmotion.methods.flowresult import (
 from evmotion.methods.measured import flow_alignment_gain, warn_by_chance, warn_no_gain
 
 __all__ = ["estimate_flow_dnn", "predict_displacement", "sharpness"]
-
-# a hot pixel holds more than this many times the events of each of its neighbours
-HOT_NEIGHBOUR_RATIO = 4.0
 
 # the events binned this many times coarser (estimate_flow_dnn): 8 for windows whose
 # events move tens of px (a 0.95 s DAVIS346 window: FWL 2.30 with 1-4, 3.24 with 8 too)
