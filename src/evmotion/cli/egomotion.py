@@ -392,7 +392,7 @@ def _journal_header(args, events, windows, K) -> dict:
             "weight": args.weight, "optimizer": args.optimizer, "t_ref": args.t_ref,
             "seed": args.seed, "dataset": args.dataset, "warm_start": args.warm_start,
             "window_events": args.window_events, "window_us": args.window_us,
-            "t0": args.t0, "grid": args.grid,
+            "t0": args.t0, "grid": args.grid, "remove_hot_pixels": args.remove_hot_pixels,
             "K": None if K is None else np.asarray(K, np.float64).round(9).tolist(),
             "first_window": fingerprint(events[w.start:w.stop])}
 
