@@ -219,6 +219,7 @@ def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
         return None
     pick = np.unique(np.linspace(0, len(data.intervals) - 1, min(samples, len(data.intervals)))
                      .round().astype(int))
+
     def change(a, b, c=None):  # smoothed squared log difference (c: second difference)
         logs = [log_frame(data.frames[k])[y:y + h, x:x + w] for k in (a, b, c) if k is not None]
         diff = logs[1] - logs[0] if c is None else logs[2] - 2.0 * logs[1] + logs[0]
@@ -247,8 +248,9 @@ def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
         warnings.warn(EvmotionWarning(
             f"{data.source}: the frames change where no event fires (more than "
             f"{NEAR_EVENTS_PX:g} px from any, {ratio:.2f}x their change near the events); "
-            "the air should be still there, so frames and events do not show the same view (events "
-            "from a smaller or shifted sensor, a crop, or frames not registered with them); "
+            "the air should be still there, so frames and events do not show the same view "
+            "(events from a smaller or shifted sensor, a crop, or frames not registered with "
+            "them); "
             "the contrast threshold and the flow's magnitude come out wrong (0.7x on such a "
             f"scene); register them, or keep to the events with --roi {' '.join(map(str, box))}"
             ), stacklevel=2)
@@ -476,8 +478,8 @@ def require_texture(data: BosInput, options=None) -> None:
     """Refuse a run none of whose intervals' frames has texture in the ROI (black,
     uniform): a textureless frame among textured ones is skipped, with a warning, by the
     solver (``on_empty="skip"``). Stops at the first textured frame, and warns when its
-    texture varies from one pixel to the next (:func:`~evmotion.methods.bos.
-    texture_correlation`)."""
+    texture varies from one pixel to the next
+    (:func:`~evmotion.methods.bos.texture_correlation`)."""
     from evmotion.methods.bos import (
         MIN_TEXTURE_CORRELATION,
         BosOptions,
