@@ -434,15 +434,14 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                              f"got {x0.shape}")
     lo, hi = default_bounds(w) if o.bounds is None else _checked_bounds(o.bounds, w)
     t1 = time.perf_counter()
-    res: OptimResult = minimize(cost.value_grad, x0, o.optimizer, lower=lo, upper=hi,
-                                scale=param_scales(w), starts=o.starts, n_samples=o.n_samples,
-                                n_iter=o.n_iter, lr=o.lr, seed=o.seed,
-                                restarts=TIMESTAMP_RESTARTS
-                                if OBJECTIVES[o.objective].needs_time else 0)
+    search = dict(lower=lo, upper=hi, scale=param_scales(w), starts=o.starts,
+                  n_samples=o.n_samples, n_iter=o.n_iter, lr=o.lr, seed=o.seed,
+                  restarts=TIMESTAMP_RESTARTS if OBJECTIVES[o.objective].needs_time else 0)
+    res: OptimResult = minimize(cost.value_grad, x0, o.optimizer, **search)
     if o.optimizer == "tpe":
         res = _polished(cost, res, param_scales(w))
     elif o.regularizer is not None and np.array_equal(res.x, x0):
-        res = _from_plain_optimum(events, warp, K, o, cost, res, x0, (lo, hi))
+        res = _from_plain_optimum(events, warp, K, o, cost, res, x0, search)
     t2 = time.perf_counter()
     theta = res.x
     parts = cost.parts(theta)
@@ -477,21 +476,18 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
 
 
 def _from_plain_optimum(events, warp, K, o: EgomotionOptions, cost: CMaxCost,
-                        res: OptimResult, x0: np.ndarray, box) -> OptimResult:
+                        res: OptimResult, x0: np.ndarray, search: dict) -> OptimResult:
     """A regularized estimate that never left its start, started again from the plain
-    (unregularized) optimum; the lower regularized cost is kept. At the identity the
-    divergence and deformation penalties can leave the optimizer no slope to follow: on a
-    forward motion (hz 2.0 1/s) ``--reg divergence`` returned hz = 0.000 at cost -1.00 in 2
-    of 5 windows, where its own cost at the plain optimum was -1.97 (probe AH). Where the
-    plain optimum collapsed, the penalty there keeps the first answer."""
+    (unregularized) optimum, both searched as the first was (``search``: the keywords of
+    :func:`~evmotion.core.optim.minimize`); the lower regularized cost is kept. At the
+    identity the divergence and deformation penalties can leave the optimizer no slope to
+    follow: on a forward motion (hz 2.0 1/s) ``--reg divergence`` returned hz = 0.000 at
+    cost -1.00 in 2 of 5 windows, where its own cost at the plain optimum was -1.97 (probe
+    AH). Where the plain optimum collapsed, the penalty there keeps the first answer."""
     plain, _ = make_cost(events, warp, o.objective, None, None, K, o.t_ref, o.kernel,
                          o.sigma, o.use_polarity, o.dataset)
-    w = cost.warp
-    opts = dict(lower=box[0], upper=box[1], scale=param_scales(w), starts=o.starts,
-                n_samples=o.n_samples, n_iter=o.n_iter, lr=o.lr, seed=o.seed,
-                restarts=TIMESTAMP_RESTARTS if OBJECTIVES[o.objective].needs_time else 0)
-    start = minimize(plain.value_grad, x0, o.optimizer, **opts).x
-    again = minimize(cost.value_grad, start, o.optimizer, **opts)
+    start = minimize(plain.value_grad, x0, o.optimizer, **search).x
+    again = minimize(cost.value_grad, start, o.optimizer, **search)
     return again if again.fun < res.fun else res
 
 
