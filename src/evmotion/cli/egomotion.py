@@ -326,13 +326,9 @@ def run(args) -> int:
                                                                       r.value)
                         journal.add(k, windows[k].t0, windows[k].t1, (value, r.error))
     except BaseException:
-        if journal.count or done:
-            from evmotion.utils import keep_for_resume
-
-            keep_for_resume(journal.path)
-        else:  # nothing finished (a cluster out of reach, say): nothing to resume
-            journal.path.unlink(missing_ok=True)
-            # nor a picture: an empty staging folder, and the output folder this run made
+        # nothing finished (a cluster out of reach, say): nothing to resume, nor a picture:
+        # an empty staging folder, and the output folder this run made
+        if not journal.settle(bool(done)):
             if not any(staged.iterdir()):
                 staged.rmdir()
             if made_out and not any(out_dir.iterdir()):

@@ -115,14 +115,9 @@ def run(args) -> int:
                                         f"{r.t1}) us failed: {r.error.splitlines()[0]}")
                 journal.add(k, windows[k].t0, windows[k].t1, r.value)
     except BaseException:
-        if journal.count or done:
-            from evmotion.utils import keep_for_resume
-
-            keep_for_resume(journal.path)
-        else:  # nothing finished: nothing to resume, nor the output folder this run made
-            journal.path.unlink(missing_ok=True)
-            if made_out and not any(out.iterdir()):
-                out.rmdir()
+        # nothing finished: nothing to resume, nor the output folder this run made
+        if not journal.settle(bool(done)) and made_out and not any(out.iterdir()):
+            out.rmdir()
         raise
     done = Journal.read(journal.path, _journal_header(args, events, windows, K))
     remove_stale_pictures(out, ("window_",))

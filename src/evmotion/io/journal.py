@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from evmotion.errors import ParameterError
-from evmotion.utils import ensure_room
+from evmotion.utils import ensure_room, keep_for_resume
 
 __all__ = ["Journal"]
 
@@ -54,6 +54,16 @@ class Journal:
 
     def close(self) -> None:
         self.fh.close()
+
+    def settle(self, resumed: bool) -> bool:
+        """After an interruption: keep the journal for ``--resume`` (the command line names
+        it) when it holds a window, this process's or an earlier run's (``resumed``), and
+        return True; else delete it (nothing to resume) and return False."""
+        if self.count or resumed:
+            keep_for_resume(self.path)
+            return True
+        self.path.unlink(missing_ok=True)
+        return False
 
     def __enter__(self) -> Journal:
         return self
