@@ -115,6 +115,7 @@ __all__ = [
     "contrast_threshold_slope",
     "event_sums",
     "frame_texture",
+    "log_difference_noise",
     "log_frame",
     "texture_correlation",
     "noise_floor_count",
@@ -715,10 +716,8 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
     quiet = wide <= 1e-3 * wide.max()
     noise = _frame_noise(d, level, quiet, near)
     if noise is None and frame_after is not None and near.any():
-        second = l0 - 2.0 * l1 + log_frame(frame_after, log_eps)[crop]
-        if sigma > 0:
-            second = gaussian_filter(second, sigma, mode="nearest")
-        noise = float(np.mean(second[near] ** 2)) / 3.0
+        noise = log_difference_noise(l0, l1, log_frame(frame_after, log_eps)[crop], sigma,
+                                     near)
     noise = max(noise or 0.0,
                 _quantization_noise(frame, frame_next, crop, sigma, near, log_eps))
     dd, ss = d[near], s[near]
@@ -784,6 +783,27 @@ def _quantization_noise(frame, frame_next, crop, sigma: float, fit: np.ndarray,
         var = gaussian_filter(var, sigma / np.sqrt(2.0), mode="nearest") \
             / (4.0 * np.pi * sigma * sigma)
     return float(np.mean(var[fit])) if fit.any() else 0.0
+
+
+def log_difference_noise(l0: np.ndarray, l1: np.ndarray, l2: np.ndarray, sigma: float,
+                         mask: np.ndarray) -> float:
+    """The frames' noise variance in the log difference ``l1 - l0`` (smoothed with
+    ``sigma`` px) over the ``mask`` pixels, measured in time from three consecutive log
+    frames: their second difference holds each frame's independent noise (1 + 4 + 1 times,
+    the difference 1 + 1), so its mean square over 3, plus how much the change itself
+    changed from one interval to the next: an upper bound, close where the air is steady.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> logs = [rng.normal(0.0, 0.1, (64, 64)) for _ in range(3)]  # noise alone
+    >>> round(log_difference_noise(*logs, 0, np.ones((64, 64), bool)) / 0.02, 1)
+    1.0
+    """
+    second = l2 - 2.0 * l1 + l0
+    if sigma > 0:
+        second = gaussian_filter(second, sigma, mode="nearest")
+    return float(np.mean(second[mask] ** 2)) / 3.0
 
 
 def _frame_noise(d: np.ndarray, level: np.ndarray, quiet: np.ndarray, fit: np.ndarray

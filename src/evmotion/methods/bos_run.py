@@ -209,7 +209,7 @@ def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
     """
     from scipy.ndimage import distance_transform_edt, gaussian_filter
 
-    from evmotion.methods.bos import NEAR_EVENTS_PX, event_sums, log_frame
+    from evmotion.methods.bos import NEAR_EVENTS_PX, event_sums, log_difference_noise, log_frame
 
     x, y, w, h = data.roi if data.roi is not None else (0, 0, data.events.sensor_size[1],
                                                         data.events.sensor_size[0])
@@ -220,21 +220,15 @@ def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
     pick = np.unique(np.linspace(0, len(data.intervals) - 1, min(samples, len(data.intervals)))
                      .round().astype(int))
 
-    def change(a, b, c=None):  # smoothed squared log difference (c: second difference)
-        logs = [log_frame(data.frames[k])[y:y + h, x:x + w] for k in (a, b, c) if k is not None]
-        diff = logs[1] - logs[0] if c is None else logs[2] - 2.0 * logs[1] + logs[0]
-        return gaussian_filter(diff, 2.0, mode="nearest") ** 2
-
     ratios = []
     for j in pick:
         i = int(data.intervals[j][0])
         if i + 2 >= len(data.frames):
             continue
-        d = change(i, i + 1)
-        # the frames' noise far from the events (the second difference over three frames
-        # holds it three times, plus how the change itself changed): still air in noisy
-        # frames is no change
-        noise = float(np.mean(change(i, i + 1, i + 2)[far])) / 3.0
+        logs = [log_frame(data.frames[k])[y:y + h, x:x + w] for k in (i, i + 1, i + 2)]
+        d = gaussian_filter(logs[1] - logs[0], 2.0, mode="nearest") ** 2
+        # the frames' noise far from the events: still air in noisy frames is no change
+        noise = log_difference_noise(*logs, 2.0, far)
         near, away = float(np.mean(d[~far])), float(np.mean(d[far]))
         if near > 0 and away > 2.0 * noise:
             ratios.append(away / near)
