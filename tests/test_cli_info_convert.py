@@ -9,6 +9,8 @@ import pytest
 
 import evmotion.io as eio
 from evmotion.cli import main
+from evmotion.errors import ParameterError
+from evmotion.events import EventArray
 
 
 def _run(capsys, *argv):
@@ -209,3 +211,22 @@ def test_json_summary_lists_the_warnings_said_on_stderr(tmp_path, capsys):
     assert said and json.loads(out)["warnings"] == said
     assert main(["info", str(tmp_path / "w.npy"), "--sensor-size", "6", "30", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["warnings"] == []
+
+
+@pytest.mark.parametrize("ext", ["raw", "dat", "aedat", "aedat4", "h5", "npz"])
+def test_negative_times_round_trip(tmp_path, ext):
+    # times before 0 (a clock zeroed at a trigger): EVT3 wrote a negative header offset
+    # that its own reader refused, and DAT / AEDAT 2.0 refused to write them at all
+    t = np.array([-4997, -12, 0, 4980, 9000], np.int64)
+    ev = EventArray(x=[0, 1, 2, 3, 4], y=[0, 1, 2, 3, 4], t=t, p=[0, 1, 1, 0, 1],
+                        sensor_size=(80, 100))
+    eio.write_events(tmp_path / f"n.{ext}", ev)
+    back = eio.read_events(tmp_path / f"n.{ext}")
+    np.testing.assert_array_equal(back.t, t)
+    np.testing.assert_array_equal(back.x, ev.x)
+
+
+def test_negative_times_refused_by_ecd_text(tmp_path):
+    ev = EventArray(x=[0, 1], y=[0, 1], t=[-5, 3], p=[0, 1], sensor_size=(80, 100))
+    with pytest.raises(ParameterError, match="non-negative times"):
+        eio.write_events(tmp_path / "n.txt", ev)

@@ -261,7 +261,7 @@ def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> N
               "# Data format is int32 address, int32 timestamp (8 bytes total), repeated "
               "for each event\r\n# Timestamps tick is 1 us\r\n"
               f"# AEChip: {chip}\r\n# sensor_size (height, width) = ({h}, {w})\r\n"
-              + (f"# {OFFSET_KEY} {t_base}\r\n" if t_base > 0 else ""))
+              + (f"# {OFFSET_KEY} {t_base}\r\n" if t_base else ""))
     rec = np.empty((len(events), 2), ">u4")
     xr = (w - 1 - events.x.astype(np.int64)).astype(np.uint32)
     yr = (h - 1 - events.y.astype(np.int64)).astype(np.uint32)

@@ -303,7 +303,7 @@ def check_writable(events: EventArray, fmt: str, height: int, width: int,
 def u32_time_base(events: EventArray, fmt: str) -> int:
     """The µs a format that stores times modulo 2^32 µs writes ``events``' times from:
     the multiple of 2^32 µs at or below the first time (0 for a first time within
-    ``[0, 2^32)``, or negative); the writer keeps it in its header. Checked with
+    ``[0, 2^32)``, -2^32 for one in ``[-2^32, 0)``); the writer keeps it in its header. Checked with
     :func:`check_u32_times` (``fmt`` names the format in its errors).
 
     Examples
@@ -313,7 +313,7 @@ def u32_time_base(events: EventArray, fmt: str) -> int:
     True
     """
     first = int(events.t[0]) if len(events) else 0
-    t_base = max(first - first % (1 << 32), 0)
+    t_base = first - first % (1 << 32)
     check_u32_times(events, fmt, t_base)
     return t_base
 

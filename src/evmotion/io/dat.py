@@ -152,7 +152,7 @@ def write(path: str | Path, events: EventArray) -> None:
     h, w = events.sensor_size
     header = ("% Data file containing CD events.\n% Version 2\n"
               f"% Width {w}\n% Height {h}\n"
-              + (f"% {prophesee.OFFSET_KEY} {t_base}\n" if t_base > 0 else "")).encode()
+              + (f"% {prophesee.OFFSET_KEY} {t_base}\n" if t_base else "")).encode()
     rec = np.empty((len(events), 2), "<u4")
     rec[:, 0] = (events.t & 0xFFFFFFFF).astype(np.uint32)
     rec[:, 1] = (events.x.astype(np.uint32) | (events.y.astype(np.uint32) << 14)

@@ -19,7 +19,8 @@ from evmotion.utils import atomic_path
 # Header key evmotion writes when the first timestamp does not fit the format's counter;
 # readers add it to every timestamp. Other tools ignore unknown header keys.
 OFFSET_KEY = "evmotion_time_offset_us"
-# Largest offset accepted (36,000 years): offset plus counter stays far inside int64.
+# Largest offset accepted either way (36,000 years): offset plus counter stays far inside
+# int64. Negative offsets are the writers' for recordings whose times start below 0.
 MAX_TIME_OFFSET_US = 1 << 60
 
 
@@ -77,9 +78,9 @@ def header_time_offset(path: Path, lines: list[str]) -> int:
                 t_offset = int(body.split()[1])
             except (IndexError, ValueError):
                 raise FormatError(path, f"bad header line '{line}'") from None
-            if not 0 <= t_offset <= MAX_TIME_OFFSET_US:
+            if abs(t_offset) > MAX_TIME_OFFSET_US:
                 raise FormatError(path, f"header field '{OFFSET_KEY}' is {t_offset} us, "
-                                  f"outside 0..{MAX_TIME_OFFSET_US} (2^60 us)")
+                                  f"outside +-{MAX_TIME_OFFSET_US} (2^60 us)")
     return t_offset
 
 
