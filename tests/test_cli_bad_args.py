@@ -1071,3 +1071,44 @@ def test_an_interrupted_run_leaves_no_other_runs_results_in_its_folder(tmp_path,
             and p.name != "params.part"} == before
     assert (out / "params.part").exists() and (out / "panels.part").is_dir()
     capsys.readouterr()
+
+
+@pytest.mark.parametrize("out_name", ["f.h5", "f_{:05d}.flo"])
+def test_a_window_of_no_duration_is_written_and_read_back(tmp_path, capsys, out_name):
+    """A burst longer than a window (a coarse clock, flicker): that window is [t, t) µs.
+    It was stored so, and then eval and read_flow refused the whole file ('t1 not after
+    t0'), and a .flo pattern output failed after the work; it is now written with no valid
+    pixel and read back as such, and the other windows are scored."""
+    from evmotion.events import EventArray
+    from evmotion.io import read_flow, write_events
+
+    rng = np.random.default_rng(1)
+    n = 6000
+    t = np.arange(n, dtype=np.int64) * 3
+    t[:2500] = t[2499]  # window 0 (2000 events) lies inside the burst
+    ev = EventArray(x=rng.integers(0, 40, n), y=rng.integers(0, 30, n), t=t,
+                    p=rng.integers(0, 2, n), sensor_size=(30, 40))
+    rec = tmp_path / "burst.h5"
+    write_events(rec, ev)
+    out = tmp_path / out_name
+    rc, err = _run(["flow", str(rec), "--window-events", "2000", "--out", str(out)], capsys)
+    assert rc == 0 and "window 0 [7497, 7497) us skipped" in err, err
+    flow = read_flow(out)
+    assert (flow.t0[0], flow.t1[0]) == (7497, 7497) and not flow.valid[0].any()
+    assert len(flow.t0) == 3 and flow.t1[1] > flow.t0[1]
+
+
+def test_flow_files_refuse_a_window_of_no_duration_with_valid_pixels(tmp_path):
+    import h5py
+
+    from evmotion.errors import FormatError
+    from evmotion.io.flowfiles import read_flow_h5, write_flow_group
+
+    flow = np.zeros((1, 3, 4, 2), np.float32)
+    for name, valid in (("a.h5", False), ("b.h5", True)):
+        with h5py.File(tmp_path / name, "w") as f:
+            write_flow_group(f, flow, [5], [5],
+                             valid=np.full((1, 3, 4), valid), compression=None)
+    assert not read_flow_h5(tmp_path / "a.h5").valid.any()
+    with pytest.raises(FormatError, match="not after t0 = 5 us and valid pixels"):
+        read_flow_h5(tmp_path / "b.h5")

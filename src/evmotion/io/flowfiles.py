@@ -47,6 +47,7 @@ __all__ = [
     "create_extras",
     "extra_specs",
     "check_extras",
+    "window_times_ok",
     "read_flo",
     "write_flo",
     "read_dsec_flow_png",
@@ -144,6 +145,8 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
     """
     arr = _check_flow(flow)
     if dt_s is not None:
+        if not np.isfinite(dt_s) or dt_s < 0:
+            raise ParameterError(f"dt_s must be a finite duration >= 0 in seconds, got {dt_s}")
         arr = arr * np.float32(dt_s)
     known = np.isfinite(arr).all(axis=2)
     if valid is not None:
@@ -585,9 +588,25 @@ def write_flow_group(group, flow: np.ndarray | None, t0, t1, valid=None, *,
                              chunks=(1, h, w), data=data, **kw)
 
 
+def window_times_ok(t0: int, t1: int, valid: np.ndarray | None) -> bool:
+    """Whether ``[t0, t1)`` µs can hold a flow window: ``t1 > t0``, or ``t1 == t0`` for a
+    window without a valid pixel (``valid`` given and all False: a window of events all at
+    one time, which the estimators skip and the outputs keep, so the windows stay
+    numbered as the recording's).
+
+    Examples
+    --------
+    >>> window_times_ok(5, 5, np.zeros((2, 2), bool)), window_times_ok(5, 5, None)
+    (True, False)
+    """
+    if int(t1) != int(t0):
+        return int(t1) > int(t0)
+    return valid is not None and not np.asarray(valid).any()
+
+
 def check_flow_arrays(path, flow, t0, t1, valid, units) -> None:
     """FormatError naming ``path`` unless the arrays read from a flow file make windows:
-    ``flow`` (N, H, W, 2) numbers, ``t0``/``t1`` N whole µs with ``t1 > t0``, ``valid``
+    ``flow`` (N, H, W, 2) numbers, ``t0``/``t1`` N whole µs with ``t1 > t0`` (:func:`window_times_ok`), ``valid``
     (N, H, W) or None, and ``units`` px/s (the only units evmotion writes: a flow stated in
     other units would be scored as px/s)."""
     flow, t0, t1 = np.asarray(flow), np.asarray(t0), np.asarray(t1)
@@ -600,10 +619,12 @@ def check_flow_arrays(path, flow, t0, t1, valid, units) -> None:
                           f"{n} flow windows")
     if n and (t0.dtype.kind not in "iu" or t1.dtype.kind not in "iu"):
         raise FormatError(path, f"'t0'/'t1' are {t0.dtype}/{t1.dtype}: expected whole µs")
-    if n and np.any(t1 <= t0):
-        k = int(np.argmax(t1 <= t0))
+    bad = [k for k in range(n) if not window_times_ok(
+        t0[k], t1[k], None if valid is None else np.asarray(valid[k]))]
+    if bad:
+        k = bad[0]
         raise FormatError(path, f"window {k} has t1 = {int(t1[k])} us not after t0 = "
-                          f"{int(t0[k])} us")
+                          f"{int(t0[k])} us" + (" and valid pixels" if t1[k] == t0[k] else ""))
     if valid is not None and np.shape(valid) != flow.shape[:3]:
         raise FormatError(path, f"'valid' has shape {np.shape(valid)}, the flow windows "
                           f"{flow.shape[:3]}")

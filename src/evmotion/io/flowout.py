@@ -66,6 +66,7 @@ from evmotion.io.flowfiles import (
     FlowWriter,
     check_extras,
     part_holds_nothing,
+    window_times_ok,
     write_dsec_flow_png,
     write_flo,
 )
@@ -241,15 +242,16 @@ class FlowOutput(PartFileWriter):
         if arr.shape != (*self.sensor_size, 2):
             raise ParameterError(f"{self.path}: flow has shape {arr.shape}, this output holds "
                                  f"{(*self.sensor_size, 2)}")
-        if int(t1) <= int(t0):
-            raise ParameterError(f"{self.path}: window end t1={t1} us is not after "
-                                 f"t0={t0} us")
         if valid is None:
             valid = np.isfinite(arr).all(axis=2)
         v = np.asarray(valid, dtype=bool)
         if v.shape != self.sensor_size:
             raise ParameterError(f"{self.path}: valid has shape {v.shape}, expected "
                                  f"{self.sensor_size}")
+        if not window_times_ok(t0, t1, v):
+            raise ParameterError(f"{self.path}: window end t1={t1} us is not after "
+                                 f"t0={t0} us" + (" and the window has valid pixels"
+                                                  if int(t1) == int(t0) else ""))
         return arr, v
 
     def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None,

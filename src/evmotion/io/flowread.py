@@ -30,6 +30,7 @@ from evmotion.io.flowfiles import (
     read_flo,
     read_flow_h5,
     read_mvsec_gt_flow,
+    window_times_ok,
 )
 from evmotion.io.flowout import (
     CONTAINERS,
@@ -62,8 +63,8 @@ def _read_sidecar(path: Path) -> dict | None:
         if not isinstance(doc.get(key), int):
             raise FormatError(side, f"field '{key}' is {doc.get(key)!r}, expected an integer "
                               "in µs")
-    if doc["t1_us"] <= doc["t0_us"]:
-        raise FormatError(side, f"t1_us {doc['t1_us']} is not after t0_us {doc['t0_us']}")
+    if doc["t1_us"] < doc["t0_us"]:
+        raise FormatError(side, f"t1_us {doc['t1_us']} is before t0_us {doc['t0_us']}")
     return doc
 
 
@@ -85,7 +86,12 @@ def _read_one_window(path: Path, t0_us: int | None, t1_us: int | None) -> FlowSe
         valid = np.isfinite(disp).all(axis=2)
     else:
         disp, valid = read_dsec_flow_png(path)
-    flow = disp / np.float32((t1_us - t0_us) * 1e-6)
+    if not window_times_ok(t0_us, t1_us, valid):
+        raise FormatError(path, f"its window [{t0_us}, {t1_us}) us has no duration but "
+                          "valid pixels")
+    # a window of no duration (events all at one time, skipped) holds no flow at all
+    flow = (disp / np.float32((t1_us - t0_us) * 1e-6) if t1_us > t0_us
+            else np.full_like(disp, np.nan))
     attrs = dict(side.get("attrs", {})) if side else {}
     attrs.update(container="middlebury-flo" if kind == "flo" else "dsec-png",
                  units="px/s", stored_units="px")
