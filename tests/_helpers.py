@@ -86,3 +86,17 @@ def interrupt_at_call(monkeypatch, owner, name: str, n: int) -> list:
 
     monkeypatch.setattr(owner, name, interrupted)
     return calls
+
+
+def with_hot_pixels(ev, xs, ys, per_pixel: int, seed: int = 0):
+    """``ev`` plus ``per_pixel`` events at each pixel ``(xs[k], ys[k])`` at uniform random
+    times within its span (polarity 1), sorted by time."""
+    from evmotion.events import EventArray
+
+    rng = np.random.default_rng(seed)
+    n_hot = len(xs) * per_pixel
+    t = np.concatenate([ev.t, rng.integers(int(ev.t[0]), int(ev.t[-1]), n_hot)])
+    order = np.argsort(t, kind="stable")
+    return EventArray(np.round(np.r_[ev.x, np.repeat(xs, per_pixel)]).astype(np.uint16)[order],
+                      np.round(np.r_[ev.y, np.repeat(ys, per_pixel)]).astype(np.uint16)[order],
+                      t[order], np.r_[ev.p, np.ones(n_hot)][order], ev.sensor_size)

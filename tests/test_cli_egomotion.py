@@ -9,7 +9,7 @@ import h5py
 import numpy as np
 import pytest
 
-from _helpers import interrupt_at_call
+from _helpers import interrupt_at_call, with_hot_pixels
 from egomotion_synth import synth
 from evmotion.cli import main
 from evmotion.events import concatenate
@@ -438,17 +438,8 @@ def test_remove_hot_pixels_drops_them_before_the_windows(tmp_path, capsys):
     """Hot pixels hold a warp at rest (probe AH: 4 at 1.5 kHz stopped 9 of 11 windows) and
     the command had no way to drop them, which the library has. --remove-hot-pixels drops
     their events, says how many, and the windows are estimated without them."""
-    from evmotion.events import EventArray
-
     ev, _ = synth("translation", [300.0, -150.0], n_events=12000, seed=0)
-    rng = np.random.default_rng(0)
-    n_hot = 3 * 3000
-    hx, hy = np.repeat([20, 100, 200], 3000), np.repeat([30, 90, 150], 3000)
-    t = np.concatenate([ev.t, rng.integers(int(ev.t[0]), int(ev.t[-1]), n_hot)])
-    order = np.argsort(t, kind="stable")
-    both = EventArray(np.round(np.r_[ev.x, hx]).astype(np.uint16)[order],
-                      np.round(np.r_[ev.y, hy]).astype(np.uint16)[order], t[order],
-                      np.r_[ev.p, np.ones(n_hot)][order], ev.sensor_size)
+    both = with_hot_pixels(ev, [20, 100, 200], [30, 90, 150], 3000)
     path = tmp_path / "hot.h5"
     write_events(path, both)
     argv = ["egomotion", str(path), "--warp", "translation", "--window-events", "21000",

@@ -27,13 +27,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from evmotion.catalog import (
-    HOT_NEIGHBOUR_RATIO,
     MAX_WORKERS,
     OBJECTIVE_NAMES,
     WARP_NAMES,
     WEIGHT_DATASETS,
 )
-from evmotion.cli.calib import add_camera_arguments
+from evmotion.cli.calib import add_camera_arguments, add_hot_pixel_argument
 from evmotion.cli.options import (
     DEFAULT_WINDOW_EVENTS,
     POOR_FIT_LINES,
@@ -95,10 +94,7 @@ def add_common(p, objectives=None, regularizers=REGULARIZERS) -> None:
     p.add_argument("--t-ref", default="start", choices=["start", "mid", "end"],
                    help="reference time of the warp within each window (default start)")
     p.add_argument("--format", default=None, help="input format (default: detected)")
-    p.add_argument("--remove-hot-pixels", action="store_true",
-                   help="drop the events of hot pixels (far busier than the median pixel "
-                        f"and {HOT_NEIGHBOUR_RATIO:g}x each neighbour) before the windows are "
-                        "cut: a few hot pixels hold a warp at rest")
+    add_hot_pixel_argument(p)
 
 
 def add_parser(sub) -> None:
@@ -170,8 +166,6 @@ def load_events_and_camera(args, **cut):
     from evmotion.cli.calib import read_for_windows
 
     events, cam, args.grid = read_for_windows(args, **cut)
-    if getattr(args, "remove_hot_pixels", False):
-        events = _without_hot_pixels(args, events)
     guessed = str(events.meta.get("sensor_size_from", ""))
     if guessed.startswith("ECD default") and cam is None and centred_warp(args.warp):
         # (a calibration says the sensor, as the ECD folders' calib.txt does)
@@ -186,20 +180,6 @@ def load_events_and_camera(args, **cut):
                                "none found with the recording, pass --calib FILE or --K "
                                "fx,fy,cx,cy")
     return events, cam
-
-
-def _without_hot_pixels(args, events):
-    """``events`` less those of its hot pixels (:func:`evmotion.filters.hot_pixel_mask`
-    with :data:`HOT_NEIGHBOUR_RATIO`), said in one line."""
-    from evmotion.cli import warn_line
-    from evmotion.filters import hot_pixel_mask, remove_hot_pixels
-
-    mask = hot_pixel_mask(events, neighbour_ratio=HOT_NEIGHBOUR_RATIO)
-    kept = remove_hot_pixels(events, mask)
-    if mask.any():
-        warn_line(f"{args.file}: --remove-hot-pixels dropped {int(mask.sum())} hot pixels "
-                  f"({len(events) - len(kept):,} of {len(events):,} events)")
-    return kept
 
 
 class WindowOutput(NamedTuple):

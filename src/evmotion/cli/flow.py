@@ -33,7 +33,7 @@ import argparse
 import importlib
 import time
 
-from evmotion.cli.calib import add_camera_arguments, check_camera_args
+from evmotion.cli.calib import add_camera_arguments, add_hot_pixel_argument, check_camera_args
 from evmotion.cli.options import (
     add_sensor_size_argument,
     add_time_arguments,
@@ -146,6 +146,7 @@ def add_parser(sub) -> None:
                    help="video of the windows: events | warped IWE | flow (needs the 'video' "
                         "extra; multicm and dnn)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    add_hot_pixel_argument(p)
     add_camera_arguments(p.add_argument_group(
         "camera (the flow is estimated on the undistorted grid when the calibration has "
         "distortion; the output's 'grid' attribute says which)"))
@@ -161,6 +162,9 @@ def run(args) -> int:
     if args.method == "triplet":
         reject_unused(args, {"--max-windows": "max_windows"},
                       "with --method triplet (it streams the recording: crop it with --t1)")
+        reject_unused(args, {"--remove-hot-pixels": "remove_hot_pixels"},
+                      "with --method triplet (a hot pixel's events find no triplet partner)")
+        args.remove_hot_pixels = None
     if args.window_gt is None:
         reject_unused(args, {"--gt-dt": "gt_dt"}, "without --window-gt")
     args.gt_dt = 1 if args.gt_dt is None else args.gt_dt

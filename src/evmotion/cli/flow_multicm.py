@@ -307,6 +307,7 @@ def run(args) -> int:
         from evmotion.cli.flow_dnn import estimator
 
         estimate, attrs = estimator(args)
+        attrs["remove_hot_pixels"] = bool(args.remove_hot_pixels)
         workers = 1
     else:
         note_parallel_interrupt(args, "window")
@@ -323,7 +324,8 @@ def run(args) -> int:
                  # auto: each window's own (its meta), from its event count
                  "finest_level": "auto" if args.finest_level is None else args.finest_level,
                  "max_iter": args.max_iter, "tol": args.tol, "seed": args.seed,
-                 "init": args.init, "source": str(args.file)}
+                 "init": args.init, "source": str(args.file),
+                 "remove_hot_pixels": bool(args.remove_hot_pixels)}
         if args.time_bins is not None:
             attrs["time_bins"] = args.time_bins
         if args.init == "dnn":
