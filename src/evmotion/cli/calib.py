@@ -179,7 +179,8 @@ def _hot_pixels_handled(args, events):
         warn_line(f"{args.file}: --remove-hot-pixels dropped {int(mask.sum())} hot pixels "
                   f"({len(events) - len(kept):,} of {len(events):,} events)")
         return kept
-    if share >= HOT_EVENTS_NOTE:
+    # (the network sets a hot pixel's flow to zero and leaves its events out of its checks)
+    if share >= HOT_EVENTS_NOTE and getattr(args, "method", None) != "dnn":
         warn_line(f"{args.file}: {int(mask.sum())} hot pixels (each far busier than its "
                   f"neighbours) hold {share:.0%} of the events: their events do not move and "
                   "pull the estimate toward rest; --remove-hot-pixels drops them")
