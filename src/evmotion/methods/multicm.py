@@ -70,6 +70,7 @@ from evmotion.methods.measured import (
     flow_alignment_gain,
     warn_by_chance,
     warn_by_refit,
+    warn_flicker,
     warn_no_gain,
 )
 from evmotion.methods.options import merge_options
@@ -711,7 +712,10 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     flow = rest_where_empty((tf.dense_flow(params, shape) / duration_s).astype(np.float32),
                             valid, prob.grid)
     chance = float("nan")
-    no_focus = warn_no_gain(focus, "dense flow") is not None
+    # flicker lights every pixel at once: a flow that gathers those bursts sharpens them,
+    # whatever moves (said first: it names the cause the focus tests below cannot)
+    no_focus = (warn_flicker(events, "dense flow") is not None
+                or warn_no_gain(focus, "dense flow") is not None)
     if not no_focus:
         # the focus above is what the optimizer raised: on half a pixel of motion, or a
         # window whose warped image is blurrier than the unwarped one, it fits the

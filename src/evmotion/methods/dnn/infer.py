@@ -32,7 +32,12 @@ from evmotion.methods.flowresult import (
     FlowResult,
     event_support,
 )
-from evmotion.methods.measured import flow_alignment_gain, warn_by_chance, warn_no_gain
+from evmotion.methods.measured import (
+    flow_alignment_gain,
+    warn_by_chance,
+    warn_flicker,
+    warn_no_gain,
+)
 
 __all__ = ["estimate_flow_dnn", "predict_displacement", "sharpness"]
 
@@ -396,7 +401,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     # the lower of the two gains decides: hot pixels can leave the multi-reference focus
     # above the threshold while the flow blurs the window
     gains = [g for g in (fwl, focus if with_iwes else float("nan")) if np.isfinite(g)]
-    no_focus = bool(gains) and warn_no_gain(min(gains), "network's flow") is not None
+    # under flicker the network answers the bursts with flows 20-800x the truth, which
+    # gather them (probe AK: FWL 4-23, chance 1.07-2.1): said before the gains
+    no_focus = (warn_flicker(checked, "network's flow") is not None
+                or (bool(gains) and warn_no_gain(min(gains), "network's flow") is not None))
     chance = float("nan")
     if not no_focus:
         # a flow that sharpens the window without following its motion (half a pixel of

@@ -1,0 +1,82 @@
+"""The checks of whether an estimate measures anything (methods/measured.py): flicker."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from evmotion.errors import PoorFitWarning
+from evmotion.events import EventArray
+from evmotion.methods.measured import (
+    MAX_ONE_POLARITY,
+    MAX_POLARITY_SWING,
+    polarity_bursts,
+    warn_flicker,
+)
+
+
+def moving(n=20000, shape=(120, 160), seed=0, flicker_share=0.0, hz=120.0, span_us=10_000):
+    """Dots of both signs moving right at 2000 px/s, plus ``flicker_share`` of events from
+    a light flickering at ``hz`` over the whole sensor (ON while it brightens)."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    n_fl = int(n * flicker_share)
+    dots = rng.uniform([0, 0], [w, h], (300, 2))
+    k = rng.integers(0, 300, n - n_fl)
+    t = rng.uniform(0, span_us, n - n_fl)
+    x = (dots[k, 0] + 2e-3 * t) % w
+    p = k % 2
+    tf = rng.uniform(0, span_us, 4 * n_fl)
+    phase = np.cos(2 * np.pi * hz * tf * 1e-6)
+    tf = tf[rng.uniform(size=tf.size) < np.abs(phase)][:n_fl]  # rate follows |dB/dt|
+    pf = (np.cos(2 * np.pi * hz * tf * 1e-6) > 0).astype(int)
+    xs = np.r_[x, rng.uniform(0, w, tf.size)]
+    ys = np.r_[dots[k, 1], rng.uniform(0, h, tf.size)]
+    ts = np.r_[t, tf]
+    order = np.argsort(ts, kind="stable")
+    return EventArray(x=np.floor(xs[order]).astype(int), y=np.floor(ys[order]).astype(int),
+                      t=ts[order].astype(np.int64), p=np.r_[p, pf][order], sensor_size=shape)
+
+
+def test_flicker_swings_polarity_and_motion_does_not():
+    swing, one, _ = polarity_bursts(moving())
+    assert swing < 0.2 and one < 0.6
+    swing, one, _ = polarity_bursts(moving(flicker_share=0.8))
+    assert swing > MAX_POLARITY_SWING
+    # 2 ms inside one ON phase of the flicker: one polarity
+    _, one, _ = polarity_bursts(moving(flicker_share=0.98, span_us=1500, n=8000))
+    assert one > MAX_ONE_POLARITY
+
+
+def test_one_polarity_at_a_steady_rate_is_not_flicker():
+    """Files or sensors without polarity (all ON) at a steady rate are not flagged; a
+    burst of them is."""
+    ev = moving()
+    steady = EventArray(ev.x, ev.y, ev.t, np.ones(len(ev)), ev.sensor_size)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warn_flicker(steady, "dense flow") is None
+    t = np.asarray(steady.t).copy()
+    t[: len(t) // 2] = t[: len(t) // 2] // 20  # half the events in the first 5 % of the span
+    burst = EventArray(steady.x, steady.y, np.sort(t), steady.p, steady.sensor_size)
+    with pytest.warns(PoorFitWarning, match="100% of them have one polarity"):
+        assert warn_flicker(burst, "dense flow") is not None
+
+
+@pytest.mark.parametrize("method", ["multicm", "dnn"])
+def test_a_flickering_window_is_no_measurement(method):
+    """Probe AK: under 120 Hz flicker with a moving camera the network's flow was 20-800x
+    the truth, 80-86 % valid, unflagged (its flow gathers the bursts: FWL 4-23)."""
+    if method == "dnn":
+        pytest.importorskip("torch")
+    from evmotion.methods.multicm import estimate_flow
+
+    with pytest.warns(PoorFitWarning, match="bursts of one polarity"):
+        res = estimate_flow(moving(flicker_share=0.8), method=method)
+    assert res.meta["no_focus"] and not res.valid.any()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = estimate_flow(moving(), method=method)
+    assert not res.meta["no_focus"] and res.valid.any()
