@@ -11,7 +11,7 @@ from collections import namedtuple
 import numpy as np
 import pytest
 
-from evmotion.cli import disk_full, main
+from evmotion.cli import main, no_room
 from evmotion.errors import EvmotionError
 from evmotion.io.flowfiles import read_flow_h5
 from evmotion.utils import NoRoomError, ensure_room
@@ -46,9 +46,13 @@ def test_ensure_room():
     ensure_room(".", 0)
     with pytest.raises(NoRoomError, match="no space left on the device"):
         ensure_room(".", 1 << 62)
-    assert disk_full(NoRoomError(28, "x"))
-    assert disk_full(RuntimeError("file write failed: ... errno = 28, error message = ..."))
-    assert not disk_full(RuntimeError("something else"))
+    assert no_room(NoRoomError(28, "x")) == 28
+    assert no_room(RuntimeError("file write failed: ... errno = 28, error message = ...")) == 28
+    # a file-size limit (ulimit -f, FAT32's 4 GiB) and a quota are no room either
+    assert no_room(RuntimeError("file write failed: ... errno = 27, error message = ...")) == 27
+    assert no_room(OSError(122, "Disk quota exceeded")) == 122
+    assert no_room(RuntimeError("something else")) is None
+    assert no_room(RuntimeError("... errno = 2, ...")) is None
 
 
 def test_flow_stops_between_windows_and_resumes(rec, tmp_path, capsys, monkeypatch):
@@ -136,3 +140,42 @@ def test_a_write_error_without_a_file_name_names_the_output(rec, tmp_path, capsy
     assert main(["convert", str(rec), str(out)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{out}: [Errno 28]" in err
+
+
+@pytest.mark.parametrize("command", ["flow", "convert"])
+def test_a_file_size_limit_stops_before_the_write(rec, tmp_path, command):
+    """Past ``ulimit -f`` (EFBIG) h5py's failed flush printed tracebacks and the process
+    crashed at exit (rc 139, probe AJ). The writers now check the limit before each write:
+    one line, rc 1, and flow keeps its windows for --resume."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "f.h5"
+    argv = {"flow": ["flow", str(rec), "--window-events", "1000", "--scales", "2"],
+            "convert": ["convert", str(rec), "--chunk-events", "1000"]}[command]
+    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_FSIZE, "
+            "(1 << 19, 1 << 19)); from evmotion.cli import main; sys.exit(main())")
+    if command == "convert":
+        argv = [*argv[:2], str(out), *argv[2:]]
+    else:
+        argv = [*argv, "--out", str(out)]
+    run = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True,
+                         timeout=600)
+    assert run.returncode == 1, run.stderr
+    assert run.stderr.count("\n") == 1 and "file-size limit (ulimit -f)" in run.stderr, \
+        run.stderr
+    assert not out.exists()
+
+
+def test_resume_names_a_truncated_part(rec, tmp_path, capsys):
+    out = tmp_path / "f.h5"
+    argv = ["flow", str(rec), "--window-events", "2000", "--scales", "2", "--out", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    data = out.read_bytes()
+    (tmp_path / "f.h5.part").write_bytes(data[: len(data) // 2])
+    out.unlink()
+    assert main(argv + ["--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "truncated" in err and "delete it and run again without --resume" in err, err
+    assert "file lock" not in err

@@ -138,28 +138,64 @@ def missing_path_hint(path: str | os.PathLike) -> str:
 
 
 class NoRoomError(OSError):
-    """The device has no room for the next write (checked before it, so what was written
-    so far is intact, unlike a write that fails half-way)."""
+    """No room for the next write: the device is full, or the file would pass a size limit
+    (checked before the write, so what was written so far is intact, unlike a write that
+    fails half-way)."""
 
 
 # what a write may add beyond its arrays (HDF5 metadata, chunk indexes)
 _WRITE_MARGIN = 1 << 20
 
 
-def ensure_room(path: str | os.PathLike, nbytes: int) -> None:
-    """Raise :class:`NoRoomError` (errno ENOSPC) when the file system of ``path`` has less
-    than ``nbytes`` (plus 1 MiB) free: before a streamed write, so that a full device
-    stops it between two writes instead of in the middle of one (where libhdf5 leaves a
-    damaged file, prints tracebacks and may crash the process at exit)."""
+def ensure_room(path: str | os.PathLike, nbytes: int, *, size_now: int | None = None) -> None:
+    """Raise :class:`NoRoomError` when the next streamed write of ``nbytes`` to ``path``
+    would not fit: errno ENOSPC when its file system has less than ``nbytes`` (plus 1 MiB)
+    free, EFBIG when the file (``size_now`` bytes, default its size) would grow past the
+    largest one the process' file-size limit (``ulimit -f``) or the file system (FAT32's
+    4 GiB) allows. Checked before the write, so that it stops between two writes instead
+    of in the middle of one (where libhdf5 leaves a damaged file, prints tracebacks and
+    crashes the process at exit)."""
     import errno
     import shutil
 
     path = Path(path)
+    need = nbytes + _WRITE_MARGIN
     free = shutil.disk_usage(nearest_existing(path.parent)).free
-    if nbytes + _WRITE_MARGIN > free:
+    if need > free:
         raise NoRoomError(errno.ENOSPC, f"no space left on the device for {path}: the next "
-                          f"write needs up to {(nbytes + _WRITE_MARGIN) / 2**20:.1f} MiB, "
+                          f"write needs up to {need / 2**20:.1f} MiB, "
                           f"{free / 2**20:.1f} MiB are free")
+    limit, whose = _largest_file(path)
+    if limit is not None:
+        now = size_now if size_now is not None else (path.stat().st_size if path.exists()
+                                                      else 0)
+        if now + need > limit:
+            raise NoRoomError(errno.EFBIG, f"{path} would grow past {limit / 2**20:.1f} MiB, "
+                              f"the largest file {whose} allows (it holds "
+                              f"{now / 2**20:.1f} MiB, the next write needs up to "
+                              f"{need / 2**20:.1f} MiB)")
+
+
+def _largest_file(path: Path) -> tuple[int | None, str]:
+    """The largest file size in bytes a write to ``path`` may reach (the smaller of the
+    process' RLIMIT_FSIZE and the file system's ``PC_FILESIZEBITS``), and whose limit it
+    is; ``(None, "")`` without either."""
+    limits = []
+    try:
+        import resource
+    except ImportError:  # (not on Windows)
+        resource = None
+    if resource is not None:
+        soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+        if soft != resource.RLIM_INFINITY:
+            limits.append((soft, "the process' file-size limit (ulimit -f)"))
+    try:
+        bits = os.pathconf(nearest_existing(path.parent), "PC_FILESIZEBITS")
+    except (OSError, ValueError, AttributeError):
+        bits = None
+    if bits and 0 < bits < 64:
+        limits.append(((1 << bits) - 1, f"its file system ({bits}-bit file sizes)"))
+    return min(limits) if limits else (None, "")
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:

@@ -186,46 +186,66 @@ def _build_and_run(argv: list[str] | None) -> int:
         # naming the output when the error names no file
         out = getattr(args, "out", None) or getattr(args, "output", None)
         where = f"{out}: " if exc.filename is None and out else ""
+        if no_room(exc) is not None:
+            _FAILED_WRITES.append(exc)  # (see the RuntimeError below)
         print(f"evmotion {args.command}: error: {where}{_one_line(exc)}{_dropped_parts(exc)}",
               file=sys.stderr)
         return 1
     except RuntimeError as exc:
-        if not disk_full(exc):
+        code = no_room(exc)
+        if code is None:
             raise
-        # h5py reports a failed write as RuntimeError ("... errno = 28 ...")
-        print(f"evmotion {args.command}: error: no space left on the device while writing: "
+        # h5py reports a failed write as RuntimeError ("... errno = 28 ..."). Its objects
+        # stay referenced (by the traceback) until the process ends: libhdf5 crashes when
+        # it closes a file whose write failed (h5py issue 914; rc 139 after the message)
+        _FAILED_WRITES.append(exc)
+        print(f"evmotion {args.command}: error: {_NO_ROOM[code]} while writing: "
               f"{_one_line(exc)[:300]}{_dropped_parts(exc)}", file=sys.stderr)
         return 1
     finally:
         warnings.showwarning = _PY_SHOWWARNING
 
 
-def disk_full(exc: BaseException | None) -> bool:
-    """Whether ``exc`` (or an exception it was raised from) is a write that found the
-    device full: an OSError with ENOSPC, or h5py's RuntimeError quoting errno 28."""
-    import errno
+# errno of a write that found no room, and how to say it: the device full, a file past
+# the file system's or the process' size limit (FAT32's 4 GiB, ``ulimit -f``), a quota
+_NO_ROOM = {28: "no space left on the device",
+            27: "the file grew past the largest the file system or a file-size limit "
+                "(ulimit -f) allows",
+            122: "the disk quota is exceeded"}
+
+
+def no_room(exc: BaseException | None) -> int | None:
+    """The errno when ``exc`` (or an exception it was raised from) is a write that found
+    no room (:data:`_NO_ROOM`: an OSError, or h5py's RuntimeError quoting the errno),
+    else None."""
+    import re
 
     seen = 0
     while exc is not None and seen < 10:
-        if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
-            return True
-        if isinstance(exc, RuntimeError) and ("errno = 28" in str(exc)
-                                              or "No space left on device" in str(exc)):
-            return True
+        if isinstance(exc, OSError) and exc.errno in _NO_ROOM:
+            return exc.errno
+        if isinstance(exc, RuntimeError):
+            found = re.search(r"errno = (\d+)", str(exc))
+            if found and int(found.group(1)) in _NO_ROOM:
+                return int(found.group(1))
+            if "No space left on device" in str(exc):
+                return 28
         exc, seen = exc.__cause__ or exc.__context__, seen + 1
-    return False
+    return None
 
 
 def _dropped_parts(exc: BaseException) -> str:
     """After a full device: remove the partial outputs kept for ``--resume`` (their last
     write failed, so they cannot be trusted) and say so."""
     utils = sys.modules.get("evmotion.utils")
-    if not disk_full(exc) or utils is None:
+    if no_room(exc) is None or utils is None:
         return ""
     if isinstance(exc, utils.NoRoomError):
         # stopped before the write that would not fit: what was written is intact
         kept = utils.kept_for_resume()
-        return (f"; the work done so far is kept in {', '.join(map(str, kept))}: free space "
+        room = ("free space" if exc.errno == 28 else "lift the limit (or write to another "
+                "file system)")
+        return (f"; the work done so far is kept in {', '.join(map(str, kept))}: {room} "
                 "and run the same command with --resume" if kept else "")
     gone = []
     for path in utils.kept_for_resume():
@@ -235,8 +255,8 @@ def _dropped_parts(exc: BaseException) -> str:
         except OSError:
             pass
     utils.forget_kept_for_resume()
-    return (f"; removed the partial output {', '.join(gone)} (its last write failed): free "
-            "space and run again" if gone else "")
+    return (f"; removed the partial output {', '.join(gone)} (its last write failed): make "
+            "room and run again" if gone else "")
 
 
 def _one_line(exc: BaseException) -> str:
@@ -331,7 +351,7 @@ def _unraisable(hook_args) -> None:
     """A Ctrl-C whose KeyboardInterrupt was raised where Python ignores exceptions (a
     weakref callback, ``__del__``): instead of "Exception ignored ..." and a run that
     goes on, deliver it again, to land in the work and unwind it."""
-    if disk_full(hook_args.exc_value):
+    if no_room(hook_args.exc_value) is not None:
         return  # an h5py object failing to flush on a full device: the error says so once
     if isinstance(hook_args.exc_value, KeyboardInterrupt) and os.getpid() == _MAIN_PID[0]:
         import _thread  # the documented low-level API: starts without waiting here
@@ -359,6 +379,8 @@ def _signal_later(pid: int) -> None:
     os.kill(pid, signal.SIGINT)
 
 
+# h5py errors of failed writes, kept alive until os._exit (see _build_and_run)
+_FAILED_WRITES: list = []
 # longest wait for the interrupted work to unwind (remove or keep its partial outputs)
 UNWIND_TIMEOUT_S = 10.0
 _MAIN_PID = [0]

@@ -137,7 +137,9 @@ class EventFlowWriter(PartFileWriter):
         m = n.pop()
         if m == 0:
             return
-        ensure_room(self.path, sum(np.asarray(v).nbytes for v in columns.values()))
+        # (the .npz's columns are zipped into one file at the end: counted as one)
+        row = sum(np.dtype(dt).itemsize for _, dt in EVENT_FLOW_COLUMNS)
+        ensure_room(self._tmp, m * row, size_now=self.n * row)
         for k, dt in EVENT_FLOW_COLUMNS:
             a = np.ascontiguousarray(columns[k], dtype=dt)
             if self.kind == ".npz":

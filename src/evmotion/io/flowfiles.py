@@ -340,10 +340,16 @@ class FlowWriter(PartFileWriter):
             try:
                 self.f = h5py.File(self.part, "a")
             except OSError as exc:
-                if "lock" in str(exc):  # HDF5's file lock: another program has it open
+                # (HDF5 says "unable to lock file"; a damaged file's "sblock" is no lock)
+                if "lock file" in str(exc):  # another program has it open
                     raise FormatError(self.part, "cannot reopen to resume: another program "
                                       "has it open (HDF5 file lock)",
                                       "close it there and run again") from None
+                if "truncated file" in str(exc):
+                    raise FormatError(self.part, "cannot resume: the file is truncated (its "
+                                      "run stopped during a write: a full device, a file-size "
+                                      "limit, a kill)", "delete it and run again without "
+                                      "--resume") from None
                 raise FormatError(self.part, f"cannot reopen to resume: {exc}",
                                   "delete it to start again") from None
             old = read_attrs(self.part, self.f, ("height", "width", "format"))
