@@ -548,3 +548,31 @@ def test_hot_pixels_are_named_and_dropped_on_request(tmp_path, capsys):
     rc, _, err = run("--out", str(tmp_path / "c.h5"), "--remove-hot-pixels", "--method",
                      "triplet")
     assert rc == 2 and "does not apply with --method triplet" in err, err
+
+
+def test_t0_t1_read_only_their_span(recording, tmp_path, capsys, monkeypatch):
+    """--t0/--t1 without --max-windows read the whole recording (987 MB for one 0.3 s
+    window of a 29M-event file; probe AJ): the reader now gets the span, and the flow is
+    the one a whole read gives."""
+    import evmotion.io as eio
+
+    path, _ = recording
+    argv = ["flow", str(path), "--t0", "5ms", "--t1", "25ms", "--window-events", "4000"]
+    spans, real = [], eio.read_events
+
+    def whole(*a, **k):  # as before: the span left to the windows
+        return real(*a, **{n: v for n, v in k.items() if n not in ("t0", "t1")})
+
+    def spy(*a, **k):
+        spans.append((k.get("t0"), k.get("t1")))
+        return real(*a, **k)
+
+    monkeypatch.setattr(eio, "read_events", whole)
+    assert main(argv + ["--out", str(tmp_path / "a.h5")]) == 0
+    monkeypatch.setattr(eio, "read_events", spy)
+    assert main(argv + ["--out", str(tmp_path / "b.h5")]) == 0
+    capsys.readouterr()
+    assert spans == [(5000, 25000)]
+    a, b = eio.read_flow(tmp_path / "a.h5"), eio.read_flow(tmp_path / "b.h5")
+    np.testing.assert_array_equal(a.t0, b.t0)
+    np.testing.assert_array_equal(a.flow, b.flow)
