@@ -34,6 +34,54 @@ def ensure_file_target(path: str | os.PathLike) -> None:
         raise ParameterError(f"cannot write {path}: it is {kind}; give a file path")
 
 
+def temp_prefix(path: Path) -> str:
+    """Name prefix of the hidden temporaries a writer of ``path`` makes beside it:
+    ``.NAME.HOST-PID.``, so that a later run can tell a killed run's (SIGKILL leaves them:
+    124 MB and 408 MB in probe AJ) from a running one's (:func:`remove_stale_temps`)."""
+    import socket
+
+    return f".{path.name}.{socket.gethostname()}-{os.getpid()}."
+
+
+def remove_stale_temps(path: Path, suffix: str) -> list[Path]:
+    """Remove the temporaries (files or folders ending in ``suffix``) that runs of this
+    host writing ``path`` left when they were killed (their process is gone); returns
+    them. Other hosts' (a shared folder) and running processes' stay."""
+    import shutil
+    import socket
+
+    start = f".{path.name}.{socket.gethostname()}-"
+    gone = []
+    try:
+        entries = list(os.scandir(path.parent))
+    except OSError:
+        return gone
+    for entry in entries:
+        pid = entry.name[len(start):].split(".", 1)[0]
+        if not (entry.name.startswith(start) and entry.name.endswith(suffix)
+                and pid.isdigit()) or _alive(int(pid)):
+            continue
+        try:
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(entry.path)
+            else:
+                os.unlink(entry.path)
+            gone.append(Path(entry.path))
+        except OSError:
+            pass
+    return gone
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):  # another user's process; not a pid at all
+        return pid > 0
+    return True
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
@@ -52,7 +100,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     path = Path(path)
     ensure_file_target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part" + path.suffix,
+    remove_stale_temps(path, ".part" + path.suffix)
+    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path), suffix=".part" + path.suffix,
                                dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)

@@ -38,7 +38,7 @@ from evmotion.errors import FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import h5_compression
-from evmotion.utils import atomic_path, ensure_room
+from evmotion.utils import atomic_path, ensure_room, remove_stale_temps, temp_prefix
 
 __all__ = ["EVENT_FLOW_COLUMNS", "EVENT_FLOW_FORMAT", "EventFlow", "EventFlowWriter",
            "describe_event_flow",
@@ -111,7 +111,10 @@ class EventFlowWriter(PartFileWriter):
         self._ctx = atomic_path(self.path)
         self._tmp = self._ctx.__enter__()
         if self.kind == ".npz":
-            self._dir = tempfile.TemporaryDirectory(prefix=".eventflow-", dir=self.path.parent)
+            remove_stale_temps(self.path, ".columns.part")
+            self._dir = tempfile.TemporaryDirectory(prefix=temp_prefix(self.path),
+                                                    suffix=".columns.part",
+                                                    dir=self.path.parent)
             self._files = {k: open(Path(self._dir.name) / k, "wb")
                            for k, _ in EVENT_FLOW_COLUMNS}
             return

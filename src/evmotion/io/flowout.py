@@ -71,7 +71,13 @@ from evmotion.io.flowfiles import (
     write_flo,
 )
 from evmotion.io.h5filters import register_filters
-from evmotion.utils import atomic_path, ensure_file_target, keep_for_resume
+from evmotion.utils import (
+    atomic_path,
+    ensure_file_target,
+    keep_for_resume,
+    remove_stale_temps,
+    temp_prefix,
+)
 
 __all__ = [
     "CONTAINERS",
@@ -504,9 +510,10 @@ class PerWindowFlowOutput(FlowOutput):
                     raise ParameterError(f"--out {self.path}: {target} is a folder; choose "
                                          "another name")
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        stem = self.path.name.split("{")[0] or "flow"
-        self.stage: Path | None = Path(tempfile.mkdtemp(prefix=f".{stem}.", suffix=".part",
-                                                        dir=self.path.parent))
+        staged = self.path.with_name(self.path.name.split("{")[0] or "flow")
+        remove_stale_temps(staged, ".part")
+        self.stage: Path | None = Path(tempfile.mkdtemp(prefix=temp_prefix(staged),
+                                                        suffix=".part", dir=self.path.parent))
         self.files: list[Path] = []
 
     def _append(self, flow, t0, t1, valid, extras) -> None:
