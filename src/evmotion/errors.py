@@ -64,6 +64,26 @@ class EventDataError(EvmotionError):
     """Event arrays that break the container's invariants (unsorted, out of sensor...)."""
 
 
+class UnsortedError(EventDataError):
+    """Timestamps that step back: ``t[at] > t[at + 1]`` (µs), with what to do about it.
+
+    Examples
+    --------
+    >>> e = UnsortedError(5, 120, 100, "sort them")
+    >>> str(e.shifted(1000))
+    'timestamps are not sorted: t[1005]=120 > t[1006]=100 us (sort them)'
+    """
+
+    def __init__(self, at: int, t_at: int, t_next: int, hint: str):
+        self.at, self.t_at, self.t_next, self.hint = int(at), int(t_at), int(t_next), hint
+        super().__init__(f"timestamps are not sorted: t[{self.at}]={self.t_at} > "
+                         f"t[{self.at + 1}]={self.t_next} us ({hint})")
+
+    def shifted(self, offset: int) -> UnsortedError:
+        """The same error in a chunk that starts ``offset`` events into the recording."""
+        return UnsortedError(self.at + offset, self.t_at, self.t_next, self.hint)
+
+
 class EmptyWindowError(EvmotionError):
     """A window or slice holds no events where the computation needs some."""
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evmotion.errors import EmptyWindowError, EventDataError, ParameterError
+from evmotion.errors import EmptyWindowError, EventDataError, ParameterError, UnsortedError
 from evmotion.utils import whole_number
 
 __all__ = [
@@ -34,6 +34,10 @@ __all__ = [
 # the share of events (and more than 10) stepping back in time beyond which the times are
 # not a recorder's slips but another column (EventArray.check's hint)
 MAX_UNSORTED_SHARE = 0.01
+#: ... or all by at most this many µs and a hundredth of the span: the order of a sensor's
+#: readout, not of a column mistaken for time (whose steps back are of the size of its
+#: values, and of its span)
+MAX_READOUT_STEP_US = 1000
 
 TONIC_DTYPE = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
 
@@ -131,17 +135,21 @@ class EventArray:
         if dt.size and dt.min() < 0:
             i = int(np.argmax(dt < 0))
             back = int(np.count_nonzero(dt < 0))
-            # a few events out of order are a recorder's; many, a column taken for time
-            # that is not (sorting those would make garbage)
-            hint = ("sort them: evmotion convert IN OUT --sort, or EventArray.sorted()"
-                    if back <= max(10, MAX_UNSORTED_SHARE * dt.size) else
-                    f"{100 * back / dt.size:.0f} % of them step back: is the time column "
-                    "where the format has it? (text: t x y p, or a header line naming the "
-                    "columns)")
-            raise EventDataError(
-                f"timestamps are not sorted: t[{i}]={self.t[i]} > t[{i + 1}]={self.t[i + 1]} us "
-                f"({hint})"
-            )
+            sort = "sort them: evmotion convert IN OUT --sort, or EventArray.sorted()"
+            # a few events out of order are a recorder's, and so are many that step back
+            # by a readout's few µs (a rolling readout: 47 % by up to 32 µs, probe AK);
+            # many by more, a column taken for time that is not (sorting makes garbage)
+            if back <= max(10, MAX_UNSORTED_SHARE * dt.size):
+                hint = sort
+            elif (-int(dt.min()) <= MAX_READOUT_STEP_US
+                  and -100 * int(dt.min()) <= int(self.t.max()) - int(self.t.min())):
+                hint = (f"{100 * back / dt.size:.0f} % of them step back, by at most "
+                        f"{-int(dt.min())} us: a sensor's readout order? {sort}")
+            else:
+                hint = (f"{100 * back / dt.size:.0f} % of them step back: is the time column "
+                        "where the format has it? (text: t x y p, or a header line naming "
+                        "the columns)")
+            raise UnsortedError(i, self.t[i], self.t[i + 1], hint)
         h, w = self.sensor_size
         for name, lim in (("x", w), ("y", h)):
             a = getattr(self, name)

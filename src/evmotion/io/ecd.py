@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionWarning, FormatError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.guard import (
@@ -559,7 +559,7 @@ def _order_hint(t, x, y, p) -> str | None:
 
 
 def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
-               extra: dict | None = None) -> EventArray:
+               extra: dict | None = None, streamed: bool = False) -> EventArray:
     h, w = size
     if x.size:
         if x.min() < 0 or y.min() < 0:
@@ -580,6 +580,10 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
         return EventArray(x=x.astype(np.uint16), y=y.astype(np.uint16), t=t,
                           p=(p > 0).astype(np.uint8), sensor_size=size, validate=validate,
                           meta=meta)
+    except UnsortedError as exc:
+        if streamed:
+            raise  # the guard names the file, and the event by its place in it
+        raise FormatError(path, str(exc)) from None
     except Exception as exc:
         raise FormatError(path, str(exc)) from None
 
@@ -681,18 +685,24 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
         while buf[2].size >= chunk_events:
             part = [a[:chunk_events] for a in buf]
             buf = [a[chunk_events:] for a in buf]
-            ev = _to_events(ev_path, *part, size, src, validate, extra)
-            if validate and last_t is not None and ev.t[0] < last_t:
-                raise FormatError(ev_path, f"timestamps are not sorted: {ev.t[0]} us after "
-                                  f"{last_t} us")
+            ev = _to_events(ev_path, *part, size, src, validate, extra, streamed=True)
+            if validate:
+                _check_follows(last_t, ev)
             last_t = int(ev.t[-1])
             yield ev
     if buf[2].size:
-        ev = _to_events(ev_path, *buf, size, src, validate, extra)
-        if validate and last_t is not None and ev.t[0] < last_t:
-            raise FormatError(ev_path, f"timestamps are not sorted: {ev.t[0]} us after "
-                              f"{last_t} us")
+        ev = _to_events(ev_path, *buf, size, src, validate, extra, streamed=True)
+        if validate:
+            _check_follows(last_t, ev)
         yield ev
+
+
+def _check_follows(last_t: int | None, ev: EventArray) -> None:
+    """UnsortedError when chunk ``ev`` starts before the previous chunk's last time (its
+    index -1: the guard counts it from the chunk's place in the file)."""
+    if last_t is not None and len(ev) and ev.t[0] < last_t:
+        raise UnsortedError(-1, last_t, int(ev.t[0]), "sort them: evmotion convert IN OUT "
+                            "--sort, or EventArray.sorted()")
 
 
 @lazy_njit(cache=True)

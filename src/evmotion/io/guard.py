@@ -27,6 +27,7 @@ from evmotion.errors import (
     FormatError,
     MissingDependencyError,
     ParameterError,
+    UnsortedError,
     one_line,
 )
 
@@ -175,6 +176,7 @@ def guard_iter(fn: Callable, fmt: str, action: str = "read") -> Callable:
         _check_call(fn, fmt, args, kw)
         path = _path_of(args, kw)
         it = None
+        done = 0  # events yielded: a chunk's error names its events by their place in the file
         try:
             try:
                 it = iter(fn(*args, **kw))
@@ -183,8 +185,11 @@ def guard_iter(fn: Callable, fmt: str, action: str = "read") -> Callable:
                         item = next(it)
                     except StopIteration:
                         return
+                    done += len(item) if hasattr(item, "__len__") else 0
                     yield item
             except Exception as exc:
+                if isinstance(exc, UnsortedError) and done:
+                    exc = exc.shifted(done)
                 new = as_format_error(exc, path, fmt, action)
                 if new is exc:
                     raise
