@@ -543,3 +543,18 @@ def test_whiten_matches_numpy_reference(name):
     zx, zy = whiten(xw, yw, center=(25.0, 20.0), scale=7.0)
     np.testing.assert_array_equal(zx, got[0])
     np.testing.assert_array_equal(zy, got[1])
+
+
+def test_rcad_of_a_warp_without_area_coefficients_is_the_grid_mean():
+    """A warp added as docs/adding_a_warp.rst shows has no closed form nor area
+    coefficients: RCAD raised an IndexError (probe AI). It now takes the grid mean from the
+    warp's own trajectory matrices; on the homography that reference equals the kernel."""
+    from evmotion.core.collapse.rcad import _rcad_reference, rcad_checked
+
+    w = make_warp("homography", (H, W), K=K)
+    th = np.array([3.0, 1.0, 20.0, -2.0, 4.0, -15.0, 0.002, -0.001])
+    for margin in (-np.inf, 0.0, 0.01):
+        v, g = rcad_checked(w, th, -0.02, 0.03, (H, W), margin, 5)
+        v_ref, g_ref = _rcad_reference(w, th, -0.02, 0.03, (H, W), margin, 5, True)
+        assert v_ref == pytest.approx(v, rel=1e-9, abs=1e-12)
+        np.testing.assert_allclose(g_ref, g, rtol=1e-7, atol=1e-10)

@@ -66,6 +66,21 @@ def _area_coeffs(warp: Warp, th, t):
 _ZERO3 = np.zeros(3)
 
 
+def _rcad_reference(warp: Warp, th, t0, t1, shape, margin, stride, grad):
+    """The grid penalty of :func:`_k_rcad_grid` (mean of the log area ratio over the grid
+    points where it exceeds ``margin``) from the warp's own trajectory matrices
+    (:meth:`Warp.area_log_ratio`): for a warp added without a closed form or area
+    coefficients (docs/adding_a_warp.rst: its skeleton raised an IndexError here)."""
+    h, w = shape
+    gy, gx = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
+    val, dval = warp.area_log_ratio(gx.ravel().astype(np.float64),
+                                    gy.ravel().astype(np.float64), t0, t1, th, grad=True)
+    sel = val > margin
+    if not sel.any():
+        return 0.0, (np.zeros(warp.n_params) if grad else None)
+    return float(val[sel].mean()), (dval[sel].mean(axis=0) if grad else None)
+
+
 @njit(cache=True, error_model="numpy")
 def _rot_area_coeffs(om, t, kinv, a, da):
     """``a = e3^T R(-t omega) K^-1`` and ``da/d omega`` (3, 3): with ``v = K^-1 x``,
@@ -178,6 +193,8 @@ def rcad_checked(warp, th, t0, t1, shape, margin, stride, grad=True):
     closed = rcad_closed_form(warp, th, t0, t1)
     if closed is not None:
         return closed
+    if warp.name != "homography":
+        return _rcad_reference(warp, th, t0, t1, shape, margin, stride, grad)
     a0, da0, c0, dc0 = _area_coeffs(warp, th, t0)
     a1, da1, c1, dc1 = _area_coeffs(warp, th, t1)
     value, n_sel = _k_rcad_grid(shape[0], shape[1], stride, a0, np.ascontiguousarray(da0), c0,
