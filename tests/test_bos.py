@@ -656,3 +656,13 @@ def test_large_displacements_are_solved_again_at_the_flow_found():
     assert small.relinearized == 0 and small.displacement_q95 < 1.0
     with pytest.raises(ParameterError, match="relinearize"):
         estimate_bos(ev, intensity, relinearize=-1, **kw)
+
+
+def test_event_sums_refuse_a_reversed_window():
+    """t1 before t0 returned zero images (probe AI)."""
+    from evmotion.events import EventArray
+    from evmotion.methods.bos import event_sums
+
+    ev = EventArray(x=[1, 2], y=[1, 2], t=[10, 20], p=[1, 0], sensor_size=(4, 4))
+    with pytest.raises(ParameterError, match="t1_us=0 must be after t0_us=100"):
+        event_sums(ev, t0_us=100, t1_us=0)

@@ -356,6 +356,7 @@ def test_regularizer_weights_are_checked():
     for reg, weight in (("divergence+deformation", {"divergence": 1.0}),
                         ("divergence+deformation", {"divergence": 1.0, "rcad": 1.0}),
                         ("divergence", {"divergence": 1.0}), ("deformation", float("nan")),
-                        ("rcad", -1.0)):
+                        ("rcad", -1.0), ("divergence", "1"), ("rcad", "abc"),
+                        ("divergence+deformation", {"divergence": "1", "deformation": 1.0})):
         with pytest.raises(ParameterError, match="weight"):
             CMaxCost(warp, x, y, dt, SHAPE, regularizer=reg, weight=weight)

@@ -80,3 +80,22 @@ def test_a_flickering_window_is_no_measurement(method):
         warnings.simplefilter("ignore")
         res = estimate_flow(moving(), method=method)
     assert not res.meta["no_focus"] and res.valid.any()
+
+
+def test_flow_alignment_gain_checks_its_flow():
+    """A flow of another size raised a raw IndexError; an all-NaN flow returned NaN with
+    numpy's RuntimeWarning (probe AI)."""
+    from evmotion.errors import ParameterError
+    from evmotion.methods.measured import flow_alignment_gain
+
+    ev = moving()
+    with pytest.raises(ParameterError, match=r"flow has shape \(10, 10, 2\), expected"):
+        flow_alignment_gain(ev, np.zeros((10, 10, 2)), 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.isnan(flow_alignment_gain(ev, np.full((120, 160, 2), np.nan), 0))
+    flow = np.zeros((120, 160, 2))
+    flow[..., 0] = 2000.0
+    half = flow.copy()
+    half[:, :40] = np.nan  # unknown where no estimate: those events are left out
+    assert flow_alignment_gain(ev, half, 5000) > 1.5

@@ -564,6 +564,8 @@ def event_sums(events: EventArray, roi=None, *, t0_us: int | None = None,
     x0, y0, rw, rh = _check_roi(roi, events.sensor_size) if roi is not None else \
         (0, 0, events.sensor_size[1], events.sensor_size[0])
     ev = events
+    if t0_us is not None and t1_us is not None and int(t1_us) <= int(t0_us):
+        raise ParameterError(f"t1_us={t1_us} must be after t0_us={t0_us}")
     if t0_us is not None or t1_us is not None:
         ev = events.slice_time(events.t[0] if t0_us is None else t0_us,
                                events.t[-1] + 1 if t1_us is None else t1_us)

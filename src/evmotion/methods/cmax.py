@@ -527,6 +527,13 @@ def _default_weight(regularizer, dataset: str) -> float | dict[str, float]:
     return float(DEFAULT_WEIGHTS[dataset][regularizer])
 
 
+def _weight_number(value, term: str) -> float:
+    """``value`` as a float weight, or ParameterError (a string such as "1" was taken)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        raise ParameterError(f"the weight of '{term}' must be a number, got {value!r}")
+    return float(value)
+
+
 def _penalty_terms(regularizer, weight) -> tuple[tuple[str, float], ...]:
     """``(penalty name, lambda)`` of each term of ``regularizer`` with a non-zero weight."""
     if regularizer in COMBINED_REGULARIZERS:
@@ -536,14 +543,14 @@ def _penalty_terms(regularizer, weight) -> tuple[tuple[str, float], ...]:
             if unknown or set(names) - set(weight):
                 raise ParameterError(f"regularizer '{regularizer}' takes one weight per term "
                                      f"{list(names)}, got {sorted(weight)}")
-            lams = [float(weight[t]) for t in names]
+            lams = [_weight_number(weight[t], t) for t in names]
         else:
-            lams = [float(weight)] * len(names)
+            lams = [_weight_number(weight, regularizer)] * len(names)
     elif regularizer in REGULARIZERS:
         if isinstance(weight, Mapping):
             raise ParameterError(f"regularizer '{regularizer}' takes one float weight, got "
                                  f"{dict(weight)}")
-        names, lams = (regularizer,), [float(weight)]
+        names, lams = (regularizer,), [_weight_number(weight, regularizer)]
     else:
         return ()
     for t, lam in zip(names, lams, strict=True):

@@ -8,7 +8,7 @@ import warnings
 
 import numpy as np
 
-from evmotion.errors import PoorFitWarning
+from evmotion.errors import ParameterError, PoorFitWarning
 from evmotion.events import EventArray
 
 __all__ = ["MAX_ONE_POLARITY", "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CONTRAST_GAIN",
@@ -87,7 +87,8 @@ def flow_alignment_gain(events: EventArray, flow: np.ndarray, t_ref_us: int) -> 
     it sharper than the unwarped one with no motion to follow (multicm's focus 1.2 on a
     window moving half a pixel, 19 on a sparse 1280x720 window whose warped image was
     blurrier than the unwarped one); shuffled times keep that fit and lose the motion.
-    Nearest-pixel votes; NaN when undefined (no events, a constant image).
+    Nearest-pixel votes; events where the flow is not finite (unknown) are left out; NaN
+    when undefined (no events with a flow, a constant image).
 
     Examples
     --------
@@ -99,12 +100,22 @@ def flow_alignment_gain(events: EventArray, flow: np.ndarray, t_ref_us: int) -> 
     >>> bool(flow_alignment_gain(ev, flow, 0) > 2)
     True
     """
+    h, w = events.sensor_size
+    if np.ndim(flow) != 3 or np.shape(flow) != (h, w, 2):
+        raise ParameterError(f"flow has shape {np.shape(flow)}, expected the sensor's "
+                             f"(H, W, 2) = {(h, w, 2)}")
     if not len(events):
         return float("nan")
-    h, w = events.sensor_size
     x = np.clip(np.rint(events.x).astype(np.intp), 0, w - 1)
     y = np.clip(np.rint(events.y).astype(np.intp), 0, h - 1)
-    return alignment_gain(x, y, events.t, flow[y, x], t_ref_us, (h, w))
+    f = np.asarray(flow)[y, x]
+    known = np.isfinite(f).all(axis=1)
+    if not known.any():
+        return float("nan")
+    t = np.asarray(events.t)
+    if not known.all():
+        x, y, t, f = x[known], y[known], t[known], f[known]
+    return alignment_gain(x, y, t, f, t_ref_us, (h, w))
 
 
 def alignment_gain(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,

@@ -8,8 +8,8 @@ Here ``h_z`` is a rate in 1/s (the warps take time in seconds); the thesis' (3.7
 for a window of ``T`` seconds is ``b_z = h_z T``. For warps other than the zoom the
 expansion rate is half the divergence of the image velocity field at the image centre at
 the reference time (``Warp.rcad`` there), which is ``h_z`` for the zoom and the in-plane
-warp (with no rotation), ``s`` for the similarity, ``(g11 + g22) / 2`` for the affine warp,
-and 0 for translations, SE(2) and rotations (which never approach anything).
+warp (with no rotation), ``s`` for the similarity and ``(g11 + g22) / 2`` for the affine
+warp; translations, SE(2) and rotations, which never approach anything, are refused.
 """
 
 from __future__ import annotations
@@ -21,7 +21,11 @@ import numpy as np
 from evmotion.core.warps import Warp
 from evmotion.errors import ParameterError
 
-__all__ = ["TimeToContact", "depth_from_ttc", "speed_from_ttc", "time_to_contact"]
+__all__ = ["NO_EXPANSION", "TimeToContact", "depth_from_ttc", "speed_from_ttc",
+           "time_to_contact"]
+
+#: Warps whose motion has no expansion term (their expansion rate is 0 by construction).
+NO_EXPANSION = ("translation", "se2", "rotation")
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,13 @@ def time_to_contact(params, warp: Warp, window_s: float) -> TimeToContact:
     >>> r.ttc_s, r.h_z_normalized
     (2.0, 0.025)
     """
+    if not isinstance(warp, Warp):
+        raise ParameterError(f"warp must be a Warp (evmotion.core.warps.make_warp(name, "
+                             f"sensor_size)), got {warp!r}")
+    if warp.name in NO_EXPANSION:
+        raise ParameterError(f"the {warp.name} warp cannot expand the image, so it measures "
+                             "no time to contact (it would always be infinite): use zoom, "
+                             "inplane, similarity, affine or homography")
     if not (np.isfinite(window_s) and window_s > 0):
         raise ParameterError(f"window_s must be a positive number of seconds, got {window_s!r}")
     p = np.asarray(params, dtype=np.float64)
