@@ -230,3 +230,13 @@ def test_negative_times_refused_by_ecd_text(tmp_path):
     ev = EventArray(x=[0, 1], y=[0, 1], t=[-5, 3], p=[0, 1], sensor_size=(80, 100))
     with pytest.raises(ParameterError, match="non-negative times"):
         eio.write_events(tmp_path / "n.txt", ev)
+
+
+def test_read_events_says_where_the_events_are_when_the_span_holds_none(tmp_path):
+    """An ECD excerpt starting at 13.58 s read from 0 returned nothing, unsaid (probe AI)."""
+    ev = EventArray(x=[0, 1, 2], y=[0, 1, 2], t=[5000, 6000, 7000], p=[0, 1, 1],
+                    sensor_size=(8, 8))
+    eio.write_events(tmp_path / "r.h5", ev)
+    with pytest.warns(UserWarning, match=r"no event in \[0, 100\) us: the recording spans "
+                                         r"5000\.\.7000 us"):
+        assert len(eio.read_events(tmp_path / "r.h5", t0=0, t1=100)) == 0

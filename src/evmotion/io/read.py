@@ -67,6 +67,8 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
     _check_span(t0, t1)
     spec = resolve_format(path, format)
     events = spec.read(Path(path), t0=t0, t1=t1, **kw)
+    if (t0 is not None or t1 is not None) and not len(events):
+        _warn_outside(path, format, t0, t1, kw)
     if t0 is None and t1 is None and len(events) > 1:
         gaps = np.diff(np.asarray(events.t, np.int64))
         k = int(np.argmax(gaps))
@@ -107,6 +109,30 @@ def warn_time_jump(path, gap_us: int, index: int, span_us: int, n_events: int) -
            "that stopped? --t0/--t1 cut the part to use")
     warnings.warn(EvmotionWarning(msg), stacklevel=3)
     return msg
+
+
+#: How :func:`read_events` begins its warning for a span without events (a caller that
+#: says so itself filters it by this text).
+NO_EVENT_IN = "no event in"
+
+
+def _warn_outside(path, format, t0, t1, kw) -> None:
+    """Say where the recording's events are when ``[t0, t1)`` holds none of them (an ECD
+    excerpt starting at 13.58 s read from 0 returned nothing, unsaid; probe AI)."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io.summary import describe
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the reader's warnings were given with the read
+        info = describe(path, format, **kw)
+    first, last = info.get("t_first_us"), info.get("t_last_us")
+    where = ("the recording holds no event" if first is None else
+             f"the recording spans {first}..{last} us (its own clock, as evmotion info "
+             "shows it)")
+    warnings.warn(EvmotionWarning(f"{path}: {NO_EVENT_IN} [{t0}, {t1}) us: {where}"),
+                  stacklevel=3)
 
 
 def _check_span(t0, t1) -> None:
