@@ -1112,3 +1112,17 @@ def test_flow_files_refuse_a_window_of_no_duration_with_valid_pixels(tmp_path):
     assert not read_flow_h5(tmp_path / "a.h5").valid.any()
     with pytest.raises(FormatError, match="not after t0 = 5 us and valid pixels"):
         read_flow_h5(tmp_path / "b.h5")
+
+
+def test_help_is_plain_text_and_a_given_size_is_not_asked_for(tmp_path, capsys):
+    """eval --help showed Sphinx markup (``...``, :func:`...`), and events outside a size
+    given with --sensor-size were answered with 'give the size: --sensor-size H W'
+    (probe AI)."""
+    for command in ("eval", "flow", "bos", "info"):
+        assert main([command, "--help"]) == 0
+        out = capsys.readouterr().out
+        assert "``" not in out and ":func:" not in out and ":class:" not in out, command
+    path = tmp_path / "e.txt"
+    path.write_text("0.000001 1 2 1\n0.000002 300 4 0\n")
+    rc, err = _run(["info", str(path), "--sensor-size", "100", "100"], capsys)
+    assert rc == 2 and "the size given (--sensor-size" in err and "give the size:" not in err

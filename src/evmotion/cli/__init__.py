@@ -51,16 +51,15 @@ def build_parser(commands: tuple[str, ...] = COMMANDS):
     >>> build_parser(("info",)).parse_args(["info", "x.h5"]).command
     'info'
     """
-    import argparse
     import importlib
 
-    from evmotion.cli.options import Parser
+    from evmotion.cli.options import HelpFormatter, Parser
 
     parser = Parser(
         prog="evmotion",
         description="Estimate motion from event cameras.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     from evmotion import __version__
 

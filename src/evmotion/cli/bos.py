@@ -27,11 +27,11 @@ an uninterrupted run writes.
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
 from evmotion.cli.options import (
+    HelpFormatter,
     add_scheduler_argument,
     check_flow_out,
     check_time_order,
@@ -58,7 +58,7 @@ EXAMPLES = """examples:
 def add_parser(sub) -> None:
     p = sub.add_parser("bos", help="background-oriented schlieren from events + frames (ch. 6)",
                        description=__doc__, epilog=EXAMPLES,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+                       formatter_class=HelpFormatter)
     p.add_argument("rec", help="ECD-style folder (events.txt + images.txt + images/), a "
                                "recording holding frames (AEDAT4, event_based_bos sequence), or "
                                "an event recording (then --frames)")

@@ -12,10 +12,9 @@ in one warning line on stderr.
 
 from __future__ import annotations
 
-import argparse
-
 from evmotion.catalog import MAX_SENSOR_SIDE
 from evmotion.cli.options import (
+    HelpFormatter,
     add_time_unit_argument,
     check_time_order,
     check_time_unit,
@@ -39,7 +38,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         "convert", help="convert events between formats (streaming, atomic output)",
         description=__doc__, epilog=EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("input", help="recording (file or ECD folder)")
     p.add_argument("output", type=writable_output(),

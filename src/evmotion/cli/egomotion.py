@@ -37,6 +37,7 @@ from evmotion.cli.options import (
     DEFAULT_WINDOW_EVENTS,
     POOR_FIT_LINES,
     SHORT_WINDOWS_HINT,
+    HelpFormatter,
     add_scheduler_argument,
     add_sensor_size_argument,
     add_time_arguments,
@@ -98,11 +99,10 @@ def add_common(p, objectives=None, regularizers=REGULARIZERS) -> None:
 
 
 def add_parser(sub) -> None:
-    import argparse
 
     p = sub.add_parser("egomotion", help="camera ego-motion by contrast maximization (ch. 3)",
                        description=__doc__, epilog=EXAMPLES,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+                       formatter_class=HelpFormatter)
     add_common(p)
     p.add_argument("--optimizer", default="bfgs", choices=["bfgs", "newton-cg", "adam", "tpe"],
                    help="optimizer (default bfgs)")

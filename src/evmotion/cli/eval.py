@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.cli.options import (
+    HelpFormatter,
     existing_input,
     int_range,
     positive_float,
@@ -69,7 +70,7 @@ EXAMPLES = """examples:
 def add_parser(sub) -> None:
     p = sub.add_parser("eval", help="flow accuracy (AEE, %%Out, AE, FWL) against ground truth",
                        description=__doc__, epilog=EXAMPLES,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+                       formatter_class=HelpFormatter)
     p.add_argument("flow", help="estimated flow (.h5, .npz, .flo, .png, a pattern "
                                 "flow_{:05d}.flo; .npy with --t0-us/--t1-us), a folder of "
                                 "another tool's .flo/.png (paired with the GT's windows), "
@@ -377,7 +378,6 @@ def _events_on_grid(args, attrs: dict):
     ``grid`` attribute): undistorted as the flow command undistorted them, by the
     recording's own calibration; refused when that does not give the flow's grid (another
     --calib or --K was used)."""
-    import argparse
 
     from evmotion.cli.calib import undistort_for
     from evmotion.io import read_events

@@ -29,12 +29,12 @@ The other outputs appear only when complete.
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import time
 
 from evmotion.cli.calib import add_camera_arguments, add_hot_pixel_argument, check_camera_args
 from evmotion.cli.options import (
+    HelpFormatter,
     add_sensor_size_argument,
     add_time_arguments,
     add_time_unit_argument,
@@ -108,7 +108,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         "flow", help="optical flow (multi-reference CMax, triplet matching, network)",
         description=DESCRIPTION, epilog=EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("file", help="recording (any readable format)")
     p.add_argument("--method", default="multicm", choices=sorted(FLOW_METHODS))

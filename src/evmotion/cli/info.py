@@ -13,10 +13,8 @@ valid fraction and flags.
 
 from __future__ import annotations
 
-import argparse
-
 from evmotion.catalog import MAX_SENSOR_SIDE
-from evmotion.cli.options import add_time_unit_argument, int_range
+from evmotion.cli.options import HelpFormatter, add_time_unit_argument, int_range
 
 EXAMPLES = """examples:
   evmotion info boxes_rotation/                # an ECD folder
@@ -34,7 +32,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         "info", help="sensor size, event count, duration, rate and contents of a recording",
         description=__doc__, epilog=EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("file", help="recording (file or ECD folder), any readable format, or a "
                                 "flow output")

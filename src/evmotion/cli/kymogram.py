@@ -13,9 +13,8 @@ streaks share; ``--method ridge`` fits one streak) gives its speed in px/s along
 
 from __future__ import annotations
 
-import argparse
-
 from evmotion.cli.options import (
+    HelpFormatter,
     check_time_order,
     empty_selection,
     existing_input,
@@ -28,7 +27,8 @@ from evmotion.cli.options import (
 
 EXAMPLES = """examples:
   evmotion kymogram scene/ --col 80 --width 9 --rate 1200 --out kymo.png
-  evmotion kymogram scene/ --col 80 --compare-rate 120 --frames scene/ --out kymo_frames.png
+  evmotion kymogram scene/ --col 80 --width 9 --compare-rate 120 --frames scene/ \\
+      --out kymo_frames.png
   evmotion kymogram bos.h5 --from q --line 80 120 80 10 --width 5 --out q_kymo.png
   evmotion kymogram scene/ --col 80 --width 9 --focal-mm 25 --distance-m 1.7 \\
       --pixel-um 4.86 --t0 0.01 --out kymo_ms.png --json
@@ -44,7 +44,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         "kymogram", help="space-time plot along a line and velocimetry (ch. 6)",
         description=__doc__, epilog=EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("file", help="recording (events), or a BOS/flow HDF5 file with --from q|flow")
     where = p.add_mutually_exclusive_group(required=True)

@@ -4,12 +4,12 @@ without a regularizer, plotted to a PNG (and optionally saved as CSV). The windo
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
 from evmotion.cli.options import (
+    HelpFormatter,
     check_time_order,
     check_time_range,
     finite_float,
@@ -32,7 +32,7 @@ def add_parser(sub) -> None:
 
     p = sub.add_parser("landscape", help="cost landscape along one warp parameter (Fig. 3.12)",
                        description=__doc__, epilog=EXAMPLES,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+                       formatter_class=HelpFormatter)
     add_common(p)
     p.add_argument("--param", default="0",
                    help="parameter to scan: index or name (e.g. 0, hz, wz)")

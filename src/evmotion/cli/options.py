@@ -136,6 +136,31 @@ class Parser(argparse.ArgumentParser):
             [o for a in self._actions for o in a.option_strings])
 
 
+_RST_ROLE = re.compile(r":[a-z]+:`~?([^`<]*?)(?:\s*<[^>]*>)?`")
+_RST_LITERAL = re.compile(r"``([^`]+)``")
+
+
+def plain_help(text: str) -> str:
+    """``text`` with reStructuredText's inline markup taken off, for a terminal: roles
+    (``:func:`a.b.c``` -> a.b.c, ``~`` dropped, an explicit title kept) and double
+    back-quotes (the commands' help reuses their modules' docstrings, which Sphinx renders).
+
+    Examples
+    --------
+    >>> plain_help("``evmotion eval FLOW`` (:func:`evmotion.io.read_flow`)")
+    'evmotion eval FLOW (evmotion.io.read_flow)'
+    """
+    return _RST_LITERAL.sub(r"\1", _RST_ROLE.sub(r"\1", text))
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Every command's help formatter: descriptions and epilogs as written (their line
+    breaks kept), their inline markup taken off (:func:`plain_help`)."""
+
+    def _format_text(self, text: str) -> str:
+        return super()._format_text(plain_help(text))
+
+
 def _did_you_mean(words: list[str], known: list[str], name_typed: bool = False) -> str:
     """``" (did you mean --method?)"`` for the known names closest to ``words`` (typos);
     ``name_typed``: also say which word each is for, where the message does not show it.

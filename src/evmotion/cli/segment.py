@@ -20,6 +20,7 @@ import numpy as np
 
 from evmotion.catalog import MAX_WORKERS
 from evmotion.cli.options import (
+    HelpFormatter,
     add_scheduler_argument,
     add_time_arguments,
     check_time_order,
@@ -46,13 +47,12 @@ JOURNAL_NAME = "segment.part"
 
 
 def add_parser(sub) -> None:
-    import argparse
 
     from evmotion.cli.egomotion import add_common
 
     p = sub.add_parser("segment", help="motion segmentation with several warps (Sec. 3.6.6)",
                        description=__doc__, epilog=EXAMPLES,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+                       formatter_class=HelpFormatter)
     add_common(p, objectives=SEGMENT_OBJECTIVES, regularizers=SEGMENT_REGULARIZERS)
     p.add_argument("--warps", type=int_range(1, 64), default=2,
                    help="number of motion clusters (default 2)")

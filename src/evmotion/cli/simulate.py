@@ -18,6 +18,7 @@ import json
 
 from evmotion.catalog import MAX_SIM_SIDE
 from evmotion.cli.options import (
+    HelpFormatter,
     check_folder,
     check_output,
     existing_input,
@@ -47,7 +48,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         "simulate", help="simulate events with ground truth (ESIM-like)",
         description=__doc__ + "\nscenes:\n" + lines, epilog=EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("scene", choices=[*sorted(SCENES), "schlieren"],
                    help="named scene (motion), or schlieren")
@@ -64,18 +65,20 @@ def add_parser(sub) -> None:
                    help="pixels (overrides --size)")
     p.add_argument("--width", type=int_range(1, MAX_SIM_SIDE, unit="px"), default=None,
                    help="pixels (overrides --size)")
-    p.add_argument("--seed", type=int_range(0), default=0)
+    p.add_argument("--seed", type=int_range(0), default=0,
+                   help="seed of every random choice: texture, noise, thresholds (default 0)")
     p.add_argument("--texture", default=None, choices=["dots", "shapes", "noise", "checker"],
                    help="texture of a motion scene (default dots)")
     p.add_argument("--image", default=None, metavar="PATH", type=existing_input,
                    help="image to use as texture")
     p.add_argument("--threshold", type=positive_float(), default=0.2,
-                   help="contrast threshold C (log)")
+                   help="contrast threshold C, log-intensity units (default 0.2)")
     p.add_argument("--mismatch", type=nonnegative_float(), default=0.03,
-                   help="relative std of per-pixel thresholds")
-    p.add_argument("--refractory-us", type=int_range(0, unit="µs"), default=0)
+                   help="relative std of the per-pixel thresholds (default 0.03)")
+    p.add_argument("--refractory-us", type=int_range(0, unit="µs"), default=0,
+                   help="refractory period of a pixel after each event, µs (default 0)")
     p.add_argument("--noise-rate", type=nonnegative_float(unit="events/s"), default=0.0,
-                   help="background activity, events/s per pixel")
+                   help="background activity, events/s per pixel (default 0)")
     p.add_argument("--hot-pixels", type=int_range(0), default=None,
                    help="number of hot pixels (default 0)")
     p.add_argument("--hot-rate", type=nonnegative_float(unit="events/s"), default=None,

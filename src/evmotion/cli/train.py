@@ -23,6 +23,7 @@ from pathlib import Path
 
 from evmotion.catalog import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 from evmotion.cli.options import (
+    HelpFormatter,
     add_sensor_size_argument,
     existing_input,
     finite_float,
@@ -60,7 +61,7 @@ def _size(text: str) -> tuple[int, int]:
 def add_parser(sub) -> None:
     p = sub.add_parser("train", help="train the unsupervised flow network (EV-FlowNet)",
                        description=__doc__, epilog=EXAMPLES,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+                       formatter_class=HelpFormatter)
     p.add_argument("recordings", nargs="*", type=existing_input, help="training recordings (any readable format)")
     p.add_argument("--out", required=True, type=writable_folder, help="output folder")
     p.add_argument("--format", default=None,

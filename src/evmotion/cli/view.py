@@ -13,10 +13,10 @@ Poisson field q beside it.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 from evmotion.cli.options import (
+    HelpFormatter,
     add_sensor_size_argument,
     add_time_arguments,
     add_time_unit_argument,
@@ -47,7 +47,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         "view", help="picture of the events of a time slice (histogram / IWE)",
         description=__doc__, epilog=EXAMPLES,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     p.add_argument("file", help="recording (any readable format), or a flow output")
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),

@@ -28,9 +28,9 @@ from evmotion.io.base import FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
     NS_EPOCH_US,
-    SENSOR_SIZE_HINT,
     check_sensor_size,
     extended_size,
+    sensor_size_hint,
     time_to_us,
 )
 from evmotion.io.pngfile import read_png
@@ -570,7 +570,7 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
             bad = int(np.argmax((x >= w) | (y >= h)))
             raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]} lies outside the "
                               f"sensor {w}x{h} (W x H, {size_src})",
-                              _order_hint(t, x, y, p) or SENSOR_SIZE_HINT)
+                              _order_hint(t, x, y, p) or sensor_size_hint(size_src == "given"))
         if p.min() < -1 or p.max() > 1:
             bad = int(np.argmax((p < -1) | (p > 1)))
             raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1",

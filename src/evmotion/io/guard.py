@@ -31,8 +31,9 @@ from evmotion.errors import (
     one_line,
 )
 
-__all__ = ["MAX_SENSOR_SIDE", "check_sensor_size", "guard_call", "guard_iter", "as_format_error",
-           "extended_size", "open_h5", "warn_inferred_size", "LARGEST_COORDINATE"]
+__all__ = ["GIVEN_SIZE_HINT", "MAX_SENSOR_SIDE", "SENSOR_SIZE_HINT", "check_sensor_size",
+           "guard_call", "guard_iter", "as_format_error", "extended_size", "open_h5",
+           "sensor_size_hint", "warn_inferred_size", "LARGEST_COORDINATE"]
 
 
 # Errors of the code itself or of the installation, not of the file: let them through
@@ -63,6 +64,15 @@ def check_sensor_size(path, size, field: str = "sensor size") -> tuple[int, int]
 
 #: What to do when a file does not give its sensor size: in Python and on the command line.
 SENSOR_SIZE_HINT = "give the size: --sensor-size H W (sensor_size=(height, width) in Python)"
+#: ... and when the size given is smaller than the events reach.
+GIVEN_SIZE_HINT = ("the size given (--sensor-size, sensor_size= in Python) is smaller than "
+                   "the events reach: give the true size, or leave it out to take the file's")
+
+
+def sensor_size_hint(given: bool) -> str:
+    """What to do about events outside the sensor: :data:`GIVEN_SIZE_HINT` when the user
+    gave the size, else :data:`SENSOR_SIZE_HINT`."""
+    return GIVEN_SIZE_HINT if given else SENSOR_SIZE_HINT
 
 # 2^62 us is 146,000 years: any timestamp beyond it is a corrupt field, and int64 holds it
 MAX_ABS_TIME_US = 1 << 62
@@ -94,10 +104,11 @@ def time_to_us(path, text: str, scale: float, where: str) -> int:
     return round(us)
 
 
-def as_format_error(exc: BaseException, path, fmt: str, action: str) -> BaseException:
+def as_format_error(exc: BaseException, path, fmt: str, action: str,
+                    size_given: bool = False) -> BaseException:
     """The exception to raise for ``exc`` met while ``action``-ing ``path`` as ``fmt``:
     ``exc`` itself when it already names the file or is not about the file, else a
-    FormatError naming the file."""
+    FormatError naming the file (``size_given``: the caller gave ``sensor_size``)."""
     if isinstance(exc, _NOT_THE_FILE) or not isinstance(exc, Exception):
         return exc
     if isinstance(exc, FormatError):
@@ -106,7 +117,7 @@ def as_format_error(exc: BaseException, path, fmt: str, action: str) -> BaseExce
         return FormatError(path, exc.message, exc.hint)
     if isinstance(exc, EvmotionError):
         # events beyond the size the file states: a header that understates its sensor
-        hint = SENSOR_SIZE_HINT if "outside the sensor" in str(exc) else None
+        hint = sensor_size_hint(size_given) if "outside the sensor" in str(exc) else None
         return FormatError(path, str(exc), hint)
     if isinstance(exc, MemoryError):
         return FormatError(path, f"{action} as {fmt} needs more memory than is available "
@@ -143,7 +154,8 @@ def guard_call(fn: Callable, fmt: str, action: str) -> Callable:
         try:
             return fn(*args, **kw)
         except Exception as exc:
-            new = as_format_error(exc, _path_of(args, kw), fmt, action)
+            new = as_format_error(exc, _path_of(args, kw), fmt, action,
+                                  kw.get("sensor_size") is not None)
             if new is exc:
                 raise
             raise new from exc
@@ -190,7 +202,8 @@ def guard_iter(fn: Callable, fmt: str, action: str = "read") -> Callable:
             except Exception as exc:
                 if isinstance(exc, UnsortedError) and done:
                     exc = exc.shifted(done)
-                new = as_format_error(exc, path, fmt, action)
+                new = as_format_error(exc, path, fmt, action,
+                                      kw.get("sensor_size") is not None)
                 if new is exc:
                     raise
                 raise new from exc
