@@ -144,7 +144,8 @@ def test_polarity_255_is_an_error_wherever_events_are_built(tmp_path):
     _one_line_naming(e.value, path)
 
 
-@pytest.mark.parametrize("offset", ["99999999999999999999999", str(1 << 62), "-5", "abc"])
+@pytest.mark.parametrize("offset", ["99999999999999999999999", str(1 << 62),
+                                    str(-(1 << 62)), "abc"])
 def test_evt3_time_offset_out_of_range(tmp_path, offset):
     path = tmp_path / "off.raw"
     evt3.write(path, _events())

@@ -196,7 +196,8 @@ def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
             else:
                 from evmotion.io import read_events
 
-                events = read_events(source, t0=task.t0, t1=task.t1, **read_kwargs)
+                events = read_events(source, t0=task.t0, t1=task.t1, warn_empty=False,
+                                     **read_kwargs)
             value = fn(events, task.t0, task.t1) if with_window else fn(events)
         error = None
     except Exception as exc:

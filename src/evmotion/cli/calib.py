@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import itertools
-import warnings
 from collections.abc import Iterator
 
 from evmotion.cli.options import existing_input, float_list
@@ -201,7 +200,6 @@ def read_for_windows(args, *, n_events: int | None = None, duration_us: int | No
     from evmotion.cli.options import read_kwargs
     from evmotion.events import events_for_windows, make_windows
     from evmotion.io import iter_events, read_events
-    from evmotion.io.read import NO_EVENT_IN
 
     kw = read_kwargs(args)
     n_max = getattr(args, "max_windows", None)
@@ -232,10 +230,8 @@ def read_for_windows(args, *, n_events: int | None = None, duration_us: int | No
     if t0 is not None or t1 is not None:
         # only the span asked for (a 0.3 s window of a 29M-event file held 987 MB; probe AJ);
         # the whole recording only when it holds nothing there, for the refusal to name it
-        with warnings.catch_warnings():
-            # (an empty span is refused below, naming the recording's span)
-            warnings.filterwarnings("ignore", message=f".*{NO_EVENT_IN} ")
-            part = read_events(args.file, t0=t0, t1=t1, **kw)
+        # (an empty span is refused below, naming the recording's span)
+        part = read_events(args.file, t0=t0, t1=t1, warn_empty=False, **kw)
         if len(part):
             return _hot_pixels_checked(args, undistort_for(args, part))
     return _hot_pixels_checked(args, undistort_for(args, read_events(args.file, **kw)))

@@ -286,7 +286,8 @@ def run(args) -> int:
         import evmotion.io as eio
 
         try:
-            events = eio.read_events(args.file, format=args.format, t0=args.t0, t1=args.t1)
+            events = eio.read_events(args.file, format=args.format, t0=args.t0, t1=args.t1,
+                                    warn_empty=False)
         except FormatError:
             from evmotion.io.flowread import describe_flow
 

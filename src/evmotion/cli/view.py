@@ -83,7 +83,7 @@ def _read_slice(path: str, kw: dict, t0: int | None, t1: int | None, n: int | No
     from evmotion.events import concatenate
 
     if n is None:
-        return eio.read_events(path, t0=t0, t1=t1, **kw).slice_time(t0, t1)
+        return eio.read_events(path, t0=t0, t1=t1, warn_empty=False, **kw).slice_time(t0, t1)
     parts, have = [], 0
     for chunk in eio.iter_events(path, chunk_events=max(min(n, 1_000_000), 1), t0=t0, t1=t1,
                                  **kw):

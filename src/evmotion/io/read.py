@@ -36,7 +36,7 @@ def _accepts(fn, name: str) -> bool:
 
 
 def read_events(path: str | os.PathLike, format: str | None = None, t0: int | None = None,
-                t1: int | None = None, **kw) -> EventArray:
+                t1: int | None = None, *, warn_empty: bool = True, **kw) -> EventArray:
     """Read the events of a file or folder.
 
     Parameters
@@ -47,6 +47,9 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
         Format name (see :func:`all_formats`); default detected by content.
     t0, t1 : int, optional
         Keep events with ``t0 <= t < t1`` (absolute µs).
+    warn_empty : bool
+        Warn (naming the recording's span) when ``t0``/``t1`` select no event (default);
+        False for a caller that refuses the empty span itself.
     **kw
         Reader options, e.g. ``sensor_size=(height, width)`` (every reader accepts it).
 
@@ -67,7 +70,7 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
     _check_span(t0, t1)
     spec = resolve_format(path, format)
     events = spec.read(Path(path), t0=t0, t1=t1, **kw)
-    if (t0 is not None or t1 is not None) and not len(events):
+    if warn_empty and (t0 is not None or t1 is not None) and not len(events):
         _warn_outside(path, format, t0, t1, kw)
     if t0 is None and t1 is None and len(events) > 1:
         gaps = np.diff(np.asarray(events.t, np.int64))
@@ -111,11 +114,6 @@ def warn_time_jump(path, gap_us: int, index: int, span_us: int, n_events: int) -
     return msg
 
 
-#: How :func:`read_events` begins its warning for a span without events (a caller that
-#: says so itself filters it by this text).
-NO_EVENT_IN = "no event in"
-
-
 def _warn_outside(path, format, t0, t1, kw) -> None:
     """Say where the recording's events are when ``[t0, t1)`` holds none of them (an ECD
     excerpt starting at 13.58 s read from 0 returned nothing, unsaid; probe AI)."""
@@ -131,7 +129,7 @@ def _warn_outside(path, format, t0, t1, kw) -> None:
     where = ("the recording holds no event" if first is None else
              f"the recording spans {first}..{last} us (its own clock, as evmotion info "
              "shows it)")
-    warnings.warn(EvmotionWarning(f"{path}: {NO_EVENT_IN} [{t0}, {t1}) us: {where}"),
+    warnings.warn(EvmotionWarning(f"{path}: no event in [{t0}, {t1}) us: {where}"),
                   stacklevel=3)
 
 
