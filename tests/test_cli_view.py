@@ -26,7 +26,7 @@ def fake_reader(monkeypatch):
     ev = _events()
     calls = []
 
-    def read_events(path, format=None, t0=None, t1=None):
+    def read_events(path, format=None, t0=None, t1=None, warn_empty=True):
         calls.append(("read", path, format, t0, t1))
         return ev.slice_time(t0, t1)
 

@@ -195,7 +195,8 @@ def test_path_source_reads_each_window(tmp_path, monkeypatch):
     res = map_windows(count_and_span, tmp_path / "rec.h5", WINDOWS, progress=False,
                       read_kwargs={"format": "h5"})
     assert [r.value for r in res] == _expected(ev)
-    assert seen == [(str(tmp_path / "rec.h5"), a, b, {"format": "h5"}) for a, b in WINDOWS]
+    assert seen == [(str(tmp_path / "rec.h5"), a, b, {"format": "h5", "warn_empty": False})
+                    for a, b in WINDOWS]
 
 
 def test_bad_arguments():
