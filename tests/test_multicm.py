@@ -158,9 +158,12 @@ def test_a_flow_fitted_to_noise_is_flagged(seed):
                        sensor_size=(128, 128))
     # 16 x 16 tiles (8 events each), as multicm used for every window before its finest
     # level followed the event count
-    with pytest.warns(PoorFitWarning, match="times shuffled"):
+    # (flagged as soon as one test fails: the flow does not carry the window's first half
+    # onto its second, or it sharpens the events no more than with their times shuffled)
+    with pytest.warns(PoorFitWarning, match="times shuffled|first half onto its second"):
         res = estimate_flow(noise, finest_level=5)
-    assert res.meta["refit_gain"] < 1.05 and not res.valid.any()
+    assert not res.valid.any()
+    assert res.meta["halves_correlation"] < 0.15 or res.meta["refit_gain"] < 1.05
     # by default 4 x 4 tiles: too few unknowns to sharpen the noise by 5 %
     with pytest.warns(PoorFitWarning, match="no focus"):
         res = estimate_flow(noise)

@@ -229,6 +229,9 @@ def _row(r, w) -> dict:
     if np.isfinite(r.meta.get("chance_gain", np.nan)):
         # how much better the flow aligns the events than with their times shuffled
         row["chance_gain"] = float(r.meta["chance_gain"])
+    if np.isfinite(r.meta.get("halves_correlation", np.nan)):
+        # how well the flow carries the window's first half onto its second
+        row["halves_correlation"] = float(r.meta["halves_correlation"])
     if np.isfinite(r.meta.get("refit_gain", np.nan)):
         # with few events: its focus over that of the same fit with the times shuffled
         row["refit_gain"] = float(r.meta["refit_gain"])

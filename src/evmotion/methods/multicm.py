@@ -68,9 +68,11 @@ from evmotion.methods.flowresult import (
 )
 from evmotion.methods.measured import (
     flow_alignment_gain,
+    halves_consistency,
     warn_by_chance,
     warn_by_refit,
     warn_flicker,
+    warn_inconsistent_halves,
     warn_no_gain,
 )
 from evmotion.methods.options import merge_options
@@ -722,6 +724,13 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         # window's own event clusters (1.2 and 19); shuffled times keep that and lose motion
         chance = flow_alignment_gain(events, flow, (t0 + t1) // 2)
         no_focus = warn_by_chance(chance, "dense flow") is not None
+    halves = float("nan")
+    if not no_focus:
+        # a flow far from the motion can still beat shuffled times a little (an 8 s window
+        # of a pan the scene crossed twice: 2.6 px/s for 67, chance 1.44): it does not carry
+        # the window's first half onto its second
+        halves = halves_consistency(events, flow, (t0 + t1) // 2)
+        no_focus = warn_inconsistent_halves(halves, "dense flow") is not None
     refit = float("nan")
     if not no_focus and len(events) < REFIT_EVENTS_PER_TILE * prob.grid.nx * prob.grid.ny:
         # Few events a tile: the flow's unknowns can sharpen noise by 10-20 % with
@@ -747,6 +756,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                             "finest_level": o.finest_level,
                             "transport_cell": o.transport_cell, "restart": o.restart,
                             "no_focus": no_focus, "chance_gain": chance,
+                            "halves_correlation": halves,
                             "refit_gain": refit},
                       valid=valid)
 
