@@ -4,7 +4,9 @@ simulator's moving scenes cut to as many events.
 Below ``REFIT_EVENTS_PER_TILE`` events per finest tile, multicm also solves the window
 with its times shuffled and flags the flow unless its focus beats that fit's by 5 %
 (``refit_gain``); every window also gets the chance test (``chance_gain``: the flow's
-alignment of the events over the same warp with their times shuffled). Noise: uniform
+alignment of the events over the same warp with their times shuffled) and the halves test
+(``halves_correlation``: how well the flow carries the window's first half onto its
+second), before the refit. Noise: uniform
 random events (seeded). Moving: ``evmotion.sim.simulate`` scenes, the 30k events of the
 middle of a 0.2 s recording evenly subsampled to N (the motion of a 30k window carried
 by few events), AEE against the exact displacement over the window on the pixels with
@@ -33,7 +35,9 @@ NOTES = ("multicm defaults (finest level from the event count, 100 events a tile
          "events subsampled to the count given. "
          "refit_gain is empty where the window has 64 events per finest tile or more, or "
          "an earlier test flagged it (not refitted); chance_gain is empty where the focus "
-         "test flagged the window first.")
+         "test flagged the window first, halves_correlation (the flow's carrying of the "
+         "window's first half onto its second; under 0.15 flagged) where an earlier test "
+         "did.")
 LEVELS = ("auto", 5)
 
 
@@ -44,7 +48,8 @@ def _flags(events, level) -> dict:
         warnings.simplefilter("ignore")
         res = estimate_flow(events, **({} if level == "auto" else {"finest_level": level}))
     return {"chance_gain": res.meta["chance_gain"], "refit_gain": res.meta["refit_gain"],
-            "valid": bool(res.valid.any()), "res": res}
+            "halves": res.meta["halves_correlation"], "valid": bool(res.valid.any()),
+            "res": res}
 
 
 def _num(v):
@@ -72,6 +77,7 @@ def main(quick: bool = False) -> list[dict]:
         rows.append({"data": f"noise {size[1]}x{size[0]}", "events": n,
                      "finest_level": out[0]["finest_level"],
                      "chance_gain": _num(np.nanmedian([o["chance_gain"] for o in out])),
+                     "halves_correlation": _num(np.nanmedian([o["halves"] for o in out])),
                      "refit_gain": _num(np.median(refit)) if refit else "",
                      "refit_range": f"{min(refit):.3f}-{max(refit):.3f}" if refit else "",
                      "valid_windows": f"{sum(o['valid'] for o in out)} of {len(out)}",
@@ -94,6 +100,7 @@ def main(quick: bool = False) -> list[dict]:
             rows.append({"data": f"sim {scene}", "events": n,
                          "finest_level": res.meta["finest_level"],
                          "chance_gain": _num(f["chance_gain"]),
+                         "halves_correlation": _num(f["halves"]),
                          "refit_gain": _num(f["refit_gain"]), "refit_range": "",
                          "valid_windows": "1 of 1" if f["valid"] else "0 of 1",
                          "flow_px_median": float(np.median(np.linalg.norm(

@@ -135,3 +135,18 @@ def test_a_pause_in_the_recording_makes_no_empty_windows():
     assert len(wins) == len(plain) + 1
     assert wins[-1].t0 <= int(late.t[0]) < wins[-1].t1
     assert (wins[-1].t0 - wins[0].t0) % 50_000 == 0  # still on the grid of windows
+
+
+def test_stretches_lit_not_moved_get_no_flow():
+    """Under 120 Hz flicker the per-event flow was no better than zero flow (AEE 0.76
+    against 0.80), valid (probe AK): those stretches now get none, and are counted."""
+    from test_measured import moving
+
+    lit = moving(n=60_000, flicker_share=0.8)
+    s = TripletStream(lit.sensor_size, dense=None)
+    flow = s.process(lit)
+    assert s.lit_events == len(lit) and not flow.valid.any()
+    assert not flow.vx.any() and not flow.vy.any()
+    still = moving(n=60_000)
+    s = TripletStream(still.sensor_size, dense=None)
+    assert s.process(still).valid.any() and s.lit_events == 0

@@ -277,6 +277,11 @@ def run(args) -> int:
                   f"{no_focus[0]}) have no focus: their dense flow aligns their events less "
                   f"than {100 * (MIN_CONTRAST_GAIN - 1):.0f} % better than chance (noise or "
                   "no texture); no pixel of them is valid")
+    if tri.lit_events:
+        warn_line(f"{args.file}: {tri.lit_events:,} of {n_events:,} events "
+                  f"({100 * tri.lit_events / max(n_events, 1):.0f} %) come in stretches lit "
+                  "rather than moved (bursts of one polarity: flickering light or a lighting "
+                  "change): they get no flow (not valid)")
     if tri.overflow > OVERFLOW_NOTE * max(n_events, 1):
         warn_line(f"{args.file}: {tri.overflow:,} of {n_events:,} events "
                   f"({100 * tri.overflow / n_events:.0f} %) fired more than --depth "
@@ -294,6 +299,7 @@ def run(args) -> int:
             "valid_fraction": n_valid / max(n_events, 1),
             "mean_triplets": n_trip / max(n_events, 1),
             "windows": n_windows, "no_focus_windows": no_focus, "overflow": tri.overflow,
+            "lit_events": tri.lit_events,
             "state_bytes": tri.matcher.state_nbytes,
             "wall_s": wall, "compile_s": compiled, "run_s": run_s,
             "events_per_s": n_events / run_s if run_s > 0 else None,

@@ -12,11 +12,10 @@ from evmotion.errors import ParameterError, PoorFitWarning
 from evmotion.events import EventArray
 
 __all__ = ["MAX_ONE_POLARITY", "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CONTRAST_GAIN",
-           "MIN_FIT_EVENTS", "MIN_HALVES_CORRELATION", "halves_consistency",
-           "warn_inconsistent_halves",
-           "MIN_MOTION_PX", "alignment_gain", "flow_alignment_gain", "polarity_bursts",
-           "warn_by_chance", "warn_by_refit", "warn_flicker", "warn_no_gain",
-           "warn_small_motion", "warn_too_few"]
+           "MIN_FIT_EVENTS", "MIN_HALVES_CORRELATION", "MIN_MOTION_PX", "alignment_gain",
+           "flow_alignment_gain", "halves_consistency", "lit_not_moved", "polarity_bursts",
+           "warn_by_chance", "warn_by_refit", "warn_flicker", "warn_inconsistent_halves",
+           "warn_no_gain", "warn_small_motion", "warn_too_few"]
 
 # an estimate whose image of warped events is not this much sharper (variance ratio) than
 # the identity warp's measures nothing (a 3.3 ms ECD window: 1.002, its rotation wrong)
@@ -241,20 +240,26 @@ def polarity_bursts(events: EventArray) -> tuple[float, float, float]:
             float(np.sqrt(max(cv2, 0.0))))
 
 
-def warn_flicker(events: EventArray, what: str, stacklevel: int = 3) -> str | None:
-    """Issue a :class:`~evmotion.errors.PoorFitWarning` when the window's events come in
-    bursts of one polarity (:func:`polarity_bursts` beyond :data:`MAX_POLARITY_SWING`, or
-    :data:`MAX_ONE_POLARITY` and, for a window of one polarity only,
-    :data:`MIN_BURST_CV`): an estimate there sharpens the bursts, not a motion (probe AK:
-    the network's flow 20-800x the truth under flicker, marked valid); returns its
-    message (else None)."""
+def lit_not_moved(events: EventArray) -> str | None:
+    """Why the window's events come in bursts of one polarity (:func:`polarity_bursts`
+    beyond :data:`MAX_POLARITY_SWING`, or :data:`MAX_ONE_POLARITY` and, for a window of
+    one polarity only, :data:`MIN_BURST_CV`), or None when they do not."""
     swing, one, burst = polarity_bursts(events)
     if swing >= MAX_POLARITY_SWING:
-        how = (f"their mean polarity swings by {swing:.2f} over the window in every quarter "
-               f"of the sensor (threshold {MAX_POLARITY_SWING:g})")
-    elif one >= MAX_ONE_POLARITY and (one < 1.0 or burst >= MIN_BURST_CV):
-        how = f"{one:.0%} of them have one polarity (threshold {MAX_ONE_POLARITY:.0%})"
-    else:
+        return (f"their mean polarity swings by {swing:.2f} over the window in every quarter "
+                f"of the sensor (threshold {MAX_POLARITY_SWING:g})")
+    if one >= MAX_ONE_POLARITY and (one < 1.0 or burst >= MIN_BURST_CV):
+        return f"{one:.0%} of them have one polarity (threshold {MAX_ONE_POLARITY:.0%})"
+    return None
+
+
+def warn_flicker(events: EventArray, what: str, stacklevel: int = 3) -> str | None:
+    """Issue a :class:`~evmotion.errors.PoorFitWarning` when the window's events come in
+    bursts of one polarity (:func:`lit_not_moved`): an estimate there sharpens the bursts,
+    not a motion (probe AK: the network's flow 20-800x the truth under flicker, marked
+    valid); returns its message (else None)."""
+    how = lit_not_moved(events)
+    if how is None:
         return None
     warnings.warn(msg := f"no measurement: the window's events come in bursts of one polarity "
                   f"({how}) -- flickering light or a lighting change, not motion; the "
@@ -265,9 +270,9 @@ def warn_flicker(events: EventArray, what: str, stacklevel: int = 3) -> str | No
 #: A dense flow that carries the window's first half onto its second less than this
 #: (:func:`halves_consistency`) measures no motion: a constant pan in an 8 s window
 #: (the scene crossed the image twice) came out at 2.6 px/s for 67, valid (probe AJ),
-#: correlation -0.16; 30k noise events -0.16. Correct flows: the ECD 30k windows 0.50-0.87,
-#: simulated 30k windows 0.98-0.99, probe AC's 89 good sparse windows (2k-12k events)
-#: 0.25 and up.
+#: correlation -0.14; 30k noise events -0.16. Correct flows: the ECD 30k windows 0.80-0.98
+#: (the network's 0.59-0.96), simulated windows of 2k-40k events 0.32-0.996, probe AC's 89
+#: well-estimated sparse windows (2k-12k events) 0.25 and up.
 MIN_HALVES_CORRELATION = 0.15
 
 
