@@ -740,9 +740,14 @@ def _run_dask(fn, source, tasks: list[_Task], scheduler, with_window: bool,
         # submits cost the scheduler one update each and reached the second worker 10 ms
         # later. pure=False: the same window must run again on a rerun, never be deduplicated.
         n = len(batches)
-        new = client.map(_run_batch, [fn] * n,
-                         [[_payload(source, t) for t in batch] for batch in batches], batches,
-                         [with_window] * n, [read_kwargs] * n, [topic] * n, pure=False)
+        with warnings.catch_warnings():
+            # the in-memory slices travel in the graph on purpose, a few batches at a time
+            # (above); distributed's 6-line "Sending large graph" advice is not the user's
+            warnings.filterwarnings("ignore", message="Sending large graph")
+            new = client.map(_run_batch, [fn] * n,
+                             [[_payload(source, t) for t in batch] for batch in batches],
+                             batches, [with_window] * n, [read_kwargs] * n, [topic] * n,
+                             pure=False)
         for fut, batch in zip(new, batches, strict=True):
             futures[fut.key] = batch
             if stream is not None:
