@@ -474,8 +474,8 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
         for r, rw in pending:
             sink.append(r.flow, rw.t0, rw.t1, valid=_valid(r))
         pending.clear()
-    order = (progress(windows, total=len(windows), desc=attrs["method"]) if todo is None
-             else windows)
+    order = (progress(windows, total=len(windows), desc=attrs["method"], unit="win")
+             if todo is None else windows)
     try:
         sink.check_count(len(windows))
         for i, w in enumerate(order):
