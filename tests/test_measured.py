@@ -142,3 +142,16 @@ def test_a_window_the_scene_crossed_is_no_measurement():
     flow[..., 0], flow[..., 1] = 60.0, -30.0
     mid = (int(long.t[0]) + int(long.t[-1])) // 2
     assert halves_consistency(long, flow, mid) > MIN_HALVES_CORRELATION  # the true flow passes
+
+
+def test_one_edge_of_one_sign_at_a_steady_rate_is_not_flicker():
+    """A dark bar entering a bright view gives 98 % OFF events, the rest sensor noise, at
+    a steady rate: probe AL saw it flagged as flickering light (with good estimates), as
+    were scenes whose contrast never reached the OFF threshold (97-98 % ON)."""
+    ev = moving()
+    p = (np.random.default_rng(1).uniform(size=len(ev)) < 0.02).astype(int)  # 98 % OFF
+    edge = EventArray(ev.x, ev.y, ev.t, p, ev.sensor_size)
+    assert polarity_bursts(edge)[1] > MAX_ONE_POLARITY
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warn_flicker(edge, "dense flow") is None

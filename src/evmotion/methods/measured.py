@@ -182,13 +182,13 @@ POLARITY_BINS = 16
 #: (2k-30k event windows) reach 0.48 (a bursty 640x480 Prophesee file; the others 0.34),
 #: probe AK's 50-120 Hz flicker 0.5-1.0 where it fell inside a window.
 MAX_POLARITY_SWING = 0.5
-#: ... or whose events are this share of one polarity: a window inside one flicker phase
-#: (probe AK: 97-100 %) or a light switched on or off; moving edges give both (the shared
-#: recordings: at most 85 % in 2k-event windows, a 3:1 ON/OFF threshold mismatch 83 %).
-#: A window of one polarity only may come from a sensor or file that records none (the
-#: project's own test scenes): it counts only if its rate comes in bursts, the time bins'
-#: counts varying by :data:`MIN_BURST_CV` of their mean or more (flicker 2.3-3.4; the shared
-#: recordings at most 1.17, 1 ms time stamps 0.62).
+#: ... or whose events are this share of one polarity and come in bursts, the time bins'
+#: counts varying by :data:`MIN_BURST_CV` of their mean or more: a window inside one
+#: flicker phase (probe AK: 97-100 %, 2.3-3.4) or a light switched on or off. One
+#: polarity at a steady rate is motion: a single edge of one sign (probe AL: a dark bar
+#: entering, 98 % OFF, the rest noise, rate 0.01-0.03), a sensor whose OFF threshold the
+#: scene's contrast never reaches (AL: 97-98 % ON), data without polarity. The shared
+#: recordings' counts vary by at most 1.17, 1 ms time stamps 0.62.
 MAX_ONE_POLARITY = 0.95
 MIN_BURST_CV = 1.5
 
@@ -246,13 +246,13 @@ def polarity_bursts(events: EventArray) -> tuple[float, float, float]:
 
 def lit_not_moved(events: EventArray) -> str | None:
     """Why the window's events come in bursts of one polarity (:func:`polarity_bursts`
-    beyond :data:`MAX_POLARITY_SWING`, or :data:`MAX_ONE_POLARITY` and, for a window of
-    one polarity only, :data:`MIN_BURST_CV`), or None when they do not."""
+    beyond :data:`MAX_POLARITY_SWING`, or :data:`MAX_ONE_POLARITY` with
+    :data:`MIN_BURST_CV`), or None when they do not."""
     swing, one, burst = polarity_bursts(events)
     if swing >= MAX_POLARITY_SWING:
         return (f"their mean polarity swings by {swing:.2f} over the window in every quarter "
                 f"of the sensor (threshold {MAX_POLARITY_SWING:g})")
-    if one >= MAX_ONE_POLARITY and (one < 1.0 or burst >= MIN_BURST_CV):
+    if one >= MAX_ONE_POLARITY and burst >= MIN_BURST_CV:
         return f"{one:.0%} of them have one polarity (threshold {MAX_ONE_POLARITY:.0%})"
     return None
 
