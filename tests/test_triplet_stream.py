@@ -147,6 +147,9 @@ def test_stretches_lit_not_moved_get_no_flow():
     flow = s.process(lit)
     assert s.lit_events == len(lit) and not flow.valid.any()
     assert not flow.vx.any() and not flow.vy.any()
+    # nor a normal flow, from which the dense "lsq" windows are made
+    flow = TripletStream(lit.sensor_size, dense="lsq").process(lit)
+    assert flow.nx is not None and not flow.nx.any() and not flow.ny.any()
     still = moving(n=60_000)
     s = TripletStream(still.sensor_size, dense=None)
     assert s.process(still).valid.any() and s.lit_events == 0

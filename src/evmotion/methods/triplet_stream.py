@@ -462,8 +462,10 @@ class TripletStream:
         for a, b in zip(cuts[:-1], cuts[1:], strict=True):
             if lit_not_moved(chunk[int(a):int(b)]) is not None:
                 flow.valid[a:b] = False
-                flow.vx[a:b] = 0.0
-                flow.vy[a:b] = 0.0
+                # (the normal flow too: the dense "lsq" windows take theirs from it)
+                for part in (flow.vx, flow.vy, flow.nx, flow.ny):
+                    if part is not None:
+                        part[a:b] = 0.0
                 self.lit_events += int(b - a)
 
     def finish(self) -> None:
