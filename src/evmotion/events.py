@@ -22,6 +22,7 @@ from evmotion.errors import EmptyWindowError, EventDataError, ParameterError, Un
 from evmotion.utils import whole_number
 
 __all__ = [
+    "SORT_HINT",
     "EventArray",
     "fingerprint",
     "require_events",
@@ -38,6 +39,8 @@ MAX_UNSORTED_SHARE = 0.01
 #: readout, not of a column mistaken for time (whose steps back are of the size of its
 #: values, and of its span)
 MAX_READOUT_STEP_US = 1000
+#: What to do about times out of order that a sensor or recorder left (not another column).
+SORT_HINT = "sort them: evmotion convert IN OUT --sort, or EventArray.sorted()"
 
 TONIC_DTYPE = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
 
@@ -135,16 +138,16 @@ class EventArray:
         if dt.size and dt.min() < 0:
             i = int(np.argmax(dt < 0))
             back = int(np.count_nonzero(dt < 0))
-            sort = "sort them: evmotion convert IN OUT --sort, or EventArray.sorted()"
+            step = -int(dt.min())
             # a few events out of order are a recorder's, and so are many that step back
             # by a readout's few µs (a rolling readout: 47 % by up to 32 µs, probe AK);
             # many by more, a column taken for time that is not (sorting makes garbage)
             if back <= max(10, MAX_UNSORTED_SHARE * dt.size):
-                hint = sort
-            elif (-int(dt.min()) <= MAX_READOUT_STEP_US
-                  and -100 * int(dt.min()) <= int(self.t.max()) - int(self.t.min())):
+                hint = SORT_HINT
+            elif (step <= MAX_READOUT_STEP_US
+                  and 100 * step <= int(self.t.max()) - int(self.t.min())):
                 hint = (f"{100 * back / dt.size:.0f} % of them step back, by at most "
-                        f"{-int(dt.min())} us: a sensor's readout order? {sort}")
+                        f"{step} us: a sensor's readout order? {SORT_HINT}")
             else:
                 hint = (f"{100 * back / dt.size:.0f} % of them step back: is the time column "
                         "where the format has it? (text: t x y p, or a header line naming "

@@ -38,9 +38,14 @@ def temp_prefix(path: Path) -> str:
     """Name prefix of the hidden temporaries a writer of ``path`` makes beside it:
     ``.NAME.HOST-PID.``, so that a later run can tell a killed run's (SIGKILL leaves them:
     124 MB and 408 MB in probe AJ) from a running one's (:func:`remove_stale_temps`)."""
+    return f"{_temp_stem(path)}{os.getpid()}."
+
+
+def _temp_stem(path: Path) -> str:
+    """``.NAME.HOST-``: how this host's temporaries for ``path`` begin."""
     import socket
 
-    return f".{path.name}.{socket.gethostname()}-{os.getpid()}."
+    return f".{path.name}.{socket.gethostname()}-"
 
 
 def remove_stale_temps(path: Path, suffix: str) -> list[Path]:
@@ -48,9 +53,8 @@ def remove_stale_temps(path: Path, suffix: str) -> list[Path]:
     host writing ``path`` left when they were killed (their process is gone); returns
     them. Other hosts' (a shared folder) and running processes' stay."""
     import shutil
-    import socket
 
-    start = f".{path.name}.{socket.gethostname()}-"
+    start = _temp_stem(path)
     gone = []
     try:
         entries = list(os.scandir(path.parent))
@@ -77,8 +81,8 @@ def _alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except (PermissionError, OverflowError):  # another user's process; not a pid at all
-        return pid > 0
+    except (PermissionError, OverflowError):  # another user's process, or no pid at all:
+        return True  # left alone
     return True
 
 

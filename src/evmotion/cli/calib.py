@@ -166,6 +166,8 @@ def _hot_pixels_handled(args, events):
     """``events`` less its hot pixels' with ``--remove-hot-pixels`` (said in one line), or
     as they are, with one line naming the option where hot pixels hold
     :data:`HOT_EVENTS_NOTE` of them or more."""
+    import numpy as np
+
     from evmotion.catalog import HOT_NEIGHBOUR_RATIO
     from evmotion.cli import warn_line
     from evmotion.filters import hot_pixel_mask, remove_hot_pixels
@@ -173,12 +175,13 @@ def _hot_pixels_handled(args, events):
     mask = hot_pixel_mask(events, neighbour_ratio=HOT_NEIGHBOUR_RATIO)
     if not mask.any():
         return events
-    kept = remove_hot_pixels(events, mask)
-    share = 1.0 - len(kept) / len(events)
     if args.remove_hot_pixels:
+        kept = remove_hot_pixels(events, mask)
         warn_line(f"{args.file}: --remove-hot-pixels dropped {int(mask.sum())} hot pixels "
                   f"({len(events) - len(kept):,} of {len(events):,} events)")
         return kept
+    # (the share from the mask: no copy of the events that are kept as they are)
+    share = float(np.mean(mask[events.y.astype(np.intp), events.x.astype(np.intp)]))
     # (the network sets a hot pixel's flow to zero and leaves its events out of its checks)
     if share >= HOT_EVENTS_NOTE and getattr(args, "method", None) != "dnn":
         warn_line(f"{args.file}: {int(mask.sum())} hot pixels (each far busier than its "
@@ -229,8 +232,8 @@ def read_for_windows(args, *, n_events: int | None = None, duration_us: int | No
     t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
     if t0 is not None or t1 is not None:
         # only the span asked for (a 0.3 s window of a 29M-event file held 987 MB; probe AJ);
-        # the whole recording only when it holds nothing there, for the refusal to name it
-        # (an empty span is refused below, naming the recording's span)
+        # the whole recording only when it holds nothing there, for the refusal to name its
+        # span (hence no warning here)
         part = read_events(args.file, t0=t0, t1=t1, warn_empty=False, **kw)
         if len(part):
             return _hot_pixels_checked(args, undistort_for(args, part))

@@ -26,12 +26,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from evmotion.catalog import (
-    MAX_WORKERS,
-    OBJECTIVE_NAMES,
-    WARP_NAMES,
-    WEIGHT_DATASETS,
-)
+from evmotion.catalog import MAX_WORKERS, OBJECTIVE_NAMES, WARP_NAMES, WEIGHT_DATASETS
 from evmotion.cli.calib import add_camera_arguments, add_hot_pixel_argument
 from evmotion.cli.options import (
     DEFAULT_WINDOW_EVENTS,
@@ -99,7 +94,6 @@ def add_common(p, objectives=None, regularizers=REGULARIZERS) -> None:
 
 
 def add_parser(sub) -> None:
-
     p = sub.add_parser("egomotion", help="camera ego-motion by contrast maximization (ch. 3)",
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=HelpFormatter)

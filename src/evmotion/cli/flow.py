@@ -164,7 +164,6 @@ def run(args) -> int:
                       "with --method triplet (it streams the recording: crop it with --t1)")
         reject_unused(args, {"--remove-hot-pixels": "remove_hot_pixels"},
                       "with --method triplet (a hot pixel's events find no triplet partner)")
-        args.remove_hot_pixels = None
     if args.window_gt is None:
         reject_unused(args, {"--gt-dt": "gt_dt"}, "without --window-gt")
     args.gt_dt = 1 if args.gt_dt is None else args.gt_dt

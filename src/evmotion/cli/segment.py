@@ -47,7 +47,6 @@ JOURNAL_NAME = "segment.part"
 
 
 def add_parser(sub) -> None:
-
     from evmotion.cli.egomotion import add_common
 
     p = sub.add_parser("segment", help="motion segmentation with several warps (Sec. 3.6.6)",

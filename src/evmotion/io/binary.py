@@ -303,8 +303,8 @@ def check_writable(events: EventArray, fmt: str, height: int, width: int,
 def u32_time_base(events: EventArray, fmt: str) -> int:
     """The µs a format that stores times modulo 2^32 µs writes ``events``' times from:
     the multiple of 2^32 µs at or below the first time (0 for a first time within
-    ``[0, 2^32)``, -2^32 for one in ``[-2^32, 0)``); the writer keeps it in its header. Checked with
-    :func:`check_u32_times` (``fmt`` names the format in its errors).
+    ``[0, 2^32)``, -2^32 for one in ``[-2^32, 0)``); the writer keeps it in its header.
+    Checked with :func:`check_u32_times` (``fmt`` names the format in its errors).
 
     Examples
     --------

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
-from evmotion.events import EventArray
+from evmotion.events import SORT_HINT, EventArray
 from evmotion.io.base import FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
@@ -701,8 +701,7 @@ def _check_follows(last_t: int | None, ev: EventArray) -> None:
     """UnsortedError when chunk ``ev`` starts before the previous chunk's last time (its
     index -1: the guard counts it from the chunk's place in the file)."""
     if last_t is not None and len(ev) and ev.t[0] < last_t:
-        raise UnsortedError(-1, last_t, int(ev.t[0]), "sort them: evmotion convert IN OUT "
-                            "--sort, or EventArray.sorted()")
+        raise UnsortedError(-1, last_t, int(ev.t[0]), SORT_HINT)
 
 
 @lazy_njit(cache=True)

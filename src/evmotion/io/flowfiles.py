@@ -612,9 +612,9 @@ def window_times_ok(t0: int, t1: int, valid: np.ndarray | None) -> bool:
 
 def check_flow_arrays(path, flow, t0, t1, valid, units) -> None:
     """FormatError naming ``path`` unless the arrays read from a flow file make windows:
-    ``flow`` (N, H, W, 2) numbers, ``t0``/``t1`` N whole µs with ``t1 > t0`` (:func:`window_times_ok`), ``valid``
-    (N, H, W) or None, and ``units`` px/s (the only units evmotion writes: a flow stated in
-    other units would be scored as px/s)."""
+    ``flow`` (N, H, W, 2) numbers, ``t0``/``t1`` N whole µs with ``t1 > t0``
+    (:func:`window_times_ok`), ``valid`` (N, H, W) or None, and ``units`` px/s (the only
+    units evmotion writes: a flow stated in other units would be scored as px/s)."""
     flow, t0, t1 = np.asarray(flow), np.asarray(t0), np.asarray(t1)
     if flow.ndim != 4 or flow.shape[-1] != 2 or flow.dtype.kind not in "fiu":
         raise FormatError(path, f"'flow' has shape {flow.shape} and dtype {flow.dtype}: "

@@ -193,11 +193,16 @@ MAX_ONE_POLARITY = 0.95
 MIN_BURST_CV = 1.5
 
 
+def _time_bins(t: np.ndarray) -> np.ndarray:
+    """Each time's bin of :data:`POLARITY_BINS` equal bins over ``t``'s span."""
+    span = max(int(t[-1] - t[0]), 1)
+    return np.minimum((t - t[0]) * POLARITY_BINS // span, POLARITY_BINS - 1)
+
+
 def _swing(t: np.ndarray, pol: np.ndarray) -> float:
     """Event-weighted standard deviation over :data:`POLARITY_BINS` time bins of each
     bin's mean polarity (+-1), less what the bins' finite counts give by chance."""
-    span = max(int(t[-1] - t[0]), 1)
-    b = np.minimum((t - t[0]) * POLARITY_BINS // span, POLARITY_BINS - 1)
+    b = _time_bins(t)
     n = np.bincount(b, minlength=POLARITY_BINS)
     sums = np.bincount(b, pol, minlength=POLARITY_BINS)
     ok = n > 0
@@ -235,9 +240,7 @@ def polarity_bursts(events: EventArray) -> tuple[float, float, float]:
     swings = [_swing(t[q], pol[q]) for q in (quarter == k for k in range(4))
               if q.sum() >= 0.1 * len(t)]
     swing = min(swings) if len(swings) >= 2 else _swing(t, pol)
-    span = max(int(t[-1] - t[0]), 1)
-    n = np.bincount(np.minimum((t - t[0]) * POLARITY_BINS // span, POLARITY_BINS - 1),
-                    minlength=POLARITY_BINS)
+    n = np.bincount(_time_bins(t), minlength=POLARITY_BINS)
     # (less the variation of a steady rate's counts, as _swing takes off its own)
     cv2 = (n.std() / n.mean()) ** 2 - POLARITY_BINS / len(t)
     return (swing, float(max(np.mean(pol > 0), np.mean(pol < 0))),

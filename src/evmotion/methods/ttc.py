@@ -55,8 +55,6 @@ def _expansion_rate(warp: Warp, theta: np.ndarray) -> float:
     if warp.name == "zoom":
         return float(theta[0])
     cx, cy = warp.center
-    if warp.name == "rotation":  # rotations expand nothing on the optical axis
-        cx, cy = warp.K[0, 2], warp.K[1, 2]
     x = np.array([cx], dtype=np.float64)
     y = np.array([cy], dtype=np.float64)
     return 0.5 * float(warp.rcad(x, y, np.zeros(1), theta)[0])
