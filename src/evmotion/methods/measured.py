@@ -233,18 +233,21 @@ def polarity_bursts(events: EventArray) -> tuple[float, float, float]:
     if len(events) == 0:
         return float("nan"), float("nan"), float("nan")
     t = np.asarray(events.t, np.int64)
-    pol = np.where(np.asarray(events.p) > 0, 1.0, -1.0)
+    on = np.asarray(events.p) > 0
+    pol = np.where(on, 1.0, -1.0)
     h, w = events.sensor_size
     quarter = ((np.asarray(events.y, np.int64) * 2 // h) * 2
                + np.asarray(events.x, np.int64) * 2 // w)
-    swings = [_swing(t[q], pol[q]) for q in (quarter == k for k in range(4))
-              if q.sum() >= 0.1 * len(t)]
+    # (a mask only for the quarters that hold enough events: this runs on every stretch
+    # of a triplet stream)
+    held = np.flatnonzero(np.bincount(quarter, minlength=4) >= 0.1 * len(t))
+    swings = [_swing(t[q], pol[q]) for q in (quarter == k for k in held)]
     swing = min(swings) if len(swings) >= 2 else _swing(t, pol)
     n = np.bincount(_time_bins(t), minlength=POLARITY_BINS)
     # (less the variation of a steady rate's counts, as _swing takes off its own)
     cv2 = (n.std() / n.mean()) ** 2 - POLARITY_BINS / len(t)
-    return (swing, float(max(np.mean(pol > 0), np.mean(pol < 0))),
-            float(np.sqrt(max(cv2, 0.0))))
+    n_on = np.count_nonzero(on)
+    return (swing, float(max(n_on, len(t) - n_on) / len(t)), float(np.sqrt(max(cv2, 0.0))))
 
 
 def lit_not_moved(events: EventArray) -> str | None:
