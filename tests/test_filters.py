@@ -1,7 +1,7 @@
 import numpy as np
 
 from evmotion import EventArray
-from evmotion.filters import hot_pixel_mask, refractory_filter, remove_hot_pixels
+from evmotion.filters import hot_line_mask, hot_pixel_mask, refractory_filter, remove_hot_pixels
 
 
 def refractory_reference(ev, period):
@@ -38,3 +38,71 @@ def test_hot_pixel_removed():
     clean = remove_hot_pixels(ev)
     at_hot = int(np.sum((ev.x == 7) & (ev.y == 9)))
     assert at_hot >= 800 and len(clean) == n - at_hot
+
+
+def _moving_bars(rng, n, size=(60, 80), vertical=True):
+    """Events of 1-px bars 6 px apart sweeping across the sensor (no stuck line)."""
+    h, w = size
+    t = np.sort(rng.integers(0, 100_000, n))
+    offset = (t * 30 // 100_000)  # 30 px over the window
+    if vertical:  # horizontal bars moving down: each row in turn
+        y = (rng.integers(0, h // 6, n) * 6 + offset) % h
+        x = rng.integers(0, w, n)
+    else:
+        x = (rng.integers(0, w // 6, n) * 6 + offset) % w
+        y = rng.integers(0, h, n)
+    return x, y, t
+
+
+def test_stuck_row_and_column_masked_moving_bars_kept():
+    rng = np.random.default_rng(3)
+    h, w = 60, 80
+    x, y, t = _moving_bars(rng, 20_000, (h, w))
+    # a stuck row and a stuck column firing all along, 60 events a pixel
+    sx, sy = np.tile(np.arange(w), 60), np.full(60 * w, 17)
+    cx, cy = np.full(60 * h, 41), np.tile(np.arange(h), 60)
+    xx, yy = np.r_[x, sx, cx], np.r_[y, sy, cy]
+    tt = np.r_[t, rng.integers(0, 100_000, sx.size + cx.size)]
+    order = np.argsort(tt, kind="stable")
+    ev = EventArray(xx[order], yy[order], tt[order], np.ones(tt.size), (h, w))
+    mask = hot_pixel_mask(ev, neighbour_ratio=4)
+    # (where the two cross, the row's pixels beside the column have busy neighbours)
+    assert mask[17].sum() >= w - 3 and mask[:, 41].sum() >= h - 3
+    rows = np.flatnonzero(mask.sum(1) > 8)
+    cols = np.flatnonzero(mask.sum(0) > 8)
+    assert rows.tolist() == [17] and cols.tolist() == [41]
+    # the bars alone: busy rows in turn, none stuck
+    for vertical in (True, False):
+        bx, by, bt = _moving_bars(rng, 20_000, (h, w), vertical)
+        bars = EventArray(bx, by, bt, np.ones(bt.size), (h, w))
+        assert not hot_pixel_mask(bars, neighbour_ratio=4).any()
+
+
+def test_hot_line_mask_matches_loop_reference():
+    rng = np.random.default_rng(4)
+    counts = rng.poisson(3.0, (12, 15)).astype(float)
+    counts[5, 2:14] = 40 + rng.integers(0, 5, 12)
+    counts[:, 9] += 30
+    thr, ratio = 10.0, 4.0
+    h, w = counts.shape
+    ref = np.zeros((h, w), bool)
+    for img, out_t in ((counts, False), (counts.T, True)):
+        hh, ww = img.shape
+        rows = img.sum(1)
+        for r in range(hh):
+            side = max(rows[r - 1] if r > 0 else 0.0, rows[r + 1] if r < hh - 1 else 0.0)
+            busy = []
+            for c in range(ww):
+                nb = [img[rr, cc] for rr in (r - 1, r + 1) for cc in (c - 1, c, c + 1)
+                      if 0 <= rr < hh and 0 <= cc < ww]
+                if img[r, c] > thr and img[r, c] > ratio * max(nb + [0.0]):
+                    busy.append(c)
+            if rows[r] > ratio * side and len(busy) >= 8:
+                for c in busy:
+                    if out_t:
+                        ref[c, r] = True
+                    else:
+                        ref[r, c] = True
+    got = hot_line_mask(counts, thr, ratio)
+    np.testing.assert_array_equal(got, ref)
+    assert got[5, 2:8].all() and got[:, 9].sum() >= h - 3

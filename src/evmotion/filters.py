@@ -8,7 +8,7 @@ from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.jitcache import lazy_njit
 
-__all__ = ["hot_pixel_mask", "refractory_filter", "remove_hot_pixels"]
+__all__ = ["hot_line_mask", "hot_pixel_mask", "refractory_filter", "remove_hot_pixels"]
 
 
 # compiled on first use: the hot-pixel mask, used at a network's start-up, needs no numba
@@ -60,7 +60,8 @@ def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int =
     """(H, W) bool mask of hot pixels: event count above ``median + n_sigma * 1.4826 * MAD``
     of the active pixels and at least ``min_count`` events; with ``neighbour_ratio``, also
     more than that many times the count of each of its 8 neighbours (a hot pixel fires
-    alone, while a busy pixel of a moving edge or texture has busy neighbours).
+    alone, while a busy pixel of a moving edge or texture has busy neighbours), or, on a
+    stuck row or column (:func:`hot_line_mask`), of the pixels on either side of its line.
 
     Examples
     --------
@@ -86,7 +87,47 @@ def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int =
         around = np.max([pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
                          for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], axis=0)
         hot &= img > neighbour_ratio * around
+    if neighbour_ratio is not None:
+        hot |= hot_line_mask(counts.reshape(events.sensor_size), thr, neighbour_ratio)
     return hot
+
+
+# pixels over the threshold a row or column needs to count as a stuck line (hot_line_mask):
+# fewer is a cluster of hot pixels, which the 8-neighbour test handles
+MIN_LINE_PIXELS = 8
+
+
+def hot_line_mask(counts: np.ndarray, threshold: float, ratio: float) -> np.ndarray:
+    """(H, W) bool mask of the busy pixels of stuck rows and columns of a count image.
+
+    A stuck row fires all along itself, so its pixels have busy neighbours on the row and
+    escape the 8-neighbour test of :func:`hot_pixel_mask`; a moving edge spreads over many
+    rows. A row counts as stuck when its total is more than ``ratio`` times each adjacent
+    row's and at least :data:`MIN_LINE_PIXELS` of its pixels count more than ``threshold``
+    events and ``ratio`` times each of the three pixels above and below; those pixels are
+    masked (columns alike).
+
+    Examples
+    --------
+    >>> counts = np.ones((6, 20)); counts[3] = 50
+    >>> np.flatnonzero(hot_line_mask(counts, 10, 4).any(axis=1)).tolist()
+    [3]
+    """
+    out = np.zeros(counts.shape, dtype=bool)
+    for img, view in ((counts, out), (counts.T, out.T)):
+        if img.shape[0] < 2:
+            continue
+        pad = np.pad(img, 1)
+        w = img.shape[1]
+        # the three pixels above and the three below each pixel
+        across = np.max([pad[r:r + img.shape[0], 1 + dx:1 + dx + w]
+                         for r in (0, 2) for dx in (-1, 0, 1)], axis=0)
+        busy = (img > threshold) & (img > ratio * across)
+        rows = img.sum(axis=1)
+        side = np.maximum(np.r_[0.0, rows[:-1]], np.r_[rows[1:], 0.0])
+        stuck = (rows > ratio * side) & (busy.sum(axis=1) >= MIN_LINE_PIXELS)
+        view[stuck] = busy[stuck]
+    return out
 
 
 def remove_hot_pixels(events: EventArray, mask: np.ndarray | None = None, **kw) -> EventArray:

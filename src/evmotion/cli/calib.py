@@ -152,8 +152,9 @@ def add_hot_pixel_argument(p) -> None:
 
     p.add_argument("--remove-hot-pixels", action="store_true",
                    help="drop the events of hot pixels (far busier than the median pixel "
-                        f"and {HOT_NEIGHBOUR_RATIO:g}x each neighbour) before the windows are "
-                        "cut: a few hot pixels hold a warp at rest")
+                        f"and {HOT_NEIGHBOUR_RATIO:g}x each neighbour, or than the pixels "
+                        "either side of a stuck row or column) before the windows are cut: a "
+                        "few hot pixels hold a warp at rest")
 
 
 # share of the events on hot pixels from which a command offering --remove-hot-pixels says
@@ -185,7 +186,7 @@ def _hot_pixels_handled(args, events):
     # (the network sets a hot pixel's flow to zero and leaves its events out of its checks)
     if share >= HOT_EVENTS_NOTE and getattr(args, "method", None) != "dnn":
         warn_line(f"{args.file}: {int(mask.sum())} hot pixels (each far busier than its "
-                  f"neighbours) hold {share:.0%} of the events: their events do not move and "
+                  f"neighbours, or on a stuck row or column) hold {share:.0%} of the events: their events do not move and "
                   "pull the estimate toward rest; --remove-hot-pixels drops them")
     return events
 
