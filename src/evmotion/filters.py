@@ -1,4 +1,4 @@
-"""Event filters: refractory period and hot pixels."""
+"""Event filters: refractory period, hot pixels and stuck rows or columns."""
 
 from __future__ import annotations
 
