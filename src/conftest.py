@@ -25,6 +25,10 @@ NEEDS = {
     "evmotion/cli/flow_dnn.py": "torch",
     "evmotion/methods/farneback.py": "cv2",
     "evmotion/methods/baselines.py::evmotion.methods.baselines.farneback_intervals": "cv2",
+    "evmotion/viz/video.py::evmotion.viz.video.write_video": "imageio_ffmpeg",
+    "evmotion/viz/video.py::evmotion.viz.video.write_flow_video": "imageio_ffmpeg",
+    "evmotion/parallel.py::evmotion.parallel.connect_scheduler": "distributed",
+    "evmotion/cli/options.py::evmotion.cli.options.scheduler_address": "distributed",
 }
 
 

@@ -787,7 +787,7 @@ def scheduler_address(text: str) -> str:
 
     Examples
     --------
-    >>> scheduler_address("tcp://10.0.0.5:8786")  # doctest: +SKIP
+    >>> scheduler_address("tcp://10.0.0.5:8786")
     'tcp://10.0.0.5:8786'
     """
     import importlib.util

@@ -60,9 +60,12 @@ def multicm_interval(events: EventArray, t0_us: int, t1_us: int, **kwargs) -> Fl
 
     Examples
     --------
-    >>> res = multicm_interval(events, 0, 8333)  # doctest: +SKIP
-    >>> res.flow.shape  # doctest: +SKIP
-    (720, 640, 2)
+    >>> from evmotion.sim import simulate
+    >>> sim = simulate("translation", duration_s=0.02, sensor_size=(40, 60), seed=0,
+    ...                show_progress=False)
+    >>> res = multicm_interval(sim.events, 0, 8333, n_scales=3)
+    >>> res.flow.shape, 0 <= res.t0_us < res.t1_us <= 8333   # its events' span, us
+    ((40, 60, 2), True)
     """
     t0, t1 = int(t0_us), int(t1_us)
     if t1 <= t0:

@@ -80,7 +80,13 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
 
     Examples
     --------
-    >>> c, per_interval = sequence_contrast_threshold(load_bos_input("scene/"))  # doctest: +SKIP
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.03, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> c, per_interval = sequence_contrast_threshold(load_bos_input("scene/"))
+    >>> round(float(c), 1), len(per_interval)   # the simulator's sensor has C = 0.2
+    (0.2, 3)
     """
     from evmotion.methods.bos import (
         NEAR_EVENTS_PX,
@@ -156,7 +162,14 @@ def warn_startup(data: BosInput) -> int | None:
 
     Examples
     --------
-    >>> warn_startup(load_bos_input("scene/"))  # doctest: +SKIP
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.03, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> import warnings
+    >>> with warnings.catch_warnings(record=True):   # (it also says so in a warning)
+    ...     first = warn_startup(load_bos_input("scene/"))
+    >>> first   # the simulated sensor starts with the recording: its first interval
     0
     """
     first = int(data.events.t[0])
@@ -204,8 +217,13 @@ def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
 
     Examples
     --------
-    >>> warn_uncovered(load_bos_input("scene/"))  # doctest: +SKIP
-    0.09
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.03, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> ratio = warn_uncovered(load_bos_input("scene/"))
+    >>> ratio < UNCOVERED_CHANGE   # far from the events the frames hardly change: no warning
+    True
     """
     from scipy.ndimage import distance_transform_edt, gaussian_filter
 
@@ -279,7 +297,11 @@ def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, 
 
     Examples
     --------
-    >>> sequence_threshold(load_bos_input("scene/"), 0.2)[:2]  # doctest: +SKIP
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.03, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> sequence_threshold(load_bos_input("scene/"), 0.2)[:2]
     (0.2, 'given')
     """
     if contrast_threshold is not None:
@@ -312,7 +334,13 @@ def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: i
 
     Examples
     --------
-    >>> first = next(iter_bos_input(load_bos_input("scene/"), 0.2))  # doctest: +SKIP
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.03, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> first = next(iter_bos_input(load_bos_input("scene/"), 0.2))
+    >>> first.flow.shape   # px/s, (H, W, 2)
+    (48, 64, 2)
     """
     from evmotion.methods.bos import iter_bos_sequence
 
@@ -408,9 +436,15 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
 
     Examples
     --------
-    >>> run = solve_bos_input(load_bos_input("scene/"), param="poisson")  # doctest: +SKIP
-    >>> run.results[0].flow.shape  # doctest: +SKIP
-    (720, 640, 2)
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.03, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> import warnings
+    >>> with warnings.catch_warnings(record=True):   # (start-up, fit: said in warnings)
+    ...     run = solve_bos_input(load_bos_input("scene/"), param="poisson")
+    >>> len(run.results), run.results[0].flow.shape
+    (3, (48, 64, 2))
     """
     from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
@@ -441,7 +475,14 @@ def open_bos_output(path, data: BosInput, attrs: dict, options, *, resume: bool 
 
     Examples
     --------
-    >>> out = open_bos_output("bos.h5", data, {"method": "bos"}, BosOptions())  # doctest: +SKIP
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.03, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> from evmotion.methods.bos import BosOptions
+    >>> data = load_bos_input("scene/")
+    >>> out = open_bos_output("bos.h5", data, {"method": "bos"}, BosOptions())
+    >>> out.abort()   # nothing written: no bos.h5 is left
     """
     from evmotion.io.bosfiles import BOS_CONTENT, bos_extras
     from evmotion.io.flowfiles import ExtraSpec
@@ -565,8 +606,18 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
 
     Examples
     --------
-    >>> out = open_bos_output("bos.h5", data, attrs, BosOptions(), resume=True)  # doctest: +SKIP
-    >>> rows = solve_bos_into(out, data, 0.2)  # doctest: +SKIP
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.03, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> import warnings
+    >>> from evmotion.methods.bos import BosOptions
+    >>> data = load_bos_input("scene/")
+    >>> out = open_bos_output("bos.h5", data, {"method": "bos"}, BosOptions(), resume=True)
+    >>> with warnings.catch_warnings(record=True):
+    ...     rows = solve_bos_into(out, data, 0.2)
+    >>> [(r["t0_us"], r["t1_us"]) for r in rows]
+    [(0, 8333), (8333, 16667), (16667, 25000)]
     """
     from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
@@ -606,7 +657,17 @@ def write_bos_output(path, data: BosInput, run: BosRun, attrs: dict, *,
 
     Examples
     --------
-    >>> rows = write_bos_output("bos.h5", data, run, {"method": "bos"})  # doctest: +SKIP
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.03, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> import warnings
+    >>> data = load_bos_input("scene/")
+    >>> with warnings.catch_warnings(record=True):
+    ...     run = solve_bos_input(data)
+    >>> rows = write_bos_output("bos.h5", data, run, {"method": "bos"})
+    >>> len(rows)
+    3
     """
     rows = []
     with open_bos_output(path, data, attrs, run.results[0].options,

@@ -308,7 +308,13 @@ def flow_panel(events: EventArray, flow_px_per_s: np.ndarray, *, t_ref_us: int |
 
     Examples
     --------
-    >>> rgb, info = flow_panel(events, flow, max_speed=500.0)  # doctest: +SKIP
+    >>> from evmotion.sim import simulate
+    >>> sim = simulate("translation", duration_s=0.02, sensor_size=(40, 60), seed=0,
+    ...                show_progress=False)
+    >>> flow = sim.gt.flow(int(sim.events.t[0]))   # px/s, (H, W, 2)
+    >>> rgb, info = flow_panel(sim.events, flow, max_speed=500.0)
+    >>> rgb.dtype, rgb.shape[2], info["max_speed"], info["fwl"] > 1
+    (dtype('uint8'), 3, 500.0, True)
     """
     from evmotion.core.iwe import accumulate
     from evmotion.eval.metrics import events_where_defined, fwl, warp_by_flow

@@ -424,7 +424,13 @@ def save_flow_summary(path: str | os.PathLike, events: EventArray, flow_px_per_s
 
     Examples
     --------
-    >>> save_flow_summary("w000.png", events, flow)  # doctest: +SKIP
+    >>> from evmotion.sim import simulate
+    >>> sim = simulate("translation", duration_s=0.02, sensor_size=(40, 60), seed=0,
+    ...                show_progress=False)
+    >>> flow = sim.gt.flow(int(sim.events.t[0]))   # px/s, (H, W, 2)
+    >>> fwl = save_flow_summary("w000.png", sim.events, flow)
+    >>> fwl > 1   # the true flow sharpens the events
+    True
     """
     rgb, info = flow_panel(events, flow_px_per_s, t_ref_us=t_ref_us, max_speed=max_speed,
                            valid=valid, polarity=polarity, title=title)

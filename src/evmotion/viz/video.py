@@ -58,7 +58,7 @@ def write_video(frames_rgb: Iterable[np.ndarray], path: str | os.PathLike,
     Examples
     --------
     >>> frames = [np.full((64, 64, 3), 25 * k, np.uint8) for k in range(10)]
-    >>> write_video(frames, "fade.mp4", fps=5)  # doctest: +SKIP
+    >>> write_video(frames, "fade.mp4", fps=5)
     10
     """
     if not (math.isfinite(fps) and fps > 0):
@@ -151,7 +151,14 @@ def write_flow_video(path: str | os.PathLike, events: EventArray, windows: Seque
 
     Examples
     --------
-    >>> write_flow_video("flow.mp4", events, windows, [r.flow for r in results])  # doctest: +SKIP
+    >>> from evmotion.events import make_windows
+    >>> from evmotion.sim import simulate
+    >>> sim = simulate("translation", duration_s=0.02, sensor_size=(40, 60), seed=0,
+    ...                show_progress=False)
+    >>> windows = make_windows(sim.events, n_events=2000)
+    >>> flows = [sim.gt.flow((w.t0 + w.t1) // 2) for w in windows]   # px/s
+    >>> write_flow_video("flow.mp4", sim.events, windows, flows) == len(windows)
+    True
     """
     require_video()  # fail before rendering anything
     frames = flow_video_frames(events, windows, flows, valids=valids, max_speed=max_speed)
