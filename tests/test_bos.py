@@ -666,3 +666,28 @@ def test_event_sums_refuse_a_reversed_window():
     ev = EventArray(x=[1, 2], y=[1, 2], t=[10, 20], p=[1, 0], sensor_size=(4, 4))
     with pytest.raises(ParameterError, match="t1_us=0 must be after t0_us=100"):
         event_sums(ev, t0_us=100, t1_us=0)
+
+
+def test_one_picture_one_flow_whatever_its_dtype():
+    # probe AN: the same 8-bit frames as float / 255 moved the flow by 7 %, as uint16 x 257
+    # by 3 % (float frames were taken as continuous: another log offset, no quantization)
+    from evmotion.methods.bos import quantized_frame
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    sim = simulate_schlieren("plume", sensor_size=(90, 80), duration_s=3 / 120, seed=0)
+    f, t = sim.frames.images, sim.frames.t
+    assert f.dtype == np.uint8
+    kw = dict(t0_us=int(t[1]), t1_us=int(t[2]), iterations=20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = estimate_bos(sim.events, f[1], frame_next=f[2], **kw)
+        for conv in (lambda a: a.astype(np.uint16) * 257, lambda a: a.astype(np.float32) / 255,
+                     lambda a: a / 255.0, lambda a: a.astype(np.float64)):
+            r = estimate_bos(sim.events, conv(f[1]), frame_next=conv(f[2]), **kw)
+            assert r.contrast_threshold == ref.contrast_threshold
+            np.testing.assert_array_equal(r.flow, ref.flow)
+    # continuous intensities, and 16-bit data, stay as they are
+    cont = np.array([[0.0, 0.3, 1.0]])
+    assert quantized_frame(cont).dtype == np.float64
+    deep = np.array([[0, 1000, 65535]], np.uint16)
+    assert quantized_frame(deep).dtype == np.uint16

@@ -120,6 +120,7 @@ __all__ = [
     "texture_correlation",
     "noise_floor_count",
     "potential_from_flow",
+    "quantized_frame",
 ]
 
 # below it, the events do not measure the frames' change (estimate_contrast_threshold)
@@ -219,7 +220,8 @@ class BosOptions:
         Charbonnier eps of the data term (normalized units) and of the regularizers (px).
     log_eps : float or None
         Offset of the log frame, relative to full scale (None: half a quantization step for
-        integer frames, 1e-3 for float frames).
+        integer frames and float frames on grey levels (:func:`quantized_frame`), 1e-3 for
+        other float frames).
     min_texture : float
         Least 90th percentile of ``|grad log frame|`` (log units per px) in the ROI.
     seed : int
@@ -438,17 +440,57 @@ FIT_GAIN_WARN = 1.25
 
 # --------------------------------------------------------------------------- inputs
 
+def quantized_frame(frame: np.ndarray) -> np.ndarray:
+    """``frame`` on the grey levels its values lie on, so that one picture gives one flow
+    whatever array it comes in: a float frame whose values are all whole 8-bit levels
+    (``k / 255`` in [0, 1], as ``skimage.img_as_float`` makes them, or whole numbers up to
+    255) becomes uint8, one of whole numbers up to 65535 uint16, and a uint16 frame of
+    8-bit data (every value a multiple of 257, as an 8-bit image converted) uint8; any
+    other frame is returned as it is. (A float frame was taken as continuous intensity:
+    no quantization noise, another log offset; the flow of the same frames moved by 7 %,
+    probe AN.)
+
+    Examples
+    --------
+    >>> quantized_frame(np.array([[0.0, 1.0, 128 / 255]])).tolist()
+    [[0, 255, 128]]
+    >>> quantized_frame(np.array([[0, 257 * 200]], np.uint16)).dtype
+    dtype('uint8')
+    >>> quantized_frame(np.array([[0.0, 0.3]])).dtype   # not on a grid: as it is
+    dtype('float64')
+    """
+    f = np.asarray(frame)
+    if f.size == 0:
+        return f
+    if f.dtype == np.uint16 and not np.any(f % 257):
+        return (f // 257).astype(np.uint8)
+    if f.dtype.kind != "f" or not np.isfinite(f).all() or f.min() < 0:
+        return f
+    top = float(f.max())
+    for scale, limit, dtype in ((255.0, 1.0, np.uint8), (1.0, 255.0, np.uint8),
+                                (1.0, 65535.0, np.uint16)):
+        if top <= limit:
+            levels = f.astype(np.float64) * scale
+            whole = np.rint(levels)
+            if np.all(np.abs(levels - whole) <= 1e-4):
+                return whole.astype(dtype)
+    return f
+
+
 def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
     """Log intensity ``log(I / full_scale + eps)`` of a grayscale frame (float64).
 
     Integer frames are scaled by their dtype's maximum (uint8: 255); float frames are taken
-    as relative intensity. ``eps`` defaults to half a quantization step for integer frames
-    and 1e-3 for float frames.
+    as relative intensity, unless their values lie on grey levels (:func:`quantized_frame`:
+    then as those integers). ``eps`` defaults to half a quantization step for integer
+    frames and 1e-3 for float frames.
 
     >>> log_frame(np.array([[255, 0]], np.uint8)).round(3).tolist()
     [[0.002, -6.234]]
+    >>> log_frame(np.array([[1.0, 0.0]])).round(3).tolist()   # 8-bit levels as floats
+    [[0.002, -6.234]]
     """
-    f = np.asarray(frame)
+    f = quantized_frame(frame)
     if f.ndim != 2:
         raise ParameterError(f"frame must be a 2-D grayscale image, got shape {f.shape}")
     if np.issubdtype(f.dtype, np.integer):
@@ -770,8 +812,9 @@ def _quantization_noise(frame, frame_next, crop, sigma: float, fit: np.ndarray,
     shows none of it (an unchanged pixel rounds alike in both frames), so
     :func:`_frame_noise` misses it; in dark frames it dominates (a background imaged at 20
     grey levels raised the estimated C by half). 0 for float frames."""
-    if not (np.issubdtype(np.asarray(frame).dtype, np.integer)
-            and np.issubdtype(np.asarray(frame_next).dtype, np.integer)):
+    frame, frame_next = quantized_frame(frame), quantized_frame(frame_next)
+    if not (np.issubdtype(frame.dtype, np.integer)
+            and np.issubdtype(frame_next.dtype, np.integer)):
         return 0.0
     var = np.zeros(np.asarray(frame)[crop].shape)
     for f in (frame, frame_next):
@@ -1111,7 +1154,9 @@ def estimate_bos(
     events : EventArray
         Events on the frame's pixel grid (at least those of ``[t0_us, t1_us)``).
     frame : ndarray (H, W)
-        Grayscale frame at ``t0_us`` (uint8/uint16 or float relative intensity).
+        Grayscale frame at ``t0_us`` (uint8/uint16 or float relative intensity; one whose
+        values lie on grey levels, e.g. 8-bit data as float / 255, is taken as those
+        levels: :func:`quantized_frame`).
     t0_us, t1_us : int
         The window (the frame interval) in µs.
     frame_next : ndarray (H, W), optional
