@@ -48,6 +48,29 @@ def test_from_structured_takes_other_tools_field_names():
     np.testing.assert_array_equal(ev.p, [1, 0, 1])
 
 
+def test_from_structured_takes_the_unit_its_time_field_names():
+    # probe AN: a t_ns field was taken as µs, and every estimate came out 1000x small
+    for name, scale in (("t_ns", 1000), ("timestamp_us", 1), ("t[ms]", 0.001)):
+        arr = np.zeros(3, [(name, "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "?")])
+        arr[name] = np.array([0, 5_000, 9_000]) * scale
+        ev = EventArray.from_structured(arr, (4, 4))
+        np.testing.assert_array_equal(ev.t, [0, 5_000, 9_000])
+    # a unit given wins over the name's
+    ev = EventArray.from_structured(arr, (4, 4), time_unit_us=1.0)
+    np.testing.assert_array_equal(ev.t, [0, 5, 9])
+
+
+def test_nanoseconds_since_the_epoch_are_refused_as_microseconds():
+    t_ns = 1_700_000_000_000_000_000 + np.arange(3) * 1_000_000
+    with pytest.raises(EventDataError, match=r"field 't' reaches 1700000000002000000, as "
+                       r"microseconds past the year 5000: nanoseconds.*\(t \+ 500\) // 1000"):
+        EventArray(x=[1, 2, 3], y=[0, 0, 0], t=t_ns, p=[1, 1, 1], sensor_size=(4, 4))
+    # today's epoch µs (1.7e15) are times
+    ev = EventArray(x=[1, 2, 3], y=[0, 0, 0], t=(t_ns + 500) // 1000, p=[1, 1, 1],
+                    sensor_size=(4, 4))
+    assert ev.duration_us == 2_000
+
+
 def test_iter_flow_triplet_takes_a_whole_event_array():
     from evmotion.methods.triplet_stream import iter_flow_triplet
 

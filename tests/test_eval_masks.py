@@ -97,3 +97,30 @@ def test_windows_without_pixels_are_not_counted_as_scored(gt_file, tmp_path, cap
         o.append(flow, t0=0, t1=10_000)
     assert main(["eval", str(est), "--gt", str(flo)]) == 2
     assert "is not read as ground truth" in capsys.readouterr().err
+
+
+def test_simulator_event_masks_are_united_over_the_frames_a_window_spans(tmp_path):
+    # probe AN: the simulator's per-frame event masks were intersected along the
+    # trajectories like GT validity: a window of several GT frames kept only the pixels
+    # with events in every frame (3.6 %), not those with events in the window
+    from evmotion.eval.metrics import event_mask
+    from evmotion.sim import simulate
+    from evmotion.sim.gtio import write_ground_truth
+
+    sim = simulate("translation", duration_s=0.05, sensor_size=(60, 80), seed=1,
+                   show_progress=False)
+    gt = read_gt_flow(write_ground_truth(tmp_path / "sim_gt.h5", sim.gt))
+    assert gt.attrs["valid_is_event_mask"] and gt.valid is not None
+    t0, t1 = int(gt.t0[1]), int(gt.t1[3])  # three GT frames
+    disp, valid, frames = gt_displacement(gt, t0, t1)
+    assert frames == pytest.approx(3.0)
+    fired = event_mask(sim.events.slice_time(t0, t1), (60, 80))
+    union = gt.valid[1] | gt.valid[2] | gt.valid[3]
+    np.testing.assert_array_equal(union, fired)
+    # valid: where events fired and the point stays in the image (checked before each
+    # frame's step: the last step may leave it)
+    ys, xs = np.mgrid[0:60, 0:80]
+    ex, ey = xs + disp[..., 0], ys + disp[..., 1]
+    stays = (ex >= 0) & (ex <= 79) & (ey >= 0) & (ey <= 59)
+    assert not (valid & ~fired).any() and not (fired & stays & ~valid).any()
+    assert valid.sum() > 2 * (gt.valid[1] & gt.valid[2] & gt.valid[3]).sum()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -212,3 +214,24 @@ def test_nanoseconds_of_a_microsecond_sensor_are_questioned(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", EvmotionWarning)
         eio.read_events(us)
+
+
+def test_microseconds_as_floats_read_as_seconds_are_questioned(tmp_path):
+    # probe AN: float µs in a .npy were read as seconds (a 37 ms window spanning 10 h),
+    # without a word
+    from evmotion.errors import EvmotionWarning
+
+    n = 20_000
+    t = np.arange(n) * 1.85
+    cols = dict(x=np.arange(n) % 300, y=np.arange(n) % 200, p=np.arange(n) % 2)
+    path = tmp_path / "float_us.npz"
+    np.savez(path, t=t, sensor_size=[200, 300], **cols)
+    with pytest.warns(EvmotionWarning, match=r"holds floats, read as seconds: 20000 events "
+                      r"over 36998 s.*time_unit='us'"):
+        eio.read_events(path)
+    assert eio.read_events(path, time_unit="us").duration_us == 36_998
+    # seconds are seconds: no warning
+    np.savez(path, t=t * 1e-6, sensor_size=[200, 300], **cols)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EvmotionWarning)
+        assert eio.read_events(path).duration_us == 36_998

@@ -55,3 +55,7 @@ HOT_NEIGHBOUR_RATIO = 4.0
 #: 1280x720 (Prophesee IMX636) and 1920x1080 (Samsung); 16384 leaves room while keeping a
 #: per-pixel float32 image of a corrupt header's sensor under 1 GiB.
 MAX_SENSOR_SIDE = 16384
+
+#: Integer times above this, read as µs, lie past the year 5000: they are nanoseconds since
+#: the epoch (1e17 ns is 1973), as ROS, Metavision exports and event_utils write them.
+NS_EPOCH_US = 10 ** 17

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EmptyWindowError, EventDataError, ParameterError, UnsortedError
 from evmotion.utils import whole_number
 
@@ -153,6 +154,11 @@ class EventArray:
                         "where the format has it? (text: t x y p, or a header line naming "
                         "the columns)")
             raise UnsortedError(i, self.t[i], self.t[i + 1], hint)
+        if self.t[-1] > NS_EPOCH_US:
+            raise EventDataError(
+                f"field 't' reaches {int(self.t[-1])}, as microseconds past the year 5000: "
+                "nanoseconds since the epoch? Give µs: (t + 500) // 1000, or "
+                "EventArray.from_structured(..., time_unit_us=1e-3)")
         h, w = self.sensor_size
         for name, lim in (("x", w), ("y", h)):
             a = getattr(self, name)
@@ -357,12 +363,22 @@ class EventArray:
 
     @classmethod
     def from_structured(cls, arr: np.ndarray, sensor_size: tuple[int, int],
-                        *, time_unit_us: float = 1.0, validate: bool = True) -> EventArray:
+                        *, time_unit_us: float | None = None, validate: bool = True
+                        ) -> EventArray:
         """Build from a structured array with fields ``x, y, t, p`` (tonic, Prophesee).
 
-        ``time_unit_us`` converts the ``t`` field to microseconds (1 for µs, 1e6 for s).
+        ``time_unit_us`` converts the ``t`` field to microseconds (1 for µs, 1e6 for s,
+        1e-3 for ns); by default, the unit the field's name states (``t_ns``,
+        ``timestamp_us``, ``t[s]``), else µs.
+
+        Examples
+        --------
+        >>> arr = np.array([(3, 1, 2_000, 1), (4, 1, 5_000, 0)],
+        ...                dtype=[("x", "<i2"), ("y", "<i2"), ("t_ns", "<i8"), ("p", "?")])
+        >>> EventArray.from_structured(arr, (4, 8)).t.tolist()   # ns -> µs
+        [2, 5]
         """
-        from evmotion.io.base import event_fields
+        from evmotion.io.base import TIME_UNIT_US, event_fields, time_unit_in_name
 
         names = arr.dtype.names or ()
         named = event_fields(names)
@@ -371,6 +387,8 @@ class EventArray:
                                  f"(as x/xs, y/ys, t/ts/timestamp, p/pol/polarity); has "
                                  f"{names}")
         t = arr[named["t"]]
+        if time_unit_us is None:
+            time_unit_us = TIME_UNIT_US[time_unit_in_name(named["t"]) or "us"]
         if time_unit_us != 1.0:
             t = np.round(t.astype(np.float64) * time_unit_us)
         return cls(arr[named["x"]], arr[named["y"]], t, arr[named["p"]], sensor_size,

@@ -14,10 +14,17 @@ hold: :mod:`~evmotion.io.read` (read, stream), :mod:`~evmotion.io.write`,
 Examples
 --------
 >>> import evmotion.io as eio
->>> ev = eio.read_events("boxes_rotation/", t0=0, t1=50_000)  # doctest: +SKIP
->>> for chunk in eio.iter_events("big.h5", window_us=10_000):  # doctest: +SKIP
+>>> from evmotion import EventArray
+>>> eio.write_events("boxes_rotation/events.txt", EventArray(  # an ECD folder
+...     x=[1, 2, 3, 4, 5], y=[0, 1, 2, 3, 4], t=[0, 5_000, 15_000, 25_000, 60_000],
+...     p=[1, 0, 1, 0, 1], sensor_size=(180, 240)))
+>>> ev = eio.read_events("boxes_rotation/", t0=0, t1=50_000)
+>>> eio.write_events("big.h5", ev)
+>>> for chunk in eio.iter_events("big.h5", window_us=10_000):
 ...     print(chunk.t_start, len(chunk))
->>> eio.write_events("out.h5", ev)  # doctest: +SKIP
+0 2
+15000 1
+25000 1
 """
 
 from evmotion.io.aux import FrameSequence, ImuSequence, read_frames, read_imu

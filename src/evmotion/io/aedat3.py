@@ -276,7 +276,12 @@ def write(path: str | Path, events: EventArray, *, device: str | None = None) ->
 
     Examples
     --------
-    >>> write("out.aedat", events)  # doctest: +SKIP
+    >>> events = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                     sensor_size=(180, 240))
+    >>> write("out.aedat", events)
+    >>> back = read("out.aedat")
+    >>> back.sensor_size, back.x.tolist()
+    ((180, 240), [10, 20, 30])
     """
     h, w = events.sensor_size
     if device is None:

@@ -314,7 +314,12 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
     Examples
     --------
-    >>> ev = read("recording.aedat4")  # doctest: +SKIP
+    >>> ev = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                 sensor_size=(180, 240))
+    >>> write("recording.aedat4", ev)
+    >>> ev = read("recording.aedat4", t0=150)
+    >>> len(ev), ev.sensor_size, ev.t.tolist()
+    (2, (180, 240), [200, 300])
     """
     path = Path(path)
     s, size, meta = _event_stream(path, stream, sensor_size)
@@ -498,7 +503,11 @@ def write(path: str | Path, events: EventArray, *, compression: str = "lz4",
 
     Examples
     --------
-    >>> write("out.aedat4", events, compression="none")  # doctest: +SKIP
+    >>> events = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                     sensor_size=(180, 240))
+    >>> write("out.aedat4", events, compression="none")
+    >>> describe("out.aedat4")["compression"], read("out.aedat4").p.tolist()
+    ('none', [1, 0, 1])
     """
     if compression not in ("lz4", "none"):
         raise ParameterError(f"compression must be 'lz4' or 'none', got {compression!r}")

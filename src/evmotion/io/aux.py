@@ -59,8 +59,14 @@ def read_frames(path: str | os.PathLike, format: str | None = None) -> FrameSequ
 
     Examples
     --------
-    >>> fr = read_frames("davis346.aedat4")  # doctest: +SKIP
-    >>> fr.t[:2], fr.images[0].shape  # doctest: +SKIP
+    >>> from evmotion import EventArray
+    >>> from evmotion.io import write_events
+    >>> write_events("davis346.h5", EventArray(x=[1], y=[2], t=[0], p=[1],
+    ...              sensor_size=(260, 346)), frames={"t": np.array([0, 40_000]),
+    ...                                            "images": np.zeros((2, 260, 346), np.uint8)})
+    >>> fr = read_frames("davis346.h5")
+    >>> fr.t[:2].tolist(), fr.images[0].shape
+    ([0, 40000], (260, 346))
     """
     path = Path(path)
     name, mod = _module(path, format)

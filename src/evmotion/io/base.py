@@ -92,6 +92,8 @@ EVENT_FIELD_NAMES = {
     "p": ("p", "pol", "polarity", "polarities", "ps")}
 
 # a name with a unit: t_ns, timestamp_us, t[s], t(ms), time_µs
+#: Microseconds per unit of the time units a field name or ``time_unit`` may state.
+TIME_UNIT_US = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}
 _UNIT_NAME = re.compile(r"([a-z_]*?[a-z])(?:_|\[|\()(ns|us|µs|ms|s)[\])]?")
 
 

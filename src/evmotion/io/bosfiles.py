@@ -164,9 +164,12 @@ class BosWriter(FlowWriter):
 
     Examples
     --------
-    >>> with BosWriter("bos.h5", (4, 5)) as bw:  # doctest: +SKIP
+    >>> with BosWriter("bos.h5", (4, 5), roi=(1, 1, 3, 2)) as bw:
     ...     bw.append(np.zeros((4, 5, 2)), 0, 8333, q=np.zeros((4, 5)),
     ...               p=np.zeros((4, 5, 2)), scalars={"loss": 0.1})
+    >>> bos = read_bos_h5("bos.h5")
+    >>> int(bos.flow.valid.sum()), bos.scalars["loss"].tolist()  # the 3x2 ROI
+    (6, [0.1])
     """
 
     def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int], *,
@@ -226,9 +229,14 @@ def read_bos(path: str | os.PathLike) -> BosSequence:
 
     Examples
     --------
-    >>> bos = read_bos("bos.npz")  # doctest: +SKIP
-    >>> bos.q.shape  # doctest: +SKIP
-    (3, 720, 640)
+    >>> from evmotion.io.flowout import open_flow_output
+    >>> with open_flow_output("bos.npz", (4, 5), extras=bos_extras((4, 5))) as out:
+    ...     for i in range(3):
+    ...         out.append(np.zeros((4, 5, 2), np.float32), i * 8333, (i + 1) * 8333,
+    ...                    extras={"q": np.ones((4, 5)), "p": np.zeros((4, 5, 2))})
+    >>> bos = read_bos("bos.npz")
+    >>> bos.q.shape, bos.attrs["q_units"]
+    ((3, 4, 5), 'px^2/s')
     """
     from evmotion.io.flowread import read_flow
 
@@ -259,9 +267,13 @@ def read_bos_h5(path: str | os.PathLike, index: int | slice | None = None) -> Bo
 
     Examples
     --------
-    >>> bos = read_bos_h5("bos.h5")  # doctest: +SKIP
-    >>> bos.q.shape  # doctest: +SKIP
-    (3, 720, 640)
+    >>> with BosWriter("bos.h5", (4, 5)) as bw:
+    ...     for i in range(3):
+    ...         bw.append(np.zeros((4, 5, 2)), i * 8333, (i + 1) * 8333,
+    ...                   q=np.full((4, 5), i), p=np.zeros((4, 5, 2)))
+    >>> bos = read_bos_h5("bos.h5")
+    >>> bos.q.shape, bos.q[:, 0, 0].tolist()
+    ((3, 4, 5), [0.0, 1.0, 2.0])
     """
 
     path = Path(path)

@@ -224,9 +224,17 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
 
     Examples
     --------
-    >>> data = load_bos_input("scene/")  # doctest: +SKIP
-    >>> data.intervals[:2]  # doctest: +SKIP
-    array([[0, 0, 8333], [1, 8333, 16667]])
+    >>> from evmotion.io import write_events
+    >>> from evmotion.io.pngfile import write_png
+    >>> for i in range(3):  # an ECD-style folder: frames at 120 fps and their events
+    ...     write_png(f"scene/images/frame_{i:08d}.png", np.full((6, 8), 100 + i, np.uint8))
+    >>> _ = Path("scene/images.txt").write_text(
+    ...     "".join(f"{i / 120:.6f} images/frame_{i:08d}.png\\n" for i in range(3)))
+    >>> write_events("scene/events.txt", EventArray(
+    ...     x=[1, 2, 3], y=[1, 2, 3], t=[1_000, 9_000, 12_000], p=[1, 0, 1], sensor_size=(6, 8)))
+    >>> data = load_bos_input("scene/")
+    >>> data.intervals[:2].tolist(), data.frames.shape
+    ([[0, 0, 8333], [1, 8333, 16667]], (3, 6, 8))
     """
     from evmotion.io.frames import read_frames
 

@@ -127,7 +127,12 @@ def read_camera(path: str | os.PathLike, *, camera: str | None = None,
 
     Examples
     --------
-    >>> read_camera("cam_to_cam.yaml", camera="cam0").K  # doctest: +SKIP
+    >>> _ = Path("cam_to_cam.yaml").write_text(  # DSEC's layout, one camera
+    ...     "intrinsics: {cam0: {camera_matrix: [553.5, 553.3, 325.2, 241.3],\\n"
+    ...     "  distortion_coeffs: [-0.09, 0.19, 0.0, 0.0], resolution: [640, 480]}}\\n")
+    >>> cam = read_camera("cam_to_cam.yaml", camera="cam0")
+    >>> cam.K.tolist(), cam.sensor_size
+    ([[553.5, 0.0, 325.2], [0.0, 553.3, 241.3], [0.0, 0.0, 1.0]], (480, 640))
     """
     path = Path(path)
     if path.is_dir() or path.suffix.lower() == ".txt":
@@ -170,7 +175,11 @@ def read_calibration(path: str | os.PathLike) -> dict:
 
     Examples
     --------
-    >>> read_calibration("boxes_rotation/")["dist"][:2]  # doctest: +SKIP
+    >>> Path("boxes_rotation").mkdir()
+    >>> _ = Path("boxes_rotation/calib.txt").write_text(
+    ...     "199.092366542 198.82882047 132.192071378 110.712660011 "
+    ...     "-0.368436311798 0.150947243557 -0.000296130534385 -0.000759431726241 0.0\\n")
+    >>> read_calibration("boxes_rotation/")["dist"][:2]
     [-0.368436311798, 0.150947243557]
     """
     from evmotion.io import ecd

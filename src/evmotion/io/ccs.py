@@ -91,7 +91,14 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
 
     Examples
     --------
-    >>> ev = read("CCS/hot_plate1/")  # doctest: +SKIP
+    >>> import h5py
+    >>> Path("CCS/hot_plate1/prophesee_0").mkdir(parents=True)
+    >>> with h5py.File("CCS/hot_plate1/prophesee_0/events.hdf5", "w") as f:
+    ...     for k, v in dict(x=[5, 9], y=[3, 4], t=[100, 200], p=[1, 0]).items():
+    ...         f[f"raw_events/{k}"] = v
+    >>> ev = read("CCS/hot_plate1/")
+    >>> len(ev), ev.sensor_size, ev.t.tolist()
+    (2, (720, 1280), [100, 200])
     """
     path = Path(path)
     size = tuple(sensor_size) if sensor_size is not None else SENSOR_SIZE

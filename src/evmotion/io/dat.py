@@ -117,7 +117,12 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
     Examples
     --------
-    >>> ev = read("recording_td.dat")  # doctest: +SKIP
+    >>> ev = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                 sensor_size=(180, 240))
+    >>> write("recording_td.dat", ev)
+    >>> ev = read("recording_td.dat")
+    >>> len(ev), ev.sensor_size, ev.t.tolist()
+    (3, (180, 240), [100, 200, 300])
     """
     return binary.read_file(path, "dat", RECORD, _open, t0, t1, sensor_size=sensor_size,
                              validate=validate, block_bytes=block_bytes)
@@ -144,7 +149,11 @@ def write(path: str | Path, events: EventArray) -> None:
 
     Examples
     --------
-    >>> write("out_td.dat", events)  # doctest: +SKIP
+    >>> events = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                     sensor_size=(180, 240))
+    >>> write("out_td.dat", events)
+    >>> read("out_td.dat").x.tolist()
+    [10, 20, 30]
     """
     # 14-bit x and y address fields
     binary.check_writable(events, "DAT", 1 << 14, 1 << 14)

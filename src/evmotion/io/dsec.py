@@ -164,7 +164,11 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
 
     Examples
     --------
-    >>> ev = read("zurich_city_05_a/events/left/events.h5")  # doctest: +SKIP
+    >>> write("zurich_city_05_a/events/left/events.h5", EventArray(
+    ...     x=[10, 20], y=[5, 6], t=[1_000_100, 1_000_200], p=[1, 0], sensor_size=(480, 640)))
+    >>> ev = read("zurich_city_05_a/events/left/events.h5")
+    >>> ev.t.tolist(), ev.meta["t_offset_us"]
+    ([1000100, 1000200], 1000000)
     """
     path = Path(path)
     f, path = _open(path)
@@ -262,7 +266,14 @@ def rectify_events(events: EventArray, rectify_map: np.ndarray, *,
 
     Examples
     --------
-    >>> ev_r = rectify_events(ev, read_rectify_map("rectify_map.h5"))  # doctest: +SKIP
+    >>> import h5py
+    >>> ev = EventArray(x=[1, 2], y=[0, 3], t=[10, 20], p=[1, 0], sensor_size=(4, 5))
+    >>> yy, xx = np.mgrid[0:4, 0:5]
+    >>> with h5py.File("rectify_map.h5", "w") as f:  # a shift by (+0.5, +0.25) px
+    ...     f["rectify_map"] = np.stack([xx + 0.5, yy + 0.25], axis=-1)
+    >>> ev_r = rectify_events(ev, read_rectify_map("rectify_map.h5"))
+    >>> ev_r.x.tolist(), ev_r.y.tolist(), ev_r.meta["dropped_outside"]
+    ([1.5], [0.25], 1)
     """
     m = np.asarray(rectify_map, dtype=np.float32)
     if m.shape[:2] != events.sensor_size or m.ndim != 3 or m.shape[2] != 2:

@@ -22,12 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
 from evmotion.events import SORT_HINT, EventArray
 from evmotion.io.base import FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
-    NS_EPOCH_US,
     check_sensor_size,
     extended_size,
     sensor_size_hint,
@@ -374,7 +374,8 @@ def sniff_time_unit(path: str | Path) -> str:
 
     Examples
     --------
-    >>> sniff_time_unit("events.txt")  # doctest: +SKIP
+    >>> _ = Path("events.txt").write_text("0.000500 3 4 1\\n0.001000 5 6 0\\n")
+    >>> sniff_time_unit("events.txt")
     's'
     """
     path = _events_file(Path(path))
@@ -505,8 +506,9 @@ def text_layout(path: str | Path) -> dict:
 
     Examples
     --------
-    >>> text_layout("events.txt")  # doctest: +SKIP
-    {'order': 'txyp', 'size': None, 'offset': 0, 'time_unit': None}
+    >>> _ = Path("events.txt").write_text("240 180\\n0.000500 3 4 1\\n")
+    >>> text_layout("events.txt")
+    {'order': 'txyp', 'size': (180, 240), 'offset': 8, 'time_unit': None}
     """
     path = _events_file(Path(path))
     with open(path, "rb") as fh:
@@ -616,7 +618,11 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
     Examples
     --------
-    >>> ev = read("shapes_rotation/")  # doctest: +SKIP
+    >>> write("shapes_rotation/events.txt", EventArray(
+    ...     x=[3, 5], y=[4, 6], t=[500, 1_000], p=[1, 0], sensor_size=(180, 240)))
+    >>> ev = read("shapes_rotation/")
+    >>> len(ev), ev.sensor_size, ev.t.tolist()
+    (2, (180, 240), [500, 1000])
     """
     path = Path(path)
     ev_path = _events_file(path)
@@ -661,8 +667,12 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
 
     Examples
     --------
-    >>> for chunk in iter_chunks("events.txt", 100_000):  # doctest: +SKIP
+    >>> write("events.txt", EventArray(x=[1, 2, 3], y=[0, 0, 0], t=[10, 20, 30],
+    ...                                p=[1, 0, 1], sensor_size=(180, 240)))
+    >>> for chunk in iter_chunks("events.txt", 2):
     ...     print(len(chunk))
+    2
+    1
     """
     if int(chunk_events) <= 0:
         raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
@@ -771,7 +781,12 @@ def write(path: str | Path, events: EventArray | Iterator[EventArray], *,
 
     Examples
     --------
-    >>> write("out/events.txt", ev)  # doctest: +SKIP
+    >>> ev = EventArray(x=[3, 5], y=[4, 6], t=[500, 1_000], p=[1, 0], sensor_size=(8, 8))
+    >>> write("out/events.txt", ev)
+    >>> print(Path("out/events.txt").read_text(), end="")
+    # evmotion ECD text: t[s] x y p; sensor height 8 width 8
+    0.000500 3 4 1
+    0.001000 5 6 0
     """
     path = _in_folder(path, "events.txt")
     chunks = [events] if isinstance(events, EventArray) else events
@@ -921,8 +936,13 @@ def read_calibration(path: str | Path) -> dict:
 
     Examples
     --------
-    >>> read_calibration("boxes_rotation/calib.txt")["fx"]  # doctest: +SKIP
-    199.092366542
+    >>> Path("boxes_rotation").mkdir()
+    >>> _ = Path("boxes_rotation/calib.txt").write_text(
+    ...     "199.092366542 198.82882047 132.192071378 110.712660011 "
+    ...     "-0.368436311798 0.150947243557 -0.000296130534385 -0.000759431726241 0.0\\n")
+    >>> cal = read_calibration("boxes_rotation/calib.txt")
+    >>> cal["fx"], cal["dist"][:2]
+    (199.092366542, [-0.368436311798, 0.150947243557])
     """
     path = calib_file(path)
     if not path.exists():

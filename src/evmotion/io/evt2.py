@@ -106,7 +106,12 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
     Examples
     --------
-    >>> ev = read("gen3.raw", sensor_size=(480, 640))  # doctest: +SKIP
+    >>> ev = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                 sensor_size=(180, 240))
+    >>> write("gen3.raw", ev)
+    >>> ev = read("gen3.raw", sensor_size=(480, 640))
+    >>> len(ev), ev.sensor_size
+    (3, (480, 640))
     """
     return binary.read_file(path, "evt2", 4, _open, t0, t1, sensor_size=sensor_size,
                              validate=validate, block_bytes=block_bytes)
@@ -167,7 +172,11 @@ def write(path: str | Path, events: EventArray) -> None:
 
     Examples
     --------
-    >>> write("out.raw", events)  # doctest: +SKIP
+    >>> events = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                     sensor_size=(180, 240))
+    >>> write("out.raw", events)
+    >>> read("out.raw").t.tolist()
+    [100, 200, 300]
     """
     prophesee.write_raw(path, events, version="2.0", wrap_us=WRAP_US, encode=encode,
                          word="<u4")

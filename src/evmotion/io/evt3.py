@@ -199,7 +199,12 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
     Examples
     --------
-    >>> ev = read("recording.raw", t0=0, t1=100_000)  # doctest: +SKIP
+    >>> ev = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                 sensor_size=(180, 240))
+    >>> write("recording.raw", ev)
+    >>> ev = read("recording.raw", t0=0, t1=250)
+    >>> len(ev), ev.t.tolist()
+    (2, [100, 200])
     """
     # without a time range, a payload up to WHOLE_FILE_BYTES is decoded in one pass
     opener = partial(_open, whole_bytes=WHOLE_FILE_BYTES) if t0 is None and t1 is None else _open
@@ -215,8 +220,13 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
 
     Examples
     --------
-    >>> for chunk in iter_chunks("recording.raw", 100_000):  # doctest: +SKIP
+    >>> ev = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                 sensor_size=(180, 240))
+    >>> write("recording.raw", ev)
+    >>> for chunk in iter_chunks("recording.raw", 2):
     ...     print(len(chunk))
+    2
+    1
     """
     yield from binary.iter_file(path, chunk_events, "evt3", 2, _open, sensor_size=sensor_size,
                                  validate=validate, block_bytes=block_bytes)
@@ -319,7 +329,11 @@ def write(path: str | Path, events: EventArray, *, header: dict | None = None) -
 
     Examples
     --------
-    >>> write("out.raw", events)  # doctest: +SKIP
+    >>> events = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                     sensor_size=(180, 240))
+    >>> write("out.raw", events)
+    >>> read("out.raw").t.tolist()
+    [100, 200, 300]
     """
     prophesee.write_raw(path, events, version="3.0", wrap_us=WRAP_US, encode=encode,
                          word="<u2", header=header)

@@ -141,7 +141,9 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
 
     Examples
     --------
-    >>> write_flo("f.flo", np.zeros((4, 5, 2), np.float32), dt_s=0.01)  # doctest: +SKIP
+    >>> write_flo("f.flo", np.full((4, 5, 2), 150, np.float32), dt_s=0.01)
+    >>> read_flo("f.flo")[0, 0].tolist()  # px over 0.01 s
+    [1.5, 1.5]
     """
     arr = _check_flow(flow)
     if dt_s is not None:
@@ -183,7 +185,10 @@ def read_flo(path: str | os.PathLike, dt_s: float | None = None) -> np.ndarray:
 
     Examples
     --------
-    >>> disp = read_flo("f.flo")  # doctest: +SKIP
+    >>> write_flo("f.flo", np.ones((4, 5, 2), np.float32))
+    >>> disp = read_flo("f.flo")
+    >>> disp.shape, read_flo("f.flo", dt_s=0.01)[0, 0].tolist()
+    ((4, 5, 2), [100.0, 100.0])
     """
     path = Path(path)
     try:
@@ -224,7 +229,9 @@ def write_dsec_flow_png(path: str | os.PathLike, displacement: np.ndarray,
 
     Examples
     --------
-    >>> write_dsec_flow_png("000000.png", np.zeros((4, 5, 2)))  # doctest: +SKIP
+    >>> write_dsec_flow_png("000000.png", np.full((4, 5, 2), -2.25))
+    >>> read_dsec_flow_png("000000.png")[0][0, 0].tolist()
+    [-2.25, -2.25]
     """
     d = _check_flow(displacement, "displacement")
     h, w = d.shape[:2]
@@ -267,7 +274,12 @@ def read_dsec_flow_png(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]
 
     Examples
     --------
-    >>> disp, valid = read_dsec_flow_png("flow/forward/000002.png")  # doctest: +SKIP
+    >>> d = np.ones((4, 5, 2))
+    >>> d[0, 0] = np.nan
+    >>> write_dsec_flow_png("000002.png", d)
+    >>> disp, valid = read_dsec_flow_png("000002.png")
+    >>> disp.shape, int(valid.sum()), disp[0, :2, 0].tolist()
+    ((4, 5, 2), 19, [nan, 1.0])
     """
     path = Path(path)
     img, info = read_png(path, direct=False, what="cannot decode DSEC flow PNG")
@@ -314,8 +326,11 @@ class FlowWriter(PartFileWriter):
 
     Examples
     --------
-    >>> with FlowWriter("flow.h5", (180, 240)) as fw:  # doctest: +SKIP
+    >>> with FlowWriter("flow.h5", (180, 240)) as fw:
     ...     fw.append(np.zeros((180, 240, 2), np.float32), t0=0, t1=10_000)
+    ...     fw.append(np.ones((180, 240, 2), np.float32), t0=10_000, t1=20_000)
+    >>> read_flow_h5("flow.h5").t1.tolist()
+    [10000, 20000]
     """
 
     def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int], *,
@@ -562,8 +577,12 @@ def write_flow_group(group, flow: np.ndarray | None, t0, t1, valid=None, *,
 
     Examples
     --------
-    >>> with h5py.File("sim.h5", "a") as f:  # doctest: +SKIP
+    >>> import h5py
+    >>> flow, t0, t1 = np.zeros((2, 4, 5, 2)), [0, 10_000], [10_000, 20_000]
+    >>> with h5py.File("sim.h5", "a") as f:
     ...     write_flow_group(f.require_group("ground_truth/flow"), flow, t0, t1)
+    >>> read_flow_h5("sim.h5").flow.shape
+    (2, 4, 5, 2)
     """
     if flow is not None:
         flow = np.ascontiguousarray(flow, dtype=np.float32)
@@ -687,9 +706,12 @@ def read_flow_h5(path: str | os.PathLike, index: int | slice | None = None) -> F
 
     Examples
     --------
-    >>> seq = read_flow_h5("flow.h5", index=slice(0, 2))  # doctest: +SKIP
-    >>> seq.flow.shape  # doctest: +SKIP
-    (2, 180, 240, 2)
+    >>> with FlowWriter("flow.h5", (180, 240)) as fw:
+    ...     for i in range(3):
+    ...         fw.append(np.full((180, 240, 2), i, np.float32), i * 10_000, (i + 1) * 10_000)
+    >>> seq = read_flow_h5("flow.h5", index=slice(0, 2))
+    >>> seq.flow.shape, seq.t0.tolist()
+    ((2, 180, 240, 2), [0, 10000])
     """
     path = Path(path)
     f = open_h5(path)  # registers the Blosc filters of lz4/zstd flow files
@@ -729,8 +751,9 @@ def _read_sim_gt(g, path: Path, index, attrs: dict) -> FlowSequence:
     valid = None
     if "event_masks" in g and g["event_masks"].shape[0] == n:
         valid = np.stack([g["event_masks"][int(i)] for i in idx]) if idx.size else None
+    # (the masks say where events fired, not where the GT is defined: it is everywhere)
     return FlowSequence(flow=flow.astype(np.float32), t0=ft[idx], t1=ft[idx + 1], valid=valid,
-                        attrs=attrs)
+                        attrs={**attrs, "valid_is_event_mask": valid is not None})
 
 
 def part_holds_nothing(part: str | os.PathLike) -> bool:
@@ -773,7 +796,12 @@ def read_mvsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
 
     Examples
     --------
-    >>> gt = read_mvsec_gt_flow("outdoor_day1_gt_flow_dist.npz")  # doctest: +SKIP
+    >>> dist = np.full((3, 4, 5), 0.5, np.float32)
+    >>> np.savez("outdoor_day1_gt_flow_dist.npz", timestamps=[0.0, 0.05, 0.1],
+    ...          x_flow_dist=dist, y_flow_dist=-dist)
+    >>> gt = read_mvsec_gt_flow("outdoor_day1_gt_flow_dist.npz")
+    >>> gt.flow.shape, gt.t1.tolist(), gt.flow[0, 0, 0].tolist()  # px/s
+    ((2, 4, 5, 2), [50000, 100000], [10.0, -10.0])
     """
     path = Path(path)
     try:
@@ -880,7 +908,11 @@ def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
 
     Examples
     --------
-    >>> gt = read_gt_flow("sim.h5")  # doctest: +SKIP
+    >>> with FlowWriter("sim.h5", (4, 5)) as fw:
+    ...     fw.append(np.full((4, 5, 2), 20, np.float32), t0=0, t1=10_000)
+    >>> gt = read_gt_flow("sim.h5")
+    >>> len(gt), gt.t1.tolist(), gt.flow[0, 0, 0].tolist()
+    (1, [10000], [20.0, 20.0])
     """
     path = Path(path)
     if not path.exists():

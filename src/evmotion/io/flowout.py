@@ -40,10 +40,10 @@ resumable ``.h5``).
 
 Examples
 --------
->>> with open_flow_output("flow.npz", (180, 240), {"method": "multicm"}) as out:  # doctest: +SKIP
+>>> with open_flow_output("flow.npz", (180, 240), {"method": "multicm"}) as out:
 ...     out.append(np.zeros((180, 240, 2), np.float32), t0=0, t1=10_000)
 >>> from evmotion.io import read_flow
->>> read_flow("flow.npz").t1  # doctest: +SKIP
+>>> read_flow("flow.npz").t1
 array([10000])
 """
 
@@ -599,8 +599,11 @@ def open_flow_output(path: str | os.PathLike, sensor_size: tuple[int, int],
 
     Examples
     --------
-    >>> with open_flow_output("flow_{:05d}.flo", (4, 5), {"method": "x"}) as out:  # doctest: +SKIP
+    >>> with open_flow_output("flow_{:05d}.flo", (4, 5), {"method": "x"}) as out:
     ...     out.append(np.ones((4, 5, 2), np.float32), t0=0, t1=10_000)
+    ...     out.append(np.ones((4, 5, 2), np.float32), t0=10_000, t1=20_000)
+    >>> sorted(p.name for p in Path().glob("flow_*.flo"))
+    ['flow_00000.flo', 'flow_00001.flo']
     """
     kind = check_flow_output(path, n_windows)
     if extras and kind not in EXTRA_CONTAINERS:

@@ -4,8 +4,13 @@ windows' times and validity masks (:func:`read_flow`), and describing it
 
 Examples
 --------
->>> seq = read_flow("flow_{:05d}.flo")  # doctest: +SKIP
->>> seq.flow.shape, seq.t0[:2]  # doctest: +SKIP
+>>> from evmotion.io.flowout import open_flow_output
+>>> with open_flow_output("flow_{:05d}.flo", (4, 5), {"method": "x"}) as out:
+...     for i in range(3):
+...         out.append(np.full((4, 5, 2), 10.0 * i, np.float32), i * 10_000, (i + 1) * 10_000)
+>>> seq = read_flow("flow_{:05d}.flo")
+>>> seq.flow.shape, seq.t0[:2].tolist()
+((3, 4, 5, 2), [0, 10000])
 """
 
 from __future__ import annotations
@@ -124,7 +129,15 @@ def read_flow_paired(path: str | os.PathLike, reference: FlowSequence,
 
     Examples
     --------
-    >>> seq, how = read_flow_paired("eraft_pred/", read_dsec_gt_flow("flow/"))  # doctest: +SKIP
+    >>> from evmotion.io.flowfiles import write_flo
+    >>> Path("eraft_pred").mkdir()
+    >>> for i in range(2):  # displacements in px, as RAFT / E-RAFT write them
+    ...     write_flo(f"eraft_pred/{i:06d}.flo", np.full((4, 5, 2), i + 1.0, np.float32))
+    >>> ref = FlowSequence(np.zeros((2, 4, 5, 2), np.float32), np.array([0, 100_000]),
+    ...                    np.array([100_000, 200_000]))  # e.g. read_dsec_gt_flow("flow/")
+    >>> seq, how = read_flow_paired("eraft_pred/", ref)
+    >>> seq.t0.tolist(), seq.flow[:, 0, 0, 0].tolist()
+    ([0, 100000], [10.0, 20.0])
     """
     p = Path(path)
     if is_pattern(p):
@@ -253,8 +266,15 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
 
     Examples
     --------
-    >>> seq = read_flow("flow_{:05d}.flo")  # doctest: +SKIP
-    >>> seq.t0[:2], seq.valid.mean()  # doctest: +SKIP
+    >>> from evmotion.io.flowout import open_flow_output
+    >>> flow = np.ones((4, 5, 2), np.float32)
+    >>> flow[0] = np.nan  # no flow on the first row
+    >>> with open_flow_output("flow_{:05d}.flo", (4, 5), {"method": "x"}) as out:
+    ...     out.append(flow, t0=0, t1=10_000)
+    ...     out.append(flow, t0=10_000, t1=20_000)
+    >>> seq = read_flow("flow_{:05d}.flo")
+    >>> seq.t0[:2].tolist(), float(seq.valid.mean())
+    ([0, 10000], 0.75)
     """
     p = Path(path)
     suffix = p.suffix.lower()
@@ -309,8 +329,13 @@ def describe_flow(path: str | os.PathLike) -> dict | None:
 
     Examples
     --------
-    >>> describe_flow("flow.h5")["windows"]  # doctest: +SKIP
-    2
+    >>> from evmotion.io.flowout import open_flow_output
+    >>> with open_flow_output("flow.h5", (4, 5), {"method": "x"}) as out:
+    ...     out.append(np.zeros((4, 5, 2), np.float32), t0=0, t1=10_000)
+    ...     out.append(np.zeros((4, 5, 2), np.float32), t0=10_000, t1=20_000)
+    >>> d = describe_flow("flow.h5")
+    >>> d["windows"], d["sensor_size"], d["method"]
+    (2, [4, 5], 'x')
     """
     p = Path(path)
     if is_dsec_flow_folder(p):  # DSEC's ground truth: PNGs and their timestamps

@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, MissingDependencyError, ParameterError
-from evmotion.io.guard import NS_EPOCH_US, time_to_us
+from evmotion.io.guard import time_to_us
 from evmotion.io.pngfile import png_header, read_png
 
 __all__ = ["Frames", "describe_frames", "find_frames", "image_size", "read_frames",
@@ -150,7 +151,11 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
 
     Examples
     --------
-    >>> img, bits = read_image("images/frame_00000000.png")  # doctest: +SKIP
+    >>> from evmotion.io.pngfile import write_png
+    >>> write_png("images/frame_00000000.png", np.full((6, 8), 1000, np.uint16))
+    >>> img, bits = read_image("images/frame_00000000.png")
+    >>> img.shape, int(img[0, 0]), bits
+    ((6, 8), 1000, 16)
     """
     path = Path(path)
     if not path.is_file():
@@ -512,9 +517,14 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
 
     Examples
     --------
-    >>> fr = read_frames("plume_sim/")  # doctest: +SKIP
-    >>> fr.images.shape, fr.bit_depth, round(fr.fps)  # doctest: +SKIP
-    ((13, 720, 640), 8, 120)
+    >>> from evmotion.io.pngfile import write_png
+    >>> for i in range(3):  # an ECD-style folder: PNGs and images.txt (t [s] and path)
+    ...     write_png(f"plume_sim/images/frame_{i:08d}.png", np.full((6, 8), i, np.uint8))
+    >>> _ = Path("plume_sim/images.txt").write_text(
+    ...     "".join(f"{i / 100:.6f} images/frame_{i:08d}.png\\n" for i in range(3)))
+    >>> fr = read_frames("plume_sim/")
+    >>> fr.images.shape, fr.bit_depth, round(fr.fps), fr.t.tolist()
+    ((3, 6, 8), 8, 100, [0, 10000, 20000])
     """
     path = Path(path)
     kind = find_frames(path, timestamps)
@@ -555,8 +565,10 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
 
     Examples
     --------
-    >>> image_size("images/frame_00000000.png")  # doctest: +SKIP
-    (720, 640)
+    >>> from evmotion.io.pngfile import write_png
+    >>> write_png("images/frame_00000000.png", np.zeros((72, 64), np.uint8))
+    >>> image_size("images/frame_00000000.png")
+    (72, 64)
     """
     return _header(Path(path))[0]
 
@@ -580,8 +592,14 @@ def describe_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | 
 
     Examples
     --------
-    >>> describe_frames("plume_sim/")["fps"]  # doctest: +SKIP
-    120.0
+    >>> from evmotion.io.pngfile import write_png
+    >>> for i in range(3):  # an ECD-style folder: PNGs and images.txt (t [s] and path)
+    ...     write_png(f"plume_sim/images/frame_{i:08d}.png", np.full((6, 8), i, np.uint8))
+    >>> _ = Path("plume_sim/images.txt").write_text(
+    ...     "".join(f"{i / 100:.6f} images/frame_{i:08d}.png\\n" for i in range(3)))
+    >>> d = describe_frames("plume_sim/")
+    >>> d["count"], d["size"], d["fps"]
+    (3, '8x6', 100.0)
     """
     path = Path(path)
     kind = find_frames(path, timestamps)

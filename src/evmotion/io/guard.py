@@ -76,9 +76,6 @@ def sensor_size_hint(given: bool) -> str:
 
 # 2^62 us is 146,000 years: any timestamp beyond it is a corrupt field, and int64 holds it
 MAX_ABS_TIME_US = 1 << 62
-# integer times above this, read as µs, lie past the year 5000: they are nanoseconds
-# since the epoch (1e17 ns is 1973), as ROS, Metavision exports and event_utils write them
-NS_EPOCH_US = 10 ** 17
 
 
 def time_to_us(path, text: str, scale: float, where: str) -> int:
@@ -233,8 +230,13 @@ def open_h5(path):
 
     Examples
     --------
-    >>> with open_h5("flow.h5") as f:  # doctest: +SKIP
+    >>> import h5py
+    >>> with h5py.File("flow.h5", "w") as f:
+    ...     f["t0"], f["t1"] = [0, 10_000], [10_000, 20_000]
+    >>> with open_h5("flow.h5") as f:
     ...     names = list(f)
+    >>> names
+    ['t0', 't1']
     """
     import h5py
 

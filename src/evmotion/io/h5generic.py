@@ -110,7 +110,13 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
 
     Examples
     --------
-    >>> ev = read("v2e_events.h5")  # doctest: +SKIP
+    >>> import h5py
+    >>> with h5py.File("v2e_events.h5", "w") as f:  # v2e's N x 4 rows t, x, y, p
+    ...     f["events"] = np.array([[100, 7, 4, 1], [200, 3, 6, 0], [300, 5, 2, 1]])
+    ...     f.attrs["height"], f.attrs["width"] = 260, 346
+    >>> ev = read("v2e_events.h5")
+    >>> ev.sensor_size, ev.t.tolist(), ev.x.tolist()
+    ((260, 346), [100, 200, 300], [7, 3, 5])
     """
     path = Path(path)
     with open_h5(path) as f:  # registers the Blosc filters other tools compress with

@@ -102,7 +102,12 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
 
     Examples
     --------
-    >>> ev = read("shapes_rotation.mat")  # doctest: +SKIP
+    >>> import scipy.io
+    >>> e_data = np.array([[0.0001, 0.0002], [3, 5], [4, 6], [1, 0]])  # rows t [s], x, y, p
+    >>> scipy.io.savemat("shapes_rotation.mat", {"events": {"e_data": e_data}})
+    >>> ev = read("shapes_rotation.mat")
+    >>> ev.t.tolist(), ev.x.tolist(), ev.meta["variable"]
+    ([100, 200], [3, 5], 'events.e_data')
     """
     path = Path(path)
     name, arr = _find(path, _load(path), variable)

@@ -101,7 +101,11 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
 
     Examples
     --------
-    >>> ev = read("indoor_flying1_data.hdf5", t0=..., t1=...)  # doctest: +SKIP
+    >>> write("indoor_flying1_data.hdf5", EventArray(
+    ...     x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1], sensor_size=(260, 346)))
+    >>> ev = read("indoor_flying1_data.hdf5", t0=150, t1=400)
+    >>> len(ev), ev.t.tolist(), ev.meta["camera"]
+    (2, [200, 300], 'left')
     """
     path = Path(path)
     f, ds, camera = _open(path, camera)
@@ -180,8 +184,15 @@ def read_imu(path: str | os.PathLike, camera: str = "left") -> dict:
     free-falling or mislabelled IMU), the message's order is taken, angular velocity first,
     with a warning.
 
-    >>> read_imu("indoor_flying1_data.hdf5")["accel"].shape  # doctest: +SKIP
-    (61542, 3)
+    >>> import h5py
+    >>> write("indoor_flying1_data.hdf5", EventArray(
+    ...     x=[10], y=[5], t=[100], p=[1], sensor_size=(260, 346)))
+    >>> with h5py.File("indoor_flying1_data.hdf5", "a") as f:  # rows: gyro, then accel
+    ...     f["davis/left/imu"] = np.tile([0.0, 0.0, 0.1, 0.0, -9.81, 0.0], (5, 1))
+    ...     f["davis/left/imu_ts"] = np.arange(5) * 0.001
+    >>> imu = read_imu("indoor_flying1_data.hdf5")
+    >>> imu["accel"].shape, imu["accel"][0].tolist(), imu["t"][:2].tolist()
+    ((5, 3), [0.0, -9.81, 0.0], [0, 1000])
     """
     path = Path(path)
     f, _, camera = _open(path, camera, quiet=True)

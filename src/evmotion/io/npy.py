@@ -18,12 +18,18 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io.base import EVENT_FIELD_NAMES, FormatSpec, event_fields, time_unit_in_name
+from evmotion.io.base import (
+    EVENT_FIELD_NAMES,
+    TIME_UNIT_US,
+    FormatSpec,
+    event_fields,
+    time_unit_in_name,
+)
 from evmotion.io.guard import (
     MAX_SENSOR_SIDE,
-    NS_EPOCH_US,
     SENSOR_SIZE_HINT,
     check_sensor_size,
     warn_inferred_size,
@@ -49,7 +55,7 @@ def _time_us(t: np.ndarray, unit: str | None, how: str = "given") -> tuple[np.nd
             # as µs beyond the year 5000: nanoseconds since the epoch (ROS, Metavision
             # HDF5 exports and event_utils write them)
             unit, how = "ns", "inferred (integer times past 1e17, as µs the year 5000+)"
-    scale = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}.get(unit)
+    scale = TIME_UNIT_US.get(unit)
     if scale is None:
         raise ParameterError(f"time_unit must be 's', 'ms', 'us' or 'ns', got {unit!r}")
     if t.dtype.kind in "iu" and scale >= 1:
@@ -99,6 +105,26 @@ def _sparse_as_microseconds(t: np.ndarray, unit: str) -> tuple[float, float] | N
     return (t.size / span, span) if span > 10 and t.size / span < 1000 else None
 
 
+def _sparse_as_seconds(t: np.ndarray, unit: str) -> tuple[float, float] | None:
+    """``(rate ev/s, span s)`` when float times read as seconds by inference make a
+    recording of at least 1000 events longer than 1000 s at under 100 events/s: even a
+    still event camera's noise makes far more, and microseconds read as seconds look so
+    (10^6 x long, every speed 10^6 x small). None otherwise.
+
+    Examples
+    --------
+    >>> t = np.arange(20_000) * 1.8   # µs, 0.55 Mev/s, as float
+    >>> [round(v, 2) for v in _sparse_as_seconds(t, "s (inferred)")]
+    [0.56, 35998.2]
+    >>> _sparse_as_seconds(t * 1e-6, "s (inferred)") is None
+    True
+    """
+    if not (unit.startswith("s (inferred") and t.dtype.kind == "f" and t.size >= 1000):
+        return None
+    span = float(t.max()) - float(t.min())
+    return (t.size / span, span) if span > 1000 and t.size / span < 100 else None
+
+
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
                         meta=None, validate=True, drop_outside=False,
                         time_field: str | None = None) -> EventArray:
@@ -141,6 +167,14 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
             f"{sparse[1]:.0f} s, {sparse[0]:.3g} events/s (an event camera makes far more "
             "while anything moves): nanoseconds? If so, read with --time-unit ns "
             "(time_unit='ns' in Python); every speed is 1000x too small otherwise",
+            EvmotionWarning, stacklevel=3)
+    sparse = _sparse_as_seconds(t, unit) if how == "given" and time_unit is None else None
+    if sparse is not None:
+        warnings.warn(
+            f"{path}: field 't' holds floats, read as seconds: {len(t)} events over "
+            f"{sparse[1]:.0f} s, {sparse[0]:.3g} events/s (an event camera makes far more, "
+            "even still): microseconds? If so, read with --time-unit us (time_unit='us' "
+            "in Python); every speed is a million times too small otherwise",
             EvmotionWarning, stacklevel=3)
     x = np.asarray(x)
     y = np.asarray(y)
@@ -248,7 +282,10 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
 
     Examples
     --------
-    >>> ev = read("events.npz")  # doctest: +SKIP
+    >>> np.savez("events.npz", x=[3, 5], y=[4, 6], t=[0.0005, 0.001], p=[1, 0])
+    >>> ev = read("events.npz", sensor_size=(8, 8))  # float times: seconds
+    >>> len(ev), ev.t.tolist()
+    (2, [500, 1000])
     """
     path = Path(path)
     meta = {"source": str(path), "format": "npy"}
@@ -358,7 +395,12 @@ def write(path: str | os.PathLike, events: EventArray) -> None:
 
     Examples
     --------
-    >>> write("out.npz", ev)  # doctest: +SKIP
+    >>> ev = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
+    ...                 sensor_size=(180, 240))
+    >>> write("out.npz", ev)
+    >>> back = read("out.npz")
+    >>> back.sensor_size, back.t.tolist()
+    ((180, 240), [100, 200, 300])
     """
     if not isinstance(events, EventArray):
         from evmotion.events import concatenate

@@ -21,8 +21,8 @@ Examples
 >>> t = ParamsTable(np.array([[1.0, 2.0]]), ("vx", "vy"), ("px/s", "px/s"),
 ...                 np.array([0]), np.array([10_000]), np.array([True]),
 ...                 attrs={"warp": "translation", "grid": "sensor"})
->>> write_params_h5("params.h5", t)  # doctest: +SKIP
->>> describe_params("params.h5")["parameters"]  # doctest: +SKIP
+>>> write_params_h5("params.h5", t)
+>>> describe_params("params.h5")["parameters"]
 {'vx': 'px/s', 'vy': 'px/s'}
 """
 
@@ -110,7 +110,12 @@ def write_params_h5(path: str | os.PathLike, table: ParamsTable) -> None:
 
     Examples
     --------
-    >>> write_params_h5("ego/params.h5", table)  # doctest: +SKIP
+    >>> table = ParamsTable(np.array([[0.1, 0.0, -0.2]]), ("wx", "wy", "wz"),
+    ...                     ("rad/s",) * 3, np.array([0]), np.array([10_000]),
+    ...                     np.array([True]), attrs={"warp": "rotation", "grid": "sensor"})
+    >>> write_params_h5("params.h5", table)
+    >>> read_params("params.h5").params.tolist()
+    [[0.1, 0.0, -0.2]]
     """
     import h5py
 
@@ -149,8 +154,12 @@ def read_params(path: str | os.PathLike) -> ParamsTable:
 
     Examples
     --------
-    >>> t = read_params("ego/params.h5")  # doctest: +SKIP
-    >>> dict(zip(t.names, t.units))  # doctest: +SKIP
+    >>> write_params_h5("params.h5", ParamsTable(
+    ...     np.zeros((2, 3)), ("wx", "wy", "wz"), ("rad/s",) * 3, np.array([0, 10_000]),
+    ...     np.array([10_000, 20_000]), np.array([True, False]),
+    ...     attrs={"warp": "rotation", "grid": "sensor"}))
+    >>> t = read_params("params.h5")
+    >>> dict(zip(t.names, t.units))
     {'wx': 'rad/s', 'wy': 'rad/s', 'wz': 'rad/s'}
     """
     from evmotion.io.guard import open_h5
@@ -195,8 +204,13 @@ def describe_params(path: str | os.PathLike) -> dict | None:
 
     Examples
     --------
-    >>> describe_params("ego/params.h5")["warp"]  # doctest: +SKIP
-    'rotation'
+    >>> write_params_h5("params.h5", ParamsTable(
+    ...     np.zeros((2, 3)), ("wx", "wy", "wz"), ("rad/s",) * 3, np.array([0, 10_000]),
+    ...     np.array([10_000, 20_000]), np.array([True, False]),
+    ...     attrs={"warp": "rotation", "grid": "sensor"}))
+    >>> d = describe_params("params.h5")
+    >>> d["warp"], d["windows"], d["valid_fraction"]
+    ('rotation', 2, 0.5)
     """
     p = Path(path)
     if p.suffix.lower() not in (".h5", ".hdf5") or not p.is_file():

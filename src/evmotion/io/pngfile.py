@@ -8,9 +8,9 @@ Examples
 --------
 >>> import numpy as np
 >>> from evmotion.io.pngfile import read_png, write_png
->>> write_png("grey.png", np.zeros((4, 5), np.uint8))  # doctest: +SKIP
->>> img, info = read_png("grey.png")  # doctest: +SKIP
->>> img.shape, info["bitdepth"]  # doctest: +SKIP
+>>> write_png("grey.png", np.zeros((4, 5), np.uint8))
+>>> img, info = read_png("grey.png")
+>>> img.shape, info["bitdepth"]
 ((4, 5, 1), 8)
 """
 

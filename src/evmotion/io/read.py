@@ -4,9 +4,17 @@ memory as fixed-size chunks or time windows (:func:`iter_events`).
 Examples
 --------
 >>> from evmotion.io.read import iter_events, read_events
->>> ev = read_events("boxes_rotation/", t0=0, t1=50_000)  # doctest: +SKIP
->>> for chunk in iter_events("big.h5", window_us=10_000):  # doctest: +SKIP
+>>> from evmotion.io.write import write_events
+>>> write_events("boxes_rotation/events.txt", EventArray(  # an ECD folder
+...     x=[1, 2, 3, 4, 5], y=[0, 1, 2, 3, 4], t=[0, 5_000, 15_000, 25_000, 60_000],
+...     p=[1, 0, 1, 0, 1], sensor_size=(180, 240)))
+>>> ev = read_events("boxes_rotation/", t0=0, t1=50_000)
+>>> write_events("big.h5", ev)
+>>> for chunk in iter_events("big.h5", window_us=10_000):
 ...     print(chunk.t_start, len(chunk))
+0 2
+15000 1
+25000 1
 """
 
 from __future__ import annotations
@@ -65,7 +73,12 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
 
     Examples
     --------
-    >>> ev = read_events("shapes_rotation.mat")  # doctest: +SKIP
+    >>> import scipy.io
+    >>> scipy.io.savemat("shapes_rotation.mat",  # N x 4 rows t [µs], x, y, p
+    ...                  {"seq": np.array([[100, 3, 4, 1], [200, 5, 6, 0]], float)})
+    >>> ev = read_events("shapes_rotation.mat")
+    >>> ev.meta["format"], ev.t.tolist(), ev.x.tolist()
+    ('mat', [100, 200], [3, 5])
     """
     _check_span(t0, t1)
     spec = resolve_format(path, format)
@@ -199,7 +212,11 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
 
     Examples
     --------
-    >>> n = sum(len(c) for c in iter_events("rec.raw", 500_000))  # doctest: +SKIP
+    >>> from evmotion.io.write import write_events
+    >>> write_events("rec.raw", EventArray(x=[1, 2, 3], y=[0, 0, 0], t=[10, 20, 30],
+    ...                                    p=[1, 0, 1], sensor_size=(180, 240)))
+    >>> [len(c) for c in iter_events("rec.raw", 2)]
+    [2, 1]
     """
     chunk_events = int(chunk_events)
     if chunk_events <= 0:

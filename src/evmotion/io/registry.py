@@ -58,8 +58,13 @@ def detect_format(path: str | os.PathLike) -> str:
 
     Examples
     --------
-    >>> detect_format("boxes_rotation/")  # doctest: +SKIP
-    'ecd'
+    >>> from evmotion import EventArray
+    >>> from evmotion.io import write_events
+    >>> ev = EventArray(x=[1], y=[2], t=[10], p=[1], sensor_size=(180, 240))
+    >>> write_events("boxes_rotation/events.txt", ev)
+    >>> write_events("rec.raw", ev)
+    >>> detect_format("boxes_rotation/"), detect_format("rec.raw")
+    ('ecd', 'evt3')
     """
     return detect_spec(path).name
 

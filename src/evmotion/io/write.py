@@ -78,7 +78,12 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
 
     Examples
     --------
-    >>> write_events("out.h5", ev, provenance={"tool": "evmotion convert"})  # doctest: +SKIP
+    >>> ev = EventArray(x=[1, 2, 3], y=[0, 1, 2], t=[10, 20, 30], p=[1, 0, 1],
+    ...                 sensor_size=(180, 240))
+    >>> write_events("out.h5", ev, provenance={"tool": "evmotion convert"})
+    >>> from evmotion.io import read_events
+    >>> read_events("out.h5").meta["provenance"]
+    {'tool': 'evmotion convert'}
     """
     name = format or format_for_output(path)
     spec = get_format(name)
