@@ -376,6 +376,12 @@ def test_images_txt_in_whole_microseconds_is_read_as_such(tmp_path):
     with pytest.warns(EvmotionWarning, match="whole number: read as microseconds"):
         got = read_image_list(tmp_path / "images.txt")
     assert np.diff(got["t"]).tolist() == [8333, 8333]
+    # past 1e17: nanoseconds since the epoch, as events.txt reads them (probe AM)
+    lines = [f"{1_700_000_000_000_000_000 + 8_333_000 * k} images/f{k}.png" for k in range(3)]
+    (tmp_path / "images.txt").write_text("\n".join(lines) + "\n")
+    with pytest.warns(EvmotionWarning, match="read as nanoseconds since the epoch"):
+        got = read_image_list(tmp_path / "images.txt")
+    assert got["t"][0] == 1_700_000_000_000_000 and np.diff(got["t"]).tolist() == [8333, 8333]
     (tmp_path / "images.txt").write_text("0.0 images/f0.png\n0.008333 images/f1.png\n")
     with warnings.catch_warnings():
         warnings.simplefilter("error")

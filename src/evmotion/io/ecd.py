@@ -863,11 +863,17 @@ def read_image_list(path: str | Path) -> dict:
     # as events.txt: whole numbers are microseconds (frames a second or more apart in
     # whole seconds is no rate a camera beside an event sensor runs at)
     whole = len(raw) > 1 and all(f.lstrip("+-").isdigit() for _, f in raw)
+    scale = 1e6
     if whole:
+        # past 1e17, nanoseconds since the epoch, as events.txt and timestamps files read
+        # them (probe AM: images.txt in ns beside events.txt in ns was 1000x apart)
+        ns = int(raw[0][1]) > NS_EPOCH_US
+        scale = 1e-3 if ns else 1.0
         warnings.warn(EvmotionWarning(
-            f"{path}: every time is a whole number: read as microseconds (images.txt holds "
-            "decimal seconds)"), stacklevel=2)
-    t = [time_to_us(path, f, 1.0 if whole else 1e6, f"line {i}") for i, f in raw]
+            f"{path}: every time is a whole number: read as "
+            f"{'nanoseconds since the epoch (past 1e17)' if ns else 'microseconds'} "
+            "(images.txt holds decimal seconds)"), stacklevel=2)
+    t = [time_to_us(path, f, scale, f"line {i}") for i, f in raw]
     return {"t": np.asarray(t, np.int64), "files": files}
 
 
