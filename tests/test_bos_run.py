@@ -269,3 +269,33 @@ def test_frames_that_change_where_no_event_fires_are_said(tmp_path):
     assert said["whole"] == (None, [])  # the air moves everywhere: no pixel far from events
     ratio, msgs = said["part"]
     assert ratio > 1.1 and len(msgs) == 1 and "--roi 0 0 60 40" in msgs[0]
+
+
+def test_frames_not_registered_with_the_events_are_said_or_refused(tmp_path):
+    """Frames rolled 2 px against their events (a second camera or a beam splitter off;
+    probe AM: AEE worse than the zero flow, valid, exit 0) are refused; 1 px, said; the
+    registered scene peaks unshifted."""
+    import dataclasses
+    import warnings
+
+    from evmotion.errors import EventDataError, EvmotionWarning
+    from evmotion.methods.bos_run import check_registration, registration_shift
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    write_schlieren(simulate_schlieren("plume", sensor_size=(96, 120), duration_s=4 / 120,
+                                       seed=2), tmp_path / "plume")
+    data = load_bos_input(tmp_path / "plume")
+    shift, best, zero = registration_shift(data)
+    assert shift == (0, 0) and best == zero > 0.5
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EvmotionWarning)
+        assert check_registration(data) == (0, 0)
+
+    def rolled(dx, dy):
+        return dataclasses.replace(data, frames=np.roll(data.frames, (dy, dx), axis=(1, 2)))
+
+    assert registration_shift(rolled(2, -1))[0] == (2, -1)
+    with pytest.raises(EventDataError, match=r"shifted by \(\+2, -1\) px .* not registered"):
+        check_registration(rolled(2, -1))
+    with pytest.warns(EvmotionWarning, match=r"shifted by \(\+1, \+0\) px"):
+        assert check_registration(rolled(1, 0)) == (1, 0)

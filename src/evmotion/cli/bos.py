@@ -151,6 +151,7 @@ def run(args) -> int:
     from evmotion.io.flowout import EXTRA_CONTAINERS
     from evmotion.methods.bos import BosOptions
     from evmotion.methods.bos_run import (
+        check_registration,
         open_bos_output,
         require_texture,
         sequence_threshold,
@@ -186,6 +187,7 @@ def run(args) -> int:
         options = BosOptions(**opts)
         require_texture(data, options)
         warn_uncovered(data)
+        check_registration(data)
         startup = warn_startup(data)
         c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
