@@ -199,6 +199,11 @@ def test_the_sensors_start_up_interval_is_said(tmp_path):
     with pytest.warns(EvmotionWarning, match="begin in the frame interval"):
         run = solve_bos_input(load_bos_input(d, max_intervals=3), iterations=20)
     assert [bool(r.valid.any()) for r in run.results] == [False, True, True]
+    # one interval, or two, after it: nothing to tell it by, said as such (probe AM: two
+    # frames gave 0.19x, valid, unsaid)
+    with pytest.warns(EvmotionWarning, match=r"\[0, 8333\) us and fewer than two intervals "
+                                             r"follow to tell"):
+        assert warn_startup(load_bos_input(d, max_intervals=2)) is None
     later = load_bos_input(d, t0=8333)
     import warnings
 
