@@ -575,3 +575,26 @@ def test_rows_count_the_rois_events_and_no_speed_without_support(tmp_path, capsy
         inside = (w.x >= 10) & (w.x < 30) & (w.y >= 16) & (w.y < 32)
         assert row["n_events"] == int(inside.sum()) < len(w)
         assert (row["median_speed_px_s"] is None) == (row["valid_fraction"] == 0)
+
+
+def test_time_units_of_other_labs(scene, tmp_path, capsys):
+    """Probe AM: events.txt in integer ns had no --time-unit to say so (the warning named
+    one bos did not have); images.txt in integer ms was refused without naming a unit."""
+    ns = tmp_path / "ns"
+    shutil.copytree(scene, ns)
+    lines = (ns / "events.txt").read_text().splitlines()
+    (ns / "events.txt").write_text("".join(
+        f"{round(float(t) * 1e9)} {x} {y} {p}\n" for t, x, y, p in map(str.split, lines)))
+    rc, _, err = run_cli(["bos", ns, "--max-intervals", 1, "--iterations", 10, "--out",
+                          tmp_path / "ns.h5"], capsys)
+    assert rc == 2 and "event times in another unit?" in err, err
+    rc, _, err = run_cli(["bos", ns, "--time-unit", "ns", "--max-intervals", 1,
+                          "--iterations", 10, "--out", tmp_path / "ns.h5"], capsys)
+    assert rc == 0, err
+    ms = tmp_path / "ms"
+    shutil.copytree(scene, ms)
+    rows = [ln.split(maxsplit=1) for ln in (ms / "images.txt").read_text().splitlines()]
+    (ms / "images.txt").write_text("".join(f"{round(float(t) * 1e3)} {f}\n" for t, f in rows))
+    rc, _, err = run_cli(["bos", ms, "--out", tmp_path / "ms.h5"], capsys)
+    assert rc == 2 and "do not overlap in time (the frames span 17 us, the events" in err \
+        and "frame times in another unit?" in err, err

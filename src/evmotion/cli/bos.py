@@ -33,6 +33,7 @@ from pathlib import Path
 from evmotion.cli.options import (
     HelpFormatter,
     add_scheduler_argument,
+    add_time_unit_argument,
     check_flow_out,
     check_time_order,
     existing_input,
@@ -67,6 +68,7 @@ def add_parser(sub) -> None:
                         "images with a timestamps file (default: images.txt beside REC, else "
                         "REC's own frames)")
     p.add_argument("--format", default=None, help="event format (default: detected)")
+    add_time_unit_argument(p)
     p.add_argument("--roi", nargs=4, type=int_range(0, unit="px"), default=None,
                    metavar=("X", "Y", "W", "H"),
                    help="region of interest in px, top-left corner and size "
@@ -141,6 +143,7 @@ def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.options import (
         check_time_range,
+        check_time_unit,
         cluster_threads,
         note_parallel_interrupt,
         scheduler_client,
@@ -180,7 +183,9 @@ def run(args) -> int:
     if args.iterations is not None:
         opts["iterations"] = args.iterations
     try:
+        check_time_unit(args.time_unit, args.rec, args.format)
         data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi,
+                              time_unit=args.time_unit,
                               t0=args.t0, t1=args.t1, max_intervals=args.max_intervals)
         check_time_range(args, int(data.events.t[0]), int(data.events.t[-1]), args.rec)
         check_flow_out(out, len(data.intervals))

@@ -191,7 +191,8 @@ def _events_on_frames(rec: Path, fmt: str | None, frame_size: tuple[int, int], *
 def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = None, *,
                    fmt: str | None = None, roi: tuple[int, int, int, int] | None = None,
                    t0: int | None = None, t1: int | None = None,
-                   max_intervals: int | None = None) -> BosInput:
+                   max_intervals: int | None = None, time_unit: str | None = None
+                   ) -> BosInput:
     """Read events and frames for BOS and select the frame intervals to estimate.
 
     Parameters
@@ -211,6 +212,9 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         Only frame intervals inside ``[t0, t1)`` µs.
     max_intervals : int, optional
         At most this many intervals (the first ones).
+    time_unit : {"s", "ms", "us", "ns"}, optional
+        Unit of the events' times where their file does not state it
+        (:func:`evmotion.io.read_events`); the frames' times are read on their own.
 
     Raises
     ------
@@ -267,9 +271,10 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         raise FormatError(rec, "an ECD-style folder with frames (images.txt) but no "
                           "events.txt: BOS needs the events too")
     fh, fw = images.shape[1:3]
+    unit = {"time_unit": time_unit} if time_unit is not None else {}
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
-        events = _events_on_frames(rec, fmt, (fh, fw))
+        events = _events_on_frames(rec, fmt, (fh, fw), **unit)
     if not len(events):
         raise EmptyWindowError(f"{rec}: no events")
     guessed_size = (fh, fw) != tuple(events.sensor_size) and str(
@@ -281,7 +286,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     if guessed_size:
         # events that do not state their sensor (ECD text without frames beside it, say)
         # lie on the frames' grid
-        events = _events_on_frames(rec, fmt, (fh, fw), sensor_size=(fh, fw))
+        events = _events_on_frames(rec, fmt, (fh, fw), sensor_size=(fh, fw), **unit)
     if (fh, fw) != tuple(events.sensor_size):
         eh, ew = events.sensor_size
         raise ParameterError(f"frames {src} are {fw}x{fh} px but the events' sensor is "
@@ -304,6 +309,10 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     ev_span, fr_span = t_last - t_first, int(times[-1] - times[0])
     slip = ev_span > max(UNIT_SLIP * fr_span, 1e6)
     hint = " (event times in another unit? events.txt holds seconds)" if slip else ""
+    if not slip and ev_span > UNIT_SLIP * fr_span:
+        # (only said beside a refusal: milliseconds read as µs, say; probe AM)
+        hint = (f" (the frames span {fr_span} us, the events {ev_span} us: frame times in "
+                "another unit? images.txt and timestamps files hold seconds)")
     if times[-1] <= t_first or times[0] >= t_last:
         raise ParameterError(f"frames span [{times[0]}, {times[-1]}] us but the events "
                              f"[{t_first}, {t_last}] us: they do not overlap in time{hint}")
