@@ -382,6 +382,10 @@ def test_images_txt_in_whole_microseconds_is_read_as_such(tmp_path):
     with pytest.warns(EvmotionWarning, match="read as nanoseconds since the epoch"):
         got = read_image_list(tmp_path / "images.txt")
     assert got["t"][0] == 1_700_000_000_000_000 and np.diff(got["t"]).tolist() == [8333, 8333]
+    # a header line, as other labs write one (probe AM: 'timestamp' is not a time)
+    (tmp_path / "images.txt").write_text("timestamp,filename\n0.0,images/f0.png\n"
+                                         "0.008333,images/f1.png\n")
+    assert read_image_list(tmp_path / "images.txt")["t"].tolist() == [0, 8333]
     (tmp_path / "images.txt").write_text("0.0 images/f0.png\n0.008333 images/f1.png\n")
     with warnings.catch_warnings():
         warnings.simplefilter("error")

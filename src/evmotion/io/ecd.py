@@ -858,6 +858,8 @@ def read_image_list(path: str | Path) -> dict:
             fields = re.split(r"[\s,]+", text, maxsplit=1)
             if len(fields) != 2:
                 raise FormatError(path, f"line {i}: expected 't file', got {text!r}")
+            if not raw and _COLUMN_NAME.fullmatch(fields[0]):
+                continue  # a header line ("timestamp filename"), as timestamps files take
             raw.append((i, fields[0]))
             files.append(_listed_file(folder, fields[1], path, i, text))
     # as events.txt: whole numbers are microseconds (frames a second or more apart in
@@ -875,6 +877,10 @@ def read_image_list(path: str | Path) -> dict:
             "(images.txt holds decimal seconds)"), stacklevel=2)
     t = [time_to_us(path, f, scale, f"line {i}") for i, f in raw]
     return {"t": np.asarray(t, np.int64), "files": files}
+
+
+# the first field of a header line: a name, not a number's spelling (nan, inf: a bad time)
+_COLUMN_NAME = re.compile(r"(?!(?i:[-+]?(nan|inf|infinity))$)[A-Za-z_][\w\[\]()./-]*")
 
 
 def _listed_file(folder: Path, rest: str, path: Path, i: int, text: str) -> str:
