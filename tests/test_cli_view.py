@@ -168,6 +168,26 @@ def test_view_draws_a_window_of_a_flow_output(tmp_path, capsys):
         assert err.count("\n") == 1 and all(w in err for w in words), err
 
 
+def test_view_draws_the_first_measured_window_by_default(tmp_path, capsys):
+    """Probe AM: a BOS run's first interval (the sensor's start-up, no valid pixel) was
+    drawn by default, q over the whole frame and no word that it measured nothing."""
+    from evmotion.io.flowfiles import FlowWriter
+
+    flow = np.ones((30, 40, 2), np.float32)
+    path = tmp_path / "f.h5"
+    with FlowWriter(path, (30, 40), with_valid=True) as fw:
+        for k in range(3):
+            fw.append(flow, t0=10_000 * k, t1=10_000 * (k + 1),
+                      valid=np.full((30, 40), k > 0))
+    out = tmp_path / "v.png"
+    assert main(["view", str(path), "--out", str(out), "--json"]) == 0
+    cap = capsys.readouterr()
+    assert json.loads(cap.out)["window"] == 1
+    assert "window 0 holds no valid pixel (no measurement): drawing window 1" in cap.err
+    assert main(["view", str(path), "--window", "0", "--out", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["window"] == 0
+
+
 def test_view_of_a_bos_output_shows_q(tmp_path, capsys):
     pytest.importorskip("cv2")
     from bos_synth import plume_scene

@@ -6,8 +6,8 @@ polarity sum (red positive, blue negative). This is the image of events with the
 warp: motion blur in it is what the motion-estimation commands remove.
 
 Given a flow output (``evmotion flow`` or ``evmotion bos``: ``.h5``, ``.npz``, ``.flo``, a
-pattern), the window ``--window K`` (default: the one holding ``--t0``, else the first) is
-drawn colour-coded beside its legend, grey where no event supports it; a BOS output's
+pattern), the window ``--window K`` (default: the one holding ``--t0``, else the first with
+a valid pixel) is drawn colour-coded beside its legend, grey where no event supports it; a BOS output's
 Poisson field q beside it.
 """
 
@@ -71,7 +71,7 @@ def add_parser(sub) -> None:
                         "without title, axes and colour bar")
     p.add_argument("--window", type=int_range(0), default=None, metavar="K",
                    help="flow outputs: the window to draw, from 0 (default: the one holding "
-                        "--t0, else the first)")
+                        "--t0, else the first with a valid pixel)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -194,7 +194,7 @@ def _view_flow(args, out: Path) -> int:
     """``view`` of a flow output: one window's flow (and a BOS output's q)."""
     import numpy as np
 
-    from evmotion.cli import print_json
+    from evmotion.cli import print_json, warn_line
     from evmotion.errors import ParameterError
     from evmotion.io.flowread import read_flow
     from evmotion.viz import save_png
@@ -220,7 +220,15 @@ def _view_flow(args, out: Path) -> int:
                                  f"(they span [{int(seq.t0[0])}, {int(seq.t1[-1])}) us)")
         k = int(inside[0])
     else:
-        k = 0
+        # the first window that measured something (a BOS run's first interval is often
+        # the sensor's start-up, written with no valid pixel; probe AM drew it, q and all)
+        measured = [i for i in range(n) if seq.valid is None or seq.valid[i].any()]
+        k = measured[0] if measured else 0
+        if k:
+            which = "window 0 holds" if k == 1 else f"windows 0 to {k - 1} hold"
+            warn_line(f"{args.file}: {which} no valid pixel (no measurement): drawing "
+                      f"window {k} (--window 0 draws the first)")
+    unmeasured = seq.valid is not None and not seq.valid[k].any()
     t0, t1 = int(seq.t0[k]), int(seq.t1[k])
     check_scale(args.scale, seq.flow.shape[1:3])
     q = seq.extras.get("q")
@@ -230,7 +238,9 @@ def _view_flow(args, out: Path) -> int:
                               q_unit=units.get("q", "px^2/s") if isinstance(units, dict)
                               else "px^2/s",
                               title=f"{Path(args.file).name}: window {k} of {n}, "
-                                    f"[{t0}, {t1}) us")
+                                    f"[{t0}, {t1}) us"
+                                    + (": no valid pixel, no measurement" if unmeasured
+                                       else ""))
     if args.scale > 1:
         rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
     save_png(out, rgb)
