@@ -400,6 +400,10 @@ def test_unpadded_names_sort_as_numbers(tmp_path):
         _png(tmp_path / f"frame_{i}.png", img)
     (tmp_path / "timestamps.txt").write_text("".join(f"{i / 120:.6f}\n" for i in range(12)))
     np.testing.assert_array_equal(read_frames(tmp_path).images, imgs)
+    # the timestamps file named instead of its folder (probe AM: "format not recognised")
+    named = read_frames(tmp_path / "timestamps.txt")
+    np.testing.assert_array_equal(named.images, imgs)
+    assert named.t.tolist() == read_frames(tmp_path).t.tolist()
 
 
 def test_timestamps_in_whole_microseconds_and_with_a_header(tmp_path):

@@ -447,6 +447,10 @@ def _from_module(path: Path) -> Frames:
     return Frames(images, fr.t, source=str(path), bit_depth=depth)
 
 
+def _is_timestamps_file(path: Path) -> bool:
+    return path.is_file() and path.name.lower() in TIMESTAMP_FILES
+
+
 def find_frames(path: str | os.PathLike, timestamps: str | os.PathLike | None = None) -> str:
     """Which frame layout :func:`read_frames` sees at ``path``: ``ecd``, ``ccs`` (the
     published BOS data), ``folder`` (images + timestamps file), ``video`` (a video
@@ -455,6 +459,8 @@ def find_frames(path: str | os.PathLike, timestamps: str | os.PathLike | None = 
     path = Path(path)
     if not path.exists():
         raise FormatError(path, "no such file or folder")
+    if timestamps is None and _is_timestamps_file(path):
+        return "folder"  # of the images beside it
     if path.is_file():
         if path.name == "images.txt":
             return "ecd"
@@ -527,6 +533,9 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
     ((3, 6, 8), 8, 100, [0, 10000, 20000])
     """
     path = Path(path)
+    if timestamps is None and _is_timestamps_file(path):
+        # the timestamps file named for its folder (probe AM: "format not recognised")
+        path, timestamps = path.parent, path
     kind = find_frames(path, timestamps)
     if kind == "ecd":
         folder = path if path.is_dir() else path.parent
