@@ -454,13 +454,13 @@ def run(args) -> int:
         print("  ".join(f"{k}={int(total[k]):,}" if k == "n_pixels" else f"{k}={total[k]:.4g}"
                         for k in keys))
         if res.uncovered:
-            print(f"note: {res.uncovered} window{'' if res.uncovered == 1 else 's'} reach "
+            print(f"note: {res.uncovered} window{' reaches' if res.uncovered == 1 else 's reach'} "
                   "more than 1 % beyond the ground truth's time span: not scored (their "
                   "ground truth would be only part of the motion)")
         if empty:
-            print(f"note: {empty} window{'' if empty == 1 else 's'} have no pixel where both "
+            print(f"note: {empty} window{' has' if empty == 1 else 's have'} no pixel where both "
                   "the estimate and the ground truth are known: not scored")
         if mismatched:
-            print(f"note: {mismatched} window{'' if mismatched == 1 else 's'} span a number "
+            print(f"note: {mismatched} window{' spans' if mismatched == 1 else 's span'} a number "
                   f"of GT frames other than --dt {args.dt}")
     return 0
