@@ -244,3 +244,13 @@ def test_egomotion_on_too_few_events_to_test_is_no_measurement():
         warnings.simplefilter("error", PoorFitWarning)
         full = estimate_egomotion(ev[5000:35000], warp="translation")
     assert full.valid
+
+
+def test_the_warning_classes_are_at_the_top_level():
+    # probe AN: every error class was in evmotion's namespace, no warning class
+    import evmotion
+
+    for name in ("EvmotionWarning", "CollapseWarning", "PoorFitWarning", "UnderfitWarning"):
+        assert name in evmotion.__all__ and issubclass(getattr(evmotion, name), UserWarning)
+    assert issubclass(evmotion.PoorFitWarning, evmotion.EvmotionWarning)
+    assert evmotion.PoorFitWarning is PoorFitWarning

@@ -33,11 +33,15 @@ if _os.path.basename(_sys.argv[0] if _sys.argv else "") in ("evmotion", "evmotio
 
 from evmotion.errors import (  # noqa: E402  (after the Ctrl-C handler above)
     CalibrationError,
+    CollapseWarning,
     EmptyWindowError,
     EventDataError,
     EvmotionError,
+    EvmotionWarning,
     FormatError,
     ParameterError,
+    PoorFitWarning,
+    UnderfitWarning,
 )
 from evmotion.jitcache import ensure_cache_dir  # noqa: E402
 
@@ -98,6 +102,10 @@ __all__ = [
     "EvmotionError",
     "FormatError",
     "ParameterError",
+    "EvmotionWarning",
+    "CollapseWarning",
+    "PoorFitWarning",
+    "UnderfitWarning",
     "Window",
     "concatenate",
 ]
