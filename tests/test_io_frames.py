@@ -420,3 +420,18 @@ def test_timestamps_in_whole_microseconds_and_with_a_header(tmp_path):
     (tmp_path / "timestamps.csv").write_text("timestamp, filename\n0.0, img_0.png\n"
                                              "0.008333, img_1.png\n0.016667, img_2.png\n")
     assert read_frames(tmp_path).t.tolist() == [0, 8333, 16667]
+
+
+def test_a_truncated_png_is_named_in_one_line(tmp_path, capfd):
+    # probe AM: OpenCV's libpng printed "libpng error: Read Error" before our line
+    from evmotion.io.frames import read_image
+    from evmotion.io.pngfile import write_png
+
+    path = tmp_path / "f.png"
+    write_png(path, np.random.default_rng(0).integers(0, 255, (40, 50), dtype=np.uint8))
+    whole = path.read_bytes()
+    assert read_image(path)[0].shape == (40, 50)
+    path.write_bytes(whole[:len(whole) // 2])
+    with pytest.raises(FormatError, match="f.png"):
+        read_image(path)
+    assert "libpng" not in capfd.readouterr().err

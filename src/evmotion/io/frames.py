@@ -145,6 +145,16 @@ def _read_png(path: Path) -> tuple[np.ndarray, int]:
     return grey.astype(np.uint16 if depth > 8 else np.uint8), 16 if depth > 8 else 8
 
 
+def _ends_png(path: Path) -> bool:
+    """Whether the file ends with a PNG's IEND chunk (12 bytes: length, type, CRC)."""
+    with open(path, "rb") as fh:
+        fh.seek(0, os.SEEK_END)
+        if fh.tell() < 12:
+            return False
+        fh.seek(-12, os.SEEK_END)
+        return fh.read(12) == b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
 def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     """A grey image (colour is averaged over its channels) and its bit depth (8 or 16), read
     with OpenCV (the ``bos`` extra); PNG with pypng when OpenCV is not installed.
@@ -167,6 +177,10 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
             return _read_png(path)
         raise MissingDependencyError("opencv-python-headless", f"reading {path.suffix} frames",
                                      "bos") from None
+    if path.suffix.lower() == ".png" and not _ends_png(path):
+        # truncated: libpng inside OpenCV would print its own "libpng error" line on
+        # stderr before ours (probe AM); pypng names what is wrong
+        return _read_png(path)
     # OpenCV decodes a PNG 5-30 times faster than pypng (a 1280x720 frame: 16 ms against
     # 0.37 s), which reads them when it is not installed
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
