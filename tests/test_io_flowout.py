@@ -351,3 +351,16 @@ def test_an_output_removed_during_the_run_stops_it_at_the_next_window(tmp_path):
         out.append(flow, 10, 20)
     out.abort()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_resume_with_nothing_to_continue_is_said(tmp_path):
+    # probe AM: --resume on a mistyped --out started from the first window without a word
+    from evmotion.errors import EvmotionWarning
+
+    path = tmp_path / "f.h5"
+    with pytest.warns(EvmotionWarning, match=r"no interrupted run to continue \(.*f\.h5\.part "
+                                             r"does not exist\)"):
+        out = fo.open_flow_output(path, (4, 5), {}, n_windows=1, resume=True)
+    out.append(np.zeros((4, 5, 2), np.float32), t0=0, t1=10)
+    out.close()
+    assert read_flow(path).flow.shape == (1, 4, 5, 2)

@@ -53,12 +53,13 @@ import json
 import os
 import shutil
 import tempfile
+import warnings
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionError, ParameterError
+from evmotion.errors import EvmotionError, EvmotionWarning, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.flowfiles import (
     FLOW_COMPRESSION,
@@ -346,6 +347,11 @@ class H5FlowOutput(FlowOutput):
                                 attrs=attrs, compression=compression, extras=extras)
             self.extras = self.w.extras
             return
+        if not self.path.exists() and not self.part.exists():
+            # (probe AM: a mistyped --out resumed nothing, silently, from the first window)
+            warnings.warn(EvmotionWarning(
+                f"--resume: there is no interrupted run to continue ({self.part} does not "
+                "exist): starting from the first window"), stacklevel=2)
         register_filters()  # the stored windows are read back (Blosc-compressed)
         self.w = FlowWriter(self.path, self.sensor_size, with_valid=with_valid, resume=True,
                             extras=dict(extras or {}))
