@@ -34,7 +34,9 @@ class FlowResult:
     flow : ndarray (H, W, 2) float32
         Dense flow at ``t_ref_us`` in px/s (u right, v down).
     t0_us, t1_us, t_ref_us : int
-        Window start/end (first and last event) and reference time (midpoint), µs.
+        Window start/end (first and last event: ``t1_us`` is inclusive, where flow files,
+        ``--json`` rows and :meth:`EventArray.slice_time` take the end exclusive, one µs
+        later) and reference time (midpoint), µs.
     params : tuple of ndarray
         Tile flow (ny, nx, 2) in px/s for every scale, coarse to fine.
     iwes : dict
