@@ -616,11 +616,10 @@ def describe_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | 
     Examples
     --------
     >>> from evmotion.io.pngfile import write_png
-    >>> for i in range(3):  # an ECD-style folder: PNGs and images.txt (t [s] and path)
-    ...     write_png(f"plume_sim/images/frame_{i:08d}.png", np.full((6, 8), i, np.uint8))
-    >>> _ = Path("plume_sim/images.txt").write_text(
-    ...     "".join(f"{i / 100:.6f} images/frame_{i:08d}.png\\n" for i in range(3)))
-    >>> d = describe_frames("plume_sim/")
+    >>> for i in range(3):  # a folder of images and a timestamps file (s, one per line)
+    ...     write_png(f"shots/{i:04d}.png", np.full((6, 8), i, np.uint8))
+    >>> _ = Path("shots/timestamps.txt").write_text("0.0\\n0.01\\n0.02\\n")
+    >>> d = describe_frames("shots/")
     >>> d["count"], d["size"], d["fps"]
     (3, '8x6', 100.0)
     """

@@ -125,6 +125,29 @@ def _sparse_as_seconds(t: np.ndarray, unit: str) -> tuple[float, float] | None:
     return (t.size / span, span) if span > 1000 and t.size / span < 100 else None
 
 
+def _unit_doubt(t: np.ndarray, unit: str) -> str | None:
+    """What makes times read in an inferred ``unit`` doubtful, as the rest of a warning
+    about field 't' (the unit to give instead), or None."""
+    if _ns_in_whole_microseconds(t, unit):
+        return (f"holds integers, read as microseconds, that are all multiples of 1000 "
+                f"({len(t)} events; as µs, millisecond steps, which event cameras do not "
+                "make): nanoseconds? If so, read with --time-unit ns (time_unit='ns' in "
+                "Python); every speed is 1000x too small otherwise")
+    sparse = _sparse_as_microseconds(t, unit)
+    if sparse is not None:
+        return (f"holds integers, read as microseconds: {len(t)} events over "
+                f"{sparse[1]:.0f} s, {sparse[0]:.3g} events/s (an event camera makes far "
+                "more while anything moves): nanoseconds? If so, read with --time-unit ns "
+                "(time_unit='ns' in Python); every speed is 1000x too small otherwise")
+    sparse = _sparse_as_seconds(t, unit)
+    if sparse is not None:
+        return (f"holds floats, read as seconds: {len(t)} events over {sparse[1]:.0f} s, "
+                f"{sparse[0]:.3g} events/s (an event camera makes far more, even still): "
+                "microseconds? If so, read with --time-unit us (time_unit='us' in Python); "
+                "every speed is a million times too small otherwise")
+    return None
+
+
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
                         meta=None, validate=True, drop_outside=False,
                         time_field: str | None = None) -> EventArray:
@@ -153,29 +176,9 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
             raise
         raise FormatError(path, f"field 't': {exc}, not a time within +-2^62 us") from None
     meta["time_unit"] = unit
-    if how == "given" and time_unit is None and _ns_in_whole_microseconds(t, unit):
-        warnings.warn(
-            f"{path}: field 't' holds integers, read as microseconds, that are all multiples "
-            f"of 1000 ({len(t)} events; as µs, millisecond steps, which event cameras do "
-            "not make): nanoseconds? If so, read with --time-unit ns (time_unit='ns' in "
-            "Python); every speed is 1000x too small otherwise",
-            EvmotionWarning, stacklevel=3)
-    sparse = _sparse_as_microseconds(t, unit) if how == "given" and time_unit is None else None
-    if sparse is not None:
-        warnings.warn(
-            f"{path}: field 't' holds integers, read as microseconds: {len(t)} events over "
-            f"{sparse[1]:.0f} s, {sparse[0]:.3g} events/s (an event camera makes far more "
-            "while anything moves): nanoseconds? If so, read with --time-unit ns "
-            "(time_unit='ns' in Python); every speed is 1000x too small otherwise",
-            EvmotionWarning, stacklevel=3)
-    sparse = _sparse_as_seconds(t, unit) if how == "given" and time_unit is None else None
-    if sparse is not None:
-        warnings.warn(
-            f"{path}: field 't' holds floats, read as seconds: {len(t)} events over "
-            f"{sparse[1]:.0f} s, {sparse[0]:.3g} events/s (an event camera makes far more, "
-            "even still): microseconds? If so, read with --time-unit us (time_unit='us' "
-            "in Python); every speed is a million times too small otherwise",
-            EvmotionWarning, stacklevel=3)
+    doubt = _unit_doubt(t, unit) if how == "given" and time_unit is None else None
+    if doubt is not None:
+        warnings.warn(f"{path}: field 't' {doubt}", EvmotionWarning, stacklevel=3)
     x = np.asarray(x)
     y = np.asarray(y)
     p = np.asarray(p)
