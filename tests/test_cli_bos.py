@@ -190,7 +190,7 @@ def test_bad_recordings(scene, tmp_path, capsys):
     d = _copy(scene, tmp_path, "corrupt")
     f = d / "images" / "frame_00000001.png"
     f.write_bytes(f.read_bytes()[:60])
-    _one_line_error(["bos", d, "--out", out], capsys, "frame_00000001.png", "cannot read PNG")
+    _one_line_error(["bos", d, "--out", out], capsys, "frame_00000001.png", "corrupt PNG")
     d = _copy(scene, tmp_path, "gone")
     (d / "images" / "frame_00000001.png").unlink()
     _one_line_error(["bos", d, "--out", out], capsys, "frame_00000001.png")

@@ -218,13 +218,44 @@ def test_count_mismatch(tmp_path):
 def test_corrupt_png(tmp_path):
     _ecd(tmp_path, _images(2), ["0.0", "0.1"])
     f = tmp_path / "images" / "frame_00000001.png"
-    f.write_bytes(f.read_bytes()[:40])
-    with pytest.raises(FormatError, match="cannot read PNG") as e:
+    whole = f.read_bytes()
+    f.write_bytes(whole[:40])
+    with pytest.raises(FormatError, match=r"corrupt PNG: truncated at byte 33 \(no IEND") as e:
         read_frames(tmp_path)
     _one_line(e, "frame_00000001.png")
     f.write_bytes(b"not a png at all")
-    with pytest.raises(FormatError, match="cannot read PNG"):
+    with pytest.raises(FormatError, match="not a PNG file"):
         read_frames(tmp_path)
+    # probe AO: a header declaring 100000 x 100000 px (valid CRC) was a cv2.error
+    # traceback; a flipped bit, OpenCV's own log line before ours
+    import struct
+    import zlib
+
+    ihdr = b"IHDR" + struct.pack(">II", 100_000, 100_000) + whole[24:29]
+    f.write_bytes(whole[:12] + ihdr + struct.pack(">I", zlib.crc32(ihdr)) + whole[33:])
+    with pytest.raises(FormatError, match=r"declares 100000x100000 px .*\(1-16384 px"):
+        read_frames(tmp_path)
+    flipped = bytearray(whole)
+    flipped[45] ^= 4  # in the image data
+    f.write_bytes(bytes(flipped))
+    with pytest.raises(FormatError, match="chunk IDAT at byte 33 fails its CRC"):
+        read_frames(tmp_path)
+
+
+def test_a_png_with_fewer_rows_than_declared_is_named(tmp_path):
+    # probe AO: a ValueError traceback from the reshape of pypng's rows
+    import struct
+    import zlib
+
+    from evmotion.io.pngfile import read_png
+
+    path = tmp_path / "f.png"
+    _png(path, np.zeros((8, 6), np.uint8))
+    data = path.read_bytes()
+    ihdr = b"IHDR" + struct.pack(">II", 6, 16) + data[24:29]  # 16 rows declared, 8 stored
+    path.write_bytes(data[:12] + ihdr + struct.pack(">I", zlib.crc32(ihdr)) + data[33:])
+    with pytest.raises(FormatError, match="f.png: cannot read PNG"):
+        read_png(path)
 
 
 def test_other_bad_input(tmp_path):

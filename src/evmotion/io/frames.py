@@ -15,6 +15,7 @@ timestamps (int64 µs). :func:`read_frames` reads it from
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import warnings
@@ -26,7 +27,7 @@ import numpy as np
 from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, MissingDependencyError, ParameterError
 from evmotion.io.guard import time_to_us
-from evmotion.io.pngfile import png_header, read_png
+from evmotion.io.pngfile import check_png, png_header, read_png
 
 __all__ = ["Frames", "describe_frames", "find_frames", "image_size", "read_frames",
            "read_image"]
@@ -145,14 +146,20 @@ def _read_png(path: Path) -> tuple[np.ndarray, int]:
     return grey.astype(np.uint16 if depth > 8 else np.uint8), 16 if depth > 8 else 8
 
 
-def _ends_png(path: Path) -> bool:
-    """Whether the file ends with a PNG's IEND chunk (12 bytes: length, type, CRC)."""
-    with open(path, "rb") as fh:
-        fh.seek(0, os.SEEK_END)
-        if fh.tell() < 12:
-            return False
-        fh.seek(-12, os.SEEK_END)
-        return fh.read(12) == b"\x00\x00\x00\x00IEND\xaeB`\x82"
+@contextlib.contextmanager
+def _opencv_quiet(cv2):
+    """OpenCV's own log lines ("[ERROR:0@0.015] global grfmt_png.cpp ...") silenced while
+    it decodes: a damaged file is said in our one line."""
+    log = getattr(getattr(cv2, "utils", None), "logging", None)
+    if log is None:
+        yield
+        return
+    before = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        log.setLogLevel(before)
 
 
 def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
@@ -177,13 +184,19 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
             return _read_png(path)
         raise MissingDependencyError("opencv-python-headless", f"reading {path.suffix} frames",
                                      "bos") from None
-    if path.suffix.lower() == ".png" and not _ends_png(path):
-        # truncated: libpng inside OpenCV would print its own "libpng error" line on
-        # stderr before ours (probe AM); pypng names what is wrong
-        return _read_png(path)
+    if path.suffix.lower() == ".png":
+        # a damaged PNG is named here: libpng and OpenCV inside cv2.imread print their own
+        # lines on stderr before ours, or allocate what a corrupt header declares
+        # (probes AM, AO)
+        check_png(path)
     # OpenCV decodes a PNG 5-30 times faster than pypng (a 1280x720 frame: 16 ms against
     # 0.37 s), which reads them when it is not installed
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        with _opencv_quiet(cv2):
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:
+        raise FormatError(path, "cannot read image: " + " ".join(str(exc).split())[-200:]
+                          ) from None
     if img is None:
         if path.suffix.lower() == ".png":
             return _read_png(path)  # its message says what is wrong with the file
