@@ -91,6 +91,18 @@ def test_resume_refuses_other_settings(tmp_path):
     assert (tmp_path / "last.pt").read_bytes() == before
 
 
+def test_a_simulated_window_without_events_is_dropped_not_a_crash():
+    # probe AP: a zoom scene firing nothing at 32x32 was an IndexError traceback in
+    # sim_window, and --resume met it again (the epoch's data is fixed by its seed)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (the simulator says the scene fired nothing)
+        win = sim_window(5_220_002, sensor_size=(32, 32), window_events=1000)
+    assert len(win.events) == 0 and win.gt.shape == (32, 32, 2)
+    assert crop_window(win, (32, 32), np.random.default_rng(0), min_events=10) is None
+
+
 def test_crop_window_keeps_events_inside_and_shifts_them():
     win = sim_window(1, scene="rotation", sensor_size=(60, 80), window_events=3000)
     c = crop_window(win, (32, 48), np.random.default_rng(0), min_events=10)
