@@ -613,3 +613,23 @@ def test_poor_fit_lines_name_their_window_and_stop_after_five(tmp_path, capsys):
     assert all(f"window {k} [" in lines[k] and "no focus" in lines[k] for k in range(5))
     assert "and 4 more such warnings" in lines[5]
     assert not read_flow(out).valid.any()
+
+
+def test_the_network_runs_on_the_threads_asked_and_restores_torchs(window):
+    # probe AP: the API ran on torch's default (2 threads here), 2-12x slower than the CLI
+    import torch
+
+    from evmotion.methods.dnn.infer import torch_threads
+
+    before = torch.get_num_threads()
+    seen = []
+    with torch_threads(1):
+        seen.append(torch.get_num_threads())
+    assert seen == [1] and torch.get_num_threads() == before
+    with torch_threads(None):
+        assert torch.get_num_threads() == before
+    res = estimate_flow_dnn(window.events, with_iwes=False, threads=1)
+    assert res.flow.shape[:2] == window.events.sensor_size
+    assert torch.get_num_threads() == before
+    with pytest.raises(ParameterError, match=r"threads must be an integer in \[1, 256\]"):
+        estimate_flow_dnn(window.events, threads=0)

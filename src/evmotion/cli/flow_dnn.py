@@ -82,7 +82,8 @@ def estimator(args):
         return estimate_flow_dnn(events, args.checkpoint, device=args.device,
                                  with_iwes=with_iwes, input_scales=tuple(args.input_scales),
                                  time_reversal=not args.no_time_reversal,
-                                 rescale=not args.no_rescale, fuse=not args.no_fuse)
+                                 rescale=not args.no_rescale, fuse=not args.no_fuse,
+                                 threads=args.threads)
 
     return estimate, attrs
 

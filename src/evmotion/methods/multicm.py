@@ -568,7 +568,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         One window (at least a few hundred events); undistort first if needed.
     method : {"multicm", "dnn"}
         ``"dnn"``: the unsupervised EV-FlowNet (:mod:`evmotion.methods.dnn`, needs torch)
-        from ``checkpoint``; the multicm options below are then ignored.
+        from ``checkpoint``, on one torch thread; the multicm options below must then be
+        left at their defaults (:func:`evmotion.methods.dnn.estimate_flow_dnn` has the
+        network's own: device, threads, input scales...).
     time_aware : {None, "upwind", "burgers"}
         Warp with the flow transported over time bins (4.8) instead of (4.4).
     n_scales : int
@@ -670,7 +672,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
             given.append("init")
         if given:
             raise ParameterError(f"estimate_flow(method='dnn'): {', '.join(given)} "
-                                 "apply to method 'multicm' only (the network takes "
+                                 f"appl{'ies' if len(given) == 1 else 'y'} to method "
+                                 "'multicm' only (the network takes "
                                  "checkpoint; estimate_flow_dnn has its own options)")
         return estimate_flow_dnn(events, checkpoint)
     if method == "triplet":

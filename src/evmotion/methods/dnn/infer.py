@@ -102,6 +102,27 @@ def _run(net, vox: np.ndarray, shape: tuple[int, int], device: str,
 
 
 @contextlib.contextmanager
+def torch_threads(threads: int | None):
+    """torch's intra-op thread count set to ``threads`` (None: left as it is) for the
+    block, restored after."""
+    if threads is None:
+        yield
+        return
+    if not (isinstance(threads, (int, np.integer)) and not isinstance(threads, bool)
+            and 1 <= threads <= 256):
+        raise ParameterError(f"threads must be an integer in [1, 256] or None, got {threads!r}")
+    _check_torch()
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(int(threads))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+@contextlib.contextmanager
 def _full_fp32():
     """cuDNN's TF32 convolutions (its default on Ampere and newer GPUs) moved the flow by
     up to 1 % from the CPU's; in full float32 the two agree within 1.4e-5 px (H200,
@@ -280,7 +301,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                       device: str = "cpu", with_iwes: bool = True,
                       input_scales: tuple[int, ...] = INPUT_SCALES,
                       time_reversal: bool = True, rescale: bool = True,
-                      fuse: bool = True) -> FlowResult:
+                      fuse: bool = True, threads: int | None = 1) -> FlowResult:
     """Dense optical flow of one window by the unsupervised EV-FlowNet.
 
     Parameters
@@ -319,6 +340,11 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         highest :func:`sharpness` (default True; 1 unless another is strictly sharper):
         the network tends to underestimate magnitudes (least-squares gains 0.7-1.0 on
         held-out simulated windows), and a whole-window gain costs 19 event images.
+    threads : int or None
+        torch threads for this call, the process's count restored after (default 1, as
+        the CLI's ``--threads``: on the shared 2-core machine, under load, one thread ran
+        the network 2-12x faster than torch's default of two (probe AP); quiet, the two
+        were alike, 0.094 against 0.100 s a window; None: torch's own setting).
 
     Returns
     -------
@@ -356,8 +382,9 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     c_start = compile_seconds()
     t_start = time.perf_counter()
     xys = _pixels_and_times(events)
-    best, disp, cands = _predict(events, scales, checkpoint, device, xys,
-                                 bool(time_reversal))
+    with torch_threads(threads):
+        best, disp, cands = _predict(events, scales, checkpoint, device, xys,
+                                     bool(time_reversal))
     if fuse and len(cands) > 1:
         disp = _fused(xys, cands, disp, events.sensor_size)
     # a hot pixel's events do not move: any flow there smears them, and they outnumber
