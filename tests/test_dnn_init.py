@@ -83,3 +83,27 @@ def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
     # the network's plain pass: the refinement does what the extras would
     assert calls == [{"with_iwes": False, "time_reversal": False, "fuse": False,
                       "rescale": False}]
+
+
+def test_the_networks_own_verdicts_are_not_said_of_the_refined_flow(monkeypatch):
+    # probe AP: a weak network's "no focus ... not a measurement" was printed for a valid
+    # multicm result started from it
+    import warnings
+
+    from evmotion.errors import PoorFitWarning
+
+    win = sim_window(5, scene="translation", texture="shapes", sensor_size=(64, 96),
+                     window_events=4000)
+    real = dnn_pkg.estimate_flow_dnn
+
+    def weak(events, checkpoint=None, **kw):
+        warnings.warn("no focus: the network's flow warp sharpens the image of the events "
+                      "by only 0.0 %", PoorFitWarning, stacklevel=2)
+        return real(events, checkpoint, **kw)
+
+    monkeypatch.setattr(dnn_pkg, "estimate_flow_dnn", weak)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res = mc.estimate_flow(win.events, init="dnn", finest_level=5)
+    assert res.valid.any()
+    assert not [w for w in caught if "network's flow" in str(w.message)]
