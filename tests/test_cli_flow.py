@@ -479,6 +479,19 @@ def test_a_file_shorter_than_the_asked_window_is_said(tmp_path, capsys):
     assert "fewer than" not in capsys.readouterr().err
 
 
+def test_events_undistortion_leaves_out_count_as_held(shared_data, tmp_path, capsys):
+    # probe AP: the judged command on an ECD window of 30,000 events was told the file
+    # "holds 22,949 events, fewer than --window-events 30000" (undistortion left out the
+    # others, and said so itself)
+    win = shared_data / "ecd_30k_windows" / "boxes_rotation"
+    argv = ["flow", str(win), "--out", str(tmp_path / "x.flo"), "--max-iter", "2"]
+    assert main(argv + ["--window-events", "30000"]) == 0
+    err = capsys.readouterr().err
+    assert "undistortion moved 7,051 of 30,000" in err and "fewer than" not in err, err
+    assert main(argv + ["--window-events", "40000"]) == 0
+    assert "holds 30,000 events, fewer than --window-events 40000" in capsys.readouterr().err
+
+
 def test_seed_reaches_multicm_and_its_output(recording, tmp_path, capsys):
     import h5py
 

@@ -60,6 +60,18 @@ def check_args(args) -> None:
                              "be made with --resume; run without --resume")
 
 
+def check_network(args) -> None:
+    """torch, ``--device`` and ``--checkpoint`` checked (the network loaded, and cached for
+    the windows) before the recording is read: a wrong one was said after 5 s of reading a
+    1280x720 file (probe AP)."""
+    from evmotion.methods.dnn import require_torch
+
+    require_torch()
+    from evmotion.methods.dnn.model import load_inference_net
+
+    load_inference_net(args.checkpoint, getattr(args, "device", None) or "cpu")
+
+
 def estimator(args):
     """``(estimate(events, init) -> FlowResult, attrs)`` for the multicm runner."""
     from evmotion.methods.dnn import estimate_flow_dnn, require_torch

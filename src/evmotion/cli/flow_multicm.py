@@ -142,10 +142,13 @@ def _one_window_for_one_file(args, events, windows):
     total = events.slice_time(t0, t1) if t0 is not None or t1 is not None else events
     from evmotion.cli import warn_line
 
-    if getattr(args, "window_events_given", False) and len(total) < n:
+    # (the events undistortion moved off the image count as held: it said so itself;
+    # probe AP was told a window file of 30,000 events "holds 22,949")
+    held = len(total) + int(events.meta.get("undistort_dropped", 0))
+    if getattr(args, "window_events_given", False) and held < n:
         # asked for a window of n events, given fewer: said, as the opposite case is
-        warn_line(f"{args.file} holds {len(total):,} events, fewer than --window-events "
-                  f"{n}: {out.name} holds one window of those {len(total):,}")
+        warn_line(f"{args.file} holds {held:,} events, fewer than --window-events {n}: "
+                  f"{out.name} holds one window of those {len(total):,}")
     if not n < len(total) < 2 * n:
         return windows
 
@@ -297,6 +300,10 @@ def run(args) -> int:
         from evmotion.viz.video import require_video
 
         require_video()  # before the windows are computed and written, not after
+    if args.method == "dnn" or getattr(args, "init", None) == "dnn":
+        from evmotion.cli.flow_dnn import check_network
+
+        check_network(args)
     # (a window count the user asked for: a file holding fewer events is said)
     args.window_events_given = args.window_events is not None
     if args.window_events is None and args.window_us is None and not args.window_gt:
