@@ -309,7 +309,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     events : EventArray
         One window (the network was trained on 40k-event windows; 30k works as well).
     checkpoint : path, optional
-        Weights from ``evmotion train`` (``model.pt`` or ``last.pt``); default the
+        Weights from ``evmotion train`` (its ``model.pt``); default the
         shipped checkpoint (``evmotion/methods/dnn/weights``, see its model card).
     device : str
         torch device (default ``"cpu"``).

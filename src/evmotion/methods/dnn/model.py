@@ -92,8 +92,9 @@ def save_model(path: str | Path, net: EVFlowNet, **meta) -> None:
 def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVFlowNet:
     """The network of a checkpoint (default: the shipped one), in eval mode; cached.
 
-    Accepts the files of :func:`save_model` and the per-epoch training checkpoints of
-    ``evmotion train``.
+    Accepts the files of :func:`save_model`: the ``model.pt`` that ``evmotion train``
+    writes after every epoch (its ``last.pt``, the training's state for ``--resume``, is
+    refused, naming the ``model.pt`` beside it).
     """
     device = check_device(device)
     path, key = _cache_key(checkpoint, device)
