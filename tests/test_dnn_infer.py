@@ -439,9 +439,19 @@ def test_unusable_checkpoints_are_one_line(tmp_path, window):
     # a width that its tensors do not have: torch's size-mismatch paragraph, cut
     narrow = tmp_path / "narrow.pt"
     torch.save({**torch.load(run / "model.pt", weights_only=True), "width": 0.125}, narrow)
+    # the first half of a checkpoint (probe AP: "not a PyTorch file")
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes((run / "model.pt").read_bytes()[:len(flipped) // 2])
+    # the archive's folder is not the atomic save's temporary name (probe AP saw it in the
+    # damaged member's name)
+    import zipfile
+
+    with zipfile.ZipFile(run / "model.pt") as zf:
+        assert {n.split("/")[0] for n in zf.namelist()} == {"archive"}
     for path, match in ((empty, "not a PyTorch file"), (text, "not a PyTorch file"),
+                        (truncated, "truncated or damaged: the start of a PyTorch archive"),
                         (tensor, "no 'n_bins'"), (wrong, "no tensor"),
-                        (damaged, "damaged .*CRC"),
+                        (damaged, "damaged .*archive/.*CRC"),
                         (narrow, r"width 0.125.*enc.0.0.weight is \[4, 5, 3, 3\] in the "
                                  r"file, \[8, 5, 3, 3\] in the network"),
                         (run, "folder.*model.pt"), (tmp_path / "none.pt", "no such file"),

@@ -72,7 +72,11 @@ def save_atomically(obj, path: str | Path) -> None:
 
     with atomic_path(path) as tmp:
         try:
-            torch.save(obj, tmp)
+            # to an open file: torch names the archive's folder after a path it is given,
+            # which was the temporary's (".model.pt.vm-25905.b7_xdk7f.part/data/30" in a
+            # damaged file's message, probe AP)
+            with open(tmp, "wb") as fh:
+                torch.save(obj, fh)
         except RuntimeError as exc:
             if shutil.disk_usage(Path(path).resolve().parent).free >= 1 << 20:
                 raise
@@ -195,8 +199,11 @@ def _load_failure(path: Path, exc: BaseException) -> str:
     import zipfile
 
     with open(path, "rb") as fh:
-        head = fh.read(2)
+        head = fh.read(4)
     if not zipfile.is_zipfile(path) and head[:1] != b"\x80":  # torch archives, old pickles
+        if head == b"PK\x03\x04":
+            # the start of a zip archive without its end (its central directory)
+            return "truncated or damaged: the start of a PyTorch archive without its end"
         return "not a PyTorch file: torch.save writes a zip archive"
     return _reason(exc)
 
