@@ -118,3 +118,12 @@ def test_readers_name_a_misspelt_option(ev, tmp_path):
         read_events(path, sensor_sise=(80, 128))  # was reported as a corrupt file
     with pytest.raises(ParameterError, match="window_us"):
         list(iter_events(path, window_us=float("nan")))
+
+
+def test_the_cli_error_line_is_capped():
+    # probe AO: a 5 MB file name was echoed whole in the "one line" of an OSError
+    from evmotion.cli import MAX_ERROR_CHARS, _one_line
+
+    line = _one_line(OSError(36, "File name too long", "x" * 5_000_000))
+    assert len(line) < MAX_ERROR_CHARS + 60 and "characters] ..." in line
+    assert _one_line(ValueError("short\nmessage")) == "short message"

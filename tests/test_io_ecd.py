@@ -430,3 +430,23 @@ def test_a_negative_time_is_named_as_such(tmp_path):
     f.write_text("0.5 1 2 1\n-10.993376 1 2 0\n")
     with pytest.raises(FormatError, match=r"line 2: t = -10.993376 is negative.*offset"):
         ecd.read(f, sensor_size=(5, 7))
+
+
+def test_images_txt_that_is_no_regular_file_or_names_a_huge_path(tmp_path):
+    # probe AO: images.txt linked to /dev/zero was read by `info` until memory ran out;
+    # a 300-character name in it was an OSError traceback (ENAMETOOLONG), echoed whole
+    import os
+
+    from evmotion.io import describe
+    from evmotion.io.bosinput import load_bos_input
+
+    (tmp_path / "events.txt").write_text("0.0 1 1 1\n0.001 2 2 0\n")
+    os.symlink("/dev/zero", tmp_path / "images.txt")
+    with pytest.raises(FormatError, match="images.txt: not a regular file"):
+        describe(tmp_path)
+    (tmp_path / "images.txt").unlink()
+    (tmp_path / "images.txt").write_text(f"0.0 {'a' * 300}.png\n0.1 {'b' * 300}.png\n")
+    with pytest.raises(FormatError, match=r"lists a missing frame file 'a{60}\.\.\.a{36}\.png'"
+                       ) as exc:
+        load_bos_input(tmp_path)
+    assert len(str(exc.value)) < 400

@@ -19,6 +19,21 @@ from evmotion.errors import ParameterError
 T = TypeVar("T")
 
 
+def is_file(path: str | os.PathLike) -> bool:
+    """``Path.is_file`` that answers False, not an OSError, for a name the system refuses
+    (ENAMETOOLONG: a 300-character name in images.txt was a traceback, probe AO).
+
+    Examples
+    --------
+    >>> is_file("a" * 5000), is_file(".")
+    (False, False)
+    """
+    try:
+        return Path(path).is_file()
+    except OSError:
+        return False
+
+
 def ensure_file_target(path: str | os.PathLike) -> None:
     """ParameterError when ``path`` exists and is not a regular file: an output written
     beside it and renamed onto it would replace a device or pipe (``/dev/null``) with a

@@ -258,8 +258,16 @@ def _dropped_parts(exc: BaseException) -> str:
             "room and run again" if gone else "")
 
 
+# the longest error line printed (a 5 MB file name in images.txt was echoed whole, probe AO)
+MAX_ERROR_CHARS = 600
+
+
 def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if len(text) <= MAX_ERROR_CHARS:
+        return text
+    half = MAX_ERROR_CHARS // 2
+    return f"{text[:half]} ... [{len(text) - 2 * half:,} characters] ... {text[-half:]}"
 
 
 def _flush_std() -> None:

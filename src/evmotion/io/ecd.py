@@ -35,7 +35,7 @@ from evmotion.io.guard import (
 )
 from evmotion.io.pngfile import read_png
 from evmotion.jitcache import lazy_njit
-from evmotion.utils import atomic_path
+from evmotion.utils import atomic_path, is_file
 
 __all__ = ["read", "iter_chunks", "write", "describe", "read_calibration", "parse_text",
            "read_imu", "read_groundtruth", "read_image_list", "read_frames", "FORMAT"]
@@ -806,9 +806,14 @@ def write(path: str | Path, events: EventArray | Iterator[EventArray], *,
 
 
 def _in_folder(path: str | Path, name: str) -> Path:
-    """``path``, or ``path / name`` when ``path`` is a folder."""
+    """``path``, or ``path / name`` when ``path`` is a folder; a FormatError when that is
+    there but no regular file (a link to /dev/zero was read until memory ran out, probe
+    AO)."""
     path = Path(path)
-    return path / name if path.is_dir() else path
+    path = path / name if path.is_dir() else path
+    if path.exists() and not is_file(path):
+        raise FormatError(path, "not a regular file")
+    return path
 
 
 def _load_table(path: str | Path, name: str, columns: str) -> tuple[np.ndarray, np.ndarray]:
@@ -890,7 +895,7 @@ def _listed_file(folder: Path, rest: str, path: Path, i: int, text: str) -> str:
     words = rest.split()
     for cand in (rest, *(" ".join(words[:k]) for k in range(len(words) - 1, 0, -1))):
         for name in (cand, cand.replace("\\", "/")):
-            if (folder / name).is_file():
+            if is_file(folder / name):
                 return name
     if len(words) != 1:
         raise FormatError(path, f"line {i}: expected 't file', got {text!r} (no "
@@ -983,6 +988,7 @@ def describe(path: str | Path) -> dict:
                       ("images.txt", "frames")):
         f = folder / name
         if f.exists():
+            f = _in_folder(f, name)  # a regular file (not a link to /dev/zero: probe AO)
             with open(f, "rb") as fh:
                 out[key] = sum(1 for line in fh if line.strip() and not line.startswith(b"#"))
     if "frames" not in out:

@@ -28,6 +28,7 @@ from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, MissingDependencyError, ParameterError
 from evmotion.io.guard import time_to_us
 from evmotion.io.pngfile import check_png, png_header, read_png
+from evmotion.utils import is_file
 
 __all__ = ["Frames", "describe_frames", "find_frames", "image_size", "read_frames",
            "read_image"]
@@ -251,8 +252,9 @@ def _ecd_list(folder: Path) -> tuple[np.ndarray, list[Path], Path]:
         raise FormatError(lst_path, f"cannot parse 't path' lines: {exc}") from None
     files = [folder / name for name in lst["files"]]
     for f in files:
-        if not f.is_file():
-            raise FormatError(lst_path, f"lists a missing frame file {f.name!r} ({f})")
+        if not is_file(f):
+            raise FormatError(lst_path, f"lists a missing frame file {_shown(f.name)} "
+                              f"({_shown(str(f))})")
     return lst["t"], files, lst_path
 
 
@@ -334,8 +336,9 @@ def _folder_list(folder: Path, timestamps: Path, unit: str
     if names is not None:
         files = [(timestamps.parent / n) for n in names]
         for f in files:
-            if not f.is_file():
-                raise FormatError(timestamps, f"lists a missing frame file {f.name!r} ({f})")
+            if not is_file(f):
+                raise FormatError(timestamps, f"lists a missing frame file {_shown(f.name)} "
+                                  f"({_shown(str(f))})")
         return t, files, timestamps
     files = _images_in(folder)
     if len(files) != t.size:
@@ -472,6 +475,11 @@ def _from_module(path: Path) -> Frames:
         images = np.rint(images[..., :3].mean(axis=3)).astype(images.dtype)
     depth = 16 if images.dtype == np.uint16 else 8
     return Frames(images, fr.t, source=str(path), bit_depth=depth)
+
+
+def _shown(name: str, most: int = 120) -> str:
+    """``name`` quoted, its middle left out past ``most`` characters."""
+    return repr(name) if len(name) <= most else repr(f"{name[:60]}...{name[-40:]}")
 
 
 def _is_timestamps_file(path: Path) -> bool:
