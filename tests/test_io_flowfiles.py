@@ -262,3 +262,38 @@ def test_a_per_event_flow_given_as_ground_truth_is_named(tmp_path):
              vy=np.ones(3))
     with pytest.raises(FormatError, match="is a per-event flow file .* not a ground truth"):
         ff.read_mvsec_gt_flow(path)
+
+
+def _two_windows(path, compression=ff.FLOW_COMPRESSION):
+    rng = np.random.default_rng(0)
+    with ff.FlowWriter(path, (16, 20), compression=compression) as fw:
+        for k in range(2):
+            fw.append(rng.normal(size=(16, 20, 2)).astype(np.float32), t0=10 * k,
+                      t1=10 * k + 10)
+
+
+def test_resume_refuses_a_damaged_output_and_leaves_it_under_its_name(tmp_path):
+    """Probe AO: a bos.h5 whose kept windows no longer decoded was resumed ('4 kept from
+    the interrupted run', exit 0); a truncated one was left renamed to .part."""
+    path = tmp_path / "flow.h5"
+    _two_windows(path, compression="gzip")
+    with h5py.File(path, "r") as f:
+        info = f["flow"].id.get_chunk_info(1)
+    data = bytearray(path.read_bytes())
+    for k in range(info.byte_offset + 8, info.byte_offset + info.size - 8):
+        data[k] ^= 0x5A
+    path.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match=r"flow.h5: cannot resume: window 1's flow is "
+                                          r"damaged .*delete it"):
+        ff.FlowWriter(path, (16, 20), resume=True)
+    assert path.exists() and not path.with_name("flow.h5.part").exists()
+    whole = tmp_path / "whole.h5"
+    _two_windows(whole)
+    cut = tmp_path / "cut.h5"
+    cut.write_bytes(whole.read_bytes()[:800])
+    with pytest.raises(FormatError, match=r"cut.h5: cannot resume: the file is truncated"):
+        ff.FlowWriter(cut, (16, 20), resume=True)
+    assert cut.exists() and not cut.with_name("cut.h5.part").exists()
+    # an intact one resumes with its windows kept
+    with ff.FlowWriter(whole, (16, 20), resume=True) as fw:
+        assert fw.n_done == 2

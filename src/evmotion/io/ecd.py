@@ -806,11 +806,15 @@ def write(path: str | Path, events: EventArray | Iterator[EventArray], *,
 
 
 def _in_folder(path: str | Path, name: str) -> Path:
-    """``path``, or ``path / name`` when ``path`` is a folder; a FormatError when that is
-    there but no regular file (a link to /dev/zero was read until memory ran out, probe
-    AO)."""
+    """``path``, or ``path / name`` when ``path`` is a folder."""
     path = Path(path)
-    path = path / name if path.is_dir() else path
+    return path / name if path.is_dir() else path
+
+
+def _to_read(path: str | Path, name: str) -> Path:
+    """:func:`_in_folder`, refused when it is there but no regular file (a link to
+    /dev/zero was read until memory ran out, probe AO)."""
+    path = _in_folder(path, name)
     if path.exists() and not is_file(path):
         raise FormatError(path, "not a regular file")
     return path
@@ -819,7 +823,7 @@ def _in_folder(path: str | Path, name: str) -> Path:
 def _load_table(path: str | Path, name: str, columns: str) -> tuple[np.ndarray, np.ndarray]:
     """``(t µs, table)`` of the text table ``path`` (``path / name`` for a folder), one row
     of the space-separated ``columns`` (time in s first) per line."""
-    path = _in_folder(path, name)
+    path = _to_read(path, name)
     ncols = len(columns.split())
     what = f"{name} ({columns})"
     try:
@@ -852,7 +856,7 @@ def read_image_list(path: str | Path) -> dict:
     name exists: a path with spaces, Windows separators (``images\\x.png``), further
     columns after the path (an exposure, say).
     """
-    path = _in_folder(path, "images.txt")
+    path = _to_read(path, "images.txt")
     folder = path.parent
     raw, files = [], []
     with open(path, encoding="utf-8-sig") as fh:
@@ -988,7 +992,7 @@ def describe(path: str | Path) -> dict:
                       ("images.txt", "frames")):
         f = folder / name
         if f.exists():
-            f = _in_folder(f, name)  # a regular file (not a link to /dev/zero: probe AO)
+            f = _to_read(f, name)
             with open(f, "rb") as fh:
                 out[key] = sum(1 for line in fh if line.strip() and not line.startswith(b"#"))
     if "frames" not in out:

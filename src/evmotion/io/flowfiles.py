@@ -336,8 +336,6 @@ class FlowWriter(PartFileWriter):
     def __init__(self, path: str | os.PathLike, sensor_size: tuple[int, int], *,
                  with_valid: bool = False, resume: bool = False, attrs: dict | None = None,
                  compression: str | None = FLOW_COMPRESSION, extras: dict | None = None):
-        import h5py
-
         self.path = Path(path)
         ensure_file_target(self.path)
         self.part = _part_path(self.path)
@@ -349,8 +347,25 @@ class FlowWriter(PartFileWriter):
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if resume and self.part.exists() and part_holds_nothing(self.part):
             self.part.unlink()  # killed before its first window: nothing to resume
-        if resume and not self.part.exists() and self.path.exists():
+        moved = resume and not self.part.exists() and self.path.exists()
+        if moved:
             os.replace(self.path, self.part)
+        try:
+            self._open_part(resume, with_valid, compression, extras)
+        except FormatError as exc:
+            if not moved:
+                raise
+            # the finished output it was asked to continue goes back under its own name,
+            # and is named (probe AO: a truncated bos.h5 was left renamed to bos.h5.part)
+            os.replace(self.part, self.path)
+            raise FormatError(self.path, exc.message, exc.hint) from None
+        for k, v in (attrs or {}).items():
+            self.f.attrs[k] = v
+
+    def _open_part(self, resume: bool, with_valid: bool, compression, extras) -> None:
+        """Open ``.part`` for a resumed run (checked against this one) or a fresh one."""
+        import h5py
+
         if resume and self.part.exists():
             try:
                 self.f = h5py.File(self.part, "a")
@@ -381,6 +396,7 @@ class FlowWriter(PartFileWriter):
                 raise FormatError(self.part, f"cannot resume: holds extra datasets "
                                   f"{sorted(self.extras)}, this run writes {sorted(extras)}")
             self._trim_partial()
+            self._check_kept()
         else:
             self.f = h5py.File(self.part, "w")
             self.with_valid = with_valid
@@ -388,8 +404,23 @@ class FlowWriter(PartFileWriter):
                              with_valid=with_valid, compression=compression)
             self.extras = dict(extras or {})
             create_extras(self.f, self.extras, compression)
-        for k, v in (attrs or {}).items():
-            self.f.attrs[k] = v
+
+    def _check_kept(self) -> None:
+        """Every kept window read back once: a damaged one would be kept as done and the
+        run said complete (probe AO: a bos.h5 with flipped bits, which eval refused,
+        resumed with '4 kept from the interrupted run', exit 0)."""
+        n = int(self.f["t1"].shape[0])
+        for name in ("t0", "t1", "flow", "valid", *self.extras):
+            if name not in self.f:
+                continue
+            for i in range(n):
+                try:
+                    self.f[name][i]
+                except (OSError, ValueError) as exc:
+                    self.f.close()
+                    raise FormatError(self.part, f"cannot resume: window {i}'s {name} is "
+                                      f"damaged ({' '.join(str(exc).split())[:120]})",
+                                      "delete it and run again without --resume") from None
 
     def _trim_partial(self) -> None:
         # A crash between resizing and writing t1 leaves a window that is not done.
