@@ -466,3 +466,18 @@ def test_a_truncated_png_is_named_in_one_line(tmp_path, capfd):
     with pytest.raises(FormatError, match="f.png"):
         read_image(path)
     assert "libpng" not in capfd.readouterr().err
+
+
+def test_a_frame_of_another_size_is_refused_before_it_is_decoded(tmp_path, monkeypatch):
+    # probe AO: a 20000 x 20000 frame among 128 x 96 ones was decoded (0.9 GB, 7 s) first
+    import cv2
+
+    _ecd(tmp_path, _images(3), ["0.0", "0.1", "0.2"])
+    _png(tmp_path / "images" / "frame_00000002.png", np.zeros((300, 400), np.uint8))
+    decoded = []
+    real_imread = cv2.imread
+    monkeypatch.setattr(cv2, "imread", lambda p, *a: decoded.append(p) or real_imread(p, *a))
+    with pytest.raises(FormatError, match=r"frame_00000002.png: image is 400x300 px \(WxH\) "
+                                          r"but frame_00000000.png is"):
+        read_frames(tmp_path)
+    assert len(decoded) == 2 and not any("frame_00000002" in str(p) for p in decoded)

@@ -175,9 +175,25 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
     >>> img.shape, int(img[0, 0]), bits
     ((6, 8), 1000, 16)
     """
+    return _read_frame(Path(path), None)
+
+
+def _read_frame(path: Path, like: tuple[Path, tuple] | None) -> tuple[np.ndarray, int]:
+    """:func:`read_image`; with ``like`` (a frame's path and shape), a PNG of another size
+    is refused from its header, before it is decoded."""
     path = Path(path)
     if not path.is_file():
         raise FormatError(path, "frame file not found")
+    if path.suffix.lower() == ".png":
+        # a damaged PNG is named here: libpng and OpenCV inside cv2.imread print their own
+        # lines on stderr before ours, pypng and OpenCV allocate what a corrupt header
+        # declares (probes AM, AO)
+        size = check_png(path)
+        if like is not None and size != like[1][:2]:
+            # said before it is decoded (probe AO: a 20000 x 20000 frame among 128 x 96
+            # ones took 0.9 GB and 7 s to be refused)
+            raise FormatError(path, f"image is {size[1]}x{size[0]} px (WxH) but "
+                              f"{like[0].name} is {like[1][1]}x{like[1][0]}")
     try:
         import cv2
     except ImportError:
@@ -185,11 +201,6 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
             return _read_png(path)
         raise MissingDependencyError("opencv-python-headless", f"reading {path.suffix} frames",
                                      "bos") from None
-    if path.suffix.lower() == ".png":
-        # a damaged PNG is named here: libpng and OpenCV inside cv2.imread print their own
-        # lines on stderr before ours, or allocate what a corrupt header declares
-        # (probes AM, AO)
-        check_png(path)
     # OpenCV decodes a PNG 5-30 times faster than pypng (a 1280x720 frame: 16 ms against
     # 0.37 s), which reads them when it is not installed
     try:
@@ -213,7 +224,7 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, int]:
 def _stack(files: list[Path]) -> tuple[np.ndarray, int]:
     images, depth, first = [], None, None
     for f in files:
-        img, bits = read_image(f)
+        img, bits = _read_frame(f, first)
         if first is None:
             first, depth = (f, img.shape), bits
         elif img.shape != first[1]:
