@@ -629,11 +629,15 @@ def test_ctrl_c_at_any_moment_is_one_line(rec, command):
                      "--out", str(d / "ctrlc.npz")],
             "simulate": ["simulate", "rotation", "--size", "120x160", "--duration", "0.3",
                          "--out", str(d / "ctrlc.h5")]}[command]
-    start = time.perf_counter()
-    p = _popen(argv)
-    out, full_err = p.communicate(timeout=300)
-    full = time.perf_counter() - start
-    assert p.returncode == 0, full_err
+    for _ in range(2):
+        # timed warm: the first run from an empty numba cache compiles, and the runs
+        # below, warm, finished before a fraction of its time (all four exit 0 in a
+        # clean clone under a parallel test run)
+        start = time.perf_counter()
+        p = _popen(argv)
+        out, full_err = p.communicate(timeout=300)
+        full = time.perf_counter() - start
+        assert p.returncode == 0, full_err
     assert all(ln.startswith("evmotion: warning:") for ln in full_err.splitlines())
     outcomes = []
     for frac in (0.2, 0.5, 0.8, 1.0):
