@@ -117,12 +117,11 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
     Examples
     --------
-    >>> ev = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
-    ...                 sensor_size=(180, 240))
-    >>> write("recording_td.dat", ev)
-    >>> ev = read("recording_td.dat")
-    >>> len(ev), ev.sensor_size, ev.t.tolist()
-    (3, (180, 240), [100, 200, 300])
+    >>> gen4 = EventArray(x=[1279, 640, 0], y=[719, 360, 0], t=[100, 200, 300],
+    ...                   p=[1, 0, 1], sensor_size=(720, 1280))    # a Prophesee Gen4
+    >>> write("recording_td.dat", gen4)
+    >>> read("recording_td.dat").x.tolist()
+    [1279, 640, 0]
     """
     return binary.read_file(path, "dat", RECORD, _open, t0, t1, sensor_size=sensor_size,
                              validate=validate, block_bytes=block_bytes)

@@ -152,12 +152,11 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
 
     Examples
     --------
-    >>> ev = EventArray(x=[10, 20, 30], y=[5, 6, 7], t=[100, 200, 300], p=[1, 0, 1],
-    ...                 sensor_size=(180, 240))
-    >>> write("evk4_evt21.raw", ev)
-    >>> ev = read("evk4_evt21.raw")
-    >>> len(ev), ev.sensor_size, ev.x.tolist()
-    (3, (180, 240), [10, 20, 30])
+    >>> write("evk4_evt21.raw", EventArray(x=np.arange(64), y=np.full(64, 7),
+    ...       t=np.arange(64) // 8, p=np.ones(64), sensor_size=(720, 1280)))
+    >>> back = read("evk4_evt21.raw")   # (EVT 2.1 packs up to 32 pixels of a row a word)
+    >>> len(back), back.sensor_size, int(back.t.max())
+    (64, (720, 1280), 7)
     """
     return binary.read_file(path, "evt21", 8, _open, t0, t1, sensor_size=sensor_size,
                             validate=validate, block_bytes=block_bytes)
