@@ -25,7 +25,8 @@ how many events were scored, had no flow or no ground truth.
 Beside the AEE, ``AEE_zero`` is the zero flow's on the same pixels or events (the ground
 truth's mean displacement): an AEE is read against it.
 
-Masks (thesis ch. 4): valid ground truth, the estimate's own validity (its ``valid``
+Masks (thesis ch. 4): valid ground truth (the simulator's: events in any of the GT frames
+the window spans), the estimate's own validity (its ``valid``
 mask, or unknown values in a ``.flo``/``.png``: pixels without event support, or a window
 without focus, are not measurements), and with ``--events`` at least one event in the
 window at the pixel; ``--events`` also enables the FWL (IWE variance with the flow over
