@@ -232,6 +232,15 @@ def test_k_principal_point_off_the_sensor_is_said(ecd, tmp_path, capsys, k, warn
         assert "240 x 180 px sensor" in err and "FX,FY,CX,CY" in err
 
 
+def test_k_principal_point_far_off_the_sensor_is_refused(ecd, tmp_path, capsys):
+    """Probe AR: --K 199,198,1320,110 was only said, and the estimate came out valid."""
+    assert main(["flow", str(ecd), "--out", str(tmp_path / "f.h5"), *MULTICM,
+                 "--K", "199,198,1320,110"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "(1320, 110) px lies far outside the 240 x 180" in err
+    assert not (tmp_path / "f.h5").exists()
+
+
 def test_the_summary_line_says_when_the_flow_left_the_sensor_grid(ecd, tmp_path, capsys):
     """A calib.txt beside events.txt undistorts the events, so a .flo (which cannot say
     so) is on another grid than the sensor's: the line the command prints says it (not

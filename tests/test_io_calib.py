@@ -131,7 +131,7 @@ def test_dv_calibration_xml(tmp_path):
     p.write_text(p.read_text().replace("<use_fisheye_model>0", "<use_fisheye_model>1"))
     with pytest.raises(CalibrationError) as e:
         calib.read_camera(p)
-    assert "use_fisheye_model = 1" in _one_line(e)
+    assert "use_fisheye_model = '1'" in _one_line(e)
     p.write_text("<opencv_storage><a>1</a>")
     with pytest.raises(FormatError) as e:
         calib.read_camera(p)
@@ -305,3 +305,81 @@ def test_calibrations_that_are_not_a_camera_are_refused(tmp_path, k, dist, cols,
     path.write_text(ROS.format(k="120, 0, 79.5, 0, 120, 59.5, 0, 0, 1", dist="0.1, -0.2",
                                cols=2))
     assert calib.read_camera(path).dist == (0.1, -0.2, 0.0, 0.0, 0.0)
+
+
+def test_other_labs_fisheye_flags_and_model_keys_are_refused(tmp_path):
+    """Probe AR: OpenCV's fisheye_model: 1 (YAML and XML), use_fisheye_model in a YAML, a
+    JSON distortion_model and a DSEC camera_model were read as radtan: the estimate 26 %
+    off, valid."""
+    k = f"{FX}, 0, {CX}, 0, {FY}, {CY}, 0, 0, 1"
+    yaml = ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n"
+            f"   dt: d\n   data: [{k}]\ndistortion_coefficients: !!opencv-matrix\n"
+            "   rows: 4\n   cols: 1\n   dt: d\n   data: [0.3, 0.1, -0.05, 0.01]\n")
+    for flag in ("fisheye_model: 1\n", "use_fisheye_model: 1\n",
+                 "distortion_model: equidistant\n"):
+        path = tmp_path / "cv.yaml"
+        path.write_text(yaml + flag)
+        with pytest.raises(CalibrationError, match="not supported") as exc:
+            calib.read_camera(path)
+        assert flag.split(":")[0] in _one_line(exc)
+    xml = (f'<?xml version="1.0"?>\n<opencv_storage>\n<fisheye_model>1</fisheye_model>\n'
+           f'<camera_matrix type_id="opencv-matrix"><rows>3</rows><cols>3</cols><dt>d</dt>'
+           f'<data>{k.replace(",", " ")}</data></camera_matrix>\n</opencv_storage>\n')
+    (tmp_path / "cv.xml").write_text(xml)
+    with pytest.raises(CalibrationError, match="fisheye_model = '1'"):
+        calib.read_camera(tmp_path / "cv.xml")
+    (tmp_path / "cam.json").write_text(json.dumps(
+        {"fx": FX, "fy": FY, "cx": CX, "cy": CY, "distortion_model": "equidistant"}))
+    with pytest.raises(CalibrationError, match="distortion_model = 'equidistant'"):
+        calib.read_camera(tmp_path / "cam.json")
+    (tmp_path / "dsec.yaml").write_text(
+        "intrinsics: {cam0: {camera_model: omni, camera_matrix: [553.5, 553.3, 325.2, 241.3],"
+        " distortion_coeffs: [0, 0, 0, 0], resolution: [640, 480]}}\n")
+    with pytest.raises(CalibrationError, match="camera_model = 'omni'"):
+        calib.read_camera(tmp_path / "dsec.yaml")
+
+
+def test_other_labs_layouts_of_a_pinhole_camera_are_read(tmp_path):
+    """Probe AR: a ROS CameraInfo message dump (K, D), OpenCV K/D YAML, a JSON with
+    camera_matrix / dist_coeffs, a 3x3 K in text, calib.txt of 6 numbers and Kalibr's
+    distortion_model none were refused, each with a misleading message."""
+    k = [FX, 0.0, CX, 0.0, FY, CY, 0.0, 0.0, 1.0]
+    (tmp_path / "msg.yaml").write_text(
+        f"header: {{frame_id: davis}}\nheight: {SIZE[0]}\nwidth: {SIZE[1]}\n"
+        f"distortion_model: plumb_bob\nD: {list(DIST)}\nK: {k}\n")
+    _check(calib.read_camera(tmp_path / "msg.yaml"), tmp_path / "msg.yaml")
+    (tmp_path / "kd.yaml").write_text(
+        "%YAML:1.0\n---\nK: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+        f"   data: {k}\nD: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n"
+        f"   data: {list(DIST)}\n")
+    _check(calib.read_camera(tmp_path / "kd.yaml", sensor_size=SIZE), tmp_path / "kd.yaml")
+    (tmp_path / "cm.json").write_text(json.dumps(
+        {"camera_matrix": [k[:3], k[3:6], k[6:]], "dist_coeffs": list(DIST),
+         "sensor_size": list(SIZE)}))
+    _check(calib.read_camera(tmp_path / "cm.json"), tmp_path / "cm.json")
+    (tmp_path / "K.txt").write_text("\n".join(" ".join(map(str, k[i:i + 3]))
+                                              for i in (0, 3, 6)))
+    _check(calib.read_camera(tmp_path / "K.txt", sensor_size=SIZE), tmp_path / "K.txt",
+           dist=(0.0,) * 5)
+    (tmp_path / "six.txt").write_text(f"{FX} {FY} {CX} {CY} {DIST[0]} {DIST[1]}")
+    _check(calib.read_camera(tmp_path / "six.txt", sensor_size=SIZE), tmp_path / "six.txt",
+           dist=(DIST[0], DIST[1], 0.0, 0.0, 0.0))
+    (tmp_path / "fourteen.txt").write_text(" ".join(["0.1"] * 14))
+    with pytest.raises(FormatError, match="holds 14 numbers, expected fx fy cx cy and up to 5"):
+        calib.read_camera(tmp_path / "fourteen.txt")
+    (tmp_path / "kalibr.yaml").write_text(
+        f"cam0: {{camera_model: pinhole, intrinsics: [{FX}, {FY}, {CX}, {CY}], "
+        f"distortion_model: none, distortion_coeffs: [], resolution: [{SIZE[1]}, {SIZE[0]}]}}\n")
+    _check(calib.read_camera(tmp_path / "kalibr.yaml"), tmp_path / "kalibr.yaml",
+           dist=(0.0,) * 5)
+
+
+def test_a_calibration_of_another_resolution_is_refused(tmp_path):
+    """Probe AR: a 640x480 K in an ECD calib.txt (cx 346.7 on a 240-px-wide sensor) gave a
+    valid estimate 60 % off; a principal point just outside (a crop) is still read."""
+    (tmp_path / "k640.txt").write_text("553.5 553.3 346.7 260.0 0 0 0 0 0")
+    with pytest.raises(CalibrationError, match=r"\(346.7, 260\) lies far outside the 240 x "
+                                               r"180 px sensor: a calibration of another"):
+        calib.read_camera(tmp_path / "k640.txt")
+    (tmp_path / "crop.txt").write_text("199.1 198.8 250.0 110.7 0 0 0 0 0")
+    assert calib.read_camera(tmp_path / "crop.txt").cx == 250.0

@@ -54,9 +54,11 @@ def add_camera_arguments(p) -> None:
     """``--calib``, ``--K``, ``--dist`` and ``--no-undistort`` on parser (or group) ``p``."""
     g = p.add_mutually_exclusive_group()
     g.add_argument("--calib", default=None, type=existing_input, metavar="FILE",
-                   help="calibration file: ECD calib.txt, Kalibr/MVSEC camchain YAML, ROS "
+                   help="calibration file: ECD calib.txt, Kalibr camchain YAML, ROS "
                         "camera_info YAML, DSEC cam_to_cam.yaml, DV calibration XML or "
-                        "evmotion JSON (default: the recording's own, if any)")
+                        "evmotion JSON; pinhole with radial-tangential distortion only, "
+                        "fisheye / equidistant models are refused (default: the "
+                        "recording's own, if any)")
     g.add_argument("--K", default=None, type=_intrinsics, metavar="FX,FY,CX,CY",
                    help="camera intrinsics in px (instead of --calib)")
     p.add_argument("--dist", default=None, type=_distortion, metavar="K1,K2,P1,P2[,K3]",
@@ -95,11 +97,18 @@ def camera_for(args, sensor_size, events_meta: dict | None = None):
 
 
 def _check_principal_point(k, sensor_size) -> None:
-    """Say when --K puts the principal point off the sensor: most often the four values
-    were given in another order than fx,fy,cx,cy (a cropped sensor can have it outside,
-    so this is a warning, not a refusal)."""
+    """Say when --K puts the principal point off the sensor, and refuse it far off (as a
+    calibration file's): most often the four values were given in another order than
+    fx,fy,cx,cy, or are another camera's (a cropped sensor can have it just outside)."""
+    from evmotion.errors import ParameterError
+    from evmotion.io.calibration import principal_point_far_off
+
     h, w = sensor_size
     cx, cy = k[2], k[3]
+    if principal_point_far_off(cx, cy, sensor_size):
+        raise ParameterError(f"--K: the principal point (cx, cy) = ({cx:g}, {cy:g}) px lies "
+                             f"far outside the {w} x {h} px sensor: the order is "
+                             "FX,FY,CX,CY, on this sensor's grid")
     if not (0 <= cx <= w and 0 <= cy <= h):
         from evmotion.cli import warn_line
 

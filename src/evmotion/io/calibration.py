@@ -19,7 +19,8 @@ Formats (detected by :func:`read_camera`; each has its own reader, ``read_<forma
 ECD ``calib.txt``           one line ``fx fy cx cy k1 k2 p1 p2 k3`` (or a folder holding one)
 Kalibr camchain YAML        ``cam0: {intrinsics: [fu, fv, pu, pv], distortion_model: radtan,
                             distortion_coeffs: [k1, k2, r1, r2], resolution: [W, H]}``
-                            (also MVSEC's ``camchain-*.yaml``)
+                            (pinhole-radtan; MVSEC's ``camchain-*.yaml`` are
+                            equidistant, refused)
 ROS ``camera_info`` YAML    ``image_width``, ``image_height``, ``camera_matrix.data`` (3x3
                             row-major), ``distortion_model: plumb_bob``,
                             ``distortion_coefficients.data`` (k1 k2 p1 p2 k3)
@@ -110,7 +111,7 @@ def read_camera(path: str | os.PathLike, *, camera: str | None = None,
     Parameters
     ----------
     path : path-like
-        ECD ``calib.txt`` (or its folder), Kalibr / MVSEC camchain YAML, ROS
+        ECD ``calib.txt`` (or its folder), Kalibr camchain YAML (radtan), ROS
         ``camera_info`` YAML, DSEC ``cam_to_cam.yaml``, DV calibration XML, evmotion JSON.
     camera : str, optional
         Which camera of a multi-camera file (Kalibr ``cam0``, DSEC ``cam0`` or
@@ -153,6 +154,8 @@ def read_camera(path: str | os.PathLike, *, camera: str | None = None,
             return read_dsec_yaml(path, camera=camera or default, sensor_size=sensor_size)
         if "camera_matrix" in data:
             return read_ros_yaml(path, sensor_size=sensor_size)
+        if "K" in data:
+            return read_kd_yaml(path, sensor_size=sensor_size)
         return read_kalibr_yaml(path, camera=camera or "cam0", sensor_size=sensor_size)
     raise CalibrationError(f"{path}: unknown calibration format '{path.suffix}' (expected "
                            "calib.txt, .yaml, .xml or .json)")
@@ -219,16 +222,14 @@ def read_ecd(path: str | os.PathLike, *, sensor_size: tuple[int, int] | None = N
 
 def read_kalibr_yaml(path: str | os.PathLike, *, camera: str = "cam0",
                      sensor_size: tuple[int, int] | None = None) -> Camera:
-    """Kalibr camchain YAML (also MVSEC ``camchain-*.yaml``): ``<camera>.intrinsics``
+    """Kalibr camchain YAML (pinhole-radtan; MVSEC's are equidistant): ``<camera>.intrinsics``
     ``[fu, fv, pu, pv]``, ``distortion_model`` (radtan), ``distortion_coeffs``
     ``[k1, k2, r1, r2]``, ``resolution`` ``[W, H]``; ``camera_model`` must be pinhole."""
     data = _load_yaml(path)
     if camera not in data:
         raise FormatError(path, f"no camera '{camera}'; has {sorted(map(str, data))}")
     c = _mapping(path, data[camera], camera)
-    _check_model(path, f"{camera}.camera_model", c.get("camera_model", "pinhole"), ("pinhole",))
-    _check_model(path, f"{camera}.distortion_model", c.get("distortion_model", "radtan"),
-                 _RADTAN)
+    _refuse_other_models(path, c, camera)
     fx, fy, cx, cy = _numbers(path, f"{camera}.intrinsics", _field(path, c, "intrinsics",
                                                                   camera), 4)
     size = _resolution(path, f"{camera}.resolution", c.get("resolution"))
@@ -242,7 +243,7 @@ def read_ros_yaml(path: str | os.PathLike, *, sensor_size: tuple[int, int] | Non
     ``image_height``, ``camera_matrix.data`` (3x3 row-major), ``distortion_model``
     (plumb_bob), ``distortion_coefficients.data``."""
     data = _load_yaml(path)
-    _check_model(path, "distortion_model", data.get("distortion_model", "plumb_bob"), _RADTAN)
+    _refuse_other_models(path, data)
     k_node = _mapping(path, data.get("camera_matrix"), "camera_matrix")
     k = _numbers(path, "camera_matrix.data", _field(path, k_node, "data", "camera_matrix"), 9)
     _k_row3(path, "camera_matrix.data", k)
@@ -255,6 +256,32 @@ def read_ros_yaml(path: str | os.PathLike, *, sensor_size: tuple[int, int] | Non
     if "image_width" in data or "image_height" in data:
         size = _resolution(path, "image_width/image_height",
                            [data.get("image_width"), data.get("image_height")])
+    return _camera(path, k[0], k[4], k[2], k[5], dist, _check_size(path, size, sensor_size),
+                   skew=k[1])
+
+
+def read_kd_yaml(path: str | os.PathLike, *, sensor_size: tuple[int, int] | None = None
+                 ) -> Camera:
+    """A YAML with ``K`` (3x3, a list of 9 or an OpenCV ``opencv-matrix``) and ``D`` (the
+    coefficients), as a ROS ``CameraInfo`` message dump (with ``width``, ``height``,
+    ``distortion_model``) or OpenCV FileStorage with those names write them."""
+    data = _load_yaml(path)
+    _refuse_other_models(path, data)
+
+    def values(key: str, n: int | None) -> list[float]:
+        node = data.get(key)
+        if isinstance(node, dict):
+            node = _field(path, node, "data", key)
+        return _numbers(path, key, node if node is not None else [], n)
+
+    k = values("K", 9)
+    _k_row3(path, "K", k)
+    dist = values("D", None)
+    size = None
+    for w_key, h_key in (("width", "height"), ("image_width", "image_height")):
+        if w_key in data or h_key in data:
+            size = _resolution(path, f"{w_key}/{h_key}", [data.get(w_key), data.get(h_key)])
+            break
     return _camera(path, k[0], k[4], k[2], k[5], dist, _check_size(path, size, sensor_size),
                    skew=k[1])
 
@@ -283,12 +310,9 @@ def read_dv_xml(path: str | os.PathLike, *, camera: str | None = None,
         node = next((c for c in root if c.find("camera_matrix") is not None), None)
         if node is None:
             raise FormatError(path, "no element 'camera_matrix' in the XML")
-    fisheye = root.findtext("use_fisheye_model", node.findtext("use_fisheye_model", "0"))
-    if fisheye.strip() not in ("0", "false", ""):
-        raise CalibrationError(f"{path}: use_fisheye_model = {fisheye.strip()}: the fisheye "
-                               "model is not supported (radtan only)")
-    model = root.findtext("distortion_model", node.findtext("distortion_model", "radtan"))
-    _check_model(path, "distortion_model", model, _RADTAN)
+    for el in (root, node):
+        _refuse_other_models(path, {c.tag: (c.text or "").strip() for c in el
+                                    if not len(c)})
     where = node.tag if node is not root else ""
     k = _cv_matrix(path, node, "camera_matrix", where, 9)
     _k_row3(path, "camera_matrix", k)
@@ -316,8 +340,7 @@ def read_dsec_yaml(path: str | os.PathLike, *, camera: str = "camRect0",
                           f"{sorted(map(str, intr))}")
     where = f"intrinsics.{camera}"
     c = _mapping(path, intr[camera], where)
-    _check_model(path, f"{where}.distortion_model", c.get("distortion_model", "radtan"),
-                 _RADTAN)
+    _refuse_other_models(path, c, where)
     fx, fy, cx, cy = _numbers(path, f"{where}.camera_matrix",
                               _field(path, c, "camera_matrix", where), 4)
     size = _resolution(path, f"{where}.resolution", _field(path, c, "resolution", where))
@@ -364,11 +387,13 @@ def camera_from_dict(data, *, source: str = "", sensor_size: tuple[int, int] | N
     if not isinstance(data, dict):
         raise FormatError(where, f"expected a JSON object, got {type(data).__name__}")
     _check_model(where, "model", data.get("model", "radtan"), _RADTAN)
+    _refuse_other_models(where, data)
     if all(k in data for k in ("fx", "fy", "cx", "cy")):
         fx, fy, cx, cy = (_number(where, k, data[k]) for k in ("fx", "fy", "cx", "cy"))
-    elif "K" in data:
-        k = _numbers(where, "K", np.asarray(data["K"], dtype=object).ravel().tolist(), 9)
-        _k_row3(where, "K", k)
+    elif "K" in data or "camera_matrix" in data:
+        name = "K" if "K" in data else "camera_matrix"
+        k = _numbers(where, name, np.asarray(data[name], dtype=object).ravel().tolist(), 9)
+        _k_row3(where, name, k)
         fx, fy, cx, cy = k[0], k[4], k[2], k[5]
     else:
         raise FormatError(where, "fields 'fx', 'fy', 'cx', 'cy' (or 'K') are missing; has "
@@ -379,7 +404,11 @@ def camera_from_dict(data, *, source: str = "", sensor_size: tuple[int, int] | N
         size = _resolution(where, "sensor_size", [s[1], s[0]])
     elif "width" in data or "height" in data:
         size = _resolution(where, "width/height", [data.get("width"), data.get("height")])
-    dist = _numbers(where, "dist", data.get("dist") or [], None)
+    # (other tools' names for the coefficients: probe AR's JSON had 'dist_coeffs')
+    name = next((n for n in ("dist", "D", "dist_coeffs", "distortion_coeffs",
+                             "distortion_coefficients") if n in data), "dist")
+    dist = _numbers(where, name, np.asarray(data.get(name) or [], dtype=object).ravel()
+                    .tolist(), None)
     return _camera(where, fx, fy, cx, cy, dist, _check_size(where, size, sensor_size))
 
 
@@ -520,14 +549,36 @@ def _camera(path, fx, fy, cx, cy, dist, size, *, skew: float = 0.0) -> Camera:
                                f"{MAX_FOCAL_PX:g}] px, got fx={fx!r}, fy={fy!r}")
     if size is not None:
         h, w = size
-        if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
+        if principal_point_far_off(cx, cy, size):
             raise CalibrationError(f"{path}: principal point (cx, cy) = ({cx:g}, {cy:g}) lies "
-                                   f"far outside the {w} x {h} px sensor")
+                                   f"far outside the {w} x {h} px sensor: a calibration of "
+                                   "another camera or resolution?")
     d = tuple(dist) + (0.0,) * (5 - len(dist))
     cam = Camera(float(fx), float(fy), float(cx), float(cy), d,
                  None if size is None else tuple(size), source=str(path))
     warn_strong_distortion(cam, str(path))
     return cam
+
+
+#: How far off the sensor (a share of its side) a principal point may lie before its
+#: calibration is refused as another camera's: a crop can put it just outside, but a
+#: DSEC 640x480 K on a 240x180 sensor (cx 346.7) gave a valid estimate 60 % off (probe AR).
+PRINCIPAL_POINT_MARGIN = 0.25
+
+
+def principal_point_far_off(cx: float, cy: float, size: tuple[int, int]) -> bool:
+    """Whether ``(cx, cy)`` lies beyond :data:`PRINCIPAL_POINT_MARGIN` of the sensor's
+    sides outside it (``size`` = (height, width)).
+
+    Examples
+    --------
+    >>> principal_point_far_off(132.2, 110.7, (180, 240)), principal_point_far_off(
+    ...     346.7, 260.0, (180, 240))
+    (False, True)
+    """
+    h, w = size
+    m = PRINCIPAL_POINT_MARGIN
+    return not (-m * w <= cx <= (1 + m) * w and -m * h <= cy <= (1 + m) * h)
 
 
 def _h5_calibration(path: Path) -> dict:
@@ -627,6 +678,29 @@ def _check_size(path, size, sensor_size):
         raise CalibrationError(f"{path}: calibration is for a {size[1]} x {size[0]} px sensor "
                                f"(W x H), not {sensor_size[1]} x {sensor_size[0]} px")
     return size
+
+
+# keys other tools use to say a camera is no pinhole-radtan one: a flag, or a model name
+_FISHEYE_FLAGS = ("fisheye_model", "use_fisheye_model", "fisheye", "is_fisheye")
+_MODEL_KEYS = {"camera_model": ("pinhole",), "projection_model": ("pinhole",),
+               "distortion_model": _RADTAN + ("none",), "lens_model": _RADTAN + ("pinhole",),
+               "distortion_type": _RADTAN}
+
+
+def _refuse_other_models(path, node: dict, where: str = "") -> None:
+    """Refuse a mapping whose keys declare a fisheye / equidistant (or any non-radtan)
+    camera, whatever tool wrote it: OpenCV's ``fisheye_model: 1`` was read as radtan, the
+    estimate 26 % off and valid (probe AR)."""
+    prefix = f"{where}." if where else ""
+    for key, value in node.items():
+        low = str(key).strip().lower()
+        if low in _FISHEYE_FLAGS and str(value).strip().lower() not in ("0", "false", "",
+                                                                       "none", "no"):
+            raise CalibrationError(f"{path}: {prefix}{key} = {value!r}: the fisheye model "
+                                   "is not supported (pinhole with radial-tangential "
+                                   "distortion only)")
+        if low in _MODEL_KEYS and value is not None:
+            _check_model(path, f"{prefix}{key}", value, _MODEL_KEYS[low])
 
 
 def _check_model(path, field: str, model, allowed) -> None:

@@ -932,17 +932,29 @@ def calib_file(path: str | Path) -> Path:
 
 def parse_calib(path: Path) -> np.ndarray:
     """The 9 numbers ``fx fy cx cy k1 k2 p1 p2 k3`` of an ECD ``calib.txt`` (float64),
-    which may also hold just the first 4 or 8 (the missing coefficients are 0).
+    which may also hold just the first 4 to 8 (the missing coefficients are 0), or a 3x3
+    camera matrix ``fx 0 cx / 0 fy cy / 0 0 1`` (no distortion), as other tools write K.
 
     Raises FormatError naming the file and the offending value or count.
+
+    Examples
+    --------
+    >>> _ = Path("K.txt").write_text("199.1 0 132.2\\n0 198.8 110.7\\n0 0 1\\n")
+    >>> parse_calib(Path("K.txt"))[:5].tolist()
+    [199.1, 198.8, 132.2, 110.7, 0.0]
     """
     try:
         vals = np.array(path.read_text().split(), dtype=np.float64)
     except ValueError as exc:
         raise FormatError(path, f"calib.txt must hold numbers: {exc}") from None
-    if vals.size not in (4, 8, 9):
-        raise FormatError(path, f"calib.txt holds {vals.size} numbers, expected 9 "
-                          "(fx fy cx cy k1 k2 p1 p2 k3)")
+    if vals.size == 9 and vals[1] == 0 and vals[3] == 0 and vals[6:].tolist() == [0, 0, 1]:
+        # (read as fx fy cx cy k1..., a 3x3 K was refused for its focal length fy = 0,
+        # probe AR)
+        return np.array([vals[0], vals[4], vals[2], vals[5], 0, 0, 0, 0, 0], np.float64)
+    if not 4 <= vals.size <= 9:
+        raise FormatError(path, f"calib.txt holds {vals.size} numbers, expected fx fy cx cy "
+                          "and up to 5 radial-tangential coefficients (k1 k2 p1 p2 k3), or a "
+                          "3x3 camera matrix; models of more coefficients are not supported")
     return np.concatenate([vals, np.zeros(9 - vals.size)])
 
 
