@@ -265,3 +265,13 @@ def test_a_distortion_of_no_lens_is_said(ecd, tmp_path, capsys):
     assert "move the sensor's corners by 279% of their distance" in capsys.readouterr().err
     assert main(argv + ["--dist=-0.37,0.15,0,0", "--out", str(tmp_path / "b")]) == 0
     assert "sensor's corners" not in capsys.readouterr().err
+
+
+def test_landscape_says_undistortion_left_out_the_short_windows_events(ecd, tmp_path, capsys):
+    """Probe AR: a window short of --window-events because undistortion left events out
+    was said to be short because 'the recording (or --t1) ends first'."""
+    assert main(["landscape", str(ecd), "--warp", "translation", "--range", "-1", "1",
+                 "--steps", "3", "--window-events", "4000", "--out",
+                 str(tmp_path / "l.png")]) == 0
+    err = capsys.readouterr().err
+    assert "undistortion left out the rest" in err and "ends first" not in err, err

@@ -145,8 +145,12 @@ def run(args) -> int:
     from evmotion.cli import warn_line
 
     if args.window_events and len(events) < args.window_events:
+        dropped = int(events.meta.get("undistort_dropped", 0))
+        why_short = ("undistortion left out the rest (said above)" if dropped
+                     and len(events) + dropped >= args.window_events
+                     else "the recording (or --t1) ends first")
         warn_line(f"the window holds {len(events):,} events, not the {args.window_events:,} "
-                  "asked: the recording (or --t1) ends first")
+                  f"asked: {why_short}")
     for line in reversed(why):  # the edge first, as before
         warn_line(line)
     best_reg = None
