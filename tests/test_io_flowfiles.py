@@ -297,3 +297,44 @@ def test_resume_refuses_a_damaged_output_and_leaves_it_under_its_name(tmp_path):
     # an intact one resumes with its windows kept
     with ff.FlowWriter(whole, (16, 20), resume=True) as fw:
         assert fw.n_done == 2
+
+
+def _interrupted(tmp_path, with_valid=True):
+    """A .part of two finished windows, as a killed run leaves it."""
+    path = tmp_path / "flow.h5"
+    fw = ff.FlowWriter(path, (16, 20), with_valid=with_valid)
+    for k in range(2):
+        fw.append(np.ones((16, 20, 2), np.float32), t0=10 * k, t1=10 * k + 10,
+                  valid=np.ones((16, 20), bool) if with_valid else None)
+    fw.abort()
+    part = tmp_path / "flow.h5.part"
+    assert part.exists()
+    return path, part
+
+
+@pytest.mark.parametrize("mutate, match", [
+    (lambda f: f["flow"].resize(1, axis=0), "dataset 'flow' holds 1 windows, 't1' 2"),
+    (lambda f: f.__delitem__("t0"), "dataset 't0' is missing"),
+    (lambda f: f.attrs.__setitem__("units", "px"), "attribute 'units' is 'px'"),
+    (lambda f: f["flow"].__setitem__(1, np.full((16, 20, 2), np.nan, np.float32)),
+     "window 1's flow is damaged .*not finite where it is valid"),
+])
+def test_resume_refuses_a_part_file_that_is_not_as_written(tmp_path, mutate, match):
+    """Probe AQ: a .part whose flow had one row fewer than t1 resumed with that window
+    zero and valid; a missing dataset was a KeyError traceback after every new window was
+    solved; units changed, or a NaN flow where valid, were carried into the output."""
+    path, part = _interrupted(tmp_path)
+    with h5py.File(part, "a") as f:
+        mutate(f)
+    with pytest.raises(FormatError, match=match):
+        ff.FlowWriter(path, (16, 20), with_valid=True, resume=True)
+
+
+def test_resume_refuses_a_part_that_is_no_regular_file(tmp_path):
+    # probe AQ: a FIFO as the .part hung the resume until killed
+    import os
+
+    path = tmp_path / "flow.h5"
+    os.mkfifo(tmp_path / "flow.h5.part")
+    with pytest.raises(FormatError, match="flow.h5.part: cannot resume: not a regular file"):
+        ff.FlowWriter(path, (16, 20), resume=True)

@@ -36,7 +36,7 @@ from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs, read_attrs_many
 from evmotion.io.h5filters import h5_compression
 from evmotion.io.pngfile import read_png, write_png
-from evmotion.utils import atomic_path, ensure_file_target, ensure_room
+from evmotion.utils import atomic_path, ensure_file_target, ensure_room, is_file
 
 __all__ = [
     "FLO_MAGIC",
@@ -366,7 +366,11 @@ class FlowWriter(PartFileWriter):
         """Open ``.part`` for a resumed run (checked against this one) or a fresh one."""
         import h5py
 
-        if resume and self.part.exists():
+        if resume and (self.part.exists() or self.part.is_symlink()):
+            if not is_file(self.part):
+                # (a FIFO hung the resume, probe AQ)
+                raise FormatError(self.part, "cannot resume: not a regular file",
+                                  "delete it to start again")
             try:
                 self.f = h5py.File(self.part, "a")
             except OSError as exc:
@@ -382,21 +386,33 @@ class FlowWriter(PartFileWriter):
                                       "--resume") from None
                 raise FormatError(self.part, f"cannot reopen to resume: {exc}",
                                   "delete it to start again") from None
-            old = read_attrs(self.part, self.f, ("height", "width", "format"))
-            got = (int(old.get("height", -1)), int(old.get("width", -1)))
-            fmt = old.get("format")
-            if fmt != FLOW_FORMAT or got != self.sensor_size:
+            try:
+                old = read_attrs(self.part, self.f, ("height", "width", "format", "units"))
+                got = (int(old.get("height", -1)), int(old.get("width", -1)))
+                fmt = old.get("format")
+                if fmt != FLOW_FORMAT or got != self.sensor_size:
+                    raise FormatError(self.part, f"cannot resume: holds format {fmt!r} of "
+                                      f"size {got}, expected {FLOW_FORMAT!r} of size "
+                                      f"{self.sensor_size}")
+                if old.get("units", "px/s") != "px/s":
+                    raise FormatError(self.part, f"cannot resume: attribute 'units' is "
+                                      f"{old.get('units')!r}, not 'px/s'")
+                self.with_valid = "valid" in self.f
+                self.extras = extra_specs(self.f, self.part)
+                if extras is not None and set(extras) != set(self.extras):
+                    raise FormatError(self.part, f"cannot resume: holds extra datasets "
+                                      f"{sorted(self.extras)}, this run writes "
+                                      f"{sorted(extras)}")
+                self._check_layout()
+                self._trim_partial()
+                self._check_kept()
+            except (FormatError, KeyError, OSError, ValueError, TypeError) as exc:
                 self.f.close()
-                raise FormatError(self.part, f"cannot resume: holds format {fmt!r} of size "
-                                  f"{got}, expected {FLOW_FORMAT!r} of size {self.sensor_size}")
-            self.with_valid = "valid" in self.f
-            self.extras = extra_specs(self.f)
-            if extras is not None and set(extras) != set(self.extras):
-                self.f.close()
-                raise FormatError(self.part, f"cannot resume: holds extra datasets "
-                                  f"{sorted(self.extras)}, this run writes {sorted(extras)}")
-            self._trim_partial()
-            self._check_kept()
+                if isinstance(exc, FormatError):
+                    raise
+                raise FormatError(self.part, "cannot resume: damaged ("
+                                  f"{' '.join(str(exc).split())[:120]})",
+                                  "delete it and run again without --resume") from None
         else:
             self.f = h5py.File(self.part, "w")
             self.with_valid = with_valid
@@ -404,6 +420,32 @@ class FlowWriter(PartFileWriter):
                              with_valid=with_valid, compression=compression)
             self.extras = dict(extras or {})
             create_extras(self.f, self.extras, compression)
+
+    def _check_layout(self) -> None:
+        """The datasets a resumed file must hold, as this writer made them: resizable,
+        of their dtype and window shape, with a row for each window ``t1`` counts (one
+        fewer ``flow`` row was filled with zeros and kept valid, probe AQ)."""
+        h, w = self.sensor_size
+        want = {"t0": ((), "i"), "t1": ((), "i"), "flow": ((h, w, 2), "f")}
+        if self.with_valid:
+            want["valid"] = ((h, w), "b")
+        for name, spec in self.extras.items():
+            want[name] = (tuple(int(v) for v in spec.shape), np.dtype(spec.dtype).kind)
+        n = int(self.f["t1"].shape[0]) if "t1" in self.f else 0
+        for name, (shape, kind) in want.items():
+            ds = self.f.get(name)
+            if ds is None or not hasattr(ds, "dtype"):
+                raise FormatError(self.part, f"cannot resume: dataset '{name}' is missing",
+                                  "delete it and run again without --resume")
+            if (ds.dtype.kind != kind or tuple(ds.shape[1:]) != shape or ds.chunks is None
+                    or ds.maxshape[0] is not None):
+                raise FormatError(self.part, f"cannot resume: dataset '{name}' is "
+                                  f"{ds.dtype} {tuple(ds.shape)}, not as this run writes it",
+                                  "delete it and run again without --resume")
+            if ds.shape[0] < n:
+                raise FormatError(self.part, f"cannot resume: dataset '{name}' holds "
+                                  f"{ds.shape[0]} windows, 't1' {n}",
+                                  "delete it and run again without --resume")
 
     def _check_kept(self) -> None:
         """Every kept window read back once: a damaged one would be kept as done and the
@@ -415,7 +457,11 @@ class FlowWriter(PartFileWriter):
                 continue
             for i in range(n):
                 try:
-                    self.f[name][i]
+                    value = self.f[name][i]
+                    if name == "flow" and "valid" in self.f:
+                        # (a NaN flow where pixels are valid was kept, probe AQ)
+                        if not np.isfinite(value[self.f["valid"][i]]).all():
+                            raise ValueError("a flow that is not finite where it is valid")
                 except (OSError, ValueError) as exc:
                     self.f.close()
                     raise FormatError(self.part, f"cannot resume: window {i}'s {name} is "
@@ -796,6 +842,8 @@ def part_holds_nothing(part: str | os.PathLike) -> bool:
     part = Path(part)
     if not part.exists():
         return True
+    if not is_file(part):
+        return False  # (h5py would block on a FIFO: the resume refuses it, naming it)
     try:
         with h5py.File(part, "r") as f:
             return "t1" not in f or int(f["t1"].shape[0]) == 0
