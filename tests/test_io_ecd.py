@@ -450,3 +450,14 @@ def test_images_txt_that_is_no_regular_file_or_names_a_huge_path(tmp_path):
                        ) as exc:
         load_bos_input(tmp_path)
     assert len(str(exc.value)) < 400
+
+
+@pytest.mark.parametrize("first", ["9300000000000", "9300000000000.5",
+                                   "9223372036854775807"])
+def test_a_time_past_int64_microseconds_is_named_not_wrapped(first):
+    # probe AQ: 9300000000000 s wrapped to -9.1e18 us, and the file was read
+    data = f"{first} 67 89 0\n0.5 1 2 1\n".encode()
+    with pytest.raises(FormatError, match=rf"line 1: t = {first} s is beyond \+-2\^62 us"):
+        ecd.parse_text(data, "e.txt")
+    x, y, t, p = ecd.parse_text(b"4611686018427.387903 1 2 1\n", "e.txt")
+    assert t.tolist() == [4_611_686_018_427_387_903]

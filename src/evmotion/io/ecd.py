@@ -53,6 +53,9 @@ _PLAIN[list(b"0123456789. \t\r\n")] = True
 _ERR_COLUMNS = 1
 _ERR_CHAR = 2
 _ERR_FRACTION = 3  # a pixel or polarity with a non-zero fraction ("146.5")
+_ERR_RANGE = 4  # a time past 2^62 us, which int64 arithmetic on it would wrap
+# the most whole seconds a time may have (2^62 us: 146,000 years)
+_MAX_SECONDS = (1 << 62) // 1_000_000
 
 
 @lazy_njit(cache=True)
@@ -67,6 +70,7 @@ def _parse(buf, start, end, ox, oy, ot, op, out_start):
         # one line
         col = 0
         ip = np.int64(0)
+        nip = 0
         frac = np.int64(0)
         nfrac = 0
         in_frac = False
@@ -90,8 +94,11 @@ def _parse(buf, start, end, ox, oy, ot, op, out_start):
                         if nfrac < 9:
                             frac = frac * 10 + d
                             nfrac += 1
-                    else:
+                    elif nip < 15:  # (more digits would wrap int64: said below)
                         ip = ip * 10 + d
+                        nip += 1
+                    else:
+                        ip = _MAX_SECONDS + 1
                 elif vfrac:
                     if d != 0 and col <= 3:  # (extra columns: the count's error)
                         return k - out_start, line_start, _ERR_FRACTION, col
@@ -135,6 +142,9 @@ def _parse(buf, start, end, ox, oy, ot, op, out_start):
             continue  # blank line
         if col != 4:
             return k - out_start, line_start, _ERR_COLUMNS, col
+        if ip > _MAX_SECONDS:
+            # (9300000000000 s wrapped to -9.1e18 us, accepted: probe AQ)
+            return k - out_start, line_start, _ERR_RANGE, 0
         if nfrac <= 6:
             us = frac
             for _ in range(6 - nfrac):
@@ -164,6 +174,10 @@ def _line_error(path: Path, data: bytes, file_offset: int, bad: int, code: int, 
                 lineno += blk.count(b"\n")
                 remaining -= len(blk)
     fields = text.replace(",", " ").replace(";", " ").split()
+    if code == _ERR_RANGE:
+        return FormatError(path, f"line {lineno}: t = {fields[0] if fields else '?'} s is "
+                           f"beyond +-2^62 us ({text[:80]!r}): not a time in seconds "
+                           "(another unit? --time-unit)")
     first_decimal = next((k for k, f in enumerate(fields) if "." in f), 0)
     if code == _ERR_FRACTION and first_decimal == 0:
         name = ("t", "x", "y", "p")[cols]
@@ -242,7 +256,10 @@ def _parse_plain(data: bytes) -> tuple[np.ndarray, ...] | None:
     # the first 9 decimals, as the kernel keeps them, right-padded to nanoseconds; then
     # rounded to the nearest microsecond, halves up, exactly as the kernel rounds
     ns = np.strings.ljust(frac.astype("S9"), 9, b"0").astype(np.int64)
-    t = whole.astype(np.int64) * 1_000_000 + (ns + 500) // 1000
+    seconds = whole.astype(np.int64)
+    if seconds.size and seconds.max() > _MAX_SECONDS:
+        return None  # the kernel names the line
+    t = seconds * 1_000_000 + (ns + 500) // 1000
     return xyp[:, 0].copy(), xyp[:, 1].copy(), t, xyp[:, 2].copy()
 
 
