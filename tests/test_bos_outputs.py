@@ -210,3 +210,31 @@ def test_bos_other_containers(scene, bos_h5, tmp_path, capsys):
     rc, text, err = _run(["eval", png, "--gt", scene / "schlieren_gt.h5", "--json"], capsys)
     assert rc == 0, err
     assert json.loads(text)["out_px"] == 1.0
+
+
+def test_eval_q_checks_the_ground_truth_and_means_the_scored_windows(tmp_path, capsys):
+    """Probe AQ: a schlieren GT whose frame_t had another length scored other intervals
+    (q_corr 0.606 -> 0.523, exit 0) or was an IndexError traceback; the q means took in
+    the start-up window, which bos writes with no valid pixel (q_std_ratio 0.389)."""
+    import json
+
+    import h5py
+
+    from bos_synth import plume_scene, run_cli
+
+    scene = plume_scene(tmp_path / "plume", intervals=3)
+    out = tmp_path / "bos.h5"
+    assert run_cli(["bos", scene, "--iterations", 20, "--out", out], capsys)[0] == 0
+    gt = scene / "schlieren_gt.h5"
+    rc, stdout, _ = run_cli(["eval", out, "--gt", gt, "--json"], capsys)
+    res = json.loads(stdout)
+    rows = [w for w in res["windows"] if "q_corr" in w]
+    scored = [w for w in rows if w.get("n_pixels", 0) > 0]
+    assert rc == 0 and len(scored) < len(rows)  # the start-up window is not scored
+    assert res["mean"]["q_corr"] == pytest.approx(np.mean([w["q_corr"] for w in scored]))
+    with h5py.File(gt, "a") as f:
+        t = f["frame_t"][()]
+        del f["frame_t"]
+        f["frame_t"] = t[:-1]
+    rc, _, err = run_cli(["eval", out, "--gt", gt], capsys)
+    assert rc == 2 and "'frame_t' is int64" in err and "one more than 'q' windows" in err, err

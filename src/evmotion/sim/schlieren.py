@@ -925,7 +925,18 @@ def read_schlieren_q(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     ((2, 40, 48), (3,))
     """
     with _gt_file(path) as (f, _):
-        return f["q"][()], f["frame_t"][()].astype(np.int64)
+        q, t = f["q"], f["frame_t"]
+        # (a q of 3 windows for 4 frame intervals was an IndexError traceback; a frame_t
+        # of another length scored other intervals, silently: probe AQ)
+        if q.ndim != 3 or q.dtype.kind != "f":
+            raise FormatError(path, f"'q' is {q.dtype} {q.shape}, expected float (N, H, W)")
+        if t.ndim != 1 or t.dtype.kind not in "iu" or t.shape[0] != q.shape[0] + 1:
+            raise FormatError(path, f"'frame_t' is {t.dtype} {t.shape}, expected "
+                              f"{q.shape[0] + 1} integer times (one more than 'q' windows)")
+        times = t[()].astype(np.int64)
+        if np.any(np.diff(times) <= 0):
+            raise FormatError(path, "'frame_t' does not increase")
+        return q[()], times
 
 
 @contextlib.contextmanager
