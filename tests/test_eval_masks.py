@@ -124,3 +124,23 @@ def test_simulator_event_masks_are_united_over_the_frames_a_window_spans(tmp_pat
     stays = (ex >= 0) & (ex <= 79) & (ey >= 0) & (ey <= 59)
     assert not (valid & ~fired).any() and not (fired & stays & ~valid).any()
     assert valid.sum() > 2 * (gt.valid[1] & gt.valid[2] & gt.valid[3]).sum()
+
+
+def test_simulator_ground_truth_of_another_dtype_or_shape_is_refused(tmp_path):
+    # probe AQ: an int8 or bool GT flow was scored as px/s (AEE 1.43 for 0.66), exit 0
+    import h5py
+
+    from evmotion.errors import FormatError
+    from evmotion.sim import simulate
+    from evmotion.sim.gtio import write_ground_truth
+
+    sim = simulate("translation", duration_s=0.03, sensor_size=(30, 40), seed=1,
+                   show_progress=False)
+    path = write_ground_truth(tmp_path / "sim_gt.h5", sim.gt)
+    assert read_gt_flow(path).flow.dtype == np.float32
+    with h5py.File(path, "a") as f:
+        flow = f["flow"][()]
+        del f["flow"]
+        f["flow"] = flow.astype(np.int8)
+    with pytest.raises(FormatError, match=r"'flow' is int8 .* expected float"):
+        read_gt_flow(path)

@@ -819,7 +819,21 @@ def _read_sim_gt(g, path: Path, index, attrs: dict) -> FlowSequence:
     for name in ("flow", "frame_times_us"):
         if name not in g:
             raise FormatError(path, f"simulator ground truth lacks dataset '{g.name}/{name}'")
-    ft = g["frame_times_us"][:].astype(np.int64)
+    fl, fts = g["flow"], g["frame_times_us"]
+    # (an int8 or bool flow was scored as px/s, event masks of another shape a broadcast
+    # traceback: probe AQ)
+    if fl.dtype.kind != "f" or fl.ndim != 4 or fl.shape[-1] != 2:
+        raise FormatError(path, f"simulator ground truth 'flow' is {fl.dtype} {fl.shape}: "
+                          "expected float (frames, height, width, 2)")
+    if fts.ndim != 1 or fts.dtype.kind not in "iu" or fts.shape[0] != fl.shape[0]:
+        raise FormatError(path, f"simulator ground truth 'frame_times_us' is {fts.dtype} "
+                          f"{fts.shape}: expected {fl.shape[0]} integer times, one per flow")
+    if "event_masks" in g and (g["event_masks"].dtype != bool or g["event_masks"].shape
+                               != (max(0, fl.shape[0] - 1), *fl.shape[1:3])):
+        raise FormatError(path, f"simulator ground truth 'event_masks' is "
+                          f"{g['event_masks'].dtype} {g['event_masks'].shape}: expected bool "
+                          f"({max(0, fl.shape[0] - 1)}, {fl.shape[1]}, {fl.shape[2]})")
+    ft = fts[:].astype(np.int64)
     n = max(0, ft.size - 1)
     idx = np.arange(n)[slice(None) if index is None else index]
     idx = np.atleast_1d(idx)
