@@ -100,7 +100,6 @@ def _check_principal_point(k, sensor_size) -> None:
     """Say when --K puts the principal point off the sensor, and refuse it far off (as a
     calibration file's): most often the four values were given in another order than
     fx,fy,cx,cy, or are another camera's (a cropped sensor can have it just outside)."""
-    from evmotion.errors import ParameterError
     from evmotion.io.calibration import principal_point_far_off
 
     h, w = sensor_size

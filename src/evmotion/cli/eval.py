@@ -183,14 +183,11 @@ def _add_potential_scores(q, t0s, t1s, gt_path, per_window: list, total: dict) -
     the exact one (``q_corr``, ``q_std_ratio``), and their means; other GT has no q."""
     from evmotion.errors import FormatError
     from evmotion.eval.windows import evaluate_potential
-    from evmotion.sim.schlieren import read_schlieren_q
+    from evmotion.sim.schlieren import is_schlieren_gt, read_schlieren_q
 
-    try:
-        gt_q, gt_t_us = read_schlieren_q(gt_path)
-    except FormatError as exc:
-        if exc.message.startswith("not schlieren ground truth"):
-            return  # another ground truth: no q to score against
-        raise
+    if not is_schlieren_gt(gt_path):
+        return  # another ground truth: no q to score against
+    gt_q, gt_t_us = read_schlieren_q(gt_path)
     if gt_q.shape[1:] != q.shape[1:]:
         raise FormatError(gt_path, f"'q' is {gt_q.shape[2]}x{gt_q.shape[1]} px (W x H), the "
                           f"flow's q {q.shape[2]}x{q.shape[1]} px")

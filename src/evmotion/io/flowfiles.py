@@ -382,8 +382,7 @@ class FlowWriter(PartFileWriter):
                 if "truncated file" in str(exc):
                     raise FormatError(self.part, "cannot resume: the file is truncated (its "
                                       "run stopped during a write: a full device, a file-size "
-                                      "limit, a kill)", "delete it and run again without "
-                                      "--resume") from None
+                                      "limit, a kill)", START_AGAIN) from None
                 raise FormatError(self.part, f"cannot reopen to resume: {exc}",
                                   "delete it to start again") from None
             try:
@@ -412,7 +411,7 @@ class FlowWriter(PartFileWriter):
                     raise
                 raise FormatError(self.part, "cannot resume: damaged ("
                                   f"{' '.join(str(exc).split())[:120]})",
-                                  "delete it and run again without --resume") from None
+                                  START_AGAIN) from None
         else:
             self.f = h5py.File(self.part, "w")
             self.with_valid = with_valid
@@ -436,37 +435,35 @@ class FlowWriter(PartFileWriter):
             ds = self.f.get(name)
             if ds is None or not hasattr(ds, "dtype"):
                 raise FormatError(self.part, f"cannot resume: dataset '{name}' is missing",
-                                  "delete it and run again without --resume")
+                                  START_AGAIN)
             if (ds.dtype.kind != kind or tuple(ds.shape[1:]) != shape or ds.chunks is None
                     or ds.maxshape[0] is not None):
                 raise FormatError(self.part, f"cannot resume: dataset '{name}' is "
                                   f"{ds.dtype} {tuple(ds.shape)}, not as this run writes it",
-                                  "delete it and run again without --resume")
+                                  START_AGAIN)
             if ds.shape[0] < n:
                 raise FormatError(self.part, f"cannot resume: dataset '{name}' holds "
                                   f"{ds.shape[0]} windows, 't1' {n}",
-                                  "delete it and run again without --resume")
+                                  START_AGAIN)
 
     def _check_kept(self) -> None:
         """Every kept window read back once: a damaged one would be kept as done and the
         run said complete (probe AO: a bos.h5 with flipped bits, which eval refused,
         resumed with '4 kept from the interrupted run', exit 0)."""
-        n = int(self.f["t1"].shape[0])
-        for name in ("t0", "t1", "flow", "valid", *self.extras):
-            if name not in self.f:
-                continue
-            for i in range(n):
+        names = [n for n in ("t0", "t1", "flow", "valid", *self.extras) if n in self.f]
+        for i in range(int(self.f["t1"].shape[0])):
+            row = {}
+            for name in names:
                 try:
-                    value = self.f[name][i]
-                    if name == "flow" and "valid" in self.f:
-                        # (a NaN flow where pixels are valid was kept, probe AQ)
-                        if not np.isfinite(value[self.f["valid"][i]]).all():
-                            raise ValueError("a flow that is not finite where it is valid")
+                    row[name] = self.f[name][i]
                 except (OSError, ValueError) as exc:
-                    self.f.close()
                     raise FormatError(self.part, f"cannot resume: window {i}'s {name} is "
                                       f"damaged ({' '.join(str(exc).split())[:120]})",
-                                      "delete it and run again without --resume") from None
+                                      START_AGAIN) from None
+            # (a NaN flow where pixels are valid was kept, probe AQ)
+            if "valid" in row and not np.isfinite(row["flow"][row["valid"]]).all():
+                raise FormatError(self.part, f"cannot resume: window {i}'s flow is damaged "
+                                  "(a flow that is not finite where it is valid)", START_AGAIN)
 
     def _trim_partial(self) -> None:
         # A crash between resizing and writing t1 leaves a window that is not done.
@@ -840,11 +837,15 @@ def _read_sim_gt(g, path: Path, index, attrs: dict) -> FlowSequence:
     flow = np.stack([g["flow"][int(i)] for i in idx]) if idx.size else \
         np.zeros((0, *g["flow"].shape[1:]), np.float32)
     valid = None
-    if "event_masks" in g and g["event_masks"].shape[0] == n:
+    if "event_masks" in g:  # (its shape checked above)
         valid = np.stack([g["event_masks"][int(i)] for i in idx]) if idx.size else None
     # (the masks say where events fired, not where the GT is defined: it is everywhere)
     return FlowSequence(flow=flow.astype(np.float32), t0=ft[idx], t1=ft[idx + 1], valid=valid,
                         attrs={**attrs, "valid_is_event_mask": valid is not None})
+
+
+#: What to do with an unfinished output that cannot be resumed.
+START_AGAIN = "delete it and run again without --resume"
 
 
 def part_holds_nothing(part: str | os.PathLike) -> bool:

@@ -70,7 +70,8 @@ from evmotion.sim.simulator import parse_sensor_size, simulate_log_function
 from evmotion.utils import resolve_options, whole_number
 
 __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim",
-           "make_background", "make_field", "normalize_range", "read_schlieren_gt",
+           "is_schlieren_gt", "make_background", "make_field", "normalize_range",
+           "read_schlieren_gt",
            "read_schlieren_q", "simulate_schlieren", "write_schlieren"]
 
 GT_FORMAT = "evmotion-schlieren-gt"
@@ -939,13 +940,38 @@ def read_schlieren_q(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         return q[()], times
 
 
+def is_schlieren_gt(path: str | Path) -> bool:
+    """Whether ``path`` (or the ``schlieren_gt.h5`` in that folder) is schlieren ground
+    truth: an HDF5 file whose ``schlieren_format`` attribute says so.
+
+    Examples
+    --------
+    >>> sim = simulate_schlieren("plume", sensor_size=(40, 48), duration_s=1 / 120, seed=0)
+    >>> is_schlieren_gt(write_schlieren(sim, "plume_sim/")), is_schlieren_gt("plume_sim/")
+    (True, True)
+    >>> is_schlieren_gt("plume_sim/events.txt")
+    False
+    """
+    path = _gt_path(path)
+    if not path.is_file():
+        return False
+    try:
+        with open_h5(path) as f:
+            return read_attrs(path, f, ("schlieren_format",)).get("schlieren_format") == GT_FORMAT
+    except (FormatError, OSError):
+        return False
+
+
+def _gt_path(path: str | Path) -> Path:
+    path = Path(path)
+    return path / "schlieren_gt.h5" if path.is_dir() else path
+
+
 @contextlib.contextmanager
 def _gt_file(path: str | Path):
     """The open ground-truth file and its attributes, checked to be schlieren ground truth
     with all its datasets (a folder holding ``schlieren_gt.h5`` too)."""
-    path = Path(path)
-    if path.is_dir():
-        path = path / "schlieren_gt.h5"
+    path = _gt_path(path)
     with open_h5(path) as f:
         attrs = read_attrs(path, f)
         if attrs.get("schlieren_format") != GT_FORMAT:
