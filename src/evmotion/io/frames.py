@@ -261,12 +261,7 @@ def _ecd_list(folder: Path) -> tuple[np.ndarray, list[Path], Path]:
         raise
     except ValueError as exc:
         raise FormatError(lst_path, f"cannot parse 't path' lines: {exc}") from None
-    files = [folder / name for name in lst["files"]]
-    for f in files:
-        if not is_file(f):
-            raise FormatError(lst_path, f"lists a missing frame file {_shown(f.name)} "
-                              f"({_shown(str(f))})")
-    return lst["t"], files, lst_path
+    return lst["t"], _listed_files(lst_path, folder, lst["files"]), lst_path
 
 
 def _parse_timestamps(path: Path, unit: str | None) -> tuple[np.ndarray, list[str] | None]:
@@ -345,12 +340,7 @@ def _folder_list(folder: Path, timestamps: Path, unit: str
                  ) -> tuple[np.ndarray, list[Path], Path]:
     t, names = _parse_timestamps(timestamps, unit)
     if names is not None:
-        files = [(timestamps.parent / n) for n in names]
-        for f in files:
-            if not is_file(f):
-                raise FormatError(timestamps, f"lists a missing frame file {_shown(f.name)} "
-                                  f"({_shown(str(f))})")
-        return t, files, timestamps
+        return t, _listed_files(timestamps, timestamps.parent, names), timestamps
     files = _images_in(folder)
     if len(files) != t.size:
         raise FormatError(timestamps, f"{t.size} timestamps but {len(files)} images in "
@@ -486,6 +476,17 @@ def _from_module(path: Path) -> Frames:
         images = np.rint(images[..., :3].mean(axis=3)).astype(images.dtype)
     depth = 16 if images.dtype == np.uint16 else 8
     return Frames(images, fr.t, source=str(path), bit_depth=depth)
+
+
+def _listed_files(listing: Path, folder: Path, names: list[str]) -> list[Path]:
+    """The frame files a list (``images.txt``, a ``t path`` timestamps file) names, each
+    checked to be there."""
+    files = [folder / name for name in names]
+    for f in files:
+        if not is_file(f):
+            raise FormatError(listing, f"lists a missing frame file {_shown(f.name)} "
+                              f"({_shown(str(f))})")
+    return files
 
 
 def _shown(name: str, most: int = 120) -> str:
