@@ -28,6 +28,7 @@ from evmotion.events import SORT_HINT, EventArray
 from evmotion.io.base import FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
+    MAX_ABS_TIME_US,
     check_sensor_size,
     extended_size,
     sensor_size_hint,
@@ -55,7 +56,7 @@ _ERR_CHAR = 2
 _ERR_FRACTION = 3  # a pixel or polarity with a non-zero fraction ("146.5")
 _ERR_RANGE = 4  # a time past 2^62 us, which int64 arithmetic on it would wrap
 # the most whole seconds a time may have (2^62 us: 146,000 years)
-_MAX_SECONDS = (1 << 62) // 1_000_000
+_MAX_SECONDS = MAX_ABS_TIME_US // 1_000_000
 
 
 @lazy_njit(cache=True)
