@@ -643,3 +643,16 @@ def test_the_network_runs_on_the_threads_asked_and_restores_torchs(window):
     assert torch.get_num_threads() == before
     with pytest.raises(ParameterError, match=r"threads must be an integer in \[1, 256\]"):
         estimate_flow_dnn(window.events, threads=0)
+
+
+def test_an_unchecked_flow_is_the_checked_ones_without_its_verdicts(window):
+    """check=False (multicm's init="dnn") gives the same flow, none of the tests' warnings,
+    and no_focus None (not 'measured')."""
+    kw = dict(with_iwes=False, time_reversal=False, fuse=False, rescale=False)
+    checked = estimate_flow_dnn(window.events, **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        bare = estimate_flow_dnn(window.events, check=False, **kw)
+    np.testing.assert_array_equal(bare.flow, checked.flow)
+    assert bare.meta["no_focus"] is None and isinstance(checked.meta["no_focus"], bool)
+    assert np.isnan(bare.meta["chance_gain"]) and np.isnan(bare.meta["halves_correlation"])

@@ -165,6 +165,13 @@ def add_hot_pixel_argument(p) -> None:
                         "few hot pixels hold a warp at rest")
 
 
+def events_held(kept: int, events) -> int:
+    """How many events the recording held where ``kept`` of ``events`` are left:
+    undistortion leaves out those it moves off the image (``meta["undistort_dropped"]``)
+    and says so itself, so a window short by them is not short of events."""
+    return kept + int(events.meta.get("undistort_dropped", 0))
+
+
 # share of the events on hot pixels from which a command offering --remove-hot-pixels says
 # so when it was not given (40 pixels holding 10 % brought a flow to 0.62-0.77x, valid,
 # unsaid; the shared real recordings hold 0-0.32 %)

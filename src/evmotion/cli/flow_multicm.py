@@ -141,10 +141,11 @@ def _one_window_for_one_file(args, events, windows):
     t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
     total = events.slice_time(t0, t1) if t0 is not None or t1 is not None else events
     from evmotion.cli import warn_line
+    from evmotion.cli.calib import events_held
 
     # (the events undistortion moved off the image count as held: it said so itself;
     # probe AP was told a window file of 30,000 events "holds 22,949")
-    held = len(total) + int(events.meta.get("undistort_dropped", 0))
+    held = events_held(len(total), events)
     if getattr(args, "window_events_given", False) and held < n:
         # asked for a window of n events, given fewer: said, as the opposite case is
         warn_line(f"{args.file} holds {held:,} events, fewer than --window-events {n}: "

@@ -145,9 +145,10 @@ def run(args) -> int:
     from evmotion.cli import warn_line
 
     if args.window_events and len(events) < args.window_events:
-        dropped = int(events.meta.get("undistort_dropped", 0))
-        why_short = ("undistortion left out the rest (said above)" if dropped
-                     and len(events) + dropped >= args.window_events
+        from evmotion.cli.calib import events_held
+
+        why_short = ("undistortion left out the rest (said above)"
+                     if events_held(len(events), events) >= args.window_events
                      else "the recording (or --t1) ends first")
         warn_line(f"the window holds {len(events):,} events, not the {args.window_events:,} "
                   f"asked: {why_short}")

@@ -297,11 +297,32 @@ def _warped_variance(x, y, pix, s, disp) -> float:
     return float(np.var(np.bincount(yw[inside] * w + xw[inside], minlength=h * w)))
 
 
+def _verdict(checked: EventArray, flow: np.ndarray, t_ref: int, gains: list[float]
+             ) -> tuple[bool, float, float]:
+    """``(no_focus, chance gain, halves correlation)`` of the network's flow: the tests
+    that say a flow is no measurement, each said in a warning when it fails."""
+    # under flicker the network answers the bursts with flows 20-800x the truth, which
+    # gather them (probe AK: FWL 4-23, chance 1.07-2.1): said before the gains
+    if (warn_flicker(checked, "network's flow") is not None
+            or (bool(gains) and warn_no_gain(min(gains), "network's flow") is not None)):
+        return True, float("nan"), float("nan")
+    # a flow that sharpens the window without following its motion (half a pixel of it;
+    # a sparse window it cannot hold) sharpens it as well with shuffled times
+    chance = flow_alignment_gain(checked, flow, t_ref)
+    if warn_by_chance(chance, "network's flow") is not None:
+        return True, chance, float("nan")
+    # (as multicm's: a flow that does not carry the window's first half onto its second
+    # measures no motion; an 8 s pan gave 0.1 px/s for 67, valid)
+    halves = halves_consistency(checked, flow, t_ref)
+    return warn_inconsistent_halves(halves, "network's flow") is not None, chance, halves
+
+
 def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, *,
                       device: str = "cpu", with_iwes: bool = True,
                       input_scales: tuple[int, ...] = INPUT_SCALES,
                       time_reversal: bool = True, rescale: bool = True,
-                      fuse: bool = True, threads: int | None = 1) -> FlowResult:
+                      fuse: bool = True, threads: int | None = 1,
+                      check: bool = True) -> FlowResult:
     """Dense optical flow of one window by the unsupervised EV-FlowNet.
 
     Parameters
@@ -340,6 +361,11 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         highest :func:`sharpness` (default True; 1 unless another is strictly sharper):
         the network tends to underestimate magnitudes (least-squares gains 0.7-1.0 on
         held-out simulated windows), and a whole-window gain costs 19 event images.
+    check : bool
+        Run the tests that say the flow is no measurement (flicker, contrast gain,
+        chance, halves; default True). False for a flow that only starts another
+        estimate (multicm's ``init="dnn"``, whose own tests judge its result): none runs,
+        nothing is said, ``meta["no_focus"]`` is None.
     threads : int or None
         torch threads for this call, the process's count restored after (default 1, as
         the CLI's ``--threads``: on the shared 2-core machine, under load, one thread ran
@@ -430,22 +456,8 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     # the lower of the two gains decides: hot pixels can leave the multi-reference focus
     # above the threshold while the flow blurs the window
     gains = [g for g in (fwl, focus if with_iwes else float("nan")) if np.isfinite(g)]
-    # under flicker the network answers the bursts with flows 20-800x the truth, which
-    # gather them (probe AK: FWL 4-23, chance 1.07-2.1): said before the gains
-    no_focus = (warn_flicker(checked, "network's flow") is not None
-                or (bool(gains) and warn_no_gain(min(gains), "network's flow") is not None))
-    chance = float("nan")
-    if not no_focus:
-        # a flow that sharpens the window without following its motion (half a pixel of
-        # it; a sparse window it cannot hold) sharpens it as well with shuffled times
-        chance = flow_alignment_gain(checked, flow, (t0 + t1) // 2)
-        no_focus = warn_by_chance(chance, "network's flow") is not None
-    halves = float("nan")
-    if not no_focus:
-        # (as multicm's: a flow that does not carry the window's first half onto its
-        # second measures no motion; an 8 s pan gave 0.1 px/s for 67, valid)
-        halves = halves_consistency(checked, flow, (t0 + t1) // 2)
-        no_focus = warn_inconsistent_halves(halves, "network's flow") is not None
+    no_focus, chance, halves = (_verdict(checked, flow, (t0 + t1) // 2, gains) if check
+                                else (False, float("nan"), float("nan")))
     if no_focus:
         valid = np.zeros_like(valid)
         beyond = False  # said already: not a measurement at all
@@ -465,6 +477,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                       n_bins=0, n_events=len(events), valid=valid,
                       meta={"method": "dnn", "checkpoint": str(checkpoint or "shipped"),
                             "input_scale": best, "time_reversal": bool(time_reversal),
-                            "gain": gain, "no_focus": bool(no_focus), "fwl": float(fwl),
+                            "gain": gain, "no_focus": bool(no_focus) if check else None,
+                            "fwl": float(fwl),
                             "hot_pixels": int(hot.sum()), "beyond_range": beyond,
                             "chance_gain": chance, "halves_correlation": halves})
