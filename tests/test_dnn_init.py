@@ -82,7 +82,7 @@ def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
     np.testing.assert_allclose(theta0.reshape(4, 4, 2), tiles, atol=1e-6)
     # the network's plain pass: the refinement does what the extras would
     assert calls == [{"with_iwes": False, "time_reversal": False, "fuse": False,
-                      "rescale": False, "check": False}]
+                      "rescale": False, "planar": False, "check": False}]
 
 
 def test_the_networks_own_verdicts_are_not_said_of_the_refined_flow(monkeypatch):

@@ -5,7 +5,8 @@ as ``--method multicm`` (whose runner it uses); each window goes through the net
 ``--input-scales`` (the sharpest kept), each averaged with the time-reversed window's
 negated flow unless ``--no-time-reversal`` (no warm start needed), at the gain whose warp
 is sharpest unless ``--no-rescale``, the scales' predictions chosen tile by tile unless
-``--no-fuse``. ``--checkpoint`` picks
+``--no-fuse``, replaced by the polished flow of a plane's motion where the training loss
+prefers it unless ``--no-planar``. ``--checkpoint`` picks
 weights from ``evmotion train`` (default: the shipped checkpoint); multicm's ``--init dnn``
 reads it too.
 """
@@ -23,6 +24,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--no-time-reversal": ("no_time_reversal", False),
     "--no-rescale": ("no_rescale", False),
     "--no-fuse": ("no_fuse", False),
+    "--no-planar": ("no_planar", False),
 }
 
 
@@ -47,6 +49,9 @@ def add_arguments(group) -> None:
     group.add_argument("--no-fuse", action="store_true", default=None,
                        help="dnn: keep one input scale's prediction for the whole window "
                             "(default: the sharpest, tile by tile of 32 px)")
+    group.add_argument("--no-planar", action="store_true", default=None,
+                       help="dnn: keep the network's flow (default: the polished flow of a "
+                            "plane's motion instead where multicm's objective prefers it)")
 
 
 def check_args(args) -> None:
@@ -83,7 +88,7 @@ def estimator(args):
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
              "source": str(args.file), "input_scales": list(args.input_scales),
              "time_reversal": not args.no_time_reversal, "rescale": not args.no_rescale,
-             "fuse": not args.no_fuse}
+             "fuse": not args.no_fuse, "planar": not args.no_planar}
 
     # the IWEs and the focus serve only the pictures (--png-dir) and the JSON rows; the
     # flow files do not hold them, and their numba kernels would cost a first run seconds
@@ -95,7 +100,7 @@ def estimator(args):
                                  with_iwes=with_iwes, input_scales=tuple(args.input_scales),
                                  time_reversal=not args.no_time_reversal,
                                  rescale=not args.no_rescale, fuse=not args.no_fuse,
-                                 threads=args.threads)
+                                 planar=not args.no_planar, threads=args.threads)
 
     return estimate, attrs
 

@@ -697,7 +697,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         # judge the flow it refines; probe AP saw "not a measurement" said of a valid
         # result, and they cost 10-12 ms a 40k window)
         net = estimate_flow_dnn(events, checkpoint, with_iwes=False, time_reversal=False,
-                                fuse=False, rescale=False, check=False)
+                                fuse=False, rescale=False, planar=False, check=False)
     o = _checked(o, events)
     if net is not None:
         # The network answers at every pixel, but only where events are is its flow fitted

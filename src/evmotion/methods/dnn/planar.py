@@ -1,0 +1,248 @@
+"""A planar-motion alternative to the network's flow, kept where the training loss prefers it.
+
+The network's flow is dense and noisy (an error floor of ~0.6 px over a window on held-out
+simulated windows, ``benchmarks/results/dnn.md``), and that noise gathers events into
+pixels: it scores a higher focus than the true flow (translation window: 6.08 against
+multicm's 5.86), so sharpness alone cannot tell it from a better flow. The Charbonnier
+smoothness of the training loss can: on windows whose motion is the camera's over a
+mostly planar or distant scene (rotation, zoom, pan), an 8-parameter field fitted to the
+network's flow and polished on the multi-reference focus has a lower loss (4.9) than the
+network's own flow and a far lower error (``benchmarks/results/dnn_planar.md``); where
+objects move on their own or depth varies, the network's flow keeps the lower loss and
+is kept.
+
+The field is the instantaneous motion of a plane seen by a pinhole camera (the 8-parameter
+"pseudo-perspective" flow, exact for any small rotation, zoom and translation in front of
+a plane), in centred coordinates ``x = (col - (W - 1) / 2) / (W / 2)``,
+``y = (row - (H - 1) / 2) / (W / 2)``::
+
+    u = a0 + a2 x + a3 y + a6 x^2 + a7 x y
+    v = a1 + a4 x + a5 y + a6 x y + a7 y^2
+
+in px over the window. Everything here is numpy and torch (already loaded for the
+network): the one-window command imports no numba. :func:`window_loss` is multicm's
+objective (4.9) of a dense flow, the same number as
+``evmotion.methods.dnn.loss.window_problem(events).value_grad`` (tested to 1e-9).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evmotion.events import EventArray
+
+__all__ = ["fit_planar", "planar_flow", "polish_planar", "window_loss"]
+
+#: TV weight of the loss that chooses (multicm's and the training loss' default).
+LAM = 0.0025
+#: Charbonnier epsilon of the TV, 1/s (multicm's ``TV_EPS``).
+TV_EPS = 1e-2
+#: Multi-reference times (fractions of the window) and weights of the focus (4.6).
+REFERENCES = ((0.0, 1.0), (0.5, 2.0), (1.0, 1.0))
+#: BFGS iterations of the polish at most.
+POLISH_ITERATIONS = 20
+N_PARAMS = 8
+
+
+def _normalized(x, y, shape: tuple[int, int]):
+    h, w = shape
+    half = w / 2.0
+    return (np.asarray(x, np.float64) - (w - 1) / 2.0) / half, \
+        (np.asarray(y, np.float64) - (h - 1) / 2.0) / half
+
+
+def _basis(x, y, shape: tuple[int, int]) -> np.ndarray:
+    """(N, 2, 8): the field's (u, v) at the points for each unit parameter."""
+    xn, yn = _normalized(x, y, shape)
+    one, zero = np.ones_like(xn), np.zeros_like(xn)
+    u = np.stack([one, zero, xn, yn, zero, zero, xn * xn, xn * yn], -1)
+    v = np.stack([zero, one, zero, zero, xn, yn, xn * yn, yn * yn], -1)
+    return np.stack([u, v], 1)
+
+
+def planar_flow(params, shape: tuple[int, int]) -> np.ndarray:
+    """The field of ``params`` (8,) on the pixel grid, (H, W, 2) float32 px.
+
+    Examples
+    --------
+    >>> planar_flow([1.5, -2, 0, 0, 0, 0, 0, 0], (2, 3))[1, 2].tolist()
+    [1.5, -2.0]
+    >>> zoom = planar_flow([0, 0, 1, 0, 0, 1, 0, 0], (3, 4))   # outwards from the centre
+    >>> bool(zoom[0, 0, 0] < 0 < zoom[0, -1, 0])
+    True
+    """
+    h, w = shape
+    rows, cols = np.mgrid[0:h, 0:w]
+    b = _basis(cols.ravel(), rows.ravel(), shape)
+    return (b @ np.asarray(params, np.float64)).reshape(h, w, 2).astype(np.float32)
+
+
+def fit_planar(events: EventArray, disp: np.ndarray) -> np.ndarray:
+    """Least-squares parameters (8,) of the field closest to ``disp`` (H, W, 2, px over
+    the window) at the events' pixels, one equation per event.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0, 5, 9, 2], y=[0, 3, 7, 6], t=[0, 1, 2, 3], p=[1, 1, 0, 0],
+    ...                 sensor_size=(8, 10))
+    >>> true = [0.5, 1.0, 0.2, 0.0, 0.0, 0.2, 0.0, 0.0]
+    >>> np.round(fit_planar(ev, planar_flow(true, (8, 10))), 4).tolist()[:3]
+    [0.5, 1.0, 0.2]
+    """
+    h, w = events.sensor_size
+    xi = np.clip(np.rint(events.x), 0, w - 1).astype(np.intp)
+    yi = np.clip(np.rint(events.y), 0, h - 1).astype(np.intp)
+    a = _basis(xi, yi, (h, w)).reshape(-1, N_PARAMS)
+    return np.linalg.lstsq(a, disp[yi, xi].astype(np.float64).reshape(-1), rcond=None)[0]
+
+
+def _times(events: EventArray) -> np.ndarray:
+    t = np.asarray(events.t, np.int64)
+    return (t - t[0]).astype(np.float64) / max(int(t[-1] - t[0]), 1)
+
+
+def _iwes(torch, xw, yw, shape):
+    """Quadratic B-spline images (as multicm's ``iwe_forward``) of K sets of points
+    ``xw``, ``yw`` (K, N), one index_add for all: 3 x 3 weights per point, taps off the
+    image dropped; differentiable in the points. (K, H, W)."""
+    h, w = shape
+    k = xw.shape[0]
+    cx = torch.floor(xw + 0.5)
+    cy = torch.floor(yw + 0.5)
+    dx, dy = xw - cx, yw - cy
+    wx = torch.stack((0.5 * (0.5 - dx) ** 2, 0.75 - dx * dx, 0.5 * (0.5 + dx) ** 2))
+    wy = torch.stack((0.5 * (0.5 - dy) ** 2, 0.75 - dy * dy, 0.5 * (0.5 + dy) ** 2))
+    # on an image with a margin of 3 px, centres clamped to 2 px off it: every tap off
+    # the image lands in the margin, cropped after (no boolean masks: they cost 2/3 of
+    # the time)
+    hp, wp = h + 6, w + 6
+    cyi = cy.clamp(-2, h + 1).long() + 3
+    cxi = cx.clamp(-2, w + 1).long() + 3
+    taps = torch.arange(-1, 2)
+    rows = (cyi[None] + taps[:, None, None]) * wp + (torch.arange(k) * (hp * wp))[:, None]
+    idx = rows[:, None] + (cxi[None] + taps[:, None, None])[None]   # (3, 3, K, N)
+    wts = wy[:, None] * wx[None]
+    img = xw.new_zeros(k * hp * wp).index_add(0, idx.reshape(-1), wts.reshape(-1))
+    return img.reshape(k, hp, wp)[:, 3:-3, 3:-3]
+
+
+def _gradmag(torch, img):
+    """Mean squared Sobel magnitude over the interior pixels (multicm's focus) of each
+    image (K, H, W): (K,)."""
+    if img.shape[-2] < 3 or img.shape[-1] < 3:
+        return img.new_zeros(img.shape[0])
+    gx = (img[:, :-2, 2:] - img[:, :-2, :-2]) + 2.0 * (img[:, 1:-1, 2:] - img[:, 1:-1, :-2]) \
+        + (img[:, 2:, 2:] - img[:, 2:, :-2])
+    gy = (img[:, 2:, :-2] + 2.0 * img[:, 2:, 1:-1] + img[:, 2:, 2:]) \
+        - (img[:, :-2, :-2] + 2.0 * img[:, :-2, 1:-1] + img[:, :-2, 2:])
+    return (gx * gx + gy * gy).mean((1, 2))
+
+
+def _identity_focus(torch, x, y, shape) -> float:
+    """The focus of the unwarped events, which (4.6) is normalized by."""
+    return float(_gradmag(torch, _iwes(torch, x[None], y[None], shape))[0])
+
+
+def _focus(torch, x, y, s, flow, shape, g0: float):
+    """Multi-reference focus (4.6) of the per-event flows (N, 2) px per window,
+    normalized by the identity warp's ``g0``."""
+    refs = x.new_tensor([r for r, _ in REFERENCES])
+    wts = x.new_tensor([wt for _, wt in REFERENCES])
+    dtn = refs[:, None] - s[None]                # (K, N)
+    imgs = _iwes(torch, x[None] + dtn * flow[:, 0], y[None] + dtn * flow[:, 1], shape)
+    return (wts * _gradmag(torch, imgs)).sum() / (wts.sum() * g0)
+
+
+def _event_flow(disp: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The dense flow bilinear between pixel centres at each event (clamped at the edges),
+    as multicm's pixel tiles interpolate it."""
+    h, w = disp.shape[:2]
+    xc = np.clip(x, 0.0, w - 1.0)
+    yc = np.clip(y, 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(xc).astype(np.intp), max(w - 2, 0))
+    y0 = np.minimum(np.floor(yc).astype(np.intp), max(h - 2, 0))
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = (xc - x0)[:, None], (yc - y0)[:, None]
+    d = disp.astype(np.float64)
+    return ((1 - fy) * ((1 - fx) * d[y0, x0] + fx * d[y0, x1])
+            + fy * ((1 - fx) * d[y1, x0] + fx * d[y1, x1]))
+
+
+def _tv(disp: np.ndarray, duration_s: float) -> float:
+    """Mean over pixels of the Charbonnier magnitude of the flow's forward differences,
+    per component, in 1/s (multicm's ``tv_grad`` on pixel tiles)."""
+    total = 0.0
+    for c in range(2):
+        p = disp[..., c].astype(np.float64) / duration_s
+        dx = np.zeros_like(p)
+        dy = np.zeros_like(p)
+        dx[:, :-1] = p[:, 1:] - p[:, :-1]
+        dy[:-1, :] = p[1:, :] - p[:-1, :]
+        total += float(np.sqrt(dx * dx + dy * dy + TV_EPS ** 2).mean())
+    return total
+
+
+def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM) -> float:
+    """multicm's objective (4.9), ``1 / focus + lam * TV``, of the dense displacement
+    ``disp`` (H, W, 2, px over the window): the network's training loss on one window
+    (lower is better).
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[3, 4, 5, 6], y=[2, 2, 2, 2], t=[0, 10, 20, 30], p=[1, 1, 1, 1],
+    ...                 sensor_size=(5, 10))
+    >>> right = planar_flow([3, 0, 0, 0, 0, 0, 0, 0], (5, 10))   # 3 px per window
+    >>> window_loss(ev, right) < window_loss(ev, np.zeros_like(right))
+    True
+    """
+    import torch
+
+    x = np.asarray(events.x, np.float64)
+    y = np.asarray(events.y, np.float64)
+    duration_s = max(int(events.t[-1] - events.t[0]), 1) * 1e-6
+    t = (torch.from_numpy(x), torch.from_numpy(y), torch.from_numpy(_times(events)))
+    flow = torch.from_numpy(_event_flow(disp, x, y))
+    g0 = _identity_focus(torch, t[0], t[1], events.sensor_size)
+    f = float(_focus(torch, *t, flow, events.sensor_size, g0)) if g0 > 0 else 0.0
+    return 1.0 / max(f, 1e-12) + lam * _tv(disp, duration_s)
+
+
+def polish_planar(events: EventArray, params, iterations: int = POLISH_ITERATIONS
+                  ) -> np.ndarray:
+    """The parameters (8,) that maximize the multi-reference focus (4.6) of the events,
+    by BFGS from ``params`` (e.g. :func:`fit_planar` of the network's flow).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(1)
+    >>> n = 4000
+    >>> t = np.sort(rng.integers(0, 10_000, n)); x0 = rng.choice([5, 17, 30], n)  # 3 edges
+    >>> ev = EventArray(x=np.rint(x0 + 8e-4 * t), y=rng.integers(0, 30, n), t=t,
+    ...                 p=np.ones(n, int), sensor_size=(30, 60))    # 8 px over the window
+    >>> round(float(polish_planar(ev, [6, 0, 0, 0, 0, 0, 0, 0])[0]), 1)
+    8.0
+    """
+    import torch
+
+    from evmotion.core.optim import gradient_minimize
+
+    h, w = events.sensor_size
+    x = np.asarray(events.x, np.float64)
+    y = np.asarray(events.y, np.float64)
+    basis = torch.from_numpy(_basis(x, y, (h, w)))
+    tx, ty, ts = torch.from_numpy(x), torch.from_numpy(y), torch.from_numpy(_times(events))
+    start = np.asarray(params, np.float64)
+    g0 = _identity_focus(torch, tx, ty, (h, w))
+    if not g0 > 0:
+        return start
+
+    def fun_grad(theta):
+        # (torch.optim's L-BFGS would import torch._dynamo: 1.5 s of a one-window command)
+        p = torch.tensor(theta, requires_grad=True)
+        with torch.enable_grad():
+            loss = -_focus(torch, tx, ty, ts, basis @ p, (h, w), g0)
+            loss.backward()
+        return float(loss.detach()), p.grad.numpy().copy()
+
+    out = gradient_minimize(fun_grad, start, "bfgs", max_iter=int(iterations)).x
+    return out if np.isfinite(out).all() else start
