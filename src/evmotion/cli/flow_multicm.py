@@ -230,6 +230,8 @@ def _row(r, w) -> dict:
         row["input_scale"] = int(r.meta["input_scale"])
     if "gain" in r.meta:  # the network's: the magnitude its flow was kept at
         row["gain"] = float(r.meta["gain"])
+    if "planar" in r.meta:  # the network's: the plane's polished flow kept instead
+        row["planar"] = bool(r.meta["planar"])
     if np.isfinite(r.meta.get("chance_gain", np.nan)):
         # how much better the flow aligns the events than with their times shuffled
         row["chance_gain"] = float(r.meta["chance_gain"])

@@ -301,16 +301,27 @@ def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray):
     """``(params, flow)`` of the plane's motion polished from the network's flow ``disp``
     when its training loss is lower than the network's flow's, else None."""
     from evmotion.methods.dnn.planar import (
+        POLISH_ITERATIONS,
+        PROBE_ITERATIONS,
+        PROBE_RATIO,
         fit_planar,
         planar_flow,
         polish_planar,
         window_loss,
     )
 
-    params = polish_planar(events, fit_planar(events, disp))
-    flow = planar_flow(params, events.sensor_size)
-    flow[hot] = 0.0
-    return (params, flow) if window_loss(events, flow) < window_loss(events, disp) else None
+    def field(params):
+        flow = planar_flow(params, events.sensor_size)
+        flow[hot] = 0.0
+        return flow
+
+    reference = window_loss(events, disp)
+    params = polish_planar(events, fit_planar(events, disp), PROBE_ITERATIONS)
+    if window_loss(events, field(params)) > PROBE_RATIO * reference:
+        return None
+    params = polish_planar(events, params, POLISH_ITERATIONS - PROBE_ITERATIONS)
+    flow = field(params)
+    return (params, flow) if window_loss(events, flow) < reference else None
 
 
 def _verdict(checked: EventArray, flow: np.ndarray, t_ref: int, gains: list[float]
