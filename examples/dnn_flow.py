@@ -1,8 +1,10 @@
 """Dense flow in one network pass: the unsupervised EV-FlowNet (thesis §4.3.7).
 
 The shipped network was trained with multicm's own loss (no ground truth). It gives the
-dense flow of a window in one forward pass; ``estimate_flow(..., init=...)`` can start
-multicm from it. Needs the ``dnn`` extra (``pip install 'evmotion[dnn]'``, torch).
+dense flow of a window in one forward pass (``planar=False``: its flow alone); by default
+the flow of a plane's motion fitted to it and polished on the events replaces it where
+multicm's objective prefers that; ``estimate_flow(..., init=...)`` can start multicm from
+it. Needs the ``dnn`` extra (``pip install 'evmotion[dnn]'``, torch).
 
 Run: ``python examples/dnn_flow.py [OUT_DIR]``.
 """
@@ -12,6 +14,7 @@ import sys
 from pathlib import Path
 
 from evmotion.eval.metrics import event_mask, flow_metrics
+from evmotion.methods.dnn import estimate_flow_dnn
 from evmotion.methods.multicm import estimate_flow
 from evmotion.sim import simulate
 from evmotion.viz import flow_picture, picture_row, save_png, sequence_max_speed
@@ -31,8 +34,11 @@ mask = event_mask(win)
 scale = sequence_max_speed([disp_gt], [mask])
 pictures = [flow_picture(disp_gt, valid=mask, max_speed=scale, unit="px").rgb]
 titles = ["ground truth"]
-for method in ("dnn", "multicm"):
-    res = estimate_flow(win, method=method)
+runs = {"network alone": lambda: estimate_flow_dnn(win, planar=False),
+        "dnn": lambda: estimate_flow(win, method="dnn"),
+        "multicm": lambda: estimate_flow(win)}
+for method, run in runs.items():
+    res = run()
     m = flow_metrics(res.displacement(), disp_gt, mask=mask)
     print(f"{method}: AEE {m.aee:.3f} px")
     pictures.append(flow_picture(res.displacement(), valid=mask, max_speed=scale,
