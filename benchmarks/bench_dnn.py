@@ -56,11 +56,13 @@ def _fwl(res) -> float:
     return float(np.var(res.iwes["tmid"]) / np.var(res.iwes["identity"]))
 
 
-def _sim(scene: str, k: int):
+def _sim(scene: str, k: int, seed: int | None = None):
+    """The middle 40k events of scene ``scene`` at 346x260, seed ``SEED_BASE + k`` (or
+    ``seed``), and its exact displacement over them."""
     from evmotion.sim import simulate
 
-    sim = simulate(scene, duration_s=0.2, sensor_size=(260, 346), seed=SEED_BASE + k,
-                   show_progress=False)
+    sim = simulate(scene, duration_s=0.2, sensor_size=(260, 346),
+                   seed=SEED_BASE + k if seed is None else seed, show_progress=False)
     ev = sim.events
     mid = len(ev) // 2
     win = ev[mid - N_EVENTS // 2: mid + N_EVENTS // 2]

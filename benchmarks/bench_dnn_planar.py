@@ -18,50 +18,38 @@ Run: ``python benchmarks/run.py dnn_planar``.
 
 from __future__ import annotations
 
-import os
 import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 
+import bench_dnn
 import harness
 
-DATA = Path(os.environ.get("EVMOTION_SHARED_DATA",
-                           Path(__file__).resolve().parents[2] / "shared" / "data"))
+DATA = bench_dnn.DATA
 SEEDS = (900_001_011, 900_001_022, 900_001_033)
 SCENES = ("translation", "rotation", "zoom", "object")
-ECD = ("boxes_rotation", "boxes_translation", "dynamic_rotation", "dynamic_translation",
-       "poster_rotation", "poster_translation", "shapes_rotation", "shapes_translation")
+ECD = bench_dnn.ECD_WINDOWS
 OTHER = (("DAVIS346 AEDAT4 (trained on)", "formats/davis346.aedat4"),
          ("DAVIS240 AEDAT2 (trained on)", "formats/davis240_translboxes_aedat2.aedat"),
          ("Prophesee EVT2 (trained on)", "formats/evt2.raw"),
          ("ECD shapes first 120k (trained on)", "ecd_shapes_rotation_first120k/shapes_rotation.mat"))
 
 
-def _fwl(res) -> float:
-    return float(np.var(res.iwes["tmid"]) / np.var(res.iwes["identity"]))
-
-
 def simulated(quick: bool) -> list[dict]:
     from evmotion.methods.dnn import estimate_flow_dnn
     from evmotion.methods.dnn.planar import window_loss
     from evmotion.methods.multicm import estimate_flow
-    from evmotion.sim import simulate
 
     rows = []
     for seed in SEEDS[:1] if quick else SEEDS:
         for scene in SCENES:
-            sim = simulate(scene, duration_s=0.2, sensor_size=(260, 346), seed=seed,
-                           show_progress=False)
-            ev = sim.events
-            win = ev[len(ev) // 2 - 20_000: len(ev) // 2 + 20_000]
-            gt = sim.gt.displacement(int(win.t[0]), int(win.t[-1]))
+            win, gt = bench_dnn._sim(scene, 0, seed=seed)
             mask = np.zeros(win.sensor_size, bool)
             mask[win.y.astype(int), win.x.astype(int)] = True
 
             def aee(res, gt=gt, mask=mask):
-                return float(np.linalg.norm(res.displacement() - gt, axis=-1)[mask].mean())
+                return bench_dnn._errors(res.displacement(), gt, mask)[0]
 
             net = estimate_flow_dnn(win, planar=False, with_iwes=False)
             t0 = time.perf_counter()
@@ -112,12 +100,12 @@ def real(quick: bool) -> list[dict]:
         res = estimate_flow_dnn(ev)
         seconds = time.perf_counter() - t0
         mc = estimate_flow(ev)
-        fm = _fwl(mc)
+        fm = bench_dnn._fwl(mc)
         rows.append({"section": "real 30k", "data": label,
                      "size": f"{ev.sensor_size[1]}x{ev.sensor_size[0]}",
-                     "FWL_network": _fwl(net), "FWL_default": _fwl(res), "FWL_multicm": fm,
-                     "network_vs_multicm": _fwl(net) / fm,
-                     "default_vs_multicm": _fwl(res) / fm,
+                     "FWL_network": bench_dnn._fwl(net), "FWL_default": bench_dnn._fwl(res), "FWL_multicm": fm,
+                     "network_vs_multicm": bench_dnn._fwl(net) / fm,
+                     "default_vs_multicm": bench_dnn._fwl(res) / fm,
                      "planar_kept": bool(res.meta["planar"]), "seconds": seconds})
     return rows
 
