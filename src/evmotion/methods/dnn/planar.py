@@ -1,15 +1,14 @@
 """A planar-motion alternative to the network's flow, kept where the training loss prefers it.
 
-The network's flow is dense and noisy (an error floor of ~0.6 px over a window on held-out
-simulated windows, ``benchmarks/results/dnn.md``), and that noise gathers events into
-pixels: it scores a higher focus than the true flow (translation window: 6.08 against
-multicm's 5.86), so sharpness alone cannot tell it from a better flow. The Charbonnier
+The network's flow is dense and noisy (AEE 0.68-1.57 px on bench_dnn's held-out rigid
+windows, multicm's 0.08-0.52; ``benchmarks/results/dnn.md``), and that noise gathers events
+into pixels: it warps the events sharper than multicm's flow does (translation window: FWL
+2.47 against 2.37), so sharpness alone cannot tell it from a better flow. The Charbonnier
 smoothness of the training loss can: on windows whose motion is the camera's over a
 mostly planar or distant scene (rotation, zoom, pan), an 8-parameter field fitted to the
 network's flow and polished on the multi-reference focus has a lower loss (4.9) than the
-network's own flow and a far lower error (``benchmarks/results/dnn_planar.md``); where
-objects move on their own or depth varies, the network's flow keeps the lower loss and
-is kept.
+network's own flow and a far lower error; where an object moves on its own, the network's
+flow keeps the lower loss and is kept (``benchmarks/results/dnn.md``, ``dnn_planar.md``).
 
 The field is the instantaneous motion of a plane seen by a pinhole camera (the 8-parameter
 "pseudo-perspective" flow, exact for any small rotation, zoom and translation in front of
