@@ -146,3 +146,19 @@ def test_network_flow_is_kept_where_an_object_moves_on_its_own():
     assert not res.meta["planar"]
     np.testing.assert_array_equal(res.flow, estimate_flow_dnn(win, planar=False,
                                                               with_iwes=False).flow)
+
+
+def test_binned_focus_finds_the_same_motion():
+    # a large sensor's focus is measured on binned images (planar.binning): the motion
+    # found is the one found on the pixels, in the sensor's px
+    win, gt, mask = _sim("rotation", 33, (240, 320), n_max=12_000)
+    start = P.fit_planar(win, gt * 0.8)
+    fields = [P.planar_flow(P.polish_planar(win, start, binning=k), win.sensor_size)
+              for k in (1, 2)]
+    errors = [_aee(f, gt, mask) for f in fields]
+    assert errors[1] < 1.5 * errors[0] + 0.05, errors
+    assert np.abs(fields[1] - fields[0])[mask].mean() < 0.2
+    # and the binned loss still prefers the motion to no motion
+    assert P.window_loss(win, fields[1], binning=2) < P.window_loss(win, 0 * fields[1],
+                                                                    binning=2)
+    assert P.binning(win.sensor_size) == 1 and P.binning((720, 1280)) == 3

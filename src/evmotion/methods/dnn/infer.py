@@ -304,24 +304,30 @@ def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray):
         POLISH_ITERATIONS,
         PROBE_ITERATIONS,
         PROBE_RATIO,
+        binning,
         fit_planar,
         planar_flow,
         polish_planar,
         window_loss,
     )
 
+    k = binning(events.sensor_size)
+
     def field(params):
         flow = planar_flow(params, events.sensor_size)
         flow[hot] = 0.0
         return flow
 
-    reference = window_loss(events, disp)
-    params = polish_planar(events, fit_planar(events, disp), PROBE_ITERATIONS)
-    if window_loss(events, field(params)) > PROBE_RATIO * reference:
+    def loss(flow):
+        return window_loss(events, flow, binning=k)
+
+    reference = loss(disp)
+    params = polish_planar(events, fit_planar(events, disp), PROBE_ITERATIONS, k)
+    if loss(field(params)) > PROBE_RATIO * reference:
         return None
-    params = polish_planar(events, params, POLISH_ITERATIONS - PROBE_ITERATIONS)
+    params = polish_planar(events, params, POLISH_ITERATIONS - PROBE_ITERATIONS, k)
     flow = field(params)
-    return (params, flow) if window_loss(events, flow) < reference else None
+    return (params, flow) if loss(flow) < reference else None
 
 
 def _verdict(checked: EventArray, flow: np.ndarray, t_ref: int, gains: list[float]

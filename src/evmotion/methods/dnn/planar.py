@@ -26,11 +26,13 @@ objective (4.9) of a dense flow, the same number as
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from evmotion.events import EventArray
 
-__all__ = ["fit_planar", "planar_flow", "polish_planar", "window_loss"]
+__all__ = ["binning", "fit_planar", "planar_flow", "polish_planar", "window_loss"]
 
 #: TV weight of the loss that chooses (multicm's and the training loss' default).
 LAM = 0.0025
@@ -47,6 +49,26 @@ POLISH_ITERATIONS = 20
 PROBE_ITERATIONS = 4
 PROBE_RATIO = 1.1
 N_PARAMS = 8
+#: The most pixels the focus is measured on; a larger sensor's events are binned k x k
+#: (k the least integer that brings it under): the image terms cost the polish most of
+#: its time, and at 1280x720 took 2 s of a one-window command.
+MAX_PIXELS = 120_000
+
+
+def binning(shape: tuple[int, int]) -> int:
+    """The binning ``k`` of the focus images on a sensor of ``shape`` (1 up to
+    :data:`MAX_PIXELS` pixels; 346x260 is 1, 640x480 2, 1280x720 3).
+
+    Examples
+    --------
+    >>> binning((260, 346)), binning((480, 640)), binning((720, 1280))
+    (1, 2, 3)
+    """
+    return max(1, math.ceil(math.sqrt(shape[0] * shape[1] / MAX_PIXELS)))
+
+
+def _binned_shape(shape: tuple[int, int], k: int) -> tuple[int, int]:
+    return -(-shape[0] // k), -(-shape[1] // k)
 
 
 def _normalized(x, y, shape: tuple[int, int]):
@@ -188,10 +210,12 @@ def _tv(disp: np.ndarray, duration_s: float) -> float:
     return total
 
 
-def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM) -> float:
+def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning: int = 1
+                ) -> float:
     """multicm's objective (4.9), ``1 / focus + lam * TV``, of the dense displacement
     ``disp`` (H, W, 2, px over the window): the network's training loss on one window
-    (lower is better).
+    (lower is better). With ``binning`` k > 1 the focus is measured on the events' images
+    binned k x k (the TV on the pixels).
 
     Examples
     --------
@@ -206,17 +230,21 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM) -> float
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
     duration_s = max(int(events.t[-1] - events.t[0]), 1) * 1e-6
-    t = (torch.from_numpy(x), torch.from_numpy(y), torch.from_numpy(_times(events)))
-    flow = torch.from_numpy(_event_flow(disp, x, y))
-    g0 = _identity_focus(torch, t[0], t[1], events.sensor_size)
-    f = float(_focus(torch, *t, flow, events.sensor_size, g0)) if g0 > 0 else 0.0
+    flow = torch.from_numpy(_event_flow(disp, x, y) / binning)
+    t = (torch.from_numpy(x / binning), torch.from_numpy(y / binning),
+         torch.from_numpy(_times(events)))
+    shape = _binned_shape(events.sensor_size, binning)
+    g0 = _identity_focus(torch, t[0], t[1], shape)
+    f = float(_focus(torch, *t, flow, shape, g0)) if g0 > 0 else 0.0
     return 1.0 / max(f, 1e-12) + lam * _tv(disp, duration_s)
 
 
-def polish_planar(events: EventArray, params, iterations: int = POLISH_ITERATIONS
-                  ) -> np.ndarray:
+def polish_planar(events: EventArray, params, iterations: int = POLISH_ITERATIONS,
+                  binning: int = 1) -> np.ndarray:
     """The parameters (8,) that maximize the multi-reference focus (4.6) of the events,
-    by L-BFGS from ``params`` (e.g. :func:`fit_planar` of the network's flow).
+    by L-BFGS from ``params`` (e.g. :func:`fit_planar` of the network's flow); with
+    ``binning`` k > 1, the focus of the events' images binned k x k (the parameters stay
+    in px of the sensor).
 
     Examples
     --------
@@ -236,10 +264,13 @@ def polish_planar(events: EventArray, params, iterations: int = POLISH_ITERATION
     y = np.asarray(events.y, np.float64)
     # in float32: half the time of float64 (memory-bound), the same fields within
     # 1e-3 px on bench_dnn's windows; the loss that decides (window_loss) is float64
-    basis = torch.from_numpy(_basis(x, y, (h, w)).astype(np.float32))
-    tx, ty, ts = (torch.from_numpy(a.astype(np.float32)) for a in (x, y, _times(events)))
+    k = int(binning)
+    basis = torch.from_numpy((_basis(x, y, (h, w)) / k).astype(np.float32))
+    tx, ty, ts = (torch.from_numpy(a.astype(np.float32))
+                  for a in (x / k, y / k, _times(events)))
     start = np.asarray(params, np.float64)
-    g0 = _identity_focus(torch, tx, ty, (h, w))
+    shape = _binned_shape((h, w), k)
+    g0 = _identity_focus(torch, tx, ty, shape)
     if not g0 > 0:
         return start
 
@@ -247,7 +278,7 @@ def polish_planar(events: EventArray, params, iterations: int = POLISH_ITERATION
         # (torch.optim's L-BFGS would import torch._dynamo: 1.5 s of a one-window command)
         p = torch.tensor(theta, dtype=torch.float32, requires_grad=True)
         with torch.enable_grad():
-            loss = -_focus(torch, tx, ty, ts, basis @ p, (h, w), g0)
+            loss = -_focus(torch, tx, ty, ts, basis @ p, shape, g0)
             loss.backward()
         return float(loss.detach()), p.grad.numpy().astype(np.float64)
 
