@@ -301,8 +301,8 @@ def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray):
     """``(params, flow)`` of the plane's motion polished from the network's flow ``disp``
     when its training loss is lower than the network's flow's, else None."""
     from evmotion.methods.dnn.planar import (
-        POLISH_ITERATIONS,
-        PROBE_ITERATIONS,
+        POLISH_EVALUATIONS,
+        PROBE_EVALUATIONS,
         PROBE_RATIO,
         binning,
         fit_planar,
@@ -322,10 +322,10 @@ def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray):
         return window_loss(events, flow, binning=k)
 
     reference = loss(disp)
-    params = polish_planar(events, fit_planar(events, disp), PROBE_ITERATIONS, k)
+    params = polish_planar(events, fit_planar(events, disp), PROBE_EVALUATIONS, k)
     if loss(field(params)) > PROBE_RATIO * reference:
         return None
-    params = polish_planar(events, params, POLISH_ITERATIONS - PROBE_ITERATIONS, k)
+    params = polish_planar(events, params, POLISH_EVALUATIONS - PROBE_EVALUATIONS, k)
     flow = field(params)
     return (params, flow) if loss(flow) < reference else None
 
@@ -471,7 +471,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     if hot.any():
         keep = ~hot.ravel()[xys[2]]
         checked, xyc = events[np.flatnonzero(keep)], tuple(a[keep] for a in xys)
-    plane = _planar(checked, disp, hot) if planar and len(checked) >= 10 else None
+    # under the network's thread count: the polish's float32 sums, and so its path,
+    # depend on it
+    with torch_threads(threads):
+        plane = _planar(checked, disp, hot) if planar and len(checked) >= 10 else None
     if plane is not None:
         disp = plane[1]
     # the magnitude at the top of the search: the window moves further than the network

@@ -40,13 +40,14 @@ LAM = 0.0025
 TV_EPS = 1e-2
 #: Multi-reference times (fractions of the window) and weights of the focus (4.6).
 REFERENCES = ((0.0, 1.0), (0.5, 2.0), (1.0, 1.0))
-#: L-BFGS iterations of the polish at most.
-POLISH_ITERATIONS = 20
-#: The first iterations of the polish, after which a field whose loss is still this many
+#: Evaluations of the focus and its gradient the polish makes at most (on bench_dnn's
+#: windows 20 left ECD shapes_rotation's FWL at 3.85, 28 and 36 reached 3.97 / 3.96).
+POLISH_EVALUATIONS = 28
+#: The first evaluations of the polish, after which a field whose loss is still this many
 #: times the network's flow's is given up: on bench_dnn's windows the fields kept were at
 #: 0.70-0.99 after 4 iterations, those of the independently moving object at 1.17-1.26
-#: (ending at 1.10-1.24), whose 16 further iterations cost ~1 s.
-PROBE_ITERATIONS = 4
+#: (ending at 1.10-1.24), whose further iterations cost ~1 s.
+PROBE_EVALUATIONS = 5
 PROBE_RATIO = 1.1
 N_PARAMS = 8
 #: The most pixels the focus is measured on; a larger sensor's events are binned k x k
@@ -99,9 +100,13 @@ def planar_flow(params, shape: tuple[int, int]) -> np.ndarray:
     True
     """
     h, w = shape
-    rows, cols = np.mgrid[0:h, 0:w]
-    b = _basis(cols.ravel(), rows.ravel(), shape)
-    return (b @ np.asarray(params, np.float64)).reshape(h, w, 2).astype(np.float32)
+    a = np.asarray(params, np.float64)
+    # on the grid's axes, broadcast (the (H*W, 2, 8) basis took 0.3 s at 1280x720)
+    xn, yn = _normalized(np.arange(w), np.arange(h)[:, None], shape)
+    out = np.empty((h, w, 2), np.float32)
+    out[..., 0] = a[0] + a[2] * xn + a[3] * yn + a[6] * xn * xn + a[7] * xn * yn
+    out[..., 1] = a[1] + a[4] * xn + a[5] * yn + a[6] * xn * yn + a[7] * yn * yn
+    return out
 
 
 def fit_planar(events: EventArray, disp: np.ndarray) -> np.ndarray:
@@ -239,10 +244,10 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning:
     return 1.0 / max(f, 1e-12) + lam * _tv(disp, duration_s)
 
 
-def polish_planar(events: EventArray, params, iterations: int = POLISH_ITERATIONS,
+def polish_planar(events: EventArray, params, evaluations: int = POLISH_EVALUATIONS,
                   binning: int = 1) -> np.ndarray:
     """The parameters (8,) that maximize the multi-reference focus (4.6) of the events,
-    by L-BFGS from ``params`` (e.g. :func:`fit_planar` of the network's flow); with
+    by BFGS from ``params`` (e.g. :func:`fit_planar` of the network's flow); with
     ``binning`` k > 1, the focus of the events' images binned k x k (the parameters stay
     in px of the sensor).
 
@@ -257,7 +262,6 @@ def polish_planar(events: EventArray, params, iterations: int = POLISH_ITERATION
     8.0
     """
     import torch
-    from scipy.optimize import minimize
 
     h, w = events.sensor_size
     x = np.asarray(events.x, np.float64)
@@ -282,9 +286,48 @@ def polish_planar(events: EventArray, params, iterations: int = POLISH_ITERATION
             loss.backward()
         return float(loss.detach()), p.grad.numpy().astype(np.float64)
 
-    # L-BFGS-B for its cap on evaluations: near the optimum the float32 focus is noisy at
-    # the 1e-7 level, and BFGS's line search spent up to 78 evaluations (1.6 s) there
-    out = minimize(fun_grad, start, jac=True, method="L-BFGS-B",
-                   options={"maxiter": int(iterations),
-                            "maxfun": int(iterations) + 5}).x
+    out = _bfgs(fun_grad, start, int(evaluations))
     return out if np.isfinite(out).all() else start
+
+
+def _bfgs(fun_grad, x0: np.ndarray, max_evals: int, step_px: float = 0.5,
+          xtol: float = 1e-3) -> np.ndarray:
+    """BFGS with an Armijo backtracking line search, at most ``max_evals`` evaluations of
+    ``fun_grad(x) -> (f, df/dx)``; the best point seen. Eight unknowns need no more, and
+    scipy.optimize's import cost a one-window command 0.3-0.6 s; the cap matters, as near
+    the optimum the float32 focus is noisy at the 1e-7 level (scipy's BFGS line search
+    spent up to 78 evaluations there). The first step moves ``step_px`` at most; it stops
+    once a step moves every parameter by less than ``xtol`` px."""
+    x = np.asarray(x0, np.float64).copy()
+    f, g = fun_grad(x)
+    evals, n = 1, x.size
+    eye = np.eye(n)
+    h = eye * (step_px / max(float(np.abs(g).max()), 1e-12))
+    while evals < max_evals:
+        d = -h @ g
+        slope = float(g @ d)
+        if not slope < 0:  # the model went wrong: steepest descent again
+            h = eye * (step_px / max(float(np.abs(g).max()), 1e-12))
+            d, slope = -h @ g, float(-(g @ h @ g))
+        t, accepted = 1.0, False
+        while evals < max_evals:
+            fn, gn = fun_grad(x + t * d)
+            evals += 1
+            if fn <= f + 1e-4 * t * slope:
+                accepted = True
+                break
+            t *= 0.5
+        if not accepted:
+            break
+        step, dg = t * d, gn - g
+        x, f, g = x + step, fn, gn
+        sy = float(step @ dg)
+        if sy > 1e-12:
+            if evals <= 3:  # the first curvature sets the scale (Nocedal & Wright 6.20)
+                h = eye * (sy / float(dg @ dg))
+            rho = 1.0 / sy
+            v = eye - rho * np.outer(step, dg)
+            h = v @ h @ v.T + rho * np.outer(step, step)
+        if np.abs(step).max() < xtol:
+            break
+    return x
