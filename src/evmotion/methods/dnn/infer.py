@@ -398,10 +398,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         Also fit the 8-parameter flow of a plane's motion (:mod:`.planar`) to the network's
         flow, polish it on the events' multi-reference focus, and keep it instead when its
         training loss (multicm's objective (4.9), :func:`.planar.window_loss`) is the lower
-        (default True; 0.3-1.4 s a window, against 0.10-0.23 s without). The network's dense
+        (default True; 0.3-1.8 s a window, against 0.10-0.26 s without). The network's dense
         flow is noisy, which gathers events and raises its focus; the loss' smoothness
         term sees through that. On bench_dnn's held-out simulated windows it was kept on
-        translation, rotation and zoom (AEE 0.681 -> 0.075, 0.874 -> 0.076, 1.567 -> 0.431
+        translation, rotation and zoom (AEE 0.681 -> 0.075, 0.874 -> 0.076, 1.567 -> 0.430
         px) and not on the window with an independently moving object
         (``benchmarks/results/dnn.md``; other windows: ``dnn_planar.md``).
         ``meta["planar"]`` says whether it was kept, ``meta["planar_params"]`` its
