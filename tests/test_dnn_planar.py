@@ -162,3 +162,23 @@ def test_binned_focus_finds_the_same_motion():
     assert P.window_loss(win, fields[1], binning=2) < P.window_loss(win, 0 * fields[1],
                                                                     binning=2)
     assert P.binning(win.sensor_size) == 1 and P.binning((720, 1280)) == 3
+
+
+def test_long_windows_are_polished_on_evenly_spaced_events(monkeypatch):
+    # a window of more than planar.MAX_EVENTS events: the polish sees that many, spread
+    # over the whole window (its first and last event included)
+    from evmotion.methods.dnn import infer
+
+    seen = []
+    real = P.polish_planar
+
+    def spy(events, params, evaluations=P.POLISH_EVALUATIONS, binning=1):
+        seen.append((len(events), int(events.t[0]), int(events.t[-1])))
+        return real(events, params, evaluations, binning)
+
+    monkeypatch.setattr(P, "MAX_EVENTS", 1000)
+    monkeypatch.setattr(P, "polish_planar", spy)
+    ev = _window(7, n=5000)
+    infer._planar(ev, np.zeros((*ev.sensor_size, 2), np.float32),
+                  np.zeros(ev.sensor_size, bool))
+    assert seen and all(s == (1000, int(ev.t[0]), int(ev.t[-1])) for s in seen)

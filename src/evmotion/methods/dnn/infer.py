@@ -301,6 +301,7 @@ def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray):
     """``(params, flow)`` of the plane's motion polished from the network's flow ``disp``
     when its training loss is lower than the network's flow's, else None."""
     from evmotion.methods.dnn.planar import (
+        MAX_EVENTS,
         POLISH_EVALUATIONS,
         PROBE_EVALUATIONS,
         PROBE_RATIO,
@@ -312,6 +313,8 @@ def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray):
     )
 
     k = binning(events.sensor_size)
+    if len(events) > MAX_EVENTS:
+        events = events[np.linspace(0, len(events) - 1, MAX_EVENTS).astype(np.intp)]
 
     def field(params):
         flow = planar_flow(params, events.sensor_size)

@@ -54,6 +54,10 @@ N_PARAMS = 8
 #: (k the least integer that brings it under): the image terms cost the polish most of
 #: its time, and at 1280x720 took 2 s of a one-window command.
 MAX_PIXELS = 120_000
+#: The most events the polish and the decision look at (evenly spaced in the window): the
+#: network's windows are 30-40k events; a 300k-event 1280x720 window's 28 evaluations
+#: took 9.0 s, 1.3 s on 50k of its events (with other work on the machine).
+MAX_EVENTS = 50_000
 
 
 def binning(shape: tuple[int, int]) -> int:
