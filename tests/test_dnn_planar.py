@@ -182,3 +182,12 @@ def test_long_windows_are_polished_on_evenly_spaced_events(monkeypatch):
     infer._planar(ev, np.zeros((*ev.sensor_size, 2), np.float32),
                   np.zeros(ev.sensor_size, bool))
     assert seen and all(s == (1000, int(ev.t[0]), int(ev.t[-1])) for s in seen)
+
+
+@pytest.mark.parametrize("shape", [(1, 200), (2, 2)])
+def test_no_plane_where_the_focus_cannot_be_measured(shape):
+    # under 3 px a side the Sobel focus is empty: the plane's smoothness alone must not
+    # win (it did on a 1x200 sensor)
+    ev = _window(8, shape=shape, n=500)
+    assert P.window_loss(ev, np.zeros((*shape, 2))) == np.inf
+    assert not estimate_flow_dnn(ev, with_iwes=False).meta["planar"]

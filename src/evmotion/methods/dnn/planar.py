@@ -223,8 +223,9 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning:
                 ) -> float:
     """multicm's objective (4.9), ``1 / focus + lam * TV``, of the dense displacement
     ``disp`` (H, W, 2, px over the window): the network's training loss on one window
-    (lower is better). With ``binning`` k > 1 the focus is measured on the events' images
-    binned k x k (the TV on the pixels).
+    (lower is better); inf where the unwarped events' image has no contrast. With
+    ``binning`` k > 1 the focus is measured on the events' images binned k x k (the TV on
+    the pixels).
 
     Examples
     --------
@@ -244,7 +245,9 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning:
          torch.from_numpy(_times(events)))
     shape = _binned_shape(events.sensor_size, binning)
     g0 = _identity_focus(torch, t[0], t[1], shape)
-    f = float(_focus(torch, *t, flow, shape, g0)) if g0 > 0 else 0.0
+    if not g0 > 0:  # no contrast to measure (a sensor under 3 px a side, one pixel)
+        return float("inf")
+    f = float(_focus(torch, *t, flow, shape, g0))
     return 1.0 / max(f, 1e-12) + lam * _tv(disp, duration_s)
 
 
