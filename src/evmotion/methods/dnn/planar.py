@@ -44,9 +44,10 @@ REFERENCES = ((0.0, 1.0), (0.5, 2.0), (1.0, 1.0))
 #: windows 20 left ECD shapes_rotation's FWL at 3.85, 28 and 36 reached 3.97 / 3.96).
 POLISH_EVALUATIONS = 28
 #: The first evaluations of the polish, after which a field whose loss is still this many
-#: times the network's flow's is given up: on bench_dnn's windows the fields kept were at
-#: 0.70-0.99 after 4 iterations, those of the independently moving object at 1.17-1.26
-#: (ending at 1.10-1.24), whose further iterations cost ~1 s.
+#: times the network's flow's is given up: on bench_dnn's windows (measured with scipy's
+#: BFGS, 4 iterations, about 5 evaluations) the fields kept were at 0.70-0.99, those of
+#: the independently moving object at 1.17-1.26 (ending at 1.10-1.24), whose further
+#: iterations cost ~1 s.
 PROBE_EVALUATIONS = 5
 PROBE_RATIO = 1.1
 N_PARAMS = 8
