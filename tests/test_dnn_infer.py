@@ -50,7 +50,7 @@ def test_flow_units_and_shape(tiny_ckpt, window):
     assert disp.shape == (50, 70, 2) and disp.dtype == np.float32
     assert np.abs(disp).max() > 0.1
     res = estimate_flow_dnn(ev, tiny_ckpt, input_scales=(1,), time_reversal=False,
-                            rescale=False, planar=False)
+                            rescale=False, planar=False, refine=False)
     dur = (int(ev.t[-1]) - int(ev.t[0])) * 1e-6
     np.testing.assert_allclose(res.flow * dur, disp, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(res.displacement(), disp, rtol=1e-4, atol=1e-4)
@@ -141,7 +141,8 @@ def test_cli_flow_dnn_end_to_end(tmp_path, window, capsys):
     np.testing.assert_allclose(disp[valid], estimate_flow_dnn(window.events).displacement()[valid],
                                atol=1e-3)
     assert main(["flow", str(rec), "--method", "dnn", "--input-scales", "1",
-                 "--no-time-reversal", "--no-rescale", "--no-planar", "--out", str(out)]) == 0
+                 "--no-time-reversal", "--no-rescale", "--no-planar", "--no-refine",
+                 "--out", str(out)]) == 0
     capsys.readouterr()
     np.testing.assert_allclose(read_flo(out)[valid], predict_displacement(window.events)[valid],
                                atol=1e-3)
@@ -157,6 +158,7 @@ def test_cli_flow_dnn_end_to_end(tmp_path, window, capsys):
     assert all(w["input_scale"] in (1, 2, 4) for w in summary["windows"])
     assert all(0.7 <= w["gain"] <= 1.6 for w in summary["windows"])
     assert all(isinstance(w["planar"], bool) for w in summary["windows"])
+    assert all(isinstance(w["refined"], bool) for w in summary["windows"])
     assert (tmp_path / "png" / "flow_00000.png").is_file()
     assert main(["flow", str(rec), "--method", "multicm", "--init", "dnn",
                  "--out", str(tmp_path / "z.npz"), "--json"]) == 0
@@ -168,7 +170,7 @@ def test_cli_flow_dnn_end_to_end(tmp_path, window, capsys):
 
 def test_input_scales_one_is_the_plain_network(tiny_ckpt, window):
     res = estimate_flow_dnn(window.events, tiny_ckpt, input_scales=(1,), time_reversal=False,
-                            rescale=False, planar=False)
+                            rescale=False, planar=False, refine=False)
     np.testing.assert_allclose(res.displacement(), predict_displacement(window.events, tiny_ckpt),
                                rtol=1e-4, atol=1e-4)
     assert res.meta["input_scale"] == 1
@@ -191,12 +193,14 @@ def test_time_reversal_makes_the_flow_antisymmetric(tiny_ckpt, window):
     rev = EventArray(x=ev.x[::-1], y=ev.y[::-1], t=int(t[0]) + int(t[-1]) - t,
                      p=1 - ev.p[::-1], sensor_size=ev.sensor_size)
     for scales in ((1,), (1, 2, 4)):
-        fwd = estimate_flow_dnn(ev, tiny_ckpt, input_scales=scales, planar=False).displacement()
-        back = estimate_flow_dnn(rev, tiny_ckpt, input_scales=scales, planar=False
-                                 ).displacement()
+        fwd = estimate_flow_dnn(ev, tiny_ckpt, input_scales=scales, planar=False,
+                                refine=False).displacement()
+        back = estimate_flow_dnn(rev, tiny_ckpt, input_scales=scales, planar=False,
+                                 refine=False).displacement()
         np.testing.assert_allclose(back, -fwd, atol=1e-4)
     plain = predict_displacement(ev, tiny_ckpt)
-    sym = estimate_flow_dnn(ev, tiny_ckpt, input_scales=(1,), planar=False).displacement()
+    sym = estimate_flow_dnn(ev, tiny_ckpt, input_scales=(1,), planar=False,
+                            refine=False).displacement()
     assert np.median(np.abs(plain)) > 1.0 > 10 * np.median(np.abs(sym))
 
 
@@ -204,8 +208,8 @@ def test_rescale_keeps_the_sharpest_gain(tiny_ckpt, window):
     from evmotion.methods.dnn.infer import GAINS, sharpness
 
     ev = window.events
-    plain = estimate_flow_dnn(ev, tiny_ckpt, rescale=False, planar=False)
-    res = estimate_flow_dnn(ev, tiny_ckpt, planar=False)
+    plain = estimate_flow_dnn(ev, tiny_ckpt, rescale=False, planar=False, refine=False)
+    res = estimate_flow_dnn(ev, tiny_ckpt, planar=False, refine=False)
     gain = res.meta["gain"]
     assert gain in GAINS and plain.meta["gain"] == 1.0
     np.testing.assert_allclose(res.flow, plain.flow * np.float32(gain), rtol=1e-6)
@@ -231,7 +235,7 @@ def _zoom_aee(**options) -> float:
     gt = sim.gt.displacement(int(win.t[0]), int(win.t[-1]))
     mask = np.zeros(win.sensor_size, bool)
     mask[win.y.astype(int), win.x.astype(int)] = True
-    disp = estimate_flow_dnn(win, planar=False, **options).displacement()
+    disp = estimate_flow_dnn(win, planar=False, refine=False, **options).displacement()
     return float(np.linalg.norm(disp - gt, axis=-1)[mask].mean())
 
 
@@ -324,8 +328,9 @@ def test_far_moving_window_is_seen_at_a_coarser_scale():
     mask = np.zeros(win.sensor_size, bool)
     mask[win.y.astype(int), win.x.astype(int)] = True
     assert np.linalg.norm(gt, axis=-1)[mask].mean() > 20
-    plain = estimate_flow_dnn(win, input_scales=(1,), time_reversal=False, planar=False)
-    chosen = estimate_flow_dnn(win, time_reversal=False, planar=False)
+    plain = estimate_flow_dnn(win, input_scales=(1,), time_reversal=False, planar=False,
+                              refine=False)
+    chosen = estimate_flow_dnn(win, time_reversal=False, planar=False, refine=False)
     assert chosen.meta["input_scale"] > 1
     aee = [np.linalg.norm(r.displacement() - gt, axis=-1)[mask].mean() for r in (plain, chosen)]
     assert aee[1] < 0.75 * aee[0], aee  # measured 8.38 -> 4.88 px
@@ -574,7 +579,7 @@ def test_motion_beyond_the_network_is_a_lower_bound():
     ev = EventArray(x=np.floor((fx[k] + 80 * t / 20000) % 240), y=np.floor(fy[k]), t=t,
                     p=rng.integers(0, 2, n), sensor_size=(180, 240))
     with pytest.warns(PoorFitWarning, match="largest gain tried.*lower bound|first half"):
-        res = estimate_flow_dnn(ev, with_iwes=False, planar=False)
+        res = estimate_flow_dnn(ev, with_iwes=False, planar=False, refine=False)
     assert res.meta["gain"] == max(GAINS)
     assert res.meta["beyond_range"] or (res.meta["no_focus"] and not res.valid.any())
     # with the plane's polish (the default) the window is not given silently short either:

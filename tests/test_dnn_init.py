@@ -41,7 +41,7 @@ def test_event_tile_means_match_a_loop(shape, level):
     ev = EventArray(x=x, y=y, t=np.arange(n), p=rng.integers(0, 2, n), sensor_size=shape)
     flow = rng.normal(0, 50, (h, w, 2)).astype(np.float32)
     grid = tf.scale_grid(level, shape)
-    got = mc._event_tile_means(flow, ev, grid)
+    got = tf.event_tile_means(flow, ev.x, ev.y, grid)
     np.testing.assert_allclose(got, _loop_reference(flow, x, y, grid), rtol=1e-9, atol=1e-9)
 
 
@@ -75,14 +75,15 @@ def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
     res = mc.estimate_flow(ev, init="dnn", finest_level=5)
     grid, theta0 = starts[0]
     assert (grid.ny, grid.nx) == (4, 4) and len(res.params) == mc.DNN_INIT_SCALES == 3
-    want = mc._event_tile_means(fake, ev, grid) * dur
+    want = tf.event_tile_means(fake, ev.x, ev.y, grid) * dur
     np.testing.assert_allclose(theta0.reshape(4, 4, 2), want, rtol=1e-9, atol=1e-9)
     # the start is the truth's event mean, not pulled 300 px/s off by the empty pixels
-    tiles = mc._event_tile_means(truth.astype(np.float32), ev, grid) * dur
+    tiles = tf.event_tile_means(truth.astype(np.float32), ev.x, ev.y, grid) * dur
     np.testing.assert_allclose(theta0.reshape(4, 4, 2), tiles, atol=1e-6)
     # the network's plain pass: the refinement does what the extras would
     assert calls == [{"with_iwes": False, "time_reversal": False, "fuse": False,
-                      "rescale": False, "planar": False, "check": False}]
+                      "rescale": False, "planar": False, "refine": False,
+                      "check": False}]
 
 
 def test_the_networks_own_verdicts_are_not_said_of_the_refined_flow(monkeypatch):

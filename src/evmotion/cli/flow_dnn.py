@@ -6,7 +6,9 @@ as ``--method multicm`` (whose runner it uses); each window goes through the net
 negated flow unless ``--no-time-reversal`` (no warm start needed), at the gain whose warp
 is sharpest unless ``--no-rescale``, the scales' predictions chosen tile by tile unless
 ``--no-fuse``, replaced by the polished flow of a plane's motion where the training loss
-prefers it unless ``--no-planar``. ``--checkpoint`` picks
+prefers it unless ``--no-planar``, and where no plane is kept refined on multicm's finest
+tiles where that loss prefers it and the events are no blurrier unless ``--no-refine``.
+``--checkpoint`` picks
 weights from ``evmotion train`` (default: the shipped checkpoint); multicm's ``--init dnn``
 reads it too.
 """
@@ -25,6 +27,7 @@ OPTIONS: dict[str, tuple[str, object]] = {
     "--no-rescale": ("no_rescale", False),
     "--no-fuse": ("no_fuse", False),
     "--no-planar": ("no_planar", False),
+    "--no-refine": ("no_refine", False),
 }
 
 
@@ -52,6 +55,10 @@ def add_arguments(group) -> None:
     group.add_argument("--no-planar", action="store_true", default=None,
                        help="dnn: keep the network's flow (default: the polished flow of a "
                             "plane's motion instead where multicm's objective prefers it)")
+    group.add_argument("--no-refine", action="store_true", default=None,
+                       help="dnn: where no plane is kept, keep the network's flow (default: "
+                            "its refinement on multicm's finest tiles where multicm's "
+                            "objective prefers it and the events are no blurrier)")
 
 
 def check_args(args) -> None:
@@ -88,7 +95,8 @@ def estimator(args):
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
              "source": str(args.file), "input_scales": list(args.input_scales),
              "time_reversal": not args.no_time_reversal, "rescale": not args.no_rescale,
-             "fuse": not args.no_fuse, "planar": not args.no_planar}
+             "fuse": not args.no_fuse, "planar": not args.no_planar,
+             "refine": not args.no_refine}
 
     # the IWEs and the focus serve only the pictures (--png-dir) and the JSON rows; the
     # flow files do not hold them, and their numba kernels would cost a first run seconds
@@ -100,7 +108,8 @@ def estimator(args):
                                  with_iwes=with_iwes, input_scales=tuple(args.input_scales),
                                  time_reversal=not args.no_time_reversal,
                                  rescale=not args.no_rescale, fuse=not args.no_fuse,
-                                 planar=not args.no_planar, threads=args.threads)
+                                 planar=not args.no_planar, refine=not args.no_refine,
+                                 threads=args.threads)
 
     return estimate, attrs
 

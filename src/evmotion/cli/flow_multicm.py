@@ -232,6 +232,8 @@ def _row(r, w) -> dict:
         row["gain"] = float(r.meta["gain"])
     if "planar" in r.meta:  # the network's: the plane's polished flow kept instead
         row["planar"] = bool(r.meta["planar"])
+    if "refined" in r.meta:  # the network's: its refinement on multicm's tiles kept
+        row["refined"] = bool(r.meta["refined"])
     if np.isfinite(r.meta.get("chance_gain", np.nan)):
         # how much better the flow aligns the events than with their times shuffled
         row["chance_gain"] = float(r.meta["chance_gain"])

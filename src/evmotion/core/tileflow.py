@@ -27,11 +27,13 @@ __all__ = [
     "TileGrid",
     "axis_matrix",
     "dense_flow",
+    "event_tile_means",
     "event_weights",
     "interpolate",
     "interpolate_adjoint",
     "iwe_backward",
     "iwe_forward",
+    "pixel_tiles",
     "resample",
     "scale_grid",
 ]
@@ -182,6 +184,47 @@ def dense_flow(params: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     ny, nx = params.shape[:2]
     return _separable(params, axis_matrix(np.arange(shape[0]), ny, shape[0]),
                       axis_matrix(np.arange(shape[1]), nx, shape[1]))
+
+
+def pixel_tiles(shape: tuple[int, int], grid: TileGrid) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column index ``(ty (H, 1), tx (1, W))`` of the tile each pixel falls in.
+
+    Examples
+    --------
+    >>> ty, tx = pixel_tiles((2, 4), TileGrid(1, 2, (2, 4)))
+    >>> tx.ravel().tolist()
+    [0, 0, 1, 1]
+    """
+    h, w = shape
+    ty = np.minimum(np.arange(h) * grid.ny // h, grid.ny - 1)
+    tx = np.minimum(np.arange(w) * grid.nx // w, grid.nx - 1)
+    return ty[:, None], tx[None, :]
+
+
+def event_tile_means(flow: np.ndarray, x: np.ndarray, y: np.ndarray,
+                     grid: TileGrid) -> np.ndarray:
+    """Tile flow ``(ny, nx, 2)``: the mean of a dense ``flow`` (H, W, 2) over the events at
+    ``x``, ``y`` (px, rounded to their pixel) in each tile (a pixel counts once per event
+    on it); zero flow in a tile without events (nothing there to fit it to).
+
+    Examples
+    --------
+    >>> flow = np.zeros((2, 4, 2)); flow[:, 0] = 8.0; flow[:, 3] = 2.0
+    >>> event_tile_means(flow, np.array([1, 3, 3]), np.array([0, 1, 1]),
+    ...                  TileGrid(1, 2, (2, 4)))[0, :, 0].tolist()
+    [0.0, 2.0]
+    """
+    h, w = flow.shape[:2]
+    ty, tx = pixel_tiles((h, w), grid)
+    key = (ty * grid.nx + tx).ravel()
+    n = grid.ny * grid.nx
+    xi = np.clip(np.rint(np.asarray(x, dtype=np.float64)), 0, w - 1).astype(np.int64)
+    yi = np.clip(np.rint(np.asarray(y, dtype=np.float64)), 0, h - 1).astype(np.int64)
+    hits = np.bincount(yi * w + xi, minlength=h * w).astype(np.float64)
+    n_events = np.bincount(key, weights=hits, minlength=n)
+    out = np.stack([np.bincount(key, weights=hits * flow[..., c].ravel(), minlength=n)
+                    for c in range(2)], axis=-1) / np.maximum(n_events, 1.0)[:, None]
+    return out.reshape(grid.ny, grid.nx, 2)
 
 
 def _separable(params, ay, ax):

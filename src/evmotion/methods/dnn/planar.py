@@ -31,6 +31,8 @@ import math
 import numpy as np
 
 from evmotion.events import EventArray
+from evmotion.methods.dnn.bfgs import bfgs
+from evmotion.methods.dnn.focus import binned_shape, identity_focus, multi_focus, window_times
 
 __all__ = ["binning", "fit_planar", "planar_flow", "polish_planar", "window_loss"]
 
@@ -38,8 +40,6 @@ __all__ = ["binning", "fit_planar", "planar_flow", "polish_planar", "window_loss
 LAM = 0.0025
 #: Charbonnier epsilon of the TV, 1/s (multicm's ``TV_EPS``).
 TV_EPS = 1e-2
-#: Multi-reference times (fractions of the window) and weights of the focus (4.6).
-REFERENCES = ((0.0, 1.0), (0.5, 2.0), (1.0, 1.0))
 #: Evaluations of the focus and its gradient the polish makes at most (on bench_dnn's
 #: windows 20 left ECD shapes_rotation's FWL at 3.85, 28 and 36 reached 3.97 / 3.96).
 POLISH_EVALUATIONS = 28
@@ -71,10 +71,6 @@ def binning(shape: tuple[int, int]) -> int:
     (1, 2, 3)
     """
     return max(1, math.ceil(math.sqrt(shape[0] * shape[1] / MAX_PIXELS)))
-
-
-def _binned_shape(shape: tuple[int, int], k: int) -> tuple[int, int]:
-    return -(-shape[0] // k), -(-shape[1] // k)
 
 
 def _normalized(x, y, shape: tuple[int, int]):
@@ -133,64 +129,6 @@ def fit_planar(events: EventArray, disp: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(a, disp[yi, xi].astype(np.float64).reshape(-1), rcond=None)[0]
 
 
-def _times(events: EventArray) -> np.ndarray:
-    t = np.asarray(events.t, np.int64)
-    return (t - t[0]).astype(np.float64) / max(int(t[-1] - t[0]), 1)
-
-
-def _iwes(torch, xw, yw, shape):
-    """Quadratic B-spline images (as multicm's ``iwe_forward``) of K sets of points
-    ``xw``, ``yw`` (K, N), one index_add for all: 3 x 3 weights per point, taps off the
-    image dropped; differentiable in the points. (K, H, W)."""
-    h, w = shape
-    k = xw.shape[0]
-    cx = torch.floor(xw + 0.5)
-    cy = torch.floor(yw + 0.5)
-    dx, dy = xw - cx, yw - cy
-    wx = torch.stack((0.5 * (0.5 - dx) ** 2, 0.75 - dx * dx, 0.5 * (0.5 + dx) ** 2))
-    wy = torch.stack((0.5 * (0.5 - dy) ** 2, 0.75 - dy * dy, 0.5 * (0.5 + dy) ** 2))
-    # on an image with a margin of 3 px, centres clamped to 2 px off it: every tap off
-    # the image lands in the margin, cropped after (no boolean masks: they cost 2/3 of
-    # the time)
-    hp, wp = h + 6, w + 6
-    cyi = cy.clamp(-2, h + 1).long() + 3
-    cxi = cx.clamp(-2, w + 1).long() + 3
-    taps = torch.arange(-1, 2)
-    rows = (cyi[None] + taps[:, None, None]) * wp + (torch.arange(k) * (hp * wp))[:, None]
-    idx = rows[:, None] + (cxi[None] + taps[:, None, None])[None]   # (3, 3, K, N)
-    wts = wy[:, None] * wx[None]
-    img = xw.new_zeros(k * hp * wp).index_add(0, idx.reshape(-1), wts.reshape(-1))
-    return img.reshape(k, hp, wp)[:, 3:-3, 3:-3]
-
-
-def _gradmag(torch, img):
-    """Mean squared Sobel magnitude over the interior pixels (multicm's focus) of each
-    image (K, H, W): (K,). The Sobel kernels separably: a central difference along one
-    axis, [1 2 1] along the other (half the tensor operations of the 3 x 3 sums)."""
-    if img.shape[-2] < 3 or img.shape[-1] < 3:
-        return img.new_zeros(img.shape[0])
-    dx = img[:, :, 2:] - img[:, :, :-2]
-    gx = dx[:, :-2] + 2.0 * dx[:, 1:-1] + dx[:, 2:]
-    dy = img[:, 2:] - img[:, :-2]
-    gy = dy[:, :, :-2] + 2.0 * dy[:, :, 1:-1] + dy[:, :, 2:]
-    return (gx * gx + gy * gy).mean((1, 2))
-
-
-def _identity_focus(torch, x, y, shape) -> float:
-    """The focus of the unwarped events, which (4.6) is normalized by."""
-    return float(_gradmag(torch, _iwes(torch, x[None], y[None], shape))[0])
-
-
-def _focus(torch, x, y, s, flow, shape, g0: float):
-    """Multi-reference focus (4.6) of the per-event flows (N, 2) px per window,
-    normalized by the identity warp's ``g0``."""
-    refs = x.new_tensor([r for r, _ in REFERENCES])
-    wts = x.new_tensor([wt for _, wt in REFERENCES])
-    dtn = refs[:, None] - s[None]                # (K, N)
-    imgs = _iwes(torch, x[None] + dtn * flow[:, 0], y[None] + dtn * flow[:, 1], shape)
-    return (wts * _gradmag(torch, imgs)).sum() / (wts.sum() * g0)
-
-
 def _event_flow(disp: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The dense flow bilinear between pixel centres at each event (clamped at the edges),
     as multicm's pixel tiles interpolate it."""
@@ -243,12 +181,12 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning:
     duration_s = max(int(events.t[-1] - events.t[0]), 1) * 1e-6
     flow = torch.from_numpy(_event_flow(disp, x, y) / binning)
     t = (torch.from_numpy(x / binning), torch.from_numpy(y / binning),
-         torch.from_numpy(_times(events)))
-    shape = _binned_shape(events.sensor_size, binning)
-    g0 = _identity_focus(torch, t[0], t[1], shape)
+         torch.from_numpy(window_times(events)))
+    shape = binned_shape(events.sensor_size, binning)
+    g0 = identity_focus(torch, t[0], t[1], shape)
     if not g0 > 0:  # no contrast to measure (a sensor under 3 px a side, one pixel)
         return float("inf")
-    f = float(_focus(torch, *t, flow, shape, g0))
+    f = float(multi_focus(torch, *t, flow, shape, g0))
     return 1.0 / max(f, 1e-12) + lam * _tv(disp, duration_s)
 
 
@@ -279,10 +217,10 @@ def polish_planar(events: EventArray, params, evaluations: int = POLISH_EVALUATI
     k = int(binning)
     basis = torch.from_numpy((_basis(x, y, (h, w)) / k).astype(np.float32))
     tx, ty, ts = (torch.from_numpy(a.astype(np.float32))
-                  for a in (x / k, y / k, _times(events)))
+                  for a in (x / k, y / k, window_times(events)))
     start = np.asarray(params, np.float64)
-    shape = _binned_shape((h, w), k)
-    g0 = _identity_focus(torch, tx, ty, shape)
+    shape = binned_shape((h, w), k)
+    g0 = identity_focus(torch, tx, ty, shape)
     if not g0 > 0:
         return start
 
@@ -290,52 +228,9 @@ def polish_planar(events: EventArray, params, evaluations: int = POLISH_EVALUATI
         # (torch.optim's L-BFGS would import torch._dynamo: 1.5 s of a one-window command)
         p = torch.tensor(theta, dtype=torch.float32, requires_grad=True)
         with torch.enable_grad():
-            loss = -_focus(torch, tx, ty, ts, basis @ p, shape, g0)
+            loss = -multi_focus(torch, tx, ty, ts, basis @ p, shape, g0)
             loss.backward()
         return float(loss.detach()), p.grad.numpy().astype(np.float64)
 
-    out = _bfgs(fun_grad, start, int(evaluations))
+    out = bfgs(fun_grad, start, int(evaluations))
     return out if np.isfinite(out).all() else start
-
-
-def _bfgs(fun_grad, x0: np.ndarray, max_evals: int, step_px: float = 0.5,
-          xtol: float = 1e-3) -> np.ndarray:
-    """BFGS with an Armijo backtracking line search, at most ``max_evals`` evaluations of
-    ``fun_grad(x) -> (f, df/dx)``; the best point seen. Eight unknowns need no more, and
-    scipy.optimize's import cost a one-window command 0.3-0.6 s; the cap matters, as near
-    the optimum the float32 focus is noisy at the 1e-7 level (scipy's BFGS line search
-    spent up to 78 evaluations there). The first step moves ``step_px`` at most; it stops
-    once a step moves every parameter by less than ``xtol`` px."""
-    x = np.asarray(x0, np.float64).copy()
-    f, g = fun_grad(x)
-    evals, n = 1, x.size
-    eye = np.eye(n)
-    h = eye * (step_px / max(float(np.abs(g).max()), 1e-12))
-    while evals < max_evals:
-        d = -h @ g
-        slope = float(g @ d)
-        if not slope < 0:  # the model went wrong: steepest descent again
-            h = eye * (step_px / max(float(np.abs(g).max()), 1e-12))
-            d, slope = -h @ g, float(-(g @ h @ g))
-        t, accepted = 1.0, False
-        while evals < max_evals:
-            fn, gn = fun_grad(x + t * d)
-            evals += 1
-            if fn <= f + 1e-4 * t * slope:
-                accepted = True
-                break
-            t *= 0.5
-        if not accepted:
-            break
-        step, dg = t * d, gn - g
-        x, f, g = x + step, fn, gn
-        sy = float(step @ dg)
-        if sy > 1e-12:
-            if evals <= 3:  # the first curvature sets the scale (Nocedal & Wright 6.20)
-                h = eye * (sy / float(dg @ dg))
-            rho = 1.0 / sy
-            v = eye - rho * np.outer(step, dg)
-            h = v @ h @ v.T + rho * np.outer(step, step)
-        if np.abs(step).max() < xtol:
-            break
-    return x
