@@ -99,7 +99,9 @@ def accuracy_sim(quick: bool) -> list[dict]:
         mask = np.zeros(win.sensor_size, bool)
         mask[win.y.astype(int), win.x.astype(int)] = True
         runs = {"dnn": lambda w=win: estimate_flow(w, method="dnn", checkpoint=_ckpt()),
-                "dnn planar=False": lambda w=win: estimate_flow_dnn(w, _ckpt(), planar=False),
+                "dnn refine=False": lambda w=win: estimate_flow_dnn(w, _ckpt(), refine=False),
+                "dnn network only": lambda w=win: estimate_flow_dnn(w, _ckpt(), planar=False,
+                                                                   refine=False),
                 "multicm": lambda w=win: estimate_flow(w),
                 "multicm init=dnn": lambda w=win: estimate_flow(w, init="dnn",
                                                                checkpoint=_ckpt())}
@@ -118,6 +120,7 @@ def accuracy_sim(quick: bool) -> list[dict]:
                 row["cpu_vs_multicm"] = t["cpu_s"] / ref["cpu_s"]
             if name.startswith("dnn"):
                 row["planar_kept"] = bool(res.meta["planar"])
+                row["refined_kept"] = bool(res.meta["refined"])
             rows.append(row)
         for row in rows[-len(runs):]:
             if row["method"].startswith("dnn"):
@@ -142,8 +145,8 @@ def accuracy_ecd(quick: bool) -> list[dict]:
         ev = read_events(root / name)
         for method, fn in (("dnn", lambda e=ev: estimate_flow(e, method="dnn",
                                                               checkpoint=_ckpt())),
-                           ("dnn planar=False", lambda e=ev: estimate_flow_dnn(
-                               e, _ckpt(), planar=False)),
+                           ("dnn network only", lambda e=ev: estimate_flow_dnn(
+                               e, _ckpt(), planar=False, refine=False)),
                            ("multicm", lambda e=ev: estimate_flow(e)),
                            ("multicm init=dnn", lambda e=ev: estimate_flow(
                                e, init="dnn", checkpoint=_ckpt()))):
@@ -200,8 +203,8 @@ def speed(quick: bool) -> list[dict]:
                "training forward": lambda e=ev: training_forward(e),
                "estimate_flow_dnn": lambda e=ev: estimate_flow_dnn(e, _ckpt(),
                                                                    with_iwes=False),
-               "estimate_flow_dnn planar=False": lambda e=ev: estimate_flow_dnn(
-                   e, _ckpt(), with_iwes=False, planar=False),
+               "estimate_flow_dnn network only": lambda e=ev: estimate_flow_dnn(
+                   e, _ckpt(), with_iwes=False, planar=False, refine=False),
                "network_input": lambda e=ev: network_input(e, net.n_bins),
                "voxel_grid+normalize+pad": lambda e=ev: pad_to_multiple(
                    normalize_voxel(voxel_grid(e)))}
@@ -218,11 +221,13 @@ def speed(quick: bool) -> list[dict]:
         rows.append({"section": "speed", "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
                      "method": "estimate_flow_dnn (defaults: input scales "
                                f"{', '.join(map(str, INPUT_SCALES))}, time reversal, gain "
-                               f"{GAINS[0]}-{GAINS[-1]}, the plane's polish; no IWEs)",
+                               f"{GAINS[0]}-{GAINS[-1]}, the plane's polish, on these "
+                               "random events the tiles' refinement too; no IWEs)",
                      **times["estimate_flow_dnn"]})
         rows.append({"section": "speed", "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
-                     "method": "estimate_flow_dnn, planar=False (the network's flow only)",
-                     **times["estimate_flow_dnn planar=False"]})
+                     "method": "estimate_flow_dnn, planar=False, refine=False (the network's "
+                               "flow only)",
+                     **times["estimate_flow_dnn network only"]})
     # one training step, batch 8 at 346x260 (padded 352x272), simulated windows
     from evmotion.methods.dnn.data import sim_window
 
@@ -326,7 +331,10 @@ def main(quick: bool = False) -> list[dict]:
         f"{_ckpt() or 'shipped'}. AEE px over the window on pixels with events, %Out > 3 px; "
         "FWL = var(IWE t_mid) / var(IWE zero flow). dnn: estimate_flow(method='dnn') with "
         "its defaults, the plane's polished flow kept where multicm's objective prefers it "
-        "(planar_kept); dnn planar=False: the network's flow only. multicm: defaults (5 "
+        "(planar_kept), where it is not the network's flow refined on multicm's finest "
+        "tiles kept where that objective is lower and the sharpness no lower "
+        "(refined_kept); dnn refine=False: the plane only (the default before the "
+        "refinement); dnn network only: planar=False, refine=False. multicm: defaults (5 "
         "scales); "
         "init=dnn: the network's plain pass at each input scale (the sharpest kept; tile "
         f"means over the events) then the finest {DNN_INIT_SCALES} scales; AEE_vs_multicm / "

@@ -1,10 +1,11 @@
 """Dense flow in one network pass: the unsupervised EV-FlowNet (thesis §4.3.7).
 
 The shipped network was trained with multicm's own loss (no ground truth). It gives the
-dense flow of a window in one forward pass (``planar=False``: its flow alone); by default
-the flow of a plane's motion fitted to it and polished on the events replaces it where
-multicm's objective prefers that; ``estimate_flow(..., init=...)`` can start multicm from
-it. Needs the ``dnn`` extra (``pip install 'evmotion[dnn]'``, torch).
+dense flow of a window in one forward pass (``planar=False, refine=False``: its flow
+alone); by default the flow of a plane's motion fitted to it and polished on the events
+replaces it where multicm's objective prefers that, and where no plane does, its
+refinement on multicm's finest tiles may; ``estimate_flow(..., init=...)`` can start
+multicm from it. Needs the ``dnn`` extra (``pip install 'evmotion[dnn]'``, torch).
 
 Run: ``python examples/dnn_flow.py [OUT_DIR]``.
 """
@@ -34,7 +35,7 @@ mask = event_mask(win)
 scale = sequence_max_speed([disp_gt], [mask])
 pictures = [flow_picture(disp_gt, valid=mask, max_speed=scale, unit="px").rgb]
 titles = ["ground truth"]
-runs = {"network alone": lambda: estimate_flow_dnn(win, planar=False),
+runs = {"network alone": lambda: estimate_flow_dnn(win, planar=False, refine=False),
         "dnn": lambda: estimate_flow(win, method="dnn"),
         "multicm": lambda: estimate_flow(win)}
 for method, run in runs.items():

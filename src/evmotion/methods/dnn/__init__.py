@@ -6,7 +6,10 @@
 * :mod:`.data`, :mod:`.train` -- simulated / recorded windows and the training loop
   (``evmotion train``);
 * :mod:`.model` -- checkpoint files, the shipped default;
-* :mod:`.infer` -- :func:`estimate_flow_dnn` (``estimate_flow(..., method="dnn")``).
+* :mod:`.infer` -- :func:`estimate_flow_dnn` (``estimate_flow(..., method="dnn")``);
+* :mod:`.planar`, :mod:`.tiles` -- what replaces the network's flow where multicm's
+  objective prefers it: a plane's motion, or the flow refined on multicm's finest tiles;
+  :mod:`.focus` (torch twins of multicm's focus) and :mod:`.bfgs` serve both.
 
 torch is an optional dependency (``pip install evmotion[dnn]``); only the submodules
 that need it import it.

@@ -8,7 +8,8 @@ smoothness of the training loss can: on windows whose motion is the camera's ove
 mostly planar or distant scene (rotation, zoom, pan), an 8-parameter field fitted to the
 network's flow and polished on the multi-reference focus has a lower loss (4.9) than the
 network's own flow and a far lower error; where an object moves on its own, the network's
-flow keeps the lower loss and is kept (``benchmarks/results/dnn.md``, ``dnn_planar.md``).
+flow keeps the lower loss and the plane is not kept (the flow's refinement on multicm's
+tiles may be, :mod:`.tiles`; ``benchmarks/results/dnn.md``, ``dnn_planar.md``).
 
 The field is the instantaneous motion of a plane seen by a pinhole camera (the 8-parameter
 "pseudo-perspective" flow, exact for any small rotation, zoom and translation in front of
@@ -19,7 +20,7 @@ a plane), in centred coordinates ``x = (col - (W - 1) / 2) / (W / 2)``,
     v = a1 + a4 x + a5 y + a6 x y + a7 y^2
 
 in px over the window. Everything here is numpy and torch (already loaded for the
-network): the one-window command imports no numba. :func:`window_loss` is multicm's
+network): no numba kernel to compile in a one-window command. :func:`window_loss` is multicm's
 objective (4.9) of a dense flow, the same number as
 ``evmotion.methods.dnn.loss.window_problem(events).value_grad`` (tested to 1e-9).
 """
