@@ -10,32 +10,19 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from evmotion.core import tileflow as tf  # noqa: E402
-from evmotion.events import EventArray  # noqa: E402
 from evmotion.methods.dnn import infer  # noqa: E402
 from evmotion.methods.dnn import planar as P  # noqa: E402
 from evmotion.methods.dnn import tiles as T  # noqa: E402
 from evmotion.methods.dnn.bfgs import bfgs  # noqa: E402
 from evmotion.methods.dnn.focus import window_times  # noqa: E402
 from evmotion.methods.multicm import MultiCMProblem  # noqa: E402
-from test_dnn_planar import _aee, _sim  # noqa: E402
-
-
-def _window(seed: int, shape=(37, 53), n=3000, float_xy=False) -> EventArray:
-    rng = np.random.default_rng(seed)
-    h, w = shape
-    x = rng.integers(0, w, n).astype(float)
-    y = rng.integers(0, h, n).astype(float)
-    if float_xy:
-        x = np.clip(x + rng.uniform(-0.45, 0.45, n), 0, w - 1)
-        y = np.clip(y + rng.uniform(-0.45, 0.45, n), 0, h - 1)
-    return EventArray(x=x, y=y, t=np.sort(rng.integers(0, 20_000, n)),
-                      p=rng.integers(0, 2, n), sensor_size=shape)
+from test_dnn_planar import _aee, _sim, _window  # noqa: E402
 
 
 @pytest.mark.parametrize("float_xy", [False, True])
 @pytest.mark.parametrize("level", [1, 2, 3, 4])
 def test_tile_loss_and_gradient_are_multicms(level, float_xy):
-    ev = _window(level, float_xy=float_xy)
+    ev = _window(level, shape=(37, 53), float_xy=float_xy)
     grid = tf.scale_grid(level, ev.sensor_size)
     params = np.random.default_rng(10 + level).normal(0, 3, (grid.ny, grid.nx, 2))
     prob = MultiCMProblem(np.asarray(ev.x, float), np.asarray(ev.y, float), window_times(ev),
