@@ -57,7 +57,7 @@ def test_torch_image_is_multicms_bspline_image():
     flow = rng.normal(0, 2, (n, 2))
     dtn = rng.uniform(-1, 1, n)
     ref = iwe_forward(x, y, flow, dtn, (h, w))
-    got = F.bspline_images(torch, torch.from_numpy(x + dtn * flow[:, 0])[None],
+    got = F.bspline_images(torch.from_numpy(x + dtn * flow[:, 0])[None],
                   torch.from_numpy(y + dtn * flow[:, 1])[None], (h, w))[0].numpy()
     np.testing.assert_allclose(got, ref, atol=1e-12)
 
@@ -68,18 +68,18 @@ def test_focus_gradient_matches_finite_differences():
     x, y = (torch.from_numpy(np.asarray(a, np.float64)) for a in (ev.x, ev.y))
     s = torch.from_numpy(F.window_times(ev))
     basis = torch.from_numpy(P._basis(ev.x, ev.y, (h, w)))
-    g0 = F.identity_focus(torch, x, y, (h, w))
+    g0 = F.identity_focus(x, y, (h, w))
     p = torch.tensor([1.3, -0.7, 0.4, 0.2, -0.3, 0.5, 0.1, -0.2], dtype=torch.float64,
                      requires_grad=True)
-    f = F.multi_focus(torch, x, y, s, basis @ p, (h, w), g0)
+    f = F.multi_focus(x, y, s, basis @ p, (h, w), g0)
     f.backward()
     eps = 1e-6
     for k in range(8):
         d = torch.zeros(8, dtype=torch.float64)
         d[k] = eps
         with torch.no_grad():
-            fd = (F.multi_focus(torch, x, y, s, basis @ (p + d), (h, w), g0)
-                  - F.multi_focus(torch, x, y, s, basis @ (p - d), (h, w), g0)) / (2 * eps)
+            fd = (F.multi_focus(x, y, s, basis @ (p + d), (h, w), g0)
+                  - F.multi_focus(x, y, s, basis @ (p - d), (h, w), g0)) / (2 * eps)
         assert float(p.grad[k]) == pytest.approx(float(fd), rel=1e-5, abs=1e-9)
 
 

@@ -184,10 +184,10 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning:
     t = (torch.from_numpy(x / binning), torch.from_numpy(y / binning),
          torch.from_numpy(window_times(events)))
     shape = binned_shape(events.sensor_size, binning)
-    g0 = identity_focus(torch, t[0], t[1], shape)
+    g0 = identity_focus(t[0], t[1], shape)
     if not g0 > 0:  # no contrast to measure (a sensor under 3 px a side, one pixel)
         return float("inf")
-    f = float(multi_focus(torch, *t, flow, shape, g0))
+    f = float(multi_focus(*t, flow, shape, g0))
     return 1.0 / max(f, 1e-12) + lam * _tv(disp, duration_s)
 
 
@@ -221,7 +221,7 @@ def polish_planar(events: EventArray, params, evaluations: int = POLISH_EVALUATI
                   for a in (x / k, y / k, window_times(events)))
     start = np.asarray(params, np.float64)
     shape = binned_shape((h, w), k)
-    g0 = identity_focus(torch, tx, ty, shape)
+    g0 = identity_focus(tx, ty, shape)
     if not g0 > 0:
         return start
 
@@ -229,7 +229,7 @@ def polish_planar(events: EventArray, params, evaluations: int = POLISH_EVALUATI
         # (torch.optim's L-BFGS would import torch._dynamo: 1.5 s of a one-window command)
         p = torch.tensor(theta, dtype=torch.float32, requires_grad=True)
         with torch.enable_grad():
-            loss = -multi_focus(torch, tx, ty, ts, basis @ p, shape, g0)
+            loss = -multi_focus(tx, ty, ts, basis @ p, shape, g0)
             loss.backward()
         return float(loss.detach()), p.grad.numpy().astype(np.float64)
 

@@ -51,7 +51,7 @@ def _problem(torch, events: EventArray, grid: TileGrid, binning: int, dtype):
     shape = binned_shape(events.sensor_size, k)
     tx, ty, ts = (torch.from_numpy(a.astype(dtype)) for a in (x / k, y / k,
                                                               window_times(events)))
-    g0 = identity_focus(torch, tx, ty, shape)
+    g0 = identity_focus(tx, ty, shape)
     duration_s = max(int(events.t[-1] - events.t[0]), 1) * 1e-6
     return (tx, ty, ts, torch.from_numpy(idx), torch.from_numpy((w / k).astype(dtype)),
             shape, g0, duration_s)
@@ -75,7 +75,7 @@ def _loss(torch, prob, theta, grid: TileGrid, lam: float):
     tx, ty, ts, idx, w, shape, g0, duration_s = prob
     p = theta.reshape(grid.ny * grid.nx, 2)
     flow = (w[..., None] * p[idx]).sum(1)  # px per window, binned
-    f = multi_focus(torch, tx, ty, ts, flow, shape, g0)
+    f = multi_focus(tx, ty, ts, flow, shape, g0)
     return 1.0 / f.clamp_min(1e-12) + lam * _tv(torch, p.reshape(grid.ny, grid.nx, 2),
                                                  grid, duration_s)
 
