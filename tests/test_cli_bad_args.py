@@ -437,6 +437,22 @@ CASES = [
      ["unrecognized arguments: --epohcs", "did you mean --epochs?"]),
     ("typo-option-beside-required", ["egomotion", "{rec}", "--wrap", "rotation"],
      ["unrecognized arguments: --wrap", "did you mean --warp?"]),
+    # one idea spelled two ways across commands and methods: the counterpart is named
+    ("counterpart-unknown", ["segment", "{rec}", "--max-iter", "3", "--out", "{dir}/s"],
+     ["--max-iter", "did you mean --iterations?"]),
+    ("counterpart-bos", ["bos", "{bos}", "--max-iter", "3", "--out", "{dir}/b.h5"],
+     ["--max-iter", "did you mean --iterations?"]),
+    ("counterpart-method", ["flow", "{rec}", "--method", "triplet", "--time-bins", "3",
+                            "--out", "{dir}/f.h5"],
+     ["--time-bins 3 does not apply with --method triplet", "(here: --bins)"]),
+    ("counterpart-method-back", ["flow", "{rec}", "--bins", "3", "--out", "{dir}/f.h5"],
+     ["--bins 3 does not apply with --method multicm", "(here: --time-bins)"]),
+    ("counterpart-simulate", ["simulate", "schlieren", "--frame-rate", "200", "--duration",
+                              "0.02", "--out", "{dir}/sch"],
+     ["--frame-rate 200.0 does not apply", "(here: --fps)"]),
+    ("counterpart-simulate-back", ["simulate", "translation", "--fps", "200", "--duration",
+                                   "0.02", "--out", "{dir}/s.h5"],
+     ["--fps 200.0 does not apply", "(here: --frame-rate)"]),
 ]
 
 

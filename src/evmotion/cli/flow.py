@@ -170,12 +170,12 @@ def run(args) -> int:
     if args.resume and args.out.lower().endswith((".npy", ".flo", ".npz", ".png")):
         raise ParameterError(f"--resume continues an .h5 output; --out {args.out} is written "
                              "whole at the end (an interrupted run leaves nothing)")
+    mod = importlib.import_module(FLOW_METHODS[args.method])
     for name, modname in FLOW_METHODS.items():
         if name != args.method:
             options = importlib.import_module(modname).OPTIONS
             reject_unused(args, {flag: attr for flag, (attr, _) in options.items()},
-                          f"with --method {args.method} (a {name} option)")
-    mod = importlib.import_module(FLOW_METHODS[args.method])
+                          f"with --method {args.method} (a {name} option)", mod.OPTIONS)
     mod.check_args(args)  # sees which options were given, before the defaults fill in
     for attr, default in mod.OPTIONS.values():
         if getattr(args, attr, None) is None:

@@ -41,7 +41,7 @@ import re
 import shutil
 import sys
 import tempfile
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from pathlib import Path
 
 from evmotion.catalog import MAX_SENSOR_SIDE
@@ -173,11 +173,18 @@ def _did_you_mean(words: list[str], known: list[str], name_typed: bool = False) 
     ' (did you mean --out for --outt?)'
     >>> _did_you_mean(["--zzz"], ["--method"])
     ''
+    >>> _did_you_mean(["--max-iter"], ["--iterations", "--max-windows"])   # a counterpart
+    ' (did you mean --iterations?)'
     """
     import difflib
 
-    pairs = {w: m[0] for w in words
-             if (m := difflib.get_close_matches(w, known, n=1, cutoff=0.6))}
+    pairs = {}
+    for w in words:
+        # a counterpart first: --max-iter is nearer --max-windows than --iterations
+        if COUNTERPARTS.get(w) in known:
+            pairs[w] = COUNTERPARTS[w]
+        elif m := difflib.get_close_matches(w, known, n=1, cutoff=0.6):
+            pairs[w] = m[0]
     if not pairs:
         return ""
     if name_typed:
@@ -444,26 +451,44 @@ def check_free_space(path: str | os.PathLike, nbytes: int, option: str, what: st
                              f"{format_bytes(free)} free")
 
 
-def reject_unused(args: argparse.Namespace, options: dict[str, str], reason: str) -> None:
+#: Options that name one idea under two spellings, each where the other is not an option:
+#: a camera's frame rate (``simulate``: ``--frame-rate`` for the motion scenes' ground
+#: truth, ``--fps`` for schlieren), time bins (``flow``: multicm's ``--time-bins``,
+#: triplet's ``--bins``) and iterations (``flow``'s ``--max-iter``, ``segment`` and
+#: ``bos``'s ``--iterations``). A refusal or a typo names the counterpart where it applies.
+COUNTERPARTS = {"--frame-rate": "--fps", "--fps": "--frame-rate",
+                "--time-bins": "--bins", "--bins": "--time-bins",
+                "--max-iter": "--iterations", "--iterations": "--max-iter"}
+
+
+def reject_unused(args: argparse.Namespace, options: dict[str, str], reason: str,
+                  here: Collection[str] = ()) -> None:
     """Raise ParameterError if any of ``options`` (``{"--flag": "attribute"}``) was given.
 
     Options whose default is None (or False for switches) count as given when set; use it
     for options that do not apply to the chosen method, so that they are not silently
-    ignored.
+    ignored. ``here``: the options that do apply, of which a given flag's counterpart
+    (:data:`COUNTERPARTS`) is named.
 
     Examples
     --------
-    >>> ns = argparse.Namespace(time_aware="burgers")
+    >>> ns = argparse.Namespace(time_aware="burgers", time_bins=3)
     >>> reject_unused(ns, {"--time-aware": "time_aware"}, "with --method triplet")
     Traceback (most recent call last):
     ...
     evmotion.errors.ParameterError: --time-aware 'burgers' does not apply with --method triplet
+    >>> reject_unused(ns, {"--time-bins": "time_bins"}, "with --method triplet", ["--bins"])
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.ParameterError: --time-bins 3 does not apply with --method triplet (here: --bins)
     """
     for flag, attr in options.items():
         value = getattr(args, attr, None)
         if value is not None and value is not False:
             shown = "" if value is True else f" {value!r}"
-            raise ParameterError(f"{flag}{shown} does not apply {reason}")
+            other = COUNTERPARTS.get(flag)
+            hint = f" (here: {other})" if other in here else ""
+            raise ParameterError(f"{flag}{shown} does not apply {reason}{hint}")
 
 
 # ----------------------------------------------------------------- time range and windows

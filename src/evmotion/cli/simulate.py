@@ -221,7 +221,7 @@ def run_schlieren(args) -> int:
     from evmotion.sim.options import SchlierenOptions
     from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
 
-    reject_unused(args, MOTION_ONLY, "to 'evmotion simulate schlieren'")
+    reject_unused(args, MOTION_ONLY, "to 'evmotion simulate schlieren'", SCHLIEREN_ONLY)
     scene = _or(args.bos_scene, "plume")
     size = _size(args, (720, 640))
     if min(size) < 8:
@@ -285,7 +285,7 @@ def run(args) -> int:
     if args.scene == "schlieren":
         return run_schlieren(args)
     reject_unused(args, SCHLIEREN_ONLY, f"to the motion scene {args.scene!r} (it is for "
-                  "'evmotion simulate schlieren')")
+                  "'evmotion simulate schlieren')", MOTION_ONLY)
 
     from evmotion.cli import print_json
     from evmotion.errors import EvmotionError
