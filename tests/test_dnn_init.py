@@ -81,9 +81,9 @@ def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
     tiles = tf.event_tile_means(truth.astype(np.float32), ev.x, ev.y, grid) * dur
     np.testing.assert_allclose(theta0.reshape(4, 4, 2), tiles, atol=1e-6)
     # the network's plain pass: the refinement does what the extras would
-    assert calls == [{"with_iwes": False, "time_reversal": False, "fuse": False,
-                      "rescale": False, "planar": False, "refine": False,
-                      "check": False}]
+    assert calls == [{"device": "cpu", "threads": 1, "with_iwes": False,
+                      "time_reversal": False, "fuse": False, "rescale": False,
+                      "planar": False, "refine": False, "check": False}]
 
 
 def test_the_networks_own_verdicts_are_not_said_of_the_refined_flow(monkeypatch):
@@ -109,3 +109,34 @@ def test_the_networks_own_verdicts_are_not_said_of_the_refined_flow(monkeypatch)
         res = mc.estimate_flow(win.events, init="dnn", finest_level=5)
     assert res.valid.any()
     assert not [w for w in caught if "network's flow" in str(w.message)]
+
+
+def test_dnn_init_takes_the_networks_device_and_threads(monkeypatch, tmp_path, capsys):
+    # probe AP: --init dnn refused --device and --threads as "a dnn option"
+    from evmotion.cli import main
+    from evmotion.errors import ParameterError
+    from evmotion.io import write_events
+
+    ev = sim_window(5, scene="translation", texture="shapes", sensor_size=(64, 96),
+                    window_events=4000).events
+    real_net = dnn_pkg.estimate_flow_dnn
+    calls = []
+
+    def net(events, checkpoint=None, **kw):
+        calls.append((kw["device"], kw["threads"]))
+        return real_net(events, checkpoint, **kw)
+
+    monkeypatch.setattr(dnn_pkg, "estimate_flow_dnn", net)
+    mc.estimate_flow(ev, init="dnn", threads=2)
+    assert calls == [("cpu", 2)]
+    rec = tmp_path / "w.h5"
+    write_events(rec, ev)
+    assert main(["flow", str(rec), "--init", "dnn", "--threads", "3", "--window-events",
+                 "4000", "--out", str(tmp_path / "f.flo")]) == 0
+    assert calls[-1] == ("cpu", 3)
+    # without the network they are errors, not ignored
+    for kw in ({"threads": 2}, {"device": "cuda"}):
+        with pytest.raises(ParameterError, match="the network's"):
+            mc.estimate_flow(ev, **kw)
+    assert main(["flow", str(rec), "--threads", "2", "--out", str(tmp_path / "g.flo")]) == 2
+    assert "--threads 2 does not apply with --method multicm" in capsys.readouterr().err

@@ -171,10 +171,13 @@ def run(args) -> int:
         raise ParameterError(f"--resume continues an .h5 output; --out {args.out} is written "
                              "whole at the end (an interrupted run leaves nothing)")
     mod = importlib.import_module(FLOW_METHODS[args.method])
+    # another method's options this one also reads (multicm's --init dnn: the network's)
+    borrowed = getattr(mod, "borrowed_options", lambda a: ())(args)
     for name, modname in FLOW_METHODS.items():
         if name != args.method:
             options = importlib.import_module(modname).OPTIONS
-            reject_unused(args, {flag: attr for flag, (attr, _) in options.items()},
+            reject_unused(args, {flag: attr for flag, (attr, _) in options.items()
+                                 if flag not in borrowed},
                           f"with --method {args.method} (a {name} option)", mod.OPTIONS)
     mod.check_args(args)  # sees which options were given, before the defaults fill in
     for attr, default in mod.OPTIONS.values():

@@ -35,9 +35,11 @@ def add_arguments(group) -> None:
     group.add_argument("--checkpoint", default=None, metavar="CKPT", type=existing_input,
                        help="network weights (default: the shipped checkpoint); also used "
                             "by multicm's --init dnn")
-    group.add_argument("--device", default=None, help="torch device (default cpu)")
+    group.add_argument("--device", default=None,
+                       help="torch device (default cpu); also multicm's --init dnn")
     group.add_argument("--threads", type=int_range(1, 256), default=None,
-                       help="torch threads (default 1: faster than 2 on a shared 2-core CPU)")
+                       help="torch threads (default 1: faster than 2 on a shared 2-core "
+                            "CPU); also multicm's --init dnn")
     group.add_argument("--input-scales", type=int_range(1, 16), choices=(1, 2, 4, 8, 16),
                        nargs="+", default=None, metavar="K",
                        help="dnn: also predict from the events binned K times coarser and "

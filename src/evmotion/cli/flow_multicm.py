@@ -250,6 +250,12 @@ def _row(r, w) -> dict:
     return row
 
 
+def borrowed_options(args) -> tuple[str, ...]:
+    """The network's options this method reads: with ``--init dnn``, its torch device and
+    threads (probe AP: they were refused as a dnn option)."""
+    return ("--device", "--threads") if args.init == "dnn" else ()
+
+
 def check_args(args) -> None:
     """Options that do not go together (before the defaults are filled in)."""
     if args.init != "dnn":
@@ -344,7 +350,9 @@ def run(args) -> int:
         if args.time_bins is not None:
             attrs["time_bins"] = args.time_bins
         if args.init == "dnn":
-            kwargs.update(init="dnn", checkpoint=args.checkpoint)
+            kwargs.update(init="dnn", checkpoint=args.checkpoint,
+                          device=getattr(args, "device", None) or "cpu",
+                          threads=getattr(args, "threads", None) or 1)
             attrs["checkpoint"] = str(args.checkpoint or "shipped")
 
             def estimate(ev, init):

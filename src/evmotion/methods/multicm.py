@@ -525,7 +525,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                   tol: float = 3e-5, references: str = "multi", optimizer: str = "lbfgs",
                   time_aware_scales: int | None = None, finest_level: int | None = None,
                   transport_cell: int = 4, restart: bool = True,
-                  checkpoint=None, options: MultiCMOptions | None = None) -> FlowResult:
+                  checkpoint=None, device: str = "cpu", threads: int | None = 1,
+                  options: MultiCMOptions | None = None) -> FlowResult:
     """Dense optical flow of one event window by multi-reference contrast maximization.
 
     Parameters
@@ -534,9 +535,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         One window (at least a few hundred events); undistort first if needed.
     method : {"multicm", "dnn"}
         ``"dnn"``: the unsupervised EV-FlowNet (:mod:`evmotion.methods.dnn`, needs torch)
-        from ``checkpoint``, on one torch thread; the multicm options below must then be
-        left at their defaults (:func:`evmotion.methods.dnn.estimate_flow_dnn` has the
-        network's own: device, threads, input scales...).
+        from ``checkpoint`` on ``device`` and ``threads``; the multicm options below must
+        then be left at their defaults (:func:`evmotion.methods.dnn.estimate_flow_dnn` has
+        the network's own: input scales, the plane, the refinement...).
     time_aware : {None, "upwind", "burgers"}
         Warp with the flow transported over time bins (4.8) instead of (4.4).
     n_scales : int
@@ -597,8 +598,12 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         are not translations, e.g. zoom over 20 px).
     checkpoint : path, optional
         Network weights for ``method="dnn"`` or ``init="dnn"`` (default: shipped).
+    device, threads : str, int or None
+        The network's torch device and threads for ``method="dnn"`` or ``init="dnn"``
+        (default ``"cpu"``, one thread: :func:`~evmotion.methods.dnn.estimate_flow_dnn`);
+        anything else without the network is an error.
     options : MultiCMOptions, optional
-        The multicm options above (all but ``init`` and ``checkpoint``) as one object; the
+        The multicm options above (all but ``init`` and the network's) as one object; the
         keywords must then be left at their defaults.
 
     Returns
@@ -640,8 +645,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
             raise ParameterError(f"estimate_flow(method='dnn'): {', '.join(given)} "
                                  f"appl{'ies' if len(given) == 1 else 'y'} to method "
                                  "'multicm' only (the network takes "
-                                 "checkpoint; estimate_flow_dnn has its own options)")
-        return estimate_flow_dnn(events, checkpoint)
+                                 "checkpoint, device and threads; estimate_flow_dnn has "
+                                 "its own options)")
+        return estimate_flow_dnn(events, checkpoint, device=device, threads=threads)
     if method == "triplet":
         raise ParameterError("estimate_flow: the triplet method is event by event: "
                              "evmotion.methods.triplet.estimate_flow_triplet(events) for "
@@ -649,6 +655,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     if method != "multicm":
         raise ParameterError(f"estimate_flow: unknown method {method!r} "
                              "(available: 'multicm', 'dnn'; 'triplet' has its own functions)")
+    if not (isinstance(init, str) and init == "dnn") and (device != "cpu" or threads != 1):
+        raise ParameterError(f"estimate_flow: device={device!r}, threads={threads!r} are the "
+                             "network's: they apply with method='dnn' or init='dnn'")
     net = None
     if isinstance(init, str):
         if init != "dnn":
@@ -662,9 +671,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         # (without the network's own verdicts, "no focus" and the like: multicm's checks
         # judge the flow it refines; probe AP saw "not a measurement" said of a valid
         # result, and they cost 10-12 ms a 40k window)
-        net = estimate_flow_dnn(events, checkpoint, with_iwes=False, time_reversal=False,
-                                fuse=False, rescale=False, planar=False, refine=False,
-                                check=False)
+        net = estimate_flow_dnn(events, checkpoint, device=device, threads=threads,
+                                with_iwes=False, time_reversal=False, fuse=False,
+                                rescale=False, planar=False, refine=False, check=False)
     o = _checked(o, events)
     if net is not None:
         # The network answers at every pixel, but only where events are is its flow fitted
