@@ -173,14 +173,17 @@ def run(args) -> int:
     mod = importlib.import_module(FLOW_METHODS[args.method])
     # another method's options this one also reads (multicm's --init dnn: the network's)
     borrowed = getattr(mod, "borrowed_options", lambda a: ())(args)
+    defaults = dict(mod.OPTIONS.values())
     for name, modname in FLOW_METHODS.items():
         if name != args.method:
             options = importlib.import_module(modname).OPTIONS
             reject_unused(args, {flag: attr for flag, (attr, _) in options.items()
                                  if flag not in borrowed},
                           f"with --method {args.method} (a {name} option)", mod.OPTIONS)
+            # a borrowed option has its owner's default
+            defaults.update(options[flag] for flag in borrowed if flag in options)
     mod.check_args(args)  # sees which options were given, before the defaults fill in
-    for attr, default in mod.OPTIONS.values():
+    for attr, default in defaults.items():
         if getattr(args, attr, None) is None:
             setattr(args, attr, default)
     start = time.perf_counter()

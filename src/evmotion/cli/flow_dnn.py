@@ -83,7 +83,7 @@ def check_network(args) -> None:
     require_torch()
     from evmotion.methods.dnn.model import load_inference_net
 
-    load_inference_net(args.checkpoint, getattr(args, "device", None) or "cpu")
+    load_inference_net(args.checkpoint, args.device)
 
 
 def estimator(args):

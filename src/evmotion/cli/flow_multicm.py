@@ -350,9 +350,8 @@ def run(args) -> int:
         if args.time_bins is not None:
             attrs["time_bins"] = args.time_bins
         if args.init == "dnn":
-            kwargs.update(init="dnn", checkpoint=args.checkpoint,
-                          device=getattr(args, "device", None) or "cpu",
-                          threads=getattr(args, "threads", None) or 1)
+            kwargs.update(init="dnn", checkpoint=args.checkpoint, device=args.device,
+                          threads=args.threads)
             attrs["checkpoint"] = str(args.checkpoint or "shipped")
 
             def estimate(ev, init):

@@ -370,7 +370,8 @@ def _box3(a: np.ndarray) -> np.ndarray:
 
 
 def _tile_means(img: np.ndarray, grid) -> np.ndarray:
-    """Mean of ``img`` (H, W) over the pixels of each tile (:func:`~evmotion.core.tileflow.pixel_tiles`), (ny, nx)."""
+    """Mean of ``img`` (H, W) over the pixels of each tile
+    (:func:`~evmotion.core.tileflow.pixel_tiles`), (ny, nx)."""
     ty, tx = tf.pixel_tiles(img.shape, grid)
     key = (ty * grid.nx + tx).ravel()
     n = grid.ny * grid.nx
