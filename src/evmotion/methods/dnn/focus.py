@@ -11,7 +11,7 @@ import torch
 
 from evmotion.events import EventArray
 
-__all__ = ["REFERENCES", "binned_shape", "bspline_images", "identity_focus", "mean_gradmag", "multi_focus",
+__all__ = ["REFERENCES", "binned_shape", "bspline_images", "value_grad", "identity_focus", "mean_gradmag", "multi_focus",
            "window_times"]
 
 #: Multi-reference times (fractions of the window) and weights of the focus (4.6).
@@ -101,3 +101,24 @@ def multi_focus(x, y, s, flow, shape, g0: float):
     dtn = refs[:, None] - s[None]                # (K, N)
     imgs = bspline_images(x[None] + dtn * flow[:, 0], y[None] + dtn * flow[:, 1], shape)
     return (wts * mean_gradmag(imgs)).sum() / (wts.sum() * g0)
+
+
+def value_grad(loss_of, dtype=torch.float32):
+    """``theta -> (loss, d loss / d theta)`` (a float and a float64 array) of
+    ``loss_of(theta_tensor)``, by autograd in ``dtype``: what the polishes' BFGS calls.
+
+    Examples
+    --------
+    >>> f = value_grad(lambda p: (p * p).sum(), torch.float64)
+    >>> v, g = f(np.array([1.0, -2.0]))
+    >>> v, g.tolist()
+    (5.0, [2.0, -4.0])
+    """
+    def fun_grad(theta):
+        p = torch.tensor(np.asarray(theta), dtype=dtype, requires_grad=True)
+        with torch.enable_grad():
+            loss = loss_of(p)
+            loss.backward()
+        return float(loss.detach()), p.grad.numpy().astype(np.float64)
+
+    return fun_grad

@@ -30,10 +30,17 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import torch
 
 from evmotion.events import EventArray
 from evmotion.methods.dnn.bfgs import bfgs
-from evmotion.methods.dnn.focus import binned_shape, identity_focus, multi_focus, window_times
+from evmotion.methods.dnn.focus import (
+    binned_shape,
+    identity_focus,
+    multi_focus,
+    value_grad,
+    window_times,
+)
 
 __all__ = ["binning", "fit_planar", "planar_flow", "polish_planar", "window_loss"]
 
@@ -175,8 +182,6 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning:
     >>> window_loss(ev, right) < window_loss(ev, np.zeros_like(right))
     True
     """
-    import torch
-
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
     duration_s = max(int(events.t[-1] - events.t[0]), 1) * 1e-6
@@ -208,8 +213,6 @@ def polish_planar(events: EventArray, params, evaluations: int = POLISH_EVALUATI
     >>> round(float(polish_planar(ev, [6, 0, 0, 0, 0, 0, 0, 0])[0]), 1)
     8.0
     """
-    import torch
-
     h, w = events.sensor_size
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
@@ -225,13 +228,6 @@ def polish_planar(events: EventArray, params, evaluations: int = POLISH_EVALUATI
     if not g0 > 0:
         return start
 
-    def fun_grad(theta):
-        # (torch.optim's L-BFGS would import torch._dynamo: 1.5 s of a one-window command)
-        p = torch.tensor(theta, dtype=torch.float32, requires_grad=True)
-        with torch.enable_grad():
-            loss = -multi_focus(tx, ty, ts, basis @ p, shape, g0)
-            loss.backward()
-        return float(loss.detach()), p.grad.numpy().astype(np.float64)
-
-    out = bfgs(fun_grad, start, int(evaluations))
+    out = bfgs(value_grad(lambda p: -multi_focus(tx, ty, ts, basis @ p, shape, g0)), start,
+               int(evaluations))
     return out if np.isfinite(out).all() else start

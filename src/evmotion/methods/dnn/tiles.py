@@ -24,12 +24,21 @@ the network's input scales and gains are chosen by) of the flow it replaces.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+import torch
 
 from evmotion.core.tileflow import TileGrid, event_weights
 from evmotion.events import EventArray
 from evmotion.methods.dnn.bfgs import bfgs
-from evmotion.methods.dnn.focus import binned_shape, identity_focus, multi_focus, window_times
+from evmotion.methods.dnn.focus import (
+    binned_shape,
+    identity_focus,
+    multi_focus,
+    value_grad,
+    window_times,
+)
 from evmotion.methods.dnn.planar import LAM, TV_EPS
 
 __all__ = ["REFINE_EVALUATIONS", "refine_tiles", "tile_loss_grad"]
@@ -42,9 +51,21 @@ REFINE_EVALUATIONS = 25
 STEP_PX = 0.5
 
 
-def _problem(torch, events: EventArray, grid: TileGrid, binning: int, dtype):
-    """The tensors of the objective: positions (binned), times, the events' bilinear
-    stencil on the tiles, the identity warp's focus and the window's duration."""
+class _Problem(NamedTuple):
+    """The tensors of the objective on one grid."""
+
+    x: torch.Tensor          # positions (N,), binned
+    y: torch.Tensor
+    s: torch.Tensor          # times, fractions of the window
+    idx: torch.Tensor        # the events' bilinear stencil on the tiles (N, 4)
+    w: torch.Tensor          # its weights (N, 4), divided by the binning
+    shape: tuple[int, int]   # of the (binned) images
+    g0: float                # the identity warp's focus
+    duration_s: float
+    grid: TileGrid
+
+
+def _problem(events: EventArray, grid: TileGrid, binning: int, dtype) -> _Problem:
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
     idx, w = event_weights(x, y, grid)
@@ -52,13 +73,12 @@ def _problem(torch, events: EventArray, grid: TileGrid, binning: int, dtype):
     shape = binned_shape(events.sensor_size, k)
     tx, ty, ts = (torch.from_numpy(a.astype(dtype)) for a in (x / k, y / k,
                                                               window_times(events)))
-    g0 = identity_focus(tx, ty, shape)
-    duration_s = max(int(events.t[-1] - events.t[0]), 1) * 1e-6
-    return (tx, ty, ts, torch.from_numpy(idx), torch.from_numpy((w / k).astype(dtype)),
-            shape, g0, duration_s)
+    return _Problem(tx, ty, ts, torch.from_numpy(idx), torch.from_numpy((w / k).astype(dtype)),
+                    shape, identity_focus(tx, ty, shape),
+                    max(int(events.t[-1] - events.t[0]), 1) * 1e-6, grid)
 
 
-def _tv(torch, p, grid: TileGrid, duration_s: float):
+def _tv(p, grid: TileGrid, duration_s: float):
     """multicm's ``tv_grad`` value of tile params ``p`` (ny, nx, 2) px per window: mean
     over tiles of the Charbonnier magnitude of each component's forward differences, in
     1/s."""
@@ -72,13 +92,12 @@ def _tv(torch, p, grid: TileGrid, duration_s: float):
     return torch.sqrt(dx * dx + dy * dy + TV_EPS ** 2).sum() / (grid.ny * grid.nx)
 
 
-def _loss(torch, prob, theta, grid: TileGrid, lam: float):
-    tx, ty, ts, idx, w, shape, g0, duration_s = prob
-    p = theta.reshape(grid.ny * grid.nx, 2)
-    flow = (w[..., None] * p[idx]).sum(1)  # px per window, binned
-    f = multi_focus(tx, ty, ts, flow, shape, g0)
-    return 1.0 / f.clamp_min(1e-12) + lam * _tv(torch, p.reshape(grid.ny, grid.nx, 2),
-                                                 grid, duration_s)
+def _loss(prob: _Problem, theta, lam: float):
+    g = prob.grid
+    p = theta.reshape(g.ny * g.nx, 2)
+    flow = (prob.w[..., None] * p[prob.idx]).sum(1)  # px per window, binned
+    f = multi_focus(prob.x, prob.y, prob.s, flow, prob.shape, prob.g0)
+    return 1.0 / f.clamp_min(1e-12) + lam * _tv(p.reshape(g.ny, g.nx, 2), g, prob.duration_s)
 
 
 def tile_loss_grad(events: EventArray, params: np.ndarray, grid: TileGrid,
@@ -98,14 +117,9 @@ def tile_loss_grad(events: EventArray, params: np.ndarray, grid: TileGrid,
     >>> tile_loss_grad(ev, right, g)[0] < tile_loss_grad(ev, 0 * right, g)[0]
     True
     """
-    import torch
-
-    prob = _problem(torch, events, grid, binning, np.float64)
-    theta = torch.tensor(np.asarray(params, np.float64).ravel(), requires_grad=True)
-    with torch.enable_grad():
-        loss = _loss(torch, prob, theta, grid, lam)
-        loss.backward()
-    return float(loss.detach()), theta.grad.numpy().copy()
+    prob = _problem(events, grid, binning, np.float64)
+    return value_grad(lambda p: _loss(prob, p, lam), torch.float64)(
+        np.asarray(params, np.float64).ravel())
 
 
 def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
@@ -124,19 +138,10 @@ def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
     >>> out[0, :, 0].round(1).tolist()
     [6.1, 6.1]
     """
-    import torch
-
     start = np.asarray(params, np.float64)
-    prob = _problem(torch, events, grid, binning, np.float32)
-    if not prob[6] > 0:  # no contrast to measure
+    prob = _problem(events, grid, binning, np.float32)
+    if not prob.g0 > 0:  # no contrast to measure
         return start
-
-    def fun_grad(theta):
-        p = torch.tensor(theta, dtype=torch.float32, requires_grad=True)
-        with torch.enable_grad():
-            loss = _loss(torch, prob, p, grid, LAM)
-            loss.backward()
-        return float(loss.detach()), p.grad.numpy().astype(np.float64)
-
-    out = bfgs(fun_grad, start.ravel(), int(evaluations), step_px=STEP_PX)
+    out = bfgs(value_grad(lambda p: _loss(prob, p, LAM)), start.ravel(), int(evaluations),
+               step_px=STEP_PX)
     return out.reshape(start.shape) if np.isfinite(out).all() else start
