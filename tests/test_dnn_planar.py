@@ -181,8 +181,9 @@ def test_long_windows_are_polished_on_evenly_spaced_events(monkeypatch):
     monkeypatch.setattr(P, "MAX_EVENTS", 1000)
     monkeypatch.setattr(P, "polish_planar", spy)
     ev = _window(7, n=5000)
-    infer._planar(ev, np.zeros((*ev.sensor_size, 2), np.float32),
-                  np.zeros(ev.sensor_size, bool))
+    infer._alternatives(ev, np.zeros((*ev.sensor_size, 2), np.float32),
+                        np.zeros(ev.sensor_size, bool), infer._pixels_and_times(ev),
+                        planar=True, refine=False)
     assert seen and all(s == (1000, int(ev.t[0]), int(ev.t[-1])) for s in seen)
 
 

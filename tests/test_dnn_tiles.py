@@ -81,7 +81,8 @@ def test_a_refinement_that_blurs_the_events_is_not_kept(monkeypatch):
                         lambda events, flow, lam=P.LAM, binning=1: float(np.abs(flow).sum()))
     xys = infer._pixels_and_times(win)
     hot = np.zeros(win.sensor_size, bool)
-    assert infer._refined(win, net, hot, xys) is None and refined_ids
+    assert infer._alternatives(win, net, hot, xys, planar=False, refine=True)[1] is None
+    assert refined_ids
 
 
 def test_no_refinement_without_the_option_or_where_the_plane_is_kept():

@@ -297,60 +297,68 @@ def _warped_variance(x, y, pix, s, disp) -> float:
     return float(np.var(np.bincount(yw[inside] * w + xw[inside], minlength=h * w)))
 
 
-def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray):
+def _alternatives(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys,
+                  planar: bool, refine: bool):
+    """``(plane, refined)``: the plane's ``(params, flow)`` (:func:`_planar`) and, where no
+    plane is kept, the refined flow (:func:`_refined`), each None where not kept. Both are
+    polished and judged on at most ``MAX_EVENTS`` evenly spaced events, their focus on
+    images binned as :func:`.planar.binning` says, against the network's flow's loss."""
+    from evmotion.methods.dnn.planar import MAX_EVENTS, binning, window_loss
+
+    k = binning(events.sensor_size)
+    if len(events) > MAX_EVENTS:
+        events = events[np.linspace(0, len(events) - 1, MAX_EVENTS).astype(np.intp)]
+    reference = window_loss(events, disp, binning=k)
+    plane = _planar(events, disp, hot, k, reference) if planar else None
+    refined = (_refined(events, disp, hot, xys, k, reference)
+               if refine and plane is None else None)
+    return plane, refined
+
+
+def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray, k: int,
+            reference: float):
     """``(params, flow)`` of the plane's motion polished from the network's flow ``disp``
-    when its training loss is lower than the network's flow's, else None."""
+    when its training loss is lower than the network's flow's (``reference``), else
+    None."""
     from evmotion.methods.dnn.planar import (
-        MAX_EVENTS,
         POLISH_EVALUATIONS,
         PROBE_EVALUATIONS,
         PROBE_RATIO,
-        binning,
         fit_planar,
         planar_flow,
         polish_planar,
         window_loss,
     )
 
-    k = binning(events.sensor_size)
-    if len(events) > MAX_EVENTS:
-        events = events[np.linspace(0, len(events) - 1, MAX_EVENTS).astype(np.intp)]
-
     def field(params):
         flow = planar_flow(params, events.sensor_size)
         flow[hot] = 0.0
         return flow
 
-    def loss(flow):
-        return window_loss(events, flow, binning=k)
-
-    reference = loss(disp)
     params = polish_planar(events, fit_planar(events, disp), PROBE_EVALUATIONS, k)
-    if loss(field(params)) > PROBE_RATIO * reference:
+    if window_loss(events, field(params), binning=k) > PROBE_RATIO * reference:
         return None
     params = polish_planar(events, params, POLISH_EVALUATIONS - PROBE_EVALUATIONS, k)
     flow = field(params)
-    return (params, flow) if loss(flow) < reference else None
+    return (params, flow) if window_loss(events, flow, binning=k) < reference else None
 
 
-def _refined(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys):
+def _refined(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys, k: int,
+             reference: float):
     """The network's flow ``disp`` refined on multicm's finest tiles (:mod:`.tiles`) when
-    its training loss is lower and its :func:`sharpness` (on ``xys``, the events' pixels
-    and times) no lower than ``disp``'s, else None."""
+    its training loss is lower than ``reference`` (``disp``'s) and its :func:`sharpness`
+    (on ``xys``, the events' pixels and times) no lower than ``disp``'s, else None."""
     from evmotion.core.tileflow import dense_flow, event_tile_means, scale_grid
-    from evmotion.methods.dnn.planar import MAX_EVENTS, binning, window_loss
+    from evmotion.methods.dnn.planar import window_loss
     from evmotion.methods.dnn.tiles import refine_tiles
     from evmotion.methods.multicm import auto_finest_level
 
     shape = events.sensor_size
-    k = binning(shape)
-    if len(events) > MAX_EVENTS:
-        events = events[np.linspace(0, len(events) - 1, MAX_EVENTS).astype(np.intp)]
     grid = scale_grid(auto_finest_level(len(events), shape), shape)
     start = event_tile_means(disp, events.x, events.y, grid)
     flow = dense_flow(refine_tiles(events, start, grid, binning=k), shape).astype(np.float32)
     flow[hot] = 0.0
-    if (window_loss(events, flow, binning=k) < window_loss(events, disp, binning=k)
+    if (window_loss(events, flow, binning=k) < reference
             and _warped_variance(*xys, flow) >= _warped_variance(*xys, disp)):
         return flow
     return None
@@ -510,9 +518,8 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     # under the network's thread count: the polish's float32 sums, and so its path,
     # depend on it
     with torch_threads(threads):
-        plane = _planar(checked, disp, hot) if planar and len(checked) >= 10 else None
-        refined = (_refined(checked, disp, hot, xyc)
-                   if refine and plane is None and len(checked) >= 10 else None)
+        plane, refined = (_alternatives(checked, disp, hot, xyc, planar, refine)
+                          if (planar or refine) and len(checked) >= 10 else (None, None))
     if plane is not None:
         disp = plane[1]
     elif refined is not None:
