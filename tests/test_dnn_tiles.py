@@ -72,8 +72,8 @@ def test_a_refinement_that_blurs_the_events_is_not_kept(monkeypatch):
     net = infer.estimate_flow_dnn(win, with_iwes=False, refine=False).displacement()
     refined_ids = []
 
-    def refine(events, params, grid, evaluations=T.REFINE_EVALUATIONS, binning=1):
-        refined_ids.append(True)
+    def refine(events, params, grid, evaluations=T.REFINE_EVALUATIONS, binning=1, base=None):
+        refined_ids.append(base is not None)
         return np.zeros_like(params)
 
     monkeypatch.setattr(T, "refine_tiles", refine)
@@ -82,7 +82,74 @@ def test_a_refinement_that_blurs_the_events_is_not_kept(monkeypatch):
     xys = infer._pixels_and_times(win)
     hot = np.zeros(win.sensor_size, bool)
     assert infer._alternatives(win, net, hot, xys, planar=False, refine=True)[1] is None
-    assert refined_ids
+    # (and the tiles' correction of the network's flow, which is that flow itself here:
+    # no lower loss, refused too)
+    assert refined_ids[-1]
+
+
+def test_a_correction_of_a_flow_is_the_tile_loss_of_the_sum():
+    # with a uniform base the correction's objective is multicm's at base + correction
+    ev = _window(3, shape=(37, 53), float_xy=False)
+    grid = tf.scale_grid(3, ev.sensor_size)
+    corr = np.random.default_rng(4).normal(0, 2, (grid.ny, grid.nx, 2))
+    base = np.zeros((*ev.sensor_size, 2))
+    base[..., 0], base[..., 1] = 2.5, -1.5
+    prob = T._problem(ev, grid, 1, np.float64, base)
+    theta = torch.tensor(corr.ravel(), requires_grad=True)
+    got = T._loss(prob, theta, P.LAM)
+    got.backward()
+    want, want_grad = T.tile_loss_grad(ev, corr + base[0, 0], grid)
+    assert float(got.detach()) == pytest.approx(want, rel=1e-12)
+    np.testing.assert_allclose(theta.grad.numpy(), want_grad, rtol=1e-9,
+                               atol=1e-12 * np.abs(want_grad).max())
+
+
+def _rows_apart(shape=(32, 64), speed=8.0, seed=3):
+    """Events of dots on every row, even rows moving ``speed`` px right over the window,
+    odd rows as far left; and that exact displacement (H, W, 2)."""
+    from evmotion.events import EventArray
+
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    xs, ys, ss = [], [], []
+    s = np.linspace(0.0, 1.0, 60)
+    for row in range(h):
+        v = speed if row % 2 == 0 else -speed
+        for x0 in rng.uniform(12, w - 12, 6):
+            xs.append(np.rint(x0 + v * (s - 0.5)))
+            ys.append(np.full(s.size, row))
+            ss.append(s)
+    order = np.argsort(np.concatenate(ss), kind="stable")
+    t = np.rint(np.concatenate(ss)[order] * 20_000).astype(np.int64)
+    ev = EventArray(x=np.concatenate(xs)[order], y=np.concatenate(ys)[order], t=t,
+                    p=np.ones(t.size, int), sensor_size=shape)
+    disp = np.zeros((h, w, 2))
+    disp[0::2, :, 0], disp[1::2, :, 0] = speed, -speed
+    return ev, disp
+
+
+def test_a_flow_finer_than_the_tiles_is_corrected_not_averaged(monkeypatch):
+    # rows moving apart: averaged over a tile the flow is ~0 and the events blur, so
+    # only the tiles' correction of the flow is tried; it removes the flow's 1.5 px
+    # offset and keeps its row-by-row detail
+    win, exact = _rows_apart()
+    disp = (exact + [1.5, 0.0]).astype(np.float32)
+    bases = []
+    real = T.refine_tiles
+
+    def spy(*args, base=None, **kw):
+        bases.append(base is not None)
+        return real(*args, base=base, **kw)
+
+    monkeypatch.setattr(T, "refine_tiles", spy)
+    xys = infer._pixels_and_times(win)
+    hot = np.zeros(win.sensor_size, bool)
+    flow = infer._alternatives(win, disp, hot, xys, planar=False, refine=True)[1]
+    assert bases == [True]
+    assert flow is not None
+    before = np.abs(disp - exact)[..., 0].mean()
+    after = np.abs(flow - exact)[..., 0].mean()
+    assert after < 0.3 * before, (before, after)
 
 
 def test_no_refinement_without_the_option_or_where_the_plane_is_kept():

@@ -42,7 +42,7 @@ from evmotion.methods.dnn.focus import (
     window_times,
 )
 
-__all__ = ["binning", "fit_planar", "planar_flow", "polish_planar", "window_loss"]
+__all__ = ["binning", "event_flow", "fit_planar", "planar_flow", "polish_planar", "window_loss"]
 
 #: TV weight of the loss that chooses (multicm's and the training loss' default).
 LAM = 0.0025
@@ -137,7 +137,7 @@ def fit_planar(events: EventArray, disp: np.ndarray) -> np.ndarray:
     return np.linalg.lstsq(a, disp[yi, xi].astype(np.float64).reshape(-1), rcond=None)[0]
 
 
-def _event_flow(disp: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def event_flow(disp: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The dense flow bilinear between pixel centres at each event (clamped at the edges),
     as multicm's pixel tiles interpolate it."""
     h, w = disp.shape[:2]
@@ -185,7 +185,7 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning:
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
     duration_s = max(int(events.t[-1] - events.t[0]), 1) * 1e-6
-    flow = torch.from_numpy(_event_flow(disp, x, y) / binning)
+    flow = torch.from_numpy(event_flow(disp, x, y) / binning)
     t = (torch.from_numpy(x / binning), torch.from_numpy(y / binning),
          torch.from_numpy(window_times(events)))
     shape = binned_shape(events.sensor_size, binning)

@@ -10,7 +10,10 @@ Averaged over the events of each of multicm's finest tiles (16 x 16 from 25.6k e
 multicm's own objective -- the focus of :mod:`.focus` plus the Charbonnier TV of the
 tiles, equal to :class:`~evmotion.methods.multicm.MultiCMProblem`'s value and gradient
 (tested) -- it reaches 2.87 px on that window and 2.54-2.98 px on three other seeds' (the
-network: 3.72-4.33), in about 25 evaluations.
+network: 3.72-4.33), in about 25 evaluations. Where those tile means blur what the
+network saw, the tiles are instead a correction added to the network's flow, which keeps
+its detail finer than a tile (``refine_tiles(..., base=flow)``;
+:func:`~evmotion.methods.dnn.infer.estimate_flow_dnn` tries it where the first is not kept).
 
 A few hundred unknowns started from a flow far from the motion can settle where the loss
 is low because the flow is smooth, not because it is sharp: on real windows moving 75-87
@@ -29,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from evmotion.core.tileflow import TileGrid, event_weights
+from evmotion.core.tileflow import TileGrid, event_tile_means, event_weights
 from evmotion.events import EventArray
 from evmotion.methods.dnn.bfgs import bfgs
 from evmotion.methods.dnn.focus import (
@@ -39,7 +42,7 @@ from evmotion.methods.dnn.focus import (
     value_grad,
     window_times,
 )
-from evmotion.methods.dnn.planar import LAM, TV_EPS
+from evmotion.methods.dnn.planar import LAM, TV_EPS, event_flow
 
 __all__ = ["REFINE_EVALUATIONS", "refine_tiles", "tile_loss_grad"]
 
@@ -63,9 +66,12 @@ class _Problem(NamedTuple):
     g0: float                # the identity warp's focus
     duration_s: float
     grid: TileGrid
+    base: torch.Tensor | None = None        # a dense flow at the events (N, 2), binned
+    base_tiles: torch.Tensor | None = None  # its means over the tiles' pixels (ny, nx, 2)
 
 
-def _problem(events: EventArray, grid: TileGrid, binning: int, dtype) -> _Problem:
+def _problem(events: EventArray, grid: TileGrid, binning: int, dtype,
+             base: np.ndarray | None = None) -> _Problem:
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
     idx, w = event_weights(x, y, grid)
@@ -73,9 +79,16 @@ def _problem(events: EventArray, grid: TileGrid, binning: int, dtype) -> _Proble
     shape = binned_shape(events.sensor_size, k)
     tx, ty, ts = (torch.from_numpy(a.astype(dtype)) for a in (x / k, y / k,
                                                               window_times(events)))
+    extra = ()
+    if base is not None:
+        # (the TV's share of base: its mean over each tile's pixels, as a tile without
+        # events has a flow too)
+        py, px = np.indices(base.shape[:2]).reshape(2, -1)
+        extra = (torch.from_numpy((event_flow(base, x, y) / k).astype(dtype)),
+                 torch.from_numpy(event_tile_means(base, px, py, grid).astype(dtype)))
     return _Problem(tx, ty, ts, torch.from_numpy(idx), torch.from_numpy((w / k).astype(dtype)),
                     shape, identity_focus(tx, ty, shape),
-                    max(int(events.t[-1] - events.t[0]), 1) * 1e-6, grid)
+                    max(int(events.t[-1] - events.t[0]), 1) * 1e-6, grid, *extra)
 
 
 def _tv(p, grid: TileGrid, duration_s: float):
@@ -96,8 +109,12 @@ def _loss(prob: _Problem, theta, lam: float):
     g = prob.grid
     p = theta.reshape(g.ny * g.nx, 2)
     flow = (prob.w[..., None] * p[prob.idx]).sum(1)  # px per window, binned
+    tiles = p.reshape(g.ny, g.nx, 2)
+    if prob.base is not None:
+        flow = flow + prob.base
+        tiles = tiles + prob.base_tiles
     f = multi_focus(prob.x, prob.y, prob.s, flow, prob.shape, prob.g0)
-    return 1.0 / f.clamp_min(1e-12) + lam * _tv(p.reshape(g.ny, g.nx, 2), g, prob.duration_s)
+    return 1.0 / f.clamp_min(1e-12) + lam * _tv(tiles, g, prob.duration_s)
 
 
 def tile_loss_grad(events: EventArray, params: np.ndarray, grid: TileGrid,
@@ -123,11 +140,18 @@ def tile_loss_grad(events: EventArray, params: np.ndarray, grid: TileGrid,
 
 
 def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
-                 evaluations: int = REFINE_EVALUATIONS, binning: int = 1) -> np.ndarray:
+                 evaluations: int = REFINE_EVALUATIONS, binning: int = 1,
+                 base: np.ndarray | None = None) -> np.ndarray:
     """The tile flow (ny, nx, 2, px over the window) that lowers multicm's objective on
     ``grid``, by BFGS from ``params`` (e.g. the network's flow averaged over each tile's
     events, :func:`~evmotion.core.tileflow.event_tile_means`), in float32 as the plane's
     polish; with ``binning`` k > 1 the focus of the images binned k x k.
+
+    With ``base``, a dense flow (H, W, 2, px over the window), the tiles are a correction
+    added to it: the events move by ``base`` (bilinear between pixel centres) plus the
+    tiles' field, the TV is that of the tiles plus ``base``'s means over their events, and
+    the flow found is ``base + dense_flow(result)``. Started from zero, that is ``base``
+    itself, detail finer than a tile included.
 
     Examples
     --------
@@ -137,9 +161,13 @@ def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
     >>> out = refine_tiles(ev, np.full((1, 2, 2), [4.0, 0.0]), TileGrid(1, 2, (20, 40)))
     >>> out[0, :, 0].round(1).tolist()
     [6.1, 6.1]
+    >>> base = np.zeros((20, 40, 2)); base[..., 0] = 4.0   # the same, as a correction
+    >>> fix = refine_tiles(ev, np.zeros((1, 2, 2)), TileGrid(1, 2, (20, 40)), base=base)
+    >>> (4.0 + fix[0, :, 0]).round(1).tolist()
+    [6.1, 6.1]
     """
     start = np.asarray(params, np.float64)
-    prob = _problem(events, grid, binning, np.float32)
+    prob = _problem(events, grid, binning, np.float32, base)
     if not prob.g0 > 0:  # no contrast to measure
         return start
     out = bfgs(value_grad(lambda p: _loss(prob, p, LAM)), start.ravel(), int(evaluations),
