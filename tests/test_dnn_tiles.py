@@ -104,27 +104,26 @@ def test_a_correction_of_a_flow_is_the_tile_loss_of_the_sum():
                                atol=1e-12 * np.abs(want_grad).max())
 
 
-def _rows_apart(shape=(32, 64), speed=8.0, seed=3):
-    """Events of dots on every row, even rows moving ``speed`` px right over the window,
-    odd rows as far left; and that exact displacement (H, W, 2)."""
+def _moving_rows(speeds, width: int = 64, seed: int = 3):
+    """Events of dots on every row y moving ``speeds[y]`` px right over the window, on a
+    ``len(speeds)`` x ``width`` sensor; and that exact displacement (H, W, 2)."""
     from evmotion.events import EventArray
 
     rng = np.random.default_rng(seed)
-    h, w = shape
+    h = len(speeds)
     xs, ys, ss = [], [], []
     s = np.linspace(0.0, 1.0, 60)
-    for row in range(h):
-        v = speed if row % 2 == 0 else -speed
-        for x0 in rng.uniform(12, w - 12, 6):
+    for row, v in enumerate(speeds):
+        for x0 in rng.uniform(12, width - 12, 6):
             xs.append(np.rint(x0 + v * (s - 0.5)))
             ys.append(np.full(s.size, row))
             ss.append(s)
     order = np.argsort(np.concatenate(ss), kind="stable")
     t = np.rint(np.concatenate(ss)[order] * 20_000).astype(np.int64)
     ev = EventArray(x=np.concatenate(xs)[order], y=np.concatenate(ys)[order], t=t,
-                    p=np.ones(t.size, int), sensor_size=shape)
-    disp = np.zeros((h, w, 2))
-    disp[0::2, :, 0], disp[1::2, :, 0] = speed, -speed
+                    p=np.ones(t.size, int), sensor_size=(h, width))
+    disp = np.zeros((h, width, 2))
+    disp[..., 0] = np.asarray(speeds, float)[:, None]
     return ev, disp
 
 
@@ -132,7 +131,7 @@ def test_a_flow_finer_than_the_tiles_is_corrected_not_averaged(monkeypatch):
     # rows moving apart: averaged over a tile the flow is ~0 and the events blur, so
     # only the tiles' correction of the flow is tried; it removes the flow's 1.5 px
     # offset and keeps its row-by-row detail
-    win, exact = _rows_apart()
+    win, exact = _moving_rows(np.resize([8.0, -8.0], 32))  # even rows right, odd left
     disp = (exact + [1.5, 0.0]).astype(np.float32)
     bases = []
     real = T.refine_tiles
@@ -152,11 +151,24 @@ def test_a_flow_finer_than_the_tiles_is_corrected_not_averaged(monkeypatch):
     assert after < 0.3 * before, (before, after)
 
 
-def test_no_refinement_without_the_option_or_where_the_plane_is_kept():
+def test_the_planes_flow_is_corrected_where_the_scene_has_depth():
+    # two depths (the top half moves 8 px, the bottom 3): from the network's flow with
+    # 2 px of noise a plane is kept, and the tiles' correction of it finds the step
+    # (measured: network 1.60, plane 0.54, corrected 0.20 px)
+    win, exact = _moving_rows(np.repeat([8.0, 3.0], 24), seed=5)
+    disp = (exact + np.random.default_rng(0).normal(0, 2.0, exact.shape)).astype(np.float32)
+    xys = infer._pixels_and_times(win)
+    plane, refined = infer._alternatives(win, disp, np.zeros(win.sensor_size, bool), xys,
+                                         planar=True, refine=True)
+    assert plane is not None and refined is not None
+    assert np.abs(refined - exact).mean() < 0.5 * np.abs(plane[1] - exact).mean()
+
+
+def test_no_refinement_without_the_option():
     win, *_ = _sim("object", 41, n_max=8000)
     assert not infer.estimate_flow_dnn(win, with_iwes=False, refine=False).meta["refined"]
     rot, *_ = _sim("rotation", 32, (180, 240))
-    res = infer.estimate_flow_dnn(rot, with_iwes=False)
+    res = infer.estimate_flow_dnn(rot, with_iwes=False, refine=False)
     assert res.meta["planar"] and not res.meta["refined"]
 
 

@@ -305,10 +305,11 @@ def _warped_variance(x, y, pix, s, disp) -> float:
 
 def _alternatives(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys,
                   planar: bool, refine: bool):
-    """``(plane, refined)``: the plane's ``(params, flow)`` (:func:`_planar`) and, where no
-    plane is kept, the refined flow (:func:`_refined`), each None where not kept. Both are
-    polished and judged on at most ``MAX_EVENTS`` evenly spaced events, their focus on
-    images binned as :func:`.planar.binning` says, against the network's flow's loss."""
+    """``(plane, refined)``: the plane's ``(params, flow)`` (:func:`_planar`) and the
+    refined flow (:func:`_refined`: of the plane's flow where the plane is kept, else of
+    the network's), each None where not kept. All are polished and judged on at most
+    ``MAX_EVENTS`` evenly spaced events, their focus on images binned as
+    :func:`.planar.binning` says, against the loss of the flow they would replace."""
     from evmotion.methods.dnn.planar import MAX_EVENTS, binning, window_loss
 
     k = binning(events.sensor_size)
@@ -316,16 +317,23 @@ def _alternatives(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys,
         events = events[np.linspace(0, len(events) - 1, MAX_EVENTS).astype(np.intp)]
     reference = window_loss(events, disp, binning=k)
     plane = _planar(events, disp, hot, k, reference) if planar else None
-    refined = (_refined(events, disp, hot, xys, k, reference)
-               if refine and plane is None else None)
-    return plane, refined
+    refined = None
+    if refine and plane is not None:
+        # a plane is a scene's motion up to its depth: real scenes have depth, and a
+        # correction on multicm's finest tiles finds it (ECD shapes_rotation: FWL 3.97
+        # -> 4.30, multicm 4.23); the simulator's planar zoom loses to it in AEE (0.43 ->
+        # 0.52 px, multicm's 0.52), the objective's own preference
+        refined = _refined(events, plane[1], hot, xys, k, plane[2], means_first=False)
+    elif refine:
+        refined = _refined(events, disp, hot, xys, k, reference)
+    return None if plane is None else plane[:2], refined
 
 
 def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray, k: int,
             reference: float):
-    """``(params, flow)`` of the plane's motion polished from the network's flow ``disp``
-    when its training loss is lower than the network's flow's (``reference``), else
-    None."""
+    """``(params, flow, loss)`` of the plane's motion polished from the network's flow
+    ``disp`` when its training loss is lower than the network's flow's (``reference``),
+    else None."""
     from evmotion.methods.dnn.planar import (
         POLISH_EVALUATIONS,
         PROBE_EVALUATIONS,
@@ -346,11 +354,12 @@ def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray, k: int,
         return None
     params = polish_planar(events, params, POLISH_EVALUATIONS - PROBE_EVALUATIONS, k)
     flow = field(params)
-    return (params, flow) if window_loss(events, flow, binning=k) < reference else None
+    loss = window_loss(events, flow, binning=k)
+    return (params, flow, loss) if loss < reference else None
 
 
 def _refined(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys, k: int,
-             reference: float):
+             reference: float, means_first: bool = True):
     """The network's flow ``disp`` refined on multicm's finest tiles (:mod:`.tiles`), the
     first of two refinements whose training loss is lower than ``reference`` (``disp``'s)
     and whose :func:`sharpness` (on ``xys``, the events' pixels and times) is no lower
@@ -364,8 +373,8 @@ def _refined(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys, k: int,
     without a plane; where it was not, the tiles' start (loss 1.13-2.66x ``disp``'s,
     sharpness 0.18-0.90x) had lost what the network saw and the loss went down while the
     events blurred, and the correction was kept on all six (FWL e.g. 2.21 -> 2.79,
-    multicm 3.40). A start under ``TILE_START_SHARPNESS`` of ``disp``'s sharpness goes
-    straight to the correction.
+    multicm 3.40). A start under ``TILE_START_SHARPNESS`` of ``disp``'s sharpness, or
+    ``means_first=False``, goes straight to the correction.
     """
     from evmotion.core.tileflow import dense_flow, event_tile_means, scale_grid
     from evmotion.methods.dnn.planar import window_loss
@@ -377,7 +386,8 @@ def _refined(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys, k: int,
     sharp = _warped_variance(*xys, disp)
     means = event_tile_means(disp, events.x, events.y, grid)
     runs = [(np.zeros_like(means), disp)]
-    if _warped_variance(*xys, dense_flow(means, shape)) >= TILE_START_SHARPNESS * sharp:
+    if means_first and (_warped_variance(*xys, dense_flow(means, shape))
+                        >= TILE_START_SHARPNESS * sharp):
         runs.insert(0, (means, None))
     for start, base in runs:
         flow = dense_flow(refine_tiles(events, start, grid, binning=k, base=base), shape)
@@ -468,14 +478,16 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         ``meta["planar"]`` says whether it was kept, ``meta["planar_params"]`` its
         parameters (px over the window, :mod:`.planar`).
     refine : bool
-        Where the plane is not kept, also refine the network's flow on multicm's finest
-        tiles (its mean over each tile's events, polished by about 25 evaluations of
-        multicm's objective, :mod:`.tiles`), and keep the refinement where it lowers
-        that loss without lowering the :func:`sharpness` (default True; about 1 s a
-        window where it runs). On bench_dnn's held-out window with an independently
-        moving object the AEE fell from 3.75 to 2.87 px (multicm 2.52); on real windows
-        moving further than the network was trained for, the loss fell while the events
-        blurred, and the network's flow was kept (``benchmarks/results/dnn.md``,
+        Also refine the flow kept so far on multicm's finest tiles, polished by about 25
+        evaluations of multicm's objective (:mod:`.tiles`), and keep the refinement where
+        it lowers that loss without lowering the :func:`sharpness` (default True; 0.3-1 s
+        a window). Where the plane is kept, the tiles correct the plane's flow (real
+        scenes have depth: ECD shapes_rotation's FWL 3.97 -> 4.30, multicm 4.23); where
+        not, they start from the network's flow's mean over each tile's events, and
+        where that is not kept they correct the network's flow itself. On bench_dnn's
+        held-out window with an independently moving object the AEE fell from 3.75 to
+        2.87 px (multicm 2.52); on its planar zoom it rose from 0.43 to 0.52 (multicm
+        0.52), the objective's preference (``benchmarks/results/dnn.md``,
         ``dnn_planar.md``). ``meta["refined"]`` says whether it was kept.
     check : bool
         Run the tests that say the flow is no measurement (flicker, contrast gain,
@@ -547,10 +559,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     with torch_threads(threads):
         plane, refined = (_alternatives(checked, disp, hot, xyc, planar, refine)
                           if (planar or refine) and len(checked) >= 10 else (None, None))
-    if plane is not None:
-        disp = plane[1]
-    elif refined is not None:
+    if refined is not None:
         disp = refined
+    elif plane is not None:
+        disp = plane[1]
     # the magnitude at the top of the search: the window moves further than the network
     # sees even on its coarsest input (a 240x180 window moving 80 px came out at 11 px,
     # gain 3.2): what it gives is a lower bound (unless the plane's polish went further)
