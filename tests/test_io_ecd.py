@@ -413,6 +413,23 @@ def test_whole_pixels_written_as_decimals_are_read(tmp_path):
     assert ev.p.tolist() == [1, 0, 1] and ev.t.tolist() == [1000, 2000, 3000]
 
 
+def test_numpy_savetxt_scientific_notation_is_read(tmp_path):
+    # np.savetxt writes every column as %.18e by default: 1.418999999999999906e-03 s
+    t = np.array([1419e-6, 2500e-6, 0.0123456, 3.5])
+    table = np.column_stack([t, [98, 3, 0, 239], [42, 4, 179, 0], [1, 0, 1, 0]])
+    f = tmp_path / "events.txt"
+    np.savetxt(f, table)
+    ev = read_events(f, sensor_size=(180, 240))
+    assert ev.t.tolist() == [1419, 2500, 12346, 3_500_000]
+    assert ev.x.tolist() == [98, 3, 0, 239] and ev.y.tolist() == [42, 4, 179, 0]
+    assert ev.p.tolist() == [1, 0, 1, 0]
+    # a pixel that is no whole number is still refused, on one line
+    f.write_text("1.4e-03 9.5e+00 4 1\n")
+    with pytest.raises(FormatError, match=r"events.txt: line 1") as exc:
+        read_events(f, sensor_size=(180, 240))
+    assert "\n" not in str(exc.value)
+
+
 def test_a_fractional_pixel_is_named(tmp_path):
     f = tmp_path / "half.txt"
     f.write_text("0.001 14 16 1\n0.002 146.5 166.0 1\n")
