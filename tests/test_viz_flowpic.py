@@ -189,3 +189,24 @@ def test_flow_panel_shows_the_sharpening():
     assert same.shape == rgb.shape  # frames of a sequence line up in a video
     with pytest.raises(ParameterError, match="sensor size"):
         flow_panel(ev, flow[:-1], max_speed=2000.0)
+
+
+def test_bos_flow_picture_greys_the_pixels_the_output_does_not_claim(tmp_path):
+    # bos --png-dir: the legend says "grey: no events", so the output's valid mask
+    # (event support) is what is grey, as evmotion view draws it (probe: no pixel was
+    # grey while 8-23 % of them were valid), and the rim is the valid pixels' largest
+    from evmotion.viz.bos import save_bos_pngs
+
+    flow = np.zeros((40, 40, 2))
+    flow[..., 0] = 50.0
+    flow[:20, :, 0] = 400.0  # the unsupported half moves fastest
+    valid = np.zeros((40, 40), bool)
+    valid[20:] = True
+
+    def grey_share(folder, **kw):
+        save_bos_pngs(folder, 0, flow, np.zeros((40, 40)), np.zeros((40, 40, 2)), **kw)
+        rgb = read_png(folder / "flow_00000.png")
+        return float((rgb == GREY).all(-1).mean())
+
+    assert grey_share(tmp_path / "all") < 0.01
+    assert grey_share(tmp_path / "valid", valid=valid) > 0.1

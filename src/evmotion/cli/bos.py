@@ -233,7 +233,8 @@ def run(args) -> int:
         for k in range(len(bos)):
             png_files += save_bos_pngs(args.png_dir, k, bos.flow.flow[k], bos.q[k], bos.p[k],
                                        q_unit=bos.attrs["q_units"],
-                                       label=f"[{bos.flow.t0[k]}, {bos.flow.t1[k]}) us")
+                                       label=f"[{bos.flow.t0[k]}, {bos.flow.t1[k]}) us",
+                                       valid=bos.flow.valid[k])
     seconds = time.perf_counter() - t_start
     if args.json:
         print_json({"rec": str(args.rec), "frames": data.frames_source, "out": str(out),

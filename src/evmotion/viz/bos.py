@@ -130,7 +130,7 @@ def flow_window_picture(flow: np.ndarray, *, valid: np.ndarray | None = None,
 
 def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np.ndarray,
                   p: np.ndarray, *, q_unit: str = "px^2/s", flow_max: float | None = None,
-                  label: str = "") -> list[str]:
+                  label: str = "", valid: np.ndarray | None = None) -> list[str]:
     """Write ``q_XXXX.png``, ``flow_XXXX.png`` and ``p_XXXX.png`` for window ``index``.
 
     Parameters
@@ -145,6 +145,10 @@ def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np
         Rim of the flow colour wheel in px/s (default: the largest finite magnitude).
     label : str
         Text added to each title (e.g. the window's time).
+    valid : ndarray, (H, W) bool, optional
+        The flow's measured pixels (the output's ``valid``, where events support it):
+        the others are drawn grey, as ``evmotion view`` draws them, and the colour
+        wheel's rim is the largest valid magnitude (default: every finite pixel).
 
     Returns
     -------
@@ -165,6 +169,8 @@ def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np
              folder / f"p_{index:05d}.png"]
     save_q_png(names[0], q, unit=q_unit, title=f"Poisson field q{suffix}")
     mask = np.isfinite(flow).all(axis=-1)
+    if valid is not None:
+        mask &= np.asarray(valid, bool)
     save_flow_png(names[1], np.nan_to_num(flow), max_speed=flow_max, valid=mask,
                   unit="px/s", title=f"flow{suffix}")
     pmask = np.isfinite(p).all(axis=-1)
