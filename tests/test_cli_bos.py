@@ -91,6 +91,14 @@ def test_options_roi_png_json(scene, tmp_path, capsys):
     rc, text, _ = _run(["eval", out, "--gt", scene / "schlieren_gt.h5", "--json"], capsys)
     # scored: the ROI's pixels the file claims (event support), not the whole ROI
     assert rc == 0 and json.loads(text)["mean"]["n_pixels"] == bos.flow.valid[0].sum() < 32 * 32
+    # the scene's folder as --gt stands for its schlieren_gt.h5 (probe: "no
+    # forward_timestamps.txt beside the flow PNGs", of a folder without any)
+    rc, by_folder, _ = _run(["eval", out, "--gt", scene, "--json"], capsys)
+    assert rc == 0 and json.loads(by_folder)["mean"] == json.loads(text)["mean"]
+    no_gt = tmp_path / "no_gt"
+    no_gt.mkdir()
+    (no_gt / "events.txt").write_text("0.001 1 2 1\n")
+    _one_line_error(["eval", out, "--gt", no_gt], capsys, "holds no ground truth")
 
 
 def _without_startup(err: str) -> str:

@@ -413,6 +413,10 @@ def run(args) -> int:
         path.is_file() else None
     if args.gt is None:
         return _run_sharpness(args, path, h5_format)
+    from evmotion.io.flowfiles import gt_in_folder
+
+    # a scene's folder (events, frames and the simulator's schlieren_gt.h5) as --gt
+    args.gt = gt_in_folder(args.gt)
     if _is_event_flow(path, h5_format):
         if Path(args.gt).resolve() == path.resolve():
             raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")

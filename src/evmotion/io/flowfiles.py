@@ -39,6 +39,7 @@ from evmotion.io.pngfile import read_png, write_png
 from evmotion.utils import atomic_path, ensure_file_target, ensure_room, is_file
 
 __all__ = [
+    "gt_in_folder",
     "FLO_MAGIC",
     "FLOW_COMPRESSION",
     "FlowSequence",
@@ -944,8 +945,36 @@ def _dsec_gt_layout(path: Path) -> tuple[Path, Path]:
              path / "forward_timestamps.txt"]
     ts_file = next((c for c in cands if c.exists()), None)
     if ts_file is None:
+        if not any(folder.glob("*.png")):
+            raise FormatError(path, "holds no ground truth: no DSEC flow PNGs and "
+                              "forward_timestamps.txt, nor one *gt*.h5 / *gt*.npz file "
+                              "(give the ground-truth file itself)")
         raise FormatError(path, "no forward_timestamps.txt beside the flow PNGs")
     return folder, ts_file
+
+
+def gt_in_folder(path: str | os.PathLike) -> Path:
+    """The ground truth a folder given as one stands for: the folder itself where it is a
+    DSEC flow ground truth (``forward``, ``flow/forward`` or ``forward_timestamps.txt``),
+    else its one file named ``*gt*.h5`` / ``*gt*.npz`` (the simulator's
+    ``schlieren_gt.h5`` beside a schlieren scene's events and frames, ``sim_gt.h5``); any
+    other path unchanged.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp()); _ = (d / "schlieren_gt.h5").write_bytes(b"")
+    >>> gt_in_folder(d).name
+    'schlieren_gt.h5'
+    """
+    path = Path(path)
+    if not path.is_dir() or any((path / n).exists() for n in
+                                ("forward", "flow", "forward_timestamps.txt")):
+        return path
+    found = sorted(f for f in path.iterdir()
+                   if f.suffix.lower() in (".h5", ".npz") and "gt" in f.stem.lower()
+                   and f.is_file())
+    return found[0] if len(found) == 1 else path
 
 
 def dsec_gt_files(path: str | os.PathLike) -> list[Path]:
@@ -1008,7 +1037,7 @@ def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
     >>> len(gt), gt.t1.tolist(), gt.flow[0, 0, 0].tolist()
     (1, [10000], [20.0, 20.0])
     """
-    path = Path(path)
+    path = gt_in_folder(path)
     if not path.exists():
         raise FormatError(path, "no such file or folder")
     suffix = path.suffix.lower()
