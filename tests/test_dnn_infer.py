@@ -271,6 +271,18 @@ def test_tile_sharpness_kernel_matches_a_numpy_reference():
     np.testing.assert_array_equal(got, ref)
 
 
+def test_tile_sharpness_on_a_1920x1080_sensor_does_not_wrap():
+    # tile x (H * W) passed int32 from ~1.5 Mpx: negative keys, a traceback (probe)
+    from evmotion.methods.dnn.infer import _pixels_and_times, _tile_groups, _tile_sharpness
+
+    h, w = 1080, 1920
+    ev = EventArray(x=[1900, 1900, 1901, 5], y=[1070, 1070, 1070, 3], t=[0, 1, 2, 3],
+                    p=[1, 1, 1, 1], sensor_size=(h, w))
+    xys = _pixels_and_times(ev)
+    got = _tile_sharpness(xys, np.zeros((h, w, 2), np.float32), _tile_groups(xys, (h, w), 32))
+    assert got[-1, -1] == 2 * 2 + 1 and got[0, 0] == 1 and got.sum() == 6
+
+
 def test_the_fusions_blur_is_scipys_gaussian():
     from scipy.ndimage import gaussian_filter
 

@@ -191,7 +191,8 @@ def _tile_groups(xys, shape, tile: int):
     x, y = xys[0], xys[1]
     h, w = shape
     grid = (-(-h // tile), -(-w // tile))
-    tiles = (y // tile) * grid[1] + x // tile
+    # (int64: times h * w in _tile_sharpness, past int32 from ~1.5 Mpx, 1920 x 1080)
+    tiles = ((y // tile) * grid[1] + x // tile).astype(np.int64)
     return tiles, grid, np.bincount(tiles, minlength=grid[0] * grid[1]).reshape(grid)
 
 
