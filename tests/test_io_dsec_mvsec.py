@@ -49,6 +49,18 @@ def test_dsec_t_offset_added_and_detected(tmp_path):
     assert ev.meta["t_offset_us"] == T_OFFSET
 
 
+@pytest.mark.parametrize("offset", [-10**18, -1, 2 * 10**17])
+def test_dsec_an_absurd_t_offset_is_named(tmp_path, offset):
+    # -1e18 us (31,700 years before the clock's zero) was read as given (probe)
+    _dsec_file(tmp_path / "events.h5", n=100)
+    with h5py.File(tmp_path / "events.h5", "a") as f:
+        f["t_offset"][()] = np.int64(offset)
+    with pytest.raises(FormatError, match=rf"events.h5: dataset 't_offset' is {offset} us, "
+                                          r"outside \[0, 1e17\]") as exc:
+        eio.read_events(tmp_path / "events.h5")
+    assert "\n" not in str(exc.value)
+
+
 def test_dsec_ms_index_slices(tmp_path):
     *_, t = _dsec_file(tmp_path / "events.h5")[:3]
     full = dsec.read(tmp_path / "events.h5")

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
@@ -39,8 +40,9 @@ __all__ = ["read", "iter_chunks", "write", "describe", "read_rectify_map", "rect
            "FORMAT", "DSEC_SENSOR_SIZE"]
 
 DSEC_SENSOR_SIZE = (480, 640)
-# Largest |t_offset| accepted: offset plus uint32 times stays far inside int64.
-MAX_T_OFFSET_US = 1 << 60
+# Largest t_offset accepted: 10^17 us lies past the year 5000 (catalog.NS_EPOCH_US), no
+# clock's microseconds; a negative one puts the recording before its clock's zero.
+MAX_T_OFFSET_US = NS_EPOCH_US
 
 
 def _open(path: Path):
@@ -73,9 +75,9 @@ def _read(path: Path, ds, lo: int, hi: int, field: str) -> np.ndarray:
 
 def _t_offset(f) -> int:
     off = int(f["t_offset"][()]) if "t_offset" in f else 0
-    if not -MAX_T_OFFSET_US <= off <= MAX_T_OFFSET_US:
-        raise FormatError(f.filename, f"dataset 't_offset' is {off} us, outside "
-                          f"+-{MAX_T_OFFSET_US} (2^60 us)")
+    if not 0 <= off <= MAX_T_OFFSET_US:
+        raise FormatError(f.filename, f"dataset 't_offset' is {off} us, outside [0, 1e17] "
+                          "(microseconds since a clock's zero: a corrupt header?)")
     return off
 
 
