@@ -3,6 +3,8 @@ ridge fits recovering known slopes, events of a moving bar, the thesis' m/s exam
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -235,8 +237,11 @@ def test_correlation_fit_many_streaks_vs_ridge():
     assert vals.mean() > 2 * data.mean()
     with pytest.raises(ParameterError, match="n_blocks"):
         fit_correlation(k, n_blocks=1)
-    with pytest.raises(EmptyWindowError, match="max_lag_s"):
+    with pytest.raises(EmptyWindowError, match="max_lag_s") as exc:
         fit_correlation(k, min_shift_px=500.0)
+    # the refusal says how far a lag moves and how many lags reach the shift needed
+    assert re.search(r"move [\d.]+ px a lag .* the fit needs 3 lags at which they have "
+                     r"moved >= 500 px, here [0-2]:", str(exc.value)), str(exc.value)
 
 
 def test_a_ridge_jumping_between_streaks_is_unreliable():

@@ -760,9 +760,11 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     first = int(np.ceil(shortest / (speed * dt))) if speed > 0 else 1
     if first > n_lags - 3:
         raise EmptyWindowError(
-            f"the structures move {speed * (n_lags - 1) * dt:.3g} px over the longest lag "
-            f"({(n_lags - 1) * dt:.3g} s); need >= {shortest:g} px over 3 lags: give a "
-            "longer max_lag_s or a lower min_shift_px / stationary_px")
+            f"the structures move {speed * dt:.3g} px a lag ({dt:.3g} s), "
+            f"{speed * (n_lags - 1) * dt:.3g} px at the longest ({(n_lags - 1) * dt:.3g} s): "
+            f"the fit needs 3 lags at which they have moved >= {shortest:g} px, here "
+            f"{max(n_lags - first, 0)}: give a longer max_lag_s or a lower min_shift_px / "
+            "stationary_px")
     first = max(first, 1)
     whole = fit(total, first)
     loo = []
