@@ -272,6 +272,17 @@ def test_an_unfinished_part_file_is_named_as_such(tmp_path):
         eio.read_events(part)
 
 
+def test_a_frame_list_given_as_the_recording_is_named_as_such(tmp_path):
+    # bos FOLDER/images.txt was 'format not recognised' (probe)
+    images = tmp_path / "images.txt"
+    images.write_text("# frames\n0.000000 images/frame_00000.png\n"
+                      "0.008333 images/frame_00001.png\n")
+    with pytest.raises(FormatError, match=r"images.txt: is a list of frames \('t path' "
+                                          r"lines\), not events.*give its folder") as exc:
+        eio.read_events(images)
+    assert "\n" not in str(exc.value)
+
+
 def test_a_recording_that_pauses_for_most_of_its_span_is_said(tmp_path):
     # 16 flipped bytes in an EVT3 body moved 55 % of its events 10.6 s on: read, and
     # described by info, without a word (probe AE)

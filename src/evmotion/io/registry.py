@@ -114,6 +114,10 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
         if own is not None:
             raise FormatError(path, f"is an evmotion output ({own}), not a recording of events",
                               "evmotion info describes it; eval and view read flow outputs")
+        if _frame_list(head):
+            raise FormatError(path, "is a list of frames ('t path' lines), not events",
+                              "give its folder, which holds the events too; bos also "
+                              "takes it as --frames beside a recording")
         names = ", ".join(sorted(f.name for f in all_formats()))
         raise FormatError(path, "format not recognised",
                           f"give --format explicitly, one of: {names}")
@@ -123,6 +127,17 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
         if by_ext:
             return by_ext[0]
     return candidates[0]
+
+
+def _frame_list(head: bytes) -> bool:
+    """Whether ``head`` opens a list of frames, an ECD ``images.txt``: its first lines
+    that are not comments are ``t path`` with an image file's name."""
+    from evmotion.io.frames import IMAGE_SUFFIXES
+
+    lines = [ln.split() for ln in head.decode("latin-1").splitlines()[:5]
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    return bool(lines) and all(len(f) >= 2 and f[-1].lower().endswith(IMAGE_SUFFIXES)
+                               for f in lines)
 
 
 def _own_output(path: Path, head: bytes) -> str | None:
