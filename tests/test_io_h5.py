@@ -109,8 +109,13 @@ def test_unsorted_and_off_sensor_errors(tmp_path):
 
 def test_not_hdf5(tmp_path):
     (tmp_path / "z.h5").write_bytes(b"hello")
-    with pytest.raises(FormatError, match="z.h5.*not a readable HDF5"):
+    with pytest.raises(FormatError, match=r"z.h5: not a readable HDF5 file \(file "
+                                          r"signature not found\)$"):
         h5.read(tmp_path / "z.h5")
+    # a folder given with --format h5: said so, not h5py's errno text with its buffer
+    # address and time (probe)
+    with pytest.raises(FormatError, match=r": is a folder, not an HDF5 file$"):
+        h5.read(tmp_path)
 
 
 def test_describe_mentions_ground_truth(tmp_path):

@@ -232,14 +232,14 @@ def _h5_attrs(path, names) -> dict:
     """The attributes ``names`` an HDF5 file has."""
     import h5py
 
+    from evmotion.io.guard import not_hdf5
     from evmotion.io.h5attrs import read_attrs
 
     try:
         with h5py.File(path, "r") as f:
             return read_attrs(path, f, names)
     except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {' '.join(str(exc).split())}"
-                          ) from None
+        raise not_hdf5(path, exc) from None
 
 
 def _warn_other_source(path: Path, events_path) -> None:

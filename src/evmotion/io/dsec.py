@@ -25,7 +25,7 @@ from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.base import FormatSpec
-from evmotion.io.guard import check_h5_dataset, open_h5, verified_position
+from evmotion.io.guard import check_h5_dataset, not_hdf5, open_h5, verified_position
 from evmotion.io.h5filters import (
     FILTER_HINT,
     HDF5_MAGIC,
@@ -253,7 +253,7 @@ def read_rectify_map(path: str | os.PathLike) -> np.ndarray:
                 raise FormatError(path, "missing dataset 'rectify_map'")
             m = f["rectify_map"][()]
     except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+        raise not_hdf5(path, exc) from None
     if m.ndim != 3 or m.shape[2] != 2:
         raise FormatError(path, f"'rectify_map' has shape {m.shape}, expected (H, W, 2)")
     return m.astype(np.float32)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import struct
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -33,6 +34,7 @@ from evmotion.errors import (
 
 __all__ = ["GIVEN_SIZE_HINT", "MAX_SENSOR_SIDE", "SENSOR_SIZE_HINT", "check_sensor_size",
            "guard_call", "guard_iter", "as_format_error", "extended_size", "open_h5",
+           "not_hdf5",
            "sensor_size_hint", "warn_inferred_size", "LARGEST_COORDINATE"]
 
 
@@ -246,7 +248,28 @@ def open_h5(path):
     try:
         return h5py.File(path, "r")
     except OSError as exc:
-        raise FormatError(path, f"not a readable HDF5 file: {exc}") from None
+        raise not_hdf5(path, exc) from None
+
+
+def not_hdf5(path, exc: OSError) -> FormatError:
+    """The error for ``path`` that h5py could not open (``exc``), in one short line:
+    HDF5's own reason, without its buffer addresses and time stamps.
+
+    Examples
+    --------
+    >>> exc = OSError("Unable to synchronously open file (file read failed: time = Mon "
+    ...               "Nov 30 2026, filename = 'b4', error message = 'Is a directory', "
+    ...               "buf = 0x7ffd, total read size = 8)")
+    >>> print(not_hdf5("b4", exc))
+    b4: not a readable HDF5 file (Is a directory)
+    """
+    if Path(path).is_dir():
+        return FormatError(path, "is a folder, not an HDF5 file")
+    text = " ".join(str(exc).split())
+    said = re.search(r"error message = '([^']*)'", text)
+    inner = re.search(r"\(([^()]*)\)\s*$", text)
+    reason = said.group(1) if said else inner.group(1) if inner else text
+    return FormatError(path, f"not a readable HDF5 file ({reason[:120]})")
 
 
 def check_h5_dataset(path, f, name: str, *, ndim: int, kinds: str,
