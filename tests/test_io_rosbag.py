@@ -120,3 +120,45 @@ def test_a_stereo_bag_reads_the_first_topic_by_name_and_says_so(events, tmp_path
         got = rosbag.read(path)
     assert_same_events(got, events)
     assert_same_events(rosbag.read(path, topic="/davis/right/events"), right)
+
+
+def _bag_with_camera_info(path, events, k):
+    """``events`` in one EventArray message and a CameraInfo of intrinsics ``k`` (9)."""
+    from rosbags.rosbag1 import Writer
+
+    store = rosbag.typestore()
+    T = store.types
+    stamp = T["builtin_interfaces/msg/Time"](sec=int(events.t[0] // 10**6), nanosec=0)
+    info = T[rosbag.CAMERA_INFO_MSGTYPE](
+        header=T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="cam"), height=180,
+        width=240, distortion_model="plumb_bob", D=np.array([-0.37, 0.15, -3e-4, -7.6e-4, 0.0]),
+        K=np.asarray(k, float), R=np.eye(3).ravel(), P=np.zeros(12), binning_x=0, binning_y=0,
+        roi=T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
+                                                  do_rectify=False))
+    with Writer(path) as writer:
+        cc = writer.add_connection("/dvs/camera_info", rosbag.CAMERA_INFO_MSGTYPE,
+                                   typestore=store)
+        writer.write(cc, int(events.t[0]) * 1000,
+                     store.serialize_ros1(info, rosbag.CAMERA_INFO_MSGTYPE))
+        ce = writer.add_connection("/dvs/events", rosbag.MSGTYPE, typestore=store)
+        writer.write(ce, int(events.t[-1]) * 1000, rosbag._serialize(events, 0, b"dvs"))
+
+
+def test_the_bags_camera_info_is_its_calibration(events, tmp_path):
+    # rpg_dvs_ros publishes the sensor's calibration on /dvs/camera_info: info said
+    # "intrinsics: none" and flow ran on the distorted grid (probe)
+    from evmotion.io.calibration import recording_camera
+
+    k = [199.09, 0, 132.19, 0, 198.83, 110.71, 0, 0, 1]
+    out = tmp_path / "calib.bag"
+    _bag_with_camera_info(out, events[:500], k)
+    cal = rosbag.read_camera_info(out)
+    assert cal["K"][0][0] == 199.09 and cal["dist"][:2] == [-0.37, 0.15]
+    assert (cal["width"], cal["height"], cal["model"]) == (240, 180, "plumb_bob")
+    cam = recording_camera(out, None, (180, 240))
+    assert cam is not None and "/dvs/camera_info" in cam.source
+    np.testing.assert_allclose(cam.K[0, 0], 199.09)
+    # the driver's message before any calibration (K all zeros) is none
+    _bag_with_camera_info(tmp_path / "zeros.bag", events[:500], np.zeros(9))
+    assert rosbag.read_camera_info(tmp_path / "zeros.bag") is None
+    assert recording_camera(tmp_path / "zeros.bag", None, (180, 240)) is None

@@ -6,8 +6,9 @@ as ``--method multicm`` (whose runner it uses); each window goes through the net
 negated flow unless ``--no-time-reversal`` (no warm start needed), at the gain whose warp
 is sharpest unless ``--no-rescale``, the scales' predictions chosen tile by tile unless
 ``--no-fuse``, replaced by the polished flow of a plane's motion where the training loss
-prefers it unless ``--no-planar``, and where no plane is kept refined on multicm's finest
-tiles where that loss prefers it and the events are no blurrier unless ``--no-refine``.
+prefers it unless ``--no-planar``, and that flow (the plane's or the network's) refined on
+multicm's finest tiles where that loss prefers it and the events are no blurrier unless
+``--no-refine``.
 ``--checkpoint`` picks
 weights from ``evmotion train`` (default: the shipped checkpoint); multicm's ``--init dnn``
 reads it too.
@@ -58,9 +59,9 @@ def add_arguments(group) -> None:
                        help="dnn: keep the network's flow (default: the polished flow of a "
                             "plane's motion instead where multicm's objective prefers it)")
     group.add_argument("--no-refine", action="store_true", default=None,
-                       help="dnn: where no plane is kept, keep the network's flow (default: "
-                            "its refinement on multicm's finest tiles where multicm's "
-                            "objective prefers it and the events are no blurrier)")
+                       help="dnn: keep the plane's or the network's flow as it is "
+                            "(default: its refinement on multicm's finest tiles where "
+                            "multicm's objective prefers it and the events are no blurrier)")
 
 
 def check_args(args) -> None:

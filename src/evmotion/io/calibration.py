@@ -446,7 +446,8 @@ def recording_camera(path: str | os.PathLike, events_meta: dict | None = None,
     """The intrinsics a recording brings with it, or None.
 
     An ECD folder's (or events file's sibling) ``calib.txt``, the ``calibration`` the
-    reader put in ``events_meta`` (ECD, evmotion HDF5), or a jAER AEDAT 2.0 header's lens
+    reader put in ``events_meta`` (ECD, evmotion HDF5), a ROS bag's ``CameraInfo``
+    (:func:`evmotion.io.rosbag.read_camera_info`), or a jAER AEDAT 2.0 header's lens
     focal length (nominal; see :func:`jaer_header_camera`).
     """
     path = Path(path)
@@ -470,6 +471,12 @@ def recording_camera(path: str | os.PathLike, events_meta: dict | None = None,
             return camera_from_dict(cal, source=f"{path} ({what})", sensor_size=sensor_size)
         if head == b"#!AER-DAT2.0" and sensor_size is not None:
             return jaer_header_camera(path, sensor_size)[0]
+        if head.startswith(b"#ROSBAG V2"):
+            from evmotion.io import rosbag
+
+            cal = rosbag.read_camera_info(path)
+            if cal is not None:
+                return camera_from_dict(cal, source=cal["source"], sensor_size=sensor_size)
     return None
 
 

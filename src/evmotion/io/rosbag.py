@@ -23,8 +23,8 @@ from evmotion.io.base import FormatSpec
 from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size
 from evmotion.utils import atomic_path
 
-__all__ = ["read", "iter_chunks", "write", "read_imu", "describe", "typestore", "ImuSamples",
-           "FORMAT"]
+__all__ = ["read", "iter_chunks", "write", "read_imu", "read_camera_info", "describe",
+           "typestore", "ImuSamples", "FORMAT"]
 
 MAGIC = b"#ROSBAG V2.0"
 MSGTYPE = "dvs_msgs/msg/EventArray"
@@ -36,6 +36,7 @@ _EVENT = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"),
 
 
 IMU_MSGTYPE = "sensor_msgs/msg/Imu"
+CAMERA_INFO_MSGTYPE = "sensor_msgs/msg/CameraInfo"
 
 
 @dataclass(frozen=True)
@@ -271,6 +272,42 @@ def read_imu(path: str | Path, *, topic: str | None = None) -> ImuSamples:
         reader.close()
     return ImuSamples(t=np.array(t, np.int64), accel=np.array(acc, float).reshape(-1, 3),
                       gyro=np.array(gyr, float).reshape(-1, 3))
+
+
+def read_camera_info(path: str | Path, *, topic: str | None = None) -> dict | None:
+    """The calibration of a bag's first ``sensor_msgs/CameraInfo`` message (rpg_dvs_ros
+    publishes the sensor's on ``/dvs/camera_info``), as
+    :func:`~evmotion.io.calibration.read_calibration`'s dict: ``K``, ``dist``
+    (``D``), ``model`` (``distortion_model``), ``width``, ``height``, ``source``; None
+    where the bag has none, or only an uncalibrated one (K all zeros, as the driver
+    publishes before a calibration).
+
+    Examples
+    --------
+    >>> cal = read_camera_info("boxes.bag")  # doctest: +SKIP
+    >>> cal["model"], cal["K"][0][0]  # doctest: +SKIP
+    ('plumb_bob', 199.09)
+    """
+    path = Path(path)
+    store = typestore()
+    reader = _open_bag(path)
+    try:
+        conns = _topic_connections(reader, CAMERA_INFO_MSGTYPE, topic, path)
+        for conn, _, raw in reader.messages(connections=conns) if conns else ():
+            try:
+                m = store.deserialize_ros1(raw, conn.msgtype)
+            except Exception:
+                raise FormatError(path, f"corrupt {CAMERA_INFO_MSGTYPE} message on "
+                                  f"'{conn.topic}' ({len(raw)} bytes)") from None
+            k = np.asarray(m.K, dtype=float).reshape(3, 3)
+            if not k.any():
+                return None
+            return {"K": k.tolist(), "dist": np.asarray(m.D, dtype=float).tolist(),
+                    "model": m.distortion_model or "plumb_bob", "width": int(m.width),
+                    "height": int(m.height), "source": f"{path} ({conn.topic})"}
+    finally:
+        reader.close()
+    return None
 
 
 def describe(path: str | Path) -> dict:
