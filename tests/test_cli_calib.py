@@ -207,6 +207,21 @@ def test_undistortion_that_drops_many_events_says_so(tmp_path, capsys):
     assert "undistortion moved" not in capsys.readouterr().err
 
 
+def test_undistortion_that_drops_every_event_names_the_calibration(tmp_path, capsys):
+    # every event in a corner the lens model maps outside: "the recording holds no
+    # events" had followed the warning (probe)
+    ev = EventArray(x=np.zeros(500, int), y=np.zeros(500, int), t=np.arange(500) * 10,
+                    p=np.ones(500, int), sensor_size=(40, 60))
+    calib = {"K": [[30.0, 0, 30.0], [0, 30.0, 20.0], [0, 0, 1]],
+             "dist": [-0.5, 0.2, 0.0, 0.0, 0.0], "resolution": [40, 60]}
+    write_events(tmp_path / "corner.h5", ev, calibration=calib)
+    assert main(["flow", str(tmp_path / "corner.h5"), "--out", str(tmp_path / "f.h5")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "corner.h5" in lines[0], lines
+    assert "undistortion moved all 500 events outside the image" in lines[0]
+    assert "--no-undistort" in lines[0]
+
+
 def test_info_shows_the_simulators_camera_in_its_ground_truth(tmp_path, capsys):
     """``sim_gt.h5`` stores K (the events were made with it); info said "none"."""
     sim = tmp_path / "sim.h5"

@@ -18,7 +18,7 @@ import itertools
 from collections.abc import Iterator
 
 from evmotion.cli.options import existing_input, float_list
-from evmotion.errors import ParameterError
+from evmotion.errors import CalibrationError, ParameterError
 
 __all__ = ["add_camera_arguments", "add_hot_pixel_argument", "camera_for", "undistort_for",
            "undistorted_chunks", "check_camera_args", "read_for_windows"]
@@ -150,6 +150,11 @@ def undistort_for(args, events, *, integer: bool = False):
     if undistort:
         n = len(events)
         events = cam.undistort_events(events, integer=integer)
+        if n and not len(events):
+            # (said here: "the recording holds no events" followed, of 30,000: probe)
+            raise CalibrationError(f"{cam.source}: undistortion moved all {n:,} events "
+                                   "outside the image: the wrong calibration for this "
+                                   "sensor? (--no-undistort keeps the sensor's grid)")
         _say_lost(n - len(events), n)
     return events, cam, grid
 
