@@ -164,6 +164,19 @@ def test_the_planes_flow_is_corrected_where_the_scene_has_depth():
     assert np.abs(refined - exact).mean() < 0.5 * np.abs(plane[1] - exact).mean()
 
 
+@pytest.mark.parametrize("seed", [5, 7])
+def test_a_plane_that_is_the_motion_is_not_corrected(seed):
+    # one depth: the plane is the exact motion, and a correction only fits the events'
+    # noise (it was kept on these two scenes when it was only asked to be no blurrier)
+    win, exact = _moving_rows(np.full(48, 6.0), seed=seed)
+    disp = (exact + np.random.default_rng(0).normal(0, 2.0, exact.shape)).astype(np.float32)
+    plane, refined = infer._alternatives(win, disp, np.zeros(win.sensor_size, bool),
+                                         infer._pixels_and_times(win), planar=True,
+                                         refine=True)
+    assert plane is not None and np.abs(plane[1] - exact).mean() < 0.05
+    assert refined is None
+
+
 def test_no_refinement_without_the_option():
     win, *_ = _sim("object", 41, n_max=8000)
     assert not infer.estimate_flow_dnn(win, with_iwes=False, refine=False).meta["refined"]

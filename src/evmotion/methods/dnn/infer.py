@@ -64,6 +64,15 @@ FUSE_BLEND = 0.5  # tiles: the Gaussian that smooths the choices' seams
 # 0.89-0.90 refined; those at 0.18-0.68 -- DAVIS346, EVT2, a Prophesee 1280x720
 # window -- were refused after 25 evaluations, 0.7 s of the 1280x720 window's 3.8 s)
 TILE_START_SHARPNESS = 0.8
+# _alternatives: the correction of a kept plane's flow on multicm's finest tiles makes at
+# most this many evaluations, and is kept where it sharpens the events by this factor at
+# least. On the simulator's planar scenes (bench_dnn's and bench_dnn_planar's 12 windows of
+# translation, rotation, zoom) the plane is their exact motion and a correction fits
+# noise: sharper by 1.0001-1.004, AEE 1.0-1.8x the plane's; on the ECD windows where it
+# found depth, 1.02-1.07 with 12 evaluations (shapes_rotation FWL 3.97 -> 4.23, multicm
+# 4.23) at half the time of 25 (0.3-0.5 s a 30k window)
+PLANE_CORRECTION_EVALUATIONS = 12
+PLANE_CORRECTION_MARGIN = 1.01
 
 
 def predict_displacement(events: EventArray, checkpoint: str | Path | None = None, *,
@@ -321,10 +330,10 @@ def _alternatives(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys,
     refined = None
     if refine and plane is not None:
         # a plane is a scene's motion up to its depth: real scenes have depth, and a
-        # correction on multicm's finest tiles finds it (ECD shapes_rotation: FWL 3.97
-        # -> 4.30, multicm 4.23); the simulator's planar zoom loses to it in AEE (0.43 ->
-        # 0.52 px, multicm's 0.52), the objective's own preference
-        refined = _refined(events, plane[1], hot, xys, k, plane[2], means_first=False)
+        # correction on multicm's finest tiles finds it (PLANE_CORRECTION_MARGIN)
+        refined = _refined(events, plane[1], hot, xys, k, plane[2], means_first=False,
+                           evaluations=PLANE_CORRECTION_EVALUATIONS,
+                           margin=PLANE_CORRECTION_MARGIN)
     elif refine:
         refined = _refined(events, disp, hot, xys, k, reference)
     return None if plane is None else plane[:2], refined
@@ -360,7 +369,8 @@ def _planar(events: EventArray, disp: np.ndarray, hot: np.ndarray, k: int,
 
 
 def _refined(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys, k: int,
-             reference: float, means_first: bool = True):
+             reference: float, means_first: bool = True,
+             evaluations: int | None = None, margin: float = 1.0):
     """The network's flow ``disp`` refined on multicm's finest tiles (:mod:`.tiles`), the
     first of two refinements whose training loss is lower than ``reference`` (``disp``'s)
     and whose :func:`sharpness` (on ``xys``, the events' pixels and times) is no lower
@@ -375,13 +385,16 @@ def _refined(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys, k: int,
     sharpness 0.18-0.90x) had lost what the network saw and the loss went down while the
     events blurred, and the correction was kept on all six (FWL e.g. 2.21 -> 2.79,
     multicm 3.40). A start under ``TILE_START_SHARPNESS`` of ``disp``'s sharpness, or
-    ``means_first=False``, goes straight to the correction.
+    ``means_first=False``, goes straight to the correction. Each run makes at most
+    ``evaluations`` (default :data:`.tiles.REFINE_EVALUATIONS`); ``margin`` > 1 asks that
+    much more sharpness than ``disp``'s.
     """
     from evmotion.core.tileflow import dense_flow, event_tile_means, scale_grid
     from evmotion.methods.dnn.planar import window_loss
-    from evmotion.methods.dnn.tiles import refine_tiles
+    from evmotion.methods.dnn.tiles import REFINE_EVALUATIONS, refine_tiles
     from evmotion.methods.multicm import auto_finest_level
 
+    evaluations = REFINE_EVALUATIONS if evaluations is None else evaluations
     shape = events.sensor_size
     grid = scale_grid(auto_finest_level(len(events), shape), shape)
     sharp = _warped_variance(*xys, disp)
@@ -391,13 +404,14 @@ def _refined(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys, k: int,
                         >= TILE_START_SHARPNESS * sharp):
         runs.insert(0, (means, None))
     for start, base in runs:
-        flow = dense_flow(refine_tiles(events, start, grid, binning=k, base=base), shape)
+        flow = dense_flow(refine_tiles(events, start, grid, evaluations, binning=k, base=base),
+                          shape)
         if base is not None:
             flow = flow + base
         flow = flow.astype(np.float32)
         flow[hot] = 0.0
         if (window_loss(events, flow, binning=k) < reference
-                and _warped_variance(*xys, flow) >= sharp):
+                and _warped_variance(*xys, flow) >= margin * sharp):
             return flow
     return None
 
@@ -479,17 +493,18 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         ``meta["planar"]`` says whether it was kept, ``meta["planar_params"]`` its
         parameters (px over the window, :mod:`.planar`).
     refine : bool
-        Also refine the flow kept so far on multicm's finest tiles, polished by about 25
+        Also refine the flow kept so far on multicm's finest tiles, polished by
         evaluations of multicm's objective (:mod:`.tiles`), and keep the refinement where
         it lowers that loss without lowering the :func:`sharpness` (default True; 0.3-1 s
-        a window). Where the plane is kept, the tiles correct the plane's flow (real
-        scenes have depth: ECD shapes_rotation's FWL 3.97 -> 4.30, multicm 4.23); where
-        not, they start from the network's flow's mean over each tile's events, and
-        where that is not kept they correct the network's flow itself. On bench_dnn's
+        a window). Where the plane is kept, the tiles correct the plane's flow (12
+        evaluations), kept where the events come out at least 1 % sharper: real scenes
+        have depth (ECD shapes_rotation's FWL 3.97 -> 4.23, multicm 4.23), the
+        simulator's planar scenes do not and keep the plane. Where no plane is kept, they
+        start from the network's flow's mean over each tile's events (25 evaluations),
+        and where that is not kept they correct the network's flow itself. On bench_dnn's
         held-out window with an independently moving object the AEE fell from 3.75 to
-        2.87 px (multicm 2.52); on its planar zoom it rose from 0.43 to 0.52 (multicm
-        0.52), the objective's preference (``benchmarks/results/dnn.md``,
-        ``dnn_planar.md``). ``meta["refined"]`` says whether it was kept.
+        2.87 px (multicm 2.52) (``benchmarks/results/dnn.md``, ``dnn_planar.md``).
+        ``meta["refined"]`` says whether it was kept.
     check : bool
         Run the tests that say the flow is no measurement (flicker, contrast gain,
         chance, halves; default True). False for a flow that only starts another
