@@ -119,8 +119,9 @@ def main(quick: bool = False) -> list[dict]:
     harness.record("dnn_planar", rows, notes=(
         "estimate_flow_dnn's default (the plane's polished flow kept where multicm's "
         "objective (4.9), window_loss, is lower than the network's flow's, planar_kept; "
-        "where it is not, the network's flow refined on multicm's finest tiles kept where "
-        "that loss is lower and the sharpness no lower, refined_kept) against the "
+        "then that flow (the plane's, else the network's) refined on multicm's finest "
+        "tiles, kept where that loss is lower and the sharpness no lower (a plane's "
+        "correction: 1 % sharper), refined_kept) against the "
         "network's flow only (planar=False, refine=False) and multicm (defaults), on "
         "windows the rules were not built on (bench_dnn's four simulated windows were). AEE px over the window on "
         "pixels with events; FWL = var(IWE t_mid) / var(IWE zero flow), the B-spline IWEs "
