@@ -328,11 +328,15 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         every = frame_intervals(times, int(times[0]), int(times[-1]), t0=t0, t1=t1)
         skipped = len(every) - len(intervals)
         if skipped > 0 and len(intervals):
+            # events over a sliver of the frames (1e-6 to 2.5e-5 s of 0.025 s): their
+            # seconds read as milliseconds, say (probe)
+            unit = (" (the events' times in another unit? events.txt holds seconds; "
+                    "--time-unit)" if ev_span * UNIT_SLIP < fr_span else "")
             warnings.warn(EvmotionWarning(
                 f"{rec}: {skipped} of {len(every)} frame intervals hold no event (the events "
                 f"span [{t_first * 1e-6:.6g}, {t_last * 1e-6:.6g}] s, the frames "
-                f"[{times[0] * 1e-6:.6g}, {times[-1] * 1e-6:.6g}] s): not estimated, not in "
-                "the output"), stacklevel=2)
+                f"[{times[0] * 1e-6:.6g}, {times[-1] * 1e-6:.6g}] s){unit}: not estimated, "
+                "not in the output"), stacklevel=2)
     if not len(intervals):
         span = " within " + " / ".join(f"{name} {v} us" for name, v in (("--t0", t0),
                                                                         ("--t1", t1))
