@@ -272,6 +272,17 @@ def test_an_unfinished_part_file_is_named_as_such(tmp_path):
         eio.read_events(part)
 
 
+def test_an_empty_npz_is_named_empty_by_info(tmp_path, capsys):
+    # info tries an .npz as a flow file first: "cannot describe as flow file: EOFError:
+    # No data left in file" (probe)
+    from evmotion.cli import main
+
+    (tmp_path / "empty.npz").write_bytes(b"")
+    assert main(["info", str(tmp_path / "empty.npz")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("empty.npz: the file is empty") and "\n" not in err, err
+
+
 def test_a_frame_list_given_as_the_recording_is_named_as_such(tmp_path):
     # bos FOLDER/images.txt was 'format not recognised' (probe)
     images = tmp_path / "images.txt"

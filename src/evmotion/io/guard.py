@@ -15,6 +15,7 @@ and time stay bounded on corrupt files (a net cannot give back memory already ta
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import re
@@ -121,6 +122,10 @@ def as_format_error(exc: BaseException, path, fmt: str, action: str,
     if isinstance(exc, MemoryError):
         return FormatError(path, f"{action} as {fmt} needs more memory than is available "
                            "(MemoryError)", "corrupt header or file?")
+    with contextlib.suppress(OSError, TypeError):
+        if os.path.isfile(path) and os.path.getsize(path) == 0:
+            # (numpy's "EOFError: No data left in file" of an empty .npz: probe)
+            return FormatError(path, "the file is empty")
     detail = one_line(str(exc)) or "no detail"
     return FormatError(path, f"cannot {action} as {fmt}: {type(exc).__name__}: {detail}",
                        "the file is corrupt, truncated or not in this format")
