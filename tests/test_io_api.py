@@ -272,6 +272,22 @@ def test_an_unfinished_part_file_is_named_as_such(tmp_path):
         eio.read_events(part)
 
 
+def test_float32_epoch_seconds_are_refused_as_too_coarse(tmp_path):
+    # float32 resolves 128 s at 1.6e9 s: 30,000 events at one time, duration 0 (probe)
+    t = (1.6e9 + np.arange(1000) * 1e-4).astype(np.float32)
+    np.savez(tmp_path / "f32.npz", t=t, x=np.arange(1000) % 50, y=np.arange(1000) % 40,
+             p=np.arange(1000) % 2)
+    with pytest.raises(FormatError, match=r"f32.npz: field 't': float32 times reaching "
+                                          r"1.6e\+09 s step by 1.28e\+08 us there \(1 "
+                                          r"distinct times for 1,000 events\)") as exc:
+        eio.read_events(tmp_path / "f32.npz", sensor_size=(40, 50))
+    assert "\n" not in str(exc.value)
+    # float32 seconds from the recording's start resolve microseconds: read
+    np.savez(tmp_path / "ok.npz", t=(np.arange(1000) * 1e-4).astype(np.float32),
+             x=np.arange(1000) % 50, y=np.arange(1000) % 40, p=np.arange(1000) % 2)
+    assert len(eio.read_events(tmp_path / "ok.npz", sensor_size=(40, 50))) == 1000
+
+
 def test_an_empty_npz_is_named_empty_by_info(tmp_path, capsys):
     # info tries an .npz as a flow file first: "cannot describe as flow file: EOFError:
     # No data left in file" (probe)

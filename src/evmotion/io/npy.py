@@ -67,7 +67,25 @@ def _time_us(t: np.ndarray, unit: str | None, how: str = "given") -> tuple[np.nd
     if us.size and not (np.abs(us).max() <= MAX_ABS_TIME_US):  # also catches NaN
         bad = int(np.argmax(~(np.abs(us) <= MAX_ABS_TIME_US)))
         raise ValueError(f"event {bad} has t={t[bad]} {unit}")
+    if t.dtype.kind == "f" and t.size:
+        # float32 seconds since the epoch (1.6e9) step by 128 s: every event of a window
+        # at one time, read without a word (probe)
+        top = np.abs(t).max()
+        step = float(np.spacing(top)) * scale
+        if step > MAX_FLOAT_TIME_STEP_US:
+            raise TimeResolutionError(
+                f"{t.dtype} times reaching {float(top):.6g} {unit} step by {step:.3g} us "
+                f"there ({np.unique(t).size:,} distinct times for {t.size:,} events): store "
+                "them as float64 or whole microseconds")
     return us.astype(np.int64), f"{unit} ({how})"
+
+
+# the coarsest step of float times accepted: event cameras stamp microseconds
+MAX_FLOAT_TIME_STEP_US = 1000.0
+
+
+class TimeResolutionError(ValueError):
+    """Float times too coarse, where they lie, to hold event times."""
 
 
 def _ns_in_whole_microseconds(t: np.ndarray, unit: str) -> bool:
@@ -174,6 +192,8 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     except ValueError as exc:
         if isinstance(exc, ParameterError):
             raise
+        if isinstance(exc, TimeResolutionError):
+            raise FormatError(path, f"field 't': {exc}") from None
         raise FormatError(path, f"field 't': {exc}, not a time within +-2^62 us") from None
     meta["time_unit"] = unit
     doubt = _unit_doubt(t, unit) if how == "given" and time_unit is None else None
