@@ -3,8 +3,8 @@
 The shipped network was trained with multicm's own loss (no ground truth). It gives the
 dense flow of a window in one forward pass (``planar=False, refine=False``: its flow
 alone); by default the flow of a plane's motion fitted to it and polished on the events
-replaces it where multicm's objective prefers that, and where no plane does, its
-refinement on multicm's finest tiles may; ``estimate_flow(..., init=...)`` can start
+replaces it where multicm's objective prefers that, and a refinement of the flow kept on
+multicm's finest tiles may replace that in turn; ``estimate_flow(..., init=...)`` can start
 multicm from it. Needs the ``dnn`` extra (``pip install 'evmotion[dnn]'``, torch).
 
 Run: ``python examples/dnn_flow.py [OUT_DIR]``.
