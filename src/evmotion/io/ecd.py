@@ -441,6 +441,10 @@ def sniff_time_unit(path: str | Path) -> str:
     firsts = [f[col] for f in fields if len(f) > col]
     if not firsts or any(re.search(rb"[.eE]", f) for f in firsts):
         return "s"
+    if any(_FRACTION.fullmatch(v) for f in fields for k, v in enumerate(f) if k != col):
+        # another column holds the decimals ('x y p t[s]' without a header): the parser
+        # names that column; a warning about whole-number times would mislead (probe)
+        return "us"
     if all(f.lstrip(b"-").isdigit() for f in firsts) and int(firsts[0]) > NS_EPOCH_US:
         warnings.warn(EvmotionWarning(
             f"{path}: the times are whole numbers past 1e17, as microseconds beyond the year "
@@ -467,6 +471,8 @@ def sniff_time_unit(path: str | Path) -> str:
 
 
 MAX_EVENTS_PER_US = 1000
+# a decimal with a non-zero fraction ("13.582595999"; not "146.0")
+_FRACTION = re.compile(rb"[-+]?\d*\.\d*[1-9]\d*")
 
 
 SNIFF_BYTES = 65_536  # the lines sniff_time_unit looks at
