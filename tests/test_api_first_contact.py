@@ -96,6 +96,26 @@ def test_events_off_the_sensor_are_refused_or_warned():
         estimate_egomotion(swapped, warp="translation")
 
 
+def test_unsorted_unchecked_events_are_refused_by_the_estimators():
+    # validate=False and shuffled: estimate_bos cut its interval by binary search and
+    # solved the wrong events (881 px/s off), egomotion reported a window running
+    # backwards, multicm said "spanning -2534 us" (probe)
+    from evmotion import estimate_egomotion, estimate_flow
+    from evmotion.errors import UnsortedError
+    from evmotion.methods.bos import estimate_bos
+
+    ev = _noise(3000)
+    order = np.random.default_rng(1).permutation(len(ev))
+    mixed = EventArray(x=ev.x[order], y=ev.y[order], t=ev.t[order], p=ev.p[order],
+                       sensor_size=ev.sensor_size, validate=False)
+    frame = np.random.default_rng(2).uniform(0.2, 0.8, ev.sensor_size)
+    for call in (lambda: estimate_egomotion(mixed, warp="translation"),
+                 lambda: estimate_flow(mixed),
+                 lambda: estimate_bos(mixed, frame, t0_us=int(ev.t[0]), t1_us=int(ev.t[-1]))):
+        with pytest.raises(UnsortedError, match=r"timestamps are not sorted: t\[\d+\]="):
+            call()
+
+
 @pytest.mark.parametrize("dense", ["mean", "lsq", "robust"])
 def test_triplet_dense_flow_of_noise_is_no_measurement(dense):
     from evmotion.methods.triplet import estimate_flow_triplet

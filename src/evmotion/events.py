@@ -131,10 +131,20 @@ class EventArray:
         if self.validate:
             self.check()
 
-    def check(self) -> None:
-        """Raise :class:`EventDataError` if timestamps are unsorted or coordinates off-sensor."""
-        if len(self) == 0:
-            return
+    def check_order(self) -> None:
+        """Raise :class:`~evmotion.errors.UnsortedError` if the timestamps step back: what
+        an estimator given an array built with ``validate=False`` checks (its windows are
+        cut by binary search on ``t``).
+
+        Examples
+        --------
+        >>> ev = EventArray(x=[0, 1], y=[0, 0], t=[20, 10], p=[1, 1], sensor_size=(2, 2),
+        ...                 validate=False)
+        >>> ev.check_order()
+        Traceback (most recent call last):
+        ...
+        evmotion.errors.UnsortedError: timestamps are not sorted: t[0]=20 > t[1]=10 us (sort them: evmotion convert IN OUT --sort, or EventArray.sorted())
+        """
         dt = np.diff(self.t)
         if dt.size and dt.min() < 0:
             i = int(np.argmax(dt < 0))
@@ -154,6 +164,12 @@ class EventArray:
                         "where the format has it? (text: t x y p, or a header line naming "
                         "the columns)")
             raise UnsortedError(i, self.t[i], self.t[i + 1], hint)
+
+    def check(self) -> None:
+        """Raise :class:`EventDataError` if timestamps are unsorted or coordinates off-sensor."""
+        if len(self) == 0:
+            return
+        self.check_order()
         if self.t[-1] > NS_EPOCH_US:
             raise EventDataError(
                 f"field 't' reaches {int(self.t[-1])}, as microseconds past the year 5000: "
@@ -562,6 +578,10 @@ def require_events(events, func: str) -> EventArray:
                              "sensor_size) or evmotion.io.read_events(path)), got "
                              f"{type(events).__name__}")
     _check_on_sensor(events, func)
+    if not events.validate:
+        # (estimate_bos cut its interval by binary search on unsorted times and solved
+        # the wrong events without a word; egomotion reported a window running backwards)
+        events.check_order()
     return events
 
 
