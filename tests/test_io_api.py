@@ -272,6 +272,27 @@ def test_an_unfinished_part_file_is_named_as_such(tmp_path):
         eio.read_events(part)
 
 
+@pytest.mark.parametrize("suffix", [".h5", ".txt", ".npz"])
+def test_items_that_are_not_event_arrays_are_named(tmp_path, suffix):
+    # a list of rows or a dict of columns met "AttributeError: 'list' object has no
+    # attribute 'sensor_size'" in every writer (probe)
+    for bad, kind in (([[1, 2, 3, 1]], "list"), (dict(x=[1], y=[1], t=[1], p=[1]), "str")):
+        with pytest.raises(ParameterError, match=rf"write_events: item 0 of events is a "
+                                                 rf"{kind}, not an EventArray"):
+            eio.write_events(tmp_path / f"w{suffix}", bad)
+        assert not (tmp_path / f"w{suffix}").exists()
+
+
+def test_concatenate_and_fwl_name_what_is_not_events():
+    from evmotion.eval import fwl
+    from evmotion.events import concatenate
+
+    with pytest.raises(ParameterError, match="concatenate: item 0 is a list"):
+        concatenate([[1, 2]])
+    with pytest.raises(ParameterError, match="fwl: events must be an EventArray"):
+        fwl([1, 2], np.zeros((3, 4, 2)))
+
+
 def test_float32_epoch_seconds_are_refused_as_too_coarse(tmp_path):
     # float32 resolves 128 s at 1.6e9 s: 30,000 events at one time, duration 0 (probe)
     t = (1.6e9 + np.arange(1000) * 1e-4).astype(np.float32)

@@ -715,6 +715,10 @@ def concatenate(arrays: Sequence[EventArray], *, validate: bool = True) -> Event
     """Join event arrays of the same sensor, in the given (time) order."""
     if not arrays:
         raise EmptyWindowError("nothing to concatenate")
+    for i, a in enumerate(arrays):
+        if not isinstance(a, EventArray):
+            raise ParameterError(f"concatenate: item {i} is a {type(a).__name__}, not an "
+                                 "EventArray")
     sizes = {a.sensor_size for a in arrays}
     if len(sizes) != 1:
         raise EventDataError(f"cannot concatenate events of different sensor sizes {sizes}")

@@ -487,6 +487,9 @@ def fwl(
     2.2
     """
     from evmotion.core.iwe import accumulate
+    from evmotion.events import require_events
+
+    require_events(events, "fwl")
 
     xw, yw = warp_by_flow(events, flow_px_per_s, t_ref_us)
     lost = ~(np.isfinite(xw) & np.isfinite(yw))

@@ -13,7 +13,7 @@ from __future__ import annotations
 import inspect
 import os
 import warnings
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -94,8 +94,10 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
         raise ParameterError(f"write_events: events must be an EventArray or an iterable of "
                              f"them, got {type(events).__name__} (a structured array: "
                              "EventArray.from_structured(arr, sensor_size))")
-    if not isinstance(events, EventArray) and name not in _STREAMING_WRITERS:
-        events = concatenate(list(events))
+    if not isinstance(events, EventArray):
+        events = _event_arrays(events)
+        if name not in _STREAMING_WRITERS:
+            events = concatenate(list(events))
     if isinstance(events, EventArray) and name == "npy" and Path(path).suffix.lower() == ".npy":
         warnings.warn(f"{path}: a .npy file keeps no sensor size ({events.width}x"
                       f"{events.height} px is left out; reading it back takes the largest "
@@ -115,6 +117,17 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
             warnings.warn(f"format '{name}' cannot store metadata {sorted(extra)}; "
                           "write .h5 to keep it", stacklevel=2)
     spec.write(Path(path), events, **opts)
+
+
+def _event_arrays(items: Iterable) -> Iterator[EventArray]:
+    """``items``, each checked to be an EventArray (a list of rows or a dict of columns
+    had met an AttributeError deep in a writer: probe)."""
+    for i, item in enumerate(items):
+        if not isinstance(item, EventArray):
+            raise ParameterError(f"write_events: item {i} of events is a "
+                                 f"{type(item).__name__}, not an EventArray (columns: "
+                                 "EventArray(x, y, t, p, sensor_size))")
+        yield item
 
 
 def _accepts_named(fn, name: str) -> bool:
