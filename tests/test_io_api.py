@@ -283,6 +283,29 @@ def test_items_that_are_not_event_arrays_are_named(tmp_path, suffix):
         assert not (tmp_path / f"w{suffix}").exists()
 
 
+@pytest.mark.parametrize("size", ["big", (1, 2, 3), (-120, 160), (120.5, 160)])
+@pytest.mark.parametrize("suffix", [".txt", ".h5"])
+def test_a_bad_sensor_size_argument_is_named_for_every_format(tmp_path, size, suffix):
+    # the text reader took "big" for a corrupt file, cut (1, 2, 3) to (1, 2) and
+    # floored 120.5 (probe)
+    rec = tmp_path / f"r{suffix}"
+    eio.write_events(rec, EventArray(x=[1, 2], y=[0, 1], t=[10, 20], p=[1, 0],
+                                     sensor_size=(120, 160)))
+    with pytest.raises(ParameterError, match=r"^sensor_size "):
+        eio.read_events(rec, sensor_size=size)
+    with pytest.raises(ParameterError, match=r"^sensor_size "):
+        list(eio.iter_events(rec, 1, sensor_size=size))
+
+
+@pytest.mark.parametrize("chunk", ["3", 1.5, True, 0])
+def test_a_chunk_size_must_be_a_whole_number(tmp_path, chunk):
+    rec = tmp_path / "r.h5"
+    eio.write_events(rec, EventArray(x=[1, 2], y=[0, 1], t=[10, 20], p=[1, 0],
+                                     sensor_size=(120, 160)))
+    with pytest.raises(ParameterError, match="chunk_events must be a whole number >= 1"):
+        list(eio.iter_events(rec, chunk))
+
+
 def test_concatenate_and_fwl_name_what_is_not_events():
     from evmotion.eval import fwl
     from evmotion.events import concatenate

@@ -35,7 +35,7 @@ from evmotion.errors import (
 
 __all__ = ["GIVEN_SIZE_HINT", "MAX_SENSOR_SIDE", "SENSOR_SIZE_HINT", "check_sensor_size",
            "guard_call", "guard_iter", "as_format_error", "extended_size", "open_h5",
-           "not_hdf5",
+           "not_hdf5", "given_sensor_size",
            "sensor_size_hint", "warn_inferred_size", "LARGEST_COORDINATE"]
 
 
@@ -62,6 +62,31 @@ def check_sensor_size(path, size, field: str = "sensor size") -> tuple[int, int]
     if not (0 < h <= MAX_SENSOR_SIDE and 0 < w <= MAX_SENSOR_SIDE):
         raise FormatError(path, f"{field} (height, width) = ({h}, {w}) is outside "
                           f"1..{MAX_SENSOR_SIDE} px per side", "corrupt header?")
+    return h, w
+
+
+def given_sensor_size(size) -> tuple[int, int]:
+    """A reader's ``sensor_size=`` argument as ``(height, width)`` ints, or
+    ParameterError: two whole numbers in ``1..MAX_SENSOR_SIDE`` (a string, three numbers,
+    a negative or fractional side had reached the text reader as a corrupt file, been cut
+    or been floored: probe).
+
+    Examples
+    --------
+    >>> given_sensor_size((180.0, 240))
+    (180, 240)
+    """
+    try:
+        h, w = size
+        if isinstance(h, str) or isinstance(w, str) or float(h) != int(h) or float(w) != int(w):
+            raise ValueError
+        h, w = int(h), int(w)
+    except (TypeError, ValueError, OverflowError):
+        raise ParameterError(f"sensor_size must be two whole numbers (height, width), got "
+                             f"{size!r}") from None
+    if not (0 < h <= MAX_SENSOR_SIDE and 0 < w <= MAX_SENSOR_SIDE):
+        raise ParameterError(f"sensor_size (height, width) = ({h}, {w}) is outside "
+                             f"1..{MAX_SENSOR_SIDE} px per side")
     return h, w
 
 

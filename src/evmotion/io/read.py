@@ -29,6 +29,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray, concatenate
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import given_sensor_size
 from evmotion.io.registry import resolve_format
 from evmotion.utils import whole_number
 
@@ -81,6 +82,7 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
     ('mat', [100, 200], [3, 5])
     """
     _check_span(t0, t1)
+    _check_sensor_size(kw)
     spec = resolve_format(path, format)
     events = spec.read(Path(path), t0=t0, t1=t1, **kw)
     if warn_empty and (t0 is not None or t1 is not None) and not len(events):
@@ -91,6 +93,13 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
         warn_time_jump(path, int(gaps[k]), k, int(events.t[-1]) - int(events.t[0]),
                        len(events))
     return events
+
+
+def _check_sensor_size(kw: dict) -> None:
+    """A reader's ``sensor_size=`` in ``kw`` checked once for every format (the text
+    reader had taken "big" for a corrupt file), as ints."""
+    if kw.get("sensor_size") is not None:
+        kw["sensor_size"] = given_sensor_size(kw["sensor_size"])
 
 
 #: One pause between consecutive events longer than this share of a whole recording's span
@@ -218,10 +227,10 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
     >>> [len(c) for c in iter_events("rec.raw", 2)]
     [2, 1]
     """
-    chunk_events = int(chunk_events)
-    if chunk_events <= 0:
-        raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
+    # (whole: "3" read as 3, 1.5 as 1 and True as 1 had passed: probe)
+    chunk_events = whole_number("chunk_events", chunk_events, lo=1)
     _check_span(t0, t1)
+    _check_sensor_size(kw)
     path = Path(path)
     spec = resolve_format(path, format)
     if window_us is not None and windows is not None:
