@@ -274,3 +274,34 @@ def test_the_warning_classes_are_at_the_top_level():
         assert name in evmotion.__all__ and issubclass(getattr(evmotion, name), UserWarning)
     assert issubclass(evmotion.PoorFitWarning, evmotion.EvmotionWarning)
     assert evmotion.PoorFitWarning is PoorFitWarning
+
+
+def test_metric_thresholds_are_whole_pixels_and_numbers():
+    # npe_thresholds=[1.5] was floored to 1 (100 % for errors of 1.2 px), "13" read as 1
+    # and 3, out_px="3" met numpy's "ufunc 'isfinite' not supported" (probe)
+    from evmotion.errors import ParameterError
+    from evmotion.eval import flow_metrics
+
+    gt = np.zeros((4, 4, 2))
+    est = gt.copy()
+    est[..., 0] = 1.2
+    for kw in ({"npe_thresholds": [1.5]}, {"npe_thresholds": "13"}, {"out_px": "3"}):
+        with pytest.raises(ParameterError):
+            flow_metrics(est, gt, **kw)
+    assert flow_metrics(est, gt, npe_thresholds=[1, 2]).npe == {1: 100.0, 2: 0.0}
+
+
+def test_multicm_refuses_an_infinite_weight_and_another_sensors_start():
+    from evmotion import estimate_flow
+    from evmotion.errors import ParameterError
+
+    ev = _noise(3000)
+    with pytest.raises(ParameterError, match="0 <= lam < inf"):
+        estimate_flow(ev, lam=float("inf"))
+    other = EventArray(x=ev.x // 2, y=ev.y // 2, t=ev.t, p=ev.p,
+                       sensor_size=(ev.sensor_size[0] // 2 + 1, ev.sensor_size[1] // 2 + 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = estimate_flow(other, n_scales=2)
+    with pytest.raises(ParameterError, match=r"init is the result of a \d+x\d+ px"):
+        estimate_flow(ev, n_scales=2, init=r)

@@ -256,9 +256,14 @@ def flow_metrics(
             raise ParameterError(f"events are on a {events.sensor_size} sensor but the flow "
                                  f"is {sel.shape} px (height, width)")
         sel &= event_mask(events, sel.shape)
-    if not (np.isfinite(out_px) and out_px > 0):
+    if not (isinstance(out_px, (int, float, np.integer, np.floating))
+            and not isinstance(out_px, bool) and np.isfinite(out_px) and out_px > 0):
         raise ParameterError(f"out_px must be a finite number of px > 0, got {out_px!r}")
-    thresholds = tuple(int(n) for n in npe_thresholds)
+    # (whole px each: 1.5 had been floored to 1, and the string "13" read as 1 and 3)
+    if isinstance(npe_thresholds, (str, bytes)):
+        raise ParameterError(f"npe_thresholds must be whole numbers of px, got "
+                             f"{npe_thresholds!r}")
+    thresholds = tuple(whole_number("npe_thresholds", n, lo=1) for n in npe_thresholds)
     n = int(sel.sum())
     if n == 0:
         nan = float("nan")

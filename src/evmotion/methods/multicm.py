@@ -418,6 +418,12 @@ def _init_params(init, grid, duration_s, shape):
     if init is None:
         return np.zeros((grid.ny, grid.nx, 2))
     if isinstance(init, FlowResult):
+        if init.flow.shape[:2] != tuple(shape):
+            # a result's flow is dense: of another sensor it is no start (it had been
+            # read as tile params of its own size: probe)
+            raise ParameterError(f"init is the result of a {init.flow.shape[1]}x"
+                                 f"{init.flow.shape[0]} px (W x H) sensor; these events' "
+                                 f"is {shape[1]}x{shape[0]}")
         init = init.flow
     init = np.asarray(init, dtype=np.float64)
     if init.ndim != 3 or init.shape[2] != 2:
@@ -775,9 +781,10 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
                              f"tiles per side, more than the {max(events.sensor_size)} px "
                              "of the sensor: tiles under a pixel fit nothing (at most "
                              f"{int(np.log2(max(events.sensor_size))) + 1} here)")
-    if (not 1 <= o.n_scales <= o.finest_level or o.max_iter < 1 or not o.lam >= 0
-            or o.transport_cell < 1 or not 0 <= o.tol < 1):
-        raise ParameterError(f"need 1 <= n_scales <= finest_level, max_iter >= 1, lam >= 0, "
+    # (lam = inf passed 'lam >= 0' and ended in numpy's invalid-value warnings: probe)
+    if (not 1 <= o.n_scales <= o.finest_level or o.max_iter < 1
+            or not 0 <= o.lam < float("inf") or o.transport_cell < 1 or not 0 <= o.tol < 1):
+        raise ParameterError(f"need 1 <= n_scales <= finest_level, max_iter >= 1, 0 <= lam < inf, "
                              f"transport_cell >= 1, 0 <= tol < 1; got n_scales={o.n_scales}, "
                              f"finest_level={o.finest_level}, max_iter={o.max_iter}, "
                              f"lam={o.lam}, transport_cell={o.transport_cell}, tol={o.tol}")
