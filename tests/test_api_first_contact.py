@@ -305,3 +305,20 @@ def test_multicm_refuses_an_infinite_weight_and_another_sensors_start():
         r = estimate_flow(other, n_scales=2)
     with pytest.raises(ParameterError, match=r"init is the result of a \d+x\d+ px"):
         estimate_flow(ev, n_scales=2, init=r)
+
+
+def test_switches_take_booleans_and_numbers_are_not_strings():
+    # use_polarity="no" and quadruple="no" turned the option on; simulate ran with
+    # duration_s="0.01" (probe)
+    import evmotion
+    from evmotion import TripletMatcher, estimate_egomotion
+    from evmotion.errors import ParameterError
+
+    ev = _noise(3000)
+    with pytest.raises(ParameterError, match="use_polarity must be True or False, got 'no'"):
+        estimate_egomotion(ev, warp="translation", use_polarity="no")
+    with pytest.raises(ParameterError, match="quadruple must be True or False, got 'no'"):
+        TripletMatcher(ev.sensor_size, quadruple="no")
+    with pytest.raises(ParameterError, match="duration_s must be finite .*got '0.01'"):
+        evmotion.simulate("zoom", duration_s="0.01", sensor_size=(30, 40), show_progress=False)
+    assert TripletMatcher(ev.sensor_size, quadruple=np.bool_(True)).quadruple is True

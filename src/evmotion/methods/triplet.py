@@ -297,6 +297,8 @@ class TripletMatcher:
         self.dx = float(dx)
         self.dt_us = int(dt_us)
         self.tau_us = int(tau_us)
+        if not isinstance(quadruple, (bool, np.bool_)):
+            raise ParameterError(f"quadruple must be True or False, got {quadruple!r}")
         self.quadruple = bool(quadruple)
         self.depth = int(depth)
         self.offsets = neighbour_offsets(self.dx)

@@ -44,7 +44,8 @@ def check_number(name: str, value, lo: float = 0.0, hi: float = math.inf, *,
     120.0
     """
     try:
-        v = float(value)
+        # (a string is no number: duration_s="0.01" had run: probe)
+        v = math.nan if isinstance(value, (str, bytes)) else float(value)
     except (TypeError, ValueError):
         v = math.nan
     if not math.isfinite(v) or v < lo or (lo_open and v <= lo) or v > hi:
