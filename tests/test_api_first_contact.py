@@ -322,3 +322,29 @@ def test_switches_take_booleans_and_numbers_are_not_strings():
     with pytest.raises(ParameterError, match="duration_s must be finite .*got '0.01'"):
         evmotion.simulate("zoom", duration_s="0.01", sensor_size=(30, 40), show_progress=False)
     assert TripletMatcher(ev.sensor_size, quadruple=np.bool_(True)).quadruple is True
+
+
+def test_helpers_name_their_bad_arguments():
+    # each met a bare ZeroDivisionError, numpy reshape/convert error, pathlib TypeError or
+    # a 70 GiB MemoryError (probe)
+    from evmotion.errors import ParameterError
+    from evmotion.eval import rms_error
+    from evmotion.io import read_events
+    from evmotion.methods.triplet import estimate_flow_triplet
+    from evmotion.viz.flowpic import flow_picture
+    from evmotion.viz.images import event_histogram
+
+    ev = _noise(3000)
+    calls = {"flow must have shape": lambda: flow_picture(np.ones((0, 0, 2))),
+             r"shape\[0\] \(height\)": lambda: event_histogram(ev, shape=(0, -1)),
+             "rms_error takes arrays of numbers": lambda: rms_error("a", "b"),
+             "path must be a str or a path-like object, got bytes":
+                 lambda: read_events(b"/tmp/x.h5"),
+             "path must be a str or a path-like object, got int": lambda: read_events(5),
+             r"n_bins=1000000 needs [\d.]+ GiB of voxels": lambda: estimate_flow_triplet(
+                 ev, n_bins=10**6)}
+    for match, call in calls.items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with pytest.raises(ParameterError, match=match):
+                call()

@@ -542,8 +542,12 @@ def rms_error(est: np.ndarray, gt: np.ndarray) -> RmsError:
     >>> r.per_axis.tolist(), r.norm
     ([1.0, 0.0, 0.0], 1.0)
     """
-    e = np.asarray(est, dtype=np.float64)
-    g = np.asarray(gt, dtype=np.float64)
+    try:
+        e = np.asarray(est, dtype=np.float64)
+        g = np.asarray(gt, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(f"rms_error takes arrays of numbers, got {type(est).__name__} "
+                             f"and {type(gt).__name__}") from None
     if e.ndim == 1:
         e = e[:, None]
     if g.ndim == 1:

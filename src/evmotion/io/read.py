@@ -81,6 +81,7 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
     >>> ev.meta["format"], ev.t.tolist(), ev.x.tolist()
     ('mat', [100, 200], [3, 5])
     """
+    _check_path(path)
     _check_span(t0, t1)
     _check_sensor_size(kw)
     spec = resolve_format(path, format)
@@ -93,6 +94,13 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
         warn_time_jump(path, int(gaps[k]), k, int(events.t[-1]) - int(events.t[0]),
                        len(events))
     return events
+
+
+def _check_path(path) -> None:
+    """A str or path-like, else ParameterError (bytes or an int met pathlib's TypeError)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise ParameterError(f"path must be a str or a path-like object, got "
+                             f"{type(path).__name__} {path!r}")
 
 
 def _check_sensor_size(kw: dict) -> None:
@@ -229,6 +237,7 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
     """
     # (whole: "3" read as 3, 1.5 as 1 and True as 1 had passed: probe)
     chunk_events = whole_number("chunk_events", chunk_events, lo=1)
+    _check_path(path)
     _check_span(t0, t1)
     _check_sensor_size(kw)
     path = Path(path)

@@ -454,9 +454,18 @@ def _check_interval(t0_us, t1_us, n_bins):
         raise ParameterError(f"empty interval [{t0_us}, {t1_us}) us")
 
 
+# the space-time voxels' sums and counts (24 bytes a voxel) may take at most this much
+VOXEL_MEMORY_BYTES = 4 << 30
+
+
 def _voxel_sums(events, flow, t0_us, t1_us, n_bins):
     _check_interval(t0_us, t1_us, n_bins)
     h, w = events.sensor_size
+    if int(n_bins) * h * w * 24 > VOXEL_MEMORY_BYTES:
+        # (n_bins=10**6 at 346x260 met numpy's MemoryError for 71.5 GiB: probe)
+        raise ParameterError(f"n_bins={n_bins} needs {int(n_bins) * h * w * 24 / 2**30:.1f} "
+                             f"GiB of voxels at {w}x{h} px; at most "
+                             f"{VOXEL_MEMORY_BYTES // (h * w * 24)} bins here")
     acc = np.zeros((n_bins, h, w, 2), np.float64)
     cnt = np.zeros((n_bins, h, w), np.int64)
     add_voxels(events, flow, t0_us, t1_us, acc, cnt)

@@ -168,8 +168,9 @@ def flow_picture(flow: np.ndarray, *, max_speed: float | None = None,
     [128, 128, 128]
     """
     flow = np.asarray(flow)
-    if flow.ndim != 3 or flow.shape[-1] != 2:
-        raise ParameterError(f"flow must have shape (H, W, 2), got {flow.shape}")
+    if flow.ndim != 3 or flow.shape[-1] != 2 or not min(flow.shape[:2]) > 0:
+        raise ParameterError(f"flow must have shape (H, W, 2) with H, W >= 1, got "
+                             f"{flow.shape}")
     _check_max_speed(max_speed)
     valid = _check_valid(valid, flow.shape[:2])
     fixed = max_speed is not None

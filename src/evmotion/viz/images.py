@@ -16,7 +16,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.io import pngfile
-from evmotion.utils import atomic_write_bytes
+from evmotion.utils import atomic_write_bytes, whole_number
 from evmotion.viz.flowpic import FlowPicture, flow_panel, flow_picture
 
 __all__ = [
@@ -58,7 +58,11 @@ def event_histogram(events: EventArray, *, signed: bool = False,
     >>> event_histogram(ev, signed=True)[1, 0]
     np.float32(0.0)
     """
-    h, w = events.sensor_size if shape is None else (int(shape[0]), int(shape[1]))
+    if shape is None:
+        h, w = events.sensor_size
+    else:
+        h = whole_number("shape[0] (height)", shape[0], lo=1)
+        w = whole_number("shape[1] (width)", shape[1], lo=1)
     if not len(events):
         return np.zeros((h, w), dtype=np.float32)
     xi = np.rint(events.x).astype(np.int64)
