@@ -281,3 +281,24 @@ def test_view_takes_the_sensor_size_and_time_unit_of_a_bare_file(tmp_path, capsy
     doc = json.loads(capsys.readouterr().out)
     assert doc["sensor_size"] == {"height": 40, "width": 60}
     assert doc["events"] == 3
+
+
+def test_the_title_of_epoch_times_shows_the_microseconds(tmp_path, monkeypatch):
+    # "[1.58916e+09, 1.58916e+09) s" for 0.1 s of a DAVIS346 recording (probe)
+    import evmotion.viz as viz
+
+    titles = []
+    real = viz.event_picture_png
+
+    def spy(*args, title=None, **kw):
+        titles.append(title)
+        return real(*args, title=title, **kw)
+
+    monkeypatch.setattr(viz, "event_picture_png", spy)
+    t0 = 1_589_160_000_123_456
+    rec = tmp_path / "epoch.h5"
+    eio.write_events(rec, EventArray(x=np.arange(100) % 30, y=np.arange(100) % 20,
+                                     t=t0 + np.arange(100) * 1000, p=np.ones(100, int),
+                                     sensor_size=(20, 30)))
+    assert main(["view", str(rec), "--out", str(tmp_path / "v.png")]) == 0
+    assert "[1589160000.123456, 1589160000.222457) s (99 ms)" in titles[0], titles

@@ -164,9 +164,10 @@ def run(args) -> int:
             rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
         save_png(out, rgb)
     else:
-        t0_s, t1_s = int(ev.t[0]) * 1e-6, (int(ev.t[-1]) + 1) * 1e-6
-        title = (f"{Path(args.file).name}: {len(ev):,} events, [{t0_s:.6g}, {t1_s:.6g}) s "
-                 f"({(t1_s - t0_s) * 1e3:.4g} ms)")
+        # (to the µs: epoch times at 6 digits read [1.58916e+09, 1.58916e+09): probe)
+        t0_us, t1_us = int(ev.t[0]), int(ev.t[-1]) + 1
+        title = (f"{Path(args.file).name}: {len(ev):,} events, [{t0_us / 1e6:.6f}, "
+                 f"{t1_us / 1e6:.6f}) s ({(t1_us - t0_us) / 1e3:.4g} ms)")
         atomic_write_bytes(out, event_picture_png(hist, polarity=args.polarity,
                                                   percentile=args.percentile, title=title,
                                                   scale=args.scale))
