@@ -450,3 +450,20 @@ def test_remove_hot_pixels_drops_them_before_the_windows(tmp_path, capsys):
     (win,) = json.loads(cap.out)["windows"]
     assert win["n_events"] == 12000 and win["valid"]
     assert np.allclose(list(win["params"].values()), [300.0, -150.0], atol=15.0)
+
+
+def test_windows_of_time_left_out_for_want_of_events_are_said(tmp_path, capsys):
+    # a 10 ms pause in the events: egomotion's CSV went from window 3 to 5 (probe)
+    from evmotion.events import EventArray
+
+    rng = np.random.default_rng(0)
+    t = np.sort(rng.integers(0, 50_000, 6000))
+    t = t[(t < 20_000) | (t >= 30_000)]
+    ev = EventArray(x=rng.integers(0, 60, t.size), y=rng.integers(0, 40, t.size), t=t,
+                    p=rng.integers(0, 2, t.size), sensor_size=(40, 60))
+    write_events(tmp_path / "gap.h5", ev)
+    assert main(["egomotion", str(tmp_path / "gap.h5"), "--warp", "translation",
+                 "--window-us", "5ms", "--max-png", "0", "--out", str(tmp_path / "e")]) == 0
+    err = capsys.readouterr().err
+    assert ("gap.h5: 2 of the first 10 windows hold fewer than 10 event(s) and are left out"
+            in err), err

@@ -793,6 +793,16 @@ def select_windows(args, events, *, file: str | os.PathLike = "", min_events: in
     if not windows:
         raise empty_selection(args, file, t_start, t_end,
                               what or f"no window holds {min_events} events or more")
+    skipped = windows[-1].index + 1 - len(windows)
+    if skipped > 0:
+        # windows of time (or of given edges) that hold too few events are left out of
+        # the output, whose window numbers then skip them (egomotion's CSV went from
+        # window 3 to 5 without a word: probe)
+        from evmotion.cli import warn_line
+
+        warn_line(f"{os.fspath(file)}: {skipped} of the first {windows[-1].index + 1} "
+                  f"windows hold fewer than {min_events} event(s) and are left out (their "
+                  "numbers are skipped in the output)")
     return windows
 
 
