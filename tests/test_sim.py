@@ -262,6 +262,15 @@ def test_zoom_into_the_scene_is_refused():
         simulate("zoom", duration_s=1.0, sensor_size=(10, 12), show_progress=False)
 
 
+@pytest.mark.parametrize("scene, params", [("translation", {"vx": 1e12}),
+                                            ("rotation", {"wz": 1e6})])
+def test_motion_faster_than_the_shortest_step_is_refused(scene, params):
+    # vx=1e12 px/s wrote 18 M events that follow no motion, 1.1 GB, no word (probe)
+    with pytest.raises(ParameterError, match=r"px in 1 us, the simulator's shortest step"):
+        simulate(scene, duration_s=0.01, sensor_size=(60, 80), params=params,
+                 show_progress=False)
+
+
 def test_bad_intrinsics():
     from evmotion.errors import CalibrationError
 

@@ -526,6 +526,14 @@ def _signal_events(run: _Run, layers, texs, cp, cn):
         if d > STEP_SHIFT_PX and tb - t > 1:
             dt = max(1, int((tb - t) * STEP_GROW * STEP_SHIFT_PX / d))
             continue
+        if d > STEP_SHIFT_PX:
+            # faster than the shortest step follows (vx=1e12 px/s wrote 18 M events that
+            # follow no motion, with no word: probe)
+            raise ParameterError(f"{run.scene}: the scene moves {d:.3g} px in 1 us, the "
+                                 "simulator's shortest step, at t = "
+                                 f"{t * 1e-6:.6g} s (its events follow at most "
+                                 f"{STEP_SHIFT_PX:g} px a step): give slower motion "
+                                 "(params)")
         stepper.update_boxes(Mseq[0], Mseq[-1])
         np.copyto(ref_bak, ref)
         np.copyto(last_bak, last)
