@@ -328,6 +328,12 @@ CASES = [
      ["--out", "s.h5", "writes a folder"]),
     ("simulate-fps-rotation", ["simulate", "rotation", "--fps", "60", "--out", "{dir}/s.h5"],
      ["--fps 60.0", "rotation"]),
+    # the option said 1 to 4096, then the simulator "between 2 and 65535" of 1x1; a
+    # duration past an hour was named duration_s (probe)
+    ("simulate-size-1x1", ["simulate", "rotation", "--size", "1x1", "--out", "{dir}/s.h5"],
+     ["--size", "2 to 4096", "'1x1'"]),
+    ("simulate-duration-huge", ["simulate", "rotation", "--duration", "1e9", "--out",
+                                "{dir}/s.h5"], ["--duration", "(0, 3600] s", "'1e9'"]),
     ("train-crop-not-16", ["train", "--crop", "100x240", "--out", "{dir}/tr"],
      ["--crop", "'100x240'", "multiple of 16"]),
     ("train-crop-huge", ["train", "--crop", "16000x16000", "--out", "{dir}/tr"],

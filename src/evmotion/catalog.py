@@ -14,7 +14,8 @@ True
 
 from __future__ import annotations
 
-__all__ = ["HOT_NEIGHBOUR_RATIO", "MAX_CROP_SIDE", "MAX_SIM_SIDE", "MAX_WIDTH",
+__all__ = ["HOT_NEIGHBOUR_RATIO", "MAX_CROP_SIDE", "MAX_SIM_DURATION_S", "MAX_SIM_SIDE",
+           "MIN_SIM_SIDE", "MAX_WIDTH",
            "MIN_CROP_SIDE", "OBJECTIVE_NAMES", "WARP_NAMES", "WEIGHT_DATASETS"]
 
 #: Warps :func:`evmotion.core.warps.make_warp` builds (keys of
@@ -36,6 +37,10 @@ MAX_WIDTH = 4.0
 #: Largest side of a simulated sensor, px (``evmotion simulate --size``): the simulator
 #: renders float64 frames of this size.
 MAX_SIM_SIDE = 4096
+#: Smallest side of a simulated sensor, px (the motion simulator's; schlieren scenes need 8).
+MIN_SIM_SIDE = 2
+#: Longest simulated recording, s (``evmotion simulate --duration``).
+MAX_SIM_DURATION_S = 3600.0
 #: Largest side of a training crop, px: the simulator renders each training window at the
 #: crop's size.
 MAX_CROP_SIDE = MAX_SIM_SIDE

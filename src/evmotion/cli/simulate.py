@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from evmotion.catalog import MAX_SIM_SIDE
+from evmotion.catalog import MAX_SIM_DURATION_S, MAX_SIM_SIDE, MIN_SIM_SIDE
 from evmotion.cli.options import (
     HelpFormatter,
     check_folder,
@@ -55,7 +55,8 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, help="events file; ground truth goes to "
                    "<stem>_gt.h5 (schlieren: an output folder)")
     p.add_argument("--format", default=None, help="events format (default: from the extension)")
-    p.add_argument("--duration", type=positive_float(unit="s"), default=0.1,
+    p.add_argument("--duration", type=finite_float(0.0, MAX_SIM_DURATION_S, lo_open=True,
+                                                   unit="s"), default=0.1,
                    help="seconds (default 0.1)")
     p.add_argument("--size", "--sensor-size", default=None, nargs="+", action=_SizeAction,
                    metavar="HxW",
@@ -166,13 +167,16 @@ def parse_params(items: list[str]) -> dict:
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    """``"260x346"`` -> ``(260, 346)``; an ``argparse`` type (sides 1 to :data:`MAX_SIM_SIDE`)."""
+    """``"260x346"`` -> ``(260, 346)``; an ``argparse`` type (sides :data:`MIN_SIM_SIDE`
+    to :data:`MAX_SIM_SIDE`)."""
     try:
         h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"must be HxW (e.g. 260x346), got {text!r}") from None
-    if not (1 <= h <= MAX_SIM_SIDE and 1 <= w <= MAX_SIM_SIDE):
-        raise argparse.ArgumentTypeError(f"sides must be 1 to {MAX_SIM_SIDE} px, got {text!r}")
+    # (1x1 passed here and was refused by the simulator as "between 2 and 65535": probe)
+    if not (MIN_SIM_SIDE <= h <= MAX_SIM_SIDE and MIN_SIM_SIDE <= w <= MAX_SIM_SIDE):
+        raise argparse.ArgumentTypeError(f"sides must be {MIN_SIM_SIDE} to {MAX_SIM_SIDE} px, "
+                                         f"got {text!r}")
     return h, w
 
 

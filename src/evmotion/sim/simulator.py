@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import MAX_SIM_DURATION_S, MIN_SIM_SIDE
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.sim.groundtruth import GroundTruth, Layer
@@ -38,7 +39,7 @@ __all__ = ["EventOptions", "LogSimResult", "SimOptions", "SimResult", "parse_sen
 
 MAX_STEP_US = 5000  # sample at least every 5 ms (the 1 px bound usually binds first)
 # a simulated recording of an hour is already days of rendering; beyond, a typo
-MAX_DURATION_S = 3600.0
+MAX_DURATION_S = MAX_SIM_DURATION_S
 # each ground-truth frame is a dense flow field when written (0.7 MB at 346x260)
 MAX_GT_FRAMES = 100_000
 STEP_SHIFT_PX = 1.0  # global steps move no texture point by more than ~1 px
@@ -266,7 +267,7 @@ def _checked_run(scene, duration_s, sensor_size, options: SimOptions, show_progr
         raise ParameterError(f"{n_frames:.3g} ground-truth frames ({options.frame_rate:g} Hz "
                              f"over {duration_s:g} s): at most {MAX_GT_FRAMES}; lower "
                              "frame_rate (--frame-rate) or duration_s (--duration)")
-    h, w = parse_sensor_size(sensor_size, 2)
+    h, w = parse_sensor_size(sensor_size, MIN_SIM_SIDE)
     options.check_hot_pixels(h * w)
     K = default_K((h, w)) if options.K is None else np.array(options.K, dtype=np.float64)
     return _Run(scene, duration_us, (h, w), options, K, bool(show_progress))
