@@ -50,6 +50,30 @@ def test_one_motion_split_in_two_is_one_measurement():
     assert seg.valid[seg.same_as[dup]] and not seg.valid[dup]
     two = segment_motion(ev, n_warps=2, warp="translation", seed=0)
     assert (two.same_as == -1).all() and two.valid.all()
+    # of the two halves the sharper stands as the measurement
+    assert seg.gains[seg.same_as[dup]] >= seg.gains[dup]
+
+
+def test_of_two_clusters_of_one_motion_the_sharper_is_the_measurement():
+    # kept by size, a cluster mixing an object's events into the background's motion
+    # (gain 1.23) stood as the measurement, the pure background (gain 1.99) as its
+    # duplicate (probe); here the smaller cluster is the sharper
+    from evmotion.core.warps import make_warp
+    from evmotion.methods.segmentation import _duplicates
+
+    ev, _ = two_motions()
+    w = make_warp("translation", ev.sensor_size)
+
+    class Cost:
+        x = np.asarray(ev.x, float)
+        y = np.asarray(ev.y, float)
+        dt = (ev.t - ev.t[0]) * 1e-6
+
+    labels = (np.arange(len(ev)) % 3 == 0).astype(int)  # cluster 0 twice cluster 1's size
+    params = np.array([[300.0, 0.0], [300.0, 0.1]])
+    same = _duplicates(w, Cost, params, labels, np.array([True, True]),
+                       np.array([1.23, 1.99]))
+    assert same.tolist() == [1, -1]
 
 
 @pytest.mark.parametrize("kind", ["noise", "static"])
