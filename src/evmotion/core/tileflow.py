@@ -36,6 +36,7 @@ __all__ = [
     "pixel_tiles",
     "resample",
     "scale_grid",
+    "tile_means",
 ]
 
 
@@ -199,6 +200,27 @@ def pixel_tiles(shape: tuple[int, int], grid: TileGrid) -> tuple[np.ndarray, np.
     ty = np.minimum(np.arange(h) * grid.ny // h, grid.ny - 1)
     tx = np.minimum(np.arange(w) * grid.nx // w, grid.nx - 1)
     return ty[:, None], tx[None, :]
+
+
+def tile_means(img: np.ndarray, grid: TileGrid) -> np.ndarray:
+    """Mean of ``img`` (H, W) or (H, W, C) over the pixels of each tile
+    (:func:`pixel_tiles`): (ny, nx) or (ny, nx, C).
+
+    Examples
+    --------
+    >>> img = np.arange(8.0).reshape(2, 4)
+    >>> tile_means(img, TileGrid(1, 2, (2, 4))).tolist()
+    [[2.5, 4.5]]
+    """
+    h, w = img.shape[:2]
+    ty, tx = pixel_tiles((h, w), grid)
+    key = (ty * grid.nx + tx).ravel()
+    n = grid.ny * grid.nx
+    counts = np.maximum(np.bincount(key, minlength=n), 1)
+    flat = img.reshape(h * w, -1)
+    out = np.stack([np.bincount(key, weights=flat[:, c], minlength=n) / counts
+                    for c in range(flat.shape[1])], axis=-1)
+    return out.reshape((grid.ny, grid.nx) + img.shape[2:])
 
 
 def event_tile_means(flow: np.ndarray, x: np.ndarray, y: np.ndarray,

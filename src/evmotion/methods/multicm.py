@@ -354,7 +354,7 @@ def rest_where_empty(flow: np.ndarray, valid: np.ndarray, grid) -> np.ndarray:
     out = flow.copy()
     if valid.all():
         return out
-    frac = _box3(_tile_means(valid.astype(np.float64), grid))
+    frac = _box3(tf.tile_means(valid.astype(np.float64), grid))
     keep = np.clip(frac / EMPTY_TILE_SUPPORT, 0.0, 1.0)[tf.pixel_tiles(valid.shape, grid)]
     out[~valid] *= keep[~valid, None].astype(flow.dtype)
     return out
@@ -367,17 +367,6 @@ def _box3(a: np.ndarray) -> np.ndarray:
     s = sum(p[i:i + a.shape[0], j:j + a.shape[1]] for i in range(3) for j in range(3))
     c = sum(n[i:i + a.shape[0], j:j + a.shape[1]] for i in range(3) for j in range(3))
     return s / c
-
-
-def _tile_means(img: np.ndarray, grid) -> np.ndarray:
-    """Mean of ``img`` (H, W) over the pixels of each tile
-    (:func:`~evmotion.core.tileflow.pixel_tiles`), (ny, nx)."""
-    ty, tx = tf.pixel_tiles(img.shape, grid)
-    key = (ty * grid.nx + tx).ravel()
-    n = grid.ny * grid.nx
-    sums = np.bincount(key, weights=img.ravel(), minlength=n)
-    counts = np.bincount(key, minlength=n)
-    return (sums / np.maximum(counts, 1)).reshape(grid.ny, grid.nx)
 
 
 @njit(cache=True)
@@ -441,14 +430,7 @@ def _init_params(init, grid, duration_s, shape):
         raise ParameterError(f"init of shape {init.shape} is neither the sensor's dense flow "
                              f"({h}, {w}, 2) nor tile params (at most the sensor){hint}")
     if init.shape[:2] == tuple(shape):
-        # tile averages of the dense flow
-        ys = np.minimum((np.arange(shape[0]) * grid.ny) // shape[0], grid.ny - 1)
-        xs = np.minimum((np.arange(shape[1]) * grid.nx) // shape[1], grid.nx - 1)
-        out = np.zeros((grid.ny, grid.nx, 2))
-        cnt = np.zeros((grid.ny, grid.nx, 1))
-        np.add.at(out, (ys[:, None], xs[None, :]), init)
-        np.add.at(cnt, (ys[:, None], xs[None, :]), 1.0)
-        p = out / cnt
+        p = tf.tile_means(init, grid)  # tile averages of the dense flow
     else:
         p = tf.resample(init, grid)
     return p * duration_s

@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from evmotion.core.tileflow import TileGrid, event_tile_means, event_weights
+from evmotion.core.tileflow import TileGrid, event_weights, tile_means
 from evmotion.events import EventArray
 from evmotion.methods.dnn.bfgs import bfgs
 from evmotion.methods.dnn.focus import (
@@ -83,9 +83,8 @@ def _problem(events: EventArray, grid: TileGrid, binning: int, dtype,
     if base is not None:
         # (the TV's share of base: its mean over each tile's pixels, as a tile without
         # events has a flow too)
-        py, px = np.indices(base.shape[:2]).reshape(2, -1)
         extra = (torch.from_numpy((event_flow(base, x, y) / k).astype(dtype)),
-                 torch.from_numpy(event_tile_means(base, px, py, grid).astype(dtype)))
+                 torch.from_numpy(tile_means(base, grid).astype(dtype)))
     return _Problem(tx, ty, ts, torch.from_numpy(idx), torch.from_numpy((w / k).astype(dtype)),
                     shape, identity_focus(tx, ty, shape),
                     max(int(events.t[-1] - events.t[0]), 1) * 1e-6, grid, *extra)
@@ -149,7 +148,7 @@ def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
 
     With ``base``, a dense flow (H, W, 2, px over the window), the tiles are a correction
     added to it: the events move by ``base`` (bilinear between pixel centres) plus the
-    tiles' field, the TV is that of the tiles plus ``base``'s means over their events, and
+    tiles' field, the TV is that of the tiles plus ``base``'s means over their pixels, and
     the flow found is ``base + dense_flow(result)``. Started from zero, that is ``base``
     itself, detail finer than a tile included.
 
