@@ -314,7 +314,8 @@ def run(args) -> int:
     for panel in sorted(staged.glob("window_*.png")):
         os.replace(panel, out_dir / panel.name)
     shutil.rmtree(staged, ignore_errors=True)
-    rows = write_outputs(out_dir, results, grid=args.grid)
+    rows = write_outputs(out_dir, results, grid=args.grid, sensor_size=events.sensor_size,
+                         K=K)
     journal.path.unlink()
     failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
     if not rows:
@@ -385,11 +386,13 @@ def _written(out_dir: Path, w, out: WindowOutput):
     return out.result
 
 
-def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]:
+def write_outputs(out_dir: Path, results, grid: str | None = None,
+                  sensor_size: tuple[int, int] | None = None, K=None) -> list[dict]:
     """params.csv and params.h5 of the windows' results ``(window, result or None, error)``
     (the panels are written as the results come in, :func:`_written`); returns the JSON
-    rows. ``grid`` (which pixel grid the events were on) goes into params.h5's
-    attributes."""
+    rows. ``grid`` (which pixel grid the events were on), ``sensor_size`` and the
+    intrinsics ``K`` go into params.h5's attributes: with them the parameters give each
+    window's flow (``evmotion eval``)."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN, MIN_FIT_EVENTS, POOR_FIT_SHARE
     from evmotion.methods.measured import MIN_MOTION_PX
@@ -459,7 +462,9 @@ def write_outputs(out_dir: Path, results, grid: str | None = None) -> list[dict]
         valid, values,
         {k: u for k, (u, _) in cols.items()}, {k: m for k, (_, m) in cols.items()},
         {"method": "egomotion", "warp": first.warp, "regularizer": str(first.regularizer),
-         "objective": first.objective, "grid": "not recorded" if grid is None else grid}))
+         "objective": first.objective, "grid": "not recorded" if grid is None else grid,
+         **({} if sensor_size is None else {"sensor_size": np.asarray(sensor_size, np.int64)}),
+         **({} if K is None else {"K": np.asarray(K, np.float64)})}))
     return rows
 
 

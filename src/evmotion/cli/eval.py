@@ -22,6 +22,14 @@ GT window holding its time, bilinear at its position; AEE in px/s and in px of
 displacement over ``--dt`` GT frame intervals, %Out and AE on those displacements, and
 how many events were scored, had no flow or no ground truth.
 
+Ego-motion parameters (``evmotion egomotion``'s ``params.h5``, or its output folder) are
+scored through the flow each window's warp gives at every pixel, as dense flow above
+(windows that are no measurement, collapsed or a poor fit, are not scored); against the
+simulator's ground truth of a scene moved by the same warp, the parameters are compared
+too: the RMS of each one's error over the valid windows, in its unit (and of the angular
+velocity's error for the rotation), at each window's reference time
+(:mod:`evmotion.eval.egomotion`).
+
 Beside the AEE, ``AEE_zero`` is the zero flow's on the same pixels or events (the ground
 truth's mean displacement): an AEE is read against it.
 
@@ -65,17 +73,21 @@ EXAMPLES = """examples:
   evmotion eval flow.h5 --events sim.h5                    # no GT: sharpness (FWL)
   evmotion flow sim.h5 --method triplet --out triplet.h5   # per-event flow
   evmotion eval triplet.h5 --gt sim_gt.h5 --json            # scored event by event
+  evmotion egomotion sim.h5 --warp rotation --out ego/
+  evmotion eval ego/ --gt sim_gt.h5                        # omega RMS error and AEE
 """
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("eval", help="flow accuracy (AEE, %%Out, AE, FWL) against ground truth",
+    p = sub.add_parser("eval", help="flow and ego-motion accuracy (AEE, %%Out, AE, FWL, "
+                                    "parameter RMS) against ground truth",
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=HelpFormatter)
     p.add_argument("flow", help="estimated flow (.h5, .npz, .flo, .png, a pattern "
                                 "flow_{:05d}.flo; .npy with --t0-us/--t1-us), a folder of "
                                 "another tool's .flo/.png (paired with the GT's windows), "
-                                "or a per-event flow file (.h5/.npz of --method triplet)")
+                                "a per-event flow file (.h5/.npz of --method triplet), "
+                                "or egomotion's params.h5 (or its --out folder)")
     p.add_argument("--gt", default=None, type=existing_input,
                    help="ground-truth flow (MVSEC .npz, DSEC, .h5); without it, --events "
                         "gives the sharpness (FWL) alone")
@@ -338,7 +350,6 @@ def _run_event_flow(args, path) -> int:
 
 def _run_sharpness(args, path: Path, h5_format) -> int:
     """No ground truth: the FWL of each window on the recording's events."""
-    from evmotion.cli import print_json
     from evmotion.eval.windows import sharpness_windows
 
     if args.events is None:
@@ -358,6 +369,13 @@ def _run_sharpness(args, path: Path, h5_format) -> int:
         raise ParameterError(f"--events {args.events} against {path}: {exc}") from None
     if h5_format is not None:
         _warn_other_source(path, args.events)
+    return _report_sharpness(args, rows)
+
+
+def _report_sharpness(args, rows: list[dict]) -> int:
+    """The per-window FWLs of :func:`~evmotion.eval.windows.sharpness_windows` on stdout."""
+    from evmotion.cli import print_json
+
     fwls = [r["FWL"] for r in rows if "FWL" in r]
     mean = {k: float(np.mean([r[k] for r in rows if k in r])) for k in ("FWL", "FWL_gauss")
             } if fwls else {}
@@ -401,6 +419,104 @@ def _events_on_grid(args, attrs: dict):
     return moved
 
 
+def _params_file(path: Path, h5_format) -> Path | None:
+    """FLOW as ego-motion parameters: a parameters file (``evmotion egomotion``'s
+    ``params.h5``), or the output folder that holds one; None otherwise."""
+    from evmotion.io.paramsfiles import PARAMS_FORMAT
+
+    if h5_format == PARAMS_FORMAT:
+        return path
+    inside = path / "params.h5"
+    if path.is_dir() and inside.is_file() and _h5_format(inside) == PARAMS_FORMAT:
+        return inside
+    return None
+
+
+def _sim_truth(gt_path):
+    """The simulator's ground truth in ``gt_path`` (its motion parameters), or None when
+    the file is another kind of ground truth."""
+    from evmotion.sim.gtio import GT_FORMAT, read_ground_truth
+
+    gt_path = Path(gt_path)
+    if gt_path.suffix.lower() not in (".h5", ".hdf5") or not gt_path.is_file():
+        return None
+    if _h5_format(gt_path) != GT_FORMAT:
+        return None
+    return read_ground_truth(gt_path)
+
+
+def _run_egomotion(args, path: Path) -> int:
+    """Score ``evmotion egomotion``'s parameters (see the module docstring): their flow
+    against --gt, and the parameters themselves against the simulator's; with --events
+    alone, their flow's FWL."""
+    from evmotion.cli import print_json
+    from evmotion.eval.egomotion import evaluate_egomotion, sharpness_egomotion
+    from evmotion.io.flowfiles import read_gt_flow
+    from evmotion.io.paramsfiles import read_params
+
+    reject_unused(args, {"--t0-us": "t0_us", "--t1-us": "t1_us",
+                         "--along-streamlines": "along_streamlines"},
+                  f"to {path} (its rows carry their windows' times and a motion model)")
+    table = read_params(path)
+    method = str(table.attrs.get("method", ""))
+    if method != "egomotion":
+        raise ParameterError(f"{path} holds the parameters of '{method or 'unknown'}' (one "
+                             "row per cluster): eval scores 'evmotion egomotion''s "
+                             "params.h5, one motion per window")
+    if not len(table):
+        raise ParameterError(f"{path} holds no window")
+    events = _events_on_grid(args, table.attrs) if args.events else None
+    if args.gt is None:
+        if events is None:
+            raise ParameterError("give --gt GT (accuracy against ground truth), or --events "
+                                 "REC alone (the sharpness, FWL, which needs no ground truth)")
+        reject_unused(args, {"--out-px": "out_px"}, "without --gt (no accuracy is computed)")
+        try:
+            rows = sharpness_egomotion(table, events)
+        except EventDataError as exc:
+            raise ParameterError(f"--events {args.events} against {path}: {exc}") from None
+        return _report_sharpness(args, rows)
+    gt = read_gt_flow(args.gt)
+    truth = _sim_truth(args.gt)
+    # a file written before the sensor size and K were recorded: the ground truth's
+    size = None if "sensor_size" in table.attrs else gt.flow.shape[1:3]
+    K = None if "K" in table.attrs or truth is None else truth.K
+    out_px = args.out_px if args.out_px is not None else 3.0
+    try:
+        res = evaluate_egomotion(table, gt, truth=truth, sensor_size=size, K=K,
+                                 events=events, dt=args.dt, out_px=out_px)
+    except EmptyWindowError as exc:
+        raise ParameterError(f"{path} against ground truth {args.gt}: {exc}") from None
+    except EventDataError as exc:
+        raise ParameterError(f"--events {args.events} against {path}: {exc}") from None
+    summary = _windows_summary(args, res.flow, out_px)
+    # a window that is no measurement has no flow to score: said as such, not as a
+    # window without pixels
+    unmeasured = int((~np.asarray(table.valid, bool)).sum())
+    summary["windows_without_pixels"] -= unmeasured
+    summary.update(kind="egomotion", warp=str(table.attrs.get("warp")),
+                   windows_not_measurements=unmeasured,
+                   parameters_rms=res.parameters_rms, parameter_units=res.units,
+                   parameters=res.parameters, parameters_note=res.reason)
+    if args.json:
+        print_json(summary)
+        return 0
+    print(f"{path}: the {table.attrs.get('warp')} warp's parameters, scored through their "
+          "flow at each pixel")
+    # ego-motion windows are cut by events or time, not by GT frames: --dt is no protocol
+    _print_windows(args, res.flow, summary, dt_note=False)
+    if unmeasured:
+        print(f"note: {unmeasured} window{' is' if unmeasured == 1 else 's are'} no "
+              "measurement (collapsed or a poor fit: params.h5's 'valid'): not scored")
+    rms = res.parameters_rms
+    if rms:
+        print("parameters, RMS error over the valid windows: " + "  ".join(
+            f"{k}={v:.4g} {res.units.get(k, 'rad/s')}" for k, v in rms.items()))
+    elif res.reason:
+        print(f"note: parameters not compared: {res.reason}")
+    return 0
+
+
 def run(args) -> int:
 
     from evmotion.cli import print_json
@@ -411,12 +527,16 @@ def run(args) -> int:
     # the format attribute of an .h5 FLOW, read once for both checks below
     h5_format = _h5_format(path) if path.suffix.lower() in (".h5", ".hdf5") and \
         path.is_file() else None
+    params = _params_file(path, h5_format)
+    if args.gt is not None:
+        from evmotion.io.flowfiles import gt_in_folder
+
+        # a scene's folder (events, frames and the simulator's schlieren_gt.h5) as --gt
+        args.gt = gt_in_folder(args.gt)
+    if params is not None:
+        return _run_egomotion(args, params)
     if args.gt is None:
         return _run_sharpness(args, path, h5_format)
-    from evmotion.io.flowfiles import gt_in_folder
-
-    # a scene's folder (events, frames and the simulator's schlieren_gt.h5) as --gt
-    args.gt = gt_in_folder(args.gt)
     if _is_event_flow(path, h5_format):
         if Path(args.gt).resolve() == path.resolve():
             raise ParameterError(f"FLOW {path} is the ground truth itself (--gt {args.gt})")
@@ -437,38 +557,50 @@ def run(args) -> int:
         raise ParameterError(f"--events {args.events} against {path}: {exc}") from None
     if events is not None and h5_format is not None:
         _warn_other_source(path, args.events)
-    per_window, total, mismatched = res.windows, res.total, res.mismatched
     if q is not None:
-        _add_potential_scores(q, t0s, t1s, args.gt, per_window, total)
-    # a window with no pixel where both the estimate and the ground truth are known
-    # adds nothing to the means: it is not counted as scored
-    empty = sum(1 for w in per_window if w.get("scored", True) and not w.get("n_pixels"))
-    summary = {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
-               "n_windows": len(per_window),
-               "windows_scored": len(per_window) - res.uncovered - empty,
-               "windows_without_pixels": empty,
-               "windows_beyond_gt": res.uncovered, "windows_with_other_dt": mismatched,
-               "mask": res.mask, "out_px": out_px,
-               "mean": total, "windows": per_window}
+        _add_potential_scores(q, t0s, t1s, args.gt, res.windows, res.total)
+    summary = _windows_summary(args, res, out_px)
     if args.json:
         print_json(summary)
     else:
-        keys = [k for k in ("AEE", "AEE_zero", "%Out", "AE_deg", "FWL", "FWL_gt", "q_corr",
-                            "q_std_ratio", "n_pixels") if k in total]
-        scored = summary["windows_scored"]
-        n = len(per_window)
-        print(f"{n} window{'' if n == 1 else 's'}" if scored == n else
-              f"{scored} of {n} windows scored", f"({summary['mask']}, dt={args.dt})")
-        print("  ".join(f"{k}={int(total[k]):,}" if k == "n_pixels" else f"{k}={total[k]:.4g}"
-                        for k in keys))
-        if res.uncovered:
-            print(f"note: {res.uncovered} window{' reaches' if res.uncovered == 1 else 's reach'} "
-                  "more than 1 % beyond the ground truth's time span: not scored (their "
-                  "ground truth would be only part of the motion)")
-        if empty:
-            print(f"note: {empty} window{' has' if empty == 1 else 's have'} no pixel where both "
-                  "the estimate and the ground truth are known: not scored")
-        if mismatched:
-            print(f"note: {mismatched} window{' spans' if mismatched == 1 else 's span'} a number "
-                  f"of GT frames other than --dt {args.dt}")
+        _print_windows(args, res, summary)
     return 0
+
+
+def _windows_summary(args, res, out_px: float) -> dict:
+    """The JSON summary of a :class:`~evmotion.eval.windows.WindowsEvaluation`."""
+    per_window = res.windows
+    # a window with no pixel where both the estimate and the ground truth are known
+    # adds nothing to the means: it is not counted as scored
+    empty = sum(1 for w in per_window if w.get("scored", True) and not w.get("n_pixels"))
+    return {"flow": str(args.flow), "gt": str(args.gt), "dt": args.dt,
+            "n_windows": len(per_window),
+            "windows_scored": len(per_window) - res.uncovered - empty,
+            "windows_without_pixels": empty,
+            "windows_beyond_gt": res.uncovered, "windows_with_other_dt": res.mismatched,
+            "mask": res.mask, "out_px": out_px, "mean": res.total, "windows": per_window}
+
+
+def _print_windows(args, res, summary: dict, dt_note: bool = True) -> None:
+    """The lines of a :class:`~evmotion.eval.windows.WindowsEvaluation` on stdout
+    (``dt_note``: say how many windows span another number of GT frames than --dt)."""
+    per_window, total, mismatched = res.windows, res.total, res.mismatched
+    empty = summary["windows_without_pixels"]
+    keys = [k for k in ("AEE", "AEE_zero", "%Out", "AE_deg", "FWL", "FWL_gt", "q_corr",
+                        "q_std_ratio", "n_pixels") if k in total]
+    scored = summary["windows_scored"]
+    n = len(per_window)
+    print(f"{n} window{'' if n == 1 else 's'}" if scored == n else
+          f"{scored} of {n} windows scored", f"({summary['mask']}, dt={args.dt})")
+    print("  ".join(f"{k}={int(total[k]):,}" if k == "n_pixels" else f"{k}={total[k]:.4g}"
+                    for k in keys))
+    if res.uncovered:
+        print(f"note: {res.uncovered} window{' reaches' if res.uncovered == 1 else 's reach'} "
+              "more than 1 % beyond the ground truth's time span: not scored (their "
+              "ground truth would be only part of the motion)")
+    if empty:
+        print(f"note: {empty} window{' has' if empty == 1 else 's have'} no pixel where both "
+              "the estimate and the ground truth are known: not scored")
+    if mismatched and dt_note:
+        print(f"note: {mismatched} window{' spans' if mismatched == 1 else 's span'} a number "
+              f"of GT frames other than --dt {args.dt}")

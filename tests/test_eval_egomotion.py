@@ -1,0 +1,140 @@
+"""Scoring ego-motion parameters against ground truth (evmotion.eval.egomotion and
+``evmotion eval`` on egomotion's output)."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from evmotion.cli import main
+from evmotion.core.warps import make_warp
+from evmotion.eval.egomotion import ParamsFlow, evaluate_egomotion, parameter_errors
+from evmotion.io.paramsfiles import ParamsTable
+from evmotion.sim import simulate
+from evmotion.sim.gtio import write_ground_truth
+
+SIZE = (60, 80)
+
+
+def _table(warp, params, t0, t1, valid=None, **attrs):
+    params = np.atleast_2d(np.asarray(params, np.float64))
+    w = make_warp(warp, SIZE, attrs.get("K"))
+    n = len(params)
+    return ParamsTable(params, w.param_names, w.param_units, np.asarray(t0), np.asarray(t1),
+                       np.ones(n, bool) if valid is None else np.asarray(valid),
+                       columns={"t_ref_us": np.asarray(t0)},
+                       attrs={"warp": warp, "grid": "sensor", "method": "egomotion",
+                              "sensor_size": np.asarray(SIZE), **attrs})
+
+
+def _exact(gt, t_us):
+    return np.asarray(gt.layers[0].motion.params_at(t_us * 1e-6))
+
+
+def test_params_flow_is_the_warps_image_velocity():
+    K = np.array([[70.0, 0, 39.5], [0, 70.0, 29.5], [0, 0, 1]])
+    t = _table("rotation", [[0.3, -0.2, 1.1], [0.0, 0.0, 0.0]], [0, 10], [10, 20],
+               valid=[True, False], K=K)
+    f = ParamsFlow(t, SIZE, K)
+    ys, xs = np.mgrid[0:SIZE[0], 0:SIZE[1]]
+    u, v = make_warp("rotation", SIZE, K).optical_flow(xs.ravel() * 1.0, ys.ravel() * 1.0,
+                                                        np.array([0.3, -0.2, 1.1]))
+    np.testing.assert_allclose(f[0][..., 0].ravel(), u, rtol=1e-6)
+    np.testing.assert_allclose(f[0][..., 1].ravel(), v, rtol=1e-6)
+    assert np.isnan(f[1]).all()  # not a measurement: nothing to score
+    with pytest.raises(Exception, match="intrinsics"):
+        ParamsFlow(t, SIZE, None)
+
+
+@pytest.mark.parametrize("scene", ["translation", "rotation", "zoom"])
+def test_exact_parameters_score_near_zero(scene):
+    sim = simulate(scene, duration_s=0.04, sensor_size=SIZE, seed=3, show_progress=False)
+    gt = sim.gt
+    t0 = gt.frame_times_us[:-1]
+    t1 = gt.frame_times_us[1:]
+    exact = np.array([_exact(gt, int(a)) for a in t0])
+    K = gt.K if scene == "rotation" else None
+    seq = _gt_sequence(gt)
+    res = evaluate_egomotion(_table(scene, exact, t0, t1, K=K), seq, truth=gt)
+    assert res.reason == ""
+    assert all(v == pytest.approx(0.0, abs=1e-9) for v in res.parameters_rms.values())
+    # the flow at the window's start times its duration against the displacement along
+    # the trajectories: equal to second order
+    assert res.flow.total["AEE"] < 0.05 * res.flow.total["AEE_zero"]
+    # an error of the first parameter shows in its RMS, in its unit, and in the AEE
+    wrong = exact.copy()
+    wrong[:, 0] += 0.5 * np.abs(exact[:, 0]).max() + 0.1
+    bad = evaluate_egomotion(_table(scene, wrong, t0, t1, K=K), seq, truth=gt)
+    name = make_warp(scene, SIZE, K).param_names[0]
+    assert bad.parameters_rms[name] == pytest.approx(0.5 * np.abs(exact[:, 0]).max() + 0.1)
+    assert bad.flow.total["AEE"] > 5 * res.flow.total["AEE"]
+    if scene == "rotation":
+        assert bad.parameters_rms["omega"] == pytest.approx(bad.parameters_rms["wx"])
+
+
+def _gt_sequence(gt):
+    """The simulator's ground truth as eval reads it (written and read back)."""
+    import tempfile
+    from pathlib import Path
+
+    from evmotion.io.flowfiles import read_gt_flow
+
+    folder = Path(tempfile.mkdtemp())
+    write_ground_truth(folder / "g_gt.h5", gt)
+    return read_gt_flow(folder / "g_gt.h5")
+
+
+def test_parameters_of_another_warp_are_compared_through_the_flow_only():
+    gt = simulate("rotation", duration_s=0.02, sensor_size=SIZE, seed=1,
+                  show_progress=False).gt
+    rows, rms, reason = parameter_errors(_table("translation", [[1.0, 2.0]], [0], [10_000]),
+                                         gt)
+    assert rows == [] and rms == {} and "rotation warp" in reason
+
+
+def test_cli_eval_egomotion_output(tmp_path, capsys):
+    from evmotion.sim.gtio import read_ground_truth
+
+    rec = tmp_path / "rot.h5"
+    assert main(["simulate", "rotation", "--duration", "0.06", "--size", "120", "90",
+                 "--out", str(rec)]) == 0
+    gt = read_ground_truth(tmp_path / "rot_gt.h5")
+    out = tmp_path / "ego"
+    assert main(["egomotion", str(rec), "--warp", "rotation", "--window-events", "8000",
+                 "--out", str(out), "--max-png", "0"]) == 0
+    capsys.readouterr()
+    with h5py.File(out / "params.h5") as f:
+        assert list(f.attrs["sensor_size"]) == list(gt.sensor_size)
+        np.testing.assert_allclose(np.asarray(f.attrs["K"]).reshape(3, 3), gt.K)
+        omega, valid = f["params"][()], f["valid"][()]
+    assert main(["eval", str(out), "--gt", str(tmp_path / "rot_gt.h5"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["kind"] == "egomotion" and doc["warp"] == "rotation"
+    # the scene turns at a constant rate: the RMS of the valid rows' error, by hand
+    err = omega[valid] - gt.angular_velocity()
+    assert doc["parameters_rms"]["omega"] == pytest.approx(
+        np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+    assert doc["parameters_rms"]["wz"] == pytest.approx(np.sqrt(np.mean(err[:, 2] ** 2)))
+    assert doc["mean"]["AEE"] < 0.5 * doc["mean"]["AEE_zero"]
+    # the FWL alone, with no ground truth
+    assert main(["eval", str(out / "params.h5"), "--events", str(rec)]) == 0
+    assert "FWL=" in capsys.readouterr().out
+    # a file written before the sensor size and K were recorded: the ground truth's
+    with h5py.File(out / "params.h5", "a") as f:
+        del f.attrs["sensor_size"], f.attrs["K"]
+    assert main(["eval", str(out), "--gt", str(tmp_path / "rot_gt.h5")]) == 0
+    assert "omega=" in capsys.readouterr().out
+
+
+def test_cli_eval_refuses_segment_clusters(tmp_path, capsys):
+    from evmotion.io.paramsfiles import write_params_h5
+
+    t = _table("translation", [[1.0, 2.0], [3.0, 4.0]], [0, 0], [10, 10])
+    path = tmp_path / "clusters.h5"
+    write_params_h5(path, ParamsTable(t.params, t.names, t.units, t.t0, t.t1, t.valid,
+                                      attrs={**t.attrs, "method": "segment"}))
+    assert main(["eval", str(path), "--gt", str(path)]) == 2
+    assert "one row per cluster" in capsys.readouterr().err
