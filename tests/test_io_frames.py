@@ -423,6 +423,41 @@ def test_images_txt_in_whole_microseconds_is_read_as_such(tmp_path):
         assert read_image_list(tmp_path / "images.txt")["t"].tolist() == [0, 8333]
 
 
+def test_images_txt_in_whole_seconds_takes_the_time_unit(tmp_path):
+    """Frames at 1 fps stamped 0, 1, 2 (whole seconds) were read as microseconds, and
+    --time-unit, the events', did not reach them; the refusal blamed events.txt (probe)."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+    from evmotion.io.bosinput import load_bos_input
+    from evmotion.io.ecd import read_image_list
+    from evmotion.io.pngfile import write_png
+
+    (tmp_path / "images").mkdir()
+    for k in range(3):
+        write_png(tmp_path / "images" / f"f{k}.png", np.full((4, 5), 100 + k, np.uint8))
+    (tmp_path / "images.txt").write_text("".join(f"{k} images/f{k}.png\n" for k in range(3)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_image_list(tmp_path / "images.txt", "s")["t"].tolist() == [
+            0, 1_000_000, 2_000_000]
+    # decimal times state seconds whatever the unit given
+    (tmp_path / "images.txt").write_text("0.0 images/f0.png\n1.5 images/f1.png\n")
+    assert read_image_list(tmp_path / "images.txt", "ms")["t"].tolist() == [0, 1_500_000]
+    (tmp_path / "images.txt").write_text("".join(f"{k} images/f{k}.png\n" for k in range(3)))
+    write_events(tmp_path / "events.txt", EventArray(
+        x=[1, 2, 3], y=[1, 2, 3], t=[100_000, 900_000, 1_900_000], p=[1, 0, 1],
+        sensor_size=(4, 5)))
+    with pytest.warns(EvmotionWarning, match="whole number"), \
+            pytest.raises(ParameterError, match="images.txt's whole numbers were read as "
+                                                "microseconds; --time-unit s"):
+        load_bos_input(tmp_path)
+    data = load_bos_input(tmp_path, time_unit="s")
+    assert data.frame_times.tolist() == [0, 1_000_000, 2_000_000]
+
+
 def test_unpadded_names_sort_as_numbers(tmp_path):
     # frame_0 .. frame_11 sorted as text put frame_10 third: the flow of scrambled
     # intervals, silently

@@ -127,6 +127,22 @@ def _covered(intervals: np.ndarray, t: np.ndarray, rec) -> np.ndarray:
     return intervals
 
 
+def _whole_times(images_txt: Path) -> bool:
+    """Whether the first time in an ``images.txt`` is a whole number (no unit stated)."""
+    try:
+        with open(images_txt, encoding="utf-8-sig") as fh:
+            for line in fh:
+                text = line.strip()
+                if text and not text.startswith("#"):
+                    first = text.replace(",", " ").split()[0]
+                    if first[:1].isalpha():
+                        continue  # a header line
+                    return first.lstrip("+-").isdigit()
+    except (OSError, UnicodeDecodeError):
+        return False
+    return False
+
+
 def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, bool]:
     """Where the frames are, and whether that is a guess that the recording holds its
     own: ``frames``; else the ``images.txt`` beside the events, or the recording itself
@@ -214,7 +230,8 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         At most this many intervals (the first ones).
     time_unit : {"s", "ms", "us", "ns"}, optional
         Unit of the events' times where their file does not state it
-        (:func:`evmotion.io.read_events`); the frames' times are read on their own.
+        (:func:`evmotion.io.read_events`), and of an ``images.txt``'s whole-number times
+        (decimal ones are seconds); other frames' times are read on their own.
 
     Raises
     ------
@@ -249,8 +266,12 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     if not rec.exists():
         raise FormatError(rec, "no such file or folder")
     src, guessed = _frames_source(rec, frames)
+    # --time-unit is the events'; in an images.txt beside them it also reads the times
+    # that state no unit (whole numbers): the folder's two lists are one clock's
+    listed = (src / "images.txt") if src.is_dir() else src
+    ecd_list = listed.name == "images.txt" and listed.is_file()
     try:
-        fr = read_frames(src)
+        fr = read_frames(src, **({"time_unit": time_unit} if ecd_list and time_unit else {}))
     except FormatError as exc:
         if not guessed:
             raise
@@ -276,7 +297,8 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         warnings.simplefilter("always")
         events = _events_on_frames(rec, fmt, (fh, fw), **unit)
     if not len(events):
-        raise EmptyWindowError(f"{rec}: no events")
+        named = rec / "events.txt" if rec.is_dir() and (rec / "events.txt").is_file() else rec
+        raise EmptyWindowError(f"{named}: no events")
     guessed_size = (fh, fw) != tuple(events.sensor_size) and str(
         events.meta.get("sensor_size_from", "")).startswith(GUESSED_SIZES)
     for w in said:
@@ -309,13 +331,20 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     ev_span, fr_span = t_last - t_first, int(times[-1] - times[0])
     slip = ev_span > max(UNIT_SLIP * fr_span, 1e6)
     hint = " (event times in another unit? events.txt holds seconds)" if slip else ""
+    if slip and ecd_list and time_unit is None and _whole_times(listed):
+        # whole numbers in images.txt were read as µs (said in a warning): 1 fps in
+        # whole seconds spans 6 us beside 6 s of events (probe)
+        hint = (f" (frame times in another unit? {listed.name}'s whole numbers were read "
+                "as microseconds; --time-unit s (or ms) reads them, and events.txt's whole "
+                "numbers, in that unit)")
     if not slip and ev_span > UNIT_SLIP * fr_span:
         # (only said beside a refusal: milliseconds read as µs, say; probe AM)
         hint = (f" (the frames span {fr_span} us, the events {ev_span} us: frame times in "
                 "another unit? images.txt and timestamps files hold seconds)")
     if times[-1] <= t_first or times[0] >= t_last:
-        raise ParameterError(f"frames span [{times[0]}, {times[-1]}] us but the events "
-                             f"[{t_first}, {t_last}] us: they do not overlap in time{hint}")
+        raise ParameterError(f"frames ({where}) span [{times[0]}, {times[-1]}] us but the "
+                             f"events ({rec}) [{t_first}, {t_last}] us: they do not overlap "
+                             f"in time{hint}")
     if slip:
         warnings.warn(EvmotionWarning(
             f"{rec}: the events span {ev_span * 1e-6:g} s, the frames {fr_span * 1e-6:g} s"

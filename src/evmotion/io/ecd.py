@@ -314,7 +314,11 @@ def _image_size(folder: Path) -> tuple[int, int] | None:
     if not (folder / "images.txt").is_file():
         return None
     try:
-        files = read_image_list(folder)["files"]
+        with warnings.catch_warnings():
+            # only the files are needed here: their times' unit is said where the frames
+            # are read
+            warnings.simplefilter("ignore", EvmotionWarning)
+            files = read_image_list(folder)["files"]
     except (FormatError, OSError, UnicodeDecodeError):
         return None  # reading the frames says what is wrong with the list
     first = folder / files[0] if files else None
@@ -903,14 +907,19 @@ def read_groundtruth(path: str | Path) -> dict:
     return {"t": t, "position": a[:, 1:4], "quaternion": a[:, 4:8]}
 
 
-def read_image_list(path: str | Path) -> dict:
+def read_image_list(path: str | Path, time_unit: str | None = None) -> dict:
     """ECD ``images.txt``: ``t`` (µs) and ``files`` (paths relative to the folder).
 
     Lines are ``t path`` (t in seconds; a comma after t is taken as a space); lines
     starting with ``#`` are comments. Other tools' variants are read where the file they
     name exists: a path with spaces, Windows separators (``images\\x.png``), further
-    columns after the path (an exposure, say).
+    columns after the path (an exposure, say). Times that are all whole numbers state no
+    unit: they are read in ``time_unit`` (``"s"``, ``"ms"``, ``"us"``, ``"ns"``), by
+    default as µs (ns past 1e17) with a warning; decimal times are seconds.
     """
+    if time_unit is not None and time_unit not in TEXT_TIME_UNITS:
+        raise ParameterError(f"time_unit must be one of {sorted(TEXT_TIME_UNITS)}, got "
+                             f"{time_unit!r}")
     path = _to_read(path, "images.txt")
     folder = path.parent
     raw, files = [], []
@@ -930,7 +939,9 @@ def read_image_list(path: str | Path) -> dict:
     # whole seconds is no rate a camera beside an event sensor runs at)
     whole = len(raw) > 1 and all(f.lstrip("+-").isdigit() for _, f in raw)
     scale = 1e6
-    if whole:
+    if whole and time_unit is not None:
+        scale = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}[time_unit]
+    elif whole:
         # past 1e17, nanoseconds since the epoch, as events.txt and timestamps files read
         # them (probe AM: images.txt in ns beside events.txt in ns was 1000x apart)
         ns = int(raw[0][1]) > NS_EPOCH_US

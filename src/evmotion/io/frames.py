@@ -251,12 +251,13 @@ def _check_times(t: np.ndarray, path: Path | str | None) -> None:
 # layouts
 
 
-def _ecd_list(folder: Path) -> tuple[np.ndarray, list[Path], Path]:
+def _ecd_list(folder: Path, time_unit: str | None = None
+              ) -> tuple[np.ndarray, list[Path], Path]:
     from evmotion.io.ecd import read_image_list
 
     lst_path = folder / "images.txt"
     try:
-        lst = read_image_list(lst_path)
+        lst = read_image_list(lst_path, time_unit)
     except FormatError:
         raise
     except ValueError as exc:
@@ -557,7 +558,8 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
     time_unit : str, optional
         Unit of the times in a timestamps file: ``s``, ``ms``, ``us``, ``ns``; default
         seconds where a time has a decimal point, else whole numbers read as µs (ns past
-        1e17) with a warning.
+        1e17) with a warning. In an ECD ``images.txt`` it is the unit of whole-number
+        times only (its decimal times are seconds).
     sensor_size : (int, int), optional
         ``(height, width)`` of the event sensor the BOS frames are mapped onto
         (default 720x1280).
@@ -586,7 +588,7 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
     kind = find_frames(path, timestamps)
     if kind == "ecd":
         folder = path if path.is_dir() else path.parent
-        t, files, src = _ecd_list(folder)
+        t, files, src = _ecd_list(folder, time_unit)
     elif kind == "ccs":
         return _read_ccs(path, sensor_size, warp)
     elif kind == "none":

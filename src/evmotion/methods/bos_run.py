@@ -647,8 +647,9 @@ def require_texture(data: BosInput, options=None) -> None:
         best = max(best, t)
     raise TexturelessFrameError(
         f"{data.frames_source}: none of the {len(data.intervals)} frames that start an "
-        f"interval has texture in the ROI (90th percentile of |grad log I| at most "
-        f"{best:.3g} < {o.min_texture}): BOS needs a textured background")
+        f"interval has texture in the ROI (the 90th percentile of |grad log I| is "
+        f"{'0 (a uniform image)' if best == 0 else f'{best:.3g}'} in the best one, "
+        f"below {o.min_texture}): BOS needs a textured background")
 
 
 def append_bos_result(out, data: BosInput, interval, res) -> dict:
