@@ -162,6 +162,16 @@ def test_truncated_files_name_the_file(tmp_path, ext):
         eio.read_events(tmp_path / f"cut{ext}", format=ext.lstrip(".").replace("npz", "npy"))
 
 
+def test_a_truncated_hdf5_file_is_named_as_such_without_format(tmp_path):
+    """Detected by content, a cut HDF5 file said 'format not recognised' (probe); its
+    signature says HDF5, so HDF5's own reason is given."""
+    eio.write_events(tmp_path / "t.h5", _events(5000))
+    data = (tmp_path / "t.h5").read_bytes()
+    (tmp_path / "cut.h5").write_bytes(data[: len(data) // 2])
+    with pytest.raises(FormatError, match="cut.h5: not a readable HDF5 file .truncated file"):
+        eio.read_events(tmp_path / "cut.h5")
+
+
 def test_truncated_mat(tmp_path, shared_data):
     data = (shared_data / "ecd_shapes_rotation_first120k" / "shapes_rotation.mat").read_bytes()
     (tmp_path / "cut.mat").write_bytes(data[:5000])

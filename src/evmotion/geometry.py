@@ -214,7 +214,9 @@ MODELS: dict[str, Model] = {
     # (A.22)'s per-second rate matrix (1 + hz) R(phi) - I: phi an angle and hz a factor;
     # the rotation rate is (1 + hz) sin(phi) rad/s and the zoom rate (1 + hz) cos(phi) - 1
     # per s (phi, hz only for small ones: a 2 rad/s rotation is phi = atan 2, hz = 1.24)
-    "inplane": Model(("vx", "vy", "phi", "hz"), ("px/s", "px/s", "rad", "1"), _inplane),
+    # phi and hz parameterize the per-second rate matrix (h_z + 1) R(phi) - Id: rates
+    # (estimates keep their value whatever the window's duration; probe)
+    "inplane": Model(("vx", "vy", "phi", "hz"), ("px/s", "px/s", "rad/s", "1/s"), _inplane),
     "similarity": Model(("vx", "vy", "wz", "s"), ("px/s", "px/s", "rad/s", "1/s"),
                         _similarity),
     "affine": Model(("vx", "vy", "g11", "g12", "g21", "g22"),

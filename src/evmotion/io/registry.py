@@ -8,6 +8,7 @@ from pathlib import Path
 
 from evmotion.errors import FormatError
 from evmotion.io.base import FormatSpec
+from evmotion.io.h5filters import HDF5_MAGIC
 from evmotion.utils import missing_path_hint
 
 # Modules that define ``FORMAT``; imported lazily so optional dependencies stay optional.
@@ -77,6 +78,21 @@ def resolve_format(path: str | os.PathLike, format: str | None = None) -> Format
     return detect_spec(path)
 
 
+def _raise_unreadable_hdf5(path: Path) -> None:
+    """Raise h5py's reason (in one line) when the HDF5 file ``path`` does not open."""
+    import h5py
+
+    from evmotion.io.guard import not_hdf5
+    from evmotion.io.h5filters import register_filters
+
+    register_filters()
+    try:
+        with h5py.File(path, "r"):
+            return
+    except OSError as exc:
+        raise not_hdf5(path, exc) from None
+
+
 def detect_spec(path: str | os.PathLike) -> FormatSpec:
     """The :class:`FormatSpec` of ``path`` (file or folder), detected by content;
     :func:`detect_format` gives its name."""
@@ -114,6 +130,10 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
         if own is not None:
             raise FormatError(path, f"is an evmotion output ({own}), not a recording of events",
                               "evmotion info describes it; eval and view read flow outputs")
+        if head.startswith(HDF5_MAGIC):
+            # an HDF5 file no reader could open (cut short, say): HDF5's own reason says
+            # more than "not recognised" (probe)
+            _raise_unreadable_hdf5(path)
         if _frame_list(head):
             raise FormatError(path, "is a list of frames ('t path' lines), not events",
                               "give its folder, which holds the events too; bos also "

@@ -310,7 +310,7 @@ class TranslationWarp(FusedAdjoint, Warp):
 class InPlaneWarp(FusedAdjoint, Warp):
     """4-DOF in-plane approximation (A.22):
     ``x' = x - dt (v + ((h_z + 1) R(phi) - Id)(x - c))``; theta = (vx, vy [px/s],
-    phi [rad], hz [1]): the per-second rate matrix ``(h_z + 1) R(phi) - Id`` rotates at
+    phi [rad/s], hz [1/s]): the per-second rate matrix ``(h_z + 1) R(phi) - Id`` rotates at
     ``(h_z + 1) sin(phi)`` rad/s and zooms at ``(h_z + 1) cos(phi) - 1`` per s, which are
     phi and hz only when both are small (se2 / similarity give the rates themselves).
     div f = 2 - 2 (h_z + 1) cos(phi) (A.25)."""
