@@ -49,9 +49,9 @@ def forward():
     ev = sim.events
     span = (int(ev.t[-1]) - int(ev.t[0])) * 1e-6
     w = make_warp("inplane", SHAPE)
-    # inplane's (vx, vy, phi, hz): hz (a factor, "1") up to just below collapse 1/T
-    half = np.array([0.999 / span if u == "1" else (1.0 if u == "rad" else 1500.0)
-                     for u in w.param_units])
+    # inplane's (vx, vy, phi, hz): hz up to just below collapse 1/T, phi within 1 rad/s
+    half = np.array([0.999 / span, 1.0, 1500.0])[
+        [0 if n == "hz" else 1 if n == "phi" else 2 for n in w.param_names]]
     return ev, (-half, half), sim.gt.params(int(ev.t[0]))["hz"]
 
 

@@ -235,3 +235,12 @@ def test_microseconds_as_floats_read_as_seconds_are_questioned(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", EvmotionWarning)
         assert eio.read_events(path).duration_us == 36_998
+
+
+def test_a_negative_coordinate_is_named(tmp_path):
+    """x = -5 in a file with no sensor size said 'no sensor of at most 16384 px per side
+    (give the size...)', which no size given could help (probe)."""
+    np.savez(tmp_path / "neg.npz", x=np.array([3, -5, 7]), y=np.array([1, 1, 1]),
+             t=np.array([0, 10, 20]), p=np.array([1, 0, 1]))
+    with pytest.raises(FormatError, match="event 1 has x=-5: pixel coordinates start at 0"):
+        eio.read_events(tmp_path / "neg.npz")

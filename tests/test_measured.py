@@ -155,3 +155,44 @@ def test_one_edge_of_one_sign_at_a_steady_rate_is_not_flicker():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert warn_flicker(edge, "dense flow") is None
+
+
+@pytest.mark.parametrize("method", ["egomotion", "multicm", "dnn"])
+def test_a_window_across_a_time_gap_is_no_measurement(method):
+    """Probe: a window of 30k events holding the last events before a 100 s pause and the
+    first after it gave 0.02 px/s for 220, contrast gain 1.19, valid. The same motion with
+    its second half 100 s later: no measurement; without the gap, one."""
+    from evmotion.methods.egomotion import estimate_egomotion
+    from evmotion.methods.multicm import estimate_flow
+
+    if method == "dnn":
+        pytest.importorskip("torch")
+    ev = moving()
+    t = np.asarray(ev.t).copy()
+    half = len(t) // 2
+    t[half:] += 100_000_000
+    gap = EventArray(ev.x, ev.y, t, ev.p, ev.sensor_size)
+
+    def run(events):
+        if method == "egomotion":
+            res = estimate_egomotion(events, "translation")
+            return res.valid
+        return bool(estimate_flow(events, method=method).valid.any())
+
+    with pytest.warns(PoorFitWarning, match="time gap: no event for 100"):
+        assert not run(gap)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert run(ev)
+
+
+def test_gap_share():
+    from evmotion.methods.measured import gap_share, warn_gap
+
+    assert gap_share(np.arange(100)) == pytest.approx(1 / 99)
+    assert gap_share(np.array([5])) == 0.0 and gap_share(np.array([3, 3])) == 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warn_gap(np.r_[np.arange(10), 18], "flow") is None  # a gap of 9 in 18
+    with pytest.warns(PoorFitWarning, match=r"no event for 2e-05 s \(91% of the window\)"):
+        assert warn_gap(np.r_[0, 1, 21, 22], "flow") is not None

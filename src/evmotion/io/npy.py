@@ -210,7 +210,12 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
         if x.size == 0:
             raise FormatError(path, "no events and no sensor size",
                               SENSOR_SIZE_HINT)
-        if min(x.min(), y.min()) < 0 or max(x.max(), y.max()) >= MAX_SENSOR_SIDE:
+        if min(x.min(), y.min()) < 0:
+            name, a = ("x", x) if x.min() < 0 else ("y", y)
+            bad = int(np.argmax(a < 0))
+            raise FormatError(path, f"event {bad} has {name}={a[bad]}: pixel coordinates "
+                              "start at 0")
+        if max(x.max(), y.max()) >= MAX_SENSOR_SIDE:
             raise FormatError(path, f"coordinates span x {x.min()}..{x.max()}, y {y.min()}.."
                               f"{y.max()}: no sensor of at most {MAX_SENSOR_SIDE} px per side",
                               SENSOR_SIZE_HINT)

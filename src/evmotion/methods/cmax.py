@@ -71,9 +71,7 @@ __all__ = [
 
 #: Typical magnitude per parameter unit: the optimizers' scaling and the TPE box half-width.
 _UNIT_SCALE = {"1/s": (1.0, 8.0), "rad/s": (1.0, 8.0), "px/s": (100.0, 1500.0),
-               "1/(px s)": (1e-3, 1e-2),
-               # inplane's angle and factor of its rate matrix: the box of the rates
-               "rad": (1.0, 8.0), "1": (1.0, 8.0)}
+               "1/(px s)": (1e-3, 1e-2)}
 
 
 def default_bounds(warp: Warp) -> tuple[np.ndarray, np.ndarray]:

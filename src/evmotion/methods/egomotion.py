@@ -88,9 +88,12 @@ from evmotion.methods.diagnostics import (
     warn_too_few,
 )
 from evmotion.methods.measured import (
+    MAX_GAP_SHARE,
     MIN_MOTION_PX,
     alignment_gain,
+    gap_share,
     warn_by_chance,
+    warn_gap,
     warn_small_motion,
 )
 from evmotion.methods.options import merge_options
@@ -161,8 +164,10 @@ class EgomotionResult:
     poor_fit : bool
         (property) The warp explains too little of the image (or no tile holds enough
         events to test it), sharpens it by less than
-        :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`, or the window holds too few
-        events for its contrast to mean anything (False when not diagnosed).
+        :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN`, the window holds too few
+        events for its contrast to mean anything, or a time gap without events longer
+        than :data:`~evmotion.methods.measured.MAX_GAP_SHARE` of it (False when not
+        diagnosed).
     valid : bool
         (property) A measurement: not collapsed, not a poor fit, finite parameters.
     """
@@ -199,7 +204,8 @@ class EgomotionResult:
         return bool(share < POOR_FIT_SHARE or gain < MIN_CONTRAST_GAIN
                     or unchecked_fit(d.get("fit", {})) or d.get("too_few_events", False)
                     or float(d.get("motion_px", np.inf)) < MIN_MOTION_PX
-                    or float(d.get("chance_gain", np.inf)) < MIN_CONTRAST_GAIN)
+                    or float(d.get("chance_gain", np.inf)) < MIN_CONTRAST_GAIN
+                    or float(d.get("gap_share", 0.0)) > MAX_GAP_SHARE)
 
     @property
     def valid(self) -> bool:
@@ -525,6 +531,8 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
     gain = float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan")
     too_few = warn_too_few(int(cost.x.shape[0]), w.name, stacklevel=4)
     msgs.append(too_few)
+    gap = gap_share(np.sort(cost.dt))
+    msgs.append(warn_gap(np.sort(cost.dt) * 1e6, f"{w.name} warp", stacklevel=4))
     if not coll["collapsed"] and too_few is None:
         hint = "" if optimizer == "tpe" else " (--optimizer tpe searches the whole box)"
         if regularizer is not None:
@@ -541,7 +549,7 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
             if small is None:
                 msgs.append(warn_by_chance(chance, f"{w.name} warp", stacklevel=4))
     return {"collapse": coll, "fit": fit, "contrast_gain": gain, "motion_px": moved,
-            "chance_gain": chance,
+            "chance_gain": chance, "gap_share": gap,
             "too_few_events": too_few is not None,
             "weight_source": weight_source, "warnings": [m for m in msgs if m]}
 

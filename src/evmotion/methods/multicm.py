@@ -72,6 +72,7 @@ from evmotion.methods.measured import (
     warn_by_chance,
     warn_by_refit,
     warn_flicker,
+    warn_gap,
     warn_inconsistent_halves,
     warn_no_gain,
 )
@@ -687,7 +688,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     chance = float("nan")
     # flicker lights every pixel at once: a flow that gathers those bursts sharpens them,
     # whatever moves (said first: it names the cause the focus tests below cannot)
-    no_focus = (warn_flicker(events, "dense flow") is not None
+    no_focus = (warn_gap(events.t, "dense flow") is not None
+                or warn_flicker(events, "dense flow") is not None
                 or warn_no_gain(focus, "dense flow") is not None)
     if not no_focus:
         # the focus above is what the optimizer raised: on half a pixel of motion, or a

@@ -37,6 +37,7 @@ from evmotion.methods.measured import (
     halves_consistency,
     warn_by_chance,
     warn_flicker,
+    warn_gap,
     warn_inconsistent_halves,
     warn_no_gain,
 )
@@ -422,7 +423,8 @@ def _verdict(checked: EventArray, flow: np.ndarray, t_ref: int, gains: list[floa
     that say a flow is no measurement, each said in a warning when it fails."""
     # under flicker the network answers the bursts with flows 20-800x the truth, which
     # gather them (probe AK: FWL 4-23, chance 1.07-2.1): said before the gains
-    if (warn_flicker(checked, "network's flow") is not None
+    if (warn_gap(checked.t, "network's flow") is not None
+            or warn_flicker(checked, "network's flow") is not None
             or (bool(gains) and warn_no_gain(min(gains), "network's flow") is not None)):
         return True, float("nan"), float("nan")
     # a flow that sharpens the window without following its motion (half a pixel of it;
