@@ -87,8 +87,8 @@ def add_common(p, objectives=None, regularizers=REGULARIZERS) -> None:
                    help="with --reg: use this data set's thesis weights (Sec. 3.6.1) instead "
                         "of the window's (default: the window's)")
     add_camera_arguments(p)
-    p.add_argument("--t-ref", default="start", choices=["start", "mid", "end"],
-                   help="reference time of the warp within each window (default start)")
+    p.add_argument("--t-ref", default="mid", choices=["start", "mid", "end"],
+                   help="reference time of the warp within each window (default mid)")
     p.add_argument("--format", default=None, help="input format (default: detected)")
     add_hot_pixel_argument(p)
 

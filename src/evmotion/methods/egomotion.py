@@ -293,7 +293,7 @@ class EgomotionOptions:
     regularizer: str | None = None
     weight: float | dict | None = None
     optimizer: str = "bfgs"
-    t_ref: str | int = "start"
+    t_ref: str | int = "mid"
     seed: int = 0
     starts: list | None = None
     bounds: tuple | None = None
@@ -342,7 +342,7 @@ def _checked_bounds(bounds, w: Warp) -> tuple[np.ndarray, np.ndarray]:
 def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                        objective: str = "variance", regularizer: str | None = None,
                        weight: float | None = None, optimizer: str = "bfgs", K=None,
-                       t_ref: str | int = "start", init=None, seed: int = 0, *,
+                       t_ref: str | int = "mid", init=None, seed: int = 0, *,
                        starts=None, bounds=None, n_samples: int | None = None,
                        n_iter: int = 100, lr: float = 0.05, kernel: str = "bilinear",
                        sigma: float = 1.0, use_polarity: bool = False,
