@@ -244,3 +244,13 @@ def test_a_negative_coordinate_is_named(tmp_path):
              t=np.array([0, 10, 20]), p=np.array([1, 0, 1]))
     with pytest.raises(FormatError, match="event 1 has x=-5: pixel coordinates start at 0"):
         eio.read_events(tmp_path / "neg.npz")
+
+
+def test_writers_refusals_name_the_output(tmp_path):
+    """'events have float (undistorted) coordinates; DAT stores integer pixels' named no
+    file (probe)."""
+    ev = EventArray(x=np.array([1.5, 2.0], np.float32), y=np.array([1.0, 2.0], np.float32),
+                    t=[0, 10], p=[1, 0], sensor_size=(10, 10))
+    with pytest.raises(FormatError, match=r"x\.dat: events have float"):
+        eio.write_events(tmp_path / "x.dat", ev)
+    assert not (tmp_path / "x.dat").exists()

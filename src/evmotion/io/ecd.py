@@ -634,8 +634,8 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
                               _order_hint(t, x, y, p) or sensor_size_hint(size_src == "given"))
         if p.min() < -1 or p.max() > 1:
             bad = int(np.argmax((p < -1) | (p > 1)))
-            raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1",
-                              _order_hint(t, x, y, p))
+            raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1 or "
+                              "-1/+1", _order_hint(t, x, y, p))
     meta = {"source": str(path), "format": "ecd", "sensor_size_from": size_src, **(extra or {})}
     try:
         return EventArray(x=x.astype(np.uint16), y=y.astype(np.uint16), t=t,

@@ -210,7 +210,7 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
         if x.size == 0:
             raise FormatError(path, "no events and no sensor size",
                               SENSOR_SIZE_HINT)
-        if min(x.min(), y.min()) < 0:
+        if not frac and min(x.min(), y.min()) < 0:
             name, a = ("x", x) if x.min() < 0 else ("y", y)
             bad = int(np.argmax(a < 0))
             raise FormatError(path, f"event {bad} has {name}={a[bad]}: pixel coordinates "
@@ -228,6 +228,11 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     inside = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
     if not inside.all():
         bad = int(np.argmax(~inside))
+        if validate and not drop_outside and not frac and min(x[bad], y[bad]) < 0:
+            # no sensor size holds a negative pixel: the size hint would not help (float
+            # coordinates, undistorted, do leave the sensor)
+            raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]}: pixel "
+                              "coordinates start at 0")
         if drop_outside:
             meta["dropped_outside"] = int((~inside).sum())
             x, y, t_us, p = x[inside], y[inside], t_us[inside], p[inside]

@@ -116,7 +116,14 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
         else:
             warnings.warn(f"format '{name}' cannot store metadata {sorted(extra)}; "
                           "write .h5 to keep it", stacklevel=2)
-    spec.write(Path(path), events, **opts)
+    try:
+        spec.write(Path(path), events, **opts)
+    except FormatError as exc:
+        if exc.path is not None:
+            raise
+        # a writer's check of the events (float coordinates, a sensor beyond its address
+        # range) names no file: the output it was refused for is the one to name (probe)
+        raise FormatError(path, exc.message, exc.hint) from None
 
 
 def _event_arrays(items: Iterable) -> Iterator[EventArray]:
