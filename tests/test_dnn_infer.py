@@ -686,3 +686,26 @@ def test_an_unchecked_flow_is_the_checked_ones_without_its_verdicts(window):
     np.testing.assert_array_equal(bare.flow, checked.flow)
     assert bare.meta["no_focus"] is None and isinstance(checked.meta["no_focus"], bool)
     assert np.isnan(bare.meta["chance_gain"]) and np.isnan(bare.meta["halves_correlation"])
+
+
+def test_time_reversal_runs_where_the_input_is_at_most_vga(tiny_ckpt, monkeypatch):
+    """A 1280x720 window's pass on the sensor's grid runs once (its reversed twin cost
+    0.47 s of the one-window command); the coarser inputs keep both passes."""
+    import evmotion.methods.dnn.infer as inf
+
+    seen = []
+    real = inf._run
+
+    def spy(net, vox, shape, device, time_reversal=False):
+        seen.append((shape, time_reversal))
+        return real(net, vox, shape, device, time_reversal)
+
+    monkeypatch.setattr(inf, "_run", spy)
+    rng = np.random.default_rng(0)
+    ev = EventArray(x=rng.integers(0, 1280, 5000), y=rng.integers(0, 720, 5000),
+                    t=np.arange(5000) * 10, p=rng.integers(0, 2, 5000), sensor_size=(720, 1280))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        inf.estimate_flow_dnn(ev, tiny_ckpt, input_scales=(1, 2), fuse=False, rescale=False,
+                              planar=False, refine=False, with_iwes=False, check=False)
+    assert seen == [((720, 1280), False), ((360, 640), True)]

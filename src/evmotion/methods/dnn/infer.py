@@ -72,6 +72,12 @@ TILE_START_SHARPNESS = 0.8
 # noise: sharper by 1.0001-1.004, AEE 1.0-1.8x the plane's; on the ECD windows where it
 # found depth, 1.02-1.07 with 12 evaluations (shapes_rotation FWL 3.97 -> 4.23, multicm
 # 4.23) at half the time of 25 (0.3-0.5 s a 30k window)
+#: Time reversal runs at the input scales whose grid has at most this many pixels (VGA):
+#: its second pass of the network costs as much as the first, 0.47 s at 1280x720 on one
+#: core, a tenth of the one-window command's 5 s. Without it at that scale, on nine 30k
+#: windows of a Prophesee 1280x720 recording the FWL rose on six and fell on two (2.60 ->
+#: 1.95 the most), 0.5 s faster (median).
+TIME_REVERSAL_MAX_PIXELS = 640 * 480
 PLANE_CORRECTION_EVALUATIONS = 12
 PLANE_CORRECTION_MARGIN = 1.01
 
@@ -179,7 +185,9 @@ def _predict(events: EventArray, scales: list[int], checkpoint, device: str, xys
     h, w = events.sensor_size
     best, disp, score, cands = 1, None, -np.inf, []
     for k, vox in zip(scales, network_inputs(events, tuple(scales), net.n_bins), strict=True):
-        cand = _run(net, vox, (-(-h // k), -(-w // k)), device, time_reversal)
+        grid = (-(-h // k), -(-w // k))
+        cand = _run(net, vox, grid, device,
+                    time_reversal and grid[0] * grid[1] <= TIME_REVERSAL_MAX_PIXELS)
         if not np.isfinite(cand).all():
             from evmotion.methods.dnn.model import DEFAULT_CHECKPOINT
 
@@ -466,7 +474,8 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     time_reversal : bool
         Also predict from the time-reversed window (events in reverse order, polarities
         flipped: its flow is the negative) and average the two (default True): errors the
-        network makes alike forwards and backwards cancel. The two passes run as one batch.
+        network makes alike forwards and backwards cancel. The two passes run as one batch,
+        at the input scales of at most :data:`TIME_REVERSAL_MAX_PIXELS` pixels.
         Both options together take about 4x one pass (``benchmarks/results/dnn.md``);
         ``input_scales=(1,), time_reversal=False`` is the network's single pass.
     fuse : bool
