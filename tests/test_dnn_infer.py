@@ -709,3 +709,27 @@ def test_time_reversal_runs_where_the_input_is_at_most_vga(tiny_ckpt, monkeypatc
         inf.estimate_flow_dnn(ev, tiny_ckpt, input_scales=(1, 2), fuse=False, rescale=False,
                               planar=False, refine=False, with_iwes=False, check=False)
     assert seen == [((720, 1280), False), ((360, 640), True)]
+
+
+def test_the_one_window_command_does_not_import_numba(tmp_path):
+    """numba's import cost the one-window dnn command 0.4 s (the refinement's tile grid
+    lived beside numba kernels, and the compile-time listener imported it): the command,
+    refinement included, runs without it."""
+    import subprocess
+    import sys
+
+    from evmotion.io import write_events
+
+    write_events(tmp_path / "w.h5", sim_window(3, scene="rotation", sensor_size=(60, 80),
+                                               window_events=4000).events)
+    script = tmp_path / "probe.py"
+    script.write_text(
+        "import sys, warnings\n"
+        "warnings.simplefilter('ignore')\n"
+        "from evmotion.cli import main\n"
+        "main(['flow', sys.argv[1], '--method', 'dnn', '--out', sys.argv[2]])\n"
+        "print('numba' in sys.modules)\n")
+    out = subprocess.run([sys.executable, str(script), str(tmp_path / "w.h5"),
+                          str(tmp_path / "x.flo")], capture_output=True, text=True)
+    assert (tmp_path / "x.flo").is_file(), out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "False", out.stdout + out.stderr

@@ -366,8 +366,8 @@ def test_the_finest_level_follows_the_event_count(scene):
     """3,000 events on 160x120: 16 x 16 tiles hold ~12 events each and their flow follows
     the noise (AEE 1.32 / 1.36 px of 4.3 / 3.2); by default the window gets 4 x 4 tiles
     (AEE 0.27 / 0.36 px)."""
+    from evmotion.core.tilegrid import AUTO_EVENTS_PER_TILE, auto_finest_level
     from evmotion.methods.dnn.data import sim_window
-    from evmotion.methods.multicm import AUTO_EVENTS_PER_TILE, auto_finest_level
 
     win = sim_window(1, scene=scene, sensor_size=(120, 160), window_events=3000)
     ev = win.events

@@ -257,6 +257,11 @@ def compile_seconds() -> float:
     True
     """
     if _listener is None:
+        if "numba" not in sys.modules:
+            # nothing can have compiled; importing numba to listen costs a one-window dnn
+            # command 0.4 s it otherwise never spends (a kernel that numba, imported
+            # later in the same call, compiles is counted from the next call on)
+            return 0.0
         with _LOCK:
             if _listener is None:
                 _install_listener()

@@ -18,10 +18,22 @@ back-propagate a gradient on the IWE to per-event flow gradients.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from numba import njit
+
+# the grid's numpy half lives apart, so that what needs only it (the network's refinement)
+# does not import numba
+from evmotion.core.tilegrid import (
+    TileGrid,
+    axis_matrix,
+    dense_flow,
+    event_tile_means,
+    event_weights,
+    pixel_tiles,
+    resample,
+    scale_grid,
+    tile_means,
+)
 
 __all__ = [
     "TileGrid",
@@ -38,98 +50,6 @@ __all__ = [
     "scale_grid",
     "tile_means",
 ]
-
-
-@dataclass(frozen=True)
-class TileGrid:
-    """A ``ny x nx`` tile grid over an image of ``shape = (height, width)`` pixels.
-
-    Examples
-    --------
-    >>> g = TileGrid(2, 2, (4, 4))
-    >>> g.centers_x().tolist()
-    [0.5, 2.5]
-    """
-
-    ny: int
-    nx: int
-    shape: tuple[int, int]
-
-    def centers_x(self) -> np.ndarray:
-        """Tile-centre column coordinates (px), shape ``(nx,)``."""
-        return (np.arange(self.nx) + 0.5) * self.shape[1] / self.nx - 0.5
-
-    def centers_y(self) -> np.ndarray:
-        """Tile-centre row coordinates (px), shape ``(ny,)``."""
-        return (np.arange(self.ny) + 0.5) * self.shape[0] / self.ny - 0.5
-
-    @property
-    def spacing(self) -> tuple[float, float]:
-        """Distance between neighbouring centres ``(dy, dx)`` in pixels."""
-        return self.shape[0] / self.ny, self.shape[1] / self.nx
-
-
-def scale_grid(level: int, shape: tuple[int, int]) -> TileGrid:
-    """The grid of scale ``level`` (1 = coarsest): ``2**(level-1)`` tiles per axis."""
-    n = 2 ** (level - 1)
-    return TileGrid(n, n, (int(shape[0]), int(shape[1])))
-
-
-def _axis_weights(pos: np.ndarray, n: int, length: int):
-    """Left index and right weight of the 1-D interpolation at ``pos`` (px)."""
-    s = (np.asarray(pos, dtype=np.float64) + 0.5) * n / length - 0.5
-    if n == 1:
-        return np.zeros(s.shape, np.int64), np.zeros(s.shape, np.float64)
-    # linear extrapolation in the outer half tiles, so that affine flows (rotation,
-    # zoom) are represented exactly up to the image border
-    s = np.clip(s, -0.5, n - 0.5)
-    i0 = np.clip(np.floor(s).astype(np.int64), 0, n - 2)
-    return i0, s - i0
-
-
-def axis_matrix(pos: np.ndarray, n: int, length: int) -> np.ndarray:
-    """Matrix ``(len(pos), n)`` interpolating ``n`` tile-centre values at positions ``pos``.
-
-    Examples
-    --------
-    >>> axis_matrix(np.array([0.5, 1.5, 2.5]), 2, 4).round(2).tolist()
-    [[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]]
-    """
-    pos = np.asarray(pos, dtype=np.float64)
-    m = np.zeros((pos.size, n))
-    i0, f = _axis_weights(pos, n, length)
-    rows = np.arange(pos.size)
-    np.add.at(m, (rows, i0), 1.0 - f)
-    if n > 1:
-        np.add.at(m, (rows, i0 + 1), f)
-    return m
-
-
-def event_weights(x: np.ndarray, y: np.ndarray, grid: TileGrid) -> tuple[np.ndarray, np.ndarray]:
-    """Bilinear interpolation stencil of each event on the tile grid.
-
-    Parameters
-    ----------
-    x, y : ndarray, shape (N,)
-        Event column and row (px, sub-pixel allowed).
-    grid : TileGrid
-
-    Returns
-    -------
-    idx : ndarray, shape (N, 4), int64
-        Flat tile indices (``iy * nx + ix``).
-    w : ndarray, shape (N, 4), float64
-        Their weights (sum to 1; slightly negative in the outer half tiles, where the
-        interpolation extrapolates linearly).
-    """
-    iy, fy = _axis_weights(y, grid.ny, grid.shape[0])
-    ix, fx = _axis_weights(x, grid.nx, grid.shape[1])
-    dy = 1 if grid.ny > 1 else 0
-    dx = 1 if grid.nx > 1 else 0
-    idx = np.stack([iy * grid.nx + ix, iy * grid.nx + ix + dx,
-                    (iy + dy) * grid.nx + ix, (iy + dy) * grid.nx + ix + dx], axis=1)
-    w = np.stack([(1 - fy) * (1 - fx), (1 - fy) * fx, fy * (1 - fx), fy * fx], axis=1)
-    return np.ascontiguousarray(idx), np.ascontiguousarray(w)
 
 
 @njit(cache=True)
@@ -178,94 +98,6 @@ def interpolate_adjoint(g: np.ndarray, idx: np.ndarray, w: np.ndarray,
     out = np.zeros((grid.ny * grid.nx, 2))
     _interp_adj(np.ascontiguousarray(g, dtype=np.float64), idx, w, out)
     return out.reshape(grid.ny, grid.nx, 2)
-
-
-def dense_flow(params: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Interpolate tile parameters ``(ny, nx, 2)`` to every pixel: ``(H, W, 2)`` float64."""
-    ny, nx = params.shape[:2]
-    return _separable(params, axis_matrix(np.arange(shape[0]), ny, shape[0]),
-                      axis_matrix(np.arange(shape[1]), nx, shape[1]))
-
-
-def pixel_tiles(shape: tuple[int, int], grid: TileGrid) -> tuple[np.ndarray, np.ndarray]:
-    """Row and column index ``(ty (H, 1), tx (1, W))`` of the tile each pixel falls in.
-
-    Examples
-    --------
-    >>> ty, tx = pixel_tiles((2, 4), TileGrid(1, 2, (2, 4)))
-    >>> tx.ravel().tolist()
-    [0, 0, 1, 1]
-    """
-    h, w = shape
-    ty = np.minimum(np.arange(h) * grid.ny // h, grid.ny - 1)
-    tx = np.minimum(np.arange(w) * grid.nx // w, grid.nx - 1)
-    return ty[:, None], tx[None, :]
-
-
-def tile_means(img: np.ndarray, grid: TileGrid) -> np.ndarray:
-    """Mean of ``img`` (H, W) or (H, W, C) over the pixels of each tile
-    (:func:`pixel_tiles`): (ny, nx) or (ny, nx, C).
-
-    Examples
-    --------
-    >>> img = np.arange(8.0).reshape(2, 4)
-    >>> tile_means(img, TileGrid(1, 2, (2, 4))).tolist()
-    [[2.5, 4.5]]
-    """
-    h, w = img.shape[:2]
-    ty, tx = pixel_tiles((h, w), grid)
-    key = (ty * grid.nx + tx).ravel()
-    n = grid.ny * grid.nx
-    counts = np.maximum(np.bincount(key, minlength=n), 1)
-    flat = img.reshape(h * w, -1)
-    out = np.stack([np.bincount(key, weights=flat[:, c], minlength=n) / counts
-                    for c in range(flat.shape[1])], axis=-1)
-    return out.reshape((grid.ny, grid.nx) + img.shape[2:])
-
-
-def event_tile_means(flow: np.ndarray, x: np.ndarray, y: np.ndarray,
-                     grid: TileGrid) -> np.ndarray:
-    """Tile flow ``(ny, nx, 2)``: the mean of a dense ``flow`` (H, W, 2) over the events at
-    ``x``, ``y`` (px, rounded to their pixel) in each tile (a pixel counts once per event
-    on it); zero flow in a tile without events (nothing there to fit it to).
-
-    Examples
-    --------
-    >>> flow = np.zeros((2, 4, 2)); flow[:, 0] = 8.0; flow[:, 3] = 2.0
-    >>> event_tile_means(flow, np.array([1, 3, 3]), np.array([0, 1, 1]),
-    ...                  TileGrid(1, 2, (2, 4)))[0, :, 0].tolist()
-    [0.0, 2.0]
-    """
-    h, w = flow.shape[:2]
-    ty, tx = pixel_tiles((h, w), grid)
-    key = (ty * grid.nx + tx).ravel()
-    n = grid.ny * grid.nx
-    xi = np.clip(np.rint(np.asarray(x, dtype=np.float64)), 0, w - 1).astype(np.int64)
-    yi = np.clip(np.rint(np.asarray(y, dtype=np.float64)), 0, h - 1).astype(np.int64)
-    hits = np.bincount(yi * w + xi, minlength=h * w).astype(np.float64)
-    n_events = np.bincount(key, weights=hits, minlength=n)
-    out = np.stack([np.bincount(key, weights=hits * flow[..., c].ravel(), minlength=n)
-                    for c in range(2)], axis=-1) / np.maximum(n_events, 1.0)[:, None]
-    return out.reshape(grid.ny, grid.nx, 2)
-
-
-def _separable(params, ay, ax):
-    return np.stack([ay @ params[..., c] @ ax.T for c in range(params.shape[2])], axis=-1)
-
-
-def resample(params: np.ndarray, grid: TileGrid) -> np.ndarray:
-    """Evaluate a tile flow at the centres of another grid (coarse-to-fine upsampling,
-    or downsampling a warm start).
-
-    Examples
-    --------
-    >>> p = np.ones((1, 1, 2))
-    >>> resample(p, TileGrid(2, 2, (8, 8))).shape
-    (2, 2, 2)
-    """
-    ny, nx = params.shape[:2]
-    return _separable(params, axis_matrix(grid.centers_y(), ny, grid.shape[0]),
-                      axis_matrix(grid.centers_x(), nx, grid.shape[1]))
 
 
 # ------------------------------------------------------------------------- IWE kernels

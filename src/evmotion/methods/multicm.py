@@ -55,6 +55,7 @@ from numba import njit
 from evmotion.catalog import MAX_TIME_BINS
 from evmotion.core import tileflow as tf
 from evmotion.core.objectives import events_value_grad, objective_value_grad
+from evmotion.core.tilegrid import auto_finest_level
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, Window, require_events
 from evmotion.jitcache import compile_seconds
@@ -104,16 +105,6 @@ JITTER_TO_LEVEL = 3
 #: solver reaches on the same events with their times shuffled (:func:`_shuffled_focus`,
 #: on its finest ``REFIT_SCALES`` scales, ``REFIT_MAX_ITER`` iterations each).
 REFIT_EVENTS_PER_TILE = 64
-#: ``finest_level=None`` (the default) ends the coarse-to-fine at the finest level, at most
-#: ``AUTO_FINEST_LEVEL`` (16 x 16 tiles, the thesis'), whose tiles hold at least this many
-#: events on average. Each tile's flow has two unknowns; fitted to a few dozen events it
-#: follows their noise. ECD rotation windows thinned to 8k / 4k events, against their IMU
-#: flow: AEE 0.81-0.94 / 1.47-1.92 px with 16 x 16 tiles, 0.63-0.71 / 0.88-1.17 px so;
-#: the simulator's rigid scenes at 2k-15k events 4-53 % lower, its moving object 8-21 %
-#: higher; the 30k-40k windows of the thesis keep 16 x 16
-#: (``benchmarks/results/multicm_finest.md``).
-AUTO_EVENTS_PER_TILE = 100
-AUTO_FINEST_LEVEL = 5
 REFIT_SCALES = 3
 REFIT_MAX_ITER = 10
 TIMESTAMP_OBJECTIVES = ("avg_timestamp", "avg_timestamp_norm")
@@ -783,24 +774,6 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
         raise ParameterError(f"n_bins must be in [1, {MAX_TIME_BINS}], got {n_bins}")
     return dataclasses.replace(o, n_bins=n_bins,
                                time_aware=None if o.time_aware == "none" else o.time_aware)
-
-
-def auto_finest_level(n_events: int, shape: tuple[int, int]) -> int:
-    """The finest level multicm uses by default for a window of ``n_events`` on a sensor
-    of ``shape`` (H, W): the finest, at most ``AUTO_FINEST_LEVEL``, whose
-    ``2^(l-1) x 2^(l-1)`` tiles hold ``AUTO_EVENTS_PER_TILE`` events on average, and whose
-    tiles are at least a pixel.
-
-    Examples
-    --------
-    >>> [auto_finest_level(n, (260, 346)) for n in (300, 2000, 8000, 30000)]
-    [1, 3, 4, 5]
-    """
-    level = AUTO_FINEST_LEVEL
-    while level > 1 and (n_events < AUTO_EVENTS_PER_TILE * 4 ** (level - 1)
-                         or 2 ** (level - 1) > max(shape)):
-        level -= 1
-    return level
 
 
 def _coarse_to_fine(x, y, s, p, shape, init, duration_s, o: MultiCMOptions):

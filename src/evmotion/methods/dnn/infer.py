@@ -398,10 +398,14 @@ def _refined(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys, k: int,
     ``evaluations`` (default :data:`.tiles.REFINE_EVALUATIONS`); ``margin`` > 1 asks that
     much more sharpness than ``disp``'s.
     """
-    from evmotion.core.tileflow import dense_flow, event_tile_means, scale_grid
+    from evmotion.core.tilegrid import (
+        auto_finest_level,
+        dense_flow,
+        event_tile_means,
+        scale_grid,
+    )
     from evmotion.methods.dnn.planar import window_loss
     from evmotion.methods.dnn.tiles import REFINE_EVALUATIONS, refine_tiles
-    from evmotion.methods.multicm import auto_finest_level
 
     evaluations = REFINE_EVALUATIONS if evaluations is None else evaluations
     shape = events.sensor_size

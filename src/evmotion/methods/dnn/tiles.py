@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from evmotion.core.tileflow import TileGrid, event_weights, tile_means
+from evmotion.core.tilegrid import TileGrid, event_weights, tile_means
 from evmotion.events import EventArray
 from evmotion.methods.dnn.bfgs import bfgs
 from evmotion.methods.dnn.focus import (
