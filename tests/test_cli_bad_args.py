@@ -1152,3 +1152,15 @@ def test_help_is_plain_text_and_a_given_size_is_not_asked_for(tmp_path, capsys):
     path.write_text("0.000001 1 2 1\n0.000002 300 4 0\n")
     rc, err = _run(["info", str(path), "--sensor-size", "100", "100"], capsys)
     assert rc == 2 and "the size given (--sensor-size" in err and "give the size:" not in err
+
+
+def test_simulate_refuses_to_replace_another_recordings_ground_truth(tmp_path, capsys):
+    """simulate --out a.txt after --out a.h5 replaced a_gt.h5, which a.h5 still named as
+    its own (probe); the same output again may replace its own."""
+    argv = ["simulate", "translation", "--size", "30x40", "--duration", "0.01"]
+    assert main([*argv, "--out", str(tmp_path / "a.h5")]) == 0
+    before = (tmp_path / "a_gt.h5").read_bytes()
+    rc, err = _run([*argv, "--out", str(tmp_path / "a.txt"), "--seed", "3"], capsys)
+    _assert_one_line(rc, err, "its ground truth a_gt.h5 is that of a.h5")
+    assert (tmp_path / "a_gt.h5").read_bytes() == before and not (tmp_path / "a.txt").exists()
+    assert main([*argv, "--out", str(tmp_path / "a.h5")]) == 0

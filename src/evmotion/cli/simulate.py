@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from evmotion.catalog import MAX_SIM_DURATION_S, MAX_SIM_SIDE, MIN_SIM_SIDE
 from evmotion.cli.options import (
@@ -214,6 +215,25 @@ SCHLIEREN_ONLY = {"--scene": "bos_scene", "--fps": "fps", "--magnitude": "magnit
                   "--dot-radius": "dot_radius"}
 
 
+def _check_gt_not_shared(out: Path, gt: Path) -> None:
+    """Refuse to write ``gt`` when it is the ground truth of another recording beside
+    ``out`` (same stem, another suffix): ``a.txt`` after ``a.h5`` replaced ``a_gt.h5``,
+    which ``a.h5`` still named as its own (probe)."""
+    from evmotion.errors import ParameterError
+    from evmotion.io import all_formats
+
+    if not gt.exists():
+        return
+    recordings = {e.lower() for f in all_formats() for e in f.extensions}
+    others = sorted(p.name for p in out.parent.glob(f"{out.stem}.*")
+                    if p.is_file() and p.name != out.name and p != gt
+                    and p.suffix.lower() in recordings)
+    if others:
+        raise ParameterError(f"--out {out}: its ground truth {gt.name} is that of "
+                             f"{others[0]} beside it (the same stem); give another name, or "
+                             f"remove {others[0]} and {gt.name}")
+
+
 def _or(value, default):
     return default if value is None else value
 
@@ -307,6 +327,7 @@ def run(args) -> int:
         raise EvmotionError("this build has no event writer (evmotion.io.write_events)") from None
     check_output(args.out, "--out")
     check_output(gt_path_for(args.out), "--out (its ground truth)")
+    _check_gt_not_shared(Path(args.out), gt_path_for(args.out))
     fmt = args.format or format_for_output(args.out)
     opts = SimOptions(threshold=args.threshold, mismatch=args.mismatch,
                       refractory_us=args.refractory_us, noise_rate=args.noise_rate,
