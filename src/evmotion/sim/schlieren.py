@@ -343,6 +343,12 @@ class PuffField:
         return phi, np.stack([gx, gy], axis=-1)
 
 
+#: The air's largest displacement, in widths of the view (the larger side), a scene may
+#: reach: the defaults reach 0.7-12 px on 48x48 to 720x640 px views, magnitude 3 px 81 px
+#: on 48x40 (ice); at speeds of 1 px/s and below, 900 px to 9e8 px.
+MAX_REACH_VIEWS = 10
+
+
 def _births(rng, t0: float, t1: float, every: float) -> np.ndarray:
     """Birth times (s) of puffs about every ``every`` s over ``[t0, t1)``, jittered."""
     n = max(1, int(math.ceil((t1 - t0) / every)))
@@ -652,7 +658,16 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
     t_us = np.round(np.arange(n_frames) * 1e6 / fps).astype(np.int64)
     air, (disp, flow, q), vmax = _air_truth(scene, (h, w), duration_s, t_us * 1e-6,
                                             o.magnitude_px, o.speed_px_s, seed)
-    margin = float(np.abs(disp).max()) * 1.5 + 6.0
+    reach = float(np.abs(disp).max())
+    if not reach <= MAX_REACH_VIEWS * max(h, w):
+        # the air's change between frames is held at magnitude_px: air far slower than
+        # that change needs a displacement far beyond the view, and a background that wide
+        # (3 TiB of dots at speed 1e-3 px/s; probe)
+        raise ParameterError(f"speed_px_s={o.speed_px_s!r} with magnitude_px="
+                             f"{o.magnitude_px!r}: the air's displacement reaches "
+                             f"{reach:.3g} px, over {MAX_REACH_VIEWS} times the {w}x{h} px "
+                             "view; give a higher speed or a lower magnitude")
+    margin = reach * 1.5 + 6.0
     bg = make_background((h, w), density=o.dot_density, radius_px=o.dot_radius_px,
                          contrast=o.dot_contrast, margin_px=margin, seed=seed)
     radiance = _radiance_of(bg, air, (h, w))
