@@ -502,3 +502,8 @@ def test_air_far_slower_than_its_change_is_refused():
                                              "air's displacement reaches"):
         simulate_schlieren("plume", sensor_size=(48, 48), duration_s=0.02, seed=0,
                            speed_px_s=1e-3)
+    # slower still, the puffs (born over the time the air takes to cross the view) were
+    # numbered in the hundreds of millions
+    with pytest.raises(ParameterError, match="air that slow takes over 1000 s to cross"):
+        simulate_schlieren("breath", sensor_size=(48, 48), duration_s=0.02, seed=0,
+                           speed_px_s=1e-6)

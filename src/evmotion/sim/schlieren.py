@@ -343,6 +343,8 @@ class PuffField:
         return phi, np.stack([gx, gy], axis=-1)
 
 
+#: The longest the air may take to cross the view (its larger side), s.
+MAX_CROSSING_S = 1000.0
 #: The air's largest displacement, in widths of the view (the larger side), a scene may
 #: reach: the defaults reach 0.7-12 px on 48x48 to 720x640 px views, magnitude 3 px 81 px
 #: on 48x40 (ice); at speeds of 1 px/s and below, 900 px to 9e8 px.
@@ -489,6 +491,14 @@ def make_field(scene: str, sensor_size: tuple[int, int], duration_s: float, *,
     speed = float(speed_px_s)
     if not (math.isfinite(speed) and speed > 0):
         raise ParameterError(f"speed_px_s must be finite and > 0, got {speed_px_s!r}")
+    slowest = max(h, w) / MAX_CROSSING_S
+    if speed < slowest:
+        # the puffs live as long as the air takes to cross the view, and are born over
+        # that long before the recording: at 1e-6 px/s a breath's exhalations numbered
+        # in the hundreds of millions (probe)
+        raise ParameterError(f"speed_px_s={speed_px_s!r}: air that slow takes over "
+                             f"{MAX_CROSSING_S:g} s to cross the {w}x{h} px view; give at "
+                             f"least {slowest:.3g} px/s")
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xA1E]))
     tab = _scene_table(scene, sensor_size, duration_s, speed, rng)
     return PuffField(sensor_size=(h, w), **{k: np.asarray(v, dtype=np.float64)
