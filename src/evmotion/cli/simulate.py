@@ -217,21 +217,26 @@ SCHLIEREN_ONLY = {"--scene": "bos_scene", "--fps": "fps", "--magnitude": "magnit
 
 def _check_gt_not_shared(out: Path, gt: Path) -> None:
     """Refuse to write ``gt`` when it is the ground truth of another recording beside
-    ``out`` (same stem, another suffix): ``a.txt`` after ``a.h5`` replaced ``a_gt.h5``,
-    which ``a.h5`` still named as its own (probe)."""
+    ``out``, as its ``events_file`` attribute says: ``a.txt`` after ``a.h5`` replaced
+    ``a_gt.h5``, which ``a.h5`` still named as its own (probe)."""
     from evmotion.errors import ParameterError
-    from evmotion.io import all_formats
+    from evmotion.io.h5attrs import read_attrs
 
-    if not gt.exists():
+    if not gt.is_file():
         return
-    recordings = {e.lower() for f in all_formats() for e in f.extensions}
-    others = sorted(p.name for p in out.parent.glob(f"{out.stem}.*")
-                    if p.is_file() and p.name != out.name and p != gt
-                    and p.suffix.lower() in recordings)
-    if others:
-        raise ParameterError(f"--out {out}: its ground truth {gt.name} is that of "
-                             f"{others[0]} beside it (the same stem); give another name, or "
-                             f"remove {others[0]} and {gt.name}")
+    import h5py
+
+    try:
+        with h5py.File(gt, "r") as f:
+            owner = read_attrs(gt, f, ("events_file",)).get("events_file")
+    except OSError:
+        return  # not readable as HDF5: replacing it takes nothing
+    if isinstance(owner, bytes):
+        owner = owner.decode()
+    if isinstance(owner, str) and owner != out.name and (out.parent / owner).is_file():
+        raise ParameterError(f"--out {out}: its ground truth {gt.name} is that of {owner} "
+                             f"beside it (the same stem); give another name, or remove "
+                             f"{owner} and {gt.name}")
 
 
 def _or(value, default):
@@ -341,7 +346,8 @@ def run(args) -> int:
             "calibration": sim_calibration(res.gt.K, res.events.sensor_size)} \
         if fmt == "h5" else {}
     write_events(args.out, res.events, format=fmt, **meta)
-    gt_path = write_ground_truth(gt_path_for(args.out), res.gt)
+    gt_path = write_ground_truth(gt_path_for(args.out), res.gt,
+                                 events_file=Path(args.out).name)
     if args.json:
         print_json({
             "scene": args.scene, "events_file": str(args.out), "gt_file": str(gt_path),

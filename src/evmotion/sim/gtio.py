@@ -86,7 +86,8 @@ def _write_group(g, gt: GroundTruth) -> None:
             li["alpha"].attrs["origin"] = np.asarray(layer.origin, dtype=np.float64)
 
 
-def write_ground_truth(path: str | Path, gt: GroundTruth, *, group: str | None = None) -> Path:
+def write_ground_truth(path: str | Path, gt: GroundTruth, *, group: str | None = None,
+                       events_file: str | None = None) -> Path:
     """Write ``gt`` to HDF5 at ``path`` (atomically), or into ``group`` of an existing file.
 
     Parameters
@@ -96,6 +97,8 @@ def write_ground_truth(path: str | Path, gt: GroundTruth, *, group: str | None =
     gt : GroundTruth
     group : str, optional
         Write into this group (e.g. ``"ground_truth"``) of an existing HDF5 file, in place.
+    events_file : str, optional
+        Name of the recording this is the ground truth of (attribute ``events_file``).
 
     Returns
     -------
@@ -119,6 +122,8 @@ def write_ground_truth(path: str | Path, gt: GroundTruth, *, group: str | None =
         return path
     with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
         _write_group(f, gt)
+        if events_file is not None:
+            f.attrs["events_file"] = str(events_file)
     return path
 
 
