@@ -123,6 +123,11 @@ def test_cli_train_end_to_end(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["epoch"] == 0 and summary["train_loss"] > 0
     assert summary["model"] == str(out / "model.pt") and summary["seconds"] > 0
+    # the last epoch's seconds, as epochs.csv has them (the run's were printed over them)
+    epochs = (out / "epochs.csv").read_text().splitlines()
+    col = epochs[0].split(",").index("seconds")
+    assert summary["seconds"] == pytest.approx(float(epochs[-1].split(",")[col]), rel=1e-3)
+    assert summary["total_seconds"] >= summary["seconds"]
     assert {p.name for p in out.iterdir()} >= {"last.pt", "model.pt", "steps.csv",
                                                 "epochs.csv", "loss.png"}
     # the closing line counts the epochs and steps, and gives the loss and time

@@ -332,7 +332,6 @@ def run(args) -> int:
         raise EvmotionError("this build has no event writer (evmotion.io.write_events)") from None
     check_output(args.out, "--out")
     check_output(gt_path_for(args.out), "--out (its ground truth)")
-    _check_gt_not_shared(Path(args.out), gt_path_for(args.out))
     fmt = args.format or format_for_output(args.out)
     opts = SimOptions(threshold=args.threshold, mismatch=args.mismatch,
                       refractory_us=args.refractory_us, noise_rate=args.noise_rate,
@@ -341,6 +340,9 @@ def run(args) -> int:
     res = simulate(args.scene, duration_s=args.duration, sensor_size=_size(args, (260, 346)),
                    seed=args.seed, texture=_or(args.texture, "dots"),
                    params=parse_params(args.params or []), image=args.image, options=opts)
+    # (checked here rather than first: the ground truth's file is opened, h5py's import
+    # and handles at the start had met a Ctrl-C there in the test of interruptions)
+    _check_gt_not_shared(Path(args.out), gt_path_for(args.out))
     # only HDF5 keeps free metadata; other formats would warn about it
     meta = {"simulator_scene": args.scene, "simulator_seed": args.seed,
             "calibration": sim_calibration(res.gt.K, res.events.sensor_size)} \

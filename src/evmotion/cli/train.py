@@ -171,8 +171,9 @@ def run(args) -> int:
         raise
     model = Path(args.out) / "model.pt"
     if args.json:
+        # "seconds" stays the last epoch's (as epochs.csv has it); the whole run apart
         print_json({**summary, "model": str(model), "out": str(args.out),
-                    "seconds": time.perf_counter() - t_start})
+                    "total_seconds": time.perf_counter() - t_start})
     else:
         done = int(summary.get("epoch", -1)) + 1
         loss = summary.get("train_loss", float("nan"))
