@@ -155,3 +155,21 @@ def test_blosc_compressed_layout_reads_in_a_fresh_process(tmp_path):
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == [str(N), str(T[-1]), str(int(X.sum()))]
+
+
+def test_missing_or_uneven_event_fields_are_named(tmp_path):
+    """An events/ group without p said 'format not recognised'; fields of different
+    lengths gave numpy's 'operands could not be broadcast' (probe)."""
+    from evmotion.errors import FormatError
+
+    with h5py.File(tmp_path / "nop.h5", "w") as f:
+        for k in "xyt":
+            f[f"events/{k}"] = np.arange(10)
+    with pytest.raises(FormatError, match="events/t, events/x, events/y hold no event field p"):
+        read_events(tmp_path / "nop.h5")
+    with h5py.File(tmp_path / "uneven.h5", "w") as f:
+        f["events/x"] = np.arange(9)
+        for k in "ytp":
+            f[f"events/{k}"] = np.arange(10) % 2
+    with pytest.raises(FormatError, match="fields differ in length: events/t 10, events/x 9"):
+        read_events(tmp_path / "uneven.h5")

@@ -28,7 +28,7 @@ import numpy as np
 
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
-from evmotion.io.base import FormatSpec, event_fields
+from evmotion.io.base import EVENT_FIELD_NAMES, FormatSpec, event_fields, split_unit
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
     check_sensor_size,
@@ -129,6 +129,10 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
             grp = f[lay["group"]] if lay["group"] else f
             prefix = f"{lay['group']}/" if lay["group"] else ""
             cols = {k: _load(path, grp[n], prefix + n) for k, n in lay["names"].items()}
+            lengths = {prefix + lay["names"][k]: len(v) for k, v in cols.items()}
+            if len(set(lengths.values())) > 1:
+                raise FormatError(path, "the event fields differ in length: " + ", ".join(
+                    f"{n} {m:,}" for n, m in lengths.items()))
             size = size_from_attrs(path, grp, f)
         elif lay["kind"] == "compound":
             data = _load(path, f[lay["dataset"]], lay["dataset"])
@@ -163,6 +167,25 @@ def _load(path: Path, ds, name: str) -> np.ndarray:
 def iter_chunks(path: str | os.PathLike, chunk_events: int, **kw) -> Iterator[EventArray]:
     """Chunks of ``chunk_events`` (the file is read whole)."""
     yield from chunks_of_read(read, path, chunk_events, **kw)
+
+
+def partial_fields(f) -> tuple[list[str], list[str]]:
+    """``(datasets, missing)``: where an open HDF5 file's 1-D datasets (at the root,
+    ``events/``, ``CD/``...) name two or three of the event fields ``t, x, y, p``, those
+    datasets and the fields none of them names -- what a file missing ``p``, say, lacks.
+    Two empty lists otherwise."""
+    import h5py
+
+    for g in GROUPS:
+        if g and (g not in f or not isinstance(f[g], h5py.Group)):
+            continue
+        grp = f[g] if g else f
+        names = sorted(k for k, v in grp.items() if isinstance(v, h5py.Dataset) and v.ndim == 1)
+        missing = [k for k, aliases in EVENT_FIELD_NAMES.items()
+                   if not any(split_unit(n)[0] in aliases for n in names)]
+        if 1 <= len(missing) <= 2:
+            return [f"{g}/{n}" if g else n for n in names], missing
+    return [], []
 
 
 def _sniff(path: Path, head: bytes) -> bool:

@@ -79,18 +79,25 @@ def resolve_format(path: str | os.PathLike, format: str | None = None) -> Format
 
 
 def _raise_unreadable_hdf5(path: Path) -> None:
-    """Raise h5py's reason (in one line) when the HDF5 file ``path`` does not open."""
+    """Raise h5py's reason (in one line) when the HDF5 file ``path`` does not open, or
+    name the event fields it lacks where it holds some of them."""
     import h5py
 
     from evmotion.io.guard import not_hdf5
     from evmotion.io.h5filters import register_filters
+    from evmotion.io.h5generic import partial_fields
 
     register_filters()
     try:
-        with h5py.File(path, "r"):
-            return
+        with h5py.File(path, "r") as f:
+            names, missing = partial_fields(f)
     except OSError as exc:
         raise not_hdf5(path, exc) from None
+    if names:
+        # (probe: an events/ group without p was "format not recognised")
+        raise FormatError(path, f"HDF5 datasets {', '.join(names[:8])} hold no event field "
+                          f"{' or '.join(missing)}: events need t, x, y and p (names "
+                          "evmotion.io.base.EVENT_FIELD_NAMES lists)")
 
 
 def detect_spec(path: str | os.PathLike) -> FormatSpec:
@@ -131,8 +138,8 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
             raise FormatError(path, f"is an evmotion output ({own}), not a recording of events",
                               "evmotion info describes it; eval and view read flow outputs")
         if head.startswith(HDF5_MAGIC):
-            # an HDF5 file no reader could open (cut short, say): HDF5's own reason says
-            # more than "not recognised" (probe)
+            # an HDF5 file no reader could open (cut short, say) or one with some event
+            # fields: what is wrong says more than "not recognised" (probe)
             _raise_unreadable_hdf5(path)
         if _frame_list(head):
             raise FormatError(path, "is a list of frames ('t path' lines), not events",
