@@ -94,7 +94,8 @@ def add_parser(sub) -> None:
     fit.add_argument("--s-range", nargs=2, type=finite_float(unit="px"), default=None,
                      metavar=("S0", "S1"), help="search the ridge between S0 and S1 px "
                                                 "along the line")
-    fit.add_argument("--fit-t0", type=finite_float(unit="s"), default=None, metavar="S",
+    # (seconds after the kymogram's start: -1 had passed and meant 0; probe)
+    fit.add_argument("--fit-t0", type=finite_float(0, unit="s"), default=None, metavar="S",
                      help="search the ridge from S seconds after the kymogram's start")
     fit.add_argument("--fit-t1", type=finite_float(unit="s"), default=None, metavar="S",
                      help="... up to S seconds after the kymogram's start")
