@@ -456,3 +456,18 @@ def test_a_full_device_at_a_checkpoint_is_one_line(tmp_path, capsys, monkeypatch
                "--batch-size", "2", "--epochs", "1", "--max-steps", "1"])
     err = capsys.readouterr().err
     assert rc == 1 and err.count("\n") == 1 and "no space left" in err, err
+
+
+def test_cli_train_format_needs_recordings_and_a_known_name(tmp_path, capsys):
+    """--format bogus with no recording to read had passed (exit 0; probe)."""
+    from evmotion.cli import main
+
+    base = ["train", "--sim-windows", "1", "--epochs", "1", "--val-sim", "0",
+            "--out", str(tmp_path / "run")]
+    assert main([*base, "--format", "bogus"]) == 2
+    assert "does not apply without recordings" in capsys.readouterr().err
+    rec = tmp_path / "rec.npz"
+    np.savez(rec, x=[1, 2], y=[1, 2], t=[0, 10], p=[1, 0], sensor_size=[8, 8])
+    assert main([*base, str(rec), "--format", "bogus"]) == 2
+    assert "unknown format 'bogus'" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()

@@ -134,10 +134,18 @@ def _above_the_bar(line: str) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
+    from evmotion.cli.options import reject_unused
+    from evmotion.io.registry import get_format
     from evmotion.methods.dnn import require_torch
     from evmotion.utils import keep_for_resume
 
     t_start = time.perf_counter()
+    if not args.recordings and not args.val:
+        # (--format bogus with no recording to read had passed, exit 0; probe)
+        reject_unused(args, {"--format": "format", "--sensor-size": "sensor_size"},
+                      "without recordings to read (they apply to the recordings and --val)")
+    if args.format is not None:
+        get_format(args.format)  # an unknown name, said before any work
     require_torch("evmotion train")
     from evmotion.methods.dnn.train import TrainConfig, train
 
