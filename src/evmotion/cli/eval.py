@@ -237,21 +237,9 @@ def _load_npy(args, path):
 
 def _h5_format(path) -> object:
     """The ``format`` attribute of an HDF5 file (None if it has none)."""
-    return _h5_attrs(path, ("format",)).get("format")
+    from evmotion.io.h5attrs import file_attrs
 
-
-def _h5_attrs(path, names) -> dict:
-    """The attributes ``names`` an HDF5 file has."""
-    import h5py
-
-    from evmotion.io.guard import not_hdf5
-    from evmotion.io.h5attrs import read_attrs
-
-    try:
-        with h5py.File(path, "r") as f:
-            return read_attrs(path, f, names)
-    except OSError as exc:
-        raise not_hdf5(path, exc) from None
+    return file_attrs(path, ("format",)).get("format")
 
 
 def _warn_other_source(path: Path, events_path) -> None:
@@ -259,7 +247,9 @@ def _warn_other_source(path: Path, events_path) -> None:
     estimated on (its ``source`` attribute): another file of the same sensor and times
     passes the checks, and would mask the score with unrelated pixels. Names are compared
     without their suffix, so a converted copy (``rec.raw`` -> ``rec.h5``) passes."""
-    source = _h5_attrs(path, ("source",)).get("source")
+    from evmotion.io.h5attrs import file_attrs
+
+    source = file_attrs(path, ("source",)).get("source")
     if not isinstance(source, str) or not source:
         return
     if Path(source).stem != Path(events_path).stem:

@@ -219,20 +219,15 @@ def _check_gt_not_shared(out: Path, gt: Path) -> None:
     """Refuse to write ``gt`` when it is the ground truth of another recording beside
     ``out``, as its ``events_file`` attribute says: ``a.txt`` after ``a.h5`` replaced
     ``a_gt.h5``, which ``a.h5`` still named as its own (probe)."""
-    from evmotion.errors import ParameterError
-    from evmotion.io.h5attrs import read_attrs
+    from evmotion.errors import FormatError, ParameterError
+    from evmotion.io.h5attrs import file_attrs
 
     if not gt.is_file():
         return
-    import h5py
-
     try:
-        with h5py.File(gt, "r") as f:
-            owner = read_attrs(gt, f, ("events_file",)).get("events_file")
-    except OSError:
+        owner = file_attrs(gt, ("events_file",)).get("events_file")
+    except FormatError:
         return  # not readable as HDF5: replacing it takes nothing
-    if isinstance(owner, bytes):
-        owner = owner.decode()
     if isinstance(owner, str) and owner != out.name and (out.parent / owner).is_file():
         raise ParameterError(f"--out {out}: its ground truth {gt.name} is that of {owner} "
                              f"beside it (the same stem); give another name, or remove "

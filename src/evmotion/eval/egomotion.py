@@ -155,8 +155,8 @@ def parameter_errors(table: ParamsTable, truth: GroundTruth
         return [], {}, (f"the scene moves by a {motion.warp.name} warp, the estimate is "
                         f"{warp}: compared through its flow only")
     if warp != "rotation":
-        h, w = truth.sensor_size
-        centre = ((w - 1) / 2.0, (h - 1) / 2.0)
+        # the centre egomotion's warps take: the warp's default
+        centre = make_warp(warp, truth.sensor_size).center
         if not np.allclose(motion.warp.center, centre, atol=1e-6):
             return [], {}, (f"the scene's {warp} is about ({motion.warp.center[0]:g}, "
                             f"{motion.warp.center[1]:g}) px, the estimate's about the image "

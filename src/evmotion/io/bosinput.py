@@ -128,19 +128,16 @@ def _covered(intervals: np.ndarray, t: np.ndarray, rec) -> np.ndarray:
 
 
 def _whole_times(images_txt: Path) -> bool:
-    """Whether the first time in an ``images.txt`` is a whole number (no unit stated)."""
+    """Whether an ``images.txt``'s times are whole numbers (no unit stated), as its reader
+    tells them (its warning about them said already)."""
+    from evmotion.io.ecd import read_image_list
+
     try:
-        with open(images_txt, encoding="utf-8-sig") as fh:
-            for line in fh:
-                text = line.strip()
-                if text and not text.startswith("#"):
-                    first = text.replace(",", " ").split()[0]
-                    if first[:1].isalpha():
-                        continue  # a header line
-                    return first.lstrip("+-").isdigit()
-    except (OSError, UnicodeDecodeError):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", EvmotionWarning)
+            return bool(read_image_list(images_txt)["whole_numbers"])
+    except (FormatError, OSError, UnicodeDecodeError, ValueError):
         return False
-    return False
 
 
 def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, bool]:

@@ -26,7 +26,7 @@ import numpy as np
 from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
 from evmotion.events import SORT_HINT, EventArray
-from evmotion.io.base import FormatSpec, event_fields, time_unit_in_name
+from evmotion.io.base import TIME_UNIT_US, FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
     MAX_ABS_TIME_US,
@@ -908,7 +908,8 @@ def read_groundtruth(path: str | Path) -> dict:
 
 
 def read_image_list(path: str | Path, time_unit: str | None = None) -> dict:
-    """ECD ``images.txt``: ``t`` (µs) and ``files`` (paths relative to the folder).
+    """ECD ``images.txt``: ``t`` (µs), ``files`` (paths relative to the folder) and
+    ``whole_numbers`` (whether its times were whole numbers, which state no unit).
 
     Lines are ``t path`` (t in seconds; a comma after t is taken as a space); lines
     starting with ``#`` are comments. Other tools' variants are read where the file they
@@ -940,7 +941,7 @@ def read_image_list(path: str | Path, time_unit: str | None = None) -> dict:
     whole = len(raw) > 1 and all(f.lstrip("+-").isdigit() for _, f in raw)
     scale = 1e6
     if whole and time_unit is not None:
-        scale = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}[time_unit]
+        scale = TIME_UNIT_US[time_unit]
     elif whole:
         # past 1e17, nanoseconds since the epoch, as events.txt and timestamps files read
         # them (probe AM: images.txt in ns beside events.txt in ns was 1000x apart)
@@ -951,7 +952,7 @@ def read_image_list(path: str | Path, time_unit: str | None = None) -> dict:
             f"{'nanoseconds since the epoch (past 1e17)' if ns else 'microseconds'} "
             "(images.txt holds decimal seconds)"), stacklevel=2)
     t = [time_to_us(path, f, scale, f"line {i}") for i, f in raw]
-    return {"t": np.asarray(t, np.int64), "files": files}
+    return {"t": np.asarray(t, np.int64), "files": files, "whole_numbers": whole}
 
 
 # the first field of a header line: a name, not a number's spelling (nan, inf: a bad time)

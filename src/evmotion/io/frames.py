@@ -26,6 +26,7 @@ import numpy as np
 
 from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, MissingDependencyError, ParameterError
+from evmotion.io.base import TIME_UNIT_US
 from evmotion.io.guard import time_to_us
 from evmotion.io.pngfile import check_png, png_header, read_png
 from evmotion.utils import is_file
@@ -36,7 +37,7 @@ __all__ = ["Frames", "describe_frames", "find_frames", "image_size", "read_frame
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".webp")
 TIMESTAMP_FILES = ("timestamps.txt", "times.txt", "frame_timestamps.txt",
                    "image_timestamps.txt", "timestamps.csv")
-TIME_UNITS = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}
+TIME_UNITS = TIME_UNIT_US
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov")
 CCS_SENSOR_SIZE = (720, 1280)  # Prophesee Gen4 of the published BOS recordings
 

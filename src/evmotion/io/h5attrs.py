@@ -40,7 +40,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 
-__all__ = ["ATTR_TIMEOUT_S", "read_attrs", "read_attrs_many", "text_attr"]
+__all__ = ["ATTR_TIMEOUT_S", "file_attrs", "read_attrs", "read_attrs_many", "text_attr"]
 
 #: Seconds a child process gets to read a file's variable-length attributes (a healthy
 #: read takes microseconds; the margin is for a loaded machine).
@@ -79,6 +79,26 @@ def read_attrs(path: str | os.PathLike | None, obj: Any, keys: Iterable[str] | N
         An attribute cannot be read (corrupt file), naming the file and the attribute.
     """
     return read_attrs_many(path, [obj], keys, timeout_s)[0]
+
+
+def file_attrs(path: str | os.PathLike, keys: Iterable[str] | None = None) -> dict[str, Any]:
+    """The attributes ``keys`` (default: all) of the root of the HDF5 file ``path``, as
+    :func:`read_attrs` reads them.
+
+    Raises
+    ------
+    FormatError
+        The file does not open as HDF5 (HDF5's reason, in one line).
+    """
+    import h5py
+
+    from evmotion.io.guard import not_hdf5
+
+    try:
+        with h5py.File(path, "r") as f:
+            return read_attrs(path, f, keys)
+    except OSError as exc:
+        raise not_hdf5(path, exc) from None
 
 
 def read_attrs_many(path: str | os.PathLike | None, objs: Sequence[Any],

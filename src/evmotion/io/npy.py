@@ -166,6 +166,15 @@ def _unit_doubt(t: np.ndarray, unit: str) -> str | None:
     return None
 
 
+def _refuse_negative_pixels(path, x: np.ndarray, y: np.ndarray) -> None:
+    """FormatError naming the first event whose integer pixel coordinate is below 0."""
+    for name, a in (("x", x), ("y", y)):
+        if a.size and a.min() < 0:
+            bad = int(np.argmax(a < 0))
+            raise FormatError(path, f"event {bad} has {name}={a[bad]}: pixel coordinates "
+                              "start at 0")
+
+
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
                         meta=None, validate=True, drop_outside=False,
                         time_field: str | None = None) -> EventArray:
@@ -210,11 +219,8 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
         if x.size == 0:
             raise FormatError(path, "no events and no sensor size",
                               SENSOR_SIZE_HINT)
-        if not frac and min(x.min(), y.min()) < 0:
-            name, a = ("x", x) if x.min() < 0 else ("y", y)
-            bad = int(np.argmax(a < 0))
-            raise FormatError(path, f"event {bad} has {name}={a[bad]}: pixel coordinates "
-                              "start at 0")
+        if not frac:
+            _refuse_negative_pixels(path, x, y)
         if max(x.max(), y.max()) >= MAX_SENSOR_SIDE:
             raise FormatError(path, f"coordinates span x {x.min()}..{x.max()}, y {y.min()}.."
                               f"{y.max()}: no sensor of at most {MAX_SENSOR_SIDE} px per side",
@@ -228,11 +234,10 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     inside = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
     if not inside.all():
         bad = int(np.argmax(~inside))
-        if validate and not drop_outside and not frac and min(x[bad], y[bad]) < 0:
+        if validate and not drop_outside and not frac:
             # no sensor size holds a negative pixel: the size hint would not help (float
             # coordinates, undistorted, do leave the sensor)
-            raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]}: pixel "
-                              "coordinates start at 0")
+            _refuse_negative_pixels(path, x, y)
         if drop_outside:
             meta["dropped_outside"] = int((~inside).sum())
             x, y, t_us, p = x[inside], y[inside], t_us[inside], p[inside]

@@ -531,8 +531,9 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
     gain = float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan")
     too_few = warn_too_few(int(cost.x.shape[0]), w.name, stacklevel=4)
     msgs.append(too_few)
-    gap = gap_share(np.sort(cost.dt))
-    msgs.append(warn_gap(np.sort(cost.dt) * 1e6, f"{w.name} warp", stacklevel=4))
+    t_us = np.sort(cost.dt) * 1e6
+    gap = gap_share(t_us)
+    msgs.append(warn_gap(t_us, f"{w.name} warp", stacklevel=4))
     if not coll["collapsed"] and too_few is None:
         hint = "" if optimizer == "tpe" else " (--optimizer tpe searches the whole box)"
         if regularizer is not None:
