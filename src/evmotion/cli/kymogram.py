@@ -359,7 +359,7 @@ def run(args) -> int:
                        residual_px=fit.residual_px,
                        reliable=fit.reliable)
             if not fit.reliable:
-                row["unreliable_because"] = fit.unreliable_because
+                row["unreliable_because"] = _cli_names(fit.unreliable_because)
             if geometry:
                 row["speed_m_s"] = px_per_s_to_m_per_s(fit.speed_px_s, **geometry)
                 row["speed_std_m_s"] = px_per_s_to_m_per_s(fit.velocity_std_px_s, **geometry)

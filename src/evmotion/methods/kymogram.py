@@ -339,6 +339,10 @@ class RidgeFit:
     method : str
         "ridge" (:func:`fit_ridge`) or "correlation" (:func:`fit_correlation`, whose points
         are the lags and shifts of the autocorrelation, not kymogram positions).
+    origin_offset_px : float
+        Correlation fits: the shift at lag 0 of the line fitted to the autocorrelation's
+        ridge, px. A ridge of structures moving at one speed passes through the origin;
+        0 for ridge fits.
     """
 
     velocity_px_s: float
@@ -350,6 +354,7 @@ class RidgeFit:
     inliers: np.ndarray
     residual_px: float
     method: str = "ridge"
+    origin_offset_px: float = 0.0
 
     @property
     def reliable(self) -> bool:
@@ -363,13 +368,28 @@ class RidgeFit:
         fit over puffs 34 px apart 699 +- 331 px/s for 500), or, for a ridge
         fit, the ridge points lie off the line: RMS residual over :data:`RELIABLE_RESIDUAL`
         of the line's travel over the fit (and 3 px at least); a ridge jumping between
-        parallel streaks gave 75 +- 15 px/s for 120 with residuals of 79 px."""
+        parallel streaks gave 75 +- 15 px/s for 120 with residuals of 79 px. For a
+        correlation fit, the line misses the origin by more than :data:`RELIABLE_ORIGIN` of
+        the travel at the longest fitted lag (and 1 px at least): its points follow the edge
+        of the stationary band, not a moving peak (62 +- 7 px/s for 200, 3.8 px off the
+        origin, on a sparse row whose structures moved less than the band over the lags)."""
         if not self.velocity_std_px_s <= RELIABLE_SPREAD * abs(self.velocity_px_s):
             return "the spread exceeds a quarter of the speed"
-        if self.method != "ridge" or not len(self.t_s):
+        if not len(self.t_s):
             return None
-        span = float(np.ptp(np.asarray(self.t_s)[np.asarray(self.inliers, bool)])) \
-            if np.any(self.inliers) else 0.0
+        inl = np.asarray(self.inliers, bool)
+        if self.method == "correlation":
+            longest = float(np.max(np.asarray(self.t_s)[inl])) if np.any(inl) else 0.0
+            bound = max(MIN_ORIGIN_BOUND_PX, RELIABLE_ORIGIN * abs(self.velocity_px_s) * longest)
+            if abs(self.origin_offset_px) <= bound:
+                return None
+            return (f"the autocorrelation's ridge misses the origin by "
+                    f"{self.origin_offset_px:.3g} px (> {bound:.3g}): the structures hardly "
+                    "move beyond stationary_px over the lags (try a longer max_lag_s or "
+                    "a lower stationary_px)")
+        if self.method != "ridge":
+            return None
+        span = float(np.ptp(np.asarray(self.t_s)[inl])) if np.any(inl) else 0.0
         bound = max(MIN_RESIDUAL_BOUND_PX, RELIABLE_RESIDUAL * abs(self.velocity_px_s) * span)
         if self.residual_px <= bound:
             return None
@@ -590,6 +610,11 @@ RELIABLE_SPREAD = 0.25
 #: the fitted time span, and the bound's least value in px (RidgeFit.reliable).
 RELIABLE_RESIDUAL = 0.1
 MIN_RESIDUAL_BOUND_PX = 3.0
+#: Largest shift at lag 0 of a reliable correlation fit's line, as a fraction of its travel
+#: at the longest fitted lag, and the bound's least value in px (RidgeFit.reliable): good
+#: fits on simulated translations pass within 0.03 px of the origin
+RELIABLE_ORIGIN = 0.1
+MIN_ORIGIN_BOUND_PX = 1.0
 
 
 def _lag_spectra(d: np.ndarray, n_lags: int, edges: np.ndarray) -> np.ndarray:
@@ -781,7 +806,8 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     return RidgeFit(velocity_px_s=v, velocity_std_px_s=std,
                     s0_px=_strongest_streak(kymo, v, t_ref, tmask, smask, sigma_px),
                     t_ref_s=t_ref, t_s=whole.t_s, s_px=whole.s_px, inliers=whole.inliers,
-                    residual_px=whole.residual_px, method="correlation")
+                    residual_px=whole.residual_px, method="correlation",
+                    origin_offset_px=float(whole.s0_px - v * whole.t_ref_s))
 
 
 def _strongest_streak(kymo: Kymogram, v: float, t_ref: float, tmask: np.ndarray,
