@@ -240,3 +240,20 @@ def test_read_events_says_where_the_events_are_when_the_span_holds_none(tmp_path
     with pytest.warns(UserWarning, match=r"no event in \[0, 100\) us: the recording spans "
                                          r"5000\.\.7000 us"):
         assert len(eio.read_events(tmp_path / "r.h5", t0=0, t1=100)) == 0
+
+
+def test_convert_takes_out_as_the_other_commands_do(tmp_path, capsys):
+    # 'convert in.h5 --out x.txt' said "unrecognized arguments: --out (did you mean
+    # --sort?)": every other command names its output --out
+    src = tmp_path / "in.npz"
+    ev = EventArray(t=np.arange(10, dtype=np.int64) * 100, x=np.arange(10) % 4,
+                    y=np.arange(10) % 3, p=np.arange(10) % 2, sensor_size=(3, 4))
+    eio.write_events(src, ev)
+    rc, *_ = _run(capsys, "convert", str(src), "--out", str(tmp_path / "o.txt"))
+    assert rc == 0
+    np.testing.assert_array_equal(eio.read_events(tmp_path / "o.txt").t, ev.t)
+    rc, _, err = _run(capsys, "convert", str(src))
+    assert rc == 2 and "as the second argument or as --out" in err
+    rc, _, err = _run(capsys, "convert", str(src), str(tmp_path / "a.h5"), "--out",
+                      str(tmp_path / "b.h5"))
+    assert rc == 2 and "two outputs" in err and not (tmp_path / "a.h5").exists()

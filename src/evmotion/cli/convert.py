@@ -41,8 +41,11 @@ def add_parser(sub) -> None:
         formatter_class=HelpFormatter,
     )
     p.add_argument("input", help="recording (file or ECD folder)")
-    p.add_argument("output", type=writable_output(),
+    p.add_argument("output", type=writable_output(), nargs="?", default=None,
                    help="output file; its extension picks the format")
+    p.add_argument("--out", type=writable_output(), default=None, dest="out_option",
+                   metavar="OUTPUT", help="the output file, as the other commands take it "
+                                          "(instead of the positional OUTPUT)")
     p.add_argument("--format-in", default=None, help="input format (default: detect)")
     p.add_argument("--format-out", default=None, help="output format (default: extension)")
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
@@ -73,7 +76,11 @@ def run(args) -> int:
     from evmotion.errors import ParameterError
     from evmotion.utils import progress
 
-    src, dst = Path(args.input), Path(args.output)
+    if (args.output is None) == (args.out_option is None):
+        raise ParameterError("give the output file once: as the second argument or as --out"
+                             if args.output is None else
+                             f"two outputs: {args.output} and --out {args.out_option}")
+    src, dst = Path(args.input), Path(args.output or args.out_option)
     check_time_order(args)
     if src.resolve() == dst.resolve():
         raise ParameterError(f"input and output are the same file: {src}")
