@@ -29,8 +29,8 @@ from evmotion.errors import (
     ParameterError,
     UnderfitWarning,
 )
+from evmotion.io.bosfiles import BOS_COMPRESSION
 from evmotion.io.bosinput import BosInput
-from evmotion.io.flowfiles import FLOW_COMPRESSION
 
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "check_registration",
            "iter_bos_input", "registration_shift",
@@ -570,7 +570,7 @@ WARM_MEANING = "the solver's patch-grid parameters of this scale (warm start of 
 
 
 def open_bos_output(path, data: BosInput, attrs: dict, options, *, resume: bool = False,
-                    compression: str | None = FLOW_COMPRESSION):
+                    compression: str | None = BOS_COMPRESSION):
     """The flow output of a BOS run (:func:`evmotion.io.flowout.open_flow_output`: ``.h5``,
     ``.npz``, ``.flo`` / ``.png`` patterns) with ``q``, ``p`` and the per-window numbers as
     extra datasets where the container holds them (``.h5``, ``.npz``); an ``.h5`` also keeps
@@ -757,7 +757,7 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
 
 
 def write_bos_output(path, data: BosInput, run: BosRun, attrs: dict, *,
-                     compression: str | None = FLOW_COMPRESSION) -> list[dict]:
+                     compression: str | None = BOS_COMPRESSION) -> list[dict]:
     """Write every interval of ``run`` (:func:`open_bos_output`,
     :func:`append_bos_result`); returns one summary row per window.
 
