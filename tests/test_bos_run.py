@@ -194,7 +194,7 @@ def test_the_sensors_start_up_interval_is_said(tmp_path):
                                        seed=0), d)
     with pytest.warns(EvmotionWarning, match=r"begin in the frame interval \[0, 8333\) us .*"
                                              r"no valid pixel; --t0 0.008333"):
-        assert warn_startup(load_bos_input(d)) == 0
+        assert warn_startup(load_bos_input(d)) == (0,)
     # the sequence solve writes it with no valid pixel, the next intervals as they are
     with pytest.warns(EvmotionWarning, match="begin in the frame interval"):
         run = solve_bos_input(load_bos_input(d, max_intervals=3), iterations=20)
@@ -203,13 +203,87 @@ def test_the_sensors_start_up_interval_is_said(tmp_path):
     # frames gave 0.19x, valid, unsaid)
     with pytest.warns(EvmotionWarning, match=r"\[0, 8333\) us and fewer than two intervals "
                                              r"follow to tell"):
-        assert warn_startup(load_bos_input(d, max_intervals=2)) is None
+        assert warn_startup(load_bos_input(d, max_intervals=2)) == ()
     later = load_bos_input(d, t0=8333)
     import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("error", EvmotionWarning)
-        assert warn_startup(later) is None
+        assert warn_startup(later) == ()
+
+
+@pytest.fixture(scope="module")
+def ice10(tmp_path_factory):
+    from evmotion.io import read_events
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    d = tmp_path_factory.mktemp("ice10") / "ice"
+    write_schlieren(simulate_schlieren("ice", sensor_size=(120, 160), duration_s=10 / 120,
+                                       seed=0), d)
+    return d, read_events(d)
+
+
+def _keeping(ice10, tmp_path, keep):
+    import shutil
+
+    from evmotion.io import write_events
+
+    d, ev = ice10
+    shutil.copytree(d, tmp_path / "v")
+    write_events(tmp_path / "v" / "events.txt", ev[keep(ev.t)])
+    return tmp_path / "v"
+
+
+def test_start_up_that_lasts_into_the_next_interval_is_said(ice10, tmp_path):
+    """Another renderer's pixels took two intervals to settle: the second one's events
+    followed the change at 0.80 of the settled rate and its flow came out 0.68-0.81x,
+    valid, unsaid (probe). Here 30 % of that interval's events are dropped."""
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos_run import unmeasured_intervals
+
+    rng = np.random.default_rng(0)
+    thin = _keeping(ice10, tmp_path, lambda t: ~((t >= 8333) & (t < 16667)
+                                                  & (rng.random(t.size) < 0.3)))
+    with pytest.warns(EvmotionWarning, match=r"and the next, \[8333, 16667\) us, at 0\.7\d "
+                                             r"of the settled rate.* leaves them out"):
+        assert unmeasured_intervals(load_bos_input(thin)) == (0, 1)
+    with pytest.warns(EvmotionWarning, match=r"begin in the frame interval \[0, 8333\) us "
+                                             r"and follow"):
+        assert unmeasured_intervals(load_bos_input(ice10[0])) == (0,)
+
+
+def test_a_nearly_empty_interval_does_not_hide_the_start_up(ice10, tmp_path):
+    """One interval of next to no events among the next four (still air, a gap) made
+    their rates disagree, and the start-up interval went out at 0.37x, valid (probe)."""
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos_run import warn_startup
+
+    rng = np.random.default_rng(1)
+    gap = _keeping(ice10, tmp_path, lambda t: ~((t >= 25000) & (t < 33333)
+                                                 & (rng.random(t.size) < 0.99)))
+    with pytest.warns(EvmotionWarning, match=r"begin in the frame interval \[0, 8333\)"):
+        assert warn_startup(load_bos_input(gap)) == (0,)
+
+
+def test_a_cut_recordings_last_interval_is_no_measurement_nor_in_c(ice10, tmp_path):
+    """Events stopping 80 % into the last interval gave its flow at 0.81x, valid, and
+    raised the sequence's C; a cut start-up interval and a cut end both fed C's median
+    (probe: C 0.178 -> 0.194)."""
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos_run import sequence_contrast_threshold
+
+    cut = _keeping(ice10, tmp_path, lambda t: t < 75000 + 0.8 * 8333)
+    with pytest.warns(EvmotionWarning, match=r"\[75000, 83333\) us 80 % covered\): their "
+                                             r"recording was cut there"):
+        data = load_bos_input(cut)
+    assert data.cut == (9,)
+    with pytest.warns(EvmotionWarning, match="begin in the frame interval"):
+        run = solve_bos_input(data, iterations=10)
+    assert [bool(r.valid.any()) for r in run.results] == [False] + [True] * 8 + [False]
+    _, every = sequence_contrast_threshold(data)
+    _, kept = sequence_contrast_threshold(data, exclude=(0, 9))
+    assert len(every) == 10 and len(kept) == 8
+    assert run.c_samples.tolist() == kept.tolist()
 
 
 def test_a_background_that_varies_pixel_to_pixel_is_said(data):

@@ -164,7 +164,7 @@ def run(args) -> int:
         require_texture,
         sequence_threshold,
         solve_bos_into,
-        warn_startup,
+        unmeasured_intervals,
         warn_uncovered,
     )
 
@@ -198,8 +198,8 @@ def run(args) -> int:
         require_texture(data, options)
         warn_uncovered(data)
         check_registration(data)
-        startup = warn_startup(data)
-        c, c_source, _ = sequence_threshold(data, args.contrast_threshold)
+        unmeasured = unmeasured_intervals(data)
+        c, c_source, _ = sequence_threshold(data, args.contrast_threshold, exclude=unmeasured)
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
                  "seed": args.seed, "relinearize": args.relinearize,
                  "source": data.source, "frames": data.frames_source,
@@ -217,7 +217,7 @@ def run(args) -> int:
             rows = solve_bos_into(open_bos_output(out, data, attrs, options,
                                                   resume=args.resume),
                                   data, c, workers=chunks, scheduler=client, progress=True,
-                                  startup=startup, **opts)
+                                  unmeasured=unmeasured, **opts)
     except ParameterError as exc:
         if args.roi is not None and str(exc).startswith("roi "):
             # the library names its argument; the user typed the option

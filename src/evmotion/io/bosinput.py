@@ -20,6 +20,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
+from evmotion.io.base import TIME_UNIT_US
 from evmotion.io.bosfiles import roi_mask
 from evmotion.io.guard import LARGEST_COORDINATE
 
@@ -30,10 +31,25 @@ __all__ = ["BosInput", "frame_intervals", "load_bos_input"]
 UNIT_SLIP = 100
 # frames further apart than this (median) see no schlieren: times in another unit
 MAX_FRAME_SPACING_US = 60_000_000
-# a frame interval the events cover less than this share of, as densely as the whole
-# intervals (CUT_DENSITY of their rate, at least), is warned about: a cut recording
-MIN_COVERAGE = 0.6
+# frames further apart than this (median) are slower than any BOS video: warned about
+# (milliseconds in both lists read as seconds gave a flow 1000x too small, unsaid; probe)
+SLOW_FRAME_SPACING_US = 1_000_000
+# ... and closer than this, faster than a camera beside an event sensor runs (seconds in
+# both lists read with --time-unit ms: 1000x too large a flow)
+FAST_FRAME_SPACING_US = 100
+# a frame interval the events stop inside of, covering less than this share of it as
+# densely as the whole intervals (CUT_DENSITY of their rate, at least), is a cut recording:
+# its flow is too small by the share (0.81x for 80 %, 0.68x for 60 % on another renderer's
+# plume) and no measurement
+MIN_COVERAGE = 0.95
 CUT_DENSITY = 0.5
+# the same for the interval the events begin in, where a sensor's start-up (bos_run) also
+# thins them: the simulator's begin 72 % into their first interval, dense
+MIN_START_COVERAGE = 0.6
+# ... and where, at the intervals' event rate, at least this many events would have come in
+# the part not covered (sparse events leave a gap at the end by chance: noise at 4 events
+# a ms stopped 0.8 ms before a 10 ms interval's end)
+CUT_EVENTS = 10
 # a frame with more pixels than this share clipped at full scale is warned about
 MAX_CLIPPED = 0.75
 # where readers say the sensor size came from when the file does not state it
@@ -61,6 +77,9 @@ class BosInput:
     frames_source : str
         Where the frames came from (``images.txt`` beside the events, ``--frames``, or
         the recording's own), as a real path.
+    cut : tuple of int
+        Indices (in ``intervals``) of the intervals the recording of the events was cut
+        in: they cover less than :data:`MIN_COVERAGE` of it, as densely as elsewhere.
     """
 
     events: EventArray
@@ -70,6 +89,7 @@ class BosInput:
     roi: tuple[int, int, int, int] | None
     source: str
     frames_source: str = ""
+    cut: tuple[int, ...] = ()
 
 
 def frame_intervals(frame_times: np.ndarray, t_first: int, t_last: int, *,
@@ -96,15 +116,16 @@ def frame_intervals(frame_times: np.ndarray, t_first: int, t_last: int, *,
     return np.stack([idx, lo[idx], hi[idx]], axis=1).astype(np.int64).reshape(-1, 3)
 
 
-def _covered(intervals: np.ndarray, t: np.ndarray, rec) -> np.ndarray:
-    """``intervals``, with a warning naming those the events ``t`` (sorted, µs) cover
-    less than :data:`MIN_COVERAGE` of while coming as densely as in the whole intervals:
-    a recording of the events cut there (the measured increment then holds only part of
-    the change and the flow comes out too small: half, for half an interval). Events that
-    begin late and sparse are the air starting to move, not a cut, and are not warned
-    about; a dense onset cannot be told from a cut, hence "if" in the warning."""
+def _cut(intervals: np.ndarray, t: np.ndarray, rec) -> tuple[int, ...]:
+    """Indices of the ``intervals`` the events ``t`` (sorted, µs) stop inside of, covering
+    less than :data:`MIN_COVERAGE` of it (:data:`MIN_START_COVERAGE` where they begin
+    inside it) while coming as densely as in the whole intervals, where at their rate
+    :data:`CUT_EVENTS` would have come in the rest, said in a warning: a recording of the events cut there (the measured increment then holds only
+    part of the change and the flow comes out too small: half, for half an interval).
+    Events that begin late and sparse are the air starting to move, not a cut, and are not
+    named; a dense onset cannot be told from a cut."""
     if not len(intervals):
-        return intervals
+        return ()
     lo, hi = intervals[:, 1], intervals[:, 2]
     t_first, t_last = int(t[0]), int(t[-1])
     covered = np.clip(np.minimum(hi, t_last + 1) - np.maximum(lo, t_first), 0, None)
@@ -112,19 +133,26 @@ def _covered(intervals: np.ndarray, t: np.ndarray, rec) -> np.ndarray:
     count = np.searchsorted(t, hi) - np.searchsorted(t, lo)
     full = cover >= 0.99
     if full.all() or not full.any():
-        return intervals
+        return ()
     rate = float(np.median(count[full] / (hi - lo)[full]))
-    cut = (cover < MIN_COVERAGE) & (count >= CUT_DENSITY * rate * covered)
+    least = np.where(hi > t_last + 1, MIN_COVERAGE, MIN_START_COVERAGE)
+    cut = ((cover < least) & (count >= CUT_DENSITY * rate * covered)
+           & (rate * ((hi - lo) - covered) >= CUT_EVENTS))
     if cut.any():
         listed = ", ".join(f"[{a}, {b}) us {100 * c:.0f} %" for a, b, c in
                            zip(lo[cut][:3], hi[cut][:3], cover[cut][:3], strict=True))
         more = f" and {int(cut.sum()) - 3} more" if cut.sum() > 3 else ""
         warnings.warn(EvmotionWarning(
             f"{rec}: the events stop or start inside frame intervals as densely as they "
-            f"come elsewhere ({listed} covered{more}): if their recording was cut there, "
-            "the flow of those intervals is too small by that share (--t0 / --t1 leave them "
-            "out)"), stacklevel=3)
-    return intervals
+            f"come elsewhere ({listed} covered{more}): their recording was cut there, and "
+            "the flow of those intervals, too small by that share, is written with no valid "
+            "pixel (--t0 / --t1 leave them out)"), stacklevel=3)
+    return tuple(int(k) for k in np.flatnonzero(cut))
+
+
+def _span_misfit(times: np.ndarray, t_first: int, t_last: int) -> float:
+    # how far (log ratio) the frames' span is from the events'
+    return abs(float(np.log(max(times[-1] - times[0], 1) / max(t_last - t_first, 1))))
 
 
 def _whole_times(images_txt: Path) -> bool:
@@ -227,8 +255,9 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         At most this many intervals (the first ones).
     time_unit : {"s", "ms", "us", "ns"}, optional
         Unit of the events' times where their file does not state it
-        (:func:`evmotion.io.read_events`), and of an ``images.txt``'s whole-number times
-        (decimal ones are seconds); other frames' times are read on their own.
+        (:func:`evmotion.io.read_events`), and of an ``images.txt``'s whole-number times;
+        its decimal times are seconds, or in ``time_unit`` where their span is then nearer
+        the events'. Other frames' times are read on their own.
 
     Raises
     ------
@@ -315,6 +344,13 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         roi = tuple(int(v) for v in roi)
         roi_mask(events.sensor_size, roi)
     t_first, t_last = int(events.t[0]), int(events.t[-1])
+    if ecd_list and time_unit not in (None, "s") and not _whole_times(listed):
+        # decimal times beside events read in time_unit: ECD's seconds, or that unit too
+        # (decimal milliseconds in both lists, probe)
+        alt = np.rint(times * (TIME_UNIT_US[time_unit] * 1e-6)).astype(np.int64)
+        if np.all(np.diff(alt) > 0) and _span_misfit(alt, t_first, t_last) < \
+                _span_misfit(times, t_first, t_last):
+            times = alt
     where = src / "images.txt" if (src / "images.txt").is_file() else src
     spacing = float(np.median(np.diff(times)))
     if spacing > MAX_FRAME_SPACING_US:
@@ -346,8 +382,20 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         warnings.warn(EvmotionWarning(
             f"{rec}: the events span {ev_span * 1e-6:g} s, the frames {fr_span * 1e-6:g} s"
             f"{hint}"), stacklevel=2)
-    intervals = _covered(frame_intervals(times, t_first, t_last, t0=t0, t1=t1,
-                                         max_intervals=max_intervals), events.t, rec)
+    elif spacing > SLOW_FRAME_SPACING_US:
+        warnings.warn(EvmotionWarning(
+            f"{where}: frames are {spacing * 1e-6:g} s apart (median), slower than a BOS "
+            "video runs: times in milliseconds read as seconds? The flow would be 1000x too "
+            "small; --time-unit ms reads events.txt's and images.txt's times in ms"),
+            stacklevel=2)
+    elif spacing < FAST_FRAME_SPACING_US:
+        warnings.warn(EvmotionWarning(
+            f"{where}: frames are {spacing:g} us apart (median), faster than a camera beside "
+            "an event sensor runs: times in seconds read in another unit (--time-unit)? "
+            "The flow would be as many times too large"), stacklevel=2)
+    intervals = frame_intervals(times, t_first, t_last, t0=t0, t1=t1,
+                                max_intervals=max_intervals)
+    cut = _cut(intervals, events.t, rec)
     if max_intervals is None:
         # the frames' intervals before the first event or after the last: still air, or
         # events recorded for part of the frames only; said, as the output leaves them out
@@ -374,7 +422,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
                              f"[{t_first}, {t_last}] us")
     _warn_clipped(images, intervals, src, roi)
     return BosInput(events=events, frames=images, frame_times=times, intervals=intervals,
-                    roi=roi, source=str(rec), frames_source=os.path.realpath(src))
+                    roi=roi, source=str(rec), frames_source=os.path.realpath(src), cut=cut)
 
 
 def _warn_clipped(images: np.ndarray, intervals: np.ndarray, src, roi) -> None:

@@ -17,7 +17,7 @@ estimate can be far off where few pixels change (the first interval of a startin
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,7 +36,7 @@ __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "check_registration
            "iter_bos_input", "registration_shift",
            "open_bos_output", "require_texture", "sequence_contrast_threshold",
            "sequence_threshold", "solve_bos_input", "solve_bos_into", "stored_warm_start",
-           "warn_startup", "warn_uncovered", "write_bos_output"]
+           "unmeasured_intervals", "warn_startup", "warn_uncovered", "write_bos_output"]
 
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
@@ -73,11 +73,14 @@ class BosRun:
 LOWEST_USUAL_C = 0.08
 
 
-def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
+def sequence_contrast_threshold(data: BosInput, *, samples: int = 15,
+                                exclude: Collection[int] = ()
                                 ) -> tuple[float | None, np.ndarray]:
     """Median of the per-interval contrast-threshold estimates over up to ``samples``
     selected intervals evenly spread over the sequence (intervals where the frames do not
-    change where events fire are skipped). Returns ``(C or None, estimates)``.
+    change where events fire are skipped, and those of ``exclude``, indices of
+    ``data.intervals``: :func:`unmeasured_intervals`, whose events under-count the change).
+    Returns ``(C or None, estimates)``.
 
     Examples
     --------
@@ -97,8 +100,11 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
 
     if samples < 1:
         raise ParameterError(f"samples must be >= 1, got {samples}")
-    pick = np.unique(np.linspace(0, len(data.intervals) - 1, min(samples, len(data.intervals)))
-                     .round().astype(int))
+    kept = np.setdiff1d(np.arange(len(data.intervals)), np.asarray(list(exclude), int))
+    if not kept.size:
+        kept = np.arange(len(data.intervals))
+    pick = kept[np.unique(np.linspace(0, kept.size - 1, min(samples, kept.size))
+                          .round().astype(int))]
     estimates, slopes, corrs = [], [], []
     for j in pick:
         i, t0, t1 = (int(v) for v in data.intervals[j])
@@ -147,20 +153,41 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15
 #: magnitude there 0.26-0.56x, the next two intervals' 0.68-1.07x) and 0.57-0.82 on two other
 #: renderers' scenes, the next intervals 0.91-1.11 of each other.
 STARTUP_GAIN = 0.8
+#: After a start-up interval, the next one is start-up too below this share of the settled
+#: gain (the median from the interval after it on). A third renderer's scenes (C 0.15-0.2,
+#: pixels starting at their reference) scored 0.80, 0.80, 0.80, 0.90, 0.93 there, their flow
+#: 0.68-0.81x of the settled intervals' where 0.80; the simulator's 1.01-1.18.
+STARTUP_FOLLOW_GAIN = 0.85
+#: Intervals whose event gain is below this share of the median of their neighbours' hold
+#: (next to) no events: an interval of still air or a gap, which tells nothing of the rate
+NEAR_EMPTY_GAIN = 0.25
+#: Intervals :func:`warn_startup` scores against the first
+STARTUP_CONTEXT = 8
 
 
-def warn_startup(data: BosInput) -> int | None:
+def unmeasured_intervals(data: BosInput) -> tuple[int, ...]:
+    """The selected intervals whose flow is no measurement, each said in a warning: the
+    sensor's start-up (:func:`warn_startup`) and those the recording was cut in
+    (``data.cut``). Indices of ``data.intervals``, sorted."""
+    return tuple(sorted(set(warn_startup(data)) | set(data.cut)))
+
+
+def warn_startup(data: BosInput) -> tuple[int, ...]:
     """Say when the events begin inside a selected frame interval and follow the frames'
-    change there at less than :data:`STARTUP_GAIN` of the rate of the next (up to four)
-    intervals: a sensor, or a simulator, that starts with the recording fires less until
-    its pixels' reference levels have spread over the threshold band, and the solver takes
-    the missing events for missing motion. The rate of an interval: its events' polarity
-    sums regressed on the frames' log difference, both Gaussian-smoothed (2 px), over the
-    ROI less an 8 px border. Returns the index (in ``data.intervals``) of the interval it
-    names, whose flow is no measurement (the solvers write it with no valid pixel), or
-    None: nothing said (the events begin before the selection, theirs disagree by more
-    than 1.5x as under flicker, or the share is higher) or, where fewer than two intervals
-    follow the one the events begin in, said that it cannot be told.
+    change there at less than :data:`STARTUP_GAIN` of the rate of the next intervals: a
+    sensor, or a simulator, that starts with the recording fires less until its pixels'
+    reference levels have spread over the threshold band, and the solver takes the missing
+    events for missing motion. The next interval is start-up too where its rate is below
+    :data:`STARTUP_FOLLOW_GAIN` of the settled one (the median from the interval after it
+    on). The rate of an interval: its events' polarity sums regressed on the frames' log
+    difference, both Gaussian-smoothed (2 px), over the ROI less an 8 px border; intervals
+    the recording was cut in (``data.cut``), and those of (next to) no events
+    (:data:`NEAR_EMPTY_GAIN`), tell nothing of it and are left out. Returns the indices (in
+    ``data.intervals``) of the intervals it names, whose flow is no measurement (the
+    solvers write them with no valid pixel): empty where nothing is said (the events begin
+    before the selection, the later rates disagree by more than 1.5x as under flicker, or
+    the share is higher) or, where fewer than two intervals follow the one the events
+    begin in, said that it cannot be told.
 
     Examples
     --------
@@ -172,12 +199,12 @@ def warn_startup(data: BosInput) -> int | None:
     >>> with warnings.catch_warnings(record=True):   # (it also says so in a warning)
     ...     first = warn_startup(load_bos_input("scene/"))
     >>> first   # the simulated sensor starts with the recording: its first interval
-    0
+    (0,)
     """
     first = int(data.events.t[0])
     starts = [k for k, (_, t0, t1) in enumerate(data.intervals) if t0 <= first < t1]
     if not starts:
-        return None
+        return ()
     if len(data.intervals) < starts[0] + 3:
         # nothing to tell it by (probe AM: two frames of a simulated scene gave 0.19x,
         # valid, unsaid)
@@ -188,23 +215,41 @@ def warn_startup(data: BosInput) -> int | None:
             "started with the recording, it fires less there until its pixels settle and "
             "that interval's flow comes out too small (0.26-0.56x on the simulator's "
             "scenes); frames over more of the recording tell"), stacklevel=2)
-        return None
+        return ()
     k0 = starts[0]
-    gains = [_event_gain(data, iv) for iv in data.intervals[k0:k0 + 5]]
-    later = np.asarray([g for g in gains[1:] if np.isfinite(g) and g > 0])
+    context = data.intervals[k0:k0 + STARTUP_CONTEXT + 1]
+    gains = np.array([_event_gain(data, iv) for iv in context])
+    usable = np.isfinite(gains) & (gains > 0)
+    usable[0] = False
+    usable[[k - k0 for k in data.cut if k0 < k < k0 + len(context)]] = False
+    if usable.any():
+        usable &= gains >= NEAR_EMPTY_GAIN * np.median(gains[usable])
+    later = gains[usable][:4]
     if len(later) < 2 or later.max() > 1.5 * later.min() or not np.isfinite(gains[0]):
-        return None
+        return ()
     share = float(gains[0] / np.median(later))
     if not share < STARTUP_GAIN:
-        return None
-    _, t0, t1 = (int(v) for v in data.intervals[k0])
+        return ()
+    named = [k0]
+    settled = gains[2:][usable[2:]]
+    if usable[1] and len(settled) >= 2:
+        follow = float(gains[1] / np.median(settled))
+        if follow < STARTUP_FOLLOW_GAIN:
+            named.append(k0 + 1)
+    _, t0, _ = (int(v) for v in data.intervals[k0])
+    t1 = int(data.intervals[named[-1], 2])
+    which = (f"the frame interval [{t0}, {t1}) us" if len(named) == 1 else
+             f"the frame interval [{t0}, {int(data.intervals[k0, 2])}) us")
+    also = ("" if len(named) == 1 else
+            f" (and the next, [{int(data.intervals[k0 + 1, 1])}, {t1}) us, at {follow:.2f} "
+            "of the settled rate)")
     warnings.warn(EvmotionWarning(
-        f"the events begin in the frame interval [{t0}, {t1}) us and follow the frames' "
-        f"change there at {share:.2f} of the next intervals' rate: a sensor (or a "
-        "simulator) that starts with the recording fires less until its pixels settle; "
-        "that interval's flow is too small (0.26-0.56x on the simulator's scenes) and is "
-        f"written with no valid pixel; --t0 {t1 * 1e-6:.6g} leaves it out"), stacklevel=2)
-    return k0
+        f"the events begin in {which} and follow the frames' change there at {share:.2f} "
+        f"of the next intervals' rate{also}: a sensor (or a simulator) that starts with the "
+        "recording fires less until its pixels settle; the flow there is too small "
+        f"(0.26-0.81x on simulated scenes) and is written with no valid pixel; --t0 "
+        f"{t1 * 1e-6:.6g} leaves {'it' if len(named) == 1 else 'them'} out"), stacklevel=2)
+    return tuple(named)
 
 
 #: Above this ratio of the frames' change (mean square of the smoothed log difference)
@@ -394,10 +439,11 @@ def _event_gain(data: BosInput, interval) -> float:
 
 
 def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, *,
-                       samples: int = 15) -> tuple[float | None, str, np.ndarray]:
+                       samples: int = 15, exclude: Collection[int] = ()
+                       ) -> tuple[float | None, str, np.ndarray]:
     """The C of a run: ``(C or None, source, per-interval estimates)``, the source being
-    ``"given"``, ``"median of N intervals"`` (:func:`sequence_contrast_threshold`) or
-    ``"none"``.
+    ``"given"``, ``"median of N intervals"`` (:func:`sequence_contrast_threshold`, without
+    the intervals of ``exclude``) or ``"none"``.
 
     Examples
     --------
@@ -410,13 +456,13 @@ def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, 
     """
     if contrast_threshold is not None:
         return float(contrast_threshold), "given", np.zeros(0)
-    c, est = sequence_contrast_threshold(data, samples=samples)
+    c, est = sequence_contrast_threshold(data, samples=samples, exclude=exclude)
     return c, (f"median of {est.size} intervals" if c is not None else "none"), est
 
 
 def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: int = 0,
                    init=None, workers: int = 1, progress: bool = False, scheduler=None,
-                   startup: int | None = None, **options) -> Iterator:
+                   unmeasured: Collection[int] = (), **options) -> Iterator:
     """The results of the selected frame intervals ``data.intervals[start:]``, in time
     order, each as soon as it is done (a chunk at a time with several workers).
 
@@ -430,9 +476,9 @@ def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: i
     init : BosResult or list of ndarray, optional
         Warm start of interval ``start`` (the previous interval's result or its
         :attr:`~evmotion.methods.bos.BosResult.params`).
-    startup : int, optional
-        The interval (an index of ``data.intervals``) :func:`warn_startup` named: its
-        result comes with no valid pixel.
+    unmeasured : collection of int
+        Intervals (indices of ``data.intervals``: :func:`unmeasured_intervals`) whose
+        results come with no valid pixel.
     workers, progress, scheduler, **options
         As :func:`solve_bos_input`.
 
@@ -466,19 +512,19 @@ def iter_bos_input(data: BosInput, contrast_threshold: float | None, *, start: i
                                     **options)
     else:
         results = _in_order(data, frames, times, contrast_threshold, init, progress, options)
-    if startup is None or startup < start:
-        return results
-    return _unmeasured_at(results, startup - start)
+    ks = {int(k) - start for k in unmeasured if k >= start}
+    return _unmeasured_at(results, ks) if ks else results
 
 
-def _unmeasured_at(results: Iterator, k: int) -> Iterator:
-    """``results`` with the ``k``-th one's ``valid`` all False (a flow that is no
-    measurement: :func:`warn_startup`); closing it closes ``results`` (a worker pool)."""
+def _unmeasured_at(results: Iterator, ks: set[int]) -> Iterator:
+    """``results`` with the ``valid`` of those at positions ``ks`` all False (flows that
+    are no measurement: :func:`unmeasured_intervals`); closing it closes ``results`` (a
+    worker pool)."""
     import dataclasses
 
     try:
         for i, res in enumerate(results):
-            yield dataclasses.replace(res, valid=np.zeros_like(res.valid)) if i == k else res
+            yield dataclasses.replace(res, valid=np.zeros_like(res.valid)) if i in ks else res
     finally:
         if hasattr(results, "close"):
             results.close()
@@ -555,10 +601,11 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     require_texture(data)
     warn_uncovered(data)
     check_registration(data)
-    startup = warn_startup(data)
-    c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples)
+    unmeasured = unmeasured_intervals(data)
+    c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples,
+                                            exclude=unmeasured)
     results = list(iter_bos_input(data, c, workers=workers, progress=progress,
-                                  scheduler=scheduler, startup=startup, **options))
+                                  scheduler=scheduler, unmeasured=unmeasured, **options))
     warn_underfit((r.fit_gain for r in results), single_solve_displacements(results))
     return BosRun(results, c, source, samples)
 
@@ -700,15 +747,15 @@ def _events_in(data: BosInput, t0: int, t1: int) -> int:
 
 def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
                    workers: int = 1, progress: bool = False, scheduler=None,
-                   startup: int | None = None, **options) -> list[dict]:
+                   unmeasured: Collection[int] = (), **options) -> list[dict]:
     """Solve every selected interval of ``data`` into ``out`` (:func:`open_bos_output`),
     in order, each written as soon as it is solved, and close it; on any error or
     interrupt ``out`` is aborted (an ``.h5`` keeps its ``.part`` for ``resume``). The
     intervals a resumed output already holds are checked against ``data``'s and kept, and
     the last one's stored solver state warm-starts the next, so the result is the file an
     uninterrupted run writes. Returns one summary row per interval (``{"t0_us", "t1_us",
-    "resumed": True}`` for the kept ones). Interval ``startup`` (an index of
-    ``data.intervals``, :func:`warn_startup`) is written with no valid pixel.
+    "resumed": True}`` for the kept ones). The intervals of ``unmeasured`` (indices of
+    ``data.intervals``, :func:`unmeasured_intervals`) are written with no valid pixel.
 
     Examples
     --------
@@ -742,7 +789,7 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
         init = stored_warm_start(out, start - 1) if start else None
         results = iter_bos_input(data, contrast_threshold, start=start, init=init,
                                  workers=workers, progress=progress, scheduler=scheduler,
-                                 startup=startup, **options)
+                                 unmeasured=unmeasured, **options)
         for interval, res in zip(data.intervals[start:], results, strict=True):
             rows.append(append_bos_result(out, data, interval, res))
             # (the run's one underfit warning, by the medians over the intervals solved)
