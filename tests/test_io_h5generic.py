@@ -173,3 +173,31 @@ def test_missing_or_uneven_event_fields_are_named(tmp_path):
             f[f"events/{k}"] = np.arange(10) % 2
     with pytest.raises(FormatError, match="fields differ in length: events/t 10, events/x 9"):
         read_events(tmp_path / "uneven.h5")
+
+
+@pytest.mark.parametrize("suffix", [".h5", ".npz"])
+def test_one_corrupt_time_is_named_not_taken_for_nanoseconds(tmp_path, capsys, suffix):
+    """One time of 2e17 at the end of a µs recording turned every time into ns (the
+    largest time decided the unit): 1,234,567 us read as 1,235, said nowhere but in --json
+    (probe). The unit is that of every time; the corrupt one is named, in one line."""
+    from evmotion.cli import main
+    from evmotion.errors import FormatError
+
+    rng = np.random.default_rng(0)
+    n = 5000
+    t = 1_234_567 + np.sort(rng.integers(0, 200_000, n))
+    t[-1] = 2 * 10 ** 17
+    x, y, p = rng.integers(0, 346, n), rng.integers(0, 260, n), rng.integers(0, 2, n)
+    path = tmp_path / f"glitch{suffix}"
+    if suffix == ".h5":
+        with h5py.File(path, "w") as f:
+            f["x"], f["y"], f["t"], f["p"] = x, y, t, p
+    else:
+        np.savez(path, x=x, y=y, t=t, p=p)
+    with pytest.raises(FormatError, match=r"event 4999 has t=200000000000000000, as "
+                                             r"microseconds past the year 5000, where the "
+                                             r"4,999 events before it reach \d+: 1 corrupt"):
+        read_events(path, sensor_size=(260, 346))
+    assert main(["info", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "nanoseconds" not in err

@@ -171,6 +171,13 @@ class EventArray:
             return
         self.check_order()
         if self.t[-1] > NS_EPOCH_US:
+            first = int(np.searchsorted(self.t, NS_EPOCH_US, side="right"))
+            if 2 * first > len(self):
+                # a few times past the year 5000 after many before: corrupt, not a unit
+                raise EventDataError(
+                    f"event {first} has t={int(self.t[first])}, as microseconds past the "
+                    f"year 5000, where the {first:,} events before it reach "
+                    f"{int(self.t[first - 1])}: {len(self) - first:,} corrupt time(s)?")
             raise EventDataError(
                 f"field 't' reaches {int(self.t[-1])}, as microseconds past the year 5000: "
                 "nanoseconds since the epoch? Give µs: (t + 500) // 1000, or "

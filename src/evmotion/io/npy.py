@@ -51,9 +51,10 @@ def _time_us(t: np.ndarray, unit: str | None, how: str = "given") -> tuple[np.nd
     if unit is None:
         unit = "s" if t.dtype.kind == "f" else "us"
         how = "inferred (float -> s, integer -> us)"
-        if unit == "us" and t.size and int(t.max()) > NS_EPOCH_US:
+        if unit == "us" and t.size and int(t.min()) > NS_EPOCH_US:
             # as µs beyond the year 5000: nanoseconds since the epoch (ROS, Metavision
-            # HDF5 exports and event_utils write them)
+            # HDF5 exports and event_utils write them). Every time, not the largest: one
+            # corrupt time had turned a recording's µs into ns, unsaid (probe)
             unit, how = "ns", "inferred (integer times past 1e17, as µs the year 5000+)"
     scale = TIME_UNIT_US.get(unit)
     if scale is None:
@@ -119,8 +120,15 @@ def _sparse_as_microseconds(t: np.ndarray, unit: str) -> tuple[float, float] | N
     """
     if not (unit.startswith("us (inferred") and t.dtype.kind in "iu" and t.size >= 1000):
         return None
-    span = (int(t.max()) - int(t.min())) * 1e-6
+    span = _bulk_span(t) * 1e-6
     return (t.size / span, span) if span > 10 and t.size / span < 1000 else None
+
+
+def _bulk_span(t: np.ndarray) -> float:
+    # the span of the times from that of their middle 99 %: one corrupt time far off made
+    # the recording look sparse, and the warning then named a wrong unit (probe)
+    lo, hi = np.percentile(t, [0.5, 99.5])
+    return (float(hi) - float(lo)) / 0.99
 
 
 def _sparse_as_seconds(t: np.ndarray, unit: str) -> tuple[float, float] | None:
@@ -139,7 +147,7 @@ def _sparse_as_seconds(t: np.ndarray, unit: str) -> tuple[float, float] | None:
     """
     if not (unit.startswith("s (inferred") and t.dtype.kind == "f" and t.size >= 1000):
         return None
-    span = float(t.max()) - float(t.min())
+    span = _bulk_span(t)
     return (t.size / span, span) if span > 1000 and t.size / span < 100 else None
 
 
