@@ -184,6 +184,16 @@ def test_bad_options_are_reported(edge_file, tmp_path, capsys):
                  "--filter-size", "4"]) == 2
     assert "--filter-size" in capsys.readouterr().err
     assert not (tmp_path / "x.h5").exists()
+    # huge values raised an OverflowError / TypeError traceback (--gap-ms 1e16, 1e20), a
+    # numpy error (--dx 1e308), or ran for minutes deaf to Ctrl-C (--dx 300; probe)
+    for opt, value in (("--gap-ms", "1e16"), ("--gap-ms", "1e300"), ("--dx", "1e308"),
+                       ("--dx", "300")):
+        extra = ["--dense", "robust"] if opt == "--gap-ms" else []
+        assert main(["flow", str(path), "--method", "triplet", "--out",
+                     str(tmp_path / "x.h5"), *extra, opt, value]) == 2
+        err = capsys.readouterr().err
+        assert f"{opt} must be at most" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x.h5").exists()
 
 
 @pytest.mark.parametrize("gt_dt", [1, 2])

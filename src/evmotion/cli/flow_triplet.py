@@ -138,12 +138,21 @@ def run(args) -> int:
     from evmotion.cli.options import header_event_count, read_kwargs
     from evmotion.events import fingerprint
     from evmotion.jitcache import compile_seconds
-    from evmotion.methods.triplet import default_ridge, dense_defaults
+    from evmotion.methods.bursts import MAX_GAP_US
+    from evmotion.methods.triplet import MAX_DX, default_ridge, dense_defaults
     from evmotion.methods.triplet_stream import TripletStream
     from evmotion.utils import progress, refine_total
 
     if args.video:
         raise ParameterError(f"--video {args.video}: written by --method multicm only")
+    # (bounds of the library's, said with the option's name before any reading)
+    if args.dx is not None and args.dx > MAX_DX:
+        raise ParameterError(f"--dx must be at most {MAX_DX:g} px (larger neighbourhoods "
+                             f"match unrelated edges at hundreds of times the cost), got "
+                             f"{args.dx:g}")
+    if args.gap_ms is not None and args.gap_ms * 1000 > MAX_GAP_US:
+        raise ParameterError(f"--gap-ms must be at most {MAX_GAP_US / 1000:g} ms (an hour), "
+                             f"got {args.gap_ms:g}")
     out = Path(args.out)
     png_dir = Path(args.png_dir) if args.png_dir else None
     if png_dir is not None and not args.resume:

@@ -28,7 +28,7 @@ from numba import njit
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray, check_stream_order, concatenate, sensor_pixels
 
-__all__ = ["BURST_GAP_US", "BurstMeans", "burst_means"]
+__all__ = ["BURST_GAP_US", "MAX_GAP_US", "BurstMeans", "burst_means"]
 
 # Default gap: longer than the spacing of one edge's events at the simulated scenes'
 # speeds (70-300 px/s), shorter than the time between edges (chosen on seed 0 of
@@ -67,6 +67,11 @@ def _bursts(x, y, t, p, seq0, gap, first, last, tsum, cnt, seq, ox, oy, op, ofir
     return m
 
 
+#: Longest gap between bursts (an hour): beyond, int64 time arithmetic nears overflow and
+#: no pixel's burst lasts that long
+MAX_GAP_US = 3_600_000_000
+
+
 class BurstMeans:
     """Streaming burst means: ``process(chunk)`` returns the bursts that ended, in time order.
 
@@ -96,8 +101,11 @@ class BurstMeans:
         h, w = (int(v) for v in sensor_size)
         if h <= 0 or w <= 0:
             raise ParameterError(f"sensor_size must be positive (height, width), got {(h, w)}")
-        if not (np.isfinite(gap_us) and int(gap_us) == gap_us and gap_us >= 1):
-            raise ParameterError(f"gap_us must be an integer >= 1 microsecond, got {gap_us}")
+        if not (isinstance(gap_us, (int, float, np.integer, np.floating))
+                and not isinstance(gap_us, bool) and np.isfinite(float(gap_us))
+                and 1 <= gap_us <= MAX_GAP_US and int(gap_us) == gap_us):
+            raise ParameterError(f"gap_us must be an integer from 1 microsecond to "
+                                 f"{MAX_GAP_US} (an hour), got {gap_us}")
         self.sensor_size = (h, w)
         self.gap_us = int(gap_us)
         shape = (2, h, w)

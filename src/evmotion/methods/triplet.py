@@ -76,6 +76,7 @@ from evmotion.utils import whole_number
 
 __all__ = [
     "LSQ_DX",
+    "MAX_DX",
     "LSQ_FILTER_SIZE",
     "LSQ_TAU_US",
     "NORMAL_KAPPA",
@@ -214,6 +215,13 @@ class TripletFlow:
                              for c in cols))
 
 
+#: Largest neighbourhood radius d_x: 800 neighbours a pixel, 100x the thesis' sqrt(2) in
+#: time; a radius of 300 px ran for minutes without progress and did not answer Ctrl-C
+#: (probe), 1e308 raised a numpy error
+MAX_DX = 16.0
+_MAX_DX_WHY = "larger neighbourhoods match unrelated edges at hundreds of times the cost"
+
+
 def neighbour_offsets(dx: float) -> np.ndarray:
     """Integer pixel offsets ``d`` with ``0 < ||d|| <= dx``, as an (M, 2) int32 array (x, y).
 
@@ -222,8 +230,9 @@ def neighbour_offsets(dx: float) -> np.ndarray:
     >>> len(neighbour_offsets(np.sqrt(2)))
     8
     """
-    if not np.isfinite(dx) or dx < 1.0:
-        raise ParameterError(f"dx must be >= 1 px (a neighbour must exist), got {dx}")
+    if not np.isfinite(dx) or dx < 1.0 or dx > MAX_DX:
+        raise ParameterError(f"dx must be from 1 px (a neighbour must exist) to {MAX_DX:g} px "
+                             f"({_MAX_DX_WHY}), got {dx}")
     r = int(np.floor(dx + 1e-9))
     g = np.arange(-r, r + 1)
     ox, oy = np.meshgrid(g, g, indexing="xy")
