@@ -226,6 +226,7 @@ def run(args) -> int:
     c0 = compile_seconds()
 
     no_focus: list[int] = []
+    early: list[int] = []
 
     def emit(wins) -> None:
         nonlocal n_windows
@@ -234,6 +235,8 @@ def run(args) -> int:
             n_windows += 1
             if win.no_focus:
                 no_focus.append(win.index)
+            if win.early and win.flow is not None:
+                early.append(win.index)
 
     try:
         chunk = first
@@ -286,6 +289,13 @@ def run(args) -> int:
                   f"{no_focus[0]}) have no focus: their dense flow aligns their events less "
                   f"than {100 * (MIN_CONTRAST_GAIN - 1):.0f} % better than chance (noise or "
                   "no texture); no pixel of them is valid")
+    if early:
+        warn_line(f"{args.file}: {len(early)} of {n_windows} windows (first: {early[0]}) "
+                  f"begin within 2 (d_t + tau) = {tri.history_us / 1000:g} ms of the first "
+                  "event, before the matcher can find the slow steps' triplets: where the "
+                  "motion is slow their flow comes out too fast (2.4x at 30 px/s in the "
+                  "first 50 ms); --t0 later in a longer recording, or a shorter --dt-ms for "
+                  "fast motion, avoids it")
     if tri.lit_events:
         warn_line(f"{args.file}: {tri.lit_events:,} of {n_events:,} events "
                   f"({100 * tri.lit_events / max(n_events, 1):.0f} %) come in stretches lit "
@@ -307,7 +317,8 @@ def run(args) -> int:
             "events": n_events, "duration_s": (t_last - t_first) * 1e-6,
             "valid_fraction": n_valid / max(n_events, 1),
             "mean_triplets": n_trip / max(n_events, 1),
-            "windows": n_windows, "no_focus_windows": no_focus, "overflow": tri.overflow,
+            "windows": n_windows, "no_focus_windows": no_focus,
+            "early_windows": early, "overflow": tri.overflow,
             "lit_events": tri.lit_events,
             "state_bytes": tri.matcher.state_nbytes,
             "wall_s": wall, "compile_s": compiled, "run_s": run_s,
