@@ -18,8 +18,8 @@ with event support (elsewhere the flow is the regularizer's interpolation), unit
 (contrast threshold, objective, events, seconds) as extra datasets; ``.flo`` (Middlebury
 displacement in px, ``NAME.flo.json`` with dt/t0/t1) and ``.png`` (DSEC 16-bit
 displacement) hold the flow only, one file per interval (a pattern such as
-``bos_{:05d}.flo`` for several). ``--png-dir`` adds ``q_XXXX.png``, ``flow_XXXX.png``
-and ``p_XXXX.png`` per interval (with .h5 / .npz). Each interval is written as soon as it
+``bos_{:05d}.flo`` for several). ``--png-dir`` adds ``q_00000.png``, ``flow_00000.png``
+and ``p_00000.png`` per interval (with .h5 / .npz). Each interval is written as soon as it
 is solved: an interrupted ``.h5`` run keeps ``OUT.part`` (with each interval's solver
 state, ``warm/scale<s>``), and the same command with ``--resume`` continues it to the file
 an uninterrupted run writes.

@@ -417,7 +417,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
                                         if v is not None)
         raise ParameterError(f"no frame interval [t_i, t_i+1) overlaps the events' time span "
                              f"[{t_first}, {t_last}] us{span} (an interval must lie wholly "
-                             "within them)" if t0 is not None or t1 is not None else
+                             "within --t0 / --t1 and overlap the events)" if t0 is not None or t1 is not None else
                              f"no frame interval overlaps the events' time span "
                              f"[{t_first}, {t_last}] us")
     _warn_clipped(images, intervals, src, roi)
