@@ -137,6 +137,8 @@ def test_triplet_dense_flow_of_a_moving_scene_keeps_its_mask():
                   show_progress=False).events
     with warnings.catch_warnings():
         warnings.simplefilter("error", PoorFitWarning)
+        # (a 50 ms recording: the slow steps' triplets are missing, said apart)
+        warnings.filterwarnings("ignore", "1 window.* slow steps' triplets", PoorFitWarning)
         res = estimate_flow_triplet(ev, dense="robust")
     # valid where the events support a flow (18.6 % of this sensor), not the 9-px
     # filter's spread into the still background around them

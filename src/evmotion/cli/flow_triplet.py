@@ -291,11 +291,10 @@ def run(args) -> int:
                   "no texture); no pixel of them is valid")
     if early:
         warn_line(f"{args.file}: {len(early)} of {n_windows} windows (first: {early[0]}) "
-                  f"begin within 2 (d_t + tau) = {tri.history_us / 1000:g} ms of the first "
-                  "event, before the matcher can find the slow steps' triplets: where the "
-                  "motion is slow their flow comes out too fast (2.4x at 30 px/s in the "
-                  "first 50 ms); --t0 later in a longer recording, or a shorter --dt-ms for "
-                  "fast motion, avoids it")
+                  "hold events whose slow steps' triplets cannot be found (their partners lie "
+                  "before the recording, or past its end too where --dense lsq/robust read "
+                  "it backwards): where the motion is that slow their flow is biased; a "
+                  "longer recording, or a shorter --dt-ms for fast motion, avoids it")
     if tri.lit_events:
         warn_line(f"{args.file}: {tri.lit_events:,} of {n_events:,} events "
                   f"({100 * tri.lit_events / max(n_events, 1):.0f} %) come in stretches lit "
