@@ -312,8 +312,10 @@ class InPlaneWarp(FusedAdjoint, Warp):
     ``x' = x - dt (v + ((h_z + 1) R(phi) - Id)(x - c))``; theta = (vx, vy [px/s],
     phi [rad/s], hz [1/s]): the per-second rate matrix ``(h_z + 1) R(phi) - Id`` rotates at
     ``(h_z + 1) sin(phi)`` rad/s and zooms at ``(h_z + 1) cos(phi) - 1`` per s, which are
-    phi and hz only when both are small (se2 / similarity give the rates themselves).
-    div f = 2 - 2 (h_z + 1) cos(phi) (A.25)."""
+    phi and hz only when both are small (se2 / similarity give the rates themselves; a
+    2 rad/s roll is phi = -1.107, hz = 1.236). The rotation is the image's (the thesis'
+    A.22): the camera's angular velocity about the optical axis, se2's and rotation's
+    ``wz``, is minus it. div f = 2 - 2 (h_z + 1) cos(phi) (A.25)."""
 
     #: The divergence is the same for every event ((3.10), (A.25)): the collapse
     #: penalties evaluate it once.
