@@ -143,3 +143,25 @@ def test_a_regularized_estimate_held_at_rest_restarts_from_the_plain_optimum(mon
     res = eg.estimate_egomotion(ev, warp="zoom", regularizer="divergence", t_ref="start")
     assert res.params[0] == pytest.approx(2.0, abs=0.1) and res.valid
     assert res.cost < stuck.cost
+
+
+def test_a_regularizer_references_the_warp_at_the_start_by_default(tmp_path):
+    """With t_ref at the window's middle (the default since it is more accurate), the
+    collapse penalties of the window's two halves cancel: a zoom collapsed (hz -7.7, det J
+    0.03) with a divergence penalty of 0 (probe). With a regularizer the default is the
+    start, where the penalties are defined; another time is warned about."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.egomotion import estimate_egomotion, reference_time
+    from evmotion.sim import simulate
+
+    assert reference_time(None, None) == "mid" and reference_time(None, "rcad") == "start"
+    ev = simulate("zoom", duration_s=0.05, sensor_size=(60, 80), seed=0,
+                  show_progress=False).events
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = estimate_egomotion(ev, "zoom", regularizer="divergence", maps=False)
+    assert res.t_ref_us == int(ev.t[0])
+    with pytest.warns(EvmotionWarning, match="t_ref='mid' with the divergence regularizer"):
+        estimate_egomotion(ev, "zoom", regularizer="divergence", t_ref="mid", maps=False)

@@ -87,8 +87,10 @@ def add_common(p, objectives=None, regularizers=REGULARIZERS) -> None:
                    help="with --reg: use this data set's thesis weights (Sec. 3.6.1) instead "
                         "of the window's (default: the window's)")
     add_camera_arguments(p)
-    p.add_argument("--t-ref", default="mid", choices=["start", "mid", "end"],
-                   help="reference time of the warp within each window (default mid)")
+    p.add_argument("--t-ref", default=None, choices=["start", "mid", "end"],
+                   help="reference time of the warp within each window (default: "
+                        "egomotion mid, or start with --reg, whose collapse penalties are "
+                        "defined for it; segment and landscape start)")
     p.add_argument("--format", default=None, help="input format (default: detected)")
     add_hot_pixel_argument(p)
 
@@ -245,6 +247,13 @@ def run(args) -> int:
     from evmotion.utils import progress
 
     check_common(args)
+    if args.reg is not None and args.t_ref not in (None, "start"):
+        warn_line(f"--t-ref {args.t_ref} with --reg {args.reg}: the collapse penalties are "
+                  "defined for a warp referenced at the window's start; after it, the parts "
+                  "of the window before and after penalize opposite motions and partly "
+                  "cancel (a zoom collapsed with a divergence penalty of 0): --t-ref start, "
+                  "the default with --reg, is the safe choice")
+    args.t_ref = args.t_ref or ("start" if args.reg else "mid")
     if args.warm_start and args.workers > 1:
         raise ParameterError(f"--warm-start runs the windows in sequence; it does not apply "
                              f"with --workers {args.workers}")

@@ -61,6 +61,7 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    args.t_ref = args.t_ref or "start"  # (egomotion's default is mid)
     from evmotion.cli.egomotion import check_common, load_events_and_camera
     from evmotion.core.warps import make_warp
     from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN

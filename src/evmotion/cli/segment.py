@@ -76,6 +76,7 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    args.t_ref = args.t_ref or "start"  # (egomotion's default is mid)
     from evmotion.cli import print_json
     from evmotion.cli.egomotion import check_common, check_scheduler, load_events_and_camera
     from evmotion.cli.options import scheduler_client

@@ -57,6 +57,7 @@ Examples
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -65,7 +66,7 @@ from evmotion.core.collapse import regularizer_maps
 from evmotion.core.objectives import OBJECTIVES
 from evmotion.core.optim import OptimResult, landscape, minimize
 from evmotion.core.warps import Warp
-from evmotion.errors import ParameterError
+from evmotion.errors import EvmotionWarning, ParameterError
 from evmotion.events import EventArray, require_events
 from evmotion.jitcache import compile_seconds
 from evmotion.methods.cmax import (
@@ -109,6 +110,7 @@ __all__ = [
     "default_bounds",
     "estimate_egomotion",
     "make_cost",
+    "reference_time",
 ]
 
 #: BFGS restarts for the average-timestamp objectives, whose kinks (a ratio of event
@@ -255,8 +257,9 @@ class EgomotionOptions:
         ``lambda`` (dimensionless, the penalty is per window); None: derived from the
         window, or the thesis' for ``dataset``.
     optimizer : {"bfgs", "newton-cg", "adam", "tpe"}
-    t_ref : {"start", "mid", "end"} or int
-        Reference time of the warp; an int is absolute, µs.
+    t_ref : {"start", "mid", "end"} or int or None
+        Reference time of the warp; an int is absolute, µs. None:
+        :func:`reference_time`.
     seed : int
         Seed of the TPE sampler.
     starts : list of arrays, optional
@@ -293,7 +296,7 @@ class EgomotionOptions:
     regularizer: str | None = None
     weight: float | dict | None = None
     optimizer: str = "bfgs"
-    t_ref: str | int = "mid"
+    t_ref: str | int | None = None
     seed: int = 0
     starts: list | None = None
     bounds: tuple | None = None
@@ -339,10 +342,32 @@ def _checked_bounds(bounds, w: Warp) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def reference_time(t_ref: str | int | None, regularizer: str | None) -> str | int:
+    """The warp's reference time of an estimate: ``t_ref``, or by default ``"mid"``
+    (``"start"`` with a collapse ``regularizer``, whose penalties are defined for it;
+    another time with one is warned about).
+
+    Examples
+    --------
+    >>> reference_time(None, None), reference_time(None, "divergence")
+    ('mid', 'start')
+    """
+    if t_ref is None:
+        return "start" if regularizer else "mid"
+    if regularizer and not (isinstance(t_ref, str) and t_ref == "start"):
+        warnings.warn(EvmotionWarning(
+            f"t_ref={t_ref!r} with the {regularizer} regularizer: the collapse penalties are "
+            "defined for a warp referenced at the window's start; after it, the parts of "
+            "the window before and after penalize opposite motions and partly cancel (a "
+            "zoom collapsed with a divergence penalty of 0): t_ref='start', the default "
+            "with a regularizer, is the safe choice"), stacklevel=3)
+    return t_ref
+
+
 def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
                        objective: str = "variance", regularizer: str | None = None,
                        weight: float | None = None, optimizer: str = "bfgs", K=None,
-                       t_ref: str | int = "mid", init=None, seed: int = 0, *,
+                       t_ref: str | int | None = None, init=None, seed: int = 0, *,
                        starts=None, bounds=None, n_samples: int | None = None,
                        n_iter: int = 100, lr: float = 0.05, kernel: str = "bilinear",
                        sigma: float = 1.0, use_polarity: bool = False,
@@ -372,8 +397,12 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     optimizer : {"bfgs", "newton-cg", "adam", "tpe"}
     K : array (3, 3), optional
         Intrinsics (pixels), required by ``rotation`` unless ``events.meta["K"]`` holds it.
-    t_ref : {"start", "mid", "end"} or int
-        Reference time of the warp; an int is absolute µs.
+    t_ref : {"start", "mid", "end"} or int, optional
+        Reference time of the warp; an int is absolute µs. Default ``"mid"`` (the more
+        accurate: ``benchmarks/results/egomotion_tref.md``), and ``"start"`` with a
+        ``regularizer``, whose collapse penalties are defined for it (at the middle the
+        halves of the window penalize opposite motions and cancel: a zoom collapsed with a
+        divergence penalty of 0); other times are refused with one.
     init : array (P,), optional
         Starting parameters (default: identity warp).
     seed : int
@@ -423,6 +452,7 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     if o.regularizer is None and o.weight not in (None, 0, 0.0):
         raise ParameterError(f"weight={o.weight!r} weighs a regularizer, but regularizer is "
                              "None: give regularizer= too (or leave weight out)")
+    o = replace(o, t_ref=reference_time(o.t_ref, o.regularizer))
     c0 = compile_seconds()
     t0 = time.perf_counter()
     cost, t_ref_us = make_cost(events, warp, o.objective, o.regularizer, o.weight, K, o.t_ref,
