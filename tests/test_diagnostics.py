@@ -121,6 +121,22 @@ def test_collapse_geometry_and_concentration():
     d = collapse_diagnostics(tr, [0.0, 0.0], (0.0, 0.01), spread, point)
     assert d["collapsed"] and d["top_share_after"] == 1.0
     assert not collapse_diagnostics(tr, [0.0, 0.0], (0.0, 0.01), spread, spread)["collapsed"]
+    # a small scene on a large sensor, sharpened: its edges fill 1 % of the sensor, not of
+    # the pixels it covers (a 240x180 texture declared on 1280x720 read as a collapse; probe)
+    big = make_warp("translation", (720, 1280))
+    blurred = np.zeros((720, 1280))
+    blurred[:180, :240] = rng.poisson(1.0, (180, 240))
+    sharp = np.zeros((720, 1280))
+    rows = rng.integers(0, 180, 2000)
+    cols = rng.integers(0, 240, 2000)
+    np.add.at(sharp, (rows, cols), blurred.sum() / 2000)
+    d = collapse_diagnostics(big, [150.0, -80.0], (0.0, 0.01), blurred, sharp)
+    assert not d["collapsed"] and d["top_share_after"] < 0.9
+    whole = np.zeros((720, 1280))
+    whole[:180, :240] = 1.0
+    point = np.zeros((720, 1280))
+    point[90, 120] = whole.sum()
+    assert collapse_diagnostics(big, [0.0, 0.0], (0.0, 0.01), whole, point)["collapsed"]
 
 
 # ------------------------------------------------------------------- model fit (bullet 3)

@@ -75,6 +75,8 @@ COLLAPSE_MIN_DET = 0.2
 #: concentrated is not). A sharp estimate of 200 dots puts 63 % there; a collapse onto a
 #: point or a line nearly all.
 COLLAPSE_MAX_TOP_SHARE = 0.9
+#: ... the top share of the pixels the unwarped events cover
+TOP_SHARE_FRAC = 0.01
 
 #: Explained share below which the fit is poor (:func:`fit_diagnostics`).
 POOR_FIT_SHARE = 0.55
@@ -119,13 +121,13 @@ def effective_pixels(x, y, shape) -> float:
     return n * n / ss if ss > 0 else 0.0
 
 
-def _top_share(iwe: np.ndarray, frac: float = 0.01) -> float:
-    """Share of the (non-negative part of the) image's mass in its top ``frac`` pixels."""
+def _top_share(iwe: np.ndarray, k: int) -> float:
+    """Share of the (non-negative part of the) image's mass in its top ``k`` pixels."""
     a = np.clip(np.asarray(iwe, dtype=np.float64).ravel(), 0.0, None)
     total = a.sum()
     if total <= 0:
         return 0.0
-    k = max(1, int(math.ceil(frac * a.size)))
+    k = min(max(1, int(k)), a.size)
     return float(np.partition(a, a.size - k)[a.size - k:].sum() / total)
 
 
@@ -152,7 +154,7 @@ def collapse_diagnostics(warp: Warp, theta, span: tuple[float, float],
     dict
         ``min_det``, ``max_det`` (area amplification over the window), ``max_displacement_px``
         and ``sensor_diagonal_px``, ``top_share_before``/``top_share_after`` (mass in the top
-        1 % of IWE pixels, when the IWEs are given), ``collapsed`` (bool) and ``reasons``
+        1 % of the pixels the identity IWE covers, when the IWEs are given), ``collapsed`` (bool) and ``reasons``
         (list of str).
     """
     h, w = warp.sensor_size
@@ -186,11 +188,14 @@ def collapse_diagnostics(warp: Warp, theta, span: tuple[float, float],
             reasons.append(f"pixels move {out['max_displacement_px']:.3g} px over the window, "
                            f"more than the sensor diagonal ({diag:.0f} px)")
     if iwe_before is not None and iwe_after is not None:
-        before, after = _top_share(iwe_before), _top_share(iwe_after)
+        # 1 % of the pixels the events cover, not of the sensor: a 240x180 scene declared
+        # on a 1280x720 sensor, sharply translated, put 90 % on 1 % of the sensor (probe)
+        k = math.ceil(TOP_SHARE_FRAC * np.count_nonzero(np.asarray(iwe_before) > 0))
+        before, after = _top_share(iwe_before, k), _top_share(iwe_after, k)
         out["top_share_before"], out["top_share_after"] = before, after
         if after > COLLAPSE_MAX_TOP_SHARE and after > 2.0 * before:
             reasons.append(f"{100 * after:.0f} % of the warped events on 1 % of the pixels "
-                           f"(identity warp: {100 * before:.0f} %)")
+                           f"the events cover (identity warp: {100 * before:.0f} %)")
     out["collapsed"] = bool(reasons)
     out["reasons"] = reasons
     return out
