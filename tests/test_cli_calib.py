@@ -247,6 +247,15 @@ def test_k_principal_point_off_the_sensor_is_said(ecd, tmp_path, capsys, k, warn
         assert "240 x 180 px sensor" in err and "FX,FY,CX,CY" in err
 
 
+@pytest.mark.parametrize("k, warned", [("2,2,120,90", True), ("8,8,120,90", True),
+                                       ("50,50,120,90", False)])
+def test_k_of_an_implausible_field_of_view_is_said(ecd, tmp_path, capsys, k, warned):
+    """--K 2,2,125,86 on 240 x 180 (a 177 degree field of view) ran unsaid (probe)."""
+    assert main(["flow", str(ecd), "--out", str(tmp_path / "f.h5"), *MULTICM, "--K", k]) == 0
+    err = capsys.readouterr().err
+    assert ("degree field of view" in err) == warned, err
+
+
 def test_k_principal_point_far_off_the_sensor_is_refused(ecd, tmp_path, capsys):
     """Probe AR: --K 199,198,1320,110 was only said, and the estimate came out valid."""
     assert main(["flow", str(ecd), "--out", str(tmp_path / "f.h5"), *MULTICM,

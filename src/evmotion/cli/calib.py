@@ -15,10 +15,14 @@ from __future__ import annotations
 import argparse
 import contextlib
 import itertools
+import math
 from collections.abc import Iterator
 
 from evmotion.cli.options import existing_input, float_list
 from evmotion.errors import CalibrationError, ParameterError
+
+#: Widest field of view across the sensor --K is taken without a word, degrees
+MAX_FOV_DEG = 170.0
 
 __all__ = ["add_camera_arguments", "add_hot_pixel_argument", "camera_for", "undistort_for",
            "undistorted_chunks", "check_camera_args", "read_for_windows"]
@@ -113,6 +117,16 @@ def _check_principal_point(k, sensor_size) -> None:
 
         warn_line(f"--K: the principal point (cx, cy) = ({cx:g}, {cy:g}) px lies outside the "
                   f"{w} x {h} px sensor; the order is FX,FY,CX,CY")
+    # a focal length whose field of view across the sensor exceeds 170 degrees: a lens
+    # no event camera carries (--K 2,2,125,86 on 240x180 ran, unsaid; probe)
+    fov = max(2 * math.degrees(math.atan(0.5 * w / k[0])),
+              2 * math.degrees(math.atan(0.5 * h / k[1])))
+    if fov > MAX_FOV_DEG:
+        from evmotion.cli import warn_line
+
+        warn_line(f"--K: fx, fy = {k[0]:g}, {k[1]:g} px give a {fov:.0f} degree field of view "
+                  f"across the {w} x {h} px sensor: focal lengths in mm, or another sensor's? "
+                  "(the order is FX,FY,CX,CY in px)")
 
 
 def _grid(cam, events, undistort: bool) -> str:
