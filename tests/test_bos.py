@@ -270,9 +270,17 @@ def test_contrast_threshold_refused_when_events_do_not_follow_the_frames():
     for bad in (float("nan"), 1.5):
         with pytest.raises(ParameterError, match="min_correlation"):
             estimate_contrast_threshold(ev, f0, f1, t0_us=t0, t1_us=t1, min_correlation=bad)
+    still = np.clip(np.rint(still), 0, np.iinfo(f0.dtype).max).astype(f0.dtype)
     with pytest.raises(EventDataError):
         estimate_bos(ev, f0, t0_us=t0, t1_us=t1, frame_next=still, data_term="scale",
                      iterations=5)
+    # the normalized term goes on without C, uncalibrated: said (it was silent; probe)
+    from evmotion.errors import EvmotionWarning
+
+    with pytest.warns(EvmotionWarning, match="magnitude is not calibrated"):
+        res = estimate_bos(ev, f0, t0_us=t0, t1_us=t1, frame_next=still,
+                           data_term="normalized", iterations=5)
+    assert not res.calibrated
 
 
 def test_recovery_poisson_scale_term(case):
@@ -398,6 +406,11 @@ def test_errors(case):
         estimate_bos(ev, f0, param="sobel", **kw)
     with pytest.raises(ParameterError, match="unknown option"):
         estimate_bos(ev, f0, lamda_tv=1.0, **kw)
+    # frames of two dtypes are read on two scales (an int64 frame beside a uint8 one gave
+    # a flow 7x too large, unsaid; probe)
+    f8 = np.clip(f0 * 255, 0, 255).astype(np.uint8)
+    with pytest.raises(ParameterError, match="frame is int64 but frame_next uint8"):
+        estimate_bos(ev, f8.astype(np.int64), frame_next=f8, **kw)
     few = EventArray(x=[0], y=[0], t=[5], p=[1], sensor_size=(128, 128))
     with pytest.raises(EmptyWindowError):
         estimate_bos(few, f0, roi=(64, 64, 32, 32), **kw)

@@ -1042,6 +1042,12 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions, increm
         if img is not None and np.asarray(img).dtype.kind not in "uif":
             raise ParameterError(f"{name} has dtype {np.asarray(img).dtype}: give grey levels "
                                  "(uint8 / uint16) or a float relative intensity")
+    if frame_next is not None and np.asarray(frame).dtype != np.asarray(frame_next).dtype:
+        # grey levels are scaled by their dtype (frame_to_float): an int64 frame beside a
+        # uint8 one differed 256x in log intensity, the flow 7x too large, unsaid (probe)
+        raise ParameterError(f"frame is {np.asarray(frame).dtype} but frame_next "
+                             f"{np.asarray(frame_next).dtype}: their grey levels are read on "
+                             "the scale of their dtype, so the two must share one")
     if np.shape(frame) != tuple(sensor):
         raise EventDataError(f"frame has shape {np.shape(frame)} but the events' sensor is "
                              f"{tuple(sensor)} (H, W): frames and events do not overlap in size")
@@ -1070,10 +1076,13 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions, increm
             c = estimate_contrast_threshold(ev, frame, frame_next, t0_us=int(t0_us),
                                             t1_us=int(t1_us), roi=r, sigma=o.sigma_meas,
                                             log_eps=o.log_eps)
-        except EventDataError:
+        except EventDataError as exc:
             # the normalized term needs no C: its result is then flagged uncalibrated
             if o.data_term == "scale":
                 raise
+            warnings.warn(EvmotionWarning(
+                f"{exc}; the flow's magnitude is not calibrated (calibrated False): its "
+                "direction is the normalized term's, its size is not px/s"), stacklevel=3)
     if increment is None and o.data_term == "scale" and c is None:
         raise ParameterError("data_term='scale' needs contrast_threshold or frame_next "
                              "(to estimate it)")
