@@ -41,9 +41,10 @@ burst, at the mean time of its events, :mod:`evmotion.methods.bursts`), whose ti
 symmetric, and fits the flow over 41 x 41 px re-weighted with Tukey's biweight
 (:func:`dense_robust_fit`). Simulated translation / rotation / zoom, AEE over MultiCM's on
 the same windows (``benchmarks/results/triplet_accuracy_summary.md``), dt = 1 and dt = 4 at
-250-300 px/s: thesis mean 24 / 11 / 8.9 and 157 / 6.2 / 3.7; ``dense="lsq"`` 5.2 / 2.3 /
-2.2 and 33 / 1.9 / 1.4; ``dense="robust"`` 0.74 / 1.40 / 1.48 and 3.10 / 1.25 / 0.99; at a
-quarter of that speed ``dense="robust"`` 0.60 / 1.03 / 0.98 and 2.69 / 2.14 / 2.13.
+250-300 px/s: thesis mean 24 / 11 / 9.1 and 157 / 6.2 / 3.7; ``dense="lsq"`` 6.2 / 2.4 /
+2.7 and 36 / 1.8 / 1.3; ``dense="robust"`` 0.79 / 1.28 / 1.54 and 2.93 / 1.18 / 0.93; at a
+quarter of that speed ``dense="robust"`` 0.14 / 0.54 / 0.49 and 2.47 / 2.12 / 2.06 (the
+first 2 (d_t + tau) of each stream read backwards, :func:`two_sided`).
 
 Streaming dense output, window by window in bounded memory:
 :func:`evmotion.methods.triplet_stream.iter_flow_triplet`.
