@@ -300,6 +300,12 @@ def test_multicm_refuses_an_infinite_weight_and_another_sensors_start():
     ev = _noise(3000)
     with pytest.raises(ParameterError, match="0 <= lam < inf"):
         estimate_flow(ev, lam=float("inf"))
+    # each bound broken is named alone (one message had listed all five; probe)
+    for kw, said in ((dict(lam=float("nan")), r"^need 0 <= lam < inf, got lam=nan$"),
+                     (dict(max_iter=0), r"^need max_iter >= 1, got max_iter=0$"),
+                     (dict(n_scales=0), r"^need 1 <= n_scales <= finest_level, got n_scales=0")):
+        with pytest.raises(ParameterError, match=said):
+            estimate_flow(ev, **kw)
     other = EventArray(x=ev.x // 2, y=ev.y // 2, t=ev.t, p=ev.p,
                        sensor_size=(ev.sensor_size[0] // 2 + 1, ev.sensor_size[1] // 2 + 1))
     with warnings.catch_warnings():

@@ -85,7 +85,7 @@ def _read_one_window(path: Path, t0_us: int | None, t1_us: int | None) -> FlowSe
         t0_us, t1_us = side["t0_us"], side["t1_us"]
     elif t0_us is None or t1_us is None or t1_us <= t0_us:
         raise ParameterError(f"{path}: no {sidecar_path(path).name} beside it, so no time "
-                             "interval; give t0/t1 in µs (t1 > t0)")
+                             "interval; give t0_us and t1_us (t1_us > t0_us)")
     if kind == "flo":
         disp = read_flo(path)
         valid = np.isfinite(disp).all(axis=2)

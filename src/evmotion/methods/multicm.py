@@ -756,13 +756,17 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
                              f"tiles per side, more than the {max(events.sensor_size)} px "
                              "of the sensor: tiles under a pixel fit nothing (at most "
                              f"{int(np.log2(max(events.sensor_size))) + 1} here)")
-    # (lam = inf passed 'lam >= 0' and ended in numpy's invalid-value warnings: probe)
-    if (not 1 <= o.n_scales <= o.finest_level or o.max_iter < 1
-            or not 0 <= o.lam < float("inf") or o.transport_cell < 1 or not 0 <= o.tol < 1):
-        raise ParameterError(f"need 1 <= n_scales <= finest_level, max_iter >= 1, 0 <= lam < inf, "
-                             f"transport_cell >= 1, 0 <= tol < 1; got n_scales={o.n_scales}, "
-                             f"finest_level={o.finest_level}, max_iter={o.max_iter}, "
-                             f"lam={o.lam}, transport_cell={o.transport_cell}, tol={o.tol}")
+    # (lam = inf passed 'lam >= 0' and ended in numpy's invalid-value warnings: probe); the
+    # first bound broken is named alone (one message listing all five read as a puzzle)
+    for ok, need, got in (
+            (1 <= o.n_scales <= o.finest_level, "1 <= n_scales <= finest_level",
+             f"n_scales={o.n_scales}, finest_level={o.finest_level}"),
+            (o.max_iter >= 1, "max_iter >= 1", f"max_iter={o.max_iter}"),
+            (0 <= o.lam < float("inf"), "0 <= lam < inf", f"lam={o.lam}"),
+            (o.transport_cell >= 1, "transport_cell >= 1", f"transport_cell={o.transport_cell}"),
+            (0 <= o.tol < 1, "0 <= tol < 1", f"tol={o.tol}")):
+        if not ok:
+            raise ParameterError(f"need {need}, got {got}")
     if len(events) < 10 or events.t[-1] <= events.t[0]:
         raise EmptyWindowError(f"window has {len(events)} events spanning "
                                f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
