@@ -127,3 +127,17 @@ def test_the_cli_error_line_is_capped():
     line = _one_line(OSError(36, "File name too long", "x" * 5_000_000))
     assert len(line) < MAX_ERROR_CHARS + 60 and "characters] ..." in line
     assert _one_line(ValueError("short\nmessage")) == "short message"
+
+
+def test_egomotion_names_a_warp_that_is_neither_a_name_nor_a_warp():
+    # warp=None raised "AttributeError: 'NoneType' object has no attribute 'n_params'"
+    # six frames deep (probe)
+    from evmotion import estimate_egomotion
+    from evmotion.errors import ParameterError
+    from evmotion.sim import simulate
+
+    ev = simulate("translation", duration_s=0.02, sensor_size=(40, 50),
+                  show_progress=False).events
+    for bad in (None, 3):
+        with pytest.raises(ParameterError, match=r"warp must be a name \(affine, .*got"):
+            estimate_egomotion(ev, warp=bad)

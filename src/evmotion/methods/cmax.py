@@ -592,6 +592,9 @@ def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str 
                 raise CalibrationError("the rotation warp needs the camera intrinsics: pass K= "
                                        "(3x3) or a calibration file (--calib)")
         warp = make_warp(warp, events.sensor_size, K=K)
+    elif not isinstance(warp, Warp):
+        raise ParameterError(f"warp must be a name ({', '.join(sorted(WARPS))}) or a Warp, "
+                             f"got {warp!r}")
     t = events.t
     t_ref_us = resolve_t_ref(t_ref, t)
     dt = (t - t_ref_us).astype(np.float64) * 1e-6
