@@ -165,3 +165,6 @@ def test_a_regularizer_references_the_warp_at_the_start_by_default(tmp_path):
     assert res.t_ref_us == int(ev.t[0])
     with pytest.warns(EvmotionWarning, match="t_ref='mid' with the divergence regularizer"):
         estimate_egomotion(ev, "zoom", regularizer="divergence", t_ref="mid", maps=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EvmotionWarning)  # the start as a time: no word
+        assert reference_time(int(ev.t[0]), "rcad", int(ev.t[0])) == int(ev.t[0])

@@ -342,10 +342,12 @@ def _checked_bounds(bounds, w: Warp) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def reference_time(t_ref: str | int | None, regularizer: str | None) -> str | int:
+def reference_time(t_ref: str | int | None, regularizer: str | None,
+                   t_first: int | None = None) -> str | int:
     """The warp's reference time of an estimate: ``t_ref``, or by default ``"mid"``
     (``"start"`` with a collapse ``regularizer``, whose penalties are defined for it;
-    another time with one is warned about).
+    another time with one is warned about; ``t_first``, the window's first event time in
+    µs, is the start too).
 
     Examples
     --------
@@ -354,7 +356,9 @@ def reference_time(t_ref: str | int | None, regularizer: str | None) -> str | in
     """
     if t_ref is None:
         return "start" if regularizer else "mid"
-    if regularizer and not (isinstance(t_ref, str) and t_ref == "start"):
+    at_start = (t_ref == "start" if isinstance(t_ref, str)
+                else t_first is not None and int(t_ref) == int(t_first))
+    if regularizer and not at_start:
         warnings.warn(EvmotionWarning(
             f"t_ref={t_ref!r} with the {regularizer} regularizer: the collapse penalties are "
             "defined for a warp referenced at the window's start; after it, the parts of "
@@ -452,7 +456,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     if o.regularizer is None and o.weight not in (None, 0, 0.0):
         raise ParameterError(f"weight={o.weight!r} weighs a regularizer, but regularizer is "
                              "None: give regularizer= too (or leave weight out)")
-    o = replace(o, t_ref=reference_time(o.t_ref, o.regularizer))
+    o = replace(o, t_ref=reference_time(o.t_ref, o.regularizer,
+                                        int(events.t[0]) if len(events) else None))
     c0 = compile_seconds()
     t0 = time.perf_counter()
     cost, t_ref_us = make_cost(events, warp, o.objective, o.regularizer, o.weight, K, o.t_ref,
