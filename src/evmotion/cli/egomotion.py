@@ -243,17 +243,13 @@ def _panel(r) -> bytes:
 def run(args) -> int:
     from evmotion.cli import print_json, warn_line
     from evmotion.cli.options import scheduler_client
+    from evmotion.methods.egomotion import reference_time
     from evmotion.parallel import imap_windows
     from evmotion.utils import progress
 
     check_common(args)
-    if args.reg is not None and args.t_ref not in (None, "start"):
-        warn_line(f"--t-ref {args.t_ref} with --reg {args.reg}: the collapse penalties are "
-                  "defined for a warp referenced at the window's start; after it, the parts "
-                  "of the window before and after penalize opposite motions and partly "
-                  "cancel (a zoom collapsed with a divergence penalty of 0): --t-ref start, "
-                  "the default with --reg, is the safe choice")
-    args.t_ref = args.t_ref or ("start" if args.reg else "mid")
+    # the library's rule: mid, or start with a regularizer (another time with one: warned)
+    args.t_ref = reference_time(args.t_ref, args.reg)
     if args.warm_start and args.workers > 1:
         raise ParameterError(f"--warm-start runs the windows in sequence; it does not apply "
                              f"with --workers {args.workers}")

@@ -120,10 +120,11 @@ def _cut(intervals: np.ndarray, t: np.ndarray, rec) -> tuple[int, ...]:
     """Indices of the ``intervals`` the events ``t`` (sorted, µs) stop inside of, covering
     less than :data:`MIN_COVERAGE` of it (:data:`MIN_START_COVERAGE` where they begin
     inside it) while coming as densely as in the whole intervals, where at their rate
-    :data:`CUT_EVENTS` would have come in the rest, said in a warning: a recording of the events cut there (the measured increment then holds only
-    part of the change and the flow comes out too small: half, for half an interval).
-    Events that begin late and sparse are the air starting to move, not a cut, and are not
-    named; a dense onset cannot be told from a cut."""
+    :data:`CUT_EVENTS` would have come in the rest, said in a warning: a recording of the
+    events cut there (the measured increment then holds only part of the change and the
+    flow comes out too small: half, for half an interval). Events that begin late and
+    sparse are the air starting to move, not a cut, and are not named; a dense onset
+    cannot be told from a cut."""
     if not len(intervals):
         return ()
     lo, hi = intervals[:, 1], intervals[:, 2]
@@ -415,9 +416,10 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         span = " within " + " / ".join(f"{name} {v} us" for name, v in (("--t0", t0),
                                                                         ("--t1", t1))
                                         if v is not None)
+        selected = t0 is not None or t1 is not None
         raise ParameterError(f"no frame interval [t_i, t_i+1) overlaps the events' time span "
                              f"[{t_first}, {t_last}] us{span} (an interval must lie wholly "
-                             "within --t0 / --t1 and overlap the events)" if t0 is not None or t1 is not None else
+                             "within --t0 / --t1 and overlap the events)" if selected else
                              f"no frame interval overlaps the events' time span "
                              f"[{t_first}, {t_last}] us")
     _warn_clipped(images, intervals, src, roi)

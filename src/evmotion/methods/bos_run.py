@@ -236,19 +236,16 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
         follow = float(gains[1] / np.median(settled))
         if follow < STARTUP_FOLLOW_GAIN:
             named.append(k0 + 1)
-    _, t0, _ = (int(v) for v in data.intervals[k0])
-    t1 = int(data.intervals[named[-1], 2])
-    which = (f"the frame interval [{t0}, {t1}) us" if len(named) == 1 else
-             f"the frame interval [{t0}, {int(data.intervals[k0, 2])}) us")
+    _, t0, t1 = (int(v) for v in data.intervals[k0])
+    end = int(data.intervals[named[-1], 2])
     also = ("" if len(named) == 1 else
-            f" (and the next, [{int(data.intervals[k0 + 1, 1])}, {t1}) us, at {follow:.2f} "
-            "of the settled rate)")
+            f" (and the next, [{t1}, {end}) us, at {follow:.2f} of the settled rate)")
     warnings.warn(EvmotionWarning(
-        f"the events begin in {which} and follow the frames' change there at {share:.2f} "
+        f"the events begin in the frame interval [{t0}, {t1}) us and follow the frames' change there at {share:.2f} "
         f"of the next intervals' rate{also}: a sensor (or a simulator) that starts with the "
         "recording fires less until its pixels settle; the flow there is too small "
         f"(0.26-0.81x on simulated scenes) and is written with no valid pixel; --t0 "
-        f"{t1 * 1e-6:.6g} leaves {'it' if len(named) == 1 else 'them'} out"), stacklevel=2)
+        f"{end * 1e-6:.6g} leaves {'it' if len(named) == 1 else 'them'} out"), stacklevel=2)
     return tuple(named)
 
 

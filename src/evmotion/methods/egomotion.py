@@ -406,7 +406,7 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         accurate: ``benchmarks/results/egomotion_tref.md``), and ``"start"`` with a
         ``regularizer``, whose collapse penalties are defined for it (at the middle the
         halves of the window penalize opposite motions and cancel: a zoom collapsed with a
-        divergence penalty of 0); other times are refused with one.
+        divergence penalty of 0); another time with one is warned about.
     init : array (P,), optional
         Starting parameters (default: identity warp).
     seed : int

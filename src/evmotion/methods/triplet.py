@@ -327,6 +327,12 @@ class TripletMatcher:
         self._t_last: int | None = None
         self.events_seen = 0
 
+    def fresh(self) -> TripletMatcher:
+        """A matcher of the same parameters that has seen no event."""
+        return TripletMatcher(self.sensor_size, self.dx, self.dt_us, self.tau_us,
+                              quadruple=self.quadruple, depth=self.depth,
+                              normal_kappa=self.normal_kappa)
+
     @property
     def state_nbytes(self) -> int:
         """Bytes of state; constant for a given sensor size and depth."""
@@ -422,7 +428,8 @@ def two_sided(events: EventArray, flow: TripletFlow, matcher: TripletMatcher,
     flow : TripletFlow
         Their forward flow (:meth:`TripletMatcher.process`); not modified.
     matcher : TripletMatcher
-        A fresh matcher of the forward one's parameters (it runs the reversed stream).
+        The matcher ``flow`` came from: a :meth:`~TripletMatcher.fresh` one of its
+        parameters runs the reversed stream.
     t_start : int
         The stream's first event time, µs.
     backwards : bool
@@ -447,7 +454,7 @@ def two_sided(events: EventArray, flow: TripletFlow, matcher: TripletMatcher,
     ...                 sensor_size=(10, 10))
     >>> m = TripletMatcher((10, 10), dt_us=15_000, tau_us=1_000)
     >>> fwd = m.process(ev)
-    >>> both, _ = two_sided(ev, fwd, TripletMatcher((10, 10), dt_us=15_000, tau_us=1_000), 0)
+    >>> both, _ = two_sided(ev, fwd, m, 0)
     >>> fwd.valid.tolist(), both.valid.tolist(), float(both.vx[0])
     ([False, False, True], [True, False, True], 100.0)
     """
@@ -465,7 +472,7 @@ def two_sided(events: EventArray, flow: TripletFlow, matcher: TripletMatcher,
     seg = events[:n]
     rev = EventArray(seg.x[::-1], seg.y[::-1], (int(t[0]) + int(t[n - 1])) - seg.t[::-1],
                      seg.p[::-1], seg.sensor_size, validate=False)
-    back = matcher.process(rev)
+    back = matcher.fresh().process(rev)
     arrays = [None if a is None else a.copy() for a in flow._arrays()]
     # (vx, vy, valid, n_triplets, nx, ny): the velocities change sign backwards
     for a, b, sign in zip(arrays, back._arrays(), (-1, -1, 0, 0, -1, -1), strict=True):
@@ -840,29 +847,29 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     if windows is None:
         windows = [Window(0, events.t_start, events.t_end + 1, 0, len(events))]
     windows = [_as_window(events, k, win) for k, win in enumerate(windows)]
-    def matcher() -> TripletMatcher:
-        return TripletMatcher(events.sensor_size, dx, dt_us, tau_us, quadruple=quadruple,
-                              depth=depth, normal_kappa=normal_kappa)
-
-    m = matcher()
+    m = TripletMatcher(events.sensor_size, dx, dt_us, tau_us, quadruple=quadruple, depth=depth,
+                       normal_kappa=normal_kappa)
     stop = max((w.stop for w in windows), default=len(events))
     # the dense windows take the flow of the stream's first 2 (d_t + tau) from the stream
-    # run backwards (two_sided), which reads up to twice that far
+    # run backwards (two_sided), which reads up to twice that far: the events' for lsq, the
+    # burst means' for robust (the thesis' mean is not reversed)
     start_end = events.t_start + 2 * history_us(m.dt_us, m.tau_us)
     reach = max(stop, int(np.searchsorted(events.t, start_end)))
     ahead = m.process(events[:reach])
-    flow = ahead[:stop]
-    dflow, incomplete = two_sided(events[:reach], ahead, matcher(), events.t_start,
-                                  backwards=dense != "mean")
+    flow = dflow = ahead[:stop]
     bursts = bflow = None
     if dense == "robust":
         bursts = burst_means(events, gap_us)  # bursts running past the last window complete
         t_end = max((w.t1 for w in windows), default=events.t_start)
         cut = int(np.searchsorted(bursts.t, t_end))
         breach = max(cut, int(np.searchsorted(bursts.t, start_end)))
-        bahead = matcher().process(bursts[:breach])
-        bflow, _ = two_sided(bursts[:breach], bahead, matcher(), events.t_start)
+        bm = m.fresh()
+        bflow, incomplete = two_sided(bursts[:breach], bm.process(bursts[:breach]), bm,
+                                      events.t_start)
         bursts, bflow = bursts[:cut], bflow[:cut]
+    else:
+        dflow, incomplete = two_sided(events[:reach], ahead, m, events.t_start,
+                                      backwards=dense == "lsq")
     h, w = events.sensor_size
     vmax = max_normal_speed(dx, tau_us)
     flows = np.zeros((len(windows), h, w, 2), np.float32)

@@ -493,11 +493,7 @@ class TripletStream:
         ev = concatenate([e for e, _ in parts], validate=False)
         fl = triplet.TripletFlow.concatenate([f for _, f in parts])
         m = self._burst_matcher if self._bursts is not None else self.matcher
-        fresh = triplet.TripletMatcher(self.sensor_size, m.dx, m.dt_us, m.tau_us,
-                                       quadruple=m.quadruple, depth=m.depth,
-                                       normal_kappa=m.normal_kappa)
-        fl, self._incomplete = triplet.two_sided(ev, fl, fresh, self._start,
-                                                 backwards=self.dense != "mean")
+        fl, self._incomplete = triplet.two_sided(ev, fl, m, self._start)
         start = 0
         for e, _ in parts:
             self._queue.append((e, fl[start:start + len(e)]))
