@@ -196,6 +196,24 @@ def test_egomotion_job_draws_its_panel_and_sends_no_images(rec, tmp_path):
     assert read_png(png).shape[1] > 2 * ev.width
 
 
+def test_egomotion_panel_title_says_when_not_a_measurement(rec):
+    """A window's panel, looked at alone, says when its estimate is not a measurement."""
+    import dataclasses
+
+    from evmotion.cli.egomotion import _panel_title
+    from evmotion.io import read_events
+    from evmotion.methods.egomotion import estimate_egomotion
+
+    ev = read_events(rec)
+    r = estimate_egomotion(ev.window(ev.windows_by_duration(50_000)[0]), "translation")
+    assert r.valid and "NOT A MEASUREMENT" not in _panel_title(r)
+    assert _panel_title(r).startswith(f"translation, {r.n_events:,} events, [")
+    assert _panel_title(dataclasses.replace(r, collapsed=True)).endswith(
+        "NOT A MEASUREMENT: event collapse (valid = False)")
+    poor = dataclasses.replace(r, diagnostics={**r.diagnostics, "too_few_events": True})
+    assert "NOT A MEASUREMENT: poor fit" in _panel_title(poor)
+
+
 def test_egomotion_png_panels_of_first_windows_less_failed(rec, tmp_path):
     """--max-png N draws the first N windows; one that failed has no panel and does not
     pass its turn to a later window (whose images were not kept)."""

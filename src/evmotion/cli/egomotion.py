@@ -233,11 +233,20 @@ def _panel(r) -> bytes:
             panels.append(_signed_rgb(img))
             titles.append(f"{name}\n0 everywhere: none in a {r.warp}" if peak < 1e-12
                           else f"{name}\nred +, blue -, full at +-{peak:.3g}")
+    return images.panel_png(panels, titles, ncols=2, suptitle=_panel_title(r))
+
+
+def _panel_title(r) -> str:
+    """The panel's title: the window, and the verdict where the estimate is not a
+    measurement (a picture looked at alone must not pass for one)."""
     # whole µs: epoch times in ms at 6 digits read [1.58916e+12, 1.58916e+12] (probe Y)
     t0, t1 = (int(v) for v in r.window_us)
-    return images.panel_png(panels, titles, ncols=2,
-                            suptitle=f"{r.warp}, {r.n_events:,} events, [{t0:,}, {t1:,}] us "
-                                     f"({(t1 - t0) / 1e3:.3g} ms)")
+    title = f"{r.warp}, {r.n_events:,} events, [{t0:,}, {t1:,}] us ({(t1 - t0) / 1e3:.3g} ms)"
+    if not r.valid:
+        why = ("event collapse" if r.collapsed else "poor fit" if r.poor_fit
+               else "non-finite parameters")
+        title += f"\nNOT A MEASUREMENT: {why} (valid = False)"
+    return title
 
 
 def run(args) -> int:
