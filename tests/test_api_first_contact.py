@@ -205,6 +205,8 @@ def test_arguments_that_failed_deep_inside_are_named():
         (lambda: write_events("s.h5", ev.to_structured()), "from_structured"),
         (lambda: fwl(ev, np.zeros((*ev.sensor_size, 2)), mask=np.ones((3, 3), bool)),
          "mask has shape"),  # IndexError
+        (lambda: fwl(ev, np.zeros((*ev.sensor_size, 2)), mask=np.full(ev.sensor_size, 0.5)),
+         r"mask must be boolean \(or 0 / 1\); it holds 0.5 at"),  # read as True
         (lambda: fwl(ev, np.zeros((*ev.sensor_size, 2)), t_ref_us="mid"), "t_ref_us must"),
         (lambda: estimate_flow(ev, init=np.zeros((120, 90, 2))), "H and W swapped"),
         (lambda: estimate_flow(ev, n_scales=3, time_aware="upwind", time_aware_scales=9),

@@ -112,6 +112,18 @@ class RmsError:
 
 
 # --------------------------------------------------------------------------- masks
+def _as_mask(mask) -> np.ndarray:
+    """``mask`` as booleans; other values than 0 and 1 (a weight map, NaN) are refused
+    rather than read as True."""
+    arr = np.asarray(mask)
+    if arr.dtype != bool:
+        bad = ~np.isin(arr, (0, 1))
+        if bad.any():
+            raise ParameterError(f"mask must be boolean (or 0 / 1); it holds "
+                                 f"{arr[bad].flat[0].item()!r} at {int(bad.sum())} pixels")
+    return arr.astype(bool)
+
+
 def valid_gt_mask(gt: np.ndarray, *, zero_is_invalid: bool = False) -> np.ndarray:
     """Pixels whose ground-truth flow is usable.
 
@@ -247,7 +259,7 @@ def flow_metrics(
     flow, gt = _pair(flow, gt)
     sel = valid_gt_mask(gt)
     if mask is not None:
-        mask = np.asarray(mask, dtype=bool)
+        mask = _as_mask(mask)
         if mask.shape != sel.shape:
             raise ParameterError(f"mask has shape {mask.shape}, expected {sel.shape} (H, W)")
         sel &= mask
@@ -508,7 +520,7 @@ def fwl(
     warped = np.asarray(accumulate(xw, yw, shape, weights=None, kernel=kernel, sigma=sigma))
     identity = np.asarray(accumulate(x, y, shape, weights=None, kernel=kernel, sigma=sigma))
     if mask is not None:
-        mask = np.asarray(mask, dtype=bool)
+        mask = _as_mask(mask)
         if mask.shape != tuple(shape):
             raise ParameterError(f"mask has shape {mask.shape}, expected the sensor's "
                                  f"{tuple(shape)}")
