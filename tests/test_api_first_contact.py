@@ -193,6 +193,7 @@ def test_arguments_that_failed_deep_inside_are_named():
     from evmotion import estimate_egomotion, estimate_flow, write_events
     from evmotion.errors import ParameterError
     from evmotion.eval.metrics import fwl
+    from evmotion.methods.flowresult import FlowResult
     from evmotion.methods.triplet import TripletMatcher, estimate_flow_triplet
 
     ev = _noise(2000)
@@ -208,6 +209,9 @@ def test_arguments_that_failed_deep_inside_are_named():
         (lambda: fwl(ev, np.zeros((*ev.sensor_size, 2)), mask=np.full(ev.sensor_size, 0.5)),
          r"mask must be boolean \(or 0 / 1\); it holds 0.5 at"),  # read as True
         (lambda: fwl(ev, np.zeros((*ev.sensor_size, 2)), t_ref_us="mid"), "t_ref_us must"),
+        (lambda: FlowResult(np.zeros((4, 5, 2), np.float32), 0, 10, 5, (), {}, 1.0, [], {},
+                            None, 0, 0).displacement(float("nan")),
+         "'t0_us' must be finite"),  # ValueError: cannot convert float NaN to integer
         (lambda: estimate_flow(ev, init=np.zeros((120, 90, 2))), "H and W swapped"),
         (lambda: estimate_flow(ev, n_scales=3, time_aware="upwind", time_aware_scales=9),
          "time_aware_scales"),

@@ -15,6 +15,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray, Window
+from evmotion.utils import check_finite
 
 __all__ = ["SUPPORT_MIN_EVENTS", "SUPPORT_RADIUS", "FlowResult", "estimate_or_skip",
            "event_box_counts", "event_support", "skipped_window"]
@@ -106,8 +107,9 @@ class FlowResult:
         >>> r.displacement(along_streamlines=True)[0, 0].tolist()  # constant flow: 1 px
         [1.0, 1.0]
         """
-        t0 = self.t0_us if t0_us is None else int(t0_us)
-        t1 = self.t1_us if t1_us is None else int(t1_us)
+        # fractional µs (times converted from seconds) are taken to the µs below
+        t0 = self.t0_us if t0_us is None else int(check_finite("t0_us", t0_us))
+        t1 = self.t1_us if t1_us is None else int(check_finite("t1_us", t1_us))
         if t1 <= t0:
             raise ParameterError(f"displacement: need t1_us > t0_us, got [{t0}, {t1}]")
         d = self.flow.astype(np.float64) * ((t1 - t0) * 1e-6)
