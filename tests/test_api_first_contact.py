@@ -201,6 +201,8 @@ def test_arguments_that_failed_deep_inside_are_named():
         (lambda: estimate_egomotion(ev, warp="translation", optimizer="tpe",
                                     bounds=([0], [1])), "bounds must be"),  # broadcast error
         (lambda: TripletMatcher(ev.sensor_size, dx="a"), "dx must be"),  # ufunc isfinite
+        (lambda: TripletMatcher((20_000, 20_000)),
+         r"sensor_size height must be a whole number in 1\.\.16384, got 20000"),
         (lambda: TripletMatcher(ev.sensor_size).process(ev.to_structured()),
          "events must be an EventArray"),  # no attribute 'sensor_size'
         (lambda: write_events("s.h5", ev.to_structured()), "from_structured"),

@@ -12,7 +12,7 @@ import pytest
 import evmotion.io as eio
 import evmotion.sim as sim
 from evmotion.cli import main
-from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.errors import EmptyWindowError, EventDataError, ParameterError
 from evmotion.eval import event_flow_metrics
 from evmotion.io.eventflow import EventFlowWriter, read_event_flow
 from evmotion.io.flowfiles import FlowSequence, FlowWriter, read_gt_flow
@@ -145,6 +145,9 @@ def test_library_refuses_bad_input():
         event_flow_metrics(bad, gt)
     with pytest.raises(ParameterError, match="frames"):
         event_flow_metrics(ev, gt, frames=0)
+    # seconds for µs were floored to 0 and scored against the first window
+    with pytest.raises(EventDataError, match="field 't' has fractional values"):
+        event_flow_metrics({**ev, "t": ev["t"] * 1e-6 + 1e-3}, gt)
 
 
 # ------------------------------------------------------------------------- the CLI

@@ -26,6 +26,9 @@ def test_unsorted_and_out_of_sensor_rejected():
         EventArray([0, 7], [0, 0], [1, 3], [0, 1], (2, 2))
     with pytest.raises(EventDataError, match="NaN"):
         EventArray([0, np.nan], [0, 0], [1, 3], [0, 1], (2, 2))
+    # the readers' bound: beyond it a side failed later as a 74 GiB allocation
+    with pytest.raises(EventDataError, match=r"\(2000000000, 2000000000\) is outside 1\.\.16384"):
+        EventArray([1, 2], [1, 1], [0, 10], [1, 1], (2_000_000_000, 2_000_000_000))
 
 
 def test_slice_time_matches_mask():

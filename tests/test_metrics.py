@@ -138,6 +138,20 @@ def test_empty_selection_gives_nan_and_is_skipped_by_aggregate():
         aggregate_flow_metrics([a], weight="frames")
 
 
+def test_integer_flows_are_compared_in_float():
+    """uint8 differences wrapped (4 px read 252) and int16 squares overflowed."""
+    from evmotion.eval.metrics import angular_error_deg, endpoint_error
+
+    est, gt = np.zeros((2, 3, 2), np.uint8), np.zeros((2, 3, 2), np.uint8)
+    gt[..., 0] = 4
+    assert np.allclose(endpoint_error(est, gt), 4.0)
+    a, b = np.zeros((1, 1, 2), np.int16), np.zeros((1, 1, 2), np.int16)
+    a[..., 0], b[..., 0] = 200, 190
+    assert np.allclose(angular_error_deg(a, b), angular_error_deg(a.astype(float),
+                                                                  b.astype(float)))
+    assert angular_error_deg(a, b)[0, 0] < 0.02
+
+
 def test_bad_inputs_raise_clear_errors():
     est, gt = _random_pair()
     with pytest.raises(ParameterError, match="shape"):

@@ -93,6 +93,15 @@ def test_mask_and_nan_are_drawn_in_the_invalid_colour():
         flow_to_rgb(flow, max_magnitude=0.0)
 
 
+def test_float32_flow_draws_as_its_float64_copy():
+    """The default scale (the largest |flow|) put a float32 flow's fastest pixels just
+    beyond the rim, drawn at 75 %."""
+    f = np.zeros((4, 4, 2), np.float32)
+    f[..., 0], f[..., 1] = 30, -10
+    assert flow_to_rgb(f)[0, 0].tolist() == flow_to_rgb(f.astype(np.float64))[0, 0].tolist()
+    assert flow_to_rgb(f)[0, 0].max() == 255
+
+
 def test_colorwheel_image_legend():
     img = colorwheel_image(101)
     assert img.shape == (101, 101, 3)

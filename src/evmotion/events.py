@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from evmotion.catalog import NS_EPOCH_US
+from evmotion.catalog import MAX_SENSOR_SIDE, NS_EPOCH_US
 from evmotion.errors import EmptyWindowError, EventDataError, ParameterError, UnsortedError
 from evmotion.utils import whole_number
 
@@ -30,6 +30,7 @@ __all__ = [
     "Window",
     "concatenate",
     "make_windows",
+    "timestamps_us",
     "events_for_windows",
 ]
 
@@ -116,7 +117,7 @@ class EventArray:
     def __post_init__(self) -> None:
         self.x = _coord(self.x, "x")
         self.y = _coord(self.y, "y")
-        self.t = _timestamps(self.t)
+        self.t = timestamps_us(self.t)
         self.p = _polarity(self.p)
         h, w = _sensor_size(self.sensor_size)
         self.sensor_size = (h, w)
@@ -126,8 +127,11 @@ class EventArray:
                 raise EventDataError(
                     f"field '{name}' has shape {getattr(self, name).shape}, expected ({n},) like 't'"
                 )
-        if h <= 0 or w <= 0:
-            raise EventDataError(f"sensor_size must be positive (height, width), got {(h, w)}")
+        if not (0 < h <= MAX_SENSOR_SIDE and 0 < w <= MAX_SENSOR_SIDE):
+            # the readers' bound: a side beyond it is a corrupt or swapped value, which
+            # failed later as a 74 GiB allocation (probe AU)
+            raise EventDataError(f"sensor_size (height, width) = {(h, w)} is outside "
+                                 f"1..{MAX_SENSOR_SIDE} px per side")
         if self.validate:
             self.check()
 
@@ -641,9 +645,20 @@ def _coord(a, name: str) -> np.ndarray:
 _MAX_ABS_T = 1 << 62
 
 
-def _timestamps(t) -> np.ndarray:
+def timestamps_us(t) -> np.ndarray:
     """``t`` as contiguous int64 µs, refusing what the conversion would change: fractions
-    (seconds given for µs would all become 0), NaN, values beyond +-2^62 (uint64 wraps)."""
+    (seconds given for µs would all become 0), NaN, values beyond +-2^62 (uint64 wraps),
+    with :class:`~evmotion.errors.EventDataError` naming field ``'t'``.
+
+    Examples
+    --------
+    >>> timestamps_us(np.array([1.0, 2.0])).tolist()
+    [1, 2]
+    >>> timestamps_us([0.001])
+    Traceback (most recent call last):
+    evmotion.errors.EventDataError: field 't' has fractional values (t[0]=0.001): timestamps \
+are integer microseconds; from seconds: np.round(t * 1e6).astype(np.int64)
+    """
     a = np.asarray(t)
     if a.dtype == np.int64:
         return np.ascontiguousarray(a)

@@ -21,6 +21,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.eval.metrics import NPE_THRESHOLDS
+from evmotion.events import timestamps_us
 
 if TYPE_CHECKING:
     from evmotion.io.eventflow import EventFlow
@@ -154,6 +155,8 @@ def event_flow_metrics(
     EmptyWindowError
         No event, or no event with both a flow and ground truth (the message gives the
         events' and the ground truth's time spans).
+    EventDataError
+        Timestamps that are not whole µs (seconds, NaN).
     ParameterError
         Columns of different lengths, a grid other than the ground truth's, an event with
         a flow that is NaN/inf, ``frames`` or ``out_px`` not finite and > 0.
@@ -181,6 +184,9 @@ def event_flow_metrics(
     n = cols["t"].shape[0]
     if n == 0:
         raise EmptyWindowError("no events: the per-event flow is empty")
+    # µs as the ground truth's windows; seconds were floored to 0 and scored against the
+    # first window (probe AU)
+    cols["t"] = timestamps_us(cols["t"])
     gflow, gt0, gt1, gvalid = _gt_arrays(gt)
     h, w = gflow.shape[1:3]
     size = getattr(event_flow, "sensor_size", None)

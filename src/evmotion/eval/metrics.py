@@ -586,7 +586,9 @@ def _as_flow(a, name: str) -> np.ndarray:
         raise ParameterError(f"'{name}' must have shape (H, W, 2), got {a.shape}")
     if a.dtype.kind not in "fiu":
         raise ParameterError(f"'{name}' must be numeric, got dtype {a.dtype}")
-    return a
+    # integer flows (DSEC PNG-decoded, quantized) in float: uint8 differences wrapped
+    # (an error of 4 px read 252) and int16 squares overflowed (probe AU)
+    return a.astype(np.float64) if a.dtype.kind in "iu" else a
 
 
 def _pair(flow, gt) -> tuple[np.ndarray, np.ndarray]:

@@ -284,11 +284,12 @@ class TripletMatcher:
                  dt_us: int = 100_000, tau_us: int = 3_000, *, quadruple: bool = False,
                  depth: int = 8, normal_kappa: int = NORMAL_KAPPA) -> None:
         try:
-            h, w = (whole_number("sensor_size", v, lo=1, hi=MAX_SENSOR_SIDE)
-                    for v in sensor_size)
+            h, w = sensor_size
         except (TypeError, ValueError):
             raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}"
                                  ) from None
+        h, w = (whole_number(f"sensor_size {name}", v, lo=1, hi=MAX_SENSOR_SIDE)
+                for name, v in (("height", h), ("width", w)))
         depth = whole_number("depth", depth, lo=1, hi=255)
         dt_us = whole_number("dt_us (microseconds)", dt_us, lo=1)
         # tau = 0 would admit t_i = t_k: delta = 0, a Gaussian of zero width in (5.3).

@@ -17,6 +17,8 @@ __all__ = ["GREY", "colorwheel", "colorwheel_image", "flow_max_magnitude", "flow
 #: RGB of flow pixels without event support (or NaN). No flow colour is grey: every wheel
 #: colour keeps one channel at 255 inside the rim and one at 0 beyond it.
 GREY = (128, 128, 128)
+#: Relative margin of the colour wheel's rim: a few float32 roundings of the flow's magnitude.
+RIM_TOLERANCE = 1e-6
 
 # Segment lengths of the wheel (red-yellow, yellow-green, green-cyan, cyan-blue,
 # blue-magenta, magenta-red), chosen by Baker et al. for perceptual uniformity.
@@ -123,7 +125,10 @@ def flow_to_rgb(
     k1 = (k0 + 1) % ncols
     frac = (fk - np.floor(fk))[..., None]
     col = (1 - frac) * wheel[k0] + frac * wheel[k1]
-    inside = (rad <= 1.0)[..., None]
+    # the rim with a float32 tolerance: the default max_magnitude, the largest |flow| of
+    # a float32 flow, put its own pixels just beyond it (drawn dimmed, probe AU)
+    inside = (rad <= 1.0 + RIM_TOLERANCE)[..., None]
+    rad = np.minimum(rad, 1.0)
     col = np.where(inside, 1.0 - rad[..., None] * (1.0 - col), col * 0.75)
     rgb = np.round(255.0 * col).astype(np.uint8)
     rgb[~valid] = np.asarray(invalid_color, dtype=np.uint8)
