@@ -460,10 +460,14 @@ def quantized_frame(frame: np.ndarray) -> np.ndarray:
     [[0, 255, 128]]
     >>> quantized_frame(np.array([[0, 257 * 200]], np.uint16)).dtype
     dtype('uint8')
+    >>> quantized_frame(np.array([[0, 257 * 200]], ">u2")).tolist()  # big-endian
+    [[0, 200]]
     >>> quantized_frame(np.array([[0.0, 0.3]])).dtype   # not on a grid: as it is
     dtype('float64')
     """
     f = np.asarray(frame)
+    if not f.dtype.isnative:  # as read from a big-endian file: the same picture
+        f = f.astype(f.dtype.newbyteorder("="))
     if f.size == 0:
         return f
     if f.dtype == np.uint16 and not np.any(f % 257):
