@@ -238,6 +238,25 @@ def test_user_image_texture(tmp_path):
     res2 = simulate("translation", duration_s=0.01, sensor_size=SMALL, texture=img / 255.0,
                     show_progress=False)
     assert len(res2.events) == len(res.events)
+    # one picture, one set of events, whatever array it comes in
+    for same in (img, img.astype(np.uint16) * 257, img.astype(np.float32)):
+        ev = simulate("translation", duration_s=0.01, sensor_size=SMALL, texture=same,
+                      show_progress=False).events
+        assert np.array_equal(ev.t, res.events.t)
+
+
+def test_array_texture_of_other_ranges():
+    """A float radiance beyond [0, 1] keeps its contrast (divided by 255 it fell into the
+    log's dark floor: no event); a negative one is refused."""
+    from evmotion.sim.textures import texture_from_image
+
+    img = np.random.default_rng(0).normal(size=(40, 40))
+    unit = (img - img.min()) / np.ptp(img)
+    a = texture_from_image(unit * 7 + 1.1, (16, 16), (0.0, 0.0)).log_i
+    b = texture_from_image((unit * 7 + 1.1) / 8.1, (16, 16), (0.0, 0.0)).log_i
+    assert np.allclose(a, b)
+    with pytest.raises(ParameterError, match="negative values"):
+        texture_from_image(img, (16, 16), (0.0, 0.0))
 
 
 @pytest.mark.parametrize("kw,match", [

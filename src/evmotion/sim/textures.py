@@ -171,15 +171,35 @@ def _load_image(path: str | Path) -> np.ndarray:
                           hint="use a PNG, JPEG (with Pillow) or .npy array") from None
 
 
+def _unit_range(image) -> np.ndarray:
+    """An image array as float64, uint8 and uint16 divided by their type's range (a uint16
+    image of 8-bit data, k * 257, reads as the uint8 one); others as they are."""
+    arr = np.asarray(image)
+    if arr.dtype.kind == "u" and arr.itemsize <= 2:
+        return arr.astype(np.float64) / np.iinfo(arr.dtype).max
+    return arr.astype(np.float64)
+
+
 def texture_from_image(image, shape: tuple[int, int], origin: tuple[float, float],
                        name: str = "image") -> Texture:
-    """Texture from a grey or RGB image (path or array, values in [0, 1] or [0, 255]).
+    """Texture from a grey or RGB image (path or array).
 
-    The image is resized (nearest-neighbour index mapping after a light blur) to the raster
+    uint8 and uint16 arrays are read on their type's range (0-255, 0-65535); other
+    arrays on [0, 1] or, beyond 1, as 8-bit levels when their values are whole numbers up
+    to 255 and else as relative radiance (divided by their maximum). Negative values are refused. The image
+    is resized (nearest-neighbour index mapping after a light blur) to the raster
     ``shape`` and made periodic by mirroring, so the wrap-around has no seam.
+
+    Examples
+    --------
+    >>> a = np.array([[10, 200], [40, 90]], np.uint8)
+    >>> b = texture_from_image(a, (4, 4), (0.0, 0.0))
+    >>> c = texture_from_image(a.astype(np.uint16) * 257, (4, 4), (0.0, 0.0))
+    >>> bool(np.array_equal(b.log_i, c.log_i))
+    True
     """
     src = str(image) if isinstance(image, (str, Path)) else "array"
-    arr = _load_image(image) if isinstance(image, (str, Path)) else np.asarray(image, dtype=float)
+    arr = _load_image(image) if isinstance(image, (str, Path)) else _unit_range(image)
     if arr.ndim == 3:
         arr = arr[..., :3].mean(axis=-1) if arr.shape[-1] >= 3 else arr[..., 0]
     if arr.ndim != 2 or min(arr.shape) < 2:
@@ -187,8 +207,14 @@ def texture_from_image(image, shape: tuple[int, int], origin: tuple[float, float
                              f"got shape {np.shape(arr)}")
     if not np.all(np.isfinite(arr)):
         raise ParameterError(f"texture image {src} contains NaN or inf")
+    if arr.min() < 0:
+        raise ParameterError(f"texture image {src} holds negative values (down to "
+                             f"{arr.min():.3g}): an image is a radiance, >= 0")
     if arr.max() > 1.0:
-        arr = arr / 255.0 if arr.max() <= 255 else arr / arr.max()
+        # a float image beyond [0, 1]: 8-bit levels, or a radiance in its own unit (one in
+        # [1.1, 8.1] divided by 255 lost its contrast in the log's dark floor, probe AU)
+        whole = arr.max() <= 255 and np.all(arr == np.round(arr))
+        arr = arr / 255.0 if whole else arr / arr.max()
     # mirror to a periodic image twice the size, then resample to the raster
     per = np.block([[arr, arr[:, ::-1]], [arr[::-1, :], arr[::-1, ::-1]]])
     h, w = shape
