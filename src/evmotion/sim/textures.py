@@ -158,7 +158,7 @@ def _load_image(path: str | Path) -> np.ndarray:
         raise FormatError(path, "image not found")
     suffix = path.suffix.lower()
     if suffix == ".npy":
-        return np.load(path)
+        return _unit_range(np.load(path))
     if suffix == ".png":
         arr, info = read_png(path, what="cannot decode PNG")
         return arr.astype(np.float64) / (2 ** info["bitdepth"] - 1)
