@@ -221,6 +221,7 @@ def test_arguments_that_failed_deep_inside_are_named():
     for call, words in cases:
         with pytest.raises(ParameterError, match=words):
             call()
+
     from evmotion.errors import EmptyWindowError
 
     with pytest.raises(EmptyWindowError, match="selects no pixel"):  # NaN and numpy noise
@@ -228,6 +229,52 @@ def test_arguments_that_failed_deep_inside_are_named():
     with pytest.warns(PoorFitWarning):  # (t0, t1) pairs as iter_events takes them
         res = estimate_flow_triplet(ev, windows=[(0, 50_000), (50_000, 100_000)])
     assert [(w.t0, w.t1) for w in res.windows] == [(0, 50_000), (50_000, 100_000)]
+
+
+def test_evaluation_and_picture_helpers_name_bad_arguments(tmp_path):
+    """Arguments of the helpers around the estimators that failed as raw Python / numpy
+    errors, or were truncated (probe AU)."""
+    from evmotion.errors import ParameterError
+    from evmotion.eval import evaluate_windows, sharpness_windows
+    from evmotion.events import EventArray
+    from evmotion.io import write_flo
+    from evmotion.io.flowfiles import FlowSequence
+    from evmotion.methods.dnn import estimate_flow_dnn
+    from evmotion.methods.kymogram import KymoLine, kymogram_from_events
+    from evmotion.viz import flow_to_rgb, iwe_to_rgb
+
+    gt = FlowSequence(np.zeros((2, 4, 5, 2), np.float32), np.array([0, 10]), np.array([10, 20]))
+    ev = EventArray([1, 2, 3], [1, 1, 1], [0, 5, 15], [1, 1, 1], (4, 5))
+    arr = np.zeros(3, dtype=[("x", "<i2"), ("y", "<i2"), ("t", "<f8"), ("p", "?")])
+    cases = [
+        (lambda: evaluate_windows(np.zeros((1, 4, 5, 2)), [0, 10], [10, 20], gt),
+         "1 flow windows for 2 t0s"),  # IndexError
+        (lambda: evaluate_windows(np.zeros((2, 3, 5, 2)), [0, 10], [10, 20], gt),
+         "not the same grid"),  # broadcast ValueError
+        (lambda: evaluate_windows(np.zeros((2, 4, 5, 2)), [10, 20], [0, 10], gt),
+         "t0s and t1s swapped"),
+        (lambda: sharpness_windows(np.zeros((1, 4, 5, 2)), [0, 10], [10, 20], ev),
+         "one flow per window"),
+        (lambda: EventArray.from_structured(arr, (4, 8), time_unit_us=0),
+         "time_unit_us must be finite and > 0"),  # every t became 0
+        (lambda: EventArray.from_structured(arr, (4, 8), time_unit_us="s"),
+         "time_unit_us must be"),  # UFuncTypeError
+        (lambda: ev.windows_at([0, 5, 10], dt=1.5), r"dt \(frames\) must be a whole"),
+        (lambda: kymogram_from_events([1, 2], KymoLine.row(0, (4, 5))),
+         "kymogram_from_events: events must be an EventArray"),
+        (lambda: estimate_flow_dnn([1, 2]), "estimate_flow_dnn: events must be an EventArray"),
+        (lambda: write_flo(tmp_path / "z.flo", np.zeros((2, 2, 2)), dt_s="0.01"),
+         "dt_s must be finite"),  # ufunc isfinite
+        (lambda: flow_to_rgb(np.zeros((2, 2, 2)), max_magnitude="10"), "max_magnitude must"),
+        (lambda: iwe_to_rgb(np.ones((2, 2)), vmax=-1.0), "vmax must be finite and > 0"),
+    ]
+    for call, words in cases:
+        with pytest.raises(ParameterError, match=words):
+            call()
+    # evaluate_windows takes lists as arrays
+    assert len(evaluate_windows(np.zeros((2, 4, 5, 2)).tolist(), [0, 10], [10, 20],
+                                gt).windows) == 2
+
 
 
 def test_reading_and_writing_say_what_is_lost_or_empty(tmp_path):

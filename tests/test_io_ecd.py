@@ -140,11 +140,11 @@ def test_formatter_matches_plain_python_reference():
     rng = np.random.default_rng(5)
     n = 2000
     t = np.sort(np.concatenate([[0, 999_999, 1_000_000], rng.integers(0, 10**11, n)]))
-    x = rng.integers(0, 65535, t.size)
-    y = rng.integers(0, 65535, t.size)
+    x = rng.integers(0, 16384, t.size)
+    y = rng.integers(0, 16384, t.size)
     p = rng.integers(0, 2, t.size)
-    x[:3] = [0, 65534, 10]
-    ev = EventArray(x=x, y=y, t=t, p=p, sensor_size=(65535, 65535))
+    x[:3] = [0, 16383, 10]
+    ev = EventArray(x=x, y=y, t=t, p=p, sensor_size=(16384, 16384))
     ref = "".join(f"{a // 1_000_000}.{a % 1_000_000:06d} {b} {c} {d}\n"
                   for a, b, c, d in zip(t.tolist(), x.tolist(), y.tolist(), p.tolist(),
                                         strict=True))

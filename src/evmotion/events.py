@@ -20,7 +20,7 @@ import numpy as np
 
 from evmotion.catalog import MAX_SENSOR_SIDE, NS_EPOCH_US
 from evmotion.errors import EmptyWindowError, EventDataError, ParameterError, UnsortedError
-from evmotion.utils import whole_number
+from evmotion.utils import check_number, whole_number
 
 __all__ = [
     "SORT_HINT",
@@ -30,7 +30,7 @@ __all__ = [
     "Window",
     "concatenate",
     "make_windows",
-    "timestamps_us",
+    "as_timestamps_us",
     "events_for_windows",
 ]
 
@@ -117,7 +117,7 @@ class EventArray:
     def __post_init__(self) -> None:
         self.x = _coord(self.x, "x")
         self.y = _coord(self.y, "y")
-        self.t = timestamps_us(self.t)
+        self.t = as_timestamps_us(self.t)
         self.p = _polarity(self.p)
         h, w = _sensor_size(self.sensor_size)
         self.sensor_size = (h, w)
@@ -354,9 +354,8 @@ class EventArray:
         Window ``k`` spans ``[ts[k], ts[k + dt])``, as in the MVSEC protocol where
         ``dt = 1`` or ``dt = 4`` frames; windows are spaced by ``dt`` frames.
         """
-        ts = np.asarray(timestamps_us, dtype=np.int64)
-        if dt < 1:
-            raise EventDataError(f"dt must be >= 1 frame, got {dt}")
+        ts = as_timestamps_us(timestamps_us, "timestamps_us")
+        dt = whole_number("dt (frames)", dt, lo=1)
         if ts.ndim != 1 or ts.size < dt + 1:
             raise EventDataError(f"need at least {dt + 1} timestamps for dt={dt}, got {ts.size}")
         if np.any(np.diff(ts) < 0):
@@ -416,6 +415,8 @@ class EventArray:
         t = arr[named["t"]]
         if time_unit_us is None:
             time_unit_us = TIME_UNIT_US[time_unit_in_name(named["t"]) or "us"]
+        time_unit_us = check_number("time_unit_us", time_unit_us, 0.0, lo_open=True,
+                                    units="µs per unit of t")
         if time_unit_us != 1.0:
             t = np.round(t.astype(np.float64) * time_unit_us)
         return cls(arr[named["x"]], arr[named["y"]], t, arr[named["p"]], sensor_size,
@@ -645,16 +646,16 @@ def _coord(a, name: str) -> np.ndarray:
 _MAX_ABS_T = 1 << 62
 
 
-def timestamps_us(t) -> np.ndarray:
+def as_timestamps_us(t, what: str = "field 't'") -> np.ndarray:
     """``t`` as contiguous int64 µs, refusing what the conversion would change: fractions
     (seconds given for µs would all become 0), NaN, values beyond +-2^62 (uint64 wraps),
-    with :class:`~evmotion.errors.EventDataError` naming field ``'t'``.
+    with :class:`~evmotion.errors.EventDataError` naming ``what``.
 
     Examples
     --------
-    >>> timestamps_us(np.array([1.0, 2.0])).tolist()
+    >>> as_timestamps_us(np.array([1.0, 2.0])).tolist()
     [1, 2]
-    >>> timestamps_us([0.001])
+    >>> as_timestamps_us([0.001])
     Traceback (most recent call last):
     evmotion.errors.EventDataError: field 't' has fractional values (t[0]=0.001): timestamps \
 are integer microseconds; from seconds: np.round(t * 1e6).astype(np.int64)
@@ -665,20 +666,20 @@ are integer microseconds; from seconds: np.round(t * 1e6).astype(np.int64)
     if a.dtype.kind not in "iuf":  # bool, strings, objects
         if a.size == 0:
             return np.empty(a.shape, np.int64)
-        raise EventDataError(f"field 't' must be numeric (integer µs), got dtype {a.dtype}")
+        raise EventDataError(f"{what} must be numeric (integer µs), got dtype {a.dtype}")
     if a.size and a.dtype.kind in "uf":
         lo, hi = a.min(), a.max()
         if not (np.isfinite(lo) and np.isfinite(hi)):
-            raise EventDataError("field 't' contains NaN or inf")
+            raise EventDataError(f"{what} contains NaN or inf")
         if hi > _MAX_ABS_T or lo < -_MAX_ABS_T:
-            raise EventDataError(f"field 't' holds {hi if hi > _MAX_ABS_T else lo}, beyond "
+            raise EventDataError(f"{what} holds {hi if hi > _MAX_ABS_T else lo}, beyond "
                                  "+-2^62 µs: not a timestamp (corrupt, or another unit?)")
         if a.dtype.kind == "f":
             frac = a != np.floor(a)
             if frac.any():
                 i = int(np.argmax(frac))
                 raise EventDataError(
-                    f"field 't' has fractional values (t[{i}]={float(a[i])!r}): timestamps are "
+                    f"{what} has fractional values (t[{i}]={float(a[i])!r}): timestamps are "
                     "integer microseconds; from seconds: np.round(t * 1e6).astype(np.int64)")
     return np.ascontiguousarray(a, dtype=np.int64)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import os
 import sys
 import tempfile
@@ -357,6 +358,38 @@ def check_finite(name: str, value) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ParameterError(f"parameter '{name}' must be finite, got {value!r}")
     return arr
+
+
+def check_number(name: str, value, lo: float = 0.0, hi: float = math.inf, *,
+                 lo_open: bool = False, units: str = "") -> float:
+    """``value`` as a float, checked to be finite and in ``[lo, hi]`` (``(lo, hi]`` when
+    ``lo_open``).
+
+    Raises
+    ------
+    ParameterError
+        One line naming ``name``, the allowed range (with ``units``) and the value.
+
+    Examples
+    --------
+    >>> check_number("fps", 120, 0.0, lo_open=True, units="Hz")
+    120.0
+    >>> check_number("dt_s", "0.01")
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: dt_s must be finite and >= 0.0, got '0.01'
+    """
+    try:
+        # (a string is no number: duration_s="0.01" had run: probe)
+        v = math.nan if isinstance(value, (str, bytes)) else float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not math.isfinite(v) or v < lo or (lo_open and v <= lo) or v > hi:
+        op = ">" if lo_open else ">="
+        rng = f"{op} {lo}" if hi == math.inf else \
+            f"in {'(' if lo_open else '['}{lo}, {hi}]"
+        unit = f" ({units})" if units else ""
+        raise ParameterError(f"{name} must be finite and {rng}{unit}, got {value!r}")
+    return v
 
 
 def whole_number(name: str, value, lo: int | None = None, hi: int | None = None) -> int:

@@ -21,7 +21,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.eval.metrics import NPE_THRESHOLDS
-from evmotion.events import timestamps_us
+from evmotion.events import as_timestamps_us
 
 if TYPE_CHECKING:
     from evmotion.io.eventflow import EventFlow
@@ -186,7 +186,7 @@ def event_flow_metrics(
         raise EmptyWindowError("no events: the per-event flow is empty")
     # µs as the ground truth's windows; seconds were floored to 0 and scored against the
     # first window (probe AU)
-    cols["t"] = timestamps_us(cols["t"])
+    cols["t"] = as_timestamps_us(cols["t"])
     gflow, gt0, gt1, gvalid = _gt_arrays(gt)
     h, w = gflow.shape[1:3]
     size = getattr(event_flow, "sensor_size", None)

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from evmotion.errors import EmptyWindowError, EventDataError
+from evmotion.errors import EmptyWindowError, EventDataError, ParameterError
 from evmotion.eval.metrics import (
     aggregate_flow_metrics,
     event_mask,
@@ -186,6 +186,7 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     -------
     WindowsEvaluation
     """
+    flow, t0s, t1s = _windows(flow, t0s, t1s, gt.flow.shape[1:3])
     if events is not None:
         _check_same_recording(events, flow.shape[1:3], t0s, t1s)
     rows, zeros, per_window, mismatched, unknown, uncovered = [], [], [], 0, False, 0
@@ -289,6 +290,7 @@ def sharpness_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     >>> [round(r["FWL"], 2) for r in sharpness_windows(flow, [0], [20_001], ev)]
     [3.06]
     """
+    flow, t0s, t1s = _windows(flow, t0s, t1s)
     _check_same_recording(events, flow.shape[1:3], t0s, t1s)
     rows = []
     for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
@@ -300,6 +302,29 @@ def sharpness_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
             row["FWL_gauss"] = fwl(win, flow[i], t_ref_us=mid, kernel="gaussian", sigma=1.0)
         rows.append(row)
     return rows
+
+
+def _windows(flow, t0s, t1s, shape=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``flow`` (N, H, W, 2) and the windows' bounds as arrays, or ParameterError naming
+    what does not fit: one flow per window, ``t0 < t1`` in whole µs, the ground truth's
+    grid ``shape`` (a short flow failed as an IndexError, a list as an AttributeError)."""
+    flow = np.asarray(flow)
+    if flow.ndim != 4 or flow.shape[-1] != 2 or flow.dtype.kind not in "fiu":
+        raise ParameterError(f"flow must be a numeric array (N, H, W, 2), got shape "
+                             f"{flow.shape}, dtype {flow.dtype}")
+    t0s, t1s = (np.asarray(t, dtype=np.float64).ravel() for t in (t0s, t1s))
+    if not (len(flow) == t0s.size == t1s.size):
+        raise ParameterError(f"{len(flow)} flow windows for {t0s.size} t0s and {t1s.size} "
+                             "t1s: one flow per window")
+    bad = ~(np.isfinite(t0s) & np.isfinite(t1s)) | (t0s != np.round(t0s)) | (t1s <= t0s)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ParameterError(f"window {i}: [{t0s[i]!r}, {t1s[i]!r}] us is not an interval "
+                             "t0 < t1 of whole microseconds (t0s and t1s swapped?)")
+    if shape is not None and tuple(flow.shape[1:3]) != tuple(shape):
+        raise ParameterError(f"the flow is {flow.shape[2]}x{flow.shape[1]} px but the ground "
+                             f"truth {shape[1]}x{shape[0]} px (W x H): not the same grid")
+    return flow, t0s.astype(np.int64), t1s.astype(np.int64)
 
 
 def _check_same_recording(events: EventArray, shape, t0s, t1s) -> None:

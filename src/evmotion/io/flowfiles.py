@@ -36,7 +36,7 @@ from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs, read_attrs_many
 from evmotion.io.h5filters import h5_compression
 from evmotion.io.pngfile import read_png, write_png
-from evmotion.utils import atomic_path, ensure_file_target, ensure_room, is_file
+from evmotion.utils import atomic_path, check_number, ensure_file_target, ensure_room, is_file
 
 __all__ = [
     "gt_in_folder",
@@ -148,9 +148,7 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
     """
     arr = _check_flow(flow)
     if dt_s is not None:
-        if not np.isfinite(dt_s) or dt_s < 0:
-            raise ParameterError(f"dt_s must be a finite duration >= 0 in seconds, got {dt_s}")
-        arr = arr * np.float32(dt_s)
+        arr = arr * np.float32(check_number("dt_s", dt_s, 0.0, units="seconds"))
     known = np.isfinite(arr).all(axis=2)
     if valid is not None:
         v = np.asarray(valid, dtype=bool)

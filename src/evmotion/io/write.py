@@ -20,7 +20,6 @@ import numpy as np
 
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray, concatenate
-from evmotion.io.guard import MAX_SENSOR_SIDE
 from evmotion.io.registry import all_formats, get_format
 
 __all__ = ["format_for_output", "write_events"]
@@ -102,11 +101,6 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
         warnings.warn(f"{path}: a .npy file keeps no sensor size ({events.width}x"
                       f"{events.height} px is left out; reading it back takes the largest "
                       "coordinates): write .npz to keep it", EvmotionWarning, stacklevel=2)
-    if isinstance(events, EventArray) and max(events.sensor_size) > MAX_SENSOR_SIDE:
-        # every reader refuses such a size as a corrupt header: a file that cannot be read
-        # back is not written
-        raise FormatError(path, f"sensor_size {events.sensor_size} is larger than the "
-                          f"{MAX_SENSOR_SIDE} px per side evmotion reads back")
     opts, extra = {}, {}
     for k, v in meta.items():
         (opts if _accepts_named(spec.write, k) else extra)[k] = v

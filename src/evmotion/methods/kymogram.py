@@ -21,8 +21,8 @@ from numba import njit
 from scipy import ndimage
 
 from evmotion.errors import EmptyWindowError, ParameterError
-from evmotion.events import EventArray
-from evmotion.utils import check_finite
+from evmotion.events import EventArray, require_events
+from evmotion.utils import check_finite, check_number, whole_number
 
 __all__ = [
     "Kymogram",
@@ -196,9 +196,8 @@ def kymogram_from_events(events: EventArray, line: KymoLine, rate_hz: float = 12
     >>> k.t_s.tolist()
     [0.0005, 0.0015]
     """
-    rate = float(check_finite("rate_hz", rate_hz))
-    if rate <= 0:
-        raise ParameterError(f"parameter 'rate_hz' must be > 0, got {rate_hz!r}")
+    events = require_events(events, "kymogram_from_events")
+    rate = check_number("rate_hz", rate_hz, 0.0, lo_open=True, units="Hz")
     line.check_inside(events.sensor_size)
     if t0_us is None or t1_us is None:
         if not len(events):
@@ -537,7 +536,7 @@ def fit_ridge(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1.0,
     if t.size < 3:
         raise EmptyWindowError(f"the kymogram has a ridge in only {t.size} time bins "
                                f"(need >= 3; lower min_snr={min_snr} or choose the region)")
-    step = max(1, -(-t.size // int(max_points)))
+    step = max(1, -(-t.size // whole_number("max_points", max_points, lo=3)))
     slope, icpt = _theil_sen(t[::step], s[::step])
     res = s - (icpt + slope * t)
     if inlier_px is None:
@@ -593,11 +592,10 @@ def px_per_s_to_m_per_s(v_px_s, focal_mm: float, distance_m: float, pixel_um: fl
     >>> round(px_per_s_to_m_per_s(166 / 68.8e-3, 25.0, 1.7, 4.86), 3)
     0.797
     """
-    for name, val in (("focal_mm", focal_mm), ("distance_m", distance_m),
-                      ("pixel_um", pixel_um)):
-        v = float(check_finite(name, val))
-        if v <= 0:
-            raise ParameterError(f"parameter '{name}' must be > 0, got {val!r}")
+    focal_mm, distance_m, pixel_um = (check_number(name, val, 0.0, lo_open=True, units=unit)
+                                      for name, val, unit in (("focal_mm", focal_mm, "mm"),
+                                                              ("distance_m", distance_m, "m"),
+                                                              ("pixel_um", pixel_um, "µm")))
     v = check_finite("v_px_s", v_px_s)
     out = v * (pixel_um * 1e-6) * distance_m / (focal_mm * 1e-3)
     return float(out) if out.ndim == 0 else out

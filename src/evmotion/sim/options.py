@@ -17,44 +17,15 @@ evmotion.errors.ParameterError: threshold must be finite and > 0.0 (log intensit
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from evmotion.errors import CalibrationError, ParameterError
 from evmotion.sim.photoreceptor import EVENT_BANDWIDTHS
+from evmotion.utils import check_number
 
 __all__ = ["EventOptions", "SchlierenOptions", "SimOptions", "check_number"]
-
-
-def check_number(name: str, value, lo: float = 0.0, hi: float = math.inf, *,
-                 lo_open: bool = False, units: str = "") -> float:
-    """``value`` as a float, checked to be finite and in ``[lo, hi]`` (``(lo, hi]`` when
-    ``lo_open``).
-
-    Raises
-    ------
-    ParameterError
-        One line naming ``name``, the allowed range (with ``units``) and the value.
-
-    Examples
-    --------
-    >>> check_number("fps", 120, 0.0, lo_open=True, units="Hz")
-    120.0
-    """
-    try:
-        # (a string is no number: duration_s="0.01" had run: probe)
-        v = math.nan if isinstance(value, (str, bytes)) else float(value)
-    except (TypeError, ValueError):
-        v = math.nan
-    if not math.isfinite(v) or v < lo or (lo_open and v <= lo) or v > hi:
-        op = ">" if lo_open else ">="
-        rng = f"{op} {lo}" if hi == math.inf else \
-            f"in {'(' if lo_open else '['}{lo}, {hi}]"
-        unit = f" ({units})" if units else ""
-        raise ParameterError(f"{name} must be finite and {rng}{unit}, got {value!r}")
-    return v
 
 
 def _set(obj, name: str, value) -> None:

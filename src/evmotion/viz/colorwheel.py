@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from evmotion.errors import ParameterError
+from evmotion.utils import check_number
 
 __all__ = ["GREY", "colorwheel", "colorwheel_image", "flow_max_magnitude", "flow_to_rgb"]
 
@@ -104,8 +105,8 @@ def flow_to_rgb(
             raise ParameterError(f"mask has shape {mask.shape}, expected {flow.shape[:2]}")
     if max_magnitude is None:
         max_magnitude = flow_max_magnitude(flow, mask)
-    elif not (np.isfinite(max_magnitude) and max_magnitude > 0):
-        raise ParameterError(f"max_magnitude must be finite and > 0, got {max_magnitude}")
+    else:
+        max_magnitude = check_number("max_magnitude", max_magnitude, 0.0, lo_open=True)
     u = flow[..., 0].astype(np.float64)
     v = flow[..., 1].astype(np.float64)
     valid = np.isfinite(u) & np.isfinite(v)

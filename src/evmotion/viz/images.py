@@ -16,7 +16,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.io import pngfile
-from evmotion.utils import atomic_write_bytes, whole_number
+from evmotion.utils import atomic_write_bytes, check_number, whole_number
 from evmotion.viz.flowpic import FlowPicture, flow_panel, flow_picture
 
 __all__ = [
@@ -110,8 +110,10 @@ def iwe_to_rgb(iwe: np.ndarray, polarity: bool = False, *, percentile: float = 9
     _check_percentile(percentile)
     if vmax is None:
         vmax = full_scale(iwe, percentile)
-    if not vmax > 0:
-        vmax = 1.0
+        if not vmax > 0:  # an empty image
+            vmax = 1.0
+    else:
+        vmax = check_number("vmax", vmax, 0.0, lo_open=True, units="events / px")
     if polarity:
         s = np.clip(iwe / vmax, -1.0, 1.0)
         pos, neg = np.clip(s, 0, 1), np.clip(-s, 0, 1)

@@ -23,7 +23,7 @@ import numpy as np
 
 from evmotion.catalog import HOT_NEIGHBOUR_RATIO
 from evmotion.errors import EmptyWindowError, ParameterError, PoorFitWarning
-from evmotion.events import EventArray, pixel_indices
+from evmotion.events import EventArray, pixel_indices, require_events
 from evmotion.filters import hot_pixel_mask
 from evmotion.jitcache import compile_seconds
 from evmotion.methods.flowresult import (
@@ -554,6 +554,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     >>> estimate_flow_dnn(ev).flow.shape
     (30, 40, 2)
     """
+    events = require_events(events, "estimate_flow_dnn")
     if len(events) < 10 or events.t[-1] <= events.t[0]:
         raise EmptyWindowError(f"window has {len(events)} events spanning "
                                f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
