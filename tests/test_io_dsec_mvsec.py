@@ -150,6 +150,29 @@ def test_mvsec_layout(tmp_path):
     assert d["frames"] == 3 and d["n_events"] == len(arr)
 
 
+def test_mvsec_layout_with_microseconds_is_questioned_and_read_as_told(tmp_path):
+    """Other tools write MVSEC's layout with µs: read as MVSEC's seconds, 10^6 x long,
+    unsaid, and --time-unit was refused for the format (probe AS)."""
+    from evmotion.cli.options import check_time_unit
+    from evmotion.errors import EvmotionWarning
+
+    path = tmp_path / "lab_data.hdf5"
+    arr = _mvsec_file(path)
+    arr[:, 2] = np.round((arr[:, 2] - arr[0, 2]) * 1e6)  # µs from 0, 2 kev/s
+    with h5py.File(path, "r+") as f:
+        f["davis/left/events"][...] = arr
+    with pytest.warns(EvmotionWarning, match=r"microseconds\? If so, read with --time-unit us"):
+        eio.read_events(path)
+    with pytest.warns(EvmotionWarning, match="microseconds"):
+        next(iter(mvsec.iter_chunks(path, 4000)))
+    ev = eio.read_events(path, time_unit="us")
+    np.testing.assert_array_equal(ev.t, arr[:, 2].astype(np.int64))
+    t0, t1 = int(ev.t[1234]), int(ev.t[5678])
+    np.testing.assert_array_equal(mvsec.read(path, t0=t0, t1=t1, time_unit="us").t,
+                                  ev.slice_time(t0, t1).t)
+    check_time_unit("us", path, None)  # accepted for the format
+
+
 @pytest.mark.parametrize(("mod", "make", "suffix"), [(dsec, _dsec_file, ".h5"),
                                                    (mvsec, _mvsec_file, ".hdf5")],
                          ids=["dsec", "mvsec"])

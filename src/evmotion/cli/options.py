@@ -614,17 +614,19 @@ def add_sensor_size_argument(parser) -> None:
 
 
 #: The input formats whose times ``--time-unit`` may state (the others carry their unit).
-TIME_UNIT_FORMATS = ("ecd", "npy", "mat", "h5generic")
+TIME_UNIT_FORMATS = ("ecd", "npy", "mat", "h5generic", "mvsec")
 
 
 def add_time_unit_argument(parser) -> None:
-    """``--time-unit s|ms|us|ns``: the unit of a text, NumPy, MATLAB or other tool's HDF5
-    input's times, where the file does not state it and the reader's guess is wrong."""
+    """``--time-unit s|ms|us|ns``: the unit of a text, NumPy, MATLAB, MVSEC-layout or other
+    tool's HDF5 input's times, where the file does not state it and the reader's guess is
+    wrong."""
     parser.add_argument("--time-unit", choices=("s", "ms", "us", "ns"), default=None,
-                        help="unit of the input's times, for text, NumPy, MATLAB and other "
-                             "tools' HDF5 inputs (default: a unit in the time column's name; "
-                             "else decimal seconds or whole microseconds in text, by dtype "
-                             "in NumPy and HDF5; integers past 1e17 as ns)")
+                        help="unit of the input's times, for text, NumPy, MATLAB, MVSEC-layout "
+                             "and other tools' HDF5 inputs (default: a unit in the time "
+                             "column's name; else decimal seconds or whole microseconds in "
+                             "text, by dtype in NumPy and HDF5, seconds in MVSEC's layout; "
+                             "integers past 1e17 as ns)")
 
 
 def check_time_unit(time_unit: str | None, path, fmt: str | None) -> None:
@@ -638,8 +640,8 @@ def check_time_unit(time_unit: str | None, path, fmt: str | None) -> None:
         hint = ("; another tool's HDF5 read as evmotion's: add --format h5generic"
                 if fmt == "h5" else "")
         raise ParameterError(f"--time-unit {time_unit}: {path} is '{fmt}', whose times "
-                             "carry their unit; it applies to text, NumPy, MATLAB and other "
-                             f"tools' HDF5 inputs{hint}")
+                             "carry their unit; it applies to text, NumPy, MATLAB, MVSEC-layout "
+                             f"and other tools' HDF5 inputs{hint}")
 
 
 def read_kwargs(args) -> dict:

@@ -36,6 +36,7 @@ from evmotion.io.guard import (
     time_to_us,
 )
 from evmotion.io.pngfile import read_png
+from evmotion.io.timedoubt import unit_doubt
 from evmotion.jitcache import lazy_njit
 from evmotion.utils import atomic_path, is_file
 
@@ -703,7 +704,23 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
         x = y = t = p = np.zeros(0, np.int64)
     if src.startswith("ECD default") and x.size and x.min() >= 0 and y.min() >= 0:
         size, src = _extended_size(ev_path, size, src, int(x.max()), int(y.max()))
+    if time_unit is None:
+        _doubt_unit(ev_path, t, unit)
     return _to_events(ev_path, x, y, t, p, size, src, validate, _folder_meta(ev_path))
+
+
+def _doubt_unit(path: Path, t_us: np.ndarray, unit: str) -> None:
+    """Warn where the sniffed ``unit`` gives the times (``t_us``, µs) a rate no event
+    camera makes: decimal milliseconds read as seconds, nanoseconds not on whole µs read
+    as µs (those on whole µs the sniffer names itself)."""
+    if unit == "s":
+        doubt = unit_doubt(t_us * 1e-6, "s (inferred)")
+    elif unit == "us" and np.any(t_us % 1000):
+        doubt = unit_doubt(t_us, "us (inferred)")
+    else:
+        doubt = None
+    if doubt is not None:
+        warnings.warn(EvmotionWarning(f"{path}: the time column {doubt}"), stacklevel=4)
 
 
 def _extended_size(ev_path: Path, size, src: str, x_max: int, y_max: int):
@@ -757,12 +774,16 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
             ev = _to_events(ev_path, *part, size, src, validate, extra, streamed=True)
             if validate:
                 _check_follows(last_t, ev)
+            if last_t is None and time_unit is None:
+                _doubt_unit(ev_path, ev.t, unit)
             last_t = int(ev.t[-1])
             yield ev
     if buf[2].size:
         ev = _to_events(ev_path, *buf, size, src, validate, extra, streamed=True)
         if validate:
             _check_follows(last_t, ev)
+        if last_t is None and time_unit is None:
+            _doubt_unit(ev_path, ev.t, unit)
         yield ev
 
 

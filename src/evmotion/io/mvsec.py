@@ -23,7 +23,7 @@ import numpy as np
 
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
-from evmotion.io.base import FormatSpec
+from evmotion.io.base import TIME_UNIT_US, FormatSpec
 from evmotion.io.guard import check_h5_dataset, check_sensor_size, open_h5
 from evmotion.io.h5filters import HDF5_MAGIC
 from evmotion.io.npy import events_from_columns
@@ -55,20 +55,22 @@ def _open(path: Path, camera: str, quiet: bool = False):
     return f, ds, key.split("/")[1]
 
 
-def _make(path: Path, block: np.ndarray, size, meta, validate: bool) -> EventArray:
+def _make(path: Path, block: np.ndarray, size, meta, validate: bool,
+          time_unit: str | None) -> EventArray:
     if size == MVSEC_SENSOR_SIZE and "sensor_size_from" not in meta:
         meta = {**meta, "sensor_size_from": "MVSEC's DAVIS346, 346 x 260 (the file states "
                 "no size)"}
     return events_from_columns(path, block[:, 0], block[:, 1], block[:, 2], block[:, 3],
-                               sensor_size=size, time_unit="s", meta=meta, validate=validate)
+                               sensor_size=size, time_unit=time_unit, format_unit="s",
+                               format_name="MVSEC", meta=meta, validate=validate)
 
 
-def _locate(ds, tq_us: int, n: int) -> int:
+def _locate(ds, tq_us: int, n: int, us_per_unit: float) -> int:
     # Bisection on rows read one at a time: O(log N) small reads, no full time column.
     lo, hi = 0, n
     while lo < hi:
         mid = (lo + hi) // 2
-        if round(float(ds[mid, 2]) * 1e6) < tq_us:
+        if round(float(ds[mid, 2]) * us_per_unit) < tq_us:
             lo = mid + 1
         else:
             hi = mid
@@ -89,7 +91,7 @@ def _size(path: Path, f, camera: str, sensor_size) -> tuple[int, int]:
 
 def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
          sensor_size: tuple[int, int] | None = None, camera: str = "left",
-         validate: bool = True) -> EventArray:
+         validate: bool = True, time_unit: str | None = None) -> EventArray:
     """Read events of one MVSEC camera.
 
     Parameters
@@ -98,6 +100,10 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         Keep ``t0 <= t < t1`` (µs, the file's clock).
     camera : {"left", "right"}
         Which DAVIS.
+    time_unit : {"s", "ms", "us", "ns"}, optional
+        The unit of the file's times where it is not MVSEC's seconds (other tools write
+        the layout with µs); default seconds, with a warning where the times' rate says
+        another unit.
 
     Examples
     --------
@@ -111,19 +117,22 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     f, ds, camera = _open(path, camera)
     with f:
         n = ds.shape[0]
-        lo = 0 if t0 is None else _locate(ds, int(t0), n)
-        hi = n if t1 is None else _locate(ds, int(t1), n)
+        scale = TIME_UNIT_US[time_unit or "s"]
+        lo = 0 if t0 is None else _locate(ds, int(t0), n, scale)
+        hi = n if t1 is None else _locate(ds, int(t1), n, scale)
         block = ds[lo:max(lo, hi)]
         size = _size(path, f, camera, sensor_size)
     meta = {"source": str(path), "format": "mvsec", "camera": camera}
-    ev = _make(path, block, size, meta, validate)
+    ev = _make(path, block, size, meta, validate, time_unit)
     return ev.slice_time(t0, t1) if (t0 is not None or t1 is not None) else ev
 
 
 def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
                 sensor_size: tuple[int, int] | None = None, camera: str = "left",
-                validate: bool = True) -> Iterator[EventArray]:
-    """Stream one camera's events in chunks of ``chunk_events``."""
+                validate: bool = True, time_unit: str | None = None
+                ) -> Iterator[EventArray]:
+    """Stream one camera's events in chunks of ``chunk_events`` (``time_unit`` as in
+    :func:`read`; the first chunk's times are doubted, the others read alike)."""
     if int(chunk_events) <= 0:
         raise ParameterError(f"chunk_events must be positive, got {chunk_events}")
     path = Path(path)
@@ -132,7 +141,8 @@ def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
     meta = {"source": str(path), "format": "mvsec", "camera": camera}
     with f:
         for s in range(0, ds.shape[0], int(chunk_events)):
-            yield _make(path, ds[s:s + int(chunk_events)], size, meta, validate)
+            yield _make(path, ds[s:s + int(chunk_events)], size, meta, validate,
+                        time_unit if time_unit is not None or s == 0 else "s")
 
 
 def read_frames(path: str | os.PathLike, camera: str = "left") -> dict:

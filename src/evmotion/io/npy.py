@@ -34,6 +34,7 @@ from evmotion.io.guard import (
     check_sensor_size,
     warn_inferred_size,
 )
+from evmotion.io.timedoubt import unit_doubt
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "events_from_columns", "split_columns",
@@ -89,91 +90,6 @@ class TimeResolutionError(ValueError):
     """Float times too coarse, where they lie, to hold event times."""
 
 
-def _ns_in_whole_microseconds(t: np.ndarray, unit: str) -> bool:
-    """Whether integer times read as µs look like nanoseconds of a sensor with µs steps:
-    at least 100 events, all on multiples of 1000, spanning more than a second as µs.
-
-    Examples
-    --------
-    >>> t = np.arange(0, 2_000_000_000, 1_000_000)
-    >>> _ns_in_whole_microseconds(t, "us (inferred)"), _ns_in_whole_microseconds(t + 1, "us (x)")
-    (True, False)
-    """
-    return (unit.startswith("us") and t.dtype.kind in "iu" and t.size >= 100
-            and int(t.max()) - int(t.min()) > 1_000_000
-            and not np.any(t[:1000] % 1000) and not np.any(t % 1000))
-
-
-def _sparse_as_microseconds(t: np.ndarray, unit: str) -> tuple[float, float] | None:
-    """``(rate ev/s, span s)`` when integer times read as µs by inference make a
-    recording of at least 1000 events longer than 10 s at under 1000 events/s: event
-    cameras make far more while anything moves, and nanoseconds of a simulator read as µs
-    look so (1000x long, every speed 1000x small). None otherwise.
-
-    Examples
-    --------
-    >>> t = np.arange(8000) * 50_003  # ns, 20 kev/s
-    >>> [round(v) for v in _sparse_as_microseconds(t, "us (inferred)")]
-    [20, 400]
-    >>> _sparse_as_microseconds(t // 1000, "us (inferred)") is None
-    True
-    """
-    if not (unit.startswith("us (inferred") and t.dtype.kind in "iu" and t.size >= 1000):
-        return None
-    span = _bulk_span(t) * 1e-6
-    return (t.size / span, span) if span > 10 and t.size / span < 1000 else None
-
-
-def _bulk_span(t: np.ndarray) -> float:
-    # the span of the times from that of their middle 99 %: one corrupt time far off made
-    # the recording look sparse, and the warning then named a wrong unit (probe)
-    lo, hi = np.percentile(t, [0.5, 99.5])
-    return (float(hi) - float(lo)) / 0.99
-
-
-def _sparse_as_seconds(t: np.ndarray, unit: str) -> tuple[float, float] | None:
-    """``(rate ev/s, span s)`` when float times read as seconds by inference make a
-    recording of at least 1000 events longer than 1000 s at under 100 events/s: even a
-    still event camera's noise makes far more, and microseconds read as seconds look so
-    (10^6 x long, every speed 10^6 x small). None otherwise.
-
-    Examples
-    --------
-    >>> t = np.arange(20_000) * 1.8   # µs, 0.55 Mev/s, as float
-    >>> [round(v, 2) for v in _sparse_as_seconds(t, "s (inferred)")]
-    [0.56, 35998.2]
-    >>> _sparse_as_seconds(t * 1e-6, "s (inferred)") is None
-    True
-    """
-    if not (unit.startswith("s (inferred") and t.dtype.kind == "f" and t.size >= 1000):
-        return None
-    span = _bulk_span(t)
-    return (t.size / span, span) if span > 1000 and t.size / span < 100 else None
-
-
-def _unit_doubt(t: np.ndarray, unit: str) -> str | None:
-    """What makes times read in an inferred ``unit`` doubtful, as the rest of a warning
-    about field 't' (the unit to give instead), or None."""
-    if _ns_in_whole_microseconds(t, unit):
-        return (f"holds integers, read as microseconds, that are all multiples of 1000 "
-                f"({len(t)} events; as µs, millisecond steps, which event cameras do not "
-                "make): nanoseconds? If so, read with --time-unit ns (time_unit='ns' in "
-                "Python); every speed is 1000x too small otherwise")
-    sparse = _sparse_as_microseconds(t, unit)
-    if sparse is not None:
-        return (f"holds integers, read as microseconds: {len(t)} events over "
-                f"{sparse[1]:.0f} s, {sparse[0]:.3g} events/s (an event camera makes far "
-                "more while anything moves): nanoseconds? If so, read with --time-unit ns "
-                "(time_unit='ns' in Python); every speed is 1000x too small otherwise")
-    sparse = _sparse_as_seconds(t, unit)
-    if sparse is not None:
-        return (f"holds floats, read as seconds: {len(t)} events over {sparse[1]:.0f} s, "
-                f"{sparse[0]:.3g} events/s (an event camera makes far more, even still): "
-                "microseconds? If so, read with --time-unit us (time_unit='us' in Python); "
-                "every speed is a million times too small otherwise")
-    return None
-
-
 def _refuse_negative_pixels(path, x: np.ndarray, y: np.ndarray) -> None:
     """FormatError naming the first event whose integer pixel coordinate is below 0."""
     for name, a in (("x", x), ("y", y)):
@@ -185,11 +101,14 @@ def _refuse_negative_pixels(path, x: np.ndarray, y: np.ndarray) -> None:
 
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
                         meta=None, validate=True, drop_outside=False,
-                        time_field: str | None = None) -> EventArray:
+                        time_field: str | None = None, format_unit: str | None = None,
+                        format_name: str = "") -> EventArray:
     """Build an EventArray from loose columns, with clear errors naming ``path``.
 
     ``time_field``, the name ``t`` had in the file: a unit it states (``t_ns``,
-    ``timestamp_us``) is the unit when ``time_unit`` is None.
+    ``timestamp_us``) is the unit when ``time_unit`` is None. ``format_unit``: the unit
+    the format ``format_name`` states for its times, used when neither says one, and
+    doubted as a guess is (MVSEC's seconds holding microseconds read 10^6 x long, unsaid).
 
     Integer-valued coordinates become uint16; fractional ones (undistorted) float32.
     ``drop_outside`` drops events off the sensor (undistorted coordinates) instead of
@@ -204,6 +123,9 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     how = "given"
     if time_unit is None and time_field is not None and time_unit_in_name(time_field):
         time_unit, how = time_unit_in_name(time_field), f"from the field name '{time_field}'"
+    guessed = time_unit is None
+    if guessed and format_unit is not None:
+        time_unit, how = format_unit, f"{format_name}'s"
     try:
         t_us, unit = _time_us(t, time_unit, how)
     except ValueError as exc:
@@ -213,7 +135,7 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
             raise FormatError(path, f"field 't': {exc}") from None
         raise FormatError(path, f"field 't': {exc}, not a time within +-2^62 us") from None
     meta["time_unit"] = unit
-    doubt = _unit_doubt(t, unit) if how == "given" and time_unit is None else None
+    doubt = unit_doubt(t, unit) if guessed else None
     if doubt is not None:
         warnings.warn(f"{path}: field 't' {doubt}", EvmotionWarning, stacklevel=3)
     x = np.asarray(x)
