@@ -383,3 +383,25 @@ def test_a_recording_that_pauses_for_most_of_its_span_is_said(tmp_path):
         warnings.simplefilter("error", EvmotionWarning)
         eio.read_events(tmp_path / "steady.h5")
         eio.describe(tmp_path / "steady.h5", chunk_events=1000)
+
+
+@pytest.mark.parametrize("suffix", [".npy", ".txt", None])
+def test_polarities_minus_one_and_zero_without_plus_one_are_refused(tmp_path, suffix):
+    """-1 and 0 both read OFF: such a file was read as all OFF, unsaid (probe AS)."""
+    from evmotion.errors import EventDataError, FormatError
+    from evmotion.events import EventArray
+    from evmotion.io import read_events
+
+    t, x, y, p = np.arange(10) * 10, np.arange(10) % 4, np.zeros(10, int), np.tile([-1, 0], 5)
+    if suffix is None:
+        with pytest.raises(EventDataError, match=r"holds -1 \(5 events\) and 0 \(5\) but no"):
+            EventArray(x=x, y=y, t=t, p=p, sensor_size=(4, 4))
+        return
+    path = tmp_path / f"e{suffix}"
+    if suffix == ".npy":
+        np.save(path, np.rec.fromarrays([t, x, y, p.astype(np.int8)], names="t,x,y,p"))
+    else:
+        path.write_text("".join(f"{a * 1e-6:.6f} {b} {c} {d}\n" for a, b, c, d in zip(
+            t, x, y, p, strict=True)))
+    with pytest.raises(FormatError, match="but no \\+1: neither 0/1 nor -1/\\+1"):
+        read_events(path, sensor_size=(4, 4))

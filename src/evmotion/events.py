@@ -30,6 +30,7 @@ __all__ = [
     "Window",
     "concatenate",
     "make_windows",
+    "ambiguous_polarity",
     "as_timestamps_us",
     "events_for_windows",
 ]
@@ -444,6 +445,23 @@ class EventArray:
         return d
 
 
+def ambiguous_polarity(p: np.ndarray) -> str | None:
+    """Why polarities ``p`` (signed) cannot be read, or None: -1 and 0 without a +1, a
+    pair that 0/1 and -1/+1 files never hold and that would read all OFF.
+
+    Examples
+    --------
+    >>> ambiguous_polarity(np.array([-1, 0, 0])) is not None, ambiguous_polarity(np.array([-1, 1]))
+    (True, None)
+    """
+    if not p.size or p.min() != -1 or p.max() != 0:
+        return None
+    # every event OFF, unsaid (probe AS)
+    return (f"field 'p' holds -1 ({int(np.count_nonzero(p == -1))} events) and 0 "
+            f"({int(np.count_nonzero(p == 0))}) but no +1: neither 0/1 nor -1/+1, and both "
+            "would read OFF; map the ON value to 1 first")
+
+
 def _polarity(p) -> np.ndarray:
     """``p`` as contiguous uint8 0/1, or EventDataError if a value is not 0/1 (uint8 or
     unsigned input) or -1/0/+1 (signed or float input, -1 and 0 both meaning OFF).
@@ -467,6 +485,9 @@ def _polarity(p) -> np.ndarray:
             i = int(np.argmax(~np.isin(p, (0, 1) if unsigned else (-1, 0, 1))))
             want = "0/1" if unsigned else "0/1 or -1/+1"
             raise EventDataError(f"event {i} has polarity p={p[i]}, expected {want}")
+        odd = None if unsigned else ambiguous_polarity(p)
+        if odd is not None:
+            raise EventDataError(odd)
     if p.dtype == np.uint8:
         return np.ascontiguousarray(p)
     return (p > 0).astype(np.uint8)

@@ -25,7 +25,7 @@ import numpy as np
 
 from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
-from evmotion.events import SORT_HINT, EventArray
+from evmotion.events import SORT_HINT, EventArray, ambiguous_polarity
 from evmotion.io.base import TIME_UNIT_US, FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
@@ -637,6 +637,9 @@ def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
             bad = int(np.argmax((p < -1) | (p > 1)))
             raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1 or "
                               "-1/+1", _order_hint(t, x, y, p))
+        odd = ambiguous_polarity(p)
+        if odd is not None:
+            raise FormatError(path, odd)
     meta = {"source": str(path), "format": "ecd", "sensor_size_from": size_src, **(extra or {})}
     try:
         return EventArray(x=x.astype(np.uint16), y=y.astype(np.uint16), t=t,

@@ -20,7 +20,7 @@ import numpy as np
 
 from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, ambiguous_polarity
 from evmotion.io.base import (
     EVENT_FIELD_NAMES,
     TIME_UNIT_US,
@@ -161,6 +161,9 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     if p.size and not np.all(np.isin(p, (-1, 0, 1))):
         bad = int(np.argmax(~np.isin(p, (-1, 0, 1))))
         raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1 or -1/+1")
+    odd = ambiguous_polarity(p) if p.dtype.kind in "if" else None
+    if odd is not None:
+        raise FormatError(path, odd)
     inside = (x >= 0) & (y >= 0) & (x <= w - 1) & (y <= h - 1)
     if not inside.all():
         bad = int(np.argmax(~inside))
