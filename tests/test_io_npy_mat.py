@@ -195,6 +195,25 @@ def test_n_by_4_unsigned_finds_its_time_column(tmp_path):
     assert ev.t.tolist() == [0, 5, 9] and ev.x.tolist() == [192, 7, 3]
 
 
+def test_n_by_4_with_time_last_reads_as_prophesee_fields(tmp_path):
+    """x y p t (Prophesee's CD field order) was refused, its hint naming two orders that
+    did not fit and a Python keyword no command has (probe AS)."""
+    from evmotion.errors import FormatError
+    from evmotion.io import npy
+
+    rng = np.random.default_rng(0)
+    n = 500
+    t, x, y, p = np.arange(n) * 7, rng.integers(0, 300, n), rng.integers(0, 200, n), \
+        rng.integers(0, 2, n)
+    np.save(tmp_path / "xypt.npy", np.column_stack([x, y, p, t]))
+    ev = npy.read(tmp_path / "xypt.npy", sensor_size=(200, 300))
+    assert ev.t.tolist() == t.tolist() and ev.p.tolist() == p.tolist()
+    assert ev.meta["columns"] == "xypt (inferred from the sorted column)"
+    np.save(tmp_path / "xyzt.npy", np.column_stack([x, y, x, t]))  # no polarity column
+    with pytest.raises(FormatError, match="cannot tell which column is time.*structured"):
+        npy.read(tmp_path / "xyzt.npy", sensor_size=(200, 300))
+
+
 def test_nanoseconds_of_a_microsecond_sensor_are_questioned(tmp_path):
     # relative ns times (a 1.5 s recording from t = 0) cannot be told from µs by their
     # size, but a µs sensor's ns are all multiples of 1000: warned, read as stated

@@ -3,9 +3,9 @@
 ``height`` and ``width``, or ``resolution`` as (width, height)).
 
 Plain ``N×4`` arrays have no field names: give ``columns=`` (e.g. ``"txyp"``); otherwise
-the time column is taken as the first or third column, whichever is sorted, and
-``meta["columns_from"]`` says it was inferred. Float times are seconds, integer times µs,
-unless ``time_unit=`` or the time field's name (``t_ns``, ``timestamp_us``) says otherwise.
+the time column is the one sorted column (first: t x y p; third: x y t p; last, after a
+polarity column: x y p t), and ``meta["columns"]`` says it was inferred. Float times
+are seconds, integer times µs, unless ``time_unit=`` or the time field's name (``t_ns``, ``timestamp_us``) says otherwise.
 """
 
 from __future__ import annotations
@@ -222,12 +222,21 @@ def split_columns(path: Path, arr: np.ndarray, columns: str | None):
         # the share of steps forward, so that a few times out of order (which the
         # unsorted-time check then names) still tell time from a coordinate (~half)
         ahead = [float(np.mean(arr[1:, i] >= arr[:-1, i])) if len(arr) > 1 else 1.0
-                 for i in (0, 2)]
-        if max(ahead) >= 0.99 and min(ahead) < 0.9:
-            columns = "txyp" if ahead[0] > ahead[1] else "xytp"
-        else:
-            raise FormatError(path, "cannot tell which column is time in this N×4 array",
-                              "pass columns='txyp' or columns='xytp'")
+                 for i in range(4)]
+        # (a polarity column, -1 / 0 / 1, is no time however ordered)
+        binary = [bool(np.isin(arr[:, i], (-1, 0, 1)).all()) for i in range(4)]
+        sorted_cols = [i for i in range(4) if ahead[i] >= 0.99 and not binary[i]]
+        # the time column's place names the order: t x y p (ECD), x y t p (MVSEC),
+        # x y p t (Prophesee's CD fields) where the third column holds polarities
+        orders = {0: "txyp", 2: "xytp", 3: "xypt" if binary[2] else None}
+        columns = orders.get(sorted_cols[0]) if len(sorted_cols) == 1 else None
+        if columns is None:
+            raise FormatError(path, "cannot tell which column is time in this N×4 array "
+                              f"(share of steps forward per column: "
+                              f"{', '.join(f'{a:.2f}' for a in ahead)})",
+                              "in Python pass columns= (e.g. 'txyp', 'xytp', 'xypt'); for "
+                              "any tool, save a structured array with fields t, x, y, p or "
+                              "an .npz with arrays t, x, y, p")
         how = "inferred from the sorted column"
     if sorted(columns) != sorted("txyp"):
         raise ParameterError(f"columns must be a permutation of 'txyp', got {columns!r}")
