@@ -2,6 +2,7 @@
 eval`` on its output, and a one-line error with exit code 2 for every bad input."""
 
 import json
+import re
 import shutil
 import warnings
 
@@ -451,6 +452,18 @@ def test_other_tools_time_units_and_partial_coverage(scene, tmp_path, capsys):
         warnings.simplefilter("error")
         assert load_bos_input(ms, time_unit="ms").intervals[:, 1:].tolist() == \
             load_bos_input(scene).intervals[:, 1:].tolist()
+    # relative nanoseconds, whole numbers in both lists, read as µs: the warning named
+    # milliseconds, which were then refused (probe AT); it names ns
+    ns = _copy(scene, tmp_path, "ns_both")
+    for name in ("images.txt", "events.txt"):
+        lines = (ns / name).read_text().splitlines()
+        (ns / name).write_text("".join(f"{round(float(a) * 1e9) + 10**9} {b}\n" for a, b in
+                                       (ln.split(None, 1) for ln in lines)))
+    with pytest.warns(EvmotionWarning, match=r"slower than a BOS video runs: times in "
+                                             r"nanoseconds read as microseconds\?.*--time-unit ns"):
+        load_bos_input(ns)
+    assert np.diff(load_bos_input(ns, time_unit="ns").intervals[:, 1:]).tolist() == \
+        np.diff(load_bos_input(scene).intervals[:, 1:]).tolist()
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert len(load_bos_input(scene).intervals) == 2  # the simulated scene: no warning
@@ -642,3 +655,19 @@ def test_time_units_of_other_labs(scene, tmp_path, capsys):
     rc, _, err = run_cli(["bos", ms, "--out", tmp_path / "ms.h5"], capsys)
     assert rc == 2 and "do not overlap in time (the frames span 17 us, the events" in err \
         and "frame times in another unit?" in err, err
+
+
+def test_frames_in_nanoseconds_beside_events_in_microseconds_are_named(tmp_path, capsys):
+    """Frames spanning 1000x the events' span gave 'they do not overlap in time' without
+    a unit hint (probe AT)."""
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    d = tmp_path / "rec"
+    write_schlieren(simulate_schlieren("plume", sensor_size=(48, 40), duration_s=13 / 120,
+                                       seed=0), d)
+    rows = [ln.split(None, 1) for ln in (d / "images.txt").read_text().splitlines()]
+    (d / "images.txt").write_text("".join(f"{round(float(a) * 1e9) + 10**9} {b}\n"
+                                          for a, b in rows))
+    rc, _, err = run_cli(["bos", d, "--out", tmp_path / "x.h5"], capsys)
+    assert rc == 2 and "do not overlap in time" in err and \
+        re.search(r"us, 10\d\dx: frame times in another unit\?", err), err

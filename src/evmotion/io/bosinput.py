@@ -371,10 +371,12 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         hint = (f" (frame times in another unit? {listed.name}'s whole numbers were read "
                 "as microseconds; --time-unit s (or ms) reads them, and events.txt's whole "
                 "numbers, in that unit)")
-    if not slip and ev_span > UNIT_SLIP * fr_span:
-        # (only said beside a refusal: milliseconds read as µs, say; probe AM)
-        hint = (f" (the frames span {fr_span} us, the events {ev_span} us: frame times in "
-                "another unit? images.txt and timestamps files hold seconds)")
+    if not slip and (ev_span > UNIT_SLIP * fr_span or fr_span > UNIT_SLIP * ev_span):
+        # (only said beside a refusal: milliseconds read as µs, say, probe AM; frames in
+        # ns beside events in µs, probe AT)
+        hint = (f" (the frames span {fr_span} us, the events {ev_span} us, "
+                f"{max(fr_span, ev_span) / max(min(fr_span, ev_span), 1):.4g}x: frame times "
+                "in another unit? images.txt and timestamps files hold seconds)")
     if times[-1] <= t_first or times[0] >= t_last:
         raise ParameterError(f"frames ({where}) span [{times[0]}, {times[-1]}] us but the "
                              f"events ({rec}) [{t_first}, {t_last}] us: they do not overlap "
@@ -384,11 +386,15 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
             f"{rec}: the events span {ev_span * 1e-6:g} s, the frames {fr_span * 1e-6:g} s"
             f"{hint}"), stacklevel=2)
     elif spacing > SLOW_FRAME_SPACING_US:
+        # whole numbers were read as µs: nanoseconds (relative ns; ms was the wrong advice,
+        # then refused, probe AT); decimals as seconds: milliseconds
+        whole = ecd_list and time_unit is None and _whole_times(listed)
+        unit, read = (("ns", "nanoseconds read as microseconds") if whole
+                      else ("ms", "milliseconds read as seconds"))
         warnings.warn(EvmotionWarning(
             f"{where}: frames are {spacing * 1e-6:g} s apart (median), slower than a BOS "
-            "video runs: times in milliseconds read as seconds? The flow would be 1000x too "
-            "small; --time-unit ms reads events.txt's and images.txt's times in ms"),
-            stacklevel=2)
+            f"video runs: times in {read}? The flow would be 1000x too small; --time-unit "
+            f"{unit} reads events.txt's and images.txt's times in {unit}"), stacklevel=2)
     elif spacing < FAST_FRAME_SPACING_US:
         warnings.warn(EvmotionWarning(
             f"{where}: frames are {spacing:g} us apart (median), faster than a camera beside "
