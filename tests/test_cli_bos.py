@@ -671,3 +671,24 @@ def test_frames_in_nanoseconds_beside_events_in_microseconds_are_named(tmp_path,
     rc, _, err = run_cli(["bos", d, "--out", tmp_path / "x.h5"], capsys)
     assert rc == 2 and "do not overlap in time" in err and \
         re.search(r"us, 10\d\dx: frame times in another unit\?", err), err
+
+
+def test_inverted_polarity_is_named_with_or_without_a_contrast_threshold(scene, tmp_path,
+                                                                          capsys):
+    """Events with ON and OFF the other way round: without C the refusal spoke of 'no
+    texture, still air or noise'; with --contrast-threshold the flow came out reversed,
+    unsaid (probe AT). convert --invert-polarity mends the file."""
+    flipped = _copy(scene, tmp_path, "flipped")
+    rows = [ln.split() for ln in (scene / "events.txt").read_text().splitlines()]
+    (flipped / "events.txt").write_text("".join(f"{t} {x} {y} {1 - int(p)}\n"
+                                                for t, x, y, p in rows))
+    for extra in ([], ["--contrast-threshold", "0.2"]):
+        _one_line_error(["bos", flipped, "--out", tmp_path / "x.h5", *extra], capsys,
+                        "anti-correlate with the frames' log difference",
+                        "polarity is inverted", "--invert-polarity")
+    mended = _copy(scene, tmp_path, "mended")
+    rc, _, err = run_cli(["convert", flipped / "events.txt", mended / "events.txt",
+                          "--invert-polarity"], capsys)
+    assert rc == 0, err
+    assert (mended / "events.txt").read_text().splitlines()[1:] == \
+        (scene / "events.txt").read_text().splitlines()

@@ -84,6 +84,11 @@ class UnsortedError(EventDataError):
         return UnsortedError(self.at + offset, self.t_at, self.t_next, self.hint)
 
 
+class InvertedPolarityError(EventDataError):
+    """Events whose polarity sums anti-correlate with what the frames show: their ON and
+    OFF read the other way round (the flow would come out reversed)."""
+
+
 class EmptyWindowError(EvmotionError):
     """A window or slice holds no events where the computation needs some."""
 

@@ -298,6 +298,19 @@ class EventArray:
                         "cut it into windows (ev.windows_by_count / windows_by_duration) or "
                         "pass it whole (a function taking chunks takes [ev])")
 
+    def with_polarity_inverted(self) -> EventArray:
+        """The same events with ON and OFF exchanged (a sensor or tool that stores them the
+        other way round).
+
+        Examples
+        --------
+        >>> ev = EventArray(x=[0, 1], y=[0, 0], t=[0, 5], p=[1, 0], sensor_size=(2, 2))
+        >>> ev.with_polarity_inverted().p.tolist()
+        [0, 1]
+        """
+        return EventArray(self.x, self.y, self.t, (1 - self.p).astype(np.uint8),
+                          self.sensor_size, validate=False, meta=self.meta)
+
     def sorted(self) -> EventArray:
         """Return a copy sorted by time (stable)."""
         order = np.argsort(self.t, kind="stable")

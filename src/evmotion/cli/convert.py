@@ -62,6 +62,9 @@ def add_parser(sub) -> None:
     p.add_argument("--sort", action="store_true",
                    help="sort the events by time (stable) for a recording whose timestamps "
                         "are not in order; reads the whole recording into memory")
+    p.add_argument("--invert-polarity", action="store_true",
+                   help="write ON as OFF and OFF as ON (a sensor or tool that stores them the "
+                        "other way round)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
 
@@ -109,6 +112,8 @@ def run(args) -> int:
                        desc="convert", unit="ev", unit_scale=True)
         try:
             for chunk in it:
+                if args.invert_polarity:
+                    chunk = chunk.with_polarity_inverted()
                 if len(chunk):
                     counted["n"] += len(chunk)
                     if counted["t_first"] is None:

@@ -88,6 +88,7 @@ from evmotion.errors import (
     EventDataError,
     EvmotionError,
     EvmotionWarning,
+    InvertedPolarityError,
     ParameterError,
     UnderfitWarning,
 )
@@ -782,6 +783,14 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
                 _quantization_noise(frame, frame_next, crop, sigma, near, log_eps))
     dd, ss = d[near], s[near]
     var_d, cov, var_s = (float(np.mean(v)) for v in (dd * dd, dd * ss, ss * ss))
+    corr = cov / np.sqrt(var_d * var_s) if var_d > 0 and var_s > 0 else 0.0
+    if dd.size >= 16 and corr <= -min_correlation:
+        # ON events where the frames darken: the flow would come out reversed (probe AT)
+        raise InvertedPolarityError(
+            f"the events' polarity sums in [{t0_us}, {t1_us}) us anti-correlate with the "
+            f"frames' log difference (correlation {corr:.2f} over {dd.size} pixels): their "
+            "polarity is inverted (ON where the frames darken)? Flip it (evmotion convert "
+            "IN OUT --invert-polarity) and run again")
     if dd.size < 16 or cov <= 0 or var_s <= 0:
         raise EventDataError(f"cannot estimate the contrast threshold in [{t0_us}, {t1_us}) "
                              f"us: the events' polarity sums do not follow the frames' log "
@@ -789,7 +798,6 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
                              f"(covariance {cov:.3g}): no texture, still air or events "
                              "that are noise; give contrast_threshold "
                              "(--contrast-threshold) if you know C")
-    corr = cov / np.sqrt(var_d * var_s) if var_d > 0 else 0.0
     if corr < min_correlation:
         raise EventDataError(f"cannot estimate the contrast threshold in [{t0_us}, {t1_us}) "
                              f"us: the events' polarity sums correlate {corr:.2f} with the "

@@ -26,6 +26,7 @@ from evmotion.errors import (
     EventDataError,
     EvmotionError,
     EvmotionWarning,
+    InvertedPolarityError,
     ParameterError,
     UnderfitWarning,
 )
@@ -92,35 +93,24 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15,
     >>> round(float(c), 1), len(per_interval)   # the simulator's sensor has C = 0.2
     (0.2, 3)
     """
-    from evmotion.methods.bos import (
-        NEAR_EVENTS_PX,
-        WEAK_CORRELATION,
-        contrast_threshold_slope,
-    )
+    from evmotion.methods.bos import NEAR_EVENTS_PX, WEAK_CORRELATION
 
-    if samples < 1:
-        raise ParameterError(f"samples must be >= 1, got {samples}")
-    kept = np.setdiff1d(np.arange(len(data.intervals)), np.asarray(list(exclude), int))
-    if not kept.size:
-        kept = np.arange(len(data.intervals))
-    pick = kept[np.unique(np.linspace(0, kept.size - 1, min(samples, kept.size))
-                          .round().astype(int))]
-    estimates, slopes, corrs = [], [], []
+    pick = _sampled_intervals(data, samples, exclude)
+    estimates, slopes, corrs, inverted = [], [], [], []
     for j in pick:
-        i, t0, t1 = (int(v) for v in data.intervals[j])
         try:
-            # the frame after lets the frames' noise be measured in time where no still
-            # air is in view
-            after = data.frames[i + 2] if i + 2 < len(data.frames) else None
-            c, slope, corr = contrast_threshold_slope(data.events, data.frames[i],
-                                                      data.frames[i + 1], t0_us=t0, t1_us=t1,
-                                                      roi=data.roi, frame_after=after)
+            c, slope, corr = _interval_slope(data, j)
+        except InvertedPolarityError as exc:
+            inverted.append(exc)
+            continue
         except EvmotionError:
             continue
         if np.isfinite(c) and c > 0:
             estimates.append(c)
             slopes.append(slope)
             corrs.append(corr)
+    if len(inverted) > len(estimates):
+        raise inverted[0]
     est = np.asarray(estimates, dtype=np.float64)
     low = (f"; C = {np.median(est):.2g} is lower than event cameras are usually set to "
            "(0.1-0.5)" if est.size and np.median(est) < LOWEST_USUAL_C else "")
@@ -145,6 +135,48 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15,
             "events' slope is low where the air changes the image by less than C, so the "
             "flow's magnitude may be too small; give --contrast-threshold"), stacklevel=2)
     return (float(np.median(est)) if est.size else None), est
+
+
+def _sampled_intervals(data: BosInput, samples: int, exclude: Collection[int] = ()
+                       ) -> np.ndarray:
+    """Up to ``samples`` indices of ``data.intervals`` evenly spread over the sequence,
+    without those of ``exclude`` (unless it holds them all)."""
+    if samples < 1:
+        raise ParameterError(f"samples must be >= 1, got {samples}")
+    kept = np.setdiff1d(np.arange(len(data.intervals)), np.asarray(list(exclude), int))
+    if not kept.size:
+        kept = np.arange(len(data.intervals))
+    return kept[np.unique(np.linspace(0, kept.size - 1, min(samples, kept.size))
+                          .round().astype(int))]
+
+
+def _interval_slope(data: BosInput, j: int) -> tuple[float, str, float]:
+    """:func:`~evmotion.methods.bos.contrast_threshold_slope` of interval ``j``."""
+    from evmotion.methods.bos import contrast_threshold_slope
+
+    i, t0, t1 = (int(v) for v in data.intervals[j])
+    # the frame after lets the frames' noise be measured in time where no still air is
+    # in view
+    after = data.frames[i + 2] if i + 2 < len(data.frames) else None
+    return contrast_threshold_slope(data.events, data.frames[i], data.frames[i + 1],
+                                    t0_us=t0, t1_us=t1, roi=data.roi, frame_after=after)
+
+
+def check_polarity(data: BosInput, samples: int = 3) -> None:
+    """:class:`~evmotion.errors.InvertedPolarityError` where the events of most of up to
+    ``samples`` intervals anti-correlate with the frames' change: with a given C nothing
+    else looks, and inverted events gave the reversed flow, unsaid (probe AT)."""
+    inverted, fitted = [], 0
+    for j in _sampled_intervals(data, samples):
+        try:
+            _interval_slope(data, j)
+            fitted += 1
+        except InvertedPolarityError as exc:
+            inverted.append(exc)
+        except EvmotionError:
+            continue
+    if len(inverted) > fitted:
+        raise inverted[0]
 
 
 #: Below this share of the next intervals' event gain (:func:`warn_startup`) the interval
@@ -452,6 +484,7 @@ def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, 
     (0.2, 'given')
     """
     if contrast_threshold is not None:
+        check_polarity(data)
         return float(contrast_threshold), "given", np.zeros(0)
     c, est = sequence_contrast_threshold(data, samples=samples, exclude=exclude)
     return c, (f"median of {est.size} intervals" if c is not None else "none"), est
