@@ -54,6 +54,10 @@ CUT_EVENTS = 10
 MAX_CLIPPED = 0.75
 # where readers say the sensor size came from when the file does not state it
 GUESSED_SIZES = ("ECD default", "default", "max coordinate", LARGEST_COORDINATE)
+#: :func:`_refuse_finer_frames`: events it needs to judge, and how far (px) their extent
+#: may fall short of 1/k of the frames (no event in the last rows or columns)
+FINER_FRAMES_MIN_EVENTS = 1000
+FINER_FRAMES_SLACK_PX = 4
 
 
 @dataclass(frozen=True)
@@ -230,6 +234,26 @@ def _events_on_frames(rec: Path, fmt: str | None, frame_size: tuple[int, int], *
                           f"pixel grid, {frame_size[1]}x{frame_size[0]} px (W x H)") from None
 
 
+def _refuse_finer_frames(src: Path, events: EventArray, frame_shape) -> None:
+    """FormatError where the events, on a sensor whose size came from the frames, all lie
+    within 1/k of them (k = 2, 3, 4) to a few px: frames at k x the event sensor's
+    resolution (they were solved on the frames' grid, the flow 3x too small, after
+    warnings that named other causes, probe AT)."""
+    if not str(events.meta.get("sensor_size_from", "")).startswith("image") \
+            or len(events) < FINER_FRAMES_MIN_EVENTS:
+        return
+    fh, fw = frame_shape
+    ex, ey = int(np.ceil(events.x.max())) + 1, int(np.ceil(events.y.max())) + 1
+    for k in (2, 3, 4):
+        if fw / k - FINER_FRAMES_SLACK_PX <= ex <= fw / k and \
+                fh / k - FINER_FRAMES_SLACK_PX <= ey <= fh / k:
+            raise FormatError(src, f"the frames are {fw}x{fh} px but every event lies within "
+                              f"{ex}x{ey} px, 1/{k} of them (W x H): frames at {k}x the event "
+                              "sensor's resolution? BOS needs the frames on the event "
+                              f"sensor's pixel grid (bin or resize them to {fw // k}x"
+                              f"{fh // k})")
+
+
 def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = None, *,
                    fmt: str | None = None, roi: tuple[int, int, int, int] | None = None,
                    t0: int | None = None, t1: int | None = None,
@@ -336,6 +360,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         # events that do not state their sensor (ECD text without frames beside it, say)
         # lie on the frames' grid
         events = _events_on_frames(rec, fmt, (fh, fw), sensor_size=(fh, fw), **unit)
+    _refuse_finer_frames(src, events, (fh, fw))
     if (fh, fw) != tuple(events.sensor_size):
         eh, ew = events.sensor_size
         raise ParameterError(f"frames {src} are {fw}x{fh} px but the events' sensor is "
