@@ -716,3 +716,21 @@ def test_frames_at_twice_the_event_resolution_are_refused(scene, tmp_path, capsy
     _one_line_error(["bos", big, "--out", tmp_path / "x.h5"], capsys,
                     "the frames are 80x96 px but every event lies within",
                     "1/2 of them", "resize them to 40x48")
+
+
+@pytest.mark.parametrize("blank", [0, 3])
+def test_a_blank_frame_is_said_as_such_only(tmp_path, capsys, blank):
+    """A uniform frame among textured ones changes the frames everywhere: it was said as
+    frames and events not showing the same view, and, first, as the sensor's start-up,
+    both advising wrong actions (probe AT)."""
+    from evmotion.io.pngfile import read_png, write_png
+
+    d = plume_scene(tmp_path / "rec", intervals=8)
+    png = sorted((d / "images").glob("*.png"))[blank]
+    img = read_png(png)[0]
+    write_png(png, np.full_like(img, 128))
+    rc, _, err = run_cli(["bos", d, "--iterations", 10, "--out", tmp_path / "b.h5"], capsys)
+    assert rc == 0, err
+    assert "textureless" in err and "do not show the same view" not in err, err
+    if blank == 0:  # (the simulated sensor's real start-up is in its first interval)
+        assert "follow the frames' change there" not in err, err

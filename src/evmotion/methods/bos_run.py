@@ -328,7 +328,9 @@ def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
     ratios = []
     for j in pick:
         i = int(data.intervals[j][0])
-        if i + 2 >= len(data.frames):
+        if i + 2 >= len(data.frames) or not all(_textured(data, k) for k in (i, i + 1, i + 2)):
+            # a blank frame changes everywhere, far from the events too: no view mismatch
+            # (probe AT)
             continue
         logs = [log_frame(data.frames[k])[y:y + h, x:x + w] for k in (i, i + 1, i + 2)]
         d = gaussian_filter(logs[1] - logs[0], 2.0, mode="nearest") ** 2
@@ -447,6 +449,13 @@ def check_registration(data: BosInput) -> tuple[int, int]:
     return (dx, dy)
 
 
+def _textured(data: BosInput, i: int) -> bool:
+    """Whether frame ``i`` has texture in the ROI (not a dropped, black or uniform one)."""
+    from evmotion.methods.bos import BosOptions, frame_texture
+
+    return frame_texture(data.frames[i], data.roi) >= BosOptions().min_texture
+
+
 def _event_gain(data: BosInput, interval) -> float:
     """The events' polarity sums of ``interval`` regressed on the frames' log difference
     (:func:`warn_startup`)."""
@@ -455,6 +464,8 @@ def _event_gain(data: BosInput, interval) -> float:
     from evmotion.methods.bos import event_sums, log_frame
 
     i, t0, t1 = (int(v) for v in interval)
+    if not (_textured(data, i) and _textured(data, i + 1)):
+        return float("nan")  # a blank frame's change is none the events saw (probe AT)
     s = gaussian_filter(event_sums(data.events, data.roi, t0_us=t0, t1_us=t1)[0], 2.0,
                         mode="nearest")
     d = log_frame(data.frames[i + 1]) - log_frame(data.frames[i])
