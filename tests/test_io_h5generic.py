@@ -201,3 +201,16 @@ def test_one_corrupt_time_is_named_not_taken_for_nanoseconds(tmp_path, capsys, s
     assert main(["info", str(path)]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "nanoseconds" not in err
+
+
+def test_a_corrupt_geometry_attribute_is_named_and_overridden(tmp_path):
+    """geometry='abc' was ignored: the size came from the coordinates with a warning that
+    the file states none (probe AS); --sensor-size then reads it."""
+    from evmotion.errors import FormatError
+
+    path = tmp_path / "cd.h5"
+    with h5py.File(path, "w") as f:
+        _compound(f, "CD/events", {"geometry": "abc"})
+    with pytest.raises(FormatError, match="attribute 'geometry' is 'abc', not a sensor size"):
+        read_events(path)
+    assert read_events(path, sensor_size=(240, 320)).sensor_size == (240, 320)

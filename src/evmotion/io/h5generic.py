@@ -86,8 +86,13 @@ def size_from_attrs(path: Path, *objs) -> tuple[int, int] | None:
                 return _checked_size(path, a[hk], a[wk], f"attributes '{hk}', '{wk}'")
         if "geometry" in a:  # Metavision: "1280x720"
             wh = str(a["geometry"]).lower().split("x")
-            if len(wh) == 2 and all(v.strip().isdigit() for v in wh):
-                return _checked_size(path, wh[1], wh[0], "attribute 'geometry' (WxH)")
+            if not (len(wh) == 2 and all(v.strip().isdigit() for v in wh)):
+                # ignored, it had let the size come from the coordinates with a warning
+                # that the file states none (probe AS)
+                raise FormatError(path, f"attribute 'geometry' is {a['geometry']!r}, not a "
+                                  "sensor size WxH (e.g. '1280x720'): a corrupt header?",
+                                  "give the sensor size (--sensor-size H W)")
+            return _checked_size(path, wh[1], wh[0], "attribute 'geometry' (WxH)")
         for key in ("sensor_size", "sensor_resolution"):  # event_utils / E2VID: (H, W)
             v = np.asarray(a[key]).ravel() if key in a else np.zeros(0)
             if v.size >= 2:
@@ -133,15 +138,15 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
             if len(set(lengths.values())) > 1:
                 raise FormatError(path, "the event fields differ in length: " + ", ".join(
                     f"{n} {m:,}" for n, m in lengths.items()))
-            size = size_from_attrs(path, grp, f)
+            size = sensor_size or size_from_attrs(path, grp, f)
         elif lay["kind"] == "compound":
             data = _load(path, f[lay["dataset"]], lay["dataset"])
             cols = {k: data[n] for k, n in lay["names"].items()}
-            size = size_from_attrs(path, f[lay["dataset"]], f)
+            size = sensor_size or size_from_attrs(path, f[lay["dataset"]], f)
         else:
             cols, meta["columns"] = split_columns(
                 path, _load(path, f[lay["dataset"]], lay["dataset"]), columns)
-            size = size_from_attrs(path, f[lay["dataset"]], f)
+            size = sensor_size or size_from_attrs(path, f[lay["dataset"]], f)
     if sensor_size is not None:
         size = tuple(sensor_size)
     if size is None:
