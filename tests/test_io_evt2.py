@@ -114,3 +114,19 @@ def test_a_header_that_understates_the_sensor_says_how_to_give_it(tmp_path):
                                           "sensor_size="):
         read_events(tmp_path / "a.raw")
     assert evt2.read(tmp_path / "a.raw", sensor_size=(720, 1280)).x.tolist() == [697, 3]
+
+
+def test_header_lines_stating_different_sizes_are_refused(tmp_path):
+    """'% format ...;height=480;width=640' beside '% geometry 1280x720': the geometry line
+    won, unsaid (probe AS); a given size reads the file."""
+    from evmotion.io import read_events
+
+    ev = EventArray(x=[97, 3], y=[5, 6], t=[10, 20], p=[1, 0], sensor_size=(480, 640))
+    evt2.write(tmp_path / "a.raw", ev)
+    raw = (tmp_path / "a.raw").read_bytes().replace(b"geometry 640x480",
+                                                    b"geometry 128x720")
+    (tmp_path / "a.raw").write_bytes(raw)
+    with pytest.raises(FormatError, match=r"different sensor sizes: '% format EVT2;height=480;"
+                                          r"width=640'; '% geometry 128x720'"):
+        read_events(tmp_path / "a.raw")
+    assert read_events(tmp_path / "a.raw", sensor_size=(480, 640)).x.tolist() == [97, 3]

@@ -255,8 +255,16 @@ def iter_blocks(path: Path, offset: int, block_bytes: int, word_bytes: int
 def geometry_from_header(lines: list[str], path: Path, default: tuple[int, int] | None
                          ) -> tuple[int, int]:
     """(height, width) from Prophesee header lines (``% geometry WxH``, ``% Width``,
-    ``% Height``, ``% format EVT3;height=..;width=..``)."""
-    width = height = None
+    ``% Height``, ``% format EVT3;height=..;width=..``); lines that state different sizes
+    are refused (one silently won, probe AS).
+
+    Examples
+    --------
+    >>> geometry_from_header(["% format EVT3;height=480;width=640", "% geometry 640x480"],
+    ...                      Path("a.raw"), None)
+    (480, 640)
+    """
+    stated: dict[str, tuple[int | None, int | None]] = {}
     for line in lines:
         body = line.lstrip("%").strip()
         key, _, val = body.partition(" ")
@@ -264,26 +272,29 @@ def geometry_from_header(lines: list[str], path: Path, default: tuple[int, int] 
         try:
             if key == "geometry":
                 w, h = val.strip().lower().split("x")
-                width, height = int(w), int(h)
-            elif key == "width":
-                width = int(val)
-            elif key == "height":
-                height = int(val)
+                stated[line] = (int(w), int(h))
+            elif key in ("width", "height"):
+                stated[line] = (int(val), None) if key == "width" else (None, int(val))
             elif key == "format" and ";" in val:
-                for item in val.split(";")[1:]:
-                    k, _, v = item.partition("=")
-                    if k.strip() == "width":
-                        width = int(v)
-                    elif k.strip() == "height":
-                        height = int(v)
+                items = dict(item.partition("=")[::2] for item in val.split(";")[1:])
+                items = {k.strip(): v for k, v in items.items()}
+                stated[line] = (int(items["width"]) if "width" in items else None,
+                                int(items["height"]) if "height" in items else None)
         except ValueError as exc:
             raise FormatError(path, f"bad header line '{line}': {exc}") from None
-    if width is None or height is None:
+    widths = {w for w, _ in stated.values() if w is not None}
+    heights = {h for _, h in stated.values() if h is not None}
+    if len(widths) > 1 or len(heights) > 1:
+        said = "; ".join(f"'{ln.strip()}'" for ln, (w, h) in stated.items()
+                         if w is not None or h is not None)
+        raise FormatError(path, f"the header states different sensor sizes: {said}",
+                          "give the true one (--sensor-size H W, or sensor_size=(H, W))")
+    if not widths or not heights:
         if default is None:
             raise FormatError(path, "the header gives no sensor geometry",
                               SENSOR_SIZE_HINT)
         return default
-    return check_sensor_size(path, (height, width), "header geometry")
+    return check_sensor_size(path, (heights.pop(), widths.pop()), "header geometry")
 
 
 def check_writable(events: EventArray, fmt: str, height: int, width: int,
