@@ -118,8 +118,12 @@ class _Windows:
         self._new()
 
     def count_raw(self, t: np.ndarray) -> None:
-        """The recording's events (their times, in order) for robust windows of N events:
-        a window ends where its N-th event's successor starts, as a count window does."""
+        """The recording's events (their times, in order), for robust windows of N events:
+        a window ends where its N-th event's successor starts, as a count window does.
+        Time windows start at the recording's first event, as the other dense flows' do
+        (robust ones had started at the first burst mean's time, probe AU)."""
+        if self.t0 is None and t.size:
+            self.t0 = int(t[0])
         if self.live is None or not t.size:
             return
         # the stream's events 0, N, 2N... start the windows (a bound on the time of the
