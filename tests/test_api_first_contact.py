@@ -239,8 +239,11 @@ def test_evaluation_and_picture_helpers_name_bad_arguments(tmp_path):
     from evmotion.events import EventArray
     from evmotion.io import write_flo
     from evmotion.io.flowfiles import FlowSequence
+    from evmotion.methods.bos import estimate_bos_sequence
     from evmotion.methods.dnn import estimate_flow_dnn
     from evmotion.methods.kymogram import KymoLine, kymogram_from_events
+    from evmotion.methods.triplet import estimate_flow_triplet
+    from evmotion.parallel import map_windows
     from evmotion.viz import flow_to_rgb, iwe_to_rgb
 
     gt = FlowSequence(np.zeros((2, 4, 5, 2), np.float32), np.array([0, 10]), np.array([10, 20]))
@@ -267,6 +270,12 @@ def test_evaluation_and_picture_helpers_name_bad_arguments(tmp_path):
          "dt_s must be finite"),  # ufunc isfinite
         (lambda: flow_to_rgb(np.zeros((2, 2, 2)), max_magnitude="10"), "max_magnitude must"),
         (lambda: iwe_to_rgb(np.ones((2, 2)), vmax=-1.0), "vmax must be finite and > 0"),
+        # fractions of µs had been floored
+        (lambda: estimate_flow_triplet(ev, [(0, 2000.5)]),
+         r"windows\[0\] t1 \(us\) must be a whole number"),
+        (lambda: map_windows(len, ev, [(0.5, 10)]), r"windows\[0\] t0 \(us\) must be a whole"),
+        (lambda: estimate_bos_sequence(ev, [np.ones((4, 5))] * 2, [0.0, 0.0083]),
+         r"times_us must be whole microseconds, got \[0.0, 0.0083\] \(seconds\?"),
     ]
     for call, words in cases:
         with pytest.raises(ParameterError, match=words):

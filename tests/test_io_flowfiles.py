@@ -97,6 +97,11 @@ def test_flow_writer_errors(tmp_path):
             fw.append(np.zeros((5, 7, 2)), 0, 1)
         with pytest.raises(ParameterError, match="before"):
             fw.append(np.zeros((6, 7, 2)), 10, 1)
+        # floored and taken as strings (probe AU)
+        with pytest.raises(ParameterError, match=r"t0 \(us\) must be a whole number"):
+            fw.append(np.zeros((6, 7, 2)), 30_000.7, 40_000)
+        with pytest.raises(ParameterError, match=r"t1 \(us\) must be a whole number"):
+            fw.append(np.zeros((6, 7, 2)), 30_000, "40000")
     with pytest.raises(FormatError, match="cannot resume"):
         ff.FlowWriter(tmp_path / "f.h5", (8, 8), resume=True)
     with h5py.File(tmp_path / "other.h5", "w") as f:

@@ -260,6 +260,8 @@ def test_array_texture_of_other_ranges():
 
 
 @pytest.mark.parametrize("kw,match", [
+    ({"sensor_size": (30.5, 40)}, "sensor_size height must be a whole number"),  # floored
+    ({"sensor_size": (20, 20_000)}, r"sensor_size width must be a whole number in 2\.\.16384"),
     ({"threshold": 0.0}, "threshold"),
     ({"duration_s": -1}, "duration_s"),
     ({"params": {"vz": 1.0}}, "no parameter 'vz'"),

@@ -36,7 +36,14 @@ from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs, read_attrs_many
 from evmotion.io.h5filters import h5_compression
 from evmotion.io.pngfile import read_png, write_png
-from evmotion.utils import atomic_path, check_number, ensure_file_target, ensure_room, is_file
+from evmotion.utils import (
+    atomic_path,
+    check_number,
+    ensure_file_target,
+    ensure_room,
+    is_file,
+    whole_number,
+)
 
 __all__ = [
     "gt_in_folder",
@@ -490,7 +497,9 @@ class FlowWriter(PartFileWriter):
         if arr.shape[:2] != self.sensor_size:
             raise ParameterError(f"flow has size {arr.shape[:2]}, the file holds "
                                  f"{self.sensor_size}")
-        if int(t1) < int(t0):
+        # whole µs: 30000.7 was floored and "30000" taken (probe AU)
+        t0, t1 = whole_number("t0 (us)", t0), whole_number("t1 (us)", t1)
+        if t1 < t0:
             raise ParameterError(f"window end t1={t1} us is before t0={t0} us")
         ensure_room(self.part, arr.nbytes + arr.shape[0] * arr.shape[1]
                     + sum(np.asarray(v).nbytes for v in (values or {}).values()))

@@ -1639,6 +1639,11 @@ def iter_bos_sequence(
     times = np.asarray(times_us, dtype=np.float64)
     if times.ndim != 1 or not np.isfinite(times).all():
         raise ParameterError(f"times_us must be finite frame times in us, got {times_us!r}")
+    if np.any(times != np.round(times)):
+        # seconds given for µs: truncated, then "must increase" (probe AU)
+        raise ParameterError(f"times_us must be whole microseconds, got {times[:3].tolist()}"
+                             f"{'...' if times.size > 3 else ''} (seconds? times_us = "
+                             "np.round(t_s * 1e6))")
     times = times.astype(np.int64)
     if len(frames) != len(times):
         raise ParameterError(f"{len(frames)} frames but {len(times)} timestamps")

@@ -925,10 +925,13 @@ def _as_window(events: EventArray, k: int, win) -> Window:
     if isinstance(win, Window):
         return win
     try:
-        t0, t1 = (int(v) for v in win)
+        t0, t1 = win
     except (TypeError, ValueError):
         raise ParameterError(f"windows[{k}] must be a Window or a (t0, t1) pair of µs, "
                              f"got {win!r}") from None
+    # whole µs: a fraction had been floored (probe AU)
+    t0, t1 = (whole_number(f"windows[{k}] {name} (us)", v)
+              for name, v in (("t0", t0), ("t1", t1)))
     if t1 <= t0:
         raise ParameterError(f"windows[{k}] = ({t0}, {t1}): t1 must be after t0")
     start, stop = (int(i) for i in np.searchsorted(events.t, [t0, t1]))

@@ -25,7 +25,7 @@ from evmotion.events import EventArray, concatenate
 from evmotion.methods import triplet
 from evmotion.methods.bursts import BURST_GAP_US, BurstMeans
 from evmotion.methods.measured import lit_not_moved
-from evmotion.utils import resolve_options
+from evmotion.utils import resolve_options, whole_number
 
 __all__ = ["DEFAULT_WINDOW_US", "LIT_BLOCK_EVENTS", "TripletOptions", "TripletStream",
            "TripletWindow", "iter_flow_triplet"]
@@ -347,15 +347,20 @@ def _check_windows(window_us, window_events, windows, skip) -> tuple | None:
     if len(given) > 1:
         raise ParameterError(f"give at most one of window_us, window_events and windows, "
                              f"got {', '.join(given)}")
-    if window_us is not None and int(window_us) <= 0:
-        raise ParameterError(f"window_us must be > 0 µs, got {window_us}")
-    if window_events is not None and int(window_events) <= 0:
-        raise ParameterError(f"window_events must be > 0, got {window_events}")
-    if int(skip) != skip or skip < 0:
-        raise ParameterError(f"skip must be an integer >= 0, got {skip}")
+    if window_us is not None:
+        whole_number("window_us (microseconds)", window_us, lo=1)
+    if window_events is not None:
+        whole_number("window_events", window_events, lo=1)
+    whole_number("skip", skip, lo=0)
     if windows is None:
         return None
-    spans = np.asarray(list(windows), np.int64).reshape(-1, 2)
+    # whole µs: [t0, 20000.5) had been floored (probe AU)
+    raw = np.asarray(list(windows))
+    if raw.size % 2 or raw.dtype.kind not in "iuf" or (raw.dtype.kind == "f" and (
+            not np.isfinite(raw).all() or np.any(raw != np.round(raw)))):
+        raise ParameterError(f"windows must be (t0, t1) pairs of whole microseconds, got "
+                             f"{list(windows)[:3]!r}{'...' if len(raw) > 3 else ''}")
+    spans = raw.astype(np.int64).reshape(-1, 2)
     if np.any(spans[:, 1] <= spans[:, 0]) or np.any(np.diff(spans[:, 0]) < 0):
         raise ParameterError("windows must be non-empty [t0, t1) µs in time order")
     return spans[:, 0], spans[:, 1]

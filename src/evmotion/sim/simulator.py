@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.catalog import MAX_SIM_DURATION_S, MIN_SIM_SIDE
+from evmotion.catalog import MAX_SENSOR_SIDE, MAX_SIM_DURATION_S, MIN_SIM_SIDE
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.sim.groundtruth import GroundTruth, Layer
@@ -168,13 +168,14 @@ def _check_motion(scene, p, layers, duration_s):
 
 
 def parse_sensor_size(sensor_size, min_side: int = 1) -> tuple[int, int]:
-    """``(height, width)`` of ``sensor_size`` as ints, each between ``min_side`` and 65535
-    (the range of the events' uint16 coordinates).
+    """``(height, width)`` of ``sensor_size`` as ints, each a whole number between
+    ``min_side`` and :data:`~evmotion.catalog.MAX_SENSOR_SIDE` (what the readers and the
+    events accept).
 
     Raises
     ------
     ParameterError
-        One line naming the value when it is not two integers in that range.
+        One line naming the value when it is not two whole numbers in that range.
 
     Examples
     --------
@@ -182,13 +183,12 @@ def parse_sensor_size(sensor_size, min_side: int = 1) -> tuple[int, int]:
     (260, 346)
     """
     try:
-        h, w = (int(v) for v in sensor_size)
+        h, w = sensor_size
     except (TypeError, ValueError):
         raise ParameterError(f"sensor_size must be (height, width), got {sensor_size!r}") from None
-    if h < min_side or w < min_side or h > 65535 or w > 65535:
-        raise ParameterError(f"sensor_size must be between {min_side} and 65535 pixels per "
-                             f"side, got {(h, w)}")
-    return h, w
+    # (a fractional side had been floored: 30.5 made 30, probe AU)
+    return (whole_number("sensor_size height", h, lo=min_side, hi=MAX_SENSOR_SIDE),
+            whole_number("sensor_size width", w, lo=min_side, hi=MAX_SENSOR_SIDE))
 
 
 def _thresholds(rng, C, mismatch, shape):
