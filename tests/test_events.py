@@ -106,7 +106,7 @@ def test_unsorted_hint_depends_on_how_many_step_back():
     many = np.array([1, 200, 3, 150, 5, 90] * 50)
     with pytest.raises(EventDataError, match="step back: is the time column"):
         EventArray(x=np.zeros(300, int), y=np.zeros(300, int), t=many,
-                   p=np.zeros(300, int), sensor_size=(4, 4))
+                   p=np.zeros(300, int), sensor_size=(4, 4), meta={"format": "ecd"})
 
 
 def test_a_readout_order_is_told_to_sort_and_a_column_mixup_is_not():
@@ -118,7 +118,7 @@ def test_a_readout_order_is_told_to_sort_and_a_column_mixup_is_not():
     kw = dict(x=np.zeros(2000), y=np.zeros(2000), p=np.ones(2000), sensor_size=(10, 10))
     with pytest.raises(EventDataError, match="by at most 2 us: a sensor's readout order"):
         EventArray(t=t, **kw)
-    with pytest.raises(EventDataError, match="is the time column"):
+    with pytest.raises(EventDataError, match="or is another field the time"):
         EventArray(t=np.random.default_rng(0).integers(0, 346, 2000), **kw)
 
 
@@ -137,3 +137,16 @@ def test_a_streamed_chunk_names_the_event_by_its_place_in_the_file(tmp_path):
         with pytest.raises(EvmotionError, match=r"t\[2999\]=29990 > t\[3000\]=25000 us"):
             for _ in iter_events(path, chunk, sensor_size=(10, 10)):
                 pass
+
+
+@pytest.mark.parametrize(("fmt", "said"), [
+    ("ecd", "is the time column where the format has it"),
+    ("evt3", "header names another format than its data"),
+    ("npy", "stored in another order than time"),
+])
+def test_events_far_out_of_order_get_the_hint_of_their_format(fmt, said):
+    """A text's 'time column' hint was given for RAW files and named fields (probe AS)."""
+    t = np.random.default_rng(0).permutation(1000)
+    with pytest.raises(EventDataError, match=said):
+        EventArray(np.zeros(1000), np.zeros(1000), t, np.ones(1000), (2, 2),
+                   meta={"format": fmt})

@@ -165,9 +165,8 @@ class EventArray:
                 hint = (f"{100 * back / dt.size:.0f} % of them step back, by at most "
                         f"{step} us: a sensor's readout order? {SORT_HINT}")
             else:
-                hint = (f"{100 * back / dt.size:.0f} % of them step back: is the time column "
-                        "where the format has it? (text: t x y p, or a header line naming "
-                        "the columns)")
+                hint = f"{100 * back / dt.size:.0f} % of them step back: " + _disorder_hint(
+                    str(self.meta.get("format", "")))
             raise UnsortedError(i, self.t[i], self.t[i + 1], hint)
 
     def check(self) -> None:
@@ -456,6 +455,24 @@ class EventArray:
                 positive_fraction=float(self.p.mean()),
             )
         return d
+
+
+#: Formats whose times are decoded from binary words: events far out of order there are a
+#: corrupt file or one whose header names another format than its data
+DECODED_TIME_FORMATS = ("evt2", "evt21", "evt3", "dat", "aedat2", "aedat3", "aedat4", "rosbag")
+
+
+def _disorder_hint(fmt: str) -> str:
+    """What events far out of time order say of a file of format ``fmt`` (a text's time
+    column hint made no sense for a RAW file or a named field, probe AS)."""
+    if fmt == "ecd":
+        return ("is the time column where the format has it? (text: t x y p, or a header "
+                "line naming the columns)")
+    if fmt in DECODED_TIME_FORMATS:
+        return ("a corrupt file, or one whose header names another format than its data "
+                "holds?")
+    return f"the events are stored in another order than time ({SORT_HINT}), or is another "\
+        "field the time?"
 
 
 def ambiguous_polarity(p: np.ndarray) -> str | None:
