@@ -366,6 +366,18 @@ def test_metavision_csv_geometry_comment_gives_the_sensor(tmp_path):
     assert ev.meta["sensor_size_from"] != "largest coordinate (the file states no sensor size)"
 
 
+def test_column_names_in_the_last_comment_line_give_the_order(tmp_path):
+    """'# x y p t' above the events: the refusal asked for a line naming the columns,
+    which the file had (probe AS)."""
+    from evmotion.io import read_events
+
+    (tmp_path / "e.txt").write_text("# my lab's export\n# x y p t_us\n5 2 1 1000\n"
+                                    "6 3 0 1016\n")
+    ev = read_events(tmp_path / "e.txt", sensor_size=(8, 8))
+    assert ev.t.tolist() == [1000, 1016] and ev.x.tolist() == [5, 6]
+    assert ev.p.tolist() == [1, 0]
+
+
 def test_whole_number_times_on_millisecond_steps_are_questioned(tmp_path):
     # relative ns of a µs sensor: all multiples of 1000; the warning says so, and a µs
     # file's does not

@@ -557,7 +557,8 @@ def _names_and_unit(line: bytes) -> tuple[str, str | None] | None:
 def text_layout(path: str | Path) -> dict:
     """How an events text file is laid out: ``order`` of its columns ("txyp" for the
     ECD's ``t x y p``, "xypt" for Metavision's CSV export, told by its ``%geometry``
-    comment, in µs; a header line of column names states another, e.g. ``x,y,p,t``);
+    comment, in µs; a header line of column names, or the last comment line holding
+    them, states another, e.g. ``x,y,p,t`` or ``# x y p t``);
     ``size`` ``(height, width)`` when a comment line (``# ... height H width W``, as
     :func:`write` puts it) or a first line of two numbers ``W H`` (rpg / E2VID text)
     states it, else None; ``offset``, the byte where the events start (past a
@@ -578,6 +579,11 @@ def text_layout(path: str | Path) -> dict:
                          for c in comments)
         out = {"order": "xypt" if metavision else "txyp", "size": _comment_size(comments),
                "offset": pos, "time_unit": "us" if metavision else None}
+        # the column names in the last comment line ('# x y p t'): the refusal had asked
+        # for a first line naming them (probe AS)
+        named = _names_and_unit(comments[-1].lstrip(b" \t#%")) if comments else None
+        if named is not None:
+            out["order"], out["time_unit"] = named
         for _ in range(2):
             line = fh.readline()
             size, names = _size_line(line), _names_and_unit(line)
