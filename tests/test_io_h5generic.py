@@ -214,3 +214,25 @@ def test_a_corrupt_geometry_attribute_is_named_and_overridden(tmp_path):
     with pytest.raises(FormatError, match="attribute 'geometry' is 'abc', not a sensor size"):
         read_events(path)
     assert read_events(path, sensor_size=(240, 320)).sensor_size == (240, 320)
+
+
+def test_a_second_event_layout_is_said_and_the_header_described(tmp_path):
+    """events/ beside CD/events: the second was left unsaid; info --header-only gave no
+    size or count for other tools' files (probe AS)."""
+    import evmotion.io as eio
+
+    path = tmp_path / "two.h5"
+    with h5py.File(path, "w") as f:
+        _fields(f, "events", {k: k for k in "xytp"})
+        _compound(f, "CD/events", {"geometry": "640x480"})
+    with pytest.warns(EvmotionWarning, match=r"read the events of events \(x, y, t, p\) "
+                                             r"\(500\); the file also holds CD/events \(500\)"):
+        read_events(path, sensor_size=(480, 640))
+    with pytest.warns(EvmotionWarning, match="also holds CD/events"):  # (its time span)
+        d = eio.describe(path)
+    assert d["n_events"] == N and d["layout"] == "events (x, y, t, p)"
+    one = tmp_path / "cd.h5"
+    with h5py.File(one, "w") as f:
+        _compound(f, "CD/events", {"geometry": "640x480"})
+    d = eio.describe(one)
+    assert d["n_events"] == N and tuple(d["sensor_size"]) == (480, 640)

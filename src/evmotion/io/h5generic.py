@@ -21,12 +21,13 @@ coordinates, said in a warning.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import FormatError
+from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
 from evmotion.io.base import EVENT_FIELD_NAMES, FormatSpec, event_fields, split_unit
 from evmotion.io.guard import (
@@ -39,7 +40,7 @@ from evmotion.io.h5attrs import read_attrs_many
 from evmotion.io.h5filters import HDF5_MAGIC, filter_error
 from evmotion.io.npy import chunks_of_read, events_from_columns, split_columns
 
-__all__ = ["FORMAT", "find_layout", "read", "size_from_attrs"]
+__all__ = ["FORMAT", "describe", "find_layout", "find_layouts", "read", "size_from_attrs"]
 
 GROUPS = ("", "events", "CD", "cd", "dvs")  # where the field datasets may lie
 TABLES = ("events", "CD/events", "cd/events", "event")  # compound or N x 4 datasets
@@ -48,9 +49,17 @@ TABLES = ("events", "CD/events", "cd/events", "event")  # compound or N x 4 data
 def find_layout(f) -> dict | None:
     """Where an open HDF5 file holds its events: ``{"kind": "fields", "group", "names"}``,
     ``{"kind": "compound", "dataset", "names"}``, ``{"kind": "table", "dataset"}``, or
-    None."""
+    None (the first of :func:`find_layouts`)."""
+    found = find_layouts(f)
+    return found[0] if found else None
+
+
+def find_layouts(f) -> list[dict]:
+    """Every place an open HDF5 file holds events (see :func:`find_layout`), in the
+    order they are preferred."""
     import h5py
 
+    found = []
     for g in GROUPS:
         if g and (g not in f or not isinstance(f[g], h5py.Group)):
             continue
@@ -58,7 +67,7 @@ def find_layout(f) -> dict | None:
         names = [k for k, v in grp.items() if isinstance(v, h5py.Dataset) and v.ndim == 1]
         named = event_fields(names)
         if named is not None:
-            return {"kind": "fields", "group": g, "names": named}
+            found.append({"kind": "fields", "group": g, "names": named})
     for d in TABLES:
         if d not in f or not isinstance(f[d], h5py.Dataset):
             continue
@@ -66,10 +75,24 @@ def find_layout(f) -> dict | None:
         if ds.dtype.names:
             named = event_fields(ds.dtype.names)
             if named is not None:
-                return {"kind": "compound", "dataset": d, "names": named}
+                found.append({"kind": "compound", "dataset": d, "names": named})
         elif ds.ndim == 2 and 4 in ds.shape and ds.dtype.kind in "iuf":
-            return {"kind": "table", "dataset": d}
-    return None
+            found.append({"kind": "table", "dataset": d})
+    return found
+
+
+def _where(lay: dict) -> str:
+    """Where layout ``lay`` lies, as a path in the file."""
+    return lay["dataset"] if "dataset" in lay else (lay["group"] or "/") + " (x, y, t, p)"
+
+
+def _n_events(f, lay: dict) -> int:
+    """The number of events of layout ``lay``, from the datasets' shapes (nothing read)."""
+    if lay["kind"] == "fields":
+        grp = f[lay["group"]] if lay["group"] else f
+        return int(grp[lay["names"]["t"]].shape[0])
+    shape = f[lay["dataset"]].shape
+    return int(shape[0] if lay["kind"] == "compound" or shape[1] == 4 else shape[1])
 
 
 SIZE_ATTRS = ("height", "width", "sensor_height", "sensor_width", "geometry", "sensor_size",
@@ -130,6 +153,13 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
             raise FormatError(path, "no events found: no x, y, t, p datasets (at the root or "
                               "in events/, CD/), no compound or N x 4 'events' dataset")
         meta = {"source": str(path), "format": "h5generic", "layout": lay["kind"]}
+        others = find_layouts(f)[1:]
+        if others:
+            # events/ read, CD/events beside it left unsaid (probe AS)
+            warnings.warn(EvmotionWarning(
+                f"{path}: read the events of {_where(lay)} ({_n_events(f, lay):,}); the file "
+                "also holds " + ", ".join(f"{_where(o)} ({_n_events(f, o):,})"
+                                          for o in others) + ", not read"), stacklevel=3)
         if lay["kind"] == "fields":
             grp = f[lay["group"]] if lay["group"] else f
             prefix = f"{lay['group']}/" if lay["group"] else ""
@@ -205,5 +235,23 @@ def _sniff(path: Path, head: bytes) -> bool:
         return False
 
 
+def describe(path: str | os.PathLike) -> dict:
+    """What the file's header states: the sensor size (its attributes) and the number of
+    events (the datasets' shapes), without reading the events."""
+    path = Path(path)
+    with open_h5(path) as f:
+        lay = find_layout(f)
+        if lay is None:
+            raise FormatError(path, "no events found")
+        obj = (f[lay["group"]] if lay["group"] else f) if lay["kind"] == "fields" \
+            else f[lay["dataset"]]
+        out: dict = {"format": "h5generic", "layout": _where(lay),
+                     "n_events": _n_events(f, lay)}
+        size = size_from_attrs(path, obj, f)
+        if size is not None:
+            out["sensor_size"] = size
+    return out
+
+
 FORMAT = FormatSpec(name="h5generic", extensions=(".h5", ".hdf5"), sniff=_sniff, read=read,
-                    iter_chunks=iter_chunks)
+                    iter_chunks=iter_chunks, describe=describe)
