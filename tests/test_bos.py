@@ -283,6 +283,21 @@ def test_contrast_threshold_refused_when_events_do_not_follow_the_frames():
     assert not res.calibrated
 
 
+def test_inverted_polarity_is_refused_under_either_data_term():
+    """ON and OFF the other way round: refused by name (the normalized term went on
+    uncalibrated with the flow reversed; probe AT)."""
+    from evmotion.errors import InvertedPolarityError
+
+    ev, f0, f1, t0, t1 = _plume_240()
+    flipped = ev.with_polarity_inverted()
+    with pytest.raises(InvertedPolarityError, match=r"anti-correlate .*correlation -0\.\d+"):
+        estimate_contrast_threshold(flipped, f0, f1, t0_us=t0, t1_us=t1)
+    for term in ("scale", "normalized"):
+        with pytest.raises(InvertedPolarityError, match="polarity is inverted"):
+            estimate_bos(flipped, f0, t0_us=t0, t1_us=t1, frame_next=f1, data_term=term,
+                         iterations=5)
+
+
 def test_recovery_poisson_scale_term(case):
     """Direction and magnitude of a known curl-free flow from the LEGM."""
     ev, f0, f1, d, C = case

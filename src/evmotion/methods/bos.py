@@ -1088,6 +1088,8 @@ def _prepare(events, frame, t0_us, t1_us, frame_next, roi, o: BosOptions, increm
             c = estimate_contrast_threshold(ev, frame, frame_next, t0_us=int(t0_us),
                                             t1_us=int(t1_us), roi=r, sigma=o.sigma_meas,
                                             log_eps=o.log_eps)
+        except InvertedPolarityError:
+            raise  # the flow would come out reversed under either data term (probe AT)
         except EventDataError as exc:
             # the normalized term needs no C: its result is then flagged uncalibrated
             if o.data_term == "scale":
