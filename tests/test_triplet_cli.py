@@ -336,3 +336,26 @@ def test_ring_overflow_is_said(tmp_path, capsys):
     assert main([*argv, "--out", str(tmp_path / "b.h5"), "--depth", "255"]) == 0
     out, err = capsys.readouterr()
     assert json.loads(out)["overflow"] == 0 and "--depth" not in err
+
+
+@pytest.mark.parametrize("per_window", [1000, 700])
+def test_one_flo_takes_a_window_with_its_remainder_or_the_first(tmp_path, capsys, per_window):
+    """A .flo of 1.6 windows was refused ('several windows but one .flo file') where
+    multicm and dnn estimate one window of all the events; of more windows the file holds
+    the first, said (probe AV)."""
+    ev = edge_events(200.0, size=40)  # 1600 events
+    src = tmp_path / "rec.h5"
+    eio.write_events(src, ev)
+    out = tmp_path / "w.flo"
+    rc = main(["flow", str(src), "--method", "triplet", "--window-events", str(per_window),
+               "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    seq = eio.read_flow(out)
+    assert len(seq.t0) == 1 and int(seq.t0[0]) == int(ev.t[0])
+    if per_window == 1000:
+        assert "holds 1,600 events, one window of --window-events 1000" in err
+        assert int(seq.t1[0]) == int(ev.t[-1]) + 1
+    else:
+        assert "3 windows; w.flo holds the first, 2 more were not written" in err
+        assert int(seq.t1[0]) == int(ev.t[700])

