@@ -486,3 +486,15 @@ def test_windows_of_time_left_out_for_want_of_events_are_said(tmp_path, capsys):
     err = capsys.readouterr().err
     assert ("gap.h5: 2 of the first 10 windows hold fewer than 10 event(s) and are left out"
             in err), err
+
+
+def test_rotation_without_intrinsics_is_one_line(tmp_path, capsys):
+    """A text recording with no size and no calibration: the rotation warp was warned to
+    turn about the image centre (it turns about K's principal point), then refused
+    (probe AW); the refusal alone is said."""
+    rows = "".join(f"{k * 1e-4:.6f} {k % 50} {k % 40} {k % 2}\n" for k in range(3000))
+    (tmp_path / "e.txt").write_text(rows)
+    rc = main(["egomotion", str(tmp_path / "e.txt"), "--warp", "rotation", "--out",
+               str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "needs camera intrinsics" in err[0], err

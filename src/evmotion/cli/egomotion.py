@@ -162,6 +162,14 @@ def load_events_and_camera(args, **cut):
     from evmotion.cli.calib import read_for_windows
 
     events, cam, args.grid = read_for_windows(args, **cut)
+    # the lens distortion the events were moved by (params.h5 keeps it: eval says when a
+    # ground truth on the sensor's grid is compared with them)
+    args.distortion = ([float(v) for v in cam.dist] if cam is not None and cam.is_distorted
+                       and args.grid.startswith("undistorted (K=") else None)
+    if cam is None and args.warp == "rotation":
+        raise CalibrationError(f"{args.file}: the rotation warp needs camera intrinsics; "
+                               "none found with the recording, pass --calib FILE or --K "
+                               "fx,fy,cx,cy")
     guessed = str(events.meta.get("sensor_size_from", ""))
     if guessed.startswith("ECD default") and cam is None and centred_warp(args.warp):
         # (a calibration says the sensor, as the ECD folders' calib.txt does)
@@ -171,10 +179,6 @@ def load_events_and_camera(args, **cut):
         warn_line(f"{args.file} states no sensor size: taken as {w}x{h} px ({guessed}); "
                   f"the {args.warp} warp turns or scales about the image centre, so give "
                   "the true size with --sensor-size H W")
-    if cam is None and args.warp == "rotation":
-        raise CalibrationError(f"{args.file}: the rotation warp needs camera intrinsics; "
-                               "none found with the recording, pass --calib FILE or --K "
-                               "fx,fy,cx,cy")
     return events, cam
 
 
@@ -329,7 +333,7 @@ def run(args) -> int:
         os.replace(panel, out_dir / panel.name)
     shutil.rmtree(staged, ignore_errors=True)
     rows = write_outputs(out_dir, results, grid=args.grid, sensor_size=events.sensor_size,
-                         K=K)
+                         K=K, distortion=getattr(args, "distortion", None))
     journal.path.unlink()
     failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
     if not rows:
@@ -401,12 +405,14 @@ def _written(out_dir: Path, w, out: WindowOutput):
 
 
 def write_outputs(out_dir: Path, results, grid: str | None = None,
-                  sensor_size: tuple[int, int] | None = None, K=None) -> list[dict]:
+                  sensor_size: tuple[int, int] | None = None, K=None,
+                  distortion: list[float] | None = None) -> list[dict]:
     """params.csv and params.h5 of the windows' results ``(window, result or None, error)``
     (the panels are written as the results come in, :func:`_written`); returns the JSON
     rows. ``grid`` (which pixel grid the events were on), ``sensor_size`` and the
     intrinsics ``K`` go into params.h5's attributes: with them the parameters give each
-    window's flow (``evmotion eval``)."""
+    window's flow (``evmotion eval``); so does the lens ``distortion`` the events were
+    undistorted by."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN, MIN_FIT_EVENTS, POOR_FIT_SHARE
     from evmotion.methods.measured import MAX_GAP_SHARE, MIN_MOTION_PX
@@ -479,7 +485,8 @@ def write_outputs(out_dir: Path, results, grid: str | None = None,
         {"method": "egomotion", "warp": first.warp, "regularizer": str(first.regularizer),
          "objective": first.objective, "grid": "not recorded" if grid is None else grid,
          **({} if sensor_size is None else {"sensor_size": np.asarray(sensor_size, np.int64)}),
-         **({} if K is None else {"K": np.asarray(K, np.float64)})}))
+         **({} if K is None else {"K": np.asarray(K, np.float64)}),
+         **({} if distortion is None else {"distortion": np.asarray(distortion)})}))
     return rows
 
 
