@@ -515,7 +515,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         evaluations), kept where the events come out at least 1 % sharper: real scenes
         have depth (ECD shapes_rotation's FWL 3.97 -> 4.23, multicm 4.23), the
         simulator's planar scenes do not and keep the plane. Where no plane is kept, they
-        start from the network's flow's mean over each tile's events (25 evaluations),
+        start from the network's flow's mean over each tile's events (15 evaluations),
         and where that is not kept they correct the network's flow itself. On bench_dnn's
         held-out window with an independently moving object the AEE fell from 3.75 to
         2.87 px (multicm 2.52) (``benchmarks/results/dnn.md``, ``dnn_planar.md``).

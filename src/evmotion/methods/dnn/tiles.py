@@ -48,8 +48,11 @@ __all__ = ["REFINE_EVALUATIONS", "refine_tiles", "tile_loss_grad"]
 
 #: Evaluations of the loss and its gradient the refinement makes at most (scipy's
 #: L-BFGS-B with multicm's 20 iterations took 21-30 on bench_dnn_planar's windows, to
-#: the same AEE within 2 % on the moving-object windows).
-REFINE_EVALUATIONS = 25
+#: the same AEE within 2 % on the moving-object windows). 15, not 25: on bench_dnn's
+#: simulated windows the same AEE (the object's 2.82 px against 2.87) and FWL on the
+#: twelve ECD windows, and 1.1 s less of a 40k-event 346 x 260 window's one-window
+#: command, which two refinements of 25 had taken to 7 s (probe AV).
+REFINE_EVALUATIONS = 15
 #: Length of the first step (px over the window, the largest tile move): the plane's.
 STEP_PX = 0.5
 
