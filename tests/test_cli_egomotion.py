@@ -498,3 +498,35 @@ def test_rotation_without_intrinsics_is_one_line(tmp_path, capsys):
                str(tmp_path / "o")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "needs camera intrinsics" in err[0], err
+
+
+def test_landscape_says_a_regularized_minimum_at_the_range_edge(tmp_path, capsys,
+                                                                monkeypatch):
+    """rcad's minimum at the range's edge (past a zoom's 1/T the penalty falls and the
+    image flips) was said as the cure of the unregularized one (probe AW)."""
+    import evmotion.methods.egomotion as ego
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(0)
+    n = 5000
+    rec = tmp_path / "r.h5"
+    write_events(rec, EventArray(rng.integers(0, 80, n), rng.integers(0, 60, n),
+                                 np.sort(rng.integers(0, 100_000, n)), rng.integers(0, 2, n),
+                                 (60, 80)))
+    real = ego.cost_landscape
+
+    def fake(events, w, j, values, theta, objective, reg, *a, **kw):
+        out = real(events, w, j, values, theta, objective, reg, *a, **kw)
+        if reg is not None:  # a regularized curve falling to the range's end
+            out = {**out, "cost": -np.arange(len(values), dtype=float)}
+        return out
+
+    monkeypatch.setattr(ego, "cost_landscape", fake)
+    assert main(["landscape", str(rec), "--warp", "zoom", "--param", "hz", "--range", "-5",
+                 "30", "--steps", "8", "--reg", "rcad", "--out", str(tmp_path / "l.png"),
+                 "--json"]) == 0
+    cap = capsys.readouterr()
+    doc = json.loads(cap.out)
+    assert doc["minimum_with_regularizer"] == 30.0 and doc["minimum_with_regularizer_at_edge"]
+    assert "with rcad the minimum (hz = 30" in cap.err and "moves the minimum" not in cap.err

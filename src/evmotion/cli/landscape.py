@@ -156,9 +156,19 @@ def run(args) -> int:
     for line in reversed(why):  # the edge first, as before
         warn_line(line)
     best_reg = None
+    reg_at_edge = False
     if args.reg:
-        best_reg = float(values[int(np.argmin(curves[f"with {args.reg}"]))])
-        if abs(best_reg - best) > (values[1] - values[0]) * 1.5:
+        k_reg = int(np.argmin(curves[f"with {args.reg}"]))
+        best_reg = float(values[k_reg])
+        # a regularized minimum at the range's edge is no cure either: past a zoom's
+        # 1/T the penalty falls again and the image flips (rcad's minimum at hz = 60 for a
+        # true 1.5, said as the cure, probe AW)
+        reg_at_edge = k_reg in (0, len(values) - 1)
+        if reg_at_edge:
+            warn_line(f"with {args.reg} the minimum ({name} = {best_reg:.4g} {unit}) is at "
+                      f"the edge of --range [{values[0]:.4g}, {values[-1]:.4g}]: no measurement "
+                      "either (a collapse the penalty does not hold, or one beyond the range)")
+        elif abs(best_reg - best) > (values[1] - values[0]) * 1.5:
             warn_line(f"{args.reg} moves the minimum from {name} = {best:.4g} to "
                       f"{best_reg:.4g} {unit}: the one without a regularizer may be an event "
                       "collapse (thesis Fig. 3.12)")
@@ -173,6 +183,7 @@ def run(args) -> int:
                     "grid": args.grid, "values": values, "curves": curves,
                     "minimum": float(best), "minimum_at_edge": at_edge,
                     "minimum_with_regularizer": best_reg,
+                    "minimum_with_regularizer_at_edge": reg_at_edge,
                     "best_contrast_gain": gain, "flat": flat})
     else:
         with_reg = (f"; with {args.reg} at {name} = {best_reg:.4g} {unit}"
