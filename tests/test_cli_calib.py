@@ -299,3 +299,15 @@ def test_landscape_says_undistortion_left_out_the_short_windows_events(ecd, tmp_
                  str(tmp_path / "l.png")]) == 0
     err = capsys.readouterr().err
     assert "undistortion left out the rest" in err and "ends first" not in err, err
+
+
+def test_info_gives_an_ecd_calibration_the_recordings_sensor(tmp_path, capsys):
+    """calib.txt states no sensor size: info reported the ECD's 240 x 180 for a 346 x 260
+    recording (probe AW)."""
+    d = tmp_path / "rec"
+    d.mkdir()
+    (d / "events.txt").write_text("# evmotion ECD text: t[s] x y p; sensor height 260 width "
+                                  "346\n0.000100 300 200 1\n0.000200 10 5 0\n")
+    (d / "calib.txt").write_text("260 260 172.5 129.5 0 0 0 0 0\n")
+    assert main(["info", str(d), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["intrinsics"]["resolution"] == [260, 346]

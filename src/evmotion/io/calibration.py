@@ -488,7 +488,9 @@ def recording_intrinsics(path: str | os.PathLike, sensor_size: tuple[int, int]) 
     """
     path = Path(path)
     try:
-        cam = recording_camera(path, None, None)
+        # on the recording's sensor: an ECD calib.txt states none, and the ECD's 240 x 180
+        # was reported for a 346 x 260 recording (probe AW)
+        cam = recording_camera(path, None, sensor_size)
     except (FormatError, CalibrationError) as exc:
         return {"source": None, "reason": str(exc)}
     if cam is None and path.is_file():
