@@ -287,15 +287,7 @@ def test_landscape_says_what_its_minimum_is(tmp_path, capsys):
     """On noise the curve is flat and its 'minimum at vx = 0' was printed as any other;
     with --reg only the unregularized minimum was reported; a window shorter than asked
     was not said."""
-    from evmotion.events import EventArray
-    from evmotion.io import write_events
-
-    rng = np.random.default_rng(0)
-    n = 20000
-    noise = tmp_path / "noise.h5"
-    write_events(noise, EventArray(rng.integers(0, 80, n), rng.integers(0, 60, n),
-                                   np.sort(rng.integers(0, 100_000, n)), rng.integers(0, 2, n),
-                                   (60, 80)))
+    noise = _noise_recording(tmp_path / "noise.h5", 20_000)
     out = tmp_path / "l.png"
     # (a range that keeps the events on the sensor: pushing noise off its edges raises the
     # variance of what is left, a contrast that is no motion)
@@ -505,15 +497,8 @@ def test_landscape_says_a_regularized_minimum_at_the_range_edge(tmp_path, capsys
     """rcad's minimum at the range's edge (past a zoom's 1/T the penalty falls and the
     image flips) was said as the cure of the unregularized one (probe AW)."""
     import evmotion.methods.egomotion as ego
-    from evmotion.events import EventArray
-    from evmotion.io import write_events
 
-    rng = np.random.default_rng(0)
-    n = 5000
-    rec = tmp_path / "r.h5"
-    write_events(rec, EventArray(rng.integers(0, 80, n), rng.integers(0, 60, n),
-                                 np.sort(rng.integers(0, 100_000, n)), rng.integers(0, 2, n),
-                                 (60, 80)))
+    rec = _noise_recording(tmp_path / "r.h5", 5000)
     real = ego.cost_landscape
 
     def fake(events, w, j, values, theta, objective, reg, *a, **kw):
@@ -530,3 +515,15 @@ def test_landscape_says_a_regularized_minimum_at_the_range_edge(tmp_path, capsys
     doc = json.loads(cap.out)
     assert doc["minimum_with_regularizer"] == 30.0 and doc["minimum_with_regularizer_at_edge"]
     assert "with rcad the minimum (hz = 30" in cap.err and "moves the minimum" not in cap.err
+
+
+def _noise_recording(path, n: int):
+    """``n`` seeded uniform noise events on 80 x 60 px over 0.1 s, written to ``path``."""
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(0)
+    write_events(path, EventArray(rng.integers(0, 80, n), rng.integers(0, 60, n),
+                                  np.sort(rng.integers(0, 100_000, n)), rng.integers(0, 2, n),
+                                  (60, 80)))
+    return path
