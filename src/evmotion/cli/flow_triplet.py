@@ -138,7 +138,7 @@ def run(args) -> int:
     from evmotion.cli.flow_multicm import ONE_FILE_WINDOWS
     from evmotion.cli.options import header_event_count, read_kwargs
     from evmotion.events import fingerprint
-    from evmotion.io.flowout import PER_WINDOW, flow_container, is_pattern
+    from evmotion.io.flowout import PER_WINDOW, check_flow_output, flow_container, is_pattern
     from evmotion.jitcache import compile_seconds
     from evmotion.methods.bursts import MAX_GAP_US
     from evmotion.methods.triplet import MAX_DX, default_ridge, dense_defaults
@@ -206,8 +206,6 @@ def run(args) -> int:
                 and flow_container(out) in PER_WINDOW)
     if one_file and args.window_events is not None and total is not None \
             and total >= ONE_FILE_WINDOWS * args.window_events:
-        from evmotion.io.flowout import check_flow_output
-
         check_flow_output(out, -(-total // args.window_events))  # refused before the work
     if one_file and args.window_events is not None and total is not None \
             and args.window_events < total < 2 * args.window_events:
