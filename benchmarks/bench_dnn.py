@@ -177,7 +177,7 @@ def speed(quick: bool) -> list[dict]:
         predict_displacement,
     )
     from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
-    from evmotion.methods.dnn.model import load_model
+    from evmotion.methods.dnn.model import load_inference_net, load_model
     from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
     from evmotion.methods.dnn.voxel import (
         network_input,
@@ -197,10 +197,19 @@ def speed(quick: bool) -> list[dict]:
         with torch.inference_mode():
             return net(vox[None])[-1][0, :, :h, :w].permute(1, 2, 0).numpy()
 
+    fast = load_inference_net(_ckpt())
+
+    def torch_inference(e):  # what predict_displacement ran before the numpy network
+        h, w = e.sensor_size
+        vox = torch.from_numpy(network_input(e, net.n_bins)).permute(2, 0, 1)[None]
+        with torch.inference_mode():
+            return fast(vox)[0, :, :h, :w].permute(1, 2, 0).numpy()
+
     for shape in ((260, 346), (480, 640)):
         ev = _window(shape, N_EVENTS)
         fns = {"predict_displacement": lambda e=ev: predict_displacement(e, _ckpt()),
                "training forward": lambda e=ev: training_forward(e),
+               "torch InferenceNet": lambda e=ev: torch_inference(e),
                "estimate_flow_dnn": lambda e=ev: estimate_flow_dnn(e, _ckpt(),
                                                                    with_iwes=False),
                "estimate_flow_dnn network only": lambda e=ev: estimate_flow_dnn(
@@ -211,10 +220,13 @@ def speed(quick: bool) -> list[dict]:
         times = _interleaved(fns, 5 if quick else 30)
         diff = float(np.abs(fns["predict_displacement"]() - fns["training forward"]()).max())
         for name, voxel in (("predict_displacement", "network_input"),
+                            ("torch InferenceNet", "network_input"),
                             ("training forward", "voxel_grid+normalize+pad")):
+            label = ("predict_displacement (numpy network)" if name == "predict_displacement"
+                     else name)
             rows.append({"section": "speed",
                          "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
-                         "method": f"{name}, width {net.width} ({params} params)",
+                         "method": f"{label}, width {net.width} ({params} params)",
                          **times[name], "voxel_s": times[voxel]["seconds"],
                          "voxel_cpu_s": times[voxel]["cpu_s"],
                          "max_diff_px": diff if name == "predict_displacement" else 0.0})
@@ -336,7 +348,8 @@ def main(quick: bool = False) -> list[dict]:
     rows = speed(quick) + accuracy_sim(quick) + accuracy_ecd(quick)
     load1 = os.getloadavg()
     harness.record("dnn", rows, notes=(
-        f"one pinned core (cpu {cpu}; the CLI rows unpinned), torch threads 1; checkpoint "
+        f"one pinned core (cpu {cpu}; the CLI rows unpinned), torch threads 1 (the numpy "
+        "network: numpy's BLAS threads, pinned with the process); checkpoint "
         f"{_ckpt() or 'shipped'}. AEE px over the window on pixels with events, %Out > 3 px; "
         "FWL = var(IWE t_mid) / var(IWE zero flow). dnn: estimate_flow(method='dnn') with "
         "its defaults, the plane's polished flow kept where multicm's objective prefers it "

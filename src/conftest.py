@@ -17,12 +17,10 @@ SRC = Path(__file__).resolve().parent
 # module under src/ (or one example in it: "path::name") -> the optional third-party module
 # it needs; a module that imports it at the top is left out, an example is skipped
 NEEDS = {
-    "evmotion/methods/dnn/infer.py": "torch",
     "evmotion/methods/dnn/loss.py": "torch",
     "evmotion/methods/dnn/model.py": "torch",
     "evmotion/methods/dnn/network.py": "torch",
     "evmotion/methods/dnn/train.py": "torch",
-    "evmotion/cli/flow_dnn.py": "torch",
     "evmotion/methods/farneback.py": "cv2",
     "evmotion/methods/baselines.py::evmotion.methods.baselines.farneback_intervals": "cv2",
     "evmotion/viz/video.py::evmotion.viz.video.write_video": "imageio_ffmpeg",

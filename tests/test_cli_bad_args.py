@@ -947,13 +947,13 @@ def test_sigterm_unwinds_as_ctrl_c_does(rec, command):
 
 
 @pytest.mark.parametrize("argv", [
-    ["flow", "{rec}", "--method", "dnn", "--out", "{dir}/x.flo"],
+    ["flow", "{rec}", "--method", "dnn", "--device", "cuda", "--out", "{dir}/x.flo"],
     ["train", "--sim-windows", "2", "--epochs", "1", "--out", "{dir}/run"],
 ])
 def test_without_torch_the_network_commands_say_how_to_install(rec, capsys, monkeypatch,
                                                                argv):
     """A plain 'pip install -e .' (no [dnn] extra): flow --method dnn and train ended in a
-    ModuleNotFoundError traceback."""
+    ModuleNotFoundError traceback. (The shipped network on the CPU needs no torch.)"""
     import importlib.util
 
     real = importlib.util.find_spec
@@ -962,6 +962,17 @@ def test_without_torch_the_network_commands_say_how_to_install(rec, capsys, monk
     argv = [a.format(rec=rec["rec"], dir=rec["dir"]) for a in argv]
     rc, err = _run(argv, capsys)
     _assert_one_line(rc, err, "torch", "pip install 'evmotion[dnn]'")
+
+
+def test_without_torch_the_shipped_network_runs_on_the_cpu(rec, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "torch", None)  # any import of torch now fails
+    out = rec["dir"] / "notorch.flo"
+    rc = main(["flow", rec["rec"], "--method", "dnn", "--window-events", "3000",
+               "--out", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    assert out.is_file()
 
 
 def test_triplet_time_range_without_events_names_the_recordings_span(rec, capsys):

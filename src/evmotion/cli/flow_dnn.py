@@ -34,13 +34,16 @@ OPTIONS: dict[str, tuple[str, object]] = {
 
 def add_arguments(group) -> None:
     group.add_argument("--checkpoint", default=None, metavar="CKPT", type=existing_input,
-                       help="network weights (default: the shipped checkpoint); also used "
+                       help="network weights: a model.pt of evmotion train (needs torch) or "
+                            "its .npz export (default: the shipped network); also used "
                             "by multicm's --init dnn")
     group.add_argument("--device", default=None,
-                       help="torch device (default cpu); also multicm's --init dnn")
+                       help="cpu (default: the network in numpy, no torch) or a torch "
+                            "device such as cuda; also multicm's --init dnn")
     group.add_argument("--threads", type=int_range(1, 256), default=None,
-                       help="torch threads (default 1: faster than 2 on a shared 2-core "
-                            "CPU); also multicm's --init dnn")
+                       help="torch threads where torch runs the network (default 1: "
+                            "faster than 2 on a shared 2-core CPU); also multicm's "
+                            "--init dnn")
     group.add_argument("--input-scales", type=int_range(1, 16), choices=(1, 2, 4, 8, 16),
                        nargs="+", default=None, metavar="K",
                        help="dnn: also predict from the events binned K times coarser and "
@@ -76,25 +79,19 @@ def check_args(args) -> None:
 
 
 def check_network(args) -> None:
-    """torch, ``--device`` and ``--checkpoint`` checked (the network loaded, and cached for
-    the windows) before the recording is read: a wrong one was said after 5 s of reading a
-    1280x720 file (probe AP)."""
-    from evmotion.methods.dnn import require_torch
+    """``--device`` and ``--checkpoint`` checked (the network loaded, and cached for the
+    windows) before the recording is read: a wrong one was said after 5 s of reading a
+    1280x720 file (probe AP). On the CPU the shipped network runs in numpy: torch is
+    needed only for another device or a torch checkpoint (``model.pt``)."""
+    from evmotion.methods.dnn.infer import load_network
 
-    require_torch()
-    from evmotion.methods.dnn.model import load_inference_net
-
-    load_inference_net(args.checkpoint, args.device)
+    load_network(args.checkpoint, args.device)
 
 
 def estimator(args):
     """``(estimate(events, init) -> FlowResult, attrs)`` for the multicm runner."""
-    from evmotion.methods.dnn import estimate_flow_dnn, require_torch
+    from evmotion.methods.dnn import estimate_flow_dnn
 
-    require_torch()
-    import torch
-
-    torch.set_num_threads(args.threads)
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
              "source": str(args.file), "input_scales": list(args.input_scales),
              "time_reversal": not args.no_time_reversal, "rescale": not args.no_rescale,

@@ -55,7 +55,7 @@ from numba import njit
 from evmotion.catalog import MAX_TIME_BINS
 from evmotion.core import tileflow as tf
 from evmotion.core.objectives import events_value_grad, objective_value_grad
-from evmotion.core.tilegrid import auto_finest_level
+from evmotion.core.tilegrid import auto_finest_level, charbonnier_tv
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, Window, require_events
 from evmotion.jitcache import compile_seconds
@@ -278,28 +278,7 @@ class MultiCMProblem:
         made the regularizer outweigh the focus term on long windows, e.g. rotation at
         MVSEC-like dt = 4 was flattened towards a constant flow).
         """
-        total = 0.0
-        g = np.zeros_like(params)
-        n = float(self.grid.ny * self.grid.nx)
-        sy, sx = self.grid.spacing
-        kx = 1.0 / (self.duration_s * sx)
-        ky = 1.0 / (self.duration_s * sy)
-        for c in range(2):
-            p = params[..., c]
-            dx = np.zeros_like(p)
-            dy = np.zeros_like(p)
-            dx[:, :-1] = (p[:, 1:] - p[:, :-1]) * kx
-            dy[:-1, :] = (p[1:, :] - p[:-1, :]) * ky
-            mag = np.sqrt(dx * dx + dy * dy + TV_EPS ** 2)
-            total += mag.sum() / n
-            ax = dx / mag / n * kx
-            ay = dy / mag / n * ky
-            gc = g[..., c]
-            gc[:, :-1] -= ax[:, :-1]
-            gc[:, 1:] += ax[:, :-1]
-            gc[:-1, :] -= ay[:-1, :]
-            gc[1:, :] += ay[:-1, :]
-        return total, g
+        return charbonnier_tv(params, self.grid.spacing, self.duration_s, TV_EPS)
 
     def value_grad(self, theta):
         """Composite objective ``1/f + lam * TV`` (4.9) and its gradient (flat)."""

@@ -2,6 +2,7 @@
 
 * :mod:`.voxel` -- voxel-grid input (numpy only);
 * :mod:`.network` -- EV-FlowNet with a width multiplier (torch);
+* :mod:`.numpynet` -- its trained finest flow in numpy (inference on the CPU, no torch);
 * :mod:`.loss` -- the training loss: multicm's (4.9) as a ``torch.autograd.Function``;
 * :mod:`.data`, :mod:`.train` -- simulated / recorded windows and the training loop
   (``evmotion train``);
@@ -9,10 +10,11 @@
 * :mod:`.infer` -- :func:`estimate_flow_dnn` (``estimate_flow(..., method="dnn")``);
 * :mod:`.planar`, :mod:`.tiles` -- what replaces the network's flow where multicm's
   objective prefers it: a plane's motion, or the flow refined on multicm's finest tiles;
-  :mod:`.focus` (torch twins of multicm's focus) and :mod:`.bfgs` serve both.
+  :mod:`.focus` (numpy twins of multicm's focus) and :mod:`.bfgs` serve both.
 
-torch is an optional dependency (``pip install evmotion[dnn]``); only the submodules
-that need it import it.
+torch is an optional dependency (``pip install evmotion[dnn]``), for training, torch
+checkpoints and GPUs; only the submodules that need it import it, and a window's flow on
+the CPU with the shipped network needs none of them.
 """
 
 from evmotion.catalog import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE

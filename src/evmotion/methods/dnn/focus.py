@@ -1,21 +1,25 @@
-"""Torch twins of multicm's multi-reference focus (4.6), for what the network's path
-optimizes after the network (:mod:`.planar`, :mod:`.tiles`): the same B-spline images
-and Sobel focus as multicm's numba kernels (tested equal), differentiable (the images by
-their analytic adjoint), and no numba compilation in a one-window command.
+"""numpy twins of multicm's multi-reference focus (4.6) and its gradient, for what the
+network's path optimizes after the network (:mod:`.planar`, :mod:`.tiles`): the same
+B-spline images and Sobel focus as multicm's numba kernels (tested equal), with their
+analytic adjoints, and neither a numba compilation nor torch's import (2.4 s) in a
+one-window command.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from evmotion.events import EventArray
 
-__all__ = ["REFERENCES", "binned_shape", "bspline_images", "value_grad", "identity_focus", "mean_gradmag", "multi_focus",
-           "window_times"]
+__all__ = ["REFERENCES", "binned_shape", "bspline_images", "identity_focus", "mean_gradmag",
+           "multi_focus", "window_times"]
 
 #: Multi-reference times (fractions of the window) and weights of the focus (4.6).
 REFERENCES = ((0.0, 1.0), (0.5, 2.0), (1.0, 1.0))
+#: Pixels of zero margin around the images: a point's taps off the image land in it
+#: (its centre is clamped 2 px off the image) and are cropped, with no boolean masks.
+_MARGIN = 3
+_TAPS = np.arange(-1, 2)
 
 
 def binned_shape(shape: tuple[int, int], k: int) -> tuple[int, int]:
@@ -29,96 +33,152 @@ def window_times(events: EventArray) -> np.ndarray:
     return (t - t[0]).astype(np.float64) / max(int(t[-1] - t[0]), 1)
 
 
-class _Splat(torch.autograd.Function):
-    """The B-spline images of K sets of points on images with a 3 px margin, and their
-    analytic adjoint: each point's gradient is the image gradient gathered at its 3 x 3
-    taps times the weights' derivatives (autograd through the weights' arithmetic took
-    half of a polish evaluation)."""
+def _bspline_weights(d: np.ndarray) -> np.ndarray:
+    """The quadratic B-spline's three tap weights (3, ...) at offsets ``d`` from the
+    nearest centre."""
+    out = np.empty((3, *d.shape), d.dtype)
+    out[0] = 0.5 * (0.5 - d) ** 2
+    out[1] = 0.75 - d * d
+    out[2] = 0.5 * (0.5 + d) ** 2
+    return out
 
-    @staticmethod
-    def forward(ctx, xw, yw, shape):
+
+def _bspline_slopes(d: np.ndarray) -> np.ndarray:
+    """The derivatives of :func:`_bspline_weights` in ``d``."""
+    out = np.empty((3, *d.shape), d.dtype)
+    out[0] = d - 0.5
+    out[1] = -2.0 * d
+    out[2] = d + 0.5
+    return out
+
+
+class _Splat:
+    """The quadratic B-spline splat of K sets of points (K, N) on images with a margin:
+    each point's 3 x 3 taps (flat indices into the K padded images) and weights, and the
+    weights' derivatives for the adjoint."""
+
+    def __init__(self, xw: np.ndarray, yw: np.ndarray, shape: tuple[int, int]):
         h, w = shape
+        m = _MARGIN
         k = xw.shape[0]
-        cx = torch.floor(xw + 0.5)
-        cy = torch.floor(yw + 0.5)
-        dx, dy = xw - cx, yw - cy
-        wx = torch.stack((0.5 * (0.5 - dx) ** 2, 0.75 - dx * dx, 0.5 * (0.5 + dx) ** 2))
-        wy = torch.stack((0.5 * (0.5 - dy) ** 2, 0.75 - dy * dy, 0.5 * (0.5 + dy) ** 2))
-        # centres clamped to 2 px off the image: every tap off the image lands in the
-        # margin, cropped by the caller (no boolean masks: they cost 2/3 of the time)
-        hp, wp = h + 6, w + 6
-        cyi = cy.clamp(-2, h + 1).long() + 3
-        cxi = cx.clamp(-2, w + 1).long() + 3
-        taps = torch.arange(-1, 2)
-        rows = (cyi[None] + taps[:, None, None]) * wp + (torch.arange(k) * (hp * wp))[:, None]
-        idx = rows[:, None] + (cxi[None] + taps[:, None, None])[None]   # (3, 3, K, N)
-        img = xw.new_zeros(k * hp * wp).index_add(0, idx.reshape(-1),
-                                                   (wy[:, None] * wx[None]).reshape(-1))
-        dwx = torch.stack((dx - 0.5, -2.0 * dx, dx + 0.5))
-        dwy = torch.stack((dy - 0.5, -2.0 * dy, dy + 0.5))
-        ctx.save_for_backward(idx, wx, wy, dwx, dwy)
-        return img.reshape(k, hp, wp)
+        hp, wp = h + 2 * m, w + 2 * m
+        self.padded = (k, hp, wp)
+        cx, cy = np.floor(xw + 0.5), np.floor(yw + 0.5)
+        self.dx, self.dy = xw - cx, yw - cy
+        self.wx, self.wy = _bspline_weights(self.dx), _bspline_weights(self.dy)
+        centre = ((np.clip(cy, -2, h + 1).astype(np.intp) + m) * wp
+                  + np.clip(cx, -2, w + 1).astype(np.intp) + m
+                  + (np.arange(k) * (hp * wp))[:, None])
+        offsets = _TAPS[:, None] * wp + _TAPS[None]                       # (3, 3)
+        self.idx = centre[None, None] + offsets[:, :, None, None]          # (3, 3, K, N)
 
-    @staticmethod
-    def backward(ctx, grad):
-        idx, wx, wy, dwx, dwy = ctx.saved_tensors
-        g = grad.reshape(-1)[idx]                                        # (3, 3, K, N)
-        gx = (g * (wy[:, None] * dwx[None])).sum((0, 1))
-        gy = (g * (dwy[:, None] * wx[None])).sum((0, 1))
-        return gx, gy, None
+    def images(self) -> np.ndarray:
+        """The K images (K, H, W)."""
+        m = _MARGIN
+        img = np.bincount(self.idx.ravel(), (self.wy[:, None] * self.wx[None]).ravel(),
+                          minlength=int(np.prod(self.padded))).reshape(self.padded)
+        return img[:, m:-m, m:-m]
+
+    def adjoint(self, grad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The gradient of a function of the images (``grad``, its gradient in the
+        images, (K, H, W)) in the points' x and y, (K, N) each."""
+        m = _MARGIN
+        full = np.zeros(self.padded, self.dx.dtype)  # (float32 points: half the traffic)
+        full[:, m:-m, m:-m] = grad
+        g = full.ravel()[self.idx]                                         # (3, 3, K, N)
+        gx = (np.einsum("ijkn,jkn->ikn", g, _bspline_slopes(self.dx)) * self.wy).sum(0)
+        gy = (np.einsum("ijkn,jkn->ikn", g, self.wx) * _bspline_slopes(self.dy)).sum(0)
+        return gx, gy
 
 
-def bspline_images(xw, yw, shape):
+def bspline_images(xw: np.ndarray, yw: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Quadratic B-spline images (as multicm's ``iwe_forward``) of K sets of points
-    ``xw``, ``yw`` (K, N), one index_add for all: 3 x 3 weights per point, taps off the
-    image dropped; differentiable in the points. (K, H, W)."""
-    return _Splat.apply(xw, yw, tuple(shape))[:, 3:-3, 3:-3]
+    ``xw``, ``yw`` (K, N), one bincount for all: 3 x 3 weights per point, taps off the
+    image dropped. (K, H, W) float64.
+
+    Examples
+    --------
+    >>> img = bspline_images(np.array([[1.0]]), np.array([[1.0]]), (3, 3))
+    >>> img[0].round(3).tolist()
+    [[0.016, 0.094, 0.016], [0.094, 0.562, 0.094], [0.016, 0.094, 0.016]]
+    """
+    return _Splat(np.asarray(xw), np.asarray(yw), tuple(shape)).images()
 
 
-def mean_gradmag(img):
-    """Mean squared Sobel magnitude over the interior pixels (multicm's focus) of each
-    image (K, H, W): (K,). The Sobel kernels separably: a central difference along one
-    axis, [1 2 1] along the other (half the tensor operations of the 3 x 3 sums)."""
-    if img.shape[-2] < 3 or img.shape[-1] < 3:
-        return img.new_zeros(img.shape[0])
+def _sobel(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The Sobel derivatives of images (K, H, W) on their interior pixels (K, H-2, W-2),
+    separably: a central difference along one axis, [1 2 1] along the other."""
     dx = img[:, :, 2:] - img[:, :, :-2]
     gx = dx[:, :-2] + 2.0 * dx[:, 1:-1] + dx[:, 2:]
     dy = img[:, 2:] - img[:, :-2]
     gy = dy[:, :, :-2] + 2.0 * dy[:, :, 1:-1] + dy[:, :, 2:]
+    return gx, gy
+
+
+def _sobel_adjoint(ax: np.ndarray, ay: np.ndarray) -> np.ndarray:
+    """The transpose of :func:`_sobel`: the images' gradient (K, H, W) of a function whose
+    gradients in the Sobel derivatives are ``ax``, ``ay`` (K, H-2, W-2). A correlation's
+    transpose is the correlation with the flipped kernel, and Sobel's flips to its
+    negative: minus the Sobel derivatives of the two zero-padded by 2 px."""
+    k, hi, wi = ax.shape
+    pad = np.zeros((k, hi + 4, wi + 4))
+    pad[:, 2:-2, 2:-2] = ax
+    dx = pad[:, :, 2:] - pad[:, :, :-2]
+    out = -(dx[:, :-2] + 2.0 * dx[:, 1:-1] + dx[:, 2:])
+    pad[:, 2:-2, 2:-2] = ay
+    dy = pad[:, 2:] - pad[:, :-2]
+    out -= dy[:, :, :-2] + 2.0 * dy[:, :, 1:-1] + dy[:, :, 2:]
+    return out
+
+
+def mean_gradmag(img: np.ndarray) -> np.ndarray:
+    """Mean squared Sobel magnitude over the interior pixels (multicm's focus) of each
+    image (K, H, W): (K,).
+
+    Examples
+    --------
+    >>> img = np.zeros((1, 5, 5)); img[0, 2, 2] = 1.0
+    >>> mean_gradmag(img).tolist()
+    [2.6666666666666665]
+    """
+    if img.shape[-2] < 3 or img.shape[-1] < 3:
+        return np.zeros(img.shape[0])
+    gx, gy = _sobel(img)
     return (gx * gx + gy * gy).mean((1, 2))
 
 
-def identity_focus(x, y, shape) -> float:
+def identity_focus(x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> float:
     """The focus of the unwarped events, which (4.6) is normalized by."""
     return float(mean_gradmag(bspline_images(x[None], y[None], shape))[0])
 
 
-def multi_focus(x, y, s, flow, shape, g0: float):
-    """Multi-reference focus (4.6) of the per-event flows (N, 2) px per window,
-    normalized by the identity warp's ``g0``."""
-    refs = x.new_tensor([r for r, _ in REFERENCES])
-    wts = x.new_tensor([wt for _, wt in REFERENCES])
-    dtn = refs[:, None] - s[None]                # (K, N)
-    imgs = bspline_images(x[None] + dtn * flow[:, 0], y[None] + dtn * flow[:, 1], shape)
-    return (wts * mean_gradmag(imgs)).sum() / (wts.sum() * g0)
-
-
-def value_grad(loss_of, dtype=torch.float32):
-    """``theta -> (loss, d loss / d theta)`` (a float and a float64 array) of
-    ``loss_of(theta_tensor)``, by autograd in ``dtype``: what the polishes' BFGS calls.
+def multi_focus(x: np.ndarray, y: np.ndarray, s: np.ndarray, flow: np.ndarray,
+                shape: tuple[int, int], g0: float, grad: bool = False):
+    """Multi-reference focus (4.6) of the per-event flows ``flow`` (N, 2) px per window,
+    normalized by the identity warp's ``g0``; with ``grad``, ``(focus, d focus / d flow)``
+    (the gradient (N, 2)).
 
     Examples
     --------
-    >>> f = value_grad(lambda p: (p * p).sum(), torch.float64)
-    >>> v, g = f(np.array([1.0, -2.0]))
-    >>> v, g.tolist()
-    (5.0, [2.0, -4.0])
+    >>> x, y = np.array([3.0, 4, 5, 6]), np.full(4, 2.0)
+    >>> s = np.array([0.0, 1 / 3, 2 / 3, 1.0])
+    >>> g0 = identity_focus(x, y, (5, 10))
+    >>> right = np.tile([3.0, 0.0], (4, 1))                  # 3 px per window
+    >>> multi_focus(x, y, s, right, (5, 10), g0) > multi_focus(x, y, s, 0 * right, (5, 10), g0)
+    True
     """
-    def fun_grad(theta):
-        p = torch.tensor(np.asarray(theta), dtype=dtype, requires_grad=True)
-        with torch.enable_grad():
-            loss = loss_of(p)
-            loss.backward()
-        return float(loss.detach()), p.grad.numpy().astype(np.float64)
-
-    return fun_grad
+    refs = np.array([r for r, _ in REFERENCES], s.dtype)
+    wts = np.array([wt for _, wt in REFERENCES])
+    dtn = refs[:, None] - s[None]                                        # (K, N)
+    splat = _Splat(x[None] + dtn * flow[:, 0], y[None] + dtn * flow[:, 1], tuple(shape))
+    imgs = splat.images()
+    norm = wts.sum() * g0
+    if imgs.shape[-2] < 3 or imgs.shape[-1] < 3:
+        return (0.0, np.zeros_like(flow)) if grad else 0.0
+    gx, gy = _sobel(imgs)
+    value = float((wts * (gx * gx + gy * gy).mean((1, 2))).sum() / norm)
+    if not grad:
+        return value
+    scale = (2.0 / (gx.shape[1] * gx.shape[2]) / norm) * wts[:, None, None]
+    px, py = splat.adjoint(_sobel_adjoint(scale * gx, scale * gy))
+    return value, np.stack(((dtn * px).sum(0), (dtn * py).sum(0)), 1)

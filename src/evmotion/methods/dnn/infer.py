@@ -15,6 +15,7 @@ as multicm's, so every output, picture and evaluation of ``evmotion flow`` works
 from __future__ import annotations
 
 import contextlib
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -42,7 +43,7 @@ from evmotion.methods.measured import (
     warn_no_gain,
 )
 
-__all__ = ["estimate_flow_dnn", "predict_displacement", "sharpness"]
+__all__ = ["estimate_flow_dnn", "load_network", "predict_displacement", "sharpness"]
 
 # the events binned this many times coarser (estimate_flow_dnn): 8 for windows whose
 # events move tens of px (a 0.95 s DAVIS346 window: FWL 2.30 with 1-4, 3.24 with 8 too)
@@ -97,12 +98,27 @@ def predict_displacement(events: EventArray, checkpoint: str | Path | None = Non
     return _predict(events, [1], checkpoint, device, None, time_reversal=False)[1]
 
 
-def _check_torch() -> None:
-    try:
-        import torch  # noqa: F401
-    except ModuleNotFoundError:
-        raise ParameterError("method 'dnn' needs PyTorch: pip install 'evmotion[dnn]'"
-                             ) from None
+def _on_numpy(device: str) -> bool:
+    """Whether the network runs in numpy (:mod:`.numpynet`: the CPU, no torch import)."""
+    return isinstance(device, str) and device.strip().lower() in ("cpu", "cpu:0")
+
+
+def load_network(checkpoint=None, device: str = "cpu"):
+    """The network that computes the finest flow of ``checkpoint`` (default the shipped
+    one): on the CPU a :class:`~evmotion.methods.dnn.numpynet.NumpyNet` (torch is not
+    imported for the shipped checkpoint), on another device torch's
+    :class:`~evmotion.methods.dnn.network.InferenceNet`. Raises
+    :class:`~evmotion.errors.ParameterError` naming a checkpoint or device that fails."""
+    if _on_numpy(device):
+        from evmotion.methods.dnn.numpynet import load_numpy_net
+
+        return load_numpy_net(checkpoint)
+    from evmotion.methods.dnn import require_torch
+
+    require_torch(f"--device {device}")
+    from evmotion.methods.dnn.model import load_inference_net
+
+    return load_inference_net(checkpoint, device)
 
 
 def _run(net, vox: np.ndarray, shape: tuple[int, int], device: str,
@@ -110,17 +126,22 @@ def _run(net, vox: np.ndarray, shape: tuple[int, int], device: str,
     """The network on one input ``(H', W', bins)``, its flow cropped to ``shape``; with
     ``time_reversal``, the mean of its flow and the negated flow of the time-reversed
     window (the bins in reverse order, polarities flipped), in one batch of two."""
-    import torch
+    from evmotion.methods.dnn.numpynet import NumpyNet
 
     h, w = shape
-    # (H', W', bins) -> (1, bins, H', W') in channels-last memory: a view, no copy
-    t = torch.from_numpy(vox).permute(2, 0, 1)[None]
+    x = np.transpose(vox, (2, 0, 1))[None]           # (1, bins, H', W')
     if time_reversal:
-        t = torch.cat([t, -t.flip(1)])
-    with torch.inference_mode(), _full_fp32():
-        out = net(t.to(device))[:, :, :h, :w]
+        x = np.concatenate([x, -x[:, ::-1]])
+    if isinstance(net, NumpyNet):
+        out = net(x)[:, :, :h, :w]
+    else:
+        import torch
+
+        with torch.inference_mode(), _full_fp32():
+            out = net(torch.from_numpy(np.ascontiguousarray(x)).to(device))[:, :, :h, :w]
+        out = out.cpu().numpy()
     flow = 0.5 * (out[0] - out[1]) if time_reversal else out[0]
-    return np.ascontiguousarray(flow.permute(1, 2, 0).cpu().numpy(), dtype=np.float32)
+    return np.ascontiguousarray(flow.transpose(1, 2, 0), dtype=np.float32)
 
 
 @contextlib.contextmanager
@@ -133,7 +154,9 @@ def torch_threads(threads: int | None):
     if not (isinstance(threads, (int, np.integer)) and not isinstance(threads, bool)
             and 1 <= threads <= 256):
         raise ParameterError(f"threads must be an integer in [1, 256] or None, got {threads!r}")
-    _check_torch()
+    if sys.modules.get("torch") is None:  # the network in numpy: no torch threads to set
+        yield
+        return
     import torch
 
     before = torch.get_num_threads()
@@ -159,16 +182,31 @@ def _full_fp32():
         torch.backends.cudnn.allow_tf32 = before
 
 
+def _resized(a: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Maps ``a`` (C, h, w) resized to ``size`` bilinearly, pixel centres aligned (torch's
+    ``interpolate(..., mode="bilinear", align_corners=False)``; numpy: torch is not
+    imported on the CPU)."""
+    out = a
+    for axis, n in ((1, size[0]), (2, size[1])):
+        m = out.shape[axis]
+        src = np.maximum((np.arange(n) + 0.5) * (m / n) - 0.5, 0.0)
+        i0 = np.minimum(np.floor(src).astype(np.intp), m - 1)
+        i1 = np.minimum(i0 + 1, m - 1)
+        f = (src - i0).astype(out.dtype)
+        shape = [1, 1, 1]
+        shape[axis] = n
+        f = f.reshape(shape)
+        out = out.take(i0, axis) * (1 - f) + out.take(i1, axis) * f
+    return out
+
+
 def _upsampled(disp: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
     """A displacement predicted on the grid ``k`` times coarser, on the sensor's grid in
     px: bilinear (pixel centres aligned), times ``k``, cropped to ``shape``."""
-    import torch
-
     h, w = disp.shape[:2]
-    t = torch.from_numpy(np.ascontiguousarray(disp)).permute(2, 0, 1)[None]
-    up = torch.nn.functional.interpolate(t, size=(h * k, w * k), mode="bilinear",
-                                         align_corners=False)[0].permute(1, 2, 0)
-    return np.ascontiguousarray(up.numpy()[:shape[0], :shape[1]] * k, dtype=np.float32)
+    up = _resized(np.ascontiguousarray(disp.transpose(2, 0, 1)), (h * k, w * k))
+    return np.ascontiguousarray(up.transpose(1, 2, 0)[:shape[0], :shape[1]] * k,
+                                dtype=np.float32)
 
 
 def _predict(events: EventArray, scales: list[int], checkpoint, device: str, xys,
@@ -177,11 +215,9 @@ def _predict(events: EventArray, scales: list[int], checkpoint, device: str, xys
     of the ``scales`` the one whose prediction warps the events (``xys``, from
     :func:`_pixels_and_times`) sharpest (the one scale's when there is one), and the
     predictions at every scale."""
-    _check_torch()
-    from evmotion.methods.dnn.model import load_inference_net
     from evmotion.methods.dnn.voxel import network_inputs
 
-    net = load_inference_net(checkpoint, device)
+    net = load_network(checkpoint, device)
     h, w = events.sensor_size
     best, disp, score, cands = 1, None, -np.inf, []
     for k, vox in zip(scales, network_inputs(events, tuple(scales), net.n_bins), strict=True):
@@ -189,9 +225,7 @@ def _predict(events: EventArray, scales: list[int], checkpoint, device: str, xys
         cand = _run(net, vox, grid, device,
                     time_reversal and grid[0] * grid[1] <= TIME_REVERSAL_MAX_PIXELS)
         if not np.isfinite(cand).all():
-            from evmotion.methods.dnn.model import DEFAULT_CHECKPOINT
-
-            raise ParameterError(f"checkpoint {checkpoint or DEFAULT_CHECKPOINT}: the network "
+            raise ParameterError(f"checkpoint {checkpoint or 'shipped'}: the network "
                                  "gives a non-finite flow (its training diverged)")
         if k > 1:
             cand = _upsampled(cand, k, (h, w))
@@ -254,8 +288,6 @@ def _fused(xys, cands: list[np.ndarray], fallback: np.ndarray, shape) -> np.ndar
     scale's prediction times one of :data:`FUSE_GAINS`) that warps the tile's events
     sharpest, the choices blended smoothly across tiles; tiles with fewer than
     :data:`FUSE_MIN_EVENTS` events keep ``fallback`` (the whole window's choice)."""
-    import torch
-
     h, w = shape
     tile = FUSE_TILE
     options = [c * np.float32(g) for c in cands for g in FUSE_GAINS] + [fallback]
@@ -270,10 +302,8 @@ def _fused(xys, cands: list[np.ndarray], fallback: np.ndarray, shape) -> np.ndar
     g = np.asarray(FUSE_GAINS)[:, None, None]
     maps = [(weights[i * len(FUSE_GAINS):(i + 1) * len(FUSE_GAINS)] * g).sum(0)
             for i in range(len(cands))] + [weights[-1]]
-    up = torch.nn.functional.interpolate(
-        torch.from_numpy(np.stack(maps).astype(np.float32))[None],
-        size=(weights.shape[1] * tile, weights.shape[2] * tile), mode="bilinear",
-        align_corners=False)[0, :, :h, :w].numpy()
+    up = _resized(np.stack(maps).astype(np.float32),
+                  (weights.shape[1] * tile, weights.shape[2] * tile))[:, :h, :w]
     fused = up[-1][..., None] * fallback
     for m, c in zip(up[:-1], cands, strict=True):
         fused += m[..., None] * c

@@ -19,8 +19,8 @@ a plane), in centred coordinates ``x = (col - (W - 1) / 2) / (W / 2)``,
     u = a0 + a2 x + a3 y + a6 x^2 + a7 x y
     v = a1 + a4 x + a5 y + a6 x y + a7 y^2
 
-in px over the window. Everything here is numpy and torch (already loaded for the
-network): no numba kernel to compile in a one-window command. :func:`window_loss` is multicm's
+in px over the window. Everything here is numpy: neither a numba kernel to compile nor
+torch to import in a one-window command. :func:`window_loss` is multicm's
 objective (4.9) of a dense flow, the same number as
 ``evmotion.methods.dnn.loss.window_problem(events).value_grad`` (tested to 1e-9).
 """
@@ -30,15 +30,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 
+from evmotion.core.tilegrid import charbonnier_tv
 from evmotion.events import EventArray
 from evmotion.methods.dnn.bfgs import bfgs
 from evmotion.methods.dnn.focus import (
     binned_shape,
     identity_focus,
     multi_focus,
-    value_grad,
     window_times,
 )
 
@@ -152,20 +151,6 @@ def event_flow(disp: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
             + fy * ((1 - fx) * d[y1, x0] + fx * d[y1, x1]))
 
 
-def _tv(disp: np.ndarray, duration_s: float) -> float:
-    """Mean over pixels of the Charbonnier magnitude of the flow's forward differences,
-    per component, in 1/s (multicm's ``tv_grad`` on pixel tiles)."""
-    total = 0.0
-    for c in range(2):
-        p = disp[..., c].astype(np.float64) / duration_s
-        dx = np.zeros_like(p)
-        dy = np.zeros_like(p)
-        dx[:, :-1] = p[:, 1:] - p[:, :-1]
-        dy[:-1, :] = p[1:, :] - p[:-1, :]
-        total += float(np.sqrt(dx * dx + dy * dy + TV_EPS ** 2).mean())
-    return total
-
-
 def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning: int = 1
                 ) -> float:
     """multicm's objective (4.9), ``1 / focus + lam * TV``, of the dense displacement
@@ -185,15 +170,16 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning:
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
     duration_s = max(int(events.t[-1] - events.t[0]), 1) * 1e-6
-    flow = torch.from_numpy(event_flow(disp, x, y) / binning)
-    t = (torch.from_numpy(x / binning), torch.from_numpy(y / binning),
-         torch.from_numpy(window_times(events)))
+    flow = event_flow(disp, x, y) / binning
+    xb, yb = x / binning, y / binning
     shape = binned_shape(events.sensor_size, binning)
-    g0 = identity_focus(t[0], t[1], shape)
+    g0 = identity_focus(xb, yb, shape)
     if not g0 > 0:  # no contrast to measure (a sensor under 3 px a side, one pixel)
         return float("inf")
-    f = float(multi_focus(*t, flow, shape, g0))
-    return 1.0 / max(f, 1e-12) + lam * _tv(disp, duration_s)
+    f = multi_focus(xb, yb, window_times(events), flow, shape, g0)
+    # (multicm's TV on pixel tiles: the mean over pixels)
+    tv = charbonnier_tv(disp.astype(np.float64), (1.0, 1.0), duration_s, TV_EPS)[0]
+    return 1.0 / max(f, 1e-12) + lam * tv
 
 
 def polish_planar(events: EventArray, params, evaluations: int = POLISH_EVALUATIONS,
@@ -216,18 +202,18 @@ def polish_planar(events: EventArray, params, evaluations: int = POLISH_EVALUATI
     h, w = events.sensor_size
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
-    # in float32: half the time of float64 (memory-bound), the same fields within
-    # 1e-3 px on bench_dnn's windows; the loss that decides (window_loss) is float64
     k = int(binning)
-    basis = torch.from_numpy((_basis(x, y, (h, w)) / k).astype(np.float32))
-    tx, ty, ts = (torch.from_numpy(a.astype(np.float32))
-                  for a in (x / k, y / k, window_times(events)))
+    basis = _basis(x, y, (h, w)) / k
+    tx, ty, ts = x / k, y / k, window_times(events)
     start = np.asarray(params, np.float64)
     shape = binned_shape((h, w), k)
     g0 = identity_focus(tx, ty, shape)
     if not g0 > 0:
         return start
 
-    out = bfgs(value_grad(lambda p: -multi_focus(tx, ty, ts, basis @ p, shape, g0)), start,
-               int(evaluations))
+    def fun_grad(p):
+        f, df = multi_focus(tx, ty, ts, basis @ p, shape, g0, grad=True)
+        return -f, -np.einsum("nci,nc->i", basis, df)
+
+    out = bfgs(fun_grad, start, int(evaluations))
     return out if np.isfinite(out).all() else start

@@ -30,16 +30,14 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-import torch
 
-from evmotion.core.tilegrid import TileGrid, event_weights, tile_means
+from evmotion.core.tilegrid import TileGrid, charbonnier_tv, event_weights, tile_means
 from evmotion.events import EventArray
 from evmotion.methods.dnn.bfgs import bfgs
 from evmotion.methods.dnn.focus import (
     binned_shape,
     identity_focus,
     multi_focus,
-    value_grad,
     window_times,
 )
 from evmotion.methods.dnn.planar import LAM, TV_EPS, event_flow
@@ -58,56 +56,41 @@ STEP_PX = 0.5
 
 
 class _Problem(NamedTuple):
-    """The tensors of the objective on one grid."""
+    """The arrays of the objective on one grid."""
 
-    x: torch.Tensor          # positions (N,), binned
-    y: torch.Tensor
-    s: torch.Tensor          # times, fractions of the window
-    idx: torch.Tensor        # the events' bilinear stencil on the tiles (N, 4)
-    w: torch.Tensor          # its weights (N, 4), divided by the binning
+    x: np.ndarray            # positions (N,), binned
+    y: np.ndarray
+    s: np.ndarray            # times, fractions of the window
+    idx: np.ndarray          # the events' bilinear stencil on the tiles (N, 4)
+    w: np.ndarray            # its weights (N, 4), divided by the binning
     shape: tuple[int, int]   # of the (binned) images
     g0: float                # the identity warp's focus
     duration_s: float
     grid: TileGrid
-    base: torch.Tensor | None = None        # a dense flow at the events (N, 2), binned
-    base_tiles: torch.Tensor | None = None  # its means over the tiles' pixels (ny, nx, 2)
+    base: np.ndarray | None = None        # a dense flow at the events (N, 2), binned
+    base_tiles: np.ndarray | None = None  # its means over the tiles' pixels (ny, nx, 2)
 
 
-def _problem(events: EventArray, grid: TileGrid, binning: int, dtype,
+def _problem(events: EventArray, grid: TileGrid, binning: int,
              base: np.ndarray | None = None) -> _Problem:
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
     idx, w = event_weights(x, y, grid)
     k = int(binning)
     shape = binned_shape(events.sensor_size, k)
-    tx, ty, ts = (torch.from_numpy(a.astype(dtype)) for a in (x / k, y / k,
-                                                              window_times(events)))
     extra = ()
     if base is not None:
         # (the TV's share of base: its mean over each tile's pixels, as a tile without
         # events has a flow too)
-        extra = (torch.from_numpy((event_flow(base, x, y) / k).astype(dtype)),
-                 torch.from_numpy(tile_means(base, grid).astype(dtype)))
-    return _Problem(tx, ty, ts, torch.from_numpy(idx), torch.from_numpy((w / k).astype(dtype)),
-                    shape, identity_focus(tx, ty, shape),
+        extra = (event_flow(base, x, y) / k, tile_means(base, grid).astype(np.float64))
+    return _Problem(x / k, y / k, window_times(events), idx, w / k, shape,
+                    identity_focus(x / k, y / k, shape),
                     max(int(events.t[-1] - events.t[0]), 1) * 1e-6, grid, *extra)
 
 
-def _tv(p, grid: TileGrid, duration_s: float):
-    """multicm's ``tv_grad`` value of tile params ``p`` (ny, nx, 2) px per window: mean
-    over tiles of the Charbonnier magnitude of each component's forward differences, in
-    1/s."""
-    sy, sx = grid.spacing
-    kx = 1.0 / (duration_s * sx)
-    ky = 1.0 / (duration_s * sy)
-    zc = p.new_zeros(p.shape[0], 1, 2)
-    zr = p.new_zeros(1, p.shape[1], 2)
-    dx = torch.cat(((p[:, 1:] - p[:, :-1]) * kx, zc), 1)
-    dy = torch.cat(((p[1:] - p[:-1]) * ky, zr), 0)
-    return torch.sqrt(dx * dx + dy * dy + TV_EPS ** 2).sum() / (grid.ny * grid.nx)
-
-
-def _loss(prob: _Problem, theta, lam: float):
+def _loss_grad(prob: _Problem, theta: np.ndarray, lam: float) -> tuple[float, np.ndarray]:
+    """multicm's objective ``1 / focus + lam * TV`` of the tile flow ``theta`` (flat) and
+    its gradient (flat)."""
     g = prob.grid
     p = theta.reshape(g.ny * g.nx, 2)
     flow = (prob.w[..., None] * p[prob.idx]).sum(1)  # px per window, binned
@@ -115,8 +98,15 @@ def _loss(prob: _Problem, theta, lam: float):
     if prob.base is not None:
         flow = flow + prob.base
         tiles = tiles + prob.base_tiles
-    f = multi_focus(prob.x, prob.y, prob.s, flow, prob.shape, prob.g0)
-    return 1.0 / f.clamp_min(1e-12) + lam * _tv(tiles, g, prob.duration_s)
+    f, df = multi_focus(prob.x, prob.y, prob.s, flow, prob.shape, prob.g0, grad=True)
+    f = max(f, 1e-12)
+    tv, gtv = charbonnier_tv(tiles, g.spacing, prob.duration_s, TV_EPS)
+    # the focus' gradient from the events to the tiles of their stencils
+    dflow = -df / (f * f)
+    n = g.ny * g.nx
+    grad = np.stack([np.bincount(prob.idx.ravel(), (prob.w * dflow[:, c:c + 1]).ravel(),
+                                 minlength=n) for c in range(2)], 1)
+    return 1.0 / f + lam * tv, (grad + lam * gtv.reshape(n, 2)).ravel()
 
 
 def tile_loss_grad(events: EventArray, params: np.ndarray, grid: TileGrid,
@@ -136,9 +126,8 @@ def tile_loss_grad(events: EventArray, params: np.ndarray, grid: TileGrid,
     >>> tile_loss_grad(ev, right, g)[0] < tile_loss_grad(ev, 0 * right, g)[0]
     True
     """
-    prob = _problem(events, grid, binning, np.float64)
-    return value_grad(lambda p: _loss(prob, p, lam), torch.float64)(
-        np.asarray(params, np.float64).ravel())
+    prob = _problem(events, grid, binning)
+    return _loss_grad(prob, np.asarray(params, np.float64).ravel(), lam)
 
 
 def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
@@ -146,8 +135,8 @@ def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
                  base: np.ndarray | None = None) -> np.ndarray:
     """The tile flow (ny, nx, 2, px over the window) that lowers multicm's objective on
     ``grid``, by BFGS from ``params`` (e.g. the network's flow averaged over each tile's
-    events, :func:`~evmotion.core.tileflow.event_tile_means`), in float32 as the plane's
-    polish; with ``binning`` k > 1 the focus of the images binned k x k.
+    events, :func:`~evmotion.core.tileflow.event_tile_means`); with ``binning`` k > 1
+    the focus of the images binned k x k.
 
     With ``base``, a dense flow (H, W, 2, px over the window), the tiles are a correction
     added to it: the events move by ``base`` (bilinear between pixel centres) plus the
@@ -169,9 +158,9 @@ def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
     [6.1, 6.1]
     """
     start = np.asarray(params, np.float64)
-    prob = _problem(events, grid, binning, np.float32, base)
+    prob = _problem(events, grid, binning, base)
     if not prob.g0 > 0:  # no contrast to measure
         return start
-    out = bfgs(value_grad(lambda p: _loss(prob, p, LAM)), start.ravel(), int(evaluations),
+    out = bfgs(lambda p: _loss_grad(prob, p, LAM), start.ravel(), int(evaluations),
                step_px=STEP_PX)
     return out.reshape(start.shape) if np.isfinite(out).all() else start
