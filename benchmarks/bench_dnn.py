@@ -177,7 +177,7 @@ def speed(quick: bool) -> list[dict]:
         predict_displacement,
     )
     from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
-    from evmotion.methods.dnn.model import load_inference_net, load_model
+    from evmotion.methods.dnn.model import load_model
     from evmotion.methods.dnn.network import EVFlowNet, upsample_flows
     from evmotion.methods.dnn.voxel import (
         network_input,
@@ -197,45 +197,47 @@ def speed(quick: bool) -> list[dict]:
         with torch.inference_mode():
             return net(vox[None])[-1][0, :, :h, :w].permute(1, 2, 0).numpy()
 
-    fast = load_inference_net(_ckpt())
-
-    def torch_inference(e):  # what predict_displacement ran before the numpy network
-        h, w = e.sensor_size
-        vox = torch.from_numpy(network_input(e, net.n_bins)).permute(2, 0, 1)[None]
-        with torch.inference_mode():
-            return fast(vox)[0, :, :h, :w].permute(1, 2, 0).numpy()
-
     for shape in ((260, 346), (480, 640)):
         ev = _window(shape, N_EVENTS)
-        fns = {"predict_displacement": lambda e=ev: predict_displacement(e, _ckpt()),
+        fns = {"predict_displacement": lambda e=ev: predict_displacement(e, _ckpt(),
+                                                                         backend="torch"),
+               "predict_displacement numpy": lambda e=ev: predict_displacement(
+                   e, _ckpt(), backend="numpy"),
                "training forward": lambda e=ev: training_forward(e),
-               "torch InferenceNet": lambda e=ev: torch_inference(e),
                "estimate_flow_dnn": lambda e=ev: estimate_flow_dnn(e, _ckpt(),
                                                                    with_iwes=False),
+               "estimate_flow_dnn numpy": lambda e=ev: estimate_flow_dnn(
+                   e, _ckpt(), with_iwes=False, backend="numpy"),
                "estimate_flow_dnn network only": lambda e=ev: estimate_flow_dnn(
                    e, _ckpt(), with_iwes=False, planar=False, refine=False),
                "network_input": lambda e=ev: network_input(e, net.n_bins),
                "voxel_grid+normalize+pad": lambda e=ev: pad_to_multiple(
                    normalize_voxel(voxel_grid(e)))}
         times = _interleaved(fns, 5 if quick else 30)
-        diff = float(np.abs(fns["predict_displacement"]() - fns["training forward"]()).max())
+        ref = fns["training forward"]()
         for name, voxel in (("predict_displacement", "network_input"),
-                            ("torch InferenceNet", "network_input"),
+                            ("predict_displacement numpy", "network_input"),
                             ("training forward", "voxel_grid+normalize+pad")):
-            label = ("predict_displacement (numpy network)" if name == "predict_displacement"
-                     else name)
+            label = {"predict_displacement": "predict_displacement (backend torch)",
+                     "predict_displacement numpy": "predict_displacement (backend numpy)"
+                     }.get(name, name)
             rows.append({"section": "speed",
                          "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
                          "method": f"{label}, width {net.width} ({params} params)",
                          **times[name], "voxel_s": times[voxel]["seconds"],
                          "voxel_cpu_s": times[voxel]["cpu_s"],
-                         "max_diff_px": diff if name == "predict_displacement" else 0.0})
+                         "max_diff_px": float(np.abs(fns[name]() - ref).max())})
         rows.append({"section": "speed", "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
                      "method": "estimate_flow_dnn (defaults: input scales "
                                f"{', '.join(map(str, INPUT_SCALES))}, time reversal, gain "
                                f"{GAINS[0]}-{GAINS[-1]}, the plane's polish, on these "
-                               "random events the tiles' refinement too; no IWEs)",
+                               "random events the tiles' refinement too; no IWEs; backend "
+                               "auto: torch, loaded in this process)",
                      **times["estimate_flow_dnn"]})
+        rows.append({"section": "speed", "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
+                     "method": "estimate_flow_dnn, the same with backend='numpy' (what a "
+                               "process without torch runs: the CLI)",
+                     **times["estimate_flow_dnn numpy"]})
         rows.append({"section": "speed", "data": f"inference {shape[1]}x{shape[0]}, 40k ev",
                      "method": "estimate_flow_dnn, planar=False, refine=False (the network's "
                                "flow only)",

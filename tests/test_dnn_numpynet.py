@@ -57,8 +57,8 @@ def test_a_torch_checkpoint_and_its_export_give_one_network(tmp_path):
     save_model(tmp_path / "model.pt", net)
     N.export_checkpoint(tmp_path / "model.pt", tmp_path / "model.npz")
     x = np.random.default_rng(1).normal(size=(1, 5, 32, 48)).astype(np.float32)
-    a = load_network(tmp_path / "model.pt")(x)
-    b = load_network(tmp_path / "model.npz")(x)
+    a = load_network(tmp_path / "model.pt", backend="numpy")(x)
+    b = load_network(tmp_path / "model.npz")(x)   # an export: numpy, torch loaded or not
     assert isinstance(load_network(tmp_path / "model.npz"), N.NumpyNet)
     np.testing.assert_array_equal(a, b)
 
@@ -105,3 +105,29 @@ def test_a_window_on_the_cpu_imports_no_torch():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout
     assert out.strip() == "(40, 60, 2) False"
+
+
+def test_the_two_backends_give_one_flow():
+    from evmotion.methods.dnn.data import sim_window
+    from evmotion.methods.dnn.infer import estimate_flow_dnn
+
+    win = sim_window(21, scene="rotation", texture="shapes", sensor_size=(60, 80),
+                     window_events=6000).events
+    a = estimate_flow_dnn(win, backend="numpy", with_iwes=False)
+    b = estimate_flow_dnn(win, backend="torch", with_iwes=False)
+    auto = estimate_flow_dnn(win, with_iwes=False)   # torch is loaded in this process
+    assert (a.meta["backend"], b.meta["backend"], auto.meta["backend"]) == (
+        "numpy", "torch", "torch")
+    assert np.abs(b.flow).max() > 1.0
+    np.testing.assert_allclose(a.flow, b.flow, rtol=0, atol=1e-3 * np.abs(b.flow).max())
+    np.testing.assert_array_equal(auto.flow, b.flow)
+
+
+@pytest.mark.parametrize(("ckpt", "backend", "device", "match"), [
+    (None, "jax", "cpu", "backend must be one of auto, numpy, torch"),
+    (None, "numpy", "cuda", "the numpy network runs on the CPU only"),
+    (N.SHIPPED_EXPORT, "auto", "cuda", "CPU only, got device 'cuda' for the export"),
+    (N.SHIPPED_EXPORT, "torch", "cpu", "an .npz export runs on the numpy backend only")])
+def test_a_backend_that_cannot_run_is_refused(ckpt, backend, device, match):
+    with pytest.raises(ParameterError, match=match):
+        load_network(ckpt, device, backend)

@@ -38,8 +38,8 @@ def add_arguments(group) -> None:
                             "its .npz export (default: the shipped network); also used "
                             "by multicm's --init dnn")
     group.add_argument("--device", default=None,
-                       help="cpu (default: the network in numpy, no torch) or a torch "
-                            "device such as cuda; also multicm's --init dnn")
+                       help="cpu (default; the shipped network runs in numpy, no torch) "
+                            "or a torch device such as cuda; also multicm's --init dnn")
     group.add_argument("--threads", type=int_range(1, 256), default=None,
                        help="torch threads where torch runs the network (default 1: "
                             "faster than 2 on a shared 2-core CPU); also multicm's "

@@ -15,6 +15,7 @@ as multicm's, so every output, picture and evaluation of ``evmotion flow`` works
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import time
 import warnings
@@ -43,7 +44,8 @@ from evmotion.methods.measured import (
     warn_no_gain,
 )
 
-__all__ = ["estimate_flow_dnn", "load_network", "predict_displacement", "sharpness"]
+__all__ = ["BACKENDS", "estimate_flow_dnn", "load_network", "predict_displacement",
+           "sharpness"]
 
 # the events binned this many times coarser (estimate_flow_dnn): 8 for windows whose
 # events move tens of px (a 0.95 s DAVIS346 window: FWL 2.30 with 1-4, 3.24 with 8 too)
@@ -84,7 +86,7 @@ PLANE_CORRECTION_MARGIN = 1.01
 
 
 def predict_displacement(events: EventArray, checkpoint: str | Path | None = None, *,
-                         device: str = "cpu") -> np.ndarray:
+                         device: str = "cpu", backend: str = "auto") -> np.ndarray:
     """The network's displacement over the window, (H, W, 2) float32 px (u right, v down).
 
     Examples
@@ -95,21 +97,47 @@ def predict_displacement(events: EventArray, checkpoint: str | Path | None = Non
     >>> predict_displacement(ev).shape
     (30, 40, 2)
     """
-    return _predict(events, [1], checkpoint, device, None, time_reversal=False)[1]
+    return _predict(events, [1], checkpoint, device, None, time_reversal=False,
+                    backend=backend)[1]
 
 
-def _on_numpy(device: str) -> bool:
-    """Whether the network runs in numpy (:mod:`.numpynet`: the CPU, no torch import)."""
-    return isinstance(device, str) and device.strip().lower() in ("cpu", "cpu:0")
+#: The network's arithmetic: ``"numpy"`` (:mod:`.numpynet`, the CPU only, no torch),
+#: ``"torch"`` (:class:`~evmotion.methods.dnn.network.InferenceNet`), or ``"auto"``.
+BACKENDS = ("auto", "numpy", "torch")
 
 
-def load_network(checkpoint=None, device: str = "cpu"):
+def _backend(backend: str, device: str, checkpoint=None) -> str:
+    """``backend`` resolved: ``"auto"`` is numpy for an ``.npz`` export, else torch where
+    torch is loaded already or the device is not the CPU, else numpy. torch's
+    convolutions are 1.5-2x faster than numpy's (``benchmarks/results/dnn.md``), but its
+    import cost a one-window command 2.0-2.4 s of its 4-6 s: a process that has paid it
+    keeps the faster network."""
+    if backend not in BACKENDS:
+        raise ParameterError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    on_cpu = isinstance(device, str) and device.strip().lower() in ("cpu", "cpu:0")
+    export = isinstance(checkpoint, (str, os.PathLike)) and \
+        str(checkpoint).lower().endswith(".npz")
+    if (backend == "numpy" or export) and not on_cpu:
+        raise ParameterError(f"the numpy network runs on the CPU only, got device {device!r}"
+                             + (f" for the export {checkpoint}" if export else ""))
+    if export and backend == "torch":
+        raise ParameterError(f"checkpoint {checkpoint}: an .npz export runs on the numpy "
+                             "backend only; give its model.pt for torch")
+    if backend == "auto":
+        return ("numpy" if export or (sys.modules.get("torch") is None and on_cpu)
+                else "torch")
+    return backend
+
+
+def load_network(checkpoint=None, device: str = "cpu", backend: str = "auto"):
     """The network that computes the finest flow of ``checkpoint`` (default the shipped
-    one): on the CPU a :class:`~evmotion.methods.dnn.numpynet.NumpyNet` (torch is not
-    imported for the shipped checkpoint), on another device torch's
-    :class:`~evmotion.methods.dnn.network.InferenceNet`. Raises
+    one): with the numpy backend a :class:`~evmotion.methods.dnn.numpynet.NumpyNet` (torch
+    is not imported for the shipped checkpoint), with torch's an
+    :class:`~evmotion.methods.dnn.network.InferenceNet` on ``device``; ``"auto"``: torch
+    where it is loaded already or ``device`` is not the CPU, else numpy. The two give one
+    flow within float32 rounding (1e-5 px). Raises
     :class:`~evmotion.errors.ParameterError` naming a checkpoint or device that fails."""
-    if _on_numpy(device):
+    if _backend(backend, device, checkpoint) == "numpy":
         from evmotion.methods.dnn.numpynet import load_numpy_net
 
         return load_numpy_net(checkpoint)
@@ -210,14 +238,14 @@ def _upsampled(disp: np.ndarray, k: int, shape: tuple[int, int]) -> np.ndarray:
 
 
 def _predict(events: EventArray, scales: list[int], checkpoint, device: str, xys,
-             time_reversal: bool):
+             time_reversal: bool, backend: str = "auto"):
     """``(k, displacement, candidates)``: the network's prediction at input scale ``k``,
     of the ``scales`` the one whose prediction warps the events (``xys``, from
     :func:`_pixels_and_times`) sharpest (the one scale's when there is one), and the
     predictions at every scale."""
     from evmotion.methods.dnn.voxel import network_inputs
 
-    net = load_network(checkpoint, device)
+    net = load_network(checkpoint, device, backend)
     h, w = events.sensor_size
     best, disp, score, cands = 1, None, -np.inf, []
     for k, vox in zip(scales, network_inputs(events, tuple(scales), net.n_bins), strict=True):
@@ -481,7 +509,7 @@ def _verdict(checked: EventArray, flow: np.ndarray, t_ref: int, gains: list[floa
 
 
 def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, *,
-                      device: str = "cpu", with_iwes: bool = True,
+                      device: str = "cpu", backend: str = "auto", with_iwes: bool = True,
                       input_scales: tuple[int, ...] = INPUT_SCALES,
                       time_reversal: bool = True, rescale: bool = True,
                       fuse: bool = True, planar: bool = True, refine: bool = True,
@@ -496,7 +524,13 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         Weights from ``evmotion train`` (its ``model.pt``); default the
         shipped checkpoint (``evmotion/methods/dnn/weights``, see its model card).
     device : str
-        torch device (default ``"cpu"``).
+        ``"cpu"`` (default) or a torch device (``"cuda"``, ``"cuda:N"``, ``"mps"``).
+    backend : {"auto", "numpy", "torch"}
+        The network's arithmetic on the CPU (:func:`load_network`): numpy needs no torch
+        (whose import is 2.0-2.4 s), torch's convolutions are 1.5-2x faster; ``"auto"``
+        (default) is torch where it is loaded already (or the device is not the CPU),
+        else numpy. The two agree within float32 rounding; ``meta["backend"]`` says
+        which ran.
     with_iwes : bool
         Also compute the IWEs and the multi-reference focus of the flow, as multicm
         reports them (a few ms; default True).
@@ -595,12 +629,13 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         raise ParameterError("input_scales must be one or more of 1, 2, 4, 8, 16 (divisors "
                              f"of the network's 16-px padding), got {input_scales!r}")
     scales = sorted({int(k) for k in input_scales})
+    backend = _backend(backend, device, checkpoint)
     c_start = compile_seconds()
     t_start = time.perf_counter()
     xys = _pixels_and_times(events)
     with torch_threads(threads):
         best, disp, cands = _predict(events, scales, checkpoint, device, xys,
-                                     bool(time_reversal))
+                                     bool(time_reversal), backend)
     if fuse and len(cands) > 1:
         disp = _fused(xys, cands, disp, events.sensor_size)
     # a hot pixel's events do not move: any flow there smears them, and they outnumber
@@ -675,6 +710,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                       time_aware=None,
                       n_bins=0, n_events=len(events), valid=valid,
                       meta={"method": "dnn", "checkpoint": str(checkpoint or "shipped"),
+                            "backend": backend,
                             "input_scale": best, "time_reversal": bool(time_reversal),
                             "gain": gain, "no_focus": bool(no_focus) if check else None,
                             "planar": plane is not None,
