@@ -72,7 +72,7 @@ class _Problem(NamedTuple):
 
 
 def _problem(events: EventArray, grid: TileGrid, binning: int,
-             base: np.ndarray | None = None) -> _Problem:
+             base: np.ndarray | None = None, dtype=np.float64) -> _Problem:
     x = np.asarray(events.x, np.float64)
     y = np.asarray(events.y, np.float64)
     idx, w = event_weights(x, y, grid)
@@ -82,9 +82,11 @@ def _problem(events: EventArray, grid: TileGrid, binning: int,
     if base is not None:
         # (the TV's share of base: its mean over each tile's pixels, as a tile without
         # events has a flow too)
-        extra = (event_flow(base, x, y) / k, tile_means(base, grid).astype(np.float64))
-    return _Problem(x / k, y / k, window_times(events), idx, w / k, shape,
-                    identity_focus(x / k, y / k, shape),
+        extra = ((event_flow(base, x, y) / k).astype(dtype),
+                 tile_means(base, grid).astype(np.float64))
+    xb, yb = (x / k).astype(dtype), (y / k).astype(dtype)
+    return _Problem(xb, yb, window_times(events).astype(dtype), idx, (w / k).astype(dtype),
+                    shape, identity_focus(xb, yb, shape),
                     max(int(events.t[-1] - events.t[0]), 1) * 1e-6, grid, *extra)
 
 
@@ -93,7 +95,7 @@ def _loss_grad(prob: _Problem, theta: np.ndarray, lam: float) -> tuple[float, np
     its gradient (flat)."""
     g = prob.grid
     p = theta.reshape(g.ny * g.nx, 2)
-    flow = (prob.w[..., None] * p[prob.idx]).sum(1)  # px per window, binned
+    flow = (prob.w[..., None] * p[prob.idx].astype(prob.w.dtype)).sum(1)  # px per window
     tiles = p.reshape(g.ny, g.nx, 2)
     if prob.base is not None:
         flow = flow + prob.base
@@ -136,7 +138,8 @@ def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
     """The tile flow (ny, nx, 2, px over the window) that lowers multicm's objective on
     ``grid``, by BFGS from ``params`` (e.g. the network's flow averaged over each tile's
     events, :func:`~evmotion.core.tileflow.event_tile_means`); with ``binning`` k > 1
-    the focus of the images binned k x k.
+    the focus of the images binned k x k. In float32 (the loss that decides whether it is
+    kept is float64).
 
     With ``base``, a dense flow (H, W, 2, px over the window), the tiles are a correction
     added to it: the events move by ``base`` (bilinear between pixel centres) plus the
@@ -158,7 +161,9 @@ def refine_tiles(events: EventArray, params: np.ndarray, grid: TileGrid,
     [6.1, 6.1]
     """
     start = np.asarray(params, np.float64)
-    prob = _problem(events, grid, binning, base)
+    # in float32: half the traffic of float64, the same fields within 1e-3 px on
+    # bench_dnn's windows (the loss that decides, window_loss, is float64)
+    prob = _problem(events, grid, binning, base, np.float32)
     if not prob.g0 > 0:  # no contrast to measure
         return start
     out = bfgs(lambda p: _loss_grad(prob, p, LAM), start.ravel(), int(evaluations),
