@@ -128,8 +128,14 @@ def test_cli_train_end_to_end(tmp_path, capsys):
     col = epochs[0].split(",").index("seconds")
     assert summary["seconds"] == pytest.approx(float(epochs[-1].split(",")[col]), rel=1e-3)
     assert summary["total_seconds"] >= summary["seconds"]
-    assert {p.name for p in out.iterdir()} >= {"last.pt", "model.pt", "steps.csv",
-                                                "epochs.csv", "loss.png"}
+    assert {p.name for p in out.iterdir()} >= {"last.pt", "model.pt", "model.npz",
+                                                "steps.csv", "epochs.csv", "loss.png"}
+    # the numpy export is the network of model.pt
+    from evmotion.methods.dnn.infer import load_network
+
+    x = np.random.default_rng(0).normal(size=(1, 5, 48, 64)).astype(np.float32)
+    np.testing.assert_array_equal(load_network(out / "model.npz")(x),
+                                  load_network(out / "model.pt", backend="numpy")(x))
     # the closing line counts the epochs and steps, and gives the loss and time
     assert main(argv[:-1] + ["--epochs", "2", "--resume"]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]

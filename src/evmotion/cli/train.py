@@ -8,7 +8,8 @@ after every epoch. Deterministic for a given ``--seed`` and ``--threads``.
 
 Writes to ``--out DIR``: ``last.pt`` (after every epoch, atomically; ``--resume``
 continues from it and ends with the same weights as an uninterrupted run), ``model.pt``
-(the weights for ``evmotion flow --method dnn --checkpoint``), ``steps.csv``,
+(the weights for ``evmotion flow --method dnn --checkpoint``) and ``model.npz`` (the
+same network for the numpy backend: no torch import), ``steps.csv``,
 ``epochs.csv`` (training loss, validation loss / FWL / AEE) and ``loss.png``. A DIR that
 already holds a training is refused without ``--resume`` (a new run would overwrite it).
 """

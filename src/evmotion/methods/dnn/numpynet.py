@@ -23,7 +23,7 @@ import numpy as np
 
 from evmotion.errors import ParameterError
 
-__all__ = ["SHIPPED_EXPORT", "NumpyNet", "export_checkpoint", "load_numpy_net"]
+__all__ = ["SHIPPED_EXPORT", "NumpyNet", "export_checkpoint", "load_numpy_net", "save_export"]
 
 #: The shipped checkpoint's export (see :func:`export_checkpoint`).
 SHIPPED_EXPORT = Path(__file__).resolve().parent / "weights" / "evflownet_w0125.npz"
@@ -155,6 +155,16 @@ def _arrays_of(inet) -> dict:
     return out
 
 
+def save_export(out: str | Path, inet) -> None:
+    """Write the arrays :class:`NumpyNet` runs of a torch ``InferenceNet`` to ``out``
+    (``.npz``), atomically (``evmotion train`` writes its ``model.npz`` so)."""
+    from evmotion.utils import atomic_path
+
+    arrays = _arrays_of(inet)
+    with atomic_path(out) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
 def export_checkpoint(checkpoint: str | Path, out: str | Path) -> None:
     """Write the arrays :class:`NumpyNet` runs of a torch checkpoint (``model.pt`` of
     ``evmotion train``) to ``out`` (``.npz``), atomically; needs torch. The shipped
@@ -164,11 +174,8 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path) -> None:
             n.SHIPPED_EXPORT.with_suffix('.pt'), n.SHIPPED_EXPORT)"
     """
     from evmotion.methods.dnn.model import load_inference_net
-    from evmotion.utils import atomic_path
 
-    arrays = _arrays_of(load_inference_net(checkpoint, "cpu"))
-    with atomic_path(out) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
+    save_export(out, load_inference_net(checkpoint, "cpu"))
 
 
 def load_numpy_net(checkpoint: str | Path | None = None) -> NumpyNet:

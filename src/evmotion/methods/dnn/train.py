@@ -12,7 +12,7 @@ atomically after every epoch, so ``resume=True`` continues after the last finish
 epoch and ends with the same weights as an uninterrupted run.
 
 Outputs in ``out_dir``: ``last.pt`` (resumable), ``model.pt`` (weights only, for
-inference), ``steps.csv`` (loss per step), ``epochs.csv`` (training and validation
+inference) and its numpy export ``model.npz`` (inference without torch), ``steps.csv`` (loss per step), ``epochs.csv`` (training and validation
 scores per epoch) and ``loss.png``.
 """
 
@@ -318,13 +318,19 @@ def _seed_all(cfg: TrainConfig) -> None:
 
 
 # what a training writes besides last.pt
-OUTPUT_NAMES = ("model.pt", "steps.csv", "epochs.csv", "loss.png")
+OUTPUT_NAMES = ("model.pt", "model.npz", "steps.csv", "epochs.csv", "loss.png")
 
 
 def _write_outputs(out: Path, net, epoch: int, cfg: TrainConfig, steps_log: list,
                    epochs_log: list) -> None:
-    """model.pt, the CSV logs and the loss curve of the training so far."""
+    """model.pt, its numpy export model.npz (the network without torch: a one-window
+    command on it saves torch's 2 s import), the CSV logs and the loss curve of the
+    training so far."""
+    from evmotion.methods.dnn.network import InferenceNet
+    from evmotion.methods.dnn.numpynet import save_export
+
     save_model(out / "model.pt", net, epoch=epoch, config=asdict(cfg))
+    save_export(out / "model.npz", InferenceNet(net))
     _write_csv(out / "steps.csv", steps_log)
     _write_csv(out / "epochs.csv", epochs_log)
     _plot(out / "loss.png", steps_log, epochs_log)
