@@ -964,13 +964,18 @@ def test_without_torch_the_network_commands_say_how_to_install(rec, capsys, monk
     _assert_one_line(rc, err, "torch", "pip install 'evmotion[dnn]'")
 
 
-def test_without_torch_the_shipped_network_runs_on_the_cpu(rec, capsys, monkeypatch):
+@pytest.mark.parametrize("extra", [[], ["--json"], ["--png-dir", "pngs"],
+                                   ["--method", "multicm", "--init", "dnn"]])
+def test_without_torch_the_shipped_network_runs_on_the_cpu(rec, capsys, monkeypatch, extra):
+    # (the IWEs of --json / --png-dir came from the training loss' module, which imports
+    # torch: probe AX)
     import sys
 
     monkeypatch.setitem(sys.modules, "torch", None)  # any import of torch now fails
-    out = rec["dir"] / "notorch.flo"
+    out = rec["dir"] / f"notorch{len(extra)}.flo"
+    extra = [str(rec["dir"] / a) if a == "pngs" else a for a in extra]
     rc = main(["flow", rec["rec"], "--method", "dnn", "--window-events", "3000",
-               "--out", str(out)])
+               "--out", str(out), *extra])
     assert rc == 0, capsys.readouterr().err
     assert out.is_file()
 

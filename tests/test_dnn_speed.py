@@ -124,7 +124,7 @@ def test_predict_displacement_equals_the_training_path():
 
 
 def test_cli_dnn_computes_iwes_only_for_pictures_and_json(tmp_path, capsys, monkeypatch):
-    import evmotion.methods.dnn.loss as loss_mod
+    import evmotion.methods.dnn.problem as loss_mod
     from evmotion.io import write_events
 
     win = sim_window(11, scene="translation", texture="shapes", sensor_size=(50, 70),

@@ -91,8 +91,12 @@ def check_network(args) -> None:
 def estimator(args):
     """``(estimate(events, init) -> FlowResult, attrs)`` for the multicm runner."""
     from evmotion.methods.dnn import estimate_flow_dnn
+    from evmotion.methods.dnn.infer import resolve_backend
 
+    # resolved once, and stored with the outputs: every window runs the same arithmetic
+    backend = resolve_backend("auto", args.device, args.checkpoint)
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
+             "backend": backend,
              "source": str(args.file), "input_scales": list(args.input_scales),
              "time_reversal": not args.no_time_reversal, "rescale": not args.no_rescale,
              "fuse": not args.no_fuse, "planar": not args.no_planar,
@@ -105,7 +109,8 @@ def estimator(args):
 
     def estimate(events, init):
         return estimate_flow_dnn(events, args.checkpoint, device=args.device,
-                                 with_iwes=with_iwes, input_scales=tuple(args.input_scales),
+                                 backend=backend, with_iwes=with_iwes,
+                                 input_scales=tuple(args.input_scales),
                                  time_reversal=not args.no_time_reversal,
                                  rescale=not args.no_rescale, fuse=not args.no_fuse,
                                  planar=not args.no_planar, refine=not args.no_refine,

@@ -45,7 +45,7 @@ from evmotion.methods.measured import (
 )
 
 __all__ = ["BACKENDS", "estimate_flow_dnn", "load_network", "predict_displacement",
-           "sharpness"]
+           "resolve_backend", "sharpness"]
 
 # the events binned this many times coarser (estimate_flow_dnn): 8 for windows whose
 # events move tens of px (a 0.95 s DAVIS346 window: FWL 2.30 with 1-4, 3.24 with 8 too)
@@ -106,17 +106,25 @@ def predict_displacement(events: EventArray, checkpoint: str | Path | None = Non
 BACKENDS = ("auto", "numpy", "torch")
 
 
-def _backend(backend: str, device: str, checkpoint=None) -> str:
-    """``backend`` resolved: ``"auto"`` is numpy for an ``.npz`` export, else torch where
-    torch is loaded already or the device is not the CPU, else numpy. torch's
-    convolutions are 1.5-2x faster than numpy's (``benchmarks/results/dnn.md``), but its
-    import cost a one-window command 2.0-2.4 s of its 4-6 s: a process that has paid it
-    keeps the faster network."""
+def resolve_backend(backend: str = "auto", device: str = "cpu", checkpoint=None) -> str:
+    """``backend`` resolved to ``"numpy"`` or ``"torch"``. ``"auto"``: numpy for an
+    ``.npz`` export, or for the shipped network on the CPU in a process that has not
+    imported torch; torch otherwise (a ``model.pt`` needs torch to be read, so its
+    faster convolutions run it; torch's are 1.5-2x numpy's, ``benchmarks/results/dnn.md``,
+    but its import cost a one-window command 2.0-2.4 s of its 4-6 s).
+
+    Examples
+    --------
+    >>> resolve_backend("numpy"), resolve_backend("auto", "cpu", "run/model.npz")
+    ('numpy', 'numpy')
+    >>> resolve_backend("auto", "cuda")
+    'torch'
+    """
     if backend not in BACKENDS:
         raise ParameterError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     on_cpu = isinstance(device, str) and device.strip().lower() in ("cpu", "cpu:0")
-    export = isinstance(checkpoint, (str, os.PathLike)) and \
-        str(checkpoint).lower().endswith(".npz")
+    path = str(checkpoint).lower() if isinstance(checkpoint, (str, os.PathLike)) else ""
+    export = path.endswith(".npz")
     if (backend == "numpy" or export) and not on_cpu:
         raise ParameterError(f"the numpy network runs on the CPU only, got device {device!r}"
                              + (f" for the export {checkpoint}" if export else ""))
@@ -124,8 +132,8 @@ def _backend(backend: str, device: str, checkpoint=None) -> str:
         raise ParameterError(f"checkpoint {checkpoint}: an .npz export runs on the numpy "
                              "backend only; give its model.pt for torch")
     if backend == "auto":
-        return ("numpy" if export or (sys.modules.get("torch") is None and on_cpu)
-                else "torch")
+        shipped_here = checkpoint is None and on_cpu and sys.modules.get("torch") is None
+        return "numpy" if export or shipped_here else "torch"
     return backend
 
 
@@ -133,17 +141,17 @@ def load_network(checkpoint=None, device: str = "cpu", backend: str = "auto"):
     """The network that computes the finest flow of ``checkpoint`` (default the shipped
     one): with the numpy backend a :class:`~evmotion.methods.dnn.numpynet.NumpyNet` (torch
     is not imported for the shipped checkpoint), with torch's an
-    :class:`~evmotion.methods.dnn.network.InferenceNet` on ``device``; ``"auto"``: torch
-    where it is loaded already or ``device`` is not the CPU, else numpy. The two give one
-    flow within float32 rounding (1e-5 px). Raises
-    :class:`~evmotion.errors.ParameterError` naming a checkpoint or device that fails."""
-    if _backend(backend, device, checkpoint) == "numpy":
+    :class:`~evmotion.methods.dnn.network.InferenceNet` on ``device``; ``"auto"`` as
+    :func:`resolve_backend` says. The two networks' flows agree within float32 rounding
+    (1e-6 px on the shipped network). Raises :class:`~evmotion.errors.ParameterError`
+    naming a checkpoint or device that fails."""
+    if resolve_backend(backend, device, checkpoint) == "numpy":
         from evmotion.methods.dnn.numpynet import load_numpy_net
 
         return load_numpy_net(checkpoint)
     from evmotion.methods.dnn import require_torch
 
-    require_torch(f"--device {device}")
+    require_torch(f"the network on torch (device {device!r})")
     from evmotion.methods.dnn.model import load_inference_net
 
     return load_inference_net(checkpoint, device)
@@ -526,11 +534,15 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     device : str
         ``"cpu"`` (default) or a torch device (``"cuda"``, ``"cuda:N"``, ``"mps"``).
     backend : {"auto", "numpy", "torch"}
-        The network's arithmetic on the CPU (:func:`load_network`): numpy needs no torch
-        (whose import is 2.0-2.4 s), torch's convolutions are 1.5-2x faster; ``"auto"``
-        (default) is torch where it is loaded already (or the device is not the CPU),
-        else numpy. The two agree within float32 rounding; ``meta["backend"]`` says
-        which ran.
+        The network's arithmetic (:func:`load_network`): numpy (the CPU) needs no torch,
+        whose import is 2.0-2.4 s; torch's convolutions are 1.5-2x faster. ``"auto"``
+        (default, :func:`resolve_backend`): numpy for the shipped network in a process
+        that has not imported torch (as the CLI) and for an ``.npz`` export, else torch.
+        The two networks agree within float32 rounding (1e-6 px), but the plane's polish
+        and the refinement that follow are searches that can carry such a difference
+        further: up to 0.6 % of the flow on a probe's 640x480 window, with the same FWL.
+        For bit-for-bit results across processes, name the backend;
+        ``meta["backend"]`` says which ran.
     with_iwes : bool
         Also compute the IWEs and the multi-reference focus of the flow, as multicm
         reports them (a few ms; default True).
@@ -629,7 +641,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         raise ParameterError("input_scales must be one or more of 1, 2, 4, 8, 16 (divisors "
                              f"of the network's 16-px padding), got {input_scales!r}")
     scales = sorted({int(k) for k in input_scales})
-    backend = _backend(backend, device, checkpoint)
+    backend = resolve_backend(backend, device, checkpoint)
     c_start = compile_seconds()
     t_start = time.perf_counter()
     xys = _pixels_and_times(events)
@@ -674,7 +686,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     iwes, focus = {}, float("nan")
     if with_iwes:
         from evmotion.core.tileflow import iwe_forward
-        from evmotion.methods.dnn.loss import window_problem
+        from evmotion.methods.dnn.problem import window_problem
 
         prob = window_problem(checked if len(checked) >= 2 else events)
         focus, _, imgs = prob.focus_grad(disp.astype(np.float64))

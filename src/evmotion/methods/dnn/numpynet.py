@@ -206,23 +206,69 @@ def load_numpy_net(checkpoint: str | Path | None = None) -> NumpyNet:
     return net
 
 
+#: The most time bins an export may name (the shipped network has 5).
+MAX_BINS = 64
+
+
+def _shape_error(arrays: dict) -> str | None:
+    """The first array whose shape does not make the network (numpy's broadcasting would
+    run a bias of one value, or a head of one output, without a word: probe AX), said
+    with the shape expected, or None. Shapes follow :class:`NumpyNet`: channels ``c1..c4``
+    from the encoder, the decoder's outputs ``4 o_i`` (phases), its inputs the previous
+    level, the skip and the previous flow."""
+    n = arrays.get("n_bins")
+    if n is None or np.ndim(n) or not float(n).is_integer() or not 1 <= int(n) <= MAX_BINS:
+        return f"n_bins is {n!r}, not a whole number of time bins in [1, {MAX_BINS}]"
+
+    def check(key: str, want: tuple) -> str | None:
+        got = tuple(np.shape(arrays[key]))
+        return None if got == want else f"{key} is {list(got)}, the network needs {list(want)}"
+
+    expected, prev, c = [], int(n), []
+    for i in range(4):
+        out = np.shape(arrays[f"enc{i}_w"])[0] if np.ndim(arrays[f"enc{i}_w"]) == 2 else -1
+        expected += [(f"enc{i}_w", (out, 9 * prev)), (f"enc{i}_b", (out,))]
+        c.append(out)
+        prev = out
+    for i in range(2):
+        expected += [(f"res{i}_w1", (c[3], 9 * c[3])), (f"res{i}_b1", (c[3],)),
+                     (f"res{i}_w2", (c[3], 9 * c[3])), (f"res{i}_b2", (c[3],))]
+    x = c[3]
+    for i in range(4):
+        w = arrays[f"dec{i}_w"]
+        phases = np.shape(w)[0] if np.ndim(w) == 2 and np.shape(w)[0] % 4 == 0 else -4
+        ins = x + c[3 - i] + (2 if i else 0)
+        expected += [(f"dec{i}_w", (phases, 9 * ins)), (f"dec{i}_b", (phases,)),
+                     (f"head{i}_w", (8, phases)), (f"head{i}_b", (8,))]
+        x = phases // 4
+    return next((msg for key, want in expected if (msg := check(key, want))), None)
+
+
 def _from_npz(path: Path) -> NumpyNet:
     import zipfile
 
     if not path.is_file():
         raise ParameterError(f"checkpoint {path}: " + ("not a regular file" if path.exists()
                                                        else "no such file"))
+    if not zipfile.is_zipfile(path):
+        raise ParameterError(f"checkpoint {path}: not an evmotion network export (not an "
+                             ".npz archive)")
     try:
         with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-        net = NumpyNet(arrays)
-        # the arrays make the network only if they chain: one tiny forward pass says so
-        flow = net(np.zeros((1, net.n_bins, 16, 16), np.float32))
-    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as exc:
+            names = data.files
+            if "n_bins" not in names:
+                raise KeyError("n_bins")
+            arrays = {k: data[k] for k in names}
+        wrong = _shape_error(arrays)
+        net = None if wrong else NumpyNet(arrays)
+    except KeyError as exc:
+        raise ParameterError(f"checkpoint {path}: not an evmotion network export (no array "
+                             f"{exc}; evmotion train writes model.npz, and export_checkpoint "
+                             "makes one of a model.pt)") from None
+    except (OSError, ValueError, TypeError, EOFError, zipfile.BadZipFile) as exc:
         text = " ".join(str(exc).split())[:160]
         raise ParameterError(f"checkpoint {path}: not an evmotion network export "
                              f"({type(exc).__name__}: {text})") from None
-    if flow.shape != (1, 2, 16, 16):
-        raise ParameterError(f"checkpoint {path}: not an evmotion network export (its "
-                             f"network gives a {list(flow.shape)} flow)")
+    if wrong:
+        raise ParameterError(f"checkpoint {path}: its arrays do not make the network: {wrong}")
     return net
