@@ -241,12 +241,12 @@ def auto_finest_level(n_events: int, shape: tuple[int, int]) -> int:
 
 
 def charbonnier_tv(params: np.ndarray, spacing: tuple[float, float], duration_s: float,
-                   eps: float) -> tuple[float, np.ndarray]:
+                   eps: float, grad: bool = True) -> tuple[float, np.ndarray | None]:
     """Charbonnier TV of a tile flow ``params`` (ny, nx, 2, px over the window) and its
-    gradient (ny, nx, 2): the mean over tiles of ``sqrt(gx^2 + gy^2 + eps^2)`` summed over
-    the two components, ``gx``, ``gy`` the forward differences to the right / lower tile
-    in px/s per px of ``spacing`` (rows, columns; zero past the last tile), so in 1/s:
-    multicm's smoothness term (4.9).
+    gradient (ny, nx, 2; None without ``grad``): the mean over tiles of
+    ``sqrt(gx^2 + gy^2 + eps^2)`` summed over the two components, ``gx``, ``gy`` the
+    forward differences to the right / lower tile in px/s per px of ``spacing`` (rows,
+    columns; zero past the last tile), so in 1/s: multicm's smoothness term (4.9).
 
     Examples
     --------
@@ -256,7 +256,7 @@ def charbonnier_tv(params: np.ndarray, spacing: tuple[float, float], duration_s:
     (0.515, [-0.25, 0.25])
     """
     total = 0.0
-    g = np.zeros(params.shape)
+    g = np.zeros(params.shape) if grad else None
     n = float(params.shape[0] * params.shape[1])
     kx = 1.0 / (duration_s * spacing[1])
     ky = 1.0 / (duration_s * spacing[0])
@@ -268,6 +268,8 @@ def charbonnier_tv(params: np.ndarray, spacing: tuple[float, float], duration_s:
         dy[:-1, :] = (p[1:, :] - p[:-1, :]) * ky
         mag = np.sqrt(dx * dx + dy * dy + eps ** 2)
         total += float(mag.sum()) / n
+        if not grad:
+            continue
         ax = dx / mag / n * kx
         ay = dy / mag / n * ky
         gc = g[..., c]

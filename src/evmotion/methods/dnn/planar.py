@@ -178,7 +178,8 @@ def window_loss(events: EventArray, disp: np.ndarray, lam: float = LAM, binning:
         return float("inf")
     f = multi_focus(xb, yb, window_times(events), flow, shape, g0)
     # (multicm's TV on pixel tiles: the mean over pixels)
-    tv = charbonnier_tv(disp.astype(np.float64), (1.0, 1.0), duration_s, TV_EPS)[0]
+    tv = charbonnier_tv(disp.astype(np.float64), (1.0, 1.0), duration_s, TV_EPS,
+                        grad=False)[0]
     return 1.0 / max(f, 1e-12) + lam * tv
 
 
