@@ -16,7 +16,7 @@ from evmotion.errors import ParameterError  # noqa: E402
 from evmotion.methods.dnn import numpynet as N  # noqa: E402
 from evmotion.methods.dnn.infer import _resized, load_network  # noqa: E402
 from evmotion.methods.dnn.model import load_inference_net, save_model  # noqa: E402
-from evmotion.methods.dnn.network import FLOW_SCALE, InferenceNet  # noqa: E402
+from evmotion.methods.dnn.network import InferenceNet  # noqa: E402
 from test_dnn_speed import _random_net  # noqa: E402
 
 
@@ -49,7 +49,6 @@ def test_shipped_export_is_the_shipped_checkpoint():
     with torch.inference_mode():
         ref = load_inference_net()(torch.from_numpy(x)).numpy()
     np.testing.assert_allclose(N.load_numpy_net()(x), ref, rtol=1e-5, atol=1e-4)
-    assert N.FLOW_SCALE == FLOW_SCALE
 
 
 def test_a_torch_checkpoint_and_its_export_give_one_network(tmp_path):

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
 
 from evmotion.errors import ParameterError
 from evmotion.methods.dnn.network import EVFlowNet, InferenceNet
+from evmotion.methods.dnn.numpynet import checkpoint_key
 from evmotion.utils import atomic_path
 
 __all__ = ["DEFAULT_CHECKPOINT", "check_device", "damaged_archive", "load_inference_net",
@@ -214,8 +214,5 @@ def _reason(exc: BaseException) -> str:
 
 
 def _cache_key(checkpoint, device: str) -> tuple[Path, tuple]:
-    if checkpoint is not None and not isinstance(checkpoint, (str, os.PathLike)):
-        raise ParameterError(f"checkpoint must be a path, got {type(checkpoint).__name__}")
-    path = Path(checkpoint) if checkpoint is not None else DEFAULT_CHECKPOINT
-    return path, (str(path.resolve()), path.stat().st_mtime_ns if path.exists() else 0,
-                  device)
+    path, key = checkpoint_key(checkpoint, DEFAULT_CHECKPOINT)
+    return path, (*key, device)

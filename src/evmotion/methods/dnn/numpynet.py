@@ -23,13 +23,13 @@ import numpy as np
 
 from evmotion.errors import ParameterError
 
-__all__ = ["SHIPPED_EXPORT", "NumpyNet", "export_checkpoint", "load_numpy_net", "save_export"]
+__all__ = ["SHIPPED_EXPORT", "NumpyNet", "checkpoint_key", "export_checkpoint", "load_numpy_net",
+           "save_export"]
 
 #: The shipped checkpoint's export (see :func:`export_checkpoint`).
 SHIPPED_EXPORT = Path(__file__).resolve().parent / "weights" / "evflownet_w0125.npz"
 #: Floats of the nine shifted copies one band of a convolution holds (1 MiB).
 _BAND_FLOATS = 1 << 18
-FLOW_SCALE = 10.0  # the heads' unit, px per window (network.FLOW_SCALE, tested equal)
 
 _CACHE: dict = {}
 
@@ -178,6 +178,17 @@ def export_checkpoint(checkpoint: str | Path, out: str | Path) -> None:
     save_export(out, load_inference_net(checkpoint, "cpu"))
 
 
+def checkpoint_key(checkpoint, default: Path) -> tuple[Path, tuple[str, int]]:
+    """``(path, key)`` of a checkpoint (``default`` for None): the key, its resolved path
+    and modification time, tells a loaded network's file apart from an edited one (the
+    caches of :func:`load_numpy_net` and :func:`~evmotion.methods.dnn.model.load_model`).
+    Raises :class:`~evmotion.errors.ParameterError` for what is not a path."""
+    if checkpoint is not None and not isinstance(checkpoint, (str, os.PathLike)):
+        raise ParameterError(f"checkpoint must be a path, got {type(checkpoint).__name__}")
+    path = default if checkpoint is None else Path(checkpoint)
+    return path, (str(path.resolve()), path.stat().st_mtime_ns if path.exists() else 0)
+
+
 def load_numpy_net(checkpoint: str | Path | None = None) -> NumpyNet:
     """The :class:`NumpyNet` of a checkpoint: default the shipped one (its ``.npz``
     export, no torch); a ``.npz`` of :func:`export_checkpoint`; or a torch checkpoint
@@ -186,10 +197,7 @@ def load_numpy_net(checkpoint: str | Path | None = None) -> NumpyNet:
     Raises :class:`~evmotion.errors.ParameterError` naming the file when it cannot be read
     or its arrays do not make the network.
     """
-    if checkpoint is not None and not isinstance(checkpoint, (str, os.PathLike)):
-        raise ParameterError(f"checkpoint must be a path, got {type(checkpoint).__name__}")
-    path = SHIPPED_EXPORT if checkpoint is None else Path(checkpoint)
-    key = (str(path.resolve()), path.stat().st_mtime_ns if path.exists() else 0)
+    path, key = checkpoint_key(checkpoint, SHIPPED_EXPORT)
     if key in _CACHE:
         return _CACHE[key]
     if path.suffix.lower() == ".npz":
