@@ -148,12 +148,12 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     """
     path = Path(path)
     with open_h5(path) as f:  # registers the Blosc filters other tools compress with
-        lay = find_layout(f)
-        if lay is None:
+        found = find_layouts(f)
+        if not found:
             raise FormatError(path, "no events found: no x, y, t, p datasets (at the root or "
                               "in events/, CD/), no compound or N x 4 'events' dataset")
+        lay, others = found[0], found[1:]
         meta = {"source": str(path), "format": "h5generic", "layout": lay["kind"]}
-        others = find_layouts(f)[1:]
         if others:
             # events/ read, CD/events beside it left unsaid (probe AS)
             warnings.warn(EvmotionWarning(
