@@ -30,6 +30,7 @@ __all__ = [
     "Window",
     "concatenate",
     "make_windows",
+    "window_bounds",
     "ambiguous_polarity",
     "as_timestamps_us",
     "events_for_windows",
@@ -455,6 +456,30 @@ class EventArray:
                 positive_fraction=float(self.p.mean()),
             )
         return d
+
+
+def window_bounds(win, k: int) -> tuple[int, int]:
+    """``(t0, t1)`` of window ``k`` of a caller's ``windows``, given as a
+    :class:`Window` or a ``(t0, t1)`` pair of whole microseconds (a fraction had been
+    floored, probe AU); each caller says which order of the two it accepts.
+
+    Examples
+    --------
+    >>> window_bounds((0, 30_000.0), 0)
+    (0, 30000)
+    >>> window_bounds((0, 2.5), 3)
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: windows[3] t1 (us) must be a whole number, got 2.5
+    """
+    if isinstance(win, Window):
+        return win.t0, win.t1
+    try:
+        t0, t1 = win
+    except (TypeError, ValueError):
+        raise ParameterError(f"windows[{k}] must be a Window or a (t0, t1) pair of µs, "
+                             f"got {win!r}") from None
+    return (whole_number(f"windows[{k}] t0 (us)", t0),
+            whole_number(f"windows[{k}] t1 (us)", t1))
 
 
 #: Formats whose times are decoded from binary words: events far out of order there are a

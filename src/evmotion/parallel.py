@@ -31,8 +31,8 @@ from pathlib import Path
 from typing import Any
 
 from evmotion.errors import MissingDependencyError, ParameterError
-from evmotion.events import EventArray, Window
-from evmotion.utils import atomic_path, whole_number
+from evmotion.events import EventArray, Window, window_bounds
+from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
 
 __all__ = ["BATCH_TARGET_S", "WindowResult", "collected_warnings", "connect_scheduler", "interrupted_by",
@@ -165,14 +165,7 @@ def _normalize_windows(windows: Iterable[Window | tuple[int, int]]) -> list[_Tas
         if isinstance(w, Window):
             t0, t1, start, stop = w.t0, w.t1, w.start, w.stop
         else:
-            try:
-                t0, t1 = w
-            except (TypeError, ValueError) as exc:
-                raise ParameterError(
-                    f"windows[{k}] must be a Window or a (t0, t1) pair in µs, got {w!r}"
-                ) from exc
-            t0, t1 = (whole_number(f"windows[{k}] {name} (us)", v)
-                      for name, v in (("t0", t0), ("t1", t1)))
+            t0, t1 = window_bounds(w, k)
         if t1 < t0:
             raise ParameterError(f"windows[{k}] ends before it starts: t0={t0} > t1={t1} µs")
         tasks.append(_Task(k, int(t0), int(t1), start, stop))

@@ -68,6 +68,7 @@ from evmotion.events import (
     pixel_indices,
     require_events,
     sensor_pixels,
+    window_bounds,
 )
 from evmotion.io.guard import MAX_SENSOR_SIDE
 from evmotion.methods import triplet_kernels as K
@@ -924,14 +925,7 @@ def _as_window(events: EventArray, k: int, win) -> Window:
     """A :class:`~evmotion.events.Window`, or one made of a ``(t0, t1)`` pair of µs."""
     if isinstance(win, Window):
         return win
-    try:
-        t0, t1 = win
-    except (TypeError, ValueError):
-        raise ParameterError(f"windows[{k}] must be a Window or a (t0, t1) pair of µs, "
-                             f"got {win!r}") from None
-    # whole µs: a fraction had been floored (probe AU)
-    t0, t1 = (whole_number(f"windows[{k}] {name} (us)", v)
-              for name, v in (("t0", t0), ("t1", t1)))
+    t0, t1 = window_bounds(win, k)
     if t1 <= t0:
         raise ParameterError(f"windows[{k}] = ({t0}, {t1}): t1 must be after t0")
     start, stop = (int(i) for i in np.searchsorted(events.t, [t0, t1]))
