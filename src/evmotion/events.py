@@ -459,9 +459,10 @@ class EventArray:
 
 
 def window_bounds(win, k: int) -> tuple[int, int]:
-    """``(t0, t1)`` of window ``k`` of a caller's ``windows``, given as a
-    :class:`Window` or a ``(t0, t1)`` pair of whole microseconds (a fraction had been
-    floored, probe AU); each caller says which order of the two it accepts.
+    """``(t0, t1)`` of window ``k`` of a caller's ``windows`` (each a :class:`Window`,
+    which the caller takes as it is, or this) given as a pair of whole microseconds (a
+    fraction had been floored, probe AU); each caller says which order of the two it
+    accepts.
 
     Examples
     --------
@@ -471,8 +472,6 @@ def window_bounds(win, k: int) -> tuple[int, int]:
     Traceback (most recent call last):
     evmotion.errors.ParameterError: windows[3] t1 (us) must be a whole number, got 2.5
     """
-    if isinstance(win, Window):
-        return win.t0, win.t1
     try:
         t0, t1 = win
     except (TypeError, ValueError):
