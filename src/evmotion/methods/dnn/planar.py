@@ -22,7 +22,7 @@ a plane), in centred coordinates ``x = (col - (W - 1) / 2) / (W / 2)``,
 in px over the window. Everything here is numpy: neither a numba kernel to compile nor
 torch to import in a one-window command. :func:`window_loss` is multicm's
 objective (4.9) of a dense flow, the same number as
-``evmotion.methods.dnn.loss.window_problem(events).value_grad`` (tested to 1e-9).
+``evmotion.methods.dnn.problem.window_problem(events).value_grad`` (tested to 1e-9).
 """
 
 from __future__ import annotations

@@ -12,8 +12,9 @@ atomically after every epoch, so ``resume=True`` continues after the last finish
 epoch and ends with the same weights as an uninterrupted run.
 
 Outputs in ``out_dir``: ``last.pt`` (resumable), ``model.pt`` (weights only, for
-inference) and its numpy export ``model.npz`` (inference without torch), ``steps.csv`` (loss per step), ``epochs.csv`` (training and validation
-scores per epoch) and ``loss.png``.
+inference) and its numpy export ``model.npz`` (inference without torch), ``steps.csv``
+(loss per step), ``epochs.csv`` (training and validation scores per epoch) and
+``loss.png``.
 """
 
 from __future__ import annotations
