@@ -682,6 +682,30 @@ def test_ctrl_c_at_any_moment_is_one_line(rec, command):
     assert not left  # .npz and events files are written whole or not at all
 
 
+def test_keyboard_interrupt_printed_by_c_code_is_silent_after_ctrl_c(monkeypatch, capfd):
+    """C code that swallows a KeyboardInterrupt prints it through ``PyErr_Print`` (Cython's
+    ``__dealloc__`` does, for h5py's objects freed while an interrupted run unwinds; a
+    bare traceback came before "evmotion: interrupted" in a parallel test run).
+    ``PyRun_SimpleString`` takes the same path. After the command's Ctrl-C it prints
+    nothing; otherwise, and in a forked worker, the traceback as before."""
+    import ctypes
+
+    from evmotion import cli
+
+    monkeypatch.setattr(sys, "excepthook", cli._excepthook)
+    monkeypatch.setattr(cli, "_MAIN_PID", [os.getpid()])
+
+    def printed(interrupted: bool) -> str:
+        monkeypatch.setattr(cli, "_INTERRUPTED", [interrupted])
+        ctypes.pythonapi.PyRun_SimpleString(b"raise KeyboardInterrupt")
+        return capfd.readouterr().err
+
+    assert printed(True) == ""
+    assert "KeyboardInterrupt" in printed(False)
+    monkeypatch.setattr(cli, "_MAIN_PID", [os.getpid() + 1])
+    assert "KeyboardInterrupt" in printed(True)
+
+
 # ------------------------------------------------------------------------------- --resume
 def _h5_equal(a: Path, b: Path) -> None:
     with h5py.File(a) as fa, h5py.File(b) as fb:

@@ -347,6 +347,17 @@ def _stop_children() -> None:
             child.terminate()
 
 
+def _excepthook(exc_type, exc, tb) -> None:
+    """After a Ctrl-C, a KeyboardInterrupt printed by C code that swallows it prints
+    nothing: Cython's ``__dealloc__`` (h5py's objects, freed while the work unwinds)
+    writes it with ``PyErr_PrintEx``, which calls this hook, as a bare traceback before
+    the "Exception ignored" that :func:`_unraisable` turns into a redelivery."""
+    if issubclass(exc_type, KeyboardInterrupt) and _INTERRUPTED[0] \
+            and os.getpid() == _MAIN_PID[0]:
+        return
+    sys.__excepthook__(exc_type, exc, tb)
+
+
 def _on_later_sigint(signum, frame) -> None:
     if _REDELIVER[0]:
         _REDELIVER[0] = False
@@ -415,6 +426,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _on_sigint)
     signal.signal(signal.SIGTERM, _on_sigterm)
     sys.unraisablehook = _unraisable
+    sys.excepthook = _excepthook
     try:
         rc = _build_and_run(None)
     except BaseException:
