@@ -718,6 +718,34 @@ def test_frames_at_twice_the_event_resolution_are_refused(scene, tmp_path, capsy
                     "1/2 of them", "resize them to 40x48")
 
 
+def test_frames_at_twice_the_event_resolution_away_from_the_edge_are_refused(tmp_path,
+                                                                              capsys):
+    """The same frames at 2x, the events those of the air only, none in the last 8 rows
+    and columns of the events' grid: the events' extent left the edge unreached, and with
+    C given the run went on on the frames' grid (probe AY). Where the events fire (the
+    frames' change binned 2 x 2, not at full size) says it."""
+    from evmotion.io.pngfile import read_png, write_png
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    write_schlieren(simulate_schlieren("plume", sensor_size=(96, 80), duration_s=2 / 120,
+                                       seed=0), tmp_path / "same")
+    big = _copy(tmp_path / "same", tmp_path, "big")
+    rows = [ln.split() for ln in (big / "events.txt").read_text().splitlines()
+            if not ln.startswith("#")]
+    rows = [r for r in rows if int(r[1]) < 72 and int(r[2]) < 88]
+    assert len(rows) >= 1000
+    (big / "events.txt").write_text("".join(" ".join(r) + "\n" for r in rows))
+    for png in sorted((big / "images").glob("*.png")):
+        write_png(png, read_png(png)[0].repeat(2, axis=0).repeat(2, axis=1))
+    for extra in ([], ["--contrast-threshold", "0.2"]):
+        _one_line_error(["bos", big, "--out", tmp_path / "x.h5", *extra], capsys,
+                        "1/2 of them", "binned 2x2", "resize them to 80x96")
+    # the frames at the events' size: solved
+    rc, _, err = run_cli(["bos", tmp_path / "same", "--out", tmp_path / "y.h5",
+                          "--contrast-threshold", "0.2", "--max-intervals", "1"], capsys)
+    assert rc == 0, err
+
+
 @pytest.mark.parametrize("blank", [0, 3])
 def test_a_blank_frame_is_said_as_such_only(tmp_path, capsys, blank):
     """A uniform frame among textured ones changes the frames everywhere: it was said as

@@ -58,6 +58,11 @@ GUESSED_SIZES = ("ECD default", "default", "max coordinate", LARGEST_COORDINATE)
 #: may fall short of 1/k of the frames (no event in the last rows or columns)
 FINER_FRAMES_MIN_EVENTS = 1000
 FINER_FRAMES_SLACK_PX = 4
+#: ... and, short of that edge, how well the events must follow the frames binned k x k
+#: (and how much better than the frames at full size) to say so: 0.99 against -0.03 on
+#: probe AY's frames at 2x; on frames at the events' size -0.25 to 0.30 against 0.83-0.99
+FINER_FRAMES_CORRELATION = 0.5
+FINER_FRAMES_MARGIN = 0.3
 
 
 @dataclass(frozen=True)
@@ -234,24 +239,71 @@ def _events_on_frames(rec: Path, fmt: str | None, frame_size: tuple[int, int], *
                           f"pixel grid, {frame_size[1]}x{frame_size[0]} px (W x H)") from None
 
 
-def _refuse_finer_frames(src: Path, events: EventArray, frame_shape) -> None:
+def _refuse_finer_frames(src: Path, events: EventArray, images: np.ndarray) -> None:
     """FormatError where the events, on a sensor whose size came from the frames, all lie
-    within 1/k of them (k = 2, 3, 4) to a few px: frames at k x the event sensor's
-    resolution (they were solved on the frames' grid, the flow 3x too small, after
-    warnings that named other causes, probe AT)."""
+    within 1/k of them (k = 2, 3, 4) and either reach that edge to a few px or fire where
+    the frames binned by k change, not where the frames at full size do: frames at k x the
+    event sensor's resolution (they were solved on the frames' grid, the flow 3x too
+    small, after warnings that named other causes, probe AT; a plume in the middle of the
+    view left the edge unreached, and with C given the run went on, probe AY)."""
     if not str(events.meta.get("sensor_size_from", "")).startswith("image") \
             or len(events) < FINER_FRAMES_MIN_EVENTS:
         return
-    fh, fw = frame_shape
+    fh, fw = images.shape[1:3]
     ex, ey = int(np.ceil(events.x.max())) + 1, int(np.ceil(events.y.max())) + 1
+    change = None
     for k in (2, 3, 4):
-        if fw / k - FINER_FRAMES_SLACK_PX <= ex <= fw / k and \
-                fh / k - FINER_FRAMES_SLACK_PX <= ey <= fh / k:
+        if ex > fw / k or ey > fh / k:
+            continue
+        at_edge = ex >= fw / k - FINER_FRAMES_SLACK_PX and ey >= fh / k - FINER_FRAMES_SLACK_PX
+        if not at_edge:
+            change = _frame_change(images) if change is None else change
+            full, binned = _change_correlations(events, change, k)
+        if at_edge or (binned >= FINER_FRAMES_CORRELATION
+                       and binned > full + FINER_FRAMES_MARGIN):
+            how = "" if at_edge else (
+                f" and follow the frames' change binned {k}x{k} (correlation {binned:.2f}), "
+                f"not at full size ({full:.2f})")
             raise FormatError(src, f"the frames are {fw}x{fh} px but every event lies within "
-                              f"{ex}x{ey} px, 1/{k} of them (W x H): frames at {k}x the event "
-                              "sensor's resolution? BOS needs the frames on the event "
-                              f"sensor's pixel grid (bin or resize them to {fw // k}x"
-                              f"{fh // k})")
+                              f"{ex}x{ey} px, 1/{k} of them (W x H){how}: frames at {k}x the "
+                              "event sensor's resolution?",
+                              "BOS needs the frames on the event sensor's pixel grid: bin or "
+                              f"resize them to {fw // k}x{fh // k}")
+
+
+def _frame_change(images: np.ndarray, pairs: int = 30) -> np.ndarray:
+    """The sum of the absolute log differences of up to ``pairs`` consecutive frames
+    spread over the sequence (where the air changed the frames, and noise)."""
+    n = len(images)
+    picks = np.unique(np.linspace(0, n - 2, min(pairs, n - 1)).round().astype(int))
+    out = np.zeros(images.shape[1:3])
+    for i in picks:
+        a, b = (np.log(images[j].astype(np.float64) + 1.0) for j in (i, i + 1))
+        out += np.abs(b - a).reshape(out.shape[0], out.shape[1], -1).mean(axis=2)
+    return out
+
+
+def _change_correlations(events: EventArray, change: np.ndarray, k: int
+                         ) -> tuple[float, float]:
+    """Correlations of the events' count image over the top-left 1/k of the frames (2 px
+    Gaussian) with the frames' ``change`` there at full size, and with ``change`` binned
+    k x k."""
+    from scipy.ndimage import gaussian_filter
+
+    fh, fw = change.shape
+    sh, sw = fh // k, fw // k
+    xs, ys = events.x.astype(np.int64), events.y.astype(np.int64)
+    counts = np.bincount(ys * sw + xs, minlength=sh * sw)[:sh * sw].reshape(sh, sw)
+    binned = change[:sh * k, :sw * k].reshape(sh, k, sw, k).mean(axis=(1, 3))
+    ev = gaussian_filter(counts.astype(np.float64), 2.0)
+    return (_correlation(ev, gaussian_filter(change[:sh, :sw], 2.0)),
+            _correlation(ev, gaussian_filter(binned, 2.0)))
+
+
+def _correlation(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a - a.mean(), b - b.mean()
+    den = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    return float(np.sum(a * b)) / den if den > 0 else 0.0
 
 
 def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = None, *,
@@ -360,7 +412,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         # events that do not state their sensor (ECD text without frames beside it, say)
         # lie on the frames' grid
         events = _events_on_frames(rec, fmt, (fh, fw), sensor_size=(fh, fw), **unit)
-    _refuse_finer_frames(src, events, (fh, fw))
+    _refuse_finer_frames(src, events, images)
     if (fh, fw) != tuple(events.sensor_size):
         eh, ew = events.sensor_size
         raise ParameterError(f"frames {src} are {fw}x{fh} px but the events' sensor is "
