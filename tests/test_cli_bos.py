@@ -519,11 +519,12 @@ def test_events_beyond_240x180_without_a_size_take_the_frames(tmp_path, capsys):
 
 def test_events_off_the_frames_grid_are_named_as_such(scene, tmp_path, capsys):
     """An event outside the frames' size was told to 'pass sensor_size=(height, width)',
-    an option bos does not have; a negative coordinate named no event nor value."""
+    an option bos does not have; a negative coordinate named no event nor value. Both name
+    the event's line (they had named its place from 0, after the header, probe AY)."""
     import shutil
 
-    for name, x, words in (("outside", "45", ["event 3 at x=45", "frames' pixel grid, 40x48"]),
-                           ("negative", "-3", ["event 3 has a negative pixel coordinate: x=-3"])):
+    for name, x, words in (("outside", "45", ["the event at x=45", "frames' pixel grid, 40x48"]),
+                           ("negative", "-3", ["the event has a negative pixel coordinate: x=-3"])):
         bad = tmp_path / name
         shutil.copytree(scene, bad)
         lines = (bad / "events.txt").read_text().splitlines()
@@ -532,7 +533,8 @@ def test_events_off_the_frames_grid_are_named_as_such(scene, tmp_path, capsys):
         t, _, y, p = lines[k].split()
         lines[k] = f"{t} {x} {y} {p}"
         (bad / "events.txt").write_text("\n".join(lines) + "\n")
-        _one_line_error(["bos", bad, "--out", tmp_path / f"{name}.h5"], capsys, *words)
+        _one_line_error(["bos", bad, "--out", tmp_path / f"{name}.h5"], capsys,
+                        f"events.txt: line {k + 1}: ", *words)
 
 
 def test_frame_intervals_without_events_are_said_to_be_left_out(scene, tmp_path):

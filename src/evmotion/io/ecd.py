@@ -626,22 +626,47 @@ def _order_hint(t, x, y, p) -> str | None:
             f"naming them ({','.join(order)}) reads the file so")
 
 
+def _event_line(path: Path, k: int) -> int | None:
+    """The line number (from 1) of the file's ``k``-th event (from 0), counting the
+    non-blank lines after its header; None where the file cannot be read again."""
+    try:
+        start = text_layout(path)["offset"]
+        with open(path, "rb") as fh:
+            line = fh.read(start).count(b"\n")
+            for raw in fh:
+                line += 1
+                if raw.strip():
+                    if k == 0:
+                        return line
+                    k -= 1
+    except OSError:
+        return None
+    return None
+
+
 def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
-               extra: dict | None = None, streamed: bool = False) -> EventArray:
+               extra: dict | None = None, streamed: bool = False,
+               whole: bool = False) -> EventArray:
+    """The parsed columns as an EventArray, what no sensor records refused naming the
+    event: its line where they are the ``whole`` file's events, its place otherwise."""
+    def which(k: int) -> str:
+        line = _event_line(path, k) if whole else None
+        return f"event {k}" if line is None else f"line {line}: the event"
+
     h, w = size
     if x.size:
         if x.min() < 0 or y.min() < 0:
             bad = int(np.argmax((x < 0) | (y < 0)))
-            raise FormatError(path, f"event {bad} has a negative pixel coordinate: x={x[bad]}, "
-                              f"y={y[bad]}")
+            raise FormatError(path, f"{which(bad)} has a negative pixel coordinate: "
+                              f"x={x[bad]}, y={y[bad]}")
         if x.max() >= w or y.max() >= h:
             bad = int(np.argmax((x >= w) | (y >= h)))
-            raise FormatError(path, f"event {bad} at x={x[bad]}, y={y[bad]} lies outside the "
+            raise FormatError(path, f"{which(bad)} at x={x[bad]}, y={y[bad]} lies outside the "
                               f"sensor {w}x{h} (W x H, {size_src})",
                               _order_hint(t, x, y, p) or sensor_size_hint(size_src == "given"))
         if p.min() < -1 or p.max() > 1:
             bad = int(np.argmax((p < -1) | (p > 1)))
-            raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1 or "
+            raise FormatError(path, f"{which(bad)} has polarity p={p[bad]}, expected 0/1 or "
                               "-1/+1", _order_hint(t, x, y, p))
         odd = ambiguous_polarity(p)
         if odd is not None:
@@ -715,7 +740,8 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
         size, src = _extended_size(ev_path, size, src, int(x.max()), int(y.max()))
     if time_unit is None:
         _doubt_unit(ev_path, t, unit)
-    return _to_events(ev_path, x, y, t, p, size, src, validate, _folder_meta(ev_path))
+    return _to_events(ev_path, x, y, t, p, size, src, validate, _folder_meta(ev_path),
+                      whole=t0 is None and t1 is None)
 
 
 def _doubt_unit(path: Path, t_us: np.ndarray, unit: str) -> None:
