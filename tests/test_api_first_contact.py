@@ -342,6 +342,18 @@ def test_the_warning_classes_are_at_the_top_level():
     assert evmotion.PoorFitWarning is PoorFitWarning
 
 
+def test_every_output_reads_back_from_the_top_level(tmp_path):
+    """Flow is read back as events are: ``evmotion.read_flow`` (probe AY looked for it
+    there and met an AttributeError), every name of ``__all__`` resolving."""
+    import evmotion
+    from evmotion.io import read_flow, write_flo
+
+    assert "read_flow" in evmotion.__all__ and evmotion.read_flow is read_flow
+    assert all(getattr(evmotion, name) is not None for name in evmotion.__all__)
+    write_flo(tmp_path / "f.flo", np.ones((4, 5, 2), np.float32))
+    assert evmotion.read_flow(tmp_path / "f.flo", t0_us=0, t1_us=1000).flow.shape == (1, 4, 5, 2)
+
+
 def test_metric_thresholds_are_whole_pixels_and_numbers():
     # npe_thresholds=[1.5] was floored to 1 (100 % for errors of 1.2 px), "13" read as 1
     # and 3, out_px="3" met numpy's "ufunc 'isfinite' not supported" (probe)

@@ -64,6 +64,7 @@ _LAZY = {
     "simulate": "evmotion.sim",
     "read_events": "evmotion.io",
     "write_events": "evmotion.io",
+    "read_flow": "evmotion.io",
     "Camera": "evmotion.camera",
 }
 
@@ -93,6 +94,7 @@ __all__ = [
     "estimate_egomotion",
     "estimate_flow",
     "read_events",
+    "read_flow",
     "simulate",
     "write_events",
     "CalibrationError",
