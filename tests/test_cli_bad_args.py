@@ -325,7 +325,21 @@ CASES = [
     ("simulate-schlieren-out-file", ["simulate", "schlieren", "--out", "{dir}/afile"],
      ["--out", "afile", "it is a file"]),
     ("simulate-schlieren-h5", ["simulate", "schlieren", "--out", "{dir}/s.h5"],
-     ["--out", "s.h5", "writes a folder"]),
+     ["--out", "s.h5", "a folder of events.txt", "e.g. s/"]),
+    ("simulate-schlieren-png", ["simulate", "schlieren", "--out", "{dir}/s.png"],
+     ["--out", "s.png", "a folder of events.txt"]),
+    # an output folder named like a file was made as a folder without a word (probe)
+    ("egomotion-out-h5", ["egomotion", "{rec}", "--warp", "translation", "--out",
+                          "{dir}/e1.h5"], ["--out", "e1.h5", "a folder of params.csv",
+                                           "ending in .h5", "e.g. e1/"]),
+    ("segment-out-csv", ["segment", "{rec}", "--warp", "translation", "--out", "{dir}/sg.csv"],
+     ["--out", "sg.csv", "a folder of clusters.csv", "ending in .csv"]),
+    ("train-out-pt", ["train", "--out", "{dir}/runs/x.pt"],
+     ["--out", "x.pt", "a folder of model.pt", "ending in .pt"]),
+    ("flow-png-dir-png", ["flow", "{rec}", "--png-dir", "{dir}/p.png", "--out", "{dir}/f.h5"],
+     ["--png-dir", "p.png", "a folder of colour-wheel and IWE PNGs"]),
+    ("bos-png-dir-png", ["bos", "{bos}", "--png-dir", "{dir}/p.png", "--out", "{dir}/b.h5"],
+     ["--png-dir", "p.png", "a folder of q, flow and p PNGs"]),
     ("simulate-fps-rotation", ["simulate", "rotation", "--fps", "60", "--out", "{dir}/s.h5"],
      ["--fps 60.0", "rotation"]),
     # the option said 1 to 4096, then the simulator "between 2 and 65535" of 1x1; a
@@ -524,6 +538,13 @@ def test_output_folder_not_writable(rec, capsys, monkeypatch, tmp_path, command)
     rc, err = _run(_output_argv(command, rec, str(locked / "o")), capsys)
     _assert_one_line(rc, err, "locked", "Permission denied")
     assert not list(locked.iterdir())
+
+
+def test_an_existing_folder_named_like_a_file_is_an_output_folder(rec):
+    """Only a name that would make a new folder is refused for its file suffix."""
+    args = build_parser().parse_args(["egomotion", rec["rec"], "--warp", "translation",
+                                      "--out", str(rec["dir"] / "adir.h5")])
+    assert args.out == str(rec["dir"] / "adir.h5")
 
 
 def test_output_on_a_read_only_file_system(rec, capsys):

@@ -118,7 +118,9 @@ def add_parser(sub) -> None:
                    help="start each window from the previous estimate (runs sequentially)")
     p.add_argument("--max-png", type=int_range(0), default=20,
                    help="PNG panels for the first N windows (default 20; 0 = none)")
-    p.add_argument("--out", required=True, type=writable_folder, help="output folder")
+    p.add_argument("--out", required=True,
+                   type=writable_folder("params.csv, params.h5 and PNG panels"),
+                   help="output folder")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run: the windows it finished (kept in "
                         "OUT/params.part) are not estimated again; the same options needed")

@@ -133,7 +133,7 @@ def add_parser(sub) -> None:
                      help="ground-truth file whose timestamps define the windows")
     p.add_argument("--gt-dt", type=positive_int(), default=None,
                    help="frames per window with --window-gt (default 1)")
-    p.add_argument("--png-dir", type=writable_folder, default=None,
+    p.add_argument("--png-dir", type=writable_folder("colour-wheel and IWE PNGs"), default=None,
                    help="folder for colour-wheel and IWE PNGs")
     p.add_argument("--resume", action="store_true",
                    help=".h5 output: continue the OUT.part file an interrupted run kept "
