@@ -1225,3 +1225,15 @@ def test_simulate_refuses_to_replace_another_recordings_ground_truth(tmp_path, c
     _assert_one_line(rc, err, "its ground truth a_gt.h5 is that of a.h5")
     assert (tmp_path / "a_gt.h5").read_bytes() == before and not (tmp_path / "a.txt").exists()
     assert main([*argv, "--out", str(tmp_path / "a.h5")]) == 0
+
+
+@pytest.mark.parametrize("argv,option", [
+    (["simulate", "rotation", "--out", "{dir}/sdir/"], "--format"),
+    (["convert", "{rec}", "{dir}/c.bin"], "--format-out")])
+def test_an_output_without_a_known_suffix_names_the_commands_format_option(
+        rec, capsys, argv, option):
+    """simulate's refusal said "--format-out in convert, format= in Python", neither of
+    them the option of the command that ran (probe)."""
+    rc, err = _run([a.format(rec=rec["rec"], dir=rec["dir"]) for a in argv], capsys)
+    _assert_one_line(rc, err, f"name the format with {option})")
+    assert "in convert" not in err and "format= in Python" not in err

@@ -88,7 +88,7 @@ def run(args) -> int:
     if src.resolve() == dst.resolve():
         raise ParameterError(f"input and output are the same file: {src}")
     fmt_in = args.format_in or eio.detect_format(src)
-    fmt_out = args.format_out or eio.format_for_output(dst)
+    fmt_out = args.format_out or eio.format_for_output(dst, "--format-out")
     _check_writable(fmt_out)
     kw = {}
     if args.sensor_size is not None:

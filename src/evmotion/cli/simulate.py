@@ -317,7 +317,7 @@ def run(args) -> int:
         raise EvmotionError("this build has no event writer (evmotion.io.write_events)") from None
     check_output(args.out, "--out")
     check_output(gt_path_for(args.out), "--out (its ground truth)")
-    fmt = args.format or format_for_output(args.out)
+    fmt = args.format or format_for_output(args.out, "--format")
     opts = SimOptions(threshold=args.threshold, mismatch=args.mismatch,
                       refractory_us=args.refractory_us, noise_rate=args.noise_rate,
                       hot_pixels=_or(args.hot_pixels, 0), hot_rate=_or(args.hot_rate, 1000.0),

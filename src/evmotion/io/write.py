@@ -30,13 +30,19 @@ _EXT_WRITERS = {".h5": "h5", ".hdf5": "h5", ".txt": "ecd", ".npy": "npy", ".npz"
                 ".dat": "dat", ".raw": "evt3", ".aedat4": "aedat4", ".aedat": "aedat2"}
 
 
-def format_for_output(path: str | os.PathLike) -> str:
-    """Format name chosen for writing ``path`` from its extension.
+def format_for_output(path: str | os.PathLike, option: str = "format=") -> str:
+    """Format name chosen for writing ``path`` from its extension; an unknown extension
+    raises FormatError, whose hint names ``option``, the way the caller takes a format
+    (``--format-out`` in ``evmotion convert``, ``--format`` in ``evmotion simulate``).
 
     Examples
     --------
     >>> format_for_output("out.h5")
     'h5'
+    >>> format_for_output("out", "--format")
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.FormatError: out: cannot tell the output format from the extension '' (use one of ..., or name the format with --format)
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -49,8 +55,7 @@ def format_for_output(path: str | os.PathLike) -> str:
             return spec.name
     writable = sorted({s for f in all_formats() if f.write for s in f.extensions})
     raise FormatError(path, f"cannot tell the output format from the extension '{suffix}'",
-                      f"use one of {', '.join(writable)}, or name the format (--format-out in "
-                      "convert, format= in Python)")
+                      f"use one of {', '.join(writable)}, or name the format with {option}")
 
 
 _STREAMING_WRITERS = ("h5", "ecd")
