@@ -177,6 +177,15 @@ CASES = [
                         "--out", "{dir}/f.h5"], ["--depth", "'100000'"]),
     ("flow-bins-npz", ["flow", "{rec}", "--method", "triplet", "--bins", "2",
                        "--out", "{dir}/f.npz"], ["--bins", "2", ".npz"]),
+    # "(per event; dense windows only with --png-dir)" read as if --png-dir made the .npz
+    # dense (probe): the refusal says which outputs hold dense windows
+    ("flow-dense-npz", ["flow", "{rec}", "--method", "triplet", "--dense", "robust",
+                        "--out", "{dir}/f.npz"],
+     ["--dense 'robust'", ".npz output, which holds per-event flow",
+      "--out .h5, .flo or .png hold dense windows", "--png-dir would only draw them"]),
+    ("flow-window-npz", ["flow", "{rec}", "--method", "triplet", "--window-us", "5000",
+                         "--out", "{dir}/f.npz"],
+     ["--window-us", ".npz output, which holds per-event flow", ".h5, .flo or .png"]),
     ("flow-time-bins-alone", ["flow", "{rec}", "--time-bins", "3", "--out", "{dir}/f.h5"],
      ["--time-bins", "3", "--time-aware"]),
     ("flow-gt-dt-alone", ["flow", "{rec}", "--gt-dt", "2", "--out", "{dir}/f.h5"],
