@@ -1062,7 +1062,8 @@ def test_workers_end_with_a_killed_parent(rec):
 
 def test_outputs_that_land_elsewhere_and_times_in_the_wrong_unit(tmp_path, capsys):
     # '--out ""' wrote params.csv into the current folder; --csv on --out's file overwrote
-    # the picture; '--t1 60000' (µs meant) read as seconds took the whole recording silently
+    # the picture, and any other name but .csv took the table silently (--csv l.png);
+    # '--t1 60000' (µs meant) read as seconds took the whole recording silently
     from evmotion.io import write_events
     from evmotion.sim import simulate
 
@@ -1072,9 +1073,12 @@ def test_outputs_that_land_elsewhere_and_times_in_the_wrong_unit(tmp_path, capsy
     assert main(["egomotion", str(rec), "--warp", "translation", "--out", ""]) == 2
     assert "empty name" in capsys.readouterr().err
     png = tmp_path / "l.png"
-    assert main(["landscape", str(rec), "--warp", "translation", "--param", "0", "--range",
-                 "0", "10", "--steps", "3", "--out", str(png), "--csv", str(png)]) == 2
-    assert "--out's file" in capsys.readouterr().err
+    for csv in (png, tmp_path / "other.png"):
+        rc, err = _run(["landscape", str(rec), "--warp", "translation", "--param", "0",
+                        "--range", "0", "10", "--steps", "3", "--out", str(png), "--csv",
+                        str(csv)], capsys)
+        _assert_one_line(rc, err, "--csv", csv.name, "a CSV table must end in .csv")
+    assert not png.exists() and not (tmp_path / "other.png").exists()
     assert main(["flow", str(rec), "--t1", "60000", "--scales", "1", "--out",
                  str(tmp_path / "f.h5")]) == 0
     assert "seconds meant as µs" in capsys.readouterr().err
