@@ -1250,3 +1250,24 @@ def test_an_output_without_a_known_suffix_names_the_commands_format_option(
     rc, err = _run([a.format(rec=rec["rec"], dir=rec["dir"]) for a in argv], capsys)
     _assert_one_line(rc, err, f"name the format with {option})")
     assert "in convert" not in err and "format= in Python" not in err
+
+
+@pytest.mark.parametrize("argv,needles", [
+    (["convert", "{rec}", "{dir}/o.npy", "--format-out", "evt3"],
+     ["--format-out evt3", "o.npy ends in .npy, the suffix of npy files", ".raw"]),
+    (["convert", "{rec}", "--out", "{dir}/o.txt", "--format-out", "h5"],
+     ["--format-out h5", "o.txt ends in .txt, the suffix of ecd files", ".h5 or .hdf5"]),
+    (["simulate", "translation", "--out", "{dir}/o.npy", "--format", "evt3"],
+     ["--format evt3", "o.npy ends in .npy", "leave out --format"])])
+def test_a_named_format_against_another_formats_suffix_is_refused(rec, capsys, argv,
+                                                                   needles):
+    """convert sim.h5 o.npy --format-out evt3 wrote EVT3 bytes into a .npy file (probe)."""
+    rc, err = _run([a.format(rec=rec["rec"], dir=rec["dir"]) for a in argv], capsys)
+    _assert_one_line(rc, err, *needles)
+    assert not list(rec["dir"].glob("o.*"))
+
+
+def test_a_named_format_takes_an_unknown_suffix_or_one_of_its_own(rec, tmp_path):
+    for name, fmt in (("o.bin", "evt3"), ("o.raw", "evt2")):
+        assert main(["convert", rec["rec"], str(tmp_path / name), "--format-out", fmt]) == 0
+        assert (tmp_path / name).stat().st_size > 0

@@ -16,6 +16,7 @@ from evmotion.catalog import MAX_SENSOR_SIDE
 from evmotion.cli.options import (
     HelpFormatter,
     add_time_unit_argument,
+    check_output_format,
     check_time_order,
     check_time_unit,
     empty_selection,
@@ -90,6 +91,7 @@ def run(args) -> int:
     fmt_in = args.format_in or eio.detect_format(src)
     fmt_out = args.format_out or eio.format_for_output(dst, "--format-out")
     _check_writable(fmt_out)
+    check_output_format(dst, fmt_out, "--format-out")
     kw = {}
     if args.sensor_size is not None:
         kw["sensor_size"] = tuple(args.sensor_size)

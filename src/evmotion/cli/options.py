@@ -55,6 +55,7 @@ __all__ = [
     "check_folder",
     "check_free_space",
     "check_output",
+    "check_output_format",
     "existing_input",
     "outputs_locked",
     "finite_float",
@@ -455,6 +456,32 @@ def check_folder(path: str | os.PathLike, option: str, holds: str) -> None:
     problem = _folder_output_problem(Path(path), holds)
     if problem:
         raise ParameterError(f"{option} {os.fspath(path)}: cannot write into it: {problem}")
+
+
+def check_output_format(path: str | os.PathLike, fmt: str, option: str) -> None:
+    """A format named with ``option`` (``--format-out``, ``--format``) for the output
+    ``path``: refused when the path's suffix is that of other formats only (``convert
+    sim.h5 o.npy --format-out evt3`` wrote EVT3 bytes into a .npy file without a word); a
+    suffix no writer knows (``o.bin``) is what the option is for. Raises ParameterError.
+
+    Examples
+    --------
+    >>> check_output_format("o.npy", "evt3", "--format-out")
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.ParameterError: --format-out evt3: the output o.npy ends in .npy, the suffix of npy files; name it with evt3's suffix .raw, or leave out --format-out
+    >>> check_output_format("o.raw", "evt2", "--format-out")
+    """
+    from evmotion.io.registry import get_format
+    from evmotion.io.write import suffix_formats
+
+    named = suffix_formats(path)
+    if named and fmt not in named:
+        suffix = Path(path).suffix.lower()
+        raise ParameterError(
+            f"{option} {fmt}: the output {os.fspath(path)} ends in {suffix}, the suffix of "
+            f"{' or '.join(named)} files; name it with {fmt}'s suffix "
+            f"{' or '.join(get_format(fmt).extensions)}, or leave out {option}")
 
 
 def format_bytes(n: float) -> str:

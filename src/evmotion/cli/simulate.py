@@ -22,6 +22,7 @@ from evmotion.cli.options import (
     HelpFormatter,
     check_folder,
     check_output,
+    check_output_format,
     existing_input,
     finite_float,
     int_range,
@@ -318,6 +319,7 @@ def run(args) -> int:
     check_output(args.out, "--out")
     check_output(gt_path_for(args.out), "--out (its ground truth)")
     fmt = args.format or format_for_output(args.out, "--format")
+    check_output_format(args.out, fmt, "--format")
     opts = SimOptions(threshold=args.threshold, mismatch=args.mismatch,
                       refractory_us=args.refractory_us, noise_rate=args.noise_rate,
                       hot_pixels=_or(args.hot_pixels, 0), hot_rate=_or(args.hot_rate, 1000.0),
