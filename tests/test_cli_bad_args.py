@@ -1228,6 +1228,19 @@ def test_help_is_plain_text_and_a_given_size_is_not_asked_for(tmp_path, capsys):
     assert rc == 2 and "the size given (--sensor-size" in err and "give the size:" not in err
 
 
+def _option_help(command: str, option: str) -> str:
+    sub = next(a for a in build_parser()._actions
+               if a.__class__.__name__ == "_SubParsersAction")
+    return next(a.help for a in sub.choices[command]._actions if option in a.option_strings)
+
+
+def test_help_states_only_reachable_choices():
+    """segment's --weight spoke of divergence+deformation, which its --reg does not offer
+    (probe)."""
+    assert "divergence+deformation" not in _option_help("segment", "--weight")
+    assert "divergence+deformation" in _option_help("egomotion", "--weight")
+
+
 def test_simulate_refuses_to_replace_another_recordings_ground_truth(tmp_path, capsys):
     """simulate --out a.txt after --out a.h5 replaced a_gt.h5, which a.h5 still named as
     its own (probe); the same output again may replace its own."""
