@@ -1234,6 +1234,12 @@ def _option_help(command: str, option: str) -> str:
     return next(a.help for a in sub.choices[command]._actions if option in a.option_strings)
 
 
+def test_help_states_the_defaults():
+    """flow --method and landscape --param stated no default (probe)."""
+    assert "default multicm" in _option_help("flow", "--method")
+    assert "default 0" in _option_help("landscape", "--param")
+
+
 def test_help_states_only_reachable_choices():
     """segment's --weight spoke of divergence+deformation, which its --reg does not offer
     (probe)."""

@@ -111,7 +111,8 @@ def add_parser(sub) -> None:
         formatter_class=HelpFormatter,
     )
     p.add_argument("file", help="recording (any readable format)")
-    p.add_argument("--method", default="multicm", choices=sorted(FLOW_METHODS))
+    p.add_argument("--method", default="multicm", choices=sorted(FLOW_METHODS),
+                   help="flow method (default multicm)")
     p.add_argument("--out", required=True, type=_flow_output,
                    help="output: .h5 (all windows, px/s, t0/t1, valid; resumable; triplet: "
                         "per event unless --dense or a window option), .npz (the same "

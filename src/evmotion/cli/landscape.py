@@ -33,7 +33,8 @@ def add_parser(sub) -> None:
                        formatter_class=HelpFormatter)
     add_common(p)
     p.add_argument("--param", default="0",
-                   help="parameter to scan: index or name (e.g. 0, hz, wz)")
+                   help="parameter to scan: index or name (e.g. 0, hz, wz; default 0, the "
+                        "warp's first)")
     p.add_argument("--range", nargs=2, type=finite_float(), required=True, metavar=("LO", "HI"),
                    help="scan range in the parameter's units")
     p.add_argument("--steps", type=int_range(2, 100_000), default=101,
