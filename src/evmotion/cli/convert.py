@@ -30,7 +30,7 @@ EXAMPLES = """examples:
   evmotion convert boxes_rotation/ boxes.h5       # ECD folder -> evmotion HDF5 (+ IMU, frames)
   evmotion convert rec.raw first_20ms.h5 --t1 +0.02      # + : from the first event; 20ms, 20000us
   evmotion convert rec.h5 out.txt --format-in h5 --json
-  evmotion convert rec.h5 out.aedat4 --t1 30ms
+  evmotion convert rec.h5 out.aedat4 --t1 +30ms
   evmotion convert rec.h5 sorted.h5 --sort         # timestamps out of order -> sorted
 """
 
