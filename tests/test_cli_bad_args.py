@@ -177,6 +177,15 @@ CASES = [
                         "--out", "{dir}/f.h5"], ["--depth", "'100000'"]),
     ("flow-bins-npz", ["flow", "{rec}", "--method", "triplet", "--bins", "2",
                        "--out", "{dir}/f.npz"], ["--bins", "2", ".npz"]),
+    # "(per event; dense windows only with --png-dir)" read as if --png-dir made the .npz
+    # dense (probe): the refusal says which outputs hold dense windows
+    ("flow-dense-npz", ["flow", "{rec}", "--method", "triplet", "--dense", "robust",
+                        "--out", "{dir}/f.npz"],
+     ["--dense 'robust'", ".npz output, which holds per-event flow",
+      "--out .h5, .flo or .png hold dense windows", "--png-dir would only draw them"]),
+    ("flow-window-npz", ["flow", "{rec}", "--method", "triplet", "--window-us", "5000",
+                         "--out", "{dir}/f.npz"],
+     ["--window-us", ".npz output, which holds per-event flow", ".h5, .flo or .png"]),
     ("flow-time-bins-alone", ["flow", "{rec}", "--time-bins", "3", "--out", "{dir}/f.h5"],
      ["--time-bins", "3", "--time-aware"]),
     ("flow-gt-dt-alone", ["flow", "{rec}", "--gt-dt", "2", "--out", "{dir}/f.h5"],
@@ -325,7 +334,21 @@ CASES = [
     ("simulate-schlieren-out-file", ["simulate", "schlieren", "--out", "{dir}/afile"],
      ["--out", "afile", "it is a file"]),
     ("simulate-schlieren-h5", ["simulate", "schlieren", "--out", "{dir}/s.h5"],
-     ["--out", "s.h5", "writes a folder"]),
+     ["--out", "s.h5", "a folder of events.txt", "e.g. s/"]),
+    ("simulate-schlieren-png", ["simulate", "schlieren", "--out", "{dir}/s.png"],
+     ["--out", "s.png", "a folder of events.txt"]),
+    # an output folder named like a file was made as a folder without a word (probe)
+    ("egomotion-out-h5", ["egomotion", "{rec}", "--warp", "translation", "--out",
+                          "{dir}/e1.h5"], ["--out", "e1.h5", "a folder of params.csv",
+                                           "ending in .h5", "e.g. e1/"]),
+    ("segment-out-csv", ["segment", "{rec}", "--warp", "translation", "--out", "{dir}/sg.csv"],
+     ["--out", "sg.csv", "a folder of clusters.csv", "ending in .csv"]),
+    ("train-out-pt", ["train", "--out", "{dir}/runs/x.pt"],
+     ["--out", "x.pt", "a folder of model.pt", "ending in .pt"]),
+    ("flow-png-dir-png", ["flow", "{rec}", "--png-dir", "{dir}/p.png", "--out", "{dir}/f.h5"],
+     ["--png-dir", "p.png", "a folder of colour-wheel and IWE PNGs"]),
+    ("bos-png-dir-png", ["bos", "{bos}", "--png-dir", "{dir}/p.png", "--out", "{dir}/b.h5"],
+     ["--png-dir", "p.png", "a folder of q, flow and p PNGs"]),
     ("simulate-fps-rotation", ["simulate", "rotation", "--fps", "60", "--out", "{dir}/s.h5"],
      ["--fps 60.0", "rotation"]),
     # the option said 1 to 4096, then the simulator "between 2 and 65535" of 1x1; a
@@ -524,6 +547,13 @@ def test_output_folder_not_writable(rec, capsys, monkeypatch, tmp_path, command)
     rc, err = _run(_output_argv(command, rec, str(locked / "o")), capsys)
     _assert_one_line(rc, err, "locked", "Permission denied")
     assert not list(locked.iterdir())
+
+
+def test_an_existing_folder_named_like_a_file_is_an_output_folder(rec):
+    """Only a name that would make a new folder is refused for its file suffix."""
+    args = build_parser().parse_args(["egomotion", rec["rec"], "--warp", "translation",
+                                      "--out", str(rec["dir"] / "adir.h5")])
+    assert args.out == str(rec["dir"] / "adir.h5")
 
 
 def test_output_on_a_read_only_file_system(rec, capsys):
@@ -1032,7 +1062,8 @@ def test_workers_end_with_a_killed_parent(rec):
 
 def test_outputs_that_land_elsewhere_and_times_in_the_wrong_unit(tmp_path, capsys):
     # '--out ""' wrote params.csv into the current folder; --csv on --out's file overwrote
-    # the picture; '--t1 60000' (µs meant) read as seconds took the whole recording silently
+    # the picture, and any other name but .csv took the table silently (--csv l.png);
+    # '--t1 60000' (µs meant) read as seconds took the whole recording silently
     from evmotion.io import write_events
     from evmotion.sim import simulate
 
@@ -1042,9 +1073,12 @@ def test_outputs_that_land_elsewhere_and_times_in_the_wrong_unit(tmp_path, capsy
     assert main(["egomotion", str(rec), "--warp", "translation", "--out", ""]) == 2
     assert "empty name" in capsys.readouterr().err
     png = tmp_path / "l.png"
-    assert main(["landscape", str(rec), "--warp", "translation", "--param", "0", "--range",
-                 "0", "10", "--steps", "3", "--out", str(png), "--csv", str(png)]) == 2
-    assert "--out's file" in capsys.readouterr().err
+    for csv in (png, tmp_path / "other.png"):
+        rc, err = _run(["landscape", str(rec), "--warp", "translation", "--param", "0",
+                        "--range", "0", "10", "--steps", "3", "--out", str(png), "--csv",
+                        str(csv)], capsys)
+        _assert_one_line(rc, err, "--csv", csv.name, "a CSV table must end in .csv")
+    assert not png.exists() and not (tmp_path / "other.png").exists()
     assert main(["flow", str(rec), "--t1", "60000", "--scales", "1", "--out",
                  str(tmp_path / "f.h5")]) == 0
     assert "seconds meant as µs" in capsys.readouterr().err
@@ -1194,6 +1228,25 @@ def test_help_is_plain_text_and_a_given_size_is_not_asked_for(tmp_path, capsys):
     assert rc == 2 and "the size given (--sensor-size" in err and "give the size:" not in err
 
 
+def _option_help(command: str, option: str) -> str:
+    sub = next(a for a in build_parser()._actions
+               if a.__class__.__name__ == "_SubParsersAction")
+    return next(a.help for a in sub.choices[command]._actions if option in a.option_strings)
+
+
+def test_help_states_the_defaults():
+    """flow --method and landscape --param stated no default (probe)."""
+    assert "default multicm" in _option_help("flow", "--method")
+    assert "default 0" in _option_help("landscape", "--param")
+
+
+def test_help_states_only_reachable_choices():
+    """segment's --weight spoke of divergence+deformation, which its --reg does not offer
+    (probe)."""
+    assert "divergence+deformation" not in _option_help("segment", "--weight")
+    assert "divergence+deformation" in _option_help("egomotion", "--weight")
+
+
 def test_simulate_refuses_to_replace_another_recordings_ground_truth(tmp_path, capsys):
     """simulate --out a.txt after --out a.h5 replaced a_gt.h5, which a.h5 still named as
     its own (probe); the same output again may replace its own."""
@@ -1204,3 +1257,36 @@ def test_simulate_refuses_to_replace_another_recordings_ground_truth(tmp_path, c
     _assert_one_line(rc, err, "its ground truth a_gt.h5 is that of a.h5")
     assert (tmp_path / "a_gt.h5").read_bytes() == before and not (tmp_path / "a.txt").exists()
     assert main([*argv, "--out", str(tmp_path / "a.h5")]) == 0
+
+
+@pytest.mark.parametrize("argv,option", [
+    (["simulate", "rotation", "--out", "{dir}/sdir/"], "--format"),
+    (["convert", "{rec}", "{dir}/c.bin"], "--format-out")])
+def test_an_output_without_a_known_suffix_names_the_commands_format_option(
+        rec, capsys, argv, option):
+    """simulate's refusal said "--format-out in convert, format= in Python", neither of
+    them the option of the command that ran (probe)."""
+    rc, err = _run([a.format(rec=rec["rec"], dir=rec["dir"]) for a in argv], capsys)
+    _assert_one_line(rc, err, f"name the format with {option})")
+    assert "in convert" not in err and "format= in Python" not in err
+
+
+@pytest.mark.parametrize("argv,needles", [
+    (["convert", "{rec}", "{dir}/o.npy", "--format-out", "evt3"],
+     ["--format-out evt3", "o.npy ends in .npy, the suffix of npy files", ".raw"]),
+    (["convert", "{rec}", "--out", "{dir}/o.txt", "--format-out", "h5"],
+     ["--format-out h5", "o.txt ends in .txt, the suffix of ecd files", ".h5 or .hdf5"]),
+    (["simulate", "translation", "--out", "{dir}/o.npy", "--format", "evt3"],
+     ["--format evt3", "o.npy ends in .npy", "leave out --format"])])
+def test_a_named_format_against_another_formats_suffix_is_refused(rec, capsys, argv,
+                                                                   needles):
+    """convert sim.h5 o.npy --format-out evt3 wrote EVT3 bytes into a .npy file (probe)."""
+    rc, err = _run([a.format(rec=rec["rec"], dir=rec["dir"]) for a in argv], capsys)
+    _assert_one_line(rc, err, *needles)
+    assert not list(rec["dir"].glob("o.*"))
+
+
+def test_a_named_format_takes_an_unknown_suffix_or_one_of_its_own(rec, tmp_path):
+    for name, fmt in (("o.bin", "evt3"), ("o.raw", "evt2")):
+        assert main(["convert", rec["rec"], str(tmp_path / name), "--format-out", fmt]) == 0
+        assert (tmp_path / name).stat().st_size > 0

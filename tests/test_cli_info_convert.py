@@ -257,3 +257,25 @@ def test_convert_takes_out_as_the_other_commands_do(tmp_path, capsys):
     rc, _, err = _run(capsys, "convert", str(src), str(tmp_path / "a.h5"), "--out",
                       str(tmp_path / "b.h5"))
     assert rc == 2 and "two outputs" in err and not (tmp_path / "a.h5").exists()
+
+
+def test_convert_help_examples_cut_from_the_first_event(tmp_path, capsys, monkeypatch):
+    """'convert rec.h5 out.aedat4 --t1 30ms' in --help cut nothing from a recording whose
+    clock does not start near 0 (probe): its examples that cut a time range of rec.h5 run
+    on one whose clock starts at 1000 s."""
+    import shlex
+
+    from evmotion.cli.convert import EXAMPLES
+
+    n = 2000
+    ev = EventArray(t=10**9 + np.arange(n, dtype=np.int64) * 50, x=np.arange(n) % 40,
+                    y=np.arange(n) % 30, p=np.arange(n) % 2, sensor_size=(30, 40))
+    eio.write_events(tmp_path / "rec.h5", ev)
+    monkeypatch.chdir(tmp_path)
+    lines = [shlex.split(line, comments=True)[1:] for line in EXAMPLES.splitlines()
+             if line.strip().startswith("evmotion convert rec.h5")]
+    cutting = [argv for argv in lines if "--t0" in argv or "--t1" in argv]
+    assert cutting
+    for argv in cutting:
+        rc, _, err = _run(capsys, *argv)
+        assert rc == 0, (argv, err)

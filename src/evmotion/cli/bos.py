@@ -136,7 +136,7 @@ def add_parser(sub) -> None:
                         "intervals it holds are kept, the next starts from the last one's "
                         "solver state, so the file is the one an uninterrupted run writes "
                         "(needs --workers 1 and the first run's options)")
-    p.add_argument("--png-dir", default=None, type=writable_folder,
+    p.add_argument("--png-dir", default=None, type=writable_folder("q, flow and p PNGs"),
                    help="write q/flow/p PNGs per interval here (needs --out .h5 or .npz)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)

@@ -16,6 +16,7 @@ from evmotion.catalog import MAX_SENSOR_SIDE
 from evmotion.cli.options import (
     HelpFormatter,
     add_time_unit_argument,
+    check_output_format,
     check_time_order,
     check_time_unit,
     empty_selection,
@@ -29,7 +30,7 @@ EXAMPLES = """examples:
   evmotion convert boxes_rotation/ boxes.h5       # ECD folder -> evmotion HDF5 (+ IMU, frames)
   evmotion convert rec.raw first_20ms.h5 --t1 +0.02      # + : from the first event; 20ms, 20000us
   evmotion convert rec.h5 out.txt --format-in h5 --json
-  evmotion convert rec.h5 out.aedat4 --t1 30ms
+  evmotion convert rec.h5 out.aedat4 --t1 +30ms
   evmotion convert rec.h5 sorted.h5 --sort         # timestamps out of order -> sorted
 """
 
@@ -88,8 +89,9 @@ def run(args) -> int:
     if src.resolve() == dst.resolve():
         raise ParameterError(f"input and output are the same file: {src}")
     fmt_in = args.format_in or eio.detect_format(src)
-    fmt_out = args.format_out or eio.format_for_output(dst)
+    fmt_out = args.format_out or eio.format_for_output(dst, "--format-out")
     _check_writable(fmt_out)
+    check_output_format(dst, fmt_out, "--format-out")
     kw = {}
     if args.sensor_size is not None:
         kw["sensor_size"] = tuple(args.sensor_size)

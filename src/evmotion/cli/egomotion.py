@@ -74,15 +74,18 @@ def add_common(p, objectives=None, regularizers=REGULARIZERS) -> None:
     p.add_argument("--objective", default="variance",
                    choices=sorted(objectives or OBJECTIVE_NAMES),
                    help="focus objective (default variance)")
+    # the sum of both penalties is named only where the command offers it (segment's
+    # --weight help spoke of it, a --reg choice segment does not take)
+    both = "divergence+deformation" in regularizers
     p.add_argument("--reg", default=None, choices=list(regularizers),
                    help="event-collapse regularizer (default none)"
                         + ("; divergence+deformation is the sum of both penalties (thesis "
-                           "'Div. + Def.')" if "divergence+deformation" in regularizers
-                           else ""))
+                           "'Div. + Def.')" if both else ""))
     p.add_argument("--weight", type=nonnegative_float(), default=None,
                    help="regularizer weight lambda >= 0, with --reg (default derived from each "
-                        "window: scaled by its effective pixel count; with "
-                        "divergence+deformation, one weight for both terms)")
+                        "window: scaled by its effective pixel count"
+                        + ("; with divergence+deformation, one weight for both terms)" if both
+                           else ")"))
     p.add_argument("--dataset", default=None, choices=sorted(WEIGHT_DATASETS),
                    help="with --reg: use this data set's thesis weights (Sec. 3.6.1) instead "
                         "of the window's (default: the window's)")
@@ -118,7 +121,9 @@ def add_parser(sub) -> None:
                    help="start each window from the previous estimate (runs sequentially)")
     p.add_argument("--max-png", type=int_range(0), default=20,
                    help="PNG panels for the first N windows (default 20; 0 = none)")
-    p.add_argument("--out", required=True, type=writable_folder, help="output folder")
+    p.add_argument("--out", required=True,
+                   type=writable_folder("params.csv, params.h5 and PNG panels"),
+                   help="output folder")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run: the windows it finished (kept in "
                         "OUT/params.part) are not estimated again; the same options needed")

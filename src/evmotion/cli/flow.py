@@ -111,7 +111,8 @@ def add_parser(sub) -> None:
         formatter_class=HelpFormatter,
     )
     p.add_argument("file", help="recording (any readable format)")
-    p.add_argument("--method", default="multicm", choices=sorted(FLOW_METHODS))
+    p.add_argument("--method", default="multicm", choices=sorted(FLOW_METHODS),
+                   help="flow method (default multicm)")
     p.add_argument("--out", required=True, type=_flow_output,
                    help="output: .h5 (all windows, px/s, t0/t1, valid; resumable; triplet: "
                         "per event unless --dense or a window option), .npz (the same "
@@ -133,7 +134,7 @@ def add_parser(sub) -> None:
                      help="ground-truth file whose timestamps define the windows")
     p.add_argument("--gt-dt", type=positive_int(), default=None,
                    help="frames per window with --window-gt (default 1)")
-    p.add_argument("--png-dir", type=writable_folder, default=None,
+    p.add_argument("--png-dir", type=writable_folder("colour-wheel and IWE PNGs"), default=None,
                    help="folder for colour-wheel and IWE PNGs")
     p.add_argument("--resume", action="store_true",
                    help=".h5 output: continue the OUT.part file an interrupted run kept "

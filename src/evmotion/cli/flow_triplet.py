@@ -105,11 +105,15 @@ def check_args(args) -> None:
     given = {flag: attr for flag, (attr, _) in OPTIONS.items()}
     reject_unused(args, {"--checkpoint": "checkpoint"}, "with --method triplet (a network's)")
     if kind == ".npz" and not args.png_dir:
+        # "dense windows only with --png-dir" read as if --png-dir put them in the .npz,
+        # which stays per event: say where dense windows are written (probe)
+        where = ("--out .h5, .flo or .png hold dense windows; --png-dir would only draw "
+                 "them as pictures")
         reject_unused(args, {f: given[f] for f in DENSE_OPTIONS},
-                      "to a .npz output (per event; dense windows only with --png-dir)")
+                      f"to a .npz output, which holds per-event flow ({where})")
         reject_unused(args, {"--window-events": "window_events", "--window-us": "window_us",
                              "--window-gt": "window_gt"},
-                      "to a .npz output (per event; windows only with --png-dir)")
+                      f"to a .npz output, which holds per-event flow ({where})")
     args.dense_output = kind in (".flo", ".png") or (
         kind in (".h5", ".hdf5") and any(getattr(args, a, None) is not None for a in DENSE_ASKS))
     if args.dense_output:

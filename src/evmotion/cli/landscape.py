@@ -4,8 +4,6 @@ without a regularizer, plotted to a PNG (and optionally saved as CSV). The windo
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from evmotion.cli.options import (
@@ -35,7 +33,8 @@ def add_parser(sub) -> None:
                        formatter_class=HelpFormatter)
     add_common(p)
     p.add_argument("--param", default="0",
-                   help="parameter to scan: index or name (e.g. 0, hz, wz)")
+                   help="parameter to scan: index or name (e.g. 0, hz, wz; default 0, the "
+                        "warp's first)")
     p.add_argument("--range", nargs=2, type=finite_float(), required=True, metavar=("LO", "HI"),
                    help="scan range in the parameter's units")
     p.add_argument("--steps", type=int_range(2, 100_000), default=101,
@@ -53,8 +52,8 @@ def add_parser(sub) -> None:
                    help="events of the window from --t0 (default 30000)")
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
                    help="output PNG")
-    p.add_argument("--csv", default=None, type=writable_output(),
-                   help="also write the curves as CSV")
+    p.add_argument("--csv", default=None, type=writable_output((".csv",), "a CSV table"),
+                   help="also write the curves as CSV (a .csv file)")
     p.add_argument("--json", action="store_true",
                    help="print the curves, the window and the minimum as JSON on stdout")
     p.set_defaults(func=run)
@@ -71,9 +70,6 @@ def run(args) -> int:
 
     check_common(args)
     check_time_order(args)
-    if args.csv is not None and Path(args.csv).resolve() == Path(args.out).resolve():
-        raise ParameterError(f"--csv {args.csv} is --out's file: the table would overwrite the "
-                             "picture")
     lo, hi = args.range
     if not hi > lo:
         raise ParameterError(f"--range {lo:g} {hi:g}: HI must be greater than LO")

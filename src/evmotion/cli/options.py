@@ -49,11 +49,13 @@ from evmotion.errors import ParameterError
 from evmotion.utils import missing_path_hint, nearest_existing
 
 __all__ = [
+    "FILE_SUFFIXES",
     "Parser",
     "add_scheduler_argument",
     "check_folder",
     "check_free_space",
     "check_output",
+    "check_output_format",
     "existing_input",
     "outputs_locked",
     "finite_float",
@@ -398,20 +400,47 @@ def writable_output(suffixes: Iterable[str] | None = None, what: str = ""
     return parse
 
 
-def _folder_output_problem(path: Path) -> str | None:
+#: Suffixes of the files evmotion reads or writes: an output folder named so is a file name
+#: taken for a folder (``egomotion --out e1.h5`` made a folder e1.h5/ holding params.csv)
+FILE_SUFFIXES = (".h5", ".hdf5", ".csv", ".npz", ".npy", ".png", ".pt", ".flo", ".txt",
+                 ".json", ".aedat4", ".aedat", ".raw", ".dat", ".bag")
+
+
+def _folder_output_problem(path: Path, holds: str) -> str | None:
     if path.exists() and not path.is_dir():
         return "it is a file"
+    suffix = path.suffix.lower()
+    if suffix in FILE_SUFFIXES and not path.is_dir():
+        return (f"the output is a folder of {holds}, and a name ending in {suffix} reads as "
+                f"a file: give a folder name, e.g. {path.stem}/")
     return _folder_problem(path)
 
 
-def writable_folder(text: str) -> str:
-    """``type=`` for an output folder: an existing folder or one that can be made, in
-    which files can be created."""
-    problem = "an empty name would write into the current folder" if not text.strip() \
-        else _folder_output_problem(Path(text))
-    if problem:
-        raise argparse.ArgumentTypeError(f"cannot write into {text!r}: {problem}")
-    return text
+def writable_folder(holds: str) -> Callable[[str], str]:
+    """``type=`` for an output folder of ``holds`` (what the command writes into it, named
+    in the message): an existing folder or one that can be made, in which files can be
+    created, and whose name, when no such folder exists yet, does not end in a file's
+    suffix (:data:`FILE_SUFFIXES`).
+
+    Examples
+    --------
+    >>> writable_folder("params.csv")("/tmp/evmotion-doc-ego")
+    '/tmp/evmotion-doc-ego'
+    >>> writable_folder("params.csv")("/tmp/evmotion-doc-ego.h5")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: cannot write into '/tmp/evmotion-doc-ego.h5': the output is a folder of params.csv, and a name ending in .h5 reads as a file: give a folder name, e.g. evmotion-doc-ego/
+    """
+
+    def parse(text: str) -> str:
+        problem = "an empty name would write into the current folder" if not text.strip() \
+            else _folder_output_problem(Path(text), holds)
+        if problem:
+            raise argparse.ArgumentTypeError(f"cannot write into {text!r}: {problem}")
+        return text
+
+    parse.__name__ = "folder"
+    return parse
 
 
 def check_output(path: str | os.PathLike, option: str,
@@ -422,11 +451,37 @@ def check_output(path: str | os.PathLike, option: str,
         raise ParameterError(f"{option} {os.fspath(path)}: cannot write: {problem}")
 
 
-def check_folder(path: str | os.PathLike, option: str) -> None:
+def check_folder(path: str | os.PathLike, option: str, holds: str) -> None:
     """:func:`writable_folder` for a path known only at run time; raises ParameterError."""
-    problem = _folder_output_problem(Path(path))
+    problem = _folder_output_problem(Path(path), holds)
     if problem:
         raise ParameterError(f"{option} {os.fspath(path)}: cannot write into it: {problem}")
+
+
+def check_output_format(path: str | os.PathLike, fmt: str, option: str) -> None:
+    """A format named with ``option`` (``--format-out``, ``--format``) for the output
+    ``path``: refused when the path's suffix is that of other formats only (``convert
+    sim.h5 o.npy --format-out evt3`` wrote EVT3 bytes into a .npy file without a word); a
+    suffix no writer knows (``o.bin``) is what the option is for. Raises ParameterError.
+
+    Examples
+    --------
+    >>> check_output_format("o.npy", "evt3", "--format-out")
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.ParameterError: --format-out evt3: the output o.npy ends in .npy, the suffix of npy files; name it with evt3's suffix .raw, or leave out --format-out
+    >>> check_output_format("o.raw", "evt2", "--format-out")
+    """
+    from evmotion.io.registry import get_format
+    from evmotion.io.write import suffix_formats
+
+    named = suffix_formats(path)
+    if named and fmt not in named:
+        suffix = Path(path).suffix.lower()
+        raise ParameterError(
+            f"{option} {fmt}: the output {os.fspath(path)} ends in {suffix}, the suffix of "
+            f"{' or '.join(named)} files; name it with {fmt}'s suffix "
+            f"{' or '.join(get_format(fmt).extensions)}, or leave out {option}")
 
 
 def format_bytes(n: float) -> str:

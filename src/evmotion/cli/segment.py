@@ -66,7 +66,9 @@ def add_parser(sub) -> None:
     p.add_argument("--workers", type=int_range(1, MAX_WORKERS), default=1,
                    help="parallel worker processes (default 1)")
     add_scheduler_argument(p)
-    p.add_argument("--out", required=True, type=writable_folder, help="output folder")
+    p.add_argument("--out", required=True,
+                   type=writable_folder("clusters.csv, clusters.h5, labels.npz and PNGs"),
+                   help="output folder")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run: the windows it finished (kept in "
                         f"OUT/{JOURNAL_NAME}) are not segmented again; the same options "

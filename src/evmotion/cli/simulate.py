@@ -22,6 +22,7 @@ from evmotion.cli.options import (
     HelpFormatter,
     check_folder,
     check_output,
+    check_output_format,
     existing_input,
     finite_float,
     int_range,
@@ -240,8 +241,7 @@ def _or(value, default):
 
 def run_schlieren(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.errors import FormatError, ParameterError
-    from evmotion.io import format_for_output
+    from evmotion.errors import ParameterError
     from evmotion.sim.options import SchlierenOptions
     from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
 
@@ -266,16 +266,7 @@ def run_schlieren(args) -> int:
     if args.event_bandwidth == "intensity" and args.event_photons is None:
         raise ParameterError("--event-bandwidth intensity needs --event-photons (the "
                              "photoreceptor's time constant depends on the light)")
-    try:
-        event_file = format_for_output(args.out)
-    except FormatError:
-        event_file = None
-    if event_file is not None:
-        # a schlieren recording is a folder (events.txt, images/, schlieren_gt.h5)
-        raise ParameterError(f"--out {args.out}: 'simulate schlieren' writes a folder "
-                             "(events.txt, images.txt, images/, schlieren_gt.h5); give a "
-                             "folder name, e.g. plume/")
-    check_folder(args.out, "--out")
+    check_folder(args.out, "--out", "events.txt, images.txt, images/ and schlieren_gt.h5")
     opts = SchlierenOptions(magnitude_px=_or(args.magnitude, 1.0),
                             dot_density=_or(args.dot_density, 0.06),
                             dot_radius_px=_or(args.dot_radius, 1.0), speed_px_s=args.speed,
@@ -327,7 +318,8 @@ def run(args) -> int:
         raise EvmotionError("this build has no event writer (evmotion.io.write_events)") from None
     check_output(args.out, "--out")
     check_output(gt_path_for(args.out), "--out (its ground truth)")
-    fmt = args.format or format_for_output(args.out)
+    fmt = args.format or format_for_output(args.out, "--format")
+    check_output_format(args.out, fmt, "--format")
     opts = SimOptions(threshold=args.threshold, mismatch=args.mismatch,
                       refractory_us=args.refractory_us, noise_rate=args.noise_rate,
                       hot_pixels=_or(args.hot_pixels, 0), hot_rate=_or(args.hot_rate, 1000.0),

@@ -64,7 +64,10 @@ def add_parser(sub) -> None:
                        description=__doc__, epilog=EXAMPLES,
                        formatter_class=HelpFormatter)
     p.add_argument("recordings", nargs="*", type=existing_input, help="training recordings (any readable format)")
-    p.add_argument("--out", required=True, type=writable_folder, help="output folder")
+    p.add_argument("--out", required=True,
+                   type=writable_folder("model.pt, model.npz, last.pt, steps.csv, "
+                                        "epochs.csv and loss.png"),
+                   help="output folder")
     p.add_argument("--format", default=None,
                    help="format of the recordings (default: detected per file)")
     add_sensor_size_argument(p)

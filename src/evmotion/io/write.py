@@ -22,7 +22,7 @@ from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray, concatenate
 from evmotion.io.registry import all_formats, get_format
 
-__all__ = ["format_for_output", "write_events"]
+__all__ = ["format_for_output", "suffix_formats", "write_events"]
 
 
 # Extensions shared by several formats (jAER also used .dat) get their usual meaning.
@@ -30,27 +30,47 @@ _EXT_WRITERS = {".h5": "h5", ".hdf5": "h5", ".txt": "ecd", ".npy": "npy", ".npz"
                 ".dat": "dat", ".raw": "evt3", ".aedat4": "aedat4", ".aedat": "aedat2"}
 
 
-def format_for_output(path: str | os.PathLike) -> str:
-    """Format name chosen for writing ``path`` from its extension.
+def format_for_output(path: str | os.PathLike, option: str = "format=") -> str:
+    """Format name chosen for writing ``path`` from its extension; an unknown extension
+    raises FormatError, whose hint names ``option``, the way the caller takes a format
+    (``--format-out`` in ``evmotion convert``, ``--format`` in ``evmotion simulate``).
 
     Examples
     --------
     >>> format_for_output("out.h5")
     'h5'
+    >>> format_for_output("out", "--format")
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.FormatError: out: cannot tell the output format from the extension '' (use one of ..., or name the format with --format)
     """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    formats = all_formats()
-    known = {f.name for f in formats if f.write is not None}
-    if _EXT_WRITERS.get(suffix) in known:
-        return _EXT_WRITERS[suffix]
-    for spec in formats:
-        if spec.write is not None and suffix in spec.extensions:
-            return spec.name
+    named = suffix_formats(path)
+    if named:
+        return named[0]
     writable = sorted({s for f in all_formats() if f.write for s in f.extensions})
-    raise FormatError(path, f"cannot tell the output format from the extension '{suffix}'",
-                      f"use one of {', '.join(writable)}, or name the format (--format-out in "
-                      "convert, format= in Python)")
+    raise FormatError(path, "cannot tell the output format from the extension "
+                            f"'{Path(path).suffix.lower()}'",
+                      f"use one of {', '.join(writable)}, or name the format with {option}")
+
+
+def suffix_formats(path: str | os.PathLike) -> list[str]:
+    """The writable formats whose files ``path``'s extension names, the one
+    :func:`format_for_output` picks first; empty for an extension no writer knows.
+
+    Examples
+    --------
+    >>> suffix_formats("out.raw")
+    ['evt3', 'evt2', 'evt21']
+    >>> suffix_formats("out.bin")
+    []
+    """
+    suffix = Path(path).suffix.lower()
+    named = [f.name for f in all_formats() if f.write is not None and suffix in f.extensions]
+    usual = _EXT_WRITERS.get(suffix)
+    if usual in named:
+        named.remove(usual)
+        named.insert(0, usual)
+    return named
 
 
 _STREAMING_WRITERS = ("h5", "ecd")
