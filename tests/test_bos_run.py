@@ -428,3 +428,32 @@ def test_frames_not_registered_with_the_events_are_said_or_refused(tmp_path):
         check_registration(rolled(2, -1))
     with pytest.warns(EvmotionWarning, match=r"shifted by \(\+1, \+0\) px"):
         assert check_registration(rolled(1, 0)) == (1, 0)
+
+
+def test_a_camera_gain_ramp_is_not_taken_for_air(tmp_path):
+    """Frames brightening 2.5 % a frame (auto-exposure), which no event sees: the frames
+    had been said to change where no event fires, and the events to follow them weakly
+    (correlation 0.40), on a flow measured right (probe AY). The whole frame's log change
+    is now left out: C within 2 % of the steady frames', and nothing said."""
+    import dataclasses
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos_run import warn_uncovered
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    write_schlieren(simulate_schlieren("plume", sensor_size=(120, 160), duration_s=6 / 120,
+                                       seed=0), tmp_path / "scene")
+    steady = load_bos_input(tmp_path / "scene")
+    gain = 0.8 * 1.025 ** np.arange(len(steady.frames))[:, None, None]
+    ramp = dataclasses.replace(steady, frames=np.rint(
+        np.clip(steady.frames * gain, 0, 255)).astype(steady.frames.dtype))
+    said, c = {}, {}
+    for name, data in (("steady", steady), ("ramp", ramp)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            c[name] = sequence_contrast_threshold(data)[0]
+            warn_uncovered(data)
+        said[name] = [str(w.message) for w in caught if issubclass(w.category, EvmotionWarning)]
+    assert c["ramp"] == pytest.approx(c["steady"], rel=0.02)
+    assert said["ramp"] == said["steady"] == []

@@ -115,6 +115,7 @@ __all__ = [
     "estimate_contrast_threshold",
     "contrast_threshold_slope",
     "event_sums",
+    "exposure_change",
     "frame_texture",
     "log_difference_noise",
     "log_frame",
@@ -773,6 +774,7 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
         near = gaussian_filter(counts, sigma, mode="nearest") > 0.05
     wide = gaussian_filter(counts_all, 5.0, mode="nearest")
     quiet = wide <= 1e-3 * wide.max()
+    d_all -= exposure_change(d_all, quiet)  # in place: d is its view
     near_all = np.zeros(sensor, bool)
     near_all[crop] = near
     noise = _frame_noise(d_all, level_all, quiet, near_all)
@@ -873,6 +875,26 @@ def log_difference_noise(l0: np.ndarray, l1: np.ndarray, l2: np.ndarray, sigma: 
     if sigma > 0:
         second = gaussian_filter(second, sigma, mode="nearest")
     return float(np.mean(second[mask] ** 2)) / 3.0
+
+
+def exposure_change(d: np.ndarray, still: np.ndarray) -> float:
+    """The change of the whole frame's log intensity in a log difference ``d`` of two
+    frames (a camera's auto-exposure or gain, which no event sees): its median over the
+    ``still`` pixels (still air) where they are 100 or more, else over every pixel (a
+    moving texture changes pixels both ways about as often).
+
+    A gain ramp of 2.5 % a frame had been taken for frames that change where no event
+    fires, and had weakened the events' correlation with the frames' change (probe AY).
+
+    Examples
+    --------
+    >>> d = np.full((20, 20), 0.025)
+    >>> d[5:10, 5:10] += 0.3
+    >>> round(exposure_change(d, np.ones_like(d, bool)), 3)
+    0.025
+    """
+    pool = d[still] if int(np.count_nonzero(still)) >= 100 else d
+    return float(np.median(pool)) if pool.size else 0.0
 
 
 def _frame_noise(d: np.ndarray, level: np.ndarray, quiet: np.ndarray, fit: np.ndarray

@@ -320,7 +320,13 @@ def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
     """
     from scipy.ndimage import distance_transform_edt, gaussian_filter
 
-    from evmotion.methods.bos import NEAR_EVENTS_PX, event_sums, log_difference_noise, log_frame
+    from evmotion.methods.bos import (
+        NEAR_EVENTS_PX,
+        event_sums,
+        exposure_change,
+        log_difference_noise,
+        log_frame,
+    )
 
     x, y, w, h = data.roi if data.roi is not None else (0, 0, data.events.sensor_size[1],
                                                         data.events.sensor_size[0])
@@ -341,7 +347,8 @@ def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
             # (probe AT)
             continue
         logs = [log_frame(data.frames[k])[y:y + h, x:x + w] for k in (i, i + 1, i + 2)]
-        d = gaussian_filter(logs[1] - logs[0], 2.0, mode="nearest") ** 2
+        d = gaussian_filter(logs[1] - logs[0], 2.0, mode="nearest")
+        d = (d - exposure_change(d, far)) ** 2
         # the frames' noise far from the events: still air in noisy frames is no change
         noise = log_difference_noise(*logs, 2.0, far)
         near, away = float(np.mean(d[~far])), float(np.mean(d[far]))
