@@ -457,3 +457,25 @@ def test_a_camera_gain_ramp_is_not_taken_for_air(tmp_path):
         said[name] = [str(w.message) for w in caught if issubclass(w.category, EvmotionWarning)]
     assert c["ramp"] == pytest.approx(c["steady"], rel=0.02)
     assert said["ramp"] == said["steady"] == []
+
+
+def test_intervals_all_touching_a_blank_frame_name_it(tmp_path):
+    """Two intervals and a black frame between them: no C can be estimated, and the run
+    had stopped on one interval's fit ("covariance -0.0587"), the frame unnamed (probe
+    AY); it is named, with its time."""
+    import dataclasses
+
+    from evmotion.errors import EventDataError
+    from evmotion.methods.bos_run import sequence_threshold
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    write_schlieren(simulate_schlieren("plume", sensor_size=(96, 128), duration_s=2 / 120,
+                                       seed=0), tmp_path / "scene")
+    data = load_bos_input(tmp_path / "scene")
+    assert len(data.intervals) == 2
+    frames = data.frames.copy()
+    frames[1] = 0
+    black = dataclasses.replace(data, frames=frames)
+    with pytest.raises(EventDataError, match=rf"frame 1 at {int(data.frame_times[1])} us; "
+                                             "dropped, black or uniform"):
+        sequence_threshold(black)

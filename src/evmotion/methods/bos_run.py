@@ -520,7 +520,24 @@ def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, 
         check_polarity(data)
         return float(contrast_threshold), "given", np.zeros(0)
     c, est = sequence_contrast_threshold(data, samples=samples, exclude=exclude)
+    if c is None:
+        _refuse_blank_frames(data)
     return c, (f"median of {est.size} intervals" if c is not None else "none"), est
+
+
+def _refuse_blank_frames(data: BosInput) -> None:
+    """EventDataError where every interval has a frame without texture (dropped, black,
+    uniform) at one end: no C can be estimated, and the error of an interval's fit
+    ("covariance -0.0587") had not said why (probe AY, a black frame in two intervals)."""
+    ends = {int(i) + d for i in data.intervals[:, 0] for d in (0, 1)}
+    textured = _textured(data, ends)
+    if all(not (textured[int(i)] and textured[int(i) + 1]) for i in data.intervals[:, 0]):
+        blank = min(k for k in ends if not textured[k])
+        raise EventDataError(
+            f"cannot estimate the contrast threshold: every frame interval has a frame "
+            f"without texture at one end (the first: frame {blank} at "
+            f"{int(data.frame_times[blank])} us; dropped, black or uniform); more intervals, "
+            "or --contrast-threshold, let the others be measured")
 
 
 #: Below this share of the pixels that fired in a frame interval firing more than once
