@@ -1290,3 +1290,18 @@ def test_a_named_format_takes_an_unknown_suffix_or_one_of_its_own(rec, tmp_path)
     for name, fmt in (("o.bin", "evt3"), ("o.raw", "evt2")):
         assert main(["convert", rec["rec"], str(tmp_path / name), "--format-out", fmt]) == 0
         assert (tmp_path / name).stat().st_size > 0
+
+
+def test_an_output_folder_is_described_not_read_as_frames(rec, tmp_path, capsys):
+    """egomotion's and segment's output folders: info had read their PNG panels as frames
+    without timestamps, and the commands that read events had said "format not
+    recognised" (probe AZ). info describes the folder's parameters file; the others name
+    it as an evmotion output."""
+    for cmd, holds in (("egomotion", "params.h5"), ("segment", "clusters.h5")):
+        out = tmp_path / cmd
+        assert main([cmd, rec["rec"], "--out", str(out)]) == 0
+        capsys.readouterr()
+        assert main(["info", str(out), "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["path"].endswith(holds)
+        _assert_one_line(*_run(["flow", str(out), "--out", str(tmp_path / "f.h5")], capsys),
+                         "is a folder of evmotion output", holds)

@@ -103,14 +103,18 @@ def run(args) -> int:
     from evmotion.cli import print_json
     from evmotion.cli.options import read_kwargs
     from evmotion.io.flowread import describe_flow
+    from evmotion.io.registry import own_output_folder
 
     kw = read_kwargs(args)
     kw.pop("format", None)
-    info = describe_flow(args.file) if args.format is None else None
+    # an output folder of egomotion or segment: what its parameters file holds
+    found = own_output_folder(args.file) if args.format is None else None
+    target = args.file if found is None else found[0]
+    info = describe_flow(target) if args.format is None else None
     if info is None and args.format is None:
         from evmotion.io.paramsfiles import describe_params
 
-        info = describe_params(args.file)
+        info = describe_params(target)
     if info is None:
         info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
         if "sensor_size" in info:

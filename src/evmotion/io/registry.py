@@ -133,6 +133,11 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
     if not candidates and failed is not None:
         raise failed
     if not candidates:
+        found = own_output_folder(path)
+        if found is not None:
+            raise FormatError(path, f"is a folder of evmotion output ({found[0].name}: "
+                              f"{found[1]}), not a recording of events",
+                              "evmotion info describes it; evmotion eval scores it")
         own = _own_output(path, head)
         if own is not None:
             raise FormatError(path, f"is an evmotion output ({own}), not a recording of events",
@@ -165,6 +170,34 @@ def _frame_list(head: bytes) -> bool:
              if ln.strip() and not ln.lstrip().startswith("#")]
     return bool(lines) and all(len(f) >= 2 and f[-1].lower().endswith(IMAGE_SUFFIXES)
                                for f in lines)
+
+
+def own_output_folder(path: str | os.PathLike) -> tuple[Path, str] | None:
+    """``(file, what it holds)`` where ``path`` is a folder evmotion wrote results into
+    (``egomotion``'s params.h5, ``segment``'s clusters.h5; first by name), None otherwise.
+    Its PNG panels had been read as frames without timestamps (``info``), and the folder as
+    an unknown format (probe AZ).
+
+    Examples
+    --------
+    >>> own_output_folder(".") is None
+    True
+    """
+    from evmotion.io.h5filters import HDF5_MAGIC
+
+    folder = Path(path)
+    if not folder.is_dir():
+        return None
+    for f in sorted(folder.glob("*.h5"))[:16]:
+        try:
+            with open(f, "rb") as fh:
+                head = fh.read(len(HDF5_MAGIC))
+        except OSError:
+            continue
+        kind = _own_output(f, head)
+        if kind is not None:
+            return f, kind
+    return None
 
 
 def _own_output(path: Path, head: bytes) -> str | None:

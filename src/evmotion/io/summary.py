@@ -24,7 +24,7 @@ from evmotion.io.guard import guard_call
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 from evmotion.io.read import iter_events, warn_time_jump
-from evmotion.io.registry import resolve_format
+from evmotion.io.registry import own_output_folder, resolve_format
 
 __all__ = ["describe"]
 
@@ -63,6 +63,8 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     except FormatError:
         flow = guard_call(_describe_flow, "flow", "describe")(path) if format is None else None
         if flow is None:
+            if own_output_folder(path) is not None:
+                raise  # its PNG panels are no frames
             frames = describe_frames(path) if format is None and (
                 path.is_dir() or path.suffix.lower() in VIDEO_SUFFIXES) else None
             if frames is None:
