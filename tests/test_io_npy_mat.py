@@ -273,3 +273,23 @@ def test_writers_refusals_name_the_output(tmp_path):
     with pytest.raises(FormatError, match=r"x\.dat: events have float"):
         eio.write_events(tmp_path / "x.dat", ev)
     assert not (tmp_path / "x.dat").exists()
+
+
+def test_an_npz_under_another_name_is_recognised_by_content(tmp_path):
+    """convert o.bin --format-out npy writes an archive of .npy arrays that nothing then
+    recognised (probe AZ: the format is told by content, its name is no reason); a zip of
+    other files stays unrecognised."""
+    import zipfile
+
+    from evmotion.errors import FormatError
+    from evmotion.events import EventArray
+    from evmotion.io import detect_format, read_events, write_events
+
+    ev = EventArray(x=[1, 2], y=[0, 1], t=[10, 20], p=[1, 0], sensor_size=(4, 5))
+    write_events(tmp_path / "o.bin", ev, format="npy")
+    assert detect_format(tmp_path / "o.bin") == "npy"
+    assert read_events(tmp_path / "o.bin").t.tolist() == [10, 20]
+    with zipfile.ZipFile(tmp_path / "other.bin", "w") as z:
+        z.writestr("a.txt", "x")
+    with pytest.raises(FormatError, match="not recognised"):
+        detect_format(tmp_path / "other.bin")

@@ -416,7 +416,20 @@ def describe(path: str | os.PathLike) -> dict:
 def _sniff(path: Path, head: bytes) -> bool:
     if head.startswith(NPY_MAGIC):
         return True
-    return head.startswith(ZIP_MAGIC) and path.suffix.lower() == ".npz"
+    if not head.startswith(ZIP_MAGIC):
+        return False
+    if path.suffix.lower() == ".npz":
+        return True
+    # an archive of .npy arrays under another name (convert o.bin --format-out npy wrote
+    # one that nothing then recognised, probe AZ); other zip files are not events
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return False
+    return bool(names) and all(n.endswith(".npy") for n in names)
 
 
 FORMAT = FormatSpec(name="npy", extensions=(".npy", ".npz"), sniff=_sniff, read=read,
