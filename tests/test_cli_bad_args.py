@@ -1305,3 +1305,21 @@ def test_an_output_folder_is_described_not_read_as_frames(rec, tmp_path, capsys)
         assert json.loads(capsys.readouterr().out)["path"].endswith(holds)
         _assert_one_line(*_run(["flow", str(out), "--out", str(tmp_path / "f.h5")], capsys),
                          "is a folder of evmotion output", holds)
+
+
+def test_view_says_when_t0_comes_before_the_recording(tmp_path, capsys):
+    """view --t0 20ms on a recording whose clock starts at 10 s drew its first events
+    without a word (probe AZ; convert refuses such a --t1). It says where the slice
+    starts and how a relative time is written."""
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    n = 4000
+    write_events(tmp_path / "late.h5", EventArray(
+        x=np.arange(n) % 40, y=np.arange(n) % 30, t=10_000_000 + np.arange(n) * 10,
+        p=np.arange(n) % 2, sensor_size=(30, 40)))
+    for t0, said in (("20ms", True), ("+20ms", False)):
+        assert main(["view", str(tmp_path / "late.h5"), "--t0", t0, "--window-events", "1000",
+                     "--out", str(tmp_path / "v.png")]) == 0
+        err = capsys.readouterr().err
+        assert ("the first event from there is at 10 s" in err and "+0.02" in err) == said, err

@@ -56,6 +56,7 @@ __all__ = [
     "check_free_space",
     "check_output",
     "check_output_format",
+    "warn_late_start",
     "existing_input",
     "outputs_locked",
     "finite_float",
@@ -622,6 +623,23 @@ def _seconds(t_us: int) -> str:
 def format_time_us(t_us: int) -> str:
     """``1500000`` -> ``'1.5 s (1500000 µs)'``."""
     return f"{_seconds(t_us)} s ({int(t_us)} µs)"
+
+
+def warn_late_start(t0: int | None, first_us: int, last_us: int) -> None:
+    """Say where the first event at or after ``--t0`` comes later than the slice it starts
+    lasts (``first_us`` to ``last_us``): a ``--t0`` before the recording's clock starts
+    (``20ms`` on a clock at 13.58 s, meant as ``+20ms``) drew the recording's first
+    events without a word (probe AZ), as a long gap would."""
+    if t0 is None or first_us - t0 <= max(last_us - first_us, 1000):
+        return
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
+    warnings.warn(EvmotionWarning(
+        f"--t0 {format_time_us(t0)}: the first event from there is at "
+        f"{format_time_us(first_us)}, and the slice starts there; a time after the "
+        f"recording's first event is written +{_seconds(t0)}"), stacklevel=2)
 
 
 def _span(t_start: int, t_end: int) -> str:

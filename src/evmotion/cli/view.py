@@ -28,13 +28,14 @@ from evmotion.cli.options import (
     positive_int,
     read_kwargs,
     reject_unused,
+    warn_late_start,
     writable_output,
 )
 
 EXAMPLES = """examples:
   evmotion view rec.h5 --out events.png                       # first 30,000 events
   evmotion view rec.raw --t0 +0.01 --t1 +0.012 --out slice.png --polarity   # 10 to 12 ms in
-  evmotion view events.txt --t0 20ms --window-events 5000 --scale 2 --out w.png --json
+  evmotion view events.txt --t0 +20ms --window-events 5000 --scale 2 --out w.png --json
   evmotion view bos.h5 --window 1 --out w1.png                # a flow output's window 1
 """
 
@@ -156,6 +157,7 @@ def run(args) -> int:
                                    f"requested slice (--t0 {args.t0}, --t1 {args.t1} µs)")
         raise empty_selection(args, args.file, int(info["t_first_us"]),
                               int(info["t_last_us"]), "no events")
+    warn_late_start(args.t0, int(ev.t[0]), int(ev.t[-1]))
     check_scale(args.scale, ev.sensor_size)
     hist = event_histogram(ev, signed=args.polarity)
     if args.raw:
