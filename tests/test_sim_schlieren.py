@@ -507,3 +507,45 @@ def test_air_far_slower_than_its_change_is_refused():
     with pytest.raises(ParameterError, match="air that slow takes over 1000 s to cross"):
         simulate_schlieren("breath", sensor_size=(48, 48), duration_s=0.02, seed=0,
                            speed_px_s=1e-6)
+
+
+@pytest.mark.parametrize("where", ["write_png", "_write_gt", "replace"])
+def test_an_interrupted_write_leaves_no_scene_paired_with_another(tmp_path, monkeypatch, where):
+    """Ctrl-C while a scene was written over an earlier one had left the new events and
+    frames beside the earlier scene's ground truth, looking complete (probe BA). Built in
+    a temporary folder and published with the truth last, an interrupted write leaves the
+    earlier scene whole (interrupted while building) or no ground truth (while
+    publishing), and no temporary folder."""
+    import os
+    from pathlib import Path
+
+    import evmotion.sim.schlieren as sch
+    from _helpers import interrupt_at_call
+
+    out = tmp_path / "scene"
+    sch.write_schlieren(sch.simulate_schlieren("jet", sensor_size=(40, 48), duration_s=0.03,
+                                               seed=5), out)
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    if where == "replace":  # the second frame moved into the earlier scene's folder
+        real, moved = os.replace, []
+
+        def replace(src, dst):
+            if Path(dst).parent == out / "images":
+                moved.append(dst)
+                if len(moved) == 2:
+                    raise KeyboardInterrupt
+            return real(src, dst)
+
+        monkeypatch.setattr(os, "replace", replace)
+    else:
+        interrupt_at_call(monkeypatch, sch, where, 2 if where == "write_png" else 1)
+    with pytest.raises(KeyboardInterrupt):
+        sch.write_schlieren(sch.simulate_schlieren("plume", sensor_size=(40, 48),
+                                                   duration_s=2 / 120, seed=0), out)
+    monkeypatch.undo()
+    left = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    if where == "replace":
+        assert "schlieren_gt.h5" not in left
+    else:
+        assert left == before
+    assert [p.name for p in tmp_path.iterdir()] == ["scene"]

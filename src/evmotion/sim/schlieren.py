@@ -51,6 +51,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -871,11 +872,39 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
     >>> write_schlieren(sim, "plume_sim/").name
     'schlieren_gt.h5'
     """
-    from evmotion.io import ecd
-    from evmotion.utils import atomic_write_text
+    import shutil
+    import tempfile
+
+    from evmotion.utils import remove_stale_temps, temp_prefix
 
     out = Path(out_dir)
-    (out / "images").mkdir(parents=True, exist_ok=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(out, ".part")
+    # built whole beside the folder, then published with the ground truth last: an
+    # interrupted run had left new events and frames beside an earlier scene's ground
+    # truth, or some frames, looking complete (probe BA)
+    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(out), suffix=".part", dir=out.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700; the folder is the user's result
+    try:
+        n_frames = _write_recording(sim, tmp)
+        _write_gt(tmp / "schlieren_gt.h5", sim.gt)
+        if not out.exists():
+            os.replace(tmp, out)
+            return out / "schlieren_gt.h5"
+        _publish(tmp, out, n_frames)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return out / "schlieren_gt.h5"
+
+
+def _write_recording(sim: SchlierenSim, out: Path) -> int:
+    """events.txt, images/ and images.txt of ``sim`` into the new folder ``out``; returns
+    the number of frames."""
+    from evmotion.io import ecd
+
+    (out / "images").mkdir()
     ecd.write(out / "events.txt", sim.events, header=False)  # the frames give the size
     lines = []
     shift = 8 * sim.frames.images.dtype.itemsize - sim.frames.bit_depth
@@ -883,14 +912,26 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
         name = f"images/frame_{i:08d}.png"
         write_png(out / name, img << shift if shift else img)
         lines.append(f"{t * 1e-6:.6f} {name}\n")
-    atomic_write_text(out / "images.txt", "".join(lines))
-    # a longer simulation written here before left more frames: drop them, so the folder
-    # holds what images.txt lists
+    (out / "images.txt").write_text("".join(lines))
+    return len(lines)
+
+
+def _publish(tmp: Path, out: Path, n_frames: int) -> None:
+    """Move the recording built in ``tmp`` into the existing folder ``out``: first away
+    the earlier scene's ground truth, events and frame list (an interruption then leaves
+    no folder that pairs one scene's data with another's truth), then the frames (and
+    away those a longer simulation left), the events, the list, the truth last."""
+    for name in ("schlieren_gt.h5", "images.txt", "events.txt"):
+        (out / name).unlink(missing_ok=True)
+    (out / "images").mkdir(exist_ok=True)
+    for png in sorted((tmp / "images").iterdir()):
+        os.replace(png, out / "images" / png.name)
     for old in (out / "images").glob("frame_*.png"):
         stem = old.stem.removeprefix("frame_")
-        if len(stem) == 8 and stem.isdigit() and int(stem) >= len(lines):
+        if len(stem) == 8 and stem.isdigit() and int(stem) >= n_frames:
             old.unlink()
-    return _write_gt(out / "schlieren_gt.h5", sim.gt)
+    for name in ("events.txt", "images.txt", "schlieren_gt.h5"):
+        os.replace(tmp / name, out / name)
 
 
 def _write_gt(path: Path, gt: SchlierenGT) -> Path:
