@@ -281,6 +281,9 @@ CASES = [
                              "{dir}/s.h5"], ["--params", "vx", "'nan'"]),
     ("simulate-frame-rate-zero", ["simulate", "rotation", "--frame-rate", "0", "--out",
                                   "{dir}/s.h5"], ["--frame-rate", "'0'", "Hz"]),
+    # (probe BA: an empty name wrote the scene into the current folder)
+    ("simulate-schlieren-out-empty", ["simulate", "schlieren", "--out", ""],
+     ["--out", "empty name", "current folder"]),
     ("simulate-schlieren-fps-nan", ["simulate", "schlieren", "--fps", "nan", "--out",
                                     "{dir}/ss"], ["--fps", "'nan'", "Hz"]),
     ("simulate-schlieren-magnitude-neg", ["simulate", "schlieren", "--magnitude", "-1",

@@ -454,7 +454,8 @@ def check_output(path: str | os.PathLike, option: str,
 
 def check_folder(path: str | os.PathLike, option: str, holds: str) -> None:
     """:func:`writable_folder` for a path known only at run time; raises ParameterError."""
-    problem = _folder_output_problem(Path(path), holds)
+    problem = "an empty name would write into the current folder" \
+        if not os.fspath(path).strip() else _folder_output_problem(Path(path), holds)
     if problem:
         raise ParameterError(f"{option} {os.fspath(path)}: cannot write into it: {problem}")
 
