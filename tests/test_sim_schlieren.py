@@ -549,3 +549,17 @@ def test_an_interrupted_write_leaves_no_scene_paired_with_another(tmp_path, monk
     else:
         assert left == before
     assert [p.name for p in tmp_path.iterdir()] == ["scene"]
+
+
+def test_the_span_made_is_said(tmp_path, capsys):
+    """--duration 0.02 at 120 fps makes 3 frames and events up to 16.7 ms, and the run
+    said "0.02 s" (probe BA): the metadata's span_s and the line say the span made."""
+    from evmotion.cli import main
+
+    assert main(["simulate", "schlieren", "--size", "40x48", "--duration", "0.02",
+                 "--out", str(tmp_path / "s")]) == 0
+    out = capsys.readouterr().out
+    assert "3 frames" in out and "0.016667 s of --duration 0.02: whole frame intervals" in out
+    sim = simulate_schlieren("plume", sensor_size=(40, 48), duration_s=0.02, seed=0)
+    assert sim.gt.meta["span_s"] == pytest.approx(2 / 120, abs=1e-6)
+    assert sim.gt.meta["duration_s"] == 0.02 and sim.events.t[-1] <= 16_667

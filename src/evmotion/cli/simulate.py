@@ -288,9 +288,12 @@ def run_schlieren(args) -> int:
                     "sensor_size": list(sim.events.sensor_size), "meta": sim.gt.meta,
                     "stats": sim.stats})
     else:
+        span = sim.gt.meta["span_s"]
+        cut = f" of --duration {args.duration:g}: whole frame intervals" \
+            if span < args.duration - 1e-6 else ""
         print(f"schlieren {scene}: {len(sim.events)} events, {len(sim.frames)} frames "
               f"({sim.events.sensor_size[1]} x {sim.events.sensor_size[0]} px (W x H), "
-              f"{args.duration} s) -> {args.out}; ground truth -> {gt_path}")
+              f"{span:.6g} s{cut}) -> {args.out}; ground truth -> {gt_path}")
     return 0
 
 
