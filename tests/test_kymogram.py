@@ -521,8 +521,8 @@ def test_a_fit_whose_spread_is_half_its_speed_is_no_measurement():
 
 
 def test_cli_frames_on_another_grid_are_refused(plume, tmp_path, capsys):
-    """Frames of another size than the events: the line sampled another part of the
-    scene, silently (probe N)."""
+    """Frames of another size than the events, or than a BOS output's q and flow: the line
+    sampled another part of the scene, silently (probes N, BA)."""
     import png
 
     sim, folder = plume
@@ -539,6 +539,17 @@ def test_cli_frames_on_another_grid_are_refused(plume, tmp_path, capsys):
                       tmp_path / "k.png")
     assert rc == 2 and "128x96 px but the events' sensor is 64x96" in err
     assert len(err.strip().splitlines()) == 1
+    # a BOS output's q or flow on the same frames: unchecked, exit 0 (probe BA)
+    from evmotion.io.bosfiles import BosWriter
+
+    with BosWriter(tmp_path / "bos.h5", (96, 64)) as bw:
+        for k in range(3):
+            bw.append(np.zeros((96, 64, 2)), k * 8333, (k + 1) * 8333, q=np.zeros((96, 64)),
+                      p=np.zeros((96, 64, 2)))
+    for source in ("q", "flow"):
+        rc, _, err = _cli(capsys, tmp_path / "bos.h5", "--from", source, "--col", 32,
+                          "--frames", other, "--out", tmp_path / "k.png")
+        assert rc == 2 and "128x96 px but" in err and "bos.h5's grid is 64x96" in err, err
 
 
 def test_correlation_without_a_ridge_says_so_in_its_own_terms():

@@ -170,7 +170,8 @@ def _line(args, shape):
 
 
 def _field_kymogram(args):
-    """Kymogram of q (BOS file) or |flow| (any flow file), one sample per window."""
+    """Kymogram of q (BOS file) or |flow| (any flow file), one sample per window, and the
+    file's grid (H, W)."""
     import numpy as np
 
     from evmotion.io.flowread import read_flow
@@ -199,7 +200,7 @@ def _field_kymogram(args):
     imgs = np.nan_to_num(np.asarray(images)[sel], nan=0.0)
     mid_s = 0.5 * (t0[sel] + t1[sel]) * 1e-6
     line = _line(args, imgs.shape[1:])
-    return kymogram_from_images(imgs, mid_s, line, source=label)
+    return kymogram_from_images(imgs, mid_s, line, source=label), tuple(imgs.shape[1:])
 
 
 # the library's parameter names in its messages, as this command spells them
@@ -239,7 +240,7 @@ def _cli_names(text: str) -> str:
                   lambda m: _OPTION_NAMES[m.group(1)], text)
 
 
-def _frames_kymogram(path, line, t0, t1, sensor_size):
+def _frames_kymogram(path, line, t0, t1, sensor_size, on: str):
     import numpy as np
 
     from evmotion.errors import FormatError, ParameterError
@@ -253,12 +254,11 @@ def _frames_kymogram(path, line, t0, t1, sensor_size):
         raise ParameterError(f"--frames {path}: no frames read ({exc.message}); give an "
                              "ECD-style folder (images.txt + images/), an AEDAT4 file with "
                              "APS frames, or images with a timestamps file") from None
-    if sensor_size is not None and tuple(fr.sensor_size) != tuple(sensor_size):
+    if tuple(fr.sensor_size) != tuple(sensor_size):
         # another grid: the line's pixels would sample another part of the scene
         raise ParameterError(f"--frames {path} are {fr.sensor_size[1]}x{fr.sensor_size[0]} "
-                             f"px but the events' sensor is {sensor_size[1]}x"
-                             f"{sensor_size[0]} px (W x H): a kymogram line needs both on "
-                             "one pixel grid")
+                             f"px but {on} is {sensor_size[1]}x{sensor_size[0]} px "
+                             "(W x H): a kymogram line needs both on one pixel grid")
     t = np.asarray(fr.t, dtype=np.int64)
     sel = np.ones(t.size, bool)
     if t0 is not None:
@@ -316,12 +316,14 @@ def run(args) -> int:
             kymos.append(kymogram_from_events(events, line, args.compare_rate, t0_us=t0,
                                               t1_us=t1, signed=args.signed))
     else:
-        kymos = [_field_kymogram(args)]
-        line = kymos[0].line
-        grid = None
+        field, grid = _field_kymogram(args)
+        kymos = [field]
+        line = field.line
         t0, t1 = args.t0, args.t1
     if args.frames is not None:
-        kymos.append(_frames_kymogram(args.frames, line, t0, t1, grid))
+        # frames of another size sampled the field's line elsewhere in the scene (probe BA)
+        on = "the events' sensor" if args.source == "events" else f"{args.file}'s grid"
+        kymos.append(_frames_kymogram(args.frames, line, t0, t1, grid, on))
 
     fits, summaries = [], []
     t_start = float(kymos[0].t_s[0]) - 0.5 / kymos[0].rate_hz
