@@ -590,3 +590,24 @@ def test_a_correlation_ridge_off_the_origin_is_unreliable(seed):
     long = fit_correlation(k, max_lag_s=0.06)
     assert long.reliable and abs(long.origin_offset_px) < 0.2
     assert long.velocity_px_s == pytest.approx(200.0, rel=0.02)
+
+
+def test_a_kymogram_too_large_for_memory_is_refused_naming_the_rate(plume, tmp_path, capsys,
+                                                                    monkeypatch):
+    """--rate 1e6 over 0.2 s had taken 20 s and 3.7 GB (probe BA); a kymogram of more than
+    MAX_KYMOGRAM_CELLS is refused with the most rate the span allows, by its option."""
+    from evmotion.methods.kymogram import MAX_KYMOGRAM_CELLS, KymoLine, kymogram_from_events
+
+    sim, folder = plume
+    line = KymoLine.column(32, sim.events.sensor_size, width=3)
+    span_s = (int(sim.events.t[-1]) + 1 - int(sim.events.t[0])) * 1e-6
+    rate = 2 * MAX_KYMOGRAM_CELLS / line.n_samples / span_s
+    with pytest.raises(ParameterError, match="at most"):
+        kymogram_from_events(sim.events, line, rate)
+    kymogram_from_events(sim.events, line, rate / 4)
+    import evmotion.methods.kymogram as kymogram
+
+    monkeypatch.setattr(kymogram, "MAX_KYMOGRAM_CELLS", line.n_samples * 10)
+    rc, _, err = _cli(capsys, folder, "--col", 32, "--width", 3, "--rate", 1200,
+                      "--out", tmp_path / "k.png")
+    assert rc == 2 and err.count("\n") == 1 and "--rate" in err and "at most" in err

@@ -240,6 +240,20 @@ def _cli_names(text: str) -> str:
                   lambda m: _OPTION_NAMES[m.group(1)], text)
 
 
+def _events_kymogram(events, line, rate: float, option: str, **kw):
+    """:func:`~evmotion.methods.kymogram.kymogram_from_events`, its refusal of a rate
+    naming ``option``."""
+    from evmotion.errors import ParameterError
+    from evmotion.methods.kymogram import kymogram_from_events
+
+    try:
+        return kymogram_from_events(events, line, rate, **kw)
+    except ParameterError as exc:
+        if str(exc).startswith("rate_hz="):
+            raise ParameterError(f"{option} {str(exc).removeprefix('rate_hz=')}") from None
+        raise
+
+
 def _frames_kymogram(path, line, t0, t1, sensor_size, on: str):
     import numpy as np
 
@@ -277,7 +291,6 @@ def run(args) -> int:
     from evmotion.methods.kymogram import (
         fit_correlation,
         fit_ridge,
-        kymogram_from_events,
         px_per_s_to_m_per_s,
     )
     from evmotion.viz.kymogram import save_kymogram_png
@@ -310,11 +323,11 @@ def run(args) -> int:
         # whose clock starts at 1.6e9 s) only adds empty bins, petabytes of them
         t0 = int(events.t[0]) if args.t0 is None else max(args.t0, int(events.t[0]))
         t1 = int(events.t[-1]) + 1 if args.t1 is None else min(args.t1, int(events.t[-1]) + 1)
-        kymos = [kymogram_from_events(events, line, rate, t0_us=t0, t1_us=t1,
-                                      signed=args.signed)]
+        kymos = [_events_kymogram(events, line, rate, "--rate", t0_us=t0, t1_us=t1,
+                                  signed=args.signed)]
         if args.compare_rate is not None:
-            kymos.append(kymogram_from_events(events, line, args.compare_rate, t0_us=t0,
-                                              t1_us=t1, signed=args.signed))
+            kymos.append(_events_kymogram(events, line, args.compare_rate, "--compare-rate",
+                                          t0_us=t0, t1_us=t1, signed=args.signed))
     else:
         field, grid = _field_kymogram(args)
         kymos = [field]

@@ -161,6 +161,12 @@ def _bin_on_line(x, y, t, p, x0, y0, ux, uy, half_w, n_s, t0, bins_per_us, n_t, 
             out[j, i] += 1.0
 
 
+#: Most cells (time bins x samples along the line) of an event kymogram: 80 MB as float64,
+#: and the fits hold a few copies (1e6 Hz over 0.2 s had taken 20 s and 3.7 GB, probe BA);
+#: 10 s at 1200 Hz along a 720 px line is 8.6e6.
+MAX_KYMOGRAM_CELLS = 10_000_000
+
+
 def kymogram_from_events(events: EventArray, line: KymoLine, rate_hz: float = 1200.0, *,
                          t0_us: int | None = None, t1_us: int | None = None,
                          signed: bool = False) -> Kymogram:
@@ -208,6 +214,11 @@ def kymogram_from_events(events: EventArray, line: KymoLine, rate_hz: float = 12
     if n_t < 1:
         raise EmptyWindowError(f"time span [{t0}, {t1}) us is shorter than one bin at "
                                f"{rate:g} Hz ({1e6 / rate:.6g} us)")
+    if n_t * line.n_samples > MAX_KYMOGRAM_CELLS:
+        most = MAX_KYMOGRAM_CELLS / line.n_samples / ((t1 - t0) * 1e-6)
+        raise ParameterError(f"rate_hz={rate:g} over {(t1 - t0) * 1e-6:.6g} s makes {n_t:,} "
+                             f"time bins of {line.n_samples} px, over {MAX_KYMOGRAM_CELLS:,} "
+                             f"cells: at most {most:.4g} Hz over this span, or a shorter one")
     ev = events.slice_time(t0, t1)
     ux, uy = line.direction
     out = np.zeros((n_t, line.n_samples), dtype=np.float64)
