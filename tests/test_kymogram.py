@@ -611,3 +611,24 @@ def test_a_kymogram_too_large_for_memory_is_refused_naming_the_rate(plume, tmp_p
     rc, _, err = _cli(capsys, folder, "--col", 32, "--width", 3, "--rate", 1200,
                       "--out", tmp_path / "k.png")
     assert rc == 2 and err.count("\n") == 1 and "--rate" in err and "at most" in err
+
+
+def test_sensor_size_reads_text_beside_frames_of_another_size(tmp_path, capsys):
+    """Events text in a folder whose images.txt lists frames of another size took the
+    frames' size, and the refusal's hint named --sensor-size, an option kymogram lacked
+    (probe BA): it has it now."""
+    import png
+
+    (tmp_path / "images").mkdir()
+    with open(tmp_path / "images" / "f0.png", "wb") as fh:
+        png.Writer(width=64, height=64, greyscale=True).write(fh, np.zeros((64, 64), np.uint8))
+    (tmp_path / "images.txt").write_text("0.0 images/f0.png\n")
+    t = np.arange(4000) * 25e-6
+    x = (20 + 500 * t).astype(int)  # a bar moving at 500 px/s along row 60
+    (tmp_path / "bar.txt").write_text("".join(
+        f"{ti:.6f} {xi} {y} 1\n" for ti, xi in zip(t, x, strict=True) for y in (59, 60, 61)))
+    rc, _, err = _cli(capsys, tmp_path / "bar.txt", "--row", 60, "--out", tmp_path / "k.png")
+    assert rc == 2 and "--sensor-size" in err
+    rc, _, err = _cli(capsys, tmp_path / "bar.txt", "--row", 60, "--sensor-size", 120, 160,
+                      "--out", tmp_path / "k.png")
+    assert rc == 0, err

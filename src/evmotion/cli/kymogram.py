@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from evmotion.cli.options import (
     HelpFormatter,
+    add_sensor_size_argument,
     check_time_order,
     empty_selection,
     existing_input,
@@ -68,6 +69,7 @@ def add_parser(sub) -> None:
                    help="add a panel of frame differences at the frame rate (folder with "
                         "images.txt, or a frames file)")
     p.add_argument("--format", default=None, help="event format (default: detect)")
+    add_sensor_size_argument(p)
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
                    help="start: seconds on the recording's clock, or with a unit (1.5, "
                         "1500ms, 1500000us; +TIME: after the first event; default: first "
@@ -129,7 +131,8 @@ def _check_args(args) -> dict | None:
     check_time_order(args)
     if args.source != "events":
         reject_unused(args, {"--rate": "rate", "--compare-rate": "compare_rate",
-                             "--signed": "signed", "--format": "format"},
+                             "--signed": "signed", "--format": "format",
+                             "--sensor-size": "sensor_size"},
                       f"with --from {args.source} (the file's windows set the rate)")
     fit_options = {"--max-lag-s": "max_lag_s", "--sigma-px": "sigma_px",
                    "--sigma-bins": "sigma_bins", "--polarity": "polarity",
@@ -300,8 +303,11 @@ def run(args) -> int:
         import evmotion.io as eio
 
         try:
+            # (--sensor-size: the readers' own hint names it for text beside frames of
+            # another size, probe BA)
+            size = {} if args.sensor_size is None else {"sensor_size": tuple(args.sensor_size)}
             events = eio.read_events(args.file, format=args.format, t0=args.t0, t1=args.t1,
-                                    warn_empty=False)
+                                    warn_empty=False, **size)
         except FormatError:
             from evmotion.io.flowread import describe_flow
 
