@@ -632,3 +632,19 @@ def test_sensor_size_reads_text_beside_frames_of_another_size(tmp_path, capsys):
     rc, _, err = _cli(capsys, tmp_path / "bar.txt", "--row", 60, "--sensor-size", 120, 160,
                       "--out", tmp_path / "k.png")
     assert rc == 0, err
+
+
+def test_the_simulators_exact_q_makes_a_kymogram(plume, tmp_path, capsys):
+    """--from q on the simulator's schlieren_gt.h5 was refused as holding no q beside the
+    flow, though its q is there (probe BA): its exact q, one sample per frame interval."""
+    import json
+
+    from evmotion.sim.schlieren import read_schlieren_gt
+
+    _, folder = plume
+    gt = read_schlieren_gt(folder / "schlieren_gt.h5")
+    rc, text, err = _cli(capsys, folder / "schlieren_gt.h5", "--from", "q", "--col", 32,
+                         "--no-fit", "--out", tmp_path / "k.png", "--json")
+    assert rc == 0, err
+    panel = json.loads(text)["panels"][0]
+    assert panel["source"] == "q (exact)" and panel["shape"] == [len(gt.q), gt.q.shape[1]]

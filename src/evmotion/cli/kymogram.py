@@ -180,18 +180,29 @@ def _field_kymogram(args):
     from evmotion.io.flowread import read_flow
     from evmotion.methods.kymogram import kymogram_from_images
 
+    exact = False
     if args.source == "q":
-        from evmotion.io.bosfiles import read_bos
+        from evmotion.sim.schlieren import is_schlieren_gt, read_schlieren_q
 
-        bos = read_bos(args.file)
-        seq, images, label = bos.flow, bos.q, "q"
+        exact = is_schlieren_gt(args.file)
+    if exact:
+        # the simulator's exact q, beside its flow (it had been refused as holding no q,
+        # probe BA)
+        images, times = read_schlieren_q(args.file)
+        t0, t1, label = times[:-1], times[1:], "q (exact)"
     else:
-        seq = read_flow(args.file)
-        images, label = np.hypot(seq.flow[..., 0], seq.flow[..., 1]), "|flow| px/s"
-        if seq.valid is not None:  # where no event supports the flow, no signal either
-            images = np.where(seq.valid, images, np.nan)
-    t0 = np.asarray(seq.t0, dtype=np.int64)
-    t1 = np.asarray(seq.t1, dtype=np.int64)
+        if args.source == "q":
+            from evmotion.io.bosfiles import read_bos
+
+            bos = read_bos(args.file)
+            seq, images, label = bos.flow, bos.q, "q"
+        else:
+            seq = read_flow(args.file)
+            images, label = np.hypot(seq.flow[..., 0], seq.flow[..., 1]), "|flow| px/s"
+            if seq.valid is not None:  # where no event supports the flow, no signal either
+                images = np.where(seq.valid, images, np.nan)
+        t0 = np.asarray(seq.t0, dtype=np.int64)
+        t1 = np.asarray(seq.t1, dtype=np.int64)
     sel = np.ones(t0.size, bool)
     if args.t0 is not None:
         sel &= t0 >= args.t0
