@@ -1308,6 +1308,9 @@ def test_an_output_folder_is_described_not_read_as_frames(rec, tmp_path, capsys)
         assert json.loads(capsys.readouterr().out)["path"].endswith(holds)
         _assert_one_line(*_run(["flow", str(out), "--out", str(tmp_path / "f.h5")], capsys),
                          "is a folder of evmotion output", holds)
+    # eval: segment's folder is named as such (its PNG panels were taken for flow files)
+    _assert_one_line(*_run(["eval", str(tmp_path / "segment"), "--gt", rec["gt"]], capsys),
+                     "clusters.h5 holds the parameters of 'segment'")
 
 
 def test_view_says_when_t0_comes_before_the_recording(tmp_path, capsys):

@@ -427,14 +427,17 @@ def _events_on_grid(args, attrs: dict):
 
 def _params_file(path: Path, h5_format) -> Path | None:
     """FLOW as ego-motion parameters: a parameters file (``evmotion egomotion``'s
-    ``params.h5``), or the output folder that holds one; None otherwise."""
+    ``params.h5``), or the output folder that holds one (``segment``'s, whose
+    clusters.h5 is then refused by name: its PNG panels had been taken for flow files,
+    probe AZ); None otherwise."""
     from evmotion.io.paramsfiles import PARAMS_FORMAT
+    from evmotion.io.registry import own_output_folder
 
     if h5_format == PARAMS_FORMAT:
         return path
-    inside = path / "params.h5"
-    if path.is_dir() and inside.is_file() and _h5_format(inside) == PARAMS_FORMAT:
-        return inside
+    found = own_output_folder(path)
+    if found is not None and _h5_format(found[0]) == PARAMS_FORMAT:
+        return found[0]
     return None
 
 
