@@ -1329,3 +1329,20 @@ def test_view_says_when_t0_comes_before_the_recording(tmp_path, capsys):
                      "--out", str(tmp_path / "v.png")]) == 0
         err = capsys.readouterr().err
         assert ("the first event from there is at 10 s" in err and "+0.02" in err) == said, err
+
+
+def test_dnn_window_finds_hot_pixels_once(rec, monkeypatch, capsys):
+    """The network finds a window's hot pixels itself: the command's own search, which
+    only ever spoke for other methods or with --remove-hot-pixels, is not made for it
+    (0.1 s a 1280 x 720 window); with --remove-hot-pixels it is."""
+    import evmotion.filters as filters
+
+    calls = []
+    real = filters.hot_pixel_mask
+    monkeypatch.setattr(filters, "hot_pixel_mask", lambda *a, **k: calls.append(1) or real(*a, **k))
+    for extra, searches in (([], 1), (["--remove-hot-pixels"], 2)):
+        calls.clear()
+        rc = main(["flow", rec["rec"], "--method", "dnn", "--window-events", "3000",
+                   "--out", str(rec["dir"] / "hot.flo"), *extra])
+        assert rc == 0, capsys.readouterr().err
+        assert len(calls) == searches

@@ -733,3 +733,21 @@ def test_the_one_window_command_does_not_import_numba(tmp_path):
                           str(tmp_path / "x.flo")], capture_output=True, text=True)
     assert (tmp_path / "x.flo").is_file(), out.stderr
     assert out.stdout.strip().splitlines()[-1] == "False", out.stdout + out.stderr
+
+
+def test_warped_variance_is_the_count_images_variance():
+    """_warped_variance from the counts of the pixels events land on equals np.var of the
+    whole count image (what it computed before, 0.3 s a 1280 x 720 window)."""
+    from evmotion.methods.dnn.infer import _warped_variance
+
+    rng = np.random.default_rng(0)
+    h, w, n = 37, 53, 5000
+    x, y = rng.integers(0, w, n), rng.integers(0, h, n)
+    s = rng.uniform(-0.5, 0.5, n)
+    disp = rng.normal(0, 6, (h, w, 2))
+    d = disp.reshape(-1, 2)[y * w + x]
+    xw, yw = np.rint(x - d[:, 0] * s).astype(int), np.rint(y - d[:, 1] * s).astype(int)
+    inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
+    assert inside.mean() < 0.95  # some land outside
+    ref = np.var(np.bincount(yw[inside] * w + xw[inside], minlength=h * w))
+    assert _warped_variance(x, y, y * w + x, s, disp) == pytest.approx(ref, rel=1e-12)

@@ -380,12 +380,18 @@ def _pixels_and_times(events: EventArray):
 
 
 def _warped_variance(x, y, pix, s, disp) -> float:
+    """The variance over the sensor's pixels of the count image of the events moved by
+    ``disp`` to the window's midpoint: from the counts of the pixels they land on (the
+    others are 0), not a whole image of counts, which a 1280 x 720 window's 33 calls had
+    spent 0.3 s making and summing."""
     h, w = disp.shape[:2]
     d = disp.reshape(-1, 2)[pix]
     xw = np.rint(x - d[:, 0] * s).astype(np.intp)
     yw = np.rint(y - d[:, 1] * s).astype(np.intp)
     inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-    return float(np.var(np.bincount(yw[inside] * w + xw[inside], minlength=h * w)))
+    counts = np.unique(yw[inside] * w + xw[inside], return_counts=True)[1].astype(np.float64)
+    mean = counts.sum() / (h * w)
+    return float(np.dot(counts, counts) / (h * w) - mean * mean)
 
 
 def _alternatives(events: EventArray, disp: np.ndarray, hot: np.ndarray, xys,
