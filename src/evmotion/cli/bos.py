@@ -84,11 +84,12 @@ def add_parser(sub) -> None:
                    help="log-intensity change per net event that scales the flow "
                         "(default: the median of the estimates from the frames bracketing "
                         "up to 15 intervals). It folds in the events' under-count (no event "
-                        "below threshold), so it exceeds the sensor's nominal threshold "
-                        "where the air changes the image by less than C: on a rendered "
-                        "plume with a sensor at 0.20 the estimate was 0.26 and the flow "
-                        "0.97x the true one, 0.76x with 0.20 given. Give it where the "
-                        "frames are too dark or noisy to estimate it")
+                        "below threshold), so it is not the sensor's nominal threshold: on a "
+                        "rendered plume with a sensor at 0.20 the estimate was 0.26 and the "
+                        "flow 0.97x the true one, 0.76x with 0.20 given; where nearly every "
+                        "pixel's change stays below C (slow air, high frame rates) it falls "
+                        "below the nominal one and the flow comes out small, which a warning "
+                        "says. Give it where the frames are too dark or noisy to estimate it")
     p.add_argument("--iterations", type=int_range(1, 100_000),
                    default=None, metavar="N",
                    help="Adam iterations per scale (default 150/150/150/300 for the scale "
