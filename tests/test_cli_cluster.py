@@ -137,6 +137,14 @@ def test_bos_on_cluster_matches_local_chunks(cluster, tmp_path_factory, tmp_path
     a, b = _h5(tmp_path / "local.h5"), _h5(tmp_path / "remote.h5")
     for key in ("flow", "q", "p"):
         assert a[key].tobytes() == b[key].tobytes(), key
+    # one chunk on the cluster (--workers 1) is the serial run (it had been taken for the
+    # default, a chunk per cluster thread: probe BB)
+    _json([*base, "--out", tmp_path / "serial.h5"], capsys)
+    _json([*base, "--scheduler", cluster, "--workers", "1", "--out", tmp_path / "one.h5"],
+          capsys)
+    a, b = _h5(tmp_path / "serial.h5"), _h5(tmp_path / "one.h5")
+    for key in ("flow", "q", "p"):
+        assert a[key].tobytes() == b[key].tobytes(), key
 
 
 def _closed_port() -> int:

@@ -115,7 +115,7 @@ def add_parser(sub) -> None:
     p.add_argument("--max-intervals", "--max-windows", dest="max_intervals",
                    type=int_range(1), default=None,
                    metavar="N", help="at most N frame intervals (default all)")
-    p.add_argument("--workers", type=int_range(1, 256), default=1,
+    p.add_argument("--workers", type=int_range(1, 256), default=None,
                    help="parallel worker processes over frame intervals (default 1): each "
                         "takes a contiguous chunk, whose first interval starts cold instead "
                         "of from the previous one; the solution depends on its start, so "
@@ -179,7 +179,7 @@ def run(args) -> int:
         if kind != "h5":
             raise ParameterError(f"--resume continues an .h5 output; --out {out} is written "
                                  "whole at the end")
-        if args.workers > 1 or args.scheduler is not None:
+        if (args.workers or 1) > 1 or args.scheduler is not None:
             raise ParameterError("--resume needs --workers 1 and no --scheduler: with several "
                                  "chunks each chunk's first interval starts cold")
     note_parallel_interrupt(args, "interval")
@@ -213,8 +213,10 @@ def run(args) -> int:
                  "contrast_threshold": -1.0 if c is None else c,
                  "contrast_threshold_source": c_source}
         with scheduler_client(args.scheduler) as client:
-            chunks = (args.workers if client is None or args.workers > 1
-                      else cluster_threads(client))
+            # (a --workers 1 given with --scheduler is one chunk, as without: it had been
+            # taken for the default, one chunk per cluster thread, probe BB)
+            chunks = (args.workers or 1) if client is None or args.workers is not None \
+                else cluster_threads(client)
             rows = solve_bos_into(open_bos_output(out, data, attrs, options,
                                                   resume=args.resume),
                                   data, c, workers=chunks, scheduler=client, progress=True,
