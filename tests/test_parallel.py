@@ -537,3 +537,24 @@ def test_a_ctrl_c_turned_into_a_c_error_stops_the_run():
     # missing, and --resume never estimated it again (probe AD)
     with pytest.raises(KeyboardInterrupt):
         map_windows(interrupted_inside_c, _events(), WINDOWS, progress=False)
+
+
+def test_a_dask_worker_collects_a_windows_warning_on_every_run():
+    """A long-lived Dask worker: Python's once-per-place registry had kept a window's
+    warning from the second run on (probe BB: none of 8 on a cluster's second run)."""
+    import warnings
+
+    from evmotion.errors import PoorFitWarning
+    from evmotion.events import EventArray
+    from evmotion.parallel import _run_batch, _Task
+
+    def odd(events):
+        warnings.warn(PoorFitWarning("window 3 looks odd"), stacklevel=1)
+        return len(events)
+
+    ev = EventArray(x=[1, 2], y=[0, 1], t=[10, 20], p=[1, 0], sensor_size=(4, 5))
+    with warnings.catch_warnings():
+        warnings.resetwarnings()  # a worker process's: no filter, each place shown once
+        said = [_run_batch(odd, [ev], [_Task(3, 10, 21)], False, {})[0].warnings
+                for _ in range(2)]
+    assert [[m for _, m, _, _ in w] for w in said] == [["window 3 looks odd"]] * 2

@@ -644,10 +644,23 @@ def _broken(exc: Exception, task: _Task) -> WindowResult:
                         error=f"{type(exc).__name__}: {exc}{hint}")
 
 
+def _collect_every_run() -> None:
+    """A Dask worker outlives the run: Python's registry of the warnings each place has
+    shown ("default": once) had kept a window's warning from the second run on the same
+    cluster on (probe BB: none of a multicm run's 8 "no focus" warnings). evmotion's
+    warnings are always issued there, to be collected; the filter is appended, so one
+    the worker set before still rules."""
+    from evmotion.errors import EvmotionWarning
+
+    if ("always", None, EvmotionWarning, None, 0) not in warnings.filters:
+        warnings.filterwarnings("always", category=EvmotionWarning, append=True)
+
+
 def _run_batch(fn: Callable, payloads: list, tasks: list[_Task], with_window: bool,
                read_kwargs: dict, topic: str | None = None) -> list[WindowResult]:
     """Run in a Dask worker: :func:`_run_window` on each window of a batch, in order;
     :func:`report_progress` logs Dask events on ``topic``, which the client follows."""
+    _collect_every_run()
     sink = None
     if topic is not None:
         from distributed import get_worker
