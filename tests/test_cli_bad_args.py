@@ -1336,13 +1336,35 @@ def test_dnn_window_finds_hot_pixels_once(rec, monkeypatch, capsys):
     only ever spoke for other methods or with --remove-hot-pixels, is not made for it
     (0.1 s a 1280 x 720 window); with --remove-hot-pixels it is."""
     import evmotion.filters as filters
+    import evmotion.methods.dnn.infer as infer
 
     calls = []
     real = filters.hot_pixel_mask
-    monkeypatch.setattr(filters, "hot_pixel_mask", lambda *a, **k: calls.append(1) or real(*a, **k))
+    counted = lambda *a, **k: calls.append(1) or real(*a, **k)  # noqa: E731
+    monkeypatch.setattr(filters, "hot_pixel_mask", counted)  # the command's (imported late)
+    monkeypatch.setattr(infer, "hot_pixel_mask", counted)  # the network's
     for extra, searches in (([], 1), (["--remove-hot-pixels"], 2)):
         calls.clear()
         rc = main(["flow", rec["rec"], "--method", "dnn", "--window-events", "3000",
                    "--out", str(rec["dir"] / "hot.flo"), *extra])
         assert rc == 0, capsys.readouterr().err
         assert len(calls) == searches
+
+
+def test_a_warning_is_not_glued_onto_a_live_progress_bar(capsys):
+    """A window's warning printed while flow's bar was drawn on a terminal went on the
+    bar's line ('...18.89win/s]evmotion: warning: window 65 ...', probe BB): the bar is
+    cleared first, then drawn again."""
+    import sys
+
+    from tqdm.auto import tqdm
+
+    from evmotion.cli import warn_line
+
+    bar = tqdm(total=10, file=sys.stderr, desc="multicm", unit="win")
+    bar.update(3)
+    warn_line("window 4 looks odd")
+    bar.close()
+    err = capsys.readouterr().err
+    before = err.split("evmotion: warning: window 4 looks odd\n")[0]
+    assert before.endswith("\r") and "win" in before  # the bar's line, cleared

@@ -111,7 +111,14 @@ def warn_line(message: str) -> None:
     measurement); the JSON summary (:func:`print_json`) lists them too."""
     line = " ".join(str(message).split())
     _WARNED.append(line)
-    print(f"evmotion: warning: {line}", file=sys.stderr)
+    if "tqdm" in sys.modules:
+        # a live progress bar is cleared, the line written, the bar drawn again below it:
+        # printed as it was, the line had been glued onto the bar (probe BB)
+        from tqdm.auto import tqdm
+
+        tqdm.write(f"evmotion: warning: {line}", file=sys.stderr)
+    else:
+        print(f"evmotion: warning: {line}", file=sys.stderr)
 
 
 def show_warning(message, category, filename, lineno, file=None, line=None):
