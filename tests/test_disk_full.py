@@ -42,10 +42,19 @@ def _room_for(monkeypatch, n_writes: int) -> None:
     monkeypatch.setattr(shutil, "disk_usage", usage)
 
 
-def test_ensure_room():
+def test_ensure_room(monkeypatch):
     ensure_room(".", 0)
     with pytest.raises(NoRoomError, match="no space left on the device"):
         ensure_room(".", 1 << 62)
+    # a need just over the free space reads as more than it (it read "needs up to 1.0
+    # MiB, 1.0 MiB are free", probe BB)
+    import collections
+    import shutil
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(1 << 30, 0, (1 << 20) + 1000))
+    with pytest.raises(NoRoomError, match=r"needs up to 1\.005 MiB, 1\.001 MiB are free"):
+        ensure_room(".", 5000)
     assert no_room(NoRoomError(28, "x")) == 28
     assert no_room(RuntimeError("file write failed: ... errno = 28, error message = ...")) == 28
     # a file-size limit (ulimit -f, FAT32's 4 GiB) and a quota are no room either

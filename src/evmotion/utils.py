@@ -231,9 +231,13 @@ def ensure_room(path: str | os.PathLike, nbytes: int, *, size_now: int | None = 
     need = nbytes + _WRITE_MARGIN
     free = shutil.disk_usage(nearest_existing(path.parent)).free
     if need > free:
+        # as many decimals as tell the two apart ("needs up to 1.0 MiB, 1.0 MiB are free",
+        # probe BB)
+        digits = next((d for d in range(1, 7)
+                       if round(need / 2**20, d) != round(free / 2**20, d)), 6)
         raise NoRoomError(errno.ENOSPC, f"no space left on the device for {path}: the next "
-                          f"write needs up to {need / 2**20:.1f} MiB, "
-                          f"{free / 2**20:.1f} MiB are free")
+                          f"write needs up to {need / 2**20:.{digits}f} MiB, "
+                          f"{free / 2**20:.{digits}f} MiB are free")
     limit, whose = _largest_file(path)
     if limit is not None:
         now = size_now if size_now is not None else (path.stat().st_size if path.exists()
