@@ -211,3 +211,29 @@ def test_a_killed_runs_temporaries_are_removed_by_the_next(rec, tmp_path, capsys
     assert main(["convert", str(rec), str(out)]) == 0
     capsys.readouterr()
     assert out.exists() and not stale.exists() and running.exists() and other.exists()
+
+
+def test_a_final_rename_that_fails_names_the_part_it_keeps(tmp_path, monkeypatch):
+    """A folder made read-only (chattr +i) under a finishing run: its last step, renaming
+    the finished .part onto the output, failed with a bare "[Errno 1] Operation not
+    permitted: 'f.h5.part' -> 'f.h5'" (probe BB). The error names the .part, which holds
+    every window, and what to do."""
+    import os
+
+    import evmotion.io.flowfiles as flowfiles
+    from evmotion.errors import FormatError
+    from evmotion.io.flowout import open_flow_output
+
+    real = os.replace
+
+    def refused(src, dst):
+        if str(src).endswith(".part"):
+            raise PermissionError(1, "Operation not permitted")
+        return real(src, dst)
+
+    monkeypatch.setattr(flowfiles.os, "replace", refused)
+    out = tmp_path / "f.h5"
+    with pytest.raises(FormatError, match=r"f\.h5\.part.*every window.*--resume"):
+        with open_flow_output(out, (4, 5), {"method": "x"}) as w:
+            w.append(np.zeros((4, 5, 2), np.float32), t0=0, t1=10_000)
+    assert (tmp_path / "f.h5.part").is_file() and not out.exists()

@@ -533,10 +533,18 @@ class FlowWriter(PartFileWriter):
         return ds
 
     def close(self) -> None:
-        """Finish the file and rename it onto the final name."""
+        """Finish the file and rename it onto the final name; where the rename fails (a
+        folder made read-only), FormatError names the finished ``.part`` it keeps."""
         if self.f.id.valid:
             self.f.close()
-            os.replace(self.part, self.path)
+            try:
+                os.replace(self.part, self.path)
+            except OSError as exc:
+                # every window is in the .part: said, not a bare "[Errno 1] ... ->" (probe BB)
+                raise FormatError(self.path, f"cannot rename the finished {self.part.name} "
+                                  f"onto it: {exc.strerror or exc}", f"every window is in "
+                                  f"{self.part}: rename it by hand, or make the folder "
+                                  "writable and run the command again with --resume") from None
 
     def abort(self) -> None:
         """Close without renaming: the ``.part`` file stays for ``resume=True``."""
