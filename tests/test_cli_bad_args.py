@@ -1368,3 +1368,12 @@ def test_a_warning_is_not_glued_onto_a_live_progress_bar(capsys):
     err = capsys.readouterr().err
     before = err.split("evmotion: warning: window 4 looks odd\n")[0]
     assert before.endswith("\r") and "win" in before  # the bar's line, cleared
+
+
+@pytest.mark.parametrize("command", ["egomotion", "segment"])
+def test_resume_with_nothing_to_continue_says_so(rec, tmp_path, capsys, command):
+    """--resume where no run was interrupted (a mistyped --out): flow and bos said so,
+    egomotion and segment started afresh without a word (probe BB)."""
+    assert main([command, rec["rec"], "--out", str(tmp_path / "o"), "--resume"]) == 0
+    err = capsys.readouterr().err
+    assert "--resume: there is no interrupted run to continue" in err, err

@@ -21,10 +21,11 @@ from __future__ import annotations
 
 import os
 import pickle
+import warnings
 from pathlib import Path
 from typing import Any
 
-from evmotion.errors import ParameterError
+from evmotion.errors import EvmotionWarning, ParameterError
 from evmotion.utils import ensure_room, keep_for_resume
 
 __all__ = ["Journal"]
@@ -98,6 +99,11 @@ class Journal:
                                      "delete it to start again")
             return cls(path, header), {}
         if not path.exists():
+            # as flow and bos say it (egomotion and segment started afresh without a word:
+            # a mistyped --out resumes nothing, probe BB)
+            warnings.warn(EvmotionWarning(
+                f"--resume: there is no interrupted run to continue ({path} does not "
+                "exist): starting from the first window"), stacklevel=2)
             return cls(path, header), {}
         journal, done = cls.resume(path, header)
         for k, (t0, t1, _) in done.items():
