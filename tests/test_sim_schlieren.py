@@ -563,3 +563,19 @@ def test_the_span_made_is_said(tmp_path, capsys):
     sim = simulate_schlieren("plume", sensor_size=(40, 48), duration_s=0.02, seed=0)
     assert sim.gt.meta["span_s"] == pytest.approx(2 / 120, abs=1e-6)
     assert sim.gt.meta["duration_s"] == 0.02 and sim.events.t[-1] <= 16_667
+
+
+def test_info_says_what_the_ground_truth_holds(tmp_path, capsys):
+    """info on schlieren_gt.h5 listed a flow file with 'valid_fraction: None' and neither
+    q nor the displacement (probe BA): it says what the file is and holds; no masks is
+    every pixel (1.0), as eval reads it."""
+    import json
+
+    from evmotion.cli import main
+
+    write_schlieren(simulate_schlieren("plume", sensor_size=(40, 48), duration_s=2 / 120,
+                                       seed=0), tmp_path / "s")
+    assert main(["info", str(tmp_path / "s" / "schlieren_gt.h5"), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert "ground truth" in d["content"] and {"q", "displacement"} <= set(d["datasets"])
+    assert d["valid_fraction"] == 1.0 and d["valid_masks"] is False

@@ -50,7 +50,12 @@ from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 
-__all__ = ["describe_flow", "read_flow", "read_flow_paired"]
+__all__ = ["SCHLIEREN_GT_FORMAT", "describe_flow", "read_flow", "read_flow_paired"]
+
+#: The ``schlieren_format`` attribute of the schlieren simulator's ground truth
+#: (:func:`evmotion.sim.schlieren.write_schlieren`), a flow file that holds q and the
+#: displacement too.
+SCHLIEREN_GT_FORMAT = "evmotion-schlieren-gt"
 
 
 def _read_sidecar(path: Path) -> dict | None:
@@ -431,7 +436,9 @@ def _describe_h5(p: Path) -> dict | None:
             return None
         n = int(f["t1"].shape[0])
         t0, t1 = f["t0"][:n], f["t1"][:n]
-        vf = None
+        # no masks: every pixel counts, as eval and read_flow take it ("valid_fraction:
+        # None" read as unknown, probe BA)
+        vf = 1.0 if n else None
         if "valid" in f and n:
             vf = float(sum(int(np.count_nonzero(f["valid"][i])) for i in range(n))
                        / (n * f["valid"].shape[1] * f["valid"].shape[2]))
@@ -442,6 +449,11 @@ def _describe_h5(p: Path) -> dict | None:
         out.update(_summary(f["flow"].shape[1:3], t0, t1, vf, attrs))
         out["units"] = str(attrs.get("units", "px/s"))
         out["valid_masks"] = "valid" in f
+        if attrs.get("schlieren_format") == SCHLIEREN_GT_FORMAT:
+            # the simulator's ground truth holds more than its flow (probe BA: unsaid)
+            out["content"] = ("the schlieren simulator's ground truth: per frame interval "
+                              "the exact flow, q and displacement")
+            out["datasets"] = sorted(k for k in f if k not in ("flow", "t0", "t1"))
         return out
 
 

@@ -60,6 +60,7 @@ from numba import njit
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
+from evmotion.io.flowread import SCHLIEREN_GT_FORMAT
 from evmotion.io.frames import Frames
 from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs
@@ -75,7 +76,7 @@ __all__ = ["BOS_SCENES", "Background", "PuffField", "SchlierenGT", "SchlierenSim
            "read_schlieren_gt",
            "read_schlieren_q", "simulate_schlieren", "write_schlieren"]
 
-GT_FORMAT = "evmotion-schlieren-gt"
+GT_FORMAT = SCHLIEREN_GT_FORMAT
 BLOB_CUTOFF = 4.0  # puffs are evaluated within this many widths (exp(-8) beyond)
 DOT_CUTOFF = 5.0  # dots within this many widths (a darkness of 2 exp(-12.5) beyond)
 DOT_PEAK = 2.0  # darkness at a dot's centre: 1 - exp(-2) of full contrast
