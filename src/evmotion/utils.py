@@ -102,6 +102,34 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def _user_mode(bits: int) -> int:
+    """``bits`` less the process' umask: the mode of a file or folder the user makes."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return bits & ~umask
+
+
+def staging_folder(path: str | os.PathLike) -> Path:
+    """A new hidden folder beside ``path``, to build an output in before it is moved into
+    place (named so that a later run removes it if this one is killed:
+    :func:`remove_stale_temps`), with the mode of a folder the user makes (``mkdtemp``
+    makes 0700). The caller removes it.
+
+    Examples
+    --------
+    >>> d = staging_folder("scene")
+    >>> d.is_dir(), d.name.startswith(".scene."), d.name.endswith(".part")
+    (True, True, True)
+    >>> d.rmdir()
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(path, ".part")
+    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".part", dir=path.parent))
+    os.chmod(tmp, _user_mode(0o777))
+    return tmp
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
@@ -126,9 +154,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     os.close(fd)
     tmp_path = Path(tmp)
     # mkstemp creates 0600; results are meant to be as readable as any file the user writes
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp_path, 0o666 & ~umask)
+    os.chmod(tmp_path, _user_mode(0o666))
     try:
         yield tmp_path
         os.replace(tmp_path, path)

@@ -76,8 +76,7 @@ from evmotion.utils import (
     atomic_path,
     ensure_file_target,
     keep_for_resume,
-    remove_stale_temps,
-    temp_prefix,
+    staging_folder,
 )
 
 __all__ = [
@@ -515,11 +514,8 @@ class PerWindowFlowOutput(FlowOutput):
                 if target.is_dir():  # found before the work, not when moving its files in
                     raise ParameterError(f"--out {self.path}: {target} is a folder; choose "
                                          "another name")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        staged = self.path.with_name(self.path.name.split("{")[0] or "flow")
-        remove_stale_temps(staged, ".part")
-        self.stage: Path | None = Path(tempfile.mkdtemp(prefix=temp_prefix(staged),
-                                                        suffix=".part", dir=self.path.parent))
+        self.stage: Path | None = staging_folder(
+            self.path.with_name(self.path.name.split("{")[0] or "flow"))
         self.files: list[Path] = []
 
     def _append(self, flow, t0, t1, valid, extras) -> None:

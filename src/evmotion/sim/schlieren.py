@@ -877,20 +877,14 @@ def write_schlieren(sim: SchlierenSim, out_dir: str | Path) -> Path:
     'schlieren_gt.h5'
     """
     import shutil
-    import tempfile
 
-    from evmotion.utils import remove_stale_temps, temp_prefix
+    from evmotion.utils import staging_folder
 
     out = Path(out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_temps(out, ".part")
     # built whole beside the folder, then published with the ground truth last: an
     # interrupted run had left new events and frames beside an earlier scene's ground
     # truth, or some frames, looking complete (probe BA)
-    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(out), suffix=".part", dir=out.parent))
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700; the folder is the user's result
+    tmp = staging_folder(out)
     try:
         n_frames = _write_recording(sim, tmp)
         _write_gt(tmp / "schlieren_gt.h5", sim.gt)
