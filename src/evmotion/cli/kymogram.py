@@ -21,6 +21,7 @@ from evmotion.cli.options import (
     existing_input,
     finite_float,
     int_range,
+    read_kwargs,
     reject_unused,
     time_us,
     writable_output,
@@ -316,9 +317,8 @@ def run(args) -> int:
         try:
             # (--sensor-size: the readers' own hint names it for text beside frames of
             # another size, probe BA)
-            size = {} if args.sensor_size is None else {"sensor_size": tuple(args.sensor_size)}
-            events = eio.read_events(args.file, format=args.format, t0=args.t0, t1=args.t1,
-                                    warn_empty=False, **size)
+            events = eio.read_events(args.file, t0=args.t0, t1=args.t1, warn_empty=False,
+                                     **read_kwargs(args))
         except FormatError:
             from evmotion.io.flowread import describe_flow
 

@@ -407,7 +407,10 @@ FILE_SUFFIXES = (".h5", ".hdf5", ".csv", ".npz", ".npy", ".png", ".pt", ".flo", 
                  ".json", ".aedat4", ".aedat", ".raw", ".dat", ".bag")
 
 
-def _folder_output_problem(path: Path, holds: str) -> str | None:
+def _folder_output_problem(text: str | os.PathLike, holds: str) -> str | None:
+    if not os.fspath(text).strip():
+        return "an empty name would write into the current folder"
+    path = Path(text)
     if path.exists() and not path.is_dir():
         return "it is a file"
     suffix = path.suffix.lower()
@@ -434,8 +437,7 @@ def writable_folder(holds: str) -> Callable[[str], str]:
     """
 
     def parse(text: str) -> str:
-        problem = "an empty name would write into the current folder" if not text.strip() \
-            else _folder_output_problem(Path(text), holds)
+        problem = _folder_output_problem(text, holds)
         if problem:
             raise argparse.ArgumentTypeError(f"cannot write into {text!r}: {problem}")
         return text
@@ -454,8 +456,7 @@ def check_output(path: str | os.PathLike, option: str,
 
 def check_folder(path: str | os.PathLike, option: str, holds: str) -> None:
     """:func:`writable_folder` for a path known only at run time; raises ParameterError."""
-    problem = "an empty name would write into the current folder" \
-        if not os.fspath(path).strip() else _folder_output_problem(Path(path), holds)
+    problem = _folder_output_problem(path, holds)
     if problem:
         raise ParameterError(f"{option} {os.fspath(path)}: cannot write into it: {problem}")
 
