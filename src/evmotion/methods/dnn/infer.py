@@ -289,14 +289,10 @@ def _tile_sharpness(xys, disp: np.ndarray, groups) -> np.ndarray:
     image of its events (those that start in it) moved by ``disp`` to the window's
     midpoint: for a tile's fixed events, the higher the sharper. numpy only: the dnn path
     does not import numba (0.5-1 s of a one-window command)."""
-    x, y, pix, s = xys
     h, w = disp.shape[:2]
-    d = disp.reshape(-1, 2)[pix]
-    xw = np.rint(x - d[:, 0] * s).astype(np.int64)
-    yw = np.rint(y - d[:, 1] * s).astype(np.int64)
-    inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
+    landed, inside = _landed(*xys, disp)
     tiles, grid, _ = groups
-    key = np.sort(tiles[inside] * (h * w) + yw[inside] * w + xw[inside])
+    key = np.sort(tiles[inside] * (h * w) + landed)
     if not key.size:
         return np.zeros(grid)
     first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
@@ -379,17 +375,26 @@ def _pixels_and_times(events: EventArray):
     return x, y, y * w + x, s
 
 
+def _landed(x, y, pix, s, disp) -> tuple[np.ndarray, np.ndarray]:
+    """``(pixel, inside)``: the events (:func:`_pixels_and_times`) moved by ``disp`` to the
+    window's midpoint, each one's pixel index (``y * w + x``, int64) where it lands inside
+    the sensor, and which do."""
+    h, w = disp.shape[:2]
+    d = disp.reshape(-1, 2)[pix]
+    xw = np.rint(x - d[:, 0] * s).astype(np.int64)
+    yw = np.rint(y - d[:, 1] * s).astype(np.int64)
+    inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
+    return yw[inside] * w + xw[inside], inside
+
+
 def _warped_variance(x, y, pix, s, disp) -> float:
     """The variance over the sensor's pixels of the count image of the events moved by
     ``disp`` to the window's midpoint: from the counts of the pixels they land on (the
     others are 0), not a whole image of counts, which a 1280 x 720 window's 33 calls had
     spent 0.3 s making and summing."""
     h, w = disp.shape[:2]
-    d = disp.reshape(-1, 2)[pix]
-    xw = np.rint(x - d[:, 0] * s).astype(np.intp)
-    yw = np.rint(y - d[:, 1] * s).astype(np.intp)
-    inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-    counts = np.unique(yw[inside] * w + xw[inside], return_counts=True)[1].astype(np.float64)
+    counts = np.unique(_landed(x, y, pix, s, disp)[0], return_counts=True)[1]
+    counts = counts.astype(np.float64)
     mean = counts.sum() / (h * w)
     return float(np.dot(counts, counts) / (h * w) - mean * mean)
 
