@@ -277,3 +277,34 @@ def test_fwl_on_real_ecd_window_peaks_at_ground_truth(shared_data, scene):
     for scale in (-1.0, 0.5, 1.5):
         assert fwl(undist, scale * flow) < best
     assert fwl(undist, flow, t_ref_us=int(ev.t[-1])) == pytest.approx(best, rel=0.05)
+
+
+def test_an_estimate_no_better_than_zero_flow_is_flagged():
+    # a flow scored against another scene's ground truth read like a poor estimate (probe
+    # BA: AEE 0.24 px against the zero flow's 0.064, no word)
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.eval.eventflow import event_flow_metrics
+    from evmotion.eval.windows import evaluate_windows
+    from evmotion.io.flowfiles import FlowSequence
+
+    gt = FlowSequence(flow=np.zeros((1, 8, 8, 2), np.float32) + np.float32([0.0, 100.0]),
+                      t0=np.array([0]), t1=np.array([10_000]))
+    across = np.zeros((1, 8, 8, 2), np.float32) + np.float32([100.0, 0.0])
+    near = np.zeros((1, 8, 8, 2), np.float32) + np.float32([10.0, 90.0])
+    with pytest.warns(EvmotionWarning, match="no lower than the zero flow's 1 px"):
+        evaluate_windows(across, [0], [10_000], gt)
+    n = 50
+    events = {"t": np.arange(n) * 100, "x": np.full(n, 3.5), "y": np.full(n, 4.0),
+              "vx": np.full(n, 100.0), "vy": np.zeros(n)}
+    with pytest.warns(EvmotionWarning, match="flow of 50 events"):
+        event_flow_metrics(events, gt)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EvmotionWarning)
+        assert evaluate_windows(near, [0], [10_000], gt).total["AEE"] < 1.0
+        event_flow_metrics({**events, "vx": np.full(n, 10.0), "vy": np.full(n, 90.0)}, gt)
+        # a ground truth that does not move gives no verdict
+        still = FlowSequence(flow=np.zeros((1, 8, 8, 2), np.float32), t0=np.array([0]),
+                             t1=np.array([10_000]))
+        evaluate_windows(across, [0], [10_000], still)

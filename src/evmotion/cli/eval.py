@@ -31,7 +31,8 @@ velocity's error for the rotation), at each window's reference time
 (:mod:`evmotion.eval.egomotion`).
 
 Beside the AEE, ``AEE_zero`` is the zero flow's on the same pixels or events (the ground
-truth's mean displacement): an AEE is read against it.
+truth's mean displacement): an AEE is read against it, and one no lower than it is flagged
+(a failed estimate, or the ground truth of another scene).
 
 Masks (thesis ch. 4): valid ground truth (the simulator's: events in any of the GT frames
 the window spans), the estimate's own validity (its ``valid``

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
-from evmotion.eval.metrics import NPE_THRESHOLDS
+from evmotion.eval.metrics import NPE_THRESHOLDS, warn_no_better_than_zero
 from evmotion.events import as_timestamps_us
 
 if TYPE_CHECKING:
@@ -254,6 +254,8 @@ def event_flow_metrics(
     if per_window:
         rows = _window_rows(per, gt0, gt1)
     mean = acc / n_scored
+    warn_no_better_than_zero(float(mean[0]), float(mean[4]),
+                             f"the flow of {n_scored} events against the ground truth")
     return EventFlowMetrics(
         aee=float(mean[0]), aee_px_s=float(mean[1]),
         npe={m: float(100.0 * c / n_scored) for m, c in zip(thresholds, npe, strict=True)},

@@ -19,12 +19,13 @@ also treats zero GT as missing) and :func:`event_mask` (at least one event at th
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray
 from evmotion.utils import whole_number
 
@@ -42,6 +43,7 @@ __all__ = [
     "rms_error",
     "sample_flow_bilinear",
     "valid_gt_mask",
+    "warn_no_better_than_zero",
     "warp_by_flow",
 ]
 
@@ -342,6 +344,44 @@ def aggregate_flow_metrics(items: Iterable[FlowMetrics], *, weight: str = "windo
         ae_deg=avg([m.ae_deg for m in items]),
         n_pixels=int(sum(m.n_pixels for m in items)),
     )
+
+
+def warn_no_better_than_zero(aee: float, aee_zero: float, scored: str) -> bool:
+    """Warn when an estimate is no closer to the ground truth than the zero flow.
+
+    Such an AEE is not a measurement of the estimate's accuracy: either the estimate failed
+    or the ground truth is another scene's or another time's (the scores of a flow against
+    the wrong scene otherwise read like those of a poor estimate).
+
+    Parameters
+    ----------
+    aee, aee_zero : float
+        The estimate's AEE and the zero flow's on the same pixels or events, px.
+    scored : str
+        What was scored, for the message (e.g. the file names).
+
+    Returns
+    -------
+    bool
+        Whether it warned (a ground truth that does not move gives no verdict).
+
+    Examples
+    --------
+    >>> import warnings
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     warn_no_better_than_zero(0.24, 0.064, "est.h5 against gt.h5")
+    True
+    >>> warn_no_better_than_zero(0.17, 0.30, "est.h5 against gt.h5")
+    False
+    """
+    if not (np.isfinite(aee) and np.isfinite(aee_zero)) or aee_zero <= 0 or aee < aee_zero:
+        return False
+    warnings.warn(EvmotionWarning(
+        f"{scored}: AEE {aee:.4g} px is no lower than the zero flow's {aee_zero:.4g} px: the "
+        "estimate carries no information on this ground truth's motion (a failed estimate, "
+        "or the ground truth of another scene or time?)"), stacklevel=3)
+    return True
 
 
 # ---------------------------------------------------------------------- sharpness

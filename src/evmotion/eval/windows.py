@@ -34,6 +34,7 @@ from evmotion.eval.metrics import (
     events_where_defined,
     flow_metrics,
     fwl,
+    warn_no_better_than_zero,
 )
 
 if TYPE_CHECKING:
@@ -241,6 +242,8 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     total = aggregate_flow_metrics(rows).as_dict()
     total["AEE_zero"] = aggregate_flow_metrics(zeros).aee
     total["AE_rad"] = float(np.radians(total["AE_deg"]))
+    warn_no_better_than_zero(total["AEE"], total["AEE_zero"],
+                             f"the flow of {len(rows)} scored windows against the ground truth")
     fwls = [r["FWL"] for r in per_window if "FWL" in r]
     if fwls:
         total["FWL"] = float(np.mean(fwls))
