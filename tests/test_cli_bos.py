@@ -619,6 +619,32 @@ def test_where_the_frames_come_from(shared_data, tmp_path, capsys):
     assert json.loads(text)["frames"].endswith("davis346.aedat4")
 
 
+def test_images_and_a_timestamps_file_beside_the_events(tmp_path, capsys):
+    """Probe BC: events.txt beside images/ and timestamps.txt (read_frames' documented
+    layout) was "no images.txt beside the events", and --frames named either way said the
+    folder "holds no frames"."""
+    scene = plume_scene(tmp_path / "scene")
+    folder = tmp_path / "stamped"
+    folder.mkdir()
+    shutil.copy(scene / "events.txt", folder / "events.txt")
+    shutil.copytree(scene / "images", folder / "images")
+    lines = (scene / "images.txt").read_text().split("\n")
+    (folder / "timestamps.txt").write_text("".join(f"{ln.split()[0]}\n" for ln in lines
+                                                   if ln.strip()))
+    ref = tmp_path / "ref.h5"
+    rc, _, err = _run(["bos", scene, "--max-intervals", "1", "--iterations", "20", "--out",
+                       ref], capsys)
+    assert rc == 0, err
+    for args in ([folder], [folder / "events.txt"],
+                 [folder / "events.txt", "--frames", folder / "timestamps.txt"],
+                 [folder, "--frames", folder]):
+        out = tmp_path / "o.h5"
+        rc, _, err = _run(["bos", *args, "--max-intervals", "1", "--iterations", "20",
+                           "--out", out], capsys)
+        assert rc == 0, (args, err)
+        np.testing.assert_array_equal(read_flow_h5(out).flow, read_flow_h5(ref).flow)
+
+
 def test_rows_count_the_rois_events_and_no_speed_without_support(tmp_path, capsys):
     """The rows counted the whole sensor's events under --roi, and said 0 px/s (still air)
     where no pixel was valid (the file holds NaN there)."""

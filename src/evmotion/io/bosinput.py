@@ -180,10 +180,11 @@ def _whole_times(images_txt: Path) -> bool:
 
 def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, bool]:
     """Where the frames are, and whether that is a guess that the recording holds its
-    own: ``frames``; else the ``images.txt`` beside the events, or the recording itself
+    own: ``frames``; else the ``images.txt`` beside the events (or images and a timestamps
+    file there, :func:`~evmotion.io.frames.read_frames`), or the recording itself
     where it may hold frames (AEDAT4 APS frames, the published BOS layout, an HDF5 file
     with a frames dataset)."""
-    from evmotion.io.frames import find_frames
+    from evmotion.io.frames import TIMESTAMP_FILES, find_frames
 
     if frames is not None:
         path = Path(frames)
@@ -202,6 +203,9 @@ def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, b
         return rec, False
     if beside:
         return folder, False
+    if any((folder / n).is_file() for n in TIMESTAMP_FILES) and \
+            find_frames(folder) == "folder":
+        return folder, False  # images and a timestamps file beside the events
     if rec.is_file() and rec.name == "events.txt":
         raise FormatError(rec, "no frames: BOS needs frames of the background, and there "
                           "is no images.txt beside these ECD-style events",

@@ -518,11 +518,14 @@ def find_frames(path: str | os.PathLike, timestamps: str | os.PathLike | None = 
         return "recording"
     if (path / "images.txt").is_file():
         return "ecd"
-    if (path / "events.txt").is_file():
+    # events.txt beside images and a timestamps file is that layout, not an ECD folder
+    # without frames (probe BC: "no images.txt", and --frames said the same)
+    stamped = timestamps is not None or any((path / n).is_file() for n in TIMESTAMP_FILES)
+    if (path / "events.txt").is_file() and not stamped:
         return "none"  # an ECD folder without images.txt
     if _is_ccs(path):
         return "ccs"
-    if timestamps is not None or any((path / n).is_file() for n in TIMESTAMP_FILES):
+    if stamped:
         return "folder"
     if _images_in(path):
         raise FormatError(path, "images without timestamps: add images.txt ('t path' lines) "
