@@ -284,6 +284,31 @@ def _keeping(ice10, tmp_path, keep):
     return tmp_path / "v"
 
 
+def test_the_start_up_t0_is_written_to_the_us_on_an_epoch_clock(ice10, tmp_path):
+    """Probe BC: on a host clock (1.7e9 s) the hint said --t0 1.7e+09, the first frame's
+    time rounded, which keeps the interval it was to leave out."""
+    import shutil
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+    from evmotion.methods.bos_run import warn_startup
+
+    d, ev = ice10
+    v = tmp_path / "epoch"
+    shutil.copytree(d, v)
+    offset = 1_700_000_000_000_000
+    write_events(v / "events.txt", EventArray(ev.x, ev.y, ev.t + offset, ev.p,
+                                              sensor_size=ev.sensor_size))
+    lines = (d / "images.txt").read_text().split("\n")
+    (v / "images.txt").write_text("".join(
+        f"{(int(round(float(t) * 1e6)) + offset) // 1_000_000}."
+        f"{(int(round(float(t) * 1e6)) + offset) % 1_000_000:06d} {name}\n"
+        for t, name in (ln.split() for ln in lines if ln.strip())))
+    with pytest.warns(EvmotionWarning, match=r"--t0 1700000000\.008333 leaves it out"):
+        assert warn_startup(load_bos_input(v)) == (0,)
+
+
 def test_start_up_that_lasts_into_the_next_interval_is_said(ice10, tmp_path):
     """Another renderer's pixels took two intervals to settle: the second one's events
     followed the change at 0.80 of the settled rate and its flow came out 0.68-0.81x,

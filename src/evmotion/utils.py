@@ -382,6 +382,21 @@ def refine_total(bar, done: int, meta: dict) -> None:
         bar.refresh()
 
 
+def seconds_text(t_us: int) -> str:
+    """A time in µs written in seconds to the µs, for a user to type back as an option:
+    ``%g`` rounds an epoch time (1.7e9 s) to whole seconds.
+
+    Examples
+    --------
+    >>> seconds_text(1_700_000_000_008_334), seconds_text(1_500_000), seconds_text(-250)
+    ('1700000000.008334', '1.5', '-0.00025')
+    """
+    t_us = int(t_us)
+    sign, t_us = ("-", -t_us) if t_us < 0 else ("", t_us)
+    whole, frac = divmod(t_us, 1_000_000)
+    return f"{sign}{whole}{f'.{frac:06d}'.rstrip('0') if frac else ''}"
+
+
 def check_finite(name: str, value) -> np.ndarray:
     """Raise :class:`ParameterError` naming ``name`` if ``value`` has NaN or inf."""
     arr = np.asarray(value, dtype=np.float64)

@@ -46,7 +46,7 @@ from pathlib import Path
 
 from evmotion.catalog import MAX_SENSOR_SIDE
 from evmotion.errors import ParameterError
-from evmotion.utils import missing_path_hint, nearest_existing
+from evmotion.utils import missing_path_hint, nearest_existing, seconds_text
 
 __all__ = [
     "FILE_SUFFIXES",
@@ -618,13 +618,9 @@ def duration_us(text: str) -> int:
 duration_us.__name__ = "duration"
 
 
-def _seconds(t_us: int) -> str:
-    return f"{int(t_us) / 1e6:.6f}".rstrip("0").rstrip(".")
-
-
 def format_time_us(t_us: int) -> str:
     """``1500000`` -> ``'1.5 s (1500000 µs)'``."""
-    return f"{_seconds(t_us)} s ({int(t_us)} µs)"
+    return f"{seconds_text(t_us)} s ({int(t_us)} µs)"
 
 
 def warn_late_start(t0: int | None, first_us: int, last_us: int) -> None:
@@ -641,11 +637,12 @@ def warn_late_start(t0: int | None, first_us: int, last_us: int) -> None:
     warnings.warn(EvmotionWarning(
         f"--t0 {format_time_us(t0)}: the first event from there is at "
         f"{format_time_us(first_us)}, and the slice starts there; a time after the "
-        f"recording's first event is written +{_seconds(t0)}"), stacklevel=2)
+        f"recording's first event is written +{seconds_text(t0)}"), stacklevel=2)
 
 
 def _span(t_start: int, t_end: int) -> str:
-    return (f"[{_seconds(t_start)}, {_seconds(t_end)}] s ([{int(t_start)}, {int(t_end)}] µs)")
+    return (f"[{seconds_text(t_start)}, {seconds_text(t_end)}] s "
+            f"([{int(t_start)}, {int(t_end)}] µs)")
 
 
 # the poor-fit warning lines a per-window run prints before it only counts them
@@ -837,7 +834,7 @@ def check_time_range(args, t_start: int, t_end: int, file: str | os.PathLike = "
         warnings.warn(EvmotionWarning(
             f"--t0 {format_time_us(t0)} lies more than 1000 times the recording's length "
             f"before its first event ({span}): a time after the first event is "
-            f"+{_seconds(t0)}"), stacklevel=2)
+            f"+{seconds_text(t0)}"), stacklevel=2)
 
 
 def empty_selection(args, file: str | os.PathLike, t_start: int, t_end: int, what: str

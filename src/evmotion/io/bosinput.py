@@ -23,6 +23,7 @@ from evmotion.events import EventArray
 from evmotion.io.base import TIME_UNIT_US
 from evmotion.io.bosfiles import roi_mask
 from evmotion.io.guard import LARGEST_COORDINATE
+from evmotion.utils import seconds_text
 
 __all__ = ["BosInput", "frame_intervals", "load_bos_input"]
 
@@ -496,8 +497,8 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
                     "--time-unit)" if ev_span * UNIT_SLIP < fr_span else "")
             warnings.warn(EvmotionWarning(
                 f"{rec}: {skipped} of {len(every)} frame intervals hold no event (the events "
-                f"span [{t_first * 1e-6:.6g}, {t_last * 1e-6:.6g}] s, the frames "
-                f"[{times[0] * 1e-6:.6g}, {times[-1] * 1e-6:.6g}] s){unit}: not estimated, "
+                f"span [{seconds_text(t_first)}, {seconds_text(t_last)}] s, the frames "
+                f"[{seconds_text(times[0])}, {seconds_text(times[-1])}] s){unit}: not estimated, "
                 "not in the output"), stacklevel=2)
     if not len(intervals):
         span = " within " + " / ".join(f"{name} {v} us" for name, v in (("--t0", t0),

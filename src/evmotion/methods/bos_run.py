@@ -32,6 +32,7 @@ from evmotion.errors import (
 )
 from evmotion.io.bosfiles import BOS_COMPRESSION
 from evmotion.io.bosinput import BosInput
+from evmotion.utils import seconds_text
 
 __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "check_registration",
            "iter_bos_input", "registration_shift",
@@ -283,7 +284,7 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
         f"of the next intervals' rate{also}: a sensor (or a simulator) that starts with the "
         "recording fires less until its pixels settle; the flow there is too small "
         f"(0.26-0.81x on simulated scenes) and is written with no valid pixel; --t0 "
-        f"{end * 1e-6:.6g} leaves {'it' if len(named) == 1 else 'them'} out"), stacklevel=2)
+        f"{seconds_text(end)} leaves {'it' if len(named) == 1 else 'them'} out"), stacklevel=2)
     return tuple(named)
 
 
