@@ -378,6 +378,26 @@ def test_column_names_in_the_last_comment_line_give_the_order(tmp_path):
     assert ev.p.tolist() == [1, 0]
 
 
+@pytest.mark.parametrize("header", ["# t x y p trigger", "t,x,y,p,trigger", "x y ch0 t p"])
+def test_columns_the_header_names_beside_t_x_y_p_are_read_past(tmp_path, header):
+    """formats.rst: a header names the columns in any order; a fifth named column (a
+    trigger, a decimal gain) was refused ("line 2 has 5 column(s), expected 4", probe BC)."""
+    names = header.lstrip("# ").replace(",", " ").split()
+    rows = [{"t": "0.001017", "x": "5", "y": "2", "p": "1", "trigger": "0", "ch0": "0.75"},
+            {"t": "0.001046", "x": "6", "y": "3", "p": "0", "trigger": "1", "ch0": "1.5"}]
+    sep = "," if "," in header else " "
+    (tmp_path / "e.txt").write_text(header + "\n" + "".join(
+        sep.join(r[n] for n in names) + "\n" for r in rows))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EvmotionWarning)  # the decimals are not the times
+        ev = read_events(tmp_path / "e.txt", sensor_size=(8, 8))
+    assert ev.t.tolist() == [1017, 1046] and ev.x.tolist() == [5, 6]
+    assert ev.y.tolist() == [2, 3] and ev.p.tolist() == [1, 0]
+    (tmp_path / "e.txt").write_text(header + "\n" + "0.001017 5 2 1\n")
+    with pytest.raises(FormatError, match=f"not {len(names)} numbers a line"):
+        read_events(tmp_path / "e.txt", sensor_size=(8, 8))
+
+
 def test_whole_number_times_on_millisecond_steps_are_questioned(tmp_path):
     # relative ns of a µs sensor: all multiples of 1000; the warning says so, and a µs
     # file's does not

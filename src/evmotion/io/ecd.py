@@ -403,19 +403,19 @@ def _parse_block(data: bytes, path: Path, offset: int, unit: str, order: str = "
         return parse_text(data, path, offset)
     rows = data.replace(b",", b" ").replace(b";", b" ").split()
     cols = {k: order.index(k) for k in "txyp"}
+    n_cols = len(order)
     try:
         lines = sum(1 for ln in data.split(b"\n") if ln.strip())
-        if len(rows) != 4 * lines:
-            raise ValueError("not four numbers a line")
-        table = np.array(rows, dtype="S32").reshape(-1, 4)
+        if len(rows) != n_cols * lines:
+            raise ValueError(f"not {n_cols} numbers a line, as the header names")
+        table = np.array(rows, dtype="S32").reshape(-1, n_cols)
         xyp = table[:, [cols["x"], cols["y"], cols["p"]]].astype(np.int64)
         t = _times_us(table[:, cols["t"]], unit)
     except ValueError as exc:
         if order == "txyp":
             parse_text(data, path, offset)  # names the bad line, if not numbers at all
-        raise FormatError(path, f"cannot read '{order[0]} {order[1]} {order[2]} "
-                          f"{order[3]}' numbers ({unit} in the time column) near byte "
-                          f"{offset}: {exc}") from None
+        raise FormatError(path, f"cannot read '{' '.join(order)}' numbers ({unit} in the "
+                          f"time column) near byte {offset}: {exc}") from None
     return (np.ascontiguousarray(xyp[:, 0]), np.ascontiguousarray(xyp[:, 1]),
             np.ascontiguousarray(t), np.ascontiguousarray(xyp[:, 2]))
 
@@ -446,7 +446,9 @@ def sniff_time_unit(path: str | Path) -> str:
     firsts = [f[col] for f in fields if len(f) > col]
     if not firsts or any(re.search(rb"[.eE]", f) for f in firsts):
         return "s"
-    if any(_FRACTION.fullmatch(v) for f in fields for k, v in enumerate(f) if k != col):
+    order = layout["order"]
+    if any(_FRACTION.fullmatch(v) for f in fields for k, v in enumerate(f)
+           if k != col and k < len(order) and order[k] != "-"):
         # another column holds the decimals ('x y p t[s]' without a header): the parser
         # names that column; a warning about whole-number times would mislead (probe)
         return "us"
@@ -530,6 +532,10 @@ def _size_line(line: bytes) -> tuple[int, int] | None:
     return None
 
 
+# columns a header line may name: t, x, y, p and others read past
+MAX_TEXT_COLUMNS = 16
+
+
 def _names_line(line: bytes) -> str | None:
     """The column order (a permutation of "txyp") a line of column names states, if it is
     one: ``t,x,y,p``, ``timestamp x y polarity``, Metavision's ``x,y,p,t``, ``t_ns,x,y,p``
@@ -545,12 +551,14 @@ def _names_and_unit(line: bytes) -> tuple[str, str | None] | None:
         fields = [f.lower() for f in re.split(r"[\s,;]+", line.decode().strip()) if f]
     except UnicodeDecodeError:
         return None
-    if len(fields) != 4 or not all(re.fullmatch(r"[a-zµ_\[\]()]+", f) for f in fields):
+    if not 4 <= len(fields) <= MAX_TEXT_COLUMNS or \
+            not all(re.fullmatch(r"[a-zµ_\[\]()][a-zµ_\[\]()0-9]*", f) for f in fields):
         return None
     named = event_fields(fields)
     if named is None or len(set(named.values())) != 4:
         return None
-    order = "".join(next(k for k, n in named.items() if n == name) for name in fields)
+    # a column of another name (a trigger, a camera id) is read past: "-" in the order
+    order = "".join(next((k for k, n in named.items() if n == name), "-") for name in fields)
     return order, time_unit_in_name(named["t"])
 
 
