@@ -252,6 +252,22 @@ def _check_times(t: np.ndarray, path: Path | str | None) -> None:
 # layouts
 
 
+def _in_time_order(t: np.ndarray, files: list[Path], src: Path
+                   ) -> tuple[np.ndarray, list[Path]]:
+    """``t path`` lines out of time order, sorted by their times: each line carries its
+    own (probe BC: refused, with no fix named). Equal times stay for
+    :func:`_check_times` to refuse."""
+    d = np.diff(t)
+    if not d.size or d.min() > 0 or np.unique(t).size < t.size:
+        return t, files
+    i = int(np.argmax(d < 0))
+    warnings.warn(EvmotionWarning(
+        f"{src}: its lines list the frames out of time order (lines {i + 1} and {i + 2} of "
+        f"the frames: {t[i]} us, {t[i + 1]} us): read in time order"), stacklevel=4)
+    order = np.argsort(t, kind="stable")
+    return t[order], [files[k] for k in order]
+
+
 def _ecd_list(folder: Path, time_unit: str | None = None
               ) -> tuple[np.ndarray, list[Path], Path]:
     from evmotion.io.ecd import read_image_list
@@ -263,7 +279,8 @@ def _ecd_list(folder: Path, time_unit: str | None = None
         raise
     except ValueError as exc:
         raise FormatError(lst_path, f"cannot parse 't path' lines: {exc}") from None
-    return lst["t"], _listed_files(lst_path, folder, lst["files"]), lst_path
+    return (*_in_time_order(lst["t"], _listed_files(lst_path, folder, lst["files"]),
+                            lst_path), lst_path)
 
 
 def _parse_timestamps(path: Path, unit: str | None) -> tuple[np.ndarray, list[str] | None]:
@@ -342,7 +359,8 @@ def _folder_list(folder: Path, timestamps: Path, unit: str
                  ) -> tuple[np.ndarray, list[Path], Path]:
     t, names = _parse_timestamps(timestamps, unit)
     if names is not None:
-        return t, _listed_files(timestamps, timestamps.parent, names), timestamps
+        return (*_in_time_order(t, _listed_files(timestamps, timestamps.parent, names),
+                                timestamps), timestamps)
     files = _images_in(folder)
     if len(files) != t.size:
         raise FormatError(timestamps, f"{t.size} timestamps but {len(files)} images in "
