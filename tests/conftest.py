@@ -35,3 +35,13 @@ def _no_progress_lines(monkeypatch):
     writes a progress line every 30 s into a log, and the error lines the tests compare
     would then not stand alone."""
     monkeypatch.setenv("EVMOTION_PROGRESS", "0")
+
+
+@pytest.fixture(params=["numba", "numpy"])
+def decoder(request, monkeypatch):
+    """Run a binary reader's test through its numba kernels and through the numpy
+    decoders it uses for blocks of at most ``binary.PLAIN_WORDS`` words."""
+    from evmotion.io import binary
+
+    monkeypatch.setattr(binary, "PLAIN_WORDS", -1 if request.param == "numba" else 1 << 40)
+    return request.param

@@ -22,7 +22,7 @@ def reference_decode(buf: bytes):
     return rec[:, 1] & 0x3FFF, (rec[:, 1] >> 14) & 0x3FFF, rec[:, 0], (rec[:, 1] >> 28) & 1
 
 
-def test_shared_file_matches_reference(gen4):
+def test_shared_file_matches_reference(gen4, decoder):
     ev = dat.read(gen4)
     assert len(ev) == 1_218_618 and ev.sensor_size == (720, 1280)
     data = gen4.read_bytes()
@@ -34,7 +34,7 @@ def test_shared_file_matches_reference(gen4):
     assert dat.describe(gen4)["n_events"] == len(ev)
 
 
-def test_chunks_equal_read(gen4):
+def test_chunks_equal_read(gen4, decoder):
     whole = dat.read(gen4, t1=2_000_000)
     got = []
     for c in dat.iter_chunks(gen4, 50_000, block_bytes=12_345):
@@ -45,7 +45,7 @@ def test_chunks_equal_read(gen4):
     np.testing.assert_array_equal(t[t < 2_000_000], whole.t)
 
 
-def test_round_trip_with_u32_wrap(tmp_path):
+def test_round_trip_with_u32_wrap(tmp_path, decoder):
     t = np.array([0, 10, (1 << 32) - 1, (1 << 32) + 5, 5 << 30, 7 << 30, (1 << 33) + 7], np.int64)
     ev = EventArray(x=[0, 1279, 5, 6, 7, 8, 9], y=[0, 719, 1, 2, 3, 4, 5], t=t, p=[0, 1, 1, 0, 1, 1, 0],
                     sensor_size=(720, 1280))

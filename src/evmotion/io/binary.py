@@ -19,6 +19,11 @@ from evmotion.jitcache import lazy_njit
 Block = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 BLOCK_BYTES = 1 << 22
+#: Blocks of at most this many words (events, for the checks) are decoded and checked by
+#: numpy rather than by the numba kernels: a one-window file read in a fresh process spent
+#: 1-2 s importing numba and loading its kernels (probe BD), which numpy's ~10-60 ms for
+#: this many words does not pay back.
+PLAIN_WORDS = 1 << 20
 
 # ``open_blocks(path, sensor_size, block_bytes) -> (data offset, (height, width), blocks)``:
 # parses a file's header and returns its payload as a lazy iterator of decoded blocks.
@@ -143,10 +148,17 @@ def _take(pending: deque, count: int, sensor_size, meta, validate) -> EventArray
     return _make(cols, 0, count, sensor_size, meta, validate)
 
 
+def _valid_plain(x, y, t, width, height) -> bool:
+    """:func:`_valid` by numpy (for at most ``PLAIN_WORDS`` events)."""
+    return bool((x < width).all() and (y < height).all()
+                and (t.size < 2 or (t[1:] >= t[:-1]).all()))
+
+
 def _make(cols, a: int, b: int, sensor_size, meta, validate) -> EventArray:
     ev = EventArray(x=cols[0][a:b], y=cols[1][a:b], t=cols[2][a:b], p=cols[3][a:b],
                     sensor_size=sensor_size, meta=dict(meta), validate=False)
-    if validate and len(ev) and not _valid(ev.x, ev.y, ev.t, sensor_size[1], sensor_size[0]):
+    valid = _valid_plain if len(ev) <= PLAIN_WORDS else _valid
+    if validate and len(ev) and not valid(ev.x, ev.y, ev.t, sensor_size[1], sensor_size[0]):
         ev.check()  # raises the container's own error message
     return ev
 

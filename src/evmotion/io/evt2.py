@@ -53,13 +53,42 @@ def _decode(words, state, ox, oy, ot, op):
     return n
 
 
+def _decode_plain(words, state, ox, oy, ot, op):
+    """:func:`_decode` by numpy (blocks of at most ``binary.PLAIN_WORDS`` words)."""
+    w = words.astype(np.int64)
+    typ = w >> 28
+    is_th = typ == 0x8
+    h = w[is_th] & 0xFFFFFFF
+    prev = np.concatenate(([state[0]], h[:-1]))
+    checked = np.ones(h.size, bool)
+    checked[:1] = bool(state[2])  # the first time base of a fresh decoder has no past
+    wraps = checked & (h < prev) & (prev - h >= _HALF)
+    # each word's time base: the last TIME_HIGH at or before it (slot 0: the state's)
+    base = np.concatenate(([state[0]], h))
+    offset = np.concatenate(([state[1]], state[1] + (np.cumsum(wraps) << 34)))
+    k = np.cumsum(is_th)
+    keep = (typ <= 1) & ((k > 0) | bool(state[2]))
+    wk, kk = w[keep], k[keep]
+    n = wk.size
+    ox[:n] = (wk >> 11) & 0x7FF
+    oy[:n] = wk & 0x7FF
+    ot[:n] = offset[kk] + (base[kk] << 6) + ((wk >> 22) & 0x3F)
+    op[:n] = typ[keep]
+    if h.size:
+        state[0], state[1], state[2] = h[-1], offset[-1], 1
+    return n
+
+
 def new_state() -> np.ndarray:
     """A fresh decoder state (no time base seen yet)."""
     return np.zeros(3, np.int64)
 
 
-def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.Block:
+def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
+                 plain: bool | None = None) -> binary.Block:
     """Decode EVT2 words (uint32) into ``(x, y, t, p)``; ``state`` carries across blocks.
+    ``plain``: decode by numpy rather than by the numba kernel (the same result; default
+    for at most ``binary.PLAIN_WORDS`` words, which numba's start-up would not pay back).
 
     Examples
     --------
@@ -76,7 +105,10 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.B
     oy = np.empty(n, np.uint16)
     ot = np.empty(n, np.int64)
     op = np.empty(n, np.uint8)
-    k = _decode(words, state, ox, oy, ot, op)
+    if plain is None:
+        plain = n <= binary.PLAIN_WORDS
+    decode = _decode_plain if plain else _decode
+    k = decode(words, state, ox, oy, ot, op)
     return ox[:k], oy[:k], ot[:k], op[:k]
 
 

@@ -117,7 +117,72 @@ def _decode(words, start, state, ox, oy, ot, op):
     return n, i
 
 
-def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.Block:
+def _last(mask: np.ndarray) -> np.ndarray:
+    """For each word, the index of the last word at or before it where ``mask`` holds, +1
+    (0: none in the block, slot 0 of the arrays :func:`_decode_plain` prepends the state
+    to)."""
+    return np.maximum.accumulate(np.where(mask, np.arange(1, mask.size + 1), 0))
+
+
+def _decode_plain(words: np.ndarray, state: np.ndarray) -> binary.Block:
+    """What :func:`_decode` gives for the whole of ``words``, by numpy (blocks of at most
+    ``binary.PLAIN_WORDS`` words): each word's address, time and vector base are the
+    last ones set at or before it."""
+    w = words.astype(np.int64)
+    typ = w >> 12
+    low = w & 0xFFF
+    is_th = typ == 0x8
+    seen = bool(state[_SEEN])
+    first = int(np.argmax(is_th)) if is_th.any() else w.size
+    h = low[is_th]
+    prev = np.concatenate(([state[_TH]], h[:-1]))
+    checked = np.ones(h.size, bool)
+    checked[:1] = seen  # a fresh decoder's first time base has no past
+    offsets = state[_OVF] + (np.cumsum(checked & (h < prev) & (prev - h >= 2048)) << 24)
+    ths = np.concatenate(([state[_TH]], h))[np.cumsum(is_th)]
+    ovf = np.concatenate(([state[_OVF]], offsets))[np.cumsum(is_th)]
+    is_y, is_tl, is_base = typ == 0x0, typ == 0x6, typ == 0x3
+    y = np.concatenate(([state[_Y]], w & 0x7FF))[_last(is_y)]
+    tl = np.concatenate(([state[_TL]], low))[_last(is_tl)]
+    t = ovf + (ths << 12) + tl
+    base_at = _last(is_base)
+    vp = np.concatenate(([state[_VP]], (w >> 11) & 1))[base_at]
+    step = np.where(typ == 0x4, 12, np.where(typ == 0x5, 8, 0))
+    advanced = np.cumsum(step)
+    # the vector base before each word: the last VECT_BASE_X's x plus the vectors since
+    bx = (np.concatenate(([state[_BX]], w & 0x7FF))[base_at] + advanced - step
+          - np.concatenate(([0], advanced))[base_at])
+    live = np.ones(w.size, bool) if seen else np.arange(w.size) > first
+    single = live & (typ == 0x2)
+    vec = live & (step > 0)
+    bits = ((w[vec, None] >> np.arange(12)) & 1).astype(bool) & \
+        (np.arange(12) < step[vec, None])
+    counts = np.zeros(w.size, np.int64)
+    counts[single] = 1
+    counts[vec] = bits.sum(axis=1)
+    start = np.cumsum(counts) - counts
+    n = int(counts.sum())
+    ox = np.empty(n, np.uint16)
+    oy = np.empty(n, np.uint16)
+    ot = np.empty(n, np.int64)
+    op = np.empty(n, np.uint8)
+    at = start[single]
+    ox[at], oy[at], ot[at], op[at] = w[single] & 0x7FF, y[single], t[single], \
+        (w[single] >> 11) & 1
+    rows, ks = np.nonzero(bits)
+    words_of = np.flatnonzero(vec)[rows]
+    at = start[words_of] + (np.cumsum(bits, axis=1) - 1)[rows, ks]
+    ox[at], oy[at], ot[at], op[at] = bx[words_of] + ks, y[words_of], t[words_of], \
+        vp[words_of]
+    if w.size:
+        state[_Y], state[_TH], state[_TL], state[_OVF] = y[-1], ths[-1], tl[-1], ovf[-1]
+        state[_BX], state[_VP] = bx[-1] + step[-1], vp[-1]
+        state[_SEEN] = seen or first < w.size
+    return ox, oy, ot, op
+
+
+def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
+                 plain: bool | None = None) -> binary.Block:
     """Decode a block of EVT3 words (uint16) into ``(x, y, t, p)`` arrays.
 
     Parameters
@@ -127,6 +192,9 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.B
     state : ndarray of int64, shape (7,), optional
         Decoder state from the previous block (updated in place); a fresh decoder
         (no time base yet) when omitted.
+    plain : bool, optional
+        Decode by numpy rather than by the numba kernel (the same result); default for
+        at most ``binary.PLAIN_WORDS`` words, which numba's start-up would not pay back.
 
     Returns
     -------
@@ -142,6 +210,8 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.B
     words = np.ascontiguousarray(words, dtype=np.uint16)
     if state is None:
         state = new_state()
+    if words.shape[0] <= binary.PLAIN_WORDS if plain is None else plain:
+        return _decode_plain(words, state)
     parts = []
     i = 0
     while True:
