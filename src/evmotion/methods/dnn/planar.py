@@ -41,7 +41,8 @@ from evmotion.methods.dnn.focus import (
     window_times,
 )
 
-__all__ = ["binning", "event_flow", "fit_planar", "planar_flow", "polish_planar", "window_loss"]
+__all__ = ["binning", "event_flow", "fit_planar", "planar_flow", "polish_planar",
+           "translation_start", "window_loss"]
 
 #: TV weight of the loss that chooses (multicm's and the training loss' default).
 LAM = 0.0025
@@ -134,6 +135,27 @@ def fit_planar(events: EventArray, disp: np.ndarray) -> np.ndarray:
     yi = np.clip(np.rint(events.y), 0, h - 1).astype(np.intp)
     a = _basis(xi, yi, (h, w)).reshape(-1, N_PARAMS)
     return np.linalg.lstsq(a, disp[yi, xi].astype(np.float64).reshape(-1), rcond=None)[0]
+
+
+def translation_start(events: EventArray, disp: np.ndarray) -> np.ndarray:
+    """The parameters (8,) of the translation by the median of ``disp`` (H, W, 2, px over
+    the window) at the events' pixels: a start for :func:`polish_planar` that a noisy
+    flow does not bend.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0, 5, 9, 2], y=[0, 3, 7, 6], t=[0, 1, 2, 3], p=[1, 1, 0, 0],
+    ...                 sensor_size=(8, 10))
+    >>> disp = np.zeros((8, 10, 2)); disp[..., 0] = 3.0; disp[0, 0] = (40.0, -9.0)
+    >>> translation_start(ev, disp).tolist()
+    [3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    """
+    h, w = events.sensor_size
+    xi = np.clip(np.rint(events.x), 0, w - 1).astype(np.intp)
+    yi = np.clip(np.rint(events.y), 0, h - 1).astype(np.intp)
+    out = np.zeros(N_PARAMS)
+    out[:2] = np.median(disp[yi, xi].astype(np.float64), axis=0)
+    return out
 
 
 def event_flow(disp: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
