@@ -141,3 +141,26 @@ def test_egomotion_names_a_warp_that_is_neither_a_name_nor_a_warp():
     for bad in (None, 3):
         with pytest.raises(ParameterError, match=r"warp must be a name \(affine, .*got"):
             estimate_egomotion(ev, warp=bad)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_a_non_finite_coordinate_of_an_unchecked_array_is_refused(ev, value):
+    # probe BE: one NaN x of an EventArray(..., validate=False) made estimate_egomotion's
+    # estimate zero motion; estimate_flow dropped it, estimate_flow_dnn failed in
+    # np.bincount and TripletMatcher quoted x=-2147483648
+    from evmotion.methods.dnn import estimate_flow_dnn
+
+    x = ev.x.astype(float)
+    x[5] = value
+    bad = EventArray(x, ev.y, ev.t, ev.p, ev.sensor_size, validate=False)
+    msg = rf"field 'x' of event 5 is {value}: coordinates must be finite, not NaN or inf"
+    for name, call in (("estimate_egomotion", lambda: estimate_egomotion(bad, warp="translation")),
+                       ("estimate_flow", lambda: estimate_flow(bad)),
+                       ("estimate_flow_dnn", lambda: estimate_flow_dnn(bad)),
+                       ("fwl", lambda: fwl(bad, np.zeros((80, 128, 2))))):
+        with pytest.raises(EventDataError, match=f"{name}: {msg}"):
+            call()
+    with pytest.raises(EventDataError, match=msg):
+        TripletMatcher(ev.sensor_size).process(bad)
+    with pytest.raises(EventDataError, match=msg):
+        bad.check()

@@ -187,12 +187,13 @@ class EventArray:
                 f"field 't' reaches {int(self.t[-1])}, as microseconds past the year 5000: "
                 "nanoseconds since the epoch? Give µs: (t + 500) // 1000, or "
                 "EventArray.from_structured(..., time_unit_us=1e-3)")
+        bad = _non_finite_coordinate(self)
+        if bad is not None:
+            raise EventDataError(bad)
         h, w = self.sensor_size
         for name, lim in (("x", w), ("y", h)):
             a = getattr(self, name)
             lo, hi = a.min(), a.max()
-            if not (np.isfinite(lo) and np.isfinite(hi)):
-                raise EventDataError(f"field '{name}' contains NaN or inf")
             if lo < 0 or hi > lim - 1:
                 bad = int(np.argmax((a < 0) | (a > lim - 1)))
                 raise EventDataError(
@@ -664,12 +665,31 @@ def require_events(events, func: str) -> EventArray:
         raise ParameterError(f"{func}: events must be an EventArray (EventArray(x, y, t, p, "
                              "sensor_size) or evmotion.io.read_events(path)), got "
                              f"{type(events).__name__}")
+    # (one NaN x of an unchecked array made estimate_egomotion's warp zero motion, and
+    # the other estimators dropped the event or failed deep inside numpy)
+    bad = _non_finite_coordinate(events)
+    if bad is not None:
+        raise EventDataError(f"{func}: {bad}")
     _check_on_sensor(events, func)
     if not events.validate:
         # (estimate_bos cut its interval by binary search on unsorted times and solved
         # the wrong events without a word; egomotion reported a window running backwards)
         events.check_order()
     return events
+
+
+def _non_finite_coordinate(events: EventArray) -> str | None:
+    """The first NaN or infinite coordinate of ``events`` as "field 'x' of event 5 is nan"
+    (only float, undistorted, coordinates can hold one), or None."""
+    for name in ("x", "y"):
+        a = getattr(events, name)
+        # min and max: NaN and inf show in them, without a mask of every event
+        if (a.dtype.kind == "f" and a.size
+                and not (np.isfinite(a.min()) and np.isfinite(a.max()))):
+            i = int(np.argmax(~np.isfinite(a)))
+            return (f"field '{name}' of event {i} is {a[i]}: coordinates must be finite, not "
+                    "NaN or inf")
+    return None
 
 
 # Share of events off the sensor above which an unchecked array (validate=False) is
@@ -784,6 +804,9 @@ def sensor_pixels(events: EventArray) -> tuple[np.ndarray, np.ndarray]:
     """
     from evmotion.errors import ParameterError
 
+    bad = _non_finite_coordinate(events)
+    if bad is not None:  # (rounded, NaN became x=-2147483648)
+        raise EventDataError(bad)
     h, w = events.sensor_size
     x, y = pixel_indices(events.x, w), pixel_indices(events.y, h)
     for name, a, lim in (("x", x, w), ("y", y, h)):
