@@ -28,6 +28,15 @@ def test_flo_units_with_interval(tmp_path):
     ff.write_flo(tmp_path / "a.flo", flow, dt_s=0.01)
     np.testing.assert_allclose(ff.read_flo(tmp_path / "a.flo"), 1.0)  # px
     np.testing.assert_allclose(ff.read_flo(tmp_path / "a.flo", dt_s=0.01), 100.0, rtol=1e-6)
+    # probe BE: dt_s=0 wrote an all-zero displacement (read_flo refused dt_s=0)
+    for f in (lambda: ff.write_flo(tmp_path / "z.flo", flow, dt_s=0),
+              lambda: ff.read_flo(tmp_path / "a.flo", dt_s=0)):
+        with pytest.raises(ParameterError, match=r"dt_s must be finite and > 0.0 \(seconds\), "
+                                                 "got 0"):
+            f()
+    assert not (tmp_path / "z.flo").exists()
+    ff.write_flo(tmp_path / "z.flo", flow, dt_s=0, valid=np.zeros((3, 4), bool))
+    assert np.isnan(ff.read_flo(tmp_path / "z.flo")).all()  # a window of events at one time
 
 
 def test_flo_errors(tmp_path):

@@ -143,7 +143,7 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
     flow : ndarray, (H, W, 2)
         Flow in px/s if ``dt_s`` is given, else displacement in px.
     dt_s : float, optional
-        Time interval in seconds.
+        Time interval in seconds, > 0 (0 only when no pixel is ``valid``).
     valid : ndarray (H, W) bool, optional
         Where the flow is known (default: where it is finite).
 
@@ -155,7 +155,10 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
     """
     arr = _check_flow(flow)
     if dt_s is not None:
-        arr = arr * np.float32(check_number("dt_s", dt_s, 0.0, units="seconds"))
+        # dt_s=0 wrote each known pixel as a zero displacement; a window without a valid
+        # pixel (its events all at one time, kept by flowout to keep the numbering) has none
+        some = valid is None or bool(np.asarray(valid).any())
+        arr = arr * np.float32(check_number("dt_s", dt_s, 0.0, lo_open=some, units="seconds"))
     known = np.isfinite(arr).all(axis=2)
     if valid is not None:
         v = np.asarray(valid, dtype=bool)
@@ -216,9 +219,7 @@ def read_flo(path: str | os.PathLike, dt_s: float | None = None) -> np.ndarray:
     arr = arr.astype(np.float32)
     arr[np.abs(arr) > 1e9] = np.nan
     if dt_s is not None:
-        if not dt_s > 0:
-            raise ParameterError(f"dt_s must be > 0 seconds, got {dt_s}")
-        arr /= np.float32(dt_s)
+        arr /= np.float32(check_number("dt_s", dt_s, 0.0, lo_open=True, units="seconds"))
     return arr
 
 
