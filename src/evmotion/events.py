@@ -291,7 +291,12 @@ class EventArray:
         if not isinstance(key, slice):
             key = np.asarray(key)
             if key.dtype != bool:
-                key = np.sort(key)
+                n = len(self)
+                if key.size and key.dtype.kind in "iu" and (key.min() < -n or key.max() >= n):
+                    k = int(key.min() if key.min() < -n else key.max())
+                    raise IndexError(f"event {k} of {n} events")
+                # negatives resolved before sorting: [-1, 0, 1] ends with the last event
+                key = np.sort(np.where(key < 0, key + n, key))
         return self._take(key)
 
     def __iter__(self):
