@@ -164,3 +164,17 @@ def test_a_non_finite_coordinate_of_an_unchecked_array_is_refused(ev, value):
         TripletMatcher(ev.sensor_size).process(bad)
     with pytest.raises(EventDataError, match=msg):
         bad.check()
+
+
+def test_a_reference_time_far_outside_the_window_is_refused(ev):
+    # probe BE: fwl(win, flow, t_ref_us=10**12) returned 0.0 and estimate_egomotion(t_ref=
+    # 10**12) zero motion: every event was warped off the sensor
+    flow = np.tile(np.array([400.0, 0.0], np.float32), (80, 128, 1))
+    far = int(ev.t[-1]) + 1_000_001
+    said = r"t_ref(_us)?=\d+ us lies outside the window's events \[\d+, \d+\] us"
+    with pytest.raises(ParameterError, match=said):
+        fwl(ev, flow, t_ref_us=far)
+    with pytest.raises(ParameterError, match=said):
+        estimate_egomotion(ev, warp="translation", t_ref=10**12)
+    # within a second of the events: a window's interval whose events bunch at one end
+    assert fwl(ev, flow, t_ref_us=far - 1) >= 0

@@ -822,6 +822,36 @@ def sensor_pixels(events: EventArray) -> tuple[np.ndarray, np.ndarray]:
     return x, y
 
 
+#: How far outside its events' span [first, last] a warp's reference time may lie: their
+#: span, or this if longer (a window whose events bunch at one end of its interval is
+#: warped to its interval's middle by the evaluation)
+T_REF_REACH_US = 1_000_000
+
+
+def check_reference_time(name: str, t_ref, t: np.ndarray) -> int:
+    """``t_ref`` (µs) as an int, or :class:`ParameterError` naming ``name`` unless it is a
+    whole number within ``max(span, 1 s)`` of the window's event times ``t`` (sorted,
+    not empty), ``span = t[-1] - t[0]``: a reference far outside is another window's or
+    another clock's, and warped every event off the sensor (zero motion, FWL 0.0).
+
+    Examples
+    --------
+    >>> check_reference_time("t_ref", 5_000, np.array([0, 10_000]))
+    5000
+    >>> check_reference_time("t_ref", 10**12, np.array([0, 10_000]))
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: t_ref=1000000000000 us lies outside the window's events [0, 10000] us by more than max(their span, 1 s): a time of another window or clock?
+    """
+    v = whole_number(name, t_ref)
+    first, last = int(t[0]), int(t[-1])
+    reach = max(last - first, T_REF_REACH_US)
+    if not first - reach <= v <= last + reach:
+        raise ParameterError(f"{name}={v} us lies outside the window's events [{first}, "
+                             f"{last}] us by more than max(their span, 1 s): a time of "
+                             "another window or clock?")
+    return v
+
+
 def check_stream_order(t: np.ndarray, t_last: int | None) -> None:
     """Raise :class:`ParameterError` unless the chunk times ``t`` are sorted and start no
     earlier than ``t_last``, the previous chunk's last time (None for the first chunk):

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, check_reference_time
 from evmotion.utils import whole_number
 
 __all__ = [
@@ -436,7 +436,9 @@ def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | 
     flow_px_per_s : ndarray, shape (H, W, 2)
         Flow on the sensor grid in px/s (u right, v down).
     t_ref_us : int, optional
-        Reference time in µs (absolute); default the first event's timestamp.
+        Reference time in µs (absolute); default the first event's timestamp. It must lie
+        within ``max(span, 1 s)`` of the events' times ``[first, last]`` (a time farther
+        away is another window's: :func:`evmotion.events.check_reference_time`).
 
     Returns
     -------
@@ -457,7 +459,8 @@ def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | 
         raise ParameterError(
             f"flow has shape {flow.shape[:2]}, expected the sensor size {events.sensor_size}"
         )
-    t_ref = events.t_start if t_ref_us is None else whole_number("t_ref_us", t_ref_us)
+    t_ref = (events.t_start if t_ref_us is None
+             else check_reference_time("t_ref_us", t_ref_us, events.t))
     x = events.x.astype(np.float64)
     y = events.y.astype(np.float64)
     dt = (np.int64(t_ref) - events.t).astype(np.float64) * 1e-6
@@ -516,7 +519,8 @@ def fwl(
     flow_px_per_s : ndarray, shape (H, W, 2)
         Flow in px/s on the sensor grid (u right, v down).
     t_ref_us : int, optional
-        Reference time in µs (absolute); default the first event's timestamp.
+        Reference time in µs (absolute); default the first event's timestamp. It must lie
+        within ``max(span, 1 s)`` of the events' times, as in :func:`warp_by_flow`.
     kernel : {"bilinear", "gaussian"}
         Voting kernel passed to ``accumulate`` (default bilinear).
     sigma : float
@@ -534,7 +538,7 @@ def fwl(
     EmptyWindowError
         No events, or the zero-flow IWE has zero variance.
     ParameterError
-        The flow is NaN/inf where events are.
+        The flow is NaN/inf where events are, or ``t_ref_us`` is far outside the events.
 
     Examples
     --------
