@@ -154,6 +154,12 @@ class TexturelessFrameError(ParameterError):
     nothing to measure the background's displacement against."""
 
 
+class _NoEventsInWindow(EventDataError):
+    """No event of the recording lies in the interval: frames and events on other clocks,
+    or, in a sequence, an interval before its first event or after its last, which
+    ``on_empty="skip"`` skips as it does one without events in the ROI."""
+
+
 def _is_int(v) -> bool:
     """A whole number (int, numpy integer, or an integral finite float)."""
     if isinstance(v, (bool, np.bool_)):
@@ -584,14 +590,19 @@ def _check_roi(roi, sensor):
     return x, y, rw, rh
 
 
-def _window_events(events: EventArray, t0_us: int, t1_us: int, roi) -> EventArray:
-    if t1_us <= t0_us:
-        raise ParameterError(f"the window must have t1_us > t0_us, got [{t0_us}, {t1_us}) us")
+def _check_overlap(events: EventArray, t0_us: int, t1_us: int, what: str) -> None:
+    """Raise :class:`_NoEventsInWindow` unless an event lies in ``[t0_us, t1_us)``."""
     if len(events) == 0 or events.t[-1] < t0_us or events.t[0] >= t1_us:
         span = "no events" if len(events) == 0 else \
             f"events span [{int(events.t[0])}, {int(events.t[-1])}] us"
-        raise EventDataError(f"frames and events do not overlap in time: window "
-                             f"[{t0_us}, {t1_us}) us, {span}")
+        raise _NoEventsInWindow(f"frames and events do not overlap in time: {what} "
+                                f"[{t0_us}, {t1_us}) us, {span}")
+
+
+def _window_events(events: EventArray, t0_us: int, t1_us: int, roi) -> EventArray:
+    if t1_us <= t0_us:
+        raise ParameterError(f"the window must have t1_us > t0_us, got [{t0_us}, {t1_us}) us")
+    _check_overlap(events, t0_us, t1_us, "window")
     ev = events.slice_time(t0_us, t1_us)
     x, y, rw, rh = roi
     xs = ev.x.astype(np.int64)
@@ -1239,7 +1250,8 @@ def estimate_bos(
     on_empty : {"raise", "skip"}
         A window without events in the ROI (still air, or a sensor that saw nothing) or
         whose frame is textureless there (a dropped, black or uniform frame): raise
-        EmptyWindowError / TexturelessFrameError, or ``"skip"``: return a result that
+        EmptyWindowError / TexturelessFrameError (EventDataError when no event of
+        ``events`` lies in the window), or ``"skip"``: return a result that
         estimates nothing
         (``valid`` all False, zero flow, ``objective`` NaN) and carries ``init``'s
         parameters on as the next interval's warm start, with an EvmotionWarning (the
@@ -1252,7 +1264,8 @@ def estimate_bos(
     Raises
     ------
     EventDataError
-        Frames and events differ in size or do not overlap in time.
+        Frames and events differ in size, or do not overlap in time
+        (``on_empty="raise"``).
     EmptyWindowError
         No event in the window inside the ROI (``on_empty="raise"``).
     ParameterError
@@ -1281,7 +1294,7 @@ def estimate_bos(
     try:
         r, logf, meas, weight, c, log_units = _prepare(events, frame, t0_us, t1_us,
                                                        frame_next, roi, o, increment)
-    except (EmptyWindowError, TexturelessFrameError) as exc:
+    except (EmptyWindowError, _NoEventsInWindow, TexturelessFrameError) as exc:
         if on_empty == "raise":
             raise
         warnings.warn(EvmotionWarning(f"{exc}: the interval is written with no valid pixel"),
@@ -1641,6 +1654,9 @@ def iter_bos_sequence(
 
     Raises
     ------
+    EventDataError
+        No event lies between the first and the last frame (an interval without events
+        is skipped: ``on_empty="skip"`` of :func:`estimate_bos`).
     EvmotionError
         The first interval's error, re-raised with its window (see :func:`estimate_bos`).
 
@@ -1675,6 +1691,9 @@ def iter_bos_sequence(
         raise ParameterError("a sequence needs at least two frames")
     if np.any(np.diff(times) <= 0):
         raise ParameterError("frame timestamps must increase")
+    # intervals without events are skipped, but not all of them: other clocks, not still air
+    _check_overlap(require_events(events, "iter_bos_sequence"), int(times[0]),
+                   int(times[-1]), "frames")
     n = len(times) - 1
     n_chunks = max(1, min(n, workers if chunks is None else int(chunks)))
     bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)
