@@ -487,6 +487,25 @@ def window_bounds(win, k: int) -> tuple[int, int]:
             whole_number(f"windows[{k}] t1 (us)", t1))
 
 
+def as_window(events: EventArray, k: int, win) -> Window:
+    """``win``, window ``k`` of a caller's ``windows``, if a :class:`Window`, else one made
+    of a ``(t0, t1)`` pair of µs (:func:`window_bounds`) with its index range in ``events``.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0, 1, 2], y=[0, 0, 0], t=[0, 10, 20], p=[1, 1, 1], sensor_size=(2, 4))
+    >>> as_window(ev, 0, (5, 20))
+    Window(index=0, t0=5, t1=20, start=1, stop=2)
+    """
+    if isinstance(win, Window):
+        return win
+    t0, t1 = window_bounds(win, k)
+    if t1 <= t0:
+        raise ParameterError(f"windows[{k}] = ({t0}, {t1}): t1 must be after t0")
+    start, stop = (int(i) for i in np.searchsorted(events.t, [t0, t1]))
+    return Window(k, t0, t1, start, stop)
+
+
 #: Formats whose times are decoded from binary words: events far out of order there are a
 #: corrupt file or one whose header names another format than its data
 DECODED_TIME_FORMATS = ("evt2", "evt21", "evt3", "dat", "aedat2", "aedat3", "aedat4", "rosbag")
