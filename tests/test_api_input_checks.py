@@ -178,3 +178,16 @@ def test_a_reference_time_far_outside_the_window_is_refused(ev):
         estimate_egomotion(ev, warp="translation", t_ref=10**12)
     # within a second of the events: a window's interval whose events bunch at one end
     assert fwl(ev, flow, t_ref_us=far - 1) >= 0
+
+
+def test_duration_windows_refuse_a_reversed_or_boundless_range():
+    # probe BE: t0 > t1 failed with IndexError, and a span of 10**8 us in 1 us windows made
+    # every empty window first (tens of GB)
+    ev = EventArray(x=[1, 2], y=[1, 1], t=[0, 10], p=[1, 0], sensor_size=(4, 4))
+    with pytest.raises(ParameterError, match="t1 = 1000 µs must be after t0 = 5000 µs"):
+        ev.windows_by_duration(1000, t0=5000, t1=1000)
+    with pytest.raises(ParameterError, match="makes 100,000,000 windows for 2 events"):
+        ev.windows_by_duration(1, t0=0, t1=10**8)
+    kept = ev.windows_by_duration(1, t0=0, t1=10**8, drop_empty=True)
+    assert [(w.index, w.t0, w.t1, w.start, w.stop) for w in kept] == [(0, 0, 1, 0, 1),
+                                                                     (1, 10, 11, 1, 2)]

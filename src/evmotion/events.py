@@ -46,6 +46,10 @@ MAX_READOUT_STEP_US = 1000
 #: What to do about times out of order that a sensor or recorder left (not another column).
 SORT_HINT = "sort them: evmotion convert IN OUT --sort, or EventArray.sorted()"
 
+#: Windows beyond the events' count that EventArray.windows_by_duration makes (empty ones,
+#: whatever the count): ~330 MB and 3.5 s a million
+MAX_EMPTY_WINDOWS = 1_000_000
+
 TONIC_DTYPE = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
 
 
@@ -342,16 +346,45 @@ class EventArray:
     def windows_by_duration(self, duration_us: int, *, t0: int | None = None,
                             t1: int | None = None, drop_empty: bool = False,
                             ) -> list[Window]:
-        """Consecutive windows of ``duration_us`` microseconds covering ``[t0, t1)``."""
+        """Consecutive windows of ``duration_us`` microseconds covering ``[t0, t1)``
+        (default from the first event to just after the last; the last window reaches
+        ``t1`` or past it), without those holding no event when ``drop_empty``.
+
+        Raises
+        ------
+        ParameterError
+            ``t1 <= t0``, or, without ``drop_empty``, more than
+            :data:`MAX_EMPTY_WINDOWS` windows beyond the number of events.
+
+        Examples
+        --------
+        >>> ev = EventArray(x=[0, 1], y=[0, 0], t=[0, 2500], p=[1, 1], sensor_size=(2, 2))
+        >>> [(w.t0, w.t1, w.count) for w in ev.windows_by_duration(1000)]
+        [(0, 1000, 1), (1000, 2000, 0), (2000, 3000, 1)]
+        >>> [w.index for w in ev.windows_by_duration(1000, drop_empty=True)]
+        [0, 1]
+        """
         duration_us = whole_number("window duration (duration_us, µs)", duration_us, lo=1)
         if not len(self):
             return []
         t0 = self.t_start if t0 is None else int(t0)
         t1 = self.t_end + 1 if t1 is None else int(t1)
-        edges = np.arange(t0, t1 + duration_us - 1, duration_us, dtype=np.int64)
-        if edges[-1] < t1:
-            edges = np.append(edges, edges[-1] + duration_us)
-        return self._windows_from_edges(edges[:-1], edges[1:], drop_empty)
+        _check_time_range(t0, t1)
+        n = -(-(t1 - t0) // duration_us)  # the last window reaches t1
+        end = t0 + n * duration_us
+        if drop_empty:
+            # without making the empty ones first, as make_windows does
+            i0, i1 = int(self.index_at(t0)), int(self.index_at(end))
+            return [Window(k, w.t0, w.t1, w.start + i0, w.stop + i0) for k, w in
+                    enumerate(_occupied_windows(self[i0:i1], duration_us, t0))]
+        if n > len(self) + MAX_EMPTY_WINDOWS:
+            # (a span of 10**8 µs in 1 µs windows: 10**8 Window objects, tens of GB)
+            raise ParameterError(
+                f"[{t0}, {t1}) us in windows of {duration_us} us makes {n:,} windows for "
+                f"{len(self):,} events: nearly all empty; pass drop_empty=True (or use "
+                "make_windows), a longer duration_us, or check the unit of t0/t1")
+        edges = t0 + np.arange(n + 1, dtype=np.int64) * duration_us
+        return self._windows_from_edges(edges[:-1], edges[1:], False)
 
     def windows_by_count(self, n_events: int, *, drop_last_partial: bool = False,
                          ) -> list[Window]:
@@ -590,6 +623,12 @@ def fingerprint(events: EventArray, n: int = 1 << 16) -> str:
         for a in (events.x, events.y, events.t, events.p):
             h.update(np.ascontiguousarray(a[part]).tobytes())
     return f"{len(events)} events, sha1 {h.hexdigest()[:16]}"
+
+
+def _check_time_range(t0: int, t1: int) -> None:
+    """Refuse a time range ``[t0, t1)`` (µs) that holds no time."""
+    if t1 <= t0:
+        raise ParameterError(f"t1 = {t1} µs must be after t0 = {t0} µs")
 
 
 def _occupied_windows(sub: EventArray, duration_us: int, t0: int | None) -> list[Window]:
@@ -960,8 +999,8 @@ def make_windows(events: EventArray, *, n_events: int | None = None,
     if len(given) != 1:
         raise ParameterError("make_windows needs exactly one of n_events, duration_us, "
                              f"edges_us; got {given or 'none'}")
-    if t0 is not None and t1 is not None and t1 <= t0:
-        raise ParameterError(f"t1 = {t1} µs must be after t0 = {t0} µs")
+    if t0 is not None and t1 is not None:
+        _check_time_range(t0, t1)
     if max_windows is not None and max_windows < 1:
         raise ParameterError(f"max_windows must be >= 1, got {max_windows}")
     i0 = 0 if t0 is None else int(events.index_at(t0))
