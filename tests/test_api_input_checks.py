@@ -191,3 +191,17 @@ def test_duration_windows_refuse_a_reversed_or_boundless_range():
     kept = ev.windows_by_duration(1, t0=0, t1=10**8, drop_empty=True)
     assert [(w.index, w.t0, w.t1, w.start, w.stop) for w in kept] == [(0, 0, 1, 0, 1),
                                                                      (1, 10, 11, 1, 2)]
+
+
+def test_arguments_that_failed_as_bare_python_errors(ev):
+    # probe BE: AttributeError 'sensor_size', TypeError of a slice index, TypeError of range()
+    from evmotion.events import make_windows
+
+    g = np.zeros((80, 128, 2))
+    with pytest.raises(ParameterError, match="flow_metrics: events must be an EventArray"):
+        flow_metrics(g, g, events=ev.to_structured())
+    with pytest.raises(ParameterError, match="max_windows must be a whole number >= 1, got 2.5"):
+        make_windows(ev, duration_us=1000, max_windows=2.5)
+    assert len(make_windows(ev, duration_us=1000, max_windows=2.0)) == 2
+    r = estimate_flow(ev[:1500], n_scales=2.0, finest_level=2)
+    assert r.meta["n_scales"] == 2

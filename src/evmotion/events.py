@@ -1001,8 +1001,8 @@ def make_windows(events: EventArray, *, n_events: int | None = None,
                              f"edges_us; got {given or 'none'}")
     if t0 is not None and t1 is not None:
         _check_time_range(t0, t1)
-    if max_windows is not None and max_windows < 1:
-        raise ParameterError(f"max_windows must be >= 1, got {max_windows}")
+    if max_windows is not None:  # (2.5 failed as a slice index)
+        max_windows = whole_number("max_windows", max_windows, lo=1)
     i0 = 0 if t0 is None else int(events.index_at(t0))
     i1 = len(events) if t1 is None else max(i0, int(events.index_at(t1)))
     if edges_us is not None:

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
-from evmotion.events import EventArray, check_reference_time
+from evmotion.events import EventArray, check_reference_time, require_events
 from evmotion.utils import whole_number
 
 __all__ = [
@@ -266,6 +266,7 @@ def flow_metrics(
             raise ParameterError(f"mask has shape {mask.shape}, expected {sel.shape} (H, W)")
         sel &= mask
     if events is not None:
+        require_events(events, "flow_metrics")  # (a structured array failed deep inside)
         if tuple(events.sensor_size) != sel.shape:
             raise ParameterError(f"events are on a {events.sensor_size} sensor but the flow "
                                  f"is {sel.shape} px (height, width)")
@@ -548,7 +549,6 @@ def fwl(
     2.2
     """
     from evmotion.core.iwe import accumulate
-    from evmotion.events import require_events
 
     require_events(events, "fwl")
 

@@ -707,16 +707,18 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
 def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
     """``o`` validated against ``events``, with ``time_aware="none"`` read as None,
     ``n_bins`` resolved for the sensor and ``finest_level`` for the window."""
-    for name in ("n_scales", "max_iter", "transport_cell", "seed"):
-        whole_number(name, getattr(o, name), lo=0)
+    # as ints: n_scales=2.0 passed the check and failed in range() (probe BE)
+    o = dataclasses.replace(o, **{name: whole_number(name, getattr(o, name), lo=0)
+                                  for name in ("n_scales", "max_iter", "transport_cell", "seed")})
     if o.n_bins is not None:
-        whole_number("n_bins", o.n_bins, lo=1)
+        o = dataclasses.replace(o, n_bins=whole_number("n_bins", o.n_bins, lo=1))
     if o.time_aware_scales is not None:
-        whole_number("time_aware_scales", o.time_aware_scales, lo=1, hi=max(1, o.n_scales))
+        o = dataclasses.replace(o, time_aware_scales=whole_number(
+            "time_aware_scales", o.time_aware_scales, lo=1, hi=max(1, o.n_scales)))
     if o.finest_level is None:
         level = auto_finest_level(len(events), events.sensor_size)
         o = dataclasses.replace(o, finest_level=level, n_scales=min(o.n_scales, level))
-    whole_number("finest_level", o.finest_level, lo=0)
+    o = dataclasses.replace(o, finest_level=whole_number("finest_level", o.finest_level, lo=0))
     for name in ("lam", "tol"):
         v = getattr(o, name)
         if not (isinstance(v, (int, float, np.number)) and not isinstance(v, bool)):
