@@ -49,6 +49,9 @@ def test_container_arguments():
         EventArray([1], [0], [0], [1], 4)
     with pytest.raises(EventDataError, match="sensor_size must be two whole numbers"):
         EventArray([1], [0], [0], [1], (4.7, 4))
+    # probe BE: a 2-D t was reported as "field 'x' has shape (3,), expected (1,) like 't'"
+    with pytest.raises(EventDataError, match=r"field 't' has shape \(1, 3\), expected \(N,\)"):
+        EventArray([1, 2, 3], [0, 1, 2], [[10, 20, 30]], [1, 0, 1], (4, 4))
     empty = EventArray([], [], [], [], (4, 4))
     assert empty.x.dtype == np.uint16 and empty.t.dtype == np.int64
     ev = EventArray([1, 2], [0, 0], [0, 5], [1, 1], (4, 4))

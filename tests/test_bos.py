@@ -642,6 +642,25 @@ def test_an_interval_outside_the_events_is_skipped(case):
         estimate_bos_sequence(ev, [f1, f1], [DT_US, 2 * DT_US], **kw)
 
 
+def test_messages_name_the_frame_and_the_scales_at_fault():
+    # probe BE: NaN in frame_next was reported as "frame has NaN or inf values", and the
+    # sequence's underfit warning said "finest patches (8 px)" whatever the scales
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    sim = simulate_schlieren("plume", sensor_size=(180, 160), duration_s=2 / 120, seed=0)
+    f, t, ev = sim.frames.images, sim.frames.t, sim.events
+    nan = f[2].astype(float) / 255
+    nan[5, 5] = np.nan
+    with pytest.raises(ParameterError, match="^frame_next has NaN or inf values"):
+        estimate_bos(ev, f[1].astype(float) / 255, t0_us=int(t[1]), t1_us=int(t[2]),
+                     frame_next=nan)
+    with pytest.warns(UnderfitWarning) as said:
+        estimate_bos_sequence(ev.slice_time(int(t[1]), None), f[1:], t[1:], scales=(32, 16),
+                              iterations=20)
+    under = [str(w.message) for w in said if "finest patches" in str(w.message)]
+    assert under and all("finest patches (16 px)" in m for m in under)
+
+
 def test_background_noise_events_do_not_make_still_air_valid():
     """Uniform noise events (20 per pixel and second) over a plume seen through clean
     frames: two-thirds of the still background was marked valid; the support rule now

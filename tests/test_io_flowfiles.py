@@ -97,6 +97,10 @@ def test_flow_writer_append_atomic_resume(tmp_path):
     assert seq.valid.all() and seq.attrs["method"] == "test" and seq.attrs["units"] == "px/s"
     one = ff.read_flow_h5(path, index=1)
     np.testing.assert_array_equal(one.flow[0], flows[1])
+    # probe BE: an index out of range read as "the file is corrupt, truncated or not in
+    # this format"
+    with pytest.raises(ParameterError, match="index=5 selects no window of the 4 the file"):
+        ff.read_flow_h5(path, index=5)
     np.testing.assert_allclose(seq.displacement(0), flows[0] * 1e-3, rtol=1e-6)
 
 

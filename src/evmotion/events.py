@@ -127,6 +127,8 @@ class EventArray:
         self.p = _polarity(self.p)
         h, w = _sensor_size(self.sensor_size)
         self.sensor_size = (h, w)
+        if self.t.ndim != 1:  # (the others were compared with its first axis: "field 'x'")
+            raise EventDataError(f"field 't' has shape {self.t.shape}, expected (N,)")
         n = self.t.shape[0]
         for name in ("x", "y", "p"):
             if getattr(self, name).shape != (n,):

@@ -762,7 +762,7 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
             raise FormatError(path, f"flow container lacks dataset '{group.name}/{name}'")
     n = int(group["t1"].shape[0])
     sel = slice(0, n) if index is None else index
-    idx = np.arange(n)[sel]
+    idx = _selected(n, sel)
     if np.ndim(idx) == 0:
         idx = np.array([int(idx)])
         sel = slice(int(idx[0]), int(idx[0]) + 1)
@@ -780,6 +780,16 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
     else:
         check_flow_arrays(path, flow, t0, t1, valid, attrs.get("units"))
     return FlowSequence(flow=flow, t0=t0, t1=t1, valid=valid, attrs=attrs, extras=extras)
+
+
+def _selected(n: int, index: int | slice) -> np.ndarray:
+    """The windows ``index`` selects of ``n``, or ParameterError naming it: an index out
+    of range had read as "the file is corrupt, truncated or not in this format"."""
+    try:
+        return np.arange(n)[index]
+    except (IndexError, TypeError):
+        raise ParameterError(f"index={index!r} selects no window of the {n} the file "
+                             "holds") from None
 
 
 @guarded('flow HDF5')
@@ -849,7 +859,7 @@ def _read_sim_gt(g, path: Path, index, attrs: dict) -> FlowSequence:
                           f"({max(0, fl.shape[0] - 1)}, {fl.shape[1]}, {fl.shape[2]})")
     ft = fts[:].astype(np.int64)
     n = max(0, ft.size - 1)
-    idx = np.arange(n)[slice(None) if index is None else index]
+    idx = _selected(n, slice(None) if index is None else index)
     idx = np.atleast_1d(idx)
     flow = np.stack([g["flow"][int(i)] for i in idx]) if idx.size else \
         np.zeros((0, *g["flow"].shape[1:]), np.float32)

@@ -493,13 +493,13 @@ def quantized_frame(frame: np.ndarray) -> np.ndarray:
     return f
 
 
-def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
+def log_frame(frame: np.ndarray, eps: float | None = None, name: str = "frame") -> np.ndarray:
     """Log intensity ``log(I / full_scale + eps)`` of a grayscale frame (float64).
 
     Integer frames are scaled by their dtype's maximum (uint8: 255); float frames are taken
     as relative intensity, unless their values lie on grey levels (:func:`quantized_frame`:
     then as those integers). ``eps`` defaults to half a quantization step for integer
-    frames and 1e-3 for float frames.
+    frames and 1e-3 for float frames. ``name`` is the argument the messages name.
 
     >>> log_frame(np.array([[255, 0]], np.uint8)).round(3).tolist()
     [[0.002, -6.234]]
@@ -508,7 +508,7 @@ def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
     """
     f = quantized_frame(frame)
     if f.ndim != 2:
-        raise ParameterError(f"frame must be a 2-D grayscale image, got shape {f.shape}")
+        raise ParameterError(f"{name} must be a 2-D grayscale image, got shape {f.shape}")
     if np.issubdtype(f.dtype, np.integer):
         full = float(np.iinfo(f.dtype).max)
         e = 0.5 / full if eps is None else float(eps)
@@ -519,9 +519,9 @@ def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
         raise ParameterError(f"log_eps must be a finite number > 0, got {eps!r}")
     g = f.astype(np.float64) / full
     if not np.isfinite(g).all():
-        raise ParameterError("frame has NaN or inf values")
+        raise ParameterError(f"{name} has NaN or inf values")
     if (g < 0).any():
-        raise ParameterError(f"frame has negative intensities (min {g.min():g})")
+        raise ParameterError(f"{name} has negative intensities (min {g.min():g})")
     return np.log(g + e)
 
 
@@ -769,7 +769,7 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
     # measured in time instead, an upper bound that counts the air's own change, had
     # lowered C from 0.257 to 0.206 and the flow from 0.97x to 0.79x the true one, probe)
     s_all, counts_all = event_sums(ev)
-    l0_all, l1_all = log_frame(frame, log_eps), log_frame(frame_next, log_eps)
+    l0_all, l1_all = log_frame(frame, log_eps), log_frame(frame_next, log_eps, "frame_next")
     d_all, level_all = l1_all - l0_all, 0.5 * (l0_all + l1_all)
     if sigma > 0:
         s_all = gaussian_filter(s_all, sigma, mode="nearest")
@@ -790,7 +790,7 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
     near_all[crop] = near
     noise = _frame_noise(d_all, level_all, quiet, near_all)
     if noise is None and frame_after is not None and near.any():
-        noise = log_difference_noise(l0, l1, log_frame(frame_after, log_eps)[crop], sigma,
+        noise = log_difference_noise(l0, l1, log_frame(frame_after, log_eps, "frame_after")[crop], sigma,
                                      near)
     noise = max(noise or 0.0,
                 _quantization_noise(frame, frame_next, crop, sigma, near, log_eps))
@@ -1423,7 +1423,7 @@ def _supported(events: EventArray, t0_us: int, t1_us: int, frame: np.ndarray,
         return box >= SUPPORT_MIN_EVENTS
     # still air: no pixel of the square changed between the frames at all (noisy frames
     # have none, and keep the plain rule)
-    changed = log_frame(frame_next, log_eps) != log_frame(frame, log_eps)
+    changed = log_frame(frame_next, log_eps, "frame_next") != log_frame(frame, log_eps)
     still = ~maximum_filter(changed, size=2 * SUPPORT_RADIUS + 1, mode="nearest")
     return box >= noise_floor_count(box[still])
 
@@ -1586,15 +1586,17 @@ def estimate_bos_sequence(events: EventArray, frames, times_us: Sequence[int],
     [(0, 4500), (4500, 9000)]
     """
     results = list(iter_bos_sequence(events, frames, times_us, **kwargs))
-    warn_underfit((r.fit_gain for r in results), single_solve_displacements(results))
+    warn_underfit((r.fit_gain for r in results), single_solve_displacements(results),
+                  finest_px=min(results[0].options.scales) if results else None)
     return results
 
 
-def warn_underfit(gains, displacements=()) -> None:
+def warn_underfit(gains, displacements=(), finest_px: int | None = None) -> None:
     """Say when the median :attr:`BosResult.fit_gain` of a sequence's intervals exceeds
     :data:`FIT_GAIN_WARN`, or the median of their :attr:`BosResult.displacement_q95`
     (solved once: NaN for the others) reaches :data:`RELINEARIZE_PX`: the flow is too
-    small (the intervals' own warnings are left out in a sequence: one per run)."""
+    small (the intervals' own warnings are left out in a sequence: one per run).
+    ``finest_px``, the finest patch size of the solves, is named when given."""
     d = np.asarray([v for v in displacements if v is not None and np.isfinite(v)],
                    np.float64)
     if d.size and np.median(d) >= RELINEARIZE_PX:
@@ -1604,10 +1606,11 @@ def warn_underfit(gains, displacements=()) -> None:
             stacklevel=2)
     g = np.asarray([v for v in gains if v is not None and np.isfinite(v)], np.float64)
     if g.size and np.median(g) > FIT_GAIN_WARN:
+        size = f" ({finest_px} px)" if finest_px else ""
         warnings.warn(UnderfitWarning(
             f"the flow explains the events' increment at 1/{np.median(g):.2f} of its size "
             f"where they fired (median over {g.size} intervals): air structures finer than "
-            "the solver's finest patches (8 px), or events that are noise, not schlieren "
+            f"the solver's finest patches{size}, or events that are noise, not schlieren "
             "(still air)? Its magnitude is then too small (0.4-0.7x on scenes of fine "
             "structures), or no measurement"), stacklevel=2)
 
