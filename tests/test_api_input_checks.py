@@ -49,6 +49,9 @@ def test_container_arguments():
         EventArray([1], [0], [0], [1], 4)
     with pytest.raises(EventDataError, match="sensor_size must be two whole numbers"):
         EventArray([1], [0], [0], [1], (4.7, 4))
+    # probe BE: a 2-D t was reported as "field 'x' has shape (3,), expected (1,) like 't'"
+    with pytest.raises(EventDataError, match=r"field 't' has shape \(1, 3\), expected \(N,\)"):
+        EventArray([1, 2, 3], [0, 1, 2], [[10, 20, 30]], [1, 0, 1], (4, 4))
     empty = EventArray([], [], [], [], (4, 4))
     assert empty.x.dtype == np.uint16 and empty.t.dtype == np.int64
     ev = EventArray([1, 2], [0, 0], [0, 5], [1, 1], (4, 4))
@@ -141,3 +144,67 @@ def test_egomotion_names_a_warp_that_is_neither_a_name_nor_a_warp():
     for bad in (None, 3):
         with pytest.raises(ParameterError, match=r"warp must be a name \(affine, .*got"):
             estimate_egomotion(ev, warp=bad)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_a_non_finite_coordinate_of_an_unchecked_array_is_refused(ev, value):
+    # probe BE: one NaN x of an EventArray(..., validate=False) made estimate_egomotion's
+    # estimate zero motion; estimate_flow dropped it, estimate_flow_dnn failed in
+    # np.bincount and TripletMatcher quoted x=-2147483648
+    from evmotion.methods.dnn import estimate_flow_dnn
+
+    x = ev.x.astype(float)
+    x[5] = value
+    bad = EventArray(x, ev.y, ev.t, ev.p, ev.sensor_size, validate=False)
+    msg = rf"field 'x' of event 5 is {value}: coordinates must be finite, not NaN or inf"
+    for name, call in (("estimate_egomotion", lambda: estimate_egomotion(bad, warp="translation")),
+                       ("estimate_flow", lambda: estimate_flow(bad)),
+                       ("estimate_flow_dnn", lambda: estimate_flow_dnn(bad)),
+                       ("fwl", lambda: fwl(bad, np.zeros((80, 128, 2))))):
+        with pytest.raises(EventDataError, match=f"{name}: {msg}"):
+            call()
+    with pytest.raises(EventDataError, match=msg):
+        TripletMatcher(ev.sensor_size).process(bad)
+    with pytest.raises(EventDataError, match=msg):
+        bad.check()
+
+
+def test_a_reference_time_far_outside_the_window_is_refused(ev):
+    # probe BE: fwl(win, flow, t_ref_us=10**12) returned 0.0 and estimate_egomotion(t_ref=
+    # 10**12) zero motion: every event was warped off the sensor
+    flow = np.tile(np.array([400.0, 0.0], np.float32), (80, 128, 1))
+    far = int(ev.t[-1]) + 1_000_001
+    said = r"t_ref(_us)?=\d+ us lies outside the window's events \[\d+, \d+\] us"
+    with pytest.raises(ParameterError, match=said):
+        fwl(ev, flow, t_ref_us=far)
+    with pytest.raises(ParameterError, match=said):
+        estimate_egomotion(ev, warp="translation", t_ref=10**12)
+    # within a second of the events: a window's interval whose events bunch at one end
+    assert fwl(ev, flow, t_ref_us=far - 1) >= 0
+
+
+def test_duration_windows_refuse_a_reversed_or_boundless_range():
+    # probe BE: t0 > t1 failed with IndexError, and a span of 10**8 us in 1 us windows made
+    # every empty window first (tens of GB)
+    ev = EventArray(x=[1, 2], y=[1, 1], t=[0, 10], p=[1, 0], sensor_size=(4, 4))
+    with pytest.raises(ParameterError, match="t1 = 1000 µs must be after t0 = 5000 µs"):
+        ev.windows_by_duration(1000, t0=5000, t1=1000)
+    with pytest.raises(ParameterError, match="makes 100,000,000 windows for 2 events"):
+        ev.windows_by_duration(1, t0=0, t1=10**8)
+    kept = ev.windows_by_duration(1, t0=0, t1=10**8, drop_empty=True)
+    assert [(w.index, w.t0, w.t1, w.start, w.stop) for w in kept] == [(0, 0, 1, 0, 1),
+                                                                     (1, 10, 11, 1, 2)]
+
+
+def test_arguments_that_failed_as_bare_python_errors(ev):
+    # probe BE: AttributeError 'sensor_size', TypeError of a slice index, TypeError of range()
+    from evmotion.events import make_windows
+
+    g = np.zeros((80, 128, 2))
+    with pytest.raises(ParameterError, match="flow_metrics: events must be an EventArray"):
+        flow_metrics(g, g, events=ev.to_structured())
+    with pytest.raises(ParameterError, match="max_windows must be a whole number >= 1, got 2.5"):
+        make_windows(ev, duration_us=1000, max_windows=2.5)
+    assert len(make_windows(ev, duration_us=1000, max_windows=2.0)) == 2
+    r = estimate_flow(ev[:1500], n_scales=2.0, finest_level=2)
+    assert r.meta["n_scales"] == 2

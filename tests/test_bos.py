@@ -625,6 +625,42 @@ def test_on_empty_skip_carries_the_warm_start(case):
     np.testing.assert_array_equal(estimate_bos(ev, f0, init=cold, **kw).flow, prev.flow)
 
 
+def test_an_interval_outside_the_events_is_skipped(case):
+    # probe BE: a sequence whose first or last interval held no event aborted the whole run
+    # ("window [0, 16667) us failed: EventDataError: frames and events do not overlap in
+    # time"), and estimate_bos(on_empty="skip") raised it too
+    ev, f0, f1, d, C = case
+    kw = dict(scales=(32, 16), iterations=10, contrast_threshold=C)
+    with pytest.warns(EvmotionWarning, match=r"overlap in time: window \[8333, 16666\).*no valid"):
+        skipped = estimate_bos(ev, f1, t0_us=DT_US, t1_us=2 * DT_US, on_empty="skip", **kw)
+    assert not skipped.valid.any()
+    with pytest.warns(EvmotionWarning, match="no valid pixel"):
+        seq = estimate_bos_sequence(ev, [f0, f1, f1], [0, DT_US, 2 * DT_US], **kw)
+    assert seq[0].valid.any() and not seq[1].valid.any()
+    # no event between the first frame and the last: other clocks, not still air
+    with pytest.raises(EventDataError, match=r"overlap in time: frames \[8333, 16666\)"):
+        estimate_bos_sequence(ev, [f1, f1], [DT_US, 2 * DT_US], **kw)
+
+
+def test_messages_name_the_frame_and_the_scales_at_fault():
+    # probe BE: NaN in frame_next was reported as "frame has NaN or inf values", and the
+    # sequence's underfit warning said "finest patches (8 px)" whatever the scales
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    sim = simulate_schlieren("plume", sensor_size=(180, 160), duration_s=2 / 120, seed=0)
+    f, t, ev = sim.frames.images, sim.frames.t, sim.events
+    nan = f[2].astype(float) / 255
+    nan[5, 5] = np.nan
+    with pytest.raises(ParameterError, match="^frame_next has NaN or inf values"):
+        estimate_bos(ev, f[1].astype(float) / 255, t0_us=int(t[1]), t1_us=int(t[2]),
+                     frame_next=nan)
+    with pytest.warns(UnderfitWarning) as said:
+        estimate_bos_sequence(ev.slice_time(int(t[1]), None), f[1:], t[1:], scales=(32, 16),
+                              iterations=20)
+    under = [str(w.message) for w in said if "finest patches" in str(w.message)]
+    assert under and all("finest patches (16 px)" in m for m in under)
+
+
 def test_background_noise_events_do_not_make_still_air_valid():
     """Uniform noise events (20 per pixel and second) over a plume seen through clean
     frames: two-thirds of the still background was marked valid; the support rule now

@@ -39,6 +39,20 @@ def test_slice_time_matches_mask():
     np.testing.assert_array_equal(s.x, ev.x[m])
 
 
+def test_an_index_array_with_negatives_keeps_time_order():
+    # probe BE: the indices were sorted before the negatives were resolved, so
+    # ev[[-1, 0, 1]] put the last event first (duration_us -480, no error)
+    ev = EventArray(np.arange(50) % 8, np.arange(50) // 8 % 8, np.arange(50) * 10,
+                    np.ones(50, int), (8, 8))
+    sub = ev[np.array([-1, 0, 1])]
+    assert sub.t.tolist() == [0, 10, 490]
+    sub.check()
+    assert ev[[-50, 49]].t.tolist() == [0, 490]
+    for bad in ([-51, 0], [0, 50]):
+        with pytest.raises(IndexError, match=f"event {bad[0] or bad[1]} of 50 events"):
+            ev[bad]
+
+
 def test_windows_cover_everything_once():
     ev = make(5000)
     for ws in (ev.windows_by_duration(70_000), ev.windows_by_count(700)):

@@ -1,6 +1,8 @@
 import numpy as np
+import pytest
 
 from evmotion import EventArray
+from evmotion.errors import EvmotionError, UnsortedError
 from evmotion.filters import hot_line_mask, hot_pixel_mask, refractory_filter, remove_hot_pixels
 
 
@@ -23,6 +25,21 @@ def test_refractory_matches_reference():
     out = refractory_filter(ev, 1000)
     np.testing.assert_array_equal(out.t, ev.t[refractory_reference(ev, 1000)])
     assert len(refractory_filter(ev, 0)) == n
+
+
+def test_filters_check_an_unchecked_array_like_the_estimators():
+    # probe BE: with validate=False, the refractory kernel indexed its per-pixel state out of
+    # bounds for off-sensor events and kept a meaningless subset of unsorted ones;
+    # hot_pixel_mask counted x=9 of a 4-wide sensor on the next row
+    off = EventArray([0, 1, 9], [0, 1, 0], [0, 10, 20], [1, 1, 1], (4, 4), validate=False)
+    for f in (lambda e: refractory_filter(e, 5), hot_pixel_mask, remove_hot_pixels):
+        with pytest.raises(EvmotionError, match=r"event 2 has x=9 outside the sensor"):
+            f(off)
+    back = EventArray([0, 1, 2], [0, 0, 0], [20, 10, 0], [1, 1, 1], (4, 4), validate=False)
+    with pytest.raises(UnsortedError, match=r"t\[0\]=20 > t\[1\]=10"):
+        refractory_filter(back, 5)
+    with pytest.raises(EvmotionError, match="refractory_filter: events must be an EventArray"):
+        refractory_filter([[0, 0, 0, 1]], 5)
 
 
 def test_hot_pixel_removed():

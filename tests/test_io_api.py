@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import evmotion.io as eio
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 
 
@@ -116,7 +116,9 @@ def test_write_events_free_metadata(tmp_path):
     eio.write_events(tmp_path / "m.h5", ev, simulator_scene="rotation", simulator_seed=3)
     assert eio.read_events(tmp_path / "m.h5").meta["provenance"] == {
         "simulator_scene": "rotation", "simulator_seed": 3}
-    with pytest.warns(UserWarning, match="simulator_seed"):
+    # an EvmotionWarning, which filterwarnings(category=EvmotionWarning) reaches (probe BE:
+    # a bare UserWarning)
+    with pytest.warns(EvmotionWarning, match="simulator_seed"):
         eio.write_events(tmp_path / "m.npz", ev, simulator_seed=3)
     assert len(eio.read_events(tmp_path / "m.npz")) == 100
 

@@ -28,6 +28,15 @@ def test_flo_units_with_interval(tmp_path):
     ff.write_flo(tmp_path / "a.flo", flow, dt_s=0.01)
     np.testing.assert_allclose(ff.read_flo(tmp_path / "a.flo"), 1.0)  # px
     np.testing.assert_allclose(ff.read_flo(tmp_path / "a.flo", dt_s=0.01), 100.0, rtol=1e-6)
+    # probe BE: dt_s=0 wrote an all-zero displacement (read_flo refused dt_s=0)
+    for f in (lambda: ff.write_flo(tmp_path / "z.flo", flow, dt_s=0),
+              lambda: ff.read_flo(tmp_path / "a.flo", dt_s=0)):
+        with pytest.raises(ParameterError, match=r"dt_s must be finite and > 0.0 \(seconds\), "
+                                                 "got 0"):
+            f()
+    assert not (tmp_path / "z.flo").exists()
+    ff.write_flo(tmp_path / "z.flo", flow, dt_s=0, valid=np.zeros((3, 4), bool))
+    assert np.isnan(ff.read_flo(tmp_path / "z.flo")).all()  # a window of events at one time
 
 
 def test_flo_errors(tmp_path):
@@ -88,6 +97,10 @@ def test_flow_writer_append_atomic_resume(tmp_path):
     assert seq.valid.all() and seq.attrs["method"] == "test" and seq.attrs["units"] == "px/s"
     one = ff.read_flow_h5(path, index=1)
     np.testing.assert_array_equal(one.flow[0], flows[1])
+    # probe BE: an index out of range read as "the file is corrupt, truncated or not in
+    # this format"
+    with pytest.raises(ParameterError, match="index=5 selects no window of the 4 the file"):
+        ff.read_flow_h5(path, index=5)
     np.testing.assert_allclose(seq.displacement(0), flows[0] * 1e-3, rtol=1e-6)
 
 

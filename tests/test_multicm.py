@@ -114,6 +114,20 @@ def test_warm_start_sequence():
     assert np.allclose(init_only.params[0][0, 0], res[0].flow.mean((0, 1)), atol=30)
 
 
+def test_a_sequence_takes_pairs_and_the_network():
+    # probe BE: (t0, t1) pairs failed with AttributeError 'tuple' has no attribute 'start',
+    # and method="dnn" refused its own warm start on the second window ("init applies to
+    # method 'multicm' only")
+    ev = synth(constant(-200.0, 100.0), n=6000, shape=(90, 120), seed=2)
+    wins = ev.windows_by_count(3000)
+    kw = dict(n_scales=2, finest_level=2)
+    by_window = estimate_flow_sequence(ev, wins, **kw)
+    by_pair = estimate_flow_sequence(ev, [(w.t0, w.t1) for w in wins], **kw)
+    for a, b in zip(by_window, by_pair, strict=True):
+        np.testing.assert_array_equal(a.flow, b.flow)
+    assert len(estimate_flow_sequence(ev, wins, method="dnn")) == 2
+
+
 def test_input_errors(translation):
     with pytest.raises(ParameterError, match="method"):
         estimate_flow(translation, method="raft")

@@ -46,6 +46,10 @@ MAX_READOUT_STEP_US = 1000
 #: What to do about times out of order that a sensor or recorder left (not another column).
 SORT_HINT = "sort them: evmotion convert IN OUT --sort, or EventArray.sorted()"
 
+#: Windows beyond the events' count that EventArray.windows_by_duration makes (empty ones,
+#: whatever the count): ~330 MB and 3.5 s a million
+MAX_EMPTY_WINDOWS = 1_000_000
+
 TONIC_DTYPE = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
 
 
@@ -123,6 +127,8 @@ class EventArray:
         self.p = _polarity(self.p)
         h, w = _sensor_size(self.sensor_size)
         self.sensor_size = (h, w)
+        if self.t.ndim != 1:  # (the others were compared with its first axis: "field 'x'")
+            raise EventDataError(f"field 't' has shape {self.t.shape}, expected (N,)")
         n = self.t.shape[0]
         for name in ("x", "y", "p"):
             if getattr(self, name).shape != (n,):
@@ -187,12 +193,13 @@ class EventArray:
                 f"field 't' reaches {int(self.t[-1])}, as microseconds past the year 5000: "
                 "nanoseconds since the epoch? Give µs: (t + 500) // 1000, or "
                 "EventArray.from_structured(..., time_unit_us=1e-3)")
+        bad = _non_finite_coordinate(self)
+        if bad is not None:
+            raise EventDataError(bad)
         h, w = self.sensor_size
         for name, lim in (("x", w), ("y", h)):
             a = getattr(self, name)
             lo, hi = a.min(), a.max()
-            if not (np.isfinite(lo) and np.isfinite(hi)):
-                raise EventDataError(f"field '{name}' contains NaN or inf")
             if lo < 0 or hi > lim - 1:
                 bad = int(np.argmax((a < 0) | (a > lim - 1)))
                 raise EventDataError(
@@ -290,7 +297,12 @@ class EventArray:
         if not isinstance(key, slice):
             key = np.asarray(key)
             if key.dtype != bool:
-                key = np.sort(key)
+                n = len(self)
+                if key.size and key.dtype.kind in "iu" and (key.min() < -n or key.max() >= n):
+                    k = int(key.min() if key.min() < -n else key.max())
+                    raise IndexError(f"event {k} of {n} events")
+                # negatives resolved before sorting: [-1, 0, 1] ends with the last event
+                key = np.sort(np.where(key < 0, key + n, key))
         return self._take(key)
 
     def __iter__(self):
@@ -336,16 +348,45 @@ class EventArray:
     def windows_by_duration(self, duration_us: int, *, t0: int | None = None,
                             t1: int | None = None, drop_empty: bool = False,
                             ) -> list[Window]:
-        """Consecutive windows of ``duration_us`` microseconds covering ``[t0, t1)``."""
+        """Consecutive windows of ``duration_us`` microseconds covering ``[t0, t1)``
+        (default from the first event to just after the last; the last window reaches
+        ``t1`` or past it), without those holding no event when ``drop_empty``.
+
+        Raises
+        ------
+        ParameterError
+            ``t1 <= t0``, or, without ``drop_empty``, more than
+            :data:`MAX_EMPTY_WINDOWS` windows beyond the number of events.
+
+        Examples
+        --------
+        >>> ev = EventArray(x=[0, 1], y=[0, 0], t=[0, 2500], p=[1, 1], sensor_size=(2, 2))
+        >>> [(w.t0, w.t1, w.count) for w in ev.windows_by_duration(1000)]
+        [(0, 1000, 1), (1000, 2000, 0), (2000, 3000, 1)]
+        >>> [w.index for w in ev.windows_by_duration(1000, drop_empty=True)]
+        [0, 1]
+        """
         duration_us = whole_number("window duration (duration_us, µs)", duration_us, lo=1)
         if not len(self):
             return []
         t0 = self.t_start if t0 is None else int(t0)
         t1 = self.t_end + 1 if t1 is None else int(t1)
-        edges = np.arange(t0, t1 + duration_us - 1, duration_us, dtype=np.int64)
-        if edges[-1] < t1:
-            edges = np.append(edges, edges[-1] + duration_us)
-        return self._windows_from_edges(edges[:-1], edges[1:], drop_empty)
+        _check_time_range(t0, t1)
+        n = -(-(t1 - t0) // duration_us)  # the last window reaches t1
+        end = t0 + n * duration_us
+        if drop_empty:
+            # without making the empty ones first, as make_windows does
+            i0, i1 = int(self.index_at(t0)), int(self.index_at(end))
+            return [Window(k, w.t0, w.t1, w.start + i0, w.stop + i0) for k, w in
+                    enumerate(_occupied_windows(self[i0:i1], duration_us, t0))]
+        if n > len(self) + MAX_EMPTY_WINDOWS:
+            # (a span of 10**8 µs in 1 µs windows: 10**8 Window objects, tens of GB)
+            raise ParameterError(
+                f"[{t0}, {t1}) us in windows of {duration_us} us makes {n:,} windows for "
+                f"{len(self):,} events: nearly all empty; pass drop_empty=True (or use "
+                "make_windows), a longer duration_us, or check the unit of t0/t1")
+        edges = t0 + np.arange(n + 1, dtype=np.int64) * duration_us
+        return self._windows_from_edges(edges[:-1], edges[1:], False)
 
     def windows_by_count(self, n_events: int, *, drop_last_partial: bool = False,
                          ) -> list[Window]:
@@ -481,6 +522,25 @@ def window_bounds(win, k: int) -> tuple[int, int]:
             whole_number(f"windows[{k}] t1 (us)", t1))
 
 
+def as_window(events: EventArray, k: int, win) -> Window:
+    """``win``, window ``k`` of a caller's ``windows``, if a :class:`Window`, else one made
+    of a ``(t0, t1)`` pair of µs (:func:`window_bounds`) with its index range in ``events``.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0, 1, 2], y=[0, 0, 0], t=[0, 10, 20], p=[1, 1, 1], sensor_size=(2, 4))
+    >>> as_window(ev, 0, (5, 20))
+    Window(index=0, t0=5, t1=20, start=1, stop=2)
+    """
+    if isinstance(win, Window):
+        return win
+    t0, t1 = window_bounds(win, k)
+    if t1 <= t0:
+        raise ParameterError(f"windows[{k}] = ({t0}, {t1}): t1 must be after t0")
+    start, stop = (int(i) for i in np.searchsorted(events.t, [t0, t1]))
+    return Window(k, t0, t1, start, stop)
+
+
 #: Formats whose times are decoded from binary words: events far out of order there are a
 #: corrupt file or one whose header names another format than its data
 DECODED_TIME_FORMATS = ("evt2", "evt21", "evt3", "dat", "aedat2", "aedat3", "aedat4", "rosbag")
@@ -565,6 +625,12 @@ def fingerprint(events: EventArray, n: int = 1 << 16) -> str:
         for a in (events.x, events.y, events.t, events.p):
             h.update(np.ascontiguousarray(a[part]).tobytes())
     return f"{len(events)} events, sha1 {h.hexdigest()[:16]}"
+
+
+def _check_time_range(t0: int, t1: int) -> None:
+    """Refuse a time range ``[t0, t1)`` (µs) that holds no time."""
+    if t1 <= t0:
+        raise ParameterError(f"t1 = {t1} µs must be after t0 = {t0} µs")
 
 
 def _occupied_windows(sub: EventArray, duration_us: int, t0: int | None) -> list[Window]:
@@ -664,12 +730,31 @@ def require_events(events, func: str) -> EventArray:
         raise ParameterError(f"{func}: events must be an EventArray (EventArray(x, y, t, p, "
                              "sensor_size) or evmotion.io.read_events(path)), got "
                              f"{type(events).__name__}")
+    # (one NaN x of an unchecked array made estimate_egomotion's warp zero motion, and
+    # the other estimators dropped the event or failed deep inside numpy)
+    bad = _non_finite_coordinate(events)
+    if bad is not None:
+        raise EventDataError(f"{func}: {bad}")
     _check_on_sensor(events, func)
     if not events.validate:
         # (estimate_bos cut its interval by binary search on unsorted times and solved
         # the wrong events without a word; egomotion reported a window running backwards)
         events.check_order()
     return events
+
+
+def _non_finite_coordinate(events: EventArray) -> str | None:
+    """The first NaN or infinite coordinate of ``events`` as "field 'x' of event 5 is nan"
+    (only float, undistorted, coordinates can hold one), or None."""
+    for name in ("x", "y"):
+        a = getattr(events, name)
+        # min and max: NaN and inf show in them, without a mask of every event
+        if (a.dtype.kind == "f" and a.size
+                and not (np.isfinite(a.min()) and np.isfinite(a.max()))):
+            i = int(np.argmax(~np.isfinite(a)))
+            return (f"field '{name}' of event {i} is {a[i]}: coordinates must be finite, not "
+                    "NaN or inf")
+    return None
 
 
 # Share of events off the sensor above which an unchecked array (validate=False) is
@@ -784,6 +869,9 @@ def sensor_pixels(events: EventArray) -> tuple[np.ndarray, np.ndarray]:
     """
     from evmotion.errors import ParameterError
 
+    bad = _non_finite_coordinate(events)
+    if bad is not None:  # (rounded, NaN became x=-2147483648)
+        raise EventDataError(bad)
     h, w = events.sensor_size
     x, y = pixel_indices(events.x, w), pixel_indices(events.y, h)
     for name, a, lim in (("x", x, w), ("y", y, h)):
@@ -792,6 +880,36 @@ def sensor_pixels(events: EventArray) -> tuple[np.ndarray, np.ndarray]:
             raise ParameterError(f"event {bad} has {name}={int(a[bad])} outside the sensor "
                                  f"(height, width) = {events.sensor_size}")
     return x, y
+
+
+#: How far outside its events' span [first, last] a warp's reference time may lie: their
+#: span, or this if longer (a window whose events bunch at one end of its interval is
+#: warped to its interval's middle by the evaluation)
+T_REF_REACH_US = 1_000_000
+
+
+def check_reference_time(name: str, t_ref, t: np.ndarray) -> int:
+    """``t_ref`` (µs) as an int, or :class:`ParameterError` naming ``name`` unless it is a
+    whole number within ``max(span, 1 s)`` of the window's event times ``t`` (sorted,
+    not empty), ``span = t[-1] - t[0]``: a reference far outside is another window's or
+    another clock's, and warped every event off the sensor (zero motion, FWL 0.0).
+
+    Examples
+    --------
+    >>> check_reference_time("t_ref", 5_000, np.array([0, 10_000]))
+    5000
+    >>> check_reference_time("t_ref", 10**12, np.array([0, 10_000]))
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: t_ref=1000000000000 us lies outside the window's events [0, 10000] us by more than max(their span, 1 s): a time of another window or clock?
+    """
+    v = whole_number(name, t_ref)
+    first, last = int(t[0]), int(t[-1])
+    reach = max(last - first, T_REF_REACH_US)
+    if not first - reach <= v <= last + reach:
+        raise ParameterError(f"{name}={v} us lies outside the window's events [{first}, "
+                             f"{last}] us by more than max(their span, 1 s): a time of "
+                             "another window or clock?")
+    return v
 
 
 def check_stream_order(t: np.ndarray, t_last: int | None) -> None:
@@ -883,10 +1001,10 @@ def make_windows(events: EventArray, *, n_events: int | None = None,
     if len(given) != 1:
         raise ParameterError("make_windows needs exactly one of n_events, duration_us, "
                              f"edges_us; got {given or 'none'}")
-    if t0 is not None and t1 is not None and t1 <= t0:
-        raise ParameterError(f"t1 = {t1} µs must be after t0 = {t0} µs")
-    if max_windows is not None and max_windows < 1:
-        raise ParameterError(f"max_windows must be >= 1, got {max_windows}")
+    if t0 is not None and t1 is not None:
+        _check_time_range(t0, t1)
+    if max_windows is not None:  # (2.5 failed as a slice index)
+        max_windows = whole_number("max_windows", max_windows, lo=1)
     i0 = 0 if t0 is None else int(events.index_at(t0))
     i1 = len(events) if t1 is None else max(i0, int(events.index_at(t1)))
     if edges_us is not None:

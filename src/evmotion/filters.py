@@ -5,10 +5,20 @@ from __future__ import annotations
 import numpy as np
 
 from evmotion.errors import ParameterError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, require_events, sensor_pixels
 from evmotion.jitcache import lazy_njit
 
 __all__ = ["hot_line_mask", "hot_pixel_mask", "refractory_filter", "remove_hot_pixels"]
+
+
+def _pixels(events: EventArray, func: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~evmotion.events.sensor_pixels` of ``events``, named by ``func`` when not an
+    EventArray: per-pixel state and counts need every event on the sensor (an unchecked
+    array's were written out of bounds, or counted on the next row), where
+    :func:`~evmotion.events.require_events` only warns of a few."""
+    if not isinstance(events, EventArray):
+        require_events(events, func)  # raises, naming what was given
+    return sensor_pixels(events)
 
 
 # compiled on first use: the hot-pixel mask, used at a network's start-up, needs no numba
@@ -44,13 +54,17 @@ def refractory_filter(events: EventArray, refractory_us: int, *, per_polarity: b
     >>> refractory_filter(ev, 100).t.tolist()
     [0, 200]
     """
+    x, y = _pixels(events, "refractory_filter")
+    if not events.validate:
+        # the kernel keeps the latest time per pixel: unsorted, it kept a meaningless subset
+        events.check_order()
     if refractory_us < 0:
         raise ParameterError(f"refractory_us must be >= 0, got {refractory_us}")
     if events.x.dtype.kind == "f":
         raise ParameterError("refractory_filter needs integer sensor coordinates (filter before "
                              "undistortion)")
     keep = np.empty(len(events), dtype=np.bool_)
-    _refractory_keep(events.x, events.y, events.t, events.p, events.width, events.height,
+    _refractory_keep(x, y, events.t, events.p, events.width, events.height,
                      np.int64(refractory_us), per_polarity, keep)
     return events[keep]
 
@@ -71,7 +85,8 @@ def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int =
     >>> np.argwhere(hot_pixel_mask(ev, neighbour_ratio=4)).tolist()
     [[2, 3]]
     """
-    counts = np.bincount(events.y.astype(np.intp) * events.width + events.x.astype(np.intp),
+    x, y = _pixels(events, "hot_pixel_mask")  # (counts do not depend on time order)
+    counts = np.bincount(y.astype(np.intp) * events.width + x,
                          minlength=events.width * events.height)
     active = counts[counts > 0]
     if active.size == 0:
@@ -136,4 +151,5 @@ def remove_hot_pixels(events: EventArray, mask: np.ndarray | None = None, **kw) 
         mask = hot_pixel_mask(events, **kw)
     if mask.shape != events.sensor_size:
         raise ParameterError(f"hot-pixel mask has shape {mask.shape}, sensor is {events.sensor_size}")
-    return events[~mask[events.y.astype(np.intp), events.x.astype(np.intp)]]
+    x, y = sensor_pixels(events)  # the pixels hot_pixel_mask counted
+    return events[~mask[y, x]]

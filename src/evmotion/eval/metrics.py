@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, check_reference_time, require_events
 from evmotion.utils import whole_number
 
 __all__ = [
@@ -266,6 +266,7 @@ def flow_metrics(
             raise ParameterError(f"mask has shape {mask.shape}, expected {sel.shape} (H, W)")
         sel &= mask
     if events is not None:
+        require_events(events, "flow_metrics")  # (a structured array failed deep inside)
         if tuple(events.sensor_size) != sel.shape:
             raise ParameterError(f"events are on a {events.sensor_size} sensor but the flow "
                                  f"is {sel.shape} px (height, width)")
@@ -436,7 +437,9 @@ def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | 
     flow_px_per_s : ndarray, shape (H, W, 2)
         Flow on the sensor grid in px/s (u right, v down).
     t_ref_us : int, optional
-        Reference time in µs (absolute); default the first event's timestamp.
+        Reference time in µs (absolute); default the first event's timestamp. It must lie
+        within ``max(span, 1 s)`` of the events' times ``[first, last]`` (a time farther
+        away is another window's: :func:`evmotion.events.check_reference_time`).
 
     Returns
     -------
@@ -457,7 +460,8 @@ def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | 
         raise ParameterError(
             f"flow has shape {flow.shape[:2]}, expected the sensor size {events.sensor_size}"
         )
-    t_ref = events.t_start if t_ref_us is None else whole_number("t_ref_us", t_ref_us)
+    t_ref = (events.t_start if t_ref_us is None
+             else check_reference_time("t_ref_us", t_ref_us, events.t))
     x = events.x.astype(np.float64)
     y = events.y.astype(np.float64)
     dt = (np.int64(t_ref) - events.t).astype(np.float64) * 1e-6
@@ -516,7 +520,8 @@ def fwl(
     flow_px_per_s : ndarray, shape (H, W, 2)
         Flow in px/s on the sensor grid (u right, v down).
     t_ref_us : int, optional
-        Reference time in µs (absolute); default the first event's timestamp.
+        Reference time in µs (absolute); default the first event's timestamp. It must lie
+        within ``max(span, 1 s)`` of the events' times, as in :func:`warp_by_flow`.
     kernel : {"bilinear", "gaussian"}
         Voting kernel passed to ``accumulate`` (default bilinear).
     sigma : float
@@ -534,7 +539,7 @@ def fwl(
     EmptyWindowError
         No events, or the zero-flow IWE has zero variance.
     ParameterError
-        The flow is NaN/inf where events are.
+        The flow is NaN/inf where events are, or ``t_ref_us`` is far outside the events.
 
     Examples
     --------
@@ -544,7 +549,6 @@ def fwl(
     2.2
     """
     from evmotion.core.iwe import accumulate
-    from evmotion.events import require_events
 
     require_events(events, "fwl")
 

@@ -143,7 +143,7 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
     flow : ndarray, (H, W, 2)
         Flow in px/s if ``dt_s`` is given, else displacement in px.
     dt_s : float, optional
-        Time interval in seconds.
+        Time interval in seconds, > 0 (0 only when no pixel is ``valid``).
     valid : ndarray (H, W) bool, optional
         Where the flow is known (default: where it is finite).
 
@@ -155,7 +155,10 @@ def write_flo(path: str | os.PathLike, flow: np.ndarray, dt_s: float | None = No
     """
     arr = _check_flow(flow)
     if dt_s is not None:
-        arr = arr * np.float32(check_number("dt_s", dt_s, 0.0, units="seconds"))
+        # dt_s=0 wrote each known pixel as a zero displacement; a window without a valid
+        # pixel (its events all at one time, kept by flowout to keep the numbering) has none
+        some = valid is None or bool(np.asarray(valid).any())
+        arr = arr * np.float32(check_number("dt_s", dt_s, 0.0, lo_open=some, units="seconds"))
     known = np.isfinite(arr).all(axis=2)
     if valid is not None:
         v = np.asarray(valid, dtype=bool)
@@ -216,9 +219,7 @@ def read_flo(path: str | os.PathLike, dt_s: float | None = None) -> np.ndarray:
     arr = arr.astype(np.float32)
     arr[np.abs(arr) > 1e9] = np.nan
     if dt_s is not None:
-        if not dt_s > 0:
-            raise ParameterError(f"dt_s must be > 0 seconds, got {dt_s}")
-        arr /= np.float32(dt_s)
+        arr /= np.float32(check_number("dt_s", dt_s, 0.0, lo_open=True, units="seconds"))
     return arr
 
 
@@ -761,7 +762,7 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
             raise FormatError(path, f"flow container lacks dataset '{group.name}/{name}'")
     n = int(group["t1"].shape[0])
     sel = slice(0, n) if index is None else index
-    idx = np.arange(n)[sel]
+    idx = _selected(n, sel)
     if np.ndim(idx) == 0:
         idx = np.array([int(idx)])
         sel = slice(int(idx[0]), int(idx[0]) + 1)
@@ -779,6 +780,16 @@ def read_flow_group(group, path: str | os.PathLike | None = None,
     else:
         check_flow_arrays(path, flow, t0, t1, valid, attrs.get("units"))
     return FlowSequence(flow=flow, t0=t0, t1=t1, valid=valid, attrs=attrs, extras=extras)
+
+
+def _selected(n: int, index: int | slice) -> np.ndarray:
+    """The windows ``index`` selects of ``n``, or ParameterError naming it: an index out
+    of range had read as "the file is corrupt, truncated or not in this format"."""
+    try:
+        return np.arange(n)[index]
+    except (IndexError, TypeError):
+        raise ParameterError(f"index={index!r} selects no window of the {n} the file "
+                             "holds") from None
 
 
 @guarded('flow HDF5')
@@ -848,7 +859,7 @@ def _read_sim_gt(g, path: Path, index, attrs: dict) -> FlowSequence:
                           f"({max(0, fl.shape[0] - 1)}, {fl.shape[1]}, {fl.shape[2]})")
     ft = fts[:].astype(np.int64)
     n = max(0, ft.size - 1)
-    idx = np.arange(n)[slice(None) if index is None else index]
+    idx = _selected(n, slice(None) if index is None else index)
     idx = np.atleast_1d(idx)
     flow = np.stack([g["flow"][int(i)] for i in idx]) if idx.size else \
         np.zeros((0, *g["flow"].shape[1:]), np.float32)

@@ -129,7 +129,7 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
             opts["provenance"] = {**(opts.get("provenance") or {}), **extra}
         else:
             warnings.warn(f"format '{name}' cannot store metadata {sorted(extra)}; "
-                          "write .h5 to keep it", stacklevel=2)
+                          "write .h5 to keep it", EvmotionWarning, stacklevel=2)
     try:
         spec.write(Path(path), events, **opts)
     except FormatError as exc:

@@ -154,6 +154,12 @@ class TexturelessFrameError(ParameterError):
     nothing to measure the background's displacement against."""
 
 
+class _NoEventsInWindow(EventDataError):
+    """No event of the recording lies in the interval: frames and events on other clocks,
+    or, in a sequence, an interval before its first event or after its last, which
+    ``on_empty="skip"`` skips as it does one without events in the ROI."""
+
+
 def _is_int(v) -> bool:
     """A whole number (int, numpy integer, or an integral finite float)."""
     if isinstance(v, (bool, np.bool_)):
@@ -487,13 +493,13 @@ def quantized_frame(frame: np.ndarray) -> np.ndarray:
     return f
 
 
-def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
+def log_frame(frame: np.ndarray, eps: float | None = None, name: str = "frame") -> np.ndarray:
     """Log intensity ``log(I / full_scale + eps)`` of a grayscale frame (float64).
 
     Integer frames are scaled by their dtype's maximum (uint8: 255); float frames are taken
     as relative intensity, unless their values lie on grey levels (:func:`quantized_frame`:
     then as those integers). ``eps`` defaults to half a quantization step for integer
-    frames and 1e-3 for float frames.
+    frames and 1e-3 for float frames. ``name`` is the argument the messages name.
 
     >>> log_frame(np.array([[255, 0]], np.uint8)).round(3).tolist()
     [[0.002, -6.234]]
@@ -502,7 +508,7 @@ def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
     """
     f = quantized_frame(frame)
     if f.ndim != 2:
-        raise ParameterError(f"frame must be a 2-D grayscale image, got shape {f.shape}")
+        raise ParameterError(f"{name} must be a 2-D grayscale image, got shape {f.shape}")
     if np.issubdtype(f.dtype, np.integer):
         full = float(np.iinfo(f.dtype).max)
         e = 0.5 / full if eps is None else float(eps)
@@ -513,9 +519,9 @@ def log_frame(frame: np.ndarray, eps: float | None = None) -> np.ndarray:
         raise ParameterError(f"log_eps must be a finite number > 0, got {eps!r}")
     g = f.astype(np.float64) / full
     if not np.isfinite(g).all():
-        raise ParameterError("frame has NaN or inf values")
+        raise ParameterError(f"{name} has NaN or inf values")
     if (g < 0).any():
-        raise ParameterError(f"frame has negative intensities (min {g.min():g})")
+        raise ParameterError(f"{name} has negative intensities (min {g.min():g})")
     return np.log(g + e)
 
 
@@ -584,14 +590,19 @@ def _check_roi(roi, sensor):
     return x, y, rw, rh
 
 
-def _window_events(events: EventArray, t0_us: int, t1_us: int, roi) -> EventArray:
-    if t1_us <= t0_us:
-        raise ParameterError(f"the window must have t1_us > t0_us, got [{t0_us}, {t1_us}) us")
+def _check_overlap(events: EventArray, t0_us: int, t1_us: int, what: str) -> None:
+    """Raise :class:`_NoEventsInWindow` unless an event lies in ``[t0_us, t1_us)``."""
     if len(events) == 0 or events.t[-1] < t0_us or events.t[0] >= t1_us:
         span = "no events" if len(events) == 0 else \
             f"events span [{int(events.t[0])}, {int(events.t[-1])}] us"
-        raise EventDataError(f"frames and events do not overlap in time: window "
-                             f"[{t0_us}, {t1_us}) us, {span}")
+        raise _NoEventsInWindow(f"frames and events do not overlap in time: {what} "
+                                f"[{t0_us}, {t1_us}) us, {span}")
+
+
+def _window_events(events: EventArray, t0_us: int, t1_us: int, roi) -> EventArray:
+    if t1_us <= t0_us:
+        raise ParameterError(f"the window must have t1_us > t0_us, got [{t0_us}, {t1_us}) us")
+    _check_overlap(events, t0_us, t1_us, "window")
     ev = events.slice_time(t0_us, t1_us)
     x, y, rw, rh = roi
     xs = ev.x.astype(np.int64)
@@ -758,7 +769,7 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
     # measured in time instead, an upper bound that counts the air's own change, had
     # lowered C from 0.257 to 0.206 and the flow from 0.97x to 0.79x the true one, probe)
     s_all, counts_all = event_sums(ev)
-    l0_all, l1_all = log_frame(frame, log_eps), log_frame(frame_next, log_eps)
+    l0_all, l1_all = log_frame(frame, log_eps), log_frame(frame_next, log_eps, "frame_next")
     d_all, level_all = l1_all - l0_all, 0.5 * (l0_all + l1_all)
     if sigma > 0:
         s_all = gaussian_filter(s_all, sigma, mode="nearest")
@@ -779,7 +790,7 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
     near_all[crop] = near
     noise = _frame_noise(d_all, level_all, quiet, near_all)
     if noise is None and frame_after is not None and near.any():
-        noise = log_difference_noise(l0, l1, log_frame(frame_after, log_eps)[crop], sigma,
+        noise = log_difference_noise(l0, l1, log_frame(frame_after, log_eps, "frame_after")[crop], sigma,
                                      near)
     noise = max(noise or 0.0,
                 _quantization_noise(frame, frame_next, crop, sigma, near, log_eps))
@@ -1239,7 +1250,8 @@ def estimate_bos(
     on_empty : {"raise", "skip"}
         A window without events in the ROI (still air, or a sensor that saw nothing) or
         whose frame is textureless there (a dropped, black or uniform frame): raise
-        EmptyWindowError / TexturelessFrameError, or ``"skip"``: return a result that
+        EmptyWindowError / TexturelessFrameError (EventDataError when no event of
+        ``events`` lies in the window), or ``"skip"``: return a result that
         estimates nothing
         (``valid`` all False, zero flow, ``objective`` NaN) and carries ``init``'s
         parameters on as the next interval's warm start, with an EvmotionWarning (the
@@ -1252,7 +1264,8 @@ def estimate_bos(
     Raises
     ------
     EventDataError
-        Frames and events differ in size or do not overlap in time.
+        Frames and events differ in size, or do not overlap in time
+        (``on_empty="raise"``).
     EmptyWindowError
         No event in the window inside the ROI (``on_empty="raise"``).
     ParameterError
@@ -1281,7 +1294,7 @@ def estimate_bos(
     try:
         r, logf, meas, weight, c, log_units = _prepare(events, frame, t0_us, t1_us,
                                                        frame_next, roi, o, increment)
-    except (EmptyWindowError, TexturelessFrameError) as exc:
+    except (EmptyWindowError, _NoEventsInWindow, TexturelessFrameError) as exc:
         if on_empty == "raise":
             raise
         warnings.warn(EvmotionWarning(f"{exc}: the interval is written with no valid pixel"),
@@ -1410,7 +1423,7 @@ def _supported(events: EventArray, t0_us: int, t1_us: int, frame: np.ndarray,
         return box >= SUPPORT_MIN_EVENTS
     # still air: no pixel of the square changed between the frames at all (noisy frames
     # have none, and keep the plain rule)
-    changed = log_frame(frame_next, log_eps) != log_frame(frame, log_eps)
+    changed = log_frame(frame_next, log_eps, "frame_next") != log_frame(frame, log_eps)
     still = ~maximum_filter(changed, size=2 * SUPPORT_RADIUS + 1, mode="nearest")
     return box >= noise_floor_count(box[still])
 
@@ -1573,15 +1586,17 @@ def estimate_bos_sequence(events: EventArray, frames, times_us: Sequence[int],
     [(0, 4500), (4500, 9000)]
     """
     results = list(iter_bos_sequence(events, frames, times_us, **kwargs))
-    warn_underfit((r.fit_gain for r in results), single_solve_displacements(results))
+    warn_underfit((r.fit_gain for r in results), single_solve_displacements(results),
+                  finest_px=min(results[0].options.scales) if results else None)
     return results
 
 
-def warn_underfit(gains, displacements=()) -> None:
+def warn_underfit(gains, displacements=(), finest_px: int | None = None) -> None:
     """Say when the median :attr:`BosResult.fit_gain` of a sequence's intervals exceeds
     :data:`FIT_GAIN_WARN`, or the median of their :attr:`BosResult.displacement_q95`
     (solved once: NaN for the others) reaches :data:`RELINEARIZE_PX`: the flow is too
-    small (the intervals' own warnings are left out in a sequence: one per run)."""
+    small (the intervals' own warnings are left out in a sequence: one per run).
+    ``finest_px``, the finest patch size of the solves, is named when given."""
     d = np.asarray([v for v in displacements if v is not None and np.isfinite(v)],
                    np.float64)
     if d.size and np.median(d) >= RELINEARIZE_PX:
@@ -1591,10 +1606,11 @@ def warn_underfit(gains, displacements=()) -> None:
             stacklevel=2)
     g = np.asarray([v for v in gains if v is not None and np.isfinite(v)], np.float64)
     if g.size and np.median(g) > FIT_GAIN_WARN:
+        size = f" ({finest_px} px)" if finest_px else ""
         warnings.warn(UnderfitWarning(
             f"the flow explains the events' increment at 1/{np.median(g):.2f} of its size "
             f"where they fired (median over {g.size} intervals): air structures finer than "
-            "the solver's finest patches (8 px), or events that are noise, not schlieren "
+            f"the solver's finest patches{size}, or events that are noise, not schlieren "
             "(still air)? Its magnitude is then too small (0.4-0.7x on scenes of fine "
             "structures), or no measurement"), stacklevel=2)
 
@@ -1641,6 +1657,9 @@ def iter_bos_sequence(
 
     Raises
     ------
+    EventDataError
+        No event lies between the first and the last frame (an interval without events
+        is skipped: ``on_empty="skip"`` of :func:`estimate_bos`).
     EvmotionError
         The first interval's error, re-raised with its window (see :func:`estimate_bos`).
 
@@ -1675,6 +1694,9 @@ def iter_bos_sequence(
         raise ParameterError("a sequence needs at least two frames")
     if np.any(np.diff(times) <= 0):
         raise ParameterError("frame timestamps must increase")
+    # intervals without events are skipped, but not all of them: other clocks, not still air
+    _check_overlap(require_events(events, "iter_bos_sequence"), int(times[0]),
+                   int(times[-1]), "frames")
     n = len(times) - 1
     n_chunks = max(1, min(n, workers if chunks is None else int(chunks)))
     bounds = np.linspace(0, n, n_chunks + 1).round().astype(int)

@@ -55,7 +55,7 @@ from evmotion.core.trim import pairs_size
 from evmotion.core.warps import WARPS, Warp, make_warp
 from evmotion.core.whitening import whiten
 from evmotion.errors import CalibrationError, EmptyWindowError, ParameterError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, check_reference_time
 from evmotion.methods.weights import window_weight
 
 __all__ = [
@@ -511,7 +511,7 @@ def resolve_t_ref(t_ref, t: np.ndarray) -> int:
             raise ParameterError(f"t_ref must be 'start', 'mid', 'end' or microseconds, "
                                  f"got '{t_ref}'")
         return choices[t_ref]
-    return int(t_ref)
+    return check_reference_time("t_ref", t_ref, t)
 
 
 def _default_weight(regularizer, dataset: str) -> float | dict[str, float]:

@@ -402,7 +402,10 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
     K : array (3, 3), optional
         Intrinsics (pixels), required by ``rotation`` unless ``events.meta["K"]`` holds it.
     t_ref : {"start", "mid", "end"} or int, optional
-        Reference time of the warp; an int is absolute µs. Default ``"mid"`` (the more
+        Reference time of the warp; an int is absolute µs, within the window's span (or
+        1 s if longer) of its events (:func:`evmotion.events.check_reference_time`; a time
+        farther away is another window's, and warped every event off the sensor). Default
+        ``"mid"`` (the more
         accurate: ``benchmarks/results/egomotion_tref.md``), and ``"start"`` with a
         ``regularizer``, whose collapse penalties are defined for it (at the middle the
         halves of the window penalize opposite motions and cancel: a zoom collapsed with a

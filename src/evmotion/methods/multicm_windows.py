@@ -38,7 +38,7 @@ def _chunk(events: EventArray, t0: int, t1: int, *, windows, kwargs, keep_iwes):
     carry their index ranges in the whole recording, so that each window gets exactly the
     events of a serial run (cutting by time would move events that share a timestamp
     across a boundary)."""
-    from evmotion.methods.multicm import estimate_flow_sequence
+    from evmotion.methods.multicm import estimate_flow_sequence, warms
     from evmotion.parallel import collected_warnings
 
     mine = [w for w in windows if t0 <= w.t0 < t1]
@@ -49,7 +49,7 @@ def _chunk(events: EventArray, t0: int, t1: int, *, windows, kwargs, keep_iwes):
             [res] = estimate_flow_sequence(
                 events, [Window(w.index, w.t0, w.t1, w.start - offset, w.stop - offset)],
                 init=init, **kwargs)
-        if "skipped" not in res.meta:
+        if warms(res, kwargs):
             init = res
         # a skipped window is said by iter_chunks, with its index in the whole recording
         out.append((_lean(res, keep_iwes), [s for s in said if not _SKIPPED.search(s[1])]))

@@ -151,7 +151,8 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
     K : array (3, 3), optional
         Intrinsics (rotation warp).
     t_ref : {"start", "mid", "end"} or int
-        Reference time (int: absolute µs).
+        Reference time (int: absolute µs, within the window's span or 1 s of its events,
+        as in :func:`~evmotion.methods.egomotion.estimate_egomotion`).
     n_iter : int
         Maximum EM iterations.
     init : array (n_warps, P), optional

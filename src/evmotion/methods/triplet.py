@@ -64,11 +64,11 @@ from evmotion.errors import EmptyWindowError, ParameterError, PoorFitWarning
 from evmotion.events import (
     EventArray,
     Window,
+    as_window,
     check_stream_order,
     pixel_indices,
     require_events,
     sensor_pixels,
-    window_bounds,
 )
 from evmotion.io.guard import MAX_SENSOR_SIDE
 from evmotion.methods import triplet_kernels as K
@@ -848,7 +848,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     _filter_radius(filter_size)
     if windows is None:
         windows = [Window(0, events.t_start, events.t_end + 1, 0, len(events))]
-    windows = [_as_window(events, k, win) for k, win in enumerate(windows)]
+    windows = [as_window(events, k, win) for k, win in enumerate(windows)]
     m = TripletMatcher(events.sensor_size, dx, dt_us, tau_us, quadruple=quadruple, depth=depth,
                        normal_kappa=normal_kappa)
     stop = max((w.stop for w in windows), default=len(events))
@@ -919,17 +919,6 @@ def _warn_incomplete(incomplete: tuple[int, int] | None, windows) -> None:
             "motion is that slow their flow is biased (a longer recording, or a shorter d_t "
             "for fast motion)"),
             stacklevel=3)
-
-
-def _as_window(events: EventArray, k: int, win) -> Window:
-    """A :class:`~evmotion.events.Window`, or one made of a ``(t0, t1)`` pair of µs."""
-    if isinstance(win, Window):
-        return win
-    t0, t1 = window_bounds(win, k)
-    if t1 <= t0:
-        raise ParameterError(f"windows[{k}] = ({t0}, {t1}): t1 must be after t0")
-    start, stop = (int(i) for i in np.searchsorted(events.t, [t0, t1]))
-    return Window(k, t0, t1, start, stop)
 
 
 def _warn_no_focus(gains: np.ndarray, flagged: np.ndarray) -> None:
