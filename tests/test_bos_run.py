@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from evmotion.errors import ParameterError
+from evmotion.errors import ParameterError, UnderfitWarning
 from evmotion.io.bosinput import frame_intervals, load_bos_input
 from evmotion.methods.bos import estimate_bos, estimate_contrast_threshold
 from evmotion.methods.bos_run import sequence_contrast_threshold, solve_bos_input
@@ -504,3 +504,17 @@ def test_intervals_all_touching_a_blank_frame_name_it(tmp_path):
     with pytest.raises(EventDataError, match=rf"frame 1 at {int(data.frame_times[1])} us; "
                                              "dropped, black or uniform"):
         sequence_threshold(black)
+
+
+def test_the_runs_underfit_warning_names_its_finest_patches(tmp_path):
+    """The runs' underfit warning named no patch size after estimate_bos_sequence's
+    learned to name the one of its scales (probe BE); the CLI's runs name theirs too."""
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    d = tmp_path / "plume"
+    write_schlieren(simulate_schlieren("plume", sensor_size=(180, 160), duration_s=4 / 120,
+                                       seed=0), d)
+    with pytest.warns(UnderfitWarning) as said:
+        solve_bos_input(load_bos_input(d), scales=(32, 16), iterations=20)
+    under = [str(w.message) for w in said if "finest patches" in str(w.message)]
+    assert under and all("finest patches (16 px)" in m for m in under)

@@ -727,7 +727,8 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
                                             exclude=unmeasured)
     results = list(iter_bos_input(data, c, workers=workers, progress=progress,
                                   scheduler=scheduler, unmeasured=unmeasured, **options))
-    warn_underfit((r.fit_gain for r in results), single_solve_displacements(results))
+    warn_underfit((r.fit_gain for r in results), single_solve_displacements(results),
+                  finest_px=min(results[0].options.scales) if results else None)
     return BosRun(results, c, source, samples)
 
 
@@ -895,7 +896,7 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
     """
     from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
-    rows, gains, moved = [], [], []
+    rows, gains, moved, finest = [], [], [], None
     try:
         out.check_count(len(data.intervals))
         for i, (_, t0, t1) in enumerate(data.intervals[:len(out.done)]):
@@ -916,8 +917,9 @@ def solve_bos_into(out, data: BosInput, contrast_threshold: float | None, *,
             # (the run's one underfit warning, by the medians over the intervals solved)
             gains.append(res.fit_gain)
             moved += single_solve_displacements([res])
+            finest = min(res.options.scales)
         out.close()
-        warn_underfit(gains, moved)
+        warn_underfit(gains, moved, finest)
     except BaseException:
         out.abort()
         raise
