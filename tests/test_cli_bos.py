@@ -328,7 +328,7 @@ def test_interrupted_bos_resumes_to_the_uninterrupted_output(tmp_path, capsys, m
 
     monkeypatch.setattr(bos, "estimate_bos", counted)
     summaries = []  # what the run's underfit warning is decided on
-    monkeypatch.setattr(bos, "warn_underfit", lambda g, d=(): summaries.append(
+    monkeypatch.setattr(bos, "warn_underfit", lambda g, d=(), finest=None: summaries.append(
         (list(g), list(d))))
     full, out = tmp_path / "full.h5", tmp_path / "out.h5"
     argv = ["bos", scene, "--iterations", "30"]
