@@ -541,3 +541,15 @@ def test_a_time_past_int64_microseconds_is_named_not_wrapped(first):
         ecd.parse_text(data, "e.txt")
     x, y, t, p = ecd.parse_text(b"4611686018427.387903 1 2 1\n", "e.txt")
     assert t.tolist() == [4_611_686_018_427_387_903]
+
+
+def test_decimal_seconds_read_as_nanoseconds_are_refused(tmp_path):
+    """Probe BD: --time-unit ns on decimal seconds put every event on 0 us, and the
+    command then said "30000 events spanning 0 us"; whole ns as decimals still read."""
+    (tmp_path / "s.txt").write_text("0.001017 1 2 1\n0.001046 1 2 0\n")
+    with pytest.raises(FormatError, match=r"0.001017 is not a whole number of "
+                                          r"nanoseconds: the times are in seconds\?"):
+        ecd.read(tmp_path / "s.txt", sensor_size=(5, 7), time_unit="ns")
+    (tmp_path / "n.txt").write_text("1000.0 1 2 1\n3000.0 1 2 0\n")
+    assert ecd.read(tmp_path / "n.txt", sensor_size=(5, 7), time_unit="ns").t.tolist() == \
+        [1, 3]

@@ -392,7 +392,15 @@ def _times_us(tcol: np.ndarray, unit: str) -> np.ndarray:
         else:
             return (t + 500) // 1000 if unit == "ns" else t * TEXT_TIME_UNITS[unit]
     with np.errstate(all="ignore"):
-        t = np.rint(tcol.astype(np.float64) * (TEXT_TIME_UNITS[unit] or 1e-3))
+        v = tcol.astype(np.float64)
+        if unit == "ns" and v.size and (v != np.rint(v)).any():
+            # decimal seconds read as ns all fell on 0 us ("30000 events spanning 0 us",
+            # probe BD): no tool writes fractions of a nanosecond
+            k = int(np.argmax(v != np.rint(v)))
+            raise ValueError(f"a time of {tcol[k].decode()} is not a whole number of "
+                             "nanoseconds: the times are in seconds? (leave out "
+                             "--time-unit / time_unit)")
+        t = np.rint(v * (TEXT_TIME_UNITS[unit] or 1e-3))
     if t.size and not np.all(np.abs(t) < 2.0**62):
         raise ValueError("a time beyond +-2^62 us")
     return t.astype(np.int64)
