@@ -71,6 +71,42 @@ def test_corrupt_files_give_one_line_naming_the_file(name, seeds, tmp_path_facto
     assert seen["cases"] >= CASES_PER_SEED // 2 and seen["ok"] < seen["cases"]
 
 
+@pytest.mark.realdata
+@pytest.mark.parametrize("name", ["evt3", "evt2", "dat"])
+def test_numpy_and_numba_decoders_agree_on_corrupt_files(name, seeds, tmp_path_factory,
+                                                          monkeypatch):
+    """A small file is decoded by numpy, a large one by the numba kernels (binary.
+    PLAIN_WORDS): on every mutated copy of a seed both give the same events, or the same
+    one-line error."""
+    from evmotion.io import binary
+
+    found, missing = seeds
+    if name not in found:
+        pytest.skip(f"no seed for {name}: {missing.get(name, 'not made')}")
+    seed = found[name]
+    out_dir = tmp_path_factory.mktemp(f"fuzz_decoders_{name}")
+    small = binary.PLAIN_WORDS
+
+    def outcome(path, limit):
+        monkeypatch.setattr(binary, "PLAIN_WORDS", limit)
+        try:
+            ev = eio.read_events(path, format=seed.fmt)
+        except EvmotionError as exc:
+            return str(exc)
+        return ev.sensor_size, ev.x, ev.y, ev.t, ev.p
+
+    def check(path, ops):
+        plain, kernel = outcome(path, small), outcome(path, -1)
+        if isinstance(plain, str) or isinstance(kernel, str):
+            assert plain == kernel, ops
+            return
+        assert plain[0] == kernel[0], ops
+        for a, b in zip(plain[1:], kernel[1:], strict=True):
+            np.testing.assert_array_equal(a, b, err_msg=str(ops))
+
+    run_mutations(seed, CASES_PER_SEED // 2, out_dir, check)
+
+
 def test_mutations_are_deterministic():
     data = bytes(range(256)) * 4
     ops = [("flip", 10, 3, 0), ("insert", 7, 5, 9), ("field", 0, 1, 2), ("int", 9, 2, 10)]
