@@ -680,6 +680,27 @@ def test_background_noise_events_do_not_make_still_air_valid():
     assert shares[20.0][1] > 0.3 * shares[0.0][1]  # the air keeps most of its support
 
 
+def test_background_noise_events_over_noisy_frames_do_not_make_still_air_valid():
+    """As above with frames of shot noise, where no square of still air is unchanged:
+    the plain rule had kept 28 % of the still background valid at 5 noise events per
+    pixel and second and 92 % at 20 (probe BC's renderer); the squares that changed least
+    now give the noise's count."""
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    shares = {}
+    for rate in (0.0, 20.0):
+        sim = simulate_schlieren("plume", sensor_size=(96, 80), duration_s=2 / 120, seed=0,
+                                 noise_rate=rate, photons=2000)
+        fr, t = sim.frames.images, sim.frames.t
+        assert (fr[2] != fr[1]).mean() > 0.5  # noisy frames: still air changes too
+        res = estimate_bos(sim.events, fr[1], t0_us=int(t[1]), t1_us=int(t[2]),
+                           frame_next=fr[2], iterations=5)
+        still = np.hypot(*np.moveaxis(sim.gt.flow[1], -1, 0)) * (t[2] - t[1]) * 1e-6 < 1e-3
+        shares[rate] = (res.valid[still].mean(), res.valid[~still].mean())
+    assert shares[20.0][0] < 0.05 and shares[0.0][0] < 0.05, shares
+    assert shares[20.0][1] > 0.3 * shares[0.0][1], shares
+
+
 def test_large_displacements_are_solved_again_at_the_flow_found():
     """The linearized model (6.9) holds within the frame's smoothing: a smooth field moving
     the background up to 4 px came out at 0.78x its magnitude above 2 px, and now says so.
