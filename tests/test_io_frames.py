@@ -539,3 +539,29 @@ def test_a_frame_of_another_size_is_refused_before_it_is_decoded(tmp_path, monke
                                           r"but frame_00000000.png is"):
         read_frames(tmp_path)
     assert len(decoded) == 2 and not any("frame_00000002" in str(p) for p in decoded)
+
+
+def test_frames_of_a_low_jpeg_quality_are_said(tmp_path):
+    """Probe BC: JPEG frames of quality 40 gave BOS magnitudes 1.09-1.14x, unsaid (60-90:
+    1.00-1.02x)."""
+    import warnings
+
+    cv2 = pytest.importorskip("cv2")
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io.frames import jpeg_quality
+
+    imgs = _images(2, 32, 40)
+    for q in (40, 90):
+        folder = tmp_path / f"q{q}"
+        (folder / "images").mkdir(parents=True)
+        for i, img in enumerate(imgs):
+            cv2.imwrite(str(folder / "images" / f"{i}.jpg"), img, [cv2.IMWRITE_JPEG_QUALITY, q])
+        (folder / "images.txt").write_text("0.0 images/0.jpg\n0.01 images/1.jpg\n")
+        assert jpeg_quality(folder / "images" / "0.jpg") == q
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            read_frames(folder)
+        lossy = [w for w in said if issubclass(w.category, EvmotionWarning)
+                 and "JPEGs of quality" in str(w.message)]
+        assert len(lossy) == (q < 50)
+    assert jpeg_quality(tmp_path / "q40" / "images.txt") is None

@@ -222,7 +222,70 @@ def _read_frame(path: Path, like: tuple[Path, tuple] | None) -> tuple[np.ndarray
     return img, 16 if img.dtype == np.uint16 else 8
 
 
+# the JPEG standard's luminance quantization table (Annex K), which IJG libjpeg scales by
+# quality: 50 as is, 100 all ones
+_JPEG_LUMA = (16, 11, 10, 16, 24, 40, 51, 61, 12, 12, 14, 19, 26, 58, 60, 55, 14, 13, 16,
+              24, 40, 57, 69, 56, 14, 17, 22, 29, 51, 87, 80, 62, 18, 22, 37, 56, 68, 109,
+              103, 77, 24, 35, 55, 64, 81, 104, 113, 92, 49, 64, 78, 87, 103, 121, 120, 101,
+              72, 92, 95, 98, 112, 100, 103, 99)
+# below this JPEG quality the frames' block artefacts are said (an independent renderer's
+# BOS magnitudes: 1.09-1.14x at 40, 1.00-1.02x at 60, 75 and 90; probe BC)
+JPEG_QUALITY_WARN = 50
+
+
+def jpeg_quality(path: str | os.PathLike) -> int | None:
+    """The IJG quality (1-100) a JPEG file's luminance quantization table was scaled to,
+    or None for a file that is not a baseline JPEG with one.
+
+    Examples
+    --------
+    >>> import cv2
+    >>> _ = cv2.imwrite("q40.jpg", np.zeros((8, 8), np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 40])
+    >>> jpeg_quality("q40.jpg")
+    40
+    """
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(1 << 16)
+    except OSError:
+        return None
+    if data[:2] != b"\xff\xd8":
+        return None
+    i = 2
+    while i + 4 <= len(data) and data[i] == 0xFF:
+        marker, size = data[i + 1], int.from_bytes(data[i + 2:i + 4], "big")
+        if marker == 0xDA:  # the image data: no table before it
+            return None
+        if marker == 0xDB:
+            seg, j = data[i + 4:i + 2 + size], 0
+            while j < len(seg):
+                wide, table = seg[j] >> 4, seg[j] & 0x0F
+                n = 128 if wide else 64
+                if table == 0 and j + 1 + n <= len(seg):
+                    vals = np.frombuffer(seg[j + 1:j + 1 + n], ">u2" if wide else "u1")
+                    scale = 100.0 * vals.sum() / sum(_JPEG_LUMA)
+                    q = (200.0 - scale) / 2.0 if scale <= 100 else 5000.0 / scale
+                    return int(np.clip(round(q), 1, 100))
+                j += 1 + n
+        i += 2 + size
+    return None
+
+
+def _warn_lossy(files: list[Path]) -> None:
+    """Say when the frames are JPEGs of a quality under :data:`JPEG_QUALITY_WARN`."""
+    if not files or files[0].suffix.lower() not in (".jpg", ".jpeg"):
+        return
+    q = jpeg_quality(files[0])
+    if q is not None and q < JPEG_QUALITY_WARN:
+        warnings.warn(EvmotionWarning(
+            f"{files[0]}: the frames are JPEGs of quality {q}: their 8x8 block artefacts "
+            "change from frame to frame as the image does (BOS magnitudes came out "
+            "1.09-1.14x at quality 40, 1.00-1.02x at 60-90); lossless frames (PNG) avoid "
+            "it"), stacklevel=4)
+
+
 def _stack(files: list[Path]) -> tuple[np.ndarray, int]:
+    _warn_lossy(files)
     images, depth, first = [], None, None
     for f in files:
         img, bits = _read_frame(f, first)
