@@ -100,3 +100,19 @@ def with_hot_pixels(ev, xs, ys, per_pixel: int, seed: int = 0):
     return EventArray(np.round(np.r_[ev.x, np.repeat(xs, per_pixel)]).astype(np.uint16)[order],
                       np.round(np.r_[ev.y, np.repeat(ys, per_pixel)]).astype(np.uint16)[order],
                       t[order], np.r_[ev.p, np.ones(n_hot)][order], ev.sensor_size)
+
+
+def assert_decoders_agree(module, words: np.ndarray, n_cuts: int, rng) -> np.ndarray:
+    """``module.decode_words`` by numpy and by its numba kernel on ``words`` split at
+    ``n_cuts`` random places, the state carried across from a fresh decoder: the same
+    arrays (and dtypes) and the same state after every block; returns the final state."""
+    cuts = np.sort(rng.choice(np.arange(1, words.size), n_cuts, replace=False))
+    ref_state, state = module.new_state(), module.new_state()
+    for part in np.split(words, cuts):
+        want = module.decode_words(part, ref_state, plain=False)
+        got = module.decode_words(part, state, plain=True)
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a, b)
+            assert a.dtype == b.dtype
+        np.testing.assert_array_equal(state, ref_state)
+    return state

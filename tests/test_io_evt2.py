@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _helpers import assert_same_events
+from _helpers import assert_decoders_agree, assert_same_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import evt2
@@ -60,15 +60,7 @@ def test_numpy_decoder_matches_the_kernel_on_random_words_in_blocks():
     payload[typ == 0x8] = np.cumsum(rng.integers(0, 1 << 26, int((typ == 0x8).sum()))) \
         % (1 << 28)
     words = ((typ << 28) | payload).astype(np.uint32)
-    cuts = np.sort(rng.choice(np.arange(1, n), 30, replace=False))
-    ref_state, state = evt2.new_state(), evt2.new_state()
-    for part in np.split(words, cuts):
-        want = evt2.decode_words(part, ref_state, plain=False)
-        got = evt2.decode_words(part, state, plain=True)
-        for a, b in zip(got, want, strict=True):
-            np.testing.assert_array_equal(a, b)
-            assert a.dtype == b.dtype
-        np.testing.assert_array_equal(state, ref_state)
+    state = assert_decoders_agree(evt2, words, 30, rng)
     assert state[1] > 0  # the counter wrapped
 
 

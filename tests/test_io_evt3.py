@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _helpers import assert_same_events
+from _helpers import assert_decoders_agree, assert_same_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import dat, evt3
@@ -83,15 +83,7 @@ def test_numpy_decoder_matches_the_kernel_on_random_words_in_blocks():
     types = np.array([0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0x8, 0x7, 0xA, 0xE])
     words = ((rng.choice(types, 20_000, p=[.15, .2, .05, .1, .1, .15, .15, .04, .03, .03])
               << 12) | rng.integers(0, 1 << 12, 20_000)).astype(np.uint16)
-    cuts = np.sort(rng.choice(np.arange(1, words.size), 40, replace=False))
-    ref_state, state = evt3.new_state(), evt3.new_state()
-    for part in np.split(words, cuts):
-        want = evt3.decode_words(part, ref_state, plain=False)
-        got = evt3.decode_words(part, state, plain=True)
-        for a, b in zip(got, want, strict=True):
-            np.testing.assert_array_equal(a, b)
-            assert a.dtype == b.dtype
-        np.testing.assert_array_equal(state, ref_state)
+    state = assert_decoders_agree(evt3, words, 40, rng)
     assert state[3] > 0  # the counter wrapped
 
 
