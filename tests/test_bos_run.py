@@ -327,6 +327,22 @@ def test_start_up_that_lasts_into_the_next_interval_is_said(ice10, tmp_path):
         assert unmeasured_intervals(load_bos_input(ice10[0])) == (0,)
 
 
+def test_start_up_among_rates_that_disagree_is_said_as_unknown(ice10, tmp_path):
+    """Probe BF: under 100 Hz flicker of 2-10 % the next intervals' rates spread 2.1-4.3,
+    and the start-up check returned without a word (the first interval went out at 0.59x,
+    valid). Here half of one later interval's events are dropped."""
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos_run import warn_startup
+
+    rng = np.random.default_rng(2)
+    uneven = _keeping(ice10, tmp_path, lambda t: ~((t >= 16667) & (t < 25000)
+                                                    & (rng.random(t.size) < 0.6)))
+    with pytest.warns(EvmotionWarning, match=r"\[0, 8333\) us, and the next intervals' events "
+                                             r"follow .* at rates \d\.\dx apart \(flickering "
+                                             r"light.*cannot be told.*--t0 0\.008333"):
+        assert warn_startup(load_bos_input(uneven)) == ()
+
+
 def test_a_nearly_empty_interval_does_not_hide_the_start_up(ice10, tmp_path):
     """One interval of next to no events among the next four (still air, a gap) made
     their rates disagree, and the start-up interval went out at 0.37x, valid (probe)."""
