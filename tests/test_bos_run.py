@@ -343,6 +343,21 @@ def test_start_up_among_rates_that_disagree_is_said_as_unknown(ice10, tmp_path):
         assert warn_startup(load_bos_input(uneven)) == ()
 
 
+def test_a_first_interval_of_next_to_no_change_is_not_called_start_up(ice10, tmp_path):
+    """Probe BF: still air and noise events before a plume came into view followed the
+    frames' change at 0.05-0.07 of the later rate and were said to be the sensor's
+    start-up; still written with no valid pixel, they are now said as what they may be."""
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos_run import warn_startup
+
+    rng = np.random.default_rng(3)
+    quiet = _keeping(ice10, tmp_path, lambda t: ~((t < 8333) & (rng.random(t.size) < 0.97)))
+    with pytest.warns(EvmotionWarning, match=r"\[0, 8333\) us and follow the frames' change "
+                                             r"there at 0\.\d\d .*next to no change the events "
+                                             r"follow: still air, or noise"):
+        assert warn_startup(load_bos_input(quiet)) == (0,)
+
+
 def test_a_nearly_empty_interval_does_not_hide_the_start_up(ice10, tmp_path):
     """One interval of next to no events among the next four (still air, a gap) made
     their rates disagree, and the start-up interval went out at 0.37x, valid (probe)."""

@@ -296,12 +296,18 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
     end = int(data.intervals[named[-1], 2])
     also = ("" if len(named) == 1 else
             f" (and the next, [{t1}, {end}) us, at {follow:.2f} of the settled rate)")
+    # a start-up fires about half as much (0.55-0.82); next to nothing is air that had not
+    # come yet, or noise (probe BF: 0.05-0.07 said as start-up)
+    why = ("a sensor (or a simulator) that starts with the recording fires less until its "
+           "pixels settle; the flow there is too small (0.26-0.81x on simulated scenes)"
+           if share >= NEAR_EMPTY_GAIN else
+           "next to no change the events follow: still air, or noise events, or a sensor "
+           "that starts with the recording")
     warnings.warn(EvmotionWarning(
-        f"the events begin in the frame interval [{t0}, {t1}) us and follow the frames' change there at {share:.2f} "
-        f"of the next intervals' rate{also}: a sensor (or a simulator) that starts with the "
-        "recording fires less until its pixels settle; the flow there is too small "
-        f"(0.26-0.81x on simulated scenes) and is written with no valid pixel; --t0 "
-        f"{seconds_text(end)} leaves {'it' if len(named) == 1 else 'them'} out"), stacklevel=2)
+        f"the events begin in the frame interval [{t0}, {t1}) us and follow the frames' "
+        f"change there at {share:.2f} of the next intervals' rate{also}: {why}; it is "
+        f"written with no valid pixel; --t0 {seconds_text(end)} leaves "
+        f"{'it' if len(named) == 1 else 'them'} out"), stacklevel=2)
     return tuple(named)
 
 
