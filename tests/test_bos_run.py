@@ -549,3 +549,21 @@ def test_the_runs_underfit_warning_names_its_finest_patches(tmp_path):
         solve_bos_input(load_bos_input(d), scales=(32, 16), iterations=20)
     under = [str(w.message) for w in said if "finest patches" in str(w.message)]
     assert under and all("finest patches (16 px)" in m for m in under)
+
+
+def test_lamps_flickering_on_mains_power_are_said(ice10, tmp_path):
+    """Probe BF: 100 Hz flicker of 5-10 % turned the flow's direction by 6-24 degrees
+    with its phase, and nothing said so. Here the events are thinned at 200 Hz."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos_run import warn_mains_flicker
+
+    rng = np.random.default_rng(4)
+    lit = _keeping(ice10, tmp_path, lambda t: rng.random(t.size)
+                   < 0.6 + 0.4 * np.sin(2 * np.pi * 200e-6 * t))
+    with pytest.warns(EvmotionWarning, match=r"carries a 200 Hz line, \d+x .*mains power"):
+        assert warn_mains_flicker(load_bos_input(lit))[0] == 200.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EvmotionWarning)
+        assert warn_mains_flicker(load_bos_input(ice10[0])) is None

@@ -166,6 +166,7 @@ def run(args) -> int:
         sequence_threshold,
         solve_bos_into,
         unmeasured_intervals,
+        warn_mains_flicker,
         warn_uncovered,
     )
 
@@ -199,6 +200,7 @@ def run(args) -> int:
         require_texture(data, options)
         warn_uncovered(data)
         check_registration(data)
+        warn_mains_flicker(data)
         unmeasured = unmeasured_intervals(data)
         c, c_source, _ = sequence_threshold(data, args.contrast_threshold, exclude=unmeasured)
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,

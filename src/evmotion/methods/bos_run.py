@@ -38,7 +38,8 @@ __all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "check_registration
            "iter_bos_input", "registration_shift",
            "open_bos_output", "require_texture", "sequence_contrast_threshold",
            "sequence_threshold", "solve_bos_input", "solve_bos_into", "stored_warm_start",
-           "unmeasured_intervals", "warn_startup", "warn_uncovered", "write_bos_output"]
+           "unmeasured_intervals", "warn_mains_flicker", "warn_startup", "warn_uncovered",
+           "write_bos_output"]
 
 #: %Out threshold of BOS evaluations (thesis §6.6.1: displacements of a few px), stored
 #: in the output as ``eval_out_px`` for ``evmotion eval``.
@@ -319,6 +320,40 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
 #: events change by less than twice their noise (still air: no ratio; without that test
 #: 0.05-0.11 and 0.5-0.6).
 UNCOVERED_CHANGE = 0.8
+
+
+def warn_mains_flicker(data: BosInput) -> tuple[float, float] | None:
+    """An :class:`~evmotion.errors.EvmotionWarning` where the events' rate over the
+    selected intervals carries a line of lamps on mains power
+    (:func:`evmotion.methods.measured.mains_flicker`): the events then follow the light as
+    well as the air (probe BF: 100 Hz flicker of 5-10 % turned the flow's direction by
+    6-24 degrees with its phase, 5-7 without, and nothing said it). Returns the line's
+    ``(frequency Hz, strength)``, else None.
+
+    Examples
+    --------
+    >>> from evmotion.io.bosinput import load_bos_input
+    >>> from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+    >>> sim = simulate_schlieren("plume", sensor_size=(48, 64), duration_s=0.06, seed=0)
+    >>> folder = write_schlieren(sim, "scene")
+    >>> warn_mains_flicker(load_bos_input("scene/")) is None   # steady light
+    True
+    """
+    from evmotion.methods.measured import mains_flicker
+
+    t0, t1 = int(data.intervals[0, 1]), int(data.intervals[-1, 2])
+    t = data.events.t
+    found = mains_flicker(t[np.searchsorted(t, t0):np.searchsorted(t, t1)])
+    if found is not None:
+        f0, strength = found
+        warnings.warn(EvmotionWarning(
+            f"the events' rate carries a {f0:g} Hz line, {strength:.0f}x its spectrum's "
+            "median: lamps flickering on mains power? The events then follow the light as "
+            "well as the air, and the flow's direction and size can vary with the flicker's "
+            "phase (6-24 degrees of error at 5-10 % flicker, 5-7 without, on an independent "
+            "renderer's plume); light the background without flicker (DC-driven LEDs)"),
+            stacklevel=2)
+    return found
 
 
 def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
@@ -745,6 +780,7 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     require_texture(data)
     warn_uncovered(data)
     check_registration(data)
+    warn_mains_flicker(data)
     unmeasured = unmeasured_intervals(data)
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples,
                                             exclude=unmeasured)
