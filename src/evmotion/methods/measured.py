@@ -324,9 +324,9 @@ def warn_flicker(events: EventArray, what: str, stacklevel: int = 3) -> str | No
 MAINS_FLICKER_HZ = (100.0, 120.0, 200.0, 240.0)
 #: A line this many times the median power of the event rate's spectrum over 40-1000 Hz
 #: is flicker: 264 at 2 % flicker of 100 Hz and 9363 at 10 % of 120 Hz (probe BF's
-#: renderer), 54 on the shared DAVIS346 recording; 0.1-26 on 13 scenes without flicker of
-#: three BOS renderers (the largest on windows of 0.05 s, whose 20 Hz bins hold the air's
-#: slow changes)
+#: renderer), 54 on the shared DAVIS346 recording; 0.1-26 on 12 scenes without flicker of
+#: two BOS renderers, the probes' and the simulator (the largest on runs of 0.05 s, whose
+#: 20 Hz bins hold the air's slow changes), 10.8 on the shared EVT3 recording
 MAINS_FLICKER_LINE = 50.0
 #: Shorter recordings are not looked at (five periods of 100 Hz)
 MAINS_FLICKER_MIN_SPAN_US = 50_000
