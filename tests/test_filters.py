@@ -123,3 +123,33 @@ def test_hot_line_mask_matches_loop_reference():
     got = hot_line_mask(counts, thr, ratio)
     np.testing.assert_array_equal(got, ref)
     assert got[5, 2:8].all() and got[:, 9].sum() >= h - 3
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda ev: refractory_filter(ev, 10.5), "refractory_us"),
+    (lambda ev: refractory_filter(ev, -1), "refractory_us"),
+    (lambda ev: hot_pixel_mask(ev, n_sigma=-1), "n_sigma"),
+    (lambda ev: hot_pixel_mask(ev, n_sigma=float("nan")), "n_sigma"),
+    (lambda ev: hot_pixel_mask(ev, min_count=2.5), "min_count"),
+    (lambda ev: hot_pixel_mask(ev, neighbour_ratio=0.5), "neighbour_ratio"),
+])
+def test_options_out_of_range_are_refused_by_name(call, name):
+    """Probe BE: refractory_us=10.5 ran as 10 and n_sigma=-1 or nan marked the busy half
+    of the pixels hot, without a word."""
+    from evmotion.errors import ParameterError
+
+    ev = EventArray([0, 1, 2], [0, 0, 1], [0, 10, 20], [1, 1, 0], (4, 5))
+    with pytest.raises(ParameterError, match=name):
+        call(ev)
+
+
+def test_simulator_and_metrics_options_out_of_range_are_refused_by_name():
+    from evmotion.errors import ParameterError
+    from evmotion.eval.metrics import flow_metrics
+    from evmotion.sim import simulate
+
+    with pytest.raises(ParameterError, match="refractory_us"):
+        simulate("translation", duration_s=0.01, sensor_size=(40, 50), refractory_us=10.5,
+                 show_progress=False)
+    with pytest.raises(ParameterError, match="out_rel"):
+        flow_metrics(np.zeros((2, 2, 2)), np.ones((2, 2, 2)), out_rel=-1)

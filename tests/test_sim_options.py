@@ -49,7 +49,7 @@ def test_options_change_the_result():
 
 @pytest.mark.parametrize("kw, match", [
     ({"threshold": 0.0}, r"threshold must be finite and > 0.0 \(log intensity\), got 0.0"),
-    ({"refractory_us": -1}, r"refractory_us .*\(µs\), got -1"),
+    ({"refractory_us": -1}, r"refractory_us \(µs\) must be a whole number >= 0, got -1"),
     ({"noise_rate": float("nan")}, "noise_rate"),
     ({"max_step_fraction": 0}, "max_step_fraction"),
     ({"frame_rate": -5}, r"frame_rate .*\(Hz\)"),

@@ -7,6 +7,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray, require_events, sensor_pixels
 from evmotion.jitcache import lazy_njit
+from evmotion.utils import check_number, whole_number
 
 __all__ = ["hot_line_mask", "hot_pixel_mask", "refractory_filter", "remove_hot_pixels"]
 
@@ -58,8 +59,8 @@ def refractory_filter(events: EventArray, refractory_us: int, *, per_polarity: b
     if not events.validate:
         # the kernel keeps the latest time per pixel: unsorted, it kept a meaningless subset
         events.check_order()
-    if refractory_us < 0:
-        raise ParameterError(f"refractory_us must be >= 0, got {refractory_us}")
+    # (10.5 had run as 10 µs, probe BE)
+    refractory_us = whole_number("refractory_us", refractory_us, lo=0)
     if events.x.dtype.kind == "f":
         raise ParameterError("refractory_filter needs integer sensor coordinates (filter before "
                              "undistortion)")
@@ -86,6 +87,11 @@ def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int =
     [[2, 3]]
     """
     x, y = _pixels(events, "hot_pixel_mask")  # (counts do not depend on time order)
+    # (n_sigma=-1 or nan had run, marking the busy half of the pixels hot; probe BE)
+    n_sigma = check_number("n_sigma", n_sigma, 0.0)
+    min_count = whole_number("min_count", min_count, lo=0)
+    if neighbour_ratio is not None:
+        neighbour_ratio = check_number("neighbour_ratio", neighbour_ratio, 1.0)
     counts = np.bincount(y.astype(np.intp) * events.width + x,
                          minlength=events.width * events.height)
     active = counts[counts > 0]

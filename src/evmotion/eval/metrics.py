@@ -27,7 +27,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray, check_reference_time, require_events
-from evmotion.utils import whole_number
+from evmotion.utils import check_number, whole_number
 
 __all__ = [
     "NPE_THRESHOLDS",
@@ -279,6 +279,8 @@ def flow_metrics(
         raise ParameterError(f"npe_thresholds must be whole numbers of px, got "
                              f"{npe_thresholds!r}")
     thresholds = tuple(whole_number("npe_thresholds", n, lo=1) for n in npe_thresholds)
+    if out_rel is not None:  # (-1 had made every pixel past out_px an outlier, probe BE)
+        out_rel = check_number("out_rel", out_rel, 0.0)
     n = int(sel.sum())
     if n == 0:
         nan = float("nan")

@@ -23,7 +23,7 @@ import numpy as np
 
 from evmotion.errors import CalibrationError, ParameterError
 from evmotion.sim.photoreceptor import EVENT_BANDWIDTHS
-from evmotion.utils import check_number
+from evmotion.utils import check_number, whole_number
 
 __all__ = ["EventOptions", "SchlierenOptions", "SimOptions", "check_number"]
 
@@ -77,8 +77,9 @@ class EventOptions:
                                              units="log intensity"))
         _set(self, "mismatch", check_number("mismatch", self.mismatch,
                                             units="relative std"))
-        _set(self, "refractory_us", int(check_number("refractory_us", self.refractory_us,
-                                                     units="µs")))
+        # (10.5 had run as 10 µs, probe BE)
+        _set(self, "refractory_us", whole_number("refractory_us (µs)", self.refractory_us,
+                                                 lo=0))
         _set(self, "noise_rate", check_number("noise_rate", self.noise_rate,
                                               units="events/s per pixel"))
         _set(self, "hot_pixels", int(check_number("hot_pixels", self.hot_pixels,
