@@ -790,3 +790,24 @@ def test_a_blank_frame_is_said_as_such_only(tmp_path, capsys, blank):
     assert "textureless" in err and "do not show the same view" not in err, err
     if blank == 0:  # (the simulated sensor's real start-up is in its first interval)
         assert "follow the frames' change there" not in err, err
+
+
+def test_q_left_unscored_against_another_frame_rate_is_said(scene, tmp_path, capsys):
+    """Probe BA: against the ground truth of the same scene at 240 fps, eval scored the
+    flow and dropped q_corr without a word (no window spans one of its intervals)."""
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    fast = tmp_path / "fast"
+    write_schlieren(simulate_schlieren("plume", sensor_size=(48, 40), duration_s=2 / 120,
+                                       fps=240.0, seed=0), fast)
+    out = tmp_path / "b.h5"
+    assert _run(["bos", scene, "--iterations", "20", "--out", out], capsys)[0] == 0
+    rc, text, _ = _run(["eval", out, "--gt", scene / "schlieren_gt.h5"], capsys)
+    assert rc == 0 and "q_corr=" in text and "q is not scored" not in text
+    rc, text, _ = _run(["eval", out, "--gt", fast / "schlieren_gt.h5"], capsys)
+    assert rc == 0, text
+    assert "q_corr" not in text.split("\n")[1]
+    assert "windows span no single frame interval of the ground truth: their q is not scored" \
+        in text
+    rc, text, _ = _run(["eval", out, "--gt", fast / "schlieren_gt.h5", "--json"], capsys)
+    assert json.loads(text)["windows_q_scored"] == 0

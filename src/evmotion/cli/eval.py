@@ -191,15 +191,18 @@ def _load_flow(args, h5_format=None):
             None if out_px is None else float(out_px), seq.extras.get("q"), seq.attrs)
 
 
-def _add_potential_scores(q, t0s, t1s, gt_path, per_window: list, total: dict) -> None:
+def _add_potential_scores(q, t0s, t1s, gt_path, per_window: list, total: dict
+                          ) -> int | None:
     """BOS outputs against the schlieren simulator's ground truth: each window's q against
-    the exact one (``q_corr``, ``q_std_ratio``), and their means; other GT has no q."""
+    the exact one (``q_corr``, ``q_std_ratio``), and their means; other GT has no q.
+    Returns how many windows span one of the ground truth's frame intervals (their q is
+    scored), None where the ground truth has no q."""
     from evmotion.errors import FormatError
     from evmotion.eval.windows import evaluate_potential
     from evmotion.sim.schlieren import is_schlieren_gt, read_schlieren_q
 
     if not is_schlieren_gt(gt_path):
-        return  # another ground truth: no q to score against
+        return None  # another ground truth: no q to score against
     gt_q, gt_t_us = read_schlieren_q(gt_path)
     if gt_q.shape[1:] != q.shape[1:]:
         raise FormatError(gt_path, f"'q' is {gt_q.shape[2]}x{gt_q.shape[1]} px (W x H), the "
@@ -213,6 +216,7 @@ def _add_potential_scores(q, t0s, t1s, gt_path, per_window: list, total: dict) -
     if scored:
         total["q_corr"] = float(np.mean([r["q_corr"] for r in scored]))
         total["q_std_ratio"] = float(np.mean([r["q_std_ratio"] for r in scored]))
+    return len(rows)
 
 
 def _load_npy(args, path):
@@ -569,9 +573,11 @@ def run(args) -> int:
         raise ParameterError(f"--events {args.events} against {path}: {exc}") from None
     if events is not None and h5_format is not None:
         _warn_other_source(path, args.events)
-    if q is not None:
-        _add_potential_scores(q, t0s, t1s, args.gt, res.windows, res.total)
+    q_scored = None if q is None else _add_potential_scores(q, t0s, t1s, args.gt,
+                                                             res.windows, res.total)
     summary = _windows_summary(args, res, out_px)
+    if q_scored is not None:
+        summary["windows_q_scored"] = q_scored
     if args.json:
         print_json(summary)
     else:
@@ -613,6 +619,12 @@ def _print_windows(args, res, summary: dict, dt_note: bool = True) -> None:
     if empty:
         print(f"note: {empty} window{' has' if empty == 1 else 's have'} no pixel where both "
               "the estimate and the ground truth are known: not scored")
+    q_scored = summary.get("windows_q_scored")
+    if q_scored is not None and q_scored < n:
+        # (against a ground truth of another frame rate q_corr was left out unsaid, probe BA)
+        print(f"note: {n - q_scored} of {n} windows span no single frame interval of the "
+              "ground truth: their q is not scored (q_corr and q_std_ratio"
+              + (" over the others)" if q_scored else " absent)"))
     if mismatched and dt_note:
         print(f"note: {mismatched} window{' spans' if mismatched == 1 else 's span'} a number "
               f"of GT frames other than --dt {args.dt}")
