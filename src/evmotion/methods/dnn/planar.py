@@ -118,6 +118,13 @@ def planar_flow(params, shape: tuple[int, int]) -> np.ndarray:
     return out
 
 
+def _event_pixels(events: EventArray) -> tuple[np.ndarray, np.ndarray]:
+    """Each event's nearest pixel ``(column, row)``, clipped to the sensor."""
+    h, w = events.sensor_size
+    return (np.clip(np.rint(events.x), 0, w - 1).astype(np.intp),
+            np.clip(np.rint(events.y), 0, h - 1).astype(np.intp))
+
+
 def fit_planar(events: EventArray, disp: np.ndarray) -> np.ndarray:
     """Least-squares parameters (8,) of the field closest to ``disp`` (H, W, 2, px over
     the window) at the events' pixels, one equation per event.
@@ -130,10 +137,8 @@ def fit_planar(events: EventArray, disp: np.ndarray) -> np.ndarray:
     >>> np.round(fit_planar(ev, planar_flow(true, (8, 10))), 4).tolist()[:3]
     [0.5, 1.0, 0.2]
     """
-    h, w = events.sensor_size
-    xi = np.clip(np.rint(events.x), 0, w - 1).astype(np.intp)
-    yi = np.clip(np.rint(events.y), 0, h - 1).astype(np.intp)
-    a = _basis(xi, yi, (h, w)).reshape(-1, N_PARAMS)
+    xi, yi = _event_pixels(events)
+    a = _basis(xi, yi, events.sensor_size).reshape(-1, N_PARAMS)
     return np.linalg.lstsq(a, disp[yi, xi].astype(np.float64).reshape(-1), rcond=None)[0]
 
 
@@ -150,9 +155,7 @@ def translation_start(events: EventArray, disp: np.ndarray) -> np.ndarray:
     >>> translation_start(ev, disp).tolist()
     [3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
     """
-    h, w = events.sensor_size
-    xi = np.clip(np.rint(events.x), 0, w - 1).astype(np.intp)
-    yi = np.clip(np.rint(events.y), 0, h - 1).astype(np.intp)
+    xi, yi = _event_pixels(events)
     out = np.zeros(N_PARAMS)
     out[:2] = np.median(disp[yi, xi].astype(np.float64), axis=0)
     return out
