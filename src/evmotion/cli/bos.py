@@ -160,14 +160,10 @@ def run(args) -> int:
     from evmotion.io.flowout import EXTRA_CONTAINERS
     from evmotion.methods.bos import BosOptions
     from evmotion.methods.bos_run import (
-        check_registration,
+        check_input,
         open_bos_output,
-        require_texture,
         sequence_threshold,
         solve_bos_into,
-        unmeasured_intervals,
-        warn_mains_flicker,
-        warn_uncovered,
     )
 
     out = Path(args.out)
@@ -197,11 +193,7 @@ def run(args) -> int:
         check_time_range(args, int(data.events.t[0]), int(data.events.t[-1]), args.rec)
         check_flow_out(out, len(data.intervals))
         options = BosOptions(**opts)
-        require_texture(data, options)
-        warn_uncovered(data)
-        check_registration(data)
-        warn_mains_flicker(data)
-        unmeasured = unmeasured_intervals(data)
+        unmeasured = check_input(data, options)
         c, c_source, _ = sequence_threshold(data, args.contrast_threshold, exclude=unmeasured)
         attrs = {"method": "bos", "param": args.param, "data_term": args.data_term,
                  "seed": args.seed, "relinearize": args.relinearize,

@@ -34,8 +34,8 @@ from evmotion.io.bosfiles import BOS_COMPRESSION
 from evmotion.io.bosinput import BosInput
 from evmotion.utils import seconds_text
 
-__all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "check_registration",
-           "iter_bos_input", "registration_shift",
+__all__ = ["BOS_EVAL_OUT_PX", "BosRun", "append_bos_result", "check_input",
+           "check_registration", "iter_bos_input", "registration_shift",
            "open_bos_output", "require_texture", "sequence_contrast_threshold",
            "sequence_threshold", "solve_bos_input", "solve_bos_into", "stored_warm_start",
            "unmeasured_intervals", "warn_mains_flicker", "warn_startup", "warn_uncovered",
@@ -205,6 +205,20 @@ STARTUP_CONTEXT = 8
 #: The most the rates of the (up to four) intervals after the first may differ for it to
 #: be told against them: more, as under flicker, is said instead
 STARTUP_RATES_AGREE = 1.5
+
+
+def check_input(data: BosInput, options=None) -> tuple[int, ...]:
+    """What a run checks of its input before it estimates C and solves, each refused or
+    said in a warning: frames with texture (:func:`require_texture`, with ``options``),
+    frames and events that show the same view (:func:`warn_uncovered`,
+    :func:`check_registration`), lamps flickering (:func:`warn_mains_flicker`); returns
+    :func:`unmeasured_intervals`. :func:`solve_bos_input` and ``evmotion bos`` make
+    them alike."""
+    require_texture(data, options)
+    warn_uncovered(data)
+    check_registration(data)
+    warn_mains_flicker(data)
+    return unmeasured_intervals(data)
 
 
 def unmeasured_intervals(data: BosInput) -> tuple[int, ...]:
@@ -777,11 +791,7 @@ def solve_bos_input(data: BosInput, *, workers: int = 1, progress: bool = False,
     """
     from evmotion.methods.bos import single_solve_displacements, warn_underfit
 
-    require_texture(data)
-    warn_uncovered(data)
-    check_registration(data)
-    warn_mains_flicker(data)
-    unmeasured = unmeasured_intervals(data)
+    unmeasured = check_input(data)
     c, source, samples = sequence_threshold(data, contrast_threshold, samples=c_samples,
                                             exclude=unmeasured)
     results = list(iter_bos_input(data, c, workers=workers, progress=progress,
