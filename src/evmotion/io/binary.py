@@ -25,6 +25,30 @@ BLOCK_BYTES = 1 << 22
 #: this many words does not pay back.
 PLAIN_WORDS = 1 << 20
 
+
+def small_payload(path: Path, offset: int, word_bytes: int) -> bool:
+    """Whether the payload of ``path`` from ``offset`` holds at most ``PLAIN_WORDS`` words
+    of ``word_bytes``: such a file is decoded by numpy, a larger one all by the kernel
+    (numpy's temporaries would take twice the kernel's memory while streaming)."""
+    return Path(path).stat().st_size - offset <= PLAIN_WORDS * word_bytes
+
+
+def counter_wraps(values: np.ndarray, last: int, half: int, seen: bool = True) -> np.ndarray:
+    """For each of a time counter's ``values`` (int64), how many times it has wrapped
+    since ``last``, the value before them: a value below the one before it by ``half``
+    or more has wrapped. With ``seen`` False the first value has no past (a fresh
+    decoder) and is not compared.
+
+    Examples
+    --------
+    >>> counter_wraps(np.array([10, 2, 9, 1]), last=12, half=8).tolist()
+    [0, 1, 1, 2]
+    """
+    prev = np.concatenate(([last], values[:-1]))
+    wrapped = (values < prev) & (prev - values >= half)
+    wrapped[:1] &= seen
+    return np.cumsum(wrapped)
+
 # ``open_blocks(path, sensor_size, block_bytes) -> (data offset, (height, width), blocks)``:
 # parses a file's header and returns its payload as a lazy iterator of decoded blocks.
 OpenBlocks = Callable[[Path, "tuple[int, int] | None", int],

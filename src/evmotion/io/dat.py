@@ -54,10 +54,7 @@ def _decode(ts, data, state, ox, oy, ot, op):
 def _decode_plain(ts, data, state, ox, oy, ot, op):
     """:func:`_decode` by numpy (blocks of at most ``binary.PLAIN_WORDS`` records)."""
     t = ts.astype(np.int64)
-    prev = np.empty_like(t)
-    prev[:1] = state[0]
-    prev[1:] = t[:-1]
-    wraps = np.cumsum((t < prev) & (prev - t > (np.int64(1) << 31)))
+    wraps = binary.counter_wraps(t, state[0], (1 << 31) + 1)  # (the kernel's "> 2^31")
     ot[:] = t + state[1] + (wraps << 32)
     ox[:] = data & 0x3FFF
     oy[:] = (data >> 14) & 0x3FFF
@@ -94,9 +91,7 @@ def _blocks(path: Path, offset: int, block_bytes: int, t_offset: int = 0
             ) -> Iterator[binary.Block]:
     state = np.zeros(2, np.int64)
     state[1] = t_offset  # the unwrapping offset starts at the header's time offset
-    # a small file is decoded by numpy, a large one all by the kernel (as EVT RAW files)
-    small = path.stat().st_size - offset <= binary.PLAIN_WORDS * RECORD
-    decode = _decode_plain if small else _decode
+    decode = _decode_plain if binary.small_payload(path, offset, RECORD) else _decode
     for _, buf in binary.iter_blocks(path, offset, block_bytes, RECORD):
         rec = np.frombuffer(buf, "<u4").reshape(-1, 2)
         n = rec.shape[0]

@@ -59,13 +59,10 @@ def _decode_plain(words, state, ox, oy, ot, op):
     typ = w >> 28
     is_th = typ == 0x8
     h = w[is_th] & 0xFFFFFFF
-    prev = np.concatenate(([state[0]], h[:-1]))
-    checked = np.ones(h.size, bool)
-    checked[:1] = bool(state[2])  # the first time base of a fresh decoder has no past
-    wraps = checked & (h < prev) & (prev - h >= _HALF)
+    wraps = binary.counter_wraps(h, state[0], _HALF, bool(state[2]))
     # each word's time base: the last TIME_HIGH at or before it (slot 0: the state's)
     base = np.concatenate(([state[0]], h))
-    offset = np.concatenate(([state[1]], state[1] + (np.cumsum(wraps) << 34)))
+    offset = np.concatenate(([state[1]], state[1] + (wraps << 34)))
     k = np.cumsum(is_th)
     keep = (typ <= 1) & ((k > 0) | bool(state[2]))
     wk, kk = w[keep], k[keep]

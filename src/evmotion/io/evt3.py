@@ -135,10 +135,7 @@ def _decode_plain(words: np.ndarray, state: np.ndarray) -> binary.Block:
     seen = bool(state[_SEEN])
     first = int(np.argmax(is_th)) if is_th.any() else w.size
     h = low[is_th]
-    prev = np.concatenate(([state[_TH]], h[:-1]))
-    checked = np.ones(h.size, bool)
-    checked[:1] = seen  # a fresh decoder's first time base has no past
-    offsets = state[_OVF] + (np.cumsum(checked & (h < prev) & (prev - h >= 2048)) << 24)
+    offsets = state[_OVF] + (binary.counter_wraps(h, state[_TH], 2048, seen) << 24)
     ths = np.concatenate(([state[_TH]], h))[np.cumsum(is_th)]
     ovf = np.concatenate(([state[_OVF]], offsets))[np.cumsum(is_th)]
     is_y, is_tl, is_base = typ == 0x0, typ == 0x6, typ == 0x3

@@ -132,9 +132,7 @@ def open_raw(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int, 
     words: data offset, sensor size and the lazily decoded blocks (see :func:`raw_blocks`),
     times offset by the header's :data:`OFFSET_KEY`."""
     _, offset, size, t_offset = parse_raw_header(path, sensor_size, version)
-    # a small file's blocks are decoded by numpy, a large file's all by the kernel (numpy's
-    # temporaries would take 2x the kernel's memory while streaming)
-    small = path.stat().st_size - offset <= binary.PLAIN_WORDS * np.dtype(word).itemsize
+    small = binary.small_payload(path, offset, np.dtype(word).itemsize)
     return offset, size, raw_blocks(path, offset, t_offset, block_bytes, word,
                                     partial(decode_words, plain=small), new_state(),
                                     whole_bytes)
