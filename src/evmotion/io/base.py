@@ -6,6 +6,7 @@ Each module in :mod:`evmotion.io` that handles a file format defines a module-le
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -13,6 +14,7 @@ from pathlib import Path
 from typing import Self
 
 from evmotion.events import EventArray
+from evmotion.utils import interrupts_deferred
 
 
 @dataclass(frozen=True)
@@ -62,10 +64,40 @@ class FormatSpec:
                 object.__setattr__(self, name, guard(fn, self.name, action))
 
 
-class PartFileWriter:
+class _WholeSteps(type):
+    """Creating a writer and aborting it run with Ctrl-C and SIGTERM deferred
+    (:func:`~evmotion.utils.interrupts_deferred`): an interrupt that came while the
+    constructor was writing the new ``.part`` file's header aborts the writer as the
+    constructor returns (the caller never held it, so nothing else could), and one that
+    came during ``abort`` waits until the file is removed or closed."""
+
+    def __new__(mcls, name, bases, namespace):
+        if "abort" in namespace:
+            namespace["abort"] = _deferring(namespace["abort"])
+        return super().__new__(mcls, name, bases, namespace)
+
+    def __call__(cls, *args, **kwargs):
+        with interrupts_deferred() as held:
+            writer = super().__call__(*args, **kwargs)
+            if held:
+                writer.abort()
+        return writer
+
+
+def _deferring(method: Callable) -> Callable:
+    @functools.wraps(method)
+    def run(self, *args, **kwargs):
+        with interrupts_deferred():
+            return method(self, *args, **kwargs)
+    return run
+
+
+class PartFileWriter(metaclass=_WholeSteps):
     """The context-manager protocol of the streaming writers, which write to a ``.part``
     file: leaving the ``with`` block normally calls :meth:`close` (finish the file and
-    rename it onto the final name), leaving it by an exception calls :meth:`abort`."""
+    rename it onto the final name), leaving it by an exception calls :meth:`abort`.
+    Neither creating a writer nor its ``abort`` is cut in two by Ctrl-C (see
+    :class:`_WholeSteps`)."""
 
     def close(self) -> None:
         raise NotImplementedError

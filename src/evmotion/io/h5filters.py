@@ -45,22 +45,15 @@ def register_filters() -> bool:
     bool
         False when hdf5plugin cannot be imported.
     """
-    import signal
-    import threading
+    from evmotion.utils import interrupts_deferred
 
     # Ctrl-C during the registration is caught by hdf5plugin, which logs a traceback and
     # goes on ("Cannot register filter fcidecomp"): the signals wait until it is done
-    held = (hasattr(signal, "pthread_sigmask")
-            and threading.current_thread() is threading.main_thread())
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM}) \
-        if held else None
-    try:
-        import hdf5plugin  # noqa: F401  (importing registers the Blosc/zstd filters)
-    except ImportError:
-        return False
-    finally:
-        if held:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+    with interrupts_deferred():
+        try:
+            import hdf5plugin  # noqa: F401  (importing registers the Blosc/zstd filters)
+        except ImportError:
+            return False
     return True
 
 
