@@ -208,3 +208,19 @@ def test_arguments_that_failed_as_bare_python_errors(ev):
     assert len(make_windows(ev, duration_us=1000, max_windows=2.0)) == 2
     r = estimate_flow(ev[:1500], n_scales=2.0, finest_level=2)
     assert r.meta["n_scales"] == 2
+
+
+def test_options_that_would_do_nothing_are_refused(ev):
+    """Probe BE: a string sensor size unpacked into digits ("44" -> (4, 4)), and options
+    that apply only with another one given were ignored: dataset= (even an unknown name)
+    without a regularizer, n_bins without time-aware transport."""
+    with pytest.raises(EventDataError, match="sensor_size must be two whole numbers.*'44'"):
+        EventArray([1], [1], [0], [1], "44")
+    with pytest.raises(ParameterError, match="dataset='kitti' picks a regularizer's weight"):
+        estimate_egomotion(ev, warp="translation", dataset="kitti")
+    with pytest.raises(ParameterError, match="dataset='dsec'.*regularizer is None"):
+        segment_motion(ev, n_warps=2, warp="translation", dataset="dsec")
+    with pytest.raises(ParameterError, match="n_bins=7 sets the time bins.*time_aware is None"):
+        estimate_flow(ev, n_bins=7)
+    assert estimate_flow(ev, n_bins=3, time_aware="upwind", n_scales=1,
+                         finest_level=2).n_bins == 3

@@ -102,7 +102,8 @@ def _zoom(out: Path, rep: HtmlReport, seed: int) -> dict:
     rows, images, titles = [], [], []
     for reg in (None, "divergence", "deformation", "rcad"):
         res = estimate_egomotion(win, warp="zoom", regularizer=reg, optimizer="tpe", seed=seed,
-                                 t_ref=t_ref, bounds=bounds, dataset="dsec", maps=False)
+                                 t_ref=t_ref, bounds=bounds, dataset=reg and "dsec",
+                                 maps=False)
         flow = _warp_flow(res, win)
         m = flow_metrics(flow * span_s, disp_gt, mask=mask)
         rows.append({"regularizer": reg or "none", "h_z (1/s)": res.params[0], "AEE px": m.aee,

@@ -846,6 +846,8 @@ are integer microseconds; from seconds: np.round(t * 1e6).astype(np.int64)
 
 def _sensor_size(size) -> tuple[int, int]:
     try:
+        if isinstance(size, (str, bytes)):
+            raise TypeError  # "44" unpacked to (4, 4) (probe BE)
         h, w = size
         if float(h) != int(h) or float(w) != int(w):
             raise ValueError

@@ -600,6 +600,11 @@ def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str 
     dt = (t - t_ref_us).astype(np.float64) * 1e-6
     span = max(int(t[-1]) - int(t[0]), 1)
     tn = (t - t[0]).astype(np.float64) / span
+    if regularizer is None and dataset is not None:
+        # (it was ignored, even an unknown name: dataset='kitti', probe BE)
+        raise ParameterError(f"dataset={dataset!r} picks a regularizer's weight, but "
+                             "regularizer is None: give regularizer= too (or leave dataset "
+                             "out)")
     if weight is not None:
         lam = weight
     elif dataset is not None:

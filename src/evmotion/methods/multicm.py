@@ -634,6 +634,11 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         net = estimate_flow_dnn(events, checkpoint, device=device, threads=threads,
                                 with_iwes=False, time_reversal=False, fuse=False,
                                 rescale=False, planar=False, refine=False, check=False)
+    if o.n_bins is not None and o.time_aware in (None, "none"):
+        # (it was ignored: estimate_flow(ev, n_bins=7) ran the plain model, probe BE)
+        raise ParameterError(f"n_bins={o.n_bins!r} sets the time bins of the time-aware "
+                             "flow, but time_aware is None: give time_aware='upwind' or "
+                             "'burgers' too (or leave n_bins out)")
     o = _checked(o, events)
     if net is not None:
         # The network answers at every pixel, but only where events are is its flow fitted
