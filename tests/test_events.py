@@ -24,6 +24,12 @@ def test_unsorted_and_out_of_sensor_rejected():
         EventArray([0, 1], [0, 0], [5, 3], [0, 1], (2, 2))
     with pytest.raises(EventDataError, match="x=7 outside the sensor"):
         EventArray([0, 7], [0, 0], [1, 3], [0, 1], (2, 2))
+    # float coordinates: the span of pixel centres is said, the value short (not float32's
+    # 303.6000061035156)
+    with pytest.raises(EventDataError, match=r"x=303.6 outside the sensor .*float "
+                       r"\(undistorted\) coordinates lie in \[0, 303\]"):
+        EventArray([303.6, 1.0], [1.0, 2.0], [0, 1], [1, 0], (10, 304))
+    assert EventArray([303.0, 0.0], [9.0, 0.0], [0, 1], [1, 0], (10, 304)).x[0] == 303
     with pytest.raises(EventDataError, match="NaN"):
         EventArray([0, np.nan], [0, 0], [1, 3], [0, 1], (2, 2))
     # the readers' bound: beyond it a side failed later as a 74 GiB allocation

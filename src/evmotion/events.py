@@ -202,9 +202,14 @@ class EventArray:
             lo, hi = a.min(), a.max()
             if lo < 0 or hi > lim - 1:
                 bad = int(np.argmax((a < 0) | (a > lim - 1)))
+                # float coordinates are positions between pixel centres (bilinear votes):
+                # 303.25 on a 304 px row is past the last centre, which the bare message
+                # did not say (a probe read it as a bug)
+                span = (f": float (undistorted) coordinates lie in [0, {lim - 1}], between "
+                        "the first and last pixel centres" if a.dtype.kind == "f" else "")
                 raise EventDataError(
-                    f"event {bad} has {name}={a[bad]} outside the sensor "
-                    f"(sensor_size (height, width) = {self.sensor_size})"
+                    f"event {bad} has {name}={a[bad]:g} outside the sensor "
+                    f"(sensor_size (height, width) = {self.sensor_size}){span}"
                 )
 
     # ------------------------------------------------------------------ basics
