@@ -237,3 +237,30 @@ def test_chunks_say_how_far_into_the_file_they_are(tmp_path, block_bytes):
     assert all(c.meta["file_bytes"] == size for c in chunks)
     assert read[-1] == size and np.all(np.diff(read) > 0)
     np.testing.assert_allclose(read / size, done / n, atol=0.03)
+
+
+@pytest.mark.parametrize("fmt", ["evt2", "evt21", "evt3"])
+def test_a_file_without_its_header_reads_with_format_and_size(tmp_path, fmt):
+    """A stream recorded from the sensor's interface has no '%' header. Detection said
+    "give --format explicitly", and the format given said "no '%' header": a dead end.
+    Now the registry names the RAW formats and --sensor-size, and the format given reads
+    the words from byte 0 with that size."""
+    from evmotion.io import read_events, write_events
+
+    rng = np.random.default_rng(1)
+    n = 3000
+    ev = EventArray(x=rng.integers(0, 240, n), y=rng.integers(0, 180, n),
+                    t=np.sort(rng.integers(0, 50_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(180, 240))
+    full = tmp_path / "with_header.raw"
+    write_events(full, ev, format=fmt)
+    _, off, _, _ = parse_raw_header(full, None)
+    bare = tmp_path / "bare.raw"
+    bare.write_bytes(full.read_bytes()[off:])
+    with pytest.raises(FormatError, match=r"bare\.raw: a \.raw file with no '%' header.*"
+                       r"--format evt3 \(or evt2, evt21\) and --sensor-size H W"):
+        detect_spec(bare)
+    with pytest.raises(FormatError, match=r"header-less EVT \d\.\d stream states no sensor "
+                       r"size .*--sensor-size H W"):
+        read_events(bare, format=fmt)
+    assert_same_events(read_events(bare, format=fmt, sensor_size=(180, 240)), ev)

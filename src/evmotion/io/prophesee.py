@@ -55,11 +55,21 @@ def parse_raw_header(path: Path, sensor_size: tuple[int, int] | None,
 
     With ``version`` ("2.0"/"2.1"/"3.0"), a header declaring another encoding raises
     FormatError; EVT 2.1 and 3.0 must be declared, EVT 2.0 may be implicit (early Gen3
-    files).
+    files). A file without a header (a stream recorded from the sensor's interface) reads
+    as ``version``'s words from byte 0, given ``sensor_size``.
     """
     lines, offset = read_text_header(path, b"%", end_line=b"% end")
     if not lines:
-        raise FormatError(path, "no '%' header at byte 0", "not a Prophesee RAW file")
+        if version is None:
+            raise FormatError(path, "no '%' header at byte 0", "not a Prophesee RAW file")
+        if sensor_size is None:
+            # (the format given as the registry's error asked still ended in "no '%'
+            # header": a dead end)
+            raise FormatError(path, f"no '%' header at byte 0: a header-less EVT {version} "
+                              "stream states no sensor size", "give --sensor-size H W "
+                              "(sensor_size= in Python): 720 1280 for a Gen4 or IMX636 "
+                              "sensor, 480 640 for a Gen3")
+        return [], 0, tuple(sensor_size), 0
     if version is not None:
         _check_version(path, header_dict(lines), version)
     size = sensor_size if sensor_size is not None else geometry_from_header(

@@ -150,6 +150,11 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
             raise FormatError(path, "is a list of frames ('t path' lines), not events",
                               "give its folder, which holds the events too; bos also "
                               "takes it as --frames beside a recording")
+        if path.suffix.lower() == ".raw":
+            # Prophesee's words without the '%' header that names their encoding
+            raise FormatError(path, "a .raw file with no '%' header: its encoding and "
+                              "sensor size are not stated", "give --format evt3 (or evt2, "
+                              "evt21) and --sensor-size H W")
         names = ", ".join(sorted(f.name for f in all_formats()))
         raise FormatError(path, "format not recognised",
                           f"give --format explicitly, one of: {names}")
