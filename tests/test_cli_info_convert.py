@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -279,3 +280,23 @@ def test_convert_help_examples_cut_from_the_first_event(tmp_path, capsys, monkey
     for argv in cutting:
         rc, _, err = _run(capsys, *argv)
         assert rc == 0, (argv, err)
+
+
+@pytest.mark.parametrize("fmt", ["txt", "raw"])
+def test_convert_progress_has_a_total_where_no_header_counts_events(tmp_path, capsys,
+                                                                    monkeypatch, fmt):
+    """Text and EVT RAW files state no event count: convert's bar counted events with no
+    total, rate against nothing and no ETA; the share of the file read gives the total."""
+    rng = np.random.default_rng(0)
+    n = 6000
+    ev = EventArray(x=rng.integers(0, 64, n), y=rng.integers(0, 48, n),
+                    t=np.sort(rng.integers(0, 500_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(48, 64))
+    src = tmp_path / f"ev.{fmt}"
+    eio.write_events(src, ev, format="ecd" if fmt == "txt" else "evt3")
+    monkeypatch.setenv("EVMOTION_PROGRESS", "1")
+    assert main(["convert", str(src), str(tmp_path / "out.h5"), "--chunk-events", "500"]) == 0
+    err = capsys.readouterr().err.replace("\r", "\n")
+    # tqdm's "n/total [elapsed<left, rate]" (a bare "n [elapsed, rate]" without a total)
+    shown = re.findall(r"([\d.]+k?)/([\d.]+k?) \[\d\d:\d\d<\d\d:\d\d", err)
+    assert shown and shown[-1] == ("6.00k", "6.00k"), err[-500:]

@@ -78,7 +78,7 @@ def run(args) -> int:
     from evmotion.cli import print_json, warn_line
     from evmotion.cli.options import header_event_count
     from evmotion.errors import ParameterError
-    from evmotion.utils import progress
+    from evmotion.utils import progress, refine_total
 
     if (args.output is None) == (args.out_option is None):
         raise ParameterError("give the output file once: as the second argument or as --out"
@@ -110,8 +110,8 @@ def run(args) -> int:
             it = eio.iter_events(src, args.chunk_events, format=fmt_in, t0=args.t0,
                                  t1=args.t1, **kw)
         # events, not chunks, with the total when the header states it (rate and ETA)
-        bar = progress(None, total=header_event_count(src, fmt_in, args.t0, args.t1),
-                       desc="convert", unit="ev", unit_scale=True)
+        total = header_event_count(src, fmt_in, args.t0, args.t1)
+        bar = progress(None, total=total, desc="convert", unit="ev", unit_scale=True)
         try:
             for chunk in it:
                 if args.invert_polarity:
@@ -121,6 +121,10 @@ def run(args) -> int:
                     if counted["t_first"] is None:
                         counted["t_first"] = int(chunk.t[0])
                     counted["t_last"] = int(chunk.t[-1])
+                    if total is None and args.t0 is None and args.t1 is None:
+                        # else the share of the file read (EVT RAW, text), which says
+                        # how many events a whole file's conversion makes: rate and ETA
+                        refine_total(bar, counted["n"], chunk.meta)
                     bar.update(len(chunk))
                 yield chunk
         finally:

@@ -346,11 +346,12 @@ def _sensor_size(path: Path, sensor_size) -> tuple[tuple[int, int], str]:
     return ECD_SENSOR_SIZE, "ECD default (DAVIS240C)"
 
 
-def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s"
-            ) -> Iterator[tuple[np.ndarray, ...]]:
+def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s",
+            where: dict | None = None) -> Iterator[tuple[np.ndarray, ...]]:
     """Parsed blocks ``x, y, t [us], p`` of an events text file. ``time_unit`` is that of
     the first column: "s" (ECD), or "ms" / "us" / "ns" for whole numbers (other tools'
-    exports); None sniffs it (:func:`sniff_time_unit`)."""
+    exports); None sniffs it (:func:`sniff_time_unit`). ``where["bytes_read"]`` is set to
+    the end of each block as it is yielded."""
     unit = sniff_time_unit(path) if time_unit is None else time_unit
     if unit not in TEXT_TIME_UNITS:
         raise ParameterError(f"time_unit must be one of {sorted(TEXT_TIME_UNITS)} (or None: "
@@ -365,12 +366,16 @@ def _blocks(path: Path, block_bytes: int, time_unit: str | None = "s"
             data = carry + blk
             if not blk:
                 if data.strip():
+                    if where is not None:
+                        where.update(block_start=offset, bytes_read=offset + len(data))
                     yield _parse_block(data, path, offset, unit, order)
                 return
             cut = data.rfind(b"\n") + 1
             if cut == 0:
                 carry = data
                 continue
+            if where is not None:
+                where.update(block_start=offset, bytes_read=offset + cut)
             yield _parse_block(data[:cut], path, offset, unit, order)
             offset += cut
             carry = data[cut:]
@@ -815,14 +820,24 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
                 x_max, y_max = max(x_max, int(x.max())), max(y_max, int(y.max()))
         size, src = _extended_size(ev_path, size, src, x_max, y_max)
     extra = _folder_meta(ev_path)
+    # how far into the file each chunk is, for a progress bar's ETA (the text states no
+    # event count): the end of the block it came from
+    file_bytes = ev_path.stat().st_size
+    where = {"block_start": 0, "bytes_read": 0}
     buf = [np.zeros(0, np.int64)] * 4
     last_t = None
-    for block in _blocks(ev_path, block_bytes, unit):
+    for block in _blocks(ev_path, block_bytes, unit, where):
+        n_block = max(block[2].size, 1)
         buf = [np.concatenate([a, b]) for a, b in zip(buf, block, strict=True)]
         while buf[2].size >= chunk_events:
             part = [a[:chunk_events] for a in buf]
             buf = [a[chunk_events:] for a in buf]
-            ev = _to_events(ev_path, *part, size, src, validate, extra, streamed=True)
+            # within the block, in proportion to its events still to come
+            start, end = where["block_start"], where["bytes_read"]
+            at = end - min(buf[2].size, n_block) * (end - start) // n_block
+            ev = _to_events(ev_path, *part, size, src, validate,
+                            {**extra, "bytes_read": at, "file_bytes": file_bytes},
+                            streamed=True)
             if validate:
                 _check_follows(last_t, ev)
             if last_t is None and time_unit is None:
@@ -830,7 +845,9 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
             last_t = int(ev.t[-1])
             yield ev
     if buf[2].size:
-        ev = _to_events(ev_path, *buf, size, src, validate, extra, streamed=True)
+        ev = _to_events(ev_path, *buf, size, src, validate,
+                        {**extra, "bytes_read": where["bytes_read"], "file_bytes": file_bytes},
+                        streamed=True)
         if validate:
             _check_follows(last_t, ev)
         if last_t is None and time_unit is None:
