@@ -160,8 +160,12 @@ def test_view_draws_a_window_of_a_flow_output(tmp_path, capsys):
     assert img.shape[0] >= 30 and img.shape[1] > 40
     assert main(["view", str(path), "--window", "2", "--out", str(out), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["t0_us"] == 20_000
+    assert main(["view", str(path), "--window", "2", "--out", str(out)]) == 0
+    assert capsys.readouterr().out.endswith("window 2 of 3 of " + str(path) + ", [0.02, 0.03) s\n")
     for argv, words in ((["--window", "3"], ("--window 3", "holds 3 windows")),
-                        (["--t0", "0.5"], ("no window", "holds it")),
+                        # in seconds, as typed (it echoed "--t0 500000 us")
+                        (["--t0", "0.5"], ("--t0 0.5 s: no window", "holds it",
+                                           "span [0, 0.03) s")),
                         (["--polarity"], ("--polarity", "flow output"))):
         assert main(["view", str(path), *argv, "--out", str(out)]) == 2
         err = capsys.readouterr().err

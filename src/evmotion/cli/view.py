@@ -116,7 +116,7 @@ def run(args) -> int:
 
     from evmotion.cli import print_json
     from evmotion.errors import EmptyWindowError, EvmotionError
-    from evmotion.utils import atomic_write_bytes
+    from evmotion.utils import atomic_write_bytes, seconds_text
     from evmotion.viz import event_histogram, event_picture_png, iwe_to_rgb, read_png, save_png
 
     check_time_order(args)
@@ -189,7 +189,8 @@ def run(args) -> int:
             "max_per_pixel": float(np.abs(hist).max()),
         })
     else:
-        print(f"{out}: {len(ev):,} events, [{int(ev.t[0])}, {int(ev.t[-1]) + 1}) us")
+        print(f"{out}: {len(ev):,} events, [{seconds_text(ev.t[0])}, "
+              f"{seconds_text(int(ev.t[-1]) + 1)}) s")
     return 0
 
 
@@ -200,6 +201,7 @@ def _view_flow(args, out: Path) -> int:
     from evmotion.cli import print_json, warn_line
     from evmotion.errors import ParameterError
     from evmotion.io.flowread import read_flow
+    from evmotion.utils import seconds_text
     from evmotion.viz import save_png
     from evmotion.viz.bos import flow_window_picture
 
@@ -219,8 +221,10 @@ def _view_flow(args, out: Path) -> int:
     elif args.t0 is not None:
         inside = np.flatnonzero((seq.t0 <= args.t0) & (args.t0 < seq.t1))
         if not inside.size:
-            raise ParameterError(f"--t0 {args.t0} us: no window of {args.file} holds it "
-                                 f"(they span [{int(seq.t0[0])}, {int(seq.t1[-1])}) us)")
+            # (in seconds, as the option is typed: it echoed "--t0 5000000 us" for 5)
+            raise ParameterError(f"--t0 {seconds_text(args.t0)} s: no window of {args.file} "
+                                 f"holds it (they span [{seconds_text(seq.t0[0])}, "
+                                 f"{seconds_text(seq.t1[-1])}) s)")
         k = int(inside[0])
     else:
         # the first window that measured something (a BOS run's first interval is often
@@ -241,7 +245,7 @@ def _view_flow(args, out: Path) -> int:
                               q_unit=units.get("q", "px^2/s") if isinstance(units, dict)
                               else "px^2/s",
                               title=f"{Path(args.file).name}: window {k} of {n}, "
-                                    f"[{t0}, {t1}) us"
+                                    f"[{seconds_text(t0)}, {seconds_text(t1)}) s"
                                     + (": no valid pixel, no measurement" if unmeasured
                                        else ""))
     if args.scale > 1:
@@ -257,7 +261,8 @@ def _view_flow(args, out: Path) -> int:
                     "valid_fraction": float(np.mean(valid)),
                     "has_q": q is not None})
     else:
-        print(f"{out}: window {k} of {n} of {args.file}, [{t0}, {t1}) us")
+        print(f"{out}: window {k} of {n} of {args.file}, [{seconds_text(t0)}, "
+              f"{seconds_text(t1)}) s")
     return 0
 
 
