@@ -402,6 +402,10 @@ def test_cli_time_range_beyond_the_events_is_clipped(plume, tmp_path, capsys):
     assert rc == 0, err
     panel = json.loads(text)["panels"][0]
     assert panel["t1_s"] <= sim.events.t[-1] * 1e-6 + 1 / 1200
+    # the span's edges (they were the first and last bins' centres): whole bins
+    bins = (panel["t1_s"] - panel["t0_s"]) * panel["rate_hz"]
+    assert bins == pytest.approx(panel["shape"][0])
+    assert panel["t0_s"] <= sim.events.t[0] * 1e-6 < panel["t0_s"] + 1 / panel["rate_hz"]
 
 
 def test_cli_from_q(tmp_path, capsys):

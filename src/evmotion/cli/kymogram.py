@@ -385,7 +385,9 @@ def run(args) -> int:
                 error = _cli_names(str(exc))
         fits.append(fit)
         row = {"source": k.source, "rate_hz": k.rate_hz, "shape": list(k.data.shape),
-               "t0_s": float(k.t_s[0]), "t1_s": float(k.t_s[-1])}
+               # the span's edges, not its first and last bins' centres (half a bin in)
+               "t0_s": float(k.t_s[0]) - 0.5 / k.rate_hz,
+               "t1_s": float(k.t_s[-1]) + 0.5 / k.rate_hz}
         if fit is not None:
             row.update(method=fit.method, velocity_px_s=fit.velocity_px_s,
                        velocity_std_px_s=fit.velocity_std_px_s,
