@@ -196,3 +196,23 @@ def test_gap_share():
         assert warn_gap(np.r_[np.arange(10), 18], "flow") is None  # a gap of 9 in 18
     with pytest.warns(PoorFitWarning, match=r"no event for 2e-05 s \(91% of the window\)"):
         assert warn_gap(np.r_[0, 1, 21, 22], "flow") is not None
+
+
+def test_a_translating_checkerboard_is_motion_not_flicker():
+    """Probe BG: a translating checkerboard (the simulator's, pure motion) was flagged as
+    flickering light, its flow right (AEE 0.65 px against 3.3 for zero flow) discarded:
+    all its edges of one sign enter together, so the sensor's mean polarity swings (0.53)
+    as under flicker; but each 8 px block keeps its sign, which flicker does not."""
+    from evmotion.methods.measured import MIN_LOCAL_SWING, lit_not_moved, local_swing
+    from evmotion.sim import simulate
+
+    sim = simulate("translation", duration_s=0.05, texture="checker", show_progress=False)
+    swung = []
+    for k in range(0, len(sim.events) - 30_000, 15_000):
+        win = sim.events[k:k + 30_000]
+        swung.append(polarity_bursts(win)[0])
+        assert local_swing(win) < MIN_LOCAL_SWING / 2
+        assert lit_not_moved(win) is None
+    assert max(swung) > MAX_POLARITY_SWING  # what the sensor-wide test alone flagged
+    flicker = moving(flicker_share=0.8)
+    assert local_swing(flicker) > 2 * MIN_LOCAL_SWING and lit_not_moved(flicker) is not None
