@@ -596,3 +596,30 @@ def test_t0_t1_read_only_their_span(recording, tmp_path, capsys, monkeypatch):
     a, b = eio.read_flow(tmp_path / "a.h5"), eio.read_flow(tmp_path / "b.h5")
     np.testing.assert_array_equal(a.t0, b.t0)
     np.testing.assert_array_equal(a.flow, b.flow)
+
+
+@pytest.mark.parametrize("init", [False, True])
+def test_resume_refuses_another_network_under_the_same_name(recording, tmp_path, capsys,
+                                                           init):
+    """Probe BG: a checkpoint replaced in place between a run and its --resume gave one
+    file whose windows came from two networks (only the path was compared), and the same
+    file named another way (./ck.npz) was refused. The weights' digest is compared."""
+    from evmotion.methods.dnn.numpynet import SHIPPED_EXPORT
+
+    path, _ = recording
+    ck = tmp_path / "ck.npz"
+    ck.write_bytes(SHIPPED_EXPORT.read_bytes())
+    out = tmp_path / "f.h5"
+    method = ["--init", "dnn"] if init else ["--method", "dnn"]
+    argv = ["--window-events", "4000", *method, "--out", str(out)]
+    assert main(["flow", str(path), *argv, "--checkpoint", str(ck)]) == 0
+    capsys.readouterr()
+    # the same file, named another way: every window kept
+    other_name = str(tmp_path / "." / "ck.npz")
+    assert main(["flow", str(path), *argv, "--checkpoint", other_name, "--resume"]) == 0
+    capsys.readouterr()
+    with np.load(SHIPPED_EXPORT) as z:
+        np.savez(ck, **{k: (z[k] * 1.01 if z[k].dtype.kind == "f" else z[k]) for k in z})
+    assert main(["flow", str(path), *argv, "--checkpoint", str(ck), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot resume" in err and "checkpoint_sha1" in err, err

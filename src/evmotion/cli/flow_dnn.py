@@ -91,11 +91,12 @@ def check_network(args) -> None:
 def estimator(args):
     """``(estimate(events, init) -> FlowResult, attrs)`` for the multicm runner."""
     from evmotion.methods.dnn import estimate_flow_dnn
-    from evmotion.methods.dnn.infer import resolve_backend
+    from evmotion.methods.dnn.infer import checkpoint_digest, resolve_backend
 
     # resolved once, and stored with the outputs: every window runs the same arithmetic
     backend = resolve_backend("auto", args.device, args.checkpoint)
     attrs = {"method": "dnn", "checkpoint": str(args.checkpoint or "shipped"),
+             "checkpoint_sha1": checkpoint_digest(args.checkpoint, backend),
              "backend": backend,
              "source": str(args.file), "input_scales": list(args.input_scales),
              "time_reversal": not args.no_time_reversal, "rescale": not args.no_rescale,

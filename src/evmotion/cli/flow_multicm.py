@@ -366,9 +366,13 @@ def run(args) -> int:
         if args.time_bins is not None:
             attrs["time_bins"] = args.time_bins
         if args.init == "dnn":
+            from evmotion.methods.dnn.infer import checkpoint_digest, resolve_backend
+
             kwargs.update(init="dnn", checkpoint=args.checkpoint, device=args.device,
                           threads=args.threads)
             attrs["checkpoint"] = str(args.checkpoint or "shipped")
+            attrs["checkpoint_sha1"] = checkpoint_digest(
+                args.checkpoint, resolve_backend("auto", args.device, args.checkpoint))
 
             def estimate(ev, init):
                 return estimate_flow(ev, **kwargs)

@@ -44,7 +44,7 @@ from evmotion.methods.measured import (
     warn_no_gain,
 )
 
-__all__ = ["BACKENDS", "estimate_flow_dnn", "load_network", "predict_displacement",
+__all__ = ["BACKENDS", "checkpoint_digest", "estimate_flow_dnn", "load_network", "predict_displacement",
            "resolve_backend", "sharpness"]
 
 # the events binned this many times coarser (estimate_flow_dnn): 8 for windows whose
@@ -135,6 +135,33 @@ def resolve_backend(backend: str = "auto", device: str = "cpu", checkpoint=None)
         shipped_here = checkpoint is None and on_cpu and sys.modules.get("torch") is None
         return "numpy" if export or shipped_here else "torch"
     return backend
+
+
+def checkpoint_digest(checkpoint=None, backend: str = "numpy") -> str:
+    """The first 16 hex digits of the SHA-1 of the checkpoint file a run reads (for None,
+    the shipped network's: its ``.npz`` export with the numpy ``backend``, its
+    ``model.pt`` with torch). Stored with a resumable output, so that a resume whose
+    checkpoint holds other weights under the same name is refused, and one that names the
+    same file another way is not (probe BG: a replaced ``model.pt`` gave a file whose
+    windows came from two networks).
+
+    Examples
+    --------
+    >>> checkpoint_digest() == checkpoint_digest(None, "numpy") != checkpoint_digest(
+    ...     None, "torch")
+    True
+    """
+    import hashlib
+
+    from evmotion.methods.dnn.numpynet import SHIPPED_EXPORT, checkpoint_key
+
+    shipped = SHIPPED_EXPORT if backend == "numpy" else SHIPPED_EXPORT.with_suffix(".pt")
+    path, _ = checkpoint_key(checkpoint, shipped)
+    try:
+        return hashlib.sha1(path.read_bytes()).hexdigest()[:16]
+    except OSError as exc:
+        raise ParameterError(f"checkpoint {path}: cannot be read ({exc.strerror or exc})"
+                             ) from None
 
 
 def load_network(checkpoint=None, device: str = "cpu", backend: str = "auto"):
