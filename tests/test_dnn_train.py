@@ -477,3 +477,39 @@ def test_cli_train_format_needs_recordings_and_a_known_name(tmp_path, capsys):
     assert main([*base, str(rec), "--format", "bogus"]) == 2
     assert "unknown format 'bogus'" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+def test_init_weights_that_cannot_start_a_training_are_named(tmp_path, monkeypatch):
+    """Probe BG: NaN weights trained one step, then 'training diverged ... a lower --lr, or
+    --resume from the last good epoch' (there was none) after a torch UserWarning, and
+    left an empty folder; a model.npz gave torch's '[enforce fail at inline_container...'.
+    A training that diverges before its first epoch names no epoch to resume from."""
+    from evmotion.methods.dnn.model import save_model
+
+    net = EVFlowNet(width=0.0625)
+    with torch.no_grad():
+        net.heads[0].bias.fill_(float("nan"))
+    save_model(tmp_path / "nan.pt", net)
+    cfg = {k: v for k, v in TINY.items() if k != "val_sim"}
+    with pytest.raises(ParameterError, match=r"--init-weights .*nan.pt: its weights are not "
+                       r"all finite"):
+        train(TrainConfig(epochs=1, val_sim=0, init_weights=str(tmp_path / "nan.pt"), **cfg),
+              tmp_path / "run")
+    (tmp_path / "m.npz").write_bytes(b"PK\x03\x04not really")
+    with pytest.raises(ParameterError, match=r"m.npz: the numpy export .* give the model.pt"):
+        train(TrainConfig(epochs=1, val_sim=0, init_weights=str(tmp_path / "m.npz"), **cfg),
+              tmp_path / "run")
+    import warnings
+
+    from evmotion.methods.dnn import train as dnn_train
+
+    def nan_loss(flows, probs):
+        return flows[0].sum() * float("nan")  # a tensor that requires its gradient
+
+    monkeypatch.setattr(dnn_train, "multiscale_loss", nan_loss)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # torch's "Converting a tensor ..."
+        with pytest.raises(ParameterError, match=r"diverged: the loss is nan at epoch 0, "
+                                                 r"step 0 .* lower --lr; nothing was written"):
+            train(TrainConfig(epochs=1, val_sim=0, **cfg), tmp_path / "run")
+    assert not (tmp_path / "run").exists()

@@ -110,6 +110,10 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
     if not path.is_file():
         raise ParameterError(f"checkpoint {path}: " + ("not a regular file" if path.exists()
                                                        else "no such file"))
+    if path.suffix.lower() == ".npz":
+        # (torch's error was "[enforce fail at inline_container.cc:180] ...", probe BG)
+        raise ParameterError(f"checkpoint {path}: the numpy export of a network, which "
+                             "torch does not load: give the model.pt beside it")
     damaged = damaged_archive(path)
     if damaged:
         raise ParameterError(f"checkpoint {path}: damaged ({damaged}); copy it again or "

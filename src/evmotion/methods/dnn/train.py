@@ -293,10 +293,18 @@ def _kaiming_init(net: EVFlowNet) -> None:
             torch.nn.init.zeros_(m.bias)
 
 
-def _diverged(what: str, epoch: int, step: int, opt) -> None:
+def _diverged(what: str, epoch: int, step: int, opt, out: Path, created: bool) -> None:
+    """Stop a diverged training: the checkpoints of the epochs before stay usable; a
+    folder this run made and left empty goes (probe BG: an empty folder, and advice to
+    resume from an epoch that had never been)."""
+    last = out / "last.pt"
+    if created and out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
+    again = (", or --resume from the last good epoch (its last.pt)" if last.is_file()
+             else "; nothing was written")
     raise ParameterError(f"training diverged: {what} at epoch {epoch}, step {step} (lr "
-                         f"{opt.param_groups[0]['lr']:g}); train again with a lower --lr, "
-                         "or --resume from the last good epoch")
+                         f"{opt.param_groups[0]['lr']:g}); train again with a lower --lr"
+                         f"{again}")
 
 
 def _epoch_line(row: dict) -> str:
@@ -442,6 +450,11 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                 f"--init-weights {cfg.init_weights}: its network (width {theirs[0]}, norm "
                 f"{theirs[1]}, symmetric {theirs[2]}) differs from this training's (width "
                 f"{net.width}, norm {net.norm}, symmetric {net.symmetric})")
+        if not all(bool(torch.isfinite(p).all()) for p in start_net.parameters()):
+            # (it trained one step on a NaN loss and blamed the learning rate, probe BG)
+            raise ParameterError(f"--init-weights {cfg.init_weights}: its weights are not "
+                                 "all finite (its training diverged): start from another "
+                                 "checkpoint, or without --init-weights")
         net.load_state_dict(start_net.state_dict())
     reading = {"format": cfg.read_format, "sensor_size": cfg.sensor_size}
     rec = recording_windows(cfg.recordings, cfg.window_events, **reading) \
@@ -504,11 +517,13 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
             t_loss += time.perf_counter() - tl
             if not torch.isfinite(loss):
                 # stop before the step: the checkpoints written so far stay usable
-                _diverged(f"the loss is {float(loss)}", epoch, step, opt)
+                _diverged(f"the loss is {float(loss.detach())}", epoch, step, opt, out,
+                          created)
             loss.backward()
             opt.step()
             if not all(bool(torch.isfinite(p).all()) for p in net.parameters()):
-                _diverged("a weight is not finite after the step", epoch, step, opt)
+                _diverged("a weight is not finite after the step", epoch, step, opt, out,
+                          created)
             losses.append(float(loss.detach()))
             steps_log.append({"epoch": epoch, "step": done, "loss": losses[-1],
                               "lr": opt.param_groups[0]["lr"]})
