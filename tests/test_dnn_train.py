@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import os
 from pathlib import Path
 
 import numpy as np
@@ -358,6 +359,11 @@ def test_resume_and_out_are_checked(tmp_path):
     # the same file by another path: resumed
     train(TrainConfig(epochs=2, **{**cfg, "recordings": [str(tmp_path / "." / "rec.h5")]}), run,
           resume=True)
+    # the same bytes written again (a touch, a copy without -p): resumed (probe BG: its
+    # modification time had refused it)
+    rec.write_bytes(rec.read_bytes())
+    os.utime(rec, ns=(1, 1))
+    train(TrainConfig(epochs=2, **cfg), run, resume=True)
     # another file at the path: refused
     write_events(rec, EventArray(x=rng.integers(0, 64, n), y=rng.integers(0, 48, n),
                                  t=np.sort(rng.integers(0, 100_000, n)), p=rng.integers(0, 2, n),

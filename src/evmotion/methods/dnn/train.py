@@ -355,13 +355,20 @@ def _setting(key: str, value):
 
 def _file_id(path) -> tuple:
     """What tells a recording apart from another at the same path: its resolved path,
-    size and modification time."""
+    size and content's SHA-1. (Its modification time had refused a resume after a
+    ``touch`` or a copy without ``-p`` of the same bytes, probe BG.)"""
+    import hashlib
+
     p = Path(path).resolve()
+    digest = hashlib.sha1()
     try:
-        st = p.stat()
+        with open(p, "rb") as fh:
+            while block := fh.read(1 << 22):
+                digest.update(block)
+        size = p.stat().st_size
     except OSError:
         return (str(p), None, None)
-    return (str(p), st.st_size, st.st_mtime_ns)
+    return (str(p), size, digest.hexdigest())
 
 
 def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
@@ -405,6 +412,8 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     steps_log: list[dict] = []
     epochs_log: list[dict] = []
     start = 0
+    # (once: hashing a recording reads it whole)
+    file_ids = [_file_id(p) for p in cfg.recordings]
     if resume:
         if not last.is_file():
             raise ParameterError(f"--resume: no checkpoint {last}")
@@ -428,8 +437,8 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
             raise ParameterError(f"--resume: {last} was trained with other settings: "
                                  + "; ".join(f"{k} {saved.get(k)!r} there, {mine[k]!r} now"
                                              for k in diff))
-        changed = [p for p, was in zip(cfg.recordings, blob.get("recording_files", []),
-                                       strict=False) if _file_id(p) != was]
+        changed = [p for p, was, now in zip(cfg.recordings, blob.get("recording_files", []),
+                                            file_ids, strict=False) if now != tuple(was)]
         if changed:
             raise ParameterError(f"--resume: {', '.join(map(str, changed))} changed since "
                                  f"{last} began (another file, or rewritten): the resumed "
@@ -571,7 +580,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
         state = {"model": net.state_dict(), "optimizer": opt.state_dict(),
                  "scheduler": sched.state_dict(), "epoch": epoch, "config": asdict(cfg),
                  "steps": steps_log, "epochs": epochs_log,
-                 "recording_files": [_file_id(p) for p in cfg.recordings]}
+                 "recording_files": file_ids}
         save_atomically(state, last)
         _write_outputs(out, net, epoch, cfg, steps_log, epochs_log)
         summary = row
