@@ -619,8 +619,9 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     planar : bool
         Also fit the 8-parameter flow of a plane's motion (:mod:`.planar`) to the network's
         flow, polish it on the events' multi-reference focus, and keep it instead when its
-        training loss (multicm's objective (4.9), :func:`.planar.window_loss`) is the lower
-        (default True; 0.3-1.8 s a window, against 0.10-0.26 s without). The network's dense
+        loss (multicm's objective (4.9): gradient magnitude with the smoothness weight
+        :data:`.planar.LAM`, whatever objective the checkpoint was trained with;
+        :func:`.planar.window_loss`) is the lower (default True; 0.3-1.8 s a window, against 0.10-0.26 s without). The network's dense
         flow is noisy, which gathers events and raises its focus; the loss' smoothness
         term sees through that. On bench_dnn's held-out simulated windows it was kept on
         translation, rotation and zoom (AEE 0.681 -> 0.075, 0.874 -> 0.076, 1.567 -> 0.430
