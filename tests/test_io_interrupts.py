@@ -106,3 +106,28 @@ def test_events_written_after_a_deferred_block_are_whole(tmp_path):
     with EventWriter(tmp_path / "ev.h5", SIZE) as w:
         w.append(ev)
     assert read(tmp_path / "ev.h5").t.tolist() == [0, 10, 20, 30, 40]
+
+
+def test_ctrl_c_while_a_pattern_output_is_published_moves_it_whole(tmp_path, monkeypatch):
+    """Probe BH: an interrupt among the moves of a .flo pattern's files left 3-15 of 18
+    windows (one without its sidecar), or a new run's first window among an earlier run's
+    others, a set that eval scored as complete. The moves now finish, then the interrupt
+    lands."""
+    import os
+
+    pattern = tmp_path / "f_{:03d}.flo"
+    with open_flow_output(pattern, SIZE, n_windows=4) as old:
+        for k in range(4):
+            old.append(np.zeros((*SIZE, 2), np.float32), k * 10, k * 10 + 10)
+    out = open_flow_output(pattern, SIZE, n_windows=3)
+    for k in range(3):
+        out.append(np.ones((*SIZE, 2), np.float32), k * 10, k * 10 + 10)
+    fired = _ctrl_c_after(monkeypatch, os, "replace")
+    with pytest.raises(KeyboardInterrupt):
+        out.close()
+    assert fired
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == [f"f_{k:03d}.flo{s}" for k in range(3) for s in ("", ".json")]
+    from evmotion.io.flowfiles import read_flo
+
+    assert all(np.all(read_flo(tmp_path / f"f_{k:03d}.flo") != 0) for k in range(3))

@@ -75,6 +75,7 @@ from evmotion.io.h5filters import register_filters
 from evmotion.utils import (
     atomic_path,
     ensure_file_target,
+    interrupts_deferred,
     keep_for_resume,
     staging_folder,
 )
@@ -546,6 +547,14 @@ class PerWindowFlowOutput(FlowOutput):
     def close(self) -> list[Path]:
         if self.stage is None:
             return list(self.files)
+        # the set is published whole: an interrupt among the moves had left part of it
+        # (9 of 18 windows, a file without its sidecar), or a new run's first window among
+        # a previous run's others, looking complete (probe BH); the renames take
+        # milliseconds
+        with interrupts_deferred():
+            return self._publish()
+
+    def _publish(self) -> list[Path]:
         for final in self.files:
             os.replace(self.stage / final.name, final)
             os.replace(self.stage / (final.name + ".json"), sidecar_path(final))
