@@ -272,3 +272,23 @@ def test_cli_json_params_and_errors(tmp_path, fake_writer, capsys):
     rc = main(["simulate", "zoom", "--out", str(tmp_path / "z.h5"), "--size", "big"])
     assert rc == 2
     assert "--size" in capsys.readouterr().err
+
+
+def test_an_interrupted_simulation_leaves_no_other_scenes_truth(tmp_path, monkeypatch):
+    """Probe BH: interrupted between its events and its ground truth (written a second or
+    two later), 'simulate rotation --out s.h5' left its events beside the translation
+    truth of an earlier run at the same name, which info named as theirs."""
+    import evmotion.sim
+    from evmotion.cli import main
+
+    out = tmp_path / "s.h5"
+    argv = ["--size", "40x50", "--duration", "0.02", "--out", str(out)]
+    assert main(["simulate", "translation", *argv]) == 0
+    assert (tmp_path / "s_gt.h5").exists()
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(evmotion.sim, "write_ground_truth", interrupted)
+    assert main(["simulate", "rotation", *argv]) == 130
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]  # no truth, not another's

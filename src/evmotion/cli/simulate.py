@@ -337,6 +337,10 @@ def run(args) -> int:
     meta = {"simulator_scene": args.scene, "simulator_seed": args.seed,
             "calibration": sim_calibration(res.gt.K, res.events.sensor_size)} \
         if fmt == "h5" else {}
+    # an earlier run's truth goes first: interrupted between the two files (the truth takes
+    # a second or two), the new events stood beside another scene's truth, which info
+    # then named as theirs (probe BH); now they stand without one
+    Path(gt_path_for(args.out)).unlink(missing_ok=True)
     write_events(args.out, res.events, format=fmt, **meta)
     gt_path = write_ground_truth(gt_path_for(args.out), res.gt,
                                  events_file=Path(args.out).name)
