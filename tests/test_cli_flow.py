@@ -623,3 +623,19 @@ def test_resume_refuses_another_network_under_the_same_name(recording, tmp_path,
     assert main(["flow", str(path), *argv, "--checkpoint", str(ck), "--resume"]) == 2
     err = capsys.readouterr().err
     assert "cannot resume" in err and "checkpoint_sha1" in err, err
+
+
+def test_resume_extends_a_finished_output(recording, tmp_path, capsys):
+    """Probe BH: --resume asking more windows of a finished .h5 failed with 'f.h5 was
+    removed during the run (its folder deleted?)': the file was in its .part, reopened."""
+    from evmotion.io.flowfiles import read_flow_h5
+
+    path, _ = recording
+    out = tmp_path / "f.h5"
+    argv = ["flow", str(path), "--window-events", "4000", "--scales", "2", "--out", str(out)]
+    assert main([*argv, "--max-windows", "2"]) == 0
+    first = read_flow_h5(out)
+    assert main([*argv, "--max-windows", "3", "--resume"]) == 0, capsys.readouterr().err
+    more = read_flow_h5(out)
+    assert len(more.t0) == 3 and np.array_equal(more.flow[:2], first.flow)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.h5"]

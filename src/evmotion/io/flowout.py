@@ -390,7 +390,9 @@ class H5FlowOutput(FlowOutput):
     def append(self, flow: np.ndarray, t0: int, t1: int, valid: np.ndarray | None = None,
                extras: dict | None = None) -> None:
         """Add one window (see :meth:`FlowOutput.append`)."""
-        where = self.stored_at()
+        # (the .part file: a finished OUT reopened to be continued is in it until close;
+        # its own name, gone meanwhile, was taken for a file deleted, probe BH)
+        where = self.part
         if not where.exists():
             # the file was deleted under the open handle (its folder removed): the windows
             # would go on into a file nobody can reach, and the run fail only at its end
