@@ -505,8 +505,6 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
                 it.close()
             raise
         todo = itertools.chain(head, it)
-    sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
-                            n_windows=len(windows))
     rows, init, held = [], None, []
 
     def flush(pending: list) -> None:
@@ -515,6 +513,10 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
         pending.clear()
     order = (progress(windows, total=len(windows), desc=attrs["method"], unit="win")
              if todo is None else windows)
+    # opened just before the block that aborts it: a Ctrl-C while the progress bar was
+    # made left a finished output reopened for --resume under OUT.part (probe BH)
+    sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
+                            n_windows=len(windows))
     try:
         sink.check_count(len(windows))
         for i, w in enumerate(order):

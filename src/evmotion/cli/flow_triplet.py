@@ -224,19 +224,6 @@ def run(args) -> int:
              # its first events (as many whatever --chunk-events), read before anything
              "source_events": fingerprint(first[:4096]),
              **{f"triplet_{k}": v for k, v in params.items()}}
-    # the outputs come last: nothing that can refuse the options runs after one exists
-    events_out = dense_out = None
-    if not args.dense_output:
-        from evmotion.io.eventflow import EventFlowWriter
-
-        events_out = EventFlowWriter(out, sensor, attrs=attrs)
-    else:
-        from evmotion.io.flowout import open_flow_output
-
-        dense_out = open_flow_output(out, sensor, attrs, resume=args.resume,
-                                     compression="lz4")
-        if getattr(dense_out, "done", None):
-            tri = stream(skip=len(dense_out.done))
     whole = getattr(args, "t0", None) is None and getattr(args, "t1", None) is None
     bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True, total=total)
     n_events = n_valid = n_trip = n_windows = 0
@@ -262,7 +249,26 @@ def run(args) -> int:
             if win.early and win.flow is not None:
                 early.append(win.index)
 
+    # the outputs come last: nothing that can refuse the options runs after one exists,
+    # and the block that aborts them follows at once (a Ctrl-C between them left a
+    # finished output reopened for --resume under OUT.part, probe BH)
+    events_out = dense_out = None
     try:
+        if not args.dense_output:
+            from evmotion.io.eventflow import EventFlowWriter
+
+            events_out = EventFlowWriter(out, sensor, attrs=attrs)
+        else:
+            from evmotion.io.flowout import open_flow_output
+
+            dense_out = open_flow_output(out, sensor, attrs, resume=args.resume,
+                                         compression="lz4")
+    except BaseException:
+        bar.close()
+        raise
+    try:
+        if getattr(dense_out, "done", None):
+            tri = stream(skip=len(dense_out.done))
         chunk = first
         while chunk is not None:
             flow = tri.process(chunk)
