@@ -527,3 +527,51 @@ def _noise_recording(path, n: int):
                                   np.sort(rng.integers(0, 100_000, n)), rng.integers(0, 2, n),
                                   (60, 80)))
     return path
+
+
+@pytest.mark.parametrize("command", ["egomotion", "segment"])
+def test_an_interrupt_while_the_results_are_written_publishes_them_whole(
+        rec, tmp_path, capsys, monkeypatch, command):
+    """Probe BH: a Ctrl-C among the moves of the panels and the writes of the files left a
+    rerun's params.csv beside the earlier run's params.h5 (egomotion), or clusters.csv and
+    the pictures without labels.npz and clusters.h5 (segment), the journal kept, unnamed.
+    The results are now written whole, then the interrupt lands."""
+    import os
+    import signal
+
+    out = tmp_path / "e"
+    argv = [command, str(rec), "--warp", "translation", "--window-events", "2000",
+            "--out", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    real, fired = os.replace, []
+
+    def then_ctrl_c(src, dst, *args, **kwargs):
+        real(src, dst, *args, **kwargs)
+        if not fired and os.path.dirname(src).endswith("panels.part") \
+                and os.path.dirname(dst) == str(out):  # the first panel moved in
+            fired.append(dst)
+            signal.raise_signal(signal.SIGINT)
+
+    if command == "segment":
+        from evmotion.utils import atomic_write_bytes
+
+        def written_then_ctrl_c(path, data):  # segment writes its panels in place
+            atomic_write_bytes(path, data)
+            if not fired:
+                fired.append(path)
+                signal.raise_signal(signal.SIGINT)
+
+        import evmotion.utils
+        monkeypatch.setattr(evmotion.utils, "atomic_write_bytes", written_then_ctrl_c)
+    else:
+        monkeypatch.setattr(os, "replace", then_ctrl_c)
+    assert main(argv + ["--objective", "gradient_magnitude"]) == 130
+    monkeypatch.undo()
+    assert fired
+    left = sorted(p.name for p in out.iterdir())
+    assert not [n for n in left if n.endswith(".part")], left
+    table = "params.h5" if command == "egomotion" else "clusters.h5"
+    with h5py.File(out / table) as f:
+        assert "gradient_magnitude" in str(dict(f.attrs)) or "gradient_magnitude" in str(
+            {k: dict(v.attrs) for k, v in f.items()})

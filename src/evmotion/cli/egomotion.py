@@ -263,7 +263,7 @@ def run(args) -> int:
     from evmotion.cli.options import scheduler_client
     from evmotion.methods.egomotion import reference_time
     from evmotion.parallel import imap_windows
-    from evmotion.utils import progress
+    from evmotion.utils import interrupts_deferred, progress
 
     check_common(args)
     # the library's rule: mid, or start with a regularizer (another time with one: warned)
@@ -333,13 +333,18 @@ def run(args) -> int:
         raise
     done = type(journal).read(journal.path, _journal_header(args, events, windows, K))
     results = [(w, *done[k][2]) for k, w in enumerate(windows)]
-    remove_stale_pictures(out_dir, ("window_",))
-    for panel in sorted(staged.glob("window_*.png")):
-        os.replace(panel, out_dir / panel.name)
-    shutil.rmtree(staged, ignore_errors=True)
-    rows = write_outputs(out_dir, results, grid=args.grid, sensor_size=events.sensor_size,
-                         K=K, distortion=getattr(args, "distortion", None))
-    journal.path.unlink()
+    # published whole: an interrupt among the moves and the files left this run's
+    # params.csv beside an earlier run's params.h5, or its panels lost to the resume
+    # (probe BH)
+    with interrupts_deferred():
+        remove_stale_pictures(out_dir, ("window_",))
+        for panel in sorted(staged.glob("window_*.png")):
+            os.replace(panel, out_dir / panel.name)
+        shutil.rmtree(staged, ignore_errors=True)
+        rows = write_outputs(out_dir, results, grid=args.grid,
+                             sensor_size=events.sensor_size, K=K,
+                             distortion=getattr(args, "distortion", None))
+        journal.path.unlink()
     failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
     if not rows:
         from evmotion.errors import EvmotionError

@@ -84,10 +84,8 @@ def run(args) -> int:
     from evmotion.cli.options import scheduler_client
     from evmotion.errors import EvmotionError
     from evmotion.io.journal import Journal
-    from evmotion.io.paramsfiles import ParamsTable, write_params_h5
-    from evmotion.methods.segmentation import MIN_CLUSTER_EVENTS, MIN_CLUSTER_GAIN
     from evmotion.parallel import imap_windows
-    from evmotion.utils import atomic_path, atomic_write_bytes, atomic_write_text
+    from evmotion.utils import interrupts_deferred
 
     check_common(args)
     check_scheduler(args)
@@ -122,6 +120,28 @@ def run(args) -> int:
             out.rmdir()
         raise
     done = Journal.read(journal.path, _journal_header(args, events, windows, K))
+    # published whole: an interrupt among the pictures and the three files left a set
+    # without labels.npz and clusters.h5, its journal unnamed (probe BH)
+    with interrupts_deferred():
+        rows = _publish(args, out, windows, done, events)
+        journal.path.unlink()
+    if args.json:
+        print_json({"file": str(args.file), "grid": args.grid, "warp": args.warp,
+                    "clusters": rows})
+    else:
+        print(f"{len(windows)} window{'' if len(windows) == 1 else 's'} x {args.warps} "
+              f"clusters -> {out}/clusters.csv, "
+              "clusters.h5")
+    return 0
+
+
+def _publish(args, out, windows, done, events) -> list[dict]:
+    """Write the pictures, clusters.csv, labels.npz and clusters.h5 of the finished
+    windows ``done`` (an earlier run's removed first); return the CSV's rows."""
+    from evmotion.io.paramsfiles import ParamsTable, write_params_h5
+    from evmotion.methods.segmentation import MIN_CLUSTER_EVENTS, MIN_CLUSTER_GAIN
+    from evmotion.utils import atomic_path, atomic_write_bytes, atomic_write_text
+
     remove_stale_pictures(out, ("window_",))
     remove_stale_results(out, ("clusters.csv", "clusters.h5", "labels.npz"))
     rows, labels, pngs = [], {}, []
@@ -186,15 +206,7 @@ def run(args) -> int:
         {"method": "segment", "warp": args.warp, "grid": args.grid,
          "objective": args.objective, "warps": args.warps, "iterations": args.iterations,
          "seed": args.seed}))
-    journal.path.unlink()
-    if args.json:
-        print_json({"file": str(args.file), "grid": args.grid, "warp": args.warp,
-                    "clusters": rows})
-    else:
-        print(f"{len(windows)} window{'' if len(windows) == 1 else 's'} x {args.warps} "
-              f"clusters -> {out}/clusters.csv, "
-              "clusters.h5")
-    return 0
+    return rows
 
 
 def _journal_header(args, events, windows, K) -> dict:
