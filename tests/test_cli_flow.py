@@ -639,3 +639,24 @@ def test_resume_extends_a_finished_output(recording, tmp_path, capsys):
     more = read_flow_h5(out)
     assert len(more.t0) == 3 and np.array_equal(more.flow[:2], first.flow)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.h5"]
+
+
+def test_resume_keeps_every_window_pictured(recording, tmp_path, capsys, monkeypatch):
+    """Probe BH: --png-dir with --resume left 30 of 32 pictures, exit 0: a window written
+    to the .part before its pictures were drawn was kept without them, and a resume does
+    not draw the windows it keeps. Pictures now come first."""
+    import evmotion.cli.flow_multicm as fm
+    from evmotion.io.flowfiles import read_flow_h5
+
+    path, _ = recording
+    out, png = tmp_path / "f.h5", tmp_path / "png"
+    argv = ["flow", str(path), "--window-events", "4000", "--scales", "2", "--out", str(out),
+            "--png-dir", str(png)]
+    interrupt_at_call(monkeypatch, fm, "_png", 3)
+    assert main(argv) == 130
+    monkeypatch.undo()
+    assert main(argv + ["--resume"]) == 0
+    capsys.readouterr()
+    n = len(read_flow_h5(out).t0)
+    assert sorted(p.name for p in png.glob("flow_0*.png")) == [f"flow_{i:05d}.png"
+                                                               for i in range(n)]

@@ -543,9 +543,11 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
                              "skipped": res.meta["skipped"], "valid_fraction": 0.0})
                 after(i, None)
                 continue
+            # drawn before it is written: a window kept for --resume has its pictures (an
+            # interrupt between the two had left kept windows without theirs, probe BH)
+            after(i, res)
             flush(held)
             init = res
-            after(i, res)
             rows.append(_row(res, w))
         if rows and all("skipped" in r for r in rows):
             raise EmptyWindowError(f"{args.file}: no window could be estimated (the first: "
