@@ -353,8 +353,14 @@ def test_a_journal_with_no_window_does_not_block_the_next_run(rec, tmp_path, cap
     assert main(argv) == 0
     assert (out / "params.csv").exists() and not (out / "params.part").exists()
     (out / "params.part").write_bytes(left)
+    # an interrupted run's panel beside it (probe BH: it was published as this run's)
+    (out / "panels.part").mkdir()
+    (out / "panels.part" / "window_00000.png").write_bytes(b"an earlier run's panel")
     assert main(argv + ["--resume"]) == 0
-    capsys.readouterr()
+    err = capsys.readouterr().err
+    # (it said "params.part does not exist" of the journal it had found empty)
+    assert "params.part held no finished window" in err, err
+    assert sorted(p.name for p in out.iterdir()) == ["params.csv", "params.h5"]
 
 
 def test_poor_fit_lines_stop_after_five_and_suggest_longer_windows(tmp_path, capsys):

@@ -297,7 +297,9 @@ def run(args) -> int:
     # run's complete results (params.csv / .h5 and panels) stay as they are until this
     # run's replace them, and an interrupted run leaves its panels beside its journal
     staged = out_dir / PANELS_PART
-    if not args.resume:
+    if not done:
+        # (also with --resume when nothing is resumed: an interrupted run's panels were
+        # published as this run's, probe BH)
         shutil.rmtree(staged, ignore_errors=True)
     staged.mkdir(exist_ok=True)
     todo = [k for k in range(len(windows)) if k not in done]

@@ -90,7 +90,8 @@ class Journal:
         that records no window is replaced; one left without ``resume``, or whose windows
         are not among ``windows`` (objects with ``t0``, ``t1``), is a ParameterError."""
         path = Path(path)
-        if path.exists() and cls.holds_nothing(path):
+        emptied = path.exists() and cls.holds_nothing(path)
+        if emptied:
             path.unlink()  # a run stopped before its first window left it: no work to keep
         if not resume:
             if path.exists():
@@ -101,9 +102,12 @@ class Journal:
         if not path.exists():
             # as flow and bos say it (egomotion and segment started afresh without a word:
             # a mistyped --out resumes nothing, probe BB)
+            # (it said "does not exist" of a journal it had just found empty, probe BH)
+            why = ("held no finished window: its run stopped before one" if emptied
+                   else "does not exist")
             warnings.warn(EvmotionWarning(
-                f"--resume: there is no interrupted run to continue ({path} does not "
-                "exist): starting from the first window"), stacklevel=2)
+                f"--resume: there is no interrupted run to continue ({path} {why}): "
+                "starting from the first window"), stacklevel=2)
             return cls(path, header), {}
         journal, done = cls.resume(path, header)
         for k, (t0, t1, _) in done.items():
