@@ -402,6 +402,8 @@ def test_an_interrupted_rerun_keeps_the_previous_results(rec, tmp_path, capsys, 
     assert (out / "params.part").exists() and any((out / "panels.part").iterdir())
     monkeypatch.undo()
     assert main(argv + ["--objective", "gradient_magnitude", "--resume"]) == 0
+    # how much it reused (probe BH: only bos said it)
+    assert "windows (3 kept from the interrupted run) -> " in capsys.readouterr().out
     assert not (out / "panels.part").exists() and not (out / "params.part").exists()
     assert (out / "params.h5").read_bytes() != before["params.h5"]
     assert sorted(p.name for p in out.glob("window_*.png")) == sorted(

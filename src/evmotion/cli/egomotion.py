@@ -293,6 +293,7 @@ def run(args) -> int:
     made_out = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
     journal, done = _open_journal(args, out_dir, events, windows, K)
+    resumed = len(done)
     # the panels of this run wait in a folder of their own until it ends: an earlier
     # run's complete results (params.csv / .h5 and panels) stay as they are until this
     # run's replace them, and an interrupted run leaves its panels beside its journal
@@ -371,8 +372,9 @@ def run(args) -> int:
                     "objective": args.objective, "optimizer": args.optimizer,
                     "windows": rows, "failed": failed})
     else:
-        print(f"{len(rows)} window{'' if len(rows) == 1 else 's'} -> {out_dir}/params.csv, "
-              "params.h5"
+        print(f"{len(rows)} window{'' if len(rows) == 1 else 's'}"
+              + (f" ({resumed} kept from the interrupted run)" if resumed else "")
+              + f" -> {out_dir}/params.csv, params.h5"
               + (f"; {len(failed)} failed" if failed else ""))
     return 0
 

@@ -196,14 +196,18 @@ def run(args) -> int:
 
 def summary_line(args, seconds: float) -> str:
     """The one line ``flow`` prints on success: windows, events, time and output, from
-    ``args.flow_summary`` (``windows``, ``events``, ``outputs``, ``skipped``, ``undistorted``) that
-    a method's ``run`` sets; what a method does not report is left out."""
+    ``args.flow_summary`` (``windows``, ``events``, ``outputs``, ``skipped``, ``resumed``,
+    ``undistorted``) that a method's ``run`` sets; what a method does not report is left
+    out."""
     info = getattr(args, "flow_summary", None) or {}
     parts = [f"{args.method}:"]
     if info.get("windows") is not None:
+        # (as bos says it: a resumed run did not say how much it had reused, probe BH)
+        notes = [f"{info['skipped']:,} skipped: no flow"] if info.get("skipped") else []
+        notes += [f"{info['resumed']:,} kept from the interrupted run"] \
+            if info.get("resumed") else []
         parts.append(f"{info['windows']:,} window{'' if info['windows'] == 1 else 's'}"
-                     + (f" ({info['skipped']:,} skipped: no flow)," if info.get("skipped")
-                        else ","))
+                     + (f" ({'; '.join(notes)})," if notes else ","))
     if info.get("events") is not None:
         parts.append(f"{info['events']:,} events,")
     outputs = info.get("outputs") or [args.out]

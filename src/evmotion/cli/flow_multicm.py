@@ -422,6 +422,7 @@ def run(args) -> int:
                                      estimate=estimate, results=results)
     args.flow_summary = {"windows": len(rows), "outputs": written,
                          "skipped": sum("skipped" in r for r in rows),
+                         "resumed": sum(bool(r.get("resumed")) for r in rows),
                          "events": sum(w.count for w in windows),
                          "undistorted": _moved(cam, grid)}
     if video is not None:

@@ -105,6 +105,7 @@ def run(args) -> int:
     journal, done = Journal.open_run(out / JOURNAL_NAME, _journal_header(args, events, windows, K),
                                      windows, args.resume)
     todo = [k for k in range(len(windows)) if k not in done]
+    resumed = len(done)
     try:
         with journal, scheduler_client(args.scheduler) as client:
             for k, r in zip(todo, imap_windows(job, events, [windows[k] for k in todo],
@@ -130,8 +131,9 @@ def run(args) -> int:
                     "clusters": rows})
     else:
         print(f"{len(windows)} window{'' if len(windows) == 1 else 's'} x {args.warps} "
-              f"clusters -> {out}/clusters.csv, "
-              "clusters.h5")
+              "clusters" + (f" ({resumed} windows kept from the interrupted run)"
+                            if resumed else "")
+              + f" -> {out}/clusters.csv, clusters.h5")
     return 0
 
 
