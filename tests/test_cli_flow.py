@@ -662,3 +662,28 @@ def test_resume_keeps_every_window_pictured(recording, tmp_path, capsys, monkeyp
     n = len(read_flow_h5(out).t0)
     assert sorted(p.name for p in png.glob("flow_0*.png")) == [f"flow_{i:05d}.png"
                                                                for i in range(n)]
+
+
+def test_resume_checks_every_kept_window_against_its_events(recording, tmp_path, capsys):
+    """Probe BH: a recording changed after its first window (events mirrored from event
+    10000 on, the times kept) resumed an interrupted run: the recording's fingerprint sees
+    its first window only, and the file's flow matched neither recording's. Each window's
+    events' digest is stored and checked."""
+    import shutil
+
+    from evmotion.io import read_events
+    from evmotion.io.registry import get_format
+
+    rec = tmp_path / "rec.dat"
+    shutil.copy(recording[0], rec)
+    out = tmp_path / "f.h5"
+    argv = ["flow", str(rec), "--window-events", "4000", "--scales", "2", "--out", str(out)]
+    assert main(argv) == 0
+    ev = read_events(rec)
+    x = ev.x.astype(int)
+    x[6000:] = ev.sensor_size[1] - 1 - x[6000:]  # the second window on
+    get_format("dat").write(rec, EventArray(x, ev.y, ev.t, ev.p, ev.sensor_size))
+    capsys.readouterr()
+    assert main(argv + ["--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "window 1 of" in err and "made from other events" in err, err

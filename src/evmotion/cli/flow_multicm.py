@@ -441,6 +441,14 @@ def run(args) -> int:
     return 0
 
 
+#: The extra dataset of a flow .h5 output holding each window's :func:`~evmotion.events.
+#: events_digest`.
+WINDOW_DIGEST = "window/events_digest"
+WINDOW_DIGEST_MEANING = ("the first 8 bytes of the SHA-1 of the window's events (x, y, t, "
+                         "p), as a signed integer: what a resumed run checks its kept "
+                         "windows against")
+
+
 class _PoorFitLines:
     """The poor-fit warnings of a run's windows (no focus, too few events): each line names
     its window, the first :data:`POOR_FIT_LINES` are printed and the others counted in one
@@ -487,8 +495,20 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
     previous window's. With ``--resume`` (one process) the windows already in the ``.part``
     file are taken from it (the last one as warm start, as stored: float32, exactly the flow
     that was written)."""
-    from evmotion.io.flowout import open_flow_output
+    from evmotion.events import events_digest
+    from evmotion.io.flowfiles import ExtraSpec
+    from evmotion.io.flowout import flow_container, open_flow_output
     from evmotion.methods.flowresult import estimate_or_skip
+
+    # each window's events' digest, in a resumable output: a resume checks every window it
+    # keeps, not only the recording's first (probe BH: a file changed after its first
+    # window resumed, and its flow matched neither recording)
+    keyed = flow_container(args.out) == "h5"
+    extras = {WINDOW_DIGEST: ExtraSpec((), "<i8", "", WINDOW_DIGEST_MEANING)} if keyed \
+        else None
+
+    def digest(w) -> dict | None:
+        return {WINDOW_DIGEST: events_digest(events.window(w))} if keyed else None
 
     todo = None
     said = _PoorFitLines(len(windows))
@@ -510,19 +530,24 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
 
     def flush(pending: list) -> None:
         for r, rw in pending:
-            sink.append(r.flow, rw.t0, rw.t1, valid=_valid(r))
+            sink.append(r.flow, rw.t0, rw.t1, valid=_valid(r), extras=digest(rw))
         pending.clear()
     order = (progress(windows, total=len(windows), desc=attrs["method"], unit="win")
              if todo is None else windows)
     # opened just before the block that aborts it: a Ctrl-C while the progress bar was
     # made left a finished output reopened for --resume under OUT.part (probe BH)
     sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
-                            n_windows=len(windows))
+                            n_windows=len(windows), extras=extras)
     try:
         sink.check_count(len(windows))
         for i, w in enumerate(order):
             if i < len(sink.done):
                 sink.check_done(i, w.t0, w.t1)
+                if keyed and int(sink.stored(WINDOW_DIGEST, i)) != digest(w)[WINDOW_DIGEST]:
+                    raise ParameterError(f"cannot resume (--resume): window {i} of "
+                                         f"{sink.stored_at()} was made from other events "
+                                         f"than this run's window {i} (the recording "
+                                         "changed?); start again without --resume")
                 if i == len(sink.done) - 1:
                     init = sink.stored_flow(i)  # only an .h5 output resumes
                 rows.append({"t0_us": w.t0, "t1_us": w.t1, "resumed": True})
