@@ -587,10 +587,27 @@ def test_resume_knows_the_recording_by_its_events_not_its_path(tmp_path, capsys,
     keep = out.with_name("out.h5.part").read_bytes()
     rc, _, err = _run(["bos", other_path, *argv, "--resume"], capsys)
     assert rc == 0, err
+    # a copy of the folder elsewhere: resumed too (probe BH: its frames' path was compared)
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(scene, copy)
+    out.unlink()
+    out.with_name("out.h5.part").write_bytes(keep)
+    rc, _, err = _run(["bos", copy, *argv, "--resume"], capsys)
+    assert rc == 0, err
     # another recording in the same place: refused, the interrupted work kept
     out.unlink()
     out.with_name("out.h5.part").write_bytes(keep)
     other = plume_scene(tmp_path / "other", intervals=3)
+    # other frames under the same names: refused by their content
+    from evmotion.io.pngfile import write_png
+    from evmotion.viz import read_png
+
+    frame = copy / "images" / "frame_00000001.png"
+    write_png(frame, read_png(frame)[:, ::-1].copy())
+    _one_line_error(["bos", copy, *argv, "--resume"], capsys, "frames_digest")
+    assert out.with_name("out.h5.part").exists()
     events = (other / "events.txt").read_text().splitlines()
     (scene / "events.txt").write_text("\n".join(events[:-7]) + "\n")
     _one_line_error(["bos", scene, *argv, "--resume"], capsys, "source_events")

@@ -156,7 +156,7 @@ def run(args) -> int:
     )
     from evmotion.errors import EventDataError, ParameterError
     from evmotion.events import fingerprint
-    from evmotion.io.bosinput import load_bos_input
+    from evmotion.io.bosinput import frames_digest, load_bos_input
     from evmotion.io.flowout import EXTRA_CONTAINERS
     from evmotion.methods.bos import BosOptions
     from evmotion.methods.bos_run import (
@@ -199,6 +199,9 @@ def run(args) -> int:
                  "seed": args.seed, "relinearize": args.relinearize,
                  "source": data.source, "frames": data.frames_source,
                  "source_events": fingerprint(data.events),
+                 # the frames by content: a copied or moved folder resumes (its path was
+                 # compared, probe BH), other frames under the same name do not
+                 "frames_digest": frames_digest(data.frames, data.frame_times),
                  "iterations": np.asarray(options.iterations_per_scale(), np.int64),
                  # the selection before C, which is estimated on it: a --resume with other
                  # --t0 / --t1 / --max-intervals is named as such

@@ -311,6 +311,25 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sum(a * b)) / den if den > 0 else 0.0
 
 
+def frames_digest(frames: np.ndarray, frame_times: np.ndarray) -> str:
+    """A short digest of frames (their shape, times and pixels): what identifies a BOS
+    run's frames for ``--resume`` wherever their folder lies.
+
+    Examples
+    --------
+    >>> f, t = np.zeros((2, 3, 4), np.uint8), np.array([0, 8333])
+    >>> same = frames_digest(f, t) == frames_digest(f.copy(), t)
+    >>> same, frames_digest(f, t + 1) == frames_digest(f, t)
+    (True, False)
+    """
+    import hashlib
+
+    h = hashlib.sha1(str((frames.shape, str(frames.dtype))).encode())
+    h.update(np.ascontiguousarray(frame_times, np.int64).tobytes())
+    h.update(np.ascontiguousarray(frames).tobytes())
+    return f"{len(frames)} frames, sha1 {h.hexdigest()[:16]}"
+
+
 def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = None, *,
                    fmt: str | None = None, roi: tuple[int, int, int, int] | None = None,
                    t0: int | None = None, t1: int | None = None,

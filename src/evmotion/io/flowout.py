@@ -313,9 +313,10 @@ class FlowOutput(PartFileWriter):
 
 # attributes that describe a run without identifying its input: the recording's path
 # (``./rec`` and ``/data/rec`` are one recording, and a file replaced in place is
-# another), which the events' fingerprint (``source_events``) identifies instead, and the
-# network checkpoint's, which its digest (``checkpoint_sha1``) identifies
-NOT_COMPARED = frozenset({"source", "checkpoint"})
+# another), which the events' fingerprint (``source_events``) identifies instead, the
+# network checkpoint's, which its digest (``checkpoint_sha1``) identifies, and a BOS run's
+# frames' (``frames_digest``)
+NOT_COMPARED = frozenset({"source", "checkpoint", "frames"})
 
 
 class H5FlowOutput(FlowOutput):
