@@ -134,7 +134,7 @@ def rotation_rows(quick: bool) -> list[dict]:
         if quick and reg in ("divergence", "deformation", "divergence+deformation"):
             continue
         res = estimate_egomotion(ev, "rotation", regularizer=reg, K=sim.gt.K, t_ref="mid",
-                                 dataset="ecd", maps=False)
+                                 dataset="ecd" if reg else None, maps=False)
         rms = float(np.sqrt(np.mean((res.params - omega) ** 2)))
         base = rms if reg is None else base
         rows.append({"warp": "rotation (sim)", "regularizer": reg or "none",
