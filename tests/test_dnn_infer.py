@@ -467,7 +467,15 @@ def test_unusable_checkpoints_are_one_line(tmp_path, window):
 
     with zipfile.ZipFile(run / "model.pt") as zf:
         assert {n.split("/")[0] for n in zf.namelist()} == {"archive"}
-    for path, match in ((empty, "not a PyTorch file"), (text, "not a PyTorch file"),
+    # settings no network has (probe BG: the width's error named no file; n_bins 0 let
+    # torch warn of zero-element tensors first)
+    stored = torch.load(run / "model.pt", weights_only=True)
+    minus, nobins = tmp_path / "minus.pt", tmp_path / "nobins.pt"
+    torch.save({**stored, "width": -1.0}, minus)
+    torch.save({**stored, "n_bins": 0}, nobins)
+    for path, match in ((minus, r"settings make no network .*width must be in"),
+                        (nobins, r"settings make no network .*n_bins must be a whole number"),
+                        (empty, "not a PyTorch file"), (text, "not a PyTorch file"),
                         (truncated, "truncated or damaged: the start of a PyTorch archive"),
                         (tensor, "no 'n_bins'"), (wrong, "no tensor"),
                         (damaged, "damaged .*archive/.*CRC"),
@@ -475,8 +483,10 @@ def test_unusable_checkpoints_are_one_line(tmp_path, window):
                                  r"file, \[8, 5, 3, 3\] in the network"),
                         (run, "folder.*model.pt"), (tmp_path / "none.pt", "no such file"),
                         (Path("/dev/null"), "not a regular file")):
-        with pytest.raises(ParameterError, match=match) as exc:
-            load_model(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            with pytest.raises(ParameterError, match=match) as exc:
+                load_model(path)
         assert "\n" not in str(exc.value) and str(path) in str(exc.value)
 
 

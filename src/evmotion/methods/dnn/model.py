@@ -137,6 +137,10 @@ def load_model(checkpoint: str | Path | None = None, device: str = "cpu") -> EVF
         net = EVFlowNet(n_bins=int(blob["n_bins"]), width=float(blob["width"]),
                         norm=str(blob.get("norm", "none")),
                         symmetric=bool(blob.get("symmetric", False)))
+    except Exception as exc:  # settings no network has (width -1 was named without the file)
+        raise ParameterError(f"checkpoint {path}: its settings make no network "
+                             f"({_reason(exc)})") from None
+    try:
         mismatch = _first_mismatch(net.state_dict(), blob["model"])
         if mismatch:
             raise ParameterError(f"checkpoint {path}: its weights do not make the network it "

@@ -14,6 +14,8 @@ weights, rearranged for speed (training always runs :class:`EVFlowNet`).
 
 from __future__ import annotations
 
+import numbers
+
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -84,6 +86,9 @@ class EVFlowNet(nn.Module):
             raise ValueError(f"norm must be one of {', '.join(NORMS)}, got {norm!r}")
         if not 0 < width <= MAX_WIDTH:
             raise ParameterError(f"width must be in (0, {MAX_WIDTH:g}], got {width!r}")
+        if not (isinstance(n_bins, numbers.Integral) and n_bins >= 1):
+            # (n_bins=0 reached torch, which warned of zero-element tensors first)
+            raise ParameterError(f"n_bins must be a whole number >= 1, got {n_bins!r}")
         self.n_bins, self.width, self.norm = int(n_bins), float(width), norm
         self.symmetric = bool(symmetric)
         c = [max(4, round(width * k)) for k in (32, 64, 128, 256, 512)]
