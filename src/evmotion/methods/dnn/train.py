@@ -476,6 +476,13 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     val = [sim_window(VAL_SEED_BASE + i, sensor_size=cfg.sim_sensor,
                       window_events=cfg.window_events) for i in range(cfg.val_sim)]
     if cfg.val_recordings:
+        trained = {Path(p).resolve() for p in cfg.recordings}
+        shared = [str(p) for p in cfg.val_recordings if Path(p).resolve() in trained]
+        if shared:
+            # (its score was reported as held out, probe BG)
+            warnings.warn(EvmotionWarning(
+                f"--val {', '.join(shared)}: also trained on, so val_rec_FWL does not "
+                "measure held-out data"), stacklevel=2)
         val += recording_windows(cfg.val_recordings, cfg.window_events,
                                  what="validation recording", **reading)
     created = not out.exists()
