@@ -116,3 +116,28 @@ def assert_decoders_agree(module, words: np.ndarray, n_cuts: int, rng) -> np.nda
             assert a.dtype == b.dtype
         np.testing.assert_array_equal(state, ref_state)
     return state
+
+
+def random_events(n: int, sensor_size: tuple[int, int], span_us: int, seed: int = 1):
+    """``n`` events at uniform random pixels, times (sorted, in ``[0, span_us)``) and
+    polarities."""
+    from evmotion.events import EventArray
+
+    rng = np.random.default_rng(seed)
+    h, w = sensor_size
+    return EventArray(x=rng.integers(0, w, n), y=rng.integers(0, h, n),
+                      t=np.sort(rng.integers(0, span_us, n)), p=rng.integers(0, 2, n),
+                      sensor_size=sensor_size)
+
+
+def assert_chunks_track_the_file(module, path, n: int, block_bytes: int) -> None:
+    """Chunks of ``module.iter_chunks`` carry how far into ``path`` (of ``n`` uniformly
+    spread events) they are: ``bytes_read`` rising to the file's size, in step with the
+    events read, and ``file_bytes``."""
+    size = path.stat().st_size
+    chunks = list(module.iter_chunks(path, 7_000, block_bytes=block_bytes))
+    done = np.cumsum([len(c) for c in chunks])
+    read = np.array([c.meta["bytes_read"] for c in chunks])
+    assert all(c.meta["file_bytes"] == size for c in chunks)
+    assert read[-1] == size and np.all(np.diff(read) > 0)
+    np.testing.assert_allclose(read / size, done / n, atol=0.03)

@@ -559,17 +559,8 @@ def test_decimal_seconds_read_as_nanoseconds_are_refused(tmp_path):
 def test_chunks_say_how_far_into_the_file_they_are(tmp_path, block_bytes):
     """Text states no event count: the share of the file read gives convert's progress
     bar its total (it showed a count with no total, rate or ETA)."""
-    rng = np.random.default_rng(1)
-    n = 40_000
-    ev = EventArray(x=rng.integers(0, 240, n), y=rng.integers(0, 180, n),
-                    t=np.sort(rng.integers(0, 2_000_000, n)), p=rng.integers(0, 2, n),
-                    sensor_size=(180, 240))
+    from _helpers import assert_chunks_track_the_file, random_events
+
     out = tmp_path / "events.txt"
-    ecd.write(out, ev)
-    size = out.stat().st_size
-    chunks = list(ecd.iter_chunks(out, 7_000, block_bytes=block_bytes))
-    done = np.cumsum([len(c) for c in chunks])
-    read = np.array([c.meta["bytes_read"] for c in chunks])
-    assert all(c.meta["file_bytes"] == size for c in chunks)
-    assert read[-1] == size and np.all(np.diff(read) > 0)
-    np.testing.assert_allclose(read / size, done / n, atol=0.03)
+    ecd.write(out, random_events(40_000, (180, 240), 2_000_000))
+    assert_chunks_track_the_file(ecd, out, 40_000, block_bytes)

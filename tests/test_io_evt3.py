@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _helpers import assert_decoders_agree, assert_same_events
+from _helpers import (
+    assert_chunks_track_the_file,
+    assert_decoders_agree,
+    assert_same_events,
+    random_events,
+)
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import dat, evt3
@@ -223,20 +228,9 @@ def test_streaming_memory_is_bounded(raw):
 def test_chunks_say_how_far_into_the_file_they_are(tmp_path, block_bytes):
     # EVT headers state no event count: the share of the file read gives a progress
     # bar its total; the events' share and the bytes' share agree for uniform data
-    rng = np.random.default_rng(1)
-    n = 40_000
-    ev = EventArray(x=rng.integers(0, 640, n), y=rng.integers(0, 480, n),
-                    t=np.sort(rng.integers(0, 2_000_000, n)), p=rng.integers(0, 2, n),
-                    sensor_size=(480, 640))
     out = tmp_path / "pos.raw"
-    evt3.write(out, ev)
-    size = out.stat().st_size
-    chunks = list(evt3.iter_chunks(out, 7_000, block_bytes=block_bytes))
-    done = np.cumsum([len(c) for c in chunks])
-    read = np.array([c.meta["bytes_read"] for c in chunks])
-    assert all(c.meta["file_bytes"] == size for c in chunks)
-    assert read[-1] == size and np.all(np.diff(read) > 0)
-    np.testing.assert_allclose(read / size, done / n, atol=0.03)
+    evt3.write(out, random_events(40_000, (480, 640), 2_000_000))
+    assert_chunks_track_the_file(evt3, out, 40_000, block_bytes)
 
 
 @pytest.mark.parametrize("fmt", ["evt2", "evt21", "evt3"])
@@ -247,11 +241,7 @@ def test_a_file_without_its_header_reads_with_format_and_size(tmp_path, fmt):
     the words from byte 0 with that size."""
     from evmotion.io import read_events, write_events
 
-    rng = np.random.default_rng(1)
-    n = 3000
-    ev = EventArray(x=rng.integers(0, 240, n), y=rng.integers(0, 180, n),
-                    t=np.sort(rng.integers(0, 50_000, n)), p=rng.integers(0, 2, n),
-                    sensor_size=(180, 240))
+    ev = random_events(3000, (180, 240), 50_000)
     full = tmp_path / "with_header.raw"
     write_events(full, ev, format=fmt)
     _, off, _, _ = parse_raw_header(full, None)
