@@ -356,3 +356,20 @@ def test_resume_refuses_a_part_that_is_no_regular_file(tmp_path):
     os.mkfifo(tmp_path / "flow.h5.part")
     with pytest.raises(FormatError, match="flow.h5.part: cannot resume: not a regular file"):
         ff.FlowWriter(path, (16, 20), resume=True)
+
+
+def test_files_without_padding_pair_in_the_order_of_their_numbers(tmp_path):
+    """Probe BI: 0.flo ... 11.flo sorted as text (0, 1, 10, 11, 2, ...) paired 10 and 11
+    with the ground truth's windows 2 and 3, AEE 2.7 px for an exact estimate, and the
+    note said they were paired in name order."""
+    from evmotion.io.flowfiles import FlowSequence
+    from evmotion.io.flowread import read_flow_paired
+
+    pred = tmp_path / "pred"
+    pred.mkdir()
+    for i in range(12):
+        ff.write_flo(pred / f"{i}.flo", np.full((4, 5, 2), float(i), np.float32))
+    t0 = np.arange(12) * 100_000
+    ref = FlowSequence(np.zeros((12, 4, 5, 2), np.float32), t0, t0 + 100_000)
+    seq, _ = read_flow_paired(pred, ref)
+    assert seq.flow[:, 0, 0, 0].tolist() == [10.0 * i for i in range(12)]

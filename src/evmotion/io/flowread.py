@@ -152,7 +152,11 @@ def read_flow_paired(path: str | os.PathLike, reference: FlowSequence,
         if len(kinds) != 1:
             raise FormatError(p, f"expected a folder of .flo or of .png flow files, found "
                               f"{'both' if kinds else 'neither'}")
-        files = sorted(f for f in p.iterdir() if f.suffix.lower() in kinds)
+        # in the order of the numbers in their names: 0.flo ... 11.flo sorted as text put
+        # 10 and 11 after 1, and paired them with the ground truth's windows 2 and 3
+        # (probe BI)
+        files = sorted((f for f in p.iterdir() if f.suffix.lower() in kinds),
+                       key=_natural_key)
     else:
         raise FormatError(p, "no such folder" if not p.exists() else
                           "expected a folder or a pattern of per-window .flo / .png files")
@@ -183,6 +187,18 @@ def read_flow_paired(path: str | os.PathLike, reference: FlowSequence,
                         t1=np.concatenate([s.t1 for s in seqs]),
                         valid=np.concatenate([s.valid for s in seqs]),
                         attrs={**seqs[0].attrs, "source": str(p)}), how
+
+
+def _natural_key(path: Path) -> tuple:
+    """A file name as its text and numbers, numbers compared as numbers.
+
+    Examples
+    --------
+    >>> [p.name for p in sorted(map(Path, ["10.flo", "2.flo", "1.flo"]), key=_natural_key)]
+    ['1.flo', '2.flo', '10.flo']
+    """
+    return tuple(int(part) if part.isdigit() else part
+                 for part in re.split(r"(\d+)", path.name))
 
 
 def _pattern_files(path: Path) -> list[Path]:
