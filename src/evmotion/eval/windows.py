@@ -226,7 +226,9 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
         row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), **m.as_dict(),
                "AEE_zero": zero.aee, "AE_rad": float(np.radians(m.ae_deg)),
                "gt_frames": round(frames, 2)}
-        gt_flow = (disp_gt / ((t1 - t0) * 1e-6)).astype(np.float32)
+        # NaN where the ground truth is not known: its displacement there is a finite 0,
+        # which kept those events in both FWLs, FWL_gt's as a still scene (probe BI)
+        gt_flow = (gt_px / ((t1 - t0) * 1e-6)).astype(np.float32)
         if win is not None:
             # the events where the estimate and the ground truth are defined, for both
             # FWLs alike
