@@ -169,3 +169,25 @@ def test_fwl_of_the_ground_truth_leaves_out_where_it_is_unknown():
                            FlowSequence(gt, np.array([0]), np.array([50_000])), events=ev)
     row = res.windows[0]
     assert row["FWL_gt"] == pytest.approx(row["FWL"]) and row["FWL"] > 1.5
+
+
+def test_ground_truth_windows_that_overlap_are_refused_and_empty_windows_skipped():
+    """Probe BI: a ground truth of 50 ms windows every 25 ms had its displacement summed
+    over both windows holding an instant (AEE 5 px for an exact estimate, coverage 2.0
+    passing the test); and one window of no time (t1 == t0, which flow outputs keep
+    without a valid pixel) made eval refuse the whole output ('t0s and t1s swapped?')."""
+    from evmotion.errors import ParameterError
+    from evmotion.eval.windows import evaluate_windows
+    from evmotion.io.flowfiles import FlowSequence
+
+    flow = np.full((2, 8, 10, 2), 100.0, np.float32)
+    sliding = FlowSequence(flow, np.array([0, 25_000]), np.array([50_000, 75_000]))
+    with pytest.raises(ParameterError, match=r"windows overlap: \[25000, 75000\) us starts "
+                                             r"before \[0, 50000\) us ends"):
+        evaluate_windows(flow[:1], [25_000], [50_000], sliding)
+    tiles = FlowSequence(flow, np.array([0, 50_000]), np.array([50_000, 100_000]))
+    res = evaluate_windows(flow, [0, 50_000], [50_000, 50_000], tiles)
+    assert res.windows[1] == {"window": 1, "t0_us": 50_000, "t1_us": 50_000, "n_pixels": 0}
+    assert res.total["AEE"] == pytest.approx(0.0) and res.windows[0]["n_pixels"] == 80
+    with pytest.raises(ParameterError, match=r"window 0: \[5, 4\] us .*swapped"):
+        evaluate_windows(flow[:1], [5], [4], tiles)
