@@ -191,3 +191,17 @@ def test_ground_truth_windows_that_overlap_are_refused_and_empty_windows_skipped
     assert res.total["AEE"] == pytest.approx(0.0) and res.windows[0]["n_pixels"] == 80
     with pytest.raises(ParameterError, match=r"window 0: \[5, 4\] us .*swapped"):
         evaluate_windows(flow[:1], [5], [4], tiles)
+
+
+def test_a_gap_in_the_ground_truth_is_named():
+    """Probe BI: a window inside the ground truth's span but over a gap of it (90 %
+    covered) was refused with 'no window lies within the ground truth's'."""
+    from evmotion.errors import EmptyWindowError
+    from evmotion.eval.windows import evaluate_windows
+    from evmotion.io.flowfiles import FlowSequence
+
+    flow = np.zeros((2, 8, 10, 2), np.float32)
+    gapped = FlowSequence(flow, np.array([0, 60_000]), np.array([50_000, 110_000]))
+    with pytest.raises(EmptyWindowError, match=r"the ground truth has gaps: .* \[0, "
+                                               r"100000\) us, 90%"):
+        evaluate_windows(flow[:1], [0], [100_000], gapped)

@@ -382,8 +382,19 @@ def _nothing_to_score(t0s, t1s, gt) -> str:
         return "the ground truth holds no window: nothing to score"
     a, b = int(np.min(t0s)), int(np.max(t1s))
     c, d = int(np.min(gt.t0)), int(np.max(gt.t1))
-    why = ("they do not overlap in time (another recording, or another time origin?)"
-           if b <= c or a >= d else "no window lies within the ground truth's")
+    inside = [(int(t0), int(t1)) for t0, t1 in zip(t0s, t1s, strict=True)
+              if c <= t0 and t1 <= d and t1 > t0]
+    if b <= c or a >= d:
+        why = "they do not overlap in time (another recording, or another time origin?)"
+    elif inside:
+        # (it said no window lay within the ground truth's span of a window that did, in
+        # a gap of the ground truth, probe BI)
+        t0, t1 = inside[0]
+        why = (f"the ground truth has gaps: it covers under {FULL_COVERAGE:.0%} of the "
+               f"windows within its span (the first: [{t0}, {t1}) us, "
+               f"{gt_coverage(gt, t0, t1):.0%})")
+    else:
+        why = "no window lies within the ground truth's"
     return f"the windows span [{a}, {b}] us but the ground truth [{c}, {d}] us: {why}"
 
 
