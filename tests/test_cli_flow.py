@@ -625,7 +625,7 @@ def test_resume_refuses_another_network_under_the_same_name(recording, tmp_path,
     assert "cannot resume" in err and "checkpoint_sha1" in err, err
 
 
-def test_resume_extends_a_finished_output(recording, tmp_path, capsys):
+def test_resume_extends_a_finished_output(recording, tmp_path, capsys, monkeypatch):
     """Probe BH: --resume asking more windows of a finished .h5 failed with 'f.h5 was
     removed during the run (its folder deleted?)': the file was in its .part, reopened."""
     from evmotion.io.flowfiles import read_flow_h5
@@ -635,9 +635,14 @@ def test_resume_extends_a_finished_output(recording, tmp_path, capsys):
     argv = ["flow", str(path), "--window-events", "4000", "--scales", "2", "--out", str(out)]
     assert main([*argv, "--max-windows", "2"]) == 0
     first = read_flow_h5(out)
+    monkeypatch.setenv("EVMOTION_PROGRESS", "1")
     assert main([*argv, "--max-windows", "3", "--resume"]) == 0
+    said = capsys.readouterr()
+    err = said.err
     # how much it reused, as bos says it (probe BH: flow did not say)
-    assert "3 windows (2 kept from the interrupted run)," in capsys.readouterr().out
+    assert "3 windows (2 kept from the interrupted run)," in said.out
+    # the bar counts the window to compute (the kept ones had made the ETA too short)
+    assert "1/1 [" in err.replace("\r", "\n") and "3/3 [" not in err, err[-300:]
     more = read_flow_h5(out)
     assert len(more.t0) == 3 and np.array_equal(more.flow[:2], first.flow)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.h5"]

@@ -532,15 +532,19 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
         for r, rw in pending:
             sink.append(r.flow, rw.t0, rw.t1, valid=_valid(r), extras=digest(rw))
         pending.clear()
-    order = (progress(windows, total=len(windows), desc=attrs["method"], unit="win")
-             if todo is None else windows)
+    bar = None
     # opened just before the block that aborts it: a Ctrl-C while the progress bar was
     # made left a finished output reopened for --resume under OUT.part (probe BH)
     sink = open_flow_output(args.out, events.sensor_size, attrs, resume=args.resume,
                             n_windows=len(windows), extras=extras)
     try:
         sink.check_count(len(windows))
-        for i, w in enumerate(order):
+        if todo is None:
+            # the windows to compute: a resume's kept ones, taken at once, had counted in
+            # the rate, and so made the ETA too short (probe BH)
+            bar = progress(None, total=len(windows) - len(sink.done), desc=attrs["method"],
+                           unit="win")
+        for i, w in enumerate(windows):
             if i < len(sink.done):
                 sink.check_done(i, w.t0, w.t1)
                 if keyed and int(sink.stored(WINDOW_DIGEST, i)) != digest(w)[WINDOW_DIGEST]:
@@ -561,6 +565,8 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
                 # which window of the recording (all its events at one time, say)
                 raise EmptyWindowError(f"{args.file}: window {i} [{w.t0}, {w.t1}) us: "
                                        f"{exc}") from None
+            if bar is not None:
+                bar.update(1)
             # skipped windows are written once a window is estimated: a run of nothing
             # else writes nothing
             held.append((res, w))
@@ -586,4 +592,7 @@ def _run_windows(args, events, windows, attrs, after, progress, *, estimate, res
         if results is not None and hasattr(it, "close"):
             it.close()  # ends the worker pool (or the cluster's tasks' feed) now
         raise
+    finally:
+        if bar is not None:
+            bar.close()
     return rows, written
