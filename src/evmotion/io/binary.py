@@ -55,6 +55,19 @@ OpenBlocks = Callable[[Path, "tuple[int, int] | None", int],
                       "tuple[int, tuple[int, int], Iterator[Block]]"]
 
 
+def position_in_block(start: int, end: int, left: int, n_block: int) -> int:
+    """The byte where a chunk that ends inside a block ends: the block spans bytes
+    ``[start, end)`` of its file and holds ``n_block`` events, ``left`` of them after the
+    chunk; the position is in proportion to them (for a progress bar's total).
+
+    Examples
+    --------
+    >>> position_in_block(1000, 2000, 250, 1000)
+    1750
+    """
+    return int(end - min(1.0, left / max(n_block, 1)) * (end - start))
+
+
 class Positioned:
     """Decoded blocks that also tell how far into their file they have read: its
     ``bytes_read`` (the end of the last block decoded) and ``file_bytes``. Chunks made from
@@ -143,10 +156,9 @@ def rechunk(blocks: Iterator[Block], chunk_events: int, sensor_size: tuple[int, 
             n_pending -= chunk_events
             if end:
                 # the chunk ends inside the last block (the whole payload, when decoded in
-                # one pass): its position there, in proportion to the events left of it
-                left = min(1.0, n_pending / len(blk[2]))
-                meta = {**meta, "bytes_read": int(end - left * (end - start)),
-                        "file_bytes": blocks.file_bytes}
+                # one pass)
+                meta = {**meta, "file_bytes": blocks.file_bytes,
+                        "bytes_read": position_in_block(start, end, n_pending, len(blk[2]))}
             yield _take(pending, chunk_events, sensor_size, meta, validate)
     if end:
         meta = {**meta, "bytes_read": end, "file_bytes": blocks.file_bytes}

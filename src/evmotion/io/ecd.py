@@ -27,6 +27,7 @@ from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
 from evmotion.events import SORT_HINT, EventArray, ambiguous_polarity
 from evmotion.io.base import TIME_UNIT_US, FormatSpec, event_fields, time_unit_in_name
+from evmotion.io.binary import position_in_block
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
     MAX_ABS_TIME_US,
@@ -827,14 +828,12 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     buf = [np.zeros(0, np.int64)] * 4
     last_t = None
     for block in _blocks(ev_path, block_bytes, unit, where):
-        n_block = max(block[2].size, 1)
         buf = [np.concatenate([a, b]) for a, b in zip(buf, block, strict=True)]
         while buf[2].size >= chunk_events:
             part = [a[:chunk_events] for a in buf]
             buf = [a[chunk_events:] for a in buf]
-            # within the block, in proportion to its events still to come
-            start, end = where["block_start"], where["bytes_read"]
-            at = end - min(buf[2].size, n_block) * (end - start) // n_block
+            at = position_in_block(where["block_start"], where["bytes_read"], buf[2].size,
+                                   block[2].size)
             ev = _to_events(ev_path, *part, size, src, validate,
                             {**extra, "bytes_read": at, "file_bytes": file_bytes},
                             streamed=True)
