@@ -623,12 +623,7 @@ def fingerprint(events: EventArray, n: int = 1 << 16) -> str:
     >>> fingerprint(ev) == fingerprint(ev.copy()), fingerprint(ev) == fingerprint(ev[:1])
     (True, False)
     """
-    import hashlib
-
-    h = hashlib.sha1(str((len(events), events.sensor_size)).encode())
-    for part in (slice(0, n), slice(max(len(events) - n, 0), len(events))):
-        for a in (events.x, events.y, events.t, events.p):
-            h.update(np.ascontiguousarray(a[part]).tobytes())
+    h = _events_sha1(events, (slice(0, n), slice(max(len(events) - n, 0), len(events))))
     return f"{len(events)} events, sha1 {h.hexdigest()[:16]}"
 
 
@@ -643,12 +638,19 @@ def events_digest(events: EventArray) -> int:
     >>> events_digest(ev) == events_digest(ev.copy()), events_digest(ev) == events_digest(ev[:1])
     (True, False)
     """
+    return int(np.frombuffer(_events_sha1(events, (slice(None),)).digest()[:8], "<i8")[0])
+
+
+def _events_sha1(events: EventArray, parts: tuple[slice, ...]):
+    """The SHA-1 of the events' count and sensor size and of the coordinates, times and
+    polarities of the events in ``parts``."""
     import hashlib
 
-    h = hashlib.sha1(str(len(events)).encode())
-    for a in (events.x, events.y, events.t, events.p):
-        h.update(np.ascontiguousarray(a).tobytes())
-    return int(np.frombuffer(h.digest()[:8], "<i8")[0])
+    h = hashlib.sha1(str((len(events), events.sensor_size)).encode())
+    for part in parts:
+        for a in (events.x, events.y, events.t, events.p):
+            h.update(np.ascontiguousarray(a[part]).tobytes())
+    return h
 
 
 def _check_time_range(t0: int, t1: int) -> None:
