@@ -158,7 +158,8 @@ def checkpoint_digest(checkpoint=None, backend: str = "numpy") -> str:
     shipped = SHIPPED_EXPORT if backend == "numpy" else SHIPPED_EXPORT.with_suffix(".pt")
     path, _ = checkpoint_key(checkpoint, shipped)
     try:
-        return hashlib.sha1(path.read_bytes()).hexdigest()[:16]
+        with open(path, "rb") as fh:
+            return hashlib.file_digest(fh, "sha1").hexdigest()[:16]
     except OSError as exc:
         raise ParameterError(f"checkpoint {path}: cannot be read ({exc.strerror or exc})"
                              ) from None

@@ -360,15 +360,13 @@ def _file_id(path) -> tuple:
     import hashlib
 
     p = Path(path).resolve()
-    digest = hashlib.sha1()
     try:
         with open(p, "rb") as fh:
-            while block := fh.read(1 << 22):
-                digest.update(block)
+            digest = hashlib.file_digest(fh, "sha1").hexdigest()
         size = p.stat().st_size
     except OSError:
         return (str(p), None, None)
-    return (str(p), size, digest.hexdigest())
+    return (str(p), size, digest)
 
 
 def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
