@@ -635,7 +635,8 @@ def events_digest(events: EventArray) -> int:
     Examples
     --------
     >>> ev = EventArray(x=[1, 2], y=[0, 3], t=[10, 20], p=[1, 0], sensor_size=(4, 4))
-    >>> events_digest(ev) == events_digest(ev.copy()), events_digest(ev) == events_digest(ev[:1])
+    >>> same = events_digest(ev) == events_digest(ev.copy())
+    >>> same, events_digest(ev) == events_digest(ev[:1])
     (True, False)
     """
     return int(np.frombuffer(_events_sha1(events, (slice(None),)).digest()[:8], "<i8")[0])

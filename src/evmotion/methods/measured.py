@@ -14,8 +14,8 @@ from evmotion.events import EventArray
 __all__ = ["MAX_ONE_POLARITY", "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CONTRAST_GAIN",
            "MIN_FIT_EVENTS", "MIN_HALVES_CORRELATION", "MIN_MOTION_PX", "MAX_GAP_SHARE",
            "alignment_gain", "flow_alignment_gain", "gap_share", "halves_consistency",
-           "lit_not_moved", "local_swing", "polarity_bursts", "warn_by_chance", "warn_by_refit",
-           "warn_flicker", "warn_gap", "warn_inconsistent_halves", "warn_no_gain",
+           "lit_not_moved", "local_swing", "polarity_bursts", "warn_by_chance",
+           "warn_by_refit", "warn_flicker", "warn_gap", "warn_inconsistent_halves", "warn_no_gain",
            "warn_small_motion", "warn_too_few"]
 
 # an estimate whose image of warped events is not this much sharper (variance ratio) than

@@ -44,8 +44,8 @@ from evmotion.methods.measured import (
     warn_no_gain,
 )
 
-__all__ = ["BACKENDS", "checkpoint_digest", "estimate_flow_dnn", "load_network", "predict_displacement",
-           "resolve_backend", "sharpness"]
+__all__ = ["BACKENDS", "checkpoint_digest", "estimate_flow_dnn", "load_network",
+           "predict_displacement", "resolve_backend", "sharpness"]
 
 # the events binned this many times coarser (estimate_flow_dnn): 8 for windows whose
 # events move tens of px (a 0.95 s DAVIS346 window: FWL 2.30 with 1-4, 3.24 with 8 too)
@@ -622,10 +622,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         flow, polish it on the events' multi-reference focus, and keep it instead when its
         loss (multicm's objective (4.9): gradient magnitude with the smoothness weight
         :data:`.planar.LAM`, whatever objective the checkpoint was trained with;
-        :func:`.planar.window_loss`) is the lower (default True; 0.3-1.8 s a window, against 0.10-0.26 s without). The network's dense
-        flow is noisy, which gathers events and raises its focus; the loss' smoothness
-        term sees through that. On bench_dnn's held-out simulated windows it was kept on
-        translation, rotation and zoom (AEE 0.681 -> 0.075, 0.874 -> 0.076, 1.567 -> 0.430
+        :func:`.planar.window_loss`) is the lower (default True; 0.3-1.8 s a window,
+        against 0.10-0.26 s without). The network's dense flow is noisy, which gathers
+        events and raises its focus; the loss' smoothness term sees through that. On
+        bench_dnn's held-out simulated windows it was kept on translation, rotation and zoom (AEE 0.681 -> 0.075, 0.874 -> 0.076, 1.567 -> 0.430
         px) and not on the window with an independently moving object
         (``benchmarks/results/dnn.md``; other windows: ``dnn_planar.md``).
         ``meta["planar"]`` says whether it was kept, ``meta["planar_params"]`` its
