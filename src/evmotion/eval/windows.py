@@ -348,7 +348,8 @@ def _check_tiles(gt) -> None:
     order = np.argsort(np.asarray(gt.t0), kind="stable")
     t0, t1 = np.asarray(gt.t0)[order], np.asarray(gt.t1)[order]
     # (an overlap within the coverage test's 1 % of a window: times rounded to the µs)
-    slack = (1.0 - FULL_COVERAGE) * np.minimum(t1 - t0, np.roll(t1 - t0, -1))[:-1]
+    span = t1 - t0
+    slack = (1.0 - FULL_COVERAGE) * np.minimum(span[:-1], span[1:])
     over = np.flatnonzero(t0[1:] < t1[:-1] - slack)
     if over.size:
         k = int(over[0])
