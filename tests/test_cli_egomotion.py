@@ -332,6 +332,47 @@ def test_egomotion_resume_after_an_interrupt(rec, tmp_path, capsys, monkeypatch,
                                                           for r in whole]
 
 
+@pytest.mark.parametrize("command", ["egomotion", "segment"])
+def test_resume_checks_every_kept_window_s_events(rec, tmp_path, capsys, monkeypatch,
+                                                   command):
+    """The journal knew the recording by its first window only: events changed after it
+    were resumed as if unchanged, the kept results describing other events (probe BH).
+    Each kept window's events are now checked."""
+    import pickle
+
+    import evmotion.cli.egomotion as ego
+    import evmotion.cli.segment as seg
+    from evmotion.io import read_events
+
+    if command == "egomotion":
+        argv = ["egomotion", str(rec), "--warp", "translation", "--window-events", "2000",
+                "--max-png", "0", "--json"]
+        job, journal, key, n = (ego, "_window_job", 4), "params.part", "windows", 6
+    else:
+        argv = ["segment", str(rec), "--warp", "translation", "--warps", "2",
+                "--window-events", "2000", "--max-windows", "4", "--iterations", "2",
+                "--json"]
+        job, journal, key, n = (seg, "_segment_job", 3), "segment.part", "clusters", 8
+    _, _, out = _whole_then_interrupted(argv, key, n, job, journal, tmp_path, capsys,
+                                        monkeypatch)
+    monkeypatch.undo()
+    ev = read_events(rec)
+    p = ev.p.copy()
+    p[2500:2600] ^= 1  # within the second window: the first's events stay as they were
+    write_events(rec, type(ev)(ev.x, ev.y, ev.t, p, ev.sensor_size))
+    assert main(argv + ["--out", str(out), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "the events of window 1 " in err and "the recording changed" in err, err
+    assert (out / journal).exists()
+    # a journal of the layout before these digests: refused by name, not misread
+    with open(out / journal, "rb") as fh:
+        head, first = pickle.load(fh), pickle.load(fh)
+    (out / journal).write_bytes(pickle.dumps((head[0], 1, head[2]))
+                                + pickle.dumps(first[:3] + first[4:]))
+    assert main(argv + ["--out", str(out), "--resume"]) == 2
+    assert "journal of another version of evmotion" in capsys.readouterr().err
+
+
 def test_egomotion_without_a_window_option_takes_flows_default(rec, tmp_path, capsys):
     # it demanded one of --window-events / --window-us where flow has a default
     rc = main(["egomotion", str(rec), "--warp", "translation", "--out", str(tmp_path / "e"),

@@ -261,6 +261,7 @@ def _panel_title(r) -> str:
 def run(args) -> int:
     from evmotion.cli import print_json, warn_line
     from evmotion.cli.options import scheduler_client
+    from evmotion.events import events_digest
     from evmotion.methods.egomotion import reference_time
     from evmotion.parallel import imap_windows
     from evmotion.utils import interrupts_deferred, progress
@@ -313,7 +314,8 @@ def run(args) -> int:
                     w = windows[k]
                     out = job(events.window(w), w.t0, w.t1, init=init)
                     init = out.result.params
-                    journal.add(k, w.t0, w.t1, (_written(staged, w, out), None))
+                    journal.add(k, w.t0, w.t1, events_digest(events.window(w)),
+                                (_written(staged, w, out), None))
             else:
                 with scheduler_client(args.scheduler) as client:
                     # each window's panel is written as its result comes in, while later
@@ -324,7 +326,8 @@ def run(args) -> int:
                             strict=True):
                         value = None if r.value is None else _written(staged, windows[k],
                                                                       r.value)
-                        journal.add(k, windows[k].t0, windows[k].t1, (value, r.error))
+                        journal.add(k, windows[k].t0, windows[k].t1,
+                                    events_digest(events.window(windows[k])), (value, r.error))
     except BaseException:
         # nothing finished (a cluster out of reach, say): nothing to resume, nor a picture:
         # an empty staging folder, and the output folder this run made
@@ -406,7 +409,7 @@ def _open_journal(args, out_dir: Path, events, windows, K):
     from evmotion.io.journal import Journal
 
     return Journal.open_run(out_dir / JOURNAL_NAME, _journal_header(args, events, windows, K),
-                            windows, args.resume)
+                            events, windows, args.resume)
 
 
 def _written(out_dir: Path, w, out: WindowOutput):

@@ -83,6 +83,7 @@ def run(args) -> int:
     from evmotion.cli.egomotion import check_common, check_scheduler, load_events_and_camera
     from evmotion.cli.options import scheduler_client
     from evmotion.errors import EvmotionError
+    from evmotion.events import events_digest
     from evmotion.io.journal import Journal
     from evmotion.parallel import imap_windows
     from evmotion.utils import interrupts_deferred
@@ -103,7 +104,7 @@ def run(args) -> int:
                             n_iter=args.iterations, seed=args.seed, regularizer=args.reg,
                             weight=args.weight, dataset=args.dataset)
     journal, done = Journal.open_run(out / JOURNAL_NAME, _journal_header(args, events, windows, K),
-                                     windows, args.resume)
+                                     events, windows, args.resume)
     todo = [k for k in range(len(windows)) if k not in done]
     resumed = len(done)
     try:
@@ -114,7 +115,8 @@ def run(args) -> int:
                 if not r.ok:
                     raise EvmotionError(f"{args.file}: window {windows[k].index} [{r.t0}, "
                                         f"{r.t1}) us failed: {r.error.splitlines()[0]}")
-                journal.add(k, windows[k].t0, windows[k].t1, r.value)
+                journal.add(k, windows[k].t0, windows[k].t1,
+                            events_digest(events.window(windows[k])), r.value)
     except BaseException:
         # nothing finished: nothing to resume, nor the output folder this run made
         if not journal.settle(bool(done)) and made_out and not any(out.iterdir()):

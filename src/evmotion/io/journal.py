@@ -2,7 +2,9 @@
 interrupted so that ``--resume`` computes only the others.
 
 The file is a stream of pickles: a header (what the run was asked: options, the source's
-fingerprint), then one record per finished window ``(position, t0_us, t1_us, payload)``.
+fingerprint), then one record per finished window ``(position, t0_us, t1_us, digest,
+payload)``, ``digest`` the window's events' (:func:`~evmotion.events.events_digest`), which
+a resumed run checks each kept window against.
 Each record is flushed as it is written; a record cut short by a kill is dropped on
 reading. The file is the command's own (written and read back by the same code), so
 unpickling it trusts nothing foreign.
@@ -12,7 +14,7 @@ Examples
 >>> import tempfile, pathlib
 >>> path = pathlib.Path(tempfile.mkdtemp()) / "params.part"
 >>> with Journal(path, {"warp": "rotation"}) as j:
-...     j.add(0, 0, 100, "first window's result")
+...     j.add(0, 0, 100, 1234, "first window's result")
 >>> Journal.read(path, {"warp": "rotation"})
 {0: (0, 100, "first window's result")}
 """
@@ -26,9 +28,14 @@ from pathlib import Path
 from typing import Any
 
 from evmotion.errors import EvmotionWarning, ParameterError
+from evmotion.events import EventArray, events_digest
 from evmotion.utils import ensure_room, keep_for_resume
 
 __all__ = ["Journal"]
+
+# 2: each record holds its window's events' digest (1 checked only the first window's
+# events, in the header: a recording changed after it resumed, probe BH)
+VERSION = 2
 
 
 class Journal:
@@ -40,7 +47,7 @@ class Journal:
         self.count = 0  # the windows this process added
         self.fh = open(self.path, "ab" if append else "wb")
         if not append:
-            self._dump(("evmotion-journal", 1, header))
+            self._dump(("evmotion-journal", VERSION, header))
 
     def _dump(self, obj) -> None:
         data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
@@ -48,9 +55,10 @@ class Journal:
         self.fh.write(data)
         self.fh.flush()
 
-    def add(self, position: int, t0_us: int, t1_us: int, payload: Any) -> None:
-        """Record window ``position`` (its place in the run's list) of ``[t0_us, t1_us)``."""
-        self._dump((int(position), int(t0_us), int(t1_us), payload))
+    def add(self, position: int, t0_us: int, t1_us: int, digest: int, payload: Any) -> None:
+        """Record window ``position`` (its place in the run's list) of ``[t0_us, t1_us)``
+        whose events' digest is ``digest``."""
+        self._dump((int(position), int(t0_us), int(t1_us), int(digest), payload))
         self.count += 1
 
     def close(self) -> None:
@@ -74,21 +82,23 @@ class Journal:
 
     @classmethod
     def resume(cls, path: str | os.PathLike, header: dict
-               ) -> tuple[Journal, dict[int, tuple[int, int, Any]]]:
+               ) -> tuple[Journal, dict[int, tuple[int, int, int, Any]]]:
         """The journal of an interrupted run, reopened to append (a record cut short at its
-        end dropped), and the windows it holds (:meth:`read`)."""
+        end dropped), and the windows it holds, ``{position: (t0_us, t1_us, digest,
+        payload)}``."""
         done, end = cls._records(Path(path), header)
         with open(path, "r+b") as fh:
             fh.truncate(end)
         return cls(path, header, append=True), done
 
     @classmethod
-    def open_run(cls, path: str | os.PathLike, header: dict, windows, resume: bool
-                 ) -> tuple[Journal, dict[int, tuple[int, int, Any]]]:
+    def open_run(cls, path: str | os.PathLike, header: dict, events: EventArray, windows,
+                 resume: bool) -> tuple[Journal, dict[int, tuple[int, int, Any]]]:
         """A command's journal at ``path``: a fresh one, or with ``resume`` the
         interrupted run's, reopened, and the windows it holds (:meth:`read`). A journal
         that records no window is replaced; one left without ``resume``, or whose windows
-        are not among ``windows`` (objects with ``t0``, ``t1``), is a ParameterError."""
+        are not among ``windows`` (:class:`~evmotion.events.Window` of ``events``) with the
+        same events, is a ParameterError."""
         path = Path(path)
         emptied = path.exists() and cls.holds_nothing(path)
         if emptied:
@@ -110,13 +120,18 @@ class Journal:
                 "starting from the first window"), stacklevel=2)
             return cls(path, header), {}
         journal, done = cls.resume(path, header)
-        for k, (t0, t1, _) in done.items():
+        for k, (t0, t1, kept, _) in done.items():
             if k >= len(windows) or (windows[k].t0, windows[k].t1) != (t0, t1):
                 journal.close()
                 raise ParameterError(f"cannot resume (--resume): window {k} of {path} is "
                                      f"[{t0}, {t1}) us, not one of this run's (other --t1 "
                                      "or --max-windows, or another recording)")
-        return journal, done
+            if events_digest(events.window(windows[k])) != kept:
+                journal.close()
+                raise ParameterError(f"cannot resume (--resume): the events of window {k} "
+                                     f"[{t0}, {t1}) us are not those {path} was made from "
+                                     "(the recording changed); delete it to start again")
+        return journal, {k: (t0, t1, payload) for k, (t0, t1, _, payload) in done.items()}
 
     @staticmethod
     def holds_nothing(path: str | os.PathLike) -> bool:
@@ -135,11 +150,13 @@ class Journal:
         """The windows a journal holds, ``{position: (t0_us, t1_us, payload)}``; a
         ParameterError when its header differs from ``header`` (another run's journal:
         the options that differ are named)."""
-        return cls._records(Path(path), header)[0]
+        done = cls._records(Path(path), header)[0]
+        return {k: (t0, t1, payload) for k, (t0, t1, _, payload) in done.items()}
 
     @staticmethod
-    def _records(path: Path, header: dict) -> tuple[dict[int, tuple[int, int, Any]], int]:
-        done: dict[int, tuple[int, int, Any]] = {}
+    def _records(path: Path, header: dict
+                 ) -> tuple[dict[int, tuple[int, int, int, Any]], int]:
+        done: dict[int, tuple[int, int, int, Any]] = {}
         with open(path, "rb") as fh:
             try:
                 head = pickle.load(fh)
@@ -151,6 +168,10 @@ class Journal:
                     and head[0] == "evmotion-journal"):
                 raise ParameterError(f"cannot resume (--resume): {path} is not a run's "
                                      "journal; delete it to start again")
+            if head[1] != VERSION:
+                raise ParameterError(f"cannot resume (--resume): {path} is the journal of "
+                                     f"another version of evmotion (layout {head[1]!r}, "
+                                     f"not {VERSION}); delete it to start again")
             differ = sorted(k for k in set(head[2]) | set(header)
                             if head[2].get(k) != header.get(k))
             if differ:
@@ -163,9 +184,9 @@ class Journal:
             end = fh.tell()
             while True:
                 try:
-                    pos, t0, t1, payload = pickle.load(fh)
+                    pos, t0, t1, digest, payload = pickle.load(fh)
                 except Exception:  # the end, or a record cut short by a kill: stop there
                     break
-                done[pos] = (t0, t1, payload)
+                done[pos] = (t0, t1, digest, payload)
                 end = fh.tell()
         return done, end
