@@ -337,9 +337,17 @@ class H5FlowOutput(FlowOutput):
         super().__init__(path, sensor_size, attrs or {})
         attrs = self.attrs
         self.part = self.path.with_name(self.path.name + ".part")  # FlowWriter's own name
-        self.reopened_final = resume and self.path.exists() and not self.part.exists()
-        if not resume and self.part.exists() and part_holds_nothing(self.part):
+        emptied = self.part.exists() and part_holds_nothing(self.part)
+        if emptied:
             self.part.unlink()  # a run killed before its first window left it: no work
+        self.reopened_final = resume and self.path.exists() and not self.part.exists()
+        if resume and emptied and not self.path.exists():
+            # (it was dropped without a word, the run starting afresh, probe BH)
+            warnings.warn(EvmotionWarning(
+                f"--resume: there is no interrupted run to continue ({self.part} held no "
+                "finished window: its run stopped before one): starting from the first "
+                "window"), stacklevel=2)
+            resume = False
         if not resume and self.part.exists():
             # a fresh run would overwrite an interrupted run's windows at its first window
             raise ParameterError(f"{self.part} holds the work of an interrupted run: add "
