@@ -79,6 +79,36 @@ def test_resume_gives_the_weights_of_an_uninterrupted_run(tmp_path):
     assert {int(r["epoch"]) for r in steps} == {0, 1} and len(steps) >= 3
 
 
+def test_best_checkpoint_is_the_epoch_of_the_lowest_validation_loss(tmp_path, monkeypatch):
+    # only the last epoch's weights were kept: a training that overfit in its later epochs
+    # lost its best network (probe BG)
+    import evmotion.methods.dnn.train as tr
+    from evmotion.methods.dnn.infer import load_network
+
+    real, val_losses = tr.evaluate_windows, iter([0.5, 0.3, 0.4])
+
+    def scored(*args, **kw):
+        rows = real(*args, **kw)
+        loss = next(val_losses)
+        return [{**r, "loss": loss} for r in rows]
+
+    monkeypatch.setattr(tr, "evaluate_windows", scored)
+    summary = train(TrainConfig(epochs=3, **TINY), tmp_path / "a")
+    assert summary["best_epoch"] == 1 and summary["epoch"] == 2
+    monkeypatch.undo()
+    train(TrainConfig(epochs=2, **TINY), tmp_path / "b")
+    best, second = _weights(tmp_path / "a" / "best.pt"), _weights(tmp_path / "b" / "model.pt")
+    assert all(torch.equal(best[k], second[k]) for k in best)
+    last = _weights(tmp_path / "a" / "model.pt")
+    assert any(not torch.equal(best[k], last[k]) for k in best)
+    x = np.random.default_rng(0).normal(size=(1, 5, 48, 64)).astype(np.float32)
+    np.testing.assert_array_equal(load_network(tmp_path / "a" / "best.npz")(x),
+                                  load_network(tmp_path / "b" / "model.npz")(x))
+    # without validation windows there is no best
+    summary = train(TrainConfig(epochs=1, **{**TINY, "val_sim": 0}), tmp_path / "c")
+    assert summary["best_epoch"] is None and not (tmp_path / "c" / "best.pt").exists()
+
+
 def test_resume_refuses_other_settings(tmp_path):
     from evmotion.errors import ParameterError
 
@@ -124,6 +154,7 @@ def test_cli_train_end_to_end(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["epoch"] == 0 and summary["train_loss"] > 0
     assert summary["model"] == str(out / "model.pt") and summary["seconds"] > 0
+    assert summary["best"] is None  # (--val-sim 0: no validation loss)
     # the last epoch's seconds, as epochs.csv has them (the run's were printed over them)
     epochs = (out / "epochs.csv").read_text().splitlines()
     col = epochs[0].split(",").index("seconds")
@@ -142,6 +173,7 @@ def test_cli_train_end_to_end(tmp_path, capsys):
     line = capsys.readouterr().out.strip().splitlines()[-1]
     # (the second epoch's crops keep too few events: no step, said as such, not counted)
     assert line.startswith("2 epochs, 1 step, last training loss ") and " s -> " in line
+    assert "lowest validation loss" not in line
     assert main(argv[:-3] + ["--crop", "50x64", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "--crop" in err and "multiple of 16" in err and "'50x64'" in err

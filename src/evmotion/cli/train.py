@@ -9,7 +9,8 @@ after every epoch. Deterministic for a given ``--seed`` and ``--threads``.
 Writes to ``--out DIR``: ``last.pt`` (after every epoch, atomically; ``--resume``
 continues from it and ends with the same weights as an uninterrupted run), ``model.pt``
 (the weights for ``evmotion flow --method dnn --checkpoint``) and ``model.npz`` (the
-same network for the numpy backend: no torch import), ``steps.csv``,
+same network for the numpy backend: no torch import), ``best.pt`` and ``best.npz`` (the
+same for the epoch of the lowest validation loss; with validation windows), ``steps.csv``,
 ``epochs.csv`` (training loss, validation loss / FWL / AEE) and ``loss.png``. A DIR that
 already holds a training is refused without ``--resume`` (a new run would overwrite it).
 """
@@ -182,9 +183,12 @@ def run(args) -> int:
             out.rmdir()  # interrupted before its first epoch: nothing to keep
         raise
     model = Path(args.out) / "model.pt"
+    best = summary.pop("best_epoch", None)
     if args.json:
         # "seconds" stays the last epoch's (as epochs.csv has it); the whole run apart
         print_json({**summary, "model": str(model), "out": str(args.out),
+                    "best_epoch": best,
+                    "best": None if best is None else str(Path(args.out) / "best.pt"),
                     "total_seconds": time.perf_counter() - t_start})
     else:
         done = int(summary.get("epoch", -1)) + 1
@@ -192,5 +196,7 @@ def run(args) -> int:
         steps = int(summary.get("step", 0))
         print(f"{done} epoch{'' if done == 1 else 's'}, {steps:,} step{'' if steps == 1 else 's'}, "
               f"last training loss {loss:.4g}, {time.perf_counter() - t_start:.1f} s -> "
-              f"{model} (evmotion flow --method dnn --checkpoint {model})")
+              f"{model} (evmotion flow --method dnn --checkpoint {model})"
+              + ("" if best is None else f"; lowest validation loss at epoch {best}: "
+                                         f"{Path(args.out) / 'best.pt'}"))
     return 0

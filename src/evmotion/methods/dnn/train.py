@@ -12,7 +12,8 @@ atomically after every epoch, so ``resume=True`` continues after the last finish
 epoch and ends with the same weights as an uninterrupted run.
 
 Outputs in ``out_dir``: ``last.pt`` (resumable), ``model.pt`` (weights only, for
-inference) and its numpy export ``model.npz`` (inference without torch), ``steps.csv``
+inference) and its numpy export ``model.npz`` (inference without torch), ``best.pt`` and
+``best.npz`` (the same for the epoch of the lowest validation loss), ``steps.csv``
 (loss per step), ``epochs.csv`` (training and validation scores per epoch) and
 ``loss.png``.
 """
@@ -56,9 +57,9 @@ from evmotion.methods.dnn.voxel import (
     pad_to_multiple,
     voxel_grid,
 )
-from evmotion.utils import atomic_path, atomic_write_text
+from evmotion.utils import atomic_path, atomic_write_text, progress
 
-__all__ = ["TrainConfig", "batch_input", "evaluate_windows", "train"]
+__all__ = ["TrainConfig", "batch_input", "best_epoch", "evaluate_windows", "train"]
 
 #: The largest learning rate a training takes.
 MAX_LR = 1.0
@@ -327,19 +328,37 @@ def _seed_all(cfg: TrainConfig) -> None:
 
 
 # what a training writes besides last.pt
-OUTPUT_NAMES = ("model.pt", "model.npz", "steps.csv", "epochs.csv", "loss.png")
+OUTPUT_NAMES = ("model.pt", "model.npz", "best.pt", "best.npz", "steps.csv", "epochs.csv",
+                "loss.png")
+
+
+def best_epoch(epochs_log: Sequence[dict]) -> int | None:
+    """The epoch with the lowest validation loss (the first of equals), None without
+    validation.
+
+    Examples
+    --------
+    >>> best_epoch([{"epoch": 0, "val_loss": 0.9}, {"epoch": 1, "val_loss": 0.8},
+    ...             {"epoch": 2, "val_loss": 0.85}])
+    1
+    """
+    scored = [r for r in epochs_log if np.isfinite(r.get("val_loss", np.nan))]
+    return min(scored, key=lambda r: r["val_loss"])["epoch"] if scored else None
 
 
 def _write_outputs(out: Path, net, epoch: int, cfg: TrainConfig, steps_log: list,
                    epochs_log: list) -> None:
     """model.pt, its numpy export model.npz (the network without torch: a one-window
-    command on it saves torch's 2 s import), the CSV logs and the loss curve of the
-    training so far."""
+    command on it saves torch's 2 s import), best.pt / best.npz when this epoch has the
+    lowest validation loss so far (a later epoch can overfit, and only the last weights
+    were kept, probe BG), the CSV logs and the loss curve of the training so far."""
     from evmotion.methods.dnn.network import InferenceNet
     from evmotion.methods.dnn.numpynet import save_export
 
-    save_model(out / "model.pt", net, epoch=epoch, config=asdict(cfg))
-    save_export(out / "model.npz", InferenceNet(net))
+    names = ["model"] + (["best"] if best_epoch(epochs_log) == epoch else [])
+    for name in names:
+        save_model(out / f"{name}.pt", net, epoch=epoch, config=asdict(cfg))
+        save_export(out / f"{name}.npz", InferenceNet(net))
     _write_csv(out / "steps.csv", steps_log)
     _write_csv(out / "epochs.csv", epochs_log)
     _plot(out / "loss.png", steps_log, epochs_log)
@@ -371,7 +390,8 @@ def _file_id(path) -> tuple:
 
 def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
           show_progress: bool = False, log: Callable[[str], None] | None = None) -> dict:
-    """Train (or resume training) and return the summary of the last epoch.
+    """Train (or resume training) and return the summary of the last epoch (its row of
+    ``epochs.csv``) with ``best_epoch`` (:func:`best_epoch`).
 
     Parameters
     ----------
@@ -471,8 +491,12 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
                              f"recording(s) holds a window of --window-events "
                              f"{cfg.window_events} (at least 1000 events, and half of it); "
                              "nothing was written")
+    # (simulated before the first step with no word: minutes for a large --val-sim,
+    # probe BG)
     val = [sim_window(VAL_SEED_BASE + i, sensor_size=cfg.sim_sensor,
-                      window_events=cfg.window_events) for i in range(cfg.val_sim)]
+                      window_events=cfg.window_events)
+           for i in progress(range(cfg.val_sim), desc="validation windows", unit="win",
+                             disable=not show_progress or cfg.val_sim < 2)]
     if cfg.val_recordings:
         trained = {Path(p).resolve() for p in cfg.recordings}
         shared = [str(p) for p in cfg.val_recordings if Path(p).resolve() in trained]
@@ -494,8 +518,10 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     if show_progress:
         from tqdm.auto import tqdm
 
+        # smoothing 0: the rate over the whole run, validation between epochs included
+        # (the ETA counted the steps' rate alone, probe BG)
         bar = tqdm(total=cfg.epochs * per_epoch, initial=start * per_epoch, desc="train",
-                   unit="step", dynamic_ncols=True)
+                   unit="step", dynamic_ncols=True, smoothing=0)
     summary: dict = dict(epochs_log[-1]) if epochs_log else {}
     if start >= cfg.epochs and log is not None:
         log(f"already trained {start} of {cfg.epochs} epochs: nothing to do (the last epoch "
@@ -593,4 +619,4 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
             log(_epoch_line(row))
     if bar is not None:
         bar.close()
-    return summary
+    return {**summary, "best_epoch": best_epoch(epochs_log)}
