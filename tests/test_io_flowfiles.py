@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import h5py
 import numpy as np
 import pytest
@@ -373,3 +375,39 @@ def test_files_without_padding_pair_in_the_order_of_their_numbers(tmp_path):
     ref = FlowSequence(np.zeros((12, 4, 5, 2), np.float32), t0, t0 + 100_000)
     seq, _ = read_flow_paired(pred, ref)
     assert seq.flow[:, 0, 0, 0].tolist() == [10.0 * i for i in range(12)]
+
+
+def test_a_folder_of_evmotion_s_per_window_files_reads_with_their_times(tmp_path, capsys):
+    """flow's own .flo + .json files moved into a folder were refused by read_flow and by
+    eval ('not a flow file', probe BK); they now read in the order of their numbers,
+    each with its sidecar's times."""
+    from evmotion.cli import main
+    from evmotion.io.flowout import open_flow_output
+    from evmotion.io.flowread import read_flow
+
+    folder = tmp_path / "flows"
+    folder.mkdir()
+    with open_flow_output(folder / "f_{}.flo", (4, 5), {"method": "x"}) as out:
+        for i in range(11):
+            out.append(np.full((4, 5, 2), float(i), np.float32), t0=i * 10_000,
+                       t1=(i + 1) * 10_000)
+    seq = read_flow(folder)
+    assert seq.t0.tolist() == [i * 10_000 for i in range(11)]
+    assert seq.flow[:, 0, 0, 0].tolist() == [float(i) for i in range(11)]
+    gt = tmp_path / "gt.h5"
+    with open_flow_output(gt, (4, 5), {"method": "x"}) as out:
+        for i in range(11):
+            out.append(seq.flow[i], t0=int(seq.t0[i]), t1=int(seq.t1[i]))
+    assert main(["eval", str(folder), "--gt", str(gt), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["mean"]["AEE"] < 1e-9 and doc["mean"]["AEE_zero"] > 0.05
+    # info and view take it as the flow it is, not as a recording of unknown format
+    assert main(["info", str(folder), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["container"] == "folder" and doc["windows"] == 11 and doc["files"] == 11
+    assert main(["view", str(folder), "--window", "10", "--out", str(tmp_path / "v.png")]) == 0
+    assert "window 10 of 11" in capsys.readouterr().out
+    # a file without its sidecar: named, and the way that needs none
+    (folder / "f_3.flo.json").unlink()
+    with pytest.raises(FormatError, match=r"f_3\.flo has no f_3\.flo\.json sidecar.*--gt"):
+        read_flow(folder)

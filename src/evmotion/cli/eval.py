@@ -2,8 +2,8 @@
 ``evmotion eval FLOW --events REC``: its sharpness alone (FWL), which needs no ground truth.
 
 FLOW is any flow output of ``evmotion flow`` (:func:`evmotion.io.flowread.read_flow`:
-``.h5``, ``.npz``, ``.flo`` / DSEC ``.png`` with their JSON sidecar, or a pattern such as
-``flow_{:05d}.flo``), read back with each window's times; a ``.flo``/``.png`` without
+``.h5``, ``.npz``, ``.flo`` / DSEC ``.png`` with their JSON sidecar, a pattern such as
+``flow_{:05d}.flo``, or a folder of such files), read back with each window's times; a ``.flo``/``.png`` without
 sidecar or a bare ``.npy`` (px/s) needs ``--t0-us``/``--t1-us``. Other tools' per-window
 files without times (a folder of ``.flo`` or ``.png``, or a pattern: RAFT, E-RAFT on DSEC)
 take the ground truth's windows, paired by file name with a DSEC ground truth's PNGs, else
@@ -164,11 +164,11 @@ def _load_flow(args, h5_format=None):
         return _load_paired(args, path)
     if suffix == ".npy":
         return _load_npy(args, path)
-    if suffix not in CONTAINERS:
+    if suffix not in CONTAINERS and not path.is_dir():
         raise FormatError(path, f"not a flow file: FLOW must be an evmotion flow output (.h5, "
                           f".npz, .flo, .png or a pattern such as flow_{{:05d}}.flo from "
                           f"'evmotion flow'), or .npy, got {path.name!r})")
-    if suffix in (".h5", ".hdf5", ".npz") or "{" in path.name or \
+    if suffix in (".h5", ".hdf5", ".npz") or "{" in path.name or path.is_dir() or \
             path.with_name(path.name + ".json").exists():
         reject_unused(args, {"--t0-us": "t0_us", "--t1-us": "t1_us"},
                       f"to {path.name} (it carries its windows' times)")

@@ -148,15 +148,7 @@ def read_flow_paired(path: str | os.PathLike, reference: FlowSequence,
     if is_pattern(p):
         files = _pattern_files(p)
     elif p.is_dir():
-        kinds = {f.suffix.lower() for f in p.iterdir() if f.suffix.lower() in (".flo", ".png")}
-        if len(kinds) != 1:
-            raise FormatError(p, f"expected a folder of .flo or of .png flow files, found "
-                              f"{'both' if kinds else 'neither'}")
-        # in the order of the numbers in their names: 0.flo ... 11.flo sorted as text put
-        # 10 and 11 after 1, and paired them with the ground truth's windows 2 and 3
-        # (probe BI)
-        files = sorted((f for f in p.iterdir() if f.suffix.lower() in kinds),
-                       key=_natural_key)
+        files = _folder_files(p)
     else:
         raise FormatError(p, "no such folder" if not p.exists() else
                           "expected a folder or a pattern of per-window .flo / .png files")
@@ -179,14 +171,44 @@ def read_flow_paired(path: str | os.PathLike, reference: FlowSequence,
     seqs = [_read_one_window(f, int(reference.t0[k]), int(reference.t1[k]))
             if _read_sidecar(f) is None else _read_one_window(f, None, None)
             for f, k in zip(files, at, strict=True)]
+    seq = _concatenated(seqs, p)
+    seq.attrs["source"] = str(p)
+    return seq, how
+
+
+def _concatenated(seqs: list[FlowSequence], where: Path) -> FlowSequence:
+    """One sequence of per-window files' windows, in order."""
     shapes = {s.flow.shape[1:3] for s in seqs}
     if len(shapes) != 1:
-        raise FormatError(p, f"the files have different sizes: {sorted(shapes)}")
+        raise FormatError(where, f"the files have different sizes: {sorted(shapes)}")
     return FlowSequence(flow=np.concatenate([s.flow for s in seqs]),
                         t0=np.concatenate([s.t0 for s in seqs]),
                         t1=np.concatenate([s.t1 for s in seqs]),
                         valid=np.concatenate([s.valid for s in seqs]),
-                        attrs={**seqs[0].attrs, "source": str(p)}), how
+                        attrs=dict(seqs[0].attrs))
+
+
+def _folder_files(folder: Path) -> list[Path]:
+    """A folder's per-window ``.flo`` or ``.png`` files (one kind), in the order of the
+    numbers in their names."""
+    kinds = {f.suffix.lower() for f in folder.iterdir() if f.suffix.lower() in (".flo", ".png")}
+    if len(kinds) != 1:
+        raise FormatError(folder, f"expected a folder of .flo or of .png flow files, found "
+                          f"{'both' if kinds else 'neither'}")
+    # 0.flo ... 11.flo sorted as text put 10 and 11 after 1, and paired them with the
+    # ground truth's windows 2 and 3 (probe BI)
+    return sorted((f for f in folder.iterdir() if f.suffix.lower() in kinds),
+                  key=_natural_key)
+
+
+def _is_flow_folder(folder: Path) -> bool:
+    """Whether a folder holds evmotion's per-window flow files: ``.flo`` or ``.png``
+    (one kind), each with its JSON sidecar."""
+    try:
+        files = _folder_files(folder)
+    except FormatError:
+        return False
+    return all(_read_sidecar(f) is not None for f in files)
 
 
 def _natural_key(path: Path) -> tuple:
@@ -271,8 +293,10 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
     ----------
     path : path-like
         ``.h5`` (evmotion flow, BOS or simulator ground truth), ``.npz`` (evmotion flow or
-        MVSEC ground truth), ``.flo``, DSEC ``.png``, or a per-window pattern
-        (``flow_{:05d}.flo``: the files numbered from 0, in order).
+        MVSEC ground truth), ``.flo``, DSEC ``.png``, a per-window pattern
+        (``flow_{:05d}.flo``: the files numbered from 0, in order), or a folder of
+        per-window files with their JSON sidecars (in the order of the numbers in their
+        names).
     t0_us, t1_us : int, optional
         The interval of a single ``.flo`` / ``.png`` that has no JSON sidecar.
 
@@ -301,6 +325,16 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
     suffix = p.suffix.lower()
     if is_dsec_flow_folder(p):
         return read_dsec_gt_flow(p)
+    if p.is_dir():
+        # evmotion's per-window files moved or copied into a folder of their own (they
+        # were refused as 'not a flow file', probe BK); each carries its times
+        files = _folder_files(p)
+        bare = [f.name for f in files if _read_sidecar(f) is None]
+        if bare:
+            raise FormatError(p, f"{bare[0]} has no {bare[0]}.json sidecar with its window's "
+                              "times: give the windows another way (evmotion eval --gt "
+                              "pairs such files with the ground truth's windows)")
+        return _concatenated([_read_one_window(f, None, None) for f in files], p)
     if suffix == ".npy":
         raise FormatError(p, "a bare .npy holds no times, units or validity mask; evmotion "
                           "writes .npz (flow, t0, t1, valid, units)")
@@ -310,12 +344,8 @@ def read_flow(path: str | os.PathLike, *, t0_us: int | None = None,
     if is_pattern(p):
         if kind not in PER_WINDOW:
             raise ParameterError(f"{p}: a {suffix} file holds every window; no pattern")
-        seqs = [_read_one_window(f, None, None) for f in _pattern_files(p)]
-        return FlowSequence(flow=np.concatenate([s.flow for s in seqs]),
-                            t0=np.concatenate([s.t0 for s in seqs]),
-                            t1=np.concatenate([s.t1 for s in seqs]),
-                            valid=np.concatenate([s.valid for s in seqs]),
-                            attrs=seqs[0].attrs)
+        return _concatenated([_read_one_window(f, None, None) for f in _pattern_files(p)],
+                             p)
     if kind in PER_WINDOW:
         return _read_one_window(p, t0_us, t1_us)
     if t0_us is not None or t1_us is not None:
@@ -362,6 +392,16 @@ def describe_flow(path: str | os.PathLike) -> dict | None:
     if is_dsec_flow_folder(p):  # DSEC's ground truth: PNGs and their timestamps
         seq = read_dsec_gt_flow(p)
         out = {"path": str(p), "format": "dsec-gt-flow", "container": "png folder"}
+        out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
+        out["units"] = "px (displacement over each window)"
+        return out
+    if p.is_dir():
+        if not _is_flow_folder(p):
+            return None
+        seq = read_flow(p)
+        out = {"path": str(p), "format": "middlebury-flo" if seq.attrs["container"] ==
+               "middlebury-flo" else "dsec-flow-png", "container": "folder",
+               "files": len(seq)}
         out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
         out["units"] = "px (displacement over each window)"
         return out
