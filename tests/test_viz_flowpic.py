@@ -44,7 +44,14 @@ def test_flow_pixels_are_the_bare_picture_and_the_legend_is_drawn():
     assert np.any((px[:, 2] > 240) & (px[:, 0] < 120) & (px[:, 1] < 60))
     # black ink: the arrows and the text
     assert np.sum(px.max(axis=1) < 60) > 50
-    assert pic.texts == ("u", "v", "rim 60 px/s", "fixed; darker: beyond", "grey: no events")
+    assert pic.texts == ("u", "v", "rim 60 px/s", "fixed; darker: beyond",
+                         "unmasked: all pixels")
+    # the grey of a mask is said only where there is one (probe BK: "grey: no events"
+    # over a picture coloured everywhere)
+    assert flow_picture(flow, valid=np.ones(flow.shape[:2], bool)).texts[4] == "grey: no events"
+    holed = flow.copy()
+    holed[0, 0] = np.nan
+    assert flow_picture(holed).texts[4] == "unmasked; grey: NaN"
     assert pic.max_speed == 60.0 and pic.fixed_scale
 
 

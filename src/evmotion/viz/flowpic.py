@@ -99,10 +99,15 @@ def _figure_px(width: int, height: int):
     return fig, ax
 
 
-def _legend_texts(max_speed: float, unit: str, fixed: bool) -> tuple[str, ...]:
-    # on a fixed scale, faster pixels are drawn darker (saturated beyond the rim)
+def _legend_texts(max_speed: float, unit: str, fixed: bool, masked: bool,
+                  has_nan: bool) -> tuple[str, ...]:
+    # on a fixed scale, faster pixels are drawn darker (saturated beyond the rim); without
+    # a mask every pixel's flow is drawn, those no event supports too (the legend said
+    # "grey: no events" over a picture coloured everywhere, probe BK)
+    grey = ("grey: no events" if masked else
+            "unmasked; grey: NaN" if has_nan else "unmasked: all pixels")
     return ("u", "v", f"rim {max_speed:.3g} {unit}",
-            "fixed; darker: beyond" if fixed else "max of image", "grey: no events")
+            "fixed; darker: beyond" if fixed else "max of image", grey)
 
 
 @functools.lru_cache(maxsize=32)
@@ -148,7 +153,8 @@ def flow_picture(flow: np.ndarray, *, max_speed: float | None = None,
         colour scale across a sequence; default: the largest valid speed of this flow.
     valid : ndarray of bool, shape (H, W), optional
         Pixels whose flow is supported by events (e.g. ``FlowResult.valid``, triplet counts
-        ``> 0``); the others, and NaN flow, are drawn grey (:data:`GREY`).
+        ``> 0``); the others, and NaN flow, are drawn grey (:data:`GREY`). Without it
+        every finite flow is drawn, and the legend says so ("unmasked").
     unit : str
         Unit written in the legend.
     legend : bool
@@ -162,8 +168,8 @@ def flow_picture(flow: np.ndarray, *, max_speed: float | None = None,
     --------
     >>> f = np.zeros((120, 160, 2), np.float32); f[..., 0] = 30.0
     >>> pic = flow_picture(f, max_speed=60.0)
-    >>> pic.texts[2], pic.fixed_scale, pic.rgb.shape[0]
-    ('rim 60 px/s', True, 240)
+    >>> pic.texts[2], pic.texts[4], pic.fixed_scale, pic.rgb.shape[0]
+    ('rim 60 px/s', 'unmasked: all pixels', True, 240)
     >>> flow_picture(f, valid=np.zeros((120, 160), bool), legend=False).rgb[0, 0].tolist()
     [128, 128, 128]
     """
@@ -180,7 +186,8 @@ def flow_picture(flow: np.ndarray, *, max_speed: float | None = None,
     if not legend:
         return FlowPicture(rgb, speed, fixed, unit, 1, (0, h, 0, w), (0, 0, w, w), ())
     k = max(1, -(-MIN_HEIGHT // h))
-    texts = _legend_texts(speed, unit, fixed)
+    texts = _legend_texts(speed, unit, fixed, valid is not None,
+                          bool(np.isnan(flow).any()))
     strip = _legend_strip(h * k, texts)
     out = np.concatenate([_upscale(rgb, k), strip], axis=1)
     return FlowPicture(out, speed, fixed, unit, k, (0, h * k, 0, w * k),
