@@ -428,6 +428,9 @@ def test_ns_of_a_short_recording_and_whole_milliseconds_are_questioned(tmp_path)
             assert (hint in text) == (hint == said), text
 
 
+SIZE = (50, 70)
+
+
 @pytest.mark.parametrize(("scale", "fmt", "said"), [
     (1e-3, "{:.6f}", "milliseconds? If so, read with --time-unit ms"),  # decimal ms
     (1e3, "{:.0f}", "nanoseconds? If so, read with --time-unit ns"),  # ns off whole µs
@@ -439,13 +442,15 @@ def test_a_sniffed_unit_at_a_rate_no_camera_makes_is_questioned(tmp_path, scale,
     from evmotion.errors import EvmotionWarning
 
     n = 15_000
+    # (a sensor of 3500 pixels: 120 kev/s on 35 would be 3400 events/s per pixel, which
+    # no sensor averages, and the times' rate is questioned as too dense)
     t_us = np.arange(n) * 8.333 + 17.0  # 120 kev/s: as ms read as s, 125 s at 120 ev/s
     (tmp_path / "e.txt").write_text("".join(f"{fmt.format(v * scale)} {i % 7} {i % 5} "
                                             f"{i % 2}\n" for i, v in enumerate(t_us)))
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
-        ev = ecd.read(tmp_path / "e.txt", sensor_size=(5, 7))
-        chunks = list(ecd.iter_chunks(tmp_path / "e.txt", 14_000, sensor_size=(5, 7)))
+        ev = ecd.read(tmp_path / "e.txt", sensor_size=SIZE)
+        chunks = list(ecd.iter_chunks(tmp_path / "e.txt", 14_000, sensor_size=SIZE))
     text = [str(w.message) for w in rec if issubclass(w.category, EvmotionWarning)]
     assert sum(said in m for m in text) == 2 if said else not any("?" in m for m in text)
     assert sum(len(c) for c in chunks) == len(ev) == n
@@ -453,7 +458,7 @@ def test_a_sniffed_unit_at_a_rate_no_camera_makes_is_questioned(tmp_path, scale,
         warnings.simplefilter("error")
         if said:
             unit = said.split("--time-unit ")[1]
-            ev = ecd.read(tmp_path / "e.txt", sensor_size=(5, 7), time_unit=unit)
+            ev = ecd.read(tmp_path / "e.txt", sensor_size=SIZE, time_unit=unit)
             assert ev.duration_us == pytest.approx(125_000, rel=0.01)
 
 

@@ -179,3 +179,48 @@ def test_mvsec_outside_error_names_the_assumed_size(tmp_path):
     with pytest.raises(FormatError, match=r"346x260 \(W x H, MVSEC's DAVIS346.*--sensor-size"):
         read_events(path)
     assert read_events(path, sensor_size=(480, 640)).sensor_size == (480, 640)
+
+
+def _denser_rates(tmp_path):
+    """20,000 events at 180 kev/s on a 240x320 sensor (2.4 events/s per pixel): in µs,
+    in integer ms, and in decimal ms."""
+    rng = np.random.default_rng(5)
+    n = 20_000
+    t_us = np.cumsum(rng.integers(2, 9, n)).astype(np.int64)
+    x, y, p = rng.integers(0, 320, n), rng.integers(0, 240, n), rng.integers(0, 2, n)
+    np.savez(tmp_path / "us.npz", x=x, y=y, t=t_us, p=p, sensor_size=[240, 320])
+    np.savez(tmp_path / "ms_int.npz", x=x, y=y, t=t_us // 1000, p=p, sensor_size=[240, 320])
+    (tmp_path / "ms_dec.txt").write_text("".join(
+        f"{v / 1000:.3f} {a} {b} {c}\n" for v, a, b, c in zip(t_us, x, y, p, strict=True)))
+    return t_us
+
+
+def test_times_at_a_rate_per_pixel_no_sensor_makes_are_questioned(tmp_path, capsys):
+    """Integer milliseconds read as µs (a recording 1000x dense, every speed 1000x too
+    large: probe BJ) and decimal milliseconds read as seconds over 82 s (probe BK), or a
+    wrong --time-unit, gave results marked valid without a word: the events' rate per
+    pixel now questions the unit, naming the one that fits."""
+    t_us = _denser_rates(tmp_path)
+
+    def said(path, **kw):
+        with warnings.catch_warnings(record=True) as rec:
+            warnings.simplefilter("always")
+            ev = read_events(path, **kw)
+        return ev, " ".join(str(w.message) for w in rec
+                            if "events/s per pixel" in str(w.message))
+
+    ev, text = said(tmp_path / "ms_int.npz")
+    assert "read as microseconds" in text and "--time-unit ms" in text and "large" in text
+    ev, text = said(tmp_path / "ms_int.npz", time_unit="ms")
+    assert not text and ev.duration_us == pytest.approx(t_us[-1] - t_us[0], abs=1000)
+    ev, text = said(tmp_path / "ms_dec.txt", sensor_size=(240, 320))
+    assert ev.duration_us > 30e6  # read as seconds: 1000x long
+    assert "read as seconds" in text and "--time-unit ms" in text and "small" in text
+    _, text = said(tmp_path / "ms_dec.txt", sensor_size=(240, 320), time_unit="ms")
+    assert not text
+    # a unit given wrongly is questioned too, and the right ones are not
+    _, text = said(tmp_path / "us.npz", time_unit="ms")
+    assert "read as milliseconds, given" in text and "--time-unit us" in text
+    assert not said(tmp_path / "us.npz")[1]
+    rc, _, err = _run(capsys, "info", str(tmp_path / "ms_int.npz"))
+    assert rc == 0 and "--time-unit ms" in err

@@ -34,7 +34,7 @@ from evmotion.io.guard import (
     check_sensor_size,
     warn_inferred_size,
 )
-from evmotion.io.timedoubt import unit_doubt
+from evmotion.io.timedoubt import rate_doubt, unit_doubt
 from evmotion.utils import atomic_path
 
 __all__ = ["read", "iter_chunks", "write", "describe", "events_from_columns", "split_columns",
@@ -158,6 +158,10 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
         sensor_size = (int(np.ceil(y.max())) + 1, int(np.ceil(x.max())) + 1)
         meta["sensor_size_from"] = "max coordinate (no sensor size in the file)"
     h, w = check_sensor_size(path, sensor_size)
+    if doubt is None:
+        doubt = rate_doubt(t_us, h * w, unit)  # a unit given, too: --time-unit mistyped
+        if doubt is not None:
+            warnings.warn(f"{path}: field 't' {doubt}", EvmotionWarning, stacklevel=3)
     if p.size and not np.all(np.isin(p, (-1, 0, 1))):
         bad = int(np.argmax(~np.isin(p, (-1, 0, 1))))
         raise FormatError(path, f"event {bad} has polarity p={p[bad]}, expected 0/1 or -1/+1")

@@ -7,7 +7,20 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["unit_doubt"]
+__all__ = ["rate_doubt", "unit_doubt"]
+
+#: Events a second per pixel, averaged over a recording's sensor and time, that no event
+#: camera sustains (its pixels' refractory periods allow bursts, not such averages):
+#: times denser than this are in a coarser unit than read.
+MAX_PIXEL_RATE = 1000.0
+#: Events a second per pixel below which a recording longer than :data:`SPARSE_SPAN_S`
+#: is sparser than a still sensor's noise alone: its times are in a finer unit than read.
+MIN_PIXEL_RATE = 0.02
+SPARSE_SPAN_S = 30.0
+#: The units of event times, each 1000 x the one before.
+UNITS = ("ns", "us", "ms", "s")
+UNIT_NAMES = {"ns": "nanoseconds", "us": "microseconds", "ms": "milliseconds",
+              "s": "seconds"}
 
 
 def _ns_in_whole_microseconds(t: np.ndarray, unit: str) -> bool:
@@ -114,3 +127,44 @@ def unit_doubt(t: np.ndarray, unit: str) -> str | None:
                 f"{unit_name}? If so, read with --time-unit {unit_key} (time_unit="
                 f"'{unit_key}' in Python); every speed is {factor} times too small otherwise")
     return None
+
+
+def rate_doubt(t_us: np.ndarray, n_pixels: int, unit: str) -> str | None:
+    """What makes the times ``t_us`` (µs, as read in ``unit``, a reader's label such as
+    ``"us (inferred ...)"`` or ``"ms (given)"``) of events on a sensor of ``n_pixels``
+    doubtful, as the rest of a warning about field 't', or None: at least 10,000 events
+    at more than :data:`MAX_PIXEL_RATE` events/s per pixel (integer milliseconds read as
+    µs, probe BJ), or over more than :data:`SPARSE_SPAN_S` s at fewer than
+    :data:`MIN_PIXEL_RATE` (decimal milliseconds read as seconds, probe BK).
+
+    Examples
+    --------
+    >>> t_ms = np.arange(20_000) // 50            # 50 events a millisecond, 64x64 sensor
+    >>> "milliseconds? If so" in rate_doubt(t_ms, 64 * 64, "us (inferred)")
+    True
+    >>> rate_doubt(t_ms * 1000, 64 * 64, "ms (given)") is None
+    True
+    """
+    if t_us.size < 10_000 or n_pixels <= 0:
+        return None
+    span = _bulk_span(t_us) * 1e-6
+    if span <= 0:
+        return None
+    rate = t_us.size / span / n_pixels
+    read = unit.split()[0]
+    if read not in UNITS:
+        return None
+    at = UNITS.index(read)
+    if rate > MAX_PIXEL_RATE and at + 1 < len(UNITS):
+        other, what, wrong = UNITS[at + 1], "far fewer", "large"
+    elif rate < MIN_PIXEL_RATE and span > SPARSE_SPAN_S and at > 0:
+        other, what, wrong = UNITS[at - 1], "far more, even still", "small"
+    else:
+        return None
+    how = unit.partition(" ")[2]
+    how = how[1:-1] if how.startswith("(") and how.endswith(")") else how or "given"
+    return (f"read as {UNIT_NAMES[read]}, {how}: "
+            f"{t_us.size} events over {span:.3g} s on {n_pixels} pixels, {rate:.3g} "
+            f"events/s per pixel (an event camera's pixels average {what}): "
+            f"{UNIT_NAMES[other]}? If so, read with --time-unit {other} (time_unit="
+            f"'{other}' in Python); every speed is 1000x too {wrong} otherwise")
