@@ -427,7 +427,7 @@ def test_one_file_output_takes_a_window_with_a_remainder_whole(recording, tmp_pa
 
 
 
-def test_windows_hold_as_many_events_per_pixel_on_larger_sensors(tmp_path):
+def test_windows_hold_as_many_events_per_pixel_on_larger_sensors(tmp_path, capsys):
     # 30,000 events on a 1280x720 sensor last ~2 ms at 15 M events/s: most windows had no
     # focus and some a wrong flow marked valid
     from evmotion.cli.options import default_window_events
@@ -441,6 +441,17 @@ def test_windows_hold_as_many_events_per_pixel_on_larger_sensors(tmp_path):
                                       sensor_size=size))
         assert default_window_events(path) == want
     assert default_window_events(tmp_path / "missing.h5") == 30_000
+    # the size given with --sensor-size, for a text file that states none (probe BJ: a
+    # 640x480 recording got 30,000 as text, 102,000 as .npz)
+    text = tmp_path / "events.txt"
+    i = np.arange(110_000)
+    np.savetxt(text, np.column_stack([i * 1e-5, i % 640, (i * 7) % 480, i % 2]),
+               fmt=["%.6f", "%d", "%d", "%d"])
+    assert default_window_events(text, None, (480, 640)) == 102_000
+    assert main(["egomotion", str(text), "--sensor-size", "480", "640", "--warp",
+                 "translation", "--max-windows", "1", "--max-png", "0", "--out",
+                 str(tmp_path / "e"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["windows"][0]["n_events"] == 102_000
 
 
 def test_an_interrupted_parallel_run_says_what_it_kept(tmp_path, capsys, monkeypatch):
@@ -483,6 +494,15 @@ def test_a_file_shorter_than_the_asked_window_is_said(tmp_path, capsys):
     assert "holds 5,000 events, fewer than --window-events 30000" in capsys.readouterr().err
     assert main(argv) == 0
     assert "fewer than" not in capsys.readouterr().err
+    # into an .h5 too, and a duration longer than the recording (probe BK: one window of
+    # them all without a word)
+    argv[3] = str(tmp_path / "s.h5")
+    assert main(argv + ["--window-events", "1000000000"]) == 0
+    assert "fewer than --window-events 1000000000: one window" in capsys.readouterr().err
+    assert main(argv + ["--window-us", "10s"]) == 0
+    assert "less than --window-us 10 s: one window" in capsys.readouterr().err
+    assert main(argv + ["--window-us", "10ms"]) == 0
+    assert "--window-us" not in capsys.readouterr().err
 
 
 def test_events_undistortion_leaves_out_count_as_held(shared_data, tmp_path, capsys):

@@ -278,8 +278,10 @@ def run(args) -> int:
                       "(it seeds the TPE sampler)")
     args.seed = 0 if args.seed is None else args.seed
     check_time_order(args)
+    args.window_events_given = args.window_events is not None
     if args.window_events is None and args.window_us is None:
-        args.window_events = default_window_events(args.file, args.format)
+        args.window_events = default_window_events(args.file, args.format,
+                                                    args.sensor_size)
     cut = {"n_events": args.window_events, "duration_us": args.window_us, "min_events": 10}
     events, cam = load_events_and_camera(args, **cut)
     windows = select_windows(args, events, file=args.file, **cut)

@@ -149,15 +149,7 @@ def _one_window_for_one_file(args, events, windows):
     t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
     total = events.slice_time(t0, t1) if t0 is not None or t1 is not None else events
     from evmotion.cli import warn_line
-    from evmotion.cli.calib import events_held
 
-    # (the events undistortion moved off the image count as held: it said so itself;
-    # probe AP was told a window file of 30,000 events "holds 22,949")
-    held = events_held(len(total), events)
-    if getattr(args, "window_events_given", False) and held < n:
-        # asked for a window of n events, given fewer: said, as the opposite case is
-        warn_line(f"{args.file} holds {held:,} events, fewer than --window-events {n}: "
-                  f"{out.name} holds one window of those {len(total):,}")
     if 2 * n <= len(total) < ONE_FILE_WINDOWS * n and len(windows) > 1:
         # two windows' worth for one file: the first, said (it was refused, probe AV: the
         # judged one-window command on a 60,000-event window file); a whole recording of
@@ -334,7 +326,8 @@ def run(args) -> int:
     # (a window count the user asked for: a file holding fewer events is said)
     args.window_events_given = args.window_events is not None
     if args.window_events is None and args.window_us is None and not args.window_gt:
-        args.window_events = default_window_events(args.file, args.format)
+        args.window_events = default_window_events(args.file, args.format,
+                                                    args.sensor_size)
     events, cam, grid = read_for_windows(args, **({} if args.window_gt else _cut(args)),
                                          min_events=MIN_WINDOW_EVENTS)
     windows = _windows(args, events)
