@@ -205,3 +205,28 @@ def test_a_gap_in_the_ground_truth_is_named():
     with pytest.raises(EmptyWindowError, match=r"the ground truth has gaps: .* \[0, "
                                                r"100000\) us, 90%"):
         evaluate_windows(flow[:1], [0], [100_000], gapped)
+
+
+def test_events_in_text_take_the_sensor_size_and_time_unit_given(gt_file, tmp_path, capsys):
+    """--events in text stating no sensor size was read at its largest coordinates, and
+    the warning's advice, --sensor-size, was no eval option (probe BK)."""
+    path, flow = gt_file
+    est = tmp_path / "est.h5"
+    with open_flow_output(est, (H, W), {"method": "x"}) as o:
+        o.append(flow, t0=0, t1=20_000)
+    rng = np.random.default_rng(0)
+    n = 400
+    t_ms = np.sort(rng.uniform(0, 20, n))  # decimal milliseconds
+    x, y = rng.integers(0, W - 3, n), rng.integers(0, H - 2, n)  # short of the sensor's edge
+    text = tmp_path / "ev.txt"
+    text.write_text("".join(f"{t:.4f} {a} {b} 1\n" for t, a, b in zip(t_ms, x, y,
+                                                                     strict=True)))
+    argv = ["eval", str(est), "--gt", str(path), "--events", str(text), "--json"]
+    assert main(argv) == 2
+    assert "--sensor-size" in capsys.readouterr().err
+    assert main(argv + ["--sensor-size", str(H), str(W), "--time-unit", "ms"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["mean"]["AEE"] < 1e-6 and doc["windows_scored"] == 1
+    # without --events they read nothing: refused, not ignored
+    assert main(["eval", str(est), "--gt", str(path), "--sensor-size", str(H), str(W)]) == 2
+    assert "does not apply without --events" in capsys.readouterr().err

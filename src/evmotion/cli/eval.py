@@ -53,6 +53,9 @@ import numpy as np
 
 from evmotion.cli.options import (
     HelpFormatter,
+    add_sensor_size_argument,
+    add_time_unit_argument,
+    check_time_unit,
     existing_input,
     int_range,
     positive_float,
@@ -96,6 +99,8 @@ def add_parser(sub) -> None:
                    help="recording of the events: event mask and FWL (with no --gt: the "
                         "FWL of each window, which needs no ground truth)")
     p.add_argument("--format", default=None, help="format of --events (default: detect)")
+    add_sensor_size_argument(p)
+    add_time_unit_argument(p)
     p.add_argument("--dt", "--gt-dt", dest="dt", type=positive_int(), default=1,
                    help="GT frames per window (1 or 4; flow's --gt-dt); per-event files: "
                         "the GT frame intervals the displacements span")
@@ -308,8 +313,10 @@ def _run_event_flow(args, path) -> int:
     from evmotion.io.eventflow import read_event_flow
     from evmotion.io.flowfiles import read_gt_flow
 
-    reject_unused(args, {"--events": "events", "--format": "format", "--t0-us": "t0_us",
-                         "--t1-us": "t1_us", "--along-streamlines": "along_streamlines"},
+    reject_unused(args, {"--events": "events", "--format": "format",
+                         "--sensor-size": "sensor_size", "--time-unit": "time_unit",
+                         "--t0-us": "t0_us", "--t1-us": "t1_us",
+                         "--along-streamlines": "along_streamlines"},
                   f"to the per-event flow file {path.name} (it holds its events and times)")
     ef = read_event_flow(path)
     if len(ef) == 0:
@@ -416,7 +423,11 @@ def _events_on_grid(args, attrs: dict):
     from evmotion.io import read_events
 
     path = args.events
-    events = read_events(path, **({"format": args.format} if args.format else {}))
+    # (--sensor-size, which the reader's own warning names, was no option here, probe BK)
+    kw = {"format": args.format, "sensor_size": args.sensor_size and tuple(args.sensor_size),
+          "time_unit": args.time_unit}
+    check_time_unit(args.time_unit, path, args.format)
+    events = read_events(path, **{k: v for k, v in kw.items() if v})
     grid = str(attrs.get("grid", ""))
     if not grid.startswith("undistorted (K=") or events.x.dtype.kind == "f":
         return events
@@ -539,6 +550,10 @@ def run(args) -> int:
     from evmotion.io.flowfiles import read_gt_flow
 
     path = Path(args.flow)
+    if args.events is None:
+        reject_unused(args, {"--format": "format", "--sensor-size": "sensor_size",
+                             "--time-unit": "time_unit"},
+                      "without --events (they say how to read its recording)")
     # the format attribute of an .h5 FLOW, read once for both checks below
     h5_format = _h5_format(path) if path.suffix.lower() in (".h5", ".hdf5") and \
         path.is_file() else None

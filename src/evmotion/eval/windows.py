@@ -364,9 +364,16 @@ def _check_same_recording(events: EventArray, shape, t0s, t1s) -> None:
     estimated on: the same sensor, and events within the windows' time span (events of
     another recording would mask the score with pixels that have nothing to do with it)."""
     if tuple(events.sensor_size) != tuple(shape):
+        # a size the file does not state was guessed: the true one may be the flow's
+        # (text events default to the ECD's 240x180, probe BK)
+        guessed = events.meta.get("sensor_size_from")
         raise EventDataError(f"the events are on a {events.sensor_size[1]}x"
                              f"{events.sensor_size[0]} px sensor but the flow is {shape[1]}x"
-                             f"{shape[0]} px (W x H): not the recording it was estimated on")
+                             f"{shape[0]} px (W x H): "
+                             + (f"their size was not in the file ({guessed}): give it with "
+                                f"--sensor-size {shape[0]} {shape[1]} (sensor_size="
+                                f"({shape[0]}, {shape[1]}) in Python) if it is the flow's"
+                                if guessed else "not the recording it was estimated on"))
     if not len(t0s):
         return
     a, b = int(np.min(t0s)), int(np.max(t1s))
