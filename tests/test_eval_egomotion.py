@@ -125,6 +125,10 @@ def test_cli_eval_egomotion_output(tmp_path, capsys):
     # the FWL alone, with no ground truth
     assert main(["eval", str(out / "params.h5"), "--events", str(rec)]) == 0
     assert "FWL=" in capsys.readouterr().out
+    # --dt is a protocol of GT frames a window spans, which ego-motion windows are not cut
+    # by: refused, not printed as the protocol (probe BJ)
+    assert main(["eval", str(out), "--gt", str(tmp_path / "rot_gt.h5"), "--dt", "4"]) == 2
+    assert "--dt 4 does not apply" in capsys.readouterr().err
     # a file written before the sensor size and K were recorded: the ground truth's
     with h5py.File(out / "params.h5", "a") as f:
         del f.attrs["sensor_size"], f.attrs["K"]

@@ -86,6 +86,16 @@ def test_windows_without_pixels_are_not_counted_as_scored(gt_file, tmp_path, cap
     doc = json.loads(capsys.readouterr().out)
     assert doc["windows_scored"] == 3 and doc["windows_without_pixels"] == 1
     assert doc["windows_with_other_dt"] == 4  # half a GT frame each
+    # the text says how many frames a window spans, and counts the scored windows as
+    # the summary does (a warning had counted 7 where the summary said 6 of 7, probe BK)
+    zero = np.zeros_like(flow)
+    with open_flow_output(tmp_path / "zero.h5", (H, W), {"method": "probe"}) as o:
+        for k in range(4):
+            o.append(zero, t0=k * 5000, t1=(k + 1) * 5000, valid=np.full((H, W), k != 3))
+    assert main(["eval", str(tmp_path / "zero.h5"), "--gt", str(path)]) == 0
+    said = capsys.readouterr()
+    assert "of GT frames other than --dt 1 (0.5 a window, median)" in said.out
+    assert "the flow of 3 scored windows" in said.err and "3 of 4 windows scored" in said.out
     ref = tmp_path / "ref.npz"
     with open_flow_output(ref, (H, W), {"method": "gt"}) as o:
         o.append(flow, t0=0, t1=10_000)

@@ -482,6 +482,11 @@ def _run_egomotion(args, path: Path) -> int:
     reject_unused(args, {"--t0-us": "t0_us", "--t1-us": "t1_us",
                          "--along-streamlines": "along_streamlines"},
                   f"to {path} (its rows carry their windows' times and a motion model)")
+    if args.dt != 1:
+        # (it was printed as the protocol, 'dt=4', with windows of 7.6 GT frames unsaid,
+        # probe BJ)
+        raise ParameterError(f"--dt {args.dt} does not apply to {path}: ego-motion windows "
+                             "are cut by events or time, not by ground-truth frames")
     table = read_params(path)
     method = str(table.attrs.get("method", ""))
     if method != "egomotion":
@@ -624,7 +629,8 @@ def _print_windows(args, res, summary: dict, dt_note: bool = True) -> None:
     scored = summary["windows_scored"]
     n = len(per_window)
     print(f"{n} window{'' if n == 1 else 's'}" if scored == n else
-          f"{scored} of {n} windows scored", f"({summary['mask']}, dt={args.dt})")
+          f"{scored} of {n} windows scored",
+          f"({summary['mask']}" + (f", dt={args.dt})" if dt_note else ")"))
     print("  ".join(f"{k}={int(total[k]):,}" if k == "n_pixels" else f"{k}={total[k]:.4g}"
                     for k in keys))
     if res.uncovered:
@@ -641,5 +647,9 @@ def _print_windows(args, res, summary: dict, dt_note: bool = True) -> None:
               "ground truth: their q is not scored (q_corr and q_std_ratio"
               + (" over the others)" if q_scored else " absent)"))
     if mismatched and dt_note:
+        # (how many: a ground truth in ms read as s gave 0.025 frames a window, unsaid,
+        # probe BK)
+        frames = [w["gt_frames"] for w in per_window if "gt_frames" in w]
         print(f"note: {mismatched} window{' spans' if mismatched == 1 else 's span'} a number "
-              f"of GT frames other than --dt {args.dt}")
+              f"of GT frames other than --dt {args.dt}"
+              + (f" ({np.median(frames):.3g} a window, median)" if frames else ""))

@@ -231,7 +231,7 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
         zero = flow_metrics(np.zeros_like(est), gt_px, mask=mask, out_px=out_px)
         row = {"window": i, "t0_us": int(t0), "t1_us": int(t1), **m.as_dict(),
                "AEE_zero": zero.aee, "AE_rad": float(np.radians(m.ae_deg)),
-               "gt_frames": round(frames, 2)}
+               "gt_frames": float(f"{frames:.4g}")}
         # NaN where the ground truth is not known: its displacement there is a finite 0,
         # which kept those events in both FWLs, FWL_gt's as a still scene (probe BI)
         gt_flow = (gt_px / ((t1 - t0) * 1e-6)).astype(np.float32)
@@ -250,8 +250,11 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     total = aggregate_flow_metrics(rows).as_dict()
     total["AEE_zero"] = aggregate_flow_metrics(zeros).aee
     total["AE_rad"] = float(np.radians(total["AE_deg"]))
+    # (the windows without a pixel were counted here, not in the summary, probe BK)
+    scored = sum(1 for r in per_window if r.get("n_pixels"))
     warn_no_better_than_zero(total["AEE"], total["AEE_zero"],
-                             f"the flow of {len(rows)} scored windows against the ground truth")
+                             f"the flow of {scored} scored window{'' if scored == 1 else 's'} "
+                             "against the ground truth")
     fwls = [r["FWL"] for r in per_window if "FWL" in r]
     if fwls:
         total["FWL"] = float(np.mean(fwls))
