@@ -217,3 +217,29 @@ def test_bos_flow_picture_greys_the_pixels_the_output_does_not_claim(tmp_path):
 
     assert grey_share(tmp_path / "all") < 0.01
     assert grey_share(tmp_path / "valid", valid=valid) > 0.1
+
+
+def test_a_window_with_no_valid_pixel_and_a_long_title_are_drawn_whole(tmp_path):
+    # probe BK: evmotion view of a window with no valid pixel cut its title at both ends
+    # and drew "rim 1 px/s", the scale of no flow
+    from evmotion.viz.flowpic import picture_row
+    from evmotion.viz.images import save_flow_png
+
+    flow = _radial()
+    none = np.zeros(flow.shape[:2], bool)
+    assert flow_picture(flow, valid=none).texts[2] == "no flow drawn"
+    assert flow_picture(flow, valid=none, max_speed=60.0).texts[2] == "rim 60 px/s"
+    img = flow_picture(flow).rgb
+    short = picture_row([img], ["flow"], title="window 6 of 7")
+    long = picture_row([img], ["flow"], title="trans_mcm.h5: window 6 of 7, [0.246761, "
+                                              "0.25) s: no valid pixel, no measurement")
+    assert long.shape[0] > short.shape[0] and long.shape[1] == short.shape[1]
+    # no ink at the left and right edges of the title rows: nothing was cut there
+    rows = long[: long.shape[0] - short.shape[0] + 10]
+    assert (rows[:, :3] > 200).all() and (rows[:, -3:] > 200).all()
+    a = save_flow_png(tmp_path / "a.png", flow, title="x" * 10)
+    b = save_flow_png(tmp_path / "b.png", flow, title="a long title " * 8)
+    assert a.texts == b.texts
+    from evmotion.viz.images import read_png
+
+    assert read_png(tmp_path / "b.png").shape[0] > read_png(tmp_path / "a.png").shape[0]

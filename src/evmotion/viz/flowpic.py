@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import math
+import textwrap
 from dataclasses import dataclass
 
 import numpy as np
@@ -100,13 +101,13 @@ def _figure_px(width: int, height: int):
 
 
 def _legend_texts(max_speed: float, unit: str, fixed: bool, masked: bool,
-                  has_nan: bool) -> tuple[str, ...]:
+                  has_nan: bool, empty: bool) -> tuple[str, ...]:
     # on a fixed scale, faster pixels are drawn darker (saturated beyond the rim); without
     # a mask every pixel's flow is drawn, those no event supports too (the legend said
     # "grey: no events" over a picture coloured everywhere, probe BK)
     grey = ("grey: no events" if masked else
             "unmasked; grey: NaN" if has_nan else "unmasked: all pixels")
-    return ("u", "v", f"rim {max_speed:.3g} {unit}",
+    return ("u", "v", f"rim {max_speed:.3g} {unit}" if fixed or not empty else "no flow drawn",
             "fixed; darker: beyond" if fixed else "max of image", grey)
 
 
@@ -186,8 +187,10 @@ def flow_picture(flow: np.ndarray, *, max_speed: float | None = None,
     if not legend:
         return FlowPicture(rgb, speed, fixed, unit, 1, (0, h, 0, w), (0, 0, w, w), ())
     k = max(1, -(-MIN_HEIGHT // h))
-    texts = _legend_texts(speed, unit, fixed, valid is not None,
-                          bool(np.isnan(flow).any()))
+    finite = np.isfinite(flow).all(axis=-1)
+    # (a window with no valid pixel drew "rim 1 px/s", a scale of nothing, probe BK)
+    empty = not (finite if valid is None else finite & valid).any()
+    texts = _legend_texts(speed, unit, fixed, valid is not None, not finite.all(), empty)
     strip = _legend_strip(h * k, texts)
     out = np.concatenate([_upscale(rgb, k), strip], axis=1)
     return FlowPicture(out, speed, fixed, unit, k, (0, h * k, 0, w * k),
@@ -220,11 +223,14 @@ def sequence_max_speed(flows, valids=None) -> float:
 def _header(width: int, titles: list[tuple[float, str]], title: str | None, pt: float,
             ) -> np.ndarray:
     line = int(round(1.6 * pt * 100 / 72))
-    height = line * (2 if title else 1) + 4
+    # wrapped to the width: a long title was cut at both ends (probe BK); a character of
+    # the title's font is ~0.85 of its size in px at 100 dpi
+    lines = textwrap.wrap(title, max(20, int(width / (0.85 * pt * 1.1)))) if title else []
+    height = line * (len(lines) + 1) + 4
     fig, ax = _figure_px(width, height)
     y = 2
-    if title:
-        ax.text(width / 2, y, title, fontsize=pt * 1.1, va="top", ha="center")
+    for text in lines:
+        ax.text(width / 2, y, text, fontsize=pt * 1.1, va="top", ha="center")
         y += line
     for x, text in titles:
         ax.text(x, y, text, fontsize=pt, va="top", ha="center")

@@ -242,9 +242,13 @@ def save_flow_png(path: str | os.PathLike, flow: np.ndarray, *,
 
 
 def _title_row(width: int, title: str) -> np.ndarray:
-    fig = _figure((width / 100.0, 0.24), 100)
+    # wrapped to the picture's width: a long title was cut at both ends (a window with no
+    # valid pixel says so after its times, probe BK); ~7.5 px a 10-pt character
+    lines = textwrap.wrap(title, max(20, int(width / 7.5))) or [title]
+    fig = _figure((width / 100.0, 0.06 + 0.18 * len(lines)), 100)
     fig.set_facecolor("white")
-    fig.text(0.5, 0.5, title, fontsize=10, va="center", ha="center")
+    fig.text(0.5, 0.5, "\n".join(lines), fontsize=10, va="center", ha="center",
+             linespacing=1.1)
     fig.canvas.draw()
     return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
