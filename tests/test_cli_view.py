@@ -306,3 +306,29 @@ def test_the_title_of_epoch_times_shows_the_microseconds(tmp_path, monkeypatch):
                                      sensor_size=(20, 30)))
     assert main(["view", str(rec), "--out", str(tmp_path / "v.png")]) == 0
     assert "[1589160000.123456, 1589160000.222457) s (99 ms)" in titles[0], titles
+
+
+def test_a_per_event_flow_file_is_drawn_with_its_flow(tmp_path, capsys):
+    # probe BK: view of --method triplet's per-event file drew its events alone
+    from evmotion.io.eventflow import EventFlowWriter
+    from evmotion.viz import read_png
+    from evmotion.viz.flowpic import GREY
+
+    rng = np.random.default_rng(0)
+    n = 3000
+    x, y = rng.integers(0, 60, n), rng.integers(0, 40, n)
+    vx = np.full(n, 100.0)  # +u everywhere: red on the wheel
+    valid = np.arange(n) % 3 > 0
+    path = tmp_path / "flow.h5"
+    with EventFlowWriter(path, (40, 60)) as w:
+        w.append(t=np.arange(n) * 10, x=x, y=y, p=np.ones(n, np.uint8), vx=vx,
+                 vy=np.zeros(n), nx=vx, ny=np.zeros(n), valid=valid,
+                 n_triplets=np.ones(n, np.int32))
+    out = tmp_path / "v.png"
+    assert main(["view", str(path), "--out", str(out)]) == 0
+    capsys.readouterr()
+    rgb = read_png(out).reshape(-1, 3).astype(int)
+    red = (rgb[:, 0] > 200) & (rgb[:, 1] < 60) & (rgb[:, 2] < 60)
+    assert red.sum() > 500 and (rgb == GREY).all(-1).sum() > 100
+    assert main(["view", str(path), "--raw", "--out", str(out)]) == 0
+    assert read_png(out).shape[:2] == (40, 60)  # --raw: the events alone, pixel for pixel

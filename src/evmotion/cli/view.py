@@ -127,6 +127,9 @@ def run(args) -> int:
         info = describe_flow(args.file)
         if (info is not None and "windows" in info) or _is_simulator_gt(Path(args.file)):
             return _view_flow(args, out)
+        per_event = info is not None and info.get("format") == "evmotion-event-flow"
+    else:
+        per_event = False
     reject_unused(args, {"--window": "window"}, "to a recording (it draws events; --t0 / "
                   "--t1 choose them)")
     n = args.window_events
@@ -170,10 +173,15 @@ def run(args) -> int:
         t0_us, t1_us = int(ev.t[0]), int(ev.t[-1]) + 1
         title = (f"{Path(args.file).name}: {len(ev):,} events, [{t0_us / 1e6:.6f}, "
                  f"{t1_us / 1e6:.6f}) s ({(t1_us - t0_us) / 1e3:.4g} ms)")
-        atomic_write_bytes(out, event_picture_png(hist, polarity=args.polarity,
-                                                  percentile=args.percentile, title=title,
-                                                  scale=args.scale))
-        rgb = read_png(out)
+        if per_event:
+            # a per-event flow file drew its events alone, its flow nowhere (probe BK)
+            rgb = _event_flow_picture(args, ev, hist, title)
+            save_png(out, rgb)
+        else:
+            atomic_write_bytes(out, event_picture_png(hist, polarity=args.polarity,
+                                                      percentile=args.percentile,
+                                                      title=title, scale=args.scale))
+            rgb = read_png(out)
     if args.json:
         print_json({
             "file": str(args.file),
@@ -192,6 +200,32 @@ def run(args) -> int:
         print(f"{out}: {len(ev):,} events, [{seconds_text(ev.t[0])}, "
               f"{seconds_text(int(ev.t[-1]) + 1)}) s")
     return 0
+
+
+def _event_flow_picture(args, ev, hist, title: str):
+    """The events beside their flow (a per-event flow file's, each pixel's mean over the
+    selected events with a flow)."""
+    import numpy as np
+
+    from evmotion.io.eventflow import read_event_flow
+    from evmotion.viz import iwe_to_rgb
+    from evmotion.viz.flowpic import flow_picture, mean_event_flow, picture_row
+
+    ef = read_event_flow(args.file)
+    t = ef["t"]
+    lo, hi = np.searchsorted(t, int(ev.t[0])), np.searchsorted(t, int(ev.t[-1]), "right")
+    sl = slice(lo, hi)
+    flow, has = mean_event_flow(ef["x"][sl], ef["y"][sl], ef["vx"][sl], ef["vy"][sl],
+                                ef["valid"][sl], ef.sensor_size)
+    pic = flow_picture(flow, valid=has)
+    events = iwe_to_rgb(hist, polarity=args.polarity, percentile=args.percentile)
+    if pic.scale > 1:
+        events = np.repeat(np.repeat(events, pic.scale, axis=0), pic.scale, axis=1)
+    rgb = picture_row([events, pic.rgb], ["events", "their flow: each pixel's mean"],
+                      title=title)
+    if args.scale > 1:
+        rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
+    return rgb
 
 
 def _view_flow(args, out: Path) -> int:

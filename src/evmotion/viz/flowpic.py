@@ -22,8 +22,8 @@ from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.viz.colorwheel import GREY, colorwheel_image, flow_max_magnitude, flow_to_rgb
 
-__all__ = ["MIN_HEIGHT", "FlowPicture", "flow_panel", "flow_picture", "picture_row",
-           "sequence_max_speed"]
+__all__ = ["MIN_HEIGHT", "FlowPicture", "flow_panel", "flow_picture", "mean_event_flow",
+           "picture_row", "sequence_max_speed"]
 
 #: Pictures with fewer rows are upscaled by an integer factor to at least this height.
 MIN_HEIGHT = 160
@@ -357,3 +357,30 @@ def flow_panel(events: EventArray, flow_px_per_s: np.ndarray, *, t_ref_us: int |
                       titles, title=title)
     return rgb, {"fwl": value, "max_speed": pic.max_speed, "fixed_scale": pic.fixed_scale,
                  "titles": titles if title is None else [title, *titles]}
+
+
+def mean_event_flow(x, y, vx, vy, valid, sensor_size: tuple[int, int]
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-event flow (a triplet file's columns) drawn as a field: at each pixel the mean
+    flow of its ``valid`` events, px/s ``(H, W, 2)``, NaN where none, and the pixels with
+    one (``(H, W)`` bool). Coordinates are rounded to the pixel (undistorted ones too).
+
+    Examples
+    --------
+    >>> f, has = mean_event_flow([1, 1, 2], [0, 0, 1], [10.0, 30.0, 5.0], [0.0, 0.0, 1.0],
+    ...                          [True, True, False], (2, 3))
+    >>> f[0, 1].tolist(), int(has.sum())
+    ([20.0, 0.0], 1)
+    """
+    h, w = (int(v) for v in sensor_size)
+    xi = np.rint(np.asarray(x, np.float64)).astype(np.int64)
+    yi = np.rint(np.asarray(y, np.float64)).astype(np.int64)
+    ok = (np.asarray(valid, bool) & (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h))
+    idx = yi[ok] * w + xi[ok]
+    cnt = np.bincount(idx, minlength=h * w)
+    has = cnt > 0
+    flow = np.full((h * w, 2), np.nan)
+    for c, v in enumerate((vx, vy)):
+        flow[has, c] = (np.bincount(idx, weights=np.asarray(v, np.float64)[ok],
+                                    minlength=h * w)[has] / cnt[has])
+    return flow.reshape(h, w, 2).astype(np.float32), has.reshape(h, w)
