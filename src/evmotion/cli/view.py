@@ -8,8 +8,8 @@ warp: motion blur in it is what the motion-estimation commands remove.
 Given a flow output (``evmotion flow`` or ``evmotion bos``: ``.h5``, ``.npz``, ``.flo``, a
 pattern or a folder of per-window files), the window ``--window K`` (default: the one
 holding ``--t0``, else the first with a valid pixel) is drawn colour-coded beside its
-legend, grey where no event supports it; a BOS output's Poisson field q beside it. A per-
-event flow file (``--method triplet``'s default output) is drawn as events are, with their
+legend, grey where no event supports it; a BOS output's Poisson field q beside it.
+A per-event flow file (``--method triplet``'s default output) is drawn as events are, with their
 flow beside them: each pixel's mean over the selected events that have one.
 """
 
