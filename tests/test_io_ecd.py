@@ -558,6 +558,13 @@ def test_decimal_seconds_read_as_nanoseconds_are_refused(tmp_path):
     (tmp_path / "n.txt").write_text("1000.0 1 2 1\n3000.0 1 2 0\n")
     assert ecd.read(tmp_path / "n.txt", sensor_size=(5, 7), time_unit="ns").t.tolist() == \
         [1, 3]
+    # and as microseconds (probe BJ: "all at one time (0 us)"); decimal µs still read
+    with pytest.raises(FormatError, match=r"0.001017 is not a whole number of "
+                                          r"microseconds, and the times span under 1 ms"):
+        ecd.read(tmp_path / "s.txt", sensor_size=(5, 7), time_unit="us")
+    (tmp_path / "u.txt").write_text("1000.4 1 2 1\n3000.6 1 2 0\n")
+    assert ecd.read(tmp_path / "u.txt", sensor_size=(5, 7), time_unit="us").t.tolist() == \
+        [1000, 3001]
 
 
 @pytest.mark.parametrize("block_bytes", [4096, 1 << 30])  # many blocks; the whole at once

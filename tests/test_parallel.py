@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evmotion.errors import EvmotionWarning, ParameterError
+from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray
 from evmotion.parallel import WindowResult, map_windows
 
@@ -39,6 +39,12 @@ def slow_reverse(ev: EventArray) -> int:
 def fail_in_middle(ev: EventArray, t0: int, t1: int) -> int:
     if t0 == 40_000:
         raise RuntimeError("deliberate failure")
+    return len(ev)
+
+
+def empty_in_middle(ev: EventArray, t0: int, t1: int) -> int:
+    if t0 == 40_000:
+        raise EmptyWindowError("window's 30000 events are all at one time (0 us)")
     return len(ev)
 
 
@@ -100,6 +106,11 @@ def test_failing_window_reported_others_kept(executor, workers):
     assert len(bad) == 1
     assert (bad[0].index, bad[0].t0, bad[0].t1) == (2, 40_000, 60_000)
     assert "RuntimeError: deliberate failure" in bad[0].error
+    # evmotion's own errors by their message, no class name for the user to read (probe BJ)
+    res = map_windows(empty_in_middle, ev, WINDOWS, workers=workers, executor=executor,
+                      with_window=True, progress=False)
+    line = next(r for r in res if not r.ok).error.splitlines()[0]
+    assert line == "window's 30000 events are all at one time (0 us)"
     assert [r.value for r in res if r.ok] == [len(ev.slice_time(a, b))
                                              for a, b in WINDOWS if a != 40_000]
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from evmotion.errors import MissingDependencyError, ParameterError
+from evmotion.errors import EvmotionError, MissingDependencyError, ParameterError
 from evmotion.events import EventArray, Window, window_bounds
 from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
@@ -117,7 +117,8 @@ class WindowResult:
     value : Any
         What ``fn`` returned (None on error).
     error : str or None
-        ``"ExceptionType: message"`` and the traceback when ``fn`` (or reading) failed.
+        The error's line (``"ExceptionType: message"``, evmotion's own errors by their
+        message alone) and the traceback when ``fn`` (or reading) failed.
     elapsed_s : float
         Wall time of ``fn`` (and reading the window) in the worker, in seconds.
     cached : bool
@@ -198,7 +199,7 @@ def _run_window(fn: Callable, source: Any, task: _Task, with_window: bool,
     except Exception as exc:
         if interrupted_by(exc):
             raise KeyboardInterrupt from exc
-        value, error = None, f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"
+        value, error = None, f"{_error_line(exc)}\n{traceback.format_exc()}"
     finally:
         _current.index, _current.sink = outer
     return WindowResult(task.index, task.t0, task.t1, value=value, error=error,
@@ -632,6 +633,13 @@ def _future_result(fut, task: _Task) -> WindowResult:
         return fut.result()
     except Exception as exc:
         return _broken(exc, task)
+
+
+def _error_line(exc: Exception) -> str:
+    """An error as a window's result says it: evmotion's own by their message, which
+    names what is wrong ("EmptyWindowError: window's 30000 events are all at one time"
+    printed a class name to the user, probe BJ); others with their type."""
+    return str(exc) if isinstance(exc, EvmotionError) else f"{type(exc).__name__}: {exc}"
 
 
 def _broken(exc: Exception, task: _Task) -> WindowResult:

@@ -406,6 +406,14 @@ def _times_us(tcol: np.ndarray, unit: str) -> np.ndarray:
             raise ValueError(f"a time of {tcol[k].decode()} is not a whole number of "
                              "nanoseconds: the times are in seconds? (leave out "
                              "--time-unit / time_unit)")
+        if (unit == "us" and v.size and (v != np.rint(v)).any()
+                and np.abs(v).max() < 1000):
+            # decimal seconds read as µs fell on 0-1 us ("all at one time (0 us)", probe
+            # BJ): fractions of a µs over less than a millisecond are no µs times
+            k = int(np.argmax(v != np.rint(v)))
+            raise ValueError(f"a time of {tcol[k].decode()} is not a whole number of "
+                             "microseconds, and the times span under 1 ms as such: the "
+                             "times are in seconds? (leave out --time-unit / time_unit)")
         t = np.rint(v * (TEXT_TIME_UNITS[unit] or 1e-3))
     if t.size and not np.all(np.abs(t) < 2.0**62):
         raise ValueError("a time beyond +-2^62 us")
