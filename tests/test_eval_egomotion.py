@@ -129,6 +129,14 @@ def test_cli_eval_egomotion_output(tmp_path, capsys):
     # by: refused, not printed as the protocol (probe BJ)
     assert main(["eval", str(out), "--gt", str(tmp_path / "rot_gt.h5"), "--dt", "4"]) == 2
     assert "--dt 4 does not apply" in capsys.readouterr().err
+    # no window a measurement: said so, not "no window has evaluated pixels" (probe BJ)
+    import shutil
+
+    shutil.copytree(out, tmp_path / "invalid")
+    with h5py.File(tmp_path / "invalid" / "params.h5", "a") as f:
+        f["valid"][...] = False
+    assert main(["eval", str(tmp_path / "invalid"), "--gt", str(tmp_path / "rot_gt.h5")]) == 2
+    assert "windows is a measurement" in capsys.readouterr().err
     # a file written before the sensor size and K were recorded: the ground truth's
     with h5py.File(out / "params.h5", "a") as f:
         del f.attrs["sensor_size"], f.attrs["K"]

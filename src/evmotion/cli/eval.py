@@ -513,10 +513,14 @@ def _run_egomotion(args, path: Path) -> int:
     size = None if "sensor_size" in table.attrs else gt.flow.shape[1:3]
     K = None if "K" in table.attrs or truth is None else truth.K
     out_px = args.out_px if args.out_px is not None else 3.0
+    if not np.asarray(table.valid, bool).any():
+        raise ParameterError(f"{path}: none of its {len(table)} windows is a measurement "
+                             "(collapsed or a poor fit: params.h5's 'valid'): nothing to score")
     try:
         res = evaluate_egomotion(table, gt, truth=truth, sensor_size=size, K=K,
                                  events=events, dt=args.dt, out_px=out_px)
-    except EmptyWindowError as exc:
+    except (EmptyWindowError, ParameterError) as exc:
+        # (a grid mismatch named neither file, probe BJ)
         raise ParameterError(f"{path} against ground truth {args.gt}: {exc}") from None
     except EventDataError as exc:
         raise ParameterError(f"--events {args.events} against {path}: {exc}") from None

@@ -247,6 +247,12 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
         per_window.append(row)
     if not rows:
         raise EmptyWindowError(_nothing_to_score(t0s, t1s, gt))
+    if not any(m.n_pixels for m in rows):
+        # ("no window has evaluated pixels: nothing to aggregate" said not why, probe BJ)
+        raise EmptyWindowError(f"none of the {len(rows)} windows has a pixel where the "
+                               "estimate and the ground truth are both known"
+                               + (" and an event fell" if events is not None else "")
+                               + ": nothing to score")
     total = aggregate_flow_metrics(rows).as_dict()
     total["AEE_zero"] = aggregate_flow_metrics(zeros).aee
     total["AE_rad"] = float(np.radians(total["AE_deg"]))
