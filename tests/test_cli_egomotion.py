@@ -84,6 +84,7 @@ def test_landscape_png_and_csv(rec, tmp_path, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     data = np.loadtxt(csv_path, delimiter=",", skiprows=1)
     assert data.shape == (31, 4)
+    assert csv_path.read_text().splitlines()[0].startswith("vx [px/s],no regularizer")
     assert abs(data[np.argmin(data[:, 1]), 0] - 300) <= 20
     assert main(["landscape", str(rec), "--warp", "translation", "--param", "hz", "--range",
                  "0", "1", "--out", str(png)]) == 2

@@ -135,7 +135,8 @@ def run(args) -> int:
                         f"{fixed or 'one parameter'}; {args.grid}",
                   verdict="\n".join(said) or None)
     if args.csv:
-        lines = [",".join([name] + list(curves))]
+        # the parameter's unit in the header (probe BJ: "wz,no regularizer")
+        lines = [",".join([f"{name} [{unit}]"] + list(curves))]
         lines += [",".join(repr(float(v)) for v in row)
                   for row in zip(values, *curves.values(), strict=True)]
         atomic_write_text(args.csv, "\n".join(lines) + "\n")
