@@ -660,7 +660,7 @@ def test_resume_extends_a_finished_output(recording, tmp_path, capsys, monkeypat
     said = capsys.readouterr()
     err = said.err
     # how much it reused, as bos says it (probe BH: flow did not say)
-    assert "3 windows (2 kept from the interrupted run)," in said.out
+    assert "3 windows (2 kept from the earlier run)," in said.out
     # the bar counts the window to compute (the kept ones had made the ETA too short)
     assert "1/1 [" in err.replace("\r", "\n") and "3/3 [" not in err, err[-300:]
     more = read_flow_h5(out)

@@ -251,7 +251,7 @@ def run(args) -> int:
                     "seconds": seconds})
     else:
         resumed = sum(1 for r in rows if r.get("resumed"))
-        note = f", {resumed} kept from the interrupted run" if resumed else ""
+        note = f", {resumed} kept from the earlier run" if resumed else ""
         print(f"{len(rows)} frame interval{'' if len(rows) == 1 else 's'} -> {out} "
               f"({seconds:.1f} s{note})")
     return 0

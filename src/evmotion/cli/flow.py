@@ -202,9 +202,10 @@ def summary_line(args, seconds: float) -> str:
     info = getattr(args, "flow_summary", None) or {}
     parts = [f"{args.method}:"]
     if info.get("windows") is not None:
-        # (as bos says it: a resumed run did not say how much it had reused, probe BH)
+        # (as bos says it: a resumed run did not say how much it had reused, probe BH;
+        # "earlier", not "interrupted": a finished output extended is resumed too, BK)
         notes = [f"{info['skipped']:,} skipped: no flow"] if info.get("skipped") else []
-        notes += [f"{info['resumed']:,} kept from the interrupted run"] \
+        notes += [f"{info['resumed']:,} kept from the earlier run"] \
             if info.get("resumed") else []
         parts.append(f"{info['windows']:,} window{'' if info['windows'] == 1 else 's'}"
                      + (f" ({'; '.join(notes)})," if notes else ","))
