@@ -169,3 +169,68 @@ def test_eval_says_when_undistorted_estimates_meet_a_sensor_grid_truth(tmp_path,
         assert capsys.readouterr().err == ""
     _warn_grids("p.h5", attrs, "gt.h5", {"grid": attrs["grid"]})  # the truth's grid too
     assert capsys.readouterr().err == ""
+
+
+def test_cli_eval_rotation_against_an_imu_or_a_table_of_angular_velocities(tmp_path,
+                                                                          capsys):
+    """egomotion's angular velocity could be scored against the simulator's truth only:
+    an ECD imu.txt as --gt was parsed as DSEC timestamps, an ECD folder 'held no ground
+    truth' (probe BJ), though the thesis scores the rotation against the IMU."""
+    from evmotion.sim.gtio import read_ground_truth
+
+    rec = tmp_path / "rot.h5"
+    assert main(["simulate", "rotation", "--duration", "0.06", "--size", "120", "90",
+                 "--out", str(rec)]) == 0
+    truth = read_ground_truth(tmp_path / "rot_gt.h5")
+    out = tmp_path / "ego"
+    assert main(["egomotion", str(rec), "--warp", "rotation", "--window-events", "8000",
+                 "--out", str(out), "--max-png", "0"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(out), "--gt", str(tmp_path / "rot_gt.h5"), "--json"]) == 0
+    sim = json.loads(capsys.readouterr().out)["parameters_rms"]
+    omega = np.asarray(truth.angular_velocity(), np.float64).reshape(-1, 3)[0]
+    t = np.arange(0, 0.07, 0.001)
+    imu = np.column_stack([t, np.zeros((t.size, 2)), np.full(t.size, 9.81),
+                           np.tile(omega, (t.size, 1))])
+    folder = tmp_path / "ecd"
+    folder.mkdir()
+    np.savetxt(folder / "imu.txt", imu, fmt="%.6f")
+    for gt in (folder / "imu.txt", folder):
+        assert main(["eval", str(out), "--gt", str(gt), "--json"]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        assert doc["reference"] == "angular velocity" and doc["windows_compared"] >= 1
+        for k in ("wx", "wy", "wz", "omega"):
+            assert doc["parameters_rms"][k] == pytest.approx(sim[k], rel=1e-6, abs=1e-9)
+    # a 't gx gy gz' table in other axes, mapped back by --imu-axes; one constant line
+    swapped = np.column_stack([t, -omega[1] * np.ones_like(t), omega[0] * np.ones_like(t),
+                               -omega[2] * np.ones_like(t)])
+    np.savetxt(tmp_path / "gyro.txt", swapped, fmt="%.6f")
+    np.savetxt(tmp_path / "motion.txt", omega[None], fmt="%.9f")
+    assert main(["eval", str(out), "--gt", str(tmp_path / "gyro.txt"), "--json"]) == 0
+    off = json.loads(capsys.readouterr().out)["parameters_rms"]["omega"]
+    assert off > 10 * sim["omega"]  # the axes matter: the comparison can fail
+    for argv in (["--gt", str(tmp_path / "gyro.txt"), "--imu-axes", "y,-x,-z"],
+                 ["--gt", str(tmp_path / "motion.txt")]):
+        assert main(["eval", str(out), *argv]) == 0
+        line = capsys.readouterr().out.splitlines()[1]
+        assert line.startswith(f"{len(doc['parameters'])} of ") and "RMS error" in line
+        assert f"omega={sim['omega']:.4g} rad/s" in line
+    # what cannot be compared is said in one line
+    bad = {"five.txt": "0 1 2 3 4\n", "late.txt": "5.0 0 0 1\n5.001 0 0 1\n",
+           "unsorted.txt": "0.002 0 0 1\n0.001 0 0 1\n"}
+    for name, text in bad.items():
+        (tmp_path / name).write_text(text)
+    for argv, said in (
+            (["--gt", str(tmp_path / "late.txt")], "span none of the windows"),
+            (["--gt", str(tmp_path / "unsorted.txt")], "in time order"),
+            (["--gt", str(tmp_path / "gyro.txt"), "--imu-axes", "x,x,z"], "--imu-axes"),
+            (["--gt", str(tmp_path / "rot_gt.h5"), "--imu-axes", "x,y,z"],
+             "does not apply to a flow ground truth")):
+        assert main(["eval", str(out), *argv]) == 2, argv
+        assert said in capsys.readouterr().err, argv
+    trans = tmp_path / "trans"
+    assert main(["egomotion", str(rec), "--warp", "translation", "--window-events", "8000",
+                 "--out", str(trans), "--max-png", "0"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(trans), "--gt", str(folder)]) == 2
+    assert "scores the rotation warp's parameters" in capsys.readouterr().err

@@ -163,6 +163,9 @@ def world(tmp_path_factory) -> Path:
         cal = eio.read_calibration("sim.h5")
         Path("boxes_rotation/calib.txt").write_text(
             f"{cal['fx']} {cal['fy']} {cal['cx']} {cal['cy']} 0.01 0 0 0 0\n")
+        # its IMU ('t ax ay az gx gy gz', s, m/s^2, rad/s) over the recording's time
+        Path("boxes_rotation/imu.txt").write_text("".join(
+            f"{k * 1e-3:.6f} 0 9.81 0 0.1 0.2 0.3\n" for k in range(1000)))
         _mvsec_gt(Path("sim_gt.h5"), Path("outdoor_day1_gt_flow_dist.npz"))
         _dsec_gt_and_predictions(Path("sim_gt.h5"), Path("dsec_seq"), Path("eraft_pred"))
         rng = np.random.default_rng(0)

@@ -3,8 +3,8 @@
 
 FLOW is any flow output of ``evmotion flow`` (:func:`evmotion.io.flowread.read_flow`:
 ``.h5``, ``.npz``, ``.flo`` / DSEC ``.png`` with their JSON sidecar, a pattern such as
-``flow_{:05d}.flo``, or a folder of such files), read back with each window's times; a ``.flo``/``.png`` without
-sidecar or a bare ``.npy`` (px/s) needs ``--t0-us``/``--t1-us``. Other tools' per-window
+``flow_{:05d}.flo``, or a folder of such files), read back with each window's times; a
+``.flo``/``.png`` without sidecar or a bare ``.npy`` (px/s) needs ``--t0-us``/``--t1-us``. Other tools' per-window
 files without times (a folder of ``.flo`` or ``.png``, or a pattern: RAFT, E-RAFT on DSEC)
 take the ground truth's windows, paired by file name with a DSEC ground truth's PNGs, else
 in name order when there are as many files as windows
@@ -28,7 +28,11 @@ scored through the flow each window's warp gives at every pixel, as dense flow a
 simulator's ground truth of a scene moved by the same warp, the parameters are compared
 too: the RMS of each one's error over the valid windows, in its unit (and of the angular
 velocity's error for the rotation), at each window's reference time
-(:mod:`evmotion.eval.egomotion`).
+(:mod:`evmotion.eval.egomotion`). The rotation's angular velocity is also scored against an
+IMU (the thesis' reference): ``--gt`` an ECD folder or its ``imu.txt``, a recording with IMU
+samples, or a table ``t gx gy gz`` (s, rad/s); each window against the mean of the samples
+within it; ``--imu-axes`` maps the IMU's axes to the camera's
+(:func:`evmotion.io.angvel.read_angular_velocity`).
 
 Beside the AEE, ``AEE_zero`` is the zero flow's on the same pixels or events (the ground
 truth's mean displacement): an AEE is read against it, and one no lower than it is flagged
@@ -79,6 +83,7 @@ EXAMPLES = """examples:
   evmotion eval triplet.h5 --gt sim_gt.h5 --json            # scored event by event
   evmotion egomotion sim.h5 --warp rotation --out ego/
   evmotion eval ego/ --gt sim_gt.h5                        # omega RMS error and AEE
+  evmotion eval ego/ --gt boxes_rotation/imu.txt --imu-axes x,y,z   # omega against the IMU
 """
 
 
@@ -111,6 +116,10 @@ def add_parser(sub) -> None:
     p.add_argument("--out-px", type=positive_float(unit="px"), default=None,
                    help="%%Out threshold in px (default: the flow file's eval_out_px "
                         "attribute, e.g. 1 for BOS outputs (thesis §6.6.1), else 3)")
+    p.add_argument("--imu-axes", default=None, metavar="AXES",
+                   help="with egomotion's rotation parameters and an IMU or angular-velocity "
+                        "table as --gt: the camera's x,y,z as the IMU's signed axes, e.g. "
+                        "-x,y,-z (default x,y,z: the same)")
     p.add_argument("--along-streamlines", action="store_true",
                    help="compare the displacement of the point at each pixel at the window "
                         "start: the window's flow (taken at its midpoint) transported to the "
@@ -441,6 +450,65 @@ def _events_on_grid(args, attrs: dict):
     return moved
 
 
+def _angular_velocity_reference(args):
+    """The angular velocities --gt holds (:func:`evmotion.io.angvel.read_angular_velocity`:
+    a table of them, a folder's imu.txt, a recording's IMU), or None where it is a flow
+    ground truth. ("--gt imu.txt" was parsed as a DSEC timestamps file, and an ECD folder
+    with its imu.txt "holds no ground truth", probe BJ.)"""
+    from evmotion.io.angvel import is_angular_velocity_table, read_angular_velocity
+    from evmotion.io.flowfiles import read_gt_flow
+
+    axes = args.imu_axes or "x,y,z"
+    if is_angular_velocity_table(args.gt):
+        return read_angular_velocity(args.gt, axes=axes)
+    try:
+        read_gt_flow(args.gt)
+    except FormatError as flow_error:
+        try:
+            return read_angular_velocity(args.gt, axes=axes)
+        except FormatError:
+            raise flow_error from None
+    return None
+
+
+def _run_angular_velocity(args, path: Path, table, ref) -> int:
+    """The rotation's angular velocity of each window against reference samples."""
+    from evmotion.cli import print_json
+    from evmotion.eval.egomotion import angular_velocity_errors
+
+    reject_unused(args, {"--events": "events", "--out-px": "out_px"},
+                  f"against the angular velocities of {args.gt} (no flow is scored)")
+    rows, rms, reason = angular_velocity_errors(table, ref)
+    if reason and not rms:
+        raise ParameterError(f"{path} against {args.gt}: {reason}")
+    unmeasured = int((~np.asarray(table.valid, bool)).sum())
+    beyond = sum(r["n_samples"] < 0 for r in rows)
+    axes = args.imu_axes or "x,y,z"
+    what = ("one constant angular velocity" if ref.t is None else
+            f"{len(ref):,} samples")
+    if args.json:
+        print_json({"flow": str(args.flow), "gt": str(args.gt), "kind": "egomotion",
+                    "reference": "angular velocity", "reference_samples": len(ref),
+                    "imu_axes": axes, "warp": "rotation",
+                    "windows": len(table), "windows_compared": rms["n_windows"],
+                    "windows_not_measurements": unmeasured, "windows_beyond_reference": beyond,
+                    "parameters_rms": {k: v for k, v in rms.items() if k != "n_windows"},
+                    "parameter_units": "rad/s", "parameters": rows})
+        return 0
+    print(f"{path}: the rotation's angular velocity against {args.gt} ({what}; camera axes "
+          f"= the reference's {axes})")
+    print(f"{rms['n_windows']} of {len(table)} windows compared: RMS error "
+          + "  ".join(f"{k}={rms[k]:.4g}" for k in ("wx", "wy", "wz", "omega"))
+          + " rad/s (omega: the error vector's norm)")
+    if unmeasured:
+        print(f"note: {unmeasured} window{' is' if unmeasured == 1 else 's are'} no "
+              "measurement (collapsed or a poor fit: params.h5's 'valid'): not compared")
+    if beyond:
+        print(f"note: {beyond} window{' lies' if beyond == 1 else 's lie'} beyond the "
+              "reference's samples: not compared")
+    return 0
+
+
 def _params_file(path: Path, h5_format) -> Path | None:
     """FLOW as ego-motion parameters: a parameters file (``evmotion egomotion``'s
     ``params.h5``), or the output folder that holds one (``segment``'s, whose
@@ -495,6 +563,11 @@ def _run_egomotion(args, path: Path) -> int:
                              "params.h5, one motion per window")
     if not len(table):
         raise ParameterError(f"{path} holds no window")
+    reference = _angular_velocity_reference(args) if args.gt is not None else None
+    if reference is not None:
+        return _run_angular_velocity(args, path, table, reference)
+    reject_unused(args, {"--imu-axes": "imu_axes"}, "to a flow ground truth (it maps an "
+                  "IMU's axes to the camera's)")
     events = _events_on_grid(args, table.attrs) if args.events else None
     if args.gt is None:
         if events is None:

@@ -23,11 +23,13 @@ from evmotion.eval.windows import WindowsEvaluation, evaluate_windows, sharpness
 
 if TYPE_CHECKING:
     from evmotion.events import EventArray
+    from evmotion.io.angvel import AngularVelocity
     from evmotion.io.flowfiles import FlowSequence
     from evmotion.io.paramsfiles import ParamsTable
     from evmotion.sim.groundtruth import GroundTruth
 
-__all__ = ["EgomotionEvaluation", "ParamsFlow", "evaluate_egomotion", "parameter_errors",
+__all__ = ["EgomotionEvaluation", "ParamsFlow", "angular_velocity_errors", "evaluate_egomotion",
+           "parameter_errors",
            "sharpness_egomotion"]
 
 
@@ -178,6 +180,73 @@ def parameter_errors(table: ParamsTable, truth: GroundTruth
         rms = {n: float(np.sqrt(np.mean(err[:, k] ** 2))) for k, n in enumerate(table.names)}
         if warp == "rotation":
             rms["omega"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+    return rows, rms, ""
+
+
+def angular_velocity_errors(table: ParamsTable, ref: AngularVelocity
+                            ) -> tuple[list[dict], dict, str]:
+    """The rotation warp's angular velocity of each window against reference samples (an
+    IMU's gyroscope, :func:`evmotion.io.angvel.read_angular_velocity`): their mean over
+    the window ``[t0, t1)``, or where no sample falls in it their linear interpolation at
+    its middle; a window beyond the samples is not compared.
+
+    Returns
+    -------
+    rows, rms, reason : list of dict, dict, str
+        As :func:`parameter_errors`, the rows with ``n_samples`` (0: interpolated, -1:
+        beyond the samples) and ``rms["n_windows"]``, the valid windows compared.
+
+    Examples
+    --------
+    >>> from evmotion.io.angvel import AngularVelocity
+    >>> from evmotion.io.paramsfiles import ParamsTable
+    >>> t = ParamsTable(np.array([[0.1, 0.0, 1.0]]), ("wx", "wy", "wz"), ("rad/s",) * 3,
+    ...                 np.array([0]), np.array([10_000]), np.array([True]),
+    ...                 attrs={"warp": "rotation"})
+    >>> ref = AngularVelocity(np.array([0, 5_000]), np.array([[0.0, 0.0, 1.0]] * 2), "imu")
+    >>> rows, rms, reason = angular_velocity_errors(t, ref)
+    >>> round(rms["wx"], 3), round(rms["omega"], 3), rows[0]["n_samples"]
+    (0.1, 0.1, 2)
+    """
+    warp = str(table.attrs.get("warp", ""))
+    if warp != "rotation" or tuple(table.names) != ("wx", "wy", "wz"):
+        return [], {}, (f"an angular velocity scores the rotation warp's parameters; these "
+                        f"are the {warp or 'unknown'} warp's")
+    rows, errs = [], []
+    for i in range(len(table)):
+        t0, t1 = int(table.t0[i]), int(table.t1[i])
+        if ref.t is None:
+            omega, n = ref.omega[0], 1
+        else:
+            inside = (ref.t >= t0) & (ref.t < t1)
+            n = int(inside.sum())
+            mid = 0.5 * (t0 + t1)
+            if n:
+                omega = ref.omega[inside].mean(axis=0)
+            elif len(ref.t) and ref.t[0] <= mid <= ref.t[-1]:
+                omega = np.array([np.interp(mid, ref.t, ref.omega[:, k]) for k in range(3)])
+            else:
+                omega, n = None, -1
+        row = {"window": i, "t0_us": t0, "t1_us": t1, "valid": bool(table.valid[i]),
+               "n_samples": n}
+        est = np.asarray(table.params[i], np.float64)
+        for k, name in enumerate(table.names):
+            row[name] = float(est[k])
+            if omega is not None:
+                row.update({f"{name}_gt": float(omega[k]),
+                            f"{name}_err": float(est[k] - omega[k])})
+        rows.append(row)
+        if omega is not None and table.valid[i]:
+            errs.append(est - omega)
+    if not errs:
+        beyond = sum(r["n_samples"] < 0 for r in rows)
+        return rows, {}, ("no valid window to compare" if beyond < len(rows) else
+                          f"the reference samples ({ref.source}) span none of the windows' "
+                          "times (another recording, or another clock?)")
+    err = np.asarray(errs)
+    rms = {n: float(np.sqrt(np.mean(err[:, k] ** 2))) for k, n in enumerate(table.names)}
+    rms["omega"] = float(np.sqrt(np.mean(np.sum(err ** 2, axis=1))))
+    rms["n_windows"] = len(errs)
     return rows, rms, ""
 
 
