@@ -73,6 +73,10 @@ def test_egomotion_ecd_folder_picks_up_calibration(shared_data, tmp_path, capsys
     omega = np.array([w["params"][k] for k in ("wx", "wy", "wz")])
     imu = np.loadtxt(folder / "motion.txt")
     assert np.sqrt(np.mean((omega - imu) ** 2)) < 0.12
+    # eval says the same against the folder's motion.txt (the IMU's over the window)
+    assert main(["eval", str(tmp_path / "e"), "--gt", str(folder), "--json"]) == 0
+    rms = json.loads(capsys.readouterr().out)["parameters_rms"]
+    assert rms["omega"] == pytest.approx(np.linalg.norm(omega - imu), rel=1e-6)
 
 
 def test_landscape_png_and_csv(rec, tmp_path, capsys):
