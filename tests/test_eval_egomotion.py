@@ -95,17 +95,23 @@ def test_parameters_of_another_warp_are_compared_through_the_flow_only():
     assert rows == [] and rms == {} and "rotation warp" in reason
 
 
-def test_cli_eval_egomotion_output(tmp_path, capsys):
+def _simulated_rotation_estimated(tmp_path, capsys):
+    """A simulated rotation (rot.h5, rot_gt.h5) and its egomotion run (ego/): the
+    recording, the simulator's ground truth and the output folder."""
     from evmotion.sim.gtio import read_ground_truth
 
     rec = tmp_path / "rot.h5"
     assert main(["simulate", "rotation", "--duration", "0.06", "--size", "120", "90",
                  "--out", str(rec)]) == 0
-    gt = read_ground_truth(tmp_path / "rot_gt.h5")
     out = tmp_path / "ego"
     assert main(["egomotion", str(rec), "--warp", "rotation", "--window-events", "8000",
                  "--out", str(out), "--max-png", "0"]) == 0
     capsys.readouterr()
+    return rec, read_ground_truth(tmp_path / "rot_gt.h5"), out
+
+
+def test_cli_eval_egomotion_output(tmp_path, capsys):
+    rec, gt, out = _simulated_rotation_estimated(tmp_path, capsys)
     with h5py.File(out / "params.h5") as f:
         assert list(f.attrs["sensor_size"]) == list(gt.sensor_size)
         np.testing.assert_allclose(np.asarray(f.attrs["K"]).reshape(3, 3), gt.K)
@@ -176,16 +182,7 @@ def test_cli_eval_rotation_against_an_imu_or_a_table_of_angular_velocities(tmp_p
     """egomotion's angular velocity could be scored against the simulator's truth only:
     an ECD imu.txt as --gt was parsed as DSEC timestamps, an ECD folder 'held no ground
     truth' (probe BJ), though the thesis scores the rotation against the IMU."""
-    from evmotion.sim.gtio import read_ground_truth
-
-    rec = tmp_path / "rot.h5"
-    assert main(["simulate", "rotation", "--duration", "0.06", "--size", "120", "90",
-                 "--out", str(rec)]) == 0
-    truth = read_ground_truth(tmp_path / "rot_gt.h5")
-    out = tmp_path / "ego"
-    assert main(["egomotion", str(rec), "--warp", "rotation", "--window-events", "8000",
-                 "--out", str(out), "--max-png", "0"]) == 0
-    capsys.readouterr()
+    rec, truth, out = _simulated_rotation_estimated(tmp_path, capsys)
     assert main(["eval", str(out), "--gt", str(tmp_path / "rot_gt.h5"), "--json"]) == 0
     sim = json.loads(capsys.readouterr().out)["parameters_rms"]
     omega = np.asarray(truth.angular_velocity(), np.float64).reshape(-1, 3)[0]

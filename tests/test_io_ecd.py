@@ -548,23 +548,19 @@ def test_a_time_past_int64_microseconds_is_named_not_wrapped(first):
     assert t.tolist() == [4_611_686_018_427_387_903]
 
 
-def test_decimal_seconds_read_as_nanoseconds_are_refused(tmp_path):
+@pytest.mark.parametrize(("unit", "said", "whole", "read"), [
+    ("ns", r"nanoseconds: the times are in seconds\?", "1000.0 1 2 1\n3000.0 1 2 0\n", [1, 3]),
+    ("us", r"microseconds, and the times span under 1 ms", "1000.4 1 2 1\n3000.6 1 2 0\n",
+     [1000, 3001])])
+def test_decimal_seconds_read_as_ns_or_us_are_refused(tmp_path, unit, said, whole, read):
     """Probe BD: --time-unit ns on decimal seconds put every event on 0 us, and the
-    command then said "30000 events spanning 0 us"; whole ns as decimals still read."""
+    command then said "30000 events spanning 0 us"; probe BJ: so did --time-unit us ("all
+    at one time (0 us)"). Whole ns and decimal µs still read."""
     (tmp_path / "s.txt").write_text("0.001017 1 2 1\n0.001046 1 2 0\n")
-    with pytest.raises(FormatError, match=r"0.001017 is not a whole number of "
-                                          r"nanoseconds: the times are in seconds\?"):
-        ecd.read(tmp_path / "s.txt", sensor_size=(5, 7), time_unit="ns")
-    (tmp_path / "n.txt").write_text("1000.0 1 2 1\n3000.0 1 2 0\n")
-    assert ecd.read(tmp_path / "n.txt", sensor_size=(5, 7), time_unit="ns").t.tolist() == \
-        [1, 3]
-    # and as microseconds (probe BJ: "all at one time (0 us)"); decimal µs still read
-    with pytest.raises(FormatError, match=r"0.001017 is not a whole number of "
-                                          r"microseconds, and the times span under 1 ms"):
-        ecd.read(tmp_path / "s.txt", sensor_size=(5, 7), time_unit="us")
-    (tmp_path / "u.txt").write_text("1000.4 1 2 1\n3000.6 1 2 0\n")
-    assert ecd.read(tmp_path / "u.txt", sensor_size=(5, 7), time_unit="us").t.tolist() == \
-        [1000, 3001]
+    with pytest.raises(FormatError, match=r"0.001017 is not a whole number of " + said):
+        ecd.read(tmp_path / "s.txt", sensor_size=(5, 7), time_unit=unit)
+    (tmp_path / "n.txt").write_text(whole)
+    assert ecd.read(tmp_path / "n.txt", sensor_size=(5, 7), time_unit=unit).t.tolist() == read
 
 
 @pytest.mark.parametrize("block_bytes", [4096, 1 << 30])  # many blocks; the whole at once

@@ -353,34 +353,23 @@ def test_an_output_removed_during_the_run_stops_it_at_the_next_window(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_resume_with_nothing_to_continue_is_said(tmp_path):
-    # probe AM: --resume on a mistyped --out started from the first window without a word
-    from evmotion.errors import EvmotionWarning
-
-    path = tmp_path / "f.h5"
-    with pytest.warns(EvmotionWarning, match=r"no interrupted run to continue \(.*f\.h5\.part "
-                                             r"does not exist\)"):
-        out = fo.open_flow_output(path, (4, 5), {}, n_windows=1, resume=True)
-    out.append(np.zeros((4, 5, 2), np.float32), t0=0, t1=10)
-    out.close()
-    assert read_flow(path).flow.shape == (1, 4, 5, 2)
-
-
-@pytest.mark.parametrize("left", [b"\x89HDF\r\n\x1a\n" + bytes(88), None],
-                         ids=["cut-in-its-header", "no-window"])
-def test_resume_from_a_part_with_no_window_is_said(tmp_path, left):
-    # a run killed before its first window left a .part (a 96-byte HDF5 start, or a file
-    # with no window): --resume dropped it and started afresh without a word (probe BH)
+@pytest.mark.parametrize(("left", "said"), [
+    ("", "does not exist"),
+    (b"\x89HDF\r\n\x1a\n" + bytes(88), "held no finished window"),
+    (None, "held no finished window")], ids=["none", "cut-in-its-header", "no-window"])
+def test_resume_with_nothing_to_continue_is_said(tmp_path, left, said):
+    # probe AM: --resume on a mistyped --out started from the first window without a
+    # word; probe BH: a run killed before its first window left a .part (a 96-byte HDF5
+    # start, or a file with no window), which --resume dropped without a word
     from evmotion.errors import EvmotionWarning
 
     path = tmp_path / "f.h5"
     if left is None:
         FlowWriter(path, (4, 5)).f.close()
-    else:
+    elif left:
         (tmp_path / "f.h5.part").write_bytes(left)
-    assert (tmp_path / "f.h5.part").exists()
     with pytest.warns(EvmotionWarning, match=r"no interrupted run to continue \(.*f\.h5\.part "
-                                             r"held no finished window"):
+                                             + said):
         out = fo.open_flow_output(path, (4, 5), {}, n_windows=1, resume=True)
     out.append(np.zeros((4, 5, 2), np.float32), t0=0, t1=10)
     out.close()
