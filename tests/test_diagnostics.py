@@ -288,7 +288,7 @@ def test_cli_egomotion_reports_checks_and_warns_once(tmp_path, capsys):
     rec = tmp_path / "rec.h5"
     write_events(rec, object_before_static_scene())
     out = tmp_path / "ego"
-    rc = main(["egomotion", str(rec), "--warp", "translation", "--window-us", "60000",
+    rc = main(["egomotion", str(rec), "--warp", "translation", "--window-us", "50000",
                "--out", str(out), "--json", "--max-png", "0"])
     assert rc == 0
     cap = capsys.readouterr()
