@@ -39,6 +39,42 @@ def test_two_translations_are_separated():
     assert seg.valid.all() and (seg.gains > MIN_CLUSTER_GAIN).all()
 
 
+def object_on_background(seed: int, object_share: float) -> EventArray:
+    """Dots of a 90 px square object moving at (-80, 60) px/s, ``object_share`` of the
+    events, over dots of the whole 320 x 240 sensor moving at (50, 0), for 40 ms."""
+    rng = np.random.default_rng(seed)
+    n, span = 20_000, 40_000
+    parts = []
+    for share, per_dot, lo, hi, v in ((object_share, 40, (115, 75), (205, 165), (-80, 60)),
+                                      (1 - object_share, 20, (0, 0), (320, 240), (50, 0))):
+        p0 = rng.uniform(lo, hi, (int(share * n) // per_dot, 2))
+        t = rng.uniform(0, span, (len(p0), per_dot))
+        parts.append((p0[:, :1] + v[0] * t * 1e-6, p0[:, 1:] + v[1] * t * 1e-6, t))
+    x, y, t = (np.concatenate([q[i].ravel() for q in parts]) for i in range(3))
+    keep = (x >= 0) & (x <= 319) & (y >= 0) & (y <= 239)
+    o = np.argsort(t[keep], kind="stable")
+    return EventArray(np.round(x[keep][o]), np.round(y[keep][o]), t[keep][o].astype(np.int64),
+                      np.ones(o.size, int), (240, 320))
+
+
+@pytest.mark.parametrize(("seed", "share"), [(0, 0.7), (1, 0.5), (2, 0.5)])
+def test_an_object_that_gathers_the_spatial_split_leaves_the_background_found(seed, share):
+    """Probe BJ: the k-means of the events' positions put both clusters on a fast,
+    textured object; each took a part of it and its motion, and the background's motion
+    was never found. The default split also starts from the dominant motion's best
+    aligned half, and keeps the clusters that together sharpen the events most."""
+    ev = object_on_background(seed, share)
+    spatial = segment_motion(ev, 2, "translation", split="spatial")
+    assert np.abs(spatial.params[:, 0] - 50).min() > 10  # this scene defeats it
+    seg = segment_motion(ev, 2, "translation")
+    assert seg.split == "dominant"
+    got = seg.params[np.argsort(seg.params[:, 0])]
+    np.testing.assert_allclose(got, [[-80, 60], [50, 0]], atol=6)
+    assert seg.valid.all()
+    with pytest.raises(ParameterError, match="split must be one of"):
+        segment_motion(ev, 2, "translation", split="kmeans")
+
+
 def test_one_motion_split_in_two_is_one_measurement():
     # three clusters for two motions came back as three valid ones, two of them
     # (306, 0.5) and (301, -0.9) px/s: one object cut in half (probe T)

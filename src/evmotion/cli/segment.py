@@ -57,7 +57,13 @@ def add_parser(sub) -> None:
                    help="number of motion clusters (default 2)")
     p.add_argument("--iterations", type=positive_int(), default=10,
                    help="EM iterations (default 10)")
-    p.add_argument("--seed", type=int_range(0), default=0, help="seed of the initialization")
+    p.add_argument("--split", choices=("best", "dominant", "spatial"), default="best",
+                   help="how the events are first split among the clusters: 'dominant' "
+                        "(the motion sharpening them all takes the half it aligns best, the "
+                        "next the rest...), 'spatial' (k-means of positions), 'best' (both; "
+                        "the clusters that together sharpen the events most; default)")
+    p.add_argument("--seed", type=int_range(0), default=0,
+                   help="seed of the spatial split's k-means")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--window-events", type=int_range(10), help="events per window (default: 30000)")
     g.add_argument("--window-us", type=duration_us,
@@ -101,7 +107,8 @@ def run(args) -> int:
     K = None if cam is None else cam.K
     job = functools.partial(_segment_job, n_warps=args.warps, warp=args.warp,
                             objective=args.objective, K=K, t_ref=args.t_ref,
-                            n_iter=args.iterations, seed=args.seed, regularizer=args.reg,
+                            n_iter=args.iterations, seed=args.seed, split=args.split,
+                            regularizer=args.reg,
                             weight=args.weight, dataset=args.dataset)
     journal, done = Journal.open_run(out / JOURNAL_NAME, _journal_header(args, events, windows, K),
                                      events, windows, args.resume)
@@ -209,7 +216,7 @@ def _publish(args, out, windows, done, events) -> list[dict]:
                           f">= {MIN_CLUSTER_GAIN} with >= {MIN_CLUSTER_EVENTS} events)"},
         {"method": "segment", "warp": args.warp, "grid": args.grid,
          "objective": args.objective, "warps": args.warps, "iterations": args.iterations,
-         "seed": args.seed}))
+         "seed": args.seed, "split": args.split}))
     return rows
 
 
@@ -221,7 +228,7 @@ def _journal_header(args, events, windows, K) -> dict:
     w = windows[0]
     return {"warp": args.warp, "warps": args.warps, "objective": args.objective,
             "reg": args.reg, "weight": args.weight, "t_ref": args.t_ref, "seed": args.seed,
-            "iterations": args.iterations, "dataset": args.dataset,
+            "iterations": args.iterations, "dataset": args.dataset, "split": args.split,
             "window_events": args.window_events, "window_us": args.window_us,
             "t0": args.t0, "grid": args.grid, "remove_hot_pixels": args.remove_hot_pixels,
             "K": None if K is None else np.asarray(K, np.float64).round(9).tolist(),
