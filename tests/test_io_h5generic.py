@@ -236,3 +236,19 @@ def test_a_second_event_layout_is_said_and_the_header_described(tmp_path):
         _compound(f, "CD/events", {"geometry": "640x480"})
     d = eio.describe(one)
     assert d["n_events"] == N and tuple(d["sensor_size"]) == (480, 640)
+
+
+@pytest.mark.parametrize("chunks", [(1 << 20,), None])
+def test_declared_values_the_file_does_not_store_are_refused_before_reading(tmp_path,
+                                                                            chunks):
+    """Probe BL: a 2 KiB file declaring 50 M values per field (written without data) was
+    read as 50 M events at t = 0, 2.9 GB in memory; 3e9 took 23 GB and was killed."""
+    from evmotion.errors import FormatError
+
+    path = tmp_path / "empty.h5"
+    with h5py.File(path, "w") as f:
+        for k in "xytp":
+            f.create_dataset(k, shape=(50_000_000,), dtype="i8", chunks=chunks)
+    assert path.stat().st_size < 100_000
+    with pytest.raises(FormatError, match=r"empty\.h5: dataset '[xytp]' .*(stored|stores 0)"):
+        read_events(path)

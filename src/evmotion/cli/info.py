@@ -1,15 +1,15 @@
 """``evmotion info``: what a recording holds.
 
-Sensor size, event count, time range, duration, event rate, polarity balance, what else
-the file holds (APS frames, IMU, ground truth, calibration), and the camera intrinsics the
+Sensor size, event count, time range, duration, event rate, polarity balance, what else the
+file holds (APS frames, IMU, ground truth, calibration), and the camera intrinsics the
 recording brings (``intrinsics``: K = fx, fy, cx, cy in px, distortion k1 k2 p1 p2 k3,
-resolution and the file or header they come from). Events are streamed chunk by
-chunk, so memory stays bounded for any file size. A flow output of ``evmotion flow`` (any
-container, or a per-window pattern) is described by its container, windows, time range,
-units, grid and valid fraction; a parameters file (``egomotion``'s ``params.h5``,
-``segment``'s ``clusters.h5``) by its windows, parameters with their units, warp, grid,
-valid fraction and flags.
-"""
+resolution and the file or header they come from). Events are streamed chunk by chunk, so
+memory stays bounded for any file size (NumPy, MATLAB and other tools' HDF5 layouts are read
+whole: their declared sizes are checked against what the file stores). A flow output of
+``evmotion flow`` (any container, or a per-window pattern) is described by its container,
+windows, time range, units, grid and valid fraction; a parameters file (``egomotion``'s
+``params.h5``, ``segment``'s ``clusters.h5``) by its windows, parameters with their units,
+warp, grid, valid fraction and flags."""
 
 from __future__ import annotations
 

@@ -328,6 +328,15 @@ def check_h5_dataset(path, f, name: str, *, ndim: int, kinds: str,
     if dt.names is not None or dt.kind not in kinds or dt.itemsize > 8:
         raise FormatError(path, f"dataset '{name}' has dtype {dt}, expected a plain "
                           f"number of kind {'/'.join(kinds)}")
+    return check_h5_storage(path, obj, name)
+
+
+def check_h5_storage(path, obj, name: str):
+    """The dataset ``obj`` (named ``name``), its storage checked to cover its extent
+    inside the file: a corrupt shape or chunk size would otherwise make h5py return
+    gigabytes of fill values or decompress a huge chunk (a 2 KiB file declaring 3e9
+    values took 23 GB through another tool's layout, probe BL). FormatError otherwise."""
+    shape, dt = obj.shape, obj.dtype
     count = 1
     for s in shape:
         count *= int(s)

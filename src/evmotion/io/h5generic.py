@@ -32,6 +32,7 @@ from evmotion.events import EventArray
 from evmotion.io.base import EVENT_FIELD_NAMES, FormatSpec, event_fields, split_unit
 from evmotion.io.guard import (
     LARGEST_COORDINATE,
+    check_h5_storage,
     check_sensor_size,
     open_h5,
     warn_inferred_size,
@@ -192,7 +193,9 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
 
 
 def _load(path: Path, ds, name: str) -> np.ndarray:
-    """The whole dataset ``ds``; a compression filter this process lacks is named."""
+    """The whole dataset ``ds``, its storage checked first (:func:`check_h5_storage`); a
+    compression filter this process lacks is named."""
+    check_h5_storage(path, ds, name)
     try:
         return ds[()]
     except OSError as exc:
