@@ -293,3 +293,30 @@ def test_an_npz_under_another_name_is_recognised_by_content(tmp_path):
         z.writestr("a.txt", "x")
     with pytest.raises(FormatError, match="not recognised"):
         detect_format(tmp_path / "other.bin")
+
+
+def test_float_times_given_a_unit_they_are_not_in_or_too_coarse_are_said(tmp_path):
+    """Probe BL: float seconds with --time-unit us all fell on 0 us, unsaid; float32
+    seconds near 100 s step by 7.6 us, 1,959 distinct times read as 1,799, unsaid."""
+
+
+    from evmotion.errors import EvmotionWarning, FormatError
+    from evmotion.io import read_events
+
+    rng = np.random.default_rng(1)
+    t_us = 1018 + np.cumsum(rng.integers(1, 40, 5000))
+    cols = dict(x=np.arange(5000) % 64, y=np.arange(5000) % 48, p=np.arange(5000) % 2,
+                sensor_size=[48, 64])
+    np.savez(tmp_path / "s.npz", t=t_us / 1e6, **cols)
+    with pytest.raises(FormatError, match=r"not a whole number of us, and the times span "
+                                          r"under 1000 us: they are in seconds\?"):
+        read_events(tmp_path / "s.npz", time_unit="us")
+    assert read_events(tmp_path / "s.npz").t.tolist() == t_us.tolist()
+    np.savez(tmp_path / "f32.npz", t=(100 + t_us / 1e6).astype(np.float32), **cols)
+    with pytest.warns(EvmotionWarning, match=r"field 't' is float32: at 100\.\d+ s its "
+                                             r"values step by 7\.63 us"):
+        read_events(tmp_path / "f32.npz")
+    np.savez(tmp_path / "f64.npz", t=100 + t_us / 1e6, **cols)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_events(tmp_path / "f64.npz").t[0] == 100_000_000 + t_us[0]

@@ -65,7 +65,16 @@ def _time_us(t: np.ndarray, unit: str | None, how: str = "given") -> tuple[np.nd
             raise ValueError(f"times reach {max(abs(int(t.min())), abs(int(t.max())))} {unit}")
         return t.astype(np.int64) * int(scale), f"{unit} ({how})"
     with np.errstate(all="ignore"):
-        us = np.rint(t.astype(np.float64) * scale)
+        tf = t.astype(np.float64)
+        us = np.rint(tf * scale)
+    if (scale <= 1 and tf.size and np.isfinite(tf).all() and np.ptp(tf) < 1000
+            and (tf != np.rint(tf)).any()):
+        # float seconds read as µs or ns all fell on one or two µs ("0 .. 0 us", probe
+        # BL): fractions of a µs over less than a millisecond are no such times
+        k = int(np.argmax(tf != np.rint(tf)))
+        raise TimeResolutionError(f"a time of {tf[k]:.9g} is not a whole number of {unit}, "
+                                  f"and the times span under 1000 {unit}: they are in "
+                                  "seconds? (leave out --time-unit / time_unit)")
     if us.size and not (np.abs(us).max() <= MAX_ABS_TIME_US):  # also catches NaN
         bad = int(np.argmax(~(np.abs(us) <= MAX_ABS_TIME_US)))
         raise ValueError(f"event {bad} has t={t[bad]} {unit}")
@@ -135,6 +144,16 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
             raise FormatError(path, f"field 't': {exc}") from None
         raise FormatError(path, f"field 't': {exc}, not a time within +-2^62 us") from None
     meta["time_unit"] = unit
+    if t.dtype.kind == "f" and t.size:
+        # float32 seconds near 100 s step by 8 us: 1,959 distinct times read as 1,799,
+        # unsaid (probe BL); steps over 1 ms are refused by _time_us
+        top = float(np.abs(t).max())
+        step = float(np.spacing(np.asarray(top, t.dtype))) * TIME_UNIT_US[unit.split()[0]]
+        if step > 1:
+            warnings.warn(f"{path}: field 't' is {t.dtype}: at {top:.6g} {unit.split()[0]} "
+                          f"its values step by {step:.3g} us, so the times are rounded to "
+                          "that; store them as float64 or whole microseconds",
+                          EvmotionWarning, stacklevel=3)
     doubt = unit_doubt(t, unit) if guessed else None
     if doubt is not None:
         warnings.warn(f"{path}: field 't' {doubt}", EvmotionWarning, stacklevel=3)
