@@ -568,6 +568,19 @@ def _with_unit(text: str, default_scale: int) -> tuple[float, int]:
         return math.nan, scale
 
 
+def _decimal(text: str):
+    """The number of a time's text (its unit suffix left out) as a Decimal: exact, where
+    a float of '0.0010185' s is 1018.4999... µs."""
+    from decimal import Decimal
+
+    raw = str(text).strip()
+    for suffix in ("us", "µs", "ms", "s"):
+        if raw.lower().endswith(suffix):
+            raw = raw[: -len(suffix)].strip()
+            break
+    return Decimal(raw)
+
+
 class FromStart(int):
     """A time option given as ``+TIME``: that many µs after the recording's first event,
     made absolute by :func:`resolve_relative_times` before the command runs."""
@@ -584,14 +597,21 @@ def time_us(text: str) -> int:
     (1500000, 1500000, 250000, 2000000)
     >>> t = time_us("+10ms"); (t, isinstance(t, FromStart))
     (10000, True)
+    >>> time_us("0.0010185"), time_us("1018.5us"), time_us("1018.4us")  # next whole µs
+    (1019, 1019, 1019)
     """
     relative = isinstance(text, str) and text.strip().startswith("+")
-    v, scale = _with_unit(text.strip()[1:] if relative else text, _TIME_UNITS["s"])
+    body = text.strip()[1:] if relative else text
+    v, scale = _with_unit(body, _TIME_UNITS["s"])
     if not math.isfinite(v) or v < 0:
         raise argparse.ArgumentTypeError(
             f"must be a time >= 0 in seconds, or with a unit (e.g. 1.5, 1500ms, 1500000us), "
             f"or +TIME after the first event, got {text!r}")
-    return FromStart(round(v * scale)) if relative else int(round(v * scale))
+    # a fraction of a µs goes up to the next one, computed on the decimal text: events
+    # have whole µs, so [t0, t1) holds those at or after the next one, which '--t0
+    # 0.0010185' (float: 1018.4999...) and '1018.5us' had rounded apart (probe BL)
+    us = int(math.ceil(_decimal(body) * scale))
+    return FromStart(us) if relative else us
 
 
 time_us.__name__ = "time"
