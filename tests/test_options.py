@@ -98,3 +98,13 @@ def test_progress_in_a_log_is_a_line_now_and_then(monkeypatch, capsys):
     for _ in utils.progress(range(4), desc="flow", unit="win"):
         time.sleep(0.03)
     assert capsys.readouterr().err == ""
+
+
+def test_a_fraction_of_a_microsecond_goes_up_whatever_its_unit():
+    # probe BL: '--t0 0.0010185' (float: 1018.4999... µs) and '1018.5us' selected
+    # different events, and '1018.4us' kept the event at t = 1018
+    from evmotion.cli.options import time_us
+
+    assert {time_us(t) for t in ("0.0010185", "1018.5us", "1.0185ms", "1018.4us",
+                                 "+1018.0001us")} == {1019}
+    assert time_us("1.5") == 1_500_000 and time_us("1590000000.1234567") == 1590000000123457
