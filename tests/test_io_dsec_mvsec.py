@@ -272,3 +272,18 @@ def test_mvsec_imu_reads_with_gravity_telling_the_order(tmp_path, accel_first):
 
     assert main(["convert", str(path), str(tmp_path / "o.h5")]) == 0
     assert len(eio.read_imu(tmp_path / "o.h5")) == k
+
+
+def test_events_before_zero_are_refused_by_the_dsec_and_ecd_writers_naming_the_file(
+        tmp_path):
+    # probe BL: convert wrote a DSEC file with t_offset -1000 us that the reader then
+    # refused as a corrupt header; the ECD writer's refusal named no file
+    from evmotion.errors import ParameterError
+    from evmotion.events import EventArray
+    from evmotion.io import dsec, ecd
+
+    ev = EventArray(x=[1, 2], y=[1, 2], t=[-500, 300], p=[1, 0], sensor_size=(4, 4))
+    for mod, name in ((dsec, "neg.h5"), (ecd, "neg.txt")):
+        with pytest.raises(ParameterError, match=rf"cannot write .*{name}: .*-500"):
+            mod.write(tmp_path / name, ev)
+        assert not (tmp_path / name).exists()

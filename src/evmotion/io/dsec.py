@@ -209,11 +209,16 @@ def write(path: str | os.PathLike, events: EventArray, *, t_offset: int | None =
     if t_offset is None:
         t_offset = int(t[0] // 1000 * 1000) if len(events) else 0
     rel = t - int(t_offset)
+    if not 0 <= int(t_offset) <= 10**17:
+        # (written, it was then refused as "a corrupt header" by the reader, probe BL)
+        raise ParameterError(f"cannot write {path}: DSEC's t_offset must lie in [0, 1e17] "
+                             f"us, these events start at t={int(t[0]) if len(t) else 0} us")
     if len(events) and (rel.min() < 0 or rel.max() >= 2**32):
-        raise ParameterError(f"times relative to t_offset={t_offset} us must fit in uint32 "
-                             f"(got {rel.min()}..{rel.max()})")
+        raise ParameterError(f"cannot write {path}: times relative to t_offset={t_offset} us "
+                             f"must fit in uint32 (got {rel.min()}..{rel.max()})")
     if events.x.dtype.kind == "f":
-        raise ParameterError("DSEC stores integer pixels; these events are undistorted")
+        raise ParameterError(f"cannot write {path}: DSEC stores integer pixels; these events "
+                             "are undistorted")
     kw: dict = {}
     if compression == "zstd":
         if not register_filters():

@@ -961,8 +961,12 @@ def write(path: str | Path, events: EventArray | Iterator[EventArray], *,
                     h, w = ev.sensor_size
                     fh.write(f"# evmotion ECD text: t[s] x y p; sensor height {h} width "
                              f"{w}\n".encode())
-                for s in range(0, len(ev), 200_000):
-                    fh.write(format_text(ev[s:s + 200_000]))
+                try:
+                    for s in range(0, len(ev), 200_000):
+                        fh.write(format_text(ev[s:s + 200_000]))
+                except ParameterError as exc:
+                    # (the file was not named, probe BL)
+                    raise ParameterError(f"cannot write {path}: {exc}") from None
 
 
 def _in_folder(path: str | Path, name: str) -> Path:
