@@ -407,3 +407,20 @@ def test_polarities_minus_one_and_zero_without_plus_one_are_refused(tmp_path, su
             t, x, y, p, strict=True)))
     with pytest.raises(FormatError, match="but no \\+1: neither 0/1 nor -1/\\+1"):
         read_events(path, sensor_size=(4, 4))
+
+
+def test_compressed_or_utf16_files_are_named_as_such(tmp_path):
+    # probe BL: a gzip'd events.txt and a UTF-16 one were "format not recognised"
+    import gzip
+    import zipfile
+
+    text = "0.000500 3 4 1\n0.001000 5 6 0\n"
+    (tmp_path / "ev.txt.gz").write_bytes(gzip.compress(text.encode()))
+    (tmp_path / "u16.txt").write_text(text, encoding="utf-16")
+    with zipfile.ZipFile(tmp_path / "rec.zip", "w") as z:
+        z.writestr("events.txt", text)
+    for name, said in (("ev.txt.gz", "is gzip-compressed.*gunzip"),
+                       ("u16.txt", "is text in UTF-16.*UTF-8"),
+                       ("rec.zip", "is a zip archive.*extract")):
+        with pytest.raises(FormatError, match=said):
+            eio.read_events(tmp_path / name)

@@ -572,3 +572,23 @@ def test_chunks_say_how_far_into_the_file_they_are(tmp_path, block_bytes):
     out = tmp_path / "events.txt"
     ecd.write(out, random_events(40_000, (180, 240), 2_000_000))
     assert_chunks_track_the_file(ecd, out, 40_000, block_bytes)
+
+
+def test_other_labs_text_variants(tmp_path):
+    """Probe BL: a '#' comment among the events was 'not t[s] x y p numbers' (the docs
+    allow comments); pandas' to_csv with its index (a first column named '') had '5
+    column(s), expected 4'; a True / False polarity was 'format not recognised'."""
+    from evmotion.io import read_events
+
+    lines = [f"{0.001 + k * 1e-5:.6f} {k} {k + 1} {k % 2}" for k in range(6)]
+    (tmp_path / "mid.txt").write_text("\n".join(lines[:3] + ["# a note", "  # indented"]
+                                                + lines[3:]) + "\n")
+    ev = read_events(tmp_path / "mid.txt")
+    assert ev.x.tolist() == list(range(6)) and ev.t[-1] == 1050
+    (tmp_path / "pandas.csv").write_text(",t,x,y,p\n" + "".join(
+        f"{k},{line.replace(' ', ',')}\n" for k, line in enumerate(lines)))
+    ev = read_events(tmp_path / "pandas.csv")
+    assert ev.x.tolist() == list(range(6)) and ev.y.tolist() == list(range(1, 7))
+    (tmp_path / "bool.csv").write_text("t,x,y,p\n0.001,1,2,True\n0.002,3,4,False\n")
+    with pytest.raises(FormatError, match="True / False.*1 and 0"):
+        read_events(tmp_path / "bool.csv")

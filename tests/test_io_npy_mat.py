@@ -291,7 +291,8 @@ def test_an_npz_under_another_name_is_recognised_by_content(tmp_path):
     assert read_events(tmp_path / "o.bin").t.tolist() == [10, 20]
     with zipfile.ZipFile(tmp_path / "other.bin", "w") as z:
         z.writestr("a.txt", "x")
-    with pytest.raises(FormatError, match="not recognised"):
+    # (said as what it is since probe BL: "format not recognised" before)
+    with pytest.raises(FormatError, match="is a zip archive, not a recording"):
         detect_format(tmp_path / "other.bin")
 
 

@@ -420,7 +420,24 @@ def _times_us(tcol: np.ndarray, unit: str) -> np.ndarray:
     return t.astype(np.int64)
 
 
+def _blank_comments(data: bytes) -> bytes:
+    """``data`` with each line that starts with ``#`` (after spaces) turned into spaces
+    of the same length: comments anywhere in a file, not only above its events (a
+    comment line among them was 'not t[s] x y p numbers', probe BL); the offsets the
+    errors name stay right.
+
+    Examples
+    --------
+    >>> _blank_comments(b"1 2 3 1\\n# note\\n4 5 6 0\\n")
+    b'1 2 3 1\\n      \\n4 5 6 0\\n'
+    """
+    if b"#" not in data:
+        return data
+    return re.sub(rb"(?m)^[ \t]*#[^\n]*", lambda m: b" " * len(m.group(0)), data)
+
+
 def _parse_block(data: bytes, path: Path, offset: int, unit: str, order: str = "txyp"):
+    data = _blank_comments(data)
     if unit == "s" and order == "txyp":
         return parse_text(data, path, offset)
     rows = data.replace(b",", b" ").replace(b";", b" ").split()
@@ -570,11 +587,16 @@ def _names_and_unit(line: bytes) -> tuple[str, str | None] | None:
     """``(order, time unit or None)`` of a line of column names, or None when it is not
     one."""
     try:
-        fields = [f.lower() for f in re.split(r"[\s,;]+", line.decode().strip()) if f]
+        text = line.decode().strip()
     except UnicodeDecodeError:
         return None
+    # a comma-separated header keeps its empty names: pandas' to_csv writes its index as
+    # a first column named '' (",t,x,y,p"), read past as any other column (probe BL)
+    sep = r"\s*[,;]\s*" if re.search(r"[,;]", text) else r"\s+"
+    fields = [f.lower() for f in re.split(sep, text)]
     if not 4 <= len(fields) <= MAX_TEXT_COLUMNS or \
-            not all(re.fullmatch(r"[a-zµ_\[\]()][a-zµ_\[\]()0-9]*", f) for f in fields):
+            not all(re.fullmatch(r"[a-zµ_\[\]()][a-zµ_\[\]()0-9]*", f)
+                    for f in fields if f):
         return None
     named = event_fields(fields)
     if named is None or len(set(named.values())) != 4:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import re
 from pathlib import Path
 
 from evmotion.errors import FormatError
@@ -52,6 +53,26 @@ def get_format(name: str) -> FormatSpec:
             return f
     names = [f.name for f in all_formats()]
     raise FormatError(None, f"unknown format '{name}'", f"known formats: {', '.join(names)}")
+
+
+# the first bytes of compressed files and of text in a wide encoding, what they are, and
+# what to do
+_PACKED = ((b"\x1f\x8b", "gzip-compressed", "decompress it first, e.g. with gunzip"),
+           (b"BZh", "bzip2-compressed", "decompress it first, e.g. with bunzip2"),
+           (b"\xfd7zXZ\x00", "xz-compressed", "decompress it first, e.g. with unxz"),
+           (b"\x28\xb5\x2f\xfd", "zstd-compressed", "decompress it first, e.g. with unzstd"),
+           (b"PK\x03\x04", "a zip archive", "extract the recording from it"),
+           (b"\xff\xfe", "text in UTF-16", "save it as UTF-8 or ASCII text"),
+           (b"\xfe\xff", "text in UTF-16", "save it as UTF-8 or ASCII text"))
+
+
+def _packed(head: bytes) -> tuple[str, str] | None:
+    """``(what, hint)`` of a file that holds a recording only once unpacked or re-encoded
+    (compressed, zipped, UTF-16 text), from its first bytes; None otherwise."""
+    for magic, what, hint in _PACKED:
+        if head.startswith(magic):
+            return what, hint
+    return None
 
 
 def detect_format(path: str | os.PathLike) -> str:
@@ -150,6 +171,15 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
             raise FormatError(path, "is a list of frames ('t path' lines), not events",
                               "give its folder, which holds the events too; bos also "
                               "takes it as --frames beside a recording")
+        if re.search(rb"(?m)^[^#%\n]*\b(True|False)\b", head):
+            # pandas writes a bool column so (probe BL: "format not recognised")
+            raise FormatError(path, "holds words True / False where numbers are read (a "
+                              "polarity column of booleans?)", "write them as 1 and 0")
+        packed = _packed(head)
+        if packed is not None:
+            # (a bare "format not recognised", probe BL)
+            raise FormatError(path, f"is {packed[0]}, not a recording evmotion reads as it is",
+                              packed[1])
         if path.suffix.lower() == ".raw":
             # Prophesee's words without the '%' header that names their encoding
             raise FormatError(path, "a .raw file with no '%' header: its encoding and "
