@@ -300,3 +300,20 @@ def test_convert_progress_has_a_total_where_no_header_counts_events(tmp_path, ca
     # tqdm's "n/total [elapsed<left, rate]" (a bare "n [elapsed, rate]" without a total)
     shown = re.findall(r"([\d.]+k?)/([\d.]+k?) \[\d\d:\d\d<\d\d:\d\d", err)
     assert shown and shown[-1] == ("6.00k", "6.00k"), err[-500:]
+
+
+@pytest.mark.parametrize("chunk", ["1000", "250"])  # the pause inside a chunk, or between
+def test_convert_says_a_pause_that_looks_like_a_corrupt_time(tmp_path, capsys, chunk):
+    # probe BL: one corrupt EVT3 time field moved half a file 16.8 s on; info and
+    # read_events said so, convert wrote it unsaid
+    from evmotion.io import write_events
+
+    t = np.arange(1000) * 100
+    t[500:] += 20_000_000
+    write_events(tmp_path / "j.h5", EventArray(x=np.arange(1000) % 50, y=np.arange(1000) % 40,
+                                               t=t, p=np.arange(1000) % 2,
+                                               sensor_size=(40, 50)))
+    assert main(["convert", str(tmp_path / "j.h5"), str(tmp_path / "j.txt"),
+                 "--chunk-events", chunk]) == 0
+    err = capsys.readouterr().err
+    assert "no event for 20 s between events 499 and 500" in err, err

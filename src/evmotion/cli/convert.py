@@ -98,7 +98,9 @@ def run(args) -> int:
     if args.time_unit is not None:
         check_time_unit(args.time_unit, src, fmt_in)
         kw["time_unit"] = args.time_unit
-    counted = {"n": 0, "t_first": None, "t_last": None}
+    # the longest pause between events: one corrupt time field moved half an EVT3 file
+    # 16.8 s on, which info and read_events said and convert wrote unsaid (probe BL)
+    counted = {"n": 0, "t_first": None, "t_last": None, "gap": (0, 0)}
 
     def chunks():
         if args.sort:
@@ -117,6 +119,7 @@ def run(args) -> int:
                 if args.invert_polarity:
                     chunk = chunk.with_polarity_inverted()
                 if len(chunk):
+                    _longest_pause(counted, chunk.t)
                     counted["n"] += len(chunk)
                     if counted["t_first"] is None:
                         counted["t_first"] = int(chunk.t[0])
@@ -159,6 +162,11 @@ def run(args) -> int:
     for name, (n, why) in dropped.items():
         what = "calibration" if name == "calibration" else f"{n:,} {_AUX_NAMES[name]}"
         warn_line(f"{dst}: dropped the {what} of {src}: {why}")
+    if counted["n"] > 1:
+        from evmotion.io.read import warn_time_jump
+
+        warn_time_jump(src, *counted["gap"], counted["t_last"] - counted["t_first"],
+                       counted["n"])
     summary = {"input": str(src), "format_in": fmt_in, "output": str(dst),
                "format_out": fmt_out, "n_events": counted["n"],
                "t_first_us": counted["t_first"], "t_last_us": counted["t_last"],
@@ -176,6 +184,24 @@ def run(args) -> int:
 
 
 _AUX_NAMES = {"imu": "IMU samples", "frames": "APS frames"}
+
+
+def _longest_pause(counted: dict, t) -> None:
+    """Update ``counted["gap"]`` = (longest pause in µs, index of the event before it)
+    with a chunk's times ``t``, ``counted["n"]`` and ``["t_last"]`` being the events
+    before it."""
+    import numpy as np
+
+    t = np.asarray(t, np.int64)
+    if counted["t_last"] is not None:
+        t = np.concatenate([[counted["t_last"]], t])
+    if t.size < 2:
+        return
+    d = np.diff(t)
+    k = int(np.argmax(d))
+    if int(d[k]) > counted["gap"][0]:
+        before = counted["n"] - (1 if counted["t_last"] is not None else 0)
+        counted["gap"] = (int(d[k]), before + k)
 
 
 def _has_calibration(src, first) -> bool:
