@@ -424,3 +424,13 @@ def test_compressed_or_utf16_files_are_named_as_such(tmp_path):
                        ("rec.zip", "is a zip archive.*extract")):
         with pytest.raises(FormatError, match=said):
             eio.read_events(tmp_path / name)
+
+
+def test_time_unit_for_a_format_that_states_its_own_is_refused_in_words(tmp_path):
+    # probe BL: "dat read: got an unexpected keyword argument 'time_unit'"
+    ev = EventArray(x=[1, 2], y=[0, 1], t=[10, 20], p=[1, 0], sensor_size=(4, 5))
+    eio.write_events(tmp_path / "r.dat", ev)
+    for call in (eio.read_events, lambda p, **kw: next(eio.iter_events(p, 10, **kw))):
+        with pytest.raises(ParameterError, match=r"time_unit='ms': .*r\.dat is 'dat', whose "
+                                                 r"times carry their unit"):
+            call(tmp_path / "r.dat", time_unit="ms")

@@ -85,6 +85,7 @@ def read_events(path: str | os.PathLike, format: str | None = None, t0: int | No
     _check_span(t0, t1)
     _check_sensor_size(kw)
     spec = resolve_format(path, format)
+    _check_time_unit(path, spec, kw)
     events = spec.read(Path(path), t0=t0, t1=t1, **kw)
     if warn_empty and (t0 is not None or t1 is not None) and not len(events):
         _warn_outside(path, format, t0, t1, kw)
@@ -101,6 +102,18 @@ def _check_path(path) -> None:
     if not isinstance(path, (str, os.PathLike)):
         raise ParameterError(f"path must be a str or a path-like object, got "
                              f"{type(path).__name__} {path!r}")
+
+
+def _check_time_unit(path, spec, kw: dict) -> None:
+    """``time_unit=`` refused in words for a format whose times carry their unit (it was
+    "dat read: got an unexpected keyword argument 'time_unit'", probe BL)."""
+    import inspect
+
+    if kw.get("time_unit") is not None and \
+            "time_unit" not in inspect.signature(spec.read).parameters:
+        raise ParameterError(f"time_unit={kw['time_unit']!r}: {path} is '{spec.name}', "
+                             "whose times carry their unit; it applies to text, NumPy, "
+                             "MATLAB, MVSEC-layout and other tools' HDF5 files")
 
 
 def _check_sensor_size(kw: dict) -> None:
@@ -242,6 +255,7 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
     _check_sensor_size(kw)
     path = Path(path)
     spec = resolve_format(path, format)
+    _check_time_unit(path, spec, kw)
     if window_us is not None and windows is not None:
         raise ParameterError("give window_us or windows, not both")
     if windows is not None:
