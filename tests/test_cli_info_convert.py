@@ -317,3 +317,15 @@ def test_convert_says_a_pause_that_looks_like_a_corrupt_time(tmp_path, capsys, c
                  "--chunk-events", chunk]) == 0
     err = capsys.readouterr().err
     assert "no event for 20 s between events 499 and 500" in err, err
+
+
+def test_a_recording_named_like_another_format_is_described_as_its_own(tmp_path, capsys):
+    # probe BL: an EVT2 file named .aedat4 read as EVT2, but info added AEDAT4 frames'
+    # "bad magic" error, the extension steering part of the description
+    from evmotion.io import write_events
+
+    write_events(tmp_path / "r.aedat4", EventArray(x=[1, 2], y=[0, 1], t=[10, 20], p=[1, 0],
+                                                   sensor_size=(40, 50)), format="evt2")
+    assert main(["info", str(tmp_path / "r.aedat4"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["format"] == "evt2" and "frames_info" not in doc

@@ -84,7 +84,10 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     out.setdefault("frames", 0)
     out.setdefault("imu", 0)
     try:
-        frames = describe_frames(path)
+        # (an EVT2 file named .aedat4 was described as AEDAT4 frames, "bad magic", by its
+        # extension: probe BL)
+        frames = (describe_frames(path) if path.is_dir() or spec.name == "aedat4"
+                  or path.suffix.lower() != ".aedat4" else None)
     except FormatError as exc:
         frames = {"error": str(exc)}
     if frames is not None:
