@@ -592,3 +592,14 @@ def test_other_labs_text_variants(tmp_path):
     (tmp_path / "bool.csv").write_text("t,x,y,p\n0.001,1,2,True\n0.002,3,4,False\n")
     with pytest.raises(FormatError, match="True / False.*1 and 0"):
         read_events(tmp_path / "bool.csv")
+
+
+def test_a_garbage_calib_txt_leaves_the_events_readable(tmp_path):
+    # probe BL: "calib.txt must hold numbers" stopped the folder's events being read
+    from evmotion.errors import EvmotionWarning
+
+    (tmp_path / "events.txt").write_text("0.000500 3 4 1\n0.001000 5 6 0\n")
+    (tmp_path / "calib.txt").write_text("garbage\n")
+    with pytest.warns(EvmotionWarning, match=r"calib\.txt must hold numbers.*not used"):
+        ev = ecd.read(tmp_path)
+    assert ev.t.tolist() == [500, 1000] and "calibration" not in ev.meta

@@ -654,7 +654,13 @@ def _folder_meta(ev_path: Path) -> dict:
     folder = ev_path.parent
     meta: dict = {}
     if (folder / "calib.txt").is_file():
-        meta["calibration"] = read_calibration(folder / "calib.txt")
+        try:
+            meta["calibration"] = read_calibration(folder / "calib.txt")
+        except FormatError as exc:
+            # the events are read all the same (a garbage calib.txt stopped them, probe
+            # BL); what needs intrinsics then says it has none
+            warnings.warn(EvmotionWarning(f"{exc} (not used: no calibration taken from "
+                                          "the folder)"), stacklevel=4)
     for name in ("imu.txt", "groundtruth.txt", "images.txt"):
         if (folder / name).is_file():
             meta[name.removesuffix(".txt")] = str(folder / name)
