@@ -3,6 +3,8 @@ the same recording, vectorized words, 24-bit wrap, streaming state and writer ro
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -254,3 +256,21 @@ def test_a_file_without_its_header_reads_with_format_and_size(tmp_path, fmt):
                        r"size .*--sensor-size H W"):
         read_events(bare, format=fmt)
     assert_same_events(read_events(bare, format=fmt, sensor_size=(180, 240)), ev)
+
+
+@pytest.mark.parametrize("fmt", ["evt3", "dat"])
+def test_a_file_cut_within_a_word_says_how_to_read_the_rest(tmp_path, fmt):
+    # probe BL: the raw and dat refusals said only "the file was cut short"
+    import evmotion.io as eio
+
+    ev = EventArray(x=np.arange(200) % 30, y=np.arange(200) % 20, t=np.arange(200) * 7,
+                    p=np.arange(200) % 2, sensor_size=(20, 30))
+    path = tmp_path / f"r.{'raw' if fmt == 'evt3' else 'dat'}"
+    eio.write_events(path, ev, format=fmt)
+    whole = path.read_bytes()
+    path.write_bytes(whole[:-1])
+    with pytest.raises(FormatError, match=r"stray byte.*head -c (\d+) FILE > TRIMMED") as exc:
+        eio.read_events(path)
+    keep = int(re.search(r"head -c (\d+)", str(exc.value)).group(1))
+    path.write_bytes(whole[:keep])
+    assert 0 < len(eio.read_events(path)) <= 200

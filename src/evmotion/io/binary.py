@@ -294,8 +294,7 @@ def iter_blocks(path: Path, offset: int, block_bytes: int, word_bytes: int
                     raise FormatError(
                         path, f"truncated: {len(buf) % word_bytes} stray byte(s) at byte offset "
                         f"{pos + cut}, where a {word_bytes}-byte word was expected",
-                        "the file was cut short; the events before that offset are readable "
-                        "with a copy trimmed to a whole number of words")
+                        _trim_hint(pos + cut))
             yield pos, buf
             pos += len(buf)
 
@@ -412,4 +411,11 @@ def trailing_partial(path: Path, offset: int, word_bytes: int) -> None:
         cut = size - (size - offset) % word_bytes
         raise FormatError(path, f"truncated: {(size - offset) % word_bytes} stray byte(s) at "
                           f"byte offset {cut}, where a {word_bytes}-byte word was expected",
-                          "the file was cut short")
+                          _trim_hint(cut))
+
+
+def _trim_hint(whole: int) -> str:
+    """How to read the whole words of a file cut short at byte ``whole`` (the raw and
+    dat refusals said only that it was cut, probe BL)."""
+    return (f"the file was cut short; the events before are readable from a copy trimmed "
+            f"to {whole} bytes: head -c {whole} FILE > TRIMMED")
