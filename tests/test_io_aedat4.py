@@ -179,3 +179,22 @@ def test_a_packet_of_an_undeclared_stream_is_said(tmp_path):
     path = _one_packet_file_patched(tmp_path, 0, struct.pack("<i", 77))
     with pytest.warns(EvmotionWarning, match=r"skipped 1 packet\(s\) of stream id\(s\) \[77\]"):
         assert len(aedat4.read(path)) == 0  # its only event packet
+
+
+def test_a_negative_pixel_is_named_as_such(tmp_path):
+    # probe BL: an int16 x of -3 was said as "x=65533 outside the sensor"
+    import struct
+
+    from evmotion.errors import FormatError
+    from evmotion.events import EventArray
+    from evmotion.io import aedat4
+
+    path = tmp_path / "r.aedat4"
+    aedat4.write(path, EventArray(x=[7777, 2], y=[5, 6], t=[10, 20], p=[1, 0],
+                                  sensor_size=(8000, 8000)), compression="none")
+    data = path.read_bytes()
+    assert data.count(struct.pack("<h", 7777)) == 1
+    path.write_bytes(data.replace(struct.pack("<h", 7777), struct.pack("<h", -3)))
+    with pytest.raises(FormatError, match=r"event 0 of the EVTS packet .* has x=-3: pixel "
+                                          r"coordinates start at 0"):
+        aedat4.read(path)

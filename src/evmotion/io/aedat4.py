@@ -277,6 +277,13 @@ def _event_blocks(path: Path, sid: int) -> Iterator[binary.Block]:
             ev = np.frombuffer(buf, EVENT_DTYPE, count=n, offset=start)
         except (struct.error, ValueError):
             raise FormatError(path, f"corrupt EVTS packet at byte offset {pos}") from None
+        for name in ("x", "y"):
+            # (an int16 -3 was said as 65533 "outside the sensor", probe BL)
+            if n and ev[name].min() < 0:
+                k = int(np.argmax(ev[name] < 0))
+                raise FormatError(path, f"event {k} of the EVTS packet at byte offset {pos} "
+                                  f"has {name}={int(ev[name][k])}: pixel coordinates start "
+                                  "at 0 (a corrupt packet?)")
         yield (ev["x"].astype(np.uint16), ev["y"].astype(np.uint16),
                np.ascontiguousarray(ev["t"]), ev["on"].astype(np.uint8))
 
