@@ -186,3 +186,15 @@ def test_imu6_packets_read_in_si_units_and_convert_keeps_them(tmp_path):
     from evmotion.io import read_imu
 
     assert len(read_imu(tmp_path / "o.h5")) == 2
+
+
+def test_the_aedat3_extension_names_the_format_to_write(tmp_path):
+    # probe BL: 'convert in.h5 o.aedat3' could not tell the output format
+    import evmotion.io as eio
+    from evmotion.events import EventArray
+
+    ev = EventArray(x=[1, 2], y=[0, 1], t=[10, 20], p=[1, 0], sensor_size=(4, 5))
+    assert eio.format_for_output(tmp_path / "o.aedat3") == "aedat3"
+    eio.write_events(tmp_path / "o.aedat3", ev)
+    assert eio.detect_format(tmp_path / "o.aedat3") == "aedat3"
+    assert eio.read_events(tmp_path / "o.aedat3").t.tolist() == [10, 20]

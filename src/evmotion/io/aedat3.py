@@ -389,5 +389,5 @@ def _sniff(path: Path, head: bytes) -> bool:
     return head.startswith(MAGIC) and head[len(MAGIC):len(MAGIC) + 1] in (b"0", b"1")
 
 
-FORMAT = FormatSpec(name="aedat3", extensions=(".aedat",), sniff=_sniff, read=read,
+FORMAT = FormatSpec(name="aedat3", extensions=(".aedat", ".aedat3"), sniff=_sniff, read=read,
                     iter_chunks=iter_chunks, write=write, describe=describe)
