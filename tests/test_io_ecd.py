@@ -603,3 +603,15 @@ def test_a_garbage_calib_txt_leaves_the_events_readable(tmp_path):
     with pytest.warns(EvmotionWarning, match=r"calib\.txt must hold numbers.*not used"):
         ev = ecd.read(tmp_path)
     assert ev.t.tolist() == [500, 1000] and "calibration" not in ev.meta
+
+
+def test_a_companion_table_of_other_columns_is_not_counted_as_samples(tmp_path):
+    # probe BL: info counted an 8-column imu.txt as 2 IMU samples; convert then dropped
+    # them as unreadable
+    (tmp_path / "events.txt").write_text("0.000500 3 4 1\n0.001000 5 6 0\n")
+    (tmp_path / "imu.txt").write_text("0.01 0 0 9.8 0.1 0 0 5\n0.02 0 0 9.8 0.1 0 0 5\n")
+    d = ecd.describe(tmp_path)
+    assert d["imu"] == 0 and d["imu_error"] == "imu.txt has 8 columns, expected 7"
+    (tmp_path / "imu.txt").write_text("0.01 0 0 9.8 0.1 0 0\n0.02 0 0 9.8 0.1 0 0\n")
+    d = ecd.describe(tmp_path)
+    assert d["imu"] == 2 and "imu_error" not in d

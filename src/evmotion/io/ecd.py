@@ -1192,6 +1192,10 @@ def read_calibration(path: str | Path) -> dict:
     return out
 
 
+# the columns of the ECD's companion tables (images.txt's paths may hold spaces)
+_COMPANION_COLUMNS = {"imu.txt": 7, "groundtruth.txt": 8}
+
+
 def describe(path: str | Path) -> dict:
     """What an ECD folder holds besides events (calibration, IMU, ground truth, frames)."""
     path = Path(path)
@@ -1206,7 +1210,14 @@ def describe(path: str | Path) -> dict:
         if f.exists():
             f = _to_read(f, name)
             with open(f, "rb") as fh:
-                out[key] = sum(1 for line in fh if line.strip() and not line.startswith(b"#"))
+                rows = [line for line in fh if line.strip() and not line.startswith(b"#")]
+            out[key] = len(rows)
+            want = _COMPANION_COLUMNS.get(name)
+            got = len(rows[0].replace(b",", b" ").split()) if rows else want
+            if want is not None and got != want:
+                # counted as samples that convert then dropped as unreadable (probe BL)
+                out[key] = 0
+                out[f"{key}_error"] = f"{name} has {got} columns, expected {want}"
     if "frames" not in out:
         # Loose PNGs are not ECD frames (no timestamps); count them but do not size from them.
         out["frames"] = 0
