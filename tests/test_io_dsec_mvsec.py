@@ -161,7 +161,8 @@ def test_mvsec_layout_with_microseconds_is_questioned_and_read_as_told(tmp_path)
     arr[:, 2] = np.round((arr[:, 2] - arr[0, 2]) * 1e6)  # µs from 0, 2 kev/s
     with h5py.File(path, "r+") as f:
         f["davis/left/events"][...] = arr
-    with pytest.warns(EvmotionWarning, match=r"microseconds\? If so, read with --time-unit us"):
+    with pytest.warns(EvmotionWarning, match=r"microseconds \(or milliseconds\)\? If so, "
+                                             r"read with --time-unit us"):
         eio.read_events(path)
     with pytest.warns(EvmotionWarning, match="microseconds"):
         next(iter(mvsec.iter_chunks(path, 4000)))

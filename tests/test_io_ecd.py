@@ -428,11 +428,11 @@ def test_ns_of_a_short_recording_and_whole_milliseconds_are_questioned(tmp_path)
             assert (hint in text) == (hint == said), text
 
 
-SIZE = (50, 70)
+SIZE = (200, 200)
 
 
 @pytest.mark.parametrize(("scale", "fmt", "said"), [
-    (1e-3, "{:.6f}", "milliseconds? If so, read with --time-unit ms"),  # decimal ms
+    (1e-3, "{:.6f}", "milliseconds (or microseconds)? If so, read with --time-unit ms"),
     (1e3, "{:.0f}", "nanoseconds? If so, read with --time-unit ns"),  # ns off whole µs
     (1e-6, "{:.6f}", None),  # ECD's seconds at 120 kev/s
 ])
@@ -442,11 +442,13 @@ def test_a_sniffed_unit_at_a_rate_no_camera_makes_is_questioned(tmp_path, scale,
     from evmotion.errors import EvmotionWarning
 
     n = 15_000
-    # (a sensor of 3500 pixels: 120 kev/s on 35 would be 3400 events/s per pixel, which
-    # no sensor averages, and the times' rate is questioned as too dense)
+    # (events over a 200 x 200 sensor: 120 kev/s on 35 pixels would be 3400 events/s a
+    # pixel, which no sensor averages; read 1000x long, the rate is judged on the pixels
+    # that fired)
     t_us = np.arange(n) * 8.333 + 17.0  # 120 kev/s: as ms read as s, 125 s at 120 ev/s
-    (tmp_path / "e.txt").write_text("".join(f"{fmt.format(v * scale)} {i % 7} {i % 5} "
-                                            f"{i % 2}\n" for i, v in enumerate(t_us)))
+    (tmp_path / "e.txt").write_text("".join(f"{fmt.format(v * scale)} {i % 200} "
+                                            f"{i // 200 % 200} {i % 2}\n"
+                                            for i, v in enumerate(t_us)))
     with warnings.catch_warnings(record=True) as rec:
         warnings.simplefilter("always")
         ev = ecd.read(tmp_path / "e.txt", sensor_size=SIZE)

@@ -207,7 +207,7 @@ def test_times_at_a_rate_per_pixel_no_sensor_makes_are_questioned(tmp_path, caps
             warnings.simplefilter("always")
             ev = read_events(path, **kw)
         return ev, " ".join(str(w.message) for w in rec
-                            if "events/s per pixel" in str(w.message))
+                            if "If so, read with --time-unit" in str(w.message))
 
     ev, text = said(tmp_path / "ms_int.npz")
     assert "read as microseconds" in text and "--time-unit ms" in text and "large" in text
@@ -218,9 +218,41 @@ def test_times_at_a_rate_per_pixel_no_sensor_makes_are_questioned(tmp_path, caps
     assert "read as seconds" in text and "--time-unit ms" in text and "small" in text
     _, text = said(tmp_path / "ms_dec.txt", sensor_size=(240, 320), time_unit="ms")
     assert not text
-    # a unit given wrongly is questioned too, and the right ones are not
+    # a unit given wrongly is questioned too where it makes the recording sparse, and
+    # the right ones are not; a dense one given is the user's word (probe BM)
     _, text = said(tmp_path / "us.npz", time_unit="ms")
     assert "read as milliseconds, given" in text and "--time-unit us" in text
     assert not said(tmp_path / "us.npz")[1]
+    assert not said(tmp_path / "ms_int.npz", time_unit="us")[1]
     rc, _, err = _run(capsys, "info", str(tmp_path / "ms_int.npz"))
     assert rc == 0 and "--time-unit ms" in err
+
+
+
+def test_quiet_recordings_or_a_lit_region_in_the_right_unit_are_not_questioned(tmp_path):
+    """Probe BM: a still 64x64 sensor's noise (0.05 events/s a pixel, 60 s, integer µs)
+    was told 'nanoseconds?' (a rule on the total rate), and events in a 64x64 region of
+    a 1280x720 sensor (2 events/s a pixel, 40 s) too (the rate over the whole sensor);
+    float milliseconds read as seconds were told 'microseconds?'."""
+    rng = np.random.default_rng(2)
+
+    def noise(side, hz, seconds, region=None):
+        n = int(side * side * hz * seconds)
+        t = np.sort(rng.integers(0, int(seconds * 1e6), n))
+        return rng.integers(0, side, n), rng.integers(0, side, n), t
+
+    x, y, t = noise(64, 0.05, 60)
+    np.savez(tmp_path / "quiet.npz", x=x, y=y, t=t, p=t % 2, sensor_size=[64, 64])
+    x, y, t = noise(64, 2.0, 40)
+    np.savez(tmp_path / "roi.npz", x=x + 600, y=y + 300, t=t, p=t % 2,
+             sensor_size=[720, 1280])
+    np.savez(tmp_path / "quiet_ms.npz", x=x, y=y, t=t / 1000.0, p=t % 2,
+             sensor_size=[64, 64])
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        read_events(tmp_path / "quiet.npz")
+        read_events(tmp_path / "roi.npz")
+        read_events(tmp_path / "quiet_ms.npz")
+    said = [str(w.message) for w in rec if "If so, read with" in str(w.message)]
+    assert len(said) == 1 and "quiet_ms.npz" in said[0], said
+    assert "milliseconds (or microseconds)? If so, read with --time-unit ms" in said[0]

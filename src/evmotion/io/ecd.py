@@ -37,7 +37,7 @@ from evmotion.io.guard import (
     time_to_us,
 )
 from evmotion.io.pngfile import read_png
-from evmotion.io.timedoubt import rate_doubt, unit_doubt
+from evmotion.io.timedoubt import rate_doubt
 from evmotion.jitcache import lazy_njit
 from evmotion.utils import atomic_path, is_file
 
@@ -796,26 +796,20 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
         x = y = t = p = np.zeros(0, np.int64)
     if src.startswith("ECD default") and x.size and x.min() >= 0 and y.min() >= 0:
         size, src = _extended_size(ev_path, size, src, int(x.max()), int(y.max()))
-    _doubt_unit(ev_path, t, unit, size[0] * size[1], given=time_unit is not None)
+    _doubt_unit(ev_path, t, x, y, size, unit, given=time_unit is not None)
     return _to_events(ev_path, x, y, t, p, size, src, validate, _folder_meta(ev_path),
                       whole=t0 is None and t1 is None)
 
 
-def _doubt_unit(path: Path, t_us: np.ndarray, unit: str, n_pixels: int, given: bool
-                ) -> None:
-    """Warn where the sniffed or ``given`` ``unit`` gives the times (``t_us``, µs) a rate
-    no event camera makes: decimal milliseconds read as seconds, nanoseconds not on whole
-    µs read as µs (those on whole µs the sniffer names itself), or events denser or
-    sparser per pixel than a sensor makes (:func:`~evmotion.io.timedoubt.rate_doubt`)."""
-    doubt = None
-    if given:
-        pass
-    elif unit == "s":
-        doubt = unit_doubt(t_us * 1e-6, "s (inferred)")
-    elif unit == "us" and np.any(t_us % 1000):
-        doubt = unit_doubt(t_us, "us (inferred)")
-    if doubt is None:
-        doubt = rate_doubt(t_us, n_pixels, f"{unit} ({'given' if given else 'inferred'})")
+def _doubt_unit(path: Path, t_us: np.ndarray, x: np.ndarray, y: np.ndarray,
+                sensor_size: tuple[int, int], unit: str, given: bool) -> None:
+    """Warn where the sniffed or ``given`` ``unit`` gives the times (``t_us``, µs) of
+    events at ``x, y`` a rate no event camera makes
+    (:func:`~evmotion.io.timedoubt.rate_doubt`): decimal milliseconds read as seconds,
+    nanoseconds not on whole µs read as µs (those on whole µs the sniffer names
+    itself)."""
+    doubt = rate_doubt(t_us, x, y, sensor_size,
+                       f"{unit} ({'given' if given else 'inferred'})", given=given)
     if doubt is not None:
         warnings.warn(EvmotionWarning(f"{path}: the time column {doubt}"), stacklevel=4)
 
@@ -880,7 +874,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
             if validate:
                 _check_follows(last_t, ev)
             if last_t is None:
-                _doubt_unit(ev_path, ev.t, unit, size[0] * size[1],
+                _doubt_unit(ev_path, ev.t, ev.x, ev.y, size, unit,
                             given=time_unit is not None)
             last_t = int(ev.t[-1])
             yield ev
@@ -891,7 +885,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
         if validate:
             _check_follows(last_t, ev)
         if last_t is None:
-            _doubt_unit(ev_path, ev.t, unit, size[0] * size[1], given=time_unit is not None)
+            _doubt_unit(ev_path, ev.t, ev.x, ev.y, size, unit, given=time_unit is not None)
         yield ev
 
 

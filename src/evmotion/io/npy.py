@@ -178,7 +178,10 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
         meta["sensor_size_from"] = "max coordinate (no sensor size in the file)"
     h, w = check_sensor_size(path, sensor_size)
     if doubt is None:
-        doubt = rate_doubt(t_us, h * w, unit)  # a unit given, too: --time-unit mistyped
+        # a unit given too (--time-unit mistyped); float times all whole numbers read as
+        # seconds are µs stored as floats
+        whole = t.dtype.kind == "f" and bool(np.all(t == np.rint(t)))
+        doubt = rate_doubt(t_us, x, y, (h, w), unit, given=not guessed, whole=whole)
         if doubt is not None:
             warnings.warn(f"{path}: field 't' {doubt}", EvmotionWarning, stacklevel=3)
     if p.size and not np.all(np.isin(p, (-1, 0, 1))):
