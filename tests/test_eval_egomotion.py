@@ -231,3 +231,29 @@ def test_cli_eval_rotation_against_an_imu_or_a_table_of_angular_velocities(tmp_p
     capsys.readouterr()
     assert main(["eval", str(trans), "--gt", str(folder)]) == 2
     assert "scores the rotation warp's parameters" in capsys.readouterr().err
+
+
+def test_imu_tables_beside_other_files_headers_and_degrees(tmp_path, capsys):
+    """Probe BM: a 5-column --gt table beside an imu.txt was scored against that imu.txt
+    under the table's name; a header line 't gx gy gz' was refused; degrees/s were
+    scored unsaid; a window that is no measurement was also counted beyond the
+    samples."""
+    _, truth, out = _simulated_rotation_estimated(tmp_path, capsys)
+    omega = np.asarray(truth.angular_velocity(), np.float64).reshape(-1, 3)[0]
+    t = np.arange(0, 0.07, 0.001)
+    side = tmp_path / "side"
+    side.mkdir()
+    np.savetxt(side / "imu.txt", np.column_stack([t, np.zeros((t.size, 3)),
+                                                  np.full((t.size, 3), 9.0)]))
+    (side / "one5.txt").write_text("0.5 -1.0 0.3 0.1 0.2\n")
+    assert main(["eval", str(out), "--gt", str(side / "one5.txt")]) == 2
+    assert "one5.txt: 5 columns: an angular-velocity table has" in capsys.readouterr().err
+    table = np.column_stack([t, np.tile(omega, (t.size, 1))])
+    (tmp_path / "hdr.csv").write_text("t,gx,gy,gz\n" + "\n".join(
+        ",".join(f"{v:.9f}" for v in row) for row in table) + "\n")
+    assert main(["eval", str(out), "--gt", str(tmp_path / "hdr.csv"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["parameters_rms"]["omega"] < 0.2
+    np.savetxt(tmp_path / "deg.txt", np.column_stack([t, np.tile(np.degrees(omega) + 40,
+                                                                 (t.size, 1))]))
+    assert main(["eval", str(out), "--gt", str(tmp_path / "deg.txt")]) == 0
+    assert "in degrees/s? Give rad/s" in capsys.readouterr().err

@@ -119,7 +119,8 @@ def add_parser(sub) -> None:
     p.add_argument("--imu-axes", default=None, metavar="AXES",
                    help="with egomotion's rotation parameters and an IMU or angular-velocity "
                         "table as --gt: the camera's x,y,z as the IMU's signed axes, e.g. "
-                        "-x,y,-z (default x,y,z: the same)")
+                        "--imu-axes=-x,y,-z (with '=' where it starts with '-'; default "
+                        "x,y,z: the same)")
     p.add_argument("--along-streamlines", action="store_true",
                    help="compare the displacement of the point at each pixel at the window "
                         "start: the window's flow (taken at its midpoint) transported to the "
@@ -455,25 +456,45 @@ def _angular_velocity_reference(args):
     a table of them, a folder's imu.txt, a recording's IMU), or None where it is a flow
     ground truth. ("--gt imu.txt" was parsed as a DSEC timestamps file, and an ECD folder
     with its imu.txt "holds no ground truth", probe BJ.)"""
-    from evmotion.io.angvel import is_angular_velocity_table, read_angular_velocity
+    from pathlib import Path
+
+    from evmotion.io import detect_format
+    from evmotion.io.angvel import (
+        is_angular_velocity_table,
+        read_angular_velocity,
+        text_columns,
+    )
     from evmotion.io.flowfiles import read_gt_flow
 
     axes = args.imu_axes or "x,y,z"
-    if is_angular_velocity_table(args.gt):
-        return read_angular_velocity(args.gt, axes=axes)
+    gt = Path(args.gt)
+    text = gt.is_file() and gt.suffix.lower() in (".txt", ".csv")
+    # a text file of other than 2 columns (DSEC's flow timestamps) is a table or nothing:
+    # its errors were DSEC's "from_us, to_us" (probe BM)
+    if is_angular_velocity_table(gt) or (text and text_columns(gt) != 2):
+        return read_angular_velocity(gt, axes=axes)
     try:
-        read_gt_flow(args.gt)
+        read_gt_flow(gt)
     except FormatError as flow_error:
         try:
-            return read_angular_velocity(args.gt, axes=axes)
+            return read_angular_velocity(gt, axes=axes)
         except FormatError:
-            raise flow_error from None
+            try:
+                detect_format(gt)  # a recording: its own words ("holds no IMU samples")
+            except FormatError:
+                raise flow_error from None
+            raise
     return None
+
+
+#: The fastest rate a camera's gyroscope measures (2000 degrees/s, the usual top range):
+#: beyond, a table is likely in degrees/s.
+MAX_GYRO_RAD_S = 35.0
 
 
 def _run_angular_velocity(args, path: Path, table, ref) -> int:
     """The rotation's angular velocity of each window against reference samples."""
-    from evmotion.cli import print_json
+    from evmotion.cli import print_json, warn_line
     from evmotion.eval.egomotion import angular_velocity_errors
 
     reject_unused(args, {"--events": "events", "--out-px": "out_px"},
@@ -482,7 +503,12 @@ def _run_angular_velocity(args, path: Path, table, ref) -> int:
     if reason and not rms:
         raise ParameterError(f"{path} against {args.gt}: {reason}")
     unmeasured = int((~np.asarray(table.valid, bool)).sum())
-    beyond = sum(r["n_samples"] < 0 for r in rows)
+    # (windows that are no measurement were counted beyond the samples too, probe BM)
+    beyond = sum(r["n_samples"] < 0 and r["valid"] for r in rows)
+    fastest = float(np.abs(ref.omega).max())
+    if fastest > MAX_GYRO_RAD_S:
+        warn_line(f"{args.gt}: angular velocities reach {fastest:.4g} rad/s, beyond a "
+                  f"gyroscope's range ({MAX_GYRO_RAD_S:g} rad/s): in degrees/s? Give rad/s")
     axes = args.imu_axes or "x,y,z"
     what = ("one constant angular velocity" if ref.t is None else
             f"{len(ref):,} samples")

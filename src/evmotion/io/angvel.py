@@ -26,7 +26,7 @@ import numpy as np
 from evmotion.errors import FormatError, ParameterError
 
 __all__ = ["AngularVelocity", "is_angular_velocity_table", "parse_axes",
-           "read_angular_velocity"]
+           "read_angular_velocity", "text_columns"]
 
 # the layouts of a text table, by their number of columns: where the gyroscope is
 _GYRO_COLUMNS = {3: slice(0, 3), 4: slice(1, 4), 7: slice(4, 7)}
@@ -76,12 +76,13 @@ def is_angular_velocity_table(path: str | os.PathLike) -> bool:
         return (p / "imu.txt").is_file() or (p / "motion.txt").is_file()
     if p.suffix.lower() not in (".txt", ".csv") or not p.is_file():
         return False
-    return _columns(p) in _GYRO_COLUMNS
+    return text_columns(p) in _GYRO_COLUMNS
 
 
-def _columns(path: Path) -> int | None:
-    """The number of numeric columns of a text table's first data line, None if it has
-    none."""
+def text_columns(path: str | os.PathLike) -> int | None:
+    """The number of numeric columns of a text table's first data line (past one header
+    line of names, ``t gx gy gz``), None if it has none."""
+    header = False
     try:
         with open(path, encoding="utf-8", errors="replace") as fh:
             for line in fh:
@@ -92,7 +93,11 @@ def _columns(path: Path) -> int | None:
                 try:
                     [float(f) for f in fields]
                 except ValueError:
-                    return None
+                    if header or not all(re.fullmatch(r"[A-Za-z_][\w\[\]/()]*", f)
+                                         for f in fields):
+                        return None
+                    header = True  # a line of column names (probe BM: refused)
+                    continue
                 return len(fields)
     except OSError:
         return None
@@ -127,6 +132,13 @@ def read_angular_velocity(path: str | os.PathLike, *, axes: str = "x,y,z",
         p = next((p / n for n in ("imu.txt", "motion.txt") if (p / n).is_file()), p)
     if p.is_file() and is_angular_velocity_table(p):
         t, omega = _read_table(p)
+    elif p.is_file() and p.suffix.lower() in (".txt", ".csv"):
+        # a text file is a table or nothing: read as a recording, a 5-column table beside
+        # an imu.txt was scored against that imu.txt (probe BM)
+        cols = text_columns(p)
+        raise FormatError(p, f"{'no numeric line' if cols is None else f'{cols} columns'}: "
+                          "an angular-velocity table has 't gx gy gz' (s, rad/s), the ECD's "
+                          "'t ax ay az gx gy gz', or one line 'gx gy gz'")
     else:
         from evmotion.io import read_imu
 
@@ -145,14 +157,19 @@ def read_angular_velocity(path: str | os.PathLike, *, axes: str = "x,y,z",
 
 
 def _read_table(path: Path) -> tuple[np.ndarray | None, np.ndarray]:
+    text = path.read_text(encoding="utf-8", errors="replace")
+    rows = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if rows and re.search(r"[A-Za-z_]", rows[0].replace("e-", "").replace("e+", "")):
+        rows = rows[1:]  # its header line of names
     try:
-        arr = np.loadtxt(path, ndmin=2, comments="#", encoding="utf-8")
-    except ValueError:
-        try:
-            arr = np.loadtxt(path, ndmin=2, comments="#", delimiter=",", encoding="utf-8")
-        except ValueError as exc:
-            raise FormatError(path, f"cannot read the table of angular velocities: {exc}"
-                              ) from None
+        arr = np.array([[float(v) for v in re.split(r"[\s,;]+", ln.strip())] for ln in rows],
+                       dtype=np.float64)
+    except ValueError as exc:
+        raise FormatError(path, f"cannot read the table of angular velocities: {exc}"
+                          ) from None
+    if arr.ndim != 2 or not arr.size:
+        raise FormatError(path, "holds no angular velocity sample, or lines of different "
+                          "lengths")
     cols = arr.shape[1]
     if cols not in _GYRO_COLUMNS:
         raise FormatError(path, f"{cols} columns: an angular-velocity table has 't gx gy "
