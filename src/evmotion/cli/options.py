@@ -553,32 +553,24 @@ def reject_unused(args: argparse.Namespace, options: dict[str, str], reason: str
 _TIME_UNITS = {"us": 1, "µs": 1, "ms": 1_000, "s": 1_000_000}
 
 
+def _split_unit(text: str, default_scale: int) -> tuple[str, int]:
+    """``(number's text, us per unit)`` of a time with an optional ``us``/``µs``/``ms``/
+    ``s`` suffix (``default_scale`` without one)."""
+    raw = str(text).strip()
+    for suffix in ("us", "µs", "ms", "s"):  # "ms" and "us" before "s"
+        if raw.lower().endswith(suffix):
+            return raw[: -len(suffix)].strip(), _TIME_UNITS[suffix]
+    return raw, default_scale
+
+
 def _with_unit(text: str, default_scale: int) -> tuple[float, int]:
     """``(number, us per unit)`` of a time with an optional ``us``/``µs``/``ms``/``s``
     suffix (``default_scale`` without one); the number NaN when it is not one."""
-    raw = str(text).strip()
-    body, scale = raw, default_scale
-    for suffix in ("us", "µs", "ms", "s"):  # "ms" and "us" before "s"
-        if raw.lower().endswith(suffix):
-            body, scale = raw[: -len(suffix)].strip(), _TIME_UNITS[suffix]
-            break
+    body, scale = _split_unit(text, default_scale)
     try:
         return float(body), scale
     except ValueError:
         return math.nan, scale
-
-
-def _decimal(text: str):
-    """The number of a time's text (its unit suffix left out) as a Decimal: exact, where
-    a float of '0.0010185' s is 1018.4999... µs."""
-    from decimal import Decimal
-
-    raw = str(text).strip()
-    for suffix in ("us", "µs", "ms", "s"):
-        if raw.lower().endswith(suffix):
-            raw = raw[: -len(suffix)].strip()
-            break
-    return Decimal(raw)
 
 
 class FromStart(int):
@@ -600,17 +592,20 @@ def time_us(text: str) -> int:
     >>> time_us("0.0010185"), time_us("1018.5us"), time_us("1018.4us")  # next whole µs
     (1019, 1019, 1019)
     """
+    from decimal import Decimal
+
     relative = isinstance(text, str) and text.strip().startswith("+")
-    body = text.strip()[1:] if relative else text
-    v, scale = _with_unit(body, _TIME_UNITS["s"])
+    body, scale = _split_unit(text.strip()[1:] if relative else text, _TIME_UNITS["s"])
+    v, _ = _with_unit(body, scale)
     if not math.isfinite(v) or v < 0:
         raise argparse.ArgumentTypeError(
             f"must be a time >= 0 in seconds, or with a unit (e.g. 1.5, 1500ms, 1500000us), "
             f"or +TIME after the first event, got {text!r}")
-    # a fraction of a µs goes up to the next one, computed on the decimal text: events
-    # have whole µs, so [t0, t1) holds those at or after the next one, which '--t0
-    # 0.0010185' (float: 1018.4999...) and '1018.5us' had rounded apart (probe BL)
-    us = int(math.ceil(_decimal(body) * scale))
+    # a fraction of a µs goes up to the next one, computed on the decimal text (a float
+    # of '0.0010185' s is 1018.4999... µs): events have whole µs, so [t0, t1) holds those
+    # at or after the next one, which '--t0 0.0010185' and '1018.5us' had rounded apart
+    # (probe BL)
+    us = int(math.ceil(Decimal(body) * scale))
     return FromStart(us) if relative else us
 
 
