@@ -59,11 +59,11 @@ from evmotion.cli.options import (
     HelpFormatter,
     add_sensor_size_argument,
     add_time_unit_argument,
-    check_time_unit,
     existing_input,
     int_range,
     positive_float,
     positive_int,
+    read_kwargs,
     reject_unused,
 )
 from evmotion.errors import (
@@ -434,10 +434,7 @@ def _events_on_grid(args, attrs: dict):
 
     path = args.events
     # (--sensor-size, which the reader's own warning names, was no option here, probe BK)
-    kw = {"format": args.format, "sensor_size": args.sensor_size and tuple(args.sensor_size),
-          "time_unit": args.time_unit}
-    check_time_unit(args.time_unit, path, args.format)
-    events = read_events(path, **{k: v for k, v in kw.items() if v})
+    events = read_events(path, **read_kwargs(args, path))
     grid = str(attrs.get("grid", ""))
     if not grid.startswith("undistorted (K=") or events.x.dtype.kind == "f":
         return events
@@ -451,11 +448,12 @@ def _events_on_grid(args, attrs: dict):
     return moved
 
 
-def _angular_velocity_reference(args):
-    """The angular velocities --gt holds (:func:`evmotion.io.angvel.read_angular_velocity`:
-    a table of them, a folder's imu.txt, a recording's IMU), or None where it is a flow
-    ground truth. ("--gt imu.txt" was parsed as a DSEC timestamps file, and an ECD folder
-    with its imu.txt "holds no ground truth", probe BJ.)"""
+def _ground_truth(args):
+    """What --gt holds: ``(angular velocities, None)``
+    (:func:`evmotion.io.angvel.read_angular_velocity`: a table of them, a folder's
+    imu.txt, a recording's IMU), or ``(None, flow)`` for a flow ground truth, read once.
+    ("--gt imu.txt" was parsed as a DSEC timestamps file, and an ECD folder with its
+    imu.txt "holds no ground truth", probe BJ.)"""
     from pathlib import Path
 
     from evmotion.io import detect_format
@@ -472,19 +470,18 @@ def _angular_velocity_reference(args):
     # a text file of other than 2 columns (DSEC's flow timestamps) is a table or nothing:
     # its errors were DSEC's "from_us, to_us" (probe BM)
     if is_angular_velocity_table(gt) or (text and text_columns(gt) != 2):
-        return read_angular_velocity(gt, axes=axes)
+        return read_angular_velocity(gt, axes=axes), None
     try:
-        read_gt_flow(gt)
+        return None, read_gt_flow(gt)
     except FormatError as flow_error:
         try:
-            return read_angular_velocity(gt, axes=axes)
+            return read_angular_velocity(gt, axes=axes), None
         except FormatError:
             try:
                 detect_format(gt)  # a recording: its own words ("holds no IMU samples")
             except FormatError:
                 raise flow_error from None
             raise
-    return None
 
 
 #: The fastest rate a camera's gyroscope measures (2000 degrees/s, the usual top range):
@@ -570,7 +567,6 @@ def _run_egomotion(args, path: Path) -> int:
     alone, their flow's FWL."""
     from evmotion.cli import print_json
     from evmotion.eval.egomotion import evaluate_egomotion, sharpness_egomotion
-    from evmotion.io.flowfiles import read_gt_flow
     from evmotion.io.paramsfiles import read_params
 
     reject_unused(args, {"--t0-us": "t0_us", "--t1-us": "t1_us",
@@ -589,7 +585,7 @@ def _run_egomotion(args, path: Path) -> int:
                              "params.h5, one motion per window")
     if not len(table):
         raise ParameterError(f"{path} holds no window")
-    reference = _angular_velocity_reference(args) if args.gt is not None else None
+    reference, gt = _ground_truth(args) if args.gt is not None else (None, None)
     if reference is not None:
         return _run_angular_velocity(args, path, table, reference)
     reject_unused(args, {"--imu-axes": "imu_axes"}, "to a flow ground truth (it maps an "
@@ -605,7 +601,6 @@ def _run_egomotion(args, path: Path) -> int:
         except EventDataError as exc:
             raise ParameterError(f"--events {args.events} against {path}: {exc}") from None
         return _report_sharpness(args, rows)
-    gt = read_gt_flow(args.gt)
     _warn_grids(path, table.attrs, args.gt, gt.attrs)
     truth = _sim_truth(args.gt)
     # a file written before the sensor size and K were recorded: the ground truth's

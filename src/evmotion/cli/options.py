@@ -736,17 +736,19 @@ def check_time_unit(time_unit: str | None, path, fmt: str | None) -> None:
                              f"and other tools' HDF5 inputs{hint}")
 
 
-def read_kwargs(args) -> dict:
+def read_kwargs(args, path: str | os.PathLike | None = None) -> dict:
     """The reader options of ``--format``, ``--sensor-size`` and ``--time-unit``, as given
-    (``--time-unit`` checked against the recording's format)."""
+    (``--time-unit`` checked against the format of the recording: ``path``, default the
+    command's positional one)."""
     kw = {}
     if getattr(args, "format", None):
         kw["format"] = args.format
     if getattr(args, "sensor_size", None):
         kw["sensor_size"] = tuple(args.sensor_size)
     if getattr(args, "time_unit", None):
-        path = next((getattr(args, n) for n in RECORDING_ATTRS
-                     if isinstance(getattr(args, n, None), (str, os.PathLike))), None)
+        if path is None:
+            path = next((getattr(args, n) for n in RECORDING_ATTRS
+                         if isinstance(getattr(args, n, None), (str, os.PathLike))), None)
         check_time_unit(args.time_unit, path, kw.get("format"))
         kw["time_unit"] = args.time_unit
     return kw
