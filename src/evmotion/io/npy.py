@@ -48,7 +48,10 @@ _DEFLATE_MAX_RATIO = 1032
 ZIP_MAGIC = b"PK\x03\x04"
 
 
-def _time_us(t: np.ndarray, unit: str | None, how: str = "given") -> tuple[np.ndarray, str]:
+def _time_us(t: np.ndarray, unit: str | None, how: str = "given"
+             ) -> tuple[np.ndarray, str, float]:
+    """``(times in whole µs, the unit's label, the µs a float time steps by where the
+    times are largest (0 for integers))``; ValueError for times no µs hold."""
     if unit is None:
         unit = "s" if t.dtype.kind == "f" else "us"
         how = "inferred (float -> s, integer -> us)"
@@ -63,7 +66,7 @@ def _time_us(t: np.ndarray, unit: str | None, how: str = "given") -> tuple[np.nd
     if t.dtype.kind in "iu" and scale >= 1:
         if t.size and max(abs(int(t.min())), abs(int(t.max()))) * scale > MAX_ABS_TIME_US:
             raise ValueError(f"times reach {max(abs(int(t.min())), abs(int(t.max())))} {unit}")
-        return t.astype(np.int64) * int(scale), f"{unit} ({how})"
+        return t.astype(np.int64) * int(scale), f"{unit} ({how})", 0.0
     with np.errstate(all="ignore"):
         tf = t.astype(np.float64)
         us = np.rint(tf * scale)
@@ -78,6 +81,7 @@ def _time_us(t: np.ndarray, unit: str | None, how: str = "given") -> tuple[np.nd
     if us.size and not (np.abs(us).max() <= MAX_ABS_TIME_US):  # also catches NaN
         bad = int(np.argmax(~(np.abs(us) <= MAX_ABS_TIME_US)))
         raise ValueError(f"event {bad} has t={t[bad]} {unit}")
+    step = 0.0
     if t.dtype.kind == "f" and t.size:
         # float32 seconds since the epoch (1.6e9) step by 128 s: every event of a window
         # at one time, read without a word (probe)
@@ -88,7 +92,7 @@ def _time_us(t: np.ndarray, unit: str | None, how: str = "given") -> tuple[np.nd
                 f"{t.dtype} times reaching {float(top):.6g} {unit} step by {step:.3g} us "
                 f"there ({np.unique(t).size:,} distinct times for {t.size:,} events): store "
                 "them as float64 or whole microseconds")
-    return us.astype(np.int64), f"{unit} ({how})"
+    return us.astype(np.int64), f"{unit} ({how})", step
 
 
 # the coarsest step of float times accepted: event cameras stamp microseconds
@@ -136,7 +140,7 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
     if guessed and format_unit is not None:
         time_unit, how = format_unit, f"{format_name}'s"
     try:
-        t_us, unit = _time_us(t, time_unit, how)
+        t_us, unit, step = _time_us(t, time_unit, how)
     except ValueError as exc:
         if isinstance(exc, ParameterError):
             raise
@@ -144,16 +148,14 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
             raise FormatError(path, f"field 't': {exc}") from None
         raise FormatError(path, f"field 't': {exc}, not a time within +-2^62 us") from None
     meta["time_unit"] = unit
-    if t.dtype.kind == "f" and t.size:
+    if step > 1:
         # float32 seconds near 100 s step by 8 us: 1,959 distinct times read as 1,799,
         # unsaid (probe BL); steps over 1 ms are refused by _time_us
         top = float(np.abs(t).max())
-        step = float(np.spacing(np.asarray(top, t.dtype))) * TIME_UNIT_US[unit.split()[0]]
-        if step > 1:
-            warnings.warn(f"{path}: field 't' is {t.dtype}: at {top:.6g} {unit.split()[0]} "
-                          f"its values step by {step:.3g} us, so the times are rounded to "
-                          "that; store them as float64 or whole microseconds",
-                          EvmotionWarning, stacklevel=3)
+        warnings.warn(f"{path}: field 't' is {t.dtype}: at {top:.6g} {unit.split()[0]} "
+                      f"its values step by {step:.3g} us, so the times are rounded to "
+                      "that; store them as float64 or whole microseconds",
+                      EvmotionWarning, stacklevel=3)
     doubt = unit_doubt(t, unit) if guessed else None
     if doubt is not None:
         warnings.warn(f"{path}: field 't' {doubt}", EvmotionWarning, stacklevel=3)
@@ -178,10 +180,8 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
         meta["sensor_size_from"] = "max coordinate (no sensor size in the file)"
     h, w = check_sensor_size(path, sensor_size)
     if doubt is None:
-        # a unit given too (--time-unit mistyped); float times all whole numbers read as
-        # seconds are µs stored as floats
-        whole = t.dtype.kind == "f" and bool(np.all(t == np.rint(t)))
-        doubt = rate_doubt(t_us, x, y, (h, w), unit, given=not guessed, whole=whole)
+        # a unit given too (--time-unit mistyped)
+        doubt = rate_doubt(t_us, x, y, (h, w), unit, given=not guessed, raw=t)
         if doubt is not None:
             warnings.warn(f"{path}: field 't' {doubt}", EvmotionWarning, stacklevel=3)
     if p.size and not np.all(np.isin(p, (-1, 0, 1))):

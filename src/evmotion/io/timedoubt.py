@@ -73,7 +73,7 @@ def unit_doubt(t: np.ndarray, unit: str) -> str | None:
 
 def rate_doubt(t_us: np.ndarray, x: np.ndarray, y: np.ndarray,
                sensor_size: tuple[int, int], unit: str, *, given: bool = False,
-               whole: bool = False) -> str | None:
+               raw: np.ndarray | None = None) -> str | None:
     """What makes the times ``t_us`` (µs, as read in ``unit``, a reader's label such as
     ``"us (inferred ...)"``) of events at pixels ``x, y`` of a sensor of ``sensor_size``
     doubtful, as the rest of a warning about field 't', or None:
@@ -83,8 +83,8 @@ def rate_doubt(t_us: np.ndarray, x: np.ndarray, y: np.ndarray,
       read as seconds, probe BK; a unit ``given`` wrongly). Counted on the pixels that
       fired, not the sensor's: a lit region of a large sensor is no sparse recording
       (probe BM). The unit one step finer is named, and from seconds both milliseconds
-      and microseconds, the latter first where the times read were ``whole`` numbers
-      (µs stored as floats) or under :data:`MICROSECONDS_RATE`;
+      and microseconds, the latter first where the times as read (``raw``) are floats
+      all whole numbers (µs stored as floats) or under :data:`MICROSECONDS_RATE`;
     - dense, for a guessed unit only (a unit given is the user's word: probe BM): at least
       10,000 events at more than :data:`MAX_PIXEL_RATE` events/s per sensor pixel
       (integer milliseconds read as µs, probe BJ).
@@ -121,6 +121,8 @@ def rate_doubt(t_us: np.ndarray, x: np.ndarray, y: np.ndarray,
             # seconds that are milliseconds or microseconds: the rate cannot tell a quiet
             # recording in ms from a busy one in µs; the likelier first (probe BM)
             finer = [UNITS[at - 1]] + (["us"] if read == "s" else [])
+            whole = raw is not None and raw.dtype.kind == "f" and bool(
+                np.all(raw == np.rint(raw)))
             if read == "s" and (whole or each < MICROSECONDS_RATE):
                 finer.reverse()
             other = finer[0]
