@@ -288,7 +288,7 @@ def _em(cost, prob: np.ndarray, params: np.ndarray, n_iter: int, tol: float, sig
     """Expectation-maximization from memberships ``prob`` and parameters ``params``:
     ``(params, memberships, focus history, each cluster's membership-weighted IWE)``."""
     w = cost.warp
-    n, n_warps = prob.shape
+    n_warps = prob.shape[1]
     history: list[float] = []
     for _ in range(n_iter):
         focus = 0.0
@@ -300,11 +300,8 @@ def _em(cost, prob: np.ndarray, params: np.ndarray, n_iter: int, tol: float, sig
             params[j] = res.x
             focus += -res.fun
         history.append(focus)
-        like = np.empty((n, n_warps))
-        for j in range(n_warps):
-            xw, yw = w.warp(cost.x, cost.y, cost.dt, params[j])
-            img = accumulate(xw, yw, cost.shape, prob[:, j], kernel="gaussian", sigma=sigma)
-            like[:, j] = _bilinear_sample(img, xw, yw)
+        like = np.stack([_aligned(cost, params[j], prob[:, j], sigma)
+                         for j in range(n_warps)], axis=1)
         like += 1e-9
         new = like / like.sum(axis=1, keepdims=True)
         change = float(np.abs(new - prob).max())
@@ -314,6 +311,15 @@ def _em(cost, prob: np.ndarray, params: np.ndarray, n_iter: int, tol: float, sig
     iwes = np.stack([accumulate(*w.warp(cost.x, cost.y, cost.dt, params[j]), cost.shape,
                                 prob[:, j]) for j in range(n_warps)])
     return params, prob, history, iwes
+
+
+def _aligned(cost, params: np.ndarray, weights: np.ndarray, sigma: float) -> np.ndarray:
+    """How well each event lines up with the others under the warp ``params``: the
+    Gaussian IWE of the ``weights``-weighted events, sampled at its warped position (the
+    E-step's likelihood)."""
+    xw, yw = cost.warp.warp(cost.x, cost.y, cost.dt, params)
+    img = accumulate(xw, yw, cost.shape, weights, kernel="gaussian", sigma=sigma)
+    return _bilinear_sample(img, xw, yw)
 
 
 def _dominant_split(cost, n_warps: int, scale, sigma: float) -> np.ndarray:
@@ -329,9 +335,7 @@ def _dominant_split(cost, n_warps: int, scale, sigma: float) -> np.ndarray:
         cost.normalize_focus()
         fit = gradient_minimize(cost.value_grad, np.zeros(w.n_params), "bfgs", scale=scale,
                                 max_iter=30)
-        xw, yw = w.warp(cost.x, cost.y, cost.dt, fit.x)
-        img = accumulate(xw, yw, cost.shape, cost.weights, kernel="gaussian", sigma=sigma)
-        aligned = _bilinear_sample(img, xw, yw)
+        aligned = _aligned(cost, fit.x, cost.weights, sigma)
         mine = free & (aligned >= np.median(aligned[free]))
         labels[mine] = j
         free &= ~mine
