@@ -238,6 +238,23 @@ def keep_for_resume(path: str | os.PathLike) -> None:
     _KEPT_FOR_RESUME.append(Path(path))
 
 
+def warn_nothing_to_resume(path: str | os.PathLike, why: str = "does not exist") -> None:
+    """Say that ``--resume`` found no interrupted run to continue at ``path`` (``why``:
+    it ``"does not exist"``, or held no finished window) and starts from the first window:
+    a mistyped --out resumed nothing without a word (probes AM, BB, BH)."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
+    warnings.warn(EvmotionWarning(
+        f"--resume: there is no interrupted run to continue ({path} {why}): starting from "
+        "the first window"), stacklevel=3)
+
+
+#: Why a ``.part`` or journal that is there holds nothing to resume.
+HELD_NO_WINDOW = "held no finished window: its run stopped before one"
+
+
 def kept_for_resume() -> list[Path]:
     """The partial outputs recorded by :func:`keep_for_resume`."""
     return list(_KEPT_FOR_RESUME)

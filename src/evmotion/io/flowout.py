@@ -53,13 +53,12 @@ import json
 import os
 import shutil
 import tempfile
-import warnings
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionError, EvmotionWarning, ParameterError
+from evmotion.errors import EvmotionError, ParameterError
 from evmotion.io.base import PartFileWriter
 from evmotion.io.flowfiles import (
     FLOW_COMPRESSION,
@@ -73,11 +72,13 @@ from evmotion.io.flowfiles import (
 )
 from evmotion.io.h5filters import register_filters
 from evmotion.utils import (
+    HELD_NO_WINDOW,
     atomic_path,
     ensure_file_target,
     interrupts_deferred,
     keep_for_resume,
     staging_folder,
+    warn_nothing_to_resume,
 )
 
 __all__ = [
@@ -343,10 +344,7 @@ class H5FlowOutput(FlowOutput):
         self.reopened_final = resume and self.path.exists() and not self.part.exists()
         if resume and emptied and not self.path.exists():
             # (it was dropped without a word, the run starting afresh, probe BH)
-            warnings.warn(EvmotionWarning(
-                f"--resume: there is no interrupted run to continue ({self.part} held no "
-                "finished window: its run stopped before one): starting from the first "
-                "window"), stacklevel=2)
+            warn_nothing_to_resume(self.part, HELD_NO_WINDOW)
             resume = False
         if not resume and self.part.exists():
             # a fresh run would overwrite an interrupted run's windows at its first window
@@ -358,10 +356,7 @@ class H5FlowOutput(FlowOutput):
             self.extras = self.w.extras
             return
         if not self.path.exists() and not self.part.exists():
-            # (probe AM: a mistyped --out resumed nothing, silently, from the first window)
-            warnings.warn(EvmotionWarning(
-                f"--resume: there is no interrupted run to continue ({self.part} does not "
-                "exist): starting from the first window"), stacklevel=2)
+            warn_nothing_to_resume(self.part)
         register_filters()  # the stored windows are read back (Blosc-compressed)
         self.w = FlowWriter(self.path, self.sensor_size, with_valid=with_valid, resume=True,
                             extras=dict(extras or {}))

@@ -23,13 +23,12 @@ from __future__ import annotations
 
 import os
 import pickle
-import warnings
 from pathlib import Path
 from typing import Any
 
-from evmotion.errors import EvmotionWarning, ParameterError
+from evmotion.errors import ParameterError
 from evmotion.events import EventArray, events_digest
-from evmotion.utils import ensure_room, keep_for_resume
+from evmotion.utils import HELD_NO_WINDOW, ensure_room, keep_for_resume, warn_nothing_to_resume
 
 __all__ = ["Journal"]
 
@@ -113,11 +112,7 @@ class Journal:
             # as flow and bos say it (egomotion and segment started afresh without a word:
             # a mistyped --out resumes nothing, probe BB)
             # (it said "does not exist" of a journal it had just found empty, probe BH)
-            why = ("held no finished window: its run stopped before one" if emptied
-                   else "does not exist")
-            warnings.warn(EvmotionWarning(
-                f"--resume: there is no interrupted run to continue ({path} {why}): "
-                "starting from the first window"), stacklevel=2)
+            warn_nothing_to_resume(path, HELD_NO_WINDOW if emptied else "does not exist")
             return cls(path, header), {}
         journal, done = cls.resume(path, header)
         for k, (t0, t1, kept, _) in done.items():
