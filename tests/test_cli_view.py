@@ -234,6 +234,37 @@ def test_another_tools_flo_without_sidecar_is_drawn_as_displacement(tmp_path, ca
     assert doc["units"] == "px" and doc["t0_us"] is None and doc["valid_fraction"] == 1.0
     assert (tmp_path / "v.png").stat().st_size > 0
 
+def test_a_folder_of_another_tools_flo_files_is_described_and_each_file_viewed(
+        tmp_path, capsys):
+    # info and view said "format not recognised" of a folder of .flo files without
+    # sidecars (probe BM), though eval pairs them with a ground truth
+    from evmotion.io.flowfiles import write_flo
+
+    pred = tmp_path / "pred"
+    pred.mkdir()
+    for i in (0, 1, 10):  # 10 after 1: the numbers' order, not the text's
+        write_flo(pred / f"{i}.flo", np.full((30, 40, 2), i + 0.5, np.float32))
+    assert main(["info", str(pred), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert (doc["format"], doc["windows"], doc["files"]) == ("middlebury-flo", 3, 3)
+    assert doc["sensor_size"] == [30, 40] and "t_first_us" not in doc
+    assert main(["view", str(pred), "--window", "2", "--out", str(tmp_path / "v.png"),
+                 "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["flow_file"].endswith("10.flo") and doc["n_windows"] == 3
+    assert read_png(tmp_path / "v.png").shape[1] > 40
+    assert main(["view", str(pred), "--window", "3", "--out", str(tmp_path / "w.png")]) == 2
+    assert "holds 3 flow files (0 to 2)" in capsys.readouterr().err
+    frames = tmp_path / "frames"  # 8-bit images: not flow
+    frames.mkdir()
+    from evmotion.viz import save_png
+
+    save_png(frames / "0.png", np.zeros((30, 40, 3), np.uint8))
+    from evmotion.io.flowread import undated_flow_files
+
+    assert undated_flow_files(frames) == [] and undated_flow_files(tmp_path / "none") == []
+
+
 
 def test_the_simulators_ground_truth_is_viewed_and_an_undated_flo_counts_one_window(
         tmp_path, capsys):

@@ -236,7 +236,7 @@ def _view_flow(args, out: Path) -> int:
 
     from evmotion.cli import print_json, warn_line
     from evmotion.errors import ParameterError
-    from evmotion.io.flowread import read_flow
+    from evmotion.io.flowread import read_flow, undated_flow_files
     from evmotion.utils import seconds_text
     from evmotion.viz import save_png
     from evmotion.viz.bos import flow_window_picture
@@ -244,8 +244,8 @@ def _view_flow(args, out: Path) -> int:
     reject_unused(args, {"--t1": "t1", "--window-events": "window_events",
                          "--polarity": "polarity"},
                   f"to a flow output ({args.file}: --window or --t0 choose its window)")
-    undated = _undated_window(Path(args.file))
-    if undated is not None:  # a .flo / .png of another tool: its displacement, in px
+    undated = undated_flow_files(args.file)
+    if undated:  # .flo / .png files of another tool: their displacement, in px
         return _view_undated(args, out, undated)
     seq = read_flow(args.file)
     n = len(seq.t0)
@@ -302,51 +302,45 @@ def _view_flow(args, out: Path) -> int:
     return 0
 
 
-def _undated_window(path: Path):
-    """The displacement (H, W, 2) px and validity of a single ``.flo`` / DSEC ``.png``
-    without the JSON sidecar that gives its window's times (another tool's output), or
-    None for anything else."""
-    import numpy as np
-
-    from evmotion.io.flowfiles import read_dsec_flow_png, read_flo
-    from evmotion.io.flowout import is_pattern, sidecar_path
-
-    suffix = path.suffix.lower()
-    if suffix not in (".flo", ".png") or is_pattern(path) or sidecar_path(path).exists() \
-            or not path.is_file():
-        return None
-    if suffix == ".flo":
-        disp = read_flo(path)
-        return disp, np.isfinite(disp).all(axis=2)
-    return read_dsec_flow_png(path)
-
-
-def _view_undated(args, out, undated) -> int:
+def _view_undated(args, out, files: list[Path]) -> int:
+    """``view`` of ``.flo`` / ``.png`` files without sidecars: one file's displacement
+    (``--window`` picks the file of a folder)."""
     import numpy as np
 
     from evmotion.cli import print_json
+    from evmotion.errors import ParameterError
+    from evmotion.io.flowread import read_displacement
     from evmotion.viz import save_png
     from evmotion.viz.bos import flow_window_picture
 
+    n = len(files)
     reject_unused(args, {"--t1": "t1", "--window-events": "window_events",
-                         "--polarity": "polarity", "--window": "window", "--t0": "t0"},
-                  f"to {args.file}: one window, with no times")
-    disp, valid = undated
+                         "--polarity": "polarity", "--t0": "t0",
+                         **({} if n > 1 else {"--window": "window"})},
+                  f"to {args.file}: " + ("one window, with no times" if n == 1 else
+                                         f"{n} files with no times (--window picks one)"))
+    k = args.window or 0
+    if k >= n:
+        raise ParameterError(f"--window {k}: {args.file} holds {n} flow files (0 to {n - 1})")
+    disp, valid = read_displacement(files[k])
     check_scale(args.scale, disp.shape[:2])
+    name = files[k].name if n == 1 else f"{Path(args.file).name}/{files[k].name}"
     rgb = flow_window_picture(disp, valid=valid, unit="px",
-                              title=f"{Path(args.file).name}: displacement (no times: no "
-                                    "sidecar)")
+                              title=f"{name}: displacement (no times: no sidecar)"
+                                    + (f", file {k} of {n}" if n > 1 else ""))
     if args.scale > 1:
         rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
     save_png(out, rgb)
     if args.json:
-        print_json({"file": str(args.file), "out": str(out), "kind": "flow", "window": 0,
-                    "n_windows": 1, "t0_us": None, "t1_us": None, "units": "px",
+        print_json({"file": str(args.file), "out": str(out), "kind": "flow", "window": k,
+                    "n_windows": n, "t0_us": None, "t1_us": None, "units": "px",
+                    "flow_file": str(files[k]),
                     "sensor_size": {"height": int(disp.shape[0]), "width": int(disp.shape[1])},
                     "image": {"height": int(rgb.shape[0]), "width": int(rgb.shape[1])},
                     "valid_fraction": float(np.mean(valid))})
     else:
-        print(f"{out}: the displacement of {args.file} (px; no times without its sidecar)")
+        print(f"{out}: the displacement of {files[k]} (px; no times without its sidecar"
+              + (f"; file {k} of {n} of {args.file})" if n > 1 else ")"))
     return 0
 
 

@@ -50,7 +50,8 @@ from evmotion.io.guard import guarded, open_h5
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 
-__all__ = ["SCHLIEREN_GT_FORMAT", "describe_flow", "read_flow", "read_flow_paired"]
+__all__ = ["SCHLIEREN_GT_FORMAT", "describe_flow", "read_displacement", "read_flow",
+           "read_flow_paired", "undated_flow_files"]
 
 #: The ``schlieren_format`` attribute of the schlieren simulator's ground truth
 #: (:func:`evmotion.sim.schlieren.write_schlieren`), a flow file that holds q and the
@@ -91,11 +92,7 @@ def _read_one_window(path: Path, t0_us: int | None, t1_us: int | None) -> FlowSe
     elif t0_us is None or t1_us is None or t1_us <= t0_us:
         raise ParameterError(f"{path}: no {sidecar_path(path).name} beside it, so no time "
                              "interval; give t0_us and t1_us (t1_us > t0_us)")
-    if kind == "flo":
-        disp = read_flo(path)
-        valid = np.isfinite(disp).all(axis=2)
-    else:
-        disp, valid = read_dsec_flow_png(path)
+    disp, valid = read_displacement(path)
     if not window_times_ok(t0_us, t1_us, valid):
         raise FormatError(path, f"its window [{t0_us}, {t1_us}) us has no duration but "
                           "valid pixels")
@@ -107,6 +104,75 @@ def _read_one_window(path: Path, t0_us: int | None, t1_us: int | None) -> FlowSe
                  units="px/s", stored_units="px")
     return FlowSequence(flow=flow[None], t0=np.array([t0_us], np.int64),
                         t1=np.array([t1_us], np.int64), valid=valid[None], attrs=attrs)
+
+
+def read_displacement(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """One ``.flo`` or DSEC ``.png`` flow file as stored, without times.
+
+    Returns
+    -------
+    disp : (H, W, 2) float32
+        Displacement in px over the file's window (NaN where it holds none).
+    valid : (H, W) bool
+        The pixels that hold a displacement.
+
+    Examples
+    --------
+    >>> from evmotion.io.flowfiles import write_flo
+    >>> write_flo("one.flo", np.full((4, 5, 2), 1.5, np.float32))
+    >>> disp, valid = read_displacement("one.flo")
+    >>> disp.shape, float(disp[0, 0, 0]), bool(valid.all())
+    ((4, 5, 2), 1.5, True)
+    """
+    path = Path(path)
+    if path.suffix.lower() == ".flo":
+        disp = read_flo(path)
+        return disp, np.isfinite(disp).all(axis=2)
+    return read_dsec_flow_png(path)
+
+
+def undated_flow_files(path: str | os.PathLike) -> list[Path]:
+    """The flow files at ``path`` that carry no window times (another tool's output).
+
+    Parameters
+    ----------
+    path : path-like
+        A ``.flo`` or DSEC-style ``.png`` (16-bit RGB) file without its JSON sidecar, or a
+        folder of such files (one kind, none with a sidecar).
+
+    Returns
+    -------
+    list of Path
+        The files, in the order of the numbers in their names; empty for anything else
+        (a dated flow output, a folder of frames, a recording).
+
+    Examples
+    --------
+    >>> import os
+    >>> from evmotion.io.flowfiles import write_flo
+    >>> os.makedirs("pred", exist_ok=True)
+    >>> for i in (2, 10):
+    ...     write_flo(f"pred/{i}.flo", np.zeros((4, 5, 2), np.float32))
+    >>> [f.name for f in undated_flow_files("pred")]
+    ['2.flo', '10.flo']
+    """
+    p = Path(path)
+    if p.is_dir():
+        if is_dsec_flow_folder(p):
+            return []
+        try:
+            files = _folder_files(p)
+        except FormatError:
+            return []
+    elif p.is_file() and p.suffix.lower() in (".flo", ".png") and not is_pattern(p):
+        files = [p]
+    else:
+        return []
+    if any(sidecar_path(f).exists() for f in files):
+        return []
+    if files[0].suffix.lower() == ".png" and not _is_dsec_png(files[0]):
+        return []  # images (a frames folder), not flow
+    return files
 
 
 def read_flow_paired(path: str | os.PathLike, reference: FlowSequence,
@@ -396,6 +462,9 @@ def describe_flow(path: str | os.PathLike) -> dict | None:
         out["units"] = "px (displacement over each window)"
         return out
     if p.is_dir():
+        undated = undated_flow_files(p)
+        if undated:
+            return _describe_undated(p, undated)
         if not _is_flow_folder(p):
             return None
         seq = read_flow(p)
@@ -433,13 +502,21 @@ def describe_flow(path: str | os.PathLike) -> dict | None:
     return out
 
 
+def _describe_undated(p: Path, files: list[Path]) -> dict:
+    """``describe_flow`` of a folder of per-window files without sidecars."""
+    seqs = [_read_undated(f) for f in files]
+    seq = _concatenated(seqs, p)
+    out = {"path": str(p), "format": "middlebury-flo" if files[0].suffix.lower() == ".flo"
+           else "dsec-flow-png", "container": "folder", "files": len(files)}
+    out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, {}))
+    out["windows"] = len(files)  # one per file, whose times are not stored
+    out["units"] = "px (displacement over each window)"
+    return out
+
+
 def _read_undated(p: Path) -> FlowSequence:
     """A .flo / .png without a sidecar: no times (shown as such)."""
-    if p.suffix.lower() == ".flo":
-        disp = read_flo(p)
-        valid = np.isfinite(disp).all(axis=2)
-    else:
-        disp, valid = read_dsec_flow_png(p)
+    disp, valid = read_displacement(p)
     return FlowSequence(flow=disp[None], t0=np.zeros(0, np.int64), t1=np.zeros(0, np.int64),
                         valid=valid[None], attrs={})
 
