@@ -108,3 +108,17 @@ def test_a_fraction_of_a_microsecond_goes_up_whatever_its_unit():
     assert {time_us(t) for t in ("0.0010185", "1018.5us", "1.0185ms", "1018.4us",
                                  "+1018.0001us")} == {1019}
     assert time_us("1.5") == 1_500_000 and time_us("1590000000.1234567") == 1590000000123457
+
+
+def test_times_and_durations_take_nanoseconds():
+    # probe BM: a recording's ns clock could not be typed as is ('1590000000123456789ns'
+    # was 'must be a time'); a fraction of a µs goes up to the next one as for other units
+    import argparse
+
+    from evmotion.cli.options import duration_us, time_us
+
+    assert time_us("1590000000123456789ns") == 1590000000123457
+    assert time_us("1590000000123456000ns") == 1590000000123456
+    assert time_us("+2500ns") == 3 and duration_us("10000000ns") == 10_000
+    with pytest.raises(argparse.ArgumentTypeError, match="whole number of microseconds"):
+        duration_us("1500ns")

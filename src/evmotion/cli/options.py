@@ -42,6 +42,7 @@ import shutil
 import sys
 import tempfile
 from collections.abc import Callable, Collection, Iterable
+from fractions import Fraction
 from pathlib import Path
 
 from evmotion.catalog import MAX_SENSOR_SIDE
@@ -550,22 +551,24 @@ def reject_unused(args: argparse.Namespace, options: dict[str, str], reason: str
 
 
 # ----------------------------------------------------------------- time range and windows
-_TIME_UNITS = {"us": 1, "µs": 1, "ms": 1_000, "s": 1_000_000}
+# µs per unit (a Fraction for ns: a recording's own ns clock, as a DSEC or Prophesee
+# user reads it, typed as is; probe BM found no way to give it)
+_TIME_UNITS = {"ns": Fraction(1, 1000), "us": 1, "µs": 1, "ms": 1_000, "s": 1_000_000}
 
 
-def _split_unit(text: str, default_scale: int) -> tuple[str, int]:
-    """``(number's text, us per unit)`` of a time with an optional ``us``/``µs``/``ms``/
-    ``s`` suffix (``default_scale`` without one)."""
+def _split_unit(text: str, default_scale: int) -> tuple[str, int | Fraction]:
+    """``(number's text, us per unit)`` of a time with an optional ``ns``/``us``/``µs``/
+    ``ms``/``s`` suffix (``default_scale`` without one)."""
     raw = str(text).strip()
-    for suffix in ("us", "µs", "ms", "s"):  # "ms" and "us" before "s"
+    for suffix in ("ns", "us", "µs", "ms", "s"):  # "ns", "ms" and "us" before "s"
         if raw.lower().endswith(suffix):
             return raw[: -len(suffix)].strip(), _TIME_UNITS[suffix]
     return raw, default_scale
 
 
-def _with_unit(text: str, default_scale: int) -> tuple[float, int]:
-    """``(number, us per unit)`` of a time with an optional ``us``/``µs``/``ms``/``s``
-    suffix (``default_scale`` without one); the number NaN when it is not one."""
+def _with_unit(text: str, default_scale: int) -> tuple[float, int | Fraction]:
+    """``(number, us per unit)`` of a time with an optional ``ns``/``us``/``µs``/``ms``/
+    ``s`` suffix (``default_scale`` without one); the number NaN when it is not one."""
     body, scale = _split_unit(text, default_scale)
     try:
         return float(body), scale
@@ -579,8 +582,8 @@ class FromStart(int):
 
 
 def time_us(text: str) -> int:
-    """``type=`` for a time: seconds by default, or with an explicit ``us``/``µs``, ``ms``
-    or ``s`` suffix; returns integer microseconds (absolute: the recording's own clock).
+    """``type=`` for a time: seconds by default, or with an explicit ``ns``, ``us``/``µs``,
+    ``ms`` or ``s`` suffix; returns integer microseconds (absolute: the recording's own clock).
     With a leading ``+``, the time after the recording's first event (a :class:`FromStart`).
 
     Examples
@@ -591,6 +594,8 @@ def time_us(text: str) -> int:
     (10000, True)
     >>> time_us("0.0010185"), time_us("1018.5us"), time_us("1018.4us")  # next whole µs
     (1019, 1019, 1019)
+    >>> time_us("1500000000ns"), time_us("1500000001ns")
+    (1500000, 1500001)
     """
     from decimal import Decimal
 
@@ -605,7 +610,7 @@ def time_us(text: str) -> int:
     # of '0.0010185' s is 1018.4999... µs): events have whole µs, so [t0, t1) holds those
     # at or after the next one, which '--t0 0.0010185' and '1018.5us' had rounded apart
     # (probe BL)
-    us = int(math.ceil(Decimal(body) * scale))
+    us = math.ceil(Fraction(Decimal(body)) * scale)
     return FromStart(us) if relative else us
 
 
@@ -613,13 +618,13 @@ time_us.__name__ = "time"
 
 
 def duration_us(text: str) -> int:
-    """``type=`` for ``--window-us``: microseconds by default, or with a ``us``/``µs``,
-    ``ms`` or ``s`` suffix as ``--t0`` takes; a whole number of µs > 0.
+    """``type=`` for ``--window-us``: microseconds by default, or with a ``ns``, ``us``/
+    ``µs``, ``ms`` or ``s`` suffix as ``--t0`` takes; a whole number of µs > 0.
 
     Examples
     --------
-    >>> duration_us("10000"), duration_us("10ms"), duration_us("0.01s")
-    (10000, 10000, 10000)
+    >>> duration_us("10000"), duration_us("10ms"), duration_us("0.01s"), duration_us("1e7ns")
+    (10000, 10000, 10000, 10000)
     """
     v, scale = _with_unit(text, _TIME_UNITS["us"])
     v = v * scale
