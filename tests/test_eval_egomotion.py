@@ -257,3 +257,8 @@ def test_imu_tables_beside_other_files_headers_and_degrees(tmp_path, capsys):
                                                                  (t.size, 1))]))
     assert main(["eval", str(out), "--gt", str(tmp_path / "deg.txt")]) == 0
     assert "in degrees/s? Give rad/s" in capsys.readouterr().err
+    # a 2-column table is no angular velocity either (it was DSEC's "cannot parse
+    # 'from_us, to_us' lines" alone, probe BM)
+    (tmp_path / "two.txt").write_text("0.0 0.5\n0.1 0.6\n")
+    assert main(["eval", str(out), "--gt", str(tmp_path / "two.txt")]) == 2
+    assert "nor an angular-velocity table, which has 't gx gy gz'" in capsys.readouterr().err

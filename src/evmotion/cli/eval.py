@@ -474,6 +474,13 @@ def _ground_truth(args):
     try:
         return None, read_gt_flow(gt)
     except FormatError as flow_error:
+        if text and flow_error.path == str(gt):
+            # not DSEC's lines (their PNGs are another matter): an egomotion user's
+            # 2-column table heard only of DSEC's timestamps (probe BM)
+            raise FormatError(gt, "2 columns: not DSEC's flow timestamps 'from_us, to_us' "
+                              f"({flow_error.message}), nor an angular-velocity table, which "
+                              "has 't gx gy gz' (s, rad/s), the ECD's 't ax ay az gx gy gz', "
+                              "or one line 'gx gy gz'") from None
         try:
             return read_angular_velocity(gt, axes=axes), None
         except FormatError:
