@@ -363,3 +363,6 @@ def test_a_per_event_flow_file_is_drawn_with_its_flow(tmp_path, capsys):
     assert red.sum() > 500 and (rgb == GREY).all(-1).sum() > 100
     assert main(["view", str(path), "--raw", "--out", str(out)]) == 0
     assert read_png(out).shape[:2] == (40, 60)  # --raw: the events alone, pixel for pixel
+    assert main(["view", str(path), "--window", "1", "--out", str(out)]) == 2
+    # it was "does not apply to a recording" (probe BM)
+    assert "does not apply to a per-event flow file" in capsys.readouterr().err

@@ -132,8 +132,9 @@ def run(args) -> int:
         per_event = info is not None and info.get("format") == "evmotion-event-flow"
     else:
         per_event = False
-    reject_unused(args, {"--window": "window"}, "to a recording (it draws events; --t0 / "
-                  "--t1 choose them)")
+    reject_unused(args, {"--window": "window"},
+                  ("to a per-event flow file (one flow per event, no windows" if per_event
+                   else "to a recording (it draws events") + "; --t0 / --t1 choose them)")
     n = args.window_events
     if n is None and args.t1 is None:
         n = DEFAULT_EVENTS
