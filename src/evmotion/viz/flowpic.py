@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import functools
 import math
-import textwrap
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +20,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.viz.colorwheel import GREY, colorwheel_image, flow_max_magnitude, flow_to_rgb
+from evmotion.viz.titles import wrap_title
 
 __all__ = ["MIN_HEIGHT", "FlowPicture", "flow_panel", "flow_picture", "mean_event_flow",
            "picture_row", "sequence_max_speed"]
@@ -225,7 +225,7 @@ def _header(width: int, titles: list[tuple[float, str]], title: str | None, pt: 
     line = int(round(1.6 * pt * 100 / 72))
     # wrapped to the width: a long title was cut at both ends (probe BK); a character of
     # the title's font is ~0.85 of its size in px at 100 dpi
-    lines = textwrap.wrap(title, max(20, int(width / (0.85 * pt * 1.1)))) if title else []
+    lines = wrap_title(title, width, 0.85 * pt * 1.1)
     height = line * (len(lines) + 1) + 4
     fig, ax = _figure_px(width, height)
     y = 2

@@ -18,6 +18,7 @@ from evmotion.events import EventArray
 from evmotion.io import pngfile
 from evmotion.utils import atomic_write_bytes, check_number, whole_number
 from evmotion.viz.flowpic import FlowPicture, flow_panel, flow_picture
+from evmotion.viz.titles import wrap_title
 
 __all__ = [
     "event_histogram",
@@ -244,7 +245,7 @@ def save_flow_png(path: str | os.PathLike, flow: np.ndarray, *,
 def _title_row(width: int, title: str) -> np.ndarray:
     # wrapped to the picture's width: a long title was cut at both ends (a window with no
     # valid pixel says so after its times, probe BK); ~7.5 px a 10-pt character
-    lines = textwrap.wrap(title, max(20, int(width / 7.5))) or [title]
+    lines = wrap_title(title, width, 7.5) or [title]
     fig = _figure((width / 100.0, 0.06 + 0.18 * len(lines)), 100)
     fig.set_facecolor("white")
     fig.text(0.5, 0.5, "\n".join(lines), fontsize=10, va="center", ha="center",
@@ -324,7 +325,7 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
     h, w = image.shape
     width_in = max(3.0, w * max(int(scale), 1) / dpi)
     # a title wider than a small sensor's figure was cut at both sides: wrapped to it
-    lines = textwrap.wrap(title, max(20, int((width_in + 1.4) * 12))) if title else []
+    lines = wrap_title(title, width_in + 1.4, 1 / 12)
     fig = _figure((width_in + 1.4, width_in * h / w + 0.9 + 0.16 * max(len(lines) - 1, 0)),
                   dpi)
     ax = fig.add_subplot(1, 1, 1)
