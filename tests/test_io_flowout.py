@@ -374,3 +374,20 @@ def test_resume_with_nothing_to_continue_is_said(tmp_path, left, said):
     out.append(np.zeros((4, 5, 2), np.float32), t0=0, t1=10)
     out.close()
     assert read_flow(path).flow.shape == (1, 4, 5, 2)
+
+
+@pytest.mark.parametrize("left", [None, "header-only"])
+def test_a_file_made_afresh_on_resume_has_the_callers_compression(tmp_path, left):
+    # with no .part at all it took FlowWriter's default (lz4), with an empty one the
+    # caller's (review of the previous session)
+    import h5py
+
+    path = tmp_path / "f.h5"
+    if left:
+        FlowWriter(path, (4, 5)).f.close()
+    with pytest.warns(Warning, match="no interrupted run to continue"):
+        out = fo.H5FlowOutput(path, (4, 5), {}, resume=True, compression="gzip")
+    out.append(np.zeros((4, 5, 2), np.float32), t0=0, t1=10)
+    out.close()
+    with h5py.File(path) as f:
+        assert f["flow"].compression == "gzip"

@@ -358,8 +358,10 @@ class H5FlowOutput(FlowOutput):
         if not self.path.exists() and not self.part.exists():
             warn_nothing_to_resume(self.part)
         register_filters()  # the stored windows are read back (Blosc-compressed)
+        # (the compression of a file made afresh when there was nothing to resume: the
+        # caller's, as on the other path to a fresh file)
         self.w = FlowWriter(self.path, self.sensor_size, with_valid=with_valid, resume=True,
-                            extras=dict(extras or {}))
+                            compression=compression, extras=dict(extras or {}))
         self.extras = self.w.extras
         old = dict(self.w.f.attrs)
         made = self.path if self.reopened_final else self.part
