@@ -371,6 +371,9 @@ CASES = [
      ["--sim-duration", "'11'", "s"]),
     ("train-sim-windows-many", ["train", "--sim-windows", "10000", "--out", "{dir}/tr"],
      ["--sim-windows", "'10000'"]),
+    # (--val-sim had no bound: a billion windows were made, unsaid; left by probe AZ)
+    ("train-val-sim-many", ["train", "--val-sim", "10000", "--out", "{dir}/tr"],
+     ["--val-sim", "'10000'"]),
     ("train-no-data", ["train", "--sim-windows", "0", "--out", "{dir}/tr"],
      ["--sim-windows", "recordings"]),
     ("bos-contrast-nan", ["bos", "{bos}", "--contrast-threshold", "nan", "--out",

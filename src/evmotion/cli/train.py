@@ -114,7 +114,7 @@ def add_parser(sub) -> None:
     p.add_argument("--val", action="append", default=[], metavar="REC", type=existing_input,
                    help="validation recording (repeatable): its FWL per epoch (val_rec_FWL; "
                         "val_FWL is over these and the simulated ones)")
-    p.add_argument("--val-sim", type=int_range(0), default=4,
+    p.add_argument("--val-sim", type=int_range(0, 9999), default=4,
                    help="held-out simulated validation windows (AEE and FWL; default 4)")
     p.add_argument("--max-steps", type=positive_int(), default=None,
                    help="at most this many steps per epoch")
