@@ -390,6 +390,12 @@ def test_an_interval_without_events_is_written_invalid(tmp_path, capsys):
     bos = read_bos_h5(out)
     assert not bos.flow.valid[2].any() and np.isnan(bos.flow.flow[2]).all()
     assert np.isfinite(bos.flow.flow[3][bos.flow.valid[3]]).all()
+    # an ROI under 32 px: its frames' texture was checked on every other pixel, under the
+    # 16 px it takes, and the run refused as "the sensor (12x12 px) is smaller" (probe BN)
+    rc, _, err = _run(["bos", quiet, "--out", tmp_path / "r.h5", "--roi", "8", "8", "24",
+                       "24", "--contrast-threshold", "0.2"], capsys)
+    assert rc == 0, err
+    assert "no events in the window [16667, 25000) us inside the ROI" in err
 
 
 def test_frame_times_in_another_unit(scene, tmp_path, capsys):
