@@ -243,3 +243,27 @@ def test_a_window_with_no_valid_pixel_and_a_long_title_are_drawn_whole(tmp_path)
     from evmotion.viz.images import read_png
 
     assert read_png(tmp_path / "b.png").shape[0] > read_png(tmp_path / "a.png").shape[0]
+
+
+def test_bos_p_picture_is_unmasked_and_greys_only_nan(tmp_path, monkeypatch):
+    # probe BN: p_*.png's legend said "grey: no events" though p is solved at every pixel
+    # and none was grey
+    import evmotion.viz.bos as vb
+
+    drawn = {}
+
+    def spy(path, *a, **kw):
+        drawn[str(path).rsplit("/", 1)[-1]] = pic = save_flow_png(path, *a, **kw)
+        return pic
+
+    monkeypatch.setattr(vb, "save_flow_png", spy)
+    p = np.zeros((40, 40, 2))
+    p[5:10, 5:10] = 0.3
+    p[:2] = np.nan
+    flow = np.full((40, 40, 2), 10.0)
+    vb.save_bos_pngs(tmp_path, 0, flow, np.zeros((40, 40)), p, valid=flow[..., 0] > 0)
+    assert drawn["p_00000.png"].texts[4] == "unmasked; grey: NaN"
+    assert drawn["flow_00000.png"].texts[4] == "grey: no events"
+    rgb = read_png(tmp_path / "p_00000.png")
+    k = drawn["p_00000.png"].scale
+    assert (rgb == GREY).all(-1).sum() >= 2 * 40 * k * k  # the NaN rows, grey

@@ -173,7 +173,8 @@ def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np
         mask &= np.asarray(valid, bool)
     save_flow_png(names[1], np.nan_to_num(flow), max_speed=flow_max, valid=mask,
                   unit="px/s", title=f"flow{suffix}")
-    pmask = np.isfinite(p).all(axis=-1)
-    save_flow_png(names[2], np.nan_to_num(p), valid=pmask, unit="px",
+    # p is solved at every pixel, events or not: unmasked, NaN grey (its legend said
+    # "grey: no events" over a picture with no grey, probe BN)
+    save_flow_png(names[2], np.asarray(p, np.float32), unit="px",
                   title=f"translation p{suffix}")
     return [str(n) for n in names]
