@@ -167,6 +167,19 @@ def test_missing_frame_file(tmp_path):
     _one_line(e, "images.txt")
 
 
+def test_bare_names_of_files_in_images_are_found_there(tmp_path):
+    # probe BN: images.txt naming 'frame_00000000.png' for images/frame_00000000.png (a
+    # tool writing the ECD layout without the folder) was "a missing frame file", and the
+    # events' sensor size came from their largest coordinates, not the frames
+    imgs = _images(2)
+    _ecd(tmp_path, imgs, ["0.0", "0.1"])
+    (tmp_path / "images.txt").write_text("0.0 frame_00000000.png\n0.1 frame_00000001.png\n")
+    (tmp_path / "events.txt").write_text("0.01 1 2 1\n0.05 3 4 0\n")
+    fr = read_frames(tmp_path)
+    np.testing.assert_array_equal(fr.images, imgs)
+    assert describe(tmp_path)["sensor_size"] == (6, 7)
+
+
 @pytest.mark.parametrize("second, match", [(np.zeros((5, 5), np.uint8), "7x6"),
                                            (np.zeros((6, 7), np.uint16), "16-bit")],
                          ids=["different_sizes", "mixed_bit_depths"])

@@ -311,7 +311,7 @@ def _image_size(folder: Path) -> tuple[int, int] | None:
     from a PNG's header, other formats (JPEG, TIFF, BMP) decoded with OpenCV where it is
     installed."""
     from evmotion.errors import MissingDependencyError
-    from evmotion.io.frames import image_size
+    from evmotion.io.frames import frame_paths, image_size
 
     if not (folder / "images.txt").is_file():
         return None
@@ -323,7 +323,7 @@ def _image_size(folder: Path) -> tuple[int, int] | None:
             files = read_image_list(folder)["files"]
     except (FormatError, OSError, UnicodeDecodeError):
         return None  # reading the frames says what is wrong with the list
-    first = folder / files[0] if files else None
+    first = frame_paths(folder, files[:1])[0] if files else None
     if first is None or not first.is_file():
         return None
     try:

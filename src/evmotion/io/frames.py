@@ -31,8 +31,8 @@ from evmotion.io.guard import time_to_us
 from evmotion.io.pngfile import check_png, png_header, read_png
 from evmotion.utils import is_file
 
-__all__ = ["Frames", "describe_frames", "find_frames", "image_size", "read_frames",
-           "read_image"]
+__all__ = ["Frames", "describe_frames", "find_frames", "frame_paths", "image_size",
+           "read_frames", "read_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".webp")
 TIMESTAMP_FILES = ("timestamps.txt", "times.txt", "frame_timestamps.txt",
@@ -561,10 +561,32 @@ def _from_module(path: Path) -> Frames:
     return Frames(images, fr.t, source=str(path), bit_depth=depth)
 
 
+def frame_paths(folder: str | os.PathLike, names: list[str]) -> list[Path]:
+    """The paths of the frame files a list in ``folder`` names (``images.txt``, a ``t
+    path`` timestamps file): relative to ``folder``, or bare names of files kept in its
+    ``images/`` (the ECD layout's folder, left out of the list by other tools; they were
+    refused as missing, probe BN).
+
+    Examples
+    --------
+    >>> import os
+    >>> os.makedirs("scene/images", exist_ok=True)
+    >>> open("scene/images/f0.png", "wb").close()
+    >>> [p.as_posix() for p in frame_paths("scene", ["f0.png"])]
+    ['scene/images/f0.png']
+    """
+    folder = Path(folder)
+    files = [folder / name for name in names]
+    beside = [folder / "images" / name for name in names]
+    if files and not is_file(files[0]) and all(is_file(f) for f in beside):
+        return beside
+    return files
+
+
 def _listed_files(listing: Path, folder: Path, names: list[str]) -> list[Path]:
     """The frame files a list (``images.txt``, a ``t path`` timestamps file) names, each
-    checked to be there."""
-    files = [folder / name for name in names]
+    checked to be there (:func:`frame_paths`)."""
+    files = frame_paths(folder, names)
     for f in files:
         if not is_file(f):
             raise FormatError(listing, f"lists a missing frame file {_shown(f.name)} "
