@@ -388,15 +388,21 @@ def test_a_recording_that_pauses_for_most_of_its_span_is_said(tmp_path):
 
 
 @pytest.mark.parametrize("suffix", [".npy", ".txt", None])
-def test_polarities_minus_one_and_zero_without_plus_one_are_refused(tmp_path, suffix):
-    """-1 and 0 both read OFF: such a file was read as all OFF, unsaid (probe AS)."""
+@pytest.mark.parametrize(("values", "said"), [
+    ([-1, 0], r"holds -1 \(5 events\) and 0 \(5\) but no \+1: neither 0/1 nor -1/\+1"),
+    ([-1, 0, 1, 1, 1], r"holds -1 \(2 events\) and 0 \(2\) and \+1 \(6\): neither")],
+    ids=["no-plus-one", "three-values"])
+def test_polarities_minus_one_and_zero_together_are_refused(tmp_path, suffix, values, said):
+    """-1 and 0 both read OFF: such a file was read as all OFF, unsaid (probe AS), and
+    -1/0/+1 as 0/0/1 (probe BQ)."""
     from evmotion.errors import EventDataError, FormatError
     from evmotion.events import EventArray
     from evmotion.io import read_events
 
-    t, x, y, p = np.arange(10) * 10, np.arange(10) % 4, np.zeros(10, int), np.tile([-1, 0], 5)
+    p = np.resize(values, 10)
+    t, x, y = np.arange(10) * 10, np.arange(10) % 4, np.zeros(10, int)
     if suffix is None:
-        with pytest.raises(EventDataError, match=r"holds -1 \(5 events\) and 0 \(5\) but no"):
+        with pytest.raises(EventDataError, match=said):
             EventArray(x=x, y=y, t=t, p=p, sensor_size=(4, 4))
         return
     path = tmp_path / f"e{suffix}"
@@ -405,7 +411,7 @@ def test_polarities_minus_one_and_zero_without_plus_one_are_refused(tmp_path, su
     else:
         path.write_text("".join(f"{a * 1e-6:.6f} {b} {c} {d}\n" for a, b, c, d in zip(
             t, x, y, p, strict=True)))
-    with pytest.raises(FormatError, match="but no \\+1: neither 0/1 nor -1/\\+1"):
+    with pytest.raises(FormatError, match=said):
         read_events(path, sensor_size=(4, 4))
 
 

@@ -565,25 +565,34 @@ def _disorder_hint(fmt: str) -> str:
 
 
 def ambiguous_polarity(p: np.ndarray) -> str | None:
-    """Why polarities ``p`` (signed) cannot be read, or None: -1 and 0 without a +1, a
-    pair that 0/1 and -1/+1 files never hold and that would read all OFF.
+    """Why polarities ``p`` (signed) cannot be read, or None: -1 and 0 together, which
+    0/1 and -1/+1 files never hold (without a +1 every event would read OFF; with one,
+    -1 and 0 would both be OFF, or 0 is some third thing).
 
     Examples
     --------
     >>> ambiguous_polarity(np.array([-1, 0, 0])) is not None, ambiguous_polarity(np.array([-1, 1]))
     (True, None)
+    >>> ambiguous_polarity(np.array([-1, 0, 1])) is not None
+    True
     """
-    if not p.size or p.min() != -1 or p.max() != 0:
+    if not p.size or p.min() != -1:
         return None
-    # every event OFF, unsaid (probe AS)
-    return (f"field 'p' holds -1 ({int(np.count_nonzero(p == -1))} events) and 0 "
-            f"({int(np.count_nonzero(p == 0))}) but no +1: neither 0/1 nor -1/+1, and both "
-            "would read OFF; map the ON value to 1 first")
+    zeros = int(np.count_nonzero(p == 0))
+    if not zeros:
+        return None
+    ones = int(np.count_nonzero(p == 1))
+    # every event OFF, unsaid (probe AS); -1/0/+1 read 0 as OFF, unsaid (probe BQ)
+    return (f"field 'p' holds -1 ({int(np.count_nonzero(p == -1))} events) and 0 ({zeros})"
+            + (f" and +1 ({ones})" if ones else " but no +1")
+            + ": neither 0/1 nor -1/+1"
+            + (", and both would read OFF; map the ON value to 1 first" if not ones else
+               "; map each value to 0 (OFF) or 1 (ON) first"))
 
 
 def _polarity(p) -> np.ndarray:
     """``p`` as contiguous uint8 0/1, or EventDataError if a value is not 0/1 (uint8 or
-    unsigned input) or -1/0/+1 (signed or float input, -1 and 0 both meaning OFF).
+    unsigned input) or 0/1 or -1/+1 (signed or float input; -1 and 0 together refused).
 
     One min/max pass: a corrupt file whose polarity bytes read 255 must not pass as ON.
     """
