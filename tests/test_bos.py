@@ -634,6 +634,12 @@ def test_an_interval_outside_the_events_is_skipped(case):
     with pytest.warns(EvmotionWarning, match=r"overlap in time: window \[8333, 16666\).*no valid"):
         skipped = estimate_bos(ev, f1, t0_us=DT_US, t1_us=2 * DT_US, on_empty="skip", **kw)
     assert not skipped.valid.any()
+    # its class is public, as the exceptions a user sees are (it was _NoEventsInWindow,
+    # probe BQ)
+    from evmotion.methods.bos import NoEventsInWindowError
+
+    with pytest.raises(NoEventsInWindowError, match="overlap in time"):
+        estimate_bos(ev, f1, t0_us=DT_US, t1_us=2 * DT_US, **kw)
     with pytest.warns(EvmotionWarning, match="no valid pixel"):
         seq = estimate_bos_sequence(ev, [f0, f1, f1], [0, DT_US, 2 * DT_US], **kw)
     assert seq[0].valid.any() and not seq[1].valid.any()

@@ -109,6 +109,7 @@ __all__ = [
     "BosOptions",
     "BosResult",
     "BosLevel",
+    "NoEventsInWindowError",
     "TexturelessFrameError",
     "estimate_bos",
     "estimate_bos_sequence",
@@ -155,7 +156,7 @@ class TexturelessFrameError(ParameterError):
     nothing to measure the background's displacement against."""
 
 
-class _NoEventsInWindow(EventDataError):
+class NoEventsInWindowError(EventDataError):
     """No event of the recording lies in the interval: frames and events on other clocks,
     or, in a sequence, an interval before its first event or after its last, which
     ``on_empty="skip"`` skips as it does one without events in the ROI."""
@@ -592,11 +593,11 @@ def _check_roi(roi, sensor):
 
 
 def _check_overlap(events: EventArray, t0_us: int, t1_us: int, what: str) -> None:
-    """Raise :class:`_NoEventsInWindow` unless an event lies in ``[t0_us, t1_us)``."""
+    """Raise :class:`NoEventsInWindowError` unless an event lies in ``[t0_us, t1_us)``."""
     if len(events) == 0 or events.t[-1] < t0_us or events.t[0] >= t1_us:
         span = "no events" if len(events) == 0 else \
             f"events span [{int(events.t[0])}, {int(events.t[-1])}] us"
-        raise _NoEventsInWindow(f"frames and events do not overlap in time: {what} "
+        raise NoEventsInWindowError(f"frames and events do not overlap in time: {what} "
                                 f"[{t0_us}, {t1_us}) us, {span}")
 
 
@@ -1295,7 +1296,7 @@ def estimate_bos(
     try:
         r, logf, meas, weight, c, log_units = _prepare(events, frame, t0_us, t1_us,
                                                        frame_next, roi, o, increment)
-    except (EmptyWindowError, _NoEventsInWindow, TexturelessFrameError) as exc:
+    except (EmptyWindowError, NoEventsInWindowError, TexturelessFrameError) as exc:
         if on_empty == "raise":
             raise
         warnings.warn(EvmotionWarning(f"{exc}: the interval is written with no valid pixel"),
