@@ -121,6 +121,12 @@ def test_bad_parameters_are_reported():
         dense_robust_fit(ev, fl, 1000, 1000)
     with pytest.raises(ParameterError, match="dense must be"):
         estimate_flow_triplet(ev, dense="median")
+    # gap_us was ignored unsaid by the other dense kinds, and a string shown unquoted
+    # (probe BQ)
+    with pytest.raises(ParameterError, match="gap_us=2000 applies to dense='robust' only"):
+        estimate_flow_triplet(ev, dense="lsq", gap_us=2000)
+    with pytest.raises(ParameterError, match="got '4000'"):
+        estimate_flow_triplet(ev, dense="robust", gap_us="4000")
 
 
 def test_simulated_translation_robust_is_near_exact():

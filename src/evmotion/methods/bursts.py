@@ -105,7 +105,7 @@ class BurstMeans:
                 and not isinstance(gap_us, bool) and np.isfinite(float(gap_us))
                 and 1 <= gap_us <= MAX_GAP_US and int(gap_us) == gap_us):
             raise ParameterError(f"gap_us must be an integer from 1 microsecond to "
-                                 f"{MAX_GAP_US} (an hour), got {gap_us}")
+                                 f"{MAX_GAP_US} (an hour), got {gap_us!r}")
         self.sensor_size = (h, w)
         self.gap_us = int(gap_us)
         shape = (2, h, w)

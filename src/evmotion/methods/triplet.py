@@ -777,7 +777,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
                           smooth: bool = True, filter_size: int | None = None,
                           depth: int = 8, dense: str = "mean", ridge: float | None = None,
                           normal_kappa: int = NORMAL_KAPPA,
-                          gap_us: int = BURST_GAP_US) -> TripletBatchResult:
+                          gap_us: int | None = None) -> TripletBatchResult:
     """Triplet-matching flow of a recording, dense per window (thesis Algorithm 2).
 
     Every event is processed in order (events before a window serve as its history), then
@@ -828,9 +828,9 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     ridge : float, optional
         ``dense="lsq"``/``"robust"``: Tikhonov weight relative to the mean eigenvalue of the
         normal equations (default 1e-2 and :data:`ROBUST_RIDGE`).
-    gap_us : int
-        ``dense="robust"``: a silence longer than this (µs) ends a pixel's burst
-        (:data:`~evmotion.methods.bursts.BURST_GAP_US`).
+    gap_us : int, optional
+        ``dense="robust"`` only: a silence longer than this (µs) ends a pixel's burst
+        (default :data:`~evmotion.methods.bursts.BURST_GAP_US`).
 
     Examples
     --------
@@ -841,6 +841,12 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     ((1, 10, 10, 2), 100.0)
     """
     require_events(events, "estimate_flow_triplet")
+    if gap_us is None:
+        gap_us = BURST_GAP_US
+    elif dense != "robust":
+        # (ignored unsaid, as the CLI's --gap-ms is not, probe BQ)
+        raise ParameterError(f"gap_us={gap_us!r} applies to dense='robust' only (it ends the "
+                             f"bursts whose means it matches), not dense={dense!r}")
     if len(events) == 0:
         raise EmptyWindowError("no events to estimate the triplet flow of")
     dx, tau_us, filter_size = dense_defaults(dense, dx, tau_us, filter_size)
