@@ -380,10 +380,18 @@ def test_multicm_refuses_an_infinite_weight_and_another_sensors_start():
         estimate_flow(ev, lam=float("inf"))
     # each bound broken is named alone (one message had listed all five; probe)
     for kw, said in ((dict(lam=float("nan")), r"^need 0 <= lam < inf, got lam=nan$"),
-                     (dict(max_iter=0), r"^need max_iter >= 1, got max_iter=0$"),
-                     (dict(n_scales=0), r"^need 1 <= n_scales <= finest_level, got n_scales=0")):
+                     (dict(max_iter=0), r"^max_iter must be a whole number >= 1, got 0$"),
+                     # (-1 said ">= 0", 0 then "need 1 <= n_scales": probe BQ)
+                     (dict(n_scales=0), r"^n_scales must be a whole number >= 1, got 0$"),
+                     (dict(n_scales=-1), r"^n_scales must be a whole number >= 1, got -1$"),
+                     (dict(n_scales=3, finest_level=2),
+                      r"^need 1 <= n_scales <= finest_level, got n_scales=3, finest_level=2")):
         with pytest.raises(ParameterError, match=said):
             estimate_flow(ev, **kw)
+    from evmotion.errors import EmptyWindowError
+
+    with pytest.raises(EmptyWindowError, match="^window has 1 event spanning 0 us"):
+        estimate_flow(ev[:1])  # (it was "1 events", probe BQ)
     other = EventArray(x=ev.x // 2, y=ev.y // 2, t=ev.t, p=ev.p,
                        sensor_size=(ev.sensor_size[0] // 2 + 1, ev.sensor_size[1] // 2 + 1))
     with warnings.catch_warnings():

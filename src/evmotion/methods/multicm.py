@@ -713,8 +713,10 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
     """``o`` validated against ``events``, with ``time_aware="none"`` read as None,
     ``n_bins`` resolved for the sensor and ``finest_level`` for the window."""
     # as ints: n_scales=2.0 passed the check and failed in range() (probe BE)
-    o = dataclasses.replace(o, **{name: whole_number(name, getattr(o, name), lo=0)
-                                  for name in ("n_scales", "max_iter", "transport_cell", "seed")})
+    # (n_scales=-1 was "a whole number >= 0", and 0 then "need 1 <= n_scales", probe BQ)
+    o = dataclasses.replace(o, **{name: whole_number(name, getattr(o, name), lo=lo)
+                                  for name, lo in (("n_scales", 1), ("max_iter", 1),
+                                                   ("transport_cell", 1), ("seed", 0))})
     if o.n_bins is not None:
         o = dataclasses.replace(o, n_bins=whole_number("n_bins", o.n_bins, lo=1))
     if o.time_aware_scales is not None:
@@ -754,7 +756,8 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
         if not ok:
             raise ParameterError(f"need {need}, got {got}")
     if len(events) < 10 or events.t[-1] <= events.t[0]:
-        raise EmptyWindowError(f"window has {len(events)} events spanning "
+        raise EmptyWindowError(f"window has {len(events)} event"
+                               f"{'' if len(events) == 1 else 's'} spanning "
                                f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
                                "need at least 10 events and a positive duration")
     n_bins = o.n_bins
