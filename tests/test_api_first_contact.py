@@ -442,3 +442,17 @@ def test_helpers_name_their_bad_arguments():
             warnings.simplefilter("ignore")
             with pytest.raises(ParameterError, match=match):
                 call()
+
+
+def test_network_options_given_to_multicm_are_named_alone():
+    # probe BQ: threads=0 was said as "device='cpu', threads=0 are the network's"
+    from evmotion import estimate_flow
+    from evmotion.errors import ParameterError
+
+    ev = _noise(3000)
+    with pytest.raises(ParameterError, match=r"^estimate_flow: threads=0 is the network's "
+                                             r"option: it applies with method='dnn'"):
+        estimate_flow(ev, threads=0)
+    with pytest.raises(ParameterError, match=r"device='cuda' and threads=2 are the network's "
+                                             r"options: they apply"):
+        estimate_flow(ev, device="cuda", threads=2)

@@ -616,8 +616,17 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         raise ParameterError(f"estimate_flow: unknown method {method!r} "
                              "(available: 'multicm', 'dnn'; 'triplet' has its own functions)")
     if not (isinstance(init, str) and init == "dnn") and (device != "cpu" or threads != 1):
-        raise ParameterError(f"estimate_flow: device={device!r}, threads={threads!r} are the "
-                             "network's: they apply with method='dnn' or init='dnn'")
+        # only what was given (threads=0 was said with a device='cpu' nobody passed, and
+        # read as no range error; probe BQ)
+        given = [f"{k}={v!r}" for k, v, default in (("device", device, "cpu"),
+                                                    ("threads", threads, 1)) if v != default]
+        raise ParameterError(f"estimate_flow: {' and '.join(given)} "
+                             f"{'are' if len(given) > 1 else 'is'} the network's option"
+                             f"{'s' if len(given) > 1 else ''}: "
+                             f"{'they apply' if len(given) > 1 else 'it applies'} with "
+                             "method='dnn' or init='dnn' (multicm runs "
+                             "on one thread; workers= of estimate_flow_sequence runs windows "
+                             "in parallel)")
     net = None
     if isinstance(init, str):
         if init != "dnn":
