@@ -219,3 +219,22 @@ def test_bfgs_restarts_carry_the_timestamp_objective_past_its_kinks(monkeypatch)
     once = estimate_egomotion(win, "rotation", objective="avg_timestamp", K=sim.gt.K,
                               maps=False, t_ref="start")
     assert np.abs(once.params - truth).max() > 0.5
+
+
+def test_rotation_takes_the_intrinsics_of_the_recordings_calibration():
+    # probe BQ: an ECD folder read with its calib.txt (events.meta["calibration"]) still
+    # "needs the camera intrinsics", and the message named the CLI's --calib
+    theta, tol = TRUTH["rotation"]
+    ev, _ = synth("rotation", theta, n_events=6000)
+    cal = EventArray(ev.x, ev.y, ev.t, ev.p, sensor_size=ev.sensor_size,
+                     meta={"calibration": {"K": np.asarray(K240).tolist(), "dist": [0.0] * 4}})
+    res = estimate_egomotion(cal, "rotation", maps=False, t_ref="start")
+    np.testing.assert_allclose(res.params, estimate_egomotion(
+        ev, "rotation", K=K240, maps=False, t_ref="start").params)
+    with pytest.raises(CalibrationError, match=r"pass K= \(3x3, px\), or events whose meta"):
+        estimate_egomotion(ev, "rotation")
+    from evmotion.errors import EvmotionWarning
+
+    cal.meta["calibration"]["dist"] = [-0.3, 0.1, 0.0, 0.0]  # taken as a pinhole's: said
+    with pytest.warns(EvmotionWarning, match="not undistorted but their calibration has"):
+        estimate_egomotion(cal, "rotation", maps=False, t_ref="start")

@@ -19,6 +19,7 @@ Examples
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 
 import numpy as np
@@ -54,7 +55,7 @@ from evmotion.core.objectives import (
 from evmotion.core.trim import pairs_size
 from evmotion.core.warps import WARPS, Warp, make_warp
 from evmotion.core.whitening import whiten
-from evmotion.errors import CalibrationError, EmptyWindowError, ParameterError
+from evmotion.errors import CalibrationError, EmptyWindowError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray, check_reference_time
 from evmotion.methods.weights import window_weight
 
@@ -588,9 +589,22 @@ def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str 
             raise ParameterError(f"unknown warp '{warp}'; choose one of {sorted(WARPS)}")
         if warp == "rotation" and K is None:
             K = events.meta.get("K")
+            cal = events.meta.get("calibration")
+            if K is None and isinstance(cal, dict):
+                # the recording's own calib.txt (an ECD folder's, an evmotion HDF5's), which
+                # the reader carries (it was asked for again, probe BQ)
+                K = cal.get("K")
+                dist = [float(v) for v in cal.get("dist") or []]
+                if K is not None and any(dist) and not events.meta.get("undistorted"):
+                    warnings.warn(EvmotionWarning(
+                        f"the events are not undistorted but their calibration has lens "
+                        f"distortion {dist}: the rotation warp takes them as a pinhole's "
+                        "(undistort them first: evmotion.io.calibration.read_camera(calib)"
+                        ".undistort_events(events))"), stacklevel=3)
             if K is None:
-                raise CalibrationError("the rotation warp needs the camera intrinsics: pass K= "
-                                       "(3x3) or a calibration file (--calib)")
+                raise CalibrationError("the rotation warp needs the camera intrinsics: pass "
+                                       "K= (3x3, px), or events whose meta holds 'K' or the "
+                                       "'calibration' of their recording (the CLI: --calib)")
         warp = make_warp(warp, events.sensor_size, K=K)
     elif not isinstance(warp, Warp):
         raise ParameterError(f"warp must be a name ({', '.join(sorted(WARPS))}) or a Warp, "

@@ -400,7 +400,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         "deformation": ...}`` or one float for both.
     optimizer : {"bfgs", "newton-cg", "adam", "tpe"}
     K : array (3, 3), optional
-        Intrinsics (pixels), required by ``rotation`` unless ``events.meta["K"]`` holds it.
+        Intrinsics (pixels), required by ``rotation`` unless ``events.meta`` holds them
+        (``"K"``, or the ``"calibration"`` a reader took from the recording).
     t_ref : {"start", "mid", "end"} or int, optional
         Reference time of the warp; an int is absolute µs, within the window's span (or
         1 s if longer) of its events (:func:`evmotion.events.check_reference_time`; a time
