@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from _triplet_reference import triplet_reference
-from evmotion.errors import EmptyWindowError, ParameterError
+from evmotion.errors import EmptyWindowError, ParameterError, PoorFitWarning
 from evmotion.events import EventArray
 from evmotion.methods.triplet import (
     TripletFlow,
@@ -221,6 +221,12 @@ def test_bad_input_raises_clear_errors():
         m.process(EventArray([12], [1], [20], [1], (10, 10), validate=False))
     with pytest.raises(EmptyWindowError):
         estimate_flow_triplet(EventArray([], [], [], [], (10, 10)))
+    # a window outside the events came back empty unsaid (probe BQ)
+    ev = EventArray([2, 3, 4], [5, 5, 5], [0, 10_000, 20_000], [1, 1, 1], (10, 10))
+    with pytest.warns(PoorFitWarning, match=r"1 of 2 window\(s\) hold no event \(first: "
+                                            r"window 0, \[1000000, 1001000\) us\)"):
+        r = estimate_flow_triplet(ev, windows=[(1_000_000, 1_001_000), (0, 20_001)])
+    assert not r.masks[0].any() and r.masks[1].any()
 
 
 def test_neighbour_offsets():

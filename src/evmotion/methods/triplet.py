@@ -908,7 +908,19 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         gains[i], masks[i], flagged[i] = focus_checked(sub, flows[i], masks[i], win.t0)
     _warn_no_focus(gains, flagged)
     _warn_incomplete(incomplete, windows)
+    _warn_empty(windows)
     return TripletBatchResult(flows, masks, windows, flow, m.overflow, bursts, bflow, gains)
+
+
+def _warn_empty(windows) -> None:
+    """Say which windows hold no event (no flow; they were returned empty unsaid, probe
+    BQ)."""
+    empty = [w for w in windows if w.stop <= w.start]
+    if empty:
+        w = empty[0]
+        warnings.warn(PoorFitWarning(
+            f"{len(empty)} of {len(windows)} window(s) hold no event (first: window "
+            f"{w.index}, [{w.t0}, {w.t1}) us): no flow, their masks all False"), stacklevel=3)
 
 
 def _warn_incomplete(incomplete: tuple[int, int] | None, windows) -> None:
