@@ -1163,7 +1163,7 @@ def read_calibration(path: str | Path) -> dict:
 
     Examples
     --------
-    >>> Path("boxes_rotation").mkdir()
+    >>> Path("boxes_rotation").mkdir(exist_ok=True)
     >>> _ = Path("boxes_rotation/calib.txt").write_text(
     ...     "199.092366542 198.82882047 132.192071378 110.712660011 "
     ...     "-0.368436311798 0.150947243557 -0.000296130534385 -0.000759431726241 0.0\\n")
