@@ -61,7 +61,7 @@ def fwl_rows(name: str, ev: EventArray, wins, **params) -> tuple[list[dict], Tri
             "duration_ms": w.duration_s * 1e3,
             "valid_fraction": float(res.events.valid[w.start:w.stop].mean()),
             "fwl_per_event": event_fwl(sub, _sub(res.events, w.start, w.stop)),
-            "fwl_dense": fwl(sub, res.flows[i]),
+            "fwl_dense": fwl(sub, res.flow[i]),
         })
     return rows, res.events
 

@@ -42,7 +42,7 @@ pictures = [flow_picture(disp_gt, valid=mask, max_speed=scale, unit="px").rgb]
 titles = ["ground truth"]
 for dense in ("mean", "lsq"):
     res = estimate_flow_triplet(events, [window], dense=dense)
-    valid = mask & res.masks[0]
+    valid = mask & res.valid[0]
     m = flow_metrics(res.displacement(0), disp_gt, mask=valid)
     print(f"triplet dense={dense}: AEE {m.aee:.3f} px over {m.n_pixels} pixels")
     pictures.append(flow_picture(res.displacement(0), valid=valid, max_speed=scale,

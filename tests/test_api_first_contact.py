@@ -124,7 +124,7 @@ def test_triplet_dense_flow_of_noise_is_no_measurement(dense):
     ev = _noise(5000)
     with pytest.warns(PoorFitWarning, match="no focus in 1 of 1 windows"):
         res = estimate_flow_triplet(ev, dense=dense)
-    assert not res.masks.any() and res.gains[0] < 1.05  # robust: 100 % valid at 208 px/s
+    assert not res.valid.any() and res.gains[0] < 1.05  # robust: 100 % valid at 208 px/s
     wins = list(iter_flow_triplet(ev, dense=dense, window_us=200_000))
     assert wins[0].no_focus and not wins[0].valid.any()
 
@@ -145,7 +145,7 @@ def test_triplet_dense_flow_of_a_moving_scene_keeps_its_mask():
     from evmotion.methods.flowresult import event_support
 
     support = event_support(ev.x, ev.y, ev.sensor_size, 2, 2)
-    assert res.gains[0] > 1.5 and 0.8 * support.mean() < res.masks.mean() <= support.mean()
+    assert res.gains[0] > 1.5 and 0.8 * support.mean() < res.valid.mean() <= support.mean()
 
 
 def test_egomotion_result_says_whether_it_is_a_measurement():

@@ -164,7 +164,7 @@ def test_translating_edge_gives_exact_flow(speed, angle):
 def test_diagonal_edge_direction():
     ev = edge_events(150.0, 45.0)
     res = estimate_flow_triplet(ev)
-    f = res.flows[0][5:35, 5:35][res.masks[0][5:35, 5:35]]
+    f = res.flow[0][5:35, 5:35][res.valid[0][5:35, 5:35]]
     ang = np.degrees(np.arctan2(f[:, 1], f[:, 0]))
     assert abs(np.median(ang) - 45.0) < 2.0
     # a diagonal edge moving at 150 px/s along 45 deg crosses 150*sqrt2 px/s along x+y steps;
@@ -226,7 +226,7 @@ def test_bad_input_raises_clear_errors():
     with pytest.warns(PoorFitWarning, match=r"1 of 2 window\(s\) hold no event \(first: "
                                             r"window 0, \[1000000, 1001000\) us\)"):
         r = estimate_flow_triplet(ev, windows=[(1_000_000, 1_001_000), (0, 20_001)])
-    assert not r.masks[0].any() and r.masks[1].any()
+    assert not r.valid[0].any() and r.valid[1].any()
 
 
 def test_neighbour_offsets():
@@ -303,10 +303,10 @@ def test_batch_windows_use_prior_history():
     ev = edge_events(200.0)
     wins = ev.windows_by_duration(50_000)
     res = estimate_flow_triplet(ev, wins, n_bins=2)
-    assert res.flows.shape == (len(wins), 40, 40, 2) and res.overflow == 0
-    later = res.flows[2][res.masks[2]]
+    assert res.flow.shape == (len(wins), 40, 40, 2) and res.overflow == 0
+    later = res.flow[2][res.valid[2]]
     assert np.median(later[:, 0]) == pytest.approx(200.0, rel=0.02)
-    np.testing.assert_allclose(res.displacement(2), res.flows[2] * 0.05, rtol=1e-6)
+    np.testing.assert_allclose(res.displacement(2), res.flow[2] * 0.05, rtol=1e-6)
 
 
 def test_event_fwl_matches_dense_fwl_for_uniform_flow():

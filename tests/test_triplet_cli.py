@@ -66,9 +66,9 @@ def test_dense_h5_windows_and_pngs(edge_file, tmp_path):
     assert rc == 0
     ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000))
     seq = read_flow_h5(out)
-    assert seq.flow.shape == ref.flows.shape and seq.attrs["method"] == "triplet"
-    np.testing.assert_array_equal(seq.valid, ref.masks)
-    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    assert seq.flow.shape == ref.flow.shape and seq.attrs["method"] == "triplet"
+    np.testing.assert_array_equal(seq.valid, ref.valid)
+    np.testing.assert_allclose(seq.flow, ref.flow, rtol=1e-5, atol=1e-3)
     np.testing.assert_array_equal(seq.t0, [w.t0 for w in ref.windows])
     # the last window ends with the data (its nominal end lay past the recording, beyond
     # any ground truth of it), as multicm's does
@@ -86,7 +86,7 @@ def test_count_windows(edge_file, tmp_path):
     assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
                  "--window-events", "400", "--chunk-events", "170", "--bins", "2"]) == 0
     ref = estimate_flow_triplet(ev, ev.windows_by_count(400), n_bins=2)
-    np.testing.assert_allclose(read_flow_h5(out).flow, ref.flows, rtol=1e-5, atol=1e-3)
+    np.testing.assert_allclose(read_flow_h5(out).flow, ref.flow, rtol=1e-5, atol=1e-3)
 
 
 def test_wider_filter_option(edge_file, tmp_path):
@@ -96,8 +96,8 @@ def test_wider_filter_option(edge_file, tmp_path):
                  "--window-us", "50000", "--filter-size", "5"]) == 0
     ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000), filter_size=5)
     seq = read_flow_h5(out)
-    np.testing.assert_array_equal(seq.valid, ref.masks)
-    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    np.testing.assert_array_equal(seq.valid, ref.valid)
+    np.testing.assert_allclose(seq.flow, ref.flow, rtol=1e-5, atol=1e-3)
     assert seq.attrs["triplet_filter_size"] == 5
 
 
@@ -110,8 +110,8 @@ def test_dense_h5_and_flo_outputs_match_the_api(edge_file, tmp_path):
     assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "f.h5"),
                  "--window-us", "50000", "--chunk-events", "300"]) == 0
     arr = read_flow_h5(tmp_path / "f.h5").flow
-    assert arr.dtype == np.float32 and arr.shape == ref.flows.shape
-    np.testing.assert_allclose(arr, ref.flows, rtol=1e-5, atol=1e-3)
+    assert arr.dtype == np.float32 and arr.shape == ref.flow.shape
+    np.testing.assert_allclose(arr, ref.flow, rtol=1e-5, atol=1e-3)
     assert main(["flow", str(path), "--method", "triplet", "--out", str(tmp_path / "f.npy"),
                  "--window-us", "50000"]) == 2
     assert main(["flow", str(path), "--method", "triplet", "--out",
@@ -140,8 +140,8 @@ def test_dense_lsq_option_matches_the_api(edge_file, tmp_path):
                  "--bins", "2"]) == 0
     ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000), dense="lsq", n_bins=2)
     seq = read_flow_h5(out)
-    np.testing.assert_array_equal(seq.valid, ref.masks)
-    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    np.testing.assert_array_equal(seq.valid, ref.valid)
+    np.testing.assert_allclose(seq.flow, ref.flow, rtol=1e-5, atol=1e-3)
     assert seq.attrs["triplet_dense"] == "lsq" and seq.attrs["triplet_filter_size"] == 15
     # a straight edge: only its normal flow (200 px/s along +x) is observable
     inner = seq.flow[1:-1][seq.valid[1:-1]]
@@ -158,8 +158,8 @@ def test_dense_robust_option_matches_the_api(edge_file, tmp_path, chunk):
     ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000), dense="robust",
                                 filter_size=9)
     seq = read_flow_h5(out)
-    np.testing.assert_array_equal(seq.valid, ref.masks)
-    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    np.testing.assert_array_equal(seq.valid, ref.valid)
+    np.testing.assert_allclose(seq.flow, ref.flow, rtol=1e-5, atol=1e-3)
     assert seq.attrs["triplet_dense"] == "robust" and seq.attrs["triplet_gap_ms"] == 4.0
     inner = seq.flow[1:-1][seq.valid[1:-1]]
     np.testing.assert_allclose(np.median(inner, axis=0), [200.0, 0.0], atol=2.0)
@@ -212,7 +212,7 @@ def test_gt_windows(edge_file, tmp_path, gt_dt):
     ref = estimate_flow_triplet(ev, ev.windows_at(frames, dt=gt_dt))
     seq = read_flow_h5(out)
     np.testing.assert_array_equal(seq.t0, [w.t0 for w in ref.windows])
-    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    np.testing.assert_allclose(seq.flow, ref.flow, rtol=1e-5, atol=1e-3)
     assert seq.valid.any()
 
 
@@ -266,7 +266,7 @@ def test_h5_is_per_event_unless_windows_are_asked(edge_file, tmp_path, capsys):
                  "--dense", "mean"]) == 0
     ref = estimate_flow_triplet(ev, ev.windows_by_duration(50_000))
     seq = read_flow_h5(dense)
-    np.testing.assert_allclose(seq.flow, ref.flows, rtol=1e-5, atol=1e-3)
+    np.testing.assert_allclose(seq.flow, ref.flow, rtol=1e-5, atol=1e-3)
     with h5py.File(dense) as f:
         assert "32001" in f["flow"]._filters  # Blosc
     capsys.readouterr()  # (the dense run's warning of its early windows)

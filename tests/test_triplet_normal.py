@@ -82,8 +82,8 @@ def test_lsq_resolves_the_aperture_where_the_mean_cannot():
     mean = estimate_flow_triplet(ev, [win])
     inner = np.zeros(ev.sensor_size, bool)
     inner[8:-8, 8:-8] = True
-    err_lsq = np.hypot(*(lsq.flows[0][inner & lsq.masks[0]] - v).T)
-    err_mean = np.hypot(*(mean.flows[0][inner & mean.masks[0]] - v).T)
+    err_lsq = np.hypot(*(lsq.flow[0][inner & lsq.valid[0]] - v).T)
+    err_mean = np.hypot(*(mean.flow[0][inner & mean.valid[0]] - v).T)
     assert np.median(err_lsq) < 0.03 * np.hypot(*v)
     assert np.median(err_mean) > 3 * np.median(err_lsq)
 
@@ -93,7 +93,7 @@ def test_single_orientation_stays_at_the_normal_flow():
     n = np.array([1.0, 0.0])
     ev = grating_events(v, [tuple(n)])
     lsq = estimate_flow_triplet(ev, ev.windows_by_duration(100_000)[2:3], dense="lsq")
-    f = lsq.flows[0][8:-8, 8:-8][lsq.masks[0][8:-8, 8:-8]]
+    f = lsq.flow[0][8:-8, 8:-8][lsq.valid[0][8:-8, 8:-8]]
     # the ridge shrinks the unconstrained component to 0 and the normal one by 1/(1 + ridge/2)
     np.testing.assert_allclose(np.median(f, axis=0), [60.0 / 1.005, 0.0], atol=1.0)
 

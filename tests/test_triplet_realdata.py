@@ -79,4 +79,4 @@ def test_fwl_above_one_on_ecd_translation(shared_data, scene):
     ev = _ecd_txt(path)
     res = estimate_flow_triplet(ev)
     assert event_fwl(ev, res.events) > 1.2
-    assert fwl(ev, res.flows[0]) > 1.5
+    assert fwl(ev, res.flow[0]) > 1.5

@@ -22,7 +22,7 @@ def test_simulated_translation_direction_and_speed(vx, vy):
     wins = ev.windows_at(res.gt.frame_times_us, dt=1)[2:]
     out = estimate_flow_triplet(ev, wins)
     for k, w in enumerate(wins):
-        f = out.flows[k][out.masks[k]]
+        f = out.flow[k][out.valid[k]]
         gt = res.gt.flow((w.t0 + w.t1) // 2)[24, 32]
         np.testing.assert_allclose(gt, [vx, vy], atol=1e-3)
         med = np.median(f, axis=0)

@@ -180,7 +180,7 @@ def _triplet(out: Path, rep: HtmlReport, scene) -> dict:
                          ("lsq", "extension: normal-flow least squares, 11x11")):
         res = estimate_flow_triplet(sim.events, [window], dense=dense)
         disp = res.displacement(0)
-        valid = mask & res.masks[0]
+        valid = mask & res.valid[0]
         m = flow_metrics(disp, disp_gt, mask=valid)
         rows.append({"dense output": label, "AEE px": m.aee, "%Out": m.pct_out,
                      "pixels evaluated": m.n_pixels})

@@ -733,9 +733,10 @@ class TripletBatchResult:
 
     Attributes
     ----------
-    flows : ndarray of float32, shape (n_windows, H, W, 2)
-        Voxelized, non-zero-averaged (3x3 by default) and collapsed flow in px/s.
-    masks : ndarray of bool, shape (n_windows, H, W)
+    flow : ndarray of float32, shape (n_windows, H, W, 2)
+        Voxelized, non-zero-averaged (3x3 by default) and collapsed flow in px/s (named as
+        :class:`~evmotion.io.flowfiles.FlowSequence` names it).
+    valid : ndarray of bool, shape (n_windows, H, W)
         Pixels with a flow value.
     windows : list of Window
         The windows, in order.
@@ -757,8 +758,8 @@ class TripletBatchResult:
         its mask all False (a :class:`~evmotion.errors.PoorFitWarning` counts them).
     """
 
-    flows: np.ndarray
-    masks: np.ndarray
+    flow: np.ndarray
+    valid: np.ndarray
     windows: list[Window]
     events: TripletFlow
     overflow: int
@@ -768,7 +769,7 @@ class TripletBatchResult:
 
     def displacement(self, i: int) -> np.ndarray:
         """Flow of window ``i`` as pixel displacement over the window's duration."""
-        return self.flows[i] * np.float32(self.windows[i].duration_s)
+        return self.flow[i] * np.float32(self.windows[i].duration_s)
 
 
 def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None = None, *,
@@ -837,7 +838,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     >>> ev = EventArray(x=[2, 3, 4], y=[5, 5, 5], t=[0, 10_000, 20_000], p=[1, 1, 1],
     ...                 sensor_size=(10, 10))
     >>> res = estimate_flow_triplet(ev)
-    >>> res.flows.shape, float(res.flows[0, 5, 4, 0])
+    >>> res.flow.shape, float(res.flow[0, 5, 4, 0])
     ((1, 10, 10, 2), 100.0)
     """
     require_events(events, "estimate_flow_triplet")
