@@ -958,6 +958,28 @@ def test_an_output_that_is_an_input_is_refused(tmp_path, capsys, command):
     assert rec.read_bytes() == before
 
 
+@pytest.mark.parametrize("command", [
+    lambda d: ["kymogram", d, "--col", "20", "--out", f"{d}/images/frame_00000000.png"],
+    lambda d: ["view", d, "--out", f"{d}/images/frame_00000001.png"],
+    lambda d: ["bos", d, "--out", f"{d}/schlieren_gt.h5"],
+    lambda d: ["convert", d, f"{d}/events.txt"],
+], ids=["kymogram-frame", "view-frame", "bos-ground-truth", "convert-events"])
+def test_an_output_over_a_file_of_an_input_folder_is_refused(tmp_path, capsys, command):
+    """Probe BP: 'kymogram scene/ --out scene/images/frame_00000000.png' replaced a frame
+    of the recording (and bos --out scene/schlieren_gt.h5 its ground truth)."""
+    scene = tmp_path / "scene"
+    assert main(["simulate", "schlieren", "--scene", "plume", "--size", "48x40",
+                 "--duration", "0.03", "--out", str(scene)]) == 0
+    capsys.readouterr()
+    before = {p: p.read_bytes() for p in scene.rglob("*") if p.is_file()}
+    rc, err = _run(command(str(scene)), capsys)
+    assert rc == 2 and "is part of the command's input" in err and err.count("\n") == 1, err
+    assert {p: p.read_bytes() for p in scene.rglob("*") if p.is_file()} == before
+    # an output of its own in that folder is written, and written again
+    assert main(["view", str(scene), "--out", str(scene / "view.png")]) == 0
+    assert main(["view", str(scene), "--out", str(scene / "view.png")]) == 0
+
+
 def test_results_without_motion_information_are_flagged(tmp_path, capsys):
     """egomotion of a window whose events share one time returned zero motion marked
     valid; landscape named a minimum on the edge of its range without a word."""

@@ -1161,13 +1161,31 @@ def check_outputs_spare_inputs(args: argparse.Namespace) -> None:
         if isinstance(v, (str, os.PathLike)):
             label = "" if name in positional else "--" + name + " "
             inputs[os.path.realpath(v)] = f"{label}{v}"
+    folders = [p for p in inputs if os.path.isdir(p)]
     for name in OUTPUT_ATTRS:
         v = getattr(args, name, None)
-        if isinstance(v, (str, os.PathLike)) and os.path.realpath(v) in inputs:
-            flag = "OUTPUT" if name == "output" else "--" + name.replace("_", "-")
+        if not isinstance(v, (str, os.PathLike)):
+            continue
+        flag = "OUTPUT" if name == "output" else "--" + name.replace("_", "-")
+        real = os.path.realpath(v)
+        if real in inputs:
             raise ParameterError(f"{flag} {v} is the command's input "
-                                 f"{inputs[os.path.realpath(v)]}: it would be overwritten; "
+                                 f"{inputs[real]}: it would be overwritten; "
                                  f"choose another {flag}")
+        for folder in folders:
+            if real.startswith(folder + os.sep) and _is_member(real, folder):
+                # a frame, the events or the ground truth of an input folder (probe BP)
+                raise ParameterError(f"{flag} {v} is part of the command's input "
+                                     f"{inputs[folder]}: it would be overwritten; "
+                                     f"choose another {flag}")
+
+
+def _is_member(path: str, folder: str) -> bool:
+    """Whether ``path`` is one of the files the recording or frames folder ``folder`` is
+    made of (:func:`evmotion.io.frames.folder_members`)."""
+    from evmotion.io.frames import folder_members
+
+    return any(os.path.realpath(p) == path for p in folder_members(folder))
 
 
 def remove_stale_results(folder, names: tuple[str, ...]) -> None:

@@ -25,14 +25,20 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.catalog import NS_EPOCH_US
-from evmotion.errors import EvmotionWarning, FormatError, MissingDependencyError, ParameterError
+from evmotion.errors import (
+    EvmotionError,
+    EvmotionWarning,
+    FormatError,
+    MissingDependencyError,
+    ParameterError,
+)
 from evmotion.io.base import TIME_UNIT_US
 from evmotion.io.guard import time_to_us
 from evmotion.io.pngfile import check_png, png_header, read_png
 from evmotion.utils import is_file
 
-__all__ = ["Frames", "describe_frames", "find_frames", "frame_paths", "image_size",
-           "read_frames", "read_image"]
+__all__ = ["Frames", "describe_frames", "find_frames", "folder_members", "frame_paths",
+           "image_size", "read_frames", "read_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".webp")
 TIMESTAMP_FILES = ("timestamps.txt", "times.txt", "frame_timestamps.txt",
@@ -408,6 +414,46 @@ def _sniffed_unit(path: Path, firsts: list[str]) -> str:
         f"{'nanoseconds since the epoch' if unit == 'ns' else 'microseconds'} (decimal "
         "times are seconds; other units: time_unit=)"), stacklevel=4)
     return unit
+
+
+#: The files of an ECD-style folder besides its frames (and the schlieren simulator's
+#: ground truth): what a command reading the folder must not write over.
+FOLDER_MEMBERS = ("events.txt", "images.txt", "calib.txt", "imu.txt", "groundtruth.txt",
+                  "schlieren_gt.h5", *TIMESTAMP_FILES)
+
+
+def folder_members(folder: str | os.PathLike) -> set[Path]:
+    """The files a recording or frames folder is made of: its events, frame list,
+    calibration, IMU, ground truth and timestamps files, and the frames they list (or the
+    images beside a timestamps file). An output written over one of them destroyed the
+    recording (``kymogram scene/ --out scene/images/frame_00000000.png``, probe BP).
+
+    Examples
+    --------
+    >>> import os
+    >>> os.makedirs("rec/images", exist_ok=True)
+    >>> _ = open("rec/events.txt", "w").write("0.1 1 2 1\\n")
+    >>> _ = open("rec/images.txt", "w").write("0.0 images/f0.png\\n")
+    >>> open("rec/images/f0.png", "wb").close()
+    >>> sorted(p.relative_to("rec").as_posix() for p in folder_members("rec"))
+    ['events.txt', 'images.txt', 'images/f0.png']
+    """
+    from evmotion.io.ecd import read_image_list
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        return set()
+    out = {folder / name for name in FOLDER_MEMBERS if (folder / name).is_file()}
+    if (folder / "images.txt").is_file():
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                out.update(frame_paths(folder, read_image_list(folder)["files"]))
+        except (EvmotionError, OSError, UnicodeDecodeError):
+            pass  # a list that cannot be read lists nothing to spare
+    elif any(folder / name in out for name in TIMESTAMP_FILES):
+        out.update(_images_in(folder))
+    return out
 
 
 def _images_in(folder: Path) -> list[Path]:
