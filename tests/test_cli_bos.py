@@ -209,6 +209,11 @@ def test_bad_recordings(scene, tmp_path, capsys):
     d = _copy(scene, tmp_path, "noframes")
     (d / "images.txt").unlink()
     _one_line_error(["bos", d, "--out", out], capsys, "no frames", "--frames")
+    # ECD-style events under another name: the same (a raw "[Errno 2] ... images.txt",
+    # exit 1; probe BP)
+    (d / "events.txt").rename(d / "ev.txt")
+    _one_line_error(["bos", d / "ev.txt", "--out", out], capsys, "no images.txt beside",
+                    "--frames")
     # frames but no events: said so (was "format not recognised")
     d = _copy(scene, tmp_path, "noevents")
     (d / "events.txt").unlink()

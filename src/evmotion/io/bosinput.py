@@ -207,7 +207,8 @@ def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, b
     if any((folder / n).is_file() for n in TIMESTAMP_FILES) and \
             find_frames(folder) == "folder":
         return folder, False  # images and a timestamps file beside the events
-    if rec.is_file() and rec.name == "events.txt":
+    if rec.is_file() and rec.suffix.lower() in (".txt", ".csv"):
+        # any name: ev.txt ended in a raw "[Errno 2] ... images.txt", exit 1 (probe BP)
         raise FormatError(rec, "no frames: BOS needs frames of the background, and there "
                           "is no images.txt beside these ECD-style events",
                           "give them with --frames")
