@@ -289,6 +289,28 @@ def test_an_interrupted_simulation_leaves_no_other_scenes_truth(tmp_path, monkey
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     monkeypatch.setattr(evmotion.sim, "write_ground_truth", interrupted)
     assert main(["simulate", "rotation", *argv]) == 130
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]  # no truth, not another's
+    # the earlier pair as it was (its truth had been deleted first, probe BP)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    monkeypatch.undo()
+    # interrupted as the events are written, or just after: a pair either way, nothing
+    # hidden left (a finished events file stood with no truth, probe BP)
+    import evmotion.io
+
+    write = evmotion.io.write_events
+    for when in ("during", "after"):
+        def cut(*args, when=when, **kwargs):
+            if when == "after":
+                write(*args, **kwargs)
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(evmotion.io, "write_events", cut)
+        assert main(["simulate", "rotation", *argv]) == 130
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5", "s_gt.h5"]
+        from evmotion.io.h5attrs import file_attrs
+
+        scene = file_attrs(tmp_path / "s_gt.h5", ("scene",)).get("scene")
+        assert scene == ("translation" if when == "during" else "rotation"), when
+        monkeypatch.undo()

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from evmotion.catalog import MAX_SIM_DURATION_S, MAX_SIM_SIDE, MIN_SIM_SIDE
@@ -235,6 +236,41 @@ def _check_gt_not_shared(out: Path, gt: Path) -> None:
                              f"{owner} and {gt.name}")
 
 
+def _write_pair(out: Path, write_events, write_truth) -> Path:
+    """Write a recording's events (``write_events()``, atomic) and its ground truth
+    (``write_truth(path)``) as a pair: the truth is written first under a hidden name and
+    takes its own as the new events appear; interrupted before, an earlier run's pair
+    stands as it was.
+
+    Interrupted between the two files, new events had stood beside another scene's truth,
+    which info then named as theirs (probe BH); deleting that truth first, a Ctrl-C while
+    the events were written left the earlier events, or a finished new file, with no truth
+    at all (probe BP)."""
+    from evmotion.sim import gt_path_for
+
+    gt = Path(gt_path_for(out))
+    hidden = gt.with_name(f".{gt.name}.{os.getpid()}.part.h5")
+    before = _signature(out)
+    try:
+        write_truth(hidden)
+        write_events()
+    finally:
+        # also when an interrupt came between the events' publication and this line
+        if hidden.exists() and out.exists() and _signature(out) != before:
+            os.replace(hidden, gt)
+        else:
+            hidden.unlink(missing_ok=True)
+    return gt
+
+
+def _signature(path: Path) -> tuple | None:
+    """What tells a file written anew from the one that was there."""
+    if not path.exists():
+        return None
+    st = path.stat()
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
 def _or(value, default):
     return default if value is None else value
 
@@ -337,13 +373,10 @@ def run(args) -> int:
     meta = {"simulator_scene": args.scene, "simulator_seed": args.seed,
             "calibration": sim_calibration(res.gt.K, res.events.sensor_size)} \
         if fmt == "h5" else {}
-    # an earlier run's truth goes first: interrupted between the two files (the truth takes
-    # a second or two), the new events stood beside another scene's truth, which info
-    # then named as theirs (probe BH); now they stand without one
-    Path(gt_path_for(args.out)).unlink(missing_ok=True)
-    write_events(args.out, res.events, format=fmt, **meta)
-    gt_path = write_ground_truth(gt_path_for(args.out), res.gt,
-                                 events_file=Path(args.out).name)
+    gt_path = _write_pair(Path(args.out), lambda: write_events(args.out, res.events,
+                                                               format=fmt, **meta),
+                          lambda path: write_ground_truth(path, res.gt,
+                                                          events_file=Path(args.out).name))
     if args.json:
         print_json({
             "scene": args.scene, "events_file": str(args.out), "gt_file": str(gt_path),
