@@ -164,9 +164,10 @@ def test_polarity_255_is_an_error_wherever_events_are_built(tmp_path):
     for bad in (np.array([2], np.int64), np.array([0.5]), np.array([np.nan])):
         with pytest.raises(EventDataError, match="polarity"):
             EventArray(x=[1], y=[1], t=[1], p=bad, sensor_size=(4, 4))
-    ok = EventArray(x=[1, 1, 1], y=[1, 1, 1], t=[1, 2, 3], p=np.array([-1, 0, 1]),
-                    sensor_size=(4, 4))
-    assert ok.p.tolist() == [0, 0, 1]
+    # -1, 0 and +1 together are no polarity convention (read as 0, 0, 1 unsaid, probe BQ)
+    with pytest.raises(EventDataError, match="neither 0/1 nor -1/\\+1"):
+        EventArray(x=[1, 1, 1], y=[1, 1, 1], t=[1, 2, 3], p=np.array([-1, 0, 1]),
+                   sensor_size=(4, 4))
     assert EventArray(x=[1], y=[1], t=[1], p=np.array([True]), sensor_size=(4, 4)).p[0] == 1
     # a file whose polarity bytes read 255 (the evmotion HDF5 stores them as they are)
     path = tmp_path / "p255.h5"
