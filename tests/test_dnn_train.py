@@ -196,9 +196,12 @@ def test_interrupted_training_names_the_checkpoint_to_resume(tmp_path, capsys, m
 
     monkeypatch.setattr(dnn_train, "train", interrupted)
     assert main(argv[:-2] + ["--epochs", "3", "--resume", "--out", str(out)]) == 130
+    # model.pt / model.npz are said to be an unfinished training's (they looked finished
+    # and flow took them without a word, probe BP)
     assert capsys.readouterr().err == (
-        f"evmotion: interrupted; the work done so far is kept in {out / 'last.pt'}: run the "
-        "same command with --resume to continue\n")
+        f"evmotion: interrupted; the work done so far is kept in {out / 'last.pt'}: model.pt "
+        "and model.npz there are the network after epoch 1 of 3, not a finished training's; "
+        "run the same command with --resume to continue\n")
 
 
 def test_init_weights_starts_from_a_checkpoint(tmp_path):

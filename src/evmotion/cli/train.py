@@ -129,6 +129,20 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _say_unfinished_model(out: Path, epochs: int) -> None:
+    """After an interruption: which epoch's network ``model.pt`` / ``model.npz`` hold (they
+    looked like a finished training's, and flow took them without a word; probe BP)."""
+    from evmotion.utils import set_interrupt_note
+
+    log = out / "epochs.csv"
+    done = max(0, len(log.read_text().splitlines()) - 1) if log.is_file() else 0
+    if not (out / "model.pt").is_file() or done >= epochs:
+        return
+    set_interrupt_note(f"model.pt and model.npz there are the network after epoch {done} "
+                       f"of {epochs}, not a finished training's; run the same command with "
+                       "--resume to continue", "")
+
+
 def _above_the_bar(line: str) -> None:
     """An epoch's line on stderr, above the progress bar (printed plainly it was glued to
     the end of the bar's line)."""
@@ -179,6 +193,7 @@ def run(args) -> int:
         last = out / "last.pt"
         if last.exists():
             keep_for_resume(last)
+            _say_unfinished_model(out, args.epochs)
         elif out.is_dir() and not any(out.iterdir()) and not existed:
             out.rmdir()  # interrupted before its first epoch: nothing to keep
         raise
