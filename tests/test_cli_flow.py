@@ -712,3 +712,19 @@ def test_resume_checks_every_kept_window_against_its_events(recording, tmp_path,
     assert main(argv + ["--resume"]) == 2
     err = capsys.readouterr().err
     assert "window 1 of" in err and "made from other events" in err, err
+
+
+def test_triplet_resume_says_how_much_it_kept(recording, tmp_path, capsys):
+    # probe BP: triplet's resumed summary said nothing of the windows it had kept, as
+    # multicm's and bos's do
+    from evmotion.io.flowread import read_flow
+
+    path, _ = recording
+    out = tmp_path / "t.h5"
+    argv = ["flow", str(path), "--method", "triplet", "--window-events", "4000", "--out",
+            str(out)]
+    assert main(argv) == 0
+    n = len(read_flow(out).t0)
+    capsys.readouterr()
+    assert main([*argv, "--resume"]) == 0
+    assert f"{n} windows ({n} kept from the earlier run)," in capsys.readouterr().out

@@ -138,7 +138,9 @@ def add_parser(sub) -> None:
                    help="folder for colour-wheel and IWE PNGs")
     p.add_argument("--resume", action="store_true",
                    help=".h5 output: continue the OUT.part file an interrupted run kept "
-                        "(same options), computing only the windows it lacks")
+                        "(same options), computing only the windows it lacks (triplet "
+                        "matches every event again, its matcher's state being the events "
+                        "before; only the kept windows' dense fits are saved)")
     p.add_argument("--max-speed", type=positive_float(unit="px/s"), default=None,
                    metavar="PX_S",
                    help="speed at the colour wheel's rim in px/s, one scale for every picture "

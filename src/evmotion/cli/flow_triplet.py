@@ -341,8 +341,10 @@ def run(args) -> int:
                   f"{tri.matcher.depth} times within 2 (d_t + tau) at their pixel: the oldest "
                   "of those timestamps were forgotten, so their matches differ from "
                   "Algorithm 1's (a larger --depth keeps them, or a shorter --dt-ms)")
+    # (a resumed run did not say how much it had reused, as multicm and bos do; probe BP)
     args.flow_summary = {"windows": n_windows if windows_made else None, "events": n_events,
-                         "outputs": outputs}
+                         "outputs": outputs,
+                         "resumed": len(getattr(dense_out, "done", None) or ())}
     if args.json:
         print_json({
             "method": "triplet", "file": str(args.file), "out": str(out),
