@@ -1173,6 +1173,30 @@ def test_output_locks_are_per_user_and_never_fail_a_run(tmp_path, monkeypatch):
     with outputs_locked(argparse.Namespace(out=str(tmp_path / "a.h5"))):
         folder = tmp_path / f"evmotion-locks-{os.getuid()}"
         assert stat.S_IMODE(folder.stat().st_mode) == 0o700 and any(folder.iterdir())
+    # each lock is removed as it is released (every output path had left its file: 38,500
+    # of them, probe BP); a file removed by its holder as another run opened it is not
+    # taken for the lock
+    assert not any(folder.iterdir())
+    import fcntl
+
+    from evmotion.cli.options import _take_lock
+
+    lock = folder / "x.lock"
+    calls = []
+
+    class Racy:  # the holder removes the file between this run's open and its flock
+        LOCK_EX, LOCK_NB = fcntl.LOCK_EX, fcntl.LOCK_NB
+
+        @staticmethod
+        def flock(fd, op):
+            calls.append(os.fstat(fd).st_ino)
+            if len(calls) == 1:
+                os.unlink(lock)
+            fcntl.flock(fd, op)
+
+    fd = _take_lock(Racy, lock, "--out x", "--out")
+    assert len(calls) == 2 and os.fstat(fd).st_ino == os.stat(lock).st_ino == calls[1]
+    os.close(fd)
     other = tmp_path / "o"
     other.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(other))

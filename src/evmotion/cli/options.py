@@ -1108,26 +1108,46 @@ def outputs_locked(args: argparse.Namespace):
             if folder is None:
                 continue  # advisory: no private folder for it, no lock (never a failure)
             lock = folder / (hashlib.sha1(real.encode()).hexdigest()[:20] + ".lock")
-            try:
-                fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o600)
-            except OSError:
-                continue
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                other = os.read(fd, 32).decode(errors="replace").strip() or "?"
-                os.close(fd)
-                flag = "OUTPUT" if name == "output" else "--" + name.replace("_", "-")
-                raise ParameterError(f"{flag} {v} is being written by another evmotion run "
-                                     f"(process {other}): wait for it to end, or choose "
-                                     f"another {flag}") from None
-            os.ftruncate(fd, 0)
-            os.write(fd, str(os.getpid()).encode())
-            held.append(fd)
+            flag = "OUTPUT" if name == "output" else "--" + name.replace("_", "-")
+            fd = _take_lock(fcntl, lock, f"{flag} {v}", flag)
+            if fd is not None:
+                held.append((fd, lock))
         yield
     finally:
-        for fd in held:
-            os.close(fd)  # releases the lock; the small file stays for the next run
+        for fd, lock in held:
+            # removed while still held, then released: each output path had left its file
+            # behind, 38,500 of them in a shared temporary folder (probe BP)
+            with contextlib.suppress(OSError):
+                os.unlink(lock)
+            os.close(fd)
+
+
+def _take_lock(fcntl, lock: Path, what: str, flag: str) -> int | None:
+    """The descriptor of ``lock``, created and locked (``flock``, not waiting), or None
+    where it cannot be opened; a ParameterError naming ``what`` when another run holds it.
+    A file its last holder removed as this run opened it is opened again."""
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o600)
+        except OSError:
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            other = os.read(fd, 32).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise ParameterError(f"{what} is being written by another evmotion run "
+                                 f"(process {other}): wait for it to end, or choose "
+                                 f"another {flag}") from None
+        try:
+            current = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except OSError:
+            current = False
+        if current:
+            os.ftruncate(fd, 0)
+            os.write(fd, str(os.getpid()).encode())
+            return fd
+        os.close(fd)  # a removed file's lock guards nothing: take the new one
 
 
 def _lock_folder() -> Path | None:
