@@ -456,3 +456,18 @@ def test_network_options_given_to_multicm_are_named_alone():
     with pytest.raises(ParameterError, match=r"device='cuda' and threads=2 are the network's "
                                              r"options: they apply"):
         estimate_flow(ev, device="cuda", threads=2)
+
+
+@pytest.mark.parametrize("method", ["multicm", "dnn"])
+def test_dense_flow_of_a_few_hundred_events_is_no_measurement(method):
+    # probe BQ: the first 100 events of a simulated translation (228 us: 0.05 px of
+    # motion) gave a flow of (-4489, -10046) px/s for (220, -130), 592 pixels valid
+    from evmotion import estimate_flow
+    from evmotion.errors import PoorFitWarning
+    from evmotion.sim import simulate
+
+    sim = simulate("translation", duration_s=0.05, sensor_size=(180, 240), seed=0,
+                   show_progress=False)
+    with pytest.warns(PoorFitWarning, match=r"too few events: 100 \(fewer than 1000\)"):
+        res = estimate_flow(sim.events[:100], method=method)
+    assert not res.valid.any() and res.meta["no_focus"]

@@ -68,6 +68,7 @@ from evmotion.methods.flowresult import (
     event_support,
 )
 from evmotion.methods.measured import (
+    MIN_FLOW_EVENTS,
     flow_alignment_gain,
     halves_consistency,
     warn_by_chance,
@@ -76,6 +77,7 @@ from evmotion.methods.measured import (
     warn_gap,
     warn_inconsistent_halves,
     warn_no_gain,
+    warn_too_few,
 )
 from evmotion.methods.options import merge_options
 from evmotion.utils import resolve_options, whole_number
@@ -672,7 +674,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     chance = float("nan")
     # flicker lights every pixel at once: a flow that gathers those bursts sharpens them,
     # whatever moves (said first: it names the cause the focus tests below cannot)
-    no_focus = (warn_gap(events.t, "dense flow") is not None
+    no_focus = (warn_too_few(len(events), "dense flow", least=MIN_FLOW_EVENTS) is not None
+                or warn_gap(events.t, "dense flow") is not None
                 or warn_flicker(events, "dense flow") is not None
                 or warn_no_gain(focus, "dense flow") is not None)
     if not no_focus:
