@@ -494,7 +494,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     Parameters
     ----------
     events : EventArray
-        One window (at least a few hundred events); undistort first if needed.
+        One window; undistort first if needed. Under
+        :data:`~evmotion.methods.measured.MIN_FLOW_EVENTS` (1,000) events it is no
+        measurement (``valid`` all False, a PoorFitWarning).
     method : {"multicm", "dnn"}
         ``"dnn"``: the unsupervised EV-FlowNet (:mod:`evmotion.methods.dnn`, needs torch)
         from ``checkpoint`` on ``device`` and ``threads``; the multicm options below must
