@@ -761,7 +761,7 @@ def _h5_equal(a: Path, b: Path) -> None:
     ("triplet", ["--dense", "robust", "--window-us", "5000"],
      "evmotion.methods.triplet.dense_robust_fit"),
     ("triplet", ["--window-events", "800"], "evmotion.methods.triplet.dense_from_sums"),
-    pytest.param("multicm", ["--window-events", "600"], "evmotion.methods.multicm.estimate_flow",
+    pytest.param("multicm", ["--window-events", "1000"], "evmotion.methods.multicm.estimate_flow",
                  marks=pytest.mark.slow),
 ])
 def test_interrupted_h5_resumes_to_the_uninterrupted_output(rec, tmp_path, capsys,
