@@ -236,6 +236,14 @@ def test_bad_recordings(scene, tmp_path, capsys):
     (d / "images.txt").write_text("".join(f"{float(t) + 100:.6f} {f}\n"
                                           for t, f in (ln.split() for ln in lines)))
     _one_line_error(["bos", d, "--out", out], capsys, "do not overlap")
+    # frames that do not change (still air) under the events: said of the sequence, not
+    # as the first interval's fit ("covariance 0", probe BN)
+    d = _copy(scene, tmp_path, "still")
+    first = (d / "images" / "frame_00000000.png").read_bytes()
+    for f in (d / "images").glob("*.png"):
+        f.write_bytes(first)
+    _one_line_error(["bos", d, "--out", out], capsys, "in none of the",
+                    "frame intervals tried do the events follow", "--contrast-threshold")
     # textureless frames only: nothing to measure against
     d = _copy(scene, tmp_path, "flat")
     for f in sorted((d / "images").glob("*.png")):

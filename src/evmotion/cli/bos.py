@@ -207,7 +207,7 @@ def run(args) -> int:
                  # --t0 / --t1 / --max-intervals is named as such
                  "frame_intervals": np.asarray([data.intervals[0, 0], len(data.intervals)],
                                                np.int64),
-                 "contrast_threshold": -1.0 if c is None else c,
+                 "contrast_threshold": c,
                  "contrast_threshold_source": c_source}
         with scheduler_client(args.scheduler) as client:
             # (a --workers 1 given with --scheduler is one chunk, as without: it had been

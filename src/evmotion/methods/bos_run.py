@@ -54,16 +54,16 @@ class BosRun:
     ----------
     results : list of BosResult
         One per selected interval, in time order.
-    contrast_threshold : float or None
-        The C used for every interval (None where no estimate was possible).
+    contrast_threshold : float
+        The C used for every interval.
     c_source : str
-        ``"given"``, ``"median of N intervals"`` or ``"none"``.
+        ``"given"`` or ``"median of N intervals"``.
     c_samples : ndarray
         The per-interval estimates the median was taken over.
     """
 
     results: list
-    contrast_threshold: float | None
+    contrast_threshold: float
     c_source: str
     c_samples: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
@@ -579,9 +579,9 @@ def _event_gain(data: BosInput, interval, textured: dict[int, bool]) -> float:
 def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, *,
                        samples: int = 15, exclude: Collection[int] = ()
                        ) -> tuple[float | None, str, np.ndarray]:
-    """The C of a run: ``(C or None, source, per-interval estimates)``, the source being
-    ``"given"``, ``"median of N intervals"`` (:func:`sequence_contrast_threshold`, without
-    the intervals of ``exclude``) or ``"none"``.
+    """The C of a run: ``(C, source, per-interval estimates)``, the source being
+    ``"given"`` or ``"median of N intervals"`` (:func:`sequence_contrast_threshold`, without
+    the intervals of ``exclude``); an EventDataError where no interval gives one.
 
     Examples
     --------
@@ -598,7 +598,15 @@ def sequence_threshold(data: BosInput, contrast_threshold: float | None = None, 
     c, est = sequence_contrast_threshold(data, samples=samples, exclude=exclude)
     if c is None:
         _refuse_blank_frames(data)
-    return c, (f"median of {est.size} intervals" if c is not None else "none"), est
+        # said of the sequence (the first interval's fit had been named, "covariance 0",
+        # as if that interval alone were at fault; probe BN)
+        n = len(_sampled_intervals(data, samples, exclude))
+        raise EventDataError(
+            f"cannot estimate the contrast threshold: in none of the {n} frame intervals "
+            "tried do the events follow the frames' change (still air, events that are "
+            "noise, or frames not of these events): no flow to measure; give "
+            "--contrast-threshold (contrast_threshold=) to solve with a known C")
+    return c, f"median of {est.size} intervals", est
 
 
 def _refuse_blank_frames(data: BosInput) -> None:
