@@ -22,11 +22,11 @@ demo: $(STAMP)
 	$(BIN)/python -m evmotion.demo --out demo_out
 
 test: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks examples docs/conf.py
+	$(BIN)/ruff check src tests benchmarks examples docs/conf.py conftest.py
 	$(BIN)/python -m pytest -n 2 -q
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks examples docs/conf.py
+	$(BIN)/ruff check src tests benchmarks examples docs/conf.py conftest.py
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run.py
