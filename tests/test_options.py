@@ -122,3 +122,23 @@ def test_times_and_durations_take_nanoseconds():
     assert time_us("+2500ns") == 3 and duration_us("10000000ns") == 10_000
     with pytest.raises(argparse.ArgumentTypeError, match="whole number of microseconds"):
         duration_us("1500ns")
+
+
+def test_progress_on_a_terminal_of_no_columns_is_drawn_80_wide(monkeypatch, capsys):
+    # probe BP: a terminal reporting 0 columns (script without stty cols) got a bar 0
+    # wide: no count, rate or ETA
+    import os
+    import sys
+
+    import evmotion.utils as utils
+
+    monkeypatch.setenv("EVMOTION_PROGRESS", "1")
+    monkeypatch.setattr(os, "get_terminal_size", lambda *a: os.terminal_size((0, 0)))
+    for _ in utils.progress(range(5), total=5, desc="flow", unit="win"):
+        pass
+    last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert "flow" in last and "5/5" in last and len(last) <= 80
+    assert utils._bar_width() == {"ncols": 80}
+    monkeypatch.setattr(os, "get_terminal_size", lambda *a: os.terminal_size((120, 40)))
+    monkeypatch.setattr(sys.stderr, "fileno", lambda: 2, raising=False)
+    assert utils._bar_width() == {"dynamic_ncols": True}

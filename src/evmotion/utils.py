@@ -411,7 +411,18 @@ def progress(iterable: Iterable[T], *, total: int | None = None, desc: str = "",
             bar.log_lines = True  # (refine_total: no refresh, which writes a line)
             return bar
     return tqdm(iterable, total=total, desc=desc, unit=unit, disable=bool(disable),
-                unit_scale=unit_scale, file=sys.stderr, dynamic_ncols=True)
+                unit_scale=unit_scale, file=sys.stderr, **_bar_width())
+
+
+def _bar_width() -> dict:
+    """tqdm's width keywords: the terminal's, followed as it is resized; 80 columns where it
+    reports none (a terminal of 0 columns, as ``script`` opens one: the bar was drawn 0
+    wide, no rate, no ETA; probe BP)."""
+    try:
+        columns = os.get_terminal_size(sys.stderr.fileno()).columns
+    except (OSError, ValueError, AttributeError):
+        columns = 0
+    return {"dynamic_ncols": True} if columns > 0 else {"ncols": 80}
 
 
 #: Seconds between the progress lines written to a log (stderr not a TTY)
