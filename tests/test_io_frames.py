@@ -178,6 +178,10 @@ def test_bare_names_of_files_in_images_are_found_there(tmp_path):
     fr = read_frames(tmp_path)
     np.testing.assert_array_equal(fr.images, imgs)
     assert describe(tmp_path)["sensor_size"] == (6, 7)
+    # a stray copy of one frame beside the list: the others are still found (probe BR)
+    (tmp_path / "frame_00000000.png").write_bytes(
+        (tmp_path / "images" / "frame_00000000.png").read_bytes())
+    np.testing.assert_array_equal(read_frames(tmp_path).images, imgs)
 
 
 @pytest.mark.parametrize("second, match", [(np.zeros((5, 5), np.uint8), "7x6"),

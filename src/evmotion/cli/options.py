@@ -1051,7 +1051,15 @@ __all__ += ["check_flow_out"]
 # the attributes naming what a command reads, and what it writes
 INPUT_ATTRS = ("file", "rec", "flow", "input", "gt", "events", "frames", "checkpoint",
                "calib")
-OUTPUT_ATTRS = ("out", "output", "video", "csv", "png_dir")
+OUTPUT_ATTRS = ("out", "output", "out_option", "video", "csv", "png_dir")
+
+
+def _output_flag(name: str) -> str:
+    """How the command line names the output attribute ``name`` (convert's ``--out`` is
+    kept as ``out_option``: it was neither locked nor checked against the inputs, probe
+    BR)."""
+    return {"output": "OUTPUT", "out_option": "--out"}.get(name,
+                                                             "--" + name.replace("_", "-"))
 
 
 def note_parallel_interrupt(args: argparse.Namespace, unit: str) -> None:
@@ -1108,7 +1116,7 @@ def outputs_locked(args: argparse.Namespace):
             if folder is None:
                 continue  # advisory: no private folder for it, no lock (never a failure)
             lock = folder / (hashlib.sha1(real.encode()).hexdigest()[:20] + ".lock")
-            flag = "OUTPUT" if name == "output" else "--" + name.replace("_", "-")
+            flag = _output_flag(name)
             fd = _take_lock(fcntl, lock, f"{flag} {v}", flag)
             if fd is not None:
                 held.append((fd, lock))
@@ -1186,26 +1194,38 @@ def check_outputs_spare_inputs(args: argparse.Namespace) -> None:
         v = getattr(args, name, None)
         if not isinstance(v, (str, os.PathLike)):
             continue
-        flag = "OUTPUT" if name == "output" else "--" + name.replace("_", "-")
+        flag = _output_flag(name)
         real = os.path.realpath(v)
         if real in inputs:
             raise ParameterError(f"{flag} {v} is the command's input "
                                  f"{inputs[real]}: it would be overwritten; "
                                  f"choose another {flag}")
         for folder in folders:
-            if real.startswith(folder + os.sep) and _is_member(real, folder):
+            inside = real == folder or real.startswith(folder + os.sep)
+            members = _members(folder) if inside else []
+            if real in members:
                 # a frame, the events or the ground truth of an input folder (probe BP)
                 raise ParameterError(f"{flag} {v} is part of the command's input "
                                      f"{inputs[folder]}: it would be overwritten; "
                                      f"choose another {flag}")
+            held = [m for m in members if os.path.dirname(m) == real]
+            if held and os.path.isdir(real):
+                # an output folder (pictures, results) holding them: its files written
+                # over them, its stale pictures removed (bos --png-dir scene/images
+                # replaced frames and deleted one; probe BR)
+                raise ParameterError(f"{flag} {v} holds files of the command's input "
+                                     f"{inputs[folder]} ({os.path.basename(held[0])}"
+                                     f"{' ...' if len(held) > 1 else ''}): what is written "
+                                     f"there could overwrite or remove them; choose another "
+                                     f"{flag}")
 
 
-def _is_member(path: str, folder: str) -> bool:
-    """Whether ``path`` is one of the files the recording or frames folder ``folder`` is
-    made of (:func:`evmotion.io.frames.folder_members`)."""
+def _members(folder: str) -> list[str]:
+    """The real paths of the files the recording or frames folder ``folder`` is made of
+    (:func:`evmotion.io.frames.folder_members`)."""
     from evmotion.io.frames import folder_members
 
-    return any(os.path.realpath(p) == path for p in folder_members(folder))
+    return [os.path.realpath(p) for p in folder_members(folder)]
 
 
 def remove_stale_results(folder, names: tuple[str, ...]) -> None:

@@ -622,11 +622,10 @@ def frame_paths(folder: str | os.PathLike, names: list[str]) -> list[Path]:
     ['scene/images/f0.png']
     """
     folder = Path(folder)
-    files = [folder / name for name in names]
-    beside = [folder / "images" / name for name in names]
-    if files and not is_file(files[0]) and all(is_file(f) for f in beside):
-        return beside
-    return files
+    # each name on its own (decided by the first, a stray copy of one frame beside the list
+    # made the others missing; probe BR)
+    return [folder / name if is_file(folder / name) or not is_file(folder / "images" / name)
+            else folder / "images" / name for name in names]
 
 
 def _listed_files(listing: Path, folder: Path, names: list[str]) -> list[Path]:
