@@ -12,11 +12,12 @@ from evmotion.errors import ParameterError, PoorFitWarning
 from evmotion.events import EventArray
 
 __all__ = ["MAX_ONE_POLARITY", "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CONTRAST_GAIN",
-           "MIN_FIT_EVENTS", "MIN_FLOW_EVENTS", "MIN_HALVES_CORRELATION", "MIN_MOTION_PX", "MAX_GAP_SHARE",
+           "MIN_FIT_EVENTS", "MIN_FLOW_DENSITY", "MIN_FLOW_EVENTS", "MIN_HALVES_CORRELATION",
+           "MIN_MOTION_PX", "MAX_GAP_SHARE",
            "alignment_gain", "flow_alignment_gain", "gap_share", "halves_consistency",
            "lit_not_moved", "local_swing", "polarity_bursts", "warn_by_chance",
            "warn_by_refit", "warn_flicker", "warn_gap", "warn_inconsistent_halves", "warn_no_gain",
-           "warn_small_motion", "warn_too_few"]
+           "min_flow_events", "warn_small_motion", "warn_too_few"]
 
 # an estimate whose image of warped events is not this much sharper (variance ratio) than
 # the identity warp's measures nothing (a 3.3 ms ECD window: 1.002, its rotation wrong)
@@ -67,17 +68,36 @@ def warn_small_motion(moved_px: float, warp: str, stacklevel: int = 3) -> str | 
 
 
 #: Fewest events a window needs for a dense flow (a field of unknowns, where a warp has
-#: 1-8) to be a measurement: windows of 100-600 events of simulated scenes moving 0.06-0.2
-#: px gave flows moving them 2-5 px that passed the focus, chance and halves tests (3 of
-#: 160 windows; probe BQ, 2026-12-01), and no window under 1,000 events of the shared
-#: recordings but the shapes' was valid at all.
+#: 1-8) to be a measurement on a large sensor: on 240x180, windows of 100-600 events of
+#: simulated scenes moving 0.06-0.2 px gave flows moving them 2-5 px that passed the focus,
+#: chance and halves tests (3 of 160 windows; probe BQ, 2026-12-01), and no window under
+#: 1,000 events of the shared recordings but the shapes' was valid at all. A small sensor
+#: needs fewer (:func:`min_flow_events`).
 MIN_FLOW_EVENTS = 1000
+#: ... or this many events per pixel of the sensor, where that is fewer (and at least
+#: :data:`MIN_FIT_EVENTS`): 500 events on 32x32 (0.5 a pixel, as 30,000 on 240x180)
+#: measured a translation at AEE 0.30 px for 2.2 of no flow (probe BR).
+MIN_FLOW_DENSITY = 0.05
+
+
+def min_flow_events(sensor_size: tuple[int, int]) -> int:
+    """The fewest events a window of a ``sensor_size`` (H, W) sensor needs for its dense
+    flow to be a measurement: :data:`MIN_FLOW_EVENTS`, or :data:`MIN_FLOW_DENSITY` a
+    pixel where that is fewer, and at least :data:`MIN_FIT_EVENTS`.
+
+    Examples
+    --------
+    >>> min_flow_events((180, 240)), min_flow_events((64, 64)), min_flow_events((32, 32))
+    (1000, 205, 100)
+    """
+    h, w = sensor_size
+    return int(min(MIN_FLOW_EVENTS, max(MIN_FIT_EVENTS, np.ceil(MIN_FLOW_DENSITY * h * w))))
 
 
 def warn_too_few(n_events: int, warp: str, stacklevel: int = 3,
                  least: int = MIN_FIT_EVENTS) -> str | None:
     """Issue a :class:`~evmotion.errors.PoorFitWarning` when a window holds fewer than
-    ``least`` events (:data:`MIN_FIT_EVENTS` for a warp, :data:`MIN_FLOW_EVENTS` for a
+    ``least`` events (:data:`MIN_FIT_EVENTS` for a warp, :func:`min_flow_events` for a
     dense flow): too few for a contrast to measure a motion (a handful of events sharpen
     by chance); returns its message (else None)."""
     if n_events >= least:

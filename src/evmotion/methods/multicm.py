@@ -68,9 +68,9 @@ from evmotion.methods.flowresult import (
     event_support,
 )
 from evmotion.methods.measured import (
-    MIN_FLOW_EVENTS,
     flow_alignment_gain,
     halves_consistency,
+    min_flow_events,
     warn_by_chance,
     warn_by_refit,
     warn_flicker,
@@ -495,8 +495,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     ----------
     events : EventArray
         One window; undistort first if needed. Under
-        :data:`~evmotion.methods.measured.MIN_FLOW_EVENTS` (1,000) events it is no
-        measurement (``valid`` all False, a PoorFitWarning).
+        :func:`~evmotion.methods.measured.min_flow_events` events (1,000, fewer on a sensor
+        under 20,000 px) it is no measurement (``valid`` all False, a PoorFitWarning).
     method : {"multicm", "dnn"}
         ``"dnn"``: the unsupervised EV-FlowNet (:mod:`evmotion.methods.dnn`, needs torch)
         from ``checkpoint`` on ``device`` and ``threads``; the multicm options below must
@@ -676,7 +676,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     chance = float("nan")
     # flicker lights every pixel at once: a flow that gathers those bursts sharpens them,
     # whatever moves (said first: it names the cause the focus tests below cannot)
-    no_focus = (warn_too_few(len(events), "dense flow", least=MIN_FLOW_EVENTS) is not None
+    no_focus = (warn_too_few(len(events), "dense flow",
+                             least=min_flow_events(events.sensor_size)) is not None
                 or warn_gap(events.t, "dense flow") is not None
                 or warn_flicker(events, "dense flow") is not None
                 or warn_no_gain(focus, "dense flow") is not None)
