@@ -126,7 +126,8 @@ def add_parser(sub) -> None:
     win = p.add_mutually_exclusive_group()
     win.add_argument("--window-events", type=int_range(10), default=None, metavar="N",
                      help="events per window (>= 10; default 30000, as many per pixel on "
-                          "sensors larger than 346 x 260)")
+                          "sensors larger than 346 x 260; a dense flow of fewer than 1000, "
+                          "or 0.05 a pixel on a small sensor, is no measurement)")
     win.add_argument("--window-us", type=duration_us, default=None, metavar="T",
                      help="windows of this duration instead: microseconds, or with a unit "
                           "(10000, 10ms, 0.01s)")
