@@ -238,28 +238,39 @@ def _check_gt_not_shared(out: Path, gt: Path) -> None:
 
 def _write_pair(out: Path, write_events, write_truth) -> Path:
     """Write a recording's events (``write_events()``, atomic) and its ground truth
-    (``write_truth(path)``) as a pair: the truth is written first under a hidden name and
-    takes its own as the new events appear; interrupted before, an earlier run's pair
-    stands as it was.
+    (``write_truth(path)``) as a pair. The new truth is written first under a hidden name;
+    an earlier truth steps aside (hidden) as the events are written, and the new one takes
+    its name once they stand. Interrupted before that, the earlier pair is put back; killed
+    (SIGKILL), events may stand without a truth, never beside another scene's.
 
     Interrupted between the two files, new events had stood beside another scene's truth,
     which info then named as theirs (probe BH); deleting that truth first, a Ctrl-C while
     the events were written left the earlier events, or a finished new file, with no truth
-    at all (probe BP)."""
+    at all (probe BP); killed as the events appeared, new events stood beside the earlier
+    truth, and the hidden truths of killed runs piled up (probe BR)."""
     from evmotion.sim import gt_path_for
+    from evmotion.utils import remove_stale_temps, temp_prefix
 
     gt = Path(gt_path_for(out))
-    hidden = gt.with_name(f".{gt.name}.{os.getpid()}.part.h5")
+    for suffix in (".part.h5", ".old.h5"):
+        remove_stale_temps(gt, suffix)  # a killed run's
+    hidden = gt.with_name(f"{temp_prefix(gt)}part.h5")
+    earlier = gt.with_name(f"{temp_prefix(gt)}old.h5")
     before = _signature(out)
     try:
         write_truth(hidden)
+        if gt.exists():
+            os.replace(gt, earlier)
         write_events()
     finally:
         # also when an interrupt came between the events' publication and this line
         if hidden.exists() and out.exists() and _signature(out) != before:
             os.replace(hidden, gt)
+            earlier.unlink(missing_ok=True)
         else:
             hidden.unlink(missing_ok=True)
+            if earlier.exists():
+                os.replace(earlier, gt)
     return gt
 
 
