@@ -440,3 +440,18 @@ def test_time_unit_for_a_format_that_states_its_own_is_refused_in_words(tmp_path
         with pytest.raises(ParameterError, match=r"time_unit='ms': .*r\.dat is 'dat', whose "
                                                  r"times carry their unit"):
             call(tmp_path / "r.dat", time_unit="ms")
+
+
+def test_polarities_of_one_convention_then_another_are_refused_when_streamed(tmp_path):
+    """-1/+1 in the first part of a text file, 0/1 after: each chunk passed alone, and
+    info and convert read the whole file (probe BR)."""
+    from evmotion.errors import FormatError
+    from evmotion.io import ecd
+
+    n = 4000
+    p = np.r_[np.tile([-1, 1], n // 4), np.tile([0, 1], n // 4)]
+    path = tmp_path / "mixed.txt"
+    path.write_text("".join(f"{k * 1e-5:.6f} {k % 7} {k % 5} {v}\n" for k, v in enumerate(p)))
+    with pytest.raises(FormatError, match=r"holds -1 \(event 0\) and 0 \(event 2000\)"):
+        for _ in ecd.iter_chunks(path, 500, sensor_size=(8, 8), block_bytes=4096):
+            pass

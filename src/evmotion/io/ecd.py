@@ -861,7 +861,9 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     where = {"block_start": 0, "bytes_read": 0}
     buf = [np.zeros(0, np.int64)] * 4
     last_t = None
+    signs = _PolaritySigns(ev_path)
     for block in _blocks(ev_path, block_bytes, unit, where):
+        signs.check(block[3])
         buf = [np.concatenate([a, b]) for a, b in zip(buf, block, strict=True)]
         while buf[2].size >= chunk_events:
             part = [a[:chunk_events] for a in buf]
@@ -887,6 +889,27 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
         if last_t is None:
             _doubt_unit(ev_path, ev.t, ev.x, ev.y, size, unit, given=time_unit is not None)
         yield ev
+
+
+class _PolaritySigns:
+    """The polarity values a streamed file has shown so far: -1 in one part and 0 in
+    another is refused as :func:`~evmotion.events.ambiguous_polarity` refuses them in one
+    array (checked chunk by chunk, a file of -1/+1 then 0/1 was read whole; probe BR)."""
+
+    def __init__(self, path: Path):
+        self.path, self.negative, self.zero, self.seen = path, None, None, 0
+
+    def check(self, p: np.ndarray) -> None:
+        if p.size:
+            if self.negative is None and p.min() == -1:
+                self.negative = self.seen + int(np.argmax(p == -1))
+            if self.zero is None and (p == 0).any():
+                self.zero = self.seen + int(np.argmax(p == 0))
+        self.seen += p.size
+        if self.negative is not None and self.zero is not None:
+            raise FormatError(self.path, f"field 'p' holds -1 (event {self.negative}) and 0 "
+                              f"(event {self.zero}): neither 0/1 nor -1/+1; map each value "
+                              "to 0 (OFF) or 1 (ON) first")
 
 
 def _check_follows(last_t: int | None, ev: EventArray) -> None:
