@@ -1372,6 +1372,14 @@ def test_an_output_folder_is_described_not_read_as_frames(rec, tmp_path, capsys)
     # eval: segment's folder is named as such (its PNG panels were taken for flow files)
     _assert_one_line(*_run(["eval", str(tmp_path / "segment"), "--gt", rec["gt"]], capsys),
                      "clusters.h5 holds the parameters of 'segment'")
+    # a recording folder with results beside its events is the recording (info of a
+    # schlieren scene described its schlieren_gt.h5, probe BR)
+    scene = tmp_path / "scene"
+    assert main(["simulate", "schlieren", "--scene", "plume", "--size", "48x40",
+                 "--duration", "0.03", "--out", str(scene)]) == 0
+    capsys.readouterr()
+    assert main(["info", str(scene), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["format"] == "ecd"
 
 
 def test_view_says_when_t0_comes_before_the_recording(tmp_path, capsys):

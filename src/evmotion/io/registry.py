@@ -221,7 +221,9 @@ def own_output_folder(path: str | os.PathLike) -> tuple[Path, str] | None:
     from evmotion.io.h5filters import HDF5_MAGIC
 
     folder = Path(path)
-    if not folder.is_dir():
+    if not folder.is_dir() or (folder / "events.txt").is_file():
+        # a recording, whose results may lie beside its events (info of a schlieren scene
+        # described its schlieren_gt.h5, or a bos.h5 written there; probe BR)
         return None
     for f in sorted(folder.glob("*.h5"))[:16]:
         try:
