@@ -262,3 +262,13 @@ def test_imu_tables_beside_other_files_headers_and_degrees(tmp_path, capsys):
     (tmp_path / "two.txt").write_text("0.0 0.5\n0.1 0.6\n")
     assert main(["eval", str(out), "--gt", str(tmp_path / "two.txt")]) == 2
     assert "nor an angular-velocity table, which has 't gx gy gz'" in capsys.readouterr().err
+    # a translation's parameters against a table: not read as 'gx gy gz' lines (probe BR)
+    rec = tmp_path / "tr.h5"
+    assert main(["simulate", "translation", "--size", "40x48", "--duration", "0.05", "--out",
+                 str(rec)]) == 0
+    assert main(["egomotion", str(rec), "--warp", "translation", "--out",
+                 str(tmp_path / "egot"), "--max-png", "0"]) == 0
+    capsys.readouterr()
+    (tmp_path / "tv.txt").write_text("0.0 60 0\n0.1 60 0\n")
+    assert main(["eval", str(tmp_path / "egot"), "--gt", str(tmp_path / "tv.txt")]) == 2
+    assert "score a rotation's parameters" in capsys.readouterr().err

@@ -448,6 +448,15 @@ def _events_on_grid(args, attrs: dict):
     return moved
 
 
+def _angular_velocities(gt: Path) -> bool:
+    """Whether ``--gt`` is a table of angular velocities (or an IMU's) rather than a flow
+    ground truth: as :func:`_ground_truth` tells them apart."""
+    from evmotion.io.angvel import is_angular_velocity_table, text_columns
+
+    text = gt.is_file() and gt.suffix.lower() in (".txt", ".csv")
+    return is_angular_velocity_table(gt) or (text and text_columns(gt) != 2)
+
+
 def _ground_truth(args):
     """What --gt holds: ``(angular velocities, None)``
     (:func:`evmotion.io.angvel.read_angular_velocity`: a table of them, a folder's
@@ -457,11 +466,7 @@ def _ground_truth(args):
     from pathlib import Path
 
     from evmotion.io import detect_format
-    from evmotion.io.angvel import (
-        is_angular_velocity_table,
-        read_angular_velocity,
-        text_columns,
-    )
+    from evmotion.io.angvel import read_angular_velocity
     from evmotion.io.flowfiles import read_gt_flow
 
     axes = args.imu_axes or "x,y,z"
@@ -469,7 +474,7 @@ def _ground_truth(args):
     text = gt.is_file() and gt.suffix.lower() in (".txt", ".csv")
     # a text file of other than 2 columns (DSEC's flow timestamps) is a table or nothing:
     # its errors were DSEC's "from_us, to_us" (probe BM)
-    if is_angular_velocity_table(gt) or (text and text_columns(gt) != 2):
+    if _angular_velocities(gt):
         return read_angular_velocity(gt, axes=axes), None
     try:
         return None, read_gt_flow(gt)
@@ -592,6 +597,14 @@ def _run_egomotion(args, path: Path) -> int:
                              "params.h5, one motion per window")
     if not len(table):
         raise ParameterError(f"{path} holds no window")
+    warp = str(table.attrs.get("warp", ""))
+    if args.gt is not None and warp != "rotation" and _angular_velocities(Path(args.gt)):
+        # (a translation's (vx, vy) table was read as 'gx gy gz' lines; probe BR)
+        raise ParameterError(f"--gt {args.gt}: a table or IMU is read as angular "
+                             "velocities, which score a rotation's parameters; "
+                             f"{path} holds those of a {warp} warp: score them "
+                             "against a flow ground truth (--gt) or the events' sharpness "
+                             "(--events)")
     reference, gt = _ground_truth(args) if args.gt is not None else (None, None)
     if reference is not None:
         return _run_angular_velocity(args, path, table, reference)
