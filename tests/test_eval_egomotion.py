@@ -271,4 +271,4 @@ def test_imu_tables_beside_other_files_headers_and_degrees(tmp_path, capsys):
     capsys.readouterr()
     (tmp_path / "tv.txt").write_text("0.0 60 0\n0.1 60 0\n")
     assert main(["eval", str(tmp_path / "egot"), "--gt", str(tmp_path / "tv.txt")]) == 2
-    assert "score a rotation's parameters" in capsys.readouterr().err
+    assert "scores the rotation warp's parameters" in capsys.readouterr().err

@@ -600,8 +600,8 @@ def _run_egomotion(args, path: Path) -> int:
     warp = str(table.attrs.get("warp", ""))
     if args.gt is not None and warp != "rotation" and _angular_velocities(Path(args.gt)):
         # (a translation's (vx, vy) table was read as 'gx gy gz' lines; probe BR)
-        raise ParameterError(f"--gt {args.gt}: a table or IMU is read as angular "
-                             "velocities, which score a rotation's parameters; "
+        raise ParameterError(f"--gt {args.gt}: an angular velocity (a table's, an IMU's) "
+                             "scores the rotation warp's parameters; "
                              f"{path} holds those of a {warp} warp: score them "
                              "against a flow ground truth (--gt) or the events' sharpness "
                              "(--events)")
