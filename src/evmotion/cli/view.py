@@ -124,8 +124,12 @@ def run(args) -> int:
     check_time_order(args)
     out = Path(args.out)
     if args.format is None:
-        from evmotion.io.flowread import describe_flow
+        from evmotion.io.flowread import describe_flow, undated_flow_files
 
+        undated = undated_flow_files(args.file)
+        if undated:  # .flo / .png files of another tool: their displacement, in px
+            # (before describe_flow, which reads every file of a folder of them)
+            return _view_undated(args, out, undated)
         info = describe_flow(args.file)
         if (info is not None and "windows" in info) or _is_simulator_gt(Path(args.file)):
             return _view_flow(args, out)
@@ -237,7 +241,7 @@ def _view_flow(args, out: Path) -> int:
 
     from evmotion.cli import print_json, warn_line
     from evmotion.errors import ParameterError
-    from evmotion.io.flowread import read_flow, undated_flow_files
+    from evmotion.io.flowread import read_flow
     from evmotion.utils import seconds_text
     from evmotion.viz import save_png
     from evmotion.viz.bos import flow_window_picture
@@ -245,9 +249,6 @@ def _view_flow(args, out: Path) -> int:
     reject_unused(args, {"--t1": "t1", "--window-events": "window_events",
                          "--polarity": "polarity"},
                   f"to a flow output ({args.file}: --window or --t0 choose its window)")
-    undated = undated_flow_files(args.file)
-    if undated:  # .flo / .png files of another tool: their displacement, in px
-        return _view_undated(args, out, undated)
     seq = read_flow(args.file)
     n = len(seq.t0)
     if args.window is not None:
