@@ -462,16 +462,19 @@ def describe_flow(path: str | os.PathLike) -> dict | None:
         out["units"] = "px (displacement over each window)"
         return out
     if p.is_dir():
+        # evmotion's per-window files, or another tool's without sidecars (no times)
         undated = undated_flow_files(p)
-        if undated:
-            return _describe_undated(p, undated)
-        if not _is_flow_folder(p):
+        if not undated and not _is_flow_folder(p):
             return None
-        seq = read_flow(p)
-        out = {"path": str(p), "format": "middlebury-flo" if seq.attrs["container"] ==
-               "middlebury-flo" else "dsec-flow-png", "container": "folder",
-               "files": len(seq)}
+        seq = (_concatenated([_read_undated(f) for f in undated], p) if undated
+               else read_flow(p))
+        flo = (undated[0].suffix.lower() == ".flo" if undated
+               else seq.attrs["container"] == "middlebury-flo")
+        out = {"path": str(p), "format": "middlebury-flo" if flo else "dsec-flow-png",
+               "container": "folder", "files": len(seq)}
         out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
+        if undated:
+            out["windows"] = len(seq)  # one per file, whose times are not stored
         out["units"] = "px (displacement over each window)"
         return out
     kind = CONTAINERS.get(p.suffix.lower())
@@ -498,18 +501,6 @@ def describe_flow(path: str | os.PathLike) -> dict | None:
     out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, seq.attrs))
     if not dated:
         out["windows"] = 1  # one window, whose times are not stored
-    out["units"] = "px (displacement over each window)"
-    return out
-
-
-def _describe_undated(p: Path, files: list[Path]) -> dict:
-    """``describe_flow`` of a folder of per-window files without sidecars."""
-    seqs = [_read_undated(f) for f in files]
-    seq = _concatenated(seqs, p)
-    out = {"path": str(p), "format": "middlebury-flo" if files[0].suffix.lower() == ".flo"
-           else "dsec-flow-png", "container": "folder", "files": len(files)}
-    out.update(_summary(seq.flow.shape[1:3], seq.t0, seq.t1, seq.valid, {}))
-    out["windows"] = len(files)  # one per file, whose times are not stored
     out["units"] = "px (displacement over each window)"
     return out
 
