@@ -1226,11 +1226,15 @@ def describe(path: str | Path) -> dict:
         f = folder / name
         if f.exists():
             f = _to_read(f, name)
-            with open(f, "rb") as fh:
-                rows = [line for line in fh if line.strip() and not line.startswith(b"#")]
-            out[key] = len(rows)
+            count, first = 0, None
+            with open(f, "rb") as fh:  # counted, not held: an IMU logs thousands a second
+                for line in fh:
+                    if line.strip() and not line.startswith(b"#"):
+                        count += 1
+                        first = line if first is None else first
+            out[key] = count
             want = _COMPANION_COLUMNS.get(name)
-            got = len(rows[0].replace(b",", b" ").split()) if rows else want
+            got = len(first.replace(b",", b" ").split()) if first is not None else want
             if want is not None and got != want:
                 # counted as samples that convert then dropped as unreadable (probe BL)
                 out[key] = 0
