@@ -568,7 +568,7 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
         chance = _chance_gain(cost, xw, yw)
     v0 = float(np.var(iwe_before))
     gain = float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan")
-    too_few = warn_too_few(int(cost.x.shape[0]), w.name, stacklevel=4)
+    too_few = warn_too_few(int(cost.x.shape[0]), f"{w.name} motion", stacklevel=4)
     msgs.append(too_few)
     t_us = np.sort(cost.dt) * 1e6
     gap = gap_share(t_us)

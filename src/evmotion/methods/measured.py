@@ -17,7 +17,7 @@ __all__ = ["MAX_ONE_POLARITY", "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CONTRA
            "alignment_gain", "flow_alignment_gain", "gap_share", "halves_consistency",
            "lit_not_moved", "local_swing", "polarity_bursts", "warn_by_chance",
            "warn_by_refit", "warn_flicker", "warn_gap", "warn_inconsistent_halves", "warn_no_gain",
-           "min_flow_events", "warn_small_motion", "warn_too_few"]
+           "min_flow_events", "warn_small_motion", "warn_too_few", "warn_too_few_for_flow"]
 
 # an estimate whose image of warped events is not this much sharper (variance ratio) than
 # the identity warp's measures nothing (a 3.3 ms ECD window: 1.002, its rotation wrong)
@@ -94,19 +94,26 @@ def min_flow_events(sensor_size: tuple[int, int]) -> int:
     return int(min(MIN_FLOW_EVENTS, max(MIN_FIT_EVENTS, np.ceil(MIN_FLOW_DENSITY * h * w))))
 
 
-def warn_too_few(n_events: int, warp: str, stacklevel: int = 3,
+def warn_too_few(n_events: int, what: str, stacklevel: int = 3,
                  least: int = MIN_FIT_EVENTS) -> str | None:
     """Issue a :class:`~evmotion.errors.PoorFitWarning` when a window holds fewer than
-    ``least`` events (:data:`MIN_FIT_EVENTS` for a warp, :func:`min_flow_events` for a
-    dense flow): too few for a contrast to measure a motion (a handful of events sharpen
-    by chance); returns its message (else None)."""
+    ``least`` events: too few for a contrast to measure ``what`` (a handful of events
+    sharpen by chance); returns its message (else None). ``least``:
+    :data:`MIN_FIT_EVENTS` for a warp's motion; a dense flow's is
+    :func:`warn_too_few_for_flow`'s."""
     if n_events >= least:
         return None
-    what = warp if warp.endswith("flow") else f"{warp} motion"  # a dense flow, a warp's
     msg = (f"too few events: {n_events} (fewer than {least}) cannot measure a {what}; the "
            "estimate is not a measurement -- use longer windows")
     warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
     return msg
+
+
+def warn_too_few_for_flow(events: EventArray, what: str = "dense flow") -> str | None:
+    """:func:`warn_too_few` for a dense flow of ``events`` (multicm's, the network's): at
+    least :func:`min_flow_events` of their sensor."""
+    return warn_too_few(len(events), what, stacklevel=4,
+                        least=min_flow_events(events.sensor_size))
 
 
 #: A window whose longest stretch without an event exceeds this share of its span saw

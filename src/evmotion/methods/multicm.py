@@ -70,14 +70,13 @@ from evmotion.methods.flowresult import (
 from evmotion.methods.measured import (
     flow_alignment_gain,
     halves_consistency,
-    min_flow_events,
     warn_by_chance,
     warn_by_refit,
     warn_flicker,
     warn_gap,
     warn_inconsistent_halves,
     warn_no_gain,
-    warn_too_few,
+    warn_too_few_for_flow,
 )
 from evmotion.methods.options import merge_options
 from evmotion.utils import resolve_options, whole_number
@@ -676,8 +675,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     chance = float("nan")
     # flicker lights every pixel at once: a flow that gathers those bursts sharpens them,
     # whatever moves (said first: it names the cause the focus tests below cannot)
-    no_focus = (warn_too_few(len(events), "dense flow",
-                             least=min_flow_events(events.sensor_size)) is not None
+    no_focus = (warn_too_few_for_flow(events) is not None
                 or warn_gap(events.t, "dense flow") is not None
                 or warn_flicker(events, "dense flow") is not None
                 or warn_no_gain(focus, "dense flow") is not None)

@@ -37,13 +37,12 @@ from evmotion.methods.flowresult import (
 from evmotion.methods.measured import (
     flow_alignment_gain,
     halves_consistency,
-    min_flow_events,
     warn_by_chance,
     warn_flicker,
     warn_gap,
     warn_inconsistent_halves,
     warn_no_gain,
-    warn_too_few,
+    warn_too_few_for_flow,
 )
 
 __all__ = ["BACKENDS", "checkpoint_digest", "estimate_flow_dnn", "load_network",
@@ -549,8 +548,7 @@ def _verdict(checked: EventArray, flow: np.ndarray, t_ref: int, gains: list[floa
     that say a flow is no measurement, each said in a warning when it fails."""
     # under flicker the network answers the bursts with flows 20-800x the truth, which
     # gather them (probe AK: FWL 4-23, chance 1.07-2.1): said before the gains
-    if (warn_too_few(len(checked), "network's flow",
-                             least=min_flow_events(checked.sensor_size)) is not None
+    if (warn_too_few_for_flow(checked, "network's flow") is not None
             or warn_gap(checked.t, "network's flow") is not None
             or warn_flicker(checked, "network's flow") is not None
             or (bool(gains) and warn_no_gain(min(gains), "network's flow") is not None)):
