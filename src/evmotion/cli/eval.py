@@ -450,42 +450,41 @@ def _events_on_grid(args, attrs: dict):
 
 def _angular_velocities(gt: Path) -> bool:
     """Whether ``--gt`` is a table of angular velocities (or an IMU's) rather than a flow
-    ground truth: as :func:`_ground_truth` tells them apart."""
+    ground truth: a text file of other than 2 columns (DSEC's flow timestamps) is a table
+    or nothing (its errors were DSEC's "from_us, to_us", probe BM)."""
     from evmotion.io.angvel import is_angular_velocity_table, text_columns
 
-    text = gt.is_file() and gt.suffix.lower() in (".txt", ".csv")
-    return is_angular_velocity_table(gt) or (text and text_columns(gt) != 2)
+    return is_angular_velocity_table(gt) or (_is_text(gt) and text_columns(gt) != 2)
 
 
-def _ground_truth(args):
+def _is_text(path: Path) -> bool:
+    return path.is_file() and path.suffix.lower() in (".txt", ".csv")
+
+
+def _ground_truth(args, angular: bool):
     """What --gt holds: ``(angular velocities, None)``
     (:func:`evmotion.io.angvel.read_angular_velocity`: a table of them, a folder's
-    imu.txt, a recording's IMU), or ``(None, flow)`` for a flow ground truth, read once.
-    ("--gt imu.txt" was parsed as a DSEC timestamps file, and an ECD folder with its
-    imu.txt "holds no ground truth", probe BJ.)"""
-    from pathlib import Path
-
+    imu.txt, a recording's IMU; ``angular``: :func:`_angular_velocities` said so), or
+    ``(None, flow)`` for a flow ground truth, read once. ("--gt imu.txt" was parsed as a
+    DSEC timestamps file, and an ECD folder with its imu.txt "holds no ground truth",
+    probe BJ.)"""
     from evmotion.io import detect_format
-    from evmotion.io.angvel import read_angular_velocity
+    from evmotion.io.angvel import TABLE_LAYOUTS, read_angular_velocity
     from evmotion.io.flowfiles import read_gt_flow
 
     axes = args.imu_axes or "x,y,z"
     gt = Path(args.gt)
-    text = gt.is_file() and gt.suffix.lower() in (".txt", ".csv")
-    # a text file of other than 2 columns (DSEC's flow timestamps) is a table or nothing:
-    # its errors were DSEC's "from_us, to_us" (probe BM)
-    if _angular_velocities(gt):
+    if angular:
         return read_angular_velocity(gt, axes=axes), None
     try:
         return None, read_gt_flow(gt)
     except FormatError as flow_error:
-        if text and flow_error.path == str(gt):
+        if _is_text(gt) and flow_error.path == str(gt):
             # not DSEC's lines (their PNGs are another matter): an egomotion user's
             # 2-column table heard only of DSEC's timestamps (probe BM)
             raise FormatError(gt, "2 columns: not DSEC's flow timestamps 'from_us, to_us' "
                               f"({flow_error.message}), nor an angular-velocity table, which "
-                              "has 't gx gy gz' (s, rad/s), the ECD's 't ax ay az gx gy gz', "
-                              "or one line 'gx gy gz'") from None
+                              f"has {TABLE_LAYOUTS}") from None
         try:
             return read_angular_velocity(gt, axes=axes), None
         except FormatError:
@@ -598,14 +597,15 @@ def _run_egomotion(args, path: Path) -> int:
     if not len(table):
         raise ParameterError(f"{path} holds no window")
     warp = str(table.attrs.get("warp", ""))
-    if args.gt is not None and warp != "rotation" and _angular_velocities(Path(args.gt)):
+    angular = args.gt is not None and _angular_velocities(Path(args.gt))
+    if angular and warp != "rotation":
         # (a translation's (vx, vy) table was read as 'gx gy gz' lines; probe BR)
         raise ParameterError(f"--gt {args.gt}: an angular velocity (a table's, an IMU's) "
                              "scores the rotation warp's parameters; "
                              f"{path} holds those of a {warp} warp: score them "
                              "against a flow ground truth (--gt) or the events' sharpness "
                              "(--events)")
-    reference, gt = _ground_truth(args) if args.gt is not None else (None, None)
+    reference, gt = _ground_truth(args, angular) if args.gt is not None else (None, None)
     if reference is not None:
         return _run_angular_velocity(args, path, table, reference)
     reject_unused(args, {"--imu-axes": "imu_axes"}, "to a flow ground truth (it maps an "

@@ -25,11 +25,13 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 
-__all__ = ["AngularVelocity", "is_angular_velocity_table", "parse_axes",
+__all__ = ["TABLE_LAYOUTS", "AngularVelocity", "is_angular_velocity_table", "parse_axes",
            "read_angular_velocity", "text_columns"]
 
 # the layouts of a text table, by their number of columns: where the gyroscope is
 _GYRO_COLUMNS = {3: slice(0, 3), 4: slice(1, 4), 7: slice(4, 7)}
+#: The layouts, as the errors about a table that has none of them name them.
+TABLE_LAYOUTS = "'t gx gy gz' (s, rad/s), the ECD's 't ax ay az gx gy gz', or one line 'gx gy gz'"
 
 
 @dataclass(frozen=True)
@@ -137,8 +139,7 @@ def read_angular_velocity(path: str | os.PathLike, *, axes: str = "x,y,z",
         # an imu.txt was scored against that imu.txt (probe BM)
         cols = text_columns(p)
         raise FormatError(p, f"{'no numeric line' if cols is None else f'{cols} columns'}: "
-                          "an angular-velocity table has 't gx gy gz' (s, rad/s), the ECD's "
-                          "'t ax ay az gx gy gz', or one line 'gx gy gz'")
+                          f"an angular-velocity table has {TABLE_LAYOUTS}")
     else:
         from evmotion.io import read_imu
 
@@ -172,9 +173,7 @@ def _read_table(path: Path) -> tuple[np.ndarray | None, np.ndarray]:
                           "lengths")
     cols = arr.shape[1]
     if cols not in _GYRO_COLUMNS:
-        raise FormatError(path, f"{cols} columns: an angular-velocity table has 't gx gy "
-                          "gz' (s, rad/s), the ECD's 't ax ay az gx gy gz', or one line "
-                          "'gx gy gz'")
+        raise FormatError(path, f"{cols} columns: an angular-velocity table has {TABLE_LAYOUTS}")
     omega = arr[:, _GYRO_COLUMNS[cols]].astype(np.float64)
     if cols == 3:
         if len(arr) != 1:
