@@ -4,16 +4,17 @@
 FLOW is any flow output of ``evmotion flow`` (:func:`evmotion.io.flowread.read_flow`:
 ``.h5``, ``.npz``, ``.flo`` / DSEC ``.png`` with their JSON sidecar, a pattern such as
 ``flow_{:05d}.flo``, or a folder of such files), read back with each window's times; a
-``.flo``/``.png`` without sidecar or a bare ``.npy`` (px/s) needs ``--t0-us``/``--t1-us``. Other tools' per-window
-files without times (a folder of ``.flo`` or ``.png``, or a pattern: RAFT, E-RAFT on DSEC)
-take the ground truth's windows, paired by file name with a DSEC ground truth's PNGs, else
-in name order when there are as many files as windows
-(:func:`evmotion.io.flowread.read_flow_paired`). GT is MVSEC ``.npz``, a DSEC flow folder or timestamps file, or an
-evmotion/simulator ``.h5`` (:func:`evmotion.io.flowfiles.read_gt_flow`). For every estimated
-window ``[t0, t1)`` the ground-truth displacement is the GT flow integrated over the window
-along the trajectories (each GT frame weighted by its overlap, chained as in the MVSEC
-protocol), compared with the estimated flow times the window duration. ``--dt`` states the protocol (GT frames per window, MVSEC dt = 1 or 4); windows
-spanning a different number of GT frames are reported.
+``.flo``/``.png`` without sidecar or a bare ``.npy`` (px/s) needs ``--t0-us``/``--t1-us``.
+Other tools' per-window files without times (a folder of ``.flo`` or ``.png``, or a
+pattern: RAFT, E-RAFT on DSEC) take the ground truth's windows, paired by file name with a
+DSEC ground truth's PNGs, else in name order when there are as many files as windows
+(:func:`evmotion.io.flowread.read_flow_paired`). GT is MVSEC ``.npz``, a DSEC flow folder
+or timestamps file, or an evmotion/simulator ``.h5``
+(:func:`evmotion.io.flowfiles.read_gt_flow`). For every estimated window ``[t0, t1)`` the
+ground-truth displacement is the GT flow integrated over the window along the trajectories
+(each GT frame weighted by its overlap, chained as in the MVSEC protocol), compared with
+the estimated flow times the window duration. ``--dt`` states the protocol (GT frames per
+window, MVSEC dt = 1 or 4); windows spanning a different number of GT frames are reported.
 
 A per-event flow file (``evmotion flow --method triplet``'s default output, ``.h5`` or
 ``.npz``: :mod:`evmotion.io.eventflow`) is scored event by event
