@@ -1201,8 +1201,7 @@ def check_outputs_spare_inputs(args: argparse.Namespace) -> None:
                                  f"{inputs[real]}: it would be overwritten; "
                                  f"choose another {flag}")
         for folder in folders:
-            inside = real == folder or real.startswith(folder + os.sep)
-            members = _members(folder) if inside else []
+            members = _members(folder) if real.startswith(folder + os.sep) else []
             if real in members:
                 # a frame, the events or the ground truth of an input folder (probe BP)
                 raise ParameterError(f"{flag} {v} is part of the command's input "
