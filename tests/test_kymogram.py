@@ -464,6 +464,35 @@ def test_figure_checks_and_panels(tmp_path):
     assert two.shape[1] > 1.8 * one.shape[1]
 
 
+@pytest.mark.parametrize("y0, y1", [(20.0, 179.0), (179.0, 20.0)])
+def test_a_column_is_drawn_in_image_coordinates_whichever_way_it_runs(y0, y1):
+    # a feature at image row y = 150 - 400 t, sampled on a column that starts at y0: the
+    # panel's axis is the image's y (downwards), not the distance from the line's start
+    # (labelled y, it put the feature 20 px off, and upside down on a line drawn upwards)
+    from evmotion.viz.kymogram import kymogram_figure
+
+    t = np.arange(120) / 1200.0
+    line = KymoLine(7.0, y0, 7.0, y1)
+    s = np.arange(line.n_samples, dtype=float)
+    y = y0 + np.sign(y1 - y0) * s
+    data = np.exp(-0.5 * ((y[None, :] - (150.0 - 400.0 * t)[:, None]) / 2.0) ** 2)
+    k = Kymogram(data.astype(np.float32), t, s, line, 1200.0, "test")
+    fit = fit_ridge(k)
+    assert fit.velocity_px_s == pytest.approx(400.0 if y1 < y0 else -400.0, rel=0.01)
+    ax = kymogram_figure([k], [fit]).axes[0]
+    bottom, top = ax.get_ylim()
+    assert (bottom, top) == (pytest.approx(179.5), pytest.approx(19.5))
+    assert ("up" if y1 < y0 else "down") in ax.get_ylabel()
+    ridge, line_drawn = ax.lines[0], ax.lines[1]
+    t_ms, y_drawn = ridge.get_data()
+    np.testing.assert_allclose(y_drawn, 150.0 - 0.4 * t_ms, atol=0.6)
+    t_ms, y_fit = line_drawn.get_data()
+    np.testing.assert_allclose(y_fit, 150.0 - 0.4 * t_ms, atol=0.6)
+    img = ax.images[0].get_array()
+    row = int(round(150.0 - 20.0))  # image y = 150 at t = 0 is the panel's row 130
+    assert int(np.argmax(img[:, 0])) == row
+
+
 @pytest.mark.parametrize("argv, match", [
     (["--col", "3", "--rate", "nan"], "--rate"),
     (["--col", "3", "--width", "0"], "--width"),

@@ -26,10 +26,25 @@ UNITS = {"events": "events / px / bin", "events signed": "polarity sum / px / bi
 def _axis_label(kymo: Kymogram) -> str:
     ln = kymo.line
     if ln.x0 == ln.x1:
-        return f"y [px] (column {ln.x0:g})"
+        up = "up" if ln.y1 < ln.y0 else "down"
+        return f"y [px] (column {ln.x0:g}; v > 0 {up})"
     if ln.y0 == ln.y1:
-        return f"x [px] (row {ln.y0:g})"
+        right = "left" if ln.x1 < ln.x0 else "right"
+        return f"x [px] (row {ln.y0:g}; v > 0 to the {right})"
     return (f"s [px] along ({ln.x0:g}, {ln.y0:g}) -> ({ln.x1:g}, {ln.y1:g})")
+
+
+def _image_axis(kymo: Kymogram) -> tuple[float, float]:
+    """``(a, b)``: the panel's position axis is ``a + b s`` for ``s`` along the line. A
+    column or a row is drawn in image coordinates, increasing downwards whichever way the
+    line runs (its own ``s`` was labelled y or x: a line from y = 120 up to 10 drew the
+    rising plume falling, probe BU); another line in ``s``."""
+    ln = kymo.line
+    if ln.x0 == ln.x1:
+        return ln.y0, (1.0 if ln.y1 > ln.y0 else -1.0)
+    if ln.y0 == ln.y1:
+        return ln.x0, (1.0 if ln.x1 > ln.x0 else -1.0)
+    return 0.0, 1.0
 
 
 def _speed_label(fit: RidgeFit, geometry: dict | None) -> str:
@@ -86,9 +101,12 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
         signed = bool(d.min() < 0)
         vmax = float(np.percentile(np.abs(d), percentile)) or 1.0
         dt = (1.0 / k.rate_hz) if np.isfinite(k.rate_hz) and k.rate_hz > 0 else 1e-3
+        a, b = _image_axis(k)
+        pos = a + b * np.array([k.s_px[0], k.s_px[-1]])
         ext = ((k.t_s[0] - dt / 2 - t_origin) * 1e3, (k.t_s[-1] + dt / 2 - t_origin) * 1e3,
-               k.s_px[-1] + 0.5, k.s_px[0] - 0.5)
-        im = ax.imshow(d.T, aspect="auto", extent=ext, interpolation="nearest",
+               pos.max() + 0.5, pos.min() - 0.5)
+        im = ax.imshow(d.T if b > 0 else d.T[::-1], aspect="auto", extent=ext,
+                       interpolation="nearest",
                        cmap="RdBu_r" if signed else cmap, vmin=-vmax if signed else 0.0,
                        vmax=vmax)
         cb = fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02)
@@ -101,14 +119,14 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
         if fit is not None:
             if fit.method == "ridge":
                 ti = fit.t_s[fit.inliers]
-                ax.plot((fit.t_s - t_origin) * 1e3, fit.s_px, ".", ms=2.5,
+                ax.plot((fit.t_s - t_origin) * 1e3, a + b * fit.s_px, ".", ms=2.5,
                         color="tab:orange", label="ridge")
                 tl = np.array([ti.min(), ti.max()])
             else:
                 # a correlation fit's points are lags and shifts: draw its line over the
                 # panel, on the strongest streak of that slope
                 tl = np.array([k.t_s[0], k.t_s[-1]])
-            ax.plot((tl - t_origin) * 1e3, fit.s_at(tl), "--" if fit.method != "ridge" else "-",
+            ax.plot((tl - t_origin) * 1e3, a + b * fit.s_at(tl), "--" if fit.method != "ridge" else "-",
                     lw=1.8, color="tab:red", label=_speed_label(fit, geometry))
             ax.legend(loc="upper right", fontsize=7, framealpha=0.85)
             ax.set_xlim(ext[0], ext[1])
