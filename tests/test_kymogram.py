@@ -162,6 +162,24 @@ def test_ridge_fit_recovers_known_slope(slope, seed):
     assert fit.inliers.sum() >= 0.5 * fit.t_s.size
 
 
+def test_a_changing_speed_is_no_measurement():
+    # a feature slowing from 600 to 60 px/s over the kymogram: one line through it was
+    # reported as 426 +- 9 px/s, reliable (its residuals were within the bound; probe BU)
+    rng = np.random.default_rng(3)
+    t = np.arange(360) / 1200.0
+    s = np.arange(200.0)
+    centre = 10.0 + 600.0 * t - 0.5 * (540.0 / t[-1]) * t * t
+    data = np.exp(-0.5 * ((s[None, :] - centre[:, None]) / 2.5) ** 2)
+    data += 0.3 * rng.standard_normal(data.shape)
+    k = Kymogram(data.astype(np.float32), t, s, KymoLine.column(0, (200, 1)), 1200.0, "test")
+    fit = fit_ridge(k)
+    assert fit.speed_change_px_s == pytest.approx(-540.0, rel=0.05)
+    assert not fit.reliable and "speed changes" in fit.unreliable_because
+    steady = [fit_ridge(_synthetic(v, seed)[0]) for v, seed in
+              [(-800.0, 0), (550.0, 1), (-1234.0, 2), (300.0, 3), (-700.0, 5)]]
+    assert all(f.reliable for f in steady), [f.unreliable_because for f in steady]
+
+
 def test_ridge_fit_robust_to_outliers():
     k, _ = _synthetic(-700.0, 5, outliers=25)
     fit = fit_ridge(k)

@@ -353,6 +353,10 @@ class RidgeFit:
         Correlation fits: the shift at lag 0 of the line fitted to the autocorrelation's
         ridge, px. A ridge of structures moving at one speed passes through the origin;
         0 for ridge fits.
+    speed_change_px_s, speed_change_std_px_s : float
+        Ridge fits: how much the speed changes over the inliers' time span (last minus
+        first, px/s; from a parabola through the inliers) and its standard error; 0 for
+        correlation fits.
     """
 
     velocity_px_s: float
@@ -365,6 +369,8 @@ class RidgeFit:
     residual_px: float
     method: str = "ridge"
     origin_offset_px: float = 0.0
+    speed_change_px_s: float = 0.0
+    speed_change_std_px_s: float = 0.0
 
     @property
     def reliable(self) -> bool:
@@ -378,7 +384,10 @@ class RidgeFit:
         fit over puffs 34 px apart 699 +- 331 px/s for 500), or, for a ridge
         fit, the ridge points lie off the line: RMS residual over :data:`RELIABLE_RESIDUAL`
         of the line's travel over the fit (and 3 px at least); a ridge jumping between
-        parallel streaks gave 75 +- 15 px/s for 120 with residuals of 79 px. For a
+        parallel streaks gave 75 +- 15 px/s for 120 with residuals of 79 px; or its
+        speed changes over the fit by more than :data:`RELIABLE_CHANGE` of it, beyond
+        three standard errors (a feature slowing from 600 to 60 px/s was fitted 426 +- 9
+        px/s with residuals of 7 px, within the bound; probe BU). For a
         correlation fit, the line misses the origin by more than :data:`RELIABLE_ORIGIN` of
         the travel at the longest fitted lag (and 1 px at least): its points follow the edge
         of the stationary band, not a moving peak (62 +- 7 px/s for 200, 3.8 px off the
@@ -401,10 +410,16 @@ class RidgeFit:
             return None
         span = float(np.ptp(np.asarray(self.t_s)[inl])) if np.any(inl) else 0.0
         bound = max(MIN_RESIDUAL_BOUND_PX, RELIABLE_RESIDUAL * abs(self.velocity_px_s) * span)
-        if self.residual_px <= bound:
-            return None
-        return (f"the ridge points lie {self.residual_px:.3g} px (RMS) off the line (several "
-                "streaks? the correlation fit takes their common slope)")
+        if self.residual_px > bound:
+            return (f"the ridge points lie {self.residual_px:.3g} px (RMS) off the line "
+                    "(several streaks? the correlation fit takes their common slope)")
+        dv = self.speed_change_px_s
+        if abs(dv) > max(RELIABLE_CHANGE * abs(self.velocity_px_s),
+                         3.0 * self.speed_change_std_px_s):
+            v0 = self.velocity_px_s - dv / 2
+            return (f"the speed changes over the fit, from about {v0:.3g} to {v0 + dv:.3g} "
+                    "px/s: no one speed (fit a shorter t_range)")
+        return None
 
     @property
     def speed_px_s(self) -> float:
@@ -571,9 +586,28 @@ def fit_ridge(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1.0,
     # smoothing in time correlates neighbouring ridge points: a Gaussian of sigma_bins
     # leaves about one independent point per 2 sqrt(pi) sigma_bins bins
     corr = max(1.0, 2.0 * np.sqrt(np.pi) * sigma_bins)
+    change, change_std = _speed_change(tc, si, corr)
     return RidgeFit(velocity_px_s=v, velocity_std_px_s=sigma * np.sqrt(corr / sxx), s0_px=s0,
                     t_ref_s=t_ref, t_s=t, s_px=s, inliers=inl,
-                    residual_px=float(np.sqrt(np.mean(r * r))))
+                    residual_px=float(np.sqrt(np.mean(r * r))), speed_change_px_s=change,
+                    speed_change_std_px_s=change_std)
+
+
+def _speed_change(tc: np.ndarray, s: np.ndarray, corr: float) -> tuple[float, float]:
+    """The change of speed over the span of ``tc`` (times about their mean) of a parabola
+    fitted to positions ``s``, and its standard error (``corr`` points per independent one);
+    ``(0, inf)`` with too few points for a parabola."""
+    if tc.size < 5:
+        return 0.0, float("inf")
+    a = np.stack([np.ones_like(tc), tc, tc * tc], axis=1)
+    coef, _, rank, _ = np.linalg.lstsq(a, s, rcond=None)
+    if rank < 3:
+        return 0.0, float("inf")
+    r = s - a @ coef
+    var = float(np.sum(r * r)) / (tc.size - 3) * corr
+    c_std = float(np.sqrt(var * np.linalg.inv(a.T @ a)[2, 2]))
+    span = float(np.ptp(tc))
+    return float(2.0 * coef[2] * span), 2.0 * c_std * span
 
 
 def px_per_s_to_m_per_s(v_px_s, focal_mm: float, distance_m: float, pixel_um: float):
@@ -619,6 +653,9 @@ RELIABLE_SPREAD = 0.25
 #: the fitted time span, and the bound's least value in px (RidgeFit.reliable).
 RELIABLE_RESIDUAL = 0.1
 MIN_RESIDUAL_BOUND_PX = 3.0
+#: Largest change of a reliable ridge fit's speed over its time span, as a fraction of the
+#: speed (RidgeFit.reliable).
+RELIABLE_CHANGE = 0.25
 #: Largest shift at lag 0 of a reliable correlation fit's line, as a fraction of its travel
 #: at the longest fitted lag, and the bound's least value in px (RidgeFit.reliable): good
 #: fits on simulated translations pass within 0.03 px of the origin
