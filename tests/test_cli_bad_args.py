@@ -1463,3 +1463,21 @@ def test_converts_out_option_is_locked(tmp_path, capsys):
     assert rc == 2
     assert "--out " + str(out) + " is being written by another evmotion run" in \
         capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", [
+    ["kymogram", "{txt}", "--col", "3", "--out", "{d}/k.png"],
+    ["view", "{txt}", "--out", "{d}/v.png"],
+    ["flow", "{txt}", "--method", "triplet", "--out", "{d}/tr.h5"],
+    ["convert", "{txt}", "{d}/c.npz"],
+])
+def test_an_empty_time_range_is_told_in_the_recordings_own_terms(tmp_path, capsys, command):
+    """The recording's span in the message of an empty --t0/--t1 was read again without
+    --sensor-size and --time-unit: a warning asked for the size that had been given (probe
+    BU), and text times in ms were told as seconds, 1000 times too far."""
+    txt = tmp_path / "ms.txt"
+    txt.write_text("".join(f"{i} {i % 30} {i % 20} {i % 2}\n" for i in range(0, 2000, 2)))
+    argv = [a.format(txt=txt, d=tmp_path) for a in command]
+    rc, err = _run([*argv, "--sensor-size", "20", "30", "--time-unit", "ms", "--t0", "5"],
+                   capsys)
+    _assert_one_line(rc, err, "no events", "the recording spans [0, 1.998] s")

@@ -141,7 +141,7 @@ def run(args) -> int:
     it = chunks()
     first = next(it, None)
     if first is None:
-        info = eio.describe(src, format=fmt_in) if args.t0 or args.t1 else {}
+        info = eio.describe(src, format=fmt_in, **kw) if args.t0 or args.t1 else {}
         if info.get("t_first_us") is None:
             raise ParameterError(f"{src}: no events; nothing written")
         raise empty_selection(args, src, int(info["t_first_us"]), int(info["t_last_us"]),

@@ -178,7 +178,7 @@ def run(args) -> int:
     if first is None:
         if getattr(args, "t0", None) is not None or getattr(args, "t1", None) is not None:
             # the error path only: the recording's own span, for the message
-            info = eio.describe(args.file, format=getattr(args, "format", None))
+            info = eio.describe(args.file, **read_kwargs(args))
             if info.get("t_first_us") is not None:
                 raise empty_selection(args, args.file, int(info["t_first_us"]),
                                       int(info["t_last_us"]), "no events")

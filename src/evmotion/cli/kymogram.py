@@ -16,6 +16,7 @@ from __future__ import annotations
 from evmotion.cli.options import (
     HelpFormatter,
     add_sensor_size_argument,
+    add_time_unit_argument,
     check_time_order,
     empty_selection,
     existing_input,
@@ -71,6 +72,7 @@ def add_parser(sub) -> None:
                         "images.txt, or a frames file)")
     p.add_argument("--format", default=None, help="event format (default: detect)")
     add_sensor_size_argument(p)
+    add_time_unit_argument(p)
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
                    help="start: seconds on the recording's clock, or with a unit (1.5, "
                         "1500ms, 1500000us; +TIME: after the first event; default: first "
@@ -133,7 +135,7 @@ def _check_args(args) -> dict | None:
     if args.source != "events":
         reject_unused(args, {"--rate": "rate", "--compare-rate": "compare_rate",
                              "--signed": "signed", "--format": "format",
-                             "--sensor-size": "sensor_size"},
+                             "--sensor-size": "sensor_size", "--time-unit": "time_unit"},
                       f"with --from {args.source} (the file's windows set the rate)")
     fit_options = {"--max-lag-s": "max_lag_s", "--sigma-px": "sigma_px",
                    "--sigma-bins": "sigma_bins", "--polarity": "polarity",
@@ -328,7 +330,7 @@ def run(args) -> int:
             raise
         if not len(events):
             # the error path only: one more pass over the file for its time range
-            info = eio.describe(args.file, format=args.format)
+            info = eio.describe(args.file, **read_kwargs(args))
             if info.get("t_first_us") is None:
                 raise EmptyWindowError(f"{args.file}: the recording holds no events")
             raise empty_selection(args, args.file, int(info["t_first_us"]),

@@ -158,7 +158,7 @@ def run(args) -> int:
 
         # the error path only: reads the file through once more for its time range
         try:
-            info = eio.describe(args.file, format=args.format)
+            info = eio.describe(args.file, **read_kwargs(args))
         except EvmotionError:
             info = {}
         if info.get("t_first_us") is None:
