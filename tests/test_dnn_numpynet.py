@@ -44,7 +44,9 @@ def test_shipped_export_is_the_shipped_checkpoint():
     fresh = N._arrays_of(load_inference_net())
     assert sorted(shipped) == sorted(fresh)
     for k, v in fresh.items():
-        np.testing.assert_array_equal(shipped[k], v, err_msg=k)
+        # (within float32 rounding: the batch norms folded into the weights come out an
+        # ulp apart on CPUs whose vector units torch dispatches to differently)
+        np.testing.assert_allclose(shipped[k], v, rtol=1e-6, atol=1e-7, err_msg=k)
     x = np.random.default_rng(0).normal(size=(1, 5, 64, 96)).astype(np.float32)
     with torch.inference_mode():
         ref = load_inference_net()(torch.from_numpy(x)).numpy()
