@@ -50,7 +50,7 @@ def test_flow_units_and_shape(tiny_ckpt, window):
     assert disp.shape == (50, 70, 2) and disp.dtype == np.float32
     assert np.abs(disp).max() > 0.1
     res = estimate_flow_dnn(ev, tiny_ckpt, input_scales=(1,), time_reversal=False,
-                            rescale=False, planar=False, refine=False)
+                            rescale=False, translation=False, planar=False, refine=False)
     dur = (int(ev.t[-1]) - int(ev.t[0])) * 1e-6
     np.testing.assert_allclose(res.flow * dur, disp, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(res.displacement(), disp, rtol=1e-4, atol=1e-4)
@@ -170,7 +170,7 @@ def test_cli_flow_dnn_end_to_end(tmp_path, window, capsys):
 
 def test_input_scales_one_is_the_plain_network(tiny_ckpt, window):
     res = estimate_flow_dnn(window.events, tiny_ckpt, input_scales=(1,), time_reversal=False,
-                            rescale=False, planar=False, refine=False)
+                            rescale=False, translation=False, planar=False, refine=False)
     np.testing.assert_allclose(res.displacement(), predict_displacement(window.events, tiny_ckpt),
                                rtol=1e-4, atol=1e-4)
     assert res.meta["input_scale"] == 1
@@ -193,14 +193,14 @@ def test_time_reversal_makes_the_flow_antisymmetric(tiny_ckpt, window):
     rev = EventArray(x=ev.x[::-1], y=ev.y[::-1], t=int(t[0]) + int(t[-1]) - t,
                      p=1 - ev.p[::-1], sensor_size=ev.sensor_size)
     for scales in ((1,), (1, 2, 4)):
-        fwd = estimate_flow_dnn(ev, tiny_ckpt, input_scales=scales, planar=False,
-                                refine=False).displacement()
-        back = estimate_flow_dnn(rev, tiny_ckpt, input_scales=scales, planar=False,
-                                 refine=False).displacement()
+        fwd = estimate_flow_dnn(ev, tiny_ckpt, input_scales=scales, translation=False,
+                                planar=False, refine=False).displacement()
+        back = estimate_flow_dnn(rev, tiny_ckpt, input_scales=scales, translation=False,
+                                 planar=False, refine=False).displacement()
         np.testing.assert_allclose(back, -fwd, atol=1e-4)
     plain = predict_displacement(ev, tiny_ckpt)
-    sym = estimate_flow_dnn(ev, tiny_ckpt, input_scales=(1,), planar=False,
-                            refine=False).displacement()
+    sym = estimate_flow_dnn(ev, tiny_ckpt, input_scales=(1,), translation=False,
+                            planar=False, refine=False).displacement()
     assert np.median(np.abs(plain)) > 1.0 > 10 * np.median(np.abs(sym))
 
 
@@ -340,9 +340,11 @@ def test_far_moving_window_is_seen_at_a_coarser_scale():
     mask = np.zeros(win.sensor_size, bool)
     mask[win.y.astype(int), win.x.astype(int)] = True
     assert np.linalg.norm(gt, axis=-1)[mask].mean() > 20
-    plain = estimate_flow_dnn(win, input_scales=(1,), time_reversal=False, planar=False,
+    plain = estimate_flow_dnn(win, input_scales=(1,), time_reversal=False, translation=False,
+                              planar=False,
                               refine=False)
-    chosen = estimate_flow_dnn(win, time_reversal=False, planar=False, refine=False)
+    chosen = estimate_flow_dnn(win, time_reversal=False, translation=False, planar=False,
+                               refine=False)
     assert chosen.meta["input_scale"] > 1
     aee = [np.linalg.norm(r.displacement() - gt, axis=-1)[mask].mean() for r in (plain, chosen)]
     assert aee[1] < 0.75 * aee[0], aee  # measured 8.38 -> 4.88 px
@@ -588,6 +590,60 @@ def test_hot_pixels_do_not_hide_a_good_flow(with_iwes):
         assert res.focus > 1.05
 
 
+def test_a_window_moving_far_past_the_network_takes_its_sharpest_translation():
+    """A window moving 80 px came out of the network at a fraction of it; its sharpest
+    translation, far sharper, is taken (probe BT: 47 px given as 19, valid, unwarned)."""
+    from evmotion.methods.dnn.infer import _pixels_and_times
+    from evmotion.methods.dnn.translation import sharpest_translation
+
+    rng = np.random.default_rng(0)
+    n = 30000
+    fx, fy = rng.uniform(0, 240, 300), rng.uniform(0, 180, 300)
+    k = rng.integers(0, 300, n)
+    t = np.sort(rng.integers(0, 20000, n))
+    x, y = np.floor(fx[k] + 80 * t / 20000), np.floor(fy[k] - 30 * t / 20000)
+    ok = (x >= 0) & (x < 240) & (y >= 0) & (y < 180)
+    ev = EventArray(x=x[ok], y=y[ok], t=t[ok], p=rng.integers(0, 2, n)[ok],
+                    sensor_size=(180, 240))
+    x, y, _, s = _pixels_and_times(ev)
+    assert sharpest_translation(x, y, s, ev.sensor_size) == (80.0, -30.0)
+    res = estimate_flow_dnn(ev, with_iwes=False)
+    assert res.meta["translation"] and not res.meta["beyond_range"]
+    d = np.median(res.displacement()[res.valid], axis=0)
+    np.testing.assert_allclose(d, [80.0, -30.0], atol=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PoorFitWarning)
+        plain = estimate_flow_dnn(ev, with_iwes=False, translation=False, planar=False,
+                                  refine=False)
+    assert not plain.meta["translation"]  # the network alone: short, or no measurement
+    assert not plain.valid.any() or np.median(
+        np.linalg.norm(plain.displacement()[plain.valid], axis=-1)) < 60
+
+
+def test_the_translation_search_matches_a_brute_force_one():
+    from evmotion.methods.dnn.translation import sharpest_translation
+
+    rng = np.random.default_rng(1)
+    x0, y0 = rng.uniform(0, 40, 60), rng.uniform(0, 30, 60)
+    s = np.repeat(np.linspace(-0.5, 0.5, 12), 60)
+    x = np.floor(np.tile(x0, 12) - 7 * s)
+    y = np.floor(np.tile(y0, 12) + 5 * s)
+    ok = (x >= 0) & (x < 40) & (y >= 0) & (y < 30)
+    x, y, s = x[ok], y[ok], s[ok]
+
+    def score(dx, dy):
+        img = np.zeros((30, 40))
+        xw, yw = np.floor(x - dx * s).astype(int), np.floor(y - dy * s).astype(int)
+        inside = (xw >= 0) & (xw < 40) & (yw >= 0) & (yw < 30)
+        np.add.at(img, (yw[inside], xw[inside]), 1.0)
+        return (img ** 2).sum()
+
+    brute = max(((score(dx, dy), (dx, dy)) for dx in range(-20, 21) for dy in range(-20, 21)),
+                key=lambda sc: (sc[0], -abs(sc[1][0]) - abs(sc[1][1])))[1]
+    assert brute == (-7, 5)
+    assert sharpest_translation(x, y, s, (30, 40), reach=20) == (-7.0, 5.0)
+
+
 def test_motion_beyond_the_network_is_a_lower_bound():
     """A window moving 80 px: the network's flow, at the largest gain tried, is a fraction
     of it; that is said (PoorFitWarning, meta["beyond_range"]), not returned silently.
@@ -601,7 +657,8 @@ def test_motion_beyond_the_network_is_a_lower_bound():
     ev = EventArray(x=np.floor((fx[k] + 80 * t / 20000) % 240), y=np.floor(fy[k]), t=t,
                     p=rng.integers(0, 2, n), sensor_size=(180, 240))
     with pytest.warns(PoorFitWarning, match="largest gain tried.*lower bound|first half"):
-        res = estimate_flow_dnn(ev, with_iwes=False, planar=False, refine=False)
+        res = estimate_flow_dnn(ev, with_iwes=False, translation=False, planar=False,
+                                refine=False)
     assert res.meta["gain"] == max(GAINS)
     assert res.meta["beyond_range"] or (res.meta["no_focus"] and not res.valid.any())
     # with the plane's polish (the default) the window is not given silently short either:
@@ -610,7 +667,7 @@ def test_motion_beyond_the_network_is_a_lower_bound():
     # 26 px from the truth)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", PoorFitWarning)
-        res = estimate_flow_dnn(ev, with_iwes=False)
+        res = estimate_flow_dnn(ev, with_iwes=False, translation=False)
     speed = np.linalg.norm(res.displacement()[res.valid], axis=-1)
     reached = res.meta["planar"] and speed.size and np.median(speed) > 0.75 * 80
     assert reached or res.meta["beyond_range"] or (res.meta["no_focus"]

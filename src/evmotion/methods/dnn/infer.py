@@ -82,6 +82,11 @@ TILE_START_SHARPNESS = 0.8
 #: windows of a Prophesee 1280x720 recording the FWL rose on six and fell on two (2.60 ->
 #: 1.95 the most), 0.5 s faster (median).
 TIME_REVERSAL_MAX_PIXELS = 640 * 480
+# how much sharper than the network's flow the window's sharpest translation must warp the
+# events to replace it (estimate_flow_dnn): the network's flow of a window it measures is
+# as sharp as the translation or sharper (rotation, zoom, depth); one it fails on, far
+# less (2.4 against 7.1 on a window moving 47 px)
+TRANSLATION_MARGIN = 1.25
 PLANE_CORRECTION_EVALUATIONS = 12
 PLANE_CORRECTION_MARGIN = 1.01
 
@@ -371,6 +376,22 @@ def _fused(xys, cands: list[np.ndarray], fallback: np.ndarray, shape) -> np.ndar
     return fused
 
 
+def _translated(xys, disp: np.ndarray, shape: tuple[int, int]) -> np.ndarray | None:
+    """The window's sharpest translation (:func:`.translation.sharpest_translation`) as a
+    displacement field where it warps the events :data:`TRANSLATION_MARGIN` times sharper
+    than the network's ``disp``, else None."""
+    from evmotion.methods.dnn.translation import sharpest_translation
+
+    x, y, _, s = xys
+    if not x.size:
+        return None
+    moved = np.empty(disp.shape, np.float32)
+    moved[...] = sharpest_translation(x, y, s, shape)
+    if _warped_variance(*xys, moved) >= TRANSLATION_MARGIN * _warped_variance(*xys, disp):
+        return moved
+    return None
+
+
 def _rescaled(xys, disp: np.ndarray) -> tuple[float, np.ndarray]:
     """``(gain, disp * gain)``: of :data:`GAINS`, the one whose warp is sharpest; the
     network's own magnitude (1) unless another is strictly sharper, so a window whose
@@ -568,8 +589,9 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                       device: str = "cpu", backend: str = "auto", with_iwes: bool = True,
                       input_scales: tuple[int, ...] = INPUT_SCALES,
                       time_reversal: bool = True, rescale: bool = True,
-                      fuse: bool = True, planar: bool = True, refine: bool = True,
-                      threads: int | None = 1, check: bool = True) -> FlowResult:
+                      fuse: bool = True, translation: bool = True, planar: bool = True,
+                      refine: bool = True, threads: int | None = 1, check: bool = True
+                      ) -> FlowResult:
     """Dense optical flow of one window by the unsupervised EV-FlowNet.
 
     Parameters
@@ -614,6 +636,15 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         and no one scale suits every part. On bench_dnn's held-out simulated windows the
         AEE fell by 4-22 % (zoom 2.01 -> 1.57 px), on ECD shapes_rotation the FWL rose
         from 2.83 to 3.24 (``benchmarks/results/dnn.md``).
+    translation : bool
+        Also find the window's sharpest global translation by a grid search
+        (:mod:`.translation`, within half the sensor's longer side; 0.01-0.2 s) and take
+        it instead of the network's prediction where it warps the events
+        :data:`TRANSLATION_MARGIN` times sharper (default True): a window moving far past
+        what the network was trained on can come out of every input scale at a fraction
+        of its motion (a 346x260 window moving 47 px: 19 px, AEE 29 px; with the
+        translation and the plane's polish 0.07 px). ``meta["translation"]`` says whether
+        it was taken.
     rescale : bool
         Multiply the flow kept by the gain among 0.7, 0.75, ..., 1.6, 1.8, ..., 3.2 whose warp gives the
         highest :func:`sharpness` (default True; 1 unless another is strictly sharper):
@@ -697,7 +728,13 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     with torch_threads(threads):
         best, disp, cands = _predict(events, scales, checkpoint, device, xys,
                                      bool(time_reversal), backend)
-    if fuse and len(cands) > 1:
+    # a window moving far past what the network was trained on can come out of every
+    # input scale at a fraction of its motion, looking like a measurement (47 px as 19;
+    # probe BT): its sharpest translation, much sharper, takes the network's place
+    moved = _translated(xys, disp, events.sensor_size) if translation else None
+    if moved is not None:
+        disp = moved
+    elif fuse and len(cands) > 1:
         disp = _fused(xys, cands, disp, events.sensor_size)
     # a hot pixel's events do not move: any flow there smears them, and they outnumber
     # a moving pixel's many times over (2 % of a window's events on 5 hot pixels brought
@@ -774,6 +811,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                             "backend": backend,
                             "input_scale": best, "time_reversal": bool(time_reversal),
                             "gain": gain, "no_focus": bool(no_focus) if check else None,
+                            "translation": moved is not None,
                             "planar": plane is not None,
                             "planar_params": None if plane is None else plane[0].tolist(),
                             "refined": refined is not None,
