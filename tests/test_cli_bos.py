@@ -847,3 +847,46 @@ def test_q_left_unscored_against_another_frame_rate_is_said(scene, tmp_path, cap
         in text
     rc, text, _ = _run(["eval", out, "--gt", fast / "schlieren_gt.h5", "--json"], capsys)
     assert json.loads(text)["windows_q_scored"] == 0
+
+
+def test_frames_in_milliseconds_beside_events_in_seconds(tmp_path, capsys):
+    """Probe BS: a timestamps file in decimal ms beside events.txt in s was blamed on the
+    cameras' registration; --time-unit ms, the hint, re-read the events too, and nothing
+    read the frames' unit on its own."""
+    scene = plume_scene(tmp_path / "scene")
+    folder = tmp_path / "ms"
+    folder.mkdir()
+    shutil.copy(scene / "events.txt", folder / "events.txt")
+    shutil.copytree(scene / "images", folder / "frames")
+    lines = [ln.split() for ln in (scene / "images.txt").read_text().splitlines() if ln]
+    (folder / "frames" / "timestamps.txt").write_text(
+        "".join(f"{float(t) * 1e3:.6f}\n" for t, _ in lines))
+    argv = ["bos", folder / "events.txt", "--frames", folder / "frames", "--iterations", "20",
+            "--out", tmp_path / "o.h5"]
+    _one_line_error(argv, capsys, "timestamps.txt", "another unit",
+                    "--frames-time-unit ms")
+    rc, _, err = _run([*argv, "--frames-time-unit", "ms"], capsys)
+    assert rc == 0, err
+    ref = tmp_path / "ref.h5"
+    assert _run(["bos", scene, "--iterations", "20", "--out", ref], capsys)[0] == 0
+    np.testing.assert_array_equal(read_flow_h5(tmp_path / "o.h5").flow,
+                                  read_flow_h5(ref).flow)
+
+
+def test_frame_list_faults_are_named_by_their_files(tmp_path, capsys):
+    """Probe BS: duplicate times were 'entries 4 and 5' (from 0, comment lines not
+    counted); info called a folder with a truncated frame fine."""
+    scene = plume_scene(tmp_path / "scene")
+    lines = (scene / "images.txt").read_text().splitlines()
+    t1 = lines[1].split()[0]
+    (scene / "images.txt").write_text("# t path\n\n" + "\n".join(
+        [lines[0], f"{t1} {lines[1].split()[1]}", f"{t1} {lines[2].split()[1]}"]) + "\n")
+    _one_line_error(["bos", scene, "--out", tmp_path / "x.h5"], capsys,
+                    "duplicate frame timestamps", "frame_00000001.png and frame_00000002.png")
+    scene = plume_scene(tmp_path / "cut")
+    frame = sorted((scene / "images").iterdir())[1]
+    frame.write_bytes(frame.read_bytes()[:-20])
+    rc, text, err = _run(["info", scene, "--json"], capsys)
+    assert rc == 0, err
+    said = json.loads(text)["frames_info"]["error"]
+    assert frame.name in said and "truncated PNG" in said

@@ -69,6 +69,10 @@ def add_parser(sub) -> None:
                         "REC's own frames)")
     p.add_argument("--format", default=None, help="event format (default: detected)")
     add_time_unit_argument(p)
+    p.add_argument("--frames-time-unit", choices=("s", "ms", "us", "ns"), default=None,
+                   help="unit of the frames' times (images.txt, a timestamps file) where it "
+                        "is not the events' (default: an images.txt beside the events in "
+                        "--time-unit; else decimal seconds, whole microseconds)")
     p.add_argument("--roi", nargs=4, type=int_range(0, unit="px"), default=None,
                    metavar=("X", "Y", "W", "H"),
                    help="region of interest in px, top-left corner and size "
@@ -189,7 +193,7 @@ def run(args) -> int:
         check_time_unit(args.time_unit, args.rec, args.format)
         data = load_bos_input(args.rec, args.frames, fmt=args.format, roi=args.roi,
                               time_unit=args.time_unit,
-                              t0=args.t0, t1=args.t1, max_intervals=args.max_intervals)
+                              frames_time_unit=args.frames_time_unit, t0=args.t0, t1=args.t1, max_intervals=args.max_intervals)
         check_time_range(args, int(data.events.t[0]), int(data.events.t[-1]), args.rec)
         check_flow_out(out, len(data.intervals))
         options = BosOptions(**opts)

@@ -166,15 +166,18 @@ def _span_misfit(times: np.ndarray, t_first: int, t_last: int) -> float:
     return abs(float(np.log(max(times[-1] - times[0], 1) / max(t_last - t_first, 1))))
 
 
-def _whole_times(images_txt: Path) -> bool:
-    """Whether an ``images.txt``'s times are whole numbers (no unit stated), as its reader
-    tells them (its warning about them said already)."""
+def _whole_times(listing: Path) -> bool:
+    """Whether the times of an ``images.txt`` or a timestamps file are whole numbers (no
+    unit stated), as its reader tells them (its warning about them said already)."""
     from evmotion.io.ecd import read_image_list
+    from evmotion.io.frames import whole_number_times
 
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", EvmotionWarning)
-            return bool(read_image_list(images_txt)["whole_numbers"])
+            if listing.name == "images.txt":
+                return bool(read_image_list(listing)["whole_numbers"])
+            return whole_number_times(listing)
     except (FormatError, OSError, UnicodeDecodeError, ValueError):
         return False
 
@@ -334,8 +337,8 @@ def frames_digest(frames: np.ndarray, frame_times: np.ndarray) -> str:
 def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = None, *,
                    fmt: str | None = None, roi: tuple[int, int, int, int] | None = None,
                    t0: int | None = None, t1: int | None = None,
-                   max_intervals: int | None = None, time_unit: str | None = None
-                   ) -> BosInput:
+                   max_intervals: int | None = None, time_unit: str | None = None,
+                   frames_time_unit: str | None = None) -> BosInput:
     """Read events and frames for BOS and select the frame intervals to estimate.
 
     Parameters
@@ -360,6 +363,9 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         (:func:`evmotion.io.read_events`), and of an ``images.txt``'s whole-number times;
         its decimal times are seconds, or in ``time_unit`` where their span is then nearer
         the events'. Other frames' times are read on their own.
+    frames_time_unit : {"s", "ms", "us", "ns"}, optional
+        Unit of the frames' list's times (``images.txt`` or a timestamps file) where it is
+        not the events' (then ``time_unit`` is the events' only).
 
     Raises
     ------
@@ -385,7 +391,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     >>> data.intervals[:2].tolist(), data.frames.shape
     ([[0, 0, 8333], [1, 8333, 16667]], (3, 6, 8))
     """
-    from evmotion.io.frames import read_frames
+    from evmotion.io.frames import TIMESTAMP_FILES, read_frames
 
     if max_intervals is not None and not (isinstance(max_intervals, (int, np.integer))
                                           and max_intervals >= 1):
@@ -398,8 +404,12 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     # that state no unit (whole numbers): the folder's two lists are one clock's
     listed = (src / "images.txt") if src.is_dir() else src
     ecd_list = listed.name == "images.txt" and listed.is_file()
+    if frames_time_unit is not None:
+        read_unit = {"time_unit": frames_time_unit}
+    else:
+        read_unit = {"time_unit": time_unit} if ecd_list and time_unit else {}
     try:
-        fr = read_frames(src, **({"time_unit": time_unit} if ecd_list and time_unit else {}))
+        fr = read_frames(src, **read_unit)
     except FormatError as exc:
         if not guessed:
             raise
@@ -447,23 +457,32 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         roi = tuple(int(v) for v in roi)
         roi_mask(events.sensor_size, roi)
     t_first, t_last = int(events.t[0]), int(events.t[-1])
-    if ecd_list and time_unit not in (None, "s") and not _whole_times(listed):
+    if (ecd_list and frames_time_unit is None and time_unit not in (None, "s")
+            and not _whole_times(listed)):
         # decimal times beside events read in time_unit: ECD's seconds, or that unit too
         # (decimal milliseconds in both lists, probe)
         alt = np.rint(times * (TIME_UNIT_US[time_unit] * 1e-6)).astype(np.int64)
         if np.all(np.diff(alt) > 0) and _span_misfit(alt, t_first, t_last) < \
                 _span_misfit(times, t_first, t_last):
             times = alt
-    where = src / "images.txt" if (src / "images.txt").is_file() else src
+    where = src / "images.txt" if (src / "images.txt").is_file() else next(
+        (src / n for n in TIMESTAMP_FILES if src.is_dir() and (src / n).is_file()), src)
     spacing = float(np.median(np.diff(times)))
+    # whole numbers were read as µs: nanoseconds (relative ns; ms was the wrong advice,
+    # then refused, probe AT); decimals as seconds: milliseconds
+    whole = (frames_time_unit is None and not (ecd_list and time_unit is not None)
+             and where.is_file() and _whole_times(where))
+    unit, read = (("ns", "nanoseconds read as microseconds") if whole
+                  else ("ms", "milliseconds read as seconds"))
     if spacing > MAX_FRAME_SPACING_US:
         raise FormatError(where, f"frames are {spacing * 1e-6:g} s apart (median): times in "
                           "another unit? (images.txt, timestamps files and events.txt hold "
-                          "seconds)")
+                          f"seconds; {_unit_hint(unit, ecd_list)})")
     if spacing > max(UNIT_SLIP * (t_last - t_first), 1e6):
         raise FormatError(where, f"frames are {spacing * 1e-6:g} s apart but the events span "
                           f"{(t_last - t_first) * 1e-6:g} s: frame times in another unit? "
-                          "(images.txt and timestamps files hold seconds)")
+                          f"(images.txt and timestamps files hold seconds; "
+                          f"{_unit_hint(unit, ecd_list)})")
     ev_span, fr_span = t_last - t_first, int(times[-1] - times[0])
     slip = ev_span > max(UNIT_SLIP * fr_span, 1e6)
     hint = " (event times in another unit? events.txt holds seconds)" if slip else ""
@@ -488,15 +507,16 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
             f"{rec}: the events span {ev_span * 1e-6:g} s, the frames {fr_span * 1e-6:g} s"
             f"{hint}"), stacklevel=2)
     elif spacing > SLOW_FRAME_SPACING_US:
-        # whole numbers were read as µs: nanoseconds (relative ns; ms was the wrong advice,
-        # then refused, probe AT); decimals as seconds: milliseconds
-        whole = ecd_list and time_unit is None and _whole_times(listed)
-        unit, read = (("ns", "nanoseconds read as microseconds") if whole
-                      else ("ms", "milliseconds read as seconds"))
+        if fr_span > UNIT_SLIP * ev_span and len(frame_intervals(times, t_first, t_last)) < 2:
+            # the events within one frame interval of a unit slip: no BOS run at all, and
+            # the registration check then blamed the cameras' alignment (probe BS)
+            raise FormatError(where, f"frames are {spacing * 1e-6:g} s apart (median) and "
+                              f"the events' {ev_span * 1e-6:g} s lie within one frame "
+                              f"interval: frame times in {read}? {_unit_hint(unit, ecd_list)}")
         warnings.warn(EvmotionWarning(
             f"{where}: frames are {spacing * 1e-6:g} s apart (median), slower than a BOS "
-            f"video runs: times in {read}? The flow would be 1000x too small; --time-unit "
-            f"{unit} reads events.txt's and images.txt's times in {unit}"), stacklevel=2)
+            f"video runs: times in {read}? The flow would be 1000x too small; "
+            f"{_unit_hint(unit, ecd_list)}"), stacklevel=2)
     elif spacing < FAST_FRAME_SPACING_US:
         warnings.warn(EvmotionWarning(
             f"{where}: frames are {spacing:g} us apart (median), faster than a camera beside "
@@ -533,6 +553,16 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     _warn_clipped(images, intervals, src, roi)
     return BosInput(events=events, frames=images, frame_times=times, intervals=intervals,
                     roi=roi, source=str(rec), frames_source=os.path.realpath(src), cut=cut)
+
+
+def _unit_hint(unit: str, ecd_list: bool) -> str:
+    """How to read the frames' times in ``unit``: with the events' (an ``images.txt``
+    beside them) or on their own."""
+    own = f"--frames-time-unit {unit} (frames_time_unit= in Python) reads the frames' times"
+    if ecd_list:
+        return (f"--time-unit {unit} reads events.txt's and images.txt's times in {unit}, "
+                f"{own} only")
+    return f"{own} in {unit}"
 
 
 def _warn_clipped(images: np.ndarray, intervals: np.ndarray, src, roi) -> None:

@@ -38,7 +38,7 @@ from evmotion.io.pngfile import check_png, png_header, read_png
 from evmotion.utils import is_file
 
 __all__ = ["Frames", "describe_frames", "find_frames", "folder_members", "frame_paths",
-           "image_size", "read_frames", "read_image"]
+           "image_size", "read_frames", "read_image", "whole_number_times"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".webp")
 TIMESTAMP_FILES = ("timestamps.txt", "times.txt", "frame_timestamps.txt",
@@ -308,13 +308,19 @@ def _stack(files: list[Path]) -> tuple[np.ndarray, int]:
     return np.stack(images), int(depth)
 
 
-def _check_times(t: np.ndarray, path: Path | str | None) -> None:
+def _check_times(t: np.ndarray, path: Path | str | None, files: list[Path] | None = None
+                 ) -> None:
+    """Refuse frame times that do not increase, naming the two frames: their files where
+    ``files`` lists them, else their places in the list, from 1 (entries from 0, which an
+    ``images.txt`` with comment lines put two lines off; probe BS)."""
     d = np.diff(t)
     if d.size and d.min() <= 0:
         i = int(np.argmax(d <= 0))
         what = "duplicate" if d[i] == 0 else "unsorted"
-        raise FormatError(path, f"{what} frame timestamps at entries {i} and {i + 1}: "
-                          f"{t[i]} us, {t[i + 1]} us")
+        which = (f"{files[i].name} and {files[i + 1].name}" if files is not None
+                 else f"frames {i + 1} and {i + 2} of the list")
+        raise FormatError(path, f"{what} frame timestamps: {which} at {t[i]} us, "
+                          f"{t[i + 1]} us")
 
 
 # ---------------------------------------------------------------------------------------
@@ -358,6 +364,33 @@ def _parse_timestamps(path: Path, unit: str | None) -> tuple[np.ndarray, list[st
     numbers, read as µs (ns past 1e17) with a warning, as events text."""
     if unit is not None and unit not in TIME_UNITS:
         raise ParameterError(f"time_unit must be one of {sorted(TIME_UNITS)}, got {unit!r}")
+    rows = _timestamp_rows(path)
+    if unit is None:
+        unit = _sniffed_unit(path, [parts[0] for _, parts in rows])
+    times, names = [], []
+    for i, parts in rows:
+        times.append(time_to_us(path, parts[0], TIME_UNITS[unit], f"line {i}"))
+        names.append(parts[1] if len(parts) == 2 else None)
+    if any(n is None for n in names) and not all(n is None for n in names):
+        raise FormatError(path, "mixes 't' and 't path' lines")
+    return np.asarray(times, dtype=np.int64), (names if names and names[0] is not None else None)
+
+
+def whole_number_times(path: str | os.PathLike) -> bool:
+    """Whether every time of a timestamps file is a whole number (which states no unit).
+
+    Examples
+    --------
+    >>> _ = Path("stamps.txt").write_text("0\\n8333\\n16667\\n")
+    >>> whole_number_times("stamps.txt")
+    True
+    """
+    firsts = [parts[0] for _, parts in _timestamp_rows(Path(path))]
+    return bool(firsts) and all(f.lstrip("+-").isdigit() for f in firsts)
+
+
+def _timestamp_rows(path: Path) -> list[tuple[int, list[str]]]:
+    """The ``(line number, fields)`` of a timestamps file's ``t`` or ``t path`` lines."""
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:
@@ -373,15 +406,7 @@ def _parse_timestamps(path: Path, unit: str | None) -> tuple[np.ndarray, list[st
             raise FormatError(path, f"line {i}: expected 't' or 't path', got "
                               f"{' '.join(parts)!r}")
         rows.append((i, parts))
-    if unit is None:
-        unit = _sniffed_unit(path, [parts[0] for _, parts in rows])
-    times, names = [], []
-    for i, parts in rows:
-        times.append(time_to_us(path, parts[0], TIME_UNITS[unit], f"line {i}"))
-        names.append(parts[1] if len(parts) == 2 else None)
-    if any(n is None for n in names) and not all(n is None for n in names):
-        raise FormatError(path, "mixes 't' and 't path' lines")
-    return np.asarray(times, dtype=np.int64), (names if names and names[0] is not None else None)
+    return rows
 
 
 def natural_key(path: Path) -> list:
@@ -412,7 +437,8 @@ def _sniffed_unit(path: Path, firsts: list[str]) -> str:
     warnings.warn(EvmotionWarning(
         f"{path}: every frame time is a whole number: read as "
         f"{'nanoseconds since the epoch' if unit == 'ns' else 'microseconds'} (decimal "
-        "times are seconds; other units: time_unit=)"), stacklevel=4)
+        "times are seconds; other units: evmotion bos --frames-time-unit, time_unit= in "
+        "Python)"), stacklevel=4)
     return unit
 
 
@@ -762,7 +788,7 @@ def read_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None
         t, files, src = _folder_list(path, ts, time_unit)
     else:
         return _from_module(path)
-    _check_times(t, src)
+    _check_times(t, src, files)
     images, depth = _stack(files)
     if not files:
         raise FormatError(src, "lists no frames")
@@ -790,6 +816,28 @@ def _header(path: Path) -> tuple[tuple[int, int], int]:
         return size, 16 if depth > 8 else 8
     img, bits = read_image(path)
     return img.shape[:2], bits
+
+
+# what a whole PNG (its IEND chunk) and a whole JPEG (EOI) end with
+_FILE_ENDS = {".png": b"\x00\x00\x00\x00IEND\xaeB`\x82", ".jpg": b"\xff\xd9",
+              ".jpeg": b"\xff\xd9"}
+
+
+def _check_ends(files: list[Path]) -> None:
+    """Refuse a PNG or JPEG frame cut short: the last bytes of each, not the image (a
+    summary decodes none; it had called a folder with a truncated frame fine, which the
+    BOS run then refused, probe BS)."""
+    for f in files:
+        end = _FILE_ENDS.get(f.suffix.lower())
+        if end is None:
+            continue
+        with open(f, "rb") as fh:
+            fh.seek(0, os.SEEK_END)
+            n = fh.tell()
+            fh.seek(max(n - len(end), 0))
+            if fh.read() != end:
+                raise FormatError(f, f"truncated {f.suffix[1:].upper()} ({n} bytes): it "
+                                  "does not end as a whole one does")
 
 
 def describe_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None = None,
@@ -842,10 +890,11 @@ def describe_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | 
             ts = Path(timestamps) if timestamps is not None else next(
                 path / n for n in TIMESTAMP_FILES if (path / n).is_file())
             t, files, src = _folder_list(path, ts, time_unit)
-        _check_times(t, src)
+        _check_times(t, src, files)
         if not files:
             return None
         size, depth = _header(files[0])
+        _check_ends(files)
     out = {"count": int(len(t)), "size": f"{size[1]}x{size[0]}", "bit_depth": int(depth),
            "t_first_us": int(t[0]), "t_last_us": int(t[-1]),
            "span_s": (int(t[-1]) - int(t[0])) * 1e-6}
