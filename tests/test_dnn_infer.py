@@ -362,6 +362,27 @@ def test_shipped_checkpoint_sharpens_a_held_out_ecd_window(shared_data):
     assert np.var(res.iwes["tmid"]) / np.var(res.iwes["identity"]) > 1.1
 
 
+@pytest.mark.realdata
+def test_the_translation_is_weighed_against_the_fused_flow(shared_data):
+    """A rotating ECD window: no one input scale's flow is as sharp as the fused one, and
+    the window's sharpest translation, sharper than the best scale's, is not sharper than
+    the fused flow; it is not taken (it was: FWL 3.24 -> 3.00)."""
+    from evmotion.io import read_events
+    from evmotion.methods.dnn.infer import sharpness
+
+    path = shared_data / "ecd_30k_windows" / "shapes_rotation"
+    if not path.is_dir():
+        pytest.skip(f"{path} not found")
+    ev = read_events(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PoorFitWarning)
+        res = estimate_flow_dnn(ev, planar=False, refine=False, with_iwes=False)
+        plain = estimate_flow_dnn(ev, planar=False, refine=False, with_iwes=False,
+                                  translation=False)
+    assert not res.meta["translation"]
+    assert sharpness(ev, res.displacement()) >= sharpness(ev, plain.displacement())
+
+
 def test_judged_command_then_its_sharpness_without_ground_truth(shared_data, tmp_path,
                                                                 capsys):
     """``flow WINDOW --method dnn --window-events 30000 --out x.flo`` on an ECD window

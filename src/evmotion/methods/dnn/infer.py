@@ -639,8 +639,9 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     translation : bool
         Also find the window's sharpest global translation by a grid search
         (:mod:`.translation`, within half the sensor's longer side; 0.01-0.2 s) and take
-        it instead of the network's prediction where it warps the events
-        :data:`TRANSLATION_MARGIN` times sharper (default True): a window moving far past
+        it instead of the network's prediction (fused across input scales when ``fuse``)
+        where it warps the events :data:`TRANSLATION_MARGIN` times sharper (default
+        True): a window moving far past
         what the network was trained on can come out of every input scale at a fraction
         of its motion (a 346x260 window moving 47 px: 19 px, AEE 29 px; with the
         translation and the plane's polish 0.07 px). ``meta["translation"]`` says whether
@@ -730,12 +731,15 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                                      bool(time_reversal), backend)
     # a window moving far past what the network was trained on can come out of every
     # input scale at a fraction of its motion, looking like a measurement (47 px as 19;
-    # probe BT): its sharpest translation, much sharper, takes the network's place
+    # probe BT): its sharpest translation, much sharper, takes the network's place. It is
+    # weighed against the fused flow, not the best single scale's: a rotating window's
+    # fused flow is the sharper where no one scale is (ECD shapes_rotation: FWL 3.24
+    # fused, 3.00 translated)
+    if fuse and len(cands) > 1:
+        disp = _fused(xys, cands, disp, events.sensor_size)
     moved = _translated(xys, disp, events.sensor_size) if translation else None
     if moved is not None:
         disp = moved
-    elif fuse and len(cands) > 1:
-        disp = _fused(xys, cands, disp, events.sensor_size)
     # a hot pixel's events do not move: any flow there smears them, and they outnumber
     # a moving pixel's many times over (2 % of a window's events on 5 hot pixels brought
     # the window's contrast below the unwarped one's); their flow is zero
