@@ -703,3 +703,53 @@ def test_the_simulators_exact_q_makes_a_kymogram(plume, tmp_path, capsys):
     assert rc == 0, err
     panel = json.loads(text)["panels"][0]
     assert panel["source"] == "q (exact)" and panel["shape"] == [len(gt.q), gt.q.shape[1]]
+
+
+def test_fit_options_no_fit_can_use_are_refused():
+    """A NaN min_snr or inlier_px ended in "a ridge in only 0 time bins ... lower min_snr";
+    3 time bins with sigma_bins=1 (all within its margins) said the same; a max_lag_s
+    near the whole span gave a spread 10 times too small (probe BU)."""
+    k, _ = _synthetic(-800.0, 0)
+    for kw in ({"min_snr": np.nan}, {"inlier_px": np.nan}, {"inlier_px": 0.0}):
+        with pytest.raises(ParameterError, match=f"'{next(iter(kw))}' must be finite"):
+            fit_ridge(k, **kw)
+    with pytest.raises(ParameterError, match="'min_snr' must be finite"):
+        fit_correlation(k, min_snr=np.nan)
+    short = Kymogram(k.data[:6], k.t_s[:6], k.s_px, k.line, k.rate_hz, k.source)
+    with pytest.raises(EmptyWindowError, match="6 time bins; a ridge fit needs 7 or more"):
+        fit_ridge(short)
+    span = k.t_s.size / k.rate_hz
+    with pytest.raises(ParameterError, match="over 0.75 of the kymogram's time span"):
+        fit_correlation(k, max_lag_s=0.9 * span)
+    assert fit_correlation(k, max_lag_s=0.5 * span).reliable
+    # too short lags, and the rough speed they give no measurement either: both are said
+    with pytest.raises(EmptyWindowError, match="is itself no measurement.*longer max_lag_s"):
+        fit_correlation(_sparse_slow_row(5), max_lag_s=0.04)
+
+
+def test_cells_without_a_measurement_carry_no_signal():
+    """A field's kymogram is NaN outside its region of interest: the fits read those
+    cells as no signal (the ridge fit had found no ridge, the correlation NaN)."""
+    k, _ = _synthetic(-800.0, 0)
+    d = k.data.copy()
+    d[:, :12] = np.nan
+    kn = Kymogram(d, k.t_s, k.s_px, k.line, k.rate_hz, k.source)
+    for fit in (fit_ridge, fit_correlation):
+        r = fit(kn)
+        assert r.reliable and r.velocity_px_s == pytest.approx(-800.0, rel=0.01)
+
+
+def test_a_field_of_one_window_is_refused(tmp_path, capsys):
+    """One selected window is no time axis: it was drawn as "q at nan Hz"."""
+    from evmotion.io.bosfiles import BosWriter
+
+    path = tmp_path / "bos.h5"
+    q = np.random.default_rng(0).random((40, 20))
+    with BosWriter(path, (40, 20)) as bw:
+        for a in (0, 1000, 2000):
+            bw.append(np.stack([np.zeros_like(q), q], axis=-1), a, a + 1000, q=q,
+                      p=np.zeros((40, 20, 2)))
+    rc, _, err = _cli(capsys, path, "--from", "q", "--col", 10, "--t1", 0.0015,
+                      "--out", tmp_path / "q.png")
+    assert rc == 2 and "one window only" in err and "Traceback" not in err, err
+    assert not (tmp_path / "q.png").exists()

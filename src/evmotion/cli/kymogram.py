@@ -213,6 +213,10 @@ def _field_kymogram(args):
         sel &= t1 <= args.t1
     if not sel.any():
         raise empty_selection(args, args.file, int(t0.min()), int(t1.max()), "no window")
+    if sel.sum() < 2:
+        # one image is no time axis: "q at nan Hz", its times lost (probe BU)
+        raise empty_selection(args, args.file, int(t0.min()), int(t1.max()),
+                              "one window only (a kymogram needs two or more)")
     # outside the ROI the fields are NaN: no signal there
     imgs = np.nan_to_num(np.asarray(images)[sel], nan=0.0)
     mid_s = 0.5 * (t0[sel] + t1[sel]) * 1e-6

@@ -440,7 +440,9 @@ def _ridge_signal(kymo: Kymogram, polarity: str, sigma_px: float, sigma_bins: fl
     for name, v in (("sigma_px", sigma_px), ("sigma_bins", sigma_bins)):
         if not (np.isfinite(v) and v >= 0):
             raise ParameterError(f"parameter '{name}' must be finite and >= 0, got {v!r}")
-    d = np.asarray(kymo.data, dtype=np.float64)
+    # a NaN cell (a field with no measurement there) carries no signal: 0, as the CLI
+    # reads them
+    d = np.nan_to_num(np.asarray(kymo.data, dtype=np.float64), nan=0.0)
     d = {"abs": np.abs(d), "positive": d, "negative": -d}[polarity]
     if sigma_px > 0 or sigma_bins > 0:
         d = ndimage.gaussian_filter(d, (sigma_bins, sigma_px), mode="nearest")
@@ -506,6 +508,16 @@ def ridge_points(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1
     return t[tmask][keep], pos[keep]
 
 
+def _check_fit_options(min_snr: float, inlier_px: float | None = None) -> None:
+    """Refuse a ``min_snr`` or ``inlier_px`` no fit can use (NaN had ended in "a ridge in
+    only 0 time bins", probe BU)."""
+    if not (np.isfinite(min_snr) and min_snr >= 0):
+        raise ParameterError(f"parameter 'min_snr' must be finite and >= 0, got {min_snr!r}")
+    if inlier_px is not None and not (np.isfinite(inlier_px) and inlier_px > 0):
+        raise ParameterError(f"parameter 'inlier_px' must be finite and > 0, got "
+                             f"{inlier_px!r}")
+
+
 def _theil_sen(t: np.ndarray, s: np.ndarray) -> tuple[float, float]:
     i, j = np.triu_indices(t.size, 1)
     dt = t[j] - t[i]
@@ -557,6 +569,16 @@ def fit_ridge(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1.0,
     >>> round(fit_ridge(k, sigma_bins=0).velocity_px_s, 1)
     -800.0
     """
+    _check_fit_options(min_snr, inlier_px)
+    n_t = np.asarray(kymo.t_s).size
+    margin = int(np.ceil(2 * sigma_bins))
+    if n_t - 2 * margin < 3:
+        # the bins within two sigma_bins of either end are dropped: no ridge whatever the
+        # SNR (3 bins and sigma_bins=1 had said "lower min_snr=0", probe BU)
+        raise EmptyWindowError(f"the kymogram has {n_t} time bins; a ridge fit needs "
+                               f"{3 + 2 * margin} or more ({margin} at each end lie within "
+                               f"two sigma_bins={sigma_bins:g} of its edge): a longer time "
+                               "range, a higher rate, or a smaller sigma_bins")
     t, s = ridge_points(kymo, sigma_px=sigma_px, sigma_bins=sigma_bins, polarity=polarity,
                         s_range=s_range, t_range=t_range, min_snr=min_snr)
     if t.size < 3:
@@ -661,6 +683,8 @@ RELIABLE_CHANGE = 0.25
 #: fits on simulated translations pass within 0.03 px of the origin
 RELIABLE_ORIGIN = 0.1
 MIN_ORIGIN_BOUND_PX = 1.0
+#: Longest max_lag_s fit_correlation takes, as a fraction of the kymogram's time span.
+MAX_LAG_SHARE = 0.75
 
 
 def _lag_spectra(d: np.ndarray, n_lags: int, edges: np.ndarray) -> np.ndarray:
@@ -744,7 +768,8 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     sigma_px : float
         Smoothing along the line, px (default 1).
     max_lag_s : float, optional
-        Longest lag (default a quarter of the kymogram's duration, at least 3 bins).
+        Longest lag (default a quarter of the kymogram's duration, at least 3 bins; at
+        most :data:`MAX_LAG_SHARE` of it).
     s_range, t_range : (float, float), optional
         Part of the kymogram used (px along the line, s).
     n_blocks : int
@@ -784,14 +809,22 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
             raise ParameterError(f"parameter '{name}' must be finite and >= 0, got {v!r}")
     if int(n_blocks) != n_blocks or n_blocks < 2:
         raise ParameterError(f"parameter 'n_blocks' must be an integer >= 2, got {n_blocks!r}")
+    _check_fit_options(min_snr)
     if max_lag_s is not None and not (np.isfinite(max_lag_s) and max_lag_s > 0):
         raise ParameterError(f"parameter 'max_lag_s' must be > 0, got {max_lag_s!r}")
     s, t = kymo.s_px, kymo.t_s
     smask = np.ones(s.size, bool) if s_range is None else (s >= s_range[0]) & (s <= s_range[1])
     tmask = np.ones(t.size, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
-    d = np.asarray(kymo.data, dtype=np.float64)[np.ix_(tmask, smask)]
+    d = np.nan_to_num(np.asarray(kymo.data, dtype=np.float64), nan=0.0)[np.ix_(tmask, smask)]
     n_t, n_s = d.shape
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    if max_lag_s is not None and dt > 0 and max_lag_s > MAX_LAG_SHARE * n_t * dt:
+        # the autocorrelation at lags near the whole span rests on the few bins that still
+        # overlap, and its spread across blocks then says the speed is far surer than it
+        # is (95 % of a 0.1 s span: 203 +- 0.27 px/s for 200, 10 sigma off; 60 %: 1.9)
+        raise ParameterError(f"max_lag_s={max_lag_s:g} is over {MAX_LAG_SHARE:g} of the "
+                             f"kymogram's time span ({n_t * dt:.3g} s): at most "
+                             f"{MAX_LAG_SHARE * n_t * dt:.3g} s")
     if n_s < 5 or n_t < 2 * n_blocks or dt <= 0:
         raise ParameterError(f"the region ({_region(s_range, t_range)}) holds "
                              f"{n_s} positions and {n_t} time bins; the correlation needs "
@@ -830,12 +863,18 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     shortest = max(min_shift_px, band + 1.0 if band else 0.0)
     first = int(np.ceil(shortest / (speed * dt))) if speed > 0 else 1
     if first > n_lags - 3:
+        # where even that speed is no measurement, nothing may move at all (noise, an
+        # empty line): a longer max_lag_s was the only advice (probe BU)
+        still = ("" if rough.reliable else
+                 f"; that speed ({rough.velocity_px_s:.3g} +- {rough.velocity_std_px_s:.2g} "
+                 "px/s) is itself no measurement: nothing may move along the line (try "
+                 "another line), or")
         raise EmptyWindowError(
             f"the structures move {speed * dt:.3g} px a lag ({dt:.3g} s), "
             f"{speed * (n_lags - 1) * dt:.3g} px at the longest ({(n_lags - 1) * dt:.3g} s): "
             f"the fit needs 3 lags at which they have moved >= {shortest:g} px, here "
-            f"{max(n_lags - first, 0)}: give a longer max_lag_s or a lower min_shift_px / "
-            "stationary_px")
+            f"{max(n_lags - first, 0)}{still or ':'} give a longer max_lag_s or a lower "
+            "min_shift_px / stationary_px")
     first = max(first, 1)
     whole = fit(total, first)
     loo = []
