@@ -83,8 +83,15 @@ def check_network(args) -> None:
     windows) before the recording is read: a wrong one was said after 5 s of reading a
     1280x720 file (probe AP). On the CPU the shipped network runs in numpy: torch is
     needed only for another device or a torch checkpoint (``model.pt``)."""
-    from evmotion.methods.dnn.infer import load_network
+    from evmotion.methods.dnn.infer import load_network, resolve_backend
 
+    if resolve_backend("auto", args.device, args.checkpoint) == "torch":
+        from evmotion.methods.dnn import require_torch
+
+        require_torch(f"the network on torch (--device {args.device!r})")
+        from evmotion.methods.dnn.model import check_device
+
+        check_device(args.device, option="--device")  # in the command's words
     load_network(args.checkpoint, args.device)
 
 

@@ -166,7 +166,10 @@ def run(args) -> int:
     if args.format is not None:
         get_format(args.format)  # an unknown name, said before any work
     require_torch("evmotion train")
+    from evmotion.methods.dnn.model import check_device
     from evmotion.methods.dnn.train import TrainConfig, train
+
+    check_device(args.device, option="--device")  # in the command's words
 
     cfg = TrainConfig(width=args.width, epochs=args.epochs, batch_size=args.batch_size,
                       lr=args.lr, lr_decay=args.lr_decay, sim_windows=args.sim_windows,

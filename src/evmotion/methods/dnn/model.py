@@ -22,12 +22,14 @@ _CACHE: dict = {}
 _FAST: dict = {}
 
 
-def check_device(device: str) -> str:
+def check_device(device: str, option: str = "device") -> str:
     """``device`` as torch spells it, once checked that this machine has it: ``"cpu"``,
     ``"cuda"`` or ``"cuda:N"`` (``"mps"`` on Apple silicon).
 
     Raises :class:`~evmotion.errors.ParameterError` naming the device when torch does not
-    know it or this torch build or machine lacks it (a CPU-only wheel asked for ``cuda``).
+    know it or this torch build or machine lacks it (a CPU-only wheel asked for ``cuda``),
+    in the caller's words: ``option`` is the keyword (``device='gpu'``) or, starting with
+    ``--``, the command-line option (``--device 'gpu'``).
 
     Examples
     --------
@@ -35,29 +37,29 @@ def check_device(device: str) -> str:
     ('cpu', 'cpu')
     >>> check_device("gpu")
     Traceback (most recent call last):
-    evmotion.errors.ParameterError: --device 'gpu': not a torch device (cpu, cuda, cuda:N)
+    evmotion.errors.ParameterError: device='gpu': not a torch device (cpu, cuda, cuda:N)
     """
+    cli = option.startswith("--")
+    said = f"{option} {device!r}" if cli else f"{option}={device!r}"
+    on_cpu = f"use {option} cpu" if cli else f"use {option}='cpu'"
     try:
         dev = torch.device(device)
     except (RuntimeError, TypeError, ValueError):
-        raise ParameterError(f"--device {device!r}: not a torch device (cpu, cuda, cuda:N)"
-                             ) from None
+        raise ParameterError(f"{said}: not a torch device (cpu, cuda, cuda:N)") from None
     if dev.type == "cuda":
         if not torch.cuda.is_available():
             why = ("a CPU-only build" if torch.version.cuda is None
                    else "no CUDA device is visible")
-            raise ParameterError(f"--device {device!r}: torch {torch.__version__} is {why}; "
-                                 "use --device cpu")
+            raise ParameterError(f"{said}: torch {torch.__version__} is {why}; {on_cpu}")
         n = torch.cuda.device_count()
         if dev.index is not None and dev.index >= n:
-            raise ParameterError(f"--device {device!r}: this machine has {n} CUDA "
+            raise ParameterError(f"{said}: this machine has {n} CUDA "
                                  f"device(s), cuda:0 to cuda:{n - 1}")
     elif dev.type == "mps":
         if not torch.backends.mps.is_available():
-            raise ParameterError(f"--device {device!r}: MPS is not available here; "
-                                 "use --device cpu")
+            raise ParameterError(f"{said}: MPS is not available here; {on_cpu}")
     elif dev.type != "cpu":
-        raise ParameterError(f"--device {device!r}: evmotion runs on cpu, cuda or mps")
+        raise ParameterError(f"{said}: evmotion runs on cpu, cuda or mps")
     else:
         return "cpu"  # torch.load cannot map storages to "cpu:0"
     return str(dev)
