@@ -58,7 +58,7 @@ def test_line_geometry_and_errors():
         KymoLine(1, 1, 1.5, 1)
     with pytest.raises(ParameterError, match="x1"):
         KymoLine(0, 0, float("inf"), 0)
-    with pytest.raises(ParameterError, match="leaves the 10x20 image"):
+    with pytest.raises(ParameterError, match=r"leaves the image \(10 px wide, 20 high\)"):
         KymoLine.column(0, (20, 10), width=3).check_inside((20, 10))
 
 
@@ -753,3 +753,12 @@ def test_a_field_of_one_window_is_refused(tmp_path, capsys):
                       "--out", tmp_path / "q.png")
     assert rc == 2 and "one window only" in err and "Traceback" not in err, err
     assert not (tmp_path / "q.png").exists()
+
+
+def test_a_rate_too_low_for_the_span_names_its_option(plume, tmp_path, capsys):
+    """--rate 1 over 0.2 s said "shorter than one bin at 1 Hz", naming no option."""
+    _, folder = plume
+    for option in ("--rate", "--compare-rate"):
+        rc, _, err = _cli(capsys, folder, "--col", 32, option, 1, "--out", tmp_path / "k.png")
+        assert rc == 2 and f"shorter than one bin at {option} 1 " in err, err
+        assert not (tmp_path / "k.png").exists()

@@ -262,16 +262,16 @@ def _cli_names(text: str) -> str:
 
 
 def _events_kymogram(events, line, rate: float, option: str, **kw):
-    """:func:`~evmotion.methods.kymogram.kymogram_from_events`, its refusal of a rate
-    naming ``option``."""
-    from evmotion.errors import ParameterError
+    """:func:`~evmotion.methods.kymogram.kymogram_from_events`, its refusals of a rate
+    naming ``option`` (a bin longer than the span had been said as "at 1 Hz")."""
+    from evmotion.errors import EmptyWindowError, ParameterError
     from evmotion.methods.kymogram import kymogram_from_events
 
     try:
         return kymogram_from_events(events, line, rate, **kw)
-    except ParameterError as exc:
-        if str(exc).startswith("rate_hz="):
-            raise ParameterError(f"{option} {str(exc).removeprefix('rate_hz=')}") from None
+    except (ParameterError, EmptyWindowError) as exc:
+        if "rate_hz=" in str(exc):
+            raise type(exc)(str(exc).replace("rate_hz=", f"{option} ")) from None
         raise
 
 

@@ -108,7 +108,7 @@ class KymoLine:
                 if not (-0.5 <= px <= w - 0.5 and -0.5 <= py <= h - 0.5):
                     raise ParameterError(
                         f"line ({self.x0:g}, {self.y0:g}) -> ({self.x1:g}, {self.y1:g}) of width "
-                        f"{self.width} leaves the {w}x{h} image")
+                        f"{self.width} leaves the image ({w} px wide, {h} high)")
 
 
 @dataclass(frozen=True)
@@ -213,7 +213,7 @@ def kymogram_from_events(events: EventArray, line: KymoLine, rate_hz: float = 12
     n_t = int(np.floor((t1 - t0) * rate * 1e-6 + 1e-9))
     if n_t < 1:
         raise EmptyWindowError(f"time span [{t0}, {t1}) us is shorter than one bin at "
-                               f"{rate:g} Hz ({1e6 / rate:.6g} us)")
+                               f"rate_hz={rate:g} ({1e6 / rate:.6g} us)")
     if n_t * line.n_samples > MAX_KYMOGRAM_CELLS:
         most = MAX_KYMOGRAM_CELLS / line.n_samples / ((t1 - t0) * 1e-6)
         raise ParameterError(f"rate_hz={rate:g} over {(t1 - t0) * 1e-6:.6g} s makes {n_t:,} "
