@@ -58,3 +58,25 @@ def test_bad_max_speed_and_video_with_triplet_are_one_line_errors(recording, tmp
                "--video", str(tmp_path / "t.mp4")])
     err = capsys.readouterr().err.strip()
     assert rc != 0 and "--video" in err and "multicm" in err and "\n" not in err
+
+
+def test_unmeasured_window_pictures_say_so(recording, tmp_path, monkeypatch, capsys):
+    # probe BX: a 500-event window (too few: valid all False) was drawn as a saturated
+    # field under a plain title, its masked twin all grey over "grey: no events"
+    import evmotion.viz as viz
+
+    drawn = {}
+    save = viz.save_flow_png
+
+    def spy(path, *a, title=None, **kw):
+        drawn[Path(path).name] = (title, save(path, *a, title=title, **kw))
+        return drawn[Path(path).name][1]
+
+    monkeypatch.setattr(viz, "save_flow_png", spy)
+    rc = main(["flow", str(recording), "--method", "multicm", "--window-events", "300",
+               "--max-windows", "1", "--scales", "2", "--out", str(tmp_path / "f.h5"),
+               "--png-dir", str(tmp_path / "png")])
+    assert rc == 0 and "too few events" in capsys.readouterr().err
+    for name in ("flow_00000.png", "flow_masked_00000.png"):
+        assert "NOT A MEASUREMENT" in drawn[name][0]
+    assert drawn["flow_masked_00000.png"][1].texts[4] == "grey: nothing measured"

@@ -208,6 +208,10 @@ def _png(png_dir: Path, i: int, r, max_speed) -> None:
 
     png_dir.mkdir(parents=True, exist_ok=True)
     when = f"window {i}: {r.t0_us * 1e-6:.4f}-{r.t1_us * 1e-6:.4f} s"
+    if r.valid is not None and not r.valid.any():
+        # its flow is drawn (the unmasked picture, the warped events) as the estimate it
+        # is, under a title that says so (it looked like any other window's, probe BX)
+        when += ": NOT A MEASUREMENT (no valid pixel)"
     save_flow_png(png_dir / f"flow_{i:05d}.png", r.flow, max_speed=max_speed, title=when)
     save_flow_png(png_dir / f"flow_masked_{i:05d}.png", r.flow, max_speed=max_speed,
                   valid=_valid(r), title=when)

@@ -105,8 +105,9 @@ def _legend_texts(max_speed: float, unit: str, fixed: bool, masked: bool,
     # on a fixed scale, faster pixels are drawn darker (saturated beyond the rim); without
     # a mask every pixel's flow is drawn, those no event supports too (the legend said
     # "grey: no events" over a picture coloured everywhere, probe BK)
-    grey = ("grey: no events" if masked else
-            "unmasked; grey: NaN" if has_nan else "unmasked: all pixels")
+    # (a window whose mask holds nothing said "grey: no events" over its events, probe BX)
+    grey = ("grey: nothing measured" if masked and empty else "grey: no events" if masked
+            else "unmasked; grey: NaN" if has_nan else "unmasked: all pixels")
     return ("u", "v", f"rim {max_speed:.3g} {unit}" if fixed or not empty else "no flow drawn",
             "fixed; darker: beyond" if fixed else "max of image", grey)
 
