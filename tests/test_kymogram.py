@@ -762,3 +762,83 @@ def test_a_rate_too_low_for_the_span_names_its_option(plume, tmp_path, capsys):
         rc, _, err = _cli(capsys, folder, "--col", 32, option, 1, "--out", tmp_path / "k.png")
         assert rc == 2 and f"shorter than one bin at {option} 1 " in err, err
         assert not (tmp_path / "k.png").exists()
+
+
+def test_cli_from_flow_leaves_unmeasured_pixels_out(tmp_path, capsys, monkeypatch):
+    # probe BX: flow no event supports was turned to 0 before the width's mean, drawn as
+    # still air and pulling the mean down (here 100 px/s read as 40)
+    import evmotion.methods.kymogram as mk
+    from evmotion.io.flowfiles import FlowWriter
+
+    h, w = 30, 40
+    valid = np.zeros((h, w), bool)
+    valid[:, :20] = True
+    valid[10:15] = False  # rows with no measurement at all
+    made = []
+    real = mk.kymogram_from_images
+
+    def spy(*a, **kw):
+        made.append(real(*a, **kw))
+        return made[-1]
+
+    monkeypatch.setattr(mk, "kymogram_from_images", spy)
+    with FlowWriter(tmp_path / "f.h5", (h, w), with_valid=True) as fw:
+        for k in range(4):
+            flow = np.zeros((h, w, 2), np.float32)
+            flow[..., 0] = np.where(valid, 100.0, 0.0)
+            fw.append(flow, k * 1000, (k + 1) * 1000, valid=valid)
+    rc, _, err = _cli(capsys, tmp_path / "f.h5", "--from", "flow", "--col", 20, "--width", 5,
+                      "--no-fit", "--out", tmp_path / "k.png")
+    assert rc == 0, err
+    data = made[0].data
+    assert np.isnan(data[:, 10:15]).all()
+    np.testing.assert_allclose(np.delete(data, np.s_[10:15], axis=1), 100.0, rtol=1e-6)
+
+
+def test_figure_units_no_measurement_and_rows_rising():
+    from evmotion.viz.kymogram import NO_DATA_COLOUR, kymogram_figure
+
+    t = np.arange(60) / 1200.0
+    line = KymoLine.row(5, (10, 80))
+    s = np.arange(line.n_samples, dtype=float)
+    data = np.exp(-0.5 * ((s[None, :] - (10.0 + 600.0 * t)[:, None]) / 2.0) ** 2)
+    data[:, 70:] = np.nan
+    k = Kymogram(data.astype(np.float32), t, s, line, 1200.0, "q")
+    fig = kymogram_figure([k], [fit_ridge(k)])
+    ax, cbar = fig.axes
+    # probe BX: x grew downwards, so motion to the right (v > 0) was drawn falling
+    bottom, top = ax.get_ylim()
+    assert bottom < top and "to the right" in ax.get_ylabel()
+    t_ms, x_fit = ax.lines[1].get_data()
+    assert x_fit[-1] > x_fit[0]
+    assert "px²/s" in cbar.get_ylabel() and "no measurement" in cbar.get_ylabel()
+    img = ax.images[0]
+    assert np.ma.is_masked(img.get_array())
+    assert img.get_cmap().get_bad()[:3] == pytest.approx(
+        tuple(int(NO_DATA_COLOUR[i:i + 2], 16) / 255 for i in (1, 3, 5)))
+
+
+def test_failed_fit_is_written_on_its_panel(tmp_path, capsys, monkeypatch):
+    # probe BX: a kymogram whose fit failed looked like one drawn with --no-fit
+    import evmotion.viz.kymogram as vk
+
+    drawn = []
+    real = vk.kymogram_figure
+
+    def spy(*a, **kw):
+        drawn.append(real(*a, **kw))
+        return drawn[-1]
+
+    monkeypatch.setattr(vk, "kymogram_figure", spy)
+    rng = np.random.default_rng(0)
+    x = rng.integers(0, 20, 400)
+    ev = EventArray(x, rng.integers(0, 20, 400), np.sort(rng.integers(0, 100_000, 400)),
+                    np.ones(400, np.int8), (20, 20))
+    from evmotion.io.registry import get_format
+
+    get_format("h5").write(tmp_path / "e.h5", ev)
+    rc, _, err = _cli(capsys, tmp_path / "e.h5", "--col", 5, "--min-snr", 1e5,
+                      "--out", tmp_path / "k.png")
+    assert rc == 0 and "no velocity fit" in err
+    texts = [t.get_text() for t in drawn[0].axes[0].texts]
+    assert any(t.startswith("no velocity fit:") for t in texts)

@@ -217,8 +217,8 @@ def _field_kymogram(args):
         # one image is no time axis: "q at nan Hz", its times lost (probe BU)
         raise empty_selection(args, args.file, int(t0.min()), int(t1.max()),
                               "one window only (a kymogram needs two or more)")
-    # outside the ROI the fields are NaN: no signal there
-    imgs = np.nan_to_num(np.asarray(images)[sel], nan=0.0)
+    # NaN (outside the ROI, flow no event supports) is kept: no measurement, not zero
+    imgs = np.asarray(images)[sel]
     mid_s = 0.5 * (t0[sel] + t1[sel]) * 1e-6
     line = _line(args, imgs.shape[1:])
     return kymogram_from_images(imgs, mid_s, line, source=label), tuple(imgs.shape[1:])
@@ -406,7 +406,8 @@ def run(args) -> int:
         elif error:
             row["fit_error"] = error
         summaries.append(row)
-    save_kymogram_png(args.out, kymos, fits, geometry=geometry)
+    save_kymogram_png(args.out, kymos, fits, geometry=geometry,
+                      fit_errors=[row.get("fit_error") for row in summaries])
 
     ln = kymos[0].line
     summary = {"file": str(args.file), "out": str(args.out),

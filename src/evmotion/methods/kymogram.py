@@ -237,7 +237,9 @@ def kymogram_from_images(images: np.ndarray, t_s, line: KymoLine, *,
     """Kymogram sampled from an image sequence (frames, q, a flow component ...).
 
     Each image is sampled along ``line`` every px by bilinear interpolation and averaged over
-    ``width`` parallel lines 1 px apart.
+    ``width`` parallel lines 1 px apart. NaN pixels (no measurement: a flow no event
+    supports, a field outside its ROI) carry no weight: a sample is the mean of the finite
+    pixels around it, and NaN where there is none.
 
     Parameters
     ----------
@@ -258,6 +260,10 @@ def kymogram_from_images(images: np.ndarray, t_s, line: KymoLine, *,
     >>> imgs = np.arange(2 * 3 * 4, dtype=float).reshape(2, 3, 4)
     >>> kymogram_from_images(imgs, [0.0, 0.1], KymoLine.column(1, (3, 4))).data.tolist()
     [[1.0, 5.0, 9.0], [13.0, 17.0, 21.0]]
+    >>> imgs[0, 1, :] = np.nan                            # a row with no measurement
+    >>> line = KymoLine.column(1, (3, 4), width=3)
+    >>> kymogram_from_images(imgs, [0.0, 0.1], line).data[0].tolist()
+    [1.0, nan, 9.0]
     """
     imgs = np.asarray(images)
     if imgs.ndim != 3 or imgs.shape[0] < 1:
@@ -277,10 +283,21 @@ def kymogram_from_images(images: np.ndarray, t_s, line: KymoLine, *,
     xs = np.clip(xs, 0, w - 1)
     ys = np.clip(ys, 0, h - 1)
     data = np.empty((t.size, s.size), dtype=np.float32)
+    coords = [ys.ravel(), xs.ravel()]
     for k in range(t.size):
         img = np.asarray(imgs[k], dtype=np.float64)
-        vals = ndimage.map_coordinates(img, [ys.ravel(), xs.ravel()], order=1, mode="nearest")
-        data[k] = vals.reshape(xs.shape).mean(axis=0)
+        finite = np.isfinite(img)
+        # normalized interpolation: a NaN pixel taken as 0 had drawn unmeasured flow as
+        # still air and pulled a width's mean down (probe BX)
+        vals = ndimage.map_coordinates(np.where(finite, img, 0.0), coords, order=1,
+                                       mode="nearest").reshape(xs.shape).sum(axis=0)
+        if finite.all():
+            data[k] = vals / line.width
+            continue
+        weight = ndimage.map_coordinates(finite.astype(np.float64), coords, order=1,
+                                         mode="nearest").reshape(xs.shape).sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            data[k] = np.where(weight > 1e-9, vals / weight, np.nan)
     rate = float((t.size - 1) / (t[-1] - t[0])) if t.size > 1 else float("nan")
     return Kymogram(data=data, t_s=t, s_px=s, line=line, rate_hz=rate, source=source)
 

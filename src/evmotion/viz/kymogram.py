@@ -20,7 +20,10 @@ from evmotion.utils import atomic_path
 __all__ = ["kymogram_figure", "save_kymogram_png"]
 
 UNITS = {"events": "events / px / bin", "events signed": "polarity sum / px / bin",
-         "frame differences": "|frame difference| [8-bit grey levels]"}
+         "frame differences": "|frame difference| [8-bit grey levels]",
+         "q": "q [px²/s]", "q (exact)": "q (exact) [px²/s]", "|flow| px/s": "|flow| [px/s]"}
+#: Cells with no measurement (NaN: flow no event supports, a field outside its ROI).
+NO_DATA_COLOUR = "#e8c77a"
 
 
 def _axis_label(kymo: Kymogram) -> str:
@@ -36,9 +39,10 @@ def _axis_label(kymo: Kymogram) -> str:
 
 def _image_axis(kymo: Kymogram) -> tuple[float, float]:
     """``(a, b)``: the panel's position axis is ``a + b s`` for ``s`` along the line. A
-    column or a row is drawn in image coordinates, increasing downwards whichever way the
-    line runs (its own ``s`` was labelled y or x: a line from y = 120 up to 10 drew the
-    rising plume falling, probe BU); another line in ``s``."""
+    column or a row is drawn in image coordinates whichever way the line runs (its own
+    ``s`` was labelled y or x: a line from y = 120 up to 10 drew the rising plume falling,
+    probe BU), y increasing downwards as in the image, x upwards (so that motion to the
+    right rises, probe BX); another line in ``s``, downwards."""
     ln = kymo.line
     if ln.x0 == ln.x1:
         return ln.y0, (1.0 if ln.y1 > ln.y0 else -1.0)
@@ -61,6 +65,7 @@ def _speed_label(fit: RidgeFit, geometry: dict | None) -> str:
 
 def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] | None = None,
                     *, titles: Sequence[str] | None = None, geometry: dict | None = None,
+                    fit_errors: Sequence[str | None] | None = None,
                     cmap: str = "gray_r", percentile: float = 99.5, dpi: int = 100):
     """A Figure with one panel per kymogram: time (ms) across, position (px) down.
 
@@ -76,11 +81,14 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
         Default: the source and rate of each kymogram.
     geometry : dict, optional
         ``focal_mm``, ``distance_m``, ``pixel_um``: the legend adds the speed in m/s.
+    fit_errors : sequence of str or None, optional
+        Why a panel has no fit: written across it ("no velocity fit: ...").
     cmap : str
         Matplotlib colour map (signed data use a diverging "RdBu_r" automatically).
     percentile : float
         Colour range: this percentile of |data|.
     """
+    import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -88,34 +96,53 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
     if not kymos:
         raise ParameterError("kymogram_figure needs at least one kymogram")
     fits = [None] * len(kymos) if fits is None else list(fits)
-    if len(fits) != len(kymos) or (titles is not None and len(titles) != len(kymos)):
-        raise ParameterError(f"{len(kymos)} kymograms need as many fits and titles, got "
-                             f"{len(fits)} fits, {None if titles is None else len(titles)} titles")
+    errors = [None] * len(kymos) if fit_errors is None else list(fit_errors)
+    if (len(fits) != len(kymos) or len(errors) != len(kymos)
+            or (titles is not None and len(titles) != len(kymos))):
+        raise ParameterError(f"{len(kymos)} kymograms need as many fits, fit errors and "
+                             f"titles, got {len(fits)} fits, {len(errors)} fit errors, "
+                             f"{None if titles is None else len(titles)} titles")
     n = len(kymos)
     fig = Figure(figsize=(4.6 * n, 4.2), dpi=dpi)
     FigureCanvasAgg(fig)
     t_origin = min(float(k.t_s[0]) for k in kymos)
-    for i, (k, fit) in enumerate(zip(kymos, fits, strict=True)):
+    for i, (k, fit, error) in enumerate(zip(kymos, fits, errors, strict=True)):
         ax = fig.add_subplot(1, n, i + 1)
         d = np.asarray(k.data, dtype=np.float64)
-        signed = bool(d.min() < 0)
-        vmax = float(np.percentile(np.abs(d), percentile)) or 1.0
+        finite = np.isfinite(d)
+        signed = bool(finite.any() and d[finite].min() < 0)
+        vmax = (float(np.percentile(np.abs(d[finite]), percentile)) if finite.any()
+                else 0.0) or 1.0
         dt = (1.0 / k.rate_hz) if np.isfinite(k.rate_hz) and k.rate_hz > 0 else 1e-3
         a, b = _image_axis(k)
         pos = a + b * np.array([k.s_px[0], k.s_px[-1]])
+        down = not (k.line.y0 == k.line.y1 and k.line.x0 != k.line.x1)  # all but a row
         ext = ((k.t_s[0] - dt / 2 - t_origin) * 1e3, (k.t_s[-1] + dt / 2 - t_origin) * 1e3,
-               pos.max() + 0.5, pos.min() - 0.5)
-        im = ax.imshow(d.T if b > 0 else d.T[::-1], aspect="auto", extent=ext,
-                       interpolation="nearest",
-                       cmap="RdBu_r" if signed else cmap, vmin=-vmax if signed else 0.0,
-                       vmax=vmax)
+               *((pos.max() + 0.5, pos.min() - 0.5) if down
+                 else (pos.min() - 0.5, pos.max() + 0.5)))
+        # the image's first row is drawn at the axis' top
+        first_at_top = (b > 0) == down
+        colours = matplotlib.colormaps["RdBu_r" if signed else cmap].with_extremes(
+            bad=NO_DATA_COLOUR)
+        im = ax.imshow(d.T if first_at_top else d.T[::-1], aspect="auto", extent=ext,
+                       interpolation="nearest", cmap=colours,
+                       vmin=-vmax if signed else 0.0, vmax=vmax)
         cb = fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02)
-        cb.set_label(UNITS.get(k.source, k.source), fontsize=8)
+        label = UNITS.get(k.source, k.source)
+        if not finite.all():
+            # (no measurement had been drawn as zero, still air, probe BX)
+            label += f"; {'ochre' if finite.any() else 'all ochre'}: no measurement"
+        cb.set_label(label, fontsize=8)
         cb.ax.tick_params(labelsize=7)
         ax.set_xlabel("t [ms]")
         ax.set_ylabel(_axis_label(k))
         rate = f"{k.rate_hz:.4g} Hz" if np.isfinite(k.rate_hz) else "1 image"
         ax.set_title(titles[i] if titles is not None else f"{k.source} at {rate}", fontsize=10)
+        if error:
+            # a failed fit had left the panel looking like one drawn with --no-fit (probe BX)
+            ax.text(0.5, 0.97, textwrap.fill(f"no velocity fit: {error}", 52),
+                    transform=ax.transAxes, ha="center", va="top", fontsize=7,
+                    color="darkred", bbox=dict(facecolor="white", alpha=0.85, lw=0))
         if fit is not None:
             if fit.method == "ridge":
                 ti = fit.t_s[fit.inliers]
