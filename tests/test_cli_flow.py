@@ -728,3 +728,20 @@ def test_triplet_resume_says_how_much_it_kept(recording, tmp_path, capsys):
     capsys.readouterr()
     assert main([*argv, "--resume"]) == 0
     assert f"{n} windows ({n} kept from the earlier run)," in capsys.readouterr().out
+
+
+def test_source_events_says_which_events_it_identifies(recording, tmp_path):
+    # probe BX: a triplet output's "4096 events, sha1 ..." read as the count of a file of
+    # 47,298 events
+    import h5py
+
+    path, _ = recording
+    for method, extra, which in (
+            ("triplet", [], "the first 4096 events, sha1 "),
+            ("multicm", ["--max-windows", "1", "--scales", "2"],
+             "the first window's 4000 events, sha1 ")):
+        name = f"{method}.h5"
+        assert main(["flow", str(path), "--method", method, "--window-events", "4000",
+                     "--out", str(tmp_path / name), *extra]) == 0
+        with h5py.File(tmp_path / name) as f:
+            assert str(f.attrs["source_events"]).startswith(which), f.attrs["source_events"]

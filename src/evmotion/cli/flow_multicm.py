@@ -384,7 +384,8 @@ def run(args) -> int:
         attrs["distortion"] = [float(v) for v in cam.dist]
     # of the first window's events: the same whether the run read the whole recording or
     # only what its --max-windows need, so that a resume may ask for more windows
-    attrs["source_events"] = fingerprint(events[windows[0].start:windows[0].stop])
+    attrs["source_events"] = ("the first window's "
+                              + fingerprint(events[windows[0].start:windows[0].stop]))
     png_dir = Path(args.png_dir) if args.png_dir else None
     if png_dir is not None and not args.resume:
         remove_stale_pictures(png_dir, ("flow_", "flow_masked_", "iwe_tmid_",

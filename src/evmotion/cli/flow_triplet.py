@@ -222,7 +222,8 @@ def run(args) -> int:
     tri = stream()
     attrs = {"method": "triplet", "source": str(args.file), "grid": grid,
              # its first events (as many whatever --chunk-events), read before anything
-             "source_events": fingerprint(first[:4096]),
+             # named as what it is (read as the file's count, "4096 events", probe BX)
+             "source_events": "the first " + fingerprint(first[:4096]),
              **{f"triplet_{k}": v for k, v in params.items()}}
     whole = getattr(args, "t0", None) is None and getattr(args, "t1", None) is None
     bar = progress(iter(()), desc="triplet", unit="ev", unit_scale=True, total=total)
