@@ -287,9 +287,24 @@ def test_zoom_into_the_scene_is_refused():
                                             ("rotation", {"wz": 1e6})])
 def test_motion_faster_than_the_shortest_step_is_refused(scene, params):
     # vx=1e12 px/s wrote 18 M events that follow no motion, 1.1 GB, no word (probe)
-    with pytest.raises(ParameterError, match=r"px in 1 us, the simulator's shortest step"):
+    with pytest.raises(ParameterError, match=r"simulator's shortest step.* 1 us"):
         simulate(scene, duration_s=0.01, sensor_size=(60, 80), params=params,
                  show_progress=False)
+
+
+def test_a_scene_too_fast_later_is_refused_before_the_work(monkeypatch):
+    # the default rotation passes 90 degrees at ~1.2 s: a 3 s run failed after 3 minutes
+    # (at 480x640), having simulated 1.17 s for nothing
+    import evmotion.sim.simulator as simulator
+
+    def no_step(*a, **kw):
+        raise AssertionError("simulated a step")
+
+    monkeypatch.setattr(simulator, "sim_step", no_step)
+    # (the loop, let run, fails at t = 1.19666 s here, 1.17361 s at 480x640)
+    with pytest.raises(ParameterError, match=r"\(1 px in 1 us\) at t = 1\.19666 s: "
+                                             r"simulate less than that"):
+        simulate("rotation", duration_s=3.0, sensor_size=(60, 80), show_progress=False)
 
 
 def test_bad_intrinsics():

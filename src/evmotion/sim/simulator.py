@@ -451,17 +451,45 @@ class _Stepper:
     def shift(self, m0: np.ndarray, m1: np.ndarray) -> float:
         """Largest motion (px) of the texture point seen at a probe pixel between two
         times; the step keeps it below STEP_SHIFT_PX."""
-        out = 0.0
-        for k in range(m0.shape[0]):
-            a, b = m0[k].reshape(3, 3), m1[k].reshape(3, 3)
-            probe = self.grid if self.supports[k] is None else np.linalg.solve(a,
-                                                                               self.supports[k])
-            if probe.shape[1] == 0:
+        return float(self.shifts(m0[None], m1[None])[0])
+
+    def shifts(self, m0: np.ndarray, m1: np.ndarray) -> np.ndarray:
+        """:meth:`shift` of each pair ``(m0[i], m1[i])`` of layer matrices ``(T, L, 9)``."""
+        out = np.zeros(m0.shape[0])
+        for k in range(m0.shape[1]):
+            a, b = m0[:, k].reshape(-1, 3, 3), m1[:, k].reshape(-1, 3, 3)
+            sup = self.supports[k]
+            if sup is not None and sup.shape[1] == 0:
                 continue
-            q0, q1 = a @ probe, b @ probe
-            d = q1[:2] / q1[2] - q0[:2] / q0[2]
-            out = max(out, float(np.sqrt((d ** 2).sum(axis=0)).max()))
+            if sup is None:
+                q0, q1 = a @ self.grid, b @ self.grid
+            else:  # the support's points where they are at m0, and at m1
+                q0, q1 = sup[None], (b @ np.linalg.inv(a)) @ sup
+            with np.errstate(all="ignore"):
+                d = q1[:, :2] / q1[:, 2:] - q0[:, :2] / q0[:, 2:]
+            out = np.fmax(out, np.sqrt((d ** 2).sum(axis=1)).max(axis=-1))
         return out
+
+    def too_fast(self, n: int = 256) -> tuple[float, float] | None:
+        """An interval (start, end in µs) where some texture point moves more than
+        STEP_SHIFT_PX in 1 µs, the shortest step, or None: the first of ``n`` equal
+        intervals of the duration where it does at the interval's end or on average over
+        it (the shift over an interval is at most the sum of its 1-µs steps'), narrowed
+        the same way within it. A scene refused here would fail in the loop, after
+        minutes spent on its earlier part."""
+        found, lo, hi = None, 0, self.duration_us
+        while hi - lo > 1:
+            ts = np.unique(np.linspace(lo, hi, n + 1).round())
+            m, m1 = (np.stack([layer.motion.matrices(t * 1e-6).reshape(-1, 9)
+                               for layer in self.layers], axis=1) for t in (ts, ts + 1))
+            step = np.flatnonzero(self.shifts(m, m1) > STEP_SHIFT_PX)
+            mean = np.flatnonzero(self.shifts(m[:-1], m[1:]) > STEP_SHIFT_PX * np.diff(ts))
+            firsts = ([max(int(step[0]) - 1, 0)] if step.size else []) + list(mean[:1])
+            if not firsts:
+                break
+            k = int(min(firsts))
+            found = lo, hi = float(ts[k]), float(ts[min(k + 1, ts.size - 1)])
+        return found
 
 
 def _support(tex: Texture):
@@ -503,6 +531,14 @@ def _signal_events(run: _Run, layers, texs, cp, cn):
     h, w = run.sensor_size
     duration_us = run.duration_us
     stepper = _Stepper(layers, texs, run.sensor_size, duration_us)
+    fast = stepper.too_fast()
+    if fast is not None:
+        # said before the work (a 3 s default rotation, past 90 degrees at 1.2 s, failed
+        # after 3 minutes)
+        raise ParameterError(f"{run.scene}: the scene moves faster than the simulator's "
+                             f"shortest step follows ({STEP_SHIFT_PX:g} px in 1 us) at t = "
+                             f"{fast[0] * 1e-6:.6g} s: simulate less than that or give "
+                             "slower motion (params)")
     padded, scene = _step_layers(texs, stepper.boxes, run.options.backend)
     kernel = _step_numpy if run.options.backend == "numpy" else sim_step
     refr = run.options.refractory_us
