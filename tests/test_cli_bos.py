@@ -890,3 +890,21 @@ def test_frame_list_faults_are_named_by_their_files(tmp_path, capsys):
     assert rc == 0, err
     said = json.loads(text)["frames_info"]["error"]
     assert frame.name in said and "truncated PNG" in said
+
+
+def test_png_dir_takes_max_speed(scene, tmp_path, capsys, monkeypatch):
+    # probe BX: bos had no --max-speed, flow had
+    import evmotion.viz.bos as vb
+
+    rims = []
+    real = vb.save_bos_pngs
+
+    def spy(*a, **kw):
+        rims.append(kw["flow_max"])
+        return real(*a, **kw)
+
+    monkeypatch.setattr(vb, "save_bos_pngs", spy)
+    rc, _, err = _run(["bos", scene, "--iterations", 5, "--max-intervals", 2, "--max-speed",
+                       123, "--png-dir", tmp_path / "png", "--out", tmp_path / "b.h5"], capsys)
+    assert rc == 0, err
+    assert rims == [123.0, 123.0]

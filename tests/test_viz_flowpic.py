@@ -267,3 +267,39 @@ def test_bos_p_picture_is_unmasked_and_greys_only_nan(tmp_path, monkeypatch):
     rgb = read_png(tmp_path / "p_00000.png")
     k = drawn["p_00000.png"].scale
     assert (rgb == GREY).all(-1).sum() >= 2 * 40 * k * k  # the NaN rows, grey
+
+
+def test_bos_sequence_pictures_share_their_scales_and_say_what_is_unmeasured(tmp_path,
+                                                                               monkeypatch):
+    # probe BX: each interval's flow and q were scaled to their own maxima, and the
+    # start-up interval (no valid pixel) was drawn like the others
+    import evmotion.viz.bos as vb
+    from evmotion.io.bosfiles import BosSequence
+    from evmotion.io.flowfiles import FlowSequence
+
+    calls = []
+    real = vb.save_bos_pngs
+
+    def spy(folder, k, flow, q, p, **kw):
+        calls.append(kw)
+        return real(folder, k, flow, q, p, **kw)
+
+    monkeypatch.setattr(vb, "save_bos_pngs", spy)
+    flow = np.zeros((3, 20, 20, 2), np.float32)
+    flow[0] = 900.0  # unmeasured: its speed is no scale
+    flow[1, ..., 0] = 10.0
+    flow[2, ..., 0] = 40.0
+    valid = np.ones((3, 20, 20), bool)
+    valid[0] = False
+    q = np.stack([np.full((20, 20), 50.0), np.full((20, 20), 1.0), np.full((20, 20), -3.0)])
+    seq = FlowSequence(flow=flow, t0=np.array([0, 10, 20]), t1=np.array([10, 20, 30]),
+                       valid=valid, attrs={})
+    bos = BosSequence(flow=seq, q=q, p=np.zeros((3, 20, 20, 2)), scalars={},
+                      attrs={"q_units": "px^2/s"})
+    assert len(vb.save_bos_sequence_pngs(tmp_path, bos)) == 9
+    assert [c["flow_max"] for c in calls] == [pytest.approx(40.0)] * 3
+    assert [c["q_limit"] for c in calls] == [pytest.approx(3.0)] * 3
+    assert ["NOT A MEASUREMENT" in c["label"] for c in calls] == [True, False, False]
+    calls.clear()
+    vb.save_bos_sequence_pngs(tmp_path, bos, max_speed=100.0)
+    assert [c["flow_max"] for c in calls] == [100.0] * 3

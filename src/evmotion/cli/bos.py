@@ -39,6 +39,7 @@ from evmotion.cli.options import (
     existing_input,
     finite_float,
     int_range,
+    positive_float,
     remove_stale_pictures,
     time_us,
     writable_folder,
@@ -141,6 +142,11 @@ def add_parser(sub) -> None:
                         "intervals it holds are kept, the next starts from the last one's "
                         "solver state, so the file is the one an uninterrupted run writes "
                         "(needs --workers 1 and the first run's options)")
+    p.add_argument("--max-speed", type=positive_float(unit="px/s"), default=None,
+                   metavar="PX_S",
+                   help="--png-dir: speed at the flow colour wheel's rim in px/s (default: "
+                        "the largest valid speed of the run; one scale for every interval, "
+                        "as q's)")
     p.add_argument("--png-dir", default=None, type=writable_folder("q, flow and p PNGs"),
                    help="write q/flow/p PNGs per interval here (needs --out .h5 or .npz)")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
@@ -235,15 +241,11 @@ def run(args) -> int:
     png_files: list[str] = []
     if args.png_dir:
         from evmotion.io.bosfiles import read_bos
-        from evmotion.viz.bos import save_bos_pngs
+        from evmotion.viz.bos import save_bos_sequence_pngs
 
-        bos = read_bos(out)
         remove_stale_pictures(args.png_dir, ("q_", "flow_", "p_"))
-        for k in range(len(bos)):
-            png_files += save_bos_pngs(args.png_dir, k, bos.flow.flow[k], bos.q[k], bos.p[k],
-                                       q_unit=bos.attrs["q_units"],
-                                       label=f"[{bos.flow.t0[k]}, {bos.flow.t1[k]}) us",
-                                       valid=bos.flow.valid[k])
+        png_files = save_bos_sequence_pngs(args.png_dir, read_bos(out),
+                                           max_speed=args.max_speed)
     seconds = time.perf_counter() - t_start
     if args.json:
         print_json({"rec": str(args.rec), "frames": data.frames_source, "out": str(out),

@@ -12,7 +12,8 @@ import numpy as np
 from evmotion.viz.flowpic import flow_picture, picture_row
 from evmotion.viz.images import save_flow_png, save_png
 
-__all__ = ["flow_window_picture", "q_picture", "save_bos_pngs", "save_q_png",
+__all__ = ["flow_window_picture", "q_picture", "save_bos_pngs", "save_bos_sequence_pngs",
+           "save_q_png",
            "symmetric_limit"]
 
 
@@ -130,7 +131,8 @@ def flow_window_picture(flow: np.ndarray, *, valid: np.ndarray | None = None,
 
 def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np.ndarray,
                   p: np.ndarray, *, q_unit: str = "px^2/s", flow_max: float | None = None,
-                  label: str = "", valid: np.ndarray | None = None) -> list[str]:
+                  q_limit: float | None = None, label: str = "",
+                  valid: np.ndarray | None = None) -> list[str]:
     """Write ``q_XXXX.png``, ``flow_XXXX.png`` and ``p_XXXX.png`` for window ``index``.
 
     Parameters
@@ -143,6 +145,8 @@ def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np
         Translation field in px (colour wheel, scale in px).
     flow_max : float, optional
         Rim of the flow colour wheel in px/s (default: the largest finite magnitude).
+    q_limit : float, optional
+        q's colour bar spans ``[-q_limit, q_limit]`` (default: :func:`symmetric_limit`).
     label : str
         Text added to each title (e.g. the window's time).
     valid : ndarray, (H, W) bool, optional
@@ -167,7 +171,7 @@ def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np
     suffix = f" {label}" if label else ""
     names = [folder / f"q_{index:05d}.png", folder / f"flow_{index:05d}.png",
              folder / f"p_{index:05d}.png"]
-    save_q_png(names[0], q, unit=q_unit, title=f"Poisson field q{suffix}")
+    save_q_png(names[0], q, limit=q_limit, unit=q_unit, title=f"Poisson field q{suffix}")
     mask = np.isfinite(flow).all(axis=-1)
     if valid is not None:
         mask &= np.asarray(valid, bool)
@@ -178,3 +182,59 @@ def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np
     save_flow_png(names[2], np.asarray(p, np.float32), unit="px",
                   title=f"translation p{suffix}")
     return [str(n) for n in names]
+
+
+def save_bos_sequence_pngs(folder: str | os.PathLike, bos, *,
+                           max_speed: float | None = None) -> list[str]:
+    """:func:`save_bos_pngs` for every interval of a BOS output, on one colour scale for
+    the flow and one for q, so that the pictures of a sequence compare (each had been
+    scaled to its own maximum, probe BX); an interval with no valid pixel (the sensor's
+    start-up, a failed fit) is titled NOT A MEASUREMENT.
+
+    Parameters
+    ----------
+    folder : path-like
+    bos : BosSequence
+        :func:`~evmotion.io.bosfiles.read_bos`'s result.
+    max_speed : float, optional
+        Rim of the flow's colour wheel in px/s (default: the largest valid speed of the
+        sequence); q's colour limit is the 99th percentile of ``|q|`` over the measured
+        intervals.
+
+    Returns
+    -------
+    list of str
+        The files written, three per interval.
+
+    Examples
+    --------
+    >>> from evmotion.io.bosfiles import BosSequence
+    >>> from evmotion.io.flowfiles import FlowSequence
+    >>> flow = np.zeros((2, 8, 8, 2), np.float32); flow[1] = 3.0
+    >>> seq = FlowSequence(flow=flow, t0=np.array([0, 10]), t1=np.array([10, 20]),
+    ...                    valid=np.ones((2, 8, 8), bool), attrs={})
+    >>> bos = BosSequence(flow=seq, q=np.zeros((2, 8, 8)), p=np.zeros((2, 8, 8, 2)),
+    ...                   scalars={}, attrs={"q_units": "px^2/s"})
+    >>> len(save_bos_sequence_pngs("png_seq", bos))
+    6
+    """
+    from evmotion.viz.flowpic import sequence_max_speed
+
+    seq = bos.flow
+    n = len(seq.t0)
+    valid = (np.isfinite(seq.flow).all(axis=-1) if seq.valid is None
+             else np.asarray(seq.valid, bool) & np.isfinite(seq.flow).all(axis=-1))
+    measured = valid.reshape(n, -1).any(axis=1)
+    if max_speed is None:
+        max_speed = sequence_max_speed(np.nan_to_num(seq.flow), valid)
+    q_limit = symmetric_limit(np.asarray(bos.q)[measured]) if measured.any() else None
+    files: list[str] = []
+    for k in range(n):
+        label = f"[{seq.t0[k]}, {seq.t1[k]}) us"
+        if not measured[k]:
+            label += ": NOT A MEASUREMENT (no valid pixel)"
+        files += save_bos_pngs(folder, k, seq.flow[k], bos.q[k], bos.p[k],
+                               q_unit=bos.attrs.get("q_units") or "px^2/s",
+                               flow_max=max_speed, q_limit=q_limit, label=label,
+                               valid=valid[k])
+    return files
