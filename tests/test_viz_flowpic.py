@@ -303,3 +303,20 @@ def test_bos_sequence_pictures_share_their_scales_and_say_what_is_unmeasured(tmp
     calls.clear()
     vb.save_bos_sequence_pngs(tmp_path, bos, max_speed=100.0)
     assert [c["flow_max"] for c in calls] == [100.0] * 3
+
+
+def test_a_flow_window_draws_q_on_the_flows_pixels():
+    # probe BX: view of a BOS window drew q in a figure of its own, larger than the flow
+    # beside it and lower
+    from evmotion.viz.bos import flow_window_picture
+
+    flow = np.zeros((40, 50, 2), np.float32)
+    flow[..., 0] = 3.0
+    q = np.zeros((40, 50))
+    q[-1] = np.nan  # its last row grey
+    rgb = flow_window_picture(flow, q=q)
+    flow_rows = np.flatnonzero((rgb[:, 0] != 255).any(-1))
+    grey_rows = np.flatnonzero((rgb == GREY).all(-1).sum(1) >= 50 * 4)
+    k = -(-MIN_HEIGHT // 40)
+    assert flow_rows.size == 40 * k
+    np.testing.assert_array_equal(grey_rows, flow_rows[-k:])

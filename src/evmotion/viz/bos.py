@@ -118,15 +118,43 @@ def flow_window_picture(flow: np.ndarray, *, valid: np.ndarray | None = None,
     flow = np.asarray(flow, dtype=np.float32)
     ok = np.isfinite(flow).all(axis=-1)
     valid = ok if valid is None else (np.asarray(valid, bool) & ok)
-    pic = flow_picture(np.nan_to_num(flow), valid=valid, unit=unit).rgb
+    pic = flow_picture(np.nan_to_num(flow), valid=valid, unit=unit)
     if q is None:
-        return picture_row([pic], title=title)
-    # q's axes about as tall as the flow (q_picture's axes: 86 % of 6 in over the longer
-    # side), its labels still legible
-    h, w = np.shape(q)[:2]
-    dpi = max(72, int(round(pic.shape[0] / (0.86 * 6.0 * h / max(h, w)))))
-    qrgb, _ = q_picture(q, unit=q_unit, dpi=dpi)
-    return picture_row([pic, qrgb], ["flow", "Poisson field q"], title=title)
+        return picture_row([pic.rgb], title=title)
+    # q pixel for pixel at the flow's scale beside its colour bar (a figure of its own
+    # had drawn it larger than the flow and lower, probe BX)
+    return picture_row([pic.rgb, _q_panel(q, pic.scale, q_unit)], ["flow", "Poisson field q"],
+                       title=title)
+
+
+def _q_panel(q: np.ndarray, scale: int, unit: str) -> np.ndarray:
+    """q in diverging colours (NaN grey), each pixel ``scale`` x ``scale``, beside a
+    colour bar as tall."""
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+
+    q = np.asarray(q, dtype=np.float64)
+    limit = symmetric_limit(q)
+    finite = np.abs(q[np.isfinite(q)])
+    clipped = finite.size > 0 and float(finite.max()) > limit * (1 + 1e-9)
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad=(0.5, 0.5, 0.5))
+    norm = Normalize(-limit, limit)
+    rgb = (cmap(norm(np.ma.masked_invalid(q)))[..., :3] * 255 + 0.5).astype(np.uint8)
+    rgb = np.repeat(np.repeat(rgb, scale, axis=0), scale, axis=1)
+    height = rgb.shape[0]
+    fig = Figure(figsize=(1.1, height / 100.0), dpi=100, facecolor="white")
+    FigureCanvasAgg(fig)
+    cax = fig.add_axes((0.1, 0.06, 0.16, 0.88))
+    bar = fig.colorbar(ScalarMappable(norm, cmap), cax=cax,
+                       extend="both" if clipped else "neither")
+    bar.set_label(f"q [{unit}]" + ("; clipped" if clipped else ""), fontsize=7)
+    bar.ax.tick_params(labelsize=6)
+    fig.canvas.draw()
+    strip = np.asarray(fig.canvas.buffer_rgba())[..., :3]
+    return np.concatenate([rgb, strip[:height]], axis=1)
 
 
 def save_bos_pngs(folder: str | os.PathLike, index: int, flow: np.ndarray, q: np.ndarray,
