@@ -210,13 +210,16 @@ def test_egomotion_panel_title_says_when_not_a_measurement(rec):
     from evmotion.methods.egomotion import estimate_egomotion
 
     ev = read_events(rec)
-    r = estimate_egomotion(ev.window(ev.windows_by_duration(50_000)[0]), "translation")
-    assert r.valid and "NOT A MEASUREMENT" not in _panel_title(r)
-    assert _panel_title(r).startswith(f"translation, {r.n_events:,} events, [")
-    assert _panel_title(dataclasses.replace(r, collapsed=True)).endswith(
+    w = ev.windows_by_duration(50_000)[0]
+    r = estimate_egomotion(ev.window(w), "translation")
+    assert r.valid and "NOT A MEASUREMENT" not in _panel_title(r, w.t0, w.t1)
+    # the window as params.csv has it (probe BX: the first and last events, closed)
+    assert _panel_title(r, w.t0, w.t1).startswith(
+        f"translation, {r.n_events:,} events, [{w.t0:,}, {w.t1:,}) us")
+    assert _panel_title(dataclasses.replace(r, collapsed=True), w.t0, w.t1).endswith(
         "NOT A MEASUREMENT: event collapse (valid = False)")
     poor = dataclasses.replace(r, diagnostics={**r.diagnostics, "too_few_events": True})
-    assert "NOT A MEASUREMENT: poor fit" in _panel_title(poor)
+    assert "NOT A MEASUREMENT: poor fit" in _panel_title(poor, w.t0, w.t1)
 
 
 def test_egomotion_png_panels_of_first_windows_less_failed(rec, tmp_path):

@@ -265,3 +265,15 @@ def test_panel_titles_wider_than_their_panel_wrap():
                       for t in ("cluster 0", long))
     assert wrapped.size[0] == short.size[0] and wrapped.size[1] > short.size[1]
     assert len(long) > panel_width_inches(240, 100) * TITLE_CHARS_PER_INCH
+
+
+def test_panels_name_their_pixel_axes(monkeypatch):
+    # probe BX: the ticks 0 and W - 1 had no unit
+    import evmotion.viz.images as vi
+
+    figs = []
+    real = vi._figure_png
+    monkeypatch.setattr(vi, "_figure_png", lambda fig, dpi: figs.append(fig) or real(fig, dpi))
+    vi.panel_png([np.zeros((12, 16)), np.ones((12, 16))], ["a", "b"])
+    axes = figs[0].axes
+    assert [(a.get_xlabel(), a.get_ylabel()) for a in axes] == [("x [px]", "y [px]")] * 2

@@ -217,10 +217,10 @@ def _window_job(events, t0_us: int, t1_us: int, *, warp, objective, reg, weight,
         r = estimate_egomotion(events, warp, objective, reg, weight, optimizer, K=K,
                                t_ref=t_ref, init=init, seed=seed, dataset=dataset, maps=png)
     return WindowOutput(dataclasses.replace(r, iwe_before=None, iwe_after=None, maps={}),
-                        _panel(r) if png else None)
+                        _panel(r, t0_us, t1_us) if png else None)
 
 
-def _panel(r) -> bytes:
+def _panel(r, t0_us: int, t1_us: int) -> bytes:
     """The window's PNG panel: its IWE without and with the warp (and the DIWE/IWA maps
     where the regularizer made them)."""
     from evmotion.viz import images
@@ -236,21 +236,25 @@ def _panel(r) -> bytes:
     titles = [f"IWE, zero motion\nwhite 0, black >= {vmax:.3g} events / px",
               f"IWE warped (same scale)\n{values}"]
     if "diwe" in r.maps:
-        for name, img in (("DIWE (divergence)", r.maps["diwe"]),
-                          ("IWA - 1 (deformation)", r.maps["iwa"] - 1.0)):
+        # both unitless: the divergence of the window's displacement (px per px), an
+        # area ratio ("full at +-0.19" had no unit, probe BX)
+        for name, img in (("DIWE (divergence x window, px/px)", r.maps["diwe"]),
+                          ("IWA - 1 (deformation, area ratio - 1)", r.maps["iwa"] - 1.0)):
             peak = float(np.nanmax(np.abs(img))) if np.size(img) else 0.0
             panels.append(_signed_rgb(img))
             titles.append(f"{name}\n0 everywhere: none in a {r.warp}" if peak < 1e-12
                           else f"{name}\nred +, blue -, full at +-{peak:.3g}")
-    return images.panel_png(panels, titles, ncols=2, suptitle=_panel_title(r))
+    return images.panel_png(panels, titles, ncols=2, suptitle=_panel_title(r, t0_us, t1_us))
 
 
-def _panel_title(r) -> str:
+def _panel_title(r, t0_us: int, t1_us: int) -> str:
     """The panel's title: the window, and the verdict where the estimate is not a
     measurement (a picture looked at alone must not pass for one)."""
     # whole µs: epoch times in ms at 6 digits read [1.58916e+12, 1.58916e+12] (probe Y)
-    t0, t1 = (int(v) for v in r.window_us)
-    title = f"{r.warp}, {r.n_events:,} events, [{t0:,}, {t1:,}] us ({(t1 - t0) / 1e3:.3g} ms)"
+    # the window as params.csv gives it (its first and last events, a closed interval,
+    # had disagreed with the table's [t0, t1), probe BX)
+    t0, t1 = int(t0_us), int(t1_us)
+    title = f"{r.warp}, {r.n_events:,} events, [{t0:,}, {t1:,}) us ({(t1 - t0) / 1e3:.3g} ms)"
     if not r.valid:
         why = ("event collapse" if r.collapsed else "poor fit" if r.poor_fit
                else "non-finite parameters")

@@ -392,6 +392,9 @@ def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None,
             ax.imshow(_as_image(im, f"images[{k}]"), cmap="gray" if im.ndim == 2 else None,
                       vmin=0, vmax=255, interpolation="nearest")
         ax.tick_params(labelsize=7, length=2, pad=1)
+        # (the ticks' numbers had no unit, probe BX)
+        ax.set_xlabel("x [px]", fontsize=7, labelpad=-6)
+        ax.set_ylabel("y [px]", fontsize=7, labelpad=-10)
         for spine in ax.spines.values():
             spine.set_color("0.6")
             spine.set_linewidth(0.6)
