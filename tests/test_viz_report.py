@@ -86,12 +86,30 @@ def test_a_missing_figure_is_an_error_not_a_broken_image(tmp_path):
 def test_demo_report_shows_every_picture(tmp_path, monkeypatch):
     """``make demo``'s report, written from another directory: its images resolve (they
     pointed to ``../x.png``, resolved against the working directory)."""
+    import evmotion.viz.bos as vb
     from evmotion import demo
 
     monkeypatch.setattr(demo, "_zoom", lambda out, rep, seed: {})  # the slow part
+    # probe BX: the IWE and input panels had no scale, the two q their own ones
+    panels, limits = {}, {}
+    save_panel, save_q_png = demo.save_panel, vb.save_q_png
+
+    def panel_spy(path, images, titles, *a, **kw):
+        panels[Path(path).name] = titles
+        return save_panel(path, images, titles, *a, **kw)
+
+    def q_spy(path, q, **kw):
+        limits[Path(path).name] = save_q_png(path, q, **kw)
+        return limits[Path(path).name]
+
+    monkeypatch.setattr(demo, "save_panel", panel_spy)
+    monkeypatch.setattr(vb, "save_q_png", q_spy)
     (tmp_path / "cwd").mkdir()
     monkeypatch.chdir(tmp_path / "cwd")
     assert demo.main(["--out", "../demo_out"]) == 0
+    assert "events/px" in panels["rotation_iwe.png"][0]
+    assert "8-bit" in panels["bos_input.png"][0] and "full at" in panels["bos_input.png"][1]
+    assert limits["bos_q.png"] == limits["bos_gt_q.png"]
     page = tmp_path / "demo_out" / "report.html"
     refs = check_report_images(page)
     assert len(refs) >= 10 and all(r.startswith("data:image/png") for r in refs)

@@ -36,6 +36,7 @@ from evmotion.viz import (
     HtmlReport,
     event_histogram,
     flow_picture,
+    full_scale,
     iwe_to_rgb,
     picture_row,
     save_flow_png,
@@ -62,9 +63,12 @@ def _rotation(out: Path, rep: HtmlReport, seed: int) -> dict:
     t_ref = res.t_ref_us
     true_omega = np.asarray(sim.gt.params(t_ref)["omega"], dtype=float)
     err = rms_error(res.params, true_omega)
+    # one scale for both, stated (the pictures had no legend, probe BX)
+    vmax = full_scale(res.iwe_after)
     save_panel(out / "rotation_iwe.png",
-               [iwe_to_rgb(res.iwe_before), iwe_to_rgb(res.iwe_after)],
-               ["identity warp", "rotation warp: omega = (" + ", ".join(
+               [iwe_to_rgb(res.iwe_before, vmax=vmax), iwe_to_rgb(res.iwe_after, vmax=vmax)],
+               [f"identity warp (white 0, black >= {vmax:.3g} events/px)",
+                "rotation warp (same scale): omega = (" + ", ".join(
                    f"{v:.2f}" for v in res.params) + ") rad/s, true (" + ", ".join(
                    f"{v:.2f}" for v in true_omega) + ")"])
     gt_flow = sim.gt.flow(t_ref)
@@ -108,8 +112,10 @@ def _zoom(out: Path, rep: HtmlReport, seed: int) -> dict:
         m = flow_metrics(flow * span_s, disp_gt, mask=mask)
         rows.append({"regularizer": reg or "none", "h_z (1/s)": res.params[0], "AEE px": m.aee,
                      "20PE %": m.npe[20], "FWL": fwl(win, flow, t_ref)})
-        images.append(iwe_to_rgb(res.iwe_after))
-        titles.append(f"{reg or 'no regularizer'}: AEE {m.aee:.2f} px")
+        vmax = full_scale(res.iwe_after)
+        images.append(iwe_to_rgb(res.iwe_after, vmax=vmax))
+        titles.append(f"{reg or 'no regularizer'}: AEE {m.aee:.2f} px\n"
+                      f"white 0, black >= {vmax:.3g} events/px")
     save_panel(out / "zoom_collapse.png", images, titles)
     rep.add_heading("2. Forward motion: event collapse (1-DOF zoom warp)")
     rep.add_table(rows, caption="Variance objective, 600-sample TPE, thesis (DSEC) weights. "
@@ -238,11 +244,16 @@ def _schlieren(out: Path, rep: HtmlReport, seed: int) -> dict:
                   title="BOS flow (Poisson, scale-aware)")
     save_flow_png(out / "bos_gt_flow.png", gt, max_speed=vmax, unit="px/s",
                   title="exact flow")
-    save_q_png(out / "bos_q.png", best.q, title="Poisson field q (estimated)")
-    save_q_png(out / "bos_gt_q.png", gt_q, title="Poisson field q (exact)")
-    save_panel(out / "bos_input.png", [f[k], iwe_to_rgb(event_histogram(win, signed=True),
-                                                        polarity=True)],
-               ["frame (random-dot background)", "events of the frame interval"])
+    # one colour scale for both q (the exact q's)
+    limit = save_q_png(out / "bos_gt_q.png", gt_q, title="Poisson field q (exact)")
+    save_q_png(out / "bos_q.png", best.q, limit=limit,
+               title="Poisson field q (estimated, the exact q's scale)")
+    hist = event_histogram(win, signed=True)
+    vmax = full_scale(hist)
+    save_panel(out / "bos_input.png", [f[k], iwe_to_rgb(hist, polarity=True, vmax=vmax)],
+               ["frame (random-dot background), 8-bit grey",
+                f"events of the frame interval: polarity sum, red +, blue -, full at "
+                f"+-{vmax:.3g} / px"])
     rep.add_heading("5. Background-oriented schlieren (events + one frame)")
     rep.add_table(rows, caption=f"Simulated plume, 160x180 px, one 120 fps frame interval "
                                 f"({len(win)} events), 100 Adam iterations per scale; "
