@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -339,11 +340,17 @@ def test_the_title_of_epoch_times_shows_the_microseconds(tmp_path, monkeypatch):
     assert "[1589160000.123456, 1589160000.222457) s (99 ms)" in titles[0], titles
 
 
-def test_a_per_event_flow_file_is_drawn_with_its_flow(tmp_path, capsys):
+def test_a_per_event_flow_file_is_drawn_with_its_flow(tmp_path, capsys, monkeypatch):
     # probe BK: view of --method triplet's per-event file drew its events alone
+    import evmotion.viz.flowpic as fp
     from evmotion.io.eventflow import EventFlowWriter
     from evmotion.viz import read_png
     from evmotion.viz.flowpic import GREY
+
+    titles = []
+    row = fp.picture_row
+    monkeypatch.setattr(fp, "picture_row",
+                        lambda images, t=None, **kw: titles.append(t) or row(images, t, **kw))
 
     rng = np.random.default_rng(0)
     n = 3000
@@ -361,6 +368,8 @@ def test_a_per_event_flow_file_is_drawn_with_its_flow(tmp_path, capsys):
     rgb = read_png(out).reshape(-1, 3).astype(int)
     red = (rgb[:, 0] > 200) & (rgb[:, 1] < 60) & (rgb[:, 2] < 60)
     assert red.sum() > 500 and (rgb == GREY).all(-1).sum() > 100
+    # the events' panel states its scale (probe BX)
+    assert re.fullmatch(r"events \(white 0, black >= [\d.]+ / px\)", titles[-1][0])
     assert main(["view", str(path), "--raw", "--out", str(out)]) == 0
     assert read_png(out).shape[:2] == (40, 60)  # --raw: the events alone, pixel for pixel
     assert main(["view", str(path), "--window", "1", "--out", str(out)]) == 2

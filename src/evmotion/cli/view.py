@@ -215,7 +215,7 @@ def _event_flow_picture(args, ev, hist, title: str):
     import numpy as np
 
     from evmotion.io.eventflow import read_event_flow
-    from evmotion.viz import iwe_to_rgb
+    from evmotion.viz import full_scale, iwe_to_rgb
     from evmotion.viz.flowpic import flow_picture, mean_event_flow, picture_row
 
     ef = read_event_flow(args.file)
@@ -225,11 +225,15 @@ def _event_flow_picture(args, ev, hist, title: str):
     flow, has = mean_event_flow(ef["x"][sl], ef["y"][sl], ef["vx"][sl], ef["vy"][sl],
                                 ef["valid"][sl], ef.sensor_size)
     pic = flow_picture(flow, valid=has)
-    events = iwe_to_rgb(hist, polarity=args.polarity, percentile=args.percentile)
+    vmax = full_scale(hist, args.percentile)
+    events = iwe_to_rgb(hist, polarity=args.polarity, vmax=vmax)
     if pic.scale > 1:
         events = np.repeat(np.repeat(events, pic.scale, axis=0), pic.scale, axis=1)
-    rgb = picture_row([events, pic.rgb], ["events", "their flow: each pixel's mean"],
-                      title=title)
+    # the events' scale in words, as the flow's legend gives its own (probe BX)
+    scale = (f"red +, blue -, full at +-{vmax:.3g}" if args.polarity
+             else f"white 0, black >= {vmax:.3g}")
+    rgb = picture_row([events, pic.rgb], [f"events ({scale} / px)",
+                                          "their flow: each pixel's mean"], title=title)
     if args.scale > 1:
         rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
     return rgb
