@@ -201,7 +201,7 @@ def test_ridge_points_regions():
         ridge_points(k, s_range=(5.0, 6.0))
     flat = Kymogram(np.zeros((20, 30), np.float32), np.arange(20) / 1e3, np.arange(30.0),
                     KymoLine.row(0, (1, 30)), 1e3, "test")
-    with pytest.raises(EmptyWindowError, match="ridge"):
+    with pytest.raises(EmptyWindowError, match="holds only zeros"):
         fit_ridge(flat)
 
 
@@ -393,7 +393,7 @@ def test_a_fit_without_support_is_flagged_and_hints_name_options(plume, tmp_path
                    residual_px=0.0)
     assert not fit.reliable
     sim, folder = plume
-    rc, text, err = _cli(capsys, folder, "--col", 0, "--min-snr", 1e5, "--out",
+    rc, text, err = _cli(capsys, folder, "--col", 32, "--min-snr", 1e5, "--out",
                          tmp_path / "k.png", "--json")
     # no velocity on the main panel: the picture and the JSON are written, and a warning
     # says the fit asked for failed (it was in the JSON's row only)
@@ -842,3 +842,21 @@ def test_failed_fit_is_written_on_its_panel(tmp_path, capsys, monkeypatch):
     assert rc == 0 and "no velocity fit" in err
     texts = [t.get_text() for t in drawn[0].axes[0].texts]
     assert any(t.startswith("no velocity fit:") for t in texts)
+
+
+@pytest.mark.parametrize("fit", [fit_ridge, fit_correlation])
+@pytest.mark.parametrize("fill", [0.0, np.nan])
+def test_an_empty_kymogram_is_said_to_be_empty(fit, fill):
+    # probe BX: a row no event crossed was told of "a ridge at fewer than 3 lags ...
+    # periodic structures alias"
+    k = Kymogram(np.full((120, 60), fill, np.float32), np.arange(120) / 1200.0,
+                 np.arange(60.0), KymoLine.row(0, (1, 60)), 1200.0, "events")
+    what = "only zeros" if fill == 0 else "no measurement"
+    with pytest.raises(EmptyWindowError, match=rf"\(events\) holds {what} in the region "
+                                               r"\(the whole line, all times\)"):
+        fit(k)
+    k.data[50, 30] = 1.0  # one event: not empty (a fit, or the fit's own words)
+    try:
+        fit(k)
+    except EmptyWindowError as exc:
+        assert " holds " not in str(exc)

@@ -457,8 +457,7 @@ def _ridge_signal(kymo: Kymogram, polarity: str, sigma_px: float, sigma_bins: fl
     for name, v in (("sigma_px", sigma_px), ("sigma_bins", sigma_bins)):
         if not (np.isfinite(v) and v >= 0):
             raise ParameterError(f"parameter '{name}' must be finite and >= 0, got {v!r}")
-    # a NaN cell (a field with no measurement there) carries no signal: 0, as the CLI
-    # reads them
+    # a NaN cell (a field with no measurement there) carries no signal: 0
     d = np.nan_to_num(np.asarray(kymo.data, dtype=np.float64), nan=0.0)
     d = {"abs": np.abs(d), "positive": d, "negative": -d}[polarity]
     if sigma_px > 0 or sigma_bins > 0:
@@ -551,6 +550,20 @@ def _region(s_range, t_range) -> str:
     return f"{s}, {t}"
 
 
+def _check_signal(kymo: Kymogram, s_range, t_range) -> None:
+    """An empty region has nothing to fit: said as such (a row with no event had been
+    told of "a ridge at fewer than 3 lags ... periodic structures alias", probe BX)."""
+    s, t = kymo.s_px, kymo.t_s
+    smask = np.ones(s.size, bool) if s_range is None else (s >= s_range[0]) & (s <= s_range[1])
+    tmask = np.ones(t.size, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
+    d = np.asarray(kymo.data)[np.ix_(tmask, smask)]
+    if not np.any(np.nan_to_num(d, nan=0.0)):
+        what = "no measurement" if np.isnan(d).all() else "only zeros"
+        raise EmptyWindowError(f"the kymogram ({kymo.source}) holds {what} in the region "
+                               f"({_region(s_range, t_range)}): nothing crosses the line "
+                               "there; choose another line, a wider one, or another region")
+
+
 def fit_ridge(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1.0,
               polarity: str = "abs", s_range: tuple[float, float] | None = None,
               t_range: tuple[float, float] | None = None, min_snr: float = 3.0,
@@ -596,6 +609,7 @@ def fit_ridge(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1.0,
                                f"{3 + 2 * margin} or more ({margin} at each end lie within "
                                f"two sigma_bins={sigma_bins:g} of its edge): a longer time "
                                "range, a higher rate, or a smaller sigma_bins")
+    _check_signal(kymo, s_range, t_range)
     t, s = ridge_points(kymo, sigma_px=sigma_px, sigma_bins=sigma_bins, polarity=polarity,
                         s_range=s_range, t_range=t_range, min_snr=min_snr)
     if t.size < 3:
@@ -846,6 +860,7 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
         raise ParameterError(f"the region ({_region(s_range, t_range)}) holds "
                              f"{n_s} positions and {n_t} time bins; the correlation needs "
                              f">= 5 positions and >= {2 * n_blocks} bins ({n_blocks} blocks)")
+    _check_signal(kymo, s_range, t_range)
     n_lags = max(3, int(round((0.25 * n_t * dt if max_lag_s is None else max_lag_s) / dt)))
     n_lags = min(n_lags, n_t - 1) + 1
     d = d - d.mean(axis=0, keepdims=True)
