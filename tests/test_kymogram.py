@@ -764,6 +764,19 @@ def test_a_rate_too_low_for_the_span_names_its_option(plume, tmp_path, capsys):
         assert not (tmp_path / "k.png").exists()
 
 
+def _record(monkeypatch, module, name: str) -> list:
+    """The results of ``module.name`` in this test's calls, in order."""
+    made = []
+    real = getattr(module, name)
+
+    def spy(*a, **kw):
+        made.append(real(*a, **kw))
+        return made[-1]
+
+    monkeypatch.setattr(module, name, spy)
+    return made
+
+
 def test_cli_from_flow_leaves_unmeasured_pixels_out(tmp_path, capsys, monkeypatch):
     # probe BX: flow no event supports was turned to 0 before the width's mean, drawn as
     # still air and pulling the mean down (here 100 px/s read as 40)
@@ -774,14 +787,7 @@ def test_cli_from_flow_leaves_unmeasured_pixels_out(tmp_path, capsys, monkeypatc
     valid = np.zeros((h, w), bool)
     valid[:, :20] = True
     valid[10:15] = False  # rows with no measurement at all
-    made = []
-    real = mk.kymogram_from_images
-
-    def spy(*a, **kw):
-        made.append(real(*a, **kw))
-        return made[-1]
-
-    monkeypatch.setattr(mk, "kymogram_from_images", spy)
+    made = _record(monkeypatch, mk, "kymogram_from_images")
     with FlowWriter(tmp_path / "f.h5", (h, w), with_valid=True) as fw:
         for k in range(4):
             flow = np.zeros((h, w, 2), np.float32)
@@ -822,14 +828,7 @@ def test_failed_fit_is_written_on_its_panel(tmp_path, capsys, monkeypatch):
     # probe BX: a kymogram whose fit failed looked like one drawn with --no-fit
     import evmotion.viz.kymogram as vk
 
-    drawn = []
-    real = vk.kymogram_figure
-
-    def spy(*a, **kw):
-        drawn.append(real(*a, **kw))
-        return drawn[-1]
-
-    monkeypatch.setattr(vk, "kymogram_figure", spy)
+    drawn = _record(monkeypatch, vk, "kymogram_figure")
     rng = np.random.default_rng(0)
     x = rng.integers(0, 20, 400)
     ev = EventArray(x, rng.integers(0, 20, 400), np.sort(rng.integers(0, 100_000, 400)),
