@@ -329,3 +329,22 @@ def test_a_recording_named_like_another_format_is_described_as_its_own(tmp_path,
     assert main(["info", str(tmp_path / "r.aedat4"), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["format"] == "evt2" and "frames_info" not in doc
+
+
+@pytest.mark.parametrize("name, data, argv", [
+    ("bad.raw", b"garbage\n", ["--format", "evt3"]),
+    ("empty.raw", b"", ["--format", "evt2"]),
+    ("hdr.raw", b"% evt 3.0\n% end\n", []),
+])
+def test_info_on_a_raw_file_with_no_event_takes_the_size_given(tmp_path, capsys, name, data,
+                                                                argv):
+    # probe BY: following info's own advice (--format, --sensor-size) ended in a TypeError
+    # traceback, the size given being nowhere in the summary
+    (tmp_path / name).write_bytes(data)
+    rc, out, err = _run(capsys, "info", str(tmp_path / name), *argv, "--sensor-size", "180",
+                        "240")
+    assert rc == 0, err
+    assert "sensor:      240 x 180 px (W x H)" in out and "events:      0" in out
+    rc, out, err = _run(capsys, "info", str(tmp_path / name), *argv, "--sensor-size", "180",
+                        "240", "--json")
+    assert rc == 0 and json.loads(out)["sensor_size"] == [180, 240]

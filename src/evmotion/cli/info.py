@@ -63,9 +63,11 @@ def _fmt_value(v) -> str:
 def summarize(info: dict) -> list[str]:
     """Human-readable lines for an :func:`evmotion.io.describe` result."""
     lines = [f"file:        {info['path']}", f"format:      {info['format']}"]
-    if "sensor_size" in info:
+    if info.get("sensor_size") is not None:
         h, w = info["sensor_size"]
         lines.append(f"sensor:      {w} x {h} px (W x H)")
+    elif "sensor_size" in info:
+        lines.append("sensor:      unknown (its header does not say; --sensor-size H W)")
     if "n_events" in info:
         lines.append(f"events:      {info['n_events']:,}")
     if info.get("t_first_us") is not None:
@@ -117,7 +119,9 @@ def run(args) -> int:
         info = describe_params(target)
     if info is None:
         info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
-        if "sensor_size" in info:
+        # (a raw file with no event, given --format and --sensor-size, has none: it ended
+        # in a TypeError traceback, probe BY)
+        if info.get("sensor_size") is not None:
             from evmotion.io.calibration import recording_intrinsics
 
             info["intrinsics"] = recording_intrinsics(args.file, tuple(info["sensor_size"]))

@@ -124,6 +124,9 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
         ymin, ymax = min(ymin, float(chunk.y.min())), max(ymax, float(chunk.y.max()))
     if size is not None:
         out["sensor_size"] = tuple(size)
+    elif out.get("sensor_size") is None and kw.get("sensor_size") is not None:
+        # no event to carry it (an empty raw file): the size given
+        out["sensor_size"] = tuple(int(v) for v in kw["sensor_size"])
     out["n_events"] = n
     if n:
         dur = (t_last - t_first) * 1e-6
