@@ -115,6 +115,9 @@ def test_every_numeric_option_rejects(rec, capsys, command, option, nargs, bad):
 # ---------------------------------------------------------------- the table, and more
 CASES = [
     # (id, argv after substitution, needles)
+    # probe BY: it said "written by --method multicm only", dnn writes one too
+    ("flow-triplet-video", ["flow", "{rec}", "--method", "triplet", "--video", "{dir}/v.mp4",
+                            "--out", "{dir}/t.h5"], ["--method multicm and dnn only"]),
     ("flow-triplet-dt-nan", ["flow", "{rec}", "--method", "triplet", "--dt-ms", "nan",
                              "--out", "{dir}/f.h5"], ["--dt-ms", "'nan'", "ms"]),
     ("flow-triplet-dt-zero", ["flow", "{rec}", "--method", "triplet", "--dt-ms", "0",

@@ -68,8 +68,12 @@ def test_warps_without_expansion_are_refused(name):
     w = make_warp(name, (H, W), K=K)
     with pytest.raises(ParameterError, match=f"the {name} warp cannot expand the image"):
         time_to_contact(np.zeros(w.n_params), w, window_s=0.02)
-    with pytest.raises(ParameterError, match="warp must be a Warp"):
+    # the name, as an EgomotionResult holds it, says what to give (probe BY)
+    with pytest.raises(ParameterError, match=r"got the name 'zoom' .*make_warp\('zoom', "
+                                             r"events.sensor_size\)"):
         time_to_contact(np.zeros(1), "zoom", window_s=0.02)
+    with pytest.raises(ParameterError, match="warp must be a Warp"):
+        time_to_contact(np.zeros(1), 3, window_s=0.02)
 
 
 def test_many_windows_and_receding():

@@ -150,7 +150,8 @@ def run(args) -> int:
     from evmotion.utils import progress, refine_total
 
     if args.video:
-        raise ParameterError(f"--video {args.video}: written by --method multicm only")
+        raise ParameterError(f"--video {args.video}: written by --method multicm and dnn "
+                             "only (triplet's flow is per event)")
     # (bounds of the library's, said with the option's name before any reading)
     if args.dx is not None and args.dx > MAX_DX:
         raise ParameterError(f"--dx must be at most {MAX_DX:g} px (larger neighbourhoods "

@@ -269,8 +269,9 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
             f"the events begin in the frame interval [{t0}, {t1}) us and fewer than two "
             "intervals follow to tell whether it is the sensor's start-up: if the sensor "
             "started with the recording, it fires less there until its pixels settle and "
-            "that interval's flow comes out too small (0.26-0.56x on the simulator's "
-            "scenes); frames over more of the recording tell"), stacklevel=2)
+            "that interval's flow comes out too small (0.26-0.81x on simulated scenes, "
+            "as the other start-up warnings say); frames over more of the recording "
+            "tell"), stacklevel=2)
         return ()
     k0 = starts[0]
     context = data.intervals[k0:k0 + STARTUP_CONTEXT + 1]

@@ -497,8 +497,10 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         :func:`~evmotion.methods.measured.min_flow_events` events (1,000, fewer on a sensor
         under 20,000 px) it is no measurement (``valid`` all False, a PoorFitWarning).
     method : {"multicm", "dnn"}
-        ``"dnn"``: the unsupervised EV-FlowNet (:mod:`evmotion.methods.dnn`, needs torch)
-        from ``checkpoint`` on ``device`` and ``threads``; the multicm options below must
+        ``"dnn"``: the unsupervised EV-FlowNet (:mod:`evmotion.methods.dnn`; numpy runs
+        the shipped network where torch is not imported, torch a ``model.pt`` or
+        ``device="cuda"``: :func:`~evmotion.methods.dnn.infer.resolve_backend`) from
+        ``checkpoint`` on ``device`` and ``threads``; the multicm options below must
         then be left at their defaults (:func:`evmotion.methods.dnn.estimate_flow_dnn` has
         the network's own: input scales, the plane, the refinement...).
     time_aware : {None, "upwind", "burgers"}

@@ -84,6 +84,12 @@ def time_to_contact(params, warp: Warp, window_s: float) -> TimeToContact:
     >>> r.ttc_s, r.h_z_normalized
     (2.0, 0.025)
     """
+    if isinstance(warp, str):
+        # what EgomotionResult.warp holds (probe BY: the docs' "estimate, then convert"
+        # ended here with no word of how)
+        raise ParameterError(f"warp must be a Warp, got the name {warp!r} (an "
+                             "EgomotionResult's .warp is its name): give "
+                             f"evmotion.core.warps.make_warp({warp!r}, events.sensor_size)")
     if not isinstance(warp, Warp):
         raise ParameterError(f"warp must be a Warp (evmotion.core.warps.make_warp(name, "
                              f"sensor_size)), got {warp!r}")
