@@ -620,8 +620,8 @@ def test_hot_pixels_do_not_hide_a_good_flow(with_iwes):
 def test_a_window_moving_far_past_the_network_takes_its_sharpest_translation():
     """A window moving 80 px came out of the network at a fraction of it; its sharpest
     translation, far sharper, is taken (probe BT: 47 px given as 19, valid, unwarned)."""
+    from evmotion.core.translation import sharpest_translation
     from evmotion.methods.dnn.infer import _pixels_and_times
-    from evmotion.methods.dnn.translation import sharpest_translation
 
     rng = np.random.default_rng(0)
     n = 30000
@@ -648,7 +648,7 @@ def test_a_window_moving_far_past_the_network_takes_its_sharpest_translation():
 
 
 def test_the_translation_search_matches_a_brute_force_one():
-    from evmotion.methods.dnn.translation import sharpest_translation
+    from evmotion.core.translation import sharpest_translation
 
     rng = np.random.default_rng(1)
     x0, y0 = rng.uniform(0, 40, 60), rng.uniform(0, 30, 60)

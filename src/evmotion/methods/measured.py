@@ -223,6 +223,30 @@ def alignment_gain(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
     return variance(dt) / null if null > 0 else float("nan")
 
 
+#: A tile whose events a translation of their own sharpens this much more than the flow
+#: does (:func:`evmotion.core.tilesearch.tile_gains`, 4 x 4 tiles) holds a motion the
+#: flow does not follow. Flows that follow the motion scored at most 1.21 (simulated
+#: translation, rotation, zoom; a probe's renderer) and 1.20 (the eight ECD 30k windows);
+#: the background of a probe's moving patch under the patch's flow 1.35-2.6, the
+#: simulator's moving object's worst tiles 1.40-1.49 (AEE 1.7-2.0 px there).
+OTHER_MOTION_GAIN = 1.5
+
+
+def warn_other_motion(n_tiles: int, n_all: int, gain: float, what: str,
+                      stacklevel: int = 3) -> str | None:
+    """Issue a :class:`~evmotion.errors.PoorFitWarning` when ``n_tiles`` of ``n_all``
+    tiles hold a motion the flow does not follow (``gain``: the largest tile's; see
+    :data:`OTHER_MOTION_GAIN`); returns its message (else None)."""
+    if not n_tiles:
+        return None
+    warnings.warn(msg := f"another motion: in {n_tiles} of {n_all} tiles a translation of "
+                  f"their own sharpens the events up to {gain:.2f}x more than the {what} "
+                  "(an independently moving object the flow does not follow?); their "
+                  "pixels are not a measurement (valid = False)",
+                  PoorFitWarning, stacklevel=stacklevel)
+    return msg
+
+
 def warn_by_refit(gain: float, what: str, stacklevel: int = 3) -> str | None:
     """Issue a :class:`~evmotion.errors.PoorFitWarning` when a dense flow sharpens the
     window's events less than :data:`MIN_CONTRAST_GAIN` more than the same solver

@@ -377,10 +377,11 @@ def _fused(xys, cands: list[np.ndarray], fallback: np.ndarray, shape) -> np.ndar
 
 
 def _translated(xys, disp: np.ndarray, shape: tuple[int, int]) -> np.ndarray | None:
-    """The window's sharpest translation (:func:`.translation.sharpest_translation`) as a
-    displacement field where it warps the events :data:`TRANSLATION_MARGIN` times sharper
-    than the network's ``disp``, else None."""
-    from evmotion.methods.dnn.translation import sharpest_translation
+    """The window's sharpest translation
+    (:func:`~evmotion.core.translation.sharpest_translation`) as a displacement field where
+    it warps the events :data:`TRANSLATION_MARGIN` times sharper than the network's
+    ``disp``, else None."""
+    from evmotion.core.translation import sharpest_translation
 
     x, y, _, s = xys
     if not x.size:
@@ -638,7 +639,8 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         from 2.83 to 3.24 (``benchmarks/results/dnn.md``).
     translation : bool
         Also find the window's sharpest global translation by a grid search
-        (:mod:`.translation`, within half the sensor's longer side; 0.01-0.2 s) and take
+        (:mod:`evmotion.core.translation`, within half the sensor's longer side;
+        0.01-0.2 s) and take
         it instead of the network's prediction (fused across input scales when ``fuse``)
         where it warps the events :data:`TRANSLATION_MARGIN` times sharper (default
         True): a window moving far past
