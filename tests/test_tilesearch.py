@@ -79,3 +79,4 @@ def test_the_search_takes_another_scorer():
     assert sharpest_translation(x[left], y[left], s[left], (48, 96), 24.0,
                                 scores=scores) == (12.0, 0.0)
     assert calls[-1] == 1 and calls[0] > 1  # coarse to fine
+

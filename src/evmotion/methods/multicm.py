@@ -685,8 +685,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     params, prob, all_params, history, timings = _coarse_to_fine(
         x, y, s, events.p, shape, init, duration_s, o)
     focus, iwe_dict = _final_iwes(prob, params, x, y, s, shape)
-    flow = rest_where_empty((tf.dense_flow(params, shape) / duration_s).astype(np.float32),
-                            valid, prob.grid)
+    fitted = tf.dense_flow(params, shape) / duration_s
+    flow = rest_where_empty(fitted.astype(np.float32), valid, prob.grid)
     chance = float("nan")
     # flicker lights every pixel at once: a flow that gathers those bursts sharpens them,
     # whatever moves (said first: it names the cause the focus tests below cannot)
@@ -723,7 +723,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         # by a translation of their own (probe BZ: a patch's flow over the background,
         # AEE above the zero flow's, valid)
         grid = tf.scale_grid(OTHER_MOTION_LEVEL, shape)
-        gain = _tile_gains(x, y, s, flow, duration_s, grid)
+        # (the fitted flow, as the objective saw it: the one at rest where events are
+        # few would leave the events at the edge of its support unmoved)
+        gain = _tile_gains(x, y, s, fitted, duration_s, grid)
         bad = gain >= OTHER_MOTION_GAIN
         other = int(bad.sum())
         if warn_other_motion(other, bad.size, float(np.nanmax(gain, initial=0.0)),
