@@ -39,11 +39,11 @@ DATA = Path(os.environ.get("EVMOTION_SHARED_DATA",
 
 
 def _estimate(events, search: bool):
-    from evmotion.methods import multicm
+    from evmotion.methods import measured, multicm
 
-    saved = multicm.TILE_SEARCH_LEVEL, multicm.OTHER_MOTION_GAIN
+    saved = multicm.TILE_SEARCH_LEVEL, measured.OTHER_MOTION_GAIN
     if not search:
-        multicm.TILE_SEARCH_LEVEL, multicm.OTHER_MOTION_GAIN = 0, float("inf")
+        multicm.TILE_SEARCH_LEVEL, measured.OTHER_MOTION_GAIN = 0, float("inf")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -51,7 +51,7 @@ def _estimate(events, search: bool):
             res = multicm.estimate_flow(events)
             return res, time.perf_counter() - t0
     finally:
-        multicm.TILE_SEARCH_LEVEL, multicm.OTHER_MOTION_GAIN = saved
+        multicm.TILE_SEARCH_LEVEL, measured.OTHER_MOTION_GAIN = saved
 
 
 def _scores(events, res, truth) -> dict:

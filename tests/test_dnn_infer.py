@@ -845,3 +845,26 @@ def test_warped_variance_is_the_count_images_variance():
     assert inside.mean() < 0.95  # some land outside
     ref = np.var(np.bincount(yw[inside] * w + xw[inside], minlength=h * w))
     assert _warped_variance(x, y, y * w + x, s, disp) == pytest.approx(ref, rel=1e-12)
+
+
+def test_a_second_motion_the_network_does_not_follow_is_flagged():
+    # probe BZ: a patch over a background moving otherwise came out of dnn with the
+    # patch's motion everywhere (AEE above the zero flow's), valid; the tiles a motion of
+    # their own sharpens 1.5x more are flagged, as multicm's
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from test_multicm import _patch_over_background
+
+    ev, on, v = _patch_over_background(1)
+    with pytest.warns(PoorFitWarning, match="another motion: in [1-9].* network's flow"):
+        res = estimate_flow_dnn(ev, with_iwes=False)
+    xi, yi = ev.x.astype(int), ev.y.astype(int)
+    ok = res.valid[yi, xi]
+    err = np.linalg.norm(res.flow[yi, xi] - v, axis=1) * res.duration_s
+    assert res.meta["other_motion_tiles"] >= 3 and 0.5 < ok.mean() < 0.95
+    assert err[ok].mean() < 0.6 * err.mean()  # the flagged pixels were the wrong ones
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PoorFitWarning)  # one motion: nothing flagged
+        one = estimate_flow_dnn(sim_window(5, scene="translation").events, with_iwes=False)
+    assert one.meta["other_motion_tiles"] == 0

@@ -4,9 +4,15 @@ scores against plain numpy, and tiles told apart by their own motion."""
 import numpy as np
 import pytest
 
+from evmotion.core import translation
 from evmotion.core.tilegrid import TileGrid
-from evmotion.core.tilesearch import MIN_TILE_EVENTS, box_scores, tile_gains, tile_restarts
-from evmotion.core.translation import sharpest_translation, translation_scores
+from evmotion.core.tilesearch import box_scores_jit, tile_gains, tile_restarts
+from evmotion.core.translation import (
+    MIN_TILE_EVENTS,
+    box_scores,
+    sharpest_translation,
+    translation_scores,
+)
 
 
 def _numpy_box_scores(x, y, s, k, dxs, dys):
@@ -25,12 +31,14 @@ def test_box_scores_match_numpy(k):
     x, y = rng.uniform(-20, 60, 500), rng.uniform(-5, 40, 500)
     s = rng.uniform(-0.5, 0.5, 500)
     dxs, dys = rng.uniform(-30, 30, 40), rng.uniform(-30, 30, 40)
-    np.testing.assert_array_equal(box_scores(x, y, s, k, dxs, dys),
-                                  _numpy_box_scores(x, y, s, k, dxs, dys))
+    reference = _numpy_box_scores(x, y, s, k, dxs, dys)
+    np.testing.assert_array_equal(box_scores_jit(x, y, s, k, dxs, dys), reference)
+    np.testing.assert_array_equal(box_scores(x, y, s, k, dxs, dys), reference)
     # inside a sensor that holds every moved event, the sensor's scores are the same
     np.testing.assert_array_equal(box_scores(x + 100, y + 100, s, k, dxs, dys),
                                   translation_scores(x + 100, y + 100, s, k, dxs, dys,
                                                      (400, 400)))
+    assert box_scores_jit(x[:0], y[:0], s[:0], k, dxs, dys).tolist() == [0.0] * 40
     assert box_scores(x[:0], y[:0], s[:0], k, dxs, dys).tolist() == [0.0] * 40
 
 
@@ -53,6 +61,10 @@ def test_tile_gains_find_each_tiles_motion():
     # under the left half's motion everywhere, the right half's tile stands out
     _, gain = tile_gains(x, y, s, np.tile([12.0, 0.0], (x.size, 1)), grid, 24.0)
     assert gain[0, 0] == pytest.approx(1.0, abs=0.02) and gain[0, 1] > 2.0
+    # numpy's scores (the dnn path, which imports no numba) give the same
+    np.testing.assert_array_equal(
+        translation.tile_gains(x, y, s, np.tile([12.0, 0.0], (x.size, 1)), grid, 24.0)[1],
+        gain)
     # too few events: no verdict
     few = slice(0, MIN_TILE_EVENTS - 1)
     assert np.isnan(tile_gains(x[few], y[few], s[few], truth[few], grid, 24.0)[1]).all()
@@ -73,8 +85,8 @@ def test_the_search_takes_another_scorer():
 
     def scores(*a):
         calls.append(a[3])
-        return box_scores(*(np.asarray(v, np.float64) for v in a[:3]), int(a[3]),
-                          *(np.asarray(v, np.float64) for v in a[4:]))
+        return box_scores_jit(*(np.asarray(v, np.float64) for v in a[:3]), int(a[3]),
+                              *(np.asarray(v, np.float64) for v in a[4:]))
 
     assert sharpest_translation(x[left], y[left], s[left], (48, 96), 24.0,
                                 scores=scores) == (12.0, 0.0)

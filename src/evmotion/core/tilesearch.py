@@ -9,8 +9,10 @@ renderer (346x260, a 90-px patch at (180, 90) px/s over a background at (-60, 30
 60-74 % of the events on the patch) came out with the patch's flow everywhere, AEE above
 the zero flow's, valid (probe BZ). Each tile's events are scored here under the tile's
 flow and under their own sharpest translation (:func:`~evmotion.core.translation.
-sharpest_translation`, scored with numba within the events' bounding box); the tiles that
-translation sharpens :data:`RESTART_GAIN` times more are where a restart starts from it.
+sharpest_translation`, scored with numba within the events' bounding box,
+:func:`box_scores_jit`; :mod:`evmotion.core.translation` holds its numpy twin); the tiles
+that translation sharpens :data:`RESTART_GAIN` times more are where a restart starts from
+it.
 """
 
 from __future__ import annotations
@@ -18,26 +20,19 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from evmotion.core import translation
 from evmotion.core.tilegrid import TileGrid, pixel_tiles
-from evmotion.core.translation import sharpest_translation
 
-__all__ = ["MIN_TILE_EVENTS", "RESTART_GAIN", "SEARCH_EVENTS", "box_scores", "tile_gains",
-           "tile_restarts"]
+__all__ = ["RESTART_GAIN", "box_scores_jit", "jit_scores", "tile_gains", "tile_restarts"]
 
 #: A tile's own translation must sharpen its events this much more than the flow does
 #: (sum of squares of their count image) to restart it. The probe's background tiles
 #: scored 1.7-2.0 against the patch's flow; tiles whose flow is right 0.86-1.12.
 RESTART_GAIN = 1.25
-#: Tiles with fewer events are not searched (their count image ranks nothing).
-MIN_TILE_EVENTS = 100
-#: The search ranks translations on at most this many of a tile's events, evenly spaced
-#: in time (the comparison with the tile's flow takes them all): 16 tiles of a 30k-event
-#: window took 31 ms with all of them.
-SEARCH_EVENTS = 1000
 
 
 @njit(cache=True)
-def box_scores(x, y, s, k, dxs, dys):
+def box_scores_jit(x, y, s, k, dxs, dys):
     """Sum of squares of the count image, binned ``k`` x ``k``, of the events moved by each
     ``(dxs[c], dys[c])`` px over the window to its midpoint (``s``: time in windows from
     it); unbounded (the image is the moved events' bounding box)."""
@@ -65,70 +60,21 @@ def box_scores(x, y, s, k, dxs, dys):
     return out
 
 
-def _scores(x, y, s, k, dxs, dys) -> np.ndarray:
-    return box_scores(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64),
-                      np.ascontiguousarray(s, np.float64), int(k),
-                      np.ascontiguousarray(dxs, np.float64),
-                      np.ascontiguousarray(dys, np.float64))
+def jit_scores(x, y, s, k, dxs, dys) -> np.ndarray:
+    """:func:`box_scores_jit` on any arrays: the ``scores`` of
+    :func:`evmotion.core.translation.tile_gains` and
+    :func:`~evmotion.core.translation.sharpest_translation`."""
+    return box_scores_jit(np.ascontiguousarray(x, np.float64),
+                          np.ascontiguousarray(y, np.float64),
+                          np.ascontiguousarray(s, np.float64), int(k),
+                          np.ascontiguousarray(dxs, np.float64),
+                          np.ascontiguousarray(dys, np.float64))
 
 
 def tile_gains(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
                grid: TileGrid, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    """Each tile's own sharpest translation, and how much more it sharpens the tile's
-    events than their displacements ``disp`` do.
-
-    Parameters
-    ----------
-    x, y : ndarray
-        Event positions, px.
-    s : ndarray
-        Event times in windows from the window's midpoint (-0.5 to 0.5).
-    disp : ndarray, (N, 2)
-        Each event's displacement over the window (the flow's), px.
-    grid : TileGrid
-    reach : float
-        Largest |dx|, |dy| searched, px over the window.
-
-    Returns
-    -------
-    best : ndarray, (ny, nx, 2)
-        The translation, px over the window.
-    gain : ndarray, (ny, nx)
-        Its score (sum of squares of the moved events' count image) over that of the
-        events moved by ``disp``; NaN for tiles under :data:`MIN_TILE_EVENTS` events.
-    """
-    x, y, s = (np.asarray(a, dtype=np.float64) for a in (x, y, s))
-    disp = np.asarray(disp, dtype=np.float64)
-    ty, tx = pixel_tiles(grid.shape, grid)
-    h, w = grid.shape
-    tile = (ty.ravel()[np.clip(y.astype(np.int64), 0, h - 1)] * grid.nx
-            + tx.ravel()[np.clip(x.astype(np.int64), 0, w - 1)])
-    order = np.argsort(tile, kind="stable")
-    bounds = np.searchsorted(tile[order], np.arange(grid.ny * grid.nx + 1))
-    best = np.zeros((grid.ny, grid.nx, 2))
-    gain = np.full((grid.ny, grid.nx), np.nan)
-    zero = np.zeros(1)
-    for t in range(grid.ny * grid.nx):
-        idx = order[bounds[t]:bounds[t + 1]]
-        if idx.size < MIN_TILE_EVENTS:
-            continue
-        xt, yt, st = x[idx], y[idx], s[idx]
-        few = np.linspace(0, idx.size - 1, min(idx.size, SEARCH_EVENTS)).astype(np.intp)
-        b = sharpest_translation(xt[few], yt[few], st[few], grid.shape, reach,
-                                 scores=_scores)
-        then = _scores(xt, yt, st, 1, np.array([b[0]]), np.array([b[1]]))[0]
-        now = _scores(xt - disp[idx, 0] * st, yt - disp[idx, 1] * st, st, 1, zero, zero)[0]
-        # whole-px translations near the tile's own displacement, too: a whole-px shift
-        # of events on whole pixels piles them up as no fractional one does (60 dots
-        # moving 3 px over a window: multicm's 2.9 px scored 1.5-1.9x below the 3-px
-        # shift, and 8 of 16 tiles had been flagged)
-        mx, my = np.rint(np.median(disp[idx], axis=0))
-        near = np.arange(-1.0, 2.0)
-        now = max(now, float(_scores(xt, yt, st, 1, np.tile(near, 3) + mx,
-                                     np.repeat(near, 3) + my).max()))
-        best[t // grid.nx, t % grid.nx] = b
-        gain[t // grid.nx, t % grid.nx] = then / now
-    return best, gain
+    """:func:`evmotion.core.translation.tile_gains`, scored with numba."""
+    return translation.tile_gains(x, y, s, disp, grid, reach, scores=jit_scores)
 
 
 def tile_restarts(x: np.ndarray, y: np.ndarray, s: np.ndarray, params: np.ndarray,

@@ -232,19 +232,51 @@ def alignment_gain(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
 OTHER_MOTION_GAIN = 1.5
 
 
-def warn_other_motion(n_tiles: int, n_all: int, gain: float, what: str,
-                      stacklevel: int = 3) -> str | None:
-    """Issue a :class:`~evmotion.errors.PoorFitWarning` when ``n_tiles`` of ``n_all``
-    tiles hold a motion the flow does not follow (``gain``: the largest tile's; see
-    :data:`OTHER_MOTION_GAIN`); returns its message (else None)."""
-    if not n_tiles:
-        return None
-    warnings.warn(msg := f"another motion: in {n_tiles} of {n_all} tiles a translation of "
-                  f"their own sharpens the events up to {gain:.2f}x more than the {what} "
-                  "(an independently moving object the flow does not follow?); their "
-                  "pixels are not a measurement (valid = False)",
-                  PoorFitWarning, stacklevel=stacklevel)
-    return msg
+#: The tiles the check takes: 2^(level - 1) a side (3: 4 x 4), and how far each tile's
+#: own translation is searched, a fraction of the sensor's longer side.
+OTHER_MOTION_LEVEL = 3
+OTHER_MOTION_REACH = 0.25
+
+
+def other_motion(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
+                 valid: np.ndarray, what: str, *, scores=None) -> tuple[np.ndarray, int]:
+    """``valid`` less the tiles whose events a translation of their own sharpens
+    :data:`OTHER_MOTION_GAIN` times more than the dense displacement ``disp`` does (a
+    PoorFitWarning names them), and how many tiles that is.
+
+    Parameters
+    ----------
+    x, y : ndarray
+        Event positions, px.
+    s : ndarray
+        Event times in windows from the window's midpoint (-0.5 to 0.5).
+    disp : ndarray, (H, W, 2)
+        The flow's displacement over the window, px.
+    valid : ndarray of bool, (H, W)
+    what : str
+        The flow, as the warning names it.
+    scores : callable, optional
+        As for :func:`evmotion.core.translation.tile_gains` (default numpy).
+    """
+    from evmotion.core.tilegrid import pixel_tiles, scale_grid
+    from evmotion.core.translation import tile_gains
+
+    h, w = valid.shape
+    grid = scale_grid(OTHER_MOTION_LEVEL, (h, w))
+    xi = np.clip(np.rint(x).astype(np.int64), 0, w - 1)
+    yi = np.clip(np.rint(y).astype(np.int64), 0, h - 1)
+    _, gain = tile_gains(x, y, s, np.asarray(disp, np.float64)[yi, xi], grid,
+                         OTHER_MOTION_REACH * max(h, w), scores=scores)
+    bad = gain >= OTHER_MOTION_GAIN
+    if not bad.any():
+        return valid, 0
+    warnings.warn(f"another motion: in {int(bad.sum())} of {bad.size} tiles a translation "
+                  f"of their own sharpens the events up to {np.nanmax(gain):.2f}x more than "
+                  f"the {what} (an independently moving object the flow does not "
+                  "follow?); their pixels are not a measurement (valid = False)",
+                  PoorFitWarning, stacklevel=3)
+    ty, tx = pixel_tiles((h, w), grid)
+    return valid & ~bad[ty, tx], int(bad.sum())
 
 
 def warn_by_refit(gain: float, what: str, stacklevel: int = 3) -> str | None:

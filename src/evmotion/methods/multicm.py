@@ -68,16 +68,15 @@ from evmotion.methods.flowresult import (
     event_support,
 )
 from evmotion.methods.measured import (
-    OTHER_MOTION_GAIN,
     flow_alignment_gain,
     halves_consistency,
+    other_motion,
     warn_by_chance,
     warn_by_refit,
     warn_flicker,
     warn_gap,
     warn_inconsistent_halves,
     warn_no_gain,
-    warn_other_motion,
     warn_too_few_for_flow,
 )
 from evmotion.methods.options import merge_options
@@ -112,9 +111,6 @@ JITTER_TO_LEVEL = 3
 #: under the object's flow, probe BZ) is found there, not at the finer scales.
 TILE_SEARCH_LEVEL = 3
 TILE_SEARCH_REACH = 0.25
-#: The tiles (3 = 4 x 4) the final flow is checked on for a motion it does not follow
-#: (:data:`evmotion.methods.measured.OTHER_MOTION_GAIN`).
-OTHER_MOTION_LEVEL = 3
 #: Below this many events per finest tile, the result's focus is compared with what the
 #: solver reaches on the same events with their times shuffled (:func:`_shuffled_focus`,
 #: on its finest ``REFIT_SCALES`` scales, ``REFIT_MAX_ITER`` iterations each).
@@ -722,16 +718,12 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         # a region the coarse scales did not follow, its tiles' events far sharper moved
         # by a translation of their own (probe BZ: a patch's flow over the background,
         # AEE above the zero flow's, valid)
-        grid = tf.scale_grid(OTHER_MOTION_LEVEL, shape)
+        from evmotion.core.tilesearch import jit_scores
+
         # (the fitted flow, as the objective saw it: the one at rest where events are
         # few would leave the events at the edge of its support unmoved)
-        gain = _tile_gains(x, y, s, fitted, duration_s, grid)
-        bad = gain >= OTHER_MOTION_GAIN
-        other = int(bad.sum())
-        if warn_other_motion(other, bad.size, float(np.nanmax(gain, initial=0.0)),
-                             "dense flow") is not None:
-            ty, tx = tf.pixel_tiles(shape, grid)
-            valid = valid & ~bad[ty, tx]
+        valid, other = other_motion(x, y, s - 0.5, fitted * duration_s, valid, "dense flow",
+                                    scores=jit_scores)
     timings["total_s"] = time.perf_counter() - t_start
     # numba's first-use compilation is not the estimate's time: reported apart
     timings["compile_s"] = compile_seconds() - c_start
@@ -882,18 +874,6 @@ def _coarse_to_fine(x, y, s, p, shape, init, duration_s, o: MultiCMOptions):
         return params, prob, all_params, history, timings
 
     return run(0, None, [], [], {})
-
-
-def _tile_gains(x, y, s, flow, duration_s: float, grid) -> np.ndarray:
-    """:func:`evmotion.core.tilesearch.tile_gains` of the events moved by the dense
-    ``flow`` (px/s) over the window: (ny, nx), NaN for tiles with few events."""
-    from evmotion.core.tilesearch import tile_gains
-
-    h, w = grid.shape
-    xi = np.clip(np.rint(x).astype(np.int64), 0, w - 1)
-    yi = np.clip(np.rint(y).astype(np.int64), 0, h - 1)
-    disp = flow[yi, xi].astype(np.float64) * duration_s
-    return tile_gains(x, y, s - 0.5, disp, grid, TILE_SEARCH_REACH * max(grid.shape))[1]
 
 
 def _shuffled_focus(x, y, s, p, shape, duration_s: float, o: MultiCMOptions) -> float:

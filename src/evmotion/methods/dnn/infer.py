@@ -37,6 +37,7 @@ from evmotion.methods.flowresult import (
 from evmotion.methods.measured import (
     flow_alignment_gain,
     halves_consistency,
+    other_motion,
     warn_by_chance,
     warn_flicker,
     warn_gap,
@@ -796,9 +797,16 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     gains = [g for g in (fwl, focus if with_iwes else float("nan")) if np.isfinite(g)]
     no_focus, chance, halves = (_verdict(checked, flow, (t0 + t1) // 2, gains) if check
                                 else (False, float("nan"), float("nan")))
+    other = 0
     if no_focus:
         valid = np.zeros_like(valid)
         beyond = False  # said already: not a measurement at all
+    elif check and len(checked):
+        # a region whose motion the network's flow (or the window's one translation)
+        # does not follow (probe BZ: a patch's flow over its background, AEE above the
+        # zero flow's, valid): numpy's scores, the path imports no numba
+        xc, yc, _, sc = _pixels_and_times(checked)
+        valid, other = other_motion(xc, yc, sc, disp, valid, "network's flow")
     if beyond:
         warnings.warn(f"the network's flow needed the largest gain tried ({gain}x its own): "
                       "the window's motion may exceed what the network measures and the "
@@ -823,4 +831,5 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                             "refined": refined is not None,
                             "fwl": float(fwl),
                             "hot_pixels": int(hot.sum()), "beyond_range": beyond,
-                            "chance_gain": chance, "halves_correlation": halves})
+                            "chance_gain": chance, "halves_correlation": halves,
+                            "other_motion_tiles": other})
