@@ -348,3 +348,7 @@ def test_info_on_a_raw_file_with_no_event_takes_the_size_given(tmp_path, capsys,
     rc, out, err = _run(capsys, "info", str(tmp_path / name), *argv, "--sensor-size", "180",
                         "240", "--json")
     assert rc == 0 and json.loads(out)["sensor_size"] == [180, 240]
+    # --header-only too (probe CA: "unknown (... --sensor-size H W)" beside the size given)
+    rc, out, err = _run(capsys, "info", str(tmp_path / name), *argv, "--sensor-size", "180",
+                        "240", "--header-only")
+    assert rc == 0 and "sensor:      240 x 180 px (W x H)" in out, out

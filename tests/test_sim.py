@@ -417,3 +417,21 @@ def test_periodic_copy_of_the_object_matches_numpy_reference():
     assert len(a.events) > 1000
     for f in ("x", "y", "t", "p"):
         np.testing.assert_array_equal(getattr(a.events, f), getattr(b.events, f))
+
+
+def test_the_up_front_check_refuses_no_duration_the_loop_follows(monkeypatch):
+    # probe CA: the step after the last sample, past the recording's end, had refused a
+    # duration 1 us short of the first the loop cannot follow
+    params = {"wx": 8.0, "wy": 0.0, "wz": 0.0}
+    ok = simulate("rotation", duration_s=0.137987, sensor_size=(30, 40), seed=0,
+                  params=params, show_progress=False)
+    assert len(ok.events) > 1000
+    import evmotion.sim.simulator as simulator
+
+    def no_step(*a, **kw):
+        raise AssertionError("simulated a step")
+
+    monkeypatch.setattr(simulator, "sim_step", no_step)
+    with pytest.raises(ParameterError, match=r"at t = 0\.137987 s"):
+        simulate("rotation", duration_s=0.137988, sensor_size=(30, 40), seed=0,
+                 params=params, show_progress=False)

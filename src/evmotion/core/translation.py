@@ -21,7 +21,7 @@ import numpy as np
 
 from evmotion.core.tilegrid import TileGrid, pixel_tiles
 
-__all__ = ["MIN_TILE_EVENTS", "REACH", "SEARCH_EVENTS", "box_scores", "sharpest_translation",
+__all__ = ["MAX_TILE_MOVE", "MIN_TILE_EVENTS", "REACH", "SEARCH_EVENTS", "box_scores", "sharpest_translation",
            "tile_gains", "translation_scores"]
 
 #: How far the search looks, px over the window, as a fraction of the sensor's longer side.
@@ -36,6 +36,11 @@ MIN_TILE_EVENTS = 100
 #: in time (the comparison with the tile's flow takes them all): 16 tiles of a 30k-event
 #: window took 31 ms with all of them.
 SEARCH_EVENTS = 1000
+#: A tile whose events move (under the flow, or under their own best translation) more
+#: than this share of its smaller side gets no verdict: the events that cross the tile's
+#: pixels then pile up unmoved as they do on no moved image (probe CA: one translation of
+#: 12-20 px on 40x32, tiles 10x8, scored 1.5-2.3x better left unmoved than moved right).
+MAX_TILE_MOVE = 0.5
 # candidates x events scored at once by box_scores (bounded memory)
 _CHUNK = 1 << 21
 
@@ -154,8 +159,8 @@ def box_scores(x: np.ndarray, y: np.ndarray, s: np.ndarray, k: int, dxs: np.ndar
 
 
 def tile_gains(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
-               grid: TileGrid, reach: float, *, scores: Callable | None = None
-               ) -> tuple[np.ndarray, np.ndarray]:
+               grid: TileGrid, reach: float, *, scores: Callable | None = None,
+               max_move: float = MAX_TILE_MOVE) -> tuple[np.ndarray, np.ndarray]:
     """Each tile's own sharpest translation, and how much more it sharpens the tile's
     events than their displacements ``disp`` do.
 
@@ -173,6 +178,9 @@ def tile_gains(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
     scores : callable, optional
         As for :func:`sharpest_translation`; default :func:`box_scores` (numpy;
         :mod:`evmotion.core.tilesearch` passes its numba twin).
+    max_move : float
+        Tiles moving more than this share of their smaller side get no verdict
+        (default :data:`MAX_TILE_MOVE`; ``inf``: every tile).
 
     Returns
     -------
@@ -180,7 +188,8 @@ def tile_gains(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
         The translation, px over the window.
     gain : ndarray, (ny, nx)
         Its score (sum of squares of the moved events' count image) over that of the
-        events moved by ``disp``; NaN for tiles under :data:`MIN_TILE_EVENTS` events.
+        events moved by ``disp``; NaN for tiles under :data:`MIN_TILE_EVENTS` events, or
+        moving more than ``max_move`` of their smaller side.
     """
     x, y, s = (np.asarray(a, dtype=np.float64) for a in (x, y, s))
     disp = np.asarray(disp, dtype=np.float64)
@@ -193,6 +202,7 @@ def tile_gains(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
     bounds = np.searchsorted(tile[order], np.arange(grid.ny * grid.nx + 1))
     best = np.zeros((grid.ny, grid.nx, 2))
     gain = np.full((grid.ny, grid.nx), np.nan)
+    far = max_move * min(grid.spacing)
     zero = np.zeros(1)
     for t in range(grid.ny * grid.nx):
         idx = order[bounds[t]:bounds[t + 1]]
@@ -209,9 +219,11 @@ def tile_gains(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
         # moving 3 px over a window: multicm's 2.9 px scored 1.5-1.9x below the 3-px
         # shift, and 8 of 16 tiles had been flagged)
         mx, my = np.rint(np.median(disp[idx], axis=0))
+        best[t // grid.nx, t % grid.nx] = b
+        if max(np.hypot(*b), np.hypot(mx, my)) > far:
+            continue
         near = np.arange(-1.0, 2.0)
         now = max(now, float(scores(xt, yt, st, 1, np.tile(near, 3) + mx,
                                      np.repeat(near, 3) + my).max()))
-        best[t // grid.nx, t % grid.nx] = b
         gain[t // grid.nx, t % grid.nx] = then / now
     return best, gain

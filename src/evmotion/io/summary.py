@@ -93,6 +93,9 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     if frames is not None:
         out["frames_info"] = frames
     if not stream:
+        if out.get("sensor_size") is None and kw.get("sensor_size") is not None:
+            # (--header-only said "unknown" beside the size given, probe CA)
+            out["sensor_size"] = tuple(int(v) for v in kw["sensor_size"])
         return out
     n = 0
     n_pos = 0

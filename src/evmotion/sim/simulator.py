@@ -473,22 +473,25 @@ class _Stepper:
     def too_fast(self, n: int = 256) -> tuple[float, float] | None:
         """An interval (start, end in µs) where some texture point moves more than
         STEP_SHIFT_PX in 1 µs, the shortest step, or None: the first of ``n`` equal
-        intervals of the duration where it does at the interval's end or on average over
-        it (the shift over an interval is at most the sum of its 1-µs steps'), narrowed
-        the same way within it. A scene refused here would fail in the loop, after
-        minutes spent on its earlier part."""
+        intervals of the duration where it does in the interval's last µs or on average
+        over it (the shift over an interval is at most the sum of its 1-µs steps'),
+        narrowed the same way within it. A scene refused here would fail in the loop,
+        after minutes spent on its earlier part."""
         found, lo, hi = None, 0, self.duration_us
         while hi - lo > 1:
             ts = np.unique(np.linspace(lo, hi, n + 1).round())
             m, m1 = (np.stack([layer.motion.matrices(t * 1e-6).reshape(-1, 9)
-                               for layer in self.layers], axis=1) for t in (ts, ts + 1))
-            step = np.flatnonzero(self.shifts(m, m1) > STEP_SHIFT_PX)
+                               for layer in self.layers], axis=1) for t in (ts, ts[1:] - 1))
+            # each interval's last step, inside it (the step after the last sample lay
+            # past the recording's end: a duration 1 us short of the one that fails had
+            # been refused, probe CA)
+            step = np.flatnonzero(self.shifts(m1, m[1:]) > STEP_SHIFT_PX)
             mean = np.flatnonzero(self.shifts(m[:-1], m[1:]) > STEP_SHIFT_PX * np.diff(ts))
-            firsts = ([max(int(step[0]) - 1, 0)] if step.size else []) + list(mean[:1])
+            firsts = list(step[:1]) + list(mean[:1])
             if not firsts:
                 break
             k = int(min(firsts))
-            found = lo, hi = float(ts[k]), float(ts[min(k + 1, ts.size - 1)])
+            found = lo, hi = float(ts[k]), float(ts[k + 1])
         return found
 
 
