@@ -246,12 +246,10 @@ def other_motion(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
 
     Parameters
     ----------
-    x, y : ndarray
-        Event positions, px.
-    s : ndarray
-        Event times in windows from the window's midpoint (-0.5 to 0.5).
+    x, y, s : ndarray
+        The events, as :func:`evmotion.core.translation.tile_gains` takes them.
     disp : ndarray, (H, W, 2)
-        The flow's displacement over the window, px.
+        The flow's displacement over the window, px (dense: read at each event's pixel).
     valid : ndarray of bool, (H, W)
     what : str
         The flow, as the warning names it.
