@@ -352,3 +352,15 @@ def test_info_on_a_raw_file_with_no_event_takes_the_size_given(tmp_path, capsys,
     rc, out, err = _run(capsys, "info", str(tmp_path / name), *argv, "--sensor-size", "180",
                         "240", "--header-only")
     assert rc == 0 and "sensor:      240 x 180 px (W x H)" in out, out
+
+
+def test_info_of_an_empty_raw_file_takes_the_size_given_over_its_header(tmp_path, capsys):
+    # probe CA: a header's 1280x720 silently replaced --sensor-size 100 200, which the
+    # readers take over the header
+    path = tmp_path / "h.raw"
+    path.write_bytes(b"% evt 3.0\n% format EVT3\n% geometry 1280x720\n% end\n")
+    for extra in ([], ["--header-only"]):
+        rc, out, err = _run(capsys, "info", str(path), "--sensor-size", "100", "200", *extra)
+        assert rc == 0 and "sensor:      200 x 100 px (W x H)" in out, (extra, out, err)
+    rc, out, _ = _run(capsys, "info", str(path))
+    assert "sensor:      1280 x 720 px (W x H)" in out

@@ -93,8 +93,9 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     if frames is not None:
         out["frames_info"] = frames
     if not stream:
-        if out.get("sensor_size") is None and kw.get("sensor_size") is not None:
-            # (--header-only said "unknown" beside the size given, probe CA)
+        if kw.get("sensor_size") is not None:
+            # the size given, as the readers take it over the header's (--header-only
+            # said "unknown" beside it, or the header's other size, probe CA)
             out["sensor_size"] = tuple(int(v) for v in kw["sensor_size"])
         return out
     n = 0
@@ -127,8 +128,9 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
         ymin, ymax = min(ymin, float(chunk.y.min())), max(ymax, float(chunk.y.max()))
     if size is not None:
         out["sensor_size"] = tuple(size)
-    elif out.get("sensor_size") is None and kw.get("sensor_size") is not None:
-        # no event to carry it (an empty raw file): the size given
+    elif kw.get("sensor_size") is not None:
+        # no event to carry it (an empty raw file): the size given, as the readers take
+        # it over the header's
         out["sensor_size"] = tuple(int(v) for v in kw["sensor_size"])
     out["n_events"] = n
     if n:
