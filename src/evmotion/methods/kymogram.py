@@ -486,8 +486,7 @@ def ridge_points(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1
     d = _ridge_signal(kymo, polarity, sigma_px, sigma_bins)
     s = kymo.s_px
     t = kymo.t_s
-    smask = np.ones(s.size, bool) if s_range is None else (s >= s_range[0]) & (s <= s_range[1])
-    tmask = np.ones(t.size, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
+    tmask, smask = _region_masks(kymo, s_range, t_range)
     if smask.sum() < 3 or not tmask.any():
         raise ParameterError(f"the search region ({_region(s_range, t_range)}) holds fewer "
                              "than 3 positions or no time bin of the kymogram")
@@ -550,15 +549,20 @@ def _region(s_range, t_range) -> str:
     return f"{s}, {t}"
 
 
-def _check_signal(kymo: Kymogram, s_range, t_range) -> None:
-    """An empty region has nothing to fit: said as such (a row with no event had been
-    told of "a ridge at fewer than 3 lags ... periodic structures alias", probe BX)."""
+def _region_masks(kymo: Kymogram, s_range, t_range) -> tuple[np.ndarray, np.ndarray]:
+    """The time bins and positions of a fit's region (None: all of them)."""
     s, t = kymo.s_px, kymo.t_s
     smask = np.ones(s.size, bool) if s_range is None else (s >= s_range[0]) & (s <= s_range[1])
     tmask = np.ones(t.size, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
-    d = np.asarray(kymo.data)[np.ix_(tmask, smask)]
-    if not np.any(np.nan_to_num(d, nan=0.0)):
-        what = "no measurement" if np.isnan(d).all() else "only zeros"
+    return tmask, smask
+
+
+def _check_signal(region: np.ndarray, kymo: Kymogram, s_range, t_range) -> None:
+    """An empty region (``region``: its cells, NaN where nothing was measured) has
+    nothing to fit: said as such (a row with no event had been told of "a ridge at fewer
+    than 3 lags ... periodic structures alias", probe BX)."""
+    if not np.any(np.nan_to_num(region, nan=0.0)):
+        what = "no measurement" if np.isnan(region).all() else "only zeros"
         raise EmptyWindowError(f"the kymogram ({kymo.source}) holds {what} in the region "
                                f"({_region(s_range, t_range)}): nothing crosses the line "
                                "there; choose another line, a wider one, or another region")
@@ -609,7 +613,8 @@ def fit_ridge(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1.0,
                                f"{3 + 2 * margin} or more ({margin} at each end lie within "
                                f"two sigma_bins={sigma_bins:g} of its edge): a longer time "
                                "range, a higher rate, or a smaller sigma_bins")
-    _check_signal(kymo, s_range, t_range)
+    tmask, smask = _region_masks(kymo, s_range, t_range)
+    _check_signal(np.asarray(kymo.data)[np.ix_(tmask, smask)], kymo, s_range, t_range)
     t, s = ridge_points(kymo, sigma_px=sigma_px, sigma_bins=sigma_bins, polarity=polarity,
                         s_range=s_range, t_range=t_range, min_snr=min_snr)
     if t.size < 3:
@@ -843,10 +848,10 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     _check_fit_options(min_snr)
     if max_lag_s is not None and not (np.isfinite(max_lag_s) and max_lag_s > 0):
         raise ParameterError(f"parameter 'max_lag_s' must be > 0, got {max_lag_s!r}")
-    s, t = kymo.s_px, kymo.t_s
-    smask = np.ones(s.size, bool) if s_range is None else (s >= s_range[0]) & (s <= s_range[1])
-    tmask = np.ones(t.size, bool) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
-    d = np.nan_to_num(np.asarray(kymo.data, dtype=np.float64), nan=0.0)[np.ix_(tmask, smask)]
+    t = kymo.t_s
+    tmask, smask = _region_masks(kymo, s_range, t_range)
+    region = np.asarray(kymo.data, dtype=np.float64)[np.ix_(tmask, smask)]
+    d = np.nan_to_num(region, nan=0.0)
     n_t, n_s = d.shape
     dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
     if max_lag_s is not None and dt > 0 and max_lag_s > MAX_LAG_SHARE * n_t * dt:
@@ -860,7 +865,7 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
         raise ParameterError(f"the region ({_region(s_range, t_range)}) holds "
                              f"{n_s} positions and {n_t} time bins; the correlation needs "
                              f">= 5 positions and >= {2 * n_blocks} bins ({n_blocks} blocks)")
-    _check_signal(kymo, s_range, t_range)
+    _check_signal(region, kymo, s_range, t_range)
     n_lags = max(3, int(round((0.25 * n_t * dt if max_lag_s is None else max_lag_s) / dt)))
     n_lags = min(n_lags, n_t - 1) + 1
     d = d - d.mean(axis=0, keepdims=True)
