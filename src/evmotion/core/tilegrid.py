@@ -23,6 +23,7 @@ __all__ = [
     "charbonnier_tv",
     "dense_flow",
     "event_tile_means",
+    "event_tiles",
     "event_weights",
     "pixel_tiles",
     "resample",
@@ -154,6 +155,23 @@ def pixel_tiles(shape: tuple[int, int], grid: TileGrid) -> tuple[np.ndarray, np.
     ty = np.minimum(np.arange(h) * grid.ny // h, grid.ny - 1)
     tx = np.minimum(np.arange(w) * grid.nx // w, grid.nx - 1)
     return ty[:, None], tx[None, :]
+
+
+def event_tiles(x: np.ndarray, y: np.ndarray, grid: TileGrid) -> np.ndarray:
+    """The flat index (``row * nx + col``) of the tile each event at ``x``, ``y`` (px, taken
+    to the pixel below, clipped to the image) falls in.
+
+    Examples
+    --------
+    >>> event_tiles(np.array([0.0, 3.7, 9.0]), np.array([1.0, 0.2, 0.0]),
+    ...             TileGrid(1, 2, (2, 4))).tolist()
+    [0, 1, 1]
+    """
+    ty, tx = pixel_tiles(grid.shape, grid)
+    h, w = grid.shape
+    xi = np.clip(np.asarray(x).astype(np.int64), 0, w - 1)
+    yi = np.clip(np.asarray(y).astype(np.int64), 0, h - 1)
+    return ty.ravel()[yi] * grid.nx + tx.ravel()[xi]
 
 
 def tile_means(img: np.ndarray, grid: TileGrid) -> np.ndarray:

@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from evmotion.core import translation
-from evmotion.core.tilegrid import TileGrid, pixel_tiles
+from evmotion.core.tilegrid import TileGrid, event_tiles
 
 __all__ = ["RESTART_GAIN", "box_scores_jit", "jit_scores", "tile_gains", "tile_restarts"]
 
@@ -95,11 +95,7 @@ def tile_restarts(x: np.ndarray, y: np.ndarray, s: np.ndarray, params: np.ndarra
     >>> tile_restarts(x, y, s, start, TileGrid(1, 2, (32, 64)), 20.0)[0].tolist()
     [[12.0, 0.0], [0.0, 0.0]]
     """
-    ty, tx = pixel_tiles(grid.shape, grid)
-    h, w = grid.shape
-    xi = np.clip(np.asarray(x).astype(np.int64), 0, w - 1)
-    yi = np.clip(np.asarray(y).astype(np.int64), 0, h - 1)
-    disp = np.asarray(params, dtype=np.float64)[ty.ravel()[yi], tx.ravel()[xi]]
+    disp = np.asarray(params, dtype=np.float64).reshape(-1, 2)[event_tiles(x, y, grid)]
     # every tile, those moving far too: a restart is only a start, and the finest scale's
     # objective decides (the translations that tile search found for 25-40 px windows
     # took them from 25-38 px to 0.2-12 px, probe CA)

@@ -19,13 +19,16 @@ from collections.abc import Callable
 
 import numpy as np
 
-from evmotion.core.tilegrid import TileGrid, pixel_tiles
+from evmotion.core.tilegrid import TileGrid, event_tiles
 
-__all__ = ["MAX_TILE_MOVE", "MIN_TILE_EVENTS", "REACH", "SEARCH_EVENTS", "box_scores", "sharpest_translation",
-           "tile_gains", "translation_scores"]
+__all__ = ["MAX_TILE_MOVE", "MIN_TILE_EVENTS", "REACH", "SEARCH_EVENTS", "TILE_REACH",
+           "box_scores", "sharpest_translation", "tile_gains", "translation_scores"]
 
 #: How far the search looks, px over the window, as a fraction of the sensor's longer side.
 REACH = 0.5
+#: How far a tile's own translation is searched (multicm's restarts, the other-motion
+#: check), the same fraction.
+TILE_REACH = 0.25
 # cells either way at the coarsest binning, and the events scored there (evenly spaced;
 # a coarse image needs few to rank translations whole cells apart)
 _CELLS = 8
@@ -194,10 +197,7 @@ def tile_gains(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
     x, y, s = (np.asarray(a, dtype=np.float64) for a in (x, y, s))
     disp = np.asarray(disp, dtype=np.float64)
     scores = box_scores if scores is None else scores
-    ty, tx = pixel_tiles(grid.shape, grid)
-    h, w = grid.shape
-    tile = (ty.ravel()[np.clip(y.astype(np.int64), 0, h - 1)] * grid.nx
-            + tx.ravel()[np.clip(x.astype(np.int64), 0, w - 1)])
+    tile = event_tiles(x, y, grid)
     order = np.argsort(tile, kind="stable")
     bounds = np.searchsorted(tile[order], np.arange(grid.ny * grid.nx + 1))
     best = np.zeros((grid.ny, grid.nx, 2))

@@ -224,18 +224,14 @@ def alignment_gain(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
 
 
 #: A tile whose events a translation of their own sharpens this much more than the flow
-#: does (:func:`evmotion.core.tilesearch.tile_gains`, 4 x 4 tiles) holds a motion the
+#: does (:func:`evmotion.core.translation.tile_gains`, 4 x 4 tiles) holds a motion the
 #: flow does not follow. Flows that follow the motion scored at most 1.21 (simulated
 #: translation, rotation, zoom; a probe's renderer) and 1.20 (the eight ECD 30k windows);
 #: the background of a probe's moving patch under the patch's flow 1.35-2.6, the
 #: simulator's moving object's worst tiles 1.40-1.49 (AEE 1.7-2.0 px there).
 OTHER_MOTION_GAIN = 1.5
-
-
-#: The tiles the check takes: 2^(level - 1) a side (3: 4 x 4), and how far each tile's
-#: own translation is searched, a fraction of the sensor's longer side.
+#: The tiles the check takes: 2^(level - 1) a side (3: 4 x 4).
 OTHER_MOTION_LEVEL = 3
-OTHER_MOTION_REACH = 0.25
 
 
 def other_motion(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
@@ -257,14 +253,14 @@ def other_motion(x: np.ndarray, y: np.ndarray, s: np.ndarray, disp: np.ndarray,
         As for :func:`evmotion.core.translation.tile_gains` (default numpy).
     """
     from evmotion.core.tilegrid import pixel_tiles, scale_grid
-    from evmotion.core.translation import tile_gains
+    from evmotion.core.translation import TILE_REACH, tile_gains
 
     h, w = valid.shape
     grid = scale_grid(OTHER_MOTION_LEVEL, (h, w))
     xi = np.clip(np.rint(x).astype(np.int64), 0, w - 1)
     yi = np.clip(np.rint(y).astype(np.int64), 0, h - 1)
     _, gain = tile_gains(x, y, s, np.asarray(disp, np.float64)[yi, xi], grid,
-                         OTHER_MOTION_REACH * max(h, w), scores=scores)
+                         TILE_REACH * max(h, w), scores=scores)
     bad = gain >= OTHER_MOTION_GAIN
     if not bad.any():
         return valid, 0

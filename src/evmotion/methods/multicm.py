@@ -105,12 +105,12 @@ TOL_FROM_LEVEL = 3
 JITTER_TO_LEVEL = 3
 #: The level (3 = 4 x 4 tiles) after which each tile's events are searched for a
 #: translation of their own that sharpens them far more than the flow
-#: (:func:`evmotion.core.tilesearch.tile_restarts`, within ``TILE_SEARCH_REACH`` of the
-#: sensor's longer side); the scale is optimized again from there, and the better optimum
-#: kept. A region whose motion the coarse scales did not follow (an object's background
+#: (:func:`evmotion.core.tilesearch.tile_restarts`, within
+#: :data:`evmotion.core.translation.TILE_REACH` of the sensor's longer side); the scale is
+#: optimized again from there, and both starts go on to the finest scale, which keeps the
+#: better objective. A region whose motion the coarse scales did not follow (an object's background
 #: under the object's flow, probe BZ) is found there, not at the finer scales.
 TILE_SEARCH_LEVEL = 3
-TILE_SEARCH_REACH = 0.25
 #: Below this many events per finest tile, the result's focus is compared with what the
 #: solver reaches on the same events with their times shuffled (:func:`_shuffled_focus`,
 #: on its finest ``REFIT_SCALES`` scales, ``REFIT_MAX_ITER`` iterations each).
@@ -681,8 +681,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     params, prob, all_params, history, timings = _coarse_to_fine(
         x, y, s, events.p, shape, init, duration_s, o)
     focus, iwe_dict = _final_iwes(prob, params, x, y, s, shape)
-    fitted = tf.dense_flow(params, shape) / duration_s
-    flow = rest_where_empty(fitted.astype(np.float32), valid, prob.grid)
+    fitted = tf.dense_flow(params, shape)  # px over the window
+    flow = rest_where_empty((fitted / duration_s).astype(np.float32), valid, prob.grid)
     chance = float("nan")
     # flicker lights every pixel at once: a flow that gathers those bursts sharpens them,
     # whatever moves (said first: it names the cause the focus tests below cannot)
@@ -722,7 +722,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
 
         # (the fitted flow, as the objective saw it: the one at rest where events are
         # few would leave the events at the edge of its support unmoved)
-        valid, other = other_motion(x, y, s - 0.5, fitted * duration_s, valid, "dense flow",
+        valid, other = other_motion(x, y, s - 0.5, fitted, valid, "dense flow",
                                     scores=jit_scores)
     timings["total_s"] = time.perf_counter() - t_start
     # numba's first-use compilation is not the estimate's time: reported apart
@@ -855,9 +855,9 @@ def _coarse_to_fine(x, y, s, p, shape, init, duration_s, o: MultiCMOptions):
             timings = {**timings, f"scale{level}_s": time.perf_counter() - ts}
             if o.restart and level == TILE_SEARCH_LEVEL and level < o.finest_level:
                 from evmotion.core.tilesearch import tile_restarts
+                from evmotion.core.translation import TILE_REACH
 
-                start = tile_restarts(xl, yl, s - 0.5, params, grid,
-                                      TILE_SEARCH_REACH * max(shape))
+                start = tile_restarts(xl, yl, s - 0.5, params, grid, TILE_REACH * max(shape))
                 if start is not None:
                     # both go on to the finest scale, which decides: at this one the
                     # restart's blend across the regions' boundary costs about what it
