@@ -32,6 +32,16 @@ def symmetric_limit(values: np.ndarray, percentile: float = 99.0) -> float:
     return c if c > 0 else 1.0
 
 
+def _q_scale(q: np.ndarray, limit: float | None = None) -> tuple[float, float, bool]:
+    """q's colour limit (default :func:`symmetric_limit`), its largest finite ``|q|``, and
+    whether the limit clips it."""
+    if limit is None:
+        limit = symmetric_limit(q)
+    finite = np.abs(q[np.isfinite(q)])
+    peak = float(finite.max()) if finite.size else 0.0
+    return limit, peak, peak > limit * (1 + 1e-9)
+
+
 def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s",
               title: str | None = None, dpi: int = 100) -> tuple[np.ndarray, float]:
     """A Poisson field q as an RGB image: blue negative, white zero, red positive, with a
@@ -57,10 +67,7 @@ def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s"
     (dtype('uint8'), 3, 1.0)
     """
     q = np.asarray(q, dtype=np.float64)
-    if limit is None:
-        limit = symmetric_limit(q)
-    finite = np.abs(q[np.isfinite(q)])
-    peak = float(finite.max()) if finite.size else 0.0
+    limit, peak, clipped = _q_scale(q, limit)
     h, w = q.shape
     scale = 6.0 / max(h, w)
     import matplotlib
@@ -78,7 +85,6 @@ def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s"
     if title:
         ax.set_title(title, fontsize=10)
     cax = fig.add_axes((0.8, 0.1, 0.04, 0.76))
-    clipped = peak > limit * (1 + 1e-9)
     bar = fig.colorbar(im, cax=cax, extend="both" if clipped else "neither")
     # a scale that clips says so: the arrows' ends and the peak it does not show
     bar.set_label(f"q [{unit}]" + (f"; |q| up to {peak:.3g} shown at the ends" if clipped
@@ -137,9 +143,7 @@ def _q_panel(q: np.ndarray, scale: int, unit: str) -> np.ndarray:
     from matplotlib.figure import Figure
 
     q = np.asarray(q, dtype=np.float64)
-    limit = symmetric_limit(q)
-    finite = np.abs(q[np.isfinite(q)])
-    clipped = finite.size > 0 and float(finite.max()) > limit * (1 + 1e-9)
+    limit, _, clipped = _q_scale(q)
     cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad=(0.5, 0.5, 0.5))
     norm = Normalize(-limit, limit)
     rgb = (cmap(norm(np.ma.masked_invalid(q)))[..., :3] * 255 + 0.5).astype(np.uint8)
