@@ -45,7 +45,7 @@ def test_flow_pixels_are_the_bare_picture_and_the_legend_is_drawn():
     # black ink: the arrows and the text
     assert np.sum(px.max(axis=1) < 60) > 50
     assert pic.texts == ("u", "v", "rim 60 px/s", "fixed; darker: beyond",
-                         "unmasked: all pixels")
+                         "unmasked: all pixels", "20 px")
     # the grey of a mask is said only where there is one (probe BK: "grey: no events"
     # over a picture coloured everywhere)
     assert flow_picture(flow, valid=np.ones(flow.shape[:2], bool)).texts[4] == "grey: no events"
@@ -69,6 +69,37 @@ def test_the_scale_text_is_drawn_not_only_reported():
     assert c.texts[3] == "max of image" and not c.fixed_scale
     assert c.max_speed == pytest.approx(np.hypot(120, 100))
     assert np.any(la != lc)
+
+
+def _ruler_length(pic) -> int:
+    """Screen pixels of the legend's longest black horizontal run below the wheel."""
+    legend = _box(pic.rgb, pic.legend_box).astype(int)
+    black = legend.max(axis=-1) < 60
+    best = 0
+    for row in black[legend.shape[0] // 2:]:
+        run = 0
+        for b in row:
+            run = run + 1 if b else 0
+            best = max(best, run)
+    return best
+
+
+@pytest.mark.parametrize("shape, scale, ruler", [((200, 240), 1, 20), ((30, 40), 6, 5),
+                                                 ((720, 1280), 1, 100), ((5, 7), 32, 1)])
+def test_the_ruler_spans_the_pixels_it_names(shape, scale, ruler):
+    # flow pictures had no pixel scale: an upscaled 30-row flow and a 720-row one looked
+    # alike (probe BX); the bar spans `ruler` flow pixels at the picture's upscale
+    flow = np.zeros((*shape, 2), np.float32)
+    flow[..., 0] = 3.0
+    pic = flow_picture(flow)
+    assert pic.scale == scale and pic.texts[5] == f"{ruler} px"
+    assert abs(_ruler_length(pic) - ruler * scale) <= 2
+
+
+def test_a_flow_too_thin_for_a_ruler_draws_none():
+    pic = flow_picture(np.ones((1, 30, 2), np.float32))
+    assert pic.scale == 160 and pic.texts[5] == ""
+    assert _ruler_length(pic) < 20  # letters only, no bar
 
 
 def test_max_speed_fixes_the_colour_scale():

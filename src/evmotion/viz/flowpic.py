@@ -1,6 +1,7 @@
 """Flow pictures that explain themselves: the colour-coded flow beside a colour-wheel legend
 (axis arrows u to the right, v down) that states the speed shown at the wheel's rim and
-whether that scale is fixed or chosen for this image; pixels without event support in grey;
+whether that scale is fixed or chosen for this image, with a ruler of the image's pixels;
+pixels without event support in grey;
 and the three-panel view (events | IWE warped by the flow | flow) used for summaries and
 videos.
 
@@ -51,7 +52,8 @@ class FlowPicture:
         ``(row0, row1, col0, col1)`` of the flow and of the legend strip in ``rgb``
         (``legend_box`` is empty without a legend).
     texts : tuple of str
-        The words drawn in the legend.
+        The words drawn in the legend, the ruler's length last (``"50 px"``: the bar above
+        it spans that many of the flow's pixels).
     """
 
     rgb: np.ndarray
@@ -112,14 +114,30 @@ def _legend_texts(max_speed: float, unit: str, fixed: bool, masked: bool,
             "fixed; darker: beyond" if fixed else "max of image", grey)
 
 
+def _strip_width(height: int) -> int:
+    return int(np.clip(round(0.3 * height), 96, 200))
+
+
+def _ruler_px(strip_width: int, k: int) -> int:
+    """The ruler's length in the flow's pixels: the longest 1, 2 or 5 x 10^n whose bar,
+    ``k`` screen pixels per flow pixel, spans at most half the legend strip (0: not even
+    one pixel's bar fits, a flow of one or two rows upscaled past the strip's width)."""
+    room = 0.5 * strip_width / k
+    if room < 1:
+        return 1 if k <= strip_width - 8 else 0
+    mag = 10 ** math.floor(math.log10(room))
+    return max(m * mag for m in (1, 2, 5) if m * mag <= room)
+
+
 @functools.lru_cache(maxsize=32)
-def _legend_strip(height: int, texts: tuple[str, ...]) -> np.ndarray:
-    """White strip ``height`` rows tall: the wheel with u/v arrows and the scale below it."""
-    width = int(np.clip(round(0.3 * height), 96, 200))
+def _legend_strip(height: int, texts: tuple[str, ...], ruler: int) -> np.ndarray:
+    """White strip ``height`` rows tall: the wheel with u/v arrows, the scale below it and
+    a bar ``ruler`` screen pixels long above its length in the flow's pixels."""
+    width = _strip_width(height)
     d = width - 26  # wheel diameter, px; the margin holds the 'u' label
     pt = max(7.0, d / 11.0)  # font size, points (1 pt = 1.39 px at 100 dpi)
     line = 1.5 * pt * 100 / 72
-    top = max(2.0, (height - d - 3.4 * line) / 2)
+    top = max(2.0, (height - d - 4.6 * line) / 2)
     x0 = 6.0
     cx, cy, r = x0 + d / 2, top + d / 2, d / 2
     fig, ax = _figure_px(width, height)
@@ -136,6 +154,14 @@ def _legend_strip(height: int, texts: tuple[str, ...]) -> np.ndarray:
     # the pixels drawn grey: no event supports a flow there (not valid)
     ax.text(width / 2, top + d + 5 + 2 * line, texts[4], fontsize=pt * 0.85, va="top",
             ha="center", color="#444444")
+    # a flow pixel's size on screen changes with the upscale and the image's size: without
+    # a ruler a picture did not say how far its features lie apart
+    bar_y = top + d + 5 + 3.3 * line
+    if ruler:
+        ax.plot([(width - ruler) / 2, (width + ruler) / 2], [bar_y, bar_y], color="black",
+                lw=2.5, solid_capstyle="butt")
+        ax.text(width / 2, bar_y + 0.25 * line, texts[5], fontsize=pt * 0.85, va="top",
+                ha="center")
     strip = _render(fig)
     strip.setflags(write=False)
     return strip
@@ -191,8 +217,10 @@ def flow_picture(flow: np.ndarray, *, max_speed: float | None = None,
     finite = np.isfinite(flow).all(axis=-1)
     # (a window with no valid pixel drew "rim 1 px/s", a scale of nothing, probe BK)
     empty = not (finite if valid is None else finite & valid).any()
-    texts = _legend_texts(speed, unit, fixed, valid is not None, not finite.all(), empty)
-    strip = _legend_strip(h * k, texts)
+    ruler = _ruler_px(_strip_width(h * k), k)
+    texts = (*_legend_texts(speed, unit, fixed, valid is not None, not finite.all(), empty),
+             f"{ruler} px" if ruler else "")
+    strip = _legend_strip(h * k, texts, ruler * k)
     out = np.concatenate([_upscale(rgb, k), strip], axis=1)
     return FlowPicture(out, speed, fixed, unit, k, (0, h * k, 0, w * k),
                        (0, h * k, w * k, out.shape[1]), texts)
