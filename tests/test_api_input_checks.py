@@ -224,3 +224,34 @@ def test_options_that_would_do_nothing_are_refused(ev):
         estimate_flow(ev, n_bins=7)
     assert estimate_flow(ev, n_bins=3, time_aware="upwind", n_scales=1,
                          finest_level=2).n_bins == 3
+
+
+def _with_off_sensor(ev, x, y):
+    """``ev`` unchecked, with one more event at (x, y) (off its sensor) at its first time."""
+    dtype = np.float32 if isinstance(x, float) or isinstance(y, float) else np.int64
+    return EventArray(np.concatenate([[x], ev.x]).astype(dtype),
+                      np.concatenate([[y], ev.y]).astype(dtype),
+                      np.concatenate([ev.t[:1], ev.t]), np.concatenate([ev.p[:1], ev.p]),
+                      ev.sensor_size, validate=False)
+
+
+@pytest.mark.parametrize("where", ["float y -1", "int y = H"])
+def test_an_event_off_the_sensor_is_left_out_of_the_dense_flows(ev, where):
+    # undistorted events kept past the border (drop_outside=False): multicm failed in
+    # np.bincount ("must have no negative elements"), the network with an IndexError at
+    # y = H, the triplet stream as multicm (probe CB)
+    from evmotion.methods.dnn import estimate_flow_dnn
+    from evmotion.methods.triplet_stream import iter_flow_triplet
+
+    h = ev.sensor_size[0]
+    off = (_with_off_sensor(ev, 5.0, -1.0) if where.startswith("float")
+           else _with_off_sensor(ev, 5, h))
+    kept = EventArray(off.x[1:], off.y[1:], off.t[1:], off.p[1:], ev.sensor_size)
+    for fn in (estimate_flow, lambda e: estimate_flow_dnn(e, backend="numpy")):
+        np.testing.assert_array_equal(fn(off).flow, fn(kept).flow)
+    chunks = [off[:1500], off[1500:]]
+    if where.startswith("float"):  # undistorted past the border: on the edge pixel
+        assert sum(w.n_events for w in iter_flow_triplet(chunks, window_events=1000)) == 3001
+    else:  # a whole-pixel coordinate off the sensor is corrupt: said
+        with pytest.raises(ParameterError, match=r"event 0 has y=80 outside the sensor"):
+            list(iter_flow_triplet(chunks, window_events=1000))

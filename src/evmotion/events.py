@@ -752,15 +752,22 @@ def events_for_windows(chunks: Iterable[EventArray], *, max_windows: int,
     return concatenate(parts) if parts else None
 
 
-def require_events(events, func: str) -> EventArray:
+def require_events(events, func: str, *, on_sensor: bool = False) -> EventArray:
     """``events`` if it is an :class:`EventArray`, else :class:`ParameterError` naming
     ``func`` (a list or an array of rows would otherwise fail deep inside it).
+
+    With ``on_sensor``, the events of an unchecked array (``validate=False``) that lie off
+    the sensor are left out of what is returned, as the warning about them says.
 
     Examples
     --------
     >>> require_events([1, 2], "estimate_flow")
     Traceback (most recent call last):
     evmotion.errors.ParameterError: estimate_flow: events must be an EventArray (EventArray(x, y, t, p, sensor_size) or evmotion.io.read_events(path)), got list
+    >>> ev = EventArray(np.array([1.0, -0.5]), np.array([2.0, 2.0]), np.array([0, 5]),
+    ...                 np.array([1, 0]), (4, 4), validate=False)
+    >>> len(require_events(ev, "estimate_flow", on_sensor=True))
+    1
     """
     if not isinstance(events, EventArray):
         raise ParameterError(f"{func}: events must be an EventArray (EventArray(x, y, t, p, "
@@ -771,11 +778,16 @@ def require_events(events, func: str) -> EventArray:
     bad = _non_finite_coordinate(events)
     if bad is not None:
         raise EventDataError(f"{func}: {bad}")
-    _check_on_sensor(events, func)
+    off = _check_on_sensor(events, func)
     if not events.validate:
         # (estimate_bos cut its interval by binary search on unsorted times and solved
         # the wrong events without a word; egomotion reported a window running backwards)
         events.check_order()
+    if on_sensor and off is not None:
+        # (undistorted events kept past the borders, drop_outside=False, failed multicm's
+        # flicker test in np.bincount and the network's voxel grid with an IndexError,
+        # probe CB)
+        return events[~off]
     return events
 
 
@@ -798,17 +810,19 @@ def _non_finite_coordinate(events: EventArray) -> str | None:
 OFF_SENSOR_WARN = 0.1
 
 
-def _check_on_sensor(events: EventArray, func: str) -> None:
+def _check_on_sensor(events: EventArray, func: str) -> np.ndarray | None:
     """Refuse events of an unchecked array (``validate=False``) that all lie off the
     sensor, and warn when many do: an estimate from them was a silent zero, or came from
-    the rest without a word (a sensor size given as (W, H))."""
+    the rest without a word (a sensor size given as (W, H)). Returns the mask of the
+    events off the sensor, None where there is none."""
     if not len(events):
-        return
+        return None
     h, w = events.sensor_size
     x, y = events.x, events.y
     if x.min() >= 0 and y.min() >= 0 and x.max() <= w - 1 and y.max() <= h - 1:
-        return
-    off = int(np.count_nonzero((x < 0) | (y < 0) | (x > w - 1) | (y > h - 1)))
+        return None
+    mask = (x < 0) | (y < 0) | (x > w - 1) | (y > h - 1)
+    off = int(np.count_nonzero(mask))
     where = (f"x {x.min():g}..{x.max():g}, y {y.min():g}..{y.max():g} on a {w}x{h} (W x H) "
              "sensor")
     if off == len(events):
@@ -822,6 +836,7 @@ def _check_on_sensor(events: EventArray, func: str) -> None:
         warnings.warn(EvmotionWarning(
             f"{func}: {off} of {len(events)} events lie off the sensor ({where}) and are "
             "left out: sensor_size is (height, width)"), stacklevel=3)
+    return mask
 
 
 def _coord(a, name: str) -> np.ndarray:

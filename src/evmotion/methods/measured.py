@@ -342,13 +342,22 @@ def _swing(t: np.ndarray, pol: np.ndarray) -> float:
     return float(np.sqrt(max(var - chance, 0.0)))
 
 
+def _pixel_coords(events: EventArray) -> tuple[np.ndarray, np.ndarray]:
+    """The events' pixels as int64, those off the sensor (undistorted and kept past its
+    border) on its edge: a stream's stretch is not filtered before these tests, and a
+    negative pixel failed np.bincount (probe CB)."""
+    h, w = events.sensor_size
+    return (np.clip(np.asarray(events.x, np.int64), 0, w - 1),
+            np.clip(np.asarray(events.y, np.int64), 0, h - 1))
+
+
 def _quarters_swing(events: EventArray, pol: np.ndarray) -> float:
     """:func:`_swing` in the quarter of the sensor where it is least, of the quarters
     holding a tenth of the events or more (the whole sensor's with fewer than two)."""
     t = np.asarray(events.t, np.int64)
     h, w = events.sensor_size
-    quarter = ((np.asarray(events.y, np.int64) * 2 // h) * 2
-               + np.asarray(events.x, np.int64) * 2 // w)
+    xi, yi = _pixel_coords(events)
+    quarter = (yi * 2 // h) * 2 + xi * 2 // w
     # (a mask only for the quarters that hold enough events: this runs on every stretch
     # of a triplet stream)
     held = np.flatnonzero(np.bincount(quarter, minlength=4) >= 0.1 * len(t))
@@ -426,8 +435,8 @@ def local_swing(events: EventArray, block_px: int = SWING_BLOCK_PX) -> float:
         return float("nan")
     pol = np.where(np.asarray(events.p) > 0, 1.0, -1.0)
     nbx = -(-events.sensor_size[1] // block_px)
-    block = (np.asarray(events.y, np.int64) // block_px * nbx
-             + np.asarray(events.x, np.int64) // block_px)
+    xi, yi = _pixel_coords(events)
+    block = yi // block_px * nbx + xi // block_px
     mean = np.bincount(block, pol) / np.maximum(np.bincount(block), 1)
     return _quarters_swing(events, pol - mean[block])
 

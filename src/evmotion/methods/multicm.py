@@ -602,7 +602,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     >>> bool(abs(np.median(res.flow[..., 0]) - 1000) < 150)
     True
     """
-    require_events(events, "estimate_flow")
+    events = require_events(events, "estimate_flow", on_sensor=True)
     o = merge_options(MultiCMOptions, options, time_aware=time_aware, n_scales=n_scales,
                       objective=objective, lam=lam, n_bins=n_bins, seed=seed,
                       max_iter=max_iter, tol=tol, references=references, optimizer=optimizer,

@@ -714,7 +714,7 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     >>> estimate_flow_dnn(ev).flow.shape
     (30, 40, 2)
     """
-    events = require_events(events, "estimate_flow_dnn")
+    events = require_events(events, "estimate_flow_dnn", on_sensor=True)
     if len(events) < 10 or events.t[-1] <= events.t[0]:
         raise EmptyWindowError(f"window has {len(events)} events spanning "
                                f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
