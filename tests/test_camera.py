@@ -3,7 +3,7 @@ import pytest
 
 from evmotion import EventArray
 from evmotion.camera import Camera
-from evmotion.errors import CalibrationError, FormatError
+from evmotion.errors import CalibrationError, FormatError, ParameterError
 from evmotion.io.calibration import read_camera, read_ecd
 
 DAVIS = Camera(199.092366, 198.82882, 132.192071, 110.712276,
@@ -85,3 +85,30 @@ def test_yaml_calibrations(tmp_path):
                   "    resolution: [640, 480]\n")
     cam = read_camera(ds)
     assert cam.sensor_size == (480, 640) and not cam.is_distorted
+
+
+def test_a_camera_without_a_sensor_size_takes_the_events():
+    # the default was the DAVIS240C's (180, 240): a 640x480 user's Camera(fx, fy, cx, cy)
+    # failed with "calibration is for a 240 x 180 px sensor" (probe CB)
+    cam = Camera(500.0, 500.0, 320.0, 240.0, (-0.3, 0.1, 0.0, 0.0, 0.0))
+    assert cam.sensor_size is None and Camera.from_K(cam.K).sensor_size is None
+    ev = EventArray(np.array([0, 639]), np.array([0, 479]), np.array([0, 1]),
+                    np.array([1, 1]), (480, 640))
+    und = cam.undistort_events(ev, drop_outside=False)
+    assert und.sensor_size == (480, 640) and float(und.x[0]) < 0
+
+
+@pytest.mark.parametrize("size", [(-1, 5), (180, 240, 3), (180.5, 240), (0, 10)])
+def test_an_impossible_sensor_size_is_refused(size):
+    with pytest.raises(CalibrationError, match=r"sensor_size must be \(height, width\)"):
+        Camera(200.0, 200.0, 120.0, 90.0, sensor_size=size)
+
+
+def test_integer_coordinates_cannot_be_kept_off_the_sensor():
+    # they wrapped round in uint16: x = -35.9 became 65500 (probe CB)
+    cam = Camera(200.0, 200.0, 120.0, 90.0, (-0.3, 0.1, 0.0, 0.0, 0.0), (180, 240))
+    ev = EventArray(np.array([0, 120]), np.array([0, 90]), np.array([0, 1]),
+                    np.array([1, 0]), (180, 240))
+    with pytest.raises(ParameterError, match="integer=True needs drop_outside=True"):
+        cam.undistort_events(ev, integer=True, drop_outside=False)
+    assert cam.undistort_events(ev, integer=True).x.tolist() == [120]

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from evmotion.errors import CalibrationError
+from evmotion.errors import CalibrationError, ParameterError
 from evmotion.events import EventArray
 
 __all__ = ["Camera"]
@@ -52,7 +52,7 @@ class Camera:
     cx: float
     cy: float
     dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
-    sensor_size: tuple[int, int] | None = (180, 240)
+    sensor_size: tuple[int, int] | None = None
     _lut: dict = field(default_factory=dict, repr=False, compare=False, hash=False)
     source: str = field(default="", compare=False)
 
@@ -66,14 +66,20 @@ class Camera:
                                    f"fx={self.fx}, fy={self.fy}")
         object.__setattr__(self, "dist", tuple(float(d) for d in self.dist))
         if self.sensor_size is not None:
-            object.__setattr__(self, "sensor_size", tuple(int(s) for s in self.sensor_size))
+            size = tuple(self.sensor_size)
+            # (a (-1, 5) or a 3-tuple was taken, and failed later in the lookup table)
+            if (len(size) != 2 or not all(isinstance(v, (int, np.integer)) for v in size)
+                    or min(size) < 1):
+                raise CalibrationError(f"{self._where()}sensor_size must be (height, width), "
+                                       f"two positive whole numbers of pixels, got {size}")
+            object.__setattr__(self, "sensor_size", tuple(int(v) for v in size))
 
     def _where(self) -> str:
         return f"{self.source}: " if self.source else ""
 
     # ----------------------------------------------------------- constructors
     @classmethod
-    def from_K(cls, K: np.ndarray, dist=None, sensor_size=(180, 240), source: str = ""
+    def from_K(cls, K: np.ndarray, dist=None, sensor_size=None, source: str = ""
                ) -> Camera:
         """From a 3x3 intrinsic matrix and optional distortion coefficients."""
         K = np.asarray(K, dtype=np.float64)
@@ -219,7 +225,8 @@ class Camera:
         integer : bool
             Round the undistorted positions to the nearest pixel and keep the input's integer
             dtype, for methods that work on the pixel lattice (triplet matching); default
-            float32 coordinates.
+            float32 coordinates. Whole-pixel coordinates lie on the sensor: it needs
+            ``drop_outside``.
 
         Returns
         -------
@@ -237,6 +244,12 @@ class Camera:
         >>> [round(float(v), 2) for v in und.x]  # the corner moves outwards, the centre stays
         [-26.58, 120.0]
         """
+        if integer and not drop_outside:
+            # (the positions past the border wrapped round in uint16: x = -35.9 became
+            # 65500, which write_events took; probe CB)
+            raise ParameterError("undistort_events: integer=True needs drop_outside=True: "
+                                 "whole-pixel (uint16) coordinates cannot lie off the sensor; "
+                                 "the float coordinates of integer=False can")
         cam = self.for_sensor(events.sensor_size)
         if events.x.dtype.kind == "f":
             raise CalibrationError("events already have float (undistorted?) coordinates")
