@@ -859,3 +859,17 @@ def test_an_empty_kymogram_is_said_to_be_empty(fit, fill):
         fit(k)
     except EmptyWindowError as exc:
         assert " holds " not in str(exc)
+
+
+def test_image_times_in_the_other_unit_are_refused():
+    # SchlierenSim.frames.t (us) given as t_s drew a 0.00012 Hz kymogram, seconds given as
+    # t_us rows 4 ns apart, without a word (probe CB)
+    imgs = np.zeros((3, 8, 10))
+    line = KymoLine.row(4, (8, 10))
+    t_us = np.array([0, 8333, 16667])
+    with pytest.raises(ParameterError, match=r"t_s: the images lie 8333.5 s apart .*microseconds"):
+        kymogram_from_images(imgs, t_us, line)
+    with pytest.raises(ParameterError, match=r"t_us: the frames lie 0.0083335 us apart .*seconds"):
+        kymogram_from_frame_differences(imgs.astype(np.uint8), t_us * 1e-6, line)
+    assert kymogram_from_images(imgs, t_us * 1e-6, line).rate_hz == pytest.approx(120, rel=1e-3)
+    assert kymogram_from_frame_differences(imgs.astype(np.uint8), t_us, line).data.shape == (2, 10)

@@ -232,6 +232,27 @@ def kymogram_from_events(events: EventArray, line: KymoLine, rate_hz: float = 12
                     meta={"t0_us": t0, "t1_us": t1, "n_events": len(ev)})
 
 
+#: Median step between images beyond which times in seconds (``t_s``) are taken for µs, and
+#: below which times in µs (``t_us``) are taken for seconds: a kymogram's images lie at
+#: least a millisecond and at most a minute apart in any schlieren or flow recording.
+MAX_IMAGE_STEP_S = 60.0
+MIN_FRAME_STEP_US = 1.0
+
+
+def _check_time_unit(t: np.ndarray, name: str) -> None:
+    """Refuse image times given in the other unit (seconds for µs, µs for seconds): the
+    kymogram was drawn with no word at 0.00012 Hz, or its rows 4 ns apart (probe CB)."""
+    if t.size < 2:
+        return
+    step = float(np.median(np.diff(t)))
+    if name == "t_s" and step > MAX_IMAGE_STEP_S:
+        raise ParameterError(f"t_s: the images lie {step:g} s apart (median): microseconds? "
+                             "t_s is in seconds (FrameSequence.t * 1e-6)")
+    if name == "t_us" and step < MIN_FRAME_STEP_US:
+        raise ParameterError(f"t_us: the frames lie {step:g} us apart (median): seconds? "
+                             "t_us is in microseconds (FrameSequence.t as read)")
+
+
 def kymogram_from_images(images: np.ndarray, t_s, line: KymoLine, *,
                          source: str = "images") -> Kymogram:
     """Kymogram sampled from an image sequence (frames, q, a flow component ...).
@@ -273,6 +294,7 @@ def kymogram_from_images(images: np.ndarray, t_s, line: KymoLine, *,
         raise ParameterError(f"{t.size} times for {imgs.shape[0]} images")
     if t.size > 1 and np.any(np.diff(t) <= 0):
         raise ParameterError("image times t_s must be increasing")
+    _check_time_unit(t, "t_s")
     line.check_inside(imgs.shape[1:])
     ux, uy = line.direction
     s = np.arange(line.n_samples, dtype=float)
@@ -333,6 +355,9 @@ def kymogram_from_frame_differences(frames: np.ndarray, t_us, line: KymoLine) ->
     t = check_finite("t_us", t_us).ravel()
     if t.size != fr.shape[0]:
         raise ParameterError(f"{t.size} timestamps for {fr.shape[0]} frames")
+    if np.any(np.diff(t) <= 0):
+        raise ParameterError("frame timestamps t_us must be increasing")
+    _check_time_unit(t, "t_us")
     prev = frame_to_float(fr[0], "frame 0")
     diffs = np.empty((fr.shape[0] - 1, *prev.shape), np.float32)
     for k in range(1, fr.shape[0]):
