@@ -455,3 +455,21 @@ def test_polarities_of_one_convention_then_another_are_refused_when_streamed(tmp
     with pytest.raises(FormatError, match=r"holds -1 \(event 0\) and 0 \(event 2000\)"):
         for _ in ecd.iter_chunks(path, 500, sensor_size=(8, 8), block_bytes=4096):
             pass
+
+
+def test_explicit_windows_are_whole_microseconds_and_all_yielded(tmp_path):
+    # seconds became (1, 1) and yielded nothing, a NaN or a 3-tuple failed in numpy, and a
+    # window past the recording was not yielded at all, though one is promised per window
+    # (probe CB)
+    p = tmp_path / "rec.raw"
+    eio.write_events(p, EventArray(x=[1, 2, 3, 4], y=[0, 0, 0, 0], t=[10, 20, 30, 40],
+                                   p=[1, 0, 1, 1], sensor_size=(180, 240)))
+    got = list(eio.iter_events(p, windows=[(15, 35), (100, 200)]))
+    assert [len(e) for e in got] == [2, 0] and got[1].meta["window"] == (100, 200)
+    after = list(eio.iter_events(p, windows=[(1000, 2000)]))
+    assert len(after) == 1 and len(after[0]) == 0 and after[0].sensor_size == (180, 240)
+    for bad, match in (([(1e-5, 3.5e-5)], r"whole µs, got \[1e-05, 3.5e-05\]: seconds"),
+                       ([(0, np.nan)], "finite"), ([(1, 2, 3)], r"shape \(1, 3\)"),
+                       ("ab", "pairs of whole µs, got 'ab'")):
+        with pytest.raises(ParameterError, match=match):
+            list(eio.iter_events(p, windows=bad))

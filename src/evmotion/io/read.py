@@ -259,15 +259,19 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
     if window_us is not None and windows is not None:
         raise ParameterError("give window_us or windows, not both")
     if windows is not None:
-        edges = np.asarray(windows, dtype=np.int64).reshape(-1, 2)
-        if edges.size and (np.any(np.diff(edges[:, 0]) < 0) or np.any(edges[:, 1] < edges[:, 0])):
-            raise ParameterError("windows must be (start, end) µs pairs sorted by start, "
-                                 "with end >= start")
+        edges = _window_edges(windows)
         if not edges.size:
             return
         lo = int(edges[0, 0]) if t0 is None else max(int(t0), int(edges[0, 0]))
         hi = int(edges[:, 1].max()) if t1 is None else min(int(t1), int(edges[:, 1].max()))
-        yield from _explicit_windows(_chunks(spec, path, chunk_events, lo, hi, kw), edges)
+        def first() -> EventArray | None:
+            # the file's first event: the empty windows' template (sensor size, meta) where
+            # none of the span's events is read (windows past the recording yielded
+            # nothing, probe CB)
+            return next(iter(_chunks(spec, path, 1, None, None, kw)), None)
+
+        yield from _explicit_windows(
+            _chunks(spec, path, chunk_events, lo, max(hi, lo + 1), kw), edges, first)
         return
     chunks = _chunks(spec, path, chunk_events, t0, t1, kw)
     if window_us is None:
@@ -311,7 +315,34 @@ def _windows(chunks: Iterable[EventArray], window_us: int, t0: int | None,
         yield emit(pending, start)
 
 
-def _explicit_windows(chunks: Iterable[EventArray], edges: np.ndarray
+def _window_edges(windows) -> np.ndarray:
+    """``windows`` as an (n, 2) int64 array of whole µs, sorted by start, end >= start;
+    ParameterError otherwise (seconds had become (1, 1), windows without events, and a
+    NaN or a 3-tuple numpy's ValueError; probe CB)."""
+    try:
+        edges = np.asarray(windows, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ParameterError(f"windows must be (start, end) pairs of whole µs, got "
+                             f"{windows!r:.80}") from None
+    if edges.size == 0:
+        return np.empty((0, 2), np.int64)
+    if edges.ndim != 2 or edges.shape[1] != 2:
+        raise ParameterError(f"windows must be (start, end) pairs of whole µs, got an array "
+                             f"of shape {edges.shape}")
+    if not np.all(np.isfinite(edges)):
+        raise ParameterError("windows must be finite (start, end) µs pairs, got "
+                             f"{edges[~np.isfinite(edges).all(axis=1)][0].tolist()}")
+    if np.any(edges != np.round(edges)):
+        bad = edges[(edges != np.round(edges)).any(axis=1)][0].tolist()
+        raise ParameterError(f"windows are whole µs, got {bad}: seconds? (multiply by 1e6)")
+    edges = edges.astype(np.int64)
+    if np.any(np.diff(edges[:, 0]) < 0) or np.any(edges[:, 1] < edges[:, 0]):
+        raise ParameterError("windows must be (start, end) µs pairs sorted by start, "
+                             "with end >= start")
+    return edges
+
+
+def _explicit_windows(chunks: Iterable[EventArray], edges: np.ndarray, first
                       ) -> Iterator[EventArray]:
     buf: EventArray | None = None
     k = 0
@@ -335,6 +366,8 @@ def _explicit_windows(chunks: Iterable[EventArray], edges: np.ndarray
             k += 1
         keep_from = int(edges[k, 0]) if k < len(edges) else t_seen + 1
         buf = buf.slice_time(keep_from, None)
+    if template is None and k < len(edges):
+        template = first()
     while template is not None and k < len(edges):
         yield emit(k)
         k += 1
