@@ -810,6 +810,35 @@ def test_frames_at_twice_the_event_resolution_away_from_the_edge_are_refused(tmp
     assert rc == 0, err
 
 
+def test_frames_holding_the_events_view_at_an_offset_are_refused(tmp_path, capsys):
+    """Frames larger than the events' view, which they hold 12 px in and 8 px down
+    (events.txt stating no size): refused as 'frames not of these events', and with C
+    given solved to a flow no better than zero, rc 0 (probe CC). Where the events follow
+    the frames' change best says it; the same events at the frames' corner are solved."""
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    write_schlieren(simulate_schlieren("plume", sensor_size=(96, 120), duration_s=6 / 120,
+                                       seed=0), tmp_path / "full")
+    rows = [ln.split() for ln in (tmp_path / "full" / "events.txt").read_text().splitlines()
+            if not ln.startswith("#")]
+    for name, (ox, oy) in (("offset", (12, 8)), ("corner", (0, 0))):
+        view = _copy(tmp_path / "full", tmp_path, name)
+        kept = [(t, int(x) - ox, int(y) - oy, p) for t, x, y, p in rows
+                if ox <= int(x) < ox + 100 and oy <= int(y) < oy + 80]
+        (view / "events.txt").write_text("".join(f"{t} {x} {y} {p}\n" for t, x, y, p in kept))
+        if name == "offset":
+            for extra in ([], ["--contrast-threshold", "0.2"]):
+                _one_line_error(["bos", view, "--out", tmp_path / "x.h5", *extra], capsys,
+                                "the frames are 120x96 px and the events lie within",
+                                "at (12, 8) px into the frames",
+                                "crop them to the event sensor's size from x 12, y 8")
+        else:
+            rc, _, err = run_cli(["bos", view, "--out", tmp_path / "y.h5",
+                                  "--contrast-threshold", "0.2", "--max-intervals", "1"],
+                                 capsys)
+            assert rc == 0, err
+
+
 @pytest.mark.parametrize("blank", [0, 3])
 def test_a_blank_frame_is_said_as_such_only(tmp_path, capsys, blank):
     """A uniform frame among textured ones changes the frames everywhere: it was said as

@@ -64,6 +64,10 @@ FINER_FRAMES_SLACK_PX = 4
 #: probe AY's frames at 2x; on frames at the events' size -0.25 to 0.30 against 0.83-0.99
 FINER_FRAMES_CORRELATION = 0.5
 FINER_FRAMES_MARGIN = 0.3
+#: :func:`_refuse_offset_view`: the margin (px) of the frames the events must leave
+#: unreached, and the offset the best correlation must lie at, for it to look (a view a
+#: few px off is :func:`~evmotion.methods.bos_run.check_registration`'s)
+OFFSET_VIEW_MIN_PX = 4
 
 
 @dataclass(frozen=True)
@@ -280,6 +284,66 @@ def _refuse_finer_frames(src: Path, events: EventArray, images: np.ndarray) -> N
                               f"resize them to {fw // k}x{fh // k}")
 
 
+def _refuse_offset_view(src: Path, events: EventArray, images: np.ndarray) -> None:
+    """FormatError where the events, on a sensor whose size came from the frames, leave a
+    margin of the frames unreached and follow the frames' change far better with their
+    view moved by some offset into the frames than at the corner: an event sensor's view
+    that the frames hold at that offset (larger frames, a padded or uncropped image). The
+    registration check searches a few px only: at (13, 10) px the run was refused as
+    "frames not of these events", and with C given went on to a flow no better than
+    zero (probe CC)."""
+    if not str(events.meta.get("sensor_size_from", "")).startswith("image") \
+            or len(events) < FINER_FRAMES_MIN_EVENTS:
+        return
+    fh, fw = images.shape[1:3]
+    ex, ey = int(np.ceil(events.x.max())) + 1, int(np.ceil(events.y.max())) + 1
+    if fw - ex <= OFFSET_VIEW_MIN_PX and fh - ey <= OFFSET_VIEW_MIN_PX:
+        return
+    corr = _offset_correlations(events, _frame_change(images), ex, ey)
+    oy, ox = np.unravel_index(int(np.argmax(corr)), corr.shape)
+    best, corner = float(corr[oy, ox]), float(corr[0, 0])
+    if max(ox, oy) > OFFSET_VIEW_MIN_PX and best >= FINER_FRAMES_CORRELATION \
+            and best > corner + FINER_FRAMES_MARGIN:
+        raise FormatError(src, f"the frames are {fw}x{fh} px and the events lie within "
+                          f"{ex}x{ey} px of them (W x H), but follow the frames' change "
+                          f"best with their view at ({ox}, {oy}) px into the frames (x, y; "
+                          f"correlation {best:.2f}, against {corner:.2f} at the corner): "
+                          "the frames hold the event sensor's view at an offset",
+                          "BOS needs the frames on the event sensor's pixel grid: crop them "
+                          f"to the event sensor's size from x {ox}, y {oy} (its events reach "
+                          f"x {ox + ex - 1}, y {oy + ey - 1} of the frames)")
+
+
+def _offset_correlations(events: EventArray, change: np.ndarray, ex: int, ey: int
+                         ) -> np.ndarray:
+    """Correlation of the events' count image over ``ex`` x ``ey`` px with the frames'
+    ``change`` over the same size at each offset ``(oy, ox)`` into it, both band-passed
+    (Gaussians of 1 px less 4 px: the dots' edges, not the plume's outline, which
+    correlated 0.85 at 13 px off, probe CC's frames): the numerator by FFT, each offset's
+    variance of ``change`` from integral images."""
+    from scipy.ndimage import gaussian_filter
+    from scipy.signal import correlate
+
+    def band(v: np.ndarray) -> np.ndarray:
+        return gaussian_filter(v, 1.0) - gaussian_filter(v, 4.0)
+
+    xs, ys = events.x.astype(np.int64), events.y.astype(np.int64)
+    a = band(np.bincount(ys * ex + xs, minlength=ey * ex)[:ey * ex]
+             .reshape(ey, ex).astype(np.float64))
+    a -= a.mean()
+    b = band(change)
+    num = correlate(b, a, mode="valid", method="fft")
+    n = ex * ey
+
+    def box(v: np.ndarray) -> np.ndarray:
+        c = np.pad(v.cumsum(0).cumsum(1), ((1, 0), (1, 0)))
+        return c[ey:, ex:] - c[:-ey, ex:] - c[ey:, :-ex] + c[:-ey, :-ex]
+
+    var = box(b * b) - box(b) ** 2 / n
+    den = np.sqrt(np.maximum(var, 0.0) * float(np.sum(a * a)))
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+
+
 def _frame_change(images: np.ndarray, pairs: int = 30) -> np.ndarray:
     """The sum of the absolute log differences of up to ``pairs`` consecutive frames
     spread over the sequence (where the air changed the frames, and noise)."""
@@ -448,6 +512,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         # lie on the frames' grid
         events = _events_on_frames(rec, fmt, (fh, fw), sensor_size=(fh, fw), **unit)
     _refuse_finer_frames(src, events, images)
+    _refuse_offset_view(src, events, images)
     if (fh, fw) != tuple(events.sensor_size):
         eh, ew = events.sensor_size
         raise ParameterError(f"frames {src} are {fw}x{fh} px but the events' sensor is "
