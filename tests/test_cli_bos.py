@@ -810,6 +810,24 @@ def test_frames_at_twice_the_event_resolution_away_from_the_edge_are_refused(tmp
     assert rc == 0, err
 
 
+@pytest.mark.parametrize("unit, factor", [("ms", 1e3), ("us", 1e6)])
+def test_event_times_in_a_smaller_unit_are_named(scene, tmp_path, capsys, unit, factor):
+    """events.txt in milliseconds beside images.txt in seconds: a warning, then the
+    first thousandth of the events met the frames and the run was refused as inverted
+    polarity; flipped as that said, it ran to nothing with rc 0 (probe CC)."""
+    slow = _copy(scene, tmp_path, "slow")
+    rows = [ln.split() for ln in (scene / "events.txt").read_text().splitlines()
+            if not ln.startswith("#")]
+    (slow / "events.txt").write_text("".join(f"{float(t) * factor:.6f} {x} {y} {p}\n"
+                                             for t, x, y, p in rows))
+    _one_line_error(["bos", slow, "--out", tmp_path / "x.h5"], capsys,
+                    f"event times in {'milliseconds' if unit == 'ms' else 'microseconds'} "
+                    "read as seconds?", f"--time-unit {unit} reads the events' times")
+    rc, _, err = run_cli(["bos", slow, "--out", tmp_path / "y.h5", "--time-unit", unit],
+                         capsys)
+    assert rc == 0, err
+
+
 def test_frames_holding_the_events_view_at_an_offset_are_refused(tmp_path, capsys):
     """Frames larger than the events' view, which they hold 12 px in and 8 px down
     (events.txt stating no size): refused as 'frames not of these events', and with C
