@@ -453,7 +453,8 @@ def test_other_tools_time_units_and_partial_coverage(scene, tmp_path, capsys):
     ev_us = _copy(scene, tmp_path, "ev_us")
     rewrite(ev_us, "events.txt", 1e6)
     _one_line_error(["bos", ev_us, "--out", tmp_path / "x.h5"], capsys,
-                    "do not overlap in time", "event times in another unit")
+                    "do not overlap in time", "event times in microseconds read as seconds?",
+                    "--time-unit us")
     late = _copy(scene, tmp_path, "late")
     rewrite(late, "events.txt", 1.0, keep=lambda t: t >= 0.5 / 120)
     with pytest.warns(EvmotionWarning, match=r"stop or start inside frame intervals as "
@@ -708,7 +709,7 @@ def test_time_units_of_other_labs(scene, tmp_path, capsys):
         f"{round(float(t) * 1e9)} {x} {y} {p}\n" for t, x, y, p in map(str.split, lines)))
     rc, _, err = run_cli(["bos", ns, "--max-intervals", 1, "--iterations", 10, "--out",
                           tmp_path / "ns.h5"], capsys)
-    assert rc == 2 and "event times in another unit?" in err, err
+    assert rc == 2 and "event times in nanoseconds read as microseconds?" in err, err
     rc, _, err = run_cli(["bos", ns, "--time-unit", "ns", "--max-intervals", 1,
                           "--iterations", 10, "--out", tmp_path / "ns.h5"], capsys)
     assert rc == 0, err
@@ -818,8 +819,10 @@ def test_event_times_in_a_smaller_unit_are_named(scene, tmp_path, capsys, unit, 
     slow = _copy(scene, tmp_path, "slow")
     rows = [ln.split() for ln in (scene / "events.txt").read_text().splitlines()
             if not ln.startswith("#")]
-    (slow / "events.txt").write_text("".join(f"{float(t) * factor:.6f} {x} {y} {p}\n"
-                                             for t, x, y, p in rows))
+    # from the frames' start: the first thousandth of the events overlaps them
+    t_first = float(rows[0][0])
+    (slow / "events.txt").write_text("".join(f"{(float(t) - t_first) * factor:.6f} {x} {y} "
+                                             f"{p}\n" for t, x, y, p in rows))
     _one_line_error(["bos", slow, "--out", tmp_path / "x.h5"], capsys,
                     f"event times in {'milliseconds' if unit == 'ms' else 'microseconds'} "
                     "read as seconds?", f"--time-unit {unit} reads the events' times")

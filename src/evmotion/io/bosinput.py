@@ -564,21 +564,29 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
                 f"{max(fr_span, ev_span) / max(min(fr_span, ev_span), 1):.4g}x: frame times "
                 "in another unit? images.txt and timestamps files hold seconds)")
     ratio = ev_span / max(fr_span, 1)
-    slipped = next((u for u, f in (("ms", 1e3), ("us", 1e6)) if f / 2 <= ratio <= 2 * f), None)
-    if slip and slipped and time_unit is None and t0 is None and t1 is None:
+    factor = next((f for f in (1e3, 1e6) if f / 2 <= ratio <= 2 * f), None)
+    read_in = events.meta.get("time_unit", "s")
+    slipped = next((u for u, f in TIME_UNIT_US.items()
+                    if factor and read_in in TIME_UNIT_US
+                    and np.isclose(f * factor, TIME_UNIT_US[read_in])), None)
+    if slip and slipped and time_unit is None:
         # the events' times in ms (or µs) read as seconds: only the first thousandth of them
         # met the frames, and the run was refused as inverted polarity, or, flipped as
         # that said, solved to nothing with rc 0 (probe CC)
-        raise FormatError(rec, f"the events span {ev_span * 1e-6:g} s, the frames "
-                          f"{fr_span * 1e-6:g} s, {ratio:.4g}x: event times in "
-                          f"{'milliseconds' if slipped == 'ms' else 'microseconds'} read as "
-                          "seconds?", f"--time-unit {slipped} reads the events' times in "
-                          f"{slipped}; --t0/--t1 keep to the frames' span if the events do "
-                          "run that much longer")
+        hint = (f" (event times in {UNIT_WORDS[slipped]} read as {UNIT_WORDS[read_in]}? "
+                f"the events span {ratio:.4g}x the frames' time; --time-unit {slipped} reads "
+                f"them in {slipped})")
     if times[-1] <= t_first or times[0] >= t_last:
         raise ParameterError(f"frames ({where}) span [{times[0]}, {times[-1]}] us but the "
                              f"events ({rec}) [{t_first}, {t_last}] us: they do not overlap "
                              f"in time{hint}")
+    if slip and slipped and time_unit is None and t0 is None and t1 is None:
+        raise FormatError(rec, f"the events span {ev_span * 1e-6:g} s, the frames "
+                          f"{fr_span * 1e-6:g} s, {ratio:.4g}x: event times in "
+                          f"{UNIT_WORDS[slipped]} read as {UNIT_WORDS[read_in]}?",
+                          f"--time-unit {slipped} reads the events' times in "
+                          f"{slipped}; --t0/--t1 keep to the frames' span if the events do "
+                          "run that much longer")
     if slip:
         warnings.warn(EvmotionWarning(
             f"{rec}: the events span {ev_span * 1e-6:g} s, the frames {fr_span * 1e-6:g} s"
@@ -630,6 +638,10 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     _warn_clipped(images, intervals, src, roi)
     return BosInput(events=events, frames=images, frame_times=times, intervals=intervals,
                     roi=roi, source=str(rec), frames_source=os.path.realpath(src), cut=cut)
+
+
+UNIT_WORDS = {"s": "seconds", "ms": "milliseconds", "us": "microseconds",
+              "ns": "nanoseconds"}
 
 
 def _unit_hint(unit: str, ecd_list: bool) -> str:

@@ -797,7 +797,10 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     if src.startswith("ECD default") and x.size and x.min() >= 0 and y.min() >= 0:
         size, src = _extended_size(ev_path, size, src, int(x.max()), int(y.max()))
     _doubt_unit(ev_path, t, x, y, size, unit, given=time_unit is not None)
-    return _to_events(ev_path, x, y, t, p, size, src, validate, _folder_meta(ev_path),
+    # the unit the times were read in: a span that slips by 1000x against the frames'
+    # names the next smaller one (BOS, probe CC)
+    return _to_events(ev_path, x, y, t, p, size, src, validate,
+                      {**_folder_meta(ev_path), "time_unit": unit},
                       whole=t0 is None and t1 is None)
 
 
