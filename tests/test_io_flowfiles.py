@@ -411,3 +411,22 @@ def test_a_folder_of_evmotion_s_per_window_files_reads_with_their_times(tmp_path
     (folder / "f_3.flo.json").unlink()
     with pytest.raises(FormatError, match=r"f_3\.flo has no f_3\.flo\.json sidecar.*--gt"):
         read_flow(folder)
+
+
+def test_a_recording_given_as_ground_truth_is_named(tmp_path):
+    # an events.txt (or its folder) given as --gt heard of DSEC's "from_us, to_us" lines
+    # (probe CC)
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+
+    folder = tmp_path / "rec"
+    folder.mkdir()
+    write_events(folder / "events.txt", EventArray(x=[1, 2], y=[0, 0], t=[10, 20], p=[1, 0],
+                                                   sensor_size=(4, 4)))
+    for p in (folder / "events.txt", folder):
+        with pytest.raises(FormatError, match=r"is a recording of events \(ecd\), not a "
+                                              "ground truth"):
+            ff.read_gt_flow(p)
+    (tmp_path / "forward_timestamps.txt").write_text("a, b\n")
+    with pytest.raises(FormatError, match="cannot parse 'from_us, to_us' lines"):
+        ff.read_gt_flow(tmp_path / "forward_timestamps.txt")

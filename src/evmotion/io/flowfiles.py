@@ -1051,6 +1051,21 @@ def read_dsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
 
 
 @guarded('ground-truth flow')
+def _refuse_recording(path: Path) -> None:
+    """FormatError where ``path``, given as a ground truth that did not parse as one, is a
+    recording of events (an events.txt heard of DSEC's "from_us, to_us" lines, probe
+    CC)."""
+    from evmotion.io import detect_format
+
+    try:
+        fmt = detect_format(path)
+    except (FormatError, OSError):
+        return
+    raise FormatError(path, f"is a recording of events ({fmt}), not a ground truth: give a "
+                      "flow (an evmotion flow .h5 / .npz, the simulator's *_gt.h5, MVSEC "
+                      "*_gt_flow_dist.npz or a DSEC flow folder / forward_timestamps.txt)")
+
+
 def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
     """Ground-truth flow from MVSEC ``.npz``, a DSEC flow folder / timestamps file, or an
     evmotion HDF5 file (flow container or the simulator's ``ground_truth/flow``).
@@ -1068,7 +1083,11 @@ def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
         raise FormatError(path, "no such file or folder")
     suffix = path.suffix.lower()
     if path.is_dir() or suffix == ".txt":
-        return read_dsec_gt_flow(path)
+        try:
+            return read_dsec_gt_flow(path)
+        except FormatError:
+            _refuse_recording(path)
+            raise
     if suffix == ".npz":
         with np.load(path, allow_pickle=False) as z:
             own = "format" in z.files and str(z["format"]) == FLOW_FORMAT
