@@ -255,3 +255,29 @@ def test_an_event_off_the_sensor_is_left_out_of_the_dense_flows(ev, where):
     else:  # a whole-pixel coordinate off the sensor is corrupt: said
         with pytest.raises(ParameterError, match=r"event 0 has y=80 outside the sensor"):
             list(iter_flow_triplet(chunks, window_events=1000))
+
+
+def test_a_simulation_ground_truth_scores_windows_directly():
+    # evaluate_windows(flows, t0s, t1s, sim.gt) failed with "'function' object has no
+    # attribute 'shape'", and flow_metrics(res, d) said "'flow' must have shape (H, W, 2),
+    # got ()" (probe CB)
+    from evmotion.eval.windows import evaluate_windows
+    from evmotion.io.flowfiles import FlowSequence
+
+    sim = simulate("translation", duration_s=0.05, sensor_size=(40, 50), seed=0,
+                   show_progress=False)
+    t0s, t1s = [0, 20_000], [20_000, 40_000]
+    seq = sim.gt.flow_sequence(t0s, t1s)
+    exact = np.stack([sim.gt.displacement(a, b) / ((b - a) * 1e-6)
+                      for a, b in zip(t0s, t1s, strict=True)])
+    np.testing.assert_allclose(seq.flow, exact, rtol=1e-6)
+    est = exact.copy()
+    est[..., 0] += 50.0  # 1 px off over each 20 ms window, along x
+    by_gt = evaluate_windows(est, t0s, t1s, sim.gt)
+    by_seq = evaluate_windows(est, t0s, t1s, FlowSequence(seq.flow, seq.t0, seq.t1, seq.valid))
+    assert by_gt.total["AEE"] == pytest.approx(1.0, rel=1e-4) == by_seq.total["AEE"]
+    with pytest.raises(ParameterError, match="gt must be a FlowSequence"):
+        evaluate_windows(est, t0s, t1s, sim.gt.flow)
+    res = estimate_flow(sim.events[:4000])
+    with pytest.raises(ParameterError, match=r"'flow' is a FlowResult: .*res.displacement\(\)"):
+        flow_metrics(res, exact[0])

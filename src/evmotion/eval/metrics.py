@@ -627,6 +627,12 @@ def rms_error(est: np.ndarray, gt: np.ndarray) -> RmsError:
 
 # ------------------------------------------------------------------------ helpers
 def _as_flow(a, name: str) -> np.ndarray:
+    if callable(getattr(a, "displacement", None)) and not isinstance(a, np.ndarray):
+        # a FlowResult (or a FlowSequence) holds px/s: its shape () said nothing of that
+        # (probe CB)
+        raise ParameterError(f"'{name}' is a {type(a).__name__}: give displacements in px "
+                             "over one interval, e.g. res.displacement() (a FlowResult's "
+                             "flow is px/s)")
     a = np.asarray(a)
     if a.ndim != 3 or a.shape[-1] != 2:
         raise ParameterError(f"'{name}' must have shape (H, W, 2), got {a.shape}")

@@ -157,6 +157,19 @@ def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float
     return disp, valid, frames
 
 
+def _as_sequence(gt, t0s, t1s) -> FlowSequence:
+    """``gt`` as a FlowSequence: a simulation's GroundTruth gives the exact flow of the
+    windows (it failed with "'function' object has no attribute 'shape'", probe CB)."""
+    from evmotion.io.flowfiles import FlowSequence
+
+    if isinstance(gt, FlowSequence):
+        return gt
+    if callable(getattr(gt, "flow_sequence", None)):
+        return gt.flow_sequence(t0s, t1s)
+    raise ParameterError(f"gt must be a FlowSequence (evmotion.io.flowfiles.read_gt_flow) or "
+                         f"a simulation's GroundTruth, got {type(gt).__name__}")
+
+
 def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
                      gt: FlowSequence, *, events: EventArray | None = None, dt: int = 1,
                      out_px: float = 3.0, along_streamlines: bool = False
@@ -169,8 +182,9 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
         Estimated flow, px/s; NaN where the estimate is not defined (not scored).
     t0s, t1s : sequence of int
         Each window's interval ``[t0, t1)``, µs.
-    gt : FlowSequence
-        Ground-truth flow windows (px/s) on the same grid.
+    gt : FlowSequence or GroundTruth
+        Ground-truth flow windows (px/s) on the same grid, or a simulation's ground
+        truth (:meth:`~evmotion.sim.groundtruth.GroundTruth.flow_sequence` of the windows).
     events : EventArray, optional
         The recording: restricts the score to pixels with an event in the window and adds
         the FWL of the estimate and of the ground truth.
@@ -188,6 +202,7 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     -------
     WindowsEvaluation
     """
+    gt = _as_sequence(gt, t0s, t1s)
     flow, t0s, t1s = _windows(flow, t0s, t1s, gt.flow.shape[1:3])
     if events is not None:
         _check_same_recording(events, flow.shape[1:3], t0s, t1s)

@@ -140,6 +140,33 @@ class GroundTruth:
             out[sel, 1] = (T[1, 0] * x + T[1, 1] * y + T[1, 2]) / den - y
         return out
 
+    def flow_sequence(self, t0s, t1s):
+        """The exact flow of windows ``[t0s[i], t1s[i])`` (µs) as a
+        :class:`~evmotion.io.flowfiles.FlowSequence`: each window's :meth:`displacement`
+        over its duration, px/s; what :func:`~evmotion.eval.windows.evaluate_windows` and
+        :func:`~evmotion.io.flowfiles.write_flow_h5`-style tools take.
+
+        Examples
+        --------
+        >>> from evmotion.sim import simulate
+        >>> gt = simulate("translation", duration_s=0.02, sensor_size=(30, 40),
+        ...               seed=0, show_progress=False).gt
+        >>> seq = gt.flow_sequence([0, 10_000], [10_000, 20_000])
+        >>> seq.flow.shape, seq.t1.tolist()
+        ((2, 30, 40, 2), [10000, 20000])
+        """
+        from evmotion.io.flowfiles import FlowSequence
+
+        t0s = np.asarray(t0s, dtype=np.int64).ravel()
+        t1s = np.asarray(t1s, dtype=np.int64).ravel()
+        if t0s.shape != t1s.shape or not np.all(t1s > t0s):
+            raise ParameterError("flow_sequence: t0s and t1s must be as many window starts "
+                                 "and ends (µs), each end after its start")
+        flow = np.stack([self.displacement(a, b) / ((b - a) * 1e-6)
+                         for a, b in zip(t0s, t1s, strict=True)]).astype(np.float32)
+        return FlowSequence(flow, t0s, t1s, np.isfinite(flow).all(axis=-1),
+                            attrs={"source": f"simulated {self.scene}", "units": "px/s"})
+
     def params(self, t_us) -> dict:
         """Motion parameters at time ``t_us``: those of each layer's warp referenced at
         ``t_us`` (rates per second; names and units of :mod:`evmotion.core.warps`).
