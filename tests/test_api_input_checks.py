@@ -281,3 +281,35 @@ def test_a_simulation_ground_truth_scores_windows_directly():
     res = estimate_flow(sim.events[:4000])
     with pytest.raises(ParameterError, match=r"'flow' is a FlowResult: .*res.displacement\(\)"):
         flow_metrics(res, exact[0])
+
+
+def test_switches_given_as_strings_are_refused(ev):
+    # "False" and "no" are true to Python: refine="False" refined, signed="no" signed,
+    # legend="no" drew the legend, and a 0.5 mask was drawn as valid (probe CB)
+    from evmotion.methods.dnn import estimate_flow_dnn
+    from evmotion.methods.kymogram import KymoLine, kymogram_from_events
+    from evmotion.methods.multicm import estimate_flow_sequence
+    from evmotion.viz.flowpic import flow_picture
+
+    line = KymoLine.row(40, ev.sensor_size)
+    calls = {"refine": lambda: estimate_flow_dnn(ev, refine="False"),
+             "smooth": lambda: estimate_flow_triplet(ev, smooth="no"),
+             "signed": lambda: kymogram_from_events(ev, line, signed="no"),
+             "warm_start": lambda: estimate_flow_sequence(ev, [(0, 10_000)], warm_start="no"),
+             "legend": lambda: flow_picture(np.zeros((4, 4, 2)), legend="no")}
+    for name, call in calls.items():
+        with pytest.raises(ParameterError, match=f"{name} must be True or False, got '"):
+            call()
+    with pytest.raises(ParameterError, match="valid mask must hold True / False"):
+        flow_picture(np.zeros((4, 4, 2)), valid=np.full((4, 4), 0.5))
+    assert flow_picture(np.zeros((4, 4, 2)), valid=np.ones((4, 4))).texts[4] == \
+        "grey: no events"
+
+
+def test_a_swapped_histogram_shape_is_refused(ev):
+    from evmotion.viz.images import event_histogram
+
+    h, w = ev.sensor_size
+    with pytest.raises(ParameterError, match=r"swapped: shape is \(height, width\)"):
+        event_histogram(ev, shape=(w, h))
+    assert event_histogram(ev, shape=(h, w)).sum() == len(ev)

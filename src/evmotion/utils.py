@@ -529,6 +529,22 @@ def check_number(name: str, value, lo: float = 0.0, hi: float = math.inf, *,
     return v
 
 
+def check_switches(**switches) -> None:
+    """:class:`ParameterError` naming the first of ``switches`` that is not True or False
+    (a string "no" is true to Python, and turned a switch on without a word).
+
+    Examples
+    --------
+    >>> check_switches(refine=True, planar=np.bool_(False))
+    >>> check_switches(refine="False")
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: refine must be True or False, got 'False'
+    """
+    for name, value in switches.items():
+        if not isinstance(value, (bool, np.bool_)):
+            raise ParameterError(f"{name} must be True or False, got {value!r}")
+
+
 def whole_number(name: str, value, lo: int | None = None, hi: int | None = None) -> int:
     """``value`` as an int, or :class:`ParameterError` naming ``name`` unless it is a whole
     number (an int, or a float such as ``1e5`` without a fraction) within ``[lo, hi]``.

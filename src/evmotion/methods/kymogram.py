@@ -22,7 +22,7 @@ from scipy import ndimage
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, require_events
-from evmotion.utils import check_finite, check_number, whole_number
+from evmotion.utils import check_finite, check_number, check_switches, whole_number
 
 __all__ = [
     "Kymogram",
@@ -203,6 +203,7 @@ def kymogram_from_events(events: EventArray, line: KymoLine, rate_hz: float = 12
     [0.0005, 0.0015]
     """
     events = require_events(events, "kymogram_from_events")
+    check_switches(signed=signed)
     rate = check_number("rate_hz", rate_hz, 0.0, lo_open=True, units="Hz")
     line.check_inside(events.sensor_size)
     if t0_us is None or t1_us is None:

@@ -80,7 +80,7 @@ from evmotion.methods.measured import (
     warn_too_few_for_flow,
 )
 from evmotion.methods.options import merge_options
-from evmotion.utils import resolve_options, whole_number
+from evmotion.utils import check_switches, resolve_options, whole_number
 
 __all__ = ["FlowResult", "MultiCMOptions", "MultiCMProblem", "auto_finest_level",
            "estimate_flow", "estimate_flow_sequence", "rest_where_empty"]
@@ -1041,6 +1041,7 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
     if on_empty not in ("raise", "skip"):
         raise ParameterError(f"on_empty must be 'raise' or 'skip', got {on_empty!r}")
     require_events(events, "estimate_flow_sequence")
+    check_switches(warm_start=warm_start, show_progress=show_progress, keep_iwes=keep_iwes)
     # (a pair failed on its missing index range: AttributeError 'start')
     windows = [as_window(events, k, w) for k, w in enumerate(windows)]
     if workers != 1 or scheduler is not None:

@@ -74,7 +74,7 @@ from evmotion.io.guard import MAX_SENSOR_SIDE
 from evmotion.methods import triplet_kernels as K
 from evmotion.methods.bursts import BURST_GAP_US, burst_means
 from evmotion.methods.measured import MIN_CONTRAST_GAIN, alignment_gain
-from evmotion.utils import whole_number
+from evmotion.utils import check_switches, whole_number
 
 __all__ = [
     "LSQ_DX",
@@ -842,6 +842,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     ((1, 10, 10, 2), 100.0)
     """
     require_events(events, "estimate_flow_triplet")
+    check_switches(quadruple=quadruple, smooth=smooth)
     if gap_us is None:
         gap_us = BURST_GAP_US
     elif dense != "robust":

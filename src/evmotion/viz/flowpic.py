@@ -20,6 +20,7 @@ import numpy as np
 
 from evmotion.errors import ParameterError
 from evmotion.events import EventArray
+from evmotion.utils import check_switches
 from evmotion.viz.colorwheel import GREY, colorwheel_image, flow_max_magnitude, flow_to_rgb
 from evmotion.viz.titles import wrap_title
 
@@ -77,6 +78,12 @@ def _check_valid(valid: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray
     valid = np.asarray(valid)
     if valid.shape != shape:
         raise ParameterError(f"valid mask has shape {valid.shape}, expected {shape}")
+    if valid.dtype != bool:
+        # (0.5 was drawn as valid; the metrics refuse such a mask, probe CB)
+        odd = valid[~np.isin(valid, (0, 1))]
+        if odd.size:
+            raise ParameterError(f"valid mask must hold True / False (or 0 / 1), got "
+                                 f"{odd.flat[0]!r}")
     return valid.astype(bool, copy=False)
 
 
@@ -201,6 +208,7 @@ def flow_picture(flow: np.ndarray, *, max_speed: float | None = None,
     >>> flow_picture(f, valid=np.zeros((120, 160), bool), legend=False).rgb[0, 0].tolist()
     [128, 128, 128]
     """
+    check_switches(legend=legend)
     flow = np.asarray(flow)
     if flow.ndim != 3 or flow.shape[-1] != 2 or not min(flow.shape[:2]) > 0:
         raise ParameterError(f"flow must have shape (H, W, 2) with H, W >= 1, got "

@@ -64,6 +64,11 @@ def event_histogram(events: EventArray, *, signed: bool = False,
     else:
         h = whole_number("shape[0] (height)", shape[0], lo=1)
         w = whole_number("shape[1] (width)", shape[1], lo=1)
+        if (w, h) == tuple(events.sensor_size) and h != w:
+            # (a (W, H) dropped the events past the swapped border without a word, probe CB)
+            raise ParameterError(f"shape {tuple(shape)} is the events' sensor_size "
+                                 f"{tuple(events.sensor_size)} swapped: shape is (height, "
+                                 "width)")
     if not len(events):
         return np.zeros((h, w), dtype=np.float32)
     xi = np.rint(events.x).astype(np.int64)

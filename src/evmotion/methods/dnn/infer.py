@@ -45,6 +45,7 @@ from evmotion.methods.measured import (
     warn_no_gain,
     warn_too_few_for_flow,
 )
+from evmotion.utils import check_switches
 
 __all__ = ["BACKENDS", "checkpoint_digest", "estimate_flow_dnn", "load_network",
            "predict_displacement", "resolve_backend", "sharpness"]
@@ -715,6 +716,10 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
     (30, 40, 2)
     """
     events = require_events(events, "estimate_flow_dnn", on_sensor=True)
+    # (refine="False" and the like were taken as True, probe CB)
+    check_switches(with_iwes=with_iwes, time_reversal=time_reversal, rescale=rescale,
+                   fuse=fuse, translation=translation, planar=planar, refine=refine,
+                   check=check)
     if len(events) < 10 or events.t[-1] <= events.t[0]:
         raise EmptyWindowError(f"window has {len(events)} events spanning "
                                f"{int(events.t[-1] - events.t[0]) if len(events) else 0} us; "
