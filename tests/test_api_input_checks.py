@@ -313,3 +313,16 @@ def test_a_swapped_histogram_shape_is_refused(ev):
     with pytest.raises(ParameterError, match=r"swapped: shape is \(height, width\)"):
         event_histogram(ev, shape=(w, h))
     assert event_histogram(ev, shape=(h, w)).sum() == len(ev)
+
+
+def test_nan_and_string_times_are_refused(ev):
+    with pytest.raises(ParameterError, match="t0 must be a finite time"):
+        ev.slice_time(np.nan, 10_000)
+    with pytest.raises(ParameterError, match="t1 must be a finite time"):
+        ev.slice_time(0, "10")
+    assert len(ev.slice_time(0, 10_000)) == int(np.sum(ev.t < 10_000))
+    gt = simulate("translation", duration_s=0.01, sensor_size=(20, 30), seed=0,
+                  show_progress=False).gt
+    with pytest.raises(ParameterError, match="t_us must be a finite time in microseconds, "
+                                             "got 'a'"):
+        gt.params("a")

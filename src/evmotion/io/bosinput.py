@@ -551,7 +551,8 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     ev_span, fr_span = t_last - t_first, int(times[-1] - times[0])
     slip = ev_span > max(UNIT_SLIP * fr_span, 1e6)
     hint = " (event times in another unit? events.txt holds seconds)" if slip else ""
-    if slip and ecd_list and time_unit is None and _whole_times(listed):
+    frames_whole = bool(slip and ecd_list and time_unit is None and _whole_times(listed))
+    if frames_whole:
         # whole numbers in images.txt were read as µs (said in a warning): 1 fps in
         # whole seconds spans 6 us beside 6 s of events (probe)
         hint = (f" (frame times in another unit? {listed.name}'s whole numbers were read "
@@ -569,6 +570,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     slipped = next((u for u, f in TIME_UNIT_US.items()
                     if factor and read_in in TIME_UNIT_US
                     and np.isclose(f * factor, TIME_UNIT_US[read_in])), None)
+    slipped = None if frames_whole else slipped
     if slip and slipped and time_unit is None:
         # the events' times in ms (or µs) read as seconds: only the first thousandth of them
         # met the frames, and the run was refused as inverted polarity, or, flipped as

@@ -1086,7 +1086,8 @@ def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
         try:
             return read_dsec_gt_flow(path)
         except FormatError:
-            _refuse_recording(path)
+            if path.is_file():  # (a folder's own words: it "holds no ground truth")
+                _refuse_recording(path)
             raise
     if suffix == ".npz":
         with np.load(path, allow_pickle=False) as z:

@@ -82,7 +82,10 @@ class GroundTruth:
 
     @staticmethod
     def _t(t_us, name="t_us") -> float:
-        t = np.asarray(t_us, dtype=np.float64)
+        try:
+            t = np.asarray(t_us, dtype=np.float64)
+        except (TypeError, ValueError):  # ("a" failed in numpy's float conversion, probe CB)
+            t = np.asarray(np.nan)
         if t.ndim != 0 or not np.isfinite(t):
             raise ParameterError(f"{name} must be a finite time in microseconds, got {t_us!r}")
         return float(t) * 1e-6
