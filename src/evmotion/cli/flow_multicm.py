@@ -257,7 +257,7 @@ def _row(r, w) -> dict:
         row["refit_gain"] = float(r.meta["refit_gain"])
     if r.meta.get("no_focus"):  # warned: the flow sharpens nothing, no pixel is valid
         row["no_focus"] = True
-    if r.meta.get("beyond_range"):  # warned: the network's magnitudes are a lower bound
+    if r.meta.get("beyond_range"):  # warned: the network's magnitudes are not measured
         row["beyond_range"] = True
     return row
 

@@ -813,10 +813,14 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         xc, yc, _, sc = _pixels_and_times(checked)
         valid, other = other_motion(xc, yc, sc, disp, valid, "network's flow")
     if beyond:
+        # (it said "a lower bound" of flows 2-2.6x too large, on smooth textures whose
+        # focus kept rising with the gain, probe CD)
         warnings.warn(f"the network's flow needed the largest gain tried ({gain}x its own): "
-                      "the window's motion may exceed what the network measures and the "
-                      "magnitudes are a lower bound; use shorter windows "
-                      "(--window-events) or multicm", PoorFitWarning, stacklevel=2)
+                      "its magnitude is not measured: the window's motion may exceed what "
+                      "the network measures (the flow then a lower bound), or the focus "
+                      "keeps rising with the flow on a texture too smooth to pin it (then "
+                      "too large); use shorter windows (--window-events) or multicm",
+                      PoorFitWarning, stacklevel=2)
     total = time.perf_counter() - t_start
     compiled = compile_seconds() - c_start
     return FlowResult(flow=flow, t0_us=t0, t1_us=t1, t_ref_us=(t0 + t1) // 2, params=(),
