@@ -326,3 +326,19 @@ def test_nan_and_string_times_are_refused(ev):
     with pytest.raises(ParameterError, match="t_us must be a finite time in microseconds, "
                                              "got 'a'"):
         gt.params("a")
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"n_iter": 5}, r"n_iter=5 applies to optimizer='adam' only \(optimizer is 'bfgs'\)"),
+    ({"lr": 0.1}, "lr=0.1 applies to optimizer='adam' only"),
+    ({"n_samples": 50}, "n_samples=50 applies to optimizer='tpe' only"),
+    ({"bounds": (np.array([-1.0, -1.0]), np.array([1.0, 1.0]))},
+     "bounds=.* applies to optimizer='tpe' only"),
+    ({"sigma": 3.0}, r"sigma=3.0 applies to kernel='gaussian' only \(kernel is 'bilinear'\)"),
+])
+def test_an_option_of_another_optimizer_is_refused(ev, kw, match):
+    # n_iter=5, n_samples=5 and sigma=3.0 changed nothing under the bfgs / bilinear
+    # defaults, without a word (probe CB)
+    with pytest.raises(ParameterError, match=match):
+        estimate_egomotion(ev, warp="translation", **kw)
+    assert estimate_egomotion(ev, warp="translation", optimizer="adam", n_iter=5).params.size

@@ -325,6 +325,18 @@ class EgomotionOptions:
             v = getattr(self, name)
             if not (isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0):
                 raise ParameterError(f"{name} must be a finite number > 0, got {v!r}")
+        # an option of another optimizer or kernel changed nothing, without a word
+        # (n_iter=5 and sigma=3.0 under the bfgs / bilinear defaults, probe CB)
+        for name, default, needs, what in (("n_iter", 100, "adam", "optimizer"),
+                                           ("lr", 0.05, "adam", "optimizer"),
+                                           ("n_samples", None, "tpe", "optimizer"),
+                                           ("bounds", None, "tpe", "optimizer"),
+                                           ("sigma", 1.0, "gaussian", "kernel")):
+            v = getattr(self, name)
+            changed = v is not None if default is None else v != default
+            if getattr(self, what) != needs and changed:
+                raise ParameterError(f"{name}={v!r} applies to {what}={needs!r} only "
+                                     f"({what} is {getattr(self, what)!r})")
 
 
 def _checked_bounds(bounds, w: Warp) -> tuple[np.ndarray, np.ndarray]:
