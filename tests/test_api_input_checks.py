@@ -342,3 +342,16 @@ def test_an_option_of_another_optimizer_is_refused(ev, kw, match):
     with pytest.raises(ParameterError, match=match):
         estimate_egomotion(ev, warp="translation", **kw)
     assert estimate_egomotion(ev, warp="translation", optimizer="adam", n_iter=5).params.size
+
+
+def test_the_simulator_submodules_are_attributes():
+    # evmotion.sim.schlieren was an AttributeError until imported, where
+    # evmotion.methods.bos was not (probe CB); a subprocess: this one has imported them
+    import subprocess
+    import sys
+
+    code = ("import evmotion.sim as s; print(s.schlieren.simulate_schlieren.__name__, "
+            "s.gtio.__name__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == ["simulate_schlieren", "evmotion.sim.gtio"]

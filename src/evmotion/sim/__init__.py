@@ -110,6 +110,10 @@ def __getattr__(name: str):
         value = getattr(importlib.import_module(f"evmotion.sim.{_HOME[name]}"), name)
         globals()[name] = value
         return value
+    if name in set(_HOME.values()) | {"photoreceptor", "render"}:
+        # the submodules too, as evmotion.methods' (evmotion.sim.schlieren was an
+        # AttributeError until imported, probe CB)
+        return importlib.import_module(f"evmotion.sim.{name}")
     raise AttributeError(f"module 'evmotion.sim' has no attribute {name!r}")
 
 
