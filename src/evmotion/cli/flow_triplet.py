@@ -330,7 +330,7 @@ def run(args) -> int:
         warn_line(f"{args.file}: {len(early)} of {n_windows} windows (first: {early[0]}) "
                   "hold events whose slow steps' triplets cannot be found (their partners lie "
                   "before the recording, or past its end too where --dense lsq/robust read "
-                  "it backwards): where the motion is that slow their flow is biased; a "
+                  "it backwards) and move that slowly: their flow is biased; a "
                   "longer recording, or a shorter --dt-ms for fast motion, avoids it")
     if tri.lit_events:
         warn_line(f"{args.file}: {tri.lit_events:,} of {n_events:,} events "

@@ -68,14 +68,15 @@ class TripletWindow:
         (:func:`~evmotion.methods.triplet.focus_checked`): it aligns nothing (noise, no
         texture), is no measurement, and ``valid`` is all False.
     early : bool
-        The window holds events whose slow steps' triplets cannot be found: with
-        ``dense="lsq"`` / ``"robust"`` those under ``d_t + tau`` of the stream on both sides
-        (a stream shorter than :attr:`TripletStream.history_us`; the others read the stream
+        The window's motion is slow enough that its events' triplets cannot be found
+        (:func:`~evmotion.methods.triplet.early_window`): with ``dense="lsq"`` /
+        ``"robust"`` events under ``d_t + tau`` of the stream on both sides (a stream
+        shorter than :attr:`TripletStream.history_us`; the others read the stream
         backwards, :func:`~evmotion.methods.triplet.two_sided`), with ``"mean"`` those
-        under ``2 (d_t + tau)`` from its start. Where the motion is that slow the flow is
-        biased (forwards only, a simulated translation at 30 px/s gave 2.45x, 1.24x and
-        1.12x in its first three 50 ms windows with ``"robust"``, 0.65x in the first with
-        ``"mean"``).
+        under ``2 (d_t + tau)`` from its start, whose two steps at the window's speed
+        take longer than that history. Such a flow is biased (forwards only, a simulated
+        translation at 30 px/s gave 2.45x, 1.24x and 1.12x in its first three 50 ms
+        windows with ``"robust"``, 0.65x in the first with ``"mean"``).
     """
 
     index: int
@@ -551,10 +552,9 @@ class TripletStream:
         return triplet.history_us(self.matcher.dt_us, self.matcher.tau_us)
 
     def _marked(self, win: TripletWindow) -> TripletWindow:
-        if self._incomplete is None:
-            return win
-        lo, hi = self._incomplete
-        return dataclasses.replace(win, early=True) if win.t0 < hi and win.t1 > lo else win
+        early = triplet.early_window(win.t0, win.t1, self._incomplete, win.flow, win.valid,
+                                     self.matcher, self._start, forwards=self.dense == "mean")
+        return dataclasses.replace(win, early=True) if early else win
 
 
 def iter_flow_triplet(chunks: Iterable[EventArray], *, dense: str = "mean",
