@@ -355,3 +355,10 @@ def test_the_simulator_submodules_are_attributes():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split()
     assert out == ["simulate_schlieren", "evmotion.sim.gtio"]
+
+
+def test_a_ridge_for_the_thesis_mean_is_refused(ev):
+    # ignored unsaid with dense="mean", while gap_us outside robust was refused (probe CB)
+    with pytest.raises(ParameterError, match="ridge=0.1 applies to dense='lsq' or 'robust'"):
+        estimate_flow_triplet(ev, ridge=0.1)
+    assert estimate_flow_triplet(ev, dense="lsq", ridge=0.1).flow.shape[0] == 1

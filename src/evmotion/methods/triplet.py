@@ -849,6 +849,10 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
         # (ignored unsaid, as the CLI's --gap-ms is not, probe BQ)
         raise ParameterError(f"gap_us={gap_us!r} applies to dense='robust' only (it ends the "
                              f"bursts whose means it matches), not dense={dense!r}")
+    if ridge is not None and dense == "mean":
+        # (ignored unsaid, probe CB)
+        raise ParameterError(f"ridge={ridge!r} applies to dense='lsq' or 'robust' (their "
+                             "least-squares fits), not the thesis' mean")
     if len(events) == 0:
         raise EmptyWindowError("no events to estimate the triplet flow of")
     dx, tau_us, filter_size = dense_defaults(dense, dx, tau_us, filter_size)
