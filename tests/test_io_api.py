@@ -473,3 +473,29 @@ def test_explicit_windows_are_whole_microseconds_and_all_yielded(tmp_path):
                        ("ab", "pairs of whole µs, got 'ab'")):
         with pytest.raises(ParameterError, match=match):
             list(eio.iter_events(p, windows=bad))
+
+
+@pytest.mark.parametrize("fmt", [None, "npy", "ecd", "evt2"])
+def test_a_device_or_pipe_is_refused(tmp_path, fmt):
+    # /dev/zero read with --format npy filled 24 GB of memory and ignored Ctrl-C; evt2
+    # said "[Errno 20] Not a directory" (probe CE). A pipe in a child process (with no
+    # writer, reading it blocks: a timeout, not a hang, where the check is gone); the
+    # device only through the format's resolution (reading it would fill the memory)
+    import os
+    import subprocess
+    import sys
+
+    from evmotion.io.registry import resolve_format
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    code = ("import evmotion.io as eio\n"
+            "try:\n"
+            f"    eio.read_events({str(fifo)!r}, format={fmt!r})\n"
+            "except Exception as e:\n"
+            "    print(type(e).__name__, e)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60).stdout
+    assert out.startswith("FormatError") and "is not a regular file or folder" in out, out
+    with pytest.raises(FormatError, match="is not a regular file or folder"):
+        resolve_format("/dev/zero", fmt)

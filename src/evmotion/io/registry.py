@@ -95,8 +95,18 @@ def resolve_format(path: str | os.PathLike, format: str | None = None) -> Format
     """The :class:`FormatSpec` named ``format``, or, without a name, the one of ``path``
     detected by content (:func:`detect_spec`)."""
     if format is not None:
+        _refuse_special(Path(path))
         return get_format(format)
     return detect_spec(path)
+
+
+def _refuse_special(path: Path) -> None:
+    """FormatError for a path that is neither a regular file nor a folder: a device or a
+    pipe has no end (/dev/zero read with --format npy filled 24 GB of memory and ignored
+    Ctrl-C; evt2 said '[Errno 20] Not a directory', probe CE)."""
+    if path.exists() and not (path.is_file() or path.is_dir()):
+        raise FormatError(path, "is not a regular file or folder (a device, pipe or socket): "
+                          "evmotion reads recordings from files")
 
 
 def _raise_unreadable_hdf5(path: Path) -> None:
@@ -127,6 +137,7 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
     path = Path(path)
     if not path.exists():
         raise FormatError(path, f"no such file or folder{missing_path_hint(path)}")
+    _refuse_special(path)
     head = b""
     if path.is_file():
         try:
