@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -557,3 +558,20 @@ def test_init_weights_that_cannot_start_a_training_are_named(tmp_path, monkeypat
                                                  r"step 0 .* lower --lr; nothing was written"):
             train(TrainConfig(epochs=1, val_sim=0, **cfg), tmp_path / "run")
     assert not (tmp_path / "run").exists()
+
+
+def test_a_network_no_better_than_the_zero_flow_is_said(tmp_path, monkeypatch):
+    # the run announced its best epoch without a word at AEE 5.124 px against the zero
+    # flow's 5.109 (probe CE)
+    import evmotion.methods.dnn.train as tr
+    from evmotion.errors import PoorFitWarning
+
+    scores = [{"loss": 1.0, "FWL": 1.0, "AEE_px": 5.124, "AEE_zero_px": 5.109}]
+    monkeypatch.setattr(tr, "evaluate_windows", lambda *a, **k: scores)
+    with pytest.warns(PoorFitWarning, match=r"no better than the zero flow \(AEE 5.124 px "
+                                            r"against 5.109\)"):
+        train(TrainConfig(epochs=1, **TINY), tmp_path / "a")
+    scores[0]["AEE_px"] = 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PoorFitWarning)
+        train(TrainConfig(epochs=1, **TINY), tmp_path / "b")
