@@ -204,8 +204,18 @@ def test_cli_eval_rotation_against_an_imu_or_a_table_of_angular_velocities(tmp_p
     np.savetxt(tmp_path / "gyro.txt", swapped, fmt="%.6f")
     np.savetxt(tmp_path / "motion.txt", omega[None], fmt="%.9f")
     assert main(["eval", str(out), "--gt", str(tmp_path / "gyro.txt"), "--json"]) == 0
-    off = json.loads(capsys.readouterr().out)["parameters_rms"]["omega"]
+    captured = capsys.readouterr()
+    rms = json.loads(captured.out)["parameters_rms"]
+    off = rms["omega"]
     assert off > 10 * sim["omega"]  # the axes matter: the comparison can fail
+    # read against no rotation's error, and said where no lower (a wrong recording's
+    # reference was scored unsaid, probe CE)
+    assert rms["omega_zero"] == pytest.approx(float(np.linalg.norm(omega)), rel=1e-4)
+    assert (off >= rms["omega_zero"]) == ("no lower than no rotation's" in captured.err)
+    assert sim["omega"] < 0.1 * rms["omega_zero"]
+    np.savetxt(tmp_path / "reversed.txt", -omega[None], fmt="%.9f")
+    assert main(["eval", str(out), "--gt", str(tmp_path / "reversed.txt")]) == 0
+    assert "no lower than no rotation's" in capsys.readouterr().err
     for argv in (["--gt", str(tmp_path / "gyro.txt"), "--imu-axes", "y,-x,-z"],
                  ["--gt", str(tmp_path / "motion.txt")]):
         assert main(["eval", str(out), *argv]) == 0

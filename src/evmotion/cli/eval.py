@@ -518,6 +518,11 @@ def _run_angular_velocity(args, path: Path, table, ref) -> int:
     if fastest > MAX_GYRO_RAD_S:
         warn_line(f"{args.gt}: angular velocities reach {fastest:.4g} rad/s, beyond a "
                   f"gyroscope's range ({MAX_GYRO_RAD_S:g} rad/s): in degrees/s? Give rad/s")
+    if not rms["omega"] < rms["omega_zero"]:
+        warn_line(f"{path}: the angular velocity's error ({rms['omega']:.4g} rad/s) is no "
+                  f"lower than no rotation's ({rms['omega_zero']:.4g}): the estimate carries "
+                  "no information on this reference (a failed estimate, or the reference of "
+                  "another recording or time?)")
     axes = args.imu_axes or "x,y,z"
     what = ("one constant angular velocity" if ref.t is None else
             f"{len(ref):,} samples")
@@ -534,7 +539,7 @@ def _run_angular_velocity(args, path: Path, table, ref) -> int:
           f"= the reference's {axes})")
     print(f"{rms['n_windows']} of {len(table)} windows compared: RMS error "
           + "  ".join(f"{k}={rms[k]:.4g}" for k in ("wx", "wy", "wz", "omega"))
-          + " rad/s (omega: the error vector's norm)")
+          + f" rad/s (omega: the error vector's norm; no rotation: {rms['omega_zero']:.4g})")
     if unmeasured:
         print(f"note: {unmeasured} window{' is' if unmeasured == 1 else 's are'} no "
               "measurement (collapsed or a poor fit: params.h5's 'valid'): not compared")
