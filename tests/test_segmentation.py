@@ -158,3 +158,34 @@ def test_regularizer_reaches_every_cluster_cost():
     assert reg.params[0, 0] == pytest.approx(hz, abs=0.2)
     with pytest.raises(ParameterError):
         segment_motion(ev, regularizer="whitening")
+
+
+def test_many_clusters_leave_none_empty_at_the_split():
+    # the dominant split took half of the free events each time: the later of 50 clusters
+    # got none, and numpy said "Mean of empty slice" on every window (probe CE)
+    import warnings
+
+    ev, _ = two_motions(n=3000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        warnings.simplefilter("ignore", PoorFitWarning)
+        seg = segment_motion(ev, n_warps=20, warp="translation", seed=0, n_iter=2,
+                             split="dominant")
+    assert seg.params.shape == (20, 2) and np.isfinite(seg.params).all()
+
+
+def test_invalid_clusters_of_many_windows_are_said_in_a_few_lines():
+    # one line per window (dozens on a 34-window run), 4 KB for 50 clusters (probe CE)
+    import warnings
+
+    from evmotion.cli.segment import WARN_CLUSTERS, WARN_WINDOWS, _warn_invalid
+
+    rows = [{"window": w, "cluster": c, "n_events": 10, "contrast_gain": 1.0, "same_as": -1,
+             "valid": False} for w in range(10) for c in range(9)]
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        _warn_invalid(rows)
+    lines = [str(w.message) for w in said]
+    assert len(lines) == WARN_WINDOWS + 1
+    assert f"and {9 - WARN_CLUSTERS} more: not a measurement" in lines[0]
+    assert lines[-1].startswith("7 more windows (windows 3..9) hold clusters")

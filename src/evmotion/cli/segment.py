@@ -235,8 +235,15 @@ def _journal_header(args, events, windows, K) -> dict:
             "first_window": fingerprint(events[w.start:w.stop])}
 
 
+#: Windows (and clusters of each) _warn_invalid names one by one; the rest are counted
+#: (a 34-window run printed a line for each, and 50 clusters made one line of 4 KB, probe CE)
+WARN_WINDOWS = 3
+WARN_CLUSTERS = 4
+
+
 def _warn_invalid(rows: list[dict]) -> None:
-    """One warning line per window whose clusters are not all measurements."""
+    """One warning line for the first :data:`WARN_WINDOWS` windows whose clusters are not
+    all measurements, and one counting the others."""
     import warnings
 
     from evmotion.errors import PoorFitWarning
@@ -245,16 +252,23 @@ def _warn_invalid(rows: list[dict]) -> None:
     for r in rows:
         if not r["valid"]:
             bad.setdefault(r["window"], []).append(r)
-    for window, rs in bad.items():
+    for window, rs in list(bad.items())[:WARN_WINDOWS]:
         what = ", ".join(f"{r['cluster']} ({r['n_events']} events, contrast gain "
                          f"{r['contrast_gain']:.3f}"
                          + (f", the motion of cluster {r['same_as']}" if r["same_as"] >= 0
-                            else "") + ")" for r in rs)
+                            else "") + ")" for r in rs[:WARN_CLUSTERS])
+        more = f" and {len(rs) - WARN_CLUSTERS} more" if len(rs) > WARN_CLUSTERS else ""
         warnings.warn(PoorFitWarning(
-            f"window {window}: cluster{'s' if len(rs) > 1 else ''} {what}: "
+            f"window {window}: cluster{'s' if len(rs) > 1 else ''} {what}{more}: "
             "not a measurement -- it sharpens nothing, holds too few events, or repeats "
             "another cluster's motion (fewer --warps) (valid 0 in clusters.csv / "
             "clusters.h5)"), stacklevel=2)
+    if len(bad) > WARN_WINDOWS:
+        rest = list(bad)[WARN_WINDOWS:]
+        warnings.warn(PoorFitWarning(
+            f"{len(rest)} more windows (windows {rest[0]}..{rest[-1]}) hold clusters that "
+            f"are not measurements ({sum(len(bad[w]) for w in rest)} clusters; valid 0 in "
+            "clusters.csv / clusters.h5)"), stacklevel=2)
 
 
 def _segment_job(events, **kwargs):
