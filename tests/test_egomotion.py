@@ -238,3 +238,19 @@ def test_rotation_takes_the_intrinsics_of_the_recordings_calibration():
     cal.meta["calibration"]["dist"] = [-0.3, 0.1, 0.0, 0.0]  # taken as a pinhole's: said
     with pytest.warns(EvmotionWarning, match="not undistorted but their calibration has"):
         estimate_egomotion(cal, "rotation", maps=False, t_ref="start")
+
+
+def test_a_landscape_far_past_any_motion_warns_nothing_of_numpy():
+    # --range 0 1e300 printed numpy's overflow warning with the warp's source line
+    # (probe CE); those costs are not finite, and say so themselves
+    import warnings
+
+    from evmotion.methods.egomotion import cost_landscape
+    from evmotion.sim import simulate
+
+    sim = simulate("rotation", duration_s=0.01, sensor_size=(40, 50), seed=0,
+                   show_progress=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        out = cost_landscape(sim.events, "rotation", 0, [0.0, 1.0, 1e300], K=sim.gt.K)
+    assert np.isfinite(out["cost"][:2]).all()
