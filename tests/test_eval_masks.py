@@ -240,3 +240,23 @@ def test_events_in_text_take_the_sensor_size_and_time_unit_given(gt_file, tmp_pa
     # without --events they read nothing: refused, not ignored
     assert main(["eval", str(est), "--gt", str(path), "--sensor-size", str(H), str(W)]) == 2
     assert "does not apply without --events" in capsys.readouterr().err
+
+
+def test_the_dense_scores_carry_their_units(tmp_path, capsys):
+    # "AEE=0.2146" said no unit, where the per-event score says px and px/s (probe CE)
+    import json
+
+    from evmotion.cli import main
+
+    rec = tmp_path / "tr.h5"
+    assert main(["simulate", "translation", "--duration", "0.03", "--sensor-size", "40", "50",
+                 "--out", str(rec)]) == 0
+    assert main(["flow", str(rec), "--window-events", "3000", "--out",
+                 str(tmp_path / "f.h5")]) == 0
+    capsys.readouterr()
+    gt = tmp_path / "tr_gt.h5"
+    assert main(["eval", str(tmp_path / "f.h5"), "--gt", str(gt)]) == 0
+    line = capsys.readouterr().out.splitlines()[1]
+    assert " px  AEE_zero=" in line and " %  AE_deg=" in line and " deg  n_pixels=" in line
+    assert main(["eval", str(tmp_path / "f.h5"), "--gt", str(gt), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["units"]["AEE"] == "px over the window"

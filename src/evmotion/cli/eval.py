@@ -740,7 +740,16 @@ def _windows_summary(args, res, out_px: float) -> dict:
             "windows_scored": len(per_window) - res.uncovered - empty,
             "windows_without_pixels": empty,
             "windows_beyond_gt": res.uncovered, "windows_with_other_dt": res.mismatched,
-            "mask": res.mask, "out_px": out_px, "mean": res.total, "windows": per_window}
+            "mask": res.mask, "out_px": out_px, "units": WINDOW_UNITS, "mean": res.total,
+            "windows": per_window}
+
+
+#: Units of the dense scores, as printed (a space before a unit) and in --json's "units".
+METRIC_UNITS = {"AEE": " px", "AEE_zero": " px", "%Out": " %", "AE_deg": " deg"}
+WINDOW_UNITS = {"AEE": "px over the window", "AEE_zero": "px over the window",
+                "%Out": "% of the pixels with EE > out_px", "AE_deg": "degrees",
+                "AE_rad": "radians", "nPE": "% of the pixels with EE > n px",
+                "FWL": "ratio", "FWL_gt": "ratio"}
 
 
 def _print_windows(args, res, summary: dict, dt_note: bool = True) -> None:
@@ -755,8 +764,9 @@ def _print_windows(args, res, summary: dict, dt_note: bool = True) -> None:
     print(f"{n} window{'' if n == 1 else 's'}" if scored == n else
           f"{scored} of {n} windows scored",
           f"({summary['mask']}" + (f", dt={args.dt})" if dt_note else ")"))
-    print("  ".join(f"{k}={int(total[k]):,}" if k == "n_pixels" else f"{k}={total[k]:.4g}"
-                    for k in keys))
+    # (the units were not said, where the per-event score says px and px/s: probe CE)
+    print("  ".join(f"{k}={int(total[k]):,}" if k == "n_pixels" else
+                    f"{k}={total[k]:.4g}{METRIC_UNITS.get(k, '')}" for k in keys))
     if res.uncovered:
         print(f"note: {res.uncovered} window{' reaches' if res.uncovered == 1 else 's reach'} "
               "more than 1 % beyond the ground truth's time span: not scored (their "
