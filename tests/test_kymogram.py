@@ -799,6 +799,15 @@ def test_cli_from_flow_leaves_unmeasured_pixels_out(tmp_path, capsys, monkeypatc
     data = made[0].data
     assert np.isnan(data[:, 10:15]).all()
     np.testing.assert_allclose(np.delete(data, np.s_[10:15], axis=1), 100.0, rtol=1e-6)
+    # a file whose every window is no measurement: said of the file, not of the line
+    # ("nothing crosses the line there; choose another line", probe CE)
+    with FlowWriter(tmp_path / "none.h5", (h, w), with_valid=True) as fw:
+        for k in range(4):
+            fw.append(np.zeros((h, w, 2), np.float32), k * 1000, (k + 1) * 1000,
+                      valid=np.zeros((h, w), bool))
+    rc, _, err = _cli(capsys, tmp_path / "none.h5", "--from", "flow", "--col", 20,
+                      "--out", tmp_path / "n.png")
+    assert rc == 2 and "none of its 4 windows has a valid pixel" in err, err
 
 
 def test_figure_units_no_measurement_and_rows_rising():
@@ -851,8 +860,9 @@ def test_an_empty_kymogram_is_said_to_be_empty(fit, fill):
     k = Kymogram(np.full((120, 60), fill, np.float32), np.arange(120) / 1200.0,
                  np.arange(60.0), KymoLine.row(0, (1, 60)), 1200.0, "events")
     what = "only zeros" if fill == 0 else "no measurement"
+    why = "nothing crosses the line" if fill == 0 else "nothing was measured along the line"
     with pytest.raises(EmptyWindowError, match=rf"\(events\) holds {what} in the region "
-                                               r"\(the whole line, all times\)"):
+                                               rf"\(the whole line, all times\): {why}"):
         fit(k)
     k.data[50, 30] = 1.0  # one event: not empty (a fit, or the fit's own words)
     try:

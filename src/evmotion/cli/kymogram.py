@@ -203,6 +203,14 @@ def _field_kymogram(args):
             seq = read_flow(args.file)
             images, label = np.hypot(seq.flow[..., 0], seq.flow[..., 1]), "|flow| px/s"
             if seq.valid is not None:  # where no event supports the flow, no signal either
+                if not seq.valid.any():
+                    # (it said "nothing crosses the line there; choose another line",
+                    # of a file whose every window is no measurement, probe CE)
+                    from evmotion.errors import EmptyWindowError
+
+                    raise EmptyWindowError(f"{args.file}: none of its {len(seq)} windows has "
+                                           "a valid pixel (each is no measurement): no "
+                                           "flow to draw a kymogram of")
                 images = np.where(seq.valid, images, np.nan)
         t0 = np.asarray(seq.t0, dtype=np.int64)
         t1 = np.asarray(seq.t1, dtype=np.int64)

@@ -592,10 +592,13 @@ def _check_signal(region: np.ndarray, kymo: Kymogram, s_range, t_range) -> None:
     nothing to fit: said as such (a row with no event had been told of "a ridge at fewer
     than 3 lags ... periodic structures alias", probe BX)."""
     if not np.any(np.nan_to_num(region, nan=0.0)):
-        what = "no measurement" if np.isnan(region).all() else "only zeros"
-        raise EmptyWindowError(f"the kymogram ({kymo.source}) holds {what} in the region "
-                               f"({_region(s_range, t_range)}): nothing crosses the line "
-                               "there; choose another line, a wider one, or another region")
+        unmeasured = np.isnan(region).all()
+        why = ("nothing was measured along the line there" if unmeasured
+               else "nothing crosses the line there")
+        raise EmptyWindowError(f"the kymogram ({kymo.source}) holds "
+                               f"{'no measurement' if unmeasured else 'only zeros'} in the "
+                               f"region ({_region(s_range, t_range)}): {why}; choose another "
+                               "line, a wider one, or another region")
 
 
 def fit_ridge(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1.0,
