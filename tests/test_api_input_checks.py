@@ -362,3 +362,13 @@ def test_a_ridge_for_the_thesis_mean_is_refused(ev):
     with pytest.raises(ParameterError, match="ridge=0.1 applies to dense='lsq' or 'robust'"):
         estimate_flow_triplet(ev, ridge=0.1)
     assert estimate_flow_triplet(ev, dense="lsq", ridge=0.1).flow.shape[0] == 1
+
+
+def test_an_impossible_noise_rate_is_refused_before_memory_runs_out():
+    # 1e9 events/s per pixel went on to numpy's "Unable to allocate 65.5 TiB", rc 1 (probe CE)
+    with pytest.raises(ParameterError, match=r"noise_rate must be finite and in \[0.0, "
+                                             r"1000000.0\] \(events/s per pixel\)"):
+        simulate("translation", duration_s=0.01, sensor_size=(20, 30), noise_rate=1e9)
+    with pytest.raises(ParameterError, match=r"would add ~5.4e\+08 noise events"):
+        simulate("translation", duration_s=2.0, sensor_size=(300, 300), noise_rate=3e3,
+                 show_progress=False)

@@ -33,6 +33,10 @@ def _set(obj, name: str, value) -> None:
     object.__setattr__(obj, name, value)
 
 
+#: The most events a pixel fires per second: one a microsecond (the timestamps' unit).
+MAX_PIXEL_RATE = 1e6
+
+
 @dataclass(frozen=True)
 class EventOptions:
     """The event sensor of the simulators: thresholds, refractory period, noise, and how
@@ -80,11 +84,14 @@ class EventOptions:
         # (10.5 had run as 10 µs, probe BE)
         _set(self, "refractory_us", whole_number("refractory_us (µs)", self.refractory_us,
                                                  lo=0))
+        # a pixel's events are at least a microsecond apart: 1e9 went on to numpy's
+        # "Unable to allocate 65.5 TiB", rc 1 (probe CE)
         _set(self, "noise_rate", check_number("noise_rate", self.noise_rate,
-                                              units="events/s per pixel"))
+                                              hi=MAX_PIXEL_RATE, units="events/s per pixel"))
         _set(self, "hot_pixels", int(check_number("hot_pixels", self.hot_pixels,
                                                   units="pixels")))
-        _set(self, "hot_rate", check_number("hot_rate", self.hot_rate, units="events/s"))
+        _set(self, "hot_rate", check_number("hot_rate", self.hot_rate, hi=MAX_PIXEL_RATE,
+                                            units="events/s"))
         _set(self, "max_step_fraction", check_number(
             "max_step_fraction", self.max_step_fraction, lo_open=True,
             units="fraction of threshold"))

@@ -117,9 +117,20 @@ def build_layers(scene: str, p: dict, sensor_size, K, texture, image, seed):
     return ([Layer("background", bg), Layer("object", fg, alpha, origin)], [bg_tex, fg_tex])
 
 
+#: Noise events a simulation adds at most (16 bytes each as x, y, t, p: 8 GB).
+MAX_NOISE_EVENTS = 5e8
+
+
 def _noise_events(rng, sensor_size, duration_us, noise_rate, hot_pixels, hot_rate):
     h, w = sensor_size
     T = duration_us * 1e-6
+    expected = noise_rate * h * w * T + hot_pixels * hot_rate * T
+    if expected > MAX_NOISE_EVENTS:
+        hot = f" and {hot_pixels} hot pixels at {hot_rate:g} events/s" if hot_pixels else ""
+        raise ParameterError(f"noise_rate {noise_rate:g}{hot} over {w}x{h} px and {T:g} s "
+                             f"would add ~{expected:.3g} noise events, over "
+                             f"{MAX_NOISE_EVENTS:.0e}: a rate per pixel (events/s), not per "
+                             "sensor?")
     n = rng.poisson(noise_rate * h * w * T) if noise_rate > 0 else 0
     xs = [rng.integers(0, w, n)]
     ys = [rng.integers(0, h, n)]
