@@ -435,3 +435,17 @@ def test_the_up_front_check_refuses_no_duration_the_loop_follows(monkeypatch):
     with pytest.raises(ParameterError, match=r"at t = 0\.137987 s"):
         simulate("rotation", duration_s=0.137988, sensor_size=(30, 40), seed=0,
                  params=params, show_progress=False)
+
+
+def test_cli_image_and_texture_together_are_refused(tmp_path, capsys):
+    # the image won without a word over --texture checker (probe CE)
+    import png
+
+    from evmotion.cli import main
+
+    img = (np.add.outer(np.arange(40), np.arange(50)) * 3 % 256).astype(np.uint8)
+    png.from_array(img, "L").save(str(tmp_path / "tex.png"))
+    rc = main(["simulate", "translation", "--image", str(tmp_path / "tex.png"), "--texture",
+               "checker", "--duration", "0.01", "--out", str(tmp_path / "x.h5")])
+    assert rc == 2 and "the image is the texture; give one of them" in capsys.readouterr().err
+    assert not (tmp_path / "x.h5").exists()

@@ -108,8 +108,11 @@ def add_parser(sub) -> None:
     add_sensor_size_argument(p)
     add_time_unit_argument(p)
     p.add_argument("--dt", "--gt-dt", dest="dt", type=positive_int(), default=1,
-                   help="GT frames per window (1 or 4; flow's --gt-dt); per-event files: "
-                        "the GT frame intervals the displacements span")
+                   help="GT frames a window is meant to span (MVSEC's protocol: 1 or 4; "
+                        "flow's --gt-dt): dense windows are scored over their own times "
+                        "whatever it is, and those spanning another number are counted in a "
+                        "note; per-event files: the GT frame intervals the displacements "
+                        "span")
     p.add_argument("--t0-us", type=int_range(0, unit="µs"), default=None,
                    help="window start of a .npy, or a .flo/.png without sidecar")
     p.add_argument("--t1-us", type=int_range(0, unit="µs"), default=None,

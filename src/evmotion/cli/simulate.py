@@ -45,7 +45,14 @@ EXAMPLES = """examples:
 def add_parser(sub) -> None:
     from evmotion.sim.scenes import BOS_SCENES, SCENES
 
-    lines = "\n".join(f"  {n:<12} {s.description}" for n, s in SCENES.items())
+    # each scene's --params with their defaults (only the error message named them,
+    # probe CE)
+    lines = "\n".join(f"  {n:<12} {s.description}\n  {'':<12} --params "
+                      + " ".join(f"{k}={'auto' if v is None else f'{v:g}'}"
+                                 for k, v in s.defaults.items())
+                      for n, s in SCENES.items())
+    lines += ("\n  (rates per second: px/s for translations, rad/s for rotations, 1/s for "
+              "zoom and the matrix entries)")
     lines += "\n  schlieren    background-oriented schlieren, --scene one of:\n" + "\n".join(
         f"    {n:<10} {d}" for n, d in BOS_SCENES.items())
     p = sub.add_parser(
@@ -91,8 +98,8 @@ def add_parser(sub) -> None:
                    help="GT frame rate, Hz (default 100)")
     p.add_argument("--params", action="append", default=None, metavar="KEY=VALUE",
                    help="motion parameter, repeatable (vector: comma-separated), or a JSON "
-                        "object; see 'evmotion simulate --help' scenes and the docs of "
-                        "evmotion.sim.scenes for names and units")
+                        "object; each scene's names and defaults are listed above (the "
+                        "docs of evmotion.sim.scenes give their units)")
     g = p.add_argument_group("schlieren")
     g.add_argument("--scene", dest="bos_scene", default=None, choices=sorted(BOS_SCENES),
                    help="schlieren scene (default plume)")
@@ -351,6 +358,12 @@ def run(args) -> int:
         return run_schlieren(args)
     reject_unused(args, SCHLIEREN_ONLY, f"to the motion scene {args.scene!r} (it is for "
                   "'evmotion simulate schlieren')", MOTION_ONLY)
+    if args.image is not None and args.texture is not None:
+        from evmotion.errors import ParameterError
+
+        # (the image won without a word over --texture checker, probe CE)
+        raise ParameterError(f"--image {args.image} and --texture {args.texture}: the image "
+                             "is the texture; give one of them")
 
     from evmotion.cli import print_json
     from evmotion.errors import EvmotionError

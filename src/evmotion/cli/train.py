@@ -108,7 +108,10 @@ def add_parser(sub) -> None:
                         "the diagonal (default; --no-symmetric: two output channels)")
     p.add_argument("--objective", default="gradient_magnitude",
                    choices=("gradient_magnitude", "variance", "avg_timestamp",
-                            "avg_timestamp_norm"))
+                            "avg_timestamp_norm"),
+                   help="focus of the training loss (default gradient_magnitude, the "
+                        "thesis' (4.9); variance and the two average-timestamp losses are "
+                        "Table 4.5's ablations, the latter collapse)")
     p.add_argument("--lambda", dest="lam", type=nonnegative_float(), default=0.0025,
                    help="Charbonnier smoothness weight (default 0.0025, multicm's)")
     p.add_argument("--val", action="append", default=[], metavar="REC", type=existing_input,
@@ -118,7 +121,9 @@ def add_parser(sub) -> None:
                    help="held-out simulated validation windows (AEE and FWL; default 4)")
     p.add_argument("--max-steps", type=positive_int(), default=None,
                    help="at most this many steps per epoch")
-    p.add_argument("--seed", type=int_range(0), default=0)
+    p.add_argument("--seed", type=int_range(0), default=0,
+                   help="seed of the initial weights, the simulated windows and the crops "
+                        "(default 0; the same seed gives the same weights)")
     p.add_argument("--threads", type=int_range(1, 256), default=1,
                    help="torch threads (default 1: faster than 2 on a loaded 2-core machine)")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")
