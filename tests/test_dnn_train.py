@@ -201,7 +201,8 @@ def test_interrupted_training_names_the_checkpoint_to_resume(tmp_path, capsys, m
     # and flow took them without a word, probe BP)
     assert capsys.readouterr().err == (
         f"evmotion: interrupted; the work done so far is kept in {out / 'last.pt'}: model.pt "
-        "and model.npz there are the network after epoch 1 of 3, not a finished training's; "
+        "and model.npz there are the network after 1 of 3 epochs (epochs.csv's epoch 0), "
+        "not a finished training's; "
         "run the same command with --resume to continue\n")
 
 

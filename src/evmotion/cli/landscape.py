@@ -102,7 +102,10 @@ def run(args) -> int:
                                  f"'{args.warp}' needs {w.n_params} values "
                                  f"{list(w.param_names)}, got {len(args.theta)}")
         theta = np.array(args.theta)
-    values = np.linspace(args.range[0], args.range[1], args.steps)
+    # the grid's points to 12 significant digits: linspace's -1.2999999999999998 for -1.3
+    # went into the CSV and JSON (probe CE)
+    values = np.array([float(f"{v:.12g}") for v in
+                       np.linspace(args.range[0], args.range[1], args.steps)])
     plain = cost_landscape(events, w, j, values, theta, args.objective, None, K=K,
                            t_ref=args.t_ref)
     curves = {"no regularizer": plain["cost"]}

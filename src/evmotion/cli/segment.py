@@ -299,9 +299,12 @@ def _segment_job(events, **kwargs):
                       f"{int(np.sum(seg.labels == j)):,} ev, gain {seg.gains[j]:.2f}{flag}")
     # one stated scale for all clusters' warped images (membership-weighted counts)
     vmax = max(images.full_scale(img) for img in seg.iwes)
-    t0_ms, t1_ms = int(events.t[0]) / 1e3, (int(events.t[-1]) + 1) / 1e3
+    # the span of the events drawn (the window's [t0, t1) in clusters.csv can reach past
+    # its last event: a title [0.419, 22.991) ms beside t1_us 22994 read as a mismatch,
+    # probe CE)
+    t0_ms, t1_ms = int(events.t[0]) / 1e3, int(events.t[-1]) / 1e3
     panel = images.panel_png([images.iwe_to_rgb(img, vmax=vmax) for img in seg.iwes], titles,
-                             suptitle=f"{seg.warp}, [{t0_ms:.6g}, {t1_ms:.6g}) ms\n"
+                             suptitle=f"{seg.warp}, events at {t0_ms:.6g}-{t1_ms:.6g} ms\n"
                                       f"events warped by their cluster's motion; white 0, "
                                       f"black >= {vmax:.3g} events / px")
     return dataclasses.replace(seg, iwes=None), panel

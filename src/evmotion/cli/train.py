@@ -143,9 +143,10 @@ def _say_unfinished_model(out: Path, epochs: int) -> None:
     done = max(0, len(log.read_text().splitlines()) - 1) if log.is_file() else 0
     if not (out / "model.pt").is_file() or done >= epochs:
         return
-    set_interrupt_note(f"model.pt and model.npz there are the network after epoch {done} "
-                       f"of {epochs}, not a finished training's; run the same command with "
-                       "--resume to continue", "")
+    # (it said "after epoch 1 of 3" where epochs.csv numbers that epoch 0, probe CE)
+    set_interrupt_note(f"model.pt and model.npz there are the network after {done} of "
+                       f"{epochs} epochs (epochs.csv's epoch {done - 1}), not a finished "
+                       "training's; run the same command with --resume to continue", "")
 
 
 def _above_the_bar(line: str) -> None:
