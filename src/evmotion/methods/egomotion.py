@@ -442,8 +442,8 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         The kernel's width biases scale rates: on simulated forward motion the zoom came
         out 3.5 % (variance) and 2.5 % (gradient magnitude) low with bilinear, within 1 %
         with Gaussian, at 14x the time (``benchmarks/results/zoom_kernel.md``); on the
-        ECD windows the similarity's translations agreed within about 5 % between the two
-        (``egomotion_real.md``).
+        ECD windows the similarity's larger translation components differed by 0-10 %
+        between the two (``egomotion_real.md``).
     sigma : float
         Gaussian standard deviation in px (default 1).
     use_polarity : bool
