@@ -372,3 +372,28 @@ def test_an_impossible_noise_rate_is_refused_before_memory_runs_out():
     with pytest.raises(ParameterError, match=r"would add ~5.4e\+08 noise events"):
         simulate("translation", duration_s=2.0, sensor_size=(300, 300), noise_rate=3e3,
                  show_progress=False)
+
+
+def test_a_count_window_across_a_gap_ends_after_its_last_event(tmp_path):
+    # window 0 of two recordings joined took the 2.19 s gap's length, and its .flo
+    # displacement came out hundreds of times too large (probe CF)
+    from evmotion.cli import main
+    from evmotion.io import read_flow, write_events
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    t = np.sort(rng.integers(0, 10_000, n))
+    t[n // 2:] += 2_000_000  # a 2 s pause half-way
+    x0 = rng.uniform(5, 60, n)
+    ev = EventArray(np.round(x0 + 400 * (t % 2_000_000) * 1e-6).astype(int),
+                    rng.integers(0, 40, n), t, rng.integers(0, 2, n), (40, 70))
+    wins = ev.windows_by_count(n // 2)
+    assert (wins[0].t0, wins[0].t1) == (int(t[0]), int(t[n // 2 - 1]) + 1)
+    assert (wins[1].t0, wins[1].t1) == (int(t[n // 2]), int(t[-1]) + 1)
+    same = EventArray([1, 2, 3, 4], [0] * 4, [0, 5, 5, 9], [1] * 4, (4, 8))
+    assert [(w.t0, w.t1) for w in same.windows_by_count(2)] == [(0, 5), (5, 10)]
+    write_events(tmp_path / "gap.h5", ev)
+    assert main(["flow", str(tmp_path / "gap.h5"), "--window-events", str(n // 2),
+                 "--out", str(tmp_path / "f.h5")]) == 0
+    flow = read_flow(tmp_path / "f.h5")
+    assert int(flow.t1[0]) - int(flow.t0[0]) < 20_000

@@ -401,7 +401,23 @@ class EventArray:
 
     def windows_by_count(self, n_events: int, *, drop_last_partial: bool = False,
                          ) -> list[Window]:
-        """Consecutive windows of ``n_events`` events each (the last may be shorter)."""
+        """Consecutive windows of ``n_events`` events each (the last may be shorter), each
+        ``[t_first, t_last + 1)`` µs of its own events (``[t_first, t_last)`` where the
+        next window's first event shares its last one's microsecond: windows do not
+        overlap).
+
+        The window ends after its last event, not at the next window's first: across a gap
+        in the recording (a camera that stopped, two recordings joined) the window had
+        taken the gap's length, and its flow written as a displacement (``.flo``) came out
+        2.19 s long, hundreds of times too large (probe CF).
+
+        Examples
+        --------
+        >>> ev = EventArray(x=[1, 2, 3, 4], y=[0] * 4, t=[0, 10, 5_000, 5_010], p=[1] * 4,
+        ...                 sensor_size=(4, 8))
+        >>> [(w.t0, w.t1) for w in ev.windows_by_count(2)]
+        [(0, 11), (5000, 5011)]
+        """
         n_events = whole_number("events per window (n_events)", n_events, lo=1)
         n = len(self)
         out = []
@@ -409,8 +425,9 @@ class EventArray:
             e = min(s + n_events, n)
             if drop_last_partial and e - s < n_events:
                 break
-            t1 = int(self.t[e]) if e < n else int(self.t[e - 1]) + 1
-            out.append(Window(k, int(self.t[s]), t1, s, e))
+            t1 = int(self.t[e - 1]) + 1
+            out.append(Window(k, int(self.t[s]), min(t1, int(self.t[e])) if e < n else t1,
+                              s, e))
         return out
 
     def windows_at(self, timestamps_us: Sequence[int] | np.ndarray, *, dt: int = 1,

@@ -107,6 +107,7 @@ class _Windows:
         # robust windows of N events count the recording's events, not the burst means
         # they are fitted to: their bounds come from the raw stream (:meth:`count_raw`)
         self.live: list[int] | None = [] if window_events and dense == "robust" else None
+        self.live_end: list[int] = []
         self.by_count = None if self.live is not None else window_events
         self.count = window_events
         self.raw_n = 0
@@ -128,10 +129,15 @@ class _Windows:
         if self.live is None or not t.size:
             return
         # the stream's events 0, N, 2N... start the windows (a bound on the time of the
-        # last one is no new window: windows hold a time span)
-        for v in t[(-self.raw_n) % self.count::self.count]:
-            if not self.live or int(v) > self.live[-1]:
-                self.live.append(int(v))
+        # last one is no new window: windows hold a time span), and the event before each
+        # ends the window before it: windows span their own events, as count windows do
+        for i in range((-self.raw_n) % self.count, t.size, self.count):
+            v = int(t[i])
+            if not self.live or v > self.live[-1]:
+                if self.live:
+                    last = int(t[i - 1]) if i else self.raw_last
+                    self.live_end.append(min(last + 1, v))
+                self.live.append(v)
         self.raw_n += t.size
         self.raw_last = int(t[-1])
 
@@ -140,8 +146,8 @@ class _Windows:
         if self.live is not None:
             if self.index >= len(self.live):
                 return None
-            nxt = self.index + 1
-            return self.live[self.index], (self.live[nxt] if nxt < len(self.live)
+            return self.live[self.index], (self.live_end[self.index]
+                                           if self.index < len(self.live_end)
                                            else np.iinfo(np.int64).max)
         if self.edges is None:
             return self.t0, self.t0 + self.window_us
@@ -187,15 +193,22 @@ class _Windows:
                     self.t0 = t1 + (int(t[stop]) - t1) // self.window_us * self.window_us
 
     def _add_count(self, chunk, flow):
+        # a count window spans its own events, [first, last + 1) µs (or up to the next
+        # window's first event where that shares the last one's microsecond), as
+        # EventArray.windows_by_count's: ended at the next window's first event, one across
+        # a gap in the recording took the gap's length (probe CF)
         start = 0
         while start < len(chunk):
+            if self.n == 0:
+                self.t0 = int(chunk.t[start])
             take = min(self.by_count - self.n, len(chunk) - start)
             self.pending.append((chunk[start:start + take], flow[start:start + take]))
             self.n += take
             start += take
             if self.n == self.by_count:
-                t1 = (int(chunk.t[start]) if start < len(chunk)
-                      else int(self.pending[-1][0].t[-1]) + 1)
+                t1 = int(self.pending[-1][0].t[-1]) + 1
+                if start < len(chunk):
+                    t1 = min(t1, int(chunk.t[start]))
                 yield self._close_count(t1)
 
     def _close_count(self, t1):
@@ -203,9 +216,7 @@ class _Windows:
         for ev, fl in self.pending:
             self._accumulate(ev, fl, self.t0, t1, count=False)
         self.n = n
-        win = self._close(self.t0, t1)
-        self.t0 = t1
-        return win
+        return self._close(self.t0, t1)
 
     def _accumulate(self, ev, fl, t0, t1, count=True):
         if not len(ev):
@@ -260,10 +271,10 @@ class _Windows:
 
     def finish(self):
         if self.live is not None:
-            if self.raw_last is not None:
-                self.live.append(self.raw_last + 1)  # the end of the last window
-            while self.index < len(self.live) - 1:
-                yield self._close(self.live[self.index], self.live[self.index + 1])
+            if self.raw_last is not None and len(self.live_end) < len(self.live):
+                self.live_end.append(self.raw_last + 1)  # the end of the last window
+            while self.index < len(self.live_end):
+                yield self._close(self.live[self.index], self.live_end[self.index])
             return
         if self.by_count:
             if self.n:
