@@ -397,3 +397,23 @@ def test_a_count_window_across_a_gap_ends_after_its_last_event(tmp_path):
                  "--out", str(tmp_path / "f.h5")]) == 0
     flow = read_flow(tmp_path / "f.h5")
     assert int(flow.t1[0]) - int(flow.t0[0]) < 20_000
+
+
+def test_a_triplet_run_without_any_flow_says_why(tmp_path, capsys):
+    # 0 % valid on a 5.5 ms ECD window moving ~1000 px/s, without a word (probe CF)
+    from evmotion.cli import main
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(0)
+    n = 3000
+    t = np.sort(rng.integers(0, 6_000, n))  # 6 ms at 1000 px/s: each step under tau
+    x0 = rng.uniform(5, 30, 60)
+    k = rng.integers(0, 60, n)
+    ev = EventArray(np.round(x0[k] + 1000 * t * 1e-6).astype(int), rng.integers(0, 30, n), t,
+                    np.ones(n, int), (30, 50))
+    write_events(tmp_path / "fast.h5", ev)
+    assert main(["flow", str(tmp_path / "fast.h5"), "--method", "triplet", "--out",
+                 str(tmp_path / "t.h5")]) == 0
+    err = capsys.readouterr().err
+    assert "got a flow: a triplet needs steps of 1.41 px at least tau = 3 ms apart" in err
+    assert "faster than 471 px/s finds none (a shorter --tau-ms)" in err

@@ -337,6 +337,17 @@ def run(args) -> int:
                   f"({100 * tri.lit_events / max(n_events, 1):.0f} %) come in stretches lit "
                   "rather than moved (bursts of one polarity: flickering light or a lighting "
                   "change): they get no flow (not valid)")
+    if n_events >= NO_FLOW_MIN_EVENTS and n_valid < NO_FLOW_SHARE * n_events:
+        # (0 % valid on a 5.5 ms ECD window moving ~1000 px/s, without a word: a triplet's
+        # steps are at least tau apart, so a motion of over dx / tau px/s finds none; probe CF)
+        m = tri.matcher
+        warn_line(f"{args.file}: {n_valid:,} of {n_events:,} events "
+                  f"({100 * n_valid / n_events:.1f} %) got a flow: a triplet needs steps of "
+                  f"{m.dx:.3g} px at least tau = {m.tau_us / 1e3:g} ms apart within d_t = "
+                  f"{m.dt_us / 1e3:g} ms, so a motion faster than "
+                  f"{m.dx / (m.tau_us * 1e-6):.0f} px/s finds none (a shorter --tau-ms), "
+                  f"nor one slower than {m.dx / (m.dt_us * 1e-6):.3g} px/s (a longer "
+                  "--dt-ms) or than two steps in the recording's time")
     if tri.overflow > OVERFLOW_NOTE * max(n_events, 1):
         warn_line(f"{args.file}: {tri.overflow:,} of {n_events:,} events "
                   f"({100 * tri.overflow / n_events:.0f} %) fired more than --depth "
@@ -366,6 +377,12 @@ def run(args) -> int:
             "outputs": [str(o) for o in outputs], "n_windows": n_windows, "seconds": wall,
         })
     return 0
+
+
+#: Below this share of events with a flow (of at least this many events), the run says
+#: why triplets may be missing.
+NO_FLOW_SHARE = 0.01
+NO_FLOW_MIN_EVENTS = 1000
 
 
 def _gt_edges(args):
