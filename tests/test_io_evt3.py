@@ -274,3 +274,28 @@ def test_a_file_cut_within_a_word_says_how_to_read_the_rest(tmp_path, fmt):
     keep = int(re.search(r"head -c (\d+)", str(exc.value)).group(1))
     path.write_bytes(whole[:keep])
     assert 0 < len(eio.read_events(path)) <= 200
+
+
+@pytest.mark.parametrize("fmt, word", [("evt2", 4), ("evt3", 2)])
+def test_two_recordings_joined_are_named(tmp_path, fmt, word):
+    # "truncated: N stray byte(s) ... the file was cut short": following it, the second
+    # header was read as events, "timestamps are not sorted" (probe CF)
+    import evmotion.io as eio
+
+    ev = EventArray(x=np.arange(200) % 30, y=np.arange(200) % 20, t=np.arange(200) * 7,
+                    p=np.arange(200) % 2, sensor_size=(20, 30))
+    path = tmp_path / "r.raw"
+    eio.write_events(path, ev, format=fmt)
+    one = path.read_bytes()
+    head = one.index(b"% end\n") + len(b"% end\n")
+    # the joined payload (the second header in it) is not whole words, as probe CF's was
+    extra = next(k for k in range(word) if (2 * len(one) - head + k) % word)
+    joined = tmp_path / "j.raw"
+    joined.write_bytes(one + one + b"\0" * extra)
+    with pytest.raises(FormatError, match=r"a header line \('% evt .*'\) at byte offset "
+                                          rf"{len(one)}, inside the events: two recordings "
+                                          rf"joined\? .*head -c {len(one)} FILE > FIRST"):
+        eio.read_events(joined, format=fmt)
+    first = tmp_path / "first.raw"
+    first.write_bytes(joined.read_bytes()[:len(one)])
+    assert len(eio.read_events(first)) == 200

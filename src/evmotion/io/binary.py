@@ -290,6 +290,7 @@ def iter_blocks(path: Path, offset: int, block_bytes: int, word_bytes: int
                 extra = fh.read(word_bytes - len(buf) % word_bytes)
                 buf += extra
                 if len(buf) % word_bytes:
+                    _refuse_second_header(path, pos)
                     cut = len(buf) - len(buf) % word_bytes
                     raise FormatError(
                         path, f"truncated: {len(buf) % word_bytes} stray byte(s) at byte offset "
@@ -405,17 +406,49 @@ def header_bytes(lines: list[str]) -> bytes:
 
 
 def trailing_partial(path: Path, offset: int, word_bytes: int) -> None:
-    """Raise FormatError if the payload after ``offset`` is not whole words."""
+    """Raise FormatError if the payload after ``offset`` is not whole words: a second
+    recording's header inside it is named as such, else the file was cut short."""
     size = path.stat().st_size
     if (size - offset) % word_bytes:
+        _refuse_second_header(path, offset)
         cut = size - (size - offset) % word_bytes
         raise FormatError(path, f"truncated: {(size - offset) % word_bytes} stray byte(s) at "
                           f"byte offset {cut}, where a {word_bytes}-byte word was expected",
                           _trim_hint(cut))
 
 
+#: A header line of a Prophesee / DAT recording: what a second recording joined to the first
+#: begins with (a bare "% " in binary words is chance, once in some 64 kB; with one of
+#: these words after it, once in some 2^40 bytes).
+SECOND_HEADER = re.compile(rb"(% (?:date|evt|format|geometry|Date|Version|Height|Width) "
+                           rb"[^\n]{0,60})\n")
+
+
+def _refuse_second_header(path: Path, offset: int) -> None:
+    """FormatError where the payload after ``offset`` holds a header line of its own (two
+    recordings joined: the truncation advice led to a second error, unsorted times, as
+    the second header was read as events; probe CF)."""
+    import mmap
+
+    with open(path, "rb") as fh:
+        try:
+            mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+        except ValueError:  # an empty file
+            return
+        with mm:
+            m = SECOND_HEADER.search(mm, offset)
+            if m is None:
+                return
+            where, line = m.start(1), m.group(1).decode("latin-1", "replace")
+    raise FormatError(path, f"a header line ({line[:40]!r}) at byte offset {where}, inside the "
+                      "events: two recordings joined?",
+                      f"the first recording's events are readable from a copy trimmed to "
+                      f"{where} bytes: head -c {where} FILE > FIRST")
+
+
 def _trim_hint(whole: int) -> str:
     """How to read the whole words of a file cut short at byte ``whole`` (the raw and
     dat refusals said only that it was cut, probe BL)."""
-    return (f"the file was cut short; the events before are readable from a copy trimmed "
+    return (f"the file was cut short, or bytes were appended to it; the events before are "
+            f"readable from a copy trimmed "
             f"to {whole} bytes: head -c {whole} FILE > TRIMMED")
