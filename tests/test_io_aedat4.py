@@ -198,3 +198,23 @@ def test_a_negative_pixel_is_named_as_such(tmp_path):
     with pytest.raises(FormatError, match=r"event 0 of the EVTS packet .* has x=-3: pixel "
                                           r"coordinates start at 0"):
         aedat4.read(path)
+
+
+def test_bytes_after_the_data_table_are_said(shared_data, tmp_path):
+    # 700 bytes appended to a DV recording were read past without a word, where the other
+    # formats refuse trailing bytes (probe CF)
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io import read_events
+
+    src = shared_data / "formats" / "davis346_short.aedat4"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EvmotionWarning)
+        clean = read_events(src)
+    bad = tmp_path / "appended.aedat4"
+    bad.write_bytes(src.read_bytes() + bytes(range(256)) * 3)
+    with pytest.warns(EvmotionWarning, match=r"768 byte\(s\) follow the file's data table "
+                                             rf"\(from byte offset {src.stat().st_size}\)"):
+        ev = read_events(bad)
+    assert len(ev) == len(clean)

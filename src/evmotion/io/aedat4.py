@@ -247,6 +247,8 @@ def _packets(path: Path, want: set[int] | None = None) -> Iterator[tuple[int, by
                                   f" decompression failed ({exc})") from None
             yield sid, memoryview(buf)[4:].tobytes(), pos
             pos += 8 + size
+    if table_pos >= 0:
+        _warn_after_table(path, table_pos, compression)
     if undeclared:
         # a stream id the infoNode does not list: a corrupt packet header, most likely
         warnings.warn(EvmotionWarning(
@@ -254,6 +256,37 @@ def _packets(path: Path, want: set[int] | None = None) -> Iterator[tuple[int, by
             f"{sorted(undeclared)} that the header does not declare (declared: "
             f"{sorted(streams)}): a corrupt packet header? Their data is not read"),
             stacklevel=4)
+
+
+def _warn_after_table(path: Path, table_pos: int, compression: int) -> None:
+    """Say where bytes follow the file's data table (a compressed frame at the end of the
+    file): appended to the recording, they were read past without a word, where the other
+    formats refuse trailing bytes (probe CF: 700 bytes)."""
+    with open(path, "rb") as fh:
+        fh.seek(table_pos)
+        data = fh.read()
+    try:
+        if compression in (1, 2):
+            import lz4.frame
+
+            d = lz4.frame.LZ4FrameDecompressor()
+            d.decompress(data, max_length=_packet_limit(len(data)))
+            extra = len(d.unused_data or b"") if d.eof else 0
+        elif compression in (3, 4):
+            import zstandard
+
+            d = zstandard.ZstdDecompressor().decompressobj()
+            d.decompress(data)
+            extra = len(d.unused_data or b"")
+        else:
+            return  # an uncompressed table states no end of its own
+    except Exception:  # a table that does not decode: the events are read all the same
+        return
+    if extra:
+        warnings.warn(EvmotionWarning(
+            f"{path}: {extra:,} byte(s) follow the file's data table (from byte offset "
+            f"{len(data) - extra + table_pos}): not part of the recording, they are not "
+            "read (appended data, or two files joined?)"), stacklevel=5)
 
 
 def _stream_of(path: Path, streams: dict[int, _Stream], type_id: str,
