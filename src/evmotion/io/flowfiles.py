@@ -1050,7 +1050,6 @@ def read_dsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
                         attrs={"source": str(path), "format": "dsec-gt"})
 
 
-@guarded('ground-truth flow')
 def _refuse_recording(path: Path) -> None:
     """FormatError where ``path``, given as a ground truth that did not parse as one, is a
     recording of events (an events.txt heard of DSEC's "from_us, to_us" lines, probe
@@ -1066,6 +1065,7 @@ def _refuse_recording(path: Path) -> None:
                       "*_gt_flow_dist.npz or a DSEC flow folder / forward_timestamps.txt)")
 
 
+@guarded('ground-truth flow')
 def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
     """Ground-truth flow from MVSEC ``.npz``, a DSEC flow folder / timestamps file, or an
     evmotion HDF5 file (flow container or the simulator's ``ground_truth/flow``).
