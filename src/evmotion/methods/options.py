@@ -18,10 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
-
-from evmotion.errors import ParameterError
-from evmotion.utils import resolve_options
+from evmotion.utils import check_switches, resolve_options
 
 __all__ = ["merge_options"]
 
@@ -58,9 +55,7 @@ def merge_options(cls: type, options, **keywords):
     defaults = {f.name: f.default for f in dataclasses.fields(cls)}
     given = {k: v for k, v in keywords.items() if not _is_default(v, defaults[k])}
     merged = resolve_options(cls, options, given, cls.__name__)
-    for f in dataclasses.fields(cls):
-        value = getattr(merged, f.name)
-        # a switch given as a string: "no" is true (use_polarity="no" turned it on: probe)
-        if f.type == "bool" and not isinstance(value, (bool, np.bool_)):
-            raise ParameterError(f"{f.name} must be True or False, got {value!r}")
+    # a switch given as a string: "no" is true (use_polarity="no" turned it on: probe)
+    check_switches(**{f.name: getattr(merged, f.name) for f in dataclasses.fields(cls)
+                      if f.type == "bool"})
     return merged

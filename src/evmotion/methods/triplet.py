@@ -97,12 +97,14 @@ __all__ = [
     "default_ridge",
     "dense_lsq_from_sums",
     "dense_robust_fit",
+    "early_window",
     "estimate_flow_triplet",
     "event_fwl",
     "history_us",
     "max_normal_speed",
     "neighbour_offsets",
     "nonzero_average_filter",
+    "triplet_time_us",
     "two_sided",
     "voxelize_flow",
 ]
@@ -311,8 +313,7 @@ class TripletMatcher:
         self.dx = float(dx)
         self.dt_us = int(dt_us)
         self.tau_us = int(tau_us)
-        if not isinstance(quadruple, (bool, np.bool_)):
-            raise ParameterError(f"quadruple must be True or False, got {quadruple!r}")
+        check_switches(quadruple=quadruple)
         self.quadruple = bool(quadruple)
         self.depth = int(depth)
         self.offsets = neighbour_offsets(self.dx)
@@ -842,7 +843,7 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     ((1, 10, 10, 2), 100.0)
     """
     require_events(events, "estimate_flow_triplet")
-    check_switches(quadruple=quadruple, smooth=smooth)
+    check_switches(smooth=smooth)
     if gap_us is None:
         gap_us = BURST_GAP_US
     elif dense != "robust":

@@ -23,7 +23,7 @@ import numpy as np
 
 from evmotion.errors import CalibrationError, ParameterError
 from evmotion.sim.photoreceptor import EVENT_BANDWIDTHS
-from evmotion.utils import check_number, whole_number
+from evmotion.utils import check_number, check_switches, whole_number
 
 __all__ = ["EventOptions", "SchlierenOptions", "SimOptions", "check_number"]
 
@@ -273,8 +273,7 @@ class SchlierenOptions:
             raise ParameterError(f"bit_depth must be an integer in [1, 16] (bits), got "
                                  f"{self.bit_depth!r}")
         _set(self, "bit_depth", int(depth))
-        if not isinstance(self.normalize, (bool, np.bool_)):
-            raise ParameterError(f"normalize must be True or False, got {self.normalize!r}")
+        check_switches(normalize=self.normalize)
         _set(self, "normalize", bool(self.normalize))
         _set(self, "read_noise_e", check_number("read_noise_e", self.read_noise_e, 0.0, 1e6,
                                                 units="electrons rms"))
