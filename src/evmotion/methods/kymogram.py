@@ -917,20 +917,15 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
 
     band = int(np.ceil(stationary_px))
 
-    # each cell's standard error, by the jackknife over the time blocks: the significance
-    # of a peak where the MAD of the whole image cannot give it (a travelling wave's
-    # autocorrelation is itself a wave, its MAD its amplitude: a clear 1000 px/s wave had
-    # no fit, probe CC); used where the MAD finds no ridge
-    loo_images = np.stack([_correlation_image(total - b, n_s) for b in spectra])
-    block_noise = np.sqrt((len(spectra) - 1) * loo_images.var(axis=0))
-    by_blocks = False
+    block_noise = None  # each cell's standard error, where the MAD finds no ridge
 
     def fit(spec: np.ndarray, first: int) -> RidgeFit:
         a = _without_stationary_peak(_correlation_image(spec[first:], n_s), band)
         ka = Kymogram(a.astype(np.float32), lags[first:], shifts, kymo.line, 1.0 / dt,
                       "autocorrelation")
         return fit_ridge(ka, sigma_px=0.0, sigma_bins=0.0, polarity="positive",
-                         min_snr=min_snr, noise=block_noise[first:] if by_blocks else None)
+                         min_snr=min_snr,
+                         noise=None if block_noise is None else block_noise[first:])
 
     # fit_ridge's words are about a kymogram's time bins; here they are lags
     no_ridge = EmptyWindowError(
@@ -941,12 +936,15 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     try:
         rough = fit(total, 1)
     except EmptyWindowError:
-        by_blocks = True
-    try:
-        if by_blocks:
+        # the significance of each peak by the jackknife over the time blocks, where the
+        # MAD of the whole image cannot give it (a travelling wave's autocorrelation is
+        # itself a wave, its MAD its amplitude: a clear 1000 px/s wave had no fit, probe CC)
+        loo_images = np.stack([_correlation_image(total - b, n_s) for b in spectra])
+        block_noise = np.sqrt((len(spectra) - 1) * loo_images.var(axis=0))
+        try:
             rough = fit(total, 1)
-    except EmptyWindowError as exc:
-        raise no_ridge from exc
+        except EmptyWindowError as exc:
+            raise no_ridge from exc
     speed = abs(rough.velocity_px_s)
     shortest = max(min_shift_px, band + 1.0 if band else 0.0)
     first = int(np.ceil(shortest / (speed * dt))) if speed > 0 else 1
@@ -981,9 +979,9 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
                    t_ref_s=t_ref, t_s=whole.t_s, s_px=whole.s_px, inliers=whole.inliers,
                    residual_px=whole.residual_px, method="correlation",
                    origin_offset_px=float(whole.s0_px - v * whole.t_ref_s))
-    if by_blocks and not out.reliable:
-        # the blocks' noise finds peaks in noise too (20 of 20 Poisson kymograms gave a
-        # fit, each unreliable): kept only where it is a measurement
+    if block_noise is not None and not out.reliable:
+        # held against their own noise, peaks of noise can stand high too: such a fit is
+        # kept only where it is a measurement
         raise no_ridge
     return out
 
