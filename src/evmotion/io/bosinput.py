@@ -567,10 +567,10 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     ratio = ev_span / max(fr_span, 1)
     factor = next((f for f in (1e3, 1e6) if f / 2 <= ratio <= 2 * f), None)
     read_in = events.meta.get("time_unit", "s")
-    slipped = next((u for u, f in TIME_UNIT_US.items()
-                    if factor and read_in in TIME_UNIT_US
-                    and np.isclose(f * factor, TIME_UNIT_US[read_in])), None)
-    slipped = None if frames_whole else slipped
+    # (whole-number frame times read as us have their own hint above)
+    slipped = None if frames_whole else next(
+        (u for u, f in TIME_UNIT_US.items() if factor and read_in in TIME_UNIT_US
+         and np.isclose(f * factor, TIME_UNIT_US[read_in])), None)
     if slip and slipped and time_unit is None:
         # the events' times in ms (or µs) read as seconds: only the first thousandth of them
         # met the frames, and the run was refused as inverted polarity, or, flipped as
