@@ -429,3 +429,9 @@ def test_a_recording_given_as_ground_truth_is_named(tmp_path):
     (tmp_path / "forward_timestamps.txt").write_text("a, b\n")
     with pytest.raises(FormatError, match="cannot parse 'from_us, to_us' lines"):
         ff.read_gt_flow(tmp_path / "forward_timestamps.txt")
+
+
+def test_read_gt_flow_is_guarded():
+    # a helper added between @guarded and read_gt_flow took the decorator, leaving the
+    # reader's unexpected errors raw (this session's own slip, found in review)
+    assert getattr(ff.read_gt_flow, "__evmotion_guarded__", False)
