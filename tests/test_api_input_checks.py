@@ -278,6 +278,9 @@ def test_a_simulation_ground_truth_scores_windows_directly():
     assert by_gt.total["AEE"] == pytest.approx(1.0, rel=1e-4) == by_seq.total["AEE"]
     with pytest.raises(ParameterError, match="gt must be a FlowSequence"):
         evaluate_windows(est, t0s, t1s, sim.gt.flow)
+    for bad in (np.nan, 0.5):  # NaN failed in numpy's int conversion, 0.5 was cut to 0
+        with pytest.raises(ParameterError, match=r"t0s must be a whole number"):
+            sim.gt.flow_sequence([bad], [20_000])
     res = estimate_flow(sim.events[:4000])
     with pytest.raises(ParameterError, match=r"'flow' is a FlowResult: .*res.displacement\(\)"):
         flow_metrics(res, exact[0])

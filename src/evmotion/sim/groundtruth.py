@@ -9,6 +9,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.sim.motions import Motion, apply_generator
 from evmotion.sim.render import sample_wrap_numpy
+from evmotion.utils import whole_number
 
 __all__ = ["GroundTruth", "Layer"]
 
@@ -160,8 +161,9 @@ class GroundTruth:
         """
         from evmotion.io.flowfiles import FlowSequence
 
-        t0s = np.asarray(t0s, dtype=np.int64).ravel()
-        t1s = np.asarray(t1s, dtype=np.int64).ravel()
+        # whole µs each (NaN failed in numpy's int conversion and 0.5 was cut to 0)
+        t0s, t1s = (np.array([whole_number(name, v) for v in np.ravel(ts)], np.int64)
+                    for name, ts in (("t0s", t0s), ("t1s", t1s)))
         if t0s.shape != t1s.shape or not np.all(t1s > t0s):
             raise ParameterError("flow_sequence: t0s and t1s must be as many window starts "
                                  "and ends (µs), each end after its start")
