@@ -898,3 +898,11 @@ def test_a_travelling_wave_is_fitted_by_correlation():
     fit = fit_correlation(k)
     assert fit.reliable and abs(fit.velocity_px_s / 1000.0 - 1) < 0.05
     assert abs(fit.velocity_px_s - 1000.0) < 3 * fit.velocity_std_px_s + 10
+
+
+def test_a_noise_of_another_shape_or_nan_is_refused():
+    k = Kymogram(np.ones((10, 20)), np.arange(10) / 1200.0, np.arange(20.0),
+                 KymoLine.row(0, (1, 20)), 1200.0, "events")
+    for bad in (np.ones((3, 3)), np.full((10, 20), np.nan), -np.ones((10, 20))):
+        with pytest.raises(ParameterError, match="noise must be finite standard errors"):
+            ridge_points(k, noise=bad)

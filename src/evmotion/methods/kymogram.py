@@ -526,8 +526,12 @@ def ridge_points(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1
         if noise <= 0:
             noise = sub.std()
     else:
+        noise = np.asarray(noise, np.float64)
+        if noise.shape != d.shape or not np.all(np.isfinite(noise)) or noise.min() < 0:
+            raise ParameterError(f"noise must be finite standard errors >= 0 of the "
+                                 f"kymogram's shape {d.shape}, got shape {noise.shape}")
         med = np.median(sub, axis=1)
-        noise = np.asarray(noise, np.float64)[np.ix_(tmask, cols)][np.arange(sub.shape[0]), k]
+        noise = noise[np.ix_(tmask, cols)][np.arange(sub.shape[0]), k]
     # a peak within 2 sigma of the region's border (in position or time) is pulled by the
     # smoothing's padding or belongs to a structure outside the region: no ridge there
     ms = max(1, int(np.ceil(2 * sigma_px)))
