@@ -322,7 +322,6 @@ def _offset_correlations(events: EventArray, change: np.ndarray, ex: int, ey: in
     correlated 0.85 at 13 px off, probe CC's frames): the numerator by FFT, each offset's
     variance of ``change`` from integral images."""
     from scipy.ndimage import gaussian_filter
-    from scipy.signal import correlate
 
     def band(v: np.ndarray) -> np.ndarray:
         return gaussian_filter(v, 1.0) - gaussian_filter(v, 4.0)
@@ -332,7 +331,11 @@ def _offset_correlations(events: EventArray, change: np.ndarray, ex: int, ey: in
              .reshape(ey, ex).astype(np.float64))
     a -= a.mean()
     b = band(change)
-    num = correlate(b, a, mode="valid", method="fft")
+    # the valid cross-correlation by numpy's FFT over the frames' size: offsets up to the
+    # size difference never wrap round (scipy.signal's import cost 0.43 s of the check's
+    # 0.6 s on a 200x180 scene)
+    num = np.fft.irfft2(np.fft.rfft2(b) * np.conj(np.fft.rfft2(a, s=b.shape)), s=b.shape)
+    num = num[:b.shape[0] - ey + 1, :b.shape[1] - ex + 1]
     n = ex * ey
 
     def box(v: np.ndarray) -> np.ndarray:
