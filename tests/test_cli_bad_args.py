@@ -558,6 +558,21 @@ def test_output_folder_not_writable(rec, capsys, monkeypatch, tmp_path, command)
     assert not list(locked.iterdir())
 
 
+FILE_OUTPUT_COMMANDS = ["convert", "simulate", "view", "landscape", "landscape-csv", "flow",
+                        "bos", "kymogram"]
+
+
+@pytest.mark.parametrize("command", FILE_OUTPUT_COMMANDS)
+def test_file_output_typed_as_a_folder(rec, capsys, command):
+    """``--out o.h5/`` names a folder: Path() drops the separator, and a file o.h5 was
+    written where a folder was typed."""
+    out = str(rec["dir"] / "slashed")
+    argv = [a + "/" if a.startswith(out) else a for a in _output_argv(command, rec, out)]
+    rc, err = _run(argv, capsys)
+    _assert_one_line(rc, err, "slashed", "ending in a path separator is a folder")
+    assert not list(rec["dir"].glob("slashed*"))
+
+
 def test_an_existing_folder_named_like_a_file_is_an_output_folder(rec):
     """Only a name that would make a new folder is refused for its file suffix."""
     args = build_parser().parse_args(["egomotion", rec["rec"], "--warp", "translation",
@@ -1327,7 +1342,7 @@ def test_simulate_refuses_to_replace_another_recordings_ground_truth(tmp_path, c
 
 
 @pytest.mark.parametrize("argv,option", [
-    (["simulate", "rotation", "--out", "{dir}/sdir/"], "--format"),
+    (["simulate", "rotation", "--out", "{dir}/sdir"], "--format"),
     (["convert", "{rec}", "{dir}/c.bin"], "--format-out")])
 def test_an_output_without_a_known_suffix_names_the_commands_format_option(
         rec, capsys, argv, option):

@@ -367,8 +367,14 @@ def _folder_problem(folder: Path) -> str | None:
     return None
 
 
-def _output_problem(path: Path, suffixes: Iterable[str] | None, what: str = ""
-                    ) -> str | None:
+def _output_problem(text: str | os.PathLike, suffixes: Iterable[str] | None,
+                    what: str = "") -> str | None:
+    name = os.fspath(text)
+    if name.endswith(("/", os.sep)):
+        # Path() drops the separator: 'flow --out o.h5/' wrote a file o.h5 where a folder
+        # was typed
+        return "a name ending in a path separator is a folder; the output is a file"
+    path = Path(name)
     if suffixes is not None:
         suffixes = tuple(suffixes)
         if path.suffix.lower() not in suffixes:
@@ -393,7 +399,7 @@ def writable_output(suffixes: Iterable[str] | None = None, what: str = ""
     """
 
     def parse(text: str) -> str:
-        problem = _output_problem(Path(text), suffixes, what)
+        problem = _output_problem(text, suffixes, what)
         if problem:
             raise argparse.ArgumentTypeError(f"cannot write {text!r}: {problem}")
         return text
@@ -450,7 +456,7 @@ def writable_folder(holds: str) -> Callable[[str], str]:
 def check_output(path: str | os.PathLike, option: str,
                  suffixes: Iterable[str] | None = None) -> None:
     """:func:`writable_output` for a path known only at run time; raises ParameterError."""
-    problem = _output_problem(Path(path), suffixes)
+    problem = _output_problem(path, suffixes)
     if problem:
         raise ParameterError(f"{option} {os.fspath(path)}: cannot write: {problem}")
 
