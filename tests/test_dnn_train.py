@@ -421,6 +421,24 @@ def test_resume_and_out_are_checked(tmp_path):
     assert (other / "model.pt").read_bytes() == b"someone's"
 
 
+@pytest.mark.parametrize("held, match", [("model.pt", "holds model.pt but no training"),
+                                          ("last.pt", "already holds a training")])
+def test_cli_refuses_a_taken_folder_before_importing_torch(tmp_path, monkeypatch, capsys,
+                                                          held, match):
+    """The refusal took 4.7 s, torch's import and the trainer's, before it was said."""
+    import evmotion.methods.dnn as dnn
+    from evmotion.cli import main
+
+    def no_torch(feature=""):
+        raise AssertionError("torch was reached before the folder's check")
+
+    monkeypatch.setattr(dnn, "require_torch", no_torch)
+    (tmp_path / held).write_bytes(b"someone's")
+    assert main(["train", "--out", str(tmp_path), "--sim-windows", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and match in err, err
+
+
 @pytest.mark.parametrize("bad, match", [({"seed": 2000}, "seed must be below 2000"),
                                         ({"lr": 2.0}, "lr must be at most 1")])
 def test_seeds_of_the_validation_scenes_and_runaway_rates_are_refused(bad, match):

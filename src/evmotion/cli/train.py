@@ -162,6 +162,7 @@ def run(args) -> int:
     from evmotion.cli.options import reject_unused
     from evmotion.io.registry import get_format
     from evmotion.methods.dnn import require_torch
+    from evmotion.methods.dnn.folder import check_training_folder
     from evmotion.utils import keep_for_resume
 
     t_start = time.perf_counter()
@@ -171,6 +172,7 @@ def run(args) -> int:
                       "without recordings to read (they apply to the recordings and --val)")
     if args.format is not None:
         get_format(args.format)  # an unknown name, said before any work
+    check_training_folder(args.out, args.resume)  # before torch's import: seconds
     require_torch("evmotion train")
     from evmotion.methods.dnn.model import check_device
     from evmotion.methods.dnn.train import TrainConfig, train

@@ -6,7 +6,8 @@
 * :mod:`.loss` -- the training loss: multicm's (4.9) as a ``torch.autograd.Function``;
 * :mod:`.data`, :mod:`.train` -- simulated / recorded windows and the training loop
   (``evmotion train``);
-* :mod:`.model` -- checkpoint files, the shipped default;
+* :mod:`.model` -- checkpoint files, the shipped default; :mod:`.folder` -- what a
+  training folder holds;
 * :mod:`.infer` -- :func:`estimate_flow_dnn` (``estimate_flow(..., method="dnn")``);
 * :mod:`.planar`, :mod:`.tiles` -- what replaces the network's flow where multicm's
   objective prefers it: a plane's motion, or the flow refined on multicm's finest tiles;

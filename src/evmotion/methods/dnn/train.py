@@ -41,6 +41,7 @@ from evmotion.methods.dnn.data import (
     sim_window,
     transpose_window,
 )
+from evmotion.methods.dnn.folder import check_training_folder
 from evmotion.methods.dnn.loss import WindowLoss, multiscale_loss, window_problem
 from evmotion.methods.dnn.model import (
     check_device,
@@ -327,11 +328,6 @@ def _seed_all(cfg: TrainConfig) -> None:
     torch.set_num_threads(cfg.threads)
 
 
-# what a training writes besides last.pt
-OUTPUT_NAMES = ("model.pt", "model.npz", "best.pt", "best.npz", "steps.csv", "epochs.csv",
-                "loss.png")
-
-
 def best_epoch(epochs_log: Sequence[dict]) -> int | None:
     """The epoch with the lowest validation loss (the first of equals), None without
     validation.
@@ -410,15 +406,7 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
     cfg.check()
     out = Path(out_dir)
     last = out / "last.pt"
-    if not resume and last.exists():
-        # a fresh run would overwrite that training's checkpoints at its first epoch
-        raise ParameterError(f"--out {out} already holds a training ({last}): add --resume "
-                             "to continue it, or choose another --out")
-    theirs = sorted(n for n in OUTPUT_NAMES if (out / n).exists()) if not last.exists() else []
-    if theirs:
-        raise ParameterError(f"--out {out} holds {', '.join(theirs)} but no training "
-                             "(last.pt): a run would overwrite them; choose another --out "
-                             "or move them")
+    check_training_folder(out, resume)
     _seed_all(cfg)
     device = torch.device(check_device(cfg.device))
     net = EVFlowNet(width=cfg.width, norm=cfg.norm, symmetric=cfg.symmetric)
