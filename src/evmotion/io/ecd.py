@@ -471,11 +471,22 @@ def sniff_time_unit(path: str | Path) -> str:
     >>> sniff_time_unit("events.txt")
     's'
     """
+    unit, note = _sniffed_unit(path)
+    if note is not None:
+        warnings.warn(EvmotionWarning(note), stacklevel=3)
+    return unit
+
+
+def _sniffed_unit(path: str | Path) -> tuple[str, str | None]:
+    """:func:`sniff_time_unit`'s unit and its warning (None when it has none), for a
+    reader to say once the columns are known to be read right: a Metavision CSV without
+    its header had two warnings about times and sizes, then the refusal naming its column
+    order, all three about the same misreading (probe CF)."""
     path = _events_file(Path(path))
     layout = text_layout(path)
     if layout["time_unit"] is not None:  # a header line named it (t_ns, timestamp_us...)
         # or the layout has one (Metavision's CSV)
-        return layout["time_unit"]
+        return layout["time_unit"], None
     col = layout["order"].index("t")
     with open(path, "rb") as fh:
         fh.seek(layout["offset"])
@@ -484,19 +495,17 @@ def sniff_time_unit(path: str | Path) -> str:
     fields = [ln.replace(b",", b" ").replace(b";", b" ").split() for ln in lines]
     firsts = [f[col] for f in fields if len(f) > col]
     if not firsts or any(re.search(rb"[.eE]", f) for f in firsts):
-        return "s"
+        return "s", None
     order = layout["order"]
     if any(_FRACTION.fullmatch(v) for f in fields for k, v in enumerate(f)
            if k != col and k < len(order) and order[k] != "-"):
         # another column holds the decimals ('x y p t[s]' without a header): the parser
         # names that column; a warning about whole-number times would mislead (probe)
-        return "us"
+        return "us", None
     if all(f.lstrip(b"-").isdigit() for f in firsts) and int(firsts[0]) > NS_EPOCH_US:
-        warnings.warn(EvmotionWarning(
-            f"{path}: the times are whole numbers past 1e17, as microseconds beyond the year "
-            "5000: read as nanoseconds since the epoch (other units: time_unit=, or "
-            "--time-unit)"), stacklevel=3)
-        return "ns"
+        return "ns", (f"{path}: the times are whole numbers past 1e17, as microseconds "
+                      "beyond the year 5000: read as nanoseconds since the epoch (other "
+                      "units: time_unit=, or --time-unit)")
     ts = [int(f) for f in firsts if f.lstrip(b"-").isdigit()]
     span = ts[-1] - ts[0] if ts else 0
     ns_like = len(ts) >= 100 and span >= 100_000 and not any(v % 1000 for v in ts)
@@ -509,11 +518,9 @@ def sniff_time_unit(path: str | Path) -> str:
     elif ms_like:
         hint = (f"; as µs the first {len(ts)} events span {span + 1} µs, faster than any "
                 "sensor reads out: milliseconds? every speed is 1000x too large otherwise")
-    warnings.warn(EvmotionWarning(
-        f"{path}: every time is a whole number: read as microseconds (ECD text holds "
-        "decimal seconds; other units: --time-unit, or time_unit= in Python)" + hint),
-        stacklevel=3)
-    return "us"
+    return "us", (f"{path}: every time is a whole number: read as microseconds (ECD text "
+                  "holds decimal seconds; other units: --time-unit, or time_unit= in "
+                  "Python)" + hint)
 
 
 MAX_EVENTS_PER_US = 1000
@@ -702,30 +709,58 @@ def _event_line(path: Path, k: int) -> int | None:
     return None
 
 
+def _which_event(path: Path, k: int, whole: bool) -> str:
+    """The ``k``-th event named in a message: by its line where the events are the
+    ``whole`` file's, by its place otherwise."""
+    line = _event_line(path, k) if whole else None
+    return f"event {k}" if line is None else f"line {line}: the event"
+
+
+def _column_error(path: Path, t, x, y, p, whole: bool) -> FormatError | None:
+    """The refusal of a polarity outside -1..1 or a coordinate no sensor has (outside
+    0..65535), naming the column order the columns look like (:func:`_order_hint`), or
+    None: said before the warnings about the times and sizes such columns give."""
+    if x.size == 0:
+        return None
+    if x.min() < 0 or y.min() < 0:
+        bad = int(np.argmax((x < 0) | (y < 0)))
+        return FormatError(path, f"{_which_event(path, bad, whole)} has a negative pixel "
+                           f"coordinate: x={x[bad]}, y={y[bad]}")
+    if max(x.max(), y.max()) > MAX_COORDINATE:
+        bad = int(np.argmax((x > MAX_COORDINATE) | (y > MAX_COORDINATE)))
+        return FormatError(path, f"{_which_event(path, bad, whole)} at x={x[bad]}, "
+                           f"y={y[bad]} lies outside any sensor (coordinates 0.."
+                           f"{MAX_COORDINATE})", _order_hint(t, x, y, p))
+    if p.min() < -1 or p.max() > 1:
+        bad = int(np.argmax((p < -1) | (p > 1)))
+        return FormatError(path, f"{_which_event(path, bad, whole)} has polarity "
+                           f"p={p[bad]}, expected 0/1 or -1/+1", _order_hint(t, x, y, p))
+    return None
+
+
+MAX_COORDINATE = 65535  # events hold uint16 coordinates
+
+
 def _to_events(path: Path, x, y, t, p, size, size_src, validate: bool,
                extra: dict | None = None, streamed: bool = False,
                whole: bool = False) -> EventArray:
     """The parsed columns as an EventArray, what no sensor records refused naming the
     event: its line where they are the ``whole`` file's events, its place otherwise."""
     def which(k: int) -> str:
-        line = _event_line(path, k) if whole else None
-        return f"event {k}" if line is None else f"line {line}: the event"
+        return _which_event(path, k, whole)
 
     h, w = size
     if x.size:
         if x.min() < 0 or y.min() < 0:
-            bad = int(np.argmax((x < 0) | (y < 0)))
-            raise FormatError(path, f"{which(bad)} has a negative pixel coordinate: "
-                              f"x={x[bad]}, y={y[bad]}")
+            raise _column_error(path, t, x, y, p, whole)
         if x.max() >= w or y.max() >= h:
             bad = int(np.argmax((x >= w) | (y >= h)))
             raise FormatError(path, f"{which(bad)} at x={x[bad]}, y={y[bad]} lies outside the "
                               f"sensor {w}x{h} (W x H, {size_src})",
                               _order_hint(t, x, y, p) or sensor_size_hint(size_src == "given"))
-        if p.min() < -1 or p.max() > 1:
-            bad = int(np.argmax((p < -1) | (p > 1)))
-            raise FormatError(path, f"{which(bad)} has polarity p={p[bad]}, expected 0/1 or "
-                              "-1/+1", _order_hint(t, x, y, p))
+        bad_polarity = _column_error(path, t, x, y, p, whole)
+        if bad_polarity is not None:
+            raise bad_polarity
         odd = ambiguous_polarity(p)
         if odd is not None:
             raise FormatError(path, odd)
@@ -779,7 +814,7 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     path = Path(path)
     ev_path = _events_file(path)
     size, src = _sensor_size(path, sensor_size)
-    unit = sniff_time_unit(ev_path) if time_unit is None else time_unit
+    unit, note = _sniffed_unit(ev_path) if time_unit is None else (time_unit, None)
     parts = []
     for x, y, t, p in _blocks(ev_path, block_bytes, unit):
         if t0 is not None or t1 is not None:
@@ -794,14 +829,19 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
         x, y, t, p = (np.concatenate([q[i] for q in parts]) for i in range(4))
     else:
         x = y = t = p = np.zeros(0, np.int64)
+    whole = t0 is None and t1 is None
+    misread = _column_error(ev_path, t, x, y, p, whole)
+    if misread is not None:
+        raise misread  # before the warnings about times and sizes read from wrong columns
+    if note is not None:
+        warnings.warn(EvmotionWarning(note), stacklevel=2)
     if src.startswith("ECD default") and x.size and x.min() >= 0 and y.min() >= 0:
         size, src = _extended_size(ev_path, size, src, int(x.max()), int(y.max()))
     _doubt_unit(ev_path, t, x, y, size, unit, given=time_unit is not None)
     # the unit the times were read in: a span that slips by 1000x against the frames'
     # names the next smaller one (BOS, probe CC)
     return _to_events(ev_path, x, y, t, p, size, src, validate,
-                      {**_folder_meta(ev_path), "time_unit": unit},
-                      whole=t0 is None and t1 is None)
+                      {**_folder_meta(ev_path), "time_unit": unit}, whole=whole)
 
 
 def _doubt_unit(path: Path, t_us: np.ndarray, x: np.ndarray, y: np.ndarray,
@@ -849,11 +889,14 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
     path = Path(path)
     ev_path = _events_file(path)
     size, src = _sensor_size(path, sensor_size)
-    unit = sniff_time_unit(ev_path) if time_unit is None else time_unit
+    unit, note = _sniffed_unit(ev_path) if time_unit is None else (time_unit, None)
     if src.startswith("ECD default") and ev_path.stat().st_size <= PRESCAN_BYTES:
         # the chunks must share one sensor size: the whole file's, as read() finds it
         x_max = y_max = -1
-        for x, y, _, _ in _blocks(ev_path, block_bytes, unit):
+        for x, y, t, p in _blocks(ev_path, block_bytes, unit):
+            misread = _column_error(ev_path, t, x, y, p, whole=False)
+            if misread is not None:
+                raise misread  # before the warnings about columns misread
             if x.size and x.min() >= 0 and y.min() >= 0:
                 x_max, y_max = max(x_max, int(x.max())), max(y_max, int(y.max()))
         size, src = _extended_size(ev_path, size, src, x_max, y_max)
@@ -876,6 +919,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
             ev = _to_events(ev_path, *part, size, src, validate,
                             {**extra, "bytes_read": at, "file_bytes": file_bytes},
                             streamed=True)
+            note = _say(note)
             if validate:
                 _check_follows(last_t, ev)
             if last_t is None:
@@ -887,11 +931,18 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
         ev = _to_events(ev_path, *buf, size, src, validate,
                         {**extra, "bytes_read": where["bytes_read"], "file_bytes": file_bytes},
                         streamed=True)
+        _say(note)
         if validate:
             _check_follows(last_t, ev)
         if last_t is None:
             _doubt_unit(ev_path, ev.t, ev.x, ev.y, size, unit, given=time_unit is not None)
         yield ev
+
+
+def _say(note: str | None) -> None:
+    """Warn ``note`` (a reader's deferred warning) when there is one; None, said."""
+    if note is not None:
+        warnings.warn(EvmotionWarning(note), stacklevel=4)
 
 
 class _PolaritySigns:
