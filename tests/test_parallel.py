@@ -115,6 +115,29 @@ def test_failing_window_reported_others_kept(executor, workers):
                                              for a, b in WINDOWS if a != 40_000]
 
 
+def die_in_middle(ev: EventArray, t0: int, t1: int) -> int:
+    if t0 == 40_000:
+        import signal
+
+        os.kill(os.getpid(), signal.SIGKILL)  # as the out-of-memory killer ends a worker
+    return len(ev)
+
+
+def test_a_dead_worker_stops_the_run_in_one_line():
+    """A worker killed mid-run: its windows came back as failed results, then the next
+    submit raised BrokenProcessPool, a traceback; a caller journaling results for --resume
+    had recorded the dead worker's windows as done, without rows (probe CH)."""
+    from evmotion.errors import WorkerDiedError
+    from evmotion.parallel import imap_windows
+
+    got = []
+    with pytest.raises(WorkerDiedError, match=r"worker process died while computing window"):
+        for r in imap_windows(die_in_middle, _events(), WINDOWS, workers=2,
+                              with_window=True, progress=False):
+            got.append(r)
+    assert all(r.ok for r in got) and 2 not in [r.index for r in got]
+
+
 def test_unpicklable_function_is_reported_clearly():
     ev = _events()
     res = map_windows(lambda e: len(e), ev, WINDOWS[:2], workers=2, executor="process",

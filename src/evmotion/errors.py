@@ -101,6 +101,11 @@ class ParameterError(EvmotionError):
     """An argument is out of range or NaN."""
 
 
+class WorkerDiedError(EvmotionError):
+    """A worker process of a parallel run died (killed from outside, or crashed): the pool
+    cannot go on, and the windows it was computing have no result."""
+
+
 class MissingDependencyError(EvmotionError):
     """An optional dependency needed for this feature is not installed."""
 

@@ -30,7 +30,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from evmotion.errors import EvmotionError, MissingDependencyError, ParameterError
+from evmotion.errors import (
+    EvmotionError,
+    MissingDependencyError,
+    ParameterError,
+    WorkerDiedError,
+)
 from evmotion.events import EventArray, Window, window_bounds
 from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
@@ -589,15 +594,27 @@ def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit
                 task = next(queue, None)
                 if task is None:
                     break
-                fut = pool.submit(_run_window, fn, _payload(source, task), task, with_window,
-                                  read_kwargs, sink)
+                try:
+                    fut = pool.submit(_run_window, fn, _payload(source, task), task,
+                                      with_window, read_kwargs, sink)
+                except cf.BrokenExecutor:
+                    raise _worker_died(task) from None
                 running[fut] = task
             if not running:
                 return
             done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
-            for fut in done:
+            died = None
+            for fut in sorted(done, key=lambda f: running[f].index):
                 task = running.pop(fut)
-                yield _future_result(fut, task)
+                if isinstance(fut.exception(), cf.BrokenExecutor):
+                    died = died or task
+                else:
+                    yield _future_result(fut, task)
+            if died is not None:
+                # raised, not yielded as the window's error: a caller keeping its results
+                # for --resume recorded it as done with no row, and resumed without it
+                # (probe CH)
+                raise _worker_died(died)
     except (KeyboardInterrupt, SystemExit):
         interrupted = True
         raise
@@ -608,6 +625,15 @@ def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit
             # After Ctrl-C do not wait for the workers: one stopped while sending its result
             # leaves the pool's result pipe half-written, and joining then hangs for ever.
             pool.shutdown(wait=not interrupted, cancel_futures=True)
+
+
+def _worker_died(task: _Task) -> WorkerDiedError:
+    return WorkerDiedError(
+        f"a worker process died while computing window {task.index} ([{task.t0}, "
+        f"{task.t1}) us): killed from outside (the out-of-memory killer, a signal) or "
+        "crashed; the windows finished before it are kept where the run keeps them (a "
+        "resumable output: run the same command with --resume), and fewer workers need "
+        "less memory")
 
 
 def _process_context():
