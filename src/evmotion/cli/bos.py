@@ -126,8 +126,11 @@ def add_parser(sub) -> None:
                         "of from the previous one; the solution depends on its start, so "
                         "each later interval of the chunk differs from one worker's too "
                         "(by up to a quarter of the flow per window on a simulated plume, at "
-                        "the same accuracy overall); with --scheduler, the number of chunks "
-                        "of intervals (default: one per worker thread of the cluster)")
+                        "the same accuracy overall); a chunk's intervals are written when it "
+                        "ends, so an interrupted run keeps the finished chunks only (none "
+                        "before the first ends; --resume continues with one worker); with "
+                        "--scheduler, the number of chunks of intervals (default: one per "
+                        "worker thread of the cluster)")
     add_scheduler_argument(p, "chunks of frame intervals")
     p.add_argument("--out", required=True,
                    type=writable_output((".h5", ".hdf5", ".npz", ".flo", ".png"),

@@ -99,8 +99,11 @@ def add_arguments(group) -> None:
                             "chunk differ from one worker's, most in its first windows and "
                             "where a fit is marginal (on simulated rotations 0.1 %% of the "
                             "flow, and up to 1.5 %% on valid windows of a 79-window run with "
-                            "--tol 0 --max-iter 40); with --scheduler, the number of chunks "
-                            "(default: the cluster's worker threads)")
+                            "--tol 0 --max-iter 40); a chunk's windows are written when it "
+                            "ends, so an interrupted run keeps the finished chunks only "
+                            "(none before the first ends; --resume continues with one "
+                            "worker); with --scheduler, the number of chunks (default: the "
+                            "cluster's worker threads)")
     add_scheduler_argument(group, "chunks of windows")
     group.add_argument("--init", choices=("previous", "dnn"), default=None,
                        help="start each window from the previous one's flow (default) or "
