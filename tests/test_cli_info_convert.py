@@ -364,3 +364,16 @@ def test_info_of_an_empty_raw_file_takes_the_size_given_over_its_header(tmp_path
         assert rc == 0 and "sensor:      200 x 100 px (W x H)" in out, (extra, out, err)
     rc, out, _ = _run(capsys, "info", str(path))
     assert "sensor:      1280 x 720 px (W x H)" in out
+
+
+def test_sensor_size_replacing_a_stated_one_is_said(tmp_path, capsys):
+    """--sensor-size replaced the size a file's header states without a word (probe CI);
+    for text that states none, it is what the option is for."""
+    ev = EventArray(x=[1, 2, 3], y=[0, 1, 2], t=[0, 10, 20], p=[1, 0, 1], sensor_size=(30, 40))
+    eio.write_events(tmp_path / "r.h5", ev)
+    (tmp_path / "r.txt").write_text("0.000000 1 0 1\n0.000010 2 1 0\n0.000020 3 2 1\n")
+    for name, said in (("r.h5", True), ("r.txt", False)):
+        assert main(["view", str(tmp_path / name), "--sensor-size", "60", "80",
+                     "--out", str(tmp_path / f"{name}.png")]) == 0
+        err = capsys.readouterr().err
+        assert ("--sensor-size 60 80 replaces the 40 x 30 px (W x H)" in err) is said, err

@@ -713,7 +713,8 @@ def add_sensor_size_argument(parser) -> None:
     parser.add_argument("--sensor-size", type=int_range(1, MAX_SENSOR_SIDE, unit="px"), nargs=2, default=None,
                         metavar=("H", "W"),
                         help="the input's sensor size (height width) when its file does not "
-                             "state it (text events default to the ECD's 240 x 180)")
+                             "state it (text events default to the ECD's 240 x 180), or in "
+                             "place of the one it states (said in a warning)")
 
 
 #: The input formats whose times ``--time-unit`` may state (the others carry their unit).
@@ -747,6 +748,30 @@ def check_time_unit(time_unit: str | None, path, fmt: str | None) -> None:
                              f"and other tools' HDF5 inputs{hint}")
 
 
+def _say_replaced_size(path, kw: dict) -> None:
+    """Warn where ``--sensor-size`` replaces a size the file states (a header's, not a
+    reader's default or guess): it did so without a word (probe CI)."""
+    import warnings
+
+    from evmotion.errors import EvmotionError, EvmotionWarning
+    from evmotion.io.summary import describe
+
+    if path is None:
+        return
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the reader says them when it reads
+            head = describe(path, kw.get("format"), stream=False)
+    except (EvmotionError, OSError):
+        return  # the reader says what is wrong with the file
+    stated, given = head.get("sensor_size"), kw["sensor_size"]
+    if stated and head.get("sensor_size_from") in (None, "header") \
+            and tuple(stated) != tuple(given):
+        warnings.warn(EvmotionWarning(
+            f"--sensor-size {given[0]} {given[1]} replaces the {stated[1]} x {stated[0]} px "
+            f"(W x H) that {path} states"), stacklevel=2)
+
+
 def read_kwargs(args, path: str | os.PathLike | None = None) -> dict:
     """The reader options of ``--format``, ``--sensor-size`` and ``--time-unit``, as given
     (``--time-unit`` checked against the format of the recording: ``path``, default the
@@ -754,12 +779,13 @@ def read_kwargs(args, path: str | os.PathLike | None = None) -> dict:
     kw = {}
     if getattr(args, "format", None):
         kw["format"] = args.format
+    if path is None:
+        path = next((getattr(args, n) for n in RECORDING_ATTRS
+                     if isinstance(getattr(args, n, None), (str, os.PathLike))), None)
     if getattr(args, "sensor_size", None):
         kw["sensor_size"] = tuple(args.sensor_size)
+        _say_replaced_size(path, kw)
     if getattr(args, "time_unit", None):
-        if path is None:
-            path = next((getattr(args, n) for n in RECORDING_ATTRS
-                         if isinstance(getattr(args, n, None), (str, os.PathLike))), None)
         check_time_unit(args.time_unit, path, kw.get("format"))
         kw["time_unit"] = args.time_unit
     return kw
