@@ -323,3 +323,17 @@ def test_float_times_given_a_unit_they_are_not_in_or_too_coarse_are_said(tmp_pat
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert read_events(tmp_path / "f64.npz").t[0] == 100_000_000 + t_us[0]
+
+
+def test_mat_time_unit_says_whether_it_was_inferred(tmp_path):
+    """A unit the reader guessed was labelled "(given)" (probe CI), and so was not doubted
+    as guesses are."""
+    import scipy.io
+
+    from evmotion.io import read_events
+
+    scipy.io.savemat(tmp_path / "m.mat", {"seq": np.array([[0.001, 3, 4, 1],
+                                                          [0.002, 5, 6, 0]])})
+    assert read_events(tmp_path / "m.mat").meta["time_unit"] == \
+        "s (inferred from the times' values)"
+    assert read_events(tmp_path / "m.mat", time_unit="ms").meta["time_unit"] == "ms (given)"

@@ -117,6 +117,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         arr = arr.T
     t, x, y, p = (np.ascontiguousarray(arr[:, i]) for i in range(4))
     meta = {"source": str(path), "format": "mat", "variable": name}
+    guess = None
     if time_unit is None:
         # whole numbers are us; fractional ones seconds when they span under 100, or
         # when as us they would mean more than MAX_RATE events a second (a 150 s
@@ -124,7 +125,7 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         span = float(t.max() - t.min()) if t.size else 0.0
         fractional = bool(np.any(t != np.round(t)))
         too_fast = span > 0 and t.size / (span * 1e-6) > MAX_RATE
-        time_unit = "s" if fractional and (span < 100 or too_fast) else "us"
+        guess = "s" if fractional and (span < 100 or too_fast) else "us"
         meta["time_unit_inferred"] = True
     if sensor_size is None:
         sensor_size = DEFAULT_SENSOR_SIZE
@@ -141,7 +142,8 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     p = np.where(p > 0, 1, 0) if p.size and np.all(np.isin(p, (-1, 0, 1))) else p
     ev = events_from_columns(path, x, y, t.astype(np.float64), p, sensor_size=sensor_size,
                              time_unit=time_unit, meta=meta, validate=validate,
-                             drop_outside=drop_outside)
+                             drop_outside=drop_outside, format_unit=guess,
+                             format_unit_how="inferred from the times' values")
     lost = ev.meta.get("dropped_outside", 0)
     if lost:
         warnings.warn(EvmotionWarning(

@@ -115,13 +115,15 @@ def _refuse_negative_pixels(path, x: np.ndarray, y: np.ndarray) -> None:
 def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
                         meta=None, validate=True, drop_outside=False,
                         time_field: str | None = None, format_unit: str | None = None,
-                        format_name: str = "") -> EventArray:
+                        format_name: str = "", format_unit_how: str | None = None
+                        ) -> EventArray:
     """Build an EventArray from loose columns, with clear errors naming ``path``.
 
     ``time_field``, the name ``t`` had in the file: a unit it states (``t_ns``,
     ``timestamp_us``) is the unit when ``time_unit`` is None. ``format_unit``: the unit
     the format ``format_name`` states for its times, used when neither says one, and
-    doubted as a guess is (MVSEC's seconds holding microseconds read 10^6 x long, unsaid).
+    doubted as a guess is (MVSEC's seconds holding microseconds read 10^6 x long, unsaid);
+    ``format_unit_how`` says how it was found (default: ``"<format_name>'s"``).
 
     Integer-valued coordinates become uint16; fractional ones (undistorted) float32.
     ``drop_outside`` drops events off the sensor (undistorted coordinates) instead of
@@ -138,7 +140,7 @@ def events_from_columns(path, x, y, t, p, *, sensor_size=None, time_unit=None,
         time_unit, how = time_unit_in_name(time_field), f"from the field name '{time_field}'"
     guessed = time_unit is None
     if guessed and format_unit is not None:
-        time_unit, how = format_unit, f"{format_name}'s"
+        time_unit, how = format_unit, format_unit_how or f"{format_name}'s"
     try:
         t_us, unit, step = _time_us(t, time_unit, how)
     except ValueError as exc:
