@@ -435,3 +435,17 @@ def test_read_gt_flow_is_guarded():
     # a helper added between @guarded and read_gt_flow took the decorator, leaving the
     # reader's unexpected errors raw (this session's own slip, found in review)
     assert getattr(ff.read_gt_flow, "__evmotion_guarded__", False)
+
+
+def test_an_ecd_folder_is_no_flow_ground_truth(tmp_path):
+    """An ECD folder's APS frame was taken for DSEC's flow PNGs: 'no
+    forward_timestamps.txt beside the flow PNGs' (probe CI)."""
+    from evmotion.io.flowfiles import read_gt_flow
+    from evmotion.io.pngfile import write_png
+
+    folder = tmp_path / "boxes_rotation"
+    folder.mkdir()
+    (folder / "events.txt").write_text("0.000100 3 4 1\n")
+    write_png(folder / "000000000.png", np.zeros((6, 8), np.uint8))
+    with pytest.raises(FormatError, match="is an event recording .*scores egomotion"):
+        read_gt_flow(folder)

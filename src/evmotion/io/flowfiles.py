@@ -975,6 +975,11 @@ def _dsec_gt_layout(path: Path) -> tuple[Path, Path]:
             raise FormatError(path, "holds no ground truth: no DSEC flow PNGs and "
                               "forward_timestamps.txt, nor one *gt*.h5 / *gt*.npz file "
                               "(give the ground-truth file itself)")
+        if (path / "events.txt").is_file():
+            # an ECD folder's APS frames taken for DSEC's flow PNGs (probe CI)
+            raise FormatError(path, "is an event recording (ECD: events.txt), not a flow "
+                              "ground truth: its PNGs are camera frames; its camera motion "
+                              "scores egomotion (evmotion eval EGO_DIR --gt FOLDER)")
         raise FormatError(path, "no forward_timestamps.txt beside the flow PNGs")
     return folder, ts_file
 
