@@ -118,3 +118,64 @@ def test_epoch_times_round_trip_through_the_header_offset(tmp_path):
     np.testing.assert_array_equal(back.t, t)
     np.testing.assert_array_equal(back.x, ev.x)
     assert aedat2.describe(tmp_path / "e.aedat")["n_events"] == 5
+
+
+def _recording(n=3000, t0=422, span=20_000):
+    """A 20 ms recording of ``n`` events on a DAVIS240 (times from ``t0`` µs)."""
+    rng = np.random.default_rng(7)
+    return EventArray(x=rng.integers(0, 240, n), y=rng.integers(0, 180, n),
+                      t=t0 + np.sort(rng.integers(0, span, n)), p=rng.integers(0, 2, n),
+                      sensor_size=(180, 240))
+
+
+def _payload_offset(data: bytes) -> int:
+    he = 0
+    while data.startswith(b"#", he):
+        he = data.index(b"\n", he) + 1
+    return he
+
+
+@pytest.mark.parametrize("block_bytes", [1 << 22, 8 * 500])
+def test_a_time_that_jumps_and_falls_back_is_refused_not_taken_for_a_rollover(
+        tmp_path, block_bytes):
+    """Probe CG: the top byte of record 500's timestamp set to 0xAE (a jump of 48 min)
+    and the next record back at 3.9 ms: the fall was counted as a rollover of the 32-bit
+    µs clock, and every later time moved 71.6 min on (a 20 ms recording read as 8,590 s,
+    unsaid); now the record is named as a corrupt time field."""
+    ev = _recording()
+    aedat2.write(tmp_path / "a.aedat", ev)
+    data = bytearray((tmp_path / "a.aedat").read_bytes())
+    he = _payload_offset(bytes(data))
+    for k in (500, 1500):
+        data[he + 8 * k + 4] = 0xAE
+    (tmp_path / "m.aedat").write_bytes(bytes(data))
+    at = int(np.frombuffer(bytes(data[he + 8 * 500 + 4:he + 8 * 500 + 8]), ">u4")[0])
+    with pytest.raises(FormatError, match=rf"m\.aedat: record 500 \(timestamp at byte offset "
+                                          rf"{he + 8 * 500 + 4}\) holds time {at} us, .*"
+                                          rf"{ev.t[499]} us before, {ev.t[501]} us after.*"
+                                          "corrupt time field"):
+        aedat2.read(tmp_path / "m.aedat", block_bytes=block_bytes)
+    with pytest.raises(FormatError, match="record 500 .*corrupt time field"):
+        aedat2.describe(tmp_path / "m.aedat")
+
+
+def test_a_time_that_falls_and_jumps_back_is_refused(tmp_path):
+    """The same the other way: a timestamp's top byte cleared at 50 min into the clock
+    read as a rollover, the times after it 71.6 min late."""
+    ev = _recording(t0=3_000_000_000)
+    aedat2.write(tmp_path / "a.aedat", ev)
+    data = bytearray((tmp_path / "a.aedat").read_bytes())
+    data[_payload_offset(bytes(data)) + 8 * 700 + 4] = 0
+    (tmp_path / "m.aedat").write_bytes(bytes(data))
+    with pytest.raises(FormatError, match="record 700 .*corrupt time field"):
+        aedat2.read(tmp_path / "m.aedat")
+
+
+def test_a_genuine_rollover_of_the_clock_still_reads(tmp_path):
+    """A DAVIS clock counting through 2^32 µs (71.6 min) mid-recording: the times near the
+    top of the counter, then near zero, read on as one clock."""
+    ev = _recording(t0=(1 << 32) - 10_000)
+    aedat2.write(tmp_path / "w.aedat", ev)
+    back = aedat2.read(tmp_path / "w.aedat", block_bytes=8 * 333)
+    np.testing.assert_array_equal(back.t, ev.t)
+    assert (ev.t >= 1 << 32).any() and (ev.t < 1 << 32).any()

@@ -123,6 +123,61 @@ def test_gaps_the_reader_cannot_unwrap_are_refused(tmp_path, fmt, gap_us):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("fmt", ["dat", "aedat2"])
+def test_two_gaps_spanning_the_u32_counter_are_refused_by_the_writers(tmp_path, fmt):
+    """Two consecutive gaps spanning 2^32 µs or more, with a wrap between: the readers
+    take the time between for a corrupt one (probe CG), so the writers refuse to write
+    them, as they refuse a gap the reader cannot restore."""
+    from evmotion.io import aedat2
+
+    mod = {"dat": dat, "aedat2": aedat2}[fmt]
+    t = np.array([0, 10, (1 << 32) - 100, (1 << 32) + 20, (1 << 32) + 30], np.int64)
+    ev = EventArray(x=[0, 1, 2, 3, 4], y=[0, 1, 2, 3, 4], t=t, p=[0, 1, 1, 0, 1],
+                    sensor_size=(180, 240))
+    with pytest.raises(FormatError, match=r"events 1 and 3 are 4294967306 us apart with one "
+                                          "event between.*corrupt time field"):
+        mod.write(tmp_path / f"g.{fmt}", ev)
+    assert not (tmp_path / f"g.{fmt}").exists()
+
+
+def _written(tmp_path, t0: int) -> tuple[EventArray, bytearray, int]:
+    """A 20 ms Gen4 recording from ``t0`` µs written as DAT: the events, the file's
+    bytes and where its records start."""
+    rng = np.random.default_rng(3)
+    n = 3000
+    ev = EventArray(x=rng.integers(0, 1280, n), y=rng.integers(0, 720, n),
+                    t=t0 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(720, 1280))
+    dat.write(tmp_path / "a.dat", ev)
+    data = bytearray((tmp_path / "a.dat").read_bytes())
+    _, off = binary.read_text_header(tmp_path / "a.dat", b"%")
+    return ev, data, off + 2
+
+
+@pytest.mark.parametrize("block_bytes", [1 << 22, 8 * 500, 8])
+@pytest.mark.parametrize(("t0", "top"), [(422, 0xAE), (3_000_000_000, 0x00)])
+def test_a_corrupt_time_is_refused_not_taken_for_a_rollover(tmp_path, decoder, block_bytes,
+                                                            t0, top):
+    """Probe CG: record 500's top time byte set (a jump of 48 min, then back) or cleared
+    (a fall, then back): the fall was counted as a rollover of the u32 clock, every later
+    time 71.6 min off, unsaid; now the event is named as a corrupt time field."""
+    ev, data, off = _written(tmp_path, t0)
+    data[off + 8 * 500 + 3] = top  # the timestamp's most significant byte (little-endian)
+    (tmp_path / "m.dat").write_bytes(bytes(data))
+    at = int(np.frombuffer(bytes(data[off + 8 * 500:off + 8 * 500 + 4]), "<u4")[0])
+    with pytest.raises(FormatError, match=rf"m\.dat: event 500 \(timestamp at byte offset "
+                                          rf"{off + 8 * 500}\) holds time {at} us, .*"
+                                          rf"\({ev.t[499]} us before, {ev.t[501]} us after.*"
+                                          "corrupt time field"):
+        dat.read(tmp_path / "m.dat", block_bytes=block_bytes)
+
+
+def test_a_genuine_rollover_still_reads(tmp_path, decoder):
+    ev, _, _ = _written(tmp_path, (1 << 32) - 10_000)
+    assert (ev.t >= 1 << 32).any() and (ev.t < 1 << 32).any()
+    assert_same_events(dat.read(tmp_path / "a.dat", block_bytes=8 * 333), ev)
+
+
 def test_float_coordinates_are_refused(tmp_path):
     ev = EventArray(x=[0.5, 3.0], y=[1.0, 0.0], t=[0, 1], p=[0, 1], sensor_size=(8, 8))
     with pytest.raises(FormatError, match=r"float \(undistorted\) coordinates; DAT stores"):

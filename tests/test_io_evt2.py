@@ -146,3 +146,63 @@ def test_header_lines_stating_different_sizes_are_refused(tmp_path):
                                           r"width=640'; '% geometry 128x720'"):
         read_events(tmp_path / "a.raw")
     assert read_events(tmp_path / "a.raw", sensor_size=(480, 640)).x.tolist() == [97, 3]
+
+
+def _corrupted(tmp_path, shift: int, picks=(100, 200), t0=422):
+    """A 20 ms recording from ``t0`` µs written as EVT 2.0, then TIME_HIGH words ``picks``
+    moved ``shift`` (of 2^28) ahead: the events, the file, the byte offsets of the words
+    and the first one's and its neighbours' words."""
+    rng = np.random.default_rng(11)
+    n = 3000
+    ev = EventArray(x=rng.integers(0, 80, n), y=rng.integers(0, 60, n),
+                    t=t0 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(60, 80))
+    evt2.write(tmp_path / "a.raw", ev)
+    data = (tmp_path / "a.raw").read_bytes()
+    he = data.index(b"% end\n") + 6
+    w = np.frombuffer(data[he:], "<u4").copy()
+    th = np.flatnonzero(w >> 28 == 8)
+    for j in picks:
+        w[th[j]] = (8 << 28) | ((int(w[th[j]]) + shift) & 0xFFFFFFF)
+    (tmp_path / "m.raw").write_bytes(data[:he] + w.tobytes())
+    j = picks[0]
+    return ev, tmp_path / "m.raw", [he + 4 * int(th[j]) for j in picks], w[th[j - 1:j + 2]]
+
+
+@pytest.mark.parametrize("block_bytes", [1 << 22, 4 * 401, 4])
+def test_a_time_high_that_jumps_and_falls_back_is_refused(tmp_path, decoder, block_bytes):
+    """Probe CG: TIME_HIGH words 100 and 200 moved 200,000,000 (of 2^28) ahead: each
+    fall back was counted as a rollover of the 34-bit counter (a 20 ms recording read as
+    34,360 s, unsaid); now the first is named as a corrupt time field."""
+    _, path, offsets, (before, at, after) = _corrupted(tmp_path, 200_000_000)
+    t = [(int(v) & 0xFFFFFFF) << 6 for v in (before, at, after)]
+    with pytest.raises(FormatError, match=rf"m\.raw: TIME_HIGH word at byte offset "
+                                          rf"{offsets[0]} holds time {t[1]} us, .*\({t[0]} us "
+                                          rf"before, {t[2]} us after.*corrupt time field"):
+        evt2.read(path, block_bytes=block_bytes)
+    with pytest.raises(FormatError, match="TIME_HIGH word at byte offset .*corrupt time"):
+        list(evt2.iter_chunks(path, 500, block_bytes=block_bytes))
+
+
+def test_a_time_high_that_falls_and_jumps_back_is_refused(tmp_path, decoder):
+    """Three hours into the counter, a TIME_HIGH moved 150,000,000 (of 2^28) back."""
+    _, path, offsets, _ = _corrupted(tmp_path, (1 << 28) - 150_000_000, picks=(100,),
+                                     t0=3 * 3600 * 10 ** 6)
+    with pytest.raises(FormatError, match=rf"word at byte offset {offsets[0]} .*corrupt time"):
+        evt2.read(path)
+
+
+def test_the_corrupt_time_check_agrees_in_both_decoders_across_blocks():
+    """Time bases counting by 1,000,000 (of 2^28, wrapping once), one moved half the
+    counter ahead: both decoders stop at it, wherever the blocks are cut."""
+    rng = np.random.default_rng(2)
+    h = np.arange(400) * 1_000_000 % (1 << 28)
+    words = ((8 << 28) | h).astype(np.uint32)
+    assert assert_decoders_agree(evt2, words, 30, rng)[1] == 1 << 34  # no fault: a wrap
+    words[100] = (8 << 28) | (int(h[100]) + (1 << 27) + (1 << 21))
+    for plain in (True, False):
+        for cuts in ([7, 100, 250], [101, 300], [100, 101, 102]):
+            state = evt2.new_state()
+            with pytest.raises(FormatError, match="TIME_HIGH word 100 of the payload"):
+                for part in np.split(words, cuts):
+                    evt2.decode_words(part, state, plain=plain)

@@ -117,3 +117,28 @@ def test_other_encodings_are_named(tmp_path):
         0, 1 << 32, 500).astype(np.uint64))
     with pytest.raises(FormatError, match="does not read as EVT 2.1 in either byte order"):
         read_events(noise)
+
+
+def test_a_time_high_that_jumps_and_falls_back_is_refused(tmp_path):
+    """Probe CG (EVT 2.0's, the same time words): a TIME_HIGH moved 200,000,000 (of 2^28)
+    ahead, its fall back counted as a rollover of the 34-bit counter (every later time
+    4.8 h on, unsaid); now it is named as a corrupt time field."""
+    rng = np.random.default_rng(1)
+    n = 3000
+    ev = EventArray(x=rng.integers(0, 1280, n), y=rng.integers(0, 720, n),
+                    t=422 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(720, 1280))
+    evt21.write(tmp_path / "a.raw", ev)
+    data = (tmp_path / "a.raw").read_bytes()
+    he = data.index(b"% end\n") + 6
+    w = np.frombuffer(data[he:], "<u4").copy()  # (upper, lower) halves
+    upper = w[0::2]
+    th = np.flatnonzero(upper >> 28 == 8)
+    k = int(th[100])
+    upper[k] = (8 << 28) | ((int(upper[k]) + 200_000_000) & 0xFFFFFFF)
+    w[0::2] = upper
+    (tmp_path / "m.raw").write_bytes(data[:he] + w.tobytes())
+    for block_bytes in (1 << 22, 8 * 301, 8):
+        with pytest.raises(FormatError, match=rf"m\.raw: TIME_HIGH word at byte offset "
+                                              rf"{he + 8 * k} holds time .*corrupt time"):
+            evt21.read(tmp_path / "m.raw", block_bytes=block_bytes)

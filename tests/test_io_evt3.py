@@ -88,8 +88,12 @@ def test_numpy_decoder_matches_the_kernel_on_random_words_in_blocks():
     from one to the next, from a fresh decoder."""
     rng = np.random.default_rng(3)
     types = np.array([0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0x8, 0x7, 0xA, 0xE])
-    words = ((rng.choice(types, 20_000, p=[.15, .2, .05, .1, .1, .15, .15, .04, .03, .03])
-              << 12) | rng.integers(0, 1 << 12, 20_000)).astype(np.uint16)
+    typ = rng.choice(types, 20_000, p=[.15, .2, .05, .1, .1, .15, .15, .04, .03, .03])
+    low = rng.integers(0, 1 << 12, 20_000)
+    # time bases that count up, by jumps of up to 1500 (of 4096) and wrapping, as a
+    # counter does (random ones read as corrupt time words: test_corrupt_time_high...)
+    low[typ == 0x8] = np.cumsum(rng.integers(0, 1500, int((typ == 0x8).sum()))) % (1 << 12)
+    words = ((typ << 12) | low).astype(np.uint16)
     state = assert_decoders_agree(evt3, words, 40, rng)
     assert state[3] > 0  # the counter wrapped
 
@@ -299,3 +303,27 @@ def test_two_recordings_joined_are_named(tmp_path, fmt, word):
     first = tmp_path / "first.raw"
     first.write_bytes(joined.read_bytes()[:len(one)])
     assert len(eio.read_events(first)) == 200
+
+
+@pytest.mark.parametrize(("t0", "shift"), [(0, 3000), (13_000_000, 4096 - 3000)])
+def test_a_corrupt_time_high_is_refused_not_taken_for_a_rollover(tmp_path, decoder, t0,
+                                                                 shift):
+    """Probe CG (as in EVT 2.0): a TIME_HIGH word moved 3000 (of 4096) ahead of its
+    neighbours, or (13 s into the counter) behind them: the fall (or the fall after the jump) was counted as a rollover
+    of the 24-bit counter, every later time 16.8 s on, unsaid; now it is named as a
+    corrupt time field."""
+    ev = random_events(3000, (480, 640), 1_000_000, seed=4)
+    ev = EventArray(ev.x, ev.y, ev.t + t0, ev.p, ev.sensor_size)  # (13 s: time high 3173..)
+    evt3.write(tmp_path / "a.raw", ev)
+    data = (tmp_path / "a.raw").read_bytes()
+    he = data.index(b"% end\n") + 6
+    w = np.frombuffer(data[he:], "<u2").copy()
+    th = np.flatnonzero(w >> 12 == 8)
+    k = int(th[100])
+    w[k] = 0x8000 | ((int(w[k]) + shift) & 0xFFF)
+    (tmp_path / "m.raw").write_bytes(data[:he] + w.tobytes())
+    at = (int(w[k]) & 0xFFF) << 12
+    for read in (evt3.read, lambda p: list(evt3.iter_chunks(p, 100, block_bytes=2 * 99))):
+        with pytest.raises(FormatError, match=rf"m\.raw: TIME_HIGH word at byte offset "
+                                              rf"{he + 2 * k} holds time {at} us.*corrupt"):
+            read(tmp_path / "m.raw")

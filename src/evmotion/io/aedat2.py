@@ -79,11 +79,16 @@ def _parse_header(path: Path, sensor_size):
 
 
 class _Unwrap:
-    """Unwraps u32 µs timestamps across blocks (jAER's counter wraps every 71.6 min)."""
+    """Unwraps u32 µs timestamps across blocks (jAER's counter wraps every 71.6 min); a
+    record whose time jumps ahead and falls back (or falls and jumps back) by half the
+    counter or more raises :class:`binary.CorruptTimeError` (it was taken for a
+    rollover), its ``pos`` the record's index in the file."""
 
-    def __init__(self) -> None:
+    def __init__(self, offset: int = 0) -> None:
         self.last = None
-        self.offset = 0
+        self.start = self.offset = offset
+        self.prev = np.empty(0, np.int64)  # the last two unwrapped times, for the check
+        self.records = 0
 
     def __call__(self, t32: np.ndarray) -> np.ndarray:
         t = t32.astype(np.int64)
@@ -93,6 +98,15 @@ class _Unwrap:
         d = np.diff(t, prepend=prev)
         wraps = np.cumsum(d < -(1 << 31)) << 32
         out = t + wraps + self.offset
+        bad = binary.corrupt_counter(out, self.prev, 1 << 32)
+        if bad is not None:
+            seq = np.concatenate((self.prev, out))
+            k = bad + self.prev.size
+            raise binary.CorruptTimeError(self.records + bad,
+                                          (seq[k - 1:k + 2] - self.start) & 0xFFFFFFFF, 32,
+                                          "record")
+        self.prev = np.concatenate((self.prev, out))[-2:]
+        self.records += t.size
         self.offset += int(wraps[-1])
         self.last = int(t[-1])
         return out
@@ -129,11 +143,15 @@ def _decode(addr: np.ndarray, t: np.ndarray, size) -> binary.Block:
 
 
 def _records(path: Path, offset: int, block_bytes: int, lines: list[str]):
-    unwrap = _Unwrap()
-    unwrap.offset = _time_offset(path, lines)
+    unwrap = _Unwrap(_time_offset(path, lines))
     for _, buf in binary.iter_blocks(path, offset, block_bytes, RECORD):
         rec = np.frombuffer(buf, ">u4").reshape(-1, 2)
-        yield rec[:, 0].astype(np.uint32), unwrap(rec[:, 1])
+        try:
+            t = unwrap(rec[:, 1])
+        except binary.CorruptTimeError as exc:
+            raise exc.at(path, f"record {exc.pos} (timestamp at byte offset "
+                               f"{offset + RECORD * exc.pos + 4})") from None
+        yield rec[:, 0].astype(np.uint32), t
 
 
 def _blocks(path, offset, size, block_bytes, decode, lines) -> Iterator[binary.Block]:

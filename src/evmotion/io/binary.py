@@ -49,6 +49,89 @@ def counter_wraps(values: np.ndarray, last: int, half: int, seen: bool = True) -
     wrapped[:1] &= seen
     return np.cumsum(wrapped)
 
+
+class CorruptTimeError(FormatError):
+    """A time counter's value that jumps ahead and falls back (or falls and jumps back)
+    by half the counter or more: the decoders took the fall for a rollover of the counter,
+    adding a whole counter period to every time after it (probe CG: a 20 ms recording read
+    as 8,590 s). A genuine rollover follows a whole period of counting: the value after it,
+    unwrapped, is less than one period after the value two before it; a value between two
+    neighbours a period or more apart (unwrapped) is corrupt.
+
+    ``pos`` is the corrupt value's place (a record, or a word of the payload), ``times``
+    the stored times (µs, modulo the counter) of it and of its neighbours, ``bits`` the
+    counter's width in µs; :meth:`at` names it in its file."""
+
+    def __init__(self, pos: int, times: tuple[int, int, int], bits: int,
+                 what: str = "time word"):
+        self.pos, self.times, self.bits = int(pos), tuple(int(v) for v in times), bits
+        super().__init__(None, self.text(f"{what} {self.pos} of the payload"))
+
+    def text(self, where: str) -> str:
+        before, at, after = self.times
+        return (f"{where} holds time {at} us, out of line with the times around it "
+                f"({before} us before, {after} us after; stored modulo 2^{self.bits} us): "
+                "a corrupt time field (read as a rollover of the counter, it would put "
+                f"2^{self.bits} us or more between its neighbours)")
+
+    def at(self, path, where: str) -> FormatError:
+        """The same error naming ``path`` and the value's place ``where`` in it."""
+        return FormatError(path, self.text(where), "the file is corrupt")
+
+
+def corrupt_counter(u: np.ndarray, prev: np.ndarray, period: int) -> int | None:
+    """Where, in the unwrapped counter values ``u`` (int64, after ``prev``, the last one
+    or two values before them), the first value lies between two neighbours ``period`` or
+    more apart (a corrupt value taken for a jump and a rollover, see
+    :class:`CorruptTimeError`): its index in ``u`` (-1: the last of ``prev``), or None.
+
+    Examples
+    --------
+    >>> corrupt_counter(np.array([10, 900, 1040]), np.array([5]), period=1024)
+    1
+    >>> corrupt_counter(np.array([1020, 1030]), np.array([5, 1000]), period=1024) is None
+    True
+    """
+    seq = np.concatenate((prev, u)) if len(prev) else u
+    bad = np.flatnonzero(seq[2:] - seq[:-2] >= period)
+    return None if not bad.size else int(bad[0]) + 1 - len(prev)
+
+def note_corrupt(state: np.ndarray, u: np.ndarray, pos: np.ndarray, period: int,
+                 slots: tuple[int, ...]) -> bool:
+    """For a numpy decoder whose time counter is checked by :func:`corrupt_counter`: the
+    block's unwrapped counter values ``u`` (at words ``pos`` of the payload) checked after
+    the state's last two; True, with the corrupt value noted in the state, where one is.
+    ``slots`` are the state's slots of the last two values, how many are set, the last
+    value's word, the corrupt word (+ 1; 0: none) and the value after it (the kernels keep
+    the same)."""
+    s_u1, s_u2, s_nu, s_p1, s_bad, s_after = slots
+    prev = state[[s_u2, s_u1]][2 - min(int(state[s_nu]), 2):]
+    bad = corrupt_counter(u, prev, period)
+    seq = np.concatenate((prev, u))
+    if bad is not None:
+        k = bad + prev.size
+        state[s_u2], state[s_u1], state[s_after] = seq[k - 1], seq[k], seq[k + 1]
+        state[s_bad] = (state[s_p1] if bad < 0 else pos[bad]) + 1
+        return True
+    if u.size:
+        state[s_u2] = seq[-2] if seq.size > 1 else state[s_u1]
+        state[s_u1] = seq[-1]
+        state[s_nu] += u.size
+        state[s_p1] = pos[-1]
+    return False
+
+
+def raise_noted(state: np.ndarray, slots: tuple[int, ...], bits: int, what: str) -> None:
+    """:class:`CorruptTimeError` for the corrupt counter value a decoder noted in its
+    ``state`` (``slots`` as :func:`note_corrupt`'s), if any; ``bits``: the counter's width
+    in µs, ``what`` the word's name."""
+    s_u1, s_u2, _, _, s_bad, s_after = slots
+    if state[s_bad]:
+        mask = (1 << bits) - 1
+        times = (int(state[s_u2]) & mask, int(state[s_u1]) & mask, int(state[s_after]) & mask)
+        raise CorruptTimeError(int(state[s_bad]) - 1, times, bits, what)
+
+
 # ``open_blocks(path, sensor_size, block_bytes) -> (data offset, (height, width), blocks)``:
 # parses a file's header and returns its payload as a lazy iterator of decoded blocks.
 OpenBlocks = Callable[[Path, "tuple[int, int] | None", int],
@@ -380,9 +463,10 @@ def u32_time_base(events: EventArray, fmt: str) -> int:
 def check_u32_times(events: EventArray, fmt: str, t_base: int = 0) -> None:
     """FormatError unless ``events``' times, less ``t_base`` µs, survive a format that
     stores them modulo 2^32 µs and is unwrapped on reading wherever the stored time drops
-    by more than 2^31 µs: the first time within ``[0, 2^32)`` µs and no gap the reader
-    cannot tell from a wrap (one of 2^31 µs, 35.8 min, or more may be) (``fmt`` names the
-    format in the message)."""
+    by more than 2^31 µs: the first time within ``[0, 2^32)`` µs, no gap the reader
+    cannot tell from a wrap (one of 2^31 µs, 35.8 min, or more may be), and no two
+    consecutive gaps spanning 2^32 µs or more, which the reader takes for a corrupt time
+    (:class:`CorruptTimeError`) (``fmt`` names the format in the message)."""
     if not len(events):
         return
     t = np.asarray(events.t, np.int64) - t_base
@@ -397,6 +481,16 @@ def check_u32_times(events: EventArray, fmt: str, t_base: int = 0) -> None:
         raise FormatError(None, f"events {k - 1} and {k} are {int(t[k] - t[k - 1])} us apart: "
                           f"{fmt} stores times modulo 2^32 us and cannot restore them across "
                           "that gap (gaps under 2^31 us, 35.8 min, are always restored)",
+                          "write the parts before and after the gap to separate files, or "
+                          "write .h5, whose times are 64-bit")
+    # the readers take a time 2^32 us or more from both neighbours' for a corrupt one
+    far = np.flatnonzero(t[2:] - t[:-2] >= 1 << 32)
+    if far.size:
+        k = int(far[0])
+        raise FormatError(None, f"events {k} and {k + 2} are {int(t[k + 2] - t[k])} us apart "
+                          f"with one event between: {fmt} stores times modulo 2^32 us, and "
+                          "its readers take a time 2^32 us or more from both neighbours' for "
+                          "a corrupt time field",
                           "write the parts before and after the gap to separate files, or "
                           "write .h5, whose times are 64-bit")
 

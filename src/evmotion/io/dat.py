@@ -32,36 +32,85 @@ RECORD = 8
 DEFAULT_SIZE = (240, 304)
 
 
+# decoder state slots: the last raw time, the wrap offset, the last two unwrapped times
+# and how many of them are set (for the corrupt-time check), records decoded before the
+# block, and the corrupt record found (its index + 1; 0: none)
+_LAST, _OVF, _U1, _U2, _NU, _BASE, _BAD = range(7)
+
+
+def new_state(t_offset: int = 0) -> np.ndarray:
+    """A fresh decoder state, its wrap offset starting at ``t_offset`` µs."""
+    state = np.zeros(7, np.int64)
+    state[_OVF] = t_offset
+    return state
+
+
 @lazy_njit(cache=True)
 def _decode(ts, data, state, ox, oy, ot, op):
-    """Unwrap u32 times (state = [last raw t, wrap offset]) and split the address word."""
-    last = state[0]
-    ovf = state[1]
+    """Unwrap u32 times and split the address word (``state``: see :func:`new_state`,
+    updated in place); stops at a time 2^32 µs or more from both neighbours' (unwrapped),
+    a corrupt one taken for a rollover, setting ``state[_BAD]``."""
+    last = state[_LAST]
+    ovf = state[_OVF]
+    u1 = state[_U1]
+    u2 = state[_U2]
+    nu = state[_NU]
     for i in range(ts.shape[0]):
         t = np.int64(ts[i])
         if t < last and last - t > (np.int64(1) << 31):
             ovf += np.int64(1) << 32
         last = t
+        u = t + ovf
+        if nu >= 2 and u - u2 >= (np.int64(1) << 32):
+            state[_BAD] = state[_BASE] + i  # the record before this one, + 1
+            return
+        u2 = u1
+        u1 = u
+        nu += 1
         d = data[i]
         ox[i] = d & 0x3FFF
         oy[i] = (d >> 14) & 0x3FFF
         op[i] = (d >> 28) & 1
-        ot[i] = t + ovf
-    state[0] = last
-    state[1] = ovf
+        ot[i] = u
+    state[_LAST] = last
+    state[_OVF] = ovf
+    state[_U1] = u1
+    state[_U2] = u2
+    state[_NU] = nu
+    state[_BASE] += ts.shape[0]
 
 
 def _decode_plain(ts, data, state, ox, oy, ot, op):
     """:func:`_decode` by numpy (blocks of at most ``binary.PLAIN_WORDS`` records)."""
     t = ts.astype(np.int64)
-    wraps = binary.counter_wraps(t, state[0], (1 << 31) + 1)  # (the kernel's "> 2^31")
-    ot[:] = t + state[1] + (wraps << 32)
+    wraps = binary.counter_wraps(t, state[_LAST], (1 << 31) + 1)  # (the kernel's "> 2^31")
+    u = t + state[_OVF] + (wraps << 32)
+    prev = state[[_U2, _U1]][2 - min(int(state[_NU]), 2):]
+    bad = binary.corrupt_counter(u, prev, 1 << 32)
+    if bad is not None:
+        state[_BAD] = state[_BASE] + bad + 1
+        return
+    ot[:] = u
     ox[:] = data & 0x3FFF
     oy[:] = (data >> 14) & 0x3FFF
     op[:] = (data >> 28) & 1
     if t.size:
-        state[0] = t[-1]
-        state[1] += int(wraps[-1]) << 32
+        state[_LAST] = t[-1]
+        state[_OVF] += int(wraps[-1]) << 32
+        state[_U2], state[_U1] = (u[-2], u[-1]) if t.size > 1 else (state[_U1], u[-1])
+        state[_NU] += t.size
+        state[_BASE] += t.size
+
+
+def _corrupt(path: Path, offset: int, state: np.ndarray, blocks: list) -> FormatError:
+    """The error for the corrupt record ``state[_BAD] - 1``: its time and its neighbours',
+    as stored (``blocks``: the raw times of the blocks read so far, the last two kept)."""
+    k = int(state[_BAD]) - 1
+    ts = np.concatenate(blocks)
+    first = int(state[_BASE]) - (ts.size - blocks[-1].size)  # record index of ts[0]
+    times = ts[k - 1 - first:k + 2 - first]
+    return binary.CorruptTimeError(k, times, 32, "event").at(
+        path, f"event {k} (timestamp at byte offset {offset + RECORD * k})")
 
 
 def _parse_header(path: Path, sensor_size):
@@ -89,9 +138,9 @@ def _parse_header(path: Path, sensor_size):
 
 def _blocks(path: Path, offset: int, block_bytes: int, t_offset: int = 0
             ) -> Iterator[binary.Block]:
-    state = np.zeros(2, np.int64)
-    state[1] = t_offset  # the unwrapping offset starts at the header's time offset
+    state = new_state(t_offset)  # the unwrapping offset starts at the header's time offset
     decode = _decode_plain if binary.small_payload(path, offset, RECORD) else _decode
+    kept: list[np.ndarray] = []  # the raw times of the last blocks, for an error message
     for _, buf in binary.iter_blocks(path, offset, block_bytes, RECORD):
         rec = np.frombuffer(buf, "<u4").reshape(-1, 2)
         n = rec.shape[0]
@@ -99,8 +148,11 @@ def _blocks(path: Path, offset: int, block_bytes: int, t_offset: int = 0
         y = np.empty(n, np.uint16)
         t = np.empty(n, np.int64)
         p = np.empty(n, np.uint8)
-        decode(np.ascontiguousarray(rec[:, 0]), np.ascontiguousarray(rec[:, 1]), state,
-               x, y, t, p)
+        ts = np.ascontiguousarray(rec[:, 0])
+        kept = [*kept[-2:], ts]
+        decode(ts, np.ascontiguousarray(rec[:, 1]), state, x, y, t, p)
+        if state[_BAD]:
+            raise _corrupt(path, offset, state, kept)
         yield x, y, t, p
 
 

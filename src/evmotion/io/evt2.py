@@ -22,14 +22,28 @@ __all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "time_hig
 
 WRAP_US = 1 << 34
 _HALF = 1 << 27
+# decoder state slots (EVT 2.1's too): the time high, the wrap offset, whether a time high
+# was seen, (EVT 2.1: the byte order), then for the corrupt-time check the last two
+# unwrapped time bases (µs) and how many are set, the word index of the last time high,
+# the words decoded before the block, the corrupt word found (its index + 1; 0: none) and
+# the time base after it
+_TH, _OVF, _SEEN, _ORDER, _U1, _U2, _NU, _P1, _BASE, _BAD, _AFTER = range(11)
+STATE_SLOTS = 11
+CHECK_SLOTS = (_U1, _U2, _NU, _P1, _BAD, _AFTER)
 
 
 @lazy_njit(cache=True)
 def _decode(words, state, ox, oy, ot, op):
-    """Decode a block; ``state`` = [time high, wrap offset, seen] (updated in place)."""
-    th = state[0]
-    ovf = state[1]
-    seen = state[2]
+    """Decode a block; ``state`` (:func:`new_state`) is updated in place. Stops at a time
+    high between two others 2^34 µs or more apart (unwrapped): a corrupt one, taken for a
+    jump and a rollover, noted in ``state[_BAD]``."""
+    th = state[_TH]
+    ovf = state[_OVF]
+    seen = state[_SEEN]
+    u1 = state[_U1]
+    u2 = state[_U2]
+    nu = state[_NU]
+    p1 = state[_P1]
     n = 0
     for i in range(words.shape[0]):
         w = np.int64(words[i])
@@ -47,9 +61,22 @@ def _decode(words, state, ox, oy, ot, op):
                 ovf += np.int64(1) << 34
             th = h
             seen = 1
-    state[0] = th
-    state[1] = ovf
-    state[2] = seen
+            u = ovf + (th << 6)
+            if nu >= 2 and u - u2 >= WRAP_US:
+                state[_BAD] = p1 + 1
+                state[_AFTER] = u
+                break
+            u2 = u1
+            u1 = u
+            nu += 1
+            p1 = state[_BASE] + i
+    state[_TH] = th
+    state[_OVF] = ovf
+    state[_SEEN] = seen
+    state[_U1] = u1
+    state[_U2] = u2
+    state[_NU] = nu
+    state[_P1] = p1
     return n
 
 
@@ -59,12 +86,15 @@ def _decode_plain(words, state, ox, oy, ot, op):
     typ = w >> 28
     is_th = typ == 0x8
     h = w[is_th] & 0xFFFFFFF
-    wraps = binary.counter_wraps(h, state[0], _HALF, bool(state[2]))
+    wraps = binary.counter_wraps(h, state[_TH], _HALF, bool(state[_SEEN]))
+    if binary.note_corrupt(state, state[_OVF] + (wraps << 34) + (h << 6),
+                           state[_BASE] + np.flatnonzero(is_th), WRAP_US, CHECK_SLOTS):
+        return 0
     # each word's time base: the last TIME_HIGH at or before it (slot 0: the state's)
-    base = np.concatenate(([state[0]], h))
-    offset = np.concatenate(([state[1]], state[1] + (wraps << 34)))
+    base = np.concatenate(([state[_TH]], h))
+    offset = np.concatenate(([state[_OVF]], state[_OVF] + (wraps << 34)))
     k = np.cumsum(is_th)
-    keep = (typ <= 1) & ((k > 0) | bool(state[2]))
+    keep = (typ <= 1) & ((k > 0) | bool(state[_SEEN]))
     wk, kk = w[keep], k[keep]
     n = wk.size
     ox[:n] = (wk >> 11) & 0x7FF
@@ -72,13 +102,13 @@ def _decode_plain(words, state, ox, oy, ot, op):
     ot[:n] = offset[kk] + (base[kk] << 6) + ((wk >> 22) & 0x3F)
     op[:n] = typ[keep]
     if h.size:
-        state[0], state[1], state[2] = h[-1], offset[-1], 1
+        state[_TH], state[_OVF], state[_SEEN] = h[-1], offset[-1], 1
     return n
 
 
 def new_state() -> np.ndarray:
     """A fresh decoder state (no time base seen yet)."""
-    return np.zeros(3, np.int64)
+    return np.zeros(STATE_SLOTS, np.int64)
 
 
 def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
@@ -106,6 +136,8 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
         plain = n <= binary.PLAIN_WORDS
     decode = _decode_plain if plain else _decode
     k = decode(words, state, ox, oy, ot, op)
+    binary.raise_noted(state, CHECK_SLOTS, 34, "TIME_HIGH word")
+    state[_BASE] += n
     return ox[:k], oy[:k], ot[:k], op[:k]
 
 

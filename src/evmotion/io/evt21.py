@@ -23,7 +23,22 @@ import numpy as np
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
-from evmotion.io.evt2 import time_high_words
+from evmotion.io.evt2 import (
+    _AFTER,
+    _BAD,
+    _BASE,
+    _NU,
+    _ORDER,
+    _OVF,
+    _P1,
+    _SEEN,
+    _TH,
+    _U1,
+    _U2,
+    CHECK_SLOTS,
+    STATE_SLOTS,
+    time_high_words,
+)
 from evmotion.jitcache import lazy_njit
 
 __all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "FORMAT"]
@@ -50,10 +65,16 @@ def _count(words, upper_first):
 
 @lazy_njit(cache=True)
 def _decode(words, upper_first, state, ox, oy, ot, op):
-    """Decode a block; ``state`` = [time high, wrap offset, seen] (updated in place)."""
-    th = state[0]
-    ovf = state[1]
-    seen = state[2]
+    """Decode a block; ``state`` (:func:`new_state`, EVT 2.0's slots) is updated in place.
+    Stops at a time high between two others 2^34 µs or more apart (unwrapped): a corrupt
+    one, taken for a jump and a rollover, noted in ``state[_BAD]``."""
+    th = state[_TH]
+    ovf = state[_OVF]
+    seen = state[_SEEN]
+    u1 = state[_U1]
+    u2 = state[_U2]
+    nu = state[_NU]
+    p1 = state[_P1]
     n = 0
     for i in range(words.shape[0]):
         w = np.uint64(words[i])
@@ -78,15 +99,30 @@ def _decode(words, upper_first, state, ox, oy, ot, op):
                 ovf += np.int64(1) << 34
             th = h
             seen = 1
-    state[0] = th
-    state[1] = ovf
-    state[2] = seen
+            u = ovf + (th << 6)
+            if nu >= 2 and u - u2 >= WRAP_US:
+                state[_BAD] = p1 + 1
+                state[_AFTER] = u
+                break
+            u2 = u1
+            u1 = u
+            nu += 1
+            p1 = state[_BASE] + i
+    state[_TH] = th
+    state[_OVF] = ovf
+    state[_SEEN] = seen
+    state[_U1] = u1
+    state[_U2] = u2
+    state[_NU] = nu
+    state[_P1] = p1
     return n
 
 
 def new_state(upper_first: bool = True) -> np.ndarray:
     """A fresh decoder state: no time base seen yet; the byte order (1: the IMX636's)."""
-    return np.array([0, 0, 0, int(upper_first)], np.int64)
+    state = np.zeros(STATE_SLOTS, np.int64)
+    state[_ORDER] = int(upper_first)
+    return state
 
 
 def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.Block:
@@ -104,13 +140,15 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.B
     words = np.ascontiguousarray(words, dtype=np.uint64)
     if state is None:
         state = new_state()
-    upper_first = bool(state[3])
+    upper_first = bool(state[_ORDER])
     n = _count(words, upper_first)
     ox = np.empty(n, np.uint16)
     oy = np.empty(n, np.uint16)
     ot = np.empty(n, np.int64)
     op = np.empty(n, np.uint8)
-    k = _decode(words, upper_first, state[:3], ox, oy, ot, op)
+    k = _decode(words, upper_first, state, ox, oy, ot, op)
+    binary.raise_noted(state, CHECK_SLOTS, 34, "TIME_HIGH word")
+    state[_BASE] += words.shape[0]
     return ox[:k], oy[:k], ot[:k], op[:k]
 
 

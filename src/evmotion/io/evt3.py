@@ -26,16 +26,22 @@ __all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
 WRAP_US = 1 << 24
 # Payloads up to this size are decoded in one piece by read() (the result is larger anyway)
 WHOLE_FILE_BYTES = 1 << 28
-# state slots carried from one block to the next
-_Y, _TH, _TL, _OVF, _BX, _VP, _SEEN = range(7)
+# state slots carried from one block to the next; then, for the corrupt-time check, the
+# last two unwrapped time bases (µs) and how many are set, the word index of the last
+# TIME_HIGH, the words decoded before the block, the corrupt word found (its index + 1;
+# 0: none) and the time base after it
+_Y, _TH, _TL, _OVF, _BX, _VP, _SEEN, _U1, _U2, _NU, _P1, _BASE, _BAD, _AFTER = range(14)
+CHECK_SLOTS = (_U1, _U2, _NU, _P1, _BAD, _AFTER)
 
 
 @lazy_njit(cache=True)
 def _decode(words, start, state, ox, oy, ot, op):
     """Decode ``words[start:]`` into the output arrays until they might overflow.
 
-    Returns ``(n_events, next_word)``; ``state`` (int64[7]) is updated in place so the
-    next call, on the same block or the next one, continues seamlessly.
+    Returns ``(n_events, next_word)``; ``state`` (int64[14]) is updated in place so the
+    next call, on the same block or the next one, continues seamlessly. Stops at a
+    TIME_HIGH between two others 2^24 µs or more apart (unwrapped): a corrupt one, taken
+    for a jump and a rollover, noted in ``state[_BAD]``.
     """
     cap = ox.shape[0]
     y = state[_Y]
@@ -55,6 +61,9 @@ def _decode(words, start, state, ox, oy, ot, op):
             if typ == 0x8:
                 th = w & 0xFFF
                 state[_SEEN] = 1
+                state[_U1] = ovf + (th << 12)
+                state[_NU] = 1
+                state[_P1] = state[_BASE] + i - 1
                 break
             if typ == 0x0:
                 y = w & 0x7FF
@@ -69,7 +78,11 @@ def _decode(words, start, state, ox, oy, ot, op):
                 bx += 8
     n = 0
     tcur = ovf + (th << 12) + tl
-    while i < nw:
+    u1 = state[_U1]
+    u2 = state[_U2]
+    nu = state[_NU]
+    p1 = state[_P1]
+    while i < nw and not state[_BAD]:
         # every word yields at most 12 events: no bounds check inside a span
         stop = min(nw, i + (cap - n) // 12)
         if stop <= i:
@@ -94,6 +107,16 @@ def _decode(words, start, state, ox, oy, ot, op):
                     ovf += 1 << 24
                 th = h
                 tcur = ovf + (th << 12) + tl
+                u = ovf + (th << 12)
+                if nu >= 2 and u - u2 >= WRAP_US:
+                    state[_BAD] = p1 + 1
+                    state[_AFTER] = u
+                    stop = j + 1
+                    break
+                u2 = u1
+                u1 = u
+                nu += 1
+                p1 = state[_BASE] + j
             elif typ == 0x3:
                 bx = w & 0x7FF
                 vp = (w >> 11) & 1
@@ -108,6 +131,12 @@ def _decode(words, start, state, ox, oy, ot, op):
                         n += 1
                 bx += nb
         i = stop
+    if state[_BAD]:
+        i = nw
+    state[_U1] = u1
+    state[_U2] = u2
+    state[_NU] = nu
+    state[_P1] = p1
     state[_Y] = y
     state[_TH] = th
     state[_TL] = tl
@@ -136,6 +165,9 @@ def _decode_plain(words: np.ndarray, state: np.ndarray) -> binary.Block:
     first = int(np.argmax(is_th)) if is_th.any() else w.size
     h = low[is_th]
     offsets = state[_OVF] + (binary.counter_wraps(h, state[_TH], 2048, seen) << 24)
+    if binary.note_corrupt(state, offsets + (h << 12), state[_BASE] + np.flatnonzero(is_th),
+                           WRAP_US, CHECK_SLOTS):
+        return tuple(np.empty(0, dt) for dt in (np.uint16, np.uint16, np.int64, np.uint8))
     ths = np.concatenate(([state[_TH]], h))[np.cumsum(is_th)]
     ovf = np.concatenate(([state[_OVF]], offsets))[np.cumsum(is_th)]
     is_y, is_tl, is_base = typ == 0x0, typ == 0x6, typ == 0x3
@@ -186,7 +218,7 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
     ----------
     words : ndarray of uint16
         Consecutive EVT3 words.
-    state : ndarray of int64, shape (7,), optional
+    state : ndarray of int64, shape (14,), optional
         Decoder state from the previous block (updated in place); a fresh decoder
         (no time base yet) when omitted.
     plain : bool, optional
@@ -208,7 +240,16 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
     if state is None:
         state = new_state()
     if words.shape[0] <= binary.PLAIN_WORDS if plain is None else plain:
-        return _decode_plain(words, state)
+        out = _decode_plain(words, state)
+    else:
+        out = _decode_kernel(words, state)
+    binary.raise_noted(state, CHECK_SLOTS, 24, "TIME_HIGH word")
+    state[_BASE] += words.shape[0]
+    return out
+
+
+def _decode_kernel(words: np.ndarray, state: np.ndarray) -> binary.Block:
+    """:func:`_decode` over the whole of ``words``, its output grown as needed."""
     parts = []
     i = 0
     while True:
@@ -228,7 +269,7 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
 
 def new_state() -> np.ndarray:
     """A fresh decoder state (no time base seen yet)."""
-    return np.zeros(7, np.int64)
+    return np.zeros(14, np.int64)
 
 
 def _open(path: Path, sensor_size: tuple[int, int] | None, block_bytes: int,

@@ -162,12 +162,19 @@ def raw_blocks(path: Path, offset: int, t_offset: int, block_bytes: int, word: s
     else:
         payload = ((pos + len(buf), np.frombuffer(buf, word)) for pos, buf in
                    binary.iter_blocks(path, offset, block_bytes, np.dtype(word).itemsize))
-    return binary.Positioned(_decoded(payload, decode_words, state, t_offset), file_bytes)
+    return binary.Positioned(_decoded(path, offset, payload, decode_words, state, t_offset),
+                             file_bytes)
 
 
-def _decoded(payload, decode_words: Callable, state: np.ndarray, t_offset: int):
+def _decoded(path: Path, offset: int, payload, decode_words: Callable, state: np.ndarray,
+             t_offset: int):
     for end, words in payload:
-        x, y, t, p = decode_words(words, state)
+        try:
+            x, y, t, p = decode_words(words, state)
+        except binary.CorruptTimeError as exc:
+            # (the word may lie in an earlier block: its index counts from the payload's start)
+            raise exc.at(path, f"TIME_HIGH word at byte offset "
+                               f"{offset + exc.pos * words.itemsize}") from None
         if t_offset:
             t += t_offset
         yield end, (x, y, t, p)
