@@ -491,6 +491,28 @@ CASES = [
     ("counterpart-simulate-back", ["simulate", "translation", "--fps", "200", "--duration",
                                    "0.02", "--out", "{dir}/s.h5"],
      ["--fps 200.0 does not apply", "(here: --frame-rate)"]),
+    # accepted and without effect (probe CI)
+    ("kymogram-no-fit-geometry", ["kymogram", "{bos}", "--col", "3", "--no-fit",
+                                  "--focal-mm", "25", "--distance-m", "1.7", "--pixel-um",
+                                  "4.86", "--out", "{dir}/k.png"],
+     ["--focal-mm 25.0 does not apply with --no-fit"]),
+    ("flow-max-speed-no-picture", ["flow", "{rec}", "--max-speed", "100", "--out",
+                                   "{dir}/f.h5"],
+     ["--max-speed 100.0 does not apply without --png-dir or --video"]),
+    ("bos-max-speed-no-picture", ["bos", "{bos}", "--max-speed", "50", "--out", "{dir}/b.h5"],
+     ["--max-speed 50.0 does not apply without --png-dir"]),
+    ("bos-relinearize-normalized", ["bos", "{bos}", "--relinearize", "2", "--data-term",
+                                    "normalized", "--out", "{dir}/b.h5"],
+     ["--relinearize 2 does not apply with --data-term normalized"]),
+    ("view-flow-raw", ["view", "{gt}", "--raw", "--out", "{dir}/v.png"],
+     ["--raw does not apply to", "a flow"]),
+    ("view-flow-percentile", ["view", "{gt}", "--percentile", "50", "--out", "{dir}/v.png"],
+     ["--percentile 50.0 does not apply to", "a flow"]),
+    ("egomotion-dataset-and-weight", ["egomotion", "{rec}", "--reg", "rcad", "--weight", "5",
+                                      "--dataset", "mvsec", "--out", "{dir}/e"],
+     ["--dataset 'mvsec' does not apply with --weight"]),
+    ("eval-flow-imu-axes", ["eval", "{gt}", "--gt", "{gt}", "--imu-axes", "x,y,q"],
+     ["--imu-axes 'x,y,q' does not apply to", "a flow"]),
 ]
 
 

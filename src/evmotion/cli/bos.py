@@ -40,6 +40,7 @@ from evmotion.cli.options import (
     finite_float,
     int_range,
     positive_float,
+    reject_unused,
     remove_stale_pictures,
     time_us,
     writable_folder,
@@ -181,6 +182,12 @@ def run(args) -> int:
 
     out = Path(args.out)
     check_time_order(args)
+    # (each was accepted and had no effect; probe CI)
+    if args.png_dir is None:
+        reject_unused(args, {"--max-speed": "max_speed"}, "without --png-dir (no picture)")
+    if args.data_term == "normalized" and args.relinearize:
+        raise ParameterError(f"--relinearize {args.relinearize} does not apply with "
+                             "--data-term normalized (it solves the scale term again)")
     kind = check_flow_out(out)
     if args.png_dir and kind not in EXTRA_CONTAINERS:
         raise ParameterError(f"--png-dir draws q and p, which a .{kind} output does not hold; "

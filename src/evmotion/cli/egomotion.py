@@ -136,6 +136,9 @@ def check_common(args) -> None:
     if args.reg is None:
         reject_unused(args, {"--weight": "weight", "--dataset": "dataset"},
                       "without --reg (no regularizer to weigh)")
+    if args.weight is not None:
+        # (the weight given won, the data set's dropped unsaid; probe CI)
+        reject_unused(args, {"--dataset": "dataset"}, "with --weight (the weight given)")
 
 
 def check_scheduler(args) -> None:

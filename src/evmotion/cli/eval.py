@@ -697,6 +697,9 @@ def run(args) -> int:
         args.gt = gt_in_folder(args.gt)
     if params is not None:
         return _run_egomotion(args, params)
+    # (--imu-axes x,y,q on a flow passed, exit 0; probe CI)
+    reject_unused(args, {"--imu-axes": "imu_axes"}, f"to {path.name}, a flow (it maps an "
+                  "IMU's axes to the camera's for egomotion's parameters)")
     if args.gt is None:
         return _run_sharpness(args, path, h5_format)
     if _is_event_flow(path, h5_format):

@@ -170,6 +170,10 @@ def run(args) -> int:
                       "with --method triplet (a hot pixel's events find no triplet partner)")
     if args.window_gt is None:
         reject_unused(args, {"--gt-dt": "gt_dt"}, "without --window-gt")
+    if args.png_dir is None and args.video is None:
+        # (accepted, and no picture drawn to scale; probe CI)
+        reject_unused(args, {"--max-speed": "max_speed"},
+                      "without --png-dir or --video (no picture)")
     args.gt_dt = 1 if args.gt_dt is None else args.gt_dt
     if args.resume and args.out.lower().endswith((".npy", ".flo", ".npz", ".png")):
         raise ParameterError(f"--resume continues an .h5 output; --out {args.out} is written "

@@ -140,7 +140,10 @@ def _check_args(args) -> dict | None:
     fit_options = {"--max-lag-s": "max_lag_s", "--sigma-px": "sigma_px",
                    "--sigma-bins": "sigma_bins", "--polarity": "polarity",
                    "--s-range": "s_range", "--fit-t0": "fit_t0", "--fit-t1": "fit_t1",
-                   "--min-snr": "min_snr", "--stationary-px": "stationary_px"}
+                   "--min-snr": "min_snr", "--stationary-px": "stationary_px",
+                   # the fitted speed's conversion to m/s (accepted, unused; probe CI)
+                   "--focal-mm": "focal_mm", "--distance-m": "distance_m",
+                   "--pixel-um": "pixel_um"}
     if args.no_fit:
         reject_unused(args, fit_options, "with --no-fit")
     elif args.method == "ridge":

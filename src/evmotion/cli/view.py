@@ -64,8 +64,9 @@ def add_parser(sub) -> None:
                         "when --t1 is not given)")
     p.add_argument("--polarity", action="store_true",
                    help="signed polarity sum, red (+) / blue (-), instead of counts")
-    p.add_argument("--percentile", type=finite_float(0, 100, lo_open=True), default=99.0,
-                   help="percentile of the nonzero pixels shown at full intensity (99)")
+    p.add_argument("--percentile", type=finite_float(0, 100, lo_open=True), default=None,
+                   help="events: percentile of the nonzero pixels shown at full intensity "
+                        "(default 99)")
     p.add_argument("--scale", type=positive_int(), default=1,
                    help="enlarge each pixel to SCALE x SCALE (nearest neighbour; the image "
                         f"may hold at most {format_bytes(MAX_IMAGE_BYTES)} as RGB)")
@@ -113,6 +114,10 @@ def check_scale(scale: int, sensor_size: tuple[int, int]) -> None:
                              f"{largest} or less")
 
 
+def _percentile(args) -> float:
+    return 99.0 if args.percentile is None else args.percentile
+
+
 def run(args) -> int:
     import numpy as np
 
@@ -124,14 +129,19 @@ def run(args) -> int:
     check_time_order(args)
     out = Path(args.out)
     if args.format is None:
+        # a flow's picture: its colour wheel and scale, which neither option changes (both
+        # were ignored, the picture byte-identical; probe CI)
+        events_only = {"--raw": "raw", "--percentile": "percentile"}
         from evmotion.io.flowread import describe_flow, undated_flow_files
 
         undated = undated_flow_files(args.file)
         if undated:  # .flo / .png files of another tool: their displacement, in px
             # (before describe_flow, which reads every file of a folder of them)
+            reject_unused(args, events_only, f"to {args.file}, a flow")
             return _view_undated(args, out, undated)
         info = describe_flow(args.file)
         if (info is not None and "windows" in info) or _is_simulator_gt(Path(args.file)):
+            reject_unused(args, events_only, f"to {args.file}, a flow")
             return _view_flow(args, out)
         per_event = info is not None and info.get("format") == "evmotion-event-flow"
     else:
@@ -171,7 +181,7 @@ def run(args) -> int:
     check_scale(args.scale, ev.sensor_size)
     hist = event_histogram(ev, signed=args.polarity)
     if args.raw:
-        rgb = iwe_to_rgb(hist, polarity=args.polarity, percentile=args.percentile)
+        rgb = iwe_to_rgb(hist, polarity=args.polarity, percentile=_percentile(args))
         if args.scale > 1:
             rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
         save_png(out, rgb)
@@ -186,7 +196,7 @@ def run(args) -> int:
             save_png(out, rgb)
         else:
             atomic_write_bytes(out, event_picture_png(hist, polarity=args.polarity,
-                                                      percentile=args.percentile,
+                                                      percentile=_percentile(args),
                                                       title=title, scale=args.scale))
             rgb = read_png(out)
     if args.json:
@@ -225,7 +235,7 @@ def _event_flow_picture(args, ev, hist, title: str):
     flow, has = mean_event_flow(ef["x"][sl], ef["y"][sl], ef["vx"][sl], ef["vy"][sl],
                                 ef["valid"][sl], ef.sensor_size)
     pic = flow_picture(flow, valid=has)
-    vmax = full_scale(hist, args.percentile)
+    vmax = full_scale(hist, _percentile(args))
     events = iwe_to_rgb(hist, polarity=args.polarity, vmax=vmax)
     if pic.scale > 1:
         events = np.repeat(np.repeat(events, pic.scale, axis=0), pic.scale, axis=1)
