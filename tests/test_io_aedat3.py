@@ -198,3 +198,30 @@ def test_the_aedat3_extension_names_the_format_to_write(tmp_path):
     eio.write_events(tmp_path / "o.aedat3", ev)
     assert eio.detect_format(tmp_path / "o.aedat3") == "aedat3"
     assert eio.read_events(tmp_path / "o.aedat3").t.tolist() == [10, 20]
+
+
+def _written(tmp_path) -> tuple[EventArray, bytearray, int]:
+    """A 20 ms recording written as AEDAT 3.1 (one polarity packet): the events, the
+    file's bytes and the first packet header's offset."""
+    rng = np.random.default_rng(8)
+    n = 800
+    ev = EventArray(x=rng.integers(0, 80, n), y=rng.integers(0, 60, n),
+                    t=422 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(60, 80))
+    aedat3.write(tmp_path / "a.aedat", ev)
+    data = bytearray((tmp_path / "a.aedat").read_bytes())
+    return ev, data, bytes(data).index(b"#!END-HEADER") + 14
+
+
+def test_an_overflow_counter_past_the_year_5000_is_refused(tmp_path):
+    """Probe CG: the first packet's eventTSOverflow set to 2^31 - 1 read as times of
+    4.6e18 us, unsaid (flow then refused them without naming the file, and convert wrote
+    an h5 that info refused); now the packet header field is named."""
+    _, data, he = _written(tmp_path)
+    data[he + 12:he + 16] = struct.pack("<I", 0x7FFFFFFF)
+    (tmp_path / "m.aedat").write_bytes(bytes(data))
+    want = (rf"m\.aedat: polarity packet at byte offset {he} has eventTSOverflow 2147483647: "
+            "its times, from 4611686016279904256 us, lie past the year 5000")
+    for call in (aedat3.read, aedat3.describe, lambda p: list(aedat3.iter_chunks(p, 100))):
+        with pytest.raises(FormatError, match=want):
+            call(tmp_path / "m.aedat")

@@ -218,3 +218,26 @@ def test_bytes_after_the_data_table_are_said(shared_data, tmp_path):
                                              rf"\(from byte offset {src.stat().st_size}\)"):
         ev = read_events(bad)
     assert len(ev) == len(clean)
+
+
+def test_a_time_past_the_year_5000_is_refused_as_other_readers_refuse_it(tmp_path):
+    """Probe CG: the last event's time set to 2^63 - 1 us was read as given (info, view
+    and egomotion ran, with a warning about a gap of 9.2e12 s): the binary readers' fast
+    check had left out the container's bound on times. Now the same one-line error as
+    the h5 / npz / ECD readers give."""
+    rng = np.random.default_rng(4)
+    n = 500
+    ev = EventArray(x=rng.integers(0, 80, n), y=rng.integers(0, 60, n),
+                    t=422 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(60, 80))
+    aedat4.write(tmp_path / "a.aedat4", ev, compression="none")
+    data = bytearray((tmp_path / "a.aedat4").read_bytes())
+    assert struct.unpack("<q", data[-16:-8])[0] == ev.t[-1]
+    data[-16:-8] = struct.pack("<q", 2 ** 63 - 1)
+    (tmp_path / "m.aedat4").write_bytes(bytes(data))
+    want = (rf"m\.aedat4: event {n - 1} has t=9223372036854775807, as microseconds past the "
+            rf"year 5000, where the {n - 1} events before it reach {ev.t[-2]}")
+    with pytest.raises(FormatError, match=want):
+        aedat4.FORMAT.read(tmp_path / "m.aedat4")  # (as read_events calls it: guarded)
+    with pytest.raises(FormatError, match=r"m\.aedat4: .*past the year 5000"):
+        list(aedat4.FORMAT.iter_chunks(tmp_path / "m.aedat4", 100))

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary
@@ -136,6 +137,12 @@ def _check_polarity(path: Path, pos: int, h) -> None:
     if int(h["size"]) != POLARITY_BYTES:
         raise FormatError(path, f"polarity packet at byte offset {pos} has eventSize "
                           f"{int(h['size'])}, expected {POLARITY_BYTES}")
+    over = int(h["ts_overflow"])
+    if over << 31 > NS_EPOCH_US:
+        # (read as given, 4.6e18 us; the file's h5 copy was then refused, probe CG)
+        raise FormatError(path, f"polarity packet at byte offset {pos} has eventTSOverflow "
+                          f"{over}: its times, from {over << 31} us, lie past the year 5000",
+                          "a corrupt packet header")
 
 
 def _decode(path: Path, payloads: list[bytes], overflows: list[int]):

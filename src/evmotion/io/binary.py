@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size
@@ -277,7 +278,10 @@ def _make(cols, a: int, b: int, sensor_size, meta, validate) -> EventArray:
     ev = EventArray(x=cols[0][a:b], y=cols[1][a:b], t=cols[2][a:b], p=cols[3][a:b],
                     sensor_size=sensor_size, meta=dict(meta), validate=False)
     valid = _valid_plain if len(ev) <= PLAIN_WORDS else _valid
-    if validate and len(ev) and not valid(ev.x, ev.y, ev.t, sensor_size[1], sensor_size[0]):
+    # (the fast check had left out the container's bound on times, past the year 5000: an
+    # aedat4 time of 2^63 - 1 us, an aedat3 packet's overflow counter of 2^31 - 1, probe CG)
+    if validate and len(ev) and (not valid(ev.x, ev.y, ev.t, sensor_size[1], sensor_size[0])
+                                 or ev.t[-1] > NS_EPOCH_US):
         ev.check()  # raises the container's own error message
     return ev
 
