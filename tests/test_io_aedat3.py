@@ -225,3 +225,17 @@ def test_an_overflow_counter_past_the_year_5000_is_refused(tmp_path):
     for call in (aedat3.read, aedat3.describe, lambda p: list(aedat3.iter_chunks(p, 100))):
         with pytest.raises(FormatError, match=want):
             call(tmp_path / "m.aedat")
+
+
+def test_a_negative_overflow_counter_is_refused(tmp_path):
+    """Probe CG: eventTSOverflow 0xffffffff (-1 as the spec's int32) read as times from
+    -2,147,483,226 us, unsaid, where a negative event timestamp is refused; now the
+    packet header field is named, as times count up from the clock's zero."""
+    _, data, he = _written(tmp_path)
+    data[he + 12:he + 16] = struct.pack("<I", 0xFFFFFFFF)
+    (tmp_path / "m.aedat").write_bytes(bytes(data))
+    want = (rf"m\.aedat: polarity packet at byte offset {he} has eventTSOverflow -1: "
+            "negative, where times count up from the clock's zero")
+    for call in (aedat3.read, aedat3.describe, lambda p: list(aedat3.iter_chunks(p, 100))):
+        with pytest.raises(FormatError, match=want):
+            call(tmp_path / "m.aedat")

@@ -137,10 +137,20 @@ def _check_polarity(path: Path, pos: int, h) -> None:
     if int(h["size"]) != POLARITY_BYTES:
         raise FormatError(path, f"polarity packet at byte offset {pos} has eventSize "
                           f"{int(h['size'])}, expected {POLARITY_BYTES}")
+    _check_overflow(path, pos, h, "polarity")
+
+
+def _check_overflow(path: Path, pos: int, h, kind: str) -> None:
+    """FormatError for a packet whose ``eventTSOverflow`` puts its times before the
+    clock's zero or past the year 5000 (both were read as given, probe CG)."""
     over = int(h["ts_overflow"])
+    if over < 0:
+        raise FormatError(path, f"{kind} packet at byte offset {pos} has eventTSOverflow "
+                          f"{over}: negative, where times count up from the clock's zero",
+                          "a corrupt packet header")
     if over << 31 > NS_EPOCH_US:
-        # (read as given, 4.6e18 us; the file's h5 copy was then refused, probe CG)
-        raise FormatError(path, f"polarity packet at byte offset {pos} has eventTSOverflow "
+        # (read as given, 4.6e18 us; the file's h5 copy was then refused)
+        raise FormatError(path, f"{kind} packet at byte offset {pos} has eventTSOverflow "
                           f"{over}: its times, from {over << 31} us, lie past the year 5000",
                           "a corrupt packet header")
 
@@ -345,6 +355,7 @@ def read_imu(path: str | Path) -> dict:
         if size < 36:
             raise FormatError(path, f"IMU packet at byte offset {pos} has eventSize {size} "
                               "(an IMU6 event is 36 bytes)")
+        _check_overflow(path, pos, h, "IMU")
         rec = np.frombuffer(payload, np.uint8).reshape(-1, size)
         info = rec[:, 0:4].copy().view("<u4").ravel()
         ts = rec[:, 4:8].copy().view("<i4").ravel().astype(np.int64)
