@@ -491,6 +491,9 @@ CASES = [
     ("counterpart-simulate-back", ["simulate", "translation", "--fps", "200", "--duration",
                                    "0.02", "--out", "{dir}/s.h5"],
      ["--fps 200.0 does not apply", "(here: --frame-rate)"]),
+    ("dnn-input-scales", ["flow", "{rec}", "--method", "dnn", "--input-scales", "1", "3",
+                          "--out", "{dir}/f.h5"],
+     ["--input-scales", "each K must be one of 1, 2, 4, 8, 16, got '3'"]),
     # accepted and without effect (probe CI)
     ("kymogram-no-fit-geometry", ["kymogram", "{bos}", "--col", "3", "--no-fit",
                                   "--focal-mm", "25", "--distance-m", "1.7", "--pixel-um",

@@ -32,6 +32,24 @@ OPTIONS: dict[str, tuple[str, object]] = {
 }
 
 
+def _input_scale(text: str) -> int:
+    """``--input-scales``' K: 1, 2, 4, 8 or 16 in one message (a range, then a list of
+    choices, had each named half of it; probe CI)."""
+    import argparse
+
+    try:
+        k = int(text)
+    except ValueError:
+        k = 0
+    if k not in INPUT_SCALES:
+        raise argparse.ArgumentTypeError(f"each K must be one of "
+                                         f"{', '.join(map(str, INPUT_SCALES))}, got {text!r}")
+    return k
+
+
+INPUT_SCALES = (1, 2, 4, 8, 16)
+
+
 def add_arguments(group) -> None:
     group.add_argument("--checkpoint", default=None, metavar="CKPT", type=existing_input,
                        help="network weights: a model.pt of evmotion train (needs torch) or "
@@ -44,11 +62,12 @@ def add_arguments(group) -> None:
                        help="torch threads where torch runs the network (default 1: "
                             "faster than 2 on a shared 2-core CPU); also multicm's "
                             "--init dnn")
-    group.add_argument("--input-scales", type=int_range(1, 16), choices=(1, 2, 4, 8, 16),
-                       nargs="+", default=None, metavar="K",
+    group.add_argument("--input-scales", type=_input_scale, nargs="+", default=None,
+                       metavar="K",
                        help="dnn: also predict from the events binned K times coarser and "
-                            "keep the sharpest warp (default 1 2 4 8: far-moving windows; "
-                            "1 = the network on the sensor's grid only)")
+                            "keep the sharpest warp; each K one of 1, 2, 4, 8, 16 (default "
+                            "1 2 4 8: far-moving windows; 1 = the network on the sensor's "
+                            "grid only)")
     group.add_argument("--no-time-reversal", action="store_true", default=None,
                        help="dnn: do not average with the negated flow of the time-reversed "
                             "window (one pass per scale instead of two)")
