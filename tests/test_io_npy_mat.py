@@ -337,3 +337,25 @@ def test_mat_time_unit_says_whether_it_was_inferred(tmp_path):
     assert read_events(tmp_path / "m.mat").meta["time_unit"] == \
         "s (inferred from the times' values)"
     assert read_events(tmp_path / "m.mat", time_unit="ms").meta["time_unit"] == "ms (given)"
+
+
+def test_an_int8_mat_array_reads_without_numpy_warnings(tmp_path):
+    """Probe CG: an int8 N x 4 array whose times span more than 127 overflowed in the
+    time-unit guess ('mat.py: RuntimeWarning: overflow encountered in scalar subtract' on
+    stderr, before the file's own lines)."""
+    import scipy.io
+
+    from evmotion.io import read_events
+
+    rng = np.random.default_rng(0)
+    n = 200
+    t = np.sort(rng.integers(0, 220, n)) - 100  # -100 .. 119: a span past int8's 127
+    assert t.max() - t.min() > 127
+    a = np.stack([t, rng.integers(0, 100, n), rng.integers(0, 100, n),
+                  rng.integers(0, 2, n)], 1).astype(np.int8)
+    scipy.io.savemat(tmp_path / "i8.mat", {"ev": a})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        ev = read_events(tmp_path / "i8.mat")
+    np.testing.assert_array_equal(ev.t, t)
+    np.testing.assert_array_equal(ev.x, a[:, 1])

@@ -122,7 +122,8 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
         # whole numbers are us; fractional ones seconds when they span under 100, or
         # when as us they would mean more than MAX_RATE events a second (a 150 s
         # recording in seconds); interpolated us (the ECD excerpts') stay us
-        span = float(t.max() - t.min()) if t.size else 0.0
+        # (in float: an int8 column's span overflowed, a RuntimeWarning on stderr, probe CG)
+        span = float(t.max()) - float(t.min()) if t.size else 0.0
         fractional = bool(np.any(t != np.round(t)))
         too_fast = span > 0 and t.size / (span * 1e-6) > MAX_RATE
         guess = "s" if fractional and (span < 100 or too_fast) else "us"
