@@ -253,7 +253,7 @@ def test_the_sensors_start_up_interval_is_said(tmp_path):
     # frames gave 0.19x, valid, unsaid)
     # (with the other start-up warnings' range, probe BY: 0.26-0.56x here, 0.81 there)
     with pytest.warns(EvmotionWarning, match=r"\[0, 8333\) us and fewer than two intervals "
-                                             r"follow to tell.*\(0\.26-0\.81x on simulated"):
+                                             r"that follow tell.*\(0\.26-0\.81x on simulated"):
         assert warn_startup(load_bos_input(d, max_intervals=2)) == ()
     later = load_bos_input(d, t0=8333)
     import warnings
@@ -261,6 +261,31 @@ def test_the_sensors_start_up_interval_is_said(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", EvmotionWarning)
         assert warn_startup(later) == ()
+
+
+def test_a_start_up_followed_by_a_cut_interval_is_said(tmp_path):
+    """Three intervals, the last cut by the recording's end: one interval that tells a
+    rate follows the first, and the start-up check returned without a word (probe CJ: the
+    first interval went out valid at 0.19x)."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io import read_events, write_events
+    from evmotion.io.bosinput import load_bos_input
+    from evmotion.methods.bos_run import warn_startup
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    d = tmp_path / "ice"
+    write_schlieren(simulate_schlieren("ice", sensor_size=(120, 160), duration_s=6 / 120,
+                                       seed=0), d)
+    write_events(d / "events.txt", read_events(d).slice_time(0, 2 * 8333 + 5000))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the cut and the empty intervals, said elsewhere
+        data = load_bos_input(d)
+    assert len(data.intervals) == 3 and data.cut == (2,)
+    with pytest.warns(EvmotionWarning, match=r"begin in the frame interval \[0, 8333\) us "
+                                             r"and fewer than two intervals that follow"):
+        assert warn_startup(data) == ()
 
 
 @pytest.fixture(scope="module")

@@ -264,14 +264,7 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
     if len(data.intervals) < starts[0] + 3:
         # nothing to tell it by (probe AM: two frames of a simulated scene gave 0.19x,
         # valid, unsaid)
-        _, t0, t1 = (int(v) for v in data.intervals[starts[0]])
-        warnings.warn(EvmotionWarning(
-            f"the events begin in the frame interval [{t0}, {t1}) us and fewer than two "
-            "intervals follow to tell whether it is the sensor's start-up: if the sensor "
-            "started with the recording, it fires less there until its pixels settle and "
-            "that interval's flow comes out too small (0.26-0.81x on simulated scenes, "
-            "as the other start-up warnings say); frames over more of the recording "
-            "tell"), stacklevel=2)
+        _warn_startup_untold(data.intervals[starts[0]])
         return ()
     k0 = starts[0]
     context = data.intervals[k0:k0 + STARTUP_CONTEXT + 1]
@@ -283,7 +276,12 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
     if usable.any():
         usable &= gains >= NEAR_EMPTY_GAIN * np.median(gains[usable])
     later = gains[usable][:4]
-    if len(later) < 2 or not np.isfinite(gains[0]):
+    if not np.isfinite(gains[0]):
+        return ()
+    if len(later) < 2:
+        # the intervals that follow are there but tell nothing (cut, or next to no
+        # events): a start-up at 0.19x had gone out valid, unsaid (probe CJ)
+        _warn_startup_untold(data.intervals[k0])
         return ()
     if later.max() > STARTUP_RATES_AGREE * later.min():
         # (probe BF: 100 Hz flicker of 2-10 % spread them 2.1-4.3, and a start-up interval
@@ -325,6 +323,20 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
         f"written with no valid pixel; --t0 {seconds_text(end)} leaves "
         f"{'it' if len(named) == 1 else 'them'} out"), stacklevel=2)
     return tuple(named)
+
+
+def _warn_startup_untold(interval) -> None:
+    """Say that whether the ``interval`` the events begin in is the sensor's start-up
+    cannot be told: fewer than two intervals that tell a rate follow it."""
+    _, t0, t1 = (int(v) for v in interval)
+    warnings.warn(EvmotionWarning(
+        f"the events begin in the frame interval [{t0}, {t1}) us and fewer than two "
+        "intervals that follow tell the events' rate (too few frames, or intervals cut "
+        "or nearly empty), so whether it is the sensor's start-up cannot be told: if the "
+        "sensor started with the recording, it fires less there until its pixels settle "
+        "and that interval's flow comes out too small (0.26-0.81x on simulated scenes, as "
+        "the other start-up warnings say); frames over more of the recording tell"),
+        stacklevel=3)
 
 
 #: Above this ratio of the frames' change (mean square of the smoothed log difference)
