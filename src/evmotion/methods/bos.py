@@ -742,7 +742,8 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
                              frame_after: np.ndarray | None = None
                              ) -> tuple[float, str, float]:
     """:func:`estimate_contrast_threshold` (the same arguments), the slope it returned
-    (``"frames"``, ``"events"``: also the fallback where the frames' noise exceeds half
+    (``"frames"``, or :data:`TIMED_NOISE` where the frames' noise was measured in time;
+    ``"events"``: also the fallback where the frames' noise exceeds half
     their change, low where the air changes the image by less than C; or ``"rma"``) and
     the correlation of the events' sums with the frames' change over every pixel within
     :data:`NEAR_EVENTS_PX` of an event. Below :data:`WEAK_CORRELATION` the flow's
@@ -791,7 +792,8 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
     near_all = np.zeros(sensor, bool)
     near_all[crop] = near
     noise = _frame_noise(d_all, level_all, quiet, near_all)
-    if noise is None and frame_after is not None and near.any():
+    timed = noise is None and frame_after is not None and near.any()
+    if timed:
         after = log_frame(frame_after, log_eps, "frame_after")[crop]
         noise = log_difference_noise(l0, l1, after, sigma, near)
     noise = max(noise or 0.0,
@@ -839,8 +841,14 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
     if noise > 0.5 * var_d or c_frames <= 0:
         return float(c_events), "events", ring_corr
     if method == "auto":
-        return float(c_frames), "frames", ring_corr
+        return float(c_frames), TIMED_NOISE if timed else "frames", ring_corr
     return float(np.sqrt(c_frames * c_events)), "rma", ring_corr
+
+
+#: The slope :func:`contrast_threshold_slope` names "frames" where the frames' noise was
+#: measured in time (no still air in view): an upper bound that counts the air's own
+#: change, so C comes out low where the flow is steady over the whole view
+TIMED_NOISE = "frames, noise in time"
 
 
 def _quantization_noise(frame, frame_next, crop, sigma: float, fit: np.ndarray,

@@ -95,7 +95,7 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15,
     >>> round(float(c), 1), len(per_interval)   # the simulator's sensor has C = 0.2
     (0.2, 3)
     """
-    from evmotion.methods.bos import NEAR_EVENTS_PX, WEAK_CORRELATION
+    from evmotion.methods.bos import NEAR_EVENTS_PX, TIMED_NOISE, WEAK_CORRELATION
 
     pick = _sampled_intervals(data, samples, exclude)
     estimates, slopes, corrs, inverted, shares = [], [], [], [], []
@@ -131,6 +131,17 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15,
             f"the contrast threshold estimated from the frames{low}: a weak background or "
             "noisy frames make it low, and the flow's magnitude then too small; give "
             "--contrast-threshold if you know C"), stacklevel=2)
+    if slopes.count(TIMED_NOISE) > len(slopes) / 2:
+        # (probe CJ: 0.87-0.90x on whole-view flows, without a word)
+        warnings.warn(EvmotionWarning(
+            f"no still air in view in {slopes.count(TIMED_NOISE)} of {len(slopes)} "
+            "intervals (events everywhere, or noise events): the frames' noise, which the "
+            "contrast threshold is corrected for, is measured in time from the frame after "
+            "each interval, and that counts the air's own change too: C = "
+            f"{np.median(est):.3g} and the flow's magnitude come out low where the flow is "
+            "steady (0.85-0.90x on scenes of steady flow over the whole view, 0.97x on a "
+            "plume amid noise events); give --contrast-threshold if you know C"),
+            stacklevel=2)
     if slopes.count("events") > len(slopes) / 2:
         warnings.warn(EvmotionWarning(
             f"the contrast threshold C = {np.median(est):.3g} comes from the events alone in "
@@ -279,9 +290,11 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
     if not np.isfinite(gains[0]):
         return ()
     if len(later) < 2:
-        # the intervals that follow are there but tell nothing (cut, or next to no
-        # events): a start-up at 0.19x had gone out valid, unsaid (probe CJ)
-        _warn_startup_untold(data.intervals[k0])
+        if len(later) == 1:
+            # one interval tells a rate, the others are cut or nearly empty: a start-up
+            # at 0.19x had gone out valid, unsaid (probe CJ). (None tells one in still
+            # air, which the contrast threshold's estimate refuses.)
+            _warn_startup_untold(data.intervals[k0])
         return ()
     if later.max() > STARTUP_RATES_AGREE * later.min():
         # (probe BF: 100 Hz flicker of 2-10 % spread them 2.1-4.3, and a start-up interval
