@@ -288,3 +288,34 @@ def test_events_before_zero_are_refused_by_the_dsec_and_ecd_writers_naming_the_f
         with pytest.raises(ParameterError, match=rf"cannot write .*{name}: .*-500"):
             mod.write(tmp_path / name, ev)
         assert not (tmp_path / name).exists()
+
+
+def _small(n=200):
+    rng = np.random.default_rng(6)
+    return EventArray(x=rng.integers(0, 80, n), y=rng.integers(0, 60, n),
+                      t=422 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
+                      sensor_size=(60, 80))
+
+
+@pytest.mark.parametrize(("value", "said"), [([60.9, 80.9], r"\(60\.9, 80\.9\) is not two "
+                                                            "whole numbers")])
+def test_a_malformed_dsec_sensor_size_attribute_is_refused(tmp_path, value, said):
+    """Probe CG: an attribute 'sensor_size' with fractions was floored (60.9 read as 60).
+    Now one line names the attribute and its value; a size given reads the file."""
+    ev = _small()
+    dsec.write(tmp_path / "d.h5", ev)
+    with h5py.File(tmp_path / "d.h5", "a") as f:
+        f.attrs["sensor_size"] = value
+    with pytest.raises(FormatError, match=rf"d\.h5: attribute 'sensor_size'.*{said}"):
+        eio.read_events(tmp_path / "d.h5")
+    assert_same_events(eio.read_events(tmp_path / "d.h5", sensor_size=(60, 80)), ev)
+
+
+def test_a_fractional_mvsec_sensor_size_is_refused(tmp_path):
+    ev = _small()
+    mvsec.write(tmp_path / "m.h5", ev)
+    with h5py.File(tmp_path / "m.h5", "a") as f:
+        f["davis/left"].attrs["sensor_size"] = [60.9, 80.9]
+    with pytest.raises(FormatError, match=r"m\.h5: attribute 'davis/left/sensor_size' "
+                                          r"\[60\.9, 80\.9\] is not two whole numbers"):
+        eio.read_events(tmp_path / "m.h5")

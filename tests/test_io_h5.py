@@ -179,3 +179,16 @@ def test_a_stale_time_index_is_noticed_and_the_times_searched(tmp_path, mutate):
     with pytest.warns(EvmotionWarning, match="time index .* does not match its timestamps"):
         got = h5.read(tmp_path / "c.h5", t0=t0, t1=t1)
     assert_same_events(got, ev.slice_time(t0, t1), dtypes=True)
+
+
+def test_a_fractional_width_attribute_is_refused(tmp_path):
+    """Probe CG: attribute width = 10.5 was floored to 10, unsaid."""
+    from evmotion.io import read_events
+
+    ev = EventArray(x=[1, 9], y=[2, 3], t=[10, 20], p=[1, 0], sensor_size=(60, 10))
+    h5.write(tmp_path / "a.h5", ev)
+    with h5py.File(tmp_path / "a.h5", "a") as f:
+        f.attrs["width"] = 10.5
+    with pytest.raises(FormatError, match=r"a\.h5: attributes 'height', 'width' \(60, 10\.5\) "
+                                          "is not two whole numbers"):
+        read_events(tmp_path / "a.h5")

@@ -359,3 +359,15 @@ def test_an_int8_mat_array_reads_without_numpy_warnings(tmp_path):
         ev = read_events(tmp_path / "i8.mat")
     np.testing.assert_array_equal(ev.t, t)
     np.testing.assert_array_equal(ev.x, a[:, 1])
+
+
+def test_a_fractional_npz_sensor_size_is_refused(tmp_path):
+    """Probe CG: an .npz 'sensor_size' of [60.9, 80.9] was floored to (60, 80), unsaid."""
+    ev = EventArray(x=[1, 9], y=[2, 3], t=[10, 20], p=[1, 0], sensor_size=(60, 80))
+    eio.write_events(tmp_path / "a.npz", ev)
+    arrays = dict(np.load(tmp_path / "a.npz"))
+    arrays["sensor_size"] = np.array([60.9, 80.9])
+    np.savez(tmp_path / "m.npz", **arrays)
+    with pytest.raises(FormatError, match=r"m\.npz: array 'sensor_size' \[60\.9, 80\.9\] is "
+                                          "not two whole numbers"):
+        eio.read_events(tmp_path / "m.npz")

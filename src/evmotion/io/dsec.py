@@ -125,7 +125,7 @@ def _make(path: Path, f, lo: int, hi: int, size, meta, validate: bool) -> EventA
         return EventArray(x=x, y=y, t=t, p=p, sensor_size=size, validate=validate,
                           meta=dict(meta))
     except Exception as exc:
-        assumed = tuple(size) == DSEC_SENSOR_SIZE and size_from_attrs(path, f) is None
+        assumed = "sensor_size_from" in meta
         raise FormatError(path, str(exc), "the file does not state its sensor, and DSEC's "
                           "640 x 480 was assumed: give the size (--sensor-size H W, or "
                           "sensor_size=)" if assumed else None) from None
@@ -140,9 +140,11 @@ def _size(path: Path, f, sensor_size) -> tuple[int, int]:
     return size_from_attrs(path, f) or DSEC_SENSOR_SIZE
 
 
-def _meta(path: Path, f) -> dict:
+def _meta(path: Path, f, sensor_size) -> dict:
     meta = {"source": str(path), "format": "dsec", "t_offset_us": _t_offset(f)}
-    if size_from_attrs(path, f) is None:
+    # (the attributes only where no size is given: a corrupt one, refused, is what the
+    # size given replaces)
+    if not sensor_size and size_from_attrs(path, f) is None:
         meta["sensor_size_from"] = "DSEC's 640 x 480 (the file states no size)"
     return meta
 
@@ -176,7 +178,8 @@ def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, 
     f, path = _open(path)
     with f:
         lo, hi = _range(path, f, t0, t1)
-        return _make(path, f, lo, hi, _size(path, f, sensor_size), _meta(path, f), validate)
+        return _make(path, f, lo, hi, _size(path, f, sensor_size),
+                     _meta(path, f, sensor_size), validate)
 
 
 def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
@@ -189,7 +192,7 @@ def iter_chunks(path: str | os.PathLike, chunk_events: int, *,
     with f:
         lo, hi = _range(path, f, t0, t1)
         size = _size(path, f, sensor_size)
-        meta = _meta(path, f)
+        meta = _meta(path, f, sensor_size)
         for s in range(lo, hi, int(chunk_events)):
             yield _make(path, f, s, min(hi, s + int(chunk_events)), size, meta, validate)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import numbers
 import os
 import re
 import struct
@@ -54,15 +55,44 @@ def check_sensor_size(path, size, field: str = "sensor size") -> tuple[int, int]
     --------
     >>> check_sensor_size("a.raw", ("720", 1280))
     (720, 1280)
+    >>> check_sensor_size("a.npz", [60.9, 80.9], "array 'sensor_size'")
+    Traceback (most recent call last):
+    evmotion.errors.FormatError: a.npz: array 'sensor_size' [60.9, 80.9] is not two whole numbers (height, width)
     """
     try:
-        h, w = (int(v) for v in size)
+        if isinstance(size, (str, bytes)):
+            raise TypeError  # "44" unpacked to (4, 4)
+        h, w = (_whole(v) for v in size)
     except (TypeError, ValueError, OverflowError):
-        raise FormatError(path, f"{field} {size!r} is not two whole numbers") from None
+        # (fractions had been floored, 60.9 read as 60, and a size of one value or a word
+        # left for a default: probe CG)
+        raise FormatError(path, f"{field} {_shown(size)} is not two whole numbers (height, "
+                          "width)") from None
     if not (0 < h <= MAX_SENSOR_SIDE and 0 < w <= MAX_SENSOR_SIDE):
         raise FormatError(path, f"{field} (height, width) = ({h}, {w}) is outside "
                           f"1..{MAX_SENSOR_SIDE} px per side", "corrupt header?")
     return h, w
+
+
+def _shown(size) -> str:
+    """``size`` as a message shows it: numpy values as plain numbers."""
+    if hasattr(size, "tolist"):
+        return repr(size.tolist())
+    if isinstance(size, (tuple, list)):
+        items = [v.item() if hasattr(v, "item") else v for v in size]
+        return repr(items if isinstance(size, list) else tuple(items))
+    return repr(size)
+
+
+def _whole(v) -> int:
+    """``v`` as an int: a decimal string of one, or a number without a fraction
+    (ValueError otherwise, TypeError for what is neither)."""
+    if isinstance(v, (str, bytes)):
+        return int(v)
+    f = float(v)
+    if f != int(f):
+        raise ValueError(v)
+    return int(v) if isinstance(v, numbers.Integral) else int(f)
 
 
 def given_sensor_size(size) -> tuple[int, int]:

@@ -125,11 +125,8 @@ def size_from_attrs(path: Path, *objs) -> tuple[int, int] | None:
 
 
 def _checked_size(path: Path, h, w, what: str) -> tuple[int, int]:
-    try:
-        size = (int(h), int(w))
-    except (TypeError, ValueError):
-        raise FormatError(path, f"{what} is not a sensor size: {h!r}, {w!r}") from None
-    return check_sensor_size(path, size, what)
+    # (check_sensor_size refuses fractions: int() had floored 60.9 to 60, probe CG)
+    return check_sensor_size(path, (h, w), what)
 
 
 def read(path: str | os.PathLike, t0: int | None = None, t1: int | None = None, *,
