@@ -297,11 +297,14 @@ def _small(n=200):
                       sensor_size=(60, 80))
 
 
-@pytest.mark.parametrize(("value", "said"), [([60.9, 80.9], r"\(60\.9, 80\.9\) is not two "
+@pytest.mark.parametrize(("value", "said"), [([60], r"is \[60\], not a sensor size"),
+                                             ("abc", "is 'abc', not a sensor size"),
+                                             ([60.9, 80.9], r"\(60\.9, 80\.9\) is not two "
                                                             "whole numbers")])
 def test_a_malformed_dsec_sensor_size_attribute_is_refused(tmp_path, value, said):
-    """Probe CG: an attribute 'sensor_size' with fractions was floored (60.9 read as 60).
-    Now one line names the attribute and its value; a size given reads the file."""
+    """Probe CG: an attribute 'sensor_size' of one value or a word was passed over and
+    DSEC's 640 x 480 taken, 'the file states no size'; fractions were floored (60.9 read
+    as 60). Now one line names the attribute and its value; a size given reads the file."""
     ev = _small()
     dsec.write(tmp_path / "d.h5", ev)
     with h5py.File(tmp_path / "d.h5", "a") as f:

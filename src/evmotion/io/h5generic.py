@@ -118,9 +118,17 @@ def size_from_attrs(path: Path, *objs) -> tuple[int, int] | None:
                                   "give the sensor size (--sensor-size H W)")
             return _checked_size(path, wh[1], wh[0], "attribute 'geometry' (WxH)")
         for key in ("sensor_size", "sensor_resolution"):  # event_utils / E2VID: (H, W)
-            v = np.asarray(a[key]).ravel() if key in a else np.zeros(0)
-            if v.size >= 2:
-                return _checked_size(path, v[0], v[1], f"attribute '{key}' (H, W)")
+            if key not in a:
+                continue
+            v = np.asarray(a[key]).ravel()
+            if v.size < 2:
+                # ([60] or 'abc' had been passed over for a default size, said to be
+                # assumed as the file states none, probe CG)
+                shown = v.tolist() if np.ndim(a[key]) else v.tolist()[0]
+                raise FormatError(path, f"attribute '{key}' is {shown!r}, not a sensor size "
+                                  "(height, width): a corrupt header?",
+                                  "give the sensor size (--sensor-size H W)")
+            return _checked_size(path, v[0], v[1], f"attribute '{key}' (H, W)")
     return None
 
 
