@@ -106,14 +106,14 @@ def add_parser(sub) -> None:
     p.add_argument("--optimizer", default="bfgs", choices=["bfgs", "newton-cg", "adam", "tpe"],
                    help="optimizer (default bfgs)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--window-events", type=int_range(10),
+    g.add_argument("--window-events", type=int_range(10), metavar="N",
                    help=f"events per window (>= 10; default {DEFAULT_WINDOW_EVENTS}, as flow, "
                         "as many per pixel on sensors larger than 346 x 260)")
     g.add_argument("--window-us", type=duration_us,
                    help="window duration: microseconds, or with a unit (10000, 10ms, 0.01s)")
     add_time_arguments(p)
     p.add_argument("--workers", type=int_range(1, MAX_WORKERS), default=1,
-                   help="parallel worker processes")
+                   help="parallel worker processes (default 1)")
     add_scheduler_argument(p)
     p.add_argument("--seed", type=int_range(0), default=None,
                    help="seed of the TPE sampler (--optimizer tpe; default 0)")

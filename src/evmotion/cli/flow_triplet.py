@@ -71,7 +71,7 @@ def add_arguments(group) -> None:
                        help="match 4 aligned events instead of 3 (§5.3.5)")
     group.add_argument("--bins", type=int_range(1, 1000), default=None,
                        help="time bins per window of the dense output (default 1; windows "
-                            "default to 50 ms, methods.triplet_stream.DEFAULT_WINDOW_US); "
+                            "default to 50 ms); "
                             ".npz is per event")
     group.add_argument("--dense", choices=("mean", "lsq", "robust"), default=None,
                        help="dense windows instead of the per-event output (the default): "

@@ -48,7 +48,7 @@ def add_parser(sub) -> None:
     p.add_argument("--t1", type=time_us, default=None, metavar="TIME",
                    help="the window ends before this time, same units as --t0 (default: "
                         "after --window-events events)")
-    p.add_argument("--window-events", type=int_range(10), default=30000,
+    p.add_argument("--window-events", type=int_range(10), default=30000, metavar="N",
                    help="events of the window from --t0 (default 30000)")
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
                    help="output PNG")

@@ -65,7 +65,7 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=int_range(0), default=0,
                    help="seed of the spatial split's k-means")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--window-events", type=int_range(10), help="events per window (default: 30000)")
+    g.add_argument("--window-events", type=int_range(10), metavar="N", help="events per window (default: 30000)")
     g.add_argument("--window-us", type=duration_us,
                    help="window duration: microseconds, or with a unit (10000, 10ms, 0.01s)")
     add_time_arguments(p)

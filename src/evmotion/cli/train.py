@@ -85,7 +85,7 @@ def add_parser(sub) -> None:
     p.add_argument("--width", type=finite_float(0, MAX_WIDTH, lo_open=True), default=0.125,
                    help=f"channel multiplier in (0, {MAX_WIDTH:g}] (1 = the paper's EV-FlowNet, "
                         "14 M parameters; default 0.125)")
-    p.add_argument("--window-events", type=int_range(100), default=40_000,
+    p.add_argument("--window-events", type=int_range(100), default=40_000, metavar="N",
                    help="events per training window (default 40000, the thesis')")
     p.add_argument("--crop", type=_size, default=(176, 240), metavar="HxW",
                    help="training crop, multiples of 16 (default 176x240)")
