@@ -75,6 +75,7 @@ def test_flow_h5_then_eval(recording, tmp_path, capsys):
     assert rc == 0
     sharp = json.loads(text)
     assert sharp["kind"] == "sharpness" and sharp["windows_scored"] == 2
+    assert set(sharp["mean"]) <= set(sharp["units"])  # each score says its unit (probe CI)
     assert sharp["mean"]["FWL"] == pytest.approx(res["mean"]["FWL"], rel=1e-9)
     assert sharp["mean"]["FWL_gauss"] > 1.2
     assert main(["eval", str(out)]) == 2

@@ -158,6 +158,7 @@ def test_cli_scores_a_per_event_file(tmp_path, capsys, suffix):
     exact = write(tmp_path / f"exact{suffix}", ev)
     res = eval_json([exact, "--gt", gt], capsys)
     assert res["kind"] == "per-event" and res["n_windows"] == 3
+    assert {"AEE", "AEE_px_s", "%Out", "AE_deg", "AE_rad"} <= set(res["units"])  # probe CI
     assert res["mean"]["AEE"] < 1e-4 and res["mean"]["%Out"] == 0.0
     assert res["mean"]["n_scored"] == ev["valid"].sum()
     # the zero flow's AEE beside it: each scored event's GT displacement over its window

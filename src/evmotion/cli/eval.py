@@ -353,7 +353,7 @@ def _run_event_flow(args, path) -> int:
                                                "(of the GT window holding each event)",
                "mask": "event with a flow & valid GT at its pixel", "out_px": out_px,
                "grid": str(ef.attrs.get("grid", "sensor")), "n_windows": len(m.windows),
-               "mean": mean, "windows": list(m.windows)}
+               "units": EVENT_UNITS, "mean": mean, "windows": list(m.windows)}
     if args.json:
         print_json(summary)
     else:
@@ -397,7 +397,8 @@ def _report_sharpness(args, rows: list[dict]) -> int:
             } if fwls else {}
     summary = {"flow": str(args.flow), "events": str(args.events), "kind": "sharpness",
                "n_windows": len(rows), "windows_scored": len(fwls),
-               "mask": "events where the estimate is known", "mean": mean, "windows": rows}
+               "mask": "events where the estimate is known", "units": SHARPNESS_UNITS,
+               "mean": mean, "windows": rows}
     if args.json:
         print_json(summary)
         return 0
@@ -756,6 +757,19 @@ WINDOW_UNITS = {"AEE": "px over the window", "AEE_zero": "px over the window",
                 "%Out": "% of the pixels with EE > out_px", "AE_deg": "degrees",
                 "AE_rad": "radians", "nPE": "% of the pixels with EE > n px",
                 "FWL": "ratio", "FWL_gt": "ratio"}
+
+
+#: Units of the per-event scores in --json's "units" (the dense ones' less the window's
+#: pixels: each event's flow against the ground truth at its pixel)
+EVENT_UNITS = {"AEE": "px over dt GT frame intervals", "AEE_px_s": "px/s",
+               "AEE_zero": "px over dt GT frame intervals",
+               "%Out": "% of the scored events with EE > out_px",
+               "nPE": "% of the scored events with EE > n px", "AE_deg": "degrees",
+               "AE_rad": "radians", "valid_fraction": "share of the events",
+               "scored_fraction": "share of the events"}
+#: Units of the sharpness scores in --json's "units"
+SHARPNESS_UNITS = {"FWL": "ratio (the IWE's variance over the identity warp's)",
+                   "FWL_gauss": "ratio (the same of Gaussian-splatted IWEs)"}
 
 
 def _print_windows(args, res, summary: dict, dt_note: bool = True) -> None:
