@@ -624,3 +624,17 @@ def test_a_companion_table_of_other_columns_is_not_counted_as_samples(tmp_path):
     (tmp_path / "imu.txt").write_text("0.01 0 0 9.8 0.1 0 0\n0.02 0 0 9.8 0.1 0 0\n")
     d = ecd.describe(tmp_path)
     assert d["imu"] == 2 and "imu_error" not in d
+
+
+@pytest.mark.parametrize("line", ["0.000200 1e30 4 1", "0.000200 5 4 1e30"])
+def test_a_huge_number_in_scientific_notation_is_one_line(tmp_path, line):
+    """1e30 in a pixel or polarity column was cast to int64 with numpy's RuntimeWarning
+    on stderr, then said as a negative coordinate (probe CG)."""
+    from evmotion.io import read_events
+
+    path = tmp_path / "e.txt"
+    path.write_text(f"0.000100 3 4 1\n{line}\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(FormatError, match=f"line 2 is not .*'{line}'"):
+            read_events(path)
