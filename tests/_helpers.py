@@ -118,15 +118,16 @@ def assert_decoders_agree(module, words: np.ndarray, n_cuts: int, rng) -> np.nda
     return state
 
 
-def random_events(n: int, sensor_size: tuple[int, int], span_us: int, seed: int = 1):
-    """``n`` events at uniform random pixels, times (sorted, in ``[0, span_us)``) and
-    polarities."""
+def random_events(n: int, sensor_size: tuple[int, int], span_us: int, seed: int = 1,
+                  t0: int = 0):
+    """``n`` events at uniform random pixels, times (sorted, in ``[t0, t0 + span_us)``)
+    and polarities."""
     from evmotion.events import EventArray
 
     rng = np.random.default_rng(seed)
     h, w = sensor_size
     return EventArray(x=rng.integers(0, w, n), y=rng.integers(0, h, n),
-                      t=np.sort(rng.integers(0, span_us, n)), p=rng.integers(0, 2, n),
+                      t=t0 + np.sort(rng.integers(0, span_us, n)), p=rng.integers(0, 2, n),
                       sensor_size=sensor_size)
 
 

@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from _helpers import random_events
 from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
 from evmotion.io import aedat3, read_events
@@ -203,39 +204,25 @@ def test_the_aedat3_extension_names_the_format_to_write(tmp_path):
 def _written(tmp_path) -> tuple[EventArray, bytearray, int]:
     """A 20 ms recording written as AEDAT 3.1 (one polarity packet): the events, the
     file's bytes and the first packet header's offset."""
-    rng = np.random.default_rng(8)
-    n = 800
-    ev = EventArray(x=rng.integers(0, 80, n), y=rng.integers(0, 60, n),
-                    t=422 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
-                    sensor_size=(60, 80))
+    ev = random_events(800, (60, 80), 20_000, seed=8, t0=422)
     aedat3.write(tmp_path / "a.aedat", ev)
     data = bytearray((tmp_path / "a.aedat").read_bytes())
     return ev, data, bytes(data).index(b"#!END-HEADER") + 14
 
 
-def test_an_overflow_counter_past_the_year_5000_is_refused(tmp_path):
+@pytest.mark.parametrize(("overflow", "said"), [
+    (0x7FFFFFFF, "2147483647: its times, from 4611686016279904256 us, lie past the year 5000"),
+    (0xFFFFFFFF, "-1: negative, where times count up from the clock's zero")])
+def test_an_overflow_counter_out_of_range_is_refused(tmp_path, overflow, said):
     """Probe CG: the first packet's eventTSOverflow set to 2^31 - 1 read as times of
     4.6e18 us, unsaid (flow then refused them without naming the file, and convert wrote
-    an h5 that info refused); now the packet header field is named."""
+    an h5 that info refused); 0xffffffff (-1 as the spec's int32) read as times from
+    -2,147,483,226 us, unsaid, where a negative event timestamp is refused. Now the packet
+    header field is named (times count up from the clock's zero)."""
     _, data, he = _written(tmp_path)
-    data[he + 12:he + 16] = struct.pack("<I", 0x7FFFFFFF)
+    data[he + 12:he + 16] = struct.pack("<I", overflow)
     (tmp_path / "m.aedat").write_bytes(bytes(data))
-    want = (rf"m\.aedat: polarity packet at byte offset {he} has eventTSOverflow 2147483647: "
-            "its times, from 4611686016279904256 us, lie past the year 5000")
-    for call in (aedat3.read, aedat3.describe, lambda p: list(aedat3.iter_chunks(p, 100))):
-        with pytest.raises(FormatError, match=want):
-            call(tmp_path / "m.aedat")
-
-
-def test_a_negative_overflow_counter_is_refused(tmp_path):
-    """Probe CG: eventTSOverflow 0xffffffff (-1 as the spec's int32) read as times from
-    -2,147,483,226 us, unsaid, where a negative event timestamp is refused; now the
-    packet header field is named, as times count up from the clock's zero."""
-    _, data, he = _written(tmp_path)
-    data[he + 12:he + 16] = struct.pack("<I", 0xFFFFFFFF)
-    (tmp_path / "m.aedat").write_bytes(bytes(data))
-    want = (rf"m\.aedat: polarity packet at byte offset {he} has eventTSOverflow -1: "
-            "negative, where times count up from the clock's zero")
+    want = rf"m\.aedat: polarity packet at byte offset {he} has eventTSOverflow {said}"
     for call in (aedat3.read, aedat3.describe, lambda p: list(aedat3.iter_chunks(p, 100))):
         with pytest.raises(FormatError, match=want):
             call(tmp_path / "m.aedat")

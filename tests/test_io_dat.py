@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _helpers import assert_same_events
+from _helpers import assert_same_events, random_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary, dat
@@ -143,11 +143,7 @@ def test_two_gaps_spanning_the_u32_counter_are_refused_by_the_writers(tmp_path, 
 def _written(tmp_path, t0: int) -> tuple[EventArray, bytearray, int]:
     """A 20 ms Gen4 recording from ``t0`` µs written as DAT: the events, the file's
     bytes and where its records start."""
-    rng = np.random.default_rng(3)
-    n = 3000
-    ev = EventArray(x=rng.integers(0, 1280, n), y=rng.integers(0, 720, n),
-                    t=t0 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
-                    sensor_size=(720, 1280))
+    ev = random_events(3000, (720, 1280), 20_000, seed=3, t0=t0)
     dat.write(tmp_path / "a.dat", ev)
     data = bytearray((tmp_path / "a.dat").read_bytes())
     _, off = binary.read_text_header(tmp_path / "a.dat", b"%")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _helpers import assert_decoders_agree, assert_same_events
+from _helpers import assert_decoders_agree, assert_same_events, random_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import evt2
@@ -152,11 +152,7 @@ def _corrupted(tmp_path, shift: int, picks=(100, 200), t0=422):
     """A 20 ms recording from ``t0`` µs written as EVT 2.0, then TIME_HIGH words ``picks``
     moved ``shift`` (of 2^28) ahead: the events, the file, the byte offsets of the words
     and the first one's and its neighbours' words."""
-    rng = np.random.default_rng(11)
-    n = 3000
-    ev = EventArray(x=rng.integers(0, 80, n), y=rng.integers(0, 60, n),
-                    t=t0 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
-                    sensor_size=(60, 80))
+    ev = random_events(3000, (60, 80), 20_000, seed=11, t0=t0)
     evt2.write(tmp_path / "a.raw", ev)
     data = (tmp_path / "a.raw").read_bytes()
     he = data.index(b"% end\n") + 6

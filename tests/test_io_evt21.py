@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _helpers import assert_same_events
+from _helpers import assert_same_events, random_events
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import evt21, read_events
@@ -123,11 +123,7 @@ def test_a_time_high_that_jumps_and_falls_back_is_refused(tmp_path):
     """Probe CG (EVT 2.0's, the same time words): a TIME_HIGH moved 200,000,000 (of 2^28)
     ahead, its fall back counted as a rollover of the 34-bit counter (every later time
     4.8 h on, unsaid); now it is named as a corrupt time field."""
-    rng = np.random.default_rng(1)
-    n = 3000
-    ev = EventArray(x=rng.integers(0, 1280, n), y=rng.integers(0, 720, n),
-                    t=422 + np.sort(rng.integers(0, 20_000, n)), p=rng.integers(0, 2, n),
-                    sensor_size=(720, 1280))
+    ev = random_events(3000, (720, 1280), 20_000, seed=1, t0=422)
     evt21.write(tmp_path / "a.raw", ev)
     data = (tmp_path / "a.raw").read_bytes()
     he = data.index(b"% end\n") + 6

@@ -133,6 +133,37 @@ def raise_noted(state: np.ndarray, slots: tuple[int, ...], bits: int, what: str)
         raise CorruptTimeError(int(state[s_bad]) - 1, times, bits, what)
 
 
+@lazy_njit(cache=True)
+def take_time_high(state, slots, h, pos, bits, shift):
+    """The numba kernels' TIME_HIGH word (Prophesee EVT 2.0, 2.1, 3.0): its value ``h``
+    (the time bits from ``shift`` on of a ``bits``-bit µs counter), at word ``pos`` of the
+    payload, taken as the decoder ``state``'s time base. ``slots``: the state's slots of
+    the time high, the wrap offset and whether one was seen, then :func:`note_corrupt`'s.
+
+    A value below the last by half its range or more is a rollover (adding ``2^bits`` µs
+    to the wrap offset); then the unwrapped base is checked as :func:`note_corrupt` does.
+    Returns True where it is corrupt (noted in the state; the kernel stops); the kernel
+    takes its time high and wrap offset from the state after a call (the words are rare,
+    so the state is their one copy). numba's disk cache of a caller is keyed on the
+    caller's file only: after editing this, touch evt2.py, evt21.py and evt3.py."""
+    s_th, s_ovf, s_seen, s_u1, s_u2, s_nu, s_p1, s_bad, s_after = slots
+    th = state[s_th]
+    if state[s_seen] and h < th and th - h >= np.int64(1) << (bits - shift - 1):
+        state[s_ovf] += np.int64(1) << bits
+    state[s_th] = h
+    state[s_seen] = 1
+    u = state[s_ovf] + (h << shift)
+    if state[s_nu] >= 2 and u - state[s_u2] >= np.int64(1) << bits:
+        state[s_bad] = state[s_p1] + 1
+        state[s_after] = u
+        return True
+    state[s_u2] = state[s_u1]
+    state[s_u1] = u
+    state[s_nu] += 1
+    state[s_p1] = pos
+    return False
+
+
 # ``open_blocks(path, sensor_size, block_bytes) -> (data offset, (height, width), blocks)``:
 # parses a file's header and returns its payload as a lazy iterator of decoded blocks.
 OpenBlocks = Callable[[Path, "tuple[int, int] | None", int],

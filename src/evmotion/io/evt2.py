@@ -15,6 +15,7 @@ import numpy as np
 
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
+from evmotion.io.binary import take_time_high
 from evmotion.jitcache import lazy_njit
 
 __all__ = ["read", "iter_chunks", "write", "describe", "decode_words", "time_high_words",
@@ -30,20 +31,15 @@ _HALF = 1 << 27
 _TH, _OVF, _SEEN, _ORDER, _U1, _U2, _NU, _P1, _BASE, _BAD, _AFTER = range(11)
 STATE_SLOTS = 11
 CHECK_SLOTS = (_U1, _U2, _NU, _P1, _BAD, _AFTER)
+TIME_SLOTS = (_TH, _OVF, _SEEN) + CHECK_SLOTS  # binary.take_time_high's
 
 
 @lazy_njit(cache=True)
 def _decode(words, state, ox, oy, ot, op):
     """Decode a block; ``state`` (:func:`new_state`) is updated in place. Stops at a time
     high between two others 2^34 µs or more apart (unwrapped): a corrupt one, taken for a
-    jump and a rollover, noted in ``state[_BAD]``."""
-    th = state[_TH]
-    ovf = state[_OVF]
-    seen = state[_SEEN]
-    u1 = state[_U1]
-    u2 = state[_U2]
-    nu = state[_NU]
-    p1 = state[_P1]
+    jump and a rollover, noted in ``state[_BAD]`` (:func:`binary.take_time_high`)."""
+    th, ovf, seen = state[_TH], state[_OVF], state[_SEEN]
     n = 0
     for i in range(words.shape[0]):
         w = np.int64(words[i])
@@ -56,27 +52,9 @@ def _decode(words, state, ox, oy, ot, op):
                 op[n] = typ
                 n += 1
         elif typ == 0x8:
-            h = w & 0xFFFFFFF
-            if seen and h < th and th - h >= _HALF:
-                ovf += np.int64(1) << 34
-            th = h
-            seen = 1
-            u = ovf + (th << 6)
-            if nu >= 2 and u - u2 >= WRAP_US:
-                state[_BAD] = p1 + 1
-                state[_AFTER] = u
+            if take_time_high(state, TIME_SLOTS, w & 0xFFFFFFF, state[_BASE] + i, 34, 6):
                 break
-            u2 = u1
-            u1 = u
-            nu += 1
-            p1 = state[_BASE] + i
-    state[_TH] = th
-    state[_OVF] = ovf
-    state[_SEEN] = seen
-    state[_U1] = u1
-    state[_U2] = u2
-    state[_NU] = nu
-    state[_P1] = p1
+            th, ovf, seen = state[_TH], state[_OVF], 1
     return n
 
 

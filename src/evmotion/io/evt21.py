@@ -23,20 +23,16 @@ import numpy as np
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
+from evmotion.io.binary import take_time_high
 from evmotion.io.evt2 import (
-    _AFTER,
-    _BAD,
     _BASE,
-    _NU,
     _ORDER,
     _OVF,
-    _P1,
     _SEEN,
     _TH,
-    _U1,
-    _U2,
     CHECK_SLOTS,
     STATE_SLOTS,
+    TIME_SLOTS,
     time_high_words,
 )
 from evmotion.jitcache import lazy_njit
@@ -67,14 +63,9 @@ def _count(words, upper_first):
 def _decode(words, upper_first, state, ox, oy, ot, op):
     """Decode a block; ``state`` (:func:`new_state`, EVT 2.0's slots) is updated in place.
     Stops at a time high between two others 2^34 µs or more apart (unwrapped): a corrupt
-    one, taken for a jump and a rollover, noted in ``state[_BAD]``."""
-    th = state[_TH]
-    ovf = state[_OVF]
-    seen = state[_SEEN]
-    u1 = state[_U1]
-    u2 = state[_U2]
-    nu = state[_NU]
-    p1 = state[_P1]
+    one, taken for a jump and a rollover, noted in ``state[_BAD]``
+    (:func:`binary.take_time_high`)."""
+    th, ovf, seen = state[_TH], state[_OVF], state[_SEEN]
     n = 0
     for i in range(words.shape[0]):
         w = np.uint64(words[i])
@@ -94,27 +85,9 @@ def _decode(words, upper_first, state, ox, oy, ot, op):
                         op[n] = typ
                         n += 1
         elif typ == 0x8:
-            h = hi & 0xFFFFFFF
-            if seen and h < th and th - h >= _HALF:
-                ovf += np.int64(1) << 34
-            th = h
-            seen = 1
-            u = ovf + (th << 6)
-            if nu >= 2 and u - u2 >= WRAP_US:
-                state[_BAD] = p1 + 1
-                state[_AFTER] = u
+            if take_time_high(state, TIME_SLOTS, hi & 0xFFFFFFF, state[_BASE] + i, 34, 6):
                 break
-            u2 = u1
-            u1 = u
-            nu += 1
-            p1 = state[_BASE] + i
-    state[_TH] = th
-    state[_OVF] = ovf
-    state[_SEEN] = seen
-    state[_U1] = u1
-    state[_U2] = u2
-    state[_NU] = nu
-    state[_P1] = p1
+            th, ovf, seen = state[_TH], state[_OVF], 1
     return n
 
 

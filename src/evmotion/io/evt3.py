@@ -19,6 +19,7 @@ import numpy as np
 from evmotion.errors import FormatError
 from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
+from evmotion.io.binary import take_time_high
 from evmotion.jitcache import lazy_njit
 
 __all__ = ["read", "iter_chunks", "write", "describe", "FORMAT"]
@@ -32,6 +33,7 @@ WHOLE_FILE_BYTES = 1 << 28
 # 0: none) and the time base after it
 _Y, _TH, _TL, _OVF, _BX, _VP, _SEEN, _U1, _U2, _NU, _P1, _BASE, _BAD, _AFTER = range(14)
 CHECK_SLOTS = (_U1, _U2, _NU, _P1, _BAD, _AFTER)
+TIME_SLOTS = (_TH, _OVF, _SEEN) + CHECK_SLOTS  # binary.take_time_high's
 
 
 @lazy_njit(cache=True)
@@ -41,7 +43,7 @@ def _decode(words, start, state, ox, oy, ot, op):
     Returns ``(n_events, next_word)``; ``state`` (int64[14]) is updated in place so the
     next call, on the same block or the next one, continues seamlessly. Stops at a
     TIME_HIGH between two others 2^24 µs or more apart (unwrapped): a corrupt one, taken
-    for a jump and a rollover, noted in ``state[_BAD]``.
+    for a jump and a rollover, noted in ``state[_BAD]`` (:func:`binary.take_time_high`).
     """
     cap = ox.shape[0]
     y = state[_Y]
@@ -59,11 +61,8 @@ def _decode(words, start, state, ox, oy, ot, op):
             typ = w >> 12
             i += 1
             if typ == 0x8:
-                th = w & 0xFFF
-                state[_SEEN] = 1
-                state[_U1] = ovf + (th << 12)
-                state[_NU] = 1
-                state[_P1] = state[_BASE] + i - 1
+                take_time_high(state, TIME_SLOTS, w & 0xFFF, state[_BASE] + i - 1, 24, 12)
+                th = state[_TH]
                 break
             if typ == 0x0:
                 y = w & 0x7FF
@@ -78,10 +77,6 @@ def _decode(words, start, state, ox, oy, ot, op):
                 bx += 8
     n = 0
     tcur = ovf + (th << 12) + tl
-    u1 = state[_U1]
-    u2 = state[_U2]
-    nu = state[_NU]
-    p1 = state[_P1]
     while i < nw and not state[_BAD]:
         # every word yields at most 12 events: no bounds check inside a span
         stop = min(nw, i + (cap - n) // 12)
@@ -102,21 +97,12 @@ def _decode(words, start, state, ox, oy, ot, op):
                 tl = w & 0xFFF
                 tcur = ovf + (th << 12) + tl
             elif typ == 0x8:
-                h = w & 0xFFF
-                if h < th and th - h >= 2048:
-                    ovf += 1 << 24
-                th = h
+                bad = take_time_high(state, TIME_SLOTS, w & 0xFFF, state[_BASE] + j, 24, 12)
+                th, ovf = state[_TH], state[_OVF]
                 tcur = ovf + (th << 12) + tl
-                u = ovf + (th << 12)
-                if nu >= 2 and u - u2 >= WRAP_US:
-                    state[_BAD] = p1 + 1
-                    state[_AFTER] = u
+                if bad:
                     stop = j + 1
                     break
-                u2 = u1
-                u1 = u
-                nu += 1
-                p1 = state[_BASE] + j
             elif typ == 0x3:
                 bx = w & 0x7FF
                 vp = (w >> 11) & 1
@@ -133,14 +119,8 @@ def _decode(words, start, state, ox, oy, ot, op):
         i = stop
     if state[_BAD]:
         i = nw
-    state[_U1] = u1
-    state[_U2] = u2
-    state[_NU] = nu
-    state[_P1] = p1
     state[_Y] = y
-    state[_TH] = th
     state[_TL] = tl
-    state[_OVF] = ovf
     state[_BX] = bx
     state[_VP] = vp
     return n, i
