@@ -28,18 +28,19 @@ _HALF = 1 << 27
 # unwrapped time bases (µs) and how many are set, the word index of the last time high,
 # the words decoded before the block, the corrupt word found (its index + 1; 0: none) and
 # the time base after it
-_TH, _OVF, _SEEN, _ORDER, _U1, _U2, _NU, _P1, _BASE, _BAD, _AFTER = range(11)
+(SLOT_TH, SLOT_OVF, SLOT_SEEN, SLOT_ORDER, SLOT_U1, SLOT_U2, SLOT_NU, SLOT_P1, SLOT_BASE,
+ SLOT_BAD, SLOT_AFTER) = range(11)
 STATE_SLOTS = 11
-CHECK_SLOTS = (_U1, _U2, _NU, _P1, _BAD, _AFTER)
-TIME_SLOTS = (_TH, _OVF, _SEEN) + CHECK_SLOTS  # binary.take_time_high's
+CHECK_SLOTS = (SLOT_U1, SLOT_U2, SLOT_NU, SLOT_P1, SLOT_BAD, SLOT_AFTER)
+TIME_SLOTS = (SLOT_TH, SLOT_OVF, SLOT_SEEN) + CHECK_SLOTS  # binary.take_time_high's
 
 
 @lazy_njit(cache=True)
 def _decode(words, state, ox, oy, ot, op):
     """Decode a block; ``state`` (:func:`new_state`) is updated in place. Stops at a time
     high between two others 2^34 µs or more apart (unwrapped): a corrupt one, taken for a
-    jump and a rollover, noted in ``state[_BAD]`` (:func:`binary.take_time_high`)."""
-    th, ovf, seen = state[_TH], state[_OVF], state[_SEEN]
+    jump and a rollover, noted in ``state[SLOT_BAD]`` (:func:`binary.take_time_high`)."""
+    th, ovf, seen = state[SLOT_TH], state[SLOT_OVF], state[SLOT_SEEN]
     n = 0
     for i in range(words.shape[0]):
         w = np.int64(words[i])
@@ -52,9 +53,9 @@ def _decode(words, state, ox, oy, ot, op):
                 op[n] = typ
                 n += 1
         elif typ == 0x8:
-            if take_time_high(state, TIME_SLOTS, w & 0xFFFFFFF, state[_BASE] + i, 34, 6):
+            if take_time_high(state, TIME_SLOTS, w & 0xFFFFFFF, state[SLOT_BASE] + i, 34, 6):
                 break
-            th, ovf, seen = state[_TH], state[_OVF], 1
+            th, ovf, seen = state[SLOT_TH], state[SLOT_OVF], 1
     return n
 
 
@@ -64,15 +65,15 @@ def _decode_plain(words, state, ox, oy, ot, op):
     typ = w >> 28
     is_th = typ == 0x8
     h = w[is_th] & 0xFFFFFFF
-    wraps = binary.counter_wraps(h, state[_TH], _HALF, bool(state[_SEEN]))
-    if binary.note_corrupt(state, state[_OVF] + (wraps << 34) + (h << 6),
-                           state[_BASE] + np.flatnonzero(is_th), WRAP_US, CHECK_SLOTS):
+    wraps = binary.counter_wraps(h, state[SLOT_TH], _HALF, bool(state[SLOT_SEEN]))
+    if binary.note_corrupt(state, state[SLOT_OVF] + (wraps << 34) + (h << 6),
+                           state[SLOT_BASE] + np.flatnonzero(is_th), WRAP_US, CHECK_SLOTS):
         return 0
     # each word's time base: the last TIME_HIGH at or before it (slot 0: the state's)
-    base = np.concatenate(([state[_TH]], h))
-    offset = np.concatenate(([state[_OVF]], state[_OVF] + (wraps << 34)))
+    base = np.concatenate(([state[SLOT_TH]], h))
+    offset = np.concatenate(([state[SLOT_OVF]], state[SLOT_OVF] + (wraps << 34)))
     k = np.cumsum(is_th)
-    keep = (typ <= 1) & ((k > 0) | bool(state[_SEEN]))
+    keep = (typ <= 1) & ((k > 0) | bool(state[SLOT_SEEN]))
     wk, kk = w[keep], k[keep]
     n = wk.size
     ox[:n] = (wk >> 11) & 0x7FF
@@ -80,7 +81,7 @@ def _decode_plain(words, state, ox, oy, ot, op):
     ot[:n] = offset[kk] + (base[kk] << 6) + ((wk >> 22) & 0x3F)
     op[:n] = typ[keep]
     if h.size:
-        state[_TH], state[_OVF], state[_SEEN] = h[-1], offset[-1], 1
+        state[SLOT_TH], state[SLOT_OVF], state[SLOT_SEEN] = h[-1], offset[-1], 1
     return n
 
 
@@ -115,7 +116,7 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
     decode = _decode_plain if plain else _decode
     k = decode(words, state, ox, oy, ot, op)
     binary.raise_noted(state, CHECK_SLOTS, 34, "TIME_HIGH word")
-    state[_BASE] += n
+    state[SLOT_BASE] += n
     return ox[:k], oy[:k], ot[:k], op[:k]
 
 

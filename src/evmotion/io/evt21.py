@@ -25,12 +25,12 @@ from evmotion.events import EventArray
 from evmotion.io import binary, prophesee
 from evmotion.io.binary import take_time_high
 from evmotion.io.evt2 import (
-    _BASE,
-    _ORDER,
-    _OVF,
-    _SEEN,
-    _TH,
     CHECK_SLOTS,
+    SLOT_BASE,
+    SLOT_ORDER,
+    SLOT_OVF,
+    SLOT_SEEN,
+    SLOT_TH,
     STATE_SLOTS,
     TIME_SLOTS,
     time_high_words,
@@ -63,9 +63,9 @@ def _count(words, upper_first):
 def _decode(words, upper_first, state, ox, oy, ot, op):
     """Decode a block; ``state`` (:func:`new_state`, EVT 2.0's slots) is updated in place.
     Stops at a time high between two others 2^34 µs or more apart (unwrapped): a corrupt
-    one, taken for a jump and a rollover, noted in ``state[_BAD]``
+    one, taken for a jump and a rollover, noted in ``state[SLOT_BAD]``
     (:func:`binary.take_time_high`)."""
-    th, ovf, seen = state[_TH], state[_OVF], state[_SEEN]
+    th, ovf, seen = state[SLOT_TH], state[SLOT_OVF], state[SLOT_SEEN]
     n = 0
     for i in range(words.shape[0]):
         w = np.uint64(words[i])
@@ -85,16 +85,16 @@ def _decode(words, upper_first, state, ox, oy, ot, op):
                         op[n] = typ
                         n += 1
         elif typ == 0x8:
-            if take_time_high(state, TIME_SLOTS, hi & 0xFFFFFFF, state[_BASE] + i, 34, 6):
+            if take_time_high(state, TIME_SLOTS, hi & 0xFFFFFFF, state[SLOT_BASE] + i, 34, 6):
                 break
-            th, ovf, seen = state[_TH], state[_OVF], 1
+            th, ovf, seen = state[SLOT_TH], state[SLOT_OVF], 1
     return n
 
 
 def new_state(upper_first: bool = True) -> np.ndarray:
     """A fresh decoder state: no time base seen yet; the byte order (1: the IMX636's)."""
     state = np.zeros(STATE_SLOTS, np.int64)
-    state[_ORDER] = int(upper_first)
+    state[SLOT_ORDER] = int(upper_first)
     return state
 
 
@@ -113,7 +113,7 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.B
     words = np.ascontiguousarray(words, dtype=np.uint64)
     if state is None:
         state = new_state()
-    upper_first = bool(state[_ORDER])
+    upper_first = bool(state[SLOT_ORDER])
     n = _count(words, upper_first)
     ox = np.empty(n, np.uint16)
     oy = np.empty(n, np.uint16)
@@ -121,7 +121,7 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.B
     op = np.empty(n, np.uint8)
     k = _decode(words, upper_first, state, ox, oy, ot, op)
     binary.raise_noted(state, CHECK_SLOTS, 34, "TIME_HIGH word")
-    state[_BASE] += words.shape[0]
+    state[SLOT_BASE] += words.shape[0]
     return ox[:k], oy[:k], ot[:k], op[:k]
 
 
