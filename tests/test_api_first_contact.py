@@ -456,6 +456,11 @@ def test_network_options_given_to_multicm_are_named_alone():
     with pytest.raises(ParameterError, match=r"device='cuda' and threads=2 are the network's "
                                              r"options: they apply"):
         estimate_flow(ev, device="cuda", threads=2)
+    # a checkpoint for multicm without init='dnn' went unopened, unsaid (probe CK)
+    with pytest.raises(ParameterError, match=r"^estimate_flow: checkpoint='nope.pt' is the "
+                                             r"network's option: it applies with method='dnn' "
+                                             r"or init='dnn'"):
+        estimate_flow(ev, checkpoint="nope.pt")
 
 
 @pytest.mark.parametrize("method", ["multicm", "dnn"])

@@ -629,10 +629,12 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     if method != "multicm":
         raise ParameterError(f"estimate_flow: unknown method {method!r} "
                              "(available: 'multicm', 'dnn'; 'triplet' has its own functions)")
-    if not (isinstance(init, str) and init == "dnn") and (device != "cpu" or threads != 1):
+    if not (isinstance(init, str) and init == "dnn") and (
+            device != "cpu" or threads != 1 or checkpoint is not None):
         # only what was given (threads=0 was said with a device='cpu' nobody passed, and
-        # read as no range error; probe BQ)
-        given = [f"{k}={v!r}" for k, v, default in (("device", device, "cpu"),
+        # read as no range error; probe BQ); a checkpoint went unopened, unsaid (probe CK)
+        given = [f"{k}={v!r}" for k, v, default in (("checkpoint", checkpoint, None),
+                                                    ("device", device, "cpu"),
                                                     ("threads", threads, 1)) if v != default]
         raise ParameterError(f"estimate_flow: {' and '.join(given)} "
                              f"{'are' if len(given) > 1 else 'is'} the network's option"
