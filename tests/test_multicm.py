@@ -473,3 +473,15 @@ def test_one_motion_moving_farther_than_its_tiles_is_not_another_motion(seed, te
     pick = np.sort(np.random.default_rng(seed).choice(len(sim.events), 4000, replace=False))
     res = estimate_flow(sim.events[pick])
     assert res.meta["other_motion_tiles"] == 0 and res.valid.mean() > 0.3
+
+
+def test_a_sensor_under_three_pixels_high_is_named_not_its_events():
+    """A 2 x 1000 px sensor's identity IWE has no gradient: it was said to have too few
+    events (probe CK)."""
+    rng = np.random.default_rng(0)
+    n = 2000
+    ev = EventArray(x=rng.integers(0, 1000, n), y=rng.integers(0, 2, n),
+                    t=np.sort(rng.integers(0, 50_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(2, 1000))
+    with pytest.raises(EmptyWindowError, match=r"2 x 1000 px \(H x W\) has no gradient"):
+        estimate_flow(ev)

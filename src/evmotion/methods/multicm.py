@@ -199,7 +199,10 @@ class MultiCMProblem:
             self.g0 = objective_value_grad(objective, tf.iwe_forward(
                 x, y, np.zeros((x.size, 2)), np.zeros(x.size), shape))[0]
         if self.g0 <= 0:
-            raise EmptyWindowError("the identity-warp IWE has no contrast (too few events)")
+            # (a 2 x 1000 px sensor was said to have too few events; probe CK)
+            why = (f"an image of {shape[0]} x {shape[1]} px (H x W) has no gradient: 3 px "
+                   "or more a side" if min(shape) < 3 else "too few events")
+            raise EmptyWindowError(f"the identity-warp IWE has no contrast ({why})")
         if time_aware:
             self.n_bins = n_bins
             b = np.minimum((s * n_bins).astype(np.int64), n_bins - 1)
