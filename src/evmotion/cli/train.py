@@ -89,7 +89,7 @@ def add_parser(sub) -> None:
                    help="events per training window (default 40000, the thesis')")
     p.add_argument("--crop", type=_size, default=(176, 240), metavar="HxW",
                    help="training crop, multiples of 16 (default 176x240)")
-    p.add_argument("--sim-duration", type=finite_float(0, 10, lo_open=True, unit="s"),
+    p.add_argument("--sim-duration", type=finite_float(1e-6, 10, unit="s"),
                    default=0.05, metavar="S",
                    help="length of each simulated recording in s; the window is its middle "
                         "--window-events events (scaled to the crop), fewer if it has fewer "
