@@ -84,6 +84,8 @@ def test_dnn_init_starts_from_the_flow_on_the_events(monkeypatch):
     assert calls == [{"device": "cpu", "threads": 1, "with_iwes": False,
                       "time_reversal": False, "fuse": False, "rescale": False,
                       "planar": False, "refine": False, "check": False}]
+    # the result says where it started (probe CK: nothing in its meta did)
+    assert res.meta["init"] == "dnn" and res.meta["n_scales"] == 3
 
 
 def test_the_networks_own_verdicts_are_not_said_of_the_refined_flow(monkeypatch):
