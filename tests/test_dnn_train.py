@@ -72,6 +72,11 @@ def test_resume_gives_the_weights_of_an_uninterrupted_run(tmp_path):
     train(TrainConfig(epochs=1, **{**TINY, "seed": 1}), tmp_path / "c")
     wc = _weights(tmp_path / "c" / "model.pt")
     assert any(not torch.equal(wa[k], wc[k]) for k in wa)
+    # a resume with nothing to do keeps the run's own settings in model.pt (it rewrote
+    # them with the fewer epochs asked, probe CK)
+    train(cfg1, tmp_path / "b", resume=True)
+    meta = torch.load(tmp_path / "b" / "model.pt", weights_only=False)
+    assert meta["meta"]["config"]["epochs"] == 2, meta["meta"]
     rows = list(csv.DictReader(open(tmp_path / "b" / "epochs.csv")))
     assert [int(r["epoch"]) for r in rows] == [0, 1]
     assert "val_AEE_px" in rows[0] and np.isfinite(summary["val_FWL"])

@@ -21,6 +21,7 @@ inference) and its numpy export ``model.npz`` (inference without torch), ``best.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import os
 import time
@@ -454,8 +455,12 @@ def train(cfg: TrainConfig, out_dir: str | Path, *, resume: bool = False,
         sched.load_state_dict(state[2])
         steps_log, epochs_log = state[3], state[4]
         start = int(state[5]) + 1
-        # an interruption between last.pt and the files after it left those a step behind
-        _write_outputs(out, net, start - 1, cfg, steps_log, epochs_log)
+        # an interruption between last.pt and the files after it left those a step behind;
+        # they are those of the checkpoint's run (a resume with fewer --epochs, nothing to
+        # do, had rewritten model.pt's epochs, probe CK)
+        _write_outputs(out, net, start - 1,
+                       dataclasses.replace(cfg, epochs=int(saved.get("epochs", cfg.epochs))),
+                       steps_log, epochs_log)
     elif cfg.init_weights:
         # fine-tuning: start from a checkpoint's weights (same network), fresh optimizer
         start_net = load_model(cfg.init_weights, str(device))
