@@ -488,6 +488,20 @@ def test_crops_find_events_gathered_in_a_corner():
         assert got is not None and len(got.events) == n and got.events.sensor_size == (176, 240)
 
 
+def test_a_recording_shorter_than_half_a_window_is_said(tmp_path):
+    """It was trained on as one short window without a word (probe CK)."""
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io import write_events
+    from evmotion.methods.dnn.data import recording_windows
+
+    ev = sim_window(5, sensor_size=(48, 64), window_events=4000).events
+    write_events(tmp_path / "rec.h5", ev)
+    with pytest.warns(EvmotionWarning, match=rf"{len(ev)} events, fewer than half a window "
+                                             r"of --window-events 40000"):
+        (win,) = recording_windows([tmp_path / "rec.h5"], 40_000)
+    assert len(win.events) == len(ev)
+
+
 def test_recordings_take_the_readers_format_and_sensor_size(tmp_path):
     """A text recording of a 48x64 sensor reads as the ECD's 240x180 unless its size is
     given; the reader's errors name --format and --sensor-size, which train now has."""
