@@ -142,3 +142,17 @@ def test_dnn_init_takes_the_networks_device_and_threads(monkeypatch, tmp_path, c
             mc.estimate_flow(ev, **kw)
     assert main(["flow", str(rec), "--threads", "2", "--out", str(tmp_path / "g.flo")]) == 2
     assert "--threads 2 does not apply with --method multicm" in capsys.readouterr().err
+
+
+def test_a_sequence_started_from_the_network_takes_its_checkpoint_once():
+    """estimate_flow_sequence(init='dnn', checkpoint=...) failed at its second window: the
+    warm start handed the previous result on as init with the checkpoint still given
+    (probe CR)."""
+    from evmotion.methods.dnn.model import DEFAULT_CHECKPOINT
+
+    win = sim_window(5, scene="translation", texture="shapes", sensor_size=(64, 96),
+                     window_events=6000)
+    ev = win.events
+    res = mc.estimate_flow_sequence(ev, ev.windows_by_count(3000), init="dnn",
+                                    checkpoint=DEFAULT_CHECKPOINT, max_iter=3)
+    assert [r.meta["init"] for r in res] == ["dnn", "given"]

@@ -1061,13 +1061,20 @@ def estimate_flow_sequence(events: EventArray, windows: Sequence[Window], *,
                                   keep_iwes=keep_iwes, on_empty=on_empty, **kwargs)
 
     init = kwargs.pop("init", None)
+    # the network's options go with the caller's init only: a window warm-started from the
+    # previous one's result was refused them (init='dnn' with a checkpoint failed at the
+    # second window, probe CR)
+    net_kw = {k: kwargs.pop(k) for k in ("checkpoint", "device", "threads") if k in kwargs}
     out = []
     it = progress(windows, total=len(windows), desc="multicm") if show_progress else windows
+    warmed = False
     for w in it:
-        res = estimate_or_skip(lambda ev, i0=init: estimate_flow(ev, init=i0, **kwargs),
-                               events, w, on_empty)
+        res = estimate_or_skip(
+            lambda ev, i0=init, own=not warmed: estimate_flow(
+                ev, init=i0, **kwargs, **(net_kw if own else {})),
+            events, w, on_empty)
         out.append(res)
         report_progress()  # a chunk run by map_windows: one of its windows is done
         if warm_start and warms(res, kwargs):
-            init = res
+            init, warmed = res, True
     return out
