@@ -372,8 +372,23 @@ def test_sensor_size_replacing_a_stated_one_is_said(tmp_path, capsys):
     ev = EventArray(x=[1, 2, 3], y=[0, 1, 2], t=[0, 10, 20], p=[1, 0, 1], sensor_size=(30, 40))
     eio.write_events(tmp_path / "r.h5", ev)
     (tmp_path / "r.txt").write_text("0.000000 1 0 1\n0.000010 2 1 0\n0.000020 3 2 1\n")
-    for name, said in (("r.h5", True), ("r.txt", False)):
+    # a DAT header without a size, DSEC (which stores none): defaults, not stated sizes
+    # (review CR: both were said to be replaced)
+    eio.write_events(tmp_path / "r.dat", ev)
+    data = (tmp_path / "r.dat").read_bytes()
+    (tmp_path / "r.dat").write_bytes(b"".join(
+        ln for ln in data.splitlines(keepends=True)
+        if not ln.startswith((b"% Width", b"% Height", b"% geometry"))))
+    eio.write_events(tmp_path / "r_dsec.h5", ev, format="dsec")
+    import h5py
+
+    with h5py.File(tmp_path / "r_dsec.h5", "r+") as f:
+        for k in list(f.attrs):
+            del f.attrs[k]
+    for name, said in (("r.h5", True), ("r.txt", False), ("r.dat", False),
+                       ("r_dsec.h5", False)):
         assert main(["view", str(tmp_path / name), "--sensor-size", "60", "80",
                      "--out", str(tmp_path / f"{name}.png")]) == 0
         err = capsys.readouterr().err
-        assert ("--sensor-size 60 80 replaces the 40 x 30 px (W x H)" in err) is said, err
+        assert ("--sensor-size 60 80 replaces" in err) is said, (name, err)
+        assert not said or "the 40 x 30 px (W x H)" in err

@@ -241,8 +241,13 @@ def describe(path: str | Path) -> dict:
     """Header fields, geometry and event count of a DAT file."""
     path = Path(path)
     lines, offset, size = _parse_header(path, None)
-    return {"format": "dat", "sensor_size": size, "header": prophesee.header_dict(lines),
-            "n_events": (path.stat().st_size - offset) // RECORD, "frames": 0, "imu": 0}
+    out = {"format": "dat", "sensor_size": size, "header": prophesee.header_dict(lines),
+           "n_events": (path.stat().st_size - offset) // RECORD, "frames": 0, "imu": 0}
+    if binary.geometry_from_header(lines, path, (0, 0)) == (0, 0):  # the header's none
+        # a default, which --sensor-size does not replace as stated (probe CR)
+        out["sensor_size_from"] = (f"DAT's default {DEFAULT_SIZE[1]} x {DEFAULT_SIZE[0]} "
+                                   "(the header states no size)")
+    return out
 
 
 def _sniff(path: Path, head: bytes) -> bool:
