@@ -598,7 +598,7 @@ def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit
                     fut = pool.submit(_run_window, fn, _payload(source, task), task,
                                       with_window, read_kwargs, sink)
                 except cf.BrokenExecutor:
-                    raise _worker_died(task) from None
+                    raise _worker_died(None) from None  # one of the tasks running
                 running[fut] = task
             if not running:
                 return
@@ -627,13 +627,15 @@ def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit
             pool.shutdown(wait=not interrupted, cancel_futures=True)
 
 
-def _worker_died(task: _Task) -> WorkerDiedError:
+def _worker_died(task: _Task | None) -> WorkerDiedError:
+    """The error of a pool whose worker died computing ``task`` (None: not known which; a
+    task is a window, or a chunk of windows where the caller runs chunks)."""
+    where = "" if task is None else f" while computing [{task.t0}, {task.t1}) us"
     return WorkerDiedError(
-        f"a worker process died while computing window {task.index} ([{task.t0}, "
-        f"{task.t1}) us): killed from outside (the out-of-memory killer, a signal) or "
-        "crashed; the windows finished before it are kept where the run keeps them (a "
-        "resumable output: run the same command with --resume), and fewer workers need "
-        "less memory")
+        f"a worker process died{where}: killed from outside (the out-of-memory killer, a "
+        "signal) or crashed; what finished before it is kept where the run keeps it (a "
+        "resumable output continues with --resume, with --workers 1 where the command "
+        "asks for it), and fewer workers need less memory")
 
 
 def _process_context():
