@@ -327,3 +327,17 @@ def test_a_corrupt_time_high_is_refused_not_taken_for_a_rollover(tmp_path, decod
         with pytest.raises(FormatError, match=rf"m\.raw: TIME_HIGH word at byte offset "
                                               rf"{he + 2 * k} holds time {at} us.*corrupt"):
             read(tmp_path / "m.raw")
+
+
+@pytest.mark.parametrize("module, dtype", [("evt2", np.uint32), ("evt21", np.uint64),
+                                           ("evt3", np.uint16)])
+def test_a_decoder_state_of_another_length_is_refused(module, dtype):
+    """The state grew when the decoders learnt to refuse corrupt times: an old 3-slot
+    state had the kernel write past its end, then an IndexError (review CR)."""
+    import importlib
+
+    from evmotion.errors import ParameterError
+
+    mod = importlib.import_module(f"evmotion.io.{module}")
+    with pytest.raises(ParameterError, match=r"state must be an int64 array of shape"):
+        mod.decode_words(np.zeros(4, dtype), np.zeros(3, np.int64))

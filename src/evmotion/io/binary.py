@@ -34,6 +34,27 @@ def small_payload(path: Path, offset: int, word_bytes: int) -> bool:
     return Path(path).stat().st_size - offset <= PLAIN_WORDS * word_bytes
 
 
+def check_state(state, fresh: np.ndarray) -> np.ndarray:
+    """A decoder's ``state`` as its kernel indexes it: an int64 array shaped as ``fresh``
+    (its ``new_state()``), else ParameterError (a state of another length had the kernel
+    write past its end, then an IndexError traceback; review CR).
+
+    Examples
+    --------
+    >>> check_state(np.zeros(3, np.int64), np.zeros(11, np.int64))
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.ParameterError: state must be an int64 array of shape (11,), as new_state() makes it; got int64 (3,)
+    """
+    if not (isinstance(state, np.ndarray) and state.dtype == np.int64
+            and state.shape == fresh.shape):
+        got = (f"{state.dtype} {state.shape}" if isinstance(state, np.ndarray)
+               else type(state).__name__)
+        raise ParameterError(f"state must be an int64 array of shape {fresh.shape}, as "
+                             f"new_state() makes it; got {got}")
+    return state
+
+
 def counter_wraps(values: np.ndarray, last: int, half: int, seen: bool = True) -> np.ndarray:
     """For each of a time counter's ``values`` (int64), how many times it has wrapped
     since ``last``, the value before them: a value below the one before it by ``half``

@@ -104,8 +104,7 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
     (5, 7, 64, 1)
     """
     words = np.ascontiguousarray(words, dtype=np.uint32)
-    if state is None:
-        state = new_state()
+    state = new_state() if state is None else binary.check_state(state, new_state())
     n = words.shape[0]
     ox = np.empty(n, np.uint16)
     oy = np.empty(n, np.uint16)

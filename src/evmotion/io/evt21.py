@@ -111,8 +111,7 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None) -> binary.B
     ([32, 34], [7, 7], [67, 67], [1, 1])
     """
     words = np.ascontiguousarray(words, dtype=np.uint64)
-    if state is None:
-        state = new_state()
+    state = new_state() if state is None else binary.check_state(state, new_state())
     upper_first = bool(state[SLOT_ORDER])
     n = _count(words, upper_first)
     ox = np.empty(n, np.uint16)

@@ -217,8 +217,7 @@ def decode_words(words: np.ndarray, state: np.ndarray | None = None, *,
     (3, 7, 4101, 1)
     """
     words = np.ascontiguousarray(words, dtype=np.uint16)
-    if state is None:
-        state = new_state()
+    state = new_state() if state is None else binary.check_state(state, new_state())
     if words.shape[0] <= binary.PLAIN_WORDS if plain is None else plain:
         out = _decode_plain(words, state)
     else:
