@@ -613,3 +613,19 @@ def test_a_network_no_better_than_the_zero_flow_is_said(tmp_path, monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("error", PoorFitWarning)
         train(TrainConfig(epochs=1, **TINY), tmp_path / "b")
+
+
+def test_train_says_a_sensor_size_that_replaces_a_stated_one(tmp_path, monkeypatch, capsys):
+    """Its --sensor-size help promised the warning the other commands give; train read
+    its recordings without it (review CR)."""
+    import evmotion.methods.dnn.train as tr
+    from evmotion.cli import main
+    from evmotion.io import write_events
+
+    write_events(tmp_path / "rec.h5", sim_window(5, sensor_size=(48, 64),
+                                                  window_events=4000).events)
+    monkeypatch.setattr(tr, "train", lambda *a, **k: {"epoch": 0, "step": 0,
+                                                     "train_loss": 1.0})
+    assert main(["train", str(tmp_path / "rec.h5"), "--sensor-size", "60", "80",
+                 "--sim-windows", "0", "--out", str(tmp_path / "run")]) == 0
+    assert "--sensor-size 60 80 replaces the 64 x 48 px (W x H)" in capsys.readouterr().err
