@@ -603,18 +603,19 @@ def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit
             if not running:
                 return
             done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
-            died = None
+            broken = []
             for fut in sorted(done, key=lambda f: running[f].index):
                 task = running.pop(fut)
                 if isinstance(fut.exception(), cf.BrokenExecutor):
-                    died = died or task
+                    broken.append(task)
                 else:
                     yield _future_result(fut, task)
-            if died is not None:
+            if broken:
                 # raised, not yielded as the window's error: a caller keeping its results
                 # for --resume recorded it as done with no row, and resumed without it
-                # (probe CH)
-                raise _worker_died(died)
+                # (probe CH). Every task then running breaks with the pool: which one's
+                # worker died is not known, so their span is named
+                raise _worker_died(broken + list(running.values()))
     except (KeyboardInterrupt, SystemExit):
         interrupted = True
         raise
@@ -627,10 +628,11 @@ def _drain(pool: cf.Executor, owned: bool, fn, source, tasks: list[_Task], limit
             pool.shutdown(wait=not interrupted, cancel_futures=True)
 
 
-def _worker_died(task: _Task | None) -> WorkerDiedError:
-    """The error of a pool whose worker died computing ``task`` (None: not known which; a
+def _worker_died(tasks: list[_Task] | None) -> WorkerDiedError:
+    """The error of a pool whose worker died while it ran ``tasks`` (None: not known; a
     task is a window, or a chunk of windows where the caller runs chunks)."""
-    where = "" if task is None else f" while computing [{task.t0}, {task.t1}) us"
+    where = "" if not tasks else (f" while the pool computed [{min(t.t0 for t in tasks)}, "
+                                  f"{max(t.t1 for t in tasks)}) us")
     return WorkerDiedError(
         f"a worker process died{where}: killed from outside (the out-of-memory killer, a "
         "signal) or crashed; what finished before it is kept where the run keeps it (a "
