@@ -277,3 +277,25 @@ def test_panels_name_their_pixel_axes(monkeypatch):
     vi.panel_png([np.zeros((12, 16)), np.ones((12, 16))], ["a", "b"])
     axes = figs[0].axes
     assert [(a.get_xlabel(), a.get_ylabel()) for a in axes] == [("x [px]", "y [px]")] * 2
+
+
+def test_a_title_in_capitals_fits_its_picture():
+    """'NOT A MEASUREMENT' was cut at both ends of a 336-px flow picture: its capitals are
+    wider than the width the lines were counted by (probe CK). Each line is drawn and its
+    width measured against the picture's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from evmotion.viz.titles import wrap_title
+
+    title = "window 0: 0.0002-0.0094 s: NOT A MEASUREMENT (no valid pixel)"
+    fig = plt.figure(figsize=(3.36, 1), dpi=100)
+    try:
+        renderer = fig.canvas.get_renderer()
+        for line in wrap_title(title, 336, 7.5):
+            text = fig.text(0.5, 0.5, line, fontsize=10, ha="center")
+            assert text.get_window_extent(renderer).width < 336, line
+    finally:
+        plt.close(fig)
