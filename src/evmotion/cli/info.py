@@ -78,7 +78,7 @@ def summarize(info: dict) -> list[str]:
     if info.get("duration_s") is not None:
         lines.append(f"duration:    {info['duration_s']:.6f} s")
     if info.get("rate_ev_per_s"):
-        lines.append(f"rate:        {info['rate_ev_per_s'] / 1e6:.3f} M events/s")
+        lines.append(f"rate:        {_rate_text(info['rate_ev_per_s'])}")
     if info.get("positive_fraction") is not None:
         lines.append(f"polarity:    {100 * info['positive_fraction']:.1f}% positive")
     shown = {"path", "format", "sensor_size", "n_events", "t_first_us", "t_last_us",
@@ -98,6 +98,18 @@ def summarize(info: dict) -> list[str]:
         if k not in shown:
             lines.append(f"{k + ':':<12} {_fmt_value(v)}")
     return lines
+
+
+def _rate_text(rate: float) -> str:
+    """An event rate in M events/s, or events/s below 0.01 M (a 184 events/s recording
+    showed 0.000 M events/s; probe CS).
+
+    Examples
+    --------
+    >>> _rate_text(2.5e6), _rate_text(184.3)
+    ('2.500 M events/s', '184 events/s')
+    """
+    return f"{rate / 1e6:.3f} M events/s" if rate >= 1e4 else f"{rate:,.0f} events/s"
 
 
 def run(args) -> int:
