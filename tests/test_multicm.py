@@ -12,6 +12,7 @@ from evmotion.errors import EmptyWindowError, ParameterError, PoorFitWarning
 from evmotion.events import EventArray
 from evmotion.methods.multicm import (
     FlowResult,
+    MultiCMOptions,
     MultiCMProblem,
     estimate_flow,
     estimate_flow_sequence,
@@ -146,7 +147,7 @@ def test_input_errors(translation):
     with pytest.raises(ParameterError, match="finest_level=10 makes 512 tiles per side"):
         estimate_flow(translation, finest_level=10, n_scales=1)
     with pytest.raises(ParameterError, match=r"lam, init apply to method 'multicm' only"):
-        estimate_flow(translation, method="dnn", lam=float("nan"), init=bad)
+        estimate_flow(translation, method="dnn", lam=0.01, init=bad)
 
 
 def test_a_flow_that_sharpens_nothing_is_flagged(translation):
@@ -485,3 +486,15 @@ def test_a_sensor_under_three_pixels_high_is_named_not_its_events():
                     sensor_size=(2, 1000))
     with pytest.raises(EmptyWindowError, match=r"2 x 1000 px \(H x W\) has no gradient"):
         estimate_flow(ev)
+
+
+@pytest.mark.parametrize("kw, match", [({"lam": "x"}, "lam must be a number"),
+                                       ({"lam": float("nan")}, r"need 0 <= lam < inf"),
+                                       ({"tol": 1.5}, r"need 0 <= tol < 1"),
+                                       ({"objective": "sharpness"}, "objective must be one of"),
+                                       ({"optimizer": "adam"}, "optimizer must be")])
+def test_options_are_checked_as_they_are_made(kw, match):
+    """MultiCMOptions(lam="x") constructed, to fail at estimate_flow (probe CB); what needs
+    no window is refused at construction, as BosOptions' are."""
+    with pytest.raises(ParameterError, match=match):
+        MultiCMOptions(**kw)

@@ -486,6 +486,32 @@ class MultiCMOptions:
     transport_cell: int = 4
     restart: bool = True
 
+    def __post_init__(self):
+        # what needs no window checked here: MultiCMOptions(lam="x") had constructed, to
+        # fail at estimate_flow (probe CB); the rest in _checked, against the window
+        for name in ("lam", "tol"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float, np.number)) and not isinstance(v, bool)):
+                raise ParameterError(f"{name} must be a number, got {v!r}")
+        # (lam = inf passed 'lam >= 0' and ended in numpy's invalid-value warnings: probe)
+        for ok, need, got in ((0 <= self.lam < float("inf"), "0 <= lam < inf",
+                               f"lam={self.lam}"),
+                              (0 <= self.tol < 1, "0 <= tol < 1", f"tol={self.tol}")):
+            if not ok:
+                raise ParameterError(f"need {need}, got {got}")
+        if self.time_aware not in (None, "none", "upwind", "burgers"):
+            raise ParameterError(f"time_aware must be None, 'upwind' or 'burgers', "
+                                 f"got {self.time_aware!r}")
+        if self.objective not in OBJECTIVE_NAMES:
+            raise ParameterError(f"objective must be one of {OBJECTIVE_NAMES}, got "
+                                 f"{self.objective!r}")
+        if self.references not in REFERENCES:
+            raise ParameterError(f"references must be 'multi' or 'single', got "
+                                 f"{self.references!r}")
+        if self.optimizer not in ("lbfgs", "newton-cg"):
+            raise ParameterError(f"optimizer must be 'lbfgs' or 'newton-cg', got "
+                                 f"{self.optimizer!r}")
+
 
 # what a caller who set nothing gets (method="dnn" refuses anything else)
 MULTICM_DEFAULTS = MultiCMOptions()
@@ -768,33 +794,18 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
         level = auto_finest_level(len(events), events.sensor_size)
         o = dataclasses.replace(o, finest_level=level, n_scales=min(o.n_scales, level))
     o = dataclasses.replace(o, finest_level=whole_number("finest_level", o.finest_level, lo=0))
-    for name in ("lam", "tol"):
-        v = getattr(o, name)
-        if not (isinstance(v, (int, float, np.number)) and not isinstance(v, bool)):
-            raise ParameterError(f"{name} must be a number, got {v!r}")
-    if o.time_aware not in (None, "none", "upwind", "burgers"):
-        raise ParameterError(f"time_aware must be None, 'upwind' or 'burgers', "
-                             f"got {o.time_aware!r}")
-    if o.objective not in OBJECTIVE_NAMES:
-        raise ParameterError(f"objective must be one of {OBJECTIVE_NAMES}, got {o.objective!r}")
-    if o.references not in REFERENCES:
-        raise ParameterError(f"references must be 'multi' or 'single', got {o.references!r}")
-    if o.optimizer not in ("lbfgs", "newton-cg"):
-        raise ParameterError(f"optimizer must be 'lbfgs' or 'newton-cg', got {o.optimizer!r}")
     if 2 ** (o.finest_level - 1) > max(events.sensor_size):
         raise ParameterError(f"finest_level={o.finest_level} makes {2 ** (o.finest_level - 1)} "
                              f"tiles per side, more than the {max(events.sensor_size)} px "
                              "of the sensor: tiles under a pixel fit nothing (at most "
                              f"{int(np.log2(max(events.sensor_size))) + 1} here)")
-    # (lam = inf passed 'lam >= 0' and ended in numpy's invalid-value warnings: probe); the
-    # first bound broken is named alone (one message listing all five read as a puzzle)
+    # the first bound broken is named alone (one message listing all five read as a
+    # puzzle); lam's and tol's are MultiCMOptions' own
     for ok, need, got in (
             (1 <= o.n_scales <= o.finest_level, "1 <= n_scales <= finest_level",
              f"n_scales={o.n_scales}, finest_level={o.finest_level}"),
             (o.max_iter >= 1, "max_iter >= 1", f"max_iter={o.max_iter}"),
-            (0 <= o.lam < float("inf"), "0 <= lam < inf", f"lam={o.lam}"),
-            (o.transport_cell >= 1, "transport_cell >= 1", f"transport_cell={o.transport_cell}"),
-            (0 <= o.tol < 1, "0 <= tol < 1", f"tol={o.tol}")):
+            (o.transport_cell >= 1, "transport_cell >= 1", f"transport_cell={o.transport_cell}")):
         if not ok:
             raise ParameterError(f"need {need}, got {got}")
     if len(events) < 10 or events.t[-1] <= events.t[0]:
