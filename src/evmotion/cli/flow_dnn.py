@@ -32,6 +32,9 @@ OPTIONS: dict[str, tuple[str, object]] = {
 }
 
 
+INPUT_SCALES = (1, 2, 4, 8, 16)
+
+
 def _input_scale(text: str) -> int:
     """``--input-scales``' K: 1, 2, 4, 8 or 16 in one message (a range, then a list of
     choices, had each named half of it; probe CI)."""
@@ -45,9 +48,6 @@ def _input_scale(text: str) -> int:
         raise argparse.ArgumentTypeError(f"each K must be one of "
                                          f"{', '.join(map(str, INPUT_SCALES))}, got {text!r}")
     return k
-
-
-INPUT_SCALES = (1, 2, 4, 8, 16)
 
 
 def add_arguments(group) -> None:

@@ -748,23 +748,24 @@ def check_time_unit(time_unit: str | None, path, fmt: str | None) -> None:
                              f"and other tools' HDF5 inputs{hint}")
 
 
-def _say_replaced_size(path, kw: dict) -> None:
-    """Warn where ``--sensor-size`` replaces a size the file states (a header's, not a
-    reader's default or guess): it did so without a word (probe CI)."""
+def warn_replaced_sensor_size(args, path) -> None:
+    """Warn where ``--sensor-size`` replaces a size the file at ``path`` states (a
+    header's, not a reader's default or guess): it did so without a word (probe CI)."""
     import warnings
 
     from evmotion.errors import EvmotionError, EvmotionWarning
     from evmotion.io.summary import describe
 
-    if path is None:
+    given = getattr(args, "sensor_size", None)
+    if path is None or not given:
         return
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the reader says them when it reads
-            head = describe(path, kw.get("format"), stream=False)
+            head = describe(path, getattr(args, "format", None), stream=False)
     except (EvmotionError, OSError):
         return  # the reader says what is wrong with the file
-    stated, given = head.get("sensor_size"), kw["sensor_size"]
+    stated = head.get("sensor_size")
     if stated and head.get("sensor_size_from") in (None, "header") \
             and tuple(stated) != tuple(given):
         warnings.warn(EvmotionWarning(
@@ -784,7 +785,7 @@ def read_kwargs(args, path: str | os.PathLike | None = None) -> dict:
                      if isinstance(getattr(args, n, None), (str, os.PathLike))), None)
     if getattr(args, "sensor_size", None):
         kw["sensor_size"] = tuple(args.sensor_size)
-        _say_replaced_size(path, kw)
+        warn_replaced_sensor_size(args, path)
     if getattr(args, "time_unit", None):
         check_time_unit(args.time_unit, path, kw.get("format"))
         kw["time_unit"] = args.time_unit

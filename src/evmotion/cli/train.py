@@ -159,7 +159,7 @@ def _above_the_bar(line: str) -> None:
 
 def run(args) -> int:
     from evmotion.cli import print_json
-    from evmotion.cli.options import read_kwargs, reject_unused
+    from evmotion.cli.options import reject_unused, warn_replaced_sensor_size
     from evmotion.io.registry import get_format
     from evmotion.methods.dnn import require_torch
     from evmotion.methods.dnn.folder import check_training_folder
@@ -172,9 +172,8 @@ def run(args) -> int:
                       "without recordings to read (they apply to the recordings and --val)")
     if args.format is not None:
         get_format(args.format)  # an unknown name, said before any work
-    if args.sensor_size:
-        for path in [*args.recordings, *args.val]:
-            read_kwargs(args, path)  # says where it replaces a size the file states
+    for path in [*args.recordings, *args.val]:
+        warn_replaced_sensor_size(args, path)
     check_training_folder(args.out, args.resume)  # before torch's import: seconds
     require_torch("evmotion train")
     from evmotion.methods.dnn.model import check_device

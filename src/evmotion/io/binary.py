@@ -118,6 +118,7 @@ def corrupt_counter(u: np.ndarray, prev: np.ndarray, period: int) -> int | None:
     bad = np.flatnonzero(seq[2:] - seq[:-2] >= period)
     return None if not bad.size else int(bad[0]) + 1 - len(prev)
 
+
 def note_corrupt(state: np.ndarray, u: np.ndarray, pos: np.ndarray, period: int,
                  slots: tuple[int, ...]) -> bool:
     """For a numpy decoder whose time counter is checked by :func:`corrupt_counter`: the

@@ -311,9 +311,10 @@ def describe(path: str | os.PathLike) -> dict:
         off = _t_offset(f)
         out: dict = {"format": "dsec", "sensor_size": _size(path, f, None), "n_events": n,
                      "t_offset_us": off}
-        if "sensor_size_from" in _meta(path, f, None):
-            # a default, which --sensor-size does not replace as stated (probe CR)
-            out["sensor_size_from"] = _meta(path, f, None)["sensor_size_from"]
+        # a default, which --sensor-size does not replace as stated (probe CR)
+        default = _meta(path, f, None).get("sensor_size_from")
+        if default is not None:
+            out["sensor_size_from"] = default
         if n:
             out["t_first_us"] = int(_read(path, f["events/t"], 0, 1, "events/t")[0]) + off
             out["t_last_us"] = int(_read(path, f["events/t"], n - 1, n, "events/t")[0]) + off
