@@ -56,9 +56,9 @@ therefore estimated by regressing the event sums on the frames' difference
 the scale-aware term's median ``|v|/|v_gt|`` on the 640x720 scenes is 0.93, 0.98, 0.99, 0.98
 (plume, jet, breath, ice; 0.89, 0.85, 0.97, 0.97 with the reduced-major-axis C), AEE
 +1 %, +6 %, +1 %, +0.5 %. One 640x720 interval on one core
-(CPU time, 2-CPU machine at load ~7): 8.5 s with the thesis' schedule (26 s wall), 1.8 s
-with the defaults 150/150/150/300 on pooled coarse scales (5.5 s wall; +0.29 % of the
-thesis' final objective, same AEE), 3.6 s with ``iterations=600`` (+0.21 %).
+(CPU time, ``benchmarks/results/bos.md``): 15.8 s with the thesis' schedule, 2.81 s
+with the defaults 150/150/150/300 on pooled coarse scales (+0.16 % of the thesis' final
+objective, same AEE), 6.0 s with ``iterations=600`` (-0.01 %).
 Against Farneback on two noise-free frames (AE 0.04-0.06 rad there, 0.08-0.16 here) the
 events' quantization is what loses, not the solver: fed the frames' log difference
 (``increment=``) the same solver reaches 0.02-0.03 rad, and the frame time of the

@@ -28,10 +28,10 @@ Model
   its events come from :func:`~evmotion.sim.simulator.simulate_log_function`, the same
   event model for a log intensity given as a function of time.
 
-Speed (one core, 346x260, ``benchmarks/bench_sim.py``): 1.2-1.8 M events/s on the
+Speed (one core, 346x260, ``benchmarks/results/sim.md``): 2.9-4.1 M events/s on the
 single-layer scenes with the dots or checker textures (16x16 tiles where the texture is
-locally constant are skipped), 0.6-0.9 M events/s on the noise and shapes textures and on
-the two-layer ``object`` scene; 17-27x the plain-numpy reference of the kernel.
+locally constant are skipped), 1.7-1.9 M events/s on the noise and shapes textures and on
+the two-layer ``object`` scene; 33-56x the plain-numpy reference of the kernel.
 
 >>> from evmotion.sim import simulate, SCENES
 >>> res = simulate("rotation", duration_s=0.01, sensor_size=(60, 80), seed=0)

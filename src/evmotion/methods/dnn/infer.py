@@ -654,14 +654,14 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
         Multiply the flow kept by the gain among 0.7, 0.75, ..., 1.6, 1.8, ..., 3.2 whose warp gives the
         highest :func:`sharpness` (default True; 1 unless another is strictly sharper):
         the network tends to underestimate magnitudes (least-squares gains 0.7-1.0 on
-        held-out simulated windows), and a whole-window gain costs 19 event images.
+        held-out simulated windows), and a whole-window gain costs 25 event images (one per gain).
     planar : bool
         Also fit the 8-parameter flow of a plane's motion (:mod:`.planar`) to the network's
         flow, polish it on the events' multi-reference focus, and keep it instead when its
         loss (multicm's objective (4.9): gradient magnitude with the smoothness weight
         :data:`.planar.LAM`, whatever objective the checkpoint was trained with;
-        :func:`.planar.window_loss`) is the lower (default True; 0.3-1.8 s a window,
-        against 0.10-0.26 s without). The network's dense flow is noisy, which gathers
+        :func:`.planar.window_loss`) is the lower (default True; 0.58-0.95 s a 346x260 window
+        with ``refine=False``, against 0.30-0.34 s without). The network's dense flow is noisy, which gathers
         events and raises its focus; the loss' smoothness term sees through that. On
         bench_dnn's held-out simulated windows it was kept on translation, rotation and zoom (AEE 0.681 -> 0.075, 0.874 -> 0.076, 1.567 -> 0.430
         px) and not on the window with an independently moving object
