@@ -110,7 +110,7 @@ def test_segment_cli(rec, tmp_path, capsys):
     assert (out / "clusters.csv").exists() and (out / "window_00000.png").exists()
     # each cluster says whether it is a measurement, in the JSON, the CSV and the .h5
     header = (out / "clusters.csv").read_text().splitlines()[0]
-    assert header.endswith(",contrast_gain,valid")
+    assert header.endswith(",contrast_gain,collapsed,valid")
     assert all(isinstance(c["valid"], bool) and c["contrast_gain"] > 0
                for c in doc["clusters"])
     with np.load(out / "labels.npz") as z:
@@ -208,6 +208,7 @@ def test_egomotion_panel_title_says_when_not_a_measurement(rec):
     from evmotion.cli.egomotion import _panel_title
     from evmotion.io import read_events
     from evmotion.methods.egomotion import estimate_egomotion
+    from evmotion.viz.titles import duration_text
 
     ev = read_events(rec)
     w = ev.windows_by_duration(50_000)[0]
@@ -215,7 +216,7 @@ def test_egomotion_panel_title_says_when_not_a_measurement(rec):
     assert r.valid and "NOT A MEASUREMENT" not in _panel_title(r, w.t0, w.t1)
     # the window as params.csv has it (probe BX: the first and last events, closed)
     assert _panel_title(r, w.t0, w.t1).startswith(
-        f"translation, {r.n_events:,} events, [{w.t0:,}, {w.t1:,}) us")
+        f"translation, {r.n_events:,} events, [{w.t0:,}, {w.t1:,}) µs ({duration_text(w.t1 - w.t0)})")
     assert _panel_title(dataclasses.replace(r, collapsed=True), w.t0, w.t1).endswith(
         "NOT A MEASUREMENT: event collapse (valid = False)")
     poor = dataclasses.replace(r, diagnostics={**r.diagnostics, "too_few_events": True})

@@ -155,9 +155,32 @@ def test_regularizer_reaches_every_cluster_cost():
     reg = segment_motion(ev, 1, "zoom", init=init, n_iter=1, regularizer="divergence",
                          dataset="dsec")
     assert plain.params[0, 0] * T > 0.8
+    assert plain.collapsed[0] and not plain.valid[0]
     assert reg.params[0, 0] == pytest.approx(hz, abs=0.2)
+    assert not reg.collapsed[0]
     with pytest.raises(ParameterError):
         segment_motion(ev, regularizer="whitening")
+
+
+def test_a_cluster_whose_warp_collapses_its_events_is_no_measurement():
+    # a homography cluster squeezed 14k events onto a line (gain 999) and was valid, in
+    # clusters.csv and its picture, without a word (probe DA)
+    import warnings
+
+    from evmotion.errors import CollapseWarning
+    from evmotion.sim import simulate
+
+    sim = simulate("object", duration_s=0.1, sensor_size=(120, 160), seed=0,
+                   show_progress=False)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        seg = segment_motion(sim.events[:15000], 3, "homography", n_iter=3, seed=0)
+    assert seg.collapsed.tolist() == [False, True, False]
+    assert seg.gains[1] > 100 and not seg.valid[1]
+    said = [str(w.message) for w in said if issubclass(w.category, CollapseWarning)]
+    assert len(said) == 1 and said[0].startswith("cluster 1: event collapse")
+    ok, _ = two_motions()
+    assert not segment_motion(ok, n_warps=2, warp="translation", seed=0).collapsed.any()
 
 
 def test_many_clusters_leave_none_empty_at_the_split():
@@ -181,7 +204,7 @@ def test_invalid_clusters_of_many_windows_are_said_in_a_few_lines():
     from evmotion.cli.segment import WARN_CLUSTERS, WARN_WINDOWS, _warn_invalid
 
     rows = [{"window": w, "cluster": c, "n_events": 10, "contrast_gain": 1.0, "same_as": -1,
-             "valid": False} for w in range(10) for c in range(9)]
+             "valid": False, "collapsed": False} for w in range(10) for c in range(9)]
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
         _warn_invalid(rows)

@@ -256,8 +256,10 @@ def _panel_title(r, t0_us: int, t1_us: int) -> str:
     # whole µs: epoch times in ms at 6 digits read [1.58916e+12, 1.58916e+12] (probe Y)
     # the window as params.csv gives it (its first and last events, a closed interval,
     # had disagreed with the table's [t0, t1), probe BX)
+    from evmotion.viz.titles import duration_text
+
     t0, t1 = int(t0_us), int(t1_us)
-    title = f"{r.warp}, {r.n_events:,} events, [{t0:,}, {t1:,}) us ({(t1 - t0) / 1e3:.3g} ms)"
+    title = f"{r.warp}, {r.n_events:,} events, [{t0:,}, {t1:,}) µs ({duration_text(t1 - t0)})"
     if not r.valid:
         why = ("event collapse" if r.collapsed else "poor fit" if r.poor_fit
                else "non-finite parameters")

@@ -178,7 +178,8 @@ def _publish(args, out, windows, done, events) -> list[dict]:
                              "units": dict(zip(seg.param_names, seg.param_units,
                                                strict=True)),
                              "contrast_gain": float(seg.gains[j]),
-                             "valid": bool(seg.valid[j]), "same_as": int(seg.same_as[j])})
+                             "valid": bool(seg.valid[j]), "same_as": int(seg.same_as[j]),
+                             "collapsed": bool(seg.collapsed[j])})
             pngs.append(out / f"window_{w.index:05d}.png")
             atomic_write_bytes(pngs[-1], panel)
     except BaseException:
@@ -191,11 +192,12 @@ def _publish(args, out, windows, done, events) -> list[dict]:
     wr = csv.writer(buf)
     names = list(rows[0]["params"])
     wr.writerow(["window", "t0_us", "t1_us", "cluster", "n_events",
-                 *[f"{n} [{rows[0]['units'][n]}]" for n in names], "contrast_gain", "valid"])
+                 *[f"{n} [{rows[0]['units'][n]}]" for n in names], "contrast_gain", "collapsed",
+                 "valid"])
     for r in rows:
         wr.writerow([r["window"], r["t0_us"], r["t1_us"], r["cluster"], r["n_events"],
                      *[repr(r["params"][n]) for n in names], repr(r["contrast_gain"]),
-                     int(r["valid"])])
+                     int(r["collapsed"]), int(r["valid"])])
     atomic_write_text(out / "clusters.csv", buf.getvalue())
     with atomic_path(out / "labels.npz") as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **labels)
@@ -208,12 +210,14 @@ def _publish(args, out, windows, done, events) -> list[dict]:
         {"window": np.array([r["window"] for r in rows]),
          "cluster": np.array([r["cluster"] for r in rows]), "n_events": n_ev,
          "empty": n_ev == 0,
-         "contrast_gain": np.array([r["contrast_gain"] for r in rows])},
+         "contrast_gain": np.array([r["contrast_gain"] for r in rows]),
+         "collapsed": np.array([r["collapsed"] for r in rows])},
         {"n_events": "events"},
         {"window": "window index", "cluster": "cluster index (labels.npz)",
          "n_events": "events assigned to the cluster", "empty": "flag: no event assigned",
          "contrast_gain": "IWE variance at the cluster's parameters over unwarped (valid: "
-                          f">= {MIN_CLUSTER_GAIN} with >= {MIN_CLUSTER_EVENTS} events)"},
+                          f">= {MIN_CLUSTER_GAIN} with >= {MIN_CLUSTER_EVENTS} events)",
+         "collapsed": "flag: the cluster's warp collapses its events"},
         {"method": "segment", "warp": args.warp, "grid": args.grid,
          "objective": args.objective, "warps": args.warps, "iterations": args.iterations,
          "seed": args.seed, "split": args.split}))
@@ -256,13 +260,14 @@ def _warn_invalid(rows: list[dict]) -> None:
         what = ", ".join(f"{r['cluster']} ({r['n_events']} events, contrast gain "
                          f"{r['contrast_gain']:.3f}"
                          + (f", the motion of cluster {r['same_as']}" if r["same_as"] >= 0
-                            else "") + ")" for r in rs[:WARN_CLUSTERS])
+                            else ", event collapse" if r["collapsed"] else "")
+                         + ")" for r in rs[:WARN_CLUSTERS])
         more = f" and {len(rs) - WARN_CLUSTERS} more" if len(rs) > WARN_CLUSTERS else ""
         warnings.warn(PoorFitWarning(
             f"window {window}: cluster{'s' if len(rs) > 1 else ''} {what}{more}: "
-            "not a measurement -- it sharpens nothing, holds too few events, or repeats "
-            "another cluster's motion (fewer --warps) (valid 0 in clusters.csv / "
-            "clusters.h5)"), stacklevel=2)
+            "not a measurement -- it sharpens nothing, holds too few events, collapses its "
+            "events or repeats another cluster's motion (fewer --warps) (valid 0 in "
+            "clusters.csv / clusters.h5)"), stacklevel=2)
     if len(bad) > WARN_WINDOWS:
         rest = list(bad)[WARN_WINDOWS:]
         warnings.warn(PoorFitWarning(
@@ -284,6 +289,7 @@ def _segment_job(events, **kwargs):
     from evmotion.errors import PoorFitWarning
     from evmotion.methods.segmentation import segment_motion
     from evmotion.viz import images
+    from evmotion.viz.titles import quantity_text
 
     with warnings.catch_warnings():
         # the client says which clusters are not measurements, once, whichever process
@@ -291,14 +297,20 @@ def _segment_job(events, **kwargs):
         seg = segment_motion(events, **kwargs)
     titles = []
     for j in range(len(seg.iwes)):
-        values = " ".join(f"{n}={v:.3g}" for n, v in zip(seg.param_names, seg.params[j],
-                                                          strict=True))
-        units = "/".join(sorted(set(seg.param_units)))
-        flag = "" if seg.valid[j] else ", NOT VALID"
-        titles.append(f"cluster {j}: {values} {units}\n"
+        # each value with its unit, two to a line (the units joined by "/" after them all
+        # read "1/(px s)/1/s/px/s", and 8 values ran into the next panel, probe DA)
+        parts = [quantity_text(n, v, u) for n, v, u in zip(
+            seg.param_names, seg.params[j], seg.param_units, strict=True)]
+        values = "\n".join(", ".join(parts[k:k + 2]) for k in range(0, len(parts), 2))
+        flag = ("" if seg.valid[j] else
+                ", NOT VALID: event collapse" if seg.collapsed[j] else ", NOT VALID")
+        titles.append(f"cluster {j}\n{values}\n"
                       f"{int(np.sum(seg.labels == j)):,} ev, gain {seg.gains[j]:.2f}{flag}")
-    # one stated scale for all clusters' warped images (membership-weighted counts)
-    vmax = max(images.full_scale(img) for img in seg.iwes)
+    # one stated scale for all clusters' warped images (membership-weighted counts), of
+    # the clusters that did not collapse: one collapsed onto a dot blanked the others
+    # (probe DA)
+    kept = [img for img, c in zip(seg.iwes, seg.collapsed, strict=True) if not c] or seg.iwes
+    vmax = max(images.full_scale(img) for img in kept)
     # the span of the events drawn (the window's [t0, t1) in clusters.csv can reach past
     # its last event: a title [0.419, 22.991) ms beside t1_us 22994 read as a mismatch,
     # probe CE)

@@ -39,9 +39,10 @@ import numpy as np
 
 from evmotion.core.iwe import accumulate
 from evmotion.core.optim import gradient_minimize
-from evmotion.errors import ParameterError, PoorFitWarning
+from evmotion.errors import CollapseWarning, ParameterError, PoorFitWarning
 from evmotion.events import EventArray, require_events
 from evmotion.methods.cmax import make_cost, param_scales
+from evmotion.methods.diagnostics import collapse_diagnostics
 
 __all__ = ["SegmentationResult", "segment_motion"]
 
@@ -72,9 +73,13 @@ class SegmentationResult:
         of its events unwarped (membership-weighted alike).
     valid : ndarray (n_warps,) bool
         Clusters that are measurements: at least :data:`MIN_CLUSTER_EVENTS` events, a gain
-        of at least :data:`MIN_CLUSTER_GAIN` and a motion of their own (each other cluster
-        is warned about: no motion, noise, a warp that fits nothing, or one motion split
-        in two).
+        of at least :data:`MIN_CLUSTER_GAIN`, no event collapse and a motion of their own
+        (each other cluster is warned about: no motion, noise, a warp that fits nothing,
+        its events squeezed together, or one motion split in two).
+    collapsed : ndarray (n_warps,) bool
+        Clusters whose warp collapses their events
+        (:func:`~evmotion.methods.diagnostics.collapse_diagnostics` on the cluster's
+        membership-weighted events): not measurements, however sharp.
     same_as : ndarray (n_warps,) int
         The larger cluster whose motion a cluster repeats (within :data:`SAME_MOTION_PX`
         over the window), else -1.
@@ -97,6 +102,7 @@ class SegmentationResult:
     valid: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
     same_as: np.ndarray = field(default_factory=lambda: np.empty(0, int))
     split: str = ""
+    collapsed: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
 
 
 #: Fewest events a cluster needs to be a measurement.
@@ -254,6 +260,10 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
                 f"{100 * (MIN_CLUSTER_GAIN - 1):.0f} %): not a measurement"), stacklevel=2)
         else:
             valid[j] = True
+    collapsed = np.zeros(n_warps, bool)
+    for j in np.flatnonzero(valid):
+        collapsed[j] = _warn_collapsed(cost, params[j], prob[:, j], j, regularizer)
+    valid &= ~collapsed
     same_as = _duplicates(w, cost, params, labels, valid, gains)
     for k in np.flatnonzero(same_as >= 0):
         warnings.warn(PoorFitWarning(
@@ -266,7 +276,29 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
                               param_units=tuple(w.param_units), warp=w.name, n_iter=len(history),
                               history=np.asarray(history),
                               seconds=time.perf_counter() - t_start, gains=gains, valid=valid,
-                              same_as=same_as, split=tried[kept] if n_warps > 1 else "")
+                              same_as=same_as, split=tried[kept] if n_warps > 1 else "",
+                              collapsed=collapsed)
+
+
+def _warn_collapsed(cost, params: np.ndarray, weights: np.ndarray, j: int,
+                    regularizer: str | None) -> bool:
+    """Whether cluster ``j``'s warp collapses its (``weights``-weighted) events, warned
+    as egomotion warns it: the EM sharpens a cluster as freely as one warp's CMax does
+    (a homography cluster squeezed 14k events onto one dot, gain 999, and was valid;
+    probe DA)."""
+    with np.errstate(all="ignore"):
+        xw, yw = cost.warp.warp(cost.x, cost.y, cost.dt, params)
+    diag = collapse_diagnostics(cost.warp, params, cost.span,
+                                accumulate(cost.x, cost.y, cost.shape, weights),
+                                accumulate(xw, yw, cost.shape, weights))
+    if diag["collapsed"]:
+        warnings.warn(CollapseWarning(
+            f"cluster {j}: event collapse: {'; '.join(diag['reasons'])}; its "
+            f"{cost.warp.name} parameters are not a measurement -- "
+            + ("add a collapse regularizer (--reg divergence or deformation; API "
+               "regularizer=)" if regularizer is None else "raise --weight (API weight=)")),
+            stacklevel=3)
+    return bool(diag["collapsed"])
 
 
 def _first_memberships(cost, split: str, n_warps: int, scale, sigma: float, seed: int

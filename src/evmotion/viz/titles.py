@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import textwrap
 
-__all__ = ["wrap_title"]
+__all__ = ["duration_text", "quantity_text", "wrap_title"]
 
 
 def wrap_title(title: str | None, width_px: float, char_px: float) -> list[str]:
@@ -27,3 +27,36 @@ def wrap_title(title: str | None, width_px: float, char_px: float) -> list[str]:
     upper = sum(c.isupper() for c in letters) / len(letters) if letters else 0.0
     return textwrap.wrap(title, max(20, int(width_px / (char_px * (1 + 0.4 * upper))))) \
         or [title]
+
+
+def duration_text(t_us: float) -> str:
+    """A duration given in µs, in the unit that reads best (s, ms or µs; 3 significant
+    digits): ``1.73e+03 ms`` had titled a 1.7 s window (probe DA).
+
+    Examples
+    --------
+    >>> duration_text(1_730_000), duration_text(49_650), duration_text(850)
+    ('1.73 s', '49.6 ms', '850 µs')
+    """
+    t = abs(float(t_us))
+    if t >= 1e6:
+        return f"{t_us / 1e6:.3g} s"
+    if t >= 1e3:
+        return f"{t_us / 1e3:.3g} ms"
+    return f"{t_us:.3g} µs"
+
+
+def quantity_text(name: str, value: float, unit: str) -> str:
+    """``name=value unit``, a reciprocal unit folded into the value (``g11=-0.0103/s``,
+    not ``g11=-0.0103 1/s``); 3 significant digits.
+
+    Examples
+    --------
+    >>> quantity_text("g11", -0.0103, "1/s"), quantity_text("vx", 52.1, "px/s")
+    ('g11=-0.0103/s', 'vx=52.1 px/s')
+    >>> quantity_text("g31", 2e-05, "1/(px s)"), quantity_text("k", 3.0, "")
+    ('g31=2e-05/(px s)', 'k=3')
+    """
+    if unit.startswith("1/"):
+        return f"{name}={value:.3g}{unit[1:]}"
+    return f"{name}={value:.3g} {unit}".rstrip()
