@@ -148,6 +148,28 @@ def test_dense_lsq_option_matches_the_api(edge_file, tmp_path):
     np.testing.assert_allclose(np.median(inner, axis=0), [200.0 / 1.005, 0.0], atol=2.0)
 
 
+def test_json_valid_fraction_is_the_outputs(edge_file, tmp_path, capsys):
+    """--json's valid_fraction is what the output holds: its pixels for dense windows (as
+    info and multicm give it), its events per event; the events that got a flow apart.
+    A dense output had been given the events' share (0.207 beside a file with no valid
+    pixel, probe DA)."""
+    from evmotion.io.eventflow import describe_event_flow
+    from evmotion.io.flowread import describe_flow
+
+    path, ev, _ = edge_file
+    for out, extra, describe in ((tmp_path / "flow.h5", ["--window-us", "50000"],
+                                  describe_flow),
+                                 (tmp_path / "flow.npz", [], describe_event_flow)):
+        assert main(["flow", str(path), "--method", "triplet", "--out", str(out),
+                     "--json", *extra]) == 0
+        doc = json.loads(capsys.readouterr().out)
+        held = describe(out)["valid_fraction"]
+        assert doc["valid_fraction"] == pytest.approx(held)
+        ref = TripletMatcher(ev.sensor_size).process(ev)
+        assert doc["event_flow_fraction"] == pytest.approx(ref.valid.mean())
+    assert held != pytest.approx(describe_flow(tmp_path / "flow.h5")["valid_fraction"])
+
+
 @pytest.mark.parametrize("chunk", ["170", "1000000"])
 def test_dense_robust_option_matches_the_api(edge_file, tmp_path, chunk):
     path, ev, _ = edge_file
