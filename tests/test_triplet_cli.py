@@ -384,3 +384,25 @@ def test_one_flo_takes_a_window_with_its_remainder_or_the_first(tmp_path, capsys
     else:
         assert "3 windows; w.flo holds the first, 2 more were not written" in err
         assert int(seq.t1[0]) == int(ev.t[700])
+
+
+def test_a_window_without_focus_says_so_in_its_picture(tmp_path, monkeypatch, capsys):
+    """The warped events of a window without focus are titled as no measurement (they had
+    been titled as any other window's, probe DA)."""
+    import evmotion.viz as viz
+
+    rng = np.random.default_rng(0)
+    n = 5000
+    ev = EventArray(rng.integers(0, 64, n), rng.integers(0, 48, n),
+                    np.sort(rng.integers(0, 200_000, n)), rng.integers(0, 2, n), (48, 64))
+    monkeypatch.setattr(eio, "iter_events", lambda path, chunk_events, **kw: iter([ev]),
+                        raising=False)
+    titles = []
+    real = viz.event_picture_png
+    monkeypatch.setattr(viz, "event_picture_png",
+                        lambda img, **kw: titles.append(kw.get("title")) or real(img, **kw))
+    assert main(["flow", str(tmp_path / "noise.dat"), "--method", "triplet", "--dense",
+                 "robust", "--window-us", "200000", "--out", str(tmp_path / "f.h5"),
+                 "--png-dir", str(tmp_path / "png")]) == 0
+    assert "have no focus" in capsys.readouterr().err
+    assert len(titles) == 1 and "NO FOCUS: not a measurement" in titles[0]

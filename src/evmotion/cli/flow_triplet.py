@@ -430,7 +430,12 @@ def _emit(win, dense_out, png_dir, max_speed) -> None:
 
         png_dir.mkdir(parents=True, exist_ok=True)
         when = f"window {win.index}: {win.t0 * 1e-6:.4f}-{win.t1 * 1e-6:.4f} s"
+        # a picture looked at alone must not pass for a measurement (the warped events of
+        # a window without focus were titled as any other's, probe DA)
+        verdict = (", NO FOCUS: not a measurement (no pixel valid)" if win.no_focus
+                   else "")
         save_flow_png(png_dir / f"flow_{win.index:05d}.png", win.flow, max_speed=max_speed,
                       valid=win.valid, title=when)
         atomic_write_bytes(png_dir / f"iwe_{win.index:05d}.png", event_picture_png(
-            win.iwe, title=f"{when}, events warped by their flow to the window's start"))
+            win.iwe, title=f"{when}, events warped by their flow to the window's start"
+                           f"{verdict}"))
