@@ -629,3 +629,30 @@ def test_train_says_a_sensor_size_that_replaces_a_stated_one(tmp_path, monkeypat
     assert main(["train", str(tmp_path / "rec.h5"), "--sensor-size", "60", "80",
                  "--sim-windows", "0", "--out", str(tmp_path / "run")]) == 0
     assert "--sensor-size 60 80 replaces the 64 x 48 px (W x H)" in capsys.readouterr().err
+
+
+def test_loss_picture_gives_validation_its_own_axes_and_counts_steps_done():
+    """loss.png: the validation loss (finest scale) and the AEE against the zero flow's
+    on axes of their own, not the training loss' (a sum over 4 scales); per-step points at
+    the steps done, where the epochs' are (probe DA: off by one, no AEE drawn)."""
+    import matplotlib.pyplot as plt
+
+    from evmotion.methods.dnn.train import _loss_figure
+
+    steps = [{"epoch": k // 2, "step": k, "loss": 4.0 - 0.1 * k, "lr": 1e-3} for k in range(4)]
+    epochs = [{"epoch": e, "step": 2 * e + 2, "train_loss": 3.9 - 0.2 * e, "val_loss": 1.0,
+               "val_AEE_px": 1.5, "val_AEE_zero_px": 1.7} for e in range(2)]
+    fig = _loss_figure(steps, epochs)
+    try:
+        ax_train, ax_loss, ax_aee = fig.axes
+        per_step, per_epoch = ax_train.get_lines()
+        assert list(per_step.get_xdata())[1::2] == list(per_epoch.get_xdata()) == [2, 4]
+        assert ax_aee.get_ylabel() == "validation AEE [px]"
+        assert [ln.get_label() for ln in ax_aee.get_lines()] == ["network", "zero flow"]
+        assert ax_loss.get_ylabel() == "validation loss"
+    finally:
+        plt.close(fig)
+    fig = _loss_figure(steps, [{k: v for k, v in r.items() if not k.startswith("val")}
+                               for r in epochs])
+    assert len(fig.axes) == 1
+    plt.close(fig)

@@ -253,29 +253,69 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
 
 
 def _plot(path: Path, steps: list[dict], epochs: list[dict]) -> None:
+    """Write the figure of :func:`_loss_figure` as ``path`` (PNG, atomically)."""
+    import matplotlib.pyplot as plt
+
+    fig = _loss_figure(steps, epochs)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+    plt.close(fig)
+
+
+def _loss_figure(steps: list[dict], epochs: list[dict]):
+    """The figure of ``loss.png`` (matplotlib): the training loss, and below it what validation measured, each on an
+    axis of its own (probe DA: the validation loss, of the finest scale, shared the
+    training loss' axis, a sum over 4 scales, and the AEE against the zero flow's, which
+    the "no better than the zero flow" warning is about, was not drawn). The x axis counts
+    the steps done: a step's row in ``steps.csv`` (index ``step``) is drawn at ``step +
+    1``, where an epoch's row (``step``: the steps done by its end) puts the epoch."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    panels = [_val_panel(epochs, k) for k in ("val_loss", "val_AEE_px")]
+    panels = [p for p in panels if p]
+    fig, axes = plt.subplots(1 + len(panels), 1, sharex=True, squeeze=False,
+                             figsize=(7, 3 + 2 * len(panels)))
+    ax = axes[0, 0]
     if steps:
-        ax.plot([r["step"] for r in steps], [r["loss"] for r in steps], lw=0.6, alpha=0.6,
-                label="training loss (per step)")
+        ax.plot([r["step"] + 1 for r in steps], [r["loss"] for r in steps], lw=0.6,
+                alpha=0.6, label="per step")
     if epochs:
         ax.plot([r["step"] for r in epochs], [r["train_loss"] for r in epochs], "o-",
-                label="training loss (epoch mean)")
-        if "val_loss" in epochs[0]:
-            ax.plot([r["step"] for r in epochs], [r["val_loss"] for r in epochs], "s-",
-                    label="validation loss (finest scale only, whole frames)")
-    ax.set_xlabel("step")
-    ax.set_ylabel("loss 1/f + lam TV (training: sum over 4 scales)")
-    ax.legend()
-    ax.grid(alpha=0.3)
+                label="epoch mean")
+    ax.set_ylabel("training loss\n(1/f + λ TV, sum of 4 scales)", fontsize=9)
+    ax.set_title(f"evmotion train: {len(epochs)} epoch{'s' * (len(epochs) != 1)}, "
+                 f"{steps[-1]['step'] + 1 if steps else 0} steps")
+    for k, (label, series) in enumerate(panels, start=1):
+        axk = axes[k, 0]
+        for name, ys, style in series:
+            axk.plot([r["step"] for r in epochs], ys, style, label=name)
+        axk.set_ylabel(label, fontsize=9)
+    for a in axes[:, 0]:
+        a.legend(fontsize=8)
+        a.grid(alpha=0.3)
+        a.xaxis.set_major_locator(MaxNLocator(integer=True))
+        a.ticklabel_format(axis="y", useOffset=False)
+    axes[-1, 0].set_xlabel("steps done")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
+    return fig
+
+
+def _val_panel(epochs: list[dict], key: str) -> tuple[str, list] | None:
+    """(y label, [(legend, values, style)]) of one validation panel of ``loss.png``, or
+    None where no epoch measured ``key``."""
+    if not epochs or key not in epochs[0]:
+        return None
+    if key == "val_loss":
+        series = [("validation loss (finest scale, whole frames)",
+                   [r["val_loss"] for r in epochs], "s-")]
+        return "validation loss", series
+    series = [("network", [r["val_AEE_px"] for r in epochs], "s-"),
+              ("zero flow", [r.get("val_AEE_zero_px", np.nan) for r in epochs], "k--")]
+    return "validation AEE [px]", series
 
 
 def _kaiming_init(net: EVFlowNet) -> None:
