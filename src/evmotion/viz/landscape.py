@@ -47,12 +47,16 @@ def landscape_png(path: str | os.PathLike, values: np.ndarray, curves: dict[str,
     import matplotlib.pyplot as plt
 
     from evmotion.utils import atomic_path
+    from evmotion.viz.titles import quantity_text
 
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
-    for label, c in curves.items():
-        ax.plot(values, c, label=label, ls="--" if "penalty" in label else "-")
+    for k, (label, c) in enumerate(curves.items()):
+        # each later curve thinner: one equal to an earlier (a penalty 0 over the range)
+        # had hidden it exactly (probe DA)
+        ax.plot(values, c, label=label, ls="--" if "penalty" in label else "-",
+                lw=max(3.0 - k, 1.0))
     ax.axvline(minimum, color="0.4", lw=0.8, ls=":",
-               label=f"minimum: {name} = {minimum:.4g} {unit}")
+               label=f"minimum: {quantity_text(name, minimum, unit, digits=4, sep=' = ')}")
     if verdict:
         ax.text(0.5, 0.5, f"NO MEASUREMENT\n{verdict}", transform=ax.transAxes, ha="center",
                 va="center", fontsize=9, color="firebrick", wrap=True,

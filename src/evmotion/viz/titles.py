@@ -46,9 +46,10 @@ def duration_text(t_us: float) -> str:
     return f"{t_us:.3g} µs"
 
 
-def quantity_text(name: str, value: float, unit: str) -> str:
+def quantity_text(name: str, value: float, unit: str, digits: int = 3, sep: str = "=") -> str:
     """``name=value unit``, a reciprocal unit folded into the value (``g11=-0.0103/s``,
-    not ``g11=-0.0103 1/s``); 3 significant digits.
+    not ``g11=-0.0103 1/s``); ``digits`` significant digits, ``sep`` between the name and
+    the value.
 
     Examples
     --------
@@ -56,7 +57,10 @@ def quantity_text(name: str, value: float, unit: str) -> str:
     ('g11=-0.0103/s', 'vx=52.1 px/s')
     >>> quantity_text("g31", 2e-05, "1/(px s)"), quantity_text("k", 3.0, "")
     ('g31=2e-05/(px s)', 'k=3')
+    >>> quantity_text("hz", 1.0, "1/s", digits=4, sep=" = ")
+    'hz = 1/s'
     """
+    v = f"{value:.{digits}g}"
     if unit.startswith("1/"):
-        return f"{name}={value:.3g}{unit[1:]}"
-    return f"{name}={value:.3g} {unit}".rstrip()
+        return f"{name}{sep}{v}{unit[1:]}"
+    return f"{name}{sep}{v} {unit}".rstrip()
