@@ -351,3 +351,28 @@ def test_a_flow_window_draws_q_on_the_flows_pixels():
     k = -(-MIN_HEIGHT // 40)
     assert flow_rows.size == 40 * k
     np.testing.assert_array_equal(grey_rows, flow_rows[-k:])
+
+
+@pytest.mark.parametrize("height,width", [(120, 160), (180, 240), (260, 346), (480, 640),
+                                          (720, 1280)])
+def test_the_legend_words_fit_inside_their_strip(height, width):
+    # probe DA: "grey: nothing measured" was cut at both sides of a 640 x 480 flow's strip
+    # (its font grows with the wheel); a clipped word leaves ink at the strip's edges
+    flow = np.zeros((height, width, 2), np.float32)
+    flow[..., 0] = 30.0
+    none, some = np.zeros((height, width), bool), np.eye(height, width, dtype=bool)
+    holed = flow.copy()
+    holed[0, 0] = np.nan
+    for pic in (flow_picture(flow, valid=none), flow_picture(flow, valid=some),
+                flow_picture(holed), flow_picture(flow, max_speed=123456.0, unit="px/s")):
+        strip = _box(pic.rgb, pic.legend_box)
+        assert (strip[:, :2] == 255).all() and (strip[:, -2:] == 255).all(), pic.texts
+
+
+def test_a_legend_of_no_flow_gives_no_scale():
+    # probe DA: "no flow drawn" stood over "max of image", the scale of what was not drawn
+    flow = _radial()
+    pic = flow_picture(flow, valid=np.zeros(flow.shape[:2], bool))
+    assert pic.texts[2:5] == ("no flow drawn", "", "grey: nothing measured")
+    assert "max of image" not in pic.texts
+    assert flow_picture(flow).texts[3] == "max of image"

@@ -54,7 +54,8 @@ class FlowPicture:
         (``legend_box`` is empty without a legend).
     texts : tuple of str
         The words drawn in the legend, the ruler's length last (``"50 px"``: the bar above
-        it spans that many of the flow's pixels).
+        it spans that many of the flow's pixels); without a fixed scale and with no flow
+        drawn, ``"no flow drawn"`` and an empty line stand for the scale.
     """
 
     rgb: np.ndarray
@@ -117,7 +118,11 @@ def _legend_texts(max_speed: float, unit: str, fixed: bool, masked: bool,
     # (a window whose mask holds nothing said "grey: no events" over its events, probe BX)
     grey = ("grey: nothing measured" if masked and empty else "grey: no events" if masked
             else "unmasked; grey: NaN" if has_nan else "unmasked: all pixels")
-    return ("u", "v", f"rim {max_speed:.3g} {unit}" if fixed or not empty else "no flow drawn",
+    if empty and not fixed:
+        # no flow, no scale: the legend said "no flow drawn" over "max of image", the scale
+        # of an image it had just said was not drawn (probe DA); the scale's line says so once
+        return ("u", "v", "no flow drawn", "", grey)
+    return ("u", "v", f"rim {max_speed:.3g} {unit}",
             "fixed; darker: beyond" if fixed else "max of image", grey)
 
 
@@ -134,6 +139,20 @@ def _ruler_px(strip_width: int, k: int) -> int:
         return 1 if k <= strip_width - 8 else 0
     mag = 10 ** math.floor(math.log10(room))
     return max(m * mag for m in (1, 2, 5) if m * mag <= room)
+
+
+def _fit_width(fig, texts, room: float) -> None:
+    """Shrink each centred text wider than ``room`` px to fit it: the font grows with the
+    wheel, the strip's words do not wrap, and "grey: nothing measured" was cut at both
+    sides of a 640 x 480 flow's strip (probe DA)."""
+    renderer = fig.canvas.get_renderer()
+    for text in texts:
+        # measured again after each step: hinted small fonts do not scale with their size
+        for _ in range(20):
+            wide = text.get_window_extent(renderer).width
+            if wide <= room:
+                break
+            text.set_fontsize(text.get_fontsize() * max(0.5, min(0.95, room / wide)))
 
 
 @functools.lru_cache(maxsize=32)
@@ -155,20 +174,21 @@ def _legend_strip(height: int, texts: tuple[str, ...], ruler: int) -> np.ndarray
     ax.annotate("", xy=(cx, cy + r), xytext=(cx, cy), arrowprops=arrow)
     ax.text(cx + r + 3, cy, texts[0], fontsize=pt, va="center", ha="left")
     ax.text(cx - 3, cy + 0.75 * r, texts[1], fontsize=pt, va="center", ha="right")
-    ax.text(width / 2, top + d + 5, texts[2], fontsize=pt, va="top", ha="center")
-    ax.text(width / 2, top + d + 5 + line, texts[3], fontsize=pt * 0.85, va="top",
-            ha="center", color="#444444")
-    # the pixels drawn grey: no event supports a flow there (not valid)
-    ax.text(width / 2, top + d + 5 + 2 * line, texts[4], fontsize=pt * 0.85, va="top",
-            ha="center", color="#444444")
+    lines = [ax.text(width / 2, top + d + 5, texts[2], fontsize=pt, va="top", ha="center"),
+             ax.text(width / 2, top + d + 5 + line, texts[3], fontsize=pt * 0.85, va="top",
+                     ha="center", color="#444444"),
+             # the pixels drawn grey: no event supports a flow there (not valid)
+             ax.text(width / 2, top + d + 5 + 2 * line, texts[4], fontsize=pt * 0.85,
+                     va="top", ha="center", color="#444444")]
     # a flow pixel's size on screen changes with the upscale and the image's size: without
     # a ruler a picture did not say how far its features lie apart
     bar_y = top + d + 5 + 3.3 * line
     if ruler:
         ax.plot([(width - ruler) / 2, (width + ruler) / 2], [bar_y, bar_y], color="black",
                 lw=2.5, solid_capstyle="butt")
-        ax.text(width / 2, bar_y + 0.25 * line, texts[5], fontsize=pt * 0.85, va="top",
-                ha="center")
+        lines.append(ax.text(width / 2, bar_y + 0.25 * line, texts[5], fontsize=pt * 0.85,
+                             va="top", ha="center"))
+    _fit_width(fig, lines, width - 6)
     strip = _render(fig)
     strip.setflags(write=False)
     return strip
