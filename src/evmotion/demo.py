@@ -165,7 +165,8 @@ def _dense_flow(out: Path, rep: HtmlReport, seed: int) -> tuple[dict, object]:
     rep.add_table(rows, caption="30k events; displacement over the window, pixels with events")
     rep.add_figure(out / "object_flow.png",
                    "Displacement over the window (colour wheel, one scale) against ground truth")
-    rep.add_figure(out / "object_iwe.png", "Events, IWE warped by the estimated flow, the flow")
+    rep.add_figure(out / "object_iwe.png", "Events, IWE warped by the estimated flow, the flow "
+                   "(px/s, where the picture above gives the displacement over the window, px)")
     return {"multicm": rows}, (sim, win, disp_gt, mask)
 
 
@@ -192,8 +193,9 @@ def _triplet(out: Path, rep: HtmlReport, scene) -> dict:
                      "pixels evaluated": m.n_pixels})
         panels.append(flow_picture(disp, valid=valid, max_speed=scale, unit="px").rgb)
         titles.append(f"triplet {dense}: AEE {m.aee:.2f} px")
+    # the input first, as the other sections' pictures (probe DA)
     save_png(out / "triplet_flow.png",
-             picture_row([*panels, iwe_to_rgb(event_histogram(win))], [*titles, "events"]))
+             picture_row([iwe_to_rgb(event_histogram(win)), *panels], ["events", *titles]))
     rep.add_heading("4. Event-by-event flow (triplet matching)")
     rep.add_table(rows, caption=f"Per-event flow at {rate / 1e6:.2f} M events/s (one core; "
                                 f"+ {compile_s:.1f} s compiling kernels), made dense over the "
