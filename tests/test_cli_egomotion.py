@@ -195,10 +195,13 @@ def test_egomotion_job_draws_its_panel_and_sends_no_images(rec, tmp_path):
     none = _window_job(ev.window(w0), w0.t0, w0.t1, **{**kw, "last_png_t0_us": None})
     assert none.panel is None
     assert none.result.params.tobytes() == drawn.result.params.tobytes()
-    # the panel decodes: 2 x 2 images (IWE without / with the warp, DIWE, IWA)
+    # the panel decodes: the IWE without and with the warp, in one row: a translation's
+    # DIWE and IWA, 0 everywhere, are said in the title, not drawn (two blank panels were
+    # half the picture, probe DA)
     png = tmp_path / "p.png"
     png.write_bytes(drawn.panel)
-    assert read_png(png).shape[1] > 2 * ev.width
+    h, w = read_png(png).shape[:2]
+    assert w > 2 * ev.width and h < 0.75 * w
 
 
 def test_egomotion_panel_title_says_when_not_a_measurement(rec):

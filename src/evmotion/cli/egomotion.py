@@ -238,16 +238,22 @@ def _panel(r, t0_us: int, t1_us: int) -> bytes:
     values = "\n".join(", ".join(parts[k:k + 2]) for k in range(0, len(parts), 2))
     titles = [f"IWE, zero motion\nwhite 0, black >= {vmax:.3g} events / px",
               f"IWE warped (same scale)\n{values}"]
+    suptitle = _panel_title(r, t0_us, t1_us)
     if "diwe" in r.maps:
         # both unitless: the divergence of the window's displacement (px per px), an
         # area ratio ("full at +-0.19" had no unit, probe BX)
-        for name, img in (("DIWE (divergence x window, px/px)", r.maps["diwe"]),
-                          ("IWA - 1 (deformation, area ratio - 1)", r.maps["iwa"] - 1.0)):
-            peak = float(np.nanmax(np.abs(img))) if np.size(img) else 0.0
-            panels.append(_signed_rgb(img))
-            titles.append(f"{name}\n0 everywhere: none in a {r.warp}" if peak < 1e-12
-                          else f"{name}\nred +, blue -, full at +-{peak:.3g}")
-    return images.panel_png(panels, titles, ncols=2, suptitle=_panel_title(r, t0_us, t1_us))
+        maps = [("DIWE (divergence x window, px/px)", r.maps["diwe"]),
+                ("IWA - 1 (deformation, area ratio - 1)", r.maps["iwa"] - 1.0)]
+        peaks = [float(np.nanmax(np.abs(img))) if np.size(img) else 0.0 for _, img in maps]
+        if max(peaks) < 1e-12:
+            # two blank panels were half the picture (probe DA): said in a line instead
+            suptitle += f"\nDIWE and IWA: 0 everywhere (none in a {r.warp})"
+        else:
+            for (name, img), peak in zip(maps, peaks, strict=True):
+                panels.append(_signed_rgb(img))
+                titles.append(f"{name}\n0 everywhere: none in a {r.warp}" if peak < 1e-12
+                              else f"{name}\nred +, blue -, full at +-{peak:.3g}")
+    return images.panel_png(panels, titles, ncols=2, suptitle=suptitle)
 
 
 def _panel_title(r, t0_us: int, t1_us: int) -> str:
