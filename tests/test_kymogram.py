@@ -906,3 +906,68 @@ def test_a_noise_of_another_shape_or_nan_is_refused():
     for bad in (np.ones((3, 3)), np.full((10, 20), np.nan), -np.ones((10, 20))):
         with pytest.raises(ParameterError, match="noise must be finite standard errors"):
             ridge_points(k, noise=bad)
+
+
+def test_the_time_axis_is_the_recordings_clock_and_the_fit_stays_on_the_ridge():
+    # probe DA: the axis counted from the first bin's centre, so the bins began half a bin
+    # before 0 (-0.42 ms at 1200 Hz) and a kymogram from t = 0.5 s was drawn from 0
+    from evmotion.viz.kymogram import kymogram_figure
+
+    rate, t_start = 1200.0, 0.5
+    t = t_start + (np.arange(120) + 0.5) / rate
+    line = KymoLine(7.0, 20.0, 7.0, 179.0)
+    s = np.arange(line.n_samples, dtype=float)
+    centre = 150.0 - 400.0 * (t - t_start)  # image row y, rising
+    data = np.exp(-0.5 * (((20.0 + s)[None, :] - centre[:, None]) / 2.0) ** 2)
+    k = Kymogram(data.astype(np.float32), t, s, line, rate, "events")
+    for fit in (fit_ridge(k), fit_correlation(k)):
+        ax = kymogram_figure([k], [fit]).axes[0]
+        left, right = ax.images[0].get_extent()[:2]
+        assert (left, right) == (pytest.approx(500.0), pytest.approx(600.0))
+        assert ax.get_xlim() == (pytest.approx(500.0), pytest.approx(600.0))
+        assert "recording's clock" in ax.get_xlabel()
+        t_ms, y = ax.lines[-1].get_data()  # the fitted line, on the streak
+        np.testing.assert_allclose(y, 150.0 - 0.4 * (np.asarray(t_ms) - 500.0), atol=1.0)
+
+
+def test_a_far_off_clock_is_counted_from_a_stated_t0():
+    from evmotion.viz.kymogram import kymogram_figure
+
+    t = 1.6e9 + (np.arange(40) + 0.5) / 1000.0
+    k = Kymogram(np.ones((40, 30), np.float32), t, np.arange(30.0), KymoLine.row(0, (1, 30)),
+                 1000.0, "events")
+    ax = kymogram_figure([k]).axes[0]
+    assert ax.get_xlabel() == "t - t0 [ms]"
+    assert "t0 = 1600000000.000000 s" in ax.get_title()
+    left, right = ax.images[0].get_extent()[:2]
+    assert (left, right) == (pytest.approx(0.0, abs=1e-3), pytest.approx(40.0, abs=1e-3))
+
+
+def test_cli_draws_each_window_over_its_interval(tmp_path, capsys, monkeypatch):
+    # probe DA: the q of BOS intervals [0, 16.7) ms was drawn from -4.2 to 12.5 ms (the
+    # first window's centre taken for 0); windows of unequal length were drawn equal
+    import json
+
+    import evmotion.viz.kymogram as vk
+    from evmotion.io.flowfiles import FlowWriter
+
+    drawn = _record(monkeypatch, vk, "kymogram_figure")
+    h, w = 20, 30
+    for name, bounds in (("equal", [5000, 6000, 7000, 8000, 9000]),
+                         ("unequal", [5000, 6000, 8000, 8500, 9000])):
+        with FlowWriter(tmp_path / f"{name}.h5", (h, w)) as fw:
+            for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+                fw.append(np.full((h, w, 2), 10.0, np.float32), a, b)
+        rc, text, err = _cli(capsys, tmp_path / f"{name}.h5", "--from", "flow", "--col", 5,
+                             "--no-fit", "--out", tmp_path / f"{name}.png", "--json")
+        assert rc == 0, err
+        panel = json.loads(text)["panels"][0]
+        assert (panel["t0_s"], panel["t1_s"]) == (pytest.approx(0.005), pytest.approx(0.009))
+        ax = drawn[-1].axes[0]
+        assert ax.get_xlim() == (pytest.approx(5.0), pytest.approx(9.0))
+        if name == "equal":
+            left, right = ax.images[0].get_extent()[:2]
+            assert (left, right) == (pytest.approx(5.0), pytest.approx(9.0))
+        else:
+            x = np.unique(ax.collections[0].get_coordinates()[..., 0])
+            np.testing.assert_allclose(x, np.array(bounds) * 1e-3)

@@ -13,6 +13,8 @@ streaks share; ``--method ridge`` fits one streak) gives its speed in px/s along
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from evmotion.cli.options import (
     HelpFormatter,
     add_sensor_size_argument,
@@ -232,7 +234,12 @@ def _field_kymogram(args):
     imgs = np.asarray(images)[sel]
     mid_s = 0.5 * (t0[sel] + t1[sel]) * 1e-6
     line = _line(args, imgs.shape[1:])
-    return kymogram_from_images(imgs, mid_s, line, source=label), tuple(imgs.shape[1:])
+    kymo = kymogram_from_images(imgs, mid_s, line, source=label)
+    # each window is drawn over the interval it covers, [t0, t1) (it had been its centre
+    # +- half the mean step); between windows that leave a gap or overlap, half-way
+    a, b = t0[sel], t1[sel]
+    edges = np.concatenate([[a[0]], 0.5 * (b[:-1] + a[1:]), [b[-1]]]) * 1e-6
+    return replace(kymo, meta={**kymo.meta, "t_edges_s": edges}), tuple(imgs.shape[1:])
 
 
 # the library's parameter names in its messages, as this command spells them
@@ -314,7 +321,9 @@ def _frames_kymogram(path, line, t0, t1, sensor_size, on: str):
     if sel.sum() < 2:
         raise ParameterError(f"{path}: {int(sel.sum())} frame(s) in [{t0}, {t1}) us; a frame "
                              "kymogram needs two")
-    return kymogram_from_frame_differences(np.asarray(fr.images)[sel], t[sel], line)
+    kymo = kymogram_from_frame_differences(np.asarray(fr.images)[sel], t[sel], line)
+    # a difference spans the two frames' times: drawn from the one to the other
+    return replace(kymo, meta={**kymo.meta, "t_edges_s": t[sel] * 1e-6})
 
 
 def run(args) -> int:
@@ -325,7 +334,7 @@ def run(args) -> int:
         fit_ridge,
         px_per_s_to_m_per_s,
     )
-    from evmotion.viz.kymogram import save_kymogram_png
+    from evmotion.viz.kymogram import save_kymogram_png, time_edges_s
 
     geometry = _check_args(args)
     if args.source == "events":
@@ -399,10 +408,11 @@ def run(args) -> int:
                 # a coarse comparison panel may have too few bins for a fit: say so, draw it
                 error = _cli_names(str(exc))
         fits.append(fit)
+        edges = time_edges_s(k)
         row = {"source": k.source, "rate_hz": k.rate_hz, "shape": list(k.data.shape),
-               # the span's edges, not its first and last bins' centres (half a bin in)
-               "t0_s": float(k.t_s[0]) - 0.5 / k.rate_hz,
-               "t1_s": float(k.t_s[-1]) + 0.5 / k.rate_hz}
+               # the span's edges, not its first and last bins' centres (half a bin in),
+               # as the picture draws them
+               "t0_s": float(edges[0]), "t1_s": float(edges[-1])}
         if fit is not None:
             row.update(method=fit.method, velocity_px_s=fit.velocity_px_s,
                        velocity_std_px_s=fit.velocity_std_px_s,

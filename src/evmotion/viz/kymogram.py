@@ -17,13 +17,73 @@ from evmotion.errors import ParameterError
 from evmotion.methods.kymogram import Kymogram, RidgeFit, px_per_s_to_m_per_s
 from evmotion.utils import atomic_path
 
-__all__ = ["kymogram_figure", "save_kymogram_png"]
+__all__ = ["RECORDING_CLOCK_SPANS", "kymogram_figure", "save_kymogram_png", "time_edges_s",
+           "time_origin_s"]
 
 UNITS = {"events": "events / px / bin", "events signed": "polarity sum / px / bin",
          "frame differences": "|frame difference| [8-bit grey levels]",
          "q": "q [px²/s]", "q (exact)": "q (exact) [px²/s]", "|flow| px/s": "|flow| [px/s]"}
 #: Cells with no measurement (NaN: flow no event supports, a field outside its ROI).
 NO_DATA_COLOUR = "#e8c77a"
+
+
+#: The time axis is the recording's clock where the kymograms start within this many of their
+#: spans of its zero (a 50 ms kymogram up to 50 s in); further out (a clock counting from
+#: 1970) the ticks would carry a dozen digits, and the axis is ``t - t0`` with ``t0`` stated.
+RECORDING_CLOCK_SPANS = 1000.0
+
+
+def time_edges_s(kymo: Kymogram) -> np.ndarray:
+    """The edges of a kymogram's time bins on the recording's clock, s: ``T + 1`` values,
+    bin ``k`` covering ``[edges[k], edges[k + 1])``.
+
+    ``kymo.meta["t_edges_s"]`` where given (the windows of a flow file, the frames' times);
+    else half-way between the bins' times, the first and last bins as wide as their
+    neighbour's distance (a single bin: ``1 / rate_hz`` wide).
+
+    Examples
+    --------
+    >>> from evmotion.methods.kymogram import KymoLine
+    >>> k = Kymogram(np.zeros((3, 2)), np.array([0.5, 1.5, 2.5]) / 1200, np.arange(2.0),
+    ...              KymoLine.row(0, (1, 2)), 1200.0, "events")
+    >>> (time_edges_s(k) * 1200).round(9).tolist()
+    [0.0, 1.0, 2.0, 3.0]
+    """
+    t = np.asarray(kymo.t_s, dtype=np.float64).ravel()
+    edges = kymo.meta.get("t_edges_s")
+    if edges is not None:
+        edges = np.asarray(edges, dtype=np.float64).ravel()
+        if (edges.size != t.size + 1 or not np.all(np.diff(edges) > 0)
+                or not np.all((edges[:-1] <= t) & (t <= edges[1:]))):
+            raise ParameterError(f"meta['t_edges_s'] must hold {t.size + 1} increasing "
+                                 f"edges around the {t.size} bins' times, got {edges.size}")
+        return edges
+    if t.size > 1:
+        mid = 0.5 * (t[1:] + t[:-1])
+        return np.concatenate([[2 * t[0] - mid[0]], mid, [2 * t[-1] - mid[-1]]])
+    dt = (1.0 / kymo.rate_hz) if np.isfinite(kymo.rate_hz) and kymo.rate_hz > 0 else 1e-3
+    return np.array([t[0] - dt / 2, t[0] + dt / 2])
+
+
+def time_origin_s(kymos: Sequence[Kymogram]) -> float:
+    """The time the panels' axes count from, s: 0 (the recording's clock) where the
+    kymograms start within :data:`RECORDING_CLOCK_SPANS` spans of it, else their start.
+
+    Examples
+    --------
+    >>> from evmotion.methods.kymogram import KymoLine
+    >>> line = KymoLine.row(0, (1, 2))
+    >>> time_origin_s([Kymogram(np.zeros((2, 2)), np.array([0.01, 0.02]), np.arange(2.0),
+    ...                          line, 100.0, "q")])
+    0.0
+    >>> time_origin_s([Kymogram(np.zeros((2, 2)), 1.6e9 + np.array([0.01, 0.02]),
+    ...                          np.arange(2.0), line, 100.0, "q")]) - 1.6e9 > 0
+    True
+    """
+    edges = [time_edges_s(k) for k in kymos]
+    start = min(float(e[0]) for e in edges)
+    end = max(float(e[-1]) for e in edges)
+    return 0.0 if abs(start) <= RECORDING_CLOCK_SPANS * (end - start) else start
 
 
 def _axis_label(kymo: Kymogram) -> str:
@@ -72,7 +132,10 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
     Parameters
     ----------
     kymos : sequence of Kymogram
-        Drawn side by side with a shared time axis origin (the first kymogram's start).
+        Drawn side by side on one time axis: the recording's clock, in ms, or ``t - t0``
+        with ``t0`` in the titles where the clock's zero lies far off
+        (:func:`time_origin_s`); each bin over the interval it covers
+        (:func:`time_edges_s`).
     fits : sequence of RidgeFit or None, optional
         A fit per panel: its line (over the inliers' time span with the ridge points for
         :func:`~evmotion.methods.kymogram.fit_ridge`, over the panel for
@@ -105,7 +168,10 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
     n = len(kymos)
     fig = Figure(figsize=(4.6 * n, 4.2), dpi=dpi)
     FigureCanvasAgg(fig)
-    t_origin = min(float(k.t_s[0]) for k in kymos)
+    # the recording's clock (the origin had been the first bin's centre: a BOS file's
+    # intervals [0, 16.7) ms were drawn from -4.2 to 12.5 ms, and --t0 0.01 started the
+    # axis at 0 again, probe DA)
+    t_origin = time_origin_s(kymos)
     for i, (k, fit, error) in enumerate(zip(kymos, fits, errors, strict=True)):
         ax = fig.add_subplot(1, n, i + 1)
         d = np.asarray(k.data, dtype=np.float64)
@@ -113,20 +179,27 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
         signed = bool(finite.any() and d[finite].min() < 0)
         vmax = (float(np.percentile(np.abs(d[finite]), percentile)) if finite.any()
                 else 0.0) or 1.0
-        dt = (1.0 / k.rate_hz) if np.isfinite(k.rate_hz) and k.rate_hz > 0 else 1e-3
+        edges_ms = (time_edges_s(k) - t_origin) * 1e3
         a, b = _image_axis(k)
         pos = a + b * np.array([k.s_px[0], k.s_px[-1]])
         down = not (k.line.y0 == k.line.y1 and k.line.x0 != k.line.x1)  # all but a row
-        ext = ((k.t_s[0] - dt / 2 - t_origin) * 1e3, (k.t_s[-1] + dt / 2 - t_origin) * 1e3,
+        ext = (edges_ms[0], edges_ms[-1],
                *((pos.max() + 0.5, pos.min() - 0.5) if down
                  else (pos.min() - 0.5, pos.max() + 0.5)))
-        # the image's first row is drawn at the axis' top
-        first_at_top = (b > 0) == down
         colours = matplotlib.colormaps["RdBu_r" if signed else cmap].with_extremes(
             bad=NO_DATA_COLOUR)
-        im = ax.imshow(d.T if first_at_top else d.T[::-1], aspect="auto", extent=ext,
-                       interpolation="nearest", cmap=colours,
-                       vmin=-vmax if signed else 0.0, vmax=vmax)
+        norm = dict(cmap=colours, vmin=-vmax if signed else 0.0, vmax=vmax)
+        widths = np.diff(edges_ms)
+        if np.ptp(widths) <= 1e-3 * np.median(widths):
+            # the image's first row is drawn at the axis' top
+            first_at_top = (b > 0) == down
+            im = ax.imshow(d.T if first_at_top else d.T[::-1], aspect="auto", extent=ext,
+                           interpolation="nearest", **norm)
+        else:
+            # windows of unequal length (a camera's frame times): an image's equal
+            # columns would draw the bins off their intervals
+            s_edges = a + b * np.append(k.s_px - 0.5, k.s_px[-1] + 0.5)
+            im = ax.pcolormesh(edges_ms, s_edges, np.ma.masked_invalid(d.T), **norm)
         cb = fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02)
         label = UNITS.get(k.source, k.source)
         if not finite.all():
@@ -134,10 +207,15 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
             label += f"; {'ochre' if finite.any() else 'all ochre'}: no measurement"
         cb.set_label(label, fontsize=8)
         cb.ax.tick_params(labelsize=7)
-        ax.set_xlabel("t [ms]")
+        # ticks in the axis' own numbers (matplotlib's offset would move the origin again)
+        ax.ticklabel_format(axis="x", style="plain", useOffset=False)
+        ax.set_xlabel("t [ms], the recording's clock" if t_origin == 0 else "t - t0 [ms]")
         ax.set_ylabel(_axis_label(k))
         rate = f"{k.rate_hz:.4g} Hz" if np.isfinite(k.rate_hz) else "1 image"
-        ax.set_title(titles[i] if titles is not None else f"{k.source} at {rate}", fontsize=10)
+        title = titles[i] if titles is not None else f"{k.source} at {rate}"
+        if t_origin != 0:
+            title += f"\nt0 = {t_origin:.6f} s on the recording's clock"
+        ax.set_title(title, fontsize=10)
         if error:
             # a failed fit had left the panel looking like one drawn with --no-fit (probe BX)
             ax.text(0.5, 0.97, textwrap.fill(f"no velocity fit: {error}", 52),
@@ -156,8 +234,9 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
             ax.plot((tl - t_origin) * 1e3, a + b * fit.s_at(tl), "--" if fit.method != "ridge" else "-",
                     lw=1.8, color="tab:red", label=_speed_label(fit, geometry))
             ax.legend(loc="upper right", fontsize=7, framealpha=0.85)
-            ax.set_xlim(ext[0], ext[1])
-            ax.set_ylim(ext[2], ext[3])
+        # the bins' span, not the lines' (nor pcolormesh's margins)
+        ax.set_xlim(ext[0], ext[1])
+        ax.set_ylim(ext[2], ext[3])
     fig.tight_layout()
     return fig
 
