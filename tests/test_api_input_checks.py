@@ -284,6 +284,32 @@ def test_a_simulation_ground_truth_scores_windows_directly():
     res = estimate_flow(sim.events[:4000])
     with pytest.raises(ParameterError, match=r"'flow' is a FlowResult: .*res.displacement\(\)"):
         flow_metrics(res, exact[0])
+    # fwl takes px/s: its advice had been res.displacement() too (FWL 0.985 for 2.22,
+    # probe DB)
+    with pytest.raises(ParameterError, match=r"is a FlowResult: give the flow in px/s, e\.g\. "
+                                             r"res\.flow$"):
+        fwl(sim.events[:4000], res)
+
+
+def test_triplet_leaves_out_events_off_the_sensor_as_it_says():
+    # it warned that they were left out, then refused the first of them (probe DB)
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.triplet import estimate_flow_triplet
+
+    yy, xx = np.mgrid[0:20, 0:20]
+    t = np.rint(xx.ravel() / 200.0 * 1e6).astype(np.int64)
+    o = np.argsort(t, kind="stable")
+    x, y, t = xx.ravel()[o], yy.ravel()[o], t[o]
+    inside = EventArray(x, y, t, np.ones(t.size), (20, 20))
+    shifted = EventArray(np.where(x < 14, x, x + 30), y, t, np.ones(t.size), (20, 20),
+                         validate=False)
+    with pytest.warns(EvmotionWarning, match="lie off the sensor .* and are left out"):
+        got = estimate_flow_triplet(shifted)
+    keep = x < 14
+    want = estimate_flow_triplet(EventArray(x[keep], y[keep], t[keep], np.ones(keep.sum()),
+                                            (20, 20)))
+    np.testing.assert_array_equal(got.flow, want.flow)
+    assert estimate_flow_triplet(inside).valid.sum() > got.valid.sum() > 0
 
 
 def test_switches_given_as_strings_are_refused(ev):

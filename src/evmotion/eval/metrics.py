@@ -457,7 +457,7 @@ def warp_by_flow(events: EventArray, flow_px_per_s: np.ndarray, t_ref_us: int | 
     """
     if not len(events):
         raise EmptyWindowError("no events to warp; the window is empty")
-    flow = _as_flow(flow_px_per_s, "flow_px_per_s")
+    flow = _as_flow(flow_px_per_s, "flow_px_per_s", per_second=True)
     if flow.shape[:2] != events.sensor_size:
         raise ParameterError(
             f"flow has shape {flow.shape[:2]}, expected the sensor size {events.sensor_size}"
@@ -626,13 +626,18 @@ def rms_error(est: np.ndarray, gt: np.ndarray) -> RmsError:
 
 
 # ------------------------------------------------------------------------ helpers
-def _as_flow(a, name: str) -> np.ndarray:
+def _as_flow(a, name: str, per_second: bool = False) -> np.ndarray:
+    """``a`` as a float flow (H, W, 2); ``per_second``: px/s is asked (else px over one
+    interval), which the advice for a FlowResult follows."""
     if callable(getattr(a, "displacement", None)) and not isinstance(a, np.ndarray):
         # a FlowResult (or a FlowSequence) holds px/s: its shape () said nothing of that
-        # (probe CB)
-        raise ParameterError(f"'{name}' is a {type(a).__name__}: give displacements in px "
-                             "over one interval, e.g. res.displacement() (a FlowResult's "
-                             "flow is px/s)")
+        # (probe CB); fwl takes px/s, which its advice had not said (res.displacement()
+        # gave FWL 0.985 where res.flow gives 2.22, probe DB)
+        raise ParameterError(
+            f"'{name}' is a {type(a).__name__}: give "
+            + ("the flow in px/s, e.g. res.flow" if per_second else
+               "displacements in px over one interval, e.g. res.displacement() (a "
+               "FlowResult's flow is px/s)"))
     a = np.asarray(a)
     if a.ndim != 3 or a.shape[-1] != 2:
         raise ParameterError(f"'{name}' must have shape (H, W, 2), got {a.shape}")

@@ -842,7 +842,9 @@ def estimate_flow_triplet(events: EventArray, windows: Sequence[Window] | None =
     >>> res.flow.shape, float(res.flow[0, 5, 4, 0])
     ((1, 10, 10, 2), 100.0)
     """
-    require_events(events, "estimate_flow_triplet")
+    # the events off the sensor are left out, as the warning about them says (they were
+    # refused a line later: "event 4 has x=90 outside the sensor", probe DB)
+    events = require_events(events, "estimate_flow_triplet", on_sensor=True)
     check_switches(smooth=smooth)
     if gap_us is None:
         gap_us = BURST_GAP_US
