@@ -282,12 +282,13 @@ def test_bos_p_picture_is_unmasked_and_greys_only_nan(tmp_path, monkeypatch):
     import evmotion.viz.bos as vb
 
     drawn = {}
+    real = vb.save_bos_flow_png
 
     def spy(path, *a, **kw):
-        drawn[str(path).rsplit("/", 1)[-1]] = pic = save_flow_png(path, *a, **kw)
+        drawn[str(path).rsplit("/", 1)[-1]] = pic = real(path, *a, **kw)
         return pic
 
-    monkeypatch.setattr(vb, "save_flow_png", spy)
+    monkeypatch.setattr(vb, "save_bos_flow_png", spy)
     p = np.zeros((40, 40, 2))
     p[5:10, 5:10] = 0.3
     p[:2] = np.nan
@@ -376,3 +377,75 @@ def test_a_legend_of_no_flow_gives_no_scale():
     assert pic.texts[2:5] == ("no flow drawn", "", "grey: nothing measured")
     assert "max of image" not in pic.texts
     assert flow_picture(flow).texts[3] == "max of image"
+
+
+def _framed_box(rgb: np.ndarray, shape: tuple[int, int]) -> tuple[int, int, int, int]:
+    """``(row0, row1, col0, col1)`` inside the grey frame of a BOS picture of a field of
+    ``shape``: the rows and columns holding long runs of the frame's grey."""
+    grey = (rgb == 153).all(-1)
+    rows = np.flatnonzero(grey.sum(1) >= shape[1])
+    cols = np.flatnonzero(grey.sum(0) >= shape[0])
+    assert rows.size >= 2 and cols.size >= 2, "no frame"
+    return rows[0] + 1, rows[-1], cols[0] + 1, cols[-1]
+
+
+def test_bos_q_flow_and_p_pictures_share_one_pixel_scale_and_are_framed(tmp_path):
+    # probe DA: q_*.png was drawn at 3.5x, resampled, with no axes, beside a 2x flow with
+    # no frame (its white zero flow ran into the page)
+    from evmotion.viz.bos import save_bos_pngs
+
+    h, w = 40, 50
+    q = np.zeros((h, w))
+    q[10:20, 20:30] = 100.0  # one block, the rest white in every picture
+    flow = np.zeros((h, w, 2))
+    flow[10:20, 20:30, 0] = 50.0
+    save_bos_pngs(tmp_path, 0, flow, q, flow / 100.0, q_limit=200.0, label="[0, 10) us")
+    k = flow_picture(flow).scale  # the flow's magnification, 4 for 40 rows
+    for name in ("q", "flow", "p"):
+        rgb = read_png(tmp_path / f"{name}_00000.png")
+        r0, r1, c0, c1 = _framed_box(rgb, (h, w))
+        assert (r1 - r0, c1 - c0) == (h * k, w * k), name
+        inside = rgb[r0:r1, c0:c1]
+        ink = np.argwhere((inside != inside[0, 0]).any(-1))  # off q = 0 / zero flow
+        # the block, pixel for pixel at k screen pixels a pixel
+        assert ink.min(0).tolist() == [10 * k, 20 * k], name
+        assert (ink.max(0) + 1).tolist() == [20 * k, 30 * k], name
+
+
+def test_view_and_bos_png_dir_draw_q_on_one_range(tmp_path, capsys, monkeypatch):
+    # probe DA: view --window 1 drew q over +-480 ("clipped"), bos --png-dir the same
+    # interval over +-380 ("|q| up to 880"): each had its own rule
+    import evmotion.viz.bos as vb
+    from evmotion.cli import main
+    from evmotion.io.bosfiles import BosWriter, read_bos
+
+    path = tmp_path / "bos.h5"
+    h, w = 20, 30
+    rng = np.random.default_rng(0)
+    with BosWriter(path, (h, w)) as bw:
+        for i, amp in enumerate((10.0, 100.0, 1000.0)):
+            bw.append(np.full((h, w, 2), 5.0), 1000 * i, 1000 * (i + 1),
+                      q=amp * rng.standard_normal((h, w)), p=np.zeros((h, w, 2)))
+    scales = []
+    real = vb._q_scale
+
+    def spy(q, limit=None):
+        scales.append(real(q, limit))
+        return scales[-1]
+
+    monkeypatch.setattr(vb, "_q_scale", spy)
+    assert main(["view", str(path), "--window", "1", "--out", str(tmp_path / "v.png")]) == 0
+    capsys.readouterr()
+    viewed = scales[-1]
+    scales.clear()
+    vb.save_bos_sequence_pngs(tmp_path / "png", read_bos(path))
+    assert scales[1] == viewed
+    assert viewed[0] == pytest.approx(vb.bos_q_limit(read_bos(path).q))
+    assert not viewed[2]  # at the file's range window 1 lies within (its own 99th % clipped)
+
+
+def test_field_scale_is_the_flow_pictures():
+    from evmotion.viz.bos import field_scale
+
+    for shape in ((8, 8), (40, 50), (128, 160), (180, 160), (720, 1280)):
+        assert field_scale(shape) == flow_picture(np.zeros((*shape, 2))).scale

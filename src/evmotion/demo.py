@@ -214,7 +214,7 @@ def _schlieren(out: Path, rep: HtmlReport, seed: int) -> dict:
          "estimate says so below)")
     from evmotion.methods.bos import estimate_bos
     from evmotion.sim.schlieren import simulate_schlieren
-    from evmotion.viz.bos import save_q_png
+    from evmotion.viz.bos import save_bos_flow_png, save_q_png
 
     sim = simulate_schlieren("plume", sensor_size=(180, 160), duration_s=2 / 120, seed=seed)
     f, t = sim.frames.images, sim.frames.t
@@ -242,10 +242,12 @@ def _schlieren(out: Path, rep: HtmlReport, seed: int) -> dict:
         if data_term == "scale":
             best = res
     vmax = float(np.percentile(np.hypot(gt[..., 0], gt[..., 1])[mask], 99))
-    save_flow_png(out / "bos_flow.png", best.flow, max_speed=vmax, unit="px/s",
-                  title="BOS flow (Poisson, scale-aware)")
-    save_flow_png(out / "bos_gt_flow.png", gt, max_speed=vmax, unit="px/s",
-                  title="exact flow")
+    # framed on pixel axes at q's magnification (bos_flow.png had been 1x, unframed, beside
+    # a 3.8x q; probe DA)
+    save_bos_flow_png(out / "bos_flow.png", best.flow, max_speed=vmax, unit="px/s",
+                      title="BOS flow (Poisson, scale-aware)")
+    save_bos_flow_png(out / "bos_gt_flow.png", gt, max_speed=vmax, unit="px/s",
+                      title="exact flow")
     # one colour scale for both q (the exact q's)
     limit = save_q_png(out / "bos_gt_q.png", gt_q, title="Poisson field q (exact)")
     save_q_png(out / "bos_q.png", best.q, limit=limit,

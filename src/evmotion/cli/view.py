@@ -258,7 +258,7 @@ def _view_flow(args, out: Path) -> int:
     from evmotion.io.flowread import read_flow
     from evmotion.utils import seconds_text
     from evmotion.viz import save_png
-    from evmotion.viz.bos import flow_window_picture
+    from evmotion.viz.bos import bos_q_limit, flow_window_picture
 
     reject_unused(args, {"--t1": "t1", "--window-events": "window_events",
                          "--polarity": "polarity"},
@@ -294,6 +294,9 @@ def _view_flow(args, out: Path) -> int:
     units = seq.attrs.get("extras_units") or {}
     rgb = flow_window_picture(seq.flow[k], valid=None if seq.valid is None else seq.valid[k],
                               q=None if q is None else q[k],
+                              # the file's q range, as bos --png-dir draws this window
+                              q_limit=None if q is None else bos_q_limit(q, seq.valid,
+                                                                         seq.flow),
                               q_unit=units.get("q", "px^2/s") if isinstance(units, dict)
                               else "px^2/s",
                               title=f"{Path(args.file).name}: window {k} of {n}, "
