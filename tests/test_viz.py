@@ -242,29 +242,101 @@ def test_flow_summary_png(tmp_path):
         assert img.ndim == 3 and img.shape[1] > 2.5 * img.shape[0]
 
 
-def test_panels_of_large_sensors_keep_half_their_resolution():
-    # a 1280-px IWE drawn 300 px wide no longer shows whether its events are sharp
+SENSORS = [(180, 240), (260, 346), (480, 640), (720, 1280)]
+
+
+def _png_rgb(png: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+
+def _stripes_drawn(rgb: np.ndarray, n: int, k: int) -> bool:
+    """Whether a row of ``rgb`` holds ``n`` one-pixel stripes (dark first) each drawn
+    exactly ``k`` picture pixels wide: every column of the image, none merged or doubled."""
+    dark = (rgb.astype(int).sum(axis=-1) < 200).astype(np.uint8)
+    pattern = ((b"\x01" * k + b"\x00" * k) * (n // 2))[:n * k]
+    return any(pattern in row.tobytes() for row in dark)
+
+
+def _stripes(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    cols, rows = np.zeros((h, w)), np.zeros((h, w))
+    cols[:, ::2] = 5.0
+    rows[::2] = 5.0
+    return cols, rows
+
+
+@pytest.mark.parametrize("h,w", SENSORS)
+def test_event_pictures_draw_every_sensor_pixel(h, w):
+    # probe DA: a 1280-px sensor was drawn ~1205 px wide (79 column pairs merged), a 240-px
+    # one unevenly doubled (1.19x): lone events and hot pixels vanished or aliased
+    from evmotion.viz.images import event_picture_png, picture_factor
+
+    k = picture_factor(w)[0]
+    assert k == (2 if w < 480 else 1)
+    cols, rows = _stripes(h, w)
+    pic = _png_rgb(event_picture_png(cols, title="one-pixel stripes"))
+    assert _stripes_drawn(pic, w, k)
+    assert _stripes_drawn(_png_rgb(event_picture_png(rows)).transpose(1, 0, 2), h, k)
+    # a sensible size: the image, its axes and colour bar
+    assert w * k < pic.shape[1] < w * k + 250 and h * k < pic.shape[0] < h * k + 120
+
+
+@pytest.mark.parametrize("h,w", SENSORS)
+def test_panels_draw_every_image_pixel(h, w):
+    # probe DA: egomotion's 2 x 2 panels of a 1280 x 720 sensor drew each image ~585 px wide
     from evmotion.viz.images import panel_png
 
-    def width(w):
-        png = panel_png([np.zeros((w * 9 // 16, w)), np.zeros((w * 9 // 16, w))], ["a", "b"])
-        return Image.open(io.BytesIO(png)).size[0]
+    cols, rows = _stripes(h, w)
+    k = 2 if w < 300 else 1
+    pic = _png_rgb(panel_png([iwe_to_rgb(cols, vmax=5.0), iwe_to_rgb(rows, vmax=5.0), cols,
+                              iwe_to_rgb(cols, vmax=5.0)], ["a\ntwo-line title"] * 4,
+                             ncols=2, suptitle="window 0"))
+    assert _stripes_drawn(pic, w, k)
+    assert _stripes_drawn(pic.transpose(1, 0, 2), h, k)
+    assert 2 * w * k < pic.shape[1] < 2 * w * k + 150
 
-    assert width(240) == width(346) <= 640
-    assert width(1280) >= 2 * 640 - 60
+
+def test_a_row_too_wide_is_reduced_keeping_every_lone_event():
+    # segment draws its clusters in one row: four 1280-px images at 1x would be 5,000 px
+    # wide; halved by blocks, each lone event (red on white) stays one red pixel
+    from evmotion.viz.images import MAX_PANEL_ROW_PX, panel_png
+
+    rng = np.random.default_rng(1)
+    images = []
+    for _ in range(4):
+        im = np.full((720, 1280, 3), 255, np.uint8)
+        im[rng.integers(0, 360, 30) * 2, rng.integers(0, 640, 30) * 2] = (255, 0, 0)
+        images.append(im)
+    pic = _png_rgb(panel_png(images, [f"cluster {i}" for i in range(4)]))
+    assert MAX_PANEL_ROW_PX // 2 <= pic.shape[1] <= MAX_PANEL_ROW_PX + 200
+    red = (pic[..., 0] == 255) & (pic[..., 1] == 0) & (pic[..., 2] == 0)
+    assert red.sum() == sum(int((im[..., 1] == 0).sum()) for im in images)
+
+
+def test_a_sensor_wider_than_a_picture_is_reduced_keeping_its_events():
+    from evmotion.viz.images import _reduced_values, event_picture_png, picture_factor
+
+    img = np.zeros((100, 4096))
+    img[np.arange(0, 100, 10), np.arange(5, 4096, 410)] = [1, -2, 3, 1, 1, -1, 7, 1, 1, 1]
+    k, r = picture_factor(4096)
+    assert (k, r) == (1, 3)
+    small = _reduced_values(img, r)
+    assert small.shape == (34, 1366)
+    assert sorted(small[small != 0].tolist()) == sorted(img[img != 0].tolist())
+    assert _png_rgb(event_picture_png(img, polarity=True)).shape[1] < 1366 + 250
 
 
 def test_panel_titles_wider_than_their_panel_wrap():
     # segment's cluster titles ran into each other and off the picture (probe AD): a long
     # line wraps to the panel's width, and the picture grows to hold it
-    from evmotion.viz.images import TITLE_CHARS_PER_INCH, panel_png, panel_width_inches
+    from evmotion.viz.images import MIN_PANEL_PX, TITLE_CHARS_PER_INCH, panel_png
 
     img = np.zeros((180, 240))
-    long = "cluster 0: wx=1.76 wy=-0.667 wz=1.65 rad/s and more words to wrap around"
+    long = ("cluster 0: wx=1.76 wy=-0.667 wz=1.65 rad/s and more words to wrap around its "
+            "panel")
     short, wrapped = (Image.open(io.BytesIO(panel_png([img, img], [t, t])))
                       for t in ("cluster 0", long))
     assert wrapped.size[0] == short.size[0] and wrapped.size[1] > short.size[1]
-    assert len(long) > panel_width_inches(240, 100) * TITLE_CHARS_PER_INCH
+    assert len(long) > 2 * MIN_PANEL_PX / 100 * TITLE_CHARS_PER_INCH
 
 
 def test_panels_name_their_pixel_axes(monkeypatch):
@@ -272,8 +344,9 @@ def test_panels_name_their_pixel_axes(monkeypatch):
     import evmotion.viz.images as vi
 
     figs = []
-    real = vi._figure_png
-    monkeypatch.setattr(vi, "_figure_png", lambda fig, dpi: figs.append(fig) or real(fig, dpi))
+    real = vi._picture_png
+    monkeypatch.setattr(vi, "_picture_png",
+                        lambda fig, pastes, dpi: figs.append(fig) or real(fig, pastes, dpi))
     vi.panel_png([np.zeros((12, 16)), np.ones((12, 16))], ["a", "b"])
     axes = figs[0].axes
     assert [(a.get_xlabel(), a.get_ylabel()) for a in axes] == [("x [px]", "y [px]")] * 2

@@ -24,6 +24,7 @@ __all__ = [
     "event_histogram",
     "event_picture_png",
     "iwe_to_rgb",
+    "picture_factor",
     "panel_png",
     "full_scale",
     "read_png",
@@ -259,17 +260,127 @@ def _title_row(width: int, title: str) -> np.ndarray:
     return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
 
-def panel_width_inches(width_px: int, dpi: int = 100) -> float:
-    """Default width of one panel of :func:`panel_png` for images ``width_px`` wide: 3 in,
-    or half their width in pixels where that is more (a 1280-px IWE squeezed into 300 px
-    no longer shows whether the events are sharp).
+#: Narrowest image (px) of :func:`event_picture_png`: narrower sensors are magnified by a
+#: whole number (a 346-px DAVIS twice, a 640-px VGA sensor not).
+MIN_PICTURE_PX = 480
+#: Narrowest image (px) of a panel of :func:`panel_png`, where several share the picture.
+MIN_PANEL_PX = 300
+#: Widest image (px) of :func:`event_picture_png`: wider ones are reduced by a whole number.
+MAX_PICTURE_PX = 2000
+#: Widest row of images (px, margins aside) of :func:`panel_png`.
+MAX_PANEL_ROW_PX = 2600
+
+
+def picture_factor(width_px: int, *, least_px: int = MIN_PICTURE_PX,
+                   most_px: int = MAX_PICTURE_PX, scale: int = 1) -> tuple[int, int]:
+    """Whole-number magnification and reduction of an image ``width_px`` wide on a picture:
+    ``(k, 1)`` draws each image pixel as k x k picture pixels, the least k (at least
+    ``scale``) that reaches ``least_px`` without passing ``most_px``; ``(1, r)`` an image
+    wider than ``most_px``, r x r image pixels to a picture pixel. A fractional scale had
+    merged 79 of a 1280-px sensor's column pairs and doubled about one column in five of a
+    240-px one (probe DA).
 
     Examples
     --------
-    >>> panel_width_inches(346), panel_width_inches(1280)
-    (3.0, 6.4)
+    >>> picture_factor(240), picture_factor(346), picture_factor(1280), picture_factor(4096)
+    ((2, 1), (2, 1), (1, 1), (1, 3))
     """
-    return max(3.0, float(width_px) / 2 / dpi)
+    w = max(int(width_px), 1)
+    scale = max(int(scale), 1)
+    if scale == 1 and w > most_px:
+        return 1, -(-w // most_px)
+    return max(scale, min(-(-int(least_px) // w), max(int(most_px) // w, 1))), 1
+
+
+def _magnified(rgb: np.ndarray, k: int) -> np.ndarray:
+    return rgb if k == 1 else np.repeat(np.repeat(rgb, k, axis=0), k, axis=1)
+
+
+def _reduced_values(image: np.ndarray, r: int) -> np.ndarray:
+    """Each r x r block's largest-magnitude value (with its sign): a lone event, or one
+    hot pixel, stays drawn (a nearest-neighbour reduction drops most of them)."""
+    if r == 1:
+        return image
+    h, w = image.shape
+    pad = np.zeros((-(-h // r) * r, -(-w // r) * r), image.dtype)
+    pad[:h, :w] = image
+    blocks = pad.reshape(pad.shape[0] // r, r, pad.shape[1] // r, r).transpose(0, 2, 1, 3)
+    blocks = blocks.reshape(*blocks.shape[:2], r * r)
+    pick = np.abs(blocks).argmax(axis=-1)
+    return np.take_along_axis(blocks, pick[..., None], axis=-1)[..., 0]
+
+
+def _reduced_rgb(rgb: np.ndarray, r: int) -> np.ndarray:
+    """Each r x r block's pixel farthest from the image's median colour (its background):
+    the events, not the white around them, survive the reduction."""
+    if r == 1:
+        return rgb
+    h, w = rgb.shape[:2]
+    bg = np.median(rgb.reshape(-1, 3), axis=0).astype(np.uint8)
+    pad = np.empty((-(-h // r) * r, -(-w // r) * r, 3), np.uint8)
+    pad[...] = bg
+    pad[:h, :w] = rgb
+    blocks = pad.reshape(pad.shape[0] // r, r, pad.shape[1] // r, r, 3).transpose(0, 2, 1, 3, 4)
+    blocks = blocks.reshape(*blocks.shape[:2], r * r, 3)
+    far = np.abs(blocks.astype(np.int16) - bg.astype(np.int16)).sum(axis=-1).argmax(axis=-1)
+    return np.take_along_axis(blocks, far[..., None, None], axis=2)[:, :, 0]
+
+
+def _panel_rgb(im: np.ndarray, what: str) -> np.ndarray:
+    """An image of :func:`panel_png` as uint8 RGB, as ``imshow`` had drawn it: a 2-D
+    non-uint8 array grey from its minimum to its maximum (NaN white), 2-D uint8 grey,
+    RGBA over white."""
+    im = np.asarray(im)
+    if im.ndim == 2 and im.dtype not in (np.uint8, bool):
+        v = np.asarray(im, dtype=np.float64)
+        ok = np.isfinite(v)
+        lo, hi = (float(v[ok].min()), float(v[ok].max())) if ok.any() else (0.0, 1.0)
+        g = np.where(ok, (v - lo) / (hi - lo) if hi > lo else 0.0, 1.0)
+        return np.repeat(np.round(255 * g).astype(np.uint8)[..., None], 3, axis=-1)
+    im = _as_image(im, what)
+    if im.ndim == 2:
+        return np.repeat(im[..., None], 3, axis=-1)
+    if im.shape[-1] == 4:
+        a = im[..., 3:].astype(np.float64) / 255.0
+        return np.round(im[..., :3] * a + 255.0 * (1.0 - a)).astype(np.uint8)
+    return im
+
+
+def _place(fig, ax, left: float, top: float, width: float, height: float) -> None:
+    """Put ``ax`` at ``left``, ``top`` (px from the figure's top left), ``width`` x
+    ``height`` px."""
+    fw, fh = fig.bbox.width, fig.bbox.height
+    ax.set_position((left / fw, 1.0 - (top + height) / fh, width / fw, height / fh))
+
+
+def _overflow(axes, renderer) -> tuple[float, float, float, float]:
+    """How far past its box each of ``axes`` draws (ticks, labels, titles, colour bars):
+    the most to the left, right, top and bottom, px."""
+    out = [0.0, 0.0, 0.0, 0.0]
+    for ax in axes:
+        box = ax.get_window_extent(renderer)
+        tight = ax.get_tightbbox(renderer)
+        for i, d in enumerate((box.x0 - tight.x0, tight.x1 - box.x1, tight.y1 - box.y1,
+                               box.y0 - tight.y0)):
+            out[i] = max(out[i], d)
+    return tuple(float(np.ceil(v)) for v in out)
+
+
+def _picture_png(fig, pastes, dpi: int) -> bytes:
+    """Draw ``fig`` and write each ``(ax, rgb)`` of ``pastes`` into its axes' box, one
+    pixel inside the frame, pixel for pixel (matplotlib's own resampling of an image into
+    a box of a fractional size merged and doubled columns, probe DA); PNG bytes."""
+    from PIL import Image
+
+    fig.canvas.draw()
+    buf = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    for ax, rgb in pastes:
+        box = ax.get_window_extent()
+        col, row = int(round(box.x0)) + 1, buf.shape[0] - int(round(box.y1)) + 1
+        buf[row:row + rgb.shape[0], col:col + rgb.shape[1]] = rgb
+    out = io.BytesIO()
+    Image.fromarray(buf).save(out, format="png", dpi=(dpi, dpi))
+    return out.getvalue()
 
 
 def save_panel(path: str | os.PathLike, images: Sequence[np.ndarray],
@@ -305,8 +416,13 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
                       vmax: float | None = None) -> bytes:
     """An image of events (counts, or signed polarity sums with ``polarity``) as a PNG
     with its colour bar (events per pixel), pixel axes and ``title``: :func:`iwe_to_rgb`'s
-    colours, each pixel ``scale`` screen pixels wide; full scale at ``vmax`` (default the
-    ``percentile`` of the image: give one ``vmax`` to pictures compared side by side).
+    colours, full scale at ``vmax`` (default the ``percentile`` of the image: give one
+    ``vmax`` to pictures compared side by side).
+
+    Each sensor pixel is k x k picture pixels, k a whole number (:func:`picture_factor`:
+    at least ``scale``, 2 for 240 to 346 px, 1 from 480 px); a sensor wider than
+    :data:`MAX_PICTURE_PX` is reduced r x r pixels to one, each block drawn as its largest
+    value, so no event vanishes (the colour bar says so).
 
     Examples
     --------
@@ -315,35 +431,64 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
     """
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import LinearSegmentedColormap, Normalize
+    from matplotlib.transforms import Bbox
 
     image = np.asarray(image, dtype=np.float64)
+    if image.ndim != 2 or not min(image.shape) > 0:
+        raise ParameterError(f"image must be 2-D (H, W), got shape {image.shape}")
+    image = np.where(np.isfinite(image), image, 0.0)
     if vmax is None:
-        vmax = full_scale(np.where(np.isfinite(image), image, 0.0), percentile)
+        vmax = full_scale(image, percentile)
     vmax = vmax if vmax > 0 else 1.0
-    rgb = iwe_to_rgb(image, polarity, vmax=vmax)
+    h, w = image.shape
+    k, r = picture_factor(w, scale=scale)
+    rgb = _magnified(iwe_to_rgb(_reduced_values(image, r), polarity, vmax=vmax), k)
     if polarity:
         cmap = LinearSegmentedColormap.from_list("evmotion_polarity", ["blue", "white", "red"])
         norm, label = Normalize(-vmax, vmax), "polarity sum per pixel (+ red, - blue)"
     else:
         cmap = LinearSegmentedColormap.from_list("evmotion_counts", ["white", "black"])
         norm, label = Normalize(0.0, vmax), "events per pixel"
-    h, w = image.shape
-    width_in = max(3.0, w * max(int(scale), 1) / dpi)
+    if r > 1:
+        label += f"\n(largest of each {r} x {r} px block)"
+    # the frame round the image: a one-pixel ring, so that it covers no sensor pixel
+    bw, bh = rgb.shape[1] + 2, rgb.shape[0] + 2
+    px = dpi / 100.0
     # a title wider than a small sensor's figure was cut at both sides: wrapped to it
-    lines = wrap_title(title, width_in + 1.4, 1 / 12)
-    fig = _figure((width_in + 1.4, width_in * h / w + 0.9 + 0.16 * max(len(lines) - 1, 0)),
-                  dpi)
-    ax = fig.add_subplot(1, 1, 1)
-    ax.imshow(rgb, interpolation="nearest")
+    lines = wrap_title(title, (bw + 100 * px) / dpi, 1 / 12)
+    fig = _figure(((bw + 500 * px) / dpi, (bh + 400 * px) / dpi), dpi)
+    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+    cax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+    step = r / k  # sensor pixels per picture pixel
+    ax.set_xlim(-0.5 - step, -0.5 + (bw - 1) * step)
+    ax.set_ylim(-0.5 + (bh - 1) * step, -0.5 - step)
     ax.set_xlabel("x [px]")
     ax.set_ylabel("y [px]")
     if lines:
         ax.set_title("\n".join(lines), fontsize=9)
-    bar = fig.colorbar(ScalarMappable(norm, cmap), ax=ax, fraction=0.046, pad=0.03,
-                       extend="max" if not polarity else "both")
+    extend = "both" if polarity else "max"
+    bar = fig.colorbar(ScalarMappable(norm, cmap), cax=cax, extend=extend)
     bar.set_label(label)
-    fig.tight_layout()
-    return _figure_png(fig, dpi)
+    # the colour bar as tall as the image, its extension triangles (5 % of its length
+    # each, drawn outside its box) included
+    ends = 2 if polarity else 1
+    length = bh / (1 + 0.05 * ends)
+    gap, bar_w = 12 * px, 18 * px
+
+    def place(left, top):
+        _place(fig, ax, left, top, bw, bh)
+        _place(fig, cax, left + bw + gap, top + 0.05 * length, bar_w, length)
+
+    place(250 * px, 200 * px)
+    renderer = fig.canvas.get_renderer()
+    box = ax.get_window_extent(renderer)
+    tight = Bbox.union([ax.get_tightbbox(renderer), cax.get_tightbbox(renderer)])
+    pad = 6 * px
+    left, top = np.ceil(box.x0 - tight.x0 + pad), np.ceil(tight.y1 - box.y1 + pad)
+    right, bottom = np.ceil(tight.x1 - box.x1 + pad), np.ceil(box.y0 - tight.y0 + pad)
+    fig.set_size_inches((left + bw + right) / dpi, (top + bh + bottom) / dpi)
+    place(left, top)
+    return _picture_png(fig, [(ax, rgb)], dpi)
 
 
 #: Characters of a 10-point panel title per inch of panel width (wider lines wrap).
@@ -355,7 +500,12 @@ def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None,
               panel_inches: float | None = None, dpi: int = 100) -> bytes:
     """The PNG file :func:`save_panel` writes, as bytes: for a worker process that draws
     a picture the caller writes (a Dask worker need not see the output folder).
-    ``panel_inches`` (width of a panel) defaults to :func:`panel_width_inches`.
+
+    Each image pixel is k x k picture pixels, k a whole number (:func:`picture_factor`):
+    the least that draws the widest image ``panel_inches`` wide (default
+    :data:`MIN_PANEL_PX` px), 1 for large sensors; a row of images wider than
+    :data:`MAX_PANEL_ROW_PX` is reduced r x r pixels to one, each block drawn as its pixel
+    farthest from the image's median colour, so no event vanishes.
 
     Examples
     --------
@@ -370,32 +520,32 @@ def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None,
     n = len(images)
     ncols = n if ncols is None else max(1, min(int(ncols), n))
     nrows = -(-n // ncols)
-    aspect = max(np.asarray(im).shape[0] / max(np.asarray(im).shape[1], 1) for im in images)
-    if panel_inches is None:
-        panel_inches = panel_width_inches(max(np.asarray(im).shape[1] for im in images), dpi)
-    extra = 0
+    rgbs = [_panel_rgb(im, f"images[{i}]") for i, im in enumerate(images)]
+    wmax = max(im.shape[1] for im in rgbs)
+    least = MIN_PANEL_PX if panel_inches is None else max(1, round(panel_inches * dpi))
+    k, r = picture_factor(wmax * ncols, least_px=least * ncols, most_px=MAX_PANEL_ROW_PX)
+    shown = [_magnified(_reduced_rgb(im, r), k) for im in rgbs]
+    # the frame round each image: a one-pixel ring, so that it covers no image pixel
+    bw = max(im.shape[1] for im in shown) + 2
+    bh = max(im.shape[0] for im in shown) + 2
+    px = dpi / 100.0
     if titles is not None:
         # a title wider than its panel ran into the next one and off the picture
-        width = max(16, int(panel_inches * TITLE_CHARS_PER_INCH))
+        width = max(16, int(bw / dpi * TITLE_CHARS_PER_INCH))
         titles = ["\n".join(textwrap.fill(ln, width) or ln for ln in str(t).splitlines())
                   for t in titles]
-        extra = max(len(t.splitlines()) for t in titles) - 1
-    fig = _figure((panel_inches * ncols, panel_inches * aspect * nrows
-                   + (0.5 + 0.17 * extra) * nrows
-                   + (0.4 * len(suptitle.splitlines()) if suptitle else 0.0)), dpi)
-    for k, im in enumerate(images):
-        im = np.asarray(im)
+    step = r / k  # image pixels per picture pixel
+    fig = _figure((ncols * (bw + 300 * px) / dpi, (nrows * (bh + 300 * px) + 300 * px) / dpi),
+                  dpi)
+    axes = []
+    for i, im in enumerate(images):
+        h, w = np.asarray(im).shape[:2]
         # the sensor's first and last pixel as the only ticks: its extent and scale, framed
         # (white images on white lost their edges), without the default tick labels that
-        # matplotlib formats and measures in every layout pass (a 2x2 panel of 240x180
-        # images: 0.19 s with them, 0.16 s without)
-        h, w = im.shape[:2]
-        ax = fig.add_subplot(nrows, ncols, k + 1, xticks=[0, w - 1], yticks=[0, h - 1])
-        if im.ndim == 2 and im.dtype != np.uint8:
-            ax.imshow(im, cmap="gray", interpolation="nearest")
-        else:
-            ax.imshow(_as_image(im, f"images[{k}]"), cmap="gray" if im.ndim == 2 else None,
-                      vmin=0, vmax=255, interpolation="nearest")
+        # matplotlib formats and measures in every layout pass
+        ax = fig.add_axes((0.0, 0.0, 1.0, 1.0), xticks=[0, w - 1], yticks=[0, h - 1])
+        ax.set_xlim(-0.5 - step, -0.5 + (shown[i].shape[1] + 1) * step)
+        ax.set_ylim(-0.5 + (shown[i].shape[0] + 1) * step, -0.5 - step)
         ax.tick_params(labelsize=7, length=2, pad=1)
         # (the ticks' numbers had no unit, probe BX)
         ax.set_xlabel("x [px]", fontsize=7, labelpad=-6)
@@ -404,11 +554,38 @@ def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None,
             spine.set_color("0.6")
             spine.set_linewidth(0.6)
         if titles is not None:
-            ax.set_title(str(titles[k]), fontsize=10)
+            ax.set_title(str(titles[i]), fontsize=10)
+        axes.append(ax)
+    sup = None
     if suptitle:
-        fig.suptitle(suptitle, fontsize=10 if "\n" in suptitle else None)
-    fig.tight_layout()
-    return _figure_png(fig, dpi)
+        sup = fig.text(0.5, 1.0, suptitle, ha="center", va="top",
+                       fontsize=10 if "\n" in suptitle else 12)
+
+    def place(left, top, cell_w, cell_h):
+        for i, ax in enumerate(axes):
+            row, col = divmod(i, ncols)
+            ih, iw = shown[i].shape[:2]
+            # a smaller image centred in its cell
+            _place(fig, ax, left + col * cell_w + (bw - 2 - iw) // 2,
+                   top + row * cell_h + (bh - 2 - ih) // 2, iw + 2, ih + 2)
+
+    place(150 * px, 300 * px, bw + 300 * px, bh + 300 * px)
+    renderer = fig.canvas.get_renderer()
+    over_l, over_r, over_t, over_b = _overflow(axes, renderer)
+    pad = 6 * px
+    cell_w, cell_h = over_l + bw + over_r + pad, over_t + bh + over_b + pad
+    sup_w = sup_h = 0.0
+    if sup is not None:
+        extent = sup.get_window_extent(renderer)
+        sup_w, sup_h = np.ceil(extent.width), np.ceil(extent.height) + pad
+    width = max(ncols * cell_w + pad, sup_w + 2 * pad)
+    height = pad + sup_h + nrows * cell_h
+    fig.set_size_inches(width / dpi, height / dpi)
+    left = (width - ncols * cell_w + pad) / 2 + over_l
+    place(np.floor(left), pad + sup_h + over_t, cell_w, cell_h)
+    if sup is not None:
+        sup.set_position((0.5, 1.0 - pad / fig.bbox.height))
+    return _picture_png(fig, list(zip(axes, shown, strict=True)), dpi)
 
 
 def save_flow_summary(path: str | os.PathLike, events: EventArray, flow_px_per_s: np.ndarray,
