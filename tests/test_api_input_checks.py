@@ -446,3 +446,24 @@ def test_a_triplet_run_without_any_flow_says_why(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "got a flow: a triplet needs steps of 1.41 px at least tau = 3 ms apart" in err
     assert "faster than 471 px/s finds none (a shorter --tau-ms)" in err
+
+
+def test_times_in_seconds_and_ground_truth_far_off_are_refused():
+    # slice_time(0.001, 0.01) gave no event, gt.params(0.025) the motion at 0 µs and
+    # gt.params(1e10) an extrapolated zoom, each without a word (probe DB)
+    from evmotion.sim import simulate
+
+    sim = simulate("zoom", duration_s=0.03, sensor_size=(30, 40), seed=0,
+                   show_progress=False)
+    with pytest.raises(ParameterError, match=r"t0 = 0.001 µs: times are in microseconds "
+                                             r"\(seconds\? 0.001 s is 1000 µs\)"):
+        sim.events.slice_time(0.001, 0.01)
+    assert len(sim.events.slice_time(0, 1000)) == np.count_nonzero(sim.events.t < 1000)
+    with pytest.raises(ParameterError, match="t_us = 0.025 µs: times are in microseconds"):
+        sim.gt.params(0.025)
+    with pytest.raises(ParameterError, match="lies outside the simulated 0..30000 µs"):
+        sim.gt.params(1e10)
+    with pytest.raises(ParameterError, match="t1_us = 5e"):
+        sim.gt.displacement(0, 5e6)
+    assert sim.gt.params(25_000)["hz"] > sim.gt.params(0)["hz"]
+    sim.gt.displacement(0, 1e6)  # a second past the end: the models' own span

@@ -20,7 +20,7 @@ import numpy as np
 
 from evmotion.catalog import MAX_SENSOR_SIDE, NS_EPOCH_US
 from evmotion.errors import EmptyWindowError, EventDataError, ParameterError, UnsortedError
-from evmotion.utils import check_number, whole_number
+from evmotion.utils import check_not_seconds, check_number, whole_number
 
 __all__ = [
     "SORT_HINT",
@@ -348,6 +348,8 @@ class EventArray:
                                       and np.isfinite(v)):
                 raise ParameterError(f"slice_time: {name} must be a finite time in "
                                      f"microseconds or None, got {v!r}")
+            if v is not None:
+                check_not_seconds(f"slice_time: {name}", v)
         i0 = 0 if t0 is None else int(self.index_at(t0))
         i1 = len(self) if t1 is None else int(self.index_at(t1))
         return self._take(slice(i0, max(i0, i1)))

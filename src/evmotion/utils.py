@@ -545,6 +545,25 @@ def check_switches(**switches) -> None:
             raise ParameterError(f"{name} must be True or False, got {value!r}")
 
 
+def check_not_seconds(name: str, value) -> None:
+    """:class:`ParameterError` for a time in µs strictly between -1 and 1 but not 0: no
+    clock ticks in fractions of a microsecond, and such a value is a time in seconds
+    (``slice_time(0.001, 0.01)`` gave no event and ``gt.params(0.025)`` the motion at
+    0 µs, without a word, probe DB).
+
+    Examples
+    --------
+    >>> check_not_seconds("t0", 2500)
+    >>> check_not_seconds("t0", 0.0025)
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: t0 = 0.0025 µs: times are in microseconds (seconds? 0.0025 s is 2500 µs)
+    """
+    v = float(value)
+    if 0.0 < abs(v) < 1.0:
+        raise ParameterError(f"{name} = {value:g} µs: times are in microseconds (seconds? "
+                             f"{value:g} s is {v * 1e6:.6g} µs)")
+
+
 def whole_number(name: str, value, lo: int | None = None, hi: int | None = None) -> int:
     """``value`` as an int, or :class:`ParameterError` naming ``name`` unless it is a whole
     number (an int, or a float such as ``1e5`` without a fraction) within ``[lo, hi]``.

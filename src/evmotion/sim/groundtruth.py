@@ -9,7 +9,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.sim.motions import Motion, apply_generator
 from evmotion.sim.render import sample_wrap_numpy
-from evmotion.utils import whole_number
+from evmotion.utils import check_not_seconds, whole_number
 
 __all__ = ["GroundTruth", "Layer"]
 
@@ -81,14 +81,24 @@ class GroundTruth:
         ys, xs = np.mgrid[0:h, 0:w]
         return xs.astype(np.float64), ys.astype(np.float64)
 
-    @staticmethod
-    def _t(t_us, name="t_us") -> float:
+    def _t(self, t_us, name="t_us") -> float:
         try:
             t = np.asarray(t_us, dtype=np.float64)
         except (TypeError, ValueError):  # ("a" failed in numpy's float conversion, probe CB)
             t = np.asarray(np.nan)
         if t.ndim != 0 or not np.isfinite(t):
             raise ParameterError(f"{name} must be a finite time in microseconds, got {t_us!r}")
+        check_not_seconds(name, float(t))
+        # the motion models run on past the simulation, where they are the truth of
+        # nothing (gt.params(1e10) of a 0.03 s zoom gave hz -0.0001 without a word, probe
+        # DB); the larger of its duration and 1 s either side keeps a window's end past the
+        # last event and the models' own checks (a zoom's transport over 0.25 s)
+        d = int(self.duration_us)
+        margin = max(d, 1_000_000)
+        if not -margin <= float(t) <= d + margin:
+            raise ParameterError(f"{name} = {float(t):.6g} µs lies outside the simulated "
+                                 f"0..{d} µs by more than {margin} µs: no ground truth "
+                                 "there")
         return float(t) * 1e-6
 
     def visible_layer(self, t_us) -> np.ndarray:
