@@ -467,3 +467,29 @@ def test_times_in_seconds_and_ground_truth_far_off_are_refused():
         sim.gt.displacement(0, 5e6)
     assert sim.gt.params(25_000)["hz"] > sim.gt.params(0)["hz"]
     sim.gt.displacement(0, 1e6)  # a second past the end: the models' own span
+
+
+def test_odd_reference_times_counts_and_cameras_get_one_line():
+    # estimate_egomotion(t_ref=nan) raised numpy's ValueError (inf: OverflowError, [1000]:
+    # TypeError), a Camera as K failed in float(), segment_motion(n_warps=2.0) in range()
+    # and a (3, 2) init for 2 clusters in reshape (probe DB)
+    from evmotion.camera import Camera
+    from evmotion.sim import simulate
+
+    ev = simulate("rotation", duration_s=0.03, sensor_size=(60, 80), seed=0,
+                  show_progress=False).events
+    for t in (float("nan"), float("inf"), [1000]):
+        with pytest.raises(ParameterError, match="t_ref must be a whole number"):
+            estimate_egomotion(ev, warp="translation", t_ref=t)
+    cam = Camera(60.0, 60.0, 39.5, 29.5)
+    np.testing.assert_array_equal(estimate_egomotion(ev, warp="rotation", K=cam).params,
+                                  estimate_egomotion(ev, warp="rotation", K=cam.K).params)
+    seg = segment_motion(ev, 2.0, warp="translation", n_iter=1)
+    assert seg.params.shape == (2, 2)
+    with pytest.raises(ParameterError, match=r"n_warps must be a whole number >= 1, got 2.5"):
+        segment_motion(ev, 2.5, warp="translation")
+    with pytest.raises(ParameterError, match=r"init must hold 2 x 2 finite translation "
+                                             r"parameters .* got shape \(3, 2\)"):
+        segment_motion(ev, 2, warp="translation", init=np.zeros((3, 2)))
+    with pytest.raises(ParameterError, match="tol must be finite"):
+        segment_motion(ev, 2, warp="translation", tol=float("nan"))

@@ -587,6 +587,14 @@ def make_cost(events: EventArray, warp: str | Warp = "rotation", objective: str 
     if isinstance(warp, str):
         if warp not in WARPS:
             raise ParameterError(f"unknown warp '{warp}'; choose one of {sorted(WARPS)}")
+        if hasattr(K, "K") and hasattr(K, "is_distorted"):
+            # a Camera (what read_camera gives) failed in float(): TypeError (probe DB)
+            if K.is_distorted and not events.meta.get("undistorted"):
+                warnings.warn(EvmotionWarning(
+                    f"K is a Camera with lens distortion {list(K.dist)} and the events are "
+                    "not undistorted: the warp takes them as a pinhole's (undistort them "
+                    "first: camera.undistort_events(events))"), stacklevel=3)
+            K = K.K
         if warp == "rotation" and K is None:
             K = events.meta.get("K")
             cal = events.meta.get("calibration")

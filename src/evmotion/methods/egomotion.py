@@ -368,8 +368,15 @@ def reference_time(t_ref: str | int | None, regularizer: str | None,
     """
     if t_ref is None:
         return "start" if regularizer else "mid"
-    at_start = (t_ref == "start" if isinstance(t_ref, str)
-                else t_first is not None and int(t_ref) == int(t_first))
+    if isinstance(t_ref, str):
+        at_start = t_ref == "start"
+    else:
+        # (NaN, inf or a list failed here in int(): ValueError, OverflowError, TypeError;
+        # the window's check refuses them in a line, probe DB)
+        try:
+            at_start = t_first is not None and int(t_ref) == int(t_first)
+        except (TypeError, ValueError, OverflowError):
+            at_start = False
     if regularizer and not at_start:
         warnings.warn(EvmotionWarning(
             f"t_ref={t_ref!r} with the {regularizer} regularizer: the collapse penalties are "
@@ -411,7 +418,7 @@ def estimate_egomotion(events: EventArray, warp: str | Warp = "rotation",
         named ``dataset``. For ``"divergence+deformation"``: ``{"divergence": ...,
         "deformation": ...}`` or one float for both.
     optimizer : {"bfgs", "newton-cg", "adam", "tpe"}
-    K : array (3, 3), optional
+    K : array (3, 3) or Camera, optional
         Intrinsics (pixels), required by ``rotation`` unless ``events.meta`` holds them
         (``"K"``, or the ``"calibration"`` a reader took from the recording).
     t_ref : {"start", "mid", "end"} or int, optional

@@ -43,6 +43,7 @@ from evmotion.errors import CollapseWarning, ParameterError, PoorFitWarning
 from evmotion.events import EventArray, require_events
 from evmotion.methods.cmax import make_cost, param_scales
 from evmotion.methods.diagnostics import collapse_diagnostics
+from evmotion.utils import check_number, whole_number
 
 __all__ = ["SegmentationResult", "segment_motion"]
 
@@ -162,7 +163,7 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
         Warp of every cluster (see :data:`evmotion.core.warps.WARPS`).
     objective : str
         Focus objective (``variance`` or ``gradient_magnitude``).
-    K : array (3, 3), optional
+    K : array (3, 3) or Camera, optional
         Intrinsics (rotation warp).
     t_ref : {"start", "mid", "end"} or int
         Reference time (int: absolute µs, within the window's span or 1 s of its events,
@@ -213,8 +214,8 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
     """
     require_events(events, "segment_motion")
     t_start = time.perf_counter()
-    if n_warps < 1:
-        raise ParameterError(f"n_warps must be >= 1, got {n_warps}")
+    # (2.0 failed in range(): TypeError, probe DB)
+    n_warps = whole_number("n_warps", n_warps, lo=1)
     if not (isinstance(n_iter, (int, np.integer)) and n_iter >= 1):
         raise ParameterError(f"n_iter must be an integer >= 1, got {n_iter!r}")
     if objective not in ("variance", "gradient_magnitude"):
@@ -231,9 +232,19 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
         raise ParameterError(f"{n} events are too few for {n_warps} clusters")
     if split not in SPLITS:
         raise ParameterError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
+    # (tol=nan was taken: no change is below NaN, so every run went to n_iter, probe DB)
+    check_number("tol", tol)
+    check_number("sigma", sigma, lo_open=True, units="px")
     scale = param_scales(w)
-    params0 = (np.zeros((n_warps, w.n_params)) if init is None
-               else np.array(init, dtype=np.float64).reshape(n_warps, w.n_params))
+    params0 = np.zeros((n_warps, w.n_params))
+    if init is not None:
+        given = np.array(init, dtype=np.float64)
+        # (a (3, 2) init for 2 clusters failed in numpy's reshape, probe DB)
+        if given.size != params0.size or not np.isfinite(given).all():
+            raise ParameterError(f"init must hold {n_warps} x {w.n_params} finite "
+                                 f"{w.name} parameters (one row per cluster), got shape "
+                                 f"{given.shape}")
+        params0 = given.reshape(params0.shape)
     tried = ("dominant", "spatial") if split == "best" and n_warps > 1 else (split,)
     runs = [_em(cost, _first_memberships(cost, s, n_warps, scale, sigma, seed),
                 params0.copy(), n_iter, tol, sigma, scale) for s in tried]
