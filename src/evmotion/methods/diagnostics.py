@@ -60,6 +60,7 @@ __all__ = [
     "effective_pixels",
     "event_support",
     "fit_diagnostics",
+    "image_variance",
     "warn_collapse",
     "warn_poor_fit",
 ]
@@ -115,15 +116,44 @@ def effective_pixels(x, y, shape) -> float:
     xi = np.rint(np.asarray(x, dtype=np.float64)).astype(np.int64)
     yi = np.rint(np.asarray(y, dtype=np.float64)).astype(np.int64)
     ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-    counts = np.bincount(yi[ok] * w + xi[ok], minlength=h * w).astype(np.float64)
+    idx = yi[ok] * w + xi[ok]
+    # the counts of the pixels the events touch: an image of the whole sensor where it is
+    # far larger than the events (a megapixel sensor) costs more than sorting them
+    counts = (np.bincount(idx, minlength=h * w) if h * w <= 4 * max(idx.size, 1)
+              else np.unique(idx, return_counts=True)[1]).astype(np.float64)
     ss = float(np.dot(counts, counts))
     n = float(counts.sum())
     return n * n / ss if ss > 0 else 0.0
 
 
+def image_variance(img: np.ndarray) -> float:
+    """``np.var(img)`` from the image's non-zero pixels (equal within round-off): the
+    variance of an image of a few thousand events on a large sensor without a pass of
+    arithmetic over its empty pixels (0.5 s for two 4096x4096 images, probe DB).
+
+    Examples
+    --------
+    >>> img = np.zeros((40, 60)); img[3, 4], img[10, 20] = 2.0, -1.0
+    >>> bool(np.isclose(image_variance(img), np.var(img)))
+    True
+    """
+    a = np.asarray(img, dtype=np.float64).ravel()
+    n = a.size
+    if n == 0:
+        return float("nan")
+    nz = a[a != 0.0]
+    mean = nz.sum() / n
+    # the empty pixels each lie ``mean`` below it (np.var's two passes, the zeros summed
+    # in closed form)
+    return float((np.sum((nz - mean) ** 2) + (n - nz.size) * mean * mean) / n)
+
+
 def _top_share(iwe: np.ndarray, k: int) -> float:
     """Share of the (non-negative part of the) image's mass in its top ``k`` pixels."""
-    a = np.clip(np.asarray(iwe, dtype=np.float64).ravel(), 0.0, None)
+    a = np.asarray(iwe, dtype=np.float64).ravel()
+    # only the positive pixels hold mass (the rest add zeros to the top k): partitioning
+    # the whole sensor's image took 3.5 s for 21k events on 4096x4096 (probe DB)
+    a = a[a > 0.0]
     total = a.sum()
     if total <= 0:
         return 0.0

@@ -82,6 +82,7 @@ from evmotion.methods.diagnostics import (
     POOR_FIT_SHARE,
     collapse_diagnostics,
     fit_diagnostics,
+    image_variance,
     unchecked_fit,
     warn_collapse,
     warn_no_gain,
@@ -590,8 +591,9 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
         msgs.append(warn_poor_fit(fit, w.name, stacklevel=4))
         moved = _moved_px(cost, xw, yw)
         chance = _chance_gain(cost, xw, yw)
-    v0 = float(np.var(iwe_before))
-    gain = float(np.var(iwe_after)) / v0 if v0 > 0 else float("nan")
+    # (from the images' non-zero pixels: np.var passed over the whole sensor, probe DB)
+    v0 = image_variance(iwe_before)
+    gain = image_variance(iwe_after) / v0 if v0 > 0 else float("nan")
     too_few = warn_too_few(int(cost.x.shape[0]), f"{w.name} motion", stacklevel=4)
     msgs.append(too_few)
     t_us = np.sort(cost.dt) * 1e6
