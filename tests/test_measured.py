@@ -216,3 +216,38 @@ def test_a_translating_checkerboard_is_motion_not_flicker():
     assert max(swung) > MAX_POLARITY_SWING  # what the sensor-wide test alone flagged
     flicker = moving(flicker_share=0.8)
     assert local_swing(flicker) > 2 * MIN_LOCAL_SWING and lit_not_moved(flicker) is not None
+
+
+@pytest.mark.parametrize("shape", [(8, 8), (720, 1280)])
+def test_the_chance_tests_scatter_is_measured_and_its_gain_unchanged(shape):
+    """Probe DB: one shuffle of the times scattered the ratio to 1.31 with nothing moving
+    on an 8x8 sensor. ``alignment_chance`` also says how far the alignment lies beyond the
+    scatter of 16 shuffles; its gain is the single shuffle's as before (dense image or
+    occupied pixels alike)."""
+    from evmotion.methods.measured import MIN_CHANCE_Z, alignment_chance, alignment_gain
+
+    rng = np.random.default_rng(1)
+    n = 3000
+    h, w = shape
+    t = np.sort(rng.integers(0, 30_000, n))
+    x, y = rng.integers(0, w, n).astype(float), rng.integers(0, h, n).astype(float)
+    f = np.tile([120.0, -60.0], (n, 1))
+    dt = (t - 15_000) * 1e-6
+
+    def variance(times):  # the chance test's image variance as it was computed before
+        xw, yw = np.rint(x - f[:, 0] * times), np.rint(y - f[:, 1] * times)
+        keep = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
+        counts = np.unique(yw[keep] * w + xw[keep], return_counts=True)[1].astype(float)
+        return np.sum(counts**2) / (h * w) - (np.sum(counts) / (h * w)) ** 2
+
+    before = variance(dt) / variance(np.random.default_rng(0).permutation(dt))
+    gain, z = alignment_chance(x, y, t, f, 15_000, shape)
+    assert gain == pytest.approx(before, rel=1e-12)
+    assert alignment_gain(x, y, t, f, 15_000, shape) == gain
+    assert abs(z) < MIN_CHANCE_Z  # noise under a motion of its own: within the scatter
+    # 20 dots moving with that motion: far beyond it
+    dots = rng.uniform(0, [w, h], (20, 2))[rng.integers(0, 20, n)]
+    x, y = np.rint(dots[:, 0] + f[:, 0] * dt), np.rint(dots[:, 1] + f[:, 1] * dt)
+    keep = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    _, z = alignment_chance(x[keep], y[keep], t[keep], f[keep], 15_000, shape)
+    assert z > 4 * MIN_CHANCE_Z

@@ -212,3 +212,60 @@ def test_invalid_clusters_of_many_windows_are_said_in_a_few_lines():
     assert len(lines) == WARN_WINDOWS + 1
     assert f"and {9 - WARN_CLUSTERS} more: not a measurement" in lines[0]
     assert lines[-1].startswith("7 more windows (windows 3..9) hold clusters")
+
+
+def small_sensor_noise(seed: int, side: int, n: int = 3000) -> EventArray:
+    """``n`` events of uniform noise over 30 ms on a ``side`` x ``side`` sensor."""
+    rng = np.random.default_rng(seed)
+    return EventArray(rng.integers(0, side, n), rng.integers(0, side, n),
+                      np.sort(rng.integers(0, 30_000, n)), rng.integers(0, 2, n),
+                      (side, side))
+
+
+def small_sensor_two_motions(seed: int, side: int, n: int = 3000) -> EventArray:
+    """Two groups of 12 dots, the left half's moving right at 150 px/s and the right
+    half's left, on a ``side`` x ``side`` sensor for 30 ms."""
+    rng = np.random.default_rng(seed)
+    dots = np.concatenate([rng.uniform([2, 2], [side / 2 - 2, side - 2], (12, 2)),
+                           rng.uniform([side / 2 + 2, 2], [side - 2, side - 2], (12, 2))])
+    k = rng.integers(0, 24, n)
+    t = np.sort(rng.integers(0, 30_000, n))
+    x = dots[k, 0] + np.where(k < 12, 150.0, -150.0) * t * 1e-6
+    return EventArray(np.round(x), np.round(dots[k, 1]), t, np.ones(n, int), (side, side),
+                      validate=False)
+
+
+@pytest.mark.parametrize("side", [8, 16, 32])
+def test_clusters_fitted_to_noise_on_a_small_sensor_are_not_measurements(side):
+    """Probe DB: on uniform noise of a small sensor the EM sharpened its clusters by
+    1.2-8x (many events a pixel, memberships chosen to line up), valid with made-up
+    motions of 100-500 px/s in 12 of 12 windows on 8x8 and 16x16, 7 of 8 on 32x32. A
+    cluster's warp must align all the window's events beyond the scatter of the same
+    motions with their times shuffled."""
+    import warnings
+
+    ev = small_sensor_noise(0, side)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        seg = segment_motion(ev, n_warps=2, warp="translation", seed=0)
+    assert not seg.valid.any()
+    from evmotion.methods.measured import MIN_CHANCE_Z
+
+    tested = np.isfinite(seg.chance_z)
+    assert tested.any() and (seg.chance_z[tested] < MIN_CHANCE_Z).all()
+    assert any("times shuffled" in str(w.message) for w in said
+               if issubclass(w.category, PoorFitWarning))
+
+
+@pytest.mark.parametrize("side", [16, 32])
+def test_two_motions_on_a_small_sensor_stay_measurements(side):
+    import warnings
+
+    from evmotion.methods.measured import MIN_CHANCE_Z
+
+    ev = small_sensor_two_motions(0, side, n=2000 if side == 16 else 3000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PoorFitWarning)
+        seg = segment_motion(ev, n_warps=2, warp="translation", seed=0)
+    assert seg.valid.all() and (seg.chance_z > 4 * MIN_CHANCE_Z).all()
+    np.testing.assert_allclose(np.sort(seg.params[:, 0]), [-150, 150], atol=20)

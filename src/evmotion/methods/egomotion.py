@@ -92,11 +92,11 @@ from evmotion.methods.diagnostics import (
 from evmotion.methods.measured import (
     MAX_GAP_SHARE,
     MIN_MOTION_PX,
-    alignment_gain,
     gap_share,
     warn_by_chance,
     warn_gap,
     warn_small_motion,
+    warp_alignment_chance,
 )
 from evmotion.methods.options import merge_options
 
@@ -627,15 +627,7 @@ def _chance_gain(cost: CMaxCost, xw, yw) -> float:
     windows of 10k events, about a pixel of motion: twice the IMU rate, valid) sharpens
     them as well with the times shuffled. The per-event motion is the warp's displacement
     to ``t_ref`` over the event's time offset (events at ``t_ref`` itself: none)."""
-    dt = np.asarray(cost.dt, np.float64)
-    moving = np.abs(dt) > 1e-9
-    f = np.zeros((dt.size, 2))
-    f[moving, 0] = (cost.x[moving] - xw[moving]) / dt[moving]
-    f[moving, 1] = (cost.y[moving] - yw[moving]) / dt[moving]
-    if not np.isfinite(f).all():
-        return float("nan")
-    return alignment_gain(np.asarray(cost.x, np.float64), np.asarray(cost.y, np.float64),
-                          dt * 1e6, f, 0, cost.shape)
+    return warp_alignment_chance(cost.x, cost.y, cost.dt, xw, yw, cost.shape, draws=1)[0]
 
 
 def _moved_px(cost: CMaxCost, xw, yw) -> float:

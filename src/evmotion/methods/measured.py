@@ -11,13 +11,15 @@ import numpy as np
 from evmotion.errors import ParameterError, PoorFitWarning
 from evmotion.events import EventArray
 
-__all__ = ["MAX_ONE_POLARITY", "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CONTRAST_GAIN",
+__all__ = ["CHANCE_DRAWS", "MAX_ONE_POLARITY", "MAX_POLARITY_SWING", "MIN_BURST_CV",
+           "MIN_CHANCE_Z", "MIN_CONTRAST_GAIN",
            "MIN_FIT_EVENTS", "MIN_FLOW_DENSITY", "MIN_FLOW_EVENTS", "MIN_HALVES_CORRELATION",
            "MIN_MOTION_PX", "MAX_GAP_SHARE",
-           "alignment_gain", "flow_alignment_gain", "gap_share", "halves_consistency",
+           "alignment_chance", "alignment_gain", "flow_alignment_chance",
+           "flow_alignment_gain", "gap_share", "halves_consistency",
            "lit_not_moved", "local_swing", "polarity_bursts", "warn_by_chance",
            "warn_by_refit", "warn_flicker", "warn_gap", "warn_inconsistent_halves", "warn_no_gain",
-           "min_flow_events", "warn_small_motion", "warn_too_few", "warn_too_few_for_flow"]
+           "warp_alignment_chance", "min_flow_events", "warn_small_motion", "warn_too_few", "warn_too_few_for_flow"]
 
 # an estimate whose image of warped events is not this much sharper (variance ratio) than
 # the identity warp's measures nothing (a 3.3 ms ECD window: 1.002, its rotation wrong)
@@ -25,6 +27,20 @@ MIN_CONTRAST_GAIN = 1.05
 #: Fewest events a window needs for its contrast to measure a motion: 20-30 events of a
 #: 2 rad/s rotation sharpened by 6-10 % at random parameters (2026-11-29).
 MIN_FIT_EVENTS = 100
+#: Permutations of the events' times :func:`alignment_chance` draws for the spread of
+#: what chance gives: 16 estimate its standard deviation within about 20 %, at 6-14 ms for
+#: 3k-30k events (1-6 % of a multicm call, 1-4 % of a segmentation's; probe DB).
+CHANCE_DRAWS = 16
+#: Least distance (standard deviations of the permuted images' variances above their
+#: mean) at which an alignment beats chance (:func:`warn_by_chance`'s ``z``). One more
+#: draw of the null lies this far above it with a chance of about 1e-4 for a normal
+#: spread, 1e-3 for the t spread of 16 draws. An estimate fitted to noise lies somewhat
+#: above its own null, for it chose the motion that sharpened these very events (probe
+#: DB, uniform noise, 12-40 seeds a size: multicm's flows up to 3.6 on 4x4 to 48x48, mean
+#: 0-1.3; 5.8 and 6.2 on 64x64, whose many tiles' noise the ratio, halves and refit tests
+#: flag; segmentation clusters' warps up to 4.5 on 8x8 to 40x40). Motions on the same
+#: sensors (moving edges and dots, two motions on 16x16 and 32x32) lie at 17 and beyond.
+MIN_CHANCE_Z = 5.0
 
 
 def warn_no_gain(gain: float, warp: str, stacklevel: int = 3,
@@ -179,14 +195,21 @@ def flow_alignment_gain(events: EventArray, flow: np.ndarray, t_ref_us: int) -> 
     >>> bool(flow_alignment_gain(ev, flow, 0) > 2)
     True
     """
+    return flow_alignment_chance(events, flow, t_ref_us, draws=1)[0]
+
+
+def flow_alignment_chance(events: EventArray, flow: np.ndarray, t_ref_us: int,
+                          draws: int = CHANCE_DRAWS) -> tuple[float, float]:
+    """:func:`flow_alignment_gain` and how far the flow's alignment lies above chance's
+    scatter, ``(gain, z)`` (:func:`alignment_chance`); NaN where undefined."""
     x, y, f = _flow_at_events(events, flow)
     known = np.isfinite(f).all(axis=1)
     if not known.any():
-        return float("nan")
+        return float("nan"), float("nan")
     t = np.asarray(events.t)
     if not known.all():
         x, y, t, f = x[known], y[known], t[known], f[known]
-    return alignment_gain(x, y, t, f, t_ref_us, events.sensor_size)
+    return alignment_chance(x, y, t, f, t_ref_us, events.sensor_size, draws=draws)
 
 
 def _flow_at_events(events: EventArray, flow) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -205,22 +228,90 @@ def alignment_gain(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
                    t_ref_us: int, shape: tuple[int, int]) -> float:
     """:func:`flow_alignment_gain` of events at integer pixels ``x, y``, times ``t`` (µs)
     with flows ``f`` (N, 2) px/s, on a sensor of ``shape`` (H, W)."""
+    return alignment_chance(x, y, t, f, t_ref_us, shape, draws=1)[0]
+
+
+def alignment_chance(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
+                     t_ref_us: int, shape: tuple[int, int],
+                     draws: int = CHANCE_DRAWS) -> tuple[float, float]:
+    """How much better flows ``f`` (N, 2) px/s align events at integer pixels ``x, y``,
+    times ``t`` (µs), sensor ``shape`` (H, W), than chance: ``(gain, z)``.
+
+    ``gain`` is :func:`alignment_gain`: the variance of the events' image warped to
+    ``t_ref_us`` over that of the same warp with their times permuted (the first of
+    ``draws`` seeded permutations). ``z`` is how many standard deviations of the
+    ``draws`` permuted images' variances the warped image's lies above their mean (NaN for
+    fewer than two draws): a ratio alone does not say how far chance itself scatters,
+    and that is wide where the image has few pixels (uniform noise of 3,000 events on 8x8
+    scattered the ratio to 1.31 with nothing moving; probe DB), narrow on a large one.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> t = np.sort(rng.integers(0, 30_000, 3000))
+    >>> x, y = rng.integers(0, 8, 3000), rng.integers(0, 8, 3000)
+    >>> f = np.tile([100.0, -50.0], (3000, 1))
+    >>> gain, z = alignment_chance(x, y, t, f, 0, (8, 8))
+    >>> bool(abs(z) < MIN_CHANCE_Z)
+    True
+    """
     h, w = shape
     dt = (t - np.int64(t_ref_us)).astype(np.float64) * 1e-6
     f = np.asarray(f, np.float64)
+    n_px = float(h * w)
+    # a dense image where it is no larger than the events (bincount: linear time), else
+    # the counts of the occupied pixels (a window of a few thousand events on a megapixel
+    # sensor: no image of a million bins for each draw)
+    dense = h * w <= 4 * max(x.size, 1)
 
     def variance(times):
         xw = np.rint(x - f[:, 0] * times).astype(np.intp)
         yw = np.rint(y - f[:, 1] * times).astype(np.intp)
         keep = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-        # the image's variance from the counts of its occupied pixels (a window of a few
-        # thousand events on a megapixel sensor: no image of a million bins twice)
-        counts = np.unique(yw[keep] * w + xw[keep], return_counts=True)[1].astype(np.float64)
-        n_px = float(h * w)
+        idx = yw[keep] * w + xw[keep]
+        counts = (np.bincount(idx, minlength=h * w) if dense
+                  else np.unique(idx, return_counts=True)[1]).astype(np.float64)
         return float(np.sum(counts**2) / n_px - (np.sum(counts) / n_px) ** 2)
 
-    null = variance(np.random.default_rng(0).permutation(dt))
-    return variance(dt) / null if null > 0 else float("nan")
+    rng = np.random.default_rng(0)
+    null = np.array([variance(rng.permutation(dt)) for _ in range(max(int(draws), 1))])
+    v = variance(dt)
+    gain = v / null[0] if null[0] > 0 else float("nan")
+    if null.size < 2:
+        return gain, float("nan")
+    spread = float(np.std(null, ddof=1))
+    above = v - float(np.mean(null))
+    if not spread > 0:  # every permutation gave one image: a flow that moves nothing
+        return gain, float(np.sign(above)) * float("inf") if above != 0 else 0.0
+    return gain, above / spread
+
+
+def warp_alignment_chance(x: np.ndarray, y: np.ndarray, dt: np.ndarray, xw: np.ndarray,
+                          yw: np.ndarray, shape: tuple[int, int],
+                          draws: int = CHANCE_DRAWS) -> tuple[float, float]:
+    """:func:`alignment_chance` of a warp that moves the events at ``x, y`` (px), ``dt``
+    seconds from its reference time, to ``xw, yw`` there: each event's motion is its
+    displacement over its time offset (events at the reference time itself: none), the
+    reference is time 0. ``(NaN, NaN)`` where a motion is not finite.
+
+    Examples
+    --------
+    >>> dt = np.linspace(0.0, 0.03, 3000)
+    >>> x = np.tile(np.arange(10.0, 50.0, 4.0), 300) + 200.0 * dt
+    >>> y = np.repeat(np.arange(300.0), 10) % 40
+    >>> gain, z = warp_alignment_chance(x, y, dt, x - 200.0 * dt, y, (40, 60))
+    >>> bool(gain > 2 and z > MIN_CHANCE_Z)
+    True
+    """
+    dt = np.asarray(dt, np.float64)
+    moving = np.abs(dt) > 1e-9
+    f = np.zeros((dt.size, 2))
+    f[moving, 0] = (x[moving] - xw[moving]) / dt[moving]
+    f[moving, 1] = (y[moving] - yw[moving]) / dt[moving]
+    if not np.isfinite(f).all():
+        return float("nan"), float("nan")
+    return alignment_chance(np.asarray(x, np.float64), np.asarray(y, np.float64), dt * 1e6,
+                            f, 0, shape, draws=draws)
 
 
 #: A tile whose events a translation of their own sharpens this much more than the flow
@@ -288,18 +379,29 @@ def warn_by_refit(gain: float, what: str, stacklevel: int = 3) -> str | None:
     return msg
 
 
-def warn_by_chance(gain: float, what: str, stacklevel: int = 3) -> str | None:
+def warn_by_chance(gain: float, what: str, stacklevel: int = 3,
+                   z: float = float("nan")) -> str | None:
     """Issue a :class:`~evmotion.errors.PoorFitWarning` when a dense flow aligns the
     window's events less than :data:`MIN_CONTRAST_GAIN` better than chance
-    (:func:`flow_alignment_gain`); returns its message (else None)."""
-    if not gain < MIN_CONTRAST_GAIN:  # NaN: nothing to test
-        return None
+    (:func:`flow_alignment_gain`), or, given its ``z`` (:func:`alignment_chance`), less
+    than :data:`MIN_CHANCE_Z` standard deviations of chance's scatter above it; returns
+    its message (else None)."""
     causes = ("noise, no texture, a motion of a pixel or so, or one the window cannot hold "
               "(too long, too fast, not constant)")
-    warnings.warn(msg := f"no focus: the {what} aligns the events only {100 * (gain - 1):+.1f} "
-                  f"% better than with their times shuffled (threshold "
-                  f"{100 * (MIN_CONTRAST_GAIN - 1):.0f} %) -- {causes}; the estimate is not a "
-                  "measurement", PoorFitWarning, stacklevel=stacklevel)
+    if gain < MIN_CONTRAST_GAIN:  # NaN: nothing to test
+        msg = (f"no focus: the {what} aligns the events only {100 * (gain - 1):+.1f} % "
+               f"better than with their times shuffled (threshold "
+               f"{100 * (MIN_CONTRAST_GAIN - 1):.0f} %) -- {causes}; the estimate is not a "
+               "measurement")
+    elif z < MIN_CHANCE_Z:
+        msg = (f"no focus: the {what} aligns the events {100 * (gain - 1):+.1f} % better "
+               f"than with their times shuffled, but shuffled times scatter as far: "
+               f"{z:.1f} standard deviations of {CHANCE_DRAWS} shuffles above their mean "
+               f"(threshold {MIN_CHANCE_Z:g}) -- {causes}, or a sensor too small for its "
+               "image to tell; the estimate is not a measurement")
+    else:
+        return None
+    warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
     return msg
 
 
