@@ -204,13 +204,24 @@ def event_box_counts(x, y, shape, radius: int = 2) -> np.ndarray:
     xi = np.rint(np.asarray(x, dtype=np.float64)).astype(np.int64)
     yi = np.rint(np.asarray(y, dtype=np.float64)).astype(np.int64)
     ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-    cnt = np.bincount(yi[ok] * w + xi[ok], minlength=h * w).reshape(h, w).astype(np.float32)
-    # box sum by integral image (float64: exact counts)
-    ii = np.zeros((h + 1, w + 1))
-    ii[1:, 1:] = cnt.cumsum(0).cumsum(1)
+    out = np.zeros((h, w))
+    if not ok.any():
+        return out
+    xi, yi = xi[ok], yi[ok]
     r = int(radius)
-    y0 = np.clip(np.arange(h) - r, 0, h)
-    y1 = np.clip(np.arange(h) + r + 1, 0, h)
-    x0 = np.clip(np.arange(w) - r, 0, w)
-    x1 = np.clip(np.arange(w) + r + 1, 0, w)
-    return ii[y1][:, x1] - ii[y0][:, x1] - ii[y1][:, x0] + ii[y0][:, x0]
+    # the box sums of the events' bounding box grown by the radius: outside it they are 0,
+    # and inside it no box reaches an event beyond it. The whole sensor's integral image
+    # took 3.2 s of a 21k-event multicm window on 4096x4096 (probe DB)
+    ya, yb = max(int(yi.min()) - r, 0), min(int(yi.max()) + r + 1, h)
+    xa, xb = max(int(xi.min()) - r, 0), min(int(xi.max()) + r + 1, w)
+    bh, bw = yb - ya, xb - xa
+    cnt = np.bincount((yi - ya) * bw + (xi - xa), minlength=bh * bw).reshape(bh, bw)
+    # box sum by integral image (float64: exact counts)
+    ii = np.zeros((bh + 1, bw + 1))
+    ii[1:, 1:] = cnt.cumsum(0).cumsum(1)
+    y0 = np.clip(np.arange(bh) - r, 0, bh)
+    y1 = np.clip(np.arange(bh) + r + 1, 0, bh)
+    x0 = np.clip(np.arange(bw) - r, 0, bw)
+    x1 = np.clip(np.arange(bw) + r + 1, 0, bw)
+    out[ya:yb, xa:xb] = ii[y1][:, x1] - ii[y0][:, x1] - ii[y1][:, x0] + ii[y0][:, x0]
+    return out
