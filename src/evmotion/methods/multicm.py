@@ -68,7 +68,7 @@ from evmotion.methods.flowresult import (
     event_support,
 )
 from evmotion.methods.measured import (
-    flow_alignment_gain,
+    flow_alignment_chance,
     halves_consistency,
     other_motion,
     warn_by_chance,
@@ -714,7 +714,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     focus, iwe_dict = _final_iwes(prob, params, x, y, s, shape)
     fitted = tf.dense_flow(params, shape)  # px over the window
     flow = rest_where_empty((fitted / duration_s).astype(np.float32), valid, prob.grid)
-    chance = float("nan")
+    chance = chance_z = float("nan")
     # flicker lights every pixel at once: a flow that gathers those bursts sharpens them,
     # whatever moves (said first: it names the cause the focus tests below cannot)
     no_focus = (warn_too_few_for_flow(events) is not None
@@ -725,8 +725,10 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         # the focus above is what the optimizer raised: on half a pixel of motion, or a
         # window whose warped image is blurrier than the unwarped one, it fits the
         # window's own event clusters (1.2 and 19); shuffled times keep that and lose motion
-        chance = flow_alignment_gain(events, flow, (t0 + t1) // 2)
-        no_focus = warn_by_chance(chance, "dense flow") is not None
+        # (z: on a small sensor chance itself scatters that ratio widely, 3,000 noise
+        # events on 8x8 to 1.31, so it must also lie beyond chance's spread; probe DB)
+        chance, chance_z = flow_alignment_chance(events, flow, (t0 + t1) // 2)
+        no_focus = warn_by_chance(chance, "dense flow", z=chance_z) is not None
     halves = float("nan")
     if not no_focus:
         # a flow far from the motion can still beat shuffled times a little (an 8 s window
@@ -772,6 +774,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                             "finest_level": o.finest_level,
                             "transport_cell": o.transport_cell, "restart": o.restart,
                             "no_focus": no_focus, "chance_gain": chance,
+                            "chance_z": chance_z,
                             "halves_correlation": halves,
                             "refit_gain": refit, "other_motion_tiles": other},
                       valid=valid)
