@@ -493,3 +493,20 @@ def test_odd_reference_times_counts_and_cameras_get_one_line():
         segment_motion(ev, 2, warp="translation", init=np.zeros((3, 2)))
     with pytest.raises(ParameterError, match="tol must be finite"):
         segment_motion(ev, 2, warp="translation", tol=float("nan"))
+
+
+def test_float32_times_past_their_precision_are_said():
+    # float32 holds whole µs up to 2^24 only: an epoch's times became one, and 1e9 µs
+    # steps of 64 µs, without a word; float16 times warned of numpy's cast (probe DB)
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+
+    with pytest.warns(EvmotionWarning, match=r"float32, which holds whole microseconds "
+                                             r"exactly only up to 16,777,216.*steps of 64 µs"):
+        EventArray([1, 2], [1, 1], np.array([1e9, 1e9 + 10], np.float32), [1, 1], (4, 4))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ev = EventArray([1, 2], [1, 1], np.array([1, 2], np.float16), [1, 1], (4, 4))
+        EventArray([1, 2], [1, 1], np.array([2**24 - 1, 2**24], np.float32), [1, 1], (4, 4))
+    assert ev.t.tolist() == [1, 2]

@@ -904,9 +904,24 @@ are integer microseconds; from seconds: np.round(t * 1e6).astype(np.int64)
             return np.empty(a.shape, np.int64)
         raise EventDataError(f"{what} must be numeric (integer µs), got dtype {a.dtype}")
     if a.size and a.dtype.kind in "uf":
-        lo, hi = a.min(), a.max()
+        # (Python floats: float16 against 2^62 warned of an overflow in numpy's cast)
+        lo, hi = float(a.min()), float(a.max())
         if not (np.isfinite(lo) and np.isfinite(hi)):
             raise EventDataError(f"{what} contains NaN or inf")
+        exact = 2.0 ** (np.finfo(a.dtype).nmant + 1) if a.dtype.kind == "f" else np.inf
+        if max(hi, -lo) > exact:
+            # float32 holds whole µs only up to 2^24 (16.8 s): an epoch's times all became
+            # one and times of 1e9 µs were rounded to 64 µs, without a word (probe DB); said,
+            # not refused: a file's float32 times are what it holds
+            import warnings
+
+            from evmotion.errors import EvmotionWarning
+
+            warnings.warn(EvmotionWarning(
+                f"{what} is {a.dtype}, which holds whole microseconds exactly only up to "
+                f"{exact:,.0f}, and reaches {max(hi, -lo):.6g}: its times were rounded "
+                f"(steps of {np.spacing(np.asarray(max(hi, -lo), a.dtype)):.6g} µs there) "
+                "before they came here; give int64 µs (or float64)"), stacklevel=3)
         if hi > _MAX_ABS_T or lo < -_MAX_ABS_T:
             raise EventDataError(f"{what} holds {hi if hi > _MAX_ABS_T else lo}, beyond "
                                  "+-2^62 µs: not a timestamp (corrupt, or another unit?)")
