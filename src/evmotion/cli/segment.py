@@ -150,6 +150,7 @@ def _publish(args, out, windows, done, events) -> list[dict]:
     """Write the pictures, clusters.csv, labels.npz and clusters.h5 of the finished
     windows ``done`` (an earlier run's removed first); return the CSV's rows."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
+    from evmotion.methods.measured import MIN_CHANCE_Z
     from evmotion.methods.segmentation import MIN_CLUSTER_EVENTS, MIN_CLUSTER_GAIN
     from evmotion.utils import atomic_path, atomic_write_bytes, atomic_write_text
 
@@ -179,7 +180,8 @@ def _publish(args, out, windows, done, events) -> list[dict]:
                                                strict=True)),
                              "contrast_gain": float(seg.gains[j]),
                              "valid": bool(seg.valid[j]), "same_as": int(seg.same_as[j]),
-                             "collapsed": bool(seg.collapsed[j])})
+                             "collapsed": bool(seg.collapsed[j]),
+                             "chance_z": float(seg.chance_z[j])})
             pngs.append(out / f"window_{w.index:05d}.png")
             atomic_write_bytes(pngs[-1], panel)
     except BaseException:
@@ -192,12 +194,13 @@ def _publish(args, out, windows, done, events) -> list[dict]:
     wr = csv.writer(buf)
     names = list(rows[0]["params"])
     wr.writerow(["window", "t0_us", "t1_us", "cluster", "n_events",
-                 *[f"{n} [{rows[0]['units'][n]}]" for n in names], "contrast_gain", "collapsed",
-                 "valid"])
+                 *[f"{n} [{rows[0]['units'][n]}]" for n in names], "contrast_gain", "valid",
+                 "collapsed", "chance_z"])
     for r in rows:
+        # (the flags after valid: a reader that took the last column for it stays right)
         wr.writerow([r["window"], r["t0_us"], r["t1_us"], r["cluster"], r["n_events"],
                      *[repr(r["params"][n]) for n in names], repr(r["contrast_gain"]),
-                     int(r["collapsed"]), int(r["valid"])])
+                     int(r["valid"]), int(r["collapsed"]), repr(r["chance_z"])])
     atomic_write_text(out / "clusters.csv", buf.getvalue())
     with atomic_path(out / "labels.npz") as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **labels)
@@ -211,12 +214,18 @@ def _publish(args, out, windows, done, events) -> list[dict]:
          "cluster": np.array([r["cluster"] for r in rows]), "n_events": n_ev,
          "empty": n_ev == 0,
          "contrast_gain": np.array([r["contrast_gain"] for r in rows]),
+         "chance_z": np.array([r["chance_z"] for r in rows]),
          "collapsed": np.array([r["collapsed"] for r in rows])},
         {"n_events": "events"},
         {"window": "window index", "cluster": "cluster index (labels.npz)",
          "n_events": "events assigned to the cluster", "empty": "flag: no event assigned",
-         "contrast_gain": "IWE variance at the cluster's parameters over unwarped (valid: "
-                          f">= {MIN_CLUSTER_GAIN} with >= {MIN_CLUSTER_EVENTS} events)",
+         "contrast_gain": "IWE variance at the cluster's parameters over unwarped (valid "
+                          f"needs >= {MIN_CLUSTER_GAIN} with >= {MIN_CLUSTER_EVENTS} "
+                          "events, no collapse, an alignment of all the window's events "
+                          "beyond chance: chance_z)",
+         "chance_z": "standard deviations by which the cluster's warp aligns all the "
+                     "window's events beyond 16 shuffles of their times (valid needs >= "
+                     f"{MIN_CHANCE_Z:g})",
          "collapsed": "flag: the cluster's warp collapses its events"},
         {"method": "segment", "warp": args.warp, "grid": args.grid,
          "objective": args.objective, "warps": args.warps, "iterations": args.iterations,
@@ -251,6 +260,7 @@ def _warn_invalid(rows: list[dict]) -> None:
     import warnings
 
     from evmotion.errors import PoorFitWarning
+    from evmotion.methods.measured import MIN_CHANCE_Z
 
     bad: dict[int, list[dict]] = {}
     for r in rows:
@@ -260,14 +270,17 @@ def _warn_invalid(rows: list[dict]) -> None:
         what = ", ".join(f"{r['cluster']} ({r['n_events']} events, contrast gain "
                          f"{r['contrast_gain']:.3f}"
                          + (f", the motion of cluster {r['same_as']}" if r["same_as"] >= 0
-                            else ", event collapse" if r["collapsed"] else "")
+                            else ", event collapse" if r["collapsed"]
+                            else f", no better than its events with shuffled times: chance z "
+                                 f"{r['chance_z']:.1f}" if r["chance_z"] < MIN_CHANCE_Z
+                            else "")
                          + ")" for r in rs[:WARN_CLUSTERS])
         more = f" and {len(rs) - WARN_CLUSTERS} more" if len(rs) > WARN_CLUSTERS else ""
         warnings.warn(PoorFitWarning(
             f"window {window}: cluster{'s' if len(rs) > 1 else ''} {what}{more}: "
             "not a measurement -- it sharpens nothing, holds too few events, collapses its "
-            "events or repeats another cluster's motion (fewer --warps) (valid 0 in "
-            "clusters.csv / clusters.h5)"), stacklevel=2)
+            "events, aligns them no better than chance or repeats another cluster's motion "
+            "(fewer --warps) (valid 0 in clusters.csv / clusters.h5)"), stacklevel=2)
     if len(bad) > WARN_WINDOWS:
         rest = list(bad)[WARN_WINDOWS:]
         warnings.warn(PoorFitWarning(

@@ -16,7 +16,7 @@ import numpy as np
 
 from evmotion.viz.colorwheel import GREY
 from evmotion.viz.flowpic import MIN_HEIGHT, FlowPicture, flow_picture, picture_row
-from evmotion.viz.images import _title_row, save_png
+from evmotion.viz.images import save_png, title_row
 
 __all__ = ["bos_flow_picture", "bos_q_limit", "field_scale", "flow_window_picture",
            "q_picture", "save_bos_flow_png", "save_bos_pngs", "save_bos_sequence_pngs",
@@ -169,7 +169,7 @@ def _framed(field: np.ndarray, k: int, title: str | None, *,
     if title:
         # over the whole picture, wrapped to it as save_flow_png's (centred on a narrow
         # field it had run off both ends)
-        out = np.concatenate([_title_row(out.shape[1], title), out], axis=0)
+        out = np.concatenate([title_row(out.shape[1], title), out], axis=0)
     return out
 
 

@@ -32,6 +32,7 @@ __all__ = [
     "save_flow_summary",
     "save_panel",
     "save_png",
+    "title_row",
 ]
 
 
@@ -243,12 +244,21 @@ def save_flow_png(path: str | os.PathLike, flow: np.ndarray, *,
     pic = flow_picture(flow, max_speed=max_speed, valid=valid, unit=unit, legend=legend)
     rgb = pic.rgb
     if title:
-        rgb = np.concatenate([_title_row(rgb.shape[1], title), rgb], axis=0)
+        rgb = np.concatenate([title_row(rgb.shape[1], title), rgb], axis=0)
     save_png(path, rgb)
     return pic
 
 
-def _title_row(width: int, title: str) -> np.ndarray:
+def title_row(width: int, title: str) -> np.ndarray:
+    """A white RGB strip ``width`` px wide (uint8, (h, width, 3)) holding ``title`` in 10 pt,
+    wrapped to that width, to stack above a picture drawn without matplotlib's axes.
+
+    Examples
+    --------
+    >>> row = title_row(200, "flow, window 0")
+    >>> row.shape[1:], row.dtype.name
+    ((200, 3), 'uint8')
+    """
     # wrapped to the picture's width: a long title was cut at both ends (a window with no
     # valid pixel says so after its times, probe BK); ~7.5 px a 10-pt character
     lines = wrap_title(title, width, 7.5) or [title]
