@@ -251,3 +251,15 @@ def test_the_chance_tests_scatter_is_measured_and_its_gain_unchanged(shape):
     keep = (x >= 0) & (x < w) & (y >= 0) & (y < h)
     _, z = alignment_chance(x[keep], y[keep], t[keep], f[keep], 15_000, shape)
     assert z > 4 * MIN_CHANCE_Z
+
+
+def test_a_chance_test_that_could_not_run_says_nothing():
+    # every event warped off the sensor: gain NaN, z 0 said "+nan % better ... 0.0
+    # standard deviations" (review DR)
+    import warnings
+
+    from evmotion.methods.measured import warn_by_chance
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warn_by_chance(float("nan"), "dense flow", z=0.0) is None

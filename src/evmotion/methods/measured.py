@@ -388,7 +388,11 @@ def warn_by_chance(gain: float, what: str, stacklevel: int = 3,
     its message (else None)."""
     causes = ("noise, no texture, a motion of a pixel or so, or one the window cannot hold "
               "(too long, too fast, not constant)")
-    if gain < MIN_CONTRAST_GAIN:  # NaN: nothing to test
+    if not np.isfinite(gain):
+        # nothing to test (every event warped off the sensor): "+nan % better ... 0.0
+        # standard deviations" had been said (review DR)
+        return None
+    if gain < MIN_CONTRAST_GAIN:
         msg = (f"no focus: the {what} aligns the events only {100 * (gain - 1):+.1f} % "
                f"better than with their times shuffled (threshold "
                f"{100 * (MIN_CONTRAST_GAIN - 1):.0f} %) -- {causes}; the estimate is not a "

@@ -297,7 +297,7 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
         with np.errstate(all="ignore"):
             xw, yw = w.warp(cost.x, cost.y, cost.dt, params[j])
         chance[:, j] = warp_alignment_chance(cost.x, cost.y, cost.dt, xw, yw, cost.shape)
-        valid[j] = warn_by_chance(chance[0, j], f"cluster {j}'s {w.name} warp",
+        valid[j] = warn_by_chance(chance[0, j], f"{w.name} warp of cluster {j}",
                                   z=chance[1, j]) is None
     same_as = _duplicates(w, cost, params, labels, valid, gains)
     for k in np.flatnonzero(same_as >= 0):

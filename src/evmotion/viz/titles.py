@@ -37,8 +37,11 @@ def duration_text(t_us: float) -> str:
     --------
     >>> duration_text(1_730_000), duration_text(49_650), duration_text(850)
     ('1.73 s', '49.6 ms', '850 µs')
+    >>> duration_text(999_600), duration_text(999.7)
+    ('1 s', '1 ms')
     """
-    t = abs(float(t_us))
+    # rounded to 3 digits first: 999,600 µs is 1 s, not "1e+03 ms" (review DR)
+    t = abs(float(f"{float(t_us):.3g}"))
     if t >= 1e6:
         return f"{t_us / 1e6:.3g} s"
     if t >= 1e3:
