@@ -372,3 +372,17 @@ def test_a_title_in_capitals_fits_its_picture():
             assert text.get_window_extent(renderer).width < 336, line
     finally:
         plt.close(fig)
+
+
+def test_a_tall_narrow_image_is_not_magnified_past_a_picture():
+    # magnified by its width alone, a (720, 3) image became 629 x 115,276 px (review DR)
+    import io
+
+    from PIL import Image
+
+    from evmotion.viz.images import event_picture_png, panel_png
+
+    img = np.ones((720, 3))
+    for png in (event_picture_png(img), panel_png([img, img])):
+        h, w = np.asarray(Image.open(io.BytesIO(png))).shape[:2]
+        assert h < 3000 and w < 3000, (h, w)

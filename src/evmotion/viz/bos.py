@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.viz.colorwheel import GREY
-from evmotion.viz.flowpic import MIN_HEIGHT, FlowPicture, flow_picture, picture_row
+from evmotion.viz.flowpic import MIN_HEIGHT, FlowPicture, flow_picture, picture_row, upscale
 from evmotion.viz.images import save_png, title_row
 
 __all__ = ["bos_flow_picture", "bos_q_limit", "field_scale", "flow_window_picture",
@@ -174,7 +174,7 @@ def _framed(field: np.ndarray, k: int, title: str | None, *,
 
 
 def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s",
-              title: str | None = None, dpi: int = 100) -> tuple[np.ndarray, float]:
+              title: str | None = None) -> tuple[np.ndarray, float]:
     """A Poisson field q as an RGB image: blue negative, white zero, red positive, each
     pixel :func:`field_scale` screen pixels wide (the flow's magnification), framed, on
     pixel axes, beside a colour bar in ``unit``; NaN (outside the ROI) is grey.
@@ -185,8 +185,6 @@ def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s"
         The field.
     limit : float, optional
         The colour bar spans ``[-limit, limit]`` (default: :func:`bos_q_limit`).
-    dpi : int
-        Unused: the picture is drawn pixel for pixel (kept for callers that pass it).
 
     Returns
     -------
@@ -200,18 +198,12 @@ def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s"
     >>> rgb.dtype, rgb.shape[2], limit
     (dtype('uint8'), 3, 1.0)
     """
-    import matplotlib
-    from matplotlib.colors import Normalize
 
     q = np.asarray(q, dtype=np.float64)
-    limit, peak, clipped = _q_scale(q, limit)
     k = field_scale(q.shape)
     # (q had been drawn in a 6-inch figure, 3.5x beside the flow's 2x, resampled and
     # with no axes, probe DA)
-    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad=Q_NAN_GREY)
-    norm = Normalize(-limit, limit)
-    rgb = (cmap(norm(np.ma.masked_invalid(q)))[..., :3] * 255 + 0.5).astype(np.uint8)
-    rgb = np.repeat(np.repeat(rgb, k, axis=0), k, axis=1)
+    rgb, norm, cmap, limit, peak, clipped = _q_rgb(q, k, limit)
     label = _q_label(unit, peak, clipped, bool(np.isnan(q).any()))
     out = _framed(rgb, k, title, colourbar=(norm, cmap, label,
                                             "both" if clipped else "neither"))
@@ -219,7 +211,7 @@ def q_picture(q: np.ndarray, *, limit: float | None = None, unit: str = "px^2/s"
 
 
 def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = None,
-               unit: str = "px^2/s", title: str | None = None, dpi: int = 100) -> float:
+               unit: str = "px^2/s", title: str | None = None) -> float:
     """Save :func:`q_picture` of ``q`` as a PNG, atomically; returns the colour limit.
 
     Examples
@@ -227,7 +219,7 @@ def save_q_png(path: str | os.PathLike, q: np.ndarray, *, limit: float | None = 
     >>> save_q_png("q.png", np.linspace(-1, 1, 64).reshape(8, 8))
     1.0
     """
-    rgb, limit = q_picture(q, limit=limit, unit=unit, title=title, dpi=dpi)
+    rgb, limit = q_picture(q, limit=limit, unit=unit, title=title)
     save_png(path, rgb)
     return limit
 
@@ -297,21 +289,28 @@ def flow_window_picture(flow: np.ndarray, *, valid: np.ndarray | None = None,
                        ["flow", "Poisson field q"], title=title)
 
 
-def _q_panel(q: np.ndarray, scale: int, unit: str, limit: float | None = None) -> np.ndarray:
-    """q in diverging colours (NaN grey), each pixel ``scale`` x ``scale``, beside a
-    colour bar as tall."""
+def _q_rgb(q: np.ndarray, k: int, limit: float | None):
+    """q in diverging colours (NaN grey), each pixel k x k: ``(rgb, norm, cmap, limit,
+    peak, clipped)``."""
     import matplotlib
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
-    from matplotlib.figure import Figure
 
-    q = np.asarray(q, dtype=np.float64)
     limit, peak, clipped = _q_scale(q, limit)
     cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad=Q_NAN_GREY)
     norm = Normalize(-limit, limit)
     rgb = (cmap(norm(np.ma.masked_invalid(q)))[..., :3] * 255 + 0.5).astype(np.uint8)
-    rgb = np.repeat(np.repeat(rgb, scale, axis=0), scale, axis=1)
+    return upscale(rgb, k), norm, cmap, limit, peak, clipped
+
+
+def _q_panel(q: np.ndarray, scale: int, unit: str, limit: float | None = None) -> np.ndarray:
+    """q in diverging colours (NaN grey), each pixel ``scale`` x ``scale``, beside a
+    colour bar as tall."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.figure import Figure
+
+    q = np.asarray(q, dtype=np.float64)
+    rgb, norm, cmap, limit, peak, clipped = _q_rgb(q, scale, limit)
     height = rgb.shape[0]
     fig = Figure(figsize=(1.1, height / 100.0), dpi=100, facecolor="white")
     FigureCanvasAgg(fig)

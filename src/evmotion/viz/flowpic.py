@@ -25,7 +25,7 @@ from evmotion.viz.colorwheel import GREY, colorwheel_image, flow_max_magnitude, 
 from evmotion.viz.titles import wrap_title
 
 __all__ = ["MIN_HEIGHT", "FlowPicture", "flow_panel", "flow_picture", "mean_event_flow",
-           "picture_row", "sequence_max_speed"]
+           "picture_row", "sequence_max_speed", "upscale"]
 
 #: Pictures with fewer rows are upscaled by an integer factor to at least this height.
 MIN_HEIGHT = 160
@@ -88,7 +88,14 @@ def _check_valid(valid: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray
     return valid.astype(bool, copy=False)
 
 
-def _upscale(rgb: np.ndarray, k: int) -> np.ndarray:
+def upscale(rgb: np.ndarray, k: int) -> np.ndarray:
+    """Each pixel of ``rgb`` (H, W[, C]) as k x k pixels (k a whole number >= 1).
+
+    Examples
+    --------
+    >>> upscale(np.arange(4).reshape(2, 2), 2).shape
+    (4, 4)
+    """
     return rgb if k == 1 else np.repeat(np.repeat(rgb, k, axis=0), k, axis=1)
 
 
@@ -249,7 +256,7 @@ def flow_picture(flow: np.ndarray, *, max_speed: float | None = None,
     texts = (*_legend_texts(speed, unit, fixed, valid is not None, not finite.all(), empty),
              f"{ruler} px" if ruler else "")
     strip = _legend_strip(h * k, texts, ruler * k)
-    out = np.concatenate([_upscale(rgb, k), strip], axis=1)
+    out = np.concatenate([upscale(rgb, k), strip], axis=1)
     return FlowPicture(out, speed, fixed, unit, k, (0, h * k, 0, w * k),
                        (0, h * k, w * k, out.shape[1]), texts)
 
@@ -409,8 +416,8 @@ def flow_panel(events: EventArray, flow_px_per_s: np.ndarray, *, t_ref_us: int |
     k = pic.scale
     titles = ["events (zero flow)", f"IWE warped by the flow (FWL {value:.3f})",
               f"flow ({pic.unit})"]
-    rgb = picture_row([_upscale(iwe_to_rgb(iwe0, polarity, vmax=vmax), k),
-                       _upscale(iwe_to_rgb(iwe1, polarity, vmax=vmax), k), pic.rgb],
+    rgb = picture_row([upscale(iwe_to_rgb(iwe0, polarity, vmax=vmax), k),
+                       upscale(iwe_to_rgb(iwe1, polarity, vmax=vmax), k), pic.rgb],
                       titles, title=title)
     return rgb, {"fwl": value, "max_speed": pic.max_speed, "fixed_scale": pic.fixed_scale,
                  "titles": titles if title is None else [title, *titles]}

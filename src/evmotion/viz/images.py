@@ -17,7 +17,7 @@ from evmotion.errors import ParameterError
 from evmotion.events import EventArray
 from evmotion.io import pngfile
 from evmotion.utils import atomic_write_bytes, check_number, whole_number
-from evmotion.viz.flowpic import FlowPicture, flow_panel, flow_picture
+from evmotion.viz.flowpic import FlowPicture, flow_panel, flow_picture, upscale
 from evmotion.viz.titles import wrap_title
 
 __all__ = [
@@ -302,10 +302,6 @@ def picture_factor(width_px: int, *, least_px: int = MIN_PICTURE_PX,
     return max(scale, min(-(-int(least_px) // w), max(int(most_px) // w, 1))), 1
 
 
-def _magnified(rgb: np.ndarray, k: int) -> np.ndarray:
-    return rgb if k == 1 else np.repeat(np.repeat(rgb, k, axis=0), k, axis=1)
-
-
 def _reduced_values(image: np.ndarray, r: int) -> np.ndarray:
     """Each r x r block's largest-magnitude value (with its sign): a lone event, or one
     hot pixel, stays drawn (a nearest-neighbour reduction drops most of them)."""
@@ -451,8 +447,10 @@ def event_picture_png(image: np.ndarray, *, polarity: bool = False, percentile: 
         vmax = full_scale(image, percentile)
     vmax = vmax if vmax > 0 else 1.0
     h, w = image.shape
-    k, r = picture_factor(w, scale=scale)
-    rgb = _magnified(iwe_to_rgb(_reduced_values(image, r), polarity, vmax=vmax), k)
+    # the longer side: a (720, 3) image magnified to 480 px wide was 115,276 px tall
+    # (review DR)
+    k, r = picture_factor(max(h, w), scale=scale)
+    rgb = upscale(iwe_to_rgb(_reduced_values(image, r), polarity, vmax=vmax), k)
     if polarity:
         cmap = LinearSegmentedColormap.from_list("evmotion_polarity", ["blue", "white", "red"])
         norm, label = Normalize(-vmax, vmax), "polarity sum per pixel (+ red, - blue)"
@@ -532,9 +530,11 @@ def panel_png(images: Sequence[np.ndarray], titles: Sequence[str] | None = None,
     nrows = -(-n // ncols)
     rgbs = [_panel_rgb(im, f"images[{i}]") for i, im in enumerate(images)]
     wmax = max(im.shape[1] for im in rgbs)
+    hmax = max(im.shape[0] for im in rgbs)
     least = MIN_PANEL_PX if panel_inches is None else max(1, round(panel_inches * dpi))
-    k, r = picture_factor(wmax * ncols, least_px=least * ncols, most_px=MAX_PANEL_ROW_PX)
-    shown = [_magnified(_reduced_rgb(im, r), k) for im in rgbs]
+    k, r = picture_factor(max(wmax * ncols, hmax * nrows), least_px=least * ncols,
+                          most_px=MAX_PANEL_ROW_PX)
+    shown = [upscale(_reduced_rgb(im, r), k) for im in rgbs]
     # the frame round each image: a one-pixel ring, so that it covers no image pixel
     bw = max(im.shape[1] for im in shown) + 2
     bh = max(im.shape[0] for im in shown) + 2
