@@ -45,7 +45,7 @@ def test_flow_pixels_are_the_bare_picture_and_the_legend_is_drawn():
     # black ink: the arrows and the text
     assert np.sum(px.max(axis=1) < 60) > 50
     assert pic.texts == ("u", "v", "rim 60 px/s", "fixed; darker: beyond",
-                         "unmasked: all pixels", "20 px")
+                         "unmasked: all pixels", "50 px")
     # the grey of a mask is said only where there is one (probe BK: "grey: no events"
     # over a picture coloured everywhere)
     assert flow_picture(flow, valid=np.ones(flow.shape[:2], bool)).texts[4] == "grey: no events"
@@ -84,8 +84,8 @@ def _ruler_length(pic) -> int:
     return best
 
 
-@pytest.mark.parametrize("shape, scale, ruler", [((200, 240), 1, 20), ((30, 40), 6, 5),
-                                                 ((720, 1280), 1, 100), ((5, 7), 32, 1)])
+@pytest.mark.parametrize("shape, scale, ruler", [((200, 240), 1, 50), ((30, 40), 6, 10),
+                                                 ((720, 1280), 1, 100), ((5, 7), 32, 2)])
 def test_the_ruler_spans_the_pixels_it_names(shape, scale, ruler):
     # flow pictures had no pixel scale: an upscaled 30-row flow and a 720-row one looked
     # alike (probe BX); the bar spans `ruler` flow pixels at the picture's upscale

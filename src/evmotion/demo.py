@@ -251,7 +251,7 @@ def _schlieren(out: Path, rep: HtmlReport, seed: int) -> dict:
     # one colour scale for both q (the exact q's)
     limit = save_q_png(out / "bos_gt_q.png", gt_q, title="Poisson field q (exact)")
     save_q_png(out / "bos_q.png", best.q, limit=limit,
-               title="Poisson field q (estimated, the exact q's scale)")
+               title="Poisson field q (estimated)")
     hist = event_histogram(win, signed=True)
     vmax = full_scale(hist)
     save_panel(out / "bos_input.png", [f[k], iwe_to_rgb(hist, polarity=True, vmax=vmax)],

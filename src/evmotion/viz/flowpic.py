@@ -133,8 +133,18 @@ def _legend_texts(max_speed: float, unit: str, fixed: bool, masked: bool,
             "fixed; darker: beyond" if fixed else "max of image", grey)
 
 
-def _strip_width(height: int) -> int:
+#: Narrowest legend strip, px: its longest line, "fixed; darker: beyond", needs ~120 px at
+#: the legend's 7-pt floor (a 96-px strip shrank it to 5-6 px, probe DE)
+MIN_STRIP_PX = 130
+
+
+def _wheel_room(height: int) -> int:
+    """Width (px) the wheel and its 'u' label take in a strip ``height`` rows tall."""
     return int(np.clip(round(0.3 * height), 96, 200))
+
+
+def _strip_width(height: int) -> int:
+    return max(_wheel_room(height), MIN_STRIP_PX)
 
 
 def _ruler_px(strip_width: int, k: int) -> int:
@@ -167,11 +177,12 @@ def _legend_strip(height: int, texts: tuple[str, ...], ruler: int) -> np.ndarray
     """White strip ``height`` rows tall: the wheel with u/v arrows, the scale below it and
     a bar ``ruler`` screen pixels long above its length in the flow's pixels."""
     width = _strip_width(height)
-    d = width - 26  # wheel diameter, px; the margin holds the 'u' label
+    # the wheel and the font follow the height, the strip's width gives the words room
+    d = _wheel_room(height) - 26  # wheel diameter, px; the margin holds the 'u' label
     pt = max(7.0, d / 11.0)  # font size, points (1 pt = 1.39 px at 100 dpi)
     line = 1.5 * pt * 100 / 72
     top = max(2.0, (height - d - 4.6 * line) / 2)
-    x0 = 6.0
+    x0 = 6.0 + (width - _wheel_room(height)) / 2
     cx, cy, r = x0 + d / 2, top + d / 2, d / 2
     fig, ax = _figure_px(width, height)
     ax.imshow(colorwheel_image(d | 1), extent=(x0, x0 + d, top + d, top),
