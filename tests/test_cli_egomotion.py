@@ -110,7 +110,7 @@ def test_segment_cli(rec, tmp_path, capsys):
     assert (out / "clusters.csv").exists() and (out / "window_00000.png").exists()
     # each cluster says whether it is a measurement, in the JSON, the CSV and the .h5
     header = (out / "clusters.csv").read_text().splitlines()[0]
-    assert header.endswith(",contrast_gain,valid,collapsed,chance_z")
+    assert header.endswith(",contrast_gain,valid,collapsed,chance_gain,chance_z")
     assert all(isinstance(c["valid"], bool) and c["contrast_gain"] > 0
                for c in doc["clusters"])
     with np.load(out / "labels.npz") as z:

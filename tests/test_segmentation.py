@@ -204,7 +204,8 @@ def test_invalid_clusters_of_many_windows_are_said_in_a_few_lines():
     from evmotion.cli.segment import WARN_CLUSTERS, WARN_WINDOWS, _warn_invalid
 
     rows = [{"window": w, "cluster": c, "n_events": 10, "contrast_gain": 1.0, "same_as": -1,
-             "valid": False, "collapsed": False, "chance_z": float("nan")}
+             "valid": False, "collapsed": False, "chance_z": float("nan"),
+             "chance_gain": float("nan")}
             for w in range(10) for c in range(9)]
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
@@ -280,8 +281,16 @@ def test_a_cluster_no_better_than_chance_is_said_so():
     from evmotion.cli.segment import _warn_invalid
 
     rows = [{"window": 0, "cluster": 0, "n_events": 1680, "contrast_gain": 3.29,
-             "same_as": -1, "valid": False, "collapsed": False, "chance_z": 1.27}]
+             "same_as": -1, "valid": False, "collapsed": False, "chance_z": 1.27,
+             "chance_gain": 1.2},
+            # a gain under the 5 % bar with a high z: said too (probe DF: an evt2 cluster
+            # at gain 1.045, z 12.9, given no cause)
+            {"window": 0, "cluster": 1, "n_events": 3254, "contrast_gain": 1.25,
+             "same_as": -1, "valid": False, "collapsed": False, "chance_z": 12.9,
+             "chance_gain": 1.045}]
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
         _warn_invalid(rows)
-    assert "no better than its events with shuffled times: chance z 1.3" in str(said[0].message)
+    text = str(said[0].message)
+    assert "no better than its events with shuffled times: chance z 1.3, gain 1.200" in text
+    assert "shuffled times: chance z 12.9, gain 1.045" in text

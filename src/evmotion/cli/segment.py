@@ -150,7 +150,7 @@ def _publish(args, out, windows, done, events) -> list[dict]:
     """Write the pictures, clusters.csv, labels.npz and clusters.h5 of the finished
     windows ``done`` (an earlier run's removed first); return the CSV's rows."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
-    from evmotion.methods.measured import MIN_CHANCE_Z
+    from evmotion.methods.measured import MIN_CHANCE_Z, MIN_CONTRAST_GAIN
     from evmotion.methods.segmentation import MIN_CLUSTER_EVENTS, MIN_CLUSTER_GAIN
     from evmotion.utils import atomic_path, atomic_write_bytes, atomic_write_text
 
@@ -181,6 +181,7 @@ def _publish(args, out, windows, done, events) -> list[dict]:
                              "contrast_gain": float(seg.gains[j]),
                              "valid": bool(seg.valid[j]), "same_as": int(seg.same_as[j]),
                              "collapsed": bool(seg.collapsed[j]),
+                             "chance_gain": float(seg.chance_gains[j]),
                              "chance_z": float(seg.chance_z[j])})
             pngs.append(out / f"window_{w.index:05d}.png")
             atomic_write_bytes(pngs[-1], panel)
@@ -195,12 +196,13 @@ def _publish(args, out, windows, done, events) -> list[dict]:
     names = list(rows[0]["params"])
     wr.writerow(["window", "t0_us", "t1_us", "cluster", "n_events",
                  *[f"{n} [{rows[0]['units'][n]}]" for n in names], "contrast_gain", "valid",
-                 "collapsed", "chance_z"])
+                 "collapsed", "chance_gain", "chance_z"])
     for r in rows:
         # (the flags after valid: a reader that took the last column for it stays right)
         wr.writerow([r["window"], r["t0_us"], r["t1_us"], r["cluster"], r["n_events"],
                      *[repr(r["params"][n]) for n in names], repr(r["contrast_gain"]),
-                     int(r["valid"]), int(r["collapsed"]), repr(r["chance_z"])])
+                     int(r["valid"]), int(r["collapsed"]), repr(r["chance_gain"]),
+                     repr(r["chance_z"])])
     atomic_write_text(out / "clusters.csv", buf.getvalue())
     with atomic_path(out / "labels.npz") as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **labels)
@@ -214,6 +216,7 @@ def _publish(args, out, windows, done, events) -> list[dict]:
          "cluster": np.array([r["cluster"] for r in rows]), "n_events": n_ev,
          "empty": n_ev == 0,
          "contrast_gain": np.array([r["contrast_gain"] for r in rows]),
+         "chance_gain": np.array([r["chance_gain"] for r in rows]),
          "chance_z": np.array([r["chance_z"] for r in rows]),
          "collapsed": np.array([r["collapsed"] for r in rows])},
         {"n_events": "events"},
@@ -223,6 +226,9 @@ def _publish(args, out, windows, done, events) -> list[dict]:
                           f"needs >= {MIN_CLUSTER_GAIN} with >= {MIN_CLUSTER_EVENTS} "
                           "events, no collapse, an alignment of all the window's events "
                           "beyond chance: chance_z)",
+         "chance_gain": "how much better the cluster's warp aligns all the window's events "
+                        "than with their times shuffled (valid needs >= "
+                        f"{MIN_CONTRAST_GAIN:g})",
          "chance_z": "standard deviations by which the cluster's warp aligns all the "
                      "window's events beyond 16 shuffles of their times (valid needs >= "
                      f"{MIN_CHANCE_Z:g})",
@@ -260,7 +266,7 @@ def _warn_invalid(rows: list[dict]) -> None:
     import warnings
 
     from evmotion.errors import PoorFitWarning
-    from evmotion.methods.measured import MIN_CHANCE_Z
+    from evmotion.methods.measured import MIN_CHANCE_Z, MIN_CONTRAST_GAIN
 
     bad: dict[int, list[dict]] = {}
     for r in rows:
@@ -272,7 +278,9 @@ def _warn_invalid(rows: list[dict]) -> None:
                          + (f", the motion of cluster {r['same_as']}" if r["same_as"] >= 0
                             else ", event collapse" if r["collapsed"]
                             else f", no better than its events with shuffled times: chance z "
-                                 f"{r['chance_z']:.1f}" if r["chance_z"] < MIN_CHANCE_Z
+                                 f"{r['chance_z']:.1f}, gain {r['chance_gain']:.3f}"
+                            if (r["chance_z"] < MIN_CHANCE_Z
+                                or r["chance_gain"] < MIN_CONTRAST_GAIN)
                             else "")
                          + ")" for r in rs[:WARN_CLUSTERS])
         more = f" and {len(rs) - WARN_CLUSTERS} more" if len(rs) > WARN_CLUSTERS else ""
