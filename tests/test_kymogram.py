@@ -178,6 +178,14 @@ def test_a_changing_speed_is_no_measurement():
     steady = [fit_ridge(_synthetic(v, seed)[0]) for v, seed in
               [(-800.0, 0), (550.0, 1), (-1234.0, 2), (300.0, 3), (-700.0, 5)]]
     assert all(f.reliable for f in steady), [f.unreliable_because for f in steady]
+    # the picture words the reason as its caller does (the CLI's options; it drew the
+    # library's "stationary_px", probe DE)
+    from evmotion.viz.kymogram import kymogram_figure
+
+    fig = kymogram_figure([k], [fit], unreliable=["speed changes: try --fit-t1"])
+    texts = [t.get_text() for ax in fig.axes if ax.get_legend() for t in
+             ax.get_legend().get_texts()]
+    assert any("unreliable: speed changes: try --fit-t1" in t for t in texts), texts
 
 
 def test_ridge_fit_robust_to_outliers():

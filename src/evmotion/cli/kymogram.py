@@ -427,8 +427,10 @@ def run(args) -> int:
         elif error:
             row["fit_error"] = error
         summaries.append(row)
+    # the picture in the command's words too ("a lower stationary_px" was drawn, probe DE)
     save_kymogram_png(args.out, kymos, fits, geometry=geometry,
-                      fit_errors=[row.get("fit_error") for row in summaries])
+                      fit_errors=[row.get("fit_error") for row in summaries],
+                      unreliable=[row.get("unreliable_because") for row in summaries])
 
     ln = kymos[0].line
     summary = {"file": str(args.file), "out": str(args.out),

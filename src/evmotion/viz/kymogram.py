@@ -111,7 +111,7 @@ def _image_axis(kymo: Kymogram) -> tuple[float, float]:
     return 0.0, 1.0
 
 
-def _speed_label(fit: RidgeFit, geometry: dict | None) -> str:
+def _speed_label(fit: RidgeFit, geometry: dict | None, why: str | None = None) -> str:
     text = f"{fit.method} fit: {fit.velocity_px_s:.4g} ± {fit.velocity_std_px_s:.2g} px/s"
     if geometry:
         v = px_per_s_to_m_per_s(fit.speed_px_s, **geometry)
@@ -119,13 +119,14 @@ def _speed_label(fit: RidgeFit, geometry: dict | None) -> str:
         text += f"\n|v| = {v:.3g} ± {dv:.2g} m/s"
     if not fit.reliable:
         # the fit's own reason (spread over a quarter of the speed, or ridge residuals)
-        text += "\n" + textwrap.fill(f"unreliable: {fit.unreliable_because}", 48)
+        text += "\n" + textwrap.fill(f"unreliable: {why or fit.unreliable_because}", 48)
     return text
 
 
 def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] | None = None,
                     *, titles: Sequence[str] | None = None, geometry: dict | None = None,
                     fit_errors: Sequence[str | None] | None = None,
+                    unreliable: Sequence[str | None] | None = None,
                     cmap: str = "gray_r", percentile: float = 99.5, dpi: int = 100):
     """A Figure with one panel per kymogram: time (ms) across, position (px) down.
 
@@ -146,6 +147,9 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
         ``focal_mm``, ``distance_m``, ``pixel_um``: the legend adds the speed in m/s.
     fit_errors : sequence of str or None, optional
         Why a panel has no fit: written across it ("no velocity fit: ...").
+    unreliable : sequence of str or None, optional
+        Why each unreliable fit is, worded by the caller (a command names its options
+        where the library names its parameters); default the fit's own reason.
     cmap : str
         Matplotlib colour map (signed data use a diverging "RdBu_r" automatically).
     percentile : float
@@ -160,9 +164,10 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
         raise ParameterError("kymogram_figure needs at least one kymogram")
     fits = [None] * len(kymos) if fits is None else list(fits)
     errors = [None] * len(kymos) if fit_errors is None else list(fit_errors)
-    if (len(fits) != len(kymos) or len(errors) != len(kymos)
+    whys = [None] * len(kymos) if unreliable is None else list(unreliable)
+    if (len(fits) != len(kymos) or len(errors) != len(kymos) or len(whys) != len(kymos)
             or (titles is not None and len(titles) != len(kymos))):
-        raise ParameterError(f"{len(kymos)} kymograms need as many fits, fit errors and "
+        raise ParameterError(f"{len(kymos)} kymograms need as many fits, fit errors, reasons and "
                              f"titles, got {len(fits)} fits, {len(errors)} fit errors, "
                              f"{None if titles is None else len(titles)} titles")
     n = len(kymos)
@@ -172,7 +177,7 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
     # intervals [0, 16.7) ms were drawn from -4.2 to 12.5 ms, and --t0 0.01 started the
     # axis at 0 again, probe DA)
     t_origin = time_origin_s(kymos)
-    for i, (k, fit, error) in enumerate(zip(kymos, fits, errors, strict=True)):
+    for i, (k, fit, error, why) in enumerate(zip(kymos, fits, errors, whys, strict=True)):
         ax = fig.add_subplot(1, n, i + 1)
         d = np.asarray(k.data, dtype=np.float64)
         finite = np.isfinite(d)
@@ -232,7 +237,7 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
                 # panel, on the strongest streak of that slope
                 tl = np.array([k.t_s[0], k.t_s[-1]])
             ax.plot((tl - t_origin) * 1e3, a + b * fit.s_at(tl), "--" if fit.method != "ridge" else "-",
-                    lw=1.8, color="tab:red", label=_speed_label(fit, geometry))
+                    lw=1.8, color="tab:red", label=_speed_label(fit, geometry, why))
             ax.legend(loc="upper right", fontsize=7, framealpha=0.85)
         # the bins' span, not the lines' (nor pcolormesh's margins)
         ax.set_xlim(ext[0], ext[1])
