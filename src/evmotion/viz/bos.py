@@ -426,7 +426,7 @@ def save_bos_sequence_pngs(folder: str | os.PathLike, bos, *,
     q_limit = bos_q_limit(bos.q, seq.valid, seq.flow)
     files: list[str] = []
     for k in range(n):
-        label = f"[{seq.t0[k]}, {seq.t1[k]}) us"
+        label = f"[{seq.t0[k]}, {seq.t1[k]}) µs"
         if not measured[k]:
             label += ": NOT A MEASUREMENT (no valid pixel)"
         files += save_bos_pngs(folder, k, seq.flow[k], bos.q[k], bos.p[k],

@@ -139,7 +139,7 @@ def flow_video_frames(events: EventArray, windows: Sequence[Window],
         rgb, _ = flow_panel(events.window(w), flows[k], max_speed=max_speed,
                             valid=None if valids is None else valids[k],
                             t_ref_us=None if t_refs_us is None else t_refs_us[k],
-                            title=f"window {w.index}: [{w.t0}, {w.t1}) us")
+                            title=f"window {w.index}: [{w.t0}, {w.t1}) µs")
         yield rgb
 
 
