@@ -227,15 +227,13 @@ def _panel(r, t0_us: int, t1_us: int) -> bytes:
     """The window's PNG panel: its IWE without and with the warp (and the DIWE/IWA maps
     where the regularizer made them)."""
     from evmotion.viz import images
+    from evmotion.viz.titles import parameters_text
 
     # one scale for both (the warped image's): the sharper one is also the darker
     vmax = images.full_scale(r.iwe_after)
     panels = [images.iwe_to_rgb(r.iwe_before, vmax=vmax),
               images.iwe_to_rgb(r.iwe_after, vmax=vmax)]
-    parts = [f"{n}={v:.3g} {u}" for n, v, u in zip(r.param_names, r.params, r.param_units,
-                                                   strict=True)]
-    # two values to a line: the title stays within its panel
-    values = "\n".join(", ".join(parts[k:k + 2]) for k in range(0, len(parts), 2))
+    values = parameters_text(r.param_names, r.params, r.param_units)
     titles = [f"IWE, zero motion\nwhite 0, black >= {vmax:.3g} events / px",
               f"IWE warped (same scale)\n{values}"]
     suptitle = _panel_title(r, t0_us, t1_us)

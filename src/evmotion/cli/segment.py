@@ -310,7 +310,7 @@ def _segment_job(events, **kwargs):
     from evmotion.errors import PoorFitWarning
     from evmotion.methods.segmentation import segment_motion
     from evmotion.viz import images
-    from evmotion.viz.titles import quantity_text
+    from evmotion.viz.titles import parameters_text
 
     with warnings.catch_warnings():
         # the client says which clusters are not measurements, once, whichever process
@@ -318,11 +318,9 @@ def _segment_job(events, **kwargs):
         seg = segment_motion(events, **kwargs)
     titles = []
     for j in range(len(seg.iwes)):
-        # each value with its unit, two to a line (the units joined by "/" after them all
-        # read "1/(px s)/1/s/px/s", and 8 values ran into the next panel, probe DA)
-        parts = [quantity_text(n, v, u) for n, v, u in zip(
-            seg.param_names, seg.params[j], seg.param_units, strict=True)]
-        values = "\n".join(", ".join(parts[k:k + 2]) for k in range(0, len(parts), 2))
+        # each value with its unit (the units joined by "/" after them all read
+        # "1/(px s)/1/s/px/s", probe DA)
+        values = parameters_text(seg.param_names, seg.params[j], seg.param_units)
         flag = ("" if seg.valid[j] else
                 ", NOT VALID: event collapse" if seg.collapsed[j] else ", NOT VALID")
         titles.append(f"cluster {j}\n{values}\n"

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import textwrap
 
-__all__ = ["duration_text", "quantity_text", "wrap_title"]
+__all__ = ["duration_text", "parameters_text", "quantity_text", "wrap_title"]
 
 
 def wrap_title(title: str | None, width_px: float, char_px: float) -> list[str]:
@@ -67,3 +67,17 @@ def quantity_text(name: str, value: float, unit: str, digits: int = 3, sep: str 
     if unit.startswith("1/"):
         return f"{name}{sep}{v}{unit[1:]}"
     return f"{name}{sep}{v} {unit}".rstrip()
+
+
+def parameters_text(names, values, units) -> str:
+    """A warp's parameters for a panel's title: each :func:`quantity_text`, two to a line
+    (eight values on one line ran into the next panel, probe DA).
+
+    Examples
+    --------
+    >>> print(parameters_text(("vx", "vy", "hz"), (219.0, -129.0, 1.5), ("px/s",) * 2 + ("1/s",)))
+    vx=219 px/s, vy=-129 px/s
+    hz=1.5/s
+    """
+    parts = [quantity_text(n, float(v), u) for n, v, u in zip(names, values, units, strict=True)]
+    return "\n".join(", ".join(parts[k:k + 2]) for k in range(0, len(parts), 2))
