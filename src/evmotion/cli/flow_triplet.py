@@ -249,11 +249,9 @@ def run(args) -> int:
                 continue
             _emit(win, dense_out, png_dir, args.max_speed)
             n_windows += 1
-            if win.flow is not None:
-                ok = (np.isfinite(win.flow).all(axis=-1) if win.valid is None
-                      else np.asarray(win.valid, bool))
-                valid_px += int(ok.sum())
-                all_px += ok.size
+            if win.flow is not None:  # (its valid mask is set with it)
+                valid_px += int(np.count_nonzero(win.valid))
+                all_px += win.valid.size
             if win.no_focus:
                 no_focus.append(win.index)
             if win.early and win.flow is not None:
