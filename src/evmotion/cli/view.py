@@ -125,6 +125,7 @@ def run(args) -> int:
     from evmotion.errors import EmptyWindowError, EvmotionError
     from evmotion.utils import atomic_write_bytes, seconds_text
     from evmotion.viz import event_histogram, event_picture_png, iwe_to_rgb, read_png, save_png
+    from evmotion.viz.flowpic import upscale
 
     check_time_order(args)
     out = Path(args.out)
@@ -183,7 +184,7 @@ def run(args) -> int:
     if args.raw:
         rgb = iwe_to_rgb(hist, polarity=args.polarity, percentile=_percentile(args))
         if args.scale > 1:
-            rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
+            rgb = upscale(rgb, args.scale)
         save_png(out, rgb)
     else:
         # (to the µs: epoch times at 6 digits read [1.58916e+09, 1.58916e+09): probe)
@@ -226,7 +227,7 @@ def _event_flow_picture(args, ev, hist, title: str):
 
     from evmotion.io.eventflow import read_event_flow
     from evmotion.viz import full_scale, iwe_to_rgb
-    from evmotion.viz.flowpic import flow_picture, mean_event_flow, picture_row
+    from evmotion.viz.flowpic import flow_picture, mean_event_flow, picture_row, upscale
 
     ef = read_event_flow(args.file)
     t = ef["t"]
@@ -238,14 +239,14 @@ def _event_flow_picture(args, ev, hist, title: str):
     vmax = full_scale(hist, _percentile(args))
     events = iwe_to_rgb(hist, polarity=args.polarity, vmax=vmax)
     if pic.scale > 1:
-        events = np.repeat(np.repeat(events, pic.scale, axis=0), pic.scale, axis=1)
+        events = upscale(events, pic.scale)
     # the events' scale in words, as the flow's legend gives its own (probe BX)
     scale = (f"red +, blue -, full at +-{vmax:.3g}" if args.polarity
              else f"white 0, black >= {vmax:.3g}")
     rgb = picture_row([events, pic.rgb], [f"events ({scale} / px)",
                                           "their flow: each pixel's mean"], title=title)
     if args.scale > 1:
-        rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
+        rgb = upscale(rgb, args.scale)
     return rgb
 
 
@@ -259,6 +260,7 @@ def _view_flow(args, out: Path) -> int:
     from evmotion.utils import seconds_text
     from evmotion.viz import save_png
     from evmotion.viz.bos import bos_q_limit, flow_window_picture
+    from evmotion.viz.flowpic import upscale
 
     reject_unused(args, {"--t1": "t1", "--window-events": "window_events",
                          "--polarity": "polarity"},
@@ -304,7 +306,7 @@ def _view_flow(args, out: Path) -> int:
                                     + (": no valid pixel, no measurement" if unmeasured
                                        else ""))
     if args.scale > 1:
-        rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
+        rgb = upscale(rgb, args.scale)
     save_png(out, rgb)
     if args.json:
         valid = seq.valid[k] if seq.valid is not None else np.isfinite(seq.flow[k]).all(-1)
@@ -331,6 +333,7 @@ def _view_undated(args, out, files: list[Path]) -> int:
     from evmotion.io.flowread import read_displacement
     from evmotion.viz import save_png
     from evmotion.viz.bos import flow_window_picture
+    from evmotion.viz.flowpic import upscale
 
     n = len(files)
     reject_unused(args, {"--t1": "t1", "--window-events": "window_events",
@@ -348,7 +351,7 @@ def _view_undated(args, out, files: list[Path]) -> int:
                               title=f"{name}: displacement (no times: no sidecar)"
                                     + (f", file {k} of {n}" if n > 1 else ""))
     if args.scale > 1:
-        rgb = np.repeat(np.repeat(rgb, args.scale, axis=0), args.scale, axis=1)
+        rgb = upscale(rgb, args.scale)
     save_png(out, rgb)
     if args.json:
         print_json({"file": str(args.file), "out": str(out), "kind": "flow", "window": k,

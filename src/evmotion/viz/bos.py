@@ -15,7 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.viz.colorwheel import GREY
-from evmotion.viz.flowpic import MIN_HEIGHT, FlowPicture, flow_picture, picture_row, upscale
+from evmotion.viz.flowpic import (
+    FlowPicture,
+    flow_picture,
+    picture_row,
+    upscale,
+    upscale_factor,
+)
 from evmotion.viz.images import save_png, title_row
 
 __all__ = ["bos_flow_picture", "bos_q_limit", "field_scale", "flow_window_picture",
@@ -112,7 +118,7 @@ def field_scale(shape: tuple[int, ...]) -> int:
     >>> field_scale((128, 160)), field_scale((180, 160))
     (2, 1)
     """
-    return max(1, -(-MIN_HEIGHT // int(shape[0])))
+    return upscale_factor(shape[0])
 
 
 def _framed(field: np.ndarray, k: int, title: str | None, *,
@@ -423,7 +429,7 @@ def save_bos_sequence_pngs(folder: str | os.PathLike, bos, *,
     measured = valid.reshape(n, -1).any(axis=1)
     if max_speed is None:
         max_speed = sequence_max_speed(np.nan_to_num(seq.flow), valid)
-    q_limit = bos_q_limit(bos.q, seq.valid, seq.flow)
+    q_limit = bos_q_limit(bos.q, valid)  # (valid: the flow's mask and its finite pixels)
     files: list[str] = []
     for k in range(n):
         label = f"[{seq.t0[k]}, {seq.t1[k]}) µs"

@@ -25,7 +25,7 @@ from evmotion.viz.colorwheel import GREY, colorwheel_image, flow_max_magnitude, 
 from evmotion.viz.titles import wrap_title
 
 __all__ = ["MIN_HEIGHT", "FlowPicture", "flow_panel", "flow_picture", "mean_event_flow",
-           "picture_row", "sequence_max_speed", "upscale"]
+           "picture_row", "sequence_max_speed", "upscale", "upscale_factor"]
 
 #: Pictures with fewer rows are upscaled by an integer factor to at least this height.
 MIN_HEIGHT = 160
@@ -86,6 +86,18 @@ def _check_valid(valid: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray
             raise ParameterError(f"valid mask must hold True / False (or 0 / 1), got "
                                  f"{odd.flat[0]!r}")
     return valid.astype(bool, copy=False)
+
+
+def upscale_factor(rows: int) -> int:
+    """The whole number a flow picture of ``rows`` rows is upscaled by: to at least
+    :data:`MIN_HEIGHT` rows.
+
+    Examples
+    --------
+    >>> upscale_factor(128), upscale_factor(180)
+    (2, 1)
+    """
+    return max(1, -(-MIN_HEIGHT // int(rows)))
 
 
 def upscale(rgb: np.ndarray, k: int) -> np.ndarray:
@@ -259,7 +271,7 @@ def flow_picture(flow: np.ndarray, *, max_speed: float | None = None,
     h, w = rgb.shape[:2]
     if not legend:
         return FlowPicture(rgb, speed, fixed, unit, 1, (0, h, 0, w), (0, 0, w, w), ())
-    k = max(1, -(-MIN_HEIGHT // h))
+    k = upscale_factor(h)
     finite = np.isfinite(flow).all(axis=-1)
     # (a window with no valid pixel drew "rim 1 px/s", a scale of nothing, probe BK)
     empty = not (finite if valid is None else finite & valid).any()

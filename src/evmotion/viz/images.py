@@ -200,16 +200,6 @@ def _figure(figsize: tuple[float, float], dpi: int):
     return fig
 
 
-def _figure_png(fig, dpi: int) -> bytes:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi)
-    return buf.getvalue()
-
-
-def _save_figure(fig, path: str | os.PathLike, dpi: int) -> None:
-    atomic_write_bytes(path, _figure_png(fig, dpi))
-
-
 def save_flow_png(path: str | os.PathLike, flow: np.ndarray, *,
                   max_speed: float | None = None, valid: np.ndarray | None = None,
                   unit: str = "px/s", legend: bool = True, title: str | None = None,
