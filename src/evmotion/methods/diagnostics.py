@@ -232,9 +232,10 @@ def collapse_diagnostics(warp: Warp, theta, span: tuple[float, float],
 
 
 def warn_collapse(diag: dict, regularizer: str | None, weight,
-                  stacklevel: int = 3) -> str | None:
+                  stacklevel: int = 3, what: str = "") -> str | None:
     """Issue a :class:`~evmotion.errors.CollapseWarning` naming the cure, if ``diag`` (from
-    :func:`collapse_diagnostics`) says collapsed; returns its message (else None)."""
+    :func:`collapse_diagnostics`) says collapsed; returns its message (else None).
+    ``what``: the estimate it is about, opening the message ("cluster 1")."""
     if not diag.get("collapsed"):
         return None
     if regularizer in (None, "whitening"):
@@ -245,8 +246,8 @@ def warn_collapse(diag: dict, regularizer: str | None, weight,
                 f"(API weight=)")
     else:
         cure = f"raise --weight (now {_fmt_weight(weight)}; API weight=)"
-    msg = (f"event collapse: {'; '.join(diag['reasons'])}; the estimate is not the motion "
-           f"-- {cure}")
+    msg = (f"{what + ': ' if what else ''}event collapse: {'; '.join(diag['reasons'])}; the "
+           f"estimate is not the motion -- {cure}")
     warnings.warn(msg, CollapseWarning, stacklevel=stacklevel)
     return msg
 

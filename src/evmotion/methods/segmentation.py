@@ -39,10 +39,10 @@ import numpy as np
 
 from evmotion.core.iwe import accumulate
 from evmotion.core.optim import gradient_minimize
-from evmotion.errors import CollapseWarning, ParameterError, PoorFitWarning
+from evmotion.errors import ParameterError, PoorFitWarning
 from evmotion.events import EventArray, require_events
 from evmotion.methods.cmax import make_cost, param_scales
-from evmotion.methods.diagnostics import collapse_diagnostics
+from evmotion.methods.diagnostics import collapse_diagnostics, warn_collapse
 from evmotion.methods.measured import warn_by_chance, warp_alignment_chance
 from evmotion.utils import check_number, whole_number
 
@@ -267,8 +267,9 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
     params, prob, history, iwes = runs[kept]
     labels = prob.argmax(axis=1)
     gains, valid = np.empty(n_warps), np.zeros(n_warps, bool)
+    unwarped = [accumulate(cost.x, cost.y, cost.shape, prob[:, j]) for j in range(n_warps)]
     for j in range(n_warps):
-        still = np.var(accumulate(cost.x, cost.y, cost.shape, prob[:, j]))
+        still = np.var(unwarped[j])
         gains[j] = np.var(iwes[j]) / still if still > 0 else np.nan
         enough = int(np.sum(labels == j)) >= MIN_CLUSTER_EVENTS
         if not enough:
@@ -285,7 +286,12 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
             valid[j] = True
     collapsed = np.zeros(n_warps, bool)
     for j in np.flatnonzero(valid):
-        collapsed[j] = _warn_collapsed(cost, params[j], prob[:, j], j, regularizer)
+        # egomotion's check on the cluster's own images: the EM sharpens a cluster as
+        # freely as one warp's CMax does (a homography cluster squeezed 14k events onto
+        # one dot, gain 999, and was valid; probe DA)
+        diag = collapse_diagnostics(w, params[j], cost.span, unwarped[j], iwes[j])
+        collapsed[j] = warn_collapse(diag, regularizer, cost.weight, stacklevel=3,
+                                     what=f"cluster {j}") is not None
     valid &= ~collapsed
     chance = np.full((2, n_warps), np.nan)
     for j in np.flatnonzero(valid):
@@ -313,27 +319,6 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
                               seconds=time.perf_counter() - t_start, gains=gains, valid=valid,
                               same_as=same_as, split=tried[kept] if n_warps > 1 else "",
                               collapsed=collapsed, chance_gains=chance[0], chance_z=chance[1])
-
-
-def _warn_collapsed(cost, params: np.ndarray, weights: np.ndarray, j: int,
-                    regularizer: str | None) -> bool:
-    """Whether cluster ``j``'s warp collapses its (``weights``-weighted) events, warned
-    as egomotion warns it: the EM sharpens a cluster as freely as one warp's CMax does
-    (a homography cluster squeezed 14k events onto one dot, gain 999, and was valid;
-    probe DA)."""
-    with np.errstate(all="ignore"):
-        xw, yw = cost.warp.warp(cost.x, cost.y, cost.dt, params)
-    diag = collapse_diagnostics(cost.warp, params, cost.span,
-                                accumulate(cost.x, cost.y, cost.shape, weights),
-                                accumulate(xw, yw, cost.shape, weights))
-    if diag["collapsed"]:
-        warnings.warn(CollapseWarning(
-            f"cluster {j}: event collapse: {'; '.join(diag['reasons'])}; its "
-            f"{cost.warp.name} parameters are not a measurement -- "
-            + ("add a collapse regularizer (--reg divergence or deformation; API "
-               "regularizer=)" if regularizer is None else "raise --weight (API weight=)")),
-            stacklevel=3)
-    return bool(diag["collapsed"])
 
 
 def _first_memberships(cost, split: str, n_warps: int, scale, sigma: float, seed: int
