@@ -48,6 +48,7 @@ from evmotion.methods.flowresult import event_support  # here too: the checks of
 from evmotion.methods.measured import (  # noqa: F401 (re-exported: callers import them here)
     MIN_CONTRAST_GAIN,
     MIN_FIT_EVENTS,
+    pixel_counts,
     warn_no_gain,
     warn_too_few,
 )
@@ -112,15 +113,7 @@ def effective_pixels(x, y, shape) -> float:
     >>> effective_pixels(np.array([0, 1, 1, 1]), np.array([0, 0, 0, 0]), (2, 2))
     1.6
     """
-    h, w = int(shape[0]), int(shape[1])
-    xi = np.rint(np.asarray(x, dtype=np.float64)).astype(np.int64)
-    yi = np.rint(np.asarray(y, dtype=np.float64)).astype(np.int64)
-    ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-    idx = yi[ok] * w + xi[ok]
-    # the counts of the pixels the events touch: an image of the whole sensor where it is
-    # far larger than the events (a megapixel sensor) costs more than sorting them
-    counts = (np.bincount(idx, minlength=h * w) if h * w <= 4 * max(idx.size, 1)
-              else np.unique(idx, return_counts=True)[1]).astype(np.float64)
+    counts = pixel_counts(x, y, shape)
     ss = float(np.dot(counts, counts))
     n = float(counts.sum())
     return n * n / ss if ss > 0 else 0.0

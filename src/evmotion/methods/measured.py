@@ -11,15 +11,16 @@ import numpy as np
 from evmotion.errors import ParameterError, PoorFitWarning
 from evmotion.events import EventArray
 
-__all__ = ["CHANCE_DRAWS", "MAX_ONE_POLARITY", "MAX_POLARITY_SWING", "MIN_BURST_CV",
-           "MIN_CHANCE_Z", "MIN_CONTRAST_GAIN",
-           "MIN_FIT_EVENTS", "MIN_FLOW_DENSITY", "MIN_FLOW_EVENTS", "MIN_HALVES_CORRELATION",
-           "MIN_MOTION_PX", "MAX_GAP_SHARE",
-           "alignment_chance", "alignment_gain", "flow_alignment_chance",
-           "flow_alignment_gain", "gap_share", "halves_consistency",
-           "lit_not_moved", "local_swing", "polarity_bursts", "warn_by_chance",
-           "warn_by_refit", "warn_flicker", "warn_gap", "warn_inconsistent_halves", "warn_no_gain",
-           "warp_alignment_chance", "min_flow_events", "warn_small_motion", "warn_too_few", "warn_too_few_for_flow"]
+__all__ = ["CHANCE_DRAWS", "DENSE_PIXELS_PER_EVENT", "MAX_GAP_SHARE", "MAX_ONE_POLARITY",
+           "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CHANCE_Z", "MIN_CONTRAST_GAIN",
+           "MIN_FIT_EVENTS", "MIN_FLOW_DENSITY", "MIN_FLOW_EVENTS",
+           "MIN_HALVES_CORRELATION", "MIN_MOTION_PX", "alignment_chance", "alignment_gain",
+           "flow_alignment_chance", "flow_alignment_gain", "gap_share",
+           "halves_consistency", "lit_not_moved", "local_swing", "min_flow_events",
+           "pixel_counts", "polarity_bursts", "warn_by_chance", "warn_by_refit",
+           "warn_flicker", "warn_gap", "warn_inconsistent_halves", "warn_no_gain",
+           "warn_small_motion", "warn_too_few", "warn_too_few_for_flow",
+           "warp_alignment_chance"]
 
 # an estimate whose image of warped events is not this much sharper (variance ratio) than
 # the identity warp's measures nothing (a 3.3 ms ECD window: 1.002, its rotation wrong)
@@ -231,6 +232,34 @@ def alignment_gain(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
     return alignment_chance(x, y, t, f, t_ref_us, shape, draws=1)[0]
 
 
+#: A count image of the whole sensor is made where the sensor has at most this many pixels
+#: an event (:func:`pixel_counts`), else the counts of the pixels the events touch.
+DENSE_PIXELS_PER_EVENT = 4
+
+
+def pixel_counts(x, y, shape: tuple[int, int]) -> np.ndarray:
+    """Events per pixel (float64) of events at ``x, y`` (rounded to the nearest pixel;
+    outside the sensor ``shape`` (H, W) ignored): every pixel's count where the sensor
+    has at most :data:`DENSE_PIXELS_PER_EVENT` pixels an event (bincount, linear time),
+    else the touched pixels' alone (a megapixel sensor's image costs more than sorting a
+    few thousand events). Sums over the counts are the same either way.
+
+    Examples
+    --------
+    >>> pixel_counts(np.array([0.0, 1.2, 0.9]), np.zeros(3), (1, 2)).tolist()
+    [1.0, 2.0]
+    """
+    h, w = int(shape[0]), int(shape[1])
+    xi = np.rint(np.asarray(x, dtype=np.float64)).astype(np.int64)
+    yi = np.rint(np.asarray(y, dtype=np.float64)).astype(np.int64)
+    keep = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+    idx = yi[keep] * w + xi[keep]
+    counts = (np.bincount(idx, minlength=h * w)
+              if h * w <= DENSE_PIXELS_PER_EVENT * max(xi.size, 1)
+              else np.unique(idx, return_counts=True)[1])
+    return counts.astype(np.float64)
+
+
 def alignment_chance(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
                      t_ref_us: int, shape: tuple[int, int],
                      draws: int = CHANCE_DRAWS) -> tuple[float, float]:
@@ -259,18 +288,11 @@ def alignment_chance(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
     dt = (t - np.int64(t_ref_us)).astype(np.float64) * 1e-6
     f = np.asarray(f, np.float64)
     n_px = float(h * w)
-    # a dense image where it is no larger than the events (bincount: linear time), else
-    # the counts of the occupied pixels (a window of a few thousand events on a megapixel
-    # sensor: no image of a million bins for each draw)
-    dense = h * w <= 4 * max(x.size, 1)
 
     def variance(times):
-        xw = np.rint(x - f[:, 0] * times).astype(np.intp)
-        yw = np.rint(y - f[:, 1] * times).astype(np.intp)
-        keep = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-        idx = yw[keep] * w + xw[keep]
-        counts = (np.bincount(idx, minlength=h * w) if dense
-                  else np.unique(idx, return_counts=True)[1]).astype(np.float64)
+        # (a window of a few thousand events on a megapixel sensor: no image of a million
+        # bins for each draw)
+        counts = pixel_counts(x - f[:, 0] * times, y - f[:, 1] * times, shape)
         return float(np.sum(counts**2) / n_px - (np.sum(counts) / n_px) ** 2)
 
     rng = np.random.default_rng(0)
