@@ -13,13 +13,20 @@ constructor checks this and the sensor bounds unless ``validate=False``.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from evmotion.catalog import MAX_SENSOR_SIDE, NS_EPOCH_US
-from evmotion.errors import EmptyWindowError, EventDataError, ParameterError, UnsortedError
+from evmotion.errors import (
+    EmptyWindowError,
+    EventDataError,
+    EvmotionWarning,
+    ParameterError,
+    UnsortedError,
+)
 from evmotion.utils import check_not_seconds, check_number, whole_number
 
 __all__ = [
@@ -343,13 +350,13 @@ class EventArray:
     def slice_time(self, t0: int | None = None, t1: int | None = None) -> EventArray:
         """Events with ``t0 <= t < t1`` (microseconds; None means open)."""
         for name, v in (("t0", t0), ("t1", t1)):
+            if v is None:
+                continue
             # (a NaN bound gave no event without a word, probe CB)
-            if v is not None and not (isinstance(v, (int, float, np.integer, np.floating))
-                                      and np.isfinite(v)):
+            if not (isinstance(v, (int, float, np.integer, np.floating)) and np.isfinite(v)):
                 raise ParameterError(f"slice_time: {name} must be a finite time in "
                                      f"microseconds or None, got {v!r}")
-            if v is not None:
-                check_not_seconds(f"slice_time: {name}", v)
+            check_not_seconds(f"slice_time: {name}", v)
         i0 = 0 if t0 is None else int(self.index_at(t0))
         i1 = len(self) if t1 is None else int(self.index_at(t1))
         return self._take(slice(i0, max(i0, i1)))
@@ -854,10 +861,6 @@ def _check_on_sensor(events: EventArray, func: str) -> np.ndarray | None:
         raise EventDataError(f"{func}: all {off} events lie off the sensor ({where}): "
                              "sensor_size is (height, width)")
     if off > OFF_SENSOR_WARN * len(events):
-        import warnings
-
-        from evmotion.errors import EvmotionWarning
-
         warnings.warn(EvmotionWarning(
             f"{func}: {off} of {len(events)} events lie off the sensor ({where}) and are "
             "left out: sensor_size is (height, width)"), stacklevel=3)
@@ -913,10 +916,6 @@ are integer microseconds; from seconds: np.round(t * 1e6).astype(np.int64)
             # float32 holds whole µs only up to 2^24 (16.8 s): an epoch's times all became
             # one and times of 1e9 µs were rounded to 64 µs, without a word (probe DB); said,
             # not refused: a file's float32 times are what it holds
-            import warnings
-
-            from evmotion.errors import EvmotionWarning
-
             warnings.warn(EvmotionWarning(
                 f"{what} is {a.dtype}, which holds whole microseconds exactly only up to "
                 f"{exact:,.0f}, and reaches {max(hi, -lo):.6g}: its times were rounded "

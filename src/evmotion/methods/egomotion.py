@@ -590,7 +590,12 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
         fit = fit_diagnostics(cost.x, cost.y, cost.dt, xw, yw, cost.shape)
         msgs.append(warn_poor_fit(fit, w.name, stacklevel=4))
         moved = _moved_px(cost, xw, yw)
-        chance = _chance_gain(cost, xw, yw)
+        # how much better the warp aligns the events than the same per-event motions with
+        # the times permuted: an estimate that fits the window's own event clusters
+        # instead of its motion (real ECD windows of 10k events, about a pixel of motion:
+        # twice the IMU rate, valid) sharpens them as well with the times shuffled
+        chance = warp_alignment_chance(cost.x, cost.y, cost.dt, xw, yw, cost.shape,
+                                       draws=1)[0]
     # (from the images' non-zero pixels: np.var passed over the whole sensor, probe DB)
     v0 = image_variance(iwe_before)
     gain = image_variance(iwe_after) / v0 if v0 > 0 else float("nan")
@@ -618,16 +623,6 @@ def _diagnose(cost: CMaxCost, theta, iwe_before, iwe_after, regularizer, weight_
             "chance_gain": chance, "gap_share": gap,
             "too_few_events": too_few is not None,
             "weight_source": weight_source, "warnings": [m for m in msgs if m]}
-
-
-def _chance_gain(cost: CMaxCost, xw, yw) -> float:
-    """:func:`~evmotion.methods.measured.alignment_gain` of the estimate: how much better
-    its warp aligns the events than the same per-event motions with the times permuted.
-    An estimate that fits the window's own event clusters instead of its motion (real ECD
-    windows of 10k events, about a pixel of motion: twice the IMU rate, valid) sharpens
-    them as well with the times shuffled. The per-event motion is the warp's displacement
-    to ``t_ref`` over the event's time offset (events at ``t_ref`` itself: none)."""
-    return warp_alignment_chance(cost.x, cost.y, cost.dt, xw, yw, cost.shape, draws=1)[0]
 
 
 def _moved_px(cost: CMaxCost, xw, yw) -> float:
