@@ -979,3 +979,41 @@ def test_cli_draws_each_window_over_its_interval(tmp_path, capsys, monkeypatch):
         else:
             x = np.unique(ax.collections[0].get_coordinates()[..., 0])
             np.testing.assert_allclose(x, np.array(bounds) * 1e-3)
+
+
+def test_fit_times_are_on_the_clock_the_axis_shows(plume, tmp_path, capsys):
+    """--fit-t0/--fit-t1 were seconds after the kymogram's start while its time axis shows
+    the recording's clock: a time read off the axis of a recording that starts at 10 s was
+    refused as after the end. They take --t0's syntax now: the recording's clock, or
+    +TIME after the kymogram's start."""
+    import dataclasses
+    import json
+
+    from evmotion.io import write_events
+
+    sim, _ = plume
+    ev = sim.events
+    shifted = dataclasses.replace(ev, t=ev.t + 10_000_000)
+    rec = tmp_path / "late.npz"
+    write_events(rec, shifted)
+    w = ev.sensor_size[1]
+    runs = {}
+    for name, t0, t1 in (("clock", "10.01", "10.14"), ("relative", "+10ms", "+0.14")):
+        rc, text, err = _cli(capsys, rec, "--col", w // 2, "--width", 31, "--fit-t0", t0,
+                             "--fit-t1", t1, "--out", tmp_path / f"{name}.png", "--json")
+        assert rc == 0, err
+        runs[name] = json.loads(text)["panels"][0]
+    start = runs["clock"]["t0_s"]
+    assert 10.0 <= start < 10.01
+    assert runs["clock"]["fit_t0_s"] == pytest.approx(10.01)
+    assert runs["clock"]["fit_t1_s"] == pytest.approx(10.14)
+    assert runs["relative"]["fit_t0_s"] == pytest.approx(start + 0.01)
+    assert runs["relative"]["fit_t1_s"] == pytest.approx(start + 0.14)
+    v = sim.gt.meta["rise_speed_px_s"]
+    assert runs["clock"]["velocity_px_s"] == pytest.approx(-v, rel=0.15)
+    rc, _, err = _cli(capsys, rec, "--col", w // 2, "--fit-t0", "+0.1", "--fit-t1", "10.05",
+                      "--out", tmp_path / "k.png")
+    assert rc != 0 and "--fit-t1 (10.05 s) must be after --fit-t0 (10.1" in err
+    rc, _, err = _cli(capsys, rec, "--col", w // 2, "--fit-t1", "5", "--out",
+                      tmp_path / "k.png")
+    assert rc != 0 and "at or before the kymogram's start: it spans 10" in err

@@ -101,11 +101,14 @@ def add_parser(sub) -> None:
     fit.add_argument("--s-range", nargs=2, type=finite_float(unit="px"), default=None,
                      metavar=("S0", "S1"), help="search the ridge between S0 and S1 px "
                                                 "along the line")
-    # (seconds after the kymogram's start: -1 had passed and meant 0; probe)
-    fit.add_argument("--fit-t0", type=finite_float(0, unit="s"), default=None, metavar="S",
-                     help="search the ridge from S seconds after the kymogram's start")
-    fit.add_argument("--fit-t1", type=finite_float(unit="s"), default=None, metavar="S",
-                     help="... up to S seconds after the kymogram's start")
+    # on the clock the picture's time axis shows (they were seconds after the kymogram's
+    # start, so a time read off the axis fell outside it)
+    fit.add_argument("--fit-t0", type=time_us, default=None, metavar="TIME",
+                     help="fit from TIME, as --t0 takes it: seconds on the recording's clock "
+                          "(the picture's time axis), with a unit, or +TIME after the "
+                          "kymogram's start")
+    fit.add_argument("--fit-t1", type=time_us, default=None, metavar="TIME",
+                     help="fit up to TIME, as --fit-t0")
     fit.add_argument("--min-snr", type=finite_float(0, 1e6), default=None,
                      help="ridge peaks must stand this many robust sigmas above the median (3)")
     fit.add_argument("--stationary-px", type=finite_float(0, 1e4, unit="px"), default=None,
@@ -157,10 +160,6 @@ def _check_args(args) -> dict | None:
     if args.s_range is not None and args.s_range[1] <= args.s_range[0]:
         raise ParameterError(f"--s-range {args.s_range[0]:g} {args.s_range[1]:g}: the end "
                              "must be after the start")
-    if (args.fit_t0 is not None and args.fit_t1 is not None
-            and args.fit_t1 <= args.fit_t0):
-        raise ParameterError(f"--fit-t1 ({args.fit_t1:g} s) must be after --fit-t0 "
-                             f"({args.fit_t0:g} s)")
     geo = {"focal_mm": args.focal_mm, "distance_m": args.distance_m, "pixel_um": args.pixel_um}
     given = [k for k, v in geo.items() if v is not None]
     if given and len(given) < 3:
@@ -251,21 +250,40 @@ _OPTION_NAMES = {"min_shift_px / stationary_px": "--stationary-px", "max_lag_s":
                  "s_range": "--s-range", "t_range": "--fit-t0/--fit-t1"}
 
 
-def _check_fit_region(args, kymo, t_start: float) -> None:
-    """--fit-t0/--fit-t1 and --s-range must select part of the kymogram (a region outside
-    it gave a run with exit code 0 and a message about 0 time bins)."""
+def _fit_times(args, kymo, t_start: float) -> tuple[float, float] | None:
+    """--fit-t0/--fit-t1 in seconds on the kymogram's clock (``+TIME`` after its start), or
+    None; each must select part of the kymogram (a region outside it gave a run with exit
+    code 0 and a message about 0 time bins)."""
+    from evmotion.cli.options import FromStart
     from evmotion.errors import ParameterError
 
-    if args.no_fit:
-        return
-    span = float(kymo.t_s[-1]) + 0.5 / kymo.rate_hz - t_start
-    if args.fit_t0 is not None and args.fit_t0 >= span:
-        raise ParameterError(f"--fit-t0 {args.fit_t0:g} s is at or after the kymogram's end: "
-                             f"it spans {span:.6g} s from its start")
-    if args.fit_t1 is not None and args.fit_t1 <= 0:
-        raise ParameterError(f"--fit-t1 {args.fit_t1:g} s is at or before the kymogram's start")
+    if args.no_fit or (args.fit_t0 is None and args.fit_t1 is None):
+        return None
+    t_end = float(kymo.t_s[-1]) + 0.5 / kymo.rate_hz
+    span = f"it spans {t_start:.6g}..{t_end:.6g} s on the recording's clock"
+    seconds = {}
+    for name, value, edge in (("--fit-t0", args.fit_t0, t_start),
+                              ("--fit-t1", args.fit_t1, t_end)):
+        seconds[name] = edge if value is None else (
+            value * 1e-6 + (t_start if isinstance(value, FromStart) else 0.0))
+    t0, t1 = seconds["--fit-t0"], seconds["--fit-t1"]
+    if t0 >= t_end:
+        raise ParameterError(f"--fit-t0 {t0:.6g} s is at or after the kymogram's end: {span}")
+    if t1 <= t_start:
+        raise ParameterError(f"--fit-t1 {t1:.6g} s is at or before the kymogram's start: "
+                             f"{span}")
+    if t1 <= t0:
+        raise ParameterError(f"--fit-t1 ({t1:.6g} s) must be after --fit-t0 ({t0:.6g} s)")
+    return t0, t1
+
+
+def _check_s_range(args, kymo) -> None:
+    """--s-range must select part of the line."""
+    from evmotion.errors import ParameterError
+
     length = float(kymo.s_px[-1]) if len(kymo.s_px) else 0.0
-    if args.s_range is not None and (args.s_range[0] > length or args.s_range[1] < 0):
+    if (not args.no_fit and args.s_range is not None
+            and (args.s_range[0] > length or args.s_range[1] < 0)):
         raise ParameterError(f"--s-range {args.s_range[0]:g} {args.s_range[1]:g} px lies off "
                              f"the line, which runs from 0 to {length:.4g} px")
 
@@ -383,14 +401,11 @@ def run(args) -> int:
 
     fits, summaries = [], []
     t_start = float(kymos[0].t_s[0]) - 0.5 / kymos[0].rate_hz
-    _check_fit_region(args, kymos[0], t_start)
+    t_range = _fit_times(args, kymos[0], t_start)
+    _check_s_range(args, kymos[0])
     for k in kymos:
         fit, error = None, None
         if not args.no_fit:
-            t_range = None
-            if args.fit_t0 is not None or args.fit_t1 is not None:
-                t_range = (t_start + (args.fit_t0 if args.fit_t0 is not None else -1e9),
-                           t_start + (args.fit_t1 if args.fit_t1 is not None else 1e9))
             try:
                 if args.method == "ridge":
                     fit = fit_ridge(k, sigma_px=_or(args.sigma_px, 2.0),
@@ -413,6 +428,8 @@ def run(args) -> int:
                # the span's edges, not its first and last bins' centres (half a bin in),
                # as the picture draws them
                "t0_s": float(edges[0]), "t1_s": float(edges[-1])}
+        if t_range is not None:
+            row.update(fit_t0_s=t_range[0], fit_t1_s=t_range[1])
         if fit is not None:
             row.update(method=fit.method, velocity_px_s=fit.velocity_px_s,
                        velocity_std_px_s=fit.velocity_std_px_s,
