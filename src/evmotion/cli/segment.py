@@ -59,8 +59,8 @@ def add_parser(sub) -> None:
                    help="EM iterations (default 10)")
     p.add_argument("--split", choices=("best", "dominant", "spatial"), default="best",
                    help="how the events are first split among the clusters: 'dominant' "
-                        "(the motion sharpening them all takes the half it aligns best, the "
-                        "next the rest...), 'spatial' (k-means of positions), 'best' (both; "
+                        "(the motion sharpening them all takes the events it lines up better "
+                        "than they lie unwarped, the next the rest...), 'spatial' (k-means of positions), 'best' (both; "
                         "the clusters that together sharpen the events most; default)")
     p.add_argument("--seed", type=int_range(0), default=0,
                    help="seed of the spatial split's k-means")

@@ -204,8 +204,10 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
         Use the thesis' weights of this data set (default None: the window's).
     split : {"best", "dominant", "spatial"}
         How the events are first split among the clusters. ``"dominant"``: the motion
-        that best sharpens all the events is fitted, the half of them its image aligns
-        best is its cluster, and the next motion is fitted to the rest, and so on.
+        that best sharpens all the events is fitted, the events its warp lines up better
+        than they lie unwarped are its cluster, and the next motion is fitted to the
+        rest, and so on (an object of 10-30 % of the events over a moving background is
+        found: ``benchmarks/results/segment.md``).
         ``"spatial"``: a seeded k-means of the events' positions. ``"best"`` (default):
         both, kept the one whose clusters together (the sum of their IWEs) sharpen the
         events most; twice the time. Each fails where the other does not: a fast,
@@ -376,10 +378,16 @@ def _aligned(cost, params: np.ndarray, weights: np.ndarray, sigma: float) -> np.
 
 def _dominant_split(cost, n_warps: int, scale, sigma: float) -> np.ndarray:
     """Each event's first cluster: motion j is fitted to the events no earlier motion
-    took, and takes the ``1 / (n_warps - j)`` of them its image aligns best (the Gaussian
-    IWE at their warped positions: half of all for two motions); the last cluster keeps
-    the rest. (Halves at every step left nothing to the later of 50 clusters: numpy's
-    "Mean of empty slice" on every window, probe CE.)"""
+    took, and takes those of them its warp lines up better than they lie unwarped (the
+    Gaussian IWE at their warped positions against the unwarped image at their own); the
+    last cluster keeps the rest. Where that leaves fewer than :data:`MIN_CLUSTER_EVENTS`
+    on either side (no motion, or one that sharpens everything), motion j takes the
+    ``1 / (n_warps - j)`` of them its image aligns best (half of all for two motions).
+
+    (A fixed half gave the second motion as many background events as the object's: an
+    object of 20-30 % of the events never got a cluster of its own, both following the
+    background, one flagged as its duplicate. Halves at every step left nothing to the
+    later of 50 clusters: numpy's "Mean of empty slice" on every window, probe CE.)"""
     w = cost.warp
     n = cost.x.shape[0]
     labels = np.full(n, n_warps - 1)
@@ -390,7 +398,11 @@ def _dominant_split(cost, n_warps: int, scale, sigma: float) -> np.ndarray:
         fit = gradient_minimize(cost.value_grad, np.zeros(w.n_params), "bfgs", scale=scale,
                                 max_iter=30)
         aligned = _aligned(cost, fit.x, cost.weights, sigma)
-        mine = free & (aligned >= np.quantile(aligned[free], 1.0 - 1.0 / (n_warps - j)))
+        unwarped = _aligned(cost, np.zeros(w.n_params), cost.weights, sigma)
+        mine = free & (aligned > unwarped)
+        taken = int(np.sum(mine))
+        if min(taken, int(np.sum(free)) - taken) < MIN_CLUSTER_EVENTS:
+            mine = free & (aligned >= np.quantile(aligned[free], 1.0 - 1.0 / (n_warps - j)))
         labels[mine] = j
         free &= ~mine
     return labels
