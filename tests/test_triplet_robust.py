@@ -157,3 +157,24 @@ def test_sparse_events_match_numpy(n, shape, size):
     np.testing.assert_array_equal(mask, rmask)
     np.testing.assert_allclose(got[mask], ref[mask], rtol=1e-4, atol=1e-3)
     assert not got[~mask].any()
+
+
+@pytest.mark.parametrize("dense", ["robust", "mean", "lsq"])
+def test_noise_windows_are_no_measurement_whatever_their_speed(dense):
+    """Probe DG: on uniform noise the matcher finds slow triplets (~24 px/s, under a pixel
+    over a 30 ms window), which the gain test leaves untested: 76-100 % of the pixels came
+    out valid. Their flow does not carry a window's first half onto its second."""
+    import warnings
+
+    from evmotion.methods.triplet import estimate_flow_triplet
+
+    rng = np.random.default_rng(5)
+    n = 120_000
+    ev = EventArray(rng.integers(0, 160, n), rng.integers(0, 120, n),
+                    np.sort(rng.integers(0, 120_000, n)), rng.integers(0, 2, n), (120, 160))
+    wins = [(30_000 * k, 30_000 * (k + 1)) for k in (1, 2, 3)]
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        res = estimate_flow_triplet(ev, wins, dense=dense)
+    assert not res.valid.any()
+    assert any("no focus in 3 of 3 windows" in str(w.message) for w in said)

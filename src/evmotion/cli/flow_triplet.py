@@ -330,8 +330,9 @@ def run(args) -> int:
 
         warn_line(f"{args.file}: {len(no_focus)} of {n_windows} windows (first: "
                   f"{no_focus[0]}) have no focus: their dense flow aligns their events less "
-                  f"than {100 * (MIN_CONTRAST_GAIN - 1):.0f} % better than chance (noise or "
-                  "no texture); no pixel of them is valid")
+                  f"than {100 * (MIN_CONTRAST_GAIN - 1):.0f} % better than chance, or does "
+                  "not carry each window's first half onto its second (noise or no "
+                  "texture); no pixel of them is valid")
     if early:
         warn_line(f"{args.file}: {len(early)} of {n_windows} windows (first: {early[0]}) "
                   "hold events whose slow steps' triplets cannot be found (their partners lie "

@@ -64,9 +64,9 @@ class TripletWindow:
         (:func:`~evmotion.methods.measured.flow_alignment_gain`); NaN where undefined.
     no_focus : bool
         ``gain`` below :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` for a flow
-        that moves the events by a few pixels
-        (:func:`~evmotion.methods.triplet.focus_checked`): it aligns nothing (noise, no
-        texture), is no measurement, and ``valid`` is all False.
+        that moves the events by a few pixels, or a flow that does not carry the window's
+        first half onto its second (:func:`~evmotion.methods.triplet.focus_checked`): it
+        aligns nothing (noise, no texture), is no measurement, and ``valid`` is all False.
     early : bool
         The window's motion is slow enough that its events' triplets cannot be found
         (:func:`~evmotion.methods.triplet.early_window`): with ``dense="lsq"`` /
