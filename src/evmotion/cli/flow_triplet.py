@@ -344,7 +344,14 @@ def run(args) -> int:
                   f"({100 * tri.lit_events / max(n_events, 1):.0f} %) come in stretches lit "
                   "rather than moved (bursts of one polarity: flickering light or a lighting "
                   "change): they get no flow (not valid)")
-    if n_events >= NO_FLOW_MIN_EVENTS and n_valid < NO_FLOW_SHARE * n_events:
+    if tri.unaligned_events:
+        warn_line(f"{args.file}: {tri.unaligned_events:,} of {n_events:,} events "
+                  f"({100 * tri.unaligned_events / max(n_events, 1):.0f} %) got a flow that "
+                  "does not carry their stretch's first half onto its second (noise, or "
+                  "no motion the triplets follow): they get no flow (not valid)")
+    # (events whose flow the noise test took had triplets: not what this is about)
+    if n_events >= NO_FLOW_MIN_EVENTS and \
+            n_valid + tri.unaligned_events < NO_FLOW_SHARE * n_events:
         # (0 % valid on a 5.5 ms ECD window moving ~1000 px/s, without a word: a triplet's
         # steps are at least tau apart, so a motion of over dx / tau px/s finds none; probe CF)
         m = tri.matcher
@@ -380,7 +387,7 @@ def run(args) -> int:
             "mean_triplets": n_trip / max(n_events, 1),
             "windows": n_windows, "no_focus_windows": no_focus,
             "early_windows": early, "overflow": tri.overflow,
-            "lit_events": tri.lit_events,
+            "lit_events": tri.lit_events, "unaligned_events": tri.unaligned_events,
             "state_bytes": tri.matcher.state_nbytes,
             "wall_s": wall, "compile_s": compiled, "run_s": run_s,
             "events_per_s": n_events / run_s if run_s > 0 else None,

@@ -104,6 +104,7 @@ __all__ = [
     "dense_robust_fit",
     "early_window",
     "estimate_flow_triplet",
+    "event_flow_consistency",
     "event_fwl",
     "history_us",
     "max_normal_speed",
@@ -992,6 +993,46 @@ def _warn_no_focus(gains: np.ndarray, flagged: np.ndarray) -> None:
             f"chance; threshold {100 * (MIN_CONTRAST_GAIN - 1):.0f} %, or a flow that "
             "does not carry the window's first half onto its second): noise or no "
             "texture; their masks are all False", PoorFitWarning, stacklevel=3)
+
+
+def event_flow_consistency(events: EventArray, flow: TripletFlow) -> float:
+    """How well a per-event flow carries its events' first half onto their second:
+    :func:`~evmotion.methods.measured.halves_consistency` (warped to their middle) of
+    the dense field the valid events' flows make (each pixel's mean, then
+    :func:`nonzero_average_filter`), over all the events; NaN with fewer than two valid.
+
+    The flows themselves would not do: a triplet carries its event onto its partners by
+    construction, so even noise's line up (0.16-0.18 on dense noise), nor would the
+    valid events alone, which gather where noise fired often (0.20). Averaged over
+    neighbours and tried on every event, noise's random flows carry nothing (-0.05..0.04
+    on noise of 120x160 sensors and larger), a motion's do (0.52-0.78 on moving scenes
+    and recordings).
+
+    Examples
+    --------
+    >>> t = np.arange(0, 50_000, 10)
+    >>> bar = EventArray(x=np.round(10 + 400e-6 * t), y=t % 40, t=t, p=np.ones(t.size),
+    ...                  sensor_size=(40, 60))
+    >>> n = len(bar)
+    >>> right = TripletFlow(np.full(n, 400.0, np.float32), np.zeros(n, np.float32),
+    ...                     np.ones(n, bool), np.ones(n, np.int32))
+    >>> round(event_flow_consistency(bar, right), 1)
+    1.0
+    """
+    if len(flow) != len(events):
+        raise ParameterError(f"flow has {len(flow)} entries for {len(events)} events")
+    on = np.flatnonzero(flow.valid)
+    if on.size < 2:
+        return float("nan")
+    h, w = events.sensor_size
+    pix = (np.clip(np.rint(events.y[on]).astype(np.intp), 0, h - 1) * w
+           + np.clip(np.rint(events.x[on]).astype(np.intp), 0, w - 1))
+    cnt = np.bincount(pix, minlength=h * w).reshape(h, w)
+    mean = np.stack([np.bincount(pix, v[on].astype(np.float64), h * w).reshape(h, w)
+                     for v in (flow.vx, flow.vy)], axis=-1) / np.maximum(cnt, 1)[..., None]
+    dense, support = nonzero_average_filter(mean, cnt > 0)
+    dense[~support] = 0.0
+    return halves_consistency(events, dense, (int(events.t[0]) + int(events.t[-1])) // 2)
 
 
 def supported(events: EventArray, mask: np.ndarray, dense: str) -> np.ndarray:
