@@ -263,3 +263,40 @@ def test_a_chance_test_that_could_not_run_says_nothing():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert warn_by_chance(float("nan"), "dense flow", z=0.0) is None
+
+
+def _halves_reference(x, y, t, f, t_ref_us, shape):
+    """The halves correlation as first written: both halves' images, each padded and
+    summed over its nine shifts (the 3x3 box), correlated over the sensor."""
+    h, w = shape
+    dt = (int(t_ref_us) - t) * 1e-6
+    xw = np.rint(x + f[:, 0] * dt).astype(np.int64)
+    yw = np.rint(y + f[:, 1] * dt).astype(np.int64)
+    inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
+    first = t < (int(t[0]) + int(t[-1])) // 2
+    images = []
+    for half in (first & inside, ~first & inside):
+        img = np.bincount(yw[half] * w + xw[half], minlength=h * w).reshape(h, w)
+        pad = np.pad(img.astype(np.float64), 1)
+        images.append(sum(pad[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
+                      .ravel())
+    a, b = (v - v.mean() for v in images)
+    return float((a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum()))
+
+
+@pytest.mark.parametrize(("shape", "n", "speed"), [((7, 5), 40, 300.0), ((60, 80), 3000, 80.0),
+                                                   ((120, 160), 20_000, 400.0),
+                                                   ((1, 9), 30, 50.0)])
+def test_halves_correlation_matches_the_padded_images(shape, n, speed):
+    """halves_correlation scatters each event's 3x3 box on a framed grid (35 -> 5 ms a
+    30k window at 1280x720); it equals the padded images' correlation, edges included."""
+    from evmotion.methods.measured import halves_correlation
+
+    rng = np.random.default_rng(n)
+    h, w = shape
+    x, y = rng.integers(0, w, n), rng.integers(0, h, n)
+    t = np.sort(rng.integers(0, 30_000, n))
+    f = rng.normal(0, speed, (n, 2))
+    for t_ref in (0, 15_000, 30_000):
+        assert halves_correlation(x, y, t, f, t_ref, shape) == pytest.approx(
+            _halves_reference(x, y, t, f, t_ref, shape), rel=1e-9, abs=1e-12)

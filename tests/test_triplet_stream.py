@@ -243,3 +243,28 @@ def test_per_event_flow_of_noise_is_left_out():
     s = TripletStream(moving.sensor_size, dense=None)
     flow = s.process(moving)
     assert s.unaligned_events == 0 and flow.valid.mean() > 0.5
+
+
+@pytest.mark.parametrize("valid_share", [1.0, 0.3])
+def test_event_flow_consistency_matches_the_dense_field(valid_share):
+    """event_flow_consistency looks the 3x3 non-zero average up at the events' pixels;
+    it equals the halves test of the dense field made by nonzero_average_filter."""
+    from evmotion.methods.measured import halves_consistency
+    from evmotion.methods.triplet import event_flow_consistency, nonzero_average_filter
+
+    rng = np.random.default_rng(7)
+    n, h, w = 4000, 30, 40
+    ev = EventArray(rng.integers(0, w, n), rng.integers(0, h, n),
+                    np.sort(rng.integers(0, 20_000, n)), np.ones(n, int), (h, w))
+    valid = rng.random(n) < valid_share
+    vx, vy = (rng.normal(0, 200, n).astype(np.float32) for _ in range(2))
+    flow = TripletFlow(np.where(valid, vx, 0), np.where(valid, vy, 0), valid,
+                       valid.astype(np.int32))
+    acc, cnt = np.zeros((h, w, 2)), np.zeros((h, w))
+    np.add.at(acc, (ev.y[valid], ev.x[valid]), np.stack([vx, vy], 1)[valid])
+    np.add.at(cnt, (ev.y[valid], ev.x[valid]), 1)
+    mean = acc / np.maximum(cnt, 1)[..., None]
+    dense, support = nonzero_average_filter(mean, cnt > 0)
+    dense[~support] = 0
+    ref = halves_consistency(ev, dense, (int(ev.t[0]) + int(ev.t[-1])) // 2)
+    assert event_flow_consistency(ev, flow) == pytest.approx(ref, rel=1e-6, abs=1e-9)

@@ -15,9 +15,10 @@ __all__ = ["CHANCE_DRAWS", "DENSE_PIXELS_PER_EVENT", "MAX_GAP_SHARE", "MAX_ONE_P
            "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CHANCE_Z", "MIN_CONTRAST_GAIN",
            "MIN_FIT_EVENTS", "MIN_FLOW_DENSITY", "MIN_FLOW_EVENTS",
            "MIN_HALVES_CORRELATION", "MIN_MOTION_PX", "alignment_chance", "alignment_gain",
+           "box_offsets",
            "flow_alignment_chance", "flow_alignment_gain", "gap_share",
-           "halves_consistency", "lit_not_moved", "local_swing", "min_flow_events",
-           "pixel_counts", "polarity_bursts", "warn_by_chance", "warn_by_refit",
+           "halves_consistency", "halves_correlation", "lit_not_moved", "local_swing",
+           "min_flow_events", "pixel_counts", "polarity_bursts", "warn_by_chance", "warn_by_refit",
            "warn_flicker", "warn_gap", "warn_inconsistent_halves", "warn_no_gain",
            "warn_small_motion", "warn_too_few", "warn_too_few_for_flow",
            "warp_alignment_chance"]
@@ -671,26 +672,56 @@ def halves_consistency(events: EventArray, flow: np.ndarray, t_ref_us: int) -> f
     >>> [round(halves_consistency(bar, f, 25_000), 1) for f in (right, 0 * right)]
     [1.0, 0.0]
     """
-    h, w = events.sensor_size
     x, y, f = _flow_at_events(events, flow)
-    if len(events) < 2:
+    return halves_correlation(x, y, events.t, f, t_ref_us, events.sensor_size)
+
+
+def box_offsets(width: int) -> np.ndarray:
+    """The nine offsets of a 3x3 box on a row-major grid ``width`` wide (a flat index's
+    neighbours, itself included).
+
+    Examples
+    --------
+    >>> box_offsets(10).tolist()
+    [-11, -10, -9, -1, 0, 1, 9, 10, 11]
+    """
+    return (np.arange(-1, 2)[:, None] * int(width) + np.arange(-1, 2)).ravel()
+
+
+def halves_correlation(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
+                       t_ref_us: int, shape: tuple[int, int]) -> float:
+    """:func:`halves_consistency` of events at integer pixels ``x, y``, times ``t`` (µs),
+    each moved by its own flow ``f`` (N, 2) px/s (a per-event flow), on a sensor of
+    ``shape`` (H, W).
+
+    Each event adds one to the 3x3 pixels around where it lands, on the sensor's grid
+    with a one-pixel frame that is then left out (the box blur of its half's image,
+    scattered rather than convolved: padding and shifting the sensor's whole images nine
+    times took 35 ms a window at 1280x720)."""
+    h, w = shape
+    if len(t) < 2:
         return float("nan")
-    t = np.asarray(events.t, np.int64)
-    f = np.nan_to_num(f.astype(np.float64))
+    t = np.asarray(t, np.int64)
+    f = np.nan_to_num(np.asarray(f, np.float64))
     dt = (int(t_ref_us) - t) * 1e-6
     xw = np.rint(x + f[:, 0] * dt).astype(np.int64)
     yw = np.rint(y + f[:, 1] * dt).astype(np.int64)
     inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
-    first = t < (int(t[0]) + int(t[-1])) // 2
+    first = (t < (int(t[0]) + int(t[-1])) // 2)[inside]
+    framed = (yw[inside] + 1) * (w + 2) + xw[inside] + 1
+    size = (h + 2) * (w + 2)
     images = []
-    for half in (first & inside, ~first & inside):
-        img = np.bincount(yw[half] * w + xw[half], minlength=h * w).reshape(h, w)
-        pad = np.pad(img.astype(np.float64), 1)
-        images.append(sum(pad[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
-                      .ravel())
-    a, b = (v - v.mean() for v in images)
-    norm = np.sqrt((a * a).sum() * (b * b).sum())
-    return float((a * b).sum() / norm) if norm > 0 else float("nan")
+    for half in (framed[first], framed[~first]):
+        img = np.bincount((half[:, None] + box_offsets(w + 2)).ravel(), minlength=size)
+        frame = img.reshape(h + 2, w + 2)
+        frame[0] = frame[-1] = frame[:, 0] = frame[:, -1] = 0  # off the sensor
+        images.append(img)
+    a, b = images
+    n = float(h * w)
+    sa, sb = float(a.sum()), float(b.sum())
+    cov = float(a @ b) - sa * sb / n
+    var = (float(a @ a) - sa * sa / n) * (float(b @ b) - sb * sb / n)
+    return cov / float(np.sqrt(var)) if var > 0 else float("nan")
 
 
 def warn_inconsistent_halves(corr: float, what: str, stacklevel: int = 3) -> str | None:

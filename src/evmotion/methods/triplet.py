@@ -77,7 +77,9 @@ from evmotion.methods.measured import (
     MIN_CONTRAST_GAIN,
     MIN_HALVES_CORRELATION,
     alignment_gain,
+    box_offsets,
     halves_consistency,
+    halves_correlation,
 )
 from evmotion.utils import check_switches, whole_number
 
@@ -1025,14 +1027,25 @@ def event_flow_consistency(events: EventArray, flow: TripletFlow) -> float:
     if on.size < 2:
         return float("nan")
     h, w = events.sensor_size
-    pix = (np.clip(np.rint(events.y[on]).astype(np.intp), 0, h - 1) * w
-           + np.clip(np.rint(events.x[on]).astype(np.intp), 0, w - 1))
-    cnt = np.bincount(pix, minlength=h * w).reshape(h, w)
-    mean = np.stack([np.bincount(pix, v[on].astype(np.float64), h * w).reshape(h, w)
-                     for v in (flow.vx, flow.vy)], axis=-1) / np.maximum(cnt, 1)[..., None]
-    dense, support = nonzero_average_filter(mean, cnt > 0)
-    dense[~support] = 0.0
-    return halves_consistency(events, dense, (int(events.t[0]) + int(events.t[-1])) // 2)
+    x = np.clip(np.rint(events.x).astype(np.int64), 0, w - 1)
+    y = np.clip(np.rint(events.y).astype(np.int64), 0, h - 1)
+    # each flow pixel's mean, then its 3x3 non-zero average at every event's pixel, on
+    # the sensor's grid with a one-pixel frame (no sensor-sized float images, nor their
+    # filter: 72 ms a stretch at 1280x720)
+    framed = (y + 1) * (w + 2) + x + 1
+    index = np.full((h + 2) * (w + 2), -1, np.int64)
+    pix, inv = np.unique(framed[on], return_inverse=True)
+    index[pix] = np.arange(pix.size)
+    cnt = np.bincount(inv, minlength=pix.size)
+    near = index[framed[:, None] + box_offsets(w + 2)]  # (N, 9), -1: no flow pixel
+    found = np.count_nonzero(near >= 0, axis=1)
+    f = np.zeros((len(events), 2))
+    for c, v in enumerate((flow.vx, flow.vy)):
+        mean = np.zeros(pix.size + 1)  # a last zero, which index -1 reads: no flow there
+        mean[:-1] = np.bincount(inv, v[on].astype(np.float64), pix.size) / cnt
+        np.divide(mean[near].sum(axis=1), found, out=f[:, c], where=found > 0)
+    return halves_correlation(x, y, events.t, f, (int(events.t[0]) + int(events.t[-1])) // 2,
+                              (h, w))
 
 
 def supported(events: EventArray, mask: np.ndarray, dense: str) -> np.ndarray:
