@@ -312,3 +312,32 @@ def test_a_small_object_gets_a_cluster_of_its_own(seed, share):
     np.testing.assert_allclose(seg.params[order[1]], [50.0, 0.0], atol=3)
     assert seg.valid.all()
     assert np.mean(seg.labels == order[0]) == pytest.approx(share, abs=0.05)
+
+
+def test_an_object_moving_against_the_background_is_a_measurement():
+    """Probe DG: an object of 16 % of the events moving at (-100, 0) px/s over a
+    background at (100, 0) was found, yet refused: warped by the object's motion, the
+    background's events scatter beyond their time shuffles, so all the window's events
+    aligned worse than chance (z -6.5 to -19.7). The events of the cluster's territory
+    are tried too."""
+    from evmotion.methods.measured import MIN_CHANCE_Z
+
+    rng = np.random.default_rng(11)
+    span = 30_000
+    parts = []
+    for n_dots, lo, hi, vx in ((60, (110, 70), (190, 150), -100.0), (700, (0, 0), (320, 240),
+                                                                        100.0)):
+        p0 = rng.uniform(lo, hi, (n_dots, 2))
+        t = rng.uniform(0, span, (n_dots, 25))
+        parts.append((p0[:, :1] + vx * t * 1e-6, np.broadcast_to(p0[:, 1:], t.shape), t))
+    x, y, t = (np.concatenate([q[i].ravel() for q in parts]) for i in range(3))
+    keep = (x >= 0) & (x <= 319) & (y <= 239)
+    o = np.argsort(t[keep], kind="stable")
+    ev = EventArray(np.round(x[keep][o]), np.round(y[keep][o]), t[keep][o].astype(np.int64),
+                    np.ones(o.size, int), (240, 320))
+    seg = segment_motion(ev, n_warps=2, warp="translation", seed=0)
+    order = np.argsort(seg.params[:, 0])
+    np.testing.assert_allclose(seg.params[order[0]], [-100.0, 0.0], atol=5)
+    np.testing.assert_allclose(seg.params[order[1]], [100.0, 0.0], atol=5)
+    assert seg.valid.all()
+    assert (seg.chance_z >= MIN_CHANCE_Z).all()

@@ -224,13 +224,15 @@ def _publish(args, out, windows, done, events) -> list[dict]:
          "n_events": "events assigned to the cluster", "empty": "flag: no event assigned",
          "contrast_gain": "IWE variance at the cluster's parameters over unwarped (valid "
                           f"needs >= {MIN_CLUSTER_GAIN} with >= {MIN_CLUSTER_EVENTS} "
-                          "events, no collapse, an alignment of all the window's events "
+                          "events, no collapse, an alignment of the window's events "
                           "beyond chance: chance_z)",
-         "chance_gain": "how much better the cluster's warp aligns all the window's events "
-                        "than with their times shuffled (valid needs >= "
+         "chance_gain": "how much better the cluster's warp aligns the window's events "
+                        "(all, or its territory's: whichever test lies further beyond "
+                        "chance) than with their times shuffled (valid needs >= "
                         f"{MIN_CONTRAST_GAIN:g})",
-         "chance_z": "standard deviations by which the cluster's warp aligns all the "
-                     "window's events beyond 16 shuffles of their times (valid needs >= "
+         "chance_z": "standard deviations by which the cluster's warp aligns the window's "
+                     "events (all, or its territory's: the blocks where it holds most of "
+                     "the membership) beyond 16 shuffles of their times (valid needs >= "
                      f"{MIN_CHANCE_Z:g})",
          "collapsed": "flag: the cluster's warp collapses its events"},
         {"method": "segment", "warp": args.warp, "grid": args.grid,
