@@ -364,8 +364,9 @@ def test_start_up_among_rates_that_disagree_is_said_as_unknown(ice10, tmp_path):
     uneven = _keeping(ice10, tmp_path, lambda t: ~((t >= 16667) & (t < 25000)
                                                     & (rng.random(t.size) < 0.6)))
     with pytest.warns(EvmotionWarning, match=r"\[0, 8333\) us, and the next intervals' events "
-                                             r"follow .* at rates \d\.\dx apart \(flickering "
-                                             r"light.*cannot be told.*--t0 0\.008333"):
+                                             r"follow .* at rates \d\.\dx apart \(schlieren "
+                                             r"too faint .*flickering light.*cannot be "
+                                             r"told.*--t0 0\.008333"):
         assert warn_startup(load_bos_input(uneven)) == ()
 
 

@@ -303,8 +303,9 @@ def warn_startup(data: BosInput) -> tuple[int, ...]:
         warnings.warn(EvmotionWarning(
             f"the events begin in the frame interval [{t0}, {t1}) us, and the next "
             "intervals' events follow the frames' change at rates "
-            f"{later.max() / later.min():.1f}x apart (flickering light, or a gain that "
-            "drifts?): whether that interval is the "
+            f"{later.max() / later.min():.1f}x apart (schlieren too faint or too small "
+            "for their events to tell a rate, flickering light, or a gain that "
+            "drifts): whether that interval is the "
             "sensor's start-up cannot be told; if the sensor started with the recording, "
             f"its flow is too small (0.26-0.81x on simulated scenes): --t0 {seconds_text(t1)} "
             "leaves it out. Under flicker the flow's direction and size vary with its "

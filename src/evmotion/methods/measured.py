@@ -15,7 +15,7 @@ __all__ = ["CHANCE_DRAWS", "DENSE_PIXELS_PER_EVENT", "MAX_GAP_SHARE", "MAX_ONE_P
            "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CHANCE_Z", "MIN_CONTRAST_GAIN",
            "MIN_FIT_EVENTS", "MIN_FLOW_DENSITY", "MIN_FLOW_EVENTS",
            "MIN_HALVES_CORRELATION", "MIN_MOTION_PX", "alignment_chance", "alignment_gain",
-           "box_offsets",
+           "box_offsets", "framed_landing",
            "flow_alignment_chance", "flow_alignment_gain", "gap_share",
            "halves_consistency", "halves_correlation", "lit_not_moved", "local_swing",
            "min_flow_events", "pixel_counts", "polarity_bursts", "warn_by_chance", "warn_by_refit",
@@ -676,16 +676,43 @@ def halves_consistency(events: EventArray, flow: np.ndarray, t_ref_us: int) -> f
     return halves_correlation(x, y, events.t, f, t_ref_us, events.sensor_size)
 
 
-def box_offsets(width: int) -> np.ndarray:
-    """The nine offsets of a 3x3 box on a row-major grid ``width`` wide (a flat index's
-    neighbours, itself included).
+def box_offsets(width: int, radius: int = 1) -> np.ndarray:
+    """The offsets of a square box of ``2 radius + 1`` px on a row-major grid ``width``
+    wide (a flat index's neighbours, itself included).
 
     Examples
     --------
     >>> box_offsets(10).tolist()
     [-11, -10, -9, -1, 0, 1, 9, 10, 11]
     """
-    return (np.arange(-1, 2)[:, None] * int(width) + np.arange(-1, 2)).ravel()
+    r = np.arange(-int(radius), int(radius) + 1)
+    return (r[:, None] * int(width) + r).ravel()
+
+
+def framed_landing(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
+                   t_ref_us: int, shape: tuple[int, int], frame: int = 1
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Where events at pixels ``x, y``, times ``t`` (µs), moved by flows ``f`` (N, 2)
+    px/s to ``t_ref_us``, land (nearest pixel): their flat indices on the sensor's grid
+    with a frame of ``frame`` px (``(H + 2 frame) x (W + 2 frame)``, so that a box of that
+    radius around any of them, :func:`box_offsets`, stays on it; 0 for those off the
+    sensor) and whether each landed on the sensor.
+
+    Examples
+    --------
+    >>> framed, inside = framed_landing(np.array([1, 2]), np.array([0, 0]),
+    ...                                np.array([0, 0]), np.full((2, 2), [100.0, 0.0]),
+    ...                                10_000, (2, 3))
+    >>> framed.tolist(), inside.tolist()  # x 1 -> 2: row 1, column 3 of a 5-wide grid
+    ([8, 0], [True, False])
+    """
+    h, w = shape
+    f = np.nan_to_num(np.asarray(f, np.float64))
+    dt = (int(t_ref_us) - np.asarray(t, np.int64)) * 1e-6
+    xw = np.rint(x + f[:, 0] * dt).astype(np.int64)
+    yw = np.rint(y + f[:, 1] * dt).astype(np.int64)
+    inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
+    return np.where(inside, (yw + frame) * (w + 2 * frame) + xw + frame, 0), inside
 
 
 def halves_correlation(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
@@ -702,13 +729,9 @@ def halves_correlation(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarra
     if len(t) < 2:
         return float("nan")
     t = np.asarray(t, np.int64)
-    f = np.nan_to_num(np.asarray(f, np.float64))
-    dt = (int(t_ref_us) - t) * 1e-6
-    xw = np.rint(x + f[:, 0] * dt).astype(np.int64)
-    yw = np.rint(y + f[:, 1] * dt).astype(np.int64)
-    inside = (xw >= 0) & (xw < w) & (yw >= 0) & (yw < h)
+    framed, inside = framed_landing(x, y, t, f, t_ref_us, shape)
     first = (t < (int(t[0]) + int(t[-1])) // 2)[inside]
-    framed = (yw[inside] + 1) * (w + 2) + xw[inside] + 1
+    framed = framed[inside]
     size = (h + 2) * (w + 2)
     images = []
     for half in (framed[first], framed[~first]):

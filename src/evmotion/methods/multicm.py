@@ -64,6 +64,7 @@ from evmotion.methods.flowresult import (
     SUPPORT_MIN_EVENTS,
     SUPPORT_RADIUS,
     FlowResult,
+    aligned_support,
     estimate_or_skip,
     event_support,
 )
@@ -714,6 +715,8 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
     focus, iwe_dict = _final_iwes(prob, params, x, y, s, shape)
     fitted = tf.dense_flow(params, shape)  # px over the window
     flow = rest_where_empty((fitted / duration_s).astype(np.float32), valid, prob.grid)
+    # (the mask only: where noise alone fires, the flow carried in stays as it was)
+    valid &= aligned_support(events, fitted / duration_s, t0 + (t1 - t0) // 2)
     chance = chance_z = float("nan")
     # flicker lights every pixel at once: a flow that gathers those bursts sharpens them,
     # whatever moves (said first: it names the cause the focus tests below cannot)

@@ -29,10 +29,8 @@ from evmotion.events import EventArray, pixel_indices, require_events
 from evmotion.filters import hot_pixel_mask
 from evmotion.jitcache import compile_seconds
 from evmotion.methods.flowresult import (
-    SUPPORT_MIN_EVENTS,
-    SUPPORT_RADIUS,
     FlowResult,
-    event_support,
+    aligned_support,
 )
 from evmotion.methods.measured import (
     flow_alignment_gain,
@@ -795,8 +793,8 @@ def estimate_flow_dnn(events: EventArray, checkpoint: str | Path | None = None, 
                                        ).astype(np.float32)
     flow = (disp / duration_s).astype(np.float32)
     # the network answers everywhere; only where events are is it a measurement
-    valid = event_support(events.x, events.y, events.sensor_size, SUPPORT_RADIUS,
-                          SUPPORT_MIN_EVENTS)
+    # (and only where its flow lines the events up: noise alone supports no flow)
+    valid = aligned_support(events, flow, (t0 + t1) // 2)
     # the lower of the two gains decides: hot pixels can leave the multi-reference focus
     # above the threshold while the flow blurs the window
     gains = [g for g in (fwl, focus if with_iwes else float("nan")) if np.isfinite(g)]
