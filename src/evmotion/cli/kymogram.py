@@ -261,12 +261,13 @@ def _fit_times(args, kymo, t_start: float) -> tuple[float, float] | None:
         return None
     t_end = float(kymo.t_s[-1]) + 0.5 / kymo.rate_hz
     span = f"it spans {t_start:.6g}..{t_end:.6g} s on the recording's clock"
-    seconds = {}
-    for name, value, edge in (("--fit-t0", args.fit_t0, t_start),
-                              ("--fit-t1", args.fit_t1, t_end)):
-        seconds[name] = edge if value is None else (
-            value * 1e-6 + (t_start if isinstance(value, FromStart) else 0.0))
-    t0, t1 = seconds["--fit-t0"], seconds["--fit-t1"]
+
+    def seconds(value, edge: float) -> float:
+        if value is None:
+            return edge
+        return value * 1e-6 + (t_start if isinstance(value, FromStart) else 0.0)
+
+    t0, t1 = seconds(args.fit_t0, t_start), seconds(args.fit_t1, t_end)
     if t0 >= t_end:
         raise ParameterError(f"--fit-t0 {t0:.6g} s is at or after the kymogram's end: {span}")
     if t1 <= t_start:

@@ -15,6 +15,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray, Window
+from evmotion.methods.measured import box_offsets, framed_landing
 from evmotion.utils import check_finite
 
 __all__ = ["ALIGNED_MIN_EVENTS", "SUPPORT_MIN_EVENTS", "SUPPORT_RADIUS", "FlowResult",
@@ -228,8 +229,6 @@ def aligned_support(events: EventArray, flow: np.ndarray, t_ref_us: int,
         return np.zeros((h, w), bool)
     x = np.clip(np.rint(np.asarray(events.x, np.float64)).astype(np.int64), 0, w - 1)
     y = np.clip(np.rint(np.asarray(events.y, np.float64)).astype(np.int64), 0, h - 1)
-    from evmotion.methods.measured import box_offsets, framed_landing
-
     r = SUPPORT_RADIUS
     framed, inside = framed_landing(x, y, events.t, np.asarray(flow)[y, x], t_ref_us, (h, w),
                                     frame=r)

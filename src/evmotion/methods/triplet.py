@@ -78,7 +78,6 @@ from evmotion.methods.measured import (
     MIN_HALVES_CORRELATION,
     alignment_gain,
     box_offsets,
-    halves_consistency,
     halves_correlation,
 )
 from evmotion.utils import check_switches, whole_number
@@ -1068,7 +1067,7 @@ def focus_checked(events: EventArray, flow: np.ndarray, mask: np.ndarray,
     :func:`~evmotion.methods.measured.flow_alignment_gain` of the flow inside
     ``mask``, and ``mask`` all False (``no_focus`` True) when the flow does not carry the
     window's first half onto its second
-    (:func:`~evmotion.methods.measured.halves_consistency` below
+    (:func:`~evmotion.methods.measured.halves_correlation` below
     :data:`~evmotion.methods.measured.MIN_HALVES_CORRELATION`, multicm's test), or moves
     the events by :data:`MIN_TESTED_SHIFT_PX` or more (median) and aligns them less than
     :data:`~evmotion.methods.measured.MIN_CONTRAST_GAIN` times better than chance (noise
@@ -1089,8 +1088,7 @@ def focus_checked(events: EventArray, flow: np.ndarray, mask: np.ndarray,
     # 0.00-0.03 there; 0.65-0.97 on moving scenes' 10 and 30 ms windows).
     # (warped to the middle, as multicm does: both halves move alike)
     t_mid = (t0_us + int(events.t[-1])) // 2
-    if halves_consistency(events, np.where(mask[..., None], flow, 0), t_mid) \
-            < MIN_HALVES_CORRELATION:
+    if halves_correlation(x, y, events.t, at, t_mid, (h, w)) < MIN_HALVES_CORRELATION:
         return gain, np.zeros_like(mask), True
     speed = float(np.median(np.hypot(*at[on].T)))
     shift = speed * (int(events.t[-1]) - t0_us) * 1e-6

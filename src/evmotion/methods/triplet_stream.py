@@ -345,6 +345,25 @@ class TripletOptions:
             raise ParameterError(f"gap_us must be an integer >= 1 µs, got {self.gap_us}")
 
 
+def _stretches(n: int, block: int) -> list[tuple[int, int]]:
+    """``[a, b)`` bounds of about ``block`` events each over a chunk of ``n`` (none under
+    :data:`MIN_LIT_BLOCK`: too few to tell), for the per-chunk tests of
+    :meth:`TripletStream.process`."""
+    if n < MIN_LIT_BLOCK:
+        return []
+    cuts = np.linspace(0, n, max(1, round(n / block)) + 1).astype(np.int64)
+    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+
+
+def _clear(flow: triplet.TripletFlow, a: int, b: int) -> None:
+    """Events ``a .. b - 1`` get no flow: not valid, and zero (the normal flow too: the
+    dense "lsq" windows take theirs from it)."""
+    flow.valid[a:b] = False
+    for part in (flow.vx, flow.vy, flow.nx, flow.ny):
+        if part is not None:
+            part[a:b] = 0.0
+
+
 def _check_filter_size(filter_size) -> None:
     if int(filter_size) != filter_size or filter_size < 1 or filter_size % 2 == 0:
         raise ParameterError(f"filter_size must be an odd number of pixels >= 1, "
@@ -496,7 +515,7 @@ class TripletStream:
         self._mask_lit(chunk, flow)
         if self._windows is None:
             self._mask_unaligned(chunk, flow)
-        if self._windows is not None:
+        else:
             self._windows.count_raw(chunk.t)
             if self._bursts is not None:
                 b = self._bursts.process(chunk)
@@ -531,18 +550,10 @@ class TripletStream:
             start += len(e)
 
     def _mask_lit(self, chunk: EventArray, flow: triplet.TripletFlow) -> None:
-        n = len(chunk)
-        if n < MIN_LIT_BLOCK:
-            return
-        cuts = np.linspace(0, n, max(1, round(n / LIT_BLOCK_EVENTS)) + 1).astype(np.int64)
-        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-            if lit_not_moved(chunk[int(a):int(b)]) is not None:
-                flow.valid[a:b] = False
-                # (the normal flow too: the dense "lsq" windows take theirs from it)
-                for part in (flow.vx, flow.vy, flow.nx, flow.ny):
-                    if part is not None:
-                        part[a:b] = 0.0
-                self.lit_events += int(b - a)
+        for a, b in _stretches(len(chunk), LIT_BLOCK_EVENTS):
+            if lit_not_moved(chunk[a:b]) is not None:
+                _clear(flow, a, b)
+                self.lit_events += b - a
 
     def _mask_unaligned(self, chunk: EventArray, flow: triplet.TripletFlow) -> None:
         # The per-event output's own noise test (the dense windows have theirs,
@@ -550,23 +561,13 @@ class TripletStream:
         # that left 76 % of a noise recording's events with a flow (probe DG). Stretches
         # of at most two events a pixel (denser noise lines up more: 0.13-0.26 on 80x60
         # at seven a pixel, 0.12 at most at two)
-        n = len(chunk)
-        if n < MIN_LIT_BLOCK:
-            return
         h, w = self.sensor_size
-        block = min(LIT_BLOCK_EVENTS, 2 * h * w)
-        cuts = np.linspace(0, n, max(1, round(n / block)) + 1).astype(np.int64)
-        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-            part = flow[int(a):int(b)]
+        for a, b in _stretches(len(chunk), min(LIT_BLOCK_EVENTS, 2 * h * w)):
+            part = flow[a:b]
             valid = int(np.count_nonzero(part.valid))
-            if valid < MIN_LIT_BLOCK // 2:
-                continue
-            if triplet.event_flow_consistency(chunk[int(a):int(b)], part) \
-                    < MIN_HALVES_CORRELATION:
-                flow.valid[a:b] = False
-                for arr in (flow.vx, flow.vy, flow.nx, flow.ny):
-                    if arr is not None:
-                        arr[a:b] = 0.0
+            if valid >= MIN_LIT_BLOCK // 2 and triplet.event_flow_consistency(
+                    chunk[a:b], part) < MIN_HALVES_CORRELATION:
+                _clear(flow, a, b)
                 self.unaligned_events += valid
 
     def finish(self) -> None:
