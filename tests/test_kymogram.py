@@ -490,6 +490,25 @@ def test_figure_checks_and_panels(tmp_path):
     assert two.shape[1] > 1.8 * one.shape[1]
 
 
+def test_legend_and_failed_fit_reason_leave_the_data_uncovered():
+    # drawn inside the panel, the legend hid a rising plume's ridge at the top right
+    from evmotion.viz.kymogram import kymogram_figure
+
+    k, _ = _synthetic(-800.0, 0)
+    fig = kymogram_figure([k, k], [fit_ridge(k), None],
+                          fit_errors=[None, "too few time bins"])
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    data_areas = [ax for ax in fig.axes if ax.images]
+    legend = data_areas[0].get_legend().get_window_extent(renderer)
+    reason = next(t for t in data_areas[1].texts if "no velocity fit" in t.get_text())
+    for ax, box in ((data_areas[0], legend), (data_areas[1],
+                                              reason.get_window_extent(renderer))):
+        panel = ax.get_window_extent(renderer)
+        assert box.y1 < panel.y0, (box, panel)
+        assert box.y0 >= 0  # on the picture, not cut off
+
+
 @pytest.mark.parametrize("y0, y1", [(20.0, 179.0), (179.0, 20.0)])
 def test_a_column_is_drawn_in_image_coordinates_whichever_way_it_runs(y0, y1):
     # a feature at image row y = 150 - 400 t, sampled on a column that starts at y0: the

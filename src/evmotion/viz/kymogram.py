@@ -171,7 +171,9 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
                              f"titles, got {len(fits)} fits, {len(errors)} fit errors, "
                              f"{None if titles is None else len(titles)} titles")
     n = len(kymos)
-    fig = Figure(figsize=(4.6 * n, 4.2), dpi=dpi)
+    # room below the panels for the fits' legends and the failed fits' reasons
+    below = any(f is not None or e for f, e in zip(fits, errors, strict=True))
+    fig = Figure(figsize=(4.6 * n, 4.9 if below else 4.2), dpi=dpi)
     FigureCanvasAgg(fig)
     # the recording's clock (the origin had been the first bin's centre: a BOS file's
     # intervals [0, 16.7) ms were drawn from -4.2 to 12.5 ms, and --t0 0.01 started the
@@ -223,9 +225,9 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
         ax.set_title(title, fontsize=10)
         if error:
             # a failed fit had left the panel looking like one drawn with --no-fit (probe BX)
-            ax.text(0.5, 0.97, textwrap.fill(f"no velocity fit: {error}", 52),
+            ax.text(0.5, -0.15, textwrap.fill(f"no velocity fit: {error}", 52),
                     transform=ax.transAxes, ha="center", va="top", fontsize=7,
-                    color="darkred", bbox=dict(facecolor="white", alpha=0.85, lw=0))
+                    color="darkred")
         if fit is not None:
             if fit.method == "ridge":
                 ti = fit.t_s[fit.inliers]
@@ -238,7 +240,9 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
                 tl = np.array([k.t_s[0], k.t_s[-1]])
             ax.plot((tl - t_origin) * 1e3, a + b * fit.s_at(tl), "--" if fit.method != "ridge" else "-",
                     lw=1.8, color="tab:red", label=_speed_label(fit, geometry, why))
-            ax.legend(loc="upper right", fontsize=7, framealpha=0.85)
+            # below the panel: inside, it hid the ridge's top right (a rising plume's)
+            ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), fontsize=7,
+                      frameon=False)
         # the bins' span, not the lines' (nor pcolormesh's margins)
         ax.set_xlim(ext[0], ext[1])
         ax.set_ylim(ext[2], ext[3])
