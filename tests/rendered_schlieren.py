@@ -122,7 +122,9 @@ def render_scene(folder, *, scene: str = "plume", size=(300, 400), duration_s: f
         s = SUPERSAMPLE
         mx = (xx - d[..., 0] + MARGIN) * s + (s - 1) / 2
         my = (yy - d[..., 1] + MARGIN) * s + (s - 1) / 2
-        return cv2.remap(bg, mx, my, cv2.INTER_CUBIC)
+        # bicubic undershoot at dots finer than a pixel is no radiance (it had made the
+        # shot noise's Poisson draw raise)
+        return np.maximum(cv2.remap(bg, mx, my, cv2.INTER_CUBIC), 0.0)
 
     c = np.clip(contrast + contrast_sigma * rng.standard_normal(size), 0.3 * contrast,
                 None).astype(np.float32)

@@ -784,6 +784,34 @@ def test_one_picture_one_flow_whatever_its_dtype():
     assert quantized_frame(deep).dtype == np.uint16
 
 
+@pytest.mark.parametrize("noise_rate", [2.0, 10.0])
+def test_contrast_threshold_finds_still_air_among_noise_events(noise_rate):
+    """Noise events at every pixel (2-10 Hz) left no pixel without an event within 5 px:
+    the frames' noise was then measured in time, which counts the air's change too, and C
+    came out 0.19 for the noise-free scene's 0.28 (flow 0.59-0.66x the true one, probe
+    DI). The still air is the pixels whose events are as few as the view's quietest and
+    do not follow the frames' change."""
+    from scipy.ndimage import gaussian_filter
+
+    from evmotion.methods.bos import TIMED_NOISE, contrast_threshold_slope, still_air
+    from evmotion.sim.schlieren import simulate_schlieren
+
+    est = {}
+    for rate in (0.0, noise_rate):
+        sim = simulate_schlieren("plume", sensor_size=(240, 216), duration_s=3 / 120,
+                                 magnitude_px=2.0, seed=0, noise_rate=rate)
+        fr, t = sim.frames.images, sim.frames.t
+        est[rate] = contrast_threshold_slope(sim.events, fr[1], fr[2], t0_us=int(t[1]),
+                                             t1_us=int(t[2]), frame_after=fr[3])
+    assert est[noise_rate][1] != TIMED_NOISE
+    assert est[noise_rate][0] == pytest.approx(est[0.0][0], rel=0.1)
+    # air everywhere is not still air, whatever its quietest pixels
+    rng = np.random.default_rng(1)
+    d = gaussian_filter(rng.normal(0, 1, (96, 96)), 2.0)
+    counts = 1.0 + rng.poisson(np.abs(d) * 20.0).astype(float)
+    assert not still_air(counts, d, d + 0.1 * rng.normal(0, 1, d.shape)).any()
+
+
 def test_contrast_threshold_in_an_roi_measures_the_noise_on_the_whole_view():
     """An ROI drawn around the plume holds no still air: the frames' noise is the camera's
     and is measured on the still air of the whole view, so C in the ROI stays that of the

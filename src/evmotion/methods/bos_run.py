@@ -135,12 +135,12 @@ def sequence_contrast_threshold(data: BosInput, *, samples: int = 15,
         # (probe CJ: 0.87-0.90x on whole-view flows, without a word)
         warnings.warn(EvmotionWarning(
             f"no still air in view in {slopes.count(TIMED_NOISE)} of {len(slopes)} "
-            "intervals (events everywhere, or noise events): the frames' noise, which the "
+            "intervals (air moving in the whole view): the frames' noise, which the "
             "contrast threshold is corrected for, is measured in time from the frame after "
             "each interval, and that counts the air's own change too: C = "
             f"{np.median(est):.3g} and the flow's magnitude come out low where the flow is "
-            "steady (0.85-0.90x on scenes of steady flow over the whole view, 0.97x on a "
-            "plume amid noise events); give --contrast-threshold if you know C"),
+            "steady (0.85-0.90x on scenes of steady flow over the whole view); give "
+            "--contrast-threshold if you know C"),
             stacklevel=2)
     if slopes.count("events") > len(slopes) / 2:
         warnings.warn(EvmotionWarning(
