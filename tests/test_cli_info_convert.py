@@ -10,7 +10,7 @@ import pytest
 
 import evmotion.io as eio
 from evmotion.cli import main
-from evmotion.errors import ParameterError
+from evmotion.errors import ParameterError, UnsortedError
 from evmotion.events import EventArray
 
 
@@ -119,6 +119,30 @@ def test_convert_sort_mends_unsorted_timestamps(tmp_path, capsys):
                  "--t1", "45us"]) == 0
     back = read_events(tmp_path / "s.h5")
     assert back.t.tolist() == [0, 10, 20, 30, 40] and back.x.tolist() == [0, 1, 3, 2, 4]
+
+
+@pytest.mark.parametrize("out", ["o.txt", "o.raw", "o.npz", "o.h5"])
+def test_convert_refuses_a_step_back_between_chunks_naming_the_input(tmp_path, capsys, out):
+    """Each chunk read is sorted, but one starting before the previous one ended had gone
+    into a text file unsaid (which reading then refused), and the other writers' refusals
+    named no file (probe DJ)."""
+    t = np.array([30, 10, 20, 10, 40])
+    ev = EventArray(x=np.arange(5), y=np.ones(5, int), t=t, p=np.arange(5) % 2,
+                    sensor_size=(180, 240), validate=False)
+    eio.write_events(tmp_path / "uns.h5", ev)
+    rc, _, err = _run(capsys, "convert", str(tmp_path / "uns.h5"), str(tmp_path / out),
+                      "--chunk-events", "1")
+    assert rc == 2 and not (tmp_path / out).exists()
+    assert err.count("\n") == 1 and "uns.h5: timestamps are not sorted" in err, err
+    assert "--sort" in err
+    rc, _, _ = _run(capsys, "convert", str(tmp_path / "uns.h5"), str(tmp_path / out),
+                    "--chunk-events", "1", "--sort")
+    assert rc == 0 and eio.read_events(tmp_path / out).t.tolist() == [10, 10, 20, 30, 40]
+    # the library's chunked writing refuses it too
+    chunks = [ev[i:i + 1] for i in range(5)]
+    with pytest.raises(UnsortedError, match=r"t\[0\]=30 > t\[1\]=10"):
+        eio.write_events(tmp_path / "lib.txt", iter(chunks))
+    assert not (tmp_path / "lib.txt").exists()
 
 
 def test_info_sensor_size_rescues_a_header_that_cannot_size(tmp_path, capsys):

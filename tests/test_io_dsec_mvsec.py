@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+import warnings
 
 import h5py
 import hdf5plugin
@@ -13,7 +14,7 @@ import pytest
 
 import evmotion.io as eio
 from _helpers import assert_same_events
-from evmotion.errors import FormatError
+from evmotion.errors import EvmotionWarning, FormatError
 from evmotion.events import EventArray
 from evmotion.io import dsec, mvsec
 
@@ -322,3 +323,20 @@ def test_a_fractional_mvsec_sensor_size_is_refused(tmp_path):
     with pytest.raises(FormatError, match=r"m\.h5: attribute 'davis/left/sensor_size' "
                                           r"\[60\.9, 80\.9\] is not two whole numbers"):
         eio.read_events(tmp_path / "m.h5")
+
+
+def test_mvsec_writer_says_when_float_seconds_lose_microseconds(tmp_path):
+    """MVSEC's float64 seconds hold today's Unix times to the µs; past about 2^51 µs some
+    came back 1 µs off, unsaid (probe DJ)."""
+    today = 1_764_000_000_000_001
+    ev = EventArray(x=[1, 2, 3], y=[1, 2, 3], t=[today, today + 1, today + 7], p=[1, 0, 1],
+                    sensor_size=(180, 240))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mvsec.write(tmp_path / "today.hdf5", ev)
+    assert eio.read_events(tmp_path / "today.hdf5").t.tolist() == ev.t.tolist()
+    late = 2**52 + 1
+    ev = EventArray(x=[1, 2, 3], y=[1, 2, 3], t=[late, late + 1, late + 7], p=[1, 0, 1],
+                    sensor_size=(180, 240))
+    with pytest.warns(EvmotionWarning, match=r"late.hdf5: 1 of 3 times read back up to 1 us"):
+        mvsec.write(tmp_path / "late.hdf5", ev)

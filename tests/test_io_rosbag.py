@@ -162,3 +162,18 @@ def test_the_bags_camera_info_is_its_calibration(events, tmp_path):
     _bag_with_camera_info(tmp_path / "zeros.bag", events[:500], np.zeros(9))
     assert rosbag.read_camera_info(tmp_path / "zeros.bag") is None
     assert recording_camera(tmp_path / "zeros.bag", None, (180, 240)) is None
+
+
+def test_times_past_a_ros_time_are_one_line(tmp_path):
+    """A ROS1 time's seconds are uint32: times from 2^32 s on had crashed the writer in a
+    struct.error naming no file (probe DJ); the last representable second is written."""
+    from evmotion.io import write_events
+
+    end = 2**32 * 1_000_000
+    late = EventArray(x=[1, 2], y=[1, 2], t=[end - 5, end], p=[1, 0], sensor_size=(180, 240))
+    with pytest.raises(FormatError, match=r"late.bag.*past a ROS time's range"):
+        write_events(tmp_path / "late.bag", late)
+    assert not (tmp_path / "late.bag").exists()
+    ok = late[:1]
+    write_events(tmp_path / "ok.bag", ok)
+    assert rosbag.read(tmp_path / "ok.bag").t.tolist() == [end - 5]

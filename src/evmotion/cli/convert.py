@@ -25,6 +25,7 @@ from evmotion.cli.options import (
     time_us,
     writable_output,
 )
+from evmotion.errors import EventDataError, UnsortedError
 
 EXAMPLES = """examples:
   evmotion convert boxes_rotation/ boxes.h5       # ECD folder -> evmotion HDF5 (+ IMU, frames)
@@ -154,7 +155,11 @@ def run(args) -> int:
     kept, dropped = _aux_streams(src, fmt_in, fmt_out, args.t0, args.t1)
     for name, stream in kept.items():
         opts[name] = stream
-    eio.write_events(dst, all_chunks(), format=fmt_out, **opts)
+    try:
+        eio.write_events(dst, all_chunks(), format=fmt_out, **opts)
+    except UnsortedError as exc:
+        # the input's order, found as its chunks are written: name the input
+        raise EventDataError(f"{src}: {exc}") from None
     if fmt_out != "h5" and _has_calibration(src, first):
         dropped["calibration"] = (1, f"evmotion's '{fmt_out}' writer does not store it "
                                      "(convert to .h5 to keep it, or give the calibration "

@@ -186,6 +186,10 @@ def iter_chunks(path: str | Path, chunk_events: int, *, topic: str | None = None
                                validate=validate)
 
 
+#: A ROS1 time's seconds are uint32: times from here on cannot be written (µs)
+_ROS_TIME_END_US = 2**32 * 1_000_000
+
+
 def _serialize(events: EventArray, seq: int, frame_id: bytes) -> bytes:
     h, w = events.sensor_size
     ev = np.empty(len(events), _EVENT)
@@ -227,6 +231,9 @@ def write(path: str | Path, events: EventArray, *, topic: str = "/dvs/events",
         raise ParameterError(f"message_us must be positive, got {message_us}")
     if len(events) and events.t[0] < 0:
         raise FormatError(None, f"negative timestamp {events.t[0]} us cannot be a ROS time")
+    if len(events) and events.t[-1] >= _ROS_TIME_END_US:
+        raise FormatError(None, f"timestamp {events.t[-1]} us is past a ROS time's range "
+                          "(uint32 seconds: before 2^32 s, the year 2106)")
     store = typestore()
     if len(events):
         edges = np.arange(int(events.t[0]), int(events.t[-1]) + int(message_us),

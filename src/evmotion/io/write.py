@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionWarning, FormatError, ParameterError
-from evmotion.events import EventArray, concatenate
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
+from evmotion.events import SORT_HINT, EventArray, concatenate
 from evmotion.io.registry import all_formats, get_format
 
 __all__ = ["format_for_output", "suffix_formats", "write_events"]
@@ -142,12 +142,20 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
 
 def _event_arrays(items: Iterable) -> Iterator[EventArray]:
     """``items``, each checked to be an EventArray (a list of rows or a dict of columns
-    had met an AttributeError deep in a writer: probe)."""
+    had met an AttributeError deep in a writer: probe) that starts no earlier than the
+    previous one ended: each chunk is sorted, but a step back between two had gone into
+    a text file unsaid, which reading it then refused (probe DJ)."""
+    seen, last_t = 0, None
     for i, item in enumerate(items):
         if not isinstance(item, EventArray):
             raise ParameterError(f"write_events: item {i} of events is a "
                                  f"{type(item).__name__}, not an EventArray (columns: "
                                  "EventArray(x, y, t, p, sensor_size))")
+        if len(item):
+            if last_t is not None and item.t[0] < last_t:
+                raise UnsortedError(seen - 1, last_t, int(item.t[0]), SORT_HINT)
+            last_t = int(item.t[-1])
+            seen += len(item)
         yield item
 
 
