@@ -10,7 +10,7 @@ import pytest
 
 import evmotion.io as eio
 from evmotion.cli import main
-from evmotion.errors import ParameterError, UnsortedError
+from evmotion.errors import FormatError, ParameterError, UnsortedError
 from evmotion.events import EventArray
 
 
@@ -416,3 +416,18 @@ def test_sensor_size_replacing_a_stated_one_is_said(tmp_path, capsys):
         err = capsys.readouterr().err
         assert ("--sensor-size 60 80 replaces" in err) is said, (name, err)
         assert not said or "the 40 x 30 px (W x H)" in err
+
+
+@pytest.mark.parametrize("ext, fmt", [(".raw", "evt3"), (".raw", "evt2"), (".raw", "evt21"),
+                                      (".dat", "dat"), (".aedat", "aedat2"),
+                                      (".aedat", "aedat3")])
+def test_binary_writers_refuse_times_out_of_order(tmp_path, ext, fmt):
+    """The binary formats store times as steps or modulo a counter: an array built with
+    validate=False out of order had come back with other times (EVT 3.0: 10 us read as
+    16777226) or a bare ValueError (probe DJ)."""
+    ev = EventArray(x=[1, 2, 3], y=[1, 1, 1], t=[20_000_000, 10, 30], p=[1, 0, 1],
+                    sensor_size=(180, 240), validate=False)
+    with pytest.raises(FormatError, match=r"out\S*: .*stores times in order: timestamps "
+                                              r"are not sorted: t\[0\]=20000000 > t\[1\]=10"):
+        eio.write_events(tmp_path / f"out{ext}", ev, format=fmt)
+    assert not (tmp_path / f"out{ext}").exists()

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.catalog import NS_EPOCH_US
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import FormatError, ParameterError, UnsortedError
 from evmotion.events import EventArray
 from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size
 from evmotion.jitcache import lazy_njit
@@ -489,7 +489,13 @@ def check_writable(events: EventArray, fmt: str, height: int, width: int,
                    hint: str | None = None) -> None:
     """FormatError unless ``events`` fit a format that stores integer pixels of at most
     ``height`` rows and ``width`` columns (``fmt`` names it in the message, ``hint`` says
-    what holds a larger sensor)."""
+    what holds a larger sensor), in time order: the formats store times as steps or
+    modulo a counter, and an array built with ``validate=False`` out of order came back
+    with other times (EVT 3.0: 10 us read as 16777226, probe DJ)."""
+    try:
+        events.check_order()
+    except UnsortedError as exc:
+        raise FormatError(None, f"{fmt} stores times in order: {exc}") from None
     if events.x.dtype.kind == "f":
         raise FormatError(None, f"events have float (undistorted) coordinates; {fmt} stores "
                           "integer pixels")
