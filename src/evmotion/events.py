@@ -32,6 +32,7 @@ from evmotion.utils import check_not_seconds, check_number, whole_number
 __all__ = [
     "SORT_HINT",
     "EventArray",
+    "check_follows",
     "fingerprint",
     "require_events",
     "Window",
@@ -1002,6 +1003,23 @@ def check_reference_time(name: str, t_ref, t: np.ndarray) -> int:
                              f"{last}] us by more than max(their span, 1 s): a time of "
                              "another window or clock?")
     return v
+
+
+def check_follows(t_last: int | None, chunk: EventArray, at: int = -1) -> None:
+    """Raise :class:`~evmotion.errors.UnsortedError` when ``chunk`` starts before
+    ``t_last``, the previous chunk's last time (None for the first chunk); ``at`` is the
+    index of that last event in the whole stream (-1 where the caller shifts it).
+
+    Examples
+    --------
+    >>> chunk = EventArray(x=[0], y=[0], t=[10], p=[1], sensor_size=(1, 1))
+    >>> check_follows(30, chunk, at=4)
+    Traceback (most recent call last):
+    ...
+    evmotion.errors.UnsortedError: timestamps are not sorted: t[4]=30 > t[5]=10 us (sort them: evmotion convert IN OUT --sort, or EventArray.sorted())
+    """
+    if t_last is not None and len(chunk) and chunk.t[0] < t_last:
+        raise UnsortedError(at, t_last, int(chunk.t[0]), SORT_HINT)
 
 
 def check_stream_order(t: np.ndarray, t_last: int | None) -> None:

@@ -25,7 +25,7 @@ import numpy as np
 
 from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
-from evmotion.events import SORT_HINT, EventArray, ambiguous_polarity
+from evmotion.events import EventArray, ambiguous_polarity, check_follows
 from evmotion.io.base import TIME_UNIT_US, FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.binary import position_in_block
 from evmotion.io.guard import (
@@ -924,7 +924,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
                             streamed=True)
             note = _say(note)
             if validate:
-                _check_follows(last_t, ev)
+                check_follows(last_t, ev)
             if last_t is None:
                 _doubt_unit(ev_path, ev.t, ev.x, ev.y, size, unit,
                             given=time_unit is not None)
@@ -936,7 +936,7 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
                         streamed=True)
         _say(note)
         if validate:
-            _check_follows(last_t, ev)
+            check_follows(last_t, ev)
         if last_t is None:
             _doubt_unit(ev_path, ev.t, ev.x, ev.y, size, unit, given=time_unit is not None)
         yield ev
@@ -967,13 +967,6 @@ class _PolaritySigns:
             raise FormatError(self.path, f"field 'p' holds -1 (event {self.negative}) and 0 "
                               f"(event {self.zero}): neither 0/1 nor -1/+1; map each value "
                               "to 0 (OFF) or 1 (ON) first")
-
-
-def _check_follows(last_t: int | None, ev: EventArray) -> None:
-    """UnsortedError when chunk ``ev`` starts before the previous chunk's last time (its
-    index -1: the guard counts it from the chunk's place in the file)."""
-    if last_t is not None and len(ev) and ev.t[0] < last_t:
-        raise UnsortedError(-1, last_t, int(ev.t[0]), SORT_HINT)
 
 
 @lazy_njit(cache=True)

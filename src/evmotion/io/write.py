@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
-from evmotion.events import SORT_HINT, EventArray, concatenate
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
+from evmotion.events import EventArray, check_follows, concatenate
 from evmotion.io.registry import all_formats, get_format
 
 __all__ = ["format_for_output", "suffix_formats", "write_events"]
@@ -152,8 +152,7 @@ def _event_arrays(items: Iterable) -> Iterator[EventArray]:
                                  f"{type(item).__name__}, not an EventArray (columns: "
                                  "EventArray(x, y, t, p, sensor_size))")
         if len(item):
-            if last_t is not None and item.t[0] < last_t:
-                raise UnsortedError(seen - 1, last_t, int(item.t[0]), SORT_HINT)
+            check_follows(last_t, item, at=seen - 1)
             last_t = int(item.t[-1])
             seen += len(item)
         yield item

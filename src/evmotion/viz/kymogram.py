@@ -123,6 +123,10 @@ def _speed_label(fit: RidgeFit, geometry: dict | None, why: str | None = None) -
     return text
 
 
+#: Where a panel's legend or failed fit's reason starts, in axes units: below its x label
+_BELOW = -0.15
+
+
 def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] | None = None,
                     *, titles: Sequence[str] | None = None, geometry: dict | None = None,
                     fit_errors: Sequence[str | None] | None = None,
@@ -225,7 +229,7 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
         ax.set_title(title, fontsize=10)
         if error:
             # a failed fit had left the panel looking like one drawn with --no-fit (probe BX)
-            ax.text(0.5, -0.15, textwrap.fill(f"no velocity fit: {error}", 52),
+            ax.text(0.5, _BELOW, textwrap.fill(f"no velocity fit: {error}", 52),
                     transform=ax.transAxes, ha="center", va="top", fontsize=7,
                     color="darkred")
         if fit is not None:
@@ -241,7 +245,7 @@ def kymogram_figure(kymos: Sequence[Kymogram], fits: Sequence[RidgeFit | None] |
             ax.plot((tl - t_origin) * 1e3, a + b * fit.s_at(tl), "--" if fit.method != "ridge" else "-",
                     lw=1.8, color="tab:red", label=_speed_label(fit, geometry, why))
             # below the panel: inside, it hid the ridge's top right (a rising plume's)
-            ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.15), fontsize=7,
+            ax.legend(loc="upper center", bbox_to_anchor=(0.5, _BELOW), fontsize=7,
                       frameon=False)
         # the bins' span, not the lines' (nor pcolormesh's margins)
         ax.set_xlim(ext[0], ext[1])
