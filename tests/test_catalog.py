@@ -7,16 +7,18 @@ import json
 import subprocess
 import sys
 
-from evmotion.catalog import OBJECTIVE_NAMES, WARP_NAMES, WEIGHT_DATASETS
+from evmotion.catalog import FORMAT_NAMES, OBJECTIVE_NAMES, WARP_NAMES, WEIGHT_DATASETS
 from evmotion.core.collapse import DEFAULT_WEIGHTS
 from evmotion.core.objectives import OBJECTIVES
 from evmotion.core.warps import WARPS
+from evmotion.io.registry import all_formats
 
 
 def test_catalog_matches_the_registries():
     assert WARP_NAMES == tuple(WARPS)
     assert OBJECTIVE_NAMES == tuple(OBJECTIVES)
     assert WEIGHT_DATASETS == tuple(DEFAULT_WEIGHTS)
+    assert FORMAT_NAMES == tuple(f.name for f in all_formats())
 
 
 HEAVY = ("numba", "scipy", "matplotlib", "h5py", "evmotion.core", "evmotion.methods")

@@ -89,7 +89,8 @@ def _numeric_options():
     for command, p in sub.choices.items():
         for a in p._actions:
             name = getattr(a.type, "__name__", "")
-            if a.option_strings and name in ("number", "integer", "list", "parse_size"):
+            if a.option_strings and name in ("number", "integer", "seed", "list",
+                                              "parse_size"):
                 out.append((command, a.option_strings[0],
                             a.nargs if isinstance(a.nargs, int) else 1))  # "+": one value
     return out
@@ -112,6 +113,67 @@ def test_every_numeric_option_rejects(rec, capsys, command, option, nargs, bad):
     _assert_one_line(rc, err, option, repr(bad))
 
 
+def _whole_number_options():
+    return [(c, o, n) for c, o, n in _numeric_options()
+            if getattr(_action(c, o).type, "__name__", "") in ("integer", "seed")]
+
+
+def _action(command: str, option: str):
+    sub = next(a for a in build_parser()._actions
+               if a.__class__.__name__ == "_SubParsersAction")
+    return next(a for a in sub.choices[command]._actions if option in a.option_strings)
+
+
+@pytest.mark.parametrize("command,option,nargs", _whole_number_options())
+def test_every_whole_number_option_rejects_1e30(rec, capsys, command, option, nargs):
+    """Probe OPT: --seed, --max-iter and --window-events 1e30 reached HDF5 as Python ints
+    (a TypeError traceback), --iterations and --epochs 1e30 ran until killed."""
+    rc, err = _run(_base_argv(command, rec) + [option, *["1e30"] * int(nargs)], capsys)
+    _assert_one_line(rc, err, option, "'1e30'")
+
+
+def _value_options():
+    """(command, option) of every option that takes a value."""
+    sub = next(a for a in build_parser()._actions
+               if a.__class__.__name__ == "_SubParsersAction")
+    return [(c, a.option_strings[-1]) for c, p in sub.choices.items() for a in p._actions
+            if a.option_strings and a.nargs != 0 and "--help" not in a.option_strings]
+
+
+@pytest.mark.parametrize("command,option", _value_options())
+def test_every_option_refuses_an_empty_value(rec, capsys, command, option):
+    """Probe OPT: --format=, --calib=, --window-gt=, --events= and --init-weights= were
+    taken as not given, and the default ran."""
+    rc, err = _run(_base_argv(command, rec) + [f"{option}="], capsys)
+    _assert_one_line(rc, err, f"argument {option}: empty value")
+
+
+def test_a_ground_truth_of_one_frame_is_flagged(tmp_path, capsys):
+    """Probe OPT: --frame-rate 1e-30 wrote a ground truth of no window, unsaid."""
+    rc = main(["simulate", "translation", "--size", "20x24", "--duration", "0.02",
+               "--frame-rate", "1e-30", "--out", str(tmp_path / "s.h5")])
+    err = capsys.readouterr().err
+    assert rc == 0
+    assert err.count("warning: frame_rate 1e-30 Hz gives one ground-truth frame") == 1, err
+
+
+@pytest.mark.parametrize("command", ["info", "view", "flow", "bos", "convert"])
+def test_an_empty_path_is_refused(rec, capsys, command):
+    """Probe OPT: an empty path was read as '.' (info '' described a file of the working
+    folder)."""
+    argv = _base_argv(command, rec)
+    argv[1] = ""
+    rc, err = _run(argv, capsys)
+    _assert_one_line(rc, err, "an empty argument ('')")
+
+
+@pytest.mark.parametrize("command", ["info", "view", "flow", "egomotion", "convert"])
+def test_an_unknown_input_format_names_the_option(rec, capsys, command):
+    option = "--format-in" if command == "convert" else "--format"
+    rc, err = _run(_base_argv(command, rec) + [option, "evt"], capsys)
+    _assert_one_line(rc, err, f"argument {option}: unknown format 'evt'", "did you mean evt3")
+
+
 # ---------------------------------------------------------------- the issue's table, and more
 CASES = [
     # (id, argv after substitution, needles)
@@ -121,7 +183,7 @@ CASES = [
     ("flow-triplet-dt-nan", ["flow", "{rec}", "--method", "triplet", "--dt-ms", "nan",
                              "--out", "{dir}/f.h5"], ["--dt-ms", "'nan'", "ms"]),
     ("flow-triplet-dt-zero", ["flow", "{rec}", "--method", "triplet", "--dt-ms", "0",
-                              "--out", "{dir}/f.h5"], ["--dt-ms", "'0'", "> 0 ms"]),
+                              "--out", "{dir}/f.h5"], ["--dt-ms", "'0'", "[0.001, 100000] ms"]),
     ("ego-weight-nan", ["egomotion", "{rec}", "--warp", "translation", "--reg", "divergence",
                         "--weight", "nan", "--window-us", "10000", "--out", "{dir}/e"],
      ["--weight", "'nan'"]),
@@ -286,7 +348,7 @@ CASES = [
                                   "{dir}/s.h5"], ["--frame-rate", "'0'", "Hz"]),
     # (probe BA: an empty name wrote the scene into the current folder)
     ("simulate-schlieren-out-empty", ["simulate", "schlieren", "--out", ""],
-     ["--out", "empty name", "current folder"]),
+     ["argument --out: empty value"]),
     ("simulate-schlieren-fps-nan", ["simulate", "schlieren", "--fps", "nan", "--out",
                                     "{dir}/ss"], ["--fps", "'nan'", "Hz"]),
     ("simulate-schlieren-magnitude-neg", ["simulate", "schlieren", "--magnitude", "-1",
@@ -362,7 +424,7 @@ CASES = [
     ("simulate-size-1x1", ["simulate", "rotation", "--size", "1x1", "--out", "{dir}/s.h5"],
      ["--size", "2 to 4096", "'1x1'"]),
     ("simulate-duration-huge", ["simulate", "rotation", "--duration", "1e9", "--out",
-                                "{dir}/s.h5"], ["--duration", "(0, 3600] s", "'1e9'"]),
+                                "{dir}/s.h5"], ["--duration", "[1e-06, 3600] s", "'1e9'"]),
     ("train-crop-not-16", ["train", "--crop", "100x240", "--out", "{dir}/tr"],
      ["--crop", "'100x240'", "multiple of 16"]),
     ("train-crop-huge", ["train", "--crop", "16000x16000", "--out", "{dir}/tr"],
@@ -516,6 +578,51 @@ CASES = [
      ["--dataset 'mvsec' does not apply with --weight"]),
     ("eval-flow-imu-axes", ["eval", "{gt}", "--gt", "{gt}", "--imu-axes", "x,y,q"],
      ["--imu-axes 'x,y,q' does not apply to", "a flow"]),
+    # probe OPT: absurd values that hung (ignoring SIGTERM), raised a traceback or ran to a
+    # result that is no measurement, rc 0
+    ("view-t1-huge", ["view", "{rec}", "--t1", "1e30", "--out", "{dir}/v.png"],
+     ["--t1", "at most 2^62 µs", "'1e30'"]),
+    ("landscape-t1-huge", ["landscape", "{rec}", "--warp", "translation", "--range", "-1", "1",
+                           "--t1", "1e30ms", "--out", "{dir}/l.png"], ["--t1", "'1e30ms'"]),
+    ("simulate-threshold-tiny", ["simulate", "rotation", "--threshold", "1e-30", "--out",
+                                 "{dir}/s.h5"], ["--threshold", ">= 0.001", "'1e-30'"]),
+    ("simulate-schlieren-threshold-tiny", ["simulate", "schlieren", "--threshold", "1e-30",
+                                           "--out", "{dir}/ss"], ["--threshold", "'1e-30'"]),
+    ("simulate-event-photons-tiny", ["simulate", "schlieren", "--event-photons", "1e-30",
+                                     "--out", "{dir}/ss"], ["--event-photons", "[0.1, "]),
+    ("simulate-refractory-huge", ["simulate", "rotation", "--refractory-us", "1e30", "--out",
+                                  "{dir}/s.h5"], ["--refractory-us", "[0, 10000000] µs"]),
+    ("simulate-mismatch-huge", ["simulate", "rotation", "--mismatch", "1e30", "--out",
+                                "{dir}/s.h5"], ["--mismatch", "[0, 1]"]),
+    ("simulate-noise-rate-huge", ["simulate", "rotation", "--noise-rate", "1e30", "--out",
+                                  "{dir}/s.h5"], ["--noise-rate", "[0, 1e+06] events/s"]),
+    ("simulate-duration-tiny", ["simulate", "rotation", "--duration", "1e-30", "--out",
+                                "{dir}/s.h5"], ["--duration", "'1e-30'"]),
+    ("simulate-schlieren-speed-huge", ["simulate", "schlieren", "--size", "40x48",
+                                       "--speed", "1e30", "--out", "{dir}/ss"],
+     ["puffs of warm air", "--speed"]),
+    ("simulate-object-far", ["simulate", "object", "--params", "fg_x=1e30", "--out",
+                             "{dir}/s.h5"], ["fg_x must be in", "1e+30"]),
+    ("simulate-object-no-radius", ["simulate", "object", "--params", "radius=0", "--out",
+                                   "{dir}/s.h5"], ["radius must be in [0.5,"]),
+    ("kymogram-focal-tiny", ["kymogram", "{bos}", "--col", "3", "--focal-mm", "1e-30",
+                             "--distance-m", "1", "--pixel-um", "5", "--out", "{dir}/k.png"],
+     ["--focal-mm", "[0.1, 100000] mm"]),
+    ("kymogram-pixel-tiny", ["kymogram", "{bos}", "--col", "3", "--focal-mm", "25",
+                             "--distance-m", "1", "--pixel-um", "1e-30", "--out",
+                             "{dir}/k.png"], ["--pixel-um", "'1e-30'"]),
+    ("train-epochs-over-100", ["train", "--epochs", "101", "--out", "{dir}/tr"],
+     ["--epochs", "[1, 100]"]),
+    ("train-seed-2000", ["train", "--seed", "2000", "--out", "{dir}/tr"],
+     ["--seed", "[0, 1999]"]),
+    ("train-lr-huge", ["train", "--lr", "1e30", "--out", "{dir}/tr"], ["--lr", "(0, 1]"]),
+    ("flow-triplet-tau-zero", ["flow", "{rec}", "--method", "triplet", "--tau-ms", "0",
+                               "--out", "{dir}/f.h5"], ["--tau-ms", "'0'"]),
+    ("flow-seed-above-32-bits", ["flow", "{rec}", "--method", "multicm", "--seed",
+                                 "4294967296", "--out", "{dir}/f.h5"],
+     ["--seed", "[0, 4294967295]"]),
+    ("bos-frames-ecd-events", ["bos", "{bos}", "--frames", "{dir}/noframes/events.txt",
+                               "--out", "{dir}/b.h5"], ["events.txt: ECD events, no frames"]),
 ]
 
 
@@ -1154,7 +1261,7 @@ def test_outputs_that_land_elsewhere_and_times_in_the_wrong_unit(tmp_path, capsy
     write_events(rec, simulate("translation", duration_s=0.03, sensor_size=(40, 50),
                                show_progress=False).events)
     assert main(["egomotion", str(rec), "--warp", "translation", "--out", ""]) == 2
-    assert "empty name" in capsys.readouterr().err
+    assert "argument --out: empty value" in capsys.readouterr().err
     png = tmp_path / "l.png"
     for csv in (png, tmp_path / "other.png"):
         rc, err = _run(["landscape", str(rec), "--warp", "translation", "--param", "0",

@@ -553,8 +553,10 @@ def test_cli_train_format_needs_recordings_and_a_known_name(tmp_path, capsys):
 
     base = ["train", "--sim-windows", "1", "--epochs", "1", "--val-sim", "0",
             "--out", str(tmp_path / "run")]
-    assert main([*base, "--format", "bogus"]) == 2
+    assert main([*base, "--format", "h5"]) == 2
     assert "does not apply without recordings" in capsys.readouterr().err
+    assert main([*base, "--format", "bogus"]) == 2
+    assert "argument --format: unknown format 'bogus'" in capsys.readouterr().err
     rec = tmp_path / "rec.npz"
     np.savez(rec, x=[1, 2], y=[1, 2], t=[0, 10], p=[1, 0], sensor_size=[8, 8])
     assert main([*base, str(rec), "--format", "bogus"]) == 2

@@ -48,8 +48,14 @@ def test_options_change_the_result():
 
 
 @pytest.mark.parametrize("kw, match", [
-    ({"threshold": 0.0}, r"threshold must be finite and > 0.0 \(log intensity\), got 0.0"),
-    ({"refractory_us": -1}, r"refractory_us \(µs\) must be a whole number >= 0, got -1"),
+    ({"threshold": 0.0}, r"threshold must be finite and >= 0.001 \(log intensity\), got 0.0"),
+    # probe OPT: 1e-30 (or a max_step_fraction of 1e-30) never ended; a refractory period
+    # of 1e30 µs overflowed a C long
+    ({"threshold": 1e-30}, r"threshold must be finite and >= 0.001"),
+    ({"max_step_fraction": 1e-30}, r"max_step_fraction must be finite and >= 0.01"),
+    ({"refractory_us": 1e30}, r"refractory_us \(µs\) must be a whole number in 0..10000000"),
+    ({"mismatch": 2.0}, r"mismatch must be finite and in \[0.0, 1.0\]"),
+    ({"refractory_us": -1}, r"refractory_us \(µs\) must be a whole number in 0..10000000, got -1"),
     ({"noise_rate": float("nan")}, "noise_rate"),
     ({"max_step_fraction": 0}, "max_step_fraction"),
     ({"frame_rate": -5}, r"frame_rate .*\(Hz\)"),
@@ -123,6 +129,8 @@ def test_schlieren_options_equal_keywords():
     ({"refractory_us": -3}, "refractory_us"),
     ({"photons": 5.0, "read_noise_e": float("inf")}, r"read_noise_e .*\(electrons rms\)"),
     ({"bit_depth": 32}, r"bit_depth .*\[1.0, 16.0\] \(bits\)"),
+    ({"contrast_threshold": 1e-30}, r"contrast_threshold must be finite and >= 0.001"),
+    ({"event_photons": 1e-30}, r"event_photons must be finite and in \[0.1, "),
 ])
 def test_schlieren_options_refuse_bad_values(kw, match):
     with pytest.raises(ParameterError, match=match):

@@ -14,9 +14,16 @@ True
 
 from __future__ import annotations
 
-__all__ = ["HOT_NEIGHBOUR_RATIO", "MAX_CROP_SIDE", "MAX_SIM_DURATION_S", "MAX_SIM_SIDE",
-           "MIN_SIM_SIDE", "MAX_WIDTH",
+__all__ = ["FORMAT_NAMES", "HOT_NEIGHBOUR_RATIO", "MAX_CROP_SIDE", "MAX_EPOCHS", "MAX_LR", "MAX_MISMATCH", "MAX_PIXEL_RATE",
+           "MAX_REFRACTORY_US", "MAX_SIM_DURATION_S", "MAX_SIM_SIDE", "MAX_TRAIN_SEED",
+           "MIN_EVENT_PHOTONS", "MIN_SIM_SIDE", "MIN_THRESHOLD", "MAX_WIDTH", "VAL_SEED_BASE",
            "MIN_CROP_SIDE", "OBJECTIVE_NAMES", "WARP_NAMES", "WEIGHT_DATASETS"]
+
+#: Event formats the readers know, in detection order (names of
+#: :func:`evmotion.io.registry.all_formats`).
+FORMAT_NAMES: tuple[str, ...] = ("h5", "mvsec", "dsec", "ecd", "ccs", "npy", "mat", "aedat4",
+                                 "aedat2", "aedat3", "evt3", "evt2", "evt21", "dat", "rosbag",
+                                 "h5generic")
 
 #: Warps :func:`evmotion.core.warps.make_warp` builds (keys of
 #: :data:`evmotion.core.warps.WARPS`).
@@ -47,6 +54,31 @@ MAX_CROP_SIDE = MAX_SIM_SIDE
 #: Smallest side of a training crop, px: a 16-px crop is 1 px at the network's coarsest
 #: level and rarely keeps the events a training window needs.
 MIN_CROP_SIDE = 32
+#: The most events a simulated pixel fires per second: one a microsecond (the timestamps'
+#: unit).
+MAX_PIXEL_RATE = 1e6
+#: The largest learning rate a training of the network takes.
+MAX_LR = 1.0
+#: Smallest contrast threshold the simulators take, log intensity (0.1 % contrast, 100x
+#: below any sensor's): each crossing is an event and each sample moves at most half a
+#: threshold, so 1e-30 never ended (probe OPT).
+MIN_THRESHOLD = 1e-3
+#: Largest relative std of the simulators' per-pixel thresholds.
+MAX_MISMATCH = 1.0
+#: Longest refractory period the simulators take, µs (10 s).
+MAX_REFRACTORY_US = 10_000_000
+#: Fewest photons of a white event pixel per time constant (the schlieren simulator's
+#: low light): 0.1 already makes about 20,000 noise events per pixel and second; 1e-30
+#: never ended (probe OPT).
+MIN_EVENT_PHOTONS = 0.1
+#: Seeds of the network's validation windows start here; its training windows' seeds are
+#: ``seed * 1e6 + epoch * 1e4 + i`` (``i`` < 1e4) and stay below.
+VAL_SEED_BASE = 2_000_000_000
+#: Training seeds below this keep the training windows' seeds under VAL_SEED_BASE.
+MAX_TRAIN_SEED = VAL_SEED_BASE // 1_000_000
+#: Most training epochs: with more, epoch 100's windows would be the next seed's epoch 0
+#: (and the last seed's the validation windows).
+MAX_EPOCHS = 100
 #: Most time bins of multicm's time-aware flow: the thesis uses 5 (40 from 640 px wide);
 #: each bin holds a flow field and an IWE per reference, so memory grows with them.
 MAX_TIME_BINS = 200

@@ -36,12 +36,14 @@ from evmotion.cli.options import (
     add_time_unit_argument,
     check_flow_out,
     check_time_order,
+    event_format,
     existing_input,
     finite_float,
     int_range,
     positive_float,
     reject_unused,
     remove_stale_pictures,
+    seed_int,
     time_us,
     writable_folder,
     writable_output,
@@ -69,7 +71,8 @@ def add_parser(sub) -> None:
                    help="frames: ECD folder, AEDAT4, event_based_bos sequence, or a folder of "
                         "images with a timestamps file (default: images.txt beside REC, else "
                         "REC's own frames)")
-    p.add_argument("--format", default=None, help="event format (default: detected)")
+    p.add_argument("--format", type=event_format, default=None,
+                   help="event format (default: detected)")
     add_time_unit_argument(p)
     p.add_argument("--frames-time-unit", choices=("s", "ms", "us", "ns"), default=None,
                    help="unit of the frames' times (images.txt, a timestamps file) where it "
@@ -103,7 +106,7 @@ def add_parser(sub) -> None:
                         "one; 600: the thesis' schedule; below ~100 the objective is far "
                         "from its optimum: on a simulated plume 20 raised the AEE from 0.18 "
                         "to 0.21 px, 5 to 1.66)")
-    p.add_argument("--seed", type=int_range(0), default=0,
+    p.add_argument("--seed", type=seed_int, default=0,
                    help="seed of the random initial q (default 0)")
     p.add_argument("--relinearize", type=int_range(0, 10), default=0, metavar="N",
                    help="scale term: at most N further solves with the frame warped by the "

@@ -20,6 +20,7 @@ from evmotion.cli.options import (
     check_time_order,
     check_time_unit,
     empty_selection,
+    event_format,
     int_range,
     positive_int,
     time_us,
@@ -48,7 +49,8 @@ def add_parser(sub) -> None:
     p.add_argument("--out", type=writable_output(), default=None, dest="out_option",
                    metavar="OUTPUT", help="the output file, as the other commands take it "
                                           "(instead of the positional OUTPUT)")
-    p.add_argument("--format-in", default=None, help="input format (default: detect)")
+    p.add_argument("--format-in", type=event_format, default=None,
+                   help="input format (default: detect)")
     p.add_argument("--format-out", default=None, help="output format (default: extension)")
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
                    help="start: seconds on the recording's clock, or with a unit (1.5, "

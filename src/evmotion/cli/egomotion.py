@@ -40,10 +40,12 @@ from evmotion.cli.options import (
     check_time_order,
     default_window_events,
     duration_us,
+    event_format,
     int_range,
     nonnegative_float,
     reject_unused,
     remove_stale_pictures,
+    seed_int,
     select_windows,
     writable_folder,
 )
@@ -94,7 +96,8 @@ def add_common(p, objectives=None, regularizers=REGULARIZERS) -> None:
                    help="reference time of the warp within each window (default: "
                         "egomotion mid, or start with --reg, whose collapse penalties are "
                         "defined for it; segment and landscape start)")
-    p.add_argument("--format", default=None, help="input format (default: detected)")
+    p.add_argument("--format", type=event_format, default=None,
+                   help="input format (default: detected)")
     add_hot_pixel_argument(p)
 
 
@@ -115,7 +118,7 @@ def add_parser(sub) -> None:
     p.add_argument("--workers", type=int_range(1, MAX_WORKERS), default=1,
                    help="parallel worker processes (default 1)")
     add_scheduler_argument(p)
-    p.add_argument("--seed", type=int_range(0), default=None,
+    p.add_argument("--seed", type=seed_int, default=None,
                    help="seed of the TPE sampler (--optimizer tpe; default 0)")
     p.add_argument("--warm-start", action="store_true",
                    help="start each window from the previous estimate (runs sequentially)")

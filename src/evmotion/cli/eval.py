@@ -60,6 +60,7 @@ from evmotion.cli.options import (
     HelpFormatter,
     add_sensor_size_argument,
     add_time_unit_argument,
+    event_format,
     existing_input,
     int_range,
     positive_float,
@@ -104,7 +105,8 @@ def add_parser(sub) -> None:
     p.add_argument("--events", default=None, type=existing_input,
                    help="recording of the events: event mask and FWL (with no --gt: the "
                         "FWL of each window, which needs no ground truth)")
-    p.add_argument("--format", default=None, help="format of --events (default: detect)")
+    p.add_argument("--format", type=event_format, default=None,
+                   help="format of --events (default: detect)")
     add_sensor_size_argument(p)
     add_time_unit_argument(p)
     p.add_argument("--dt", "--gt-dt", dest="dt", type=positive_int(), default=1,

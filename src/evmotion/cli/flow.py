@@ -40,6 +40,7 @@ from evmotion.cli.options import (
     add_time_unit_argument,
     check_time_order,
     duration_us,
+    event_format,
     existing_input,
     int_range,
     positive_float,
@@ -120,7 +121,8 @@ def add_parser(sub) -> None:
                         "px, dt/t0/t1 in NAME.flo.json) or .png (DSEC 16-bit displacement, "
                         "same sidecar); several .flo/.png windows need a pattern: "
                         "--out flow_{:05d}.flo")
-    p.add_argument("--format", default=None, help="input format (default: detect)")
+    p.add_argument("--format", type=event_format, default=None,
+                   help="input format (default: detect)")
     add_sensor_size_argument(p)
     add_time_unit_argument(p)
     win = p.add_mutually_exclusive_group()

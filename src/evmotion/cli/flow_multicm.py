@@ -41,9 +41,9 @@ from evmotion.cli.options import (
     finite_float,
     int_range,
     nonnegative_float,
-    positive_int,
     reject_unused,
     remove_stale_pictures,
+    seed_int,
 )
 from evmotion.errors import EmptyWindowError, ParameterError
 
@@ -83,13 +83,13 @@ def add_arguments(group) -> None:
                        choices=("gradient_magnitude", "variance", "avg_timestamp",
                                 "avg_timestamp_norm"),
                        help="focus function (default gradient magnitude)")
-    group.add_argument("--max-iter", type=positive_int(), default=None,
-                       help="optimizer iterations per scale (default 20)")
+    group.add_argument("--max-iter", type=int_range(1, 10_000), default=None,
+                       help="optimizer iterations per scale (default 20, at most 10000)")
     group.add_argument("--tol", type=finite_float(0.0, 1.0, hi_open=True), default=None,
                        help="from the 4x4-tile scale on, stop a scale once an iteration "
                             "lowers the objective by less than this, in [0, 1) (default "
                             "3e-5; 0: always --max-iter iterations)")
-    group.add_argument("--seed", type=int_range(0), default=None,
+    group.add_argument("--seed", type=seed_int, default=None,
                        help="seed of the sub-pixel jitter of the event coordinates on the "
                             "coarse scales (default 0); the same seed gives the same flow")
     group.add_argument("--workers", type=int_range(1, MAX_WORKERS), default=None,

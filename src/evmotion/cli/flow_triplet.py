@@ -62,9 +62,10 @@ def add_arguments(group) -> None:
     group.add_argument("--dx", type=positive_float(unit="px"), default=None,
                        help="neighbourhood radius d_x in px (default sqrt(2), the thesis'; "
                             "2.3 with --dense lsq/robust)")
-    group.add_argument("--dt-ms", type=positive_float(unit="ms"), default=None,
+    # (the kernels' clock holds dt + tau below 179 s; tau 0 admits triplets of one instant)
+    group.add_argument("--dt-ms", type=finite_float(0.001, 100_000, unit="ms"), default=None,
                        help="delay window d_t in ms (default 100)")
-    group.add_argument("--tau-ms", type=nonnegative_float(unit="ms"), default=None,
+    group.add_argument("--tau-ms", type=finite_float(0.001, 10_000, unit="ms"), default=None,
                        help="refractory period tau in ms (default 3, the thesis'; 1 with "
                             "--dense lsq/robust)")
     group.add_argument("--quadruple", action="store_true", default=None,

@@ -14,7 +14,12 @@ warp, grid, valid fraction and flags."""
 from __future__ import annotations
 
 from evmotion.catalog import MAX_SENSOR_SIDE
-from evmotion.cli.options import HelpFormatter, add_time_unit_argument, int_range
+from evmotion.cli.options import (
+    HelpFormatter,
+    add_time_unit_argument,
+    event_format,
+    int_range,
+)
 
 EXAMPLES = """examples:
   evmotion info boxes_rotation/                # an ECD folder
@@ -36,7 +41,8 @@ def add_parser(sub) -> None:
     )
     p.add_argument("file", help="recording (file or ECD folder), any readable format, or a "
                                 "flow output")
-    p.add_argument("--format", default=None, help="input format (default: detect by content)")
+    p.add_argument("--format", type=event_format, default=None,
+                   help="input format (default: detect by content)")
     p.add_argument("--sensor-size", type=int_range(1, MAX_SENSOR_SIDE, unit="px"), nargs=2,
                    default=None, metavar=("H", "W"),
                    help="override the sensor size (height width)")

@@ -21,6 +21,7 @@ from evmotion.cli.options import (
     add_time_unit_argument,
     check_time_order,
     empty_selection,
+    event_format,
     existing_input,
     finite_float,
     int_range,
@@ -72,7 +73,8 @@ def add_parser(sub) -> None:
     p.add_argument("--frames", default=None, metavar="PATH", type=existing_input,
                    help="add a panel of frame differences at the frame rate (folder with "
                         "images.txt, or a frames file)")
-    p.add_argument("--format", default=None, help="event format (default: detect)")
+    p.add_argument("--format", type=event_format, default=None,
+                   help="event format (default: detect)")
     add_sensor_size_argument(p)
     add_time_unit_argument(p)
     p.add_argument("--t0", type=time_us, default=None, metavar="TIME",
@@ -116,12 +118,14 @@ def add_parser(sub) -> None:
                      help="correlation: replace the autocorrelation within PX of shift 0 by "
                           "its running median (pixels that fire while structures pass; "
                           "default 3 * sigma-px + 1; 0 keeps it)")
+    # bounds no lens, set-up or sensor reaches (probe OPT: --focal-mm 1e-30 printed a speed
+    # of 1e27 m/s and exited 0)
     geo = p.add_argument_group("set-up geometry (all three for m/s)")
-    geo.add_argument("--focal-mm", type=finite_float(0, 1e5, lo_open=True, unit="mm"),
+    geo.add_argument("--focal-mm", type=finite_float(0.1, 1e5, unit="mm"),
                      default=None, help="focal length f, mm")
-    geo.add_argument("--distance-m", type=finite_float(0, 1e6, lo_open=True, unit="m"),
+    geo.add_argument("--distance-m", type=finite_float(1e-3, 1e6, unit="m"),
                      default=None, help="distance Z to the flow, m")
-    geo.add_argument("--pixel-um", type=finite_float(0, 1e4, lo_open=True, unit="µm"),
+    geo.add_argument("--pixel-um", type=finite_float(0.1, 1e4, unit="µm"),
                      default=None, help="pixel pitch, µm")
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
                    help="output PNG")

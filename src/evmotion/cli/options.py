@@ -8,7 +8,7 @@ value, and exit code 2, before any work starts. This module holds the pieces for
   usage block; sub-parsers made with ``add_subparsers`` inherit it.
 - ``type=`` factories that check a value as it is parsed: :func:`finite_float`,
   :func:`positive_float`, :func:`nonnegative_float`, :func:`int_range`,
-  :func:`positive_int`, :func:`float_list`, :func:`existing_input`,
+  :func:`positive_int`, :func:`seed_int`, :func:`float_list`, :func:`existing_input`,
   :func:`writable_output`, :func:`writable_folder`. argparse prefixes their message with
   ``argument --name:``, so a message says what is wrong with the value only.
 - Checks made after parsing, when several options or the input decide (they raise
@@ -45,7 +45,7 @@ from collections.abc import Callable, Collection, Iterable
 from fractions import Fraction
 from pathlib import Path
 
-from evmotion.catalog import MAX_SENSOR_SIDE
+from evmotion.catalog import FORMAT_NAMES, MAX_SENSOR_SIDE
 from evmotion.errors import ParameterError
 from evmotion.utils import missing_path_hint, nearest_existing, seconds_text
 
@@ -57,6 +57,7 @@ __all__ = [
     "check_free_space",
     "check_output",
     "check_output_format",
+    "event_format",
     "warn_late_start",
     "existing_input",
     "outputs_locked",
@@ -70,6 +71,7 @@ __all__ = [
     "reject_unused",
     "remove_stale_results",
     "scheduler_address",
+    "seed_int",
     "scheduler_client",
     "writable_folder",
     "writable_output",
@@ -91,7 +93,31 @@ class Parser(argparse.ArgumentParser):
         # kept for error(): an unknown option is reported by the top-level parser, which
         # must look up the command's options for a suggestion
         self._argv = [str(a) for a in (sys.argv[1:] if args is None else args)]
+        empty = self._empty_argument()
+        if empty:
+            # an empty value ('--calib=', a shell variable never set) had been taken as the
+            # option not given, the default running unsaid, and an empty path as '.'
+            # (probe OPT)
+            self.error(empty)
         return super().parse_known_args(args, namespace)
+
+    def _empty_argument(self) -> str | None:
+        """What is wrong with the first empty argument typed (``--calib=``,
+        ``--calib ''``, a path ``''``), if any."""
+        takes = {o for a in self._actions if a.option_strings and a.nargs != 0
+                 for o in a.option_strings}
+        # the top level leaves a command's arguments to the command's parser
+        commands = any(isinstance(a, argparse._SubParsersAction) for a in self._actions)
+        argv = self._argv
+        for i, token in enumerate(argv):
+            name, eq, value = token.partition("=")
+            if not eq:  # its value, if any, is the next argument
+                value = argv[i + 1] if i + 1 < len(argv) else None
+            if name in takes and value is not None and not value.strip():
+                return f"argument {name}: empty value (give one, or leave {name} out)"
+            if not token.strip() and not commands and (i == 0 or argv[i - 1] not in takes):
+                return f"an empty argument ({token!r}) where a path or value was expected"
+        return None
 
     def error(self, message: str):
         text = " ".join(str(message).split())
@@ -207,14 +233,20 @@ def _unit(unit: str) -> str:
     return f" {unit}" if unit else ""
 
 
+def _number_text(v: float | None) -> str:
+    """An integer bound as it is typed (``4294967295``), a float's shortest (``1e-06``)."""
+    return str(v) if v is None or isinstance(v, int) else f"{v:g}"
+
+
 def _bound_text(lo, hi, lo_open: bool, hi_open: bool, unit: str) -> str:
     u = _unit(unit)
+    lo_s, hi_s = _number_text(lo), _number_text(hi)
     if lo is not None and hi is not None:
-        return (f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}{u}")
+        return (f"in {'(' if lo_open else '['}{lo_s}, {hi_s}{')' if hi_open else ']'}{u}")
     if lo is not None:
-        return f"{'>' if lo_open else '>='} {lo:g}{u}"
+        return f"{'>' if lo_open else '>='} {lo_s}{u}"
     if hi is not None:
-        return f"{'<' if hi_open else '<='} {hi:g}{u}"
+        return f"{'<' if hi_open else '<='} {hi_s}{u}"
     return f"finite{u}".strip()
 
 
@@ -270,10 +302,20 @@ def nonnegative_float(*, unit: str = "") -> Callable[[str], float]:
     return finite_float(0.0, unit=unit)
 
 
+# the largest whole number an option without its own upper bound takes: every count, index
+# or µs time fits numpy's int64 with room for sums (probe OPT: --seed 1e30 and
+# --window-events 1e30 reached HDF5 as Python ints, "Object dtype has no native HDF5
+# equivalent")
+MAX_WHOLE = 2**62
+
+# seeds as numpy's and torch's generators and every format's int64 store them
+MAX_SEED = 2**32 - 1
+
+
 def int_range(lo: int | None = None, hi: int | None = None, *, unit: str = ""
               ) -> Callable[[str], int]:
     """``type=`` for an integer in ``[lo, hi]`` (accepts ``1e6`` or ``1_000_000`` when the
-    value is a whole number).
+    value is a whole number); without ``hi``, at most :data:`MAX_WHOLE`.
 
     Examples
     --------
@@ -281,9 +323,16 @@ def int_range(lo: int | None = None, hi: int | None = None, *, unit: str = ""
     3
     >>> int_range(1)("1e6")
     1000000
+    >>> int_range(1)("1e30")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: must be an integer >= 1 (at most 2^62), got '1e30'
     """
     want = _bound_text(lo, hi, False, False, unit)
     want = "an integer" + ("" if want.startswith("finite") else f" {want}")
+    if hi is None:
+        want += " (at most 2^62)"
+        hi = MAX_WHOLE
 
     def parse(text: str) -> int:
         try:
@@ -307,6 +356,21 @@ def int_range(lo: int | None = None, hi: int | None = None, *, unit: str = ""
 def positive_int(*, unit: str = "") -> Callable[[str], int]:
     """``type=`` for an integer >= 1 (counts, durations in µs, workers)."""
     return int_range(1, unit=unit)
+
+
+def seed_int(text: str) -> int:
+    """``type=`` for ``--seed``: an integer in ``[0, 2^32 - 1]``.
+
+    Examples
+    --------
+    >>> seed_int("42")
+    42
+    """
+    return _SEED(text)
+
+
+_SEED = int_range(0, MAX_SEED)
+seed_int.__name__ = "seed"
 
 
 def float_list(n: int | None = None, *, unit: str = "") -> Callable[[str], list[float]]:
@@ -334,6 +398,28 @@ def float_list(n: int | None = None, *, unit: str = "") -> Callable[[str], list[
 
     parse.__name__ = "list"
     return parse
+
+
+def event_format(text: str) -> str:
+    """``type=`` for an input's ``--format``: one of the readers' format names.
+
+    Examples
+    --------
+    >>> event_format("evt3")
+    'evt3'
+    >>> event_format("evt")
+    Traceback (most recent call last):
+    ...
+    argparse.ArgumentTypeError: unknown format 'evt' (did you mean evt3?; known formats: h5, mvsec, dsec, ecd, ccs, npy, mat, aedat4, aedat2, aedat3, evt3, evt2, evt21, dat, rosbag, h5generic)
+    """
+    if text in FORMAT_NAMES:
+        return text
+    hint = _did_you_mean([text], list(FORMAT_NAMES)).strip(" ()")
+    raise argparse.ArgumentTypeError(f"unknown format {text!r} ({hint + '; ' if hint else ''}"
+                                     f"known formats: {', '.join(FORMAT_NAMES)})")
+
+
+event_format.__name__ = "format"
 
 
 def existing_input(text: str) -> str:
@@ -608,6 +694,9 @@ def time_us(text: str) -> int:
     relative = isinstance(text, str) and text.strip().startswith("+")
     body, scale = _split_unit(text.strip()[1:] if relative else text, _TIME_UNITS["s"])
     v, _ = _with_unit(body, scale)
+    if math.isfinite(v) and v * scale > MAX_WHOLE:
+        raise argparse.ArgumentTypeError(
+            f"must be a time of at most 2^62 µs (146,000 years), got {text!r}")
     if not math.isfinite(v) or v < 0:
         raise argparse.ArgumentTypeError(
             f"must be a time >= 0 in seconds, or with a unit (e.g. 1.5, 1500ms, 1500000us), "
@@ -634,7 +723,7 @@ def duration_us(text: str) -> int:
     """
     v, scale = _with_unit(text, _TIME_UNITS["us"])
     v = v * scale
-    if not math.isfinite(v) or v < 1 or v > 2**62 or abs(v - round(v)) > 1e-6 * max(v, 1):
+    if not math.isfinite(v) or v < 1 or v > MAX_WHOLE or abs(v - round(v)) > 1e-6 * max(v, 1):
         raise argparse.ArgumentTypeError(
             f"must be a whole number of microseconds >= 1, or with a unit (e.g. 10000, "
             f"10ms, 0.01s), got {text!r}")

@@ -26,9 +26,9 @@ from evmotion.cli.options import (
     check_time_order,
     duration_us,
     int_range,
-    positive_int,
     remove_stale_pictures,
     remove_stale_results,
+    seed_int,
     select_windows,
     writable_folder,
 )
@@ -55,14 +55,14 @@ def add_parser(sub) -> None:
     add_common(p, objectives=SEGMENT_OBJECTIVES, regularizers=SEGMENT_REGULARIZERS)
     p.add_argument("--warps", type=int_range(1, 64), default=2,
                    help="number of motion clusters (default 2)")
-    p.add_argument("--iterations", type=positive_int(), default=10,
-                   help="EM iterations (default 10)")
+    p.add_argument("--iterations", type=int_range(1, 1000), default=10,
+                   help="EM iterations (default 10, at most 1000)")
     p.add_argument("--split", choices=("best", "dominant", "spatial"), default="best",
                    help="how the events are first split among the clusters: 'dominant' "
                         "(the motion sharpening them all takes the events it lines up better "
                         "than they lie unwarped, the next the rest...), 'spatial' (k-means of positions), 'best' (both; "
                         "the clusters that together sharpen the events most; default)")
-    p.add_argument("--seed", type=int_range(0), default=0,
+    p.add_argument("--seed", type=seed_int, default=0,
                    help="seed of the spatial split's k-means")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--window-events", type=int_range(10), metavar="N", help="events per window (default: 30000)")

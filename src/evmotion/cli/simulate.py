@@ -18,7 +18,16 @@ import json
 import os
 from pathlib import Path
 
-from evmotion.catalog import MAX_SIM_DURATION_S, MAX_SIM_SIDE, MIN_SIM_SIDE
+from evmotion.catalog import (
+    MAX_MISMATCH,
+    MAX_PIXEL_RATE,
+    MAX_REFRACTORY_US,
+    MAX_SIM_DURATION_S,
+    MAX_SIM_SIDE,
+    MIN_EVENT_PHOTONS,
+    MIN_SIM_SIDE,
+    MIN_THRESHOLD,
+)
 from evmotion.cli.options import (
     HelpFormatter,
     check_folder,
@@ -30,6 +39,7 @@ from evmotion.cli.options import (
     nonnegative_float,
     positive_float,
     reject_unused,
+    seed_int,
 )
 
 EXAMPLES = """examples:
@@ -65,8 +75,8 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, help="events file; ground truth goes to "
                    "<stem>_gt.h5 (schlieren: an output folder)")
     p.add_argument("--format", default=None, help="events format (default: from the extension)")
-    p.add_argument("--duration", type=finite_float(0.0, MAX_SIM_DURATION_S, lo_open=True,
-                                                   unit="s"), default=0.1,
+    p.add_argument("--duration", type=finite_float(1e-6, MAX_SIM_DURATION_S, unit="s"),
+                   default=0.1,
                    help="seconds (default 0.1)")
     p.add_argument("--size", "--sensor-size", default=None, nargs="+", action=_SizeAction,
                    metavar="HxW",
@@ -76,23 +86,25 @@ def add_parser(sub) -> None:
                    help="pixels (overrides --size)")
     p.add_argument("--width", type=int_range(1, MAX_SIM_SIDE, unit="px"), default=None,
                    help="pixels (overrides --size)")
-    p.add_argument("--seed", type=int_range(0), default=0,
+    p.add_argument("--seed", type=seed_int, default=0,
                    help="seed of every random choice: texture, noise, thresholds (default 0)")
     p.add_argument("--texture", default=None, choices=["dots", "shapes", "noise", "checker"],
                    help="texture of a motion scene (default dots)")
     p.add_argument("--image", default=None, metavar="PATH", type=existing_input,
                    help="image to use as texture")
-    p.add_argument("--threshold", type=positive_float(), default=0.2,
+    p.add_argument("--threshold", type=finite_float(MIN_THRESHOLD), default=0.2,
                    help="contrast threshold C, log-intensity units (default 0.2)")
-    p.add_argument("--mismatch", type=nonnegative_float(), default=0.03,
+    p.add_argument("--mismatch", type=finite_float(0.0, MAX_MISMATCH), default=0.03,
                    help="relative std of the per-pixel thresholds (default 0.03)")
-    p.add_argument("--refractory-us", type=int_range(0, unit="µs"), default=0,
+    p.add_argument("--refractory-us", type=int_range(0, MAX_REFRACTORY_US, unit="µs"), default=0,
                    help="refractory period of a pixel after each event, µs (default 0)")
-    p.add_argument("--noise-rate", type=nonnegative_float(unit="events/s"), default=0.0,
+    p.add_argument("--noise-rate", type=finite_float(0.0, MAX_PIXEL_RATE, unit="events/s"),
+                   default=0.0,
                    help="background activity, events/s per pixel (default 0)")
     p.add_argument("--hot-pixels", type=int_range(0), default=None,
                    help="number of hot pixels (default 0)")
-    p.add_argument("--hot-rate", type=nonnegative_float(unit="events/s"), default=None,
+    p.add_argument("--hot-rate", type=finite_float(0.0, MAX_PIXEL_RATE, unit="events/s"),
+                   default=None,
                    help="events/s of a hot pixel (default 1000)")
     p.add_argument("--frame-rate", type=positive_float(unit="Hz"), default=None,
                    help="GT frame rate, Hz (default 100)")
@@ -125,7 +137,7 @@ def add_parser(sub) -> None:
     g.add_argument("--normalize", action="store_true",
                    help="stretch each quantized frame to the full grey range (min to 0, "
                         "max to 2^bits-1), as the thesis did with its dark frames")
-    g.add_argument("--event-photons", type=finite_float(0, 1e12, lo_open=True), default=None,
+    g.add_argument("--event-photons", type=finite_float(MIN_EVENT_PHOTONS, 1e12), default=None,
                    help="photons of a white event pixel per --event-tau-us: shot noise in "
                         "the events (low light); default none")
     g.add_argument("--event-tau-us", type=int_range(1, 1_000_000, unit="µs"), default=None,

@@ -23,15 +23,22 @@ import sys
 import time
 from pathlib import Path
 
-from evmotion.catalog import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
+from evmotion.catalog import (
+    MAX_CROP_SIDE,
+    MAX_EPOCHS,
+    MAX_LR,
+    MAX_TRAIN_SEED,
+    MAX_WIDTH,
+    MIN_CROP_SIDE,
+)
 from evmotion.cli.options import (
     HelpFormatter,
     add_sensor_size_argument,
+    event_format,
     existing_input,
     finite_float,
     int_range,
     nonnegative_float,
-    positive_float,
     positive_int,
     writable_folder,
 )
@@ -69,16 +76,17 @@ def add_parser(sub) -> None:
                    type=writable_folder("model.pt, model.npz, last.pt, steps.csv, "
                                         "epochs.csv and loss.png"),
                    help="output folder")
-    p.add_argument("--format", default=None,
+    p.add_argument("--format", type=event_format, default=None,
                    help="format of the recordings (default: detected per file)")
     add_sensor_size_argument(p)
     p.add_argument("--sim-windows", type=int_range(0, 9999), default=64,
                    help="simulated windows per epoch (default 64; 0: recordings only)")
-    p.add_argument("--epochs", type=positive_int(), default=10,
-                   help="passes over the data (default 10; with --resume, the total)")
+    p.add_argument("--epochs", type=int_range(1, MAX_EPOCHS), default=10,
+                   help=f"passes over the data (default 10, at most {MAX_EPOCHS}; with "
+                        "--resume, the total)")
     p.add_argument("--batch-size", type=int_range(1, 4096), default=8,
                    help="windows per step (default 8)")
-    p.add_argument("--lr", type=positive_float(), default=1e-3,
+    p.add_argument("--lr", type=finite_float(0, MAX_LR, lo_open=True), default=1e-3,
                    help="Adam learning rate (default 0.001, at most 1)")
     p.add_argument("--lr-decay", type=finite_float(0, 1, lo_open=True), default=0.8,
                    help="per epoch (default 0.8)")
@@ -121,9 +129,10 @@ def add_parser(sub) -> None:
                    help="held-out simulated validation windows (AEE and FWL; default 4)")
     p.add_argument("--max-steps", type=positive_int(), default=None,
                    help="at most this many steps per epoch")
-    p.add_argument("--seed", type=int_range(0), default=0,
+    p.add_argument("--seed", type=int_range(0, MAX_TRAIN_SEED - 1), default=0,
                    help="seed of the initial weights, the simulated windows and the crops "
-                        "(default 0; the same seed gives the same weights)")
+                        f"(default 0, below {MAX_TRAIN_SEED}; the same seed gives the same "
+                        "weights)")
     p.add_argument("--threads", type=int_range(1, 256), default=1,
                    help="torch threads (default 1: faster than 2 on a loaded 2-core machine)")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda)")

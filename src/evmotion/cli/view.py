@@ -24,6 +24,7 @@ from evmotion.cli.options import (
     add_time_unit_argument,
     check_time_order,
     empty_selection,
+    event_format,
     finite_float,
     format_bytes,
     int_range,
@@ -55,7 +56,8 @@ def add_parser(sub) -> None:
     p.add_argument("file", help="recording (any readable format), or a flow output")
     p.add_argument("--out", required=True, type=writable_output((".png",), "a PNG image"),
                    help="output PNG")
-    p.add_argument("--format", default=None, help="input format (default: detect)")
+    p.add_argument("--format", type=event_format, default=None,
+                   help="input format (default: detect)")
     add_sensor_size_argument(p)
     add_time_unit_argument(p)
     add_time_arguments(p, max_windows=False)

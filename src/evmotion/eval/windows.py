@@ -353,11 +353,13 @@ def _windows(flow, t0s, t1s, shape=None) -> tuple[np.ndarray, np.ndarray, np.nda
                              "t1s: one flow per window")
     # (t1 == t0: a window of no time, which flow outputs keep, without a valid pixel, so
     # that the windows' numbering holds; it was refused, and the whole output with it)
-    bad = ~(np.isfinite(t0s) & np.isfinite(t1s)) | (t0s != np.round(t0s)) | (t1s < t0s)
+    # (past int64 the cast below warned "invalid value encountered in cast", probe OPT)
+    bad = ~(np.isfinite(t0s) & np.isfinite(t1s)) | (t0s != np.round(t0s)) | (t1s < t0s) \
+        | (np.abs(t0s) > 2**62) | (np.abs(t1s) > 2**62)
     if bad.any():
         i = int(np.argmax(bad))
         raise ParameterError(f"window {i}: [{t0s[i]:g}, {t1s[i]:g}] us is not an interval "
-                             "t0 <= t1 of whole microseconds"
+                             "t0 <= t1 of whole microseconds (at most 2^62)"
                              + (" (t0s and t1s swapped?)" if t1s[i] < t0s[i] else ""))
     if shape is not None and tuple(flow.shape[1:3]) != tuple(shape):
         raise ParameterError(f"the flow is {flow.shape[2]}x{flow.shape[1]} px but the ground "

@@ -1179,6 +1179,10 @@ def read_frames(path: str | Path) -> dict:
     (N, H, W) uint8 (colour PNGs are converted to grey by their mean)."""
     path = Path(path)
     folder = path if path.is_dir() else path.parent
+    if not (folder / "images.txt").exists():
+        # (probe OPT: an ECD events file given as frames said only "[Errno 2] No such file
+        # or directory: '.../images.txt'")
+        raise FormatError(path, "ECD events, no frames: no images.txt beside them")
     lst = read_image_list(folder)
     images = []
     for name in lst["files"]:

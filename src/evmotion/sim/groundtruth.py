@@ -171,8 +171,10 @@ class GroundTruth:
         """
         from evmotion.io.flowfiles import FlowSequence
 
-        # whole µs each (NaN failed in numpy's int conversion and 0.5 was cut to 0)
-        t0s, t1s = (np.array([whole_number(name, v) for v in np.ravel(ts)], np.int64)
+        # whole µs each (NaN failed in numpy's int conversion and 0.5 was cut to 0; 1e30
+        # overflowed int64, probe OPT)
+        t0s, t1s = (np.array([whole_number(name, v, lo=-(2**62), hi=2**62)
+                              for v in np.ravel(ts)], np.int64)
                     for name, ts in (("t0s", t0s), ("t1s", t1s)))
         if t0s.shape != t1s.shape or not np.all(t1s > t0s):
             raise ParameterError("flow_sequence: t0s and t1s must be as many window starts "

@@ -12,7 +12,7 @@ Examples
 >>> SimOptions(threshold=-1)
 Traceback (most recent call last):
 ...
-evmotion.errors.ParameterError: threshold must be finite and > 0.0 (log intensity), got -1
+evmotion.errors.ParameterError: threshold must be finite and >= 0.001 (log intensity), got -1
 """
 
 from __future__ import annotations
@@ -21,6 +21,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from evmotion.catalog import (
+    MAX_MISMATCH,
+    MAX_PIXEL_RATE,
+    MAX_REFRACTORY_US,
+    MIN_EVENT_PHOTONS,
+    MIN_THRESHOLD,
+)
 from evmotion.errors import CalibrationError, ParameterError
 from evmotion.sim.photoreceptor import EVENT_BANDWIDTHS
 from evmotion.utils import check_number, check_switches, whole_number
@@ -33,8 +40,6 @@ def _set(obj, name: str, value) -> None:
     object.__setattr__(obj, name, value)
 
 
-#: The most events a pixel fires per second: one a microsecond (the timestamps' unit).
-MAX_PIXEL_RATE = 1e6
 
 
 @dataclass(frozen=True)
@@ -45,12 +50,14 @@ class EventOptions:
     Attributes
     ----------
     threshold : float
-        Nominal contrast threshold C (log intensity) for ON and OFF events, > 0.
+        Nominal contrast threshold C (log intensity) for ON and OFF events, at least
+        :data:`~evmotion.catalog.MIN_THRESHOLD` (0.001).
     mismatch : float
         Relative standard deviation of the per-pixel thresholds (ON and OFF drawn
-        independently, clipped to at least 0.25 C).
+        independently, clipped to at least 0.25 C), in [0, 1].
     refractory_us : int
-        Refractory period, µs: a pixel emits no event within this time after its last.
+        Refractory period, µs: a pixel emits no event within this time after its last; at
+        most 1e7 (10 s).
     noise_rate : float
         Background-activity noise, events per second per pixel (Poisson, random
         polarity).
@@ -60,7 +67,7 @@ class EventOptions:
         Rate of each hot pixel, events/s.
     max_step_fraction : float
         Bound on the log-intensity change between samples of a pixel, as a fraction of
-        ``threshold`` (> 0).
+        ``threshold`` (at least 0.01).
 
     Raises
     ------
@@ -77,13 +84,13 @@ class EventOptions:
     max_step_fraction: float = 0.5
 
     def __post_init__(self):
-        _set(self, "threshold", check_number("threshold", self.threshold, lo_open=True,
+        _set(self, "threshold", check_number("threshold", self.threshold, MIN_THRESHOLD,
                                              units="log intensity"))
-        _set(self, "mismatch", check_number("mismatch", self.mismatch,
+        _set(self, "mismatch", check_number("mismatch", self.mismatch, 0.0, MAX_MISMATCH,
                                             units="relative std"))
-        # (10.5 had run as 10 µs, probe BE)
+        # (10.5 had run as 10 µs, probe BE; 1e30 overflowed a C long, probe OPT)
         _set(self, "refractory_us", whole_number("refractory_us (µs)", self.refractory_us,
-                                                 lo=0))
+                                                 lo=0, hi=MAX_REFRACTORY_US))
         # a pixel's events are at least a microsecond apart: 1e9 went on to numpy's
         # "Unable to allocate 65.5 TiB", rc 1 (probe CE)
         _set(self, "noise_rate", check_number("noise_rate", self.noise_rate,
@@ -92,8 +99,10 @@ class EventOptions:
                                                   units="pixels")))
         _set(self, "hot_rate", check_number("hot_rate", self.hot_rate, hi=MAX_PIXEL_RATE,
                                             units="events/s"))
+        # (a pixel is sampled about 1 / max_step_fraction times a threshold crossing:
+        # 1e-30 never ended, like a threshold of 1e-30; probe OPT)
         _set(self, "max_step_fraction", check_number(
-            "max_step_fraction", self.max_step_fraction, lo_open=True,
+            "max_step_fraction", self.max_step_fraction, 0.01,
             units="fraction of threshold"))
 
     @property
@@ -214,7 +223,8 @@ class SchlierenOptions:
         Event sensor, as :class:`EventOptions`.
     event_photons : float, optional
         Low light for the events: expected photons of a white event pixel per
-        ``event_tau_us`` (shot noise on the log intensity). None: bright light.
+        ``event_tau_us`` (shot noise on the log intensity), in [0.1, 1e12]. None: bright
+        light.
     event_tau_us : int
         Time constant of the event pixels' shot noise, µs, in [1, 1e6].
     max_step_px : float
@@ -260,7 +270,7 @@ class SchlierenOptions:
 
     def __post_init__(self):
         _set(self, "contrast_threshold", check_number(
-            "contrast_threshold", self.contrast_threshold, lo_open=True,
+            "contrast_threshold", self.contrast_threshold, MIN_THRESHOLD,
             units="log intensity"))
         self.event_options()  # checks the rest of the event sensor
         _set(self, "magnitude_px", check_number("magnitude_px", self.magnitude_px, 0.0,
@@ -293,7 +303,7 @@ class SchlierenOptions:
                                                lo_open=True, units="px"))
         if self.event_photons is not None:
             _set(self, "event_photons", check_number(
-                "event_photons", self.event_photons, 0.0, 1e12, lo_open=True,
+                "event_photons", self.event_photons, MIN_EVENT_PHOTONS, 1e12,
                 units="photons per event_tau_us"))
         _set(self, "event_tau_us", int(check_number("event_tau_us", self.event_tau_us, 1.0,
                                                     1e6, units="µs")))

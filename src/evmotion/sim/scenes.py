@@ -117,7 +117,28 @@ def resolve_params(scene: str, params: dict | None, sensor_size) -> dict:
             raise ParameterError(f"scene '{scene}' has no parameter '{key}'; its parameters "
                                  f"are {', '.join(names)}{extra}"
                                  + ("" if scene == "object" else ", theta"))
+    if scene == "object":
+        _check_object(out, sensor_size)
     return out
+
+
+#: How far outside the sensor, in its larger side, the object's disc may start or reach.
+OBJECT_REACH = 10
+
+
+def _check_object(p: dict, sensor_size) -> None:
+    """Refuse a disc of no size or one far off the sensor (probe OPT: fg_x=1e30 never
+    ended, radius -5 or 0 simulated a scene with no object, unsaid)."""
+    h, w = sensor_size
+    far = OBJECT_REACH * max(h, w)
+    if not 0.5 <= p["radius"] <= far:
+        raise ParameterError(f"scene 'object': radius must be in [0.5, {far:g}] px "
+                             f"({OBJECT_REACH}x the sensor's larger side), got {p['radius']:g}")
+    for key, side in (("fg_x", w), ("fg_y", h)):
+        if not -far <= p[key] <= side + far:
+            raise ParameterError(f"scene 'object': {key} must be in [{-far:g}, {side + far:g}] "
+                                 f"px (the disc's start, within {OBJECT_REACH}x the sensor's "
+                                 f"larger side of it), got {p[key]:g}")
 
 
 def _vector(key, val, n) -> np.ndarray:

@@ -52,13 +52,14 @@ import contextlib
 import json
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numba import njit
 
-from evmotion.errors import FormatError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io.flowread import SCHLIEREN_GT_FORMAT
 from evmotion.io.frames import Frames
@@ -353,9 +354,20 @@ MAX_CROSSING_S = 1000.0
 MAX_REACH_VIEWS = 10
 
 
+#: The most puffs of warm air a scene may hold: their number grows with the speed and the
+#: duration (the defaults: tens to a few thousand).
+MAX_PUFFS = 1_000_000
+
+
 def _births(rng, t0: float, t1: float, every: float) -> np.ndarray:
     """Birth times (s) of puffs about every ``every`` s over ``[t0, t1)``, jittered."""
-    n = max(1, int(math.ceil((t1 - t0) / every)))
+    n = (t1 - t0) / every
+    if not n <= MAX_PUFFS:
+        # (probe OPT: speed 1e30 px/s reached numpy's "Maximum allowed size exceeded")
+        raise ParameterError(f"speed_px_s and duration_s make {n:.3g} puffs of warm air, "
+                             f"at most {MAX_PUFFS:g}: give a lower speed (--speed) or a "
+                             "shorter duration (--duration)")
+    n = max(1, int(math.ceil(n)))
     return t0 + every * (np.arange(n) + rng.uniform(-0.3, 0.3, n))
 
 
@@ -715,6 +727,14 @@ def simulate_schlieren(scene: str = "plume", sensor_size: tuple[int, int] = (720
                      contrast_threshold=float(o.contrast_threshold),
                      thresholds=res.thresholds, meta=meta)
     stats = dict(res.stats, max_step_us=max_step_us, n_frames=n_frames)
+    if not len(res.events):
+        # (probe OPT: contrast threshold 1e30, or a background of 1e-30 dots per px², wrote
+        # a recording of no event, rc 0)
+        warnings.warn(EvmotionWarning(
+            f"simulate_schlieren('{scene}'): no event in {duration_s:g} s: the contrast "
+            f"threshold {o.contrast_threshold:g} is above the background's log-intensity "
+            f"changes (magnitude_px {o.magnitude_px:g}, {int(bg.x.size)} dots of contrast "
+            f"{o.dot_contrast:g})"), stacklevel=2)
     return SchlierenSim(events=res.events, frames=frames, gt=gt, background=bg, air=air,
                         stats=stats)
 

@@ -5,13 +5,14 @@ background-activity noise and hot pixels."""
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from evmotion.catalog import MAX_SENSOR_SIDE, MAX_SIM_DURATION_S, MIN_SIM_SIDE
-from evmotion.errors import ParameterError
+from evmotion.errors import EvmotionWarning, ParameterError
 from evmotion.events import EventArray
 from evmotion.sim.groundtruth import GroundTruth, Layer
 from evmotion.sim.motions import make_motion
@@ -278,6 +279,13 @@ def _checked_run(scene, duration_s, sensor_size, options: SimOptions, show_progr
         raise ParameterError(f"{n_frames:.3g} ground-truth frames ({options.frame_rate:g} Hz "
                              f"over {duration_s:g} s): at most {MAX_GT_FRAMES}; lower "
                              "frame_rate (--frame-rate) or duration_s (--duration)")
+    if duration_us * options.frame_rate < 1e6:
+        # one frame, no flow between two (probe OPT: 1e-30 Hz wrote a ground truth of no
+        # window, unsaid)
+        warnings.warn(EvmotionWarning(
+            f"frame_rate {options.frame_rate:g} Hz gives one ground-truth frame over "
+            f"{duration_s:g} s: the ground truth holds no flow; at least "
+            f"{1e6 / duration_us:g} Hz (--frame-rate) gives one window"), stacklevel=3)
     h, w = parse_sensor_size(sensor_size, MIN_SIM_SIDE)
     options.check_hot_pixels(h * w)
     K = default_K((h, w)) if options.K is None else np.array(options.K, dtype=np.float64)
@@ -372,10 +380,6 @@ def simulate(scene: str = "rotation", duration_s: float = 0.1,
              "threshold_on_mean": float(cp.mean()), "threshold_off_mean": float(cn.mean()),
              "texture": texs[0].name}
     if not len(events):
-        import warnings
-
-        from evmotion.errors import EvmotionWarning
-
         warnings.warn(EvmotionWarning(
             f"simulate('{scene}'): no event in {duration_s} s: the texture has no contrast "
             f"the motion moves across (a constant image?), the motion is too slow, or the "

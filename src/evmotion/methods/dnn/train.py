@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from evmotion.catalog import MAX_EPOCHS, MAX_LR, MAX_TRAIN_SEED, VAL_SEED_BASE
 from evmotion.errors import EvmotionWarning, ParameterError, PoorFitWarning
 from evmotion.methods.dnn import MAX_CROP_SIDE, MAX_WIDTH, MIN_CROP_SIDE
 from evmotion.methods.dnn.data import (
@@ -63,13 +64,6 @@ from evmotion.utils import atomic_path, atomic_write_text, progress
 
 __all__ = ["TrainConfig", "batch_input", "best_epoch", "evaluate_windows", "train"]
 
-#: The largest learning rate a training takes.
-MAX_LR = 1.0
-#: Seeds of validation windows start here; training seeds are ``seed * 1e6 + epoch * 1e4 + i``
-#: with ``i < 1e4`` and must stay below.
-VAL_SEED_BASE = 2_000_000_000
-#: Training seeds below this keep the training windows' seeds under VAL_SEED_BASE.
-MAX_SEED = VAL_SEED_BASE // 1_000_000
 #: Weight initializations of the convolutions (the flow heads keep theirs, near zero):
 #: ``default`` torch's (uniform, biases uniform too), ``kaiming`` He-normal weights for ReLU
 #: and zero biases (see :func:`_kaiming_init`).
@@ -125,9 +119,15 @@ class TrainConfig:
             # Adam steps each weight by about lr: beyond 1 the weights run off (1e30 trained
             # to weights of 1e30, finite, and a checkpoint that answers nothing)
             raise ParameterError(f"lr must be at most {MAX_LR:g}, got {self.lr!r}")
-        if self.seed >= MAX_SEED:
+        if self.epochs > MAX_EPOCHS:
+            # epoch 100's windows would be the next seed's epoch 0 (probe OPT: 1e30 epochs
+            # were taken, an ETA of 1e30 epochs)
+            raise ParameterError(f"epochs must be at most {MAX_EPOCHS} (the simulated windows' "
+                                 f"seeds are seed * 1e6 + epoch * 1e4 + i), got "
+                                 f"{self.epochs!r}")
+        if self.seed >= MAX_TRAIN_SEED:
             # the training windows' seeds would reach the validation windows'
-            raise ParameterError(f"seed must be below {MAX_SEED} (from {MAX_SEED} the "
+            raise ParameterError(f"seed must be below {MAX_TRAIN_SEED} (from {MAX_TRAIN_SEED} the "
                                  "training scenes are the validation scenes), got "
                                  f"{self.seed!r}")
         if isinstance(self.recordings, (str, Path)) or isinstance(self.val_recordings,

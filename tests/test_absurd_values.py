@@ -1,0 +1,87 @@
+"""Values no user means (1e30, 1e-30) get one clear error or a warning from the library,
+never a hang, a numpy traceback or a result that is silently empty (probe OPT)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from evmotion.errors import EvmotionWarning, ParameterError
+from evmotion.events import EventArray
+
+
+def test_slice_time_takes_bounds_past_int64():
+    # a Python int past int64 raised numpy's TypeError ("ufunc 'isfinite' not supported")
+    ev = EventArray(x=[0, 1], y=[0, 0], t=[0, 2500], p=[1, 1], sensor_size=(2, 2))
+    assert len(ev.slice_time(0, 10**30)) == 2
+    assert len(ev.slice_time(-(10**30), 10**30)) == 2
+    assert len(ev.slice_time(10**30, None)) == 0
+    assert len(ev.slice_time(0, 2000)) == 1
+
+
+def test_evaluation_windows_past_int64_are_refused_in_one_line():
+    from evmotion.eval.windows import evaluate_windows
+    from evmotion.sim import simulate
+
+    sim = simulate("translation", duration_s=0.02, sensor_size=(20, 24), show_progress=False)
+    flow = np.zeros((1, 20, 24, 2))
+    windows = sim.gt.flow_sequence([0], [10_000])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # "invalid value encountered in cast"
+        with pytest.raises(ParameterError, match=r"window 0: .* \(at most 2\^62\)"):
+            evaluate_windows(flow, [0], [1e30], windows)
+        with pytest.raises(ParameterError, match=r"t1s must be a whole number in"):
+            evaluate_windows(flow, [0], [1e30], sim.gt)  # an OverflowError
+
+
+def test_a_schlieren_scene_without_events_is_flagged():
+    from evmotion.sim import simulate_schlieren
+
+    with pytest.warns(EvmotionWarning, match="no event in .* contrast threshold 1e"):
+        sim = simulate_schlieren("plume", (24, 24), duration_s=2 / 120, seed=0,
+                                 contrast_threshold=1e30, show_progress=False)
+    assert len(sim.events) == 0
+
+
+def test_air_too_fast_for_the_scene_is_refused():
+    # 1e30 px/s reached numpy's "Maximum allowed size exceeded" (puff births)
+    from evmotion.sim.schlieren import make_field
+
+    with pytest.raises(ParameterError, match=r"puffs of warm air, at most 1e\+06"):
+        make_field("plume", (48, 40), 0.05, speed_px_s=1e30)
+    assert make_field("plume", (48, 40), 0.05, speed_px_s=1e5).birth.size < 1_000_000
+
+
+@pytest.mark.parametrize("params, match", [
+    ({"fg_x": 1e30}, r"fg_x must be in \[-3460, 3806\] px"),  # never ended
+    ({"fg_y": -1e5}, r"fg_y must be in"),
+    ({"radius": 0.0}, r"radius must be in \[0.5, 3460\] px"),  # a scene of no object
+    ({"radius": -5.0}, r"radius must be in"),
+])
+def test_object_scene_refuses_a_disc_of_no_size_or_far_away(params, match):
+    from evmotion.sim.scenes import resolve_params
+
+    with pytest.raises(ParameterError, match=match):
+        resolve_params("object", params, (260, 346))
+    resolve_params("object", {"fg_x": -100.0, "radius": 20.0}, (260, 346))
+
+
+def test_one_ground_truth_frame_is_flagged():
+    from evmotion.sim import simulate
+
+    with pytest.warns(EvmotionWarning, match="gives one ground-truth frame over 0.02 s"):
+        sim = simulate("translation", duration_s=0.02, sensor_size=(20, 24), frame_rate=1e-30,
+                       show_progress=False)
+    assert len(sim.gt.frame_times_us) == 1
+
+
+def test_training_epochs_stay_within_the_seed_scheme():
+    pytest.importorskip("torch")
+    from evmotion.methods.dnn.train import TrainConfig
+
+    with pytest.raises(ParameterError, match=r"epochs must be at most 100"):
+        TrainConfig(epochs=101, sim_windows=1).check()
+    with pytest.raises(ParameterError, match=r"seed must be below 2000"):
+        TrainConfig(seed=2000, sim_windows=1).check()
