@@ -513,6 +513,26 @@ def test_frames_not_registered_with_the_events_are_said_or_refused(tmp_path):
         assert check_registration(rolled(1, 0)) == (1, 0)
 
 
+def test_a_small_roi_of_weak_air_is_not_refused_as_unregistered(tmp_path):
+    """Probe OPT: one interval of a 40x40 px ROI beside the plume peaked at a 2 px shift
+    by chance (correlation 0.64 against 0.53) and the registered scene was refused; the
+    gain a shift needs grows with the correlation's sampling error (2x, here 0.30)."""
+    import warnings
+
+    from evmotion.errors import EvmotionWarning
+    from evmotion.methods.bos_run import check_registration, registration_shift
+    from evmotion.sim.schlieren import simulate_schlieren, write_schlieren
+
+    write_schlieren(simulate_schlieren("plume", sensor_size=(120, 100), duration_s=0.1,
+                                       seed=0, show_progress=False), tmp_path / "plume")
+    data = load_bos_input(tmp_path / "plume", roi=(0, 10, 40, 40), max_intervals=1)
+    shift, best, zero = registration_shift(data)
+    assert max(map(abs, shift)) >= 2 and best > zero + 0.05  # what had been refused
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EvmotionWarning)
+        assert check_registration(data) == (0, 0)
+
+
 def test_a_camera_gain_ramp_is_not_taken_for_air(tmp_path):
     """Frames brightening 2.5 % a frame (auto-exposure), which no event sees: the frames
     had been said to change where no event fires, and the events to follow them weakly

@@ -16,6 +16,7 @@ estimate can be far off where few pixels change (the first interval of a startin
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass, field
@@ -483,6 +484,9 @@ REGISTRATION_PX = 3
 #: 12 simulated and rendered ones, the DAVIS346 file).
 REGISTRATION_GAIN = 0.05
 REGISTRATION_REFUSE = 0.5
+#: Area (px²) over which the smoothed images (σ = 2 px) vary together, about 4πσ²: a
+#: correlation over an ROI of A px² and n intervals rests on about n A / this samples.
+REGISTRATION_CELL_PX2 = 50.0
 
 
 def registration_shift(data: BosInput, samples: int = 5, radius: int = REGISTRATION_PX
@@ -551,7 +555,8 @@ def check_registration(data: BosInput) -> tuple[int, int]:
     from evmotion.methods.bos import MIN_CORRELATION
 
     (dx, dy), best, zero = registration_shift(data)
-    if (dx, dy) == (0, 0) or not best >= max(MIN_CORRELATION, zero + REGISTRATION_GAIN):
+    if (dx, dy) == (0, 0) or not best >= max(MIN_CORRELATION,
+                                             zero + _registration_margin(data, zero)):
         return (0, 0)
     what = (f"{data.frames_source}: the frames' change follows the events' best with the "
             f"frames shifted by ({dx:+d}, {dy:+d}) px (x, y; correlation {best:.2f}, against "
@@ -562,6 +567,19 @@ def check_registration(data: BosInput) -> tuple[int, int]:
     warnings.warn(EvmotionWarning(what + "; the flow is degraded: register them"),
                   stacklevel=2)
     return (dx, dy)
+
+
+def _registration_margin(data: BosInput, zero: float) -> float:
+    """The gain in correlation over the unshifted one a shift needs to be told from chance:
+    :data:`REGISTRATION_GAIN`, or twice a correlation's sampling error on a small ROI or
+    few intervals (probe OPT: one interval of a 40x40 px ROI where the air was weak
+    peaked at a 2 px shift, 0.64 against 0.53, and the scene was refused)."""
+    r = REGISTRATION_PX
+    h, w = data.events.sensor_size
+    if data.roi is not None:
+        w, h = data.roi[2:]
+    samples = min(5, len(data.intervals)) * (w - 2 * r) * (h - 2 * r) / REGISTRATION_CELL_PX2
+    return max(REGISTRATION_GAIN, 2.0 * (1.0 - zero * zero) / math.sqrt(max(samples, 1.0)))
 
 
 def _textured(data: BosInput, frames) -> dict[int, bool]:
