@@ -85,3 +85,60 @@ def test_training_epochs_stay_within_the_seed_scheme():
         TrainConfig(epochs=101, sim_windows=1).check()
     with pytest.raises(ParameterError, match=r"seed must be below 2000"):
         TrainConfig(seed=2000, sim_windows=1).check()
+
+
+@pytest.fixture(scope="module")
+def small_events():
+    from evmotion.sim import simulate
+
+    return simulate("translation", duration_s=0.03, sensor_size=(40, 48), seed=0,
+                    show_progress=False).events
+
+
+def _call(name: str, events):
+    """The probe API calls, by name (each raised a foreign error or never ended)."""
+    import evmotion
+    from evmotion.methods import triplet
+    from evmotion.methods.dnn import voxel
+
+    return {
+        "sigma_int": lambda: evmotion.estimate_egomotion(events, "translation", sigma=10**30),
+        "starts_number": lambda: evmotion.estimate_egomotion(events, "translation",
+                                                             starts=1e30),
+        "finest_level": lambda: evmotion.estimate_flow(events, finest_level=10**30),
+        "voxel_bins_float": lambda: voxel.voxel_grid(events, n_bins=1e30),
+        "voxel_bins_int64": lambda: voxel.voxel_grid(events, n_bins=2**63),
+        "voxel_bins_nan": lambda: voxel.network_inputs(events, (1,), n_bins=float("nan")),
+        "triplet_dx": lambda: triplet.estimate_flow_triplet(events, dx=10**30),
+        "triplet_filter": lambda: triplet.estimate_flow_triplet(events, filter_size=np.nan),
+        "triplet_kappa": lambda: triplet.estimate_flow_triplet(events, normal_kappa=np.nan),
+    }[name]
+
+
+@pytest.mark.parametrize("name, match", [
+    ("sigma_int", r"sigma=10+ applies to kernel='gaussian' only"),  # numpy's TypeError
+    ("starts_number", r"starts must be a list of parameter vectors"),  # not iterable
+    ("finest_level", r"makes 2\^9+ tiles per side"),  # 2 ** (10**30 - 1) never ended
+    ("voxel_bins_float", r"n_bins must be a whole number in 2..1024"),  # a cast error
+    ("voxel_bins_int64", r"n_bins must be a whole number in 2..1024"),  # OverflowError
+    ("voxel_bins_nan", r"n_bins must be a whole number in 2..1024"),
+    ("triplet_dx", r"dx must be"),  # numpy's TypeError
+    ("triplet_filter", r"filter size must be an odd number"),  # NaN to integer
+    ("triplet_kappa", r"normal_kappa must be a power of two"),
+])
+def test_absurd_keywords_of_the_methods_are_named(small_events, name, match):
+    with pytest.raises(ParameterError, match=match) as info:
+        _call(name, small_events)()
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("seed", [-1, float("nan"), 0.5])
+def test_segmentation_names_a_bad_seed(small_events, seed):
+    from evmotion.methods.segmentation import segment_motion
+
+    # numpy's SeedSequence had raised a TypeError or ValueError (probe API); 1e30, a whole
+    # number, is taken as one
+    with pytest.raises(ParameterError, match=r"seed must be a whole number >= 0"):
+        segment_motion(small_events, n_warps=2, seed=seed)
+    assert segment_motion(small_events, n_warps=2, seed=1e30, n_iter=1).labels.shape == (
+        len(small_events),)

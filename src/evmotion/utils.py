@@ -497,6 +497,23 @@ def check_finite(name: str, value) -> np.ndarray:
     return arr
 
 
+def is_finite_number(value) -> bool:
+    """Whether ``value`` is one finite real number: an int, a float or a numpy scalar, not a
+    bool (``np.isfinite`` raised a TypeError on a Python int past int64, probe API).
+
+    Examples
+    --------
+    >>> is_finite_number(10**30), is_finite_number(float("nan")), is_finite_number(True)
+    (True, False, False)
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int past a float's range
+        return False
+
+
 def check_number(name: str, value, lo: float = 0.0, hi: float = math.inf, *,
                  lo_open: bool = False, units: str = "") -> float:
     """``value`` as a float, checked to be finite and in ``[lo, hi]`` (``(lo, hi]`` when
@@ -518,7 +535,7 @@ def check_number(name: str, value, lo: float = 0.0, hi: float = math.inf, *,
     try:
         # (a string is no number: duration_s="0.01" had run: probe)
         v = math.nan if isinstance(value, (str, bytes)) else float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         v = math.nan
     if not math.isfinite(v) or v < lo or (lo_open and v <= lo) or v > hi:
         op = ">" if lo_open else ">="

@@ -354,6 +354,9 @@ def minimize(fun_grad: Callable[[np.ndarray], tuple[float, np.ndarray]], x0: np.
         ns = n_samples or (300 if x0.size == 1 else 600)
         return tpe_minimize(lambda th: fun_grad(th)[0], lower, upper, n_samples=ns, seed=seed,
                             x0=x0)
+    if starts is not None and (isinstance(starts, (str, bytes)) or np.ndim(starts) == 0):
+        # (a number raised "'float' object is not iterable", probe API)
+        raise ParameterError(f"starts must be a list of parameter vectors, got {starts!r}")
     checked = []
     for k, s0 in enumerate(starts or []):
         try:

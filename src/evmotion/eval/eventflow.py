@@ -22,6 +22,7 @@ import numpy as np
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.eval.metrics import NPE_THRESHOLDS, warn_no_better_than_zero
 from evmotion.events import as_timestamps_us
+from evmotion.utils import is_finite_number
 
 if TYPE_CHECKING:
     from evmotion.io.eventflow import EventFlow
@@ -173,7 +174,7 @@ def event_flow_metrics(
     (150.0, 1.5, 0.0, 2)
     """
     for name, value in (("frames", frames), ("out_px", out_px)):
-        if not (np.isfinite(value) and value > 0):
+        if not (is_finite_number(value) and value > 0):
             raise ParameterError(f"{name} must be a finite number > 0, got {value!r}")
     cols = {k: np.asarray(event_flow[k]) for k in ("t", "x", "y", "vx", "vy")}
     if _has_valid(event_flow):

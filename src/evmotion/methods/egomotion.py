@@ -99,6 +99,7 @@ from evmotion.methods.measured import (
     warp_alignment_chance,
 )
 from evmotion.methods.options import merge_options
+from evmotion.utils import is_finite_number
 
 __all__ = [
     "COMBINED_REGULARIZERS",
@@ -324,7 +325,7 @@ class EgomotionOptions:
         whole("n_samples", 1, allow_none=True)
         for name in ("lr", "sigma"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float, np.number)) and np.isfinite(v) and v > 0):
+            if not (is_finite_number(v) and v > 0):
                 raise ParameterError(f"{name} must be a finite number > 0, got {v!r}")
         # an option of another optimizer or kernel changed nothing, without a word
         # (n_iter=5 and sigma=3.0 under the bfgs / bilinear defaults, probe CB)

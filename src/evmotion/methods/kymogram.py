@@ -22,7 +22,13 @@ from scipy import ndimage
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, require_events
-from evmotion.utils import check_finite, check_number, check_switches, whole_number
+from evmotion.utils import (
+    check_finite,
+    check_number,
+    check_switches,
+    is_finite_number,
+    whole_number,
+)
 
 __all__ = [
     "Kymogram",
@@ -481,7 +487,7 @@ def _ridge_signal(kymo: Kymogram, polarity: str, sigma_px: float, sigma_bins: fl
     if polarity not in RIDGE_POLARITIES:
         raise ParameterError(f"polarity must be one of {RIDGE_POLARITIES}, got {polarity!r}")
     for name, v in (("sigma_px", sigma_px), ("sigma_bins", sigma_bins)):
-        if not (np.isfinite(v) and v >= 0):
+        if not (is_finite_number(v) and v >= 0):
             raise ParameterError(f"parameter '{name}' must be finite and >= 0, got {v!r}")
     # a NaN cell (a field with no measurement there) carries no signal: 0
     d = np.nan_to_num(np.asarray(kymo.data, dtype=np.float64), nan=0.0)
@@ -882,7 +888,7 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
         stationary_px = 3.0 * sigma_px + 1.0
     for name, v in (("sigma_px", sigma_px), ("min_shift_px", min_shift_px),
                     ("stationary_px", stationary_px)):
-        if not (np.isfinite(v) and v >= 0):
+        if not (is_finite_number(v) and v >= 0):
             raise ParameterError(f"parameter '{name}' must be finite and >= 0, got {v!r}")
     if int(n_blocks) != n_blocks or n_blocks < 2:
         raise ParameterError(f"parameter 'n_blocks' must be an integer >= 2, got {n_blocks!r}")

@@ -800,8 +800,9 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
         level = auto_finest_level(len(events), events.sensor_size)
         o = dataclasses.replace(o, finest_level=level, n_scales=min(o.n_scales, level))
     o = dataclasses.replace(o, finest_level=whole_number("finest_level", o.finest_level, lo=0))
-    if 2 ** (o.finest_level - 1) > max(events.sensor_size):
-        raise ParameterError(f"finest_level={o.finest_level} makes {2 ** (o.finest_level - 1)} "
+    # (compared in logs: 2 ** (10**30 - 1) never ended, probe API)
+    if o.finest_level - 1 > np.log2(max(events.sensor_size)):
+        raise ParameterError(f"finest_level={o.finest_level} makes 2^{o.finest_level - 1} "
                              f"tiles per side, more than the {max(events.sensor_size)} px "
                              "of the sensor: tiles under a pixel fit nothing (at most "
                              f"{int(np.log2(max(events.sensor_size))) + 1} here)")

@@ -233,6 +233,8 @@ def segment_motion(events: EventArray, n_warps: int = 2, warp: str = "translatio
     t_start = time.perf_counter()
     # (2.0 failed in range(): TypeError, probe DB)
     n_warps = whole_number("n_warps", n_warps, lo=1)
+    # (1e30, NaN or -1 reached numpy's SeedSequence, probe API)
+    seed = whole_number("seed", seed, lo=0)
     if not (isinstance(n_iter, (int, np.integer)) and n_iter >= 1):
         raise ParameterError(f"n_iter must be an integer >= 1, got {n_iter!r}")
     if objective not in ("variance", "gradient_magnitude"):

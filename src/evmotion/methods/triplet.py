@@ -84,7 +84,7 @@ from evmotion.methods.measured import (
     box_offsets,
     halves_correlation,
 )
-from evmotion.utils import check_switches, whole_number
+from evmotion.utils import check_switches, is_finite_number, whole_number
 
 __all__ = [
     "LSQ_DX",
@@ -247,7 +247,7 @@ def neighbour_offsets(dx: float) -> np.ndarray:
     >>> len(neighbour_offsets(np.sqrt(2)))
     8
     """
-    if not np.isfinite(dx) or dx < 1.0 or dx > MAX_DX:
+    if not is_finite_number(dx) or dx < 1.0 or dx > MAX_DX:
         raise ParameterError(f"dx must be from 1 px (a neighbour must exist) to {MAX_DX:g} px "
                              f"({_MAX_DX_WHY}), got {dx}")
     r = int(np.floor(dx + 1e-9))
@@ -308,13 +308,13 @@ class TripletMatcher:
         dt_us = whole_number("dt_us (microseconds)", dt_us, lo=1)
         # tau = 0 would admit t_i = t_k: delta = 0, a Gaussian of zero width in (5.3).
         tau_us = whole_number("tau_us (microseconds)", tau_us, lo=1)
-        if not (isinstance(dx, (int, float, np.integer, np.floating))
-                and not isinstance(dx, bool) and np.isfinite(dx) and dx > 0):
+        if not (is_finite_number(dx) and dx > 0):
             raise ParameterError(f"dx must be a finite number of px > 0, got {dx!r}")
         if 3 * (int(dt_us) + int(tau_us)) >= K.REBASE_SPAN_US // 2:
             raise ParameterError(f"dt_us + tau_us = {int(dt_us) + int(tau_us)} us is too long "
                                  f"(limit {K.REBASE_SPAN_US // 6} us)")
-        kappa = int(normal_kappa)
+        # (NaN raised "cannot convert float NaN to integer", probe API)
+        kappa = int(normal_kappa) if is_finite_number(normal_kappa) else 0
         if kappa != normal_kappa or kappa < 1 or kappa > 2**16 or kappa & (kappa - 1):
             raise ParameterError(f"normal_kappa must be a power of two in 1..65536, "
                                  f"got {normal_kappa}")
@@ -541,7 +541,7 @@ def nonzero_average_filter(field: np.ndarray, mask: np.ndarray, size: int = 3,
 
 
 def _filter_radius(size: int) -> int:
-    if int(size) != size or size < 1 or size % 2 == 0:
+    if not is_finite_number(size) or int(size) != size or size < 1 or size % 2 == 0:
         raise ParameterError(f"filter size must be an odd number of pixels >= 1, got {size}")
     return int(size) // 2
 

@@ -60,7 +60,7 @@ from evmotion.methods.dnn.voxel import (
     pad_to_multiple,
     voxel_grid,
 )
-from evmotion.utils import atomic_path, atomic_write_text, progress
+from evmotion.utils import atomic_path, atomic_write_text, is_finite_number, progress
 
 __all__ = ["TrainConfig", "batch_input", "best_epoch", "evaluate_windows", "train"]
 
@@ -111,7 +111,7 @@ class TrainConfig:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < least:
                 raise ParameterError(f"{name} must be an integer >= {least}, got {v!r}")
         for name, v, positive in (("lr", self.lr, True), ("lam", self.lam, False)):
-            number = isinstance(v, (int, float, np.number)) and bool(np.isfinite(v))
+            number = is_finite_number(v)
             if not number or v < 0 or (positive and v == 0):
                 raise ParameterError(f"{name} must be a finite number "
                                      f"{'> 0' if positive else '>= 0'}, got {v!r}")

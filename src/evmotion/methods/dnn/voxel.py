@@ -13,11 +13,14 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray
+from evmotion.utils import whole_number
 
 __all__ = ["N_BINS", "PAD_MULTIPLE", "network_input", "network_inputs", "normalize_voxel",
            "pad_to_multiple", "voxel_grid"]
 
 N_BINS = 5
+#: The most time bins a voxel grid takes (the network reads N_BINS).
+MAX_VOXEL_BINS = 1024
 PAD_MULTIPLE = 16
 
 
@@ -44,6 +47,7 @@ def voxel_grid(events: EventArray, n_bins: int = N_BINS) -> np.ndarray:
     [1.0, 0.0, -1.0]
     """
     h, w = events.sensor_size
+    n_bins = _checked_bins(n_bins)
     y, x, b0, w0, w1 = _votes(events, n_bins)
     pix = y * w + x
     size = n_bins * h * w
@@ -52,11 +56,15 @@ def voxel_grid(events: EventArray, n_bins: int = N_BINS) -> np.ndarray:
     return grid.reshape(n_bins, h, w).astype(np.float32)
 
 
+def _checked_bins(n_bins) -> int:
+    """``n_bins`` as an int in ``[2, MAX_VOXEL_BINS]``, or ParameterError (1e30 and NaN had
+    failed in numpy's casts, 2**63 overflowed; probe API)."""
+    return whole_number("n_bins", n_bins, lo=2, hi=MAX_VOXEL_BINS)
+
+
 def _votes(events: EventArray, n_bins: int):
     """Each event's pixel ``(y, x)`` (int64, rounded, clipped to the sensor), lower time
     bin ``b0`` and signed weights ``w0``, ``w1`` (float64) of bins ``b0`` and ``b0 + 1``."""
-    if n_bins < 2:
-        raise ParameterError(f"n_bins must be >= 2, got {n_bins}")
     if len(events) == 0:
         raise EmptyWindowError("voxel_grid: the window has no events")
     h, w = events.sensor_size
@@ -113,6 +121,7 @@ def network_inputs(events: EventArray, scales: tuple[int, ...], n_bins: int = N_
         raise ParameterError(f"scales must divide {multiple}, got {tuple(scales)}")
     h, w = events.sensor_size
     hp, wp = h + (-h % multiple), w + (-w % multiple)
+    n_bins = _checked_bins(n_bins)
     y, x, b0, w0, w1 = _votes(events, n_bins)
     cell = (y * wp + x) * n_bins + b0
     fine = np.bincount(np.concatenate([cell, cell + 1]), weights=np.concatenate([w0, w1]),
