@@ -142,3 +142,26 @@ def test_segmentation_names_a_bad_seed(small_events, seed):
         segment_motion(small_events, n_warps=2, seed=seed)
     assert segment_motion(small_events, n_warps=2, seed=1e30, n_iter=1).labels.shape == (
         len(small_events),)
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"iterations": 1e30}, r"iterations must be whole numbers in 1..100000"),  # numpy's
+    ({"iterations": 2**63}, r"iterations must be whole numbers in 1..100000"),  # dimension
+    ({"sigma_weight": 1e30}, r"sigma_weight must be at most 1000 px"),  # scipy's size
+    ({"sigma_meas": 10**30}, r"sigma_meas must be at most 1000 px"),  # numpy's TypeError
+    ({"contrast_threshold": 10**30}, r"contrast_threshold must be at most 10"),
+])
+def test_bos_options_name_absurd_values(kw, match):
+    from evmotion.methods.bos import BosOptions
+
+    with pytest.raises(ParameterError, match=match):
+        BosOptions(**kw)
+
+
+def test_bos_options_take_whole_floats_and_big_ints_as_numbers():
+    from evmotion.methods.bos import BosOptions
+
+    # seed 1e30 had failed in numpy's SeedSequence, log_eps 10**30 in np.isfinite
+    o = BosOptions(seed=1e30, log_eps=10**30)
+    assert o.seed == int(1e30) and isinstance(o.seed, int)
+    assert o.log_eps == 1e30 and isinstance(o.log_eps, float)

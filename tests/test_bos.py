@@ -438,7 +438,7 @@ def test_errors(case):
     assert not res.calibrated and res.contrast_threshold is None
     with pytest.raises(ParameterError, match="coarse to fine"):
         estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, scales=(8, 16))
-    with pytest.raises(ParameterError, match="iterations must be whole numbers >= 1"):
+    with pytest.raises(ParameterError, match="iterations must be whole numbers in 1..100000"):
         estimate_bos(ev, f0, t0_us=0, t1_us=DT_US, iterations=0)
     with pytest.raises(ParameterError, match="dtype bool"):
         estimate_bos(ev, f0 > 0.5, **kw)

@@ -104,6 +104,7 @@ from evmotion.methods.bos_kernels import (
     upsample,
 )
 from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_box_counts
+from evmotion.utils import is_finite_number
 
 __all__ = [
     "BosOptions",
@@ -150,6 +151,10 @@ LARGE_DISPLACEMENT_NOTE = (
 #: Largest contrast threshold accepted, log units (sensors: 0.1-0.5): beyond it the
 #: predicted increments overflow float32.
 MAX_CONTRAST_THRESHOLD = 10.0
+#: Most Adam iterations of one scale (the thesis' schedule: 600).
+MAX_ITERATIONS = 100_000
+#: Widest smoothing of the measurements and of the data weights, px.
+MAX_SIGMA_PX = 1000.0
 
 
 class TexturelessFrameError(ParameterError):
@@ -303,18 +308,25 @@ class BosOptions:
             v = float(getattr(self, name))
             if not np.isfinite(v) or v < 0:
                 raise ParameterError(f"{name} must be finite and >= 0, got {v}")
+        for name in ("sigma_meas", "sigma_weight"):
+            # (a smoothing of 1e30 px reached scipy's "Maximum allowed size exceeded",
+            # 10**30 numpy's TypeError; probe API)
+            v = getattr(self, name)
+            if v > MAX_SIGMA_PX:
+                raise ParameterError(f"{name} must be at most {MAX_SIGMA_PX:g} px, got {v!r}")
+            object.__setattr__(self, name, float(v))
         if min(self.lr, self.lr_decay, self.eps_data, self.eps_reg, self.p_max) <= 0:
             raise ParameterError("lr, lr_decay, eps_data, eps_reg and p_max must be > 0")
         if self.alpha > 1:
             raise ParameterError(f"alpha must be in [0, 1], got {self.alpha}")
         c = self.contrast_threshold
-        if c is not None and not (isinstance(c, (int, float, np.number)) and np.isfinite(c)
-                                  and c > 0):
+        if c is not None and not (is_finite_number(c) and c > 0):
             raise ParameterError(f"contrast_threshold must be a number > 0, got {c!r}")
         if not (_is_int(self.patience) and self.patience >= 1):
             raise ParameterError(f"patience must be an integer >= 1, got {self.patience!r}")
         if not (_is_int(self.seed) and self.seed >= 0):
             raise ParameterError(f"seed must be an integer >= 0, got {self.seed!r}")
+        object.__setattr__(self, "seed", int(self.seed))  # (1e30 failed in SeedSequence)
         if not (_is_int(self.relinearize) and 0 <= self.relinearize <= 10):
             raise ParameterError(f"relinearize must be an integer in [0, 10], "
                                  f"got {self.relinearize!r}")
@@ -322,8 +334,10 @@ class BosOptions:
             raise ParameterError(f"contrast_threshold must be at most "
                                  f"{MAX_CONTRAST_THRESHOLD:g} (log units), got {c}")
         e = self.log_eps
-        if e is not None and not (np.isfinite(e) and e > 0):
+        if e is not None and not (is_finite_number(e) and e > 0):
             raise ParameterError(f"log_eps must be None or a finite number > 0, got {e!r}")
+        if e is not None:
+            object.__setattr__(self, "log_eps", float(e))
 
     @classmethod
     def fast(cls, **kwargs) -> BosOptions:
@@ -342,9 +356,12 @@ class BosOptions:
             n = len(self.scales)
             its = (150,) * (n - 1) + (300,) if self.data_term == "scale" else 600
         its = (its,) * len(self.scales) if np.isscalar(its) else tuple(its)
-        if len(its) != len(self.scales) or not all(_is_int(i) and i >= 1 for i in its):
-            raise ParameterError(f"iterations must be whole numbers >= 1, one or one per "
-                                 f"scale ({len(self.scales)}), got {self.iterations!r}")
+        # (1e30 reached numpy's "Maximum allowed dimension exceeded", probe API)
+        if len(its) != len(self.scales) or not all(_is_int(i) and 1 <= i <= MAX_ITERATIONS
+                                                   for i in its):
+            raise ParameterError(f"iterations must be whole numbers in 1..{MAX_ITERATIONS}, one "
+                                 f"or one per scale ({len(self.scales)}), got "
+                                 f"{self.iterations!r}")
         return tuple(int(i) for i in its)
 
     def param_shapes(self, height: int, width: int) -> list[tuple[int, int, int]]:
@@ -768,7 +785,7 @@ def contrast_threshold_slope(events: EventArray, frame: np.ndarray, frame_next: 
     ev = _window_events(events, t0_us, t1_us, (x, y, rw, rh))
     if sigma is None:
         sigma = 2.0 if method == "auto" else 1.0
-    if not (np.isfinite(sigma) and 0 <= sigma <= 1000):
+    if not (is_finite_number(sigma) and 0 <= sigma <= 1000):
         raise ParameterError(f"sigma must be a number of px in [0, 1000], got {sigma!r}")
     # the frames' noise is the camera's, not the ROI's: it is measured on the still air of
     # the whole view (an ROI drawn around the plume holds little of it, and the noise
