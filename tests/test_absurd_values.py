@@ -165,3 +165,35 @@ def test_bos_options_take_whole_floats_and_big_ints_as_numbers():
     o = BosOptions(seed=1e30, log_eps=10**30)
     assert o.seed == int(1e30) and isinstance(o.seed, int)
     assert o.log_eps == 1e30 and isinstance(o.log_eps, float)
+
+
+def test_event_array_times_past_int64_or_nan_are_named():
+    # numpy's OverflowError / "cannot convert float NaN to integer" (probe API)
+    ev = EventArray(x=[0, 1], y=[0, 0], t=[0, 2500], p=[1, 1], sensor_size=(2, 2))
+    with pytest.raises(ParameterError, match=r"window duration .* whole number in 1\.\."):
+        ev.windows_by_duration(1e30)
+    with pytest.raises(ParameterError, match=r"t0 \(µs\) must be a whole number"):
+        ev.windows_by_duration(1000, t0=float("nan"))
+    for t_ref in (1e30, float("nan")):
+        with pytest.raises(ParameterError, match=r"t_ref \(µs\) must be a whole number"):
+            ev.t_seconds(t_ref)
+    assert ev.t_seconds(0).tolist() == [0.0, 0.0025]
+
+
+def test_simulator_building_blocks_name_absurd_values():
+    from evmotion.sim.simulator import simulate_log_function
+    from evmotion.sim.textures import make_texture
+
+    def ramp(t, pix):
+        return np.full((2, 2) if pix is None else len(pix), t * 1e-3)
+
+    with pytest.raises(ParameterError, match=r"duration_us must be a whole number in 1\.\."):
+        simulate_log_function(ramp, (2, 2), 1e30)  # ran on
+    with pytest.raises(ParameterError, match=r"duration_us must be a whole number"):
+        simulate_log_function(ramp, (2, 2), float("nan"))  # NaN to integer
+    with pytest.raises(ParameterError, match=r"max_step_us must be finite and in \[1, "):
+        simulate_log_function(ramp, (2, 2), 1000, max_step_us=1e30)
+    for seed in (-1, float("nan"), 0.5):  # numpy's SeedSequence errors
+        with pytest.raises(ParameterError, match=r"seed must be a whole number >= 0"):
+            make_texture("dots", (8, 8), (0.0, 0.0), seed=seed)
+    assert make_texture("dots", (8, 8), (0.0, 0.0), seed=1e30).log_i.shape == (8, 8)

@@ -57,6 +57,8 @@ SORT_HINT = "sort them: evmotion convert IN OUT --sort, or EventArray.sorted()"
 #: Windows beyond the events' count that EventArray.windows_by_duration makes (empty ones,
 #: whatever the count): ~330 MB and 3.5 s a million
 MAX_EMPTY_WINDOWS = 1_000_000
+#: The largest time, µs, a window bound or reference may be (int64 with room for sums).
+MAX_TIME_US = 2**62
 
 TONIC_DTYPE = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
 
@@ -268,6 +270,8 @@ class EventArray:
         """Time relative to ``t_ref`` (default: the first event) in seconds, float64."""
         if t_ref is None:
             t_ref = self.t_start
+        # (1e30 overflowed int64 and NaN failed in its conversion, probe API)
+        t_ref = whole_number("t_ref (µs)", t_ref, lo=-MAX_TIME_US, hi=MAX_TIME_US)
         return (self.t - np.int64(t_ref)).astype(np.float64) * 1e-6
 
     def t_normalized(self) -> np.ndarray:
@@ -392,11 +396,15 @@ class EventArray:
         >>> [w.index for w in ev.windows_by_duration(1000, drop_empty=True)]
         [0, 1]
         """
-        duration_us = whole_number("window duration (duration_us, µs)", duration_us, lo=1)
+        # (past int64 or NaN, these had failed in numpy's or Python's conversions, probe API)
+        duration_us = whole_number("window duration (duration_us, µs)", duration_us, lo=1,
+                                   hi=MAX_TIME_US)
         if not len(self):
             return []
-        t0 = self.t_start if t0 is None else int(t0)
-        t1 = self.t_end + 1 if t1 is None else int(t1)
+        t0 = self.t_start if t0 is None else whole_number("t0 (µs)", t0, lo=-MAX_TIME_US,
+                                                          hi=MAX_TIME_US)
+        t1 = self.t_end + 1 if t1 is None else whole_number("t1 (µs)", t1, lo=-MAX_TIME_US,
+                                                            hi=MAX_TIME_US)
         _check_time_range(t0, t1)
         n = -(-(t1 - t0) // duration_us)  # the last window reaches t1
         end = t0 + n * duration_us

@@ -751,10 +751,11 @@ def simulate_log_function(log_at, sensor_size: tuple[int, int], duration_us: int
     (16, [250, 250, 250, 250])
     """
     h, w = parse_sensor_size(sensor_size, 1)
-    duration_us = int(duration_us)
-    if duration_us < 1:
-        raise ParameterError(f"duration_us must be at least 1, got {duration_us!r}")
-    max_step_us = int(check_number("max_step_us", max_step_us, 1, units="µs"))
+    # (NaN failed in int(), 1e30 ran on; probe API)
+    duration_us = whole_number("duration_us", duration_us, lo=1,
+                               hi=int(MAX_SIM_DURATION_S * 1_000_000))
+    max_step_us = int(check_number("max_step_us", max_step_us, 1, MAX_SIM_DURATION_S * 1e6,
+                                   units="µs"))
     model = resolve_options(EventOptions, options, keywords, "simulate_log_function")
     model.check_hot_pixels(h * w)
     target = model.target

@@ -19,6 +19,7 @@ import numpy as np
 
 from evmotion.errors import FormatError, ParameterError
 from evmotion.io.pngfile import read_png
+from evmotion.utils import whole_number
 
 __all__ = ["TEXTURES", "Texture", "make_texture", "texture_from_image"]
 
@@ -249,4 +250,5 @@ def make_texture(name: str, shape: tuple[int, int], origin: tuple[float, float],
     if name not in TEXTURES:
         raise ParameterError(f"unknown texture '{name}'; choose one of {sorted(TEXTURES)} "
                              "or pass an image (path or array)")
+    seed = whole_number("seed", seed, lo=0)  # (1e30, NaN or -1 reached numpy; probe API)
     return Texture(_to_log(TEXTURES[name](tuple(shape), seed)), None, origin, name)
