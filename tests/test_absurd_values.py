@@ -197,3 +197,12 @@ def test_simulator_building_blocks_name_absurd_values():
         with pytest.raises(ParameterError, match=r"seed must be a whole number >= 0"):
             make_texture("dots", (8, 8), (0.0, 0.0), seed=seed)
     assert make_texture("dots", (8, 8), (0.0, 0.0), seed=1e30).log_i.shape == (8, 8)
+
+
+def test_flow_metrics_name_an_out_threshold_past_int64():
+    from evmotion.eval import flow_metrics
+
+    est = np.zeros((4, 5, 2))
+    with pytest.raises(ParameterError, match=r"out_px must be a finite number of px > 0"):
+        flow_metrics(est, est, out_px=10**400)  # numpy's TypeError past int64 (probe API)
+    assert flow_metrics(est, est, out_px=10**30).aee == 0.0

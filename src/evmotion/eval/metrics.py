@@ -27,7 +27,7 @@ import numpy as np
 
 from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
 from evmotion.events import EventArray, check_reference_time, require_events
-from evmotion.utils import check_number, whole_number
+from evmotion.utils import check_number, is_finite_number, whole_number
 
 __all__ = [
     "NPE_THRESHOLDS",
@@ -271,8 +271,7 @@ def flow_metrics(
             raise ParameterError(f"events are on a {events.sensor_size} sensor but the flow "
                                  f"is {sel.shape} px (height, width)")
         sel &= event_mask(events, sel.shape)
-    if not (isinstance(out_px, (int, float, np.integer, np.floating))
-            and not isinstance(out_px, bool) and np.isfinite(out_px) and out_px > 0):
+    if not (is_finite_number(out_px) and out_px > 0):
         raise ParameterError(f"out_px must be a finite number of px > 0, got {out_px!r}")
     # (whole px each: 1.5 had been floored to 1, and the string "13" read as 1 and 3)
     if isinstance(npe_thresholds, (str, bytes)):

@@ -566,9 +566,9 @@ def ridge_points(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1
 def _check_fit_options(min_snr: float, inlier_px: float | None = None) -> None:
     """Refuse a ``min_snr`` or ``inlier_px`` no fit can use (NaN had ended in "a ridge in
     only 0 time bins", probe BU)."""
-    if not (np.isfinite(min_snr) and min_snr >= 0):
+    if not (is_finite_number(min_snr) and min_snr >= 0):
         raise ParameterError(f"parameter 'min_snr' must be finite and >= 0, got {min_snr!r}")
-    if inlier_px is not None and not (np.isfinite(inlier_px) and inlier_px > 0):
+    if inlier_px is not None and not (is_finite_number(inlier_px) and inlier_px > 0):
         raise ParameterError(f"parameter 'inlier_px' must be finite and > 0, got "
                              f"{inlier_px!r}")
 
@@ -893,7 +893,7 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     if int(n_blocks) != n_blocks or n_blocks < 2:
         raise ParameterError(f"parameter 'n_blocks' must be an integer >= 2, got {n_blocks!r}")
     _check_fit_options(min_snr)
-    if max_lag_s is not None and not (np.isfinite(max_lag_s) and max_lag_s > 0):
+    if max_lag_s is not None and not (is_finite_number(max_lag_s) and max_lag_s > 0):
         raise ParameterError(f"parameter 'max_lag_s' must be > 0, got {max_lag_s!r}")
     t = kymo.t_s
     tmask, smask = _region_masks(kymo, s_range, t_range)

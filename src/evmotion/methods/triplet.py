@@ -173,7 +173,7 @@ def default_ridge(dense: str, ridge: float | None = None) -> float:
 
 
 def _check_ridge(ridge: float) -> None:
-    if not (np.isfinite(ridge) and ridge >= 0.0):
+    if not (is_finite_number(ridge) and ridge >= 0.0):
         raise ParameterError(f"ridge must be a finite number >= 0, got {ridge}")
 
 
@@ -702,7 +702,7 @@ def dense_robust_fit(events: EventArray, flow: TripletFlow, t0_us: int, t1_us: i
     if len(flow) != len(events):
         raise ParameterError(f"{len(flow)} flows for {len(events)} events")
     _check_ridge(ridge)
-    if not (np.isfinite(c) and c > 0.0):
+    if not (is_finite_number(c) and c > 0.0):
         raise ParameterError(f"c must be a finite number > 0, got {c}")
     if int(iters) != iters or iters < 0:
         raise ParameterError(f"iters must be an integer >= 0, got {iters}")

@@ -20,6 +20,7 @@ import numpy as np
 
 from evmotion.core.warps import Warp
 from evmotion.errors import ParameterError
+from evmotion.utils import is_finite_number
 
 __all__ = ["NO_EXPANSION", "TimeToContact", "depth_from_ttc", "speed_from_ttc",
            "time_to_contact"]
@@ -97,7 +98,7 @@ def time_to_contact(params, warp: Warp, window_s: float) -> TimeToContact:
         raise ParameterError(f"the {warp.name} warp cannot expand the image, so it measures "
                              "no time to contact (it would always be infinite): use zoom, "
                              "inplane, similarity, affine or homography")
-    if not (np.isfinite(window_s) and window_s > 0):
+    if not (is_finite_number(window_s) and window_s > 0):
         raise ParameterError(f"window_s must be a positive number of seconds, got {window_s!r}")
     p = np.asarray(params, dtype=np.float64)
     single = p.ndim == 1
