@@ -206,3 +206,13 @@ def test_flow_metrics_name_an_out_threshold_past_int64():
     with pytest.raises(ParameterError, match=r"out_px must be a finite number of px > 0"):
         flow_metrics(est, est, out_px=10**400)  # numpy's TypeError past int64 (probe API)
     assert flow_metrics(est, est, out_px=10**30).aee == 0.0
+
+
+@pytest.mark.parametrize("bad", [1e30, 10**30, float("nan")])
+def test_frame_times_of_the_baselines_are_named(small_events, bad):
+    from evmotion.errors import EvmotionError
+    from evmotion.methods.baselines import multicm_intervals
+
+    # numpy's OverflowError / "cannot convert float NaN to integer" (probe API)
+    with pytest.raises(EvmotionError, match=r"frame_times_us"):
+        multicm_intervals(small_events, [0, bad])

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, as_timestamps_us
 from evmotion.methods.farneback import farneback_flow
 from evmotion.methods.multicm import FlowResult, estimate_flow
 
@@ -22,7 +22,8 @@ __all__ = ["farneback_intervals", "multicm_interval", "multicm_intervals"]
 
 
 def _check_times(frame_times_us, n_frames: int | None = None) -> np.ndarray:
-    t = np.asarray(frame_times_us, dtype=np.int64).ravel()
+    # (1e30 overflowed and NaN failed in numpy's int64 conversion, probe API)
+    t = as_timestamps_us(np.ravel(frame_times_us), "frame_times_us")
     if t.size < 2:
         raise ParameterError(f"need at least two frame times, got {t.size}")
     if np.any(np.diff(t) <= 0):
