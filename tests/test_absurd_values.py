@@ -216,3 +216,50 @@ def test_frame_times_of_the_baselines_are_named(small_events, bad):
     # numpy's OverflowError / "cannot convert float NaN to integer" (probe API)
     with pytest.raises(EvmotionError, match=r"frame_times_us"):
         multicm_intervals(small_events, [0, bad])
+
+
+@pytest.fixture(scope="module")
+def small_kymogram(small_events):
+    from evmotion.methods.kymogram import KymoLine, kymogram_from_events
+
+    return kymogram_from_events(small_events, KymoLine(5, 20, 40, 20))
+
+
+@pytest.mark.parametrize("name, match", [
+    ("ridge_sigma", r"'sigma_px' must be finite and in \[0, 10000\]"),  # scipy's size
+    ("correlation_sigma", r"'sigma_px' must be finite and in \[0, 10000\]"),
+    ("correlation_stationary", r"'stationary_px' must be finite and in \[0, 10000\]"),
+    ("ridge_bins_nan", r"'sigma_bins' must be finite"),  # NaN to integer
+    ("correlation_blocks_nan", r"'n_blocks' must be an integer >= 2"),
+    ("line_width_nan", r"line width must be an integer in \[1, 10000\] px"),
+    ("t0_nan", r"t0_us must be a whole number"),
+])
+def test_kymogram_names_absurd_values(small_events, small_kymogram, name, match):
+    from evmotion.methods.kymogram import (
+        KymoLine,
+        fit_correlation,
+        fit_ridge,
+        kymogram_from_events,
+    )
+
+    k = small_kymogram
+    call = {
+        "ridge_sigma": lambda: fit_ridge(k, sigma_px=1e30),
+        "correlation_sigma": lambda: fit_correlation(k, sigma_px=10**30),
+        "correlation_stationary": lambda: fit_correlation(k, stationary_px=1e30),
+        "ridge_bins_nan": lambda: fit_ridge(k, sigma_bins=float("nan")),
+        "correlation_blocks_nan": lambda: fit_correlation(k, n_blocks=float("nan")),
+        "line_width_nan": lambda: KymoLine(5, 20, 40, 20, width=float("nan")),
+        "t0_nan": lambda: kymogram_from_events(small_events, KymoLine(5, 20, 40, 20),
+                                               t0_us=float("nan")),
+    }[name]
+    with pytest.raises(ParameterError, match=match):
+        call()
+
+
+def test_landscape_names_a_parameter_index_that_is_no_index(small_events):
+    from evmotion.methods.egomotion import cost_landscape
+
+    # 1e-30 passed the range test and failed as an index: numpy's IndexError (probe API)
+    with pytest.raises(ParameterError, match=r"param index 1e-30 must be a whole number"):
+        cost_landscape(small_events, "translation", 1e-30, [1.0])

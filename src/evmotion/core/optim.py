@@ -407,8 +407,11 @@ def landscape(fun: Callable[[np.ndarray], float], theta: np.ndarray, param: int,
     [1.0, 0.0, 4.0]
     """
     theta = np.asarray(theta, dtype=np.float64)
-    if not 0 <= param < theta.size:
-        raise ParameterError(f"param index {param} out of range for {theta.size} parameters")
+    # (1e-30 passed the range test and failed as an index, probe API)
+    if isinstance(param, (bool, np.bool_)) or not isinstance(param, (int, np.integer)) \
+            or not 0 <= param < theta.size:
+        raise ParameterError(f"param index {param!r} must be a whole number in "
+                             f"0..{theta.size - 1} ({theta.size} parameters)")
     out = np.empty(len(values))
     for i, v in enumerate(values):
         th = theta.copy()

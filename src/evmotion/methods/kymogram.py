@@ -65,8 +65,10 @@ class KymoLine:
     def __post_init__(self) -> None:
         for name in ("x0", "y0", "x1", "y1"):
             object.__setattr__(self, name, float(check_finite(name, getattr(self, name))))
-        if int(self.width) != self.width or self.width < 1:
-            raise ParameterError(f"line width must be an integer >= 1 px, got {self.width!r}")
+        if not is_finite_number(self.width) or int(self.width) != self.width \
+                or not 1 <= self.width <= MAX_SMOOTH_PX:  # (NaN failed in int(), probe API)
+            raise ParameterError(f"line width must be an integer in [1, {MAX_SMOOTH_PX:g}] px, "
+                                 f"got {self.width!r}")
         object.__setattr__(self, "width", int(self.width))
         if self.length_px < 1.0:
             raise ParameterError(f"line from ({self.x0}, {self.y0}) to ({self.x1}, {self.y1}) "
@@ -215,8 +217,10 @@ def kymogram_from_events(events: EventArray, line: KymoLine, rate_hz: float = 12
     if t0_us is None or t1_us is None:
         if not len(events):
             raise EmptyWindowError("no events to make a kymogram from")
-    t0 = int(events.t[0]) if t0_us is None else int(t0_us)
-    t1 = int(events.t[-1]) + 1 if t1_us is None else int(t1_us)
+    # (NaN failed in int(), probe API)
+    t0 = int(events.t[0]) if t0_us is None else whole_number("t0_us", t0_us, -2**62, 2**62)
+    t1 = int(events.t[-1]) + 1 if t1_us is None else whole_number("t1_us", t1_us, -2**62,
+                                                                    2**62)
     n_t = int(np.floor((t1 - t0) * rate * 1e-6 + 1e-9))
     if n_t < 1:
         raise EmptyWindowError(f"time span [{t0}, {t1}) us is shorter than one bin at "
@@ -480,15 +484,25 @@ class RidgeFit:
 
 
 RIDGE_POLARITIES = ("abs", "positive", "negative")
+#: Widest smoothing, shift or line a kymogram takes, px or bins (1e30 reached scipy's
+#: "Maximum allowed size exceeded", probe API).
+MAX_SMOOTH_PX = 10_000.0
+
+
+def _check_widths(**widths) -> None:
+    """ParameterError naming the first of ``widths`` (px or bins) that is not a finite
+    number in ``[0, MAX_SMOOTH_PX]``."""
+    for name, v in widths.items():
+        if not (is_finite_number(v) and 0 <= v <= MAX_SMOOTH_PX):
+            raise ParameterError(f"parameter '{name}' must be finite and in "
+                                 f"[0, {MAX_SMOOTH_PX:g}], got {v!r}")
 
 
 def _ridge_signal(kymo: Kymogram, polarity: str, sigma_px: float, sigma_bins: float,
                   ) -> np.ndarray:
     if polarity not in RIDGE_POLARITIES:
         raise ParameterError(f"polarity must be one of {RIDGE_POLARITIES}, got {polarity!r}")
-    for name, v in (("sigma_px", sigma_px), ("sigma_bins", sigma_bins)):
-        if not (is_finite_number(v) and v >= 0):
-            raise ParameterError(f"parameter '{name}' must be finite and >= 0, got {v!r}")
+    _check_widths(sigma_px=sigma_px, sigma_bins=sigma_bins)
     # a NaN cell (a field with no measurement there) carries no signal: 0
     d = np.nan_to_num(np.asarray(kymo.data, dtype=np.float64), nan=0.0)
     d = {"abs": np.abs(d), "positive": d, "negative": -d}[polarity]
@@ -648,6 +662,7 @@ def fit_ridge(kymo: Kymogram, *, sigma_px: float = 2.0, sigma_bins: float = 1.0,
     -800.0
     """
     _check_fit_options(min_snr, inlier_px)
+    _check_widths(sigma_px=sigma_px, sigma_bins=sigma_bins)
     n_t = np.asarray(kymo.t_s).size
     margin = int(np.ceil(2 * sigma_bins))
     if n_t - 2 * margin < 3:
@@ -884,13 +899,11 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     >>> bool(abs(fit_correlation(k).velocity_px_s / -1500 - 1) < 0.02)
     True
     """
+    _check_widths(sigma_px=sigma_px)
     if stationary_px is None:
         stationary_px = 3.0 * sigma_px + 1.0
-    for name, v in (("sigma_px", sigma_px), ("min_shift_px", min_shift_px),
-                    ("stationary_px", stationary_px)):
-        if not (is_finite_number(v) and v >= 0):
-            raise ParameterError(f"parameter '{name}' must be finite and >= 0, got {v!r}")
-    if int(n_blocks) != n_blocks or n_blocks < 2:
+    _check_widths(min_shift_px=min_shift_px, stationary_px=stationary_px)
+    if not is_finite_number(n_blocks) or int(n_blocks) != n_blocks or n_blocks < 2:
         raise ParameterError(f"parameter 'n_blocks' must be an integer >= 2, got {n_blocks!r}")
     _check_fit_options(min_snr)
     if max_lag_s is not None and not (is_finite_number(max_lag_s) and max_lag_s > 0):
