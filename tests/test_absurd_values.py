@@ -149,7 +149,8 @@ def test_segmentation_names_a_bad_seed(small_events, seed):
     ({"iterations": 2**63}, r"iterations must be whole numbers in 1..100000"),  # dimension
     ({"sigma_weight": 1e30}, r"sigma_weight must be at most 1000 px"),  # scipy's size
     ({"sigma_meas": 10**30}, r"sigma_meas must be at most 1000 px"),  # numpy's TypeError
-    ({"contrast_threshold": 10**30}, r"contrast_threshold must be at most 10"),
+    ({"contrast_threshold": 10**30}, r"contrast_threshold must be in \[0.001, 10\]"),
+    ({"contrast_threshold": 1e-30}, r"contrast_threshold must be in \[0.001, 10\]"),
 ])
 def test_bos_options_name_absurd_values(kw, match):
     from evmotion.methods.bos import BosOptions
@@ -263,3 +264,30 @@ def test_landscape_names_a_parameter_index_that_is_no_index(small_events):
     # 1e-30 passed the range test and failed as an index: numpy's IndexError (probe API)
     with pytest.raises(ParameterError, match=r"param index 1e-30 must be a whole number"):
         cost_landscape(small_events, "translation", 1e-30, [1.0])
+
+
+def test_a_bos_flow_that_never_moved_is_flagged():
+    from evmotion.errors import UnderfitWarning
+    from evmotion.methods.bos import estimate_bos
+    from evmotion.sim import simulate_schlieren
+
+    sch = simulate_schlieren("plume", sensor_size=(48, 40), duration_s=3 / 120, seed=0,
+                             show_progress=False)
+    f0, f1 = sch.frames.images[:2]
+    t0, t1 = (int(t) for t in sch.frames.t[:2])
+    # lr=1e-30 left flow, q and p at zero with fit_gain NaN, unsaid (probe API)
+    with pytest.warns(UnderfitWarning, match="predicts no increment where the events fired"):
+        res = estimate_bos(sch.events, f0, t0_us=t0, t1_us=t1, frame_next=f1, lr=1e-30,
+                           contrast_threshold=0.2)
+    assert not np.any(res.flow)
+
+
+@pytest.mark.parametrize("kw", [{"photons": 1e-30}, {"photons": 100.0, "gain": 1e-30},
+                                {"photons": 100.0, "gain": 1e30}])
+def test_frames_that_show_no_background_are_flagged(kw):
+    from evmotion.sim import simulate_schlieren
+
+    # black or saturated frames, unsaid (probe API)
+    with pytest.warns(EvmotionWarning, match=r"every frame is \d+ everywhere"):
+        simulate_schlieren("plume", sensor_size=(24, 24), duration_s=2 / 120, seed=0,
+                           show_progress=False, **kw)

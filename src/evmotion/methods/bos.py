@@ -84,6 +84,7 @@ from scipy.ndimage import (
     uniform_filter,
 )
 
+from evmotion.catalog import MIN_THRESHOLD
 from evmotion.errors import (
     EmptyWindowError,
     EventDataError,
@@ -330,9 +331,10 @@ class BosOptions:
         if not (_is_int(self.relinearize) and 0 <= self.relinearize <= 10):
             raise ParameterError(f"relinearize must be an integer in [0, 10], "
                                  f"got {self.relinearize!r}")
-        if c is not None and c > MAX_CONTRAST_THRESHOLD:
-            raise ParameterError(f"contrast_threshold must be at most "
-                                 f"{MAX_CONTRAST_THRESHOLD:g} (log units), got {c}")
+        if c is not None and not MIN_THRESHOLD <= c <= MAX_CONTRAST_THRESHOLD:
+            # (1e-30 made a flow of 1e-30 px, unsaid; probe API)
+            raise ParameterError(f"contrast_threshold must be in [{MIN_THRESHOLD:g}, "
+                                 f"{MAX_CONTRAST_THRESHOLD:g}] (log units), got {c}")
         e = self.log_eps
         if e is not None and not (is_finite_number(e) and e > 0):
             raise ParameterError(f"log_eps must be None or a finite number > 0, got {e!r}")
@@ -1450,6 +1452,13 @@ def estimate_bos(
         den = float(np.sum(pr[sup] ** 2))
         if den > 0:
             fit_gain = float(np.sum(pr[sup] * final.meas[sup]) / den)
+        elif sup.any():
+            # (probe API: lr=1e-30 left the flow at zero, fit_gain NaN, unsaid)
+            warnings.warn(UnderfitWarning(
+                f"interval [{int(t0_us)}, {int(t1_us)}) us: the flow predicts no increment "
+                "where the events fired: it explains none of them (the solver did not move "
+                "from its start: lr too small, or too few iterations?); no measurement"),
+                stacklevel=2)
     moved = q95(dense) * scale if calibrated else float("nan")
     if o.relinearize == 0 and moved >= RELINEARIZE_PX:
         warnings.warn(UnderfitWarning(

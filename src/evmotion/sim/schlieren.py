@@ -822,7 +822,15 @@ def _frames(radiance, t_us, exposure_s: float, n_exp: int, o: SchlierenOptions, 
         if o.normalize:
             img = normalize_range(img, full)
         images.append(img.astype(np.uint8 if o.bit_depth <= 8 else np.uint16))
-    return Frames(np.stack(images), t_us, source=f"simulate_schlieren({scene!r})",
+    stack = np.stack(images)
+    if stack.max() == stack.min():
+        # (probe API: photons=1e-30 or gain=1e-30 made black frames, gain=1e30 white ones,
+        # unsaid; the frames show no background for BOS)
+        warnings.warn(EvmotionWarning(
+            f"simulate_schlieren('{scene}'): every frame is {int(stack.max())} everywhere "
+            f"(0..{full}): no background shows (photons {o.photons}, gain {o.gain})"),
+            stacklevel=3)
+    return Frames(stack, t_us, source=f"simulate_schlieren({scene!r})",
                   bit_depth=o.bit_depth, exposure_start=t_us - round(exposure_s * 5e5),
                   exposure_end=t_us + round(exposure_s * 5e5))
 
