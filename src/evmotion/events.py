@@ -27,7 +27,7 @@ from evmotion.errors import (
     ParameterError,
     UnsortedError,
 )
-from evmotion.utils import check_not_seconds, check_number, whole_number
+from evmotion.utils import MAX_TIME_US, check_not_seconds, check_number, whole_number
 
 __all__ = [
     "SORT_HINT",
@@ -57,8 +57,6 @@ SORT_HINT = "sort them: evmotion convert IN OUT --sort, or EventArray.sorted()"
 #: Windows beyond the events' count that EventArray.windows_by_duration makes (empty ones,
 #: whatever the count): ~330 MB and 3.5 s a million
 MAX_EMPTY_WINDOWS = 1_000_000
-#: The largest time, µs, a window bound or reference may be (int64 with room for sums).
-MAX_TIME_US = 2**62
 
 TONIC_DTYPE = np.dtype([("x", "<i2"), ("y", "<i2"), ("t", "<i8"), ("p", "<i1")])
 

@@ -497,6 +497,10 @@ def check_finite(name: str, value) -> np.ndarray:
     return arr
 
 
+#: The largest time, µs, a window bound or reference may be (int64 with room for sums).
+MAX_TIME_US = 2**62
+
+
 def is_finite_number(value) -> bool:
     """Whether ``value`` is one finite real number: an int, a float or a numpy scalar, not a
     bool (``np.isfinite`` raised a TypeError on a Python int past int64, probe API).

@@ -36,6 +36,7 @@ from evmotion.eval.metrics import (
     fwl,
     warn_no_better_than_zero,
 )
+from evmotion.utils import MAX_TIME_US
 
 if TYPE_CHECKING:
     from evmotion.events import EventArray
@@ -355,7 +356,7 @@ def _windows(flow, t0s, t1s, shape=None) -> tuple[np.ndarray, np.ndarray, np.nda
     # that the windows' numbering holds; it was refused, and the whole output with it)
     # (past int64 the cast below warned "invalid value encountered in cast", probe OPT)
     bad = ~(np.isfinite(t0s) & np.isfinite(t1s)) | (t0s != np.round(t0s)) | (t1s < t0s) \
-        | (np.abs(t0s) > 2**62) | (np.abs(t1s) > 2**62)
+        | (np.abs(t0s) > MAX_TIME_US) | (np.abs(t1s) > MAX_TIME_US)
     if bad.any():
         i = int(np.argmax(bad))
         raise ParameterError(f"window {i}: [{t0s[i]:g}, {t1s[i]:g}] us is not an interval "

@@ -23,6 +23,7 @@ from scipy import ndimage
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, require_events
 from evmotion.utils import (
+    MAX_TIME_US,
     check_finite,
     check_number,
     check_switches,
@@ -218,9 +219,10 @@ def kymogram_from_events(events: EventArray, line: KymoLine, rate_hz: float = 12
         if not len(events):
             raise EmptyWindowError("no events to make a kymogram from")
     # (NaN failed in int(), probe API)
-    t0 = int(events.t[0]) if t0_us is None else whole_number("t0_us", t0_us, -2**62, 2**62)
-    t1 = int(events.t[-1]) + 1 if t1_us is None else whole_number("t1_us", t1_us, -2**62,
-                                                                    2**62)
+    t0 = int(events.t[0]) if t0_us is None else whole_number("t0_us", t0_us, -MAX_TIME_US,
+                                                             MAX_TIME_US)
+    t1 = int(events.t[-1]) + 1 if t1_us is None else whole_number("t1_us", t1_us,
+                                                                    -MAX_TIME_US, MAX_TIME_US)
     n_t = int(np.floor((t1 - t0) * rate * 1e-6 + 1e-9))
     if n_t < 1:
         raise EmptyWindowError(f"time span [{t0}, {t1}) us is shorter than one bin at "
