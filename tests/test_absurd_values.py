@@ -307,3 +307,11 @@ def test_streaming_a_span_without_events_says_where_the_events_are(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", EvmotionWarning)
         assert sum(len(c) for c in iter_events(path, t1=200)) == 1
+
+
+def test_a_time_unit_that_rounds_every_time_to_zero_is_refused():
+    ev = EventArray(x=[0, 1], y=[0, 0], t=[100, 2500], p=[1, 1], sensor_size=(2, 2))
+    with pytest.raises(ParameterError, match=r"time_unit_us must be finite and in \[1e-06, "):
+        EventArray.from_structured(ev.to_structured(), (2, 2), time_unit_us=1e-30)
+    ns = EventArray.from_structured(ev.to_structured(), (2, 2), time_unit_us=1e-3)
+    assert ns.t.tolist() == [0, 2]

@@ -519,7 +519,8 @@ class EventArray:
         t = arr[named["t"]]
         if time_unit_us is None:
             time_unit_us = TIME_UNIT_US[time_unit_in_name(named["t"]) or "us"]
-        time_unit_us = check_number("time_unit_us", time_unit_us, 0.0, lo_open=True,
+        # picoseconds to hours and beyond (1e-30 set every time to 0, unsaid; probe API)
+        time_unit_us = check_number("time_unit_us", time_unit_us, 1e-6, 1e12,
                                     units="µs per unit of t")
         if time_unit_us != 1.0:
             t = np.round(t.astype(np.float64) * time_unit_us)
