@@ -315,3 +315,12 @@ def test_a_time_unit_that_rounds_every_time_to_zero_is_refused():
         EventArray.from_structured(ev.to_structured(), (2, 2), time_unit_us=1e-30)
     ns = EventArray.from_structured(ev.to_structured(), (2, 2), time_unit_us=1e-3)
     assert ns.t.tolist() == [0, 2]
+
+
+@pytest.mark.parametrize("sigma", [float("nan"), -1.0, 0.0])
+def test_fwl_refuses_a_bad_sigma_whatever_the_kernel(small_events, sigma):
+    from evmotion.eval import fwl
+
+    flow = np.zeros((*small_events.sensor_size, 2), np.float32)
+    with pytest.raises(ParameterError, match=r"sigma must be finite and > 0.0 \(px\)"):
+        fwl(small_events, flow, sigma=sigma)  # ignored under bilinear (probe API)

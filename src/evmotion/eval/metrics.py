@@ -552,6 +552,8 @@ def fwl(
     from evmotion.core.iwe import accumulate
 
     require_events(events, "fwl")
+    # (NaN or -1 were ignored under the default bilinear kernel, probe API)
+    sigma = check_number("sigma", sigma, 0.0, lo_open=True, units="px")
 
     xw, yw = warp_by_flow(events, flow_px_per_s, t_ref_us)
     lost = ~(np.isfinite(xw) & np.isfinite(yw))
