@@ -293,22 +293,6 @@ def test_frames_that_show_no_background_are_flagged(kw):
                            show_progress=False, **kw)
 
 
-def test_streaming_a_span_without_events_says_where_the_events_are(tmp_path):
-    from evmotion.io import iter_events, write_events
-
-    path = tmp_path / "e.h5"
-    write_events(path, EventArray(x=[0, 1], y=[0, 0], t=[100, 2500], p=[1, 1],
-                                  sensor_size=(2, 2)))
-    # read_events said so, iter_events returned nothing unsaid (probe API)
-    for kw in ({"t1": -10**9}, {"t0": 10**6, "window_us": 1000}):
-        with pytest.warns(EvmotionWarning, match=r"no event in \[.*\) us: the recording "
-                                                 r"spans 100\.\.2500 us"):
-            assert list(iter_events(path, **kw)) == []
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", EvmotionWarning)
-        assert sum(len(c) for c in iter_events(path, t1=200)) == 1
-
-
 def test_a_time_unit_that_rounds_every_time_to_zero_is_refused():
     ev = EventArray(x=[0, 1], y=[0, 0], t=[100, 2500], p=[1, 1], sensor_size=(2, 2))
     with pytest.raises(ParameterError, match=r"time_unit_us must be finite and in \[1e-06, "):

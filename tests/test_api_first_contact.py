@@ -259,7 +259,7 @@ def test_evaluation_and_picture_helpers_name_bad_arguments(tmp_path):
         (lambda: sharpness_windows(np.zeros((1, 4, 5, 2)), [0, 10], [10, 20], ev),
          "one flow per window"),
         (lambda: EventArray.from_structured(arr, (4, 8), time_unit_us=0),
-         "time_unit_us must be finite and > 0"),  # every t became 0
+         r"time_unit_us must be finite and in \[1e-06, "),  # every t became 0
         (lambda: EventArray.from_structured(arr, (4, 8), time_unit_us="s"),
          "time_unit_us must be"),  # UFuncTypeError
         (lambda: ev.windows_at([0, 5, 10], dt=1.5), r"dt \(frames\) must be a whole"),

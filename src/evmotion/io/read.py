@@ -172,8 +172,8 @@ def _warn_outside(path, format, t0, t1, kw) -> None:
     where = ("the recording holds no event" if first is None else
              f"the recording spans {first}..{last} us (its own clock, as evmotion info "
              "shows it)")
-    span = f"[{'...' if t0 is None else t0}, {'...' if t1 is None else t1}) us"
-    warnings.warn(EvmotionWarning(f"{path}: no event in {span}: {where}"), stacklevel=3)
+    warnings.warn(EvmotionWarning(f"{path}: no event in [{t0}, {t1}) us: {where}"),
+                  stacklevel=3)
 
 
 def _check_span(t0, t1) -> None:
@@ -273,30 +273,12 @@ def iter_events(path: str | os.PathLike, chunk_events: int = 1_000_000, *,
         yield from _explicit_windows(
             _chunks(spec, path, chunk_events, lo, max(hi, lo + 1), kw), edges, first)
         return
-    chunks = _counted(_chunks(spec, path, chunk_events, t0, t1, kw))
+    chunks = _chunks(spec, path, chunk_events, t0, t1, kw)
     if window_us is None:
         yield from chunks
-    else:
-        window_us = whole_number("window_us (microseconds)", window_us, lo=1)
-        yield from _windows(chunks, window_us, t0, drop_empty)
-    if not chunks.n_events and (t0 is not None or t1 is not None):
-        # (read_events said so, iter_events returned nothing unsaid; probe API)
-        _warn_outside(path, format, t0, t1, kw)
-
-
-class _counted:
-    """An iterator over event chunks that counts their events (``n_events``)."""
-
-    def __init__(self, chunks: Iterable[EventArray]):
-        self._it, self.n_events = iter(chunks), 0
-
-    def __iter__(self):
-        return self
-
-    def __next__(self) -> EventArray:
-        chunk = next(self._it)
-        self.n_events += len(chunk)
-        return chunk
+        return
+    window_us = whole_number("window_us (microseconds)", window_us, lo=1)
+    yield from _windows(chunks, window_us, t0, drop_empty)
 
 
 def _windows(chunks: Iterable[EventArray], window_us: int, t0: int | None,
