@@ -27,7 +27,13 @@ from evmotion.errors import (
     ParameterError,
     UnsortedError,
 )
-from evmotion.utils import MAX_TIME_US, check_not_seconds, check_number, whole_number
+from evmotion.utils import (
+    MAX_TIME_US,
+    check_not_seconds,
+    check_number,
+    is_finite_number,
+    whole_number,
+)
 
 __all__ = [
     "SORT_HINT",
@@ -352,21 +358,20 @@ class EventArray:
 
     def slice_time(self, t0: int | None = None, t1: int | None = None) -> EventArray:
         """Events with ``t0 <= t < t1`` (microseconds; None means open)."""
-        bounds = {"t0": t0, "t1": t1}
-        for name, v in bounds.items():
+        index = []
+        for name, v, open_end in (("t0", t0, 0), ("t1", t1, len(self))):
             if v is None:
+                index.append(open_end)
                 continue
-            if isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 2**63:
-                # past int64, numpy raised a TypeError (probe OPT); as a float it compares
-                bounds[name] = v = float(v)
             # (a NaN bound gave no event without a word, probe CB)
-            if not (isinstance(v, (int, float, np.integer, np.floating)) and np.isfinite(v)):
+            if not is_finite_number(v):
                 raise ParameterError(f"slice_time: {name} must be a finite time in "
                                      f"microseconds or None, got {v!r}")
             check_not_seconds(f"slice_time: {name}", v)
-        t0, t1 = bounds["t0"], bounds["t1"]
-        i0 = 0 if t0 is None else int(self.index_at(t0))
-        i1 = len(self) if t1 is None else int(self.index_at(t1))
+            # within int64 for numpy's search (a Python int past it raised a TypeError,
+            # probe OPT); every event's time lies inside
+            index.append(int(self.index_at(min(max(v, -MAX_TIME_US), MAX_TIME_US))))
+        i0, i1 = index
         return self._take(slice(i0, max(i0, i1)))
 
     def window(self, w: Window) -> EventArray:

@@ -47,7 +47,7 @@ from pathlib import Path
 
 from evmotion.catalog import FORMAT_NAMES, MAX_SENSOR_SIDE
 from evmotion.errors import ParameterError
-from evmotion.utils import missing_path_hint, nearest_existing, seconds_text
+from evmotion.utils import MAX_TIME_US, missing_path_hint, nearest_existing, seconds_text
 
 __all__ = [
     "FILE_SUFFIXES",
@@ -358,6 +358,9 @@ def positive_int(*, unit: str = "") -> Callable[[str], int]:
     return int_range(1, unit=unit)
 
 
+_SEED = int_range(0, MAX_SEED)
+
+
 def seed_int(text: str) -> int:
     """``type=`` for ``--seed``: an integer in ``[0, 2^32 - 1]``.
 
@@ -369,7 +372,6 @@ def seed_int(text: str) -> int:
     return _SEED(text)
 
 
-_SEED = int_range(0, MAX_SEED)
 seed_int.__name__ = "seed"
 
 
@@ -694,7 +696,7 @@ def time_us(text: str) -> int:
     relative = isinstance(text, str) and text.strip().startswith("+")
     body, scale = _split_unit(text.strip()[1:] if relative else text, _TIME_UNITS["s"])
     v, _ = _with_unit(body, scale)
-    if math.isfinite(v) and v * scale > MAX_WHOLE:
+    if math.isfinite(v) and v * scale > MAX_TIME_US:
         raise argparse.ArgumentTypeError(
             f"must be a time of at most 2^62 µs (146,000 years), got {text!r}")
     if not math.isfinite(v) or v < 0:
@@ -723,7 +725,7 @@ def duration_us(text: str) -> int:
     """
     v, scale = _with_unit(text, _TIME_UNITS["us"])
     v = v * scale
-    if not math.isfinite(v) or v < 1 or v > MAX_WHOLE or abs(v - round(v)) > 1e-6 * max(v, 1):
+    if not math.isfinite(v) or v < 1 or v > MAX_TIME_US or abs(v - round(v)) > 1e-6 * max(v, 1):
         raise argparse.ArgumentTypeError(
             f"must be a whole number of microseconds >= 1, or with a unit (e.g. 10000, "
             f"10ms, 0.01s), got {text!r}")

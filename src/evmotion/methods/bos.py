@@ -309,13 +309,10 @@ class BosOptions:
             v = float(getattr(self, name))
             if not np.isfinite(v) or v < 0:
                 raise ParameterError(f"{name} must be finite and >= 0, got {v}")
-        for name in ("sigma_meas", "sigma_weight"):
-            # (a smoothing of 1e30 px reached scipy's "Maximum allowed size exceeded",
-            # 10**30 numpy's TypeError; probe API)
-            v = getattr(self, name)
-            if v > MAX_SIGMA_PX:
-                raise ParameterError(f"{name} must be at most {MAX_SIGMA_PX:g} px, got {v!r}")
-            object.__setattr__(self, name, float(v))
+            if name.startswith("sigma_") and v > MAX_SIGMA_PX:
+                # (a smoothing of 1e30 px reached scipy's "Maximum allowed size exceeded",
+                # 10**30 numpy's TypeError; probe API)
+                raise ParameterError(f"{name} must be at most {MAX_SIGMA_PX:g} px, got {v:g}")
         if min(self.lr, self.lr_decay, self.eps_data, self.eps_reg, self.p_max) <= 0:
             raise ParameterError("lr, lr_decay, eps_data, eps_reg and p_max must be > 0")
         if self.alpha > 1:

@@ -429,8 +429,7 @@ def warn_uncovered(data: BosInput, samples: int = 5) -> float | None:
         log_frame,
     )
 
-    x, y, w, h = data.roi if data.roi is not None else (0, 0, data.events.sensor_size[1],
-                                                        data.events.sensor_size[0])
+    x, y, w, h = _roi_box(data)
     counts = event_sums(data.events, (x, y, w, h))[1]
     far = distance_transform_edt(counts == 0) > NEAR_EVENTS_PX
     if far.mean() < 0.05 or far.all():
@@ -511,8 +510,7 @@ def registration_shift(data: BosInput, samples: int = 5, radius: int = REGISTRAT
     from evmotion.methods.bos import event_sums, log_frame
 
     r = int(radius)
-    x, y, w, h = data.roi if data.roi is not None else (0, 0, data.events.sensor_size[1],
-                                                        data.events.sensor_size[0])
+    x, y, w, h = _roi_box(data)
     if w <= 4 * r or h <= 4 * r:
         return (0, 0), float("nan"), float("nan")
     pick = np.unique(np.linspace(0, len(data.intervals) - 1, min(samples, len(data.intervals)))
@@ -569,15 +567,21 @@ def check_registration(data: BosInput) -> tuple[int, int]:
     return (dx, dy)
 
 
+def _roi_box(data: BosInput) -> tuple[int, int, int, int]:
+    """``(x, y, width, height)`` of the ROI, px, the whole sensor without one."""
+    if data.roi is not None:
+        return tuple(data.roi)
+    h, w = data.events.sensor_size
+    return 0, 0, w, h
+
+
 def _registration_margin(data: BosInput, zero: float) -> float:
     """The gain in correlation over the unshifted one a shift needs to be told from chance:
     :data:`REGISTRATION_GAIN`, or twice a correlation's sampling error on a small ROI or
     few intervals (probe OPT: one interval of a 40x40 px ROI where the air was weak
     peaked at a 2 px shift, 0.64 against 0.53, and the scene was refused)."""
     r = REGISTRATION_PX
-    h, w = data.events.sensor_size
-    if data.roi is not None:
-        w, h = data.roi[2:]
+    w, h = _roi_box(data)[2:]
     samples = min(5, len(data.intervals)) * (w - 2 * r) * (h - 2 * r) / REGISTRATION_CELL_PX2
     return max(REGISTRATION_GAIN, 2.0 * (1.0 - zero * zero) / math.sqrt(max(samples, 1.0)))
 
@@ -589,8 +593,7 @@ def _textured(data: BosInput, frames) -> dict[int, bool]:
     frames; a frame without texture has none at any scale)."""
     from evmotion.methods.bos import BosOptions, frame_texture
 
-    x, y, w, h = data.roi if data.roi is not None else (0, 0, data.events.sensor_size[1],
-                                                        data.events.sensor_size[0])
+    x, y, w, h = _roi_box(data)
     least = BosOptions().min_texture
     # every pixel of an ROI under 32 px: halved, it was under the 16 px frame_texture
     # takes, and a 30 x 30 ROI was refused as "the sensor (15x15 px)" (probe BN)
@@ -888,7 +891,7 @@ def open_bos_output(path, data: BosInput, attrs: dict, options, *, resume: bool 
     from evmotion.io.flowout import EXTRA_CONTAINERS, flow_container, open_flow_output
 
     h, w = data.events.sensor_size
-    roi = data.roi if data.roi is not None else (0, 0, w, h)
+    roi = _roi_box(data)
     kind = flow_container(path)
     extras = bos_extras((h, w), scalars=WINDOW_NUMBERS) if kind in EXTRA_CONTAINERS else None
     if kind == "h5":
