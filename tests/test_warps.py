@@ -367,10 +367,12 @@ def test_rotation_sign_convention_on_real_data(shared_data):
     np.testing.assert_allclose(v * T, flow[1].ravel(), atol=1e-5)
 
 
-@pytest.mark.parametrize("omega", [[1.0, -2.0, 3.0], [20.0, -15.0, 30.0], [0.0, 0.0, 0.0]])
+@pytest.mark.parametrize("omega", [[1.0, -2.0, 3.0], [6.0, -4.0, 8.0], [20.0, -15.0, 30.0],
+                                   [0.0, 0.0, 0.0]])
 def test_rotation_analytic_derivatives_match_numpy_reference(omega):
     """The rotation kernel's analytic omega-derivatives of div f and det J equal the
-    complex-step derivatives of the generic numpy closed forms from M and dM/dt."""
+    complex-step derivatives of the generic numpy closed forms from M and dM/dt; without
+    derivatives (the value-only kernel, another code path) the values are the same."""
     w = _warp("rotation")
     x, y, dt = _events(200)
     th = np.array(omega)
@@ -379,4 +381,5 @@ def test_rotation_analytic_derivatives_match_numpy_reference(omega):
         rval, rg = Warp._with_grad(w, lambda a, b, c, d, ref=ref: ref(w, a, b, c, d),
                                    x, y, dt, th, True)
         np.testing.assert_allclose(val, rval, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(fn(x, y, dt, th), rval, rtol=1e-10, atol=1e-12)
         np.testing.assert_allclose(g, rg, rtol=1e-8, atol=1e-10)

@@ -601,9 +601,13 @@ def rot_values(xw, yw, dt, w, Kinv, want_div, T, d, fac):
         xw, yw, dt, w, Kinv, T, d, fac)
 
 
-def _rot_warp_values_case(mode, want_div):
+def _rot_warp_values_case(mode, want_div, raw=False):
     """:func:`rot_warp_values` in series mode ``mode`` for the divergence or det J: one
-    case, compiled on first use."""
+    case, compiled on first use; ``raw`` stores the value itself in ``d`` (``T`` and
+    ``fac`` unused): the value-only :meth:`RotationWarp.jacobian_det` and
+    :meth:`~RotationWarp.divergence`, which compile this small case instead of
+    :func:`_k_rot_divdet`'s derivatives (6 s from an empty cache, each ``egomotion``
+    run's collapse check)."""
 
     @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
     def rot_warp_values(x, y, dt, w, Kmat, Kinv, T, xw, yw, d, fac):
@@ -619,7 +623,10 @@ def _rot_warp_values_case(mode, want_div):
             xw[k] = k00 * X + k01 * Y + k02
             yw[k] = k10 * X + k11 * Y + k12
             v = _rot_value_event(X, Y, t, a, b, w4, want_div)
-            _rot_finish(v, want_div, T, d, fac, k)
+            if raw:
+                d[k] = v
+            else:
+                _rot_finish(v, want_div, T, d, fac, k)
 
     return rot_warp_values
 
@@ -655,9 +662,13 @@ class RotationWarp(FusedAdjoint, Warp):
         th = self.check_theta(theta)
         n = x.shape[0]
         val = np.empty(n)
-        g = np.empty((n, 3)) if grad else EMPTY2
+        if not grad:
+            kernel_case(_rot_warp_values_case, rot_series_mode(dt, th), bool(want_div), True)(
+                x, y, dt, th, self.K, self.K_inv, 1.0, np.empty(n), np.empty(n), val, EMPTY1)
+            return val
+        g = np.empty((n, 3))
         _k_rot_divdet(x, y, dt, th, self.K_inv, want_div, val, g, EMPTY1, EMPTY1)
-        return (val, g) if grad else val
+        return val, g
 
     def divergence(self, x, y, dt, theta, grad: bool = False):
         """:meth:`Warp.divergence` with analytic (not complex-step) omega-derivatives."""

@@ -36,7 +36,7 @@ def _similarity_event(x, y, t, sn, c, prm):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _similarity_fwd_loop(small, scaled, jac, args):
-    """The warp of :func:`_k_similarity` and, if ``jac``, its Jacobian; ``small`` (a
+    """The warp of :func:`_similarity_case` and, if ``jac``, its Jacobian; ``small`` (a
     constant, :func:`~evmotion.core.warps.so3.sincos_any`), ``scaled`` and ``jac`` are
     constants, so the branches fold away."""
     x, y, dt, prm, xw, yw, jx, jy = args
@@ -65,30 +65,22 @@ def _similarity_fwd_loop(small, scaled, jac, args):
             jyf[r + 3] = -t * ib * oy
 
 
-@njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
-def _k_similarity(x, y, dt, prm, xw, yw, jx, jy, jac, scaled):
+def _similarity_case(small, scaled, jac):
     """The SE(2)/similarity warp (``prm``: vx, vy, the image rotation rate, s, cx, cy) and,
-    if ``jac``, its Jacobian."""
-    # angles below 1 rad take the series of sincos (exact to rounding, vectorizes)
-    small = max_abs(dt) * abs(prm[2]) < 1.0
-    a = (x, y, dt, prm, xw, yw, jx, jy)
-    if jac:
-        if small and scaled:
-            _similarity_fwd_loop(True, True, True, a)
-        elif small:
-            _similarity_fwd_loop(True, False, True, a)
-        else:
-            _similarity_fwd_loop(False, scaled, True, a)
-    elif small:
-        _similarity_fwd_loop(True, False, False, a)
-    else:
-        _similarity_fwd_loop(False, False, False, a)
+    if ``jac``, its Jacobian, in one case of :func:`_similarity_fwd_loop`, compiled on
+    first use (one kernel branching to all five had taken 2.8 s from an empty cache)."""
+
+    @njit(cache=True, error_model="numpy", fastmath=FAST_FINITE)
+    def similarity_warp(x, y, dt, prm, xw, yw, jx, jy):
+        _similarity_fwd_loop(small, scaled, jac, (x, y, dt, prm, xw, yw, jx, jy))
+
+    return similarity_warp
 
 
 @njit(cache=True, error_model="numpy")
 def _similarity_vjp_event(ox, oy, t, sn, c, s, gX, gY):
     """``gX dxw/dtheta + gY dyw/dtheta`` (4 terms) from the centred warped point: the
-    Jacobian of :func:`_k_similarity`, contracted instead of stored."""
+    Jacobian of :func:`_similarity_case`'s warp, contracted instead of stored."""
     ib = 1.0 / (1.0 + t * s)
     tib = t * ib
     return (-tib * (gX * c + gY * sn), tib * (gX * sn - gY * c), t * (gX * oy - gY * ox),
@@ -231,7 +223,10 @@ class SimilarityWarp(FusedAdjoint, Warp):
     def _kernel(self, x, y, dt, th, xw, yw, jx, jy, jac):
         prm = (float(th[0]), float(th[1]), -float(th[2]), float(th[3]) if self.scaled else 0.0,
                float(self.center[0]), float(self.center[1]))
-        _k_similarity(x, y, dt, prm, xw, yw, jx, jy, jac, self.scaled)
+        # angles below 1 rad take the series of sincos (exact to rounding, vectorizes)
+        small = bool(max_abs(dt) * abs(prm[2]) < 1.0)
+        kernel_case(_similarity_case, small, bool(jac and self.scaled), bool(jac))(
+            x, y, dt, prm, xw, yw, jx, jy)
         if jac:
             jx[:, 2] *= -1.0
             jy[:, 2] *= -1.0
