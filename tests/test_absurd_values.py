@@ -306,5 +306,5 @@ def test_fwl_refuses_a_bad_sigma_whatever_the_kernel(small_events, sigma):
     from evmotion.eval import fwl
 
     flow = np.zeros((*small_events.sensor_size, 2), np.float32)
-    with pytest.raises(ParameterError, match=r"sigma must be finite and > 0.0 \(px\)"):
+    with pytest.raises(ParameterError, match=r"sigma must be finite and >= 0.1 \(px\)"):
         fwl(small_events, flow, sigma=sigma)  # ignored under bilinear (probe API)

@@ -965,6 +965,31 @@ def _sensor_size(size) -> tuple[int, int]:
                              f"got {size!r}") from None
 
 
+def check_image_shape(name: str, shape) -> tuple[int, int]:
+    """``shape`` as ``(height, width)``, or :class:`ParameterError` naming ``name`` unless
+    it is two whole numbers in 1..MAX_SENSOR_SIDE px (-1 and 1e30 had failed as numpy's
+    allocation errors, 0 given an empty mask unsaid, probe EVAL).
+
+    Examples
+    --------
+    >>> check_image_shape("shape", (180, 240.0))
+    (180, 240)
+    >>> check_image_shape("shape", (0, 240))
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: shape must be two whole numbers of px (height, width) in 1..16384, got (0, 240)
+    """
+    from evmotion.errors import ParameterError
+
+    try:
+        h, w = _sensor_size(shape)
+    except EventDataError:
+        h = w = 0
+    if not (0 < h <= MAX_SENSOR_SIDE and 0 < w <= MAX_SENSOR_SIDE):
+        raise ParameterError(f"{name} must be two whole numbers of px (height, width) in "
+                             f"1..{MAX_SENSOR_SIDE}, got {shape!r}")
+    return h, w
+
+
 def pixel_indices(a: np.ndarray, size: int) -> np.ndarray:
     """Contiguous int32 pixel indices of coordinates ``a``; float (undistorted) coordinates
     are rounded to the nearest pixel and clipped to ``[0, size - 1]``."""

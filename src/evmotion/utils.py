@@ -490,8 +490,15 @@ def seconds_text(t_us: int) -> str:
 
 
 def check_finite(name: str, value) -> np.ndarray:
-    """Raise :class:`ParameterError` naming ``name`` if ``value`` has NaN or inf."""
-    arr = np.asarray(value, dtype=np.float64)
+    """Raise :class:`ParameterError` naming ``name`` if ``value`` has NaN or inf or is no
+    number (a string had met a bare ValueError from the float conversion, probe EVAL)."""
+    try:
+        if isinstance(value, (str, bytes)):  # ("1.5" would convert: no number either)
+            raise ValueError
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ParameterError(f"parameter '{name}' must be a finite number, got "
+                             f"{value!r}") from None
     if not np.all(np.isfinite(arr)):
         raise ParameterError(f"parameter '{name}' must be finite, got {value!r}")
     return arr

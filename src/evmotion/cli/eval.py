@@ -203,13 +203,29 @@ def _load_flow(args, h5_format=None):
         _check_estimate(path, h5_format if h5_format is not None else _h5_format(path))
     seq = read_flow(path, t0_us=args.t0_us, t1_us=args.t1_us)
     # a method may name its evaluation's %Out threshold (BOS: 1 px)
-    out_px = seq.attrs.get("eval_out_px")
+    out_px = _file_out_px(path, seq.attrs) if args.out_px is None else None
     # the pixels the estimate does not claim (no event support, no focus) are not scored,
     # in every container: a .flo or .png stores them as unknown, an .h5 or .npz as a mask
     # beside the regularizer's fill
     flow = np.where(seq.valid[..., None], seq.flow, np.float32(np.nan))
-    return (flow, np.asarray(seq.t0), np.asarray(seq.t1),
-            None if out_px is None else float(out_px), seq.extras.get("q"), seq.attrs)
+    return flow, np.asarray(seq.t0), np.asarray(seq.t1), out_px, seq.extras.get("q"), seq.attrs
+
+
+def _file_out_px(path, attrs: dict) -> float | None:
+    """The %Out threshold a flow file names (attribute ``eval_out_px``), or None; a value
+    that is no number of px > 0 is the file's error (a string had ended in a traceback,
+    probe EVAL)."""
+    from evmotion.utils import is_finite_number
+
+    value = attrs.get("eval_out_px")
+    if value is None:
+        return None
+    if isinstance(value, np.ndarray) and value.size == 1:
+        value = value.item()
+    if not (is_finite_number(value) and value > 0):
+        raise FormatError(path, f"attribute eval_out_px={value!r} is not a number of px > 0",
+                          "give the threshold with --out-px")
+    return float(value)
 
 
 def _add_potential_scores(q, t0s, t1s, gt_path, per_window: list, total: dict
@@ -300,12 +316,14 @@ def _is_event_flow(path, h5_format=None) -> bool:
         return h5_format == EVENT_FLOW_FORMAT
     if suffix != ".npz" or not path.is_file():
         return False
+    from evmotion.io.guard import open_npz
+
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open_npz(path) as z:
             if "meta" not in z.files:
                 return False
             meta = json.loads(str(z["meta"]))
-    except (OSError, ValueError, zipfile.BadZipFile):
+    except (OSError, ValueError, zipfile.BadZipFile):  # (FormatError among the ValueErrors)
         return False
     return isinstance(meta, dict) and meta.get("format") == EVENT_FLOW_FORMAT
 
@@ -341,9 +359,9 @@ def _run_event_flow(args, path) -> int:
     if tuple(gt.flow.shape[1:3]) != ef.sensor_size:
         raise ParameterError(f"{path} is on a {ef.sensor_size} px grid but ground truth "
                              f"{args.gt} is {tuple(gt.flow.shape[1:3])} px (height, width)")
-    file_out_px = ef.attrs.get("eval_out_px")
+    file_out_px = _file_out_px(path, ef.attrs) if args.out_px is None else None
     out_px = args.out_px if args.out_px is not None else \
-        float(file_out_px) if file_out_px is not None else 3.0
+        file_out_px if file_out_px is not None else 3.0
     try:
         m = event_flow_metrics(ef, gt, frames=args.dt, out_px=out_px, per_window=True)
     except EmptyWindowError as exc:

@@ -638,7 +638,9 @@ def reject_unused(args: argparse.Namespace, options: dict[str, str], reason: str
     for flag, attr in options.items():
         value = getattr(args, attr, None)
         if value is not None and value is not False:
-            shown = "" if value is True else f" {value!r}"
+            # (an nargs option as typed: "--sensor-size 10 10", not "[10, 10]")
+            shown = "" if value is True else "".join(f" {v}" for v in value) \
+                if isinstance(value, (list, tuple)) else f" {value!r}"
             other = COUNTERPARTS.get(flag)
             hint = f" (here: {other})" if other in here else ""
             raise ParameterError(f"{flag}{shown} does not apply {reason}{hint}")

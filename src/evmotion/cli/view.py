@@ -134,7 +134,8 @@ def run(args) -> int:
     if args.format is None:
         # a flow's picture: its colour wheel and scale, which neither option changes (both
         # were ignored, the picture byte-identical; probe CI)
-        events_only = {"--raw": "raw", "--percentile": "percentile"}
+        events_only = {"--raw": "raw", "--percentile": "percentile",
+                       "--sensor-size": "sensor_size"}
         from evmotion.io.flowread import describe_flow, undated_flow_files
 
         undated = undated_flow_files(args.file)
@@ -321,7 +322,8 @@ def _view_flow(args, out: Path) -> int:
                     "has_q": q is not None})
     else:
         print(f"{out}: window {k} of {n} of {args.file}, [{seconds_text(t0)}, "
-              f"{seconds_text(t1)}) s")
+              f"{seconds_text(t1)}) s" + (": no valid pixel, no measurement" if unmeasured
+                                          else ""))
     return 0
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from evmotion.core.warps import make_warp
 from evmotion.errors import ParameterError
 from evmotion.eval.windows import WindowsEvaluation, evaluate_windows, sharpness_windows
+from evmotion.events import check_image_shape
 
 if TYPE_CHECKING:
     from evmotion.events import EventArray
@@ -60,7 +61,7 @@ class ParamsFlow:
     """
 
     def __init__(self, table: ParamsTable, sensor_size: tuple[int, int], K=None):
-        h, w = (int(v) for v in sensor_size)
+        h, w = check_image_shape("sensor_size", sensor_size)
         name = str(table.attrs.get("warp", ""))
         if name == "rotation" and K is None:
             raise ParameterError("the rotation warp's parameters give a flow only with the "
@@ -314,4 +315,4 @@ def _params_flow(table: ParamsTable, sensor_size, K) -> ParamsFlow:
                              "before 2026-11-30): give the events or the ground truth")
     if K is None and table.attrs.get("K") is not None:
         K = np.asarray(table.attrs["K"], np.float64).reshape(3, 3)
-    return ParamsFlow(table, tuple(int(v) for v in size), K)
+    return ParamsFlow(table, size, K)

@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, ParameterError
-from evmotion.eval.metrics import NPE_THRESHOLDS, warn_no_better_than_zero
+from evmotion.eval.metrics import NPE_THRESHOLDS, check_npe_thresholds, warn_no_better_than_zero
+from evmotion.eval.windows import ground_truth_arrays
 from evmotion.events import as_timestamps_us
 from evmotion.utils import is_finite_number
 
@@ -188,13 +189,15 @@ def event_flow_metrics(
     # µs as the ground truth's windows; seconds were floored to 0 and scored against the
     # first window (probe AU)
     cols["t"] = as_timestamps_us(cols["t"])
-    gflow, gt0, gt1, gvalid = _gt_arrays(gt)
+    gflow, gt0, gt1, gvalid = ground_truth_arrays(gt)
+    if gflow.shape[0] == 0:
+        raise EmptyWindowError("the ground truth has no window")
     h, w = gflow.shape[1:3]
     size = getattr(event_flow, "sensor_size", None)
     if size is not None and tuple(int(s) for s in size) != (h, w):
         raise ParameterError(f"the per-event flow is on a {tuple(size)} px grid but the ground "
                              f"truth is {(h, w)} px (height, width)")
-    thresholds = [int(m) for m in npe_thresholds]
+    thresholds = check_npe_thresholds(npe_thresholds)
     order = np.argsort(gt0, kind="stable")
     # sums of the endpoint error px, px/s, %Out hits, AE degrees and the GT's displacement
     acc = np.zeros(5)
@@ -271,22 +274,6 @@ def _has_valid(event_flow) -> bool:
     except KeyError:
         return False
     return True
-
-
-def _gt_arrays(gt) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    flow = np.asarray(gt.flow)
-    t0 = np.asarray(gt.t0, dtype=np.int64)
-    t1 = np.asarray(gt.t1, dtype=np.int64)
-    if flow.ndim != 4 or flow.shape[-1] != 2 or t0.shape != (flow.shape[0],) \
-            or t1.shape != t0.shape:
-        raise ParameterError(f"ground truth flow must be (M, H, W, 2) with t0, t1 (M,), got "
-                             f"flow {flow.shape}, t0 {t0.shape}, t1 {t1.shape}")
-    if flow.shape[0] == 0:
-        raise EmptyWindowError("the ground truth has no window")
-    valid = None if gt.valid is None else np.asarray(gt.valid, dtype=bool)
-    if valid is not None and valid.shape != flow.shape[:3]:
-        raise ParameterError(f"ground truth valid is {valid.shape}, expected {flow.shape[:3]}")
-    return flow, t0, t1, valid
 
 
 def _sample_gt(flow: np.ndarray, valid: np.ndarray | None, j: np.ndarray, x: np.ndarray,

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from evmotion.errors import EmptyWindowError, EvmotionWarning, ParameterError
-from evmotion.events import EventArray, check_reference_time, require_events
+from evmotion.events import EventArray, check_image_shape, check_reference_time, require_events
 from evmotion.utils import check_number, is_finite_number, whole_number
 
 __all__ = [
@@ -48,6 +48,11 @@ __all__ = [
 ]
 
 NPE_THRESHOLDS: tuple[int, ...] = (1, 2, 3, 5, 10, 20)
+
+#: The smallest Gaussian vote (px) :func:`fwl` takes, and the share of a window's events a
+#: flow may warp off the image before :func:`fwl` says its score is not a measurement.
+FWL_MIN_SIGMA_PX = 0.1
+FWL_MAX_OFF_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -176,7 +181,9 @@ def event_mask(events: EventArray, shape: tuple[int, int] | None = None) -> np.n
     >>> event_mask(ev).astype(int).tolist()
     [[0, 1, 0], [0, 0, 0]]
     """
-    h, w = events.sensor_size if shape is None else (int(shape[0]), int(shape[1]))
+    require_events(events, "event_mask")
+    h, w = events.sensor_size if shape is None else check_image_shape("event_mask: shape",
+                                                                       shape)
     mask = np.zeros(h * w, dtype=bool)
     if len(events):
         xi = np.rint(events.x).astype(np.int64)
@@ -273,11 +280,7 @@ def flow_metrics(
         sel &= event_mask(events, sel.shape)
     if not (is_finite_number(out_px) and out_px > 0):
         raise ParameterError(f"out_px must be a finite number of px > 0, got {out_px!r}")
-    # (whole px each: 1.5 had been floored to 1, and the string "13" read as 1 and 3)
-    if isinstance(npe_thresholds, (str, bytes)):
-        raise ParameterError(f"npe_thresholds must be whole numbers of px, got "
-                             f"{npe_thresholds!r}")
-    thresholds = tuple(whole_number("npe_thresholds", n, lo=1) for n in npe_thresholds)
+    thresholds = check_npe_thresholds(npe_thresholds)
     if out_rel is not None:  # (-1 had made every pixel past out_px an outlier, probe BE)
         out_rel = check_number("out_rel", out_rel, 0.0)
     n = int(sel.sum())
@@ -307,6 +310,24 @@ def flow_metrics(
         ae_deg=float(ae.mean()),
         n_pixels=n,
     )
+
+
+def check_npe_thresholds(npe_thresholds: Iterable[int]) -> tuple[int, ...]:
+    """The NPE thresholds as whole px >= 1, or :class:`ParameterError` (1.5 had been
+    floored to 1, and the string "13" read as 1 and 3).
+
+    Examples
+    --------
+    >>> check_npe_thresholds([1, 3.0])
+    (1, 3)
+    >>> check_npe_thresholds("13")
+    Traceback (most recent call last):
+    evmotion.errors.ParameterError: npe_thresholds must be whole numbers of px, got '13'
+    """
+    if isinstance(npe_thresholds, (str, bytes)) or not isinstance(npe_thresholds, Iterable):
+        raise ParameterError(f"npe_thresholds must be whole numbers of px, got "
+                             f"{npe_thresholds!r}")
+    return tuple(whole_number("npe_thresholds", n, lo=1) for n in npe_thresholds)
 
 
 def aggregate_flow_metrics(items: Iterable[FlowMetrics], *, weight: str = "window",
@@ -377,7 +398,8 @@ def warn_no_better_than_zero(aee: float, aee_zero: float, scored: str) -> bool:
     >>> warn_no_better_than_zero(0.17, 0.30, "est.h5 against gt.h5")
     False
     """
-    if not (np.isfinite(aee) and np.isfinite(aee_zero)) or aee_zero <= 0 or aee < aee_zero:
+    if not (is_finite_number(aee) and is_finite_number(aee_zero)) or aee_zero <= 0 \
+            or aee < aee_zero:
         return False
     warnings.warn(EvmotionWarning(
         f"{scored}: AEE {aee:.4g} px is no lower than the zero flow's {aee_zero:.4g} px: the "
@@ -406,8 +428,21 @@ def sample_flow_bilinear(flow: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.n
     >>> sample_flow_bilinear(f, np.array([0.5]), np.array([0.0])).tolist()
     [[1.0, 0.0]]
     """
+    flow = np.asarray(flow)
+    # (an empty or (H, W) flow had failed as an IndexError or come back as [[0.]], probe EVAL)
+    if flow.ndim != 3 or flow.shape[2] != 2 or 0 in flow.shape or flow.dtype.kind not in "fiu":
+        raise ParameterError(f"sample_flow_bilinear: flow must be a numeric array (H, W, 2) "
+                             f"of at least one pixel, got shape {flow.shape}, dtype "
+                             f"{flow.dtype}")
     h, w = flow.shape[:2]
-    xf, yf = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    try:
+        xf, yf = (np.asarray(a, dtype=np.float64).ravel() for a in (x, y))
+    except (TypeError, ValueError):
+        raise ParameterError("sample_flow_bilinear: x and y must be arrays of positions "
+                             "(px)") from None
+    if xf.shape != yf.shape:
+        raise ParameterError(f"sample_flow_bilinear: x and y must have one length, got "
+                             f"{xf.size} and {yf.size}")
     if not (np.isfinite(xf).all() and np.isfinite(yf).all()):
         raise ParameterError("sample_flow_bilinear: x and y must be finite positions (px), "
                              "got NaN or inf")
@@ -552,8 +587,10 @@ def fwl(
     from evmotion.core.iwe import accumulate
 
     require_events(events, "fwl")
-    # (NaN or -1 were ignored under the default bilinear kernel, probe API)
-    sigma = check_number("sigma", sigma, 0.0, lo_open=True, units="px")
+    # (NaN or -1 were ignored under the default bilinear kernel, probe API; below 0.1 px
+    # a Gaussian vote misses the pixel centres, and 1e-30 scored an exact flow 1.5e-05,
+    # probe EVAL)
+    sigma = check_number("sigma", sigma, FWL_MIN_SIGMA_PX, units="px")
 
     xw, yw = warp_by_flow(events, flow_px_per_s, t_ref_us)
     lost = ~(np.isfinite(xw) & np.isfinite(yw))
@@ -564,6 +601,14 @@ def fwl(
     x = events.x.astype(np.float64)
     y = events.y.astype(np.float64)
     shape = events.sensor_size
+    h, w = shape
+    off = np.count_nonzero((xw < -0.5) | (xw > w - 0.5) | (yw < -0.5) | (yw > h - 0.5))
+    if off > FWL_MAX_OFF_SHARE * len(events):
+        # the score of the events left, near 0 (a flow of 1e6 px/s printed FWL 0.0009 as a
+        # plain score, probe EVAL)
+        warnings.warn(EvmotionWarning(
+            f"FWL: the flow warps {100 * off / len(events):.0f} % of the {len(events)} events "
+            "off the image: the score is not the flow's sharpness"), stacklevel=2)
     warped = np.asarray(accumulate(xw, yw, shape, weights=None, kernel=kernel, sigma=sigma))
     identity = np.asarray(accumulate(x, y, shape, weights=None, kernel=kernel, sigma=sigma))
     if mask is not None:

@@ -36,7 +36,7 @@ from evmotion.eval.metrics import (
     fwl,
     warn_no_better_than_zero,
 )
-from evmotion.utils import MAX_TIME_US
+from evmotion.utils import MAX_TIME_US, whole_number
 
 if TYPE_CHECKING:
     from evmotion.events import EventArray
@@ -92,9 +92,20 @@ def gt_coverage(gt, t0: int, t1: int) -> float:
     >>> gt_coverage(gt, 5, 25), gt_coverage(gt, 0, 20)
     (0.75, 1.0)
     """
+    t0, t1 = _interval(t0, t1)
     a = np.maximum(gt.t0, t0)
     b = np.minimum(gt.t1, t1)
-    return float(np.clip(b - a, 0, None).sum() / max(int(t1) - int(t0), 1))
+    return float(np.clip(b - a, 0, None).sum() / max(t1 - t0, 1))
+
+
+def _interval(t0, t1) -> tuple[int, int]:
+    """``(t0, t1)`` as ints, or ParameterError unless whole µs with ``t0 <= t1`` within
+    ±2^62 (10**30 had met an OverflowError, NaN a cast error or no error, probe EVAL)."""
+    a = whole_number("t0", t0, -MAX_TIME_US, MAX_TIME_US)
+    b = whole_number("t1", t1, -MAX_TIME_US, MAX_TIME_US)
+    if b < a:
+        raise ParameterError(f"[t0, t1] = [{a}, {b}] us is no interval (t0 > t1)")
+    return a, b
 
 
 def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float]:
@@ -114,6 +125,7 @@ def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float
     """
     from scipy.ndimage import map_coordinates
 
+    t0, t1 = _interval(t0, t1)
     a = np.maximum(gt.t0, t0)
     b = np.minimum(gt.t1, t1)
     overlap = np.clip(b - a, 0, None).astype(np.float64)
@@ -158,12 +170,36 @@ def gt_displacement(gt, t0: int, t1: int) -> tuple[np.ndarray, np.ndarray, float
     return disp, valid, frames
 
 
+def ground_truth_arrays(gt) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """``flow`` (M, H, W, 2), ``t0``, ``t1`` (M,) int64 and ``valid`` (M, H, W) bool or
+    None of the ground truth ``gt``, or :class:`ParameterError` where they do not fit
+    together (a short ``t0`` had failed as a broadcast error, a (M, H, 1) ``valid`` been
+    broadcast and a window scored on none of its pixels unsaid, probe EVAL)."""
+    flow = np.asarray(gt.flow)
+    try:
+        t0 = np.asarray(gt.t0, dtype=np.int64)
+        t1 = np.asarray(gt.t1, dtype=np.int64)
+    except (TypeError, ValueError, OverflowError):
+        raise ParameterError("ground truth t0, t1 must be whole µs") from None
+    if flow.ndim != 4 or flow.shape[-1] != 2 or flow.dtype.kind not in "fiu" \
+            or t0.shape != (flow.shape[0],) or t1.shape != t0.shape:
+        raise ParameterError(f"ground truth flow must be numbers (M, H, W, 2) with t0, t1 "
+                             f"(M,), got flow {flow.shape} {flow.dtype}, t0 {t0.shape}, t1 "
+                             f"{t1.shape}")
+    valid = None if gt.valid is None else np.asarray(gt.valid)
+    if valid is not None and (valid.shape != flow.shape[:3] or valid.dtype.kind not in "biu"):
+        raise ParameterError(f"ground truth valid is {valid.shape} {valid.dtype}, expected "
+                             f"{flow.shape[:3]} bool")
+    return flow, t0, t1, None if valid is None else valid.astype(bool, copy=False)
+
+
 def _as_sequence(gt, t0s, t1s) -> FlowSequence:
     """``gt`` as a FlowSequence: a simulation's GroundTruth gives the exact flow of the
     windows (it failed with "'function' object has no attribute 'shape'", probe CB)."""
     from evmotion.io.flowfiles import FlowSequence
 
     if isinstance(gt, FlowSequence):
+        ground_truth_arrays(gt)
         return gt
     if callable(getattr(gt, "flow_sequence", None)):
         return gt.flow_sequence(t0s, t1s)
@@ -203,6 +239,7 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     -------
     WindowsEvaluation
     """
+    dt = whole_number("dt", dt, lo=1)  # (NaN had counted every window as matching)
     gt = _as_sequence(gt, t0s, t1s)
     flow, t0s, t1s = _windows(flow, t0s, t1s, gt.flow.shape[1:3])
     if events is not None:
@@ -348,10 +385,23 @@ def _windows(flow, t0s, t1s, shape=None) -> tuple[np.ndarray, np.ndarray, np.nda
     if flow.ndim != 4 or flow.shape[-1] != 2 or flow.dtype.kind not in "fiu":
         raise ParameterError(f"flow must be a numeric array (N, H, W, 2), got shape "
                              f"{flow.shape}, dtype {flow.dtype}")
-    t0s, t1s = (np.asarray(t, dtype=np.float64).ravel() for t in (t0s, t1s))
-    if not (len(flow) == t0s.size == t1s.size):
-        raise ParameterError(f"{len(flow)} flow windows for {t0s.size} t0s and {t1s.size} "
-                             "t1s: one flow per window")
+    t0s, t1s = _bounds(len(flow), t0s, t1s, "flow")
+    if shape is not None and tuple(flow.shape[1:3]) != tuple(shape):
+        raise ParameterError(f"the flow is {flow.shape[2]}x{flow.shape[1]} px but the ground "
+                             f"truth {shape[1]}x{shape[0]} px (W x H): not the same grid")
+    return flow, t0s, t1s
+
+
+def _bounds(n: int, t0s, t1s, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds of ``n`` windows of ``what`` as int64 arrays, or ParameterError unless
+    one ``t0 <= t1`` pair of whole µs per window."""
+    try:
+        t0s, t1s = (np.asarray(t, dtype=np.float64).ravel() for t in (t0s, t1s))
+    except (TypeError, ValueError):
+        raise ParameterError("t0s and t1s must be numbers of µs") from None
+    if not (n == t0s.size == t1s.size):
+        raise ParameterError(f"{n} {what} windows for {t0s.size} t0s and {t1s.size} "
+                             f"t1s: one {what} per window")
     # (t1 == t0: a window of no time, which flow outputs keep, without a valid pixel, so
     # that the windows' numbering holds; it was refused, and the whole output with it)
     # (past int64 the cast below warned "invalid value encountered in cast", probe OPT)
@@ -362,10 +412,7 @@ def _windows(flow, t0s, t1s, shape=None) -> tuple[np.ndarray, np.ndarray, np.nda
         raise ParameterError(f"window {i}: [{t0s[i]:g}, {t1s[i]:g}] us is not an interval "
                              "t0 <= t1 of whole microseconds (at most 2^62)"
                              + (" (t0s and t1s swapped?)" if t1s[i] < t0s[i] else ""))
-    if shape is not None and tuple(flow.shape[1:3]) != tuple(shape):
-        raise ParameterError(f"the flow is {flow.shape[2]}x{flow.shape[1]} px but the ground "
-                             f"truth {shape[1]}x{shape[0]} px (W x H): not the same grid")
-    return flow, t0s.astype(np.int64), t1s.astype(np.int64)
+    return t0s.astype(np.int64), t1s.astype(np.int64)
 
 
 def _check_tiles(gt) -> None:
@@ -470,9 +517,16 @@ def evaluate_potential(q: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     -------
     list of dict
         Per window matching a GT frame interval exactly: ``window``, ``q_corr`` (Pearson
-        correlation after removing each field's mean) and ``q_std_ratio`` (standard
-        deviation over the ground truth's: 1 is the right scale). Windows that span no
-        single frame interval are left out.
+        correlation after removing each field's mean; NaN where either field is constant
+        over the scored pixels, which defines none) and ``q_std_ratio`` (standard
+        deviation over the ground truth's: 1 is the right scale; NaN where the ground truth
+        is constant). Windows that span no single frame interval, or with fewer than two
+        scored pixels, are left out.
+
+    Raises
+    ------
+    ParameterError
+        Arrays whose shapes do not fit together, or bounds that are not whole µs.
 
     Examples
     --------
@@ -482,7 +536,9 @@ def evaluate_potential(q: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
     >>> round(rows[0]["q_corr"], 6), round(rows[0]["q_std_ratio"], 6)
     (1.0, 2.0)
     """
-    start = {int(t): j for j, t in enumerate(np.asarray(gt_t_us)[:-1])}
+    q, gt_q, gt_t_us, mask = _potentials(q, gt_q, gt_t_us, mask)
+    t0s, t1s = _bounds(len(q), t0s, t1s, "q")
+    start = {int(t): j for j, t in enumerate(gt_t_us[:-1])}
     rows = []
     for i, (t0, t1) in enumerate(zip(t0s, t1s, strict=True)):
         j = start.get(int(t0))
@@ -500,3 +556,30 @@ def evaluate_potential(q: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
         rows.append({"window": i, "q_corr": corr,
                      "q_std_ratio": sa / sb if sb > 0 else float("nan")})
     return rows
+
+
+def _potentials(q, gt_q, gt_t_us, mask):
+    """The arrays of :func:`evaluate_potential` checked to fit together (an empty q had
+    failed as an IndexError, an int mask as a ufunc casting error, probe EVAL)."""
+    q, gt_q = np.asarray(q), np.asarray(gt_q)
+    for name, a in (("q", q), ("gt_q", gt_q)):
+        if a.ndim != 3 or a.dtype.kind not in "fiu":
+            raise ParameterError(f"{name} must be numbers (N, H, W), got shape {a.shape}, "
+                                 f"dtype {a.dtype}")
+    if gt_q.shape[1:] != q.shape[1:]:
+        raise ParameterError(f"gt_q is {gt_q.shape[2]}x{gt_q.shape[1]} px but q "
+                             f"{q.shape[2]}x{q.shape[1]} px (W x H): not the same grid")
+    try:
+        t = np.asarray(gt_t_us, dtype=np.float64)
+    except (TypeError, ValueError):
+        t = np.full(1, np.nan)
+    if t.shape != (gt_q.shape[0] + 1,) or not np.isfinite(t).all() \
+            or (t != np.round(t)).any() or (np.diff(t) <= 0).any():
+        raise ParameterError(f"gt_t_us must be the {gt_q.shape[0] + 1} increasing frame "
+                             f"times (whole µs) around the {gt_q.shape[0]} intervals of gt_q")
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != q.shape or mask.dtype.kind != "b":
+            raise ParameterError(f"mask must be bool {q.shape} like q, got {mask.shape} "
+                                 f"{mask.dtype}")
+    return q, gt_q, t.astype(np.int64), mask

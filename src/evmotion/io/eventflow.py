@@ -223,11 +223,9 @@ def read_event_flow(path: str | os.PathLike) -> EventFlow:
     """
     path = Path(path)
     if path.suffix.lower() == ".npz":
-        try:
-            z = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise FormatError(path, f"cannot read as .npz: {exc}") from None
-        with z:
+        from evmotion.io.guard import open_npz
+
+        with open_npz(path) as z:
             if "meta" not in z.files:
                 raise FormatError(path, "not an evmotion per-event flow file (no 'meta' member)")
             attrs = json.loads(str(z["meta"]))

@@ -32,7 +32,7 @@ import numpy as np
 
 from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.io.base import PartFileWriter
-from evmotion.io.guard import guarded, open_h5
+from evmotion.io.guard import guarded, open_h5, open_npz
 from evmotion.io.h5attrs import read_attrs, read_attrs_many
 from evmotion.io.h5filters import h5_compression
 from evmotion.io.pngfile import read_png, write_png
@@ -925,11 +925,7 @@ def read_mvsec_gt_flow(path: str | os.PathLike) -> FlowSequence:
     ((2, 4, 5, 2), [50000, 100000], [10.0, -10.0])
     """
     path = Path(path)
-    try:
-        z = np.load(path)
-    except (OSError, ValueError) as exc:
-        raise FormatError(path, f"cannot read as .npz: {exc}") from None
-    with z:
+    with open_npz(path) as z:
         if {"vx", "vy", "t"} <= set(z.files):
             # what --method triplet writes: a flow to score, not a ground truth
             raise FormatError(path, "is a per-event flow file (vx, vy per event), not a "
@@ -1095,7 +1091,7 @@ def read_gt_flow(path: str | os.PathLike) -> FlowSequence:
                 _refuse_recording(path)
             raise
     if suffix == ".npz":
-        with np.load(path, allow_pickle=False) as z:
+        with open_npz(path) as z:
             own = "format" in z.files and str(z["format"]) == FLOW_FORMAT
         if own:  # an evmotion flow output as the reference
             from evmotion.io.flowread import read_flow

@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +45,7 @@ from evmotion.io.flowout import (
     sidecar_path,
     window_path,
 )
-from evmotion.io.guard import guarded, open_h5
+from evmotion.io.guard import guarded, open_h5, open_npz
 from evmotion.io.h5attrs import read_attrs
 from evmotion.io.h5filters import is_hdf5
 
@@ -309,11 +308,7 @@ def _pattern_files(path: Path) -> list[Path]:
 
 
 def _read_npz(path: Path) -> FlowSequence:
-    try:
-        z = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise FormatError(path, f"cannot read as .npz: {exc}") from None
-    with z:
+    with open_npz(path) as z:
         names = set(z.files)
         if "format" in names and str(z["format"]) == FLOW_FORMAT:
             for key in ("flow", "t0", "t1", "valid", "units"):
@@ -583,8 +578,8 @@ def _describe_h5(p: Path) -> dict | None:
 
 def _describe_npz(p: Path) -> dict | None:
     try:
-        z = np.load(p, allow_pickle=False)
-    except (OSError, ValueError, zipfile.BadZipFile):
+        z = open_npz(p)
+    except FormatError:
         return None
     with z:
         names = set(z.files)

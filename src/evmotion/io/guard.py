@@ -36,7 +36,7 @@ from evmotion.errors import (
 
 __all__ = ["GIVEN_SIZE_HINT", "MAX_SENSOR_SIDE", "SENSOR_SIZE_HINT", "check_sensor_size",
            "guard_call", "guard_iter", "as_format_error", "extended_size", "open_h5",
-           "not_hdf5", "given_sensor_size",
+           "open_npz", "not_hdf5", "given_sensor_size",
            "sensor_size_hint", "warn_inferred_size", "LARGEST_COORDINATE"]
 
 
@@ -309,6 +309,49 @@ def open_h5(path):
         return h5py.File(path, "r")
     except OSError as exc:
         raise not_hdf5(path, exc) from None
+
+
+def open_npz(path):
+    """The ``.npz`` archive ``path`` opened with ``np.load`` (no pickles; to be closed by
+    the caller, e.g. in a ``with`` block).
+
+    Raises
+    ------
+    FormatError
+        One line naming the file when it is missing, empty, truncated or not a zip archive
+        (numpy's own words for a file that is no archive speak of pickled data, and an
+        empty file met an EOFError, probe EVAL).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> np.savez("a.npz", t0=[0])
+    >>> with open_npz("a.npz") as z:
+    ...     z.files
+    ['t0']
+    >>> _ = open("b.npz", "w").write("not an archive")
+    >>> open_npz("b.npz")
+    Traceback (most recent call last):
+    evmotion.errors.FormatError: b.npz: cannot read as .npz: not a zip archive (it begins with b'not ')
+    """
+    import zipfile
+
+    import numpy as np
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError as exc:
+        raise FormatError(path, f"cannot read as .npz: {exc.strerror or exc}") from None
+    if not head:
+        raise FormatError(path, "cannot read as .npz: the file is empty")
+    if head not in (b"PK\x03\x04", b"PK\x05\x06"):  # a member, or an empty archive
+        raise FormatError(path, f"cannot read as .npz: not a zip archive (it begins with "
+                          f"{head!r})")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise FormatError(path, f"cannot read as .npz: {exc}") from None
 
 
 def not_hdf5(path, exc: OSError) -> FormatError:

@@ -148,9 +148,19 @@ def _check_scheme(scheme: str) -> bool:
     return scheme == "burgers"
 
 
+#: Sub-steps beyond which a transport is refused: a field that moves its pixels this many
+#: times over the span is no flow of its image (1e20 px had run for ever, probe EVAL).
+MAX_SUBSTEPS = 100_000
+
+
 def _n_substeps(v: np.ndarray, duration: float, cfl: float) -> int:
     speed = float(np.max(np.abs(v[0]) + np.abs(v[1]))) if v.size else 0.0
-    return max(1, math.ceil(speed * abs(duration) / cfl))
+    n = speed * abs(duration) / cfl
+    if not n <= MAX_SUBSTEPS:
+        raise ParameterError(f"transport: the flow moves pixels up to {speed * abs(duration):.3g}"
+                             f" px over the span to transport, more than {MAX_SUBSTEPS:,} CFL "
+                             "sub-steps: not a flow of this image")
+    return max(1, math.ceil(n))
 
 
 def transport(v0: np.ndarray, duration: float, scheme: str = "burgers",

@@ -56,7 +56,8 @@ def colorwheel() -> np.ndarray:
 
 def flow_max_magnitude(flow: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Largest finite flow magnitude (over ``mask``), or 1.0 when there is none > 0."""
-    mag = np.hypot(flow[..., 0], flow[..., 1])
+    # in float64: float32 flows near their range overflowed in hypot (a RuntimeWarning)
+    mag = np.hypot(flow[..., 0].astype(np.float64), flow[..., 1].astype(np.float64))
     ok = np.isfinite(mag)
     if mask is not None:
         ok &= mask
