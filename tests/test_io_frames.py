@@ -483,9 +483,12 @@ def test_images_txt_in_whole_seconds_takes_the_time_unit(tmp_path):
         warnings.simplefilter("error")
         assert read_image_list(tmp_path / "images.txt", "s")["t"].tolist() == [
             0, 1_000_000, 2_000_000]
-    # decimal times state seconds whatever the unit given
+    # a unit given reads decimal times too (--frames-time-unit ms had been ignored for
+    # "10.000", the refusal that named it repeated, probe BOSIN); the events' --time-unit
+    # reaches only whole numbers (load_bos_input, below)
     (tmp_path / "images.txt").write_text("0.0 images/f0.png\n1.5 images/f1.png\n")
-    assert read_image_list(tmp_path / "images.txt", "ms")["t"].tolist() == [0, 1_500_000]
+    assert read_image_list(tmp_path / "images.txt", "ms")["t"].tolist() == [0, 1_500]
+    assert read_image_list(tmp_path / "images.txt")["t"].tolist() == [0, 1_500_000]
     (tmp_path / "images.txt").write_text("".join(f"{k} images/f{k}.png\n" for k in range(3)))
     write_events(tmp_path / "events.txt", EventArray(
         x=[1, 2, 3], y=[1, 2, 3], t=[100_000, 900_000, 1_900_000], p=[1, 0, 1],
@@ -582,3 +585,149 @@ def test_frames_of_a_low_jpeg_quality_are_said(tmp_path):
                  and "JPEGs of quality" in str(w.message)]
         assert len(lossy) == (q < 50)
     assert jpeg_quality(tmp_path / "q40" / "images.txt") is None
+
+
+def _listed_frames(folder, n=3, value=100):
+    from evmotion.io.pngfile import write_png
+
+    (folder / "images").mkdir(parents=True, exist_ok=True)
+    for k in range(n):
+        write_png(folder / "images" / f"f{k}.png", np.full((4, 5), value + k, np.uint8))
+
+
+@pytest.mark.parametrize("text, times", [
+    # 'path t' lines: every one had been skipped as a header ("lists no frames")
+    ("images/f0.png 0.0\nimages/f1.png 0.01\nimages/f2.png 0.02\n", [0, 10_000, 20_000]),
+    # a header naming the unit (it had been ignored: ms read as seconds or as µs)
+    ("timestamp[ms] filename\n0.000 images/f0.png\n10.000 images/f1.png\n"
+     "20.000 images/f2.png\n", [0, 10_000, 20_000]),
+    ("t[ms],filename\n0,images/f0.png\n10,images/f1.png\n20,images/f2.png\n",
+     [0, 10_000, 20_000]),
+    ("timestamp [us] filename\n0 images/f0.png\n10000 images/f1.png\n20000 images/f2.png\n",
+     [0, 10_000, 20_000]),
+])
+def test_other_labs_image_lists_are_read_as_they_say(tmp_path, text, times):
+    """Layouts of images.txt other tools write (probe BOSIN), read with no warning."""
+    import warnings
+
+    from evmotion.io.ecd import read_image_list
+
+    _listed_frames(tmp_path)
+    (tmp_path / "images.txt").write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = read_image_list(tmp_path / "images.txt")
+    assert got["t"].tolist() == times
+    assert got["files"] == [f"images/f{k}.png" for k in range(3)]
+    assert not got["whole_numbers"]
+
+
+def test_a_first_line_naming_a_frame_is_no_header(tmp_path):
+    from evmotion.io.ecd import read_image_list
+
+    _listed_frames(tmp_path)
+    (tmp_path / "images.txt").write_text("images/f0.png 0.0\nimages/f1.png 0.01\n")
+    assert read_image_list(tmp_path / "images.txt")["files"][0] == "images/f0.png"
+    (tmp_path / "images.txt").write_text("name 0.0\nimages/f1.png 0.01\n")  # a header
+    assert read_image_list(tmp_path / "images.txt")["files"] == ["images/f1.png"]
+    (tmp_path / "images.txt").write_text("0.0 images/f0.png\nimages/f1.png x\n")
+    with pytest.raises(FormatError, match="line 2"):
+        read_image_list(tmp_path / "images.txt")
+
+
+def test_a_png_named_jpg_is_summarized_as_read(tmp_path):
+    """The summary judged a frame's end by its name ("truncated JPG") where the reader
+    decodes it by its content (probe BOSIN); an empty one is still truncated."""
+    _ecd(tmp_path, _images(), ["0.0", "0.01", "0.02"])
+    lines = (tmp_path / "images.txt").read_text().replace(".png", ".jpg")
+    for k in range(3):
+        (tmp_path / "images" / f"frame_{k:08d}.png").rename(
+            tmp_path / "images" / f"frame_{k:08d}.jpg")
+    (tmp_path / "images.txt").write_text(lines)
+    assert describe_frames(tmp_path)["count"] == 3
+    (tmp_path / "images" / "frame_00000002.jpg").write_bytes(b"")
+    with pytest.raises(FormatError, match="frame_00000002.jpg: truncated JPEG"):
+        describe_frames(tmp_path)
+
+
+def test_an_unreadable_calib_txt_does_not_hide_the_folder(tmp_path):
+    """``info`` refused the whole folder for its calib.txt where the events' reader warns
+    and reads on (probe BOSIN); a comment line naming the numbers is skipped."""
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+    from evmotion.io.ecd import describe as describe_ecd
+    from evmotion.io.ecd import parse_calib
+
+    write_events(tmp_path / "events.txt", EventArray(x=[1, 2], y=[1, 2], t=[0, 10],
+                                                     p=[1, 0], sensor_size=(4, 5)))
+    (tmp_path / "calib.txt").write_text("# fx fy cx cy k1 k2 p1 p2 k3\n"
+                                        "199.0 198.0 132.0 110.0 -0.3 0.1 0 0 0\n")
+    assert parse_calib(tmp_path / "calib.txt")[:4].tolist() == [199.0, 198.0, 132.0, 110.0]
+    (tmp_path / "calib.txt").write_text("this is not calibration\n")
+    got = describe_ecd(tmp_path)
+    assert "calibration" not in got and "must hold numbers" in got["calibration_error"]
+
+
+def _bos_folder(folder, lines, n_events=200, span_us=20_000, value=100, dtype=np.uint8):
+    from evmotion.events import EventArray
+    from evmotion.io import write_events
+    from evmotion.io.pngfile import write_png
+
+    rng = np.random.default_rng(0)
+    (folder / "images").mkdir(parents=True, exist_ok=True)
+    for k in range(len(lines)):
+        write_png(folder / "images" / f"f{k}.png", rng.integers(
+            0, value + 1, (8, 10)).astype(dtype) if value else np.zeros((8, 10), dtype))
+    (folder / "images.txt").write_text("".join(lines))
+    t = np.sort(rng.integers(0, span_us, n_events))
+    write_events(folder / "events.txt", EventArray(
+        x=rng.integers(0, 10, n_events), y=rng.integers(0, 8, n_events), t=t,
+        p=rng.integers(0, 2, n_events), sensor_size=(8, 10)))
+
+
+def test_whole_milliseconds_beside_events_in_seconds_are_read_as_such(tmp_path):
+    """images.txt in whole ms (0, 10, 20) read as µs put 100 fps frames 10 us apart, and
+    the run was refused for a contrast threshold it could not estimate (probe BOSIN)."""
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io.bosinput import load_bos_input
+
+    _bos_folder(tmp_path, [f"{10 * k} images/f{k}.png\n" for k in range(3)])
+    with pytest.warns(EvmotionWarning, match="read as milliseconds, which span the events"):
+        data = load_bos_input(tmp_path)
+    assert data.frame_times.tolist() == [0, 10_000, 20_000]
+    # whole µs of a camera's rate stay µs
+    _bos_folder(tmp_path, [f"{10_000 * k} images/f{k}.png\n" for k in range(3)])
+    with pytest.warns(EvmotionWarning, match="whole number: read as microseconds"):
+        assert load_bos_input(tmp_path).frame_times.tolist() == [0, 10_000, 20_000]
+
+
+def test_decimal_microseconds_read_as_seconds_are_named_in_the_hint(tmp_path):
+    """10000.0 us apart read as seconds: the hint had named ms, which read them 10 s apart
+    (probe BOSIN)."""
+    from evmotion.io.bosinput import load_bos_input
+
+    _bos_folder(tmp_path, [f"{10_000 * k}.0 images/f{k}.png\n" for k in range(3)])
+    with pytest.raises(FormatError, match="--frames-time-unit us"):
+        load_bos_input(tmp_path)
+    assert load_bos_input(tmp_path, frames_time_unit="us").frame_times.tolist() == [
+        0, 10_000, 20_000]
+
+
+def test_frames_clipped_at_their_bit_depths_full_scale_are_said(tmp_path):
+    """12-bit frames in 16-bit PNGs clip at 4095, which a full scale of 65535 never counted
+    (the flow came out 1.4-1.7x too large unsaid, probe BOSIN)."""
+    from evmotion.errors import EvmotionWarning
+    from evmotion.io.bosinput import full_scale, load_bos_input
+
+    assert [full_scale(np.array([v], np.uint16)) for v in (200, 1023, 4095, 4096, 65520)] \
+        == [255, 1023, 4095, 8191, 65535]
+    _bos_folder(tmp_path, [f"0.0{k} images/f{k}.png\n" for k in range(3)], span_us=30_000,
+                value=0, dtype=np.uint16)
+    from evmotion.io.pngfile import write_png
+
+    for k in range(3):  # 12 bits, 90 % at full scale
+        img = np.full((8, 10), 4095, np.uint16)
+        img[:, :1] = np.arange(8)[:, None] * 100 + k
+        write_png(tmp_path / "images" / f"f{k}.png", img)
+    with pytest.warns(EvmotionWarning, match="more than 75 % clipped at full scale"):
+        load_bos_input(tmp_path)

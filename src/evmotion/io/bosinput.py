@@ -173,17 +173,47 @@ def _span_misfit(times: np.ndarray, t_first: int, t_last: int) -> float:
 def _whole_times(listing: Path) -> bool:
     """Whether the times of an ``images.txt`` or a timestamps file are whole numbers (no
     unit stated), as its reader tells them (its warning about them said already)."""
-    from evmotion.io.ecd import read_image_list
     from evmotion.io.frames import whole_number_times
+
+    if listing.name == "images.txt":
+        return bool(_image_list(listing).get("whole_numbers"))
+    try:
+        return whole_number_times(listing)
+    except (FormatError, OSError, UnicodeDecodeError, ValueError):
+        return False
+
+
+def _image_list(listing: Path) -> dict:
+    """What :func:`~evmotion.io.ecd.read_image_list` tells of an ``images.txt`` (its
+    warnings said already), or ``{}`` where it cannot be read (said by the frames'
+    reader)."""
+    from evmotion.io.ecd import read_image_list
 
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", EvmotionWarning)
-            if listing.name == "images.txt":
-                return bool(read_image_list(listing)["whole_numbers"])
-            return whole_number_times(listing)
+            return read_image_list(listing)
     except (FormatError, OSError, UnicodeDecodeError, ValueError):
-        return False
+        return {}
+
+
+def _whole_milliseconds(times: np.ndarray, spacing: float, where: Path, t_first: int,
+                        t_last: int) -> tuple[np.ndarray, float]:
+    """Whole-number frame times read as µs that lie closer than any camera's (``spacing``)
+    read as milliseconds, with a warning, where so they span the events' time (within 2x)
+    and overlap them: 100 fps in whole ms had been 10 us apart, and the run refused for a
+    contrast threshold it could not estimate (probe BOSIN); else as they were."""
+    alt = times * 1000
+    if not (_span_misfit(alt, t_first, t_last) < np.log(2) and alt[-1] > t_first
+            and alt[0] < t_last):
+        return times, spacing
+    warnings.warn(EvmotionWarning(
+        f"{where}: its whole-number times read as microseconds put the frames {spacing:g} "
+        f"us apart, faster than any camera beside an event sensor, and span "
+        f"{int(times[-1] - times[0])} us beside the events' {t_last - t_first} us: read as "
+        "milliseconds, which span the events (--frames-time-unit us reads them as "
+        "microseconds)"), stacklevel=3)
+    return alt, spacing * 1000
 
 
 def _frames_source(rec: Path, frames: str | os.PathLike | None) -> tuple[Path, bool]:
@@ -474,7 +504,9 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     if frames_time_unit is not None:
         read_unit = {"time_unit": frames_time_unit}
     else:
-        read_unit = {"time_unit": time_unit} if ecd_list and time_unit else {}
+        # (decimals are seconds, a header's unit is the list's own)
+        read_unit = {"time_unit": time_unit} if ecd_list and time_unit and \
+            _whole_times(listed) else {}
     try:
         fr = read_frames(src, **read_unit)
     except FormatError as exc:
@@ -526,7 +558,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         roi_mask(events.sensor_size, roi)
     t_first, t_last = int(events.t[0]), int(events.t[-1])
     if (ecd_list and frames_time_unit is None and time_unit not in (None, "s")
-            and not _whole_times(listed)):
+            and not _whole_times(listed) and _image_list(listed).get("unit") is None):
         # decimal times beside events read in time_unit: ECD's seconds, or that unit too
         # (decimal milliseconds in both lists, probe)
         alt = np.rint(times * (TIME_UNIT_US[time_unit] * 1e-6)).astype(np.int64)
@@ -540,8 +572,14 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     # then refused, probe AT); decimals as seconds: milliseconds
     whole = (frames_time_unit is None and not (ecd_list and time_unit is not None)
              and where.is_file() and _whole_times(where))
+    if whole and spacing < FAST_FRAME_SPACING_US:
+        times, spacing = _whole_milliseconds(times, spacing, where, t_first, t_last)
     unit, read = (("ns", "nanoseconds read as microseconds") if whole
                   else ("ms", "milliseconds read as seconds"))
+    if not whole and FAST_FRAME_SPACING_US <= spacing * 1e-6 <= SLOW_FRAME_SPACING_US:
+        # decimals read as seconds that are a camera's spacing as microseconds (10000.0
+        # us apart: the hint named ms, which read them 10 s apart, probe BOSIN)
+        unit, read = "us", "microseconds read as seconds"
     if spacing > MAX_FRAME_SPACING_US:
         raise FormatError(where, f"frames are {spacing * 1e-6:g} s apart (median): times in "
                           "another unit? (images.txt, timestamps files and events.txt hold "
@@ -659,16 +697,35 @@ def _unit_hint(unit: str, ecd_list: bool) -> str:
     return f"{own} in {unit}"
 
 
+def full_scale(images: np.ndarray) -> int:
+    """The full scale of integer frames: 255 for 8 bits, else ``2^b - 1`` for the fewest
+    bits ``b`` >= 8 that hold their largest sample (12-bit frames in 16-bit PNGs, as
+    cameras write them, clip at 4095: taken as 65535, clipping went unsaid, probe BOSIN).
+
+    Examples
+    --------
+    >>> full_scale(np.array([0, 4095], np.uint16)), full_scale(np.array([0, 200], np.uint8))
+    (4095, 255)
+    >>> full_scale(np.array([0, 65520], np.uint16))  # 12 bits shifted to the top
+    65535
+    """
+    if images.dtype.kind not in "ui":
+        return 255
+    largest = int(images.max()) if images.size else 0
+    return (1 << max(8, largest.bit_length())) - 1
+
+
 def _warn_clipped(images: np.ndarray, intervals: np.ndarray, src, roi) -> None:
     """A warning where a frame the solver uses is mostly clipped at full scale: there it
     has no gradient, so the predicted increment is flat and the flow's magnitude is not a
     measurement (on a rendered scene: 1.06x the true magnitude at 64 % clipped, 1.53x at
     85 %)."""
-    top = np.iinfo(images.dtype).max
-    full = top - (top >> 8)  # 255 of 8 bits; 10-16-bit samples in a 16-bit word
     y0, x0, y1, x1 = (0, 0, *images.shape[1:3]) if roi is None else \
         (roi[1], roi[0], roi[1] + roi[3], roi[0] + roi[2])
-    share = np.array([np.mean(images[i, y0:y1, x0:x1] >= full) for i in intervals[:, 0]])
+    used = [images[i, y0:y1, x0:x1] for i in intervals[:, 0]]  # (views)
+    top = full_scale(np.array([frame.max() for frame in used], images.dtype))
+    full = top - (top >> 8)  # 255 of 8 bits, 4080 of 12, 65280 of 16
+    share = np.array([np.mean(frame >= full) for frame in used])
     bad = share > MAX_CLIPPED
     if bad.any():
         i = int(np.argmax(share))

@@ -1108,22 +1108,37 @@ def read_groundtruth(path: str | Path) -> dict:
 
 
 def read_image_list(path: str | Path, time_unit: str | None = None) -> dict:
-    """ECD ``images.txt``: ``t`` (µs), ``files`` (paths relative to the folder) and
-    ``whole_numbers`` (whether its times were whole numbers, which state no unit).
+    """ECD ``images.txt``: ``t`` (µs), ``files`` (paths relative to the folder),
+    ``whole_numbers`` (whether its times were whole numbers, which state no unit) and
+    ``unit`` (the unit its header line names, else None).
 
     Lines are ``t path`` (t in seconds; a comma after t is taken as a space); lines
     starting with ``#`` are comments. Other tools' variants are read where the file they
     name exists: a path with spaces, Windows separators (``images\\x.png``), further
-    columns after the path (an exposure, say). Times that are all whole numbers state no
-    unit: they are read in ``time_unit`` (``"s"``, ``"ms"``, ``"us"``, ``"ns"``), by
-    default as µs (ns past 1e17) with a warning; decimal times are seconds.
+    columns after the path (an exposure, say), ``path t`` lines, a first line of column
+    names (whose unit, as in ``timestamp[ms]``, reads the times). ``time_unit`` (``"s"``,
+    ``"ms"``, ``"us"``, ``"ns"``) reads every time in that unit; without it (or a header's),
+    times that are all whole numbers state no unit and are read as µs (ns past 1e17) with a
+    warning; decimal times are seconds.
+
+    Examples
+    --------
+    >>> import os
+    >>> os.makedirs("lst", exist_ok=True)
+    >>> _ = Path("lst/a.png").write_bytes(b""), Path("lst/b.png").write_bytes(b"")
+    >>> _ = Path("lst/images.txt").write_text("timestamp[ms] file\\n0 a.png\\n10 b.png\\n")
+    >>> read_image_list("lst/images.txt")["t"].tolist()
+    [0, 10000]
+    >>> _ = Path("lst/images.txt").write_text("a.png 0.0\\nb.png 0.01\\n")
+    >>> read_image_list("lst/images.txt")["files"]
+    ['a.png', 'b.png']
     """
     if time_unit is not None and time_unit not in TEXT_TIME_UNITS:
         raise ParameterError(f"time_unit must be one of {sorted(TEXT_TIME_UNITS)}, got "
                              f"{time_unit!r}")
     path = _to_read(path, "images.txt")
     folder = path.parent
-    raw, files = [], []
+    raw, files, first, stated = [], [], True, None
     with open(path, encoding="utf-8-sig") as fh:
         for i, line in enumerate(fh, 1):
             text = line.strip()
@@ -1132,15 +1147,25 @@ def read_image_list(path: str | Path, time_unit: str | None = None) -> dict:
             fields = re.split(r"[\s,]+", text, maxsplit=1)
             if len(fields) != 2:
                 raise FormatError(path, f"line {i}: expected 't file', got {text!r}")
-            if not raw and _COLUMN_NAME.fullmatch(fields[0]):
-                continue  # a header line ("timestamp filename"), as timestamps files take
-            raw.append((i, fields[0]))
-            files.append(_listed_file(folder, fields[1], path, i, text))
+            if first and _COLUMN_NAME.fullmatch(fields[0]) and \
+                    _listed_path(folder, fields[0]) is None:
+                # a header line ("timestamp filename", "t[ms],file"); only the first line
+                # (every 'path t' line had been skipped as one, probe BOSIN)
+                stated = _header_unit(text)
+                first = False
+                continue
+            first = False
+            t_field, rest = _time_first(folder, fields)
+            raw.append((i, t_field))
+            files.append(_listed_file(folder, rest, path, i, text))
     # as events.txt: whole numbers are microseconds (frames a second or more apart in
     # whole seconds is no rate a camera beside an event sensor runs at)
-    whole = len(raw) > 1 and all(f.lstrip("+-").isdigit() for _, f in raw)
+    whole = len(raw) > 1 and all(f.lstrip("+-").isdigit() for _, f in raw) and not stated
+    time_unit = time_unit or stated
     scale = 1e6
-    if whole and time_unit is not None:
+    if time_unit is not None:
+        # every time, decimals too (--frames-time-unit ms had been ignored for "10.000",
+        # the refusal that named it repeated, probe BOSIN)
         scale = TIME_UNIT_US[time_unit]
     elif whole:
         # past 1e17, nanoseconds since the epoch, as events.txt and timestamps files read
@@ -1152,7 +1177,45 @@ def read_image_list(path: str | Path, time_unit: str | None = None) -> dict:
             f"{'nanoseconds since the epoch (past 1e17)' if ns else 'microseconds'} "
             "(images.txt holds decimal seconds)"), stacklevel=2)
     t = [time_to_us(path, f, scale, f"line {i}") for i, f in raw]
-    return {"t": np.asarray(t, np.int64), "files": files, "whole_numbers": whole}
+    return {"t": np.asarray(t, np.int64), "files": files, "whole_numbers": whole,
+            "unit": stated}
+
+
+def _header_unit(text: str) -> str | None:
+    """The time unit a header line of ``images.txt`` names (``timestamp[ms] file``,
+    ``t_us,path``, ``timestamp [ns] filename``), else None."""
+    first = re.split(r"[\s,]+", text.lower())
+    for cand in (first[0], "".join(first[:2])):
+        unit = time_unit_in_name(cand.replace("µs", "us"))
+        if unit is not None:
+            return unit
+    return None
+
+
+def _time_first(folder: Path, fields: list[str]) -> tuple[str, str]:
+    """A line's time field and the rest (its file), for ``t path`` lines and ``path t``
+    ones (the file first, a single number after it)."""
+    rest = fields[1].strip()
+    if not _is_number(fields[0]) and _is_number(rest) \
+            and _listed_path(folder, fields[0]) is not None:
+        return rest, fields[0]
+    return fields[0], rest
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _listed_path(folder: Path, name: str) -> str | None:
+    """``name`` as an existing file of ``folder`` (Windows separators read as ``/``)."""
+    for cand in (name, name.replace("\\", "/")):
+        if is_file(folder / cand):
+            return cand
+    return None
 
 
 # the first field of a header line: a name, not a number's spelling (nan, inf: a bad time)
@@ -1165,9 +1228,9 @@ def _listed_file(folder: Path, rest: str, path: Path, i: int, text: str) -> str:
     ignored), with Windows separators read as ``/`` where that finds the file."""
     words = rest.split()
     for cand in (rest, *(" ".join(words[:k]) for k in range(len(words) - 1, 0, -1))):
-        for name in (cand, cand.replace("\\", "/")):
-            if is_file(folder / name):
-                return name
+        name = _listed_path(folder, cand)
+        if name is not None:
+            return name
     if len(words) != 1:
         raise FormatError(path, f"line {i}: expected 't file', got {text!r} (no "
                           f"file {rest!r} nor {words[0]!r} in {folder})")
@@ -1215,7 +1278,10 @@ def parse_calib(path: Path) -> np.ndarray:
     [199.1, 198.8, 132.2, 110.7, 0.0]
     """
     try:
-        vals = np.array(path.read_text().split(), dtype=np.float64)
+        # (a "# fx fy cx cy ..." line naming the numbers was refused as no number, probe)
+        text = "\n".join(line for line in path.read_text(errors="replace").splitlines()
+                         if not line.lstrip().startswith(("#", "%")))
+        vals = np.array(text.replace(",", " ").split(), dtype=np.float64)
     except ValueError as exc:
         raise FormatError(path, f"calib.txt must hold numbers: {exc}") from None
     if vals.size == 9 and vals[1] == 0 and vals[3] == 0 and vals[6:].tolist() == [0, 0, 1]:
@@ -1274,7 +1340,12 @@ def describe(path: str | Path) -> dict:
     size, src = _sensor_size(path, None)
     out: dict = {"format": "ecd", "sensor_size": size, "sensor_size_from": src}
     if (folder / "calib.txt").exists():
-        out["calibration"] = read_calibration(folder / "calib.txt")
+        try:
+            out["calibration"] = read_calibration(folder / "calib.txt")
+        except FormatError as exc:
+            # said beside the rest, as the events' reader warns and reads on (a garbage
+            # calib.txt had hidden the events and frames of the folder, probe BOSIN)
+            out["calibration_error"] = exc.message
     for name, key in (("imu.txt", "imu"), ("groundtruth.txt", "groundtruth"),
                       ("images.txt", "frames")):
         f = folder / name

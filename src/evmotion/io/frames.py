@@ -819,8 +819,8 @@ def _header(path: Path) -> tuple[tuple[int, int], int]:
 
 
 # what a whole PNG (its IEND chunk) and a whole JPEG (EOI) end with
-_FILE_ENDS = {".png": b"\x00\x00\x00\x00IEND\xaeB`\x82", ".jpg": b"\xff\xd9",
-              ".jpeg": b"\xff\xd9"}
+_FILE_ENDS = {"PNG": b"\x00\x00\x00\x00IEND\xaeB`\x82", "JPEG": b"\xff\xd9"}
+_SUFFIX_KINDS = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
 
 
 def _check_ends(files: list[Path]) -> None:
@@ -828,16 +828,20 @@ def _check_ends(files: list[Path]) -> None:
     summary decodes none; it had called a folder with a truncated frame fine, which the
     BOS run then refused, probe BS)."""
     for f in files:
-        end = _FILE_ENDS.get(f.suffix.lower())
-        if end is None:
-            continue
         with open(f, "rb") as fh:
+            # by the content, as the frames are decoded: PNGs named .jpg are read (probe)
+            head = fh.read(4)
+            kind = ("PNG" if head == b"\x89PNG" else "JPEG" if head[:3] == b"\xff\xd8\xff"
+                    else _SUFFIX_KINDS.get(f.suffix.lower()))
+            end = _FILE_ENDS.get(kind)
+            if end is None:
+                continue
             fh.seek(0, os.SEEK_END)
             n = fh.tell()
             fh.seek(max(n - len(end), 0))
             if fh.read() != end:
-                raise FormatError(f, f"truncated {f.suffix[1:].upper()} ({n} bytes): it "
-                                  "does not end as a whole one does")
+                raise FormatError(f, f"truncated {kind} ({n} bytes): it does not end as a "
+                                  "whole one does")
 
 
 def describe_frames(path: str | os.PathLike, *, timestamps: str | os.PathLike | None = None,
