@@ -450,7 +450,7 @@ def write_outputs(out_dir: Path, results, grid: str | None = None,
     undistorted by."""
     from evmotion.io.paramsfiles import ParamsTable, write_params_h5
     from evmotion.methods.diagnostics import MIN_CONTRAST_GAIN, MIN_FIT_EVENTS, POOR_FIT_SHARE
-    from evmotion.methods.measured import MAX_GAP_SHARE, MIN_MOTION_PX
+    from evmotion.methods.measured import MAX_GAP_SHARE, min_motion_px
     from evmotion.utils import atomic_write_text
 
     ok = [(w, r) for w, r, err in results if err is None and r is not None]
@@ -501,7 +501,8 @@ def write_outputs(out_dir: Path, results, grid: str | None = None,
             "collapsed": ("", "flag: the IWE collapsed"),
             "poor_fit": ("", f"flag: explained_share < {POOR_FIT_SHARE} or NaN (no tile to "
                              f"test), contrast_gain or chance_gain < {MIN_CONTRAST_GAIN}, a "
-                             f"motion under {MIN_MOTION_PX} px, fewer than "
+                             f"motion under {min_motion_px(ok[0][1].warp):g} px, fewer "
+                             "than "
                              f"{MIN_FIT_EVENTS} events or a time gap over "
                              f"{MAX_GAP_SHARE:.0%} of the window"),
             "explained_share": ("", "share of the image the warp explains"),

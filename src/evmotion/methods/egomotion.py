@@ -91,8 +91,8 @@ from evmotion.methods.diagnostics import (
 )
 from evmotion.methods.measured import (
     MAX_GAP_SHARE,
-    MIN_MOTION_PX,
     gap_share,
+    min_motion_px,
     warn_by_chance,
     warn_gap,
     warn_small_motion,
@@ -207,7 +207,7 @@ class EgomotionResult:
         # and found nothing to test is one (too few events)
         return bool(share < POOR_FIT_SHARE or gain < MIN_CONTRAST_GAIN
                     or unchecked_fit(d.get("fit", {})) or d.get("too_few_events", False)
-                    or float(d.get("motion_px", np.inf)) < MIN_MOTION_PX
+                    or float(d.get("motion_px", np.inf)) < min_motion_px(self.warp)
                     or float(d.get("chance_gain", np.inf)) < MIN_CONTRAST_GAIN
                     or float(d.get("gap_share", 0.0)) > MAX_GAP_SHARE)
 
