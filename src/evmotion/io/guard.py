@@ -35,8 +35,8 @@ from evmotion.errors import (
 )
 
 __all__ = ["GIVEN_SIZE_HINT", "MAX_SENSOR_SIDE", "SENSOR_SIZE_HINT", "check_sensor_size",
-           "guard_call", "guard_iter", "as_format_error", "extended_size", "open_h5",
-           "open_npz", "not_hdf5", "given_sensor_size",
+           "guard_call", "guard_iter", "as_format_error", "extended_size", "file_head",
+           "open_h5", "open_npz", "not_hdf5", "given_sensor_size",
            "sensor_size_hint", "warn_inferred_size", "LARGEST_COORDINATE"]
 
 
@@ -311,6 +311,23 @@ def open_h5(path):
         raise not_hdf5(path, exc) from None
 
 
+def file_head(path, n: int, action: str = "cannot open") -> bytes:
+    """The first ``n`` bytes of the file ``path``, or :class:`FormatError` naming it and
+    the system's reason after ``action``.
+
+    Examples
+    --------
+    >>> _ = open("h.bin", "wb").write(b"abcdefg")
+    >>> file_head("h.bin", 4)
+    b'abcd'
+    """
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(n)
+    except OSError as exc:
+        raise FormatError(path, f"{action}: {exc.strerror or exc}") from None
+
+
 def open_npz(path):
     """The ``.npz`` archive ``path`` opened with ``np.load`` (no pickles; to be closed by
     the caller, e.g. in a ``with`` block).
@@ -338,11 +355,7 @@ def open_npz(path):
 
     import numpy as np
 
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(4)
-    except OSError as exc:
-        raise FormatError(path, f"cannot read as .npz: {exc.strerror or exc}") from None
+    head = file_head(path, 4, "cannot read as .npz")
     if not head:
         raise FormatError(path, "cannot read as .npz: the file is empty")
     if head not in (b"PK\x03\x04", b"PK\x05\x06"):  # a member, or an empty archive

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from evmotion.errors import FormatError
 from evmotion.io.base import FormatSpec
+from evmotion.io.guard import file_head
 from evmotion.io.h5filters import HDF5_MAGIC
 from evmotion.utils import missing_path_hint
 
@@ -140,11 +141,7 @@ def detect_spec(path: str | os.PathLike) -> FormatSpec:
     _refuse_special(path)
     head = b""
     if path.is_file():
-        try:
-            with open(path, "rb") as fh:
-                head = fh.read(4096)
-        except OSError as exc:
-            raise FormatError(path, f"cannot open: {exc.strerror or exc}") from None
+        head = file_head(path, 4096)
         if not head:
             raise FormatError(path, "the file is empty")
     candidates = []
