@@ -150,10 +150,11 @@ def run_cold(src: Path, argv: list[str], work: Path) -> dict:
             "compilations": st["compilations"]}
 
 
-def measure(src: Path, tag: str, only: list[str] | None = None) -> list[dict]:
+def measure(src: Path, tag: str, only: list[str] | None = None, label: str | None = None
+            ) -> list[dict]:
     """Time the commands (those named in ``only``, and the simulation
     they read) into ``results/cold_start_<tag>.json``, saved after each command; rows of
-    other commands already there are kept."""
+    other commands already there are kept. ``label`` names the tree measured (a commit)."""
     out = harness.RESULTS / f"cold_start_{tag}.json"
     old = json.loads(out.read_text())["rows"] if out.exists() else []
     rows = [r for r in old if only and r["command"] not in only
@@ -169,7 +170,7 @@ def measure(src: Path, tag: str, only: list[str] | None = None) -> list[dict]:
                 f"wall {r['wall_s']:6.1f} s  cpu {r['cpu_s']:6.1f} s  compile cpu "
                 f"{r['compile_cpu_s']:6.1f} s" if "wall_s" in r else f"FAILED {r}"),
                 flush=True)
-            out.write_text(json.dumps({"src": str(src), "tag": tag,
+            out.write_text(json.dumps({"src": str(src), "tag": tag, "label": label or str(src),
                                        "date": time.strftime("%Y-%m-%d %H:%M:%S"),
                                        "rows": rows}, indent=2))
     return rows
@@ -177,11 +178,13 @@ def measure(src: Path, tag: str, only: list[str] | None = None) -> list[dict]:
 
 def table() -> list[dict]:
     """``results/cold_start.md``/``.json``: the tagged runs side by side."""
-    runs = {}
+    runs, labels = {}, {"before": "commit 7c713d1", "after": "this branch"}
     for tag in ("before", "after"):
         p = harness.RESULTS / f"cold_start_{tag}.json"
         if p.exists():
-            runs[tag] = {r["command"]: r for r in json.loads(p.read_text())["rows"]}
+            run = json.loads(p.read_text())
+            runs[tag] = {r["command"]: r for r in run["rows"]}
+            labels[tag] = run.get("label", labels[tag])
     names = list(dict.fromkeys(n for rs in runs.values() for n in rs))
     rows = []
     for n in names:
@@ -197,9 +200,9 @@ def table() -> list[dict]:
         "(python -m evmotion via a driver counting numba:compile events). wall/cpu: the "
         "whole process (cpu = user + sys, os.wait4); compile: inside numba compilation "
         "(outermost events; compile_cpu: the compiling thread's CPU time); run = total - "
-        "compile. before = commit 7c713d1 (a git worktree "
-        "on PYTHONPATH), after = this branch; same machine, shared with other jobs (cpu is "
-        "the steadier figure)."))
+        f"compile. before = {labels['before']} (a git worktree on PYTHONPATH), after = "
+        f"{labels['after']}; same machine, shared with other jobs (cpu is the steadier "
+        "figure)."))
     return rows
 
 
@@ -240,7 +243,7 @@ with open(sys.argv[1], "w") as fh:
 '''
 
 
-def warm_ab(before_src: Path, rounds: int = 3) -> list[dict]:
+def warm_ab(before_src: Path, rounds: int = 3, label: str = "commit 7c713d1") -> list[dict]:
     """Warm speed before and after, in child processes timed in turn (see the module
     docstring)."""
     runs = {"before": [], "after": []}
@@ -265,7 +268,7 @@ def warm_ab(before_src: Path, rounds: int = 3) -> list[dict]:
                      "before ms (median)": b_med * 1e3, "after ms (median)": a_med * 1e3,
                      "after/before (median)": a_med / b_med})
     harness.record("cold_start_warm", rows, notes=(
-        f"Warm speed, before (commit 7c713d1) and after (this branch), {rounds} rounds of one "
+        f"Warm speed, before ({label}) and after (this branch), {rounds} rounds of one "
         "child process each in turn, each pinned to the idlest core (harness."
         "pin_idlest_core), warm numba cache. Rows: bench_cmax's cost + gradient of 30k events "
         "at 346x260 (variance, weight 1, ordinary and collapsing parameters), ms per "
@@ -287,11 +290,12 @@ if __name__ == "__main__":
     ap.add_argument("--tag", default="after", choices=["before", "after"])
     ap.add_argument("--only", nargs="*", help="only these commands (names as in the table)")
     ap.add_argument("--table", action="store_true", help="only merge the recorded runs")
+    ap.add_argument("--label", help="what --src holds, for the table (e.g. 'commit abc1234')")
     ap.add_argument("--warm", metavar="BEFORE_SRC", help="warm speed before/after instead")
     args = ap.parse_args()
     if args.warm:
-        warm_ab(Path(args.warm))
+        warm_ab(Path(args.warm), label=args.label or "commit 7c713d1")
         sys.exit(0)
     if not args.table:
-        measure(Path(args.src), args.tag, args.only)
+        measure(Path(args.src), args.tag, args.only, args.label)
     table()
