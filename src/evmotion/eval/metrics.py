@@ -181,7 +181,6 @@ def event_mask(events: EventArray, shape: tuple[int, int] | None = None) -> np.n
     >>> event_mask(ev).astype(int).tolist()
     [[0, 1, 0], [0, 0, 0]]
     """
-    require_events(events, "event_mask")
     h, w = events.sensor_size if shape is None else check_image_shape("event_mask: shape",
                                                                        shape)
     mask = np.zeros(h * w, dtype=bool)
