@@ -592,6 +592,23 @@ def check_not_seconds(name: str, value) -> None:
                              f"{value:g} s is {v * 1e6:.6g} µs)")
 
 
+def is_whole_number(value) -> bool:
+    """Whether ``value`` is a whole number: an int or numpy integer (not a bool), or a
+    finite float without a fraction.
+
+    Examples
+    --------
+    >>> is_whole_number(3), is_whole_number(1e5), is_whole_number(2.5), is_whole_number(True)
+    (True, True, False, False)
+    """
+    if isinstance(value, (bool, np.bool_)):
+        return False
+    if isinstance(value, (int, np.integer)):
+        return True
+    return isinstance(value, (float, np.floating)) and bool(np.isfinite(value)) \
+        and float(value).is_integer()
+
+
 def whole_number(name: str, value, lo: int | None = None, hi: int | None = None) -> int:
     """``value`` as an int, or :class:`ParameterError` naming ``name`` unless it is a whole
     number (an int, or a float such as ``1e5`` without a fraction) within ``[lo, hi]``.
@@ -607,9 +624,7 @@ def whole_number(name: str, value, lo: int | None = None, hi: int | None = None)
     want = ("a whole number" + (f" >= {lo}" if lo is not None and hi is None else "")
             + (f" in {lo}..{hi}" if lo is not None and hi is not None else "")
             + (f" <= {hi}" if lo is None and hi is not None else ""))
-    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-    if not ok and isinstance(value, (float, np.floating)):
-        ok = bool(np.isfinite(value)) and float(value).is_integer()
+    ok = is_whole_number(value)
     if ok:
         v = int(value)
         ok = (lo is None or v >= lo) and (hi is None or v <= hi)

@@ -105,7 +105,7 @@ from evmotion.methods.bos_kernels import (
     upsample,
 )
 from evmotion.methods.flowresult import SUPPORT_MIN_EVENTS, SUPPORT_RADIUS, event_box_counts
-from evmotion.utils import is_finite_number
+from evmotion.utils import is_finite_number, is_whole_number
 
 __all__ = [
     "BosOptions",
@@ -168,14 +168,6 @@ class NoEventsInWindowError(EventDataError):
     or, in a sequence, an interval before its first event or after its last, which
     ``on_empty="skip"`` skips as it does one without events in the ROI."""
 
-
-def _is_int(v) -> bool:
-    """A whole number (int, numpy integer, or an integral finite float)."""
-    if isinstance(v, (bool, np.bool_)):
-        return False
-    if isinstance(v, (int, np.integer)):
-        return True
-    return isinstance(v, (float, np.floating)) and bool(np.isfinite(v)) and float(v).is_integer()
 
 _ADAM_B1, _ADAM_B2, _ADAM_EPS = 0.9, 0.999, 1e-8
 
@@ -294,7 +286,7 @@ class BosOptions:
             raise ParameterError(f"data_term must be 'normalized' or 'scale', "
                                  f"got {self.data_term!r}")
         if not (isinstance(self.scales, (tuple, list)) and self.scales
-                and all(_is_int(v) and v >= 1 for v in self.scales)):
+                and all(is_whole_number(v) and v >= 1 for v in self.scales)):
             raise ParameterError(f"scales must be positive patch sizes in px, e.g. "
                                  f"(64, 32, 16, 8), got {self.scales!r}")
         scales = tuple(int(s) for s in self.scales)
@@ -320,12 +312,12 @@ class BosOptions:
         c = self.contrast_threshold
         if c is not None and not (is_finite_number(c) and c > 0):
             raise ParameterError(f"contrast_threshold must be a number > 0, got {c!r}")
-        if not (_is_int(self.patience) and self.patience >= 1):
+        if not (is_whole_number(self.patience) and self.patience >= 1):
             raise ParameterError(f"patience must be an integer >= 1, got {self.patience!r}")
-        if not (_is_int(self.seed) and self.seed >= 0):
+        if not (is_whole_number(self.seed) and self.seed >= 0):
             raise ParameterError(f"seed must be an integer >= 0, got {self.seed!r}")
         object.__setattr__(self, "seed", int(self.seed))  # (1e30 failed in SeedSequence)
-        if not (_is_int(self.relinearize) and 0 <= self.relinearize <= 10):
+        if not (is_whole_number(self.relinearize) and 0 <= self.relinearize <= 10):
             raise ParameterError(f"relinearize must be an integer in [0, 10], "
                                  f"got {self.relinearize!r}")
         if c is not None and not MIN_THRESHOLD <= c <= MAX_CONTRAST_THRESHOLD:
@@ -356,7 +348,7 @@ class BosOptions:
             its = (150,) * (n - 1) + (300,) if self.data_term == "scale" else 600
         its = (its,) * len(self.scales) if np.isscalar(its) else tuple(its)
         # (1e30 reached numpy's "Maximum allowed dimension exceeded", probe API)
-        if len(its) != len(self.scales) or not all(_is_int(i) and 1 <= i <= MAX_ITERATIONS
+        if len(its) != len(self.scales) or not all(is_whole_number(i) and 1 <= i <= MAX_ITERATIONS
                                                    for i in its):
             raise ParameterError(f"iterations must be whole numbers in 1..{MAX_ITERATIONS}, one "
                                  f"or one per scale ({len(self.scales)}), got "
@@ -596,7 +588,7 @@ def _check_roi(roi, sensor):
         vals = list(roi)
     except TypeError:
         vals = []
-    if len(vals) != 4 or not all(_is_int(v) for v in vals):
+    if len(vals) != 4 or not all(is_whole_number(v) for v in vals):
         raise ParameterError(f"roi must be (x, y, w, h), whole px, got {roi!r}")
     x, y, rw, rh = (int(v) for v in vals)
     if rw < 16 or rh < 16:
@@ -1358,7 +1350,7 @@ def estimate_bos(
     if np.dtype(dtype) not in (np.float32, np.float64):
         raise ParameterError(f"dtype must be float32 or float64, got {np.dtype(dtype)}")
     for name, t in (("t0_us", t0_us), ("t1_us", t1_us)):
-        if not _is_int(t):
+        if not is_whole_number(t):
             raise ParameterError(f"{name} must be a whole number of us, got {t!r}")
     if on_empty not in ("raise", "skip"):
         raise ParameterError(f"on_empty must be 'raise' or 'skip', got {on_empty!r}")
@@ -1783,7 +1775,7 @@ def iter_bos_sequence(
 
     o = _options(options, kwargs)
     for name, v in (("workers", workers), ("chunks", 1 if chunks is None else chunks)):
-        if not (_is_int(v) and v >= 1):
+        if not (is_whole_number(v) and v >= 1):
             raise ParameterError(f"{name} must be an integer >= 1, got {v!r}")
     times = np.asarray(times_us, dtype=np.float64)
     if times.ndim != 1 or not np.isfinite(times).all():
