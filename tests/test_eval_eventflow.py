@@ -5,6 +5,7 @@ matcher on a simulated translation end to end, one-line errors for bad inputs.""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -181,6 +182,7 @@ def test_cli_scores_a_per_event_file(tmp_path, capsys, suffix):
     assert main(["eval", str(shifted), "--gt", str(gt)]) == 0
     line = capsys.readouterr().out.strip()
     assert "\n" not in line and f"{ev['valid'].sum()} of {len(ev['t'])} events" in line
+    assert " %Out=" in line and re.search(r"%Out=[\d.e+-]+ % ", line), line  # (as dense)
 
 
 def test_triplet_on_a_simulated_translation_end_to_end(tmp_path, capsys):

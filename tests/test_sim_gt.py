@@ -257,6 +257,12 @@ def test_cli_simulate(tmp_path, fake_writer, capsys):
     api = simulate("translation", duration_s=0.01, sensor_size=(30, 40), seed=5,
                    params={"vx": 100, "vy": -20}, noise_rate=1.0, show_progress=False)
     assert len(api.events) == summary["n_events"]
+    # several after one --params, as the help's scene list shows them ('vy=-20' had been
+    # an unrecognized argument, probe FLOWFOREIGN)
+    rc = main(["simulate", "translation", "--out", str(out), "--size", "30x40",
+               "--duration", "0.01", "--params", "vx=100", "vy=-20", "--json",
+               "--noise-rate", "1", "--seed", "5"])
+    assert rc == 0 and json.loads(capsys.readouterr().out)["params"]["vy"] == -20.0
 
 
 def test_cli_json_params_and_errors(tmp_path, fake_writer, capsys):

@@ -380,7 +380,7 @@ def _run_event_flow(args, path) -> int:
         print(f"{m.n_scored} of {m.n_events} events scored ({m.n_no_flow} without a flow, "
               f"{m.n_no_gt} without GT; dt={args.dt}): AEE={m.aee:.4g} px  "
               f"AEE={m.aee_px_s:.4g} px/s  AEE_zero={m.aee_zero:.4g} px  "
-              f"%Out={m.pct_out:.4g}  AE_deg={m.ae_deg:.4g}")
+              f"%Out={m.pct_out:.4g} %  AE_deg={m.ae_deg:.4g}")
     return 0
 
 

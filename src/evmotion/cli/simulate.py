@@ -108,10 +108,13 @@ def add_parser(sub) -> None:
                    help="events/s of a hot pixel (default 1000)")
     p.add_argument("--frame-rate", type=positive_float(unit="Hz"), default=None,
                    help="GT frame rate, Hz (default 100)")
-    p.add_argument("--params", action="append", default=None, metavar="KEY=VALUE",
-                   help="motion parameter, repeatable (vector: comma-separated), or a JSON "
-                        "object; each scene's names and defaults are listed above (the "
-                        "docs of evmotion.sim.scenes give their units)")
+    # (several after one --params, as the scene list above shows them: '--params vx=220
+    # vy=-130' had stopped at 'unrecognized arguments: vy=-130', probe FLOWFOREIGN)
+    p.add_argument("--params", action="extend", nargs="+", default=None, metavar="KEY=VALUE",
+                   help="motion parameters (vector: comma-separated), or a JSON object; "
+                        "several after one --params or --params repeated; each scene's names "
+                        "and defaults are listed above (the docs of evmotion.sim.scenes give "
+                        "their units)")
     g = p.add_argument_group("schlieren")
     g.add_argument("--scene", dest="bos_scene", default=None, choices=sorted(BOS_SCENES),
                    help="schlieren scene (default plume)")
