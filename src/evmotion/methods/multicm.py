@@ -78,6 +78,7 @@ from evmotion.methods.measured import (
     warn_gap,
     warn_inconsistent_halves,
     warn_no_gain,
+    warn_small_flow,
     warn_too_few_for_flow,
 )
 from evmotion.methods.options import merge_options
@@ -760,6 +761,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         # few would leave the events at the edge of its support unmoved)
         valid, other = other_motion(x, y, s - 0.5, fitted, valid, "dense flow",
                                     scores=jit_scores)
+        if valid.any():
+            warn_small_flow(float(np.median(np.hypot(fitted[..., 0], fitted[..., 1])[valid])),
+                            "dense flow")
     timings["total_s"] = time.perf_counter() - t_start
     # numba's first-use compilation is not the estimate's time: reported apart
     timings["compile_s"] = compile_seconds() - c_start
