@@ -605,3 +605,20 @@ def test_a_flow_moving_under_two_and_a_half_pixels_is_said_to_be_biased():
         _w.simplefilter("always")
         estimate_flow(fast)
     assert not [w for w in caught if "small motion" in str(w.message)]
+
+
+def test_the_cli_counts_small_motion_warnings_as_flows_kept_valid(tmp_path, capsys):
+    """The closing line of a run's poor-fit warnings said 'their flow is marked not valid'
+    of every held warning, small motion's too, whose flow stays valid."""
+    from evmotion.cli import main
+    from evmotion.io import write_events
+    from evmotion.sim import simulate
+
+    ev = simulate("translation", params={"vx": 100.0, "vy": 0.0}, duration_s=0.2,
+                  sensor_size=(60, 80), seed=3, show_progress=False).events
+    write_events(tmp_path / "slow.h5", ev)
+    assert main(["flow", str(tmp_path / "slow.h5"), "--window-us", "20ms", "--out",
+                 str(tmp_path / "f.h5")]) == 0
+    err = capsys.readouterr().err
+    assert err.count(": small motion: the dense flow moves its pixels by") == 5
+    assert "more such warnings of other windows (their flow stays valid, biased;" in err, err

@@ -458,7 +458,7 @@ class _PoorFitLines:
 
     def __init__(self, n_windows: int):
         self.n_windows = n_windows
-        self.shown = self.held = 0
+        self.shown = self.held = self.held_valid = 0
 
     @contextlib.contextmanager
     def window(self, i: int, w):
@@ -478,15 +478,21 @@ class _PoorFitLines:
                 warn_line(f"window {i} [{w.t0}, {w.t1}) us: {m.message}")
             else:
                 self.held += 1
+                # a small motion's flow stays valid (biased), the others' is not valid
+                self.held_valid += str(m.message).startswith("small motion")
 
     def close(self) -> None:
         if self.held:
             from evmotion.cli import warn_line
 
+            marked = ("their flow stays valid, biased" if self.held_valid == self.held else
+                      "their flow is marked not valid" if not self.held_valid else
+                      f"{self.held_valid} of small motion keep their flow valid, biased, the "
+                      "others' is marked not valid")
             warn_line(f"... and {self.held} more such warning{'s' if self.held > 1 else ''} "
-                      "of other windows (their flow is marked not valid; --json lists each "
-                      "window's numbers)" + (SHORT_WINDOWS_HINT if 2 * (self.shown + self.held)
-                                             >= self.n_windows else ""))
+                      f"of other windows ({marked}; --json lists each window's numbers)"
+                      + (SHORT_WINDOWS_HINT if 2 * (self.shown + self.held) >= self.n_windows
+                         else ""))
 
 
 
