@@ -33,6 +33,7 @@ from evmotion.utils import (
     check_number,
     is_finite_number,
     whole_number,
+    whole_time_us,
 )
 
 __all__ = [
@@ -275,7 +276,7 @@ class EventArray:
         if t_ref is None:
             t_ref = self.t_start
         # (1e30 overflowed int64 and NaN failed in its conversion, probe API)
-        t_ref = whole_number("t_ref (µs)", t_ref, lo=-MAX_TIME_US, hi=MAX_TIME_US)
+        t_ref = whole_time_us("t_ref (µs)", t_ref)
         return (self.t - np.int64(t_ref)).astype(np.float64) * 1e-6
 
     def t_normalized(self) -> np.ndarray:
@@ -404,10 +405,8 @@ class EventArray:
                                    hi=MAX_TIME_US)
         if not len(self):
             return []
-        t0 = self.t_start if t0 is None else whole_number("t0 (µs)", t0, lo=-MAX_TIME_US,
-                                                          hi=MAX_TIME_US)
-        t1 = self.t_end + 1 if t1 is None else whole_number("t1 (µs)", t1, lo=-MAX_TIME_US,
-                                                            hi=MAX_TIME_US)
+        t0 = self.t_start if t0 is None else whole_time_us("t0 (µs)", t0)
+        t1 = self.t_end + 1 if t1 is None else whole_time_us("t1 (µs)", t1)
         _check_time_range(t0, t1)
         n = -(-(t1 - t0) // duration_us)  # the last window reaches t1
         end = t0 + n * duration_us

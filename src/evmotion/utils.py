@@ -633,6 +633,18 @@ def whole_number(name: str, value, lo: int | None = None, hi: int | None = None)
     return v
 
 
+def whole_time_us(name: str, value) -> int:
+    """``value`` as an int of µs, or :class:`ParameterError` naming ``name`` unless it is a
+    whole number within ``±MAX_TIME_US`` (past it, int64 sums overflow).
+
+    Examples
+    --------
+    >>> whole_time_us("t0", 2.5e3)
+    2500
+    """
+    return whole_number(name, value, -MAX_TIME_US, MAX_TIME_US)
+
+
 def resolve_options(cls: type, options, keywords: dict, func: str):
     """The options of one call of ``func(..., options=None, **keywords)``:
     ``cls(**keywords)``, or ``options``; a function with many tuning parameters takes

@@ -36,7 +36,7 @@ from evmotion.eval.metrics import (
     fwl,
     warn_no_better_than_zero,
 )
-from evmotion.utils import MAX_TIME_US, whole_number
+from evmotion.utils import MAX_TIME_US, whole_number, whole_time_us
 
 if TYPE_CHECKING:
     from evmotion.events import EventArray
@@ -101,8 +101,8 @@ def gt_coverage(gt, t0: int, t1: int) -> float:
 def _interval(t0, t1) -> tuple[int, int]:
     """``(t0, t1)`` as ints, or ParameterError unless whole µs with ``t0 <= t1`` within
     ±2^62 (10**30 had met an OverflowError, NaN a cast error or no error, probe EVAL)."""
-    a = whole_number("t0", t0, -MAX_TIME_US, MAX_TIME_US)
-    b = whole_number("t1", t1, -MAX_TIME_US, MAX_TIME_US)
+    a = whole_time_us("t0", t0)
+    b = whole_time_us("t1", t1)
     if b < a:
         raise ParameterError(f"[t0, t1] = [{a}, {b}] us is no interval (t0 > t1)")
     return a, b

@@ -23,12 +23,13 @@ from scipy import ndimage
 from evmotion.errors import EmptyWindowError, ParameterError
 from evmotion.events import EventArray, require_events
 from evmotion.utils import (
-    MAX_TIME_US,
     check_finite,
     check_number,
     check_switches,
     is_finite_number,
+    is_whole_number,
     whole_number,
+    whole_time_us,
 )
 
 __all__ = [
@@ -66,7 +67,7 @@ class KymoLine:
     def __post_init__(self) -> None:
         for name in ("x0", "y0", "x1", "y1"):
             object.__setattr__(self, name, float(check_finite(name, getattr(self, name))))
-        if not is_finite_number(self.width) or int(self.width) != self.width \
+        if not is_whole_number(self.width) \
                 or not 1 <= self.width <= MAX_SMOOTH_PX:  # (NaN failed in int(), probe API)
             raise ParameterError(f"line width must be an integer in [1, {MAX_SMOOTH_PX:g}] px, "
                                  f"got {self.width!r}")
@@ -219,10 +220,8 @@ def kymogram_from_events(events: EventArray, line: KymoLine, rate_hz: float = 12
         if not len(events):
             raise EmptyWindowError("no events to make a kymogram from")
     # (NaN failed in int(), probe API)
-    t0 = int(events.t[0]) if t0_us is None else whole_number("t0_us", t0_us, -MAX_TIME_US,
-                                                             MAX_TIME_US)
-    t1 = int(events.t[-1]) + 1 if t1_us is None else whole_number("t1_us", t1_us,
-                                                                    -MAX_TIME_US, MAX_TIME_US)
+    t0 = int(events.t[0]) if t0_us is None else whole_time_us("t0_us", t0_us)
+    t1 = int(events.t[-1]) + 1 if t1_us is None else whole_time_us("t1_us", t1_us)
     n_t = int(np.floor((t1 - t0) * rate * 1e-6 + 1e-9))
     if n_t < 1:
         raise EmptyWindowError(f"time span [{t0}, {t1}) us is shorter than one bin at "
@@ -905,7 +904,7 @@ def fit_correlation(kymo: Kymogram, *, sigma_px: float = 1.0, max_lag_s: float |
     if stationary_px is None:
         stationary_px = 3.0 * sigma_px + 1.0
     _check_widths(min_shift_px=min_shift_px, stationary_px=stationary_px)
-    if not is_finite_number(n_blocks) or int(n_blocks) != n_blocks or n_blocks < 2:
+    if not is_whole_number(n_blocks) or n_blocks < 2:
         raise ParameterError(f"parameter 'n_blocks' must be an integer >= 2, got {n_blocks!r}")
     _check_fit_options(min_snr)
     if max_lag_s is not None and not (is_finite_number(max_lag_s) and max_lag_s > 0):

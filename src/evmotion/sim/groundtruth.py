@@ -9,7 +9,7 @@ import numpy as np
 from evmotion.errors import ParameterError
 from evmotion.sim.motions import Motion, apply_generator
 from evmotion.sim.render import sample_wrap_numpy
-from evmotion.utils import MAX_TIME_US, check_not_seconds, whole_number
+from evmotion.utils import check_not_seconds, whole_time_us
 
 __all__ = ["GroundTruth", "Layer"]
 
@@ -173,8 +173,7 @@ class GroundTruth:
 
         # whole µs each (NaN failed in numpy's int conversion and 0.5 was cut to 0; 1e30
         # overflowed int64, probe OPT)
-        t0s, t1s = (np.array([whole_number(name, v, lo=-MAX_TIME_US, hi=MAX_TIME_US)
-                              for v in np.ravel(ts)], np.int64)
+        t0s, t1s = (np.array([whole_time_us(name, v) for v in np.ravel(ts)], np.int64)
                     for name, ts in (("t0s", t0s), ("t1s", t1s)))
         if t0s.shape != t1s.shape or not np.all(t1s > t0s):
             raise ParameterError("flow_sequence: t0s and t1s must be as many window starts "
