@@ -171,12 +171,11 @@ def _span_misfit(times: np.ndarray, t_first: int, t_last: int) -> float:
 
 
 def _whole_times(listing: Path) -> bool:
-    """Whether the times of an ``images.txt`` or a timestamps file are whole numbers (no
-    unit stated), as its reader tells them (its warning about them said already)."""
+    """Whether the times of a timestamps file are whole numbers (no unit stated), as its
+    reader tells them (its warning about them said already); an ``images.txt``'s are
+    :func:`_image_list`'s ``whole_numbers``."""
     from evmotion.io.frames import whole_number_times
 
-    if listing.name == "images.txt":
-        return bool(_image_list(listing).get("whole_numbers"))
     try:
         return whole_number_times(listing)
     except (FormatError, OSError, UnicodeDecodeError, ValueError):
@@ -501,12 +500,15 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     # that state no unit (whole numbers): the folder's two lists are one clock's
     listed = (src / "images.txt") if src.is_dir() else src
     ecd_list = listed.name == "images.txt" and listed.is_file()
+    # what its times state, read once for the checks below
+    listing = _image_list(listed) if ecd_list else {}
+    listed_whole = bool(listing.get("whole_numbers"))
     if frames_time_unit is not None:
         read_unit = {"time_unit": frames_time_unit}
     else:
         # (decimals are seconds, a header's unit is the list's own)
-        read_unit = {"time_unit": time_unit} if ecd_list and time_unit and \
-            _whole_times(listed) else {}
+        read_unit = {"time_unit": time_unit} if ecd_list and time_unit and listed_whole \
+            else {}
     try:
         fr = read_frames(src, **read_unit)
     except FormatError as exc:
@@ -558,7 +560,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         roi_mask(events.sensor_size, roi)
     t_first, t_last = int(events.t[0]), int(events.t[-1])
     if (ecd_list and frames_time_unit is None and time_unit not in (None, "s")
-            and not _whole_times(listed) and _image_list(listed).get("unit") is None):
+            and not listed_whole and listing.get("unit") is None):
         # decimal times beside events read in time_unit: ECD's seconds, or that unit too
         # (decimal milliseconds in both lists, probe)
         alt = np.rint(times * (TIME_UNIT_US[time_unit] * 1e-6)).astype(np.int64)
@@ -571,7 +573,8 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     # whole numbers were read as µs: nanoseconds (relative ns; ms was the wrong advice,
     # then refused, probe AT); decimals as seconds: milliseconds
     whole = (frames_time_unit is None and not (ecd_list and time_unit is not None)
-             and where.is_file() and _whole_times(where))
+             and where.is_file() and (listed_whole if ecd_list and where == listed
+                                      else _whole_times(where)))
     if whole and spacing < FAST_FRAME_SPACING_US:
         times, spacing = _whole_milliseconds(times, spacing, where, t_first, t_last)
     unit, read = (("ns", "nanoseconds read as microseconds") if whole
@@ -592,7 +595,7 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
     ev_span, fr_span = t_last - t_first, int(times[-1] - times[0])
     slip = ev_span > max(UNIT_SLIP * fr_span, 1e6)
     hint = " (event times in another unit? events.txt holds seconds)" if slip else ""
-    frames_whole = bool(slip and ecd_list and time_unit is None and _whole_times(listed))
+    frames_whole = bool(slip and ecd_list and time_unit is None and listed_whole)
     if frames_whole:
         # whole numbers in images.txt were read as µs (said in a warning): 1 fps in
         # whole seconds spans 6 us beside 6 s of events (probe)
