@@ -98,7 +98,14 @@ def min_motion_px(warp: str) -> float:
 #: Textured 346x260 windows moving under 2 px came out 11-14 % too fast, 8.5 deg off,
 #: where 20-30 ms windows of the same recordings measured 0.3-1.2 % (probe FLOWFOREIGN);
 #: flow_foreign.md's windows moving 1.2 px score an AEE of 0.16 px, 13 % of the motion.
-MIN_FLOW_MOTION_PX = 2.5
+#: The same bias as a translation warp's, so the same least motion.
+MIN_FLOW_MOTION_PX = MIN_TRANSLATION_MOTION_PX
+
+
+def _floored(px: float) -> float:
+    """``px`` rounded down to 0.01 px, as the small-motion warnings print it (rounded to
+    nearest, "1.5 px ... needs 1.5 px or more" read as a contradiction)."""
+    return np.floor(px * 100) / 100
 
 
 def warn_small_flow(moved_px: float, method: str, stacklevel: int = 3) -> str | None:
@@ -108,11 +115,10 @@ def warn_small_flow(moved_px: float, method: str, stacklevel: int = 3) -> str | 
     such a motion."""
     if not moved_px < MIN_FLOW_MOTION_PX:
         return None
-    shown = np.floor(moved_px * 100) / 100
-    msg = (f"small motion: the {method} moves its pixels by {shown:.2f} px over the window "
-           f"(median): contrast maximization's sub-pixel bias is a large share of a motion "
-           f"under {MIN_FLOW_MOTION_PX:g} px (11-14 % of the speed on textured windows moving "
-           "under 2 px) -- longer windows measure it better")
+    msg = (f"small motion: the {method} moves its pixels by {_floored(moved_px):.2f} px over "
+           "the window (median): contrast maximization's sub-pixel bias is a large share of a "
+           f"motion under {MIN_FLOW_MOTION_PX:g} px (11-14 % of the speed on textured windows "
+           "moving under 2 px) -- longer windows measure it better")
     warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
     return msg
 
@@ -124,9 +130,7 @@ def warn_small_motion(moved_px: float, warp: str, stacklevel: int = 3) -> str | 
     least = min_motion_px(warp)
     if not moved_px < least:
         return None
-    # rounded down: "1.5 px ... needs 1.5 px or more" read as a contradiction
-    shown = np.floor(moved_px * 100) / 100
-    msg = (f"small motion: the estimate moves the events by {shown:.2f} px over the "
+    msg = (f"small motion: the estimate moves the events by {_floored(moved_px):.2f} px over the "
            f"window (median; contrast maximization needs about {least:g} px or more "
            f"to measure a {warp} motion): not a measurement -- use longer windows")
     warnings.warn(msg, PoorFitWarning, stacklevel=stacklevel)
