@@ -431,3 +431,24 @@ def test_binary_writers_refuse_times_out_of_order(tmp_path, ext, fmt):
                                               r"are not sorted: t\[0\]=20000000 > t\[1\]=10"):
         eio.write_events(tmp_path / f"out{ext}", ev, format=fmt)
     assert not (tmp_path / f"out{ext}").exists()
+
+
+def test_info_says_an_unreadable_calib_txt_once(tmp_path, capsys):
+    """An ECD folder's calib.txt that is not numbers was said three times by ``info``: the
+    reader's warning, the intrinsics line and a calibration_error line (carried from probe
+    BOSIN). The intrinsics line says it; --json keeps the field; other commands still
+    warn (they say nothing else of it)."""
+    from evmotion.errors import UnusedCalibrationWarning
+    from evmotion.io import read_events
+
+    eio.write_events(tmp_path / "events.txt", EventArray(
+        x=[1, 2, 3], y=[1, 2, 3], t=[0, 10, 20], p=[1, 0, 1], sensor_size=(4, 5)))
+    (tmp_path / "calib.txt").write_text("foo bar\n")
+    rc, out, err = _run(capsys, "info", str(tmp_path))
+    assert rc == 0 and err == ""
+    assert len(re.findall("must hold numbers", out)) == 1
+    assert "intrinsics:  none (" in out and "calibration_error" not in out
+    rc, out, _ = _run(capsys, "info", str(tmp_path), "--json")
+    assert "must hold numbers" in json.loads(out)["calibration_error"]
+    with pytest.warns(UnusedCalibrationWarning, match="must hold numbers"):
+        read_events(tmp_path)

@@ -42,6 +42,7 @@ from evmotion.errors import (  # noqa: E402  (after the Ctrl-C handler above)
     ParameterError,
     PoorFitWarning,
     UnderfitWarning,
+    UnusedCalibrationWarning,
 )
 from evmotion.jitcache import ensure_cache_dir  # noqa: E402
 
@@ -108,6 +109,7 @@ __all__ = [
     "CollapseWarning",
     "PoorFitWarning",
     "UnderfitWarning",
+    "UnusedCalibrationWarning",
     "Window",
     "concatenate",
 ]

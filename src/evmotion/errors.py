@@ -129,6 +129,11 @@ class UnderfitWarning(EvmotionWarning):
     fired (:attr:`evmotion.methods.bos.BosResult.fit_gain`): its magnitude is too small."""
 
 
+class UnusedCalibrationWarning(EvmotionWarning):
+    """A recording's calibration file cannot be read and is left out; its events are read
+    all the same, and what needs intrinsics then says it has none."""
+
+
 class PoorFitWarning(EvmotionWarning):
     """The motion model explains the window poorly (e.g. independently moving objects over a
     static scene): the estimate is not the camera's motion."""

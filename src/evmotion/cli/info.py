@@ -100,6 +100,8 @@ def summarize(info: dict) -> list[str]:
                          + f" from {intr['source']}")
         else:
             lines.append(f"intrinsics:  none ({intr.get('reason', 'not in the recording')})")
+            # the reason above is that error (it was said twice, probe BOSIN)
+            shown.add("calibration_error")
     for k, v in info.items():
         if k not in shown:
             lines.append(f"{k + ':':<12} {_fmt_value(v)}")
@@ -119,9 +121,12 @@ def _rate_text(rate: float) -> str:
 
 
 def run(args) -> int:
+    import warnings
+
     import evmotion.io as eio
     from evmotion.cli import print_json
     from evmotion.cli.options import read_kwargs
+    from evmotion.errors import UnusedCalibrationWarning
     from evmotion.io.flowread import describe_flow
     from evmotion.io.registry import own_output_folder
 
@@ -136,7 +141,11 @@ def run(args) -> int:
 
         info = describe_params(target)
     if info is None:
-        info = eio.describe(args.file, format=args.format, stream=not args.header_only, **kw)
+        with warnings.catch_warnings():
+            # info reports the calibration itself, on its intrinsics line
+            warnings.simplefilter("ignore", UnusedCalibrationWarning)
+            info = eio.describe(args.file, format=args.format, stream=not args.header_only,
+                                **kw)
         # (a raw file with no event, given --format and --sensor-size, has none: it ended
         # in a TypeError traceback, probe BY)
         if info.get("sensor_size") is not None:

@@ -24,7 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from evmotion.catalog import NS_EPOCH_US
-from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
+from evmotion.errors import (
+    EvmotionWarning,
+    FormatError,
+    ParameterError,
+    UnsortedError,
+    UnusedCalibrationWarning,
+)
 from evmotion.events import EventArray, ambiguous_polarity, check_follows
 from evmotion.io.base import TIME_UNIT_US, FormatSpec, event_fields, time_unit_in_name
 from evmotion.io.binary import position_in_block
@@ -669,8 +675,8 @@ def _folder_meta(ev_path: Path) -> dict:
         except FormatError as exc:
             # the events are read all the same (a garbage calib.txt stopped them, probe
             # BL); what needs intrinsics then says it has none
-            warnings.warn(EvmotionWarning(f"{exc} (not used: no calibration taken from "
-                                          "the folder)"), stacklevel=4)
+            warnings.warn(UnusedCalibrationWarning(f"{exc} (not used: no calibration "
+                                                   "taken from the folder)"), stacklevel=4)
     for name in ("imu.txt", "groundtruth.txt", "images.txt"):
         if (folder / name).is_file():
             meta[name.removesuffix(".txt")] = str(folder / name)
