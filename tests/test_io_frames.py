@@ -687,18 +687,31 @@ def _bos_folder(folder, lines, n_events=200, span_us=20_000, value=100, dtype=np
 
 def test_whole_milliseconds_beside_events_in_seconds_are_read_as_such(tmp_path):
     """images.txt in whole ms (0, 10, 20) read as µs put 100 fps frames 10 us apart, and
-    the run was refused for a contrast threshold it could not estimate (probe BOSIN)."""
-    from evmotion.errors import EvmotionWarning
+    the run was refused for a contrast threshold it could not estimate (probe BOSIN). The
+    list's own guess of µs is not said beside the warning that reads them as ms (both had
+    been, one contradicting the other), but where they stay µs, and where the run is then
+    refused."""
+    import warnings
+
+    from evmotion.errors import EmptyWindowError, EvmotionWarning, TimeUnitGuessWarning
     from evmotion.io.bosinput import load_bos_input
 
     _bos_folder(tmp_path, [f"{10 * k} images/f{k}.png\n" for k in range(3)])
-    with pytest.warns(EvmotionWarning, match="read as milliseconds, which span the events"):
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
         data = load_bos_input(tmp_path)
     assert data.frame_times.tolist() == [0, 10_000, 20_000]
+    texts = [str(w.message) for w in said]
+    assert any("read as milliseconds, which span the events" in m for m in texts)
+    assert not any("read as microseconds (images.txt" in m for m in texts), texts
     # whole µs of a camera's rate stay µs
     _bos_folder(tmp_path, [f"{10_000 * k} images/f{k}.png\n" for k in range(3)])
-    with pytest.warns(EvmotionWarning, match="whole number: read as microseconds"):
+    with pytest.warns(TimeUnitGuessWarning, match="whole number: read as microseconds"):
         assert load_bos_input(tmp_path).frame_times.tolist() == [0, 10_000, 20_000]
+    (tmp_path / "events.txt").write_text("")
+    with pytest.warns(EvmotionWarning, match="whole number: read as microseconds"), \
+            pytest.raises(EmptyWindowError, match="no events"):
+        load_bos_input(tmp_path)
 
 
 def test_decimal_microseconds_read_as_seconds_are_named_in_the_hint(tmp_path):

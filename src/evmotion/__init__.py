@@ -41,6 +41,7 @@ from evmotion.errors import (  # noqa: E402  (after the Ctrl-C handler above)
     FormatError,
     ParameterError,
     PoorFitWarning,
+    TimeUnitGuessWarning,
     UnderfitWarning,
     UnusedCalibrationWarning,
 )
@@ -108,6 +109,7 @@ __all__ = [
     "EvmotionWarning",
     "CollapseWarning",
     "PoorFitWarning",
+    "TimeUnitGuessWarning",
     "UnderfitWarning",
     "UnusedCalibrationWarning",
     "Window",

@@ -134,6 +134,11 @@ class UnusedCalibrationWarning(EvmotionWarning):
     all the same, and what needs intrinsics then says it has none."""
 
 
+class TimeUnitGuessWarning(EvmotionWarning):
+    """Times that state no unit (whole numbers in a text list) were read in the unit a
+    guess gives; the message names it and how to state another."""
+
+
 class PoorFitWarning(EvmotionWarning):
     """The motion model explains the window poorly (e.g. independently moving objects over a
     static scene): the estimate is not the camera's motion."""

@@ -18,7 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EmptyWindowError, EvmotionWarning, FormatError, ParameterError
+from evmotion.errors import (
+    EmptyWindowError,
+    EvmotionError,
+    EvmotionWarning,
+    FormatError,
+    ParameterError,
+    TimeUnitGuessWarning,
+)
 from evmotion.events import EventArray
 from evmotion.io.base import TIME_UNIT_US
 from evmotion.io.bosfiles import roi_mask
@@ -194,6 +201,12 @@ def _image_list(listing: Path) -> dict:
             return read_image_list(listing)
     except (FormatError, OSError, UnicodeDecodeError, ValueError):
         return {}
+
+
+def _replay(said: list) -> None:
+    """Warn again the warnings ``said`` recorded (:class:`warnings.WarningMessage`)."""
+    for w in said:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def _whole_milliseconds(times: np.ndarray, spacing: float, where: Path, t_first: int,
@@ -509,55 +522,32 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
         # (decimals are seconds, a header's unit is the list's own)
         read_unit = {"time_unit": time_unit} if ecd_list and time_unit and listed_whole \
             else {}
-    try:
-        fr = read_frames(src, **read_unit)
-    except FormatError as exc:
+    # the list's guess of its time unit waits for the unit its times are finally read in
+    # (a guess of µs that whole milliseconds below replace was said beside that, probe
+    # BOSIN); its other warnings are said now
+    with warnings.catch_warnings(record=True) as listed_notes:
+        warnings.simplefilter("always")
+        try:
+            fr = read_frames(src, **read_unit)
+        except FormatError as exc:
+            failed = exc
+        else:
+            failed = None
+    guesses = [w for w in listed_notes if issubclass(w.category, TimeUnitGuessWarning)]
+    _replay([w for w in listed_notes if w not in guesses])
+    if failed is not None:
+        _replay(guesses)
         if not guessed:
-            raise
+            raise failed
         raise FormatError(rec, "no frames: BOS needs frames of the background; there is no "
                           "images.txt beside the events and the recording gives none "
-                          f"({exc.message})", "give them with --frames") from None
-    images = np.asarray(fr.images)
-    times = np.asarray(fr.t, dtype=np.int64)
-    if images.shape[0] < 2:
-        raise FormatError(src, f"{images.shape[0]} frame(s): BOS needs at least two "
-                          "(one frame interval)")
-    if np.any(np.diff(times) <= 0):
-        bad = int(np.argmax(np.diff(times) <= 0))
-        raise FormatError(src, f"frame times are not increasing: frame {bad + 1} at "
-                          f"{times[bad + 1]} us after {times[bad]} us")
-    if fmt is None and rec.is_dir() and (rec / "images.txt").is_file() \
-            and not (rec / "events.txt").is_file():
-        raise FormatError(rec, "an ECD-style folder with frames (images.txt) but no "
-                          "events.txt: BOS needs the events too")
-    fh, fw = images.shape[1:3]
-    unit = {"time_unit": time_unit} if time_unit is not None else {}
-    with warnings.catch_warnings(record=True) as said:
-        warnings.simplefilter("always")
-        events = _events_on_frames(rec, fmt, (fh, fw), **unit)
-    if not len(events):
-        named = rec / "events.txt" if rec.is_dir() and (rec / "events.txt").is_file() else rec
-        raise EmptyWindowError(f"{named}: no events")
-    guessed_size = (fh, fw) != tuple(events.sensor_size) and str(
-        events.meta.get("sensor_size_from", "")).startswith(GUESSED_SIZES)
-    for w in said:
-        # the reader's guess of a size the frames then give is not worth a word
-        if not (guessed_size and "no sensor size" in str(w.message)):
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if guessed_size:
-        # events that do not state their sensor (ECD text without frames beside it, say)
-        # lie on the frames' grid
-        events = _events_on_frames(rec, fmt, (fh, fw), sensor_size=(fh, fw), **unit)
-    _refuse_finer_frames(src, events, images)
-    _refuse_offset_view(src, events, images)
-    if (fh, fw) != tuple(events.sensor_size):
-        eh, ew = events.sensor_size
-        raise ParameterError(f"frames {src} are {fw}x{fh} px but the events' sensor is "
-                             f"{ew}x{eh} px (W x H): the frames must be on the event sensor's "
-                             "pixel grid")
-    if roi is not None:
-        roi = tuple(int(v) for v in roi)
-        roi_mask(events.sensor_size, roi)
+                          f"({failed.message})", "give them with --frames") from None
+    roi = None if roi is None else tuple(int(v) for v in roi)
+    try:
+        images, times, events = _frames_and_events(rec, fmt, src, fr, time_unit, roi)
+    except EvmotionError:
+        _replay(guesses)
+        raise
     t_first, t_last = int(events.t[0]), int(events.t[-1])
     if (ecd_list and frames_time_unit is None and time_unit not in (None, "s")
             and not listed_whole and listing.get("unit") is None):
@@ -576,7 +566,11 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
              and where.is_file() and (listed_whole if ecd_list and where == listed
                                       else _whole_times(where)))
     if whole and spacing < FAST_FRAME_SPACING_US:
-        times, spacing = _whole_milliseconds(times, spacing, where, t_first, t_last)
+        read_ms, spacing = _whole_milliseconds(times, spacing, where, t_first, t_last)
+        if read_ms is not times:
+            guesses = []  # its own warning says the times are read as milliseconds
+        times = read_ms
+    _replay(guesses)
     unit, read = (("ns", "nanoseconds read as microseconds") if whole
                   else ("ms", "milliseconds read as seconds"))
     if not whole and FAST_FRAME_SPACING_US <= spacing * 1e-6 <= SLOW_FRAME_SPACING_US:
@@ -688,6 +682,51 @@ def load_bos_input(rec: str | os.PathLike, frames: str | os.PathLike | None = No
 
 UNIT_WORDS = {"s": "seconds", "ms": "milliseconds", "us": "microseconds",
               "ns": "nanoseconds"}
+
+
+def _frames_and_events(rec: Path, fmt: str | None, src: Path, fr, time_unit: str | None,
+                       roi) -> tuple[np.ndarray, np.ndarray, EventArray]:
+    """The frames' images and times (µs) and the events on their grid, checked against
+    each other (count, order, grid, registration, ``roi``)."""
+    images = np.asarray(fr.images)
+    times = np.asarray(fr.t, dtype=np.int64)
+    if images.shape[0] < 2:
+        raise FormatError(src, f"{images.shape[0]} frame(s): BOS needs at least two "
+                          "(one frame interval)")
+    if np.any(np.diff(times) <= 0):
+        bad = int(np.argmax(np.diff(times) <= 0))
+        raise FormatError(src, f"frame times are not increasing: frame {bad + 1} at "
+                          f"{times[bad + 1]} us after {times[bad]} us")
+    if fmt is None and rec.is_dir() and (rec / "images.txt").is_file() \
+            and not (rec / "events.txt").is_file():
+        raise FormatError(rec, "an ECD-style folder with frames (images.txt) but no "
+                          "events.txt: BOS needs the events too")
+    fh, fw = images.shape[1:3]
+    unit = {"time_unit": time_unit} if time_unit is not None else {}
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        events = _events_on_frames(rec, fmt, (fh, fw), **unit)
+    if not len(events):
+        named = rec / "events.txt" if rec.is_dir() and (rec / "events.txt").is_file() else rec
+        raise EmptyWindowError(f"{named}: no events")
+    guessed_size = (fh, fw) != tuple(events.sensor_size) and str(
+        events.meta.get("sensor_size_from", "")).startswith(GUESSED_SIZES)
+    # the reader's guess of a size the frames then give is not worth a word
+    _replay([w for w in said if not (guessed_size and "no sensor size" in str(w.message))])
+    if guessed_size:
+        # events that do not state their sensor (ECD text without frames beside it, say)
+        # lie on the frames' grid
+        events = _events_on_frames(rec, fmt, (fh, fw), sensor_size=(fh, fw), **unit)
+    _refuse_finer_frames(src, events, images)
+    _refuse_offset_view(src, events, images)
+    if (fh, fw) != tuple(events.sensor_size):
+        eh, ew = events.sensor_size
+        raise ParameterError(f"frames {src} are {fw}x{fh} px but the events' sensor is "
+                             f"{ew}x{eh} px (W x H): the frames must be on the event sensor's "
+                             "pixel grid")
+    if roi is not None:
+        roi_mask(events.sensor_size, roi)
+    return images, times, events
 
 
 def _unit_hint(unit: str, ecd_list: bool) -> str:

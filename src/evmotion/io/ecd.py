@@ -28,6 +28,7 @@ from evmotion.errors import (
     EvmotionWarning,
     FormatError,
     ParameterError,
+    TimeUnitGuessWarning,
     UnsortedError,
     UnusedCalibrationWarning,
 )
@@ -471,8 +472,8 @@ def _parse_block(data: bytes, path: Path, offset: int, unit: str, order: str = "
 def sniff_time_unit(path: str | Path) -> str:
     """The unit of an events text file's time column: "s" (the ECD's decimal seconds) if
     a time among the first lines has a decimal point or exponent, else "us" (whole
-    numbers: other tools' microseconds; a file of whole seconds does not occur), with an
-    :class:`~evmotion.errors.EvmotionWarning` saying so.
+    numbers: other tools' microseconds; a file of whole seconds does not occur), with a
+    :class:`~evmotion.errors.TimeUnitGuessWarning` saying so.
 
     Examples
     --------
@@ -482,7 +483,7 @@ def sniff_time_unit(path: str | Path) -> str:
     """
     unit, note = _sniffed_unit(path)
     if note is not None:
-        warnings.warn(EvmotionWarning(note), stacklevel=3)
+        warnings.warn(TimeUnitGuessWarning(note), stacklevel=3)
     return unit
 
 
@@ -843,7 +844,7 @@ def read(path: str | Path, t0: int | None = None, t1: int | None = None, *,
     if misread is not None:
         raise misread  # before the warnings about times and sizes read from wrong columns
     if note is not None:
-        warnings.warn(EvmotionWarning(note), stacklevel=2)
+        warnings.warn(TimeUnitGuessWarning(note), stacklevel=2)
     if src.startswith("ECD default") and x.size and x.min() >= 0 and y.min() >= 0:
         size, src = _extended_size(ev_path, size, src, int(x.max()), int(y.max()))
     _doubt_unit(ev_path, t, x, y, size, unit, given=time_unit is not None)
@@ -949,9 +950,10 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
 
 
 def _say(note: str | None) -> None:
-    """Warn ``note`` (a reader's deferred warning) when there is one; None, said."""
+    """Warn ``note`` (a reader's deferred guess of the time unit) when there is one;
+    None, said."""
     if note is not None:
-        warnings.warn(EvmotionWarning(note), stacklevel=4)
+        warnings.warn(TimeUnitGuessWarning(note), stacklevel=4)
 
 
 class _PolaritySigns:
@@ -1178,7 +1180,7 @@ def read_image_list(path: str | Path, time_unit: str | None = None) -> dict:
         # them (probe AM: images.txt in ns beside events.txt in ns was 1000x apart)
         ns = int(raw[0][1]) > NS_EPOCH_US
         scale = 1e-3 if ns else 1.0
-        warnings.warn(EvmotionWarning(
+        warnings.warn(TimeUnitGuessWarning(
             f"{path}: every time is a whole number: read as "
             f"{'nanoseconds since the epoch (past 1e17)' if ns else 'microseconds'} "
             "(images.txt holds decimal seconds)"), stacklevel=2)
