@@ -257,6 +257,25 @@ def test_rms_error():
         rms_error(np.full((2, 3), np.nan), np.zeros((2, 3)))
 
 
+def test_rms_error_of_huge_errors_does_not_overflow():
+    """Errors past 1.3e154 overflowed when squared (inf and a RuntimeWarning, probe EVAL);
+    the RMS of 1e200 is 1e200. It is the plain formula wherever that does not overflow."""
+    import warnings
+
+    rng = np.random.default_rng(3)
+    est, gt = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
+    d = est - gt
+    r = rms_error(est, gt)
+    np.testing.assert_allclose(r.per_axis, np.sqrt(np.mean(d * d, axis=0)), rtol=1e-14)
+    assert r.norm == pytest.approx(np.sqrt(np.mean(np.sum(d * d, axis=1))), rel=1e-14)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        big = rms_error(est * 1e200, gt * 1e200)
+    np.testing.assert_allclose(big.per_axis, r.per_axis * 1e200, rtol=1e-12)
+    assert big.overall == pytest.approx(r.overall * 1e200, rel=1e-12)
+    assert rms_error(np.zeros((2, 3)), np.zeros((2, 3))).norm == 0.0
+
+
 @pytest.mark.realdata
 @pytest.mark.parametrize("scene", ["boxes_rotation", "poster_rotation"])
 def test_fwl_on_real_ecd_window_peaks_at_ground_truth(shared_data, scene):

@@ -662,10 +662,14 @@ def rms_error(est: np.ndarray, gt: np.ndarray) -> RmsError:
     if not keep.any():
         raise EmptyWindowError("no sample with finite estimate and ground truth")
     d = e[keep] - g[keep]
+    # squared on the largest error's scale: d * d overflowed past 1.3e154 (probe EVAL)
+    scale = float(np.max(np.abs(d)))
+    scale = scale if 0 < scale < np.inf else 1.0
+    u = d / scale
     return RmsError(
-        per_axis=np.sqrt(np.mean(d * d, axis=0)),
-        overall=float(np.sqrt(np.mean(d * d))),
-        norm=float(np.sqrt(np.mean(np.sum(d * d, axis=1)))),
+        per_axis=scale * np.sqrt(np.mean(u * u, axis=0)),
+        overall=scale * float(np.sqrt(np.mean(u * u))),
+        norm=scale * float(np.sqrt(np.mean(np.sum(u * u, axis=1)))),
         n_samples=int(keep.sum()),
     )
 
