@@ -1036,3 +1036,24 @@ def test_fit_times_are_on_the_clock_the_axis_shows(plume, tmp_path, capsys):
     rc, _, err = _cli(capsys, rec, "--col", w // 2, "--fit-t1", "5", "--out",
                       tmp_path / "k.png")
     assert rc != 0 and "at or before the kymogram's start: it spans 10" in err
+
+
+def test_images_past_float32_are_refused_not_cast_to_inf():
+    """A kymogram is stored in float32: images of 1e300 became inf with numpy's overflow
+    warning (probe EVAL, left alone then); now one line naming the image and the value."""
+    import warnings
+
+    from evmotion.methods.kymogram import KymoLine, kymogram_from_images
+
+    imgs = np.full((2, 3, 4), 1e300)
+    imgs[0] = 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ParameterError, match=r"image 1 holds values of 1e\+300"):
+            kymogram_from_images(imgs, [0.0, 0.1], KymoLine.column(1, (3, 4)))
+        imgs[1, 1, :] = np.nan
+        with pytest.raises(ParameterError, match="float32"):
+            kymogram_from_images(imgs, [0.0, 0.1], KymoLine.column(1, (3, 4), width=3))
+        imgs[1] = 3e38  # within float32
+        kymo = kymogram_from_images(imgs, [0.0, 0.1], KymoLine.column(1, (3, 4)))
+    assert kymo.data.dtype == np.float32 and np.isfinite(kymo.data).all()

@@ -326,14 +326,24 @@ def kymogram_from_images(images: np.ndarray, t_s, line: KymoLine, *,
         vals = ndimage.map_coordinates(np.where(finite, img, 0.0), coords, order=1,
                                        mode="nearest").reshape(xs.shape).sum(axis=0)
         if finite.all():
-            data[k] = vals / line.width
+            data[k] = _float32_row(vals / line.width, k)
             continue
         weight = ndimage.map_coordinates(finite.astype(np.float64), coords, order=1,
                                          mode="nearest").reshape(xs.shape).sum(axis=0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            data[k] = np.where(weight > 1e-9, vals / weight, np.nan)
+            data[k] = _float32_row(np.where(weight > 1e-9, vals / weight, np.nan), k)
     rate = float((t.size - 1) / (t[-1] - t[0])) if t.size > 1 else float("nan")
     return Kymogram(data=data, t_s=t, s_px=s, line=line, rate_hz=rate, source=source)
+
+
+def _float32_row(row: np.ndarray, k: int) -> np.ndarray:
+    """A kymogram row as the float32 it is stored in, refused where its values lie past
+    float32's range (they were cast to inf with numpy's overflow warning, probe EVAL)."""
+    big = float(np.nanmax(np.abs(row), initial=0.0))
+    if big > float(np.finfo(np.float32).max):
+        raise ParameterError(f"image {k} holds values of {big:.3g} along the line, past "
+                             "what a kymogram stores (float32, 3.4e38): rescale the images")
+    return row.astype(np.float32)
 
 
 def kymogram_from_frame_differences(frames: np.ndarray, t_us, line: KymoLine) -> Kymogram:
