@@ -155,6 +155,22 @@ def test_transport_of_a_flow_no_image_holds_is_refused_not_run_for_ever():
         (2, 6, 8)
 
 
+def test_eval_along_streamlines_names_the_window_it_cannot_transport():
+    """The transport's refusal named no window of the file (probe EVAL, left alone then)."""
+    from evmotion.eval.windows import evaluate_windows
+    from evmotion.sim import simulate
+
+    sim = simulate("translation", duration_s=0.02, sensor_size=(20, 24), show_progress=False)
+    windows = sim.gt.flow_sequence([0, 10_000], [10_000, 20_000])
+    flow = np.zeros((2, 20, 24, 2))
+    flow[1] = 1e20
+    with pytest.warns(EvmotionWarning, match="no lower than the zero flow"):
+        assert evaluate_windows(flow[:1], [0], [10_000], windows,
+                                along_streamlines=True).windows[0]["n_pixels"] > 0
+    with pytest.raises(ParameterError, match=r"^window 1 \[10000, 20000\) us: transport: "):
+        evaluate_windows(flow, [0, 10_000], [10_000, 20_000], windows, along_streamlines=True)
+
+
 def write_flow(path, flow, t0, t1, valid, **attrs):
     from evmotion.io.flowfiles import FlowWriter
 

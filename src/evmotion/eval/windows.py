@@ -265,9 +265,14 @@ def evaluate_windows(flow: np.ndarray, t0s: Sequence[int], t1s: Sequence[int],
         if along_streamlines:
             from evmotion.methods.transport import transport_to_times
 
-            est = transport_to_times(np.ascontiguousarray(
-                _filled(est, known).transpose(2, 0, 1)),
-                np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
+            try:
+                est = transport_to_times(np.ascontiguousarray(
+                    _filled(est, known).transpose(2, 0, 1)),
+                    np.array([-0.5]), "burgers").flows[0].transpose(1, 2, 0)
+            except ParameterError as exc:
+                # which window (the refusal had named none, probe EVAL)
+                raise ParameterError(f"window {i} [{int(t0)}, {int(t1)}) us: "
+                                     f"{exc}") from None
         mask = valid
         # NaN where the estimate is not defined (outside a BOS ROI; .flo / .png "unknown")
         if not known.all():
