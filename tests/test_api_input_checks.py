@@ -224,6 +224,13 @@ def test_options_that_would_do_nothing_are_refused(ev):
         estimate_flow(ev, n_bins=7)
     assert estimate_flow(ev, n_bins=3, time_aware="upwind", n_scales=1,
                          finest_level=2).n_bins == 3
+    # transport_cell likewise (it ran the plain model unsaid)
+    with pytest.raises(ParameterError, match="transport_cell=9 sets the PDE's cells.*time_aw"):
+        estimate_flow(ev, transport_cell=9)
+    for cell, expect in ((None, 4), (2, 2)):
+        res = estimate_flow(ev, transport_cell=cell, time_aware="upwind", n_scales=1,
+                            finest_level=2)
+        assert res.meta["transport_cell"] == expect
 
 
 def _with_off_sensor(ev, x, y):

@@ -132,6 +132,10 @@ REFERENCES = {
 
 
 # The fields of MultiCMOptions that MultiCMProblem reads (its keywords).
+#: Cell size (px) of the grid the time-aware PDE runs on where none is given: the tile
+#: flow is smooth at a tile's scale (>= 16 px), so 4 px cells resolve it at ~1/64 the cost.
+TRANSPORT_CELL = 4
+
 PROBLEM_OPTIONS = ("objective", "lam", "references", "time_aware", "n_bins", "transport_cell")
 
 
@@ -211,8 +215,8 @@ class MultiCMProblem:
             self.bin_times = (np.arange(n_bins) + 0.5) / n_bins - 0.5
             # the PDE runs on a grid of ~transport_cell px cells, in cells per window
             h, w = shape
-            self.tgrid = tf.TileGrid(max(1, round(h / o.transport_cell)),
-                                     max(1, round(w / o.transport_cell)), shape)
+            cell = TRANSPORT_CELL if o.transport_cell is None else o.transport_cell
+            self.tgrid = tf.TileGrid(max(1, round(h / cell)), max(1, round(w / cell)), shape)
             self.cell = np.array(self.tgrid.spacing)[::-1]  # (sx, sy)
             self.ay = tf.axis_matrix(self.tgrid.centers_y(), grid.ny, h)
             self.ax = tf.axis_matrix(self.tgrid.centers_x(), grid.nx, w)
@@ -459,8 +463,9 @@ class MultiCMOptions:
         Level of the finest scale (5: 16 x 16 tiles). None: the finest level, at most
         ``AUTO_FINEST_LEVEL`` (5), whose tiles hold ``AUTO_EVENTS_PER_TILE`` (100) events
         on average (5 from 25,600 events on).
-    transport_cell : int
-        Cell size of the grid the time-aware PDE runs on, px (1 = every pixel).
+    transport_cell : int, optional
+        Cell size of the grid the time-aware PDE runs on, px (1 = every pixel; None:
+        ``TRANSPORT_CELL``, 4). Only with ``time_aware``.
     restart : bool
         At the first multi-tile scale, also optimize from the warm start (or zero flow) when
         the optimum moved more than ``RESTART_PX`` px from the single-tile flow, and keep the
@@ -485,7 +490,7 @@ class MultiCMOptions:
     optimizer: str = "lbfgs"
     time_aware_scales: int | None = None
     finest_level: int | None = None
-    transport_cell: int = 4
+    transport_cell: int | None = None
     restart: bool = True
 
     def __post_init__(self):
@@ -525,7 +530,7 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
                   n_bins: int | None = None, init=None, seed: int = 0, max_iter: int = 20,
                   tol: float = 3e-5, references: str = "multi", optimizer: str = "lbfgs",
                   time_aware_scales: int | None = None, finest_level: int | None = None,
-                  transport_cell: int = 4, restart: bool = True,
+                  transport_cell: int | None = None, restart: bool = True,
                   checkpoint=None, device: str = "cpu", threads: int | None = 1,
                   options: MultiCMOptions | None = None) -> FlowResult:
     """Dense optical flow of one event window by multi-reference contrast maximization.
@@ -592,9 +597,9 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         (16 x 16) to 0.88 / 1.17 px (``benchmarks/results/multicm_finest.md``). An
         independently moving object smaller than the coarser tiles loses detail: give
         ``finest_level=5`` for it.
-    transport_cell : int
-        Cell size in px of the grid the time-aware PDE runs on (default 4; 1 = every
-        pixel). The tile flow is smooth at the scale of a tile (>= 16 px), so 4 px cells
+    transport_cell : int, optional
+        Cell size in px of the grid the time-aware PDE runs on (default None:
+        ``TRANSPORT_CELL``, 4; 1 = every pixel); only with ``time_aware``. The tile flow is smooth at the scale of a tile (>= 16 px), so 4 px cells
         resolve it while cutting the cost ~64x (16x fewer cells, 4x fewer CFL sub-steps).
     restart : bool
         At the first scale with more than one tile, if its optimum moved away from the
@@ -690,11 +695,13 @@ def estimate_flow(events: EventArray, method: str = "multicm", *,
         net = estimate_flow_dnn(events, checkpoint, device=device, threads=threads,
                                 with_iwes=False, time_reversal=False, fuse=False,
                                 rescale=False, planar=False, refine=False, check=False)
-    if o.n_bins is not None and o.time_aware in (None, "none"):
-        # (it was ignored: estimate_flow(ev, n_bins=7) ran the plain model, probe BE)
-        raise ParameterError(f"n_bins={o.n_bins!r} sets the time bins of the time-aware "
-                             "flow, but time_aware is None: give time_aware='upwind' or "
-                             "'burgers' too (or leave n_bins out)")
+    for name, what in (("n_bins", "the time bins"), ("transport_cell", "the PDE's cells")):
+        if getattr(o, name) is not None and o.time_aware in (None, "none"):
+            # (it was ignored: estimate_flow(ev, n_bins=7) ran the plain model, probe BE;
+            # transport_cell likewise, probe EVAL)
+            raise ParameterError(f"{name}={getattr(o, name)!r} sets {what} of the "
+                                 "time-aware flow, but time_aware is None: give "
+                                 f"time_aware='upwind' or 'burgers' too (or leave {name} out)")
     o = _checked(o, events)
     if net is not None:
         # The network answers at every pixel, but only where events are is its flow fitted
@@ -792,6 +799,8 @@ def _checked(o: MultiCMOptions, events: EventArray) -> MultiCMOptions:
     ``n_bins`` resolved for the sensor and ``finest_level`` for the window."""
     # as ints: n_scales=2.0 passed the check and failed in range() (probe BE)
     # (n_scales=-1 was "a whole number >= 0", and 0 then "need 1 <= n_scales", probe BQ)
+    if o.transport_cell is None:
+        o = dataclasses.replace(o, transport_cell=TRANSPORT_CELL)
     o = dataclasses.replace(o, **{name: whole_number(name, getattr(o, name), lo=lo)
                                   for name, lo in (("n_scales", 1), ("max_iter", 1),
                                                    ("transport_cell", 1), ("seed", 0))})
