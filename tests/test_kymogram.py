@@ -1057,3 +1057,46 @@ def test_images_past_float32_are_refused_not_cast_to_inf():
         imgs[1] = 3e38  # within float32
         kymo = kymogram_from_images(imgs, [0.0, 0.1], KymoLine.column(1, (3, 4)))
     assert kymo.data.dtype == np.float32 and np.isfinite(kymo.data).all()
+
+
+def test_events_near_line_keeps_what_the_kymogram_counts():
+    """A kymogram of a stream gathers only the events near its line (the whole recording
+    had been held: 1.6 GB for 48.7 M events, probe DL), and equals the one of all the
+    events, on lines of any slope and width."""
+    from evmotion.methods.kymogram import (
+        KymoLine,
+        events_near_line,
+        kymogram_from_events,
+    )
+
+    rng = np.random.default_rng(5)
+    n = 20_000
+    ev = EventArray(x=rng.integers(0, 64, n), y=rng.integers(0, 48, n),
+                    t=np.sort(rng.integers(0, 200_000, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(48, 64))
+    for line in (KymoLine.row(20, (48, 64), width=5), KymoLine.column(7, (48, 64)),
+                 KymoLine(3.0, 5.5, 60.2, 40.0, width=4), KymoLine(50, 40, 10, 2, width=1)):
+        got = events_near_line((ev[s:s + 3000] for s in range(0, n, 3000)), line)
+        assert (got.t_first_us, got.t_last_us, got.n_read) == (ev.t[0], ev.t[-1], n)
+        assert len(got.events) < n / 3
+        for signed in (False, True):
+            span = {"t0_us": int(ev.t[0]), "t1_us": int(ev.t[-1]) + 1, "signed": signed}
+            np.testing.assert_array_equal(kymogram_from_events(got.events, line, 500, **span).data,
+                                          kymogram_from_events(ev, line, 500, **span).data)
+
+
+def test_events_near_line_refuses_a_rate_as_soon_as_the_span_passes_it():
+    """A rate whose kymogram would pass MAX_KYMOGRAM_CELLS is refused when the stream's span
+    gets there, not after reading the rest (6.9 s and 2 GB of a long file, probe DL)."""
+    from evmotion.methods.kymogram import KymoLine, events_near_line
+
+    def chunks():
+        for k in range(3):
+            yield EventArray(x=[1, 2], y=[3, 3], t=[k * 10**8, k * 10**8 + 5], p=[1, 0],
+                             sensor_size=(8, 10))
+        raise AssertionError("read on past the refusal")
+
+    with pytest.raises(ParameterError, match=r"rate_hz=1e\+06 over 100 s .*over 10,000,000"):
+        events_near_line(chunks(), KymoLine.row(3, (8, 10)), rate_hz=1e6)
+    with pytest.raises(EmptyWindowError, match="no events"):
+        events_near_line(iter([]), KymoLine.row(3, (8, 10)))
