@@ -106,8 +106,8 @@ def add_parser(sub) -> None:
                         "one; 600: the thesis' schedule; below ~100 the objective is far "
                         "from its optimum: on a simulated plume 20 raised the AEE from 0.18 "
                         "to 0.21 px, 5 to 1.66)")
-    p.add_argument("--seed", type=seed_int, default=0,
-                   help="seed of the random initial q (default 0)")
+    p.add_argument("--seed", type=seed_int, default=None,
+                   help="seed of the random initial q (--param poisson; default 0)")
     p.add_argument("--relinearize", type=int_range(0, 10), default=0, metavar="N",
                    help="scale term: at most N further solves with the frame warped by the "
                         "flow found, while the flow moves the background 1 px or more over "
@@ -188,6 +188,11 @@ def run(args) -> int:
     # (each was accepted and had no effect; probe CI)
     if args.png_dir is None:
         reject_unused(args, {"--max-speed": "max_speed"}, "without --png-dir (no picture)")
+    if args.param == "flow":
+        # (it was stored in the output and changed nothing, probe DK)
+        reject_unused(args, {"--seed": "seed"}, "with --param flow (it seeds the random "
+                      "initial q of --param poisson; the flow starts at zero)")
+    args.seed = 0 if args.seed is None else args.seed
     if args.data_term == "normalized" and args.relinearize:
         raise ParameterError(f"--relinearize {args.relinearize} does not apply with "
                              "--data-term normalized (it solves the scale term again)")

@@ -26,6 +26,7 @@ from evmotion.cli.options import (
     check_time_order,
     duration_us,
     int_range,
+    reject_unused,
     remove_stale_pictures,
     remove_stale_results,
     seed_int,
@@ -62,8 +63,9 @@ def add_parser(sub) -> None:
                         "(the motion sharpening them all takes the events it lines up better "
                         "than they lie unwarped, the next the rest...), 'spatial' (k-means of positions), 'best' (both; "
                         "the clusters that together sharpen the events most; default)")
-    p.add_argument("--seed", type=seed_int, default=0,
-                   help="seed of the spatial split's k-means")
+    p.add_argument("--seed", type=seed_int, default=None,
+                   help="seed of the spatial split's k-means (--split spatial or best; "
+                        "default 0)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--window-events", type=int_range(10), metavar="N", help="events per window (default: 30000)")
     g.add_argument("--window-us", type=duration_us,
@@ -97,6 +99,12 @@ def run(args) -> int:
     check_common(args)
     check_scheduler(args)
     check_time_order(args)
+    if args.split == "dominant" or args.warps == 1:
+        # (it was stored in the outputs and changed nothing, probe DK)
+        reject_unused(args, {"--seed": "seed"}, ("with --split dominant" if args.warps > 1
+                                                  else "with --warps 1")
+                      + " (it seeds the spatial split's k-means)")
+    args.seed = 0 if args.seed is None else args.seed
     cut = {"n_events": None if args.window_us else args.window_events or 30000,
            "duration_us": args.window_us or None, "min_events": 10 * args.warps}
     events, cam = load_events_and_camera(args, **cut)
