@@ -749,3 +749,22 @@ def test_source_events_says_which_events_it_identifies(recording, tmp_path):
                      "--out", str(tmp_path / name), *extra]) == 0
         with h5py.File(tmp_path / name) as f:
             assert str(f.attrs["source_events"]).startswith(which), f.attrs["source_events"]
+
+
+def test_triplet_fingerprint_does_not_follow_the_chunk_size(recording, tmp_path):
+    """The fingerprint a triplet resume checks took the first chunk's events when
+    --chunk-events was under 4096: a resume with another chunk size was refused as another
+    recording's (probe DK). The flow is the same whatever the chunks."""
+    import h5py
+
+    path, _ = recording
+    attrs, flows = [], []
+    for chunk in ("300000", "1000"):
+        out = tmp_path / f"t{chunk}.h5"
+        assert main(["flow", str(path), "--method", "triplet", "--chunk-events", chunk,
+                     "--out", str(out)]) == 0
+        with h5py.File(out) as f:
+            attrs.append(str(f.attrs["source_events"]))
+            flows.append(np.asarray(f["vx"]))
+    assert attrs[0] == attrs[1] and attrs[0].startswith("the first 4096 events, sha1 ")
+    np.testing.assert_array_equal(flows[0], flows[1])

@@ -28,15 +28,17 @@ from evmotion.methods.measured import MIN_HALVES_CORRELATION, lit_not_moved
 from evmotion.utils import resolve_options, whole_number
 
 __all__ = ["DEFAULT_WINDOW_US", "LIT_BLOCK_EVENTS", "TripletOptions", "TripletStream",
-           "TripletWindow", "iter_flow_triplet"]
+           "TripletWindow", "iter_flow_triplet", "stream_chunk_events", "stream_chunks"]
 
 # Time windows when neither a duration, a count nor explicit windows are given.
 DEFAULT_WINDOW_US = 50_000
 #: Events per stretch of a chunk tested for flicker (a dense window's worth): under 50-120 Hz
 #: flicker the per-event flow was no better than zero flow (AEE 0.76 against 0.80), valid
-#: (probe AK). Chunks of fewer than MIN_LIT_BLOCK events are not tested (too few to tell).
+#: (probe AK). Stretches of fewer than MIN_LIT_BLOCK events are not tested (too few to tell).
 LIT_BLOCK_EVENTS = 30_000
 MIN_LIT_BLOCK = 2_000
+#: Events :func:`iter_flow_triplet` feeds its stream at a time (:func:`stream_chunks`).
+STREAM_CHUNK_EVENTS = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -345,14 +347,67 @@ class TripletOptions:
             raise ParameterError(f"gap_us must be an integer >= 1 µs, got {self.gap_us}")
 
 
-def _stretches(n: int, block: int) -> list[tuple[int, int]]:
-    """``[a, b)`` bounds of about ``block`` events each over a chunk of ``n`` (none under
-    :data:`MIN_LIT_BLOCK`: too few to tell), for the per-chunk tests of
-    :meth:`TripletStream.process`."""
-    if n < MIN_LIT_BLOCK:
-        return []
-    cuts = np.linspace(0, n, max(1, round(n / block)) + 1).astype(np.int64)
-    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+def _stretches(n: int, block: int = LIT_BLOCK_EVENTS) -> list[tuple[int, int]]:
+    """``[a, b)`` bounds of ``block`` events each from a chunk of ``n``'s start, the
+    remainder a stretch of its own; none under :data:`MIN_LIT_BLOCK` (too few to tell).
+    Chunks of a multiple of ``block`` (:func:`stream_chunks`) so cut a stream into the
+    same stretches whatever their size (the stretches had been spread evenly over each
+    chunk, and chunks under MIN_LIT_BLOCK not tested at all, probe DK)."""
+    cuts = [*range(0, n, block), n]
+    return [(a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True) if b - a >= MIN_LIT_BLOCK]
+
+
+def _parts(a: int, b: int, most: int) -> list[tuple[int, int]]:
+    """``[a, b)`` in equal parts of at most ``most`` events."""
+    cuts = np.linspace(a, b, -(-(b - a) // most) + 1).astype(np.int64)
+    return [(int(c), int(d)) for c, d in zip(cuts[:-1], cuts[1:], strict=True)]
+
+
+def stream_chunk_events(chunk_events: int) -> int:
+    """The chunk size a stream of ``chunk_events`` is fed to :class:`TripletStream` in: the
+    next multiple of :data:`LIT_BLOCK_EVENTS`, so that its flicker and noise tests judge the
+    same stretches of the stream whatever ``chunk_events`` is.
+
+    Examples
+    --------
+    >>> stream_chunk_events(1000), stream_chunk_events(1_000_000)
+    (30000, 1020000)
+    """
+    return max(1, -(-int(chunk_events) // LIT_BLOCK_EVENTS)) * LIT_BLOCK_EVENTS
+
+
+def stream_chunks(chunks: Iterable[EventArray], chunk_events: int) -> Iterator[EventArray]:
+    """``chunks`` (in time order) as chunks of :func:`stream_chunk_events` events, the
+    last one shorter; each carries the ``meta`` of the last chunk it takes events from (a
+    reader's share of the file read). Empty chunks are dropped.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=np.zeros(70_000, int), y=np.zeros(70_000, int),
+    ...                 t=np.arange(70_000), p=np.ones(70_000, int), sensor_size=(1, 1))
+    >>> [len(c) for c in stream_chunks((ev[k:k + 7000] for k in range(0, 70_000, 7000)), 1)]
+    [30000, 30000, 10000]
+    """
+    size = stream_chunk_events(chunk_events)
+    held: list[EventArray] = []
+    n = 0
+    for chunk in chunks:
+        while len(chunk):
+            take = chunk[:size - n]
+            held.append(take)
+            n += len(take)
+            chunk = chunk[len(take):]
+            if n == size:
+                yield _joined(held)
+                held, n = [], 0
+    if n:
+        yield _joined(held)
+
+
+def _joined(parts: list[EventArray]) -> EventArray:
+    joined = parts[0] if len(parts) == 1 else concatenate(parts, validate=False)
+    joined.meta = dict(parts[-1].meta)
+    return joined
 
 
 def _clear(flow: triplet.TripletFlow, a: int, b: int) -> None:
@@ -498,13 +553,15 @@ class TripletStream:
     def process(self, chunk: EventArray) -> triplet.TripletFlow:
         """Per-event flow of ``chunk`` (continuing the stream); the windows that the chunk
         closes come out of :meth:`windows`. Events of a stretch of the chunk lit rather
-        than moved (flicker: :func:`~evmotion.methods.measured.lit_not_moved` on about
-        :data:`LIT_BLOCK_EVENTS` events) get no flow (``valid`` False), counted in
-        :attr:`lit_events`; without ``dense``, so do the events with a flow of a stretch
-        whose flows do not carry its first half onto its second
-        (:func:`~evmotion.methods.triplet.event_flow_consistency` below
-        :data:`~evmotion.methods.measured.MIN_HALVES_CORRELATION`: noise), counted in
-        :attr:`unaligned_events`."""
+        than moved (flicker: :func:`~evmotion.methods.measured.lit_not_moved` on
+        :data:`LIT_BLOCK_EVENTS` events from the chunk's start, the rest a stretch of its
+        own, none tested under :data:`MIN_LIT_BLOCK`) get no flow (``valid`` False),
+        counted in :attr:`lit_events`; without ``dense``, so do the events with a flow of
+        a part of a stretch (at most two events a pixel) whose flows do not carry its
+        first half onto its second (:func:`~evmotion.methods.triplet.event_flow_consistency`
+        below :data:`~evmotion.methods.measured.MIN_HALVES_CORRELATION`: noise), counted in
+        :attr:`unaligned_events`. Chunks of a multiple of ``LIT_BLOCK_EVENTS``
+        (:func:`stream_chunks`) give the same result whatever their size."""
         if self._start is None and len(chunk):
             self._start = int(chunk.t[0])
             if self.dense == "mean":
@@ -550,7 +607,7 @@ class TripletStream:
             start += len(e)
 
     def _mask_lit(self, chunk: EventArray, flow: triplet.TripletFlow) -> None:
-        for a, b in _stretches(len(chunk), LIT_BLOCK_EVENTS):
+        for a, b in _stretches(len(chunk)):
             if lit_not_moved(chunk[a:b]) is not None:
                 _clear(flow, a, b)
                 self.lit_events += b - a
@@ -562,7 +619,8 @@ class TripletStream:
         # of at most two events a pixel (denser noise lines up more: 0.13-0.26 on 80x60
         # at seven a pixel, 0.12 at most at two)
         h, w = self.sensor_size
-        for a, b in _stretches(len(chunk), min(LIT_BLOCK_EVENTS, 2 * h * w)):
+        for a, b in (part for stretch in _stretches(len(chunk))
+                     for part in _parts(*stretch, 2 * h * w)):
             part = flow[a:b]
             valid = int(np.count_nonzero(part.valid))
             if valid >= MIN_LIT_BLOCK // 2 and triplet.event_flow_consistency(
@@ -641,9 +699,7 @@ def iter_flow_triplet(chunks: Iterable[EventArray], *, dense: str = "mean",
     if isinstance(chunks, EventArray):  # the whole recording, one chunk
         chunks = [chunks]
     stream = None
-    for chunk in chunks:
-        if not len(chunk):
-            continue
+    for chunk in stream_chunks(chunks, STREAM_CHUNK_EVENTS):
         if stream is None:
             stream = TripletStream(chunk.sensor_size, dense=dense, **kwargs)
         stream.process(chunk)
