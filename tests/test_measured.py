@@ -251,6 +251,14 @@ def test_the_chance_tests_scatter_is_measured_and_its_gain_unchanged(shape):
     keep = (x >= 0) & (x < w) & (y >= 0) & (y < h)
     _, z = alignment_chance(x[keep], y[keep], t[keep], f[keep], 15_000, shape)
     assert z > 4 * MIN_CHANCE_Z
+    # the permutations' seed is exposed (it was a hidden 0, probe DK): CHANCE_SEED by
+    # default, others draw other permutations and leave the verdict where it was
+    from evmotion.methods.measured import CHANCE_SEED
+
+    args = (x[keep], y[keep], t[keep], f[keep], 15_000, shape)
+    assert alignment_chance(*args, seed=CHANCE_SEED) == alignment_chance(*args)
+    others = [alignment_chance(*args, seed=s)[1] for s in (1, 2)]
+    assert len({z, *others}) == 3 and min(others) > 4 * MIN_CHANCE_Z
 
 
 def test_a_chance_test_that_could_not_run_says_nothing():

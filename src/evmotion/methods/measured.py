@@ -11,8 +11,9 @@ import numpy as np
 from evmotion.errors import ParameterError, PoorFitWarning
 from evmotion.events import EventArray
 
-__all__ = ["CHANCE_DRAWS", "DENSE_PIXELS_PER_EVENT", "MAX_GAP_SHARE", "MAX_ONE_POLARITY",
-           "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CHANCE_Z", "MIN_CONTRAST_GAIN",
+__all__ = ["CHANCE_DRAWS", "CHANCE_SEED", "DENSE_PIXELS_PER_EVENT", "MAX_GAP_SHARE",
+           "MAX_ONE_POLARITY", "MAX_POLARITY_SWING", "MIN_BURST_CV", "MIN_CHANCE_Z",
+           "MIN_CONTRAST_GAIN",
            "MIN_FIT_EVENTS", "MIN_FLOW_DENSITY", "MIN_FLOW_EVENTS",
            "MIN_FLOW_MOTION_PX", "MIN_HALVES_CORRELATION", "MIN_MOTION_PX",
            "MIN_TRANSLATION_MOTION_PX",
@@ -35,6 +36,10 @@ MIN_FIT_EVENTS = 100
 #: what chance gives: 16 estimate its standard deviation within about 20 %, at 6-14 ms for
 #: 3k-30k events (1-6 % of a multicm call, 1-4 % of a segmentation's; probe DB).
 CHANCE_DRAWS = 16
+#: Seed of those permutations: a verdict on the same events repeats; other seeds draw
+#: other permutations (``seed=`` of the functions below; the z of a real motion moves by
+#: tens of percent, probe DK, far above MIN_CHANCE_Z either way).
+CHANCE_SEED = 0
 #: Least distance (standard deviations of the permuted images' variances above their
 #: mean) at which an alignment beats chance (:func:`warn_by_chance`'s ``z``). One more
 #: draw of the null lies this far above it with a chance of about 1e-4 for a normal
@@ -253,7 +258,8 @@ def flow_alignment_gain(events: EventArray, flow: np.ndarray, t_ref_us: int) -> 
 
 
 def flow_alignment_chance(events: EventArray, flow: np.ndarray, t_ref_us: int,
-                          draws: int = CHANCE_DRAWS) -> tuple[float, float]:
+                          draws: int = CHANCE_DRAWS,
+                          seed: int = CHANCE_SEED) -> tuple[float, float]:
     """:func:`flow_alignment_gain` and how far the flow's alignment lies above chance's
     scatter, ``(gain, z)`` (:func:`alignment_chance`); NaN where undefined."""
     x, y, f = _flow_at_events(events, flow)
@@ -263,7 +269,7 @@ def flow_alignment_chance(events: EventArray, flow: np.ndarray, t_ref_us: int,
     t = np.asarray(events.t)
     if not known.all():
         x, y, t, f = x[known], y[known], t[known], f[known]
-    return alignment_chance(x, y, t, f, t_ref_us, events.sensor_size, draws=draws)
+    return alignment_chance(x, y, t, f, t_ref_us, events.sensor_size, draws=draws, seed=seed)
 
 
 def _flow_at_events(events: EventArray, flow) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -314,14 +320,14 @@ def pixel_counts(x, y, shape: tuple[int, int]) -> np.ndarray:
 
 
 def alignment_chance(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
-                     t_ref_us: int, shape: tuple[int, int],
-                     draws: int = CHANCE_DRAWS) -> tuple[float, float]:
+                     t_ref_us: int, shape: tuple[int, int], draws: int = CHANCE_DRAWS,
+                     seed: int = CHANCE_SEED) -> tuple[float, float]:
     """How much better flows ``f`` (N, 2) px/s align events at integer pixels ``x, y``,
     times ``t`` (µs), sensor ``shape`` (H, W), than chance: ``(gain, z)``.
 
     ``gain`` is :func:`alignment_gain`: the variance of the events' image warped to
     ``t_ref_us`` over that of the same warp with their times permuted (the first of
-    ``draws`` seeded permutations). ``z`` is how many standard deviations of the
+    ``draws`` permutations, drawn with ``seed``). ``z`` is how many standard deviations of the
     ``draws`` permuted images' variances the warped image's lies above their mean (NaN for
     fewer than two draws): a ratio alone does not say how far chance itself scatters,
     and that is wide where the image has few pixels (uniform noise of 3,000 events on 8x8
@@ -348,7 +354,7 @@ def alignment_chance(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
         counts = pixel_counts(x - f[:, 0] * times, y - f[:, 1] * times, shape)
         return float(np.sum(counts**2) / n_px - (np.sum(counts) / n_px) ** 2)
 
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     null = np.array([variance(rng.permutation(dt)) for _ in range(max(int(draws), 1))])
     v = variance(dt)
     gain = v / null[0] if null[0] > 0 else float("nan")
@@ -362,8 +368,8 @@ def alignment_chance(x: np.ndarray, y: np.ndarray, t: np.ndarray, f: np.ndarray,
 
 
 def warp_alignment_chance(x: np.ndarray, y: np.ndarray, dt: np.ndarray, xw: np.ndarray,
-                          yw: np.ndarray, shape: tuple[int, int],
-                          draws: int = CHANCE_DRAWS) -> tuple[float, float]:
+                          yw: np.ndarray, shape: tuple[int, int], draws: int = CHANCE_DRAWS,
+                          seed: int = CHANCE_SEED) -> tuple[float, float]:
     """:func:`alignment_chance` of a warp that moves the events at ``x, y`` (px), ``dt``
     seconds from its reference time, to ``xw, yw`` there: each event's motion is its
     displacement over its time offset (events at the reference time itself: none), the
@@ -386,7 +392,7 @@ def warp_alignment_chance(x: np.ndarray, y: np.ndarray, dt: np.ndarray, xw: np.n
     if not np.isfinite(f).all():
         return float("nan"), float("nan")
     return alignment_chance(np.asarray(x, np.float64), np.asarray(y, np.float64), dt * 1e6,
-                            f, 0, shape, draws=draws)
+                            f, 0, shape, draws=draws, seed=seed)
 
 
 #: A tile whose events a translation of their own sharpens this much more than the flow
