@@ -452,3 +452,20 @@ def test_info_says_an_unreadable_calib_txt_once(tmp_path, capsys):
     assert "must hold numbers" in json.loads(out)["calibration_error"]
     with pytest.warns(UnusedCalibrationWarning, match="must hold numbers"):
         read_events(tmp_path)
+
+
+def test_info_shows_progress_over_a_long_read(tmp_path, capsys, monkeypatch):
+    """info read a 97.5 M event file for 9-18 s without a word (probe DL): a bar with a
+    total (from the header, or the share of an EVT RAW file read) now counts the events."""
+    rng = np.random.default_rng(0)
+    n = 30_000
+    ev = EventArray(x=rng.integers(0, 40, n), y=rng.integers(0, 30, n),
+                    t=np.sort(rng.integers(0, 10**6, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(30, 40))
+    monkeypatch.setenv("EVMOTION_PROGRESS", "1")
+    for name in ("rec.h5", "rec.raw"):
+        eio.write_events(tmp_path / name, ev)
+        rc, out, err = _run(capsys, "info", str(tmp_path / name))
+        assert rc == 0 and "events:      30,000" in out
+        bars = [b for b in err.replace("\r", "\n").splitlines() if b.startswith("info:")]
+        assert bars and "30.0k/30.0k" in bars[-1] and "100%" in bars[-1], err

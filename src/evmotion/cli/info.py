@@ -145,7 +145,7 @@ def run(args) -> int:
             # info reports the calibration itself, on its intrinsics line
             warnings.simplefilter("ignore", UnusedCalibrationWarning)
             info = eio.describe(args.file, format=args.format, stream=not args.header_only,
-                                **kw)
+                                progress=True, **kw)
         # (a raw file with no event, given --format and --sensor-size, has none: it ended
         # in a TypeError traceback, probe BY)
         if info.get("sensor_size") is not None:

@@ -30,8 +30,11 @@ __all__ = ["describe"]
 
 
 def describe(path: str | os.PathLike, format: str | None = None, *,
-             chunk_events: int = 1_000_000, stream: bool = True, **kw) -> dict:
-    """Summary of a recording, computed by streaming (bounded memory).
+             chunk_events: int = 1_000_000, stream: bool = True, progress: bool = False,
+             **kw) -> dict:
+    """Summary of a recording, computed by streaming (bounded memory); ``progress``: a
+    progress bar over the events read (rate, and ETA where the header states their count
+    or the reader the share of the file read).
 
     Returns
     -------
@@ -105,9 +108,18 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
     xmax = ymax = -np.inf
     size = None
     gap = (0, 0)  # the longest pause between consecutive events and the index before it
+    from evmotion.utils import progress as progress_bar
+    from evmotion.utils import refine_total
+
+    total = out.get("n_events") if isinstance(out.get("n_events"), int) else None
+    bar = progress_bar(None, total=total or None, desc="info", unit="ev", unit_scale=True,
+                       disable=None if progress else True)
     for chunk in iter_events(path, chunk_events, format=spec.name, **kw):
         if not len(chunk):
             continue
+        bar.update(len(chunk))
+        if not total:
+            refine_total(bar, n + len(chunk), chunk.meta)
         t = np.asarray(chunk.t, np.int64)
         d = np.diff(t, prepend=t[0] if t_last is None else t_last)
         k = int(np.argmax(d))
@@ -126,6 +138,7 @@ def describe(path: str | os.PathLike, format: str | None = None, *,
         t_last = int(chunk.t[-1])
         xmin, xmax = min(xmin, float(chunk.x.min())), max(xmax, float(chunk.x.max()))
         ymin, ymax = min(ymin, float(chunk.y.min())), max(ymax, float(chunk.y.max()))
+    bar.close()
     if size is not None:
         out["sensor_size"] = tuple(size)
     elif kw.get("sensor_size") is not None:
