@@ -300,11 +300,11 @@ def events_near_line(chunks: Iterable[EventArray], line: KymoLine, *,
 
     Examples
     --------
-    >>> ev = EventArray(x=[2, 2, 3, 0], y=[0, 0, 1, 1], t=[0, 100, 900, 950], p=[1, 1, 0, 1],
-    ...                 sensor_size=(2, 5))
-    >>> got = events_near_line([ev[:2], ev[2:]], KymoLine.row(0, (2, 5)))
-    >>> len(got.events), got.t_first_us, got.t_last_us, got.n_read
-    (2, 0, 950, 4)
+    >>> ev = EventArray(x=[2, 2, 3, 0], y=[0, 0, 1, 3], t=[0, 100, 900, 950], p=[1, 1, 0, 1],
+    ...                 sensor_size=(4, 5))
+    >>> got = events_near_line([ev[:2], ev[2:]], KymoLine.row(0, (4, 5)))
+    >>> len(got.events), got.t_first_us, got.t_last_us, got.n_read  # (0, 3) is far off
+    (3, 0, 950, 4)
     """
     parts, n_read, t_first, t_last = [], 0, None, None
     first = None
