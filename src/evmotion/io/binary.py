@@ -523,25 +523,31 @@ def u32_time_base(events: EventArray, fmt: str) -> int:
     return t_base
 
 
-def check_u32_times(events: EventArray, fmt: str, t_base: int = 0) -> None:
+def check_u32_times(events: EventArray, fmt: str, t_base: int = 0,
+                    before: np.ndarray | None = None, seen: int = 0) -> None:
     """FormatError unless ``events``' times, less ``t_base`` µs, survive a format that
     stores them modulo 2^32 µs and is unwrapped on reading wherever the stored time drops
     by more than 2^31 µs: the first time within ``[0, 2^32)`` µs, no gap the reader
     cannot tell from a wrap (one of 2^31 µs, 35.8 min, or more may be), and no two
     consecutive gaps spanning 2^32 µs or more, which the reader takes for a corrupt time
-    (:class:`CorruptTimeError`) (``fmt`` names the format in the message)."""
+    (:class:`CorruptTimeError`) (``fmt`` names the format in the message). A chunk of a
+    stream: ``before``, the times (µs) of the last events written before it (up to two),
+    and ``seen``, how many events were, which number its events in the message."""
     if not len(events):
         return
-    t = np.asarray(events.t, np.int64) - t_base
-    if t[0] < 0 or t[0] >= 1 << 32:
+    lead = np.zeros(0, np.int64) if before is None else np.asarray(before, np.int64)[-2:]
+    t = np.concatenate([lead, np.asarray(events.t, np.int64)]) - t_base
+    first = seen - lead.size  # the number of t[0] in the stream
+    if lead.size == 0 and (t[0] < 0 or t[0] >= 1 << 32):
         raise FormatError(None, f"first timestamp {int(t[0])} us is outside {fmt}'s u32 range",
                           "subtract a time offset first")
     raw = t & 0xFFFFFFFF
-    wraps = np.concatenate([[0], np.cumsum(np.diff(raw) < -(1 << 31))]) << 32
+    wraps = (np.concatenate([[0], np.cumsum(np.diff(raw) < -(1 << 31))]) << 32) + (t[0] - raw[0])
     lost = np.flatnonzero(raw + wraps != t)
     if lost.size:
         k = int(lost[0])
-        raise FormatError(None, f"events {k - 1} and {k} are {int(t[k] - t[k - 1])} us apart: "
+        raise FormatError(None, f"events {first + k - 1} and {first + k} are "
+                          f"{int(t[k] - t[k - 1])} us apart: "
                           f"{fmt} stores times modulo 2^32 us and cannot restore them across "
                           "that gap (gaps under 2^31 us, 35.8 min, are always restored)",
                           "write the parts before and after the gap to separate files, or "
@@ -550,7 +556,8 @@ def check_u32_times(events: EventArray, fmt: str, t_base: int = 0) -> None:
     far = np.flatnonzero(t[2:] - t[:-2] >= 1 << 32)
     if far.size:
         k = int(far[0])
-        raise FormatError(None, f"events {k} and {k + 2} are {int(t[k + 2] - t[k])} us apart "
+        raise FormatError(None, f"events {first + k} and {first + k + 2} are "
+                          f"{int(t[k + 2] - t[k])} us apart "
                           f"with one event between: {fmt} stores times modulo 2^32 us, and "
                           "its readers take a time 2^32 us or more from both neighbours' for "
                           "a corrupt time field",

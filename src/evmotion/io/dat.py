@@ -9,7 +9,8 @@ and polarity in bit 28. The 32-bit timestamp wraps after 71.6 min; the reader un
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import itertools
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -202,8 +203,9 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
                                  block_bytes=block_bytes)
 
 
-def write(path: str | Path, events: EventArray) -> None:
-    """Write ``events`` as a DAT file (atomically).
+def write(path: str | Path, events: EventArray | Iterable[EventArray]) -> None:
+    """Write ``events`` (an EventArray, or chunks of one in time order, streamed in
+    bounded memory) as a DAT file (atomically).
 
     Times are stored modulo 2^32 µs, as cameras do; :func:`read` restores them exactly
     when consecutive events are less than 2^31 µs (35.8 min) apart. A first time past
@@ -219,22 +221,49 @@ def write(path: str | Path, events: EventArray) -> None:
     >>> write("out_td.dat", events)
     >>> read("out_td.dat").x.tolist()
     [10, 20, 30]
+    >>> write("out_td.dat", iter([events[:2], events[2:]]))   # in chunks
+    >>> read("out_td.dat").t.tolist()
+    [100, 200, 300]
     """
-    # 14-bit x and y address fields
-    binary.check_writable(events, "DAT", 1 << 14, 1 << 14)
-    t_base = binary.u32_time_base(events, "DAT")
-    h, w = events.sensor_size
+    chunks = iter([events]) if isinstance(events, EventArray) else iter(events)
+    first = next(chunks, None)
+    if first is None:
+        raise FormatError(path, "no events to write (not even an empty chunk to say the "
+                          "sensor size)")
+    while not len(first):
+        more = next(chunks, None)
+        if more is None:
+            break
+        first = more if len(more) else first
+    # the header states the first chunk's sensor and the first event's time base
+    t_base = binary.u32_time_base(first[:1], "DAT")
+    h, w = first.sensor_size
     header = ("% Data file containing CD events.\n% Version 2\n"
               f"% Width {w}\n% Height {h}\n"
               + (f"% {prophesee.OFFSET_KEY} {t_base}\n" if t_base else "")).encode()
-    rec = np.empty((len(events), 2), "<u4")
-    rec[:, 0] = (events.t & 0xFFFFFFFF).astype(np.uint32)
-    rec[:, 1] = (events.x.astype(np.uint32) | (events.y.astype(np.uint32) << 14)
-                 | (events.p.astype(np.uint32) << 28))
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(header)
         fh.write(bytes([CD_TYPE, RECORD]))
-        fh.write(rec.tobytes())
+        before, seen = None, 0
+        for chunk in itertools.chain([first], chunks):
+            if not len(chunk):
+                continue
+            if chunk.sensor_size != first.sensor_size:
+                raise FormatError(None, f"a chunk of events of sensor {chunk.sensor_size} "
+                                  f"after {first.sensor_size}: one file holds one sensor's")
+            # 14-bit x and y address fields
+            binary.check_writable(chunk, "DAT", 1 << 14, 1 << 14)
+            if before is not None and int(chunk.t[0]) < int(before[-1]):
+                raise FormatError(None, f"DAT stores times in order: event {seen} at "
+                                  f"{int(chunk.t[0])} us comes after one at "
+                                  f"{int(before[-1])} us")
+            binary.check_u32_times(chunk, "DAT", t_base, before, seen)
+            rec = np.empty((len(chunk), 2), "<u4")
+            rec[:, 0] = (chunk.t & 0xFFFFFFFF).astype(np.uint32)
+            rec[:, 1] = (chunk.x.astype(np.uint32) | (chunk.y.astype(np.uint32) << 14)
+                         | (chunk.p.astype(np.uint32) << 28))
+            fh.write(rec.tobytes())
+            before, seen = np.asarray(chunk.t[-2:], np.int64), seen + len(chunk)
 
 
 def describe(path: str | Path) -> dict:
