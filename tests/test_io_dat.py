@@ -214,3 +214,4 @@ def test_chunks_stream_into_the_same_file(tmp_path, cut):
                       validate=False)
     with pytest.raises(FormatError, match="event 1 at 40 us comes after one at 50 us"):
         dat.write(tmp_path / "bad.dat", iter([back[:1], back[1:]]))
+

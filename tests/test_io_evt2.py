@@ -202,3 +202,25 @@ def test_the_corrupt_time_check_agrees_in_both_decoders_across_blocks():
             with pytest.raises(FormatError, match="TIME_HIGH word 100 of the payload"):
                 for part in np.split(words, cuts):
                     evt2.decode_words(part, state, plain=plain)
+
+
+@pytest.mark.parametrize("cut", [1, 3, 700])
+def test_evt2_chunks_stream_into_the_same_file(tmp_path, cut):
+    """EVT 2.0 is written chunk by chunk, each encoded after the previous chunk's last event
+    (probe DL: converting to .raw held every event): the same bytes as the whole array's,
+    across time-high changes and a pause past half the 2^34 us counter."""
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(8)
+    t = np.sort(rng.integers(5_000, 9_000, 1500)).astype(np.int64)
+    t[900:] += 3 * 3600 * 10**6  # three hours: intermediate TIME_HIGH words
+    ev = EventArray(x=rng.integers(0, 640, 1500), y=rng.integers(0, 480, 1500), t=t,
+                    p=rng.integers(0, 2, 1500), sensor_size=(480, 640))
+    evt2.write(tmp_path / "whole.raw", ev)
+    write_events(tmp_path / "parts.raw", (ev[s:s + cut] for s in range(0, len(ev), cut)),
+                 format="evt2")
+    assert (tmp_path / "parts.raw").read_bytes() == (tmp_path / "whole.raw").read_bytes()
+    np.testing.assert_array_equal(evt2.read(tmp_path / "parts.raw").t, t)
+    with pytest.raises(FormatError, match="stores times in order"):
+        evt2.write(tmp_path / "bad.raw", iter([ev[10:20], ev[:10]]))
+    assert not (tmp_path / "bad.raw").exists()

@@ -8,7 +8,7 @@ bits, bits 11-21: x, bits 0-10: y), ``0x8`` TIME_HIGH (bits 0-27: time bits 6-33
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -205,9 +205,10 @@ def encode(events: EventArray, t_base: int = 0) -> np.ndarray:
     return out[:k]
 
 
-def write(path: str | Path, events: EventArray) -> None:
-    """Write ``events`` as an EVT 2.0 RAW file (atomically); see :func:`evt3.write` for
-    how times past the counter range (here 2^34 µs) are kept exact.
+def write(path: str | Path, events: EventArray | Iterable[EventArray]) -> None:
+    """Write ``events`` (an EventArray, or chunks of one in time order, streamed in
+    bounded memory) as an EVT 2.0 RAW file (atomically); see :func:`evt3.write` for how
+    times past the counter range (here 2^34 µs) are kept exact.
 
     Examples
     --------
@@ -217,8 +218,9 @@ def write(path: str | Path, events: EventArray) -> None:
     >>> read("out.raw").t.tolist()
     [100, 200, 300]
     """
+    # a lone event is a TIME_HIGH word and its own
     prophesee.write_raw(path, events, version="2.0", wrap_us=WRAP_US, encode=encode,
-                         word="<u4")
+                         word="<u4", lead_words=2)
 
 
 describe = prophesee.raw_describe("evt2", 4)

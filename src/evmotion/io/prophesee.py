@@ -3,14 +3,15 @@ sniffing, the time offset evmotion stores when timestamps exceed the counter ran
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+import itertools
+from collections.abc import Callable, Iterable, Iterator
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from evmotion.errors import FormatError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, concatenate
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
 from evmotion.io.binary import geometry_from_header, read_text_header
@@ -180,14 +181,34 @@ def _decoded(path: Path, offset: int, payload, decode_words: Callable, state: np
         yield end, (x, y, t, p)
 
 
-def write_raw(path: str | Path, events: EventArray, *, version: str, wrap_us: int,
-              encode: Callable, word: str, header: dict | None = None) -> None:
+def write_raw(path: str | Path, events: EventArray | Iterable[EventArray], *, version: str,
+              wrap_us: int, encode: Callable, word: str, header: dict | None = None,
+              lead_words: int | None = None) -> None:
     """Write an EVT ``version`` RAW file atomically: the ``%`` header (with ``header``'s
     extra keys and, past the ``wrap_us`` counter range, :data:`OFFSET_KEY`), then
-    ``encode(events, t_base)`` as ``word`` words."""
-    binary.check_writable(events, f"EVT {version}", 2048, 2048)
-    h, w = events.sensor_size
-    t_base = int(events.t[0]) - int(events.t[0]) % wrap_us if len(events) else 0
+    ``encode(events, t_base)`` as ``word`` words. With ``lead_words`` (the words ``encode``
+    gives a lone first event: its state words and itself), ``events`` may be chunks in
+    time order, streamed in bounded memory: each chunk is encoded after the previous
+    chunk's last event, whose ``lead_words`` are dropped, so the words continue its state
+    as one whole encoding's do (the same bytes)."""
+    if isinstance(events, EventArray):
+        chunks: Iterator[EventArray] = iter([events])
+    elif lead_words is None:
+        raise FormatError(path, f"EVT {version} is written from one EventArray, not chunks")
+    else:
+        chunks = iter(events)
+    first = next(chunks, None)
+    if first is None:
+        raise FormatError(path, "no events to write (not even an empty chunk to say the "
+                          "sensor size)")
+    while not len(first):
+        more = next(chunks, None)
+        if more is None:
+            break
+        first = more if len(more) else first
+    binary.check_writable(first[:0], f"EVT {version}", 2048, 2048)  # the header's sensor
+    h, w = first.sensor_size
+    t_base = int(first.t[0]) - int(first.t[0]) % wrap_us if len(first) else 0
     lines = [f"% evt {version}", f"% format {format_name(version)};height={h};width={w}",
              f"% geometry {w}x{h}", "% integrator_name evmotion"]
     if t_base:
@@ -195,10 +216,26 @@ def write_raw(path: str | Path, events: EventArray, *, version: str, wrap_us: in
     for key, val in (header or {}).items():
         lines.append(f"% {key} {val}")
     lines.append("% end")
-    words = encode(events, t_base)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(binary.header_bytes(lines))
-        fh.write(words.astype(word).tobytes())
+        last = None
+        for chunk in itertools.chain([first], chunks):
+            if not len(chunk):
+                continue
+            binary.check_writable(chunk, f"EVT {version}", 2048, 2048)
+            if chunk.sensor_size != first.sensor_size:
+                raise FormatError(None, f"a chunk of events of sensor {chunk.sensor_size} "
+                                  f"after {first.sensor_size}: one file holds one sensor's")
+            if last is None:
+                words = encode(chunk, t_base)
+            else:
+                if int(chunk.t[0]) < int(last.t[0]):
+                    raise FormatError(None, f"EVT {version} stores times in order: a chunk "
+                                      f"starts at {int(chunk.t[0])} us, after one at "
+                                      f"{int(last.t[0])} us")
+                words = encode(concatenate([last, chunk], validate=False), t_base)[lead_words:]
+            fh.write(words.astype(word).tobytes())
+            last = chunk[-1:]
 
 
 def describe_raw(path: str | Path, fmt: str, word_bytes: int) -> dict:

@@ -73,7 +73,7 @@ def suffix_formats(path: str | os.PathLike) -> list[str]:
     return named
 
 
-_STREAMING_WRITERS = ("h5", "ecd", "dat")
+_STREAMING_WRITERS = ("h5", "ecd", "dat", "evt2")
 
 
 def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArray],
@@ -86,8 +86,8 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
         Output file; the format follows the extension (``.h5`` evmotion HDF5, ``.txt``
         ECD text, ``.npz``/``.npy``, ``.raw``, ``.dat``, ``.aedat4``...).
     events : EventArray or iterable of EventArray
-        Chunks in time order are streamed in bounded memory by the ``h5``, ``ecd`` and
-        ``dat`` writers (others concatenate them first).
+        Chunks in time order are streamed in bounded memory by the ``h5``, ``ecd``,
+        ``dat`` and ``evt2`` writers (others concatenate them first).
     format : str, optional
         Format name, overriding the extension.
     **meta
