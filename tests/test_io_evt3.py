@@ -341,3 +341,31 @@ def test_a_decoder_state_of_another_length_is_refused(module, dtype):
     mod = importlib.import_module(f"evmotion.io.{module}")
     with pytest.raises(ParameterError, match=r"state must be an int64 array of shape"):
         mod.decode_words(np.zeros(4, dtype), np.zeros(3, np.int64))
+
+
+@pytest.mark.parametrize("cut", [1, 5, 7, 700])
+def test_chunks_stream_into_the_same_file(tmp_path, cut):
+    """EVT 3.0 is written chunk by chunk (probe DL: converting to .raw held every event):
+    cut where the time changes and each part encoded after the previous part's last event,
+    the same bytes as the whole array's, vector words of events of one time across a
+    chunk boundary, the 24-bit wrap and a long pause included."""
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(9)
+    k = 400  # times, each with a run of 6 events of one row and polarity: vector words
+    t = np.repeat(np.arange(k, dtype=np.int64) * 50 + (1 << 24) - 9000, 6)
+    t[6 * 300:] += 40 * 10**6  # a 40 s pause: intermediate TIME_HIGH words
+    x = np.tile([0, 1, 2, 3, 5, 7], k) + np.repeat(rng.integers(0, 600, k), 6)
+    ev = EventArray(x=x, y=np.repeat(np.arange(k) % 5, 6), t=t,
+                    p=np.repeat(np.arange(k) % 2, 6), sensor_size=(480, 640))
+    n = len(ev)
+    words = evt3.encode(ev)
+    assert np.count_nonzero(words >> 12 == 0x3) == k  # a VECT_BASE_X for every run
+    evt3.write(tmp_path / "whole.raw", ev)
+    write_events(tmp_path / "parts.raw", (ev[s:s + cut] for s in range(0, n, cut)),
+                 format="evt3")
+    assert (tmp_path / "parts.raw").read_bytes() == (tmp_path / "whole.raw").read_bytes()
+    np.testing.assert_array_equal(evt3.read(tmp_path / "parts.raw").t, t)
+    with pytest.raises(FormatError, match="stores times in order"):
+        evt3.write(tmp_path / "bad.raw", iter([ev[10:20], ev[:10]]))
+    assert not (tmp_path / "bad.raw").exists()

@@ -10,7 +10,7 @@ TIME_HIGH have no time base and are dropped, as Prophesee's own decoder does.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from functools import partial
 from pathlib import Path
 
@@ -406,8 +406,10 @@ def encode(events: EventArray, t_base: int = 0) -> np.ndarray:
     return out[:k]
 
 
-def write(path: str | Path, events: EventArray, *, header: dict | None = None) -> None:
-    """Write ``events`` as an EVT 3.0 RAW file (atomically).
+def write(path: str | Path, events: EventArray | Iterable[EventArray], *,
+          header: dict | None = None) -> None:
+    """Write ``events`` (an EventArray, or chunks of one in time order, streamed in
+    bounded memory) as an EVT 3.0 RAW file (atomically).
 
     Integer coordinates below 2048 are required. When the first timestamp is at or past
     the 24-bit counter range (16.78 s), a multiple of 2^24 µs is stored in the header key
@@ -422,8 +424,9 @@ def write(path: str | Path, events: EventArray, *, header: dict | None = None) -
     >>> read("out.raw").t.tolist()
     [100, 200, 300]
     """
+    # a lone event: TIME_HIGH, TIME_LOW, ADDR_Y and its ADDR_X
     prophesee.write_raw(path, events, version="3.0", wrap_us=WRAP_US, encode=encode,
-                         word="<u2", header=header)
+                         word="<u2", header=header, lead_words=4)
 
 
 describe = prophesee.raw_describe("evt3", 2)

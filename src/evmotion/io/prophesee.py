@@ -188,9 +188,9 @@ def write_raw(path: str | Path, events: EventArray | Iterable[EventArray], *, ve
     extra keys and, past the ``wrap_us`` counter range, :data:`OFFSET_KEY`), then
     ``encode(events, t_base)`` as ``word`` words. With ``lead_words`` (the words ``encode``
     gives a lone first event: its state words and itself), ``events`` may be chunks in
-    time order, streamed in bounded memory: each chunk is encoded after the previous
-    chunk's last event, whose ``lead_words`` are dropped, so the words continue its state
-    as one whole encoding's do (the same bytes)."""
+    time order, streamed in bounded memory: each part is encoded after the previous
+    part's last event, whose ``lead_words`` are dropped, and the parts are cut where the
+    time changes, so the words continue as one whole encoding's (the same bytes)."""
     if isinstance(events, EventArray):
         chunks: Iterator[EventArray] = iter([events])
     elif lead_words is None:
@@ -218,7 +218,7 @@ def write_raw(path: str | Path, events: EventArray | Iterable[EventArray], *, ve
     lines.append("% end")
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(binary.header_bytes(lines))
-        last = None
+        last = held = None
         for chunk in itertools.chain([first], chunks):
             if not len(chunk):
                 continue
@@ -226,16 +226,34 @@ def write_raw(path: str | Path, events: EventArray | Iterable[EventArray], *, ve
             if chunk.sensor_size != first.sensor_size:
                 raise FormatError(None, f"a chunk of events of sensor {chunk.sensor_size} "
                                   f"after {first.sensor_size}: one file holds one sensor's")
-            if last is None:
-                words = encode(chunk, t_base)
-            else:
-                if int(chunk.t[0]) < int(last.t[0]):
+            if held is not None:
+                if int(chunk.t[0]) < int(held.t[-1]):
                     raise FormatError(None, f"EVT {version} stores times in order: a chunk "
                                       f"starts at {int(chunk.t[0])} us, after one at "
-                                      f"{int(last.t[0])} us")
-                words = encode(concatenate([last, chunk], validate=False), t_base)[lead_words:]
-            fh.write(words.astype(word).tobytes())
-            last = chunk[-1:]
+                                      f"{int(held.t[-1])} us")
+                chunk = concatenate([held, chunk], validate=False)
+            # the events at the chunk's last time wait for the next chunk: with its events
+            # of that time they may make one vector word (one EventArray without
+            # lead_words: encoded whole)
+            cut = 0 if lead_words is None else int(np.searchsorted(chunk.t, chunk.t[-1],
+                                                                   side="left"))
+            if cut:
+                fh.write(_encoded(chunk[:cut], last, t_base, encode, lead_words, word))
+                last = chunk[cut - 1:cut]
+            held = chunk[cut:]
+        if held is not None:
+            fh.write(_encoded(held, last, t_base, encode, lead_words, word))
+
+
+def _encoded(events: EventArray, last: EventArray | None, t_base: int, encode: Callable,
+             lead_words: int | None, word: str) -> bytes:
+    """``encode``'s words for ``events`` continuing after the event ``last`` (None: the
+    file's first), as bytes."""
+    if last is None:
+        words = encode(events, t_base)
+    else:
+        words = encode(concatenate([last, events], validate=False), t_base)[lead_words:]
+    return words.astype(word).tobytes()
 
 
 def describe_raw(path: str | Path, fmt: str, word_bytes: int) -> dict:
