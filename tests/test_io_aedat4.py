@@ -241,3 +241,22 @@ def test_a_time_past_the_year_5000_is_refused_as_other_readers_refuse_it(tmp_pat
         aedat4.FORMAT.read(tmp_path / "m.aedat4")  # (as read_events calls it: guarded)
     with pytest.raises(FormatError, match=r"m\.aedat4: .*past the year 5000"):
         list(aedat4.FORMAT.iter_chunks(tmp_path / "m.aedat4", 100))
+
+
+@pytest.mark.parametrize("cut", [1000, 70_000])
+def test_chunks_stream_into_the_same_file(tmp_path, cut):
+    """AEDAT4 is written chunk by chunk into the packets one array makes (probe DL:
+    converting to .aedat4 held every event): the same bytes, whatever the chunks."""
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(10)
+    n = 140_000  # two full packets of 65,536 and a partial one
+    ev = EventArray(x=rng.integers(0, 346, n), y=rng.integers(0, 260, n),
+                    t=np.sort(rng.integers(0, 10**6, n)), p=rng.integers(0, 2, n),
+                    sensor_size=(260, 346))
+    aedat4.write(tmp_path / "whole.aedat4", ev)
+    parts = [ev[:0], ev[:1], ev[1:3], *(ev[s:s + cut] for s in range(3, n, cut))]
+    write_events(tmp_path / "parts.aedat4", iter(parts))
+    assert (tmp_path / "parts.aedat4").read_bytes() == \
+        (tmp_path / "whole.aedat4").read_bytes()
+    np.testing.assert_array_equal(aedat4.read(tmp_path / "parts.aedat4").t, ev.t)

@@ -11,10 +11,11 @@ below; no flatbuffers package is needed.
 
 from __future__ import annotations
 
+import itertools
 import struct
 import warnings
 import xml.etree.ElementTree as ET
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -527,15 +528,16 @@ def _info_xml(size: tuple[int, int], comp: str) -> str:
             '            </node>\n        </node>\n    </node>\n</dv>\n')
 
 
-def write(path: str | Path, events: EventArray, *, compression: str = "lz4",
-          packet_events: int = 65536) -> None:
+def write(path: str | Path, events: EventArray | Iterable[EventArray], *,
+          compression: str = "lz4", packet_events: int = 65536) -> None:
     """Write ``events`` as an AEDAT 4.0 file with one event stream (atomically).
 
     Parameters
     ----------
     path : path-like
-    events : EventArray
-        Integer coordinates; times are written as they are (µs).
+    events : EventArray or iterable of EventArray
+        Integer coordinates; times are written as they are (µs). Chunks (in time order)
+        are streamed in bounded memory, into the packets one array of them all makes.
     compression : {"lz4", "none"}
         Packet compression (LZ4 frame format, as DV writes it).
     packet_events : int
@@ -551,11 +553,14 @@ def write(path: str | Path, events: EventArray, *, compression: str = "lz4",
     """
     if compression not in ("lz4", "none"):
         raise ParameterError(f"compression must be 'lz4' or 'none', got {compression!r}")
-    if events.x.dtype.kind == "f":
-        raise FormatError(None, "events have float (undistorted) coordinates; AEDAT4 stores "
-                          "integer pixels")
     if int(packet_events) <= 0:
         raise ParameterError(f"packet_events must be positive, got {packet_events}")
+    size = int(packet_events)
+    chunks = iter([events]) if isinstance(events, EventArray) else iter(events)
+    first = next(chunks, None)
+    if first is None:
+        raise FormatError(path, "no events to write (not even an empty chunk to say the "
+                          "sensor size)")
     code = 1 if compression == "lz4" else 0
     if code:
         import lz4.frame
@@ -563,13 +568,28 @@ def write(path: str | Path, events: EventArray, *, compression: str = "lz4",
         compress = lz4.frame.compress
     else:
         compress = bytes
-    ev = np.zeros(len(events), EVENT_DTYPE)
-    ev["t"], ev["x"], ev["y"], ev["on"] = events.t, events.x, events.y, events.p
-    header = _ioheader(code, _info_xml(events.sensor_size, "LZ4" if code else "NONE"))
+    header = _ioheader(code, _info_xml(first.sensor_size, "LZ4" if code else "NONE"))
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(MAGIC + struct.pack("<i", len(header)) + header)
-        for a in range(0, len(ev), int(packet_events)):
-            payload = compress(_event_packet(ev[a:a + int(packet_events)]))
+        rest = np.zeros(0, EVENT_DTYPE)
+        for chunk in itertools.chain([first], chunks):
+            if chunk.x.dtype.kind == "f":
+                raise FormatError(None, "events have float (undistorted) coordinates; AEDAT4 "
+                                  "stores integer pixels")
+            if chunk.sensor_size != first.sensor_size:
+                raise FormatError(None, f"a chunk of events of sensor {chunk.sensor_size} "
+                                  f"after {first.sensor_size}: one file holds one sensor's")
+            ev = np.zeros(len(rest) + len(chunk), EVENT_DTYPE)
+            ev[:len(rest)] = rest
+            part = ev[len(rest):]
+            part["t"], part["x"], part["y"], part["on"] = chunk.t, chunk.x, chunk.y, chunk.p
+            full = len(ev) - len(ev) % size
+            for a in range(0, full, size):
+                payload = compress(_event_packet(ev[a:a + size]))
+                fh.write(struct.pack("<ii", 0, len(payload)) + payload)
+            rest = ev[full:]
+        if len(rest):
+            payload = compress(_event_packet(rest))
             fh.write(struct.pack("<ii", 0, len(payload)) + payload)
 
 
