@@ -206,9 +206,10 @@ def test_chunks_stream_into_the_same_file(tmp_path, cut):
                           r"events 1 and 3 are 4294967306 us apart with one event between")):
         bad = EventArray(x=[0, 1, 2, 3], y=[0, 1, 2, 3], t=t_bad, p=[0, 1, 1, 0],
                          sensor_size=(180, 240))
-        for k in (1, 2, 3):
+        for parts in ([bad[:1], bad[1:]], [bad[:2], bad[2:]], [bad[:3], bad[3:]],
+                      [bad[k:k + 1] for k in range(4)]):
             with pytest.raises(FormatError, match=match):
-                dat.write(tmp_path / "bad.dat", iter([bad[:k], bad[k:]]))
+                dat.write(tmp_path / "bad.dat", iter(parts))
             assert not (tmp_path / "bad.dat").exists()
     back = EventArray(x=[0, 1], y=[0, 1], t=[50, 40], p=[1, 0], sensor_size=(180, 240),
                       validate=False)

@@ -263,7 +263,11 @@ def write(path: str | Path, events: EventArray | Iterable[EventArray]) -> None:
             rec[:, 1] = (chunk.x.astype(np.uint32) | (chunk.y.astype(np.uint32) << 14)
                          | (chunk.p.astype(np.uint32) << 28))
             fh.write(rec.tobytes())
-            before, seen = np.asarray(chunk.t[-2:], np.int64), seen + len(chunk)
+            # the last two events written, a chunk of one event and the one before it
+            tail = np.asarray(chunk.t[-2:], np.int64)
+            before = tail if before is None or tail.size == 2 else \
+                np.concatenate([before, tail])[-2:]
+            seen += len(chunk)
 
 
 def describe(path: str | Path) -> dict:
