@@ -556,11 +556,7 @@ def write(path: str | Path, events: EventArray | Iterable[EventArray], *,
     if int(packet_events) <= 0:
         raise ParameterError(f"packet_events must be positive, got {packet_events}")
     size = int(packet_events)
-    chunks = iter([events]) if isinstance(events, EventArray) else iter(events)
-    first = next(chunks, None)
-    if first is None:
-        raise FormatError(path, "no events to write (not even an empty chunk to say the "
-                          "sensor size)")
+    first, chunks = binary.first_chunk(path, events)
     code = 1 if compression == "lz4" else 0
     if code:
         import lz4.frame

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import re
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -483,6 +483,32 @@ def geometry_from_header(lines: list[str], path: Path, default: tuple[int, int] 
                               SENSOR_SIZE_HINT)
         return default
     return check_sensor_size(path, (heights.pop(), widths.pop()), "header geometry")
+
+
+def first_chunk(path, events: EventArray | Iterable[EventArray]
+                ) -> tuple[EventArray, Iterator[EventArray]]:
+    """A streaming writer's first chunk (the first holding events, else the last empty
+    one: the sensor and the time base its header states) and the chunks after it;
+    ``events`` is one EventArray or chunks of one. FormatError where there is no chunk.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[1, 2], y=[0, 0], t=[5, 9], p=[1, 0], sensor_size=(2, 4))
+    >>> first, rest = first_chunk("out.dat", iter([ev[:0], ev[:1], ev[1:]]))
+    >>> first.t.tolist(), [c.t.tolist() for c in rest]
+    ([5], [[9]])
+    """
+    chunks = iter([events]) if isinstance(events, EventArray) else iter(events)
+    first = next(chunks, None)
+    if first is None:
+        raise FormatError(path, "no events to write (not even an empty chunk to say the "
+                          "sensor size)")
+    while not len(first):
+        more = next(chunks, None)
+        if more is None:
+            break
+        first = more
+    return first, chunks
 
 
 def check_writable(events: EventArray, fmt: str, height: int, width: int,

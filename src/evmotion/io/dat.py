@@ -225,16 +225,7 @@ def write(path: str | Path, events: EventArray | Iterable[EventArray]) -> None:
     >>> read("out_td.dat").t.tolist()
     [100, 200, 300]
     """
-    chunks = iter([events]) if isinstance(events, EventArray) else iter(events)
-    first = next(chunks, None)
-    if first is None:
-        raise FormatError(path, "no events to write (not even an empty chunk to say the "
-                          "sensor size)")
-    while not len(first):
-        more = next(chunks, None)
-        if more is None:
-            break
-        first = more if len(more) else first
+    first, chunks = binary.first_chunk(path, events)
     # the header states the first chunk's sensor and the first event's time base
     t_base = binary.u32_time_base(first[:1], "DAT")
     h, w = first.sensor_size

@@ -191,21 +191,9 @@ def write_raw(path: str | Path, events: EventArray | Iterable[EventArray], *, ve
     time order, streamed in bounded memory: each part is encoded after the previous
     part's last event, whose ``lead_words`` are dropped, and the parts are cut where the
     time changes, so the words continue as one whole encoding's (the same bytes)."""
-    if isinstance(events, EventArray):
-        chunks: Iterator[EventArray] = iter([events])
-    elif lead_words is None:
+    if not isinstance(events, EventArray) and lead_words is None:
         raise FormatError(path, f"EVT {version} is written from one EventArray, not chunks")
-    else:
-        chunks = iter(events)
-    first = next(chunks, None)
-    if first is None:
-        raise FormatError(path, "no events to write (not even an empty chunk to say the "
-                          "sensor size)")
-    while not len(first):
-        more = next(chunks, None)
-        if more is None:
-            break
-        first = more if len(more) else first
+    first, chunks = binary.first_chunk(path, events)
     binary.check_writable(first[:0], f"EVT {version}", 2048, 2048)  # the header's sensor
     h, w = first.sensor_size
     t_base = int(first.t[0]) - int(first.t[0]) % wrap_us if len(first) else 0
