@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionWarning, FormatError, ParameterError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
 from evmotion.events import EventArray
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
@@ -568,13 +568,22 @@ def write(path: str | Path, events: EventArray | Iterable[EventArray], *,
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(MAGIC + struct.pack("<i", len(header)) + header)
         rest = np.zeros(0, EVENT_DTYPE)
+        last_t = None
         for chunk in itertools.chain([first], chunks):
             if chunk.x.dtype.kind == "f":
                 raise FormatError(None, "events have float (undistorted) coordinates; AEDAT4 "
                                   "stores integer pixels")
-            if chunk.sensor_size != first.sensor_size:
-                raise FormatError(None, f"a chunk of events of sensor {chunk.sensor_size} "
-                                  f"after {first.sensor_size}: one file holds one sensor's")
+            binary.same_sensor(chunk, first)
+            try:
+                chunk.check_order()
+            except UnsortedError as exc:
+                raise FormatError(None, f"AEDAT4 stores times in order: {exc}") from None
+            if len(chunk):
+                # (written unsorted, the file could not be read back, probe DM)
+                if last_t is not None and int(chunk.t[0]) < last_t:
+                    raise FormatError(None, f"AEDAT4 stores times in order: a chunk starts "
+                                      f"at {int(chunk.t[0])} us, after one at {last_t} us")
+                last_t = int(chunk.t[-1])
             ev = np.zeros(len(rest) + len(chunk), EVENT_DTYPE)
             ev[:len(rest)] = rest
             part = ev[len(rest):]

@@ -507,8 +507,17 @@ def first_chunk(path, events: EventArray | Iterable[EventArray]
         more = next(chunks, None)
         if more is None:
             break
+        same_sensor(more, first)
         first = more
     return first, chunks
+
+
+def same_sensor(chunk: EventArray, first: EventArray) -> None:
+    """FormatError unless ``chunk`` (empty or not) is of ``first``'s sensor: one file holds
+    one sensor's events (an empty chunk of another had passed, probe DM)."""
+    if chunk.sensor_size != first.sensor_size:
+        raise FormatError(None, f"a chunk of events of sensor {chunk.sensor_size} after "
+                          f"{first.sensor_size}: one file holds one sensor's")
 
 
 def check_writable(events: EventArray, fmt: str, height: int, width: int,

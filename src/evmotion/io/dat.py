@@ -209,10 +209,9 @@ def write(path: str | Path, events: EventArray | Iterable[EventArray]) -> None:
 
     Times are stored modulo 2^32 µs, as cameras do; :func:`read` restores them exactly
     when consecutive events are less than 2^31 µs (35.8 min) apart. A first time past
-    2^32 µs (a clock since the epoch) is written from the multiple of 2^32 µs below it,
-    kept in the header as ``% evmotion_time_offset_us`` (other readers see times from
-    there); negative times, and coordinates past DAT's 14 bits, are refused
-    (FormatError).
+    2^32 µs (a clock since the epoch), or before 0, is written from the multiple of 2^32 µs
+    at or below it, kept in the header as ``% evmotion_time_offset_us`` (other readers see
+    times from there); coordinates past DAT's 14 bits are refused (FormatError).
 
     Examples
     --------
@@ -237,11 +236,9 @@ def write(path: str | Path, events: EventArray | Iterable[EventArray]) -> None:
         fh.write(bytes([CD_TYPE, RECORD]))
         before, seen = None, 0
         for chunk in itertools.chain([first], chunks):
+            binary.same_sensor(chunk, first)
             if not len(chunk):
                 continue
-            if chunk.sensor_size != first.sensor_size:
-                raise FormatError(None, f"a chunk of events of sensor {chunk.sensor_size} "
-                                  f"after {first.sensor_size}: one file holds one sensor's")
             # 14-bit x and y address fields
             binary.check_writable(chunk, "DAT", 1 << 14, 1 << 14)
             if before is not None and int(chunk.t[0]) < int(before[-1]):

@@ -208,12 +208,10 @@ def write_raw(path: str | Path, events: EventArray | Iterable[EventArray], *, ve
         fh.write(binary.header_bytes(lines))
         last = held = None
         for chunk in itertools.chain([first], chunks):
+            binary.same_sensor(chunk, first)
             if not len(chunk):
                 continue
             binary.check_writable(chunk, f"EVT {version}", 2048, 2048)
-            if chunk.sensor_size != first.sensor_size:
-                raise FormatError(None, f"a chunk of events of sensor {chunk.sensor_size} "
-                                  f"after {first.sensor_size}: one file holds one sensor's")
             if held is not None:
                 if int(chunk.t[0]) < int(held.t[-1]):
                     raise FormatError(None, f"EVT {version} stores times in order: a chunk "
