@@ -41,6 +41,6 @@ def test_aedat4_refuses_events_out_of_time_order(tmp_path):
     with pytest.raises(FormatError, match="AEDAT4 stores times in order"):
         aedat4.write(tmp_path / "u.aedat4", back)
     ev = _events()
-    with pytest.raises(FormatError, match="a chunk starts at .* after one at"):
+    with pytest.raises(FormatError, match=r"AEDAT4 stores times in order: .*t\[24\]=\d+ > t\[25\]=\d+ us"):
         aedat4.write(tmp_path / "u.aedat4", iter([ev[25:], ev[:25]]))
     assert not (tmp_path / "u.aedat4").exists()

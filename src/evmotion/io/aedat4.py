@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evmotion.errors import EvmotionWarning, FormatError, ParameterError, UnsortedError
+from evmotion.errors import EvmotionWarning, FormatError, ParameterError
 from evmotion.events import EventArray
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
@@ -568,22 +568,16 @@ def write(path: str | Path, events: EventArray | Iterable[EventArray], *,
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(MAGIC + struct.pack("<i", len(header)) + header)
         rest = np.zeros(0, EVENT_DTYPE)
-        last_t = None
+        last_t, seen = None, 0
         for chunk in itertools.chain([first], chunks):
             if chunk.x.dtype.kind == "f":
                 raise FormatError(None, "events have float (undistorted) coordinates; AEDAT4 "
                                   "stores integer pixels")
             binary.same_sensor(chunk, first)
-            try:
-                chunk.check_order()
-            except UnsortedError as exc:
-                raise FormatError(None, f"AEDAT4 stores times in order: {exc}") from None
+            # (written unsorted, the file could not be read back, probe DM)
+            binary.check_in_order(chunk, "AEDAT4", last_t, seen)
             if len(chunk):
-                # (written unsorted, the file could not be read back, probe DM)
-                if last_t is not None and int(chunk.t[0]) < last_t:
-                    raise FormatError(None, f"AEDAT4 stores times in order: a chunk starts "
-                                      f"at {int(chunk.t[0])} us, after one at {last_t} us")
-                last_t = int(chunk.t[-1])
+                last_t, seen = int(chunk.t[-1]), seen + len(chunk)
             ev = np.zeros(len(rest) + len(chunk), EVENT_DTYPE)
             ev[:len(rest)] = rest
             part = ev[len(rest):]

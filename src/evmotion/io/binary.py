@@ -12,7 +12,7 @@ import numpy as np
 
 from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import FormatError, ParameterError, UnsortedError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, check_follows
 from evmotion.io.guard import SENSOR_SIZE_HINT, check_sensor_size
 from evmotion.jitcache import lazy_njit
 
@@ -520,17 +520,28 @@ def same_sensor(chunk: EventArray, first: EventArray) -> None:
                           f"{first.sensor_size}: one file holds one sensor's")
 
 
-def check_writable(events: EventArray, fmt: str, height: int, width: int,
-                   hint: str | None = None) -> None:
-    """FormatError unless ``events`` fit a format that stores integer pixels of at most
-    ``height`` rows and ``width`` columns (``fmt`` names it in the message, ``hint`` says
-    what holds a larger sensor), in time order: the formats store times as steps or
-    modulo a counter, and an array built with ``validate=False`` out of order came back
-    with other times (EVT 3.0: 10 us read as 16777226, probe DJ)."""
+def check_in_order(events: EventArray, fmt: str, after: int | None = None,
+                   seen: int = 0) -> None:
+    """FormatError unless ``events`` are in time order and, a chunk of a stream, start no
+    earlier than ``after`` (µs), the last time written before them, ``seen`` events in
+    (``fmt`` names the format in the message)."""
     try:
         events.check_order()
+        check_follows(after, events, at=seen - 1)
     except UnsortedError as exc:
         raise FormatError(None, f"{fmt} stores times in order: {exc}") from None
+
+
+def check_writable(events: EventArray, fmt: str, height: int, width: int,
+                   hint: str | None = None, after: int | None = None,
+                   seen: int = 0) -> None:
+    """FormatError unless ``events`` fit a format that stores integer pixels of at most
+    ``height`` rows and ``width`` columns (``fmt`` names it in the message, ``hint`` says
+    what holds a larger sensor), in time order (:func:`check_in_order`, ``after`` and
+    ``seen`` for a chunk of a stream): the formats store times as steps or modulo a
+    counter, and an array built with ``validate=False`` out of order came back with other
+    times (EVT 3.0: 10 us read as 16777226, probe DJ)."""
+    check_in_order(events, fmt, after, seen)
     if events.x.dtype.kind == "f":
         raise FormatError(None, f"events have float (undistorted) coordinates; {fmt} stores "
                           "integer pixels")

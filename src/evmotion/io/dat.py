@@ -240,11 +240,8 @@ def write(path: str | Path, events: EventArray | Iterable[EventArray]) -> None:
             if not len(chunk):
                 continue
             # 14-bit x and y address fields
-            binary.check_writable(chunk, "DAT", 1 << 14, 1 << 14)
-            if before is not None and int(chunk.t[0]) < int(before[-1]):
-                raise FormatError(None, f"DAT stores times in order: event {seen} at "
-                                  f"{int(chunk.t[0])} us comes after one at "
-                                  f"{int(before[-1])} us")
+            binary.check_writable(chunk, "DAT", 1 << 14, 1 << 14,
+                                  after=None if before is None else int(before[-1]), seen=seen)
             binary.check_u32_times(chunk, "DAT", t_base, before, seen)
             rec = np.empty((len(chunk), 2), "<u4")
             rec[:, 0] = (chunk.t & 0xFFFFFFFF).astype(np.uint32)
