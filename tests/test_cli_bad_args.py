@@ -1563,13 +1563,12 @@ def test_dnn_window_finds_hot_pixels_once(rec, monkeypatch, capsys):
     only ever spoke for other methods or with --remove-hot-pixels, is not made for it
     (0.1 s a 1280 x 720 window); with --remove-hot-pixels it is."""
     import evmotion.filters as filters
-    import evmotion.methods.dnn.infer as infer
 
     calls = []
-    real = filters.hot_pixel_mask
+    real = filters.hot_pixel_mask_of_counts
     counted = lambda *a, **k: calls.append(1) or real(*a, **k)  # noqa: E731
-    monkeypatch.setattr(filters, "hot_pixel_mask", counted)  # the command's (imported late)
-    monkeypatch.setattr(infer, "hot_pixel_mask", counted)  # the network's
+    # the command's search (imported late) and the network's (hot_pixel_mask) both end here
+    monkeypatch.setattr(filters, "hot_pixel_mask_of_counts", counted)
     for extra, searches in (([], 1), (["--remove-hot-pixels"], 2)):
         calls.clear()
         rc = main(["flow", rec["rec"], "--method", "dnn", "--window-events", "3000",

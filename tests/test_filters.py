@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from evmotion import EventArray
-from evmotion.errors import EvmotionError, UnsortedError
+from evmotion.errors import EvmotionError, ParameterError, UnsortedError
 from evmotion.filters import hot_line_mask, hot_pixel_mask, refractory_filter, remove_hot_pixels
 
 
@@ -153,3 +153,22 @@ def test_simulator_and_metrics_options_out_of_range_are_refused_by_name():
                  show_progress=False)
     with pytest.raises(ParameterError, match="out_rel"):
         flow_metrics(np.zeros((2, 2, 2)), np.ones((2, 2, 2)), out_rel=-1)
+
+
+def test_hot_pixel_mask_of_chunk_counts_is_the_whole_recordings():
+    """A recording read in chunks (egomotion streams a long one) finds the hot pixels of
+    the whole: the chunks' pixel counts add up, and the mask is made from them."""
+    from evmotion.filters import hot_pixel_mask_of_counts, pixel_counts
+
+    rng = np.random.default_rng(3)
+    n = 20_000
+    ev = EventArray(x=np.r_[rng.integers(0, 40, n), np.full(500, 7)],
+                    y=np.r_[rng.integers(0, 30, n), np.full(500, 11)],
+                    t=np.arange(n + 500), p=np.ones(n + 500), sensor_size=(30, 40))
+    counts = sum(pixel_counts(ev[i:i + 777]) for i in range(0, len(ev), 777))
+    np.testing.assert_array_equal(counts, pixel_counts(ev))
+    mask = hot_pixel_mask_of_counts(counts, neighbour_ratio=4)
+    np.testing.assert_array_equal(mask, hot_pixel_mask(ev, neighbour_ratio=4))
+    assert np.argwhere(mask).tolist() == [[11, 7]]
+    with pytest.raises(ParameterError, match="shape"):
+        hot_pixel_mask_of_counts(counts.ravel())

@@ -9,7 +9,8 @@ from evmotion.events import EventArray, require_events, sensor_pixels
 from evmotion.jitcache import lazy_njit
 from evmotion.utils import check_number, whole_number
 
-__all__ = ["hot_line_mask", "hot_pixel_mask", "refractory_filter", "remove_hot_pixels"]
+__all__ = ["hot_line_mask", "hot_pixel_mask", "hot_pixel_mask_of_counts", "pixel_counts",
+           "refractory_filter", "remove_hot_pixels"]
 
 
 def _pixels(events: EventArray, func: str) -> tuple[np.ndarray, np.ndarray]:
@@ -70,6 +71,26 @@ def refractory_filter(events: EventArray, refractory_us: int, *, per_polarity: b
     return events[keep]
 
 
+def pixel_counts(events: EventArray) -> np.ndarray:
+    """(H, W) int64 count of the events at each pixel (:func:`~evmotion.events.sensor_pixels`:
+    undistorted coordinates rounded), what :func:`hot_pixel_mask` tests; counts of a
+    recording's chunks add up to the recording's.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0, 1, 1], y=[0, 0, 0], t=[0, 1, 2], p=[1, 1, 1], sensor_size=(1, 2))
+    >>> pixel_counts(ev).tolist()
+    [[1, 2]]
+    """
+    return _counts(events, "pixel_counts")
+
+
+def _counts(events: EventArray, func: str) -> np.ndarray:
+    x, y = _pixels(events, func)  # (counts do not depend on time order)
+    return np.bincount(y.astype(np.intp) * events.width + x,
+                       minlength=events.width * events.height).reshape(events.sensor_size)
+
+
 def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int = 10,
                    neighbour_ratio: float | None = None) -> np.ndarray:
     """(H, W) bool mask of hot pixels: event count above ``median + n_sigma * 1.4826 * MAD``
@@ -77,6 +98,8 @@ def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int =
     more than that many times the count of each of its 8 neighbours (a hot pixel fires
     alone, while a busy pixel of a moving edge or texture has busy neighbours), or, on a
     stuck row or column (:func:`hot_line_mask`), of the pixels on either side of its line.
+    :func:`hot_pixel_mask_of_counts` does the same from :func:`pixel_counts` (a recording
+    read in chunks).
 
     Examples
     --------
@@ -86,30 +109,47 @@ def hot_pixel_mask(events: EventArray, *, n_sigma: float = 5.0, min_count: int =
     >>> np.argwhere(hot_pixel_mask(ev, neighbour_ratio=4)).tolist()
     [[2, 3]]
     """
-    x, y = _pixels(events, "hot_pixel_mask")  # (counts do not depend on time order)
+    return hot_pixel_mask_of_counts(_counts(events, "hot_pixel_mask"), n_sigma=n_sigma,
+                                    min_count=min_count, neighbour_ratio=neighbour_ratio)
+
+
+def hot_pixel_mask_of_counts(counts: np.ndarray, *, n_sigma: float = 5.0,
+                             min_count: int = 10,
+                             neighbour_ratio: float | None = None) -> np.ndarray:
+    """:func:`hot_pixel_mask` of the per-pixel event counts ``counts`` ((H, W),
+    :func:`pixel_counts`).
+
+    Examples
+    --------
+    >>> counts = np.ones((3, 4), np.int64); counts[1, 2] = 50
+    >>> np.argwhere(hot_pixel_mask_of_counts(counts, neighbour_ratio=4)).tolist()
+    [[1, 2]]
+    """
     # (n_sigma=-1 or nan had run, marking the busy half of the pixels hot; probe BE)
     n_sigma = check_number("n_sigma", n_sigma, 0.0)
     min_count = whole_number("min_count", min_count, lo=0)
     if neighbour_ratio is not None:
         neighbour_ratio = check_number("neighbour_ratio", neighbour_ratio, 1.0)
-    counts = np.bincount(y.astype(np.intp) * events.width + x,
-                         minlength=events.width * events.height)
-    active = counts[counts > 0]
+    img = np.asarray(counts)
+    if img.ndim != 2:
+        raise ParameterError(f"counts must be an (H, W) image of event counts, got shape "
+                             f"{img.shape}")
+    flat = img.ravel()
+    active = flat[flat > 0]
     if active.size == 0:
-        return np.zeros(events.sensor_size, dtype=bool)
+        return np.zeros(img.shape, dtype=bool)
     med = np.median(active)
     mad = 1.4826 * np.median(np.abs(active - med))
     thr = max(med + n_sigma * max(mad, 1.0), float(min_count))
-    hot = (counts > thr).reshape(events.sensor_size)
+    hot = img > thr
     if neighbour_ratio is not None and hot.any():
-        img = counts.reshape(events.sensor_size)
         pad = np.pad(img, 1)
         h, w = img.shape
         around = np.max([pad[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
                          for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], axis=0)
         hot &= img > neighbour_ratio * around
     if neighbour_ratio is not None:
-        hot |= hot_line_mask(counts.reshape(events.sensor_size), thr, neighbour_ratio)
+        hot |= hot_line_mask(img, thr, neighbour_ratio)
     return hot
 
 

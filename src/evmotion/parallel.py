@@ -41,7 +41,7 @@ from evmotion.utils import atomic_path
 from evmotion.utils import progress as progress_bar
 
 __all__ = ["BATCH_TARGET_S", "WindowResult", "collected_warnings", "connect_scheduler", "interrupted_by",
-           "imap_windows", "map_windows", "reissue_warnings", "report_progress"]
+           "imap_window_blocks", "imap_windows", "map_windows", "reissue_warnings", "report_progress"]
 
 #: Where :func:`report_progress` sends ``(window index, units)`` in a worker process of
 #: :func:`map_windows`: a queue to the caller's bar (set by the pool's initializer).
@@ -512,6 +512,74 @@ def imap_windows(
             stream.close()
         bar.close()
 
+
+
+def imap_window_blocks(
+    fn: Callable[..., Any],
+    blocks: Iterable[tuple[EventArray, Sequence[Window], Sequence[int]]],
+    *,
+    total: int,
+    workers: int = 1,
+    scheduler: str | Any | None = None,
+    progress: bool = True,
+    desc: str = "",
+    with_window: bool = False,
+) -> Iterator[tuple[int, EventArray, WindowResult]]:
+    """:func:`imap_windows` over windows whose events come a block at a time
+    (:func:`evmotion.streamed_windows.window_blocks`): one progress bar over the ``total``
+    windows and one pool of ``workers`` processes (or the ``scheduler``'s cluster) for
+    every block; yields ``(position, window events, result)`` in window order, a block's
+    windows as soon as they are done.
+
+    Parameters
+    ----------
+    fn : callable
+        As in :func:`imap_windows`.
+    blocks : iterable of (EventArray, sequence of Window, sequence of int)
+        Each block's events, its windows (``start``/``stop`` indexing them) and their
+        positions, which are yielded back.
+    total : int
+        Windows in all the blocks, for the bar.
+    workers, scheduler, progress, desc, with_window
+        As in :func:`imap_windows`.
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[0, 1, 2], y=[0, 0, 0], t=[0, 10, 20], p=[1, 1, 0],
+    ...                 sensor_size=(1, 3))
+    >>> blocks = [(ev[:2], [Window(0, 0, 15, 0, 2)], [0]), (ev[2:], [Window(1, 15, 30, 0, 1)], [1])]
+    >>> [(k, len(sub), r.value) for k, sub, r in imap_window_blocks(len, blocks, total=2,
+    ...                                                               progress=False)]
+    [(0, 2, 2), (1, 1, 1)]
+    """
+    if workers < 1:
+        raise ParameterError(f"workers must be >= 1, got {workers}")
+    bar = progress_bar(None, total=total, desc=desc or "windows", unit="win",
+                       disable=None if progress else True)
+    pool = None
+    interrupted = False
+    try:
+        if scheduler is None and workers > 1 and total > 1:
+            # one pool for every block: a pool a block had each worker load the kernels again
+            pool = cf.ProcessPoolExecutor(max_workers=min(workers, total),
+                                          mp_context=_process_context(),
+                                          initializer=_install_queue, initargs=(None,))
+        for events, windows, positions in blocks:
+            results = imap_windows(fn, events, windows, workers=workers,
+                                   executor=pool or "process", scheduler=scheduler,
+                                   progress=False, with_window=with_window)
+            with contextlib.closing(results):
+                for k, w, r in zip(positions, windows, results, strict=True):
+                    bar.update(1)
+                    yield k, events.window(w), r
+    except (KeyboardInterrupt, SystemExit):
+        interrupted = True
+        raise
+    finally:
+        if pool is not None:
+            # (after Ctrl-C the workers are not waited for: see _drain)
+            pool.shutdown(wait=not interrupted, cancel_futures=True)
+        bar.close()
 
 def _run_local(fn, source, tasks: list[_Task], workers: int, executor, with_window: bool,
                read_kwargs: dict, live) -> Iterator[WindowResult]:

@@ -146,7 +146,9 @@ def _distortion_rule(args, first):
     return cam, undistort, _grid(cam, first, undistort)
 
 
-def _say_lost(lost: int, n: int) -> None:
+def say_undistortion_loss(lost: int, n: int) -> None:
+    """One line where undistortion left out ``lost`` of ``n`` events, a share over
+    :data:`UNDISTORT_LOSS_NOTE`."""
     if lost > UNDISTORT_LOSS_NOTE * n:
         # a large share is worth knowing (a wide-angle lens, or the wrong calibration)
         from evmotion.cli import warn_line
@@ -169,7 +171,7 @@ def undistort_for(args, events, *, integer: bool = False):
             raise CalibrationError(f"{cam.source}: undistortion moved all {n:,} events "
                                    "outside the image: the wrong calibration for this "
                                    "sensor? (--no-undistort keeps the sensor's grid)")
-        _say_lost(n - len(events), n)
+        say_undistortion_loss(n - len(events), n)
     return events, cam, grid
 
 
@@ -201,31 +203,39 @@ def _hot_pixels_handled(args, events):
     """``events`` less its hot pixels' with ``--remove-hot-pixels`` (said in one line), or
     as they are, with one line naming the option where hot pixels hold
     :data:`HOT_EVENTS_NOTE` of them or more."""
-    import numpy as np
-
-    from evmotion.catalog import HOT_NEIGHBOUR_RATIO
-    from evmotion.cli import warn_line
-    from evmotion.filters import hot_pixel_mask, remove_hot_pixels
+    from evmotion.filters import pixel_counts, remove_hot_pixels
 
     if not args.remove_hot_pixels and getattr(args, "method", None) == "dnn":
         # the network sets a hot pixel's flow to zero and leaves its events out of its
         # checks itself: nothing to say, and its mask cost a 1280 x 720 window 0.1 s twice
         return events
-    mask = hot_pixel_mask(events, neighbour_ratio=HOT_NEIGHBOUR_RATIO)
+    mask = hot_pixels_to_drop(args, pixel_counts(events))
+    return events if mask is None else remove_hot_pixels(events, mask)
+
+
+def hot_pixels_to_drop(args, counts):
+    """The (H, W) mask of the hot pixels whose events ``--remove-hot-pixels`` drops (said
+    in one line), from a recording's per-pixel event ``counts``
+    (:func:`evmotion.filters.pixel_counts`); None when none are dropped, with one line
+    naming the option where hot pixels hold :data:`HOT_EVENTS_NOTE` of the events or more."""
+    from evmotion.catalog import HOT_NEIGHBOUR_RATIO
+    from evmotion.cli import warn_line
+    from evmotion.filters import hot_pixel_mask_of_counts
+
+    mask = hot_pixel_mask_of_counts(counts, neighbour_ratio=HOT_NEIGHBOUR_RATIO)
     if not mask.any():
-        return events
+        return None
+    n, hot = int(counts.sum()), int(counts[mask].sum())
     if args.remove_hot_pixels:
-        kept = remove_hot_pixels(events, mask)
         warn_line(f"{args.file}: --remove-hot-pixels dropped {int(mask.sum())} hot pixels "
-                  f"({len(events) - len(kept):,} of {len(events):,} events)")
-        return kept
-    # (the share from the mask: no copy of the events that are kept as they are)
-    share = float(np.mean(mask[events.y.astype(np.intp), events.x.astype(np.intp)]))
-    if share >= HOT_EVENTS_NOTE:
+                  f"({hot:,} of {n:,} events)")
+        return mask
+    if hot >= HOT_EVENTS_NOTE * n:
         warn_line(f"{args.file}: {int(mask.sum())} hot pixels (each far busier than its "
-                  f"neighbours, or on a stuck row or column) hold {share:.0%} of the events: their events do not move and "
-                  "pull the estimate toward rest; --remove-hot-pixels drops them")
-    return events
+                  f"neighbours, or on a stuck row or column) hold {hot / n:.0%} of the "
+                  "events: their events do not move and pull the estimate toward rest; "
+                  "--remove-hot-pixels drops them")
+    return None
 
 
 def read_for_windows(args, *, n_events: int | None = None, duration_us: int | None = None,
@@ -256,7 +266,7 @@ def read_for_windows(args, *, n_events: int | None = None, duration_us: int | No
                     read[0] += len(chunk)
                     yield chunk
 
-            undistorted = _undistorting(args, counted(), integer=False)
+            undistorted = undistorting(args, counted(), integer=False)
             if undistorted is not None:
                 stream, cam, grid = undistorted
                 events = events_for_windows(stream, max_windows=n_max, n_events=n_events,
@@ -265,7 +275,7 @@ def read_for_windows(args, *, n_events: int | None = None, duration_us: int | No
                 if events is not None and make_windows(
                         events, n_events=n_events, duration_us=duration_us, t0=t0, t1=t1,
                         max_windows=n_max, min_events=min_events):
-                    _say_lost(read[0] - len(events), read[0])
+                    say_undistortion_loss(read[0] - len(events), read[0])
                     return _hot_pixels_checked(args, (events, cam, grid))
     t0, t1 = getattr(args, "t0", None), getattr(args, "t1", None)
     if t0 is not None or t1 is not None:
@@ -295,13 +305,13 @@ def undistorted_chunks(args, chunks: Iterator, *, integer: bool = True
                        ) -> tuple[Iterator, str]:
     """A chunk stream undistorted like :func:`undistort_for` (the camera resolved from the
     first non-empty chunk), and its grid label."""
-    undistorted = _undistorting(args, chunks, integer=integer)
+    undistorted = undistorting(args, chunks, integer=integer)
     if undistorted is None:
         return iter(()), "sensor (no calibration known)"
     return undistorted[0], undistorted[2]
 
 
-def _undistorting(args, chunks: Iterator, *, integer: bool):
+def undistorting(args, chunks: Iterator, *, integer: bool):
     """``(stream, camera, grid)``: ``chunks`` undistorted by the rule of
     :func:`undistort_for`, the camera resolved from the first non-empty chunk; None when
     there is none."""

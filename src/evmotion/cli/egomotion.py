@@ -11,11 +11,15 @@ and each window's checks: ``collapsed`` and ``diagnostics`` (explained share of 
 contrast gain over the identity warp; see :mod:`evmotion.methods.diagnostics`). A window
 whose estimate is collapsed or explains the image poorly gets one warning line on stderr.
 Each finished window is kept in ``OUT/params.part`` until the outputs are written: after an
-interruption the same command with ``--resume`` estimates only the others.
+interruption the same command with ``--resume`` estimates only the others. A recording
+longer than a block (:data:`evmotion.streamed_windows.BLOCK_EVENTS` events) is not held in
+memory: it is read as a stream, a block of windows at a time (:mod:`evmotion.cli.windowed`),
+with the outputs of a whole read.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import functools
 import io
@@ -46,7 +50,6 @@ from evmotion.cli.options import (
     reject_unused,
     remove_stale_pictures,
     seed_int,
-    select_windows,
     writable_folder,
 )
 from evmotion.errors import CalibrationError, ParameterError
@@ -172,25 +175,34 @@ def load_events_and_camera(args, **cut):
     (:func:`evmotion.cli.calib.read_for_windows`)."""
     from evmotion.cli.calib import read_for_windows
 
-    events, cam, args.grid = read_for_windows(args, **cut)
-    # the lens distortion the events were moved by (params.h5 keeps it: eval says when a
-    # ground truth on the sensor's grid is compared with them)
+    events, cam, grid = read_for_windows(args, **cut)
+    check_camera(args, cam, grid, events.meta, events.sensor_size)
+    return events, cam
+
+
+def check_camera(args, cam, grid: str, meta: dict, sensor_size: tuple[int, int]) -> None:
+    """Sets ``args.grid`` and ``args.distortion`` (the lens distortion the events were
+    moved by); refuses the rotation warp without intrinsics, and says where a centred warp
+    turns about the centre of a ``sensor_size`` only guessed (the events'
+    ``meta["sensor_size_from"]``)."""
+    args.grid = grid
+    # (params.h5 keeps it: eval says when a ground truth on the sensor's grid is compared
+    # with them)
     args.distortion = ([float(v) for v in cam.dist] if cam is not None and cam.is_distorted
                        and args.grid.startswith("undistorted (K=") else None)
     if cam is None and args.warp == "rotation":
         raise CalibrationError(f"{args.file}: the rotation warp needs camera intrinsics; "
                                "none found with the recording, pass --calib FILE or --K "
                                "fx,fy,cx,cy")
-    guessed = str(events.meta.get("sensor_size_from", ""))
+    guessed = str(meta.get("sensor_size_from", ""))
     if guessed.startswith("ECD default") and cam is None and centred_warp(args.warp):
         # (a calibration says the sensor, as the ECD folders' calib.txt does)
         from evmotion.cli import warn_line
 
-        h, w = events.sensor_size
+        h, w = sensor_size
         warn_line(f"{args.file} states no sensor size: taken as {w}x{h} px ({guessed}); "
                   f"the {args.warp} warp turns or scales about the image centre, so give "
                   "the true size with --sensor-size H W")
-    return events, cam
 
 
 class WindowOutput(NamedTuple):
@@ -277,9 +289,11 @@ def _panel_title(r, t0_us: int, t1_us: int) -> str:
 def run(args) -> int:
     from evmotion.cli import print_json, warn_line
     from evmotion.cli.options import scheduler_client
+    from evmotion.cli.windowed import open_windowed
     from evmotion.events import events_digest
+    from evmotion.io.journal import Journal
     from evmotion.methods.egomotion import reference_time
-    from evmotion.parallel import imap_windows
+    from evmotion.parallel import imap_window_blocks
     from evmotion.utils import interrupts_deferred, progress
 
     check_common(args)
@@ -299,8 +313,9 @@ def run(args) -> int:
         args.window_events = default_window_events(args.file, args.format,
                                                     args.sensor_size)
     cut = {"n_events": args.window_events, "duration_us": args.window_us, "min_events": 10}
-    events, cam = load_events_and_camera(args, **cut)
-    windows = select_windows(args, events, file=args.file, **cut)
+    # (a long recording is streamed, a block of windows at a time: probe DL)
+    rec = open_windowed(args, **cut, check=functools.partial(check_camera, args))
+    windows, cam = rec.windows, rec.camera
     K = None if cam is None else cam.K
     # windows are in time order: the first --max-png are those starting by the last one's t0
     last_png = windows[min(args.max_png, len(windows)) - 1].t0 if args.max_png > 0 else None
@@ -311,7 +326,9 @@ def run(args) -> int:
     out_dir = Path(args.out)
     made_out = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
-    journal, done = _open_journal(args, out_dir, events, windows, K)
+    header = _journal_header(args, rec.window_events(0), K)
+    journal, done = Journal.open_run(out_dir / JOURNAL_NAME, header, rec.events, windows,
+                                     args.resume)
     resumed = len(done)
     # the panels of this run wait in a folder of their own until it ends: an earlier
     # run's complete results (params.csv / .h5 and panels) stay as they are until this
@@ -328,24 +345,29 @@ def run(args) -> int:
             if args.warm_start:
                 prev = [k for k in done if done[k][2][0] is not None]
                 init = done[max(prev)][2][0].params if prev else None
-                for k in progress(todo, desc="egomotion", unit="win"):
-                    w = windows[k]
-                    out = job(events.window(w), w.t0, w.t1, init=init)
-                    init = out.result.params
-                    journal.add(k, w.t0, w.t1, events_digest(events.window(w)),
-                                (_written(staged, w, out), None))
+                with contextlib.closing(_todo_blocks(rec, journal, done)) as blocks, \
+                        progress(None, total=len(todo), desc="egomotion", unit="win") as bar:
+                    for block, block_windows, positions in blocks:
+                        for w, k in zip(block_windows, positions, strict=True):
+                            sub = block.window(w)
+                            out = job(sub, w.t0, w.t1, init=init)
+                            init = out.result.params
+                            journal.add(k, w.t0, w.t1, events_digest(sub),
+                                        (_written(staged, w, out), None))
+                            bar.update(1)
             else:
-                with scheduler_client(args.scheduler) as client:
+                with scheduler_client(args.scheduler) as client, contextlib.closing(
+                        imap_window_blocks(job, _todo_blocks(rec, journal, done),
+                                           total=len(todo), workers=args.workers,
+                                           scheduler=client, desc="egomotion",
+                                           with_window=True)) as results:
                     # each window's panel is written as its result comes in, while later
                     # windows run
-                    for k, r in zip(todo, imap_windows(
-                            job, events, [windows[k] for k in todo], workers=args.workers,
-                            scheduler=client, desc="egomotion", with_window=True),
-                            strict=True):
+                    for k, sub, r in results:
                         value = None if r.value is None else _written(staged, windows[k],
                                                                       r.value)
-                        journal.add(k, windows[k].t0, windows[k].t1,
-                                    events_digest(events.window(windows[k])), (value, r.error))
+                        journal.add(k, windows[k].t0, windows[k].t1, events_digest(sub),
+                                    (value, r.error))
     except BaseException:
         # nothing finished (a cluster out of reach, say): nothing to resume, nor a picture:
         # an empty staging folder, and the output folder this run made
@@ -355,7 +377,7 @@ def run(args) -> int:
             if made_out and not any(out_dir.iterdir()):
                 out_dir.rmdir()
         raise
-    done = type(journal).read(journal.path, _journal_header(args, events, windows, K))
+    done = type(journal).read(journal.path, header)
     results = [(w, *done[k][2]) for k, w in enumerate(windows)]
     # published whole: an interrupt among the moves and the files left this run's
     # params.csv beside an earlier run's params.h5, or its panels lost to the resume
@@ -366,7 +388,7 @@ def run(args) -> int:
             os.replace(panel, out_dir / panel.name)
         shutil.rmtree(staged, ignore_errors=True)
         rows = write_outputs(out_dir, results, grid=args.grid,
-                             sensor_size=events.sensor_size, K=K,
+                             sensor_size=rec.sensor_size, K=K,
                              distortion=getattr(args, "distortion", None))
         journal.path.unlink()
     failed = [f"window {w.index}: {err.splitlines()[0]}" for w, _, err in results if err]
@@ -406,28 +428,41 @@ JOURNAL_NAME = "params.part"
 PANELS_PART = "panels.part"
 
 
-def _journal_header(args, events, windows, K) -> dict:
+def _journal_header(args, first, K) -> dict:
     """What a resumed run must share with the interrupted one: the estimate's options, the
-    windows' cut and the events of the first window (another recording has others)."""
+    windows' cut and the events of the first window, ``first`` (another recording has
+    others)."""
     from evmotion.events import fingerprint
 
-    w = windows[0]
     return {"warp": args.warp, "objective": args.objective, "reg": args.reg,
             "weight": args.weight, "optimizer": args.optimizer, "t_ref": args.t_ref,
             "seed": args.seed, "dataset": args.dataset, "warm_start": args.warm_start,
             "window_events": args.window_events, "window_us": args.window_us,
             "t0": args.t0, "grid": args.grid, "remove_hot_pixels": args.remove_hot_pixels,
             "K": None if K is None else np.asarray(K, np.float64).round(9).tolist(),
-            "first_window": fingerprint(events[w.start:w.stop])}
+            "first_window": fingerprint(first)}
 
 
-def _open_journal(args, out_dir: Path, events, windows, K):
-    """The run's journal and the windows it already holds
-    (:meth:`~evmotion.io.journal.Journal.open_run`)."""
-    from evmotion.io.journal import Journal
-
-    return Journal.open_run(out_dir / JOURNAL_NAME, _journal_header(args, events, windows, K),
-                            events, windows, args.resume)
+def _todo_blocks(rec, journal, done: dict):
+    """The blocks of ``rec`` (:meth:`~evmotion.cli.windowed.WindowedRecording.blocks`)
+    less the windows ``done`` in the interrupted run; those are checked against the
+    journal as they pass where the recording is streamed (their events were not held when
+    it was opened)."""
+    if not rec.streamed:
+        keep = [k for k in range(len(rec.windows)) if k not in done]
+        if keep:
+            yield from rec.blocks(keep)
+        return
+    with contextlib.closing(rec.blocks()) as blocks:
+        for block, block_windows, positions in blocks:
+            todo = []
+            for w, k in zip(block_windows, positions, strict=True):
+                if k in done:
+                    journal.check_events(k, w.t0, w.t1, block.window(w))
+                else:
+                    todo.append((w, k))
+            if todo:
+                yield block, [w for w, _ in todo], [k for _, k in todo]
 
 
 def _written(out_dir: Path, w, out: WindowOutput):

@@ -1017,8 +1017,27 @@ def select_windows(args, events, *, file: str | os.PathLike = "", min_events: in
     windows = make_windows(events, t0=getattr(args, "t0", None), t1=getattr(args, "t1", None),
                            max_windows=getattr(args, "max_windows", None),
                            min_events=min_events, **window_kw)
+    checked_windows(args, windows, file=file, span=(t_start, t_end), min_events=min_events,
+                    what=what)
+    if len(windows) == 1:
+        from evmotion.cli.calib import events_held
+
+        # (the events undistortion moved off the image count as held: it said so itself;
+        # probe AP was told a window file of 30,000 events "holds 22,949")
+        w = windows[0]
+        say_a_short_window(args, w, file=file, held=events_held(w.count, events),
+                           last_t=int(events.t[w.stop - 1]) if w.count else None,
+                           **window_kw)
+    return windows
+
+
+def checked_windows(args, windows: list, *, file: str | os.PathLike, span: tuple[int, int],
+                    min_events: int, what: str = "") -> list:
+    """``windows`` (cut within ``--t0``/``--t1`` from a recording whose events there span
+    ``span``, µs): refused in one line when there is none, the windows left out for
+    holding fewer than ``min_events`` events said in one."""
     if not windows:
-        raise empty_selection(args, file, t_start, t_end,
+        raise empty_selection(args, file, *span,
                               what or f"no window holds {min_events} events or more")
     skipped = windows[-1].index + 1 - len(windows)
     if skipped > 0:
@@ -1030,36 +1049,32 @@ def select_windows(args, events, *, file: str | os.PathLike = "", min_events: in
         warn_line(f"{os.fspath(file)}: {skipped} of the first {windows[-1].index + 1} "
                   f"windows hold fewer than {min_events} event(s) and are left out (their "
                   "numbers are skipped in the output)")
-    if len(windows) == 1:
-        _say_a_short_window(args, events, windows[0], file, window_kw)
     return windows
 
 
-def _say_a_short_window(args, events, w, file, window_kw: dict) -> None:
-    """One line when the only window holds fewer events than ``--window-events`` asks
-    (not a default's: a one-window command on a short file says nothing, probe W), or
-    spans less time than ``--window-us`` (``--window-events 1e9`` into an ``.h5`` ran as
-    one window of 30,000 events without a word, probe BK)."""
+def say_a_short_window(args, w, *, file: str | os.PathLike, held: int, last_t: int | None,
+                       n_events: int | None = None, duration_us: int | None = None,
+                       **_) -> None:
+    """One line when the only window ``w`` holds fewer events (``held``, those
+    undistortion left out included) than ``--window-events`` asks (not a default's: a
+    one-window command on a short file says nothing, probe W), or its events (the last at
+    ``last_t``) span less time than ``--window-us`` (``--window-events 1e9`` into an
+    ``.h5`` ran as one window of 30,000 events without a word, probe BK)."""
     from evmotion.cli import warn_line
-    from evmotion.cli.calib import events_held
 
-    n, d = window_kw.get("n_events"), window_kw.get("duration_us")
     where = (" from --t0 to --t1" if getattr(args, "t0", None) is not None
              or getattr(args, "t1", None) is not None else "")
-    if n is not None:
-        # (the events undistortion moved off the image count as held: it said so itself;
-        # probe AP was told a window file of 30,000 events "holds 22,949")
-        held = events_held(w.stop - w.start, events)
+    if n_events is not None:
         given = getattr(args, "window_events_given", getattr(args, "window_events", None))
-        if held < n and given:
+        if held < n_events and given:
             warn_line(f"{os.fspath(file)} holds {held:,} events{where}, fewer than "
-                      f"--window-events {n}: one window of them all")
-    elif d is not None and w.stop > w.start:
+                      f"--window-events {n_events}: one window of them all")
+    elif duration_us is not None and last_t is not None:
         # (10 % slack: a 10 ms recording's events span a little less than 10 ms)
-        span = int(events.t[w.stop - 1]) - w.t0
-        if span < 0.9 * d:
+        span = last_t - w.t0
+        if span < 0.9 * duration_us:
             warn_line(f"{os.fspath(file)}'s events{where} span {span * 1e-6:.6g} s, less "
-                      f"than --window-us {d * 1e-6:.6g} s: one window of them all")
+                      f"than --window-us {duration_us * 1e-6:.6g} s: one window of them all")
 
 
 __all__ += ["add_time_arguments", "check_time_order", "check_time_range", "empty_selection",

@@ -44,6 +44,8 @@ class Journal:
     def __init__(self, path: str | os.PathLike, header: dict, *, append: bool = False):
         self.path = Path(path)
         self.count = 0  # the windows this process added
+        # the digests of the resumed windows :meth:`open_run` left to :meth:`check_events`
+        self.unchecked: dict[int, int] = {}
         self.fh = open(self.path, "ab" if append else "wb")
         if not append:
             self._dump(("evmotion-journal", VERSION, header))
@@ -91,13 +93,14 @@ class Journal:
         return cls(path, header, append=True), done
 
     @classmethod
-    def open_run(cls, path: str | os.PathLike, header: dict, events: EventArray, windows,
-                 resume: bool) -> tuple[Journal, dict[int, tuple[int, int, Any]]]:
+    def open_run(cls, path: str | os.PathLike, header: dict, events: EventArray | None,
+                 windows, resume: bool) -> tuple[Journal, dict[int, tuple[int, int, Any]]]:
         """A command's journal at ``path``: a fresh one, or with ``resume`` the
         interrupted run's, reopened, and the windows it holds (:meth:`read`). A journal
         that records no window is replaced; one left without ``resume``, or whose windows
         are not among ``windows`` (:class:`~evmotion.events.Window` of ``events``) with the
-        same events, is a ParameterError."""
+        same events, is a ParameterError. ``events`` None (a recording read as a stream):
+        the caller checks each resumed window's events with :meth:`check_events`."""
         path = Path(path)
         emptied = path.exists() and cls.holds_nothing(path)
         if emptied:
@@ -121,12 +124,24 @@ class Journal:
                 raise ParameterError(f"cannot resume (--resume): window {k} of {path} is "
                                      f"[{t0}, {t1}) us, not one of this run's (other --t1 "
                                      "or --max-windows, or another recording)")
-            if events_digest(events.window(windows[k])) != kept:
+            if events is None:
+                journal.unchecked[k] = kept
+            elif events_digest(events.window(windows[k])) != kept:
                 journal.close()
-                raise ParameterError(f"cannot resume (--resume): the events of window {k} "
-                                     f"[{t0}, {t1}) us are not those {path} was made from "
-                                     "(the recording changed); delete it to start again")
+                raise journal._changed(k, t0, t1)
         return journal, {k: (t0, t1, payload) for k, (t0, t1, _, payload) in done.items()}
+
+    def check_events(self, position: int, t0_us: int, t1_us: int, events: EventArray) -> None:
+        """Refuse (ParameterError) a resumed window ``[t0_us, t1_us)`` whose ``events``
+        are not those it was made from, where :meth:`open_run` was given no events."""
+        kept = self.unchecked.pop(position, None)
+        if kept is not None and events_digest(events) != kept:
+            raise self._changed(position, t0_us, t1_us)
+
+    def _changed(self, k: int, t0: int, t1: int) -> ParameterError:
+        return ParameterError(f"cannot resume (--resume): the events of window {k} "
+                              f"[{t0}, {t1}) us are not those {self.path} was made from "
+                              "(the recording changed); delete it to start again")
 
     @staticmethod
     def holds_nothing(path: str | os.PathLike) -> bool:
