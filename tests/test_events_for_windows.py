@@ -95,3 +95,33 @@ def test_cli_max_windows_reads_a_prefix_with_the_same_results(tmp_path, capsys, 
     assert rows[0] == rows[1] and len(rows[0]) == 2 and len(rows[0][0]) >= 3, rows
     # only the fallback read the recording, and of it only the span --t0 selects
     assert read == [int(np.count_nonzero(ev.t >= ev.t[0] + 300_000))]
+
+
+def test_landscape_reads_only_its_window(tmp_path, capsys, monkeypatch):
+    """landscape takes the --window-events events from --t0: it read the whole recording
+    for them (2.9 GB for one window of a 97.5 M-event file, probe DL). Now only the chunks
+    they lie in, with the curves of the whole read."""
+    import evmotion.cli.calib as calib
+    import evmotion.events
+    import evmotion.io
+
+    ev = _recording(n=60_000)
+    path = tmp_path / "rec.h5"
+    write_events(path, ev)
+    monkeypatch.setattr(calib, "CHUNK_EVENTS", 3000)
+    argv = ["landscape", str(path), "--warp", "translation", "--range", "-50", "50",
+            "--steps", "5", "--window-events", "4000", "--t0", "+0.3", "--json"]
+    whole_reads = []
+    real = evmotion.io.read_events
+    monkeypatch.setattr(evmotion.io, "read_events",
+                        lambda *a, **k: whole_reads.append(1) or real(*a, **k))
+    got = {}
+    for name in ("prefix", "whole"):
+        if name == "whole":
+            monkeypatch.setattr(evmotion.events, "events_for_windows", lambda *a, **k: None)
+        assert main([*argv, "--out", str(tmp_path / f"{name}.png")]) == 0
+        got[name] = json.loads(capsys.readouterr().out)
+        got[name].pop("out")
+        assert len(whole_reads) == (name == "whole")
+    assert got["prefix"] == got["whole"]
+    assert got["prefix"]["window"]["n_events"] == 4000
