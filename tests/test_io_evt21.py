@@ -138,3 +138,30 @@ def test_a_time_high_that_jumps_and_falls_back_is_refused(tmp_path):
         with pytest.raises(FormatError, match=rf"m\.raw: TIME_HIGH word at byte offset "
                                               rf"{he + 8 * k} holds time .*corrupt time"):
             evt21.read(tmp_path / "m.raw", block_bytes=block_bytes)
+
+
+@pytest.mark.parametrize("cut", [1, 2, 37, 5000])
+def test_chunks_stream_into_the_bytes_of_one_array(tmp_path, cut):
+    """EVT 2.1 is written chunk by chunk (convert held every event: probe DL), with the
+    bytes of one array's writing: chunks cut within a vector word's events (one time, row,
+    polarity and 32-pixel group) and across a pause of hours (intermediate TIME_HIGH
+    words) still make one vector where the whole array does."""
+    from evmotion.io import write_events
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    t = np.sort(rng.integers(0, 300, n)).astype(np.int64)  # ~13 events a microsecond
+    t[2500:] += 3 * 3600 * 10**6
+    ev = EventArray(x=rng.integers(0, 64, n), y=rng.integers(0, 3, n), t=t,
+                    p=rng.integers(0, 2, n), sensor_size=(480, 640))
+    evt21.write(tmp_path / "whole.raw", ev)
+    words = (tmp_path / "whole.raw").stat().st_size
+    assert words < 8 * n  # vectors: fewer words than events
+    write_events(tmp_path / "parts.raw", (ev[s:s + cut] for s in range(0, n, cut)),
+                 format="evt21")
+    assert (tmp_path / "parts.raw").read_bytes() == (tmp_path / "whole.raw").read_bytes()
+    back = evt21.read(tmp_path / "parts.raw")
+    np.testing.assert_array_equal(back.t, t)
+    with pytest.raises(FormatError, match="stores times in order"):
+        evt21.write(tmp_path / "bad.raw", iter([ev[10:20], ev[:10]]))
+    assert not (tmp_path / "bad.raw").exists()

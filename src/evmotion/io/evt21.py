@@ -15,7 +15,7 @@ with a non-empty mask), and writes the IMX636's.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -221,8 +221,9 @@ def encode(events: EventArray, t_base: int = 0) -> np.ndarray:
     return out[:k]
 
 
-def write(path: str | Path, events: EventArray) -> None:
-    """Write ``events`` as an EVT 2.1 RAW file (atomically), in the IMX636's byte order;
+def write(path: str | Path, events: EventArray | Iterable[EventArray]) -> None:
+    """Write ``events`` (an EventArray, or chunks of one in time order, streamed in
+    bounded memory) as an EVT 2.1 RAW file (atomically), in the IMX636's byte order;
     see :func:`evt3.write` for how times past the counter range (here 2^34 µs) are kept
     exact. Consecutive events of one timestamp, row, polarity and 32-pixel group share
     one vector word, so :func:`read` returns them ordered by x.
@@ -235,8 +236,9 @@ def write(path: str | Path, events: EventArray) -> None:
     >>> read("out.raw").t.tolist()
     [100, 200, 300]
     """
+    # a lone event is a TIME_HIGH word and its vector word
     prophesee.write_raw(path, events, version="2.1", wrap_us=WRAP_US, encode=encode,
-                        word="<u8")
+                        word="<u8", lead_words=2)
 
 
 describe = prophesee.raw_describe("evt21", 8)
