@@ -3,8 +3,9 @@
 The input format is detected by content, the output format follows the extension of OUT
 (``.h5`` evmotion HDF5, ``.txt`` ECD text, ``.npz``, ``.raw``, ``.dat``, ``.aedat4``...)
 unless given. Events go chunk by chunk for the streaming writers (``h5``, ``ecd``,
-``dat``, ``evt2``, ``evt21``, ``evt3``, ``aedat4``), so a file of any size converts to them in
-bounded memory (the other writers hold the events whole); the output appears only when complete.
+``dat``, ``evt2``, ``evt21``, ``evt3``, ``aedat2``, ``aedat3``, ``aedat4``), so a file of
+any size converts to them in bounded memory (``npz``/``npy``, ``mvsec``, ``dsec`` and
+``rosbag`` hold the events whole); the output appears only when complete.
 
 IMU samples and APS frames (within --t0/--t1) go along where the output format can hold them
 (``.h5``: its ``imu`` and ``frames`` groups); each stream the output cannot hold is named

@@ -18,7 +18,7 @@ in x and y alike; they hold no APS or IMU data.
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -259,8 +259,10 @@ def read_imu(path: str | Path) -> ImuSamples:
                       temperature=raw[:, 3] / 340.0 + 36.53)
 
 
-def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> None:
-    """Write DVS events as a jAER AEDAT 2.0 file (atomically), DAVIS address layout.
+def write(path: str | Path, events: EventArray | Iterable[EventArray], *,
+          chip: str | None = None) -> None:
+    """Write DVS events (an EventArray, or chunks of one in time order, streamed in
+    bounded memory) as a jAER AEDAT 2.0 file (atomically), DAVIS address layout.
 
     Timestamps are stored modulo 2^32 µs (a first time past 2^32 µs, a clock since the
     epoch, from the multiple of 2^32 µs below it, kept in the header as
@@ -277,25 +279,29 @@ def write(path: str | Path, events: EventArray, *, chip: str | None = None) -> N
     >>> read("out.aedat").x.tolist()
     [10, 20, 30]
     """
-    h, w = events.sensor_size
+    first, chunks = binary.first_chunk(path, events)
+    h, w = first.sensor_size
     if chip is None:
         chip = {(180, 240): "DAVIS240C", (260, 346): "DAVIS346B"}.get((h, w), "DAVIS")
-    binary.check_writable(events, "AEDAT 2.0 (DAVIS)", 512, 1024,
-                          hint="AEDAT 3.1 (--format-out aedat3) holds sensors up to 32768 px")
-    t_base = binary.u32_time_base(events, "AEDAT 2.0")
+    fmt = "AEDAT 2.0 (DAVIS)"
+    hint = "AEDAT 3.1 (--format-out aedat3) holds sensors up to 32768 px"
+    binary.check_writable(first[:0], fmt, 512, 1024, hint=hint)  # the header's sensor
+    t_base = binary.u32_time_base(first[:1], "AEDAT 2.0")
     header = (f"{MAGIC.decode()}\r\n# This is a raw AE data file written by evmotion\r\n"
               "# Data format is int32 address, int32 timestamp (8 bytes total), repeated "
               "for each event\r\n# Timestamps tick is 1 us\r\n"
               f"# AEChip: {chip}\r\n# sensor_size (height, width) = ({h}, {w})\r\n"
               + (f"# {OFFSET_KEY} {t_base}\r\n" if t_base else ""))
-    rec = np.empty((len(events), 2), ">u4")
-    xr = (w - 1 - events.x.astype(np.int64)).astype(np.uint32)
-    yr = (h - 1 - events.y.astype(np.int64)).astype(np.uint32)
-    rec[:, 0] = (yr << 22) | (xr << 12) | (events.p.astype(np.uint32) << 11)
-    rec[:, 1] = (events.t & 0xFFFFFFFF).astype(np.uint32)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(header.encode("latin-1"))
-        fh.write(rec.tobytes())
+        for chunk in binary.checked_chunks(first, chunks, fmt, 512, 1024, hint=hint,
+                                           u32_base=t_base):
+            rec = np.empty((len(chunk), 2), ">u4")
+            xr = (w - 1 - chunk.x.astype(np.int64)).astype(np.uint32)
+            yr = (h - 1 - chunk.y.astype(np.int64)).astype(np.uint32)
+            rec[:, 0] = (yr << 22) | (xr << 12) | (chunk.p.astype(np.uint32) << 11)
+            rec[:, 1] = (chunk.t & 0xFFFFFFFF).astype(np.uint32)
+            fh.write(rec.tobytes())
 
 
 def describe(path: str | Path) -> dict:

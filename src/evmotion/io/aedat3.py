@@ -24,14 +24,14 @@ from __future__ import annotations
 import re
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 
 from evmotion.catalog import NS_EPOCH_US
 from evmotion.errors import EvmotionWarning, FormatError
-from evmotion.events import EventArray
+from evmotion.events import EventArray, concatenate
 from evmotion.io import binary
 from evmotion.io.base import FormatSpec
 from evmotion.io.guard import check_sensor_size, warn_inferred_size
@@ -284,8 +284,10 @@ def iter_chunks(path: str | Path, chunk_events: int, *,
                                  block_bytes=block_bytes)
 
 
-def write(path: str | Path, events: EventArray, *, device: str | None = None) -> None:
-    """Write events as an AEDAT 3.1 file (atomically), polarity packets of source 1.
+def write(path: str | Path, events: EventArray | Iterable[EventArray], *,
+          device: str | None = None) -> None:
+    """Write events (an EventArray, or chunks of one in time order, streamed in bounded
+    memory) as an AEDAT 3.1 file (atomically), polarity packets of source 1.
 
     ``device`` (the ``#Source 1:`` name) defaults to the device of that sensor size
     (``DVS128``, ``DAVIS240C``, ``DAVIS346B``, ``DAVIS640``); the size itself is also
@@ -300,37 +302,57 @@ def write(path: str | Path, events: EventArray, *, device: str | None = None) ->
     >>> back.sensor_size, back.x.tolist()
     ((180, 240), [10, 20, 30])
     """
-    h, w = events.sensor_size
+    first, chunks = binary.first_chunk(path, events)
+    h, w = first.sensor_size
     if device is None:
         device = {(128, 128): "DVS128", (180, 240): "DAVIS240C", (260, 346): "DAVIS346B",
                   (480, 640): "DAVIS640"}.get((h, w), "evmotion")
-    binary.check_writable(events, "AEDAT 3.1", 0x8000, 0x8000)
-    t = np.asarray(events.t, np.int64)
-    if len(t) and t[0] < 0:
-        raise FormatError(None, f"first timestamp {t[0]} us is negative; AEDAT 3.1 stores "
-                          "times from 0", "subtract a time offset first")
+    binary.check_writable(first[:0], "AEDAT 3.1", 0x8000, 0x8000)  # the header's sensor
+    if len(first) and first.t[0] < 0:
+        raise FormatError(None, f"first timestamp {first.t[0]} us is negative; AEDAT 3.1 "
+                          "stores times from 0", "subtract a time offset first")
     start = time.strftime("%Y-%m-%d %H:%M:%S (TZ+0000)", time.gmtime())
     header = (f"#!AER-DAT3.1\r\n#Format: RAW\r\n#Source 1: {device}\r\n"
               f"#evmotion sensor_size (height, width) = ({h}, {w})\r\n"
               f"#Start-Time: {start}\r\n{END_LINE.decode()}\r\n")
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(header.encode("latin-1"))
+        held = None
+        for chunk in binary.checked_chunks(first, chunks, "AEDAT 3.1", 0x8000, 0x8000):
+            if held is not None:
+                chunk = concatenate([held, chunk], validate=False)
+            held = _write_packets(fh, chunk, last=False)
+        if held is not None:
+            _write_packets(fh, held, last=True)
+
+
+def _write_packets(fh, events: EventArray, *, last: bool) -> EventArray | None:
+    """Write ``events`` as polarity packets, each of one overflow epoch (2^31 µs) and at
+    most :data:`WRITE_PACKET_EVENTS` events, from each epoch's first event; unless
+    ``last``, the events of the last epoch short of a full packet are returned, not
+    written (the next chunk's may join them: the packets of a whole array's writing)."""
+    t = np.asarray(events.t, np.int64)
     data = ((events.x.astype(np.uint32) << 17) | (events.y.astype(np.uint32) << 2)
             | (events.p.astype(np.uint32) << 1) | np.uint32(1))
     overflow = t >> 31
-    # a packet holds one overflow epoch, at most WRITE_PACKET_EVENTS events
     cuts = np.flatnonzero(np.diff(overflow)) + 1
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        fh.write(header.encode("latin-1"))
-        for a0, b0 in zip(np.r_[0, cuts], np.r_[cuts, len(t)], strict=True):
-            for a in range(int(a0), int(b0), WRITE_PACKET_EVENTS):
-                b = min(a + WRITE_PACKET_EVENTS, int(b0))
-                n = b - a
-                hdr = np.array([(POLARITY, 1, POLARITY_BYTES, 4, int(overflow[a]), n, n, n)],
-                               PACKET_HEADER)
-                rec = np.empty(n, np.dtype([("data", "<u4"), ("ts", "<i4")]))
-                rec["data"] = data[a:b]
-                rec["ts"] = (t[a:b] & 0x7FFFFFFF).astype(np.int32)
-                fh.write(hdr.tobytes())
-                fh.write(rec.tobytes())
+    starts, stops = np.r_[0, cuts], np.r_[cuts, len(t)]
+    held = None
+    for a0, b0 in zip(starts, stops, strict=True):
+        for a in range(int(a0), int(b0), WRITE_PACKET_EVENTS):
+            b = min(a + WRITE_PACKET_EVENTS, int(b0))
+            if not last and b == len(t) and b - a < WRITE_PACKET_EVENTS:
+                held = events[a:]
+                break
+            n = b - a
+            hdr = np.array([(POLARITY, 1, POLARITY_BYTES, 4, int(overflow[a]), n, n, n)],
+                           PACKET_HEADER)
+            rec = np.empty(n, np.dtype([("data", "<u4"), ("ts", "<i4")]))
+            rec["data"] = data[a:b]
+            rec["ts"] = (t[a:b] & 0x7FFFFFFF).astype(np.int32)
+            fh.write(hdr.tobytes())
+            fh.write(rec.tobytes())
+    return held
 
 
 IMU6, IMU9 = 3, 4

@@ -3,6 +3,7 @@ re-chunking and time filtering."""
 
 from __future__ import annotations
 
+import itertools
 import re
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -510,6 +511,38 @@ def first_chunk(path, events: EventArray | Iterable[EventArray]
         same_sensor(more, first)
         first = more
     return first, chunks
+
+
+def checked_chunks(first: EventArray, rest: Iterator[EventArray], fmt: str, height: int,
+                   width: int, hint: str | None = None,
+                   u32_base: int | None = None) -> Iterator[EventArray]:
+    """The chunks of a streaming writer holding events (``first`` and ``rest``, from
+    :func:`first_chunk`), each checked as a whole array would be: of ``first``'s sensor
+    (:func:`same_sensor`), writable and after the chunk before (:func:`check_writable`)
+    and, for a format storing times modulo 2^32 µs from ``u32_base``, restorable
+    (:func:`check_u32_times`).
+
+    Examples
+    --------
+    >>> ev = EventArray(x=[1, 2], y=[0, 0], t=[5, 9], p=[1, 0], sensor_size=(2, 4))
+    >>> [c.t.tolist() for c in checked_chunks(ev[:1], iter([ev[:0], ev[1:]]), "DAT", 8, 8)]
+    [[5], [9]]
+    """
+    before, seen = None, 0
+    for chunk in itertools.chain([first], rest):
+        same_sensor(chunk, first)
+        if not len(chunk):
+            continue
+        check_writable(chunk, fmt, height, width, hint=hint,
+                       after=None if before is None else int(before[-1]), seen=seen)
+        if u32_base is not None:
+            check_u32_times(chunk, fmt, u32_base, before, seen)
+        # the last two times written (a chunk of one event, and the one before it)
+        tail = np.asarray(chunk.t[-2:], np.int64)
+        before = tail if before is None or tail.size == 2 else \
+            np.concatenate([before, tail])[-2:]
+        seen += len(chunk)
+        yield chunk
 
 
 def same_sensor(chunk: EventArray, first: EventArray) -> None:

@@ -9,7 +9,6 @@ and polarity in bit 28. The 32-bit timestamp wraps after 71.6 min; the reader un
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -234,25 +233,14 @@ def write(path: str | Path, events: EventArray | Iterable[EventArray]) -> None:
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         fh.write(header)
         fh.write(bytes([CD_TYPE, RECORD]))
-        before, seen = None, 0
-        for chunk in itertools.chain([first], chunks):
-            binary.same_sensor(chunk, first)
-            if not len(chunk):
-                continue
-            # 14-bit x and y address fields
-            binary.check_writable(chunk, "DAT", 1 << 14, 1 << 14,
-                                  after=None if before is None else int(before[-1]), seen=seen)
-            binary.check_u32_times(chunk, "DAT", t_base, before, seen)
+        # 14-bit x and y address fields
+        for chunk in binary.checked_chunks(first, chunks, "DAT", 1 << 14, 1 << 14,
+                                           u32_base=t_base):
             rec = np.empty((len(chunk), 2), "<u4")
             rec[:, 0] = (chunk.t & 0xFFFFFFFF).astype(np.uint32)
             rec[:, 1] = (chunk.x.astype(np.uint32) | (chunk.y.astype(np.uint32) << 14)
                          | (chunk.p.astype(np.uint32) << 28))
             fh.write(rec.tobytes())
-            # the last two events written, a chunk of one event and the one before it
-            tail = np.asarray(chunk.t[-2:], np.int64)
-            before = tail if before is None or tail.size == 2 else \
-                np.concatenate([before, tail])[-2:]
-            seen += len(chunk)
 
 
 def describe(path: str | Path) -> dict:

@@ -73,7 +73,8 @@ def suffix_formats(path: str | os.PathLike) -> list[str]:
     return named
 
 
-_STREAMING_WRITERS = ("h5", "ecd", "dat", "evt2", "evt21", "evt3", "aedat4")
+_STREAMING_WRITERS = ("h5", "ecd", "dat", "evt2", "evt21", "evt3", "aedat2", "aedat3",
+                      "aedat4")
 
 
 def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArray],
@@ -87,8 +88,8 @@ def write_events(path: str | os.PathLike, events: EventArray | Iterable[EventArr
         ECD text, ``.npz``/``.npy``, ``.raw``, ``.dat``, ``.aedat4``...).
     events : EventArray or iterable of EventArray
         Chunks in time order are streamed in bounded memory by the ``h5``, ``ecd``,
-        ``dat``, ``evt2``, ``evt21``, ``evt3`` and ``aedat4`` writers (others concatenate them
-        first).
+        ``dat``, ``evt2``, ``evt21``, ``evt3``, ``aedat2``, ``aedat3`` and ``aedat4``
+        writers (``npz``/``npy``, ``mvsec``, ``dsec`` and ``rosbag`` concatenate them first).
     format : str, optional
         Format name, overriding the extension.
     **meta
